@@ -1,0 +1,53 @@
+"""The `ahrsd` console script: one entry point, one subcommand per job.
+
+Each subcommand lives in its own module `ahrsd.daemon.cmd_<name>` exposing
+`register(subparsers) -> None`, which adds its parser and sets `func(args) -> int`.
+Those modules import their heavy dependencies inside `func`, so `ahrsd --help` stays fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+# Order is the order shown in `ahrsd --help`.
+SUBCOMMANDS = ("run", "record", "replay", "calibrate", "magcal")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="ahrsd",
+        description="ADIS16405 AHRS companion daemon: attitude and true heading over MAVLink, "
+        "with bench and field magnetometer calibration.",
+    )
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in SUBCOMMANDS:
+        try:
+            module = importlib.import_module(f"ahrsd.daemon.cmd_{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"ahrsd.daemon.cmd_{name}":
+                raise
+            continue  # subcommand not built yet
+        module.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    level = logging.WARNING - 10 * min(args.verbose, 2)
+    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,62 @@
+"""The sample that flows from the driver through calibration into the estimator (design §2).
+
+Body frame FRD after mounting; SI units (design §4). Magnetic field in µT.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+
+class SampleFlags(enum.IntFlag):
+    """Status of one sample. Anything but NONE/NEW_DATA tells consumers to look closer."""
+
+    NONE = 0
+    NEW_DATA = 1 << 0          # ND bit was set on the burst words (fresh sample since last read)
+    ALARM = 1 << 1             # EA bit set on any word: DIAG_STAT was read (see ImuSample.diag_stat)
+    GYRO_SATURATED = 1 << 2    # at least one gyro axis at the range limit
+    ACCEL_SATURATED = 1 << 3
+    MAG_SATURATED = 1 << 4
+    BURST_BUG_RECOVERED = 1 << 5  # X-gyro bit-13 burst bug detected and fixed by a register read
+    STALE = 1 << 6             # ND clear: the chip had no new data (repeat of the previous sample)
+    GYRO_INVALID = 1 << 7      # gyro values must not be used (self-test fail, stuck, over-range...)
+    ACCEL_INVALID = 1 << 8
+    MAG_INVALID = 1 << 9
+    GAP_BEFORE = 1 << 10       # one or more samples were lost before this one
+
+
+@dataclass(frozen=True, slots=True)
+class ImuSample:
+    """One calibrated-or-raw IMU sample in SI units.
+
+    t_s: sample time in seconds of a monotonic clock (from the sample counter and the sample period).
+    gyro_rad_s, accel_m_s2 (specific force: +9.81 on the up axis at rest), mag_ut: shape (3,) float64.
+    """
+
+    t_s: float
+    gyro_rad_s: np.ndarray
+    accel_m_s2: np.ndarray
+    mag_ut: np.ndarray
+    temp_c: float = float("nan")
+    supply_v: float = float("nan")
+    flags: SampleFlags = SampleFlags.NONE
+    diag_stat: int = 0         # raw DIAG_STAT when ALARM was seen, else 0
+    counter: int = 0           # sample index since the driver started (gaps increment it)
+
+    def with_values(self, **changes) -> "ImuSample":
+        """A copy with some fields replaced (calibration uses this)."""
+        return replace(self, **changes)
+
+
+def make_sample(t_s: float, gyro_rad_s, accel_m_s2, mag_ut, **kw) -> ImuSample:
+    """Convenience constructor that coerces the vectors to float64 arrays of shape (3,)."""
+    return ImuSample(
+        float(t_s),
+        np.asarray(gyro_rad_s, dtype=np.float64).reshape(3),
+        np.asarray(accel_m_s2, dtype=np.float64).reshape(3),
+        np.asarray(mag_ut, dtype=np.float64).reshape(3),
+        **kw,
+    )

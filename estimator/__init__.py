@@ -1,0 +1,25 @@
+"""ahrsd.estimator: rotation maths, Wahba solvers, the thesis Kalman filter and the default MEKF."""
+
+from __future__ import annotations
+
+from .base import AttitudeEstimate, EstimateFlags, Estimator
+
+ESTIMATORS = ("mekf", "thesis")
+DEFAULT_ESTIMATOR = "mekf"
+
+
+def make_estimator(name: str = DEFAULT_ESTIMATOR, *, declination_rad: float = 0.0, **params) -> Estimator:
+    """Build an estimator by name. `declination_rad` turns magnetic heading into true heading;
+    other keyword arguments are fields of that estimator's parameters dataclass."""
+    if name == "mekf":
+        from .mekf import Mekf
+
+        return Mekf(declination_rad=declination_rad, **params)
+    if name == "thesis":
+        from .thesis_kf import ThesisKf
+
+        return ThesisKf(declination_rad=declination_rad, **params)
+    raise ValueError(f"unknown estimator {name!r}; choose one of {', '.join(ESTIMATORS)}")
+
+
+__all__ = ["AttitudeEstimate", "EstimateFlags", "Estimator", "ESTIMATORS", "DEFAULT_ESTIMATOR", "make_estimator"]
