@@ -1,0 +1,280 @@
+"""Rotation maths on ahrsd's conventions (design §4).
+
+Frames: navigation NED, body FRD. Quaternions are Hamilton, **scalar first** ``[w, x, y, z]``, and rotate
+body vectors into NED: ``v_ned = q ⊗ v_body ⊗ q*`` = ``C_b^n v_body``. Euler angles are ZYX (yaw, pitch, roll):
+``C_b^n = Rz(yaw) Ry(pitch) Rx(roll)``, and from C_b^n (thesis eq 3-31 / 4-43, typo fixed):
+roll = atan2(C32, C33), pitch = −asin(C31), yaw = atan2(C21, C11).
+
+Every function is pure and works on numpy arrays; quaternion, vector and DCM arguments may carry leading
+axes (shape ``(..., 4)``, ``(..., 3)``, ``(..., 3, 3)``) and broadcast where that is cheap. Angles are radians.
+Seed 001 (gyro-free INS) writes quaternions scalar last ``[ε1, ε2, ε3, ε4]`` (its eq 43–44, Hamilton):
+convert at that boundary with :func:`quat_from_scalar_last` / :func:`quat_to_scalar_last`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+TWO_PI = 2.0 * np.pi
+
+# Below this rotation angle the exp/log maps use their Taylor series (avoids 0/0; error ~θ⁴ ≪ 1e-16).
+_SMALL_ANGLE_RAD = 1e-6
+
+
+def _f(a) -> np.ndarray:
+    return np.asarray(a, dtype=np.float64)
+
+
+# --------------------------------------------------------------------------------------------- angles
+def wrap_pi(angle_rad):
+    """Wrap angles to [−π, π)."""
+    return np.mod(_f(angle_rad) + np.pi, TWO_PI) - np.pi
+
+
+def wrap_2pi(angle_rad):
+    """Wrap angles to [0, 2π) (headings)."""
+    a = np.mod(_f(angle_rad), TWO_PI)
+    # np.mod can return exactly 2π for tiny negative inputs (rounding): fold it back to 0.
+    return np.where(a >= TWO_PI, 0.0, a)
+
+
+# ------------------------------------------------------------------------------------------ quaternions
+def quat_normalize(q) -> np.ndarray:
+    """Unit quaternion(s) q/|q|."""
+    q = _f(q)
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def quat_canonical(q) -> np.ndarray:
+    """The same rotation with w ≥ 0 (q and −q are one rotation)."""
+    q = _f(q)
+    return np.where(q[..., :1] < 0.0, -q, q)
+
+
+def quat_conjugate(q) -> np.ndarray:
+    """q* = [w, −x, −y, −z]: the inverse rotation of a unit quaternion (NED→body if q is body→NED)."""
+    q = _f(q)
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def quat_multiply(p, q) -> np.ndarray:
+    """Hamilton product p ⊗ q. As rotations: apply q first, then p (C(p⊗q) = C(p)·C(q))."""
+    p, q = _f(p), _f(q)
+    pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack(
+        (
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ),
+        axis=-1,
+    )
+
+
+def quat_rotate(q, v) -> np.ndarray:
+    """Rotate vector(s) v by unit quaternion(s) q: q ⊗ [0, v] ⊗ q* (body → NED for an attitude q)."""
+    q, v = _f(q), _f(v)
+    w = q[..., :1]
+    u = q[..., 1:]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def quat_to_dcm(q) -> np.ndarray:
+    """DCM C_b^n (…, 3, 3) of unit quaternion(s) q (body→NED). Same matrix as seed 001 eq 44 with ε4 = w."""
+    q = _f(q)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz = x * y, x * z, y * z
+    wx, wy, wz = w * x, w * y, w * z
+    c = np.empty(q.shape[:-1] + (3, 3))
+    c[..., 0, 0] = 1.0 - 2.0 * (yy + zz)
+    c[..., 0, 1] = 2.0 * (xy - wz)
+    c[..., 0, 2] = 2.0 * (xz + wy)
+    c[..., 1, 0] = 2.0 * (xy + wz)
+    c[..., 1, 1] = 1.0 - 2.0 * (xx + zz)
+    c[..., 1, 2] = 2.0 * (yz - wx)
+    c[..., 2, 0] = 2.0 * (xz - wy)
+    c[..., 2, 1] = 2.0 * (yz + wx)
+    c[..., 2, 2] = 1.0 - 2.0 * (xx + yy)
+    return c
+
+
+def dcm_to_quat(c) -> np.ndarray:
+    """Unit quaternion(s) (w ≥ 0) of rotation matrix(ces) C (Shepperd's method: stable for every rotation).
+
+    C need not be exactly orthonormal; the result is normalised (close to the nearest rotation for small errors).
+    """
+    c = _f(c)
+    c11, c22, c33 = c[..., 0, 0], c[..., 1, 1], c[..., 2, 2]
+    tr = c11 + c22 + c33
+    # Four candidate formulas; each is well conditioned where its pivot is the largest.
+    cand = np.stack(
+        (
+            np.stack((1.0 + tr, c[..., 2, 1] - c[..., 1, 2], c[..., 0, 2] - c[..., 2, 0], c[..., 1, 0] - c[..., 0, 1]), -1),
+            np.stack((c[..., 2, 1] - c[..., 1, 2], 1.0 + c11 - c22 - c33, c[..., 0, 1] + c[..., 1, 0], c[..., 0, 2] + c[..., 2, 0]), -1),
+            np.stack((c[..., 0, 2] - c[..., 2, 0], c[..., 0, 1] + c[..., 1, 0], 1.0 - c11 + c22 - c33, c[..., 1, 2] + c[..., 2, 1]), -1),
+            np.stack((c[..., 1, 0] - c[..., 0, 1], c[..., 0, 2] + c[..., 2, 0], c[..., 1, 2] + c[..., 2, 1], 1.0 - c11 - c22 + c33), -1),
+        ),
+        axis=-2,
+    )
+    pivot = np.argmax(np.stack((tr, c11, c22, c33), -1), axis=-1)
+    q = np.take_along_axis(cand, pivot[..., None, None], axis=-2)[..., 0, :]
+    return quat_canonical(quat_normalize(q))
+
+
+# --------------------------------------------------------------------------------------------- Euler
+def euler_to_dcm(roll_rad, pitch_rad, yaw_rad) -> np.ndarray:
+    """C_b^n = Rz(yaw)·Ry(pitch)·Rx(roll) (thesis §5.3, full form)."""
+    cr, sr = np.cos(_f(roll_rad)), np.sin(_f(roll_rad))
+    cp, sp = np.cos(_f(pitch_rad)), np.sin(_f(pitch_rad))
+    cy, sy = np.cos(_f(yaw_rad)), np.sin(_f(yaw_rad))
+    cr, sr, cp, sp, cy, sy = np.broadcast_arrays(cr, sr, cp, sp, cy, sy)
+    c = np.empty(cr.shape + (3, 3))
+    c[..., 0, 0] = cp * cy
+    c[..., 0, 1] = -cr * sy + sr * sp * cy
+    c[..., 0, 2] = sr * sy + cr * sp * cy
+    c[..., 1, 0] = cp * sy
+    c[..., 1, 1] = cr * cy + sr * sp * sy
+    c[..., 1, 2] = -sr * cy + cr * sp * sy
+    c[..., 2, 0] = -sp
+    c[..., 2, 1] = sr * cp
+    c[..., 2, 2] = cr * cp
+    return c
+
+
+def dcm_to_euler(c) -> np.ndarray:
+    """ZYX Euler angles [roll, pitch, yaw] (…, 3) from C_b^n (thesis eq 3-31; yaw in [−π, π])."""
+    c = _f(c)
+    roll = np.arctan2(c[..., 2, 1], c[..., 2, 2])
+    pitch = -np.arcsin(np.clip(c[..., 2, 0], -1.0, 1.0))
+    yaw = np.arctan2(c[..., 1, 0], c[..., 0, 0])
+    return np.stack((roll, pitch, yaw), axis=-1)
+
+
+def euler_to_quat(roll_rad, pitch_rad, yaw_rad) -> np.ndarray:
+    """Quaternion qz(yaw) ⊗ qy(pitch) ⊗ qx(roll) (body→NED)."""
+    hr, hp, hy = 0.5 * _f(roll_rad), 0.5 * _f(pitch_rad), 0.5 * _f(yaw_rad)
+    cr, sr, cp, sp, cy, sy = np.cos(hr), np.sin(hr), np.cos(hp), np.sin(hp), np.cos(hy), np.sin(hy)
+    return np.stack(
+        (
+            cr * cp * cy + sr * sp * sy,
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+        ),
+        axis=-1,
+    )
+
+
+def quat_to_euler(q) -> np.ndarray:
+    """ZYX Euler angles [roll, pitch, yaw] (…, 3) of unit quaternion(s), via the DCM elements used by eq 3-31."""
+    q = _f(q)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    roll = np.arctan2(2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y))
+    pitch = -np.arcsin(np.clip(2.0 * (x * z - w * y), -1.0, 1.0))
+    yaw = np.arctan2(2.0 * (x * y + w * z), 1.0 - 2.0 * (y * y + z * z))
+    return np.stack((roll, pitch, yaw), axis=-1)
+
+
+# ------------------------------------------------------------------------------- exponential / log map
+def quat_exp(rotvec_rad) -> np.ndarray:
+    """Unit quaternion of a rotation vector θ·u (axis u, angle θ): [cos θ/2, sin(θ/2)·u]."""
+    v = _f(rotvec_rad)
+    theta = np.linalg.norm(v, axis=-1, keepdims=True)
+    small = theta < _SMALL_ANGLE_RAD
+    safe = np.where(small, 1.0, theta)
+    half_sinc = np.where(small, 0.5 - theta * theta / 48.0, np.sin(0.5 * safe) / safe)  # sin(θ/2)/θ
+    w = np.where(small, 1.0 - theta * theta / 8.0, np.cos(0.5 * theta))
+    return np.concatenate((w, half_sinc * v), axis=-1)
+
+
+def quat_log(q) -> np.ndarray:
+    """Rotation vector (…, 3) of unit quaternion(s), angle in [0, π] (q and −q give the same vector)."""
+    q = quat_canonical(q)
+    w = q[..., :1]
+    u = q[..., 1:]
+    s = np.linalg.norm(u, axis=-1, keepdims=True)
+    small = s < _SMALL_ANGLE_RAD
+    safe = np.where(small, 1.0, s)
+    w_safe = np.where(small, w, 1.0)  # w ≈ 1 wherever s is small (unit quaternion)
+    factor = np.where(small, 2.0 / w_safe * (1.0 - s * s / (3.0 * w_safe * w_safe)), 2.0 * np.arctan2(s, w) / safe)
+    return factor * u
+
+
+def rotvec_to_dcm(rotvec_rad) -> np.ndarray:
+    """DCM of a rotation vector (Rodrigues, via the quaternion)."""
+    return quat_to_dcm(quat_exp(rotvec_rad))
+
+
+def dcm_to_rotvec(c) -> np.ndarray:
+    """Rotation vector of a DCM."""
+    return quat_log(dcm_to_quat(c))
+
+
+def quat_integrate(q, omega_body_rad_s, dt_s) -> np.ndarray:
+    """Propagate attitude q (body→NED) by a constant body rate over dt: q ⊗ exp(ω·dt)."""
+    return quat_multiply(q, quat_exp(_f(omega_body_rad_s) * _f(dt_s)[..., None]))
+
+
+# ------------------------------------------------------------------------------------ matrices / misc
+def skew(v) -> np.ndarray:
+    """Cross-product matrix [v×] (…, 3, 3): skew(a) @ b == cross(a, b)."""
+    v = _f(v)
+    s = np.zeros(v.shape[:-1] + (3, 3))
+    s[..., 0, 1], s[..., 0, 2] = -v[..., 2], v[..., 1]
+    s[..., 1, 0], s[..., 1, 2] = v[..., 2], -v[..., 0]
+    s[..., 2, 0], s[..., 2, 1] = -v[..., 1], v[..., 0]
+    return s
+
+
+def reorthonormalize(c, iterations: int = 1) -> np.ndarray:
+    """The thesis's re-orthonormalisation (eq 4-42, ref [17]): C ← 1.5·C − 0.5·C·Cᵀ·C, `iterations` times.
+
+    Each step is one Newton–Schulz step towards the orthogonal polar factor of C (the nearest orthogonal
+    matrix); it converges quadratically when the singular values of C lie in (0, √3).
+    """
+    c = _f(c)
+    for _ in range(iterations):
+        c = 1.5 * c - 0.5 * c @ np.swapaxes(c, -1, -2) @ c
+    return c
+
+
+def orthonormality_error(c) -> np.ndarray:
+    """max |CᵀC − I| per matrix: 0 for a rotation (or reflection)."""
+    c = _f(c)
+    return np.max(np.abs(np.swapaxes(c, -1, -2) @ c - np.eye(3)), axis=(-2, -1))
+
+
+def quat_from_scalar_last(q_xyzw) -> np.ndarray:
+    """Seed 001's / scipy's scalar-last [x, y, z, w] (ε1, ε2, ε3, ε4) → ahrsd's [w, x, y, z]."""
+    q = _f(q_xyzw)
+    return q[..., [3, 0, 1, 2]]
+
+
+def quat_to_scalar_last(q_wxyz) -> np.ndarray:
+    """ahrsd's [w, x, y, z] → scalar-last [x, y, z, w] (seed 001's ε1..ε4, scipy's as_quat())."""
+    q = _f(q_wxyz)
+    return q[..., [1, 2, 3, 0]]
+
+
+def quat_angle_between(p, q) -> np.ndarray:
+    """Angle (rad, in [0, π]) of the rotation taking p to q: 2·atan2(|vec(p*⊗q)|, |w(p*⊗q)|)."""
+    d = quat_multiply(quat_conjugate(p), q)
+    return 2.0 * np.arctan2(np.linalg.norm(d[..., 1:], axis=-1), np.abs(d[..., 0]))
+
+
+def dcm_angle_between(a, b) -> np.ndarray:
+    """Angle (rad) of the rotation taking DCM a to DCM b (via the quaternion: accurate near 0 and π)."""
+    return quat_angle_between(dcm_to_quat(a), dcm_to_quat(b))
+
+
+__all__ = [
+    "wrap_pi", "wrap_2pi", "quat_normalize", "quat_canonical", "quat_conjugate", "quat_multiply",
+    "quat_rotate", "quat_to_dcm", "dcm_to_quat", "euler_to_dcm", "dcm_to_euler", "euler_to_quat",
+    "quat_to_euler", "quat_exp", "quat_log", "rotvec_to_dcm", "dcm_to_rotvec", "quat_integrate", "skew",
+    "reorthonormalize", "orthonormality_error", "quat_from_scalar_last", "quat_to_scalar_last",
+    "quat_angle_between", "dcm_angle_between",
+]

@@ -1,0 +1,206 @@
+"""Rotation maths: conventions pinned against scipy (independent truth) and worked numbers, plus property tests."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from ahrsd.estimator import rotations as rot
+
+PROPS = settings(derandomize=True, max_examples=60, deadline=None)
+
+finite = st.floats(-1.0, 1.0, allow_nan=False)
+
+
+@st.composite
+def unit_quats(draw):
+    v = np.array([draw(finite) for _ in range(4)])
+    if np.linalg.norm(v) < 1e-3:
+        v = np.array([1.0, 0.0, 0.0, 0.0])
+    return v / np.linalg.norm(v)
+
+
+@st.composite
+def rotvecs(draw, max_angle=math.pi - 1e-6):
+    axis = np.array([draw(finite) for _ in range(3)])
+    if np.linalg.norm(axis) < 1e-3:
+        axis = np.array([0.0, 0.0, 1.0])
+    angle = draw(st.one_of(st.floats(0.0, max_angle), st.floats(0.0, 1e-7)))
+    return axis / np.linalg.norm(axis) * angle
+
+
+def scipy_rot(q_wxyz) -> Rotation:
+    return Rotation.from_quat(rot.quat_to_scalar_last(q_wxyz))
+
+
+# ----------------------------------------------------------------------------- conventions, worked numbers
+def test_yaw_90_maps_body_forward_to_east():
+    q = rot.euler_to_quat(0.0, 0.0, math.pi / 2)
+    np.testing.assert_allclose(rot.quat_rotate(q, [1.0, 0, 0]), [0, 1.0, 0], atol=1e-15)
+
+
+def test_positive_pitch_raises_nose():
+    # Nose up by 30°: body x points up (negative down component) in NED.
+    v = rot.quat_rotate(rot.euler_to_quat(0.0, math.radians(30), 0.0), [1.0, 0, 0])
+    np.testing.assert_allclose(v, [math.cos(math.radians(30)), 0, -0.5], atol=1e-15)
+
+
+def test_positive_roll_drops_right_wing():
+    v = rot.quat_rotate(rot.euler_to_quat(math.radians(30), 0.0, 0.0), [0, 1.0, 0])
+    np.testing.assert_allclose(v, [0, math.cos(math.radians(30)), 0.5], atol=1e-15)
+
+
+def test_dcm_matches_thesis_full_form_and_eq_3_31():
+    roll, pitch, yaw = 0.3, -0.2, 2.5
+    c = rot.euler_to_dcm(roll, pitch, yaw)
+    np.testing.assert_allclose(c, Rotation.from_euler("ZYX", [yaw, pitch, roll]).as_matrix(), atol=1e-15)
+    assert math.isclose(c[2, 0], -math.sin(pitch))  # C31 = −sin θ (thesis §5.3)
+    np.testing.assert_allclose(rot.dcm_to_euler(c), [roll, pitch, yaw], atol=1e-14)
+
+
+def test_small_angle_dcm_matches_thesis_form():
+    a = 1e-4
+    c = rot.euler_to_dcm(a, 2 * a, 3 * a)
+    small = np.array([[1, -3 * a, 2 * a], [3 * a, 1, -a], [-2 * a, a, 1]])
+    np.testing.assert_allclose(c, small, atol=1e-7)  # second-order terms are ~(3a)²/2
+
+
+def test_seed001_final_quaternion_and_euler():
+    # Seed 001 §10.4: constant ω = [1, 2, 3] rad/s for 10 s from identity, scalar-last final quaternion,
+    # ZYX Euler roll −3.339°, pitch −9.063°, yaw −12.746°.
+    q = rot.quat_exp(np.array([1.0, 2.0, 3.0]) * 10.0)
+    q_xyzw = rot.quat_to_scalar_last(rot.quat_canonical(q))
+    np.testing.assert_allclose(q_xyzw, [-0.03763, -0.07526, -0.11289, 0.99004], atol=1e-5)
+    np.testing.assert_allclose(np.degrees(rot.quat_to_euler(q)), [-3.339, -9.063, -12.746], atol=1e-3)
+
+
+def test_seed001_eq44_dcm_is_quat_to_dcm():
+    e = np.array([0.1, -0.5, 0.3, 0.8])
+    e /= np.linalg.norm(e)
+    e1, e2, e3, e4 = e
+    c44 = np.array([
+        [1 - 2 * (e2**2 + e3**2), 2 * (e1 * e2 - e3 * e4), 2 * (e1 * e3 + e2 * e4)],
+        [2 * (e1 * e2 + e3 * e4), 1 - 2 * (e1**2 + e3**2), 2 * (e2 * e3 - e1 * e4)],
+        [2 * (e1 * e3 - e2 * e4), 2 * (e2 * e3 + e1 * e4), 1 - 2 * (e1**2 + e2**2)],
+    ])
+    np.testing.assert_allclose(rot.quat_to_dcm(rot.quat_from_scalar_last(e)), c44, atol=1e-15)
+
+
+def test_wrap():
+    assert rot.wrap_pi(math.pi) == -math.pi
+    assert math.isclose(rot.wrap_pi(3 * math.pi / 2), -math.pi / 2)
+    assert rot.wrap_2pi(-1e-20) == 0.0
+    assert math.isclose(rot.wrap_2pi(-math.pi / 2), 3 * math.pi / 2)
+    w = rot.wrap_2pi(np.linspace(-20, 20, 1001))
+    assert np.all((w >= 0) & (w < 2 * math.pi))
+
+
+def test_dcm_to_quat_near_180_degrees():
+    for axis in np.eye(3):
+        c = rot.rotvec_to_dcm(axis * math.pi)
+        assert rot.quat_angle_between(rot.dcm_to_quat(c), rot.quat_exp(axis * math.pi)) < 1e-12
+
+
+def test_vectorised_shapes():
+    q = rot.quat_normalize(np.random.default_rng(0).normal(size=(4, 5, 4)))
+    assert rot.quat_to_dcm(q).shape == (4, 5, 3, 3)
+    assert rot.dcm_to_quat(rot.quat_to_dcm(q)).shape == (4, 5, 4)
+    assert rot.quat_to_euler(q).shape == (4, 5, 3)
+    assert rot.quat_log(q).shape == (4, 5, 3)
+    assert rot.quat_integrate(q, np.ones(3), np.full((4, 5), 0.01)).shape == (4, 5, 4)
+
+
+# ------------------------------------------------------------------------------------------- properties
+@PROPS
+@given(unit_quats())
+def test_quat_dcm_round_trip_and_scipy(q):
+    c = rot.quat_to_dcm(q)
+    np.testing.assert_allclose(c, scipy_rot(q).as_matrix(), atol=1e-14)
+    assert rot.orthonormality_error(c) < 1e-14
+    assert rot.quat_angle_between(rot.dcm_to_quat(c), q) < 1e-7
+    back = rot.dcm_to_quat(c)
+    assert back[0] >= 0.0
+    assert min(np.abs(back - q).max(), np.abs(back + q).max()) < 1e-14
+
+
+@PROPS
+@given(st.floats(-math.pi, math.pi), st.floats(-1.55, 1.55), st.floats(-math.pi, math.pi))
+def test_euler_round_trips(roll, pitch, yaw):
+    q = rot.euler_to_quat(roll, pitch, yaw)
+    assert math.isclose(np.linalg.norm(q), 1.0, abs_tol=1e-15)
+    np.testing.assert_allclose(rot.quat_to_dcm(q), rot.euler_to_dcm(roll, pitch, yaw), atol=1e-14)
+    for rpy in (rot.quat_to_euler(q), rot.dcm_to_euler(rot.euler_to_dcm(roll, pitch, yaw))):
+        err = rot.wrap_pi(np.asarray(rpy) - [roll, pitch, yaw])
+        np.testing.assert_allclose(err, 0.0, atol=1e-9 / math.cos(pitch))
+
+
+@PROPS
+@given(unit_quats())
+def test_scalar_last_round_trip(q):
+    s = rot.quat_to_scalar_last(q)
+    np.testing.assert_array_equal(s, [q[1], q[2], q[3], q[0]])
+    np.testing.assert_array_equal(rot.quat_from_scalar_last(s), q)
+
+
+@PROPS
+@given(rotvecs())
+def test_exp_log_round_trip(v):
+    q = rot.quat_exp(v)
+    assert math.isclose(np.linalg.norm(q), 1.0, abs_tol=1e-15)
+    np.testing.assert_allclose(rot.quat_log(q), v, atol=1e-12)
+    np.testing.assert_allclose(rot.quat_to_dcm(q), Rotation.from_rotvec(v).as_matrix(), atol=1e-14)
+
+
+@PROPS
+@given(unit_quats(), unit_quats(), st.lists(finite, min_size=3, max_size=3))
+def test_composition_is_matrix_product(p, q, v):
+    pq = rot.quat_multiply(p, q)
+    np.testing.assert_allclose(rot.quat_to_dcm(pq), rot.quat_to_dcm(p) @ rot.quat_to_dcm(q), atol=1e-14)
+    np.testing.assert_allclose(rot.quat_rotate(pq, v), rot.quat_to_dcm(p) @ (rot.quat_to_dcm(q) @ v), atol=1e-14)
+    np.testing.assert_allclose(rot.quat_multiply(q, rot.quat_conjugate(q)), [1, 0, 0, 0], atol=1e-15)
+    np.testing.assert_allclose(rot.skew(p[1:]) @ q[1:], np.cross(p[1:], q[1:]), atol=1e-15)
+
+
+@PROPS
+@given(unit_quats(), rotvecs())
+def test_angle_between(q, v):
+    moved = rot.quat_multiply(q, rot.quat_exp(v))
+    assert math.isclose(rot.quat_angle_between(q, moved), np.linalg.norm(v), abs_tol=1e-9)
+    assert math.isclose(rot.dcm_angle_between(rot.quat_to_dcm(q), rot.quat_to_dcm(moved)),
+                        np.linalg.norm(v), abs_tol=1e-7)
+
+
+@PROPS
+@given(unit_quats(), st.lists(st.floats(-0.15, 0.15), min_size=9, max_size=9))
+def test_reorthonormalisation_converges(q, noise):
+    truth = rot.quat_to_dcm(q)
+    c = truth + np.reshape(noise, (3, 3))
+    errors = [rot.orthonormality_error(rot.reorthonormalize(c, k)) for k in range(7)]
+    assert errors[-1] < 1e-12
+    assert errors[1] < errors[0] or errors[0] < 1e-15
+    # It lands on the orthogonal polar factor (the nearest orthogonal matrix): U·Vᵀ of the SVD.
+    u, _, vt = np.linalg.svd(c)
+    np.testing.assert_allclose(rot.reorthonormalize(c, 8), u @ vt, atol=1e-10)
+
+
+def test_reorthonormalisation_one_step_reduces_error_quadratically():
+    c = rot.euler_to_dcm(0.1, 0.2, 0.3) * (1 + 1e-3)
+    e0 = rot.orthonormality_error(c)
+    e1 = rot.orthonormality_error(rot.reorthonormalize(c))
+    assert e1 < 10 * e0**2
+
+
+@pytest.mark.parametrize("n", [1, 7])
+def test_integrate_constant_rate(n):
+    q0 = rot.euler_to_quat(0.1, 0.2, 0.3)
+    w = np.array([0.3, -0.2, 0.5])
+    q = q0
+    for _ in range(n):
+        q = rot.quat_integrate(q, w, 1.0 / n)
+    expected = (scipy_rot(q0) * Rotation.from_rotvec(w)).as_matrix()
+    np.testing.assert_allclose(rot.quat_to_dcm(q), expected, atol=1e-14)
