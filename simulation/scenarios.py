@@ -1,0 +1,393 @@
+"""Truth trajectories: attitude, angular rate and the vehicle's acceleration as analytic functions of time.
+
+Each scenario gives the body→NED attitude as a `scipy.spatial.transform.Rotation` for any array of times
+(t ≥ 0, forever: scenarios repeat or keep going), the acceleration of the sensor relative to the Earth in NED
+(m/s²), and an optional local magnetic disturbance (NED, µT). The body rate is the exact derivative of that
+attitude (central difference of the rotation over ±10 µs, error < 1e-8 rad/s), so truth attitude, truth rate
+and specific force come from one trajectory and cannot lag each other.
+
+Truth uses scipy only (CONTRIBUTING: never `ahrsd.estimator`'s rotation maths).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ahrsd.simulation.magnetic import PassingMagnet, VehicleIron
+from ahrsd.simulation.profiles import RateProfile, hold, ramp, smoothstep
+
+DEG = math.pi / 180.0
+_RATE_STEP_S = 1e-5  # half-width of the central difference for the body rate
+
+
+def euler_zyx(yaw, pitch, roll) -> Rotation:
+    """C_b^n = Rz(yaw) Ry(pitch) Rx(roll) (design §4: ZYX Euler, body→NED)."""
+    return Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll]))
+
+
+class Scenario:
+    """Base class. Subclasses implement `attitude`; motion and disturbances default to none."""
+
+    name: str = ""
+    description: str = ""
+    default_iron: VehicleIron | None = None  # the vehicle iron this scenario carries unless overridden
+
+    def attitude(self, t_s: np.ndarray) -> Rotation:
+        raise NotImplementedError
+
+    def body_rate_rad_s(self, t_s: np.ndarray) -> np.ndarray:
+        """ω of body w.r.t. NED, in body axes: R(t+h) = R(t−h) exp(2h ω)."""
+        t = np.asarray(t_s, dtype=float)
+        tp, tm = t + _RATE_STEP_S, t - _RATE_STEP_S
+        rel = self.attitude(tm).inv() * self.attitude(tp)
+        return rel.as_rotvec() / (tp - tm)[:, None]
+
+    def accel_ned_m_s2(self, t_s: np.ndarray) -> np.ndarray:
+        """Acceleration of the sensor relative to the Earth, NED, m/s² (zero for a vehicle that stays put)."""
+        return np.zeros((len(t_s), 3))
+
+    def velocity_ned_m_s(self, t_s: np.ndarray) -> np.ndarray:
+        return np.zeros((len(t_s), 3))
+
+    def disturbance_ned_ut(self, t_s: np.ndarray) -> np.ndarray | None:
+        """Local magnetic disturbance (not the Earth's field, not vehicle iron), NED, µT; None when absent."""
+        return None
+
+
+# --------------------------------------------------------------------------------------------------------------
+@dataclass
+class Static(Scenario):
+    """Level and still at a fixed heading."""
+
+    heading_deg: float = 40.0
+    roll_deg: float = 0.0
+    pitch_deg: float = 0.0
+    name = "static"
+    description = "level and at rest, heading 40°"
+
+    def attitude(self, t_s):
+        n = len(np.atleast_1d(t_s))
+        return euler_zyx(np.full(n, self.heading_deg * DEG), np.full(n, self.pitch_deg * DEG),
+                         np.full(n, self.roll_deg * DEG))
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Mountings of the sensor on a single-axis rate table whose axis is vertical: each puts one body axis up or down
+# (body→NED). With the table turning about NED down, the body turns about that axis. The six static holds are
+# also the classic six-position accelerometer calibration set (thesis §9.1: static gravity reference).
+_TABLE_MOUNTS = (
+    ("z down (level)", Rotation.identity()),
+    ("z up", Rotation.from_euler("X", 180, degrees=True)),
+    ("x up", Rotation.from_euler("Y", 90, degrees=True)),
+    ("x down", Rotation.from_euler("Y", -90, degrees=True)),
+    ("y up", Rotation.from_euler("X", -90, degrees=True)),
+    ("y down", Rotation.from_euler("X", 90, degrees=True)),
+)
+
+
+@dataclass
+class RateTable(Scenario):
+    """The thesis's rate-table gyro calibration (seed 000 §9.3, §10.3), as a self-consistent sequence.
+
+    The sensor is mounted in six positions (each body axis up, then down). In each: hold, turn `turns` full
+    turns at +`rate_deg_s` (raised-cosine ramps of `ramp_s`), hold, the same at −`rate_deg_s`, hold; then the
+    operator re-mounts it (a smooth `remount_s` reorientation). So every body axis sees ±rate in both
+    directions with gravity along it, and the holds give six static positions. Repeats after `period_s`.
+    """
+
+    rate_deg_s: float = 90.0
+    turns: int = 2
+    ramp_s: float = 2.0
+    hold_s: float = 5.0
+    remount_s: float = 5.0
+    name = "rate-table"
+    description = "six mountings × ±90 °/s table rotations (2 turns each) with 5 s static holds"
+
+    def __post_init__(self):
+        w = self.rate_deg_s * DEG
+        const_s = 2 * math.pi * self.turns / w - self.ramp_s  # ramps add w·ramp_s in total
+        if const_s <= 0:
+            raise ValueError("rate-table: turns too few for that rate and ramp time")
+        segs, windows = [], []
+        t = 0.0
+        for _ in _TABLE_MOUNTS:
+            start = t
+            for sign in (1.0, -1.0):
+                block = [hold(self.hold_s), ramp(self.ramp_s, 0, sign * w), hold(const_s, sign * w),
+                         ramp(self.ramp_s, sign * w, 0)]
+                segs += block
+                t += sum(s.duration_s for s in block)
+            segs.append(hold(self.hold_s))
+            t += self.hold_s
+            windows.append((start, t))
+            segs.append(hold(self.remount_s))
+            t += self.remount_s
+        self._table = RateProfile(segs)
+        self.period_s = self._table.period_s
+        self._mount_end = np.array([w1 for _, w1 in windows])
+        self._mounts = [m for _, m in _TABLE_MOUNTS]
+        # The rotation from each mount to the next, applied gradually during the remount.
+        self._steps = [self._mounts[(k + 1) % 6] * self._mounts[k].inv() for k in range(6)]
+        self._mount_quats = np.array([m.as_quat() for m in self._mounts])
+        self._step_rotvecs = np.array([st.as_rotvec() for st in self._steps])
+        self.mount_names = tuple(n for n, _ in _TABLE_MOUNTS)
+
+    def table_rate_rad_s(self, t_s):
+        return self._table.rate(t_s)
+
+    def mount_index(self, t_s) -> np.ndarray:
+        tp = np.mod(np.asarray(t_s, dtype=float), self.period_s)
+        return np.minimum(np.searchsorted(self._mount_end + self.remount_s, tp, side="right"), 5)
+
+    def attitude(self, t_s):
+        t = np.asarray(t_s, dtype=float)
+        tp = np.mod(t, self.period_s)
+        k = self.mount_index(t)
+        into_remount = np.clip((tp - self._mount_end[k]) / self.remount_s, 0.0, 1.0)
+        s = smoothstep(into_remount)
+        mounts = Rotation.from_quat(self._mount_quats[k])
+        partial = Rotation.from_rotvec(self._step_rotvecs[k] * s[:, None])
+        table = Rotation.from_euler("Z", self._table.angle(t)[:, None])   # about NED down, the table axis
+        # Table angle is a whole number of turns outside the rotations, so remounting happens at table angle 0.
+        return table * partial * mounts
+
+
+# --------------------------------------------------------------------------------------------------------------
+@dataclass
+class LevelTurns(Scenario):
+    """A boat or rover turning through 360° again and again, at a varying rate, rolling and pitching in waves.
+
+    Heading rate 9 ± 4 °/s (one full turn every ~40 s); wave roll ≤ 7.5°, pitch ≤ 5°, heave ±0.2 m; forward
+    speed 2 m/s, so the turn adds a centripetal acceleration of up to 0.45 m/s². Carries the default vehicle iron.
+    """
+
+    speed_m_s: float = 2.0
+    mean_turn_rate_deg_s: float = 9.0
+    turn_rate_swing_deg_s: float = 4.0
+    turn_rate_period_s: float = 53.0
+    heading0_deg: float = 0.0
+    name = "level-turns"
+    description = "boat turning 360° over and over (9±4 °/s), wave roll/pitch within ±7.5°, 2 m/s"
+    default_iron = VehicleIron.default()
+
+    # wave components: (amplitude deg, period s, phase rad)
+    _ROLL = ((5.0, 6.1, 0.0), (2.5, 2.7, 0.7))
+    _PITCH = ((3.5, 4.3, 0.3), (1.5, 1.9, 1.1))
+    _HEAVE = (0.2, 7.0)  # amplitude m, period s
+
+    def heading_rad(self, t):
+        w = 2 * math.pi / self.turn_rate_period_s
+        return (self.heading0_deg * DEG + self.mean_turn_rate_deg_s * DEG * t
+                + self.turn_rate_swing_deg_s * DEG / w * (1.0 - np.cos(w * t)))
+
+    def heading_rate_rad_s(self, t):
+        w = 2 * math.pi / self.turn_rate_period_s
+        return (self.mean_turn_rate_deg_s + self.turn_rate_swing_deg_s * np.sin(w * t)) * DEG
+
+    @staticmethod
+    def _waves(t, comps):
+        return sum(a * DEG * np.sin(2 * math.pi * t / p + ph) for a, p, ph in comps)
+
+    def attitude(self, t_s):
+        t = np.asarray(t_s, dtype=float)
+        return euler_zyx(self.heading_rad(t), self._waves(t, self._PITCH), self._waves(t, self._ROLL))
+
+    def velocity_ned_m_s(self, t_s):
+        t = np.asarray(t_s, dtype=float)
+        psi = self.heading_rad(t)
+        a, p = self._HEAVE
+        w = 2 * math.pi / p
+        return np.column_stack([self.speed_m_s * np.cos(psi), self.speed_m_s * np.sin(psi), a * w * np.cos(w * t)])
+
+    def accel_ned_m_s2(self, t_s):
+        t = np.asarray(t_s, dtype=float)
+        psi, r = self.heading_rad(t), self.heading_rate_rad_s(t)
+        a, p = self._HEAVE
+        w = 2 * math.pi / p
+        v = self.speed_m_s
+        return np.column_stack([-v * r * np.sin(psi), v * r * np.cos(psi), -a * w * w * np.sin(w * t)])
+
+
+# --------------------------------------------------------------------------------------------------------------
+@dataclass
+class CoordinatedTurn(Scenario):
+    """A fixed-wing at `speed_m_s` in banked, coordinated turns: the accelerometer does not point at gravity.
+
+    Straight 10 s, roll into a right turn at `bank_deg` (4 s), hold it 60 s, roll out, straight 10 s, the same to
+    the left; repeats. Coordinated: bank φ = atan(V ψ̇ / g) at every instant, so the lateral specific force is zero
+    and the specific force in the turn is g / cos φ along body −z, tilted away from the vertical by φ.
+    """
+
+    speed_m_s: float = 25.0
+    bank_deg: float = 30.0
+    heading0_deg: float = 20.0
+    straight_s: float = 10.0
+    roll_in_s: float = 4.0
+    turn_s: float = 60.0
+    gravity_m_s2: float = 9.80            # replaced by the site's gravity by the stream
+    name = "coordinated-turn"
+    description = "25 m/s fixed-wing, 30° banked coordinated turns right and left (60 s each)"
+
+    def __post_init__(self):
+        self._build()
+
+    def _build(self):
+        w = self.gravity_m_s2 * math.tan(self.bank_deg * DEG) / self.speed_m_s
+        segs = []
+        for sign in (1.0, -1.0):
+            segs += [hold(self.straight_s), ramp(self.roll_in_s, 0, sign * w), hold(self.turn_s, sign * w),
+                     ramp(self.roll_in_s, sign * w, 0)]
+        self._heading = RateProfile(segs, angle0=self.heading0_deg * DEG)
+        self.period_s = self._heading.period_s
+        self.turn_rate_rad_s = w
+
+    def with_gravity(self, g_m_s2: float) -> "CoordinatedTurn":
+        """The same manoeuvre flown under gravity `g_m_s2` (bank angle coordinated with the local g)."""
+        return dataclasses.replace(self, gravity_m_s2=float(g_m_s2))
+
+    def attitude(self, t_s):
+        t = np.asarray(t_s, dtype=float)
+        psi, r = self._heading.angle(t), self._heading.rate(t)
+        bank = np.arctan(self.speed_m_s * r / self.gravity_m_s2)
+        return euler_zyx(psi, np.zeros_like(t), bank)
+
+    def velocity_ned_m_s(self, t_s):
+        psi = self._heading.angle(np.asarray(t_s, dtype=float))
+        return np.column_stack([self.speed_m_s * np.cos(psi), self.speed_m_s * np.sin(psi), np.zeros_like(psi)])
+
+    def accel_ned_m_s2(self, t_s):
+        t = np.asarray(t_s, dtype=float)
+        psi, r = self._heading.angle(t), self._heading.rate(t)
+        v = self.speed_m_s
+        return np.column_stack([-v * r * np.sin(psi), v * r * np.cos(psi), np.zeros_like(t)])
+
+
+# --------------------------------------------------------------------------------------------------------------
+@dataclass
+class Tumble(Scenario):
+    """A hand tumble for a full-sphere calibration: every orientation within ~90 s.
+
+    Roll, pitch and yaw all turn continuously at incommensurate rates (45, 17, 11 °/s, each modulated ±30 %), so
+    the gravity and field directions seen by the sensor sweep the whole sphere. The centre of the sensor stays
+    put. Carries the default vehicle iron.
+    """
+
+    name = "tumble"
+    description = "continuous roll 45 °/s, pitch 17 °/s, yaw 11 °/s (±30 % modulated): full sphere in ~90 s"
+    default_iron = VehicleIron.default()
+    # (mean rate deg/s, modulation fraction, modulation period s, initial angle deg)
+    _AXES = ((11.0, 0.3, 23.0, 0.0), (17.0, 0.3, 31.0, 0.0), (45.0, 0.3, 13.0, 0.0))
+
+    @staticmethod
+    def _angle(t, mean, frac, period, a0):
+        w = 2 * math.pi / period
+        return (a0 + mean * t + mean * frac / w * (1.0 - np.cos(w * t))) * DEG
+
+    def attitude(self, t_s):
+        t = np.asarray(t_s, dtype=float)
+        yaw, pitch, roll = (self._angle(t, *ax) for ax in self._AXES)
+        return euler_zyx(yaw, pitch, roll)
+
+
+# --------------------------------------------------------------------------------------------------------------
+@dataclass
+class AuvOutAndBack(Scenario):
+    """Seed 002 test 2: an AUV runs out on heading 62°, turns, and comes back on −117° (= 243°); repeats.
+
+    The paper's legs are ~10 km at a few knots (hours); here each leg lasts `leg_s` (default 240 s) so a test can
+    afford it; the field at the site is WMM's (seed 002 eq. 27 gives IGRF Hh 27.45 µT, Hz 40.29 µT at its
+    undisclosed site; the default site gives Hh 27.85, Hz 41.04 µT, dip 55.8° vs 55.7°). A 60 s turn joins the
+    legs (rate raised-cosine, up to 6 °/s), speed 1.5 m/s, small pitch (dolphin profile, ±3°) and roll (±1.5°).
+    Headings are true (yaw in NED). Carries the default vehicle iron.
+    """
+
+    leg_s: float = 240.0
+    turn_s: float = 60.0
+    speed_m_s: float = 1.5
+    out_heading_deg: float = 62.0      # seed 002 §7.3
+    back_heading_deg: float = -117.0   # seed 002 §7.3
+    name = "auv-out-and-back"
+    description = "AUV legs at 62° and −117° (seed 002 test 2), 240 s each, 60 s turns, pitch ±3°, roll ±1.5°"
+    default_iron = VehicleIron.default()
+
+    def __post_init__(self):
+        out = self.out_heading_deg
+        back = (self.back_heading_deg - out) % 360.0 + out          # 243° reached by turning right 181°
+        t1 = (back - out) * DEG                                       # first turn, rad
+        t2 = 2 * math.pi - t1                                         # second turn, back to out + 360°
+        h = self.turn_s / 2
+        segs = [hold(self.leg_s), ramp(h, 0, 2 * t1 / self.turn_s), ramp(h, 2 * t1 / self.turn_s, 0),
+                hold(self.leg_s), ramp(h, 0, 2 * t2 / self.turn_s), ramp(h, 2 * t2 / self.turn_s, 0)]
+        self._heading = RateProfile(segs, angle0=out * DEG)
+        self.period_s = self._heading.period_s
+
+    def leg_of(self, t_s) -> np.ndarray:
+        """0 on the outbound leg, 1 on the return leg, −1 while turning."""
+        tp = np.mod(np.asarray(t_s, dtype=float), self.period_s)
+        L, T = self.leg_s, self.turn_s
+        return np.where(tp < L, 0, np.where((tp >= L + T) & (tp < 2 * L + T), 1, -1))
+
+    def attitude(self, t_s):
+        t = np.asarray(t_s, dtype=float)
+        pitch = 3.0 * DEG * np.sin(2 * math.pi * t / 120.0)
+        roll = 1.5 * DEG * np.sin(2 * math.pi * t / 9.0)
+        return euler_zyx(self._heading.angle(t), pitch, roll)
+
+    def velocity_ned_m_s(self, t_s):
+        t = np.asarray(t_s, dtype=float)
+        psi = self._heading.angle(t)
+        return np.column_stack([self.speed_m_s * np.cos(psi), self.speed_m_s * np.sin(psi), np.zeros_like(t)])
+
+    def accel_ned_m_s2(self, t_s):
+        t = np.asarray(t_s, dtype=float)
+        psi, r = self._heading.angle(t), self._heading.rate(t)
+        v = self.speed_m_s
+        return np.column_stack([-v * r * np.sin(psi), v * r * np.cos(psi), np.zeros_like(t)])
+
+
+# --------------------------------------------------------------------------------------------------------------
+@dataclass
+class MagDisturbance(Scenario):
+    """A still, level vehicle (heading 40°) while a magnet (2 A·m²) is carried past at 0.3 m, twice a minute.
+
+    The magnet starts 3 m away (field < 0.01 µT), so the first ~10 s are undisturbed; at closest approach the
+    disturbance is ~15 µT. The field is a point dipole decaying with 1/r³. No vehicle iron by default.
+    """
+
+    heading_deg: float = 40.0
+    magnet: PassingMagnet = field(default_factory=PassingMagnet)
+    name = "mag-disturbance"
+    description = "level and still at heading 40°, a 2 A·m² magnet carried past at 0.3 m twice a minute"
+
+    def attitude(self, t_s):
+        n = len(np.atleast_1d(t_s))
+        return euler_zyx(np.full(n, self.heading_deg * DEG), np.zeros(n), np.zeros(n))
+
+    def disturbance_ned_ut(self, t_s):
+        return self.magnet.field_ned_ut(np.asarray(t_s, dtype=float))
+
+
+_REGISTRY = {
+    "static": Static,
+    "rate-table": RateTable,
+    "level-turns": LevelTurns,
+    "coordinated-turn": CoordinatedTurn,
+    "tumble": Tumble,
+    "auv-out-and-back": AuvOutAndBack,
+    "mag-disturbance": MagDisturbance,
+}
+SCENARIOS: tuple[str, ...] = tuple(_REGISTRY)
+
+
+def make_scenario(name: str, **params) -> Scenario:
+    """A scenario by name (one of SCENARIOS), with optional parameters of its class (e.g. leg_s=120)."""
+    try:
+        cls = _REGISTRY[name]
+    except KeyError:
+        raise ValueError(f"unknown scenario {name!r}; choose one of {', '.join(SCENARIOS)}") from None
+    return cls(**params)

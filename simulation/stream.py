@@ -1,0 +1,155 @@
+"""Simulated sensor streams: a scenario's truth, the site's gravity and field, and a sensor error model.
+
+    open_stream("level-turns").next_block(82)   # the next 82 samples at 819.2 Hz, with ADIS16405 errors
+    simulate("tumble", seconds=90, rate_hz=100)  # one block of 90 s, for tests and benchmarks
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from ahrsd.simulation.errors import ErrorProcess, SensorErrors
+from ahrsd.simulation.gravity import earth_rate_ned_rad_s
+from ahrsd.simulation.magnetic import VehicleIron
+from ahrsd.simulation.scenarios import CoordinatedTurn, Scenario, make_scenario
+from ahrsd.simulation.site import DEFAULT_SITE, Site
+
+
+@dataclass(frozen=True, eq=False)
+class SensorBlock:
+    """n consecutive samples. Sensor outputs are in the sensor (= body, FRD) frame, with errors, not quantised.
+
+    t_s (n,) s; gyro_rad_s, accel_m_s2 (specific force: +g on the up axis at rest), mag_ut (n,3);
+    temp_c (n,) °C; truth_q_wxyz (n,4) body→NED, scalar first, w ≥ 0; truth_gyro_rad_s (n,3) body rate w.r.t.
+    NED in body axes; truth_mag_ut (n,3) Earth field in body axes, without vehicle iron or disturbances.
+    Extra truth: truth_accel_m_s2 (n,3) specific force without errors; truth_disturbance_ut (n,3) local
+    disturbance field in body axes (zero when none); truth_gyro_bias_rad_s, truth_accel_bias_m_s2 (n,3) total
+    bias in force at each sample (turn-on + Gauss–Markov + temperature).
+    """
+
+    t_s: np.ndarray
+    gyro_rad_s: np.ndarray
+    accel_m_s2: np.ndarray
+    mag_ut: np.ndarray
+    temp_c: np.ndarray
+    truth_q_wxyz: np.ndarray
+    truth_gyro_rad_s: np.ndarray
+    truth_mag_ut: np.ndarray
+    truth_accel_m_s2: np.ndarray
+    truth_disturbance_ut: np.ndarray
+    truth_gyro_bias_rad_s: np.ndarray
+    truth_accel_bias_m_s2: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+    @staticmethod
+    def concatenate(blocks) -> "SensorBlock":
+        blocks = list(blocks)
+        return SensorBlock(**{f.name: np.concatenate([getattr(b, f.name) for b in blocks])
+                              for f in dataclasses.fields(SensorBlock)})
+
+
+def _resolve_errors(errors, seed) -> SensorErrors:
+    if isinstance(errors, SensorErrors):
+        return errors
+    if errors == "adis16405":
+        return SensorErrors.adis16405(seed)
+    if errors == "ideal":
+        return SensorErrors.ideal()
+    raise ValueError(f"errors must be 'adis16405', 'ideal' or a SensorErrors, got {errors!r}")
+
+
+class SensorStream:
+    """An endless stream of samples at `rate_hz` from one scenario. Stateful: call `next_block(n)` repeatedly.
+
+    `errors` is the SensorErrors in force, vehicle iron included (its hard_iron_ut/soft_iron are what a perfect
+    magnetometer calibration must find). `scenario` is the Scenario object (its parameters, helpers like
+    `leg_of`), `site` the Site, `earth_field` the WMM2025 field there.
+    """
+
+    def __init__(self, scenario: Scenario, rate_hz: float, seed: int, errors: SensorErrors, site: Site,
+                 start_s: float, vehicle_iron: VehicleIron | None, earth_rate: bool):
+        if not (np.isfinite(rate_hz) and rate_hz > 0):
+            raise ValueError(f"rate_hz must be positive, got {rate_hz!r}")
+        self.scenario = scenario
+        self.rate_hz = float(rate_hz)
+        self.seed = int(seed)
+        self.site = site
+        self.start_s = float(start_s)
+        self.vehicle_iron = vehicle_iron
+        self.sensor_errors = errors
+        self.errors = errors.with_vehicle_iron(vehicle_iron) if vehicle_iron is not None else errors
+        self.earth_field = site.earth_field()
+        self._field_ned = self.earth_field.ned_ut
+        self._gravity_ned = site.gravity_ned_m_s2
+        self._earth_rate_ned = earth_rate_ned_rad_s(site.lat_deg) if earth_rate else None
+        self._process = ErrorProcess(self.errors, self.rate_hz, self.seed)
+        self._k = 0  # index of the next sample
+
+    @property
+    def samples_emitted(self) -> int:
+        return self._k
+
+    def next_block(self, n: int) -> SensorBlock:
+        """The next `n` samples (n ≥ 1)."""
+        n = int(n)
+        if n < 1:
+            raise ValueError(f"n must be ≥ 1, got {n}")
+        t = self.start_s + (self._k + np.arange(n)) / self.rate_hz
+        self._k += n
+        sc = self.scenario
+        att = sc.attitude(t)
+        ned_to_body = att.inv()
+        omega = sc.body_rate_rad_s(t)
+        accel_true = ned_to_body.apply(sc.accel_ned_m_s2(t) - self._gravity_ned)
+        mag_earth = ned_to_body.apply(self._field_ned)
+        dist_ned = sc.disturbance_ned_ut(t)
+        dist = ned_to_body.apply(dist_ned) if dist_ned is not None else np.zeros((n, 3))
+        gyro_sensed = omega if self._earth_rate_ned is None else omega + ned_to_body.apply(self._earth_rate_ned)
+        gyro, accel, mag, temp, gbias, abias = self._process.apply(t, gyro_sensed, accel_true, mag_earth + dist)
+        q = att.as_quat()                      # scipy: scalar last [x, y, z, w]
+        q = np.column_stack([q[:, 3], q[:, :3]])
+        q *= np.where(q[:, :1] < 0, -1.0, 1.0)
+        return SensorBlock(t, gyro, accel, mag, temp, q, omega, mag_earth, accel_true, dist, gbias, abias)
+
+
+def _resolve_scenario(scenario, site: Site) -> Scenario:
+    sc = make_scenario(scenario) if isinstance(scenario, str) else scenario
+    if not isinstance(sc, Scenario):
+        raise TypeError(f"scenario must be a name or a Scenario, got {type(scenario).__name__}")
+    if isinstance(sc, CoordinatedTurn):
+        sc = sc.with_gravity(site.gravity_m_s2)  # coordinated with the local gravity: zero lateral force
+    return sc
+
+
+def open_stream(scenario: str | Scenario, rate_hz: float = 819.2, seed: int = 0,
+                errors: str | SensorErrors = "adis16405", site: Site = DEFAULT_SITE, start_s: float = 0.0,
+                *, vehicle_iron: VehicleIron | str | None = "scenario", earth_rate: bool = False) -> SensorStream:
+    """An endless simulated sensor stream.
+
+    scenario: a name from SCENARIOS or a Scenario instance (e.g. make_scenario("auv-out-and-back", leg_s=120)).
+    errors: "adis16405" (datasheet noise, turn-on errors drawn from `seed`), "ideal", or a SensorErrors.
+    vehicle_iron: "scenario" (the scenario's default: level-turns, tumble, auv-out-and-back carry
+      VehicleIron.default(), the others none), None for no vehicle iron, or a VehicleIron.
+    earth_rate: add the Earth's rotation (15 °/h, seed 004 eq. 15) to the sensed rate; the truth rate is always
+      relative to NED. Off by default: it is below the ADIS16405's bias stability (thesis §10.3).
+    """
+    site = site if site is not None else DEFAULT_SITE
+    sc = _resolve_scenario(scenario, site)
+    if isinstance(vehicle_iron, str):
+        if vehicle_iron != "scenario":
+            raise ValueError(f"vehicle_iron must be 'scenario', None or a VehicleIron, got {vehicle_iron!r}")
+        vehicle_iron = sc.default_iron
+    return SensorStream(sc, rate_hz, seed, _resolve_errors(errors, seed), site, start_s, vehicle_iron, earth_rate)
+
+
+def simulate(scenario: str | Scenario, seconds: float, rate_hz: float = 819.2, seed: int = 0,
+             errors: str | SensorErrors = "adis16405", site: Site = DEFAULT_SITE, start_s: float = 0.0,
+             **kwargs) -> SensorBlock:
+    """`seconds` of a scenario as one SensorBlock (round(seconds · rate_hz) samples); kwargs as open_stream."""
+    n = int(round(seconds * rate_hz))
+    return open_stream(scenario, rate_hz, seed, errors, site, start_s, **kwargs).next_block(n)
