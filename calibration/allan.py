@@ -91,6 +91,8 @@ class NoiseParameters:
     curve_minimum: float
     tau_curve_minimum_s: float
     std: float
+    gauss_markov_sigma: float | None = None
+    gauss_markov_tau_s: float | None = None
     flags: tuple[str, ...] = ()
 
     def to_dict(self) -> dict:
@@ -99,20 +101,72 @@ class NoiseParameters:
         return d
 
 
-def _model_fit(taus: np.ndarray, adev: np.ndarray, n_terms: np.ndarray, m: np.ndarray) -> np.ndarray:
-    """NNLS fit of σ² = a·τ⁻² + b·τ⁻¹ + c + d·τ to the Allan variance; returns [a, b, c, d].
+def gauss_markov_avar(taus: np.ndarray, corr_time_s: float) -> np.ndarray:
+    """Allan variance of a unit-variance first-order Gauss–Markov process with correlation time Tc:
+    σ²(τ) = (2Tc/τ)·[1 − Tc/(2τ)·(3 − 4e^(−τ/Tc) + e^(−2τ/Tc))]  (IEEE Std 952 Annex C / El-Sheimy 2008)."""
+    x = np.asarray(taus, dtype=np.float64) / corr_time_s
+    small = x < 1e-3  # series limit avoids cancellation: σ² ≈ x·(1 − x/3)·... → x for tiny x... use Taylor
+    out = np.empty_like(x)
+    xs = x[~small]
+    out[~small] = (2.0 / xs) * (1.0 - (3.0 - 4.0 * np.exp(-xs) + np.exp(-2.0 * xs)) / (2.0 * xs))
+    xt = x[small]
+    out[small] = (2.0 / 3.0) * xt - (1.0 / 2.0) * xt**2  # Taylor: (2/x)[x/3 − x²/4 + …]... = 2x/3 − x²/2
+    return out
 
-    Each point is weighted by 1/σ² (relative error) times the √ of its number of independent
-    clusters, so the many-cluster short-τ points and the few-cluster long-τ points count fairly.
+
+@dataclass(frozen=True)
+class _CurveModel:
+    """σ²(τ) = 3Q²/τ² + N²/τ + F + Σ_j s_j·GM(τ; Tc_j) + K²τ/3, every coefficient ≥ 0 (NNLS)."""
+
+    quant_var: float      # 3Q² coefficient of τ⁻²
+    white_var: float      # N²
+    flat_var: float       # F (flicker floor, = (0.664 B)² for pure flicker noise)
+    gm_var: np.ndarray    # s_j: variances of the Gauss–Markov components
+    gm_tc: np.ndarray     # their correlation times Tc_j (s)
+    rrw_var: float        # K²/3 coefficient of τ
+
+    def bias_component(self, taus: np.ndarray) -> np.ndarray:
+        """Allan variance of the bias-instability part (flicker floor + Gauss–Markov terms)."""
+        out = np.full_like(np.asarray(taus, dtype=np.float64), self.flat_var)
+        for s, tc in zip(self.gm_var, self.gm_tc):
+            if s > 0:
+                out = out + s * gauss_markov_avar(taus, tc)
+        return out
+
+    def avar(self, taus: np.ndarray) -> np.ndarray:
+        t = np.asarray(taus, dtype=np.float64)
+        return self.quant_var / t**2 + self.white_var / t + self.bias_component(t) + self.rrw_var * t
+
+
+def _model_fit(taus: np.ndarray, adev: np.ndarray, n_terms: np.ndarray, rate_hz: float) -> _CurveModel:
+    """Weighted NNLS fit of σ² = 3Q²/τ² + N²/τ + F + s·GM(τ; Tc) + K²τ/3 to one Allan curve.
+
+    The bias-instability part is a flicker floor F plus one Gauss–Markov term (the exponentially
+    correlated bias most simulators and some sensors have, a bump on the curve); Tc is searched on a
+    log grid (8 per octave, from 10·τ_min — shorter ones would mimic white noise — to the longest τ),
+    the other five coefficients are linear (NNLS) for each Tc. Few parameters, so the noise of the
+    long-τ points is not fitted. Points are weighted by 1/σ² (relative error) times the √ of the number
+    of independent clusters, so many-cluster short-τ and few-cluster long-τ points count fairly.
     """
     from scipy.optimize import nnls
 
     avar = adev**2
-    basis = np.stack([taus**-2.0, taus**-1.0, np.ones_like(taus), taus], axis=1)
-    independent = np.maximum(n_terms / m, 1.0)
+    m = np.maximum(np.round(taus * rate_hz), 1.0)
+    independent = np.maximum(np.asarray(n_terms) / m, 1.0)
     w = np.sqrt(independent) / avar
-    coef, _ = nnls(basis * w[:, None], avar * w)
-    return coef
+    fixed = np.stack([taus**-2.0, taus**-1.0, np.ones_like(taus)], axis=1)
+    tc_min = max(10.0 * taus[0], 1.0 / rate_hz)
+    best = None
+    for tc in np.geomspace(tc_min, taus[-1], max(2, int(8 * math.log2(taus[-1] / tc_min)) + 1)):
+        basis = np.column_stack([fixed, gauss_markov_avar(taus, tc), taus]) * w[:, None]
+        scale = np.max(np.abs(basis), axis=0)
+        scale[scale == 0] = 1.0
+        coef, resid = nnls(basis / scale, avar * w, maxiter=200)
+        if best is None or resid < best[0]:
+            best = (resid, coef / scale, tc)
+    _, coef, tc = best
+    return _CurveModel(float(coef[0]), float(coef[1]), float(coef[2]), np.array([coef[3]]), np.array([tc]),
+                       float(coef[4]))
 
 
 def noise_parameters(taus: np.ndarray, adev: np.ndarray, n_terms: np.ndarray, rate_hz: float,
@@ -120,41 +174,45 @@ def noise_parameters(taus: np.ndarray, adev: np.ndarray, n_terms: np.ndarray, ra
     """Read white noise, bias instability, rate random walk and quantization from one Allan curve."""
     taus = np.asarray(taus, dtype=np.float64)
     adev = np.asarray(adev, dtype=np.float64)
-    m = np.maximum(np.round(taus * rate_hz), 1.0)
     flags: list[str] = []
-    a, b, c, d = _model_fit(taus, adev, np.asarray(n_terms), m)
+    model = _model_fit(taus, adev, np.asarray(n_terms), rate_hz)
 
-    # White noise: fixed-slope −1/2 line through the points where the curve has that slope.
+    # White noise: fixed-slope −1/2 line through the points where the curve has that slope, after
+    # removing the model's other terms in variance (they lift the line by a few %).
     logt, logs = np.log(taus), np.log(adev)
     slope = np.gradient(logs, logt)
-    floor = math.sqrt(c) if c > 0 else 0.0
-    on_line = (np.abs(slope + 0.5) < 0.15) & (adev > 2.0 * floor)
+    others = model.avar(taus) - model.white_var / taus
+    on_line = (np.abs(slope + 0.5) < 0.15) & (adev**2 > 4.0 * others)
     if np.count_nonzero(on_line) >= 2:
-        # The flat floor (bias instability) is subtracted first: it lifts the −1/2 line by a few %.
-        white_part = np.sqrt(np.maximum(adev[on_line] ** 2 - c, 1e-300))
+        white_part = np.sqrt(np.maximum(adev[on_line] ** 2 - others[on_line], 1e-300))
         white = float(np.exp(np.mean(np.log(white_part) + 0.5 * logt[on_line])))
-    elif b > 0:
-        white = math.sqrt(b)
+    elif model.white_var > 0:
+        white = math.sqrt(model.white_var)
         flags.append("white noise from the model fit (no clean slope −1/2 region)")
     else:
         white = float(adev[0] * math.sqrt(taus[0]))
         flags.append("white noise from the shortest τ (no slope −1/2 region)")
 
-    # Bias instability: the minimum of the smooth model, where the slope is flat.
+    # Bias instability: the top of the bias part of the curve (flat for flicker noise), / 0.664.
     grid = np.geomspace(taus[0], taus[-1], 512)
-    model = np.sqrt(a / grid**2 + b / grid + c + d * grid)
-    k = int(np.argmin(model))
-    interior = 0 < k < len(grid) - 1
+    bias_curve = np.sqrt(np.maximum(model.bias_component(grid), 0.0))
+    k = int(np.argmax(bias_curve))
     bias_instability = tau_bi = None
-    if c > 0 and (interior or d == 0):
-        bias_instability = float(model[k] / FLICKER_FACTOR)
+    gm_sigma = gm_tau = None
+    if bias_curve[k] > 0:
+        bias_instability = float(bias_curve[k] / FLICKER_FACTOR)
         tau_bi = float(grid[k])
-        if not interior:
-            flags.append("flat region reaches the longest τ: record longer to see rate random walk")
+        if k == len(grid) - 1:
+            flags.append("bias instability still rising at the longest τ: record longer")
     else:
-        flags.append("no flat region: bias instability not visible (record longer)")
-    rrw = math.sqrt(3.0 * d) if d > 0 else None
-    quant = math.sqrt(a / 3.0) if a > 0 else None
+        flags.append("no bias instability visible above the white noise (record longer)")
+    if np.any(model.gm_var > 0):
+        gm_total = float(np.sum(model.gm_var))
+        if gm_total > model.flat_var:  # correlated (bump-shaped) bias dominates the flat floor
+            gm_sigma = math.sqrt(gm_total + model.flat_var)
+            gm_tau = float(np.exp(np.sum(model.gm_var * np.log(model.gm_tc)) / gm_total))
+    rrw = math.sqrt(3.0 * model.rrw_var) if model.rrw_var > 0 else None
+    quant = math.sqrt(model.quant_var / 3.0) if model.quant_var > 0 else None
     j = int(np.argmin(adev))
     return NoiseParameters(
         white_noise=white,
@@ -165,6 +223,8 @@ def noise_parameters(taus: np.ndarray, adev: np.ndarray, n_terms: np.ndarray, ra
         curve_minimum=float(adev[j]),
         tau_curve_minimum_s=float(taus[j]),
         std=float(std),
+        gauss_markov_sigma=gm_sigma,
+        gauss_markov_tau_s=gm_tau,
         flags=tuple(flags),
     )
 
