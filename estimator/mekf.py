@@ -1,0 +1,423 @@
+"""`mekf`: ahrsd's default attitude estimator — a multiplicative (error-state) quaternion Kalman filter.
+
+State: attitude quaternion (body FRD → NED) and gyro bias; error state δθ (NED frame, 3) and δb (3).
+Initialised from a weighted Wahba solution of the first sample's gravity and field directions; then
+
+* strapdown propagation of the bias-corrected gyro, covariance Φ P Φᵀ + Q;
+* the accelerometer corrects **tilt only** (its measurement row has no heading component), with linear
+  acceleration handled by a low-pass of the specific force in the NED frame (as VQF does), adaptive noise
+  growing with | |f| − g |, rejection above a limit and an innovation gate;
+* the magnetometer corrects **heading only** (the angle of the horizontal field in the estimated NED frame),
+  so a magnetic disturbance cannot tilt the horizon; the field is checked against a learned reference
+  (magnitude and dip), rejected while it differs, and a consistently changed field is adopted after a while;
+* rest detection (gyro and accelerometer steady) feeds the low-passed gyro as a direct bias measurement.
+
+The per-sample step is compiled with numba (`mekf_core.py`: the one implementation of the algorithm).
+Parameters: `MekfParams` (every field with unit and meaning); defaults `DEFAULT_MEKF_PARAMS`.
+See docs/estimator.md for the design, tuning and the figures measured on BROAD.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields, replace
+
+import numpy as np
+
+from ahrsd.drivers.sample import ImuSample, SampleFlags
+
+from . import mekf_core as core
+from .base import AttitudeEstimate, EstimateFlags
+from .rotations import wrap_2pi
+
+_DEG = math.pi / 180.0
+
+_GYRO_BAD = SampleFlags.GYRO_INVALID | SampleFlags.GYRO_SATURATED
+_ACC_BAD = SampleFlags.ACCEL_INVALID | SampleFlags.ACCEL_SATURATED
+_MAG_BAD = SampleFlags.MAG_INVALID | SampleFlags.MAG_SATURATED
+
+
+@dataclass(frozen=True)
+class MekfParams:
+    """Tuning of the MEKF. SI units; angles in rad. One parameter set serves every vehicle and trial."""
+
+    # --- gyro (process noise)
+    gyro_noise_rad_s_sqrt_hz: float = 2.0 * _DEG / 60.0
+    """Angle random walk density, rad/s/√Hz. ADIS16405 datasheet ARW 2.0°/√hr = 5.8e-4 rad/√s;
+    the BROAD IMU measures 0.006°/√s, well inside it."""
+    gyro_motion_noise_sqrt_s: float = 0.0
+    """Extra angle noise density per rad/s of rotation rate (scale-factor / misalignment error), √s."""
+    gyro_bias_walk_rad_s_sqrt_s: float = 0.1 * _DEG / 10.0
+    """Bias random walk density, rad/s/√s: 0.1°/s of bias drift over 100 s (VQF's biasSigmaMotion
+    over its 100 s forgetting time)."""
+    gyro_bias_clip_rad_s: float = 2.0 * _DEG
+    """The bias estimate is clipped to ±this per axis (VQF biasClip); rest is not declared above it."""
+    init_bias_sigma_rad_s: float = 0.5 * _DEG
+    """1σ of the gyro bias at start-up (VQF biasSigmaInit)."""
+
+    # --- accelerometer (tilt)
+    acc_noise_m_s2: float = 0.5
+    """Noise of the specific force as a gravity measurement in motion (linear acceleration), m/s²."""
+    acc_noise_rest_m_s2: float = 0.05
+    """... at rest: sensor noise only (BROAD/ADIS class: ~0.045 m/s² per sample), m/s²."""
+    acc_norm_noise_gain: float = 1.0
+    """Extra noise per m/s² that |f| differs from g (linear acceleration is present), dimensionless."""
+    acc_reject_m_s2: float = 3.0
+    """The accelerometer is not used while | |f| − g | exceeds this, m/s²."""
+    acc_gate_sigma: float = 5.0
+    """Innovation gate for the tilt update, in σ of the innovation."""
+    acc_lowpass_tau_s: float = 0.0
+    """Time constant of the low-pass of the specific force in the NED frame, s (0 = off)."""
+
+    # --- magnetometer (heading)
+    mag_enabled: bool = True
+    """False: 6-axis mode, heading from the gyro only (flag MAG_UNAVAILABLE)."""
+    mag_noise_ut: float = 0.7
+    """Magnetometer noise per axis, µT (BROAD rest data: 0.7 µT; ADIS16405 datasheet 1.25 mgauss = 0.125 µT)."""
+    mag_heading_noise_rad: float = 5.0 * _DEG
+    """Heading noise floor (residual hard/soft iron, local field gradients), rad."""
+    mag_norm_tol: float = 0.1
+    """Field magnitude must be within this fraction of the reference (VQF magNormTh)."""
+    mag_dip_tol_rad: float = 10.0 * _DEG
+    """Dip angle must be within this of the reference (VQF magDipTh)."""
+    mag_min_undisturbed_s: float = 0.5
+    """The field must match the reference this long before it is used again (VQF magMinUndisturbedTime)."""
+    mag_new_time_s: float = 20.0
+    """A consistent new field is adopted after this much rotation time (VQF magNewTime)."""
+    mag_new_min_rate_rad_s: float = 20.0 * _DEG
+    """Only rotation faster than this counts towards mag_new_time_s (VQF magNewMinGyr)."""
+    mag_ref_tau_s: float = 20.0
+    """Time constant with which the reference magnitude/dip follow an accepted field, s."""
+    mag_gate_sigma: float = 4.0
+    """Innovation gate for the heading update, in σ (the gate widens as the heading uncertainty grows)."""
+    mag_reject_max_s: float = 60.0
+    """After this long continuously disturbed the field is used again with 100× the noise (VQF
+    magMaxRejectionTime)."""
+    mag_unavailable_s: float = 10.0
+    """No heading update for this long sets MAG_UNAVAILABLE, s."""
+
+    # --- rest detection (bias learning)
+    rest_gyro_th_rad_s: float = 2.0 * _DEG
+    """Rest: gyro deviation from its low-pass below this (VQF restThGyr), rad/s."""
+    rest_acc_th_m_s2: float = 0.5
+    """Rest: specific force deviation from its low-pass below this (VQF restThAcc), m/s²."""
+    rest_min_time_s: float = 1.5
+    """Rest is declared after the conditions held this long (VQF restMinT), s."""
+    rest_filter_tau_s: float = 0.5
+    """Low-pass time constant of the rest detector (VQF restFilterTau), s."""
+    rest_bias_noise_rad_s: float = 0.03 * _DEG
+    """Noise of the low-passed gyro as a bias measurement at rest (VQF biasSigmaRest), rad/s."""
+
+    # --- start-up and time gaps
+    init_sigma_tilt_rad: float = 5.0 * _DEG
+    """1σ tilt after the Wahba initialisation, rad."""
+    init_sigma_yaw_rad: float = 10.0 * _DEG
+    """1σ heading after the Wahba initialisation (with a magnetometer), rad."""
+    init_min_time_s: float = 1.0
+    """INITIALISING is held at least this long after (re-)initialisation, s."""
+    converged_tilt_rad: float = 1.0 * _DEG
+    """... and until the 1σ tilt is below this, rad."""
+    converged_yaw_rad: float = 3.0 * _DEG
+    """... and the 1σ heading is below this (ignored without a magnetometer), rad."""
+    large_dt_s: float = 0.1
+    """A step longer than this (or not positive) is flagged LARGE_DT, s."""
+    reinit_dt_s: float = 2.0
+    """A gap longer than this re-initialises the filter from the next sample, s."""
+
+    def to_array(self) -> np.ndarray:
+        p = np.zeros(core.P_SIZE)
+        p[core.P_GYRO_NOISE] = self.gyro_noise_rad_s_sqrt_hz
+        p[core.P_GYRO_MOTION] = self.gyro_motion_noise_sqrt_s
+        p[core.P_BIAS_WALK] = self.gyro_bias_walk_rad_s_sqrt_s
+        p[core.P_BIAS_CLIP] = self.gyro_bias_clip_rad_s
+        p[core.P_ACC_NOISE] = self.acc_noise_m_s2
+        p[core.P_ACC_NOISE_REST] = self.acc_noise_rest_m_s2
+        p[core.P_ACC_NORM_GAIN] = self.acc_norm_noise_gain
+        p[core.P_ACC_REJECT] = self.acc_reject_m_s2
+        p[core.P_ACC_GATE] = self.acc_gate_sigma
+        p[core.P_ACC_TAU] = self.acc_lowpass_tau_s
+        p[core.P_MAG_NOISE] = self.mag_noise_ut
+        p[core.P_MAG_HEADING_NOISE] = self.mag_heading_noise_rad
+        p[core.P_MAG_NORM_TOL] = self.mag_norm_tol
+        p[core.P_MAG_DIP_TOL] = self.mag_dip_tol_rad
+        p[core.P_MAG_MIN_UNDIST] = self.mag_min_undisturbed_s
+        p[core.P_MAG_NEW_TIME] = self.mag_new_time_s
+        p[core.P_MAG_NEW_MIN_RATE] = self.mag_new_min_rate_rad_s
+        p[core.P_MAG_REF_TAU] = self.mag_ref_tau_s
+        p[core.P_MAG_GATE] = self.mag_gate_sigma
+        p[core.P_MAG_UNAVAILABLE] = self.mag_unavailable_s
+        p[core.P_REST_GYRO_TH] = self.rest_gyro_th_rad_s
+        p[core.P_REST_ACC_TH] = self.rest_acc_th_m_s2
+        p[core.P_REST_MIN_T] = self.rest_min_time_s
+        p[core.P_REST_TAU] = self.rest_filter_tau_s
+        p[core.P_REST_BIAS_NOISE] = self.rest_bias_noise_rad_s
+        p[core.P_LARGE_DT] = self.large_dt_s
+        p[core.P_REINIT_DT] = self.reinit_dt_s
+        p[core.P_INIT_TIME] = self.init_min_time_s
+        p[core.P_CONV_TILT] = self.converged_tilt_rad
+        p[core.P_CONV_YAW] = self.converged_yaw_rad
+        p[core.P_MAG_ENABLED] = 1.0 if self.mag_enabled else 0.0
+        p[core.P_MAG_REJECT_MAX] = self.mag_reject_max_s
+        return p
+
+
+DEFAULT_MEKF_PARAMS = MekfParams()
+
+
+def initial_attitude(accel_m_s2: np.ndarray, mag_ut: np.ndarray | None) -> np.ndarray:
+    """Body→NED quaternion from one gravity and one field direction (weighted Wahba, gravity weighted
+    ≫ field so the field only sets heading). Without a usable field the heading is 0 (magnetic north)."""
+    f = np.asarray(accel_m_s2, dtype=float)
+    down_b = -f / np.linalg.norm(f)              # NED down axis in body coordinates
+    if mag_ut is not None:
+        m = np.asarray(mag_ut, dtype=float)
+        east_b = np.cross(down_b, m)
+        ne = np.linalg.norm(east_b)
+    else:
+        ne = 0.0
+    if ne < 1e-9:                                # no field, or field parallel to gravity: heading 0
+        helper = np.array([1.0, 0.0, 0.0]) if abs(down_b[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        east_b = np.cross(down_b, helper)
+        east_b /= np.linalg.norm(east_b)
+        north_b = np.cross(east_b, down_b)
+        # choose the yaw that is zero: rotate so that body x projects onto north
+        fwd = np.array([1.0, 0.0, 0.0]) - down_b[0] * down_b
+        if np.linalg.norm(fwd) > 1e-6:
+            north_b = fwd / np.linalg.norm(fwd)
+            east_b = np.cross(down_b, north_b)
+    else:
+        east_b /= ne
+        north_b = np.cross(east_b, down_b)
+    c_n_b = np.vstack([north_b, east_b, down_b])  # rows: NED axes in body → C_b^n = c_n_b (maps body to NED)
+    return _dcm_to_quat(c_n_b)
+
+
+def _dcm_to_quat(c: np.ndarray) -> np.ndarray:
+    from .rotations import dcm_to_quat
+
+    return np.asarray(dcm_to_quat(c), dtype=float)
+
+
+class Mekf:
+    """The default estimator (Estimator protocol): `update(sample) -> AttitudeEstimate`."""
+
+    name = "mekf"
+
+    def __init__(self, declination_rad: float = 0.0, params: MekfParams | None = None, **overrides):
+        base = params or DEFAULT_MEKF_PARAMS
+        known = {f.name for f in fields(MekfParams)}
+        unknown = set(overrides) - known
+        if unknown:
+            raise ValueError(f"unknown mekf parameter(s): {', '.join(sorted(unknown))}")
+        self.params = replace(base, **overrides)
+        self._par = self.params.to_array()
+        self._state = np.zeros(core.S_SIZE)
+        self._out = np.zeros(core.O_SIZE)
+        self._declination = float(declination_rad)
+        self._initialised = False
+        self._reinit_pending = False
+
+    # ----------------------------------------------------------------------- Estimator protocol
+    def reset(self) -> None:
+        self._state[:] = 0.0
+        self._initialised = False
+        self._reinit_pending = False
+
+    def set_declination(self, declination_rad: float) -> None:
+        self._declination = float(declination_rad)
+
+    @property
+    def gyro_bias_rad_s(self) -> np.ndarray:
+        return self._state[core.S_B : core.S_B + 3].copy()
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """Error covariance 6×6 [δθ NED (rad), δb (rad/s)]."""
+        return self._state[core.S_P : core.S_P + 36].reshape(6, 6).copy()
+
+    def update(self, sample: ImuSample) -> AttitudeEstimate:
+        valid = _validity(sample.flags, sample.gyro_rad_s, sample.accel_m_s2, sample.mag_ut)
+        g = sample.gyro_rad_s
+        a = sample.accel_m_s2
+        m = sample.mag_ut
+        extra = 0
+        if self._initialised:
+            f = core.mekf_step(
+                self._state, self._par, sample.t_s,
+                g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], valid, self._out,
+            )
+            if f & core.NEEDS_INIT:
+                self._initialised = False
+                self._reinit_pending = True
+                extra = f & ~core.NEEDS_INIT
+        if not self._initialised:
+            if not self._initialise(sample.t_s, g, a, m, valid):
+                return self._estimate_uninitialised(sample, extra)
+            f = self._after_init_flags() | extra
+        return self._estimate(sample.t_s, f)
+
+    # ----------------------------------------------------------------------- batch (replay, benchmarks)
+    def run_batch(self, t_s, gyro_rad_s, accel_m_s2, mag_ut, sample_flags=None):
+        """Process arrays of samples (N,), (N,3)… with the same step as `update`; returns (q_wxyz (N,4),
+        flags (N,) int). Samples before the first usable one have NaN quaternions."""
+        t = np.ascontiguousarray(t_s, dtype=np.float64)
+        g = np.ascontiguousarray(gyro_rad_s, dtype=np.float64)
+        a = np.ascontiguousarray(accel_m_s2, dtype=np.float64)
+        m = np.ascontiguousarray(mag_ut, dtype=np.float64)
+        n = len(t)
+        valid = _validity_array(g, a, m, sample_flags)
+        q = np.full((n, 4), np.nan)
+        fl = np.zeros(n, dtype=np.int64)
+        i = 0
+        while i < n:
+            if not self._initialised:
+                if self._initialise(t[i], g[i], a[i], m[i], int(valid[i])):
+                    q[i] = self._state[core.S_Q : core.S_Q + 4]
+                    fl[i] = self._after_init_flags()
+                i += 1
+                continue
+            j = core.mekf_run(self._state, self._par, t, g, a, m, valid, i, q, fl)
+            if j < n:  # gap: re-initialise from sample j
+                self._initialised = False
+                self._reinit_pending = True
+                if self._initialise(t[j], g[j], a[j], m[j], int(valid[j])):
+                    q[j] = self._state[core.S_Q : core.S_Q + 4]
+                    fl[j] = self._after_init_flags() | int(EstimateFlags.LARGE_DT)
+                j += 1
+            i = j
+        return q, fl
+
+    # ----------------------------------------------------------------------- internals
+    def _initialise(self, t_s, g, a, m, valid) -> bool:
+        """Wahba initialisation from one sample; False if the sample cannot initialise (no gravity)."""
+        if not (valid & core.IN_ACC_OK) or not (valid & core.IN_GYRO_OK):
+            return False
+        an = float(np.linalg.norm(a))
+        if an < 2.0 or an > 30.0:  # free fall / shock: no usable gravity direction
+            return False
+        p = self.params
+        use_mag = bool(valid & core.IN_MAG_OK) and p.mag_enabled
+        q0 = initial_attitude(a, m if use_mag else None)
+        s = self._state
+        keep_bias = s[core.S_B : core.S_B + 3].copy() if self._reinit_pending else np.zeros(3)
+        keep_gref = s[core.S_G_REF] if self._reinit_pending and s[core.S_G_REF] > 0 else 0.0
+        keep_ref = s[core.S_MAG_REF_NORM : core.S_MAG_REF_DIP + 1].copy() if self._reinit_pending else None
+        s[:] = 0.0
+        s[core.S_Q : core.S_Q + 4] = q0
+        s[core.S_B : core.S_B + 3] = keep_bias
+        P = np.zeros((6, 6))
+        yaw_sigma = p.init_sigma_yaw_rad if use_mag else math.pi
+        P[0, 0] = P[1, 1] = p.init_sigma_tilt_rad**2
+        P[2, 2] = yaw_sigma**2
+        P[3, 3] = P[4, 4] = P[5, 5] = p.init_bias_sigma_rad_s**2
+        s[core.S_P : core.S_P + 36] = P.ravel()
+        s[core.S_T_LAST] = t_s
+        s[core.S_GYR_LP : core.S_GYR_LP + 3] = g
+        s[core.S_ACC_LP : core.S_ACC_LP + 3] = a
+        s[core.S_G_REF] = keep_gref or an
+        c = _quat_to_dcm(q0)
+        s[core.S_ACC_I : core.S_ACC_I + 3] = c @ a
+        s[core.S_GYR_LAST : core.S_GYR_LAST + 3] = g
+        if keep_ref is not None and keep_ref[0] > 0:
+            s[core.S_MAG_REF_NORM] = keep_ref[0]
+            s[core.S_MAG_REF_DIP] = keep_ref[1]
+            s[core.S_MAG_CAND_NORM] = keep_ref[0]
+            s[core.S_MAG_CAND_DIP] = keep_ref[1]
+        # the Wahba output is already the best heading: count the field as matching from the start
+        s[core.S_MAG_UNDIST_T] = p.mag_min_undisturbed_s
+        self._initialised = True
+        return True
+
+    def _after_init_flags(self) -> int:
+        o = self._out
+        o[core.O_Q : core.O_Q + 4] = self._state[core.S_Q : core.S_Q + 4]
+        if o[core.O_Q] < 0:
+            o[core.O_Q : core.O_Q + 4] *= -1.0
+        o[core.O_RATE : core.O_RATE + 3] = self._state[core.S_GYR_LAST : core.S_GYR_LAST + 3] - self._state[
+            core.S_B : core.S_B + 3
+        ]
+        P = self._state[core.S_P : core.S_P + 36]
+        o[core.O_SIGMA : core.O_SIGMA + 3] = np.sqrt([P[0], P[7], P[14]])
+        f = int(EstimateFlags.INITIALISING)
+        if self._reinit_pending:
+            f |= int(EstimateFlags.REINITIALISED | EstimateFlags.LARGE_DT)
+            self._reinit_pending = False
+        if not self.params.mag_enabled:
+            f |= int(EstimateFlags.MAG_UNAVAILABLE)
+        return f
+
+    def _estimate(self, t_s: float, f: int) -> AttitudeEstimate:
+        o = self._out
+        w, x, y, z = o[0], o[1], o[2], o[3]
+        roll = math.atan2(2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y))
+        pitch = -math.asin(max(-1.0, min(1.0, 2.0 * (x * z - w * y))))
+        yaw = math.atan2(2.0 * (x * y + w * z), 1.0 - 2.0 * (y * y + z * z))
+        heading = yaw % (2.0 * math.pi)
+        return AttitudeEstimate(
+            t_s=t_s,
+            q_wxyz=o[0:4].copy(),
+            roll_rad=roll,
+            pitch_rad=pitch,
+            yaw_rad=yaw,
+            heading_mag_rad=heading,
+            heading_true_rad=(yaw + self._declination) % (2.0 * math.pi),
+            rate_body_rad_s=o[4:7].copy(),
+            gyro_bias_rad_s=self._state[4:7].copy(),
+            sigma_rpy_rad=o[7:10].copy(),
+            flags=EstimateFlags(f & 0xFFFF),
+        )
+
+    def _estimate_uninitialised(self, sample: ImuSample, extra: int) -> AttitudeEstimate:
+        nan3 = np.full(3, np.nan)
+        return AttitudeEstimate(
+            t_s=sample.t_s,
+            q_wxyz=np.array([1.0, 0.0, 0.0, 0.0]),
+            roll_rad=math.nan,
+            pitch_rad=math.nan,
+            yaw_rad=math.nan,
+            heading_mag_rad=math.nan,
+            heading_true_rad=math.nan,
+            rate_body_rad_s=nan3,
+            gyro_bias_rad_s=np.zeros(3),
+            sigma_rpy_rad=np.full(3, math.pi),
+            flags=EstimateFlags.INITIALISING | EstimateFlags(extra & 0xFFFF),
+        )
+
+
+def _quat_to_dcm(q: np.ndarray) -> np.ndarray:
+    from .rotations import quat_to_dcm
+
+    return np.asarray(quat_to_dcm(q), dtype=float)
+
+
+def _finite3(v) -> bool:
+    return math.isfinite(v[0]) and math.isfinite(v[1]) and math.isfinite(v[2])
+
+
+def _validity(flags: SampleFlags, g, a, m) -> int:
+    """Which sensors of a sample the filter may use (flags from the driver, and finite values)."""
+    valid = 0
+    if not (flags & _GYRO_BAD) and _finite3(g):
+        valid |= core.IN_GYRO_OK
+    if not (flags & _ACC_BAD) and _finite3(a):
+        valid |= core.IN_ACC_OK
+    if not (flags & _MAG_BAD) and _finite3(m):
+        valid |= core.IN_MAG_OK
+    return valid
+
+
+def _validity_array(g, a, m, sample_flags) -> np.ndarray:
+    valid = (
+        np.isfinite(g).all(axis=1) * core.IN_GYRO_OK
+        + np.isfinite(a).all(axis=1) * core.IN_ACC_OK
+        + np.isfinite(m).all(axis=1) * core.IN_MAG_OK
+    ).astype(np.int64)
+    if sample_flags is not None:
+        sf = np.asarray(sample_flags, dtype=np.int64)
+        valid &= ~np.where(sf & int(_GYRO_BAD), core.IN_GYRO_OK, 0)
+        valid &= ~np.where(sf & int(_ACC_BAD), core.IN_ACC_OK, 0)
+        valid &= ~np.where(sf & int(_MAG_BAD), core.IN_MAG_OK, 0)
+    return valid
+
+
+__all__ = ["Mekf", "MekfParams", "DEFAULT_MEKF_PARAMS", "initial_attitude", "asdict"]

@@ -1,0 +1,575 @@
+"""The MEKF's per-sample step, compiled with numba (the one implementation of the algorithm).
+
+`mekf.py` owns the parameters, initialisation (weighted Wahba) and the Estimator interface; this module is
+the hot path: strapdown propagation, covariance propagation, rest detection, gated accelerometer (tilt) and
+magnetometer (heading) updates. Everything works on two flat float64 arrays — `state` (layout `S_*`) and
+`par` (layout `P_*`, filled from `MekfParams`) — so a step allocates nothing and one numba call serves a
+sample. `mekf_run` loops the same `mekf_step` over arrays for replay and benchmarks.
+
+Error state (6): δθ, the attitude error in the NED frame (C_true = (I + [δθ×]) C_est), and δb, the gyro bias
+error (b_true = b_est + δb). Tilt is δθ_N, δθ_E; heading is δθ_D. The accelerometer observes only
+δθ_N, δθ_E and the magnetometer only δθ_D, by construction of their measurement rows: a magnetic disturbance
+cannot move the horizon, and linear acceleration cannot move the heading directly.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+# ----------------------------------------------------------------------------------- state layout
+S_Q = 0            # 4: attitude quaternion body→NED, scalar first
+S_B = 4            # 3: gyro bias, rad/s
+S_P = 7            # 36: error covariance 6×6 row-major [δθ (rad), δb (rad/s)]
+S_T_LAST = 43      # time of the previous sample, s
+S_GYR_LP = 44      # 3: low-passed gyro for rest detection, rad/s
+S_ACC_LP = 47      # 3: low-passed accelerometer for rest detection, m/s²
+S_REST_T = 50      # time the rest conditions have held, s
+S_MAG_REF_NORM = 51  # reference field magnitude, µT (0 = not yet learned)
+S_MAG_REF_DIP = 52   # reference dip (inclination, positive down), rad
+S_MAG_CAND_NORM = 53  # candidate new field magnitude, µT
+S_MAG_CAND_DIP = 54   # candidate new field dip, rad
+S_MAG_CAND_T = 55     # time the candidate has been consistent while rotating, s
+S_MAG_UNDIST_T = 56   # time the field has matched the reference, s
+S_MAG_LAST_T = 57     # time since the last accepted heading update, s
+S_G_REF = 58          # gravity magnitude learned at rest, m/s²
+S_ACC_I = 59          # 3: specific force low-passed in the NED frame, m/s²
+S_GYR_LAST = 62       # 3: last valid gyro sample, rad/s
+S_T_RUN = 65          # time since initialisation, s
+S_MAG_DIST_T = 66     # time the field has been continuously disturbed, s
+S_SIZE = 72
+
+# ----------------------------------------------------------------------------------- parameter layout
+P_GYRO_NOISE = 0        # gyro angle random walk, rad/s/√Hz
+P_GYRO_MOTION = 1       # extra attitude process noise per rad/s of rotation rate (scale/misalignment), √s
+P_BIAS_WALK = 2         # gyro bias random walk, rad/s/√s
+P_BIAS_CLIP = 3         # |bias| limit per axis, rad/s
+P_ACC_NOISE = 4         # accelerometer noise in motion (includes typical linear acceleration), m/s²
+P_ACC_NOISE_REST = 5    # accelerometer noise at rest, m/s²
+P_ACC_NORM_GAIN = 6     # extra acc noise per m/s² of | |f| − g |, dimensionless
+P_ACC_REJECT = 7        # reject the accelerometer when | |f| − g | exceeds this, m/s²
+P_ACC_GATE = 8          # innovation gate, in σ
+P_ACC_TAU = 9           # time constant of the NED-frame low-pass of the specific force, s (0 = off)
+P_MAG_NOISE = 10        # magnetometer noise per axis, µT
+P_MAG_HEADING_NOISE = 11  # heading noise floor (residual calibration, local field), rad
+P_MAG_NORM_TOL = 12     # relative field-magnitude tolerance against the reference
+P_MAG_DIP_TOL = 13      # dip-angle tolerance against the reference, rad
+P_MAG_MIN_UNDIST = 14   # the field must match the reference this long before it is used, s
+P_MAG_NEW_TIME = 15     # a consistent new field is accepted after this much rotation time, s
+P_MAG_NEW_MIN_RATE = 16  # rotation counts towards P_MAG_NEW_TIME only above this rate, rad/s
+P_MAG_REF_TAU = 17      # time constant of the reference field's tracking, s
+P_MAG_GATE = 18         # heading innovation gate, in σ
+P_MAG_UNAVAILABLE = 19  # no heading update for this long → MAG_UNAVAILABLE, s
+P_REST_GYRO_TH = 20     # rest: gyro deviation from its low-pass below this, rad/s
+P_REST_ACC_TH = 21      # rest: acc deviation from its low-pass below this, m/s²
+P_REST_MIN_T = 22       # rest declared after the conditions held this long, s
+P_REST_TAU = 23         # low-pass time constant for rest detection, s
+P_REST_BIAS_NOISE = 24  # noise of the low-passed gyro as a bias measurement at rest, rad/s
+P_LARGE_DT = 25         # Δt above this (or ≤ 0) is flagged LARGE_DT, s
+P_REINIT_DT = 26        # Δt above this re-initialises the filter, s
+P_INIT_TIME = 27        # INITIALISING is held at least this long, s
+P_CONV_TILT = 28        # ... and until 1σ tilt is below this, rad
+P_CONV_YAW = 29         # ... and 1σ yaw below this, rad
+P_MAG_ENABLED = 30      # 1.0 = use the magnetometer, 0.0 = 6-axis (heading from gyro only)
+P_MAG_REJECT_MAX = 31   # after this long continuously disturbed, the field is trusted again with inflated noise, s
+P_SIZE = 32
+
+# ----------------------------------------------------------------------------------- flags (= EstimateFlags)
+F_INITIALISING = 1
+F_MAG_REJECTED = 2
+F_ACCEL_REJECTED = 4
+F_AT_REST = 8
+F_MAG_UNAVAILABLE = 16
+F_LARGE_DT = 32
+F_REINITIALISED = 64
+# step result: the caller must (re-)initialise from this sample (the step changed nothing)
+NEEDS_INIT = 1 << 16
+
+# input validity (from SampleFlags via mekf.py)
+IN_GYRO_OK = 1
+IN_ACC_OK = 2
+IN_MAG_OK = 4
+
+# output layout of `out` (per step)
+O_Q = 0        # 4
+O_RATE = 4     # 3 bias-corrected rate
+O_SIGMA = 7    # 3 roll, pitch, yaw 1σ
+O_SIZE = 10
+
+
+@njit(cache=True, inline="always")
+def _scalar_update(state, j, sign, nu, r):
+    """Kalman update with a measurement whose row is sign·e_j (one error-state component); returns the
+    correction applied to the error state via `state`'s scratch: caller reads dx from the returned tuple."""
+    p0 = S_P
+    s = state[p0 + j * 6 + j] + r
+    # K = P h / S with h = sign·e_j  →  K_i = sign·P[i, j] / S
+    k0 = sign * state[p0 + 0 * 6 + j] / s
+    k1 = sign * state[p0 + 1 * 6 + j] / s
+    k2 = sign * state[p0 + 2 * 6 + j] / s
+    k3 = sign * state[p0 + 3 * 6 + j] / s
+    k4 = sign * state[p0 + 4 * 6 + j] / s
+    k5 = sign * state[p0 + 5 * 6 + j] / s
+    # P ← P − K (h P) = P − K · sign·P[j, :]
+    for c in range(6):
+        hp = sign * state[p0 + j * 6 + c]
+        state[p0 + 0 * 6 + c] -= k0 * hp
+        state[p0 + 1 * 6 + c] -= k1 * hp
+        state[p0 + 2 * 6 + c] -= k2 * hp
+        state[p0 + 3 * 6 + c] -= k3 * hp
+        state[p0 + 4 * 6 + c] -= k4 * hp
+        state[p0 + 5 * 6 + c] -= k5 * hp
+    return k0 * nu, k1 * nu, k2 * nu, k3 * nu, k4 * nu, k5 * nu
+
+
+@njit(cache=True)
+def _apply_correction(state, par, dx0, dx1, dx2, dx3, dx4, dx5):
+    """q ← exp(δθ) ⊗ q (NED-frame error), b ← b + δb (clipped); rotates the NED low-pass with the frame."""
+    hw = 1.0
+    hx = 0.5 * dx0
+    hy = 0.5 * dx1
+    hz = 0.5 * dx2
+    n = math.sqrt(hw * hw + hx * hx + hy * hy + hz * hz)
+    hw /= n
+    hx /= n
+    hy /= n
+    hz /= n
+    qw = state[S_Q]
+    qx = state[S_Q + 1]
+    qy = state[S_Q + 2]
+    qz = state[S_Q + 3]
+    nw = hw * qw - hx * qx - hy * qy - hz * qz
+    nx = hw * qx + hx * qw + hy * qz - hz * qy
+    ny = hw * qy - hx * qz + hy * qw + hz * qx
+    nz = hw * qz + hx * qy - hy * qx + hz * qw
+    n = math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
+    state[S_Q] = nw / n
+    state[S_Q + 1] = nx / n
+    state[S_Q + 2] = ny / n
+    state[S_Q + 3] = nz / n
+    clip = par[P_BIAS_CLIP]
+    state[S_B] = min(max(state[S_B] + dx3, -clip), clip)
+    state[S_B + 1] = min(max(state[S_B + 1] + dx4, -clip), clip)
+    state[S_B + 2] = min(max(state[S_B + 2] + dx5, -clip), clip)
+    # the NED-frame low-passed specific force lives in the estimated NED frame: keep it there
+    ax = state[S_ACC_I]
+    ay = state[S_ACC_I + 1]
+    az = state[S_ACC_I + 2]
+    state[S_ACC_I] = ax + dx1 * az - dx2 * ay
+    state[S_ACC_I + 1] = ay + dx2 * ax - dx0 * az
+    state[S_ACC_I + 2] = az + dx0 * ay - dx1 * ax
+
+
+@njit(cache=True)
+def _symmetrise(state):
+    for i in range(6):
+        for j in range(i + 1, 6):
+            a = 0.5 * (state[S_P + i * 6 + j] + state[S_P + j * 6 + i])
+            state[S_P + i * 6 + j] = a
+            state[S_P + j * 6 + i] = a
+
+
+@njit(cache=True)
+def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, valid, out):
+    """One sample. Returns EstimateFlags bits (| NEEDS_INIT when the caller must initialise first).
+
+    valid: IN_GYRO_OK | IN_ACC_OK | IN_MAG_OK bits for this sample's sensors.
+    """
+    flags = 0
+    dt = t_s - state[S_T_LAST]
+    if not (dt > 0.0) or dt > par[P_LARGE_DT]:
+        flags |= F_LARGE_DT
+        if dt > par[P_REINIT_DT]:
+            return flags | NEEDS_INIT
+        if not (dt > 0.0):
+            dt = 0.0  # repeated or backwards time: update without propagating
+    state[S_T_LAST] = t_s
+    state[S_T_RUN] += dt
+
+    # ------------------------------------------------------------------ rates
+    if valid & IN_GYRO_OK:
+        state[S_GYR_LAST] = gx
+        state[S_GYR_LAST + 1] = gy
+        state[S_GYR_LAST + 2] = gz
+    else:
+        gx = state[S_GYR_LAST]
+        gy = state[S_GYR_LAST + 1]
+        gz = state[S_GYR_LAST + 2]
+    wx = gx - state[S_B]
+    wy = gy - state[S_B + 1]
+    wz = gz - state[S_B + 2]
+    rate = math.sqrt(wx * wx + wy * wy + wz * wz)
+
+    # ------------------------------------------------------------------ strapdown: q ← q ⊗ exp(ω dt)
+    qw = state[S_Q]
+    qx = state[S_Q + 1]
+    qy = state[S_Q + 2]
+    qz = state[S_Q + 3]
+    if dt > 0.0:
+        ang = rate * dt
+        if ang > 1e-9:
+            s = math.sin(0.5 * ang) / rate
+            cw = math.cos(0.5 * ang)
+        else:
+            s = 0.5 * dt
+            cw = 1.0
+        ex = wx * s
+        ey = wy * s
+        ez = wz * s
+        nw = qw * cw - qx * ex - qy * ey - qz * ez
+        nx = qw * ex + qx * cw + qy * ez - qz * ey
+        ny = qw * ey - qx * ez + qy * cw + qz * ex
+        nz = qw * ez + qx * ey - qy * ex + qz * cw
+        n = math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
+        qw = nw / n
+        qx = nx / n
+        qy = ny / n
+        qz = nz / n
+        state[S_Q] = qw
+        state[S_Q + 1] = qx
+        state[S_Q + 2] = qy
+        state[S_Q + 3] = qz
+
+    # C = C_b^n of the propagated attitude
+    c00 = 1.0 - 2.0 * (qy * qy + qz * qz)
+    c01 = 2.0 * (qx * qy - qw * qz)
+    c02 = 2.0 * (qx * qz + qw * qy)
+    c10 = 2.0 * (qx * qy + qw * qz)
+    c11 = 1.0 - 2.0 * (qx * qx + qz * qz)
+    c12 = 2.0 * (qy * qz - qw * qx)
+    c20 = 2.0 * (qx * qz - qw * qy)
+    c21 = 2.0 * (qy * qz + qw * qx)
+    c22 = 1.0 - 2.0 * (qx * qx + qy * qy)
+
+    # ------------------------------------------------------------------ covariance: Φ P Φᵀ + Q
+    # Φ = [[I, −C dt], [0, I]]  (δθ̇ = −C δb − C n_g)
+    if dt > 0.0:
+        p = S_P
+        # M = C dt (3×3), A = P[0:3,0:3], B = P[0:3,3:6], D = P[3:6,3:6]
+        m00 = c00 * dt
+        m01 = c01 * dt
+        m02 = c02 * dt
+        m10 = c10 * dt
+        m11 = c11 * dt
+        m12 = c12 * dt
+        m20 = c20 * dt
+        m21 = c21 * dt
+        m22 = c22 * dt
+        # MD = M D
+        d00 = state[p + 21]
+        d01 = state[p + 22]
+        d02 = state[p + 23]
+        d10 = state[p + 27]
+        d11 = state[p + 28]
+        d12 = state[p + 29]
+        d20 = state[p + 33]
+        d21 = state[p + 34]
+        d22 = state[p + 35]
+        md00 = m00 * d00 + m01 * d10 + m02 * d20
+        md01 = m00 * d01 + m01 * d11 + m02 * d21
+        md02 = m00 * d02 + m01 * d12 + m02 * d22
+        md10 = m10 * d00 + m11 * d10 + m12 * d20
+        md11 = m10 * d01 + m11 * d11 + m12 * d21
+        md12 = m10 * d02 + m11 * d12 + m12 * d22
+        md20 = m20 * d00 + m21 * d10 + m22 * d20
+        md21 = m20 * d01 + m21 * d11 + m22 * d21
+        md22 = m20 * d02 + m21 * d12 + m22 * d22
+        # B' = B − M D
+        b00 = state[p + 3] - md00
+        b01 = state[p + 4] - md01
+        b02 = state[p + 5] - md02
+        b10 = state[p + 9] - md10
+        b11 = state[p + 10] - md11
+        b12 = state[p + 11] - md12
+        b20 = state[p + 15] - md20
+        b21 = state[p + 16] - md21
+        b22 = state[p + 17] - md22
+        # A' = A − M Bᵀ − B Mᵀ + M D Mᵀ = A − M B'ᵀ − B Mᵀ  (using B' = B − M D)
+        # with the original B: A' = A − B Mᵀ − M (B − M D)ᵀ = A − B Mᵀ − M B'ᵀ
+        ob00 = state[p + 3]
+        ob01 = state[p + 4]
+        ob02 = state[p + 5]
+        ob10 = state[p + 9]
+        ob11 = state[p + 10]
+        ob12 = state[p + 11]
+        ob20 = state[p + 15]
+        ob21 = state[p + 16]
+        ob22 = state[p + 17]
+        qa = par[P_GYRO_NOISE] * par[P_GYRO_NOISE] * dt
+        gm = par[P_GYRO_MOTION] * rate
+        qa += gm * gm * dt
+        qb = par[P_BIAS_WALK] * par[P_BIAS_WALK] * dt
+        # rows i of A': A[i][j] − Σk ob[i][k] m[j][k] − Σk m[i][k] b[j][k]
+        state[p + 0] += qa - (ob00 * m00 + ob01 * m01 + ob02 * m02) - (m00 * b00 + m01 * b01 + m02 * b02)
+        state[p + 1] += -(ob00 * m10 + ob01 * m11 + ob02 * m12) - (m00 * b10 + m01 * b11 + m02 * b12)
+        state[p + 2] += -(ob00 * m20 + ob01 * m21 + ob02 * m22) - (m00 * b20 + m01 * b21 + m02 * b22)
+        state[p + 6] += -(ob10 * m00 + ob11 * m01 + ob12 * m02) - (m10 * b00 + m11 * b01 + m12 * b02)
+        state[p + 7] += qa - (ob10 * m10 + ob11 * m11 + ob12 * m12) - (m10 * b10 + m11 * b11 + m12 * b12)
+        state[p + 8] += -(ob10 * m20 + ob11 * m21 + ob12 * m22) - (m10 * b20 + m11 * b21 + m12 * b22)
+        state[p + 12] += -(ob20 * m00 + ob21 * m01 + ob22 * m02) - (m20 * b00 + m21 * b01 + m22 * b02)
+        state[p + 13] += -(ob20 * m10 + ob21 * m11 + ob22 * m12) - (m20 * b10 + m21 * b11 + m22 * b12)
+        state[p + 14] += qa - (ob20 * m20 + ob21 * m21 + ob22 * m22) - (m20 * b20 + m21 * b21 + m22 * b22)
+        state[p + 3] = b00
+        state[p + 4] = b01
+        state[p + 5] = b02
+        state[p + 9] = b10
+        state[p + 10] = b11
+        state[p + 11] = b12
+        state[p + 15] = b20
+        state[p + 16] = b21
+        state[p + 17] = b22
+        state[p + 18] = b00
+        state[p + 24] = b01
+        state[p + 30] = b02
+        state[p + 19] = b10
+        state[p + 25] = b11
+        state[p + 31] = b12
+        state[p + 20] = b20
+        state[p + 26] = b21
+        state[p + 32] = b22
+        state[p + 21] += qb
+        state[p + 28] += qb
+        state[p + 35] += qb
+
+    # ------------------------------------------------------------------ rest detection (VQF-style)
+    acc_ok = (valid & IN_ACC_OK) != 0
+    at_rest = False
+    if dt > 0.0:
+        k = 1.0 - math.exp(-dt / par[P_REST_TAU])
+        for i in range(3):
+            g = gx if i == 0 else (gy if i == 1 else gz)
+            state[S_GYR_LP + i] += k * (g - state[S_GYR_LP + i])
+        if acc_ok:
+            state[S_ACC_LP] += k * (ax - state[S_ACC_LP])
+            state[S_ACC_LP + 1] += k * (ay - state[S_ACC_LP + 1])
+            state[S_ACC_LP + 2] += k * (az - state[S_ACC_LP + 2])
+        dg = (gx - state[S_GYR_LP]) ** 2 + (gy - state[S_GYR_LP + 1]) ** 2 + (gz - state[S_GYR_LP + 2]) ** 2
+        da = (ax - state[S_ACC_LP]) ** 2 + (ay - state[S_ACC_LP + 1]) ** 2 + (az - state[S_ACC_LP + 2]) ** 2
+        clip = par[P_BIAS_CLIP]
+        lp_small = (abs(state[S_GYR_LP]) < clip) and (abs(state[S_GYR_LP + 1]) < clip) and (
+            abs(state[S_GYR_LP + 2]) < clip
+        )
+        if (
+            (valid & IN_GYRO_OK)
+            and acc_ok
+            and lp_small
+            and dg < par[P_REST_GYRO_TH] ** 2
+            and da < par[P_REST_ACC_TH] ** 2
+        ):
+            state[S_REST_T] += dt
+        else:
+            state[S_REST_T] = 0.0
+        at_rest = state[S_REST_T] >= par[P_REST_MIN_T]
+    if at_rest:
+        flags |= F_AT_REST
+        # the low-passed gyro measures the bias directly: y = b + δb → three scalar updates on δb
+        r = par[P_REST_BIAS_NOISE] ** 2
+        for i in range(3):
+            nu = state[S_GYR_LP + i] - state[S_B + i]
+            d0, d1, d2, d3, d4, d5 = _scalar_update(state, 3 + i, 1.0, nu, r)
+            _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
+
+    # ------------------------------------------------------------------ accelerometer: tilt only
+    if acc_ok:
+        # rotate the specific force into NED with the current estimate
+        q0 = state[S_Q]
+        q1 = state[S_Q + 1]
+        q2 = state[S_Q + 2]
+        q3 = state[S_Q + 3]
+        e00 = 1.0 - 2.0 * (q2 * q2 + q3 * q3)
+        e01 = 2.0 * (q1 * q2 - q0 * q3)
+        e02 = 2.0 * (q1 * q3 + q0 * q2)
+        e10 = 2.0 * (q1 * q2 + q0 * q3)
+        e11 = 1.0 - 2.0 * (q1 * q1 + q3 * q3)
+        e12 = 2.0 * (q2 * q3 - q0 * q1)
+        e20 = 2.0 * (q1 * q3 - q0 * q2)
+        e21 = 2.0 * (q2 * q3 + q0 * q1)
+        e22 = 1.0 - 2.0 * (q1 * q1 + q2 * q2)
+        fn = e00 * ax + e01 * ay + e02 * az
+        fe = e10 * ax + e11 * ay + e12 * az
+        fd = e20 * ax + e21 * ay + e22 * az
+        fnorm = math.sqrt(ax * ax + ay * ay + az * az)
+        g_ref = state[S_G_REF]
+        if at_rest:
+            # learn |g| as this accelerometer sees it (scale error) while nothing moves
+            state[S_G_REF] += 0.001 * (fnorm - g_ref)
+        dev = abs(fnorm - g_ref)
+        tau = par[P_ACC_TAU]
+        if tau > 0.0 and dt > 0.0:
+            ka = 1.0 - math.exp(-dt / tau)
+            state[S_ACC_I] += ka * (fn - state[S_ACC_I])
+            state[S_ACC_I + 1] += ka * (fe - state[S_ACC_I + 1])
+            state[S_ACC_I + 2] += ka * (fd - state[S_ACC_I + 2])
+            un = state[S_ACC_I]
+            ue = state[S_ACC_I + 1]
+            ud = state[S_ACC_I + 2]
+        else:
+            un = fn
+            ue = fe
+            ud = fd
+        unorm = math.sqrt(un * un + ue * ue + ud * ud)
+        if dev > par[P_ACC_REJECT] or unorm < 0.5 * g_ref:
+            flags |= F_ACCEL_REJECTED
+        else:
+            if at_rest:
+                sig = par[P_ACC_NOISE_REST]
+            else:
+                sig = par[P_ACC_NOISE]
+                extra = par[P_ACC_NORM_GAIN] * dev
+                sig = math.sqrt(sig * sig + extra * extra)
+            r = (sig / g_ref) ** 2
+            # unit measured "up" in NED: u = [δθ_E, −δθ_N, −1] (+ noise)
+            nu_n = un / unorm
+            nu_e = ue / unorm
+            gate2 = par[P_ACC_GATE] ** 2
+            s_n = state[S_P + 1 * 6 + 1] + r
+            s_e = state[S_P + 0 * 6 + 0] + r
+            if nu_n * nu_n > gate2 * s_n or nu_e * nu_e > gate2 * s_e:
+                flags |= F_ACCEL_REJECTED
+            else:
+                d0, d1, d2, d3, d4, d5 = _scalar_update(state, 1, 1.0, nu_n, r)
+                _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
+                # second component: innovation re-evaluated after the first correction (sequential update)
+                nu_e2 = nu_e - (-d0)
+                d0, d1, d2, d3, d4, d5 = _scalar_update(state, 0, -1.0, nu_e2, r)
+                _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
+
+    # ------------------------------------------------------------------ magnetometer: heading only
+    mag_used = False
+    if (valid & IN_MAG_OK) and par[P_MAG_ENABLED] > 0.0:
+        q0 = state[S_Q]
+        q1 = state[S_Q + 1]
+        q2 = state[S_Q + 2]
+        q3 = state[S_Q + 3]
+        mn = (1.0 - 2.0 * (q2 * q2 + q3 * q3)) * mx + 2.0 * (q1 * q2 - q0 * q3) * my + 2.0 * (q1 * q3 + q0 * q2) * mz
+        me = 2.0 * (q1 * q2 + q0 * q3) * mx + (1.0 - 2.0 * (q1 * q1 + q3 * q3)) * my + 2.0 * (q2 * q3 - q0 * q1) * mz
+        md = 2.0 * (q1 * q3 - q0 * q2) * mx + 2.0 * (q2 * q3 + q0 * q1) * my + (1.0 - 2.0 * (q1 * q1 + q2 * q2)) * mz
+        mnorm = math.sqrt(mx * mx + my * my + mz * mz)
+        mh = math.sqrt(mn * mn + me * me)
+        if mnorm > 1e-6:
+            dip = math.atan2(md, mh)
+            ref_norm = state[S_MAG_REF_NORM]
+            if ref_norm <= 0.0:
+                state[S_MAG_REF_NORM] = mnorm
+                state[S_MAG_REF_DIP] = dip
+                state[S_MAG_CAND_NORM] = mnorm
+                state[S_MAG_CAND_DIP] = dip
+                ref_norm = mnorm
+            tol = par[P_MAG_NORM_TOL]
+            dtol = par[P_MAG_DIP_TOL]
+            matches = abs(mnorm - ref_norm) < tol * ref_norm and abs(dip - state[S_MAG_REF_DIP]) < dtol
+            if matches:
+                state[S_MAG_UNDIST_T] += dt
+                state[S_MAG_DIST_T] = 0.0
+            else:
+                state[S_MAG_UNDIST_T] = 0.0
+                state[S_MAG_DIST_T] += dt
+            # candidate for a new (permanently changed) field: must stay consistent while the body rotates
+            cn = state[S_MAG_CAND_NORM]
+            if abs(mnorm - cn) < tol * cn and abs(dip - state[S_MAG_CAND_DIP]) < dtol:
+                kc = 1.0 - math.exp(-dt / par[P_MAG_REF_TAU]) if dt > 0.0 else 0.0
+                state[S_MAG_CAND_NORM] += kc * (mnorm - cn)
+                state[S_MAG_CAND_DIP] += kc * (dip - state[S_MAG_CAND_DIP])
+                if rate > par[P_MAG_NEW_MIN_RATE]:
+                    state[S_MAG_CAND_T] += dt
+            else:
+                state[S_MAG_CAND_NORM] = mnorm
+                state[S_MAG_CAND_DIP] = dip
+                state[S_MAG_CAND_T] = 0.0
+            if (not matches) and state[S_MAG_CAND_T] >= par[P_MAG_NEW_TIME]:
+                # the field has changed for good (new place, new iron): adopt it
+                state[S_MAG_REF_NORM] = state[S_MAG_CAND_NORM]
+                state[S_MAG_REF_DIP] = state[S_MAG_CAND_DIP]
+                state[S_MAG_UNDIST_T] = par[P_MAG_MIN_UNDIST]
+                state[S_MAG_DIST_T] = 0.0
+                matches = True
+            undisturbed = matches and state[S_MAG_UNDIST_T] >= par[P_MAG_MIN_UNDIST]
+            inflate = 1.0
+            if not undisturbed and state[S_MAG_DIST_T] > par[P_MAG_REJECT_MAX]:
+                undisturbed = True  # disturbed for too long: use it, but trust it little
+                inflate = 100.0
+            if undisturbed and mh > 1e-3 * mnorm:
+                if matches and dt > 0.0:
+                    kr = 1.0 - math.exp(-dt / par[P_MAG_REF_TAU])
+                    state[S_MAG_REF_NORM] += kr * (mnorm - state[S_MAG_REF_NORM])
+                    state[S_MAG_REF_DIP] += kr * (dip - state[S_MAG_REF_DIP])
+                # heading measurement: angle of the horizontal field in the estimated NED frame, α = −δθ_D
+                alpha = math.atan2(me, mn)
+                sig_a = par[P_MAG_NOISE] / mh
+                r = (sig_a * sig_a + par[P_MAG_HEADING_NOISE] ** 2) * inflate
+                s = state[S_P + 2 * 6 + 2] + r
+                if alpha * alpha > par[P_MAG_GATE] ** 2 * s and inflate == 1.0:
+                    flags |= F_MAG_REJECTED
+                else:
+                    d0, d1, d2, d3, d4, d5 = _scalar_update(state, 2, -1.0, alpha, r)
+                    _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
+                    mag_used = True
+            else:
+                flags |= F_MAG_REJECTED
+    if mag_used:
+        state[S_MAG_LAST_T] = 0.0
+    else:
+        state[S_MAG_LAST_T] += dt
+        if state[S_MAG_LAST_T] > par[P_MAG_UNAVAILABLE]:
+            flags |= F_MAG_UNAVAILABLE
+
+    _symmetrise(state)
+
+    # ------------------------------------------------------------------ outputs
+    q0 = state[S_Q]
+    q1 = state[S_Q + 1]
+    q2 = state[S_Q + 2]
+    q3 = state[S_Q + 3]
+    if q0 < 0.0:
+        q0 = -q0
+        q1 = -q1
+        q2 = -q2
+        q3 = -q3
+    out[O_Q] = q0
+    out[O_Q + 1] = q1
+    out[O_Q + 2] = q2
+    out[O_Q + 3] = q3
+    out[O_RATE] = gx - state[S_B]
+    out[O_RATE + 1] = gy - state[S_B + 1]
+    out[O_RATE + 2] = gz - state[S_B + 2]
+    # 1σ roll/pitch: NED tilt covariance rotated into the heading frame; yaw: δθ_D
+    yaw = math.atan2(2.0 * (q1 * q2 + q0 * q3), 1.0 - 2.0 * (q2 * q2 + q3 * q3))
+    cy = math.cos(yaw)
+    sy = math.sin(yaw)
+    pnn = state[S_P + 0]
+    pne = state[S_P + 1]
+    pee = state[S_P + 7]
+    out[O_SIGMA] = math.sqrt(max(cy * cy * pnn + 2.0 * cy * sy * pne + sy * sy * pee, 0.0))
+    out[O_SIGMA + 1] = math.sqrt(max(sy * sy * pnn - 2.0 * cy * sy * pne + cy * cy * pee, 0.0))
+    out[O_SIGMA + 2] = math.sqrt(max(state[S_P + 14], 0.0))
+    if (
+        state[S_T_RUN] < par[P_INIT_TIME]
+        or max(out[O_SIGMA], out[O_SIGMA + 1]) > par[P_CONV_TILT]
+        or (par[P_MAG_ENABLED] > 0.0 and out[O_SIGMA + 2] > par[P_CONV_YAW])
+    ):
+        flags |= F_INITIALISING
+    return flags
+
+
+@njit(cache=True)
+def mekf_run(state, par, t_s, gyro, acc, mag, valid, start, q_out, flags_out):
+    """Run `mekf_step` over samples start… Returns the index of the first sample that needs
+    (re-)initialisation, or len(t_s) when all were processed. q_out (N, 4), flags_out (N,)."""
+    out = np.empty(O_SIZE)
+    n = t_s.shape[0]
+    for i in range(start, n):
+        f = mekf_step(
+            state, par, t_s[i],
+            gyro[i, 0], gyro[i, 1], gyro[i, 2],
+            acc[i, 0], acc[i, 1], acc[i, 2],
+            mag[i, 0], mag[i, 1], mag[i, 2],
+            valid[i], out,
+        )
+        if f & NEEDS_INIT:
+            return i
+        for j in range(4):
+            q_out[i, j] = out[O_Q + j]
+        flags_out[i] = f
+    return n
