@@ -1,0 +1,931 @@
+"""Field magnetometer recalibration: the session a ground station drives, independent of MAVLink.
+
+`FieldCalibration` is fed samples (raw or already calibrated with the calibration in force) together with
+the estimator's attitude. It tracks coverage the way ArduPilot's `CompassCalibrator` does (an 80-cell
+completion mask over the sphere of corrected field directions, `AP_GeodesicGrid` sections) and, for vehicles
+that cannot be tumbled, the coverage of headings; it reports completion %, a direction hint and the
+MAVLink `MAG_CAL_STATUS` states, then picks the fit from the data:
+
+- full sphere seen (tumbled vehicle)            -> 9-parameter ellipsoid (`fit_mag("ellipsoid")`)
+- level turns (boat, rover, large vehicle)       -> back-stepping / constrained fit (`fit_mag("backstepping")`)
+- the data cannot support the full model         -> hard iron only, soft iron kept from the calibration in
+                                                    force ("tilt range too small for full model: fitted
+                                                    offsets only")
+
+and judges the result against ArduPilot's acceptance rules (fitness = RMS field-magnitude residual in
+mgauss vs `COMPASS_CAL_FIT`, offsets, diagonals, radius). The result is a proposed `Calibration` with the
+before/after parameters; accepting it (saving and hot-swapping) is the daemon's job (daemon/magcal.py).
+
+Also here: `fixed_yaw_calibration` (MAV_CMD_FIXED_MAG_CAL_YAW, keeping the soft-iron terms), the
+conversion to/from ArduPilot's offsets/diag/offdiag convention, and `HeadingSlew`, which keeps the heading
+the autopilot receives from stepping when a new calibration is swapped in.
+
+Time: every duration in the session (start delay, timeout) is measured in *sample* time (`sample.t_s`), so
+a simulation running faster than real time behaves like the real thing; only the "no samples arriving"
+check uses the caller's wall clock (`tick(now_s)`).
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import math
+import threading
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Callable
+
+import numpy as np
+
+from .models import Calibration, MagModel
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ahrsd.drivers.sample import ImuSample
+    from ahrsd.estimator.base import AttitudeEstimate
+    from ahrsd.estimator.wmm import EarthField
+
+log = logging.getLogger(__name__)
+
+UT_TO_MGAUSS = 10.0  # 1 µT = 10 mgauss (1 gauss = 100 µT)
+
+# ArduPilot CompassCalibrator / AP_Compass reference values (anchors/magcal.md §1.1, mavlink-adis.md §6).
+COMPASS_CAL_FIT_DEFAULT_MGAUSS = 16.0   # AP_COMPASS_CALIBRATION_FITNESS_DEFAULT (4 very strict ... 32 relaxed)
+COMPASS_OFFS_MAX_MGAUSS = 1800.0        # COMPASS_OFFS_MAX default
+RADIUS_MIN_MGAUSS, RADIUS_MAX_MGAUSS = 150.0, 950.0  # CompassCalibrator::fit_acceptable
+DIAG_MIN, DIAG_MAX = 0.2, 5.0                          # CompassCalibrator::fit_acceptable
+OFFDIAG_MAX = 1.0                                      # CompassCalibrator::fit_acceptable
+MAX_SCALE_FACTOR = 1.5                  # COMPASS_MAX_SCALE_FACTOR: WMM radius check (BAD_RADIUS)
+COMPLETION_MASK_BYTES = 10              # MAG_CAL_PROGRESS.completion_mask: 80 AP_GeodesicGrid sections
+
+
+class CalStatus(enum.IntEnum):
+    """MAVLink MAG_CAL_STATUS (ardupilotmega.xml / common.xml, pymavlink 2.4.50)."""
+
+    NOT_STARTED = 0
+    WAITING_TO_START = 1
+    RUNNING_STEP_ONE = 2
+    RUNNING_STEP_TWO = 3
+    SUCCESS = 4
+    FAILED = 5
+    BAD_ORIENTATION = 6
+    BAD_RADIUS = 7
+    FAILED_OFFSETS = 8
+    FAILED_DIAG_SCALING = 9
+    FAILED_RESIDUALS_HIGH = 10
+
+    @property
+    def running(self) -> bool:
+        return self in (CalStatus.WAITING_TO_START, CalStatus.RUNNING_STEP_ONE, CalStatus.RUNNING_STEP_TWO)
+
+    @property
+    def finished(self) -> bool:
+        return self >= CalStatus.SUCCESS
+
+
+# ============================================================================ AP_GeodesicGrid (80 sections)
+# Same triangles, vertex order and sub-triangle numbering as ArduPilot's libraries/AP_Math/AP_GeodesicGrid.cpp,
+# so a ground station that draws our completion_mask draws the same cells it draws for an autopilot:
+# section = 4 · icosahedron_triangle + sub_triangle; sub-triangle 0 is the middle one.
+
+_G = (1.0 + math.sqrt(5.0)) / 2.0  # M_GOLDEN
+_TRIANGLES_HALF = np.array(
+    [
+        [[-_G, 1, 0], [-1, 0, -_G], [-_G, -1, 0]],
+        [[-1, 0, -_G], [-_G, -1, 0], [0, -_G, -1]],
+        [[-_G, -1, 0], [0, -_G, -1], [0, -_G, 1]],
+        [[-1, 0, -_G], [0, -_G, -1], [1, 0, -_G]],
+        [[0, -_G, -1], [0, -_G, 1], [_G, -1, 0]],
+        [[0, -_G, -1], [1, 0, -_G], [_G, -1, 0]],
+        [[_G, -1, 0], [1, 0, -_G], [_G, 1, 0]],
+        [[1, 0, -_G], [_G, 1, 0], [0, _G, -1]],
+        [[1, 0, -_G], [0, _G, -1], [-1, 0, -_G]],
+        [[0, _G, -1], [-_G, 1, 0], [-1, 0, -_G]],
+    ],
+    dtype=np.float64,
+)
+GEODESIC_TRIANGLES = np.concatenate([_TRIANGLES_HALF, -_TRIANGLES_HALF])          # (20, 3 vertices, 3)
+GEODESIC_MID_TRIANGLES = np.stack(
+    [
+        (GEODESIC_TRIANGLES[:, 0] + GEODESIC_TRIANGLES[:, 1]) / 2,
+        (GEODESIC_TRIANGLES[:, 1] + GEODESIC_TRIANGLES[:, 2]) / 2,
+        (GEODESIC_TRIANGLES[:, 2] + GEODESIC_TRIANGLES[:, 0]) / 2,
+    ],
+    axis=1,
+)
+# Inverse of the matrix whose columns are the vertices: w = inv · v gives v's coefficients on the vertices.
+_TRI_INV = np.linalg.inv(np.transpose(GEODESIC_TRIANGLES, (0, 2, 1)))
+_MID_INV = np.linalg.inv(np.transpose(GEODESIC_MID_TRIANGLES, (0, 2, 1)))
+N_SECTIONS = 80
+
+
+def geodesic_sections(vectors: np.ndarray) -> np.ndarray:
+    """AP_GeodesicGrid::section(v, inclusive=true) for each row of `vectors` (n, 3): 0..79, −1 for a zero
+    or non-finite vector."""
+    v = np.atleast_2d(np.asarray(vectors, dtype=np.float64))
+    out = np.full(v.shape[0], -1, dtype=np.int64)
+    good = np.all(np.isfinite(v), axis=1) & (np.linalg.norm(v, axis=1) > 0)
+    if not np.any(good):
+        return out
+    vg = v[good]
+    w = np.einsum("tij,nj->nti", _TRI_INV, vg)              # (n, 20, 3) coefficients on each triangle
+    tri = np.argmax(w.min(axis=2) >= -1e-9 * np.linalg.norm(vg, axis=1)[:, None], axis=1)
+    wm = np.einsum("nij,nj->ni", _MID_INV[tri], vg)          # coefficients on the middle triangle
+    eps = 1e-12
+    sub = np.where(wm[:, 0] < -eps, 3, np.where(wm[:, 1] < -eps, 1, np.where(wm[:, 2] < -eps, 2, 0)))
+    out[good] = 4 * tri + sub
+    return out
+
+
+def section_centres() -> np.ndarray:
+    """Unit vector through the centroid of each of the 80 sections (80, 3)."""
+    t, m = GEODESIC_TRIANGLES, GEODESIC_MID_TRIANGLES
+    corners = [
+        (m[:, 0], m[:, 1], m[:, 2]),
+        (t[:, 0], m[:, 0], m[:, 2]),
+        (m[:, 0], t[:, 1], m[:, 1]),
+        (m[:, 2], m[:, 1], t[:, 2]),
+    ]
+    c = np.empty((20, 4, 3))
+    for j, (a, b, cc) in enumerate(corners):
+        c[:, j] = (a + b + cc) / 3
+    c = c.reshape(80, 3)
+    return c / np.linalg.norm(c, axis=1, keepdims=True)
+
+
+def completion_mask_bytes(sections_hit: np.ndarray) -> bytes:
+    """The 10-byte MAG_CAL_PROGRESS.completion_mask: bit (s % 8) of byte (s // 8) set for each section s
+    (CompassCalibrator::update_completion_mask)."""
+    mask = bytearray(COMPLETION_MASK_BYTES)
+    for s in np.unique(np.asarray(sections_hit, dtype=np.int64)):
+        if 0 <= s < N_SECTIONS:
+            mask[s // 8] |= 1 << (s % 8)
+    return bytes(mask)
+
+
+# ============================================================================ ArduPilot report convention
+
+
+@dataclass(frozen=True)
+class ArduPilotMagParams:
+    """A magnetometer model in ArduPilot's terms: corrected = scale_factor · S · (raw + offsets), with S
+    symmetric: diag = (S11, S22, S33), offdiag = (S12=S21, S13=S31, S23=S32) (CompassCalibrator::calc_residual,
+    MAG_CAL_REPORT). Offsets in mgauss. `residual_rotation_deg`: the rotation part of a non-symmetric soft
+    iron that ArduPilot's symmetric S cannot carry (reported separately, 0 for a symmetric model)."""
+
+    ofs_mgauss: np.ndarray
+    diag: np.ndarray
+    offdiag: np.ndarray
+    scale_factor: float = 1.0
+    residual_rotation_deg: float = 0.0
+
+    def matrix(self) -> np.ndarray:
+        d, o = self.diag, self.offdiag
+        return np.array([[d[0], o[0], o[1]], [o[0], d[1], o[2]], [o[1], o[2], d[2]]], dtype=np.float64)
+
+
+def to_ardupilot(model: MagModel) -> ArduPilotMagParams:
+    """Our m = W · (raw − h) [µT] in ArduPilot's convention m = S · (raw + o) [mgauss in, mgauss out].
+
+    o = −h (converted to mgauss). W is split by the polar decomposition W = R · P (R a rotation, P symmetric
+    positive definite); S = P is what ArduPilot can represent and scale_factor = 1 (W already maps to the
+    true field strength). For a symmetric W (every ellipsoid fit) this is exact; otherwise the rotation angle
+    of R is returned in `residual_rotation_deg` so it is not silently lost.
+    """
+    from scipy.linalg import polar
+
+    w = np.asarray(model.soft_iron, dtype=np.float64)
+    r, p = polar(w, side="right")  # w = r @ p
+    if np.linalg.det(r) < 0:  # a reflection would mean a mirrored sensor axis: keep it in P, not R
+        r, p = -r, -p
+    angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(r) - 1.0) / 2.0))))
+    p = (p + p.T) / 2
+    return ArduPilotMagParams(
+        ofs_mgauss=-np.asarray(model.hard_iron_ut, dtype=np.float64) * UT_TO_MGAUSS,
+        diag=np.diag(p).copy(),
+        offdiag=np.array([p[0, 1], p[0, 2], p[1, 2]]),
+        scale_factor=1.0,
+        residual_rotation_deg=angle,
+    )
+
+
+def from_ardupilot(ofs_mgauss, diag, offdiag, scale_factor: float = 1.0) -> MagModel:
+    """ArduPilot's COMPASS_OFS/DIA/ODI/SCALE back to our model. scale_factor 0 means "not set" in ArduPilot
+    (AP_Compass applies no scaling) and is read as 1."""
+    sf = float(scale_factor) if scale_factor and math.isfinite(scale_factor) else 1.0
+    s = ArduPilotMagParams(np.asarray(ofs_mgauss, float), np.asarray(diag, float), np.asarray(offdiag, float)).matrix()
+    return MagModel(-np.asarray(ofs_mgauss, dtype=np.float64) / UT_TO_MGAUSS, sf * s)
+
+
+# ============================================================================ small geometry helpers
+
+
+def roll_pitch_yaw_from_q(q_wxyz: np.ndarray) -> tuple[float, float, float]:
+    """ZYX Euler angles of a body→NED quaternion (design §4)."""
+    w, x, y, z = (float(c) for c in q_wxyz)
+    c31 = 2.0 * (x * z - w * y)
+    c32 = 2.0 * (y * z + w * x)
+    c33 = 1.0 - 2.0 * (x * x + y * y)
+    c21 = 2.0 * (x * y + w * z)
+    c11 = 1.0 - 2.0 * (y * y + z * z)
+    return math.atan2(c32, c33), -math.asin(max(-1.0, min(1.0, c31))), math.atan2(c21, c11)
+
+
+def tilt_compensated_heading_rad(mag_ut: np.ndarray, roll_rad, pitch_rad) -> np.ndarray:
+    """Magnetic heading (rad, (−π, π]) from body-frame field and roll/pitch: the field rotated to the local
+    level frame, ψ = atan2(−Y_h, X_h). Vectorised over rows."""
+    m = np.atleast_2d(np.asarray(mag_ut, dtype=np.float64))
+    phi = np.asarray(roll_rad, dtype=np.float64)
+    theta = np.asarray(pitch_rad, dtype=np.float64)
+    sp, cp, st, ct = np.sin(phi), np.cos(phi), np.sin(theta), np.cos(theta)
+    xh = m[:, 0] * ct + m[:, 1] * sp * st + m[:, 2] * cp * st
+    yh = m[:, 1] * cp - m[:, 2] * sp
+    return np.arctan2(-yh, xh)
+
+
+def _down_row(roll_rad: np.ndarray, pitch_rad: np.ndarray) -> np.ndarray:
+    """Third row of C_b^n (body → NED) for each attitude: the body-frame direction of NED 'down' (n, 3)."""
+    return np.column_stack(
+        [-np.sin(pitch_rad), np.sin(roll_rad) * np.cos(pitch_rad), np.cos(roll_rad) * np.cos(pitch_rad)]
+    )
+
+
+def _wrap_pi(a):
+    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
+
+
+# ============================================================================ offsets-only fit
+
+
+def fit_offsets_keep_soft_iron(
+    raw_mag_ut: np.ndarray,
+    soft_iron: np.ndarray,
+    current_hard_iron_ut: np.ndarray,
+    roll_rad: np.ndarray | None = None,
+    pitch_rad: np.ndarray | None = None,
+    reference: "EarthField | None" = None,
+    prior_weight: float = 1e-3,
+) -> tuple[MagModel, dict]:
+    """Hard iron only, soft iron W kept: solve for c = W·h so that the corrected field u − c (u = W·raw)
+    lies on a sphere and, when roll/pitch and the WMM field are known, its vertical component equals the
+    WMM down component (the "vertical channel" that level data cannot give a sphere fit).
+
+    Linear least squares in (c, k): sphere rows (u·c)/R + k/(2R) = |u|²/(2R) (k = R² − |c|²), down rows
+    d·c = d·u − B_down (d = body direction of NED down). A weak prior keeps directions the data cannot
+    determine at the current value instead of letting them run away. Returns (model, quality).
+    """
+    raw = np.asarray(raw_mag_ut, dtype=np.float64)
+    w = np.asarray(soft_iron, dtype=np.float64)
+    u = raw @ w.T
+    c0 = w @ np.asarray(current_hard_iron_ut, dtype=np.float64)
+    r_est = float(reference.total_ut) if reference is not None else float(np.mean(np.linalg.norm(u - c0, axis=1)))
+    r_est = max(r_est, 1.0)
+    rows = [np.column_stack([u / r_est, np.full(len(u), 1.0 / (2 * r_est))])]
+    rhs = [np.sum(u * u, axis=1) / (2 * r_est)]
+    used_vertical = False
+    if reference is not None and roll_rad is not None and pitch_rad is not None:
+        d = _down_row(np.asarray(roll_rad, float), np.asarray(pitch_rad, float))
+        rows.append(np.column_stack([d, np.zeros(len(d))]))
+        rhs.append(np.sum(d * u, axis=1) - reference.down_ut)
+        used_vertical = True
+    # prior: c ≈ c0 (weight relative to the data rows), k free
+    n = len(u)
+    pw = prior_weight * math.sqrt(n)
+    rows.append(np.column_stack([np.eye(3) * pw, np.zeros(3)]))
+    rhs.append(c0 * pw)
+    a = np.vstack(rows)
+    b = np.concatenate(rhs)
+    sol, *_ = np.linalg.lstsq(a, b, rcond=None)
+    c = sol[:3]
+    sv = np.linalg.svd(a[: -3, :3], compute_uv=False) if a.shape[0] > 3 else np.zeros(3)
+    h = np.linalg.solve(w, c)
+    model = MagModel(h, w)
+    corrected = u - c
+    radius = float(np.mean(np.linalg.norm(corrected, axis=1)))
+    quality = {
+        "n_used": int(n),
+        "used_vertical_channel": used_vertical,
+        "offset_condition": float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf,
+        "radius_ut": radius,
+    }
+    return model, quality
+
+
+# ============================================================================ fixed-yaw calibration
+
+
+@dataclass(frozen=True)
+class FixedYawResult:
+    model: MagModel
+    expected_body_ut: np.ndarray
+    measured_raw_ut: np.ndarray
+    field_mismatch_ut: float  # | |W(raw − h_old)| − |B_wmm| |: how far the old model was from the WMM strength
+    message: str
+
+
+def fixed_yaw_calibration(
+    true_heading_deg: float,
+    reference: "EarthField",
+    roll_rad: float,
+    pitch_rad: float,
+    raw_mag_ut: np.ndarray,
+    current: MagModel,
+) -> FixedYawResult:
+    """MAV_CMD_FIXED_MAG_CAL_YAW: the vehicle points at a known TRUE heading; the expected body-frame field
+    is the WMM field (true-north NED) rotated by roll, pitch and that heading. New hard iron h so that
+    W · (raw − h) equals it, with W — the soft-iron terms — KEPT (ArduPilot's mag_cal_fixed_yaw resets them
+    to identity, which throws away a good soft-iron calibration: anchors/magcal.md §1.3, §7).
+
+    raw_mag_ut: the raw field averaged over a short still period (µT, sensor = body frame).
+    """
+    from scipy.spatial.transform import Rotation
+
+    raw = np.asarray(raw_mag_ut, dtype=np.float64).reshape(3)
+    if not np.all(np.isfinite(raw)) or not math.isfinite(true_heading_deg):
+        raise ValueError("fixed-yaw calibration needs a finite heading and magnetometer reading")
+    c_bn = Rotation.from_euler("ZYX", [math.radians(true_heading_deg), pitch_rad, roll_rad]).as_matrix()
+    expected = c_bn.T @ reference.ned_ut
+    w = np.asarray(current.soft_iron, dtype=np.float64)
+    h = raw - np.linalg.solve(w, expected)
+    before = float(np.linalg.norm(current.apply(raw)))
+    mismatch = abs(before - reference.total_ut)
+    msg = (
+        f"fixed-yaw cal at {true_heading_deg:.1f} deg true: offsets "
+        f"{np.round(-h * UT_TO_MGAUSS).astype(int).tolist()} mG, soft iron kept"
+    )
+    return FixedYawResult(MagModel(h, w), expected, raw, mismatch, msg)
+
+
+# ============================================================================ heading slew
+
+
+@dataclass
+class HeadingSlew:
+    """Keeps the heading sent to the autopilot from stepping when a new calibration is swapped in.
+
+    ArduPilot EKF3 rejects an external-yaw innovation beyond its 3σ gate in flight and then keeps its old
+    yaw indefinitely (anchors/ardupilot-extnav.md), so after `start_transition()` the published heading
+    follows the vehicle's own rotation (yaw rate from the estimator) and moves towards the estimator's new
+    heading at no more than `max_rate_deg_s`. Outside a transition it passes the heading through unchanged.
+
+    VISION_POSITION_ESTIMATE.reset_counter is NOT touched by a calibration change: in ArduPilot a new
+    reset_counter value makes AP_VisualOdom stamp a new reset time, which EKF3 (writeExtNavData) treats as a
+    *position* reset (extNavDataNew.posReset), and the T265/VOXL backends drop 1 s of data after it; it
+    never re-aligns yaw. So a heading change is slewed in, never signalled as a reset.
+    """
+
+    max_rate_deg_s: float = 2.0
+    done_within_deg: float = 0.05
+    active: bool = False
+    _published: float | None = None
+    _t_last: float | None = None
+
+    def start_transition(self) -> None:
+        self.active = True
+
+    def update(self, t_s: float, heading_rad: float, yaw_rate_rad_s: float = 0.0) -> float:
+        """Heading to publish (rad, [0, 2π)) for the estimator's heading at t_s and the vehicle's yaw rate."""
+        if self._published is None or not self.active:
+            self._published = heading_rad % (2 * math.pi)
+            self._t_last = t_s
+            return self._published
+        dt = 0.0 if self._t_last is None else max(0.0, t_s - self._t_last)
+        self._t_last = t_s
+        predicted = self._published + yaw_rate_rad_s * dt
+        err = float(_wrap_pi(heading_rad - predicted))
+        step = math.radians(self.max_rate_deg_s) * dt
+        if abs(err) <= max(step, math.radians(self.done_within_deg)):
+            self._published = heading_rad % (2 * math.pi)
+            if abs(err) <= math.radians(self.done_within_deg):
+                self.active = False
+        else:
+            self._published = (predicted + math.copysign(step, err)) % (2 * math.pi)
+        return self._published
+
+
+def yaw_rate_ned_rad_s(rate_body_rad_s: np.ndarray, roll_rad: float, pitch_rad: float) -> float:
+    """ψ̇ from body rates (ZYX Euler kinematics): (q sinφ + r cosφ) / cosθ."""
+    q, r = float(rate_body_rad_s[1]), float(rate_body_rad_s[2])
+    c = math.cos(pitch_rad)
+    if abs(c) < 1e-3:
+        return 0.0
+    return (q * math.sin(roll_rad) + r * math.cos(roll_rad)) / c
+
+
+# ============================================================================ the session
+
+
+class VehicleType(str, enum.Enum):
+    AUTO = "auto"      # decide from the data (tilt seen)
+    LEVEL = "level"    # cannot be tumbled: boat, rover, AUV at the surface, large vehicle
+    TUMBLE = "tumble"  # can be rotated through the full sphere: small drone, handheld
+
+
+@dataclass(frozen=True)
+class FieldCalConfig:
+    """Settings of a field recalibration. Units in the names; defaults in the comments' sources."""
+
+    vehicle_type: VehicleType = VehicleType.AUTO
+    fitness_mgauss: float = COMPASS_CAL_FIT_DEFAULT_MGAUSS   # ArduPilot COMPASS_CAL_FIT default
+    offsets_max_mgauss: float = COMPASS_OFFS_MAX_MGAUSS      # ArduPilot COMPASS_OFFS_MAX default
+    delay_s: float = 0.0                                     # MAV_CMD_DO_START_MAG_CAL p4
+    retry: bool = False                                      # p2
+    timeout_s: float = 300.0          # sample time allowed from start to complete coverage
+    no_sample_timeout_s: float = 2.0  # wall clock without samples -> FAILED (ArduPilot: 1 s)
+    store_rate_hz: float = 20.0       # samples kept per second (the rest only feed the attitude)
+    capacity: int = 8192              # samples kept at most (decimated by 2 when full)
+    heading_sectors: int = 36         # 10° sectors for level vehicles
+    samples_per_sector: int = 3
+    sphere_target: float = 0.75       # fraction of the 80 cells for a tumbled vehicle (ArduPilot ≈ 300 spread samples)
+    tumble_tilt_deg: float = 35.0     # AUTO: tilt beyond this means "being tumbled" -> sphere coverage needed
+    validation_fraction: float = 0.5  # step two: fresh coverage (fraction of step one's) to validate the fit
+    min_tilt_full_model_deg: float = 4.0  # below this tilt range a level-vehicle fit cannot see the vertical axis
+
+
+@dataclass(frozen=True)
+class FieldCalResult:
+    status: CalStatus
+    reason: str
+    method: str
+    model: MagModel
+    before: MagModel
+    fitness_mgauss: float
+    quality: dict
+    ardupilot: ArduPilotMagParams
+    partial: bool = False  # True when only the hard iron was fitted
+
+    def proposed_calibration(self, current: Calibration) -> Calibration:
+        return current.with_sensor(
+            "mag",
+            self.model,
+            method=f"field:{self.method}",
+            residual_rms_mgauss=self.fitness_mgauss,
+            partial=self.partial,
+            before={"hard_iron_ut": self.before.hard_iron_ut.tolist(), "soft_iron": self.before.soft_iron.tolist()},
+        )
+
+    def describe_change(self) -> str:
+        """One log line with before/after parameters (µT, matrix rows)."""
+        b, a = self.before, self.model
+        return (
+            f"mag calibration {self.method}: hard iron {np.round(b.hard_iron_ut, 2).tolist()} -> "
+            f"{np.round(a.hard_iron_ut, 2).tolist()} uT; soft iron {np.round(b.soft_iron, 4).tolist()} -> "
+            f"{np.round(a.soft_iron, 4).tolist()}; fitness {self.fitness_mgauss:.1f} mG"
+        )
+
+
+FitFunction = Callable[..., Any]  # magfit.fit_mag signature
+
+
+def _default_fit(method: str, data, reference, **options):
+    from .magfit import fit_mag
+
+    return fit_mag(method, data, reference, **options)
+
+
+class FieldCalibration:
+    """One recalibration session (one magnetometer). Thread-safe for one feeder thread plus one thread
+    running the fit (`pending_fit()` job) and any number of readers of `progress()`.
+
+    Usage: `s = FieldCalibration(current_cal, config, reference)`, `s.start(now_t_s)`, then for every sample
+    `s.add_sample(sample, estimate)`; if `auto_fit` is False, run `job = s.pending_fit()` off the event loop
+    and hand its return value to `s.fit_done(value)`. `s.status`, `s.completion_pct`, `s.completion_mask`,
+    `s.direction_hint()`, `s.result` and `s.pop_messages()` report.
+    """
+
+    def __init__(
+        self,
+        current: Calibration,
+        config: FieldCalConfig | None = None,
+        reference: "EarthField | None" = None,
+        *,
+        samples_are_calibrated: bool = True,
+        fit_function: FitFunction | None = None,
+        auto_fit: bool = True,
+    ):
+        self.current = current
+        self.config = config or FieldCalConfig()
+        self.reference = reference
+        self.samples_are_calibrated = samples_are_calibrated
+        self._fit = fit_function or _default_fit
+        self.auto_fit = auto_fit
+        self._lock = threading.RLock()
+        self._messages: list[tuple[int, str]] = []
+        self.status = CalStatus.NOT_STARTED
+        self.attempt = 0
+        self.result: FieldCalResult | None = None
+        self.fail_reason = ""
+        cap = int(self.config.capacity)
+        self._t = np.empty(cap)
+        self._raw = np.empty((cap, 3))
+        self._acc = np.empty((cap, 3))
+        self._gyro = np.empty((cap, 3))
+        self._rpy = np.empty((cap, 3))
+        self._n = 0
+        self._w_inv = np.linalg.inv(current.mag.soft_iron)
+        self._reset_buffers()
+
+    # ------------------------------------------------------------------ control
+    def start(self, retry: bool | None = None, delay_s: float | None = None) -> None:
+        with self._lock:
+            if retry is not None or delay_s is not None:
+                from dataclasses import replace
+
+                self.config = replace(
+                    self.config,
+                    retry=self.config.retry if retry is None else bool(retry),
+                    delay_s=self.config.delay_s if delay_s is None else max(0.0, float(delay_s)),
+                )
+            self.attempt = 1
+            self._begin_attempt()
+
+    def cancel(self) -> None:
+        with self._lock:
+            self.status = CalStatus.NOT_STARTED
+            self.result = None
+            self._reset_buffers()
+
+    def tick(self, now_s: float) -> None:
+        """Wall-clock check: FAILED when no sample arrived for `no_sample_timeout_s` while running."""
+        with self._lock:
+            if not self.status.running or self._last_sample_wall is None:
+                if self.status.running and self._last_sample_wall is None:
+                    self._last_sample_wall = now_s
+                return
+            if now_s - self._last_sample_wall > self.config.no_sample_timeout_s:
+                self._fail(CalStatus.FAILED, f"no magnetometer samples for {self.config.no_sample_timeout_s:.0f} s", retry=False)
+
+    def note_sample_wallclock(self, now_s: float) -> None:
+        self._last_sample_wall = now_s
+
+    # ------------------------------------------------------------------ feeding
+    def add_sample(self, sample: "ImuSample", estimate: "AttitudeEstimate | None" = None, now_s: float | None = None) -> None:
+        """Feed one sample (calibrated with `current` if samples_are_calibrated, else raw) and the estimator's
+        attitude for it. Cheap unless the sample is kept (store_rate_hz)."""
+        if not self.status.running:
+            return
+        t = float(sample.t_s)
+        if now_s is not None:
+            self._last_sample_wall = now_s
+        with self._lock:
+            if self._t_start is None:
+                self._t_start = t
+            if self.status == CalStatus.WAITING_TO_START:
+                if t - self._t_start < (self.config.delay_s if self.attempt == 1 else 0.0):
+                    return
+                self.status = CalStatus.RUNNING_STEP_ONE
+                self._t_running = t
+                self._say(6, "Mag cal: turn slowly through 360 deg" if self.config.vehicle_type != VehicleType.TUMBLE
+                          else "Mag cal: rotate the vehicle through every orientation")
+            if not self.status.running or self._fit_busy:
+                return
+            if t - self._t_running > self.config.timeout_s:
+                self._fail(CalStatus.FAILED, f"timed out at {self.completion_pct}%: {self._hint_text()}")
+                return
+            if t - self._t_last_kept < self._keep_period:
+                return
+            mag = np.asarray(sample.mag_ut, dtype=np.float64)
+            if not np.all(np.isfinite(mag)):
+                self.rejected += 1
+                return
+            self._t_last_kept = t
+            raw = self._w_inv @ mag + self.current.mag.hard_iron_ut if self.samples_are_calibrated else mag
+            if estimate is not None:
+                roll, pitch = float(estimate.roll_rad), float(estimate.pitch_rad)
+                yaw = float(estimate.yaw_rad)
+            else:  # tilt from the accelerometer, heading from the field with the calibration in force
+                a = np.asarray(sample.accel_m_s2, dtype=np.float64)
+                roll = math.atan2(-a[1], -a[2])
+                pitch = math.atan2(a[0], math.hypot(a[1], a[2]))
+                yaw = float(tilt_compensated_heading_rad(self.current.mag.apply(raw), roll, pitch)[0])
+            self._store(t, raw, sample.accel_m_s2, sample.gyro_rad_s, roll, pitch, yaw)
+            self._update_coverage(raw, roll, pitch, yaw)
+            self._advance(t)
+
+    # ------------------------------------------------------------------ fitting (off the event loop)
+    def pending_fit(self) -> Callable[[], Any] | None:
+        """A job to run (in a worker thread) when the session waits for a fit, else None."""
+        with self._lock:
+            if not self._fit_request or self._fit_busy:
+                return None
+            self._fit_busy = True
+            stage = self._fit_request
+            n = self._n
+            snap = (self._t[:n].copy(), self._raw[:n].copy(), self._acc[:n].copy(), self._gyro[:n].copy(),
+                    self._rpy[:n].copy(), self._step_two_from)
+        return lambda: self._run_fit(stage, *snap)
+
+    def fit_done(self, outcome: Any) -> None:
+        with self._lock:
+            self._fit_busy = False
+            self._fit_request = None
+            if not self.status.running:
+                return  # cancelled meanwhile
+            stage, payload = outcome
+            if stage == "preliminary":
+                self._after_preliminary(payload)
+            else:
+                self._after_final(payload)
+
+    # ------------------------------------------------------------------ reporting
+    @property
+    def completion_pct(self) -> int:
+        with self._lock:
+            if self.status == CalStatus.SUCCESS:
+                return 100
+            if self.status == CalStatus.RUNNING_STEP_ONE:
+                return int(min(49.0, 50.0 * self._coverage_fraction(step_two=False)))
+            if self.status == CalStatus.RUNNING_STEP_TWO:
+                return int(min(99.0, 50.0 + 49.0 * self._coverage_fraction(step_two=True)))
+            return 0
+
+    @property
+    def completion_mask(self) -> bytes:
+        with self._lock:
+            return completion_mask_bytes(np.flatnonzero(self._cells))
+
+    @property
+    def sphere_coverage(self) -> float:
+        return float(np.count_nonzero(self._cells)) / N_SECTIONS
+
+    @property
+    def heading_coverage(self) -> float:
+        return float(np.count_nonzero(self._sector_count >= self.config.samples_per_sector)) / self.config.heading_sectors
+
+    def direction_hint(self) -> np.ndarray:
+        """Body-frame unit vector for MAG_CAL_PROGRESS.direction: for a level vehicle, the horizontal
+        direction of the nearest heading not yet covered (turn towards it: +y = turn right); for a tumbled
+        vehicle, the body direction the (corrected) field should point along to fill the nearest empty cell."""
+        with self._lock:
+            if not self.status.running or self._n == 0:
+                return np.zeros(3)
+            if self._needs_sphere():
+                empty = np.flatnonzero(~self._cells)
+                if empty.size == 0:
+                    return np.zeros(3)
+                centres = section_centres()[empty]
+                last = self._last_corrected / max(np.linalg.norm(self._last_corrected), 1e-9)
+                return centres[int(np.argmax(centres @ last))]
+            gaps = np.flatnonzero(self._sector_count < self.config.samples_per_sector)
+            if gaps.size == 0:
+                return np.zeros(3)
+            width = 2 * math.pi / self.config.heading_sectors
+            centres = (gaps + 0.5) * width
+            yaw = self._last_yaw
+            diff = _wrap_pi(centres - yaw)
+            d = float(diff[int(np.argmin(np.abs(diff)))])
+            return np.array([math.cos(d), math.sin(d), 0.0])
+
+    def pop_messages(self) -> list[tuple[int, str]]:
+        """(MAV_SEVERITY, text) lines for a person, since the last call."""
+        with self._lock:
+            out, self._messages = self._messages, []
+            return out
+
+    # ================================================================== internals
+    def _reset_buffers(self) -> None:
+        self._n = 0
+        self._t_start: float | None = None
+        self._t_running = 0.0
+        self._t_last_kept = -math.inf
+        self._keep_period = 1.0 / self.config.store_rate_hz
+        self._cells = np.zeros(N_SECTIONS, dtype=bool)
+        self._sector_count = np.zeros(self.config.heading_sectors, dtype=np.int64)
+        self._sector_count_two = np.zeros(self.config.heading_sectors, dtype=np.int64)
+        self._cells_two = np.zeros(N_SECTIONS, dtype=bool)
+        self._tilt_max_deg = 0.0
+        self._tilt_min_deg = 180.0
+        self._prelim: MagModel = self.current.mag
+        self._fit_request: str | None = None
+        self._fit_busy = False
+        self._step_two_from = 0
+        self._last_corrected = np.zeros(3)
+        self._last_yaw = 0.0
+        self._last_sample_wall: float | None = None
+        self._last_hint_pct = -100
+        self.rejected = 0
+
+    def _begin_attempt(self) -> None:
+        self._reset_buffers()
+        self.result = None
+        self.fail_reason = ""
+        self.status = CalStatus.WAITING_TO_START
+        if self.attempt > 1:
+            self._say(5, f"Mag cal: attempt {self.attempt}")
+
+    def _say(self, severity: int, text: str) -> None:
+        self._messages.append((severity, text))
+        log.info("%s", text)
+
+    def _store(self, t, raw, acc, gyro, roll, pitch, yaw) -> None:
+        if self._n >= self._t.shape[0]:  # full: keep every other sample, halve the keep rate
+            keep = slice(0, self._n, 2)
+            m = len(range(*keep.indices(self._n)))
+            for arr in (self._t, self._raw, self._acc, self._gyro, self._rpy):
+                arr[:m] = arr[keep]
+            self._step_two_from = (self._step_two_from + 1) // 2
+            self._n = m
+            self._keep_period *= 2
+        i = self._n
+        self._t[i] = t
+        self._raw[i] = raw
+        self._acc[i] = acc
+        self._gyro[i] = gyro
+        self._rpy[i] = (roll, pitch, yaw)
+        self._n += 1
+
+    def _update_coverage(self, raw, roll, pitch, yaw) -> None:
+        corrected = self._prelim.apply(raw)
+        self._last_corrected = corrected
+        self._last_yaw = yaw
+        s = int(geodesic_sections(corrected)[0])
+        sector = int((yaw % (2 * math.pi)) / (2 * math.pi) * self.config.heading_sectors) % self.config.heading_sectors
+        tilt = math.degrees(math.acos(max(-1.0, min(1.0, math.cos(roll) * math.cos(pitch)))))
+        self._tilt_max_deg = max(self._tilt_max_deg, tilt)
+        self._tilt_min_deg = min(self._tilt_min_deg, tilt)
+        if self.status == CalStatus.RUNNING_STEP_TWO:
+            self._sector_count_two[sector] += 1
+            if s >= 0:
+                self._cells_two[s] = True
+        if s >= 0:
+            self._cells[s] = True
+        self._sector_count[sector] += 1
+
+    def _needs_sphere(self) -> bool:
+        vt = self.config.vehicle_type
+        return vt == VehicleType.TUMBLE or (vt == VehicleType.AUTO and self._tilt_max_deg > self.config.tumble_tilt_deg)
+
+    def _coverage_fraction(self, step_two: bool) -> float:
+        cfg = self.config
+        if self._needs_sphere():
+            cells = self._cells_two if step_two else self._cells
+            frac = np.count_nonzero(cells) / N_SECTIONS / cfg.sphere_target
+        else:
+            counts = self._sector_count_two if step_two else self._sector_count
+            frac = np.count_nonzero(counts >= cfg.samples_per_sector) / cfg.heading_sectors
+        if step_two:
+            frac /= cfg.validation_fraction
+        return float(min(1.0, frac))
+
+    def _hint_text(self) -> str:
+        if self._needs_sphere():
+            return f"rotate through all orientations ({np.count_nonzero(self._cells)}/80 cells)"
+        missing = int(np.count_nonzero(self._sector_count < self.config.samples_per_sector))
+        return f"turn slowly through 360 deg ({missing * 360 // self.config.heading_sectors} deg of headings missing)"
+
+    def _advance(self, t: float) -> None:
+        pct = self.completion_pct
+        if pct >= self._last_hint_pct + 25 and self.status == CalStatus.RUNNING_STEP_ONE and pct < 49:
+            self._last_hint_pct = pct
+            if pct > 0:
+                self._say(6, f"Mag cal {pct}%: {self._hint_text()}")
+        if self._fit_request:
+            return
+        if self.status == CalStatus.RUNNING_STEP_ONE and self._coverage_fraction(step_two=False) >= 1.0:
+            self._request_fit("preliminary")
+        elif self.status == CalStatus.RUNNING_STEP_TWO and self._coverage_fraction(step_two=True) >= 1.0:
+            self._request_fit("final")
+
+    def _request_fit(self, stage: str) -> None:
+        self._fit_request = stage
+        if self.auto_fit:
+            job = self.pending_fit()
+            if job is not None:
+                self.fit_done(job())
+
+    def _fail(self, status: CalStatus, reason: str, retry: bool | None = None) -> None:
+        self.fail_reason = reason
+        self._say(3, f"Mag cal failed: {reason}")
+        if (self.config.retry if retry is None else retry) and status != CalStatus.NOT_STARTED:
+            self.attempt += 1
+            self._begin_attempt()
+            return
+        self.status = status
+        self._fit_request = None
+
+    # ------------------------------------------------------------------ fits (pure: run in any thread)
+    def _fit_input(self, t, raw, acc, gyro):
+        from .magfit import MagFitInput
+
+        return MagFitInput(t, raw, acc, gyro)
+
+    def _run_fit(self, stage, t, raw, acc, gyro, rpy, step_two_from):
+        try:
+            if stage == "preliminary":
+                model, quality = fit_offsets_keep_soft_iron(
+                    raw, self.current.mag.soft_iron, self.current.mag.hard_iron_ut, rpy[:, 0], rpy[:, 1], self.reference
+                )
+                return stage, (model, quality)
+            return stage, self._final_fit(t, raw, acc, gyro, rpy)
+        except Exception as exc:  # a fit must never take the daemon down: report it as a failed calibration
+            log.exception("magnetometer fit failed")
+            return stage, exc
+
+    def _final_fit(self, t, raw, acc, gyro, rpy) -> FieldCalResult:
+        cfg = self.config
+        tilt = np.degrees(np.arccos(np.clip(np.cos(rpy[:, 0]) * np.cos(rpy[:, 1]), -1, 1)))
+        tilt_range = float(np.percentile(tilt, 98) - np.percentile(tilt, 2)) if len(tilt) else 0.0
+        sphere = float(np.count_nonzero(self._cells)) / N_SECTIONS
+        full_sphere = self._needs_sphere()
+        notes: list[str] = []
+        candidates: list[str] = []
+        if full_sphere:
+            candidates = ["ellipsoid"]
+        elif tilt_range >= cfg.min_tilt_full_model_deg and self.reference is not None:
+            candidates = ["backstepping"]
+        elif self.reference is None:
+            notes.append("no WMM reference: fitted offsets only")
+        else:
+            notes.append("tilt range too small for full model: fitted offsets only")
+        data = self._fit_input(t, raw, acc, gyro)
+        quality: dict = {"tilt_range_deg": tilt_range, "sphere_coverage": sphere,
+                         "heading_coverage": self.heading_coverage, "n_samples": int(len(t))}
+        for method in candidates:
+            try:
+                fr = self._fit(method, data, self.reference)
+            except (NotImplementedError, ImportError) as exc:
+                notes.append(f"{method} unavailable: offsets only")
+                log.warning("%s", exc)
+                continue
+            if fr.refused is None:
+                ok, why = self._acceptable_shape(fr.model)
+                if ok:
+                    quality.update({f"{method}_{k}": v for k, v in (fr.quality or {}).items()
+                                    if isinstance(v, (int, float, str, bool))})
+                    return self._judge(fr.model, fr.method, raw, quality, notes, partial=False)
+                notes.append(f"{method} rejected ({why}): offsets only")
+            else:
+                log.info("%s refused: %s", method, fr.refused)
+                short = "tilt range too small for full model" if not full_sphere else fr.refused
+                notes.append(f"{short}: fitted offsets only")
+        model, q = fit_offsets_keep_soft_iron(
+            raw, self.current.mag.soft_iron, self.current.mag.hard_iron_ut, rpy[:, 0], rpy[:, 1], self.reference
+        )
+        quality.update({f"offsets_{k}": v for k, v in q.items()})
+        return self._judge(model, "offsets", raw, quality, notes, partial=True)
+
+    def _acceptable_shape(self, model: MagModel) -> tuple[bool, str]:
+        ap = to_ardupilot(model)
+        if np.any(np.abs(ap.ofs_mgauss) >= self.config.offsets_max_mgauss):
+            return False, "offsets too large"
+        if np.any(ap.diag <= DIAG_MIN) or np.any(ap.diag >= DIAG_MAX) or np.any(np.abs(ap.offdiag) >= OFFDIAG_MAX):
+            return False, "diagonals out of range"
+        return True, ""
+
+    def _judge(self, model: MagModel, method: str, raw, quality, notes, partial: bool) -> FieldCalResult:
+        cfg = self.config
+        corrected = model.apply(raw)
+        norms = np.linalg.norm(corrected, axis=1)
+        radius_ut = float(self.reference.total_ut) if self.reference is not None else float(np.mean(norms))
+        fitness = float(np.sqrt(np.mean((norms - radius_ut) ** 2))) * UT_TO_MGAUSS
+        ap = to_ardupilot(model)
+        status, reason = CalStatus.SUCCESS, "; ".join(notes)
+        mean_radius_mg = float(np.mean(norms)) * UT_TO_MGAUSS
+        if not math.isfinite(fitness):
+            status, reason = CalStatus.FAILED, "fit diverged (fitness NaN)"
+        elif np.any(np.abs(ap.ofs_mgauss) >= cfg.offsets_max_mgauss):
+            status = CalStatus.FAILED_OFFSETS
+            reason = f"offsets {np.round(ap.ofs_mgauss).astype(int).tolist()} > {cfg.offsets_max_mgauss:.0f} mG"
+        elif np.any(ap.diag <= DIAG_MIN) or np.any(ap.diag >= DIAG_MAX) or np.any(np.abs(ap.offdiag) >= OFFDIAG_MAX):
+            status, reason = CalStatus.FAILED_DIAG_SCALING, "diagonals/off-diagonals out of range"
+        elif not (RADIUS_MIN_MGAUSS < mean_radius_mg < RADIUS_MAX_MGAUSS):
+            status, reason = CalStatus.BAD_RADIUS, f"radius {mean_radius_mg:.0f} mG outside [150, 950]"
+        elif self.reference is not None and not (
+            1 / MAX_SCALE_FACTOR <= self.reference.total_ut * UT_TO_MGAUSS / mean_radius_mg <= MAX_SCALE_FACTOR
+        ):
+            status = CalStatus.BAD_RADIUS
+            reason = f"radius {mean_radius_mg:.0f} mG vs WMM {self.reference.total_ut * UT_TO_MGAUSS:.0f} mG"
+        elif fitness > cfg.fitness_mgauss:
+            status = CalStatus.FAILED_RESIDUALS_HIGH
+            reason = f"fitness {fitness:.1f} > {cfg.fitness_mgauss:.1f} mG"
+        quality = dict(quality, radius_mgauss=mean_radius_mg)
+        return FieldCalResult(status, reason, method, model, self.current.mag, fitness, quality, ap, partial)
+
+    # ------------------------------------------------------------------ fit outcomes (under the lock)
+    def _after_preliminary(self, payload) -> None:
+        if isinstance(payload, Exception):
+            self._fail(CalStatus.FAILED, f"preliminary fit error: {payload}")
+            return
+        model, _quality = payload
+        self._prelim = model
+        # re-mark the completion mask with the corrected field, as CompassCalibrator does after step one
+        corrected = model.apply(self._raw[: self._n])
+        cells = geodesic_sections(corrected)
+        self._cells[:] = False
+        self._cells[cells[cells >= 0]] = True
+        self._step_two_from = self._n
+        self.status = CalStatus.RUNNING_STEP_TWO
+        self._say(6, "Mag cal: coverage complete, keep turning to verify")
+
+    def _after_final(self, payload) -> None:
+        if isinstance(payload, Exception):
+            self._fail(CalStatus.FAILED, f"fit error: {payload}")
+            return
+        res: FieldCalResult = payload
+        for note in res.reason.split("; ") if res.reason and res.status == CalStatus.SUCCESS else []:
+            self._say(4, note)
+        if res.status == CalStatus.SUCCESS:
+            self.result = res
+            self.status = CalStatus.SUCCESS
+            self._say(5, f"Mag cal done: {res.method}, fitness {res.fitness_mgauss:.1f} mG. Accept to save")
+        else:
+            self.result = res
+            self._fail(res.status, res.reason)
