@@ -1,0 +1,449 @@
+"""ADIS16405 driver over any SpiBus: registers, burst read, flags, DIAG_STAT, self-test, configuration.
+
+Output: `ImuSample` in SI units in the sensor frame (the daemon applies the mounting rotation).
+Nothing untrustworthy leaves `read_sample()`: a frame that fails the checks is counted in `counters`
+and raised as a `FrameError`; a sample that is usable but suspect carries `SampleFlags`.
+
+Protocol facts: shared/anchors/mavlink-adis.md §4 (kernel adis16400.c, datasheet, EZ thread 81805).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import struct
+import time
+from collections.abc import Callable, Iterable
+
+import numpy as np
+
+from . import registers as R
+from .errors import BusError, ConfigError, DriverError, FrameError, ProductIdMismatch, SelfTestFailed, ShortRead
+from .sample import ImuSample, SampleFlags
+from .spi import SpiBus
+
+log = logging.getLogger(__name__)
+
+_BURST_TX = R.BURST_COMMAND + bytes(R.BURST_DATA_BYTES)
+_BURST_LEN = len(_BURST_TX)
+_UNPACK_BURST = struct.Struct(">12H").unpack_from
+_FLAG_BITS = R.ND | R.EA
+
+# Plausibility of a burst frame (beyond these the frame is garbage, not a measurement).
+SUPPLY_PLAUSIBLE_V = (3.0, 6.0)      # the chip stops working outside this; 4.75..5.25 V is nominal
+PLAUSIBLE_RANGE_FACTOR = 1.25        # |value| > 1.25 × full scale cannot come from a working sensor
+BURST_BUG_JUMP_DPS = 100.0           # an X-gyro step bigger than this between samples triggers a check read
+STUCK_WINDOW_S = 0.5                 # an axis frozen this long while its siblings move is "stuck"
+
+_SUPPLY_MIN_LSB = int(SUPPLY_PLAUSIBLE_V[0] / R.SUPPLY_V_PER_LSB)
+_SUPPLY_MAX_LSB = int(SUPPLY_PLAUSIBLE_V[1] / R.SUPPLY_V_PER_LSB)
+
+COUNTER_NAMES = (
+    "samples",               # samples returned (any flags)
+    "new_samples",           # ... of which carried fresh data (ND)
+    "stale",                 # ND clear: no new data since the last read (sample repeated, flagged STALE)
+    "lost_samples",          # samples the chip produced that were never read (from the host clock)
+    "ea_flags",              # frames with EA set (DIAG_STAT read and decoded)
+    "burst_bug_recovered",   # X-gyro bit-13 burst bug fixed from a register read
+    "burst_bug_unverified",  # suspected burst bug the register read could not confirm (gyro flagged invalid)
+    "garbage_frames",        # frames rejected: inconsistent ND/EA, implausible supply or values
+    "short_reads",           # the bus returned fewer bytes than clocked
+    "bus_errors",            # the bus raised (device gone, ioctl failure)
+    "saturations",           # samples with at least one axis at full scale
+    "stuck_axis",            # onsets of an axis frozen while its siblings move
+    "self_test_failures",    # failed self-test attempts
+)
+
+
+class Adis16405:
+    """The ADIS16405 on an `SpiBus`.
+
+    clock: optional host monotonic clock (seconds). With it, samples lost between reads are detected and
+        counted (flag GAP_BEFORE) and t_s starts at the host time of `start()`; without it every fresh
+        sample is one sample period after the previous one and t_s starts at 0.
+    sleep: how to wait for the chip (reset, self-test). Default: the bus's own `sleep` if it has one (the
+        simulated chip runs on virtual time), else `time.sleep`.
+    """
+
+    def __init__(self, bus: SpiBus, *, clock: Callable[[], float] | None = None,
+                 sleep: Callable[[float], None] | None = None, stuck_window_s: float = STUCK_WINDOW_S):
+        self.bus = bus
+        self._clock = clock
+        self._sleep = sleep or getattr(bus, "sleep", None) or time.sleep
+        self._stuck_window_s = stuck_window_s
+        self.counters: dict[str, int] = dict.fromkeys(COUNTER_NAMES, 0)
+        self.product_id: int | None = None
+        self.last_diag_stat = 0
+        # configuration as read back from the chip (defaults until start())
+        self.smpl_prd = R.SMPL_PRD_DEFAULT
+        self.sens_avg = R.SENS_AVG_DEFAULT
+        self._apply_config(self.smpl_prd, self.sens_avg)
+        self._reset_stream_state()
+
+    # ---------------------------------------------------------------------------------- configuration
+    @property
+    def sample_rate_hz(self) -> float:
+        return self._rate_hz
+
+    @property
+    def sample_period_s(self) -> float:
+        return self._period_s
+
+    @property
+    def filter_n(self) -> int:
+        return R.decode_sens_avg(self.sens_avg)[1]
+
+    @property
+    def gyro_range_dps(self) -> int:
+        return R.decode_sens_avg(self.sens_avg)[0]
+
+    @property
+    def spi_speed_hz(self) -> int:
+        """Clock used for register access (burst reads always use 1 MHz)."""
+        return self._reg_speed_hz
+
+    def _apply_config(self, smpl_prd: int, sens_avg: int) -> None:
+        self.smpl_prd, self.sens_avg = smpl_prd, sens_avg
+        self._rate_hz = R.sample_rate_hz(smpl_prd)
+        self._period_s = 1.0 / self._rate_hz
+        self._reg_speed_hz = R.spi_speed_hz(smpl_prd)
+        range_dps, _ = R.decode_sens_avg(sens_avg)
+        gyro_rad_per_lsb = math.radians(R.GYRO_DPS_PER_LSB[range_dps])
+        self._scale9 = np.array([gyro_rad_per_lsb] * 3 + [R.ACCEL_M_S2_PER_LSB] * 3 + [R.MAG_UT_PER_LSB] * 3)
+        self._gyro_range_lsb = R.gyro_range_lsb(range_dps)
+        self._full_scale9 = (self._gyro_range_lsb,) * 3 + (R.ACCEL_RANGE_LSB,) * 3 + (R.MAG_RANGE_LSB,) * 3
+        self._plausible9 = tuple(int(PLAUSIBLE_RANGE_FACTOR * fs) for fs in self._full_scale9)
+        self._jump_lsb = int(BURST_BUG_JUMP_DPS / R.GYRO_DPS_PER_LSB[range_dps])
+        self._stuck_window = max(8, int(round(self._stuck_window_s * self._rate_hz)))
+
+    def _reset_stream_state(self) -> None:
+        self._counter = -1                 # index of the last fresh sample
+        self._t0_s = 0.0
+        self._last_host_s: float | None = None
+        self._last: ImuSample | None = None
+        self._prev_gx: int | None = None
+        self._prev_raw9 = [None] * 9
+        self._runs = [0] * 9
+        self._stuck = [False] * 9
+
+    # ---------------------------------------------------------------------------------- bus primitives
+    def _xfer(self, tx: bytes, speed_hz: int, delay_us: int = R.STALL_US) -> bytes:
+        try:
+            rx = self.bus.transfer(tx, speed_hz, delay_us)
+        except BusError:
+            self.counters["bus_errors"] += 1
+            raise
+        except OSError as exc:   # spidev/ioctl or a device that went away
+            self.counters["bus_errors"] += 1
+            raise BusError(f"SPI transfer failed: {exc}") from exc
+        if len(rx) != len(tx):
+            self.counters["short_reads"] += 1
+            raise ShortRead(f"SPI transfer returned {len(rx)} of {len(tx)} bytes", rx)
+        return rx
+
+    def read_registers(self, addrs: Iterable[int]) -> list[int]:
+        """Pipelined 16-bit register reads: each frame carries the next address and the previous data."""
+        addrs = list(addrs)
+        speed = self._reg_speed_hz
+        out = []
+        self._xfer(R.read_frame(addrs[0]), speed)
+        for nxt in addrs[1:] + [R.FLASH_CNT]:   # the last frame requests a harmless register
+            rx = self._xfer(R.read_frame(nxt), speed)
+            out.append((rx[0] << 8) | rx[1])
+        return out
+
+    def read_register(self, addr: int) -> int:
+        return self.read_registers([addr])[0]
+
+    def write_byte(self, byte_addr: int, value: int) -> None:
+        self._xfer(bytes((R.WRITE_BIT | (byte_addr & 0x7F), value & 0xFF)), self._reg_speed_hz)
+
+    def write_register(self, addr: int, value: int) -> None:
+        """16-bit write as two byte writes (upper byte first, anchors §4.1)."""
+        for frame in R.write_frames(addr, value):
+            self._xfer(frame, self._reg_speed_hz)
+
+    def read_diag_stat(self) -> tuple[int, list[str]]:
+        """Read (and so clear) DIAG_STAT; returns the raw value and the names of the set bits."""
+        diag = self.read_register(R.DIAG_STAT)
+        self.last_diag_stat = diag
+        return diag, R.diag_faults(diag)
+
+    # ---------------------------------------------------------------------------------- commands
+    def check_product_id(self) -> int:
+        pid = self.read_register(R.PRODUCT_ID)
+        self.product_id = pid
+        if pid != R.PRODUCT_ID_ADIS16405:
+            raise ProductIdMismatch(pid, R.PRODUCT_ID_ADIS16405)
+        return pid
+
+    def software_reset(self) -> None:
+        """GLOB_CMD bit 7; the chip reloads its flash settings (170 ms, kernel reset timeout)."""
+        self.write_byte(R.GLOB_CMD, R.GlobCmd.SOFTWARE_RESET)
+        self._sleep(R.RESET_TIME_S)
+        self._read_config()
+
+    def factory_restore(self) -> None:
+        """GLOB_CMD bit 1: restore the factory calibration (clears the user offset registers)."""
+        self.write_byte(R.GLOB_CMD, R.GlobCmd.FACTORY_CAL_RESTORE)
+        self._sleep(R.FACTORY_RESTORE_TIME_S)
+
+    def auto_null(self, precision: bool = False) -> None:
+        """Gyro bias auto-null (GLOB_CMD bit 0) or precision auto-null (bit 4, ~30 s). Keep the unit still."""
+        cmd = R.GlobCmd.PRECISION_AUTO_NULL if precision else R.GlobCmd.AUTO_NULL
+        self.write_byte(R.GLOB_CMD, cmd)
+        self._sleep(R.PRECISION_AUTO_NULL_TIME_S if precision else R.AUTO_NULL_TIME_S)
+
+    def flash_update(self) -> None:
+        """GLOB_CMD bit 3: store the current settings and offsets in flash (survives reset/power cycle)."""
+        self.write_byte(R.GLOB_CMD, R.GlobCmd.FLASH_UPDATE)
+        self._sleep(0.05)
+
+    def gyro_offsets_dps(self) -> np.ndarray:
+        raw = self.read_registers([R.XGYRO_OFF, R.YGYRO_OFF, R.ZGYRO_OFF])
+        return np.array([R.decode_signed12(w) * R.GYRO_OFF_DPS_PER_LSB for w in raw])
+
+    def self_test(self, retry_after_reset: bool = True) -> None:
+        """Internal self-test (MSC_CTRL bit 10, self-clearing), then DIAG_STAT must show no failure.
+
+        Like the kernel (adis_self_test), a failure is retried once after a software reset.
+        Raises SelfTestFailed with the named DIAG_STAT bits.
+        """
+        attempts = 2 if retry_after_reset else 1
+        for attempt in range(attempts):
+            self.read_diag_stat()                       # clear stale latched bits
+            msc = self.read_register(R.MSC_CTRL)
+            self.write_byte(R.MSC_CTRL + 1, ((msc | R.MscCtrl.INT_SELF_TEST) >> 8) & 0xFF)
+            self._sleep(R.SELF_TEST_TIME_S)
+            for _ in range(20):                         # poll until the bit clears (up to ~10× the 12 ms)
+                if not self.read_register(R.MSC_CTRL) & R.MscCtrl.INT_SELF_TEST:
+                    break
+                self._sleep(R.SELF_TEST_TIME_S / 2)
+            else:
+                self.counters["self_test_failures"] += 1
+                raise SelfTestFailed(0, [], "self-test did not complete: MSC_CTRL bit 10 never cleared")
+            diag, faults = self.read_diag_stat()
+            failed = diag & (R.DiagStat.SELF_TEST_FAILED | R.DIAG_GYRO_SELF_TEST | R.DIAG_ACCEL_SELF_TEST)
+            if not failed:
+                if diag:
+                    log.warning("DIAG_STAT after self-test: %s", ", ".join(faults))
+                return
+            self.counters["self_test_failures"] += 1
+            log.warning("self-test attempt %d failed: %s", attempt + 1, ", ".join(faults))
+            if attempt + 1 < attempts:
+                self.software_reset()
+        raise SelfTestFailed(diag, faults)
+
+    def configure(self, *, smpl_prd: int | None = None, sample_rate_hz: float | None = None,
+                  filter_n: int | None = None, gyro_range_dps: int | None = None) -> None:
+        """Write SMPL_PRD / SENS_AVG (only what is given), read both back and verify."""
+        if smpl_prd is not None and sample_rate_hz is not None:
+            raise ConfigError("give smpl_prd or sample_rate_hz, not both")
+        if sample_rate_hz is not None:
+            if not 0.0 < sample_rate_hz <= R.TIME_BASE_FAST_HZ:
+                raise ConfigError(f"sample rate must be in (0, {R.TIME_BASE_FAST_HZ}] Hz, not {sample_rate_hz}")
+            smpl_prd = R.smpl_prd_for_rate(sample_rate_hz)
+        if smpl_prd is not None:
+            if not 0 <= smpl_prd <= 0xFF:
+                raise ConfigError(f"SMPL_PRD must be 0x00..0xFF, not {smpl_prd:#x}")
+            self.write_byte(R.SMPL_PRD, smpl_prd)
+            self._reg_speed_hz = R.SPI_SLOW_HZ    # until read back: the slow clock is always safe
+        if filter_n is not None or gyro_range_dps is not None:
+            cur_range, cur_n = R.decode_sens_avg(self.read_register(R.SENS_AVG))
+            try:
+                value = R.encode_sens_avg(gyro_range_dps if gyro_range_dps is not None else cur_range,
+                                          filter_n if filter_n is not None else cur_n)
+            except ValueError as exc:
+                raise ConfigError(str(exc)) from exc
+            self.write_register(R.SENS_AVG, value)
+        want = (smpl_prd, None if filter_n is None and gyro_range_dps is None else value)
+        self._read_config()
+        if want[0] is not None and self.smpl_prd != want[0]:
+            raise DriverError(f"SMPL_PRD write did not take: wrote {want[0]:#04x}, read {self.smpl_prd:#04x}")
+        if want[1] is not None and (self.sens_avg & 0x0707) != want[1]:
+            raise DriverError(f"SENS_AVG write did not take: wrote {want[1]:#06x}, read {self.sens_avg:#06x}")
+
+    def _read_config(self) -> None:
+        saved = self._reg_speed_hz
+        self._reg_speed_hz = R.SPI_SLOW_HZ
+        try:
+            smpl_prd, sens_avg = self.read_registers([R.SMPL_PRD, R.SENS_AVG])
+        finally:
+            self._reg_speed_hz = saved
+        self._apply_config(smpl_prd & 0xFF, sens_avg)
+
+    def start(self, *, self_test: bool = True, reset: bool = False, smpl_prd: int | None = None,
+              sample_rate_hz: float | None = None, filter_n: int | None = None,
+              gyro_range_dps: int | None = None) -> None:
+        """Probe PRODUCT_ID (slow clock), optionally reset and self-test, configure, start the sample clock."""
+        self._reg_speed_hz = R.SPI_SLOW_HZ
+        if reset:
+            self.software_reset()
+        self.check_product_id()
+        if self_test:
+            self.self_test()
+        self._read_config()
+        if any(v is not None for v in (smpl_prd, sample_rate_hz, filter_n, gyro_range_dps)):
+            self.configure(smpl_prd=smpl_prd, sample_rate_hz=sample_rate_hz, filter_n=filter_n,
+                           gyro_range_dps=gyro_range_dps)
+        self.read_diag_stat()
+        self._reset_stream_state()
+        if self._clock is not None:
+            self._t0_s = self._clock()
+        log.info("ADIS16405 started: %.3f SPS, SENS_AVG N=%d, ±%d °/s, SPI %d Hz",
+                 self._rate_hz, self.filter_n, self.gyro_range_dps, self._reg_speed_hz)
+
+    def close(self) -> None:
+        self.bus.close()
+
+    # ---------------------------------------------------------------------------------- sampling
+    def _reject(self, reason: str, raw: bytes) -> FrameError:
+        self.counters["garbage_frames"] += 1
+        return FrameError(f"burst frame rejected: {reason}", raw)
+
+    def read_sample(self) -> ImuSample:
+        """One burst read -> ImuSample (SI, sensor frame).
+
+        Raises FrameError (counted) for frames that cannot be trusted, BusError when the bus fails.
+        """
+        rx = self._xfer(_BURST_TX, R.SPI_BURST_HZ, 0)
+        w = _UNPACK_BURST(rx, 2)
+        w0, w1, w2, w3, w4, w5, w6, w7, w8, w9, w10, w11 = w
+        both = w0 & w1 & w2 & w3 & w4 & w5 & w6 & w7 & w8 & w9 & w10 & w11 & _FLAG_BITS
+        if (w0 | w1 | w2 | w3 | w4 | w5 | w6 | w7 | w8 | w9 | w10 | w11) & _FLAG_BITS != both:
+            raise self._reject("ND/EA bits differ between words", rx)
+        supply = w0 & 0x3FFF
+        if not _SUPPLY_MIN_LSB <= supply <= _SUPPLY_MAX_LSB:
+            raise self._reject(f"implausible supply {supply * R.SUPPLY_V_PER_LSB:.2f} V", rx)
+        raw9 = [((x & 0x3FFF) ^ 0x2000) - 0x2000 for x in (w1, w2, w3, w4, w5, w6, w7, w8, w9)]
+        flags = SampleFlags.NONE
+        new_data = bool(both & R.ND)
+
+        # X-gyro burst bug (EZ 81805): a negative X rate comes back with bit 13 cleared, i.e. +8192 LSB.
+        gx = raw9[0]
+        prev_gx = self._prev_gx
+        if (not (w1 & 0x2000)) and (gx > self._gyro_range_lsb or
+                                    (gx - prev_gx > self._jump_lsb if prev_gx is not None else gx > self._jump_lsb)):
+            gx, flags = self._check_burst_bug(w1, gx, flags)
+            raw9[0] = gx
+
+        plausible = self._plausible9
+        for i in range(9):
+            if abs(raw9[i]) > plausible[i]:
+                raise self._reject(f"axis {i} value {raw9[i]} LSB beyond any plausible reading", rx)
+
+        diag = 0
+        if both & R.EA:
+            self.counters["ea_flags"] += 1
+            flags |= SampleFlags.ALARM
+            diag, faults = self.read_diag_stat()
+            for name in faults:
+                key = "diag_" + name.lower()
+                self.counters[key] = self.counters.get(key, 0) + 1
+            if diag & R.DIAG_GYRO_SELF_TEST:
+                flags |= SampleFlags.GYRO_INVALID
+            if diag & R.DIAG_ACCEL_SELF_TEST:
+                flags |= SampleFlags.ACCEL_INVALID
+
+        full = self._full_scale9
+        if (abs(raw9[0]) >= full[0] or abs(raw9[1]) >= full[1] or abs(raw9[2]) >= full[2]):
+            flags |= SampleFlags.GYRO_SATURATED | SampleFlags.GYRO_INVALID
+        if (abs(raw9[3]) >= full[3] or abs(raw9[4]) >= full[4] or abs(raw9[5]) >= full[5]):
+            flags |= SampleFlags.ACCEL_SATURATED | SampleFlags.ACCEL_INVALID
+        if (abs(raw9[6]) >= full[6] or abs(raw9[7]) >= full[7] or abs(raw9[8]) >= full[8]):
+            flags |= SampleFlags.MAG_SATURATED | SampleFlags.MAG_INVALID
+        if flags & (SampleFlags.GYRO_SATURATED | SampleFlags.ACCEL_SATURATED | SampleFlags.MAG_SATURATED):
+            self.counters["saturations"] += 1
+
+        if new_data:
+            flags |= SampleFlags.NEW_DATA
+            flags |= self._advance_counter()
+            self._prev_gx = gx
+            flags |= self._check_stuck(raw9)
+        else:
+            flags |= SampleFlags.STALE
+            self.counters["stale"] += 1
+            if self._counter < 0:
+                self._counter = 0
+            flags |= self._stuck_flags()
+
+        values = np.array(raw9, dtype=np.float64)
+        values *= self._scale9
+        sample = ImuSample(
+            self._t0_s + self._counter * self._period_s,
+            values[0:3], values[3:6], values[6:9],
+            R.TEMP_C_AT_ZERO + R.TEMP_C_PER_LSB * (((w10 & 0x0FFF) ^ 0x0800) - 0x0800),
+            supply * R.SUPPLY_V_PER_LSB,
+            flags, diag, self._counter,
+        )
+        self.counters["samples"] += 1
+        self._last = sample
+        return sample
+
+    def _advance_counter(self) -> SampleFlags:
+        self.counters["new_samples"] += 1
+        if self._clock is None:
+            self._counter += 1
+            return SampleFlags.NONE
+        now = self._clock()
+        last = self._last_host_s
+        self._last_host_s = now
+        if last is None or self._counter < 0:
+            # first sample: place it by the host clock since start()
+            self._counter = max(0, int((now - self._t0_s) * self._rate_hz))
+            return SampleFlags.NONE
+        steps = max(1, int(round((now - last) * self._rate_hz)))
+        self._counter += steps
+        if steps > 1:
+            self.counters["lost_samples"] += steps - 1
+            return SampleFlags.GAP_BEFORE
+        return SampleFlags.NONE
+
+    def _check_burst_bug(self, w1: int, gx: int, flags: SampleFlags) -> tuple[int, SampleFlags]:
+        """Confirm a suspicious burst X-gyro value with a register read of XGYRO_OUT."""
+        reg = self.read_register(R.XGYRO_OUT)
+        reg_lsb = R.decode_signed14(reg)
+        if reg_lsb == gx:
+            return gx, flags                                  # genuine
+        if (reg & 0x3FFF) == ((w1 & 0x3FFF) | 0x2000):
+            self.counters["burst_bug_recovered"] += 1
+            return reg_lsb, flags | SampleFlags.BURST_BUG_RECOVERED
+        # the register moved on (new sample) or disagrees otherwise: the burst value cannot be trusted
+        self.counters["burst_bug_unverified"] += 1
+        fixed = R.decode_signed14(w1 | 0x2000)
+        return fixed, flags | SampleFlags.GYRO_INVALID
+
+    def _check_stuck(self, raw9: list[int]) -> SampleFlags:
+        prev, runs = self._prev_raw9, self._runs
+        for i in range(9):
+            if raw9[i] == prev[i]:
+                runs[i] += 1
+            else:
+                runs[i] = 0
+                prev[i] = raw9[i]
+        if max(runs) < self._stuck_window:
+            if any(self._stuck):
+                self._stuck = [False] * 9
+            return SampleFlags.NONE
+        window = self._stuck_window
+        for s in range(3):
+            r = runs[3 * s:3 * s + 3]
+            moving = min(r) < window
+            for i in range(3):
+                frozen = r[i] >= window and moving
+                if frozen and not self._stuck[3 * s + i]:
+                    self.counters["stuck_axis"] += 1
+                    log.warning("axis %d stuck at %d LSB for %d samples", 3 * s + i, raw9[3 * s + i], r[i])
+                self._stuck[3 * s + i] = frozen
+        return self._stuck_flags()
+
+    def _stuck_flags(self) -> SampleFlags:
+        st = self._stuck
+        flags = SampleFlags.NONE
+        if st[0] or st[1] or st[2]:
+            flags |= SampleFlags.GYRO_INVALID
+        if st[3] or st[4] or st[5]:
+            flags |= SampleFlags.ACCEL_INVALID
+        if st[6] or st[7] or st[8]:
+            flags |= SampleFlags.MAG_INVALID
+        return flags
