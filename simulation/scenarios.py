@@ -272,26 +272,28 @@ class CoordinatedTurn(Scenario):
 class Tumble(Scenario):
     """A hand tumble for a full-sphere calibration: every orientation within ~90 s.
 
-    Roll, pitch and yaw all turn continuously at incommensurate rates (45, 17, 11 °/s, each modulated ±30 %), so
-    the gravity and field directions seen by the sensor sweep the whole sphere. The centre of the sensor stays
-    put. Carries the default vehicle iron.
+    The sensor rolls continuously (90 °/s ±20 %), so each direction across its x axis is swept every ~4 s, while
+    the pitch swings slowly from nose-down to nose-up and back (−90° cos(2πt/120 s)) and the heading turns at
+    23 °/s: the gravity and field directions in the sensor frame spiral over the whole sphere (gaps < 12° for
+    gravity and < 15° for the field after 90 s at the default site). The centre stays put. Carries the default
+    vehicle iron. Peak body rate ≈ 130 °/s (inside the ±300 °/s range).
     """
 
+    roll_rate_deg_s: float = 90.0
+    yaw_rate_deg_s: float = 23.0
+    pitch_period_s: float = 120.0
     name = "tumble"
-    description = "continuous roll 45 °/s, pitch 17 °/s, yaw 11 °/s (±30 % modulated): full sphere in ~90 s"
+    description = "rolling 90 °/s, pitch swinging ±90° over 120 s, heading 23 °/s: full sphere in ~90 s"
     default_iron = VehicleIron.default()
-    # (mean rate deg/s, modulation fraction, modulation period s, initial angle deg)
-    _AXES = ((11.0, 0.3, 23.0, 0.0), (17.0, 0.3, 31.0, 0.0), (45.0, 0.3, 13.0, 0.0))
-
-    @staticmethod
-    def _angle(t, mean, frac, period, a0):
-        w = 2 * math.pi / period
-        return (a0 + mean * t + mean * frac / w * (1.0 - np.cos(w * t))) * DEG
+    _ROLL_MOD = (0.2, 17.0)  # fraction, period s
 
     def attitude(self, t_s):
         t = np.asarray(t_s, dtype=float)
-        yaw, pitch, roll = (self._angle(t, *ax) for ax in self._AXES)
-        return euler_zyx(yaw, pitch, roll)
+        frac, per = self._ROLL_MOD
+        w = 2 * math.pi / per
+        roll = self.roll_rate_deg_s * DEG * (t + frac / w * (1.0 - np.cos(w * t)))
+        pitch = -90.0 * DEG * np.cos(2 * math.pi * t / self.pitch_period_s)
+        return euler_zyx(self.yaw_rate_deg_s * DEG * t, pitch, roll)
 
 
 # --------------------------------------------------------------------------------------------------------------
