@@ -1,0 +1,436 @@
+"""The MAVLink side of the field magnetometer recalibration (ArduPilot's onboard-calibration protocol).
+
+Commands (COMMAND_LONG / COMMAND_INT), behaviour mirrored from ArduPilot's AP_Compass_Calibration.cpp
+(anchors/mavlink-adis.md §6) so Mission Planner, MAVProxy and any MAVLink client can drive our component:
+
+* MAV_CMD_DO_START_MAG_CAL (42424): p1 magnetometer mask (0 = all; ours is compass 0), p2 retry, p3 autosave,
+  p4 delay s, p5 autoreboot (not needed: the new calibration is hot-swapped; logged and ignored).
+  ACCEPTED as ArduPilot does; FAILED for a mask outside 0..255 or one that names no compass of ours;
+  TEMPORARILY_REJECTED + STATUSTEXT "Disarm to allow compass calibration" while the autopilot reports armed
+  (ArduPilot answers FAILED; the issue asks for TEMPORARILY_REJECTED) unless `allow_armed`; a second start
+  while a session runs is ACCEPTED and changes nothing (ArduPilot's CompassCalibrator::start returns when
+  running); a start after a finished session starts a new one.
+* MAV_CMD_DO_ACCEPT_MAG_CAL (42425): saves a SUCCESS result (atomic store, previous kept), hot-swaps it,
+  logs before/after and stops the session; ACCEPTED when there is nothing to accept or it was already saved
+  (ArduPilot), FAILED for a FAILED session (stopped) and for a session still running (which carries on:
+  ArduPilot would stop it, which only throws the operator's turning away).
+* MAV_CMD_DO_CANCEL_MAG_CAL (42426): stops the session, ACCEPTED.
+* MAV_CMD_FIXED_MAG_CAL_YAW (42006): p1 true yaw deg, p2 mask, p3/p4 lat/lon (0/0 = the autopilot's
+  position, else the configured location): offsets from the WMM field at the given attitude, soft iron KEPT;
+  saved and swapped at once (as ArduPilot does).
+* MAV_CMD_PREFLIGHT_CALIBRATION (241) p2 = 1 starts (retry 0, autosave 1), p2 = 76 accepts — only when the
+  daemon has not claimed 241 itself (it can delegate with `handle_preflight_mag`).
+
+Broadcasts (target_component 0) are ignored unless `accept_broadcast` (MAVProxy's `magcal` sends them, and
+they would start the autopilot's own calibration too); unsigned commands are refused when signing is
+configured (both done by the CommandRouter, daemon/commands.py).
+
+While a session runs: MAG_CAL_PROGRESS at ~4 Hz, HEARTBEAT system_status CALIBRATING (`system_status`),
+STATUSTEXT lines a person can act on; when it has finished, MAG_CAL_REPORT (ArduPilot's offsets/diag/offdiag
+convention, fitness in mgauss, autosaved flag) at 1 Hz until accepted or cancelled. After a swap the
+heading sent to the autopilot is slewed (`heading_for_autopilot`, `HeadingSlew`).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import logging
+import math
+import time
+from collections import deque
+from dataclasses import dataclass, replace
+from typing import Any, Protocol
+
+import numpy as np
+
+from ahrsd.calibration.field import (
+    UT_TO_MGAUSS,
+    CalStatus,
+    FieldCalConfig,
+    FieldCalibration,
+    HeadingSlew,
+    VehicleType,
+    fixed_yaw_calibration,
+    yaw_rate_ned_rad_s,
+)
+from ahrsd.daemon.mavlink_io import mavlink
+
+log = logging.getLogger(__name__)
+
+CMD_START = 42424       # MAV_CMD_DO_START_MAG_CAL (ardupilotmega.xml)
+CMD_ACCEPT = 42425      # MAV_CMD_DO_ACCEPT_MAG_CAL
+CMD_CANCEL = 42426      # MAV_CMD_DO_CANCEL_MAG_CAL
+CMD_FIXED_YAW = 42006   # MAV_CMD_FIXED_MAG_CAL_YAW (common.xml)
+CMD_PREFLIGHT = 241     # MAV_CMD_PREFLIGHT_CALIBRATION
+PREFLIGHT_MAG_START = 1       # PREFLIGHT_CALIBRATION_MAGNETOMETER
+PREFLIGHT_MAG_FORCE_SAVE = 76
+COMPASS_ID = 0          # our single magnetometer
+OUR_MASK = 1 << COMPASS_ID
+STATUSTEXT_LEN = 50     # STATUSTEXT.text char[50]
+
+SEV_ERROR, SEV_WARNING, SEV_NOTICE, SEV_INFO = 3, 4, 5, 6   # MAV_SEVERITY
+
+
+@dataclass(frozen=True)
+class MagCalSettings:
+    """Behaviour of the mag-cal protocol handler (the daemon's `[magcal]` config section)."""
+
+    accept_broadcast: bool = False       # act on target_component 0 (MAVProxy `magcal`): also starts the autopilot's cal
+    allow_armed: bool = False            # calibrate while the autopilot reports armed
+    vehicle_type: str = "auto"           # auto | level | tumble
+    fitness_mgauss: float = 16.0         # ArduPilot COMPASS_CAL_FIT default
+    timeout_s: float = 300.0             # sample time from start to full coverage
+    heading_slew_deg_s: float = 2.0      # bound on the heading change a new calibration causes (EKF3 3σ gate)
+    progress_rate_hz: float = 4.0        # MAG_CAL_PROGRESS while running
+    report_rate_hz: float = 1.0          # MAG_CAL_REPORT while finished and not accepted/cancelled
+    fixed_yaw_average_s: float = 1.0     # raw field averaged for MAV_CMD_FIXED_MAG_CAL_YAW
+
+    def field_config(self, retry: bool, delay_s: float) -> FieldCalConfig:
+        return FieldCalConfig(vehicle_type=VehicleType(self.vehicle_type), fitness_mgauss=self.fitness_mgauss,
+                              timeout_s=self.timeout_s, retry=retry, delay_s=delay_s)
+
+
+class MagCalHost(Protocol):
+    """What the handler needs from the daemon (daemon/service.py provides it; tests provide a fake)."""
+
+    def current_calibration(self): ...                 # Calibration in force
+    def apply_calibration(self, cal) -> None: ...       # hot swap (estimator keeps running)
+    def save_calibration(self, cal) -> None: ...        # CalibrationStore.save (atomic, previous kept)
+    def send(self, msg) -> None: ...                    # to every endpoint
+    def statustext(self, severity: int, text: str) -> None: ...
+    def armed(self) -> bool: ...
+    def reference_field(self, lat_deg: float | None = None, lon_deg: float | None = None): ...  # EarthField | None
+
+
+def statustext_chunks(severity: int, text: str, chunk_id: int) -> list:
+    """STATUSTEXT messages for `text`: one message when it fits 50 bytes, else MAVLink 2 chunks sharing
+    `chunk_id` (1..65535) with chunk_seq 0, 1, ... (the last one shorter than 50 bytes or NUL-terminated)."""
+    data = text.encode("utf-8", "replace")
+    if len(data) <= STATUSTEXT_LEN:
+        return [mavlink.MAVLink_statustext_message(severity, data, 0, 0)]
+    parts = [data[i:i + STATUSTEXT_LEN] for i in range(0, len(data), STATUSTEXT_LEN)]
+    if len(parts[-1]) == STATUSTEXT_LEN:
+        parts.append(b"")
+    return [mavlink.MAVLink_statustext_message(severity, p, chunk_id, seq) for seq, p in enumerate(parts)]
+
+
+class MagCalProtocol:
+    """Handlers for the mag-cal commands plus the periodic outputs. Call from the event loop only;
+    fits run in a worker thread and are collected in `tick`."""
+
+    def __init__(self, host: MagCalHost, settings: MagCalSettings | None = None, clock=time.monotonic):
+        self.host = host
+        self.settings = settings or MagCalSettings()
+        self.clock = clock
+        self.session: FieldCalibration | None = None
+        self.autosave = False
+        self.saved = False
+        self.slew = HeadingSlew(max_rate_deg_s=self.settings.heading_slew_deg_s)
+        self._executor: concurrent.futures.ThreadPoolExecutor | None = None
+        self._fit_future: concurrent.futures.Future | None = None
+        self._next_progress = 0.0
+        self._next_report = 0.0
+        self._chunk_id = 0
+        self._recent_raw: deque = deque()
+        self._last_estimate = None
+        self._mask_requested = OUR_MASK
+
+    # ------------------------------------------------------------------ wiring
+    def register(self, router) -> None:
+        """Install the command handlers in a daemon CommandRouter."""
+        b = self.settings.accept_broadcast
+        router.register(CMD_START, self.handle_start, accept_broadcast=b)
+        router.register(CMD_ACCEPT, self.handle_accept, accept_broadcast=b)
+        router.register(CMD_CANCEL, self.handle_cancel, accept_broadcast=b)
+        router.register(CMD_FIXED_YAW, self.handle_fixed_yaw, accept_broadcast=b)
+        if CMD_PREFLIGHT not in router.registered():
+            router.register(CMD_PREFLIGHT, self.handle_preflight_mag, accept_broadcast=False)
+
+    @property
+    def calibrating(self) -> bool:
+        return self.session is not None and self.session.status.running
+
+    @property
+    def system_status(self) -> int | None:
+        """MAV_STATE for HEARTBEAT while a session runs (CALIBRATING), else None (the daemon's own)."""
+        return mavlink.MAV_STATE_CALIBRATING if self.calibrating else None
+
+    def close(self) -> None:
+        if self._executor is not None:
+            self._executor.shutdown(wait=False, cancel_futures=True)
+            self._executor = None
+
+    # ------------------------------------------------------------------ per sample
+    def on_sample(self, sample, estimate) -> None:
+        """Every calibrated (body-frame) sample and its estimate. Cheap when no session runs."""
+        self._last_estimate = estimate
+        now = sample.t_s
+        q = self._recent_raw
+        q.append((now, sample.mag_ut))
+        while q and now - q[0][0] > self.settings.fixed_yaw_average_s:
+            q.popleft()
+        s = self.session
+        if s is not None and s.status.running:
+            s.add_sample(sample, estimate, now_s=self.clock())
+
+    def heading_for_autopilot(self, t_s: float, heading_true_rad: float, estimate=None) -> float:
+        """The true heading to put in VISION_POSITION_ESTIMATE: the estimator's, slewed after a swap.
+        reset_counter must stay unchanged for a calibration change (see HeadingSlew)."""
+        est = estimate if estimate is not None else self._last_estimate
+        rate = 0.0
+        if est is not None:
+            rate = yaw_rate_ned_rad_s(est.rate_body_rad_s, est.roll_rad, est.pitch_rad)
+        return self.slew.update(t_s, heading_true_rad, rate)
+
+    # ------------------------------------------------------------------ periodic
+    def tick(self) -> None:
+        """Call at ≥ 4 Hz: collects finished fits, streams progress/report, watches for arming."""
+        now = self.clock()
+        s = self.session
+        if s is None:
+            return
+        if s.status.running and self.host.armed() and not self.settings.allow_armed:
+            self._stop_session()
+            self._say(SEV_WARNING, "Mag cal cancelled: vehicle armed")
+            return
+        s.tick(now)
+        self._run_pending_fit(s)
+        for sev, text in s.pop_messages():
+            self._say(sev, text)
+        if s.status == CalStatus.SUCCESS and self.autosave and not self.saved:
+            self._accept_result()
+        if s.status.running and now >= self._next_progress:
+            self._next_progress = now + 1.0 / self.settings.progress_rate_hz
+            self.host.send(self.progress_message())
+        elif s.status.finished and now >= self._next_report:
+            self._next_report = now + 1.0 / self.settings.report_rate_hz
+            self.host.send(self.report_message())
+
+    def _run_pending_fit(self, s: FieldCalibration) -> None:
+        fut = self._fit_future
+        if fut is not None and fut.done():
+            self._fit_future = None
+            try:
+                outcome = fut.result()
+            except Exception as exc:  # noqa: BLE001 - reported as a failed calibration
+                outcome = ("final", exc)
+            s.fit_done(outcome)
+        if self._fit_future is None:
+            job = s.pending_fit()
+            if job is not None:
+                if self._executor is None:
+                    self._executor = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="magcal-fit")
+                self._fit_future = self._executor.submit(job)
+
+    # ------------------------------------------------------------------ messages
+    def progress_message(self):
+        s = self.session
+        d = s.direction_hint()
+        return mavlink.MAVLink_mag_cal_progress_message(
+            COMPASS_ID, OUR_MASK, int(s.status), max(1, s.attempt), s.completion_pct, list(s.completion_mask),
+            float(d[0]), float(d[1]), float(d[2]))
+
+    def report_message(self):
+        s = self.session
+        res = s.result
+        if res is None:  # failed before any fit (timeout, no samples)
+            zeros = (0.0, 0.0, 0.0)
+            return mavlink.MAVLink_mag_cal_report_message(
+                COMPASS_ID, OUR_MASK, int(s.status), 0, float("nan"), *zeros, 1.0, 1.0, 1.0, *zeros, 0.0, 0, 0, 0.0)
+        ap = res.ardupilot
+        return mavlink.MAVLink_mag_cal_report_message(
+            COMPASS_ID, OUR_MASK, int(s.status), int(self.saved), float(res.fitness_mgauss),
+            *(float(v) for v in ap.ofs_mgauss), *(float(v) for v in ap.diag), *(float(v) for v in ap.offdiag),
+            0.0, 0, 0, float(ap.scale_factor))
+
+    def _say(self, severity: int, text: str) -> None:
+        self._chunk_id = self._chunk_id % 65535 + 1
+        for msg in statustext_chunks(severity, text, self._chunk_id):
+            self.host.send(msg)
+        log.log(logging.WARNING if severity <= SEV_WARNING else logging.INFO, "magcal: %s", text)
+
+    # ------------------------------------------------------------------ command handlers: (msg, ctx) -> MAV_RESULT
+    def handle_start(self, msg, ctx=None) -> int:
+        p = _params(msg)
+        mask_f, retry, autosave, delay_s, autoreboot = p[0], p[1] != 0, p[2] != 0, p[3], p[4] != 0
+        if not (0 <= mask_f <= 255) or not math.isfinite(delay_s) or delay_s < 0:
+            return mavlink.MAV_RESULT_FAILED
+        mask = int(mask_f)
+        if mask != 0 and not mask & OUR_MASK:
+            self._say(SEV_ERROR, f"Mag cal: no compass in mask {mask} (this unit has compass 0)")
+            return mavlink.MAV_RESULT_FAILED
+        if self.host.armed() and not self.settings.allow_armed:
+            self._say(SEV_NOTICE, "Disarm to allow compass calibration")
+            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+        if self.calibrating:
+            self._say(SEV_INFO, f"Mag cal already running ({self.session.completion_pct}%)")
+            return mavlink.MAV_RESULT_ACCEPTED
+        try:
+            current = self.host.current_calibration()
+            reference = self.host.reference_field()
+        except Exception as exc:  # noqa: BLE001
+            log.exception("cannot start magnetometer calibration")
+            self._say(SEV_ERROR, f"Mag cal cannot start: {exc}")
+            return mavlink.MAV_RESULT_FAILED
+        if reference is None:
+            self._say(SEV_WARNING, "Mag cal: no position for WMM: offsets only on level turns")
+        self._stop_session()
+        self.session = FieldCalibration(current, self.settings.field_config(retry, delay_s), reference,
+                                        samples_are_calibrated=True, auto_fit=False)
+        self.session.start()
+        self.autosave, self.saved = autosave, False
+        self._mask_requested = mask or OUR_MASK
+        self._next_progress = 0.0
+        if autoreboot:
+            log.info("magcal: autoreboot requested: not needed, the new calibration is applied without a reboot")
+        self._say(SEV_INFO, "Mag cal started" + (f", waiting {delay_s:.0f} s" if delay_s > 0 else ""))
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def handle_accept(self, msg, ctx=None) -> int:
+        mask_f = _params(msg)[0]
+        if not (0 <= mask_f <= 255):
+            return mavlink.MAV_RESULT_FAILED
+        mask = int(mask_f) or 0xFF
+        s = self.session
+        if not mask & OUR_MASK or s is None or s.status == CalStatus.NOT_STARTED:
+            return mavlink.MAV_RESULT_ACCEPTED
+        if s.status.running:
+            self._say(SEV_NOTICE, f"Mag cal not finished ({s.completion_pct}%): keep turning")
+            return mavlink.MAV_RESULT_FAILED
+        if s.status != CalStatus.SUCCESS:
+            self._stop_session()
+            return mavlink.MAV_RESULT_FAILED
+        ok = self.saved or self._accept_result()
+        self._stop_session()
+        return mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_FAILED
+
+    def handle_cancel(self, msg, ctx=None) -> int:
+        mask_f = _params(msg)[0]
+        if not (0 <= mask_f <= 255):
+            return mavlink.MAV_RESULT_FAILED
+        mask = int(mask_f) or 0xFF
+        if mask & OUR_MASK and self.session is not None:
+            was_running = self.calibrating
+            self._stop_session()
+            if was_running:
+                self._say(SEV_INFO, "Mag cal cancelled")
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def handle_preflight_mag(self, msg, ctx=None) -> int:
+        p2 = _params(msg)[1]
+        if p2 == PREFLIGHT_MAG_START:
+            start = _FakeCommand(0.0, 0.0, 1.0, 0.0, 0.0)
+            return self.handle_start(start, ctx)
+        if p2 == PREFLIGHT_MAG_FORCE_SAVE:
+            return self.handle_accept(_FakeCommand(0.0), ctx)
+        return mavlink.MAV_RESULT_UNSUPPORTED
+
+    def handle_fixed_yaw(self, msg, ctx=None) -> int:
+        yaw_deg, mask_f, lat, lon = _params(msg)[:4]
+        if not (0 <= mask_f <= 255) or not math.isfinite(yaw_deg) or (int(mask_f) and not int(mask_f) & OUR_MASK):
+            return mavlink.MAV_RESULT_FAILED
+        if self.host.armed() and not self.settings.allow_armed:
+            self._say(SEV_NOTICE, "Disarm to allow compass calibration")
+            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+        if self.calibrating:
+            self._say(SEV_NOTICE, "Mag cal running: cancel it before a fixed-yaw cal")
+            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+        est = self._last_estimate
+        if est is None or not self._recent_raw:
+            self._say(SEV_ERROR, "Mag: no attitude yet for fixed-yaw cal")
+            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+        reference = self.host.reference_field(lat, lon) if (lat or lon) else self.host.reference_field()
+        if reference is None:
+            self._say(SEV_ERROR, "Mag: no position available")
+            return mavlink.MAV_RESULT_FAILED
+        current = self.host.current_calibration()
+        cal_mean = np.mean([m for _t, m in self._recent_raw], axis=0)
+        raw_mean = np.linalg.solve(current.mag.soft_iron, cal_mean) + current.mag.hard_iron_ut
+        res = fixed_yaw_calibration(float(yaw_deg), reference, float(est.roll_rad), float(est.pitch_rad),
+                                    raw_mean, current.mag)
+        new = current.with_sensor("mag", res.model, method="field:fixed-yaw", true_heading_deg=float(yaw_deg),
+                                  before={"hard_iron_ut": current.mag.hard_iron_ut.tolist(),
+                                          "soft_iron": current.mag.soft_iron.tolist()})
+        if not self._save_and_swap(new, current, res.message):
+            return mavlink.MAV_RESULT_FAILED
+        if res.field_mismatch_ut * UT_TO_MGAUSS > 50:
+            self._say(SEV_WARNING, f"Mag field {res.field_mismatch_ut * UT_TO_MGAUSS:.0f} mG off WMM: "
+                                   "soft iron may be stale, run a full cal")
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    # ------------------------------------------------------------------ accept / save
+    def _accept_result(self) -> bool:
+        s = self.session
+        res = s.result
+        current = self.host.current_calibration()
+        new = res.proposed_calibration(current)
+        text = (f"Mag cal saved: ofs {np.round(res.ardupilot.ofs_mgauss).astype(int).tolist()} mG, "
+                f"fitness {res.fitness_mgauss:.1f} mG, {res.method}")
+        ok = self._save_and_swap(new, current, text, res.describe_change())
+        self.saved = ok
+        return ok
+
+    def _save_and_swap(self, new, current, text: str, log_line: str | None = None) -> bool:
+        try:
+            self.host.save_calibration(new)
+        except Exception as exc:  # noqa: BLE001 - the previous calibration stays in force and on disk
+            log.exception("saving the new magnetometer calibration failed")
+            self._say(SEV_ERROR, f"Mag cal save failed: {exc}")
+            return False
+        self.host.apply_calibration(new)
+        self.slew.start_transition()
+        log.warning("magnetometer calibration changed: %s", log_line or text)
+        log.warning("  before: hard_iron_ut=%s soft_iron=%s", np.round(current.mag.hard_iron_ut, 3).tolist(),
+                    np.round(current.mag.soft_iron, 5).tolist())
+        log.warning("  after:  hard_iron_ut=%s soft_iron=%s", np.round(new.mag.hard_iron_ut, 3).tolist(),
+                    np.round(new.mag.soft_iron, 5).tolist())
+        self._say(SEV_NOTICE, text)
+        return True
+
+    def _stop_session(self) -> None:
+        if self.session is not None:
+            self.session.cancel()
+        self.session = None
+        if self._fit_future is not None:
+            self._fit_future.cancel()
+            self._fit_future = None
+        self.saved = False
+
+
+@dataclass
+class _FakeCommand:
+    param1: float = 0.0
+    param2: float = 0.0
+    param3: float = 0.0
+    param4: float = 0.0
+    param5: float = 0.0
+    param6: float = 0.0
+    param7: float = 0.0
+
+    def get_type(self) -> str:
+        return "COMMAND_LONG"
+
+
+def _params(msg) -> tuple[float, ...]:
+    if msg.get_type() == "COMMAND_INT":
+        return (msg.param1, msg.param2, msg.param3, msg.param4, float(msg.x), float(msg.y), msg.z)
+    return (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
+
+
+def settings_from_mapping(d: dict[str, Any] | None) -> MagCalSettings:
+    """`[magcal]` TOML table -> MagCalSettings; raises ValueError naming the bad key."""
+    d = dict(d or {})
+    out: dict[str, Any] = {}
+    fields = {f: type(getattr(MagCalSettings(), f)) for f in MagCalSettings.__dataclass_fields__}
+    for key, value in d.items():
+        if key not in fields:
+            raise ValueError(f"unknown config key magcal.{key}: allowed keys are {', '.join(fields)}")
+        want = fields[key]
+        if want is bool and not isinstance(value, bool):
+            raise ValueError(f"config key magcal.{key} = {value!r} is invalid: true or false")
+        if want is float and (isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0):
+            raise ValueError(f"config key magcal.{key} = {value!r} is invalid: a positive number")
+        if key == "vehicle_type" and value not in ("auto", "level", "tumble"):
+            raise ValueError(f"config key magcal.vehicle_type = {value!r} is invalid: one of 'auto', 'level', 'tumble'")
+        out[key] = float(value) if want is float else value
+    return replace(MagCalSettings(), **out)

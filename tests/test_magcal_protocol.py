@@ -1,0 +1,286 @@
+"""The mag-cal MAVLink handler against a fake daemon host: commands, ACK results, streamed messages, save/swap,
+refusals. Messages are packed and parsed by pymavlink so a wrong field order or type fails here."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from ahrsd.calibration.field import CalStatus, from_ardupilot
+from ahrsd.calibration.models import Calibration, MagModel
+from ahrsd.calibration.store import CalibrationStore
+from ahrsd.daemon.magcal import (
+    CMD_ACCEPT,
+    CMD_CANCEL,
+    CMD_FIXED_YAW,
+    CMD_START,
+    MagCalProtocol,
+    MagCalSettings,
+    settings_from_mapping,
+    statustext_chunks,
+)
+from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.drivers.sample import make_sample
+
+from test_field_session import HARD_IRON_UT, SITE, level_turns
+
+MAV = mavlink.MAVLink(None, srcSystem=1, srcComponent=200)
+
+
+def wire(msg):
+    """Pack and parse like a receiver would."""
+    buf = msg.pack(MAV)
+    return mavlink.MAVLink(None).parse_char(bytearray(buf))
+
+
+class FakeHost:
+    def __init__(self, state_dir, armed=False):
+        self.store = CalibrationStore(state_dir)
+        self.cal = self.store.load()
+        self.sent = []
+        self.is_armed = armed
+        self.applied = []
+
+    def current_calibration(self):
+        return self.cal
+
+    def apply_calibration(self, cal):
+        self.cal = cal
+        self.applied.append(cal)
+
+    def save_calibration(self, cal):
+        self.store.save(cal)
+
+    def send(self, msg):
+        self.sent.append(wire(msg))
+
+    def statustext(self, severity, text):
+        self.send(statustext_chunks(severity, text, 1)[0])
+
+    def armed(self):
+        return self.is_armed
+
+    def reference_field(self, lat_deg=None, lon_deg=None):
+        return SITE
+
+    def of_type(self, name):
+        return [m for m in self.sent if m.get_type() == name]
+
+    def texts(self):
+        return [m.text for m in self.of_type("STATUSTEXT")]
+
+
+class Clock:
+    t = 1000.0
+
+    def __call__(self):
+        return self.t
+
+
+def cmd(command, *params):
+    p = list(params) + [0.0] * (7 - len(params))
+    return wire(mavlink.MAVLink_command_long_message(1, 200, command, 0, *p))
+
+
+def drive(proto, clock, traj, host, until=None, max_t=None):
+    """Feed the trajectory as calibrated samples; tick at 10 Hz of sample time (clock follows sample time)."""
+    next_tick = 0.0
+    for i in range(len(traj.t)):
+        t = traj.t[i]
+        if max_t is not None and t > max_t:
+            break
+        clock.t = 1000.0 + t
+        mag = host.cal.mag.apply(traj.raw[i])
+        s = make_sample(t, np.zeros(3), traj.accel[i], mag)
+        est = SimpleNamespace(roll_rad=traj.roll[i], pitch_rad=traj.pitch[i], yaw_rad=traj.yaw[i],
+                              rate_body_rad_s=np.zeros(3))
+        proto.on_sample(s, est)
+        if t >= next_tick:
+            next_tick = t + 0.1
+            proto.tick()
+            if proto._fit_future is not None:
+                proto._fit_future.result()  # deterministic: let the worker finish before the next tick
+                proto.tick()
+            if until is not None and until():
+                return t
+    return traj.t[-1]
+
+
+@pytest.fixture
+def setup(tmp_path):
+    host = FakeHost(tmp_path)
+    clock = Clock()
+    proto = MagCalProtocol(host, MagCalSettings(vehicle_type="level"), clock=clock)
+    yield host, clock, proto
+    proto.close()
+
+
+def test_full_session_accept_saves_and_swaps(setup, tmp_path):
+    host, clock, proto = setup
+    assert proto.handle_start(cmd(CMD_START, 0, 0, 0, 0, 0)) == mavlink.MAV_RESULT_ACCEPTED
+    assert proto.system_status == mavlink.MAV_STATE_CALIBRATING
+    traj = level_turns()
+    drive(proto, clock, traj, host, until=lambda: bool(host.of_type("MAG_CAL_REPORT")))
+    prog = host.of_type("MAG_CAL_PROGRESS")
+    pcts = [m.completion_pct for m in prog]
+    assert pcts == sorted(pcts) and pcts[-1] >= 90 and len(prog[-1].completion_mask) == 10
+    assert {m.cal_status for m in prog} >= {CalStatus.RUNNING_STEP_ONE, CalStatus.RUNNING_STEP_TWO}
+    rep = host.of_type("MAG_CAL_REPORT")[-1]
+    assert rep.cal_status == CalStatus.SUCCESS and rep.autosaved == 0 and rep.fitness < 16
+    # the report carries ArduPilot's convention: ofs = −hard iron in mgauss
+    model = from_ardupilot([rep.ofs_x, rep.ofs_y, rep.ofs_z], [rep.diag_x, rep.diag_y, rep.diag_z],
+                           [rep.offdiag_x, rep.offdiag_y, rep.offdiag_z], rep.scale_factor)
+    assert np.allclose(model.hard_iron_ut, proto.session.result.model.hard_iron_ut, atol=1e-3)
+    assert np.linalg.norm(model.hard_iron_ut - HARD_IRON_UT) < 3.0
+    assert proto.system_status is None  # finished: no longer CALIBRATING
+    # reports repeat until accepted
+    n = len(host.of_type("MAG_CAL_REPORT"))
+    clock.t += 2.5
+    proto.tick()
+    assert len(host.of_type("MAG_CAL_REPORT")) == n + 1
+    assert proto.handle_accept(cmd(CMD_ACCEPT, 0)) == mavlink.MAV_RESULT_ACCEPTED
+    assert host.applied and np.allclose(host.cal.mag.hard_iron_ut, model.hard_iron_ut, atol=1e-3)
+    assert proto.slew.active
+    # persisted: a fresh store (a restarted daemon) loads it
+    assert np.allclose(CalibrationStore(tmp_path).load().mag.hard_iron_ut, host.cal.mag.hard_iron_ut)
+    n = len(host.of_type("MAG_CAL_REPORT"))
+    clock.t += 5
+    proto.tick()
+    assert len(host.of_type("MAG_CAL_REPORT")) == n  # stopped
+    assert any("Mag cal saved" in t for t in host.texts())
+
+
+def test_autosave_reports_autosaved_and_accept_is_idempotent(setup):
+    host, clock, proto = setup
+    assert proto.handle_start(cmd(CMD_START, 0, 0, 1, 0, 0)) == mavlink.MAV_RESULT_ACCEPTED
+    drive(proto, clock, level_turns(), host, until=lambda: bool(host.of_type("MAG_CAL_REPORT")))
+    rep = host.of_type("MAG_CAL_REPORT")[-1]
+    assert rep.cal_status == CalStatus.SUCCESS and rep.autosaved == 1
+    assert len(host.applied) == 1
+    assert proto.handle_accept(cmd(CMD_ACCEPT, 1)) == mavlink.MAV_RESULT_ACCEPTED  # MAVProxy accepts after autosave
+    assert len(host.applied) == 1
+
+
+def test_second_start_while_running_changes_nothing(setup):
+    host, clock, proto = setup
+    proto.handle_start(cmd(CMD_START))
+    drive(proto, clock, level_turns(duration_s=15.0), host)
+    session, pct = proto.session, proto.session.completion_pct
+    assert pct > 0
+    assert proto.handle_start(cmd(CMD_START, 0, 1, 1, 0)) == mavlink.MAV_RESULT_ACCEPTED
+    assert proto.session is session and session.completion_pct == pct
+    assert any("already running" in t for t in host.texts())
+
+
+def test_cancel_stops_progress_and_keeps_calibration(setup):
+    host, clock, proto = setup
+    proto.handle_start(cmd(CMD_START))
+    drive(proto, clock, level_turns(duration_s=10.0), host)
+    assert proto.handle_cancel(cmd(CMD_CANCEL, 0)) == mavlink.MAV_RESULT_ACCEPTED
+    assert proto.session is None and proto.system_status is None and not host.applied
+    n = len(host.sent)
+    clock.t += 10
+    proto.tick()
+    assert len(host.sent) == n
+
+
+def test_accept_while_running_fails_and_keeps_running(setup):
+    host, clock, proto = setup
+    proto.handle_start(cmd(CMD_START))
+    drive(proto, clock, level_turns(duration_s=10.0), host)
+    assert proto.handle_accept(cmd(CMD_ACCEPT)) == mavlink.MAV_RESULT_FAILED
+    assert proto.calibrating
+
+
+def test_armed_refused_and_arming_cancels(setup):
+    host, clock, proto = setup
+    host.is_armed = True
+    assert proto.handle_start(cmd(CMD_START)) == mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+    assert "Disarm to allow compass calibration" in host.texts()
+    assert proto.session is None
+    host.is_armed = False
+    proto.handle_start(cmd(CMD_START))
+    host.is_armed = True
+    proto.tick()
+    assert proto.session is None and any("armed" in t for t in host.texts())
+
+
+def test_armed_allowed_when_configured(tmp_path):
+    host = FakeHost(tmp_path, armed=True)
+    proto = MagCalProtocol(host, MagCalSettings(allow_armed=True), clock=Clock())
+    assert proto.handle_start(cmd(CMD_START)) == mavlink.MAV_RESULT_ACCEPTED
+
+
+def test_bad_parameters_fail(setup):
+    host, clock, proto = setup
+    assert proto.handle_start(cmd(CMD_START, 300)) == mavlink.MAV_RESULT_FAILED
+    assert proto.handle_start(cmd(CMD_START, 2)) == mavlink.MAV_RESULT_FAILED  # compass 1: we have none
+    assert proto.handle_start(cmd(CMD_START, 0, 0, 0, -5)) == mavlink.MAV_RESULT_FAILED
+    assert proto.handle_cancel(cmd(CMD_CANCEL, -1)) == mavlink.MAV_RESULT_FAILED
+
+
+def test_timeout_reports_failed_with_reason(tmp_path):
+    host = FakeHost(tmp_path)
+    clock = Clock()
+    proto = MagCalProtocol(host, MagCalSettings(timeout_s=20.0), clock=clock)
+    proto.handle_start(cmd(CMD_START))
+    drive(proto, clock, level_turns(duration_s=30.0, turn_period_s=1e9), host)
+    rep = host.of_type("MAG_CAL_REPORT")
+    assert rep and rep[-1].cal_status == CalStatus.FAILED
+    assert any("timed out" in t for t in host.texts())
+    assert proto.handle_accept(cmd(CMD_ACCEPT)) == mavlink.MAV_RESULT_FAILED
+    assert not host.applied
+
+
+def test_fixed_yaw_keeps_soft_iron_and_saves(tmp_path):
+    host = FakeHost(tmp_path)
+    soft = np.diag([1.03, 0.98, 1.0])
+    host.cal = Calibration.identity().with_sensor("mag", MagModel(np.zeros(3), soft))
+    proto = MagCalProtocol(host, MagCalSettings(), clock=Clock())
+    traj = level_turns(duration_s=2.0, turn_period_s=1e9)  # still, heading 0 true
+    for i in range(len(traj.t)):
+        proto.on_sample(make_sample(traj.t[i], np.zeros(3), traj.accel[i], host.cal.mag.apply(traj.raw[i])),
+                        SimpleNamespace(roll_rad=traj.roll[i], pitch_rad=traj.pitch[i], yaw_rad=0.0,
+                                        rate_body_rad_s=np.zeros(3)))
+    assert proto.handle_fixed_yaw(cmd(CMD_FIXED_YAW, 0.0, 0, 0, 0)) == mavlink.MAV_RESULT_ACCEPTED
+    assert np.array_equal(host.cal.mag.soft_iron, soft)
+    assert host.cal.mag.hard_iron_ut.shape == (3,) and np.all(np.isfinite(host.cal.mag.hard_iron_ut))
+    assert np.allclose(CalibrationStore(tmp_path).load().mag.soft_iron, soft)
+
+
+def test_statustext_chunks_long_lines():
+    text = "tilt range too small for full model: fitted offsets only"
+    msgs = [wire(m) for m in statustext_chunks(4, text, 7)]
+    assert len(msgs) == 2 and all(m.id == 7 for m in msgs) and [m.chunk_seq for m in msgs] == [0, 1]
+    assert "".join(m.text for m in msgs) == text
+    assert len(statustext_chunks(6, "short", 1)) == 1
+
+
+def test_settings_from_mapping_validates():
+    s = settings_from_mapping({"accept_broadcast": True, "heading_slew_deg_s": 3})
+    assert s.accept_broadcast and s.heading_slew_deg_s == 3.0
+    with pytest.raises(ValueError, match="magcal.bogus"):
+        settings_from_mapping({"bogus": 1})
+    with pytest.raises(ValueError, match="vehicle_type"):
+        settings_from_mapping({"vehicle_type": "submarine"})
+
+
+def test_router_ignores_broadcast_unless_configured_and_refuses_unsigned(tmp_path):
+    commands = pytest.importorskip("ahrsd.daemon.commands")
+    acks = []
+    for accept_broadcast in (False, True):
+        host = FakeHost(tmp_path)
+        proto = MagCalProtocol(host, MagCalSettings(accept_broadcast=accept_broadcast), clock=Clock())
+        router = commands.CommandRouter(service=None, send_ack=lambda ep, m: acks.append(m))
+        proto.register(router)
+        msg = wire(mavlink.MAVLink_command_long_message(1, 0, CMD_START, 0, 0, 0, 1, 0, 0, 0, 0))
+        router.handle(msg, None, broadcast=True)
+        assert proto.calibrating is accept_broadcast
+    signed_router = commands.CommandRouter(service=None, send_ack=lambda ep, m: acks.append(m),
+                                           require_signed=lambda: True)
+    proto = MagCalProtocol(FakeHost(tmp_path), MagCalSettings(), clock=Clock())
+    proto.register(signed_router)
+    signed_router.handle(cmd(CMD_START), None, broadcast=False)
+    assert not proto.calibrating and acks[-1].result == mavlink.MAV_RESULT_DENIED
