@@ -90,8 +90,9 @@ class MagFitInput:
 @dataclass(frozen=True)
 class MagFitResult:
     """A magnetometer fit. `residual_rms_ut`: RMS of |calibrated| − reference magnitude over the samples
-    used (NaN when refused). `quality`: method-specific checks (n_used, coverage, condition number, ...).
-    `refused`: None when the model is usable, else why not."""
+    used (of the rejected fit when refused after fitting; NaN when no fit was made). `quality`:
+    method-specific checks (n_used, coverage, condition number, parameter 1σ, ...; a refused fit's model
+    is under quality['rejected_model']). `refused`: None when the model is usable, else why not."""
 
     model: MagModel
     residual_rms_ut: float
@@ -164,6 +165,105 @@ def reference_magnitude_ut(reference: "EarthField | None", mag_ut: np.ndarray, f
     if reference is not None:
         return float(reference.total_ut), "wmm"
     return float(np.mean(np.linalg.norm(mag_ut, axis=1))), "mean raw norm (no reference field given)"
+
+
+# Default acceptance checks of the attitude-independent (full-sphere) fits; each is an option of the fit.
+MIN_SAMPLES = 30
+MIN_COVERAGE = 0.5            # fraction of the 26 cube directions seen (level turns ≈ 0.3, a tumble ≈ 1)
+MAX_RESIDUAL_FRACTION = 0.05  # RMS | |m| − H0 | above 5 % of H0: the model does not describe the data
+MAX_SIGMA_HARD_UT = 0.5       # 1σ of each hard-iron component (5 mgauss): beyond it the data cannot fix it
+MAX_SIGMA_SOFT = 0.01         # 1σ of each soft-iron entry (1 %)
+SOFT_IRON_GAIN_RANGE = (0.25, 4.0)  # singular values of soft_iron outside this are not a vehicle's iron
+
+
+def prepare(data: MagFitInput, reference, field_ut: float | None, min_samples: int, method: str):
+    """Common first step: finite rows, the reference magnitude, the sample count check.
+    Returns (mag (n,3), H0 µT, quality dict) or a refused MagFitResult."""
+    good = finite_rows(data.mag_ut)
+    mag = np.asarray(data.mag_ut[good])
+    quality: dict = {"n_samples": int(len(data)), "n_used": int(mag.shape[0]), "n_dropped_non_finite": int((~good).sum())}
+    if mag.shape[0] < min_samples:
+        return refuse(method, f"too few samples: {mag.shape[0]} usable, need at least {min_samples}", **quality)
+    h0, source = reference_magnitude_ut(reference, mag, field_ut)
+    if not (h0 > 0 and math.isfinite(h0)):
+        return refuse(method, f"reference field magnitude {h0!r} is not positive", **quality)
+    quality["field_ut"] = h0
+    quality["field_source"] = source
+    quality["raw_coverage"] = direction_coverage(mag - mag.mean(axis=0))
+    return mag, h0, quality
+
+
+def parameter_sigmas(model: MagModel, mag_ut: np.ndarray, field_ut: float, params: str) -> tuple[np.ndarray, np.ndarray]:
+    """1σ of the hard iron (µT) and of the free soft-iron entries from the magnitude residual's Jacobian
+    at the solution (Gauss–Newton covariance, σ² = residual variance). `params`: 'diag' (two-step),
+    'upper' (three-step, upper triangle), 'sym' (ellipsoid, symmetric), 'full'."""
+    d = mag_ut - model.hard_iron_ut
+    v = d @ model.soft_iron.T
+    norm = np.linalg.norm(v, axis=1)
+    n = v / norm[:, None]
+    r = norm - field_ut
+    cols = [-(n @ model.soft_iron)]  # ∂r/∂h, (m, 3)
+    if params == "diag":
+        idx = [(0, 0), (1, 1), (2, 2)]
+    elif params == "upper":
+        idx = [(i, j) for i in range(3) for j in range(i, 3)]
+    elif params == "sym":
+        idx = [(i, j) for i in range(3) for j in range(i, 3)]
+    else:
+        idx = [(i, j) for i in range(3) for j in range(3)]
+    soft_cols = []
+    for i, j in idx:
+        c = n[:, i] * d[:, j]
+        if params == "sym" and i != j:
+            c = c + n[:, j] * d[:, i]
+        soft_cols.append(c)
+    jac = np.column_stack(cols + [np.column_stack(soft_cols)])
+    dof = max(len(r) - jac.shape[1], 1)
+    s2 = float(r @ r) / dof
+    try:
+        cov = np.linalg.inv(jac.T @ jac) * s2
+        sig = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    except np.linalg.LinAlgError:
+        sig = np.full(jac.shape[1], np.inf)
+    return sig[:3], sig[3:]
+
+
+def assess(method: str, model: MagModel, mag_ut: np.ndarray, field_ut: float, quality: dict, *, params: str,
+           min_coverage: float = MIN_COVERAGE, max_residual_fraction: float = MAX_RESIDUAL_FRACTION,
+           max_sigma_hard_ut: float = MAX_SIGMA_HARD_UT, max_sigma_soft: float = MAX_SIGMA_SOFT) -> MagFitResult:
+    """Residuals and acceptance checks common to the magnitude-based fits; a refused result if one fails."""
+    resid = magnitude_residuals(model, mag_ut, field_ut)
+    rms = float(np.sqrt(np.mean(resid**2)))
+    cal = model.apply(mag_ut)
+    coverage = direction_coverage(cal)
+    sig_h, sig_s = parameter_sigmas(model, mag_ut, field_ut, params)
+    gains = np.linalg.svd(model.soft_iron, compute_uv=False)
+    quality.update(
+        residual_rms_ut=rms,
+        residual_max_ut=float(np.max(np.abs(resid))),
+        coverage=coverage,
+        sigma_hard_iron_ut=sig_h.tolist(),
+        sigma_soft_iron=sig_s.tolist(),
+        soft_iron_singular_values=gains.tolist(),
+    )
+    reasons = []
+    if coverage < min_coverage:
+        reasons.append(f"orientation coverage {coverage:.0%} < {min_coverage:.0%}: turn the sensor through more "
+                       "attitudes (for a vehicle that cannot be tilted use the backstepping method)")
+    if rms > max_residual_fraction * field_ut:
+        reasons.append(f"residual {rms:.2f} µT is over {max_residual_fraction:.0%} of the field "
+                       f"({field_ut:.1f} µT): a magnetic disturbance, a moving magnet or the wrong site?")
+    if not np.all(sig_h <= max_sigma_hard_ut):
+        reasons.append(f"hard iron poorly determined (1σ up to {np.max(sig_h):.2f} µT > {max_sigma_hard_ut} µT)")
+    if not np.all(sig_s <= max_sigma_soft):
+        reasons.append(f"soft iron poorly determined (1σ up to {np.max(sig_s):.3f} > {max_sigma_soft})")
+    lo, hi = SOFT_IRON_GAIN_RANGE
+    if gains.min() < lo or gains.max() > hi:
+        reasons.append(f"soft-iron gains {gains.min():.2f}…{gains.max():.2f} outside {lo}…{hi}: not physical")
+    if reasons:
+        quality["rejected_model"] = model.to_dict()
+        return MagFitResult(MagModel.identity(), rms, method, quality, "; ".join(reasons))
+    return MagFitResult(model, rms, method, quality, None)
 
 
 # ---------------------------------------------------------------------------------------------- dispatch

@@ -1,0 +1,79 @@
+"""The thesis's two-step magnetometer calibration (thesis §5-6-5-3; digest §10.1.1): hard iron b and per-axis
+scale k, no misalignment (6 parameters), attitude-independent.
+
+Model: H0² = Σ_i ((B_i − b_i)/k_i)², an axis-aligned ellipsoid. Multiplying by k_x² and rearranging (eq. 5-19,
+5-20) gives one linear equation per sample:
+
+    −B_x² = S1·B_x + S2·B_y² + S3·B_y + S4·B_z² + S5·B_z + S6
+
+solved by least squares for S (step 1); then b and k follow from S (step 2, eq. 5-26, `inverse_mapping`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .magfit import MagFitInput, MagFitResult, assess, prepare, refuse
+from .models import MagModel
+
+METHOD = "two-step"
+
+
+def regressors(mag_ut: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(z, H) of eq. 5-20: z(k) = −B_x², h(k) = [B_x, B_y², B_y, B_z², B_z, 1]."""
+    bx, by, bz = mag_ut[:, 0], mag_ut[:, 1], mag_ut[:, 2]
+    h = np.column_stack([bx, by * by, by, bz * bz, bz, np.ones_like(bx)])
+    return -bx * bx, h
+
+
+def forward_mapping(b: np.ndarray, k: np.ndarray, field_ut: float) -> np.ndarray:
+    """S from (b, k, H0) (eq. 5-20) — the inverse of `inverse_mapping`, used by the tests."""
+    bx, by, bz = b
+    kx, ky, kz = k
+    s2, s4 = kx**2 / ky**2, kx**2 / kz**2
+    return np.array([-2 * bx, s2, -2 * s2 * by, s4, -2 * s4 * bz, bx**2 + s2 * by**2 + s4 * bz**2 - kx**2 * field_ut**2])
+
+
+def inverse_mapping(s: np.ndarray, field_ut: float) -> tuple[np.ndarray, np.ndarray]:
+    """(b, k) from S (thesis eq. 5-26). Raises ValueError when S does not describe an ellipsoid."""
+    s1, s2, s3, s4, s5, s6 = s
+    if not (s2 > 0 and s4 > 0):
+        raise ValueError(f"S2 = {s2:.4g}, S4 = {s4:.4g}: not an ellipsoid (need both > 0)")
+    bx, by, bz = -s1 / 2, -s3 / (2 * s2), -s5 / (2 * s4)
+    kx2 = (bx**2 + s2 * by**2 + s4 * bz**2 - s6) / field_ut**2
+    if not kx2 > 0:
+        raise ValueError(f"k_x² = {kx2:.4g} ≤ 0: not an ellipsoid")
+    kx = np.sqrt(kx2)
+    return np.array([bx, by, bz]), np.array([kx, np.sqrt(kx2 / s2), np.sqrt(kx2 / s4)])
+
+
+def fit_two_step(data: MagFitInput, reference=None, *, field_ut: float | None = None, min_samples: int = 30,
+                 max_condition: float = 1e7, **checks) -> MagFitResult:
+    """Two-step fit of `data.mag_ut`. `reference` (EarthField) or `field_ut` give H0; `checks` go to
+    `mag_quality.assess` (min_coverage, max_sigma_hard_ut, max_sigma_soft)."""
+    prep = prepare(data, reference, field_ut, min_samples, METHOD)
+    if isinstance(prep, MagFitResult):
+        return prep
+    mag, h0, quality = prep
+    # Centre and scale the data before the regression: the algebra is invariant to a shift of origin
+    # and a common scale, and the normal equations stay well conditioned (raw µT² terms reach 10⁴).
+    centre = mag.mean(axis=0)
+    scale = float(np.mean(np.linalg.norm(mag - centre, axis=1))) or 1.0
+    u = (mag - centre) / scale
+    z, h = regressors(u)
+    col = np.linalg.norm(h, axis=0)
+    cond = float(np.linalg.cond(h / col))
+    quality["condition_number"] = cond
+    if not np.isfinite(cond) or cond > max_condition:
+        return refuse(METHOD, f"the regression is ill-conditioned (condition number {cond:.3g} > {max_condition:.3g}): "
+                      "the turns do not move every axis through the field; rotate about all three axes", **quality)
+    s, *_ = np.linalg.lstsq(h, z, rcond=None)
+    try:
+        b_u, k_u = inverse_mapping(s, 1.0)
+    except ValueError as exc:
+        return refuse(METHOD, f"the data do not describe an ellipsoid ({exc})", **quality)
+    b = centre + scale * b_u
+    k = k_u * scale / h0
+    model = MagModel.from_thesis(b, k)
+    quality["scale_k"] = k.tolist()
+    return assess(METHOD, model, mag, h0, quality, params="diag", **checks)
