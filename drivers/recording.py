@@ -1,0 +1,257 @@
+"""Recordings of raw IMU samples: a CSV format that other tools write and read (a public interface).
+
+The first line is exactly RECORDING_HEADER, optionally followed by more columns:
+
+    t_s,gyro_x_rad_s,gyro_y_rad_s,gyro_z_rad_s,accel_x_m_s2,accel_y_m_s2,accel_z_m_s2,mag_x_ut,mag_y_ut,mag_z_ut[,extra...]
+
+Sensor/body frame as recorded, SI units, accelerometer as specific force (+9.81 on the up axis at rest),
+magnetic field in µT. Known extra columns: temp_c, supply_v, flags (SampleFlags as an integer), diag_stat,
+counter, and for simulated data the truth attitude truth_qw,truth_qx,truth_qy,truth_qz (body->NED, scalar
+first). Any other extra column is kept by name. Lines starting with '#' after the header are comments.
+"""
+
+from __future__ import annotations
+
+import io
+import itertools
+import logging
+import math
+import os
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import DriverError
+from .sample import ImuSample, SampleFlags
+
+log = logging.getLogger(__name__)
+
+RECORDING_HEADER = ("t_s,gyro_x_rad_s,gyro_y_rad_s,gyro_z_rad_s,accel_x_m_s2,accel_y_m_s2,accel_z_m_s2,"
+                    "mag_x_ut,mag_y_ut,mag_z_ut")
+BASE_COLUMNS: tuple[str, ...] = tuple(RECORDING_HEADER.split(","))
+SAMPLE_COLUMNS = ("temp_c", "supply_v", "flags", "diag_stat", "counter")   # taken from the ImuSample
+TRUTH_COLUMNS = ("truth_qw", "truth_qx", "truth_qy", "truth_qz")
+_INT_COLUMNS = {"flags", "diag_stat", "counter"}
+CHUNK_ROWS = 65536
+
+
+class RecordingFormatError(DriverError, ValueError):
+    """A recording file that does not follow the format; the message names the file, line and problem."""
+
+
+# ------------------------------------------------------------------------------------------------ writing
+class RecordingWriter:
+    """Write samples to a recording, one CSV row each.
+
+    extra_columns: names after the 10 base columns. temp_c, supply_v, flags, diag_stat and counter are taken
+    from the sample unless given to `write()`; other columns (e.g. TRUTH_COLUMNS) come from `write(**values)`
+    and are written as nan when missing. Rows are flushed every `flush_rows` rows and on close.
+    """
+
+    def __init__(self, path: str | os.PathLike, extra_columns: Sequence[str] = (), flush_rows: int = 4096):
+        extra = tuple(extra_columns)
+        names = BASE_COLUMNS + extra
+        bad = [c for c in extra if not c or "," in c or c != c.strip()]
+        if bad or len(set(names)) != len(names):
+            raise ValueError(f"extra column names must be unique, non-empty, without commas: {extra}")
+        self.path = Path(path)
+        self.columns = names
+        self.extra_columns = extra
+        self._flush_rows = flush_rows
+        self.rows_written = 0
+        self._file = open(self.path, "w", encoding="ascii", newline="\n")
+        self._file.write(",".join(names) + "\n")
+
+    def write(self, sample: ImuSample, truth_q_wxyz=None, **values) -> None:
+        """One row. `truth_q_wxyz` (4,) fills the truth_q* columns; other keyword values fill extra columns."""
+        if truth_q_wxyz is not None:
+            values.update(zip(TRUTH_COLUMNS, (float(v) for v in truth_q_wxyz)))
+        parts = [repr(float(sample.t_s))]
+        parts.extend(map(repr, sample.gyro_rad_s.tolist()))
+        parts.extend(map(repr, sample.accel_m_s2.tolist()))
+        parts.extend(map(repr, sample.mag_ut.tolist()))
+        for name in self.extra_columns:
+            if name in values:
+                v = values[name]
+            elif name in SAMPLE_COLUMNS:
+                v = getattr(sample, name)
+            else:
+                v = math.nan
+            parts.append(str(int(v)) if name in _INT_COLUMNS else repr(float(v)))
+        self._file.write(",".join(parts) + "\n")
+        self.rows_written += 1
+        if self.rows_written % self._flush_rows == 0:
+            self._file.flush()
+
+    def flush(self) -> None:
+        self._file.flush()
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self._file.flush()
+            os.fsync(self._file.fileno())
+            self._file.close()
+
+    def __enter__(self) -> "RecordingWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+# ------------------------------------------------------------------------------------------------ reading
+@dataclass(frozen=True)
+class Recording:
+    """A recording in memory: the base columns as arrays plus every extra column by name."""
+
+    path: Path
+    columns: tuple[str, ...]
+    t_s: np.ndarray               # (n,)
+    gyro_rad_s: np.ndarray        # (n, 3)
+    accel_m_s2: np.ndarray        # (n, 3)
+    mag_ut: np.ndarray            # (n, 3)
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        """Any column by name (base or extra)."""
+        if name in self.extra:
+            return self.extra[name]
+        if name not in BASE_COLUMNS:
+            raise KeyError(f"{self.path}: no column {name!r} (columns: {', '.join(self.columns)})")
+        i = BASE_COLUMNS.index(name)
+        if i == 0:
+            return self.t_s
+        return (self.gyro_rad_s, self.accel_m_s2, self.mag_ut)[(i - 1) // 3][:, (i - 1) % 3]
+
+    @property
+    def truth_q_wxyz(self) -> np.ndarray | None:
+        """(n, 4) truth attitude if the recording has the truth columns, else None."""
+        if all(c in self.extra for c in TRUTH_COLUMNS):
+            return np.column_stack([self.extra[c] for c in TRUTH_COLUMNS])
+        return None
+
+    @property
+    def sample_rate_hz(self) -> float:
+        """Median sample rate from the timestamps (nan with fewer than two samples)."""
+        if len(self.t_s) < 2:
+            return math.nan
+        return 1.0 / float(np.median(np.diff(self.t_s)))
+
+    def samples(self) -> Iterator[ImuSample]:
+        yield from _samples_from_table(self.columns, self._table())
+
+    def _table(self) -> np.ndarray:
+        base = np.column_stack([self.t_s, self.gyro_rad_s, self.accel_m_s2, self.mag_ut])
+        if not self.extra:
+            return base
+        return np.column_stack([base] + [self.extra[c] for c in self.columns[len(BASE_COLUMNS):]])
+
+
+def read_header(line: str, path: str | os.PathLike = "<recording>") -> tuple[str, ...]:
+    """Validate a header line; returns the column names. Raises RecordingFormatError saying what is wrong."""
+    names = tuple(c.strip() for c in line.lstrip("\ufeff").rstrip("\r\n").split(","))
+    if not line.strip():
+        raise RecordingFormatError(f"{path}: empty file or empty header line (expected: {RECORDING_HEADER})")
+    for i, want in enumerate(BASE_COLUMNS):
+        if i >= len(names):
+            raise RecordingFormatError(
+                f"{path}: header has {len(names)} columns, the first {len(BASE_COLUMNS)} must be {RECORDING_HEADER} "
+                f"(missing: {', '.join(BASE_COLUMNS[i:])})")
+        if names[i] != want:
+            raise RecordingFormatError(
+                f"{path}: header column {i + 1} is {names[i]!r} but must be {want!r} "
+                f"(the header must start with {RECORDING_HEADER})")
+    extra = names[len(BASE_COLUMNS):]
+    if any(not c for c in extra):
+        raise RecordingFormatError(f"{path}: header has an empty column name after the base columns")
+    dup = sorted({c for c in names if names.count(c) > 1})
+    if dup:
+        raise RecordingFormatError(f"{path}: header repeats column(s) {', '.join(dup)}")
+    return names
+
+
+def _parse_chunk(lines: list[str], ncols: int, first_line_no: int, path, columns) -> np.ndarray:
+    try:
+        return np.loadtxt(lines, delimiter=",", ndmin=2, dtype=np.float64, comments="#").reshape(-1, ncols)
+    except ValueError:
+        pass
+    # find and name the offending line
+    for k, line in enumerate(lines):
+        text = line.split("#", 1)[0].strip()
+        if not text:
+            continue
+        fields = text.split(",")
+        where = f"{path}: line {first_line_no + k}"
+        if len(fields) != ncols:
+            raise RecordingFormatError(f"{where}: {len(fields)} fields, expected {ncols} (truncated or extra values?)")
+        for name, value in zip(columns, fields):
+            try:
+                float(value)
+            except ValueError:
+                raise RecordingFormatError(f"{where}, column {name!r}: {value.strip()!r} is not a number") from None
+    raise RecordingFormatError(f"{path}: cannot parse rows {first_line_no}..{first_line_no + len(lines) - 1}")
+
+
+def _iter_tables(path, strict: bool) -> Iterator[tuple[tuple[str, ...], np.ndarray]]:
+    with open(path, encoding="utf-8", newline="") as f:
+        header = f.readline()
+        columns = read_header(header, path)
+        ncols = len(columns)
+        line_no = 2
+        while True:
+            lines = list(itertools.islice(f, CHUNK_ROWS))
+            if not lines:
+                break
+            at_end = len(lines) < CHUNK_ROWS
+            if not strict and at_end and lines and not lines[-1].endswith("\n"):
+                last = lines[-1].strip()
+                if last and len(last.split(",")) != ncols:
+                    log.warning("%s: dropping the incomplete last line %d", path, line_no + len(lines) - 1)
+                    lines = lines[:-1]
+            table = _parse_chunk(lines, ncols, line_no, path, columns) if lines else np.empty((0, ncols))
+            line_no += len(lines)
+            yield columns, table
+
+
+def read_recording(path: str | os.PathLike, strict: bool = True) -> Recording:
+    """Load a whole recording (numpy, chunked). Any file whose header starts with the 10 base columns works.
+
+    strict=False drops an incomplete final line (a recorder killed mid-write) with a warning instead of failing.
+    """
+    columns: tuple[str, ...] = ()
+    tables = []
+    for columns, table in _iter_tables(path, strict):
+        tables.append(table)
+    if not columns:
+        raise RecordingFormatError(f"{path}: empty file")
+    data = np.concatenate(tables) if tables else np.empty((0, len(columns)))
+    nb = len(BASE_COLUMNS)
+    extra = {name: np.ascontiguousarray(data[:, nb + i]) for i, name in enumerate(columns[nb:])}
+    return Recording(Path(path), columns, np.ascontiguousarray(data[:, 0]), np.ascontiguousarray(data[:, 1:4]),
+                     np.ascontiguousarray(data[:, 4:7]), np.ascontiguousarray(data[:, 7:10]), extra)
+
+
+def iter_samples(path: str | os.PathLike, strict: bool = True) -> Iterator[ImuSample]:
+    """Replay a recording as ImuSamples, a chunk at a time (constant memory for long files)."""
+    for columns, table in _iter_tables(path, strict):
+        yield from _samples_from_table(columns, table)
+
+
+def _samples_from_table(columns: tuple[str, ...], table: np.ndarray) -> Iterator[ImuSample]:
+    idx = {name: i for i, name in enumerate(columns)}
+    i_temp, i_supply = idx.get("temp_c"), idx.get("supply_v")
+    i_flags, i_diag, i_counter = idx.get("flags"), idx.get("diag_stat"), idx.get("counter")
+    for k, row in enumerate(table):
+        yield ImuSample(
+            float(row[0]), row[1:4].copy(), row[4:7].copy(), row[7:10].copy(),
+            float(row[i_temp]) if i_temp is not None else math.nan,
+            float(row[i_supply]) if i_supply is not None else math.nan,
+            SampleFlags(int(row[i_flags])) if i_flags is not None and math.isfinite(row[i_flags]) else SampleFlags.NONE,
+            int(row[i_diag]) if i_diag is not None and math.isfinite(row[i_diag]) else 0,
+            int(row[i_counter]) if i_counter is not None and math.isfinite(row[i_counter]) else k,
+        )
