@@ -88,19 +88,51 @@ class SensorStream:
         self._gravity_ned = site.gravity_ned_m_s2
         self._earth_rate_ned = earth_rate_ned_rad_s(site.lat_deg) if earth_rate else None
         self._process = ErrorProcess(self.errors, self.rate_hz, self.seed)
-        self._k = 0  # index of the next sample
+        self._k = 0  # index of the next sample handed out
+        self._k_gen = 0  # index of the next sample to generate
+        self._buffer: SensorBlock | None = None
+        self._buf_pos = 0
 
     @property
     def samples_emitted(self) -> int:
         return self._k
 
     def next_block(self, n: int) -> SensorBlock:
-        """The next `n` samples (n ≥ 1)."""
+        """The next `n` samples (n ≥ 1).
+
+        Samples are generated in chunks of at least CHUNK and served from a buffer, so small requests (one
+        sample per simulated SPI burst) cost a slice, not a full evaluation; the values do not depend on how
+        the stream is cut into blocks.
+        """
         n = int(n)
         if n < 1:
             raise ValueError(f"n must be ≥ 1, got {n}")
-        t = self.start_s + (self._k + np.arange(n)) / self.rate_hz
+        buf = self._buffer
+        if buf is None and n >= self.CHUNK:
+            out = self._generate(self._k, n)
+        else:
+            parts = []
+            need = n
+            while need:
+                if buf is None:
+                    buf, self._buf_pos = self._generate(self._k_gen, max(self.CHUNK, need)), 0
+                take = min(need, len(buf) - self._buf_pos)
+                parts.append(_slice(buf, self._buf_pos, self._buf_pos + take))
+                self._buf_pos += take
+                need -= take
+                if self._buf_pos == len(buf):
+                    buf = None
+            self._buffer = buf
+            out = parts[0] if len(parts) == 1 else SensorBlock.concatenate(parts)
         self._k += n
+        return out
+
+    CHUNK = 256
+
+    def _generate(self, k0: int, n: int) -> SensorBlock:
+        """Samples k0 … k0+n−1; advances the random processes (call in sample order only)."""
+        self._k_gen = k0 + n
+        t = self.start_s + (k0 + np.arange(n)) / self.rate_hz
         sc = self.scenario
         att = sc.attitude(t)
         ned_to_body = att.inv()
@@ -115,6 +147,12 @@ class SensorStream:
         q = np.column_stack([q[:, 3], q[:, :3]])
         q *= np.where(q[:, :1] < 0, -1.0, 1.0)
         return SensorBlock(t, gyro, accel, mag, temp, q, omega, mag_earth, accel_true, dist, gbias, abias)
+
+
+def _slice(block: SensorBlock, a: int, b: int) -> SensorBlock:
+    if a == 0 and b == len(block):
+        return block
+    return SensorBlock(*(getattr(block, f.name)[a:b] for f in dataclasses.fields(SensorBlock)))
 
 
 def _resolve_scenario(scenario, site: Site) -> Scenario:

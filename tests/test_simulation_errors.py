@@ -213,3 +213,14 @@ def test_next_block_rejects_non_positive_sizes_and_rates():
         open_stream("static").next_block(0)
     with pytest.raises(ValueError):
         open_stream("static", rate_hz=0.0)
+
+
+def test_small_and_large_requests_mix_without_changing_the_data():
+    whole = open_stream("tumble", seed=9).next_block(1500)       # one direct evaluation
+    s = open_stream("tumble", seed=9)
+    sizes = [1, 1, 300, 37, 700, 461]                             # buffered and direct paths interleaved
+    from ahrsd.simulation import SensorBlock
+    parts = SensorBlock.concatenate([s.next_block(k) for k in sizes])
+    assert s.samples_emitted == 1500
+    for f in ("t_s", "gyro_rad_s", "accel_m_s2", "mag_ut", "truth_q_wxyz"):
+        np.testing.assert_allclose(getattr(parts, f), getattr(whole, f), rtol=1e-12, atol=1e-12)
