@@ -839,8 +839,9 @@ class FieldCalibration:
         quality: dict = {"tilt_range_deg": tilt_range, "sphere_coverage": sphere,
                          "heading_coverage": self.heading_coverage, "n_samples": int(len(t))}
         for method in candidates:
+            options = {"roll_rad": rpy[:, 0], "pitch_rad": rpy[:, 1]} if method == "backstepping" else {}
             try:
-                fr = self._fit(method, data, self.reference)
+                fr = self._fit(method, data, self.reference, **options)
             except (NotImplementedError, ImportError) as exc:
                 notes.append(f"{method} unavailable: offsets only")
                 log.warning("%s", exc)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import math
 from types import SimpleNamespace
 
@@ -88,6 +89,12 @@ def test_level_turns_complete_and_improve_heading():
     print(f"  hard iron fitted {np.round(res.model.hard_iron_ut, 2)} vs injected {HARD_IRON_UT}")
     assert after < before / 3
     assert np.linalg.norm(res.model.hard_iron_ut - HARD_IRON_UT) < 3.0  # µT (30 mG) on ±8° tilt
+    if importlib.util.find_spec("ahrsd.calibration.backstepping") is not None:
+        # the full (vertical-channel) model: iron recovered, heading error below a degree
+        assert res.method == "backstepping" and not res.partial
+        assert np.linalg.norm(res.model.hard_iron_ut - HARD_IRON_UT) < 1.0
+        assert np.allclose(res.model.soft_iron @ SOFT_DISTORTION, np.eye(3), atol=0.02)
+        assert after < 1.0
 
 
 def test_tumble_uses_ellipsoid_and_recovers_iron():
@@ -103,7 +110,7 @@ def test_tumble_uses_ellipsoid_and_recovers_iron():
     print(f"\ntumble: fitness {res.fitness_mgauss:.2f} mG, sphere coverage {session.sphere_coverage:.2f}")
     assert np.allclose(res.model.hard_iron_ut, HARD_IRON_UT, atol=0.5)
     assert np.allclose(res.model.soft_iron @ SOFT_DISTORTION, np.eye(3), atol=0.01)
-    assert session.sphere_coverage > 0.9
+    assert session.sphere_coverage >= 0.75  # FieldCalConfig.sphere_target
 
 
 def test_flat_turns_give_offsets_only_with_clear_message():
