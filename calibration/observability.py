@@ -1,0 +1,310 @@
+"""What a set of magnetometer (and accelerometer) samples can and cannot determine.
+
+A magnetometer fit reports a residual ("fitness"); a small residual says the model fits the samples, not that
+the samples determine the model. On a vehicle that stays within ±10° of level, an ellipsoid fit leaves the
+z hard iron and the z scale almost free: it fits beautifully and is wrong (anchors/magcal.md §4). This module
+reports, next to the residual:
+
+- sphere coverage: the fraction of 80 equal-area cells of the direction sphere hit by the centred samples
+  (80 cells like ArduPilot's `completion_mask`, here from a subdivided icosahedron);
+- heading coverage: the fraction of 10° heading bins hit (for vehicles that turn but stay near level);
+- tilt range from the accelerometer (roll/pitch extremes, largest tilt);
+- condition number and 1σ of the parameters from a fit's Jacobian, and the parameters the data cannot
+  determine;
+- a refusal with a reason a person can act on when the data cannot support the requested model.
+
+Everything is generic over (mag samples, accel samples) so every fit method can call it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+
+SPHERE_CELLS = 80           # like ArduPilot's 80-section geodesic completion mask (anchors/magcal.md §1.1)
+HEADING_BINS = 36           # 10° heading bins
+G_M_S2 = 9.80665
+
+# Support thresholds. Derived from the simulated coverage figures in anchors/magcal.md §4/§7
+# (full tumble ≈ 95 % of 80 cells, ±30° tilt ≈ 39 %, ±10° ≈ 22 %) and the failure of the attitude-independent
+# fits below ±30° tilt measured there.
+MIN_SAMPLES = 50
+MIN_HEADING_COVERAGE = 0.75         # 27 of 36 bins: "turned through (nearly) a full circle"
+MIN_SPHERE_COVERAGE_ELLIPSOID = 0.35
+MIN_TILT_ELLIPSOID_DEG = 30.0       # below this the LS ellipsoid's z terms are a guess (anchor §4.1)
+MIN_TILT_FREE_DIP_DEG = 5.0         # anchor §0.3: free dip breaks between ±5° and ±2°
+MIN_TILT_VERTICAL_COLUMN_DEG = 1.0  # below this the vertical soft-iron column is held at its prior
+
+MODELS = ("sphere", "diagonal", "ellipsoid", "vertical", "vertical-free-dip")
+
+
+# ------------------------------------------------------------------------------------------ attitude helpers
+
+
+def roll_pitch_from_accel(accel_m_s2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Roll and pitch (rad) of the FRD body from specific force (+g on the up axis at rest, design §4):
+    roll = atan2(−f_y, −f_z), pitch = atan2(f_x, √(f_y² + f_z²)). Only valid when the vehicle is not
+    accelerating; low-pass first (`lowpass`) or use the estimator's roll/pitch on a moving vehicle."""
+    f = np.asarray(accel_m_s2, dtype=np.float64)
+    roll = np.arctan2(-f[:, 1], -f[:, 2])
+    pitch = np.arctan2(f[:, 0], np.hypot(f[:, 1], f[:, 2]))
+    return roll, pitch
+
+
+def down_in_body(roll_rad: np.ndarray, pitch_rad: np.ndarray) -> np.ndarray:
+    """Unit vector of NED down expressed in the body frame: the third row of C_b^n, (n, 3)."""
+    r, p = np.asarray(roll_rad, dtype=np.float64), np.asarray(pitch_rad, dtype=np.float64)
+    return np.stack((-np.sin(p), np.sin(r) * np.cos(p), np.cos(r) * np.cos(p)), axis=-1)
+
+
+def lowpass(x: np.ndarray, t_s: np.ndarray, tau_s: float) -> np.ndarray:
+    """Zero-phase first-order low-pass (forward and backward pass) of (n, k) samples with time constant
+    tau_s; handles irregular sample times. tau_s <= 0 returns x unchanged."""
+    x = np.asarray(x, dtype=np.float64)
+    if tau_s <= 0 or x.shape[0] < 2:
+        return x.copy()
+    t = np.asarray(t_s, dtype=np.float64)
+    dt = np.diff(t, prepend=t[0])
+    alpha = 1.0 - np.exp(-np.clip(dt, 0.0, None) / tau_s)
+    y = np.empty_like(x)
+
+    def one_pass(src, a, out):
+        acc = src[0].copy()
+        for i in range(src.shape[0]):
+            acc += a[i] * (src[i] - acc)
+            out[i] = acc
+
+    one_pass(x, alpha, y)
+    back = np.empty_like(y)
+    one_pass(y[::-1], np.concatenate(([0.0], alpha[:0:-1])), back)
+    return back[::-1]
+
+
+def tilt_statistics(roll_rad: np.ndarray, pitch_rad: np.ndarray) -> dict:
+    """Roll/pitch extremes and the largest tilt (angle of body z from the vertical), degrees."""
+    r, p = np.degrees(roll_rad), np.degrees(pitch_rad)
+    d = down_in_body(roll_rad, pitch_rad)
+    tilt = np.degrees(np.arccos(np.clip(d[:, 2], -1.0, 1.0)))
+    return {
+        "roll_min_deg": float(r.min()), "roll_max_deg": float(r.max()),
+        "pitch_min_deg": float(p.min()), "pitch_max_deg": float(p.max()),
+        "tilt_max_deg": float(tilt.max()), "tilt_rms_deg": float(np.sqrt(np.mean(tilt**2))),
+    }
+
+
+# ------------------------------------------------------------------------------------------------ coverage
+
+
+@lru_cache(maxsize=1)
+def sphere_cell_centres() -> np.ndarray:
+    """80 unit vectors: the centroids of an icosahedron whose 20 faces are each split into 4. Assigning a
+    direction to its nearest centroid partitions the sphere into 80 nearly equal cells."""
+    phi = (1.0 + math.sqrt(5.0)) / 2.0
+    v = np.array([[-1, phi, 0], [1, phi, 0], [-1, -phi, 0], [1, -phi, 0],
+                  [0, -1, phi], [0, 1, phi], [0, -1, -phi], [0, 1, -phi],
+                  [phi, 0, -1], [phi, 0, 1], [-phi, 0, -1], [-phi, 0, 1]], dtype=np.float64)
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    faces = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2),
+             (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5),
+             (2, 4, 11), (6, 2, 10), (8, 6, 7), (9, 8, 1)]
+    centres = []
+    for a, b, c in faces:
+        A, B, C = v[a], v[b], v[c]
+        ab, bc, ca = (A + B) / 2, (B + C) / 2, (C + A) / 2
+        for tri in ((A, ab, ca), (ab, B, bc), (ca, bc, C), (ab, bc, ca)):
+            m = np.mean(tri, axis=0)
+            centres.append(m / np.linalg.norm(m))
+    out = np.array(centres)
+    out.setflags(write=False)
+    return out
+
+
+def sphere_cells_hit(mag_ut: np.ndarray, centre_ut: np.ndarray | None = None) -> np.ndarray:
+    """Boolean (80,) mask of the cells hit by the directions of (mag − centre). centre defaults to the
+    algebraic sphere-fit centre (mean if that fails)."""
+    m = np.asarray(mag_ut, dtype=np.float64)
+    if centre_ut is None:
+        centre_ut = algebraic_sphere_centre(m)
+    u = m - np.asarray(centre_ut, dtype=np.float64)
+    norms = np.linalg.norm(u, axis=1)
+    u = u[norms > 0] / norms[norms > 0, None]
+    cells = sphere_cell_centres()
+    hit = np.zeros(SPHERE_CELLS, dtype=bool)
+    for start in range(0, u.shape[0], 20000):
+        hit[np.unique(np.argmax(u[start:start + 20000] @ cells.T, axis=1))] = True
+    return hit
+
+
+def completion_mask_bytes(hit: np.ndarray) -> bytes:
+    """The 80-cell mask as 10 bytes, cell i in bit (i % 8) of byte i // 8 — the shape of MAVLink
+    MAG_CAL_PROGRESS.completion_mask (our cell numbering, not ArduPilot's geodesic-grid numbering)."""
+    bits = np.asarray(hit, dtype=bool).reshape(SPHERE_CELLS)
+    return bytes(int(sum(1 << j for j in range(8) if bits[8 * i + j])) for i in range(SPHERE_CELLS // 8))
+
+
+def algebraic_sphere_centre(mag_ut: np.ndarray) -> np.ndarray:
+    """Centre of the least-squares sphere |m − c|² = r² (linear in c and r² − |c|²); the mean when singular."""
+    m = np.asarray(mag_ut, dtype=np.float64)
+    a = np.column_stack((2.0 * m, np.ones(m.shape[0])))
+    b = np.sum(m * m, axis=1)
+    sol, *_ = np.linalg.lstsq(a, b, rcond=1e-10)
+    c = sol[:3]
+    if not np.all(np.isfinite(c)) or np.linalg.norm(c - m.mean(axis=0)) > 10 * np.ptp(m, axis=0).max() + 1:
+        return m.mean(axis=0)
+    return c
+
+
+def horizontal_circle_centre(mag_ut: np.ndarray) -> np.ndarray:
+    """Centre (x, y) of the least-squares circle through the horizontal components (Kåsa fit)."""
+    xy = np.asarray(mag_ut, dtype=np.float64)[:, :2]
+    a = np.column_stack((2.0 * xy, np.ones(xy.shape[0])))
+    sol, *_ = np.linalg.lstsq(a, np.sum(xy * xy, axis=1), rcond=1e-10)
+    return sol[:2]
+
+
+def heading_coverage(mag_ut: np.ndarray, roll_rad=None, pitch_rad=None, centre_ut=None) -> float:
+    """Fraction of 36 heading bins (10°) hit. Heading is the direction of the centred field, levelled with
+    roll/pitch when given. Without a calibration this is approximate (soft iron bends angles by a few
+    degrees) but good enough to tell "turned a full circle" from "went one way"."""
+    m = np.asarray(mag_ut, dtype=np.float64)
+    if centre_ut is None:
+        centre_ut = np.append(horizontal_circle_centre(m), np.median(m[:, 2]))
+    v = m - np.asarray(centre_ut, dtype=np.float64)
+    if roll_rad is not None and pitch_rad is not None:
+        v = level_vectors(v, roll_rad, pitch_rad)
+    psi = np.arctan2(-v[:, 1], v[:, 0])
+    bins = np.floor((psi + math.pi) / (2 * math.pi) * HEADING_BINS).astype(int) % HEADING_BINS
+    return float(np.unique(bins).size / HEADING_BINS)
+
+
+def level_vectors(v_body: np.ndarray, roll_rad, pitch_rad) -> np.ndarray:
+    """Rotate body vectors into the local level frame with roll and pitch only (seed 002 eq. 23:
+    C2ᵀ(θ)·C3ᵀ(ϕ)·v). Heading is left out: the horizontal magnitude does not depend on it."""
+    v = np.asarray(v_body, dtype=np.float64)
+    r, p = np.asarray(roll_rad, dtype=np.float64), np.asarray(pitch_rad, dtype=np.float64)
+    cr, sr, cp, sp = np.cos(r), np.sin(r), np.cos(p), np.sin(p)
+    x = cp * v[:, 0] + sp * sr * v[:, 1] + sp * cr * v[:, 2]
+    y = cr * v[:, 1] - sr * v[:, 2]
+    z = -sp * v[:, 0] + cp * sr * v[:, 1] + cp * cr * v[:, 2]
+    return np.column_stack((x, y, z))
+
+
+# ------------------------------------------------------------------------------------ parameter uncertainty
+
+
+def parameter_uncertainty(jacobian: np.ndarray, names: list[str], limits: dict[str, float] | None = None,
+                          residual_scale: float = 1.0) -> dict:
+    """1σ of each parameter from a least-squares Jacobian of *whitened* residuals (residual / its σ), the
+    column-scaled condition number, and the parameters whose 1σ exceeds their limit (`limits[name]`, in the
+    parameter's unit). `residual_scale` multiplies the covariance by (RMS whitened residual)² when the noise
+    σ used for whitening was a guess."""
+    j = np.asarray(jacobian, dtype=np.float64)
+    scale = np.linalg.norm(j, axis=0)
+    scale[scale == 0] = 1.0
+    js = j / scale
+    sv = np.linalg.svd(js, compute_uv=False)
+    cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf
+    cov_s = np.linalg.pinv(js.T @ js, rcond=1e-15)
+    std = np.sqrt(np.clip(np.diag(cov_s), 0, None)) / scale * residual_scale
+    out_std = {n: float(s) for n, s in zip(names, std)}
+    bad = []
+    for n, s in out_std.items():
+        lim = (limits or {}).get(n)
+        if lim is not None and not s <= lim:
+            bad.append(n)
+    return {"condition_number": cond, "std": out_std, "undetermined": bad}
+
+
+# -------------------------------------------------------------------------------------------- support check
+
+
+@dataclass(frozen=True)
+class DataSupport:
+    """What the data can support. `refused` is None when `model` can be fitted, else a reason."""
+
+    model: str
+    n_samples: int
+    sphere_coverage: float
+    heading_coverage: float
+    tilt: dict | None
+    refused: str | None = None
+    warnings: list = field(default_factory=list)
+    undetermined: list = field(default_factory=list)
+
+    def as_quality(self) -> dict:
+        q = {"n_samples": self.n_samples, "sphere_coverage": round(self.sphere_coverage, 4),
+             "heading_coverage": round(self.heading_coverage, 4), "support_model": self.model}
+        if self.tilt is not None:
+            q["tilt"] = {k: round(v, 3) for k, v in self.tilt.items()}
+        if self.warnings:
+            q["warnings"] = list(self.warnings)
+        if self.undetermined:
+            q["undetermined_by_data"] = list(self.undetermined)
+        return q
+
+
+def assess_support(mag_ut: np.ndarray, accel_m_s2: np.ndarray | None = None, model: str = "ellipsoid", *,
+                   roll_rad=None, pitch_rad=None, centre_ut=None, reference_known: bool = True) -> DataSupport:
+    """Can (mag, accel) support `model`? Models:
+
+    - "sphere": hard iron + radius. Needs a full heading circle; the vertical hard iron also needs tilt
+      unless the field magnitude is known (`reference_known`).
+    - "diagonal": the paper's axis-aligned sphere fit (seed 002 eq. 11–17): needs tilt in both axes.
+    - "ellipsoid": attitude-independent full ellipsoid: needs ≥ 35 % sphere coverage and ≥ 30° tilt.
+    - "vertical": back-stepping / vertical-channel fit with WMM (needs roll/pitch and a full heading circle;
+      with < 1° tilt the vertical soft-iron column is reported as undetermined and held at its prior).
+    - "vertical-free-dip": the same without a known inclination: also needs ≥ 5° tilt.
+    """
+    if model not in MODELS:
+        raise ValueError(f"unknown model {model!r}; choose one of {', '.join(MODELS)}")
+    m = np.asarray(mag_ut, dtype=np.float64)
+    m = m[np.all(np.isfinite(m), axis=1)]
+    n = int(m.shape[0])
+    if n < MIN_SAMPLES:
+        return DataSupport(model, n, 0.0, 0.0, None,
+                           refused=f"only {n} usable magnetometer samples; at least {MIN_SAMPLES} are needed")
+    if roll_rad is None and accel_m_s2 is not None:
+        a = np.asarray(accel_m_s2, dtype=np.float64)
+        ok = np.all(np.isfinite(a), axis=1)
+        if ok.all():
+            roll_rad, pitch_rad = roll_pitch_from_accel(a)
+    tilt = tilt_statistics(roll_rad, pitch_rad) if roll_rad is not None else None
+    cov = float(sphere_cells_hit(m, centre_ut).mean())
+    hcov = heading_coverage(m, roll_rad, pitch_rad)
+    tilt_max = tilt["tilt_max_deg"] if tilt else None
+    warnings: list[str] = []
+    undetermined: list[str] = []
+    refused = None
+    turn_hint = (f"the data cover {hcov * 360:.0f}° of heading; turn the vehicle through a full circle "
+                 f"(at least {MIN_HEADING_COVERAGE * 360:.0f}°)")
+    if model in ("vertical", "vertical-free-dip", "sphere", "diagonal") and hcov < MIN_HEADING_COVERAGE \
+            and cov < MIN_SPHERE_COVERAGE_ELLIPSOID:
+        refused = turn_hint
+    elif model in ("vertical", "vertical-free-dip") and tilt is None:
+        refused = "this model needs roll and pitch (accelerometer or estimator) for every sample"
+    elif model == "vertical-free-dip" and tilt_max < MIN_TILT_FREE_DIP_DEG:
+        refused = (f"largest tilt is {tilt_max:.1f}°: with no known inclination the vertical hard iron, the "
+                   f"vertical scale and the dip angle cannot be separated below ±{MIN_TILT_FREE_DIP_DEG:.0f}°; "
+                   "give the position (--lat/--lon) so the WMM inclination pins them, or tilt further")
+    elif model == "ellipsoid" and (cov < MIN_SPHERE_COVERAGE_ELLIPSOID or
+                                   (tilt_max is not None and tilt_max < MIN_TILT_ELLIPSOID_DEG)):
+        what = f"sphere coverage {cov * 100:.0f} %" + (f", largest tilt {tilt_max:.1f}°" if tilt_max is not None else "")
+        refused = (f"{what}: an attitude-independent ellipsoid cannot determine the vertical hard iron and "
+                   "vertical scale from such data (it would show a small residual and be wrong by degrees); "
+                   "tumble the sensor, or use --method backstepping with the position for the WMM field")
+    elif model == "diagonal" and tilt_max is not None and tilt_max < MIN_TILT_ELLIPSOID_DEG:
+        warnings.append(f"largest tilt {tilt_max:.1f}°: the sphere fit's z terms are weakly determined "
+                        "(seed 002 §7.2: data without rotation about all axes give unrealistic coefficients)")
+    elif model == "sphere" and not reference_known and (tilt_max is not None and tilt_max < 10.0) \
+            and cov < MIN_SPHERE_COVERAGE_ELLIPSOID:
+        refused = ("the data are a level circle: the vertical hard iron and the radius trade off; give the "
+                   "field magnitude (position) or tilt the vehicle")
+    if refused is None and model == "vertical" and tilt_max is not None and tilt_max < MIN_TILT_VERTICAL_COLUMN_DEG:
+        undetermined += ["soft_iron vertical column (held at prior)", "yaw misalignment (coefficient A)"]
+        warnings.append(f"largest tilt {tilt_max:.2f}°: how horizontal axes respond to the vertical field and "
+                        "the yaw misalignment cannot be seen; the result is valid near level only, and a "
+                        "heading reference is needed for the constant heading offset")
+    return DataSupport(model, n, cov, hcov, tilt, refused, warnings, undetermined)
