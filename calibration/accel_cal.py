@@ -1,0 +1,361 @@
+"""Multi-position accelerometer calibration: the thesis's 12-parameter model (thesis §5-6-6; digest §10.2).
+
+Model (our form of eq. 5-47…5-58): f = L · (f̃ − b − q ∘ f̃²), L lower triangular (scale on the diagonal,
+three misalignments below it: the accelerometer's x axis defines the platform frame, so the rotation the
+gravity norm cannot see is fixed), b the bias, q the quadratic nonlinearity. 3 + 3 + 3 + 3 = 12 parameters.
+
+1. Linear LS (eq. 5-63…5-68): for each static position i, z_i = (g − |S_o,i|)·g = h_i·X_a with
+   h_i = [S_oy S_oz, −S_ox S_oz, S_ox S_oy, S_ox, S_oy, S_oz, −S_ox², −S_oy², −S_oz², S_ox³, S_oy³, S_oz³]
+   X_a = [α_yx, α_xy, α_xz, δS_bx, δS_by, δS_bz, δk_x, δk_y, δk_z, k_nx, k_ny, k_nz]
+   (first order in the errors: S^P ≈ S_o + E·S_o + δS_b + K_nl·S_o², E lower triangular).
+2. Exact nonlinear refinement on |f| = g with scipy least_squares (the digest's suggestion), from step 1.
+
+Fewer positions support fewer terms: 'auto' fits 12 parameters with ≥ 12 distinct orientations, 9 (no
+quadratic) with ≥ 9, 6 (bias + per-axis scale) with ≥ 6, and refuses below that.
+
+Still periods are found automatically in a recording (`find_still_segments`); `GuidedSession` is the live,
+operator-guided procedure (which face down next, stillness detection, coverage).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .models import AccelModel
+
+G_EQUATOR_M_S2 = 9.780327     # seed 004 eq. 18 (normal gravity)
+G_SIN2_COEFF = 0.0053024      # seed 004 eq. 18
+G_SIN2_2L_COEFF = 0.0000058   # seed 004 eq. 18
+EARTH_RADIUS_M = 6_378_137.0  # seed 004 §11
+STANDARD_GRAVITY_M_S2 = 9.80665
+
+
+def local_gravity_m_s2(lat_deg: float | None, alt_m: float = 0.0) -> float:
+    """Normal gravity at latitude/height (seed 004 eq. 18 with the (R0/(R0+h))² height factor); standard
+    gravity when the latitude is unknown (an error of up to 0.3 % in the scale factors)."""
+    if lat_deg is None:
+        return STANDARD_GRAVITY_M_S2
+    s = math.sin(math.radians(lat_deg))
+    s2 = math.sin(2 * math.radians(lat_deg))
+    g0 = G_EQUATOR_M_S2 * (1 + G_SIN2_COEFF * s * s - G_SIN2_2L_COEFF * s2 * s2)
+    return g0 * (EARTH_RADIUS_M / (EARTH_RADIUS_M + alt_m)) ** 2
+
+
+# ---------------------------------------------------------------------------------------------- the fit
+
+
+def regressors(s_o: np.ndarray, g: float) -> tuple[np.ndarray, np.ndarray]:
+    """(z, H) of thesis eq. 5-63…5-68 for positions s_o (N, 3) in m/s²."""
+    x, y, z = s_o[:, 0], s_o[:, 1], s_o[:, 2]
+    h = np.column_stack([y * z, -x * z, x * y, x, y, z, -x * x, -y * y, -z * z, x**3, y**3, z**3])
+    return (g - np.linalg.norm(s_o, axis=1)) * g, h
+
+
+def model_from_linear(x_a: np.ndarray) -> AccelModel:
+    """AccelModel from X_a: S^P ≈ (I + E)·S_o + δS_b + K_nl·S_o², E = [[−δk_x,0,0],[α_xz,−δk_y,0],[−α_xy,α_yx,−δk_z]].
+    In our form L·(S_o − b − q∘S_o²): L = I + E, b = −L⁻¹·δS_b, q = −L⁻¹·K_nl (first order)."""
+    a_yx, a_xy, a_xz, bx, by, bz, kx, ky, kz, nx, ny, nz = x_a
+    lower = np.array([[1 - kx, 0, 0], [a_xz, 1 - ky, 0], [-a_xy, a_yx, 1 - kz]])
+    inv = np.linalg.inv(lower)
+    return AccelModel(-inv @ np.array([bx, by, bz]), lower, -np.diag(inv) * np.array([nx, ny, nz]))
+
+
+_LOWER = [(0, 0), (1, 0), (1, 1), (2, 0), (2, 1), (2, 2)]
+
+
+def _pack(model: AccelModel, terms: int) -> np.ndarray:
+    p = [model.matrix[i, j] for i, j in _LOWER] + list(model.bias_m_s2)
+    if terms == 12:
+        p += list(model.quadratic)
+    return np.array(p)
+
+
+def _unpack(p: np.ndarray, terms: int) -> AccelModel:
+    m = np.zeros((3, 3))
+    if terms == 6:
+        m[0, 0], m[1, 1], m[2, 2] = p[:3]
+        return AccelModel(p[3:6], m)
+    for v, (i, j) in zip(p[:6], _LOWER):
+        m[i, j] = v
+    q = p[9:12] if terms == 12 else np.zeros(3)
+    return AccelModel(p[6:9], m, q)
+
+
+def _residual(p: np.ndarray, s_o: np.ndarray, g: float, terms: int) -> np.ndarray:
+    if terms == 6:
+        m = p[:3]
+        return np.linalg.norm(m * (s_o - p[3:6]), axis=1) - g
+    m = np.zeros((3, 3))
+    for v, (i, j) in zip(p[:6], _LOWER):
+        m[i, j] = v
+    u = s_o - p[6:9]
+    if terms == 12:
+        u = u - p[9:12] * s_o * s_o
+    return np.linalg.norm(u @ m.T, axis=1) - g
+
+
+@dataclass(frozen=True)
+class AccelFitResult:
+    model: AccelModel
+    residual_rms_m_s2: float
+    terms: int
+    quality: dict = field(default_factory=dict)
+    refused: str | None = None
+    linear_model: AccelModel | None = None   # the thesis's linear LS solution (step 1)
+
+    @property
+    def ok(self) -> bool:
+        return self.refused is None
+
+    def to_json_dict(self) -> dict:
+        from .models import _jsonable
+
+        return {
+            "bias_m_s2": self.model.bias_m_s2.tolist(),
+            "matrix": self.model.matrix.tolist(),
+            "quadratic_s2_m": self.model.quadratic.tolist(),
+            "residual_rms_m_s2": _jsonable(self.residual_rms_m_s2),
+            "terms": self.terms,
+            "quality": _jsonable(self.quality),
+            "refused": self.refused,
+        }
+
+
+def distinct_orientations(s_o: np.ndarray, min_angle_deg: float = 10.0) -> int:
+    """How many of the positions point gravity in directions at least `min_angle_deg` apart (greedy)."""
+    u = s_o / np.linalg.norm(s_o, axis=1, keepdims=True)
+    reps: list[np.ndarray] = []
+    cos_lim = math.cos(math.radians(min_angle_deg))
+    for v in u:
+        if all(float(v @ r) < cos_lim for r in reps):
+            reps.append(v)
+    return len(reps)
+
+
+FACES = {"+x up": (1, 0, 0), "-x up": (-1, 0, 0), "+y up": (0, 1, 0), "-y up": (0, -1, 0),
+         "+z up": (0, 0, 1), "-z up": (0, 0, -1)}
+
+
+def face_coverage(s_o: np.ndarray, max_angle_deg: float = 30.0) -> dict:
+    """Which of the six faces (axis pointing up = reading +g) have a position within `max_angle_deg`."""
+    u = s_o / np.linalg.norm(s_o, axis=1, keepdims=True)
+    cos_lim = math.cos(math.radians(max_angle_deg))
+    return {name: bool(np.any(u @ np.array(d, dtype=float) > cos_lim)) for name, d in FACES.items()}
+
+
+def fit_accel(position_means_m_s2: np.ndarray, g_m_s2: float = STANDARD_GRAVITY_M_S2, terms: int | str = "auto",
+              max_condition: float = 1e8, max_residual_m_s2: float = 0.05) -> AccelFitResult:
+    """Fit the accelerometer model to the mean specific force of N static positions ((N, 3), m/s²).
+
+    terms: 12 (thesis), 9 (no quadratic), 6 (bias + diagonal scale) or 'auto' (largest the number of
+    distinct orientations supports). Refuses (with the reason) when the positions cannot support the
+    model: too few distinct orientations, an ill-conditioned regression, or residuals above
+    `max_residual_m_s2` (someone moved the unit during a 'still' period?)."""
+    from scipy.optimize import least_squares
+
+    s_o = np.asarray(position_means_m_s2, dtype=np.float64)
+    s_o = s_o[np.all(np.isfinite(s_o), axis=1)]
+    n_pos = s_o.shape[0]
+    distinct = distinct_orientations(s_o) if n_pos else 0
+    quality: dict = {"positions": n_pos, "distinct_orientations": distinct, "faces": face_coverage(s_o) if n_pos else {},
+                     "g_m_s2": g_m_s2}
+    if terms == "auto":
+        terms = 12 if distinct >= 12 else 9 if distinct >= 9 else 6
+    if terms not in (6, 9, 12):
+        raise ValueError(f"terms must be 6, 9, 12 or 'auto', got {terms!r}")
+    identity = AccelModel.identity()
+    if distinct < terms:
+        return AccelFitResult(identity, math.nan, terms, quality,
+                              f"{distinct} distinct orientations cannot determine {terms} parameters: "
+                              f"record at least {terms} (turn the unit onto each face and the corners between)")
+    # Step 1: the thesis's linear LS (12 parameters; with fewer, drop the columns).
+    z, h = regressors(s_o, g_m_s2)
+    cols = list(range(12)) if terms == 12 else list(range(9)) if terms == 9 else [3, 4, 5, 6, 7, 8]
+    hs = h[:, cols]
+    cond = float(np.linalg.cond(hs / np.linalg.norm(hs, axis=0)))
+    quality["condition_number"] = cond
+    if not np.isfinite(cond) or cond > max_condition:
+        return AccelFitResult(identity, math.nan, terms, quality,
+                              f"the positions do not separate the parameters (condition number {cond:.3g}): "
+                              "add orientations between the faces (corners)")
+    sol, *_ = np.linalg.lstsq(hs, z, rcond=None)
+    x_a = np.zeros(12)
+    x_a[cols] = sol
+    linear = model_from_linear(x_a)
+    quality["linear_residual_rms_m_s2"] = float(np.sqrt(np.mean(_residual(_pack(linear, 12), s_o, g_m_s2, 12) ** 2)))
+    # Step 2: exact nonlinear LS on |f| = g.
+    if terms == 6:
+        p0 = np.concatenate([np.diag(linear.matrix), linear.bias_m_s2])
+    else:
+        p0 = _pack(linear, terms)
+    fit = least_squares(_residual, p0, args=(s_o, g_m_s2, terms), method="lm" if n_pos > len(p0) else "trf",
+                        x_scale="jac")
+    model = _unpack(fit.x, terms)
+    r = _residual(fit.x, s_o, g_m_s2, terms)
+    rms = float(np.sqrt(np.mean(r**2)))
+    dof = max(n_pos - len(p0), 1)
+    try:
+        cov = np.linalg.inv(fit.jac.T @ fit.jac) * float(r @ r) / dof
+        sig = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        quality["sigma_bias_m_s2"] = (sig[3:6] if terms == 6 else sig[6:9]).tolist()
+    except np.linalg.LinAlgError:
+        quality["sigma_bias_m_s2"] = [math.inf] * 3
+    quality.update(residual_rms_m_s2=rms, residual_max_m_s2=float(np.max(np.abs(r))),
+                   position_residuals_m_s2=r.tolist(), lm_status=int(fit.status))
+    if rms > max_residual_m_s2:
+        return AccelFitResult(identity, rms, terms, {**quality, "rejected_model": model.to_dict()},
+                              f"residual {rms * 1e3 / STANDARD_GRAVITY_M_S2:.1f} mg is too large: a position was "
+                              "not still, or the wrong local gravity", linear)
+    return AccelFitResult(model, rms, terms, quality, None, linear)
+
+
+# ---------------------------------------------------------------------------------------------- still periods
+
+
+@dataclass(frozen=True)
+class StillSegment:
+    start: int            # sample index (inclusive)
+    stop: int             # sample index (exclusive)
+    mean_accel_m_s2: np.ndarray
+    mean_gyro_rad_s: np.ndarray
+    duration_s: float
+
+
+def find_still_segments(accel_m_s2: np.ndarray, gyro_rad_s: np.ndarray | None, rate_hz: float,
+                        window_s: float = 0.5, min_still_s: float = 3.0, max_gyro_rad_s: float = 0.02,
+                        accel_std_factor: float = 4.0, trim_s: float = 0.5) -> list[StillSegment]:
+    """Still periods of a recording: runs of windows where the accelerometer's std is within
+    `accel_std_factor` of the quietest windows' (the noise floor) and the gyro rate is below
+    `max_gyro_rad_s` (so a turning rate table is not "still"). `trim_s` is cut off both ends."""
+    acc = np.asarray(accel_m_s2, dtype=np.float64)
+    n = acc.shape[0]
+    w = max(2, int(round(window_s * rate_hz)))
+    nw = n // w
+    if nw < 2:
+        return []
+    a = acc[: nw * w].reshape(nw, w, 3)
+    a_std = np.linalg.norm(a.std(axis=1), axis=1)
+    floor = float(np.percentile(a_std, 10))
+    still = a_std <= accel_std_factor * max(floor, 1e-6)
+    if gyro_rad_s is not None:
+        g = np.asarray(gyro_rad_s, dtype=np.float64)[: nw * w].reshape(nw, w, 3)
+        still &= np.linalg.norm(g.mean(axis=1), axis=1) <= max_gyro_rad_s
+    # Also require the mean to stay put between neighbouring windows (a slow, smooth tilt is not still).
+    means = a.mean(axis=1)
+    jump = np.r_[0.0, np.linalg.norm(np.diff(means, axis=0), axis=1)]
+    still &= jump <= accel_std_factor * max(floor, 1e-6)
+    segments = []
+    k = 0
+    trim = int(round(trim_s * rate_hz))
+    while k < nw:
+        if not still[k]:
+            k += 1
+            continue
+        j = k
+        while j < nw and still[j]:
+            j += 1
+        start, stop = k * w + trim, j * w - trim
+        if (stop - start) / rate_hz >= min_still_s:
+            gm = np.zeros(3) if gyro_rad_s is None else np.asarray(gyro_rad_s[start:stop]).mean(axis=0)
+            segments.append(StillSegment(start, stop, acc[start:stop].mean(axis=0), gm, (stop - start) / rate_hz))
+        k = j
+    return segments
+
+
+# ---------------------------------------------------------------------------------------------- guided procedure
+
+# The positions the guided procedure asks for: the six faces, then the eight corners (each with three axes
+# tilted ~35° from vertical), 14 ≥ 12 distinct orientations (thesis §10.2: at least 12, more is better).
+# Each is the direction the accelerometer reads +g along (the "up" direction in sensor axes).
+_S = 1 / math.sqrt(3)
+GUIDED_TARGETS: tuple[tuple[str, tuple[float, float, float]], ...] = (
+    ("level, as mounted: Z axis pointing down", (0, 0, -1)),
+    ("upside down: Z axis pointing up", (0, 0, 1)),
+    ("on its side: Y axis pointing down", (0, -1, 0)),
+    ("on the other side: Y axis pointing up", (0, 1, 0)),
+    ("nose down: X axis pointing down", (-1, 0, 0)),
+    ("nose up: X axis pointing up", (1, 0, 0)),
+) + tuple(
+    (f"on a corner: X {'up' if sx > 0 else 'down'}, Y {'up' if sy > 0 else 'down'}, Z {'up' if sz > 0 else 'down'} "
+     "(each axis about 35° from level)", (sx * _S, sy * _S, sz * _S))
+    for sx in (1, -1) for sy in (1, -1) for sz in (1, -1)
+)
+
+
+@dataclass
+class GuidedSession:
+    """Operator-guided multi-position calibration, fed one sample at a time (live from the bus).
+
+    `prompt` says which position to put the unit in next; `feed(sample)` returns a status line when
+    something happens (still detected, position recorded, wrong position). Any target position counts when
+    the unit is still in it (not only the one prompted), so the operator may go in any order.
+    """
+
+    rate_hz: float
+    still_s: float = 4.0
+    tolerance_deg: float = 12.0
+    max_gyro_rad_s: float = 0.02
+    max_accel_std_m_s2: float = 0.05
+    targets: tuple = GUIDED_TARGETS
+    recorded: dict = field(default_factory=dict)      # target index -> mean specific force (3,)
+    _buf_a: list = field(default_factory=list)
+    _buf_g: list = field(default_factory=list)
+    _announced_still: bool = False
+
+    @property
+    def done(self) -> bool:
+        return len(self.recorded) == len(self.targets)
+
+    @property
+    def prompt(self) -> str:
+        for i, (text, _) in enumerate(self.targets):
+            if i not in self.recorded:
+                return f"position {len(self.recorded) + 1}/{len(self.targets)}: put the unit {text}, and hold it still"
+        return "all positions recorded"
+
+    def coverage(self) -> str:
+        return (f"{len(self.recorded)}/{len(self.targets)} positions; faces: "
+                + ", ".join(k for k, v in face_coverage(self.position_means()).items() if v) if self.recorded else
+                f"0/{len(self.targets)} positions")
+
+    def position_means(self) -> np.ndarray:
+        return np.array([self.recorded[k] for k in sorted(self.recorded)]) if self.recorded else np.zeros((0, 3))
+
+    def feed(self, sample) -> str | None:
+        a, g = np.asarray(sample.accel_m_s2, dtype=float), np.asarray(sample.gyro_rad_s, dtype=float)
+        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(g))):
+            return None
+        n_need = max(2, int(round(self.still_s * self.rate_hz)))
+        self._buf_a.append(a)
+        self._buf_g.append(g)
+        # Moving = restart the window (the still period must be continuous).
+        n_short = max(2, int(round(0.25 * self.rate_hz)))
+        if len(self._buf_a) >= n_short:
+            recent = np.array(self._buf_a[-n_short:])
+            moving = (np.linalg.norm(np.mean(self._buf_g[-n_short:], axis=0)) > self.max_gyro_rad_s
+                      or np.linalg.norm(recent.std(axis=0)) > self.max_accel_std_m_s2)
+            if moving:
+                self._buf_a.clear()
+                self._buf_g.clear()
+                self._announced_still = False
+                return None
+        if len(self._buf_a) < n_need:
+            return None
+        mean = np.mean(self._buf_a, axis=0)
+        self._buf_a.clear()
+        self._buf_g.clear()
+        u = mean / np.linalg.norm(mean)
+        cos_lim = math.cos(math.radians(self.tolerance_deg))
+        for i, (text, d) in enumerate(self.targets):
+            if float(u @ np.array(d)) > cos_lim:
+                if i in self.recorded:
+                    return f"already have '{text}'; next: {self.prompt}"
+                self.recorded[i] = mean
+                return f"recorded '{text}' ({self.coverage()})" + ("" if self.done else f"; next: {self.prompt}")
+        return "still, but not in any of the requested positions; " + self.prompt
+
+    def fit(self, g_m_s2: float = STANDARD_GRAVITY_M_S2, terms: int | str = "auto") -> AccelFitResult:
+        return fit_accel(self.position_means(), g_m_s2, terms)
