@@ -83,7 +83,6 @@ def run(args) -> int:
 
     status = None if args.quiet or not sys.stderr.isatty() else sys.stderr
     period = imu.sample_period_s
-    poll_s = period / 2.0                      # poll at twice the data rate, keep only ND samples (anchors §4.4)
     n_target = None if args.seconds is None else max(1, int(round(args.seconds * imu.sample_rate_hz)))
     written = 0
     bus_failures = 0
@@ -95,12 +94,9 @@ def run(args) -> int:
     try:
         while n_target is None or written < n_target:
             if paced:
-                next_poll += poll_s
                 delay = next_poll - time.monotonic()
                 if delay > 0:
                     time.sleep(delay)
-                elif delay < -0.1:
-                    next_poll = time.monotonic()   # fell far behind (host busy): resynchronise
             try:
                 sample = imu.read_sample()
             except FrameError:
@@ -115,6 +111,10 @@ def run(args) -> int:
                 time.sleep(0.01)
                 continue
             bus_failures = 0
+            if paced:
+                # No data-ready line: after a fresh sample the next one is due in one period; aim a little
+                # early and re-poll in quarter periods, so the polling phase locks onto the chip's clock.
+                next_poll = time.monotonic() + (0.25 if sample.flags & SampleFlags.STALE else 0.75) * period
             if sample.flags & SampleFlags.STALE:
                 continue
             truth = getattr(bus, "output_truth_q_wxyz", None) if simulated else None
@@ -139,6 +139,8 @@ def run(args) -> int:
     print(f"ahrsd record: wrote {written} samples ({span:.2f} s of data at {imu.sample_rate_hz:.1f} SPS) to "
           f"{args.output} in {elapsed:.2f} s" + (f"; counters: {problems}" if problems else ""), file=sys.stderr)
     log.debug("counters: %s", imu.counters)
+    if simulated:
+        log.debug("simulated chip: %s", bus.stats)
     return rc
 
 

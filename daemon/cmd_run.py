@@ -1,0 +1,62 @@
+"""`ahrsd run`: the daemon (sensor → calibration → estimator → MAVLink), in a terminal or under systemd."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "run", help="run the AHRS daemon",
+        description="Run the AHRS daemon. Without arguments and without /etc/ahrsd/ahrsd.toml it runs a simulated "
+        "ADIS16405 and sends MAVLink to udpout:127.0.0.1:14550. Flags override the config file.")
+    p.add_argument("--config", metavar="FILE", help="TOML config (default: $CONFIGURATION_DIRECTORY/ahrsd.toml or "
+                   "/etc/ahrsd/ahrsd.toml when present)")
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--sim", metavar="SCENARIO", help="simulated ADIS16405 running SCENARIO (default: static)")
+    src.add_argument("--spi", metavar="DEVICE", help="real ADIS16405 on this spidev node, e.g. /dev/spidev0.0")
+    src.add_argument("--replay", metavar="FILE", help="replay a recording made by `ahrsd record`")
+    p.add_argument("--mavlink", metavar="URL", action="append",
+                   help="MAVLink endpoint (repeatable; replaces the config's): udpout:HOST:PORT, udpin:HOST:PORT, "
+                   "tcp:HOST:PORT, tcpin:HOST:PORT, /dev/ttyAMA0,921600")
+    p.add_argument("--state-dir", metavar="DIR", help="calibration/parameter directory (default: $STATE_DIRECTORY "
+                   "under systemd, else ~/.local/state/ahrsd)")
+    p.add_argument("--status-line", choices=("auto", "on", "off"), help="live status line (default auto: on a TTY)")
+    p.add_argument("--check-config", action="store_true", help="validate the configuration, print it and exit")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import asyncio
+    import dataclasses
+    import logging
+    import sys
+
+    from ahrsd.daemon.config import Config, ConfigError, DaemonConfig, default_config_path, load_config
+
+    log = logging.getLogger("ahrsd")
+    try:
+        path = args.config or default_config_path()
+        cfg = load_config(path) if path else Config()
+        cfg = cfg.with_overrides(sim=args.sim, spi=args.spi, replay=args.replay, mavlink=args.mavlink,
+                                 state_dir=args.state_dir)
+        if args.status_line:
+            cfg = dataclasses.replace(cfg, daemon=DaemonConfig(status_line=args.status_line))
+    except ConfigError as exc:
+        print(f"ahrsd: {exc}", file=sys.stderr)
+        return 2
+    if args.check_config:
+        import json
+
+        print(json.dumps(dataclasses.asdict(cfg), indent=2, default=str))
+        return 0
+    if logging.getLogger().level > logging.INFO:
+        logging.getLogger("ahrsd").setLevel(logging.INFO)   # the daemon reports its life cycle by default
+    from ahrsd.daemon.service import Service
+
+    service = Service(cfg)
+    try:
+        return asyncio.run(service.run())
+    except KeyboardInterrupt:
+        log.info("interrupted")
+        return 130

@@ -1,0 +1,172 @@
+"""COMMAND_LONG / COMMAND_INT dispatch with the command protocol's ACK rules (anchor §1.6).
+
+`CommandRouter.register(command_id, handler)` is the extension point: a handler gets
+`(msg, ctx: CommandContext)` and returns a MAV_RESULT int or a `CommandAck`. A long-running handler returns
+`CommandAck(MAV_RESULT_IN_PROGRESS, progress)` and later calls `ctx.finish(result)`.
+
+Rules implemented here, so handlers don't repeat them:
+* addressed to our component → always an ACK (unknown command → MAV_RESULT_UNSUPPORTED);
+* broadcast (target_component 0) → acted on only when the handler accepts broadcasts and the daemon's policy
+  allows; an unknown broadcast command is ignored silently (the autopilot answers it, not us);
+* duplicates of a state-changing command (the sender re-sends when our ACK crossed its timeout) are not
+  re-executed: the last ACK sent for the same (source, command, parameters) within DUPLICATE_WINDOW_S is
+  repeated (IN_PROGRESS while a long command runs, its final result afterwards); read-only commands
+  (REQUEST_MESSAGE, GET_MESSAGE_INTERVAL) are simply answered again;
+* with signing required, an unsigned state-changing command is refused with MAV_RESULT_DENIED and counted;
+* the ACK carries target_system/target_component = the requester.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from ahrsd.daemon.mavlink_io import mavlink
+
+log = logging.getLogger(__name__)
+
+DUPLICATE_WINDOW_S = 3.0
+
+
+@dataclass(frozen=True)
+class CommandAck:
+    result: int
+    progress: int = 0          # result_param1: % when IN_PROGRESS (255 unknown)
+    result_param2: int = 0
+
+
+@dataclass
+class CommandContext:
+    """What a handler may need: who asked, on which link, and the daemon to act on."""
+
+    service: Any               # ahrsd.daemon.service.Service: apply_calibration, send, statustext, ...
+    endpoint: Any              # the Endpoint the command arrived on
+    src_system: int
+    src_component: int
+    broadcast: bool            # target_component was 0
+    signed: bool
+    is_command_int: bool
+    _finish: Callable[[int, int], None] | None = None
+
+    def progress(self, percent: int) -> None:
+        """Send another IN_PROGRESS ACK with progress 0..100."""
+        if self._finish:
+            self._finish(mavlink.MAV_RESULT_IN_PROGRESS, int(percent))
+
+    def finish(self, result: int) -> None:
+        """Send the final ACK of a long-running command."""
+        if self._finish:
+            self._finish(int(result), 0)
+
+
+Handler = Callable[[Any, CommandContext], "int | CommandAck"]
+
+
+@dataclass
+class _Registration:
+    handler: Handler
+    state_changing: bool
+    accept_broadcast: bool
+
+
+@dataclass
+class CommandCounters:
+    received: int = 0
+    unsupported: int = 0
+    duplicates: int = 0
+    unsigned_refused: int = 0
+    handler_errors: int = 0
+    ignored_broadcast: int = 0
+
+
+def command_params(msg) -> tuple[float, ...]:
+    """param1..param7 as floats for both COMMAND_LONG and COMMAND_INT (x, y are int32 there)."""
+    if msg.get_type() == "COMMAND_INT":
+        return (msg.param1, msg.param2, msg.param3, msg.param4, float(msg.x), float(msg.y), msg.z)
+    return (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
+
+
+@dataclass
+class CommandRouter:
+    service: Any
+    send_ack: Callable[[Any, Any], None]       # (endpoint, COMMAND_ACK message)
+    require_signed: Callable[[], bool] = lambda: False
+    accept_broadcast: bool = True
+    counters: CommandCounters = field(default_factory=CommandCounters)
+    clock: Callable[[], float] = time.monotonic
+    _handlers: dict[int, _Registration] = field(default_factory=dict)
+    _recent: dict[tuple, tuple[float, Any]] = field(default_factory=dict)
+
+    def register(self, command_id: int, handler: Handler, *, state_changing: bool = True,
+                 accept_broadcast: bool = True) -> None:
+        """Install `handler` for MAV_CMD `command_id` (replacing any previous one).
+
+        state_changing: refused unsigned when signing is required. accept_broadcast: act on target_component 0.
+        """
+        self._handlers[int(command_id)] = _Registration(handler, state_changing, accept_broadcast)
+
+    def unregister(self, command_id: int) -> None:
+        self._handlers.pop(int(command_id), None)
+
+    def registered(self) -> list[int]:
+        return sorted(self._handlers)
+
+    def handle(self, msg, endpoint, broadcast: bool) -> None:
+        self.counters.received += 1
+        cmd = int(msg.command)
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        reg = self._handlers.get(cmd)
+        if broadcast and (reg is None or not reg.accept_broadcast or not self.accept_broadcast):
+            self.counters.ignored_broadcast += 1
+            return
+        key = (src, msg.get_type(), cmd, command_params(msg))
+        now = self.clock()
+        self._expire(now)
+        previous = self._recent.get(key) if reg is None or reg.state_changing else None
+        if previous is not None:
+            self.counters.duplicates += 1
+            self._recent[key] = (now, previous[1])
+            self.send_ack(endpoint, previous[1])
+            return
+
+        def ack(result: int, progress: int = 0, param2: int = 0) -> None:
+            message = _ack_message(cmd, result, src, progress, param2)
+            self._recent[key] = (self.clock(), message)
+            self.send_ack(endpoint, message)
+
+        if reg is None:
+            self.counters.unsupported += 1
+            ack(mavlink.MAV_RESULT_UNSUPPORTED)
+            return
+        signed = bool(msg.get_signed())
+        if reg.state_changing and self.require_signed() and not signed:
+            self.counters.unsigned_refused += 1
+            log.warning("refused unsigned command %d from %d/%d", cmd, *src)
+            ack(mavlink.MAV_RESULT_DENIED)
+            return
+        ctx = CommandContext(self.service, endpoint, src[0], src[1], broadcast, signed,
+                             msg.get_type() == "COMMAND_INT", lambda r, p: ack(r, p))
+        try:
+            out = reg.handler(msg, ctx)
+        except Exception:  # noqa: BLE001 - a failing handler answers FAILED, the daemon carries on
+            self.counters.handler_errors += 1
+            log.exception("command %d handler failed", cmd)
+            out = mavlink.MAV_RESULT_FAILED
+        if out is None:
+            return   # the handler answers later itself via ctx.finish
+        if isinstance(out, CommandAck):
+            ack(out.result, out.progress, out.result_param2)
+        else:
+            ack(int(out))
+
+    def _expire(self, now: float) -> None:
+        if len(self._recent) > 64 or self._recent:
+            stale = [k for k, (t, _) in self._recent.items() if now - t > DUPLICATE_WINDOW_S]
+            for k in stale:
+                del self._recent[k]
+
+
+def _ack_message(command: int, result: int, src: tuple[int, int], progress: int, param2: int):
+    return mavlink.MAVLink_command_ack_message(command, result, progress, param2, src[0], src[1])

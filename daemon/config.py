@@ -1,0 +1,423 @@
+"""The daemon's configuration: a TOML file whose sections map one-to-one onto the objects that use them.
+
+    [sensor]     -> SensorConfig     where samples come from (simulated chip, SPI, recording), mounting
+    [estimator]  -> EstimatorConfig  which attitude filter
+    [location]   -> LocationConfig   where we are (declination for true heading)
+    [mavlink]    -> MavlinkConfig    identity and routing policy
+    [[endpoint]] -> EndpointConfig   one pymavlink connection each
+    [outputs]    -> OutputsConfig    message rates
+    [state]      -> StateConfig      the state directory (calibration, parameters, signing timestamp)
+    [signing]    -> SigningConfig    optional MAVLink 2 signing
+    [daemon]     -> DaemonConfig     process behaviour (status line)
+
+Every key is checked; an error names the key, the bad value and what is allowed. Unknown sections and keys
+are rejected by name (a typo must not silently fall back to a default). Command-line flags override the file
+via `Config.with_overrides`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+DEFAULT_CONFIG_PATH = Path("/etc/ahrsd/ahrsd.toml")
+DEFAULT_ENDPOINT = "udpout:127.0.0.1:14550"   # the ground-station port by convention (anchor §3.4)
+SCENARIO_NAMES = ("static", "rate-table", "level-turns", "coordinated-turn", "tumble", "auv-out-and-back",
+                  "mag-disturbance")  # CONTRIBUTING.md, ahrsd.simulation.SCENARIOS
+ESTIMATOR_NAMES = ("mekf", "thesis")     # CONTRIBUTING.md, ahrsd.estimator.ESTIMATORS
+MAV_TYPES = {"imu": 40, "onboard_controller": 18}  # MAV_TYPE_IMU / MAV_TYPE_ONBOARD_CONTROLLER (anchor §1.3)
+MAX_OUTPUT_RATE_HZ = 200.0
+MAX_VISION_RATE_HZ = 50.0  # EKF3 extNavIntervalMin_ms = 20 ms (anchor ardupilot-extnav)
+ENDPOINT_PREFIXES = ("udpout:", "udpin:", "udpbcast:", "udp:", "tcp:", "tcpin:", "uds:", "unix:")
+
+
+class ConfigError(ValueError):
+    """A configuration value is invalid; the message names the key, the value and what is allowed."""
+
+
+def _fail(key: str, value: Any, allowed: str) -> ConfigError:
+    return ConfigError(f"config key {key} = {value!r} is invalid: {allowed}")
+
+
+# -- small typed checkers: each returns the normalised value or raises ConfigError -------------------------
+
+def _number(key, value, lo=-math.inf, hi=math.inf, *, integer=False) -> float | int:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or (integer and not isinstance(value, int)):
+        kind = "an integer" if integer else "a number"
+        raise _fail(key, value, f"expected {kind} in [{lo:g}, {hi:g}]")
+    if not math.isfinite(value) or not lo <= value <= hi:
+        raise _fail(key, value, f"must be within [{lo:g}, {hi:g}]")
+    return int(value) if integer else float(value)
+
+
+def _choice(key, value, choices) -> str:
+    if value not in choices:
+        raise _fail(key, value, "one of " + ", ".join(repr(c) for c in choices))
+    return value
+
+
+def _bool(key, value) -> bool:
+    if not isinstance(value, bool):
+        raise _fail(key, value, "true or false")
+    return value
+
+
+def _string(key, value) -> str:
+    if not isinstance(value, str):
+        raise _fail(key, value, "a string")
+    return value
+
+
+def _endpoint_url(key, value) -> str:
+    value = _string(key, value).strip()
+    if value.startswith(ENDPOINT_PREFIXES):
+        host_port = value.split(":", 1)[1]
+        if value.startswith(("uds:", "unix:")):
+            if host_port:
+                return value
+        elif re.fullmatch(r"[^:\s]*:\d{1,5}", host_port) and 0 < int(host_port.rsplit(":", 1)[1]) < 65536:
+            return value
+        raise _fail(key, value, "a pymavlink URL such as udpout:HOST:PORT, udpin:HOST:PORT, tcp:HOST:PORT, "
+                    "tcpin:HOST:PORT with a port in 1..65535")
+    if value.startswith("/dev/") or value.startswith("COM"):
+        # serial: "/dev/ttyAMA0,921600" or "/dev/ttyAMA0" (115200 baud)
+        device, _, baud = value.partition(",")
+        if device and (not baud or (baud.isdigit() and 1200 <= int(baud) <= 12_000_000)):
+            return value
+        raise _fail(key, value, "a serial port as DEVICE or DEVICE,BAUD with BAUD in 1200..12000000")
+    raise _fail(key, value, "a pymavlink URL (udpout:, udpin:, udpbcast:, tcp:, tcpin:, uds:) or a serial "
+                "device /dev/...,BAUD")
+
+
+# -- the sections --------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class SensorConfig:
+    """Where samples come from and how the sensor sits in the vehicle."""
+
+    source: str = "sim"                 # "sim" (simulated ADIS16405 chip), "spi" (real chip), "replay" (CSV)
+    scenario: str = "static"            # simulated scenario (source = "sim")
+    seed: int = 0                       # simulator noise seed
+    errors: str = "adis16405"           # simulated sensor errors: "adis16405" (datasheet) or "ideal"
+    spi_device: str = "/dev/spidev0.0"  # source = "spi"
+    replay_file: str = ""               # source = "replay": a recording written by `ahrsd record`
+    replay_realtime: bool = True        # replay at the recorded pace (false: as fast as possible)
+    mounting_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor axes in the body FRD, ZYX Euler deg
+    poll_hz: float = 200.0              # reader wake-ups per second; each wake drains every new sample
+    stale_timeout_s: float = 0.1        # no new sample for this long = sensor failure
+
+    @classmethod
+    def parse(cls, d: dict, prefix="sensor") -> "SensorConfig":
+        out = {}
+        for key, value in d.items():
+            k = f"{prefix}.{key}"
+            if key == "source":
+                out[key] = _choice(k, value, ("sim", "spi", "replay"))
+            elif key == "scenario":
+                out[key] = _choice(k, value, SCENARIO_NAMES)
+            elif key == "seed":
+                out[key] = _number(k, value, 0, 2**32 - 1, integer=True)
+            elif key == "errors":
+                out[key] = _choice(k, value, ("adis16405", "ideal"))
+            elif key in ("spi_device", "replay_file"):
+                out[key] = _string(k, value)
+            elif key == "replay_realtime":
+                out[key] = _bool(k, value)
+            elif key == "mounting_rpy_deg":
+                if not isinstance(value, list) or len(value) != 3:
+                    raise _fail(k, value, "a list of three angles [roll, pitch, yaw] in degrees")
+                lims = (180.0, 90.0, 180.0)
+                out[key] = tuple(_number(f"{k}[{i}]", v, -lim, lim) for i, (v, lim) in enumerate(zip(value, lims)))
+            elif key == "poll_hz":
+                out[key] = _number(k, value, 10.0, 2000.0)
+            elif key == "stale_timeout_s":
+                out[key] = _number(k, value, 0.005, 10.0)
+            else:
+                raise _unknown(k, cls)
+        cfg = cls(**out)
+        if cfg.source == "replay" and not cfg.replay_file:
+            raise _fail(f"{prefix}.replay_file", cfg.replay_file, "a recording path (required when source = 'replay')")
+        if cfg.source == "spi" and not cfg.spi_device.startswith("/dev/"):
+            raise _fail(f"{prefix}.spi_device", cfg.spi_device, "a device path such as /dev/spidev0.0")
+        return cfg
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    name: str = "mekf"   # "mekf" (multiplicative EKF) or "thesis" (the thesis filter)
+
+    @classmethod
+    def parse(cls, d: dict, prefix="estimator") -> "EstimatorConfig":
+        out = {}
+        for key, value in d.items():
+            if key == "name":
+                out[key] = _choice(f"{prefix}.{key}", value, ESTIMATOR_NAMES)
+            else:
+                raise _unknown(f"{prefix}.{key}", cls)
+        return cls(**out)
+
+
+@dataclass(frozen=True)
+class LocationConfig:
+    """Where the vehicle is, for the WMM declination (true heading = magnetic heading + declination).
+
+    Priority: declination_deg if set; else lat/lon if set; else the autopilot's GLOBAL_POSITION_INT/GPS_RAW_INT
+    (when use_autopilot_position); else the simulator's site for source = "sim"; else 0 with a warning.
+    """
+
+    lat_deg: float | None = None
+    lon_deg: float | None = None
+    alt_m: float = 0.0
+    declination_deg: float | None = None
+    use_autopilot_position: bool = True
+
+    @classmethod
+    def parse(cls, d: dict, prefix="location") -> "LocationConfig":
+        out = {}
+        for key, value in d.items():
+            k = f"{prefix}.{key}"
+            if key == "lat_deg":
+                out[key] = _number(k, value, -90.0, 90.0)
+            elif key == "lon_deg":
+                out[key] = _number(k, value, -180.0, 180.0)
+            elif key == "alt_m":
+                out[key] = _number(k, value, -1000.0, 100_000.0)
+            elif key == "declination_deg":
+                out[key] = _number(k, value, -180.0, 180.0)
+            elif key == "use_autopilot_position":
+                out[key] = _bool(k, value)
+            else:
+                raise _unknown(k, cls)
+        if ("lat_deg" in out) != ("lon_deg" in out):
+            missing = "lon_deg" if "lat_deg" in out else "lat_deg"
+            raise _fail(f"{prefix}.{missing}", None, "lat_deg and lon_deg must be given together")
+        return cls(**out)
+
+
+@dataclass(frozen=True)
+class EndpointConfig:
+    """One pymavlink connection: udpout:/udpin:/tcp:/tcpin: URL or a serial port "/dev/ttyAMA0,921600"."""
+
+    url: str
+
+    @classmethod
+    def parse(cls, d: dict, prefix="endpoint") -> "EndpointConfig":
+        if not isinstance(d, dict):
+            raise _fail(prefix, d, "a table with key url")
+        for key in d:
+            if key != "url":
+                raise _unknown(f"{prefix}.{key}", cls)
+        if "url" not in d:
+            raise _fail(f"{prefix}.url", None, "required (e.g. url = \"udpout:127.0.0.1:14550\")")
+        return cls(_endpoint_url(f"{prefix}.url", d["url"]))
+
+
+@dataclass(frozen=True)
+class MavlinkConfig:
+    system_id: int = 0                  # 0 = latch the first autopilot's system id (1 until then)
+    component_id: int = 200             # MAV_COMP_ID_IMU (anchor §1.3)
+    mav_type: str = "imu"               # HEARTBEAT.type: "imu" (40) or "onboard_controller" (18)
+    accept_broadcast_commands: bool = True  # act on COMMAND_LONG with target_component 0
+
+    @classmethod
+    def parse(cls, d: dict, prefix="mavlink") -> "MavlinkConfig":
+        out = {}
+        for key, value in d.items():
+            k = f"{prefix}.{key}"
+            if key == "system_id":
+                out[key] = _number(k, value, 0, 255, integer=True)
+            elif key == "component_id":
+                out[key] = _number(k, value, 1, 255, integer=True)
+            elif key == "mav_type":
+                out[key] = _choice(k, value, tuple(MAV_TYPES))
+            elif key == "accept_broadcast_commands":
+                out[key] = _bool(k, value)
+            else:
+                raise _unknown(k, cls)
+        return cls(**out)
+
+
+@dataclass(frozen=True)
+class OutputsConfig:
+    """Message rates in Hz (0 = off). HEARTBEAT is always 1 Hz (anchor §1.6)."""
+
+    attitude_hz: float = 50.0
+    attitude_quaternion_hz: float = 10.0
+    vision_position_estimate_hz: float = 30.0   # ArduPilot needs > 3.3 Hz, PX4 > 5 Hz; EKF3 takes ≤ 50 Hz
+    highres_imu_hz: float = 10.0
+    scaled_imu_hz: float = 0.0
+    sys_status_hz: float = 1.0
+
+    @classmethod
+    def parse(cls, d: dict, prefix="outputs") -> "OutputsConfig":
+        names = {f.name for f in dataclasses.fields(cls)}
+        out = {}
+        for key, value in d.items():
+            k = f"{prefix}.{key}"
+            if key not in names:
+                raise _unknown(k, cls)
+            hi = MAX_VISION_RATE_HZ if key == "vision_position_estimate_hz" else MAX_OUTPUT_RATE_HZ
+            out[key] = _number(k, value, 0.0, hi)
+        return cls(**out)
+
+
+@dataclass(frozen=True)
+class StateConfig:
+    dir: str = ""   # "" = $STATE_DIRECTORY (systemd StateDirectory=) else ~/.local/state/ahrsd
+
+    @classmethod
+    def parse(cls, d: dict, prefix="state") -> "StateConfig":
+        out = {}
+        for key, value in d.items():
+            if key == "dir":
+                out[key] = _string(f"{prefix}.{key}", value)
+            else:
+                raise _unknown(f"{prefix}.{key}", cls)
+        return cls(**out)
+
+    def resolve(self, environ=os.environ) -> Path:
+        if self.dir:
+            return Path(self.dir).expanduser()
+        if environ.get("STATE_DIRECTORY"):
+            return Path(environ["STATE_DIRECTORY"].split(":")[0])
+        return Path(environ.get("XDG_STATE_HOME") or Path.home() / ".local" / "state") / "ahrsd"
+
+
+@dataclass(frozen=True)
+class SigningConfig:
+    """MAVLink 2 signing (anchor §1.5). The key is read from a file and never logged."""
+
+    key_file: str = ""                  # 32 raw bytes, or 64 hex characters; "" = signing off
+    link_id: int = 0
+    refuse_unsigned_commands: bool = True   # state-changing commands and PARAM_SET must be signed
+
+    @classmethod
+    def parse(cls, d: dict, prefix="signing") -> "SigningConfig":
+        out = {}
+        for key, value in d.items():
+            k = f"{prefix}.{key}"
+            if key == "key_file":
+                out[key] = _string(k, value)
+            elif key == "link_id":
+                out[key] = _number(k, value, 0, 255, integer=True)
+            elif key == "refuse_unsigned_commands":
+                out[key] = _bool(k, value)
+            else:
+                raise _unknown(k, cls)
+        return cls(**out)
+
+
+@dataclass(frozen=True)
+class DaemonConfig:
+    status_line: str = "auto"   # "auto" (when stdout is a terminal), "on", "off"
+
+    @classmethod
+    def parse(cls, d: dict, prefix="daemon") -> "DaemonConfig":
+        out = {}
+        for key, value in d.items():
+            if key == "status_line":
+                out[key] = _choice(f"{prefix}.{key}", value, ("auto", "on", "off"))
+            else:
+                raise _unknown(f"{prefix}.{key}", cls)
+        return cls(**out)
+
+
+def _unknown(key: str, cls) -> ConfigError:
+    if cls is None:
+        return ConfigError(f"unknown config section [{key}]: allowed sections are " + ", ".join(SECTIONS))
+    allowed = ", ".join(f.name for f in dataclasses.fields(cls))
+    return ConfigError(f"unknown config key {key}: allowed keys are {allowed}")
+
+
+@dataclass(frozen=True)
+class Config:
+    sensor: SensorConfig = field(default_factory=SensorConfig)
+    estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
+    location: LocationConfig = field(default_factory=LocationConfig)
+    mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
+    endpoints: tuple[EndpointConfig, ...] = (EndpointConfig(DEFAULT_ENDPOINT),)
+    outputs: OutputsConfig = field(default_factory=OutputsConfig)
+    state: StateConfig = field(default_factory=StateConfig)
+    signing: SigningConfig = field(default_factory=SigningConfig)
+    daemon: DaemonConfig = field(default_factory=DaemonConfig)
+    source_path: str = ""   # the file this came from ("" = built-in defaults)
+
+    def with_overrides(self, *, sim: str | None = None, spi: str | None = None, replay: str | None = None,
+                       mavlink: list[str] | None = None, state_dir: str | None = None) -> "Config":
+        """Apply command-line flags (they win over the file); values are validated like file values."""
+        cfg = self
+        if sum(x is not None for x in (sim, spi, replay)) > 1:
+            raise ConfigError("--sim, --spi and --replay are mutually exclusive")
+        if sim is not None:
+            cfg = dataclasses.replace(cfg, sensor=dataclasses.replace(
+                cfg.sensor, source="sim", scenario=_choice("--sim", sim, SCENARIO_NAMES)))
+        if spi is not None:
+            if not spi.startswith("/dev/"):
+                raise _fail("--spi", spi, "a device path such as /dev/spidev0.0")
+            cfg = dataclasses.replace(cfg, sensor=dataclasses.replace(cfg.sensor, source="spi", spi_device=spi))
+        if replay is not None:
+            cfg = dataclasses.replace(cfg, sensor=dataclasses.replace(cfg.sensor, source="replay",
+                                                                      replay_file=replay))
+        if mavlink:
+            cfg = dataclasses.replace(cfg, endpoints=tuple(
+                EndpointConfig(_endpoint_url("--mavlink", url)) for url in mavlink))
+        if state_dir is not None:
+            cfg = dataclasses.replace(cfg, state=StateConfig(dir=state_dir))
+        return cfg
+
+
+SECTIONS = {
+    "sensor": SensorConfig, "estimator": EstimatorConfig, "location": LocationConfig, "mavlink": MavlinkConfig,
+    "endpoint": EndpointConfig, "outputs": OutputsConfig, "state": StateConfig, "signing": SigningConfig,
+    "daemon": DaemonConfig,
+}
+
+
+def parse_config(doc: dict, source_path: str = "") -> Config:
+    """Validate a parsed TOML document into a Config (raises ConfigError)."""
+    parts: dict[str, Any] = {"source_path": source_path}
+    for section, value in doc.items():
+        if section not in SECTIONS:
+            raise _unknown(section, None)
+        if section == "endpoint":
+            if not isinstance(value, list) or not value:
+                raise _fail("endpoint", value, "one or more [[endpoint]] tables, each with url = \"...\"")
+            parts["endpoints"] = tuple(EndpointConfig.parse(t, f"endpoint[{i}]") for i, t in enumerate(value))
+            continue
+        if not isinstance(value, dict):
+            raise _fail(section, value, f"a [{section}] table")
+        parts[section] = SECTIONS[section].parse(value)
+    return Config(**parts)
+
+
+def load_config(path: str | os.PathLike) -> Config:
+    """Read and validate a TOML config file (raises ConfigError with the file name on any problem)."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            doc = tomllib.load(f)
+    except FileNotFoundError:
+        raise ConfigError(f"config file {path} does not exist") from None
+    except OSError as exc:
+        raise ConfigError(f"cannot read config file {path}: {exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"config file {path} is not valid TOML: {exc}") from None
+    try:
+        return parse_config(doc, str(path))
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+
+
+def default_config_path(environ=os.environ) -> Path | None:
+    """The file `ahrsd run` reads without --config: $CONFIGURATION_DIRECTORY/ahrsd.toml or /etc/ahrsd/ahrsd.toml."""
+    if environ.get("CONFIGURATION_DIRECTORY"):
+        candidate = Path(environ["CONFIGURATION_DIRECTORY"].split(":")[0]) / "ahrsd.toml"
+        if candidate.is_file():
+            return candidate
+    return DEFAULT_CONFIG_PATH if DEFAULT_CONFIG_PATH.is_file() else None

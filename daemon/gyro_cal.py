@@ -1,0 +1,104 @@
+"""MAV_CMD_PREFLIGHT_CALIBRATION param1=1: gyro bias at rest (bias only; scale and misalignment kept).
+
+The vehicle must be disarmed and still. The command is long-running: ACK IN_PROGRESS at once, then the final
+ACK (ACCEPTED with the new calibration saved and applied, or FAILED with a STATUSTEXT saying why).
+Calibrated = M·(raw − b); a residual mean rate r measured after the current calibration means the bias is
+b + M⁻¹·r.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+
+from ahrsd.calibration import GyroModel
+from ahrsd.daemon.commands import CommandAck
+from ahrsd.daemon.mavlink_io import mavlink
+
+log = logging.getLogger(__name__)
+
+DURATION_S = 2.0
+# Rest test. ADIS16405 gyro noise ≈ 0.9 °/s rms at full bandwidth (anchor §4.3, [unverified]); 3× that as the
+# per-axis standard deviation limit. Accelerometer: |f| within 0.5 m/s² of g and steady.
+MAX_GYRO_STD_RAD_S = math.radians(3 * 0.9)
+MAX_ACCEL_NORM_ERR_M_S2 = 0.5
+MAX_ACCEL_STD_M_S2 = 0.3
+MAX_BIAS_RAD_S = math.radians(10.0)   # larger than the 3 °/s turn-on bias NaveGo uses: a rotating vehicle
+G0 = 9.80665
+
+
+class GyroBiasCalibration:
+    """Collects samples through a service sample listener, then swaps the calibration."""
+
+    def __init__(self, service, ctx, sample_rate_hz: float):
+        self.service = service
+        self.ctx = ctx
+        self.needed = max(16, int(DURATION_S * sample_rate_hz))
+        self.n = 0
+        self.g_sum = np.zeros(3)
+        self.g_sq = np.zeros(3)
+        self.a_norm_sum = 0.0
+        self.a_norm_sq = 0.0
+        self.done = False
+        self._remove = None
+
+    def start(self) -> CommandAck:
+        self._remove = self.service.add_sample_listener(self.on_sample)
+        self.service.set_calibrating("gyro calibration")
+        self.service.statustext(mavlink.MAV_SEVERITY_INFO, "ahrsd: gyro calibration started, keep still")
+        return CommandAck(mavlink.MAV_RESULT_IN_PROGRESS, 0)
+
+    def on_sample(self, sample, _estimate) -> None:
+        if self.done:
+            return
+        g = sample.gyro_rad_s
+        self.g_sum += g
+        self.g_sq += g * g
+        a = math.sqrt(float(sample.accel_m_s2 @ sample.accel_m_s2))
+        self.a_norm_sum += a
+        self.a_norm_sq += a * a
+        self.n += 1
+        if self.n >= self.needed:
+            self.done = True
+            self.service.loop.call_soon(self._finish)
+
+    def cancel(self, reason: str) -> None:
+        if not self.done:
+            self.done = True
+            self._end(mavlink.MAV_RESULT_FAILED, f"ahrsd: gyro calibration failed: {reason}")
+
+    def _finish(self) -> None:
+        n = self.n
+        mean = self.g_sum / n
+        std = np.sqrt(np.maximum(self.g_sq / n - mean * mean, 0.0))
+        a_mean = self.a_norm_sum / n
+        a_std = math.sqrt(max(self.a_norm_sq / n - a_mean * a_mean, 0.0))
+        if self.service.autopilot.armed:
+            return self._end(mavlink.MAV_RESULT_FAILED, "ahrsd: gyro calibration failed: vehicle armed")
+        if np.any(std > MAX_GYRO_STD_RAD_S) or a_std > MAX_ACCEL_STD_M_S2 or abs(a_mean - G0) > MAX_ACCEL_NORM_ERR_M_S2:
+            return self._end(mavlink.MAV_RESULT_FAILED, "ahrsd: gyro calibration failed: vehicle moved")
+        cal = self.service.calibration
+        model = cal.gyro
+        new_bias = model.bias_rad_s + np.linalg.solve(model.matrix, mean)
+        if np.linalg.norm(new_bias) > MAX_BIAS_RAD_S:
+            return self._end(mavlink.MAV_RESULT_FAILED, "ahrsd: gyro calibration failed: bias implausibly large")
+        new_cal = cal.with_sensor("gyro", GyroModel(new_bias, model.matrix), method="preflight-rest",
+                                  samples=n, residual_rms=float(np.linalg.norm(std)))
+        try:
+            self.service.apply_calibration(new_cal, save=True, reason="gyro bias")
+        except Exception as exc:  # noqa: BLE001 - report, don't crash
+            log.exception("applying the gyro calibration failed")
+            return self._end(mavlink.MAV_RESULT_FAILED, f"ahrsd: gyro calibration failed: {exc}")
+        deg = np.degrees(new_bias)
+        self._end(mavlink.MAV_RESULT_ACCEPTED,
+                  f"ahrsd: gyro bias {deg[0]:.2f} {deg[1]:.2f} {deg[2]:.2f} deg/s saved")
+
+    def _end(self, result: int, text: str) -> None:
+        if self._remove:
+            self._remove()
+        self.service.set_calibrating("")
+        severity = mavlink.MAV_SEVERITY_INFO if result == mavlink.MAV_RESULT_ACCEPTED else mavlink.MAV_SEVERITY_WARNING
+        self.service.statustext(severity, text)
+        self.ctx.finish(result)

@@ -1,0 +1,283 @@
+"""MAVLink connections registered with the asyncio event loop (anchor §3.5–3.6).
+
+One `Endpoint` per configured URL wraps a pymavlink `mavfile`. Reception is event driven:
+`loop.add_reader(fd, ...)` drains every byte available and parses it (no polling, no reader threads).
+Malformed input (bad CRC, bad prefix, bad signature, truncated frames) is counted, never raised.
+
+pymavlink picks its wire protocol and dialect when `mavutil` is first imported, so this module sets
+MAVLINK20=1 and MAVLINK_DIALECT=ardupilotmega before importing it, and re-selects the dialect if someone
+imported mavutil earlier with other settings.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import os
+import socket
+from dataclasses import dataclass, field
+from typing import Callable
+
+os.environ["MAVLINK20"] = "1"
+os.environ["MAVLINK_DIALECT"] = "ardupilotmega"
+
+from pymavlink import mavutil  # noqa: E402  (must follow the environment set-up)
+
+if mavutil.mavlink.WIRE_PROTOCOL_VERSION != "2.0" or mavutil.current_dialect != "ardupilotmega":
+    mavutil.set_dialect("ardupilotmega")
+
+mavlink = mavutil.mavlink   # the ardupilotmega MAVLink 2 module: message classes and enums
+
+log = logging.getLogger(__name__)
+
+READ_CHUNK = 4096          # bytes per read on stream links
+MAX_READS_PER_WAKE = 64    # bound the work done per readiness callback (datagrams or chunks)
+TCP_RETRY_S = 2.0
+
+
+@dataclass
+class LinkCounters:
+    rx_messages: int = 0
+    rx_malformed: int = 0      # BAD_DATA: bad prefix, CRC, length, unknown message
+    rx_bad_signature: int = 0  # signature or timestamp check failed (counted separately from malformed)
+    tx_messages: int = 0
+    tx_errors: int = 0
+    reconnects: int = 0
+
+
+MessageHandler = Callable[["Endpoint", object], None]
+
+
+@dataclass
+class Endpoint:
+    """A pymavlink connection whose input is delivered to `on_message(endpoint, msg)` from the event loop."""
+
+    url: str
+    source_system: int
+    source_component: int
+    on_message: MessageHandler
+    counters: LinkCounters = field(default_factory=LinkCounters)
+    conn: object | None = None
+    _loop: asyncio.AbstractEventLoop | None = None
+    _fd: int | None = None
+    _signing: dict | None = None
+    _connect_task: asyncio.Task | None = None
+
+    @property
+    def kind(self) -> str:
+        return self.url.split(":", 1)[0] if ":" in self.url and not self.url.startswith("/") else "serial"
+
+    @property
+    def connected(self) -> bool:
+        return self.conn is not None
+
+    # -- lifecycle ------------------------------------------------------------------------------------------
+
+    def open(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Open the connection now, or (TCP client, whose constructor blocks) in the background."""
+        self._loop = loop
+        if self.kind == "tcp":
+            self._connect_task = loop.create_task(self._connect_tcp())
+            return
+        self._attach(self._make_connection())
+
+    def _make_connection(self):
+        conn = mavutil.mavlink_connection(self.url, source_system=self.source_system,
+                                          source_component=self.source_component, dialect="ardupilotmega",
+                                          autoreconnect=False, retries=0)
+        conn.mav.robust_parsing = True
+        return conn
+
+    async def _connect_tcp(self) -> None:
+        while True:
+            try:
+                conn = await self._loop.run_in_executor(None, self._make_connection)
+            except OSError as exc:
+                log.info("MAVLink %s: %s; retrying in %.0f s", self.url, exc, TCP_RETRY_S)
+                await asyncio.sleep(TCP_RETRY_S)
+                continue
+            self._attach(conn)
+            log.info("MAVLink %s connected", self.url)
+            return
+
+    def _attach(self, conn) -> None:
+        self.conn = conn
+        if self._signing is not None:
+            self._apply_signing()
+        self._register_fd()
+
+    def _register_fd(self) -> None:
+        fd = getattr(self.conn, "fd", None)
+        if fd == self._fd:
+            return
+        if self._fd is not None:
+            self._loop.remove_reader(self._fd)
+        self._fd = fd
+        if fd is not None:
+            self._loop.add_reader(fd, self._on_readable)
+
+    def close(self) -> None:
+        if self._connect_task is not None:
+            self._connect_task.cancel()
+        if self._fd is not None and self._loop is not None:
+            self._loop.remove_reader(self._fd)
+            self._fd = None
+        if self.conn is not None:
+            try:
+                self.conn.close()
+            except OSError:
+                pass
+            self.conn = None
+
+    # -- identity and signing ---------------------------------------------------------------------------------
+
+    def set_system_id(self, sysid: int) -> None:
+        self.source_system = sysid
+        if self.conn is not None:
+            self.conn.mav.srcSystem = sysid
+            self.conn.source_system = sysid
+
+    def enable_signing(self, key: bytes, link_id: int, initial_timestamp: int,
+                       allow_unsigned: Callable[[object, int], bool]) -> None:
+        self._signing = dict(secret_key=key, sign_outgoing=True, allow_unsigned_callback=allow_unsigned,
+                             initial_timestamp=initial_timestamp, link_id=link_id)
+        if self.conn is not None:
+            self._apply_signing()
+
+    def _apply_signing(self) -> None:
+        self.conn.setup_signing(**self._signing)
+
+    def signing_timestamp(self) -> int:
+        if self.conn is None or self._signing is None:
+            return 0
+        return int(self.conn.mav.signing.timestamp)
+
+    # -- I/O --------------------------------------------------------------------------------------------------
+
+    def send(self, msg) -> bool:
+        """Pack and send one message on this link; errors are counted, never raised."""
+        if self.conn is None:
+            return False
+        try:
+            self.conn.mav.send(msg)
+        except (OSError, ValueError, TypeError, OverflowError) as exc:
+            self.counters.tx_errors += 1
+            if self.counters.tx_errors in (1, 100, 10000):
+                log.warning("MAVLink %s: send of %s failed: %s", self.url, msg.get_type(), exc)
+            return False
+        self.counters.tx_messages += 1
+        return True
+
+    def _read_chunk(self) -> bytes | None:
+        """Bytes available now; b'' when drained; None when a stream peer closed."""
+        conn = self.conn
+        kind = self.kind
+        if kind in ("tcp", "tcpin", "uds", "unix"):
+            if kind == "tcpin" and conn.port is None:
+                conn.recv(0)        # accept the pending client (pymavlink swaps fd to the accepted socket)
+                self._register_fd()
+                if conn.port is None:
+                    return b""
+            try:
+                data = conn.port.recv(READ_CHUNK)
+            except BlockingIOError:
+                return b""
+            except OSError:
+                return None
+            return data if data else None
+        if kind == "serial":
+            return conn.recv(READ_CHUNK) or b""
+        data = conn.recv()          # UDP: one datagram ("" when none)
+        return data if data else b""
+
+    def _on_readable(self) -> None:
+        conn = self.conn
+        if conn is None:
+            return
+        for _ in range(MAX_READS_PER_WAKE):
+            try:
+                data = self._read_chunk()
+            except OSError as exc:
+                log.warning("MAVLink %s: read failed: %s", self.url, exc)
+                data = None
+            if data is None:
+                self._on_stream_closed()
+                return
+            if not data:
+                break
+            self._parse(data)
+        self._register_fd()
+
+    def _parse(self, data: bytes) -> None:
+        mav = self.conn.mav
+        try:
+            msgs = mav.parse_buffer(data) or ()
+        except Exception as exc:  # noqa: BLE001 - a hostile frame must never crash the daemon
+            self.counters.rx_malformed += 1
+            log.debug("MAVLink %s: unparsable input: %s", self.url, exc)
+            mav.buf = bytearray()
+            mav.buf_index = 0
+            return
+        bad_prefix_seen = False
+        for msg in msgs:
+            if msg.get_type() == "BAD_DATA":
+                reason = str(getattr(msg, "reason", ""))
+                if "ignature" in reason:
+                    self.counters.rx_bad_signature += 1
+                elif "prefix" in reason:
+                    if not bad_prefix_seen:          # a run of junk bytes counts once per read
+                        self.counters.rx_malformed += 1
+                        bad_prefix_seen = True
+                else:
+                    self.counters.rx_malformed += 1
+                continue
+            self.counters.rx_messages += 1
+            try:
+                self.on_message(self, msg)
+            except Exception:  # noqa: BLE001 - a handler bug must not take the link down
+                self.counters.rx_malformed += 1
+                log.exception("MAVLink %s: handling %s failed", self.url, msg.get_type())
+
+    def _on_stream_closed(self) -> None:
+        self.counters.reconnects += 1
+        if self.kind == "tcpin":
+            log.info("MAVLink %s: client disconnected", self.url)
+            try:
+                self.conn.port.close()
+            except OSError:
+                pass
+            self.conn.port = None
+            self.conn.fd = self.conn.listen.fileno()
+            self._register_fd()
+            return
+        log.info("MAVLink %s: connection closed by peer; reconnecting", self.url)
+        if self._fd is not None:
+            self._loop.remove_reader(self._fd)
+            self._fd = None
+        try:
+            self.conn.close()
+        except OSError:
+            pass
+        self.conn = None
+        self._connect_task = self._loop.create_task(self._connect_tcp())
+
+
+def is_for_us(msg, system_id: int, component_id: int) -> tuple[bool, bool]:
+    """MAVLink routing rule (anchor §1.6): (process it?, was it broadcast to all components?).
+
+    Process when target_system is absent/0, or equals ours and target_component is absent/0 or ours.
+    """
+    ts = getattr(msg, "target_system", 0)
+    tc = getattr(msg, "target_component", 0)
+    if ts not in (0, system_id):
+        return False, False
+    if tc == 0:
+        return True, True
+    return tc == component_id, False
+
+
+def free_udp_port() -> int:
+    """A free UDP port on 127.0.0.1 from the OS (tests and benchmarks)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]

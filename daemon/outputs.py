@@ -1,0 +1,96 @@
+"""Message rates: one absolute-deadline schedule per output message, settable at run time.
+
+Intervals follow MAV_CMD_SET_MESSAGE_INTERVAL semantics (anchor §1.2): interval in µs, −1 disables, 0 restores
+the configured default. Deadlines are absolute (`due += interval`), so rates do not drift with scheduling
+jitter; after a stall the schedule restarts from now instead of bursting to catch up.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ahrsd.daemon.mavlink_io import mavlink
+
+MSG_ATTITUDE = mavlink.MAVLINK_MSG_ID_ATTITUDE
+MSG_ATTITUDE_QUATERNION = mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION
+MSG_VISION_POSITION_ESTIMATE = mavlink.MAVLINK_MSG_ID_VISION_POSITION_ESTIMATE
+MSG_HIGHRES_IMU = mavlink.MAVLINK_MSG_ID_HIGHRES_IMU
+MSG_SCALED_IMU = mavlink.MAVLINK_MSG_ID_SCALED_IMU
+MSG_SYS_STATUS = mavlink.MAVLINK_MSG_ID_SYS_STATUS
+
+# config key (OutputsConfig field) → message id, in publishing order
+OUTPUT_KEYS = {
+    "attitude_hz": MSG_ATTITUDE,
+    "attitude_quaternion_hz": MSG_ATTITUDE_QUATERNION,
+    "vision_position_estimate_hz": MSG_VISION_POSITION_ESTIMATE,
+    "highres_imu_hz": MSG_HIGHRES_IMU,
+    "scaled_imu_hz": MSG_SCALED_IMU,
+    "sys_status_hz": MSG_SYS_STATUS,
+}
+MAX_RATE_HZ = {MSG_VISION_POSITION_ESTIMATE: 50.0}   # EKF3 extNavIntervalMin_ms = 20 ms
+DEFAULT_MAX_RATE_HZ = 200.0
+
+
+@dataclass
+class _Stream:
+    default_hz: float
+    rate_hz: float
+    due: float = 0.0
+
+
+class OutputSchedule:
+    def __init__(self, rates_hz: dict[int, float]):
+        self._streams = {mid: _Stream(hz, hz) for mid, hz in rates_hz.items()}
+
+    def __contains__(self, message_id: int) -> bool:
+        return message_id in self._streams
+
+    def ids(self):
+        return self._streams.keys()
+
+    def rate_hz(self, message_id: int) -> float:
+        return self._streams[message_id].rate_hz
+
+    def max_rate_hz(self, message_id: int) -> float:
+        return MAX_RATE_HZ.get(message_id, DEFAULT_MAX_RATE_HZ)
+
+    def set_rate_hz(self, message_id: int, hz: float, *, default: bool = False) -> None:
+        s = self._streams[message_id]
+        if not 0.0 <= hz <= self.max_rate_hz(message_id):
+            raise ValueError(f"rate {hz:g} Hz outside [0, {self.max_rate_hz(message_id):g}]")
+        s.rate_hz = hz
+        s.due = 0.0
+        if default:
+            s.default_hz = hz
+
+    def set_interval_us(self, message_id: int, interval_us: float) -> None:
+        """SET_MESSAGE_INTERVAL: −1 off, 0 default, else the interval in µs. Raises ValueError if out of range."""
+        if interval_us == -1:
+            self.set_rate_hz(message_id, 0.0)
+        elif interval_us == 0:
+            self.set_rate_hz(message_id, self._streams[message_id].default_hz)
+        elif interval_us > 0:
+            self.set_rate_hz(message_id, 1e6 / interval_us)
+        else:
+            raise ValueError(f"interval {interval_us:g} µs is neither −1, 0 nor positive")
+
+    def interval_us(self, message_id: int) -> int:
+        """MESSAGE_INTERVAL.interval_us: −1 when disabled."""
+        hz = self._streams[message_id].rate_hz
+        return -1 if hz <= 0.0 else int(round(1e6 / hz))
+
+    def due(self, now: float) -> list[int]:
+        """Messages whose deadline has come; advances their deadlines."""
+        out = []
+        for mid, s in self._streams.items():
+            if s.rate_hz <= 0.0:
+                continue
+            if s.due == 0.0:
+                s.due = now
+            if now >= s.due:
+                out.append(mid)
+                period = 1.0 / s.rate_hz
+                s.due += period
+                if s.due <= now:                  # stalled for more than a period: restart, no burst
+                    s.due = now + period
+        return out

@@ -1,0 +1,293 @@
+"""The per-sample path: sample source → mounting rotation → calibration → estimator.
+
+Sources (`SampleSource`) hand over every sample that became available since the previous poll:
+* `DriverSource`: the ADIS16405 driver on any SpiBus — the real chip (`SpidevBus`) or the byte-level
+  simulated chip (`SimulatedAdis16405` with a real-time clock). Each poll burst-reads until the chip reports
+  no new data (ND clear → STALE).
+* `ReplaySource`: a recording, paced by its timestamps (or as fast as possible).
+
+`Pipeline.process(raw)` is the hot path (once per sample): it must stay cheap, so the mounting rotation is
+skipped when it is the identity and calibration/estimator swaps are single attribute assignments, which the
+single-threaded event loop makes atomic between two samples.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Iterator, Protocol
+
+import numpy as np
+
+from ahrsd.drivers.sample import ImuSample, SampleFlags
+
+log = logging.getLogger(__name__)
+
+ADIS16405_RATE_HZ = 819.2          # ADIS16405 datasheet: default SMPL_PRD = 0x01 → 819.2 SPS
+MAX_SAMPLES_PER_POLL = 64          # bound one poll's work (a stall is reported as a gap, not a burst)
+INVALID = SampleFlags.GYRO_INVALID | SampleFlags.ACCEL_INVALID | SampleFlags.MAG_INVALID
+
+
+class SampleSource(Protocol):
+    sample_rate_hz: float
+    description: str
+
+    def poll(self) -> list[ImuSample]:
+        """Every new sample since the last call (possibly none). Raises DriverError on bus failure."""
+
+    def counters(self) -> dict: ...
+
+    def close(self) -> None: ...
+
+
+class DriverSource:
+    """The ADIS16405 driver: drains the chip on each poll (burst reads until ND is clear)."""
+
+    def __init__(self, driver, bus, description: str):
+        self.driver = driver
+        self.bus = bus
+        self.description = description
+        self.sample_rate_hz = float(getattr(driver, "sample_rate_hz", ADIS16405_RATE_HZ) or ADIS16405_RATE_HZ)
+        self.timer = SampleTimer(1.0 / self.sample_rate_hz)
+        self.stale_reads = 0
+        self.lost_samples = 0
+
+    per_sample = True   # read once per chip sample on the phase lock (see SamplePhaseLock)
+
+    def read_one(self, now: float) -> ImuSample | None:
+        """One burst read at host time `now`: the new sample (re-timed by the SampleTimer: t_s on the sample
+        grid in CLOCK_MONOTONIC seconds, counter = sample index, GAP_BEFORE after lost samples), or None when
+        the chip has no new sample yet (ND clear)."""
+        s = self.driver.read_sample()
+        if s.flags & SampleFlags.STALE:
+            self.stale_reads += 1
+            self.timer.stale(now)
+            return None
+        t_s, k, lost = self.timer.fresh(now)
+        flags = s.flags
+        if lost:
+            self.lost_samples += lost
+            flags |= SampleFlags.GAP_BEFORE
+        return ImuSample(t_s, s.gyro_rad_s, s.accel_m_s2, s.mag_ut, s.temp_c, s.supply_v, flags, s.diag_stat, k)
+
+    def next_read_time(self) -> float:
+        return self.timer.next_read_time()
+
+    def poll(self, now: float | None = None) -> list[ImuSample]:
+        s = self.read_one(time.monotonic() if now is None else now)
+        return [] if s is None else [s]
+
+    def counters(self) -> dict:
+        c = dict(getattr(self.driver, "counters", {}) or {})
+        c["stale_reads"] = self.stale_reads
+        c["lost_samples_host"] = self.lost_samples
+        return c
+
+    def close(self) -> None:
+        try:
+            self.bus.close()
+        except Exception:  # noqa: BLE001 - closing must not mask the shutdown reason
+            log.debug("closing the SPI bus failed", exc_info=True)
+
+
+class ReplaySource:
+    """Samples from a recording, released when their time comes (realtime) or all at once (fast)."""
+
+    per_sample = False   # polled on a fixed tick; each poll returns every sample that is due
+
+    def __init__(self, samples: Iterator[ImuSample], description: str, realtime: bool = True,
+                 rate_hz: float = ADIS16405_RATE_HZ, clock=time.monotonic):
+        self._it = iter(samples)
+        self.description = description
+        self.realtime = realtime
+        self.sample_rate_hz = rate_hz
+        self._clock = clock
+        self._pending: ImuSample | None = None
+        self._t0_clock: float | None = None
+        self._t0_sample = 0.0
+        self.finished = False
+
+    def poll(self) -> list[ImuSample]:
+        out: list[ImuSample] = []
+        now = self._clock()
+        while len(out) < MAX_SAMPLES_PER_POLL:
+            if self._pending is None:
+                try:
+                    self._pending = next(self._it)
+                except StopIteration:
+                    self.finished = True
+                    break
+                if self._t0_clock is None:
+                    self._t0_clock, self._t0_sample = now, self._pending.t_s
+            if self.realtime and self._pending.t_s - self._t0_sample > now - self._t0_clock:
+                break
+            out.append(self._pending)
+            self._pending = None
+        return out
+
+    def counters(self) -> dict:
+        return {}
+
+    def close(self) -> None:
+        close = getattr(self._it, "close", None)
+        if close:
+            close()
+
+
+def open_source(sensor_cfg, clock=time.monotonic) -> SampleSource:
+    """Build the configured source (imports the driver stack lazily)."""
+    if sensor_cfg.source == "replay":
+        from ahrsd.drivers.recording import iter_samples
+
+        return ReplaySource(iter_samples(sensor_cfg.replay_file), f"replay {sensor_cfg.replay_file}",
+                            realtime=sensor_cfg.replay_realtime, clock=clock)
+    from ahrsd.drivers.adis16405 import Adis16405
+
+    if sensor_cfg.source == "spi":
+        from ahrsd.drivers.spi import SpidevBus
+
+        bus = SpidevBus(sensor_cfg.spi_device)
+        description = f"ADIS16405 on {sensor_cfg.spi_device}"
+    else:
+        from ahrsd.drivers.simulated import SimulatedAdis16405
+
+        bus = SimulatedAdis16405(scenario=sensor_cfg.scenario, seed=sensor_cfg.seed, errors=sensor_cfg.errors,
+                                 clock=clock)
+        description = f"simulated ADIS16405 ({sensor_cfg.scenario})"
+    driver = Adis16405(bus)   # no host clock: the DriverSource's SampleTimer times and counts the samples
+    try:
+        driver.start()
+    except Exception:
+        bus.close()
+        raise
+    return DriverSource(driver, bus, description)
+
+
+def mounting_matrix(rpy_deg) -> np.ndarray | None:
+    """Body←sensor DCM from ZYX Euler angles of the sensor axes in the body frame; None for the identity."""
+    r, p, y = (math.radians(float(a)) for a in rpy_deg)
+    if r == p == y == 0.0:
+        return None
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    # C = Rz(yaw) · Ry(pitch) · Rx(roll), the same convention as C_b^n (design §4)
+    return np.array([
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ])
+
+
+@dataclass
+class PipelineCounters:
+    samples: int = 0
+    gaps: int = 0                # discontinuities in the sample counter (one per gap)
+    lost_samples: int = 0        # samples missing inside those gaps
+    invalid_samples: int = 0     # samples flagged GYRO/ACCEL/MAG_INVALID
+    estimator_errors: int = 0
+
+
+@dataclass
+class Pipeline:
+    """Driver output in, calibrated sample and attitude estimate out."""
+
+    estimator: object
+    calibration: object
+    mounting: np.ndarray | None = None
+    counters: PipelineCounters = field(default_factory=PipelineCounters)
+    last_sample: ImuSample | None = None       # calibrated, body frame
+    last_estimate: object | None = None
+    _last_counter: int | None = None
+
+    def set_mounting(self, rpy_deg) -> None:
+        self.mounting = mounting_matrix(rpy_deg)
+
+    def process(self, raw: ImuSample):
+        """One sample through mounting, calibration and the estimator; returns the estimate."""
+        c = self.counters
+        c.samples += 1
+        if self._last_counter is not None:
+            missing = raw.counter - self._last_counter - 1
+            if missing > 0 or raw.flags & SampleFlags.GAP_BEFORE:
+                c.gaps += 1
+                c.lost_samples += max(missing, 0)
+        self._last_counter = raw.counter
+        if raw.flags & INVALID:
+            c.invalid_samples += 1
+        m = self.mounting
+        if m is not None:
+            raw = ImuSample(raw.t_s, m @ raw.gyro_rad_s, m @ raw.accel_m_s2, m @ raw.mag_ut, raw.temp_c,
+                            raw.supply_v, raw.flags, raw.diag_stat, raw.counter)
+        sample = self.calibration.apply(raw)
+        self.last_sample = sample
+        try:
+            est = self.estimator.update(sample)
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
+            c.estimator_errors += 1
+            if c.estimator_errors in (1, 100, 10000):
+                log.error("estimator rejected sample %d: %s; resetting it", raw.counter, exc)
+            self.estimator.reset()
+            return None
+        self.last_estimate = est
+        return est
+
+
+class SampleTimer:
+    """Time stamps and sample indices for a chip that keeps only its latest sample (the ADIS16405).
+
+    The chip produces sample k at ready_k = φ + k·P on its own clock and has no sample counter, so gaps can
+    only be seen from the host clock. The phase φ is bracketed by the reads themselves: a fresh sample read
+    at T proves ready_k ≤ T, i.e. φ ≤ T − k·P; a stale read at T proves the next sample was not ready,
+    φ > T − (k_last+1)·P. Reading at the middle of the bracket bisects it, so within a few samples the reader
+    wakes just after each sample is ready, and k = ⌊(T − φ_hi)/P⌋ (never less than k_last + 1) says how many
+    samples were lost in between. Both bounds leak outwards slowly so the lock follows clock drift.
+    Time stamps t_s = φ_hi + k·P lie on the exact sample grid, in CLOCK_MONOTONIC seconds.
+    """
+
+    LEAK_S_PER_S = 100e-6   # bracket widening per second (oscillator drift between chip and host)
+    GUARD_S = 50e-6         # read this much after the predicted ready time
+
+    def __init__(self, period_s: float):
+        self.period_s = period_s
+        self.lo: float | None = None   # φ > lo
+        self.hi: float | None = None   # φ ≤ hi
+        self.k = -1                    # index of the last fresh sample
+        self._t_lo = 0.0
+        self._t_hi = 0.0
+
+    def _leak(self, now: float) -> None:
+        self.hi += self.LEAK_S_PER_S * (now - self._t_hi)
+        self.lo -= self.LEAK_S_PER_S * (now - self._t_lo)
+        self._t_hi = self._t_lo = now
+
+    def fresh(self, read_time: float) -> tuple[float, int, int]:
+        """A new sample was read at `read_time`: its (t_s, index, samples lost before it)."""
+        P = self.period_s
+        if self.hi is None:
+            self.hi, self.lo, self.k = read_time, read_time - P, 0
+            self._t_hi = self._t_lo = read_time
+            return read_time, 0, 0
+        self._leak(read_time)
+        k = max(self.k + 1, math.floor((read_time - self.hi) / P))
+        lost = k - self.k - 1
+        self.k = k
+        self.hi = min(self.hi, read_time - k * P)
+        if self.lo >= self.hi:                       # contradicting bounds: trust the newest
+            self.lo = self.hi - 0.25 * P
+        return self.hi + k * P, k, lost
+
+    def stale(self, read_time: float) -> None:
+        """The chip had no new sample at `read_time`."""
+        if self.hi is None:
+            return
+        self._leak(read_time)
+        self.lo = max(self.lo, read_time - (self.k + 1) * self.period_s)
+        if self.lo >= self.hi:
+            self.hi = self.lo + self.GUARD_S
+
+    def next_read_time(self) -> float:
+        """When to read for the next sample (0 before the first one: now)."""
+        if self.hi is None:
+            return 0.0
+        return 0.5 * (self.lo + self.hi) + (self.k + 1) * self.period_s + self.GUARD_S

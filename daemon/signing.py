@@ -1,0 +1,82 @@
+"""MAVLink 2 signing set-up (anchor §1.5): key loading and the persisted signing timestamp.
+
+The key file holds the 32-byte secret either raw or as 64 hex characters. The key is never logged (only a
+short SHA-256 fingerprint, which identifies the key without revealing it). The signing timestamp (10 µs units
+since 2015-01-01) must never go backwards, even across reboots of a computer without an RTC, so the last one
+is stored in the state directory and the next run starts at max(clock, stored + 1 minute).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import tempfile
+import time
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+SIGNING_EPOCH_UNIX_S = 1420070400   # 2015-01-01T00:00:00Z (MAVLink signing spec)
+TIMESTAMP_FILE = "signing_timestamp"
+ONE_MINUTE = 60 * 100_000           # in 10 µs units
+
+
+class SigningKeyError(ValueError):
+    pass
+
+
+def load_key(path: str | os.PathLike) -> bytes:
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise SigningKeyError(f"signing.key_file {path}: cannot read ({exc.strerror})") from None
+    text = data.strip()
+    if len(text) == 64:
+        try:
+            return bytes.fromhex(text.decode("ascii"))
+        except (UnicodeDecodeError, ValueError):
+            pass
+    if len(data) == 32:
+        return data
+    raise SigningKeyError(f"signing.key_file {path}: expected 32 raw bytes or 64 hex characters "
+                          f"(found {len(data)} bytes)")
+
+
+def key_fingerprint(key: bytes) -> str:
+    return hashlib.sha256(key).hexdigest()[:8]
+
+
+def clock_timestamp(now_unix_s: float | None = None) -> int:
+    now = time.time() if now_unix_s is None else now_unix_s
+    return max(0, int((now - SIGNING_EPOCH_UNIX_S) * 100_000))
+
+
+def initial_timestamp(state_dir: Path | None) -> int:
+    stored = read_timestamp(state_dir)
+    return max(clock_timestamp(), stored + ONE_MINUTE if stored else 0)
+
+
+def read_timestamp(state_dir: Path | None) -> int:
+    if state_dir is None:
+        return 0
+    try:
+        return int((Path(state_dir) / TIMESTAMP_FILE).read_text().strip())
+    except (OSError, ValueError):
+        return 0
+
+
+def save_timestamp(state_dir: Path | None, timestamp: int) -> None:
+    if state_dir is None or timestamp <= 0:
+        return
+    path = Path(state_dir) / TIMESTAMP_FILE
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=".signing.", dir=path.parent)
+        with os.fdopen(fd, "w") as f:
+            f.write(f"{int(timestamp)}\n")
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as exc:
+        log.warning("cannot store the signing timestamp in %s: %s", path, exc)

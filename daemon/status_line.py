@@ -1,0 +1,45 @@
+"""The compact live status line `ahrsd run` prints when stdout is a terminal."""
+
+from __future__ import annotations
+
+import math
+
+from ahrsd.daemon.health import STATE_NAMES
+
+
+def format_status(s, now: float) -> str:
+    """One line: sample rate, attitude, true heading, state, and the counters a user should watch."""
+    est = s.pipeline.last_estimate if s.pipeline else None
+    rate = s.measured_rate_hz
+    parts = [f"{rate:6.1f} SPS"]
+    if est is None:
+        parts.append("attitude --")
+    else:
+        parts.append(f"roll {math.degrees(est.roll_rad):+6.1f} pitch {math.degrees(est.pitch_rad):+6.1f}")
+        parts.append(f"hdg {math.degrees(est.heading_true_rad) % 360.0:5.1f}T "
+                     f"±{math.degrees(float(est.sigma_rpy_rad[2])):4.1f}")
+    parts.append(STATE_NAMES.get(s.health.system_status(now), "?"))
+    c = s.pipeline.counters if s.pipeline else None
+    link = s.link_totals()
+    parts.append(f"gaps {c.gaps if c else 0} ovr {s.counters.overruns} "
+                 f"tx {link['tx']} rx {link['rx']} bad {link['bad']}")
+    if s.autopilot.system_id is not None:
+        parts.append(f"AP {s.autopilot.system_id}{' ARMED' if s.autopilot.armed else ''}")
+    return " | ".join(parts)
+
+
+class StatusLine:
+    def __init__(self, stream):
+        self.stream = stream
+        self.shown = False
+
+    def update(self, text: str) -> None:
+        self.stream.write("\r" + text + "\x1b[K")
+        self.stream.flush()
+        self.shown = True
+
+    def clear(self) -> None:
+        if self.shown:
+            self.stream.write("\r\x1b[K")
+            self.stream.flush()
+            self.shown = False
