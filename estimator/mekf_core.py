@@ -39,18 +39,18 @@ S_ACC_I = 59          # 3: specific force low-passed in the NED frame, m/s²
 S_GYR_LAST = 62       # 3: last valid gyro sample, rad/s
 S_T_RUN = 65          # time since initialisation, s
 S_MAG_DIST_T = 66     # time the field has been continuously disturbed, s
+S_ACC_REJ_T = 67      # time since the last accepted tilt update, s
 S_SIZE = 72
 
 # ----------------------------------------------------------------------------------- parameter layout
 P_GYRO_NOISE = 0        # gyro angle random walk, rad/s/√Hz
-P_GYRO_MOTION = 1       # extra attitude process noise per rad/s of rotation rate (scale/misalignment), √s
 P_BIAS_WALK = 2         # gyro bias random walk, rad/s/√s
 P_BIAS_CLIP = 3         # |bias| limit per axis, rad/s
 P_ACC_NOISE = 4         # accelerometer noise in motion (includes typical linear acceleration), m/s²
 P_ACC_NOISE_REST = 5    # accelerometer noise at rest, m/s²
 P_ACC_NORM_GAIN = 6     # extra acc noise per m/s² of | |f| − g |, dimensionless
 P_ACC_REJECT = 7        # reject the accelerometer when | |f| − g | exceeds this, m/s²
-P_ACC_GATE = 8          # innovation gate, in σ
+P_ACC_GATE = 8          # tilt innovation gate (angle between measured and estimated vertical), rad
 P_ACC_TAU = 9           # time constant of the NED-frame low-pass of the specific force, s (0 = off)
 P_MAG_NOISE = 10        # magnetometer noise per axis, µT
 P_MAG_HEADING_NOISE = 11  # heading noise floor (residual calibration, local field), rad
@@ -74,7 +74,9 @@ P_CONV_TILT = 28        # ... and until 1σ tilt is below this, rad
 P_CONV_YAW = 29         # ... and 1σ yaw below this, rad
 P_MAG_ENABLED = 30      # 1.0 = use the magnetometer, 0.0 = 6-axis (heading from gyro only)
 P_MAG_REJECT_MAX = 31   # after this long continuously disturbed, the field is trusted again with inflated noise, s
-P_SIZE = 32
+P_MAG_HEADING_NOISE_REST = 32  # heading noise floor at rest (no dynamic errors), rad
+P_ACC_GATE_RECOVER = 33  # after this long without a tilt update the innovation gate is bypassed once, s
+P_SIZE = 34
 
 # ----------------------------------------------------------------------------------- flags (= EstimateFlags)
 F_INITIALISING = 1
@@ -298,8 +300,6 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, valid, out):
         ob21 = state[p + 16]
         ob22 = state[p + 17]
         qa = par[P_GYRO_NOISE] * par[P_GYRO_NOISE] * dt
-        gm = par[P_GYRO_MOTION] * rate
-        qa += gm * gm * dt
         qb = par[P_BIAS_WALK] * par[P_BIAS_WALK] * dt
         # rows i of A': A[i][j] − Σk ob[i][k] m[j][k] − Σk m[i][k] b[j][k]
         state[p + 0] += qa - (ob00 * m00 + ob01 * m01 + ob02 * m02) - (m00 * b00 + m01 * b01 + m02 * b02)
@@ -395,9 +395,9 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, valid, out):
         if at_rest:
             # learn |g| as this accelerometer sees it (scale error) while nothing moves
             state[S_G_REF] += 0.001 * (fnorm - g_ref)
-        dev = abs(fnorm - g_ref)
         tau = par[P_ACC_TAU]
         if tau > 0.0 and dt > 0.0:
+            # low-pass in the (estimated) NED frame: linear acceleration averages out, gravity stays (VQF)
             ka = 1.0 - math.exp(-dt / tau)
             state[S_ACC_I] += ka * (fn - state[S_ACC_I])
             state[S_ACC_I + 1] += ka * (fe - state[S_ACC_I + 1])
@@ -410,9 +410,9 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, valid, out):
             ue = fe
             ud = fd
         unorm = math.sqrt(un * un + ue * ue + ud * ud)
-        if dev > par[P_ACC_REJECT] or unorm < 0.5 * g_ref:
-            flags |= F_ACCEL_REJECTED
-        else:
+        dev = abs(unorm - g_ref)  # sustained linear acceleration left after the low-pass
+        accepted = False
+        if dev <= par[P_ACC_REJECT] and unorm > 0.5 * g_ref:
             if at_rest:
                 sig = par[P_ACC_NOISE_REST]
             else:
@@ -423,18 +423,22 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, valid, out):
             # unit measured "up" in NED: u = [δθ_E, −δθ_N, −1] (+ noise)
             nu_n = un / unorm
             nu_e = ue / unorm
-            gate2 = par[P_ACC_GATE] ** 2
-            s_n = state[S_P + 1 * 6 + 1] + r
-            s_e = state[S_P + 0 * 6 + 0] + r
-            if nu_n * nu_n > gate2 * s_n or nu_e * nu_e > gate2 * s_e:
-                flags |= F_ACCEL_REJECTED
-            else:
+            # gate on the angle itself: the covariance of a low-passed (correlated) measurement is no
+            # honest yardstick, an angle is (a sustained turn or a wrong tilt)
+            gated = nu_n * nu_n + nu_e * nu_e > par[P_ACC_GATE] ** 2
+            if not gated or state[S_ACC_REJ_T] > par[P_ACC_GATE_RECOVER]:
                 d0, d1, d2, d3, d4, d5 = _scalar_update(state, 1, 1.0, nu_n, r)
                 _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
                 # second component: innovation re-evaluated after the first correction (sequential update)
-                nu_e2 = nu_e - (-d0)
+                nu_e2 = nu_e + d0
                 d0, d1, d2, d3, d4, d5 = _scalar_update(state, 0, -1.0, nu_e2, r)
                 _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
+                accepted = True
+        if accepted:
+            state[S_ACC_REJ_T] = 0.0
+        else:
+            flags |= F_ACCEL_REJECTED
+            state[S_ACC_REJ_T] += dt
 
     # ------------------------------------------------------------------ magnetometer: heading only
     mag_used = False
@@ -498,7 +502,8 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, valid, out):
                 # heading measurement: angle of the horizontal field in the estimated NED frame, α = −δθ_D
                 alpha = math.atan2(me, mn)
                 sig_a = par[P_MAG_NOISE] / mh
-                r = (sig_a * sig_a + par[P_MAG_HEADING_NOISE] ** 2) * inflate
+                floor = par[P_MAG_HEADING_NOISE_REST] if at_rest else par[P_MAG_HEADING_NOISE]
+                r = (sig_a * sig_a + floor * floor) * inflate
                 s = state[S_P + 2 * 6 + 2] + r
                 if alpha * alpha > par[P_MAG_GATE] ** 2 * s and inflate == 1.0:
                     flags |= F_MAG_REJECTED
