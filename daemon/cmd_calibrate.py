@@ -1,0 +1,486 @@
+"""`ahrsd calibrate {allan,accel,gyro,mag}`: bench calibrations from a recording (or, for accel, live).
+
+Each fit is written through the calibration store (merged with the stored calibration's other sensors) unless
+it was refused or `--dry-run` is given. Output is for a person, or with `--json` one JSON object whose keys
+are a public interface (docs/calibration.md):
+  mag:   hard_iron_ut [3], soft_iron [3][3], residual_rms_ut      calibrated = soft_iron · (raw − hard_iron)
+  accel: bias_m_s2 [3], matrix [3][3]                             calibrated = matrix · (raw − bias) (+ quadratic)
+  gyro:  bias_rad_s [3], matrix [3][3]                            calibrated = matrix · (raw − bias)
+  allan: <sensor>.<axis>.white_noise, .bias_instability (+ kalman Q/R)
+Exit status: 0 fitted (and saved), 1 refused or failed, 2 bad usage.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+DEFAULT_STATE_DIR = "/var/lib/ahrsd"
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "calibrate",
+        help="bench calibration: Allan noise analysis, accelerometer, gyro and magnetometer fits",
+        description="Fit a sensor's error model to a recording (see `ahrsd record`) and store it in the state "
+        "directory (atomic, checksummed, previous version kept).",
+    )
+    sub = p.add_subparsers(dest="sensor", metavar="SENSOR", required=True)
+
+    def common(sp, recording_required=True):
+        if recording_required:
+            sp.add_argument("recording", metavar="RECORDING", help="CSV recording (ahrsd record)")
+        sp.add_argument("--state-dir", default=DEFAULT_STATE_DIR, help="where the calibration is stored")
+        sp.add_argument("--json", action="store_true", help="print one JSON object instead of a report")
+        sp.add_argument("--plot", metavar="FILE.png", help="write a plot (matplotlib)")
+        sp.add_argument("--dry-run", action="store_true", help="fit and report, but do not save")
+        sp.add_argument("--sensor-id", default=None, help="sensor serial or id to record in the metadata")
+        sp.set_defaults(func=run)
+
+    a = sub.add_parser("allan", help="Allan-variance noise analysis of a static recording (ARW/VRW, bias "
+                       "instability, Kalman Q/R); writes noise.json to the state directory")
+    common(a)
+
+    c = sub.add_parser("accel", help="multi-position accelerometer calibration (12 parameters) from the still "
+                       "periods of a recording, or live (--live) with operator guidance")
+    c.add_argument("recording", metavar="RECORDING", nargs="?", help="CSV recording (omit with --live)")
+    common(c, recording_required=False)
+    c.add_argument("--lat", type=float, default=None, help="latitude (deg) for local gravity (default: 9.80665)")
+    c.add_argument("--alt-m", type=float, default=0.0, help="height above the ellipsoid (m) for local gravity")
+    c.add_argument("--terms", default="auto", choices=("auto", "6", "9", "12"),
+                   help="model size: 12 = bias, scale, misalignment, quadratic (thesis)")
+    c.add_argument("--min-still-s", type=float, default=3.0, help="shortest still period used as a position")
+    c.add_argument("--live", action="store_true", help="guided live calibration from the sensor")
+    c.add_argument("--sim", metavar="SCENARIO", help="with --live: the simulated chip running this scenario")
+    c.add_argument("--spi", metavar="DEV", help="with --live: the real ADIS16405 on this spidev node")
+    c.add_argument("--timeout-s", type=float, default=900.0, help="with --live: give up after this long")
+
+    g = sub.add_parser("gyro", help="rate-table gyro calibration (12 parameters) or bias only")
+    common(g)
+    g.add_argument("--bias-only", action="store_true", help="bias from the still periods (no rate table)")
+    g.add_argument("--table-rate-deg-s", type=float, default=None,
+                   help="the rate table's rate (table axis vertical); default: the recording's truth columns")
+
+    m = sub.add_parser("mag", help="magnetometer calibration (ellipsoid, two-step, three-step, backstepping)")
+    common(m)
+    m.add_argument("--lat", type=float, required=True, help="latitude (deg) of the calibration site (WMM2025)")
+    m.add_argument("--lon", type=float, required=True, help="longitude (deg)")
+    m.add_argument("--alt-m", type=float, default=0.0, help="height above the ellipsoid (m)")
+    m.add_argument("--date", default=None, help="YYYY-MM-DD (default today)")
+    m.add_argument("--method", default="ellipsoid", choices=("ellipsoid", "two-step", "three-step", "backstepping"))
+    m.add_argument("--align-recording", metavar="FILE", default=None,
+                   help="three-step: a recording of levelled turns about each axis for the alignment step")
+
+
+# ---------------------------------------------------------------------------------------------- helpers
+
+
+class _Fail(Exception):
+    """A reported failure: message for the person, exit status 1."""
+
+
+def _read(path):
+    from ahrsd.drivers.recording import RecordingFormatError, read_recording
+
+    try:
+        rec = read_recording(path)
+    except FileNotFoundError:
+        raise _Fail(f"{path}: no such file") from None
+    except (RecordingFormatError, ValueError, OSError) as exc:
+        raise _Fail(f"cannot read the recording: {exc}") from None
+    if len(rec) < 16:
+        raise _Fail(f"{path}: only {len(rec)} samples")
+    return rec
+
+
+def _fmt_vec(v, fmt="{:+.5f}"):
+    return "[" + ", ".join(fmt.format(x) for x in v) + "]"
+
+
+def _fmt_mat(m, fmt="{:+.6f}", indent="    "):
+    return "\n".join(indent + _fmt_vec(row, fmt) for row in m)
+
+
+def _save(args, sensor, model, meta):
+    """Merge into the stored calibration and save; returns (path or None, note)."""
+    from ahrsd.calibration.store import CalibrationStore
+
+    if args.dry_run:
+        return None, "not saved (--dry-run)"
+    store = CalibrationStore(args.state_dir)
+    current = store.load()
+    cal = current.with_sensor(sensor, model, **meta)
+    if args.sensor_id:
+        cal = type(cal)(cal.gyro, cal.accel, cal.mag, {**cal.metadata, "sensor_id": args.sensor_id})
+    try:
+        path = store.save(cal)
+    except OSError as exc:
+        raise _Fail(f"cannot save to {args.state_dir}: {exc.strerror or exc}") from None
+    report = store.last_load
+    if report is None or report.source == "identity":
+        base = "no earlier calibration"
+    else:
+        base = f"the other sensors of {report.path}"
+    return path, f"saved to {path} (merged with {base}; the previous file is kept as {store.previous_path.name})"
+
+
+def _fmt_value(value) -> str:
+    """Quality values for a person: 4 significant digits."""
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_fmt_value(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k}: {_fmt_value(v)}" for k, v in value.items()) + "}"
+    return str(value)
+
+
+def _emit(args, payload: dict, text: str) -> None:
+    import json
+
+    from ahrsd.calibration.models import _jsonable
+
+    if args.json:
+        print(json.dumps(_jsonable(payload), sort_keys=True))
+    else:
+        print(text)
+
+
+def _stored(args):
+    from ahrsd.calibration.store import CalibrationStore
+
+    return CalibrationStore(args.state_dir).load()
+
+
+# ---------------------------------------------------------------------------------------------- commands
+
+
+def _allan(args) -> int:
+    from ahrsd.calibration.allan import NOISE_FILE_NAME, analyse_static, save_noise_parameters
+
+    rec = _read(args.recording)
+    try:
+        res = analyse_static(rec.t_s, rec.gyro_rad_s, rec.accel_m_s2, rec.mag_ut)
+    except ValueError as exc:
+        raise _Fail(str(exc)) from None
+    payload = res.to_json_dict()
+    note = "not saved (--dry-run)"
+    if not args.dry_run:
+        from pathlib import Path
+
+        try:
+            path = save_noise_parameters(res, Path(args.state_dir) / NOISE_FILE_NAME)
+        except OSError as exc:
+            raise _Fail(f"cannot save to {args.state_dir}: {exc.strerror or exc}") from None
+        note = f"saved to {path}"
+        payload["saved_to"] = str(path)
+    if args.plot:
+        _plot_allan(res, args.plot)
+    lines = [f"Allan analysis of {args.recording}: {res.duration_s / 3600:.2f} h at {res.rate_hz:.1f} Hz"]
+    units = {"gyro": ("ARW", "rad/s/√Hz", "rad/s"), "accel": ("VRW", "m/s²/√Hz", "m/s²"), "mag": ("white", "µT/√Hz", "µT")}
+    for sensor, axes in res.parameters.items():
+        name, wu, bu = units[sensor]
+        lines.append(f"  {sensor}:")
+        for ax, p in axes.items():
+            bi = "not visible" if p.bias_instability is None else f"{p.bias_instability:.3e} {bu} (at τ≈{p.tau_bias_instability_s:.0f} s)"
+            extra = ""
+            if p.gauss_markov_sigma is not None:
+                extra = f", Gauss–Markov σ {p.gauss_markov_sigma:.3e} τc {p.gauss_markov_tau_s:.0f} s"
+            lines.append(f"    {ax}: {name} {p.white_noise:.3e} {wu}; bias instability {bi}{extra}")
+            for flag in p.flags:
+                lines.append(f"       note: {flag}")
+    k = payload["kalman"]
+    if "Q_diag" in k:
+        lines.append("  thesis Kalman Q (eq. 6-1, rad²/s): " + _fmt_vec(k["Q_diag"], "{:.3e}"))
+    if "R_diag" in k:
+        lines.append("  thesis Kalman R (eq. 6-2, µT² then (m/s²)²): " + _fmt_vec(k["R_diag"], "{:.3e}"))
+    lines.append(f"  {note}")
+    _emit(args, payload, "\n".join(lines))
+    return 0
+
+
+def _accel(args) -> int:
+    import numpy as np
+
+    from ahrsd.calibration.accel_cal import fit_accel, find_still_segments, local_gravity_m_s2
+
+    g = local_gravity_m_s2(args.lat, args.alt_m)
+    terms = args.terms if args.terms == "auto" else int(args.terms)
+    if args.live:
+        means, source = _accel_live(args)
+    else:
+        if not args.recording:
+            raise _Fail("give a RECORDING, or --live with --sim SCENARIO or --spi DEV")
+        rec = _read(args.recording)
+        segs = find_still_segments(rec.accel_m_s2, rec.gyro_rad_s, rec.sample_rate_hz, min_still_s=args.min_still_s)
+        means = np.array([s.mean_accel_m_s2 for s in segs]).reshape(-1, 3)
+        source = f"{len(segs)} still periods in {args.recording}"
+    res = fit_accel(means, g, terms)
+    payload = {"sensor": "accel", **res.to_json_dict(), "positions_source": source}
+    lines = [f"Accelerometer calibration ({res.terms} parameters) from {source}; g = {g:.5f} m/s²"
+             + ("" if args.lat is not None else " (standard gravity: give --lat for local gravity)")]
+    q = res.quality
+    lines.append(f"  distinct orientations: {q.get('distinct_orientations')}; faces up: "
+                 + ", ".join(k for k, v in q.get("faces", {}).items() if v))
+    rc = _report_fit(args, res, payload, lines, "accel", lambda m: [
+        "  bias (m/s²): " + _fmt_vec(m.bias_m_s2),
+        "  matrix:\n" + _fmt_mat(m.matrix),
+        "  quadratic (1/(m/s²)): " + _fmt_vec(m.quadratic, "{:+.3e}"),
+        f"  residual |f| − g: RMS {res.residual_rms_m_s2 * 1e3:.3f} mm/s², max {q.get('residual_max_m_s2', float('nan')) * 1e3:.3f} mm/s²",
+    ], {"method": f"multi-position {res.terms}-parameter", "residual_rms_m_s2": res.residual_rms_m_s2,
+        "positions": q.get("positions"), "g_m_s2": g})
+    if args.plot and res.ok:
+        _plot_residuals(np.array(q["position_residuals_m_s2"]) * 1e3, "position", "|f| − g (mm/s²)",
+                        "accelerometer residual per position", args.plot)
+    return rc
+
+
+def _accel_live(args):
+    import sys
+    import time
+
+    from ahrsd.calibration.accel_cal import GuidedSession
+    from ahrsd.drivers.adis16405 import Adis16405
+    from ahrsd.drivers.errors import DriverError, FrameError
+
+    if bool(args.sim) == bool(args.spi):
+        raise _Fail("--live needs exactly one of --sim SCENARIO or --spi DEV")
+    try:
+        if args.sim:
+            from ahrsd.drivers.simulated import SimulatedAdis16405
+
+            bus = SimulatedAdis16405(args.sim, clock=None)
+            clock = None
+        else:
+            from ahrsd.drivers.spi import SpidevBus
+
+            bus = SpidevBus(args.spi)
+            clock = time.monotonic
+        imu = Adis16405(bus, clock=clock)
+        imu.start()
+    except DriverError as exc:
+        raise _Fail(f"sensor: {exc}") from None
+    session = GuidedSession(rate_hz=imu.sample_rate_hz)
+    out = sys.stderr
+    out.write(session.prompt + "\n")
+    t_first = None
+    try:
+        while not session.done:
+            try:
+                sample = imu.read_sample()
+            except FrameError:
+                continue
+            except DriverError as exc:
+                raise _Fail(f"sensor: {exc}") from None
+            t_first = sample.t_s if t_first is None else t_first
+            if sample.t_s - t_first > args.timeout_s:
+                out.write(f"timed out after {args.timeout_s:.0f} s of sensor time; {session.coverage()}\n")
+                break
+            msg = session.feed(sample)
+            if msg:
+                out.write(msg + "\n")
+    except KeyboardInterrupt:
+        out.write(f"\ninterrupted; {session.coverage()}\n")
+    finally:
+        imu.close()
+    return session.position_means(), f"{len(session.recorded)} guided live positions"
+
+
+def _gyro(args) -> int:
+    import math
+
+    import numpy as np
+
+    from ahrsd.calibration import gyro_cal
+    from ahrsd.calibration.accel_cal import find_still_segments
+
+    rec = _read(args.recording)
+    stored = _stored(args)
+    rate = rec.sample_rate_hz
+    if args.bias_only:
+        segs = find_still_segments(rec.accel_m_s2, None, rate, min_still_s=3.0)
+        idx = np.concatenate([np.arange(s.start, s.stop) for s in segs]) if segs else np.arange(len(rec))
+        res = gyro_cal.fit_bias_only(rec.gyro_rad_s[idx], stored.gyro.matrix)
+        source = f"{len(idx)} still samples of {args.recording}"
+    else:
+        accel = stored.accel.apply(rec.accel_m_s2)  # the accelerometer defines the vertical: use it calibrated
+        segs = gyro_cal.steady_segments(rec.gyro_rad_s, accel, rate)
+        if args.table_rate_deg_s is not None:
+            ref = gyro_cal.reference_rates_from_accel(segs, math.radians(args.table_rate_deg_s))
+            source = f"{len(segs)} steady segments, table rate {args.table_rate_deg_s} °/s"
+        elif rec.truth_q_wxyz is not None:
+            truth = gyro_cal.body_rates_from_quaternions(rec.t_s, rec.truth_q_wxyz)
+            ref = gyro_cal.reference_rates_from_truth(segs, truth)
+            source = f"{len(segs)} steady segments, reference from the recording's truth attitude"
+        else:
+            raise _Fail("give --table-rate-deg-s (the recording has no truth columns) or use --bias-only")
+        raw = np.array([s.mean_gyro_rad_s for s in segs]).reshape(-1, 3)
+        res = gyro_cal.fit_rate_table(raw, ref, weights=[s.stop - s.start for s in segs])
+    payload = {"sensor": "gyro", **res.to_json_dict(), "source": source}
+    lines = [f"Gyro calibration ({res.method}) from {source}"]
+    return _report_fit(args, res, payload, lines, "gyro", lambda m: [
+        "  bias (rad/s): " + _fmt_vec(m.bias_rad_s, "{:+.6f}") + "  (°/s: " + _fmt_vec(np.degrees(m.bias_rad_s), "{:+.4f}") + ")",
+        "  matrix:\n" + _fmt_mat(m.matrix),
+        f"  residual RMS {math.degrees(res.residual_rms_rad_s):.4f} °/s",
+    ], {"method": res.method, "residual_rms_rad_s": res.residual_rms_rad_s})
+
+
+def _mag(args) -> int:
+    import datetime as dt
+
+    import numpy as np
+
+    from ahrsd.calibration.magfit import MagFitInput, fit_mag
+    from ahrsd.estimator.wmm import earth_field
+
+    try:
+        date = dt.date.fromisoformat(args.date) if args.date else None
+        ref = earth_field(args.lat, args.lon, args.alt_m, date)
+    except ValueError as exc:
+        print(f"ahrsd calibrate mag: {exc}")
+        return 2
+    rec = _read(args.recording)
+    stored = _stored(args)
+    gyro, accel, _ = stored.apply_arrays(rec.gyro_rad_s, rec.accel_m_s2, None)
+    data = MagFitInput(rec.t_s, rec.mag_ut, accel, gyro)
+    options = {}
+    align_note = None
+    if args.align_recording:
+        if args.method != "three-step":
+            raise _Fail("--align-recording goes with --method three-step")
+        from ahrsd.calibration.mag_alignment import fit_alignment, segment_level_turns
+
+        first = fit_mag("three-step", data, ref)
+        if first.ok:
+            arec = _read(args.align_recording)
+            a_acc = stored.accel.apply(arec.accel_m_s2)
+            turns = segment_level_turns(arec.gyro_rad_s, a_acc, arec.mag_ut, arec.sample_rate_hz)
+            al = fit_alignment(turns, first.model, ref.down_ut)
+            if not al.ok:
+                raise _Fail(f"alignment step refused: {al.refused}")
+            options["alignment"] = al.rotation
+            align_note = f"alignment from {len(turns)} levelled turns, rotation {al.quality['rotation_angle_deg']:.2f}°"
+    try:
+        res = fit_mag(args.method, data, ref, **options)
+    except NotImplementedError as exc:
+        raise _Fail(str(exc)) from None
+    payload = {"sensor": "mag", **res.to_json_dict(), "field_ut": ref.total_ut,
+               "inclination_deg": float(np.degrees(ref.inclination_rad))}
+    lines = [f"Magnetometer calibration ({res.method}) from {len(data)} samples of {args.recording}",
+             f"  reference field (WMM2025 at {args.lat:.4f}, {args.lon:.4f}): |F| = {ref.total_ut:.2f} µT, "
+             f"dip {np.degrees(ref.inclination_rad):.2f}°"]
+    if align_note:
+        lines.append("  " + align_note)
+    q = res.quality
+    rc = _report_fit(args, res, payload, lines, "mag", lambda m: [
+        "  hard iron (µT): " + _fmt_vec(m.hard_iron_ut, "{:+.3f}"),
+        "  soft iron:\n" + _fmt_mat(m.soft_iron),
+        f"  residual | |m| − |F| |: RMS {res.residual_rms_ut:.3f} µT, max {q.get('residual_max_ut', float('nan')):.3f} µT",
+        f"  coverage {q.get('coverage', float('nan')):.0%}; hard-iron 1σ "
+        + _fmt_vec(q.get("sigma_hard_iron_ut", [float("nan")] * 3), "{:.3f}") + " µT",
+    ], {"method": res.method, "residual_rms_ut": res.residual_rms_ut, "field_ut": ref.total_ut,
+        "site": {"lat_deg": args.lat, "lon_deg": args.lon, "alt_m": args.alt_m, "date": args.date}})
+    if args.plot:
+        model = res.model if res.ok else None
+        _plot_mag(rec.mag_ut, model, ref.total_ut, args.plot)
+    return rc
+
+
+def _report_fit(args, res, payload, lines, sensor, describe, meta) -> int:
+    """Common tail: refused → report and 1; else save, report parameters and 0."""
+    if not res.ok:
+        payload["saved_to"] = None
+        lines.append(f"  REFUSED: {res.refused}")
+        _emit(args, payload, "\n".join(lines))
+        return 1
+    model = res.model
+    path, note = _save(args, sensor, model, meta)
+    payload["saved_to"] = None if path is None else str(path)
+    lines += describe(model)
+    for key, value in res.quality.items():
+        if key in ("position_residuals_m_s2", "faces", "rejected_model", "initial_hard_iron_ut"):
+            continue
+        lines.append(f"  {key}: {_fmt_value(value)}")
+    lines.append(f"  {note}")
+    _emit(args, payload, "\n".join(lines))
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------- plots
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _plot_allan(res, path) -> None:
+    plt = _pyplot()
+    sensors = list(res.adev)
+    fig, axes = plt.subplots(1, len(sensors), figsize=(5 * len(sensors), 4), squeeze=False)
+    units = {"gyro": "rad/s", "accel": "m/s²", "mag": "µT"}
+    for ax, sensor in zip(axes[0], sensors):
+        for i, name in enumerate("xyz"):
+            ax.loglog(res.taus_s, res.adev[sensor][:, i], label=name)
+        ax.set_title(f"{sensor} Allan deviation")
+        ax.set_xlabel("τ (s)")
+        ax.set_ylabel(f"σ(τ) ({units[sensor]})")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def _plot_mag(mag_ut, model, field_ut, path) -> None:
+    import numpy as np
+
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.6))
+    cal = None if model is None else model.apply(mag_ut)
+    circle = np.linspace(0, 2 * np.pi, 200)
+    for ax, (i, j) in zip(axes, ((0, 1), (0, 2), (1, 2))):
+        ax.plot(mag_ut[:, i], mag_ut[:, j], ".", ms=1, alpha=0.5, label="raw")
+        if cal is not None:
+            ax.plot(cal[:, i], cal[:, j], ".", ms=1, alpha=0.5, label="calibrated")
+        ax.plot(field_ut * np.cos(circle), field_ut * np.sin(circle), "k--", lw=0.8, label="|F| (WMM)")
+        ax.set_aspect("equal")
+        ax.set_xlabel(f"{'xyz'[i]} (µT)")
+        ax.set_ylabel(f"{'xyz'[j]} (µT)")
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="best", markerscale=8)
+    fig.suptitle("magnetometer before/after calibration" if cal is not None else "magnetometer (fit refused)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def _plot_residuals(values, xlabel, ylabel, title, path) -> None:
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    ax.bar(range(1, len(values) + 1), values)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def run(args) -> int:
+    import sys
+
+    handlers = {"allan": _allan, "accel": _accel, "gyro": _gyro, "mag": _mag}
+    try:
+        return handlers[args.sensor](args)
+    except _Fail as exc:
+        if getattr(args, "json", False):
+            import json
+
+            print(json.dumps({"sensor": args.sensor, "error": str(exc)}))
+        print(f"ahrsd calibrate {args.sensor}: {exc}", file=sys.stderr)
+        return 1
