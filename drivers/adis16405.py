@@ -33,6 +33,7 @@ _FLAG_BITS = R.ND | R.EA
 SUPPLY_PLAUSIBLE_V = (3.0, 6.0)      # the chip stops working outside this; 4.75..5.25 V is nominal
 PLAUSIBLE_RANGE_FACTOR = 1.25        # |value| > 1.25 × full scale cannot come from a working sensor
 BURST_BUG_JUMP_DPS = 100.0           # an X-gyro step bigger than this between samples triggers a check read
+CLOCK_DRIFT = 2e-3                   # chip-vs-host clock rate difference followed, in periods per sample
 STUCK_WINDOW_S = 0.5                 # an axis frozen this long while its siblings move is "stuck"
 
 _SUPPLY_MIN_LSB = int(SUPPLY_PLAUSIBLE_V[0] / R.SUPPLY_V_PER_LSB)
@@ -119,7 +120,7 @@ class Adis16405:
     def _reset_stream_state(self) -> None:
         self._counter = -1                 # index of the last fresh sample
         self._t0_s = 0.0
-        self._last_host_s: float | None = None
+        self._phase = 0.0
         self._last: ImuSample | None = None
         self._prev_gx: int | None = None
         self._prev_raw9 = [None] * 9
@@ -381,19 +382,26 @@ class Adis16405:
         return sample
 
     def _advance_counter(self) -> SampleFlags:
+        """Index the fresh sample. Without a host clock: one period after the previous one.
+
+        With a host clock, gaps are found from the host time of the read in sample periods, `host`: the sample
+        read is the newest the chip has, so host - index lies in [phase, phase + 1). `self._phase` tracks the
+        lowest host - index seen (creeping up by CLOCK_DRIFT per sample so a slower chip clock is followed),
+        and index = max(previous + 1, floor(host - phase)): a late read never invents a gap.
+        """
         self.counters["new_samples"] += 1
         if self._clock is None:
             self._counter += 1
             return SampleFlags.NONE
-        now = self._clock()
-        last = self._last_host_s
-        self._last_host_s = now
-        if last is None or self._counter < 0:
-            # first sample: place it by the host clock since start()
-            self._counter = max(0, int((now - self._t0_s) * self._rate_hz))
+        host = (self._clock() - self._t0_s) * self._rate_hz
+        if self._counter < 0:
+            self._counter = max(0, int(host))
+            self._phase = host - self._counter
             return SampleFlags.NONE
-        steps = max(1, int(round((now - last) * self._rate_hz)))
-        self._counter += steps
+        index = max(self._counter + 1, math.floor(host - self._phase))
+        self._phase = min(self._phase + CLOCK_DRIFT, host - index)
+        steps = index - self._counter
+        self._counter = index
         if steps > 1:
             self.counters["lost_samples"] += steps - 1
             return SampleFlags.GAP_BEFORE

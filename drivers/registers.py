@@ -237,10 +237,8 @@ def diag_faults(diag_stat: int) -> list[str]:
     names = []
     for bit in range(16):
         if diag_stat & (1 << bit):
-            try:
-                names.append(DiagStat(1 << bit).name)
-            except ValueError:
-                names.append(f"BIT{bit}")
+            member = DiagStat._value2member_map_.get(1 << bit)
+            names.append(member.name if member is not None else f"BIT{bit}")
     return names
 
 

@@ -61,10 +61,15 @@ class SimulatedAdis16405:
 
     scenario: a scenario name for `ahrsd.simulation.open_stream`, a ready stream object (`next_block(n)`),
         or a factory `f(rate_hz, start_s) -> stream` (used again when SMPL_PRD changes the rate).
+    clock: None (free-running, virtual time) or a monotonic clock in seconds; if the clock object has a
+        `sleep(s)` method (a test's fake clock), `sleep()` uses it instead of time.sleep.
+    faults: a FaultPlan to inject faults (an empty one is created otherwise: `chip.faults.add(...)`).
+    product_id: what PRODUCT_ID reads (0x4015; 0x4010 simulates an ADIS16400).
     """
 
     def __init__(self, scenario="static", seed: int = 0, errors="adis16405",
-                 clock: Callable[[], float] | None = None, faults: FaultPlan | None = None):
+                 clock: Callable[[], float] | None = None, faults: FaultPlan | None = None,
+                 product_id: int = R.PRODUCT_ID_ADIS16405):
         self.faults = faults if faults is not None else FaultPlan(seed=seed)
         self.stats = {"transfers": 0, "bursts": 0, "samples_produced": 0, "samples_lost": 0,
                       "clock_violations": 0, "spi_failures": 0}
@@ -84,7 +89,9 @@ class SimulatedAdis16405:
             self._factory = scenario
         else:
             raise TypeError("scenario must be a name, a stream with next_block(n), or a factory(rate_hz, start_s)")
+        self._product_id = product_id
         self._regs = _default_registers()
+        self._regs[R.PRODUCT_ID >> 1] = product_id
         self._flash = {reg: self._regs[reg >> 1] for reg in _FLASH_REGS}
         self._diag = 0
         self._pending = _ZERO2
@@ -140,7 +147,7 @@ class SimulatedAdis16405:
             if self._vt >= self._next_event:
                 self._run_events(self._vt)
         else:
-            time.sleep(max(0.0, seconds))
+            getattr(self._clock, "sleep", time.sleep)(max(0.0, seconds))
 
     def close(self) -> None:
         self._closed = True
@@ -289,6 +296,7 @@ class SimulatedAdis16405:
     def _reset_now(self) -> None:
         old_prd = self._regs[R.SMPL_PRD >> 1]
         self._regs = _default_registers()
+        self._regs[R.PRODUCT_ID >> 1] = self._product_id
         for reg, value in self._flash.items():
             self._regs[reg >> 1] = value
         self._diag = 0
@@ -500,3 +508,41 @@ class SimulatedAdis16405:
         framed = np.zeros((n, 13), dtype=">u2")               # 2 pipeline bytes + 24 data bytes per row
         framed[:, 1:] = self._blk_words | R.ND
         self._blk_bytes_nd = framed.tobytes()
+
+
+class FixedStream:
+    """A minimal stream for tests and bench work: constant values plus optional white noise.
+
+    Same shape as `ahrsd.simulation`'s SensorStream (`next_block(n)` -> object with t_s, gyro_rad_s,
+    accel_m_s2, mag_ut, temp_c, truth_q_wxyz, truth_gyro_rad_s), without any physics. The values are
+    attributes; a change takes effect from the next block the chip pulls (every 256 samples).
+    noise_std: (gyro rad/s, accel m/s², mag µT) standard deviations of white noise per sample.
+    """
+
+    def __init__(self, gyro_rad_s=(0.0, 0.0, 0.0), accel_m_s2=(0.0, 0.0, -R.STANDARD_GRAVITY_M_S2),
+                 mag_ut=(20.0, 0.0, 45.0), temp_c: float = 25.0, rate_hz: float = 819.202,
+                 noise_std=(0.0, 0.0, 0.0), seed: int = 0):
+        self.gyro_rad_s = np.asarray(gyro_rad_s, dtype=float)
+        self.accel_m_s2 = np.asarray(accel_m_s2, dtype=float)
+        self.mag_ut = np.asarray(mag_ut, dtype=float)
+        self.temp_c = float(temp_c)
+        self.rate_hz = rate_hz
+        self.noise_std = tuple(float(x) for x in noise_std)
+        self._rng = np.random.default_rng(seed)
+        self._k = 0
+
+    def next_block(self, n: int):
+        from types import SimpleNamespace
+
+        t = (self._k + np.arange(n)) / self.rate_hz
+        self._k += n
+        out = []
+        for value, std in zip((self.gyro_rad_s, self.accel_m_s2, self.mag_ut), self.noise_std):
+            block = np.tile(value, (n, 1))
+            if std > 0:
+                block = block + self._rng.normal(0.0, std, (n, 3))
+            out.append(block)
+        q = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+        return SimpleNamespace(t_s=t, gyro_rad_s=out[0], accel_m_s2=out[1], mag_ut=out[2],
+                               temp_c=np.full(n, self.temp_c), truth_q_wxyz=q,
+                               truth_gyro_rad_s=np.tile(self.gyro_rad_s, (n, 1)))

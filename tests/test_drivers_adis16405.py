@@ -1,0 +1,262 @@
+"""The ADIS16405 driver against the byte-level simulated chip (fixed-value streams: exact expectations)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from ahrsd.drivers import registers as R
+from ahrsd.drivers.adis16405 import Adis16405
+from ahrsd.drivers.errors import ConfigError, ProductIdMismatch, SelfTestFailed
+from ahrsd.drivers.faults import FaultPlan
+from ahrsd.drivers.sample import SampleFlags
+from ahrsd.drivers.simulated import FixedStream, SimulatedAdis16405
+from ahrsd.drivers.spi import SpiBus
+
+G0 = R.STANDARD_GRAVITY_M_S2
+GYRO = np.radians([1.0, -2.0, 30.0])               # 20, -40, 600 LSB
+ACCEL = np.array([0.1, -0.2, -1.0]) * G0            # 30.003, -60.006, -300.03 LSB -> rounds
+MAG = np.array([20.0, -5.0, 45.0])                  # µT: 400, -100, 900 LSB
+
+
+def make(stream=None, **kw):
+    chip = SimulatedAdis16405(stream or FixedStream(GYRO, ACCEL, MAG, temp_c=30.6), **kw)
+    return chip, Adis16405(chip)
+
+
+def test_chip_is_an_spibus():
+    chip, _ = make()
+    assert isinstance(chip, SpiBus)
+
+
+def test_sample_in_si_units_exact_to_the_lsb():
+    chip, imu = make()
+    imu.start()
+    s = imu.read_sample()
+    assert s.flags == SampleFlags.NEW_DATA
+    assert np.allclose(s.gyro_rad_s, np.radians([1.0, -2.0, 30.0]), atol=0.5 * R.GYRO_RAD_S_PER_LSB)
+    assert np.allclose(s.accel_m_s2, ACCEL, atol=0.5 * R.ACCEL_M_S2_PER_LSB)
+    assert np.allclose(s.mag_ut, MAG, atol=0.5 * R.MAG_UT_PER_LSB)
+    assert s.temp_c == pytest.approx(30.6)             # 40 LSB × 0.14 + 25
+    assert s.supply_v == pytest.approx(5.0, abs=R.SUPPLY_V_PER_LSB)
+    lsb = chip.output_lsb
+    assert lsb[1:4] == [20, -40, 600] and lsb[7:10] == [400, -100, 900] and lsb[10] == 40
+    assert s.t_s == 0.0 and s.counter == 0
+    s2 = imu.read_sample()
+    assert s2.counter == 1 and s2.t_s == pytest.approx(1 / 819.202)
+    assert chip.stats["clock_violations"] == 0 and chip.stats["spi_failures"] == 0
+
+
+def test_register_read_is_pipelined_on_the_wire():
+    chip, _ = make()
+    speed = R.SPI_SLOW_HZ
+    assert chip.transfer(R.read_frame(R.PRODUCT_ID), speed, 50) == b"\x00\x00"    # nothing requested before
+    assert chip.transfer(R.read_frame(R.SMPL_PRD), speed, 50) == b"\x40\x15"      # PRODUCT_ID arrives now
+    assert chip.transfer(R.read_frame(R.SENS_AVG), speed, 50) == b"\x00\x01"      # then SMPL_PRD
+    assert chip.transfer(R.read_frame(R.FLASH_CNT), speed, 50) == b"\x04\x02"     # then SENS_AVG
+    imu = Adis16405(chip)
+    assert imu.read_registers([R.PRODUCT_ID, R.SMPL_PRD, R.SENS_AVG, R.MSC_CTRL]) == [0x4015, 0x01, 0x0402, 0x0006]
+
+
+def test_register_write_is_two_byte_writes():
+    chip, imu = make()
+    imu.write_register(R.ALM_MAG1, 0xA55A)
+    assert imu.read_register(R.ALM_MAG1) == 0xA55A
+    imu.write_byte(R.ALM_MAG1 + 1, 0x12)                # upper byte only
+    assert imu.read_register(R.ALM_MAG1) == 0x125A
+    imu.write_register(R.PRODUCT_ID, 0x1234)            # read-only: ignored
+    assert imu.read_register(R.PRODUCT_ID) == 0x4015
+
+
+def test_burst_frame_layout():
+    chip, imu = make()
+    imu.start()
+    rx = chip.transfer(R.BURST_COMMAND + bytes(24), R.SPI_BURST_HZ)
+    assert len(rx) == 26
+    words = [int.from_bytes(rx[i:i + 2], "big") for i in range(2, 26, 2)]
+    assert all(w & R.ND for w in words) and not any(w & R.EA for w in words)
+    assert [R.decode_signed14(w) for w in words[1:4]] == [20, -40, 600]
+    assert R.decode_unsigned14(words[0]) == round(5.0 / R.SUPPLY_V_PER_LSB)
+
+
+def test_product_id_mismatch_is_a_clear_error():
+    chip = SimulatedAdis16405(FixedStream(), product_id=0x4010)
+    with pytest.raises(ProductIdMismatch, match="0x4010.*ADIS16400"):
+        Adis16405(chip).start()
+
+    class DeadBus:
+        def transfer(self, tx, speed_hz, delay_us=0):
+            return bytes(len(tx))
+
+        def close(self):
+            pass
+
+    with pytest.raises(ProductIdMismatch, match="no device is answering") as info:
+        Adis16405(DeadBus()).start()
+    assert info.value.found == 0 and info.value.expected == 0x4015
+
+
+def test_self_test_passes_and_takes_chip_time():
+    chip, imu = make()
+    imu.start(self_test=True)
+    assert imu.counters["self_test_failures"] == 0
+    assert chip.now() >= R.SELF_TEST_TIME_S
+    assert imu.read_register(R.MSC_CTRL) & R.MscCtrl.INT_SELF_TEST == 0
+
+
+def test_self_test_failure_is_retried_after_reset_then_raised():
+    plan = FaultPlan()
+    plan.add("self_test_fail", diag_bits=int(R.DiagStat.XGYRO_SELF_TEST))
+    chip, imu = make(faults=plan)
+    with pytest.raises(SelfTestFailed) as info:
+        imu.start()
+    assert "XGYRO_SELF_TEST" in info.value.faults and "SELF_TEST_FAILED" in info.value.faults
+    assert imu.counters["self_test_failures"] == 2          # first attempt, reset, second attempt
+    assert plan.injected["self_test_fail"] == 2
+    plan.enable("self_test_fail", False)                    # the fault goes away: the unit passes again
+    imu.self_test()
+
+
+def test_self_test_bit_is_set_while_running():
+    chip, imu = make()
+    msc = imu.read_register(R.MSC_CTRL)
+    imu.write_byte(R.MSC_CTRL + 1, (msc | R.MscCtrl.INT_SELF_TEST) >> 8)
+    assert imu.read_register(R.MSC_CTRL) & R.MscCtrl.INT_SELF_TEST
+    chip.sleep(R.SELF_TEST_TIME_S)
+    assert not imu.read_register(R.MSC_CTRL) & R.MscCtrl.INT_SELF_TEST
+
+
+@pytest.mark.parametrize("smpl_prd, speed", [(0x01, 2_000_000), (0x03, 2_000_000), (0x0A, 300_000), (0x81, 300_000)])
+def test_sample_rate_and_spi_clock(smpl_prd, speed):
+    chip, imu = make()
+    imu.start(smpl_prd=smpl_prd)
+    assert imu.smpl_prd == smpl_prd and imu.spi_speed_hz == speed
+    assert imu.sample_rate_hz == pytest.approx(R.sample_rate_hz(smpl_prd))
+    assert chip.sample_rate_hz == pytest.approx(imu.sample_rate_hz)
+    t = [imu.read_sample().t_s for _ in range(5)]
+    assert np.allclose(np.diff(t), 1 / R.sample_rate_hz(smpl_prd))
+    assert chip.stats["clock_violations"] == 0
+
+
+def test_configure_by_rate_and_bad_settings():
+    chip, imu = make()
+    imu.start(sample_rate_hz=409.6, filter_n=0, gyro_range_dps=150)
+    assert imu.smpl_prd == 0x03 and imu.filter_n == 0 and imu.gyro_range_dps == 150
+    s = imu.read_sample()
+    assert np.allclose(s.gyro_rad_s, GYRO, atol=math.radians(0.025) / 2)   # 0.025 °/s/LSB at ±150
+    assert chip.output_lsb[1] == 40
+    with pytest.raises(ConfigError):
+        imu.configure(filter_n=9)
+    with pytest.raises(ConfigError):
+        imu.configure(sample_rate_hz=5000)
+
+
+def test_software_reset_restores_flash_settings():
+    chip, imu = make()
+    imu.start(smpl_prd=0x03)
+    imu.software_reset()
+    assert imu.smpl_prd == 0x01 and imu.sample_rate_hz == pytest.approx(819.202)
+    imu.configure(smpl_prd=0x07)
+    imu.flash_update()
+    imu.software_reset()
+    assert imu.smpl_prd == 0x07
+
+
+def test_auto_null_and_factory_restore():
+    bias = np.radians([0.5, -0.25, 0.1])
+    chip, imu = make(FixedStream(bias, ACCEL, MAG))
+    imu.start()
+    for _ in range(10):
+        imu.read_sample()
+    imu.auto_null()
+    offsets = imu.gyro_offsets_dps()
+    assert np.allclose(offsets, -np.degrees(bias), atol=R.GYRO_OFF_DPS_PER_LSB)
+    s = imu.read_sample()
+    assert np.all(np.abs(s.gyro_rad_s) <= R.GYRO_RAD_S_PER_LSB)
+    imu.factory_restore()
+    assert np.all(imu.gyro_offsets_dps() == 0)
+    assert np.allclose(imu.read_sample().gyro_rad_s, bias, atol=R.GYRO_RAD_S_PER_LSB / 2)
+
+
+def test_averaging_reduces_noise_like_the_bartlett_taps():
+    sigma = (math.radians(1.0), 0.05, 0.5)            # 20 LSB gyro, ~1.5 LSB accel, 10 LSB mag
+    stds = {}
+    for n in (0, 3):
+        chip, imu = make(FixedStream(GYRO, ACCEL, MAG, noise_std=sigma, seed=4))
+        imu.start(filter_n=n)
+        g = np.array([imu.read_sample().gyro_rad_s for _ in range(4000)])
+        stds[n] = g.std(axis=0)
+    ratio = stds[3] / stds[0]
+    expected = math.sqrt(np.sum(R.bartlett_taps(3) ** 2))   # white noise through the taps
+    assert np.allclose(ratio, expected, rtol=0.12), (ratio, expected)
+
+
+@pytest.mark.parametrize("gyro_dps, accel_g, mag_gauss, flag", [
+    ((400.0, 0, 0), (0, 0, -1), (0.2, 0, 0.4), SampleFlags.GYRO_SATURATED | SampleFlags.GYRO_INVALID),
+    ((0, 0, 0), (0, 20.0, -1), (0.2, 0, 0.4), SampleFlags.ACCEL_SATURATED | SampleFlags.ACCEL_INVALID),
+    ((0, 0, 0), (0, 0, -1), (0.2, 0, -3.0), SampleFlags.MAG_SATURATED | SampleFlags.MAG_INVALID),
+])
+def test_saturation(gyro_dps, accel_g, mag_gauss, flag):
+    stream = FixedStream(np.radians(gyro_dps), np.array(accel_g) * G0, np.array(mag_gauss) * 100)
+    chip, imu = make(stream)
+    imu.start()
+    s = imu.read_sample()
+    assert s.flags & flag == flag
+    assert s.flags & SampleFlags.ALARM and s.diag_stat & R.DiagStat.SENSOR_OVERRANGE
+    assert imu.counters["saturations"] == 1 and imu.counters["diag_sensor_overrange"] == 1
+    assert abs(s.gyro_rad_s[0]) <= math.radians(300) + 1e-12
+    if gyro_dps[0]:
+        assert s.gyro_rad_s[0] == pytest.approx(math.radians(300.0))
+    if accel_g[1]:
+        assert s.accel_m_s2[1] == pytest.approx(R.ACCEL_RANGE_LSB * R.ACCEL_M_S2_PER_LSB)
+    if mag_gauss[2] < -2.5:
+        assert s.mag_ut[2] == pytest.approx(-250.0)
+
+
+def test_unsaturated_sample_has_no_alarm():
+    chip, imu = make()
+    imu.start()
+    s = imu.read_sample()
+    assert not s.flags & (SampleFlags.ALARM | SampleFlags.GYRO_INVALID | SampleFlags.ACCEL_INVALID)
+    assert imu.counters["saturations"] == 0 and imu.counters["ea_flags"] == 0
+
+
+class FakeClock:
+    def __init__(self):
+        self.t = 100.0
+
+    def __call__(self):
+        return self.t
+
+    def sleep(self, s):
+        self.t += s
+
+
+def test_clocked_chip_stale_and_gaps():
+    clock = FakeClock()
+    chip = SimulatedAdis16405(FixedStream(GYRO, ACCEL, MAG), clock=clock)
+    imu = Adis16405(chip, clock=clock)
+    imu.start()
+    lost_at_start = chip.stats["samples_lost"]
+    period = imu.sample_period_s
+    clock.t += 0.3 * period
+    s0 = imu.read_sample()
+    assert s0.flags & SampleFlags.NEW_DATA
+    s1 = imu.read_sample()                               # same instant: nothing new
+    assert s1.flags & SampleFlags.STALE and not s1.flags & SampleFlags.NEW_DATA
+    assert s1.counter == s0.counter and s1.t_s == s0.t_s
+    assert imu.counters["stale"] == 1
+    clock.t += period
+    s2 = imu.read_sample()
+    assert s2.counter == s0.counter + 1 and not s2.flags & SampleFlags.GAP_BEFORE
+    clock.t += 3.2 * period                              # two samples nobody read
+    s3 = imu.read_sample()
+    assert s3.flags & SampleFlags.GAP_BEFORE and s3.counter == s2.counter + 3
+    assert imu.counters["lost_samples"] == 2 == chip.stats["samples_lost"] - lost_at_start
+    assert s3.t_s - s2.t_s == pytest.approx(3 * period)
+    # jittery reads, never more than a period late: no gap is invented
+    rng = np.random.default_rng(1)
+    for _ in range(500):
+        clock.t += period * rng.uniform(0.2, 1.0)
+        imu.read_sample()
+    assert imu.counters["lost_samples"] == chip.stats["samples_lost"] - lost_at_start
