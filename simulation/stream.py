@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ahrsd.simulation.errors import ErrorProcess, SensorErrors
-from ahrsd.simulation.gravity import earth_rate_ned_rad_s
+from ahrsd.simulation.gravity import EARTH_RADIUS_M, earth_rate_ned_rad_s
 from ahrsd.simulation.magnetic import VehicleIron
 from ahrsd.simulation.scenarios import CoordinatedTurn, Scenario, make_scenario
 from ahrsd.simulation.site import DEFAULT_SITE, Site
@@ -87,6 +87,8 @@ class SensorStream:
         self._field_ned = self.earth_field.ned_ut
         self._gravity_ned = site.gravity_ned_m_s2
         self._earth_rate_ned = earth_rate_ned_rad_s(site.lat_deg) if earth_rate else None
+        self._tan_lat = np.tan(np.radians(site.lat_deg))
+        self._radius_m = EARTH_RADIUS_M + site.alt_m
         self._process = ErrorProcess(self.errors, self.rate_hz, self.seed)
         self._k = 0  # index of the next sample handed out
         self._k_gen = 0  # index of the next sample to generate
@@ -137,11 +139,19 @@ class SensorStream:
         att = sc.attitude(t)
         ned_to_body = att.inv()
         omega = sc.body_rate_rad_s(t)
-        accel_true = ned_to_body.apply(sc.accel_ned_m_s2(t) - self._gravity_ned)
+        f_ned = sc.accel_ned_m_s2(t) - self._gravity_ned
+        gyro_sensed = omega
+        if self._earth_rate_ned is not None:
+            # Rotating Earth (seed 004 eqs. 14-16): the sensor also senses the Earth rate and the transport
+            # rate, and the specific force carries the Coriolis and transport terms of the NED velocity equation.
+            v = sc.velocity_ned_m_s(t)
+            w_en = np.column_stack([v[:, 1], -v[:, 0], -v[:, 1] * self._tan_lat]) / self._radius_m
+            f_ned = f_ned + np.cross(2.0 * self._earth_rate_ned + w_en, v)
+            gyro_sensed = omega + ned_to_body.apply(self._earth_rate_ned + w_en)
+        accel_true = ned_to_body.apply(f_ned)
         mag_earth = ned_to_body.apply(self._field_ned)
         dist_ned = sc.disturbance_ned_ut(t)
         dist = ned_to_body.apply(dist_ned) if dist_ned is not None else np.zeros((n, 3))
-        gyro_sensed = omega if self._earth_rate_ned is None else omega + ned_to_body.apply(self._earth_rate_ned)
         gyro, accel, mag, temp, gbias, abias = self._process.apply(t, gyro_sensed, accel_true, mag_earth + dist)
         q = att.as_quat()                      # scipy: scalar last [x, y, z, w]
         q = np.column_stack([q[:, 3], q[:, :3]])
@@ -173,8 +183,11 @@ def open_stream(scenario: str | Scenario, rate_hz: float = 819.2, seed: int = 0,
     errors: "adis16405" (datasheet noise, turn-on errors drawn from `seed`), "ideal", or a SensorErrors.
     vehicle_iron: "scenario" (the scenario's default: level-turns, tumble, auv-out-and-back carry
       VehicleIron.default(), the others none), None for no vehicle iron, or a VehicleIron.
-    earth_rate: add the Earth's rotation (15 °/h, seed 004 eq. 15) to the sensed rate; the truth rate is always
-      relative to NED. Off by default: it is below the ADIS16405's bias stability (thesis §10.3).
+    earth_rate: a rotating Earth (seed 004 eqs. 14-16): the gyros also sense the Earth rate (15 °/h) and the
+      transport rate, and the specific force includes the Coriolis and transport terms, so the seed-004 NED
+      mechanisation (`simulation.strapdown`) reproduces the trajectory. The truth rate is always relative to
+      NED. Off by default (a flat, non-rotating Earth): the Earth rate is below the ADIS16405's bias stability
+      (thesis §10.3). Gravity and the field are those of the site throughout (the tracks are a few km).
     """
     site = site if site is not None else DEFAULT_SITE
     sc = _resolve_scenario(scenario, site)

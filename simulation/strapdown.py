@@ -1,0 +1,102 @@
+"""Strapdown inertial navigation in the NED frame (seed 004 §7, eqs. 14–22, Fig. 8).
+
+Integrates gyro and accelerometer samples into attitude, NED velocity and geodetic position on a spherical Earth
+(seed 004's model: R0 = 6 378 137 m, normal gravity eq. 18). It serves to check the simulator (the truth
+specific force and rate must integrate back into the truth trajectory) and as a reference for dead reckoning.
+
+Per step k → k+1 (seed 004 §7.10), second order in Δt:
+  1. ω̃ = ω̄ − C_n^b (ω_ie + ω_en)        body rate relative to NED (eq. 21); ω̄ = trapezoid of the gyro samples
+  2. C_b^n ← C_b^n exp(ω̃ Δt)           (eq. 20, exact for a constant rate over the step)
+  3. f^n = C_b^n f^b                    (eq. 19)
+  4. V̇ = f^n − (2ω_ie + ω_en) × V + g   (eq. 14, 15, 16), Heun predictor–corrector
+  5. L̇ = V_N/(R+h), λ̇ = V_E/((R+h) cos L), ḣ = −V_D   (eq. 17), trapezoid
+Attitude maths is scipy's Rotation (the simulation never uses the estimator's rotation code).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ahrsd.simulation.gravity import EARTH_RADIUS_M, EARTH_RATE_RAD_S, normal_gravity_m_s2
+
+
+@dataclass(frozen=True, eq=False)
+class NavSolution:
+    """Per-sample navigation output: t_s (n,), q_wxyz (n,4) body→NED, v_ned_m_s (n,3), lat_deg, lon_deg, h_m (n,)."""
+
+    t_s: np.ndarray
+    q_wxyz: np.ndarray
+    v_ned_m_s: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    h_m: np.ndarray
+
+
+def _rates_ned(lat, h, v, earth_rate: bool):
+    """(ω_ie^n, ω_en^n) in rad/s at latitude `lat` (rad), height h, NED velocity v (seed 004 eqs. 15, 16)."""
+    r = EARTH_RADIUS_M + h
+    w_ie = EARTH_RATE_RAD_S * np.array([np.cos(lat), 0.0, -np.sin(lat)]) if earth_rate else np.zeros(3)
+    w_en = np.array([v[1] / r, -v[0] / r, -v[1] * np.tan(lat) / r]) if earth_rate else np.zeros(3)
+    return w_ie, w_en
+
+
+def mechanise_ned(t_s, gyro_rad_s, accel_m_s2, q0_wxyz, v0_ned_m_s, lat0_deg: float, lon0_deg: float,
+                  h0_m: float, *, earth_rate: bool = True,
+                  gravity_m_s2: Callable[[float, float], float] | None = None) -> NavSolution:
+    """Integrate samples (gyro ω_ib^b, accel f^b, body frame) from the initial state at t_s[0].
+
+    earth_rate: True for the seed-004 rotating-Earth mechanisation (Earth rate, transport rate, Coriolis);
+    False for a flat, non-rotating Earth (what `open_stream(..., earth_rate=False)` simulates).
+    gravity_m_s2(lat_deg, h_m): local gravity magnitude; default seed 004 eq. 18 with the height factor.
+    """
+    t = np.asarray(t_s, dtype=float)
+    w_b = np.asarray(gyro_rad_s, dtype=float)
+    f_b = np.asarray(accel_m_s2, dtype=float)
+    n = len(t)
+    if w_b.shape != (n, 3) or f_b.shape != (n, 3) or n < 1:
+        raise ValueError("t_s (n,), gyro_rad_s (n,3) and accel_m_s2 (n,3) must have the same length n ≥ 1")
+    g_of = gravity_m_s2 or normal_gravity_m_s2
+    q0 = np.asarray(q0_wxyz, dtype=float)
+    c = Rotation.from_quat([q0[1], q0[2], q0[3], q0[0]])
+    v = np.asarray(v0_ned_m_s, dtype=float).copy()
+    lat, lon, h = np.radians(lat0_deg), np.radians(lon0_deg), float(h0_m)
+
+    quats = np.empty((n, 4))
+    vel = np.empty((n, 3))
+    pos = np.empty((n, 3))
+
+    def vdot(c_rot, f_body, v_, lat_, h_):
+        w_ie, w_en = _rates_ned(lat_, h_, v_, earth_rate)
+        g = np.array([0.0, 0.0, g_of(np.degrees(lat_), h_)])
+        return c_rot.apply(f_body) - np.cross(2.0 * w_ie + w_en, v_) + g
+
+    def posdot(v_, lat_, h_):
+        r = EARTH_RADIUS_M + h_
+        return np.array([v_[0] / r, v_[1] / (r * np.cos(lat_)), -v_[2]])
+
+    a_k = vdot(c, f_b[0], v, lat, h)
+    for k in range(n):
+        q = c.as_quat()
+        quats[k] = (q[3], q[0], q[1], q[2])
+        vel[k] = v
+        pos[k] = (lat, lon, h)
+        if k == n - 1:
+            break
+        dt = t[k + 1] - t[k]
+        w_ie, w_en = _rates_ned(lat, h, v, earth_rate)
+        w_nb = 0.5 * (w_b[k] + w_b[k + 1]) - c.inv().apply(w_ie + w_en)
+        c_next = c * Rotation.from_rotvec(w_nb * dt)
+        v_pred = v + dt * a_k
+        p_dot_k = posdot(v, lat, h)
+        lat_p, lon_p, h_p = np.array([lat, lon, h]) + dt * p_dot_k
+        a_next = vdot(c_next, f_b[k + 1], v_pred, lat_p, h_p)
+        v_next = v + 0.5 * dt * (a_k + a_next)
+        lat, lon, h = np.array([lat, lon, h]) + 0.5 * dt * (p_dot_k + posdot(v_next, lat_p, h_p))
+        a_k = vdot(c_next, f_b[k + 1], v_next, lat, h)
+        c, v = c_next, v_next
+    quats *= np.where(quats[:, :1] < 0, -1.0, 1.0)
+    return NavSolution(t, quats, vel, np.degrees(pos[:, 0]), np.degrees(pos[:, 1]), pos[:, 2])
