@@ -547,25 +547,34 @@ def fit_vertical_channel(raw: np.ndarray, roll_rad, pitch_rad, total_ut: float, 
     if not starts:
         raise BacksteppingError("no start value: the horizontal components do not trace an ellipse "
                                 "(turn the vehicle through a full circle)")
+    def solve(p0, max_nfev):
+        fun, jac = make_fun(p0)
+        try:
+            sol = least_squares(fun, p0, jac=jac, method="trf", x_scale="jac", max_nfev=max_nfev,
+                                loss="soft_l1" if robust else "linear", f_scale=3.0)
+        except (ValueError, np.linalg.LinAlgError):
+            return None
+        cost = float(np.sum(sol.fun[:2 * n] ** 2))
+        return (cost, sol, jac) if np.isfinite(cost) else None
+
+    # stage 1: a few iterations from every start; stage 2: the best one to convergence
     best = None
     for start in starts:
         name, w0, h0 = start[0], start[1], start[2]
         hz0 = start[3] if len(start) > 3 else hz_guesses[0]
         p0 = np.concatenate((w0.ravel(), h0, [hz0 / total] if free_dip else []))
-        fun, jac = make_fun(p0)
-        try:
-            sol = least_squares(fun, p0, jac=jac, method="trf", x_scale="jac", max_nfev=200,
-                                loss="soft_l1" if robust else "linear", f_scale=3.0)
-        except (ValueError, np.linalg.LinAlgError):
-            continue
-        cost = float(np.sum(sol.fun[:2 * n] ** 2))
-        if not np.isfinite(cost):
-            continue
-        if best is None or cost < best[0]:
-            best = (cost, sol, name, jac)
+        got = solve(p0, 8 if len(starts) > 1 else 200)
+        if got is not None and (best is None or got[0] < best[0]):
+            best = (got[0], got[1], name, p0)
     if best is None:
         raise BacksteppingError("the vertical-channel least squares did not converge from any start value")
-    cost, sol, name, jac = best
+    _, sol1, name, p0 = best
+    got = solve(sol1.x, 200) if len(starts) > 1 else (best[0], sol1, make_fun(p0)[1])
+    if got is None:
+        raise BacksteppingError("the vertical-channel least squares did not converge")
+    cost, sol, jac = got
+    # the prior is centred on the stage-1 result in stage 2; it is weak (σ = prior_sigma), so this only
+    # matters for directions the data do not determine at all
     w, h, hz = unpack(sol.x)
     r = sol.fun[:2 * n]
     jd = jac(sol.x)[:2 * n]
@@ -792,7 +801,8 @@ def fit_backstepping(data: MagFitInput, reference=None, *, model: str = "general
     # --- what the data support
     support_model = "diagonal" if model == "paper" else ("vertical" if vertical is not None else "vertical-free-dip")
     support = assess_support(mag, None, support_model, roll_rad=roll, pitch_rad=pitch,
-                             reference_known=vertical is not None)
+                             reference_known=vertical is not None,
+                             horizontal_ut=math.sqrt(max(total**2 - vertical**2, 0.0)) if vertical is not None else None)
     quality.update(support.as_quality())
     if support.refused:
         return refuse(METHOD, support.refused, **quality)

@@ -165,13 +165,38 @@ def horizontal_circle_centre(mag_ut: np.ndarray) -> np.ndarray:
     return sol[:2]
 
 
-def heading_coverage(mag_ut: np.ndarray, roll_rad=None, pitch_rad=None, centre_ut=None) -> float:
+def fixed_radius_circle_centre(xy: np.ndarray, radius: float) -> np.ndarray:
+    """Centre of the circle of a known radius through 2-D points (Gauss–Newton from several starts). Unlike
+    a free circle fit, it stays meaningful on a short arc: a vehicle that went one way gives a short arc."""
+    from scipy.optimize import least_squares
+
+    p = np.asarray(xy, dtype=np.float64)
+    mean = p.mean(axis=0)
+    starts = [horizontal_circle_centre(np.column_stack((p, np.zeros(len(p)))))]
+    starts += [mean + radius * np.array(d) for d in ((1, 0), (-1, 0), (0, 1), (0, -1))]
+    best = None
+    for s0 in starts:
+        if not np.all(np.isfinite(s0)):
+            continue
+        sol = least_squares(lambda c: np.linalg.norm(p - c, axis=1) - radius, s0, method="lm", max_nfev=100)
+        if best is None or sol.cost < best.cost:
+            best = sol
+    return best.x
+
+
+def heading_coverage(mag_ut: np.ndarray, roll_rad=None, pitch_rad=None, centre_ut=None,
+                     horizontal_ut: float | None = None) -> float:
     """Fraction of 36 heading bins (10°) hit. Heading is the direction of the centred field, levelled with
     roll/pitch when given. Without a calibration this is approximate (soft iron bends angles by a few
-    degrees) but good enough to tell "turned a full circle" from "went one way"."""
+    degrees) but good enough to tell "turned a full circle" from "went one way". With the expected
+    horizontal intensity (WMM) the centre comes from a fixed-radius circle, which a short arc cannot fool."""
     m = np.asarray(mag_ut, dtype=np.float64)
     if centre_ut is None:
-        centre_ut = np.append(horizontal_circle_centre(m), np.median(m[:, 2]))
+        if horizontal_ut is not None and horizontal_ut > 0:
+            centre_xy = fixed_radius_circle_centre(m[:, :2], horizontal_ut)
+        else:
+            centre_xy = horizontal_circle_centre(m)
+        centre_ut = np.append(centre_xy, np.median(m[:, 2]))
     v = m - np.asarray(centre_ut, dtype=np.float64)
     if roll_rad is not None and pitch_rad is not None:
         v = level_vectors(v, roll_rad, pitch_rad)
@@ -247,7 +272,8 @@ class DataSupport:
 
 
 def assess_support(mag_ut: np.ndarray, accel_m_s2: np.ndarray | None = None, model: str = "ellipsoid", *,
-                   roll_rad=None, pitch_rad=None, centre_ut=None, reference_known: bool = True) -> DataSupport:
+                   roll_rad=None, pitch_rad=None, centre_ut=None, reference_known: bool = True,
+                   horizontal_ut: float | None = None) -> DataSupport:
     """Can (mag, accel) support `model`? Models:
 
     - "sphere": hard iron + radius. Needs a full heading circle; the vertical hard iron also needs tilt
@@ -257,6 +283,8 @@ def assess_support(mag_ut: np.ndarray, accel_m_s2: np.ndarray | None = None, mod
     - "vertical": back-stepping / vertical-channel fit with WMM (needs roll/pitch and a full heading circle;
       with < 1° tilt the vertical soft-iron column is reported as undetermined and held at its prior).
     - "vertical-free-dip": the same without a known inclination: also needs ≥ 5° tilt.
+
+    horizontal_ut: the expected horizontal intensity (WMM), which makes the heading coverage robust on short arcs.
     """
     if model not in MODELS:
         raise ValueError(f"unknown model {model!r}; choose one of {', '.join(MODELS)}")
@@ -273,7 +301,7 @@ def assess_support(mag_ut: np.ndarray, accel_m_s2: np.ndarray | None = None, mod
             roll_rad, pitch_rad = roll_pitch_from_accel(a)
     tilt = tilt_statistics(roll_rad, pitch_rad) if roll_rad is not None else None
     cov = float(sphere_cells_hit(m, centre_ut).mean())
-    hcov = heading_coverage(m, roll_rad, pitch_rad)
+    hcov = heading_coverage(m, roll_rad, pitch_rad, horizontal_ut=horizontal_ut)
     tilt_max = tilt["tilt_max_deg"] if tilt else None
     warnings: list[str] = []
     undetermined: list[str] = []
