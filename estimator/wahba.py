@@ -152,13 +152,21 @@ def thesis_matrix(v0, v1, version: int) -> np.ndarray:
 
     version 1 (eq 4-34/4-35): [m, f, f×m]; version 2 (eq 4-40/4-41): [m, f×m, (f×m)×m].
     """
-    v0 = np.asarray(v0, dtype=np.float64)
-    v1 = np.asarray(v1, dtype=np.float64)
-    c = np.cross(v1, v0)
+    a0, a1, a2 = np.asarray(v0, dtype=np.float64).tolist()
+    b0, b1, b2 = np.asarray(v1, dtype=np.float64).tolist()
+    return thesis_matrix_from_floats(a0, a1, a2, b0, b1, b2, version)
+
+
+def thesis_matrix_from_floats(a0: float, a1: float, a2: float, b0: float, b1: float, b2: float,
+                              version: int) -> np.ndarray:
+    """`thesis_matrix` on the components of v0 = (a0, a1, a2), v1 = (b0, b1, b2) (scalar maths: the thesis
+    filter calls this every sample)."""
+    c0, c1, c2 = b1 * a2 - b2 * a1, b2 * a0 - b0 * a2, b0 * a1 - b1 * a0  # v1 × v0 (f × m)
     if version == 1:
-        return np.column_stack((v0, v1, c))
+        return np.array(((a0, b0, c0), (a1, b1, c1), (a2, b2, c2)))
     if version == 2:
-        return np.column_stack((v0, c, np.cross(c, v0)))
+        d0, d1, d2 = c1 * a2 - c2 * a1, c2 * a0 - c0 * a2, c0 * a1 - c1 * a0  # (f × m) × m
+        return np.array(((a0, c0, d0), (a1, c1, d1), (a2, c2, d2)))
     raise ValueError("thesis Wahba version is 1 or 2")
 
 

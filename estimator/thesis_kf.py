@@ -1,0 +1,444 @@
+"""`thesis`: the thesis's attitude filter (seed 000 §6), reproduced faithfully as a baseline.
+
+A 9-state Kalman filter estimates the **body-frame** magnetic field and gravity vectors and the gyro bias;
+the gyros only propagate those vectors; the attitude then comes algebraically from the filtered vectors by
+the thesis's Wahba solution (eq 4-34 … 4-41) and its re-orthonormalisation C ← 1.5C − 0.5CCᵀC (eq 4-42).
+
+Model (thesis §6.2–6.4), with the thesis's sign ambiguity (digest §6.2) resolved as ω_true = ω_meas − b − δω
+(so ``gyro_bias_rad_s`` is what is subtracted from the gyro, as in every other ahrsd estimator)::
+
+    x = [mᵇ (µT), gᵇ = −fᵇ (m/s²), b (rad/s)]                       (eq 4-15; state holds −f = g)
+    ṁᵇ = −[ω×]mᵇ − [mᵇ×]b − [mᵇ×]δω,   ω = ω_meas                     (eq 4-9, 4-13)
+    ġᵇ = −[ω×]gᵇ − [gᵇ×]b − [gᵇ×]δω
+    ḃ  = −b/τ_w + w_b/τ_w                                              (eq 4-11, Gauss–Markov)
+    A = [[−[ω×], 0, −[m×]], [0, −[ω×], −[g×]], [0, 0, −I/τ_w]]          (eq 4-16, bias blocks sign-flipped)
+    B = [[−[m×], 0], [−[g×], 0], [0, I/τ_w]]                           (eq 4-17)
+    F = I + AΔt + ½A²Δt²                                               (eq 4-21, reconstructed)
+    Q_d = B Q B^T Δt   (Q a PSD in rad²/s: digest §6.5's recommended discretisation)
+    z = [m̃ᵇ, −f̃ᵇ],  H = [I₆ 0]                                         (eq 4-23/4-24, digest §6.4)
+    standard KF predict / update                                       (eq 4-25 … 4-31)
+    Cₙᵇ = B_b N_n⁻¹ (version 2 by default, version 1 selectable), C_b^n = (Cₙᵇ)ᵀ, eq 4-42, Euler eq 3-31.
+
+Choices where the thesis is silent (digest §12.1), each a field of `ThesisKfParams`:
+
+* **Δt** — from consecutive ``sample.t_s`` (any rate). Gaps above ``large_dt_s`` are propagated in sub-steps
+  of at most ``max_substep_s`` with the last rate held (flag LARGE_DT); gaps above ``reinit_dt_s`` (or time
+  going backwards) re-initialise the vectors from the measurement (flags LARGE_DT | REINITIALISED).
+* **τ_w** — 1000 s: long against the filter's settling so a learned bias is kept (the thesis folds it back into
+  the calibration, §6.8); with the thesis's bias-driving noise this is a slow random walk.
+* **x̂₀, P₀** — the first sample's m̃, −f̃ with P₀ = R; bias ``initial_bias_rad_s`` with σ ``initial_bias_sigma_rad_s``.
+* **H** — [I₆ 0] with −f̃ as the measurement (equivalent to the digest's H = [[I,0,0],[0,−I,0]] on f̃).
+* **Units of Q and R** — Q (eq 6-1) as printed, rad²/s; R (eq 6-2) read as mG and mg (the ADIS16405's display
+  units, digest §11.4) and converted to µT² and (m/s²)².
+* **Reference vectors** — fⁿ = [0, 0, −g]; mⁿ is taken in the *magnetic* NED frame, [H, 0, Z], so the yaw is
+  magnetic (heading_true adds the declination, ahrsd's contract). Its dip is learned from the filtered vectors
+  while INITIALISING (``settle_time_s``) unless ``mag_reference_ned_ut`` gives it (e.g. WMM), then frozen.
+  Vectors are normalised before the Wahba step (eq 4-32 states unit vectors).
+* **1σ outputs** — the attitude covariance of the optimal two-vector solution given the filtered vectors'
+  direction variances (from P), mapped to ZYX Euler angles; a lower bound for the algebraic solutions.
+
+No gating: the thesis assumes f = −g (its future work, Ch. 7, names linear acceleration as the open problem).
+Samples flagged invalid (or non-finite) skip that sensor's update; an invalid gyro holds the last rate.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+from scipy.linalg.lapack import dposv as _dposv
+
+from ahrsd.drivers.sample import ImuSample, SampleFlags
+
+from .base import AttitudeEstimate, EstimateFlags
+from .rotations import dcm_to_quat
+from .wahba import thesis_matrix, thesis_matrix_from_floats
+
+DEG = math.pi / 180.0
+G0_M_S2 = 9.80665            # standard gravity: converts the thesis's mg figures
+MGAUSS_TO_UT = 0.1           # 1 mgauss = 0.1 µT
+TWO_PI = 2.0 * math.pi
+
+# Plain ints: IntFlag arithmetic costs a microsecond per operation on the per-sample path.
+_GYRO_BAD = int(SampleFlags.GYRO_INVALID)
+_ACC_BAD = int(SampleFlags.ACCEL_INVALID | SampleFlags.ACCEL_SATURATED)
+_MAG_BAD = int(SampleFlags.MAG_INVALID | SampleFlags.MAG_SATURATED)
+_F_INITIALISING = int(EstimateFlags.INITIALISING)
+_F_LARGE_DT = int(EstimateFlags.LARGE_DT)
+_F_REINITIALISED = int(EstimateFlags.REINITIALISED)
+_F_ACCEL_REJECTED = int(EstimateFlags.ACCEL_REJECTED)
+_F_MAG_REJECTED = int(EstimateFlags.MAG_REJECTED)
+
+
+@dataclass(frozen=True)
+class ThesisKfParams:
+    """Tuning of the thesis filter. Defaults reproduce the thesis (eq 6-1, 6-2) where it gives numbers."""
+
+    gyro_arw_rad_sqrt_s: tuple[float, float, float] = (0.05 * DEG, 0.05 * DEG, 0.06 * DEG)
+    """Gyro white noise δω (angle random walk) per axis x, y, z, rad/√s. thesis Table 6-4 / eq 6-1."""
+    gyro_bias_drive_rad_sqrt_s: tuple[float, float, float] = (0.005 * DEG, 0.005 * DEG, 0.006 * DEG)
+    """Bias-driving noise w_b of the Gauss–Markov bias, rad/√s. thesis eq 6-1 (= ARW/10)."""
+    q_inflation: float = 3.0
+    """Factor on the noise densities above before squaring: Q = diag((3·ARW)², (3·w_b)²). thesis eq 5-8, 6-1."""
+    mag_noise_ut: tuple[float, float, float] = (0.74 * MGAUSS_TO_UT, 0.66 * MGAUSS_TO_UT, 0.52 * MGAUSS_TO_UT)
+    """Magnetometer measurement noise 1σ per axis, µT. thesis eq 6-2 (0.74, 0.66, 0.52, read as mG)."""
+    accel_noise_m_s2: tuple[float, float, float] = (3.65e-3 * G0_M_S2, 3.44e-3 * G0_M_S2, 3.72e-3 * G0_M_S2)
+    """Accelerometer measurement noise 1σ per axis, m/s². thesis eq 6-2 (3.65, 3.44, 3.72, read as mg)."""
+    bias_time_constant_s: float = 1000.0
+    """Gauss–Markov time constant τ_w of the gyro bias, s. Not in the thesis (chosen, see module doc)."""
+    initial_bias_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Gyro bias at start, rad/s (the calibration removes the bias; the filter estimates the residual)."""
+    initial_bias_sigma_rad_s: float = 0.5 * DEG
+    """1σ of the residual gyro bias at start, rad/s. Not in the thesis."""
+    wahba_version: int = 2
+    """Wahba step: 2 = eq 4-40/4-41 (orthogonal columns, magnetometer anchor; "more accurate" per the thesis),
+    1 = eq 4-34 … 4-39 (three-vector inversion with [m, f, f×m])."""
+    reorthonormalize_iterations: int = 1
+    """Steps of C ← 1.5C − 0.5CCᵀC per sample (eq 4-42: the thesis applies one per program step)."""
+    mag_reference_ned_ut: tuple[float, float, float] | None = None
+    """Earth field in NED, µT (e.g. WMM). Only its dip is used (yaw stays magnetic). None: learn the dip from
+    the filtered vectors while initialising."""
+    settle_time_s: float = 1.0
+    """Time after start (or re-initialisation) flagged INITIALISING, during which the dip is learned, s."""
+    converged_sigma_rad: float = 2.0 * DEG
+    """INITIALISING is also kept while any 1σ of roll, pitch or yaw exceeds this, rad."""
+    large_dt_s: float = 0.05
+    """A sample interval above this is a time gap (flag LARGE_DT), s."""
+    max_substep_s: float = 0.01
+    """Gaps are propagated in sub-steps of at most this (F = I + AΔt + ½A²Δt² is accurate for small Δt), s."""
+    reinit_dt_s: float = 1.0
+    """A gap above this re-initialises the vectors from the measurement (flag REINITIALISED), s."""
+
+    def __post_init__(self):
+        for name in ("gyro_arw_rad_sqrt_s", "gyro_bias_drive_rad_sqrt_s", "mag_noise_ut", "accel_noise_m_s2",
+                     "initial_bias_rad_s"):
+            v = np.asarray(getattr(self, name), dtype=float)
+            if v.shape != (3,) or not np.all(np.isfinite(v)):
+                raise ValueError(f"{name} must be three finite numbers, got {getattr(self, name)!r}")
+            if name != "initial_bias_rad_s" and np.any(v <= 0):
+                raise ValueError(f"{name} must be positive")
+        for name in ("q_inflation", "bias_time_constant_s", "initial_bias_sigma_rad_s", "settle_time_s",
+                     "converged_sigma_rad", "large_dt_s", "max_substep_s", "reinit_dt_s"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a positive number, got {v!r}")
+        if self.wahba_version not in (1, 2):
+            raise ValueError("wahba_version must be 1 or 2")
+        if int(self.reorthonormalize_iterations) < 0:
+            raise ValueError("reorthonormalize_iterations must be ≥ 0")
+        if self.mag_reference_ned_ut is not None:
+            m = np.asarray(self.mag_reference_ned_ut, dtype=float)
+            if m.shape != (3,) or not np.all(np.isfinite(m)) or math.hypot(m[0], m[1]) <= 0:
+                raise ValueError("mag_reference_ned_ut must be a finite NED vector with a horizontal part")
+
+    @property
+    def q_diag(self) -> np.ndarray:
+        """The 6 diagonal entries of Q (rad²/s): eq 6-1."""
+        return (self.q_inflation * np.concatenate((self.gyro_arw_rad_sqrt_s, self.gyro_bias_drive_rad_sqrt_s))) ** 2
+
+    @property
+    def r_diag(self) -> np.ndarray:
+        """The 6 diagonal entries of R (µT², (m/s²)²): eq 6-2, mag first."""
+        return np.concatenate((self.mag_noise_ut, self.accel_noise_m_s2)) ** 2
+
+
+DEFAULT_THESIS_KF_PARAMS = ThesisKfParams()
+
+# Flat indices into the 9×9 A of the entries `_predict` writes: −[ω×] twice, then −[m×], −[g×] (bias columns).
+_A_INDEX = np.array([9 * r + c for r, c in (
+    (0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1), (3, 4), (3, 5), (4, 3), (4, 5), (5, 3), (5, 4),
+    (0, 7), (0, 8), (1, 6), (1, 8), (2, 6), (2, 7), (3, 7), (3, 8), (4, 6), (4, 8), (5, 6), (5, 7))])
+# ... and into the 9×6 B: its −[m×], −[g×] blocks (rows 0–5, columns 0–2), in the same order as A's coupling.
+_B_INDEX = np.array([6 * r + c for r, c in (
+    (0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1), (3, 1), (3, 2), (4, 0), (4, 2), (5, 0), (5, 1))])
+_MAG = np.arange(0, 3)
+_ACC = np.arange(3, 6)
+_BOTH = np.arange(0, 6)
+
+
+class ThesisKf:
+    """The thesis's vector Kalman filter + Wahba (Estimator protocol): `update(sample) -> AttitudeEstimate`."""
+
+    name = "thesis"
+
+    def __init__(self, declination_rad: float = 0.0, params: ThesisKfParams | None = None, **overrides):
+        known = {f.name for f in fields(ThesisKfParams)}
+        unknown = set(overrides) - known
+        if unknown:
+            raise ValueError(f"unknown thesis parameter(s): {', '.join(sorted(unknown))}")
+        self.params = replace(params or DEFAULT_THESIS_KF_PARAMS, **overrides)
+        p = self.params
+        self._declination = float(declination_rad)
+        self._r = np.diag(p.r_diag)
+        self._inv_tau = 1.0 / p.bias_time_constant_s
+        self._x = np.zeros(9)
+        self._p = np.zeros((9, 9))
+        self._a = np.zeros((9, 9))      # preallocated continuous-time A (eq 4-16)
+        self._a[6, 6] = self._a[7, 7] = self._a[8, 8] = -self._inv_tau  # Gauss–Markov bias (eq 4-11)
+        self._b = np.zeros((9, 6))      # preallocated noise input matrix B (eq 4-17)
+        self._b[6, 3] = self._b[7, 4] = self._b[8, 5] = self._inv_tau
+        self._q_diag = p.q_diag
+        self._qdt_dt, self._qdt = math.nan, self._q_diag
+        self._n_updates = 0
+        self._cov_ned = (math.nan,) * 4
+        self._eye9 = np.eye(9)
+        self._fixed_dip = None
+        if p.mag_reference_ned_ut is not None:
+            n, e, d = p.mag_reference_ned_ut
+            self._fixed_dip = math.atan2(d, math.hypot(n, e))
+        self.reset()
+
+    # ------------------------------------------------------------------------------ Estimator protocol
+    def reset(self) -> None:
+        """Forget everything: the next sample re-initialises the filter (flag INITIALISING)."""
+        self._initialised = False
+        self._t_last = math.nan
+        self._t_init = math.nan
+        self._settled = False
+        self._rate = np.zeros(3)
+        self._x[:] = 0.0
+        self._x[6:9] = self.params.initial_bias_rad_s
+        self._p[:] = 0.0
+        self._set_dip(self._fixed_dip if self._fixed_dip is not None else 0.0)
+
+    def set_declination(self, declination_rad: float) -> None:
+        self._declination = float(declination_rad)
+
+    # ------------------------------------------------------------------------------ state (read-only)
+    @property
+    def state(self) -> np.ndarray:
+        """[mᵇ (µT), gᵇ (m/s²), b (rad/s)], a copy."""
+        return self._x.copy()
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """9×9 state covariance, a copy."""
+        return self._p.copy()
+
+    @property
+    def dip_rad(self) -> float:
+        """Inclination of the reference field used by the Wahba step, rad (positive down)."""
+        return self._dip
+
+    # ------------------------------------------------------------------------------ the filter
+    def update(self, sample: ImuSample) -> AttitudeEstimate:
+        gyro, accel, mag = sample.gyro_rad_s.tolist(), sample.accel_m_s2.tolist(), sample.mag_ut.tolist()
+        sflags = int(sample.flags)
+        # A NaN or inf anywhere makes the sum non-finite: one check per sensor.
+        gyro_ok = not (sflags & _GYRO_BAD) and math.isfinite(gyro[0] + gyro[1] + gyro[2])
+        acc_ok = not (sflags & _ACC_BAD) and math.isfinite(accel[0] + accel[1] + accel[2])
+        mag_ok = not (sflags & _MAG_BAD) and math.isfinite(mag[0] + mag[1] + mag[2])
+        t = float(sample.t_s)
+        flags = 0
+        if gyro_ok:
+            self._rate = sample.gyro_rad_s
+        if not self._initialised:
+            if not (acc_ok and mag_ok and self._initialise(t, accel, mag)):
+                return self._uninitialised(t)
+            flags = _F_INITIALISING
+        else:
+            dt = t - self._t_last
+            p = self.params
+            if not (dt >= 0.0) or dt > p.reinit_dt_s:  # time went backwards / NaN / long gap: start again
+                flags = _F_LARGE_DT | _F_REINITIALISED
+                if not (acc_ok and mag_ok and self._initialise(t, accel, mag, keep_bias=True)):
+                    self._initialised = False
+                    return self._uninitialised(t, flags)
+            else:
+                if dt > p.large_dt_s:
+                    flags = _F_LARGE_DT
+                    n = int(math.ceil(dt / p.max_substep_s))
+                    for _ in range(n):
+                        self._predict(dt / n)
+                elif dt > 0.0:  # a repeated time stamp: measurement update only
+                    self._predict(dt)
+                self._t_last = t
+                if acc_ok and mag_ok:
+                    self._correct(_BOTH, mag, accel)
+                elif mag_ok:
+                    self._correct(_MAG, mag, accel)
+                    flags |= _F_ACCEL_REJECTED
+                elif acc_ok:
+                    self._correct(_ACC, mag, accel)
+                    flags |= _F_MAG_REJECTED
+                else:
+                    flags |= _F_ACCEL_REJECTED | _F_MAG_REJECTED
+        return self._estimate(t, flags)
+
+    def _initialise(self, t: float, accel, mag, keep_bias: bool = False) -> bool:
+        g = -np.asarray(accel, dtype=float)
+        m = np.asarray(mag, dtype=float)
+        gn, mn = np.linalg.norm(g), np.linalg.norm(m)
+        if not (gn > 0.1 * G0_M_S2 and mn > 0.0) or np.linalg.norm(np.cross(g, m)) < 1e-3 * gn * mn:
+            return False  # no usable gravity, or field parallel to gravity: attitude undefined
+        p = self.params
+        self._x[0:3] = m
+        self._x[3:6] = g
+        if not keep_bias:
+            self._x[6:9] = p.initial_bias_rad_s
+        bias_var = self._p[6:9, 6:9].copy() if keep_bias else np.eye(3) * p.initial_bias_sigma_rad_s**2
+        self._p[:] = 0.0
+        self._p[0:6, 0:6] = self._r   # P₀ = R for the vectors (they come straight from one measurement)
+        self._p[6:9, 6:9] = bias_var
+        self._t_last = t
+        self._t_init = t
+        self._settled = False
+        self._initialised = True
+        if self._fixed_dip is None:
+            self._learn_dip()
+        return True
+
+    def _predict(self, dt: float) -> None:
+        """KF time update (eq 4-20 … 4-22, 4-26, 4-27) over dt with the held measured rate.
+
+        A uses the measured rate; the bias enters through A's coupling blocks (so F·x applies ω_meas − b̂).
+        """
+        x, a = self._x, self._a
+        wx, wy, wz = self._rate.tolist()
+        mx, my, mz, gx, gy, gz = x[0:6].tolist()
+        # A (eq 4-16): −[ω×] on both vector blocks, −[v×] coupling each vector to the bias (one `put`).
+        coupling = (mz, -my, -mz, mx, my, -mx, gz, -gy, -gz, gx, gy, -gx)
+        a.put(_A_INDEX, (wz, -wy, -wz, wx, wy, -wx, wz, -wy, -wz, wx, wy, -wx) + coupling)
+        ad = a * dt
+        f = ad @ (0.5 * ad + self._eye9)
+        f += self._eye9                                             # F = I + AΔt + ½A²Δt² (eq 4-21)
+        self._x = f @ x                                             # eq 4-26
+        # Q_d = B Q Bᵀ Δt (digest §6.5): B (eq 4-17) has A's coupling blocks −[m×], −[g×] and I/τ for w_b.
+        b = self._b
+        b.put(_B_INDEX, coupling)
+        if dt != self._qdt_dt:
+            self._qdt_dt, self._qdt = dt, self._q_diag * dt
+        p = f @ self._p @ f.T                                       # eq 4-27
+        p += (b * self._qdt) @ b.T
+        self._p = p
+
+    def _correct(self, idx: np.ndarray, mag, accel) -> None:
+        """KF measurement update (eq 4-28 … 4-31) with z = [m̃, −f̃] (rows idx), H = [I₆ 0]."""
+        x, p = self._x, self._p
+        if len(idx) == 6:
+            m0, m1, m2 = mag
+            a0, a1, a2 = accel
+            y = np.array((m0, m1, m2, -a0, -a1, -a2)) - x[0:6]
+            pht = p[0:6]                                            # H P (6×9)
+            s = p[0:6, 0:6] + self._r
+        else:
+            y = np.array(mag if idx[0] == 0 else [-v for v in accel]) - x[idx]
+            pht = p[idx]
+            s = p[np.ix_(idx, idx)] + self._r[np.ix_(idx, idx)]
+        _, k_t, info = _dposv(s, pht)                               # Kᵀ = S⁻¹ H P (S symmetric positive definite)
+        if info != 0:
+            return                                                  # S not positive definite: skip this update
+        x += y @ k_t
+        p -= k_t.T @ pht                                             # P − K H P = P − K S Kᵀ (eq 4-31)
+        self._n_updates += 1
+        if not self._n_updates & 31:                                 # keep P symmetric against rounding
+            p += p.T
+            p *= 0.5
+
+    # ------------------------------------------------------------------------------ Wahba step and output
+    def _set_dip(self, dip: float) -> None:
+        self._dip = dip
+        ref_mag = (math.cos(dip), 0.0, math.sin(dip))   # magnetic NED: yaw is magnetic
+        ref_f = (0.0, 0.0, -1.0)                          # fⁿ = [0, 0, −g] (eq 4-1), unit
+        self._n_inv = np.linalg.inv(thesis_matrix(ref_mag, ref_f, self.params.wahba_version))
+
+    def _learn_dip(self) -> None:
+        m, g = self._x[0:3], self._x[3:6]
+        s = float(m @ g) / (math.sqrt(float(m @ m) * float(g @ g)))
+        self._set_dip(math.asin(max(-1.0, min(1.0, s))))
+
+    def attitude_dcm(self) -> np.ndarray:
+        """C_b^n from the filtered vectors: thesis eq 4-37/4-38 (or 4-40/4-41) then eq 4-42."""
+        x = self._x
+        mx, my, mz, gx, gy, gz = x[0:6].tolist()
+        mn = 1.0 / math.sqrt(mx * mx + my * my + mz * mz)
+        gn = -1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)          # f = −g
+        b = thesis_matrix_from_floats(mx * mn, my * mn, mz * mn, gx * gn, gy * gn, gz * gn, self.params.wahba_version)
+        c = (b @ self._n_inv).T                                      # C_b^n = (B_b N_n⁻¹)ᵀ
+        for _ in range(self.params.reorthonormalize_iterations):
+            cc = c @ c.T @ c
+            cc *= -0.5
+            c *= 1.5
+            c += cc                                                  # eq 4-42: 1.5C − 0.5CCᵀC
+        return c
+
+    def _estimate(self, t: float, flags: int) -> AttitudeEstimate:
+        p = self.params
+        if not self._settled and self._fixed_dip is None:
+            self._learn_dip()
+        c = self.attitude_dcm()
+        q = dcm_to_quat(c)   # normalised: removes what one eq 4-42 step leaves of the non-orthonormality
+        w, qx, qy, qz = q.tolist()
+        roll = math.atan2(2.0 * (qy * qz + w * qx), 1.0 - 2.0 * (qx * qx + qy * qy))
+        pitch = -math.asin(max(-1.0, min(1.0, 2.0 * (qx * qz - w * qy))))
+        yaw = math.atan2(2.0 * (qx * qy + w * qz), 1.0 - 2.0 * (qy * qy + qz * qz))
+        sigma = self._sigma_rpy(pitch, yaw)
+        if not self._settled:
+            if t - self._t_init >= p.settle_time_s and max(sigma) <= p.converged_sigma_rad:
+                self._settled = True
+            else:
+                flags |= _F_INITIALISING
+        bias = self._x[6:9].copy()
+        return AttitudeEstimate(
+            t_s=t,
+            q_wxyz=q,
+            roll_rad=roll,
+            pitch_rad=pitch,
+            yaw_rad=yaw,
+            heading_mag_rad=yaw % TWO_PI,
+            heading_true_rad=(yaw + self._declination) % TWO_PI,
+            rate_body_rad_s=self._rate - bias,
+            gyro_bias_rad_s=bias,
+            sigma_rpy_rad=np.array(sigma),
+            flags=EstimateFlags(flags),
+        )
+
+    def _sigma_rpy(self, pitch: float, yaw: float) -> tuple[float, float, float]:
+        """1σ roll, pitch, yaw (rad): the NED attitude covariance (`_attitude_cov_ned`, refreshed every 8th
+        sample once settled: it changes slowly) mapped to ZYX Euler angles at the current attitude."""
+        if not self._settled or not self._n_updates & 7:
+            self._cov_ned = self._attitude_cov_ned()
+        pxx, pxz, pzz, pyy = self._cov_ned
+        # δ[roll, pitch, yaw] = E⁻¹ δφⁿ with E⁻¹ = [[cψ/cθ, sψ/cθ, 0], [−sψ, cψ, 0], [cψ tθ, sψ tθ, 1]].
+        cy, sy = math.cos(yaw), math.sin(yaw)
+        cp = max(math.cos(pitch), 1e-6)
+        tp = math.sin(pitch) / cp
+        horiz = cy * cy * pxx + sy * sy * pyy
+        var_roll = horiz / (cp * cp)
+        var_pitch = sy * sy * pxx + cy * cy * pyy
+        var_yaw = tp * tp * horiz + 2.0 * tp * cy * pxz + pzz
+        return math.sqrt(var_roll), math.sqrt(var_pitch), math.sqrt(max(var_yaw, 0.0))
+
+    def _attitude_cov_ned(self) -> tuple[float, float, float, float]:
+        """Covariance (pxx, pxz, pzz, pyy; rad²) of the NED rotation error of the optimal two-vector solution
+        given the filtered vectors' direction variances (from P), reference mⁿ = [cos δ, 0, sin δ], gⁿ = [0, 0, 1]."""
+        mx, my, mz, gx, gy, gz = self._x[0:6].tolist()
+        (p00, p01, p02, _, _, _), (_, p11, p12, _, _, _), (_, _, p22, _, _, _), \
+            (_, _, _, p33, p34, p35), (_, _, _, _, p44, p45), (_, _, _, _, _, p55) = self._p[0:6, 0:6].tolist()
+        mm = mx * mx + my * my + mz * mz
+        gg = gx * gx + gy * gy + gz * gz
+        # Direction variance per perpendicular axis: (tr P − radial part vᵀPv/|v|²) / 2 / |v|².
+        rad_m = (mx * mx * p00 + my * my * p11 + mz * mz * p22 + 2.0 * (mx * my * p01 + mx * mz * p02 + my * mz * p12)) / mm
+        rad_g = (gx * gx * p33 + gy * gy * p44 + gz * gz * p55 + 2.0 * (gx * gy * p34 + gx * gz * p35 + gy * gz * p45)) / gg
+        var_m = (p00 + p11 + p22 - rad_m) / (2.0 * mm)
+        var_g = (p33 + p44 + p55 - rad_g) / (2.0 * gg)
+        wm, wg = 1.0 / max(var_m, 1e-30), 1.0 / max(var_g, 1e-30)
+        cd, sd = math.cos(self._dip), math.sin(self._dip)
+        # Information Σ wᵢ (I − rᵢrᵢᵀ): y decouples; x–z block [[a, c], [c, d]].
+        iyy = wm + wg
+        ia, ic, idd = wm * (1.0 - cd * cd) + wg, -wm * cd * sd, wm * (1.0 - sd * sd)
+        det = ia * idd - ic * ic
+        return idd / det, -ic / det, ia / det, 1.0 / iyy
+
+    def _uninitialised(self, t: float, extra: int = 0) -> AttitudeEstimate:
+        nan3 = np.full(3, math.nan)
+        return AttitudeEstimate(
+            t_s=t, q_wxyz=np.array([1.0, 0.0, 0.0, 0.0]), roll_rad=math.nan, pitch_rad=math.nan,
+            yaw_rad=math.nan, heading_mag_rad=math.nan, heading_true_rad=math.nan, rate_body_rad_s=nan3,
+            gyro_bias_rad_s=self._x[6:9].copy(), sigma_rpy_rad=np.full(3, math.pi),
+            flags=EstimateFlags.INITIALISING | EstimateFlags(extra),
+        )
+
+
+__all__ = ["ThesisKf", "ThesisKfParams", "DEFAULT_THESIS_KF_PARAMS"]
