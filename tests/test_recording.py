@@ -1,0 +1,145 @@
+"""The CSV recording format (a public interface): exact header, round trip, clear errors for bad files."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from ahrsd.drivers import recording as rec
+from ahrsd.drivers.recording import (RECORDING_HEADER, TRUTH_COLUMNS, RecordingFormatError, RecordingWriter,
+                                     iter_samples, read_recording)
+from ahrsd.drivers.sample import SampleFlags, make_sample
+
+HEADER = ("t_s,gyro_x_rad_s,gyro_y_rad_s,gyro_z_rad_s,accel_x_m_s2,accel_y_m_s2,accel_z_m_s2,"
+          "mag_x_ut,mag_y_ut,mag_z_ut")
+
+
+def random_samples(n, seed=0):
+    rng = np.random.default_rng(seed)
+    flags = [SampleFlags.NEW_DATA, SampleFlags.NEW_DATA | SampleFlags.ALARM | SampleFlags.GYRO_SATURATED]
+    return [make_sample(k / 819.2, rng.normal(size=3), rng.normal(size=3) * 9.8, rng.normal(size=3) * 50,
+                        temp_c=25 + rng.normal(), supply_v=5.0, flags=flags[k % 2], counter=k) for k in range(n)]
+
+
+def test_header_is_exactly_the_public_one():
+    assert RECORDING_HEADER == HEADER
+
+
+def test_round_trip_is_exact(tmp_path):
+    path = tmp_path / "r.csv"
+    samples = random_samples(500)
+    quats = np.random.default_rng(1).normal(size=(500, 4))
+    with RecordingWriter(path, extra_columns=("temp_c", "supply_v", "flags", "counter") + TRUTH_COLUMNS) as w:
+        for s, q in zip(samples, quats):
+            w.write(s, truth_q_wxyz=q)
+    assert path.read_text().splitlines()[0] == HEADER + ",temp_c,supply_v,flags,counter," + ",".join(TRUTH_COLUMNS)
+    r = read_recording(path)
+    assert len(r) == 500
+    assert np.array_equal(r.t_s, [s.t_s for s in samples])
+    assert np.array_equal(r.gyro_rad_s, [s.gyro_rad_s for s in samples])
+    assert np.array_equal(r.accel_m_s2, [s.accel_m_s2 for s in samples])
+    assert np.array_equal(r.mag_ut, [s.mag_ut for s in samples])
+    assert np.array_equal(r["temp_c"], [s.temp_c for s in samples])
+    assert np.array_equal(r["gyro_y_rad_s"], r.gyro_rad_s[:, 1])
+    assert np.array_equal(r.truth_q_wxyz, quats)
+    assert r.sample_rate_hz == pytest.approx(819.2)
+    back = list(iter_samples(path))
+    assert len(back) == 500
+    for a, b in zip(samples, back):
+        assert a.t_s == b.t_s and a.flags == b.flags and a.counter == b.counter and a.temp_c == b.temp_c
+        assert np.array_equal(a.gyro_rad_s, b.gyro_rad_s) and np.array_equal(a.mag_ut, b.mag_ut)
+    assert [s.flags for s in r.samples()] == [s.flags for s in samples]
+
+
+def test_foreign_file_with_only_the_base_columns_and_unknown_extras(tmp_path):
+    path = tmp_path / "other.csv"
+    path.write_text("\ufeff" + HEADER + ",baro_pa\r\n0.0,0,0,0,0,0,-9.81,20,0,45,101325\r\n"
+                    "# a comment line\r\n0.01,1e-3,0,0,0,0,-9.81,20,0,45,nan\r\n")
+    r = read_recording(path)
+    assert len(r) == 2 and np.isnan(r["baro_pa"][1]) and r.accel_m_s2[0, 2] == -9.81
+    s = list(iter_samples(path))
+    assert s[1].gyro_rad_s[0] == 1e-3 and s[1].flags == SampleFlags.NONE and s[1].counter == 1
+    assert r.truth_q_wxyz is None
+
+
+@pytest.mark.parametrize("header, message", [
+    ("", "empty"),
+    ("t,gyro_x_rad_s", "column 1 is 't' but must be 't_s'"),
+    (HEADER.replace("gyro_z_rad_s", "gyro_z"), "column 4 is 'gyro_z' but must be 'gyro_z_rad_s'"),
+    (HEADER.rsplit(",", 2)[0], "missing: mag_y_ut, mag_z_ut"),
+    (HEADER + ",temp_c,temp_c", "repeats column"),
+    (HEADER + ",,x", "empty column name"),
+])
+def test_bad_headers_are_named(tmp_path, header, message):
+    path = tmp_path / "bad.csv"
+    path.write_text(header + ("\n" if header else ""))
+    with pytest.raises(RecordingFormatError, match=message):
+        read_recording(path)
+
+
+def test_truncated_row_and_non_numeric_value(tmp_path):
+    path = tmp_path / "t.csv"
+    good = "0.0,0,0,0,0,0,-9.81,20,0,45\n"
+    path.write_text(HEADER + "\n" + good * 3 + "0.1,0,0,0,0\n" + good)
+    with pytest.raises(RecordingFormatError, match=r"line 5: 5 fields, expected 10"):
+        read_recording(path)
+    path.write_text(HEADER + "\n" + good * 2 + "0.1,0,abc,0,0,0,-9.81,20,0,45\n")
+    with pytest.raises(RecordingFormatError, match=r"line 4, column 'gyro_y_rad_s': 'abc' is not a number"):
+        read_recording(path)
+    with pytest.raises(RecordingFormatError):
+        list(iter_samples(path))
+
+
+def test_killed_recorder_last_line(tmp_path):
+    path = tmp_path / "k.csv"
+    path.write_text(HEADER + "\n" + "0.0,0,0,0,0,0,-9.81,20,0,45\n" * 2 + "0.2,0,0,0,0,0,-9.")
+    with pytest.raises(RecordingFormatError, match="line 4"):
+        read_recording(path)
+    assert len(read_recording(path, strict=False)) == 2
+
+
+def test_chunked_reading_keeps_line_numbers(tmp_path, monkeypatch):
+    monkeypatch.setattr(rec, "CHUNK_ROWS", 7)
+    path = tmp_path / "c.csv"
+    rows = [f"{k / 100},0,0,0,0,0,-9.81,20,0,45\n" for k in range(30)]
+    rows[20] = "0.2,0,0,x,0,0,-9.81,20,0,45\n"
+    path.write_text(HEADER + "\n" + "".join(rows))
+    with pytest.raises(RecordingFormatError, match="line 22"):
+        read_recording(path)
+    rows[20] = "0.2,0,0,0,0,0,-9.81,20,0,45\n"
+    path.write_text(HEADER + "\n" + "".join(rows))
+    assert len(read_recording(path)) == 30 == len(list(iter_samples(path)))
+
+
+def test_writer_rejects_bad_extra_columns(tmp_path):
+    with pytest.raises(ValueError):
+        RecordingWriter(tmp_path / "x.csv", extra_columns=("t_s",))
+    with pytest.raises(ValueError):
+        RecordingWriter(tmp_path / "x.csv", extra_columns=("a,b",))
+
+
+def test_record_command_simulated(tmp_path):
+    out = tmp_path / "x.csv"
+    proc = subprocess.run([sys.executable, "-m", "ahrsd.daemon.cli", "record", "--sim", "static", "--seconds", "2",
+                           "--output", str(out)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "wrote 1638 samples" in proc.stderr
+    r = read_recording(out)
+    assert len(r) == 1638 and r.columns[:10] == tuple(HEADER.split(","))
+    assert r.truth_q_wxyz is not None and np.allclose(np.linalg.norm(r.truth_q_wxyz, axis=1), 1.0)
+    assert np.all(np.diff(r.t_s) > 0) and r.sample_rate_hz == pytest.approx(819.2, rel=1e-3)
+    assert np.all(r["flags"].astype(int) & SampleFlags.NEW_DATA)
+    assert r.accel_m_s2[:, 2].mean() == pytest.approx(-9.81, abs=0.2)
+
+
+def test_record_command_errors_are_clear(tmp_path):
+    def ahrsd(*args):
+        return subprocess.run([sys.executable, "-m", "ahrsd.daemon.cli", "record", *args],
+                              capture_output=True, text=True, timeout=60)
+    p = ahrsd("--sim", "no-such-scenario", "--output", str(tmp_path / "a.csv"), "--seconds", "1")
+    assert p.returncode == 2 and "unknown scenario" in p.stderr and "rate-table" in p.stderr
+    p = ahrsd("--spi", "/dev/spidev-none", "--output", str(tmp_path / "b.csv"), "--seconds", "1")
+    assert p.returncode == 1 and ("spidev" in p.stderr)
+    p = ahrsd("--output", str(tmp_path / "c.csv"))
+    assert p.returncode == 2 and "--sim" in p.stderr
