@@ -1,0 +1,341 @@
+"""`ahrsd run` as a subprocess on the simulated chip, driven by a pymavlink client on loopback.
+
+One daemon serves the whole module (start-up costs a few seconds); tests that change its state run last or
+restore it. Rates are measured from arrival times over a few seconds (±10 %).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+os.environ["MAVLINK20"] = "1"
+os.environ["MAVLINK_DIALECT"] = "ardupilotmega"
+from pymavlink import mavutil  # noqa: E402
+
+from ahrsd.daemon.mavlink_io import mavlink  # noqa: E402  (selects MAVLink 2 / ardupilotmega)
+
+REPO = Path(__file__).resolve().parents[1]
+OUR_COMP = 200
+GCS_SYS, GCS_COMP = 255, 190
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Daemon:
+    """An `ahrsd run` subprocess plus a pymavlink ground station listening on its udpout port."""
+
+    def __init__(self, tmp: Path, *extra: str, env: dict | None = None, scenario: str = "static"):
+        self.port = free_udp_port()
+        self.state_dir = tmp / "state"
+        self.log_path = tmp / "ahrsd.log"
+        self.gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{self.port}", source_system=GCS_SYS,
+                                              source_component=GCS_COMP, dialect="ardupilotmega")
+        cmd = [sys.executable, "-m", "ahrsd.daemon.cli", "run", "--sim", scenario, "--mavlink",
+               f"udpout:127.0.0.1:{self.port}", "--state-dir", str(self.state_dir), "--status-line", "off", *extra]
+        full_env = dict(os.environ, PYTHONUNBUFFERED="1")
+        full_env.update(env or {})
+        self.log = open(self.log_path, "w")
+        self.proc = subprocess.Popen(cmd, stdout=self.log, stderr=subprocess.STDOUT, env=full_env, cwd=REPO)
+        self.sysid = 1
+
+    def output(self) -> str:
+        self.log.flush()
+        return self.log_path.read_text()
+
+    def recv(self, types=None, timeout: float = 5.0, cond=None):
+        """Next message from our component matching types/cond (None on timeout)."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            m = self.gcs.recv_match(type=types, blocking=True, timeout=0.2)
+            if m is None:
+                if self.proc.poll() is not None:
+                    raise AssertionError(f"ahrsd exited with {self.proc.returncode}:\n{self.output()}")
+                continue
+            if m.get_srcComponent() != OUR_COMP:
+                continue
+            if cond is None or cond(m):
+                return m
+        return None
+
+    def wait_active(self, timeout: float = 60.0) -> None:
+        hb = self.recv("HEARTBEAT", timeout, lambda m: m.system_status == mavlink.MAV_STATE_ACTIVE)
+        assert hb is not None, f"no ACTIVE heartbeat:\n{self.output()}"
+        self.sysid = hb.get_srcSystem()
+
+    def collect(self, seconds: float) -> dict[str, list[tuple[float, object]]]:
+        out: dict[str, list] = {}
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            m = self.gcs.recv_match(blocking=True, timeout=0.1)
+            if m is not None and m.get_srcComponent() == OUR_COMP:
+                out.setdefault(m.get_type(), []).append((time.monotonic(), m))
+        return out
+
+    def command(self, command: int, *params: float, target_component: int = OUR_COMP, confirmation: int = 0):
+        p = list(params) + [0.0] * (7 - len(params))
+        self.gcs.mav.command_long_send(self.sysid, target_component, command, confirmation, *p)
+
+    def ack(self, command: int, timeout: float = 3.0):
+        return self.recv("COMMAND_ACK", timeout, lambda m: m.command == command)
+
+    def stop(self, timeout: float = 10.0) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self.gcs.close()
+        self.log.close()
+        return self.proc.returncode
+
+
+def rate_hz(stamps: list[tuple[float, object]]) -> float:
+    t = [s[0] for s in stamps]
+    return (len(t) - 1) / (t[-1] - t[0])
+
+
+@pytest.fixture(scope="module")
+def daemon(tmp_path_factory):
+    d = Daemon(tmp_path_factory.mktemp("ahrsd"))
+    try:
+        d.wait_active()
+        yield d
+    finally:
+        d.stop()
+
+
+def test_outputs_arrive_at_their_default_rates(daemon):
+    got = daemon.collect(6.0)
+    expected = {"ATTITUDE": 50.0, "ATTITUDE_QUATERNION": 10.0, "VISION_POSITION_ESTIMATE": 30.0,
+                "HIGHRES_IMU": 10.0, "SYS_STATUS": 1.0, "HEARTBEAT": 1.0}
+    for name, hz in expected.items():
+        assert name in got, f"no {name} in {sorted(got)}"
+        assert rate_hz(got[name]) == pytest.approx(hz, rel=0.10), name
+    assert "SCALED_IMU" not in got   # off by default
+
+
+def truth_static():
+    """Truth of the 'static' scenario (simulator, scipy; independent of the estimator's maths)."""
+    from scipy.spatial.transform import Rotation
+
+    from ahrsd.estimator.wmm import earth_field
+    from ahrsd.simulation import DEFAULT_SITE, open_stream
+
+    block = open_stream("static", seed=0).next_block(1)
+    w, x, y, z = block.truth_q_wxyz[0]
+    yaw, pitch, roll = Rotation.from_quat([x, y, z, w]).as_euler("ZYX")
+    site = DEFAULT_SITE
+    field = earth_field(site.lat_deg, site.lon_deg, site.alt_m, site.date)
+    return roll, pitch, yaw, field
+
+
+def angle_diff(a: float, b: float) -> float:
+    return abs(math.remainder(a - b, 2 * math.pi))
+
+
+def test_fields_units_and_frames_match_the_simulator(daemon):
+    roll, pitch, yaw, field = truth_static()
+    got = daemon.collect(1.5)
+    att = got["ATTITUDE"][-1][1]
+    # attitude within the estimator's accuracy on an uncalibrated simulated ADIS16405 (datasheet errors)
+    assert angle_diff(att.roll, roll) < math.radians(1.5)
+    assert angle_diff(att.pitch, pitch) < math.radians(1.5)
+    assert angle_diff(att.yaw, yaw) < math.radians(3.0)        # TRUE heading: declination applied
+    assert -math.pi <= att.yaw <= math.pi
+    assert max(abs(att.rollspeed), abs(att.pitchspeed), abs(att.yawspeed)) < math.radians(2)
+    # ATTITUDE_QUATERNION is the same attitude (true north), scalar first
+    q = got["ATTITUDE_QUATERNION"][-1][1]
+    qw, qx, qy, qz = q.q1, q.q2, q.q3, q.q4
+    assert math.isclose(qw * qw + qx * qx + qy * qy + qz * qz, 1.0, abs_tol=1e-5)
+    q_yaw = math.atan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
+    assert angle_diff(q_yaw, yaw) < math.radians(3.0)
+    # VISION_POSITION_ESTIMATE: zero finite position, true yaw, finite covariance with the filter's variances
+    vpe = got["VISION_POSITION_ESTIMATE"][-1][1]
+    assert (vpe.x, vpe.y, vpe.z) == (0.0, 0.0, 0.0)
+    assert angle_diff(vpe.yaw, yaw) < math.radians(3.0)
+    cov = np.array(vpe.covariance)
+    assert np.all(np.isfinite(cov))
+    assert 0.0 < cov[20] < math.radians(10) ** 2     # yaw variance (rad²) from the filter
+    assert abs(vpe.usec / 1e6 - time.monotonic()) < 2.0   # CLOCK_MONOTONIC µs, like our TIMESYNC
+    usecs = [m.usec for _, m in got["VISION_POSITION_ESTIMATE"]]
+    assert all(b > a for a, b in zip(usecs, usecs[1:]))
+    # HIGHRES_IMU: SI + gauss, sensor at rest
+    imu = got["HIGHRES_IMU"][-1][1]
+    acc = np.array([imu.xacc, imu.yacc, imu.zacc])
+    mag_gauss = np.array([imu.xmag, imu.ymag, imu.zmag])
+    assert np.linalg.norm(acc) == pytest.approx(9.81, abs=0.3)
+    assert imu.zacc < -9.0                     # FRD at rest, level: specific force points up (−z)
+    assert np.linalg.norm(mag_gauss) == pytest.approx(field.total_ut / 100.0, rel=0.15)
+    assert imu.fields_updated == 0x11FF
+    st = got["SYS_STATUS"][-1][1]
+    bits = 0x1 | 0x2 | 0x4 | 0x200000
+    assert st.onboard_control_sensors_present & bits == bits
+    assert st.onboard_control_sensors_health & bits == bits
+    hb = got["HEARTBEAT"][-1][1]
+    assert (hb.type, hb.autopilot) == (mavlink.MAV_TYPE_IMU, mavlink.MAV_AUTOPILOT_INVALID)
+
+
+def test_unknown_targeted_command_is_unsupported_and_broadcast_is_ignored(daemon):
+    daemon.command(mavlink.MAV_CMD_DO_SET_MODE, 1)
+    ack = daemon.ack(mavlink.MAV_CMD_DO_SET_MODE)
+    assert ack is not None and ack.result == mavlink.MAV_RESULT_UNSUPPORTED
+    assert (ack.target_system, ack.target_component) == (GCS_SYS, GCS_COMP)
+    daemon.command(mavlink.MAV_CMD_DO_SET_SERVO, 1, 1500, target_component=0)
+    assert daemon.ack(mavlink.MAV_CMD_DO_SET_SERVO, timeout=1.0) is None
+
+
+def test_message_interval_set_get_and_restore(daemon):
+    daemon.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAVLINK_MSG_ID_ATTITUDE, 100_000)
+    assert daemon.ack(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL).result == mavlink.MAV_RESULT_ACCEPTED
+    daemon.command(mavlink.MAV_CMD_GET_MESSAGE_INTERVAL, mavlink.MAVLINK_MSG_ID_ATTITUDE)
+    assert daemon.ack(mavlink.MAV_CMD_GET_MESSAGE_INTERVAL).result == mavlink.MAV_RESULT_ACCEPTED
+    mi = daemon.recv("MESSAGE_INTERVAL", 2.0)
+    assert (mi.message_id, mi.interval_us) == (mavlink.MAVLINK_MSG_ID_ATTITUDE, 100_000)
+    got = daemon.collect(4.0)
+    assert rate_hz(got["ATTITUDE"]) == pytest.approx(10.0, rel=0.10)
+    # SCALED_IMU on at 20 Hz, then disable it again (−1) and ATTITUDE back to its default (0)
+    daemon.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAVLINK_MSG_ID_SCALED_IMU, 50_000)
+    assert daemon.ack(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL).result == mavlink.MAV_RESULT_ACCEPTED
+    got = daemon.collect(3.0)
+    assert rate_hz(got["SCALED_IMU"]) == pytest.approx(20.0, rel=0.10)
+    s = got["SCALED_IMU"][-1][1]
+    assert math.hypot(s.xacc, s.yacc, s.zacc) == pytest.approx(1000, rel=0.05)   # mG
+    for mid, interval in ((mavlink.MAVLINK_MSG_ID_SCALED_IMU, -1), (mavlink.MAVLINK_MSG_ID_ATTITUDE, 0)):
+        daemon.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mid, interval)
+        assert daemon.ack(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL).result == mavlink.MAV_RESULT_ACCEPTED
+    # out of range: VISION_POSITION_ESTIMATE faster than 50 Hz, and a message we do not publish
+    daemon.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAVLINK_MSG_ID_VISION_POSITION_ESTIMATE, 10_000)
+    assert daemon.ack(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL).result == mavlink.MAV_RESULT_DENIED
+    daemon.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAVLINK_MSG_ID_GPS_RAW_INT, 100_000)
+    assert daemon.ack(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL).result == mavlink.MAV_RESULT_DENIED
+    got = daemon.collect(3.0)
+    assert "SCALED_IMU" not in got
+    assert rate_hz(got["ATTITUDE"]) == pytest.approx(50.0, rel=0.10)
+
+
+def test_request_message(daemon):
+    daemon.command(mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
+    assert daemon.ack(mavlink.MAV_CMD_REQUEST_MESSAGE).result == mavlink.MAV_RESULT_ACCEPTED
+    av = daemon.recv("AUTOPILOT_VERSION", 2.0)
+    assert av is not None and av.capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+    daemon.command(mavlink.MAV_CMD_REQUEST_MESSAGE, 999)
+    assert daemon.ack(mavlink.MAV_CMD_REQUEST_MESSAGE).result == mavlink.MAV_RESULT_DENIED
+
+
+def test_gyro_calibration_and_duplicate_command(daemon):
+    """PREFLIGHT_CALIBRATION gyro: IN_PROGRESS, a re-sent duplicate gets the same ACK (not a restart),
+    then exactly one final ACCEPTED; the new calibration is saved in the state directory."""
+    cmd = mavlink.MAV_CMD_PREFLIGHT_CALIBRATION
+    daemon.command(cmd, 1)
+    first = daemon.ack(cmd)
+    assert first.result == mavlink.MAV_RESULT_IN_PROGRESS
+    daemon.command(cmd, 1, confirmation=1)
+    dup = daemon.ack(cmd)
+    assert dup.result == mavlink.MAV_RESULT_IN_PROGRESS
+    final = daemon.ack(cmd, timeout=6.0)
+    assert final is not None and final.result == mavlink.MAV_RESULT_ACCEPTED, daemon.output()
+    assert daemon.ack(cmd, timeout=1.0) is None        # no second calibration ran
+    assert (daemon.state_dir / "calibration.json").exists() or any(daemon.state_dir.glob("calibration*"))
+
+
+def test_parameter_protocol(daemon):
+    g = daemon.gcs
+    g.mav.param_request_list_send(daemon.sysid, 0)       # QGC asks with MAV_COMP_ID_ALL
+    values = {}
+    end = time.monotonic() + 3
+    count = None
+    while time.monotonic() < end and (count is None or len(values) < count):
+        m = daemon.recv("PARAM_VALUE", 1.0)
+        if m is None:
+            break
+        count = m.param_count
+        assert m.param_type == mavlink.MAV_PARAM_TYPE_REAL32
+        values[m.param_index] = (m.param_id, m.param_value)
+    assert count and len(values) == count and sorted(values) == list(range(count))
+    names = {name: v for name, v in values.values()}
+    assert names["SR_VISION_POS"] == 30.0 and names["SR_ATTITUDE"] == 50.0
+    # read by name
+    g.mav.param_request_read_send(daemon.sysid, OUR_COMP, b"SR_HIGHRES_IMU", -1)
+    m = daemon.recv("PARAM_VALUE", 2.0)
+    assert m.param_id == "SR_HIGHRES_IMU" and m.param_value == 10.0
+    # unknown parameter: STATUSTEXT, no PARAM_VALUE
+    g.mav.param_request_read_send(daemon.sysid, OUR_COMP, b"NO_SUCH_PARAM", -1)
+    st = daemon.recv("STATUSTEXT", 2.0, lambda m: "NO_SUCH_PARAM" in m.text)
+    assert st is not None
+    # out of range write: refused, answered with the value in force
+    g.mav.param_set_send(daemon.sysid, OUR_COMP, b"SR_VISION_POS", 100.0, mavlink.MAV_PARAM_TYPE_REAL32)
+    m = daemon.recv("PARAM_VALUE", 2.0, lambda m: m.param_id == "SR_VISION_POS")
+    assert m.param_value == 30.0
+    # good write: applied (rate changes), answered, persisted
+    g.mav.param_set_send(daemon.sysid, OUR_COMP, b"SR_HIGHRES_IMU", 25.0, mavlink.MAV_PARAM_TYPE_REAL32)
+    m = daemon.recv("PARAM_VALUE", 2.0, lambda m: m.param_id == "SR_HIGHRES_IMU")
+    assert m.param_value == 25.0
+    got = daemon.collect(3.0)
+    assert rate_hz(got["HIGHRES_IMU"]) == pytest.approx(25.0, rel=0.10)
+    assert '"SR_HIGHRES_IMU": 25.0' in (daemon.state_dir / "params.json").read_text()
+    g.mav.param_set_send(daemon.sysid, OUR_COMP, b"SR_HIGHRES_IMU", 10.0, mavlink.MAV_PARAM_TYPE_REAL32)
+    assert daemon.recv("PARAM_VALUE", 2.0, lambda m: m.param_id == "SR_HIGHRES_IMU").param_value == 10.0
+
+
+def test_timesync_is_answered(daemon):
+    ts1 = 123456789
+    daemon.gcs.mav.timesync_send(0, ts1)
+    m = daemon.recv("TIMESYNC", 2.0, lambda m: m.ts1 == ts1)
+    assert m is not None
+    assert abs(m.tc1 - time.monotonic_ns()) < 2e9      # our CLOCK_MONOTONIC in ns (same machine)
+
+
+def test_malformed_input_is_counted_not_fatal(daemon):
+    sock = daemon.gcs.port
+    addr = next(iter(daemon.gcs.clients))      # the daemon's udpout socket
+    before = daemon.recv("SYS_STATUS", 3.0).errors_comm
+    sock.sendto(b"\xfd\x09\x00\x00\x00garbage-not-mavlink", addr)
+    frame = bytearray(daemon.gcs.mav.heartbeat_encode(6, 8, 0, 0, 0).pack(daemon.gcs.mav))
+    frame[-1] ^= 0xFF                                   # bad CRC
+    sock.sendto(bytes(frame), addr)
+    sock.sendto(bytes(range(256)) * 4, addr)
+    time.sleep(1.2)
+    after = daemon.recv("SYS_STATUS", 3.0).errors_comm
+    assert after >= before + 2
+    daemon.wait_active(5.0)
+
+
+def test_system_id_latches_to_the_autopilot_then_sigterm_shuts_down(tmp_path):
+    d = Daemon(tmp_path)
+    try:
+        d.wait_active()
+        # play the autopilot (system 7) on the same link: an armed ArduPilot heartbeat
+        d.gcs.mav.srcSystem, d.gcs.mav.srcComponent = 7, 1
+        d.gcs.mav.heartbeat_send(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                                 mavlink.MAV_MODE_FLAG_SAFETY_ARMED, 0, mavlink.MAV_STATE_ACTIVE)
+        hb = d.recv("HEARTBEAT", 3.0, lambda m: m.get_srcSystem() == 7)
+        assert hb is not None
+        d.sysid = 7
+        # armed now: gyro calibration is refused
+        d.gcs.mav.srcSystem, d.gcs.mav.srcComponent = GCS_SYS, GCS_COMP
+        d.command(mavlink.MAV_CMD_PREFLIGHT_CALIBRATION, 1)
+        assert d.ack(mavlink.MAV_CMD_PREFLIGHT_CALIBRATION).result == mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+        d.proc.send_signal(signal.SIGTERM)
+        st = d.recv("STATUSTEXT", 5.0, lambda m: "stopping" in m.text)
+        assert st is not None
+        off = d.recv("HEARTBEAT", 3.0, lambda m: m.system_status == mavlink.MAV_STATE_POWEROFF)
+        assert off is not None
+        assert d.proc.wait(10) == 0
+    finally:
+        d.stop()
