@@ -47,6 +47,12 @@ class Scenario:
         rel = self.attitude(tm).inv() * self.attitude(tp)
         return rel.as_rotvec() / (tp - tm)[:, None]
 
+    def body_angular_accel_rad_s2(self, t_s: np.ndarray) -> np.ndarray:
+        """dω/dt in body axes (central difference of the body rate over ±0.1 ms; for lever-arm effects)."""
+        t = np.asarray(t_s, dtype=float)
+        h = 100 * _RATE_STEP_S
+        return (self.body_rate_rad_s(t + h) - self.body_rate_rad_s(t - h)) / (2 * h)
+
     def accel_ned_m_s2(self, t_s: np.ndarray) -> np.ndarray:
         """Acceleration of the sensor relative to the Earth, NED, m/s² (zero for a vehicle that stays put)."""
         return np.zeros((len(t_s), 3))

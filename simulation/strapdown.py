@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+from scipy.integrate import cumulative_trapezoid
 from scipy.spatial.transform import Rotation
 
 from ahrsd.simulation.gravity import EARTH_RADIUS_M, EARTH_RATE_RAD_S, normal_gravity_m_s2
@@ -100,3 +101,56 @@ def mechanise_ned(t_s, gyro_rad_s, accel_m_s2, q0_wxyz, v0_ned_m_s, lat0_deg: fl
         c, v = c_next, v_next
     quats *= np.where(quats[:, :1] < 0, -1.0, 1.0)
     return NavSolution(t, quats, vel, np.degrees(pos[:, 0]), np.degrees(pos[:, 1]), pos[:, 2])
+
+
+@dataclass(frozen=True, eq=False)
+class InertialSolution:
+    """Inertial-frame navigation output: t_s (n,), q_wxyz (n,4) body→inertial, v_m_s (n,3), p_m (n,3)."""
+
+    t_s: np.ndarray
+    q_wxyz: np.ndarray
+    v_m_s: np.ndarray
+    p_m: np.ndarray
+
+
+def _prefix_product(increments: Rotation) -> Rotation:
+    """[inc0, inc0·inc1, inc0·inc1·inc2, …] by a log-depth scan (vectorised compositions, order kept)."""
+    cum = increments
+    n = len(cum)
+    shift = 1
+    while shift < n:
+        cum = Rotation.concatenate([cum[:shift], cum[:-shift] * cum[shift:]])
+        shift *= 2
+    return cum
+
+
+def mechanise_inertial(t_s, gyro_rad_s, accel_m_s2, q0_wxyz, v0_m_s, p0_m,
+                       gravity_i_m_s2=None) -> InertialSolution:
+    """Navigation in a non-rotating (inertial) frame, seed 004 §5 (Fig. 6) and seed 001 §9.
+
+    C_b^i from the gyros (body-frame increments exp(ω̄ Δt), trapezoidal ω̄), f^i = C_b^i f^b, plus the gravity
+    vector `gravity_i_m_s2` if given (seed 001's scenario has none), integrated twice (trapezoid).
+    """
+    t = np.asarray(t_s, dtype=float)
+    w = np.asarray(gyro_rad_s, dtype=float)
+    f = np.asarray(accel_m_s2, dtype=float)
+    n = len(t)
+    if w.shape != (n, 3) or f.shape != (n, 3) or n < 1:
+        raise ValueError("t_s (n,), gyro_rad_s (n,3) and accel_m_s2 (n,3) must have the same length n ≥ 1")
+    q0 = np.asarray(q0_wxyz, dtype=float)
+    c0 = Rotation.from_quat([q0[1], q0[2], q0[3], q0[0]])
+    if n > 1:
+        dt = np.diff(t)[:, None]
+        inc = Rotation.from_rotvec(0.5 * (w[:-1] + w[1:]) * dt)
+        c = Rotation.concatenate([c0, c0 * _prefix_product(inc)])
+    else:
+        c = Rotation.concatenate([c0])
+    a = c.apply(f)
+    if gravity_i_m_s2 is not None:
+        a = a + np.asarray(gravity_i_m_s2, dtype=float)
+    v = np.asarray(v0_m_s, dtype=float) + cumulative_trapezoid(a, t, axis=0, initial=0.0)
+    p = np.asarray(p0_m, dtype=float) + cumulative_trapezoid(v, t, axis=0, initial=0.0)
+    q = c.as_quat()
+    q = np.column_stack([q[:, 3], q[:, :3]])
+    q *= np.where(q[:, :1] < 0, -1.0, 1.0)
+    return InertialSolution(t, q, v, p)
