@@ -230,10 +230,16 @@ def parameter_uncertainty(jacobian: np.ndarray, names: list[str], limits: dict[s
     scale = np.linalg.norm(j, axis=0)
     scale[scale == 0] = 1.0
     js = j / scale
-    sv = np.linalg.svd(js, compute_uv=False)
+    _, sv, vt = np.linalg.svd(js, full_matrices=False)
     cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf
-    cov_s = np.linalg.pinv(js.T @ js, rcond=1e-15)
-    std = np.sqrt(np.clip(np.diag(cov_s), 0, None)) / scale * residual_scale
+    # variance of each (scaled) parameter = Σ_i v_ik²/s_i²; a direction with a numerically zero singular value
+    # (below 1e-8 of the largest: more than 10⁸ times weaker) means the parameter is not determined at all
+    tiny = sv <= 1e-8 * sv[0]
+    with np.errstate(divide="ignore"):
+        inv_s2 = np.where(tiny, np.inf, 1.0 / np.where(tiny, 1.0, sv) ** 2)
+    w = vt**2
+    var = np.array([np.sum(np.where(w[:, k] > 1e-12, w[:, k] * inv_s2, 0.0)) for k in range(j.shape[1])])
+    std = np.sqrt(var) / scale * residual_scale
     out_std = {n: float(s) for n, s in zip(names, std)}
     bad = []
     for n, s in out_std.items():

@@ -67,14 +67,17 @@ class DeviationCoefficients:
     def as_array(self) -> np.ndarray:
         return np.array([self.a_deg, self.b_deg, self.c_deg, self.d_deg, self.e_deg])
 
-    def deviation_deg(self, heading_mag_deg) -> np.ndarray:
-        """δψ at magnetometer heading(s) ψ̂ (degrees)."""
-        return _regressors(heading_mag_deg) @ self.as_array()
-
-    def apply(self, heading_mag_deg) -> np.ndarray:
-        """Corrected heading ψ̂ + δψ(ψ̂) in [0, 360) (seed 002 eq. 31)."""
+    def deviation_deg(self, heading_mag_deg):
+        """δψ at magnetometer heading(s) ψ̂ (degrees); a float for a scalar heading."""
         h = np.asarray(heading_mag_deg, dtype=np.float64)
-        return (h + self.deviation_deg(h)) % 360.0
+        out = (_regressors(h) @ self.as_array()).reshape(h.shape)
+        return float(out) if out.ndim == 0 else out
+
+    def apply(self, heading_mag_deg):
+        """Corrected heading ψ̂ + δψ(ψ̂) in [0, 360) (seed 002 eq. 31); a float for a scalar heading."""
+        h = np.asarray(heading_mag_deg, dtype=np.float64)
+        out = (h + self.deviation_deg(h)) % 360.0
+        return float(out) if np.ndim(out) == 0 else out
 
     def to_dict(self) -> dict:
         return {"A_deg": self.a_deg, "B_deg": self.b_deg, "C_deg": self.c_deg, "D_deg": self.d_deg,
