@@ -28,6 +28,16 @@ _BURST_TX = R.BURST_COMMAND + bytes(R.BURST_DATA_BYTES)
 _BURST_LEN = len(_BURST_TX)
 _UNPACK_BURST = struct.Struct(">12H").unpack_from
 _FLAG_BITS = R.ND | R.EA
+# SampleFlags as plain ints on the hot path (one enum construction per sample)
+_NEW_DATA, _STALE, _ALARM, _GAP_BEFORE = (int(SampleFlags.NEW_DATA), int(SampleFlags.STALE), int(SampleFlags.ALARM),
+                                          int(SampleFlags.GAP_BEFORE))
+_GYRO_INVALID, _ACCEL_INVALID, _MAG_INVALID = (int(SampleFlags.GYRO_INVALID), int(SampleFlags.ACCEL_INVALID),
+                                               int(SampleFlags.MAG_INVALID))
+_GYRO_SAT = int(SampleFlags.GYRO_SATURATED | SampleFlags.GYRO_INVALID)
+_ACCEL_SAT = int(SampleFlags.ACCEL_SATURATED | SampleFlags.ACCEL_INVALID)
+_MAG_SAT = int(SampleFlags.MAG_SATURATED | SampleFlags.MAG_INVALID)
+_ANY_SAT = int(SampleFlags.GYRO_SATURATED | SampleFlags.ACCEL_SATURATED | SampleFlags.MAG_SATURATED)
+_BURST_BUG_RECOVERED = int(SampleFlags.BURST_BUG_RECOVERED)
 
 # Plausibility of a burst frame (beyond these the frame is garbage, not a measurement).
 SUPPLY_PLAUSIBLE_V = (3.0, 6.0)      # the chip stops working outside this; 4.75..5.25 V is nominal
@@ -317,7 +327,7 @@ class Adis16405:
         if not _SUPPLY_MIN_LSB <= supply <= _SUPPLY_MAX_LSB:
             raise self._reject(f"implausible supply {supply * R.SUPPLY_V_PER_LSB:.2f} V", rx)
         raw9 = [((x & 0x3FFF) ^ 0x2000) - 0x2000 for x in (w1, w2, w3, w4, w5, w6, w7, w8, w9)]
-        flags = SampleFlags.NONE
+        flags = 0
         new_data = bool(both & R.ND)
 
         # X-gyro burst bug (EZ 81805): a negative X rate comes back with bit 13 cleared, i.e. +8192 LSB.
@@ -336,33 +346,33 @@ class Adis16405:
         diag = 0
         if both & R.EA:
             self.counters["ea_flags"] += 1
-            flags |= SampleFlags.ALARM
+            flags |= _ALARM
             diag, faults = self.read_diag_stat()
             for name in faults:
                 key = "diag_" + name.lower()
                 self.counters[key] = self.counters.get(key, 0) + 1
             if diag & R.DIAG_GYRO_SELF_TEST:
-                flags |= SampleFlags.GYRO_INVALID
+                flags |= _GYRO_INVALID
             if diag & R.DIAG_ACCEL_SELF_TEST:
-                flags |= SampleFlags.ACCEL_INVALID
+                flags |= _ACCEL_INVALID
 
         full = self._full_scale9
         if (abs(raw9[0]) >= full[0] or abs(raw9[1]) >= full[1] or abs(raw9[2]) >= full[2]):
-            flags |= SampleFlags.GYRO_SATURATED | SampleFlags.GYRO_INVALID
+            flags |= _GYRO_SAT
         if (abs(raw9[3]) >= full[3] or abs(raw9[4]) >= full[4] or abs(raw9[5]) >= full[5]):
-            flags |= SampleFlags.ACCEL_SATURATED | SampleFlags.ACCEL_INVALID
+            flags |= _ACCEL_SAT
         if (abs(raw9[6]) >= full[6] or abs(raw9[7]) >= full[7] or abs(raw9[8]) >= full[8]):
-            flags |= SampleFlags.MAG_SATURATED | SampleFlags.MAG_INVALID
-        if flags & (SampleFlags.GYRO_SATURATED | SampleFlags.ACCEL_SATURATED | SampleFlags.MAG_SATURATED):
+            flags |= _MAG_SAT
+        if flags & _ANY_SAT:
             self.counters["saturations"] += 1
 
         if new_data:
-            flags |= SampleFlags.NEW_DATA
+            flags |= _NEW_DATA
             flags |= self._advance_counter()
             self._prev_gx = gx
             flags |= self._check_stuck(raw9)
         else:
-            flags |= SampleFlags.STALE
+            flags |= _STALE
             self.counters["stale"] += 1
             if self._counter < 0:
                 self._counter = 0
@@ -375,13 +385,13 @@ class Adis16405:
             values[0:3], values[3:6], values[6:9],
             R.TEMP_C_AT_ZERO + R.TEMP_C_PER_LSB * (((w10 & 0x0FFF) ^ 0x0800) - 0x0800),
             supply * R.SUPPLY_V_PER_LSB,
-            flags, diag, self._counter,
+            SampleFlags(flags), diag, self._counter,
         )
         self.counters["samples"] += 1
         self._last = sample
         return sample
 
-    def _advance_counter(self) -> SampleFlags:
+    def _advance_counter(self) -> int:
         """Index the fresh sample. Without a host clock: one period after the previous one.
 
         With a host clock, gaps are found from the host time of the read in sample periods, `host`: the sample
@@ -392,22 +402,22 @@ class Adis16405:
         self.counters["new_samples"] += 1
         if self._clock is None:
             self._counter += 1
-            return SampleFlags.NONE
+            return 0
         host = (self._clock() - self._t0_s) * self._rate_hz
         if self._counter < 0:
             self._counter = max(0, int(host))
             self._phase = host - self._counter
-            return SampleFlags.NONE
+            return 0
         index = max(self._counter + 1, math.floor(host - self._phase))
         self._phase = min(self._phase + CLOCK_DRIFT, host - index)
         steps = index - self._counter
         self._counter = index
         if steps > 1:
             self.counters["lost_samples"] += steps - 1
-            return SampleFlags.GAP_BEFORE
-        return SampleFlags.NONE
+            return _GAP_BEFORE
+        return 0
 
-    def _check_burst_bug(self, w1: int, gx: int, flags: SampleFlags) -> tuple[int, SampleFlags]:
+    def _check_burst_bug(self, w1: int, gx: int, flags: int) -> tuple[int, int]:
         """Confirm a suspicious burst X-gyro value with a register read of XGYRO_OUT."""
         reg = self.read_register(R.XGYRO_OUT)
         reg_lsb = R.decode_signed14(reg)
@@ -415,13 +425,13 @@ class Adis16405:
             return gx, flags                                  # genuine
         if (reg & 0x3FFF) == ((w1 & 0x3FFF) | 0x2000):
             self.counters["burst_bug_recovered"] += 1
-            return reg_lsb, flags | SampleFlags.BURST_BUG_RECOVERED
+            return reg_lsb, flags | _BURST_BUG_RECOVERED
         # the register moved on (new sample) or disagrees otherwise: the burst value cannot be trusted
         self.counters["burst_bug_unverified"] += 1
         fixed = R.decode_signed14(w1 | 0x2000)
-        return fixed, flags | SampleFlags.GYRO_INVALID
+        return fixed, flags | _GYRO_INVALID
 
-    def _check_stuck(self, raw9: list[int]) -> SampleFlags:
+    def _check_stuck(self, raw9: list[int]) -> int:
         prev, runs = self._prev_raw9, self._runs
         for i in range(9):
             if raw9[i] == prev[i]:
@@ -432,7 +442,7 @@ class Adis16405:
         if max(runs) < self._stuck_window:
             if any(self._stuck):
                 self._stuck = [False] * 9
-            return SampleFlags.NONE
+            return 0
         window = self._stuck_window
         for s in range(3):
             r = runs[3 * s:3 * s + 3]
@@ -445,13 +455,13 @@ class Adis16405:
                 self._stuck[3 * s + i] = frozen
         return self._stuck_flags()
 
-    def _stuck_flags(self) -> SampleFlags:
+    def _stuck_flags(self) -> int:
         st = self._stuck
-        flags = SampleFlags.NONE
+        flags = 0
         if st[0] or st[1] or st[2]:
-            flags |= SampleFlags.GYRO_INVALID
+            flags |= _GYRO_INVALID
         if st[3] or st[4] or st[5]:
-            flags |= SampleFlags.ACCEL_INVALID
+            flags |= _ACCEL_INVALID
         if st[6] or st[7] or st[8]:
-            flags |= SampleFlags.MAG_INVALID
+            flags |= _MAG_INVALID
         return flags
