@@ -170,7 +170,7 @@ def reference_magnitude_ut(reference: "EarthField | None", mag_ut: np.ndarray, f
 # Default acceptance checks of the attitude-independent (full-sphere) fits; each is an option of the fit.
 MIN_SAMPLES = 30
 MIN_COVERAGE = 0.5            # fraction of the 26 cube directions seen (level turns ≈ 0.3, a tumble ≈ 1)
-MAX_RESIDUAL_FRACTION = 0.05  # RMS | |m| − H0 | above 5 % of H0: the model does not describe the data
+MAX_RESIDUAL_UT = 1.6         # RMS | |m| − H0 | limit: ArduPilot COMPASS_CAL_FIT default, 16 mgauss (anchors/magcal.md §1.1)
 MAX_SIGMA_HARD_UT = 0.5       # 1σ of each hard-iron component (5 mgauss): beyond it the data cannot fix it
 MAX_SIGMA_SOFT = 0.01         # 1σ of each soft-iron entry (1 %)
 SOFT_IRON_GAIN_RANGE = (0.25, 4.0)  # singular values of soft_iron outside this are not a vehicle's iron
@@ -229,7 +229,7 @@ def parameter_sigmas(model: MagModel, mag_ut: np.ndarray, field_ut: float, param
 
 
 def assess(method: str, model: MagModel, mag_ut: np.ndarray, field_ut: float, quality: dict, *, params: str,
-           min_coverage: float = MIN_COVERAGE, max_residual_fraction: float = MAX_RESIDUAL_FRACTION,
+           min_coverage: float = MIN_COVERAGE, max_residual_ut: float = MAX_RESIDUAL_UT,
            max_sigma_hard_ut: float = MAX_SIGMA_HARD_UT, max_sigma_soft: float = MAX_SIGMA_SOFT) -> MagFitResult:
     """Residuals and acceptance checks common to the magnitude-based fits; a refused result if one fails."""
     resid = magnitude_residuals(model, mag_ut, field_ut)
@@ -250,9 +250,9 @@ def assess(method: str, model: MagModel, mag_ut: np.ndarray, field_ut: float, qu
     if coverage < min_coverage:
         reasons.append(f"orientation coverage {coverage:.0%} < {min_coverage:.0%}: turn the sensor through more "
                        "attitudes (for a vehicle that cannot be tilted use the backstepping method)")
-    if rms > max_residual_fraction * field_ut:
-        reasons.append(f"residual {rms:.2f} µT is over {max_residual_fraction:.0%} of the field "
-                       f"({field_ut:.1f} µT): a magnetic disturbance, a moving magnet or the wrong site?")
+    if rms > max_residual_ut:
+        reasons.append(f"residual {rms:.2f} µT RMS is over {max_residual_ut} µT: the model does not describe the "
+                       "data (a magnetic disturbance or a moving magnet during the calibration?)")
     if not np.all(sig_h <= max_sigma_hard_ut):
         reasons.append(f"hard iron poorly determined (1σ up to {np.max(sig_h):.2f} µT > {max_sigma_hard_ut} µT)")
     if not np.all(sig_s <= max_sigma_soft):
