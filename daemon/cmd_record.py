@@ -135,7 +135,7 @@ def run(args) -> int:
         status.write("\n")
     elapsed = time.monotonic() - wall0
     problems = {k: v for k, v in imu.counters.items() if v and k not in ("samples", "new_samples")}
-    span = 0.0 if last is None else last.t_s - (0.0 if clock is None else imu._t0_s)
+    span = 0.0 if last is None else last.t_s - imu.start_time_s
     print(f"ahrsd record: wrote {written} samples ({span:.2f} s of data at {imu.sample_rate_hz:.1f} SPS) to "
           f"{args.output} in {elapsed:.2f} s" + (f"; counters: {problems}" if problems else ""), file=sys.stderr)
     log.debug("counters: %s", imu.counters)

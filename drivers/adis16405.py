@@ -109,6 +109,11 @@ class Adis16405:
         return R.decode_sens_avg(self.sens_avg)[0]
 
     @property
+    def start_time_s(self) -> float:
+        """Host-clock time of start() (t_s of sample 0); 0.0 without a host clock."""
+        return self._t0_s
+
+    @property
     def spi_speed_hz(self) -> int:
         """Clock used for register access (burst reads always use 1 MHz)."""
         return self._reg_speed_hz
@@ -320,8 +325,10 @@ class Adis16405:
         rx = self._xfer(_BURST_TX, R.SPI_BURST_HZ, 0)
         w = _UNPACK_BURST(rx, 2)
         w0, w1, w2, w3, w4, w5, w6, w7, w8, w9, w10, w11 = w
-        both = w0 & w1 & w2 & w3 & w4 & w5 & w6 & w7 & w8 & w9 & w10 & w11 & _FLAG_BITS
-        if (w0 | w1 | w2 | w3 | w4 | w5 | w6 | w7 | w8 | w9 | w10 | w11) & _FLAG_BITS != both:
+        # ND/EA must agree across SUPPLY_OUT and the nine sensor words (TEMP_OUT/AUX_ADC are not checked:
+        # their flag bits are not relied on, so a hardware difference there cannot reject every frame)
+        both = w0 & w1 & w2 & w3 & w4 & w5 & w6 & w7 & w8 & w9 & _FLAG_BITS
+        if (w0 | w1 | w2 | w3 | w4 | w5 | w6 | w7 | w8 | w9) & _FLAG_BITS != both:
             raise self._reject("ND/EA bits differ between words", rx)
         supply = w0 & 0x3FFF
         if not _SUPPLY_MIN_LSB <= supply <= _SUPPLY_MAX_LSB:

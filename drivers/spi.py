@@ -74,10 +74,10 @@ def _open_hint(path: str, exc: BaseException) -> str:
     import os
 
     code = getattr(exc, "errno", None)
-    if code == errno.ENOENT or not os.path.exists(path):
-        return (f"{path} does not exist: enable SPI (Raspberry Pi: dtparam=spi=on in config.txt) "
-                f"and check the bus/chip-select numbers ({exc})")
     if code in (errno.EACCES, errno.EPERM):
         return (f"no permission to open {path}: add the user to the 'spi' group or install a udev rule "
                 f"SUBSYSTEM==\"spidev\", GROUP=\"spi\", MODE=\"0660\" ({exc})")
+    if code == errno.ENOENT or not os.path.exists(path):
+        return (f"{path} does not exist: enable SPI (Raspberry Pi: dtparam=spi=on in config.txt) "
+                f"and check the bus/chip-select numbers ({exc})")
     return f"cannot open {path}: {exc}"
