@@ -401,6 +401,34 @@ class HeadingSlew:
         return self._published
 
 
+def max_heading_change_deg(old: MagModel, new: MagModel, field_body_ut: np.ndarray, roll_rad: float,
+                           pitch_rad: float, n_headings: int = 36) -> float:
+    """Largest change of the tilt-compensated heading that replacing `old` by `new` causes, over a full turn
+    at the given roll/pitch. `field_body_ut` is the current calibrated field (its levelled horizontal
+    magnitude and vertical component are kept, its direction swept through `n_headings` headings); the raw
+    readings are those the new model maps onto those fields (the new model taken as the truth)."""
+    from scipy.spatial.transform import Rotation
+
+    b = np.asarray(field_body_ut, dtype=np.float64).reshape(3)
+    tilt = Rotation.from_euler("YX", [pitch_rad, roll_rad])       # body -> level frame (no yaw)
+    level = tilt.apply(b)
+    h, down = math.hypot(level[0], level[1]), level[2]
+    psi = np.linspace(0.0, 2 * np.pi, n_headings, endpoint=False)
+    # a field at magnetic heading psi has level-frame components (H cos psi, -H sin psi, down)
+    fields_level = np.column_stack([h * np.cos(psi), -h * np.sin(psi), np.full_like(psi, down)])
+    fields_body = tilt.inv().apply(fields_level)
+    raw = fields_body @ np.linalg.inv(new.soft_iron).T + new.hard_iron_ut
+    h_old = tilt_compensated_heading_rad(old.apply(raw), roll_rad, pitch_rad)
+    h_new = tilt_compensated_heading_rad(new.apply(raw), roll_rad, pitch_rad)
+    return float(np.degrees(np.max(np.abs(_wrap_pi(h_new - h_old)))))
+
+
+def blend_models(old: MagModel, new: MagModel, alpha: float) -> MagModel:
+    """The model a fraction `alpha` (0..1) of the way from `old` to `new` (hard and soft iron interpolated)."""
+    a = min(1.0, max(0.0, float(alpha)))
+    return MagModel((1 - a) * old.hard_iron_ut + a * new.hard_iron_ut, (1 - a) * old.soft_iron + a * new.soft_iron)
+
+
 def yaw_rate_ned_rad_s(rate_body_rad_s: np.ndarray, roll_rad: float, pitch_rad: float) -> float:
     """ψ̇ from body rates (ZYX Euler kinematics): (q sinφ + r cosφ) / cosθ."""
     q, r = float(rate_body_rad_s[1]), float(rate_body_rad_s[2])
@@ -505,7 +533,7 @@ class FieldCalibration:
         self.config = config or FieldCalConfig()
         self.reference = reference
         self.samples_are_calibrated = samples_are_calibrated
-        self._fit = fit_function or _default_fit
+        self._fit_function = fit_function  # None: ahrsd.calibration.magfit.fit_mag (picklable jobs)
         self.auto_fit = auto_fit
         self._lock = threading.RLock()
         self._messages: list[tuple[int, str]] = []
@@ -601,17 +629,21 @@ class FieldCalibration:
             self._advance(t)
 
     # ------------------------------------------------------------------ fitting (off the event loop)
-    def pending_fit(self) -> Callable[[], Any] | None:
-        """A job to run (in a worker thread) when the session waits for a fit, else None."""
+    def pending_fit(self) -> "FitJob | None":
+        """A job to run (a picklable callable: in a worker thread or process) when the session waits for a
+        fit, else None. Hand its return value to `fit_done`."""
         with self._lock:
             if not self._fit_request or self._fit_busy:
                 return None
             self._fit_busy = True
-            stage = self._fit_request
             n = self._n
-            snap = (self._t[:n].copy(), self._raw[:n].copy(), self._acc[:n].copy(), self._gyro[:n].copy(),
-                    self._rpy[:n].copy(), self._step_two_from)
-        return lambda: self._run_fit(stage, *snap)
+            return FitJob(
+                stage=self._fit_request, config=self.config, reference=self.reference, current=self.current.mag,
+                t=self._t[:n].copy(), raw=self._raw[:n].copy(), acc=self._acc[:n].copy(),
+                gyro=self._gyro[:n].copy(), rpy=self._rpy[:n].copy(),
+                sphere_coverage=self.sphere_coverage, heading_coverage=self.heading_coverage,
+                full_sphere=self._needs_sphere(), fit_function=self._fit_function,
+            )
 
     def fit_done(self, outcome: Any) -> None:
         with self._lock:
@@ -801,105 +833,6 @@ class FieldCalibration:
         self.status = status
         self._fit_request = None
 
-    # ------------------------------------------------------------------ fits (pure: run in any thread)
-    def _fit_input(self, t, raw, acc, gyro):
-        from .magfit import MagFitInput
-
-        return MagFitInput(t, raw, acc, gyro)
-
-    def _run_fit(self, stage, t, raw, acc, gyro, rpy, step_two_from):
-        try:
-            if stage == "preliminary":
-                model, quality = fit_offsets_keep_soft_iron(
-                    raw, self.current.mag.soft_iron, self.current.mag.hard_iron_ut, rpy[:, 0], rpy[:, 1], self.reference
-                )
-                return stage, (model, quality)
-            return stage, self._final_fit(t, raw, acc, gyro, rpy)
-        except Exception as exc:  # a fit must never take the daemon down: report it as a failed calibration
-            log.exception("magnetometer fit failed")
-            return stage, exc
-
-    def _final_fit(self, t, raw, acc, gyro, rpy) -> FieldCalResult:
-        cfg = self.config
-        tilt = np.degrees(np.arccos(np.clip(np.cos(rpy[:, 0]) * np.cos(rpy[:, 1]), -1, 1)))
-        tilt_range = float(np.percentile(tilt, 98) - np.percentile(tilt, 2)) if len(tilt) else 0.0
-        sphere = float(np.count_nonzero(self._cells)) / N_SECTIONS
-        full_sphere = self._needs_sphere()
-        notes: list[str] = []
-        candidates: list[str] = []
-        if full_sphere:
-            candidates = ["ellipsoid"]
-        elif tilt_range >= cfg.min_tilt_full_model_deg and self.reference is not None:
-            candidates = ["backstepping"]
-        elif self.reference is None:
-            notes.append("no WMM reference: fitted offsets only")
-        else:
-            notes.append("tilt range too small for full model: fitted offsets only")
-        data = self._fit_input(t, raw, acc, gyro)
-        quality: dict = {"tilt_range_deg": tilt_range, "sphere_coverage": sphere,
-                         "heading_coverage": self.heading_coverage, "n_samples": int(len(t))}
-        for method in candidates:
-            options = {"roll_rad": rpy[:, 0], "pitch_rad": rpy[:, 1]} if method == "backstepping" else {}
-            try:
-                fr = self._fit(method, data, self.reference, **options)
-            except (NotImplementedError, ImportError) as exc:
-                notes.append(f"{method} unavailable: offsets only")
-                log.warning("%s", exc)
-                continue
-            if fr.refused is None:
-                ok, why = self._acceptable_shape(fr.model)
-                if ok:
-                    quality.update({f"{method}_{k}": v for k, v in (fr.quality or {}).items()
-                                    if isinstance(v, (int, float, str, bool))})
-                    return self._judge(fr.model, fr.method, raw, quality, notes, partial=False)
-                notes.append(f"{method} rejected ({why}): offsets only")
-            else:
-                log.info("%s refused: %s", method, fr.refused)
-                short = "tilt range too small for full model" if not full_sphere else fr.refused
-                notes.append(f"{short}: fitted offsets only")
-        model, q = fit_offsets_keep_soft_iron(
-            raw, self.current.mag.soft_iron, self.current.mag.hard_iron_ut, rpy[:, 0], rpy[:, 1], self.reference
-        )
-        quality.update({f"offsets_{k}": v for k, v in q.items()})
-        return self._judge(model, "offsets", raw, quality, notes, partial=True)
-
-    def _acceptable_shape(self, model: MagModel) -> tuple[bool, str]:
-        ap = to_ardupilot(model)
-        if np.any(np.abs(ap.ofs_mgauss) >= self.config.offsets_max_mgauss):
-            return False, "offsets too large"
-        if np.any(ap.diag <= DIAG_MIN) or np.any(ap.diag >= DIAG_MAX) or np.any(np.abs(ap.offdiag) >= OFFDIAG_MAX):
-            return False, "diagonals out of range"
-        return True, ""
-
-    def _judge(self, model: MagModel, method: str, raw, quality, notes, partial: bool) -> FieldCalResult:
-        cfg = self.config
-        corrected = model.apply(raw)
-        norms = np.linalg.norm(corrected, axis=1)
-        radius_ut = float(self.reference.total_ut) if self.reference is not None else float(np.mean(norms))
-        fitness = float(np.sqrt(np.mean((norms - radius_ut) ** 2))) * UT_TO_MGAUSS
-        ap = to_ardupilot(model)
-        status, reason = CalStatus.SUCCESS, "; ".join(notes)
-        mean_radius_mg = float(np.mean(norms)) * UT_TO_MGAUSS
-        if not math.isfinite(fitness):
-            status, reason = CalStatus.FAILED, "fit diverged (fitness NaN)"
-        elif np.any(np.abs(ap.ofs_mgauss) >= cfg.offsets_max_mgauss):
-            status = CalStatus.FAILED_OFFSETS
-            reason = f"offsets {np.round(ap.ofs_mgauss).astype(int).tolist()} > {cfg.offsets_max_mgauss:.0f} mG"
-        elif np.any(ap.diag <= DIAG_MIN) or np.any(ap.diag >= DIAG_MAX) or np.any(np.abs(ap.offdiag) >= OFFDIAG_MAX):
-            status, reason = CalStatus.FAILED_DIAG_SCALING, "diagonals/off-diagonals out of range"
-        elif not (RADIUS_MIN_MGAUSS < mean_radius_mg < RADIUS_MAX_MGAUSS):
-            status, reason = CalStatus.BAD_RADIUS, f"radius {mean_radius_mg:.0f} mG outside [150, 950]"
-        elif self.reference is not None and not (
-            1 / MAX_SCALE_FACTOR <= self.reference.total_ut * UT_TO_MGAUSS / mean_radius_mg <= MAX_SCALE_FACTOR
-        ):
-            status = CalStatus.BAD_RADIUS
-            reason = f"radius {mean_radius_mg:.0f} mG vs WMM {self.reference.total_ut * UT_TO_MGAUSS:.0f} mG"
-        elif fitness > cfg.fitness_mgauss:
-            status = CalStatus.FAILED_RESIDUALS_HIGH
-            reason = f"fitness {fitness:.1f} > {cfg.fitness_mgauss:.1f} mG"
-        quality = dict(quality, radius_mgauss=mean_radius_mg)
-        return FieldCalResult(status, reason, method, model, self.current.mag, fitness, quality, ap, partial)
-
     # ------------------------------------------------------------------ fit outcomes (under the lock)
     def _after_preliminary(self, payload) -> None:
         if isinstance(payload, Exception):
@@ -930,3 +863,119 @@ class FieldCalibration:
         else:
             self.result = res
             self._fail(res.status, res.reason)
+
+
+# ============================================================================ the fit (picklable, pure)
+
+
+@dataclass
+class FitJob:
+    """Everything a fit needs, copied out of the session so it can run in another thread or process
+    (a process keeps a long fit from holding the daemon's GIL). Calling it returns (stage, payload)."""
+
+    stage: str
+    config: FieldCalConfig
+    reference: "EarthField | None"
+    current: MagModel
+    t: np.ndarray
+    raw: np.ndarray
+    acc: np.ndarray
+    gyro: np.ndarray
+    rpy: np.ndarray
+    sphere_coverage: float
+    heading_coverage: float
+    full_sphere: bool
+    fit_function: FitFunction | None = None
+
+    def __call__(self):
+        try:
+            if self.stage == "preliminary":
+                model, quality = fit_offsets_keep_soft_iron(
+                    self.raw, self.current.soft_iron, self.current.hard_iron_ut, self.rpy[:, 0], self.rpy[:, 1],
+                    self.reference)
+                return self.stage, (model, quality)
+            return self.stage, self._final_fit()
+        except Exception as exc:  # a fit must never take the daemon down: report it as a failed calibration
+            log.exception("magnetometer fit failed")
+            return self.stage, exc
+
+    def _final_fit(self) -> FieldCalResult:
+        cfg, rpy, raw = self.config, self.rpy, self.raw
+        fit = self.fit_function or _default_fit
+        tilt = np.degrees(np.arccos(np.clip(np.cos(rpy[:, 0]) * np.cos(rpy[:, 1]), -1, 1)))
+        tilt_range = float(np.percentile(tilt, 98) - np.percentile(tilt, 2)) if len(tilt) else 0.0
+        notes: list[str] = []
+        candidates: list[str] = []
+        if self.full_sphere:
+            candidates = ["ellipsoid"]
+        elif tilt_range >= cfg.min_tilt_full_model_deg and self.reference is not None:
+            candidates = ["backstepping"]
+        elif self.reference is None:
+            notes.append("no WMM reference: fitted offsets only")
+        else:
+            notes.append("tilt range too small for full model: fitted offsets only")
+        from .magfit import MagFitInput
+
+        data = MagFitInput(self.t, raw, self.acc, self.gyro)
+        quality: dict = {"tilt_range_deg": tilt_range, "sphere_coverage": self.sphere_coverage,
+                         "heading_coverage": self.heading_coverage, "n_samples": int(len(self.t))}
+        for method in candidates:
+            options = {"roll_rad": rpy[:, 0], "pitch_rad": rpy[:, 1]} if method == "backstepping" else {}
+            try:
+                fr = fit(method, data, self.reference, **options)
+            except (NotImplementedError, ImportError) as exc:
+                notes.append(f"{method} unavailable: offsets only")
+                log.warning("%s", exc)
+                continue
+            if fr.refused is None:
+                ok, why = self._acceptable_shape(fr.model)
+                if ok:
+                    quality.update({f"{method}_{k}": v for k, v in (fr.quality or {}).items()
+                                    if isinstance(v, (int, float, str, bool))})
+                    return self._judge(fr.model, fr.method, quality, notes, partial=False)
+                notes.append(f"{method} rejected ({why}): offsets only")
+            else:
+                log.info("%s refused: %s", method, fr.refused)
+                short = "tilt range too small for full model" if not self.full_sphere else fr.refused
+                notes.append(f"{short}: fitted offsets only")
+        model, q = fit_offsets_keep_soft_iron(
+            raw, self.current.soft_iron, self.current.hard_iron_ut, rpy[:, 0], rpy[:, 1], self.reference)
+        quality.update({f"offsets_{k}": v for k, v in q.items()})
+        return self._judge(model, "offsets", quality, notes, partial=True)
+
+    def _acceptable_shape(self, model: MagModel) -> tuple[bool, str]:
+        ap = to_ardupilot(model)
+        if np.any(np.abs(ap.ofs_mgauss) >= self.config.offsets_max_mgauss):
+            return False, "offsets too large"
+        if np.any(ap.diag <= DIAG_MIN) or np.any(ap.diag >= DIAG_MAX) or np.any(np.abs(ap.offdiag) >= OFFDIAG_MAX):
+            return False, "diagonals out of range"
+        return True, ""
+
+    def _judge(self, model: MagModel, method: str, quality, notes, partial: bool) -> FieldCalResult:
+        cfg = self.config
+        corrected = model.apply(self.raw)
+        norms = np.linalg.norm(corrected, axis=1)
+        radius_ut = float(self.reference.total_ut) if self.reference is not None else float(np.mean(norms))
+        fitness = float(np.sqrt(np.mean((norms - radius_ut) ** 2))) * UT_TO_MGAUSS
+        ap = to_ardupilot(model)
+        status, reason = CalStatus.SUCCESS, "; ".join(notes)
+        mean_radius_mg = float(np.mean(norms)) * UT_TO_MGAUSS
+        if not math.isfinite(fitness):
+            status, reason = CalStatus.FAILED, "fit diverged (fitness NaN)"
+        elif np.any(np.abs(ap.ofs_mgauss) >= cfg.offsets_max_mgauss):
+            status = CalStatus.FAILED_OFFSETS
+            reason = f"offsets {np.round(ap.ofs_mgauss).astype(int).tolist()} > {cfg.offsets_max_mgauss:.0f} mG"
+        elif np.any(ap.diag <= DIAG_MIN) or np.any(ap.diag >= DIAG_MAX) or np.any(np.abs(ap.offdiag) >= OFFDIAG_MAX):
+            status, reason = CalStatus.FAILED_DIAG_SCALING, "diagonals/off-diagonals out of range"
+        elif not (RADIUS_MIN_MGAUSS < mean_radius_mg < RADIUS_MAX_MGAUSS):
+            status, reason = CalStatus.BAD_RADIUS, f"radius {mean_radius_mg:.0f} mG outside [150, 950]"
+        elif self.reference is not None and not (
+            1 / MAX_SCALE_FACTOR <= self.reference.total_ut * UT_TO_MGAUSS / mean_radius_mg <= MAX_SCALE_FACTOR
+        ):
+            status = CalStatus.BAD_RADIUS
+            reason = f"radius {mean_radius_mg:.0f} mG vs WMM {self.reference.total_ut * UT_TO_MGAUSS:.0f} mG"
+        elif fitness > cfg.fitness_mgauss:
+            status = CalStatus.FAILED_RESIDUALS_HIGH
+            reason = f"fitness {fitness:.1f} > {cfg.fitness_mgauss:.1f} mG"
+        quality = dict(quality, radius_mgauss=mean_radius_mg)
+        return FieldCalResult(status, reason, method, model, self.current, fitness, quality, ap, partial)

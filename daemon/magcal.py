@@ -33,7 +33,10 @@ heading sent to the autopilot is slewed (`heading_for_autopilot`, `HeadingSlew`)
 
 from __future__ import annotations
 
+import asyncio
 import concurrent.futures
+import concurrent.futures.process
+import dataclasses
 import logging
 import math
 import time
@@ -51,6 +54,7 @@ from ahrsd.calibration.field import (
     HeadingSlew,
     VehicleType,
     fixed_yaw_calibration,
+    max_heading_change_deg,
     yaw_rate_ned_rad_s,
 )
 from ahrsd.daemon.mavlink_io import mavlink
@@ -218,9 +222,26 @@ class MagCalProtocol:
         if self._fit_future is None:
             job = s.pending_fit()
             if job is not None:
-                if self._executor is None:
-                    self._executor = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="magcal-fit")
-                self._fit_future = self._executor.submit(job)
+                self._fit_future = self._submit(job)
+
+    def _submit(self, job) -> concurrent.futures.Future:
+        """Run a fit in a worker process (a long fit in a thread would hold the GIL and starve the sensor
+        reader); fall back to a thread where processes are not available."""
+        if self._executor is None:
+            try:
+                import multiprocessing
+
+                self._executor = concurrent.futures.ProcessPoolExecutor(
+                    1, mp_context=multiprocessing.get_context("spawn"))
+            except (OSError, ValueError, ImportError) as exc:
+                log.warning("magcal: no worker process (%s): fitting in a thread", exc)
+                self._executor = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="magcal-fit")
+        try:
+            return self._executor.submit(job)
+        except (concurrent.futures.process.BrokenProcessPool, RuntimeError, OSError) as exc:
+            log.warning("magcal: worker process failed (%s): fitting in a thread", exc)
+            self._executor = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="magcal-fit")
+            return self._executor.submit(job)
 
     # ------------------------------------------------------------------ messages
     def progress_message(self):
@@ -265,6 +286,9 @@ class MagCalProtocol:
         if self.calibrating:
             self._say(SEV_INFO, f"Mag cal already running ({self.session.completion_pct}%)")
             return mavlink.MAV_RESULT_ACCEPTED
+        if self._blending():
+            self._say(SEV_NOTICE, "Mag cal: new calibration still being applied, retry shortly")
+            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
         try:
             current = self.host.current_calibration()
             reference = self.host.reference_field()
@@ -335,6 +359,9 @@ class MagCalProtocol:
         if self.calibrating:
             self._say(SEV_NOTICE, "Mag cal running: cancel it before a fixed-yaw cal")
             return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+        if self._blending():
+            self._say(SEV_NOTICE, "Mag cal: new calibration still being applied, retry shortly")
+            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
         est = self._last_estimate
         if est is None or not self._recent_raw:
             self._say(SEV_ERROR, "Mag: no attitude yet for fixed-yaw cal")
@@ -357,6 +384,10 @@ class MagCalProtocol:
             self._say(SEV_WARNING, f"Mag field {res.field_mismatch_ut * UT_TO_MGAUSS:.0f} mG off WMM: "
                                    "soft iron may be stale, run a full cal")
         return mavlink.MAV_RESULT_ACCEPTED
+
+    def _blending(self) -> bool:
+        blend = getattr(self.host, "blend", None)
+        return bool(blend is not None and blend.active)
 
     # ------------------------------------------------------------------ accept / save
     def _accept_result(self) -> bool:
@@ -434,3 +465,212 @@ def settings_from_mapping(d: dict[str, Any] | None) -> MagCalSettings:
             raise ValueError(f"config key magcal.vehicle_type = {value!r} is invalid: one of 'auto', 'level', 'tumble'")
         out[key] = float(value) if want is float else value
     return replace(MagCalSettings(), **out)
+
+
+# ============================================================================ the daemon adapter
+
+
+class BlendedCalibration:
+    """A Calibration stand-in for the pipeline while a new magnetometer calibration is blended in.
+
+    Gyro and accelerometer come from the new calibration; the magnetometer output is the old calibrated
+    field turned towards the new one in the local level frame (roll/pitch from the last estimate): its
+    horizontal direction moves by `alpha` of the heading difference, horizontal and vertical magnitudes are
+    interpolated. So the heading changes linearly with alpha even when old and new differ by 180° (a straight
+    interpolation of the models would pass through a near-zero field there). Other attributes (mag, metadata,
+    to_dict, ...) are the new calibration's.
+    """
+
+    def __init__(self, old, new):
+        self.old, self.new = old, new
+        self.alpha = 0.0
+        self.roll_rad = 0.0
+        self.pitch_rad = 0.0
+
+    def __getattr__(self, name):
+        return getattr(self.new, name)
+
+    def apply(self, sample):
+        out = self.new.apply(sample)
+        m_old = self.old.mag.apply(sample.mag_ut)
+        m_new = out.mag_ut
+        cr, sr = math.cos(self.roll_rad), math.sin(self.roll_rad)
+        cp, sp = math.cos(self.pitch_rad), math.sin(self.pitch_rad)
+        tilt = np.array([[cp, sp * sr, sp * cr], [0.0, cr, -sr], [-sp, cp * sr, cp * cr]])  # body -> level
+        lo, ln = tilt @ m_old, tilt @ m_new
+        a = self.alpha
+        ang_o = math.atan2(lo[1], lo[0])
+        d = math.remainder(math.atan2(ln[1], ln[0]) - ang_o, 2 * math.pi)
+        ang = ang_o + a * d
+        h = (1 - a) * math.hypot(lo[0], lo[1]) + a * math.hypot(ln[0], ln[1])
+        level = np.array([h * math.cos(ang), h * math.sin(ang), (1 - a) * lo[2] + a * ln[2]])
+        return out.with_values(mag_ut=tilt.T @ level)
+
+
+class CalibrationBlend:
+    """Swaps a new calibration into a running pipeline without stepping the heading.
+
+    The estimator's heading follows the magnetometer, so the change is made at the source: the pipeline runs
+    a `BlendedCalibration` whose heading moves from the old calibration's to the new one's at no more than
+    `max_rate_deg_s` (the largest change over a full turn at the current tilt sets the duration), then the
+    new calibration itself. The VISION_POSITION_ESTIMATE reset_counter is not touched (ArduPilot reads a new
+    value as a position reset).
+    """
+
+    def __init__(self, pipeline, max_rate_deg_s: float):
+        self.pipeline = pipeline
+        self.max_rate_deg_s = max_rate_deg_s
+        self.target = None
+        self._blended: BlendedCalibration | None = None
+        self._t0: float | None = None
+        self.duration_s = 0.0
+
+    @property
+    def active(self) -> bool:
+        return self.target is not None
+
+    def start(self, new_cal, sample, estimate) -> None:
+        current = self.pipeline.calibration
+        old = current.new if isinstance(current, BlendedCalibration) else current
+        old_model = current.mag if not isinstance(current, BlendedCalibration) else old.mag
+        change = 0.0
+        if sample is not None and estimate is not None:
+            change = max_heading_change_deg(old_model, new_cal.mag, sample.mag_ut, float(estimate.roll_rad),
+                                            float(estimate.pitch_rad))
+        self.duration_s = change / self.max_rate_deg_s if self.max_rate_deg_s > 0 else 0.0
+        self.target = new_cal
+        self._t0 = None
+        if self.duration_s <= 0.0:
+            self._finish()
+            return
+        log.info("magcal: blending the new calibration in over %.1f s (heading change up to %.1f deg)",
+                 self.duration_s, change)
+        self._blended = BlendedCalibration(old, new_cal)
+        if estimate is not None:
+            self._blended.roll_rad, self._blended.pitch_rad = float(estimate.roll_rad), float(estimate.pitch_rad)
+        self.pipeline.calibration = self._blended
+
+    def on_sample(self, t_s: float, estimate) -> None:
+        if self.target is None:
+            return
+        if self._t0 is None:
+            self._t0 = t_s
+        alpha = (t_s - self._t0) / self.duration_s
+        if alpha >= 1.0:
+            self._finish()
+            return
+        b = self._blended
+        b.alpha = alpha
+        if estimate is not None:
+            b.roll_rad, b.pitch_rad = estimate.roll_rad, estimate.pitch_rad
+
+    def _finish(self) -> None:
+        self.pipeline.calibration = self.target
+        self.target = None
+        self._blended = None
+        log.info("magcal: new calibration fully in force")
+
+
+class ServiceHost:
+    """`MagCalHost` on top of the daemon's public hooks (daemon/service.py: pipeline, commands,
+    add_sample_listener, send, set_calibrating, autopilot, state_dir, config)."""
+
+    def __init__(self, service, settings: MagCalSettings):
+        self.service = service
+        self.blend = CalibrationBlend(service.pipeline, settings.heading_slew_deg_s) if service.pipeline else None
+        self.protocol: MagCalProtocol | None = None
+        self._task: asyncio.Task | None = None
+        self._last_sample = None
+        self._last_estimate = None
+        self._calibrating_shown = False
+
+    def _blend(self) -> CalibrationBlend:
+        if self.blend is None:
+            self.blend = CalibrationBlend(self.service.pipeline, self.protocol.settings.heading_slew_deg_s)
+        return self.blend
+
+    # -- MagCalHost
+    def current_calibration(self):
+        b = self.blend
+        return b.target if b is not None and b.active else self.service.pipeline.calibration
+
+    def apply_calibration(self, cal) -> None:
+        self._blend().start(cal, self._last_sample, self._last_estimate)
+
+    def save_calibration(self, cal) -> None:
+        from ahrsd.calibration.store import CalibrationStore
+
+        CalibrationStore(self.service.state_dir).save(cal)
+
+    def send(self, msg) -> None:
+        self.service.send(msg)
+
+    def statustext(self, severity: int, text: str) -> None:
+        for msg in statustext_chunks(severity, text, 1):
+            self.service.send(msg)
+
+    def armed(self) -> bool:
+        return bool(self.service.autopilot.armed)
+
+    def reference_field(self, lat_deg: float | None = None, lon_deg: float | None = None):
+        from ahrsd.estimator.wmm import earth_field
+
+        svc = self.service
+        if lat_deg or lon_deg:
+            return earth_field(float(lat_deg), float(lon_deg))
+        ap = svc.autopilot
+        if ap.lat_deg is not None and ap.lon_deg is not None:
+            return earth_field(ap.lat_deg, ap.lon_deg, ap.alt_m)
+        loc = svc.config.location
+        if loc.lat_deg is not None:
+            return earth_field(loc.lat_deg, loc.lon_deg, loc.alt_m)
+        if svc.config.sensor.source == "sim":
+            from ahrsd.simulation import DEFAULT_SITE as site
+
+            return earth_field(site.lat_deg, site.lon_deg, site.alt_m, site.date)
+        return None
+
+    # -- daemon side
+    def on_sample(self, sample, estimate) -> None:
+        """The daemon's sample listener (event loop, every sample)."""
+        self._last_sample, self._last_estimate = sample, estimate
+        if self.blend is not None and self.blend.active:
+            self.blend.on_sample(sample.t_s, estimate)
+        self.protocol.on_sample(sample, estimate)
+        if self._task is None:
+            self._task = asyncio.get_running_loop().create_task(self._ticker(), name="magcal")
+
+    async def _ticker(self) -> None:
+        period = 1.0 / max(10.0, 2.5 * self.protocol.settings.progress_rate_hz)
+        while True:
+            try:
+                self.protocol.tick()
+                calibrating = self.protocol.calibrating
+                if calibrating != self._calibrating_shown:
+                    self._calibrating_shown = calibrating
+                    self.service.set_calibrating("magnetometer calibration" if calibrating else "")
+            except Exception:  # noqa: BLE001 - the calibration must never stop the daemon
+                log.exception("magcal tick failed")
+            await asyncio.sleep(period)
+
+
+def attach(service, settings: MagCalSettings | None = None) -> MagCalProtocol:
+    """Install the field magnetometer calibration in a daemon Service (before or after it starts).
+
+    Settings: `settings`, else the `[magcal]` table of the daemon config when it has one, else defaults.
+    Idempotent: returns the protocol already attached to `service`.
+    """
+    existing = getattr(service, "magcal", None)
+    if isinstance(existing, MagCalProtocol):
+        return existing
+    if settings is None:
+        raw = getattr(service.config, "magcal", None)
+        settings = raw if isinstance(raw, MagCalSettings) else settings_from_mapping(
+            dataclasses.asdict(raw) if dataclasses.is_dataclass(raw) else raw)
+    host = ServiceHost(service, settings)
+    proto = MagCalProtocol(host, settings)
+    host.protocol = proto
+    proto.register(service.commands)
+    service.add_sample_listener(host.on_sample)
+    service.magcal = proto
+    return proto

@@ -147,3 +147,16 @@ def test_heading_slew_passes_vehicle_rotation_through():
         pub = slew.update(t, rate * t + math.radians(5.0), rate)
     # after 1 s: vehicle turned 20°, correction progressed by 1°
     assert abs(math.degrees(pub) - 21.0) < 1e-6
+
+
+def test_max_heading_change_of_a_pure_offset():
+    from ahrsd.calibration.field import blend_models, max_heading_change_deg
+
+    old = MagModel(np.zeros(3), np.eye(3))
+    new = MagModel(np.array([2.0, 0.0, 0.0]), np.eye(3))  # 2 µT along x on a 25 µT horizontal field
+    b = np.array([25.0, 0.0, 40.0])
+    d = max_heading_change_deg(old, new, b, 0.0, 0.0)
+    assert abs(d - math.degrees(math.asin(2.0 / 25.0))) < 0.2   # worst case: offset across the field
+    assert max_heading_change_deg(old, old, b, 0.1, -0.05) < 1e-9
+    half = blend_models(old, new, 0.5)
+    assert np.allclose(half.hard_iron_ut, [1.0, 0, 0]) and blend_models(old, new, 7).hard_iron_ut[0] == 2.0

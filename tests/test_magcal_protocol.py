@@ -284,3 +284,32 @@ def test_router_ignores_broadcast_unless_configured_and_refuses_unsigned(tmp_pat
     proto.register(signed_router)
     signed_router.handle(cmd(CMD_START), None, broadcast=False)
     assert not proto.calibrating and acks[-1].result == mavlink.MAV_RESULT_DENIED
+
+
+def test_blend_moves_heading_at_bounded_rate_even_for_180_deg():
+    from ahrsd.calibration.field import tilt_compensated_heading_rad
+    from ahrsd.daemon.magcal import CalibrationBlend
+
+    old = Calibration.identity()
+    # new calibration removes a hard iron larger than the horizontal field (first calibration of a vehicle)
+    new = Calibration.identity().with_sensor("mag", MagModel(np.array([-40.0, 5.0, 3.0]), np.eye(3)))
+    pipeline = SimpleNamespace(calibration=old)
+    blend = CalibrationBlend(pipeline, max_rate_deg_s=5.0)
+    raw = np.array([-20.0, 3.0, 45.0])   # field (20, -2, 42) after the new calibration: opposite to the old reading
+    est = SimpleNamespace(roll_rad=0.05, pitch_rad=-0.03)
+    sample = make_sample(0.0, np.zeros(3), np.array([0, 0, -9.8]), raw)
+    blend.start(new, pipeline.calibration.apply(sample), est)
+    assert blend.active and blend.duration_s > 30.0     # up to ~180° at 5°/s
+    headings, norms = [], []
+    for k in range(int(blend.duration_s * 50) + 20):
+        t = k / 50.0
+        blend.on_sample(t, est)
+        out = pipeline.calibration.apply(make_sample(t, np.zeros(3), np.array([0, 0, -9.8]), raw))
+        headings.append(tilt_compensated_heading_rad(out.mag_ut, est.roll_rad, est.pitch_rad)[0])
+        norms.append(np.linalg.norm(out.mag_ut))
+    steps = np.degrees(np.abs(np.angle(np.exp(1j * np.diff(headings)))))
+    assert steps.max() <= 5.0 / 50 + 1e-6                      # never faster than 5°/s
+    assert min(norms) > 0.9 * min(np.linalg.norm(raw), np.linalg.norm(new.mag.apply(raw)))  # no field collapse
+    assert not blend.active and pipeline.calibration is new
+    final = tilt_compensated_heading_rad(new.mag.apply(raw), est.roll_rad, est.pitch_rad)[0]
+    assert abs(np.angle(np.exp(1j * (headings[-1] - final)))) < 1e-9
