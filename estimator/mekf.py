@@ -20,7 +20,7 @@ See docs/estimator.md for the design, tuning and the figures measured on BROAD.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -28,7 +28,8 @@ from ahrsd.drivers.sample import ImuSample, SampleFlags
 
 from . import mekf_core as core
 from .base import AttitudeEstimate, EstimateFlags
-from .rotations import wrap_2pi
+from .rotations import euler_to_quat, quat_to_dcm
+from .wahba import davenport
 
 _DEG = math.pi / 180.0
 
@@ -60,9 +61,14 @@ class MekfParams:
     acceleration after the low-pass), m/s²."""
     acc_noise_rest_m_s2: float = 0.05
     """... at rest: sensor noise only (BROAD/ADIS class: ~0.045 m/s² per sample), m/s²."""
-    acc_norm_noise_gain: float = 0.0
-    """Extra noise per m/s² that the low-passed |f| differs from g, dimensionless. Off by default: on BROAD
-    the low-pass already removes what it would catch (gain 0.3 → mean 2.24° instead of 2.22°)."""
+    acc_turn_noise_gain: float = 0.0
+    """Adaptive tilt noise for sustained acceleration: a centripetal acceleration ⟂ g tilts the apparent
+    vertical by φ = acos(g/|f|) (|f| of the low-passed specific force), so the tilt measurement gets
+    (gain·(φ − dead zone))² of extra variance. 0 by default (handheld motion, BROAD: gain 1 → mean 3.24°
+    instead of 2.22°, because shaking also changes |f|); 1 in `FIXED_WING_MEKF_PARAMS`, where a
+    coordinated 30° turn otherwise drags the horizon by the bank angle (simulated: roll RMS 24° → 0.6°)."""
+    acc_turn_dead_zone_rad: float = 0.0
+    """Turn angles φ below this add no noise, rad."""
     acc_reject_m_s2: float = 2.0
     """The accelerometer is not used while the low-passed | |f| − g | exceeds this (sustained linear
     acceleration), m/s²."""
@@ -140,8 +146,9 @@ class MekfParams:
         p[core.P_BIAS_CLIP] = self.gyro_bias_clip_rad_s
         p[core.P_ACC_NOISE] = self.acc_noise_m_s2
         p[core.P_ACC_NOISE_REST] = self.acc_noise_rest_m_s2
-        p[core.P_ACC_NORM_GAIN] = self.acc_norm_noise_gain
+        p[core.P_ACC_TURN_GAIN] = self.acc_turn_noise_gain
         p[core.P_ACC_REJECT] = self.acc_reject_m_s2
+        p[core.P_ACC_TURN_DEAD] = self.acc_turn_dead_zone_rad
         p[core.P_ACC_GATE] = self.acc_gate_rad
         p[core.P_ACC_TAU] = self.acc_lowpass_tau_s
         p[core.P_ACC_GATE_RECOVER] = self.acc_gate_recover_s
@@ -172,40 +179,41 @@ class MekfParams:
 
 
 DEFAULT_MEKF_PARAMS = MekfParams()
+"""The defaults: chosen on BROAD (handheld, all 15 trials, one set) and the simulated ADIS16405 scenarios."""
+
+FIXED_WING_MEKF_PARAMS = replace(DEFAULT_MEKF_PARAMS, acc_turn_noise_gain=1.0)
+"""For aircraft (sustained coordinated turns): tilt measurement de-weighted by the turn angle acos(g/|f|)."""
+
+
+# Weighted Wahba initialisation: weights are 1/σ² of the unit directions. Gravity from one accelerometer
+# sample: σ ≈ 0.005 rad (0.05 m/s² / g); field direction: σ ≈ 0.05 rad (0.7 µT / 16 µT horizontal, BROAD-class
+# magnetometer). The 100:1 ratio lets the field set heading while the tilt comes from gravity.
+_INIT_WEIGHT_GRAVITY = 1.0 / 0.005**2
+_INIT_WEIGHT_FIELD = 1.0 / 0.05**2
 
 
 def initial_attitude(accel_m_s2: np.ndarray, mag_ut: np.ndarray | None) -> np.ndarray:
-    """Body→NED quaternion from one gravity and one field direction (weighted Wahba, gravity weighted
-    ≫ field so the field only sets heading). Without a usable field the heading is 0 (magnetic north)."""
+    """Body→NED quaternion from one specific-force and one field sample: Davenport's q-method (weighted
+    Wahba) with reference vectors "up" [0, 0, −1] and magnetic north at the measured dip. Without a usable
+    field (None, or parallel to gravity) the heading is set to 0 and only the tilt is determined."""
     f = np.asarray(accel_m_s2, dtype=float)
-    down_b = -f / np.linalg.norm(f)              # NED down axis in body coordinates
+    up_b = f / np.linalg.norm(f)
     if mag_ut is not None:
         m = np.asarray(mag_ut, dtype=float)
-        east_b = np.cross(down_b, m)
-        ne = np.linalg.norm(east_b)
-    else:
-        ne = 0.0
-    if ne < 1e-9:                                # no field, or field parallel to gravity: heading 0
-        helper = np.array([1.0, 0.0, 0.0]) if abs(down_b[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-        east_b = np.cross(down_b, helper)
-        east_b /= np.linalg.norm(east_b)
-        north_b = np.cross(east_b, down_b)
-        # choose the yaw that is zero: rotate so that body x projects onto north
-        fwd = np.array([1.0, 0.0, 0.0]) - down_b[0] * down_b
-        if np.linalg.norm(fwd) > 1e-6:
-            north_b = fwd / np.linalg.norm(fwd)
-            east_b = np.cross(down_b, north_b)
-    else:
-        east_b /= ne
-        north_b = np.cross(east_b, down_b)
-    c_n_b = np.vstack([north_b, east_b, down_b])  # rows: NED axes in body → C_b^n = c_n_b (maps body to NED)
-    return _dcm_to_quat(c_n_b)
-
-
-def _dcm_to_quat(c: np.ndarray) -> np.ndarray:
-    from .rotations import dcm_to_quat
-
-    return np.asarray(dcm_to_quat(c), dtype=float)
+        mn = np.linalg.norm(m)
+        if mn > 0.0 and np.linalg.norm(np.cross(up_b, m / mn)) > 1e-3:
+            sin_dip = float(np.clip(-np.dot(up_b, m / mn), -1.0, 1.0))   # dip: positive down
+            cos_dip = math.sqrt(1.0 - sin_dip * sin_dip)
+            sol = davenport(
+                np.array([up_b, m / mn]),
+                np.array([[0.0, 0.0, -1.0], [cos_dip, 0.0, sin_dip]]),
+                np.array([_INIT_WEIGHT_GRAVITY, _INIT_WEIGHT_FIELD]),
+            )
+            return np.asarray(sol.q_wxyz, dtype=float)
+    # tilt only (ZYX Euler from the gravity direction; specific force f = C_n^b [0, 0, −g])
+    roll = math.atan2(-up_b[1], -up_b[2])
+    pitch = math.atan2(up_b[0], math.hypot(up_b[1], up_b[2]))
+    return np.asarray(euler_to_quat(roll, pitch, 0.0), dtype=float)
 
 
 class Mekf:
@@ -325,7 +333,7 @@ class Mekf:
         s[core.S_GYR_LP : core.S_GYR_LP + 3] = g
         s[core.S_ACC_LP : core.S_ACC_LP + 3] = a
         s[core.S_G_REF] = keep_gref or an
-        c = _quat_to_dcm(q0)
+        c = np.asarray(quat_to_dcm(q0), dtype=float)
         s[core.S_ACC_I : core.S_ACC_I + 3] = c @ a
         s[core.S_GYR_LAST : core.S_GYR_LAST + 3] = g
         if keep_ref is not None and keep_ref[0] > 0:
@@ -394,12 +402,6 @@ class Mekf:
         )
 
 
-def _quat_to_dcm(q: np.ndarray) -> np.ndarray:
-    from .rotations import quat_to_dcm
-
-    return np.asarray(quat_to_dcm(q), dtype=float)
-
-
 def _finite3(v) -> bool:
     return math.isfinite(v[0]) and math.isfinite(v[1]) and math.isfinite(v[2])
 
@@ -430,4 +432,4 @@ def _validity_array(g, a, m, sample_flags) -> np.ndarray:
     return valid
 
 
-__all__ = ["Mekf", "MekfParams", "DEFAULT_MEKF_PARAMS", "initial_attitude", "asdict"]
+__all__ = ["Mekf", "MekfParams", "DEFAULT_MEKF_PARAMS", "FIXED_WING_MEKF_PARAMS", "initial_attitude"]

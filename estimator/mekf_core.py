@@ -48,7 +48,7 @@ P_BIAS_WALK = 2         # gyro bias random walk, rad/s/√s
 P_BIAS_CLIP = 3         # |bias| limit per axis, rad/s
 P_ACC_NOISE = 4         # accelerometer noise in motion (includes typical linear acceleration), m/s²
 P_ACC_NOISE_REST = 5    # accelerometer noise at rest, m/s²
-P_ACC_NORM_GAIN = 6     # extra acc noise per m/s² of | |f| − g |, dimensionless
+P_ACC_TURN_GAIN = 6     # tilt noise per rad of the turn angle acos(g/|f|), dimensionless
 P_ACC_REJECT = 7        # reject the accelerometer when | |f| − g | exceeds this, m/s²
 P_ACC_GATE = 8          # tilt innovation gate (angle between measured and estimated vertical), rad
 P_ACC_TAU = 9           # time constant of the NED-frame low-pass of the specific force, s (0 = off)
@@ -76,7 +76,8 @@ P_MAG_ENABLED = 30      # 1.0 = use the magnetometer, 0.0 = 6-axis (heading from
 P_MAG_REJECT_MAX = 31   # after this long continuously disturbed, the field is trusted again with inflated noise, s
 P_MAG_HEADING_NOISE_REST = 32  # heading noise floor at rest (no dynamic errors), rad
 P_ACC_GATE_RECOVER = 33  # after this long without a tilt update the innovation gate is bypassed once, s
-P_SIZE = 34
+P_ACC_TURN_DEAD = 34    # turn angles below this add no noise, rad
+P_SIZE = 35
 
 # ----------------------------------------------------------------------------------- flags (= EstimateFlags)
 F_INITIALISING = 1
@@ -414,12 +415,13 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, valid, out):
         accepted = False
         if dev <= par[P_ACC_REJECT] and unorm > 0.5 * g_ref:
             if at_rest:
-                sig = par[P_ACC_NOISE_REST]
+                r = (par[P_ACC_NOISE_REST] / g_ref) ** 2
             else:
-                sig = par[P_ACC_NOISE]
-                extra = par[P_ACC_NORM_GAIN] * dev
-                sig = math.sqrt(sig * sig + extra * extra)
-            r = (sig / g_ref) ** 2
+                # a sustained acceleration a ⟂ g (a turn) tilts the apparent vertical by φ with
+                # cos φ = g/|f|: that angle is the size of the error the measurement can carry
+                ratio = min(unorm, g_ref) / max(unorm, g_ref)
+                phi = par[P_ACC_TURN_GAIN] * max(math.acos(ratio) - par[P_ACC_TURN_DEAD], 0.0)
+                r = (par[P_ACC_NOISE] / g_ref) ** 2 + phi * phi
             # unit measured "up" in NED: u = [δθ_E, −δθ_N, −1] (+ noise)
             nu_n = un / unorm
             nu_e = ue / unorm
