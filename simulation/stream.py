@@ -129,8 +129,6 @@ class SensorStream:
         self._k += n
         return out
 
-    CHUNK = 256
-
     def _generate(self, k0: int, n: int) -> SensorBlock:
         """Samples k0 … k0+n−1; advances the random processes (call in sample order only)."""
         self._k_gen = k0 + n
