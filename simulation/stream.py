@@ -46,6 +46,16 @@ class SensorBlock:
     def __len__(self) -> int:
         return len(self.t_s)
 
+    def samples(self, first_counter: int = 0):
+        """The sensor outputs as `ImuSample`s (SI, body frame, flags NEW_DATA), one per row: for feeding
+        calibration or an estimator directly, without the byte-level chip."""
+        from ahrsd.drivers.sample import SampleFlags, make_sample
+
+        for i in range(len(self.t_s)):
+            yield make_sample(self.t_s[i], self.gyro_rad_s[i], self.accel_m_s2[i], self.mag_ut[i],
+                              temp_c=float(self.temp_c[i]), flags=SampleFlags.NEW_DATA,
+                              counter=first_counter + i)
+
     @staticmethod
     def concatenate(blocks) -> "SensorBlock":
         blocks = list(blocks)

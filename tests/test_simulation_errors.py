@@ -224,3 +224,15 @@ def test_small_and_large_requests_mix_without_changing_the_data():
     assert s.samples_emitted == 1500
     for f in ("t_s", "gyro_rad_s", "accel_m_s2", "mag_ut", "truth_q_wxyz"):
         np.testing.assert_allclose(getattr(parts, f), getattr(whole, f), rtol=1e-12, atol=1e-12)
+
+
+def test_block_rows_become_imu_samples():
+    from ahrsd.drivers.sample import ImuSample, SampleFlags
+
+    b = simulate("static", 0.01, rate_hz=819.2, seed=1)
+    samples = list(b.samples(first_counter=100))
+    assert len(samples) == len(b) == 8
+    s = samples[3]
+    assert isinstance(s, ImuSample) and s.counter == 103 and s.flags == SampleFlags.NEW_DATA
+    np.testing.assert_array_equal(s.gyro_rad_s, b.gyro_rad_s[3])
+    assert s.t_s == b.t_s[3] and s.temp_c == b.temp_c[3]
