@@ -14,14 +14,16 @@ import argparse
 
 OUTPUT_COLUMNS = (
     "t_s",                                     # the input sample's time, s
-    "qw", "qx", "qy", "qz",                    # body (FRD) → NED, Hamilton, scalar first
-    "roll_deg", "pitch_deg", "yaw_deg",        # ZYX Euler of that quaternion; yaw in (−180, 180], magnetic
+    "qw", "qx", "qy", "qz",                    # body (FRD) → NED, Hamilton, scalar first (see REFERENCE)
+    "roll_deg", "pitch_deg", "yaw_deg",        # ZYX Euler of that quaternion; yaw in [−180, 180)
     "heading_mag_deg", "heading_true_deg",     # [0, 360); true = magnetic + declination (0 without a position)
     "sigma_roll_deg", "sigma_pitch_deg", "sigma_yaw_deg",   # 1σ uncertainty
     "gyro_bias_x_rad_s", "gyro_bias_y_rad_s", "gyro_bias_z_rad_s",
     "flags",                                   # EstimateFlags as an integer
 )
 OUTPUT_HEADER = ",".join(OUTPUT_COLUMNS)
+# REFERENCE: the quaternion and yaw are relative to true north (NED) when a position is given (--lat/--lon: the
+# WMM declination rotates the estimator's magnetic-north attitude about down), else to magnetic north.
 _FORMAT = ",".join(["%.6f"] + ["%.9f"] * 4 + ["%.6f"] * 5 + ["%.6f"] * 3 + ["%.6e"] * 3 + ["%d"])
 
 
@@ -31,20 +33,19 @@ def register(subparsers) -> None:
         help="run a recording through calibration and an estimator; write the attitude per sample (CSV)",
         description="Replay a CSV recording (see `ahrsd record`; any sample rate, taken from its t_s column) "
         "through a calibration (identity without --calibration) and an attitude estimator, and write one row "
-        f"per input sample with the header: {OUTPUT_HEADER}. Without --lat/--lon the heading is referenced to "
-        "magnetic north; with them, heading_true_deg adds the WMM2025 declination there. The speed (× real "
-        "time) is printed to stderr at the end.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        f"per input sample with the header: {OUTPUT_HEADER}. Without --lat/--lon the quaternion, yaw and "
+        "heading are referenced to magnetic north; with them, to true north (WMM2025 declination there). The "
+        "speed (× real time) is printed to stderr at the end. Documented in docs/replay.md.",
     )
     p.add_argument("recording", metavar="RECORDING", help="CSV recording (header t_s,gyro_x_rad_s,...,mag_z_ut)")
     p.add_argument("--estimator", "-e", default="mekf", choices=("mekf", "thesis"),
-                   help="mekf: the default error-state quaternion filter; thesis: the thesis's vector KF + Wahba")
+                   help="mekf (default): the error-state quaternion filter; thesis: the thesis's vector KF + Wahba")
     p.add_argument("--output", "-o", required=True, metavar="OUT.csv", help="output CSV file ('-' for stdout)")
     p.add_argument("--calibration", "-c", metavar="FILE", default=None,
                    help="calibration file (ahrsd calibrate / the state directory's calibration); default identity")
     p.add_argument("--lat", type=float, default=None, metavar="DEG", help="latitude for the WMM declination")
     p.add_argument("--lon", type=float, default=None, metavar="DEG", help="longitude for the WMM declination")
-    p.add_argument("--alt-m", type=float, default=0.0, metavar="M", help="height above the ellipsoid, m")
+    p.add_argument("--alt-m", type=float, default=0.0, metavar="M", help="height above the ellipsoid, m (default 0)")
     p.add_argument("--date", default=None, metavar="YYYY-MM-DD",
                    help="date of the recording for the WMM (default: today)")
     p.add_argument("--set", dest="params", action="append", default=[], metavar="NAME=VALUE",
@@ -97,8 +98,12 @@ def _declination_rad(args) -> float:
         raise ReplayError(str(exc)) from None
 
 
-def replay_arrays(estimator, t_s, gyro_rad_s, accel_m_s2, mag_ut, sample_flags=None):
-    """Feed samples one at a time (as the daemon does) and return the output table (n, len(OUTPUT_COLUMNS))."""
+def replay_arrays(estimator, t_s, gyro_rad_s, accel_m_s2, mag_ut, sample_flags=None, true_north: bool = False):
+    """Feed samples one at a time (as the daemon does) and return the output table (n, len(OUTPUT_COLUMNS)).
+
+    true_north: rotate the quaternion and yaw by the estimator's declination (heading_true − heading_mag) so
+    they are relative to true north; otherwise they stay relative to magnetic north, as estimated.
+    """
     import math
 
     import numpy as np
@@ -126,7 +131,17 @@ def replay_arrays(estimator, t_s, gyro_rad_s, accel_m_s2, mag_ut, sample_flags=N
         append((t_list[i], q0, q1, q2, q3, est.roll_rad * deg, est.pitch_rad * deg, est.yaw_rad * deg,
                   est.heading_mag_rad * deg, est.heading_true_rad * deg, s0 * deg, s1 * deg, s2 * deg,
                   b0, b1, b2, int(est.flags)))
-    return np.array(rows, dtype=np.float64).reshape(n, len(OUTPUT_COLUMNS))
+    table = np.array(rows, dtype=np.float64).reshape(n, len(OUTPUT_COLUMNS))
+    if true_north:
+        from ahrsd.estimator.rotations import quat_multiply, wrap_pi
+
+        decl = np.radians(table[:, 9] - table[:, 8])          # per row: the declination in force
+        decl = np.where(np.isfinite(decl), decl, 0.0)
+        rot_z = np.column_stack([np.cos(decl / 2), np.zeros(n), np.zeros(n), np.sin(decl / 2)])
+        q = quat_multiply(rot_z, table[:, 1:5])
+        table[:, 1:5] = q * np.where(q[:, :1] < 0, -1.0, 1.0)
+        table[:, 7] = np.degrees(wrap_pi(np.radians(table[:, 7]) + decl))
+    return table
 
 
 def write_output(path: str, table) -> None:
@@ -209,7 +224,7 @@ def _run(args) -> int:
     if flags is not None:
         flags = np.where(np.isfinite(flags), flags, 0).astype(np.int64)
     t_run = time.perf_counter()
-    table = replay_arrays(estimator, rec.t_s, gyro, accel, mag, flags)
+    table = replay_arrays(estimator, rec.t_s, gyro, accel, mag, flags, true_north=args.lat is not None)
     t_est = time.perf_counter() - t_run
     try:
         write_output(args.output, table)

@@ -92,7 +92,12 @@ def test_replay_with_position_references_true_north(recording, tmp_path):
     _, table = read_output(out)
     diff = (table[:, 9] - table[:, 8] - math.degrees(DECL) + 180.0) % 360.0 - 180.0
     np.testing.assert_allclose(diff, 0.0, atol=1e-5)
-    # The quaternion and yaw stay magnetic (the contract); heading_true matches the true-north truth heading.
+    # With a position the quaternion and yaw are relative to true north: they match the truth directly.
+    err = np.degrees(quat_angle_between(table[:, 1:5], truth))
+    assert np.sqrt(np.mean(err[200:] ** 2)) < 1.0
+    np.testing.assert_allclose(np.linalg.norm(table[:, 1:5], axis=1), 1.0, atol=1e-8)
+    ydiff = (table[:, 7] - table[:, 9] + 180.0) % 360.0 - 180.0
+    np.testing.assert_allclose(ydiff, 0.0, atol=1e-5)
     truth_yaw = np.degrees(np.arctan2(2 * (truth[:, 1] * truth[:, 2] + truth[:, 0] * truth[:, 3]),
                                       1 - 2 * (truth[:, 2] ** 2 + truth[:, 3] ** 2)))
     level = np.abs(table[:, 6]) < 60
