@@ -21,7 +21,7 @@ def register(subparsers) -> None:
     src.add_argument("--spi", metavar="DEV", help="real ADIS16405 on this spidev node, e.g. /dev/spidev0.0")
     p.add_argument("--output", "-o", required=True, metavar="FILE", help="CSV file to write")
     p.add_argument("--seconds", type=float, default=None,
-                   help="how long to record (sample time); default: until Ctrl-C")
+                   help="how long to record (sample time); default: until Ctrl-C (with --sim this implies --realtime)")
     p.add_argument("--seed", type=int, default=0, help="simulation seed (--sim)")
     p.add_argument("--errors", default="adis16405", choices=("adis16405", "ideal"),
                    help="simulated sensor errors (--sim)")
@@ -38,6 +38,7 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     import logging
+    import signal
     import sys
     import time
 
@@ -52,7 +53,8 @@ def run(args) -> int:
         return 2
 
     simulated = args.sim is not None
-    paced = (not simulated) or args.realtime
+    # a simulated run without an end is a live demo: pace it, or it would fill the disk as fast as the CPU goes
+    paced = (not simulated) or args.realtime or args.seconds is None
     clock = time.monotonic if paced else None
     try:
         if simulated:
@@ -81,6 +83,10 @@ def run(args) -> int:
         print(f"ahrsd record: cannot write {args.output}: {exc}", file=sys.stderr)
         return 1
 
+    def _stop(signum, frame):
+        raise KeyboardInterrupt        # SIGTERM ends the recording like Ctrl-C: the file is flushed and closed
+
+    signal.signal(signal.SIGTERM, _stop)
     status = None if args.quiet or not sys.stderr.isatty() else sys.stderr
     period = imu.sample_period_s
     n_target = None if args.seconds is None else max(1, int(round(args.seconds * imu.sample_rate_hz)))
