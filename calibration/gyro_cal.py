@@ -75,7 +75,7 @@ def regressors(raw_means: np.ndarray) -> np.ndarray:
 
 
 def fit_rate_table(raw_means_rad_s: np.ndarray, reference_rad_s: np.ndarray, weights: np.ndarray | None = None,
-                   max_condition: float = 1e6, max_residual_rad_s: float = 0.01) -> GyroFitResult:
+                   max_condition: float = 100.0, max_residual_rad_s: float = 0.01) -> GyroFitResult:
     """The 12-parameter fit from steady segments: mean raw rates (N, 3) and reference rates (N, 3)."""
     raw = np.asarray(raw_means_rad_s, dtype=np.float64)
     ref = np.asarray(reference_rad_s, dtype=np.float64)
@@ -92,7 +92,8 @@ def fit_rate_table(raw_means_rad_s: np.ndarray, reference_rad_s: np.ndarray, wei
                              f"only {raw.shape[0]} steady segments: need turns about each axis plus a static one")
     h = regressors(raw)
     sw = np.sqrt(w)[:, None]
-    cond = float(np.linalg.cond(h * sw / np.linalg.norm(h * sw, axis=0)))
+    # Not column-normalised: a column of pure noise (an axis never turned) must show as ill-conditioned.
+    cond = float(np.linalg.cond(h * sw / np.sqrt(np.sum(w))))
     quality["condition_number"] = cond
     if not np.isfinite(cond) or cond > max_condition:
         return GyroFitResult(GyroModel.identity(), math.nan, "rate-table", quality,
