@@ -12,7 +12,6 @@ first). Any other extra column is kept by name. Lines starting with '#' after th
 
 from __future__ import annotations
 
-import io
 import itertools
 import logging
 import math

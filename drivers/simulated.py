@@ -96,6 +96,7 @@ class SimulatedAdis16405:
         self._diag = 0
         self._pending = _ZERO2
         self._busy_until = -math.inf
+        self._reset_at = math.inf
         self._self_test_until = math.inf
         self._next_event = math.inf
         self._stuck_values: dict[int, int] = {}
@@ -288,10 +289,10 @@ class SimulatedAdis16405:
             fault = self.faults.active(FaultKind.SELF_TEST_FAIL, self._index + 1) if self.faults.faults else None
             if fault is not None:
                 self._latch(fault.diag_bits | R.DiagStat.SELF_TEST_FAILED)
-        if getattr(self, "_reset_at", math.inf) <= now:
+        if self._reset_at <= now:
             self._reset_at = math.inf
             self._reset_now()
-        self._next_event = min(self._self_test_until, getattr(self, "_reset_at", math.inf))
+        self._next_event = min(self._self_test_until, self._reset_at)
 
     def _reset_now(self) -> None:
         old_prd = self._regs[R.SMPL_PRD >> 1]
