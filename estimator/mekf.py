@@ -24,18 +24,15 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from ahrsd.drivers.sample import ImuSample, SampleFlags
+from ahrsd.drivers.sample import ImuSample
 
 from . import mekf_core as core
 from .base import AttitudeEstimate, EstimateFlags
-from .rotations import euler_to_quat, quat_to_dcm
+from .rotations import euler_to_quat, quat_to_dcm, quat_to_euler
 from .wahba import davenport
 
 _DEG = math.pi / 180.0
 
-_GYRO_BAD = SampleFlags.GYRO_INVALID | SampleFlags.GYRO_SATURATED
-_ACC_BAD = SampleFlags.ACCEL_INVALID | SampleFlags.ACCEL_SATURATED
-_MAG_BAD = SampleFlags.MAG_INVALID | SampleFlags.MAG_SATURATED
 
 
 @dataclass(frozen=True)
@@ -216,8 +213,24 @@ def initial_attitude(accel_m_s2: np.ndarray, mag_ut: np.ndarray | None) -> np.nd
     return np.asarray(euler_to_quat(roll, pitch, 0.0), dtype=float)
 
 
+_TWO_PI = 2.0 * math.pi
+_FLAG_CACHE: dict[int, EstimateFlags] = {}
+
+
+def _estimate_flags(bits: int) -> EstimateFlags:
+    """EstimateFlags of an int, cached (building an IntFlag costs more than the whole filter step)."""
+    f = _FLAG_CACHE.get(bits)
+    if f is None:
+        f = _FLAG_CACHE[bits] = EstimateFlags(bits & 0xFFFF)
+    return f
+
+
 class Mekf:
-    """The default estimator (Estimator protocol): `update(sample) -> AttitudeEstimate`."""
+    """The default estimator (Estimator protocol): `update(sample) -> AttitudeEstimate`.
+
+    Also `run_batch(t, gyro, accel, mag)` for recordings (same step, one compiled loop), `reset()`,
+    `set_declination(rad)`, and read-only `gyro_bias_rad_s` / `covariance`.
+    """
 
     name = "mekf"
 
@@ -234,6 +247,7 @@ class Mekf:
         self._declination = float(declination_rad)
         self._initialised = False
         self._reinit_pending = False
+        self._step = core.fast_step()
 
     # ----------------------------------------------------------------------- Estimator protocol
     def reset(self) -> None:
@@ -254,60 +268,58 @@ class Mekf:
         return self._state[core.S_P : core.S_P + 36].reshape(6, 6).copy()
 
     def update(self, sample: ImuSample) -> AttitudeEstimate:
-        valid = _validity(sample.flags, sample.gyro_rad_s, sample.accel_m_s2, sample.mag_ut)
         g = sample.gyro_rad_s
         a = sample.accel_m_s2
         m = sample.mag_ut
+        sflags = int(sample.flags)
         extra = 0
         if self._initialised:
-            f = core.mekf_step(
+            f = self._step(
                 self._state, self._par, sample.t_s,
-                g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], valid, self._out,
+                g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], sflags, self._out,
             )
-            if f & core.NEEDS_INIT:
-                self._initialised = False
-                self._reinit_pending = True
-                extra = f & ~core.NEEDS_INIT
-        if not self._initialised:
-            if not self._initialise(sample.t_s, g, a, m, valid):
-                return self._estimate_uninitialised(sample, extra)
-            f = self._after_init_flags() | extra
-        return self._estimate(sample.t_s, f)
+            if not f & core.NEEDS_INIT:
+                return self._estimate(sample.t_s, f)
+            self._initialised = False
+            self._reinit_pending = True
+            extra = f & ~core.NEEDS_INIT
+        if not self._initialise(sample.t_s, g, a, m, sflags):
+            return self._estimate_uninitialised(sample, extra)
+        return self._estimate(sample.t_s, self._after_init_flags() | extra)
 
     # ----------------------------------------------------------------------- batch (replay, benchmarks)
     def run_batch(self, t_s, gyro_rad_s, accel_m_s2, mag_ut, sample_flags=None):
-        """Process arrays of samples (N,), (N,3)… with the same step as `update`; returns (q_wxyz (N,4),
-        flags (N,) int). Samples before the first usable one have NaN quaternions."""
+        """Process arrays of samples (N,), (N,3)… with the same step as `update`, continuing from the current
+        state; returns (q_wxyz (N,4), EstimateFlags bits (N,) int). Samples before the filter could
+        initialise have NaN quaternions. sample_flags: optional (N,) SampleFlags ints."""
         t = np.ascontiguousarray(t_s, dtype=np.float64)
         g = np.ascontiguousarray(gyro_rad_s, dtype=np.float64)
         a = np.ascontiguousarray(accel_m_s2, dtype=np.float64)
         m = np.ascontiguousarray(mag_ut, dtype=np.float64)
         n = len(t)
-        valid = _validity_array(g, a, m, sample_flags)
+        sf = (np.zeros(n, dtype=np.int64) if sample_flags is None
+              else np.ascontiguousarray(sample_flags, dtype=np.int64))
         q = np.full((n, 4), np.nan)
         fl = np.zeros(n, dtype=np.int64)
         i = 0
         while i < n:
             if not self._initialised:
-                if self._initialise(t[i], g[i], a[i], m[i], int(valid[i])):
-                    q[i] = self._state[core.S_Q : core.S_Q + 4]
+                if self._initialise(t[i], g[i], a[i], m[i], int(sf[i])):
+                    q[i] = self._out[core.O_Q : core.O_Q + 4]
                     fl[i] = self._after_init_flags()
                 i += 1
                 continue
-            j = core.mekf_run(self._state, self._par, t, g, a, m, valid, i, q, fl)
+            j = core.mekf_run(self._state, self._par, t, g, a, m, sf, i, q, fl)
             if j < n:  # gap: re-initialise from sample j
                 self._initialised = False
                 self._reinit_pending = True
-                if self._initialise(t[j], g[j], a[j], m[j], int(valid[j])):
-                    q[j] = self._state[core.S_Q : core.S_Q + 4]
-                    fl[j] = self._after_init_flags() | int(EstimateFlags.LARGE_DT)
-                j += 1
             i = j
         return q, fl
 
     # ----------------------------------------------------------------------- internals
-    def _initialise(self, t_s, g, a, m, valid) -> bool:
+    def _initialise(self, t_s, g, a, m, sample_flags: int) -> bool:
         """Wahba initialisation from one sample; False if the sample cannot initialise (no gravity)."""
+        valid = core.input_validity(sample_flags, g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2])
         if not (valid & core.IN_ACC_OK) or not (valid & core.IN_GYRO_OK):
             return False
         an = float(np.linalg.norm(a))
@@ -333,8 +345,7 @@ class Mekf:
         s[core.S_GYR_LP : core.S_GYR_LP + 3] = g
         s[core.S_ACC_LP : core.S_ACC_LP + 3] = a
         s[core.S_G_REF] = keep_gref or an
-        c = np.asarray(quat_to_dcm(q0), dtype=float)
-        s[core.S_ACC_I : core.S_ACC_I + 3] = c @ a
+        s[core.S_ACC_I : core.S_ACC_I + 3] = np.asarray(quat_to_dcm(q0), dtype=float) @ a
         s[core.S_GYR_LAST : core.S_GYR_LAST + 3] = g
         if keep_ref is not None and keep_ref[0] > 0:
             s[core.S_MAG_REF_NORM] = keep_ref[0]
@@ -344,18 +355,20 @@ class Mekf:
         # the Wahba output is already the best heading: count the field as matching from the start
         s[core.S_MAG_UNDIST_T] = p.mag_min_undisturbed_s
         self._initialised = True
+        self._fill_out_after_init()
         return True
 
-    def _after_init_flags(self) -> int:
-        o = self._out
-        o[core.O_Q : core.O_Q + 4] = self._state[core.S_Q : core.S_Q + 4]
-        if o[core.O_Q] < 0:
-            o[core.O_Q : core.O_Q + 4] *= -1.0
-        o[core.O_RATE : core.O_RATE + 3] = self._state[core.S_GYR_LAST : core.S_GYR_LAST + 3] - self._state[
-            core.S_B : core.S_B + 3
-        ]
-        P = self._state[core.S_P : core.S_P + 36]
+    def _fill_out_after_init(self) -> None:
+        s, o = self._state, self._out
+        q = s[core.S_Q : core.S_Q + 4] * (1.0 if s[core.S_Q] >= 0 else -1.0)
+        o[core.O_Q : core.O_Q + 4] = q
+        o[core.O_RATE : core.O_RATE + 3] = s[core.S_GYR_LAST : core.S_GYR_LAST + 3] - s[core.S_B : core.S_B + 3]
+        P = s[core.S_P : core.S_P + 36]
         o[core.O_SIGMA : core.O_SIGMA + 3] = np.sqrt([P[0], P[7], P[14]])
+        o[core.O_BIAS : core.O_BIAS + 3] = s[core.S_B : core.S_B + 3]
+        o[core.O_EULER : core.O_EULER + 3] = quat_to_euler(q)
+
+    def _after_init_flags(self) -> int:
         f = int(EstimateFlags.INITIALISING)
         if self._reinit_pending:
             f |= int(EstimateFlags.REINITIALISED | EstimateFlags.LARGE_DT)
@@ -365,24 +378,20 @@ class Mekf:
         return f
 
     def _estimate(self, t_s: float, f: int) -> AttitudeEstimate:
-        o = self._out
-        w, x, y, z = o[0], o[1], o[2], o[3]
-        roll = math.atan2(2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y))
-        pitch = -math.asin(max(-1.0, min(1.0, 2.0 * (x * z - w * y))))
-        yaw = math.atan2(2.0 * (x * y + w * z), 1.0 - 2.0 * (y * y + z * z))
-        heading = yaw % (2.0 * math.pi)
+        o = self._out.copy()  # one fresh buffer; the estimate's arrays are views of it
+        roll, pitch, yaw = o[core.O_EULER : core.O_EULER + 3].tolist()  # Python floats: cheap arithmetic
         return AttitudeEstimate(
-            t_s=t_s,
-            q_wxyz=o[0:4].copy(),
-            roll_rad=roll,
-            pitch_rad=pitch,
-            yaw_rad=yaw,
-            heading_mag_rad=heading,
-            heading_true_rad=(yaw + self._declination) % (2.0 * math.pi),
-            rate_body_rad_s=o[4:7].copy(),
-            gyro_bias_rad_s=self._state[4:7].copy(),
-            sigma_rpy_rad=o[7:10].copy(),
-            flags=EstimateFlags(f & 0xFFFF),
+            t_s,
+            o[core.O_Q : core.O_Q + 4],
+            roll,
+            pitch,
+            yaw,
+            yaw % _TWO_PI,
+            (yaw + self._declination) % _TWO_PI,
+            o[core.O_RATE : core.O_RATE + 3],
+            o[core.O_BIAS : core.O_BIAS + 3],
+            o[core.O_SIGMA : core.O_SIGMA + 3],
+            _estimate_flags(f),
         )
 
     def _estimate_uninitialised(self, sample: ImuSample, extra: int) -> AttitudeEstimate:
@@ -398,38 +407,8 @@ class Mekf:
             rate_body_rad_s=nan3,
             gyro_bias_rad_s=np.zeros(3),
             sigma_rpy_rad=np.full(3, math.pi),
-            flags=EstimateFlags.INITIALISING | EstimateFlags(extra & 0xFFFF),
+            flags=EstimateFlags.INITIALISING | _estimate_flags(extra),
         )
-
-
-def _finite3(v) -> bool:
-    return math.isfinite(v[0]) and math.isfinite(v[1]) and math.isfinite(v[2])
-
-
-def _validity(flags: SampleFlags, g, a, m) -> int:
-    """Which sensors of a sample the filter may use (flags from the driver, and finite values)."""
-    valid = 0
-    if not (flags & _GYRO_BAD) and _finite3(g):
-        valid |= core.IN_GYRO_OK
-    if not (flags & _ACC_BAD) and _finite3(a):
-        valid |= core.IN_ACC_OK
-    if not (flags & _MAG_BAD) and _finite3(m):
-        valid |= core.IN_MAG_OK
-    return valid
-
-
-def _validity_array(g, a, m, sample_flags) -> np.ndarray:
-    valid = (
-        np.isfinite(g).all(axis=1) * core.IN_GYRO_OK
-        + np.isfinite(a).all(axis=1) * core.IN_ACC_OK
-        + np.isfinite(m).all(axis=1) * core.IN_MAG_OK
-    ).astype(np.int64)
-    if sample_flags is not None:
-        sf = np.asarray(sample_flags, dtype=np.int64)
-        valid &= ~np.where(sf & int(_GYRO_BAD), core.IN_GYRO_OK, 0)
-        valid &= ~np.where(sf & int(_ACC_BAD), core.IN_ACC_OK, 0)
-        valid &= ~np.where(sf & int(_MAG_BAD), core.IN_MAG_OK, 0)
-    return valid
 
 
 __all__ = ["Mekf", "MekfParams", "DEFAULT_MEKF_PARAMS", "FIXED_WING_MEKF_PARAMS", "initial_attitude"]
