@@ -205,3 +205,14 @@ def test_dipole_decays_with_inverse_cube_of_distance():
     np.testing.assert_allclose(on_axis[0, 2] / on_axis[1, 2], 8.0)
     equator = dipole_field_ut(m, np.array([0.1, 0, 0]))
     np.testing.assert_allclose(equator, [0, 0, -1e-7 / 0.1**3 * 1e6], atol=1e-12)
+
+
+@pytest.mark.parametrize("name", [n for n in SCENARIOS if n != "rate-table"])
+def test_euler_rate_formula_matches_the_rotation_difference(name):
+    """Euler-angle scenarios use ω from the Euler rates; it must equal scipy's rotation-based derivative."""
+    from ahrsd.simulation.scenarios import EulerScenario, Scenario
+
+    sc = make_scenario(name)
+    assert isinstance(sc, EulerScenario)
+    t = np.linspace(0.0, 300.0, 3001)
+    np.testing.assert_allclose(sc.body_rate_rad_s(t), Scenario.body_rate_rad_s(sc, t), atol=1e-9)
