@@ -1,0 +1,186 @@
+"""`ahrsd calibrate` as a subprocess on generated recordings: the --json public keys, saving through the
+store (merged), refusals, errors, plots."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ahrsd.calibration.store import CalibrationStore, load_calibration_file
+from ahrsd.drivers.recording import TRUTH_COLUMNS, RecordingWriter
+from ahrsd.drivers.sample import make_sample
+from ahrsd.simulation import DEFAULT_SITE, SensorErrors, simulate
+
+SITE_ARGS = ["--lat", str(DEFAULT_SITE.lat_deg), "--lon", str(DEFAULT_SITE.lon_deg),
+             "--alt-m", str(DEFAULT_SITE.alt_m), "--date", DEFAULT_SITE.date.isoformat()]
+
+
+def write_recording(path: Path, blocks, t0: float = 0.0, rate_hz: float = 20.0) -> Path:
+    with RecordingWriter(path, extra_columns=TRUTH_COLUMNS) as w:
+        k = 0
+        for block in blocks:
+            for i in range(len(block)):
+                s = make_sample(t0 + k / rate_hz, block.gyro_rad_s[i], block.accel_m_s2[i], block.mag_ut[i])
+                w.write(s, truth_q_wxyz=block.truth_q_wxyz[i])
+                k += 1
+    return path
+
+
+def ahrsd(*args, check_rc=None):
+    """`ahrsd calibrate ...` as a real subprocess (the way evaluation scripts call it)."""
+    proc = subprocess.run([sys.executable, "-m", "ahrsd.daemon.cli", "calibrate", *map(str, args)],
+                          capture_output=True, text=True, timeout=120)
+    if check_rc is not None:
+        assert proc.returncode == check_rc, proc.stdout + proc.stderr
+    return proc
+
+
+@dataclass
+class Result:
+    returncode: int
+    stdout: str
+    stderr: str
+
+
+@pytest.fixture
+def ahrsd_inproc(capsys):
+    """The same command line run in this process (saves the interpreter start-up: the suite is shared)."""
+    from ahrsd.daemon.cli import main
+
+    def run(*args, check_rc=None):
+        capsys.readouterr()
+        try:
+            rc = main(["calibrate", *map(str, args)])
+        except SystemExit as exc:  # argparse usage errors
+            rc = exc.code
+        out, err = capsys.readouterr()
+        if check_rc is not None:
+            assert rc == check_rc, out + err
+        return Result(rc, out, err)
+
+    return run
+
+
+@pytest.fixture(scope="module")
+def recordings(tmp_path_factory):
+    d = tmp_path_factory.mktemp("recordings")
+    errs = SensorErrors.adis16405(seed=3)
+    out = {
+        "tumble": write_recording(d / "tumble.csv", [simulate("tumble", 90, rate_hz=20, seed=3, errors=errs)]),
+        "level": write_recording(d / "level.csv", [simulate("level-turns", 60, rate_hz=20, seed=3, errors=errs)]),
+        "table": write_recording(d / "table.csv", [simulate("rate-table", 430, rate_hz=20, seed=3, errors=errs)]),
+        "static": write_recording(d / "static.csv", [simulate("static", 3600, rate_hz=2, seed=3, errors=errs)],
+                                  rate_hz=2),
+    }
+    from test_cal_accel import roll_pitch_for_up, up_vectors
+
+    from ahrsd.simulation.scenarios import Static
+
+    blocks = []
+    for k, u in enumerate(up_vectors()):
+        roll, pitch = roll_pitch_for_up(u)
+        blocks.append(simulate(Static(roll_deg=roll, pitch_deg=pitch), 6, rate_hz=20, seed=50 + k, errors=errs))
+    out["positions"] = write_recording(d / "positions.csv", blocks)
+    out["errors"] = errs
+    return out
+
+
+def test_mag_json_has_the_public_keys_and_is_saved(recordings, tmp_path):
+    state = tmp_path / "state"
+    proc = ahrsd("mag", recordings["tumble"], *SITE_ARGS, "--method", "ellipsoid", "--state-dir", state, "--json",
+                 check_rc=0)
+    out = json.loads(proc.stdout)
+    assert len(out["hard_iron_ut"]) == 3 and np.asarray(out["soft_iron"]).shape == (3, 3)
+    assert out["residual_rms_ut"] < 0.2
+    from ahrsd.simulation import VehicleIron
+
+    errs = recordings["errors"].with_vehicle_iron(VehicleIron.default())  # the tumble scenario's vehicle
+    # Simulated chip not involved (no quantisation): 1800 samples of 0.02 µT noise fix h to ~1e-3 µT.
+    np.testing.assert_allclose(out["hard_iron_ut"], errs.hard_iron_ut, atol=0.01)
+    cal = load_calibration_file(state / "calibration.json")
+    np.testing.assert_allclose(cal.mag.hard_iron_ut, out["hard_iron_ut"])
+    assert cal.metadata["mag"]["method"] == "ellipsoid"
+
+
+def test_each_sensor_is_merged_into_the_stored_calibration(recordings, tmp_path, ahrsd_inproc):
+    state = tmp_path / "state"
+    mag = json.loads(ahrsd_inproc("mag", recordings["tumble"], *SITE_ARGS, "--method", "three-step",
+                                  "--state-dir", state, "--json", check_rc=0).stdout)
+    gyro = json.loads(ahrsd_inproc("gyro", recordings["table"], "--state-dir", state, "--json", check_rc=0).stdout)
+    assert len(gyro["bias_rad_s"]) == 3 and np.asarray(gyro["matrix"]).shape == (3, 3)
+    errs = recordings["errors"]
+    np.testing.assert_allclose(gyro["bias_rad_s"], errs.gyro_bias_rad_s, atol=5e-4)
+    np.testing.assert_allclose(gyro["matrix"], np.linalg.inv(errs.gyro_matrix), atol=1e-3)
+    accel = json.loads(ahrsd_inproc("accel", recordings["positions"], "--lat", DEFAULT_SITE.lat_deg, "--alt-m",
+                                    DEFAULT_SITE.alt_m, "--state-dir", state, "--json", check_rc=0).stdout)
+    assert len(accel["bias_m_s2"]) == 3 and np.asarray(accel["matrix"]).shape == (3, 3)
+    np.testing.assert_allclose(accel["bias_m_s2"], errs.accel_bias_m_s2, atol=1e-2)
+    cal = CalibrationStore(state).load()
+    np.testing.assert_allclose(cal.mag.soft_iron, mag["soft_iron"])
+    np.testing.assert_allclose(cal.gyro.matrix, gyro["matrix"])
+    np.testing.assert_allclose(cal.accel.bias_m_s2, accel["bias_m_s2"])
+    assert {"mag", "gyro", "accel"} <= set(cal.metadata)
+    # The previous version (before the accelerometer) is kept.
+    prev = load_calibration_file(state / "calibration.prev.json")
+    assert prev.accel.bias_m_s2.tolist() == [0.0, 0.0, 0.0] and prev.gyro.matrix.tolist() == gyro["matrix"]
+
+
+def test_allan_json_and_noise_file(recordings, tmp_path, ahrsd_inproc):
+    state = tmp_path / "state"
+    out = json.loads(ahrsd_inproc("allan", recordings["static"], "--state-dir", state, "--json", check_rc=0).stdout)
+    errs = recordings["errors"]
+    for ax in "xyz":
+        assert out["gyro"][ax]["white_noise"] == pytest.approx(errs.gyro_noise_density_rad_s_rthz, rel=0.15)
+        assert out["accel"][ax]["white_noise"] == pytest.approx(errs.accel_noise_density_m_s2_rthz, rel=0.15)
+        assert "bias_instability" in out["gyro"][ax] and "bias_instability" in out["accel"][ax]
+    assert len(out["kalman"]["Q_diag"]) == 6 and len(out["kalman"]["R_diag"]) == 6
+    assert json.loads((state / "noise.json").read_text())["format"] == "ahrsd-noise"
+
+
+def test_refused_fit_exits_1_and_saves_nothing(recordings, tmp_path, ahrsd_inproc):
+    state = tmp_path / "state"
+    proc = ahrsd("mag", recordings["level"], *SITE_ARGS, "--method", "ellipsoid", "--state-dir", state, "--json")
+    assert proc.returncode == 1
+    out = json.loads(proc.stdout)
+    assert out["refused"] and out["saved_to"] is None
+    assert not (state / "calibration.json").exists()
+    human = ahrsd_inproc("mag", recordings["level"], *SITE_ARGS, "--state-dir", state)
+    assert human.returncode == 1 and "REFUSED" in human.stdout
+
+
+def test_errors_are_clear(recordings, tmp_path, ahrsd_inproc):
+    proc = ahrsd_inproc("mag", tmp_path / "missing.csv", *SITE_ARGS, "--state-dir", tmp_path, "--json")
+    assert proc.returncode == 1 and "no such file" in json.loads(proc.stdout)["error"]
+    bad = tmp_path / "bad.csv"
+    bad.write_text("not,a,recording\n1,2,3\n")
+    proc = ahrsd_inproc("allan", bad, "--state-dir", tmp_path)
+    assert proc.returncode == 1 and "cannot read the recording" in proc.stderr
+    proc = ahrsd_inproc("gyro", recordings["level"], "--state-dir", tmp_path, "--json")
+    assert proc.returncode == 1  # turning, not still, and no rate-table reference that fits
+    proc = ahrsd_inproc("mag", recordings["tumble"], "--lat", "95", "--lon", "0", "--state-dir", tmp_path)
+    assert proc.returncode == 2
+
+
+def test_corrupt_stored_calibration_falls_back_and_is_replaced(recordings, tmp_path, ahrsd_inproc):
+    state = tmp_path / "state"
+    state.mkdir()
+    (state / "calibration.json").write_text('{"format": "ahrsd-calibration", "schema_vers')
+    proc = ahrsd_inproc("mag", recordings["tumble"], *SITE_ARGS, "--state-dir", state, check_rc=0)
+    assert "saved to" in proc.stdout
+    assert load_calibration_file(state / "calibration.json").metadata["mag"]["method"] == "ellipsoid"
+
+
+def test_plots_are_written(recordings, tmp_path, ahrsd_inproc):
+    png = tmp_path / "mag.png"
+    ahrsd_inproc("mag", recordings["tumble"], *SITE_ARGS, "--state-dir", tmp_path, "--dry-run", "--plot", png,
+                 check_rc=0)
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    png = tmp_path / "allan.png"
+    ahrsd_inproc("allan", recordings["static"], "--state-dir", tmp_path, "--dry-run", "--plot", png, check_rc=0)
+    assert png.read_bytes()[:4] == b"\x89PNG"
