@@ -110,27 +110,36 @@ O_SIZE = 16
 
 
 @njit(cache=True, inline="always")
-def _scalar_update(state, j, sign, nu, r):
-    """Kalman update with a measurement whose row is sign·e_j (one error-state component); returns the
-    correction applied to the error state via `state`'s scratch: caller reads dx from the returned tuple."""
+def _scalar_update(state, j, sign, nu, r, zero_a, zero_b):
+    """Kalman update with one scalar measurement whose row is h = sign·e_j (it observes one error-state
+    component). Gains of error-state components `zero_a`, `zero_b` (−1: none) are forced to zero, so this
+    measurement cannot move them (the magnetometer never moves tilt, the accelerometer never heading), and
+    the covariance takes the Joseph form, valid for such a constrained gain:
+    P ← P − K uᵀ − u Kᵀ + S K Kᵀ with u = P hᵀ, S = h P hᵀ + r. Returns the error-state correction K·ν."""
     p0 = S_P
     s = state[p0 + j * 6 + j] + r
-    # K = P h / S with h = sign·e_j  →  K_i = sign·P[i, j] / S
-    k0 = sign * state[p0 + 0 * 6 + j] / s
-    k1 = sign * state[p0 + 1 * 6 + j] / s
-    k2 = sign * state[p0 + 2 * 6 + j] / s
-    k3 = sign * state[p0 + 3 * 6 + j] / s
-    k4 = sign * state[p0 + 4 * 6 + j] / s
-    k5 = sign * state[p0 + 5 * 6 + j] / s
-    # P ← P − K (h P) = P − K · sign·P[j, :]
-    for c in range(6):
-        hp = sign * state[p0 + j * 6 + c]
-        state[p0 + 0 * 6 + c] -= k0 * hp
-        state[p0 + 1 * 6 + c] -= k1 * hp
-        state[p0 + 2 * 6 + c] -= k2 * hp
-        state[p0 + 3 * 6 + c] -= k3 * hp
-        state[p0 + 4 * 6 + c] -= k4 * hp
-        state[p0 + 5 * 6 + c] -= k5 * hp
+    u0 = sign * state[p0 + 0 * 6 + j]
+    u1 = sign * state[p0 + 1 * 6 + j]
+    u2 = sign * state[p0 + 2 * 6 + j]
+    u3 = sign * state[p0 + 3 * 6 + j]
+    u4 = sign * state[p0 + 4 * 6 + j]
+    u5 = sign * state[p0 + 5 * 6 + j]
+    k0 = 0.0 if (zero_a == 0 or zero_b == 0) else u0 / s
+    k1 = 0.0 if (zero_a == 1 or zero_b == 1) else u1 / s
+    k2 = 0.0 if (zero_a == 2 or zero_b == 2) else u2 / s
+    k3 = u3 / s
+    k4 = u4 / s
+    k5 = u5 / s
+    for rr in range(6):
+        kr = k0 if rr == 0 else (k1 if rr == 1 else (k2 if rr == 2 else (k3 if rr == 3 else (k4 if rr == 4 else k5))))
+        ur = u0 if rr == 0 else (u1 if rr == 1 else (u2 if rr == 2 else (u3 if rr == 3 else (u4 if rr == 4 else u5))))
+        base = p0 + rr * 6
+        state[base + 0] += -kr * u0 - ur * k0 + s * kr * k0
+        state[base + 1] += -kr * u1 - ur * k1 + s * kr * k1
+        state[base + 2] += -kr * u2 - ur * k2 + s * kr * k2
+        state[base + 3] += -kr * u3 - ur * k3 + s * kr * k3
+        state[base + 4] += -kr * u4 - ur * k4 + s * kr * k4
+        state[base + 5] += -kr * u5 - ur * k5 + s * kr * k5
     return k0 * nu, k1 * nu, k2 * nu, k3 * nu, k4 * nu, k5 * nu
 
 
@@ -390,7 +399,7 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
         r = par[P_REST_BIAS_NOISE] ** 2
         for i in range(3):
             nu = state[S_GYR_LP + i] - state[S_B + i]
-            d0, d1, d2, d3, d4, d5 = _scalar_update(state, 3 + i, 1.0, nu, r)
+            d0, d1, d2, d3, d4, d5 = _scalar_update(state, 3 + i, 1.0, nu, r, -1, -1)
             _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
 
     # ------------------------------------------------------------------ accelerometer: tilt only
@@ -450,11 +459,11 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
             # honest yardstick, an angle is (a sustained turn or a wrong tilt)
             gated = nu_n * nu_n + nu_e * nu_e > par[P_ACC_GATE] ** 2
             if not gated or state[S_ACC_REJ_T] > par[P_ACC_GATE_RECOVER]:
-                d0, d1, d2, d3, d4, d5 = _scalar_update(state, 1, 1.0, nu_n, r)
+                d0, d1, d2, d3, d4, d5 = _scalar_update(state, 1, 1.0, nu_n, r, 2, -1)
                 _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
                 # second component: innovation re-evaluated after the first correction (sequential update)
                 nu_e2 = nu_e + d0
-                d0, d1, d2, d3, d4, d5 = _scalar_update(state, 0, -1.0, nu_e2, r)
+                d0, d1, d2, d3, d4, d5 = _scalar_update(state, 0, -1.0, nu_e2, r, 2, -1)
                 _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
                 accepted = True
         if accepted:
@@ -531,7 +540,7 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
                 if alpha * alpha > par[P_MAG_GATE] ** 2 * s and inflate == 1.0:
                     flags |= F_MAG_REJECTED
                 else:
-                    d0, d1, d2, d3, d4, d5 = _scalar_update(state, 2, -1.0, alpha, r)
+                    d0, d1, d2, d3, d4, d5 = _scalar_update(state, 2, -1.0, alpha, r, 0, 1)
                     _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
                     mag_used = True
             else:

@@ -1,0 +1,191 @@
+"""Per-sample cost of ahrsd's estimators beside VQF and x-io Fusion, measured side by side in one process.
+
+    .venv/bin/python bench/speed.py            # 16 384 samples (20 s at 819.2 SPS), best of 3
+    .venv/bin/python bench/speed.py --quick    # 4 096 samples
+
+"one at a time": one Python call per sample, as the daemon does — ahrsd's estimators through
+`update(ImuSample) -> AttitudeEstimate`, VQF through `VQF.update(gyr, acc, mag)` + `getQuat9D()`, Fusion
+through `Ahrs.update(gyr, acc, mag)` + `get_quaternion()`. "batch": the whole array in one call
+(`Mekf.run_batch`, `VQF.updateBatch`). Times are the best of `--repeat` runs (the machine is shared: the
+minimum is the least disturbed). Ratios are against VQF measured in the same process, so they hold on any
+machine. The mekf's numba JIT warm-up (import + first update) is measured in fresh processes, with the
+on-disk cache cold (empty cache directory) and warm.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+RATE_HZ = 819.2
+
+
+def make_samples(n: int):
+    """n consecutive samples of the simulated `level-turns` scenario (ADIS16405 errors) at 819.2 SPS."""
+    from ahrsd.drivers.sample import ImuSample
+    from ahrsd.simulation import open_stream
+
+    b = open_stream("level-turns", rate_hz=RATE_HZ, seed=0, vehicle_iron=None).next_block(n)
+    g = np.ascontiguousarray(b.gyro_rad_s)
+    a = np.ascontiguousarray(b.accel_m_s2)
+    m = np.ascontiguousarray(b.mag_ut)
+    t = np.ascontiguousarray(b.t_s)
+    samples = [ImuSample(float(t[i]), g[i].copy(), a[i].copy(), m[i].copy()) for i in range(n)]
+    return samples, t, g, a, m
+
+
+def best_of(repeat: int, fn) -> float:
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def one_at_a_time(name: str, samples, g, a, m):
+    """A callable that runs every sample through estimator `name`, one call per sample."""
+    if name in ("mekf", "thesis"):
+        from ahrsd.estimator import make_estimator
+
+        def run():
+            est = make_estimator(name)
+            upd = est.update
+            for s in samples:
+                upd(s)
+
+        return run
+    if name == "vqf":
+        from vqf import VQF
+
+        def run():
+            v = VQF(1.0 / RATE_HZ)
+            for i in range(len(g)):
+                v.update(g[i], a[i], m[i])
+                v.getQuat9D()
+
+        return run
+    if name == "fusion":
+        import imufusion
+
+        gd = np.degrees(g)
+        ag = a / 9.80665
+
+        def run():
+            f = imufusion.Ahrs()
+            f.set_sample_period(1.0 / RATE_HZ)
+            for i in range(len(gd)):
+                f.update(gd[i], ag[i], m[i])
+                f.get_quaternion()
+
+        return run
+    raise ValueError(name)
+
+
+def batch(name: str, t, g, a, m):
+    if name == "mekf":
+        from ahrsd.estimator.mekf import Mekf
+
+        return lambda: Mekf().run_batch(t, g, a, m)
+    if name == "vqf":
+        from vqf import VQF
+
+        return lambda: VQF(1.0 / RATE_HZ).updateBatch(g, a, m)
+    return None
+
+
+_WARMUP_SNIPPET = """
+import time
+t0 = time.perf_counter()
+import numpy as np
+from ahrsd.estimator.mekf import Mekf
+from ahrsd.drivers.sample import make_sample
+t1 = time.perf_counter()
+e = Mekf()
+e.update(make_sample(0.0, [0, 0, 0], [0, 0, -9.81], [20, 0, 40]))
+e.update(make_sample(0.001, [0, 0, 0], [0, 0, -9.81], [20, 0, 40]))
+e.run_batch(np.array([0.002]), np.zeros((1, 3)), np.array([[0, 0, -9.81]]), np.array([[20.0, 0, 40]]))
+t2 = time.perf_counter()
+print(f"{t1 - t0:.3f} {t2 - t1:.3f}")
+"""
+
+
+def jit_warmup() -> dict[str, tuple[float, float]]:
+    """(import s, first updates s) in a fresh process: cold = empty numba cache, warm = cache present."""
+    res = {}
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+        for label in ("cold", "warm"):
+            out = subprocess.run([sys.executable, "-c", _WARMUP_SNIPPET], env=env, capture_output=True,
+                                 text=True, cwd=REPO, check=True).stdout.split()
+            res[label] = (float(out[0]), float(out[1]))
+    return res
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--samples", type=int, default=16384)
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--quick", action="store_true", help="4096 samples, 2 repeats, no warm-up measurement")
+    args = ap.parse_args(argv)
+    if args.quick:
+        args.samples, args.repeat = 4096, 2
+    samples, t, g, a, m = make_samples(args.samples)
+    n = len(samples)
+    names = ["mekf", "thesis", "vqf", "fusion"]
+    avail = []
+    for name in names:
+        try:
+            one_at_a_time(name, samples[:10], g[:10], a[:10], m[:10])()  # also warms up the JIT
+            avail.append(name)
+        except ImportError as exc:
+            print(f"note: {name} skipped ({exc})")
+    print(f"# estimator speed: {n} samples of simulated level-turns at {RATE_HZ} SPS, best of {args.repeat}")
+    rows = {}
+    for name in avail:
+        per = best_of(args.repeat, one_at_a_time(name, samples, g, a, m)) / n
+        b = batch(name, t, g, a, m)
+        if b is not None:
+            b()
+            bat = best_of(args.repeat, b) / n
+        else:
+            bat = None
+        rows[name] = (per, bat)
+    vqf_per = rows.get("vqf", (None, None))[0]
+    vqf_bat = rows.get("vqf", (None, None))[1]
+    hdr = (f"{'estimator':10s} {'one-at-a-time':>14s} {'µs/sample':>10s} {'× VQF':>7s}   "
+           f"{'batch':>12s} {'µs/sample':>10s} {'× VQF':>7s}")
+    print(hdr)
+    print("-" * len(hdr))
+    for name, (per, bat) in rows.items():
+        line = f"{name:10s} {1 / per:12,.0f}/s {per * 1e6:10.2f} "
+        line += f"{per / vqf_per:7.2f}" if vqf_per else f"{'':7s}"
+        if bat is not None:
+            line += f"   {1 / bat:10,.0f}/s {bat * 1e6:10.3f} "
+            line += f"{bat / vqf_bat:7.2f}" if vqf_bat else ""
+        else:
+            line += f"   {'n/a':>12s}"
+        print(line)
+    if "mekf" in rows:
+        per = rows["mekf"][0]
+        print(f"\nmekf one-at-a-time: {1 / per:,.0f} samples/s (target ≥ 50 000), {per * 1e6:.1f} µs/sample "
+              f"= {per * RATE_HZ * 100:.2f} % of this core at {RATE_HZ} SPS"
+              + (f"; {per / vqf_per:.1f}× VQF's per-sample cost (moonshot ≤ 2×)" if vqf_per else ""))
+    if not args.quick:
+        w = jit_warmup()
+        print(f"numba JIT warm-up (fresh process): cold cache: import {w['cold'][0]:.2f} s + first updates "
+              f"{w['cold'][1]:.2f} s (compiling); warm cache: import {w['warm'][0]:.2f} s + first updates "
+              f"{w['warm'][1]:.2f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
