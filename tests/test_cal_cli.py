@@ -75,8 +75,8 @@ def recordings(tmp_path_factory):
         "tumble": write_recording(d / "tumble.csv", [simulate("tumble", 90, rate_hz=20, seed=3, errors=errs)]),
         "level": write_recording(d / "level.csv", [simulate("level-turns", 60, rate_hz=20, seed=3, errors=errs)]),
         "table": write_recording(d / "table.csv", [simulate("rate-table", 430, rate_hz=20, seed=3, errors=errs)]),
-        "static": write_recording(d / "static.csv", [simulate("static", 3600, rate_hz=2, seed=3, errors=errs)],
-                                  rate_hz=2),
+        "static": write_recording(d / "static.csv", [simulate("static", 1800, rate_hz=10, seed=3, errors=errs)],
+                                  rate_hz=10),
     }
     from test_cal_accel import roll_pitch_for_up, up_vectors
 
