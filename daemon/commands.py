@@ -131,9 +131,10 @@ class CommandRouter:
             self.send_ack(endpoint, previous[1])
             return
 
-        def ack(result: int, progress: int = 0, param2: int = 0) -> None:
+        def ack(result: int, progress: int = 0, param2: int = 0, remember: bool = True) -> None:
             message = _ack_message(cmd, result, src, progress, param2)
-            self._recent[key] = (self.clock(), message)
+            if remember and result != mavlink.MAV_RESULT_TEMPORARILY_REJECTED:
+                self._recent[key] = (self.clock(), message)   # what a re-sent duplicate gets
             self.send_ack(endpoint, message)
 
         if reg is None:
@@ -144,7 +145,7 @@ class CommandRouter:
         if reg.state_changing and self.require_signed() and not signed:
             self.counters.unsigned_refused += 1
             log.warning("refused unsigned command %d from %d/%d", cmd, *src)
-            ack(mavlink.MAV_RESULT_DENIED)
+            ack(mavlink.MAV_RESULT_DENIED, remember=False)   # a signed retry must be evaluated afresh
             return
         ctx = CommandContext(self.service, endpoint, src[0], src[1], broadcast, signed,
                              msg.get_type() == "COMMAND_INT", lambda r, p: ack(r, p))

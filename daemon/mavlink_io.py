@@ -40,6 +40,7 @@ class LinkCounters:
     rx_messages: int = 0
     rx_malformed: int = 0      # BAD_DATA: bad prefix, CRC, length, unknown message
     rx_bad_signature: int = 0  # signature or timestamp check failed (counted separately from malformed)
+    rx_unknown: int = 0        # well-formed frames of message ids outside our dialect (not delivered)
     tx_messages: int = 0
     tx_errors: int = 0
     reconnects: int = 0
@@ -206,7 +207,21 @@ class Endpoint:
             if not data:
                 break
             self._parse(data)
+            if self.kind not in ("tcp", "tcpin", "uds", "unix", "serial"):
+                self._end_of_datagram()
         self._register_fd()
+
+    def _end_of_datagram(self) -> None:
+        """MAVLink frames never span UDP datagrams: a partial frame left over is truncated input."""
+        if self.conn.mav.buf_len() > 0:
+            self.counters.rx_malformed += 1
+            self._reset_parser()
+
+    def _reset_parser(self) -> None:
+        mav = self.conn.mav
+        mav.buf = bytearray()
+        mav.buf_index = 0
+        mav.expected_length = mavlink.HEADER_LEN_V1 + 2   # the parser's initial state
 
     def _parse(self, data: bytes) -> None:
         mav = self.conn.mav
@@ -215,8 +230,7 @@ class Endpoint:
         except Exception as exc:  # noqa: BLE001 - a hostile frame must never crash the daemon
             self.counters.rx_malformed += 1
             log.debug("MAVLink %s: unparsable input: %s", self.url, exc)
-            mav.buf = bytearray()
-            mav.buf_index = 0
+            self._reset_parser()
             return
         bad_prefix_seen = False
         for msg in msgs:
@@ -230,6 +244,9 @@ class Endpoint:
                         bad_prefix_seen = True
                 else:
                     self.counters.rx_malformed += 1
+                continue
+            if msg.get_msgId() < 0:
+                self.counters.rx_unknown += 1
                 continue
             self.counters.rx_messages += 1
             try:

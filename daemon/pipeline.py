@@ -247,6 +247,7 @@ class SampleTimer:
 
     LEAK_S_PER_S = 100e-6   # bracket widening per second (oscillator drift between chip and host)
     GUARD_S = 50e-6         # read this much after the predicted ready time
+    INDEX_TOLERANCE = 0.1   # fraction of a period: a read right at the upper bound still counts the sample
 
     def __init__(self, period_s: float):
         self.period_s = period_s
@@ -269,7 +270,7 @@ class SampleTimer:
             self._t_hi = self._t_lo = read_time
             return read_time, 0, 0
         self._leak(read_time)
-        k = max(self.k + 1, math.floor((read_time - self.hi) / P))
+        k = max(self.k + 1, math.floor((read_time - self.hi) / P + self.INDEX_TOLERANCE))
         lost = k - self.k - 1
         self.k = k
         self.hi = min(self.hi, read_time - k * P)

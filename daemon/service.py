@@ -496,8 +496,8 @@ class Service:
                     mavlink.MAV_STATE_ACTIVE: mavlink.MAV_SEVERITY_NOTICE}.get(new, mavlink.MAV_SEVERITY_INFO)
         detail = {
             mavlink.MAV_STATE_BOOT: "waiting for the sensor",
-            mavlink.MAV_STATE_STANDBY: "estimator initialising, heading not published",
-            mavlink.MAV_STATE_ACTIVE: "heading good, publishing",
+            mavlink.MAV_STATE_STANDBY: "initialising, no heading out",
+            mavlink.MAV_STATE_ACTIVE: "heading good",
             mavlink.MAV_STATE_CALIBRATING: self.health.calibrating or "calibrating",
             mavlink.MAV_STATE_CRITICAL: self.health.sensor_error or "no samples from the sensor",
         }.get(new, "")

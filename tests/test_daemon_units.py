@@ -1,0 +1,388 @@
+"""Unit tests of the daemon's parts: command routing/ACK rules, parameters, output schedule, message
+builders, routing rule, sample timing, sd_notify, and the MAVLink endpoint's handling of malformed input."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import socket
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ahrsd.daemon import messages as msgs
+from ahrsd.daemon.commands import CommandAck, CommandRouter
+from ahrsd.daemon.mavlink_io import Endpoint, is_for_us, mavlink
+from ahrsd.daemon.notify import Notifier, watchdog_interval_s
+from ahrsd.daemon.outputs import OutputSchedule
+from ahrsd.daemon.params import ParamSpec, ParamStore
+from ahrsd.daemon.pipeline import SampleTimer, mounting_matrix
+from ahrsd.drivers.sample import make_sample
+
+# ------------------------------------------------------------------------------------------ command router
+
+
+def command(cmd, *params, src=(255, 190), signed=False, target=(1, 200), int_form=False):
+    p = list(params) + [0.0] * (7 - len(params))
+    if int_form:
+        m = mavlink.MAVLink_command_int_message(target[0], target[1], 0, cmd, 0, 0, *p[:4], int(p[4]), int(p[5]),
+                                                p[6])
+    else:
+        m = mavlink.MAVLink_command_long_message(target[0], target[1], cmd, 0, *p)
+    m._header = mavlink.MAVLink_header(m.id, srcSystem=src[0], srcComponent=src[1])
+    m._signed = signed
+    return m
+
+
+@pytest.fixture
+def router():
+    sent = []
+    clock = [100.0]
+    r = CommandRouter(service=None, send_ack=lambda ep, m: sent.append(m), clock=lambda: clock[0])
+    r.sent, r.now = sent, clock
+    return r
+
+
+def test_unknown_targeted_command_is_unsupported_and_ack_targets_requester(router):
+    router.handle(command(4242), "ep", broadcast=False)
+    (ack,) = router.sent
+    assert (ack.command, ack.result) == (4242, mavlink.MAV_RESULT_UNSUPPORTED)
+    assert (ack.target_system, ack.target_component) == (255, 190)
+
+
+def test_broadcast_commands(router):
+    router.handle(command(4242, target=(1, 0)), "ep", broadcast=True)
+    assert router.sent == [] and router.counters.ignored_broadcast == 1
+    router.register(7, lambda m, c: mavlink.MAV_RESULT_ACCEPTED, accept_broadcast=False)
+    router.handle(command(7, target=(1, 0)), "ep", broadcast=True)
+    assert router.sent == []
+    router.register(8, lambda m, c: mavlink.MAV_RESULT_ACCEPTED)
+    router.handle(command(8, target=(1, 0)), "ep", broadcast=True)
+    assert router.sent[-1].result == mavlink.MAV_RESULT_ACCEPTED
+
+
+def test_duplicates_are_not_re_executed(router):
+    calls = []
+    router.register(9, lambda m, c: calls.append(c) or CommandAck(mavlink.MAV_RESULT_IN_PROGRESS, 0))
+    router.handle(command(9, 1), "ep", False)
+    router.handle(command(9, 1), "ep", False)             # the re-send
+    assert len(calls) == 1 and [a.result for a in router.sent] == [mavlink.MAV_RESULT_IN_PROGRESS] * 2
+    calls[0].finish(mavlink.MAV_RESULT_ACCEPTED)
+    router.handle(command(9, 1), "ep", False)             # a late duplicate gets the final result
+    assert len(calls) == 1 and router.sent[-1].result == mavlink.MAV_RESULT_ACCEPTED
+    router.handle(command(9, 2), "ep", False)             # different parameters: a new command
+    assert len(calls) == 2
+    router.now[0] += 10.0                                 # outside the duplicate window: executed again
+    router.handle(command(9, 1), "ep", False)
+    assert len(calls) == 3
+    assert router.counters.duplicates == 2
+
+
+def test_read_only_commands_are_answered_again(router):
+    calls = []
+    router.register(10, lambda m, c: calls.append(1) or mavlink.MAV_RESULT_ACCEPTED, state_changing=False)
+    router.handle(command(10, 1), "ep", False)
+    router.handle(command(10, 1), "ep", False)
+    assert len(calls) == 2
+
+
+def test_signing_policy_and_handler_failure(router):
+    router.require_signed = lambda: True
+    ran = []
+    router.register(11, lambda m, c: ran.append(1) or mavlink.MAV_RESULT_ACCEPTED)
+    router.handle(command(11), "ep", False)
+    assert router.sent[-1].result == mavlink.MAV_RESULT_DENIED and not ran
+    router.handle(command(11, signed=True), "ep", False)   # a signed retry is evaluated afresh
+    assert router.sent[-1].result == mavlink.MAV_RESULT_ACCEPTED and ran
+    assert router.counters.unsigned_refused == 1
+
+    def boom(m, c):
+        raise RuntimeError("bug")
+    router.register(12, boom)
+    router.handle(command(12, signed=True), "ep", False)
+    assert router.sent[-1].result == mavlink.MAV_RESULT_FAILED and router.counters.handler_errors == 1
+
+
+def test_command_int_params(router):
+    seen = []
+    router.register(13, lambda m, c: seen.append((c.is_command_int, m.x)) or mavlink.MAV_RESULT_ACCEPTED)
+    router.handle(command(13, 0, 0, 0, 0, 5, 6, 7, int_form=True), "ep", False)
+    assert seen == [(True, 5)]
+
+
+def test_routing_rule():
+    def m(ts, tc):
+        return mavlink.MAVLink_command_long_message(ts, tc, 1, 0, 0, 0, 0, 0, 0, 0, 0)
+    assert is_for_us(m(0, 0), 1, 200) == (True, True)
+    assert is_for_us(m(1, 0), 1, 200) == (True, True)
+    assert is_for_us(m(1, 200), 1, 200) == (True, False)
+    assert is_for_us(m(1, 1), 1, 200) == (False, False)
+    assert is_for_us(m(2, 200), 1, 200) == (False, False)
+    assert is_for_us(mavlink.MAVLink_heartbeat_message(1, 8, 0, 0, 0, 3), 1, 200) == (True, True)
+
+# ------------------------------------------------------------------------------------------ parameters
+
+
+def test_param_store_validates_persists_and_reloads(tmp_path):
+    applied = []
+    specs = [ParamSpec("SR_A", 10, 0, 50, "Hz"), ParamSpec("FLAG", 0, 0, 1, "0/1", integer=True)]
+    p = ParamStore(specs, tmp_path, on_change=lambda n, v: applied.append((n, v)))
+    assert p.set("SR_A", 60) == (False, "SR_A: 60 outside [0, 50]")
+    assert p.set("SR_A", float("nan"))[0] is False
+    assert p.set("FLAG", 0.5)[0] is False
+    assert p.set("NOPE", 1)[0] is False
+    assert p.get("SR_A") == 10 and applied == []
+    assert p.set("SR_A", 20) == (True, "")
+    assert applied == [("SR_A", 20.0)]
+    q = ParamStore(specs, tmp_path)
+    assert q.load() == [] and q.get("SR_A") == 20.0 and q.get("FLAG") == 0.0
+    (tmp_path / "params.json").write_text('{"schema": 1, "values": {"SR_A": 99, "GONE": 1}}')
+    r = ParamStore(specs, tmp_path)
+    warnings = r.load()
+    assert len(warnings) == 2 and r.get("SR_A") == 10
+    (tmp_path / "params.json").write_text("{broken")
+    assert ParamStore(specs, tmp_path).load()[0].startswith("ignoring parameter file")
+
+
+def test_param_names_and_defaults_are_checked():
+    with pytest.raises(ValueError):
+        ParamSpec("THIS_NAME_IS_TOO_LONG", 0, 0, 1, "")
+    with pytest.raises(ValueError):
+        ParamSpec("X", 5, 0, 1, "")
+
+# ------------------------------------------------------------------------------------------ output schedule
+
+
+def test_schedule_rates_and_interval_semantics():
+    s = OutputSchedule({30: 50.0, 102: 30.0, 26: 0.0})
+    sent = {30: 0, 102: 0, 26: 0}
+    t = 0.0
+    while t < 10.0:
+        for mid in s.due(t):
+            sent[mid] += 1
+        t += 0.00122                                     # one wake per ADIS16405 sample
+    assert sent[30] == pytest.approx(500, abs=1) and sent[102] == pytest.approx(300, abs=1) and sent[26] == 0
+    s.set_interval_us(30, 100_000)
+    assert s.interval_us(30) == 100_000 and s.rate_hz(30) == pytest.approx(10.0)
+    s.set_interval_us(30, -1)
+    assert s.interval_us(30) == -1
+    s.set_interval_us(30, 0)
+    assert s.rate_hz(30) == 50.0
+    with pytest.raises(ValueError):
+        s.set_interval_us(102, 10_000)                   # 100 Hz VISION_POSITION_ESTIMATE: above 50 Hz
+    with pytest.raises(ValueError):
+        s.set_interval_us(30, -5)
+
+
+def test_schedule_does_not_burst_after_a_stall():
+    s = OutputSchedule({30: 50.0})
+    assert s.due(0.0) == [30]
+    assert s.due(5.0) == [30]           # 5 s stall: one message, not 250
+    assert s.due(5.001) == []
+
+# ------------------------------------------------------------------------------------------ message builders
+
+
+class Est:
+    def __init__(self, q, rpy, rate=(0.1, -0.2, 0.3), sigma=(0.01, 0.02, 0.05)):
+        self.q_wxyz = np.array(q)
+        self.roll_rad, self.pitch_rad, self.yaw_rad = rpy
+        self.heading_true_rad = rpy[2]
+        self.rate_body_rad_s = np.array(rate)
+        self.sigma_rpy_rad = np.array(sigma)
+        self.t_s = 1.0
+
+
+@settings(derandomize=True, max_examples=200, deadline=None)
+@given(st.floats(-3.1, 3.1), st.floats(-1.5, 1.5), st.floats(-3.1, 3.1), st.floats(-0.5, 0.5))
+def test_true_quaternion_adds_declination_to_yaw(roll, pitch, yaw, decl):
+    from scipy.spatial.transform import Rotation
+
+    x, y, z, w = Rotation.from_euler("ZYX", [yaw, pitch, roll]).as_quat()
+    q = msgs.true_quaternion(np.array([w, x, y, z]), decl)
+    r = Rotation.from_quat([q[1], q[2], q[3], q[0]])
+    yaw2, pitch2, roll2 = r.as_euler("ZYX")
+    assert abs(math.remainder(yaw2 - (yaw + decl), 2 * math.pi)) < 1e-9
+    assert abs(pitch2 - pitch) < 1e-9
+
+
+@settings(derandomize=True, max_examples=200, deadline=None)
+@given(st.floats(-100, 100))
+def test_wrap_pi(angle):
+    w = msgs.wrap_pi(angle)
+    assert -math.pi < w <= math.pi and abs(math.remainder(w - angle, 2 * math.pi)) < 1e-9
+
+
+def test_vision_position_estimate_fields():
+    m = msgs.vision_position_estimate(Est([1, 0, 0, 0], (0.1, 0.2, 3.5)), 123, 3.5, 257)
+    assert (m.x, m.y, m.z) == (0.0, 0.0, 0.0)
+    assert m.yaw == pytest.approx(3.5 - 2 * math.pi)
+    assert m.covariance[20] == pytest.approx(0.05 ** 2) and m.covariance[15] == pytest.approx(0.01 ** 2)
+    assert m.covariance[0] == m.covariance[6] == m.covariance[11] == msgs.VPE_POSITION_VARIANCE_M2
+    assert m.covariance[1] == 0.0 and m.reset_counter == 1                     # wraps at 256
+    inf = msgs.vision_position_estimate(Est([1, 0, 0, 0], (0, 0, 0), sigma=(0, 0, float("inf"))), 1, 0, 0)
+    assert all(math.isfinite(c) for c in inf.covariance)
+
+
+def test_imu_messages_units_and_clipping():
+    s = make_sample(0.0, [0.1, -0.2, 40.0], [0.0, 0.0, -9.80665], [20.0, -5.0, 45.0], temp_c=0.0)
+    h = msgs.highres_imu(s, 5)
+    assert (h.xmag, h.ymag, h.zmag) == pytest.approx((0.2, -0.05, 0.45))      # µT → gauss
+    assert h.zgyro == pytest.approx(40.0) and h.fields_updated == 0x11FF
+    si = msgs.scaled_imu(s, 1)
+    assert si.zacc == -1000 and si.xgyro == 100 and si.zgyro == 32767          # mG, mrad/s, clipped int16
+    assert (si.xmag, si.ymag, si.zmag) == (200, -50, 450) and si.temperature == 1   # "at 0 °C send 1"
+    nan_t = msgs.highres_imu(make_sample(0, [0] * 3, [0] * 3, [0] * 3), 1)
+    assert nan_t.fields_updated == 0x11FF & ~0x1000
+
+
+def test_statustext_is_cut_to_50_bytes():
+    m = msgs.statustext(6, "x" * 80)
+    assert len(m.text) == 50
+    frame = m.pack(mavlink.MAVLink(None, srcSystem=1, srcComponent=200))
+    assert len(frame) < 70
+
+
+def test_mounting_matrix():
+    assert mounting_matrix([0, 0, 0]) is None
+    m = mounting_matrix([0, 0, 90])
+    assert m @ np.array([1.0, 0, 0]) == pytest.approx([0, 1, 0])     # sensor x along body y
+    m = mounting_matrix([180, 0, 0])
+    assert m @ np.array([0, 0, 1.0]) == pytest.approx([0, 0, -1])    # upside down
+
+# ------------------------------------------------------------------------------------------ sample timing
+
+
+def simulate_reads(phase, period, n_samples, lateness, reads_per_sample):
+    """Drive a SampleTimer like the reader does, against a chip that keeps only its latest sample."""
+    timer = SampleTimer(period)
+    t = phase + 0.3 * period
+    got = []          # (true index, timer index, t_s, lost)
+    rng = np.random.default_rng(1)
+    for _ in range(n_samples * reads_per_sample):
+        true_k = math.floor((t - phase) / period)
+        if got and true_k == got[-1][0]:
+            timer.stale(t)
+        else:
+            t_s, k, lost = timer.fresh(t)
+            got.append((true_k, k, t_s, lost))
+        target = timer.next_read_time()
+        # asyncio: wake after the deadline, within the 1 ms selector tick plus jitter
+        t = max(target, t + 1e-5) + rng.uniform(0, lateness)
+        if len(got) >= n_samples:
+            break
+    return got
+
+
+@settings(derandomize=True, max_examples=25, deadline=None)
+@given(st.floats(0, 1e-3), st.floats(0, 0.9e-3))
+def test_sample_timer_indices_and_time_stamps(phase, lateness):
+    period = 1 / 819.2
+    got = simulate_reads(phase, period, 2000, lateness, 3)
+    true_k = np.array([g[0] for g in got])
+    k = np.array([g[1] for g in got])
+    # the index increments exactly as the chip's sample index does (lost samples counted), after lock-in
+    d_true, d_k = np.diff(true_k[50:]), np.diff(k[50:])
+    assert np.mean(d_true == d_k) > 0.99
+    # time stamps lie on the sample grid and within a fraction of a period of the true ready time
+    t_s = np.array([g[2] for g in got])[50:]
+    ready = phase + true_k[50:] * period
+    assert np.all(t_s - ready > -0.2 * period) and np.median(np.abs(t_s - ready)) < 0.25 * period
+
+
+def test_sample_timer_counts_a_long_stall():
+    period = 0.001
+    timer = SampleTimer(period)
+    timer.fresh(0.0002)
+    for i in range(1, 20):
+        timer.fresh(i * period + 0.0002)
+    t_s, k, lost = timer.fresh(30 * period + 0.0002)
+    assert (k, lost) == (30, 10)
+    assert t_s == pytest.approx(30 * period + 0.0002, abs=2e-4)
+
+# ------------------------------------------------------------------------------------------ sd_notify
+
+
+def test_notifier_path_and_abstract_sockets(tmp_path):
+    path = tmp_path / "n.sock"
+    srv = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    srv.bind(str(path))
+    n = Notifier({"NOTIFY_SOCKET": str(path)})
+    assert n.ready("ok") and n.watchdog() and n.stopping()
+    assert srv.recv(100) == b"READY=1\nSTATUS=ok"
+    assert srv.recv(100) == b"WATCHDOG=1"
+    assert srv.recv(100) == b"STOPPING=1"
+    srv.close()
+    abstract = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    name = f"ahrsd-test-{id(abstract)}"
+    abstract.bind("\0" + name)
+    assert Notifier({"NOTIFY_SOCKET": "@" + name}).notify("STATUS=x")
+    assert abstract.recv(100) == b"STATUS=x"
+    abstract.close()
+    quiet = Notifier({})
+    assert not quiet.enabled and not quiet.ready()
+    gone = Notifier({"NOTIFY_SOCKET": str(tmp_path / "missing.sock")})
+    assert not gone.ready() and not gone.watchdog() and gone.failures == 2   # counted, never raised
+
+
+def test_watchdog_interval():
+    import os
+
+    assert watchdog_interval_s({"WATCHDOG_USEC": "5000000"}) == 2.5
+    assert watchdog_interval_s({}) is None
+    assert watchdog_interval_s({"WATCHDOG_USEC": "x"}) is None
+    assert watchdog_interval_s({"WATCHDOG_USEC": "5000000", "WATCHDOG_PID": "1"}) is None
+    assert watchdog_interval_s({"WATCHDOG_USEC": "5000000", "WATCHDOG_PID": str(os.getpid())}) == 2.5
+
+# ------------------------------------------------------------------------------------------ endpoint input
+
+
+def test_endpoint_counts_malformed_input_and_delivers_good_messages():
+    async def scenario():
+        loop = asyncio.get_running_loop()
+        got = []
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+            probe.bind(("127.0.0.1", 0))
+            port = probe.getsockname()[1]
+        ep = Endpoint(f"udpin:127.0.0.1:{port}", 1, 200, lambda e, m: got.append(m.get_type()))
+        ep.open(loop)
+        sender = mavlink.MAVLink(None, srcSystem=9, srcComponent=1)
+        good = sender.heartbeat_encode(2, 3, 0, 0, 4).pack(sender)
+        bad_crc = bytearray(sender.heartbeat_encode(2, 3, 0, 0, 4).pack(sender))
+        bad_crc[-2] ^= 0x55
+        truncated = good[:7]
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            for data in (b"\x00" * 40, bytes(bad_crc), good, truncated, bytes(range(256)), good + good):
+                s.sendto(data, ("127.0.0.1", port))
+                await asyncio.sleep(0.01)
+        await asyncio.sleep(0.05)
+        ep.close()
+        return got, ep.counters
+
+    got, counters = asyncio.run(scenario())
+    assert got.count("HEARTBEAT") >= 2
+    assert counters.rx_malformed >= 2
+
+
+def test_endpoint_handler_exception_is_contained():
+    async def scenario():
+        loop = asyncio.get_running_loop()
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+            probe.bind(("127.0.0.1", 0))
+            port = probe.getsockname()[1]
+
+        def bad_handler(e, m):
+            raise KeyError("bug")
+        ep = Endpoint(f"udpin:127.0.0.1:{port}", 1, 200, bad_handler)
+        ep.open(loop)
+        sender = mavlink.MAVLink(None, srcSystem=9, srcComponent=1)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.sendto(sender.heartbeat_encode(2, 3, 0, 0, 4).pack(sender), ("127.0.0.1", port))
+        await asyncio.sleep(0.05)
+        ep.close()
+        return ep.counters
+
+    counters = asyncio.run(scenario())
+    assert counters.rx_messages == 1 and counters.rx_malformed == 1
