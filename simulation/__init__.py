@@ -8,11 +8,11 @@ See docs/simulation.md for the scenarios and the error-model defaults.
 
 from ahrsd.simulation.errors import SensorErrors
 from ahrsd.simulation.magnetic import PassingMagnet, VehicleIron
-from ahrsd.simulation.scenarios import SCENARIOS, Scenario, make_scenario
+from ahrsd.simulation.scenarios import EXTRA_SCENARIOS, SCENARIOS, Scenario, make_scenario
 from ahrsd.simulation.site import DEFAULT_SITE, Site
 from ahrsd.simulation.stream import SensorBlock, SensorStream, open_stream, simulate
 
 __all__ = [
-    "SCENARIOS", "DEFAULT_SITE", "Site", "SensorErrors", "VehicleIron", "PassingMagnet", "Scenario",
+    "SCENARIOS", "EXTRA_SCENARIOS", "DEFAULT_SITE", "Site", "SensorErrors", "VehicleIron", "PassingMagnet", "Scenario",
     "make_scenario", "SensorBlock", "SensorStream", "open_stream", "simulate",
 ]

@@ -18,7 +18,8 @@ def main(argv=None) -> int:
     ap.add_argument("--speed", action="store_true", help="time the streams (a few seconds)")
     args = ap.parse_args(argv)
 
-    from ahrsd.simulation import DEFAULT_SITE, SCENARIOS, SensorErrors, make_scenario, open_stream, simulate
+    from ahrsd.simulation import (DEFAULT_SITE, EXTRA_SCENARIOS, SCENARIOS, SensorErrors, make_scenario,
+                                  open_stream, simulate)
 
     f = DEFAULT_SITE.earth_field()
     print(f"site: lat {DEFAULT_SITE.lat_deg}° lon {DEFAULT_SITE.lon_deg}° alt {DEFAULT_SITE.alt_m} m "
@@ -30,10 +31,11 @@ def main(argv=None) -> int:
           f"accel {std['accel_m_s2'] / 9.80665 * 1e3:.2f} mg rms, mag {std['mag_ut'] * 10:.2f} mgauss rms; "
           f"bias instability {math.degrees(e.gyro_bias_instability_rad_s):.3f} °/s, "
           f"{e.accel_bias_instability_m_s2 / 9.80665 * 1e3:.2f} mg")
-    for name in SCENARIOS:
+    for name in SCENARIOS + tuple(EXTRA_SCENARIOS):
         sc = make_scenario(name)
         iron = "vehicle iron" if sc.default_iron is not None else "no iron"
-        print(f"  {name:18s} {sc.description} ({iron})")
+        extra = ", make_scenario only" if name in EXTRA_SCENARIOS else ""
+        print(f"  {name:18s} {sc.description} ({iron}{extra})")
     if args.speed:
         print("speed (this machine):")
         for name in SCENARIOS:

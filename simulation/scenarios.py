@@ -408,6 +408,54 @@ class MagDisturbance(EulerScenario):
         return self.magnet.field_ned_ut(np.asarray(t_s, dtype=float))
 
 
+# --------------------------------------------------------------------------------------------------------------
+@dataclass
+class AuvDiverSwing(EulerScenario):
+    """Seed 002 test 1: a diver rotates the floating AUV, first in roll only, then roll + pitch, then roll +
+    pitch + heading (the paper's cases 1–3, 300 s / 430 s / 600 s; §7.2): roll ±55°, pitch ±10°, heading through
+    the full circle only in the last phase. The attitude coverage of a vehicle that cannot be tumbled, for the
+    initial sphere fit of the back-stepping calibration. Not one of the contract's SCENARIOS (use
+    `make_scenario("auv-diver-swing")`). Repeats after 1330 s; carries the default vehicle iron.
+    """
+
+    roll_amplitude_deg: float = 55.0     # seed 002 §7.2
+    pitch_amplitude_deg: float = 10.0    # seed 002 §7.2
+    heading_rate_deg_s: float = 3.0
+    heading0_deg: float = 30.0
+    name = "auv-diver-swing"
+    description = "seed 002 test 1: diver rolls (±55°), then pitches (±10°), then turns the AUV (300/430/600 s)"
+    default_iron = VehicleIron.default()
+    _PHASES_S = (300.0, 430.0, 600.0)    # roll only, roll + pitch, roll + pitch + heading (seed 002 Table 2)
+    _ROLL_PERIOD_S = 35.0                # 38 cycles per 1330 s period: continuous when repeating
+    _PITCH_PERIOD_S = 33.0
+    _FADE_S = 10.0
+
+    def __post_init__(self):
+        p1, p2, p3 = self._PHASES_S
+        w = self.heading_rate_deg_s * DEG
+        f = self._FADE_S
+        self._heading = RateProfile([hold(p1 + p2), ramp(f, 0.0, w), hold(p3 - 2 * f, w), ramp(f, w, 0.0)],
+                                    angle0=self.heading0_deg * DEG)
+        self.period_s = self._heading.period_s
+
+    def phase_of(self, t_s) -> np.ndarray:
+        """1 (roll only), 2 (roll + pitch) or 3 (roll + pitch + heading), as in seed 002's cases."""
+        tp = np.mod(np.asarray(t_s, dtype=float), self.period_s)
+        p1, p2, _ = self._PHASES_S
+        return np.where(tp < p1, 1, np.where(tp < p1 + p2, 2, 3))
+
+    def euler_rad(self, t_s):
+        t = np.asarray(t_s, dtype=float)
+        tp = np.mod(t, self.period_s)
+        p1 = self._PHASES_S[0]
+        f = self._FADE_S
+        # pitch fades in at the start of phase 2 and out at the end of the period (C¹ envelope)
+        env = smoothstep((tp - p1) / f) * smoothstep((self.period_s - tp) / f)
+        roll = self.roll_amplitude_deg * DEG * np.sin(2 * math.pi * t / self._ROLL_PERIOD_S)
+        pitch = self.pitch_amplitude_deg * DEG * env * np.sin(2 * math.pi * t / self._PITCH_PERIOD_S)
+        return self._heading.angle(t), pitch, roll
+
+
 _REGISTRY = {
     "static": Static,
     "rate-table": RateTable,
@@ -417,13 +465,14 @@ _REGISTRY = {
     "auv-out-and-back": AuvOutAndBack,
     "mag-disturbance": MagDisturbance,
 }
-SCENARIOS: tuple[str, ...] = tuple(_REGISTRY)
+SCENARIOS: tuple[str, ...] = tuple(_REGISTRY)   # the contract's names (CONTRIBUTING, "Simulation")
+EXTRA_SCENARIOS = {"auv-diver-swing": AuvDiverSwing}   # available by name, not part of the contract
 
 
 def make_scenario(name: str, **params) -> Scenario:
-    """A scenario by name (one of SCENARIOS), with optional parameters of its class (e.g. leg_s=120)."""
-    try:
-        cls = _REGISTRY[name]
-    except KeyError:
-        raise ValueError(f"unknown scenario {name!r}; choose one of {', '.join(SCENARIOS)}") from None
+    """A scenario by name (SCENARIOS or EXTRA_SCENARIOS), with parameters of its class (e.g. leg_s=120)."""
+    cls = _REGISTRY.get(name) or EXTRA_SCENARIOS.get(name)
+    if cls is None:
+        known = ", ".join(SCENARIOS + tuple(EXTRA_SCENARIOS))
+        raise ValueError(f"unknown scenario {name!r}; choose one of {known}")
     return cls(**params)
