@@ -86,7 +86,7 @@ def run(args) -> int:
     def _stop(signum, frame):
         raise KeyboardInterrupt        # SIGTERM ends the recording like Ctrl-C: the file is flushed and closed
 
-    signal.signal(signal.SIGTERM, _stop)
+    previous_sigterm = signal.signal(signal.SIGTERM, _stop)
     status = None if args.quiet or not sys.stderr.isatty() else sys.stderr
     period = imu.sample_period_s
     n_target = None if args.seconds is None else max(1, int(round(args.seconds * imu.sample_rate_hz)))
@@ -135,6 +135,7 @@ def run(args) -> int:
     except KeyboardInterrupt:
         pass
     finally:
+        signal.signal(signal.SIGTERM, previous_sigterm)
         writer.close()
         imu.close()
     if status is not None:
