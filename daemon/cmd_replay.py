@@ -119,8 +119,15 @@ def replay_arrays(estimator, t_s, gyro_rad_s, accel_m_s2, mag_ut, sample_flags=N
     flag_values = sample_flags.tolist() if sample_flags is not None else None
     t_list = t_s.tolist()
     update = estimator.update
+    flag_enums: dict[int, SampleFlags] = {}   # the enum constructor is slow; there are few distinct values
     for i in range(n):
-        flags = none if flag_values is None else SampleFlags(int(flag_values[i]))
+        if flag_values is None:
+            flags = none
+        else:
+            value = int(flag_values[i])
+            flags = flag_enums.get(value)
+            if flags is None:
+                flags = flag_enums[value] = SampleFlags(value)
         est = update(ImuSample(t_list[i], gyro_rad_s[i], accel_m_s2[i], mag_ut[i], nan, nan, flags, 0, i))
         if est.roll_rad == est.roll_rad:   # initialised (not NaN)
             q0, q1, q2, q3 = est.q_wxyz.tolist()

@@ -52,8 +52,8 @@ from scipy.linalg.lapack import dposv as _dposv
 from ahrsd.drivers.sample import ImuSample, SampleFlags
 
 from .base import AttitudeEstimate, EstimateFlags
-from .rotations import dcm_to_quat
-from .wahba import thesis_matrix, thesis_matrix_from_floats
+from .rotations import dcm_rows_to_quat, reorthonormalize_rows
+from .wahba import thesis_dcm_from_floats, thesis_matrix
 
 DEG = math.pi / 180.0
 G0_M_S2 = 9.80665            # standard gravity: converts the thesis's mg figures
@@ -69,6 +69,7 @@ _F_LARGE_DT = int(EstimateFlags.LARGE_DT)
 _F_REINITIALISED = int(EstimateFlags.REINITIALISED)
 _F_ACCEL_REJECTED = int(EstimateFlags.ACCEL_REJECTED)
 _F_MAG_REJECTED = int(EstimateFlags.MAG_REJECTED)
+_FLAGS: dict[int, EstimateFlags] = {}   # int → EstimateFlags, filled on first use (the enum call is slow)
 
 
 @dataclass(frozen=True)
@@ -196,7 +197,7 @@ class ThesisKf:
         self._t_last = math.nan
         self._t_init = math.nan
         self._settled = False
-        self._rate = np.zeros(3)
+        self._rate_list = [0.0, 0.0, 0.0]
         self._x[:] = 0.0
         self._x[6:9] = self.params.initial_bias_rad_s
         self._p[:] = 0.0
@@ -232,7 +233,7 @@ class ThesisKf:
         t = float(sample.t_s)
         flags = 0
         if gyro_ok:
-            self._rate = sample.gyro_rad_s
+            self._rate_list = gyro
         if not self._initialised:
             if not (acc_ok and mag_ok and self._initialise(t, accel, mag)):
                 return self._uninitialised(t)
@@ -295,7 +296,7 @@ class ThesisKf:
         A uses the measured rate; the bias enters through A's coupling blocks (so F·x applies ω_meas − b̂).
         """
         x, a = self._x, self._a
-        wx, wy, wz = self._rate.tolist()
+        wx, wy, wz = self._rate_list
         mx, my, mz, gx, gy, gz = x[0:6].tolist()
         # A (eq 4-16): −[ω×] on both vector blocks, −[v×] coupling each vector to the bias (one `put`).
         coupling = (mz, -my, -mz, mx, my, -mx, gz, -gy, -gz, gx, gy, -gx)
@@ -341,7 +342,7 @@ class ThesisKf:
         self._dip = dip
         ref_mag = (math.cos(dip), 0.0, math.sin(dip))   # magnetic NED: yaw is magnetic
         ref_f = (0.0, 0.0, -1.0)                          # fⁿ = [0, 0, −g] (eq 4-1), unit
-        self._n_inv = np.linalg.inv(thesis_matrix(ref_mag, ref_f, self.params.wahba_version))
+        self._n_inv_t = np.linalg.inv(thesis_matrix(ref_mag, ref_f, self.params.wahba_version)).T.tolist()
 
     def _learn_dip(self) -> None:
         m, g = self._x[0:3], self._x[3:6]
@@ -350,26 +351,25 @@ class ThesisKf:
 
     def attitude_dcm(self) -> np.ndarray:
         """C_b^n from the filtered vectors: thesis eq 4-37/4-38 (or 4-40/4-41) then eq 4-42."""
-        x = self._x
-        mx, my, mz, gx, gy, gz = x[0:6].tolist()
+        return np.array(self._attitude_rows())
+
+    def _attitude_rows(self):
+        """`attitude_dcm` as three row tuples (scalar maths: a 3×3 is cheaper in floats than in numpy)."""
+        mx, my, mz, gx, gy, gz = self._x[0:6].tolist()
         mn = 1.0 / math.sqrt(mx * mx + my * my + mz * mz)
         gn = -1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)          # f = −g
-        b = thesis_matrix_from_floats(mx * mn, my * mn, mz * mn, gx * gn, gy * gn, gz * gn, self.params.wahba_version)
-        c = (b @ self._n_inv).T                                      # C_b^n = (B_b N_n⁻¹)ᵀ
+        c = thesis_dcm_from_floats(mx * mn, my * mn, mz * mn, gx * gn, gy * gn, gz * gn, self._n_inv_t,
+                                   self.params.wahba_version)          # C_b^n = (B_b N_n⁻¹)ᵀ
         for _ in range(self.params.reorthonormalize_iterations):
-            cc = c @ c.T @ c
-            cc *= -0.5
-            c *= 1.5
-            c += cc                                                  # eq 4-42: 1.5C − 0.5CCᵀC
+            c = reorthonormalize_rows(c)                              # eq 4-42
         return c
 
     def _estimate(self, t: float, flags: int) -> AttitudeEstimate:
         p = self.params
         if not self._settled and self._fixed_dip is None:
             self._learn_dip()
-        c = self.attitude_dcm()
-        q = dcm_to_quat(c)   # normalised: removes what one eq 4-42 step leaves of the non-orthonormality
-        w, qx, qy, qz = q.tolist()
+        # Normalised quaternion: removes what one eq 4-42 step leaves of the non-orthonormality.
+        w, qx, qy, qz = dcm_rows_to_quat(self._attitude_rows())
         roll = math.atan2(2.0 * (qy * qz + w * qx), 1.0 - 2.0 * (qx * qx + qy * qy))
         pitch = -math.asin(max(-1.0, min(1.0, 2.0 * (qx * qz - w * qy))))
         yaw = math.atan2(2.0 * (qx * qy + w * qz), 1.0 - 2.0 * (qy * qy + qz * qz))
@@ -379,19 +379,23 @@ class ThesisKf:
                 self._settled = True
             else:
                 flags |= _F_INITIALISING
-        bias = self._x[6:9].copy()
+        b0, b1, b2 = self._x[6:9].tolist()
+        r0, r1, r2 = self._rate_list
+        flags_enum = _FLAGS.get(flags)
+        if flags_enum is None:
+            flags_enum = _FLAGS[flags] = EstimateFlags(flags)
         return AttitudeEstimate(
             t_s=t,
-            q_wxyz=q,
+            q_wxyz=np.array((w, qx, qy, qz)),
             roll_rad=roll,
             pitch_rad=pitch,
             yaw_rad=yaw,
             heading_mag_rad=yaw % TWO_PI,
             heading_true_rad=(yaw + self._declination) % TWO_PI,
-            rate_body_rad_s=self._rate - bias,
-            gyro_bias_rad_s=bias,
+            rate_body_rad_s=np.array((r0 - b0, r1 - b1, r2 - b2)),
+            gyro_bias_rad_s=np.array((b0, b1, b2)),
             sigma_rpy_rad=np.array(sigma),
-            flags=EstimateFlags(flags),
+            flags=flags_enum,
         )
 
     def _sigma_rpy(self, pitch: float, yaw: float) -> tuple[float, float, float]:

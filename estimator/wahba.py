@@ -172,7 +172,31 @@ def thesis_matrix_from_floats(a0: float, a1: float, a2: float, b0: float, b1: fl
 
 def thesis_dcm_body_to_ref(body0, body1, reference_matrix_inverse, version: int) -> np.ndarray:
     """C_b^n = (B_b N_n⁻¹)ᵀ (eq 4-37/4-38) with the reference matrix inverse precomputed (it is constant)."""
-    return (thesis_matrix(body0, body1, version) @ reference_matrix_inverse).T
+    a0, a1, a2 = np.asarray(body0, dtype=np.float64).tolist()
+    b0, b1, b2 = np.asarray(body1, dtype=np.float64).tolist()
+    n_inv_t = np.asarray(reference_matrix_inverse, dtype=np.float64).T.tolist()
+    return np.array(thesis_dcm_from_floats(a0, a1, a2, b0, b1, b2, n_inv_t, version))
+
+
+def thesis_dcm_from_floats(a0: float, a1: float, a2: float, b0: float, b1: float, b2: float, n_inv_t,
+                           version: int):
+    """`thesis_dcm_body_to_ref` in scalar maths (the thesis filter calls it every sample): body vectors
+    v0 = (a0, a1, a2) (m), v1 = (b0, b1, b2) (f), `n_inv_t` = (N_n⁻¹)ᵀ as three rows; returns C_b^n = N_n⁻ᵀ B_bᵀ
+    as three row tuples (not re-orthonormalised)."""
+    c0, c1, c2 = b1 * a2 - b2 * a1, b2 * a0 - b0 * a2, b0 * a1 - b1 * a0  # f × m
+    if version == 1:
+        r0, r1, r2 = (a0, a1, a2), (b0, b1, b2), (c0, c1, c2)          # rows of B_bᵀ: m, f, f×m (eq 4-34)
+    elif version == 2:
+        d0, d1, d2 = c1 * a2 - c2 * a1, c2 * a0 - c0 * a2, c0 * a1 - c1 * a0
+        r0, r1, r2 = (a0, a1, a2), (c0, c1, c2), (d0, d1, d2)          # m, f×m, (f×m)×m (eq 4-40)
+    else:
+        raise ValueError("thesis Wahba version is 1 or 2")
+    out = []
+    for n0, n1, n2 in n_inv_t:
+        out.append((n0 * r0[0] + n1 * r1[0] + n2 * r2[0],
+                    n0 * r0[1] + n1 * r1[1] + n2 * r2[1],
+                    n0 * r0[2] + n1 * r1[2] + n2 * r2[2]))
+    return tuple(out)
 
 
 def three_vector(body_vectors, reference_vectors, weights=None) -> WahbaSolution:
@@ -364,5 +388,5 @@ def solve(body_vectors, reference_vectors, weights=None, method: str = "svd") ->
 __all__ = [
     "WahbaError", "WahbaSolution", "SOLVERS", "ALIASES", "get_solver", "solve", "three_vector", "thesis_v2",
     "triad_first", "triad_second", "svd", "davenport", "quest", "thesis_matrix", "thesis_dcm_body_to_ref",
-    "wahba_loss", "attitude_covariance", "profile_matrix", "davenport_k", "polar_reorthonormalize",
+    "thesis_dcm_from_floats", "wahba_loss", "attitude_covariance", "profile_matrix", "davenport_k", "polar_reorthonormalize",
 ]

@@ -199,6 +199,13 @@ def test_reorthonormalisation_converges(q, noise):
     np.testing.assert_allclose(rot.reorthonormalize(c, 8), u @ vt, atol=1e-10)
 
 
+@PROPS
+@given(unit_quats(), st.lists(st.floats(-0.2, 0.2), min_size=9, max_size=9))
+def test_scalar_reorthonormalisation_matches_matrix_form(q, noise):
+    c = rot.quat_to_dcm(q) + np.reshape(noise, (3, 3))
+    np.testing.assert_allclose(np.array(rot.reorthonormalize_rows(c.tolist())), rot.reorthonormalize(c), atol=1e-14)
+
+
 def test_reorthonormalisation_one_step_reduces_error_quadratically():
     c = rot.euler_to_dcm(0.1, 0.2, 0.3) * (1 + 1e-3)
     e0 = rot.orthonormality_error(c)
