@@ -105,6 +105,10 @@ class MekfParams:
     magMaxRejectionTime)."""
     mag_heading_noise_rest_rad: float = 0.03
     """Heading noise floor at rest, rad: no dynamic errors (sensor timing skew, lag) while nothing moves."""
+    mag_rest_change_ut: float = 0.5
+    """At rest the body does not turn: if the low-passed body-frame field moves more than this from where it
+    was when the rest began, something magnetic moved nearby and the field is not used until motion, µT
+    (0.5 µT ≈ 1° of heading for a 27 µT horizontal field; the rest low-pass leaves ~0.1 µT of noise)."""
     mag_unavailable_s: float = 10.0
     """No heading update for this long sets MAG_UNAVAILABLE, s."""
 
@@ -172,6 +176,7 @@ class MekfParams:
         p[core.P_MAG_ENABLED] = 1.0 if self.mag_enabled else 0.0
         p[core.P_MAG_REJECT_MAX] = self.mag_reject_max_s
         p[core.P_MAG_HEADING_NOISE_REST] = self.mag_heading_noise_rest_rad
+        p[core.P_MAG_REST_CHANGE] = self.mag_rest_change_ut
         return p
 
 
@@ -344,6 +349,8 @@ class Mekf:
         s[core.S_T_LAST] = t_s
         s[core.S_GYR_LP : core.S_GYR_LP + 3] = g
         s[core.S_ACC_LP : core.S_ACC_LP + 3] = a
+        if valid & core.IN_MAG_OK:
+            s[core.S_MAG_LP : core.S_MAG_LP + 3] = m
         s[core.S_G_REF] = keep_gref or an
         s[core.S_ACC_I : core.S_ACC_I + 3] = np.asarray(quat_to_dcm(q0), dtype=float) @ a
         s[core.S_GYR_LAST : core.S_GYR_LAST + 3] = g
