@@ -143,3 +143,19 @@ def test_record_command_errors_are_clear(tmp_path):
     assert p.returncode == 1 and ("spidev" in p.stderr)
     p = ahrsd("--output", str(tmp_path / "c.csv"))
     assert p.returncode == 2 and "--sim" in p.stderr
+
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+finite = st.floats(allow_nan=False, width=64)
+
+
+@settings(derandomize=True, max_examples=50, deadline=None)
+@given(st.lists(st.lists(finite, min_size=10, max_size=10), min_size=1, max_size=20))
+def test_round_trip_property(tmp_path_factory, rows):
+    path = tmp_path_factory.mktemp("rt") / "p.csv"
+    with RecordingWriter(path) as w:
+        for r in rows:
+            w.write(make_sample(r[0], r[1:4], r[4:7], r[7:10]))
+    rec = read_recording(path)
+    assert np.array_equal(np.column_stack([rec.t_s, rec.gyro_rad_s, rec.accel_m_s2, rec.mag_ut]), np.array(rows))
