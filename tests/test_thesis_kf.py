@@ -244,3 +244,24 @@ def test_parameters_are_validated():
         ThesisKf(bias_time_constant_s=0.0)
     with pytest.raises(ValueError):
         ThesisKf(mag_reference_ned_ut=(0.0, 0.0, 40.0))
+
+
+def test_initial_covariance_is_r_and_the_bias_prior():
+    p = ThesisKfParams()
+    kf = ThesisKf(initial_bias_sigma_rad_s=0.01, initial_bias_rad_s=(0.001, -0.002, 0.003))
+    e = kf.update(make_sample(0.0, [0, 0, 0], [0.3, -0.2, -9.8], [21.0, 2.0, 41.0]))
+    np.testing.assert_allclose(np.diag(kf.covariance), np.concatenate((p.r_diag, [1e-4] * 3)))
+    np.testing.assert_allclose(kf.state, [21.0, 2.0, 41.0, -0.3, 0.2, 9.8, 0.001, -0.002, 0.003])  # x₀ = [m̃, −f̃, b₀]
+    np.testing.assert_allclose(e.gyro_bias_rad_s, [0.001, -0.002, 0.003])
+
+
+def test_bias_is_a_gauss_markov_process_with_time_constant_tau():
+    # With no measurements (both flagged invalid) the bias estimate decays as exp(−t/τ_w) (eq 4-11).
+    tau = 50.0
+    kf = ThesisKf(bias_time_constant_s=tau, initial_bias_rad_s=(0.01, -0.02, 0.005))
+    kf.update(make_sample(0.0, [0, 0, 0], [0, 0, -9.8], [20.0, 0, 40.0]))
+    dt = 1 / 100.0
+    bad = SampleFlags.MAG_INVALID | SampleFlags.ACCEL_INVALID
+    for k in range(1, 1001):
+        e = kf.update(make_sample(k * dt, [0, 0, 0], [0, 0, -9.8], [20.0, 0, 40.0], flags=bad))
+    np.testing.assert_allclose(e.gyro_bias_rad_s, np.array([0.01, -0.02, 0.005]) * math.exp(-10.0 / tau), rtol=1e-6)
