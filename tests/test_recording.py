@@ -133,16 +133,19 @@ def test_record_command_simulated(tmp_path):
     assert r.accel_m_s2[:, 2].mean() == pytest.approx(-9.81, abs=0.2)
 
 
-def test_record_command_errors_are_clear(tmp_path):
-    def ahrsd(*args):
-        return subprocess.run([sys.executable, "-m", "ahrsd.daemon.cli", "record", *args],
-                              capture_output=True, text=True, timeout=60)
-    p = ahrsd("--sim", "no-such-scenario", "--output", str(tmp_path / "a.csv"), "--seconds", "1")
-    assert p.returncode == 2 and "unknown scenario" in p.stderr and "rate-table" in p.stderr
-    p = ahrsd("--spi", "/dev/spidev-none", "--output", str(tmp_path / "b.csv"), "--seconds", "1")
-    assert p.returncode == 1 and ("spidev" in p.stderr)
-    p = ahrsd("--output", str(tmp_path / "c.csv"))
-    assert p.returncode == 2 and "--sim" in p.stderr
+def test_record_command_errors_are_clear(tmp_path, capsys, monkeypatch):
+    from ahrsd.daemon.cli import main
+
+    assert main(["record", "--sim", "no-such-scenario", "--output", str(tmp_path / "a.csv"), "--seconds", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown scenario" in err and "rate-table" in err
+    monkeypatch.setitem(sys.modules, "spidev", None)          # as on a machine without the spi extra
+    assert main(["record", "--spi", "/dev/spidev-none", "--output", str(tmp_path / "b.csv"), "--seconds", "1"]) == 1
+    assert "pip install 'ahrsd[spi]'" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as info:
+        main(["record", "--output", str(tmp_path / "c.csv")])
+    assert info.value.code == 2 and "--sim" in capsys.readouterr().err
+    assert main(["record", "--sim", "--seconds", "-1", "--output", str(tmp_path / "d.csv")]) == 2
 
 
 from hypothesis import given, settings, strategies as st  # noqa: E402
