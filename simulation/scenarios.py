@@ -178,17 +178,30 @@ class RateTable(Scenario):
         tp = np.mod(np.asarray(t_s, dtype=float), self.period_s)
         return np.minimum(np.searchsorted(self._mount_end + self.remount_s, tp, side="right"), 5)
 
-    def attitude(self, t_s):
-        t = np.asarray(t_s, dtype=float)
+    def _parts(self, t):
         tp = np.mod(t, self.period_s)
         k = self.mount_index(t)
         into_remount = np.clip((tp - self._mount_end[k]) / self.remount_s, 0.0, 1.0)
-        s = smoothstep(into_remount)
+        return k, into_remount, self._table.angle(t)
+
+    def attitude(self, t_s):
+        t = np.asarray(t_s, dtype=float)
+        k, x, theta = self._parts(t)
         mounts = Rotation.from_quat(self._mount_quats[k])
-        partial = Rotation.from_rotvec(self._step_rotvecs[k] * s[:, None])
-        table = Rotation.from_euler("Z", self._table.angle(t)[:, None])   # about NED down, the table axis
+        partial = Rotation.from_rotvec(self._step_rotvecs[k] * smoothstep(x)[:, None])
+        table = Rotation.from_euler("Z", theta[:, None])   # about NED down, the table axis
         # Table angle is a whole number of turns outside the rotations, so remounting happens at table angle 0.
         return table * partial * mounts
+
+    def body_rate_rad_s(self, t_s):
+        """Exact: R = Rz(θ) · exp(s v) · M gives ω_n = θ̇ e_z + Rz(θ) ṡ v, and ω_b = Rᵀ ω_n."""
+        t = np.asarray(t_s, dtype=float)
+        k, x, theta = self._parts(t)
+        s_dot = np.where((x > 0.0) & (x < 1.0), 6.0 * x * (1.0 - x) / self.remount_s, 0.0)   # d smoothstep / dt
+        table = Rotation.from_euler("Z", theta[:, None])
+        w_ned = table.apply(self._step_rotvecs[k] * s_dot[:, None])
+        w_ned[:, 2] += self._table.rate(t)
+        return self.attitude(t).apply(w_ned, inverse=True)
 
 
 # --------------------------------------------------------------------------------------------------------------
