@@ -236,3 +236,23 @@ def test_block_rows_become_imu_samples():
     assert isinstance(s, ImuSample) and s.counter == 103 and s.flags == SampleFlags.NEW_DATA
     np.testing.assert_array_equal(s.gyro_rad_s, b.gyro_rad_s[3])
     assert s.t_s == b.t_s[3] and s.temp_c == b.temp_c[3]
+
+
+@settings(derandomize=True, max_examples=40, deadline=None)
+@given(st.lists(st.floats(-0.05, 0.05), min_size=24, max_size=24), st.integers(0, 1000))
+def test_deterministic_errors_are_exactly_matrix_times_truth_plus_bias(vals, seed):
+    """Without noise or in-run drift: gyro = M ω + b, accel = M f + b, mag = S B + h, for any small errors."""
+    v = np.array(vals)
+    mis_g = np.array([[0, v[0], v[1]], [v[2], 0, v[3]], [v[4], v[5], 0]])
+    mis_a = np.array([[0, v[6], v[7]], [v[8], 0, v[9]], [v[10], v[11], 0]])
+    e = SensorErrors.ideal().replace(gyro_bias_rad_s=v[12:15], gyro_scale=v[15:18], gyro_misalignment_rad=mis_g,
+                                     accel_bias_m_s2=v[18:21], accel_scale=v[21:24], accel_misalignment_rad=mis_a,
+                                     hard_iron_ut=v[12:15] * 100, soft_iron=np.eye(3) + mis_g.T)
+    s = open_stream("tumble", rate_hz=20.0, seed=seed, errors=e, vehicle_iron=None)
+    b = s.next_block(40)
+    np.testing.assert_allclose(b.gyro_rad_s, b.truth_gyro_rad_s @ e.gyro_matrix.T + e.gyro_bias_rad_s, atol=1e-12)
+    np.testing.assert_allclose(b.accel_m_s2, b.truth_accel_m_s2 @ e.accel_matrix.T + e.accel_bias_m_s2, atol=1e-12)
+    np.testing.assert_allclose(b.mag_ut, b.truth_mag_ut @ e.soft_iron.T + e.hard_iron_ut, atol=1e-10)
+    # and the documented perfect calibrations undo them
+    np.testing.assert_allclose((b.gyro_rad_s - e.gyro_bias_rad_s) @ np.linalg.inv(e.gyro_matrix).T,
+                               b.truth_gyro_rad_s, atol=1e-12)
