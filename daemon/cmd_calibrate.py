@@ -57,6 +57,9 @@ def register(subparsers) -> None:
     g = sub.add_parser("gyro", help="rate-table gyro calibration (12 parameters) or bias only")
     common(g)
     g.add_argument("--bias-only", action="store_true", help="bias from the still periods (no rate table)")
+    g.add_argument("--estimator-bias", action="store_true",
+                   help="with --bias-only: run the estimator over the recording and add its converged gyro bias "
+                   "(thesis §12: the KF bias is folded back into the calibration)")
     g.add_argument("--table-rate-deg-s", type=float, default=None,
                    help="the rate table's rate (table axis vertical); default: the recording's truth columns")
 
@@ -301,6 +304,8 @@ def _gyro(args) -> int:
         idx = np.concatenate([np.arange(s.start, s.stop) for s in segs]) if segs else np.arange(len(rec))
         res = gyro_cal.fit_bias_only(rec.gyro_rad_s[idx], stored.gyro.matrix)
         source = f"{len(idx)} still samples of {args.recording}"
+        if args.estimator_bias and res.ok:
+            res, source = _fold_estimator_bias(rec, stored, res, source)
     else:
         accel = stored.accel.apply(rec.accel_m_s2)  # the accelerometer defines the vertical: use it calibrated
         segs = gyro_cal.steady_segments(rec.gyro_rad_s, accel, rate)
@@ -322,6 +327,29 @@ def _gyro(args) -> int:
         "  matrix:\n" + _fmt_mat(m.matrix),
         f"  residual RMS {math.degrees(res.residual_rms_rad_s):.4f} °/s",
     ], {"method": res.method, "residual_rms_rad_s": res.residual_rms_rad_s})
+
+
+def _fold_estimator_bias(rec, stored, res, source):
+    """Run the default estimator over the recording calibrated with the new bias and add the gyro bias it
+    converged to (in the calibrated frame: b_new = b + M⁻¹·b_est)."""
+    import dataclasses
+
+    import numpy as np
+
+    from ahrsd.calibration.models import GyroModel
+    from ahrsd.drivers.sample import make_sample
+    from ahrsd.estimator import make_estimator
+
+    cal = stored.with_sensor("gyro", res.model)
+    est = make_estimator()
+    last = None
+    for i in range(len(rec)):
+        last = est.update(cal.apply(make_sample(rec.t_s[i], rec.gyro_rad_s[i], rec.accel_m_s2[i], rec.mag_ut[i])))
+    b_est = np.asarray(last.gyro_bias_rad_s, dtype=float)
+    model = GyroModel(res.model.bias_rad_s + np.linalg.solve(res.model.matrix, b_est), res.model.matrix)
+    quality = {**res.quality, "estimator_bias_rad_s": b_est.tolist()}
+    return dataclasses.replace(res, model=model, quality=quality, method="bias-only+estimator"), \
+        source + " + the estimator's converged bias"
 
 
 def _mag(args) -> int:

@@ -160,6 +160,10 @@ class MagCalProtocol:
         return mavlink.MAV_STATE_CALIBRATING if self.calibrating else None
 
     def close(self) -> None:
+        self._release_worker()
+
+    def _release_worker(self) -> None:
+        """The fit worker process lives only while a session needs it."""
         if self._executor is not None:
             self._executor.shutdown(wait=False, cancel_futures=True)
             self._executor = None
@@ -219,7 +223,9 @@ class MagCalProtocol:
             except Exception as exc:  # noqa: BLE001 - reported as a failed calibration
                 outcome = ("final", exc)
             s.fit_done(outcome)
-        if self._fit_future is None:
+            if not s.status.running:
+                self._release_worker()
+        if self._fit_future is None and s.status.running:
             job = s.pending_fit()
             if job is not None:
                 self._fit_future = self._submit(job)
@@ -425,6 +431,7 @@ class MagCalProtocol:
         if self._fit_future is not None:
             self._fit_future.cancel()
             self._fit_future = None
+        self._release_worker()
         self.saved = False
 
 

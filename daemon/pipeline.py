@@ -247,7 +247,6 @@ class SampleTimer:
 
     LEAK_S_PER_S = 100e-6   # bracket widening per second (oscillator drift between chip and host)
     GUARD_S = 50e-6         # read this much after the predicted ready time
-    INDEX_TOLERANCE = 0.1   # fraction of a period: a read right at the upper bound still counts the sample
 
     def __init__(self, period_s: float):
         self.period_s = period_s
@@ -259,7 +258,7 @@ class SampleTimer:
 
     def _leak(self, now: float) -> None:
         self.hi += self.LEAK_S_PER_S * (now - self._t_hi)
-        self.lo -= self.LEAK_S_PER_S * (now - self._t_lo)
+        self.lo = max(self.lo - self.LEAK_S_PER_S * (now - self._t_lo), self.hi - self.period_s)  # φ is mod P
         self._t_hi = self._t_lo = now
 
     def fresh(self, read_time: float) -> tuple[float, int, int]:
@@ -270,11 +269,12 @@ class SampleTimer:
             self._t_hi = self._t_lo = read_time
             return read_time, 0, 0
         self._leak(read_time)
-        k = max(self.k + 1, math.floor((read_time - self.hi) / P + self.INDEX_TOLERANCE))
+        # the latest k with ready_k ≤ read_time for some φ in (lo, hi]: the largest k with read_time − k·P > lo
+        k = max(self.k + 1, math.ceil((read_time - self.lo) / P) - 1)
         lost = k - self.k - 1
         self.k = k
         self.hi = min(self.hi, read_time - k * P)
-        if self.lo >= self.hi:                       # contradicting bounds: trust the newest
+        if self.lo >= self.hi:                       # only after k was forced up: trust the newest read
             self.lo = self.hi - 0.25 * P
         return self.hi + k * P, k, lost
 

@@ -33,6 +33,7 @@ from ahrsd.daemon.notify import Notifier, watchdog_interval_s
 from ahrsd.daemon.outputs import OUTPUT_KEYS, OutputSchedule
 from ahrsd.daemon.params import ParamError, ParamSpec, ParamStore, decode_param_id
 from ahrsd.daemon.pipeline import Pipeline, open_source
+from ahrsd.drivers.errors import FrameError
 from ahrsd.drivers.sample import SampleFlags
 from ahrsd.daemon.status_line import StatusLine, format_status
 from ahrsd.estimator.base import EstimateFlags
@@ -45,7 +46,8 @@ SIGNING_SAVE_PERIOD_S = 30.0
 DECLINATION_UPDATE_PERIOD_S = 10.0
 DECLINATION_RESET_STEP_RAD = math.radians(0.5)   # a heading step this large increments reset_counter
 PARAM_STREAM_PAUSE_S = 0.002                     # pause between PARAM_VALUEs of a list (anchor §1.6)
-DRIVER_RETRY_S = 0.5
+DRIVER_RETRY_S = 0.2
+FRAME_ERRORS_FOR_FAILURE = 100                   # consecutive corrupt frames (≈ 0.12 s) = sensor failure
 DEFAULT_SYSTEM_ID = 1                            # until an autopilot heartbeat is latched
 
 PARAM_RATE_NAMES = {
@@ -59,7 +61,8 @@ PARAM_RATE_NAMES = {
 class ServiceCounters:
     wakes: int = 0
     overruns: int = 0            # reader wakes that started after their deadline by more than one period
-    driver_errors: int = 0
+    driver_errors: int = 0       # bus failures (and runs of corrupt frames) that put the sensor in failure
+    frame_errors: int = 0        # single corrupt frames rejected by the driver
     unsigned_refused: int = 0    # PARAM_SET refused unsigned (commands are counted by the router)
     published: int = 0
 
@@ -121,6 +124,7 @@ class Service:
         self._cpu_window: tuple[float, float] = (time.monotonic(), time.process_time())
         self.load_permille = 0
         self._tasks: list[asyncio.Task] = []
+        self._consecutive_frame_errors = 0
 
     # ------------------------------------------------------------------------------------------ public hooks
 
@@ -252,6 +256,8 @@ class Service:
             self.source = open_source(cfg.sensor, clock=time.monotonic)
         want_line = cfg.daemon.status_line == "on" or (cfg.daemon.status_line == "auto" and self._stdout.isatty())
         self._status_line = StatusLine(self._stdout) if want_line else None
+        if self._status_line is not None:
+            self._status_line.install_log_filter()
         log.info("ahrsd started: %s, estimator %s, declination %.2f° (%s), MAVLink %s as %d/%d, state in %s",
                  self.source.description, cfg.estimator.name, math.degrees(self.declination_rad),
                  self.declination_source, ", ".join(e.url for e in self.endpoints), self.system_id,
@@ -295,22 +301,39 @@ class Service:
     async def _read_per_sample(self) -> None:
         """Read the chip once per sample, right after it becomes ready (pipeline.SampleTimer).
 
-        asyncio's selector sleeps in whole milliseconds (epoll), so a wake lands within 1 ms after its
-        deadline; the ADIS16405's 1.22 ms period (819.2 SPS) leaves room for that. A wake later than a whole
-        period loses a sample on the chip: it is counted (GAP_BEFORE, pipeline gaps) and the estimator sees
-        the true time step.
+        Deadlines are absolute CLOCK_MONOTONIC times served by a timerfd (daemon.timerfd; asyncio alone
+        sleeps in whole milliseconds). A wake later than a whole period loses a sample on the chip: it is
+        counted (GAP_BEFORE, pipeline gaps, overruns) and the estimator sees the true time step.
         """
+        from ahrsd.daemon.timerfd import DeadlineTimer
+
         loop, source = self.loop, self.source
         period = 1.0 / source.sample_rate_hz
+        timer = DeadlineTimer(loop)
+        try:
+            await self._per_sample_loop(loop, source, period, timer)
+        finally:
+            timer.close()
+
+    async def _per_sample_loop(self, loop, source, period: float, timer) -> None:
         while True:
             now = loop.time()
             self.counters.wakes += 1
             try:
                 sample = source.read_one(now)
-            except Exception as exc:  # noqa: BLE001 - DriverError or a bus OSError: count, report, retry
+            except FrameError as exc:
+                # one corrupt frame: the driver counted it; the next sample comes one period later
+                self.counters.frame_errors += 1
+                self._consecutive_frame_errors += 1
+                if self._consecutive_frame_errors >= FRAME_ERRORS_FOR_FAILURE:
+                    self._on_driver_error(exc)
+                await timer.wait_until(loop.time() + period)
+                continue
+            except Exception as exc:  # noqa: BLE001 - BusError or an OSError: count, report, retry
                 self._on_driver_error(exc)
                 await asyncio.sleep(DRIVER_RETRY_S)
                 continue
+            self._consecutive_frame_errors = 0
             if sample is not None:
                 if sample.flags & SampleFlags.GAP_BEFORE:
                     self.counters.overruns += 1
@@ -320,7 +343,7 @@ class Service:
             target = source.next_read_time()
             if target <= after:
                 target = after + (0.25 * period if sample is None else 0.0)
-            await asyncio.sleep(max(0.0, target - loop.time()))
+            await timer.wait_until(target)
 
     async def _read_batched(self) -> None:
         """Replay: poll on a fixed absolute-deadline tick and process every sample that is due."""
@@ -434,8 +457,9 @@ class Service:
         errors_comm = sum(e.counters.rx_malformed + e.counters.rx_bad_signature for e in links)
         pc = self.pipeline.counters
         unsigned = self.commands.counters.unsigned_refused + self.counters.unsigned_refused
+        sensor_errors = self.counters.driver_errors + self.counters.frame_errors
         return msgs.sys_status(present, enabled, healthy, self.load_permille, errors_comm,
-                               (unsigned, pc.lost_samples, self.counters.overruns, self.counters.driver_errors))
+                               (unsigned, pc.lost_samples, self.counters.overruns, sensor_errors))
 
     def _send_heartbeat(self, now: float) -> None:
         self.send(msgs.heartbeat(self.mav_type, self.health.system_status(now)))

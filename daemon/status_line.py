@@ -33,6 +33,20 @@ class StatusLine:
         self.stream = stream
         self.shown = False
 
+    def install_log_filter(self) -> None:
+        """Clear the status line before any log record is written, so log lines never land on it."""
+        import logging
+
+        line = self
+
+        class _ClearFirst(logging.Filter):
+            def filter(self, record):
+                line.clear()
+                return True
+
+        for handler in logging.getLogger().handlers:
+            handler.addFilter(_ClearFirst())
+
     def update(self, text: str) -> None:
         self.stream.write("\r" + text + "\x1b[K")
         self.stream.flush()

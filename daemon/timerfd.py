@@ -1,0 +1,100 @@
+"""Sub-millisecond absolute deadlines for asyncio on Linux: a CLOCK_MONOTONIC timerfd (via ctypes).
+
+asyncio sleeps through epoll_wait, whose timeout is in whole milliseconds (CPython rounds it up), so
+`asyncio.sleep` cannot wake a reader within a 1.22 ms sample period with useful precision. A timerfd armed
+with TFD_TIMER_ABSTIME at the absolute deadline becomes readable at that instant (plus the kernel's timer
+slack, 50 µs by default), and its fd is registered with the event loop like any socket: no thread, no
+busy wait. Elsewhere `DeadlineTimer` falls back to `asyncio.sleep`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import ctypes
+import ctypes.util
+import logging
+import os
+import time
+
+log = logging.getLogger(__name__)
+
+CLOCK_MONOTONIC = 1
+TFD_NONBLOCK = os.O_NONBLOCK
+TFD_CLOEXEC = os.O_CLOEXEC
+TFD_TIMER_ABSTIME = 1
+
+
+class _Timespec(ctypes.Structure):
+    _fields_ = [("tv_sec", ctypes.c_long), ("tv_nsec", ctypes.c_long)]
+
+
+class _Itimerspec(ctypes.Structure):
+    _fields_ = [("it_interval", _Timespec), ("it_value", _Timespec)]
+
+
+def _libc():
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        libc.timerfd_create.argtypes = (ctypes.c_int, ctypes.c_int)
+        libc.timerfd_settime.argtypes = (ctypes.c_int, ctypes.c_int, ctypes.POINTER(_Itimerspec),
+                                         ctypes.POINTER(_Itimerspec))
+        return libc
+    except (OSError, AttributeError):
+        return None
+
+
+class DeadlineTimer:
+    """`await timer.wait_until(t)` returns at CLOCK_MONOTONIC time t (seconds) with µs precision."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop):
+        self.loop = loop
+        self.fd = -1
+        self._future: asyncio.Future | None = None
+        self._spec = _Itimerspec()
+        libc = _libc() if hasattr(os, "eventfd") or os.name == "posix" else None
+        if libc is not None and time.get_clock_info("monotonic").implementation.startswith("clock_gettime"):
+            fd = libc.timerfd_create(CLOCK_MONOTONIC, TFD_NONBLOCK | TFD_CLOEXEC)
+            if fd >= 0:
+                self._libc, self.fd = libc, fd
+                loop.add_reader(fd, self._fired)
+            else:
+                log.info("timerfd unavailable (errno %d): reader deadlines have 1 ms resolution",
+                         ctypes.get_errno())
+
+    @property
+    def precise(self) -> bool:
+        return self.fd >= 0
+
+    def _fired(self) -> None:
+        try:
+            os.read(self.fd, 8)
+        except BlockingIOError:
+            return
+        fut, self._future = self._future, None
+        if fut is not None and not fut.done():
+            fut.set_result(None)
+
+    async def wait_until(self, deadline: float) -> None:
+        if self.fd < 0:
+            await asyncio.sleep(max(0.0, deadline - self.loop.time()))
+            return
+        if deadline <= time.monotonic():
+            await asyncio.sleep(0)
+            return
+        sec = int(deadline)
+        self._spec.it_value.tv_sec = sec
+        self._spec.it_value.tv_nsec = int((deadline - sec) * 1e9)
+        if self._libc.timerfd_settime(self.fd, TFD_TIMER_ABSTIME, ctypes.byref(self._spec), None) != 0:
+            await asyncio.sleep(max(0.0, deadline - self.loop.time()))
+            return
+        self._future = self.loop.create_future()
+        try:
+            await self._future
+        finally:
+            self._future = None
+
+    def close(self) -> None:
+        if self.fd >= 0:
+            self.loop.remove_reader(self.fd)
+            os.close(self.fd)
+            self.fd = -1

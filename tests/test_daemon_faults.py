@@ -1,0 +1,81 @@
+"""The daemon under sensor faults (simulated chip with a fault plan, in-process service, real UDP link):
+corrupt frames are counted and skipped, a vanished device puts the daemon in CRITICAL and stops the heading
+feed, and it recovers on its own when the device answers again."""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import socket
+import time
+
+from ahrsd.daemon.config import Config, EndpointConfig, StateConfig
+from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.daemon.pipeline import DriverSource
+from ahrsd.daemon.service import Service
+from ahrsd.drivers.adis16405 import Adis16405
+from ahrsd.drivers.faults import FaultKind, FaultPlan
+from ahrsd.drivers.simulated import SimulatedAdis16405
+
+
+def test_corrupt_frames_and_a_vanished_device(tmp_path):
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    rx.setblocking(False)
+    port = rx.getsockname()[1]
+    cfg = dataclasses.replace(Config(), endpoints=(EndpointConfig(f"udpout:127.0.0.1:{port}"),),
+                              state=StateConfig(str(tmp_path)))
+    plan = FaultPlan(seed=3)
+    bus = SimulatedAdis16405("static", seed=0, clock=time.monotonic, faults=plan)
+    driver = Adis16405(bus)
+    driver.start()
+    base = bus.sample_index                  # fault windows count chip samples from here on
+    plan.add(FaultKind.GARBAGE, start_sample=base + 400, probability=0.02)
+    bus_error = plan.add(FaultKind.BUS_ERROR, start_sample=base + 2500, stop_sample=base + 3300)  # ≈ 3 .. 4 s
+    service = Service(cfg, source=DriverSource(driver, bus, "faulty chip"))
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
+    events: list[tuple[float, str, object]] = []
+
+    def collect():
+        while True:
+            try:
+                data = rx.recv(4096)
+            except BlockingIOError:
+                return
+            for m in parser.parse_buffer(data) or ():
+                events.append((time.monotonic(), m.get_type(), m))
+
+    async def main():
+        loop = asyncio.get_running_loop()
+        loop.add_reader(rx.fileno(), collect)
+        task = asyncio.create_task(service.run())
+        end = time.monotonic() + 30
+        while time.monotonic() < end and not (bus.sample_index > bus_error.stop_sample + 1600 and recovered()):
+            await asyncio.sleep(0.2)
+        service.request_stop()
+        code = await task
+        loop.remove_reader(rx.fileno())
+        return code
+
+    def states():
+        return [m.system_status for _, t, m in events if t == "HEARTBEAT"]
+
+    def recovered():
+        s = states()
+        return mavlink.MAV_STATE_CRITICAL in s and s[-1] == mavlink.MAV_STATE_ACTIVE
+
+    assert asyncio.run(main()) == 0
+    rx.close()
+    s = states()
+    first_critical = s.index(mavlink.MAV_STATE_CRITICAL)
+    assert mavlink.MAV_STATE_ACTIVE in s[:first_critical]       # was good before the fault
+    assert s[-1] == mavlink.MAV_STATE_ACTIVE                    # recovered without a restart
+    texts = [m.text for _, t, m in events if t == "STATUSTEXT"]
+    assert any("sensor failure" in x for x in texts) and any("recovered" in x for x in texts)
+    assert service.counters.frame_errors > 0 and service.counters.driver_errors > 0
+    # no heading for the autopilot while the device was gone: a gap in VISION_POSITION_ESTIMATE
+    vpe_t = [t for t, kind, _ in events if kind == "VISION_POSITION_ESTIMATE"]
+    assert max(b - a for a, b in zip(vpe_t, vpe_t[1:])) > 1.0
+    # the sensor errors are reported in SYS_STATUS.errors_count4
+    assert max(m.errors_count4 for _, t, m in events if t == "SYS_STATUS") > 0
