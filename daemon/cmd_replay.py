@@ -10,8 +10,6 @@ Exit status: 0 done, 1 bad input (recording, calibration, parameters, output pat
 
 from __future__ import annotations
 
-import argparse
-
 OUTPUT_COLUMNS = (
     "t_s",                                     # the input sample's time, s
     "qw", "qx", "qy", "qz",                    # body (FRD) → NED, Hamilton, scalar first (see REFERENCE)

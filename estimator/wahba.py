@@ -36,7 +36,6 @@ the 3×3 Cramér–Rao covariance of the small rotation error φ (C_true = exp([
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Callable
 
