@@ -752,9 +752,9 @@ def fit_backstepping(data: MagFitInput, reference=None, *, model: str = "general
     Options:
       model            "general" (full soft iron, vertical-channel least squares; default) or "paper"
                        (seed 002 as printed: axis-aligned sphere fit + corrective loop on the legs).
-      attitude         "auto" (estimator when gyro data exist, else accelerometer), "mekf"/"estimator", or
-                       "accel" (low-passed accelerometer roll/pitch; only for a vehicle that is not
-                       accelerating). roll_rad/pitch_rad arrays override both.
+      attitude         "auto"/"accel" (low-passed accelerometer roll/pitch, centripetal lean fitted out on a
+                       turning vehicle), or "mekf"/"estimator" (run the estimator over the samples).
+                       roll_rad/pitch_rad arrays override both.
       rate_hz          block-average to this rate before fitting (None: use every sample).
       legs             int label per sample for the out-and-back / multi-leg run (−1: not on a leg); default:
                        detected from the calibrated heading (straight runs ≥ 60 s).
@@ -784,9 +784,10 @@ def fit_backstepping(data: MagFitInput, reference=None, *, model: str = "general
         return refuse(METHOD, f"only {len(full)} usable samples", **quality)
 
     # --- roll and pitch
-    # "auto": on a vehicle (tilt within ±30°) the low-passed accelerometer with the centripetal lean fitted out
-    # (bench: 0.5° heading RMS on the simulated boat in turns, where the MEKF's roll leans ~1.4° into the turn
-    # like the accelerometer does); on tumble data the estimator (gyro-propagated) when gyro samples exist.
+    # "auto": the low-passed accelerometer, with the centripetal lean fitted out on a vehicle (tilt within ±30°).
+    # Measured (bench/magcal.py, simulator): boat in turns 0.68° heading RMS vs 1.94° with the MEKF's roll/pitch
+    # (which lean ~1.4° into the turn like the accelerometer, and cannot be compensated afterwards); hand tumble
+    # 0.50° vs 1.04°. The estimator stays available as attitude="mekf".
     source = "given"
     vehicle_like = True
     if not rp_given and full.accel_m_s2 is not None:
@@ -798,7 +799,7 @@ def fit_backstepping(data: MagFitInput, reference=None, *, model: str = "general
         if full.accel_m_s2 is None:
             return refuse(METHOD, "back-stepping needs roll and pitch: the recording has no accelerometer "
                           "samples (or pass roll_rad/pitch_rad)", **quality)
-        use_estimator = attitude in ("mekf", "estimator") or (attitude == "auto" and not vehicle_like)
+        use_estimator = attitude in ("mekf", "estimator")
         if use_estimator and full.gyro_rad_s is not None:
             try:
                 roll_rad, pitch_rad = roll_pitch_from_estimator(full, estimator)
