@@ -183,6 +183,7 @@ class ThesisKf:
         self._qdt_dt, self._qdt = math.nan, self._q_diag
         self._n_updates = 0
         self._cov_ned = (math.nan,) * 4
+        self._n_sigma = 0
         self._eye9 = np.eye(9)
         self._fixed_dip = None
         if p.mag_reference_ned_ut is not None:
@@ -401,7 +402,8 @@ class ThesisKf:
     def _sigma_rpy(self, pitch: float, yaw: float) -> tuple[float, float, float]:
         """1σ roll, pitch, yaw (rad): the NED attitude covariance (`_attitude_cov_ned`, refreshed every 8th
         sample once settled: it changes slowly) mapped to ZYX Euler angles at the current attitude."""
-        if not self._settled or not self._n_updates & 7:
+        self._n_sigma += 1
+        if not self._settled or not self._n_sigma & 7:
             self._cov_ned = self._attitude_cov_ned()
         pxx, pxz, pzz, pyy = self._cov_ned
         # δ[roll, pitch, yaw] = E⁻¹ δφⁿ with E⁻¹ = [[cψ/cθ, sψ/cθ, 0], [−sψ, cψ, 0], [cψ tθ, sψ tθ, 1]].
