@@ -298,13 +298,16 @@ class GuidedSession:
     rate_hz: float
     still_s: float = 4.0
     tolerance_deg: float = 12.0
-    max_gyro_rad_s: float = 0.02
-    max_accel_std_m_s2: float = 0.05
+    max_gyro_rad_s: float = 0.02          # mean rate over a 0.25 s block above this = moving
+    max_accel_change_m_s2: float = 0.05   # block mean moving this much from the previous block = moving
     targets: tuple = GUIDED_TARGETS
     recorded: dict = field(default_factory=dict)      # target index -> mean specific force (3,)
-    _buf_a: list = field(default_factory=list)
-    _buf_g: list = field(default_factory=list)
-    _announced_still: bool = False
+    _block_a: list = field(default_factory=list)
+    _block_g: list = field(default_factory=list)
+    _prev_block_mean: np.ndarray | None = None
+    _sum: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    _count: int = 0
+    _announced: int | None = None   # the position last reported in this still period (say it once)
 
     @property
     def done(self) -> bool:
@@ -326,36 +329,52 @@ class GuidedSession:
         return np.array([self.recorded[k] for k in sorted(self.recorded)]) if self.recorded else np.zeros((0, 3))
 
     def feed(self, sample) -> str | None:
+        """Take one sample. Stillness is judged on 0.25 s block means (per-sample noise at 819 SPS is
+        ~10 mg, far above any useful per-sample threshold): the gyro mean must be small and the
+        accelerometer mean must not move between blocks; `still_s` of such blocks make one position."""
         a, g = np.asarray(sample.accel_m_s2, dtype=float), np.asarray(sample.gyro_rad_s, dtype=float)
         if not (np.all(np.isfinite(a)) and np.all(np.isfinite(g))):
             return None
-        n_need = max(2, int(round(self.still_s * self.rate_hz)))
-        self._buf_a.append(a)
-        self._buf_g.append(g)
-        # Moving = restart the window (the still period must be continuous).
-        n_short = max(2, int(round(0.25 * self.rate_hz)))
-        if len(self._buf_a) >= n_short:
-            recent = np.array(self._buf_a[-n_short:])
-            moving = (np.linalg.norm(np.mean(self._buf_g[-n_short:], axis=0)) > self.max_gyro_rad_s
-                      or np.linalg.norm(recent.std(axis=0)) > self.max_accel_std_m_s2)
-            if moving:
-                self._buf_a.clear()
-                self._buf_g.clear()
-                self._announced_still = False
-                return None
-        if len(self._buf_a) < n_need:
+        self._block_a.append(a)
+        self._block_g.append(g)
+        n_block = max(2, int(round(0.25 * self.rate_hz)))
+        if len(self._block_a) < n_block:
             return None
-        mean = np.mean(self._buf_a, axis=0)
-        self._buf_a.clear()
-        self._buf_g.clear()
+        block_mean = np.mean(self._block_a, axis=0)
+        moving = np.linalg.norm(np.mean(self._block_g, axis=0)) > self.max_gyro_rad_s or (
+            self._prev_block_mean is not None
+            and np.linalg.norm(block_mean - self._prev_block_mean) > self.max_accel_change_m_s2)
+        n = len(self._block_a)
+        self._block_a.clear()
+        self._block_g.clear()
+        self._prev_block_mean = block_mean
+        if moving:  # the still period must be continuous: start again
+            self._sum[:] = 0.0
+            self._count = 0
+            self._announced = None
+            return None
+        self._sum += block_mean * n
+        self._count += n
+        if self._count < self.still_s * self.rate_hz:
+            return None
+        mean = self._sum / self._count
+        self._sum = np.zeros(3)
+        self._count = 0
         u = mean / np.linalg.norm(mean)
         cos_lim = math.cos(math.radians(self.tolerance_deg))
         for i, (text, d) in enumerate(self.targets):
             if float(u @ np.array(d)) > cos_lim:
                 if i in self.recorded:
+                    if self._announced == i:
+                        return None
+                    self._announced = i
                     return f"already have '{text}'; next: {self.prompt}"
                 self.recorded[i] = mean
+                self._announced = i
                 return f"recorded '{text}' ({self.coverage()})" + ("" if self.done else f"; next: {self.prompt}")
+        if self._announced == -1:
+            return None
+        self._announced = -1
         return "still, but not in any of the requested positions; " + self.prompt
 
     def fit(self, g_m_s2: float = STANDARD_GRAVITY_M_S2, terms: int | str = "auto") -> AccelFitResult:
