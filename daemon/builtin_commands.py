@@ -78,13 +78,17 @@ def request_message(service, msg, ctx) -> int:
     return mavlink.MAV_RESULT_ACCEPTED
 
 
-_running = {}
-
 
 def preflight_calibration(service, msg, ctx):
-    """Only param1 = 1 (gyro) is ours; everything else is for the autopilot's sensors."""
-    others = (msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
-    if msg.param1 != 1 or any(others):
+    """param1 = 1: gyro bias (here); param2 = 1/76: magnetometer start/force-save (daemon.magcal, when
+    attached). "Only one sensor per message" (anchor §1.2): anything else is UNSUPPORTED."""
+    from ahrsd.daemon.commands import command_params
+
+    p = command_params(msg)
+    magcal = getattr(service, "magcal", None)
+    if p[0] == 0 and p[1] != 0 and not any(p[2:]) and magcal is not None:
+        return magcal.handle_preflight_mag(msg, ctx)
+    if p[0] != 1 or any(p[1:]):
         return mavlink.MAV_RESULT_UNSUPPORTED
     if service.autopilot.armed:
         return mavlink.MAV_RESULT_TEMPORARILY_REJECTED

@@ -9,6 +9,7 @@
     [state]      -> StateConfig      the state directory (calibration, parameters, signing timestamp)
     [signing]    -> SigningConfig    optional MAVLink 2 signing
     [daemon]     -> DaemonConfig     process behaviour (status line)
+    [magcal]     -> daemon.magcal.MagCalSettings  field magnetometer calibration (validated by that module)
 
 Every key is checked; an error names the key, the bad value and what is allowed. Unknown sections and keys
 are rejected by name (a typo must not silently fall back to a default). Command-line flags override the file
@@ -346,6 +347,7 @@ class Config:
     state: StateConfig = field(default_factory=StateConfig)
     signing: SigningConfig = field(default_factory=SigningConfig)
     daemon: DaemonConfig = field(default_factory=DaemonConfig)
+    magcal: Any = None      # daemon.magcal.MagCalSettings, or None for its defaults
     source_path: str = ""   # the file this came from ("" = built-in defaults)
 
     def with_overrides(self, *, sim: str | None = None, spi: str | None = None, replay: str | None = None,
@@ -375,8 +377,22 @@ class Config:
 SECTIONS = {
     "sensor": SensorConfig, "estimator": EstimatorConfig, "location": LocationConfig, "mavlink": MavlinkConfig,
     "endpoint": EndpointConfig, "outputs": OutputsConfig, "state": StateConfig, "signing": SigningConfig,
-    "daemon": DaemonConfig,
+    "daemon": DaemonConfig, "magcal": None,
 }
+
+
+def _parse_magcal(value) -> Any:
+    """[magcal] belongs to the field magnetometer calibration (daemon/magcal.py), which validates it."""
+    if not isinstance(value, dict):
+        raise _fail("magcal", value, "a [magcal] table")
+    try:
+        from ahrsd.daemon.magcal import settings_from_mapping
+    except ImportError as exc:  # pragma: no cover - the module ships with the daemon
+        raise ConfigError(f"[magcal] given but the magnetometer calibration is unavailable: {exc}") from None
+    try:
+        return settings_from_mapping(value)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
 
 
 def parse_config(doc: dict, source_path: str = "") -> Config:
@@ -389,6 +405,9 @@ def parse_config(doc: dict, source_path: str = "") -> Config:
             if not isinstance(value, list) or not value:
                 raise _fail("endpoint", value, "one or more [[endpoint]] tables, each with url = \"...\"")
             parts["endpoints"] = tuple(EndpointConfig.parse(t, f"endpoint[{i}]") for i, t in enumerate(value))
+            continue
+        if section == "magcal":
+            parts["magcal"] = _parse_magcal(value)
             continue
         if not isinstance(value, dict):
             raise _fail(section, value, f"a [{section}] table")

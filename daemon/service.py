@@ -252,6 +252,7 @@ class Service:
         from ahrsd.daemon.builtin_commands import register_builtin_commands
 
         register_builtin_commands(self)
+        self._attach_magcal()
         if self.source is None:
             self.source = open_source(cfg.sensor, clock=time.monotonic)
         want_line = cfg.daemon.status_line == "on" or (cfg.daemon.status_line == "auto" and self._stdout.isatty())
@@ -264,6 +265,18 @@ class Service:
                  self.component_id, self.state_dir)
         self.notifier.status(f"starting: {self.source.description}")
         self._send_heartbeat(time.monotonic())   # routers learn us from our first packet (anchor §3.1)
+
+    def _attach_magcal(self) -> None:
+        """The field magnetometer calibration (issue 7) plugs in through the public hooks."""
+        try:
+            from ahrsd.daemon.magcal import attach
+        except ImportError:
+            log.info("magnetometer calibration module not available")
+            return
+        try:
+            attach(self)
+        except Exception:  # noqa: BLE001 - the daemon runs without it rather than not at all
+            log.exception("magnetometer calibration could not be attached; running without it")
 
     def _setup_signing(self) -> None:
         if not self.config.signing.key_file:
