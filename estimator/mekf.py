@@ -71,8 +71,9 @@ class MekfParams:
     acceleration), m/s²."""
     acc_gate_rad: float = 15.0 * _DEG
     """Tilt innovation gate: the low-passed vertical may differ from the estimate by at most this, rad."""
-    acc_gate_recover_s: float = 5.0
-    """After this long without a tilt update the gate is bypassed (recovers from a wrong tilt), s."""
+    acc_gate_recover_s: float = 10.0
+    """After this long without a tilt update the rejection is overridden (recovers from a wrong tilt), s.
+    Longer than the 4 τ hold that follows every rejection."""
     acc_lowpass_tau_s: float = 1.5
     """Time constant of the low-pass of the specific force in the NED frame, s (0 = off). VQF uses 3 s as
     its only tilt smoothing; the Kalman gain adds its own, so half of that."""

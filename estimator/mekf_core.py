@@ -47,6 +47,7 @@ S_MAG_REST = 71       # 3: body-frame field when the current rest began, µT
 S_MAG_REST_SET = 74   # 1.0 while S_MAG_REST holds this rest's field
 S_REST_DG = 75        # low-passed squared gyro deviation from its low-pass, (rad/s)²
 S_REST_DA = 76        # low-passed squared acc deviation, (m/s²)²
+S_ACC_HOLD_T = 77     # tilt updates stay off this much longer after a sustained push, s
 S_SIZE = 80
 
 # ----------------------------------------------------------------------------------- parameter layout
@@ -82,7 +83,7 @@ P_CONV_YAW = 29         # ... and 1σ yaw below this, rad
 P_MAG_ENABLED = 30      # 1.0 = use the magnetometer, 0.0 = 6-axis (heading from gyro only)
 P_MAG_REJECT_MAX = 31   # after this long continuously disturbed, the field is trusted again with inflated noise, s
 P_MAG_HEADING_NOISE_REST = 32  # heading noise floor at rest (no dynamic errors), rad
-P_ACC_GATE_RECOVER = 33  # after this long without a tilt update the innovation gate is bypassed once, s
+P_ACC_GATE_RECOVER = 33  # after this long without a tilt update, rejection is overridden (recovery), s
 P_ACC_TURN_DEAD = 34    # turn angles below this add no noise, rad
 P_MAG_REST_CHANGE = 35  # at rest, a low-passed body-frame field change above this is a disturbance, µT
 P_SIZE = 36
@@ -405,6 +406,8 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
             and lp_small
             and dg < par[P_REST_GYRO_TH] ** 2
             and da < par[P_REST_ACC_TH] ** 2
+            and abs(math.sqrt(state[S_ACC_LP] ** 2 + state[S_ACC_LP + 1] ** 2 + state[S_ACC_LP + 2] ** 2)
+                    - state[S_G_REF]) < par[P_REST_ACC_TH]  # at rest the specific force is gravity
         ):
             state[S_REST_T] += dt
         else:
@@ -455,9 +458,9 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
         fd = e20 * ax + e21 * ay + e22 * az
         fnorm = math.sqrt(ax * ax + ay * ay + az * az)
         g_ref = state[S_G_REF]
-        if at_rest:
-            # learn |g| as this accelerometer sees it (scale error) while nothing moves
-            state[S_G_REF] += 0.001 * (fnorm - g_ref)
+        if at_rest and dt > 0.0:
+            # learn |g| as this accelerometer sees it (scale error) while nothing moves (τ = 10 s)
+            state[S_G_REF] += (1.0 - math.exp(-dt / 10.0)) * (fnorm - g_ref)
         tau = par[P_ACC_TAU]
         if tau > 0.0 and dt > 0.0:
             # low-pass in the (estimated) NED frame: linear acceleration averages out, gravity stays (VQF)
@@ -474,8 +477,23 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
             ud = fd
         unorm = math.sqrt(un * un + ue * ue + ud * ud)
         dev = abs(unorm - g_ref)  # sustained linear acceleration left after the low-pass
+        # unit measured "up" in NED: u = [δθ_E, −δθ_N, −1] (+ noise)
+        nu_n = un / unorm if unorm > 0.0 else 0.0
+        nu_e = ue / unorm if unorm > 0.0 else 0.0
+        # reject (a) a sustained push: |f| of the low-pass far from g, (b) a vertical more than the gate angle
+        # from the estimate (the covariance of a low-passed, correlated measurement is no honest yardstick;
+        # an angle is). Either way the low-pass holds the push: stay off until it has forgotten it (4 τ → 2 %
+        # left), unless nothing has been accepted for acc_gate_recover_s (a wrong tilt must recover).
+        if (
+            dev > par[P_ACC_REJECT]
+            or unorm < 0.5 * g_ref
+            or nu_n * nu_n + nu_e * nu_e > par[P_ACC_GATE] ** 2
+        ):
+            state[S_ACC_HOLD_T] = 4.0 * tau
+        elif state[S_ACC_HOLD_T] > 0.0:
+            state[S_ACC_HOLD_T] -= dt
         accepted = False
-        if dev <= par[P_ACC_REJECT] and unorm > 0.5 * g_ref:
+        if unorm > 0.5 * g_ref and (state[S_ACC_HOLD_T] <= 0.0 or state[S_ACC_REJ_T] > par[P_ACC_GATE_RECOVER]):
             if at_rest:
                 r = (par[P_ACC_NOISE_REST] / g_ref) ** 2
             else:
@@ -484,20 +502,13 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
                 ratio = min(unorm, g_ref) / max(unorm, g_ref)
                 phi = par[P_ACC_TURN_GAIN] * max(math.acos(ratio) - par[P_ACC_TURN_DEAD], 0.0)
                 r = (par[P_ACC_NOISE] / g_ref) ** 2 + phi * phi
-            # unit measured "up" in NED: u = [δθ_E, −δθ_N, −1] (+ noise)
-            nu_n = un / unorm
-            nu_e = ue / unorm
-            # gate on the angle itself: the covariance of a low-passed (correlated) measurement is no
-            # honest yardstick, an angle is (a sustained turn or a wrong tilt)
-            gated = nu_n * nu_n + nu_e * nu_e > par[P_ACC_GATE] ** 2
-            if not gated or state[S_ACC_REJ_T] > par[P_ACC_GATE_RECOVER]:
-                d0, d1, d2, d3, d4, d5 = _scalar_update(state, 1, 1.0, nu_n, r, 2, -1)
-                _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
-                # second component: innovation re-evaluated after the first correction (sequential update)
-                nu_e2 = nu_e + d0
-                d0, d1, d2, d3, d4, d5 = _scalar_update(state, 0, -1.0, nu_e2, r, 2, -1)
-                _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
-                accepted = True
+            d0, d1, d2, d3, d4, d5 = _scalar_update(state, 1, 1.0, nu_n, r, 2, -1)
+            _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
+            # second component: innovation re-evaluated after the first correction (sequential update)
+            nu_e2 = nu_e + d0
+            d0, d1, d2, d3, d4, d5 = _scalar_update(state, 0, -1.0, nu_e2, r, 2, -1)
+            _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
+            accepted = True
         if accepted:
             state[S_ACC_REJ_T] = 0.0
         else:
