@@ -120,6 +120,11 @@ def fit_alignment(turns: list[LevelTurn], magnitude_model: MagModel, down_ut: fl
         info["turn_span_deg"] = span
         info["vertical_residual_rms_ut"] = float(np.sqrt(np.mean((h @ row - target) ** 2)))
         info["row_norm"] = float(np.linalg.norm(row))
+        if abs(info["row_norm"] - 1.0) > 0.1:
+            problems.append(f"{turn.axis} turn: the calibrated field does not match the reference (row norm "
+                            f"{info['row_norm']:.2f}, not 1): were the turns recorded with the same vehicle iron "
+                            "as the magnitude calibration, and at the same site?")
+            continue
         if span < min_turn_deg:
             problems.append(f"{turn.axis} turn swept only {span:.0f}° (need ≥ {min_turn_deg:.0f}°)")
             continue

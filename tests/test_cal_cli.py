@@ -73,6 +73,8 @@ def recordings(tmp_path_factory):
     errs = SensorErrors.adis16405(seed=3)
     out = {
         "tumble": write_recording(d / "tumble.csv", [simulate("tumble", 90, rate_hz=20, seed=3, errors=errs)]),
+        "tumble-bare": write_recording(d / "tumble-bare.csv", [simulate("tumble", 90, rate_hz=20, seed=4, errors=errs,
+                                                                         vehicle_iron=None)]),
         "level": write_recording(d / "level.csv", [simulate("level-turns", 60, rate_hz=20, seed=3, errors=errs)]),
         "table": write_recording(d / "table.csv", [simulate("rate-table", 430, rate_hz=20, seed=3, errors=errs)]),
         "static": write_recording(d / "static.csv", [simulate("static", 1800, rate_hz=10, seed=3, errors=errs)],
@@ -129,6 +131,21 @@ def test_each_sensor_is_merged_into_the_stored_calibration(recordings, tmp_path,
     # The previous version (before the accelerometer) is kept.
     prev = load_calibration_file(state / "calibration.prev.json")
     assert prev.accel.bias_m_s2.tolist() == [0.0, 0.0, 0.0] and prev.gyro.matrix.tolist() == gyro["matrix"]
+
+
+def test_three_step_with_alignment_recording(recordings, tmp_path, ahrsd_inproc):
+    """The thesis's full magnetometer chain from the command line: three-step on a tumble, alignment from the
+    rate table's levelled turns (same unit, same magnetic environment) → the full soft iron."""
+    out = json.loads(ahrsd_inproc("mag", recordings["tumble-bare"], *SITE_ARGS, "--method", "three-step",
+                                  "--align-recording", recordings["table"], "--state-dir", tmp_path, "--json",
+                                  check_rc=0).stdout)
+    errs = recordings["errors"]
+    np.testing.assert_allclose(out["soft_iron"], np.linalg.inv(errs.soft_iron), atol=2e-3)
+    np.testing.assert_allclose(out["hard_iron_ut"], errs.hard_iron_ut, atol=0.02)
+    # Turns from another magnetic environment are refused with the reason.
+    proc = ahrsd_inproc("mag", recordings["tumble"], *SITE_ARGS, "--method", "three-step",
+                        "--align-recording", recordings["table"], "--state-dir", tmp_path)
+    assert proc.returncode == 1 and "same vehicle iron" in proc.stderr
 
 
 def test_allan_json_and_noise_file(recordings, tmp_path, ahrsd_inproc):
