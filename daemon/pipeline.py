@@ -54,7 +54,8 @@ class DriverSource:
         self.stale_reads = 0
         self.lost_samples = 0
 
-    per_sample = True   # read once per chip sample on the phase lock (see SamplePhaseLock)
+    per_sample = True   # read once per chip sample on the phase lock (see SampleTimer)
+    monotonic_offset_s = 0.0   # the SampleTimer stamps samples in CLOCK_MONOTONIC already
 
     def read_one(self, now: float) -> ImuSample | None:
         """One burst read at host time `now`: the new sample (re-timed by the SampleTimer: t_s on the sample
@@ -96,6 +97,7 @@ class ReplaySource:
     """Samples from a recording, released when their time comes (realtime) or all at once (fast)."""
 
     per_sample = False   # polled on a fixed tick; each poll returns every sample that is due
+    monotonic_offset_s = 0.0   # CLOCK_MONOTONIC − recording time (set at the first sample)
 
     def __init__(self, samples: Iterator[ImuSample], description: str, realtime: bool = True,
                  rate_hz: float = ADIS16405_RATE_HZ, clock=time.monotonic):
@@ -121,6 +123,7 @@ class ReplaySource:
                     break
                 if self._t0_clock is None:
                     self._t0_clock, self._t0_sample = now, self._pending.t_s
+                    self.monotonic_offset_s = now - self._pending.t_s
             if self.realtime and self._pending.t_s - self._t0_sample > now - self._t0_clock:
                 break
             out.append(self._pending)

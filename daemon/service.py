@@ -411,10 +411,10 @@ class Service:
                 self.notifier.ready("running")
                 log.info("first good estimate: READY")
 
-    @staticmethod
-    def sample_time_monotonic(t_s: float) -> float:
-        """CLOCK_MONOTONIC time of a sample stamped t_s: the chip source stamps in that clock already."""
-        return t_s
+    def sample_time_monotonic(self, t_s: float) -> float:
+        """CLOCK_MONOTONIC time of a sample stamped t_s (the chip source stamps in that clock already;
+        a replay is shifted to the moment it started)."""
+        return t_s + getattr(self.source, "monotonic_offset_s", 0.0)
 
     def _on_driver_error(self, exc: Exception) -> None:
         self.counters.driver_errors += 1

@@ -7,6 +7,8 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import socket
+import subprocess
+import sys
 import time
 
 from ahrsd.daemon.config import Config, EndpointConfig, StateConfig
@@ -79,3 +81,38 @@ def test_corrupt_frames_and_a_vanished_device(tmp_path):
     assert max(b - a for a, b in zip(vpe_t, vpe_t[1:])) > 1.0
     # the sensor errors are reported in SYS_STATUS.errors_count4
     assert max(m.errors_count4 for _, t, m in events if t == "SYS_STATUS") > 0
+
+
+def test_replay_of_a_recording_runs_and_ends(tmp_path):
+    """`ahrsd run --replay` on a recording from `ahrsd record`: estimates flow, time stamps are monotonic
+    time, and the daemon stops by itself at the end of the file."""
+    rec = tmp_path / "rec.csv"
+    r = subprocess.run([sys.executable, "-m", "ahrsd.daemon.cli", "record", "--sim", "static", "--output", str(rec),
+                        "--seconds", "3", "--quiet"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    rx.settimeout(0.5)
+    port = rx.getsockname()[1]
+    proc = subprocess.Popen([sys.executable, "-m", "ahrsd.daemon.cli", "run", "--replay", str(rec), "--mavlink",
+                             f"udpout:127.0.0.1:{port}", "--state-dir", str(tmp_path / "s"), "--status-line", "off"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    parser = mavlink.MAVLink(None)
+    usecs = []
+    try:
+        end = time.monotonic() + 60
+        while proc.poll() is None and time.monotonic() < end:
+            try:
+                data = rx.recv(4096)
+            except socket.timeout:
+                continue
+            for m in parser.parse_buffer(data) or ():
+                if m.get_type() == "VISION_POSITION_ESTIMATE":
+                    usecs.append((time.monotonic(), m.usec))
+        assert proc.wait(30) == 0                       # stopped by itself at the end of the recording
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        rx.close()
+    assert len(usecs) > 20
+    assert all(abs(recv - u * 1e-6) < 0.5 for recv, u in usecs)   # CLOCK_MONOTONIC, not recording time
