@@ -909,6 +909,12 @@ def fit_backstepping(data: MagFitInput, reference=None, *, model: str = "general
                                              fold_offset, quality)
 
     res = np.linalg.norm(mag_model.apply(mag), axis=1) - total
+    # keys shared with the other magnetometer fits (`ahrsd calibrate mag` prints them)
+    quality["coverage"] = quality.get("sphere_coverage")
+    quality["residual_max_ut"] = float(np.max(np.abs(res)))
+    std = quality.get("parameter_std", {})
+    if std:
+        quality["sigma_hard_iron_ut"] = [std.get(f"hard_iron_{a}_ut", math.nan) for a in "xyz"]
     quality["time_s"] = time.perf_counter() - t0
     return MagFitResult(mag_model, float(np.sqrt(np.mean(res**2))), METHOD, quality, None)
 

@@ -241,3 +241,14 @@ def load_swing_table(path) -> tuple[np.ndarray, np.ndarray]:
     if len(ref) < 1:
         raise SwingTableError(f"{p}: no rows after the header")
     return np.array(ref), np.array(mag)
+
+
+def fit_swing_table(path) -> DeviationCoefficients:
+    """The deviation card from a compass-swing table file (`load_swing_table`): A..E when the headings go
+    all round (≥ 8 of them), A alone otherwise. Both columns must use the same north (magnetic reference
+    headings, or a true reference minus the declination)."""
+    ref, mag = load_swing_table(path)
+    try:
+        return fit_deviation(mag, ref)
+    except SwingFitError:
+        return fit_offset(mag, ref)

@@ -134,3 +134,15 @@ def test_load_swing_table_errors_name_the_line(tmp_path, text, match):
 def test_load_swing_table_missing_file(tmp_path):
     with pytest.raises(swing.SwingTableError, match="cannot read"):
         swing.load_swing_table(tmp_path / "nope.csv")
+
+
+def test_fit_swing_table_full_card_and_offset_only(tmp_path):
+    coef = (1.0, 2.0, -1.5, 0.5, 0.8)
+    psi = np.arange(0, 360, 45.0)
+    f = tmp_path / "card.csv"
+    f.write_text("reference_deg,compass_deg\n" + "".join(f"{(p + _dev(coef, p)) % 360:.6f},{p}\n" for p in psi))
+    np.testing.assert_allclose(swing.fit_swing_table(f).as_array(), coef, atol=1e-5)
+    g = tmp_path / "one.csv"
+    g.write_text("known_deg,measured_deg\n90,87.5\n")
+    one = swing.fit_swing_table(g)
+    assert one.a_deg == pytest.approx(2.5) and one.b_deg == 0.0
