@@ -137,15 +137,17 @@ def replay_arrays(estimator, t_s, gyro_rad_s, accel_m_s2, mag_ut, sample_flags=N
                   est.heading_mag_rad * deg, est.heading_true_rad * deg, s0 * deg, s1 * deg, s2 * deg,
                   b0, b1, b2, int(est.flags)))
     table = np.array(rows, dtype=np.float64).reshape(n, len(OUTPUT_COLUMNS))
-    if true_north:
-        from ahrsd.estimator.rotations import quat_multiply, wrap_pi
+    from ahrsd.estimator.rotations import quat_multiply, wrap_pi
 
+    yaw = np.radians(table[:, 7])
+    if true_north:
         decl = np.radians(table[:, 9] - table[:, 8])          # per row: the declination in force
         decl = np.where(np.isfinite(decl), decl, 0.0)
         rot_z = np.column_stack([np.cos(decl / 2), np.zeros(n), np.zeros(n), np.sin(decl / 2)])
         q = quat_multiply(rot_z, table[:, 1:5])
         table[:, 1:5] = q * np.where(q[:, :1] < 0, -1.0, 1.0)
-        table[:, 7] = np.degrees(wrap_pi(np.radians(table[:, 7]) + decl))
+        yaw = yaw + decl
+    table[:, 7] = np.degrees(wrap_pi(yaw))                      # [−180, 180)
     return table
 
 
