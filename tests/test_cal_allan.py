@@ -43,7 +43,7 @@ def test_overlapping_allan_variance_matches_the_definition():
     rng = np.random.default_rng(3)
     x = rng.normal(size=200) + np.linspace(0, 1, 200)
     rate = 10.0
-    taus, adev, n_terms = allan_deviation(x, rate, m=np.array([1, 3, 7, 20]))
+    taus, adev, n_terms = allan_deviation(x, rate, m=np.array([1, 3, 7, 20]), overlap_stride=0)
     theta = np.concatenate([[0.0], np.cumsum(x - x.mean())]) / rate
     for tau, value, nt, m in zip(taus, adev, n_terms, [1, 3, 7, 20]):
         terms = [(theta[k + 2 * m] - 2 * theta[k + m] + theta[k]) ** 2 for k in range(len(x) + 1 - 2 * m)]
@@ -51,6 +51,11 @@ def test_overlapping_allan_variance_matches_the_definition():
         assert value == pytest.approx(math.sqrt(sum(terms) / (2 * tau * tau * len(terms))), rel=1e-10)
     # Cluster-mean form of the thesis (eq. 5-3…5-7) for m = 1: ½ mean of squared differences of samples.
     assert adev[0] ** 2 == pytest.approx(0.5 * np.mean(np.diff(x) ** 2), rel=1e-10)
+    # The strided option agrees with the textbook form where there are many clusters.
+    y = rng.normal(size=20000)
+    _, full, _ = allan_deviation(y, rate, m=np.array([1, 8, 64]))
+    _, fast, _ = allan_deviation(y, rate, m=np.array([1, 8, 64]), overlap_stride=0.125)
+    np.testing.assert_allclose(fast, full, rtol=0.05)
 
 
 def test_gauss_markov_allan_variance_limits():
