@@ -163,10 +163,14 @@ class Endpoint:
             self.conn.mav.send(msg)
         except (OSError, ValueError, TypeError, OverflowError) as exc:
             self.counters.tx_errors += 1
+            if self.conn is not None and self.conn.fd != self._fd:
+                self._register_fd()
             if self.counters.tx_errors in (1, 100, 10000):
                 log.warning("MAVLink %s: send of %s failed: %s", self.url, msg.get_type(), exc)
             return False
         self.counters.tx_messages += 1
+        if self.conn.fd != self._fd:          # pymavlink dropped a TCP client on a write error (tcpin)
+            self._register_fd()
         return True
 
     def _read_chunk(self) -> bytes | None:

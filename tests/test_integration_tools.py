@@ -132,3 +132,62 @@ def test_notify_watchdog_and_signing(tmp_path):
     finally:
         d.stop()
         sock.close()
+
+
+def _free_tcp_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_tcp_endpoints_server_and_client_reconnect(tmp_path):
+    """tcpin: a second client after the first one left is served; tcp: the daemon keeps retrying until the
+    peer listens, without blocking the loop (the tcpin client keeps receiving meanwhile)."""
+    p_in, p_out = _free_tcp_port(), _free_tcp_port()
+    log = open(tmp_path / "ahrsd.log", "w")
+    proc = subprocess.Popen([sys.executable, "-m", "ahrsd.daemon.cli", "run", "--mavlink", f"tcpin:127.0.0.1:{p_in}",
+                             "--mavlink", f"tcp:127.0.0.1:{p_out}", "--state-dir", str(tmp_path / "s"),
+                             "--status-line", "off"], stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
+
+    def attitudes(conn, timeout, wanted=20):
+        """Count ATTITUDE from us, returning as soon as `wanted` arrived."""
+        n = 0
+        end = time.monotonic() + timeout
+        while time.monotonic() < end and n < wanted:
+            m = conn.recv_match(type="ATTITUDE", blocking=True, timeout=0.3)
+            if m is not None and m.get_srcComponent() == OUR_COMP:
+                n += 1
+        return n
+
+    def connect(url):
+        end = time.monotonic() + 60
+        while True:
+            try:
+                return mavutil.mavlink_connection(url, dialect="ardupilotmega", retries=0)
+            except OSError:
+                if time.monotonic() > end:
+                    raise
+                time.sleep(0.5)
+
+    try:
+        first = connect(f"tcp:127.0.0.1:{p_in}")
+        assert attitudes(first, 30.0) == 20, (tmp_path / "ahrsd.log").read_text()
+        first.close()
+        time.sleep(0.5)
+        second = connect(f"tcp:127.0.0.1:{p_in}")
+        second.mav.command_long_send(1, OUR_COMP, mavlink.MAV_CMD_GET_MESSAGE_INTERVAL, 0, 30, 0, 0, 0, 0, 0, 0)
+        ack = second.recv_match(type="COMMAND_ACK", blocking=True, timeout=8)
+        assert ack is not None and ack.result == mavlink.MAV_RESULT_ACCEPTED
+        assert attitudes(second, 10.0) == 20
+        second.close()
+        server = mavutil.mavlink_connection(f"tcpin:127.0.0.1:{p_out}", dialect="ardupilotmega")
+        assert attitudes(server, 15.0) == 20       # the daemon's tcp: endpoint found us
+        server.close()
+        assert proc.poll() is None
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+        log.close()
