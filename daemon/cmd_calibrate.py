@@ -81,6 +81,9 @@ class _Fail(Exception):
     """A reported failure: message for the person, exit status 1."""
 
 
+_RECORDING_META: dict = {}
+
+
 def _read(path):
     from ahrsd.drivers.recording import RecordingFormatError, read_recording
 
@@ -92,6 +95,13 @@ def _read(path):
         raise _Fail(f"cannot read the recording: {exc}") from None
     if len(rec) < 16:
         raise _Fail(f"{path}: only {len(rec)} samples")
+    if not _RECORDING_META:  # the first recording read is the one the fit is about: note it in the metadata
+        import numpy as np
+
+        _RECORDING_META["recording"] = str(path)
+        temp = rec.extra.get("temp_c")
+        if temp is not None and np.any(np.isfinite(temp)):
+            _RECORDING_META["temp_c"] = float(np.nanmean(temp))
     return rec
 
 
@@ -111,7 +121,7 @@ def _save(args, sensor, model, meta):
         return None, "not saved (--dry-run)"
     store = CalibrationStore(args.state_dir)
     current = store.load()
-    cal = current.with_sensor(sensor, model, **meta)
+    cal = current.with_sensor(sensor, model, **{**_RECORDING_META, **meta})
     if args.sensor_id:
         cal = type(cal)(cal.gyro, cal.accel, cal.mag, {**cal.metadata, "sensor_id": args.sensor_id})
     try:
@@ -503,6 +513,7 @@ def run(args) -> int:
     import sys
 
     handlers = {"allan": _allan, "accel": _accel, "gyro": _gyro, "mag": _mag}
+    _RECORDING_META.clear()
     try:
         return handlers[args.sensor](args)
     except _Fail as exc:
