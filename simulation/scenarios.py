@@ -72,7 +72,7 @@ class EulerScenario(Scenario):
 
     The body rate then follows from the Euler rates without evaluating the rotation three times:
     ω_b = [φ̇ − ψ̇ sinθ,  θ̇ cosφ + ψ̇ sinφ cosθ,  −θ̇ sinφ + ψ̇ cosφ cosθ]   (ω_b = φ̇ e_x + Rx(φ)ᵀ θ̇ e_y
-    + (Ry(θ) Rx(φ))ᵀ ψ̇ e_z), with the Euler rates from central differences of the angle functions (±0.1 ms).
+    + (Ry(θ) Rx(φ))ᵀ ψ̇ e_z), with the Euler rates from central differences of the angle functions (±10 µs).
     The tests integrate this rate and compare with scipy's attitude, so the formula is checked, not trusted.
     """
 
@@ -86,7 +86,7 @@ class EulerScenario(Scenario):
     def body_rate_rad_s(self, t_s):
         t = np.asarray(t_s, dtype=float)
         tp, tm = t + _RATE_STEP_S, t - _RATE_STEP_S
-        psi, th, ph = self.euler_rad(t)
+        _, th, ph = self.euler_rad(t)
         ap, am = self.euler_rad(tp), self.euler_rad(tm)
         dpsi, dth, dph = ((x1 - x0) / (tp - tm) for x1, x0 in zip(ap, am))
         sph, cph, sth, cth = np.sin(ph), np.cos(ph), np.sin(th), np.cos(th)
