@@ -464,7 +464,7 @@ class FieldCalConfig:
     samples_per_sector: int = 3
     sphere_target: float = 0.75       # fraction of the 80 cells for a tumbled vehicle (ArduPilot ≈ 300 spread samples)
     tumble_tilt_deg: float = 35.0     # AUTO: tilt beyond this means "being tumbled" -> sphere coverage needed
-    validation_fraction: float = 0.5  # step two: fresh coverage (fraction of step one's) to validate the fit
+    validation_fraction: float = 1 / 3  # step two: fresh coverage (fraction of step one's): more data, checked fit
     min_tilt_full_model_deg: float = 4.0  # below this tilt range a level-vehicle fit cannot see the vertical axis
 
 
@@ -614,11 +614,22 @@ class FieldCalibration:
             if not np.all(np.isfinite(mag)):
                 self.rejected += 1
                 return
+            dt_kept = t - self._t_last_kept
             self._t_last_kept = t
             raw = self._w_inv @ mag + self.current.mag.hard_iron_ut if self.samples_are_calibrated else mag
             if estimate is not None:
                 roll, pitch = float(estimate.roll_rad), float(estimate.pitch_rad)
                 yaw = float(estimate.yaw_rad)
+                rate = getattr(estimate, "rate_body_rad_s", None)
+                if rate is not None:
+                    # Heading coverage counts how far the vehicle has turned, from the gyro: the magnetic
+                    # heading of an uncalibrated compass need not go round once per turn (hard iron larger
+                    # than the horizontal field).
+                    if self._turn_yaw is None or not math.isfinite(dt_kept) or dt_kept > 1.0:
+                        self._turn_yaw = yaw if self._turn_yaw is None else self._turn_yaw
+                    else:
+                        self._turn_yaw += yaw_rate_ned_rad_s(rate, roll, pitch) * dt_kept
+                    yaw = self._turn_yaw
             else:  # tilt from the accelerometer, heading from the field with the calibration in force
                 a = np.asarray(sample.accel_m_s2, dtype=np.float64)
                 roll = math.atan2(-a[1], -a[2])
@@ -731,6 +742,7 @@ class FieldCalibration:
         self._step_two_from = 0
         self._last_corrected = np.zeros(3)
         self._last_yaw = 0.0
+        self._turn_yaw: float | None = None
         self._last_sample_wall: float | None = None
         self._last_hint_pct = -100
         self.rejected = 0
@@ -818,7 +830,7 @@ class FieldCalibration:
 
     def _request_fit(self, stage: str) -> None:
         self._fit_request = stage
-        if self.auto_fit:
+        if self.auto_fit or stage == "preliminary":  # the preliminary fit is a small linear solve: inline
             job = self.pending_fit()
             if job is not None:
                 self.fit_done(job())

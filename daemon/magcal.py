@@ -230,6 +230,13 @@ class MagCalProtocol:
             if job is not None:
                 self._fit_future = self._submit(job)
 
+    def _warm_worker(self) -> None:
+        """Start the fit worker (and its imports) while the operator is still turning."""
+        try:
+            self._submit(_warm_up)
+        except Exception as exc:  # noqa: BLE001 - the fit will start the worker later
+            log.debug("magcal: worker warm-up failed: %s", exc)
+
     def _submit(self, job) -> concurrent.futures.Future:
         """Run a fit in a worker process (a long fit in a thread would hold the GIL and starve the sensor
         reader); fall back to a thread where processes are not available."""
@@ -308,6 +315,7 @@ class MagCalProtocol:
         self.session = FieldCalibration(current, self.settings.field_config(retry, delay_s), reference,
                                         samples_are_calibrated=True, auto_fit=False)
         self.session.start()
+        self._warm_worker()
         self.autosave, self.saved = autosave, False
         self._mask_requested = mask or OUR_MASK
         self._next_progress = 0.0
@@ -433,6 +441,16 @@ class MagCalProtocol:
             self._fit_future = None
         self._release_worker()
         self.saved = False
+
+
+def _warm_up() -> None:
+    """Runs in the fit worker: import what the fits need."""
+    import ahrsd.calibration.magfit  # noqa: F401
+    try:
+        import ahrsd.calibration.backstepping  # noqa: F401
+        import ahrsd.calibration.ellipsoid  # noqa: F401
+    except ImportError:
+        pass
 
 
 @dataclass

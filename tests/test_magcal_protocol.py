@@ -84,6 +84,14 @@ def cmd(command, *params):
     return wire(mavlink.MAVLink_command_long_message(1, 200, command, 0, *p))
 
 
+def _body_rate(traj, i):
+    """Body rates of the heading turn alone (roll/pitch rates left out): R_bn · [0, 0, ψ̇]."""
+    psi_dot = (traj.yaw[min(i + 1, len(traj.t) - 1)] - traj.yaw[max(i - 1, 0)]) / (
+        traj.t[min(i + 1, len(traj.t) - 1)] - traj.t[max(i - 1, 0)])
+    r, p = traj.roll[i], traj.pitch[i]
+    return psi_dot * np.array([-np.sin(p), np.sin(r) * np.cos(p), np.cos(r) * np.cos(p)])
+
+
 def drive(proto, clock, traj, host, until=None, max_t=None):
     """Feed the trajectory as calibrated samples; tick at 10 Hz of sample time (clock follows sample time)."""
     next_tick = 0.0
@@ -95,7 +103,7 @@ def drive(proto, clock, traj, host, until=None, max_t=None):
         mag = host.cal.mag.apply(traj.raw[i])
         s = make_sample(t, np.zeros(3), traj.accel[i], mag)
         est = SimpleNamespace(roll_rad=traj.roll[i], pitch_rad=traj.pitch[i], yaw_rad=traj.yaw[i],
-                              rate_body_rad_s=np.zeros(3))
+                              rate_body_rad_s=_body_rate(traj, i))
         proto.on_sample(s, est)
         if t >= next_tick:
             next_tick = t + 0.1

@@ -1,0 +1,357 @@
+"""End to end: the daemon (Service + the mag-cal handler) in a subprocess on the simulated level-turns boat with
+the simulator's default vehicle iron, driven over UDP by pymavlink and by MAVProxy's `magcal` module.
+
+Speed: the simulated ADIS16405 chip is read in real time, and a session needs 1.5 turns of a 40 s turn
+(~60 s of simulated time). To stay inside the test budget the daemon here reads the same simulator
+(`open_stream("level-turns", seed=0)`: scenario, ADIS16405 error model, default vehicle iron) through the
+daemon's ReplaySource paced by a clock running TIME_SCALE times faster than real time; everything after the
+source (calibration, estimator, MAVLink, the mag-cal protocol, the store) is the daemon's own code.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.linalg import polar
+from scipy.spatial.transform import Rotation
+
+pytest.importorskip("ahrsd.daemon.service")
+
+from ahrsd.calibration.field import from_ardupilot, tilt_compensated_heading_rad  # noqa: E402
+from ahrsd.calibration.models import Calibration  # noqa: E402
+from ahrsd.calibration.store import CalibrationStore  # noqa: E402
+from ahrsd.daemon.mavlink_io import free_udp_port, mavlink, mavutil  # noqa: E402
+from ahrsd.simulation import open_stream  # noqa: E402
+
+TIME_SCALE = 8.0   # when the CPU cannot keep up the replay simply runs as fast as it can
+MAV_STATE_CALIBRATING = 2
+
+LAUNCH = r"""
+import asyncio, json, logging, sys, time
+logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+from ahrsd.daemon.config import Config, SigningConfig
+from ahrsd.daemon.pipeline import ReplaySource
+from ahrsd.daemon.service import Service
+from ahrsd.daemon.magcal import attach, settings_from_mapping
+from ahrsd.drivers.sample import make_sample, SampleFlags
+from ahrsd.simulation import open_stream
+import dataclasses
+a = json.loads(sys.argv[1])
+cfg = Config().with_overrides(sim=a["sim"], mavlink=[a["url"]], state_dir=a["state_dir"])
+if a.get("key_file"):
+    cfg = dataclasses.replace(cfg, signing=SigningConfig(key_file=a["key_file"]))
+scale = float(a["time_scale"])
+t0 = time.monotonic()
+def clock():
+    return t0 + scale * (time.monotonic() - t0)
+def samples():
+    stream = open_stream(a["sim"], seed=0)
+    k = 0
+    while True:
+        b = stream.next_block(410)
+        for i in range(len(b.t_s)):
+            yield make_sample(b.t_s[i], b.gyro_rad_s[i], b.accel_m_s2[i], b.mag_ut[i], temp_c=float(b.temp_c[i]),
+                              counter=k, flags=SampleFlags.NEW_DATA)
+            k += 1
+service = Service(cfg, source=ReplaySource(samples(), "simulator " + a["sim"], realtime=True, clock=clock))
+attach(service, settings_from_mapping(a.get("magcal")))
+sys.exit(asyncio.run(service.run()))
+"""
+
+
+class Daemon:
+    def __init__(self, state_dir: Path, port: int, magcal: dict | None = None, key_file: str | None = None,
+                 log_path: Path | None = None):
+        args = {"sim": "level-turns", "url": f"udpout:127.0.0.1:{port}", "state_dir": str(state_dir),
+                "time_scale": TIME_SCALE, "magcal": magcal or {}, "key_file": key_file}
+        self.log_path = log_path or state_dir.parent / f"daemon-{port}.log"
+        self.log = open(self.log_path, "a")
+        self.proc = subprocess.Popen([sys.executable, "-c", LAUNCH, json.dumps(args)], stderr=self.log,
+                                     stdout=subprocess.DEVNULL)
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self.log.close()
+
+    def text(self) -> str:
+        return self.log_path.read_text()
+
+
+class Client:
+    def __init__(self, port: int):
+        self.conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255, source_component=190)
+        self.msgs: list = []
+
+    def wait(self, pred, timeout: float):
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            m = self.conn.recv_match(blocking=True, timeout=0.2)
+            if m is None or m.get_type() == "BAD_DATA":
+                continue
+            self.msgs.append(m)
+            if pred(m):
+                return m
+        return None
+
+    def of(self, kind: str, since: int = 0) -> list:
+        return [m for m in self.msgs[since:] if m.get_type() == kind]
+
+    def command(self, command: int, *params: float, target=(1, 200), timeout: float = 3.0):
+        p = list(params) + [0.0] * (7 - len(params))
+        self.conn.mav.command_long_send(target[0], target[1], command, 0, *p)
+        return self.wait(lambda m: m.get_type() == "COMMAND_ACK" and m.command == command, timeout)
+
+    def autopilot_heartbeat(self, armed: bool) -> None:
+        mav = self.conn.mav
+        mav.srcSystem, mav.srcComponent = 1, 1
+        mav.heartbeat_send(mavlink.MAV_TYPE_SURFACE_BOAT, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                           mavlink.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0, 0, mavlink.MAV_STATE_STANDBY)
+        mav.srcSystem, mav.srcComponent = 255, 190
+
+    def mag_norm_spread_ut(self, seconds: float) -> tuple[float, float]:
+        """Mean and std of |calibrated mag| from HIGHRES_IMU (gauss) over `seconds`."""
+        start = len(self.msgs)
+        self.wait(lambda m: False, seconds)
+        norms = [100.0 * np.linalg.norm([m.xmag, m.ymag, m.zmag]) for m in self.of("HIGHRES_IMU", start)]
+        assert len(norms) > 5, f"no HIGHRES_IMU from the daemon: {collections.Counter(m.get_type() for m in self.msgs[start:])}"
+        return float(np.mean(norms)), float(np.std(norms))
+
+
+def truth_models():
+    e = open_stream("level-turns", seed=0).errors
+    return e.hard_iron_ut, np.linalg.inv(e.soft_iron)
+
+
+def heading_error_rms_deg(cal: Calibration, seconds: float = 80.0) -> float:
+    """Tilt-compensated heading from the calibrated simulator field vs the heading of the true (iron-free)
+    field, over a fresh stretch of level turns (another noise seed), truth roll/pitch."""
+    stream = open_stream("level-turns", seed=7, start_s=300.0)
+    b = stream.next_block(int(seconds * 819.2))
+    sl = slice(None, None, 41)   # 20 Hz is plenty
+    rpy = Rotation.from_quat(b.truth_q_wxyz[sl][:, [1, 2, 3, 0]]).as_euler("ZYX")
+    roll, pitch = rpy[:, 2], rpy[:, 1]
+    psi = tilt_compensated_heading_rad(cal.mag.apply(b.mag_ut[sl]), roll, pitch)
+    psi_true = tilt_compensated_heading_rad(b.truth_mag_ut[sl], roll, pitch)
+    err = np.angle(np.exp(1j * (psi - psi_true)))
+    return float(np.degrees(np.sqrt(np.mean(err**2))))
+
+
+@pytest.fixture
+def daemon_env(tmp_path):
+    port = free_udp_port()
+    state = tmp_path / "state"
+    daemons: list[Daemon] = []
+
+    def start(**kw) -> Daemon:
+        d = Daemon(state, port, **kw)
+        daemons.append(d)
+        return d
+
+    yield port, state, start
+    for d in daemons:
+        d.stop()
+
+
+def test_full_session_with_pymavlink(daemon_env):
+    port, state, start = daemon_env
+    daemon = start(magcal={"heading_slew_deg_s": 20.0})
+    c = Client(port)
+    hb = c.wait(lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 200, 20)
+    assert hb is not None, daemon.text()[-2000:]
+    c.wait(lambda m: m.get_type() == "HIGHRES_IMU", 10)
+    mean_before, spread_before = c.mag_norm_spread_ut(2.0)
+
+    # broadcast mag-cal commands are ignored by default (they would start the autopilot's calibration too)
+    assert c.command(42424, 0, 0, 0, 0, 0, target=(1, 0), timeout=1.5) is None
+    # refused while the autopilot reports armed
+    c.autopilot_heartbeat(armed=True)
+    time.sleep(0.3)
+    n = len(c.msgs)
+    ack = c.command(42424)
+    assert ack is not None and ack.result == mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+    c.wait(lambda m: m.get_type() == "STATUSTEXT" and "Disarm" in m.text, 2)
+    assert any("Disarm to allow compass calibration" in m.text for m in c.of("STATUSTEXT", n))
+    c.autopilot_heartbeat(armed=False)
+    time.sleep(0.3)
+    # start, a second start while running (no effect), cancel
+    assert c.command(42424).result == mavlink.MAV_RESULT_ACCEPTED
+    p1 = c.wait(lambda m: m.get_type() == "MAG_CAL_PROGRESS", 3)
+    assert p1 is not None and p1.cal_status in (1, 2)
+    c.wait(lambda m: False, 1.0)
+    assert c.command(42424, 0, 1, 1, 0).result == mavlink.MAV_RESULT_ACCEPTED
+    c.wait(lambda m: m.get_type() == "STATUSTEXT" and "already running" in m.text, 2)
+    assert c.command(42426).result == mavlink.MAV_RESULT_ACCEPTED
+    n = len(c.msgs)
+    c.wait(lambda m: False, 1.0)
+    assert not c.of("MAG_CAL_PROGRESS", n)
+
+    # the real session
+    t0 = time.monotonic()
+    assert c.command(42424, 0, 0, 0, 0, 0).result == mavlink.MAV_RESULT_ACCEPTED
+    c.wait(lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 200
+           and m.system_status == MAV_STATE_CALIBRATING, 3)
+    n = len(c.msgs)
+    report = c.wait(lambda m: m.get_type() == "MAG_CAL_REPORT", 60)
+    assert report is not None, daemon.text()[-3000:]
+    wall = time.monotonic() - t0
+    # HIGHRES_IMU.time_usec carries the sample time here (ReplaySource: no phase lock), i.e. simulated time
+    imu = c.of("HIGHRES_IMU", n)
+    sim_s = (imu[-1].time_usec - imu[0].time_usec) * 1e-6
+    pcts = [m.completion_pct for m in c.of("MAG_CAL_PROGRESS", n)]
+    assert pcts == sorted(pcts) and max(pcts) >= 95
+    assert report.cal_status == 4, [m.text for m in c.of("STATUSTEXT")]
+    assert report.autosaved == 0 and 0 < report.fitness < 16
+    fitted = from_ardupilot([report.ofs_x, report.ofs_y, report.ofs_z], [report.diag_x, report.diag_y, report.diag_z],
+                            [report.offdiag_x, report.offdiag_y, report.offdiag_z], report.scale_factor)
+    hard_true, soft_true = truth_models()
+    _, sym_true = polar(soft_true, side="right")
+    print(f"\nsession: {sim_s:.0f} s of simulated turning ({wall:.1f} s wall), fitness {report.fitness:.2f} mG")
+    print(f"  hard iron fitted {np.round(fitted.hard_iron_ut, 2)} uT, injected {np.round(hard_true, 2)} uT")
+    print(f"  soft iron (symmetric part) fitted {np.round(fitted.soft_iron, 3).tolist()}")
+    print(f"                           true   {np.round(sym_true, 3).tolist()}")
+    assert sim_s < 120.0                                # within two minutes of simulated turning
+    assert np.linalg.norm(fitted.hard_iron_ut - hard_true) < 1.0
+    assert np.allclose(fitted.soft_iron, sym_true, atol=0.03)
+
+    # accept: saved atomically, applied without restart
+    assert c.command(42425).result == mavlink.MAV_RESULT_ACCEPTED
+    c.wait(lambda m: m.get_type() == "STATUSTEXT" and "saved" in m.text, 3)
+    saved = CalibrationStore(state).load()
+    assert np.allclose(saved.mag.hard_iron_ut, fitted.hard_iron_ut, atol=1e-3)
+    c.wait(lambda m: False, 3.0)   # the blend (heading slewed at 20°/s in this test) completes
+    mean_after, spread_after = c.mag_norm_spread_ut(2.0)
+    before = heading_error_rms_deg(Calibration.identity())
+    after = heading_error_rms_deg(saved)
+    print(f"  |mag| {mean_before:.1f}±{spread_before:.1f} uT before, {mean_after:.1f}±{spread_after:.2f} uT after")
+    print(f"  heading error RMS before {before:.2f} deg, after {after:.2f} deg")
+    assert spread_after < spread_before / 5
+    assert after < 1.5 and after < before / 10
+    daemon.stop()
+    assert "magnetometer calibration changed" in daemon.text() and "before:" in daemon.text()
+
+    # restart: the new calibration is in force
+    daemon2 = start()
+    c.wait(lambda m: m.get_type() == "HIGHRES_IMU", 20)
+    mean_restart, spread_restart = c.mag_norm_spread_ut(2.0)
+    assert spread_restart < spread_before / 5 and abs(mean_restart - mean_after) < 1.0, daemon2.text()[-2000:]
+
+
+def test_session_driven_by_mavproxy(daemon_env, tmp_path):
+    mavproxy = shutil.which("mavproxy.py", path=os.path.dirname(sys.executable)) or shutil.which("mavproxy.py")
+    if mavproxy is None:
+        pytest.skip("MAVProxy (mavproxy.py) is not installed")
+    port, state, start = daemon_env
+    daemon = start(magcal={"accept_broadcast": True, "heading_slew_deg_s": 20.0})
+    # --target-system: with no autopilot on the link MAVProxy has no target system and would not hand our
+    # messages to its modules (with an autopilot it targets the autopilot's system, which ahrsd latches).
+    mp = subprocess.Popen([sys.executable, mavproxy, f"--master=udpin:127.0.0.1:{port}", "--nowait",
+                           "--target-system=1", "--target-component=200",
+                           "--default-modules=calibration", f"--state-basedir={tmp_path / 'mavproxy'}"],
+                          stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                          bufsize=1)
+    lines: list[str] = []
+    threading.Thread(target=lambda: lines.extend(line.rstrip() for line in mp.stdout), daemon=True).start()
+    try:
+        end = time.monotonic() + 30
+        while time.monotonic() < end and not any("Detected vehicle" in x for x in lines):
+            time.sleep(0.2)
+        assert any("Detected vehicle 1:200" in x for x in lines), lines[-20:]
+        mp.stdin.write("magcal start\n")   # MAVProxy: target_component 0, autosave 1; accepts on the report
+        mp.stdin.flush()
+        end = time.monotonic() + 60
+        while time.monotonic() < end and not any("Calibration of compass" in x for x in lines):
+            time.sleep(0.3)
+        time.sleep(1.0)
+    finally:
+        mp.kill()
+        mp.wait()
+    out = "\n".join(lines)
+    assert "DO_START_MAG_CAL: ACCEPTED" in out, out[-3000:]
+    assert "Calibration of compass 0 SUCCESS" in out, out[-3000:] + daemon.text()[-3000:]
+    assert "Mag cal saved" in out
+    saved = CalibrationStore(state).load()
+    hard_true, _ = truth_models()
+    assert np.linalg.norm(saved.mag.hard_iron_ut - hard_true) < 1.0
+    assert saved.metadata["mag"]["method"] == "field:backstepping"
+
+
+def test_unsigned_calibration_commands_refused_when_signing_configured(daemon_env, tmp_path):
+    port, state, start = daemon_env
+    key = bytes(range(32))
+    key_file = tmp_path / "signing.key"
+    key_file.write_bytes(key)
+    start(key_file=str(key_file))
+    c = Client(port)
+    assert c.wait(lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 200, 20) is not None
+    ack = c.command(42424)
+    assert ack is not None and ack.result == mavlink.MAV_RESULT_DENIED
+    n = len(c.msgs)
+    c.wait(lambda m: False, 1.0)
+    assert not c.of("MAG_CAL_PROGRESS", n)
+    c.conn.setup_signing(key, sign_outgoing=True)
+    ack = c.command(42424)
+    assert ack is not None and ack.result == mavlink.MAV_RESULT_ACCEPTED
+    assert c.wait(lambda m: m.get_type() == "MAG_CAL_PROGRESS", 3) is not None
+
+
+POWER_LOSS = r"""
+import os, signal, sys
+import numpy as np
+from types import SimpleNamespace
+sys.path.insert(0, sys.argv[2])
+from test_field_session import level_turns
+from test_magcal_protocol import FakeHost, Clock, cmd, drive
+from ahrsd.daemon.magcal import MagCalProtocol, MagCalSettings
+import ahrsd.calibration.store as store
+
+host = FakeHost(sys.argv[1])
+clock = Clock()
+proto = MagCalProtocol(host, MagCalSettings(vehicle_type="level"), clock=clock)
+proto.handle_start(cmd(42424))
+drive(proto, clock, level_turns(), host, until=lambda: proto.session.status == 4)
+real_replace = os.replace
+def replace(src, dst):
+    if str(dst).endswith(store.CURRENT_NAME):
+        print("killed between write and rename", flush=True)
+        os.kill(os.getpid(), signal.SIGKILL)   # power loss: the new file is written and fsynced, not renamed
+    return real_replace(src, dst)
+os.replace = replace
+proto.handle_accept(cmd(42425))
+print("not reached")
+"""
+
+
+def test_power_loss_during_save_keeps_previous_calibration(tmp_path):
+    from ahrsd.calibration.models import MagModel
+
+    state = tmp_path / "state"
+    old = Calibration.identity().with_sensor("mag", MagModel(np.array([1.0, 2.0, 3.0]), np.eye(3)), method="bench")
+    CalibrationStore(state).save(old)
+    out_path = tmp_path / "power-loss.out"
+    with open(out_path, "w") as out:
+        r = subprocess.run([sys.executable, "-c", POWER_LOSS, str(state), str(Path(__file__).parent)],
+                           stdout=out, stderr=subprocess.STDOUT, timeout=60)
+    text = out_path.read_text()
+    assert r.returncode == -signal.SIGKILL, text
+    assert "killed between write and rename" in text
+    store = CalibrationStore(state)
+    loaded = store.load()
+    assert np.array_equal(loaded.mag.hard_iron_ut, old.mag.hard_iron_ut)   # the previous calibration is intact
+    assert store.last_load.source == "current" and not store.last_load.problems
