@@ -110,4 +110,7 @@ def fit_ellipsoid(data: MagFitInput, reference=None, *, field_ut: float | None =
         if quality["raw_coverage"] < checks.get("min_coverage", MIN_COVERAGE):
             reason += f"; orientation coverage only {quality['raw_coverage']:.0%}: turn the sensor through more attitudes"
         return refuse(METHOD, reason, **quality)
-    return assess(METHOD, model, mag, h0, quality, params="sym", **checks)
+    def refit(m: np.ndarray) -> MagModel:
+        return refine(m, h0, algebraic_fit(m, h0))[0]
+
+    return assess(METHOD, model, mag, h0, quality, params="sym", refit=refit, **checks)

@@ -132,7 +132,13 @@ def fit_three_step(data: MagFitInput, reference=None, *, field_ut: float | None 
     except ValueError as exc:
         return refuse(METHOD, f"non-physical solution ({exc})", **quality)
     quality.update(scale_k=k.tolist(), alpha_rad={key: float(v) for key, v in p.alpha.items()})
-    result = assess(METHOD, model, mag, h0, quality, params="upper", **checks)
+    def refit(m: np.ndarray) -> MagModel:
+        c = m.mean(axis=0)
+        sc = float(np.mean(np.linalg.norm(m - c, axis=1))) or 1.0
+        q = solve((m - c) / sc, 1.0)
+        return MagModel.from_thesis(c + sc * q.b, q.k * sc / h0, q.alpha)
+
+    result = assess(METHOD, model, mag, h0, quality, params="upper", refit=refit, **checks)
     if alignment is None or not result.ok:
         return result
     # The rotation does not change any magnitude, so the checks above hold for the aligned model too.

@@ -47,33 +47,41 @@ def inverse_mapping(s: np.ndarray, field_ut: float) -> tuple[np.ndarray, np.ndar
     return np.array([bx, by, bz]), np.array([kx, np.sqrt(kx2 / s2), np.sqrt(kx2 / s4)])
 
 
+def _centred(mag: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """Centre and scale the data before the regression: the algebra is invariant to a shift of origin and a
+    common scale, and the normal equations stay well conditioned (raw µT² terms reach 10⁴)."""
+    centre = mag.mean(axis=0)
+    scale = float(np.mean(np.linalg.norm(mag - centre, axis=1))) or 1.0
+    return centre, scale, (mag - centre) / scale
+
+
+def solve_model(mag: np.ndarray, field_ut: float) -> MagModel:
+    """Steps 1 and 2 on `mag` (n, 3) → MagModel. Raises ValueError when the data are not an ellipsoid."""
+    centre, scale, u = _centred(mag)
+    z, h = regressors(u)
+    s, *_ = np.linalg.lstsq(h, z, rcond=None)
+    b_u, k_u = inverse_mapping(s, 1.0)
+    return MagModel.from_thesis(centre + scale * b_u, k_u * scale / field_ut)
+
+
 def fit_two_step(data: MagFitInput, reference=None, *, field_ut: float | None = None, min_samples: int = 30,
                  max_condition: float = 1e7, **checks) -> MagFitResult:
     """Two-step fit of `data.mag_ut`. `reference` (EarthField) or `field_ut` give H0; `checks` go to
-    `mag_quality.assess` (min_coverage, max_sigma_hard_ut, max_sigma_soft)."""
+    `magfit.assess` (min_coverage, max_sigma_hard_ut, max_sigma_soft, ...)."""
     prep = prepare(data, reference, field_ut, min_samples, METHOD)
     if isinstance(prep, MagFitResult):
         return prep
     mag, h0, quality = prep
-    # Centre and scale the data before the regression: the algebra is invariant to a shift of origin
-    # and a common scale, and the normal equations stay well conditioned (raw µT² terms reach 10⁴).
-    centre = mag.mean(axis=0)
-    scale = float(np.mean(np.linalg.norm(mag - centre, axis=1))) or 1.0
-    u = (mag - centre) / scale
-    z, h = regressors(u)
-    col = np.linalg.norm(h, axis=0)
-    cond = float(np.linalg.cond(h / col))
+    _, _, u = _centred(mag)
+    _, h = regressors(u)
+    cond = float(np.linalg.cond(h / np.linalg.norm(h, axis=0)))
     quality["condition_number"] = cond
     if not np.isfinite(cond) or cond > max_condition:
         return refuse(METHOD, f"the regression is ill-conditioned (condition number {cond:.3g} > {max_condition:.3g}): "
                       "the turns do not move every axis through the field; rotate about all three axes", **quality)
-    s, *_ = np.linalg.lstsq(h, z, rcond=None)
     try:
-        b_u, k_u = inverse_mapping(s, 1.0)
+        model = solve_model(mag, h0)
     except ValueError as exc:
         return refuse(METHOD, f"the data do not describe an ellipsoid ({exc})", **quality)
-    b = centre + scale * b_u
-    k = k_u * scale / h0
-    model = MagModel.from_thesis(b, k)
-    quality["scale_k"] = k.tolist()
-    return assess(METHOD, model, mag, h0, quality, params="diag", **checks)
+    quality["scale_k"] = (1.0 / np.diag(model.soft_iron)).tolist()
+    return assess(METHOD, model, mag, h0, quality, params="diag", refit=lambda m: solve_model(m, h0), **checks)

@@ -174,6 +174,8 @@ MAX_RESIDUAL_UT = 1.6         # RMS | |m| − H0 | limit: ArduPilot COMPASS_CAL_
 MAX_SIGMA_HARD_UT = 0.5       # 1σ of each hard-iron component (5 mgauss): beyond it the data cannot fix it
 MAX_SIGMA_SOFT = 0.01         # 1σ of each soft-iron entry (1 %)
 SOFT_IRON_GAIN_RANGE = (0.25, 4.0)  # singular values of soft_iron outside this are not a vehicle's iron
+MAX_SPLIT_HARD_UT = 1.0       # first vs second half of the recording: hard iron may differ by this (10 mgauss)
+MAX_SPLIT_SOFT = 0.02         # ... and SᵀS by this (2 %): more means the magnetic environment changed
 
 
 def prepare(data: MagFitInput, reference, field_ut: float | None, min_samples: int, method: str):
@@ -230,8 +232,15 @@ def parameter_sigmas(model: MagModel, mag_ut: np.ndarray, field_ut: float, param
 
 def assess(method: str, model: MagModel, mag_ut: np.ndarray, field_ut: float, quality: dict, *, params: str,
            min_coverage: float = MIN_COVERAGE, max_residual_ut: float = MAX_RESIDUAL_UT,
-           max_sigma_hard_ut: float = MAX_SIGMA_HARD_UT, max_sigma_soft: float = MAX_SIGMA_SOFT) -> MagFitResult:
-    """Residuals and acceptance checks common to the magnitude-based fits; a refused result if one fails."""
+           max_sigma_hard_ut: float = MAX_SIGMA_HARD_UT, max_sigma_soft: float = MAX_SIGMA_SOFT,
+           refit: Callable[[np.ndarray], MagModel] | None = None, max_split_hard_ut: float = MAX_SPLIT_HARD_UT,
+           max_split_soft: float = MAX_SPLIT_SOFT) -> MagFitResult:
+    """Residuals and acceptance checks common to the magnitude-based fits; a refused result if one fails.
+
+    With `refit` (the method's fit on a subset of rows, returning a MagModel or raising ValueError), the
+    first and second halves of the recording are fitted separately when each covers the sphere well
+    enough: if they disagree, the field changed during the recording (a magnet, a ferrous object moved, a
+    current switched) — a disturbance the whole-record fit can partly absorb into its parameters."""
     resid = magnitude_residuals(model, mag_ut, field_ut)
     rms = float(np.sqrt(np.mean(resid**2)))
     cal = model.apply(mag_ut)
@@ -260,10 +269,40 @@ def assess(method: str, model: MagModel, mag_ut: np.ndarray, field_ut: float, qu
     lo, hi = SOFT_IRON_GAIN_RANGE
     if gains.min() < lo or gains.max() > hi:
         reasons.append(f"soft-iron gains {gains.min():.2f}…{gains.max():.2f} outside {lo}…{hi}: not physical")
+    if refit is not None and not reasons:
+        split = _split_halves(model, mag_ut, cal, refit, min_coverage)
+        quality["split_halves"] = split
+        if split.get("hard_iron_diff_ut", 0.0) > max_split_hard_ut or split.get("soft_iron_diff", 0.0) > max_split_soft:
+            reasons.append(
+                f"the first and second halves of the recording give different calibrations (hard iron "
+                f"{split['hard_iron_diff_ut']:.2f} µT apart, soft iron {split['soft_iron_diff']:.3f}): the magnetic "
+                "environment changed during the recording (a magnet or a ferrous object moved, a current switched)")
     if reasons:
         quality["rejected_model"] = model.to_dict()
         return MagFitResult(MagModel.identity(), rms, method, quality, "; ".join(reasons))
     return MagFitResult(model, rms, method, quality, None)
+
+
+def _split_halves(model: MagModel, mag_ut: np.ndarray, cal: np.ndarray, refit, min_coverage: float) -> dict:
+    """Fit each half of the recording (in time) and compare with each other."""
+    half = mag_ut.shape[0] // 2
+    parts = (slice(0, half), slice(half, None))
+    cover = [direction_coverage(cal[p]) for p in parts]
+    if min(cover) < min_coverage or half < MIN_SAMPLES:
+        return {"checked": False, "why": f"a half covers too little ({min(cover):.0%}) or has too few samples"}
+    models = []
+    for p in parts:
+        try:
+            models.append(refit(mag_ut[p]))
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            return {"checked": False, "why": f"a half could not be fitted ({exc})"}
+    a, b = models
+    gram_a, gram_b = a.soft_iron.T @ a.soft_iron, b.soft_iron.T @ b.soft_iron
+    return {
+        "checked": True,
+        "hard_iron_diff_ut": float(np.max(np.abs(a.hard_iron_ut - b.hard_iron_ut))),
+        "soft_iron_diff": float(np.max(np.abs(gram_a - gram_b))),
+    }
 
 
 # ---------------------------------------------------------------------------------------------- dispatch

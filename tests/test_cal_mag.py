@@ -219,9 +219,9 @@ def test_too_few_and_non_finite_samples():
 def test_disturbed_data_are_refused_for_large_residuals():
     block = tumble(errors_with([5, 5, 5], np.eye(3)), seconds=90)
     mag = block.mag_ut.copy()
-    mag[: len(mag) // 3] += np.array([80.0, 0.0, 0.0])  # a magnet close by for a third of the run
+    mag[: len(mag) // 3] += np.array([5.0, 0.0, 0.0])  # a magnet close by for a third of the run
     res = fit_mag("ellipsoid", MagFitInput(block.t_s, mag), REF)
-    assert not res.ok and "residual" in res.refused
+    assert not res.ok and "halves of the recording give different calibrations" in res.refused
 
 
 def test_without_reference_the_scale_follows_the_mean_radius():
