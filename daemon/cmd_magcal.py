@@ -92,6 +92,7 @@ class MagCalClient:
         self.out = out
         self.sys = self.comp = None
         self._bar_shown = False
+        self._chunks: dict[int, dict[int, str]] = {}
 
     # ------------------------------------------------------------------ plumbing
     def find_target(self, target: str | None) -> bool:
@@ -166,9 +167,23 @@ class MagCalClient:
     def _show(self, m) -> None:
         kind = m.get_type()
         if kind == "STATUSTEXT":
-            self._print(f"[ahrsd] {m.text}")
+            text = self._statustext(m)
+            if text is not None:
+                self._print(f"[ahrsd] {text}")
         elif kind == "MAG_CAL_PROGRESS":
             self._bar(m)
+
+    def _statustext(self, m) -> str | None:
+        """The whole text of a STATUSTEXT, reassembling MAVLink 2 chunks (id != 0); None until complete."""
+        chunk_id = getattr(m, "id", 0)
+        if not chunk_id:
+            return m.text
+        parts = self._chunks.setdefault(chunk_id, {})
+        parts[getattr(m, "chunk_seq", 0)] = m.text
+        if len(m.text.encode("utf-8", "replace")) < 50:   # the last chunk is shorter than the field
+            del self._chunks[chunk_id]
+            return "".join(parts[k] for k in sorted(parts))
+        return None
 
     def _bar(self, m) -> None:
         width = 30
