@@ -163,6 +163,27 @@ def test_non_numeric_row(capsys, tmp_path):
     assert code == 1 and "line 3" in err and "gyro_z_rad_s" in err
 
 
+def test_rows_short_by_one_field_throughout(capsys, tmp_path):
+    # Ten rows of nine fields hold 90 numbers, which would reshape into nine rows of ten: must be refused.
+    bad = tmp_path / "short10.csv"
+    bad.write_text(RECORDING_HEADER + "\n" + "".join(f"{i * 0.01},0,0,0,0,0,-9.8,20,0\n" for i in range(10)))
+    code, err = run_main(capsys, bad, "-o", tmp_path / "o.csv")
+    assert code == 1 and "line" in err and not (tmp_path / "o.csv").exists()
+
+
+def test_comments_and_flags_column(tmp_path):
+    rec = tmp_path / "flags.csv"
+    rows = [f"{i * 0.01},0,0,0,0,0,-9.8,20,0,40,{1 if i != 5 else 1 | 512}" for i in range(20)]  # 512 MAG_INVALID
+    rows.insert(3, "# a comment line")
+    rec.write_text(RECORDING_HEADER + ",flags\n" + "\n".join(rows) + "\n")
+    out = tmp_path / "o.csv"
+    assert cli.main(["replay", str(rec), "-e", "thesis", "-o", str(out), "-q"]) == 0
+    _, table = read_output(out)
+    assert len(table) == 20
+    flags = table[:, -1].astype(int)
+    assert flags[5] & 2 and not flags[6] & 2          # MAG_REJECTED exactly on the flagged sample
+
+
 def test_short_row_and_empty_recording(capsys, tmp_path):
     bad = tmp_path / "short.csv"
     bad.write_text(RECORDING_HEADER + "\n0,0,0,0,0,0,-9.8,20,0\n")
