@@ -184,6 +184,14 @@ def test_comments_and_flags_column(tmp_path):
     assert flags[5] & 2 and not flags[6] & 2          # MAG_REJECTED exactly on the flagged sample
 
 
+def test_non_finite_time(capsys, tmp_path):
+    bad = tmp_path / "nan_t.csv"
+    bad.write_text(RECORDING_HEADER + "\n0,0,0,0,0,0,-9.8,20,0,40\nnan,0,0,0,0,0,-9.8,20,0,40\n")
+    code, err = run_main(capsys, bad, "-o", tmp_path / "o.csv")
+    assert code == 1 and "t_s is not a finite number" in err and not (tmp_path / "o.csv").exists()
+    assert not list(tmp_path.glob(".o.csv.*"))        # the temporary output was removed
+
+
 def test_short_row_and_empty_recording(capsys, tmp_path):
     bad = tmp_path / "short.csv"
     bad.write_text(RECORDING_HEADER + "\n0,0,0,0,0,0,-9.8,20,0\n")
