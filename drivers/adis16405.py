@@ -141,6 +141,7 @@ class Adis16405:
         self._prev_raw9 = [None] * 9
         self._runs = [0] * 9
         self._stuck = [False] * 9
+        self._any_stuck = False
 
     # ---------------------------------------------------------------------------------- bus primitives
     def _xfer(self, tx: bytes, speed_hz: int, delay_us: int = R.STALL_US) -> bytes:
@@ -439,6 +440,11 @@ class Adis16405:
         return fixed, flags | _GYRO_INVALID
 
     def _check_stuck(self, raw9: list[int]) -> int:
+        """Flag an axis frozen for the stuck window while another axis of the same sensor moves.
+
+        A sensor whose three axes are all constant (an ideal simulation, a unit at rest with heavy averaging)
+        is not called stuck: only the disagreement between sibling axes is evidence of a fault.
+        """
         prev, runs = self._prev_raw9, self._runs
         for i in range(9):
             if raw9[i] == prev[i]:
@@ -446,21 +452,27 @@ class Adis16405:
             else:
                 runs[i] = 0
                 prev[i] = raw9[i]
-        if max(runs) < self._stuck_window:
-            if any(self._stuck):
-                self._stuck = [False] * 9
-            return 0
         window = self._stuck_window
-        for s in range(3):
-            r = runs[3 * s:3 * s + 3]
-            moving = min(r) < window
-            for i in range(3):
-                frozen = r[i] >= window and moving
-                if frozen and not self._stuck[3 * s + i]:
+        if max(runs) < window:
+            if self._any_stuck:
+                self._stuck = [False] * 9
+                self._any_stuck = False
+            return 0
+        stuck = self._stuck
+        for s in (0, 3, 6):
+            r0, r1, r2 = runs[s], runs[s + 1], runs[s + 2]
+            if r0 < window and r1 < window and r2 < window:
+                stuck[s] = stuck[s + 1] = stuck[s + 2] = False
+                continue
+            moving = r0 < window or r1 < window or r2 < window
+            for i, r in ((s, r0), (s + 1, r1), (s + 2, r2)):
+                frozen = moving and r >= window
+                if frozen and not stuck[i]:
                     self.counters["stuck_axis"] += 1
-                    log.warning("axis %d stuck at %d LSB for %d samples", 3 * s + i, raw9[3 * s + i], r[i])
-                self._stuck[3 * s + i] = frozen
-        return self._stuck_flags()
+                    log.warning("axis %d stuck at %d LSB for %d samples", i, raw9[i], r)
+                stuck[i] = frozen
+        self._any_stuck = any(stuck)
+        return self._stuck_flags() if self._any_stuck else 0
 
     def _stuck_flags(self) -> int:
         st = self._stuck
