@@ -235,10 +235,10 @@ def parameter_uncertainty(jacobian: np.ndarray, names: list[str], limits: dict[s
     # variance of each (scaled) parameter = Σ_i v_ik²/s_i²; a direction with a numerically zero singular value
     # (below 1e-8 of the largest: more than 10⁸ times weaker) means the parameter is not determined at all
     tiny = sv <= 1e-8 * sv[0]
-    with np.errstate(divide="ignore"):
-        inv_s2 = np.where(tiny, np.inf, 1.0 / np.where(tiny, 1.0, sv) ** 2)
+    inv_s2 = 1.0 / np.where(tiny, 1.0, sv) ** 2
     w = vt**2
-    var = np.array([np.sum(np.where(w[:, k] > 1e-12, w[:, k] * inv_s2, 0.0)) for k in range(j.shape[1])])
+    var = np.where(tiny, 0.0, inv_s2) @ w
+    var[np.any(tiny[:, None] & (w > 1e-12), axis=0)] = np.inf
     std = np.sqrt(var) / scale * residual_scale
     out_std = {n: float(s) for n, s in zip(names, std)}
     bad = []
