@@ -1075,7 +1075,7 @@ def plot_backstepping(result: MagFitResult, data: MagFitInput, path, *, roll_rad
     if roll_rad is None:
         if d.accel_m_s2 is None:
             raise BacksteppingError("plot needs roll/pitch or accelerometer samples")
-        roll_rad, pitch_rad = roll_pitch_from_accel(lowpass(d.accel_m_s2, d.t_s, 1.0))
+        roll_rad, pitch_rad = roll_pitch_from_accel(lowpass(d.accel_m_s2, d.t_s, 0.2))
     else:
         roll_rad, pitch_rad = np.asarray(roll_rad)[ok], np.asarray(pitch_rad)[ok]
     raw = d.mag_ut - np.median(d.mag_ut, axis=0)
