@@ -32,6 +32,7 @@ G_M_S2 = 9.80665
 # (full tumble ≈ 95 % of 80 cells, ±30° tilt ≈ 39 %, ±10° ≈ 22 %) and the failure of the attitude-independent
 # fits below ±30° tilt measured there.
 MIN_SAMPLES = 50
+MIN_SPREAD_UT = 5.0                 # without a reference: a still sensor spreads ~1 µT (noise), a quarter turn ≥ 20 µT
 MIN_HEADING_COVERAGE = 0.75         # 27 of 36 bins: "turned through (nearly) a full circle"
 MIN_SPHERE_COVERAGE_ELLIPSOID = 0.35
 MIN_TILT_ELLIPSOID_DEG = 30.0       # below this the LS ellipsoid's z terms are a guess (anchor §4.1)
@@ -317,6 +318,13 @@ def assess_support(mag_ut: np.ndarray, accel_m_s2: np.ndarray | None = None, mod
         if ok.all():
             roll_rad, pitch_rad = roll_pitch_from_accel(a)
     tilt = tilt_statistics(roll_rad, pitch_rad) if roll_rad is not None else None
+    spread = float(np.max(np.ptp(m, axis=0)))
+    min_spread = 0.5 * horizontal_ut if horizontal_ut else MIN_SPREAD_UT
+    if spread < min_spread:
+        # a still (or one-heading) recording: the "directions" would only be noise around a meaningless centre
+        return DataSupport(model, n, 0.0, 0.0, tilt, refused=(
+            f"the field changed by only {spread:.1f} µT over the recording: the vehicle did not turn (one heading); turn it "
+            f"through a full circle (at least {MIN_HEADING_COVERAGE * 360:.0f}°)"))
     cov = float(sphere_cells_hit(m, centre_ut).mean())
     hcov = heading_coverage(m, roll_rad, pitch_rad, horizontal_ut=horizontal_ut)
     tilt_max = tilt["tilt_max_deg"] if tilt else None

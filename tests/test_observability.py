@@ -117,6 +117,10 @@ def test_support_refusals_and_acceptances():
     assert one.refused and "full circle" in one.refused
     assert "roll and pitch" in ob.assess_support(mag, None, "vertical").refused
     assert "samples" in ob.assess_support(mag[:10], acc[:10], "vertical").refused
+    still = mag[:1] + np.random.default_rng(3).normal(0, 0.125, (500, 3))      # a still sensor: noise only
+    for model in ("vertical", "ellipsoid", "sphere"):
+        r = ob.assess_support(still, np.repeat(acc[:1], 500, axis=0), model)
+        assert r.refused and "did not turn" in r.refused
     lvl = ob.assess_support(*_data(0.2)[:2], "vertical")
     assert lvl.refused is None and lvl.undetermined and lvl.warnings
     q = lvl.as_quality()
