@@ -285,6 +285,16 @@ def run_methods(data, truth, *, with_reference=False, seed=0):
         r2 = bs.fit_backstepping(d2, field, attitude="accel")
         out["backstepping+GNSS"] = (r2.model if r2.ok else None, time.perf_counter() - t0,
                                     {"refused": r2.refused, "q": r2.quality})
+        # known headings: a classical swing, the vehicle passing the 8 cardinal/intercardinal headings with a
+        # 0.5° reference (compass-swing table), only the samples within ±2° of them
+        true_heading = np.degrees(truth["yaw"]) % 360.0
+        near = np.min(np.abs(swing.wrap180(true_heading[:, None] - np.arange(0, 360, 45.0)[None, :])), axis=1) < 2.0
+        known = np.where(near, true_heading + rng.normal(0, 0.5, true_heading.size), np.nan)
+        d3 = MagFitInput(data.t_s, data.mag_ut, data.accel_m_s2, None, known)
+        t0 = time.perf_counter()
+        r3 = bs.fit_backstepping(d3, field, attitude="accel")
+        out["backstepping+8 known headings"] = (r3.model if r3.ok else None, time.perf_counter() - t0,
+                                                {"refused": r3.refused, "q": r3.quality})
     return out
 
 

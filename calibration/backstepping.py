@@ -829,6 +829,9 @@ def fit_backstepping(data: MagFitInput, reference=None, *, model: str = "general
                 unwrapped = np.degrees(np.unwrap(np.radians(href[ok])))
                 tq = full.t_s + heading_ref_delay_s
                 inside = (tq >= full.t_s[ok][0]) & (tq <= full.t_s[ok][-1])
+                # only between two valid reference samples: never bridge a gap in the reference
+                idx = np.clip(np.searchsorted(full.t_s, tq), 1, len(full) - 1)
+                inside &= ok[idx] & ok[idx - 1]
                 shifted[inside] = np.interp(tq[inside], full.t_s[ok], unwrapped) % 360.0
         href_c, href_s = np.cos(np.radians(shifted)), np.sin(np.radians(shifted))
     leg_f = None if legs_in is None else legs_in.astype(np.float64)
