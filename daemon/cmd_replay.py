@@ -240,9 +240,12 @@ class _Output:
             directory = os.path.dirname(os.path.abspath(path))
             fd, self._tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".part", dir=directory)
             self._file = os.fdopen(fd, "w", encoding="utf-8", newline="\n")
-        self._file.write(OUTPUT_HEADER + "\n")
+        self._header_written = False
 
     def write(self, table) -> None:
+        if not self._header_written:   # not before the first rows: a bad recording prints nothing to stdout
+            self._file.write(OUTPUT_HEADER + "\n")
+            self._header_written = True
         self._file.write(format_rows(table))
 
     def commit(self) -> None:
