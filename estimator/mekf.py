@@ -122,8 +122,10 @@ class MekfParams:
     """Rest is declared after the conditions held this long (VQF restMinT), s."""
     rest_filter_tau_s: float = 0.5
     """Low-pass time constant of the rest detector (VQF restFilterTau), s."""
-    rest_bias_noise_rad_s: float = 0.03 * _DEG
-    """Noise of the low-passed gyro as a bias measurement at rest (VQF biasSigmaRest), rad/s."""
+    rest_gyro_noise_floor_rad_s_sqrt_hz: float = 2e-5
+    """At rest every gyro sample measures the bias, with the noise variance measured from the spread of the
+    samples around their low-pass (so a rest of T s gives σ_bias ≈ noise density/√T for any gyro); this is
+    the floor of that density, rad/s/√Hz (the BROAD IMU has 1e-4, the ADIS16405 5.8e-4)."""
 
     # --- start-up and time gaps
     init_sigma_tilt_rad: float = 5.0 * _DEG
@@ -168,7 +170,7 @@ class MekfParams:
         p[core.P_REST_ACC_TH] = self.rest_acc_th_m_s2
         p[core.P_REST_MIN_T] = self.rest_min_time_s
         p[core.P_REST_TAU] = self.rest_filter_tau_s
-        p[core.P_REST_BIAS_NOISE] = self.rest_bias_noise_rad_s
+        p[core.P_REST_BIAS_NOISE] = self.rest_gyro_noise_floor_rad_s_sqrt_hz
         p[core.P_LARGE_DT] = self.large_dt_s
         p[core.P_REINIT_DT] = self.reinit_dt_s
         p[core.P_INIT_TIME] = self.init_min_time_s

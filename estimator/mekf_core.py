@@ -74,7 +74,7 @@ P_REST_GYRO_TH = 20     # rest: gyro deviation from its low-pass below this, rad
 P_REST_ACC_TH = 21      # rest: acc deviation from its low-pass below this, m/s²
 P_REST_MIN_T = 22       # rest declared after the conditions held this long, s
 P_REST_TAU = 23         # low-pass time constant for rest detection, s
-P_REST_BIAS_NOISE = 24  # noise of the low-passed gyro as a bias measurement at rest, rad/s
+P_REST_BIAS_NOISE = 24  # floor of the gyro noise density used for bias measurements at rest, rad/s/√Hz
 P_LARGE_DT = 25         # Δt above this (or ≤ 0) is flagged LARGE_DT, s
 P_REINIT_DT = 26        # Δt above this re-initialises the filter, s
 P_INIT_TIME = 27        # INITIALISING is held at least this long, s
@@ -96,6 +96,10 @@ F_AT_REST = 8
 F_MAG_UNAVAILABLE = 16
 F_LARGE_DT = 32
 F_REINITIALISED = 64
+# error-state component masks for _scalar_update's zero_mask
+M_TILT = 1 | 2
+M_HEADING = 4
+M_BIAS = 8 | 16 | 32
 # step result: the caller must (re-)initialise from this sample (the step changed nothing)
 NEEDS_INIT = 1 << 16
 
@@ -117,10 +121,10 @@ O_SIZE = 16
 
 
 @njit(cache=True, inline="always")
-def _scalar_update(state, j, sign, nu, r, zero_a, zero_b):
+def _scalar_update(state, j, sign, nu, r, zero_mask):
     """Kalman update with one scalar measurement whose row is h = sign·e_j (it observes one error-state
-    component). Gains of error-state components `zero_a`, `zero_b` (−1: none) are forced to zero, so this
-    measurement cannot move them (the magnetometer never moves tilt, the accelerometer never heading), and
+    component). Gains of the error-state components whose bit is set in `zero_mask` are forced to zero, so
+    this measurement cannot move them (the magnetometer never moves tilt, the accelerometer never heading), and
     the covariance takes the Joseph form, valid for such a constrained gain:
     P ← P − K uᵀ − u Kᵀ + S K Kᵀ with u = P hᵀ, S = h P hᵀ + r. Returns the error-state correction K·ν."""
     p0 = S_P
@@ -131,12 +135,12 @@ def _scalar_update(state, j, sign, nu, r, zero_a, zero_b):
     u3 = sign * state[p0 + 3 * 6 + j]
     u4 = sign * state[p0 + 4 * 6 + j]
     u5 = sign * state[p0 + 5 * 6 + j]
-    k0 = 0.0 if (zero_a == 0 or zero_b == 0) else u0 / s
-    k1 = 0.0 if (zero_a == 1 or zero_b == 1) else u1 / s
-    k2 = 0.0 if (zero_a == 2 or zero_b == 2) else u2 / s
-    k3 = u3 / s
-    k4 = u4 / s
-    k5 = u5 / s
+    k0 = 0.0 if zero_mask & 1 else u0 / s
+    k1 = 0.0 if zero_mask & 2 else u1 / s
+    k2 = 0.0 if zero_mask & 4 else u2 / s
+    k3 = 0.0 if zero_mask & 8 else u3 / s
+    k4 = 0.0 if zero_mask & 16 else u4 / s
+    k5 = 0.0 if zero_mask & 32 else u5 / s
     for rr in range(6):
         kr = k0 if rr == 0 else (k1 if rr == 1 else (k2 if rr == 2 else (k3 if rr == 3 else (k4 if rr == 4 else k5))))
         ur = u0 if rr == 0 else (u1 if rr == 1 else (u2 if rr == 2 else (u3 if rr == 3 else (u4 if rr == 4 else u5))))
@@ -430,11 +434,17 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
             mag_moved_at_rest = dmx * dmx + dmy * dmy + dmz * dmz > par[P_MAG_REST_CHANGE] ** 2
     if at_rest:
         flags |= F_AT_REST
-        # the low-passed gyro measures the bias directly: y = b + δb → three scalar updates on δb
-        r = par[P_REST_BIAS_NOISE] ** 2
+        # each gyro sample measures the bias directly, y = b + δb + white noise (R = density²/Δt), so a
+        # rest of T seconds averages to σ_b = density/√T. (Feeding the low-passed gyro with a small R, as
+        # VQF does, counts the same noise many times: the bias then snaps to whatever the low-pass holds —
+        # including the first second of a slow start that rest detection has not yet seen.)
+        # The per-sample variance is measured right here: at rest the squared deviation from the low-pass
+        # (S_REST_DG, 3 axes) is the sensor's own noise, so the same filter suits a 0.1 °/s and a 1 °/s gyro.
+        r = max(state[S_REST_DG] / 3.0, par[P_REST_BIAS_NOISE] ** 2 / dt)
         for i in range(3):
-            nu = state[S_GYR_LP + i] - state[S_B + i]
-            d0, d1, d2, d3, d4, d5 = _scalar_update(state, 3 + i, 1.0, nu, r, -1, -1)
+            gi = gx if i == 0 else (gy if i == 1 else gz)
+            nu = gi - state[S_B + i]
+            d0, d1, d2, d3, d4, d5 = _scalar_update(state, 3 + i, 1.0, nu, r, 0)
             _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
 
     # ------------------------------------------------------------------ accelerometer: tilt only
@@ -502,11 +512,13 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
                 ratio = min(unorm, g_ref) / max(unorm, g_ref)
                 phi = par[P_ACC_TURN_GAIN] * max(math.acos(ratio) - par[P_ACC_TURN_DEAD], 0.0)
                 r = (par[P_ACC_NOISE] / g_ref) ** 2 + phi * phi
-            d0, d1, d2, d3, d4, d5 = _scalar_update(state, 1, 1.0, nu_n, r, 2, -1)
+            # never heading; and no bias learning while |f| is off g (a push would be read as bias)
+            mask = M_HEADING if abs(fnorm - g_ref) < par[P_REST_ACC_TH] else (M_HEADING | M_BIAS)
+            d0, d1, d2, d3, d4, d5 = _scalar_update(state, 1, 1.0, nu_n, r, mask)
             _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
             # second component: innovation re-evaluated after the first correction (sequential update)
             nu_e2 = nu_e + d0
-            d0, d1, d2, d3, d4, d5 = _scalar_update(state, 0, -1.0, nu_e2, r, 2, -1)
+            d0, d1, d2, d3, d4, d5 = _scalar_update(state, 0, -1.0, nu_e2, r, mask)
             _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
             accepted = True
         if accepted:
@@ -583,7 +595,7 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
                 if alpha * alpha > par[P_MAG_GATE] ** 2 * s and inflate == 1.0:
                     flags |= F_MAG_REJECTED
                 else:
-                    d0, d1, d2, d3, d4, d5 = _scalar_update(state, 2, -1.0, alpha, r, 0, 1)
+                    d0, d1, d2, d3, d4, d5 = _scalar_update(state, 2, -1.0, alpha, r, M_TILT)
                     _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
                     mag_used = True
             else:
