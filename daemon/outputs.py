@@ -2,7 +2,8 @@
 
 Intervals follow MAV_CMD_SET_MESSAGE_INTERVAL semantics (anchor §1.2): interval in µs, −1 disables, 0 restores
 the configured default. Deadlines are absolute (`due += interval`), so rates do not drift with scheduling
-jitter; after a stall the schedule restarts from now instead of bursting to catch up.
+jitter; a wake up to CATCH_UP_LIMIT_S late catches up, after a longer stall the schedule restarts from now
+instead of bursting.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ OUTPUT_KEYS = {
 }
 MAX_RATE_HZ = {MSG_VISION_POSITION_ESTIMATE: 50.0}   # EKF3 extNavIntervalMin_ms = 20 ms
 DEFAULT_MAX_RATE_HZ = 200.0
+CATCH_UP_LIMIT_S = 0.25   # a late wake sends what fell due (rates stay exact); a longer stall does not burst
 
 
 @dataclass
@@ -91,6 +93,6 @@ class OutputSchedule:
                 out.append(mid)
                 period = 1.0 / s.rate_hz
                 s.due += period
-                if s.due <= now:                  # stalled for more than a period: restart, no burst
+                if now - s.due > CATCH_UP_LIMIT_S:    # a long stall: restart instead of bursting
                     s.due = now + period
         return out

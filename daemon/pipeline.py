@@ -28,6 +28,9 @@ log = logging.getLogger(__name__)
 ADIS16405_RATE_HZ = 819.2          # ADIS16405 datasheet: default SMPL_PRD = 0x01 → 819.2 SPS
 MAX_SAMPLES_PER_POLL = 64          # bound one poll's work (a stall is reported as a gap, not a burst)
 INVALID = SampleFlags.GYRO_INVALID | SampleFlags.ACCEL_INVALID | SampleFlags.MAG_INVALID
+# IntFlag operators are slow (enum machinery); the per-sample path tests bits on plain ints
+_int_and = int.__and__
+_STALE, _INVALID, _GAP_BEFORE = int(SampleFlags.STALE), int(INVALID), int(SampleFlags.GAP_BEFORE)
 
 
 class SampleSource(Protocol):
@@ -62,7 +65,7 @@ class DriverSource:
         grid in CLOCK_MONOTONIC seconds, counter = sample index, GAP_BEFORE after lost samples), or None when
         the chip has no new sample yet (ND clear)."""
         s = self.driver.read_sample()
-        if s.flags & SampleFlags.STALE:
+        if _int_and(s.flags, _STALE):
             self.stale_reads += 1
             self.timer.stale(now)
             return None
@@ -212,11 +215,11 @@ class Pipeline:
         c.samples += 1
         if self._last_counter is not None:
             missing = raw.counter - self._last_counter - 1
-            if missing > 0 or raw.flags & SampleFlags.GAP_BEFORE:
+            if missing > 0 or _int_and(raw.flags, _GAP_BEFORE):
                 c.gaps += 1
                 c.lost_samples += max(missing, 0)
         self._last_counter = raw.counter
-        if raw.flags & INVALID:
+        if _int_and(raw.flags, _INVALID):
             c.invalid_samples += 1
         m = self.mounting
         if m is not None:

@@ -50,6 +50,12 @@ DRIVER_RETRY_S = 0.2
 FRAME_ERRORS_FOR_FAILURE = 100                   # consecutive corrupt frames (≈ 0.12 s) = sensor failure
 DEFAULT_SYSTEM_ID = 1                            # until an autopilot heartbeat is latched
 
+# IntFlag operators go through the enum machinery (µs each); the per-sample path tests bits on plain ints
+_int_and = int.__and__
+_GAP_BEFORE = int(SampleFlags.GAP_BEFORE)
+_REINITIALISED = int(EstimateFlags.REINITIALISED)
+_INITIALISING = int(EstimateFlags.INITIALISING)
+
 PARAM_RATE_NAMES = {
     "attitude_hz": "SR_ATTITUDE", "attitude_quaternion_hz": "SR_ATT_QUAT",
     "vision_position_estimate_hz": "SR_VISION_POS", "highres_imu_hz": "SR_HIGHRES_IMU",
@@ -314,24 +320,29 @@ class Service:
     async def _read_per_sample(self) -> None:
         """Read the chip once per sample, right after it becomes ready (pipeline.SampleTimer).
 
-        Deadlines are absolute CLOCK_MONOTONIC times served by a timerfd (daemon.timerfd; asyncio alone
-        sleeps in whole milliseconds). A wake later than a whole period loses a sample on the chip: it is
-        counted (GAP_BEFORE, pipeline gaps, overruns) and the estimator sees the true time step.
+        Deadlines are absolute CLOCK_MONOTONIC times served by a timerfd on the event loop
+        (daemon.timerfd; asyncio alone sleeps in whole milliseconds); each expiry runs `_reader_step`.
+        A wake later than a whole period loses a sample on the chip: it is counted (GAP_BEFORE, pipeline
+        gaps, overruns) and the estimator sees the true time step.
         """
         from ahrsd.daemon.timerfd import DeadlineTimer
 
-        loop, source = self.loop, self.source
-        period = 1.0 / source.sample_rate_hz
-        timer = DeadlineTimer(loop)
+        loop = self.loop
+        self._reader_period = 1.0 / self.source.sample_rate_hz
+        self._reader_done = loop.create_future()
+        self._reader_timer = DeadlineTimer(loop, self._reader_step)
+        self._reader_timer.arm(loop.time())
         try:
-            await self._per_sample_loop(loop, source, period, timer)
+            await self._reader_done
         finally:
-            timer.close()
+            self._reader_timer.close()
 
-    async def _per_sample_loop(self, loop, source, period: float, timer) -> None:
-        while True:
-            now = loop.time()
-            self.counters.wakes += 1
+    def _reader_step(self) -> None:
+        """One wake of the per-sample reader: read, process, publish, arm the next deadline."""
+        loop, source, timer = self.loop, self.source, self._reader_timer
+        now = loop.time()
+        self.counters.wakes += 1
+        try:
             try:
                 sample = source.read_one(now)
             except FrameError as exc:
@@ -340,23 +351,26 @@ class Service:
                 self._consecutive_frame_errors += 1
                 if self._consecutive_frame_errors >= FRAME_ERRORS_FOR_FAILURE:
                     self._on_driver_error(exc)
-                await timer.wait_until(loop.time() + period)
-                continue
+                timer.arm(now + self._reader_period)
+                return
             except Exception as exc:  # noqa: BLE001 - BusError or an OSError: count, report, retry
                 self._on_driver_error(exc)
-                await asyncio.sleep(DRIVER_RETRY_S)
-                continue
+                timer.arm(now + DRIVER_RETRY_S)
+                return
             self._consecutive_frame_errors = 0
             if sample is not None:
-                if sample.flags & SampleFlags.GAP_BEFORE:
+                if _int_and(sample.flags, _GAP_BEFORE):
                     self.counters.overruns += 1
                 self._process((sample,), now)
             after = loop.time()
             self._publish(after)
             target = source.next_read_time()
             if target <= after:
-                target = after + (0.25 * period if sample is None else 0.0)
-            await timer.wait_until(target)
+                target = after + (0.25 * self._reader_period if sample is None else 0.0)
+            timer.arm(target)
+        except Exception as exc:  # noqa: BLE001 - a bug here ends the reader; run() exits non-zero
+            if not self._reader_done.done():
+                self._reader_done.set_exception(exc)
 
     async def _read_batched(self) -> None:
         """Replay: poll on a fixed absolute-deadline tick and process every sample that is due."""
@@ -403,10 +417,10 @@ class Service:
         health.last_sample_time = now
         health.last_sample_flags = samples[-1].flags
         if est is not None:
-            if est.flags & EstimateFlags.REINITIALISED:
+            if _int_and(est.flags, _REINITIALISED):
                 self.reset_counter += 1
             health.last_estimate_flags = est.flags
-            if not self.ready_sent and not est.flags & EstimateFlags.INITIALISING:
+            if not self.ready_sent and not _int_and(est.flags, _INITIALISING):
                 self.ready_sent = True
                 self.notifier.ready("running")
                 log.info("first good estimate: READY")
