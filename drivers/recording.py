@@ -176,7 +176,11 @@ def read_header(line: str, path: str | os.PathLike = "<recording>") -> tuple[str
 
 def _parse_chunk(lines: list[str], ncols: int, first_line_no: int, path, columns) -> np.ndarray:
     try:
-        return np.loadtxt(lines, delimiter=",", ndmin=2, dtype=np.float64, comments="#").reshape(-1, ncols)
+        table = np.loadtxt(lines, delimiter=",", ndmin=2, dtype=np.float64, comments="#")
+        if table.size == 0:
+            return np.empty((0, ncols))
+        if table.shape[1] == ncols:  # never reshape: rows all one field short must not be re-cut silently
+            return table
     except ValueError:
         pass
     # find and name the offending line

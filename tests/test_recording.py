@@ -162,3 +162,14 @@ def test_round_trip_property(tmp_path_factory, rows):
             w.write(make_sample(r[0], r[1:4], r[4:7], r[7:10]))
     rec = read_recording(path)
     assert np.array_equal(np.column_stack([rec.t_s, rec.gyro_rad_s, rec.accel_m_s2, rec.mag_ut]), np.array(rows))
+
+
+def test_rows_all_one_field_short_are_refused_not_recut(tmp_path):
+    """Ten 9-field rows hold 90 numbers = nine 10-field rows: the reader must refuse, not reshape."""
+    from ahrsd.drivers.recording import RECORDING_HEADER, RecordingFormatError, read_recording
+
+    path = tmp_path / "short.csv"
+    rows = [",".join(str(float(k + j)) for j in range(9)) for k in range(10)]
+    path.write_text(RECORDING_HEADER + "\n" + "\n".join(rows) + "\n")
+    with pytest.raises(RecordingFormatError, match="9 fields, expected 10"):
+        read_recording(path)
