@@ -23,6 +23,9 @@ def register(subparsers) -> None:
                    "under systemd, else ~/.local/state/ahrsd)")
     p.add_argument("--status-line", choices=("auto", "on", "off"), help="live status line (default auto: on a TTY)")
     p.add_argument("--check-config", action="store_true", help="validate the configuration, print it and exit")
+    p.add_argument("--sim-faults", metavar="SCHEDULE", help="inject faults into the simulated chip, e.g. "
+                   "'bus_error@3-4;garbage@1-2:p=0.05' (see docs/reliability.md; simulated sensor only)")
+    p.add_argument("--stats-file", metavar="FILE", help="write every counter of the run as JSON here on exit")
     p.set_defaults(func=run)
 
 
@@ -45,6 +48,19 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"ahrsd: {exc}", file=sys.stderr)
         return 2
+    plan = None
+    if args.sim_faults:
+        from ahrsd.daemon.faults_cli import FaultScheduleError, build_plan, parse_schedule
+        from ahrsd.daemon.pipeline import ADIS16405_RATE_HZ
+
+        if cfg.sensor.source != "sim":
+            print("ahrsd: --sim-faults needs the simulated sensor (--sim), not a real one", file=sys.stderr)
+            return 2
+        try:
+            plan = build_plan(parse_schedule(args.sim_faults), ADIS16405_RATE_HZ, seed=cfg.sensor.seed)
+        except FaultScheduleError as exc:
+            print(f"ahrsd: --sim-faults: {exc}", file=sys.stderr)
+            return 2
     if args.check_config:
         import json
 
@@ -52,11 +68,27 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if logging.getLogger().level > logging.INFO:
         logging.getLogger("ahrsd").setLevel(logging.INFO)   # the daemon reports its life cycle by default
+    from ahrsd.daemon.sensor_recovery import open_sensor_source, report_sensor_alarms
     from ahrsd.daemon.service import Service
 
-    service = Service(cfg)
+    # the chip sources retry a failed start and a lost bus with backoff (daemon.sensor_recovery)
+    source = open_sensor_source(cfg.sensor, faults=plan) if cfg.sensor.source in ("sim", "spi") else None
+    service = Service(cfg, source=source)
+
+    async def main() -> int:
+        alarms = asyncio.get_running_loop().create_task(report_sensor_alarms(service))
+        try:
+            return await service.run()
+        finally:
+            alarms.cancel()
+
     try:
-        return asyncio.run(service.run())
+        return asyncio.run(main())
     except KeyboardInterrupt:
         log.info("interrupted")
         return 130
+    finally:
+        if args.stats_file:
+            from ahrsd.daemon.run_stats import write_stats
+
+            write_stats(service, args.stats_file)

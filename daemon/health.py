@@ -69,6 +69,8 @@ class Health:
             ef = self.last_estimate_flags or EstimateFlags.NONE
             if not f & MAG_BAD and not ef & EstimateFlags.MAG_UNAVAILABLE:
                 healthy |= msgs.SENSOR_MAG
-            if self.heading_trusted(now):
+            # mag-less (gyro-only heading, uncertainty growing): the heading still flows with its honest
+            # variance, but the AHRS is not healthy (docs/reliability.md)
+            if self.heading_trusted(now) and not ef & EstimateFlags.MAG_UNAVAILABLE:
                 healthy |= msgs.SENSOR_AHRS
         return PRESENT, PRESENT, healthy

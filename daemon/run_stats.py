@@ -1,0 +1,50 @@
+"""`ahrsd run --stats-file FILE`: every counter of a run as JSON, written when the daemon stops.
+
+For the soak benchmark and the reliability tests (and for a user who wants the figures of a field run): what
+was processed, lost, rejected and refused, per layer — simulated chip (ground truth of produced/lost samples
+and injected faults), driver, reader, pipeline, MAVLink links, command router and parameters.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import os
+import tempfile
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+
+def collect_stats(service) -> dict:
+    """A JSON-ready snapshot of the service's counters."""
+    out: dict = {"exit_code": service.exit_code, "reset_counter": service.reset_counter}
+    out["service"] = dataclasses.asdict(service.counters)
+    if service.pipeline is not None:
+        out["pipeline"] = dataclasses.asdict(service.pipeline.counters)
+    src = service.source
+    if src is not None and hasattr(src, "counters"):
+        out["source"] = {k: v for k, v in src.counters().items() if isinstance(v, (int, float))}
+    chip = getattr(src, "chip", None)
+    if chip is not None:
+        out["chip"] = dict(chip.stats)
+        out["chip"]["sample_index"] = chip.sample_index
+        out["faults_injected"] = dict(chip.faults.injected)
+    out["links"] = {ep.url: dataclasses.asdict(ep.counters) for ep in service.endpoints}
+    out["commands"] = dataclasses.asdict(service.commands.counters)
+    out["params"] = {"rejected_writes": service.params.rejected_writes}
+    return out
+
+
+def write_stats(service, path: str | os.PathLike) -> None:
+    """Write the snapshot atomically (temp file + rename); errors are logged, never raised."""
+    path = Path(path)
+    try:
+        data = json.dumps(collect_stats(service), indent=1, sort_keys=True, default=str)
+        fd, tmp = tempfile.mkstemp(prefix=".stats.", dir=path.parent)
+        with os.fdopen(fd, "w") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except (OSError, TypeError, ValueError) as exc:
+        log.warning("cannot write the stats file %s: %s", path, exc)
