@@ -273,12 +273,14 @@ class BackstepPass:
     hh_ut: float
     hz_ut: float
     total_ut: float
-    step_ut: float
+    step_ut: float        # NaN with a single leg
     sz_source: str        # "closed-form" or "kept (legs do not determine s_z)"
 
     def to_dict(self) -> dict:
         return {"pass": self.index, "b": list(self.bias), "s": list(self.scale), "hh_ut": self.hh_ut,
-                "hz_ut": self.hz_ut, "total_ut": self.total_ut, "step_ut": self.step_ut, "sz_source": self.sz_source}
+                "hz_ut": self.hz_ut, "total_ut": self.total_ut,
+                "step_ut": self.step_ut if math.isfinite(self.step_ut) else None,   # None: a single leg
+                "sz_source": self.sz_source}
 
 
 @dataclass(frozen=True)
@@ -363,7 +365,7 @@ def backstep_correct(raw: np.ndarray, roll_rad, pitch_rad, legs: np.ndarray, ini
         tot = float(np.linalg.norm(cal, axis=1).mean())
         passes.append(BackstepPass(it, tuple(map(float, model.bias)), tuple(map(float, model.scale)),
                                    float(hh_all.mean()), float(hz_all.mean()), tot,
-                                   step if math.isfinite(step) else 0.0, source))
+                                   step, source))
         field_err = abs(math.hypot(hh_all.mean(), hz_all.mean()) - total_ref)
         if (not math.isfinite(step) or step <= step_tol_ut) and field_err <= field_tol_ut:
             converged, reason = True, f"step {0.0 if not math.isfinite(step) else step * 1000:.1f} nT ≤ " \
