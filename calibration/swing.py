@@ -33,6 +33,7 @@ DEFAULT_MIN_SPEED_M_S = 1.0     # below this GNSS course is noise (our choice: ~
 DEFAULT_MAX_TURN_RATE_DEG_S = 1.0  # "straight track" gate on the course rate (our choice)
 MIN_SAMPLES = 8                 # a classical swing uses 8 headings (Pub. 226)
 MIN_HEADING_SPAN_DEG = 180.0    # B..E need headings spread over the circle
+MIN_SECTORS = 5                 # …in at least 5 of the 8 45° sectors (two opposite legs do not determine B..E)
 
 
 class SwingTableError(ValueError):
@@ -110,6 +111,10 @@ def fit_deviation(heading_mag_deg, heading_ref_deg, weights=None) -> DeviationCo
     if hm.size < MIN_SAMPLES:
         raise SwingFitError(f"only {hm.size} usable heading pairs; a swing needs at least {MIN_SAMPLES} "
                             "spread over the circle (e.g. the 8 cardinal and intercardinal headings)")
+    sectors = np.unique(np.floor((hm % 360.0) / 45.0)).size
+    if sectors < MIN_SECTORS:
+        raise SwingFitError(f"the headings fall in only {sectors} of the 8 45° sectors; B..E need at least "
+                            f"{MIN_SECTORS} (a swing visits N, NE, E, …). Fit A alone with fit_offset()")
     span = heading_span_deg(hm)
     if span < MIN_HEADING_SPAN_DEG:
         raise SwingFitError(f"the headings span only {span:.0f}° of the circle; B..E need headings all "

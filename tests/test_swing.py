@@ -75,8 +75,14 @@ def test_refuses_too_few_or_clustered_headings():
     with pytest.raises(swing.SwingFitError, match="at least 8"):
         swing.fit_deviation([0, 90, 180], [1, 91, 181])
     psi = np.linspace(40, 80, 50)
-    with pytest.raises(swing.SwingFitError, match="span only"):
+    with pytest.raises(swing.SwingFitError, match="sectors"):
         swing.fit_deviation(psi, psi + 3)
+    legs = np.concatenate((np.full(30, 62.0), np.full(30, 243.0))) + np.random.default_rng(0).normal(0, 1, 60)
+    with pytest.raises(swing.SwingFitError, match="sectors"):       # an out-and-back: two opposite headings
+        swing.fit_deviation(legs, legs + 3)
+    psi = np.concatenate((np.linspace(0, 40, 20), np.linspace(90, 130, 20), np.linspace(180, 220, 20),
+                          np.linspace(270, 310, 20), np.linspace(135, 170, 20)))
+    swing.fit_deviation(psi, psi + 3)                                 # 5 sectors: fine
     with pytest.raises(swing.SwingFitError):
         swing.fit_deviation([1, 2], [1, 2, 3])
 
