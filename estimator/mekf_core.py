@@ -8,8 +8,10 @@ sample. `mekf_run` loops the same `mekf_step` over arrays for replay and benchma
 
 Error state (6): δθ, the attitude error in the NED frame (C_true = (I + [δθ×]) C_est), and δb, the gyro bias
 error (b_true = b_est + δb). Tilt is δθ_N, δθ_E; heading is δθ_D. The accelerometer observes only
-δθ_N, δθ_E and the magnetometer only δθ_D, by construction of their measurement rows: a magnetic disturbance
-cannot move the horizon, and linear acceleration cannot move the heading directly.
+δθ_N, δθ_E and the magnetometer only δθ_D (their measurement rows), and their gains on the other attitude
+components are forced to zero (Joseph-form covariance), so neither can move what it does not observe
+through the covariance's cross terms: a magnetic disturbance cannot move the horizon, linear acceleration
+cannot move the heading.
 """
 
 from __future__ import annotations
@@ -52,6 +54,7 @@ S_SIZE = 80
 
 # ----------------------------------------------------------------------------------- parameter layout
 P_GYRO_NOISE = 0        # gyro angle random walk, rad/s/√Hz
+# (slot 1 unused)
 P_BIAS_WALK = 2         # gyro bias random walk, rad/s/√s
 P_BIAS_CLIP = 3         # |bias| limit per axis, rad/s
 P_ACC_NOISE = 4         # accelerometer noise in motion (includes typical linear acceleration), m/s²

@@ -299,6 +299,19 @@ def test_mag_unavailable_after_a_long_outage():
     assert outs[-1].sigma_rpy_rad[2] > outs[99].sigma_rpy_rad[2]
 
 
+def test_kernel_flag_bits_are_estimate_flags():
+    from ahrsd.estimator import mekf_core as core
+
+    assert core.F_INITIALISING == EstimateFlags.INITIALISING
+    assert core.F_MAG_REJECTED == EstimateFlags.MAG_REJECTED
+    assert core.F_ACCEL_REJECTED == EstimateFlags.ACCEL_REJECTED
+    assert core.F_AT_REST == EstimateFlags.AT_REST
+    assert core.F_MAG_UNAVAILABLE == EstimateFlags.MAG_UNAVAILABLE
+    assert core.F_LARGE_DT == EstimateFlags.LARGE_DT
+    assert core.F_REINITIALISED == EstimateFlags.REINITIALISED
+    assert core.NEEDS_INIT > max(EstimateFlags)
+
+
 def test_outputs_declination_reset_and_params():
     t, g, a, m, _ = _static_samples(2.0, 100.0, seed=11)
     est = make_estimator("mekf", declination_rad=math.radians(5.0))
@@ -334,3 +347,42 @@ def test_golden_broad_slice(broad_dir):
     err = broad_errors(ned_to_enu(q), trial)
     assert err.total_deg < 1.82 * 1.15, err
     assert err.inclination_deg < err.total_deg
+
+
+_value = st.one_of(
+    st.floats(-1e3, 1e3), st.just(float("nan")), st.just(float("inf")), st.just(0.0), st.just(1e12)
+)
+
+
+@settings(derandomize=True, max_examples=40, deadline=None)
+@given(
+    rows=st.lists(
+        st.tuples(
+            st.floats(0.0, 0.5),                       # Δt (0 = repeated time stamp)
+            st.tuples(_value, _value, _value),          # gyro
+            st.tuples(_value, _value, _value),          # accel
+            st.tuples(_value, _value, _value),          # mag
+            st.sampled_from([0, int(SampleFlags.GYRO_INVALID), int(SampleFlags.ACCEL_SATURATED),
+                             int(SampleFlags.MAG_INVALID), int(SampleFlags.STALE)]),
+        ),
+        min_size=1, max_size=40,
+    )
+)
+def test_garbage_input_never_raises_and_never_corrupts_the_state(rows):
+    """Any sequence of values and flags (NaN, inf, huge, zero) and time steps: no exception, and once
+    initialised the quaternion stays finite and unit, the covariance finite and symmetric."""
+    est = Mekf()
+    t = 0.0
+    for dt, g, a, m, flags in rows:
+        t += dt
+        out = est.update(make_sample(t, g, a, m, flags=SampleFlags(flags)))
+        assert out.q_wxyz.shape == (4,)
+        if est._initialised:
+            assert np.all(np.isfinite(out.q_wxyz)) and abs(np.linalg.norm(out.q_wxyz) - 1.0) < 1e-9
+            p = est.covariance
+            assert np.all(np.isfinite(p)) and np.allclose(p, p.T)
+    # and it still works afterwards
+    ts, g, a, m, truth = _static_samples(3.0, 100.0, seed=12, t0=t + 10.0)
+    outs = _feed(est, ts, g, a, m)
+    err = _euler_errors_deg(outs[-1].q_wxyz[None], truth[None])[0]
+    assert np.all(np.abs(err) < 1.0), err
