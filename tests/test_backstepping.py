@@ -440,3 +440,26 @@ def test_heading_reference_delay_is_applied_and_gaps_are_not_bridged():
     # 2 s at 7.2°/s: uncompensated, the reference lags by ~14°, which shows as a large scatter
     assert with_delay.quality["heading_reference"]["rms_before_deg"] < 1.0
     assert without.quality["heading_reference"]["rms_before_deg"] > 5.0
+
+
+@settings(max_examples=8, deadline=None, derandomize=True)
+@given(h=st.lists(st.floats(-60, 60), min_size=3, max_size=3),
+       diag=st.lists(st.floats(0.8, 1.25), min_size=3, max_size=3),
+       off=st.lists(st.floats(-0.08, 0.08), min_size=6, max_size=6),
+       yaw_mis_deg=st.floats(-3, 3))
+def test_vertical_channel_fit_is_exact_on_noise_free_tilted_turns(h, diag, off, yaw_mis_deg):
+    d = np.diag(diag)
+    d[np.triu_indices(3, 1)] = off[:3]
+    d[np.tril_indices(3, -1)] = off[3:]
+    d = Rotation.from_euler("Z", yaw_mis_deg, degrees=True).as_matrix() @ d
+    n = 600
+    t = np.arange(n) / n
+    yaw = 4 * math.pi * t
+    roll = math.radians(10) * np.sin(2 * math.pi * 7 * t)
+    pitch = math.radians(10) * np.sin(2 * math.pi * 5 * t + 1)
+    field = field_tehran()
+    b = Rotation.from_euler("ZYX", np.column_stack((yaw, pitch, roll))).inv().apply(field.ned_ut)
+    raw = b @ d.T + np.array(h)
+    fit = bs.fit_vertical_channel(raw, roll, pitch, field.total_ut, field.down_ut)
+    np.testing.assert_allclose(fit.soft_iron, np.linalg.inv(d), atol=1e-6)
+    np.testing.assert_allclose(fit.hard_iron_ut, h, atol=1e-4)
