@@ -46,6 +46,8 @@ class GyroBiasCalibration:
 
     def start(self) -> CommandAck:
         self._remove = self.service.add_sample_listener(self.on_sample)
+        # samples can stop (sensor failure): never leave the command IN_PROGRESS for ever
+        self.service.loop.call_later(3 * DURATION_S + 2.0, self.cancel, "no samples from the sensor")
         self.service.set_calibrating("gyro calibration")
         self.service.statustext(mavlink.MAV_SEVERITY_INFO, "ahrsd: gyro calibration started, keep still")
         return CommandAck(mavlink.MAV_RESULT_IN_PROGRESS, 0)

@@ -14,7 +14,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import os
-import socket
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -295,10 +294,3 @@ def is_for_us(msg, system_id: int, component_id: int) -> tuple[bool, bool]:
     if tc == 0:
         return True, True
     return tc == component_id, False
-
-
-def free_udp_port() -> int:
-    """A free UDP port on 127.0.0.1 from the OS (tests and benchmarks)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]

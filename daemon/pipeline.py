@@ -247,11 +247,16 @@ class SampleTimer:
     at T proves ready_k ≤ T, i.e. φ ≤ T − k·P; a stale read at T proves the next sample was not ready,
     φ > T − (k_last+1)·P. Reading at the middle of the bracket bisects it, so within a few samples the reader
     wakes just after each sample is ready, and k = ⌊(T − φ_hi)/P⌋ (never less than k_last + 1) says how many
-    samples were lost in between. Both bounds leak outwards slowly so the lock follows clock drift.
+    samples were lost in between. Both bounds leak outwards so the lock follows clock drift and recovers
+    from a wrong start.
     Time stamps t_s = φ_hi + k·P lie on the exact sample grid, in CLOCK_MONOTONIC seconds.
     """
 
-    LEAK_S_PER_S = 100e-6   # bracket widening per second (oscillator drift between chip and host)
+    HI_LEAK_S_PER_S = 100e-6   # upper bound relaxes: oscillator drift between chip and host
+    # The lower bound only rises on stale (too early) reads; if the reads all land late (wakes delayed,
+    # or a wrong first guess) nothing would ever pull the estimate earlier, so it relaxes faster: the
+    # reader then probes a little earlier until it meets a stale read (≈ 1 extra read per 100 samples).
+    LO_LEAK_S_PER_S = 1e-3
     GUARD_S = 50e-6         # read this much after the predicted ready time
 
     def __init__(self, period_s: float):
@@ -263,8 +268,8 @@ class SampleTimer:
         self._t_hi = 0.0
 
     def _leak(self, now: float) -> None:
-        self.hi += self.LEAK_S_PER_S * (now - self._t_hi)
-        self.lo = max(self.lo - self.LEAK_S_PER_S * (now - self._t_lo), self.hi - self.period_s)  # φ is mod P
+        self.hi += self.HI_LEAK_S_PER_S * (now - self._t_hi)
+        self.lo = max(self.lo - self.LO_LEAK_S_PER_S * (now - self._t_lo), self.hi - self.period_s)  # φ mod P
         self._t_hi = self._t_lo = now
 
     def fresh(self, read_time: float) -> tuple[float, int, int]:

@@ -12,7 +12,6 @@ Extension hooks (used by the field magnetometer calibration, see docs/daemon.md 
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 import logging
 import math
 import os
@@ -694,8 +693,3 @@ class Service:
             ours, broadcast = is_for_us(msg, self.system_id, self.component_id)
             if ours:
                 self._on_param_message(endpoint, msg, mtype, broadcast)
-
-
-def describe_config(cfg: Config) -> dict:
-    """The effective configuration as a plain dict (for `ahrsd run --print-config`)."""
-    return dataclasses.asdict(cfg)

@@ -276,7 +276,7 @@ def simulate_reads(phase, period, n_samples, lateness, reads_per_sample):
     return got
 
 
-@settings(derandomize=True, max_examples=25, deadline=None)
+@settings(derandomize=True, max_examples=60, deadline=None)
 @given(st.floats(0, 1e-3), st.floats(0, 0.9e-3))
 def test_sample_timer_indices_and_time_stamps(phase, lateness):
     period = 1 / 819.2
@@ -286,10 +286,13 @@ def test_sample_timer_indices_and_time_stamps(phase, lateness):
     # the index increments exactly as the chip's sample index does (lost samples counted), after lock-in
     d_true, d_k = np.diff(true_k[50:]), np.diff(k[50:])
     assert np.mean(d_true == d_k) > 0.99
-    # time stamps lie on the sample grid and within a fraction of a period of the true ready time
-    t_s = np.array([g[2] for g in got])[50:]
-    ready = phase + true_k[50:] * period
-    assert np.all(t_s - ready > -0.2 * period) and np.median(np.abs(t_s - ready)) < 0.25 * period
+    # time stamps lie on the sample grid, never before the true ready time by more than the guard, and
+    # (once locked) within a fraction of a period of it, even when every wake is late
+    t_s = np.array([g[2] for g in got])
+    err = t_s - (phase + true_k * period)
+    assert np.all(err[50:] > -SampleTimer.GUARD_S)
+    assert np.median(np.abs(err[50:])) < 0.1e-3
+    assert np.max(np.abs(err[1000:])) < 0.25 * period
 
 
 def test_sample_timer_counts_a_long_stall():
