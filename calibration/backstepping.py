@@ -52,6 +52,8 @@ MAX_PREDICTED_HEADING_STD_DEG = 3.0  # refuse when the data leave the heading wo
 PRIOR_SIGMA_SOFT_IRON = 0.5      # weak prior on each soft-iron entry (keeps undetermined directions at the start value)
 MAX_FITTED_SPEED_M_S = 15.0      # a fitted centripetal speed above this is not a boat/AUV/rover calibration run
 MAX_CENTRIPETAL_LEAN_RAD = 0.2   # …nor a lean into the turn of more than ~11°
+DISTURBANCE_SIGMAS = 5.0         # |H| residual beyond this many robust σ: a magnetically disturbed sample
+DISTURBED_FRACTION_FOR_ROBUST = 0.01
 
 
 class BacksteppingError(ValueError):
@@ -744,7 +746,7 @@ def fit_backstepping(data: MagFitInput, reference=None, *, model: str = "general
                      calibration_mask=None, heading_ref_delay_s: float = 0.0, fold_offset: bool = True,
                      sigma_mag_ut: float = ADIS16405_MAG_NOISE_UT, sigma_tilt_deg: float = DEFAULT_TILT_SIGMA_DEG,
                      step_tol_ut: float = PAPER_STEP_TOL_UT, max_passes: int = 10,
-                     max_heading_std_deg: float = MAX_PREDICTED_HEADING_STD_DEG, robust: bool = False,
+                     max_heading_std_deg: float = MAX_PREDICTED_HEADING_STD_DEG, robust="auto",
                      estimator: str = "mekf", speed_m_s="auto") -> MagFitResult:
     """Back-stepping / vertical-channel magnetometer calibration (the `fit_mag` "backstepping" method).
 
@@ -763,6 +765,8 @@ def fit_backstepping(data: MagFitInput, reference=None, *, model: str = "general
       calibration_mask ("paper") samples for the sphere fit (test 1); the rest is the leg run (test 2).
       heading_ref_delay_s  latency of data.heading_ref_deg (GNSS course: seed 002 used 2 s).
       fold_offset      fold the fitted constant heading offset A into the soft iron (a yaw rotation).
+      robust           "auto" (refit with a soft-L1 loss when > 1 % of samples are magnetically disturbed),
+                       True or False.
       speed_m_s        centripetal compensation of the levelling in turns (needs gyro samples): "auto"
                        ("fit" when gyro samples exist, else none), "fit" (a constant forward speed is fitted),
                        a number or a per-sample array (GNSS speed), or None (no compensation).
@@ -933,7 +937,7 @@ def _fit_general(t_s, mag, roll, pitch, total, vertical, legs_b, quality, sigma_
                                    else {"refused": sph.reason, "condition_number": sph.condition_number})
     try:
         fit = fit_vertical_channel(mag, roll, pitch, total, vertical, sigma_mag_ut=sigma_mag_ut,
-                                   sigma_tilt_rad=math.radians(sigma_tilt_deg), robust=robust,
+                                   sigma_tilt_rad=math.radians(sigma_tilt_deg), robust=robust is True,
                                    gyro_rad_s=None if centripetal is None else centripetal[0],
                                    speed_m_s=None if centripetal is None else centripetal[1])
         if fit.speed_m_s is not None:
@@ -943,7 +947,21 @@ def _fit_general(t_s, mag, roll, pitch, total, vertical, legs_b, quality, sigma_
                     f"the fitted centripetal speed {fit.speed_m_s:.1f} m/s (lean up to {math.degrees(lean):.1f}°) is "
                     "not plausible: refitted without centripetal compensation")
                 fit = fit_vertical_channel(mag, roll, pitch, total, vertical, sigma_mag_ut=sigma_mag_ut,
-                                           sigma_tilt_rad=math.radians(sigma_tilt_deg), robust=robust)
+                                           sigma_tilt_rad=math.radians(sigma_tilt_deg), robust=robust is True)
+        # magnetic disturbances (a passing vehicle, a steel pier) show as magnitude outliers: count them and,
+        # when more than 1 % of the samples are disturbed, refit with a robust (soft-L1) loss
+        mres = np.linalg.norm((mag - fit.hard_iron_ut) @ fit.soft_iron.T, axis=1) - total
+        scale = max(1.4826 * float(np.median(np.abs(mres - np.median(mres)))), sigma_mag_ut)
+        disturbed = int(np.sum(np.abs(mres) > DISTURBANCE_SIGMAS * scale))
+        quality["disturbed_samples"] = disturbed
+        if robust == "auto" and disturbed > DISTURBED_FRACTION_FOR_ROBUST * mag.shape[0]:
+            fit = fit_vertical_channel(mag, roll, pitch, total, vertical, sigma_mag_ut=sigma_mag_ut,
+                                       sigma_tilt_rad=math.radians(sigma_tilt_deg), robust=True,
+                                       gyro_rad_s=None if centripetal is None else centripetal[0],
+                                       speed_m_s=None if centripetal is None else centripetal[1])
+            quality.setdefault("warnings", []).append(
+                f"{disturbed} of {mag.shape[0]} samples look magnetically disturbed (|H| off by more than "
+                f"{DISTURBANCE_SIGMAS:g}σ): refitted with a robust loss")
     except BacksteppingError as exc:
         return refuse(METHOD, str(exc), **quality)
     w, h = fit.soft_iron, fit.hard_iron_ut

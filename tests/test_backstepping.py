@@ -463,3 +463,18 @@ def test_vertical_channel_fit_is_exact_on_noise_free_tilted_turns(h, diag, off, 
     fit = bs.fit_vertical_channel(raw, roll, pitch, field.total_ut, field.down_ut)
     np.testing.assert_allclose(fit.soft_iron, np.linalg.inv(d), atol=1e-6)
     np.testing.assert_allclose(fit.hard_iron_ut, h, atol=1e-4)
+
+
+def test_magnetic_disturbances_are_counted_and_down_weighted():
+    data, truth = level_turns(10.0, n=3000, seed=3)
+    mag = np.array(data.mag_ut)
+    rng = np.random.default_rng(0)
+    for start in rng.integers(0, 2900, 6):           # six 5-s disturbances of up to ~15 µT (10 % of the run)
+        mag[start:start + 50] += np.outer(np.hanning(50), rng.normal(0, 8, 3))
+    disturbed = MagFitInput(data.t_s, mag, data.accel_m_s2)
+    res = bs.fit_backstepping(disturbed, truth["field"])
+    assert res.ok and res.quality["disturbed_samples"] > 30
+    assert any("disturbed" in w for w in res.quality["warnings"])
+    assert test_heading_rms_deg(res.model, truth["field"])[0] < 0.8
+    plain = bs.fit_backstepping(disturbed, truth["field"], robust=False)
+    assert test_heading_rms_deg(plain.model, truth["field"])[0] > 1.5      # what the robust refit avoids
