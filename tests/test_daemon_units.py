@@ -389,3 +389,63 @@ def test_endpoint_handler_exception_is_contained():
 
     counters = asyncio.run(scenario())
     assert counters.rx_messages == 1 and counters.rx_malformed == 1
+
+# ------------------------------------------------------------------------------------------ autopilot inputs
+
+
+def _from(msg, sysid=1, compid=1):
+    msg._header = mavlink.MAVLink_header(msg.id, srcSystem=sysid, srcComponent=compid)
+    return msg
+
+
+def test_autopilot_state_latches_and_reads_position_course_speed():
+    from ahrsd.daemon.autopilot import AutopilotState
+
+    ap = AutopilotState()
+    gcs = _from(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3),
+                255, 190)
+    assert not AutopilotState.is_autopilot_heartbeat(gcs)
+    hb = _from(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_SURFACE_BOAT, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                                                 mavlink.MAV_MODE_FLAG_SAFETY_ARMED, 0, 4, 3), 3, 1)
+    assert AutopilotState.is_autopilot_heartbeat(hb) and ap.on_heartbeat(hb, 1.0)
+    assert (ap.system_id, ap.armed) == (3, True)
+    ap.on_global_position_int(_from(mavlink.MAVLink_global_position_int_message(
+        0, 520000000, 44000000, 12000, 0, 0, 300, 0, 9000), 3), 2.0)          # north-east? vx=0, vy=3 m/s
+    assert (ap.lat_deg, ap.lon_deg, ap.alt_m) == pytest.approx((52.0, 4.4, 12.0))
+    assert ap.course_rad == pytest.approx(math.pi / 2) and ap.ground_speed_m_s == pytest.approx(3.0)
+    ap.on_gps_raw_int(_from(mavlink.MAVLink_gps_raw_int_message(
+        0, 3, 510000000, 1000000, 0, 100, 100, 250, 18000, 10), 3), 3.0)       # 2.5 m/s, course 180°
+    assert ap.lat_deg == pytest.approx(51.0) and ap.course_rad == pytest.approx(math.pi)
+    ap.on_gps_raw_int(_from(mavlink.MAVLink_gps_raw_int_message(
+        0, 1, 0, 0, 0, 100, 100, 0, 0, 0), 3), 4.0)                            # no fix: ignored
+    assert ap.lat_deg == pytest.approx(51.0)
+
+
+def test_declination_priority(tmp_path):
+    """DECL_MANUAL > configured position > autopilot position > simulator site."""
+    import dataclasses as dc
+
+    from ahrsd.daemon.config import Config, LocationConfig, SensorConfig, StateConfig
+    from ahrsd.daemon.service import Service
+    from ahrsd.estimator.wmm import earth_field
+
+    cfg = dc.replace(Config(), state=StateConfig(str(tmp_path)), sensor=SensorConfig(source="spi"))
+    svc = Service(cfg)
+    svc._resolve_declination(initial=True)
+    assert svc.declination_rad == 0.0 and svc.declination_source.startswith("none")
+    svc._on_message(None, _from(mavlink.MAVLink_heartbeat_message(
+        mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 0, 0, 4, 3), 1, 1))
+    svc._on_message(None, _from(mavlink.MAVLink_global_position_int_message(
+        0, 640000000, -220000000, 0, 0, 0, 0, 0, 0), 1, 1))                    # Iceland: large declination
+    assert svc.declination_rad == pytest.approx(earth_field(64.0, -22.0, 0.0).declination_rad)
+    assert "autopilot" in svc.declination_source
+    cfg2 = dc.replace(cfg, location=LocationConfig(lat_deg=10.0, lon_deg=10.0))
+    svc2 = Service(cfg2)
+    svc2._resolve_declination(initial=True)
+    assert svc2.declination_rad == pytest.approx(earth_field(10.0, 10.0, 0.0).declination_rad)
+    pending = []
+    svc2.loop = type("L", (), {"call_soon": lambda self, f: pending.append(f)})()   # like the event loop
+    assert svc2.params.set("DECL_DEG", 7.5)[0] and svc2.params.set("DECL_MANUAL", 1)[0]
+    for f in pending:
+        f()
+    assert svc2.declination_rad == pytest.approx(math.radians(7.5)) and svc2.declination_source == "manual"
