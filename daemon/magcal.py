@@ -54,7 +54,6 @@ from ahrsd.calibration.field import (
     HeadingSlew,
     VehicleType,
     fixed_yaw_calibration,
-    max_heading_change_deg,
     yaw_rate_ned_rad_s,
 )
 from ahrsd.daemon.mavlink_io import mavlink
@@ -496,96 +495,101 @@ def settings_from_mapping(d: dict[str, Any] | None) -> MagCalSettings:
 
 
 class BlendedCalibration:
-    """A Calibration stand-in for the pipeline while a new magnetometer calibration is blended in.
+    """A Calibration stand-in for the pipeline while a new magnetometer calibration is brought in.
 
-    Gyro and accelerometer come from the new calibration; the magnetometer output is the old calibrated
-    field turned towards the new one in the local level frame (roll/pitch from the last estimate): its
-    horizontal direction moves by `alpha` of the heading difference, horizontal and vertical magnitudes are
-    interpolated. So the heading changes linearly with alpha even when old and new differ by 180° (a straight
-    interpolation of the models would pass through a near-zero field there). Other attributes (mag, metadata,
-    to_dict, ...) are the new calibration's.
+    Gyro and accelerometer come from the new calibration. The magnetometer output is the new calibrated field
+    turned about the local vertical (roll/pitch from the last estimate) by an offset angle that starts at the
+    old-minus-new heading difference of the first sample and shrinks to zero at `max_rate_deg_s` of sample
+    time: the heading follows the vehicle's rotation as the new calibration sees it, plus a correction that
+    never moves faster than the bound — the heading never steps, whatever the size of the change (a straight
+    interpolation of the two models would pass through a near-zero field when they differ by 180°).
+    Horizontal and vertical magnitudes move from the old to the new values in proportion. Other attributes
+    (mag, metadata, to_dict, ...) are the new calibration's.
     """
 
-    def __init__(self, old, new):
+    def __init__(self, old, new, max_rate_deg_s: float):
         self.old, self.new = old, new
-        self.alpha = 0.0
+        self.rate_rad_s = math.radians(max_rate_deg_s)
         self.roll_rad = 0.0
         self.pitch_rad = 0.0
+        self.offset_rad: float | None = None   # None until the first sample
+        self.initial_offset_rad = 0.0
+        self._t_last: float | None = None
+        self._first_levels = None
 
     def __getattr__(self, name):
         return getattr(self.new, name)
 
+    @property
+    def done(self) -> bool:
+        return self.offset_rad is not None and self.offset_rad == 0.0
+
     def apply(self, sample):
         out = self.new.apply(sample)
-        m_old = self.old.mag.apply(sample.mag_ut)
-        m_new = out.mag_ut
         cr, sr = math.cos(self.roll_rad), math.sin(self.roll_rad)
         cp, sp = math.cos(self.pitch_rad), math.sin(self.pitch_rad)
         tilt = np.array([[cp, sp * sr, sp * cr], [0.0, cr, -sr], [-sp, cp * sr, cp * cr]])  # body -> level
-        lo, ln = tilt @ m_old, tilt @ m_new
-        a = self.alpha
-        ang_o = math.atan2(lo[1], lo[0])
-        d = math.remainder(math.atan2(ln[1], ln[0]) - ang_o, 2 * math.pi)
-        ang = ang_o + a * d
-        h = (1 - a) * math.hypot(lo[0], lo[1]) + a * math.hypot(ln[0], ln[1])
-        level = np.array([h * math.cos(ang), h * math.sin(ang), (1 - a) * lo[2] + a * ln[2]])
+        ln = tilt @ out.mag_ut
+        ang_n = math.atan2(ln[1], ln[0])
+        h_n = math.hypot(ln[0], ln[1])
+        if self.offset_rad is None:
+            lo = tilt @ self.old.mag.apply(sample.mag_ut)
+            self.offset_rad = self.initial_offset_rad = math.remainder(math.atan2(lo[1], lo[0]) - ang_n, 2 * math.pi)
+            self._first_levels = (math.hypot(lo[0], lo[1]), lo[2])
+        else:
+            dt = max(0.0, sample.t_s - self._t_last)
+            step = self.rate_rad_s * dt
+            e = self.offset_rad
+            self.offset_rad = 0.0 if abs(e) <= step else e - math.copysign(step, e)
+        self._t_last = sample.t_s
+        f = 1.0 - abs(self.offset_rad) / abs(self.initial_offset_rad) if self.initial_offset_rad else 1.0
+        h0, v0 = self._first_levels
+        h = (1 - f) * h0 + f * h_n
+        ang = ang_n + self.offset_rad
+        level = np.array([h * math.cos(ang), h * math.sin(ang), (1 - f) * v0 + f * ln[2]])
         return out.with_values(mag_ut=tilt.T @ level)
 
 
 class CalibrationBlend:
-    """Swaps a new calibration into a running pipeline without stepping the heading.
-
-    The estimator's heading follows the magnetometer, so the change is made at the source: the pipeline runs
-    a `BlendedCalibration` whose heading moves from the old calibration's to the new one's at no more than
-    `max_rate_deg_s` (the largest change over a full turn at the current tilt sets the duration), then the
-    new calibration itself. The VISION_POSITION_ESTIMATE reset_counter is not touched (ArduPilot reads a new
-    value as a position reset).
-    """
+    """Brings a new calibration into a running pipeline without stepping the heading (`BlendedCalibration`
+    until its offset has run down, then the new calibration itself). The VISION_POSITION_ESTIMATE
+    reset_counter is not touched: ArduPilot reads a new value as a position reset."""
 
     def __init__(self, pipeline, max_rate_deg_s: float):
         self.pipeline = pipeline
         self.max_rate_deg_s = max_rate_deg_s
         self.target = None
         self._blended: BlendedCalibration | None = None
-        self._t0: float | None = None
-        self.duration_s = 0.0
 
     @property
     def active(self) -> bool:
         return self.target is not None
 
-    def start(self, new_cal, sample, estimate) -> None:
+    def start(self, new_cal, sample=None, estimate=None) -> None:
         current = self.pipeline.calibration
         old = current.new if isinstance(current, BlendedCalibration) else current
-        old_model = current.mag if not isinstance(current, BlendedCalibration) else old.mag
-        change = 0.0
-        if sample is not None and estimate is not None:
-            change = max_heading_change_deg(old_model, new_cal.mag, sample.mag_ut, float(estimate.roll_rad),
-                                            float(estimate.pitch_rad))
-        self.duration_s = change / self.max_rate_deg_s if self.max_rate_deg_s > 0 else 0.0
         self.target = new_cal
-        self._t0 = None
-        if self.duration_s <= 0.0:
+        if self.max_rate_deg_s <= 0:
             self._finish()
             return
-        log.info("magcal: blending the new calibration in over %.1f s (heading change up to %.1f deg)",
-                 self.duration_s, change)
-        self._blended = BlendedCalibration(old, new_cal)
+        self._blended = BlendedCalibration(old, new_cal, self.max_rate_deg_s)
         if estimate is not None:
             self._blended.roll_rad, self._blended.pitch_rad = float(estimate.roll_rad), float(estimate.pitch_rad)
         self.pipeline.calibration = self._blended
+        self._logged = False
 
     def on_sample(self, t_s: float, estimate) -> None:
-        if self.target is None:
+        """After each sample: update the levelling attitude, hand over to the new calibration when done."""
+        b = self._blended
+        if self.target is None or b is None:
             return
-        if self._t0 is None:
-            self._t0 = t_s
-        alpha = (t_s - self._t0) / self.duration_s
-        if alpha >= 1.0:
+        if not self._logged and b.offset_rad is not None:
+            self._logged = True
+            log.info("magcal: bringing the new calibration in over %.1f s (heading change %.1f deg)",
+                     abs(b.initial_offset_rad) / b.rate_rad_s, math.degrees(b.initial_offset_rad))
+        if b.done:
             self._finish()
             return
-        b = self._blended
-        b.alpha = alpha
         if estimate is not None:
             b.roll_rad, b.pitch_rad = estimate.roll_rad, estimate.pitch_rad
 

@@ -7,6 +7,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from ahrsd.calibration.field import CalStatus, from_ardupilot
 from ahrsd.calibration.models import Calibration, MagModel
@@ -303,21 +304,31 @@ def test_blend_moves_heading_at_bounded_rate_even_for_180_deg():
     new = Calibration.identity().with_sensor("mag", MagModel(np.array([-40.0, 5.0, 3.0]), np.eye(3)))
     pipeline = SimpleNamespace(calibration=old)
     blend = CalibrationBlend(pipeline, max_rate_deg_s=5.0)
-    raw = np.array([-20.0, 3.0, 45.0])   # field (20, -2, 42) after the new calibration: opposite to the old reading
     est = SimpleNamespace(roll_rad=0.05, pitch_rad=-0.03)
-    sample = make_sample(0.0, np.zeros(3), np.array([0, 0, -9.8]), raw)
-    blend.start(new, pipeline.calibration.apply(sample), est)
-    assert blend.active and blend.duration_s > 30.0     # up to ~180° at 5°/s
-    headings, norms = [], []
-    for k in range(int(blend.duration_s * 50) + 20):
-        t = k / 50.0
-        blend.on_sample(t, est)
+    true_level = np.array([22.0, 0.0, 42.0])     # field in the level frame at heading 0
+    rate = np.radians(10.0)                      # the vehicle turns at 10°/s meanwhile
+    blend.start(new, None, est)
+    rel, norms = [], []
+    dt = 0.02
+    for k in range(3000):
+        t = k * dt
+        psi = rate * t
+        c, s_ = np.cos(psi), np.sin(psi)
+        level = np.array([c * true_level[0], -s_ * true_level[0], true_level[2]])
+        tilt = Rotation.from_euler("YX", [est.pitch_rad, est.roll_rad])
+        raw = tilt.inv().apply(level) + new.mag.hard_iron_ut          # what the sensor reads
         out = pipeline.calibration.apply(make_sample(t, np.zeros(3), np.array([0, 0, -9.8]), raw))
-        headings.append(tilt_compensated_heading_rad(out.mag_ut, est.roll_rad, est.pitch_rad)[0])
+        blend.on_sample(t, est)
+        h_out = tilt_compensated_heading_rad(out.mag_ut, est.roll_rad, est.pitch_rad)[0]
+        rel.append(np.angle(np.exp(1j * (h_out - psi))))                # output minus true heading
         norms.append(np.linalg.norm(out.mag_ut))
-    steps = np.degrees(np.abs(np.angle(np.exp(1j * np.diff(headings)))))
-    assert steps.max() <= 5.0 / 50 + 1e-6                      # never faster than 5°/s
-    assert min(norms) > 0.9 * min(np.linalg.norm(raw), np.linalg.norm(new.mag.apply(raw)))  # no field collapse
-    assert not blend.active and pipeline.calibration is new
-    final = tilt_compensated_heading_rad(new.mag.apply(raw), est.roll_rad, est.pitch_rad)[0]
-    assert abs(np.angle(np.exp(1j * (headings[-1] - final)))) < 1e-9
+        if not blend.active:
+            break
+    rel = np.degrees(np.unwrap(rel))
+    first_old = tilt_compensated_heading_rad(raw * 0 + old.mag.apply(tilt.inv().apply(
+        [true_level[0], 0, true_level[2]]) + new.mag.hard_iron_ut), est.roll_rad, est.pitch_rad)[0]
+    assert abs(rel[0] - np.degrees(first_old)) < 1e-6 or abs(rel[0]) > 90   # starts at the old heading
+    assert np.abs(np.diff(rel)).max() <= 5.0 * dt + 1e-6       # the correction never moves faster than 5°/s
+    assert abs(rel[-1]) < 1e-6 and not blend.active and pipeline.calibration is new
+    assert len(rel) * dt > abs(rel[0]) / 5.0 - 0.1              # it took |initial offset| / rate
+    assert min(norms) > 0.5 * np.linalg.norm(true_level)        # no collapse of the field
