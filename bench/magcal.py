@@ -486,7 +486,8 @@ def simulator_table(seed: int = 1):
                     note += f", fitted speed {v:.2f} m/s"
                 ob = r.quality.get("out_and_back")
                 if ob:
-                    note += f", inter-leg step {ob["step_after_ut"] * 1000:.1f} nT (paper sphere fit on the same data: {ob.get("step_sphere_fit_ut", float("nan")) * 1000:.1f} nT)"
+                    note += (f", inter-leg step {ob['step_after_ut'] * 1000:.1f} nT (paper sphere fit on the same data: "
+                             f"{ob.get('step_sphere_fit_ut', float('nan')) * 1000:.1f} nT)")
             runs.append((label, r.model if r.ok else None, dt, note))
         if scen == "auv-out-and-back":
             # GNSS course on the straight legs (2 s late, 0.5° noise), gated by speed and straightness
