@@ -123,7 +123,7 @@ O_EULER = 13   # 3 roll, pitch, yaw (ZYX, yaw magnetic in [−π, π])
 O_SIZE = 16
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _scalar_update(state, j, sign, nu, r, zero_mask):
     """Kalman update with one scalar measurement whose row is h = sign·e_j (it observes one error-state
     component). Gains of the error-state components whose bit is set in `zero_mask` are forced to zero, so
@@ -204,7 +204,7 @@ def _symmetrise(state):
             state[S_P + j * 6 + i] = a
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def input_validity(sample_flags, gx, gy, gz, ax, ay, az, mx, my, mz):
     """IN_*_OK bits: which sensors of a sample may be used (driver flags clear and values finite)."""
     valid = 0
