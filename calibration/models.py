@@ -360,8 +360,11 @@ class Calibration:
             return sample
         g, a, m = self.gyro, self.accel, self.mag
         acc = sample.accel_m_s2
-        if a._has_quadratic:
-            acc = acc - a.quadratic * acc * acc
+        if a._has_quadratic:  # acc − q∘acc∘acc with one allocation
+            t = a.quadratic * acc
+            t *= acc
+            np.subtract(acc, t, out=t)
+            acc = t
         # np.dot then an in-place subtraction: one allocation per vector (measured ~2× faster than M @ v − o).
         gyro = _dot(g.matrix, sample.gyro_rad_s)
         gyro -= g._offset
