@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 
 from ahrsd.daemon import messages as msgs
@@ -22,13 +23,14 @@ def register_builtin_commands(service) -> None:
 
 
 def _message_id(value: float) -> int | None:
-    return int(value) if value == int(value) and 0 <= value < 2**24 else None
+    # hostile input: NaN/inf params must give None, not raise (int(nan) is a ValueError)
+    return int(value) if math.isfinite(value) and 0 <= value < 2**24 and value == int(value) else None
 
 
 def set_message_interval(service, msg) -> int:
     mid = _message_id(msg.param1)
-    if mid is None or mid not in service.schedule:
-        return mavlink.MAV_RESULT_DENIED
+    if mid is None or mid not in service.schedule or not math.isfinite(msg.param2):
+        return mavlink.MAV_RESULT_DENIED          # an infinite interval would silently switch the output off
     try:
         service.schedule.set_interval_us(mid, msg.param2)
     except ValueError:

@@ -23,23 +23,66 @@ PRESENT = msgs.SENSOR_GYRO | msgs.SENSOR_ACCEL | msgs.SENSOR_MAG | msgs.SENSOR_A
 GYRO_BAD = SampleFlags.GYRO_INVALID | SampleFlags.GYRO_SATURATED
 ACCEL_BAD = SampleFlags.ACCEL_INVALID | SampleFlags.ACCEL_SATURATED
 MAG_BAD = SampleFlags.MAG_INVALID | SampleFlags.MAG_SATURATED
+_GYRO_BAD, _ACCEL_BAD, _MAG_BAD = int(GYRO_BAD), int(ACCEL_BAD), int(MAG_BAD)
+_ANY_BAD = _GYRO_BAD | _ACCEL_BAD | _MAG_BAD
+BAD_PERSIST_S = 0.05    # a sensor is unhealthy once its samples were flagged bad this long (≈ 41 samples)
 
 
 @dataclass
 class Health:
     stale_timeout_s: float
     last_sample_time: float | None = None     # monotonic time of the last processed sample
-    last_sample_flags: SampleFlags = SampleFlags.NONE
     last_estimate_flags: EstimateFlags | None = None
     sensor_error: str = ""                    # why the sensor is failed ("" = no bus error)
     calibrating: str = ""                     # what is calibrating ("" = nothing)
+    # when each sensor's samples started being flagged bad (None = the last sample was good); an isolated bad
+    # sample (one unverified burst-bug gyro word, which the estimator skips) must not flip the daemon to
+    # CRITICAL and cut the heading feed: only a condition lasting BAD_PERSIST_S does (docs/reliability.md)
+    _flags: int = 0
+    _gyro_bad_since: float | None = None
+    _accel_bad_since: float | None = None
+    _mag_bad_since: float | None = None
+
+    @property
+    def last_sample_flags(self) -> SampleFlags:
+        return SampleFlags(self._flags)
+
+    @last_sample_flags.setter
+    def last_sample_flags(self, flags) -> None:
+        """Set after `last_sample_time` for every processed batch (the per-sample path: plain int tests)."""
+        f = self._flags = int(flags)
+        if not f & _ANY_BAD and self._gyro_bad_since is None and self._accel_bad_since is None \
+                and self._mag_bad_since is None:
+            return
+        t = self.last_sample_time
+        if f & _GYRO_BAD:
+            if self._gyro_bad_since is None:
+                self._gyro_bad_since = t
+        else:
+            self._gyro_bad_since = None
+        if f & _ACCEL_BAD:
+            if self._accel_bad_since is None:
+                self._accel_bad_since = t
+        else:
+            self._accel_bad_since = None
+        if f & _MAG_BAD:
+            if self._mag_bad_since is None:
+                self._mag_bad_since = t
+        else:
+            self._mag_bad_since = None
+
+    def _bad(self, since: float | None) -> bool:
+        return since is not None and self.last_sample_time is not None and \
+            self.last_sample_time - since >= BAD_PERSIST_S
 
     def samples_flowing(self, now: float) -> bool:
         return self.last_sample_time is not None and now - self.last_sample_time <= self.stale_timeout_s
 
     def sensor_ok(self, now: float) -> bool:
-        invalid = SampleFlags.GYRO_INVALID | SampleFlags.ACCEL_INVALID
-        return self.samples_flowing(now) and not self.sensor_error and not self.last_sample_flags & invalid
+        """Samples flow, no bus error, and gyro and accel have not been invalid (or saturated) for
+        BAD_PERSIST_S."""
+        return (self.samples_flowing(now) and not self.sensor_error and not self._bad(self._gyro_bad_since)
+                and not self._bad(self._accel_bad_since))
 
     def heading_trusted(self, now: float) -> bool:
         """May the autopilot use our heading? Not while initialising or when the sensor failed."""
@@ -61,13 +104,12 @@ class Health:
         """(present, enabled, health) MAV_SYS_STATUS_SENSOR bitmaps."""
         healthy = 0
         if self.samples_flowing(now) and not self.sensor_error:
-            f = self.last_sample_flags
-            if not f & GYRO_BAD:
+            if not self._bad(self._gyro_bad_since):
                 healthy |= msgs.SENSOR_GYRO
-            if not f & ACCEL_BAD:
+            if not self._bad(self._accel_bad_since):
                 healthy |= msgs.SENSOR_ACCEL
             ef = self.last_estimate_flags or EstimateFlags.NONE
-            if not f & MAG_BAD and not ef & EstimateFlags.MAG_UNAVAILABLE:
+            if not self._bad(self._mag_bad_since) and not ef & EstimateFlags.MAG_UNAVAILABLE:
                 healthy |= msgs.SENSOR_MAG
             # mag-less (gyro-only heading, uncertainty growing): the heading still flows with its honest
             # variance, but the AHRS is not healthy (docs/reliability.md)

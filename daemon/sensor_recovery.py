@@ -103,7 +103,8 @@ class ReconnectingSource:
         self.next_attempt = 0.0
         self.stats = {"open_attempts": 0, "open_failures": 0, "reopens": 0, "bus_failures": 0,
                       "self_test_failures_at_start": 0, "lost_in_fault_windows": 0, "lost_after_reconnect": 0,
-                      "lost_outside_faults": 0}
+                      "lost_outside_faults": 0, "index_mismatches": 0}
+        self._last_counter = -1
         self.chip = None              # the simulated chip, when there is one (ground truth for the soak)
         self.first_chip_index: int | None = None
         self.last_chip_index: int | None = None
@@ -195,6 +196,7 @@ class ReconnectingSource:
             if now < self.next_attempt or not self._try_open(now):
                 raise SensorUnavailable(f"sensor unavailable: {self.last_error}")
             self._just_reopened = True
+            now = self._clock()          # the start (probe, self-test) took chip time: index by the read time
         try:
             s = self._inner.read_one(now)
         except BusError as exc:
@@ -213,6 +215,11 @@ class ReconnectingSource:
             self.first_chip_index = idx
         self.last_chip_index = idx
         reopened, self._just_reopened = self._just_reopened, False
+        prev_counter, self._last_counter = self._last_counter, s.counter
+        if prev is not None and idx - prev != s.counter - prev_counter:
+            self.stats["index_mismatches"] += 1
+            log.debug("sample index mismatch: chip +%d, daemon +%d (flags %s, reopened %s)", idx - prev,
+                      s.counter - prev_counter, s.flags, reopened)
         if prev is None or idx - prev <= 1:
             return
         lost = idx - prev - 1

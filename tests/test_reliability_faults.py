@@ -154,9 +154,11 @@ def test_each_diag_stat_bit_is_decoded_counted_and_flagged(bit):
         assert bool(s.flags & SampleFlags.GYRO_INVALID) == gyro_bad
         assert bool(s.flags & SampleFlags.ACCEL_INVALID) == accel_bad
     assert not samples[-1].flags & SampleFlags.ALARM          # DIAG_STAT clears on read once the fault is gone
-    health = Health(stale_timeout_s=0.1, last_sample_time=0.0, last_sample_flags=alarmed[-1].flags,
-                    last_estimate_flags=EstimateFlags.NONE)
-    assert health.heading_trusted(0.0) == (not gyro_bad and not accel_bad)
+    health = Health(stale_timeout_s=0.1, last_estimate_flags=EstimateFlags.NONE)
+    for t in np.arange(0.0, 0.1, P):                   # the alarm persisting for 0.1 s
+        health.last_sample_time = t
+        health.last_sample_flags = alarmed[-1].flags
+    assert health.heading_trusted(0.1) == (not gyro_bad and not accel_bad)
 
 
 # ------------------------------------------------------------------------------------------ start-up and bus loss
@@ -305,6 +307,25 @@ def test_stuck_magnetometer_degrades_to_gyro_heading_with_ahrs_unhealthy():
     assert all(r[4] for r in late)                                    # heading still published (degraded) ...
     assert late[-1][2] > before[-1][2]                                # ... with its 1σ grown
     assert after and all(r[3] & SENSOR_MAG and r[3] & SENSOR_AHRS for r in after)
+
+
+def test_an_isolated_bad_sample_does_not_flip_the_health():
+    """One unverified burst-bug word (GYRO_INVALID) among good samples: the estimator skips it; the daemon
+    stays ACTIVE and keeps the heading feed (only a bad condition lasting BAD_PERSIST_S counts)."""
+    from ahrsd.daemon.health import BAD_PERSIST_S
+
+    health = Health(stale_timeout_s=0.1, last_estimate_flags=EstimateFlags.NONE)
+    good, bad = SampleFlags.NEW_DATA, SampleFlags.NEW_DATA | SampleFlags.GYRO_INVALID
+    for k in range(1000):
+        health.last_sample_time = k * P
+        health.last_sample_flags = bad if k % 50 == 7 else good
+        assert health.heading_trusted(k * P) and health.sensor_bits(k * P)[2] & SENSOR_GYRO
+    n = int(BAD_PERSIST_S / P) + 2
+    for k in range(1000, 1000 + n):
+        health.last_sample_time = k * P
+        health.last_sample_flags = bad
+    assert not health.heading_trusted(health.last_sample_time)
+    assert not health.sensor_bits(health.last_sample_time)[2] & SENSOR_GYRO
 
 
 def test_gyro_saturation_stops_the_trusted_heading():
