@@ -193,8 +193,7 @@ def test_bus_gone_and_back_reconnects_and_counts_the_outage():
     samples, errors = run_reader(src, clock, 6.0)
     assert errors and set(errors) <= {"BusError", "SensorUnavailable"}
     assert src.up and src.stats["reopens"] >= 1 and src.stats["bus_failures"] >= 1
-    chip_total, daemon_total = accounted(src, samples)
-    assert chip_total == daemon_total                                  # every chip sample processed or counted lost
+    assert never_silent(src, samples)                                  # every chip sample processed or counted lost
     gap = max(b.t_s - a.t_s for a, b in zip(samples, samples[1:]))
     assert 1.5 <= gap < 1.5 + 2 * BACKOFF_MAX_S                        # the outage, seen as a time gap
     assert src.stats["lost_in_fault_windows"] + src.stats["lost_after_reconnect"] >= 1.5 * ADIS16405_RATE_HZ - 2
