@@ -412,7 +412,11 @@ class Service:
             est = pipeline.process(raw)
             if listeners and est is not None:
                 for fn in tuple(listeners):
-                    fn(pipeline.last_sample, est)
+                    try:
+                        fn(pipeline.last_sample, est)
+                    except Exception:  # noqa: BLE001 - a faulty listener is dropped, the reader carries on
+                        log.exception("sample listener %r failed; removed", fn)
+                        listeners.remove(fn)
         health.last_sample_time = now
         health.last_sample_flags = samples[-1].flags
         if est is not None:

@@ -449,3 +449,31 @@ def test_declination_priority(tmp_path):
     for f in pending:
         f()
     assert svc2.declination_rad == pytest.approx(math.radians(7.5)) and svc2.declination_source == "manual"
+
+
+def test_a_failing_sample_listener_is_dropped_not_fatal(tmp_path):
+    import dataclasses as dc
+
+    from ahrsd.calibration import Calibration
+    from ahrsd.daemon.config import Config, StateConfig
+    from ahrsd.daemon.pipeline import Pipeline
+    from ahrsd.daemon.service import Service
+    from ahrsd.estimator.base import EstimateFlags
+
+    class Est:
+        flags = EstimateFlags.NONE
+
+    class StubEstimator:
+        def update(self, sample):
+            return Est()
+
+    svc = Service(dc.replace(Config(), state=StateConfig(str(tmp_path))))
+    svc.pipeline = Pipeline(StubEstimator(), Calibration.identity())
+    good = []
+    svc.add_sample_listener(lambda s, e: 1 / 0)
+    remove = svc.add_sample_listener(lambda s, e: good.append(s.counter))
+    for i in range(3):
+        svc._process([make_sample(i * 0.001, [0, 0, 0], [0, 0, -9.8], [20, 0, 40], counter=i)], float(i))
+    assert good == [0, 1, 2] and len(svc._listeners) == 1
+    remove()
+    assert svc._listeners == []
