@@ -83,7 +83,7 @@ class Flood:
     def one(self) -> tuple[str, bytes]:
         r, rng, mav = self.rng.random(), self.rng, self.mav
         if r < 0.15:
-            idx = rng.randrange(16)
+            idx = rng.randrange(11)                          # the 11 parameters (docs/daemon.md)
             self.valid_sent["param_value"] += 1
             return "param_read", self.pack(mav.param_request_read_encode(self.sysid, OUR_COMP, b"", idx))
         if r < 0.25:
