@@ -97,6 +97,33 @@ def _endpoint_url(key, value) -> str:
 
 
 # -- the sections --------------------------------------------------------------------------------------------
+# Each section lists one checker per key, `(key_path, value) -> normalised value`; `_parse_table` applies
+# them and rejects unknown keys, and `parse` adds the checks that involve several keys.
+
+def _number_in(lo, hi, integer=False):
+    return lambda k, v: _number(k, v, lo, hi, integer=integer)
+
+
+def _choice_of(choices):
+    return lambda k, v: _choice(k, v, choices)
+
+
+def _mounting(k, value):
+    if not isinstance(value, list) or len(value) != 3:
+        raise _fail(k, value, "a list of three angles [roll, pitch, yaw] in degrees")
+    limits = (180.0, 90.0, 180.0)
+    return tuple(_number(f"{k}[{i}]", v, -lim, lim) for i, (v, lim) in enumerate(zip(value, limits)))
+
+
+def _parse_table(cls, d: dict, prefix: str, checks: dict) -> dict:
+    out = {}
+    for key, value in d.items():
+        check = checks.get(key)
+        if check is None:
+            raise _unknown(f"{prefix}.{key}", cls)
+        out[key] = check(f"{prefix}.{key}", value)
+    return out
+
 
 @dataclass(frozen=True)
 class SensorConfig:
@@ -110,38 +137,16 @@ class SensorConfig:
     replay_file: str = ""               # source = "replay": a recording written by `ahrsd record`
     replay_realtime: bool = True        # replay at the recorded pace (false: as fast as possible)
     mounting_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor axes in the body FRD, ZYX Euler deg
-    poll_hz: float = 200.0              # reader wake-ups per second; each wake drains every new sample
+    poll_hz: float = 200.0              # replay: polls per second (the chip is read once per sample)
     stale_timeout_s: float = 0.1        # no new sample for this long = sensor failure
 
     @classmethod
     def parse(cls, d: dict, prefix="sensor") -> "SensorConfig":
-        out = {}
-        for key, value in d.items():
-            k = f"{prefix}.{key}"
-            if key == "source":
-                out[key] = _choice(k, value, ("sim", "spi", "replay"))
-            elif key == "scenario":
-                out[key] = _choice(k, value, SCENARIO_NAMES)
-            elif key == "seed":
-                out[key] = _number(k, value, 0, 2**32 - 1, integer=True)
-            elif key == "errors":
-                out[key] = _choice(k, value, ("adis16405", "ideal"))
-            elif key in ("spi_device", "replay_file"):
-                out[key] = _string(k, value)
-            elif key == "replay_realtime":
-                out[key] = _bool(k, value)
-            elif key == "mounting_rpy_deg":
-                if not isinstance(value, list) or len(value) != 3:
-                    raise _fail(k, value, "a list of three angles [roll, pitch, yaw] in degrees")
-                lims = (180.0, 90.0, 180.0)
-                out[key] = tuple(_number(f"{k}[{i}]", v, -lim, lim) for i, (v, lim) in enumerate(zip(value, lims)))
-            elif key == "poll_hz":
-                out[key] = _number(k, value, 10.0, 2000.0)
-            elif key == "stale_timeout_s":
-                out[key] = _number(k, value, 0.005, 10.0)
-            else:
-                raise _unknown(k, cls)
-        cfg = cls(**out)
+        cfg = cls(**_parse_table(cls, d, prefix, {
+            "source": _choice_of(("sim", "spi", "replay")), "scenario": _choice_of(SCENARIO_NAMES),
+            "seed": _number_in(0, 2**32 - 1, integer=True), "errors": _choice_of(("adis16405", "ideal")),
+            "spi_device": _string, "replay_file": _string, "replay_realtime": _bool, "mounting_rpy_deg": _mounting,
+            "poll_hz": _number_in(10.0, 2000.0), "stale_timeout_s": _number_in(0.005, 10.0)}))
         if cfg.source == "replay" and not cfg.replay_file:
             raise _fail(f"{prefix}.replay_file", cfg.replay_file, "a recording path (required when source = 'replay')")
         if cfg.source == "spi" and not cfg.spi_device.startswith("/dev/"):
@@ -155,13 +160,7 @@ class EstimatorConfig:
 
     @classmethod
     def parse(cls, d: dict, prefix="estimator") -> "EstimatorConfig":
-        out = {}
-        for key, value in d.items():
-            if key == "name":
-                out[key] = _choice(f"{prefix}.{key}", value, ESTIMATOR_NAMES)
-            else:
-                raise _unknown(f"{prefix}.{key}", cls)
-        return cls(**out)
+        return cls(**_parse_table(cls, d, prefix, {"name": _choice_of(ESTIMATOR_NAMES)}))
 
 
 @dataclass(frozen=True)
@@ -180,21 +179,10 @@ class LocationConfig:
 
     @classmethod
     def parse(cls, d: dict, prefix="location") -> "LocationConfig":
-        out = {}
-        for key, value in d.items():
-            k = f"{prefix}.{key}"
-            if key == "lat_deg":
-                out[key] = _number(k, value, -90.0, 90.0)
-            elif key == "lon_deg":
-                out[key] = _number(k, value, -180.0, 180.0)
-            elif key == "alt_m":
-                out[key] = _number(k, value, -1000.0, 100_000.0)
-            elif key == "declination_deg":
-                out[key] = _number(k, value, -180.0, 180.0)
-            elif key == "use_autopilot_position":
-                out[key] = _bool(k, value)
-            else:
-                raise _unknown(k, cls)
+        out = _parse_table(cls, d, prefix, {
+            "lat_deg": _number_in(-90.0, 90.0), "lon_deg": _number_in(-180.0, 180.0),
+            "alt_m": _number_in(-1000.0, 100_000.0), "declination_deg": _number_in(-180.0, 180.0),
+            "use_autopilot_position": _bool})
         if ("lat_deg" in out) != ("lon_deg" in out):
             missing = "lon_deg" if "lat_deg" in out else "lat_deg"
             raise _fail(f"{prefix}.{missing}", None, "lat_deg and lon_deg must be given together")
@@ -211,12 +199,9 @@ class EndpointConfig:
     def parse(cls, d: dict, prefix="endpoint") -> "EndpointConfig":
         if not isinstance(d, dict):
             raise _fail(prefix, d, "a table with key url")
-        for key in d:
-            if key != "url":
-                raise _unknown(f"{prefix}.{key}", cls)
         if "url" not in d:
             raise _fail(f"{prefix}.url", None, "required (e.g. url = \"udpout:127.0.0.1:14550\")")
-        return cls(_endpoint_url(f"{prefix}.url", d["url"]))
+        return cls(**_parse_table(cls, d, prefix, {"url": _endpoint_url}))
 
 
 @dataclass(frozen=True)
@@ -228,20 +213,9 @@ class MavlinkConfig:
 
     @classmethod
     def parse(cls, d: dict, prefix="mavlink") -> "MavlinkConfig":
-        out = {}
-        for key, value in d.items():
-            k = f"{prefix}.{key}"
-            if key == "system_id":
-                out[key] = _number(k, value, 0, 255, integer=True)
-            elif key == "component_id":
-                out[key] = _number(k, value, 1, 255, integer=True)
-            elif key == "mav_type":
-                out[key] = _choice(k, value, tuple(MAV_TYPES))
-            elif key == "accept_broadcast_commands":
-                out[key] = _bool(k, value)
-            else:
-                raise _unknown(k, cls)
-        return cls(**out)
+        return cls(**_parse_table(cls, d, prefix, {
+            "system_id": _number_in(0, 255, integer=True), "component_id": _number_in(1, 255, integer=True),
+            "mav_type": _choice_of(tuple(MAV_TYPES)), "accept_broadcast_commands": _bool}))
 
 
 @dataclass(frozen=True)
@@ -257,15 +231,9 @@ class OutputsConfig:
 
     @classmethod
     def parse(cls, d: dict, prefix="outputs") -> "OutputsConfig":
-        names = {f.name for f in dataclasses.fields(cls)}
-        out = {}
-        for key, value in d.items():
-            k = f"{prefix}.{key}"
-            if key not in names:
-                raise _unknown(k, cls)
-            hi = MAX_VISION_RATE_HZ if key == "vision_position_estimate_hz" else MAX_OUTPUT_RATE_HZ
-            out[key] = _number(k, value, 0.0, hi)
-        return cls(**out)
+        checks = {f.name: _number_in(0.0, MAX_OUTPUT_RATE_HZ) for f in dataclasses.fields(cls)}
+        checks["vision_position_estimate_hz"] = _number_in(0.0, MAX_VISION_RATE_HZ)
+        return cls(**_parse_table(cls, d, prefix, checks))
 
 
 @dataclass(frozen=True)
@@ -274,13 +242,7 @@ class StateConfig:
 
     @classmethod
     def parse(cls, d: dict, prefix="state") -> "StateConfig":
-        out = {}
-        for key, value in d.items():
-            if key == "dir":
-                out[key] = _string(f"{prefix}.{key}", value)
-            else:
-                raise _unknown(f"{prefix}.{key}", cls)
-        return cls(**out)
+        return cls(**_parse_table(cls, d, prefix, {"dir": _string}))
 
     def resolve(self, environ=os.environ) -> Path:
         if self.dir:
@@ -300,18 +262,8 @@ class SigningConfig:
 
     @classmethod
     def parse(cls, d: dict, prefix="signing") -> "SigningConfig":
-        out = {}
-        for key, value in d.items():
-            k = f"{prefix}.{key}"
-            if key == "key_file":
-                out[key] = _string(k, value)
-            elif key == "link_id":
-                out[key] = _number(k, value, 0, 255, integer=True)
-            elif key == "refuse_unsigned_commands":
-                out[key] = _bool(k, value)
-            else:
-                raise _unknown(k, cls)
-        return cls(**out)
+        return cls(**_parse_table(cls, d, prefix, {
+            "key_file": _string, "link_id": _number_in(0, 255, integer=True), "refuse_unsigned_commands": _bool}))
 
 
 @dataclass(frozen=True)
@@ -320,13 +272,7 @@ class DaemonConfig:
 
     @classmethod
     def parse(cls, d: dict, prefix="daemon") -> "DaemonConfig":
-        out = {}
-        for key, value in d.items():
-            if key == "status_line":
-                out[key] = _choice(f"{prefix}.{key}", value, ("auto", "on", "off"))
-            else:
-                raise _unknown(f"{prefix}.{key}", cls)
-        return cls(**out)
+        return cls(**_parse_table(cls, d, prefix, {"status_line": _choice_of(("auto", "on", "off"))}))
 
 
 def _unknown(key: str, cls) -> ConfigError:

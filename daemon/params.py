@@ -5,7 +5,7 @@ MAV_PARAM_TYPE_REAL32 (no byte-wise encoding questions); the set (names, count, 
 daemon runs; a write is validated against the parameter's range and, accepted or not, answered by a broadcast
 PARAM_VALUE with the value now in force (the caller does the sending).
 
-Persistence: only values written over MAVLink are stored (`params.json`, atomic temp-file + fsync + rename);
+Persistence: only values written over MAVLink are stored (`params.json`, written atomically);
 the config file provides the defaults, so editing the config still takes effect for untouched parameters.
 """
 
@@ -14,11 +14,11 @@ from __future__ import annotations
 import json
 import logging
 import math
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
+
+from ahrsd.daemon.atomic_file import write_atomic
 
 log = logging.getLogger(__name__)
 
@@ -138,13 +138,7 @@ class ParamStore:
             return
         doc = {"schema": SCHEMA_VERSION, "values": self._stored}
         try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=".params.", dir=self.path.parent)
-            with os.fdopen(fd, "w") as f:
-                json.dump(doc, f, indent=1, sort_keys=True)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, self.path)
+            write_atomic(self.path, json.dumps(doc, indent=1, sort_keys=True).encode())
         except OSError as exc:
             log.error("cannot persist parameters to %s: %s", self.path, exc)
 

@@ -11,9 +11,10 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
-import tempfile
 import time
 from pathlib import Path
+
+from ahrsd.daemon.atomic_file import write_atomic
 
 log = logging.getLogger(__name__)
 
@@ -71,12 +72,6 @@ def save_timestamp(state_dir: Path | None, timestamp: int) -> None:
         return
     path = Path(state_dir) / TIMESTAMP_FILE
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=".signing.", dir=path.parent)
-        with os.fdopen(fd, "w") as f:
-            f.write(f"{int(timestamp)}\n")
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
+        write_atomic(path, f"{int(timestamp)}\n".encode())
     except OSError as exc:
         log.warning("cannot store the signing timestamp in %s: %s", path, exc)
