@@ -4,13 +4,16 @@ State: attitude quaternion (body FRD → NED) and gyro bias; error state δθ (N
 Initialised from a weighted Wahba solution of the first sample's gravity and field directions; then
 
 * strapdown propagation of the bias-corrected gyro, covariance Φ P Φᵀ + Q;
-* the accelerometer corrects **tilt only** (its measurement row has no heading component), with linear
-  acceleration handled by a low-pass of the specific force in the NED frame (as VQF does), adaptive noise
-  growing with | |f| − g |, rejection above a limit and an innovation gate;
-* the magnetometer corrects **heading only** (the angle of the horizontal field in the estimated NED frame),
-  so a magnetic disturbance cannot tilt the horizon; the field is checked against a learned reference
-  (magnitude and dip), rejected while it differs, and a consistently changed field is adopted after a while;
-* rest detection (gyro and accelerometer steady) feeds the low-passed gyro as a direct bias measurement.
+* the accelerometer corrects **tilt only**: the specific force is low-pass filtered in the NED frame (linear
+  acceleration averages out, gravity stays: VQF's idea); its vertical updates δθ_N, δθ_E with a gain forced
+  to zero on heading; rejected when the low-passed |f| is far from g or the vertical far from the estimate,
+  then held off until the low-pass has forgotten the push; optional turn-angle adaptive noise (fixed-wing);
+* the magnetometer corrects **heading only** (the angle of the horizontal field in the estimated NED frame,
+  gain forced to zero on tilt), so a magnetic disturbance cannot tilt the horizon; the field is checked
+  against a learned reference (magnitude, dip, and at rest its direction in the body), rejected while it
+  differs, and a consistently changed field is adopted after a while (as VQF does);
+* rest detection (gyro and accelerometer steady, noise-aware) makes every gyro sample a direct bias
+  measurement with the noise measured at rest.
 
 The per-sample step is compiled with numba (`mekf_core.py`: the one implementation of the algorithm).
 Parameters: `MekfParams` (every field with unit and meaning); defaults `DEFAULT_MEKF_PARAMS`.
@@ -34,10 +37,10 @@ from .wahba import davenport
 _DEG = math.pi / 180.0
 
 
-
 @dataclass(frozen=True)
 class MekfParams:
-    """Tuning of the MEKF. SI units; angles in rad. One parameter set serves every vehicle and trial."""
+    """Tuning of the MEKF. SI units; angles in rad. `DEFAULT_MEKF_PARAMS` (ground vehicles, boats, handheld;
+    one set for all of BROAD) and `FIXED_WING_MEKF_PARAMS` (sustained coordinated turns)."""
 
     # --- gyro (process noise)
     gyro_noise_rad_s_sqrt_hz: float = 2.0 * _DEG / 60.0
@@ -46,7 +49,7 @@ class MekfParams:
     gyro_bias_walk_rad_s_sqrt_s: float = 1e-5
     """Bias random walk density, rad/s/√s: reaches the ADIS16405 in-run bias stability (0.007°/s, datasheet)
     in about 100 s. Larger values let linear acceleration and field errors leak into the bias in motion
-    (measured on BROAD: 1e-4 → mean 2.9° instead of 2.2°)."""
+    (measured on BROAD: 1e-4 → mean 2.73° instead of 2.24°)."""
     gyro_bias_clip_rad_s: float = 2.0 * _DEG
     """The bias estimate is clipped to ±this per axis (VQF biasClip); rest is not declared above it."""
     init_bias_sigma_rad_s: float = 0.5 * _DEG
@@ -61,9 +64,9 @@ class MekfParams:
     acc_turn_noise_gain: float = 0.0
     """Adaptive tilt noise for sustained acceleration: a centripetal acceleration ⟂ g tilts the apparent
     vertical by φ = acos(g/|f|) (|f| of the low-passed specific force), so the tilt measurement gets
-    (gain·(φ − dead zone))² of extra variance. 0 by default (handheld motion, BROAD: gain 1 → mean 3.24°
-    instead of 2.22°, because shaking also changes |f|); 1 in `FIXED_WING_MEKF_PARAMS`, where a
-    coordinated 30° turn otherwise drags the horizon by the bank angle (simulated: roll RMS 24° → 0.6°)."""
+    (gain·(φ − dead zone))² of extra variance. 0 by default (handheld motion, BROAD: gain 1 → mean 3.25°
+    instead of 2.24°, because shaking also changes |f|); 1 in `FIXED_WING_MEKF_PARAMS`, where a
+    coordinated 30° turn otherwise drags the horizon by the bank angle (simulated, bench/accuracy.py: roll RMS 22° → 0.7°)."""
     acc_turn_dead_zone_rad: float = 0.0
     """Turn angles φ below this add no noise, rad."""
     acc_reject_m_s2: float = 2.0
