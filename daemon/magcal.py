@@ -84,6 +84,9 @@ class MagCalSettings:
     fitness_mgauss: float = 16.0         # ArduPilot COMPASS_CAL_FIT default
     timeout_s: float = 300.0             # sample time from start to full coverage
     heading_slew_deg_s: float = 2.0      # bound on the heading change a new calibration causes (EKF3 3σ gate)
+    field_magnitude_rate_pct_s: float = 0.4  # field magnitude change rate while a new calibration goes in:
+    #                                          × the MEKF's 20 s reference time constant < its 10 % tolerance
+    field_dip_rate_deg_s: float = 0.5        # dip change rate: × 20 s < the MEKF's 15° dip tolerance
     progress_rate_hz: float = 4.0        # MAG_CAL_PROGRESS while running
     report_rate_hz: float = 1.0          # MAG_CAL_REPORT while finished and not accepted/cancelled
     fixed_yaw_average_s: float = 1.0     # raw field averaged for MAV_CMD_FIXED_MAG_CAL_YAW
@@ -497,32 +500,45 @@ def settings_from_mapping(d: dict[str, Any] | None) -> MagCalSettings:
 class BlendedCalibration:
     """A Calibration stand-in for the pipeline while a new magnetometer calibration is brought in.
 
-    Gyro and accelerometer come from the new calibration. The magnetometer output is the new calibrated field
-    turned about the local vertical (roll/pitch from the last estimate) by an offset angle that starts at the
-    old-minus-new heading difference of the first sample and shrinks to zero at `max_rate_deg_s` of sample
-    time: the heading follows the vehicle's rotation as the new calibration sees it, plus a correction that
-    never moves faster than the bound — the heading never steps, whatever the size of the change (a straight
-    interpolation of the two models would pass through a near-zero field when they differ by 180°).
-    Horizontal and vertical magnitudes move from the old to the new values in proportion. Other attributes
-    (mag, metadata, to_dict, ...) are the new calibration's.
+    Gyro and accelerometer come from the new calibration. The magnetometer output is built in the local level
+    frame (roll/pitch from the last estimate) from three parts of the field:
+
+    * heading: the new calibrated field's, plus an offset that starts at the old-minus-new difference of the
+      first sample and runs down to zero at `heading_rate_deg_s` — so the heading follows the vehicle's
+      rotation and the correction never moves faster than the bound, whatever the size of the change (a
+      straight interpolation of the two models would pass through a near-zero field when they differ by 180°);
+    * magnitude and dip: moved from the old calibrated field's to the new one's at bounded rates, because the
+      estimator checks the field against a reference it has learned (MEKF: magnitude within 10 %, dip within
+      15°, reference following with a 20 s time constant) and would otherwise reject the magnetometer — run
+      on the gyro for up to a minute — and then jump.
+
+    Other attributes (mag, metadata, to_dict, ...) are the new calibration's.
     """
 
-    def __init__(self, old, new, max_rate_deg_s: float):
+    def __init__(self, old, new, heading_rate_deg_s: float, magnitude_rate_pct_s: float, dip_rate_deg_s: float):
         self.old, self.new = old, new
-        self.rate_rad_s = math.radians(max_rate_deg_s)
+        self.heading_rate_rad_s = math.radians(heading_rate_deg_s)
+        self.magnitude_rate = magnitude_rate_pct_s / 100.0
+        self.dip_rate_rad_s = math.radians(dip_rate_deg_s)
         self.roll_rad = 0.0
         self.pitch_rad = 0.0
-        self.offset_rad: float | None = None   # None until the first sample
+        self.offset_rad: float | None = None   # heading offset; None until the first sample
         self.initial_offset_rad = 0.0
+        self.shape = 0.0                       # 0: old magnitude/dip, 1: new
+        self.shape_rate = math.inf             # per second
         self._t_last: float | None = None
-        self._first_levels = None
 
     def __getattr__(self, name):
         return getattr(self.new, name)
 
     @property
     def done(self) -> bool:
-        return self.offset_rad is not None and self.offset_rad == 0.0
+        return self.offset_rad == 0.0 and self.shape >= 1.0
+
+    @property
+    def duration_s(self) -> float:
+        heading = abs(self.initial_offset_rad) / self.heading_rate_rad_s if self.heading_rate_rad_s > 0 else 0.0
+        return max(heading, 1.0 / self.shape_rate if self.shape_rate > 0 else 0.0)
 
     def apply(self, sample):
         out = self.new.apply(sample)
@@ -530,36 +546,49 @@ class BlendedCalibration:
         cp, sp = math.cos(self.pitch_rad), math.sin(self.pitch_rad)
         tilt = np.array([[cp, sp * sr, sp * cr], [0.0, cr, -sr], [-sp, cp * sr, cp * cr]])  # body -> level
         ln = tilt @ out.mag_ut
+        lo = tilt @ self.old.mag.apply(sample.mag_ut)
+        h_n, h_o = math.hypot(ln[0], ln[1]), math.hypot(lo[0], lo[1])
+        m_n, m_o = math.hypot(h_n, ln[2]), math.hypot(h_o, lo[2])
+        dip_n, dip_o = math.atan2(ln[2], h_n), math.atan2(lo[2], h_o)
         ang_n = math.atan2(ln[1], ln[0])
-        h_n = math.hypot(ln[0], ln[1])
         if self.offset_rad is None:
-            lo = tilt @ self.old.mag.apply(sample.mag_ut)
             self.offset_rad = self.initial_offset_rad = math.remainder(math.atan2(lo[1], lo[0]) - ang_n, 2 * math.pi)
-            self._first_levels = (math.hypot(lo[0], lo[1]), lo[2])
+            times = [0.0]
+            if m_o > 0 and m_n > 0 and self.magnitude_rate > 0:
+                times.append(abs(math.log(m_n / m_o)) / self.magnitude_rate)
+            if self.dip_rate_rad_s > 0:
+                times.append(abs(dip_n - dip_o) / self.dip_rate_rad_s)
+            t_shape = max(times)
+            self.shape_rate = 1.0 / t_shape if t_shape > 0 else math.inf
+            if self.shape_rate == math.inf:
+                self.shape = 1.0
         else:
             dt = max(0.0, sample.t_s - self._t_last)
-            step = self.rate_rad_s * dt
+            step = self.heading_rate_rad_s * dt
             e = self.offset_rad
             self.offset_rad = 0.0 if abs(e) <= step else e - math.copysign(step, e)
+            self.shape = min(1.0, self.shape + self.shape_rate * dt)
         self._t_last = sample.t_s
-        f = 1.0 - abs(self.offset_rad) / abs(self.initial_offset_rad) if self.initial_offset_rad else 1.0
-        h0, v0 = self._first_levels
-        h = (1 - f) * h0 + f * h_n
+        g = self.shape
+        mag = m_o ** (1.0 - g) * m_n ** g if m_o > 0 and m_n > 0 else m_n
+        dip = (1.0 - g) * dip_o + g * dip_n
         ang = ang_n + self.offset_rad
-        level = np.array([h * math.cos(ang), h * math.sin(ang), (1 - f) * v0 + f * ln[2]])
-        return out.with_values(mag_ut=tilt.T @ level)
+        h, v = mag * math.cos(dip), mag * math.sin(dip)
+        return out.with_values(mag_ut=tilt.T @ np.array([h * math.cos(ang), h * math.sin(ang), v]))
 
 
 class CalibrationBlend:
     """Brings a new calibration into a running pipeline without stepping the heading (`BlendedCalibration`
-    until its offset has run down, then the new calibration itself). The VISION_POSITION_ESTIMATE
-    reset_counter is not touched: ArduPilot reads a new value as a position reset."""
+    until it has run down, then the new calibration itself). The VISION_POSITION_ESTIMATE reset_counter is
+    not touched: ArduPilot reads a new value as a position reset."""
 
-    def __init__(self, pipeline, max_rate_deg_s: float):
+    def __init__(self, pipeline, settings: "MagCalSettings", on_done=None):
         self.pipeline = pipeline
-        self.max_rate_deg_s = max_rate_deg_s
+        self.settings = settings
+        self.on_done = on_done
         self.target = None
         self._blended: BlendedCalibration | None = None
+        self._logged = False
 
     @property
     def active(self) -> bool:
@@ -569,10 +598,12 @@ class CalibrationBlend:
         current = self.pipeline.calibration
         old = current.new if isinstance(current, BlendedCalibration) else current
         self.target = new_cal
-        if self.max_rate_deg_s <= 0:
+        st = self.settings
+        if st.heading_slew_deg_s <= 0:
             self._finish()
             return
-        self._blended = BlendedCalibration(old, new_cal, self.max_rate_deg_s)
+        self._blended = BlendedCalibration(old, new_cal, st.heading_slew_deg_s, st.field_magnitude_rate_pct_s,
+                                           st.field_dip_rate_deg_s)
         if estimate is not None:
             self._blended.roll_rad, self._blended.pitch_rad = float(estimate.roll_rad), float(estimate.pitch_rad)
         self.pipeline.calibration = self._blended
@@ -585,8 +616,8 @@ class CalibrationBlend:
             return
         if not self._logged and b.offset_rad is not None:
             self._logged = True
-            log.info("magcal: bringing the new calibration in over %.1f s (heading change %.1f deg)",
-                     abs(b.initial_offset_rad) / b.rate_rad_s, math.degrees(b.initial_offset_rad))
+            log.info("magcal: bringing the new calibration in over %.0f s (heading change %.1f deg)",
+                     b.duration_s, math.degrees(b.initial_offset_rad))
         if b.done:
             self._finish()
             return
@@ -598,6 +629,8 @@ class CalibrationBlend:
         self.target = None
         self._blended = None
         log.info("magcal: new calibration fully in force")
+        if self.on_done is not None:
+            self.on_done()
 
 
 class ServiceHost:
@@ -606,7 +639,7 @@ class ServiceHost:
 
     def __init__(self, service, settings: MagCalSettings):
         self.service = service
-        self.blend = CalibrationBlend(service.pipeline, settings.heading_slew_deg_s) if service.pipeline else None
+        self.blend = None
         self.protocol: MagCalProtocol | None = None
         self._task: asyncio.Task | None = None
         self._last_sample = None
@@ -615,8 +648,11 @@ class ServiceHost:
 
     def _blend(self) -> CalibrationBlend:
         if self.blend is None:
-            self.blend = CalibrationBlend(self.service.pipeline, self.protocol.settings.heading_slew_deg_s)
+            self.blend = CalibrationBlend(self.service.pipeline, self.protocol.settings, self._blend_done)
         return self.blend
+
+    def _blend_done(self) -> None:
+        self.protocol._say(SEV_INFO, "Mag cal: new calibration fully applied")
 
     # -- MagCalHost
     def current_calibration(self):

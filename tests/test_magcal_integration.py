@@ -118,6 +118,13 @@ class Client:
                 return m
         return None
 
+    def seen_or_wait(self, pred, timeout: float, since: int = 0):
+        """A message already received (after index `since`) matching pred, else wait for one."""
+        for m in self.msgs[since:]:
+            if pred(m):
+                return m
+        return self.wait(pred, timeout)
+
     def of(self, kind: str, since: int = 0) -> list:
         return [m for m in self.msgs[since:] if m.get_type() == kind]
 
@@ -179,7 +186,8 @@ def daemon_env(tmp_path):
 
 def test_full_session_with_pymavlink(daemon_env):
     port, state, start = daemon_env
-    daemon = start(magcal={"heading_slew_deg_s": 20.0})
+    # faster than the defaults (2 °/s, 0.4 %/s, 0.5 °/s) so the swap completes within the test budget
+    daemon = start(magcal={"heading_slew_deg_s": 20.0, "field_magnitude_rate_pct_s": 5.0, "field_dip_rate_deg_s": 5.0})
     c = Client(port)
     hb = c.wait(lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 200, 20)
     assert hb is not None, daemon.text()[-2000:]
@@ -239,11 +247,13 @@ def test_full_session_with_pymavlink(daemon_env):
     assert np.allclose(fitted.soft_iron, sym_true, atol=0.03)
 
     # accept: saved atomically, applied without restart
+    n_accept = len(c.msgs)
     assert c.command(42425).result == mavlink.MAV_RESULT_ACCEPTED
-    c.wait(lambda m: m.get_type() == "STATUSTEXT" and "saved" in m.text, 3)
+    assert c.seen_or_wait(lambda m: m.get_type() == "STATUSTEXT" and "saved" in m.text, 3, n_accept) is not None
     saved = CalibrationStore(state).load()
     assert np.allclose(saved.mag.hard_iron_ut, fitted.hard_iron_ut, atol=1e-3)
-    c.wait(lambda m: False, 3.0)   # the blend (heading slewed at 20°/s in this test) completes
+    done = c.seen_or_wait(lambda m: m.get_type() == "STATUSTEXT" and "fully applied" in m.text, 20, n_accept)
+    assert done is not None, daemon.text()[-2000:]
     mean_after, spread_after = c.mag_norm_spread_ut(2.0)
     before = heading_error_rms_deg(Calibration.identity())
     after = heading_error_rms_deg(saved)
