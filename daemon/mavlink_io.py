@@ -74,12 +74,22 @@ class Endpoint:
     # -- lifecycle ------------------------------------------------------------------------------------------
 
     def open(self, loop: asyncio.AbstractEventLoop) -> None:
-        """Open the connection now, or (TCP client, whose constructor blocks) in the background."""
+        """Open the connection now, or in the background: a TCP client (its constructor blocks) and a serial
+        port that is not there yet (USB adapter unplugged) are retried every TCP_RETRY_S. A bad UDP/TCP
+        server address raises: that is a configuration error."""
         self._loop = loop
         if self.kind == "tcp":
-            self._connect_task = loop.create_task(self._connect_tcp())
+            self._connect_task = loop.create_task(self._connect_retrying())
             return
-        self._attach(self._make_connection())
+        try:
+            conn = self._make_connection()
+        except OSError as exc:
+            if self.kind != "serial":
+                raise
+            log.warning("MAVLink %s: %s; retrying every %.0f s", self.url, exc, TCP_RETRY_S)
+            self._connect_task = loop.create_task(self._connect_retrying())
+            return
+        self._attach(conn)
 
     def _make_connection(self):
         conn = mavutil.mavlink_connection(self.url, source_system=self.source_system,
@@ -88,12 +98,15 @@ class Endpoint:
         conn.mav.robust_parsing = True
         return conn
 
-    async def _connect_tcp(self) -> None:
+    async def _connect_retrying(self) -> None:
+        failures = 0
         while True:
             try:
                 conn = await self._loop.run_in_executor(None, self._make_connection)
             except OSError as exc:
-                log.info("MAVLink %s: %s; retrying in %.0f s", self.url, exc, TCP_RETRY_S)
+                failures += 1
+                log.log(logging.INFO if failures == 1 else logging.DEBUG,
+                        "MAVLink %s: %s; retrying every %.0f s", self.url, exc, TCP_RETRY_S)
                 await asyncio.sleep(TCP_RETRY_S)
                 continue
             self._attach(conn)
@@ -270,7 +283,7 @@ class Endpoint:
             self.conn.fd = self.conn.listen.fileno()
             self._register_fd()
             return
-        log.info("MAVLink %s: connection closed by peer; reconnecting", self.url)
+        log.info("MAVLink %s: connection closed (peer gone or device unplugged); reconnecting", self.url)
         if self._fd is not None:
             self._loop.remove_reader(self._fd)
             self._fd = None
@@ -279,7 +292,7 @@ class Endpoint:
         except OSError:
             pass
         self.conn = None
-        self._connect_task = self._loop.create_task(self._connect_tcp())
+        self._connect_task = self._loop.create_task(self._connect_retrying())
 
 
 def is_for_us(msg, system_id: int, component_id: int) -> tuple[bool, bool]:

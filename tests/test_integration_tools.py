@@ -191,3 +191,57 @@ def test_tcp_endpoints_server_and_client_reconnect(tmp_path):
         except subprocess.TimeoutExpired:
             proc.kill()
         log.close()
+
+
+def test_serial_endpoint_on_a_pseudo_terminal(tmp_path):
+    """A serial endpoint ("/dev/pts/N,115200", as for an autopilot's TELEM port): our HEARTBEAT and ATTITUDE
+    come out of the other side of a pty pair, and a command sent back is acknowledged."""
+    import pty
+    import termios
+    import tty
+
+    master, slave = pty.openpty()
+    tty.setraw(master)
+    tty.setraw(slave)
+    attrs = termios.tcgetattr(slave)
+    termios.tcsetattr(slave, termios.TCSANOW, attrs)
+    slave_path = os.ttyname(slave)
+    log = open(tmp_path / "ahrsd.log", "w")
+    proc = subprocess.Popen([sys.executable, "-m", "ahrsd.daemon.cli", "run", "--mavlink", f"{slave_path},115200",
+                             "--state-dir", str(tmp_path / "s"), "--status-line", "off"],
+                            stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
+    sender = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+    seen: set[str] = set()
+    ack = None
+    try:
+        import select
+
+        end = time.monotonic() + 60
+        sent = False
+        while time.monotonic() < end and (not {"HEARTBEAT", "ATTITUDE"} <= seen or ack is None):
+            r, _, _ = select.select([master], [], [], 0.3)
+            if not r:
+                continue
+            for m in parser.parse_buffer(os.read(master, 4096)) or ():
+                if m.get_srcComponent() != OUR_COMP:
+                    continue
+                seen.add(m.get_type())
+                if m.get_type() == "COMMAND_ACK":
+                    ack = m
+                if m.get_type() == "HEARTBEAT" and not sent:
+                    os.write(master, sender.command_long_encode(
+                        1, OUR_COMP, mavlink.MAV_CMD_GET_MESSAGE_INTERVAL, 0, 30, 0, 0, 0, 0, 0, 0).pack(sender))
+                    sent = True
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+        log.close()
+        os.close(master)
+        os.close(slave)
+    assert {"HEARTBEAT", "ATTITUDE"} <= seen, (tmp_path / "ahrsd.log").read_text()
+    assert ack is not None and ack.result == mavlink.MAV_RESULT_ACCEPTED
