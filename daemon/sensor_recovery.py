@@ -110,6 +110,7 @@ class ReconnectingSource:
         self.last_chip_index: int | None = None
         self._reads_started = False
         self._just_reopened = False
+        self._unreported = True
 
     def _rebase_faults(self, kinds_excluded=()) -> None:
         """Fault windows count chip samples from now (the chip ran while the daemon was loading)."""
@@ -193,8 +194,11 @@ class ReconnectingSource:
             if self.chip is not None:      # run-time faults count from the reader's first read
                 self._rebase_faults(kinds_excluded=("self_test_fail",))
         if not self.up:
+            if self._unreported and self._inner is None:
+                self._unreported = False     # the service hears of a failed start even if the retry would work
+                raise SensorUnavailable(self.last_error)
             if now < self.next_attempt or not self._try_open(now):
-                raise SensorUnavailable(f"sensor unavailable: {self.last_error}")
+                raise SensorUnavailable(self.last_error)
             self._just_reopened = True
             now = self._clock()          # the start (probe, self-test) took chip time: index by the read time
         try:

@@ -350,10 +350,12 @@ class Service:
                 self._consecutive_frame_errors += 1
                 if self._consecutive_frame_errors >= FRAME_ERRORS_FOR_FAILURE:
                     self._on_driver_error(exc)
+                self._publish(now)      # SYS_STATUS keeps flowing (health bits) while the sensor misbehaves
                 timer.arm(now + self._reader_period)
                 return
             except Exception as exc:  # noqa: BLE001 - BusError or an OSError: count, report, retry
                 self._on_driver_error(exc)
+                self._publish(now)      # only SYS_STATUS goes out now: the GCS sees the health bits cleared
                 timer.arm(now + DRIVER_RETRY_S)
                 return
             self._consecutive_frame_errors = 0

@@ -1,0 +1,187 @@
+"""End to end against the `ahrsd run` subprocess (simulated chip with --sim-faults): what the autopilot and the
+ground station see under sensor faults, CPU starvation (SIGSTOP/SIGCONT) and a MAVLink flood.
+
+One daemon for the module: its fault schedule makes the start-up self-test fail for 6 s, the device vanish
+for 1 s and data-ready stall for 0.5 s; then the test freezes the process (0.3 s and 2.5 s) and floods it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import time
+
+import pytest
+
+from ahrsd.daemon.messages import SENSOR_AHRS, SENSOR_GYRO
+from ahrsd.daemon.mavlink_io import mavlink
+from test_integration_daemon import OUR_COMP, Daemon
+
+SCHEDULE = "self_test_fail@0-6;bus_error@10-11;stall@15-15.5;alarm@17-17.3:bits=SUPPLY_HIGH"
+
+
+@pytest.fixture(scope="module")
+def faulty(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("faulty")
+    d = Daemon(tmp, "--sim-faults", SCHEDULE, "--stats-file", str(tmp / "stats.json"))
+    d.stats_path = tmp / "stats.json"
+    d.events = []                       # (t, message) of everything our component sent, in order
+    try:
+        yield d
+    finally:
+        if d.proc.poll() is None:
+            d.stop()
+
+
+def pump(d, seconds: float, until=None):
+    """Collect our messages into d.events for `seconds` (or until `until(m)` is true)."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        m = d.gcs.recv_match(blocking=True, timeout=0.1)
+        if m is None:
+            if d.proc.poll() is not None:
+                raise AssertionError(f"ahrsd exited with {d.proc.returncode}:\n{d.output()}")
+            continue
+        if m.get_srcComponent() != OUR_COMP:
+            continue
+        d.events.append((time.monotonic(), m))
+        if until is not None and until(m):
+            return m
+    return None
+
+
+def of_type(d, mtype, since=0.0):
+    return [(t, m) for t, m in d.events if m.get_type() == mtype and t >= since]
+
+
+def test_self_test_failure_at_start_is_critical_not_a_crash_loop(faulty):
+    d = faulty
+    pump(d, 90, lambda m: m.get_type() == "HEARTBEAT" and m.system_status == mavlink.MAV_STATE_ACTIVE)
+    states = [m.system_status for _, m in of_type(d, "HEARTBEAT")]
+    assert states[-1] == mavlink.MAV_STATE_ACTIVE, states
+    assert mavlink.MAV_STATE_CRITICAL in states                      # up and saying why, not exiting
+    texts = [m.text for _, m in of_type(d, "STATUSTEXT")]
+    assert any("self-test failed" in t for t in texts), texts
+    t_active = of_type(d, "HEARTBEAT")[-1][0]
+    assert not [1 for t, _ in of_type(d, "VISION_POSITION_ESTIMATE") if t < t_active - 1.2]  # no heading while down
+    assert d.proc.poll() is None
+
+
+def test_vanished_device_stops_the_heading_then_reconnects(faulty):
+    d = faulty
+    t0 = time.monotonic()
+    pump(d, 40, lambda m: m.get_type() == "STATUSTEXT" and "recovered" in m.text)
+    pump(d, 2.0)
+    texts = [m.text for _, m in of_type(d, "STATUSTEXT", t0)]
+    assert any("sensor failure: SPI transfer failed" in t for t in texts), texts
+    assert any("recovered" in t for t in texts)
+    vpe = [t for t, _ in of_type(d, "VISION_POSITION_ESTIMATE", t0)]
+    assert max(b - a for a, b in zip(vpe, vpe[1:])) > 0.8               # the feed stopped during the outage
+    sys_status = [m for _, m in of_type(d, "SYS_STATUS", t0)]
+    assert any(not m.onboard_control_sensors_health & SENSOR_AHRS for m in sys_status)
+    assert sys_status[-1].onboard_control_sensors_health & SENSOR_AHRS
+    assert sys_status[-1].errors_count4 > 0                             # sensor errors counted
+
+
+def test_stall_is_reported_and_counted_as_lost_samples(faulty):
+    d = faulty
+    t0 = time.monotonic()
+    pump(d, 25, lambda m: m.get_type() == "STATUSTEXT" and "SUPPLY_HIGH" in m.text)   # the alarm comes after
+    states = [m.system_status for _, m in of_type(d, "HEARTBEAT", t0)]
+    assert mavlink.MAV_STATE_CRITICAL in states or any("no samples" in m.text for _, m in of_type(d, "STATUSTEXT", t0))
+    pump(d, 1.5)
+    last = of_type(d, "SYS_STATUS")[-1][1]
+    assert last.errors_count2 >= 0.5 * 819 - 5                          # the stalled samples, counted as lost
+
+
+def _lost(d) -> int:
+    pump(d, 1.3, lambda m: m.get_type() == "SYS_STATUS")
+    return of_type(d, "SYS_STATUS")[-1][1].errors_count2
+
+
+def test_cpu_starvation_short_freeze_counts_the_gap_and_keeps_running(faulty):
+    d = faulty
+    pump(d, 2.0)
+    before = _lost(d)
+    os.kill(d.proc.pid, signal.SIGSTOP)
+    time.sleep(0.3)
+    os.kill(d.proc.pid, signal.SIGCONT)
+    pump(d, 2.5)
+    after = _lost(d)
+    assert after - before >= 0.3 * 819 * 0.8                           # ≈ 245 samples lost and counted
+    assert of_type(d, "HEARTBEAT")[-1][1].system_status == mavlink.MAV_STATE_ACTIVE
+
+
+def test_cpu_starvation_long_freeze_reinitialises_and_says_so(faulty):
+    d = faulty
+    pump(d, 1.0)
+    resets_before = of_type(d, "VISION_POSITION_ESTIMATE")[-1][1].reset_counter
+    os.kill(d.proc.pid, signal.SIGSTOP)
+    time.sleep(2.5)                                                      # > the MEKF's 2 s re-init gap
+    t_cont = time.monotonic()
+    os.kill(d.proc.pid, signal.SIGCONT)
+    pump(d, 20, lambda m: m.get_type() == "HEARTBEAT" and m.system_status == mavlink.MAV_STATE_ACTIVE
+         and time.monotonic() > t_cont + 1.0)
+    pump(d, 1.0)
+    vpe = of_type(d, "VISION_POSITION_ESTIMATE", t_cont)
+    assert vpe and vpe[-1][1].reset_counter > resets_before              # PX4 re-aligns instead of fighting a step
+    states = [m.system_status for _, m in of_type(d, "HEARTBEAT", t_cont)]
+    assert mavlink.MAV_STATE_STANDBY in states                            # re-initialising: no heading out
+
+
+def test_flood_keeps_output_rates_answers_valid_traffic_and_counts_junk(faulty):
+    d = faulty
+    import random
+
+    rng = random.Random(4)
+    sock = d.gcs.port
+    addr = next(iter(d.gcs.clients))
+    mav = d.gcs.mav
+    comm_before = _last_sys_status(d).errors_comm
+    t0 = time.monotonic()
+    marks = set()
+    end = t0 + 4.0
+    sent = 0
+    while time.monotonic() < end:
+        for _ in range(10):          # ~1000 datagrams/s: junk, damaged frames, requests
+            r = rng.random()
+            if r < 0.4:
+                sock.sendto(bytes(rng.getrandbits(8) for _ in range(rng.randrange(1, 200))), addr)
+            elif r < 0.6:
+                f = bytearray(mav.param_request_read_encode(d.sysid, OUR_COMP, b"", 0).pack(mav))
+                f[-1] ^= 0x5A
+                sock.sendto(bytes(f), addr)
+            elif r < 0.8:
+                mark = rng.getrandbits(40) | 1
+                marks.add(mark)
+                sock.sendto(mav.timesync_encode(0, mark).pack(mav), addr)
+            else:
+                sock.sendto(mav.command_long_encode(d.sysid, OUR_COMP, 511, 0, math.nan, math.inf,
+                                                    0, 0, 0, 0, 0).pack(mav), addr)
+            sent += 1
+        pump(d, 0.01)
+    pump(d, 1.5)
+    att = [t for t, _ in of_type(d, "ATTITUDE", t0 + 0.5) if t < end]
+    assert len(att) / (end - t0 - 0.5) > 0.9 * 50                        # 50 Hz kept under the flood
+    answered = {m.ts1 for _, m in of_type(d, "TIMESYNC", t0)} & marks
+    assert len(answered) >= 0.95 * len(marks)
+    acks = [m for _, m in of_type(d, "COMMAND_ACK", t0) if m.command == 511]
+    assert acks and all(m.result == mavlink.MAV_RESULT_DENIED for m in acks)
+    assert _last_sys_status(d).errors_comm > comm_before + 100            # junk counted
+
+
+def _last_sys_status(d):
+    pump(d, 1.3, lambda m: m.get_type() == "SYS_STATUS")
+    return of_type(d, "SYS_STATUS")[-1][1]
+
+
+def test_stats_file_and_clean_exit(faulty):
+    d = faulty
+    assert d.stop() == 0
+    stats = json.loads(d.stats_path.read_text())
+    assert stats["source"]["sensor_self_test_failures_at_start"] >= 1
+    assert stats["source"]["sensor_reopens"] >= 1 and stats["faults_injected"]["bus_error"] >= 1
+    assert stats["commands"]["handler_errors"] == 0
+    assert "Traceback" not in d.log_path.read_text()
