@@ -373,6 +373,8 @@ def load_config(path: str | os.PathLike) -> Config:
         raise ConfigError(f"cannot read config file {path}: {exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"config file {path} is not valid TOML: {exc}") from None
+    except UnicodeDecodeError as exc:      # tomllib decodes UTF-8 itself: binary junk must not escape as a traceback
+        raise ConfigError(f"config file {path} is not UTF-8 text (byte {exc.start}: {exc.reason})") from None
     try:
         return parse_config(doc, str(path))
     except ConfigError as exc:
