@@ -43,6 +43,7 @@ class _Stream:
 class OutputSchedule:
     def __init__(self, rates_hz: dict[int, float]):
         self._streams = {mid: _Stream(hz, hz) for mid, hz in rates_hz.items()}
+        self._next_due = 0.0   # earliest deadline of all streams: most per-sample calls return at once
 
     def __contains__(self, message_id: int) -> bool:
         return message_id in self._streams
@@ -62,6 +63,7 @@ class OutputSchedule:
             raise ValueError(f"rate {hz:g} Hz outside [0, {self.max_rate_hz(message_id):g}]")
         s.rate_hz = hz
         s.due = 0.0
+        self._next_due = 0.0
         if default:
             s.default_hz = hz
 
@@ -83,7 +85,10 @@ class OutputSchedule:
 
     def due(self, now: float) -> list[int]:
         """Messages whose deadline has come; advances their deadlines."""
+        if now < self._next_due:
+            return []
         out = []
+        next_due = float("inf")
         for mid, s in self._streams.items():
             if s.rate_hz <= 0.0:
                 continue
@@ -95,4 +100,6 @@ class OutputSchedule:
                 s.due += period
                 if now - s.due > CATCH_UP_LIMIT_S:    # a long stall: restart instead of bursting
                     s.due = now + period
+            next_due = min(next_due, s.due)
+        self._next_due = next_due
         return out
