@@ -67,10 +67,7 @@ def request_message(service, msg, ctx) -> int:
     elif mid == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
         out = msgs.heartbeat(service.mav_type, service.health.system_status(now))
     elif mid is not None and mid in service.schedule:
-        est, sample = service.pipeline.last_estimate, service.pipeline.last_sample
-        if est is None:
-            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
-        out = service._build(mid, est, sample, now)
+        out = service.build_output(mid, now)
         if out is None:
             return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
     else:
@@ -78,7 +75,6 @@ def request_message(service, msg, ctx) -> int:
     # ACK first, then the message (the ACK is sent by the router when we return)
     service.loop.call_soon(ctx.endpoint.send if msg.param7 == 1 else service.send, out)
     return mavlink.MAV_RESULT_ACCEPTED
-
 
 
 def preflight_calibration(service, msg, ctx):

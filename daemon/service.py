@@ -462,6 +462,13 @@ class Service:
                 self.send(m)
                 self.counters.published += 1
 
+    def build_output(self, mid: int, now: float):
+        """The output message `mid` from the current state (REQUEST_MESSAGE), or None if it cannot be sent."""
+        if mid == mavlink.MAVLINK_MSG_ID_SYS_STATUS:
+            return self._sys_status(now)
+        est = self.pipeline.last_estimate
+        return None if est is None else self._build(mid, est, self.pipeline.last_sample, now)
+
     def _build(self, mid: int, est, sample, now: float):
         """One output message from the latest estimate/sample, or None when it must not be sent now."""
         if mid == mavlink.MAVLINK_MSG_ID_ATTITUDE:
@@ -477,10 +484,6 @@ class Service:
             return msgs.highres_imu(sample, int(self.sample_time_monotonic(sample.t_s) * 1e6))
         if mid == mavlink.MAVLINK_MSG_ID_SCALED_IMU and sample is not None:
             return msgs.scaled_imu(sample, self.time_boot_ms(now))
-        if mid == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
-            return msgs.heartbeat(self.mav_type, self.health.system_status(now))
-        if mid == mavlink.MAVLINK_MSG_ID_SYS_STATUS:
-            return self._sys_status(now)
         return None
 
     def _sys_status(self, now: float):

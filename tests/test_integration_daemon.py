@@ -234,6 +234,9 @@ def test_request_message(daemon):
     assert daemon.ack(mavlink.MAV_CMD_REQUEST_MESSAGE).result == mavlink.MAV_RESULT_ACCEPTED
     av = daemon.recv("AUTOPILOT_VERSION", 5.0)
     assert av is not None and av.capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+    daemon.command(mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION)
+    assert daemon.ack(mavlink.MAV_CMD_REQUEST_MESSAGE).result == mavlink.MAV_RESULT_ACCEPTED
+    assert daemon.recv("ATTITUDE_QUATERNION", 5.0) is not None
     daemon.command(mavlink.MAV_CMD_REQUEST_MESSAGE, 999)
     assert daemon.ack(mavlink.MAV_CMD_REQUEST_MESSAGE).result == mavlink.MAV_RESULT_DENIED
 
