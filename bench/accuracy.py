@@ -236,8 +236,8 @@ def rpy_errors_deg(q_est: np.ndarray, q_truth: np.ndarray, declination_rad: floa
 
 def sim_section(methods: list[str], quick: bool) -> None:
     print("\n## (a) Simulated ADIS16405, 819.2 SPS, through SimulatedAdis16405 + Adis16405 driver")
-    print(f"RMS error in degrees after {SETTLE_S:.0f} s (roll/pitch/heading components of the error rotation); targets (thesis): static roll/pitch < 0.2, heading < 0.4;"
-          " dynamic < 0.5")
+    print(f"RMS error in degrees after {SETTLE_S:.0f} s (roll/pitch/heading components of the error rotation);")
+    print("targets (thesis): static roll/pitch < 0.2, heading < 0.4; dynamic < 0.5")
     hdr = f"{'scenario':17s} {'method':12s} {'roll':>7s} {'pitch':>7s} {'heading':>8s}  target"
     print(hdr)
     print("-" * len(hdr))

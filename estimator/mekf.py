@@ -66,7 +66,8 @@ class MekfParams:
     vertical by φ = acos(g/|f|) (|f| of the low-passed specific force), so the tilt measurement gets
     (gain·(φ − dead zone))² of extra variance. 0 by default (handheld motion, BROAD: gain 1 → mean 3.25°
     instead of 2.24°, because shaking also changes |f|); 1 in `FIXED_WING_MEKF_PARAMS`, where a
-    coordinated 30° turn otherwise drags the horizon by the bank angle (simulated, bench/accuracy.py: roll RMS 21° → 0.3°)."""
+    coordinated 30° turn otherwise drags the horizon by the bank angle (simulated, bench/accuracy.py: roll
+    RMS 21° → 0.3°)."""
     acc_turn_dead_zone_rad: float = 0.0
     """Turn angles φ below this add no noise, rad."""
     acc_reject_m_s2: float = 2.0

@@ -129,7 +129,8 @@ def _scalar_update(state, j, sign, nu, r, zero_mask):
     component). Gains of the error-state components whose bit is set in `zero_mask` are forced to zero, so
     this measurement cannot move them (the magnetometer never moves tilt, the accelerometer never heading), and
     the covariance takes the Joseph form, valid for such a constrained gain:
-    P ← P − K uᵀ − u Kᵀ + S K Kᵀ with u = P hᵀ, S = h P hᵀ + r. Returns the error-state correction K·ν."""
+    P ← P − K uᵀ − u Kᵀ + S K Kᵀ with u = P hᵀ, S = h P hᵀ + r.
+    Returns the error-state correction K·ν."""
     p0 = S_P
     s = state[p0 + j * 6 + j] + r
     u0 = sign * state[p0 + 0 * 6 + j]
