@@ -60,6 +60,21 @@ class BacksteppingError(ValueError):
     """Inputs the back-stepping calibration cannot work with (shapes, missing attitude)."""
 
 
+class PlotUnavailableError(ImportError):
+    """`plot_backstepping` was called but matplotlib (the optional `ahrsd[plot]` extra) is not installed."""
+
+
+PLOT_INSTALL_HINT = "pip install 'ahrsd[plot]'"
+
+
+def fold_heading_offset(model: MagModel, offset_deg: float) -> MagModel:
+    """The model whose heading is `offset_deg` larger (the deviation coefficient A folded in): heading += A
+    ⇔ the calibrated vector rotated by −A about body z, W ← Rz(−A)·W. Magnitude and vertical unchanged."""
+    a = math.radians(offset_deg)
+    rz = np.array([[math.cos(a), math.sin(a), 0.0], [-math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    return MagModel(model.hard_iron_ut, rz @ model.soft_iron)
+
+
 # =========================================================================================== paper algebra
 
 
@@ -850,9 +865,19 @@ def fit_backstepping(data: MagFitInput, reference=None, *, model: str = "general
     if speed_in is not None and not isinstance(speed_in, str):
         speed_arr = np.broadcast_to(np.asarray(speed_in, dtype=np.float64), (len(data),))[keep].astype(np.float64)
     # roll/pitch are averaged as the down vector (angles wrap at ±180° in a tumble)
-    tb, cols, block_of = block_average(full.t_s, rate_hz, full.mag_ut, down_in_body(roll_rad, pitch_rad), href_c, href_s,
-                                leg_f, cal_f, full.gyro_rad_s if speed_in is not None else None, speed_arr)
-    mag, down_b, hc, hs, legf, calf, gyro_b, speed_b = cols
+    tb, cols, block_of = block_average(full.t_s, rate_hz, full.mag_ut, down_in_body(roll_rad, pitch_rad),
+                                       leg_f, cal_f, full.gyro_rad_s if speed_in is not None else None, speed_arr)
+    mag, down_b, legf, calf, gyro_b, speed_b = cols
+    # the heading reference is averaged over its valid samples only: a sparse reference (GNSS fixes at 1–10 Hz
+    # in a fast recording, NaN between them) must not be lost because a block also holds NaN rows
+    hc = hs = None
+    if href_c is not None:
+        nb = mag.shape[0]
+        valid = np.isfinite(href_c)
+        count = np.bincount(block_of, weights=valid.astype(np.float64), minlength=nb)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            hc = np.bincount(block_of, weights=np.where(valid, href_c, 0.0), minlength=nb) / count
+            hs = np.bincount(block_of, weights=np.where(valid, href_s, 0.0), minlength=nb) / count
     down_b = down_b / np.linalg.norm(down_b, axis=1, keepdims=True)
     roll = np.arctan2(down_b[:, 1], down_b[:, 2])
     pitch = -np.arcsin(np.clip(down_b[:, 0], -1.0, 1.0))
@@ -864,7 +889,8 @@ def fit_backstepping(data: MagFitInput, reference=None, *, model: str = "general
     heading_ref_b = None
     if hc is not None:
         heading_ref_b = np.degrees(np.arctan2(hs, hc)) % 360.0
-        heading_ref_b[~(np.hypot(hc, hs) > 0.99)] = np.nan    # block straddled a gap or a turn
+        with np.errstate(invalid="ignore"):
+            heading_ref_b[~(np.hypot(hc, hs) > 0.99)] = np.nan    # no reference in the block, or it straddled a turn
     quality["n_used"] = int(mag.shape[0])
     quality["fit_rate_hz"] = rate_hz
     # averaging k samples divides the white magnetometer noise by √k
@@ -903,18 +929,26 @@ def fit_backstepping(data: MagFitInput, reference=None, *, model: str = "general
     if support.refused:
         return refuse(METHOD, support.refused, **quality)
 
+    levelling: dict = {}
     if model == "paper":
         result = _fit_paper(tb, mag, roll, pitch, total, vertical, legs_b, cal_b, quality, step_tol_ut, max_passes)
     else:
         result = _fit_general(tb, mag, roll, pitch, total, vertical, legs_b, quality, sigma_mag_ut, sigma_tilt_deg,
-                              max_heading_std_deg, robust, support, centripetal)
+                              max_heading_std_deg, robust, support, centripetal, levelling)
     if isinstance(result, MagFitResult):
         return result
     mag_model = result
 
     # --- heading reference: deviation coefficients, constant offset folded into the soft iron
     if heading_ref_b is not None and np.isfinite(heading_ref_b).sum() >= 1:
-        mag_model = _apply_heading_reference(mag_model, mag, roll, pitch, heading_ref_b, declination_deg,
+        # heading from the same levelling the fit used: with the accelerometer's lean into turns left in, a boat
+        # turning one way shows a spurious semicircular term (measured: C ≈ 2.7° on the simulated boat)
+        roll_h, pitch_h = roll, pitch
+        speed_used = levelling.get("speed_m_s")
+        if speed_used is not None and not isinstance(speed_used, str) and gyro_b is not None:
+            d = corrected_down(down_b, centripetal_direction(gyro_b), speed_used)
+            roll_h, pitch_h = np.arctan2(d[:, 1], d[:, 2]), -np.arcsin(np.clip(d[:, 0], -1.0, 1.0))
+        mag_model = _apply_heading_reference(mag_model, mag, roll_h, pitch_h, heading_ref_b, declination_deg,
                                              fold_offset, quality)
 
     res = np.linalg.norm(mag_model.apply(mag), axis=1) - total
@@ -929,12 +963,13 @@ def fit_backstepping(data: MagFitInput, reference=None, *, model: str = "general
 
 
 def _fit_general(t_s, mag, roll, pitch, total, vertical, legs_b, quality, sigma_mag_ut, sigma_tilt_deg,
-                 max_heading_std_deg, robust, support, centripetal=None):
+                 max_heading_std_deg, robust, support, centripetal=None, levelling=None):
     # the paper's sphere fit, for comparison (it often fails or is wrong on level data: that is the point)
     sph = sphere_fit_paper(mag, total)
     quality["sphere_fit_paper"] = ({"b_ut": sph.model.bias.tolist(), "s": sph.model.scale.tolist(),
                                     "condition_number": sph.condition_number} if sph.model is not None
                                    else {"refused": sph.reason, "condition_number": sph.condition_number})
+    cen = centripetal   # None once the fit runs without centripetal compensation
     try:
         fit = fit_vertical_channel(mag, roll, pitch, total, vertical, sigma_mag_ut=sigma_mag_ut,
                                    sigma_tilt_rad=math.radians(sigma_tilt_deg), robust=robust is True,
@@ -946,6 +981,7 @@ def _fit_general(t_s, mag, roll, pitch, total, vertical, legs_b, quality, sigma_
                 quality.setdefault("warnings", []).append(
                     f"the fitted centripetal speed {fit.speed_m_s:.1f} m/s (lean up to {math.degrees(lean):.1f}°) is "
                     "not plausible: refitted without centripetal compensation")
+                cen = None
                 fit = fit_vertical_channel(mag, roll, pitch, total, vertical, sigma_mag_ut=sigma_mag_ut,
                                            sigma_tilt_rad=math.radians(sigma_tilt_deg), robust=robust is True)
         # magnetic disturbances (a passing vehicle, a steel pier) show as magnitude outliers: count them and,
@@ -957,20 +993,23 @@ def _fit_general(t_s, mag, roll, pitch, total, vertical, legs_b, quality, sigma_
         if robust == "auto" and disturbed > DISTURBED_FRACTION_FOR_ROBUST * mag.shape[0]:
             fit = fit_vertical_channel(mag, roll, pitch, total, vertical, sigma_mag_ut=sigma_mag_ut,
                                        sigma_tilt_rad=math.radians(sigma_tilt_deg), robust=True,
-                                       gyro_rad_s=None if centripetal is None else centripetal[0],
-                                       speed_m_s=None if centripetal is None else centripetal[1])
+                                       gyro_rad_s=None if cen is None else cen[0],
+                                       speed_m_s=None if cen is None else cen[1])
             quality.setdefault("warnings", []).append(
                 f"{disturbed} of {mag.shape[0]} samples look magnetically disturbed (|H| off by more than "
                 f"{DISTURBANCE_SIGMAS:g}σ): refitted with a robust loss")
     except BacksteppingError as exc:
         return refuse(METHOD, str(exc), **quality)
     w, h = fit.soft_iron, fit.hard_iron_ut
+    if levelling is not None:   # the forward speed the levelling was compensated with (None: not compensated)
+        levelling["speed_m_s"] = (fit.speed_m_s if fit.speed_m_s is not None else
+                                  (cen[1] if cen is not None else None))
     quality["vertical_channel"] = {
         "init": fit.init, "nfev": fit.nfev, "converged": fit.success, "message": fit.message,
         "magnitude_rms_ut": fit.magnitude_rms_ut, "vertical_rms_ut": fit.vertical_rms_ut,
         "whitened_rms": fit.whitened_rms, "vertical_ut": fit.vertical_ut, "free_dip": fit.free_dip,
         "centripetal_speed_m_s": (fit.speed_m_s if fit.speed_m_s is not None else
-                                  ("given" if centripetal is not None else None)),
+                                  ("given" if cen is not None else None)),
     }
     if fit.free_dip:
         quality["vertical_channel"]["dip_deg"] = math.degrees(math.asin(max(-1.0, min(1.0, fit.vertical_ut / total))))
@@ -1070,10 +1109,7 @@ def _apply_heading_reference(model: MagModel, mag, roll, pitch, heading_ref_true
                           "the reference headings are too few or unevenly spread (seed 002 §5)")
     offset = dev.a_only_deg if "note" not in rep else dev.a_deg
     if fold_offset:
-        # heading += A  ⇔  rotate the calibrated vector by −A about body z: W ← Rz(−A)·W
-        a = math.radians(offset)
-        rz = np.array([[math.cos(-a), -math.sin(-a), 0.0], [math.sin(-a), math.cos(-a), 0.0], [0.0, 0.0, 1.0]])
-        model = MagModel(model.hard_iron_ut, rz @ model.soft_iron)
+        model = fold_heading_offset(model, offset)
         rep["folded_offset_deg"] = offset
         psi2 = magnetic_heading_deg(model.apply(mag[ok]), roll[ok], pitch[ok])
         rep["rms_after_fold_deg"] = float(np.sqrt(np.mean(swing.wrap180(ref_mag - psi2) ** 2)))
@@ -1085,13 +1121,18 @@ def _apply_heading_reference(model: MagModel, mag, roll, pitch, heading_ref_true
 
 
 def plot_backstepping(result: MagFitResult, data: MagFitInput, path, *, roll_rad=None, pitch_rad=None,
-                      reference=None) -> None:
+                      reference=None, swing_table=None) -> None:
     """Report figure: levelled horizontal field before/after (should be a circle of radius H_h), |H| and H_z
-    over time before/after, and heading error vs heading when data.heading_ref_deg exists. Writes `path`."""
-    import matplotlib
+    over time before/after, and heading error vs heading when data.heading_ref_deg exists or a compass-swing
+    table `swing_table=(reference_deg, compass_deg)` is given (its points and the fitted card). Writes `path`.
+    Raises PlotUnavailableError when matplotlib (the `ahrsd[plot]` extra) is not installed."""
+    try:
+        import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError as exc:
+        raise PlotUnavailableError(f"plotting needs matplotlib: {PLOT_INSTALL_HINT} ({exc})") from None
 
     ok = finite_rows(data.mag_ut)
     d = data.select(ok)
@@ -1099,12 +1140,17 @@ def plot_backstepping(result: MagFitResult, data: MagFitInput, path, *, roll_rad
         if d.accel_m_s2 is None:
             raise BacksteppingError("plot needs roll/pitch or accelerometer samples")
         roll_rad, pitch_rad = roll_pitch_from_accel(lowpass(d.accel_m_s2, d.t_s, 0.2))
+        # level as the fit did: without the accelerometer's lean into turns (the fitted forward speed)
+        speed = result.quality.get("vertical_channel", {}).get("centripetal_speed_m_s")
+        if isinstance(speed, (int, float)) and d.gyro_rad_s is not None:
+            dn = corrected_down(down_in_body(roll_rad, pitch_rad), centripetal_direction(d.gyro_rad_s), speed)
+            roll_rad, pitch_rad = np.arctan2(dn[:, 1], dn[:, 2]), -np.arcsin(np.clip(dn[:, 0], -1.0, 1.0))
     else:
         roll_rad, pitch_rad = np.asarray(roll_rad)[ok], np.asarray(pitch_rad)[ok]
     raw = d.mag_ut - np.median(d.mag_ut, axis=0)
     cal = result.model.apply(d.mag_ut)
     lv_raw, lv_cal = level_vectors(raw, roll_rad, pitch_rad), level_vectors(cal, roll_rad, pitch_rad)
-    has_ref = d.heading_ref_deg is not None and np.isfinite(d.heading_ref_deg).any()
+    has_ref = (d.heading_ref_deg is not None and np.isfinite(d.heading_ref_deg).any()) or swing_table is not None
     fig, axes = plt.subplots(1, 3 if has_ref else 2, figsize=(15 if has_ref else 10, 4.5))
     ax = axes[0]
     ax.plot(lv_raw[:, 1], lv_raw[:, 0], ".", ms=1, label="raw (centred)")
@@ -1132,10 +1178,21 @@ def plot_backstepping(result: MagFitResult, data: MagFitInput, path, *, roll_rad
     ax.legend(fontsize=7)
     if has_ref:
         ax = axes[2]
-        psi = magnetic_heading_deg(cal, roll_rad, pitch_rad)
-        decl = q.get("declination_deg", 0.0) or 0.0
-        err = swing.wrap180((d.heading_ref_deg - decl) - psi)
-        ax.plot(psi, err, ".", ms=2)
+        if d.heading_ref_deg is not None and np.isfinite(d.heading_ref_deg).any():
+            psi = magnetic_heading_deg(cal, roll_rad, pitch_rad)
+            decl = q.get("declination_deg", 0.0) or 0.0
+            err = swing.wrap180((d.heading_ref_deg - decl) - psi)
+            ax.plot(psi, err, ".", ms=2, label="recording (heading_ref_deg)")
+        if swing_table is not None:
+            ref_deg, compass_deg = (np.asarray(a, dtype=np.float64) for a in swing_table)
+            ax.plot(compass_deg, swing.wrap180(ref_deg - compass_deg), "o", label="swing table")
+            card = result.quality.get("heading_reference", {})
+            if "B_deg" in card:
+                grid = np.linspace(0.0, 360.0, 181)
+                coef = swing.DeviationCoefficients(card["A_deg"], card["B_deg"], card["C_deg"], card["D_deg"],
+                                                   card["E_deg"])
+                ax.plot(grid, coef.deviation_deg(grid), "k-", lw=0.8, label="card A..E (before folding A)")
+        ax.legend(fontsize=7)
         ax.set_xlabel("magnetic heading (deg)")
         ax.set_ylabel("reference − magnetometer (deg)")
         ax.set_title("heading error vs heading")
