@@ -4,10 +4,13 @@ Each fit is written through the calibration store (merged with the stored calibr
 it was refused or `--dry-run` is given. Output is for a person, or with `--json` one JSON object whose keys
 are a public interface (docs/calibration.md):
   mag:   hard_iron_ut [3], soft_iron [3][3], residual_rms_ut      calibrated = soft_iron · (raw − hard_iron)
+         (+ quality.heading_reference: the deviation card A..E when a heading reference was given; A is folded
+         into soft_iron, B..E are reported only)
   accel: bias_m_s2 [3], matrix [3][3]                             calibrated = matrix · (raw − bias) (+ quadratic)
   gyro:  bias_rad_s [3], matrix [3][3]                            calibrated = matrix · (raw − bias)
   allan: <sensor>.<axis>.white_noise, .bias_instability (+ kalman Q/R)
-Exit status: 0 fitted (and saved), 1 refused or failed, 2 bad usage.
+Exit status: 0 fitted (and saved), 1 refused or failed, 2 bad usage (including --plot without matplotlib,
+the optional `ahrsd[plot]` extra: checked before anything is fitted or saved).
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ def register(subparsers) -> None:
             sp.add_argument("recording", metavar="RECORDING", help="CSV recording (ahrsd record)")
         sp.add_argument("--state-dir", default=DEFAULT_STATE_DIR, help="where the calibration is stored")
         sp.add_argument("--json", action="store_true", help="print one JSON object instead of a report")
-        sp.add_argument("--plot", metavar="FILE.png", help="write a plot (matplotlib)")
+        sp.add_argument("--plot", metavar="FILE.png", help="write a plot (needs matplotlib: pip install 'ahrsd[plot]')")
         sp.add_argument("--dry-run", action="store_true", help="fit and report, but do not save")
         sp.add_argument("--sensor-id", default=None, help="sensor serial or id to record in the metadata")
         sp.set_defaults(func=run)
@@ -72,6 +75,12 @@ def register(subparsers) -> None:
     m.add_argument("--method", default="ellipsoid", choices=("ellipsoid", "two-step", "three-step", "backstepping"))
     m.add_argument("--align-recording", metavar="FILE", default=None,
                    help="three-step: a recording of levelled turns about each axis for the alignment step")
+    m.add_argument("--heading-ref-delay-s", type=float, default=0.0, metavar="S",
+                   help="backstepping: latency of the recording's heading_ref_deg column (GNSS course: ~2 s)")
+    m.add_argument("--swing-table", metavar="FILE", default=None,
+                   help="compass-swing table (CSV reference_deg,compass_deg; compass = the heading this "
+                   "calibration gives): fit the deviation card A..E, fold the constant offset A into the soft "
+                   "iron, report B..E")
 
 
 # ---------------------------------------------------------------------------------------------- helpers
@@ -79,6 +88,13 @@ def register(subparsers) -> None:
 
 class _Fail(Exception):
     """A reported failure: message for the person, exit status 1."""
+
+
+class _Usage(_Fail):
+    """Bad usage (an option that cannot work as given): message for the person, exit status 2."""
+
+
+PLOT_NEEDS_MATPLOTLIB = "--plot needs matplotlib: pip install 'ahrsd[plot]'"
 
 
 _RECORDING_META: dict = {}
@@ -364,6 +380,7 @@ def _fold_estimator_bias(rec, stored, res, source):
 
 def _mag(args) -> int:
     import datetime as dt
+    import math
 
     import numpy as np
 
@@ -376,11 +393,19 @@ def _mag(args) -> int:
     except ValueError as exc:
         print(f"ahrsd calibrate mag: {exc}")
         return 2
+    if args.heading_ref_delay_s and args.method != "backstepping":
+        raise _Usage("--heading-ref-delay-s goes with --method backstepping")
+    if not (math.isfinite(args.heading_ref_delay_s) and 0.0 <= args.heading_ref_delay_s <= 60.0):
+        raise _Usage(f"--heading-ref-delay-s {args.heading_ref_delay_s}: expected 0…60 s")
+    swing_table = _read_swing_table(args.swing_table) if args.swing_table else None  # bad file: fail before fitting
     rec = _read(args.recording)
     stored = _stored(args)
     gyro, accel, _ = stored.apply_arrays(rec.gyro_rad_s, rec.accel_m_s2, None)
-    data = MagFitInput(rec.t_s, rec.mag_ut, accel, gyro)
+    heading_ref, ref_note = _heading_reference_column(rec, args.recording, args.method)
+    data = MagFitInput(rec.t_s, rec.mag_ut, accel, gyro, heading_ref)
     options = {}
+    if args.method == "backstepping" and args.heading_ref_delay_s:
+        options["heading_ref_delay_s"] = args.heading_ref_delay_s
     align_note = None
     if args.align_recording:
         if args.method != "three-step":
@@ -401,6 +426,8 @@ def _mag(args) -> int:
         res = fit_mag(args.method, data, ref, **options)
     except NotImplementedError as exc:
         raise _Fail(str(exc)) from None
+    if swing_table is not None and res.ok:
+        res = _apply_swing_table(res, swing_table, args.swing_table)
     payload = {"sensor": "mag", **res.to_json_dict(), "field_ut": ref.total_ut,
                "inclination_deg": float(np.degrees(ref.inclination_rad))}
     lines = [f"Magnetometer calibration ({res.method}) from {len(data)} samples of {args.recording}",
@@ -408,19 +435,116 @@ def _mag(args) -> int:
              f"dip {np.degrees(ref.inclination_rad):.2f}°"]
     if align_note:
         lines.append("  " + align_note)
+    if ref_note:
+        lines.append("  " + ref_note)
     q = res.quality
+    meta = {"method": res.method, "residual_rms_ut": res.residual_rms_ut, "field_ut": ref.total_ut,
+            "site": {"lat_deg": args.lat, "lon_deg": args.lon, "alt_m": args.alt_m, "date": args.date}}
+    if "heading_reference" in q:
+        meta["heading_reference"] = q["heading_reference"]
     rc = _report_fit(args, res, payload, lines, "mag", lambda m: [
         "  hard iron (µT): " + _fmt_vec(m.hard_iron_ut, "{:+.3f}"),
         "  soft iron:\n" + _fmt_mat(m.soft_iron),
         f"  residual | |m| − |F| |: RMS {res.residual_rms_ut:.3f} µT, max {q.get('residual_max_ut', float('nan')):.3f} µT",
         f"  coverage {q.get('coverage', float('nan')):.0%}; hard-iron 1σ "
         + _fmt_vec(q.get("sigma_hard_iron_ut", [float("nan")] * 3), "{:.3f}") + " µT",
-    ], {"method": res.method, "residual_rms_ut": res.residual_rms_ut, "field_ut": ref.total_ut,
-        "site": {"lat_deg": args.lat, "lon_deg": args.lon, "alt_m": args.alt_m, "date": args.date}})
+        *_deviation_lines(q),
+    ], meta)
     if args.plot:
-        model = res.model if res.ok else None
-        _plot_mag(rec.mag_ut, model, ref.total_ut, args.plot)
+        if args.method == "backstepping" and res.ok:
+            from ahrsd.calibration.backstepping import BacksteppingError, plot_backstepping
+
+            try:
+                plot_backstepping(res, data, args.plot, swing_table=swing_table)
+            except BacksteppingError as exc:
+                raise _Fail(f"cannot plot: {exc}") from None
+        else:
+            model = res.model if res.ok else None
+            _plot_mag(rec.mag_ut, model, ref.total_ut, args.plot)
     return rc
+
+
+def _heading_reference_column(rec, path, method):
+    """The recording's `heading_ref_deg` column (true heading in degrees, NaN where there is none) and a note for
+    the report; (None, note-or-None) when there is no usable column."""
+    import numpy as np
+
+    col = rec.extra.get("heading_ref_deg")
+    if col is None:
+        return None, None
+    h = np.array(col, dtype=np.float64)
+    finite = np.isfinite(h)
+    bad = finite & ~((h >= -360.0) & (h <= 720.0))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise _Fail(f"{path}: heading_ref_deg {float(h[i])!r} at t = {rec.t_s[i]:.3f} s is not a heading in degrees "
+                    "(expected −360…720; use NaN for no reference)")
+    n = int(finite.sum())
+    if n == 0:
+        return None, "heading_ref_deg column present but empty (all NaN): no heading reference"
+    if method != "backstepping":
+        return None, (f"heading_ref_deg column ({n} samples) not used: only --method backstepping fits a heading "
+                      "reference (or give --swing-table)")
+    return h % 360.0, f"heading reference: heading_ref_deg column, {n} of {len(h)} samples ({n / len(h):.0%})"
+
+
+def _read_swing_table(path):
+    from ahrsd.calibration.swing import SwingTableError, load_swing_table
+
+    try:
+        return load_swing_table(path)
+    except SwingTableError as exc:
+        raise _Fail(f"swing table: {exc}") from None
+
+
+def _apply_swing_table(res, table, path):
+    """Fit the deviation card δψ = A + B sinψ + C cosψ + D sin2ψ + E cos2ψ (seed 002 eq. 19–21) to the swing
+    table, fold A into the soft iron (heading += A; magnitude unchanged) and put the card in
+    quality["heading_reference"] (MagModel has no field for B..E: they are reported, not applied)."""
+    import dataclasses
+    import math
+
+    from ahrsd.calibration import swing
+    from ahrsd.calibration.backstepping import fold_heading_offset
+
+    reference_deg, compass_deg = table
+    rep: dict = {"source": "swing-table", "file": str(path)}
+    try:
+        card = swing.fit_deviation(compass_deg, reference_deg)
+    except swing.SwingFitError as exc:
+        try:
+            card = swing.fit_offset(compass_deg, reference_deg)
+        except swing.SwingFitError as exc2:
+            raise _Fail(f"swing table {path}: {exc2}") from None
+        rep["note"] = f"A only: {exc}"
+    rep.update(card.to_dict())
+    if math.isfinite(card.a_only_deg) and abs(card.a_deg - card.a_only_deg) > 1.0:   # seed 002 §5 sanity rule
+        rep["warning"] = (f"A of the full fit ({card.a_deg:.2f}°) differs from A alone ({card.a_only_deg:.2f}°): the "
+                          "swing headings are too few or unevenly spread (seed 002 §5)")
+    rep["folded_offset_deg"] = card.a_deg
+    quality = dict(res.quality)
+    if "heading_reference" in quality:    # the recording's own reference, applied first by the fit
+        quality["heading_reference_column"] = quality.pop("heading_reference")
+    quality["heading_reference"] = rep
+    return dataclasses.replace(res, model=fold_heading_offset(res.model, card.a_deg), quality=quality)
+
+
+def _deviation_lines(q) -> list[str]:
+    rep = q.get("heading_reference")
+    if not rep:
+        return []
+    src = "swing table " + rep["file"] if rep.get("source") == "swing-table" else "heading_ref_deg column"
+    lines = [f"  deviation card from the {src} ({rep.get('n')} headings; δψ = A + B sinψ + C cosψ + D sin2ψ + E cos2ψ):",
+             f"    A {rep['A_deg']:+.2f}° (A alone {rep['A_only_deg']:+.2f}°), folded into the soft iron: "
+             f"{rep.get('folded_offset_deg', 0.0):+.2f}°",
+             f"    B {rep['B_deg']:+.2f}°  C {rep['C_deg']:+.2f}°  D {rep['D_deg']:+.2f}°  E {rep['E_deg']:+.2f}°"
+             "  (reported, not applied; near 0 after a good field fit)",
+             f"    heading RMS vs the reference {rep['rms_before_deg']:.2f}° before the card, "
+             f"{rep['rms_after_deg']:.2f}° after A..E"]
+    for key in ("note", "warning"):
+        if rep.get(key):
+            lines.append(f"    {key}: {rep[key]}")
+    return lines
 
 
 def _report_fit(args, res, payload, lines, sensor, describe, meta) -> int:
@@ -435,7 +559,7 @@ def _report_fit(args, res, payload, lines, sensor, describe, meta) -> int:
     payload["saved_to"] = None if path is None else str(path)
     lines += describe(model)
     for key, value in res.quality.items():
-        if key in ("position_residuals_m_s2", "faces", "rejected_model", "initial_hard_iron_ut"):
+        if key in ("position_residuals_m_s2", "faces", "rejected_model", "initial_hard_iron_ut", "heading_reference"):
             continue
         lines.append(f"  {key}: {_fmt_value(value)}")
     lines.append(f"  {note}")
@@ -447,11 +571,13 @@ def _report_fit(args, res, payload, lines, sensor, describe, meta) -> int:
 
 
 def _pyplot():
-    import matplotlib
+    try:
+        import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise _Usage(PLOT_NEEDS_MATPLOTLIB) from None
     return plt
 
 
@@ -515,6 +641,8 @@ def run(args) -> int:
     handlers = {"allan": _allan, "accel": _accel, "gyro": _gyro, "mag": _mag}
     _RECORDING_META.clear()
     try:
+        if getattr(args, "plot", None):
+            _check_matplotlib()   # before fitting and saving: a missing optional extra is a usage error
         return handlers[args.sensor](args)
     except _Fail as exc:
         if getattr(args, "json", False):
@@ -522,4 +650,20 @@ def run(args) -> int:
 
             print(json.dumps({"sensor": args.sensor, "error": str(exc)}))
         print(f"ahrsd calibrate {args.sensor}: {exc}", file=sys.stderr)
-        return 1
+        return 2 if isinstance(exc, _Usage) else 1
+    except ImportError as exc:   # plot_backstepping's PlotUnavailableError, should the check above be bypassed
+        from ahrsd.calibration.backstepping import PlotUnavailableError
+
+        if not isinstance(exc, PlotUnavailableError):
+            raise
+        print(f"ahrsd calibrate {args.sensor}: {PLOT_NEEDS_MATPLOTLIB}", file=sys.stderr)
+        return 2
+
+
+def _check_matplotlib() -> None:
+    import importlib
+
+    try:
+        importlib.import_module("matplotlib")
+    except ImportError:
+        raise _Usage(PLOT_NEEDS_MATPLOTLIB) from None
