@@ -88,11 +88,14 @@ def boat(tmp_path_factory):
 
 
 def hull_heading_error_deg(boat, soft_iron, hard_iron_ut):
-    """Calibrated magnetic heading (true roll/pitch) minus the hull's magnetic heading: (mean, RMS) in degrees."""
+    """Calibrated magnetic heading (true roll/pitch) minus the hull's magnetic heading over the recording, in
+    degrees: (constant offset, RMS). The offset is the heading-independent part (A of a deviation fit of the
+    errors), so it does not depend on how long the boat spent on each heading (its turn rate varies 5…13 °/s)."""
     model = MagModel(np.asarray(hard_iron_ut), np.asarray(soft_iron))
     psi = bs.magnetic_heading_deg(model.apply(boat["blk"].mag_ut), boat["roll"], boat["pitch"])
-    err = swing.wrap180(psi - (boat["hull_deg"] - math.degrees(boat["field"].declination_rad)))
-    return float(np.mean(err)), float(np.sqrt(np.mean(err**2)))
+    hull_mag = (boat["hull_deg"] - math.degrees(boat["field"].declination_rad)) % 360.0
+    err = swing.wrap180(psi - hull_mag)
+    return -swing.fit_deviation(psi, hull_mag).a_deg, float(np.sqrt(np.mean(err**2)))
 
 
 def test_heading_ref_column_removes_the_offset_json_and_plot(boat, tmp_path):
@@ -130,16 +133,19 @@ def test_without_reference_the_mounting_offset_stays(boat, ahrsd_inproc):
 
 
 def _swing_table(boat, soft_iron, hard_iron_ut, path: Path) -> Path:
-    """A classical 8-point swing: the boat passes N, NE, …, NW (hull heading, magnetic, 0.2° reference error);
-    the compass column is the heading the calibration without a reference gives there."""
+    """A classical 8-point swing: on each of N, NE, …, NW (hull heading, magnetic) the compass is read several
+    times (every sample within ±2° of it, over the three turns) against a reference with 0.2° error; the
+    compass column is the heading the calibration without a reference gives there."""
     model = MagModel(np.asarray(hard_iron_ut), np.asarray(soft_iron))
     psi = bs.magnetic_heading_deg(model.apply(boat["blk"].mag_ut), boat["roll"], boat["pitch"])
     hull_mag = (boat["hull_deg"] - math.degrees(boat["field"].declination_rad)) % 360.0
     rng = np.random.default_rng(8)
     rows = ["# compass swing, magnetic headings", "reference_deg,compass_deg"]
     for target in np.arange(0.0, 360.0, 45.0):
-        i = int(np.argmin(np.abs(swing.wrap180(hull_mag - target))))
-        rows.append(f"{hull_mag[i] + rng.normal(0, 0.2):.2f},{psi[i]:.2f}")
+        near = np.abs(swing.wrap180(hull_mag - target)) < 2.0
+        ref = target + float(np.mean(swing.wrap180(hull_mag[near] - target)))
+        compass = target + float(np.mean(swing.wrap180(psi[near] - target)))
+        rows.append(f"{ref + rng.normal(0, 0.2):.2f},{compass % 360.0:.2f}")
     path.write_text("\n".join(rows) + "\n")
     return path
 
@@ -158,11 +164,13 @@ def test_swing_table_removes_the_offset_and_reports_the_card(boat, tmp_path, ahr
     assert card["source"] == "swing-table" and card["n"] == 8 and "note" not in card
     assert card["A_deg"] == pytest.approx(HULL_OFFSET_DEG, abs=0.5)
     assert card["folded_offset_deg"] == card["A_deg"]
-    # each swing point is one sample: heading noise ≈ 0.5° (waves; measured 0.48° RMS about the mean on this run)
-    # and 0.2° of reference, so B..E from 8 points have σ ≈ 0.54·√(2/8) ≈ 0.27°: 3σ
+    # B..E from 8 such readings have σ ≈ 0.36·√(2/8) ≈ 0.18°, plus the fit's own semicircular residual on this
+    # recording (B ≈ 0.55° measured): a loose bound
     assert max(abs(card[f"{k}_deg"]) for k in "BCDE") < 0.8
+    # 8 readings, each with the fit's wave-correlated heading error (0.58° RMS per sample, ~3 independent passes
+    # per heading → ~0.3°) and 0.2° of reference: A has σ ≈ 0.13°; 3σ (measured on this run: −0.21°)
     mean, _ = hull_heading_error_deg(boat, res["soft_iron"], res["hard_iron_ut"])
-    assert abs(mean) < OFFSET_TOL_DEG
+    assert abs(mean) < 0.4
     # only the yaw changed: the same hard iron and residual, W rotated about body z by −A
     np.testing.assert_allclose(res["hard_iron_ut"], first["hard_iron_ut"])
     assert res["residual_rms_ut"] == pytest.approx(first["residual_rms_ut"], rel=1e-9)
@@ -189,7 +197,7 @@ def test_heading_reference_fixes_in_the_fit(boat):
         assert card["n"] >= n_min
         assert abs(card["C_deg"]) < 0.3 and abs(card["B_deg"]) < 0.3, card
         mean, _ = hull_heading_error_deg(boat, res.model.soft_iron, res.model.hard_iron_ut)
-        assert abs(mean) < 0.5
+        assert abs(mean) < OFFSET_TOL_DEG
 
 
 def test_plot_without_matplotlib_is_a_clear_usage_error(boat, tmp_path, ahrsd_inproc, monkeypatch):
