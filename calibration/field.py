@@ -374,12 +374,17 @@ class HeadingSlew:
 
     max_rate_deg_s: float = 2.0
     done_within_deg: float = 0.05
+    # the estimator needs a moment to take the new field (MEKF: 0.5 s undisturbed wait, then ≈ 1 s time
+    # constant): the transition lasts at least this long, so it does not end before the heading moves, s
+    min_duration_s: float = 10.0
     active: bool = False
     _published: float | None = None
     _t_last: float | None = None
+    _t_start: float | None = None
 
     def start_transition(self) -> None:
         self.active = True
+        self._t_start = None      # set by the next update (sample time)
 
     def update(self, t_s: float, heading_rad: float, yaw_rate_rad_s: float = 0.0) -> float:
         """Heading to publish (rad, [0, 2π)) for the estimator's heading at t_s and the vehicle's yaw rate."""
@@ -389,12 +394,14 @@ class HeadingSlew:
             return self._published
         dt = 0.0 if self._t_last is None else max(0.0, t_s - self._t_last)
         self._t_last = t_s
+        if self._t_start is None:
+            self._t_start = t_s
         predicted = self._published + yaw_rate_rad_s * dt
         err = float(_wrap_pi(heading_rad - predicted))
         step = math.radians(self.max_rate_deg_s) * dt
         if abs(err) <= max(step, math.radians(self.done_within_deg)):
             self._published = heading_rad % (2 * math.pi)
-            if abs(err) <= math.radians(self.done_within_deg):
+            if abs(err) <= math.radians(self.done_within_deg) and t_s - self._t_start >= self.min_duration_s:
                 self.active = False
         else:
             self._published = (predicted + math.copysign(step, err)) % (2 * math.pi)

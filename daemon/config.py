@@ -35,6 +35,8 @@ ESTIMATOR_NAMES = ("mekf", "thesis")     # CONTRIBUTING.md, ahrsd.estimator.ESTI
 MAV_TYPES = {"imu": 40, "onboard_controller": 18}  # MAV_TYPE_IMU / MAV_TYPE_ONBOARD_CONTROLLER (anchor §1.3)
 MAX_OUTPUT_RATE_HZ = 200.0
 MAX_VISION_RATE_HZ = 50.0  # EKF3 extNavIntervalMin_ms = 20 ms (anchor ardupilot-extnav)
+MIN_HEADING_SLEW_DEG_S = 0.1   # slower would take an hour for a 180° change
+MAX_HEADING_SLEW_DEG_S = 90.0
 ENDPOINT_PREFIXES = ("udpout:", "udpin:", "udpbcast:", "udp:", "tcp:", "tcpin:", "uds:", "unix:")
 
 
@@ -228,11 +230,19 @@ class OutputsConfig:
     highres_imu_hz: float = 10.0
     scaled_imu_hz: float = 0.0
     sys_status_hz: float = 1.0
+    # a calibration change moves the VISION_POSITION_ESTIMATE yaw towards the new heading at this rate, deg/s
+    # (EKF3 rejects an external-yaw step beyond its 3σ gate in flight, anchors/ardupilot-extnav.md)
+    heading_slew_deg_s: float = 2.0
+    # also increment VISION_POSITION_ESTIMATE.reset_counter on a calibration change (PX4 EKF2 then resets
+    # its yaw; ArduPilot reads it as a position reset): docs/daemon.md "reset_counter"
+    reset_counter_on_calibration: bool = False
 
     @classmethod
     def parse(cls, d: dict, prefix="outputs") -> "OutputsConfig":
         checks = {f.name: _number_in(0.0, MAX_OUTPUT_RATE_HZ) for f in dataclasses.fields(cls)}
         checks["vision_position_estimate_hz"] = _number_in(0.0, MAX_VISION_RATE_HZ)
+        checks["heading_slew_deg_s"] = _number_in(MIN_HEADING_SLEW_DEG_S, MAX_HEADING_SLEW_DEG_S)
+        checks["reset_counter_on_calibration"] = _bool
         return cls(**_parse_table(cls, d, prefix, checks))
 
 

@@ -27,8 +27,10 @@ configured (both done by the CommandRouter, daemon/commands.py).
 
 While a session runs: MAG_CAL_PROGRESS at ~4 Hz, HEARTBEAT system_status CALIBRATING (`system_status`),
 STATUSTEXT lines a person can act on; when it has finished, MAG_CAL_REPORT (ArduPilot's offsets/diag/offdiag
-convention, fitness in mgauss, autosaved flag) at 1 Hz until accepted or cancelled. After a swap the
-heading sent to the autopilot is slewed (`heading_for_autopilot`, `HeadingSlew`).
+convention, fitness in mgauss, autosaved flag) at 1 Hz until accepted or cancelled. Save and swap go
+through the daemon's one calibration path, `Service.apply_calibration`, which also has the estimator
+re-learn its field reference and slews the heading sent to the autopilot (docs/daemon.md "Calibration
+changes").
 """
 
 from __future__ import annotations
@@ -51,10 +53,8 @@ from ahrsd.calibration.field import (
     CalStatus,
     FieldCalConfig,
     FieldCalibration,
-    HeadingSlew,
     VehicleType,
     fixed_yaw_calibration,
-    yaw_rate_ned_rad_s,
 )
 from ahrsd.daemon.mavlink_io import mavlink
 
@@ -83,10 +83,6 @@ class MagCalSettings:
     vehicle_type: str = "auto"           # auto | level | tumble
     fitness_mgauss: float = 16.0         # ArduPilot COMPASS_CAL_FIT default
     timeout_s: float = 300.0             # sample time from start to full coverage
-    heading_slew_deg_s: float = 2.0      # bound on the heading change a new calibration causes (EKF3 3σ gate)
-    field_magnitude_rate_pct_s: float = 0.4  # field magnitude change rate while a new calibration goes in:
-    #                                          × the MEKF's 20 s reference time constant < its 10 % tolerance
-    field_dip_rate_deg_s: float = 0.5        # dip change rate: × 20 s < the MEKF's 15° dip tolerance
     progress_rate_hz: float = 4.0        # MAG_CAL_PROGRESS while running
     report_rate_hz: float = 1.0          # MAG_CAL_REPORT while finished and not accepted/cancelled
     fixed_yaw_average_s: float = 1.0     # raw field averaged for MAV_CMD_FIXED_MAG_CAL_YAW
@@ -100,8 +96,8 @@ class MagCalHost(Protocol):
     """What the handler needs from the daemon (daemon/service.py provides it; tests provide a fake)."""
 
     def current_calibration(self): ...                 # Calibration in force
-    def apply_calibration(self, cal) -> None: ...       # hot swap (estimator keeps running)
-    def save_calibration(self, cal) -> None: ...        # CalibrationStore.save (atomic, previous kept)
+    # persist (atomic, previous kept) then hot-swap; raises if the save fails (the old one stays in force)
+    def apply_calibration(self, cal) -> None: ...
     def send(self, msg) -> None: ...                    # to every endpoint
     def statustext(self, severity: int, text: str) -> None: ...
     def armed(self) -> bool: ...
@@ -131,7 +127,6 @@ class MagCalProtocol:
         self.session: FieldCalibration | None = None
         self.autosave = False
         self.saved = False
-        self.slew = HeadingSlew(max_rate_deg_s=self.settings.heading_slew_deg_s)
         self._executor: concurrent.futures.ThreadPoolExecutor | None = None
         self._fit_future: concurrent.futures.Future | None = None
         self._next_progress = 0.0
@@ -182,15 +177,6 @@ class MagCalProtocol:
         s = self.session
         if s is not None and s.status.running:
             s.add_sample(sample, estimate, now_s=self.clock())
-
-    def heading_for_autopilot(self, t_s: float, heading_true_rad: float, estimate=None) -> float:
-        """The true heading to put in VISION_POSITION_ESTIMATE: the estimator's, slewed after a swap.
-        reset_counter must stay unchanged for a calibration change (see HeadingSlew)."""
-        est = estimate if estimate is not None else self._last_estimate
-        rate = 0.0
-        if est is not None:
-            rate = yaw_rate_ned_rad_s(est.rate_body_rad_s, est.roll_rad, est.pitch_rad)
-        return self.slew.update(t_s, heading_true_rad, rate)
 
     # ------------------------------------------------------------------ periodic
     def tick(self) -> None:
@@ -301,9 +287,6 @@ class MagCalProtocol:
         if self.calibrating:
             self._say(SEV_INFO, f"Mag cal already running ({self.session.completion_pct}%)")
             return mavlink.MAV_RESULT_ACCEPTED
-        if self._blending():
-            self._say(SEV_NOTICE, "Mag cal: new calibration still being applied, retry shortly")
-            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
         try:
             current = self.host.current_calibration()
             reference = self.host.reference_field()
@@ -375,9 +358,6 @@ class MagCalProtocol:
         if self.calibrating:
             self._say(SEV_NOTICE, "Mag cal running: cancel it before a fixed-yaw cal")
             return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
-        if self._blending():
-            self._say(SEV_NOTICE, "Mag cal: new calibration still being applied, retry shortly")
-            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
         est = self._last_estimate
         if est is None or not self._recent_raw:
             self._say(SEV_ERROR, "Mag: no attitude yet for fixed-yaw cal")
@@ -401,10 +381,6 @@ class MagCalProtocol:
                                    "soft iron may be stale, run a full cal")
         return mavlink.MAV_RESULT_ACCEPTED
 
-    def _blending(self) -> bool:
-        blend = getattr(self.host, "blend", None)
-        return bool(blend is not None and blend.active)
-
     # ------------------------------------------------------------------ accept / save
     def _accept_result(self) -> bool:
         s = self.session
@@ -419,13 +395,11 @@ class MagCalProtocol:
 
     def _save_and_swap(self, new, current, text: str, log_line: str | None = None) -> bool:
         try:
-            self.host.save_calibration(new)
+            self.host.apply_calibration(new)
         except Exception as exc:  # noqa: BLE001 - the previous calibration stays in force and on disk
             log.exception("saving the new magnetometer calibration failed")
             self._say(SEV_ERROR, f"Mag cal save failed: {exc}")
             return False
-        self.host.apply_calibration(new)
-        self.slew.start_transition()
         log.warning("magnetometer calibration changed: %s", log_line or text)
         log.warning("  before: hard_iron_ut=%s soft_iron=%s", np.round(current.mag.hard_iron_ut, 3).tolist(),
                     np.round(current.mag.soft_iron, 5).tolist())
@@ -497,175 +471,25 @@ def settings_from_mapping(d: dict[str, Any] | None) -> MagCalSettings:
 # ============================================================================ the daemon adapter
 
 
-class BlendedCalibration:
-    """A Calibration stand-in for the pipeline while a new magnetometer calibration is brought in.
-
-    Gyro and accelerometer come from the new calibration. The magnetometer output is built in the local level
-    frame (roll/pitch from the last estimate) from three parts of the field:
-
-    * heading: the new calibrated field's, plus an offset that starts at the old-minus-new difference of the
-      first sample and runs down to zero at `heading_rate_deg_s` — so the heading follows the vehicle's
-      rotation and the correction never moves faster than the bound, whatever the size of the change (a
-      straight interpolation of the two models would pass through a near-zero field when they differ by 180°);
-    * magnitude and dip: moved from the old calibrated field's to the new one's at bounded rates, because the
-      estimator checks the field against a reference it has learned (MEKF: magnitude within 10 %, dip within
-      15°, reference following with a 20 s time constant) and would otherwise reject the magnetometer — run
-      on the gyro for up to a minute — and then jump.
-
-    Other attributes (mag, metadata, to_dict, ...) are the new calibration's.
-    """
-
-    def __init__(self, old, new, heading_rate_deg_s: float, magnitude_rate_pct_s: float, dip_rate_deg_s: float):
-        self.old, self.new = old, new
-        self.heading_rate_rad_s = math.radians(heading_rate_deg_s)
-        self.magnitude_rate = magnitude_rate_pct_s / 100.0
-        self.dip_rate_rad_s = math.radians(dip_rate_deg_s)
-        self.roll_rad = 0.0
-        self.pitch_rad = 0.0
-        self.offset_rad: float | None = None   # heading offset; None until the first sample
-        self.initial_offset_rad = 0.0
-        self.shape = 0.0                       # 0: old magnitude/dip, 1: new
-        self.shape_rate = math.inf             # per second
-        self._t_last: float | None = None
-
-    def __getattr__(self, name):
-        return getattr(self.new, name)
-
-    @property
-    def done(self) -> bool:
-        return self.offset_rad == 0.0 and self.shape >= 1.0
-
-    @property
-    def duration_s(self) -> float:
-        heading = abs(self.initial_offset_rad) / self.heading_rate_rad_s if self.heading_rate_rad_s > 0 else 0.0
-        return max(heading, 1.0 / self.shape_rate if self.shape_rate > 0 else 0.0)
-
-    def apply(self, sample):
-        out = self.new.apply(sample)
-        cr, sr = math.cos(self.roll_rad), math.sin(self.roll_rad)
-        cp, sp = math.cos(self.pitch_rad), math.sin(self.pitch_rad)
-        tilt = np.array([[cp, sp * sr, sp * cr], [0.0, cr, -sr], [-sp, cp * sr, cp * cr]])  # body -> level
-        ln = tilt @ out.mag_ut
-        lo = tilt @ self.old.mag.apply(sample.mag_ut)
-        h_n, h_o = math.hypot(ln[0], ln[1]), math.hypot(lo[0], lo[1])
-        m_n, m_o = math.hypot(h_n, ln[2]), math.hypot(h_o, lo[2])
-        dip_n, dip_o = math.atan2(ln[2], h_n), math.atan2(lo[2], h_o)
-        ang_n = math.atan2(ln[1], ln[0])
-        if self.offset_rad is None:
-            self.offset_rad = self.initial_offset_rad = math.remainder(math.atan2(lo[1], lo[0]) - ang_n, 2 * math.pi)
-            times = [0.0]
-            if m_o > 0 and m_n > 0 and self.magnitude_rate > 0:
-                times.append(abs(math.log(m_n / m_o)) / self.magnitude_rate)
-            if self.dip_rate_rad_s > 0:
-                times.append(abs(dip_n - dip_o) / self.dip_rate_rad_s)
-            t_shape = max(times)
-            self.shape_rate = 1.0 / t_shape if t_shape > 0 else math.inf
-            if self.shape_rate == math.inf:
-                self.shape = 1.0
-        else:
-            dt = max(0.0, sample.t_s - self._t_last)
-            step = self.heading_rate_rad_s * dt
-            e = self.offset_rad
-            self.offset_rad = 0.0 if abs(e) <= step else e - math.copysign(step, e)
-            self.shape = min(1.0, self.shape + self.shape_rate * dt)
-        self._t_last = sample.t_s
-        g = self.shape
-        mag = m_o ** (1.0 - g) * m_n ** g if m_o > 0 and m_n > 0 else m_n
-        dip = (1.0 - g) * dip_o + g * dip_n
-        ang = ang_n + self.offset_rad
-        h, v = mag * math.cos(dip), mag * math.sin(dip)
-        return out.with_values(mag_ut=tilt.T @ np.array([h * math.cos(ang), h * math.sin(ang), v]))
-
-
-class CalibrationBlend:
-    """Brings a new calibration into a running pipeline without stepping the heading (`BlendedCalibration`
-    until it has run down, then the new calibration itself). The VISION_POSITION_ESTIMATE reset_counter is
-    not touched: ArduPilot reads a new value as a position reset."""
-
-    def __init__(self, pipeline, settings: "MagCalSettings", on_done=None):
-        self.pipeline = pipeline
-        self.settings = settings
-        self.on_done = on_done
-        self.target = None
-        self._blended: BlendedCalibration | None = None
-        self._logged = False
-
-    @property
-    def active(self) -> bool:
-        return self.target is not None
-
-    def start(self, new_cal, sample=None, estimate=None) -> None:
-        current = self.pipeline.calibration
-        old = current.new if isinstance(current, BlendedCalibration) else current
-        self.target = new_cal
-        st = self.settings
-        if st.heading_slew_deg_s <= 0:
-            self._finish()
-            return
-        self._blended = BlendedCalibration(old, new_cal, st.heading_slew_deg_s, st.field_magnitude_rate_pct_s,
-                                           st.field_dip_rate_deg_s)
-        if estimate is not None:
-            self._blended.roll_rad, self._blended.pitch_rad = float(estimate.roll_rad), float(estimate.pitch_rad)
-        self.pipeline.calibration = self._blended
-        self._logged = False
-
-    def on_sample(self, t_s: float, estimate) -> None:
-        """After each sample: update the levelling attitude, hand over to the new calibration when done."""
-        b = self._blended
-        if self.target is None or b is None:
-            return
-        if not self._logged and b.offset_rad is not None:
-            self._logged = True
-            log.info("magcal: bringing the new calibration in over %.0f s (heading change %.1f deg)",
-                     b.duration_s, math.degrees(b.initial_offset_rad))
-        if b.done:
-            self._finish()
-            return
-        if estimate is not None:
-            b.roll_rad, b.pitch_rad = estimate.roll_rad, estimate.pitch_rad
-
-    def _finish(self) -> None:
-        self.pipeline.calibration = self.target
-        self.target = None
-        self._blended = None
-        log.info("magcal: new calibration fully in force")
-        if self.on_done is not None:
-            self.on_done()
-
-
 class ServiceHost:
     """`MagCalHost` on top of the daemon's public hooks (daemon/service.py: pipeline, commands,
     add_sample_listener, send, set_calibrating, autopilot, state_dir, config)."""
 
     def __init__(self, service, settings: MagCalSettings):
         self.service = service
-        self.blend = None
         self.protocol: MagCalProtocol | None = None
         self._task: asyncio.Task | None = None
-        self._last_sample = None
-        self._last_estimate = None
+        self._applying = False            # a swap whose heading slew has not finished yet
         self._calibrating_shown = False
-
-    def _blend(self) -> CalibrationBlend:
-        if self.blend is None:
-            self.blend = CalibrationBlend(self.service.pipeline, self.protocol.settings, self._blend_done)
-        return self.blend
-
-    def _blend_done(self) -> None:
-        self.protocol._say(SEV_INFO, "Mag cal: new calibration fully applied")
 
     # -- MagCalHost
     def current_calibration(self):
-        b = self.blend
-        return b.target if b is not None and b.active else self.service.pipeline.calibration
+        return self.service.pipeline.calibration
 
     def apply_calibration(self, cal) -> None:
-        self._blend().start(cal, self._last_sample, self._last_estimate)
-
-    def save_calibration(self, cal) -> None:
-        from ahrsd.calibration.store import CalibrationStore
-
-        CalibrationStore(self.service.state_dir).save(cal)
+        """Save and swap through the daemon's one calibration path (store, estimator, heading slew)."""
+        self.service.apply_calibration(cal, save=True, reason="magnetometer calibration")
+        self._applying = True
 
     def send(self, msg) -> None:
         self.service.send(msg)
@@ -698,9 +522,6 @@ class ServiceHost:
     # -- daemon side
     def on_sample(self, sample, estimate) -> None:
         """The daemon's sample listener (event loop, every sample)."""
-        self._last_sample, self._last_estimate = sample, estimate
-        if self.blend is not None and self.blend.active:
-            self.blend.on_sample(sample.t_s, estimate)
         self.protocol.on_sample(sample, estimate)
         if self._task is None:
             self._task = asyncio.get_running_loop().create_task(self._ticker(), name="magcal")
@@ -710,6 +531,9 @@ class ServiceHost:
         while True:
             try:
                 self.protocol.tick()
+                if self._applying and not self.service.heading_slew.active:
+                    self._applying = False
+                    self.protocol._say(SEV_INFO, "Mag cal: new calibration fully applied")
                 calibrating = self.protocol.calibrating
                 if calibrating != self._calibrating_shown:
                     self._calibrating_shown = calibrating

@@ -3,7 +3,9 @@ receivers and the housekeeping (heartbeat, health, watchdog, status line).
 
 Extension hooks (used by the field magnetometer calibration, see docs/daemon.md "Extending"):
 * `service.commands.register(command_id, handler)` — COMMAND_LONG/INT handlers (`ahrsd.daemon.commands`);
-* `service.apply_calibration(cal, save=True)` — swap the calibration between two samples;
+* `service.apply_calibration(cal, save=True)` — persist and swap the calibration between two samples (the
+  one path for every calibration change: the estimator re-learns its field reference and the heading sent
+  to the autopilot is slewed to the new one);
 * `service.add_sample_listener(fn)` — `fn(calibrated_sample, estimate)` after every sample;
 * `service.send(msg)`, `service.statustext(severity, text)`, `service.set_calibrating(text)`;
 * `service.autopilot` (armed, position, course, speed), `service.params`.
@@ -32,6 +34,7 @@ from ahrsd.daemon.notify import Notifier, watchdog_interval_s
 from ahrsd.daemon.outputs import OUTPUT_KEYS, OutputSchedule
 from ahrsd.daemon.params import ParamError, ParamSpec, ParamStore, decode_param_id
 from ahrsd.daemon.pipeline import Pipeline, open_source
+from ahrsd.calibration.field import HeadingSlew, yaw_rate_ned_rad_s
 from ahrsd.drivers.errors import FrameError
 from ahrsd.drivers.sample import SampleFlags
 from ahrsd.daemon.status_line import StatusLine, format_status
@@ -113,6 +116,8 @@ class Service:
         self.source = source
         self.pipeline: Pipeline | None = None
         self.reset_counter = 0
+        # the VISION_POSITION_ESTIMATE yaw after a calibration change (apply_calibration)
+        self.heading_slew = HeadingSlew(max_rate_deg_s=config.outputs.heading_slew_deg_s)
         self.declination_rad = 0.0
         self.declination_source = "none"
         self.signing_key: bytes | None = None
@@ -164,17 +169,28 @@ class Service:
         self.health.calibrating = what
 
     def apply_calibration(self, cal, *, save: bool = True, reason: str = "") -> None:
-        """Swap the calibration atomically between two samples; persist it first when `save`.
+        """Persist (when `save`; an error propagates and the previous calibration stays in force and on disk)
+        and swap the calibration atomically between two samples. The one path for every calibration change
+        (mag-cal accept/autosave, fixed yaw, gyro calibration).
 
-        A new calibration can step the heading, so the VISION_POSITION_ESTIMATE reset_counter is incremented:
-        PX4 then re-aligns its yaw instead of rejecting the step.
+        The estimator re-learns its field reference (`relearn_field_reference`: it would otherwise reject
+        the corrected field as a disturbance and jump later), and the yaw in VISION_POSITION_ESTIMATE moves to
+        the new heading at no more than `[outputs] heading_slew_deg_s` (EKF3 rejects a yaw step beyond its
+        3σ gate in flight). reset_counter is left alone unless `reset_counter_on_calibration`: ArduPilot
+        reads a new value as a position reset, PX4 EKF2 as a yaw reset (docs/daemon.md "reset_counter").
         """
         if save:
             from ahrsd.calibration.store import CalibrationStore
 
             CalibrationStore(self.state_dir).save(cal)
         self.pipeline.calibration = cal
-        self.reset_counter += 1
+        relearn = getattr(self.pipeline.estimator, "relearn_field_reference", None)
+        if relearn is not None:
+            relearn()
+        if self.config.outputs.reset_counter_on_calibration:
+            self.reset_counter += 1
+        else:
+            self.heading_slew.start_transition()
         log.info("calibration applied%s", f" ({reason})" if reason else "")
 
     def request_stop(self, code: int = 0) -> None:
@@ -423,7 +439,8 @@ class Service:
         health.last_sample_flags = samples[-1].flags
         if est is not None:
             if _int_and(est.flags, _REINITIALISED):
-                self.reset_counter += 1
+                self.reset_counter += 1         # a genuine re-initialisation: signalled, not slewed
+                self.heading_slew.active = False
             health.last_estimate_flags = est.flags
             if not self.ready_sent and not _int_and(est.flags, _INITIALISING):
                 self.ready_sent = True
@@ -479,7 +496,9 @@ class Service:
             if not self.health.heading_trusted(now):
                 return None   # never feed the autopilot a heading it must not trust (design §6)
             usec = int(self.sample_time_monotonic(est.t_s) * 1e6)
-            return msgs.vision_position_estimate(est, usec, est.heading_true_rad, self.reset_counter)
+            yaw = self.heading_slew.update(est.t_s, est.heading_true_rad,
+                                           yaw_rate_ned_rad_s(est.rate_body_rad_s, est.roll_rad, est.pitch_rad))
+            return msgs.vision_position_estimate(est, usec, yaw, self.reset_counter)
         if mid == mavlink.MAVLINK_MSG_ID_HIGHRES_IMU and sample is not None:
             return msgs.highres_imu(sample, int(self.sample_time_monotonic(sample.t_s) * 1e6))
         if mid == mavlink.MAVLINK_MSG_ID_SCALED_IMU and sample is not None:
@@ -535,6 +554,8 @@ class Service:
                 save_timestamp(self.state_dir, max(e.signing_timestamp() for e in self.endpoints))
             if now - self._last_decl_update > DECLINATION_UPDATE_PERIOD_S:
                 self._resolve_declination()
+            if self.heading_slew.active and self.schedule.rate_hz(OUTPUT_KEYS["vision_position_estimate_hz"]) <= 0:
+                self.heading_slew.active = False    # nobody receives the slewed yaw: nothing to bring in
             await asyncio.sleep(max(0.0, deadline - loop.time()))
 
     def _update_load(self, now: float) -> None:

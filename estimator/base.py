@@ -53,3 +53,7 @@ class Estimator(Protocol):
     def reset(self) -> None: ...
 
     def set_declination(self, declination_rad: float) -> None: ...
+
+    def relearn_field_reference(self) -> None:
+        """The magnetometer calibration changed: re-learn whatever reference of the field the estimator
+        keeps (magnitude, dip) from the next samples, keeping attitude and gyro bias (no heading step)."""

@@ -237,6 +237,11 @@ def _estimate_flags(bits: int) -> EstimateFlags:
     return f
 
 
+# after a calibration change the heading gate stays open this long: the undisturbed wait (0.5 s) plus the
+# filter's heading convergence (time constant ≈ 1 s at the default tuning) with a wide margin
+RELEARN_GATE_OPEN_S = 10.0
+
+
 class Mekf:
     """The default estimator (Estimator protocol): `update(sample) -> AttitudeEstimate`.
 
@@ -269,6 +274,30 @@ class Mekf:
 
     def set_declination(self, declination_rad: float) -> None:
         self._declination = float(declination_rad)
+
+    def relearn_field_reference(self) -> None:
+        """Forget the learned field reference (magnitude, dip, the at-rest body-frame field) after a
+        magnetometer calibration change; attitude, gyro bias and covariance are kept, so nothing steps.
+
+        The reference gates magnetic disturbances. Learned on the uncalibrated field of a vehicle with strong
+        iron it does not match the now-correct field, which would be rejected as a disturbance until the
+        candidate logic adopts it (mag_new_time_s of rotation) or mag_reject_max_s runs out — and the heading
+        would then jump. After this call the next sample sets the reference again, and the field is used
+        once it has matched it for mag_min_undisturbed_s. The heading then moves to the new calibration's
+        at the filter's own rate: the heading innovation gate (mag_gate_sigma, ≈ 45° at the default tuning)
+        stays open for RELEARN_GATE_OPEN_S so a larger change (first calibration of strong iron) is taken
+        too; the magnitude/dip check still rejects disturbances meanwhile. The daemon bounds the rate at
+        which the autopilot sees the change (docs/daemon.md "Calibration changes")."""
+        s = self._state
+        s[core.S_MAG_REF_NORM] = 0.0          # 0 = learn from the next sample (mekf_core)
+        s[core.S_MAG_REF_DIP] = 0.0
+        s[core.S_MAG_CAND_NORM] = 0.0
+        s[core.S_MAG_CAND_DIP] = 0.0
+        s[core.S_MAG_CAND_T] = 0.0
+        s[core.S_MAG_UNDIST_T] = 0.0
+        s[core.S_MAG_DIST_T] = 0.0
+        s[core.S_MAG_REST_SET] = 0.0          # the at-rest field is the old calibration's: take it again
+        s[core.S_MAG_GATE_OPEN_T] = RELEARN_GATE_OPEN_S
 
     @property
     def gyro_bias_rad_s(self) -> np.ndarray:

@@ -50,6 +50,7 @@ S_MAG_REST_SET = 74   # 1.0 while S_MAG_REST holds this rest's field
 S_REST_DG = 75        # low-passed squared gyro deviation from its low-pass, (rad/s)²
 S_REST_DA = 76        # low-passed squared acc deviation, (m/s²)²
 S_ACC_HOLD_T = 77     # tilt updates stay off this much longer after a sustained push, s
+S_MAG_GATE_OPEN_T = 78  # the heading innovation gate stays open this much longer (new calibration), s
 S_SIZE = 80
 
 # ----------------------------------------------------------------------------------- parameter layout
@@ -596,7 +597,8 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
                 floor = par[P_MAG_HEADING_NOISE_REST] if at_rest else par[P_MAG_HEADING_NOISE]
                 r = (sig_a * sig_a + floor * floor) * inflate
                 s = state[S_P + 2 * 6 + 2] + r
-                if alpha * alpha > par[P_MAG_GATE] ** 2 * s and inflate == 1.0:
+                gate_open = state[S_MAG_GATE_OPEN_T] > 0.0   # Mekf.relearn_field_reference
+                if alpha * alpha > par[P_MAG_GATE] ** 2 * s and inflate == 1.0 and not gate_open:
                     flags |= F_MAG_REJECTED
                 else:
                     d0, d1, d2, d3, d4, d5 = _scalar_update(state, 2, -1.0, alpha, r, M_TILT)
@@ -604,6 +606,8 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
                     mag_used = True
             else:
                 flags |= F_MAG_REJECTED
+    if state[S_MAG_GATE_OPEN_T] > 0.0:
+        state[S_MAG_GATE_OPEN_T] = max(0.0, state[S_MAG_GATE_OPEN_T] - dt)
     if mag_used:
         state[S_MAG_LAST_T] = 0.0
     else:

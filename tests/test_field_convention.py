@@ -126,13 +126,26 @@ def test_heading_slew_bounds_rate_and_follows_motion():
     out = []
     t = 0.0
     heading_est = math.radians(110.0)  # the new calibration moved the estimator's heading by +10°
-    for _ in range(int(8.0 / dt)):
+    for _ in range(int(12.0 / dt)):
         t += dt
         out.append(math.degrees(slew.update(t, heading_est, 0.0)))
     steps = np.abs(np.diff([100.0] + out))
     assert steps.max() <= 2.0 * dt + 1e-9
     assert abs(out[int(4.0 / dt)] - 108.0) < 0.1      # 2°/s
-    assert abs(out[-1] - 110.0) < 1e-9 and not slew.active
+    assert abs(out[-1] - 110.0) < 1e-9 and not slew.active   # done after min_duration_s (10 s)
+
+
+def test_heading_slew_waits_for_the_estimator_to_move():
+    """The estimator takes the new field a moment after the swap: the transition must not end at once."""
+    slew = HeadingSlew(max_rate_deg_s=2.0, min_duration_s=10.0)
+    slew.update(0.0, 0.0)
+    slew.start_transition()
+    dt = 0.02
+    for k in range(1, 51):                       # 1 s: the estimator's heading has not moved yet
+        slew.update(k * dt, 0.0)
+    assert slew.active
+    out = [math.degrees(slew.update(1.0 + k * dt, math.radians(30.0))) for k in range(1, 100)]
+    assert max(np.abs(np.diff([0.0] + out))) <= 2.0 * dt + 1e-9   # then the 30° jump is slewed, not passed
 
 
 def test_heading_slew_passes_vehicle_rotation_through():

@@ -41,7 +41,7 @@ MAV_STATE_CALIBRATING = 2
 LAUNCH = r"""
 import asyncio, json, logging, sys, time
 logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-from ahrsd.daemon.config import Config, SigningConfig
+from ahrsd.daemon.config import Config, OutputsConfig, SigningConfig
 from ahrsd.daemon.pipeline import ReplaySource
 from ahrsd.daemon.service import Service
 from ahrsd.daemon.magcal import attach, settings_from_mapping
@@ -52,6 +52,8 @@ a = json.loads(sys.argv[1])
 cfg = Config().with_overrides(sim=a["sim"], mavlink=[a["url"]], state_dir=a["state_dir"])
 if a.get("key_file"):
     cfg = dataclasses.replace(cfg, signing=SigningConfig(key_file=a["key_file"]))
+if a.get("outputs"):
+    cfg = dataclasses.replace(cfg, outputs=OutputsConfig.parse(a["outputs"]))
 scale = float(a["time_scale"])
 t0 = time.monotonic()
 def clock():
@@ -80,9 +82,9 @@ def free_udp_port() -> int:
 
 class Daemon:
     def __init__(self, state_dir: Path, port: int, magcal: dict | None = None, key_file: str | None = None,
-                 log_path: Path | None = None):
+                 log_path: Path | None = None, outputs: dict | None = None):
         args = {"sim": "level-turns", "url": f"udpout:127.0.0.1:{port}", "state_dir": str(state_dir),
-                "time_scale": TIME_SCALE, "magcal": magcal or {}, "key_file": key_file}
+                "time_scale": TIME_SCALE, "magcal": magcal or {}, "key_file": key_file, "outputs": outputs or {}}
         self.log_path = log_path or state_dir.parent / f"daemon-{port}.log"
         self.log = open(self.log_path, "a")
         self.proc = subprocess.Popen([sys.executable, "-c", LAUNCH, json.dumps(args)], stderr=self.log,
@@ -186,8 +188,8 @@ def daemon_env(tmp_path):
 
 def test_full_session_with_pymavlink(daemon_env):
     port, state, start = daemon_env
-    # faster than the defaults (2 °/s, 0.4 %/s, 0.5 °/s) so the swap completes within the test budget
-    daemon = start(magcal={"heading_slew_deg_s": 20.0, "field_magnitude_rate_pct_s": 5.0, "field_dip_rate_deg_s": 5.0})
+    # a faster heading slew than the default 2 °/s so the swap completes within the test budget
+    daemon = start(outputs={"heading_slew_deg_s": 20.0})
     c = Client(port)
     hb = c.wait(lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 200, 20)
     assert hb is not None, daemon.text()[-2000:]
@@ -276,7 +278,7 @@ def test_session_driven_by_mavproxy(daemon_env, tmp_path):
     if mavproxy is None:
         pytest.skip("MAVProxy (mavproxy.py) is not installed")
     port, state, start = daemon_env
-    daemon = start(magcal={"accept_broadcast": True, "heading_slew_deg_s": 20.0})
+    daemon = start(magcal={"accept_broadcast": True}, outputs={"heading_slew_deg_s": 20.0})
     # --target-system: with no autopilot on the link MAVProxy has no target system and would not hand our
     # messages to its modules (with an autopilot it targets the autopilot's system, which ahrsd latches).
     mp = subprocess.Popen([sys.executable, mavproxy, f"--master=udpin:127.0.0.1:{port}", "--nowait",
