@@ -33,6 +33,7 @@ from ahrsd.daemon.mavlink_io import Endpoint, is_for_us, mavlink
 from ahrsd.daemon.notify import Notifier, watchdog_interval_s
 from ahrsd.daemon.outputs import OUTPUT_KEYS, OutputSchedule
 from ahrsd.daemon.params import ParamError, ParamSpec, ParamStore, decode_param_id
+from ahrsd.daemon.rate_limit import TokenBucket
 from ahrsd.daemon.pipeline import Pipeline, open_source
 from ahrsd.calibration.field import HeadingSlew, yaw_rate_ned_rad_s
 from ahrsd.drivers.errors import FrameError
@@ -73,6 +74,7 @@ class ServiceCounters:
     frame_errors: int = 0        # single corrupt frames rejected by the driver
     unsigned_refused: int = 0    # PARAM_SET refused unsigned (commands are counted by the router)
     published: int = 0
+    statustext_suppressed: int = 0  # non-critical STATUSTEXTs dropped by the rate limit (flooding peer)
 
 
 def param_specs(cfg: Config) -> list[ParamSpec]:
@@ -104,6 +106,8 @@ class Service:
         self.health = Health(stale_timeout_s=config.sensor.stale_timeout_s)
         self.autopilot = AutopilotState()
         self.counters = ServiceCounters()
+        # STATUSTEXT budget for non-critical texts: 5/s sustained, bursts of 10 (critical ones always go out)
+        self._statustext_budget = TokenBucket(rate_per_s=5.0, burst=10)
         self.system_id = config.mavlink.system_id or DEFAULT_SYSTEM_ID
         self.component_id = config.mavlink.component_id
         self.mav_type = MAV_TYPES[config.mavlink.mav_type]
@@ -152,6 +156,12 @@ class Service:
             ep.send(msg)
 
     def statustext(self, severity: int, text: str) -> None:
+        """Send a STATUSTEXT to every endpoint. Texts less severe than CRITICAL are rate limited, so a peer
+        flooding us with refused requests cannot make us flood the radio with answers (counted, logged)."""
+        if severity > mavlink.MAV_SEVERITY_CRITICAL and not self._statustext_budget.take(time.monotonic()):
+            self.counters.statustext_suppressed += 1
+            log.debug("STATUSTEXT suppressed by the rate limit: %s", text)
+            return
         log.log(logging.WARNING if severity <= mavlink.MAV_SEVERITY_WARNING else logging.INFO, "%s", text)
         self.send(msgs.statustext(severity, text))
 
