@@ -27,10 +27,10 @@ import hashlib
 import json
 import logging
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .atomic_file import write_atomic
 from .models import SCHEMA_VERSION, Calibration, InvalidCalibrationError
 
 log = logging.getLogger(__name__)
@@ -130,36 +130,9 @@ def load_calibration_file(path: os.PathLike | str) -> Calibration:
     return decode_calibration(data, path)
 
 
-def _fsync_dir(directory: Path) -> None:
-    try:
-        fd = os.open(directory, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
-    except OSError:
-        return  # not supported on this platform/filesystem: rename is still atomic
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
 def _write_atomic(path: Path, data: bytes) -> None:
-    """Temp file in the same directory, write, fsync, rename over `path`, fsync the directory."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-    _fsync_dir(path.parent)
+    """Calibration files are readable by the operator (0644); see atomic_file.write_atomic."""
+    write_atomic(path, data, mode=0o644)
 
 
 @dataclass(frozen=True)

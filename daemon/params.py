@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from ahrsd.daemon.atomic_file import write_atomic
+from ahrsd.calibration.atomic_file import write_atomic
 
 log = logging.getLogger(__name__)
 

@@ -11,8 +11,9 @@ import dataclasses
 import json
 import logging
 import os
-import tempfile
 from pathlib import Path
+
+from ahrsd.calibration.atomic_file import write_atomic
 
 log = logging.getLogger(__name__)
 
@@ -42,9 +43,6 @@ def write_stats(service, path: str | os.PathLike) -> None:
     path = Path(path)
     try:
         data = json.dumps(collect_stats(service), indent=1, sort_keys=True, default=str)
-        fd, tmp = tempfile.mkstemp(prefix=".stats.", dir=path.parent)
-        with os.fdopen(fd, "w") as f:
-            f.write(data)
-        os.replace(tmp, path)
+        write_atomic(path, data.encode(), mode=0o644)
     except (OSError, TypeError, ValueError) as exc:
         log.warning("cannot write the stats file %s: %s", path, exc)

@@ -14,7 +14,7 @@ import os
 import time
 from pathlib import Path
 
-from ahrsd.daemon.atomic_file import write_atomic
+from ahrsd.calibration.atomic_file import write_atomic
 
 log = logging.getLogger(__name__)
 
