@@ -334,7 +334,8 @@ def fixed_yaw_calibration(
     W · (raw − h) equals it, with W — the soft-iron terms — KEPT (ArduPilot's mag_cal_fixed_yaw resets them
     to identity, which throws away a good soft-iron calibration: anchors/magcal.md §1.3, §7).
 
-    raw_mag_ut: the raw field averaged over a short still period (µT, sensor = body frame).
+    raw_mag_ut: the raw field averaged over a short still period (µT, sensor frame; roll, pitch and heading
+    are those of the sensor axes — daemon.magcal.sensor_attitude maps the body attitude through the mounting).
     """
     from scipy.spatial.transform import Rotation
 

@@ -83,6 +83,9 @@ class GyroBiasCalibration:
             return self._end(mavlink.MAV_RESULT_FAILED, "ahrsd: gyro calibration failed: vehicle moved")
         cal = self.service.calibration
         model = cal.gyro
+        mounting = self.service.pipeline.mounting     # the samples are in the body frame, the model in the sensor's
+        if mounting is not None:
+            mean = mounting.T @ mean
         new_bias = model.bias_rad_s + np.linalg.solve(model.matrix, mean)
         if np.linalg.norm(new_bias) > MAX_BIAS_RAD_S:
             return self._end(mavlink.MAV_RESULT_FAILED, "ahrsd: gyro calibration failed: bias implausibly large")

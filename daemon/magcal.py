@@ -44,6 +44,7 @@ import math
 import time
 from collections import deque
 from dataclasses import dataclass, replace
+from types import SimpleNamespace
 from typing import Any, Protocol
 
 import numpy as np
@@ -104,6 +105,29 @@ class MagCalHost(Protocol):
     def reference_field(self, lat_deg: float | None = None, lon_deg: float | None = None): ...  # EarthField | None
 
 
+def _dcm_zyx(roll_rad: float, pitch_rad: float, yaw_rad: float) -> np.ndarray:
+    """C = Rz(yaw) · Ry(pitch) · Rx(roll) (design §4: body → NED for the body's Euler angles)."""
+    cr, sr, cp, sp = math.cos(roll_rad), math.sin(roll_rad), math.cos(pitch_rad), math.sin(pitch_rad)
+    cy, sy = math.cos(yaw_rad), math.sin(yaw_rad)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def sensor_attitude(estimate, mounting: np.ndarray | None):
+    """The estimator's body attitude re-expressed for the sensor axes (C_sn = C_bn · M, M = body←sensor):
+    roll/pitch/yaw of the sensor frame and the angular rate in sensor axes — what a session fitting
+    sensor-frame data levels its magnetometer with. The estimate itself when the mounting is the identity."""
+    if mounting is None or estimate is None:
+        return estimate
+    c = _dcm_zyx(float(estimate.roll_rad), float(estimate.pitch_rad), float(estimate.yaw_rad)) @ mounting
+    rate = getattr(estimate, "rate_body_rad_s", None)
+    return SimpleNamespace(roll_rad=math.atan2(c[2, 1], c[2, 2]),
+                           pitch_rad=-math.asin(max(-1.0, min(1.0, float(c[2, 0])))),
+                           yaw_rad=math.atan2(c[1, 0], c[0, 0]),
+                           rate_body_rad_s=None if rate is None else mounting.T @ np.asarray(rate, dtype=float))
+
+
 def statustext_chunks(severity: int, text: str, chunk_id: int) -> list:
     """STATUSTEXT messages for `text`: one message when it fits 50 bytes, else MAVLink 2 chunks sharing
     `chunk_id` (1..65535) with chunk_seq 0, 1, ... (the last one shorter than 50 bytes or NUL-terminated)."""
@@ -134,6 +158,7 @@ class MagCalProtocol:
         self._chunk_id = 0
         self._recent_raw: deque = deque()
         self._last_estimate = None
+        self._mounting: np.ndarray | None = None
         self._mask_requested = OUR_MASK
 
     # ------------------------------------------------------------------ wiring
@@ -166,9 +191,12 @@ class MagCalProtocol:
             self._executor = None
 
     # ------------------------------------------------------------------ per sample
-    def on_sample(self, sample, estimate) -> None:
-        """Every calibrated (body-frame) sample and its estimate. Cheap when no session runs."""
+    def on_sample(self, sample, estimate, mounting: np.ndarray | None = None) -> None:
+        """Every sample, calibrated with the calibration in force but in the SENSOR frame (calibrations are
+        sensor-frame models: the pipeline calibrates before the mounting rotation), its estimate (body
+        attitude) and the mounting (body←sensor DCM, None = identity). Cheap when no session runs."""
         self._last_estimate = estimate
+        self._mounting = mounting
         now = sample.t_s
         q = self._recent_raw
         q.append((now, sample.mag_ut))
@@ -176,7 +204,7 @@ class MagCalProtocol:
             q.popleft()
         s = self.session
         if s is not None and s.status.running:
-            s.add_sample(sample, estimate, now_s=self.clock())
+            s.add_sample(sample, sensor_attitude(estimate, mounting), now_s=self.clock())
 
     # ------------------------------------------------------------------ periodic
     def tick(self) -> None:
@@ -369,7 +397,11 @@ class MagCalProtocol:
         current = self.host.current_calibration()
         cal_mean = np.mean([m for _t, m in self._recent_raw], axis=0)
         raw_mean = np.linalg.solve(current.mag.soft_iron, cal_mean) + current.mag.hard_iron_ut
-        res = fixed_yaw_calibration(float(yaw_deg), reference, float(est.roll_rad), float(est.pitch_rad),
+        # the fit is in the sensor frame: the attitude of the sensor axes for the body's given true heading
+        sensor = sensor_attitude(SimpleNamespace(roll_rad=float(est.roll_rad), pitch_rad=float(est.pitch_rad),
+                                                 yaw_rad=math.radians(float(yaw_deg)),
+                                                 rate_body_rad_s=np.zeros(3)), self._mounting)
+        res = fixed_yaw_calibration(math.degrees(sensor.yaw_rad), reference, sensor.roll_rad, sensor.pitch_rad,
                                     raw_mean, current.mag)
         new = current.with_sensor("mag", res.model, method="field:fixed-yaw", true_heading_deg=float(yaw_deg),
                                   before={"hard_iron_ut": current.mag.hard_iron_ut.tolist(),
@@ -521,8 +553,10 @@ class ServiceHost:
 
     # -- daemon side
     def on_sample(self, sample, estimate) -> None:
-        """The daemon's sample listener (event loop, every sample)."""
-        self.protocol.on_sample(sample, estimate)
+        """The daemon's sample listener (event loop, every sample). The session fits in the sensor frame, so it
+        gets the pipeline's calibrated sample before the mounting rotation, and the mounting."""
+        pipeline = self.service.pipeline
+        self.protocol.on_sample(pipeline.last_sensor_sample, estimate, pipeline.mounting)
         if self._task is None:
             self._task = asyncio.get_running_loop().create_task(self._ticker(), name="magcal")
 

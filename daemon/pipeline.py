@@ -1,4 +1,8 @@
-"""The per-sample path: sample source → mounting rotation → calibration → estimator.
+"""The per-sample path: sample source → calibration → mounting rotation → estimator.
+
+Calibrations are made in the sensor frame (bench calibrations, `ahrsd calibrate`, the field mag-cal session),
+so `Calibration.apply` sees the driver's sensor-frame sample; the mounting rotation (sensor → body) comes
+after it.
 
 Sources (`SampleSource`) hand over every sample that became available since the previous poll:
 * `DriverSource`: the ADIS16405 driver on any SpiBus — the real chip (`SpidevBus`) or the byte-level
@@ -203,6 +207,7 @@ class Pipeline:
     mounting: np.ndarray | None = None
     counters: PipelineCounters = field(default_factory=PipelineCounters)
     last_sample: ImuSample | None = None       # calibrated, body frame
+    last_sensor_sample: ImuSample | None = None  # calibrated, sensor frame (before the mounting rotation)
     last_estimate: object | None = None
     _last_counter: int | None = None
 
@@ -210,7 +215,8 @@ class Pipeline:
         self.mounting = mounting_matrix(rpy_deg)
 
     def process(self, raw: ImuSample):
-        """One sample through mounting, calibration and the estimator; returns the estimate."""
+        """One sample through calibration (sensor frame), mounting (sensor → body) and the estimator;
+        returns the estimate."""
         c = self.counters
         c.samples += 1
         if self._last_counter is not None:
@@ -221,11 +227,12 @@ class Pipeline:
         self._last_counter = raw.counter
         if _int_and(raw.flags, _INVALID):
             c.invalid_samples += 1
+        sample = self.calibration.apply(raw)
+        self.last_sensor_sample = sample
         m = self.mounting
         if m is not None:
-            raw = ImuSample(raw.t_s, m @ raw.gyro_rad_s, m @ raw.accel_m_s2, m @ raw.mag_ut, raw.temp_c,
-                            raw.supply_v, raw.flags, raw.diag_stat, raw.counter)
-        sample = self.calibration.apply(raw)
+            sample = ImuSample(sample.t_s, m @ sample.gyro_rad_s, m @ sample.accel_m_s2, m @ sample.mag_ut,
+                               sample.temp_c, sample.supply_v, sample.flags, sample.diag_stat, sample.counter)
         self.last_sample = sample
         try:
             est = self.estimator.update(sample)
