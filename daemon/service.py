@@ -198,10 +198,17 @@ class Service:
         if relearn is not None:
             relearn()
         if self.config.outputs.reset_counter_on_calibration:
-            self.reset_counter += 1
+            self.signal_heading_reset()
         else:
             self.heading_slew.start_transition()
         log.info("calibration applied%s", f" ({reason})" if reason else "")
+
+    def signal_heading_reset(self) -> None:
+        """A heading discontinuity the autopilot is told about (estimator re-initialised, mounting or
+        declination changed): VISION_POSITION_ESTIMATE.reset_counter + 1, and the yaw is sent as it is (any
+        calibration slew still running ends: the reset replaces it)."""
+        self.reset_counter += 1
+        self.heading_slew.active = False
 
     def request_stop(self, code: int = 0) -> None:
         self.exit_code = code
@@ -449,8 +456,7 @@ class Service:
         health.last_sample_flags = samples[-1].flags
         if est is not None:
             if _int_and(est.flags, _REINITIALISED):
-                self.reset_counter += 1         # a genuine re-initialisation: signalled, not slewed
-                self.heading_slew.active = False
+                self.signal_heading_reset()       # a genuine re-initialisation: signalled, not slewed
             health.last_estimate_flags = est.flags
             if not self.ready_sent and not _int_and(est.flags, _INITIALISING):
                 self.ready_sent = True
@@ -633,7 +639,7 @@ class Service:
         if self.pipeline is not None and step > 1e-9:
             self.pipeline.estimator.set_declination(decl)
             if step > DECLINATION_RESET_STEP_RAD:
-                self.reset_counter += 1
+                self.signal_heading_reset()
 
     # ------------------------------------------------------------------------------------------ parameters
 
@@ -649,7 +655,7 @@ class Service:
                 rpy = [self.params.get(n) for n in ("MNT_ROLL_DEG", "MNT_PITCH_DEG", "MNT_YAW_DEG")]
                 rpy[("MNT_ROLL_DEG", "MNT_PITCH_DEG", "MNT_YAW_DEG").index(name)] = value
                 self.pipeline.set_mounting(rpy)
-                self.reset_counter += 1
+                self.signal_heading_reset()
         elif name in ("DECL_MANUAL", "DECL_DEG"):
             self.loop.call_soon(self._resolve_declination)
 
