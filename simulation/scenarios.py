@@ -94,6 +94,29 @@ class EulerScenario(Scenario):
 
 
 # --------------------------------------------------------------------------------------------------------------
+def track_velocity_ned_m_s(speed_m_s: float, psi_rad, vz_m_s) -> np.ndarray:
+    """NED velocity of a vehicle moving at constant speed along heading psi, with vertical speed vz."""
+    return np.column_stack([speed_m_s * np.cos(psi_rad), speed_m_s * np.sin(psi_rad), vz_m_s])
+
+
+def track_accel_ned_m_s2(speed_m_s: float, psi_rad, rate_rad_s, az_m_s2) -> np.ndarray:
+    """NED acceleration of that vehicle: the centripetal term of turning at rate r, plus vertical az."""
+    return np.column_stack([-speed_m_s * rate_rad_s * np.sin(psi_rad), speed_m_s * rate_rad_s * np.cos(psi_rad),
+                            az_m_s2])
+
+
+class ConstantSpeedTrack:
+    """Mixin: level motion at `speed_m_s` along the heading profile `self._heading` (a RateProfile)."""
+
+    def velocity_ned_m_s(self, t_s):
+        t = np.asarray(t_s, dtype=float)
+        return track_velocity_ned_m_s(self.speed_m_s, self._heading.angle(t), np.zeros_like(t))
+
+    def accel_ned_m_s2(self, t_s):
+        t = np.asarray(t_s, dtype=float)
+        return track_accel_ned_m_s2(self.speed_m_s, self._heading.angle(t), self._heading.rate(t), np.zeros_like(t))
+
+
 @dataclass
 class Static(EulerScenario):
     """Level and still at a fixed heading."""
@@ -246,23 +269,21 @@ class LevelTurns(EulerScenario):
 
     def velocity_ned_m_s(self, t_s):
         t = np.asarray(t_s, dtype=float)
-        psi = self.heading_rad(t)
         a, p = self._HEAVE
         w = 2 * math.pi / p
-        return np.column_stack([self.speed_m_s * np.cos(psi), self.speed_m_s * np.sin(psi), a * w * np.cos(w * t)])
+        return track_velocity_ned_m_s(self.speed_m_s, self.heading_rad(t), a * w * np.cos(w * t))
 
     def accel_ned_m_s2(self, t_s):
         t = np.asarray(t_s, dtype=float)
-        psi, r = self.heading_rad(t), self.heading_rate_rad_s(t)
         a, p = self._HEAVE
         w = 2 * math.pi / p
-        v = self.speed_m_s
-        return np.column_stack([-v * r * np.sin(psi), v * r * np.cos(psi), -a * w * w * np.sin(w * t)])
+        return track_accel_ned_m_s2(self.speed_m_s, self.heading_rad(t), self.heading_rate_rad_s(t),
+                                    -a * w * w * np.sin(w * t))
 
 
 # --------------------------------------------------------------------------------------------------------------
 @dataclass
-class CoordinatedTurn(EulerScenario):
+class CoordinatedTurn(ConstantSpeedTrack, EulerScenario):
     """A fixed-wing at `speed_m_s` in banked, coordinated turns: the accelerometer does not point at gravity.
 
     Straight 10 s, roll into a right turn at `bank_deg` (4 s), hold it 60 s, roll out, straight 10 s, the same to
@@ -303,15 +324,6 @@ class CoordinatedTurn(EulerScenario):
         bank = np.arctan(self.speed_m_s * r / self.gravity_m_s2)
         return psi, np.zeros_like(t), bank
 
-    def velocity_ned_m_s(self, t_s):
-        psi = self._heading.angle(np.asarray(t_s, dtype=float))
-        return np.column_stack([self.speed_m_s * np.cos(psi), self.speed_m_s * np.sin(psi), np.zeros_like(psi)])
-
-    def accel_ned_m_s2(self, t_s):
-        t = np.asarray(t_s, dtype=float)
-        psi, r = self._heading.angle(t), self._heading.rate(t)
-        v = self.speed_m_s
-        return np.column_stack([-v * r * np.sin(psi), v * r * np.cos(psi), np.zeros_like(t)])
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -345,7 +357,7 @@ class Tumble(EulerScenario):
 
 # --------------------------------------------------------------------------------------------------------------
 @dataclass
-class AuvOutAndBack(EulerScenario):
+class AuvOutAndBack(ConstantSpeedTrack, EulerScenario):
     """Seed 002 test 2: an AUV runs out on heading 62°, turns, and comes back on −117° (= 243°); repeats.
 
     The paper's legs are ~10 km at a few knots (hours); here each leg lasts `leg_s` (default 240 s) so a test can
@@ -387,16 +399,6 @@ class AuvOutAndBack(EulerScenario):
         roll = 1.5 * DEG * np.sin(2 * math.pi * t / 9.0)
         return self._heading.angle(t), pitch, roll
 
-    def velocity_ned_m_s(self, t_s):
-        t = np.asarray(t_s, dtype=float)
-        psi = self._heading.angle(t)
-        return np.column_stack([self.speed_m_s * np.cos(psi), self.speed_m_s * np.sin(psi), np.zeros_like(t)])
-
-    def accel_ned_m_s2(self, t_s):
-        t = np.asarray(t_s, dtype=float)
-        psi, r = self._heading.angle(t), self._heading.rate(t)
-        v = self.speed_m_s
-        return np.column_stack([-v * r * np.sin(psi), v * r * np.cos(psi), np.zeros_like(t)])
 
 
 # --------------------------------------------------------------------------------------------------------------
