@@ -32,7 +32,9 @@ def register(subparsers) -> None:
     def common(sp, recording_required=True):
         if recording_required:
             sp.add_argument("recording", metavar="RECORDING", help="CSV recording (ahrsd record)")
-        sp.add_argument("--state-dir", default=DEFAULT_STATE_DIR, help="where the calibration is stored")
+        sp.add_argument("--state-dir", metavar="DIR", default=DEFAULT_STATE_DIR,
+                        help=f"where the calibration is stored (default: {DEFAULT_STATE_DIR}, the service's; "
+                        "`ahrsd run` started by hand reads ~/.local/state/ahrsd unless given --state-dir)")
         sp.add_argument("--json", action="store_true", help="print one JSON object instead of a report")
         sp.add_argument("--plot", metavar="FILE.png", help="write a plot (needs matplotlib: pip install 'ahrsd[plot]')")
         sp.add_argument("--dry-run", action="store_true", help="fit and report, but do not save")
@@ -47,7 +49,7 @@ def register(subparsers) -> None:
                        "periods of a recording, or live (--live) with operator guidance")
     c.add_argument("recording", metavar="RECORDING", nargs="?", help="CSV recording (omit with --live)")
     common(c, recording_required=False)
-    c.add_argument("--lat", type=float, default=None, help="latitude (deg) for local gravity (default: 9.80665)")
+    c.add_argument("--lat", type=float, default=None, help="latitude (deg) for local gravity (default: none, standard gravity 9.80665 m/s²)")
     c.add_argument("--alt-m", type=float, default=0.0, help="height above the ellipsoid (m) for local gravity")
     c.add_argument("--terms", default="auto", choices=("auto", "6", "9", "12"),
                    help="model size: 12 = bias, scale, misalignment, quadratic (thesis)")
@@ -72,7 +74,9 @@ def register(subparsers) -> None:
     m.add_argument("--lon", type=float, required=True, help="longitude (deg)")
     m.add_argument("--alt-m", type=float, default=0.0, help="height above the ellipsoid (m)")
     m.add_argument("--date", default=None, help="YYYY-MM-DD (default today)")
-    m.add_argument("--method", default="ellipsoid", choices=("ellipsoid", "two-step", "three-step", "backstepping"))
+    m.add_argument("--method", default="ellipsoid", choices=("ellipsoid", "two-step", "three-step", "backstepping"),
+                   help="fit (default: ellipsoid, needs a tumble; backstepping for a vehicle that cannot be "
+                   "tumbled)")
     m.add_argument("--align-recording", metavar="FILE", default=None,
                    help="three-step: a recording of levelled turns about each axis for the alignment step")
     m.add_argument("--heading-ref-delay-s", type=float, default=0.0, metavar="S",

@@ -5,6 +5,15 @@ from __future__ import annotations
 import argparse
 
 
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows "(default: X)" only for options that have a value by default (not "None"/"False" noise)."""
+
+    def _get_help_string(self, action):
+        if action.default is None or action.default is False or "default" in (action.help or ""):
+            return action.help
+        return super()._get_help_string(action)
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "record",
@@ -12,16 +21,17 @@ def register(subparsers) -> None:
         description="Read the ADIS16405 through the driver and write every fresh sample to a CSV recording "
         "(header t_s,gyro_x_rad_s,...,mag_z_ut then temp_c,supply_v,flags,counter and, for --sim, the truth "
         "quaternion truth_qw..truth_qz). With a terminal, a one-line live status shows what is arriving.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=_HelpFormatter,
     )
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--sim", metavar="SCENARIO", nargs="?", const="static",
                      help="simulated ADIS16405 driven by a simulation scenario (static, rate-table, level-turns, "
-                     "coordinated-turn, tumble, auv-out-and-back, mag-disturbance)")
+                     "coordinated-turn, tumble, auv-out-and-back, mag-disturbance; --sim alone: static)")
     src.add_argument("--spi", metavar="DEV", help="real ADIS16405 on this spidev node, e.g. /dev/spidev0.0")
     p.add_argument("--output", "-o", required=True, metavar="FILE", help="CSV file to write")
     p.add_argument("--seconds", type=float, default=None,
-                   help="how long to record (sample time); default: until Ctrl-C (with --sim this implies --realtime)")
+                   help="how long to record (sample time); without it: until Ctrl-C, and --sim then runs in real time "
+                   "(with it, --sim runs as fast as possible unless --realtime)")
     p.add_argument("--seed", type=int, default=0, help="simulation seed (--sim)")
     p.add_argument("--errors", default="adis16405", choices=("adis16405", "ideal"),
                    help="simulated sensor errors (--sim)")
