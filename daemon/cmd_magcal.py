@@ -30,11 +30,22 @@ RESULT_NAMES = {0: "ACCEPTED", 1: "TEMPORARILY_REJECTED", 2: "DENIED", 3: "UNSUP
                 5: "IN_PROGRESS"}
 
 
+def _target_arg(text: str) -> str:
+    """argparse type for --target: checked at once (exit 2 with usage), kept as the text for find_target."""
+    try:
+        sys_id, comp_id = (int(part) for part in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be SYS:COMP, e.g. 1:200, got {text!r}") from None
+    if not (1 <= sys_id <= 255 and 1 <= comp_id <= 255):
+        raise argparse.ArgumentTypeError(f"system and component ids are 1..255, got {text!r}")
+    return text
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser("magcal", help="run a field magnetometer recalibration on a running daemon",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--connect", default=DEFAULT_CONNECT, metavar="URL", help=f"MAVLink connection (default {DEFAULT_CONNECT})")
-    p.add_argument("--target", metavar="SYS:COMP", help="the daemon's system and component id (default: discover)")
+    p.add_argument("--target", metavar="SYS:COMP", type=_target_arg, help="the daemon's system and component id (default: discover)")
     p.add_argument("--timeout", type=float, default=10.0, metavar="S", help="seconds to wait for the daemon (default 10)")
     sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
     s = sub.add_parser("start", help="start a recalibration and follow it")
@@ -50,13 +61,37 @@ def register(subparsers) -> None:
     st.add_argument("--seconds", type=float, default=3.0, help="how long to listen (default 3)")
     fy = sub.add_parser("fixed-yaw", help="calibrate offsets from a known TRUE heading (WMM field, soft iron kept)")
     fy.add_argument("yaw_deg", type=float, metavar="DEG", help="true heading of the vehicle, degrees")
-    fy.add_argument("--lat", type=float, default=0.0)
-    fy.add_argument("--lon", type=float, default=0.0)
+    fy.add_argument("--lat", type=float, default=None, metavar="DEG",
+                    help="latitude of the vehicle for the WMM field (with --lon; default: the autopilot's position, "
+                    "else the daemon's [location])")
+    fy.add_argument("--lon", type=float, default=None, metavar="DEG", help="longitude (with --lat)")
     p.set_defaults(func=run)
+
+
+def _fixed_yaw_position(args) -> tuple[float, float]:
+    """(lat, lon) for MAV_CMD_FIXED_MAG_CAL_YAW p3/p4; (0, 0) asks the daemon for its own position.
+
+    Raises ValueError for one of the two alone (the daemon would silently use 0 for the other) or out of range.
+    """
+    lat, lon = args.lat, args.lon
+    if lat is None and lon is None:
+        return 0.0, 0.0
+    if lat is None or lon is None:
+        raise ValueError("give --lat and --lon together")
+    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+        raise ValueError(f"position {lat}, {lon} out of range (latitude ±90, longitude ±180)")
+    return lat, lon
 
 
 def run(args) -> int:
     from ahrsd.daemon.mavlink_io import mavutil  # sets MAVLink 2 + ardupilotmega before pymavlink loads
+
+    if args.action == "fixed-yaw":
+        try:
+            position = _fixed_yaw_position(args)
+        except ValueError as exc:
+            print(f"ahrsd magcal fixed-yaw: {exc}", file=sys.stderr)
+            return 2
 
     try:
         conn = mavutil.mavlink_connection(args.connect, source_system=CLIENT_SYSTEM,
@@ -79,7 +114,7 @@ def run(args) -> int:
         if args.action == "status":
             return client.status(args.seconds)
         if args.action == "fixed-yaw":
-            return client.simple(42006, f"fixed-yaw {args.yaw_deg:.1f} deg", args.yaw_deg, 0, args.lat, args.lon)
+            return client.simple(42006, f"fixed-yaw {args.yaw_deg:.1f} deg", args.yaw_deg, 0, *position)
         return 2
     finally:
         conn.close()
