@@ -238,11 +238,15 @@ def _accel(args) -> int:
 
     g = local_gravity_m_s2(args.lat, args.alt_m)
     terms = args.terms if args.terms == "auto" else int(args.terms)
+    if args.live and args.recording:
+        raise _Usage("give a RECORDING or --live, not both")
+    if (args.sim or args.spi) and not args.live:
+        raise _Usage("--sim/--spi go with --live (a recording is given as RECORDING)")
     if args.live:
         means, source = _accel_live(args)
     else:
         if not args.recording:
-            raise _Fail("give a RECORDING, or --live with --sim SCENARIO or --spi DEV")
+            raise _Usage("give a RECORDING, or --live with --sim SCENARIO or --spi DEV")
         rec = _read(args.recording)
         segs = find_still_segments(rec.accel_m_s2, rec.gyro_rad_s, rec.sample_rate_hz, min_still_s=args.min_still_s)
         means = np.array([s.mean_accel_m_s2 for s in segs]).reshape(-1, 3)
@@ -276,7 +280,7 @@ def _accel_live(args):
     from ahrsd.drivers.errors import DriverError, FrameError
 
     if bool(args.sim) == bool(args.spi):
-        raise _Fail("--live needs exactly one of --sim SCENARIO or --spi DEV")
+        raise _Usage("--live needs exactly one of --sim SCENARIO or --spi DEV")
     try:
         if args.sim:
             from ahrsd.drivers.simulated import SimulatedAdis16405
@@ -394,13 +398,14 @@ def _mag(args) -> int:
     try:
         date = dt.date.fromisoformat(args.date) if args.date else None
         ref = earth_field(args.lat, args.lon, args.alt_m, date)
-    except ValueError as exc:
-        print(f"ahrsd calibrate mag: {exc}")
-        return 2
+    except ValueError as exc:     # a bad --date or a position out of range: stderr (and the --json error object)
+        raise _Usage(str(exc)) from None
     if args.heading_ref_delay_s and args.method != "backstepping":
         raise _Usage("--heading-ref-delay-s goes with --method backstepping")
     if not (math.isfinite(args.heading_ref_delay_s) and 0.0 <= args.heading_ref_delay_s <= 60.0):
         raise _Usage(f"--heading-ref-delay-s {args.heading_ref_delay_s}: expected 0…60 s")
+    if args.align_recording and args.method != "three-step":
+        raise _Usage("--align-recording goes with --method three-step")
     swing_table = _read_swing_table(args.swing_table) if args.swing_table else None  # bad file: fail before fitting
     rec = _read(args.recording)
     stored = _stored(args)
@@ -412,8 +417,6 @@ def _mag(args) -> int:
         options["heading_ref_delay_s"] = args.heading_ref_delay_s
     align_note = None
     if args.align_recording:
-        if args.method != "three-step":
-            raise _Fail("--align-recording goes with --method three-step")
         from ahrsd.calibration.mag_alignment import fit_alignment, segment_level_turns
 
         first = fit_mag("three-step", data, ref)

@@ -120,3 +120,34 @@ def test_every_commented_key_of_the_example_exists_and_parses(tmp_path):
     cfg = load_config(path)
     assert cfg.magcal is not None and cfg.magcal.accept_broadcast is False and cfg.magcal.fitness_mgauss == 16.0
     assert cfg.location.declination_deg == 1.5 and len(cfg.endpoints) == 3
+
+
+# -- ahrsd calibrate: usage errors exit 2 (docs/calibration.md), checked before any sensor or file is touched -----
+
+@pytest.mark.parametrize("argv, message", [
+    (["accel"], "give a RECORDING"),
+    (["accel", "--live"], "--live needs exactly one of"),
+    (["accel", "--live", "--sim", "static", "--spi", "/dev/spidev0.0"], "--live needs exactly one of"),
+    (["accel", "some.csv", "--live", "--sim", "static"], "not both"),
+    (["accel", "some.csv", "--sim", "static"], "go with --live"),
+    (["mag", "some.csv", "--lat", "1", "--lon", "2", "--align-recording", "t.csv"], "goes with --method three-step"),
+])
+def test_calibrate_usage_errors_exit_2(argv, message, tmp_path, capsys):
+    from ahrsd.daemon.cli import main
+
+    rc = main(["calibrate", *argv, "--state-dir", str(tmp_path / "st"), "--dry-run"])
+    err = capsys.readouterr().err
+    assert rc == 2 and message in err, err
+    assert not (tmp_path / "st").exists()
+
+
+@pytest.mark.parametrize("extra", [["--lat", "95", "--lon", "0"], ["--lat", "1", "--lon", "2", "--date", "2026-13-01"]])
+def test_calibrate_mag_bad_site_is_a_usage_error_on_stderr_and_in_json(extra, tmp_path, capsys):
+    import json
+
+    from ahrsd.daemon.cli import main
+
+    rc = main(["calibrate", "mag", "some.csv", *extra, "--state-dir", str(tmp_path), "--json"])
+    out, err = capsys.readouterr()
+    assert rc == 2 and "ahrsd calibrate mag:" in err
+    assert json.loads(out)["sensor"] == "mag" and json.loads(out)["error"]   # stdout stays one JSON object
