@@ -48,6 +48,7 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     import logging
+    import math
     import signal
     import sys
     import time
@@ -58,8 +59,8 @@ def run(args) -> int:
     from ahrsd.drivers.sample import SampleFlags
 
     log = logging.getLogger("ahrsd.record")
-    if args.seconds is not None and args.seconds <= 0:
-        print("ahrsd record: --seconds must be positive", file=sys.stderr)
+    if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):   # nan/inf: traceback
+        print("ahrsd record: --seconds must be a positive, finite number of seconds", file=sys.stderr)
         return 2
 
     simulated = args.sim is not None

@@ -151,3 +151,12 @@ def test_calibrate_mag_bad_site_is_a_usage_error_on_stderr_and_in_json(extra, tm
     out, err = capsys.readouterr()
     assert rc == 2 and "ahrsd calibrate mag:" in err
     assert json.loads(out)["sensor"] == "mag" and json.loads(out)["error"]   # stdout stays one JSON object
+
+
+@pytest.mark.parametrize("seconds", ["nan", "inf", "-1", "0"])
+def test_record_rejects_non_finite_or_non_positive_seconds(seconds, tmp_path, capsys):
+    from ahrsd.daemon.cli import main
+
+    out = tmp_path / "r.csv"
+    assert main(["record", "--sim", "static", "-o", str(out), "-q", "--seconds", seconds]) == 2
+    assert "--seconds must be a positive, finite number" in capsys.readouterr().err and not out.exists()
