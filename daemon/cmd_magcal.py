@@ -16,6 +16,7 @@ for operators without a ground station.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 
@@ -28,6 +29,20 @@ STATUS_NAMES = {0: "not started", 1: "waiting to start", 2: "step 1", 3: "step 2
                 10: "FAILED (residuals high)"}
 RESULT_NAMES = {0: "ACCEPTED", 1: "TEMPORARILY_REJECTED", 2: "DENIED", 3: "UNSUPPORTED", 4: "FAILED",
                 5: "IN_PROGRESS"}
+
+
+def _number_arg(lo: float = -math.inf, *, above: bool = False):
+    """argparse type: a finite number >= lo (> lo with above=True); nan/inf never reach the daemon."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        if not math.isfinite(value) or value < lo or (above and value == lo):
+            raise argparse.ArgumentTypeError(f"expected a finite number {'>' if above else '>='} {lo:g}, got {text!r}"
+                                             if math.isfinite(lo) else f"expected a finite number, got {text!r}")
+        return value
+    return parse
 
 
 def _target_arg(text: str) -> str:
@@ -46,21 +61,21 @@ def register(subparsers) -> None:
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--connect", default=DEFAULT_CONNECT, metavar="URL", help=f"MAVLink connection (default {DEFAULT_CONNECT})")
     p.add_argument("--target", metavar="SYS:COMP", type=_target_arg, help="the daemon's system and component id (default: discover)")
-    p.add_argument("--timeout", type=float, default=10.0, metavar="S", help="seconds to wait for the daemon (default 10)")
+    p.add_argument("--timeout", type=_number_arg(0.0, above=True), default=10.0, metavar="S", help="seconds to wait for the daemon (default 10)")
     sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
     s = sub.add_parser("start", help="start a recalibration and follow it")
     s.add_argument("--retry", action="store_true", help="restart automatically after a failed attempt")
     s.add_argument("--autosave", action="store_true", help="save a successful result without asking")
     s.add_argument("--accept", action="store_true", help="accept a successful result without asking")
-    s.add_argument("--delay", type=float, default=0.0, metavar="S", help="seconds before sampling starts")
+    s.add_argument("--delay", type=_number_arg(0.0), default=0.0, metavar="S", help="seconds before sampling starts")
     s.add_argument("--no-wait", action="store_true", help="start and return at once")
-    s.add_argument("--max-time", type=float, default=600.0, metavar="S", help="give up following after S seconds")
+    s.add_argument("--max-time", type=_number_arg(0.0, above=True), default=600.0, metavar="S", help="give up following after S seconds")
     sub.add_parser("accept", help="accept (save and apply) a successful result")
     sub.add_parser("cancel", help="cancel the running calibration")
     st = sub.add_parser("status", help="print progress or the last report")
-    st.add_argument("--seconds", type=float, default=3.0, help="how long to listen (default 3)")
+    st.add_argument("--seconds", type=_number_arg(0.0, above=True), default=3.0, help="how long to listen (default 3)")
     fy = sub.add_parser("fixed-yaw", help="calibrate offsets from a known TRUE heading (WMM field, soft iron kept)")
-    fy.add_argument("yaw_deg", type=float, metavar="DEG", help="true heading of the vehicle, degrees")
+    fy.add_argument("yaw_deg", type=_number_arg(), metavar="DEG", help="true heading of the vehicle, degrees")
     fy.add_argument("--lat", type=float, default=None, metavar="DEG",
                     help="latitude of the vehicle for the WMM field (with --lon; default: the autopilot's position, "
                     "else the daemon's [location])")

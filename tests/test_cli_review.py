@@ -160,3 +160,19 @@ def test_record_rejects_non_finite_or_non_positive_seconds(seconds, tmp_path, ca
     out = tmp_path / "r.csv"
     assert main(["record", "--sim", "static", "-o", str(out), "-q", "--seconds", seconds]) == 2
     assert "--seconds must be a positive, finite number" in capsys.readouterr().err and not out.exists()
+
+
+@pytest.mark.parametrize("argv", [
+    ["magcal", "--timeout", "nan", "status"], ["magcal", "--timeout", "0", "status"],
+    ["magcal", "fixed-yaw", "inf"], ["magcal", "fixed-yaw", "nan"], ["magcal", "start", "--delay", "-1"],
+    ["magcal", "start", "--max-time", "nan"], ["magcal", "status", "--seconds", "-3"],
+])
+def test_magcal_numbers_must_be_finite_and_in_range(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        build_parser().parse_args(argv)
+    assert exc.value.code == 2 and "expected a finite number" in capsys.readouterr().err
+
+
+def test_magcal_numbers_in_range_parse():
+    args = build_parser().parse_args(["magcal", "--timeout", "2.5", "fixed-yaw", "-10.5"])
+    assert args.timeout == 2.5 and args.yaw_deg == -10.5
