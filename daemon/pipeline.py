@@ -25,6 +25,7 @@ from typing import Iterator, Protocol
 
 import numpy as np
 
+from ahrsd.drivers.errors import FrameError
 from ahrsd.drivers.sample import ImuSample, SampleFlags
 
 log = logging.getLogger(__name__)
@@ -35,6 +36,9 @@ INVALID = SampleFlags.GYRO_INVALID | SampleFlags.ACCEL_INVALID | SampleFlags.MAG
 # IntFlag operators are slow (enum machinery); the per-sample path tests bits on plain ints
 _int_and = int.__and__
 _STALE, _INVALID, _GAP_BEFORE = int(SampleFlags.STALE), int(INVALID), int(SampleFlags.GAP_BEFORE)
+# flags of a burst after which the driver read more registers (XGYRO_OUT for the burst bug, DIAG_STAT for an
+# alarm): reading an output register clears ND, so a sample that became ready meanwhile was consumed unseen
+_MORE_READS = int(SampleFlags.BURST_BUG_RECOVERED | SampleFlags.GYRO_INVALID | SampleFlags.ALARM)
 
 
 class SampleSource(Protocol):
@@ -52,10 +56,14 @@ class SampleSource(Protocol):
 class DriverSource:
     """The ADIS16405 driver: drains the chip on each poll (burst reads until ND is clear)."""
 
-    def __init__(self, driver, bus, description: str):
+    def __init__(self, driver, bus, description: str, clock=None):
         self.driver = driver
         self.bus = bus
         self.description = description
+        # clock: when given (CLOCK_MONOTONIC, the same clock as the reader's `now`), the read is bracketed by
+        # the time just before and just after the transfer: the chip latched the sample somewhere in between,
+        # and a late transfer (preempted after the wake) must not be indexed by the wake time
+        self.clock = clock
         self.sample_rate_hz = float(getattr(driver, "sample_rate_hz", ADIS16405_RATE_HZ) or ADIS16405_RATE_HZ)
         self.timer = SampleTimer(1.0 / self.sample_rate_hz)
         self.stale_reads = 0
@@ -68,12 +76,25 @@ class DriverSource:
         """One burst read at host time `now`: the new sample (re-timed by the SampleTimer: t_s on the sample
         grid in CLOCK_MONOTONIC seconds, counter = sample index, GAP_BEFORE after lost samples), or None when
         the chip has no new sample yet (ND clear)."""
-        s = self.driver.read_sample()
+        clock = self.clock
+        if clock is not None:
+            now = max(now, clock())
+        try:
+            s = self.driver.read_sample()
+        except FrameError:
+            # the rejected frame may have carried (and cleared) a new sample
+            self.timer.may_have_consumed(now if clock is None else clock())
+            raise
         if _int_and(s.flags, _STALE):
             self.stale_reads += 1
-            self.timer.stale(now)
+            if _int_and(s.flags, _MORE_READS):
+                self.timer.may_have_consumed(now if clock is None else clock())
+            self.timer.stale(now)          # not ready at `now` or later: `now` is the safe bound
             return None
-        t_s, k, lost = self.timer.fresh(now)
+        end = now if clock is None else clock()
+        t_s, k, lost = self.timer.fresh(now, end)
+        if _int_and(s.flags, _MORE_READS):
+            self.timer.may_have_consumed(end)
         flags = s.flags
         if lost:
             self.lost_samples += lost
@@ -91,6 +112,8 @@ class DriverSource:
         c = dict(getattr(self.driver, "counters", {}) or {})
         c["stale_reads"] = self.stale_reads
         c["lost_samples_host"] = self.lost_samples
+        c["index_ambiguous_reads"] = self.timer.ambiguous_reads
+        c["index_ambiguous_samples"] = self.timer.ambiguous_samples
         return c
 
     def close(self) -> None:
@@ -172,7 +195,7 @@ def open_source(sensor_cfg, clock=time.monotonic) -> SampleSource:
     except Exception:
         bus.close()
         raise
-    return DriverSource(driver, bus, description)
+    return DriverSource(driver, bus, description, clock=clock)
 
 
 def mounting_matrix(rpy_deg) -> np.ndarray | None:
@@ -250,12 +273,23 @@ class SampleTimer:
     """Time stamps and sample indices for a chip that keeps only its latest sample (the ADIS16405).
 
     The chip produces sample k at ready_k = φ + k·P on its own clock and has no sample counter, so gaps can
-    only be seen from the host clock. The phase φ is bracketed by the reads themselves: a fresh sample read
-    at T proves ready_k ≤ T, i.e. φ ≤ T − k·P; a stale read at T proves the next sample was not ready,
-    φ > T − (k_last+1)·P. Reading at the middle of the bracket bisects it, so within a few samples the reader
-    wakes just after each sample is ready, and k = ⌊(T − φ_hi)/P⌋ (never less than k_last + 1) says how many
-    samples were lost in between. Both bounds leak outwards so the lock follows clock drift and recovers
-    from a wrong start.
+    only be seen from the host clock. A read is a transfer that starts after t_start (`read_time`) and ends
+    before t_end (`read_end`); the chip latches its newest sample somewhere in between. The phase φ is
+    bracketed by the reads themselves: a fresh sample k proves ready_k ≤ t_end, i.e. φ ≤ t_end − k·P (upper
+    bound `hi`); a stale read proves the next sample was not ready at t_start, φ > t_start − (k_last+1)·P
+    (lower bound `lo`). Reading at the middle of the bracket bisects it, so within a few samples the reader
+    wakes just after each sample is ready. Both bounds leak outwards so the lock follows clock drift and
+    recovers from a wrong start.
+
+    The index of a fresh read is the LARGEST one the bracket allows, k = ⌈(t_end − lo)/P⌉ − 1 (never less
+    than k_last + 1): as long as `lo` is a true lower bound, the index is never below the chip's, so a lost
+    sample is never hidden. The index is only an upper bound when the read (or the bracket) straddles a
+    ready time — the smallest index allowed, ⌊(t_start − hi)/P⌋, is lower; then up to the difference of the
+    lost samples counted may be phantoms. Those reads and samples are counted (`ambiguous_reads`,
+    `ambiguous_samples`) so the loss count is conservative and its uncertainty reported. (Earlier versions
+    took the index from the wake time, before the transfer: a transfer delayed past the next ready time got
+    an index one too low, the following stale read then pushed `lo` past the true phase, and the lock slid
+    by a whole period — a real lost sample never counted.)
     Time stamps t_s = φ_hi + k·P lie on the exact sample grid, in CLOCK_MONOTONIC seconds.
     """
 
@@ -279,19 +313,38 @@ class SampleTimer:
         self.lo = max(self.lo - self.LO_LEAK_S_PER_S * (now - self._t_lo), self.hi - self.period_s)  # φ mod P
         self._t_hi = self._t_lo = now
 
-    def fresh(self, read_time: float) -> tuple[float, int, int]:
-        """A new sample was read at `read_time`: its (t_s, index, samples lost before it)."""
+    ambiguous_reads = 0     # fresh reads whose index was not unique (the largest allowed was taken)
+    ambiguous_samples = 0   # lost samples counted at those reads that may be phantoms (upper bound)
+
+    def fresh(self, read_time: float, read_end: float | None = None) -> tuple[float, int, int]:
+        """A new sample was read by a transfer between `read_time` and `read_end` (default: the same):
+        its (t_s, index, samples lost before it)."""
         P = self.period_s
+        end = read_time if read_end is None else read_end
         if self.hi is None:
+            # Sample 0 is the newest at the latch, so φ lies in (read_time − P, end]. A bracket wider than one
+            # period would be cut at hi − P by the next leak, i.e. at the later phase, which indexes every
+            # later read one low if the sample became ready during the transfer. Cut it at the earlier phase
+            # instead (φ ≤ read_time): at worst one phantom loss, counted as ambiguous.
             self.hi, self.lo, self.k = read_time, read_time - P, 0
             self._t_hi = self._t_lo = read_time
+            if end > read_time:
+                self.ambiguous_reads += 1
+                self.ambiguous_samples += 1
             return read_time, 0, 0
         self._leak(read_time)
-        # the latest k with ready_k ≤ read_time for some φ in (lo, hi]: the largest k with read_time − k·P > lo
-        k = max(self.k + 1, math.ceil((read_time - self.lo) / P) - 1)
+        # the latest k with ready_k ≤ end for some φ in (lo, hi]: the largest k with end − k·P > lo
+        first = self.k + 1
+        k = max(first, math.ceil((end - self.lo) / P) - 1)
+        if k > first:
+            k_min = max(first, math.floor((read_time - self.hi) / P))   # ready_k ≤ read_time even at φ = hi
+            if k > k_min:
+                self.ambiguous_reads += 1
+                self.ambiguous_samples += k - k_min
         lost = k - self.k - 1
         self.k = k
-        self.hi = min(self.hi, read_time - k * P)
+        self._consumed_upto = -1
+        self.hi = min(self.hi, end - k * P)
         if self.lo >= self.hi:                       # only after k was forced up: trust the newest read
             self.lo = self.hi - 0.25 * P
         return self.hi + k * P, k, lost
@@ -301,9 +354,23 @@ class SampleTimer:
         if self.hi is None:
             return
         self._leak(read_time)
-        self.lo = max(self.lo, read_time - (self.k + 1) * self.period_s)
+        self.lo = max(self.lo, read_time - (max(self.k, self._consumed_upto) + 1) * self.period_s)
         if self.lo >= self.hi:
             self.hi = self.lo + self.GUARD_S
+
+    _consumed_upto = -1     # the newest index a read since the last fresh sample may have consumed unseen
+
+    def may_have_consumed(self, read_end: float) -> None:
+        """A read that ended at `read_end` may have taken a new sample without it reaching us: a rejected
+        frame, or more register reads after the burst (they clear ND). Any sample ready by then may be gone,
+        so until the next fresh sample a stale read only proves that the one after the newest such sample
+        was not ready (taken as k+1, the lock would slide a period late and a lost sample would never be
+        counted)."""
+        if self.hi is None:
+            return
+        self._leak(read_end)
+        newest = math.ceil((read_end - self.lo) / self.period_s) - 1
+        self._consumed_upto = max(self._consumed_upto, self.k, newest)
 
     def next_read_time(self) -> float:
         """When to read for the next sample (0 before the first one: now)."""

@@ -24,6 +24,7 @@ import logging
 import time
 
 from ahrsd.drivers.errors import BusError, DriverError, SelfTestFailed
+from ahrsd.drivers.registers import GLOB_CMD
 
 log = logging.getLogger(__name__)
 
@@ -57,19 +58,40 @@ class StallAwareSampleTimer(_sample_timer_class()):
     stalled_reads = 0
     _hi_fresh: float | None = None      # the phase upper bound after the last fresh read (never dragged)
 
-    def fresh(self, read_time: float) -> tuple[float, int, int]:
-        out = super().fresh(read_time)
+    def fresh(self, read_time: float, read_end: float | None = None) -> tuple[float, int, int]:
+        out = super().fresh(read_time, read_end)
         self._hi_fresh, self._lo_fresh = self.hi, self.lo
         return out
 
     def stale(self, read_time: float) -> None:
         if (self._hi_fresh is not None
                 and read_time - (self.k + 1) * self.period_s >= self._hi_fresh + self.STALL_PERIODS * self.period_s):
-            if self.hi != self._hi_fresh:      # undo the drag of the first stale reads of the stall
-                self.hi, self.lo = self._hi_fresh, self._lo_fresh
+            # undo what the first stale reads of the stall did: they were taken as "sample k+1 not ready",
+            # but the stalled chip had produced it (ND held clear); that raised lo past the true phase (so the
+            # sample after the stall came out one index low) even when it did not drag hi
+            self.hi, self.lo = self._hi_fresh, self._lo_fresh
             self.stalled_reads += 1
             return
         super().stale(read_time)
+
+
+class _BurstIndexTap:
+    """The simulated chip as the SPI bus, noting the chip's sample index at each burst: the ground truth of
+    the sample a burst returned (`chip.sample_index` after the read can be one further when the driver went
+    on with a register read — burst-bug check, DIAG_STAT — during which the chip produced the next sample)."""
+
+    def __init__(self, chip):
+        self.chip = chip
+        self.burst_index = -1
+
+    def transfer(self, tx: bytes, speed_hz: int, delay_us: int = 0) -> bytes:
+        rx = self.chip.transfer(tx, speed_hz, delay_us)
+        if tx[0] == GLOB_CMD and tx[1] == 0:          # 0x3E00 starts a burst read
+            self.burst_index = self.chip.sample_index
+        return rx
+
+    def __getattr__(self, name):
+        return getattr(self.chip, name)
 
 
 class SensorUnavailable(BusError):
@@ -154,7 +176,7 @@ class ReconnectingSource:
             self._failed(now, BusError(str(exc)), opening=True)
             return False
         if self._inner is None:
-            self._inner = DriverSource(self.driver, self.bus, self.description)
+            self._inner = DriverSource(self.driver, self.bus, self.description, clock=self._clock)
             self._inner.timer = StallAwareSampleTimer(self._inner.timer.period_s)
             self.sample_rate_hz = self._inner.sample_rate_hz
         else:
@@ -213,7 +235,8 @@ class ReconnectingSource:
 
     def _account(self, s) -> None:
         """Ground truth bookkeeping on the simulated chip: chip index range read, lost samples by cause."""
-        idx = self.chip.sample_index
+        tap = self.bus if isinstance(self.bus, _BurstIndexTap) else None
+        idx = tap.burst_index if tap is not None else self.chip.sample_index
         prev = self.last_chip_index
         if self.first_chip_index is None:
             self.first_chip_index = idx
@@ -277,7 +300,8 @@ def open_sensor_source(sensor_cfg, clock=time.monotonic, faults=None) -> Reconne
     chip = SimulatedAdis16405(scenario=sensor_cfg.scenario, seed=sensor_cfg.seed, errors=sensor_cfg.errors,
                               clock=clock, faults=faults)
     what = f"simulated ADIS16405 ({sensor_cfg.scenario}{', faults injected' if faults is not None else ''})"
-    src = ReconnectingSource(lambda: chip, what, clock=clock, reopen_same_bus=True)
+    tap = _BurstIndexTap(chip)
+    src = ReconnectingSource(lambda: tap, what, clock=clock, reopen_same_bus=True)
     src.chip = chip
     src.start()
     return src
