@@ -10,18 +10,15 @@ in its range, every output rate legal, and a valid request is still answered.
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 import logging
 import math
-import socket
 
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ahrsd.daemon.config import Config, EndpointConfig, StateConfig
 from ahrsd.daemon.mavlink_io import mavlink
-from ahrsd.daemon.service import Service
+from service_rig import gcs_socket, start_service, stop_service
 
 FUZZ = settings(derandomize=True, deadline=None, max_examples=300,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
@@ -37,48 +34,23 @@ class _Errors(logging.Handler):
         self.records.append(record)
 
 
-class DummySource:
-    description = "no sensor (fuzz harness)"
-    sample_rate_hz = 819.2
-    per_sample = True
-
-    def close(self):
-        pass
 
 
 @pytest.fixture(scope="module")
 def rig(tmp_path_factory):
     """A started Service (no reader task) whose only endpoint sends to `gcs`, a UDP socket we read."""
     tmp = tmp_path_factory.mktemp("fuzz")
-    gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    gcs.bind(("127.0.0.1", 0))
-    gcs.setblocking(False)
-    gcs.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
-    cfg = dataclasses.replace(Config(), endpoints=(EndpointConfig(f"udpout:127.0.0.1:{gcs.getsockname()[1]}"),),
-                              state=StateConfig(str(tmp / "state")))
-    service = Service(cfg, source=DummySource())
-    loop = asyncio.new_event_loop()
+    gcs = gcs_socket(rcvbuf=1 << 22)
+    service, loop = start_service(gcs, tmp / "state")
     errors = _Errors()
     logging.getLogger("ahrsd").addHandler(errors)
-
-    async def start():
-        service.loop = asyncio.get_running_loop()
-        service._stop = asyncio.Event()
-        service._start()
-
-    loop.run_until_complete(start())
     rig = type("Rig", (), {})()
     rig.service, rig.loop, rig.gcs, rig.errors = service, loop, gcs, errors
     rig.ep = service.endpoints[0]
     rig.sender = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
     rig.sender.robust_parsing = True
     yield rig
-    for t in asyncio.all_tasks(loop):
-        t.cancel()
-    loop.run_until_complete(asyncio.sleep(0.01))
-    for ep in service.endpoints:
-        ep.close()
-    loop.close()
+    stop_service(service, loop)
     gcs.close()
     logging.getLogger("ahrsd").removeHandler(errors)
 

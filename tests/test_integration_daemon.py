@@ -9,7 +9,6 @@ from __future__ import annotations
 import math
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -23,16 +22,11 @@ os.environ["MAVLINK_DIALECT"] = "ardupilotmega"
 from pymavlink import mavutil  # noqa: E402
 
 from ahrsd.daemon.mavlink_io import mavlink  # noqa: E402  (selects MAVLink 2 / ardupilotmega)
+from service_rig import free_udp_port, stop_process  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 OUR_COMP = 200
 GCS_SYS, GCS_COMP = 255, 190
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class Daemon:
@@ -93,13 +87,7 @@ class Daemon:
         return self.recv("COMMAND_ACK", timeout, lambda m: m.command == command)
 
     def stop(self, timeout: float = 10.0) -> int:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        stop_process(self.proc, timeout)
         self.gcs.close()
         self.log.close()
         return self.proc.returncode

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from test_integration_daemon import OUR_COMP, Daemon, free_udp_port
+from service_rig import free_udp_port, stop_process
+from test_integration_daemon import OUR_COMP, Daemon
 
 from ahrsd.daemon.mavlink_io import mavlink, mavutil
 
@@ -45,11 +46,7 @@ def test_mavproxy_sees_our_heartbeat_and_attitude(tmp_path):
             time.sleep(0.2)
         text = (tmp_path / "mavproxy.log").read_text()
     finally:
-        mp.send_signal(signal.SIGTERM)
-        try:
-            mp.wait(10)
-        except subprocess.TimeoutExpired:
-            mp.kill()
+        stop_process(mp)
         mp_log.close()
         client.close()
         daemon.proc.send_signal(signal.SIGTERM)
@@ -185,11 +182,7 @@ def test_tcp_endpoints_server_and_client_reconnect(tmp_path):
         server.close()
         assert proc.poll() is None
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+        stop_process(proc)
         log.close()
 
 
@@ -235,11 +228,7 @@ def test_serial_endpoint_on_a_pseudo_terminal(tmp_path):
                         1, OUR_COMP, mavlink.MAV_CMD_GET_MESSAGE_INTERVAL, 0, 30, 0, 0, 0, 0, 0, 0).pack(sender))
                     sent = True
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+        stop_process(proc)
         log.close()
         os.close(master)
         os.close(slave)

@@ -15,7 +15,6 @@ import json
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -31,6 +30,7 @@ pytest.importorskip("ahrsd.daemon.service")
 
 from ahrsd.calibration.field import from_ardupilot, tilt_compensated_heading_rad  # noqa: E402
 from ahrsd.calibration.models import Calibration  # noqa: E402
+from service_rig import free_udp_port  # noqa: E402
 from ahrsd.calibration.store import CalibrationStore  # noqa: E402
 from ahrsd.daemon.mavlink_io import mavlink, mavutil  # noqa: E402
 from ahrsd.simulation import open_stream  # noqa: E402
@@ -71,13 +71,6 @@ service = Service(cfg, source=ReplaySource(samples(), "simulator " + a["sim"], r
 attach(service, settings_from_mapping(a.get("magcal")))
 sys.exit(asyncio.run(service.run()))
 """
-
-
-def free_udp_port() -> int:
-    """A UDP port the OS says is free on 127.0.0.1."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class Daemon:

@@ -8,11 +8,9 @@ warnings when state cannot persist, and the last good calibration kept in force 
 
 from __future__ import annotations
 
-import asyncio
 import dataclasses
 import errno
 import json
-import socket
 
 import numpy as np
 import pytest
@@ -22,9 +20,8 @@ from hypothesis import strategies as st
 from ahrsd.calibration.models import Calibration, GyroModel
 from ahrsd.calibration.store import CalibrationStore
 from ahrsd.daemon.cli import main
-from ahrsd.daemon.config import Config, ConfigError, EndpointConfig, StateConfig, load_config
-from ahrsd.daemon.service import Service
-from test_fuzz_mavlink import DummySource
+from ahrsd.daemon.config import ConfigError, load_config
+from service_rig import gcs_socket, start_service, stop_service
 
 
 def run_cli(args, capsys) -> tuple[int, str]:
@@ -82,23 +79,11 @@ def _cal(bias_deg_s: float) -> Calibration:
 
 
 def _started_service(state_dir, tmp_path):
-    gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    gcs.bind(("127.0.0.1", 0))
-    cfg = dataclasses.replace(Config(), endpoints=(EndpointConfig(f"udpout:127.0.0.1:{gcs.getsockname()[1]}"),),
-                              state=StateConfig(str(state_dir)))
-    service = Service(cfg, source=DummySource())
-    loop = asyncio.new_event_loop()
-
-    async def start():
-        service.loop = asyncio.get_running_loop()
-        service._stop = asyncio.Event()
-        service._start()
-
-    loop.run_until_complete(start())
+    gcs = gcs_socket()
+    service, loop = start_service(gcs, state_dir)
 
     def close():
-        service._shutdown_io("test")
-        loop.close()
+        stop_service(service, loop)
         gcs.close()
     return service, close
 

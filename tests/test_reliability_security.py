@@ -7,23 +7,20 @@ wrongly signed and replayed frames, parameter writes, the SYS_STATUS counters, a
 
 from __future__ import annotations
 
-import asyncio
-import dataclasses
 import logging
 import re
 import shutil
-import socket
 import subprocess
 import time
 from pathlib import Path
 
 import pytest
 
-from ahrsd.daemon.config import Config, EndpointConfig, SigningConfig, StateConfig
+from ahrsd.daemon.config import SigningConfig
 from ahrsd.daemon.mavlink_io import mavlink
-from ahrsd.daemon.service import Service
 from ahrsd.daemon.signing import ONE_MINUTE, initial_timestamp, read_timestamp
-from test_fuzz_mavlink import DummySource, drain, feed
+from service_rig import gcs_socket, start_service, stop_service
+from test_fuzz_mavlink import drain, feed
 
 REPO = Path(__file__).resolve().parents[1]
 KEY = bytes(range(7, 39))                 # 32 bytes
@@ -44,36 +41,18 @@ class _All(logging.Handler):
 def signed_rig(tmp_path):
     key_file = tmp_path / "signing.key"
     key_file.write_text(KEY.hex() + "\n")
-    gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    gcs.bind(("127.0.0.1", 0))
-    gcs.setblocking(False)
-    cfg = dataclasses.replace(Config(), endpoints=(EndpointConfig(f"udpout:127.0.0.1:{gcs.getsockname()[1]}"),),
-                              state=StateConfig(str(tmp_path / "state")),
-                              signing=SigningConfig(key_file=str(key_file)))
+    gcs = gcs_socket()
     logs = _All()
     root = logging.getLogger()
     old_level = root.level
     root.addHandler(logs)
     root.setLevel(logging.DEBUG)
-    service = Service(cfg, source=DummySource())
-    loop = asyncio.new_event_loop()
-
-    async def start():
-        service.loop = asyncio.get_running_loop()
-        service._stop = asyncio.Event()
-        service._start()
-
-    loop.run_until_complete(start())
+    service, loop = start_service(gcs, tmp_path / "state", signing=SigningConfig(key_file=str(key_file)))
     rig = type("Rig", (), {})()
     rig.service, rig.loop, rig.gcs, rig.logs, rig.ep = service, loop, gcs, logs, service.endpoints[0]
     rig.state_dir = tmp_path / "state"
     yield rig
-    for t in asyncio.all_tasks(loop):
-        t.cancel()
-    loop.run_until_complete(asyncio.sleep(0.01))
-    if service.endpoints and service.endpoints[0].conn is not None:
-        service._shutdown_io("test end")
-    loop.close()
+    stop_service(service, loop)
     gcs.close()
     root.removeHandler(logs)
     root.setLevel(old_level)
