@@ -70,7 +70,7 @@ def run_mekf_fixed_wing(d: ImuArrays) -> np.ndarray:
 
 
 def run_thesis(d: ImuArrays) -> np.ndarray:
-    from ahrsd.drivers.sample import ImuSample, SampleFlags
+    from ahrsd.core.sample import ImuSample, SampleFlags
     from ahrsd.estimator import make_estimator
 
     est = make_estimator("thesis")

@@ -49,7 +49,7 @@ def vehicle_distortion() -> np.ndarray:
 
 
 def earth_field_ned():
-    from ahrsd.estimator.wmm import earth_field
+    from ahrsd.core.wmm import earth_field
     import datetime as dt
 
     ef = earth_field(SITE["lat_deg"], SITE["lon_deg"], 0.0, dt.date(2026, 1, 1))
@@ -451,7 +451,7 @@ def simulator_table(seed: int = 1):
     """ahrsd.simulation scenarios at 819.2 Hz with the ADIS16405 error model and the default vehicle iron;
     test sets from the same vehicle errors at other attitudes."""
     from ahrsd.simulation import DEFAULT_SITE, make_scenario, open_stream
-    from ahrsd.estimator.wmm import earth_field
+    from ahrsd.core.wmm import earth_field
 
     site = DEFAULT_SITE
     ref = earth_field(site.lat_deg, site.lon_deg, site.alt_m, site.date)

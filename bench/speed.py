@@ -30,7 +30,7 @@ RATE_HZ = 819.2
 
 def make_samples(n: int):
     """n consecutive samples of the simulated `level-turns` scenario (ADIS16405 errors) at 819.2 SPS."""
-    from ahrsd.drivers.sample import ImuSample
+    from ahrsd.core.sample import ImuSample
     from ahrsd.simulation import open_stream
 
     b = open_stream("level-turns", rate_hz=RATE_HZ, seed=0, vehicle_iron=None).next_block(n)
@@ -107,7 +107,7 @@ import time
 t0 = time.perf_counter()
 import numpy as np
 from ahrsd.estimator.mekf import Mekf
-from ahrsd.drivers.sample import make_sample
+from ahrsd.core.sample import make_sample
 t1 = time.perf_counter()
 e = Mekf()
 e.update(make_sample(0.0, [0, 0, 0], [0, 0, -9.81], [20, 0, 40]))

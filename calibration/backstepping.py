@@ -714,7 +714,7 @@ def _wrap_pi_arr(a):
 def roll_pitch_from_estimator(data: MagFitInput, name: str = "mekf") -> tuple[np.ndarray, np.ndarray]:
     """Run `ahrsd.estimator.make_estimator(name)` over the samples (raw magnetometer: the estimator's design
     keeps magnetometer errors out of roll/pitch) and return its roll and pitch per sample."""
-    from ahrsd.drivers.sample import make_sample
+    from ahrsd.core.sample import make_sample
     from ahrsd.estimator import make_estimator
 
     if data.gyro_rad_s is None or data.accel_m_s2 is None:

@@ -39,9 +39,9 @@ import numpy as np
 from .models import Calibration, MagModel
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ahrsd.drivers.sample import ImuSample
-    from ahrsd.estimator.base import AttitudeEstimate
-    from ahrsd.estimator.wmm import EarthField
+    from ahrsd.core.sample import ImuSample
+    from ahrsd.core.estimate import AttitudeEstimate
+    from ahrsd.core.wmm import EarthField
 
 log = logging.getLogger(__name__)
 

@@ -24,7 +24,7 @@ import numpy as np
 from .models import MagModel
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ahrsd.estimator.wmm import EarthField
+    from ahrsd.core.wmm import EarthField
 
 METHODS = ("ellipsoid", "two-step", "three-step", "backstepping")
 
@@ -339,7 +339,7 @@ def _resolve(method: str) -> Callable[..., MagFitResult]:
 
 def fit_mag(method: str, data: MagFitInput, reference: "EarthField | None" = None, **options) -> MagFitResult:
     """Fit the magnetometer model with `method` (one of METHODS). `reference` is the WMM field at the
-    calibration site (`ahrsd.estimator.wmm.earth_field`), used for the magnitude (and, by methods that
+    calibration site (`ahrsd.core.wmm.earth_field`), used for the magnitude (and, by methods that
     need it, the inclination). Options go to the method."""
     if not isinstance(data, MagFitInput):
         raise TypeError(f"data must be a MagFitInput, got {type(data).__name__}")

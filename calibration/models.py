@@ -22,7 +22,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ahrsd.drivers.sample import ImuSample
+from ahrsd.core.sample import ImuSample
 
 _dot = np.dot
 

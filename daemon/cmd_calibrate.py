@@ -371,7 +371,7 @@ def _fold_estimator_bias(rec, stored, res, source):
     import numpy as np
 
     from ahrsd.calibration.models import GyroModel
-    from ahrsd.drivers.sample import make_sample
+    from ahrsd.core.sample import make_sample
     from ahrsd.estimator import make_estimator
 
     cal = stored.with_sensor("gyro", res.model)
@@ -393,7 +393,7 @@ def _mag(args) -> int:
     import numpy as np
 
     from ahrsd.calibration.magfit import MagFitInput, fit_mag
-    from ahrsd.estimator.wmm import earth_field
+    from ahrsd.core.wmm import earth_field
 
     try:
         date = dt.date.fromisoformat(args.date) if args.date else None

@@ -56,7 +56,7 @@ def run(args) -> int:
     from ahrsd.drivers.adis16405 import Adis16405
     from ahrsd.drivers.errors import BusError, DriverError, FrameError
     from ahrsd.drivers.recording import TRUTH_COLUMNS, RecordingWriter
-    from ahrsd.drivers.sample import SampleFlags
+    from ahrsd.core.sample import SampleFlags
 
     log = logging.getLogger("ahrsd.record")
     if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):   # nan/inf: traceback

@@ -80,7 +80,7 @@ def _declination_rad(args) -> float:
         return 0.0
     if args.lat is None or args.lon is None:
         raise ReplayError("--lat and --lon go together")
-    from ahrsd.estimator.wmm import earth_field
+    from ahrsd.core.wmm import earth_field
 
     date = None
     if args.date:
@@ -110,7 +110,7 @@ def iter_recording_samples(path: str, chunk_rows: int = CHUNK_ROWS):
     import numpy as np
 
     from ahrsd.drivers.recording import RecordingFormatError, read_header, read_recording
-    from ahrsd.drivers.sample import ImuSample, SampleFlags
+    from ahrsd.core.sample import ImuSample, SampleFlags
 
     with open(path, encoding="utf-8", newline="") as f:
         columns = read_header(f.readline(), path)
@@ -188,7 +188,8 @@ def replay_samples(estimator, samples, calibration=None, true_north: bool = Fals
 def _finish_table(rows, true_north: bool):
     import numpy as np
 
-    from ahrsd.estimator.rotations import quat_multiply, wrap_pi
+    from ahrsd.core.angles import wrap_pi
+    from ahrsd.estimator.rotations import quat_multiply
 
     table = np.array(rows, dtype=np.float64).reshape(len(rows), len(OUTPUT_COLUMNS))
     yaw = np.radians(table[:, 7])
@@ -208,7 +209,7 @@ def replay_arrays(estimator, t_s, gyro_rad_s, accel_m_s2, mag_ut, sample_flags=N
     """`replay_samples` on arrays (n,), (n, 3)…: the whole output table (n, len(OUTPUT_COLUMNS))."""
     import numpy as np
 
-    from ahrsd.drivers.sample import ImuSample, SampleFlags
+    from ahrsd.core.sample import ImuSample, SampleFlags
 
     flags = [SampleFlags.NONE] * len(t_s) if sample_flags is None else [SampleFlags(int(v)) for v in sample_flags]
     samples = (ImuSample(float(t), g, a, m, flags=f, counter=i)

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.mavlink_io import mavlink
-from ahrsd.drivers.sample import SampleFlags
-from ahrsd.estimator.base import EstimateFlags
+from ahrsd.core.sample import SampleFlags
+from ahrsd.core.estimate import EstimateFlags
 
 STATE_NAMES = {
     mavlink.MAV_STATE_BOOT: "BOOT", mavlink.MAV_STATE_STANDBY: "STANDBY", mavlink.MAV_STATE_ACTIVE: "ACTIVE",

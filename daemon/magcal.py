@@ -534,7 +534,7 @@ class ServiceHost:
         return bool(self.service.autopilot.armed)
 
     def reference_field(self, lat_deg: float | None = None, lon_deg: float | None = None):
-        from ahrsd.estimator.wmm import earth_field
+        from ahrsd.core.wmm import earth_field
 
         svc = self.service
         if lat_deg or lon_deg:

@@ -26,7 +26,7 @@ from typing import Iterator, Protocol
 import numpy as np
 
 from ahrsd.drivers.errors import FrameError
-from ahrsd.drivers.sample import ImuSample, SampleFlags
+from ahrsd.core.sample import ImuSample, SampleFlags
 
 log = logging.getLogger(__name__)
 

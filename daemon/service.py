@@ -37,9 +37,9 @@ from ahrsd.daemon.rate_limit import TokenBucket
 from ahrsd.daemon.pipeline import Pipeline, open_source
 from ahrsd.calibration.field import HeadingSlew, yaw_rate_ned_rad_s
 from ahrsd.drivers.errors import FrameError
-from ahrsd.drivers.sample import SampleFlags
+from ahrsd.core.sample import SampleFlags
 from ahrsd.daemon.status_line import StatusLine, format_status
-from ahrsd.estimator.base import EstimateFlags
+from ahrsd.core.estimate import EstimateFlags
 
 log = logging.getLogger(__name__)
 
@@ -604,7 +604,7 @@ class Service:
 
     def _resolve_declination(self, initial: bool = False) -> None:
         """Declination by priority: DECL_MANUAL/DECL_DEG, configured position, autopilot position, sim site."""
-        from ahrsd.estimator.wmm import earth_field
+        from ahrsd.core.wmm import earth_field
 
         self._last_decl_update = time.monotonic()
         loc = self.config.location

@@ -4,11 +4,9 @@ from .adis16405 import Adis16405
 from .errors import BusError, ConfigError, DriverError, FrameError, ProductIdMismatch, SelfTestFailed, ShortRead
 from .faults import Fault, FaultKind, FaultPlan
 from .recording import RECORDING_HEADER, Recording, RecordingFormatError, RecordingWriter, iter_samples, read_recording
-from .sample import ImuSample, SampleFlags, make_sample
 from .spi import SpiBus, SpidevBus
 
 __all__ = [
-    "ImuSample", "SampleFlags", "make_sample",
     "Adis16405", "SimulatedAdis16405", "FixedStream", "SpiBus", "SpidevBus",
     "Fault", "FaultKind", "FaultPlan",
     "RECORDING_HEADER", "Recording", "RecordingFormatError", "RecordingWriter", "read_recording", "iter_samples",

@@ -19,7 +19,7 @@ import numpy as np
 
 from . import registers as R
 from .errors import BusError, ConfigError, DriverError, FrameError, ProductIdMismatch, SelfTestFailed, ShortRead
-from .sample import ImuSample, SampleFlags
+from ahrsd.core.sample import ImuSample, SampleFlags
 from .spi import SpiBus
 
 log = logging.getLogger(__name__)

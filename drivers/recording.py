@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DriverError
-from .sample import ImuSample, SampleFlags
+from ahrsd.core.sample import ImuSample, SampleFlags
 
 log = logging.getLogger(__name__)
 

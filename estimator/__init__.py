@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .base import AttitudeEstimate, EstimateFlags, Estimator
+from .base import Estimator
 
 ESTIMATORS = ("mekf", "thesis")
 DEFAULT_ESTIMATOR = "mekf"
@@ -22,4 +22,4 @@ def make_estimator(name: str = DEFAULT_ESTIMATOR, *, declination_rad: float = 0.
     raise ValueError(f"unknown estimator {name!r}; choose one of {', '.join(ESTIMATORS)}")
 
 
-__all__ = ["AttitudeEstimate", "EstimateFlags", "Estimator", "ESTIMATORS", "DEFAULT_ESTIMATOR", "make_estimator"]
+__all__ = ["Estimator", "ESTIMATORS", "DEFAULT_ESTIMATOR", "make_estimator"]

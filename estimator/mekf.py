@@ -27,10 +27,10 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from ahrsd.drivers.sample import ImuSample
+from ahrsd.core.sample import ImuSample
 
 from . import mekf_core as core
-from .base import AttitudeEstimate, EstimateFlags
+from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags
 from .rotations import euler_to_quat, quat_to_dcm, quat_to_euler
 from .wahba import davenport
 

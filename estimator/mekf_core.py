@@ -21,7 +21,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ahrsd.drivers.sample import SampleFlags
+from ahrsd.core.sample import SampleFlags
 
 # ----------------------------------------------------------------------------------- state layout
 S_Q = 0            # 4: attitude quaternion body→NED, scalar first

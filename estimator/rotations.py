@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-TWO_PI = 2.0 * np.pi
+
 
 # Below this rotation angle the exp/log maps use their Taylor series (avoids 0/0; error ~θ⁴ ≪ 1e-16).
 _SMALL_ANGLE_RAD = 1e-6
@@ -25,19 +25,6 @@ _SMALL_ANGLE_RAD = 1e-6
 
 def _f(a) -> np.ndarray:
     return np.asarray(a, dtype=np.float64)
-
-
-# --------------------------------------------------------------------------------------------- angles
-def wrap_pi(angle_rad):
-    """Wrap angles to [−π, π)."""
-    return np.mod(_f(angle_rad) + np.pi, TWO_PI) - np.pi
-
-
-def wrap_2pi(angle_rad):
-    """Wrap angles to [0, 2π) (headings)."""
-    a = np.mod(_f(angle_rad), TWO_PI)
-    # np.mod can return exactly 2π for tiny negative inputs (rounding): fold it back to 0.
-    return np.where(a >= TWO_PI, 0.0, a)
 
 
 # ------------------------------------------------------------------------------------------ quaternions
@@ -316,7 +303,7 @@ def dcm_angle_between(a, b) -> np.ndarray:
 
 
 __all__ = [
-    "wrap_pi", "wrap_2pi", "quat_normalize", "quat_canonical", "quat_conjugate", "quat_multiply",
+    "quat_normalize", "quat_canonical", "quat_conjugate", "quat_multiply",
     "quat_rotate", "quat_to_dcm", "dcm_to_quat", "euler_to_dcm", "dcm_to_euler", "euler_to_quat",
     "quat_to_euler", "quat_exp", "quat_log", "rotvec_to_dcm", "dcm_to_rotvec", "quat_integrate", "skew",
     "reorthonormalize", "reorthonormalize_rows", "dcm_rows_to_quat", "orthonormality_error", "quat_from_scalar_last", "quat_to_scalar_last",

@@ -54,9 +54,9 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 from scipy.linalg.lapack import dposv as _dposv
 
-from ahrsd.drivers.sample import ImuSample, SampleFlags
+from ahrsd.core.sample import ImuSample, SampleFlags
 
-from .base import AttitudeEstimate, EstimateFlags
+from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags
 from .rotations import dcm_rows_to_quat, reorthonormalize_rows
 from .wahba import thesis_dcm_from_floats, thesis_matrix
 

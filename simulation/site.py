@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ahrsd.estimator.wmm import EarthField, earth_field
+from ahrsd.core.wmm import EarthField, earth_field
 from ahrsd.simulation.gravity import normal_gravity_m_s2
 
 
@@ -21,7 +21,7 @@ class Site:
     date: _dt.date
 
     def earth_field(self) -> EarthField:
-        """WMM2025 main field here (the only WMM lookup is `ahrsd.estimator.wmm.earth_field`)."""
+        """WMM2025 main field here (the only WMM lookup is `ahrsd.core.wmm.earth_field`)."""
         return earth_field(self.lat_deg, self.lon_deg, self.alt_m, self.date)
 
     @property

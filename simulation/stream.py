@@ -49,7 +49,7 @@ class SensorBlock:
     def samples(self, first_counter: int = 0):
         """The sensor outputs as `ImuSample`s (SI, body frame, flags NEW_DATA), one per row: for feeding
         calibration or an estimator directly, without the byte-level chip."""
-        from ahrsd.drivers.sample import SampleFlags, make_sample
+        from ahrsd.core.sample import SampleFlags, make_sample
 
         for i in range(len(self.t_s)):
             yield make_sample(self.t_s[i], self.gyro_rad_s[i], self.accel_m_s2[i], self.mag_ut[i],

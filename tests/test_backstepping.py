@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 from ahrsd.calibration import backstepping as bs
 from ahrsd.calibration import swing
 from ahrsd.calibration.magfit import MagFitInput, fit_mag
-from ahrsd.estimator.wmm import earth_field
+from ahrsd.core.wmm import earth_field
 
 G = 9.80665
 NOISE_UT = 0.125                      # ADIS16405 magnetometer noise, 1.25 mgauss rms

@@ -26,7 +26,7 @@ from ahrsd.calibration.accel_cal import (
     model_from_linear,
     regressors,
 )
-from ahrsd.drivers.sample import make_sample
+from ahrsd.core.sample import make_sample
 from ahrsd.simulation import DEFAULT_SITE, SensorErrors, simulate
 from ahrsd.simulation.scenarios import Static
 

@@ -14,7 +14,7 @@ import pytest
 
 from ahrsd.calibration.store import CalibrationStore, load_calibration_file
 from ahrsd.drivers.recording import TRUTH_COLUMNS, RecordingWriter
-from ahrsd.drivers.sample import make_sample
+from ahrsd.core.sample import make_sample
 from ahrsd.simulation import DEFAULT_SITE, SensorErrors, simulate
 
 SITE_ARGS = ["--lat", str(DEFAULT_SITE.lat_deg), "--lon", str(DEFAULT_SITE.lon_deg),

@@ -22,8 +22,8 @@ from ahrsd.calibration.magfit import MagFitInput
 from ahrsd.calibration.models import MagModel
 from ahrsd.calibration.store import load_calibration_file
 from ahrsd.drivers.recording import TRUTH_COLUMNS, RecordingWriter
-from ahrsd.drivers.sample import make_sample
-from ahrsd.estimator.wmm import earth_field
+from ahrsd.core.sample import make_sample
+from ahrsd.core.wmm import earth_field
 from ahrsd.simulation import DEFAULT_SITE, SensorErrors, simulate
 
 SITE = DEFAULT_SITE

@@ -23,7 +23,7 @@ from ahrsd.calibration.gyro_cal import fit_rate_table, reference_rates_from_trut
 from ahrsd.calibration.mag_alignment import fit_alignment, segment_level_turns  # noqa: E402
 from ahrsd.calibration.magfit import MagFitInput, fit_mag  # noqa: E402
 from ahrsd.calibration.models import Calibration  # noqa: E402
-from ahrsd.drivers.sample import make_sample  # noqa: E402
+from ahrsd.core.sample import make_sample  # noqa: E402
 from ahrsd.simulation import DEFAULT_SITE, SensorErrors, VehicleIron, simulate  # noqa: E402
 from ahrsd.simulation.scenarios import Static  # noqa: E402
 

@@ -18,7 +18,7 @@ from ahrsd.calibration.models import (
     MagModel,
     misalignment_matrix,
 )
-from ahrsd.drivers.sample import SampleFlags, make_sample
+from ahrsd.core.sample import SampleFlags, make_sample
 
 RNG = np.random.default_rng(11)
 

@@ -17,8 +17,8 @@ from ahrsd.daemon.config import Config, OutputsConfig  # noqa: E402
 from ahrsd.daemon.mavlink_io import mavlink  # noqa: E402
 from ahrsd.daemon.pipeline import Pipeline  # noqa: E402
 from ahrsd.daemon.service import Service  # noqa: E402
-from ahrsd.drivers.sample import SampleFlags, make_sample  # noqa: E402
-from ahrsd.estimator.base import EstimateFlags  # noqa: E402
+from ahrsd.core.sample import SampleFlags, make_sample  # noqa: E402
+from ahrsd.core.estimate import EstimateFlags  # noqa: E402
 from ahrsd.estimator.mekf import Mekf  # noqa: E402
 from ahrsd.estimator.thesis_kf import ThesisKf  # noqa: E402
 from ahrsd.simulation import open_stream  # noqa: E402

@@ -19,7 +19,7 @@ from ahrsd.daemon.notify import Notifier, watchdog_interval_s
 from ahrsd.daemon.outputs import OutputSchedule
 from ahrsd.daemon.params import ParamSpec, ParamStore
 from ahrsd.daemon.pipeline import SampleTimer, mounting_matrix
-from ahrsd.drivers.sample import make_sample
+from ahrsd.core.sample import make_sample
 
 # ------------------------------------------------------------------------------------------ command router
 
@@ -427,7 +427,7 @@ def test_declination_priority(tmp_path):
 
     from ahrsd.daemon.config import Config, LocationConfig, SensorConfig, StateConfig
     from ahrsd.daemon.service import Service
-    from ahrsd.estimator.wmm import earth_field
+    from ahrsd.core.wmm import earth_field
 
     cfg = dc.replace(Config(), state=StateConfig(str(tmp_path)), sensor=SensorConfig(source="spi"))
     svc = Service(cfg)
@@ -458,7 +458,7 @@ def test_a_failing_sample_listener_is_dropped_not_fatal(tmp_path):
     from ahrsd.daemon.config import Config, StateConfig
     from ahrsd.daemon.pipeline import Pipeline
     from ahrsd.daemon.service import Service
-    from ahrsd.estimator.base import EstimateFlags
+    from ahrsd.core.estimate import EstimateFlags
 
     class Est:
         flags = EstimateFlags.NONE

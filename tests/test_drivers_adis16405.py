@@ -9,7 +9,7 @@ from ahrsd.drivers import registers as R
 from ahrsd.drivers.adis16405 import Adis16405
 from ahrsd.drivers.errors import ConfigError, DriverError, ProductIdMismatch, SelfTestFailed
 from ahrsd.drivers.faults import FaultPlan
-from ahrsd.drivers.sample import SampleFlags
+from ahrsd.core.sample import SampleFlags
 from ahrsd.drivers.simulated import FixedStream, SimulatedAdis16405
 from ahrsd.drivers.spi import SpiBus
 

@@ -10,7 +10,7 @@ from ahrsd.drivers import registers as R
 from ahrsd.drivers.adis16405 import Adis16405
 from ahrsd.drivers.errors import BusError, DriverError, FrameError, ShortRead
 from ahrsd.drivers.faults import FaultKind, FaultPlan
-from ahrsd.drivers.sample import SampleFlags
+from ahrsd.core.sample import SampleFlags
 from ahrsd.drivers.simulated import FixedStream, SimulatedAdis16405
 
 G0 = R.STANDARD_GRAVITY_M_S2

@@ -10,7 +10,7 @@ pytest.importorskip("ahrsd.simulation.stream", reason="needs ahrsd.simulation")
 
 from ahrsd.drivers import registers as R  # noqa: E402
 from ahrsd.drivers.adis16405 import Adis16405  # noqa: E402
-from ahrsd.drivers.sample import SampleFlags  # noqa: E402
+from ahrsd.core.sample import SampleFlags  # noqa: E402
 from ahrsd.drivers.simulated import SimulatedAdis16405  # noqa: E402
 from ahrsd.simulation import open_stream  # noqa: E402
 

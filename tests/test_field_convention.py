@@ -22,7 +22,7 @@ from ahrsd.calibration.field import (
     to_ardupilot,
 )
 from ahrsd.calibration.models import MagModel
-from ahrsd.estimator.wmm import earth_field
+from ahrsd.core.wmm import earth_field
 
 G = (1 + math.sqrt(5)) / 2
 

@@ -18,8 +18,8 @@ from ahrsd.calibration.field import (
     tilt_compensated_heading_rad,
 )
 from ahrsd.calibration.models import Calibration, MagModel
-from ahrsd.drivers.sample import make_sample
-from ahrsd.estimator.wmm import earth_field
+from ahrsd.core.sample import make_sample
+from ahrsd.core.wmm import earth_field
 
 SITE = earth_field(35.7, 51.4, 0.0)  # Tehran-like field, ~48.8 µT, 55° dip
 HARD_IRON_UT = np.array([18.0, -9.5, 6.0])                    # a few hundred mgauss

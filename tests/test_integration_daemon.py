@@ -122,7 +122,7 @@ def truth_static():
     """Truth of the 'static' scenario (simulator, scipy; independent of the estimator's maths)."""
     from scipy.spatial.transform import Rotation
 
-    from ahrsd.estimator.wmm import earth_field
+    from ahrsd.core.wmm import earth_field
     from ahrsd.simulation import DEFAULT_SITE, open_stream
 
     block = open_stream("static", seed=0).next_block(1)

@@ -45,7 +45,7 @@ from ahrsd.daemon.config import Config, OutputsConfig, SigningConfig
 from ahrsd.daemon.pipeline import ReplaySource
 from ahrsd.daemon.service import Service
 from ahrsd.daemon.magcal import attach, settings_from_mapping
-from ahrsd.drivers.sample import make_sample, SampleFlags
+from ahrsd.core.sample import make_sample, SampleFlags
 from ahrsd.simulation import open_stream
 import dataclasses
 a = json.loads(sys.argv[1])

@@ -23,7 +23,7 @@ from ahrsd.daemon.magcal import (
     statustext_chunks,
 )
 from ahrsd.daemon.mavlink_io import mavlink
-from ahrsd.drivers.sample import make_sample
+from ahrsd.core.sample import make_sample
 
 from test_field_session import HARD_IRON_UT, SITE, level_turns
 

@@ -14,8 +14,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from ahrsd.drivers.sample import SampleFlags, make_sample
-from ahrsd.estimator import EstimateFlags, make_estimator
+from ahrsd.core.sample import SampleFlags, make_sample
+from ahrsd.core.estimate import EstimateFlags
+from ahrsd.estimator import make_estimator
 from ahrsd.estimator.mekf import DEFAULT_MEKF_PARAMS, FIXED_WING_MEKF_PARAMS, Mekf, initial_attitude
 from ahrsd.simulation import DEFAULT_SITE, open_stream
 

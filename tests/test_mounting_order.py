@@ -17,7 +17,7 @@ from ahrsd.calibration.models import AccelModel, Calibration, GyroModel, MagMode
 from ahrsd.daemon.magcal import MagCalProtocol, MagCalSettings, sensor_attitude  # noqa: E402
 from ahrsd.daemon.mavlink_io import mavlink  # noqa: E402
 from ahrsd.daemon.pipeline import Pipeline, mounting_matrix  # noqa: E402
-from ahrsd.drivers.sample import make_sample  # noqa: E402
+from ahrsd.core.sample import make_sample  # noqa: E402
 from ahrsd.estimator.mekf import Mekf  # noqa: E402
 
 from test_field_session import HARD_IRON_UT, SITE, SOFT_DISTORTION  # noqa: E402

@@ -5,8 +5,8 @@ import sys
 
 import numpy as np
 
-from ahrsd.drivers import ImuSample, SampleFlags, make_sample
-from ahrsd.estimator.wmm import earth_field
+from ahrsd.core.sample import ImuSample, SampleFlags, make_sample
+from ahrsd.core.wmm import earth_field
 
 
 def test_cli_help_lists_subcommands():

@@ -9,7 +9,7 @@ import pytest
 from ahrsd.drivers import recording as rec
 from ahrsd.drivers.recording import (RECORDING_HEADER, TRUTH_COLUMNS, RecordingFormatError, RecordingWriter,
                                      iter_samples, read_recording)
-from ahrsd.drivers.sample import SampleFlags, make_sample
+from ahrsd.core.sample import SampleFlags, make_sample
 
 HEADER = ("t_s,gyro_x_rad_s,gyro_y_rad_s,gyro_z_rad_s,accel_x_m_s2,accel_y_m_s2,accel_z_m_s2,"
           "mag_x_ut,mag_y_ut,mag_z_ut")

@@ -135,7 +135,7 @@ def test_gyro_calibration_command_reports_a_failed_save(tmp_path, monkeypatch):
     calibration in force and on disk stay the old ones."""
     from ahrsd.daemon.gyro_cal import GyroBiasCalibration
     from ahrsd.daemon.mavlink_io import mavlink
-    from ahrsd.drivers.sample import make_sample
+    from ahrsd.core.sample import make_sample
     import ahrsd.calibration.store as store_mod
 
     state = tmp_path / "state"

@@ -22,9 +22,9 @@ from ahrsd.drivers import registers as R
 from ahrsd.drivers.adis16405 import Adis16405
 from ahrsd.drivers.errors import DriverError, FrameError
 from ahrsd.drivers.faults import FaultKind, FaultPlan
-from ahrsd.drivers.sample import SampleFlags
+from ahrsd.core.sample import SampleFlags
 from ahrsd.drivers.simulated import FixedStream, SimulatedAdis16405
-from ahrsd.estimator.base import EstimateFlags
+from ahrsd.core.estimate import EstimateFlags
 
 G0 = R.STANDARD_GRAVITY_M_S2
 P = 1.0 / ADIS16405_RATE_HZ

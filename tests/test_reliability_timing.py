@@ -12,9 +12,9 @@ from hypothesis import strategies as st
 
 from ahrsd.daemon.pipeline import ADIS16405_RATE_HZ
 from ahrsd.daemon.sensor_recovery import StallAwareSampleTimer
-from ahrsd.drivers.sample import make_sample
+from ahrsd.core.sample import make_sample
 from ahrsd.estimator import make_estimator
-from ahrsd.estimator.base import EstimateFlags
+from ahrsd.core.estimate import EstimateFlags
 
 P = 1.0 / ADIS16405_RATE_HZ
 G0 = 9.80665

@@ -7,7 +7,7 @@ import datetime as dt
 import numpy as np
 import pytest
 
-from ahrsd.estimator.wmm import earth_field
+from ahrsd.core.wmm import earth_field
 from ahrsd.simulation import DEFAULT_SITE, SCENARIOS, Site, simulate
 from ahrsd.simulation.gravity import normal_gravity_m_s2
 

@@ -227,7 +227,7 @@ def test_small_and_large_requests_mix_without_changing_the_data():
 
 
 def test_block_rows_become_imu_samples():
-    from ahrsd.drivers.sample import ImuSample, SampleFlags
+    from ahrsd.core.sample import ImuSample, SampleFlags
 
     b = simulate("static", 0.01, rate_hz=819.2, seed=1)
     samples = list(b.samples(first_counter=100))

@@ -8,9 +8,11 @@ import math
 import numpy as np
 import pytest
 
-from ahrsd.drivers.sample import SampleFlags, make_sample
-from ahrsd.estimator import EstimateFlags, make_estimator
-from ahrsd.estimator.rotations import euler_to_quat, quat_angle_between, quat_multiply, quat_to_euler, wrap_pi
+from ahrsd.core.sample import SampleFlags, make_sample
+from ahrsd.core.estimate import EstimateFlags
+from ahrsd.estimator import make_estimator
+from ahrsd.core.angles import wrap_pi
+from ahrsd.estimator.rotations import euler_to_quat, quat_angle_between, quat_multiply, quat_to_euler
 from ahrsd.estimator.thesis_kf import ThesisKf, ThesisKfParams
 from ahrsd.simulation import DEFAULT_SITE, SensorErrors, open_stream
 

@@ -1,0 +1,67 @@
+"""The GNSS fix every GNSS source delivers (design §2): a receiver's position and velocity solution.
+
+Time: `t_s` is the time of validity of the solution on the pipeline's clock (the IMU samples' `t_s`), i.e.
+the arrival time minus the receiver latency the source knows or is configured with. Missing values are NaN
+(GPS_RAW_INT and NMEA carry no vertical velocity; NMEA carries no accuracies).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+class GnssFixType(enum.IntEnum):
+    """The receiver's fix, numbered as MAVLink GPS_FIX_TYPE (0 no GPS ... 6 RTK fixed)."""
+
+    NO_GPS = 0
+    NO_FIX = 1
+    FIX_2D = 2
+    FIX_3D = 3
+    DGPS = 4
+    RTK_FLOAT = 5
+    RTK_FIXED = 6
+
+
+@dataclass(frozen=True, slots=True)
+class GnssFix:
+    """One GNSS solution in SI units. Position WGS-84 geodetic (alt above the ellipsoid); velocity NED."""
+
+    t_s: float
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+    vel_ned_m_s: np.ndarray                  # (3,) north, east, down; down may be NaN (not reported)
+    h_acc_m: float = float("nan")            # 1σ horizontal position accuracy as the receiver reports it
+    v_acc_m: float = float("nan")
+    s_acc_m_s: float = float("nan")          # 1σ speed accuracy
+    fix_type: GnssFixType = GnssFixType.FIX_3D
+    num_sats: int = -1                       # -1: not reported
+    source: str = ""                         # which source made it (for logs and status)
+    extra: dict = field(default_factory=dict, compare=False)
+
+    @property
+    def has_position(self) -> bool:
+        return self.fix_type >= GnssFixType.FIX_2D and math.isfinite(self.lat_deg) and math.isfinite(self.lon_deg)
+
+    @property
+    def has_velocity(self) -> bool:
+        return self.fix_type >= GnssFixType.FIX_2D and bool(np.all(np.isfinite(self.vel_ned_m_s[:2])))
+
+    @property
+    def ground_speed_m_s(self) -> float:
+        return math.hypot(float(self.vel_ned_m_s[0]), float(self.vel_ned_m_s[1]))
+
+    @property
+    def course_rad(self) -> float:
+        """Course over ground, [0, 2π) from true north (meaningless at low speed)."""
+        return math.atan2(float(self.vel_ned_m_s[1]), float(self.vel_ned_m_s[0])) % (2.0 * math.pi)
+
+
+def make_fix(t_s, lat_deg, lon_deg, alt_m, vel_ned_m_s, **kw) -> GnssFix:
+    """Convenience constructor that coerces the velocity to a float64 array of shape (3,)."""
+    return GnssFix(float(t_s), float(lat_deg), float(lon_deg), float(alt_m),
+                   np.asarray(vel_ned_m_s, dtype=np.float64).reshape(3), **kw)
