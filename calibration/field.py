@@ -16,9 +16,8 @@ and judges the result against ArduPilot's acceptance rules (fitness = RMS field-
 mgauss vs `COMPASS_CAL_FIT`, offsets, diagonals, radius). The result is a proposed `Calibration` with the
 before/after parameters; accepting it (saving and hot-swapping) is the daemon's job (daemon/magcal.py).
 
-Also here: `fixed_yaw_calibration` (MAV_CMD_FIXED_MAG_CAL_YAW, keeping the soft-iron terms), the
-conversion to/from ArduPilot's offsets/diag/offdiag convention, and `HeadingSlew`, which keeps the heading
-the autopilot receives from stepping when a new calibration is swapped in.
+The parts it uses live beside it: the completion mask in `geodesic_grid.py`, ArduPilot's conventions and
+acceptance limits in `ardupilot_compass.py`, the offsets-only fit in `mag_offsets.py`.
 
 Time: every duration in the session (start delay, timeout) is measured in *sample* time (`sample.t_s`), so
 a simulation running faster than real time behaves like the real thing; only the "no samples arriving"
@@ -36,6 +35,14 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
+from ahrsd.core.angles import roll_pitch_from_accel, tilt_compensated_heading_rad, wrap_pi, yaw_rate_ned_rad_s
+
+from .ardupilot_compass import (COMPASS_CAL_FIT_DEFAULT_MGAUSS, COMPASS_OFFS_MAX_MGAUSS, DIAG_MAX, DIAG_MIN,
+                                MAX_SCALE_FACTOR, OFFDIAG_MAX, RADIUS_MAX_MGAUSS, RADIUS_MIN_MGAUSS, UT_TO_MGAUSS,
+                                ArduPilotMagParams, to_ardupilot)
+from .geodesic_grid import N_SECTIONS, completion_mask_bytes, geodesic_sections, section_centres
+from .mag_offsets import fit_offsets_keep_soft_iron
+from .magfit import MagFitInput, fit_mag
 from .models import Calibration, MagModel
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -44,18 +51,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from ahrsd.core.wmm import EarthField
 
 log = logging.getLogger(__name__)
-
-UT_TO_MGAUSS = 10.0  # 1 µT = 10 mgauss (1 gauss = 100 µT)
-
-# ArduPilot CompassCalibrator / AP_Compass reference values (anchors/magcal.md §1.1, mavlink-adis.md §6).
-COMPASS_CAL_FIT_DEFAULT_MGAUSS = 16.0   # AP_COMPASS_CALIBRATION_FITNESS_DEFAULT (4 very strict ... 32 relaxed)
-COMPASS_OFFS_MAX_MGAUSS = 1800.0        # COMPASS_OFFS_MAX default
-RADIUS_MIN_MGAUSS, RADIUS_MAX_MGAUSS = 150.0, 950.0  # CompassCalibrator::fit_acceptable
-DIAG_MIN, DIAG_MAX = 0.2, 5.0                          # CompassCalibrator::fit_acceptable
-OFFDIAG_MAX = 1.0                                      # CompassCalibrator::fit_acceptable
-MAX_SCALE_FACTOR = 1.5                  # COMPASS_MAX_SCALE_FACTOR: WMM radius check (BAD_RADIUS)
-COMPLETION_MASK_BYTES = 10              # MAG_CAL_PROGRESS.completion_mask: 80 AP_GeodesicGrid sections
-
 
 class CalStatus(enum.IntEnum):
     """MAVLink MAG_CAL_STATUS (ardupilotmega.xml / common.xml, pymavlink 2.4.50)."""
@@ -79,371 +74,6 @@ class CalStatus(enum.IntEnum):
     @property
     def finished(self) -> bool:
         return self >= CalStatus.SUCCESS
-
-
-# ============================================================================ AP_GeodesicGrid (80 sections)
-# Same triangles, vertex order and sub-triangle numbering as ArduPilot's libraries/AP_Math/AP_GeodesicGrid.cpp,
-# so a ground station that draws our completion_mask draws the same cells it draws for an autopilot:
-# section = 4 · icosahedron_triangle + sub_triangle; sub-triangle 0 is the middle one.
-
-_G = (1.0 + math.sqrt(5.0)) / 2.0  # M_GOLDEN
-_TRIANGLES_HALF = np.array(
-    [
-        [[-_G, 1, 0], [-1, 0, -_G], [-_G, -1, 0]],
-        [[-1, 0, -_G], [-_G, -1, 0], [0, -_G, -1]],
-        [[-_G, -1, 0], [0, -_G, -1], [0, -_G, 1]],
-        [[-1, 0, -_G], [0, -_G, -1], [1, 0, -_G]],
-        [[0, -_G, -1], [0, -_G, 1], [_G, -1, 0]],
-        [[0, -_G, -1], [1, 0, -_G], [_G, -1, 0]],
-        [[_G, -1, 0], [1, 0, -_G], [_G, 1, 0]],
-        [[1, 0, -_G], [_G, 1, 0], [0, _G, -1]],
-        [[1, 0, -_G], [0, _G, -1], [-1, 0, -_G]],
-        [[0, _G, -1], [-_G, 1, 0], [-1, 0, -_G]],
-    ],
-    dtype=np.float64,
-)
-GEODESIC_TRIANGLES = np.concatenate([_TRIANGLES_HALF, -_TRIANGLES_HALF])          # (20, 3 vertices, 3)
-GEODESIC_MID_TRIANGLES = np.stack(
-    [
-        (GEODESIC_TRIANGLES[:, 0] + GEODESIC_TRIANGLES[:, 1]) / 2,
-        (GEODESIC_TRIANGLES[:, 1] + GEODESIC_TRIANGLES[:, 2]) / 2,
-        (GEODESIC_TRIANGLES[:, 2] + GEODESIC_TRIANGLES[:, 0]) / 2,
-    ],
-    axis=1,
-)
-# Inverse of the matrix whose columns are the vertices: w = inv · v gives v's coefficients on the vertices.
-_TRI_INV = np.linalg.inv(np.transpose(GEODESIC_TRIANGLES, (0, 2, 1)))
-_MID_INV = np.linalg.inv(np.transpose(GEODESIC_MID_TRIANGLES, (0, 2, 1)))
-N_SECTIONS = 80
-
-
-def geodesic_sections(vectors: np.ndarray) -> np.ndarray:
-    """AP_GeodesicGrid::section(v, inclusive=true) for each row of `vectors` (n, 3): 0..79, −1 for a zero
-    or non-finite vector."""
-    v = np.atleast_2d(np.asarray(vectors, dtype=np.float64))
-    out = np.full(v.shape[0], -1, dtype=np.int64)
-    good = np.all(np.isfinite(v), axis=1) & (np.linalg.norm(v, axis=1) > 0)
-    if not np.any(good):
-        return out
-    vg = v[good]
-    w = np.einsum("tij,nj->nti", _TRI_INV, vg)              # (n, 20, 3) coefficients on each triangle
-    tri = np.argmax(w.min(axis=2) >= -1e-9 * np.linalg.norm(vg, axis=1)[:, None], axis=1)
-    wm = np.einsum("nij,nj->ni", _MID_INV[tri], vg)          # coefficients on the middle triangle
-    eps = 1e-12
-    sub = np.where(wm[:, 0] < -eps, 3, np.where(wm[:, 1] < -eps, 1, np.where(wm[:, 2] < -eps, 2, 0)))
-    out[good] = 4 * tri + sub
-    return out
-
-
-def section_centres() -> np.ndarray:
-    """Unit vector through the centroid of each of the 80 sections (80, 3)."""
-    t, m = GEODESIC_TRIANGLES, GEODESIC_MID_TRIANGLES
-    corners = [
-        (m[:, 0], m[:, 1], m[:, 2]),
-        (t[:, 0], m[:, 0], m[:, 2]),
-        (m[:, 0], t[:, 1], m[:, 1]),
-        (m[:, 2], m[:, 1], t[:, 2]),
-    ]
-    c = np.empty((20, 4, 3))
-    for j, (a, b, cc) in enumerate(corners):
-        c[:, j] = (a + b + cc) / 3
-    c = c.reshape(80, 3)
-    return c / np.linalg.norm(c, axis=1, keepdims=True)
-
-
-def completion_mask_bytes(sections_hit: np.ndarray) -> bytes:
-    """The 10-byte MAG_CAL_PROGRESS.completion_mask: bit (s % 8) of byte (s // 8) set for each section s
-    (CompassCalibrator::update_completion_mask)."""
-    mask = bytearray(COMPLETION_MASK_BYTES)
-    for s in np.unique(np.asarray(sections_hit, dtype=np.int64)):
-        if 0 <= s < N_SECTIONS:
-            mask[s // 8] |= 1 << (s % 8)
-    return bytes(mask)
-
-
-# ============================================================================ ArduPilot report convention
-
-
-@dataclass(frozen=True)
-class ArduPilotMagParams:
-    """A magnetometer model in ArduPilot's terms: corrected = scale_factor · S · (raw + offsets), with S
-    symmetric: diag = (S11, S22, S33), offdiag = (S12=S21, S13=S31, S23=S32) (CompassCalibrator::calc_residual,
-    MAG_CAL_REPORT). Offsets in mgauss. `residual_rotation_deg`: the rotation part of a non-symmetric soft
-    iron that ArduPilot's symmetric S cannot carry (reported separately, 0 for a symmetric model)."""
-
-    ofs_mgauss: np.ndarray
-    diag: np.ndarray
-    offdiag: np.ndarray
-    scale_factor: float = 1.0
-    residual_rotation_deg: float = 0.0
-
-    def matrix(self) -> np.ndarray:
-        d, o = self.diag, self.offdiag
-        return np.array([[d[0], o[0], o[1]], [o[0], d[1], o[2]], [o[1], o[2], d[2]]], dtype=np.float64)
-
-
-def to_ardupilot(model: MagModel) -> ArduPilotMagParams:
-    """Our m = W · (raw − h) [µT] in ArduPilot's convention m = S · (raw + o) [mgauss in, mgauss out].
-
-    o = −h (converted to mgauss). W is split by the polar decomposition W = R · P (R a rotation, P symmetric
-    positive definite); S = P is what ArduPilot can represent and scale_factor = 1 (W already maps to the
-    true field strength). For a symmetric W (every ellipsoid fit) this is exact; otherwise the rotation angle
-    of R is returned in `residual_rotation_deg` so it is not silently lost.
-    """
-    from scipy.linalg import polar
-
-    w = np.asarray(model.soft_iron, dtype=np.float64)
-    r, p = polar(w, side="right")  # w = r @ p
-    if np.linalg.det(r) < 0:  # a reflection would mean a mirrored sensor axis: keep it in P, not R
-        r, p = -r, -p
-    angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(r) - 1.0) / 2.0))))
-    p = (p + p.T) / 2
-    return ArduPilotMagParams(
-        ofs_mgauss=-np.asarray(model.hard_iron_ut, dtype=np.float64) * UT_TO_MGAUSS,
-        diag=np.diag(p).copy(),
-        offdiag=np.array([p[0, 1], p[0, 2], p[1, 2]]),
-        scale_factor=1.0,
-        residual_rotation_deg=angle,
-    )
-
-
-def from_ardupilot(ofs_mgauss, diag, offdiag, scale_factor: float = 1.0) -> MagModel:
-    """ArduPilot's COMPASS_OFS/DIA/ODI/SCALE back to our model. scale_factor 0 means "not set" in ArduPilot
-    (AP_Compass applies no scaling) and is read as 1."""
-    sf = float(scale_factor) if scale_factor and math.isfinite(scale_factor) else 1.0
-    s = ArduPilotMagParams(np.asarray(ofs_mgauss, float), np.asarray(diag, float), np.asarray(offdiag, float)).matrix()
-    return MagModel(-np.asarray(ofs_mgauss, dtype=np.float64) / UT_TO_MGAUSS, sf * s)
-
-
-# ============================================================================ small geometry helpers
-
-
-def roll_pitch_yaw_from_q(q_wxyz: np.ndarray) -> tuple[float, float, float]:
-    """ZYX Euler angles of a body→NED quaternion (design §4)."""
-    w, x, y, z = (float(c) for c in q_wxyz)
-    c31 = 2.0 * (x * z - w * y)
-    c32 = 2.0 * (y * z + w * x)
-    c33 = 1.0 - 2.0 * (x * x + y * y)
-    c21 = 2.0 * (x * y + w * z)
-    c11 = 1.0 - 2.0 * (y * y + z * z)
-    return math.atan2(c32, c33), -math.asin(max(-1.0, min(1.0, c31))), math.atan2(c21, c11)
-
-
-def tilt_compensated_heading_rad(mag_ut: np.ndarray, roll_rad, pitch_rad) -> np.ndarray:
-    """Magnetic heading (rad, (−π, π]) from body-frame field and roll/pitch: the field rotated to the local
-    level frame, ψ = atan2(−Y_h, X_h). Vectorised over rows."""
-    m = np.atleast_2d(np.asarray(mag_ut, dtype=np.float64))
-    phi = np.asarray(roll_rad, dtype=np.float64)
-    theta = np.asarray(pitch_rad, dtype=np.float64)
-    sp, cp, st, ct = np.sin(phi), np.cos(phi), np.sin(theta), np.cos(theta)
-    xh = m[:, 0] * ct + m[:, 1] * sp * st + m[:, 2] * cp * st
-    yh = m[:, 1] * cp - m[:, 2] * sp
-    return np.arctan2(-yh, xh)
-
-
-def _down_row(roll_rad: np.ndarray, pitch_rad: np.ndarray) -> np.ndarray:
-    """Third row of C_b^n (body → NED) for each attitude: the body-frame direction of NED 'down' (n, 3)."""
-    return np.column_stack(
-        [-np.sin(pitch_rad), np.sin(roll_rad) * np.cos(pitch_rad), np.cos(roll_rad) * np.cos(pitch_rad)]
-    )
-
-
-def _wrap_pi(a):
-    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
-
-
-# ============================================================================ offsets-only fit
-
-
-def fit_offsets_keep_soft_iron(
-    raw_mag_ut: np.ndarray,
-    soft_iron: np.ndarray,
-    current_hard_iron_ut: np.ndarray,
-    roll_rad: np.ndarray | None = None,
-    pitch_rad: np.ndarray | None = None,
-    reference: "EarthField | None" = None,
-    prior_weight: float = 1e-3,
-) -> tuple[MagModel, dict]:
-    """Hard iron only, soft iron W kept: solve for c = W·h so that the corrected field u − c (u = W·raw)
-    lies on a sphere and, when roll/pitch and the WMM field are known, its vertical component equals the
-    WMM down component (the "vertical channel" that level data cannot give a sphere fit).
-
-    Linear least squares in (c, k): sphere rows (u·c)/R + k/(2R) = |u|²/(2R) (k = R² − |c|²), down rows
-    d·c = d·u − B_down (d = body direction of NED down). A weak prior keeps directions the data cannot
-    determine at the current value instead of letting them run away. Returns (model, quality).
-    """
-    raw = np.asarray(raw_mag_ut, dtype=np.float64)
-    w = np.asarray(soft_iron, dtype=np.float64)
-    u = raw @ w.T
-    c0 = w @ np.asarray(current_hard_iron_ut, dtype=np.float64)
-    r_est = float(reference.total_ut) if reference is not None else float(np.mean(np.linalg.norm(u - c0, axis=1)))
-    r_est = max(r_est, 1.0)
-    rows = [np.column_stack([u / r_est, np.full(len(u), 1.0 / (2 * r_est))])]
-    rhs = [np.sum(u * u, axis=1) / (2 * r_est)]
-    used_vertical = False
-    if reference is not None and roll_rad is not None and pitch_rad is not None:
-        d = _down_row(np.asarray(roll_rad, float), np.asarray(pitch_rad, float))
-        rows.append(np.column_stack([d, np.zeros(len(d))]))
-        rhs.append(np.sum(d * u, axis=1) - reference.down_ut)
-        used_vertical = True
-    # prior: c ≈ c0 (weight relative to the data rows), k free
-    n = len(u)
-    pw = prior_weight * math.sqrt(n)
-    rows.append(np.column_stack([np.eye(3) * pw, np.zeros(3)]))
-    rhs.append(c0 * pw)
-    a = np.vstack(rows)
-    b = np.concatenate(rhs)
-    sol, *_ = np.linalg.lstsq(a, b, rcond=None)
-    c = sol[:3]
-    sv = np.linalg.svd(a[: -3, :3], compute_uv=False) if a.shape[0] > 3 else np.zeros(3)
-    h = np.linalg.solve(w, c)
-    model = MagModel(h, w)
-    corrected = u - c
-    radius = float(np.mean(np.linalg.norm(corrected, axis=1)))
-    quality = {
-        "n_used": int(n),
-        "used_vertical_channel": used_vertical,
-        "offset_condition": float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf,
-        "radius_ut": radius,
-    }
-    return model, quality
-
-
-# ============================================================================ fixed-yaw calibration
-
-
-@dataclass(frozen=True)
-class FixedYawResult:
-    model: MagModel
-    expected_body_ut: np.ndarray
-    measured_raw_ut: np.ndarray
-    field_mismatch_ut: float  # | |W(raw − h_old)| − |B_wmm| |: how far the old model was from the WMM strength
-    message: str
-
-
-def fixed_yaw_calibration(
-    true_heading_deg: float,
-    reference: "EarthField",
-    roll_rad: float,
-    pitch_rad: float,
-    raw_mag_ut: np.ndarray,
-    current: MagModel,
-) -> FixedYawResult:
-    """MAV_CMD_FIXED_MAG_CAL_YAW: the vehicle points at a known TRUE heading; the expected body-frame field
-    is the WMM field (true-north NED) rotated by roll, pitch and that heading. New hard iron h so that
-    W · (raw − h) equals it, with W — the soft-iron terms — KEPT (ArduPilot's mag_cal_fixed_yaw resets them
-    to identity, which throws away a good soft-iron calibration: anchors/magcal.md §1.3, §7).
-
-    raw_mag_ut: the raw field averaged over a short still period (µT, sensor frame; roll, pitch and heading
-    are those of the sensor axes — daemon.magcal.sensor_attitude maps the body attitude through the mounting).
-    """
-    from scipy.spatial.transform import Rotation
-
-    raw = np.asarray(raw_mag_ut, dtype=np.float64).reshape(3)
-    if not np.all(np.isfinite(raw)) or not math.isfinite(true_heading_deg):
-        raise ValueError("fixed-yaw calibration needs a finite heading and magnetometer reading")
-    c_bn = Rotation.from_euler("ZYX", [math.radians(true_heading_deg), pitch_rad, roll_rad]).as_matrix()
-    expected = c_bn.T @ reference.ned_ut
-    w = np.asarray(current.soft_iron, dtype=np.float64)
-    h = raw - np.linalg.solve(w, expected)
-    before = float(np.linalg.norm(current.apply(raw)))
-    mismatch = abs(before - reference.total_ut)
-    msg = (
-        f"fixed-yaw cal at {true_heading_deg:.1f} deg true: offsets "
-        f"{np.round(-h * UT_TO_MGAUSS).astype(int).tolist()} mG, soft iron kept"
-    )
-    return FixedYawResult(MagModel(h, w), expected, raw, mismatch, msg)
-
-
-# ============================================================================ heading slew
-
-
-@dataclass
-class HeadingSlew:
-    """Keeps the heading sent to the autopilot from stepping when a new calibration is swapped in.
-
-    ArduPilot EKF3 rejects an external-yaw innovation beyond its 3σ gate in flight and then keeps its old
-    yaw indefinitely (anchors/ardupilot-extnav.md), so after `start_transition()` the published heading
-    follows the vehicle's own rotation (yaw rate from the estimator) and moves towards the estimator's new
-    heading at no more than `max_rate_deg_s`. Outside a transition it passes the heading through unchanged.
-
-    VISION_POSITION_ESTIMATE.reset_counter is NOT touched by a calibration change: in ArduPilot a new
-    reset_counter value makes AP_VisualOdom stamp a new reset time, which EKF3 (writeExtNavData) treats as a
-    *position* reset (extNavDataNew.posReset), and the T265/VOXL backends drop 1 s of data after it; it
-    never re-aligns yaw. So a heading change is slewed in, never signalled as a reset.
-    """
-
-    max_rate_deg_s: float = 2.0
-    done_within_deg: float = 0.05
-    # the estimator needs a moment to take the new field (MEKF: 0.5 s undisturbed wait, then ≈ 1 s time
-    # constant): the transition lasts at least this long, so it does not end before the heading moves, s
-    min_duration_s: float = 10.0
-    active: bool = False
-    _published: float | None = None
-    _t_last: float | None = None
-    _t_start: float | None = None
-
-    def start_transition(self) -> None:
-        self.active = True
-        self._t_start = None      # set by the next update (sample time)
-
-    def update(self, t_s: float, heading_rad: float, yaw_rate_rad_s: float = 0.0) -> float:
-        """Heading to publish (rad, [0, 2π)) for the estimator's heading at t_s and the vehicle's yaw rate."""
-        if self._published is None or not self.active:
-            self._published = heading_rad % (2 * math.pi)
-            self._t_last = t_s
-            return self._published
-        dt = 0.0 if self._t_last is None else max(0.0, t_s - self._t_last)
-        self._t_last = t_s
-        if self._t_start is None:
-            self._t_start = t_s
-        predicted = self._published + yaw_rate_rad_s * dt
-        err = float(_wrap_pi(heading_rad - predicted))
-        step = math.radians(self.max_rate_deg_s) * dt
-        if abs(err) <= max(step, math.radians(self.done_within_deg)):
-            self._published = heading_rad % (2 * math.pi)
-            if abs(err) <= math.radians(self.done_within_deg) and t_s - self._t_start >= self.min_duration_s:
-                self.active = False
-        else:
-            self._published = (predicted + math.copysign(step, err)) % (2 * math.pi)
-        return self._published
-
-
-def max_heading_change_deg(old: MagModel, new: MagModel, field_body_ut: np.ndarray, roll_rad: float,
-                           pitch_rad: float, n_headings: int = 36) -> float:
-    """Largest change of the tilt-compensated heading that replacing `old` by `new` causes, over a full turn
-    at the given roll/pitch. `field_body_ut` is the current calibrated field (its levelled horizontal
-    magnitude and vertical component are kept, its direction swept through `n_headings` headings); the raw
-    readings are those the new model maps onto those fields (the new model taken as the truth)."""
-    from scipy.spatial.transform import Rotation
-
-    b = np.asarray(field_body_ut, dtype=np.float64).reshape(3)
-    tilt = Rotation.from_euler("YX", [pitch_rad, roll_rad])       # body -> level frame (no yaw)
-    level = tilt.apply(b)
-    h, down = math.hypot(level[0], level[1]), level[2]
-    psi = np.linspace(0.0, 2 * np.pi, n_headings, endpoint=False)
-    # a field at magnetic heading psi has level-frame components (H cos psi, -H sin psi, down)
-    fields_level = np.column_stack([h * np.cos(psi), -h * np.sin(psi), np.full_like(psi, down)])
-    fields_body = tilt.inv().apply(fields_level)
-    raw = fields_body @ np.linalg.inv(new.soft_iron).T + new.hard_iron_ut
-    h_old = tilt_compensated_heading_rad(old.apply(raw), roll_rad, pitch_rad)
-    h_new = tilt_compensated_heading_rad(new.apply(raw), roll_rad, pitch_rad)
-    return float(np.degrees(np.max(np.abs(_wrap_pi(h_new - h_old)))))
-
-
-def blend_models(old: MagModel, new: MagModel, alpha: float) -> MagModel:
-    """The model a fraction `alpha` (0..1) of the way from `old` to `new` (hard and soft iron interpolated)."""
-    a = min(1.0, max(0.0, float(alpha)))
-    return MagModel((1 - a) * old.hard_iron_ut + a * new.hard_iron_ut, (1 - a) * old.soft_iron + a * new.soft_iron)
-
-
-def yaw_rate_ned_rad_s(rate_body_rad_s: np.ndarray, roll_rad: float, pitch_rad: float) -> float:
-    """ψ̇ from body rates (ZYX Euler kinematics): (q sinφ + r cosφ) / cosθ."""
-    q, r = float(rate_body_rad_s[1]), float(rate_body_rad_s[2])
-    c = math.cos(pitch_rad)
-    if abs(c) < 1e-3:
-        return 0.0
-    return (q * math.sin(roll_rad) + r * math.cos(roll_rad)) / c
 
 
 # ============================================================================ the session
@@ -508,13 +138,7 @@ class FieldCalResult:
         )
 
 
-FitFunction = Callable[..., Any]  # magfit.fit_mag signature
-
-
-def _default_fit(method: str, data, reference, **options):
-    from .magfit import fit_mag
-
-    return fit_mag(method, data, reference, **options)
+FitFunction = Callable[..., Any]  # magfit.fit_mag's signature
 
 
 class FieldCalibration:
@@ -639,9 +263,7 @@ class FieldCalibration:
                         self._turn_yaw += yaw_rate_ned_rad_s(rate, roll, pitch) * dt_kept
                     yaw = self._turn_yaw
             else:  # tilt from the accelerometer, heading from the field with the calibration in force
-                a = np.asarray(sample.accel_m_s2, dtype=np.float64)
-                roll = math.atan2(-a[1], -a[2])
-                pitch = math.atan2(a[0], math.hypot(a[1], a[2]))
+                roll, pitch = (float(x) for x in roll_pitch_from_accel(sample.accel_m_s2))
                 yaw = float(tilt_compensated_heading_rad(self.current.mag.apply(raw), roll, pitch)[0])
             self._store(t, raw, sample.accel_m_s2, sample.gyro_rad_s, roll, pitch, yaw)
             self._update_coverage(raw, roll, pitch, yaw)
@@ -721,7 +343,7 @@ class FieldCalibration:
             width = 2 * math.pi / self.config.heading_sectors
             centres = (gaps + 0.5) * width
             yaw = self._last_yaw
-            diff = _wrap_pi(centres - yaw)
+            diff = wrap_pi(centres - yaw)
             d = float(diff[int(np.argmin(np.abs(diff)))])
             return np.array([math.cos(d), math.sin(d), 0.0])
 
@@ -921,7 +543,7 @@ class FitJob:
 
     def _final_fit(self) -> FieldCalResult:
         cfg, rpy, raw = self.config, self.rpy, self.raw
-        fit = self.fit_function or _default_fit
+        fit = self.fit_function or fit_mag
         tilt = np.degrees(np.arccos(np.clip(np.cos(rpy[:, 0]) * np.cos(rpy[:, 1]), -1, 1)))
         tilt_range = float(np.percentile(tilt, 98) - np.percentile(tilt, 2)) if len(tilt) else 0.0
         notes: list[str] = []
@@ -934,19 +556,12 @@ class FitJob:
             notes.append("no WMM reference: fitted offsets only")
         else:
             notes.append("tilt range too small for full model: fitted offsets only")
-        from .magfit import MagFitInput
-
         data = MagFitInput(self.t, raw, self.acc, self.gyro)
         quality: dict = {"tilt_range_deg": tilt_range, "sphere_coverage": self.sphere_coverage,
                          "heading_coverage": self.heading_coverage, "n_samples": int(len(self.t))}
         for method in candidates:
             options = {"roll_rad": rpy[:, 0], "pitch_rad": rpy[:, 1]} if method == "backstepping" else {}
-            try:
-                fr = fit(method, data, self.reference, **options)
-            except (NotImplementedError, ImportError) as exc:
-                notes.append(f"{method} unavailable: offsets only")
-                log.warning("%s", exc)
-                continue
+            fr = fit(method, data, self.reference, **options)
             if fr.refused is None:
                 ok, why = self._acceptable_shape(fr.model)
                 if ok:

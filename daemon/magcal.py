@@ -49,14 +49,9 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from ahrsd.calibration.field import (
-    UT_TO_MGAUSS,
-    CalStatus,
-    FieldCalConfig,
-    FieldCalibration,
-    VehicleType,
-    fixed_yaw_calibration,
-)
+from ahrsd.calibration.ardupilot_compass import UT_TO_MGAUSS
+from ahrsd.calibration.field import CalStatus, FieldCalConfig, FieldCalibration, VehicleType
+from ahrsd.calibration.fixed_yaw import fixed_yaw_calibration
 from ahrsd.daemon.mavlink_io import mavlink
 
 log = logging.getLogger(__name__)

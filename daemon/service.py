@@ -35,7 +35,8 @@ from ahrsd.daemon.outputs import OUTPUT_KEYS, OutputSchedule
 from ahrsd.daemon.params import ParamError, ParamSpec, ParamStore, decode_param_id
 from ahrsd.daemon.rate_limit import TokenBucket
 from ahrsd.daemon.pipeline import Pipeline, open_source
-from ahrsd.calibration.field import HeadingSlew, yaw_rate_ned_rad_s
+from ahrsd.core.angles import yaw_rate_ned_rad_s
+from ahrsd.daemon.heading_slew import HeadingSlew
 from ahrsd.drivers.errors import FrameError
 from ahrsd.core.sample import SampleFlags
 from ahrsd.daemon.status_line import StatusLine, format_status

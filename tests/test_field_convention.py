@@ -9,18 +9,17 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from ahrsd.calibration.field import (
+from ahrsd.calibration.ardupilot_compass import from_ardupilot, to_ardupilot
+from ahrsd.calibration.fixed_yaw import fixed_yaw_calibration
+from ahrsd.calibration.geodesic_grid import (
     GEODESIC_MID_TRIANGLES,
     GEODESIC_TRIANGLES,
-    HeadingSlew,
     completion_mask_bytes,
-    fixed_yaw_calibration,
-    from_ardupilot,
     geodesic_sections,
     section_centres,
-    tilt_compensated_heading_rad,
-    to_ardupilot,
 )
+from ahrsd.core.angles import tilt_compensated_heading_rad
+from ahrsd.daemon.heading_slew import HeadingSlew
 from ahrsd.calibration.models import MagModel
 from ahrsd.core.wmm import earth_field
 
@@ -163,7 +162,7 @@ def test_heading_slew_passes_vehicle_rotation_through():
 
 
 def test_max_heading_change_of_a_pure_offset():
-    from ahrsd.calibration.field import blend_models, max_heading_change_deg
+    from ahrsd.calibration.heading_change import blend_models, max_heading_change_deg
 
     old = MagModel(np.zeros(3), np.eye(3))
     new = MagModel(np.array([2.0, 0.0, 0.0]), np.eye(3))  # 2 µT along x on a 25 µT horizontal field

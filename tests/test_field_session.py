@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import math
 from types import SimpleNamespace
 
@@ -10,13 +9,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ahrsd.calibration.field import (
-    CalStatus,
-    FieldCalConfig,
-    FieldCalibration,
-    VehicleType,
-    tilt_compensated_heading_rad,
-)
+from ahrsd.calibration.field import CalStatus, FieldCalConfig, FieldCalibration, VehicleType
+from ahrsd.core.angles import tilt_compensated_heading_rad
 from ahrsd.calibration.models import Calibration, MagModel
 from ahrsd.core.sample import make_sample
 from ahrsd.core.wmm import earth_field
@@ -89,12 +83,11 @@ def test_level_turns_complete_and_improve_heading():
     print(f"  hard iron fitted {np.round(res.model.hard_iron_ut, 2)} vs injected {HARD_IRON_UT}")
     assert after < before / 3
     assert np.linalg.norm(res.model.hard_iron_ut - HARD_IRON_UT) < 3.0  # µT (30 mG) on ±8° tilt
-    if importlib.util.find_spec("ahrsd.calibration.backstepping") is not None:
-        # the full (vertical-channel) model: iron recovered, heading error below a degree
-        assert res.method == "backstepping" and not res.partial
-        assert np.linalg.norm(res.model.hard_iron_ut - HARD_IRON_UT) < 1.0
-        assert np.allclose(res.model.soft_iron @ SOFT_DISTORTION, np.eye(3), atol=0.02)
-        assert after < 1.0
+    # the full (vertical-channel) model: iron recovered, heading error below a degree
+    assert res.method == "backstepping" and not res.partial
+    assert np.linalg.norm(res.model.hard_iron_ut - HARD_IRON_UT) < 1.0
+    assert np.allclose(res.model.soft_iron @ SOFT_DISTORTION, np.eye(3), atol=0.02)
+    assert after < 1.0
 
 
 def test_tumble_uses_ellipsoid_and_recovers_iron():

@@ -28,7 +28,8 @@ from scipy.spatial.transform import Rotation
 
 pytest.importorskip("ahrsd.daemon.service")
 
-from ahrsd.calibration.field import from_ardupilot, tilt_compensated_heading_rad  # noqa: E402
+from ahrsd.calibration.ardupilot_compass import from_ardupilot  # noqa: E402
+from ahrsd.core.angles import tilt_compensated_heading_rad  # noqa: E402
 from ahrsd.calibration.models import Calibration  # noqa: E402
 from service_rig import free_udp_port  # noqa: E402
 from ahrsd.calibration.store import CalibrationStore  # noqa: E402

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ahrsd.calibration.field import CalStatus, from_ardupilot
+from ahrsd.calibration.ardupilot_compass import from_ardupilot
+from ahrsd.calibration.field import CalStatus
 from ahrsd.calibration.models import Calibration, MagModel
 from ahrsd.calibration.store import CalibrationStore
 from ahrsd.daemon.magcal import (

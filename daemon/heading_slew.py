@@ -1,0 +1,60 @@
+"""The output policy that keeps the heading sent to the autopilot from stepping when a new magnetometer
+calibration is swapped in."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from ahrsd.core.angles import wrap_pi
+
+
+@dataclass
+class HeadingSlew:
+    """Keeps the heading sent to the autopilot from stepping when a new calibration is swapped in.
+
+    ArduPilot EKF3 rejects an external-yaw innovation beyond its gate in flight and then keeps its old yaw
+    (libraries/AP_NavEKF3/AP_NavEKF3_MagFusion.cpp, fuseEulerYaw, gate EK3_YAW_I_GATE), so after
+    `start_transition()` the published heading follows the vehicle's own rotation (yaw rate from the
+    estimator) and moves towards the estimator's new heading at no more than `max_rate_deg_s`. Outside a transition it passes the heading through unchanged.
+
+    VISION_POSITION_ESTIMATE.reset_counter is NOT touched by a calibration change: in ArduPilot a new
+    reset_counter value makes AP_VisualOdom stamp a new reset time, which EKF3 (writeExtNavData) treats as a
+    *position* reset (extNavDataNew.posReset), and the T265/VOXL backends drop 1 s of data after it; it
+    never re-aligns yaw. So a heading change is slewed in, never signalled as a reset.
+    """
+
+    max_rate_deg_s: float = 2.0
+    done_within_deg: float = 0.05
+    # the estimator needs a moment to take the new field (MEKF: 0.5 s undisturbed wait, then ≈ 1 s time
+    # constant): the transition lasts at least this long, so it does not end before the heading moves, s
+    min_duration_s: float = 10.0
+    active: bool = False
+    _published: float | None = None
+    _t_last: float | None = None
+    _t_start: float | None = None
+
+    def start_transition(self) -> None:
+        self.active = True
+        self._t_start = None      # set by the next update (sample time)
+
+    def update(self, t_s: float, heading_rad: float, yaw_rate_rad_s: float = 0.0) -> float:
+        """Heading to publish (rad, [0, 2π)) for the estimator's heading at t_s and the vehicle's yaw rate."""
+        if self._published is None or not self.active:
+            self._published = heading_rad % (2 * math.pi)
+            self._t_last = t_s
+            return self._published
+        dt = 0.0 if self._t_last is None else max(0.0, t_s - self._t_last)
+        self._t_last = t_s
+        if self._t_start is None:
+            self._t_start = t_s
+        predicted = self._published + yaw_rate_rad_s * dt
+        err = float(wrap_pi(heading_rad - predicted))
+        step = math.radians(self.max_rate_deg_s) * dt
+        if abs(err) <= max(step, math.radians(self.done_within_deg)):
+            self._published = heading_rad % (2 * math.pi)
+            if abs(err) <= math.radians(self.done_within_deg) and t_s - self._t_start >= self.min_duration_s:
+                self.active = False
+        else:
+            self._published = (predicted + math.copysign(step, err)) % (2 * math.pi)
+        return self._published
