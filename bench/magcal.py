@@ -29,10 +29,13 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ahrsd.calibration import backstepping as bs
+from ahrsd.calibration import backstepping_paper as paper
+from ahrsd.calibration import vertical_channel as vc
 from ahrsd.calibration import swing
 from ahrsd.calibration.magfit import MagFitInput
 from ahrsd.calibration.models import MagModel
-from ahrsd.calibration.observability import roll_pitch_from_accel, lowpass
+from ahrsd.calibration.observability import lowpass
+from ahrsd.core.angles import roll_pitch_from_accel, wrap_180_deg
 
 G = 9.80665
 SITE = dict(lat_deg=35.7, lon_deg=51.4)           # Tehran, as in anchors/magcal.md §4
@@ -115,9 +118,9 @@ def heading_errors_deg(model: MagModel, test_kind: str, truth: dict, n: int = 20
     rng = np.random.default_rng(seed)
     roll, pitch, yaw = test_attitudes(test_kind, n, rng)
     raw, _, _ = sense(roll, pitch, yaw, truth["field"], truth["distortion"], truth["hard_iron"], rng, accel=False)
-    psi = bs.magnetic_heading_deg(model.apply(raw), roll, pitch)
+    psi = paper.magnetic_heading_deg(model.apply(raw), roll, pitch)
     true_mag = np.degrees(yaw - truth["field"].declination_rad)
-    return swing.wrap180(psi - true_mag)
+    return wrap_180_deg(psi - true_mag)
 
 
 def shape_error(model: MagModel, truth: dict) -> float:
@@ -132,7 +135,7 @@ def shape_error(model: MagModel, truth: dict) -> float:
 
 def ls_ellipsoid(raw: np.ndarray, field_ut: float) -> MagModel | None:
     """Plain algebraic least-squares ellipsoid (10 parameters), symmetric soft iron scaled to |F|."""
-    init = bs._ellipsoid_init(raw, field_ut)
+    init = vc._ellipsoid_init(raw, field_ut)
     if init is None:
         return None
     w, c = init
@@ -272,7 +275,7 @@ def run_methods(data, truth, *, with_reference=False, seed=0):
     m, info = ardupilot_lm(data.mag_ut, F)
     out["ArduPilot LM"] = (m, time.perf_counter() - t0, info)
     t0 = time.perf_counter()
-    sph = bs.sphere_fit_paper(data.mag_ut, F)
+    sph = paper.sphere_fit_paper(data.mag_ut, F)
     out["seed002 sphere"] = (sph.model.to_mag_model() if sph.model else None, time.perf_counter() - t0, {})
     t0 = time.perf_counter()
     r = bs.fit_backstepping(data, field, attitude="accel")
@@ -288,7 +291,7 @@ def run_methods(data, truth, *, with_reference=False, seed=0):
         # known headings: a classical swing, the vehicle passing the 8 cardinal/intercardinal headings with a
         # 0.5° reference (compass-swing table), only the samples within ±2° of them
         true_heading = np.degrees(truth["yaw"]) % 360.0
-        near = np.min(np.abs(swing.wrap180(true_heading[:, None] - np.arange(0, 360, 45.0)[None, :])), axis=1) < 2.0
+        near = np.min(np.abs(wrap_180_deg(true_heading[:, None] - np.arange(0, 360, 45.0)[None, :])), axis=1) < 2.0
         known = np.where(near, true_heading + rng.normal(0, 0.5, true_heading.size), np.nan)
         d3 = MagFitInput(data.t_s, data.mag_ut, data.accel_m_s2, None, known)
         t0 = time.perf_counter()
@@ -436,8 +439,8 @@ def auv_table(seed: int = 0, coupling: bool = False):
     for name, r in (("paper (diagonal)", res), ("general", gen)):
         if r.ok:
             sel = legs >= 0
-            psi = bs.magnetic_heading_deg(r.model.apply(data.mag_ut[sel]), truth["roll"][sel], truth["pitch"][sel])
-            err = swing.wrap180(psi - np.degrees(truth["yaw"][sel]))
+            psi = paper.magnetic_heading_deg(r.model.apply(data.mag_ut[sel]), truth["roll"][sel], truth["pitch"][sel])
+            err = wrap_180_deg(psi - np.degrees(truth["yaw"][sel]))
             if name.startswith("paper"):
                 for w in r.quality.get("warnings", []):
                     print("warning:", w)

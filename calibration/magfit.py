@@ -4,7 +4,7 @@ Methods:
   ellipsoid     full 9-parameter ellipsoid (algebraic guess + Levenberg–Marquardt)      calibration/ellipsoid.py
   two-step      thesis §10.1.1, 6 parameters: hard iron + per-axis scale                 calibration/mag_twostep.py
   three-step    thesis §10.1.2, 9 parameters: + non-orthogonality                        calibration/mag_threestep.py
-  backstepping  seed 002, for vehicles that cannot be tumbled                            calibration/backstepping.py
+  backstepping  Nourmohammadi & Sabet 2022, for vehicles that cannot be tumbled         calibration/backstepping.py
 
 Every method returns a `MagFitResult` whose `model` maps raw µT to calibrated µT
 (m = soft_iron · (raw − hard_iron)). When a method cannot support its model with the data (too few samples,
@@ -14,7 +14,6 @@ poor coverage, ill-conditioned regression, non-physical solution), it does not r
 
 from __future__ import annotations
 
-import importlib
 import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable
@@ -170,7 +169,7 @@ def reference_magnitude_ut(reference: "EarthField | None", mag_ut: np.ndarray, f
 # Default acceptance checks of the attitude-independent (full-sphere) fits; each is an option of the fit.
 MIN_SAMPLES = 30
 MIN_COVERAGE = 0.5            # fraction of the 26 cube directions seen (level turns ≈ 0.3, a tumble ≈ 1)
-MAX_RESIDUAL_UT = 1.6         # RMS | |m| − H0 | limit: ArduPilot COMPASS_CAL_FIT default, 16 mgauss (anchors/magcal.md §1.1)
+MAX_RESIDUAL_UT = 1.6         # RMS | |m| − H0 | limit: ArduPilot COMPASS_CAL_FIT default, 16 mgauss (AP_Compass.cpp)
 MAX_SIGMA_HARD_UT = 0.5       # 1σ of each hard-iron component (5 mgauss): beyond it the data cannot fix it
 MAX_SIGMA_SOFT = 0.01         # 1σ of each soft-iron entry (1 %)
 SOFT_IRON_GAIN_RANGE = (0.25, 4.0)  # singular values of soft_iron outside this are not a vehicle's iron
@@ -322,18 +321,9 @@ def _resolve(method: str) -> Callable[..., MagFitResult]:
 
         return fit_three_step
     if method == "backstepping":
-        try:
-            module = importlib.import_module("ahrsd.calibration.backstepping")
-        except ModuleNotFoundError as exc:
-            if exc.name != "ahrsd.calibration.backstepping":
-                raise
-            raise NotImplementedError(
-                "the backstepping magnetometer calibration (calibration/backstepping.py) is not installed"
-            ) from None
-        fn = getattr(module, "fit_backstepping", None)
-        if fn is None:
-            raise NotImplementedError("ahrsd.calibration.backstepping has no fit_backstepping()")
-        return fn
+        from .backstepping import fit_backstepping
+
+        return fit_backstepping
     raise ValueError(f"unknown magnetometer calibration method {method!r}; choose one of {', '.join(METHODS)}")
 
 

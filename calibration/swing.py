@@ -1,19 +1,21 @@
 """Heading-deviation ("swing") fit: δψ = A + B·sinψ + C·cosψ + D·sin2ψ + E·cos2ψ.
 
-The classical compass deviation card (NGA Pub. 226; seed 002 §5, eqs. 19–21 and 31): after the field-domain
+The classical compass deviation card (NGA Pub. 226, "Handbook of Magnetic Compass Adjustment"; Nourmohammadi &
+Sabet, "Back-stepping calibration algorithm for three-axial magnetometer ...", J. of Control 16(3), 2022 —
+"the paper" below — §5, eqs. 19–21 and 31): after the field-domain
 calibration, the remaining heading error is a truncated Fourier series of the magnetometer heading ψ̂:
 
-    δψ = ψ_ref − ψ̂_mag           (seed 002 eq. 21)
-    ψ_M = ψ̂_M + A + B sinψ̂ + C cosψ̂ + D sin2ψ̂ + E cos2ψ̂   (seed 002 eq. 31)
+    δψ = ψ_ref − ψ̂_mag           (the paper's eq. 21)
+    ψ_M = ψ̂_M + A + B sinψ̂ + C cosψ̂ + D sin2ψ̂ + E cos2ψ̂   (the paper's eq. 31)
 
 A is the constant offset (sensor/hull yaw misalignment, asymmetric soft iron): no attitude-independent field
-fit can see it (anchors/magcal.md §0.4), a heading reference can. B, C are semicircular (residual hard iron,
+fit can see it (it leaves the field magnitude and the vertical component unchanged), a heading reference can. B, C are semicircular (residual hard iron,
 vertical soft iron × Z), D, E quadrantal (horizontal soft iron).
 
 Heading references:
 - known headings (a compass-swing table, CSV `reference_deg,compass_deg`), e.g. the eight cardinal and
   intercardinal headings of a classical swing;
-- GNSS course over ground, delayed by the receiver latency (seed 002 §7.4 used 2 s), used only while the
+- GNSS course over ground, delayed by the receiver latency (the paper's §7.4 used 2 s), used only while the
   speed is sufficient and the track is straight (course ≠ heading in turns and with crab/sideslip).
 
 All angles here are degrees (the paper's coefficients are radians: multiply by 180/π to compare).
@@ -28,7 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-PAPER_GNSS_DELAY_S = 2.0        # seed 002 §7.4: GPS track-angle delay assumed in the field test
+from ahrsd.core.angles import wrap_180_deg
+
+PAPER_GNSS_DELAY_S = 2.0        # the paper's §7.4: GPS track-angle delay assumed in the field test
 DEFAULT_MIN_SPEED_M_S = 1.0     # below this GNSS course is noise (our choice: ~2 kn)
 DEFAULT_MAX_TURN_RATE_DEG_S = 1.0  # "straight track" gate on the course rate (our choice)
 MIN_SAMPLES = 8                 # a classical swing uses 8 headings (Pub. 226)
@@ -44,15 +48,10 @@ class SwingFitError(ValueError):
     """The headings cannot determine the deviation coefficients (too few, one heading, ...)."""
 
 
-def wrap180(angle_deg):
-    """Wrap to [−180, 180)."""
-    return (np.asarray(angle_deg, dtype=np.float64) + 180.0) % 360.0 - 180.0
-
-
 @dataclass(frozen=True)
 class DeviationCoefficients:
     """A..E in degrees (δψ = ψ_ref − ψ_mag as a function of ψ_mag). `rms_before_deg`/`rms_after_deg`: RMS
-    of δψ before and after correction on the fit data; `a_only_deg`: A fitted alone (seed 002 §5 sanity
+    of δψ before and after correction on the fit data; `a_only_deg`: A fitted alone (the paper's §5 sanity
     value: a large difference to A means the deviation fit is suspect); `n`: samples used."""
 
     a_deg: float
@@ -75,7 +74,7 @@ class DeviationCoefficients:
         return float(out) if out.ndim == 0 else out
 
     def apply(self, heading_mag_deg):
-        """Corrected heading ψ̂ + δψ(ψ̂) in [0, 360) (seed 002 eq. 31); a float for a scalar heading."""
+        """Corrected heading ψ̂ + δψ(ψ̂) in [0, 360) (the paper's eq. 31); a float for a scalar heading."""
         h = np.asarray(heading_mag_deg, dtype=np.float64)
         out = (h + self.deviation_deg(h)) % 360.0
         return float(out) if np.ndim(out) == 0 else out
@@ -91,13 +90,13 @@ class DeviationCoefficients:
 
 
 def _regressors(heading_deg) -> np.ndarray:
-    """Rows [1, sinψ, cosψ, sin2ψ, cos2ψ] (seed 002 eq. 20)."""
+    """Rows [1, sinψ, cosψ, sin2ψ, cos2ψ] (the paper's eq. 20)."""
     p = np.radians(np.asarray(heading_deg, dtype=np.float64)).reshape(-1)
     return np.column_stack((np.ones_like(p), np.sin(p), np.cos(p), np.sin(2 * p), np.cos(2 * p)))
 
 
 def fit_deviation(heading_mag_deg, heading_ref_deg, weights=None) -> DeviationCoefficients:
-    """Least-squares A..E (seed 002 eq. 20) from magnetometer headings and reference headings (both in the
+    """Least-squares A..E (the paper's eq. 20) from magnetometer headings and reference headings (both in the
     same north: subtract the declination from a true reference first, or add it to the magnetic heading).
     Raises SwingFitError when the headings cannot determine the five coefficients."""
     hm = np.asarray(heading_mag_deg, dtype=np.float64).reshape(-1)
@@ -119,13 +118,13 @@ def fit_deviation(heading_mag_deg, heading_ref_deg, weights=None) -> DeviationCo
     if span < MIN_HEADING_SPAN_DEG:
         raise SwingFitError(f"the headings span only {span:.0f}° of the circle; B..E need headings all "
                             f"round (at least {MIN_HEADING_SPAN_DEG:.0f}°). Fit A alone with fit_offset()")
-    dpsi = wrap180(hr - hm)
+    dpsi = wrap_180_deg(hr - hm)
     phi = _regressors(hm)
     sw = np.sqrt(w)
     coef, *_ = np.linalg.lstsq(phi * sw[:, None], dpsi * sw, rcond=None)
     if np.linalg.cond(phi * sw[:, None]) > 1e6:
         raise SwingFitError("the heading regressors are singular (headings too clustered)")
-    after = wrap180(dpsi - phi @ coef)
+    after = wrap_180_deg(dpsi - phi @ coef)
     a_only = float(np.average(dpsi, weights=w))
     return DeviationCoefficients(*map(float, coef), rms_before_deg=float(np.sqrt(np.mean(dpsi**2))),
                                  rms_after_deg=float(np.sqrt(np.mean(after**2))), a_only_deg=a_only,
@@ -133,17 +132,17 @@ def fit_deviation(heading_mag_deg, heading_ref_deg, weights=None) -> DeviationCo
 
 
 def fit_offset(heading_mag_deg, heading_ref_deg) -> DeviationCoefficients:
-    """A alone (B..E = 0): the seed 002 §5 first step, and all one heading (a fixed-yaw calibration) can give."""
+    """A alone (B..E = 0): the the paper §5 first step, and all one heading (a fixed-yaw calibration) can give."""
     hm = np.asarray(heading_mag_deg, dtype=np.float64).reshape(-1)
     hr = np.asarray(heading_ref_deg, dtype=np.float64).reshape(-1)
     ok = np.isfinite(hm) & np.isfinite(hr)
     if not ok.any():
         raise SwingFitError("no usable heading pairs")
-    dpsi = wrap180(hr[ok] - hm[ok])
+    dpsi = wrap_180_deg(hr[ok] - hm[ok])
     # circular mean, so offsets near ±180° average correctly
     a = math.degrees(math.atan2(np.mean(np.sin(np.radians(dpsi))), np.mean(np.cos(np.radians(dpsi)))))
     return DeviationCoefficients(a, 0.0, 0.0, 0.0, 0.0, rms_before_deg=float(np.sqrt(np.mean(dpsi**2))),
-                                 rms_after_deg=float(np.sqrt(np.mean(wrap180(dpsi - a) ** 2))), a_only_deg=a,
+                                 rms_after_deg=float(np.sqrt(np.mean(wrap_180_deg(dpsi - a) ** 2))), a_only_deg=a,
                                  n=int(ok.sum()))
 
 
@@ -158,7 +157,7 @@ def heading_span_deg(heading_deg) -> float:
 
 def pub226_eight_point(deviation_deg_at: dict[str, float]) -> DeviationCoefficients:
     """The classical approximate coefficients from deviations on the 8 headings N, NE, E, SE, S, SW, W, NW
-    (NGA Pub. 226 ch. V; anchors/magcal.md §3): A = mean, B = (E − W)/2, C = (N − S)/2,
+    (NGA Pub. 226 ch. V): A = mean, B = (E − W)/2, C = (N − S)/2,
     D = (NE + SW − SE − NW)/4, E = (N + S − E − W)/4. Deviations east positive."""
     d = deviation_deg_at
     vals = [d[k] for k in ("N", "NE", "E", "SE", "S", "SW", "W", "NW")]
@@ -177,7 +176,7 @@ def gnss_course_reference(t_s, course_deg, speed_m_s, *, delay_s: float = PAPER_
     """A heading reference (degrees, NaN where unusable) from GNSS course over ground.
 
     The receiver reports the course `delay_s` late, so the course stamped t + delay describes the vehicle
-    at t (seed 002 §7.4). A sample is usable only if the speed is at least `min_speed_m_s` and the course rate
+    at t (the paper §7.4). A sample is usable only if the speed is at least `min_speed_m_s` and the course rate
     stays below `max_turn_rate_deg_s` over ±straight_window_s/2 (a straight track: in turns and with
     sideslip course ≠ heading). `at_t_s` (default t_s): the times to produce the reference for (e.g. the
     magnetometer sample times). Course is true (geographic) north."""

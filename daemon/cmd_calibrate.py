@@ -459,7 +459,8 @@ def _mag(args) -> int:
     ], meta)
     if args.plot:
         if args.method == "backstepping" and res.ok:
-            from ahrsd.calibration.backstepping import BacksteppingError, plot_backstepping
+            from ahrsd.calibration.backstepping_paper import BacksteppingError
+            from ahrsd.calibration.backstepping_plot import plot_backstepping
 
             try:
                 plot_backstepping(res, data, args.plot, swing_table=swing_table)
@@ -659,7 +660,7 @@ def run(args) -> int:
         print(f"ahrsd calibrate {args.sensor}: {exc}", file=sys.stderr)
         return 2 if isinstance(exc, _Usage) else 1
     except ImportError as exc:   # plot_backstepping's PlotUnavailableError, should the check above be bypassed
-        from ahrsd.calibration.backstepping import PlotUnavailableError
+        from ahrsd.calibration.backstepping_plot import PlotUnavailableError
 
         if not isinstance(exc, PlotUnavailableError):
             raise

@@ -12,9 +12,15 @@ from hypothesis import given, settings, strategies as st
 from scipy.spatial.transform import Rotation
 
 from ahrsd.calibration import backstepping as bs
+from ahrsd.core import angles
+from ahrsd.calibration import backstepping_plot as bsplot
+from ahrsd.calibration import levelling
+from ahrsd.calibration import backstepping_paper as paper
+from ahrsd.calibration import vertical_channel as vc
 from ahrsd.calibration import swing
 from ahrsd.calibration.magfit import MagFitInput, fit_mag
 from ahrsd.core.wmm import earth_field
+from ahrsd.core.angles import wrap_180_deg
 
 G = 9.80665
 NOISE_UT = 0.125                      # ADIS16405 magnetometer noise, 1.25 mgauss rms
@@ -60,8 +66,8 @@ def test_heading_rms_deg(model, field, tilt_deg=10.0, n=1500, seed=7):
     pitch = rng.uniform(-1, 1, n) * math.radians(tilt_deg)
     yaw = rng.uniform(-math.pi, math.pi, n)
     raw, _ = sense(roll, pitch, yaw, field, rng)
-    psi = bs.magnetic_heading_deg(model.apply(raw), roll, pitch)
-    err = swing.wrap180(psi - np.degrees(yaw - field.declination_rad))
+    psi = paper.magnetic_heading_deg(model.apply(raw), roll, pitch)
+    err = wrap_180_deg(psi - np.degrees(yaw - field.declination_rad))
     return float(np.sqrt(np.mean(err**2))), float(np.mean(err))
 
 
@@ -73,21 +79,21 @@ test_heading_rms_deg.__test__ = False   # a helper, not a test
 
 def test_corrective_step1_scales_reproduce_table3():
     # 0.19556·27999/27451 = 0.199464 (paper 0.19947); 0.09001·… = 0.091807 (paper 0.09181)
-    sx, sy = bs.scale_horizontal(0.19556, 0.09001, 27999.0, 27451.0)
+    sx, sy = paper.scale_horizontal(0.19556, 0.09001, 27999.0, 27451.0)
     assert sx == pytest.approx(0.19947, abs=1e-5)
     assert sy == pytest.approx(0.09181, abs=1e-5)
 
 
 def test_corrective_step2_rescales_hz_to_table4():
-    assert bs.rescale_vertical(38810.0, 0.16142, 0.20642) == pytest.approx(30350.0, abs=1.5)
+    assert paper.rescale_vertical(38810.0, 0.16142, 0.20642) == pytest.approx(30350.0, abs=1.5)
 
 
 def test_corrective_step3_bz_eq30_reproduces_table5():
-    bz = bs.solve_vertical_bias(5362.0, 0.20642, 48752.0, 27450.0)
+    bz = paper.solve_vertical_bias(5362.0, 0.20642, 48752.0, 27450.0)
     assert bz == pytest.approx(-2955.0, abs=1.0)
-    assert bs.solve_vertical_bias_signed(5362.0, 0.20642, 48752.0, 27450.0, -1.0) > 5362.0  # southern root
-    with pytest.raises(bs.BacksteppingError):
-        bs.solve_vertical_bias(5362.0, 0.2, 27000.0, 27450.0)
+    assert paper.solve_vertical_bias_signed(5362.0, 0.20642, 48752.0, 27450.0, -1.0) > 5362.0  # southern root
+    with pytest.raises(paper.BacksteppingError):
+        paper.solve_vertical_bias(5362.0, 0.2, 27000.0, 27450.0)
 
 
 @pytest.mark.parametrize("table,hz,sz,bz", [
@@ -114,10 +120,10 @@ def test_closed_form_vertical_recovers_table6_from_two_legs():
     hh_o, hh_r = 27100.0, 27800.0
     v = lambda hh: math.sqrt(total**2 - hh**2)
     z_o, z_r = bz + sz * v(hh_o), bz + sz * v(hh_r)
-    sz2, bz2 = bs.closed_form_vertical(z_o, z_r, hh_o, hh_r, total)
+    sz2, bz2 = paper.closed_form_vertical(z_o, z_r, hh_o, hh_r, total)
     assert sz2 == pytest.approx(sz, rel=1e-9) and bz2 == pytest.approx(bz, abs=1e-6)
-    with pytest.raises(bs.BacksteppingError):
-        bs.closed_form_vertical(z_o, z_o, hh_o, hh_o, total)
+    with pytest.raises(paper.BacksteppingError):
+        paper.closed_form_vertical(z_o, z_o, hh_o, hh_o, total)
 
 
 # ------------------------------------------------------------------------------------------ sphere fit
@@ -132,7 +138,7 @@ def _sphere_points(n=400, seed=0):
 def test_sphere_fit_exact_on_noise_free_data():
     b, s, h = np.array([-18.65, 13.85, -9.03]), np.array([0.19556, 0.09001, 0.16142]), 48.73
     raw = _sphere_points() * h * s + b
-    fit = bs.sphere_fit_paper(raw, h)
+    fit = paper.sphere_fit_paper(raw, h)
     assert fit.reason is None
     np.testing.assert_allclose(fit.model.bias, b, atol=1e-9)
     np.testing.assert_allclose(fit.model.scale, s, rtol=1e-9)
@@ -145,7 +151,7 @@ def test_sphere_fit_exact_on_noise_free_data():
        h=st.floats(20.0, 70.0))
 def test_sphere_fit_round_trip_property(b, s, h):
     raw = _sphere_points(200, 1) * h * np.array(s) + np.array(b)
-    fit = bs.sphere_fit_paper(raw, h)
+    fit = paper.sphere_fit_paper(raw, h)
     assert fit.reason is None
     np.testing.assert_allclose(fit.model.bias, b, atol=1e-6 * max(1.0, max(map(abs, b))))
     np.testing.assert_allclose(fit.model.scale, s, rtol=1e-6)
@@ -154,7 +160,7 @@ def test_sphere_fit_round_trip_property(b, s, h):
 def test_sphere_fit_reports_non_physical_coefficients_on_a_level_circle():
     th = np.linspace(0, 2 * math.pi, 200, endpoint=False)
     raw = np.column_stack((20 * np.cos(th) + 5, 25 * np.sin(th) - 3, np.full(th.size, 40.0)))
-    fit = bs.sphere_fit_paper(raw, 48.0)
+    fit = paper.sphere_fit_paper(raw, 48.0)
     assert fit.model is None and "rotation" in fit.reason
 
 
@@ -176,15 +182,15 @@ def _out_and_back(seed=0, noise=NOISE_UT):
     roll = np.radians(0.5 * np.sin(np.arange(2 * leg) / 27.0))
     raw, acc = sense(roll, pitch, yaw, field, rng, noise=noise, distortion=d, hard_iron=h, accel_bias=(0, 0, 0))
     legs = np.repeat([0, 1], leg)
-    start = bs.DiagonalModel(np.array([-18.6, 13.9, -4.0]), np.array([1.05, 0.92, 0.70]))   # test-1 z wrong
+    start = paper.DiagonalModel(np.array([-18.6, 13.9, -4.0]), np.array([1.05, 0.92, 0.70]))   # test-1 z wrong
     return raw, roll, pitch, legs, start, hh, hz
 
 
 def test_backstep_loop_removes_the_out_and_back_step():
     raw, roll, pitch, legs, start, hh, hz = _out_and_back()
-    res = bs.backstep_correct(raw, roll, pitch, legs, start, hh, hz)
+    res = paper.backstep_correct(raw, roll, pitch, legs, start, hh, hz)
     assert res.step_before_ut > 0.1                   # the sphere-fit coefficients leave a visible step
-    assert res.converged and res.step_after_ut <= bs.PAPER_STEP_TOL_UT
+    assert res.converged and res.step_after_ut <= paper.PAPER_STEP_TOL_UT
     assert res.passes[-1].sz_source == "closed-form"
     # with noise the legs pin s_z to a few percent (the leg z readings differ by only ~1 µT: trim × H_h)
     assert res.model.scale[2] == pytest.approx(0.88, rel=0.03)
@@ -196,7 +202,7 @@ def test_backstep_loop_removes_the_out_and_back_step():
 
 def test_backstep_loop_is_exact_on_noise_free_legs():
     raw, roll, pitch, legs, start, hh, hz = _out_and_back(noise=0.0)
-    res = bs.backstep_correct(raw, roll, pitch, legs, start, hh, hz, step_tol_ut=1e-6, field_tol_ut=1e-6)
+    res = paper.backstep_correct(raw, roll, pitch, legs, start, hh, hz, step_tol_ut=1e-6, field_tol_ut=1e-6)
     assert res.converged
     np.testing.assert_allclose(res.model.scale, [1.05, 0.92, 0.88], rtol=1e-6)
     np.testing.assert_allclose(res.model.bias, [-18.6, 13.9, -9.0], atol=1e-5)
@@ -205,7 +211,7 @@ def test_backstep_loop_is_exact_on_noise_free_legs():
 def test_backstep_loop_with_one_leg_only_corrects_bz():
     raw, roll, pitch, legs, start, hh, hz = _out_and_back()
     one = legs == 0
-    res = bs.backstep_correct(raw[one], roll[one], pitch[one], legs[one], start, hh, hz)
+    res = paper.backstep_correct(raw[one], roll[one], pitch[one], legs[one], start, hh, hz)
     assert "kept" in res.passes[0].sz_source
     assert res.model.scale[2] == start.scale[2]
     assert math.hypot(res.passes[-1].hh_ut, res.passes[-1].hz_ut) == pytest.approx(math.hypot(hh, hz), abs=0.05)
@@ -214,7 +220,7 @@ def test_backstep_loop_with_one_leg_only_corrects_bz():
 def test_segment_legs_finds_two_straight_runs():
     t = np.arange(0, 400, 0.5)
     heading = np.where(t < 150, 62.0, np.where(t < 180, 62 + (t - 150) * 6, 243.0)) % 360
-    lab = bs.segment_legs(t, heading)
+    lab = paper.segment_legs(t, heading)
     assert set(np.unique(lab[lab >= 0])) == {0, 1}
     assert np.all(lab[(t > 10) & (t < 140)] == 0) and np.all(lab[t > 200] == 1)
 
@@ -253,7 +259,7 @@ def test_general_fit_beats_ls_ellipsoid_on_2deg_data():
     res = fit_mag("backstepping", data, truth["field"], attitude="accel")
     assert res.ok, res.refused
     rms, _ = test_heading_rms_deg(res.model, truth["field"], 10.0)
-    init = bs._ellipsoid_init(data.mag_ut, truth["field"].total_ut)
+    init = vc._ellipsoid_init(data.mag_ut, truth["field"].total_ut)
     if init is not None:
         from ahrsd.calibration.models import MagModel
         rms_ell, _ = test_heading_rms_deg(MagModel(init[1], init[0]), truth["field"], 10.0)
@@ -358,7 +364,7 @@ def test_nonfinite_rows_are_dropped_and_counted(tilt10):
 def test_plot_writes_a_file(tmp_path, tilt10):
     data, truth, res = tilt10
     out = tmp_path / "bs.png"
-    bs.plot_backstepping(res, data, out)
+    bsplot.plot_backstepping(res, data, out)
     assert out.stat().st_size > 10_000
 
 
@@ -382,7 +388,7 @@ def _envelope_heading_rms(model, ref, errors, tilt_deg=10.0, n=1500, seed=11):
     yaw = rng.uniform(-math.pi, math.pi, n)
     b = Rotation.from_euler("ZYX", np.column_stack((yaw, pitch, roll))).inv().apply(ref.ned_ut)
     raw = b @ errors.soft_iron.T + errors.hard_iron_ut + rng.normal(0, NOISE_UT, b.shape)
-    err = swing.wrap180(bs.magnetic_heading_deg(model.apply(raw), roll, pitch) - np.degrees(yaw - ref.declination_rad))
+    err = wrap_180_deg(paper.magnetic_heading_deg(model.apply(raw), roll, pitch) - np.degrees(yaw - ref.declination_rad))
     return float(np.sqrt(np.mean(err**2)))
 
 
@@ -407,21 +413,21 @@ def test_simulated_tumble_needs_no_speed_model_and_beats_the_ellipsoid():
     assert np.linalg.norm(res.model.hard_iron_ut - errors.hard_iron_ut) < 0.5
     rms = _envelope_heading_rms(res.model, ref, errors)
     # full sphere: no worse than the attitude-independent ellipsoid (which cannot see the non-symmetric part)
-    init = bs._ellipsoid_init(data.mag_ut, ref.total_ut)
+    init = vc._ellipsoid_init(data.mag_ut, ref.total_ut)
     from ahrsd.calibration.models import MagModel
     assert rms < 1.5 and rms < _envelope_heading_rms(MagModel(init[1], init[0]), ref, errors)
 
 
 def test_estimator_attitude_source_runs_over_the_recording():
     data, ref, errors = _simulator_case("level-turns", 20.0)
-    roll, pitch = bs.roll_pitch_from_estimator(data, "mekf")
-    acc_roll, acc_pitch = bs.roll_pitch_from_accel(data.accel_m_s2)
+    roll, pitch = levelling.roll_pitch_from_estimator(data, "mekf")
+    acc_roll, acc_pitch = angles.roll_pitch_from_accel(data.accel_m_s2)
     late = data.t_s > 5.0
     # the estimator follows the accelerometer's tilt within a few degrees (waves ±7.5°, turn lean ~1.8°)
     assert np.degrees(np.abs(roll - acc_roll)[late]).mean() < 3.0
     assert np.degrees(np.abs(pitch - acc_pitch)[late]).mean() < 3.0
-    with pytest.raises(bs.BacksteppingError):
-        bs.roll_pitch_from_estimator(MagFitInput(data.t_s, data.mag_ut, data.accel_m_s2), "mekf")
+    with pytest.raises(paper.BacksteppingError):
+        levelling.roll_pitch_from_estimator(MagFitInput(data.t_s, data.mag_ut, data.accel_m_s2), "mekf")
 
 
 def test_heading_reference_delay_is_applied_and_gaps_are_not_bridged():
@@ -460,7 +466,7 @@ def test_vertical_channel_fit_is_exact_on_noise_free_tilted_turns(h, diag, off, 
     field = field_tehran()
     b = Rotation.from_euler("ZYX", np.column_stack((yaw, pitch, roll))).inv().apply(field.ned_ut)
     raw = b @ d.T + np.array(h)
-    fit = bs.fit_vertical_channel(raw, roll, pitch, field.total_ut, field.down_ut)
+    fit = vc.fit_vertical_channel(raw, roll, pitch, field.total_ut, field.down_ut)
     np.testing.assert_allclose(fit.soft_iron, np.linalg.inv(d), atol=1e-6)
     np.testing.assert_allclose(fit.hard_iron_ut, h, atol=1e-4)
 

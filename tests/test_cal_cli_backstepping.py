@@ -17,6 +17,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ahrsd.calibration import backstepping as bs
+from ahrsd.calibration import backstepping_plot as bsplot
+from ahrsd.calibration import backstepping_paper as paper
 from ahrsd.calibration import swing
 from ahrsd.calibration.magfit import MagFitInput
 from ahrsd.calibration.models import MagModel
@@ -25,6 +27,7 @@ from ahrsd.drivers.recording import TRUTH_COLUMNS, RecordingWriter
 from ahrsd.core.sample import make_sample
 from ahrsd.core.wmm import earth_field
 from ahrsd.simulation import DEFAULT_SITE, SensorErrors, simulate
+from ahrsd.core.angles import wrap_180_deg
 
 SITE = DEFAULT_SITE
 SITE_ARGS = ["--lat", str(SITE.lat_deg), "--lon", str(SITE.lon_deg), "--alt-m", str(SITE.alt_m),
@@ -92,9 +95,9 @@ def hull_heading_error_deg(boat, soft_iron, hard_iron_ut):
     degrees: (constant offset, RMS). The offset is the heading-independent part (A of a deviation fit of the
     errors), so it does not depend on how long the boat spent on each heading (its turn rate varies 5…13 °/s)."""
     model = MagModel(np.asarray(hard_iron_ut), np.asarray(soft_iron))
-    psi = bs.magnetic_heading_deg(model.apply(boat["blk"].mag_ut), boat["roll"], boat["pitch"])
+    psi = paper.magnetic_heading_deg(model.apply(boat["blk"].mag_ut), boat["roll"], boat["pitch"])
     hull_mag = (boat["hull_deg"] - math.degrees(boat["field"].declination_rad)) % 360.0
-    err = swing.wrap180(psi - hull_mag)
+    err = wrap_180_deg(psi - hull_mag)
     return -swing.fit_deviation(psi, hull_mag).a_deg, float(np.sqrt(np.mean(err**2)))
 
 
@@ -137,14 +140,14 @@ def _swing_table(boat, soft_iron, hard_iron_ut, path: Path) -> Path:
     times (every sample within ±2° of it, over the three turns) against a reference with 0.2° error; the
     compass column is the heading the calibration without a reference gives there."""
     model = MagModel(np.asarray(hard_iron_ut), np.asarray(soft_iron))
-    psi = bs.magnetic_heading_deg(model.apply(boat["blk"].mag_ut), boat["roll"], boat["pitch"])
+    psi = paper.magnetic_heading_deg(model.apply(boat["blk"].mag_ut), boat["roll"], boat["pitch"])
     hull_mag = (boat["hull_deg"] - math.degrees(boat["field"].declination_rad)) % 360.0
     rng = np.random.default_rng(8)
     rows = ["# compass swing, magnetic headings", "reference_deg,compass_deg"]
     for target in np.arange(0.0, 360.0, 45.0):
-        near = np.abs(swing.wrap180(hull_mag - target)) < 2.0
-        ref = target + float(np.mean(swing.wrap180(hull_mag[near] - target)))
-        compass = target + float(np.mean(swing.wrap180(psi[near] - target)))
+        near = np.abs(wrap_180_deg(hull_mag - target)) < 2.0
+        ref = target + float(np.mean(wrap_180_deg(hull_mag[near] - target)))
+        compass = target + float(np.mean(wrap_180_deg(psi[near] - target)))
         rows.append(f"{ref + rng.normal(0, 0.2):.2f},{compass % 360.0:.2f}")
     path.write_text("\n".join(rows) + "\n")
     return path
@@ -213,9 +216,9 @@ def test_plot_without_matplotlib_is_a_clear_usage_error(boat, tmp_path, ahrsd_in
     # the library function raises a typed error (an ImportError) with the same hint
     data = MagFitInput(boat["blk"].t_s, boat["blk"].mag_ut, boat["blk"].accel_m_s2)
     res = bs.fit_backstepping(data, boat["field"], speed_m_s=None)
-    with pytest.raises(bs.PlotUnavailableError, match=r"ahrsd\[plot\]"):
-        bs.plot_backstepping(res, data, png)
-    assert issubclass(bs.PlotUnavailableError, ImportError)
+    with pytest.raises(bsplot.PlotUnavailableError, match=r"ahrsd\[plot\]"):
+        bsplot.plot_backstepping(res, data, png)
+    assert issubclass(bsplot.PlotUnavailableError, ImportError)
 
 
 def test_bad_reference_inputs_are_clear(boat, tmp_path, ahrsd_inproc):

@@ -10,7 +10,6 @@ computed from n in each test.
 from __future__ import annotations
 
 import math
-import sys
 
 import numpy as np
 import pytest
@@ -240,13 +239,6 @@ def test_dispatch_knows_every_method_and_rejects_others():
         fit_mag("sphere", as_input(block), REF)
     with pytest.raises(TypeError):
         fit_mag("ellipsoid", block.mag_ut, REF)
-
-
-def test_backstepping_missing_module_is_a_clear_error(monkeypatch):
-    monkeypatch.setitem(sys.modules, "ahrsd.calibration.backstepping", None)
-    block = tumble(errors_with([1, 2, 3], np.eye(3)), seconds=30)
-    with pytest.raises(NotImplementedError, match="backstepping"):
-        fit_mag("backstepping", as_input(block), REF)
 
 
 def test_result_json_keys_are_the_public_interface():

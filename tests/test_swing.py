@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from ahrsd.calibration import swing
+from ahrsd.core.angles import wrap_180_deg
 
 EIGHT = ("N", "NE", "E", "SE", "S", "SW", "W", "NW")
 
@@ -27,7 +28,7 @@ def test_fit_recovers_injected_coefficients_exactly(coef):
     dev = swing.fit_deviation(psi, ref)
     np.testing.assert_allclose(dev.as_array(), coef, atol=1e-9)
     assert dev.rms_after_deg < 1e-9
-    np.testing.assert_allclose(swing.wrap180(dev.apply(psi) - ref), 0, atol=1e-9)
+    np.testing.assert_allclose(wrap_180_deg(dev.apply(psi) - ref), 0, atol=1e-9)
 
 
 def test_fit_with_noise_is_within_its_standard_error():
@@ -109,9 +110,9 @@ def test_gnss_course_reference_delay_speed_and_straightness():
     course = np.interp(t - delay, t, slow)
     ref = swing.gnss_course_reference(t, course, np.full(t.size, 2.5), delay_s=delay)
     ok = np.isfinite(ref)
-    np.testing.assert_allclose(swing.wrap180(ref[ok] - slow[ok] % 360), 0, atol=1e-9)
+    np.testing.assert_allclose(wrap_180_deg(ref[ok] - slow[ok] % 360), 0, atol=1e-9)
     no_delay = swing.gnss_course_reference(t, course, np.full(t.size, 2.5), delay_s=0.0)
-    assert np.nanmedian(swing.wrap180(slow % 360 - no_delay)) == pytest.approx(1.0, abs=1e-6)
+    assert np.nanmedian(wrap_180_deg(slow % 360 - no_delay)) == pytest.approx(1.0, abs=1e-6)
 
 
 def test_load_swing_table(tmp_path):
