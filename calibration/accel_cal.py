@@ -24,24 +24,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .models import AccelModel
+from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
+from ahrsd.core.gravity import normal_gravity_m_s2
 
-G_EQUATOR_M_S2 = 9.780327     # seed 004 eq. 18 (normal gravity)
-G_SIN2_COEFF = 0.0053024      # seed 004 eq. 18
-G_SIN2_2L_COEFF = 0.0000058   # seed 004 eq. 18
-EARTH_RADIUS_M = 6_378_137.0  # seed 004 §11
-STANDARD_GRAVITY_M_S2 = 9.80665
+from .models import AccelModel
 
 
 def local_gravity_m_s2(lat_deg: float | None, alt_m: float = 0.0) -> float:
-    """Normal gravity at latitude/height (seed 004 eq. 18 with the (R0/(R0+h))² height factor); standard
-    gravity when the latitude is unknown (an error of up to 0.3 % in the scale factors)."""
+    """Normal gravity at latitude/height (core.gravity); standard gravity when the latitude is unknown (an
+    error of up to 0.3 % in the scale factors)."""
     if lat_deg is None:
         return STANDARD_GRAVITY_M_S2
-    s = math.sin(math.radians(lat_deg))
-    s2 = math.sin(2 * math.radians(lat_deg))
-    g0 = G_EQUATOR_M_S2 * (1 + G_SIN2_COEFF * s * s - G_SIN2_2L_COEFF * s2 * s2)
-    return g0 * (EARTH_RADIUS_M / (EARTH_RADIUS_M + alt_m)) ** 2
+    return normal_gravity_m_s2(lat_deg, alt_m)
 
 
 # ---------------------------------------------------------------------------------------------- the fit

@@ -2,11 +2,11 @@
 
 A magnetometer fit reports a residual ("fitness"); a small residual says the model fits the samples, not that
 the samples determine the model. On a vehicle that stays within ±10° of level, an ellipsoid fit leaves the
-z hard iron and the z scale almost free: it fits beautifully and is wrong (anchors/magcal.md §4). This module
+z hard iron and the z scale almost free: it fits beautifully and is wrong (bench/magcal.py and docs/magcal-vehicle.md show it). This module
 reports, next to the residual:
 
-- sphere coverage: the fraction of 80 equal-area cells of the direction sphere hit by the centred samples
-  (80 cells like ArduPilot's `completion_mask`, here from a subdivided icosahedron);
+- sphere coverage: the fraction of the 80 cells of the direction sphere hit by the centred samples (the
+  cells of ArduPilot's geodesic grid, the same as the field session's completion mask: geodesic_grid.py);
 - heading coverage: the fraction of 10° heading bins hit (for vehicles that turn but stay near level);
 - tilt range from the accelerometer (roll/pitch extremes, largest tilt);
 - condition number and 1σ of the parameters from a fit's Jacobian, and the parameters the data cannot
@@ -20,45 +20,29 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from functools import lru_cache
 
 import numpy as np
 
-SPHERE_CELLS = 80           # like ArduPilot's 80-section geodesic completion mask (anchors/magcal.md §1.1)
-HEADING_BINS = 36           # 10° heading bins
-G_M_S2 = 9.80665
+from ahrsd.core.angles import down_in_body, roll_pitch_from_accel
 
-# Support thresholds. Derived from the simulated coverage figures in anchors/magcal.md §4/§7
-# (full tumble ≈ 95 % of 80 cells, ±30° tilt ≈ 39 %, ±10° ≈ 22 %) and the failure of the attitude-independent
-# fits below ±30° tilt measured there.
+from .geodesic_grid import N_SECTIONS, geodesic_sections
+
+HEADING_BINS = 36           # 10° heading bins
+
+# Support thresholds, chosen from simulated runs (bench/magcal.py): the sphere coverage a full tumble, ±30° and
+# ±10° of tilt reach, and the tilt below which the attitude-independent fits fail.
 MIN_SAMPLES = 50
 MIN_SPREAD_UT = 5.0                 # without a reference: a still sensor spreads ~1 µT (noise), a quarter turn ≥ 20 µT
 MIN_HEADING_COVERAGE = 0.75         # 27 of 36 bins: "turned through (nearly) a full circle"
 MIN_SPHERE_COVERAGE_ELLIPSOID = 0.35
-MIN_TILT_ELLIPSOID_DEG = 30.0       # below this the LS ellipsoid's z terms are a guess (anchor §4.1)
-MIN_TILT_FREE_DIP_DEG = 5.0         # anchor §0.3: free dip breaks between ±5° and ±2°
+MIN_TILT_ELLIPSOID_DEG = 30.0       # below this the LS ellipsoid's z terms are a guess
+MIN_TILT_FREE_DIP_DEG = 5.0         # free dip breaks down between ±5° and ±2° of tilt (simulated)
 MIN_TILT_VERTICAL_COLUMN_DEG = 1.0  # below this the vertical soft-iron column is held at its prior
 
 MODELS = ("sphere", "diagonal", "ellipsoid", "vertical", "vertical-free-dip")
 
 
 # ------------------------------------------------------------------------------------------ attitude helpers
-
-
-def roll_pitch_from_accel(accel_m_s2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Roll and pitch (rad) of the FRD body from specific force (+g on the up axis at rest, design §4):
-    roll = atan2(−f_y, −f_z), pitch = atan2(f_x, √(f_y² + f_z²)). Only valid when the vehicle is not
-    accelerating; low-pass first (`lowpass`) or use the estimator's roll/pitch on a moving vehicle."""
-    f = np.asarray(accel_m_s2, dtype=np.float64)
-    roll = np.arctan2(-f[:, 1], -f[:, 2])
-    pitch = np.arctan2(f[:, 0], np.hypot(f[:, 1], f[:, 2]))
-    return roll, pitch
-
-
-def down_in_body(roll_rad: np.ndarray, pitch_rad: np.ndarray) -> np.ndarray:
-    """Unit vector of NED down expressed in the body frame: the third row of C_b^n, (n, 3)."""
-    r, p = np.asarray(roll_rad, dtype=np.float64), np.asarray(pitch_rad, dtype=np.float64)
-    return np.stack((-np.sin(p), np.sin(r) * np.cos(p), np.cos(r) * np.cos(p)), axis=-1)
 
 
 def lowpass(x: np.ndarray, t_s: np.ndarray, tau_s: float) -> np.ndarray:
@@ -110,30 +94,6 @@ def tilt_statistics(roll_rad: np.ndarray, pitch_rad: np.ndarray) -> dict:
 # ------------------------------------------------------------------------------------------------ coverage
 
 
-@lru_cache(maxsize=1)
-def sphere_cell_centres() -> np.ndarray:
-    """80 unit vectors: the centroids of an icosahedron whose 20 faces are each split into 4. Assigning a
-    direction to its nearest centroid partitions the sphere into 80 nearly equal cells."""
-    phi = (1.0 + math.sqrt(5.0)) / 2.0
-    v = np.array([[-1, phi, 0], [1, phi, 0], [-1, -phi, 0], [1, -phi, 0],
-                  [0, -1, phi], [0, 1, phi], [0, -1, -phi], [0, 1, -phi],
-                  [phi, 0, -1], [phi, 0, 1], [-phi, 0, -1], [-phi, 0, 1]], dtype=np.float64)
-    v /= np.linalg.norm(v, axis=1, keepdims=True)
-    faces = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2),
-             (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5),
-             (2, 4, 11), (6, 2, 10), (8, 6, 7), (9, 8, 1)]
-    centres = []
-    for a, b, c in faces:
-        A, B, C = v[a], v[b], v[c]
-        ab, bc, ca = (A + B) / 2, (B + C) / 2, (C + A) / 2
-        for tri in ((A, ab, ca), (ab, B, bc), (ca, bc, C), (ab, bc, ca)):
-            m = np.mean(tri, axis=0)
-            centres.append(m / np.linalg.norm(m))
-    out = np.array(centres)
-    out.setflags(write=False)
-    return out
-
-
 def sphere_cells_hit(mag_ut: np.ndarray, centre_ut: np.ndarray | None = None) -> np.ndarray:
     """Boolean (80,) mask of the cells hit by the directions of (mag − centre). centre defaults to the
     algebraic sphere-fit centre (mean if that fails)."""
@@ -143,18 +103,11 @@ def sphere_cells_hit(mag_ut: np.ndarray, centre_ut: np.ndarray | None = None) ->
     u = m - np.asarray(centre_ut, dtype=np.float64)
     norms = np.linalg.norm(u, axis=1)
     u = u[norms > 0] / norms[norms > 0, None]
-    cells = sphere_cell_centres()
-    hit = np.zeros(SPHERE_CELLS, dtype=bool)
+    hit = np.zeros(N_SECTIONS, dtype=bool)
     for start in range(0, u.shape[0], 20000):
-        hit[np.unique(np.argmax(u[start:start + 20000] @ cells.T, axis=1))] = True
+        sections = geodesic_sections(u[start:start + 20000])
+        hit[sections[sections >= 0]] = True
     return hit
-
-
-def completion_mask_bytes(hit: np.ndarray) -> bytes:
-    """The 80-cell mask as 10 bytes, cell i in bit (i % 8) of byte i // 8 — the shape of MAVLink
-    MAG_CAL_PROGRESS.completion_mask (our cell numbering, not ArduPilot's geodesic-grid numbering)."""
-    bits = np.asarray(hit, dtype=bool).reshape(SPHERE_CELLS)
-    return bytes(int(sum(1 << j for j in range(8) if bits[8 * i + j])) for i in range(SPHERE_CELLS // 8))
 
 
 def algebraic_sphere_centre(mag_ut: np.ndarray) -> np.ndarray:
@@ -218,7 +171,7 @@ def heading_coverage(mag_ut: np.ndarray, roll_rad=None, pitch_rad=None, centre_u
 
 
 def level_vectors(v_body: np.ndarray, roll_rad, pitch_rad) -> np.ndarray:
-    """Rotate body vectors into the local level frame with roll and pitch only (seed 002 eq. 23:
+    """Rotate body vectors into the local level frame with roll and pitch only (Nourmohammadi & Sabet 2022, eq. 23:
     C2ᵀ(θ)·C3ᵀ(ϕ)·v). Heading is left out: the horizontal magnitude does not depend on it."""
     v = np.asarray(v_body, dtype=np.float64)
     r, p = np.asarray(roll_rad, dtype=np.float64), np.asarray(pitch_rad, dtype=np.float64)
@@ -296,7 +249,7 @@ def assess_support(mag_ut: np.ndarray, accel_m_s2: np.ndarray | None = None, mod
 
     - "sphere": hard iron + radius. Needs a full heading circle; the vertical hard iron also needs tilt
       unless the field magnitude is known (`reference_known`).
-    - "diagonal": the paper's axis-aligned sphere fit (seed 002 eq. 11–17): needs tilt in both axes.
+    - "diagonal": the paper's axis-aligned sphere fit (backstepping_paper.py, eqs. 11–17): needs tilt in both axes.
     - "ellipsoid": attitude-independent full ellipsoid: needs ≥ 35 % sphere coverage and ≥ 30° tilt.
     - "vertical": back-stepping / vertical-channel fit with WMM (needs roll/pitch and a full heading circle;
       with < 1° tilt the vertical soft-iron column is reported as undetermined and held at its prior).
@@ -350,7 +303,7 @@ def assess_support(mag_ut: np.ndarray, accel_m_s2: np.ndarray | None = None, mod
                    "tumble the sensor, or use --method backstepping with the position for the WMM field")
     elif model == "diagonal" and tilt_max is not None and tilt_max < MIN_TILT_ELLIPSOID_DEG:
         warnings.append(f"largest tilt {tilt_max:.1f}°: the sphere fit's z terms are weakly determined "
-                        "(seed 002 §7.2: data without rotation about all axes give unrealistic coefficients)")
+                        "(the back-stepping paper's §7.2: data without rotation about all axes give unrealistic coefficients)")
     elif model == "sphere" and not reference_known and (tilt_max is not None and tilt_max < 10.0) \
             and cov < MIN_SPHERE_COVERAGE_ELLIPSOID:
         refused = ("the data are a level circle: the vertical hard iron and the radius trade off; give the "

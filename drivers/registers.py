@@ -15,6 +15,8 @@ import math
 
 import numpy as np
 
+from ahrsd.core.angles import STANDARD_GRAVITY_M_S2  # the g in "mg" (the datasheet's scale)
+
 # --------------------------------------------------------------------------------------------------------
 # Register addresses (16-bit registers at even byte addresses)          # anchors §4.1 / kernel adis16400.c
 # --------------------------------------------------------------------------------------------------------
@@ -174,7 +176,6 @@ TEMP_C_AT_ZERO = 25.0            # 0 LSB = 25 °C
 SUPPLY_V_PER_LSB = 2.418e-3      # 2.418 mV/LSB, 14-bit unsigned
 AUX_V_PER_LSB = 805.8e-6         # 805.8 µV/LSB, 12-bit unsigned
 
-STANDARD_GRAVITY_M_S2 = 9.80665  # the g in "mg" (datasheet scale is in units of standard gravity)
 UT_PER_GAUSS = 100.0             # 1 gauss = 100 µT (design §4)
 
 GYRO_RAD_S_PER_LSB = math.radians(GYRO_DPS_PER_LSB_300)

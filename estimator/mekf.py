@@ -27,6 +27,7 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
+from ahrsd.core.angles import roll_pitch_from_accel
 from ahrsd.core.sample import ImuSample
 
 from . import mekf_core as core
@@ -220,8 +221,7 @@ def initial_attitude(accel_m_s2: np.ndarray, mag_ut: np.ndarray | None) -> np.nd
             )
             return np.asarray(sol.q_wxyz, dtype=float)
     # tilt only (ZYX Euler from the gravity direction; specific force f = C_n^b [0, 0, −g])
-    roll = math.atan2(-up_b[1], -up_b[2])
-    pitch = math.atan2(up_b[0], math.hypot(up_b[1], up_b[2]))
+    roll, pitch = roll_pitch_from_accel(up_b)
     return np.asarray(euler_to_quat(roll, pitch, 0.0), dtype=float)
 
 

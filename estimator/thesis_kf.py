@@ -54,6 +54,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 from scipy.linalg.lapack import dposv as _dposv
 
+from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
 from ahrsd.core.sample import ImuSample, SampleFlags
 
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags
@@ -61,7 +62,6 @@ from .rotations import dcm_rows_to_quat, reorthonormalize_rows
 from .wahba import thesis_dcm_from_floats, thesis_matrix
 
 DEG = math.pi / 180.0
-G0_M_S2 = 9.80665            # standard gravity: converts the thesis's mg figures
 MGAUSS_TO_UT = 0.1           # 1 mgauss = 0.1 µT
 TWO_PI = 2.0 * math.pi
 
@@ -89,7 +89,8 @@ class ThesisKfParams:
     """Factor on the noise densities above before squaring: Q = diag((3·ARW)², (3·w_b)²). thesis eq 5-8, 6-1."""
     mag_noise_ut: tuple[float, float, float] = (0.74 * MGAUSS_TO_UT, 0.66 * MGAUSS_TO_UT, 0.52 * MGAUSS_TO_UT)
     """Magnetometer measurement noise 1σ per axis, µT. thesis eq 6-2 (0.74, 0.66, 0.52, read as mG)."""
-    accel_noise_m_s2: tuple[float, float, float] = (3.65e-3 * G0_M_S2, 3.44e-3 * G0_M_S2, 3.72e-3 * G0_M_S2)
+    accel_noise_m_s2: tuple[float, float, float] = (3.65e-3 * STANDARD_GRAVITY_M_S2, 3.44e-3 * STANDARD_GRAVITY_M_S2,
+                                                     3.72e-3 * STANDARD_GRAVITY_M_S2)
     """Accelerometer measurement noise 1σ per axis, m/s². thesis eq 6-2 (3.65, 3.44, 3.72, read as mg)."""
     bias_time_constant_s: float = 1000.0
     """Gauss–Markov time constant τ_w of the gyro bias, s. Not in the thesis (chosen, see module doc)."""
@@ -293,7 +294,7 @@ class ThesisKf:
         g = -np.asarray(accel, dtype=float)
         m = np.asarray(mag, dtype=float)
         gn, mn = np.linalg.norm(g), np.linalg.norm(m)
-        if not (gn > 0.1 * G0_M_S2 and mn > 0.0) or np.linalg.norm(np.cross(g, m)) < 1e-3 * gn * mn:
+        if not (gn > 0.1 * STANDARD_GRAVITY_M_S2 and mn > 0.0) or np.linalg.norm(np.cross(g, m)) < 1e-3 * gn * mn:
             return False  # no usable gravity, or field parallel to gravity: attitude undefined
         p = self.params
         self._x[0:3] = m

@@ -22,10 +22,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
+from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
 from ahrsd.simulation.magnetic import VehicleIron
 
 DEG = np.pi / 180.0
-G0_M_S2 = 9.80665  # standard gravity, for converting mg figures
 
 # --- ADIS16405 figures (anchors/mavlink-adis.md §4.3: NaveGo's ADIS16405 profile = datasheet values) ----------
 ADIS_ARW_DEG_RT_H = 2.0              # gyro angle random walk, °/√h (NaveGo ADIS16405.arw)
@@ -175,7 +175,7 @@ class SensorErrors:
         gyro_bias = rng.normal(0.0, GYRO_TURN_ON_SIGMA_DEG_S * DEG, 3)
         gyro_scale = rng.normal(0.0, SCALE_SIGMA, 3)
         gyro_mis = off_diag(MISALIGN_SIGMA_RAD)
-        accel_bias = rng.normal(0.0, ACCEL_TURN_ON_SIGMA_MG * 1e-3 * G0_M_S2, 3)
+        accel_bias = rng.normal(0.0, ACCEL_TURN_ON_SIGMA_MG * 1e-3 * STANDARD_GRAVITY_M_S2, 3)
         accel_scale = rng.normal(0.0, SCALE_SIGMA, 3)
         accel_mis = off_diag(MISALIGN_SIGMA_RAD)
         hard = rng.normal(0.0, MAG_HARD_SIGMA_UT, 3)
@@ -195,7 +195,7 @@ class SensorErrors:
             accel_misalignment_rad=accel_mis,
             # VRW 0.2 m/s/√h = 3.3e-3 m/s²/√Hz; at 819.2 SPS σ = 0.095 m/s² = 9.7 mg (datasheet: 9 mg rms).
             accel_noise_density_m_s2_rthz=ADIS_VRW_M_S_RT_H / 60.0,
-            accel_bias_instability_m_s2=ADIS_ACCEL_BIAS_STAB_MG * 1e-3 * G0_M_S2,
+            accel_bias_instability_m_s2=ADIS_ACCEL_BIAS_STAB_MG * 1e-3 * STANDARD_GRAVITY_M_S2,
             accel_bias_corr_time_s=BIAS_CORR_TIME_S,
             accel_bias_temp_m_s2_per_c=np.zeros(3),
             hard_iron_ut=hard,

@@ -1,33 +1,12 @@
-"""Normal gravity at a place: the NED-frame local gravity model of seed 004 (eq. 18).
-
-g(L, 0) = 9.780327 (1 + 0.0053024 sin²L − 0.0000058 sin²2L)  m/s²     # seed 004 §7.5, eq. 18
-g(L, h) = g(L, 0) · (R0 / (R0 + h))²,  R0 = 6 378 137 m               # seed 004 §7.5 [R], §11
-
-"Local gravity" here is mass attraction plus the centripetal term of the Earth's rotation (seed 004 §7.5), i.e.
-what a level accelerometer at rest reads (with the sign flipped: specific force points up).
-"""
+"""Gravity and Earth rotation in the local NED frame at a place (the magnitude model is core/gravity.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-EARTH_RADIUS_M = 6_378_137.0        # seed 004 §11 (spherical Earth radius, WGS-84 equatorial)
-EARTH_RATE_RAD_S = 7.292e-5         # seed 004 §7.2, eq. 15
-G_EQUATOR_M_S2 = 9.780327           # seed 004 eq. 18
-G_SIN2_COEFF = 0.0053024            # seed 004 eq. 18
-G_SIN2_2L_COEFF = 0.0000058         # seed 004 eq. 18
+from ahrsd.core.gravity import normal_gravity_m_s2
 
-
-def normal_gravity_m_s2(lat_deg, alt_m=0.0):
-    """Magnitude of local gravity (m/s²) at geodetic latitude `lat_deg` and height `alt_m` (m) above the ellipsoid.
-
-    Vectorised over numpy arrays; returns a float for scalar input.
-    """
-    lat = np.radians(np.asarray(lat_deg, dtype=float))
-    h = np.asarray(alt_m, dtype=float)
-    g0 = G_EQUATOR_M_S2 * (1.0 + G_SIN2_COEFF * np.sin(lat) ** 2 - G_SIN2_2L_COEFF * np.sin(2.0 * lat) ** 2)
-    g = g0 * (EARTH_RADIUS_M / (EARTH_RADIUS_M + h)) ** 2
-    return float(g) if np.ndim(g) == 0 else g
+EARTH_RATE_RAD_S = 7.292e-5         # Earth rotation rate (WGS-84 7.292115e-5 rad/s, rounded)
 
 
 def gravity_ned_m_s2(lat_deg, alt_m=0.0) -> np.ndarray:
@@ -36,6 +15,6 @@ def gravity_ned_m_s2(lat_deg, alt_m=0.0) -> np.ndarray:
 
 
 def earth_rate_ned_rad_s(lat_deg) -> np.ndarray:
-    """Earth rotation rate expressed in NED at latitude `lat_deg`: ω_ie [cos L, 0, −sin L] (seed 004 eq. 15)."""
+    """Earth rotation rate expressed in NED at latitude `lat_deg`: ω_ie [cos L, 0, −sin L]."""
     lat = np.radians(float(lat_deg))
     return EARTH_RATE_RAD_S * np.array([np.cos(lat), 0.0, -np.sin(lat)])

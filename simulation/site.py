@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ahrsd.core.wmm import EarthField, earth_field
-from ahrsd.simulation.gravity import normal_gravity_m_s2
+from ahrsd.core.gravity import normal_gravity_m_s2
 
 
 @dataclass(frozen=True, slots=True)

@@ -12,7 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ahrsd.simulation.errors import ErrorProcess, SensorErrors
-from ahrsd.simulation.gravity import EARTH_RADIUS_M, earth_rate_ned_rad_s
+from ahrsd.core.gravity import EARTH_RADIUS_M
+from ahrsd.simulation.gravity import earth_rate_ned_rad_s
 from ahrsd.simulation.magnetic import VehicleIron
 from ahrsd.simulation.scenarios import CoordinatedTurn, Scenario, make_scenario
 from ahrsd.simulation.site import DEFAULT_SITE, Site

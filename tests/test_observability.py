@@ -10,6 +10,7 @@ from hypothesis import given, settings, strategies as st
 from scipy.spatial.transform import Rotation
 
 from ahrsd.calibration import observability as ob
+from ahrsd.core import angles
 from ahrsd.estimator.rotations import euler_to_dcm
 
 G = 9.80665
@@ -31,15 +32,6 @@ def _data(tilt_deg, n=1500, turns=2.0, seed=0, sphere=False):
     return mag, acc, roll, pitch
 
 
-def test_cells_partition_the_sphere_evenly():
-    c = ob.sphere_cell_centres()
-    assert c.shape == (80, 3)
-    np.testing.assert_allclose(np.linalg.norm(c, axis=1), 1.0)
-    u = np.random.default_rng(1).normal(size=(200_000, 3))
-    counts = np.bincount(np.argmax(u @ c.T, axis=1), minlength=80)
-    assert counts.min() > 0.75 * counts.mean() and counts.max() < 1.25 * counts.mean()
-
-
 def test_coverage_full_sphere_vs_level_turns():
     mag, *_ = _data(0, sphere=True, n=3000)
     assert ob.sphere_cells_hit(mag, [20.0, -10.0, 30.0]).mean() > 0.9
@@ -47,26 +39,19 @@ def test_coverage_full_sphere_vs_level_turns():
     assert ob.sphere_cells_hit(mag, [20.0, -10.0, 30.0]).mean() < 0.4
 
 
-def test_completion_mask_bytes():
-    hit = np.zeros(80, bool)
-    hit[[0, 9, 79]] = True
-    b = ob.completion_mask_bytes(hit)
-    assert len(b) == 10 and b[0] == 1 and b[1] == 2 and b[9] == 0x80
-
-
 @settings(max_examples=50, deadline=None, derandomize=True)
 @given(st.floats(-1.5, 1.5), st.floats(-1.4, 1.4), st.floats(-3.1, 3.1))
 def test_roll_pitch_from_accel_and_levelling_match_the_dcm(roll, pitch, yaw):
     cbn = euler_to_dcm(roll, pitch, yaw)
     f_body = cbn.T @ np.array([0.0, 0.0, -G])
-    r, p = ob.roll_pitch_from_accel(f_body[None, :])
+    r, p = angles.roll_pitch_from_accel(f_body[None, :])
     assert r[0] == pytest.approx(roll, abs=1e-9) and p[0] == pytest.approx(pitch, abs=1e-9)
     v_body = cbn.T @ FIELD_NED
     lv = ob.level_vectors(v_body[None, :], np.array([roll]), np.array([pitch]))[0]
     # levelled = yaw-only rotation of NED: same vertical, same horizontal magnitude
     assert lv[2] == pytest.approx(FIELD_NED[2], abs=1e-9)
     assert math.hypot(lv[0], lv[1]) == pytest.approx(math.hypot(*FIELD_NED[:2]), abs=1e-9)
-    np.testing.assert_allclose(ob.down_in_body(np.array([roll]), np.array([pitch]))[0], cbn[2], atol=1e-12)
+    np.testing.assert_allclose(angles.down_in_body(np.array([roll]), np.array([pitch]))[0], cbn[2], atol=1e-12)
 
 
 def test_lowpass_is_zero_phase_and_passes_constants():

@@ -9,7 +9,7 @@ import pytest
 
 from ahrsd.core.wmm import earth_field
 from ahrsd.simulation import DEFAULT_SITE, SCENARIOS, Site, simulate
-from ahrsd.simulation.gravity import normal_gravity_m_s2
+from ahrsd.core.gravity import normal_gravity_m_s2
 
 # seed 004 §7.5: g(0, L) and g(1000 m, L), computed there with R0 = 6 378 137 m
 SEED004_GRAVITY = [

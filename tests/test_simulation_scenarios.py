@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ahrsd.simulation import DEFAULT_SITE, SCENARIOS, make_scenario, open_stream, simulate
-from ahrsd.simulation.gravity import normal_gravity_m_s2
+from ahrsd.core.gravity import normal_gravity_m_s2
 
 DEG = np.pi / 180.0
 G_SITE = normal_gravity_m_s2(DEFAULT_SITE.lat_deg, DEFAULT_SITE.alt_m)

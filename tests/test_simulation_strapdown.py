@@ -8,7 +8,7 @@ from scipy.integrate import cumulative_trapezoid
 from scipy.spatial.transform import Rotation
 
 from ahrsd.simulation import DEFAULT_SITE, open_stream
-from ahrsd.simulation.gravity import EARTH_RADIUS_M
+from ahrsd.core.gravity import EARTH_RADIUS_M
 from ahrsd.simulation.strapdown import mechanise_ned
 
 G_SITE = DEFAULT_SITE.gravity_m_s2
