@@ -484,3 +484,26 @@ def test_magnetic_disturbances_are_counted_and_down_weighted():
     assert test_heading_rms_deg(res.model, truth["field"])[0] < 0.8
     plain = bs.fit_backstepping(disturbed, truth["field"], robust=False)
     assert test_heading_rms_deg(plain.model, truth["field"])[0] > 1.5      # what the robust refit avoids
+
+
+def test_options_dataclass_and_keywords_are_one_interface(tilt10):
+    data, truth, by_keyword = tilt10
+    by_options = bs.fit_backstepping(data, truth["field"], bs.BacksteppingOptions(attitude="accel"))
+    np.testing.assert_array_equal(by_options.model.soft_iron, by_keyword.model.soft_iron)
+    np.testing.assert_array_equal(by_options.model.hard_iron_ut, by_keyword.model.hard_iron_ut)
+    strict = bs.BacksteppingOptions(attitude="accel", max_heading_std_deg=1e-6)
+    assert "heading uncertain" in bs.fit_backstepping(data, truth["field"], strict).refused
+    assert bs.fit_backstepping(data, truth["field"], strict, max_heading_std_deg=3.0).ok   # keywords override
+    with pytest.raises(TypeError):
+        bs.fit_backstepping(data, truth["field"], atitude="accel")   # a misspelt option is an error
+    with pytest.raises(ValueError, match="unknown backstepping model"):
+        bs.BacksteppingOptions(model="sphere")
+    with pytest.raises(ValueError, match="unknown attitude source"):
+        bs.fit_backstepping(data, truth["field"], attitude="gyro")
+
+
+def test_estimator_without_gyro_is_a_refusal_with_its_reason(tilt10):
+    data, truth, _ = tilt10
+    res = bs.fit_backstepping(MagFitInput(data.t_s, data.mag_ut, data.accel_m_s2), truth["field"], attitude="mekf")
+    assert res.refused is not None and "gyro" in res.refused
+

@@ -90,6 +90,20 @@ def test_level_turns_complete_and_improve_heading():
     assert after < 1.0
 
 
+def test_a_fit_that_cannot_run_fails_the_session_instead_of_fitting_offsets_only():
+    """A broken import inside the full fit must show as a failed calibration, not as a "successful"
+    offsets-only one that throws the soft-iron fit away unnoticed."""
+    def broken_fit(method, data, reference, **options):
+        raise ImportError(f"cannot import the {method} fit")
+
+    session = FieldCalibration(Calibration.identity(), FieldCalConfig(vehicle_type=VehicleType.LEVEL), SITE,
+                               samples_are_calibrated=False, fit_function=broken_fit)
+    session.start()
+    feed(session, level_turns())
+    assert session.status == CalStatus.FAILED
+    assert "cannot import the backstepping fit" in session.fail_reason
+
+
 def test_tumble_uses_ellipsoid_and_recovers_iron():
     pytest.importorskip("ahrsd.calibration.ellipsoid")
     traj = tumble()
