@@ -34,8 +34,7 @@ from ahrsd.calibration import vertical_channel as vc
 from ahrsd.calibration import swing
 from ahrsd.calibration.magfit import MagFitInput
 from ahrsd.calibration.models import MagModel
-from ahrsd.calibration.observability import lowpass
-from ahrsd.core.angles import roll_pitch_from_accel, wrap_180_deg
+from ahrsd.core.angles import wrap_180_deg
 
 G = 9.80665
 SITE = dict(lat_deg=35.7, lon_deg=51.4)           # Tehran, as in anchors/magcal.md §4
