@@ -16,7 +16,6 @@ import math
 import numpy as np
 import pytest
 
-pytest.importorskip("ahrsd.estimator.mekf")
 
 from ahrsd.calibration.accel_cal import fit_accel  # noqa: E402
 from ahrsd.calibration.gyro_cal import fit_rate_table, reference_rates_from_truth, steady_segments  # noqa: E402

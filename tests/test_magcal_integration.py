@@ -26,7 +26,6 @@ import pytest
 from scipy.linalg import polar
 from scipy.spatial.transform import Rotation
 
-pytest.importorskip("ahrsd.daemon.service")
 
 from ahrsd.calibration.field import from_ardupilot, tilt_compensated_heading_rad  # noqa: E402
 from ahrsd.calibration.models import Calibration  # noqa: E402

@@ -274,7 +274,7 @@ def test_settings_from_mapping_validates():
 
 
 def test_router_ignores_broadcast_unless_configured_and_refuses_unsigned(tmp_path):
-    commands = pytest.importorskip("ahrsd.daemon.commands")
+    from ahrsd.daemon import commands
     acks = []
     for accept_broadcast in (False, True):
         host = FakeHost(tmp_path)

@@ -8,10 +8,8 @@ import math
 from types import SimpleNamespace
 
 import numpy as np
-import pytest
 from scipy.spatial.transform import Rotation
 
-pytest.importorskip("ahrsd.daemon.service")
 
 from ahrsd.calibration.models import AccelModel, Calibration, GyroModel, MagModel  # noqa: E402
 from ahrsd.daemon.magcal import MagCalProtocol, MagCalSettings, sensor_attitude  # noqa: E402
