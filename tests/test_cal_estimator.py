@@ -36,7 +36,7 @@ def sensor_errors() -> SensorErrors:
 
 
 def calibrate(errs: SensorErrors) -> Calibration:
-    from test_cal_accel import roll_pitch_for_up, up_vectors
+    from support.accel_positions import roll_pitch_for_up, up_vectors
 
     means = []
     for k, u in enumerate(up_vectors()):

@@ -332,8 +332,8 @@ import os, signal, sys
 import numpy as np
 from types import SimpleNamespace
 sys.path.insert(0, sys.argv[2])
-from test_field_session import level_turns
-from test_magcal_protocol import FakeHost, Clock, cmd, drive
+from support.field_data import level_turns
+from support.magcal_host import FakeHost, Clock, cmd, drive
 from ahrsd.daemon.magcal import MagCalProtocol, MagCalSettings
 import ahrsd.calibration.store as store
 
