@@ -5,8 +5,6 @@ estimator's own rotation maths)."""
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -350,7 +348,6 @@ def test_golden_broad_slice(broad_dir):
     """Regression pin on real data: BROAD trial 01 (slow rotation), first 90 s (35 s rest, then motion).
     Measured total RMSE 1.82° in the movement phase of this slice (VQF 9D defaults: 2.59° on the same slice);
     the bound leaves 15 % for numerical/platform differences."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from bench.broad import broad_errors, load_trial, ned_to_enu
 
     trial = load_trial(broad_dir / "01_undisturbed_slow_rotation_A.npz", max_samples=int(90 * 285.714))
