@@ -24,7 +24,7 @@ from ahrsd.daemon.magcal import (
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.core.sample import make_sample
 
-from support.field_data import HARD_IRON_UT, level_turns
+from support.field_data import HARD_IRON_UT, MAG_NOISE_UT, SOFT_DISTORTION, level_turns, trajectory
 from support.magcal_host import Clock, FakeHost, cmd, drive, wire
 
 @pytest.fixture
@@ -152,20 +152,28 @@ def test_timeout_reports_failed_with_reason(tmp_path):
     assert not host.applied
 
 
-def test_fixed_yaw_keeps_soft_iron_and_saves(tmp_path):
+def test_fixed_yaw_keeps_soft_iron_and_finds_the_true_hard_iron(tmp_path):
+    """Soft iron already right, hard iron stale (zero): a still vehicle, tilted, at a known true heading (30°) gives back the
+    injected hard iron, to within the magnetometer noise averaged over the fixed-yaw window."""
     host = FakeHost(tmp_path)
-    soft = np.diag([1.03, 0.98, 1.0])
+    soft = np.linalg.inv(SOFT_DISTORTION)
     host.cal = Calibration.identity().with_sensor("mag", MagModel(np.zeros(3), soft))
-    proto = MagCalProtocol(host, MagCalSettings(), clock=Clock())
-    traj = level_turns(duration_s=2.0, turn_period_s=1e9)  # still, heading 0 true
+    settings = MagCalSettings()
+    proto = MagCalProtocol(host, settings, clock=Clock())
+    t = np.arange(0.0, 2.0, 1.0 / 50.0)
+    traj = trajectory(t, np.full_like(t, np.radians(4.0)), np.full_like(t, np.radians(-3.0)),
+                      np.full_like(t, np.radians(30.0)))
     for i in range(len(traj.t)):
         proto.on_sample(make_sample(traj.t[i], np.zeros(3), traj.accel[i], host.cal.mag.apply(traj.raw[i])),
                         SimpleNamespace(roll_rad=traj.roll[i], pitch_rad=traj.pitch[i], yaw_rad=0.0,
-                                        rate_body_rad_s=np.zeros(3)))
-    assert proto.handle_fixed_yaw(cmd(CMD_FIXED_YAW, 0.0, 0, 0, 0)) == mavlink.MAV_RESULT_ACCEPTED
+                                        rate_body_rad_s=np.zeros(3)))      # the filter's heading is not used
+    assert proto.handle_fixed_yaw(cmd(CMD_FIXED_YAW, 30.0, 0, 0, 0)) == mavlink.MAV_RESULT_ACCEPTED
     assert np.array_equal(host.cal.mag.soft_iron, soft)
-    assert host.cal.mag.hard_iron_ut.shape == (3,) and np.all(np.isfinite(host.cal.mag.hard_iron_ut))
-    assert np.allclose(CalibrationStore(tmp_path).load().mag.soft_iron, soft)
+    n_averaged = min(len(t), int(settings.fixed_yaw_average_s * 50.0) + 1)
+    tolerance_ut = 5 * MAG_NOISE_UT / np.sqrt(n_averaged)          # 5 σ of the window mean, per axis
+    np.testing.assert_allclose(host.cal.mag.hard_iron_ut, HARD_IRON_UT, atol=tolerance_ut)
+    saved = CalibrationStore(tmp_path).load().mag
+    assert np.allclose(saved.soft_iron, soft) and np.allclose(saved.hard_iron_ut, host.cal.mag.hard_iron_ut)
 
 
 def test_statustext_chunks_long_lines():
