@@ -30,12 +30,12 @@ def feed(session, traj, cal: Calibration | None = None, stop_when_done=True):
 
 
 def heading_rms_deg(model: MagModel, traj) -> float:
+    """Tilt-compensated heading of the calibrated field against the truth: the trajectory's true heading
+    (scipy, true-north NED) minus the site's declination, i.e. the magnetic heading."""
     cal = model.apply(traj.raw)
     psi = tilt_compensated_heading_rad(cal, traj.roll, traj.pitch)
-    true_mag = traj.yaw - SITE.declination_rad * 0  # the NED used here is true north: compare to WMM frame
-    expected = tilt_compensated_heading_rad(traj.true_body, traj.roll, traj.pitch)
+    expected = traj.yaw - SITE.declination_rad
     err = (psi - expected + np.pi) % (2 * np.pi) - np.pi
-    del true_mag
     return float(np.degrees(np.sqrt(np.mean(err**2))))
 
 
