@@ -160,10 +160,34 @@ def test_a_position_taken_while_moving_is_refused():
     assert not res.ok and "residual" in res.refused
 
 
-def test_local_gravity():
-    assert local_gravity_m_s2(0.0) == pytest.approx(9.780327)          # seed 004 eq. 18 at the equator
-    assert local_gravity_m_s2(90.0) == pytest.approx(9.832, abs=1e-3)
-    assert local_gravity_m_s2(36.42, 1345.0) == pytest.approx(G, rel=1e-9)  # same model as the simulator
+# seed 004 §7.5 worked values: g(L, 0) and g(L, 1000 m) in m/s²
+SEED004_GRAVITY = [(0.0, 9.780327, 9.777261), (30.0, 9.793249, 9.790179), (35.7, 9.797935, 9.794864),
+                   (45.0, 9.806200, 9.803126), (60.0, 9.819179, 9.816101), (90.0, 9.832186, 9.829104)]
+
+
+def somigliana_m_s2(lat_deg: float, alt_m: float) -> float:
+    """WGS-84 normal gravity, Somigliana's closed form, with the free-air gradient for height (NIMA TR8350.2
+    eq. 4-1 and 4-3, second-order height term dropped)."""
+    ge, k, e2 = 9.7803253359, 0.00193185265241, 0.00669437999013
+    s2 = math.sin(math.radians(lat_deg)) ** 2
+    g0 = ge * (1 + k * s2) / math.sqrt(1 - e2 * s2)
+    return g0 - 3.086e-6 * alt_m
+
+
+@pytest.mark.parametrize("lat, g0, g1000", SEED004_GRAVITY)
+def test_local_gravity_matches_the_seed_table(lat, g0, g1000):
+    assert local_gravity_m_s2(lat, 0.0) == pytest.approx(g0, abs=1.5e-6)
+    assert local_gravity_m_s2(lat, 1000.0) == pytest.approx(g1000, abs=1.5e-6)
+
+
+@pytest.mark.parametrize("lat, alt", [(0.0, 0.0), (36.42, 1345.0), (-52.0, 300.0), (78.0, 3000.0)])
+def test_local_gravity_agrees_with_somigliana(lat, alt):
+    # eq. 18 is a series of the closed form (2e-6 m/s² apart at sea level); its spherical (R0/(R0+h))² height
+    # factor and the free-air gradient differ by up to 2e-5 m/s² at these heights
+    assert local_gravity_m_s2(lat, alt) == pytest.approx(somigliana_m_s2(lat, alt), abs=3e-5)
+
+
+def test_local_gravity_without_a_latitude_is_standard_gravity():
     assert local_gravity_m_s2(None) == 9.80665
 
 
