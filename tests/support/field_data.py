@@ -15,7 +15,7 @@ from ahrsd.core.wmm import earth_field
 SITE = earth_field(35.7, 51.4, 0.0)  # Tehran-like field, ~48.8 µT, 55° dip
 HARD_IRON_UT = np.array([18.0, -9.5, 6.0])                    # a few hundred mgauss
 SOFT_DISTORTION = np.array([[1.06, 0.03, -0.02], [0.03, 0.95, 0.015], [-0.02, 0.015, 1.02]])
-MAG_NOISE_UT = 0.125  # 1.25 mgauss rms (anchors/mavlink-adis.md §4.3)
+MAG_NOISE_UT = 0.125  # 1.25 mgauss rms: the ADIS16405 datasheet magnetometer output noise
 
 
 def level_turns(duration_s=150.0, rate_hz=50.0, turn_period_s=40.0, tilt_deg=8.0, seed=1):
