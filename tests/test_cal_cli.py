@@ -80,7 +80,7 @@ def recordings(tmp_path_factory):
         "static": write_recording(d / "static.csv", [simulate("static", 1800, rate_hz=10, seed=3, errors=errs)],
                                   rate_hz=10),
     }
-    from test_cal_accel import roll_pitch_for_up, up_vectors
+    from support.accel_positions import roll_pitch_for_up, up_vectors
 
     from ahrsd.simulation.scenarios import Static
 

@@ -8,9 +8,7 @@ import dataclasses
 import math
 
 import numpy as np
-import pytest
 
-pytest.importorskip("ahrsd.daemon.service")
 
 from ahrsd.calibration.models import Calibration, MagModel  # noqa: E402
 from ahrsd.daemon.config import Config, OutputsConfig  # noqa: E402

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from service_rig import free_udp_port, stop_process
-from test_integration_daemon import OUR_COMP, Daemon
+from support.ahrsd_process import OUR_COMP, Daemon
 
 from ahrsd.daemon.mavlink_io import mavlink, mavutil
 

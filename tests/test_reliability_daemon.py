@@ -17,7 +17,7 @@ import pytest
 
 from ahrsd.daemon.messages import SENSOR_AHRS, SENSOR_GYRO
 from ahrsd.daemon.mavlink_io import mavlink
-from test_integration_daemon import OUR_COMP, Daemon
+from support.ahrsd_process import OUR_COMP, Daemon
 
 SCHEDULE = "self_test_fail@0-6;bus_error@10-11;stall@15-15.5;alarm@17-17.3:bits=SUPPLY_HIGH"
 
