@@ -38,7 +38,7 @@ class Daemon:
         self.log_path = tmp / "ahrsd.log"
         self.gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{self.port}", source_system=GCS_SYS,
                                               source_component=GCS_COMP, dialect="ardupilotmega")
-        cmd = [sys.executable, "-m", "ahrsd.daemon.cli", "run", "--sim", scenario, "--mavlink",
+        cmd = [sys.executable, "-m", "ahrsd.cli", "run", "--sim", scenario, "--mavlink",
                f"udpout:127.0.0.1:{self.port}", "--state-dir", str(self.state_dir), "--status-line", "off", *extra]
         full_env = dict(os.environ, PYTHONUNBUFFERED="1")
         full_env.update(env or {})

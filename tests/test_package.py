@@ -1,5 +1,6 @@
 """The package installs under one namespace and the console script answers --help."""
 
+import re
 import subprocess
 import sys
 
@@ -10,9 +11,11 @@ from ahrsd.core.wmm import earth_field
 
 
 def test_cli_help_lists_subcommands():
-    out = subprocess.run([sys.executable, "-m", "ahrsd.daemon.cli", "--help"], capture_output=True, text=True)
+    out = subprocess.run([sys.executable, "-m", "ahrsd.cli", "--help"], capture_output=True, text=True)
     assert out.returncode == 0
     assert "usage: ahrsd" in out.stdout
+    listed = re.findall(r"^    (\S+)", out.stdout, flags=re.MULTILINE)   # argparse's subcommand lines
+    assert listed == ["run", "record", "replay", "calibrate", "magcal"]
 
 
 def test_make_sample_coerces_vectors():

@@ -121,7 +121,7 @@ def test_writer_rejects_bad_extra_columns(tmp_path):
 
 def test_record_command_simulated(tmp_path):
     out = tmp_path / "x.csv"
-    proc = subprocess.run([sys.executable, "-m", "ahrsd.daemon.cli", "record", "--sim", "static", "--seconds", "2",
+    proc = subprocess.run([sys.executable, "-m", "ahrsd.cli", "record", "--sim", "static", "--seconds", "2",
                            "--output", str(out)], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert "wrote 1638 samples" in proc.stderr
@@ -134,7 +134,7 @@ def test_record_command_simulated(tmp_path):
 
 
 def test_record_command_errors_are_clear(tmp_path, capsys, monkeypatch):
-    from ahrsd.daemon.cli import main
+    from ahrsd.cli.main import main
 
     assert main(["record", "--sim", "no-such-scenario", "--output", str(tmp_path / "a.csv"), "--seconds", "1"]) == 2
     err = capsys.readouterr().err
