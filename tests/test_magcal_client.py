@@ -6,7 +6,7 @@ import io
 from types import SimpleNamespace
 
 from ahrsd.cli.main import build_parser
-from ahrsd.cli.magcal import MagCalClient
+from ahrsd.cli.magcal_client import MagCalClient
 from ahrsd.daemon.magcal import statustext_chunks
 from ahrsd.daemon.mavlink_io import mavlink
 
