@@ -54,7 +54,7 @@ def part_a(seconds: float, warmup: float) -> dict:
     port = sock.getsockname()[1]
     with tempfile.TemporaryDirectory() as tmp:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "ahrsd.daemon.cli", "run", "--sim", "static", "--mavlink",
+            [sys.executable, "-m", "ahrsd.cli", "run", "--sim", "static", "--mavlink",
              f"udpout:127.0.0.1:{port}", "--state-dir", tmp, "--status-line", "off"],
             cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         parser = mavlink.MAVLink(None)

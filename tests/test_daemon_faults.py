@@ -100,14 +100,14 @@ def test_replay_of_a_recording_runs_and_ends(tmp_path):
     """`ahrsd run --replay` on a recording from `ahrsd record`: estimates flow, time stamps are monotonic
     time, and the daemon stops by itself at the end of the file."""
     rec = tmp_path / "rec.csv"
-    r = subprocess.run([sys.executable, "-m", "ahrsd.daemon.cli", "record", "--sim", "static", "--output", str(rec),
+    r = subprocess.run([sys.executable, "-m", "ahrsd.cli", "record", "--sim", "static", "--output", str(rec),
                         "--seconds", "3", "--quiet"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))
     rx.settimeout(0.5)
     port = rx.getsockname()[1]
-    proc = subprocess.Popen([sys.executable, "-m", "ahrsd.daemon.cli", "run", "--replay", str(rec), "--mavlink",
+    proc = subprocess.Popen([sys.executable, "-m", "ahrsd.cli", "run", "--replay", str(rec), "--mavlink",
                              f"udpout:127.0.0.1:{port}", "--state-dir", str(tmp_path / "s"), "--status-line", "off"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     parser = mavlink.MAVLink(None)

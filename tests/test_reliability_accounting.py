@@ -21,7 +21,7 @@ from collections import Counter
 
 import pytest
 
-from ahrsd.daemon.faults_cli import build_plan, parse_schedule
+from ahrsd.cli.fault_schedule import build_plan, parse_schedule
 from ahrsd.daemon.pipeline import ADIS16405_RATE_HZ, SampleTimer
 from ahrsd.daemon.sensor_recovery import ReconnectingSource
 from ahrsd.drivers import registers as R

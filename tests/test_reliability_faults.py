@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from ahrsd.daemon.faults_cli import FaultScheduleError, build_plan, parse_schedule
+from ahrsd.cli.fault_schedule import FaultScheduleError, build_plan, parse_schedule
 from ahrsd.daemon.health import Health
 from ahrsd.daemon.messages import SENSOR_AHRS, SENSOR_GYRO, SENSOR_MAG
 from ahrsd.daemon.pipeline import ADIS16405_RATE_HZ, DriverSource, Pipeline, SampleTimer
@@ -126,7 +126,7 @@ def test_schedule_errors_name_the_item(bad, words):
 
 
 def test_cli_refuses_a_bad_schedule_and_a_real_sensor(capsys):
-    from ahrsd.daemon.cli import main
+    from ahrsd.cli.main import main
 
     assert main(["run", "--sim", "static", "--sim-faults", "explode@1", "--check-config"]) == 2
     assert "kind 'explode' unknown" in capsys.readouterr().err

@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     plan = None
     if args.sim_faults:
-        from ahrsd.daemon.faults_cli import FaultScheduleError, build_plan, parse_schedule
+        from ahrsd.cli.fault_schedule import FaultScheduleError, build_plan, parse_schedule
         from ahrsd.daemon.pipeline import ADIS16405_RATE_HZ
 
         if cfg.sensor.source != "sim":

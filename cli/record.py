@@ -5,6 +5,11 @@ from __future__ import annotations
 import argparse
 
 
+SIM_SEED = 0
+SIM_ERRORS = "adis16405"
+SIM_ONLY_OPTIONS = ("seed", "errors", "realtime")   # options of the simulated chip, refused with --spi
+
+
 class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
     """Shows "(default: X)" only for options that have a value by default (not "None"/"False" noise)."""
 
@@ -32,14 +37,15 @@ def register(subparsers) -> None:
     p.add_argument("--seconds", type=float, default=None,
                    help="how long to record (sample time); without it: until Ctrl-C, and --sim then runs in real time "
                    "(with it, --sim runs as fast as possible unless --realtime)")
-    p.add_argument("--seed", type=int, default=0, help="simulation seed (--sim)")
-    p.add_argument("--errors", default="adis16405", choices=("adis16405", "ideal"),
-                   help="simulated sensor errors (--sim)")
+    # --seed/--errors/--realtime default to None so that one given with --spi can be refused (see run)
+    p.add_argument("--seed", type=int, default=None, help=f"simulation seed (--sim) (default: {SIM_SEED})")
+    p.add_argument("--errors", default=None, choices=("adis16405", "ideal"),
+                   help=f"simulated sensor errors (--sim) (default: {SIM_ERRORS})")
     p.add_argument("--rate-hz", type=float, default=None,
                    help="output data rate; the nearest SMPL_PRD setting is used (chip default 819.2)")
     p.add_argument("--filter-taps", type=int, default=None, metavar="N", choices=range(8),
                    help="SENS_AVG Bartlett filter setting N (0..7: two 2^N-tap averages; chip default 2)")
-    p.add_argument("--realtime", action="store_true",
+    p.add_argument("--realtime", action="store_true", default=None,
                    help="with --sim: run the simulated chip on the wall clock (paced) instead of as fast as possible")
     p.add_argument("--no-self-test", action="store_true", help="skip the start-up self-test")
     p.add_argument("--quiet", "-q", action="store_true", help="no live status line")
@@ -64,6 +70,11 @@ def run(args) -> int:
         return 2
 
     simulated = args.sim is not None
+    sim_only = [f"--{name}" for name in SIM_ONLY_OPTIONS if getattr(args, name) is not None]
+    if not simulated and sim_only:
+        print(f"ahrsd record: {', '.join(sim_only)} only apply to the simulated chip (--sim), not to --spi",
+              file=sys.stderr)
+        return 2
     # a simulated run without an end is a live demo: pace it, or it would fill the disk as fast as the CPU goes
     paced = (not simulated) or args.realtime or args.seconds is None
     clock = time.monotonic if paced else None
@@ -76,7 +87,9 @@ def run(args) -> int:
                 print(f"ahrsd record: unknown scenario {args.sim!r}; choose one of: {', '.join(SCENARIOS)}",
                       file=sys.stderr)
                 return 2
-            bus = SimulatedAdis16405(args.sim, seed=args.seed, errors=args.errors, clock=clock)
+            seed = SIM_SEED if args.seed is None else args.seed
+            errors = SIM_ERRORS if args.errors is None else args.errors
+            bus = SimulatedAdis16405(args.sim, seed=seed, errors=errors, clock=clock)
         else:
             from ahrsd.drivers.spi import SpidevBus
 
