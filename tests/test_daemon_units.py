@@ -208,13 +208,6 @@ def test_true_quaternion_adds_declination_to_yaw(roll, pitch, yaw, decl):
     assert abs(pitch2 - pitch) < 1e-9
 
 
-@settings(derandomize=True, max_examples=200, deadline=None)
-@given(st.floats(-100, 100))
-def test_wrap_pi(angle):
-    w = msgs.wrap_pi(angle)
-    assert -math.pi < w <= math.pi and abs(math.remainder(w - angle, 2 * math.pi)) < 1e-9
-
-
 def test_vision_position_estimate_fields():
     m = msgs.vision_position_estimate(Est([1, 0, 0, 0], (0.1, 0.2, 3.5)), 123, 3.5, 257)
     assert (m.x, m.y, m.z) == (0.0, 0.0, 0.0)
