@@ -48,12 +48,13 @@ from ahrsd.daemon.output_registry import OUTPUTS
 from ahrsd.daemon.outputs import OutputSchedule
 from ahrsd.daemon.param_protocol import MOUNTING_PARAMS, ParamProtocol, param_specs
 from ahrsd.daemon.params import ParamStore
-from ahrsd.daemon.pipeline import Pipeline, open_source
+from ahrsd.daemon.pipeline import Pipeline
 from ahrsd.daemon.publishers import Publishers
 from ahrsd.daemon.rate_limit import TokenBucket
 from ahrsd.daemon.sample_reader import SampleReader
 from ahrsd.daemon.signing import initial_timestamp, key_fingerprint, load_key, save_timestamp
 from ahrsd.daemon.status_line import StatusLine
+from ahrsd.drivers.source import open_source
 from ahrsd.estimator import make_estimator
 
 log = logging.getLogger(__name__)

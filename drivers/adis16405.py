@@ -318,9 +318,12 @@ class Adis16405:
         self.counters["garbage_frames"] += 1
         return FrameError(f"burst frame rejected: {reason}", raw)
 
-    def read_sample(self) -> ImuSample:
+    def read_sample(self, stamp: Callable[[int], tuple[float, int, int]] | None = None) -> ImuSample:
         """One burst read -> ImuSample (SI, sensor frame).
 
+        stamp: `stamp(flags) -> (t_s, counter, extra_flags)`, called once the frame's flags are known, gives
+            the sample its time stamp and index (drivers.chip_source: the host-clock SampleTimer). Without it
+            the driver's own counter is used (see `_advance_counter`).
         Raises FrameError (counted) for frames that cannot be trusted, BusError when the bus fails.
         """
         rx = self._xfer(_BURST_TX, R.SPI_BURST_HZ, 0)
@@ -376,7 +379,9 @@ class Adis16405:
 
         if new_data:
             flags |= _NEW_DATA
-            flags |= self._advance_counter()
+            self.counters["new_samples"] += 1
+            if stamp is None:
+                flags |= self._advance_counter()
             self._prev_gx = gx
             flags |= self._check_stuck(raw9)
         else:
@@ -386,14 +391,19 @@ class Adis16405:
                 self._counter = 0
             flags |= self._stuck_flags()
 
+        if stamp is None:
+            t_s, counter = self._t0_s + self._counter * self._period_s, self._counter
+        else:
+            t_s, counter, extra = stamp(flags)
+            flags |= extra
         values = np.array(raw9, dtype=np.float64)
         values *= self._scale9
         sample = ImuSample(
-            self._t0_s + self._counter * self._period_s,
+            t_s,
             values[0:3], values[3:6], values[6:9],
             R.TEMP_C_AT_ZERO + R.TEMP_C_PER_LSB * (((w10 & 0x0FFF) ^ 0x0800) - 0x0800),
             supply * R.SUPPLY_V_PER_LSB,
-            SampleFlags(flags), diag, self._counter,
+            SampleFlags(flags), diag, counter,
         )
         self.counters["samples"] += 1
         self._last = sample
@@ -407,7 +417,6 @@ class Adis16405:
         lowest host - index seen (creeping up by CLOCK_DRIFT per sample so a slower chip clock is followed),
         and index = max(previous + 1, floor(host - phase)): a late read never invents a gap.
         """
-        self.counters["new_samples"] += 1
         if self._clock is None:
             self._counter += 1
             return 0

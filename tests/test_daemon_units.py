@@ -18,7 +18,8 @@ from ahrsd.daemon.mavlink_io import Endpoint, is_for_us, mavlink
 from ahrsd.daemon.notify import Notifier, watchdog_interval_s
 from ahrsd.daemon.outputs import OutputSchedule
 from ahrsd.daemon.params import ParamSpec, ParamStore
-from ahrsd.daemon.pipeline import SampleTimer, mounting_matrix
+from ahrsd.daemon.pipeline import mounting_matrix
+from ahrsd.drivers.sample_timer import SampleTimer
 from ahrsd.core.sample import make_sample
 
 # ------------------------------------------------------------------------------------------ command router

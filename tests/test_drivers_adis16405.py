@@ -10,7 +10,8 @@ from ahrsd.drivers.adis16405 import Adis16405
 from ahrsd.drivers.errors import ConfigError, DriverError, ProductIdMismatch, SelfTestFailed
 from ahrsd.drivers.faults import FaultPlan
 from ahrsd.core.sample import SampleFlags
-from ahrsd.drivers.simulated import FixedStream, SimulatedAdis16405
+from ahrsd.drivers.simulated import SimulatedAdis16405
+from sim_streams import FixedStream
 from ahrsd.drivers.spi import SpiBus
 
 G0 = R.STANDARD_GRAVITY_M_S2
