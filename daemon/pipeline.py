@@ -34,7 +34,7 @@ def mounting_matrix(rpy_deg) -> np.ndarray | None:
     if r == p == y == 0.0:
         return None
     cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    # C = Rz(yaw) · Ry(pitch) · Rx(roll), the same convention as C_b^n (design §4)
+    # C = Rz(yaw) · Ry(pitch) · Rx(roll), the same ZYX convention as C_b^n
     return np.array([
         [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
         [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],

@@ -7,9 +7,9 @@ from dataclasses import replace
 from typing import Iterator
 
 from ahrsd.core.sample import ImuSample, SampleFlags
+from ahrsd.drivers.chip_source import ADIS16405_RATE_HZ
 
 MAX_SAMPLES_PER_POLL = 64          # bound one poll's work (a stall is reported as a gap, not a burst)
-ADIS16405_RATE_HZ = 819.2          # ADIS16405 datasheet: default SMPL_PRD = 0x01 → 819.2 SPS
 _GAP_BEFORE = int(SampleFlags.GAP_BEFORE)
 
 
