@@ -34,7 +34,7 @@ class SampleReader:
             await self._read_batched()
 
     async def _read_per_sample(self) -> None:
-        """Read the chip once per sample, right after it becomes ready (pipeline.SampleTimer).
+        """Read the chip once per sample, right after it becomes ready (drivers.sample_timer).
 
         Deadlines are absolute CLOCK_MONOTONIC times served by a timerfd on the event loop
         (daemon.timerfd; asyncio alone sleeps in whole milliseconds); each expiry runs `_reader_step`.
