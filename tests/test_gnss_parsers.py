@@ -202,11 +202,20 @@ def test_decoder_protocol_filter():
     assert nmea_only.feed(_pvt_bytes(1.0), 0.0) == [] and nmea_only.counters.frames_ignored == 1
 
 
+def _epochs_bytes(n, second0=0):
+    out = b""
+    for k in range(n):
+        t = dt.time(10, 0, second0 + k)
+        for name, builder in (("RMC", _rmc), ("GGA", _gga)):
+            out += builder(time=t).serialize()
+    return out
+
+
 def test_auto_prefers_ubx_once_seen():
     d = GnssStreamDecoder("auto")
-    assert len(d.feed(RMC + GGA, 0.0) + d.flush()) == 1     # NMEA used while no UBX
+    assert len(d.feed(_epochs_bytes(3), 0.0) + d.flush()) == 3     # NMEA used while no UBX
     d.feed(_pvt_bytes(1.0), 1.0)
-    assert d.feed(RMC + GGA, 2.0) == [] and d.flush() == []
+    assert d.feed(_epochs_bytes(3, second0=10), 2.0) == [] and d.flush() == []
 
 
 def test_decoder_random_bytes_never_raise():

@@ -107,6 +107,10 @@ def test_uart_resample_matches_hand_computed_bits():
     # 4.75) ends that byte; the next falling edge, at line bit 6, starts another: samples at line bits
     # 6,7,7,8,8,9,9,10 = 0,1,1,0,0,1,1,1 -> 0xE6.
     assert uart_resample(b"\x55", 9600, 19200) == b"\x66\xe6"
+    # read at 16000: a receiver bit is 0.6 line bits; samples at 0.6·(1.5+k) = 0.9, 1.5, 2.1, 2.7, 3.3, 3.9,
+    # 4.5, 5.1 -> line bits 0,1,2,2,3,3,4,5 = 0,1,0,0,1,1,0,1 -> 0xB2; stop sample at 5.7; next start at line
+    # bit 6: samples 6.9 ... 11.1 -> line bits 6,7,8,8,9,idle.. = 0,1,0,0,1,1,1,1 (bit 0 first) -> 0xF2.
+    assert uart_resample(b"\x55", 9600, 16000) == bytes([0b10110010, 0b11110010])
     assert uart_resample(b"hello", 9600, 9600) == b"hello"
 
 
