@@ -112,6 +112,9 @@ def test_uart_resample_matches_hand_computed_bits():
     # bit 6: samples 6.9 ... 11.1 -> line bits 6,7,8,8,9,idle.. = 0,1,0,0,1,1,1,1 (bit 0 first) -> 0xF2.
     assert uart_resample(b"\x55", 9600, 16000) == bytes([0b10110010, 0b11110010])
     assert uart_resample(b"hello", 9600, 9600) == b"hello"
+    # 0xFF at 115200 read at 9600: the start bit is a 1/12-bit low pulse, high again at the receiver's
+    # mid-start sample: a glitch, not a byte
+    assert uart_resample(b"\xff", 115200, 9600) == b""
 
 
 def test_baud_mismatch_is_reported_as_garbage():
