@@ -54,36 +54,30 @@ class GnssRecordingWriter:
     def __init__(self, path: str | os.PathLike, extra_columns: Sequence[str] = (), flush_rows: int = 64):
         extra = tuple(extra_columns)
         names = GNSS_BASE_COLUMNS + GNSS_OPTIONAL_COLUMNS + extra
-        bad = [c for c in extra if not c or "," in c or c != c.strip()]
-        if bad or len(set(names)) != len(names):
+        if len(set(names)) != len(names) or not all(c and "," not in c and c == c.strip() for c in extra):
             raise ValueError(f"extra column names must be unique, non-empty, without commas: {extra}")
-        self.path = Path(path)
-        self.columns = names
-        self.extra_columns = extra
-        self.rows_written = 0
-        self._flush_rows = flush_rows
+        self.path, self.columns, self.extra_columns = Path(path), names, extra
+        self.rows_written, self._flush_rows = 0, flush_rows
         self._file = _open_text(self.path, "w")
         self._file.write(",".join(names) + "\n")
 
     def write(self, fix: GnssFix) -> None:
         vel = fix.vel_ned_m_s
-        values = [fix.t_s, fix.lat_deg, fix.lon_deg, fix.alt_m, vel[0], vel[1], vel[2],
-                  fix.h_acc_m, fix.v_acc_m, fix.s_acc_m_s]
-        parts = [repr(float(v)) for v in values]
-        parts += [str(int(fix.fix_type)), str(int(fix.num_sats)), repr(float(fix.hdop))]
-        parts += [repr(float(fix.extra.get(name, math.nan))) for name in self.extra_columns]
-        self._file.write(",".join(parts) + "\n")
+        floats = (fix.t_s, fix.lat_deg, fix.lon_deg, fix.alt_m, vel[0], vel[1], vel[2], fix.h_acc_m, fix.v_acc_m,
+                  fix.s_acc_m_s)
+        row = [repr(float(v)) for v in floats] + [str(int(fix.fix_type)), str(int(fix.num_sats)), repr(float(fix.hdop))]
+        row += [repr(float(fix.extra.get(name, math.nan))) for name in self.extra_columns]
+        self._file.write(",".join(row) + "\n")
         self.rows_written += 1
         if self.rows_written % self._flush_rows == 0:
-            self._file.flush()
+            self.flush()
 
     def flush(self) -> None:
         self._file.flush()
 
     def close(self) -> None:
-        if not self._file.closed:
-            self._file.flush()
-            self._file.close()
+        """Close the file (flushes it; a .gz file gets its trailer only here)."""
+        self._file.close()
 
     def __enter__(self) -> "GnssRecordingWriter":
         return self
@@ -98,15 +92,12 @@ def read_gnss_header(line: str, path: str | os.PathLike = "<gnss recording>") ->
     if not line.strip():
         raise GnssRecordingFormatError(f"{path}: line 1: empty file or empty header (expected: {GNSS_RECORDING_HEADER})")
     names = tuple(c.strip() for c in line.lstrip("\ufeff").rstrip("\r\n").split(","))
-    for i, want in enumerate(GNSS_BASE_COLUMNS):
-        if i >= len(names):
-            raise GnssRecordingFormatError(
-                f"{path}: line 1: header has {len(names)} columns; it must begin with {GNSS_RECORDING_HEADER} "
-                f"(missing: {', '.join(GNSS_BASE_COLUMNS[i:])})")
-        if names[i] != want:
-            raise GnssRecordingFormatError(
-                f"{path}: line 1: header column {i + 1} is {names[i]!r} but must be {want!r} "
-                f"(the header must begin with {GNSS_RECORDING_HEADER})")
+    base = GNSS_BASE_COLUMNS
+    if names[:len(base)] != base:
+        i = next((i for i, (got, want) in enumerate(zip(names, base)) if got != want), len(names))
+        problem = (f"column {i + 1} is {names[i]!r} but must be {base[i]!r}" if i < len(names)
+                   else f"{len(names)} columns (missing: {', '.join(base[i:])})")
+        raise GnssRecordingFormatError(f"{path}: line 1: header {problem}; it must begin with {GNSS_RECORDING_HEADER}")
     if any(not c for c in names):
         raise GnssRecordingFormatError(f"{path}: line 1: header has an empty column name")
     dup = sorted({c for c in names if names.count(c) > 1})

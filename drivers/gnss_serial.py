@@ -8,7 +8,7 @@ from a timer, since silence produces no readable event. `fileno()` changes after
 Time stamping: each fix gets t_s = (the caller's monotonic clock when its last byte was read) − latency_s.
 latency_s is the receiver's output latency (measurement epoch to the end of the message on the wire): the
 navigation computation (u-blox: tens of ms) plus the transmission time of the epoch's messages at the baud
-rate (a 100-byte NAV-PVT takes 8.7 ms at 115200 baud, 104 ms at 9600). docs/gnss.md gives figures.
+rate (a 100-byte NAV-PVT takes 8.7 ms at 115200 baud, 104 ms at 9600). docs/gnss.md has the figures.
 """
 
 from __future__ import annotations
@@ -27,7 +27,9 @@ from ahrsd.core.gnss import GnssFix
 
 log = logging.getLogger(__name__)
 
-DEFAULT_LATENCY_S = 0.05        # see the module docstring and docs/gnss.md
+# ArduPilot's lag for u-blox 7/M8 "based on flight logs" (libraries/AP_GPS/AP_GPS_UBLOX.cpp, get_lag();
+# 0.22 s for other or unknown generations), measured like ours from the message's arrival.
+DEFAULT_LATENCY_S = 0.12
 SILENCE_TIMEOUT_S = 3.0         # no byte for this long: the receiver says nothing
 NO_FRAME_TIMEOUT_S = 3.0        # bytes but no valid frame for this long: garbage (baud mismatch?)
 GARBAGE_MIN_BYTES = 64          # ...and at least this many bytes arrived in that time

@@ -1,6 +1,7 @@
 """The serial GNSS source reading the simulated receiver through a pseudo-terminal, byte for byte as on
 hardware: UBX and NMEA, garbage, truncated frames, a baud mismatch, silence, the device going away."""
 
+import contextlib
 import select
 
 import numpy as np
@@ -22,6 +23,17 @@ class FakeClock:
 def _fixes(n=5, t0=0.0):
     return [make_fix(t0 + 0.2 * k, 47.1 + 1e-5 * k, 8.2 - 1e-5 * k, 500.0 + k, [1.25, -2.5, 0.5],
                      h_acc_m=1.5, v_acc_m=2.5, s_acc_m_s=0.25, num_sats=12) for k in range(n)]
+
+
+@contextlib.contextmanager
+def _link(fixes, rx_kw=None, baud=115200, protocol="auto", clock=None, write=True, **src_kw):
+    """A simulated receiver on a pty and the serial source reading it; `write`: put every fix on the line."""
+    with SimulatedGnssReceiver(fixes, **(rx_kw or {})) as rx, \
+            SerialGnssSource(rx.device, baud, protocol, clock=clock or FakeClock(), **src_kw) as src:
+        if write:
+            for f in fixes:
+                rx.write_fix(f)
+        yield rx, src
 
 
 def _read_until(src, want, max_wait_s=5.0):
@@ -50,10 +62,7 @@ def _drain(src, wait_s=0.3):
 def test_fixes_arrive_intact(protocol, source_protocol):
     fixes = _fixes()
     clock = FakeClock(50.0)
-    with SimulatedGnssReceiver(fixes, protocol=protocol) as rx, \
-            SerialGnssSource(rx.device, 115200, source_protocol, latency_s=0.125, clock=clock) as src:
-        for f in fixes:
-            rx.write_fix(f)
+    with _link(fixes, {"protocol": protocol}, protocol=source_protocol, latency_s=0.125, clock=clock) as (rx, src):
         got = _read_until(src, len(fixes) - (protocol == "nmea"))   # NMEA: the first epoch closes with the 2nd
         got += src.decoder.flush()
         assert len(got) == len(fixes)
@@ -73,10 +82,7 @@ def test_fixes_arrive_intact(protocol, source_protocol):
 
 def test_garbage_between_frames_is_counted_and_every_fix_survives():
     fixes = _fixes(8)
-    with SimulatedGnssReceiver(fixes, garbage_bytes=300, seed=3) as rx, \
-            SerialGnssSource(rx.device, 115200, "ubx", clock=FakeClock()) as src:
-        for f in fixes:
-            rx.write_fix(f)
+    with _link(fixes, {"garbage_bytes": 300, "seed": 3}, protocol="ubx") as (rx, src):
         got = _read_until(src, 8)
         got += _drain(src)
         assert [g.lat_deg for g in got] == pytest.approx([f.lat_deg for f in fixes], abs=1e-7)
@@ -86,10 +92,7 @@ def test_garbage_between_frames_is_counted_and_every_fix_survives():
 
 def test_truncated_and_corrupted_frames_are_rejected_others_kept():
     fixes = _fixes(9)
-    with SimulatedGnssReceiver(fixes, truncate_every=3, corrupt_every=4) as rx, \
-            SerialGnssSource(rx.device, 115200, "ubx", clock=FakeClock()) as src:
-        for f in fixes:
-            rx.write_fix(f)
+    with _link(fixes, {"truncate_every": 3, "corrupt_every": 4}, protocol="ubx") as (rx, src):
         got = _read_until(src, 6) + _drain(src)
         kept = [k for k in range(1, 10) if k % 3 and k % 4]       # frames 3, 6, 9 cut, 4 and 8 corrupted
         assert [g.lat_deg for g in got] == pytest.approx([fixes[k - 1].lat_deg for k in kept], abs=1e-7)
@@ -120,8 +123,7 @@ def test_uart_resample_matches_hand_computed_bits():
 def test_baud_mismatch_is_reported_as_garbage():
     fixes = _fixes(10)
     clock = FakeClock(0.0)
-    with SimulatedGnssReceiver(fixes, baud=9600) as rx, \
-            SerialGnssSource(rx.device, 115200, "auto", clock=clock) as src:
+    with _link(fixes, {"baud": 9600}, clock=clock, write=False) as (rx, src):
         assert rx.reader_baud() == 115200
         for f in fixes[:5]:
             rx.write_fix(f)
@@ -138,9 +140,7 @@ def test_baud_mismatch_is_reported_as_garbage():
 
 def test_silence_is_reported():
     clock = FakeClock(0.0)
-    with SimulatedGnssReceiver(_fixes(3), silent=True) as rx, SerialGnssSource(rx.device, 115200, clock=clock) as src:
-        for f in rx.fixes:
-            rx.write_fix(f)
+    with _link(_fixes(3), {"silent": True}, clock=clock) as (rx, src):
         assert src.read_available() == []
         assert src.poll_health() is GnssLinkState.WAITING
         clock.t = 10.0
@@ -149,8 +149,7 @@ def test_silence_is_reported():
 
 def test_wrong_protocol_is_reported():
     clock = FakeClock(0.0)
-    with SimulatedGnssReceiver(_fixes(5), protocol="nmea") as rx, \
-            SerialGnssSource(rx.device, 115200, "ubx", clock=clock) as src:
+    with _link(_fixes(5), {"protocol": "nmea"}, protocol="ubx", clock=clock, write=False) as (rx, src):
         rx.write_fix(rx.fixes[0])
         assert _drain(src) == []
         clock.t = 5.0
