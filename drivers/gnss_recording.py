@@ -98,11 +98,10 @@ def read_gnss_header(line: str, path: str | os.PathLike = "<gnss recording>") ->
         problem = (f"column {i + 1} is {names[i]!r} but must be {base[i]!r}" if i < len(names)
                    else f"{len(names)} columns (missing: {', '.join(base[i:])})")
         raise GnssRecordingFormatError(f"{path}: line 1: header {problem}; it must begin with {GNSS_RECORDING_HEADER}")
-    if any(not c for c in names):
-        raise GnssRecordingFormatError(f"{path}: line 1: header has an empty column name")
-    dup = sorted({c for c in names if names.count(c) > 1})
-    if dup:
-        raise GnssRecordingFormatError(f"{path}: line 1: header repeats column(s) {', '.join(dup)}")
+    bad = sorted({repr(c) if c else "an empty name" for c in names if not c or names.count(c) > 1})
+    if bad:
+        raise GnssRecordingFormatError(f"{path}: line 1: header column names must be unique and non-empty: "
+                                       f"{', '.join(bad)}")
     return names
 
 

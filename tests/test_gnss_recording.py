@@ -68,7 +68,8 @@ def test_optional_columns_in_any_subset_and_order(tmp_path):
     ("", "line 1: empty"),
     ("t_s,lat_deg,lon_deg,alt_m,vel_n_m_s,vel_e_m_s", "missing: vel_d_m_s"),
     ("t_s,lat,lon_deg,alt_m,vel_n_m_s,vel_e_m_s,vel_d_m_s", "column 2 is 'lat'"),
-    (BASE + ",h_acc_m,h_acc_m", "repeats column(s) h_acc_m"),
+    (BASE + ",h_acc_m,h_acc_m", "unique and non-empty: 'h_acc_m'"),
+    (BASE + ",,h_acc_m", "unique and non-empty: an empty name"),
 ])
 def test_bad_header(tmp_path, header, what):
     path = tmp_path / "g.csv"
