@@ -84,8 +84,10 @@ def test_selector_prefers_the_raw_receiver():
     assert sel.handle(_gpi(), 0.0) is None
     fused = MavlinkGnssSelector(use_fused=True, raw_timeout_s=2.0)
     assert fused.handle(_gpi(), 0.0) is not None                 # no raw receiver yet
-    assert fused.handle(_raw(), 1.0).source == "mavlink:GPS_RAW_INT"
+    assert fused.handle(_raw(time_usec=1_000_000), 1.0).source == "mavlink:GPS_RAW_INT"
+    assert fused.handle(_raw(time_usec=1_000_000), 1.1) is None  # the same fix sent again
     assert fused.handle(_gpi(), 2.5) is None                     # raw fix 1.5 s ago
-    assert fused.handle(_raw(fix_type=1), 3.5) is not None       # raw without a fix does not count
+    assert fused.handle(_raw(fix_type=1, time_usec=3_000_000), 3.5) is not None   # no fix: does not count
     assert fused.handle(_gpi(), 3.6) is not None                 # last raw fix 2.6 s ago
-    assert fused.counters == {"gps_raw_int": 2, "global_position_int": 2, "global_position_int_skipped": 1}
+    assert fused.counters == {"gps_raw_int": 2, "gps_raw_int_repeated": 1, "global_position_int": 2,
+                              "global_position_int_skipped": 1}

@@ -225,3 +225,39 @@ def test_decoder_random_bytes_never_raise():
         d.feed(rng.integers(0, 256, 500, dtype=np.uint8).tobytes() + b"\xb5\x62\x01\x07\xff\xff", 0.0)
     assert d.counters.fixes == 0 and d.counters.garbage_bytes > 0
     assert d.buffered_bytes <= 4096
+
+
+def _fletcher8(data: bytes) -> bytes:
+    """UBX checksum (u-blox 8 receiver description §32.4: 8-bit Fletcher over class, id, length, payload)."""
+    a = b = 0
+    for byte in data:
+        a = (a + byte) & 0xFF
+        b = (b + a) & 0xFF
+    return bytes((a, b))
+
+
+def test_nav_pvt_from_the_receiver_description_layout():
+    """A NAV-PVT frame packed from the u-blox 8 field table (offsets/units), not by pyubx2: the decoder and the
+    converter must read it back in SI units."""
+    import struct
+    flags = 0x01 | 0x02 | (2 << 6)            # gnssFixOK, diffSoln, carrSoln = 2 (fixed)
+    payload = struct.pack("<IHBBBBBBIiBBBBiiiiIIiiiiiIIHH4sihH",
+                          123_456_000, 2026, 12, 1, 10, 17, 36, 0x07, 25, 0, 3, flags, 0, 17,
+                          -1_224_194_155, 471_234_567, 123_456, 75_000, 812, 1_234, -4_321, 5_678, -90,
+                          7_000, 9_000_000, 43, 100_000, 123, 0x0000, b"\0" * 4, 0, 0, 0)
+    assert len(payload) == 92
+    body = b"\x01\x07" + struct.pack("<H", len(payload)) + payload
+    frame = b"\xb5\x62" + body + _fletcher8(body)
+    fixes = GnssStreamDecoder("ubx").feed(frame, 4.0)
+    assert len(fixes) == 1
+    f = fixes[0]
+    assert (f.lat_deg, f.lon_deg) == pytest.approx((47.1234567, -122.4194155), abs=1e-9)
+    assert f.alt_m == pytest.approx(123.456)
+    np.testing.assert_allclose(f.vel_ned_m_s, [-4.321, 5.678, -0.090])
+    assert (f.h_acc_m, f.v_acc_m, f.s_acc_m_s) == pytest.approx((0.812, 1.234, 0.043))
+    assert f.num_sats == 17 and f.fix_type == GnssFixType.RTK_FIXED and f.extra["itow_ms"] == 123_456_000
+    invalid = bytearray(payload)
+    invalid[78] = 0x01                       # flags3 bit 0: invalidLlh
+    body = b"\x01\x07" + struct.pack("<H", 92) + bytes(invalid)
+    g = GnssStreamDecoder("ubx").feed(b"\xb5\x62" + body + _fletcher8(body), 4.0)[0]
+    assert math.isnan(g.lat_deg) and g.vel_ned_m_s[0] == pytest.approx(-4.321)
