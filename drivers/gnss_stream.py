@@ -86,8 +86,9 @@ class GnssStreamDecoder:
 
     protocol: "ubx" (NAV-PVT only), "nmea" (RMC/GGA/VTG epochs only) or "auto" (both; once a NAV-PVT has
     been seen, NMEA epochs are ignored so one receiver sending both does not deliver each epoch twice).
-    `feed(data, t_s)` returns the fixes completed by `data`, stamped `t_s` (the caller's arrival time minus
-    the receiver latency).
+    `feed(data, t_s)` returns the fixes completed by `data`; each is stamped with the `t_s` (the caller's
+    arrival time minus the receiver latency) of the chunk that brought the frame's last byte, so a frame
+    that waited behind a false sync keeps its own arrival time.
     """
 
     def __init__(self, protocol: str = "auto", source: str = "serial"):
@@ -98,6 +99,7 @@ class GnssStreamDecoder:
         self.counters = StreamCounters()
         self.seen_nav_pvt = False
         self._view = _BufferView()
+        self._chunk_ends: list[list] = []      # [end index in the buffer (exclusive), t_s] per fed chunk
         self._reader = UBXReader(self._view, msgmode=GET, validate=VALCKSUM, quitonerror=ERR_RAISE,
                                  protfilter=NMEA_PROTOCOL | UBX_PROTOCOL | RTCM3_PROTOCOL)
         self._nmea = NmeaEpochAssembler(source=f"{source}:nmea")
@@ -110,12 +112,14 @@ class GnssStreamDecoder:
         self.counters.bytes_in += len(data)
         buf = self._view.buf
         buf += data
+        if data:
+            self._chunk_ends.append([len(buf), float(t_s)])
         fixes: list[GnssFix] = []
         while buf:
             start = _next_sync(buf)
             if start:
                 self.counters.garbage_bytes += start
-                del buf[:start]
+                self._consume(start)
                 if not buf:
                     break
             self._view.pos = 0
@@ -131,8 +135,9 @@ class GnssStreamDecoder:
                 continue
             if raw is None:              # the reader saw no frame (cannot happen with _NeedMore; be safe)
                 break
-            del buf[:self._view.pos]
-            fixes += self._frame(raw, parsed, t_s)
+            arrival_t_s = self._arrival_of(self._view.pos - 1)
+            self._consume(self._view.pos)
+            fixes += self._frame(raw, parsed, arrival_t_s)
         return fixes
 
     def flush(self) -> list[GnssFix]:
@@ -152,7 +157,18 @@ class GnssStreamDecoder:
         if "checksum" in reason.lower():
             c.checksum_failures += 1
         c.last_error = reason
-        del self._view.buf[:1]
+        self._consume(1)
+
+    def _consume(self, n: int) -> None:
+        del self._view.buf[:n]
+        for chunk in self._chunk_ends:
+            chunk[0] -= n
+        while self._chunk_ends and self._chunk_ends[0][0] <= 0:
+            self._chunk_ends.pop(0)
+
+    def _arrival_of(self, index: int) -> float:
+        """t_s of the chunk that brought the buffer byte at `index`."""
+        return next(t for end, t in self._chunk_ends if end > index)
 
     def _frame(self, raw: bytes, parsed, t_s: float) -> list[GnssFix]:
         c = self.counters

@@ -261,3 +261,12 @@ def test_nav_pvt_from_the_receiver_description_layout():
     body = b"\x01\x07" + struct.pack("<H", 92) + bytes(invalid)
     g = GnssStreamDecoder("ubx").feed(b"\xb5\x62" + body + _fletcher8(body), 4.0)[0]
     assert math.isnan(g.lat_deg) and g.vel_ned_m_s[0] == pytest.approx(-4.321)
+
+
+def test_frame_behind_a_false_sync_keeps_its_own_arrival_time():
+    d = GnssStreamDecoder("ubx")
+    false_sync = b"\xb5\x62\x01\x07\x2c\x01"              # claims a 300-byte payload
+    assert d.feed(false_sync + _pvt_bytes(1.0), 10.0) == []   # waits for the 300 bytes
+    fixes = d.feed(bytes(300), 11.0) + d.feed(_pvt_bytes(2.0), 12.0)
+    assert [f.lat_deg for f in fixes] == pytest.approx([1.0, 2.0]) and [f.t_s for f in fixes] == [10.0, 12.0]
+    assert d.counters.checksum_failures == 1
