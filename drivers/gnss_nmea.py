@@ -41,6 +41,18 @@ def _num(value) -> float:
         return math.nan
 
 
+class _Sentence:
+    """A parsed sentence whose missing fields (a receiver sending a short sentence) read as empty ('')."""
+
+    __slots__ = ("_msg",)
+
+    def __init__(self, msg):
+        self._msg = msg
+
+    def __getattr__(self, name):
+        return getattr(self._msg, name, "")
+
+
 def _seconds_of_day(t) -> float:
     if not isinstance(t, dt.time):
         return math.nan
@@ -93,14 +105,14 @@ class NmeaEpochAssembler:
     def flush(self) -> list[GnssFix]:
         if not self._pending:
             return []
-        fix = fix_from_nmea_epoch(self._pending, self._pending_t_s, self.source)
+        sentences, t_s = self._pending, self._pending_t_s
         self._pending, self._pending_time, self._pending_t_s = {}, None, math.nan
-        return [fix]
+        return [fix_from_nmea_epoch(sentences, t_s, self.source)]
 
 
 def fix_from_nmea_epoch(sentences: dict, t_s: float, source: str = "nmea") -> GnssFix:
     """One GnssFix from the sentences of one epoch, keyed by type ("RMC", "GGA", "VTG", "GSA")."""
-    rmc, gga, vtg, gsa = (sentences.get(k) for k in EPOCH_SENTENCES)
+    rmc, gga, vtg, gsa = (_Sentence(sentences[k]) if k in sentences else None for k in EPOCH_SENTENCES)
     extra: dict = {}
     lat = lon = alt = math.nan
     if gga is not None and math.isfinite(_num(gga.lat)) and math.isfinite(_num(gga.lon)):
@@ -130,7 +142,8 @@ def fix_from_nmea_epoch(sentences: dict, t_s: float, source: str = "nmea") -> Gn
         extra["receiver_time_s"] = _seconds_of_day(timed.time)
     if rmc is not None and isinstance(getattr(rmc, "date", None), dt.date) and isinstance(rmc.time, dt.time):
         extra["utc"] = dt.datetime.combine(rmc.date, rmc.time, tzinfo=dt.timezone.utc)
-    num_sats = int(gga.numSV) if gga is not None and gga.numSV != "" else -1
+    sats = _num(gga.numSV) if gga is not None else math.nan
+    num_sats = int(sats) if math.isfinite(sats) else -1
     hdop = _num(gga.HDOP) if gga is not None else math.nan
     if not math.isfinite(hdop) and gsa is not None:
         hdop = _num(gsa.HDOP)

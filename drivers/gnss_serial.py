@@ -101,7 +101,7 @@ class SerialGnssSource:
         while total < MAX_READ_PER_CALL:
             try:
                 data = self._serial.read(max(self._serial.in_waiting, 1) if total == 0 else self._serial.in_waiting)
-            except (serial.SerialException, OSError, TypeError) as exc:   # unplugged: pyserial raises these
+            except (serial.SerialException, OSError) as exc:   # unplugged: pyserial raises these
                 self._lost(exc)
                 break
             if not data:

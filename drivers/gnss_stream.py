@@ -75,6 +75,7 @@ class StreamCounters:
     garbage_bytes: int = 0           # bytes outside any valid frame
     frames_rejected: int = 0         # sync found but the frame did not parse (includes checksum failures)
     checksum_failures: int = 0
+    conversion_errors: int = 0       # valid frames whose values could not be converted to a fix
     last_error: str = ""
 
     def as_dict(self) -> dict:
@@ -137,14 +138,24 @@ class GnssStreamDecoder:
                 break
             arrival_t_s = self._arrival_of(self._view.pos - 1)
             self._consume(self._view.pos)
-            fixes += self._frame(raw, parsed, arrival_t_s)
+            try:
+                fixes += self._frame(raw, parsed, arrival_t_s)
+            except Exception as exc:     # a valid frame with values the conversion cannot use
+                self.counters.conversion_errors += 1
+                self.counters.last_error = f"{type(exc).__name__}: {exc}"
+                log.debug("cannot convert %r: %s", parsed, exc)
         return fixes
 
     def flush(self) -> list[GnssFix]:
         """End of input: emit a pending NMEA epoch."""
         if self.protocol == "ubx" or (self.protocol == "auto" and self.seen_nav_pvt):
             return []
-        fixes = self._nmea.flush()
+        try:
+            fixes = self._nmea.flush()
+        except Exception as exc:         # as in feed(): never raise on what the receiver sent
+            self.counters.conversion_errors += 1
+            self.counters.last_error = f"{type(exc).__name__}: {exc}"
+            return []
         self.counters.fixes += len(fixes)
         return fixes
 

@@ -270,3 +270,23 @@ def test_frame_behind_a_false_sync_keeps_its_own_arrival_time():
     fixes = d.feed(bytes(300), 11.0) + d.feed(_pvt_bytes(2.0), 12.0)
     assert [f.lat_deg for f in fixes] == pytest.approx([1.0, 2.0]) and [f.t_s for f in fixes] == [10.0, 12.0]
     assert d.counters.checksum_failures == 1
+
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+_FIELD = st.text(alphabet="0123456789.-+ENSWAVMKTDFRP", max_size=12)
+
+
+@settings(max_examples=300, deadline=None)
+@given(kind=st.sampled_from(["GPGGA", "GPRMC", "GPVTG", "GNGSA"]), fields=st.lists(_FIELD, min_size=0, max_size=16),
+       garbage=st.binary(max_size=40))
+def test_checksum_valid_nonsense_sentences_never_raise(kind, fields, garbage):
+    from pynmeagps.nmeahelpers import calc_checksum
+    content = ",".join([kind] + fields)
+    sentence = f"${content}*{calc_checksum(content)}\r\n".encode()
+    d = GnssStreamDecoder("nmea")
+    d.feed(garbage + sentence + sentence.replace(b"$", b"$", 1) + RMC + GGA, 0.0)
+    d.flush()
+    c = d.counters
+    assert c.bytes_in == len(garbage) + 2 * len(sentence) + len(RMC) + len(GGA)
+    assert c.conversion_errors == 0          # short or odd sentences read as empty fields, not errors
