@@ -75,6 +75,11 @@ class MavlinkGnssSelector:
     """Pick the autopilot's GNSS messages: GPS_RAW_INT always; GLOBAL_POSITION_INT only if `use_fused` and
     no GPS_RAW_INT with a fix arrived within `raw_timeout_s` (by the caller's clock `t_s`).
 
+    ArduPilot sends GPS_RAW_INT at its stream rate (SRx_EXT_STAT) whether or not the receiver has a new fix,
+    stamped with the time of the last fix (AP_GPS::send_mavlink_gps_raw: last_fix_time_ms): a message
+    whose time_usec equals the previous one is the same fix again and is dropped (counted), not a new
+    measurement.
+
     `handle(msg, t_s) -> GnssFix | None`; `counters` says how many of each were used or skipped.
     """
 
@@ -82,11 +87,17 @@ class MavlinkGnssSelector:
         self.use_fused = use_fused
         self.raw_timeout_s = raw_timeout_s
         self._last_raw_fix_t_s = -math.inf
-        self.counters = {"gps_raw_int": 0, "global_position_int": 0, "global_position_int_skipped": 0}
+        self._last_raw_time_usec = None
+        self.counters = {"gps_raw_int": 0, "gps_raw_int_repeated": 0, "global_position_int": 0,
+                         "global_position_int_skipped": 0}
 
     def handle(self, msg, t_s: float) -> GnssFix | None:
         kind = msg.get_type() if hasattr(msg, "get_type") else type(msg).__name__
         if kind == "GPS_RAW_INT":
+            if msg.time_usec == self._last_raw_time_usec:
+                self.counters["gps_raw_int_repeated"] += 1
+                return None
+            self._last_raw_time_usec = msg.time_usec
             fix = fix_from_gps_raw_int(msg, t_s)
             self.counters["gps_raw_int"] += 1
             if fix.fix_type >= GnssFixType.FIX_2D:
