@@ -85,6 +85,7 @@ class SerialGnssSource:
         self._last_fix_at = math.nan
         self._bytes_since_frame = 0
         self._last_open_try = now
+        self._open_error = ""
         self._serial = self._open()
 
     # ------------------------------------------------------------------------------------------------ API
@@ -101,7 +102,8 @@ class SerialGnssSource:
         while total < MAX_READ_PER_CALL:
             try:
                 data = self._serial.read(max(self._serial.in_waiting, 1) if total == 0 else self._serial.in_waiting)
-            except (serial.SerialException, OSError) as exc:   # unplugged: pyserial raises these
+            # Unplugged: SerialException/OSError; a port closed under us: TypeError (pyserial's fd is None).
+            except (serial.SerialException, OSError, TypeError) as exc:
                 self._lost(exc)
                 break
             if not data:
@@ -121,7 +123,7 @@ class SerialGnssSource:
                 self.reopen_count += 1
                 log.info("%s: re-opened", self.device)
             except GnssDeviceError as exc:
-                self.status_message = f"{self.device}: {exc}"
+                self._open_error = str(exc)
         self._update_state(now)
         return self.state
 
@@ -180,7 +182,10 @@ class SerialGnssSource:
         c = self.decoder.counters
         dev = self.device
         if self._serial is None:
-            state, msg = GnssLinkState.DEVICE_ERROR, f"{dev}: device lost ({self.read_errors} read errors), re-opening"
+            state = GnssLinkState.DEVICE_ERROR
+            msg = f"{dev}: device lost ({self.read_errors} read errors), re-opening every {REOPEN_INTERVAL_S:.0f} s"
+            if self._open_error:
+                msg += f" (last attempt: {self._open_error})"
         elif self._since(now, self._last_byte_at) > self.silence_timeout_s:
             state = GnssLinkState.SILENT
             msg = (f"{dev}: no bytes for {self._since(now, self._last_byte_at):.0f} s: check the receiver's power, "

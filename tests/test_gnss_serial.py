@@ -173,6 +173,22 @@ def test_device_gone_never_raises_and_reports():
     src.close()
 
 
+def test_device_back_is_reopened():
+    clock = FakeClock(0.0)
+    with _link(_fixes(3), clock=clock, write=False) as (rx, src):
+        rx.write_fix(rx.fixes[0])
+        assert len(_read_until(src, 1)) == 1
+        src._serial.close()                      # the port fails under us (as a USB receiver unplugged)
+        assert src.read_available() == [] and src.state is GnssLinkState.DEVICE_ERROR
+        clock.t = 1.0
+        assert src.poll_health() is GnssLinkState.DEVICE_ERROR and src.reopen_count == 0   # waits 2 s
+        clock.t = 2.5
+        src.poll_health()
+        assert src.reopen_count == 1 and src.fileno() >= 0
+        rx.write_fix(rx.fixes[1])
+        assert len(_read_until(src, 1)) == 1 and src.state is GnssLinkState.OK
+
+
 def test_missing_device_is_a_clear_error():
     with pytest.raises(GnssDeviceError, match="/dev/does-not-exist"):
         SerialGnssSource("/dev/does-not-exist", 115200)
