@@ -91,7 +91,8 @@ class SimulatedGnssReceiver:
         tty.setraw(self.slave_fd)       # no echo, no line editing before the reader opens (and sets) it
         self.device = os.ttyname(self.slave_fd)
         self.frames_written = 0
-        self.bytes_written = 0
+        self.bytes_written = 0          # the receiver's bytes
+        self.wire_bytes_written = 0     # what went into the pty (differs when re-timed for another baud rate)
         self._t0 = self.fixes[0].t_s if self.fixes else 0.0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -118,6 +119,7 @@ class SimulatedGnssReceiver:
             n = os.write(self.master_fd, view)
             view = view[n:]
         self.bytes_written += len(data)
+        self.wire_bytes_written += len(wire)
 
     def write_fix(self, fix: GnssFix) -> None:
         if self.silent:
