@@ -37,6 +37,16 @@ class GnssRecordingFormatError(DriverError, ValueError):
     """A GNSS recording that does not follow the format; the message names the file, line and problem."""
 
 
+def gnss_path_for(recording_path: str | os.PathLike) -> Path:
+    """The GNSS recording beside an IMU recording: boat.csv -> boat.gnss.csv, boat.csv.gz -> boat.gnss.csv.gz."""
+    path = Path(recording_path)
+    name = path.name
+    for suffix in (".csv.gz", ".csv"):
+        if name.endswith(suffix):
+            return path.with_name(name[: -len(suffix)] + ".gnss" + suffix)
+    return path.with_name(name + ".gnss.csv")
+
+
 def _open_text(path: Path, mode: str) -> TextIO:
     if path.name.endswith(".gz"):
         return gzip.open(path, mode + "t", encoding="utf-8", newline="")

@@ -8,7 +8,7 @@ import pytest
 
 from ahrsd.core.gnss import DEFAULT_H_ACC_M, DEFAULT_S_ACC_M_S, DEFAULT_V_ACC_M, GnssFixType, make_fix
 from ahrsd.drivers.gnss_recording import (GNSS_RECORDING_HEADER, GnssRecordingFormatError, GnssRecordingWriter,
-                                          read_gnss_recording)
+                                          gnss_path_for, read_gnss_recording)
 
 BASE = "t_s,lat_deg,lon_deg,alt_m,vel_n_m_s,vel_e_m_s,vel_d_m_s"
 
@@ -106,3 +106,9 @@ def test_not_gzip_with_gz_name(tmp_path):
     path.write_text(BASE + "\n")
     with pytest.raises(GnssRecordingFormatError, match="cannot read"):
         read_gnss_recording(path)
+
+
+def test_gnss_path_beside_the_imu_recording(tmp_path):
+    assert gnss_path_for(tmp_path / "boat.csv") == tmp_path / "boat.gnss.csv"
+    assert gnss_path_for("run/boat.csv.gz").as_posix() == "run/boat.gnss.csv.gz"
+    assert gnss_path_for("boat").as_posix() == "boat.gnss.csv"

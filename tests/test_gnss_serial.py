@@ -64,7 +64,7 @@ def test_fixes_arrive_intact(protocol, source_protocol):
     clock = FakeClock(50.0)
     with _link(fixes, {"protocol": protocol}, protocol=source_protocol, latency_s=0.125, clock=clock) as (rx, src):
         got = _read_all(src, rx)
-        got += src.decoder.flush()      # NMEA: the last epoch before the receiver learned the set waits
+        got += src.decoder.flush()      # nothing pending once the epoch's sentence set is learned; be sure
         assert len(got) == len(fixes)
         for a, b in zip(fixes, got):
             assert b.t_s == 50.0 - 0.125              # arrival on the caller's clock minus the latency
