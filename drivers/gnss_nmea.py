@@ -180,23 +180,25 @@ def nmea_epoch_sentences(fix: GnssFix, utc: dt.datetime, talker: str = "GP",
     A fix below FIX_2D is sent with empty position fields, RMC status V and GGA quality 0.
     """
     valid = fix.fix_type >= GnssFixType.FIX_2D and math.isfinite(fix.lat_deg) and math.isfinite(fix.lon_deg)
-    quality = {GnssFixType.DGPS: 2, GnssFixType.RTK_FIXED: 4, GnssFixType.RTK_FLOAT: 5}.get(fix.fix_type, 1)
     mode = {GnssFixType.DGPS: "D", GnssFixType.RTK_FIXED: "R", GnssFixType.RTK_FLOAT: "F"}.get(fix.fix_type, "A")
+
+    def field(value: float, digits: int):
+        """A numeric field, empty when the receiver has no valid value."""
+        return round(value, digits) if valid and math.isfinite(value) else ""
+
     speed_kn = fix.ground_speed_m_s / KNOT_M_S
-    course = math.degrees(fix.course_rad) if valid else ""
-    t, d = utc.time(), utc.date()
+    course_deg = math.degrees(fix.course_rad)
+    t = utc.time()
     lat, lon = (fix.lat_deg, fix.lon_deg) if valid else ("", "")
-    empty_if_invalid = (lambda v: v) if valid else (lambda v: "")
     rmc = NMEAMessage(talker, "RMC", GET, time=t, status="A" if valid else "V", lat=lat, lon=lon,
-                      spd=empty_if_invalid(round(speed_kn, 3)), cog=empty_if_invalid(round(course, 2)) if valid else "",
-                      date=d, mv="", mvEW="", posMode=mode if valid else "N")
-    vtg = NMEAMessage(talker, "VTG", GET, cogt=empty_if_invalid(round(course, 2)) if valid else "", cogtUnit="T",
-                      cogm="", cogmUnit="M", sogn=empty_if_invalid(round(speed_kn, 3)), sognUnit="N",
-                      sogk=empty_if_invalid(round(speed_kn * KNOT_M_S * 3.6, 3)), sogkUnit="K",
+                      spd=field(speed_kn, 3), cog=field(course_deg, 2), date=utc.date(), mv="", mvEW="",
                       posMode=mode if valid else "N")
-    alt_msl = fix.alt_m - geoid_sep_m
+    vtg = NMEAMessage(talker, "VTG", GET, cogt=field(course_deg, 2), cogtUnit="T", cogm="", cogmUnit="M",
+                      sogn=field(speed_kn, 3), sognUnit="N", sogk=field(speed_kn * KNOT_M_S * 3.6, 3), sogkUnit="K",
+                      posMode=mode if valid else "N")
+    quality = {GnssFixType.DGPS: 2, GnssFixType.RTK_FIXED: 4, GnssFixType.RTK_FLOAT: 5}.get(fix.fix_type, 1)
     gga = NMEAMessage(talker, "GGA", GET, time=t, lat=lat, lon=lon, quality=quality if valid else 0,
                       numSV=max(fix.num_sats, 0), HDOP=round(fix.hdop, 2) if math.isfinite(fix.hdop) else "",
-                      alt=round(alt_msl, 3) if valid and math.isfinite(alt_msl) else "", altUnit="M",
-                      sep=round(geoid_sep_m, 3) if valid else "", sepUnit="M", diffAge="", diffStation="")
+                      alt=field(fix.alt_m - geoid_sep_m, 3), altUnit="M", sep=field(geoid_sep_m, 3), sepUnit="M",
+                      diffAge="", diffStation="")
     return [rmc, vtg, gga]

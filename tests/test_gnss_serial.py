@@ -205,3 +205,22 @@ def test_threaded_receiver_writes_at_the_fix_times():
         got = _read_until(src, 5)
         assert [g.lat_deg for g in got] == pytest.approx([f.lat_deg for f in fixes], abs=1e-7)
         assert all(b.t_s >= a.t_s for a, b in zip(fixes, got))    # never before the fix was written
+
+
+@pytest.mark.parametrize("protocol", ["ubx", "nmea"])
+def test_fix_lost_on_the_wire_is_a_counted_rejection(protocol):
+    from ahrsd.drivers.gnss_validation import GnssFixValidator
+    fixes = _fixes(4)
+    fixes[2] = make_fix(fixes[2].t_s, 0.0, 0.0, 0.0, [0.0, 0.0, 0.0], fix_type=GnssFixType.NO_FIX)
+    clock = FakeClock(0.0)
+    with _link(fixes, {"protocol": protocol}, protocol=protocol, clock=clock, write=False) as (rx, src):
+        got = []
+        for k, f in enumerate(fixes):          # one epoch per clock tick, as a receiver at 5 Hz
+            clock.t = 0.2 * k
+            rx.write_fix(f)
+            got += _read_all(src, rx)
+        got += src.decoder.flush()
+        assert [g.fix_type for g in got] == [GnssFixType.FIX_3D] * 2 + [GnssFixType.NO_FIX, GnssFixType.FIX_3D]
+        validator = GnssFixValidator()
+        assert [validator.check(g) for g in got] == [None, None, "no_fix", None]
+        assert validator.counters["no_fix"] == 1 and validator.counters["accepted"] == 3
