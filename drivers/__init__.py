@@ -1,8 +1,4 @@
-"""ahrsd.drivers: SPI buses, the ADIS16405 driver, the byte-level simulated chip, recordings.
-
-GNSS sources live in their own modules (imported where used, not here): gnss_recording, gnss_serial (with
-gnss_stream, gnss_ubx, gnss_nmea), gnss_mavlink, gnss_simulated, gnss_validation. See docs/gnss.md.
-"""
+"""ahrsd.drivers: SPI buses, the ADIS16405 driver, the byte-level simulated chip, recordings."""
 
 from .adis16405 import Adis16405
 from .errors import BusError, ConfigError, DriverError, FrameError, ProductIdMismatch, SelfTestFailed, ShortRead
