@@ -205,8 +205,7 @@ class SensorStream:
                            v, lat_deg, lon_deg, alt_m)
 
     def _position_deg(self, t):
-        lat, lon, alt = self._track.position(t)
-        return np.degrees(lat), np.degrees(lon), alt
+        return self._track.position(t)
 
     def truth_at(self, t_s) -> Truth:
         """The exact truth at any times t_s ≥ 0 (not only at sample instants); no effect on the stream."""

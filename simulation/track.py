@@ -34,18 +34,21 @@ def _hermite(y0, y1, d0, d1, h, u):
 
 
 class GeodeticTrack:
-    """Geodetic position (lat/lon in rad, height in m) of a vehicle whose NED velocity is `velocity_ned_m_s(t)`,
-    starting at (lat0_deg, lon0_deg, alt0_m) at t = 0. `position(t)` works for any t ≥ 0 in any order."""
+    """Geodetic position (lat/lon in degrees, height in m) of a vehicle whose NED velocity is
+    `velocity_ned_m_s(t)`, starting at (lat0_deg, lon0_deg, alt0_m) at t = 0. `position(t)` works for any t ≥ 0
+    in any order. The integral is kept as an offset from the start, so a vehicle at rest is exactly at the site."""
 
     def __init__(self, velocity_ned_m_s: Callable[[np.ndarray], np.ndarray], lat0_deg: float, lon0_deg: float,
                  alt0_m: float):
         self._velocity = velocity_ned_m_s
-        self._start_states = [np.array([np.radians(lat0_deg), np.radians(lon0_deg), float(alt0_m)])]
+        self._lat0_deg, self._lon0_deg = float(lat0_deg), float(lon0_deg)
+        self._lat0 = np.radians(self._lat0_deg)
+        self._start_states = [np.array([0.0, 0.0, float(alt0_m)])]    # (Δlat rad, Δlon rad, h m)
         self._chunks: dict[int, tuple[np.ndarray, np.ndarray]] = {}   # j -> (states (M+1,3), rates (M+1,3))
 
     def _rates(self, v, lat, h):
         r = EARTH_RADIUS_M + h
-        return np.column_stack([v[:, 0] / r, v[:, 1] / (r * np.cos(lat)), -v[:, 2]])
+        return np.column_stack([v[:, 0] / r, v[:, 1] / (r * np.cos(lat)), -v[:, 2]])   # eq. 17
 
     def _build(self, j: int):
         """Integrate chunk j from its start state (requires the start state, i.e. chunk j−1 built once)."""
@@ -68,9 +71,10 @@ class GeodeticTrack:
 
         hgt, hgt_g = integrate(h0, -v_nodes[:, 2], -v_gauss[:, :, 2])
         r_nodes, r_gauss = EARTH_RADIUS_M + hgt, EARTH_RADIUS_M + hgt_g
-        lat, lat_g = integrate(lat0, v_nodes[:, 0] / r_nodes, v_gauss[:, :, 0] / r_gauss)
-        lon, _ = integrate(lon0, v_nodes[:, 1] / (r_nodes * np.cos(lat)), v_gauss[:, :, 1] / (r_gauss * np.cos(lat_g)))
-        states = np.column_stack([lat, lon, hgt])
+        dlat, dlat_g = integrate(lat0, v_nodes[:, 0] / r_nodes, v_gauss[:, :, 0] / r_gauss)
+        lat, lat_g = self._lat0 + dlat, self._lat0 + dlat_g
+        dlon, _ = integrate(lon0, v_nodes[:, 1] / (r_nodes * np.cos(lat)), v_gauss[:, :, 1] / (r_gauss * np.cos(lat_g)))
+        states = np.column_stack([dlat, dlon, hgt])
         if len(self._start_states) == j + 1:
             self._start_states.append(states[-1].copy())
         if len(self._chunks) >= KEPT_CHUNKS:
@@ -85,7 +89,7 @@ class GeodeticTrack:
         return self._chunks[j]
 
     def position(self, t_s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(lat_rad, lon_rad, h_m) arrays at the times `t_s` (s, ≥ 0)."""
+        """(lat_deg, lon_deg, alt_m) arrays at the times `t_s` (s, ≥ 0)."""
         t = np.atleast_1d(np.asarray(t_s, dtype=float))
         if t.size and not (np.all(np.isfinite(t)) and t.min() >= 0.0):
             raise ValueError("track position needs finite times t ≥ 0")
@@ -98,4 +102,4 @@ class GeodeticTrack:
             i = step[sel] - j * CHUNK_STEPS
             u = (t[sel] - step[sel] * STEP_S) / STEP_S
             out[sel] = _hermite(states[i], states[i + 1], rates[i], rates[i + 1], STEP_S, u[:, None])
-        return out[:, 0], out[:, 1], out[:, 2]
+        return self._lat0_deg + np.degrees(out[:, 0]), self._lon0_deg + np.degrees(out[:, 1]), out[:, 2]
