@@ -30,7 +30,7 @@ from typing import Any
 DEFAULT_CONFIG_PATH = Path("/etc/ahrsd/ahrsd.toml")
 DEFAULT_ENDPOINT = "udpout:127.0.0.1:14550"   # the ground-station port by convention (anchor §3.4)
 SCENARIO_NAMES = ("static", "rate-table", "level-turns", "coordinated-turn", "tumble", "auv-out-and-back",
-                  "mag-disturbance")  # CONTRIBUTING.md, ahrsd.simulation.SCENARIOS
+                  "mag-disturbance", "boat", "car", "plane")  # CONTRIBUTING.md, ahrsd.simulation.SCENARIOS
 ESTIMATOR_NAMES = ("mekf", "thesis")     # CONTRIBUTING.md, ahrsd.estimator.ESTIMATORS
 MAV_TYPES = {"imu": 40, "onboard_controller": 18}  # MAV_TYPE_IMU / MAV_TYPE_ONBOARD_CONTROLLER (anchor §1.3)
 MAX_OUTPUT_RATE_HZ = 200.0

@@ -136,7 +136,7 @@ class Boat(TrackVehicle):
     the port side) and the water moves with `current_ned_m_s`, so the course over ground differs from the heading
     by up to ~10°. Waves roll (±5.5°) and pitch (±2.8°) it and heave it (±0.45 m); it heels outward in turns by
     `heel_deg_per_m_s2` per m/s² of centripetal acceleration (a displacement hull). Turns of +90°, −180°, +90°
-    and +360° with speed changes between; 246 s, then repeats. Carries the default vehicle iron.
+    and +360° with speed changes between; 209 s, then repeats. Carries the default vehicle iron.
     """
 
     heading0_deg: float = 20.0
@@ -179,7 +179,8 @@ class Car(TrackVehicle):
     No side slip (heading = course). The body pitches with the road grade (atan(climb / speed)) and the suspension
     adds `pitch_deg_per_m_s2` per m/s² of longitudinal acceleration (squat nose-up accelerating, dive braking)
     and rolls outward by `roll_deg_per_m_s2` per m/s² of lateral acceleration (typical 3–6°/g roll gradients).
-    Peak lateral acceleration 0.40 g, peak braking 0.64 g; 183 s. Carries the default vehicle iron.
+    Peak lateral acceleration 0.40 g, peak braking 0.64 g; 173.5 s, then repeats from rest where it stopped.
+    Carries the default vehicle iron.
     """
 
     heading0_deg: float = 75.0
@@ -219,7 +220,7 @@ class Plane(TrackVehicle):
     the bank puts the specific force f = a − g in the body x–z plane: φ = atan2(f₁_y, −f₁_z) with f₁ the specific
     force in the yawed-and-pitched frame, which is atan(V χ̇ / g) in a level turn (f along body −z, g / cos φ).
     Turns: 360° right at 22 m/s (25°), 180° left at 26 m/s (29°), a 180° right descending turn at 20 m/s (23°);
-    a 48 m climb at 3 m/s and the same height lost again; 186 s. `gravity_m_s2` is set to the site's by the stream.
+    a 48 m climb at 3 m/s and the same height lost again; 182 s. `gravity_m_s2` is set to the site's by the stream.
     """
 
     heading0_deg: float = 30.0

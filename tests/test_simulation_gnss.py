@@ -70,6 +70,17 @@ def test_total_position_error_has_the_configured_sigma_at_every_fix():
     assert np.all(np.abs(p.mean(axis=0)) < 4 * np.array([1.5, 1.5, 2.5]) / math.sqrt(2000))
 
 
+def test_wander_stays_stationary():
+    """With τ = 2 s, after 10 τ the wander must still carry its share (a wrong drive noise would let it decay
+    or grow; sqrt(1 − φ) instead of sqrt(1 − φ²) gives 0.87): σ over 600 seeds × 3 axes at the last fix, standard
+    error 1.7 %, bound 7 %."""
+    b = simulate("static", 20.0, rate_hz=5.0, errors="ideal")
+    model = GnssErrors(horizontal_m=1.0, vertical_m=1.0, wander_tau_s=2.0)
+    last = [simulate_gnss(b, seed=s, errors=model)[-1] for s in range(600)]
+    p, _ = error_ned_m(last)
+    assert np.std(p) == pytest.approx(1.0, rel=0.07)
+
+
 def test_white_part_velocity_and_wander_have_their_sigmas(still_long):
     """Fix-to-fix differences remove the wander (it moves by σ√(2(1−φ)) ≈ 0.04 σ per fix), leaving √2 σ_white,
     σ_white² = (1 − 0.5) σ². Over 10 000 fixes the standard error of a σ is 0.7 %; bound 4 %."""
