@@ -1,8 +1,8 @@
 """Vehicles with real translational dynamics: a boat, a car and a fixed-wing, each a few minutes of manoeuvres.
 
 Each vehicle is driven like the real one: a speed through its medium (water, road, air), a course through the
-medium that changes at a turn rate, and a climb rate, all smooth `RateProfile`s (C² blends for speed and climb rate, raised cosine for the turn rate) with exact
-derivatives. From them, in closed form:
+medium that changes at a turn rate, and a climb rate, all smooth `RateProfile`s (C² blends for speed and climb
+rate, raised cosine for the turn rate) with exact derivatives. From them, in closed form:
 
     v_NED = s [cos χ, sin χ, 0] + current + [0, 0, −climb]          (current: water or air mass, NED, constant)
     a_NED = ṡ [cos χ, sin χ, 0] + s χ̇ [−sin χ, cos χ, 0] + [0, 0, −ċlimb]
