@@ -17,8 +17,9 @@ Each fix is the antenna's position and velocity at its time of validity `t_s`, p
 - reported accuracies: h_acc_m, v_acc_m, s_acc_m_s are the σ above unless set otherwise (a receiver's own
   estimate can be optimistic: set them lower to test that).
 - latency: the fix arrives at `extra["t_rx_s"]` = t_s + latency_s (+ uniform jitter in [0, jitter_s)).
-- lever arm r (body FRD, m): p_ant = p + C_b^n r, v_ant = v + C_b^n (ω × r) (Groves, *Principles of GNSS,
-  Inertial, and Multisensor Integrated Navigation Systems*, 2nd ed., eq. 14.118 with ω_ie neglected: < 1e-4 m/s).
+- lever arm r (body FRD, m): p_ant = p + C_b^n r, v_ant = v + C_b^n (ω_nb × r) with ω_nb the truth body rate
+  w.r.t. NED (Groves, *Principles of GNSS, Inertial, and Multisensor Integrated Navigation Systems*, 2nd ed.,
+  ch. 14, lever arm; the transport-rate term ω_en × C_b^n r, < 1e-5 m/s for these vehicles, is left out).
 - outages: windows of validity time with no fix (silent), or with NO_FIX solutions (`GnssOutage(...,
   reports_no_fix=True)`, what a u-blox receiver sends when it loses lock).
 - glitches (`GnssGlitch`): a position jump (default 50 m), a velocity spike (5 m/s), NaN fields, or a time
