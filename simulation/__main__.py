@@ -34,8 +34,8 @@ def main(argv=None) -> int:
           f"{e.accel_bias_instability_m_s2 / 9.80665 * 1e3:.2f} mg")
     g = GnssErrors()
     gnss_defaults = inspect.signature(simulate_gnss).parameters
-    print(f"GNSS (simulate_gnss): {gnss_defaults['rate_hz'].default:g} Hz, position σ {g.horizontal_m} m N/E, {g.vertical_m} m D "
-          f"({g.wander_fraction:.0%} of the variance wandering, τ {g.wander_tau_s:.0f} s), velocity σ "
+    print(f"GNSS (simulate_gnss): {gnss_defaults['rate_hz'].default:g} Hz, position σ {g.horizontal_m} m N/E, "
+          f"{g.vertical_m} m D ({g.wander_fraction:.0%} of the variance wandering, τ {g.wander_tau_s:.0f} s), velocity σ "
           f"{g.velocity_m_s} m/s, latency {gnss_defaults['latency_s'].default:g} s")
     for name in SCENARIOS + tuple(EXTRA_SCENARIOS):
         sc = make_scenario(name)
