@@ -188,11 +188,15 @@ def _stored(args):
 
 
 def _allan(args) -> int:
-    from ahrsd.calibration.allan import NOISE_FILE_NAME, analyse_static, save_noise_parameters
+    from ahrsd.calibration.allan import NOISE_FILE_NAME, analyse_chunks, describe, save_noise_parameters
+    from ahrsd.drivers.recording import RecordingFormatError, iter_recording_chunks
 
-    rec = _read(args.recording)
-    try:
-        res = analyse_static(rec.t_s, rec.gyro_rad_s, rec.accel_m_s2, rec.mag_ut)
+    try:   # streamed: one chunk of the recording in memory at a time (.csv or .csv.gz)
+        res = analyse_chunks(iter_recording_chunks(args.recording))
+    except FileNotFoundError:
+        raise _Fail(f"{args.recording}: no such file") from None
+    except (RecordingFormatError, OSError) as exc:
+        raise _Fail(f"cannot read the recording: {exc}") from None
     except ValueError as exc:
         raise _Fail(str(exc)) from None
     payload = res.to_json_dict()
@@ -207,26 +211,11 @@ def _allan(args) -> int:
         note = f"saved to {path}"
         payload["saved_to"] = str(path)
     if args.plot:
-        _plot_allan(res, args.plot)
+        from ahrsd.calibration.allan_plot import plot_allan
+
+        plot_allan(res, args.plot)
     lines = [f"Allan analysis of {args.recording}: {res.duration_s / 3600:.2f} h at {res.rate_hz:.1f} Hz"]
-    units = {"gyro": ("ARW", "rad/s/√Hz", "rad/s"), "accel": ("VRW", "m/s²/√Hz", "m/s²"), "mag": ("white", "µT/√Hz", "µT")}
-    for sensor, axes in res.parameters.items():
-        name, wu, bu = units[sensor]
-        lines.append(f"  {sensor}:")
-        for ax, p in axes.items():
-            bi = "not visible" if p.bias_instability is None else f"{p.bias_instability:.3e} {bu} (at τ≈{p.tau_bias_instability_s:.0f} s)"
-            extra = ""
-            if p.gauss_markov_sigma is not None:
-                extra = f", Gauss–Markov σ {p.gauss_markov_sigma:.3e} τc {p.gauss_markov_tau_s:.0f} s"
-            lines.append(f"    {ax}: {name} {p.white_noise:.3e} {wu}; bias instability {bi}{extra}")
-            for flag in p.flags:
-                lines.append(f"       note: {flag}")
-    k = payload["kalman"]
-    if "Q_diag" in k:
-        lines.append("  thesis Kalman Q (eq. 6-1, rad²/s): " + _fmt_vec(k["Q_diag"], "{:.3e}"))
-    if "R_diag" in k:
-        lines.append("  thesis Kalman R (eq. 6-2, µT² then (m/s²)²): " + _fmt_vec(k["R_diag"], "{:.3e}"))
-    lines.append(f"  {note}")
+    lines += describe(res) + [f"  {note}"]
     _emit(args, payload, "\n".join(lines))
     return 0
 
@@ -586,24 +575,6 @@ def _pyplot():
     except ImportError:
         raise _Usage(PLOT_NEEDS_MATPLOTLIB) from None
     return plt
-
-
-def _plot_allan(res, path) -> None:
-    plt = _pyplot()
-    sensors = list(res.adev)
-    fig, axes = plt.subplots(1, len(sensors), figsize=(5 * len(sensors), 4), squeeze=False)
-    units = {"gyro": "rad/s", "accel": "m/s²", "mag": "µT"}
-    for ax, sensor in zip(axes[0], sensors):
-        for i, name in enumerate("xyz"):
-            ax.loglog(res.taus_s, res.adev[sensor][:, i], label=name)
-        ax.set_title(f"{sensor} Allan deviation")
-        ax.set_xlabel("τ (s)")
-        ax.set_ylabel(f"σ(τ) ({units[sensor]})")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
 
 
 def _plot_mag(mag_ut, model, field_ut, path) -> None:
