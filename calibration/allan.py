@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .allan_adev import AllanCurve, StreamingAllan, confidence_interval
+from .allan_adev import ONE_SIGMA, AllanCurve, StreamingAllan, confidence_interval, edf_overlapping
 from .allan_kalman import kalman_tuning
 from .allan_terms import (
     TERMS,
@@ -39,7 +39,7 @@ AXES = ("x", "y", "z")
 SENSORS = ("gyro", "accel", "mag")
 SENSOR_UNITS = {"gyro": "rad/s", "accel": "m/s^2", "mag": "uT"}
 MIN_SAMPLES = 16
-CONFIDENCE_LEVEL = 0.683   # the band: 1σ two-sided χ² interval
+CONFIDENCE_LEVEL = ONE_SIGMA   # the band: 1σ two-sided χ² interval
 
 
 @dataclass(frozen=True)
@@ -78,6 +78,10 @@ class NoiseParameters:
 def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float) -> NoiseParameters:
     """Decide the terms of one axis' curve and read their values."""
     pts = octave_points(curve, axis)
+    if len(pts.taus) < 3 or not np.all(pts.avar > 0):
+        j = int(np.argmin(curve.adev[:, axis]))
+        return NoiseParameters(None, None, None, None, None, float(curve.adev[j, axis]), float(curve.taus_s[j]),
+                               float(std), flags=("constant signal or too few cluster sizes: no noise terms read",))
     fit = select_terms(pts)
     terms: dict[str, TermEstimate] = term_estimates(fit, pts)
     flags, not_seen = [], {}
@@ -222,7 +226,9 @@ class StaticAllanAnalysis:
             axes = {ax: read_axis(curve, i, std[i], self._rate_hz) for i, ax in enumerate(AXES)}
             lo, hi = np.empty_like(curve.adev), np.empty_like(curve.adev)
             for i, ax in enumerate(AXES):
-                edf = axes[ax].fit.edf(curve.taus_s, curve.level_n, curve.level_m)
+                fit = axes[ax].fit
+                edf = (fit.edf(curve.taus_s, curve.level_n, curve.level_m) if fit is not None
+                       else np.array([edf_overlapping(0, n + 1.0, m) for n, m in zip(curve.level_n, curve.level_m)]))
                 lo[:, i], hi[:, i] = confidence_interval(curve.adev[:, i], edf, CONFIDENCE_LEVEL)
             adevs[sensor], params[sensor], lower[sensor], upper[sensor] = curve.adev, axes, lo, hi
         duration = self._t_last - self._t0 + 1.0 / self._rate_hz

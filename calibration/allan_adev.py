@@ -225,7 +225,10 @@ def alpha_from_slope(avar_slope: float) -> int:
     return int(min(2, max(-2, round(-avar_slope - 1.0))))
 
 
-def confidence_interval(adev: np.ndarray, edf: np.ndarray, level: float = 0.683) -> tuple[np.ndarray, np.ndarray]:
+ONE_SIGMA = math.erf(1.0 / math.sqrt(2.0))   # 0.6827: the two-sided 1σ probability
+
+
+def confidence_interval(adev: np.ndarray, edf: np.ndarray, level: float = ONE_SIGMA) -> tuple[np.ndarray, np.ndarray]:
     """(lower, upper) bounds on σ from σ̂²·edf/σ² ~ χ²(edf), two-sided at `level` (SP 1065 §5.3.2)."""
     from scipy.stats import chi2
 

@@ -25,7 +25,7 @@ A term that fails is reported as not seen, with the 2σ upper bound the data put
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -93,6 +93,7 @@ class _Points:
     level_n: np.ndarray
     level_m: np.ndarray
     record_s: float
+    fits: dict = field(default_factory=dict, compare=False, repr=False)   # fit_terms' results by term set
 
 
 @dataclass(frozen=True)
@@ -146,22 +147,25 @@ def _nnls_weighted(basis: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarra
     return coef / scale
 
 
-def _fit_fixed(pts: _Points, terms: tuple[str, ...], tc: float | None) -> ModelFit:
-    """Iteratively reweighted NNLS: weights 1/(σ²_model·√(2/edf)), edf for the model's local noise type."""
+def _fit_fixed(pts: _Points, terms: tuple[str, ...], tc: float | None, fixed: tuple[str, float] | None = None) -> ModelFit:
+    """Iteratively reweighted NNLS: weights 1/(σ²_model·√(2/edf)), edf for the model's local noise type.
+    fixed: (term, coefficient) held at that value beside the fitted terms (for a profile of the deviance)."""
     basis = np.column_stack([term_basis(t, pts.taus, tc) for t in terms])
+    offset = np.zeros_like(pts.avar) if fixed is None else fixed[1] * term_basis(fixed[0], pts.taus, tc)
+    all_terms = terms if fixed is None else terms + (fixed[0],)
     model = pts.avar.copy()
     edf = np.array([edf_overlapping(0, n + 1.0, m) for n, m in zip(pts.level_n, pts.level_m)])
     coef = np.zeros(len(terms))
-    fit = None
     for _ in range(IRLS_ITERATIONS):
         # The model's own value sets the weight (a low measured point must not get a high weight); floored so
         # a term the model lacks cannot make a point's weight infinite.
         ref = np.maximum(model, 1e-3 * pts.avar)
         sigma = ref * np.sqrt(2.0 / edf)
-        coef = _nnls_weighted(basis, pts.avar, 1.0 / sigma)
-        fit = ModelFit(terms, coef, np.zeros_like(coef), tc, 0.0)
-        model = fit.avar(pts.taus)
-        edf = fit.edf(pts.taus, pts.level_n, pts.level_m)
+        coef = _nnls_weighted(basis, pts.avar - offset, 1.0 / sigma)
+        whole = ModelFit(all_terms, coef if fixed is None else np.append(coef, fixed[1]), np.zeros(len(all_terms)),
+                         tc, 0.0)
+        model = whole.avar(pts.taus)
+        edf = whole.edf(pts.taus, pts.level_n, pts.level_m)
     ref = np.maximum(model, 1e-3 * pts.avar)
     sigma = ref * np.sqrt(2.0 / edf)
     # Deviance of the χ²(edf) likelihood of each point, σ̂²·edf/σ² ~ χ²(edf): the likelihood-ratio statistic
@@ -181,11 +185,38 @@ def _fit_fixed(pts: _Points, terms: tuple[str, ...], tc: float | None) -> ModelF
     return ModelFit(terms, coef, coef_sigma, tc, chi2)
 
 
+def profile_upper_bound(pts: _Points, fit: ModelFit, name: str, delta: float) -> float:
+    """Upper confidence bound on a term's coefficient from the deviance profile: the value, held fixed beside
+    the terms of `fit` (refitted), at which the deviance exceeds the best one with the term free by `delta`
+    (4 for 2σ; the likelihood-ratio interval, right for the skewed χ² of few-cluster points)."""
+    free = fit_terms(pts, fit.terms + (name,))
+    best = free.chi2
+    c_hat = float(free.coef[free.terms.index(name)])
+    per_unit = pts.avar / term_basis(name, pts.taus, fit.corr_time_s)
+    hi = float(np.max(per_unit))
+    excess = lambda c: _fit_fixed(pts, fit.terms, fit.corr_time_s, (name, c)).chi2 - best - delta  # noqa: E731
+    if excess(hi) < 0:
+        return hi
+    lo = max(c_hat, float(np.min(per_unit)) * 1e-9)
+    if excess(lo) >= 0:
+        return lo
+    for _ in range(50):   # bisection on log c
+        mid = math.sqrt(lo * hi)
+        lo, hi = (lo, mid) if excess(mid) >= 0 else (mid, hi)
+    return hi
+
+
 def fit_terms(pts: _Points, terms: tuple[str, ...]) -> ModelFit:
     """Fit the given terms; with a Gauss–Markov term, its Tc is searched (4 per octave) for the least χ²,
     between twice the shortest τ and an eighth of the longest (its bump, at 1.89·Tc, and two octaves of its
     1/√τ fall must lie inside the curve: a longer Tc is only a rising slope, which is a rate random walk)."""
     terms = tuple(t for t in TERMS if t in terms)
+    if terms not in pts.fits:
+        pts.fits[terms] = _fit_searching_tc(pts, terms)
+    return pts.fits[terms]
+
+
+def _fit_searching_tc(pts: _Points, terms: tuple[str, ...]) -> ModelFit:
     if "gauss_markov" not in terms:
         return _fit_fixed(pts, terms, None)
     lo, hi = GM_TC_RANGE[0] * pts.taus[0], GM_TC_RANGE[1] * pts.taus[-1]
@@ -325,12 +356,10 @@ def not_seen_report(fit: ModelFit, pts: _Points, name: str, rate_hz: float) -> d
         return {"upper_bound": None, "recording_needed_s": None,
                 "note": f"no Gauss–Markov bump for correlation times {lo:.3g}…{hi:.3g} s; a recording of "
                         f"≥ {2 * MIN_CLUSTERS * 1.89:.0f}·Tc would show one with a longer Tc"}
-    trial = fit_terms(pts, fit.terms + (name,))
-    i = trial.terms.index(name)
-    bound_coef = float(trial.coef[i] + UPPER_BOUND_SIGMAS * trial.coef_sigma[i])
+    bound_coef = profile_upper_bound(pts, fit, name, UPPER_BOUND_SIGMAS**2)
     bound = coefficient_to_value(name, bound_coef)
-    probe = ModelFit(trial.terms, np.where(np.arange(len(trial.terms)) == i, bound_coef, trial.coef),
-                     trial.coef_sigma, trial.corr_time_s, trial.chi2)
+    probe = ModelFit(fit.terms + (name,), np.append(fit.coef, bound_coef), np.append(fit.coef_sigma, 0.0),
+                     fit.corr_time_s, fit.chi2)
     out: dict = {"upper_bound": bound, "recording_needed_s": None}
     if bound_coef <= 0:
         out["note"] = "not constrained by this curve"
@@ -351,8 +380,8 @@ def not_seen_report(fit: ModelFit, pts: _Points, name: str, rate_hz: float) -> d
         return out
     need = MIN_CLUSTERS * span[0]
     out["recording_needed_s"] = need
-    out["note"] = (f"this recording would show one ≥ {limit:.3g}; one as large as the bound needs a recording "
-                   f"of ≥ {need / 3600:.3g} h")
+    out["note"] = (f"this recording would show one ≥ {limit:.3g}; one as large as the bound would dominate from "
+                   f"τ = {span[0]:.3g} s, i.e. in a recording of ≥ {need / 3600:.3g} h")
     return out
 
 
