@@ -145,13 +145,16 @@ def test_white_plus_flicker():
     rng = np.random.default_rng(20)
     rate, n = 1.0, DAY_S
     x = three_axes(lambda n, r, g: gen.white(n, r, ARW, g) + gen.flicker(n, r, BIAS, g), n, rate, rng)
-    floor = FLICKER_FACTOR * BIAS
+    assert FLICKER_FACTOR == pytest.approx(0.6643, abs=1e-4)    # IEEE Std 952-1997 Table B.1: √(2 ln2/π)
+    floor = 0.6643 * BIAS
     tau90 = 9.0 * (ARW / floor) ** 2             # N²/τ = floor²/9
+    # 2 single-point σ (11 %): the fit spans 8 octaves of floor (measured 2.1 % rms, 5.5 % max over 30 seeds)
+    tol = ieee952_tolerance(DAY_S, tau90, sigmas=2.0)
     for ax, p in gyro_params(x, rate).items():
         assert set(p.terms) == {"white", "flicker"}, ax
         assert p.white_noise == pytest.approx(ARW, rel=ieee952_tolerance(DAY_S, 1.0)), ax
-        assert p.bias_instability == pytest.approx(BIAS, rel=ieee952_tolerance(DAY_S, tau90)), ax
-        assert p.terms["flicker"].value == pytest.approx(BIAS, rel=ieee952_tolerance(DAY_S, tau90)), ax
+        assert p.bias_instability == pytest.approx(BIAS, rel=tol), ax
+        assert p.terms["flicker"].value == pytest.approx(BIAS, rel=tol), ax
         # read where the floor dominates: past the white noise's crossing, never the shortest τ
         assert p.tau_bias_instability_s > (ARW / floor) ** 2
         assert p.rate_random_walk is None and p.gauss_markov_sigma is None
