@@ -342,3 +342,51 @@ def test_a_few_invalid_samples_do_not_break_the_analysis():
     res = analyse_static(np.arange(5000) / 10.0, gyro_rad_s=x)
     assert res.parameters["gyro"]["x"].white_noise == pytest.approx(1 / math.sqrt(10), rel=0.1)
     assert res.replaced_samples["gyro"] == 1
+
+
+# ---------------------------------------------------------------------------------------- the decision rules
+
+
+def test_a_random_walk_that_bends_like_a_floor_is_not_a_bias_instability():
+    """3 h of white + K (the issue's values): on this realization one axis' curve flattens between τ ≈ 160 s
+    and 2600 s (found while writing the test), and a free white + flicker fit beats white + K there. A flicker
+    floor is kept only when it is significant beyond what a rate random walk explains."""
+    rng = np.random.default_rng(205)
+    rate, n = 100.0, int(3 * 3600 * 100)
+    x = three_axes(lambda n, r, g: gen.white(n, r, ARW, g) + gen.rate_random_walk(n, r, K_ISSUE, g), n, rate, rng)
+    for ax, p in gyro_params(x, rate).items():
+        assert p.bias_instability is None and "flicker" not in p.terms, ax
+
+
+def _points_from_model(fit, record_s: float, tau0: float):
+    """Octave points lying exactly on a model, with the cluster bookkeeping of a record of record_s."""
+    from ahrsd.calibration.allan_terms import _Points
+
+    taus = tau0 * 2.0 ** np.arange(int(math.log2(record_s / 3 / tau0)) + 1)
+    n = record_s / tau0
+    return _Points(taus, fit.avar(taus), np.full(len(taus), n), taus / tau0, record_s)
+
+
+def test_a_term_must_dominate_from_enough_clusters():
+    from ahrsd.calibration.allan_terms import MIN_CLUSTERS, ModelFit, is_seen
+
+    record_s = 10_000.0
+    for start_clusters, seen in ((2 * MIN_CLUSTERS, True), (MIN_CLUSTERS / 2, False)):
+        tau_cross = record_s / start_clusters                 # RRW = white at τ_c: K²τ_c/3 = N²/τ_c
+        k2_3 = ARW**2 / tau_cross**2
+        fit = ModelFit(("white", "rate_random_walk"), np.array([ARW**2, k2_3]), np.zeros(2), None, 0.0)
+        span = is_seen(fit, "rate_random_walk", _points_from_model(fit, record_s, 0.01))
+        assert (span is not None) == seen
+        if seen:
+            assert span[0] == pytest.approx(tau_cross, rel=0.04)   # the 400-point τ grid: 3 % steps
+
+
+def test_bias_instability_is_never_read_at_the_shortest_tau():
+    """Flicker dominating from the first τ, then a random walk: the model's minimum would be the first point."""
+    from ahrsd.calibration.allan_terms import ModelFit, flicker_reading
+
+    fit = ModelFit(("flicker", "rate_random_walk"), np.array([1e-8, 1e-12]), np.zeros(2), None, 0.0)
+    pts = _points_from_model(fit, 100_000.0, 1.0)
+    b, tau = flicker_reading(fit, pts)
+    assert tau >= pts.taus[1]
+    assert b == pytest.approx(math.sqrt(1e-8 + 1e-12 * pts.taus[1]) / FLICKER_FACTOR, rel=1e-9)
