@@ -46,7 +46,7 @@ def plot_allan(result, path) -> None:
             if p.bias_instability is not None:
                 level = FLICKER_FACTOR * p.bias_instability
                 ax.plot([p.tau_bias_instability_s], [level], "s", color=TERM_STYLE["flicker"][1], mec="k", ms=8)
-                ax.annotate("B = min σ / 0.664", (p.tau_bias_instability_s, level), textcoords="offset points",
+                ax.annotate(f"B = min σ / 0.664 = {p.bias_instability:.3g}", (p.tau_bias_instability_s, level), textcoords="offset points",
                             xytext=(6, -14), color=TERM_STYLE["flicker"][1])
             if p.fit is not None:
                 model = sum(p.fit.coef[j] * term_basis(n, taus, p.fit.corr_time_s) for j, n in enumerate(p.fit.terms))

@@ -9,17 +9,22 @@ Model (IEEE Std 952-1997 Annex C, Table C.1), every coefficient ≥ 0, in Allan 
           + σ_gm²·GM(τ; Tc)   first-order Gauss–Markov bias σ_gm, Tc (Annex C.6; an exponentially
                               correlated bias: a bump, no floor)
 
-The fit uses the octave-spaced points of the curve (τ doubling: their estimates are nearly independent) and
-weights each by the 1σ uncertainty of its Allan variance, σ²·√(2/edf), with the equivalent degrees of freedom
-of the overlapping estimator for the noise type that the model says dominates there (iteratively reweighted;
-`allan_adev.edf_overlapping`). Each term is kept only if
-  1. significance: adding it lowers χ² by more than the 0.1 % point of χ²(k) (k = 1, or 2 for Gauss–Markov,
-     whose Tc is fitted too), both when it is added (forward) and given all the other kept terms (backward);
+The fit uses the octave-spaced points of the curve (τ doubling) and treats each point's Allan variance as
+σ²·χ²(edf)/edf, with the equivalent degrees of freedom of the overlapping estimator for the noise type that
+the model says dominates there (`allan_adev.edf_overlapping`): the maximum-likelihood fit is an iteratively
+reweighted NNLS (weights edf/σ⁴_model), its deviance the likelihood-ratio statistic. The estimate at 2τ reuses
+the data of τ, so neighbouring octave points are correlated: the deviance (and the information) is halved,
+counting one independent point per two octaves. Each term is kept only if
+  1. significance: adding it lowers the deviance by more than the 0.1 % point of χ²(k) (k = 1, or 2 for
+     Gauss–Markov, whose Tc is fitted too), both when it is added (forward) and given all the other kept terms
+     (backward); a flicker floor and a rate ramp are tested beside a rate random walk, a Gauss–Markov bump
+     beside a flicker floor (TESTED_BESIDE): a term is never read from a shape the other terms explain;
   2. it is seen: it is the largest term of the fitted model over at least an octave of τ, starting at a τ with
      at least MIN_CLUSTERS independent clusters (IEEE Std 952 C.2: relative error 1/√(2(K−1)) ≈ 32 % for
      K = 6 clusters), so a term is never carried by the last, scattered points or hidden under others.
-A term that fails is reported as not seen, with the 2σ upper bound the data put on it and the recording length
-(or sample rate) at which a term that large would show.
+A term that fails is reported as not seen, with the 2σ upper bound from the deviance profile, the smallest
+value this recording would show, and the recording length (or, for quantization, the sample rate) at which
+one as large as the bound would dominate.
 """
 
 from __future__ import annotations

@@ -8,6 +8,8 @@ Sensor/body frame as recorded, SI units, accelerometer as specific force (+9.81 
 magnetic field in µT. Known extra columns: temp_c, supply_v, flags (SampleFlags as an integer), diag_stat,
 counter, and for simulated data the truth attitude truth_qw,truth_qx,truth_qy,truth_qz (body->NED, scalar
 first). Any other extra column is kept by name. Lines starting with '#' after the header are comments.
+A gzip-compressed recording (`.csv.gz`) is read transparently by every reader; `iter_recording_chunks` reads
+a long file a chunk of rows at a time.
 """
 
 from __future__ import annotations
