@@ -100,12 +100,14 @@ class StreamingAllan:
     themselves, 4 per level on the decimated series, whose total length is n).
     """
 
-    def __init__(self, rate_hz: float, n_axes: int = 3, level0_sizes=LEVEL0_SIZES):
+    def __init__(self, rate_hz: float, n_axes: int = 3, level0_sizes=LEVEL0_SIZES, decimate: bool = True):
+        """level0_sizes, decimate=False: exactly those cluster sizes on the samples, no decimated levels."""
         if not rate_hz > 0:
             raise ValueError(f"sample rate must be positive, got {rate_hz}")
         self.rate_hz = float(rate_hz)
         self.n_axes = n_axes
-        self._level0_sizes = tuple(level0_sizes)
+        self._level0_sizes = tuple(level0_sizes) + (LEVEL_SIZES if decimate else ())
+        self._decimate = decimate
         self._levels: list[_Level] = []
         self._offset: np.ndarray | None = None
 
@@ -128,10 +130,10 @@ class StreamingAllan:
             # The first sample is subtracted from everything: the Allan variance does not see a constant, and
             # the running sums θ stay small (their rounding error would otherwise grow with the bias·n).
             self._offset = x[0].copy()
-            self._levels.append(_Level(1, self._level0_sizes + LEVEL_SIZES, self.n_axes))
+            self._levels.append(_Level(1, self._level0_sizes, self.n_axes))
         values = x - self._offset
         j = 0
-        while len(values):
+        while len(values) and (j == 0 or self._decimate):
             if j == len(self._levels):
                 self._levels.append(_Level(2 ** j, LEVEL_SIZES, self.n_axes))
             values = self._levels[j].add(values)
@@ -176,26 +178,9 @@ def allan_deviation(x: np.ndarray, rate_hz: float, m: np.ndarray | None = None) 
         acc = StreamingAllan(rate_hz, cols)
         acc.add(x)
         return acc.curve()
-    m = tuple(int(v) for v in np.atleast_1d(m))
-    acc = _FixedSizes(rate_hz, cols, m)
+    acc = StreamingAllan(rate_hz, cols, level0_sizes=tuple(int(v) for v in np.atleast_1d(m)), decimate=False)
     acc.add(x)
     return acc.curve(max_tau_fraction=0.5)
-
-
-class _FixedSizes(StreamingAllan):
-    """Level 0 only, with the cluster sizes asked for."""
-
-    def add(self, x: np.ndarray) -> None:
-        x = np.asarray(x, dtype=np.float64)
-        x = x[:, None] if x.ndim == 1 else x
-        if len(x) < 8:
-            raise ValueError(f"Allan variance needs at least 8 samples, got {len(x)}")
-        if not np.all(np.isfinite(x)):
-            raise ValueError("Allan variance input contains non-finite samples")
-        if not self._levels:
-            self._offset = x[0].copy()
-            self._levels.append(_Level(1, self._level0_sizes, self.n_axes))
-        self._levels[0].add(x - self._offset)
 
 
 def edf_overlapping(alpha: int, n_points: float, m: float) -> float:
