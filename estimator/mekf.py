@@ -31,6 +31,7 @@ from ahrsd.core.sample import ImuSample
 
 from . import mekf_core as core
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags
+from .mag_heading import relearn_reference
 from .rotations import euler_to_quat, quat_to_dcm, quat_to_euler
 from .wahba import davenport
 
@@ -288,16 +289,8 @@ class Mekf:
         stays open for RELEARN_GATE_OPEN_S so a larger change (first calibration of strong iron) is taken
         too; the magnitude/dip check still rejects disturbances meanwhile. The daemon bounds the rate at
         which the autopilot sees the change (docs/daemon.md "Calibration changes")."""
-        s = self._state
-        s[core.S_MAG_REF_NORM] = 0.0          # 0 = learn from the next sample (mekf_core)
-        s[core.S_MAG_REF_DIP] = 0.0
-        s[core.S_MAG_CAND_NORM] = 0.0
-        s[core.S_MAG_CAND_DIP] = 0.0
-        s[core.S_MAG_CAND_T] = 0.0
-        s[core.S_MAG_UNDIST_T] = 0.0
-        s[core.S_MAG_DIST_T] = 0.0
-        s[core.S_MAG_REST_SET] = 0.0          # the at-rest field is the old calibration's: take it again
-        s[core.S_MAG_GATE_OPEN_T] = RELEARN_GATE_OPEN_S
+        relearn_reference(self._state, core.S_MAG, RELEARN_GATE_OPEN_S)
+        self._state[core.S_MAG_REST_SET] = 0.0   # the at-rest field is the old calibration's: take it again
 
     @property
     def gyro_bias_rad_s(self) -> np.ndarray:
