@@ -91,6 +91,9 @@ class InsParams:
     outage_reset_s: float = 120.0
     """No fix fused for this long: velocity and position are dropped (NavState None) and the next fix sets
     them, s."""
+    nav_init_sigma_tilt_rad: float = 5.0 * _DEG
+    """1σ tilt assumed when a fix first sets velocity and position (and after outage_reset_s): the levelled
+    tilt leans into any sustained acceleration (a/g), which the GNSS velocity then corrects in seconds, rad."""
     max_delay_s: float = 1.0
     """Fixes whose time of validity is more than this behind the newest sample are not fused, s (the history
     holds 1024 samples: 1.25 s at 819.2 SPS)."""
@@ -156,6 +159,7 @@ class InsParams:
         p[core.P_CONV_TILT] = self.converged_tilt_rad
         p[core.P_CONV_YAW] = self.converged_yaw_rad
         p[core.P_GNSS_TIMEOUT] = self.gnss_timeout_s
+        p[core.P_NAV_INIT_TILT] = self.nav_init_sigma_tilt_rad
         m = core.P_MAG
         p[m + mag.MP_NOISE] = self.mag_noise_ut
         p[m + mag.MP_HEADING_NOISE] = self.mag_heading_noise_rad
@@ -440,7 +444,14 @@ class Ins:
         x[core.X_POS_REJ_T0] = math.nan
         x[core.X_NIS_V] = math.nan
         x[core.X_NIS_P] = math.nan
-        x[core.X_HIST_I] = core.H_LEN - 1
+        # the first history row: a fix valid at this very sample can be fused
+        x[core.X_HIST_I] = 0
+        x[core.X_HIST_N] = 1
+        row = self._hist[0]
+        row[:] = 0.0
+        row[core.H_T] = t_s
+        row[core.H_Q : core.H_Q + 4] = q0
+        row[core.H_W : core.H_W + 3] = np.asarray(g, dtype=float) - keep_bg
         if keep_mag is not None:
             x[core.X_MAG + mag.MS_REF_NORM] = keep_mag[mag.MS_REF_NORM]
             x[core.X_MAG + mag.MS_REF_DIP] = keep_mag[mag.MS_REF_DIP]

@@ -114,6 +114,7 @@ P_INIT_TIME = 27        # INITIALISING held at least this long, s
 P_CONV_TILT = 28        # ... and until 1σ tilt is below this, rad
 P_CONV_YAW = 29         # ... and 1σ heading is below this, rad
 P_GNSS_TIMEOUT = 30     # no fused fix for this long: GNSS_OUTAGE, s
+P_NAV_INIT_TILT = 31    # 1σ tilt assumed when a fix first sets velocity/position (levelled tilt leans), rad
 P_MAG = 32              # mag_heading parameter block (MP_SIZE)
 P_SIZE = P_MAG + mag.MP_SIZE
 
@@ -426,6 +427,14 @@ def ins_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_fl
     if dt > 0.0:
         x[X_T_LAST] = t_s
     x[X_T_RUN] += dt
+    # the samples are instantaneous values at their times: over the step use the mean of the previous and
+    # this one (trapezoid; the last sample alone lags by half a step: ½ Δt · Δω of heading per change of rate)
+    pgx = x[X_GYR_LAST]
+    pgy = x[X_GYR_LAST + 1]
+    pgz = x[X_GYR_LAST + 2]
+    pax = x[X_ACC_LAST]
+    pay = x[X_ACC_LAST + 1]
+    paz = x[X_ACC_LAST + 2]
     if valid & IN_GYRO_OK:
         x[X_GYR_LAST] = gx
         x[X_GYR_LAST + 1] = gy
@@ -441,9 +450,12 @@ def ins_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_fl
     wx = x[X_GYR_LAST] - x[X_BG]
     wy = x[X_GYR_LAST + 1] - x[X_BG + 1]
     wz = x[X_GYR_LAST + 2] - x[X_BG + 2]
-    fx = x[X_ACC_LAST] - x[X_BA]
-    fy = x[X_ACC_LAST + 1] - x[X_BA + 1]
-    fz = x[X_ACC_LAST + 2] - x[X_BA + 2]
+    mwx = 0.5 * (pgx + x[X_GYR_LAST]) - x[X_BG]
+    mwy = 0.5 * (pgy + x[X_GYR_LAST + 1]) - x[X_BG + 1]
+    mwz = 0.5 * (pgz + x[X_GYR_LAST + 2]) - x[X_BG + 2]
+    fx = 0.5 * (pax + x[X_ACC_LAST]) - x[X_BA]
+    fy = 0.5 * (pay + x[X_ACC_LAST + 1]) - x[X_BA + 1]
+    fz = 0.5 * (paz + x[X_ACC_LAST + 2]) - x[X_BA + 2]
     q0 = x[X_Q]
     q1 = x[X_Q + 1]
     q2 = x[X_Q + 2]
@@ -467,7 +479,7 @@ def ins_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_fl
     earth = par[P_EARTH_ROT] > 0.0 and nav_ok   # the Earth rate needs the latitude
     if dt > 0.0:
         # body rate relative to NED: ω_nb = ω_ib − C_n^b (ω_ie + ω_en)   (seed 004 eq. 21)
-        rx, ry, rz = wx, wy, wz
+        rx, ry, rz = mwx, mwy, mwz
         if earth:
             en, ee, ed = earth_rate_ned(lat)
             tn, te, td = transport_rate_ned(lat, h_m, vn, ve, r_n, r_e)
@@ -803,6 +815,15 @@ def fuse_gnss(x, P, hist, par, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, ve_fix,
         x[X_H] -= dx[E_P + 2]
         _reset_block(P, E_V, var_v if use_vd else np.array([var_v[0], var_v[1], 1.0]))
         _reset_block(P, E_P, var_p if use_alt else np.array([var_p[0], var_p[1], NAV_UNKNOWN_VAR_P]))
+        # the tilt so far came from levelling, which leans by the unknown acceleration (a turn: a/g); its
+        # small variance would make the GNSS read that lean as accelerometer bias: widen it
+        st2 = par[P_NAV_INIT_TILT] ** 2
+        for i in range(2):
+            if P[i, i] < st2:
+                for jj in range(N_ERR):
+                    P[i, jj] = 0.0
+                    P[jj, i] = 0.0
+                P[i, i] = st2
         dx[0] = 0.0
         dx[1] = 0.0
         dx[2] = 0.0
