@@ -88,9 +88,12 @@ class InsParams:
     """No fix fused for this long: GNSS_OUTAGE (dead reckoning), s."""
     dead_reckon_s: float = 60.0
     """No fix fused for this long: the accelerometer levels the attitude again (unaided behaviour), s."""
-    outage_reset_s: float = 120.0
-    """No fix fused for this long: velocity and position are dropped (NavState None) and the next fix sets
-    them, s."""
+    outage_reset_s: float = 5.0
+    """The first fix after an outage longer than this sets velocity and position (attitude untouched): the
+    dead-reckoned velocity error, fused, would move the tilt by tenths of a degree at once, s."""
+    nav_drop_s: float = 120.0
+    """No fix fused for this long: velocity and position are dropped (NavState None) until a fix sets them
+    again, s."""
     nav_init_sigma_tilt_rad: float = 5.0 * _DEG
     """1σ tilt assumed when a fix first sets velocity and position (and after outage_reset_s): the levelled
     tilt leans into any sustained acceleration (a/g), which the GNSS velocity then corrects in seconds, rad."""
@@ -152,6 +155,7 @@ class InsParams:
         p[core.P_REJECT_RESET] = self.reject_reset_s
         p[core.P_DEAD_RECKON] = self.dead_reckon_s
         p[core.P_OUTAGE_RESET] = self.outage_reset_s
+        p[core.P_NAV_DROP] = self.nav_drop_s
         p[core.P_MAX_DELAY] = self.max_delay_s
         p[core.P_LARGE_DT] = self.large_dt_s
         p[core.P_REINIT_DT] = self.reinit_dt_s
@@ -190,7 +194,8 @@ class GnssCounters:
     rejected_position: int = 0      # χ² gate (a jump)
     reset_velocity: int = 0         # after reject_reset_s of rejections: re-acquired
     reset_position: int = 0
-    nav_initialised: int = 0        # first fix, or first after outage_reset_s
+    nav_initialised: int = 0        # first fix, or first after nav_drop_s
+    nav_reset_after_outage: int = 0  # first fix after outage_reset_s: velocity and position set from it
     invalid: int = 0                # no fix, non-finite position and velocity, bad accuracies
     time_backwards: int = 0         # not newer than the previous fix
     too_old: int = 0                # older than max_delay_s / the history
@@ -386,9 +391,12 @@ class Ins:
         if res & core.R_TOO_OLD:
             c.too_old += 1
             self._reject("older than the state history", fix)
-        if res & (core.R_NAV_INIT | core.R_OUTAGE_RESET):
+        if res & core.R_NAV_INIT:
             c.nav_initialised += 1
             log.info("ins: velocity and position set from the GNSS fix at t=%.3f s", fix.t_s)
+        if res & core.R_OUTAGE_RESET:
+            c.nav_reset_after_outage += 1
+            log.info("ins: GNSS back after an outage: velocity and position reset to the fix at t=%.3f s", fix.t_s)
         c.fused_velocity += bool(res & core.R_VEL_FUSED)
         c.fused_position += bool(res & core.R_POS_FUSED)
         if res & core.R_VEL_REJECTED:

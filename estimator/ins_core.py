@@ -106,7 +106,7 @@ P_LEVER = 15            # 3: antenna position in the body frame relative to the 
 P_GATE_CHI2 = 18        # 3: innovation gate (χ² threshold) for 1, 2, 3 degrees of freedom
 P_REJECT_RESET = 21     # a run of rejections this long resets that quantity to the fix, s
 P_DEAD_RECKON = 22      # without a fused fix for this long, levelling resumes (unaided), s
-P_OUTAGE_RESET = 23     # without a fused fix for this long, the next fix resets velocity and position, s
+P_OUTAGE_RESET = 23     # the first fix after an outage longer than this resets velocity and position, s
 P_MAX_DELAY = 24        # fixes older than this (behind the newest sample) are not fused, s
 P_LARGE_DT = 25         # Δt above this (or ≤ 0) is flagged LARGE_DT, s
 P_REINIT_DT = 26        # Δt above this re-initialises, s
@@ -115,8 +115,10 @@ P_CONV_TILT = 28        # ... and until 1σ tilt is below this, rad
 P_CONV_YAW = 29         # ... and 1σ heading is below this, rad
 P_GNSS_TIMEOUT = 30     # no fused fix for this long: GNSS_OUTAGE, s
 P_NAV_INIT_TILT = 31    # 1σ tilt assumed when a fix first sets velocity/position (levelled tilt leans), rad
-P_MAG = 32              # mag_heading parameter block (MP_SIZE)
-P_SIZE = P_MAG + mag.MP_SIZE
+P_NAV_DROP = 44         # without a fused fix for this long, velocity and position are dropped, s
+P_MAG = 32              # mag_heading parameter block (MP_SIZE): 32–43
+P_SIZE = 45
+assert P_MAG + mag.MP_SIZE <= P_NAV_DROP < P_SIZE
 
 # ----------------------------------------------------------------------------------- outputs
 O_Q = 0        # 4 body → magnetic NED (the AttitudeEstimate convention)
@@ -149,7 +151,7 @@ R_VEL_RESET = 16       # a persistent change: velocity reset to the fix after a 
 R_POS_RESET = 32
 R_NAV_INIT = 64        # first fix: velocity and position set from it
 R_TOO_OLD = 128        # older than the history (or than P_MAX_DELAY): not fused
-R_OUTAGE_RESET = 256   # first fix after a long outage: velocity and position set from it
+R_OUTAGE_RESET = 256   # first fix after an outage: velocity and position set from it, attitude untouched
 
 # error-state component masks (bit i = error-state component i) for `_scalar_update`
 M_TILT = 0b11
@@ -350,7 +352,10 @@ def _level(x, P, par, dt_epoch):
     """Accelerometer levelling (tilt only) from the NED-frame low-passed specific force, with mekf's gating:
     off while | |f_lp| − g | > P_LEVEL_REJECT or the low-passed vertical is more than P_LEVEL_GATE from the
     estimate, then held off for 4 τ (until the low-pass has forgotten the push), unless nothing was accepted
-    for P_LEVEL_RECOVER. Returns F_ACCEL_REJECTED or 0."""
+    for P_LEVEL_RECOVER. Tilt only: heading, gyro and accelerometer biases get no gain — the levelled vertical
+    leans into any sustained acceleration (a boat's turn, a/g), an error that is not white noise, and learnt
+    into the biases it would survive the return of GNSS (which then reads the lean as a bias). Returns
+    F_ACCEL_REJECTED or 0."""
     un = x[X_ACC_LP]
     ue = x[X_ACC_LP + 1]
     ud = x[X_ACC_LP + 2]
@@ -370,7 +375,7 @@ def _level(x, P, par, dt_epoch):
         x[X_ACC_REJ_T] += dt_epoch
         return F_ACCEL_REJECTED
     r = (par[P_LEVEL_NOISE] / g) ** 2
-    mask = M_HEADING | M_ACC_BIAS   # never heading; an accelerometer bias is not observable this way
+    mask = M_HEADING | M_ACC_BIAS | M_GYRO_BIAS   # tilt only (see the docstring)
     dx = np.zeros(N_ERR)
     h = np.zeros(N_ERR)
     h[1] = 1.0
@@ -468,7 +473,7 @@ def ins_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_fl
     vd = x[X_V + 2]
     r_n, r_e = radii_of_curvature_m(lat)
     nav_ok = x[X_NAV_OK] > 0.0
-    if nav_ok and x[X_T_LAST] - x[X_GNSS_LAST_T] > par[P_OUTAGE_RESET]:
+    if nav_ok and x[X_T_LAST] - x[X_GNSS_LAST_T] > par[P_NAV_DROP]:
         # so long without a fix that velocity and position mean nothing: stop integrating them (the next fix
         # sets them again, as the first one did)
         nav_ok = False
@@ -797,7 +802,9 @@ def fuse_gnss(x, P, hist, par, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, ve_fix,
         if not (use_pos and use_vel):
             return res
         # velocity and position from the fix (antenna → IMU), attitude untouched; the shift is also applied
-        # to the history so that the next fix compares with the reset trajectory
+        # to the history so that the next fix compares with the reset trajectory. After an outage the
+        # dead-reckoned velocity is metres per second off: fused, that error would be read as tilt all at
+        # once (a step of tenths of a degree); reset, the tilt is corrected by the fixes that follow.
         dx = np.zeros(N_ERR)
         for i in range(3):
             dx[E_V + i] = nu_v[i]
@@ -817,7 +824,7 @@ def fuse_gnss(x, P, hist, par, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, ve_fix,
         _reset_block(P, E_P, var_p if use_alt else np.array([var_p[0], var_p[1], NAV_UNKNOWN_VAR_P]))
         # the tilt so far came from levelling, which leans by the unknown acceleration (a turn: a/g); its
         # small variance would make the GNSS read that lean as accelerometer bias: widen it
-        st2 = par[P_NAV_INIT_TILT] ** 2
+        st2 = par[P_NAV_INIT_TILT] ** 2 if first or t_fix - x[X_GNSS_LAST_T] > par[P_DEAD_RECKON] else 0.0
         for i in range(2):
             if P[i, i] < st2:
                 for jj in range(N_ERR):
@@ -865,7 +872,9 @@ def fuse_gnss(x, P, hist, par, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, ve_fix,
             res |= R_VEL_REJECTED
             if math.isnan(x[X_VEL_REJ_T0]):
                 x[X_VEL_REJ_T0] = t_fix
-            elif t_fix - x[X_VEL_REJ_T0] >= par[P_REJECT_RESET]:
+            elif t_fix - x[X_VEL_REJ_T0] >= par[P_REJECT_RESET] and (not use_pos or not math.isnan(x[X_POS_REJ_T0])):
+                # only when the positions disagree too (or there are none): a receiver whose velocity
+                # contradicts its own positions is wrong, not the filter
                 res |= R_VEL_RESET
     m_p = 3 if use_alt else 2
     if use_pos:

@@ -98,7 +98,7 @@ def _dead_reckon(scenario, seconds, rate_hz, earth_rotation=True):
     no aiding at all (no magnetometer, no levelling, no further fix): pure mechanisation."""
     run = simulated_run(scenario, seconds, rate_hz=rate_hz, errors="ideal", earth_rate=True)
     tr = run.truth
-    ins = Ins(mag_enabled=False, dead_reckon_s=1e9, outage_reset_s=1e9, earth_rotation=earth_rotation,
+    ins = Ins(mag_enabled=False, dead_reckon_s=1e9, nav_drop_s=1e9, earth_rotation=earth_rotation,
               init_sigma_tilt_rad=1e-6, init_sigma_yaw_rad=1e-6)
     from ahrsd.core.sample import make_sample
 
