@@ -62,6 +62,9 @@ class InsParams:
     the summed increments of the samples in between, s. 0.01 s = every 8 samples at 819.2 SPS."""
     earth_rotation: bool = True
     """Earth rate, transport rate and Coriolis in the mechanisation (seed 004 eqs. 14–16, 21)."""
+    earth_model: str = "wgs84"
+    """Radii of curvature for position (eq. 17) and transport rate (eq. 16): "wgs84" (the ellipsoid receivers
+    report positions on) or "sphere" (seed 004's R0 = 6 378 137 m, for tracks computed on that sphere)."""
 
     # --- GNSS
     lever_arm_m: tuple = (0.0, 0.0, 0.0)
@@ -143,6 +146,9 @@ class InsParams:
         p[core.P_ACC_BIAS_CLIP] = self.accel_bias_clip_m_s2
         p[core.P_COV_PERIOD] = self.cov_period_s
         p[core.P_EARTH_ROT] = 1.0 if self.earth_rotation else 0.0
+        if self.earth_model not in ("wgs84", "sphere"):
+            raise ValueError(f"earth_model must be 'wgs84' or 'sphere', got {self.earth_model!r}")
+        p[core.P_SPHERE] = 1.0 if self.earth_model == "sphere" else 0.0
         p[core.P_LEVEL_NOISE] = self.level_noise_m_s2
         p[core.P_LEVEL_REJECT] = self.level_reject_m_s2
         p[core.P_LEVEL_GATE] = self.level_gate_rad

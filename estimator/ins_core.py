@@ -34,6 +34,7 @@ from .ins_mechanisation import (
     earth_rate_ned,
     normal_gravity_m_s2,
     position_rates,
+    SPHERE_RADIUS_M,
     radii_of_curvature_m,
     transport_rate_ned,
     velocity_rate_ned,
@@ -116,8 +117,9 @@ P_CONV_YAW = 29         # ... and 1σ heading is below this, rad
 P_GNSS_TIMEOUT = 30     # no fused fix for this long: GNSS_OUTAGE, s
 P_NAV_INIT_TILT = 31    # 1σ tilt assumed when a fix first sets velocity/position (levelled tilt leans), rad
 P_NAV_DROP = 44         # without a fused fix for this long, velocity and position are dropped, s
+P_SPHERE = 45           # 1.0: spherical Earth (radius R0, seed 004) instead of the WGS-84 ellipsoid's radii
 P_MAG = 32              # mag_heading parameter block (MP_SIZE): 32–43
-P_SIZE = 45
+P_SIZE = 46
 assert P_MAG + mag.MP_SIZE <= P_NAV_DROP < P_SIZE
 
 # ----------------------------------------------------------------------------------- outputs
@@ -164,6 +166,14 @@ NAV_UNKNOWN_VAR_P = 1e6      # (1 km)², position variance before a fix sets it
 
 
 # ----------------------------------------------------------------------------------- small helpers
+@njit(cache=True)
+def _radii(par, lat):
+    """(R_N, R_E) of the configured Earth model, m."""
+    if par[P_SPHERE] > 0.0:
+        return SPHERE_RADIUS_M, SPHERE_RADIUS_M
+    return radii_of_curvature_m(lat)
+
+
 @njit(cache=True)
 def _dcm(q0, q1, q2, q3):
     """C_b^n of a unit quaternion, as 9 scalars row-major."""
@@ -255,7 +265,7 @@ def _apply_correction(x, par, dx):
     for i in range(3):
         x[X_V + i] += dx[E_V + i]
     lat = x[X_LAT]
-    r_n, r_e = radii_of_curvature_m(lat)
+    r_n, r_e = _radii(par, lat)
     x[X_LAT] = lat + dx[E_P] / (r_n + x[X_H])
     x[X_LON] += dx[E_P + 1] / ((r_e + x[X_H]) * math.cos(lat))
     x[X_H] -= dx[E_P + 2]
@@ -471,7 +481,7 @@ def ins_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_fl
     vn = x[X_V]
     ve = x[X_V + 1]
     vd = x[X_V + 2]
-    r_n, r_e = radii_of_curvature_m(lat)
+    r_n, r_e = _radii(par, lat)
     nav_ok = x[X_NAV_OK] > 0.0
     if nav_ok and x[X_T_LAST] - x[X_GNSS_LAST_T] > par[P_NAV_DROP]:
         # so long without a fix that velocity and position mean nothing: stop integrating them (the next fix
@@ -784,7 +794,7 @@ def fuse_gnss(x, P, hist, par, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, ve_fix,
     ph = hist[j, H_H] * (1.0 - w) + hist[k, H_H] * w
     on, oe, od, un, ue, ud, c = _lever_terms(a0, a1, a2, a3, pw[0], pw[1], pw[2],
                                              par[P_LEVER], par[P_LEVER + 1], par[P_LEVER + 2])
-    r_n, r_e = radii_of_curvature_m(plat)
+    r_n, r_e = _radii(par, plat)
     # innovations (fix − prediction), NED
     nu_p = np.zeros(3)
     nu_p[0] = (lat_fix - plat) * (r_n + ph) - on

@@ -27,6 +27,15 @@ def wgs84_radii(lat_rad):
     return r_e * (1.0 - WGS84_E2) / d, r_e
 
 
+def sphere_radii(lat_rad):
+    """Seed 004's spherical Earth: R0 = 6 378 137 m for both radii."""
+    r = np.full(np.shape(lat_rad), 6378137.0)
+    return r, r
+
+
+RADII = {"wgs84": wgs84_radii, "sphere": sphere_radii}
+
+
 def rot(q_wxyz) -> Rotation:
     q = np.asarray(q_wxyz, dtype=float)
     return Rotation.from_quat(np.concatenate([q[..., 1:], q[..., :1]], axis=-1))
@@ -52,9 +61,12 @@ class Run:
     accel: np.ndarray
     mag: np.ndarray
     truth: Truth
+    earth: str = "wgs84"
 
 
-def simulated_run(scenario, seconds, rate_hz=200.0, seed=1, errors="adis16405", earth_rate=True) -> Run:
+def simulated_run(scenario, seconds, rate_hz=200.0, seed=1, errors="adis16405", earth_rate=True,
+                  earth="wgs84") -> Run:
+    """The scenario's truth track as geodetic position on `earth` ("wgs84" or "sphere")."""
     stream = open_stream(scenario, rate_hz=rate_hz, seed=seed, errors=errors, earth_rate=earth_rate)
     b = stream.next_block(int(round(seconds * rate_hz)))
     e = stream.errors
@@ -63,16 +75,17 @@ def simulated_run(scenario, seconds, rate_hz=200.0, seed=1, errors="adis16405", 
     site = DEFAULT_SITE
     h = site.alt_m - cumulative_trapezoid(v[:, 2], b.t_s, initial=0.0)
     lat = np.full(len(b.t_s), math.radians(site.lat_deg))
+    radii = RADII[earth]
     for _ in range(2):   # L̇ = V_N/(R_N + h): iterate once so R_N is taken at the moving latitude
-        r_n, r_e = wgs84_radii(lat)
+        r_n, r_e = radii(lat)
         lat = math.radians(site.lat_deg) + cumulative_trapezoid(v[:, 0] / (r_n + h), b.t_s, initial=0.0)
-    r_n, r_e = wgs84_radii(lat)
+    r_n, r_e = radii(lat)
     lon = math.radians(site.lon_deg) + cumulative_trapezoid(v[:, 1] / ((r_e + h) * np.cos(lat)), b.t_s, initial=0.0)
-    return Run(b, b.gyro_rad_s, b.accel_m_s2, mag, Truth(b.t_s, b.truth_q_wxyz, v, lat, lon, h))
+    return Run(b, b.gyro_rad_s, b.accel_m_s2, mag, Truth(b.t_s, b.truth_q_wxyz, v, lat, lon, h), earth)
 
 
 def gnss_fixes(truth: Truth, rate_hz=5.0, sigma_pos_m=1.5, sigma_vel_m_s=0.05, latency_s=0.1, seed=7,
-               start_s=0.5, lever_arm_m=(0.0, 0.0, 0.0), body_rate=None, sigma_alt_m=None):
+               start_s=0.5, lever_arm_m=(0.0, 0.0, 0.0), body_rate=None, sigma_alt_m=None, earth="wgs84"):
     """[(arrival time, GnssFix)] at `rate_hz`, valid at sample times, arriving `latency_s` later; white noise
     of the given 1σ, reported as the fix's accuracies. With a lever arm, the fix is the antenna's
     (p + C r, v + C (ω × r); body_rate: truth ω per sample)."""
@@ -87,7 +100,7 @@ def gnss_fixes(truth: Truth, rate_hz=5.0, sigma_pos_m=1.5, sigma_vel_m_s=0.05, l
         c = rot(truth.q_wxyz[i]).as_matrix()
         off = c @ arm
         vel = truth.vel_ned_m_s[i] + (c @ np.cross(body_rate[i], arm) if body_rate is not None else 0.0)
-        r_n, r_e = wgs84_radii(truth.lat_rad[i])
+        r_n, r_e = RADII[earth](truth.lat_rad[i])
         h = truth.h_m[i]
         n = off[0] + rng.normal(0.0, sigma_pos_m)
         e = off[1] + rng.normal(0.0, sigma_pos_m)
@@ -169,8 +182,8 @@ def tilt_heading_errors_deg(q_mag_est, q_truth, declination_rad=DECLINATION):
     return tilt, heading
 
 
-def position_error_ned(res: Result, truth: Truth) -> np.ndarray:
-    r_n, r_e = wgs84_radii(truth.lat_rad)
+def position_error_ned(res: Result, truth: Truth, earth="wgs84") -> np.ndarray:
+    r_n, r_e = RADII[earth](truth.lat_rad)
     return np.column_stack([(truth.lat_rad - res.lat_rad) * (r_n + truth.h_m),
                             (truth.lon_rad - res.lon_rad) * (r_e + truth.h_m) * np.cos(truth.lat_rad),
                             -(truth.h_m - res.h_m)])
