@@ -28,7 +28,14 @@ from ahrsd.core.sample import ImuSample
 
 from . import ins_core as core
 from . import mag_heading as mag
-from .mekf import RELEARN_GATE_OPEN_S, initial_attitude
+from .mekf import (
+    RELEARN_GATE_OPEN_S,
+    after_init_flags,
+    estimate_flags,
+    initial_attitude,
+    uninitialised_estimate,
+    with_overrides,
+)
 from .mekf_core import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .rotations import quat_to_dcm
 
@@ -212,16 +219,6 @@ class GnssCounters:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
-_FLAG_CACHE: dict[int, EstimateFlags] = {}
-
-
-def _estimate_flags(bits: int) -> EstimateFlags:
-    f = _FLAG_CACHE.get(bits)
-    if f is None:
-        f = _FLAG_CACHE[bits] = EstimateFlags(bits & 0xFFFF)
-    return f
-
-
 _TWO_PI = 2.0 * math.pi
 _MAX_QUEUED = 16
 
@@ -238,12 +235,7 @@ class Ins:
     name = "ins"
 
     def __init__(self, declination_rad: float = 0.0, params: InsParams | None = None, **overrides):
-        base = params or DEFAULT_INS_PARAMS
-        known = {f.name for f in fields(InsParams)}
-        unknown = set(overrides) - known
-        if unknown:
-            raise ValueError(f"unknown ins parameter(s): {', '.join(sorted(unknown))}")
-        self.params = replace(base, **overrides)
+        self.params = with_overrides(params or DEFAULT_INS_PARAMS, overrides, "ins")
         self._declination = float(declination_rad)
         self._par = self.params.to_array(self._declination)
         self._x = np.zeros(core.X_SIZE)
@@ -488,12 +480,8 @@ class Ins:
         return True
 
     def _after_init_flags(self) -> int:
-        f = int(EstimateFlags.INITIALISING)
-        if self._reinit_pending:
-            f |= int(EstimateFlags.REINITIALISED | EstimateFlags.LARGE_DT)
-            self._reinit_pending = False
-        if not self.params.mag_enabled:
-            f |= int(EstimateFlags.MAG_UNAVAILABLE)
+        f = after_init_flags(self._reinit_pending, self.params.mag_enabled)
+        self._reinit_pending = False
         return f
 
     def _estimate(self, t_s: float, f: int) -> AttitudeEstimate:
@@ -525,25 +513,12 @@ class Ins:
             o[core.O_RATE : core.O_RATE + 3],
             o[core.O_BG : core.O_BG + 3],
             o[core.O_SIGMA : core.O_SIGMA + 3],
-            _estimate_flags(f),
+            estimate_flags(f),
             nav,
         )
 
     def _estimate_uninitialised(self, sample: ImuSample, extra: int) -> AttitudeEstimate:
-        nan3 = np.full(3, np.nan)
-        return AttitudeEstimate(
-            t_s=sample.t_s,
-            q_wxyz=np.array([1.0, 0.0, 0.0, 0.0]),
-            roll_rad=math.nan,
-            pitch_rad=math.nan,
-            yaw_rad=math.nan,
-            heading_mag_rad=math.nan,
-            heading_true_rad=math.nan,
-            rate_body_rad_s=nan3,
-            gyro_bias_rad_s=np.zeros(3),
-            sigma_rpy_rad=np.full(3, math.pi),
-            flags=EstimateFlags.INITIALISING | _estimate_flags(extra | self._pending_flags),
-        )
+        return uninitialised_estimate(sample.t_s, extra | self._pending_flags)
 
 
 def _accuracy(reported: float, default: float, floor: float) -> float:

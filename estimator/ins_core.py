@@ -39,7 +39,16 @@ from .ins_mechanisation import (
     transport_rate_ned,
     velocity_rate_ned,
 )
-from .mekf_core import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
+from .mekf_core import (
+    IN_ACC_OK,
+    IN_GYRO_OK,
+    IN_MAG_OK,
+    NEEDS_INIT,
+    euler_and_tilt_sigma,
+    initialising,
+    input_validity,
+    step_dt,
+)
 
 N_ERR = 15
 E_TH, E_V, E_P, E_BG, E_BA = 0, 3, 6, 9, 12
@@ -431,14 +440,9 @@ def ins_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_fl
     covariance and run the levelling (when unaided) and magnetometer updates; fill `out`. Returns
     EstimateFlags bits (| NEEDS_INIT when the caller must initialise from this sample first)."""
     valid = input_validity(sample_flags, gx, gy, gz, ax, ay, az, mx, my, mz)
-    flags = 0
-    dt = t_s - x[X_T_LAST]
-    if not (dt > 0.0) or dt > par[P_LARGE_DT]:
-        flags |= F_LARGE_DT
-        if dt > par[P_REINIT_DT]:
-            return flags | NEEDS_INIT
-        if not (dt > 0.0):
-            dt = 0.0
+    dt, flags = step_dt(t_s - x[X_T_LAST], par[P_LARGE_DT], par[P_REINIT_DT])
+    if flags & NEEDS_INIT:
+        return flags
     if dt > 0.0:
         x[X_T_LAST] = t_s
     x[X_T_RUN] += dt
@@ -593,11 +597,8 @@ def ins_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_fl
             flags |= F_GNSS_AIDED
         else:
             flags |= F_GNSS_OUTAGE
-    if (
-        x[X_T_RUN] < par[P_INIT_TIME]
-        or max(out[O_SIGMA], out[O_SIGMA + 1]) > par[P_CONV_TILT]
-        or (par[P_MAG_ENABLED] > 0.0 and out[O_SIGMA + 2] > par[P_CONV_YAW])
-    ):
+    if initialising(x[X_T_RUN], out[O_SIGMA], out[O_SIGMA + 1], out[O_SIGMA + 2], par[P_INIT_TIME],
+                    par[P_CONV_TILT], par[P_MAG_ENABLED] > 0.0, par[P_CONV_YAW]):
         flags |= F_INITIALISING
     return flags
 
@@ -620,17 +621,12 @@ def fill_outputs(x, P, par, wx, wy, wz, out):
     out[O_RATE] = wx
     out[O_RATE + 1] = wy
     out[O_RATE + 2] = wz
-    yaw = math.atan2(2.0 * (q1 * q2 + q0 * q3), 1.0 - 2.0 * (q2 * q2 + q3 * q3))
-    cy = math.cos(yaw)
-    sy = math.sin(yaw)
-    pnn = P[0, 0]
-    pne = P[0, 1]
-    pee = P[1, 1]
-    out[O_SIGMA] = math.sqrt(max(cy * cy * pnn + 2.0 * cy * sy * pne + sy * sy * pee, 0.0))
-    out[O_SIGMA + 1] = math.sqrt(max(sy * sy * pnn - 2.0 * cy * sy * pne + cy * cy * pee, 0.0))
+    roll, pitch, yaw, sig_roll, sig_pitch = euler_and_tilt_sigma(q0, q1, q2, q3, P[0, 0], P[0, 1], P[1, 1])
+    out[O_SIGMA] = sig_roll
+    out[O_SIGMA + 1] = sig_pitch
     out[O_SIGMA + 2] = math.sqrt(max(P[2, 2], 0.0))
-    out[O_EULER] = math.atan2(2.0 * (q2 * q3 + q0 * q1), 1.0 - 2.0 * (q1 * q1 + q2 * q2))
-    out[O_EULER + 1] = -math.asin(min(1.0, max(-1.0, 2.0 * (q1 * q3 - q0 * q2))))
+    out[O_EULER] = roll
+    out[O_EULER + 1] = pitch
     out[O_EULER + 2] = yaw
     for i in range(3):
         out[O_BG + i] = x[X_BG + i]
@@ -760,6 +756,25 @@ def _correct_history(hist, x, t_from, dx, dpos_lat, dpos_lon, dpos_h):
 
 
 @njit(cache=True)
+def _gated_update(x, P, par, H, nu, var, m, dx, t_fix, i_rej_t0, i_nis, may_reset, r_fused, r_rejected, r_reset):
+    """The χ² gate on m rows of one GNSS quantity, then its sequential scalar updates (into dx); on
+    rejection, the start of the run of rejections is kept at x[i_rej_t0], and a run spanning P_REJECT_RESET
+    asks for a reset (r_reset) when `may_reset`. Returns the R_* bits."""
+    nis = _nis(P, H, nu, var, m)
+    x[i_nis] = nis
+    if nis <= par[P_GATE_CHI2 + m - 1]:
+        for i in range(m):
+            _scalar_update(P, H[i], _residual(H[i], nu[i], dx), var[i], 0, dx)
+        x[i_rej_t0] = math.nan
+        return r_fused
+    if math.isnan(x[i_rej_t0]):
+        x[i_rej_t0] = t_fix
+    elif t_fix - x[i_rej_t0] >= par[P_REJECT_RESET] and may_reset:
+        return r_rejected | r_reset
+    return r_rejected
+
+
+@njit(cache=True)
 def fuse_gnss(x, P, hist, par, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, ve_fix, vd_fix, sig_h, sig_v, sig_s,
               use_pos, use_alt, use_vel, use_vd):
     """Fuse one GNSS fix (angles in rad, σ in m and m/s) at its time of validity t_fix. Returns R_* bits.
@@ -871,36 +886,15 @@ def fuse_gnss(x, P, hist, par, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, ve_fix,
         _skew_rows(hp[i], i, on, oe, od, 1.0)
     m_v = 3 if use_vd else 2
     if use_vel:
-        nis = _nis(P, hv, nu_v, var_v, m_v)
-        x[X_NIS_V] = nis
-        if nis <= par[P_GATE_CHI2 + m_v - 1]:
-            for i in range(m_v):
-                _scalar_update(P, hv[i], _residual(hv[i], nu_v[i], dx), var_v[i], 0, dx)
-            res |= R_VEL_FUSED
-            x[X_VEL_REJ_T0] = math.nan
-        else:
-            res |= R_VEL_REJECTED
-            if math.isnan(x[X_VEL_REJ_T0]):
-                x[X_VEL_REJ_T0] = t_fix
-            elif t_fix - x[X_VEL_REJ_T0] >= par[P_REJECT_RESET] and (not use_pos or not math.isnan(x[X_POS_REJ_T0])):
-                # only when the positions disagree too (or there are none): a receiver whose velocity
-                # contradicts its own positions is wrong, not the filter
-                res |= R_VEL_RESET
+        # a velocity reset needs the positions to disagree too (or none): a receiver whose velocity
+        # contradicts its own positions is wrong, not the filter
+        may_reset = not use_pos or not math.isnan(x[X_POS_REJ_T0])
+        res |= _gated_update(x, P, par, hv, nu_v, var_v, m_v, dx, t_fix, X_VEL_REJ_T0, X_NIS_V, may_reset,
+                             R_VEL_FUSED, R_VEL_REJECTED, R_VEL_RESET)
     m_p = 3 if use_alt else 2
     if use_pos:
-        nis = _nis(P, hp, nu_p, var_p, m_p)
-        x[X_NIS_P] = nis
-        if nis <= par[P_GATE_CHI2 + m_p - 1]:
-            for i in range(m_p):
-                _scalar_update(P, hp[i], _residual(hp[i], nu_p[i], dx), var_p[i], 0, dx)
-            res |= R_POS_FUSED
-            x[X_POS_REJ_T0] = math.nan
-        else:
-            res |= R_POS_REJECTED
-            if math.isnan(x[X_POS_REJ_T0]):
-                x[X_POS_REJ_T0] = t_fix
-            elif t_fix - x[X_POS_REJ_T0] >= par[P_REJECT_RESET]:
-                res |= R_POS_RESET
+        res |= _gated_update(x, P, par, hp, nu_p, var_p, m_p, dx, t_fix, X_POS_REJ_T0, X_NIS_P, True,
+                             R_POS_FUSED, R_POS_REJECTED, R_POS_RESET)
     _symmetrise(P)
     lat_before = x[X_LAT]
     lon_before = x[X_LON]

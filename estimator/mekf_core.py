@@ -226,20 +226,50 @@ def input_validity(sample_flags, gx, gy, gz, ax, ay, az, mx, my, mz):
 
 
 @njit(cache=True)
+def euler_and_tilt_sigma(q0, q1, q2, q3, pnn, pne, pee):
+    """ZYX roll, pitch, yaw of a body→NED quaternion, and the 1σ roll and pitch from the NED tilt covariance
+    (P_NN, P_NE, P_EE of δθ) rotated into the heading frame."""
+    yaw = math.atan2(2.0 * (q1 * q2 + q0 * q3), 1.0 - 2.0 * (q2 * q2 + q3 * q3))
+    cy = math.cos(yaw)
+    sy = math.sin(yaw)
+    sig_roll = math.sqrt(max(cy * cy * pnn + 2.0 * cy * sy * pne + sy * sy * pee, 0.0))
+    sig_pitch = math.sqrt(max(sy * sy * pnn - 2.0 * cy * sy * pne + cy * cy * pee, 0.0))
+    roll = math.atan2(2.0 * (q2 * q3 + q0 * q1), 1.0 - 2.0 * (q1 * q1 + q2 * q2))
+    pitch = -math.asin(min(1.0, max(-1.0, 2.0 * (q1 * q3 - q0 * q2))))
+    return roll, pitch, yaw, sig_roll, sig_pitch
+
+
+@njit(cache=True)
+def step_dt(dt, large_dt, reinit_dt):
+    """(Δt to propagate over, flag bits) for a sample Δt after the previous one: LARGE_DT when Δt ≤ 0 or
+    > large_dt; NEEDS_INIT as well when Δt > reinit_dt; a repeated or backwards time propagates over 0."""
+    flags = 0
+    if not (dt > 0.0) or dt > large_dt:
+        flags |= F_LARGE_DT
+        if dt > reinit_dt:
+            return dt, flags | NEEDS_INIT
+        if not (dt > 0.0):
+            dt = 0.0  # repeated or backwards time: update without propagating
+    return dt, flags
+
+
+@njit(cache=True)
+def initialising(t_run, sig_roll, sig_pitch, sig_yaw, min_time, conv_tilt, with_heading, conv_yaw):
+    """INITIALISING: less than min_time since (re-)initialisation, or the 1σ tilt (or, with a magnetometer,
+    heading) not yet below its convergence threshold."""
+    return t_run < min_time or max(sig_roll, sig_pitch) > conv_tilt or (with_heading and sig_yaw > conv_yaw)
+
+
+@njit(cache=True)
 def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, out):
     """One sample. Returns EstimateFlags bits (| NEEDS_INIT when the caller must initialise first).
 
     sample_flags: the sample's SampleFlags as an int (invalid or saturated sensors are not used).
     """
     valid = input_validity(sample_flags, gx, gy, gz, ax, ay, az, mx, my, mz)
-    flags = 0
-    dt = t_s - state[S_T_LAST]
-    if not (dt > 0.0) or dt > par[P_LARGE_DT]:
-        flags |= F_LARGE_DT
-        if dt > par[P_REINIT_DT]:
-            return flags | NEEDS_INIT
-        if not (dt > 0.0):
-            dt = 0.0  # repeated or backwards time: update without propagating
+    dt, flags = step_dt(t_s - state[S_T_LAST], par[P_LARGE_DT], par[P_REINIT_DT])
+    if flags & NEEDS_INIT:
+        return flags
     state[S_T_LAST] = t_s
     state[S_T_RUN] += dt
 
@@ -573,27 +603,19 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
     out[O_RATE] = gx - state[S_B]
     out[O_RATE + 1] = gy - state[S_B + 1]
     out[O_RATE + 2] = gz - state[S_B + 2]
-    # 1σ roll/pitch: NED tilt covariance rotated into the heading frame; yaw: δθ_D
-    yaw = math.atan2(2.0 * (q1 * q2 + q0 * q3), 1.0 - 2.0 * (q2 * q2 + q3 * q3))
-    cy = math.cos(yaw)
-    sy = math.sin(yaw)
-    pnn = state[S_P + 0]
-    pne = state[S_P + 1]
-    pee = state[S_P + 7]
-    out[O_SIGMA] = math.sqrt(max(cy * cy * pnn + 2.0 * cy * sy * pne + sy * sy * pee, 0.0))
-    out[O_SIGMA + 1] = math.sqrt(max(sy * sy * pnn - 2.0 * cy * sy * pne + cy * cy * pee, 0.0))
+    roll, pitch, yaw, sig_roll, sig_pitch = euler_and_tilt_sigma(q0, q1, q2, q3, state[S_P + 0], state[S_P + 1],
+                                                                 state[S_P + 7])
+    out[O_SIGMA] = sig_roll
+    out[O_SIGMA + 1] = sig_pitch
     out[O_SIGMA + 2] = math.sqrt(max(state[S_P + 14], 0.0))
     out[O_BIAS] = state[S_B]
     out[O_BIAS + 1] = state[S_B + 1]
     out[O_BIAS + 2] = state[S_B + 2]
-    out[O_EULER] = math.atan2(2.0 * (q2 * q3 + q0 * q1), 1.0 - 2.0 * (q1 * q1 + q2 * q2))
-    out[O_EULER + 1] = -math.asin(min(1.0, max(-1.0, 2.0 * (q1 * q3 - q0 * q2))))
+    out[O_EULER] = roll
+    out[O_EULER + 1] = pitch
     out[O_EULER + 2] = yaw
-    if (
-        state[S_T_RUN] < par[P_INIT_TIME]
-        or max(out[O_SIGMA], out[O_SIGMA + 1]) > par[P_CONV_TILT]
-        or (par[P_MAG_ENABLED] > 0.0 and out[O_SIGMA + 2] > par[P_CONV_YAW])
-    ):
+    if initialising(state[S_T_RUN], out[O_SIGMA], out[O_SIGMA + 1], out[O_SIGMA + 2], par[P_INIT_TIME],
+                    par[P_CONV_TILT], par[P_MAG_ENABLED] > 0.0, par[P_CONV_YAW]):
         flags |= F_INITIALISING
     return flags
 

@@ -17,22 +17,12 @@ from ahrsd.estimator.ins import Ins
 from ahrsd.simulation import DEFAULT_SITE
 
 from ins_truth import attitude_error_ned, position_error_ned, run_ins, simulated_run
+from test_simulation_environment import SEED004_GRAVITY   # seed 004 §7.5's table: g(0, L) and g(1000 m, L)
 
 R0 = 6_378_137.0        # seed 004 §11
 OMEGA_IE = 7.292e-5     # seed 004 eq. 15
 
-# seed 004 §7.5: g(0, L) and g(1000 m, L) in m/s², printed to 6 decimals
-GRAVITY_TABLE = [
-    (0.0, 9.780327, 9.777261),
-    (30.0, 9.793249, 9.790179),
-    (35.7, 9.797935, 9.794864),
-    (45.0, 9.806200, 9.803126),
-    (60.0, 9.819179, 9.816101),
-    (90.0, 9.832186, 9.829104),
-]
-
-
-@pytest.mark.parametrize("lat_deg, g0, g1000", GRAVITY_TABLE)
+@pytest.mark.parametrize("lat_deg, g0, g1000", SEED004_GRAVITY)
 def test_gravity_matches_the_seed_table(lat_deg, g0, g1000):
     assert mech.normal_gravity_m_s2(math.radians(lat_deg), 0.0) == pytest.approx(g0, abs=1e-6)
     assert mech.normal_gravity_m_s2(math.radians(lat_deg), 1000.0) == pytest.approx(g1000, abs=1e-6)
