@@ -20,7 +20,7 @@ import math
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtri   # χ² inverse survival function (scipy.stats costs 1.4 s to import)
 
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, NavState
 from ahrsd.core.gnss import GnssFix, GnssFixType
@@ -164,7 +164,7 @@ class InsParams:
         p[core.P_MAG_ENABLED] = 1.0 if self.mag_enabled else 0.0
         p[core.P_DECLINATION] = declination_rad
         p[core.P_LEVER : core.P_LEVER + 3] = np.asarray(self.lever_arm_m, dtype=float).reshape(3)
-        p[core.P_GATE_CHI2 : core.P_GATE_CHI2 + 3] = chi2.isf(self.gate_false_alarm, [1, 2, 3])
+        p[core.P_GATE_CHI2 : core.P_GATE_CHI2 + 3] = chdtri([1.0, 2.0, 3.0], self.gate_false_alarm)
         p[core.P_REJECT_RESET] = self.reject_reset_s
         p[core.P_DEAD_RECKON] = self.dead_reckon_s
         p[core.P_OUTAGE_RESET] = self.outage_reset_s
