@@ -1,8 +1,8 @@
 """`ins`: GNSS-aided attitude and navigation — a loosely coupled INS/GNSS error-state Kalman filter.
 
 Seed 004 §7 (NED mechanisation with Earth rate, transport rate and normal gravity, `ins_mechanisation.py`) and
-§10 (loose coupling, 15 error states: attitude, velocity, position, gyro bias, accelerometer bias, closed-loop
-feedback). GNSS velocity and position are fused at their time of validity against a short history of the
+§10 (loose coupling, the 15 error states of §10.2 — attitude, velocity, position, gyro bias, accelerometer
+bias — plus the three gyro scale factors, closed-loop feedback). GNSS velocity and position are fused at their time of validity against a short history of the
 state (fixes arrive 50–200 ms late: the delayed-measurement idea of ArduPilot EKF3's fusion time horizon),
 through the antenna lever arm, weighted by the accuracies the receiver reports, behind a χ² innovation gate.
 The magnetometer corrects heading with mekf's disturbance rejection (`mag_heading.py`, the same code). Before
@@ -60,6 +60,12 @@ class InsParams:
     accel_bias_walk_m_s2_sqrt_s: float = 3e-4
     """Accelerometer bias random walk, m/s²/√s (0.2 mg bias instability over 100 s)."""
     init_gyro_bias_sigma_rad_s: float = 0.5 * _DEG
+    init_gyro_scale_sigma: float = 0.005
+    """1σ of each gyro axis's scale-factor error at start-up (0.5 %; the simulated ADIS16405 has 0.3 %); 0
+    removes the three scale states (the 15-state filter)."""
+    gyro_scale_walk_sqrt_s: float = 1e-5
+    """Random walk of the scale-factor errors, 1/√s."""
+    gyro_scale_clip: float = 0.05
     init_accel_bias_sigma_m_s2: float = 0.1
     """1σ of the accelerometer bias at start-up, m/s² (10 mg)."""
     gyro_bias_clip_rad_s: float = 2.0 * _DEG
@@ -147,6 +153,8 @@ class InsParams:
         p = np.zeros(core.P_SIZE)
         p[core.P_GYRO_NOISE] = self.gyro_noise_rad_s_sqrt_hz
         p[core.P_GYRO_BIAS_WALK] = self.gyro_bias_walk_rad_s_sqrt_s
+        p[core.P_GYRO_SCALE_WALK] = self.gyro_scale_walk_sqrt_s if self.init_gyro_scale_sigma > 0 else 0.0
+        p[core.P_GYRO_SCALE_CLIP] = self.gyro_scale_clip
         p[core.P_ACC_NOISE_DENS] = self.accel_noise_m_s2_sqrt_hz
         p[core.P_ACC_BIAS_WALK] = self.accel_bias_walk_m_s2_sqrt_s
         p[core.P_GYRO_BIAS_CLIP] = self.gyro_bias_clip_rad_s
@@ -229,7 +237,7 @@ class Ins:
     `update(sample) -> AttitudeEstimate` with `nav=NavState` once a fix has set velocity and position;
     `update_gnss(fix) -> int` (core.R_* bits of what happened; never raises on bad input, counts it in
     `gnss_counters`); `reset()`, `set_declination(rad)`, `relearn_field_reference()`; read-only `covariance`
-    (15×15), `gyro_bias_rad_s`, `accel_bias_m_s2`, `last_nis` (velocity, position).
+    (18×18), `gyro_bias_rad_s`, `gyro_scale`, `accel_bias_m_s2`, `last_nis` (velocity, position).
     """
 
     name = "ins"
@@ -272,12 +280,17 @@ class Ins:
 
     @property
     def covariance(self) -> np.ndarray:
-        """Error covariance 15×15 [δθ NED (rad), δv NED (m/s), δp NED (m), δb_g (rad/s), δb_a (m/s²)]."""
+        """Error covariance 18×18 [δθ NED (rad), δv NED (m/s), δp NED (m), δb_g (rad/s), δb_a (m/s²), δs_g]."""
         return self._P.copy()
 
     @property
     def gyro_bias_rad_s(self) -> np.ndarray:
         return self._x[core.X_BG : core.X_BG + 3].copy()
+
+    @property
+    def gyro_scale(self) -> np.ndarray:
+        """Estimated gyro scale-factor errors per axis (ω_meas = (1 + s) ω + b), fraction."""
+        return self._x[core.X_SG : core.X_SG + 3].copy()
 
     @property
     def accel_bias_m_s2(self) -> np.ndarray:
@@ -434,11 +447,13 @@ class Ins:
         x = self._x
         keep_bg = x[core.X_BG : core.X_BG + 3].copy() if self._reinit_pending else np.zeros(3)
         keep_ba = x[core.X_BA : core.X_BA + 3].copy() if self._reinit_pending else np.zeros(3)
+        keep_sg = x[core.X_SG : core.X_SG + 3].copy() if self._reinit_pending else np.zeros(3)
         keep_mag = x[core.X_MAG : core.X_MAG + mag.MS_SIZE].copy() if self._reinit_pending else None
         x[:] = 0.0
         x[core.X_Q : core.X_Q + 4] = q0
         x[core.X_BG : core.X_BG + 3] = keep_bg
         x[core.X_BA : core.X_BA + 3] = keep_ba
+        x[core.X_SG : core.X_SG + 3] = keep_sg
         x[core.X_T_LAST] = t_s
         x[core.X_GYR_LAST : core.X_GYR_LAST + 3] = g
         x[core.X_ACC_LAST : core.X_ACC_LAST + 3] = a
@@ -474,6 +489,7 @@ class Ins:
             P[core.E_P + i, core.E_P + i] = core.NAV_UNKNOWN_VAR_P
             P[core.E_BG + i, core.E_BG + i] = p.init_gyro_bias_sigma_rad_s ** 2
             P[core.E_BA + i, core.E_BA + i] = p.init_accel_bias_sigma_m_s2 ** 2
+            P[core.E_SG + i, core.E_SG + i] = p.init_gyro_scale_sigma ** 2
         self._queue.clear()
         self._initialised = True
         core.fill_outputs(x, P, self._par, g[0] - keep_bg[0], g[1] - keep_bg[1], g[2] - keep_bg[2], self._out)

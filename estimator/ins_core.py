@@ -1,8 +1,8 @@
-"""The `ins` estimator's compiled kernels (numba): NED strapdown mechanisation, 15-state error covariance,
+"""The `ins` estimator's compiled kernels (numba): NED strapdown mechanisation, 18-state error covariance,
 accelerometer levelling while unaided, magnetometer heading, and the delayed GNSS velocity/position fusion.
 
 `ins.py` owns the parameters, initialisation, input checks and the Estimator interface; this module is the
-arithmetic. Arrays: `x` (nominal state and bookkeeping, layout `X_*`), `P` (15×15 error covariance), `hist`
+arithmetic. Arrays: `x` (nominal state and bookkeeping, layout `X_*`), `P` (18×18 error covariance), `hist`
 (ring buffer of past nominal states for fusing a fix at its time of validity, layout `H_*`), `par`
 (parameters, layout `P_*`), `out` (per-step outputs, layout `O_*`).
 
@@ -13,9 +13,12 @@ Error state δx (15, true − estimate), in this order:
   δv (3–5)  velocity error, NED, m/s
   δp (6–8)  position error, NED, m
   δb_g (9–11) gyro bias error, rad/s;  δb_a (12–14) accelerometer bias error, m/s²
+  δs_g (15–17) gyro scale-factor error (ω_meas = (1 + s) ω + b), fraction
 Error dynamics (seed 004 §10.2, Groves ch. 14; the ω_in^n × δθ, Coriolis and gravity-gradient couplings are
 below the ADIS16405's noise over the filter's time constants and are left out):
-  δθ̇ = −C δb_g + w_g,  δv̇ = −[f^n×] δθ − C δb_a + w_a,  δṗ = δv,  δḃ_g = w_bg,  δḃ_a = w_ba.
+  δθ̇ = −C δb_g − C diag(ω) δs_g + w_g,  δv̇ = −[f^n×] δθ − C δb_a + w_a,  δṗ = δv,  biases and scale
+  factors random walks. An uncalibrated 0.3 % gyro scale error turns into 0.07 °/s of attitude drift in a
+  13 °/s turn, the largest error left on a vehicle; with these states the GNSS learns it.
 The covariance is propagated every `cov_period_s` (not every sample) with the transition matrix of the whole
 interval built from the summed increments ∫C dt and ΔV^n = ∫f^n dt (first order in the interval, plus the
 ½T terms of the position rows); the magnetometer and the accelerometer levelling update at that rate too.
@@ -50,8 +53,8 @@ from .mekf_core import (
     step_dt,
 )
 
-N_ERR = 15
-E_TH, E_V, E_P, E_BG, E_BA = 0, 3, 6, 9, 12
+N_ERR = 18
+E_TH, E_V, E_P, E_BG, E_BA, E_SG = 0, 3, 6, 9, 12, 15
 
 # ----------------------------------------------------------------------------------- nominal state x
 X_Q = 0            # 4 attitude body → true NED
@@ -82,7 +85,9 @@ X_WAS_AIDED = 51   # 1.0 once a fix has been fused (GNSS_OUTAGE only after that)
 X_LAST_FIX_T = 52  # time of validity of the last fix offered (accepted or not), s
 X_NIS_V = 53       # normalised innovation squared of the last velocity fusion (diagnostic)
 X_NIS_P = 54       # ... position
-X_MAG = 56         # mag_heading state block (MS_SIZE)
+X_SG = 56          # 3 gyro scale-factor errors (ω_meas = (1 + s) ω + b), fraction
+X_COV_CW = 59      # 9: ∫ C diag(ω) dt since the last covariance propagation (row-major), rad
+X_MAG = 68         # mag_heading state block (MS_SIZE)
 X_SIZE = X_MAG + mag.MS_SIZE
 
 # ----------------------------------------------------------------------------------- history ring buffer
@@ -128,7 +133,9 @@ P_NAV_INIT_TILT = 31    # 1σ tilt assumed when a fix first sets velocity/positi
 P_NAV_DROP = 44         # without a fused fix for this long, velocity and position are dropped, s
 P_SPHERE = 45           # 1.0: spherical Earth (radius R0, seed 004) instead of the WGS-84 ellipsoid's radii
 P_MAG = 32              # mag_heading parameter block (MP_SIZE): 32–43
-P_SIZE = 46
+P_GYRO_SCALE_WALK = 46  # gyro scale-factor random walk, 1/√s
+P_GYRO_SCALE_CLIP = 47  # |s| limit per axis
+P_SIZE = 48
 assert P_MAG + mag.MP_SIZE <= P_NAV_DROP < P_SIZE
 
 # ----------------------------------------------------------------------------------- outputs
@@ -169,6 +176,7 @@ M_TILT = 0b11
 M_HEADING = 0b100
 M_GYRO_BIAS = 0b111 << E_BG
 M_ACC_BIAS = 0b111 << E_BA
+M_GYRO_SCALE = 0b111 << E_SG
 M_NAV = 0b111111 << E_V
 NAV_UNKNOWN_VAR_V = 100.0    # (10 m/s)², velocity variance before a fix sets it
 NAV_UNKNOWN_VAR_P = 1e6      # (1 km)², position variance before a fix sets it
@@ -280,9 +288,11 @@ def _apply_correction(x, par, dx):
     x[X_H] -= dx[E_P + 2]
     gc = par[P_GYRO_BIAS_CLIP]
     ac = par[P_ACC_BIAS_CLIP]
+    sc = par[P_GYRO_SCALE_CLIP]
     for i in range(3):
         x[X_BG + i] = min(max(x[X_BG + i] + dx[E_BG + i], -gc), gc)
         x[X_BA + i] = min(max(x[X_BA + i] + dx[E_BA + i], -ac), ac)
+        x[X_SG + i] = min(max(x[X_SG + i] + dx[E_SG + i], -sc), sc)
     # the NED-frame low-passed specific force lives in the estimated NED frame: keep it there
     an = x[X_ACC_LP]
     ae = x[X_ACC_LP + 1]
@@ -307,6 +317,7 @@ def propagate_covariance(x, P, par):
     phi = np.eye(N_ERR)
     for i in range(3):
         for j in range(3):
+            phi[E_TH + i, E_SG + j] = -x[X_COV_CW + 3 * i + j]   # δθ̇ = −C diag(ω) δs
             a = -x[X_COV_C + 3 * i + j]
             phi[E_TH + i, E_BG + j] = a
             phi[E_V + i, E_BA + j] = a
@@ -350,10 +361,12 @@ def propagate_covariance(x, P, par):
         P[E_V + i, E_P + i] += 0.5 * qa * T
         P[E_BG + i, E_BG + i] += qbg
         P[E_BA + i, E_BA + i] += qba
+        P[E_SG + i, E_SG + i] += par[P_GYRO_SCALE_WALK] ** 2 * T
     _symmetrise(P)
     x[X_COV_T] = 0.0
     for i in range(9):
         x[X_COV_C + i] = 0.0
+        x[X_COV_CW + i] = 0.0
     for i in range(3):
         x[X_COV_DV + i] = 0.0
 
@@ -394,7 +407,7 @@ def _level(x, P, par, dt_epoch):
         x[X_ACC_REJ_T] += dt_epoch
         return F_ACCEL_REJECTED
     r = (par[P_LEVEL_NOISE] / g) ** 2
-    mask = M_HEADING | M_ACC_BIAS | M_GYRO_BIAS   # tilt only (see the docstring)
+    mask = M_HEADING | M_ACC_BIAS | M_GYRO_BIAS | M_GYRO_SCALE   # tilt only (see the docstring)
     dx = np.zeros(N_ERR)
     h = np.zeros(N_ERR)
     h[1] = 1.0
@@ -472,6 +485,13 @@ def ins_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_fl
     mwx = 0.5 * (pgx + x[X_GYR_LAST]) - x[X_BG]
     mwy = 0.5 * (pgy + x[X_GYR_LAST + 1]) - x[X_BG + 1]
     mwz = 0.5 * (pgz + x[X_GYR_LAST + 2]) - x[X_BG + 2]
+    # scale-factor error: ω = (ω_meas − b) / (1 + s) ≈ (ω_meas − b)(1 − s)
+    wx *= 1.0 - x[X_SG]
+    wy *= 1.0 - x[X_SG + 1]
+    wz *= 1.0 - x[X_SG + 2]
+    mwx *= 1.0 - x[X_SG]
+    mwy *= 1.0 - x[X_SG + 1]
+    mwz *= 1.0 - x[X_SG + 2]
     fx = 0.5 * (pax + x[X_ACC_LAST]) - x[X_BA]
     fy = 0.5 * (pay + x[X_ACC_LAST + 1]) - x[X_BA + 1]
     fz = 0.5 * (paz + x[X_ACC_LAST + 2]) - x[X_BA + 2]
@@ -555,6 +575,15 @@ def ins_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_fl
         x[X_COV_DV] += fn * dt
         x[X_COV_DV + 1] += fe * dt
         x[X_COV_DV + 2] += fd * dt
+        x[X_COV_CW] += c00 * mwx * dt
+        x[X_COV_CW + 1] += c01 * mwy * dt
+        x[X_COV_CW + 2] += c02 * mwz * dt
+        x[X_COV_CW + 3] += c10 * mwx * dt
+        x[X_COV_CW + 4] += c11 * mwy * dt
+        x[X_COV_CW + 5] += c12 * mwz * dt
+        x[X_COV_CW + 6] += c20 * mwx * dt
+        x[X_COV_CW + 7] += c21 * mwy * dt
+        x[X_COV_CW + 8] += c22 * mwz * dt
         # NED-frame low-pass of the specific force for the levelling (linear acceleration averages out)
         tau = par[P_LEVEL_TAU]
         k = 1.0 - math.exp(-dt / tau) if tau > 0.0 else 1.0
