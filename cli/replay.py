@@ -1,6 +1,6 @@
 """`ahrsd replay`: run a recording through calibration and an estimator, one output row per input sample.
 
-    ahrsd replay RECORDING [--estimator {mekf,thesis}] --output OUT.csv [--calibration FILE]
+    ahrsd replay RECORDING [--estimator {mekf,thesis,ins}] --output OUT.csv [--calibration FILE]
                  [--lat DEG --lon DEG [--alt-m M] [--date YYYY-MM-DD]] [--set NAME=VALUE ...]
 
 The output CSV is a public interface (docs/replay.md): it is how the estimator is evaluated on data the
@@ -9,6 +9,8 @@ Exit status: 0 done, 1 bad input (recording, calibration, parameters, output pat
 """
 
 from __future__ import annotations
+
+from ahrsd.estimator import ESTIMATORS
 
 # The CSV columns, picked by name from the replay table (ahrsd.estimator.replay.ATTITUDE_COLUMNS, which
 # documents each); named here so that `ahrsd --help` needs no numpy and the file format cannot drift.
@@ -34,7 +36,7 @@ def register(subparsers) -> None:
         "speed (× real time) is printed to stderr at the end. Documented in docs/replay.md.",
     )
     p.add_argument("recording", metavar="RECORDING", help="CSV recording (header t_s,gyro_x_rad_s,...,mag_z_ut)")
-    p.add_argument("--estimator", "-e", default="mekf", choices=("mekf", "thesis"),
+    p.add_argument("--estimator", "-e", default="mekf", choices=ESTIMATORS,
                    help="mekf (default): the error-state quaternion filter; thesis: the thesis's vector KF + Wahba")
     p.add_argument("--output", "-o", required=True, metavar="OUT.csv", help="output CSV file ('-' for stdout)")
     p.add_argument("--calibration", "-c", metavar="FILE", default=None,

@@ -17,13 +17,13 @@ import math
 
 from numba import njit
 
-EARTH_RATE_RAD_S = 7.292e-5          # ω_ie, seed 004 eq. 15 / §11 (15.04 °/h)
-SPHERE_RADIUS_M = 6_378_137.0        # R0 of seed 004 (§11) and of the gravity height factor (eq. 18)
+# the constants of the one gravity model (core/gravity.py); this module is its scalar, compiled twin for the
+# per-sample path (numba freezes module-level floats at compile time)
+from ahrsd.core.gravity import EARTH_RADIUS_M as SPHERE_RADIUS_M
+from ahrsd.core.gravity import EARTH_RATE_RAD_S, G_EQUATOR_M_S2, G_SIN2_2L_COEFF, G_SIN2_COEFF
+
 WGS84_A_M = 6_378_137.0              # WGS-84 semi-major axis
 WGS84_E2 = 6.69437999014e-3          # WGS-84 first eccentricity squared
-G_EQUATOR_M_S2 = 9.780327            # eq. 18
-G_SIN2_COEFF = 0.0053024             # eq. 18
-G_SIN2_2L_COEFF = 0.0000058          # eq. 18
 
 
 @njit(cache=True)
