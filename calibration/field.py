@@ -146,7 +146,7 @@ class FieldCalResult:
         """One line for a person: the predicted heading accuracy and what the offset rests on."""
         dep = f"heading +-{self.heading_std_deg:.1f} deg" if math.isfinite(self.heading_std_deg) else "heading accuracy unknown"
         if self.offset_source == "undetermined":
-            off = "offset undetermined (no GNSS course)"
+            off = "offset undetermined: no usable GNSS course (a fixed-yaw command sets it)"
         elif math.isfinite(self.offset_std_deg):
             off = f"offset +-{self.offset_std_deg:.1f} deg ({self.offset_source})"
         else:
@@ -160,6 +160,9 @@ class FieldCalResult:
             method=f"field:{self.method}",
             residual_rms_mgauss=self.fitness_mgauss,
             partial=self.partial,
+            heading_std_deg=_finite_or_none(self.heading_std_deg), offset_std_deg=_finite_or_none(self.offset_std_deg),
+            offset_source=self.offset_source, undetermined=list(self.undetermined),
+            data_span_s=self.quality.get("t_span_s"),
             before={"hard_iron_ut": self.before.hard_iron_ut.tolist(), "soft_iron": self.before.soft_iron.tolist()},
         )
 
@@ -174,6 +177,11 @@ class FieldCalResult:
 
 
 FitFunction = Callable[..., Any]  # magfit.fit_mag's signature
+
+
+def _finite_or_none(x: float) -> float | None:
+    """For the saved metadata (JSON has no NaN/Infinity)."""
+    return float(x) if math.isfinite(x) else None
 
 
 class FieldCalibration:
@@ -352,6 +360,20 @@ class FieldCalibration:
                 self.course_rejected += 1
             return False
         return self.add_course(fix.t_s, fix.course_rad, fix.ground_speed_m_s, fix.s_acc_m_s)
+
+    def set_heading_offset(self, offset_deg: float, source: str, std_deg: float = math.nan) -> bool:
+        """Rotate the finished (not yet saved) result's heading by `offset_deg` (a known heading, e.g.
+        MAV_CMD_FIXED_MAG_CAL_YAW): the constant offset folded into the soft iron. False when there is no
+        successful result."""
+        with self._lock:
+            if self.status != CalStatus.SUCCESS or self.result is None or not math.isfinite(offset_deg):
+                return False
+            res = self.result
+            self.result = dataclasses.replace(res, model=fold_heading_offset(res.model, offset_deg),
+                                              ardupilot=to_ardupilot(fold_heading_offset(res.model, offset_deg)),
+                                              offset_std_deg=float(std_deg), offset_source=source,
+                                              quality=dict(res.quality, known_heading_offset_deg=float(offset_deg)))
+            return True
 
     # ------------------------------------------------------------------ fitting (off the event loop)
     def pending_fit(self) -> "FitJob | None":
@@ -644,7 +666,8 @@ class FitJob:
         tilt_range = float(np.percentile(tilt, 98) - np.percentile(tilt, 2)) if len(tilt) else 0.0
         notes: list[str] = []
         quality: dict = {"tilt_range_deg": tilt_range, "sphere_coverage": self.sphere_coverage,
-                         "heading_coverage": self.heading_coverage, "n_samples": int(len(self.t))}
+                         "heading_coverage": self.heading_coverage, "n_samples": int(len(self.t)),
+                         "t_span_s": [float(self.t[0]), float(self.t[-1])] if len(self.t) else None}
         offsets, q_off = fit_offsets_keep_soft_iron(
             raw, self.current.soft_iron, self.current.hard_iron_ut, rpy[:, 0], rpy[:, 1], self.reference)
         quality.update({f"offsets_{k}": v for k, v in q_off.items()})
