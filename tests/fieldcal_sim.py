@@ -31,7 +31,7 @@ SITE_FIELD = earth_field(DEFAULT_SITE.lat_deg, DEFAULT_SITE.lon_deg, DEFAULT_SIT
 
 @dataclass
 class TiltedTurns(LevelTurns):
-    """LevelTurns with the wave roll/pitch scaled so the roll peaks at ±tilt_deg (pitch at 2/3 of it).
+    """LevelTurns with the wave roll and pitch each scaled to peak at ±tilt_deg (±30°: tilt up to ~40°).
     straight_runs: the turn rate follows r·(1 − cos 2πt/P) (P = 30 s, 135° of heading per period), so the
     boat holds a nearly straight course for ~9 s at 8 different headings per three turns."""
 
@@ -39,8 +39,8 @@ class TiltedTurns(LevelTurns):
     straight_runs: bool = False
     run_period_s: float = 30.0
 
-    def _scale(self) -> float:
-        return self.tilt_deg / sum(a for a, _p, _ph in self._ROLL)
+    def _scale(self, comps) -> float:
+        return self.tilt_deg / sum(a for a, _p, _ph in comps)
 
     def heading_rad(self, t):
         if not self.straight_runs:
@@ -57,8 +57,8 @@ class TiltedTurns(LevelTurns):
 
     def euler_rad(self, t_s):
         t = np.asarray(t_s, dtype=float)
-        k = self._scale()
-        return self.heading_rad(t), k * self._waves(t, self._PITCH), k * self._waves(t, self._ROLL)
+        return (self.heading_rad(t), self._scale(self._PITCH) * self._waves(t, self._PITCH),
+                self._scale(self._ROLL) * self._waves(t, self._ROLL))
 
 
 def vehicle(tilt_deg: float, straight_runs: bool = False) -> TiltedTurns:
