@@ -6,9 +6,10 @@ completion mask over the sphere of corrected field directions, `AP_GeodesicGrid`
 that cannot be tumbled, the coverage of headings; it reports completion %, a direction hint and the
 MAVLink `MAG_CAL_STATUS` states, then picks the fit from the data:
 
-- full sphere seen (tumbled vehicle)            -> 9-parameter ellipsoid (`fit_mag("ellipsoid")`)
-- level turns (boat, rover, large vehicle)       -> back-stepping / vertical-channel fit (`fit_mag("backstepping")`),
-                                                    the same call and data path as `ahrsd calibrate mag`
+- WMM reference known (level turns or a tumble) -> back-stepping / vertical-channel fit (`fit_mag("backstepping")`),
+                                                    the same call and data path as `ahrsd calibrate mag`; it also
+                                                    sees the rotation part of the soft iron an ellipsoid cannot
+- full sphere seen, no reference                 -> 9-parameter ellipsoid (`fit_mag("ellipsoid")`)
 - the fit's own observability analysis says it   -> hard iron only, soft iron kept from the calibration in
   does not beat offsets-only (or it refused)        force ("…: fitted offsets only")
 
@@ -55,7 +56,7 @@ from .course_offset import (DEFAULT_MAX_TURN_RATE_DEG_S, DEFAULT_STRAIGHT_WINDOW
 from .mag_offsets import fit_offsets_keep_soft_iron
 from .magfit import MagFitInput, fit_mag
 from .models import Calibration, MagModel
-from .observability import compare_with_offsets
+from .observability import algebraic_sphere_centre, compare_with_offsets
 from .swing import DEFAULT_MIN_SPEED_M_S
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -177,6 +178,7 @@ class FieldCalResult:
 
 
 FitFunction = Callable[..., Any]  # magfit.fit_mag's signature
+SPHERE_RECENTRE_EVERY = 50       # kept samples between re-centrings of the completion mask (step one, tumbling)
 
 
 def _finite_or_none(x: float) -> float | None:
@@ -474,6 +476,7 @@ class FieldCalibration:
         self._tilt_max_deg = 0.0
         self._tilt_min_deg = 180.0
         self._prelim: MagModel = self.current.mag
+        self._sphere_centre = np.zeros(3)   # step one, tumbled vehicle: centre of the running sphere fit
         self._fit_request: str | None = None
         self._fit_busy = False
         self._step_two_from = 0
@@ -520,7 +523,9 @@ class FieldCalibration:
         self._n += 1
 
     def _update_coverage(self, raw, roll, pitch, yaw) -> None:
-        corrected = self._prelim.apply(raw)
+        if self.status == CalStatus.RUNNING_STEP_ONE and self._needs_sphere() and self._n % SPHERE_RECENTRE_EVERY == 0:
+            self._recentre_sphere()
+        corrected = self._prelim.apply(raw) - self._sphere_centre
         self._last_corrected = corrected
         self._last_yaw = yaw
         s = int(geodesic_sections(corrected)[0])
@@ -535,6 +540,19 @@ class FieldCalibration:
         if s >= 0:
             self._cells[s] = True
         self._sector_count[sector] += 1
+
+    def _recentre_sphere(self) -> None:
+        """Step one on a tumbled vehicle: the completion mask counts field directions from the centre of the
+        sphere the samples lie on (a running algebraic sphere fit), as CompassCalibrator's cells follow its
+        running offsets; from the uncorrected origin, strong hard iron would keep half the cells out of reach."""
+        corrected = self._prelim.apply(self._raw[: self._n])
+        centre = algebraic_sphere_centre(corrected)
+        if not np.all(np.isfinite(centre)):
+            return
+        self._sphere_centre = centre
+        cells = geodesic_sections(corrected - centre)
+        self._cells[:] = False
+        self._cells[cells[cells >= 0]] = True
 
     def _needs_sphere(self) -> bool:
         vt = self.config.vehicle_type
@@ -595,6 +613,7 @@ class FieldCalibration:
             return
         model, _quality = payload
         self._prelim = model
+        self._sphere_centre = np.zeros(3)
         # re-mark the completion mask with the corrected field, as CompassCalibrator does after step one
         corrected = model.apply(self._raw[: self._n])
         cells = geodesic_sections(corrected)
@@ -676,7 +695,8 @@ class FitJob:
         # turns and cannot be corrected after its filtering: docs/magcal-vehicle.md)
         data = MagFitInput(self.t, raw, self.acc, self.gyro)
         chosen: tuple | None = None          # (model, method, heading std, offset std, undetermined)
-        if self.full_sphere:
+        if self.full_sphere and self.reference is None:
+            # without the WMM field the vertical channel has no reference: the attitude-independent ellipsoid
             fr = fit("ellipsoid", data, self.reference)
             if fr.refused is None and self._acceptable_shape(fr.model)[0]:
                 chosen = (fr.model, fr.method, math.nan, math.inf, ())
