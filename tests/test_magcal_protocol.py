@@ -102,6 +102,14 @@ def _body_rate(traj, i):
     return psi_dot * np.array([-np.sin(p), np.sin(r) * np.cos(p), np.cos(r) * np.cos(p)])
 
 
+def tick_settled(proto) -> None:
+    """One protocol tick; a fit it started is waited for and collected (deterministic tests)."""
+    proto.tick()
+    if proto._fit_future is not None:
+        proto._fit_future.result()
+        proto.tick()
+
+
 def drive(proto, clock, traj, host, until=None, max_t=None):
     """Feed the trajectory as calibrated samples; tick at 10 Hz of sample time (clock follows sample time)."""
     next_tick = 0.0
@@ -117,10 +125,7 @@ def drive(proto, clock, traj, host, until=None, max_t=None):
         proto.on_sample(s, est)
         if t >= next_tick:
             next_tick = t + 0.1
-            proto.tick()
-            if proto._fit_future is not None:
-                proto._fit_future.result()  # deterministic: let the worker finish before the next tick
-                proto.tick()
+            tick_settled(proto)
             if until is not None and until():
                 return t
     return traj.t[-1]
@@ -347,10 +352,7 @@ def _drive_vehicle(proto, clock, block, host, courses=None, until=None):
             k += 1
         if t >= next_tick:
             next_tick = t + 0.1
-            proto.tick()
-            if proto._fit_future is not None:
-                proto._fit_future.result()
-                proto.tick()
+            tick_settled(proto)
             if until is not None and until():
                 return i
     return len(block.t_s) - 1
