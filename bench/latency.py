@@ -54,7 +54,7 @@ def part_a(seconds: float, warmup: float) -> dict:
     port = sock.getsockname()[1]
     with tempfile.TemporaryDirectory() as tmp:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "ahrsd.daemon.cli", "run", "--sim", "static", "--mavlink",
+            [sys.executable, "-m", "ahrsd.cli", "run", "--sim", "static", "--mavlink",
              f"udpout:127.0.0.1:{port}", "--state-dir", tmp, "--status-line", "off"],
             cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         parser = mavlink.MAVLink(None)
@@ -102,7 +102,7 @@ def part_a(seconds: float, warmup: float) -> dict:
 def part_b(seconds: float) -> np.ndarray:
     """Time-stamp error t_s − true ready time of every sample the reader processes."""
     from ahrsd.daemon.config import Config, EndpointConfig, StateConfig
-    from ahrsd.daemon.pipeline import open_source
+    from ahrsd.drivers.source import open_source
     from ahrsd.daemon.service import Service
 
     sink = free_udp_socket()

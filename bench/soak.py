@@ -155,7 +155,7 @@ def soak(seconds: float, faults: str, flood_rate: float, seed: int, workdir: Pat
     port = port_sock.getsockname()[1]
     stats_path = workdir / "stats.json"
     log_path = workdir / "ahrsd.log"
-    cmd = [sys.executable, "-m", "ahrsd.daemon.cli", "run", "--sim", "static", "--mavlink",
+    cmd = [sys.executable, "-m", "ahrsd.cli", "run", "--sim", "static", "--mavlink",
            f"udpout:127.0.0.1:{port}", "--state-dir", str(workdir / "state"), "--status-line", "off",
            "--stats-file", str(stats_path)]
     if faults:

@@ -12,14 +12,8 @@ from . import swing
 from .backstepping_paper import BacksteppingError, magnetic_heading_deg
 from .magfit import MagFitInput, MagFitResult, finite_rows
 from .observability import level_vectors, lowpass
+from .plots import PlotUnavailableError, pyplot  # noqa: F401 (PlotUnavailableError: what this module raises)
 from .vertical_channel import centripetal_direction, corrected_down
-
-PLOT_INSTALL_HINT = "pip install 'ahrsd[plot]'"
-
-
-class PlotUnavailableError(ImportError):
-    """`plot_backstepping` was called but matplotlib (the optional `ahrsd[plot]` extra) is not installed."""
-
 
 def plot_backstepping(result: MagFitResult, data: MagFitInput, path, *, roll_rad=None, pitch_rad=None,
                       reference=None, swing_table=None) -> None:
@@ -27,14 +21,7 @@ def plot_backstepping(result: MagFitResult, data: MagFitInput, path, *, roll_rad
     over time before/after, and heading error vs heading when data.heading_ref_deg exists or a compass-swing
     table `swing_table=(reference_deg, compass_deg)` is given (its points and the fitted card). Writes `path`.
     Raises PlotUnavailableError when matplotlib (the `ahrsd[plot]` extra) is not installed."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError as exc:
-        raise PlotUnavailableError(f"plotting needs matplotlib: {PLOT_INSTALL_HINT} ({exc})") from None
-
+    plt = pyplot()
     ok = finite_rows(data.mag_ut)
     d = data.select(ok)
     if roll_rad is None:

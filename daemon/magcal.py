@@ -55,6 +55,7 @@ from ahrsd.calibration.fixed_yaw import fixed_yaw_calibration
 from ahrsd.calibration.swing import DEFAULT_MIN_SPEED_M_S
 from ahrsd.core.angles import tilt_compensated_heading_rad, wrap_180_deg
 from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.drivers.gnss_mavlink import MavlinkGnssSelector
 
 log = logging.getLogger(__name__)
 
@@ -70,8 +71,6 @@ OUR_MASK = 1 << COMPASS_ID
 STATUSTEXT_LEN = 50     # STATUSTEXT.text char[50]
 
 SEV_ERROR, SEV_WARNING, SEV_NOTICE, SEV_INFO = 3, 4, 5, 6   # MAV_SEVERITY
-UINT16_MAX = 0xFFFF     # GPS_RAW_INT: value unknown
-GPS_FIX_2D = 2          # GPS_FIX_TYPE_2D_FIX
 
 
 @dataclass(frozen=True)
@@ -90,6 +89,9 @@ class MagCalSettings:
     # (ArduPilot AP_GPS_UBLOX::get_lag: 0.12 s for u-blox M8/F9), used above this ground speed
     gnss_latency_s: float = 0.12
     course_min_speed_m_s: float = DEFAULT_MIN_SPEED_M_S
+    # GLOBAL_POSITION_INT (the autopilot's fused velocity) when no GPS_RAW_INT arrives: only when the autopilot
+    # does not fuse our heading (docs/gnss.md "The loop through the autopilot")
+    course_from_global_position_int: bool = False
 
     def field_config(self, retry: bool, delay_s: float) -> FieldCalConfig:
         return FieldCalConfig(vehicle_type=VehicleType(self.vehicle_type), fitness_mgauss=self.fitness_mgauss,
@@ -133,25 +135,6 @@ def sensor_attitude(estimate, mounting: np.ndarray | None):
                            body_yaw_rad=float(estimate.yaw_rad))
 
 
-def course_from_mavlink(msg) -> tuple[float, float, float] | None:
-    """(course rad from true north, ground speed m/s, speed accuracy 1σ m/s or NaN) from the autopilot's
-    GPS_RAW_INT (cog cdeg, vel cm/s, UINT16_MAX = unknown; vel_acc mm/s, a MAVLink 2 extension, 0 = unknown)
-    or GLOBAL_POSITION_INT (vx, vy cm/s NED; lat = lon = 0 before a fix); None when the message has no
-    usable velocity. A minimal extraction for the field calibration's course fit."""
-    kind = msg.get_type()
-    if kind == "GPS_RAW_INT":
-        if msg.fix_type < GPS_FIX_2D or msg.vel == UINT16_MAX or msg.cog == UINT16_MAX:
-            return None
-        acc = float(getattr(msg, "vel_acc", 0) or 0) * 1e-3
-        return math.radians(msg.cog * 0.01) % (2 * math.pi), msg.vel * 0.01, acc if acc > 0 else math.nan
-    if kind == "GLOBAL_POSITION_INT":
-        if msg.lat == 0 and msg.lon == 0:
-            return None
-        vn, ve = msg.vx * 0.01, msg.vy * 0.01
-        return math.atan2(ve, vn) % (2 * math.pi), math.hypot(vn, ve), math.nan
-    return None
-
-
 def statustext_chunks(severity: int, text: str, chunk_id: int) -> list:
     """STATUSTEXT messages for `text`: one message when it fits 50 bytes, else MAVLink 2 chunks sharing
     `chunk_id` (1..65535) with chunk_seq 0, 1, ... (the last one shorter than 50 bytes or NUL-terminated)."""
@@ -186,7 +169,8 @@ class MagCalProtocol:
         self._mask_requested = OUR_MASK
         self._last_sample_t: float | None = None
         self.course_fed = 0          # GNSS course fixes handed to a running session
-        self.course_unusable = 0     # GNSS velocity messages without a usable course (counted, not fed)
+        self.course_unusable = 0     # GNSS messages without a usable velocity (counted, not fed)
+        self._gnss = MavlinkGnssSelector(use_fused=self.settings.course_from_global_position_int)
 
     # ------------------------------------------------------------------ wiring
     def register(self, router) -> None:
@@ -235,18 +219,20 @@ class MagCalProtocol:
             s.add_sample(sample, sensor_attitude(estimate, mounting), now_s=self.clock())
 
     def on_gnss_message(self, msg) -> None:
-        """The autopilot's GPS_RAW_INT / GLOBAL_POSITION_INT: its course and speed go to a running session,
-        stamped with the time of validity on the samples' clock (the latest sample time minus
-        `gnss_latency_s`). Ignored while no session runs; unusable messages are counted."""
+        """The autopilot's GPS_RAW_INT (GLOBAL_POSITION_INT only with `course_from_global_position_int`),
+        converted by drivers/gnss_mavlink.py and stamped with the time of validity on the samples' clock (the
+        latest sample time minus `gnss_latency_s`): its course and speed go to a running session. Ignored
+        while no session runs; messages without a usable velocity are counted."""
         s = self.session
         if s is None or not s.status.running or self._last_sample_t is None:
             return
-        course = course_from_mavlink(msg)
-        if course is None:
-            self.course_unusable += 1
-            return
-        if s.add_course(self._last_sample_t - self.settings.gnss_latency_s, *course):
+        fix = self._gnss.handle(msg, self._last_sample_t - self.settings.gnss_latency_s)
+        if fix is None:
+            return          # a repeated GPS_RAW_INT, or GLOBAL_POSITION_INT not wanted (the selector counts them)
+        if s.add_gnss_fix(fix):
             self.course_fed += 1
+        else:
+            self.course_unusable += 1
 
     # ------------------------------------------------------------------ periodic
     def tick(self) -> None:
@@ -508,12 +494,9 @@ class MagCalProtocol:
 
 def _warm_up() -> None:
     """Runs in the fit worker: import what the fits need."""
+    import ahrsd.calibration.backstepping  # noqa: F401
+    import ahrsd.calibration.ellipsoid  # noqa: F401
     import ahrsd.calibration.magfit  # noqa: F401
-    try:
-        import ahrsd.calibration.backstepping  # noqa: F401
-        import ahrsd.calibration.ellipsoid  # noqa: F401
-    except ImportError:
-        pass
 
 
 @dataclass
@@ -562,7 +545,7 @@ class ServiceHost:
     """`MagCalHost` on top of the daemon's public hooks (daemon/service.py: pipeline, commands,
     add_sample_listener, send, set_calibrating, autopilot, state_dir, config)."""
 
-    def __init__(self, service, settings: MagCalSettings):
+    def __init__(self, service):
         self.service = service
         self.protocol: MagCalProtocol | None = None
         self._task: asyncio.Task | None = None
@@ -661,7 +644,7 @@ def attach(service, settings: MagCalSettings | None = None) -> MagCalProtocol:
         raw = getattr(service.config, "magcal", None)
         settings = raw if isinstance(raw, MagCalSettings) else settings_from_mapping(
             dataclasses.asdict(raw) if dataclasses.is_dataclass(raw) else raw)
-    host = ServiceHost(service, settings)
+    host = ServiceHost(service)
     proto = MagCalProtocol(host, settings)
     host.protocol = proto
     proto.register(service.commands)

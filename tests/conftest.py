@@ -1,8 +1,12 @@
-"""Shared test fixtures. Tests that need ../shared (real data) skip with a reason when it is absent."""
+"""Shared test fixtures. Tests that need ../shared (real data) skip with a reason when it is absent.
+
+Shared helpers live in tests/support (import `support.<module>`); the benchmark scripts import as `bench.<name>`
+(the repository root is put on the path here, once, for the tests that pin a benchmark's criteria)."""
 
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 import pytest
@@ -10,6 +14,9 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("AHRSD_SHARED", REPO.parent / "shared"))
 BROAD_DIR = SHARED / "data" / "broad"
+
+if str(REPO) not in sys.path:
+    sys.path.insert(0, str(REPO))
 
 
 @pytest.fixture

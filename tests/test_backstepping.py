@@ -372,7 +372,7 @@ def test_plot_writes_a_file(tmp_path, tilt10):
 
 
 def _simulator_case(scenario, seconds, seed=1):
-    sim = pytest.importorskip("ahrsd.simulation")
+    from ahrsd import simulation as sim
     stream = sim.open_stream(scenario, seed=seed)
     blk = stream.next_block(int(seconds * 819.2))
     site = sim.DEFAULT_SITE

@@ -15,10 +15,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from scipy.spatial.transform import Rotation
 
 from ahrsd.calibration.accel_cal import (
-    GUIDED_TARGETS,
     GuidedSession,
     find_still_segments,
     fit_accel,
@@ -30,26 +28,12 @@ from ahrsd.core.sample import make_sample
 from ahrsd.simulation import DEFAULT_SITE, SensorErrors, simulate
 from ahrsd.simulation.scenarios import Static
 
+from support.accel_positions import roll_pitch_for_up, up_vectors
+
 G = DEFAULT_SITE.gravity_m_s2
 TOL_BIAS = 5e-3
 TOL_MATRIX = 1e-3
 MG = 1e-3 * 9.80665
-
-
-def up_vectors(n_random: int = 0) -> np.ndarray:
-    """The 6 faces + 8 corners of the guided procedure, 12 edge midpoints, and optional random ones."""
-    faces_corners = [d for _, d in GUIDED_TARGETS]
-    edges = [v for v in ([a, b, 0] for a in (1, -1) for b in (1, -1))] + \
-            [[a, 0, b] for a in (1, -1) for b in (1, -1)] + [[0, a, b] for a in (1, -1) for b in (1, -1)]
-    u = np.vstack([np.array(faces_corners, float), np.array(edges, float)])
-    if n_random:
-        u = np.vstack([u, Rotation.random(n_random, random_state=3).apply([0, 0, 1])])
-    return u / np.linalg.norm(u, axis=1, keepdims=True)
-
-
-def roll_pitch_for_up(u: np.ndarray) -> tuple[float, float]:
-    """(roll, pitch) in degrees that make the accelerometer read +g along the body vector u."""
-    return math.degrees(math.atan2(-u[1], -u[2])), math.degrees(math.asin(np.clip(u[0], -1, 1)))
 
 
 def simulated_positions(errs: SensorErrors, seconds=10.0, rate_hz=50.0) -> np.ndarray:
@@ -176,10 +160,34 @@ def test_a_position_taken_while_moving_is_refused():
     assert not res.ok and "residual" in res.refused
 
 
-def test_local_gravity():
-    assert local_gravity_m_s2(0.0) == pytest.approx(9.780327)          # seed 004 eq. 18 at the equator
-    assert local_gravity_m_s2(90.0) == pytest.approx(9.832, abs=1e-3)
-    assert local_gravity_m_s2(36.42, 1345.0) == pytest.approx(G, rel=1e-9)  # same model as the simulator
+# seed 004 §7.5 worked values: g(L, 0) and g(L, 1000 m) in m/s²
+SEED004_GRAVITY = [(0.0, 9.780327, 9.777261), (30.0, 9.793249, 9.790179), (35.7, 9.797935, 9.794864),
+                   (45.0, 9.806200, 9.803126), (60.0, 9.819179, 9.816101), (90.0, 9.832186, 9.829104)]
+
+
+def somigliana_m_s2(lat_deg: float, alt_m: float) -> float:
+    """WGS-84 normal gravity, Somigliana's closed form, with the free-air gradient for height (NIMA TR8350.2
+    eq. 4-1 and 4-3, second-order height term dropped)."""
+    ge, k, e2 = 9.7803253359, 0.00193185265241, 0.00669437999013
+    s2 = math.sin(math.radians(lat_deg)) ** 2
+    g0 = ge * (1 + k * s2) / math.sqrt(1 - e2 * s2)
+    return g0 - 3.086e-6 * alt_m
+
+
+@pytest.mark.parametrize("lat, g0, g1000", SEED004_GRAVITY)
+def test_local_gravity_matches_the_seed_table(lat, g0, g1000):
+    assert local_gravity_m_s2(lat, 0.0) == pytest.approx(g0, abs=1.5e-6)
+    assert local_gravity_m_s2(lat, 1000.0) == pytest.approx(g1000, abs=1.5e-6)
+
+
+@pytest.mark.parametrize("lat, alt", [(0.0, 0.0), (36.42, 1345.0), (-52.0, 300.0), (78.0, 3000.0)])
+def test_local_gravity_agrees_with_somigliana(lat, alt):
+    # eq. 18 is a series of the closed form (2e-6 m/s² apart at sea level); its spherical (R0/(R0+h))² height
+    # factor and the free-air gradient differ by up to 2e-5 m/s² at these heights
+    assert local_gravity_m_s2(lat, alt) == pytest.approx(somigliana_m_s2(lat, alt), abs=3e-5)
+
+
+def test_local_gravity_without_a_latitude_is_standard_gravity():
     assert local_gravity_m_s2(None) == 9.80665
 
 

@@ -34,7 +34,7 @@ def write_recording(path: Path, blocks, t0: float = 0.0, rate_hz: float = 20.0) 
 
 def ahrsd(*args, check_rc=None):
     """`ahrsd calibrate ...` as a real subprocess (the way evaluation scripts call it)."""
-    proc = subprocess.run([sys.executable, "-m", "ahrsd.daemon.cli", "calibrate", *map(str, args)],
+    proc = subprocess.run([sys.executable, "-m", "ahrsd.cli", "calibrate", *map(str, args)],
                           capture_output=True, text=True, timeout=120)
     if check_rc is not None:
         assert proc.returncode == check_rc, proc.stdout + proc.stderr
@@ -51,7 +51,7 @@ class Result:
 @pytest.fixture
 def ahrsd_inproc(capsys):
     """The same command line run in this process (saves the interpreter start-up: the suite is shared)."""
-    from ahrsd.daemon.cli import main
+    from ahrsd.cli.main import main
 
     def run(*args, check_rc=None):
         capsys.readouterr()
@@ -80,7 +80,7 @@ def recordings(tmp_path_factory):
         "static": write_recording(d / "static.csv", [simulate("static", 1800, rate_hz=10, seed=3, errors=errs)],
                                   rate_hz=10),
     }
-    from test_cal_accel import roll_pitch_for_up, up_vectors
+    from support.accel_positions import roll_pitch_for_up, up_vectors
 
     from ahrsd.simulation.scenarios import Static
 

@@ -41,14 +41,14 @@ OFFSET_TOL_DEG = 0.3
 
 def ahrsd(*args):
     """`ahrsd calibrate ...` as a real subprocess."""
-    return subprocess.run([sys.executable, "-m", "ahrsd.daemon.cli", "calibrate", *map(str, args)],
+    return subprocess.run([sys.executable, "-m", "ahrsd.cli", "calibrate", *map(str, args)],
                           capture_output=True, text=True, timeout=120)
 
 
 @pytest.fixture
 def ahrsd_inproc(capsys):
     """The same command line in this process (saves the interpreter start-up). Returns (rc, stdout, stderr)."""
-    from ahrsd.daemon.cli import main
+    from ahrsd.cli.main import main
 
     def run(*args):
         capsys.readouterr()

@@ -16,7 +16,6 @@ import math
 import numpy as np
 import pytest
 
-pytest.importorskip("ahrsd.estimator.mekf")
 
 from ahrsd.calibration.accel_cal import fit_accel  # noqa: E402
 from ahrsd.calibration.gyro_cal import fit_rate_table, reference_rates_from_truth, steady_segments  # noqa: E402
@@ -37,7 +36,7 @@ def sensor_errors() -> SensorErrors:
 
 
 def calibrate(errs: SensorErrors) -> Calibration:
-    from test_cal_accel import roll_pitch_for_up, up_vectors
+    from support.accel_positions import roll_pitch_for_up, up_vectors
 
     means = []
     for k, u in enumerate(up_vectors()):

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from ahrsd.daemon import cmd_magcal
-from ahrsd.daemon.cli import build_parser
+from ahrsd.cli import magcal
+from ahrsd.cli.main import build_parser
 from ahrsd.daemon.config import Config, load_config
 
 REPO = Path(__file__).resolve().parents[1]
@@ -39,7 +39,7 @@ def test_closed_stdout_gives_no_traceback(argv):
     read_end, write_end = os.pipe()
     os.close(read_end)                 # the reader is gone before anything is written: every write is EPIPE
     try:
-        proc = subprocess.run([sys.executable, "-c", "import sys; from ahrsd.daemon.cli import main; "
+        proc = subprocess.run([sys.executable, "-c", "import sys; from ahrsd.cli.main import main; "
                                "sys.exit(main())", *argv], stdout=write_end, stderr=subprocess.PIPE,
                               text=True, timeout=60)
     finally:
@@ -70,17 +70,17 @@ def test_record_help_has_no_none_defaults_and_keeps_real_ones():
 
 def test_magcal_fixed_yaw_position_needs_both_coordinates():
     ns = argparse.Namespace
-    assert cmd_magcal._fixed_yaw_position(ns(lat=None, lon=None)) == (0.0, 0.0)   # daemon's own position
-    assert cmd_magcal._fixed_yaw_position(ns(lat=52.0, lon=4.4)) == (52.0, 4.4)
+    assert magcal._fixed_yaw_position(ns(lat=None, lon=None)) == (0.0, 0.0)   # daemon's own position
+    assert magcal._fixed_yaw_position(ns(lat=52.0, lon=4.4)) == (52.0, 4.4)
     for lat, lon in ((52.0, None), (None, 4.4), (95.0, 4.4), (52.0, 200.0)):
         with pytest.raises(ValueError):
-            cmd_magcal._fixed_yaw_position(ns(lat=lat, lon=lon))
+            magcal._fixed_yaw_position(ns(lat=lat, lon=lon))
 
 
 def test_magcal_fixed_yaw_with_one_coordinate_exits_2_before_connecting(capsys):
     args = build_parser().parse_args(["magcal", "--connect", "udpin:127.0.0.1:1", "fixed-yaw", "90", "--lat", "50"])
     assert args.lat == 50.0 and args.lon is None
-    assert cmd_magcal.run(args) == 2
+    assert magcal.run(args) == 2
     assert "--lat and --lon together" in capsys.readouterr().err
 
 
@@ -133,7 +133,7 @@ def test_every_commented_key_of_the_example_exists_and_parses(tmp_path):
     (["mag", "some.csv", "--lat", "1", "--lon", "2", "--align-recording", "t.csv"], "goes with --method three-step"),
 ])
 def test_calibrate_usage_errors_exit_2(argv, message, tmp_path, capsys):
-    from ahrsd.daemon.cli import main
+    from ahrsd.cli.main import main
 
     rc = main(["calibrate", *argv, "--state-dir", str(tmp_path / "st"), "--dry-run"])
     err = capsys.readouterr().err
@@ -145,7 +145,7 @@ def test_calibrate_usage_errors_exit_2(argv, message, tmp_path, capsys):
 def test_calibrate_mag_bad_site_is_a_usage_error_on_stderr_and_in_json(extra, tmp_path, capsys):
     import json
 
-    from ahrsd.daemon.cli import main
+    from ahrsd.cli.main import main
 
     rc = main(["calibrate", "mag", "some.csv", *extra, "--state-dir", str(tmp_path), "--json"])
     out, err = capsys.readouterr()
@@ -155,7 +155,7 @@ def test_calibrate_mag_bad_site_is_a_usage_error_on_stderr_and_in_json(extra, tm
 
 @pytest.mark.parametrize("seconds", ["nan", "inf", "-1", "0"])
 def test_record_rejects_non_finite_or_non_positive_seconds(seconds, tmp_path, capsys):
-    from ahrsd.daemon.cli import main
+    from ahrsd.cli.main import main
 
     out = tmp_path / "r.csv"
     assert main(["record", "--sim", "static", "-o", str(out), "-q", "--seconds", seconds]) == 2

@@ -13,7 +13,7 @@ import time
 
 from ahrsd.daemon.config import Config, EndpointConfig, StateConfig
 from ahrsd.daemon.mavlink_io import mavlink
-from ahrsd.daemon.pipeline import DriverSource
+from ahrsd.drivers.chip_source import ChipSource
 from ahrsd.daemon.service import Service
 from ahrsd.drivers.adis16405 import Adis16405
 from ahrsd.drivers.faults import FaultKind, FaultPlan
@@ -33,7 +33,7 @@ def test_corrupt_frames_and_a_vanished_device(tmp_path):
     driver.start()
     plan.add(FaultKind.GARBAGE, start_sample=bus.sample_index, probability=0.02)
     bus_error = plan.add(FaultKind.BUS_ERROR, enabled=False)    # switched on once the daemon is ACTIVE
-    service = Service(cfg, source=DriverSource(driver, bus, "faulty chip"))
+    service = Service(cfg, source=ChipSource(driver, bus, "faulty chip"))
     parser = mavlink.MAVLink(None)
     parser.robust_parsing = True
     events: list[tuple[float, str, object]] = []
@@ -100,14 +100,14 @@ def test_replay_of_a_recording_runs_and_ends(tmp_path):
     """`ahrsd run --replay` on a recording from `ahrsd record`: estimates flow, time stamps are monotonic
     time, and the daemon stops by itself at the end of the file."""
     rec = tmp_path / "rec.csv"
-    r = subprocess.run([sys.executable, "-m", "ahrsd.daemon.cli", "record", "--sim", "static", "--output", str(rec),
+    r = subprocess.run([sys.executable, "-m", "ahrsd.cli", "record", "--sim", "static", "--output", str(rec),
                         "--seconds", "3", "--quiet"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))
     rx.settimeout(0.5)
     port = rx.getsockname()[1]
-    proc = subprocess.Popen([sys.executable, "-m", "ahrsd.daemon.cli", "run", "--replay", str(rec), "--mavlink",
+    proc = subprocess.Popen([sys.executable, "-m", "ahrsd.cli", "run", "--replay", str(rec), "--mavlink",
                              f"udpout:127.0.0.1:{port}", "--state-dir", str(tmp_path / "s"), "--status-line", "off"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     parser = mavlink.MAVLink(None)

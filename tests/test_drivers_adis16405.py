@@ -7,10 +7,12 @@ import pytest
 
 from ahrsd.drivers import registers as R
 from ahrsd.drivers.adis16405 import Adis16405
-from ahrsd.drivers.errors import ConfigError, DriverError, ProductIdMismatch, SelfTestFailed
+from ahrsd.drivers.errors import ConfigError, DriverError, FrameError, ProductIdMismatch, SelfTestFailed
 from ahrsd.drivers.faults import FaultPlan
 from ahrsd.core.sample import SampleFlags
-from ahrsd.drivers.simulated import FixedStream, SimulatedAdis16405
+from ahrsd.drivers.simulated import SimulatedAdis16405
+from ahrsd.drivers.source import start_chip_source
+from sim_streams import FixedStream
 from ahrsd.drivers.spi import SpiBus
 
 G0 = R.STANDARD_GRAVITY_M_S2
@@ -233,36 +235,35 @@ class FakeClock:
 
 
 def test_clocked_chip_stale_and_gaps():
+    """The chip on a host clock, read through the chip source (the one timing path): stale reads give no
+    sample, lost samples are counted and flagged, time stamps advance by whole periods."""
     clock = FakeClock()
     chip = SimulatedAdis16405(FixedStream(GYRO, ACCEL, MAG), clock=clock)
-    imu = Adis16405(chip, clock=clock)
-    imu.start()
+    src = start_chip_source(chip, "test chip", clock=clock)
+    imu = src.driver
     lost_at_start = chip.stats["samples_lost"]
     period = imu.sample_period_s
     clock.t += 0.3 * period
-    s0 = imu.read_sample()
-    assert s0.flags & SampleFlags.NEW_DATA
-    s1 = imu.read_sample()                               # same instant: nothing new
-    assert s1.flags & SampleFlags.STALE and not s1.flags & SampleFlags.NEW_DATA
-    assert s1.counter == s0.counter and s1.t_s == s0.t_s
+    s0 = src.read_one(clock())
+    assert s0 is not None and s0.flags & SampleFlags.NEW_DATA
+    assert src.read_one(clock()) is None                 # same instant: nothing new
     assert imu.counters["stale"] == 1
-    clock.t += period
-    s2 = imu.read_sample()
-    assert s2.counter == s0.counter + 1 and not s2.flags & SampleFlags.GAP_BEFORE
-    clock.t += 3.2 * period                              # two samples nobody read
-    s3 = imu.read_sample()
-    assert s3.flags & SampleFlags.GAP_BEFORE and s3.counter == s2.counter + 3
-    assert imu.counters["lost_samples"] == 2 == chip.stats["samples_lost"] - lost_at_start
-    assert s3.t_s - s2.t_s == pytest.approx(3 * period)
-    # jittery reads, never more than a period late: no gap is invented
+    # jittery reads, never more than a period late: no gap is invented (and the timer locks on the phase)
     rng = np.random.default_rng(1)
     for _ in range(500):
         clock.t += period * rng.uniform(0.2, 1.0)
-        imu.read_sample()
-    assert imu.counters["lost_samples"] == chip.stats["samples_lost"] - lost_at_start
+        src.read_one(clock())
+    assert src.counters()["lost_samples_host"] == chip.stats["samples_lost"] - lost_at_start == 0
+    clock.t = src.next_read_time()
+    s2 = src.read_one(clock())
+    clock.t += 3.0 * period                              # two samples nobody read
+    s3 = src.read_one(clock())
+    assert s3.flags & SampleFlags.GAP_BEFORE and s3.counter == s2.counter + 3
+    assert src.counters()["lost_samples_host"] == 2 == chip.stats["samples_lost"] - lost_at_start
+    assert s3.t_s - s2.t_s == pytest.approx(3 * period, abs=20e-6)   # the phase estimate only tightens
 
 
-from hypothesis import HealthCheck, given, settings, strategies as st  # noqa: E402
+from hypothesis import HealthCheck, event, given, settings, strategies as st  # noqa: E402
 
 
 @settings(derandomize=True, max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -300,12 +301,113 @@ class ReplayBus:
 @settings(derandomize=True, max_examples=300, deadline=None)
 @given(st.lists(st.binary(min_size=0, max_size=30), min_size=1, max_size=4))
 def test_random_bus_answers_never_crash_the_driver(answers):
+    """Random bytes (almost never a frame that passes the ND/EA and supply checks) give a DriverError or a sample,
+    never another exception; what an accepted frame must decode to is tested on well-formed frames below."""
     imu = Adis16405(ReplayBus(answers))
     try:
-        s = imu.read_sample()
+        imu.read_sample()
     except DriverError:
+        pass
+
+
+class FrameBus:
+    """Answers a burst read with one given frame and register reads from a table, pipelined like the chip
+    (the data of a request arrives in the next 2-byte frame)."""
+
+    def __init__(self, words, registers):
+        self.frame = bytes(2) + b"".join(w.to_bytes(2, "big") for w in words)
+        self.registers = registers
+        self.requested = None
+
+    def transfer(self, tx, speed_hz, delay_us=0):
+        if tx[:2] == R.BURST_COMMAND:
+            return self.frame
+        answer = self.registers.get(self.requested, 0) if self.requested is not None else 0
+        self.requested = tx[0] & 0x7F if not tx[0] & R.WRITE_BIT else None
+        return answer.to_bytes(2, "big")
+
+    def close(self):
+        pass
+
+
+# datasheet full scales (LSB) at the default ±300 °/s range: 300/0.05, 18 g/3.333 mg, 2.5 gauss/0.5 mgauss
+FULL_SCALE_LSB = [6000] * 3 + [5401] * 3 + [5000] * 3
+SCALE_SI = [math.radians(0.05)] * 3 + [3.333e-3 * 9.80665] * 3 + [0.05] * 3
+
+
+def _signed14(word):
+    value = word & 0x3FFF
+    return value - 0x4000 if value >= 0x2000 else value
+
+
+# values at and either side of full scale and of 1.25 × full scale, for every sensor
+EDGE_LSB = sorted({sign * (edge + d) for fs in set(FULL_SCALE_LSB) for edge in (fs, int(1.25 * fs))
+                   for d in (-1, 0, 1) for sign in (1, -1)})
+SUPPLY_PLAUSIBLE_LSB = (1240, 2481)   # 3.0 V and 6.0 V at 2.418 mV/LSB, truncated to whole LSB (2.998..5.999 V)
+SUPPLY_EDGE_LSB = [1239, 1240, 2481, 2482]
+AXIS_LSB = st.one_of(st.integers(-5000, 5000), st.integers(-8192, 8191), st.sampled_from(EDGE_LSB))
+
+
+def _frame_words(supply_lsb, lsb9, flag_bits, temp_aux=(0, 0)):
+    return [(w & 0x3FFF) | flag_bits for w in [supply_lsb] + list(lsb9)] + list(temp_aux)
+
+
+@settings(derandomize=True, max_examples=400, deadline=None)
+@given(nd=st.booleans(), ea=st.booleans(),
+       supply_lsb=st.one_of(st.integers(1200, 2520), st.integers(0, 0x3FFF), st.sampled_from(SUPPLY_EDGE_LSB)),
+       lsb=st.lists(AXIS_LSB, min_size=9, max_size=9),
+       temp_aux=st.lists(st.integers(0, 0xFFFF), min_size=2, max_size=2),
+       diag=st.integers(0, 0xFFFF))
+def test_a_well_formed_frame_is_decoded_exactly_or_rejected_for_a_stated_reason(nd, ea, supply_lsb, lsb,
+                                                                                temp_aux, diag):
+    """Frames whose ND/EA bits agree, with any supply word and any 14-bit payload (edges included). The driver
+    must reject exactly the frames with a supply outside 3..6 V (to the LSB) or a value beyond 1.25 × full scale (counted as
+    garbage), and decode every other one to the LSB with the flags the datasheet implies."""
+    words = _frame_words(supply_lsb, lsb, (R.ND if nd else 0) | (R.EA if ea else 0), temp_aux)
+    # the chip's XGYRO_OUT register agrees with the burst (a genuine value, no burst bug)
+    imu = Adis16405(FrameBus(words, {R.XGYRO_OUT: words[1], R.DIAG_STAT: diag}))
+    supply_v = supply_lsb * 2.418e-3
+    must_reject = not SUPPLY_PLAUSIBLE_LSB[0] <= supply_lsb <= SUPPLY_PLAUSIBLE_LSB[1] or any(abs(v) > 1.25 * fs for v, fs in zip(lsb, FULL_SCALE_LSB))
+    event("rejected" if must_reject else "accepted")
+    if must_reject:
+        with pytest.raises(FrameError):
+            imu.read_sample()
+        assert imu.counters["garbage_frames"] == 1 and imu.counters["samples"] == 0
         return
-    # whatever got through passed every check: flags agree, supply plausible, values physically possible
-    assert 3.0 <= s.supply_v <= 6.0
-    assert np.all(np.abs(s.gyro_rad_s) <= np.radians(375) + 1e-9)
-    assert np.all(np.abs(s.accel_m_s2) <= 1.25 * 18 * G0 + 1e-9)
+    s = imu.read_sample()
+    assert imu.counters["garbage_frames"] == 0 and imu.counters["samples"] == 1
+    values = np.concatenate([s.gyro_rad_s, s.accel_m_s2, s.mag_ut])
+    np.testing.assert_allclose(values, np.array(lsb) * SCALE_SI, rtol=1e-12, atol=0)
+    assert s.supply_v == pytest.approx(supply_v)
+    temp_lsb = (temp_aux[0] & 0x0FFF) - (0x1000 if temp_aux[0] & 0x0800 else 0)
+    assert s.temp_c == pytest.approx(25.0 + 0.14 * temp_lsb)
+    assert bool(s.flags & SampleFlags.NEW_DATA) is nd and bool(s.flags & SampleFlags.STALE) is not nd
+    assert bool(s.flags & SampleFlags.ALARM) is ea and imu.counters["ea_flags"] == int(ea)
+    assert s.diag_stat == (diag if ea else 0)
+    gyro_self_test_failed = ea and bool(diag & (0b111 << 10))     # DIAG_STAT bits 10-12: X/Y/Z gyro self-test
+    accel_self_test_failed = ea and bool(diag & (0b111 << 13))    # bits 13-15: X/Y/Z accelerometer
+    for sensor, axes, invalid, saturated, self_test in (
+            ("gyro", slice(0, 3), SampleFlags.GYRO_INVALID, SampleFlags.GYRO_SATURATED, gyro_self_test_failed),
+            ("accel", slice(3, 6), SampleFlags.ACCEL_INVALID, SampleFlags.ACCEL_SATURATED, accel_self_test_failed),
+            ("mag", slice(6, 9), SampleFlags.MAG_INVALID, SampleFlags.MAG_SATURATED, False)):
+        at_full_scale = any(abs(v) >= fs for v, fs in zip(lsb[axes], FULL_SCALE_LSB[axes]))
+        assert bool(s.flags & saturated) is at_full_scale, sensor
+        assert bool(s.flags & invalid) is (at_full_scale or self_test), sensor
+
+
+@pytest.mark.parametrize("bit", [R.ND, R.EA], ids=["ND", "EA"])
+@pytest.mark.parametrize("word", range(12))
+def test_one_word_with_a_different_nd_or_ea_bit_rejects_the_frame(word, bit):
+    """SUPPLY_OUT and the nine sensor words must carry the same ND/EA bits, in either direction (a bit set on
+    one word only, or cleared on one word only); TEMP_OUT/AUX_ADC are not checked."""
+    for others_set in (False, True):
+        words = _frame_words(2068, [100, -200, 300, 50, -60, -300, 400, -100, 900], bit if others_set else 0)
+        words[word] ^= bit
+        imu = Adis16405(FrameBus(words, {R.XGYRO_OUT: words[1]}))
+        if word >= 10:
+            imu.read_sample()
+            assert imu.counters["garbage_frames"] == 0
+        else:
+            with pytest.raises(FrameError, match="ND/EA"):
+                imu.read_sample()
+            assert imu.counters["garbage_frames"] == 1

@@ -6,7 +6,6 @@ import math
 import numpy as np
 import pytest
 
-pytest.importorskip("ahrsd.simulation.stream", reason="needs ahrsd.simulation")
 
 from ahrsd.drivers import registers as R  # noqa: E402
 from ahrsd.drivers.adis16405 import Adis16405  # noqa: E402

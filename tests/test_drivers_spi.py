@@ -9,7 +9,8 @@ import pytest
 
 from ahrsd.drivers import registers as R
 from ahrsd.drivers.errors import BusError
-from ahrsd.drivers.simulated import FixedStream, SimulatedAdis16405
+from ahrsd.drivers.simulated import SimulatedAdis16405
+from sim_streams import FixedStream
 from ahrsd.drivers.spi import SpidevBus
 
 
@@ -96,7 +97,7 @@ def test_odd_length_transfer_latches_spi_failure():
 
 def test_record_over_spidev_reaches_the_chip_through_the_real_backend(monkeypatch, tmp_path):
     """`ahrsd record --spi` end to end, with spidev replaced by a shim that forwards to the simulated chip."""
-    from ahrsd.daemon.cli import main
+    from ahrsd.cli.main import main
     from ahrsd.drivers.recording import read_recording
 
     import time

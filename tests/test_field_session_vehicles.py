@@ -1,5 +1,5 @@
 """Field sessions on simulated level vehicles at ±2°, ±10° and ±30° of tilt with strong non-symmetric iron
-(tests/fieldcal_sim.py), scored on attitudes the session never saw against the injected iron: the session
+(tests/support/field_vehicle.py), scored on attitudes the session never saw against the injected iron: the session
 decides from the fit's observability analysis, gives what `ahrsd calibrate mag --method backstepping` gives
 on the same samples, and with GNSS course over ground also removes the constant heading offset."""
 
@@ -15,7 +15,7 @@ from ahrsd.calibration.mag_offsets import fit_offsets_keep_soft_iron
 from ahrsd.calibration.magfit import MagFitInput, fit_mag
 from ahrsd.calibration.models import Calibration
 
-from fieldcal_sim import (SITE_FIELD, course_fixes, heading_errors_deg, heading_rms_deg, injected_iron, record,
+from support.field_vehicle import (SITE_FIELD, course_fixes, heading_errors_deg, heading_rms_deg, injected_iron, record,
                           samples, truth_euler, vehicle)
 
 

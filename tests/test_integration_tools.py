@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from service_rig import free_udp_port, stop_process
-from test_integration_daemon import OUR_COMP, Daemon
+from support.ahrsd_process import OUR_COMP, Daemon
 
 from ahrsd.daemon.mavlink_io import mavlink, mavutil
 
@@ -142,7 +142,7 @@ def test_tcp_endpoints_server_and_client_reconnect(tmp_path):
     peer listens, without blocking the loop (the tcpin client keeps receiving meanwhile)."""
     p_in, p_out = _free_tcp_port(), _free_tcp_port()
     log = open(tmp_path / "ahrsd.log", "w")
-    proc = subprocess.Popen([sys.executable, "-m", "ahrsd.daemon.cli", "run", "--mavlink", f"tcpin:127.0.0.1:{p_in}",
+    proc = subprocess.Popen([sys.executable, "-m", "ahrsd.cli", "run", "--mavlink", f"tcpin:127.0.0.1:{p_in}",
                              "--mavlink", f"tcp:127.0.0.1:{p_out}", "--state-dir", str(tmp_path / "s"),
                              "--status-line", "off"], stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
 
@@ -200,7 +200,7 @@ def test_serial_endpoint_on_a_pseudo_terminal(tmp_path):
     termios.tcsetattr(slave, termios.TCSANOW, attrs)
     slave_path = os.ttyname(slave)
     log = open(tmp_path / "ahrsd.log", "w")
-    proc = subprocess.Popen([sys.executable, "-m", "ahrsd.daemon.cli", "run", "--mavlink", f"{slave_path},115200",
+    proc = subprocess.Popen([sys.executable, "-m", "ahrsd.cli", "run", "--mavlink", f"{slave_path},115200",
                              "--state-dir", str(tmp_path / "s"), "--status-line", "off"],
                             stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
     parser = mavlink.MAVLink(None)

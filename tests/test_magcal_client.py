@@ -5,8 +5,8 @@ from __future__ import annotations
 import io
 from types import SimpleNamespace
 
-from ahrsd.daemon.cli import build_parser
-from ahrsd.daemon.cmd_magcal import MagCalClient
+from ahrsd.cli.main import build_parser
+from ahrsd.cli.magcal_client import MagCalClient
 from ahrsd.daemon.magcal import statustext_chunks
 from ahrsd.daemon.mavlink_io import mavlink
 

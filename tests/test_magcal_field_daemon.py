@@ -1,5 +1,5 @@
 """Whole field sessions through the daemon over MAVLink (UDP, pymavlink as the ground station) on simulated
-level vehicles at ±2°, ±10° and ±30° of tilt with strong non-symmetric iron (tests/fieldcal_sim.py), the
+level vehicles at ±2°, ±10° and ±30° of tilt with strong non-symmetric iron (tests/support/field_vehicle.py), the
 saved calibration scored on attitudes the session never saw against the injected iron; and a session during
 which the "autopilot" sends GPS_RAW_INT course made from the simulation truth.
 
@@ -28,7 +28,7 @@ from ahrsd.calibration.store import CalibrationStore  # noqa: E402
 from ahrsd.daemon.mavlink_io import mavlink  # noqa: E402
 from ahrsd.simulation import DEFAULT_SITE  # noqa: E402
 
-from fieldcal_sim import (SITE_FIELD, course_fixes, heading_rms_deg, injected_iron, record, truth_euler,  # noqa: E402
+from support.field_vehicle import (SITE_FIELD, course_fixes, heading_rms_deg, injected_iron, record, truth_euler,  # noqa: E402
                           vehicle)
 from service_rig import free_udp_port, stop_process  # noqa: E402
 from test_magcal_integration import Client  # noqa: E402
@@ -40,11 +40,11 @@ import asyncio, dataclasses, json, logging, sys, time
 logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
 a = json.loads(sys.argv[1])
 sys.path.insert(0, a["tests_dir"])
-from fieldcal_sim import RATE_HZ, record, vehicle
+from support.field_vehicle import RATE_HZ, record, vehicle
 from ahrsd.core.sample import SampleFlags, make_sample
 from ahrsd.daemon.config import Config, OutputsConfig
 from ahrsd.daemon.magcal import attach, settings_from_mapping
-from ahrsd.daemon.pipeline import ReplaySource
+from ahrsd.drivers.replay_source import ReplaySource
 from ahrsd.daemon.service import Service
 cfg = Config().with_overrides(sim="level-turns", mavlink=[a["url"]], state_dir=a["state_dir"])
 cfg = dataclasses.replace(cfg, outputs=OutputsConfig.parse({"highres_imu_hz": 50.0}))

@@ -7,7 +7,6 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
 from ahrsd.calibration.ardupilot_compass import from_ardupilot
 from ahrsd.calibration.field import CalStatus
@@ -26,110 +25,8 @@ from ahrsd.daemon.magcal import (
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.core.sample import make_sample
 
-from test_field_session import HARD_IRON_UT, SITE, level_turns
-
-MAV = mavlink.MAVLink(None, srcSystem=1, srcComponent=200)
-
-
-def wire(msg):
-    """Pack and parse like a receiver would."""
-    buf = msg.pack(MAV)
-    return mavlink.MAVLink(None).parse_char(bytearray(buf))
-
-
-class FakeHost:
-    def __init__(self, state_dir, armed=False):
-        self.store = CalibrationStore(state_dir)
-        self.cal = self.store.load()
-        self.sent = []
-        self.is_armed = armed
-        self.applied = []
-
-    def current_calibration(self):
-        return self.cal
-
-    def apply_calibration(self, cal):
-        self.store.save(cal)      # as Service.apply_calibration: persist first, swap only if that worked
-        self.cal = cal
-        self.applied.append(cal)
-
-    def send(self, msg):
-        self.sent.append(wire(msg))
-
-    def statustext(self, severity, text):
-        self.send(statustext_chunks(severity, text, 1)[0])
-
-    def armed(self):
-        return self.is_armed
-
-    def reference_field(self, lat_deg=None, lon_deg=None):
-        return SITE
-
-    def of_type(self, name):
-        return [m for m in self.sent if m.get_type() == name]
-
-    def texts(self):
-        """STATUSTEXT lines, MAVLink 2 chunks (same id, chunk_seq 0, 1, ...) joined back into one line."""
-        out, chunks = [], {}
-        for m in self.of_type("STATUSTEXT"):
-            if m.id == 0:
-                out.append(m.text)
-            elif m.chunk_seq == 0:
-                chunks[m.id] = len(out)
-                out.append(m.text)
-            elif m.id in chunks:
-                out[chunks[m.id]] += m.text
-        return out
-
-
-class Clock:
-    t = 1000.0
-
-    def __call__(self):
-        return self.t
-
-
-def cmd(command, *params):
-    p = list(params) + [0.0] * (7 - len(params))
-    return wire(mavlink.MAVLink_command_long_message(1, 200, command, 0, *p))
-
-
-def _body_rate(traj, i):
-    """Body rates of the heading turn alone (roll/pitch rates left out): R_bn · [0, 0, ψ̇]."""
-    psi_dot = (traj.yaw[min(i + 1, len(traj.t) - 1)] - traj.yaw[max(i - 1, 0)]) / (
-        traj.t[min(i + 1, len(traj.t) - 1)] - traj.t[max(i - 1, 0)])
-    r, p = traj.roll[i], traj.pitch[i]
-    return psi_dot * np.array([-np.sin(p), np.sin(r) * np.cos(p), np.cos(r) * np.cos(p)])
-
-
-def tick_settled(proto) -> None:
-    """One protocol tick; a fit it started is waited for and collected (deterministic tests)."""
-    proto.tick()
-    if proto._fit_future is not None:
-        proto._fit_future.result()
-        proto.tick()
-
-
-def drive(proto, clock, traj, host, until=None, max_t=None):
-    """Feed the trajectory as calibrated samples; tick at 10 Hz of sample time (clock follows sample time)."""
-    next_tick = 0.0
-    for i in range(len(traj.t)):
-        t = traj.t[i]
-        if max_t is not None and t > max_t:
-            break
-        clock.t = 1000.0 + t
-        mag = host.cal.mag.apply(traj.raw[i])
-        s = make_sample(t, np.zeros(3), traj.accel[i], mag)
-        est = SimpleNamespace(roll_rad=traj.roll[i], pitch_rad=traj.pitch[i], yaw_rad=traj.yaw[i],
-                              rate_body_rad_s=_body_rate(traj, i))
-        proto.on_sample(s, est)
-        if t >= next_tick:
-            next_tick = t + 0.1
-            tick_settled(proto)
-            if until is not None and until():
-                return t
-    return traj.t[-1]
-
+from support.field_data import HARD_IRON_UT, MAG_NOISE_UT, SOFT_DISTORTION, level_turns, trajectory
+from support.magcal_host import Clock, FakeHost, cmd, drive, tick_settled, wire
 
 @pytest.fixture
 def setup(tmp_path):
@@ -256,20 +153,28 @@ def test_timeout_reports_failed_with_reason(tmp_path):
     assert not host.applied
 
 
-def test_fixed_yaw_keeps_soft_iron_and_saves(tmp_path):
+def test_fixed_yaw_keeps_soft_iron_and_finds_the_true_hard_iron(tmp_path):
+    """Soft iron already right, hard iron stale (zero): a still vehicle, tilted, at a known true heading (30°) gives back the
+    injected hard iron, to within the magnetometer noise averaged over the fixed-yaw window."""
     host = FakeHost(tmp_path)
-    soft = np.diag([1.03, 0.98, 1.0])
+    soft = np.linalg.inv(SOFT_DISTORTION)
     host.cal = Calibration.identity().with_sensor("mag", MagModel(np.zeros(3), soft))
-    proto = MagCalProtocol(host, MagCalSettings(), clock=Clock())
-    traj = level_turns(duration_s=2.0, turn_period_s=1e9)  # still, heading 0 true
+    settings = MagCalSettings()
+    proto = MagCalProtocol(host, settings, clock=Clock())
+    t = np.arange(0.0, 2.0, 1.0 / 50.0)
+    traj = trajectory(t, np.full_like(t, np.radians(4.0)), np.full_like(t, np.radians(-3.0)),
+                      np.full_like(t, np.radians(30.0)))
     for i in range(len(traj.t)):
         proto.on_sample(make_sample(traj.t[i], np.zeros(3), traj.accel[i], host.cal.mag.apply(traj.raw[i])),
                         SimpleNamespace(roll_rad=traj.roll[i], pitch_rad=traj.pitch[i], yaw_rad=0.0,
-                                        rate_body_rad_s=np.zeros(3)))
-    assert proto.handle_fixed_yaw(cmd(CMD_FIXED_YAW, 0.0, 0, 0, 0)) == mavlink.MAV_RESULT_ACCEPTED
+                                        rate_body_rad_s=np.zeros(3)))      # the filter's heading is not used
+    assert proto.handle_fixed_yaw(cmd(CMD_FIXED_YAW, 30.0, 0, 0, 0)) == mavlink.MAV_RESULT_ACCEPTED
     assert np.array_equal(host.cal.mag.soft_iron, soft)
-    assert host.cal.mag.hard_iron_ut.shape == (3,) and np.all(np.isfinite(host.cal.mag.hard_iron_ut))
-    assert np.allclose(CalibrationStore(tmp_path).load().mag.soft_iron, soft)
+    n_averaged = min(len(t), int(settings.fixed_yaw_average_s * 50.0) + 1)
+    tolerance_ut = 5 * MAG_NOISE_UT / np.sqrt(n_averaged)          # 5 σ of the window mean, per axis
+    np.testing.assert_allclose(host.cal.mag.hard_iron_ut, HARD_IRON_UT, atol=tolerance_ut)
+    saved = CalibrationStore(tmp_path).load().mag
+    assert np.allclose(saved.soft_iron, soft) and np.allclose(saved.hard_iron_ut, host.cal.mag.hard_iron_ut)
 
 
 def test_statustext_chunks_long_lines():
@@ -290,7 +195,7 @@ def test_settings_from_mapping_validates():
 
 
 def test_router_ignores_broadcast_unless_configured_and_refuses_unsigned(tmp_path):
-    commands = pytest.importorskip("ahrsd.daemon.commands")
+    from ahrsd.daemon import commands
     acks = []
     for accept_broadcast in (False, True):
         host = FakeHost(tmp_path)
@@ -318,25 +223,32 @@ def gps_raw_int(t_valid_s, course_rad, speed_m_s, fix_type=3, vel_acc_mm_s=0):
         int(round(np.degrees(course_rad) * 100)) % 36000, 12, 0, 0, 0, vel_acc_mm_s, 0, 0))
 
 
-def test_course_from_mavlink_units_and_unknowns():
-    from ahrsd.daemon.magcal import course_from_mavlink
-
-    c = course_from_mavlink(gps_raw_int(1.0, np.radians(123.45), 2.5, vel_acc_mm_s=150))
-    assert np.isclose(np.degrees(c[0]), 123.45, atol=0.01) and np.isclose(c[1], 2.5) and np.isclose(c[2], 0.15)
-    assert np.isnan(course_from_mavlink(gps_raw_int(1.0, 0.3, 2.0))[2])          # vel_acc 0: unknown
-    unknown_cog = wire(mavlink.MAVLink_gps_raw_int_message(0, 3, 1, 1, 0, 0, 0, 200, 0xFFFF, 9))
-    assert course_from_mavlink(unknown_cog) is None
-    assert course_from_mavlink(gps_raw_int(1.0, 0.3, 2.0, fix_type=1)) is None  # no fix
-    gpi = wire(mavlink.MAVLink_global_position_int_message(0, 364200000, 549800000, 0, 0, -100, 173, 0, 0))
-    course, speed, _acc = course_from_mavlink(gpi)
-    assert np.isclose(np.degrees(course), np.degrees(np.arctan2(1.73, -1.0)) % 360) and np.isclose(speed, np.hypot(1, 1.73))
-    no_fix = wire(mavlink.MAVLink_global_position_int_message(0, 0, 0, 0, 0, 100, 0, 0, 0))
-    assert course_from_mavlink(no_fix) is None
+def test_gnss_messages_reach_the_session_once_and_only_with_a_velocity(tmp_path):
+    """GPS_RAW_INT through drivers/gnss_mavlink.py: a repeated fix (same time_usec) is fed once, an unknown
+    course is not fed, GLOBAL_POSITION_INT is left alone by default (the autopilot may fuse our heading), and
+    the fix is stamped with the latest sample time minus gnss_latency_s."""
+    host = FakeHost(tmp_path)
+    proto = MagCalProtocol(host, MagCalSettings(gnss_latency_s=0.25), clock=Clock())
+    proto.handle_start(cmd(CMD_START))
+    proto.on_sample(make_sample(10.0, np.zeros(3), np.array([0, 0, -9.8]), np.array([20.0, 0, 40.0])),
+                    SimpleNamespace(roll_rad=0.0, pitch_rad=0.0, yaw_rad=0.0, rate_body_rad_s=np.zeros(3)))
+    proto.on_gnss_message(gps_raw_int(9.9, np.radians(123.45), 2.5))
+    proto.on_gnss_message(gps_raw_int(9.9, np.radians(123.45), 2.5))          # the same fix again
+    unknown_cog = wire(mavlink.MAVLink_gps_raw_int_message(11_000_000, 3, 1, 1, 0, 0, 0, 200, 0xFFFF, 9))
+    proto.on_gnss_message(unknown_cog)
+    proto.on_gnss_message(wire(mavlink.MAVLink_global_position_int_message(0, 364200000, 549800000, 0, 0,
+                                                                           -100, 173, 0, 0)))
+    s = proto.session
+    assert proto.course_fed == 1 and proto.course_unusable == 1 and s._n_course == 1
+    t, course, speed, _acc = s._course[0]
+    assert t == pytest.approx(10.0 - 0.25) and np.degrees(course) == pytest.approx(123.45, abs=0.01)
+    assert speed == pytest.approx(2.5)
+    proto.close()
 
 
 def _drive_vehicle(proto, clock, block, host, courses=None, until=None):
     """Feed a fieldcal_sim recording (truth attitude as the estimate) and GPS_RAW_INT at arrival times."""
-    from fieldcal_sim import truth_euler
+    from support.field_vehicle import truth_euler
 
     eul = truth_euler(block)
     next_tick, k = 0.0, 0
@@ -361,7 +273,7 @@ def _drive_vehicle(proto, clock, block, host, courses=None, until=None):
 def test_gnss_course_over_mavlink_sets_the_heading_offset(tmp_path):
     """GPS_RAW_INT course from the simulation truth (0.5° noise, 0.1 s latency, a 0.18 m/s current) during a
     ±2° session: the accepted calibration's heading on other attitudes, offset included, is within 0.4°."""
-    from fieldcal_sim import SITE_FIELD, course_fixes, heading_rms_deg, injected_iron, record, vehicle
+    from support.field_vehicle import SITE_FIELD, course_fixes, heading_rms_deg, injected_iron, record, vehicle
 
     sc = vehicle(2.0, straight_runs=True)
     block = record(sc, 300.0)
@@ -386,7 +298,7 @@ def test_gnss_course_over_mavlink_sets_the_heading_offset(tmp_path):
 
 
 def test_without_gnss_the_report_says_the_offset_is_undetermined_and_a_known_heading_sets_it(tmp_path):
-    from fieldcal_sim import SITE_FIELD, heading_errors_deg, injected_iron, record, vehicle
+    from support.field_vehicle import SITE_FIELD, heading_errors_deg, injected_iron, record, vehicle
     from scipy.spatial.transform import Rotation
 
     block = record(vehicle(2.0), 200.0)

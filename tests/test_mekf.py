@@ -5,8 +5,6 @@ estimator's own rotation maths)."""
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -189,13 +187,23 @@ def test_an_accelerometer_update_never_moves_heading():
 
 def test_coordinated_turn_tilt_error_is_bounded():
     """30° banked coordinated turns: the specific force stays on the body's −z axis, so every
-    accelerometer-levelled filter is pulled towards the wrong vertical. Defaults: bounded by the bank angle
-    (measured 21° roll RMS); the fixed-wing profile de-weights the turn: measured 0.56° roll RMS."""
+    accelerometer-levelled filter is pulled towards the wrong vertical. Defaults (the known limitation): the
+    estimate is pulled most of the way to level but still banks the right way (measured 21° roll RMS error
+    against the 28° of a filter that always says level, 15° pitch RMS); the fixed-wing profile de-weights the
+    turn: measured 0.56° roll RMS."""
     t, g, a, m, truth = _simulated("coordinated-turn", 156.0, 204.8)
     settled = t >= 10.0
     q, _ = Mekf().run_batch(t, g, a, m)
     err = _euler_errors_deg(q[settled], truth[settled], DECLINATION)
-    assert np.max(np.abs(err[:, 0])) < 35.0 and np.max(np.abs(err[:, 1])) < 35.0
+    roll_true_deg = np.degrees(_rot(truth[settled]).as_euler("ZYX")[:, 2])
+    roll_est_deg = np.degrees(_rot(q[settled]).as_euler("ZYX")[:, 2])
+    banked = np.abs(roll_true_deg) > 20.0
+    always_level_rms = np.sqrt(np.mean(roll_true_deg**2))
+    rms = np.sqrt(np.mean(err**2, axis=0))
+    assert rms[0] < 0.85 * always_level_rms, (rms, always_level_rms)
+    assert np.mean(np.sign(roll_est_deg[banked]) == np.sign(roll_true_deg[banked])) > 0.95
+    assert np.mean(np.abs(roll_est_deg[banked])) > 5.0     # measured 7.7°: shows the bank, if too little of it
+    assert rms[1] < 18.0, rms
     q, _ = Mekf(params=FIXED_WING_MEKF_PARAMS).run_batch(t, g, a, m)
     err = _euler_errors_deg(q[settled], truth[settled], DECLINATION)
     rms = np.sqrt(np.mean(err**2, axis=0))
@@ -340,7 +348,6 @@ def test_golden_broad_slice(broad_dir):
     """Regression pin on real data: BROAD trial 01 (slow rotation), first 90 s (35 s rest, then motion).
     Measured total RMSE 1.82° in the movement phase of this slice (VQF 9D defaults: 2.59° on the same slice);
     the bound leaves 15 % for numerical/platform differences."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from bench.broad import broad_errors, load_trial, ned_to_enu
 
     trial = load_trial(broad_dir / "01_undisturbed_slow_rotation_A.npz", max_samples=int(90 * 285.714))

@@ -8,20 +8,18 @@ import math
 from types import SimpleNamespace
 
 import numpy as np
-import pytest
 from scipy.spatial.transform import Rotation
 
-pytest.importorskip("ahrsd.daemon.service")
 
 from ahrsd.calibration.models import AccelModel, Calibration, GyroModel, MagModel  # noqa: E402
-from ahrsd.daemon.magcal import MagCalProtocol, MagCalSettings, sensor_attitude  # noqa: E402
+from ahrsd.daemon.magcal import CMD_START, MagCalProtocol, MagCalSettings, sensor_attitude  # noqa: E402
 from ahrsd.daemon.mavlink_io import mavlink  # noqa: E402
 from ahrsd.daemon.pipeline import Pipeline, mounting_matrix  # noqa: E402
 from ahrsd.core.sample import make_sample  # noqa: E402
 from ahrsd.estimator.mekf import Mekf  # noqa: E402
 
-from test_field_session import HARD_IRON_UT, SITE, SOFT_DISTORTION  # noqa: E402
-from test_magcal_protocol import CMD_START, Clock, FakeHost, cmd  # noqa: E402
+from support.field_data import HARD_IRON_UT, SITE, SOFT_DISTORTION  # noqa: E402
+from support.magcal_host import Clock, FakeHost, cmd  # noqa: E402
 
 MOUNT_RPY_DEG = (180.0, 0.0, 90.0)       # sensor rolled 180° and yawed 90° in the body
 M = mounting_matrix(MOUNT_RPY_DEG)       # body ← sensor

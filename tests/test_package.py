@@ -1,18 +1,43 @@
 """The package installs under one namespace and the console script answers --help."""
 
+import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
+import pytest
 
 from ahrsd.core.sample import ImuSample, SampleFlags, make_sample
 from ahrsd.core.wmm import earth_field
 
 
-def test_cli_help_lists_subcommands():
-    out = subprocess.run([sys.executable, "-m", "ahrsd.daemon.cli", "--help"], capture_output=True, text=True)
-    assert out.returncode == 0
-    assert "usage: ahrsd" in out.stdout
+SUBCOMMANDS = {"run", "record", "replay", "calibrate", "magcal"}
+
+
+def _ahrsd(*args):
+    """The installed console script (beside the interpreter running the tests), as a user would call it."""
+    script = Path(sys.executable).with_name("ahrsd")
+    return subprocess.run([str(script), *args], capture_output=True, text=True, timeout=120)
+
+
+def test_cli_offers_exactly_the_documented_subcommands():
+    out = _ahrsd("--help")
+    assert out.returncode == 0 and "usage: ahrsd" in out.stdout
+    listed = set(re.findall(r"^    (\w+) ", out.stdout, flags=re.MULTILINE))
+    assert listed == SUBCOMMANDS, out.stdout
+    # the parser's own list of choices, as it reports an unknown command
+    bad = _ahrsd("no-such-command")
+    assert bad.returncode == 2
+    choices = re.search(r"invalid choice: 'no-such-command' \(choose from (.*)\)", bad.stderr)
+    assert choices and set(re.findall(r"'(\w+)'", choices.group(1))) == SUBCOMMANDS, bad.stderr
+
+
+@pytest.mark.parametrize("command", sorted(SUBCOMMANDS))
+def test_each_subcommand_answers_help(command):
+    out = _ahrsd(command, "--help")
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith(f"usage: ahrsd {command}"), out.stdout
 
 
 def test_make_sample_coerces_vectors():

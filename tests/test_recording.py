@@ -112,6 +112,16 @@ def test_chunked_reading_keeps_line_numbers(tmp_path, monkeypatch):
     assert len(read_recording(path)) == 30 == len(list(iter_samples(path)))
 
 
+def test_samples_without_a_counter_column_count_rows_across_chunks(tmp_path, monkeypatch):
+    monkeypatch.setattr(rec, "CHUNK_ROWS", 7)
+    path = tmp_path / "n.csv"
+    path.write_text(HEADER + ",flags\n" + "".join(f"{k / 100},0,0,0,0,0,-9.81,20,0,45,{k % 3}\n" for k in range(30)))
+    samples = list(iter_samples(path))
+    assert [s.counter for s in samples] == list(range(30))
+    assert [int(s.flags) for s in samples] == [k % 3 for k in range(30)]
+    assert all(s.gyro_rad_s.shape == (3,) and s.mag_ut[2] == 45.0 for s in samples)
+
+
 def test_writer_rejects_bad_extra_columns(tmp_path):
     with pytest.raises(ValueError):
         RecordingWriter(tmp_path / "x.csv", extra_columns=("t_s",))
@@ -121,7 +131,7 @@ def test_writer_rejects_bad_extra_columns(tmp_path):
 
 def test_record_command_simulated(tmp_path):
     out = tmp_path / "x.csv"
-    proc = subprocess.run([sys.executable, "-m", "ahrsd.daemon.cli", "record", "--sim", "static", "--seconds", "2",
+    proc = subprocess.run([sys.executable, "-m", "ahrsd.cli", "record", "--sim", "static", "--seconds", "2",
                            "--output", str(out)], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert "wrote 1638 samples" in proc.stderr
@@ -134,7 +144,7 @@ def test_record_command_simulated(tmp_path):
 
 
 def test_record_command_errors_are_clear(tmp_path, capsys, monkeypatch):
-    from ahrsd.daemon.cli import main
+    from ahrsd.cli.main import main
 
     assert main(["record", "--sim", "no-such-scenario", "--output", str(tmp_path / "a.csv"), "--seconds", "1"]) == 2
     err = capsys.readouterr().err
@@ -173,3 +183,30 @@ def test_rows_all_one_field_short_are_refused_not_recut(tmp_path):
     path.write_text(RECORDING_HEADER + "\n" + "\n".join(rows) + "\n")
     with pytest.raises(RecordingFormatError, match="9 fields, expected 10"):
         read_recording(path)
+
+
+@pytest.mark.parametrize("sim_option", [["--seed", "0"], ["--errors", "ideal"], ["--realtime"]])
+def test_record_spi_refuses_simulation_options(tmp_path, capsys, monkeypatch, sim_option):
+    from ahrsd.cli.main import main
+
+    opened = []
+    monkeypatch.setattr("ahrsd.drivers.spi.SpidevBus", lambda *a, **k: opened.append(a) or 1 / 0)
+    out = tmp_path / "spi.csv"
+    assert main(["record", "--spi", "/dev/spidev0.0", *sim_option, "--output", str(out), "--seconds", "1"]) == 2
+    err = capsys.readouterr().err
+    assert sim_option[0] in err and "--sim" in err
+    assert not opened and not out.exists()           # refused before the bus is opened or the file created
+
+
+def test_record_sim_options_still_apply(tmp_path):
+    from ahrsd.cli.main import main
+
+    def record(*options):
+        out = tmp_path / f"r{len(list(tmp_path.iterdir()))}.csv"
+        assert main(["record", "--sim", "static", "--seconds", "0.05", "-q", "--output", str(out), *options]) == 0
+        return read_recording(out)
+
+    default, seed0, seed7, ideal = record(), record("--seed", "0"), record("--seed", "7"), record("--errors", "ideal")
+    assert np.array_equal(default.gyro_rad_s, seed0.gyro_rad_s)        # the default seed is 0
+    assert not np.array_equal(default.gyro_rad_s, seed7.gyro_rad_s)
+    assert np.std(ideal.gyro_rad_s, axis=0).max() < np.std(default.gyro_rad_s, axis=0).max()   # no sensor noise

@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 
 from ahrsd.calibration.models import Calibration, GyroModel
 from ahrsd.calibration.store import CalibrationStore
-from ahrsd.daemon.cli import main
+from ahrsd.cli.main import main
 from ahrsd.daemon.config import ConfigError, load_config
 from service_rig import gcs_socket, start_service, stop_service
 

@@ -3,21 +3,10 @@ while faults are injected. The 10-minute figures are in docs/reliability.md (`py
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
-REPO = Path(__file__).resolve().parents[1]
-
-
-def _soak_module():
-    spec = importlib.util.spec_from_file_location("ahrsd_bench_soak", REPO / "bench" / "soak.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+from bench import soak
 
 
 def test_short_soak_meets_the_criteria(tmp_path):
-    soak = _soak_module()
     r = soak.soak(25.0, soak.CI_FAULTS, 300.0, 1, tmp_path, False)
     lines, failed = soak.evaluate(r)
     print("\n".join(lines))

@@ -13,8 +13,8 @@ import pytest
 
 from ahrsd.calibration.models import Calibration, MagModel
 from ahrsd.calibration.store import encode_calibration
-from ahrsd.daemon import cli
-from ahrsd.daemon.cmd_replay import OUTPUT_HEADER
+from ahrsd.cli import main as cli
+from ahrsd.cli.replay import OUTPUT_HEADER
 from ahrsd.drivers.recording import RECORDING_HEADER
 from ahrsd.estimator.rotations import euler_to_quat, quat_angle_between, quat_multiply
 from ahrsd.simulation import DEFAULT_SITE, SensorErrors, open_stream
@@ -43,7 +43,7 @@ def write_recording(path: Path, seconds: float = 3.0, rate_hz: float = 819.2, sc
 
 
 def replay_subprocess(*args):
-    return subprocess.run([sys.executable, "-m", "ahrsd.daemon.cli", "replay", *map(str, args)],
+    return subprocess.run([sys.executable, "-m", "ahrsd.cli", "replay", *map(str, args)],
                           capture_output=True, text=True, timeout=120)
 
 

@@ -1,20 +1,21 @@
 """The `ahrsd` console script: one entry point, one subcommand per job.
 
-Each subcommand lives in its own module `ahrsd.daemon.cmd_<name>` exposing
-`register(subparsers) -> None`, which adds its parser and sets `func(args) -> int`.
-Those modules import their heavy dependencies inside `func`, so `ahrsd --help` stays fast.
+Each subcommand lives in its own module `ahrsd.cli.<name>` exposing `register(subparsers) -> None`, which
+adds its parser and sets `func(args) -> int`. Those modules import their heavy dependencies inside `func`, so
+`ahrsd --help` stays fast.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
 import logging
 import os
 import sys
 
+from ahrsd.cli import calibrate, magcal, record, replay, run
+
 # Order is the order shown in `ahrsd --help`.
-SUBCOMMANDS = ("run", "record", "replay", "calibrate", "magcal")
+SUBCOMMANDS = (run, record, replay, calibrate, magcal)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -25,13 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in SUBCOMMANDS:
-        try:
-            module = importlib.import_module(f"ahrsd.daemon.cmd_{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name != f"ahrsd.daemon.cmd_{name}":
-                raise
-            continue  # subcommand not built yet
+    for module in SUBCOMMANDS:
         module.register(sub)
     return parser
 

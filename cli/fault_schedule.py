@@ -153,11 +153,3 @@ def build_plan(windows: list[FaultWindow], rate_hz: float, seed: int = 0) -> Fau
         start, stop = w.samples(rate_hz)
         plan.add(w.kind, start_sample=start, stop_sample=stop, **w.options)
     return plan
-
-
-def explained_sample_windows(windows: list[FaultWindow], rate_hz: float) -> list[tuple[int, int]]:
-    """Sample-index windows in which lost samples are expected (faults that stop the sample flow)."""
-    stop_flow = (FaultKind.BUS_ERROR, FaultKind.STALL, FaultKind.GARBAGE, FaultKind.SHORT_READ,
-                 FaultKind.SELF_TEST_FAIL)
-    return [(a, b if b is not None else 1 << 62) for a, b in (w.samples(rate_hz) for w in windows
-                                                               if w.kind in stop_flow)]

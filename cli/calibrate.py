@@ -15,8 +15,6 @@ the optional `ahrsd[plot]` extra: checked before anything is fitted or saved).
 
 from __future__ import annotations
 
-import argparse
-
 DEFAULT_STATE_DIR = "/var/lib/ahrsd"
 
 
@@ -125,14 +123,6 @@ def _read(path):
     return rec
 
 
-def _fmt_vec(v, fmt="{:+.5f}"):
-    return "[" + ", ".join(fmt.format(x) for x in v) + "]"
-
-
-def _fmt_mat(m, fmt="{:+.6f}", indent="    "):
-    return "\n".join(indent + _fmt_vec(row, fmt) for row in m)
-
-
 def _save(args, sensor, model, meta):
     """Merge into the stored calibration and save; returns (path or None, note)."""
     from ahrsd.calibration.store import CalibrationStore
@@ -148,23 +138,12 @@ def _save(args, sensor, model, meta):
         path = store.save(cal)
     except OSError as exc:
         raise _Fail(f"cannot save to {args.state_dir}: {exc.strerror or exc}") from None
-    report = store.last_load
-    if report is None or report.source == "identity":
+    last_load = store.last_load
+    if last_load is None or last_load.source == "identity":
         base = "no earlier calibration"
     else:
-        base = f"the other sensors of {report.path}"
+        base = f"the other sensors of {last_load.path}"
     return path, f"saved to {path} (merged with {base}; the previous file is kept as {store.previous_path.name})"
-
-
-def _fmt_value(value) -> str:
-    """Quality values for a person: 4 significant digits."""
-    if isinstance(value, float):
-        return f"{value:.4g}"
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_fmt_value(v) for v in value) + "]"
-    if isinstance(value, dict):
-        return "{" + ", ".join(f"{k}: {_fmt_value(v)}" for k, v in value.items()) + "}"
-    return str(value)
 
 
 def _emit(args, payload: dict, text: str) -> None:
@@ -188,6 +167,7 @@ def _stored(args):
 
 
 def _allan(args) -> int:
+    from ahrsd.calibration import report
     from ahrsd.calibration.allan import NOISE_FILE_NAME, analyse_static, save_noise_parameters
 
     rec = _read(args.recording)
@@ -207,26 +187,11 @@ def _allan(args) -> int:
         note = f"saved to {path}"
         payload["saved_to"] = str(path)
     if args.plot:
-        _plot_allan(res, args.plot)
-    lines = [f"Allan analysis of {args.recording}: {res.duration_s / 3600:.2f} h at {res.rate_hz:.1f} Hz"]
-    units = {"gyro": ("ARW", "rad/s/√Hz", "rad/s"), "accel": ("VRW", "m/s²/√Hz", "m/s²"), "mag": ("white", "µT/√Hz", "µT")}
-    for sensor, axes in res.parameters.items():
-        name, wu, bu = units[sensor]
-        lines.append(f"  {sensor}:")
-        for ax, p in axes.items():
-            bi = "not visible" if p.bias_instability is None else f"{p.bias_instability:.3e} {bu} (at τ≈{p.tau_bias_instability_s:.0f} s)"
-            extra = ""
-            if p.gauss_markov_sigma is not None:
-                extra = f", Gauss–Markov σ {p.gauss_markov_sigma:.3e} τc {p.gauss_markov_tau_s:.0f} s"
-            lines.append(f"    {ax}: {name} {p.white_noise:.3e} {wu}; bias instability {bi}{extra}")
-            for flag in p.flags:
-                lines.append(f"       note: {flag}")
-    k = payload["kalman"]
-    if "Q_diag" in k:
-        lines.append("  thesis Kalman Q (eq. 6-1, rad²/s): " + _fmt_vec(k["Q_diag"], "{:.3e}"))
-    if "R_diag" in k:
-        lines.append("  thesis Kalman R (eq. 6-2, µT² then (m/s²)²): " + _fmt_vec(k["R_diag"], "{:.3e}"))
-    lines.append(f"  {note}")
+        from ahrsd.calibration.plots import plot_allan
+
+        plot_allan(res, args.plot)
+    lines = [f"Allan analysis of {args.recording}: {res.duration_s / 3600:.2f} h at {res.rate_hz:.1f} Hz",
+             *report.allan_lines(res, payload["kalman"]), f"  {note}"]
     _emit(args, payload, "\n".join(lines))
     return 0
 
@@ -234,6 +199,7 @@ def _allan(args) -> int:
 def _accel(args) -> int:
     import numpy as np
 
+    from ahrsd.calibration import report
     from ahrsd.calibration.accel_cal import fit_accel, find_still_segments, local_gravity_m_s2
 
     g = local_gravity_m_s2(args.lat, args.alt_m)
@@ -258,16 +224,14 @@ def _accel(args) -> int:
     q = res.quality
     lines.append(f"  distinct orientations: {q.get('distinct_orientations')}; faces up: "
                  + ", ".join(k for k, v in q.get("faces", {}).items() if v))
-    rc = _report_fit(args, res, payload, lines, "accel", lambda m: [
-        "  bias (m/s²): " + _fmt_vec(m.bias_m_s2),
-        "  matrix:\n" + _fmt_mat(m.matrix),
-        "  quadratic (1/(m/s²)): " + _fmt_vec(m.quadratic, "{:+.3e}"),
-        f"  residual |f| − g: RMS {res.residual_rms_m_s2 * 1e3:.3f} mm/s², max {q.get('residual_max_m_s2', float('nan')) * 1e3:.3f} mm/s²",
-    ], {"method": f"multi-position {res.terms}-parameter", "residual_rms_m_s2": res.residual_rms_m_s2,
-        "positions": q.get("positions"), "g_m_s2": g})
+    rc = _report_fit(args, res, payload, lines, "accel", report.accel_model_lines,
+                     {"method": f"multi-position {res.terms}-parameter", "residual_rms_m_s2": res.residual_rms_m_s2,
+                      "positions": q.get("positions"), "g_m_s2": g})
     if args.plot and res.ok:
-        _plot_residuals(np.array(q["position_residuals_m_s2"]) * 1e3, "position", "|f| − g (mm/s²)",
-                        "accelerometer residual per position", args.plot)
+        from ahrsd.calibration.plots import plot_residuals
+
+        plot_residuals(np.array(q["position_residuals_m_s2"]) * 1e3, "position", "|f| − g (mm/s²)",
+                       "accelerometer residual per position", args.plot)
     return rc
 
 
@@ -276,8 +240,8 @@ def _accel_live(args):
     import time
 
     from ahrsd.calibration.accel_cal import GuidedSession
-    from ahrsd.drivers.adis16405 import Adis16405
     from ahrsd.drivers.errors import DriverError, FrameError
+    from ahrsd.drivers.source import start_chip_source
 
     if bool(args.sim) == bool(args.spi):
         raise _Usage("--live needs exactly one of --sim SCENARIO or --spi DEV")
@@ -286,14 +250,14 @@ def _accel_live(args):
             from ahrsd.drivers.simulated import SimulatedAdis16405
 
             bus = SimulatedAdis16405(args.sim, clock=None)
-            clock = None
+            clock = bus.now                      # free-running: the chip's own time
         else:
             from ahrsd.drivers.spi import SpidevBus
 
             bus = SpidevBus(args.spi)
             clock = time.monotonic
-        imu = Adis16405(bus, clock=clock)
-        imu.start()
+        source = start_chip_source(bus, "ADIS16405", clock=clock)   # one timing path (drivers.sample_timer)
+        imu = source.driver
     except DriverError as exc:
         raise _Fail(f"sensor: {exc}") from None
     session = GuidedSession(rate_hz=imu.sample_rate_hz)
@@ -303,11 +267,13 @@ def _accel_live(args):
     try:
         while not session.done:
             try:
-                sample = imu.read_sample()
+                sample = source.read_one(clock())
             except FrameError:
                 continue
             except DriverError as exc:
                 raise _Fail(f"sensor: {exc}") from None
+            if sample is None:
+                continue
             t_first = sample.t_s if t_first is None else t_first
             if sample.t_s - t_first > args.timeout_s:
                 out.write(f"timed out after {args.timeout_s:.0f} s of sensor time; {session.coverage()}\n")
@@ -327,7 +293,7 @@ def _gyro(args) -> int:
 
     import numpy as np
 
-    from ahrsd.calibration import gyro_cal
+    from ahrsd.calibration import gyro_cal, report
     from ahrsd.calibration.accel_cal import find_still_segments
 
     rec = _read(args.recording)
@@ -356,11 +322,8 @@ def _gyro(args) -> int:
         res = gyro_cal.fit_rate_table(raw, ref, weights=[s.stop - s.start for s in segs])
     payload = {"sensor": "gyro", **res.to_json_dict(), "source": source}
     lines = [f"Gyro calibration ({res.method}) from {source}"]
-    return _report_fit(args, res, payload, lines, "gyro", lambda m: [
-        "  bias (rad/s): " + _fmt_vec(m.bias_rad_s, "{:+.6f}") + "  (°/s: " + _fmt_vec(np.degrees(m.bias_rad_s), "{:+.4f}") + ")",
-        "  matrix:\n" + _fmt_mat(m.matrix),
-        f"  residual RMS {math.degrees(res.residual_rms_rad_s):.4f} °/s",
-    ], {"method": res.method, "residual_rms_rad_s": res.residual_rms_rad_s})
+    return _report_fit(args, res, payload, lines, "gyro", report.gyro_model_lines,
+                       {"method": res.method, "residual_rms_rad_s": res.residual_rms_rad_s})
 
 
 def _fold_estimator_bias(rec, stored, res, source):
@@ -392,6 +355,7 @@ def _mag(args) -> int:
 
     import numpy as np
 
+    from ahrsd.calibration import report
     from ahrsd.calibration.magfit import MagFitInput, fit_mag
     from ahrsd.core.wmm import earth_field
 
@@ -434,7 +398,13 @@ def _mag(args) -> int:
     except NotImplementedError as exc:
         raise _Fail(str(exc)) from None
     if swing_table is not None and res.ok:
-        res = _apply_swing_table(res, swing_table, args.swing_table)
+        from ahrsd.calibration.swing import SwingFitError
+        from ahrsd.calibration.swing_table import apply_swing_table
+
+        try:
+            res = apply_swing_table(res, *swing_table, args.swing_table)
+        except SwingFitError as exc:
+            raise _Fail(f"swing table {args.swing_table}: {exc}") from None
     payload = {"sensor": "mag", **res.to_json_dict(), "field_ut": ref.total_ut,
                "inclination_deg": float(np.degrees(ref.inclination_rad))}
     lines = [f"Magnetometer calibration ({res.method}) from {len(data)} samples of {args.recording}",
@@ -449,14 +419,7 @@ def _mag(args) -> int:
             "site": {"lat_deg": args.lat, "lon_deg": args.lon, "alt_m": args.alt_m, "date": args.date}}
     if "heading_reference" in q:
         meta["heading_reference"] = q["heading_reference"]
-    rc = _report_fit(args, res, payload, lines, "mag", lambda m: [
-        "  hard iron (µT): " + _fmt_vec(m.hard_iron_ut, "{:+.3f}"),
-        "  soft iron:\n" + _fmt_mat(m.soft_iron),
-        f"  residual | |m| − |F| |: RMS {res.residual_rms_ut:.3f} µT, max {q.get('residual_max_ut', float('nan')):.3f} µT",
-        f"  coverage {q.get('coverage', float('nan')):.0%}; hard-iron 1σ "
-        + _fmt_vec(q.get("sigma_hard_iron_ut", [float("nan")] * 3), "{:.3f}") + " µT",
-        *_deviation_lines(q),
-    ], meta)
+    rc = _report_fit(args, res, payload, lines, "mag", report.mag_model_lines, meta)
     if args.plot:
         if args.method == "backstepping" and res.ok:
             from ahrsd.calibration.backstepping_paper import BacksteppingError
@@ -468,7 +431,9 @@ def _mag(args) -> int:
                 raise _Fail(f"cannot plot: {exc}") from None
         else:
             model = res.model if res.ok else None
-            _plot_mag(rec.mag_ut, model, ref.total_ut, args.plot)
+            from ahrsd.calibration.plots import plot_mag
+
+            plot_mag(rec.mag_ut, model, ref.total_ut, args.plot)
     return rc
 
 
@@ -505,56 +470,6 @@ def _read_swing_table(path):
         raise _Fail(f"swing table: {exc}") from None
 
 
-def _apply_swing_table(res, table, path):
-    """Fit the deviation card δψ = A + B sinψ + C cosψ + D sin2ψ + E cos2ψ (seed 002 eq. 19–21) to the swing
-    table, fold A into the soft iron (heading += A; magnitude unchanged) and put the card in
-    quality["heading_reference"] (MagModel has no field for B..E: they are reported, not applied)."""
-    import dataclasses
-    import math
-
-    from ahrsd.calibration import swing
-    from ahrsd.calibration.backstepping import fold_heading_offset
-
-    reference_deg, compass_deg = table
-    rep: dict = {"source": "swing-table", "file": str(path)}
-    try:
-        card = swing.fit_deviation(compass_deg, reference_deg)
-    except swing.SwingFitError as exc:
-        try:
-            card = swing.fit_offset(compass_deg, reference_deg)
-        except swing.SwingFitError as exc2:
-            raise _Fail(f"swing table {path}: {exc2}") from None
-        rep["note"] = f"A only: {exc}"
-    rep.update(card.to_dict())
-    if math.isfinite(card.a_only_deg) and abs(card.a_deg - card.a_only_deg) > 1.0:   # seed 002 §5 sanity rule
-        rep["warning"] = (f"A of the full fit ({card.a_deg:.2f}°) differs from A alone ({card.a_only_deg:.2f}°): the "
-                          "swing headings are too few or unevenly spread (seed 002 §5)")
-    rep["folded_offset_deg"] = card.a_deg
-    quality = dict(res.quality)
-    if "heading_reference" in quality:    # the recording's own reference, applied first by the fit
-        quality["heading_reference_column"] = quality.pop("heading_reference")
-    quality["heading_reference"] = rep
-    return dataclasses.replace(res, model=fold_heading_offset(res.model, card.a_deg), quality=quality)
-
-
-def _deviation_lines(q) -> list[str]:
-    rep = q.get("heading_reference")
-    if not rep:
-        return []
-    src = "swing table " + rep["file"] if rep.get("source") == "swing-table" else "heading_ref_deg column"
-    lines = [f"  deviation card from the {src} ({rep.get('n')} headings; δψ = A + B sinψ + C cosψ + D sin2ψ + E cos2ψ):",
-             f"    A {rep['A_deg']:+.2f}° (A alone {rep['A_only_deg']:+.2f}°), folded into the soft iron: "
-             f"{rep.get('folded_offset_deg', 0.0):+.2f}°",
-             f"    B {rep['B_deg']:+.2f}°  C {rep['C_deg']:+.2f}°  D {rep['D_deg']:+.2f}°  E {rep['E_deg']:+.2f}°"
-             "  (reported, not applied; near 0 after a good field fit)",
-             f"    heading RMS vs the reference {rep['rms_before_deg']:.2f}° before the card, "
-             f"{rep['rms_after_deg']:.2f}° after A..E"]
-    for key in ("note", "warning"):
-        if rep.get(key):
-            lines.append(f"    {key}: {rep[key]}")
-    return lines
-
-
 def _report_fit(args, res, payload, lines, sensor, describe, meta) -> int:
     """Common tail: refused → report and 1; else save, report parameters and 0."""
     if not res.ok:
@@ -565,82 +480,13 @@ def _report_fit(args, res, payload, lines, sensor, describe, meta) -> int:
     model = res.model
     path, note = _save(args, sensor, model, meta)
     payload["saved_to"] = None if path is None else str(path)
-    lines += describe(model)
-    for key, value in res.quality.items():
-        if key in ("position_residuals_m_s2", "faces", "rejected_model", "initial_hard_iron_ut", "heading_reference"):
-            continue
-        lines.append(f"  {key}: {_fmt_value(value)}")
+    from ahrsd.calibration.report import quality_lines
+
+    lines += describe(model, res)
+    lines += quality_lines(res.quality)
     lines.append(f"  {note}")
     _emit(args, payload, "\n".join(lines))
     return 0
-
-
-# ---------------------------------------------------------------------------------------------- plots
-
-
-def _pyplot():
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        raise _Usage(PLOT_NEEDS_MATPLOTLIB) from None
-    return plt
-
-
-def _plot_allan(res, path) -> None:
-    plt = _pyplot()
-    sensors = list(res.adev)
-    fig, axes = plt.subplots(1, len(sensors), figsize=(5 * len(sensors), 4), squeeze=False)
-    units = {"gyro": "rad/s", "accel": "m/s²", "mag": "µT"}
-    for ax, sensor in zip(axes[0], sensors):
-        for i, name in enumerate("xyz"):
-            ax.loglog(res.taus_s, res.adev[sensor][:, i], label=name)
-        ax.set_title(f"{sensor} Allan deviation")
-        ax.set_xlabel("τ (s)")
-        ax.set_ylabel(f"σ(τ) ({units[sensor]})")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-
-
-def _plot_mag(mag_ut, model, field_ut, path) -> None:
-    import numpy as np
-
-    plt = _pyplot()
-    fig, axes = plt.subplots(1, 3, figsize=(14, 4.6))
-    cal = None if model is None else model.apply(mag_ut)
-    circle = np.linspace(0, 2 * np.pi, 200)
-    for ax, (i, j) in zip(axes, ((0, 1), (0, 2), (1, 2))):
-        ax.plot(mag_ut[:, i], mag_ut[:, j], ".", ms=1, alpha=0.5, label="raw")
-        if cal is not None:
-            ax.plot(cal[:, i], cal[:, j], ".", ms=1, alpha=0.5, label="calibrated")
-        ax.plot(field_ut * np.cos(circle), field_ut * np.sin(circle), "k--", lw=0.8, label="|F| (WMM)")
-        ax.set_aspect("equal")
-        ax.set_xlabel(f"{'xyz'[i]} (µT)")
-        ax.set_ylabel(f"{'xyz'[j]} (µT)")
-        ax.grid(alpha=0.3)
-    axes[0].legend(loc="best", markerscale=8)
-    fig.suptitle("magnetometer before/after calibration" if cal is not None else "magnetometer (fit refused)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-
-
-def _plot_residuals(values, xlabel, ylabel, title, path) -> None:
-    plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(7, 3.5))
-    ax.bar(range(1, len(values) + 1), values)
-    ax.set_xlabel(xlabel)
-    ax.set_ylabel(ylabel)
-    ax.set_title(title)
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
 
 
 def run(args) -> int:
@@ -653,19 +499,19 @@ def run(args) -> int:
             _check_matplotlib()   # before fitting and saving: a missing optional extra is a usage error
         return handlers[args.sensor](args)
     except _Fail as exc:
-        if getattr(args, "json", False):
-            import json
-
-            print(json.dumps({"sensor": args.sensor, "error": str(exc)}))
-        print(f"ahrsd calibrate {args.sensor}: {exc}", file=sys.stderr)
-        return 2 if isinstance(exc, _Usage) else 1
-    except ImportError as exc:   # plot_backstepping's PlotUnavailableError, should the check above be bypassed
-        from ahrsd.calibration.backstepping_plot import PlotUnavailableError
+        failure = exc
+    except ImportError as exc:   # a plot's PlotUnavailableError, should the check above be bypassed
+        from ahrsd.calibration.plots import PlotUnavailableError
 
         if not isinstance(exc, PlotUnavailableError):
             raise
-        print(f"ahrsd calibrate {args.sensor}: {PLOT_NEEDS_MATPLOTLIB}", file=sys.stderr)
-        return 2
+        failure = _Usage(PLOT_NEEDS_MATPLOTLIB)
+    if getattr(args, "json", False):
+        import json
+
+        print(json.dumps({"sensor": args.sensor, "error": str(failure)}))
+    print(f"ahrsd calibrate {args.sensor}: {failure}", file=sys.stderr)
+    return 2 if isinstance(failure, _Usage) else 1
 
 
 def _check_matplotlib() -> None:

@@ -10,14 +10,12 @@ Exit status: 0 done, 1 bad input (recording, calibration, parameters, output pat
 
 from __future__ import annotations
 
+# The CSV columns, picked by name from the replay table (ahrsd.estimator.replay.ATTITUDE_COLUMNS, which
+# documents each); named here so that `ahrsd --help` needs no numpy and the file format cannot drift.
 OUTPUT_COLUMNS = (
-    "t_s",                                     # the input sample's time, s
-    "qw", "qx", "qy", "qz",                    # body (FRD) → NED, Hamilton, scalar first (see REFERENCE)
-    "roll_deg", "pitch_deg", "yaw_deg",        # ZYX Euler of that quaternion; yaw in [−180, 180)
-    "heading_mag_deg", "heading_true_deg",     # [0, 360); true = magnetic + declination (0 without a position)
-    "sigma_roll_deg", "sigma_pitch_deg", "sigma_yaw_deg",   # 1σ uncertainty
-    "gyro_bias_x_rad_s", "gyro_bias_y_rad_s", "gyro_bias_z_rad_s",
-    "flags",                                   # EstimateFlags as an integer
+    "t_s", "qw", "qx", "qy", "qz", "roll_deg", "pitch_deg", "yaw_deg", "heading_mag_deg", "heading_true_deg",
+    "sigma_roll_deg", "sigma_pitch_deg", "sigma_yaw_deg", "gyro_bias_x_rad_s", "gyro_bias_y_rad_s",
+    "gyro_bias_z_rad_s", "flags",
 )
 OUTPUT_HEADER = ",".join(OUTPUT_COLUMNS)
 # REFERENCE: the quaternion and yaw are relative to true north (NED) when a position is given (--lat/--lon: the
@@ -96,128 +94,6 @@ def _declination_rad(args) -> float:
         raise ReplayError(str(exc)) from None
 
 
-CHUNK_ROWS = 16384   # output rows formatted and written at a time (memory stays constant for long recordings)
-
-
-def iter_recording_samples(path: str, chunk_rows: int = CHUNK_ROWS):
-    """The recording's samples as ImuSamples, parsed a chunk of lines at a time (constant memory; ~2× faster per
-    sample than `drivers.recording.iter_samples`, which this mirrors: header checked by `read_header`, `#`
-    comment lines skipped, a `flags` column taken as SampleFlags). A malformed chunk is re-read with
-    `read_recording` for its precise message (file, line, column)."""
-    import itertools
-    import math
-
-    import numpy as np
-
-    from ahrsd.drivers.recording import RecordingFormatError, read_header, read_recording
-    from ahrsd.core.sample import ImuSample, SampleFlags
-
-    with open(path, encoding="utf-8", newline="") as f:
-        columns = read_header(f.readline(), path)
-        ncols = len(columns)
-        i_flags = columns.index("flags") if "flags" in columns else None
-        flag_enums: dict[int, SampleFlags] = {}   # the enum constructor is slow; there are few distinct values
-        nan = math.nan
-        none = SampleFlags.NONE
-        line_no, k = 2, 0
-        while True:
-            lines = list(itertools.islice(f, chunk_rows))
-            if not lines:
-                return
-            try:
-                table = np.loadtxt(lines, delimiter=",", ndmin=2, dtype=np.float64, comments="#")
-            except ValueError:
-                table = None
-            if table is None or (table.size and table.shape[1] != ncols):
-                read_recording(path)   # raises RecordingFormatError naming the line and the problem
-                raise RecordingFormatError(f"{path}: lines {line_no}..{line_no + len(lines) - 1}: rows do not "
-                                           f"have the {ncols} numeric fields of the header")
-            line_no += len(lines)
-            t = table[:, 0].tolist()
-            g = np.ascontiguousarray(table[:, 1:4])
-            a = np.ascontiguousarray(table[:, 4:7])
-            m = np.ascontiguousarray(table[:, 7:10])
-            fl = table[:, i_flags].tolist() if i_flags is not None else None
-            for i in range(len(t)):
-                flags = none
-                if fl is not None and fl[i] == fl[i]:
-                    value = int(fl[i])
-                    flags = flag_enums.get(value)
-                    if flags is None:
-                        flags = flag_enums[value] = SampleFlags(value)
-                yield ImuSample(t[i], g[i], a[i], m[i], nan, nan, flags, 0, k)
-                k += 1
-
-
-def replay_samples(estimator, samples, calibration=None, true_north: bool = False, chunk_rows: int = CHUNK_ROWS):
-    """Feed ImuSamples one at a time (as the daemon does), through `calibration.apply` when given, and yield the
-    output as tables of at most `chunk_rows` rows × len(OUTPUT_COLUMNS).
-
-    true_north: rotate the quaternion and yaw by the estimator's declination (heading_true − heading_mag) so
-    they are relative to true north; otherwise they stay relative to magnetic north, as estimated.
-    """
-    import math
-
-    deg = 180.0 / math.pi
-    nan = math.nan
-    update = estimator.update
-    apply = calibration.apply if calibration is not None and not calibration.is_identity else None
-    rows = []
-    append = rows.append
-    for sample in samples:
-        if apply is not None:
-            sample = apply(sample)
-        est = update(sample)
-        if est.roll_rad == est.roll_rad:   # initialised (not NaN)
-            q0, q1, q2, q3 = est.q_wxyz.tolist()
-        else:
-            q0 = q1 = q2 = q3 = nan
-        s0, s1, s2 = est.sigma_rpy_rad.tolist()
-        b0, b1, b2 = est.gyro_bias_rad_s.tolist()
-        append((sample.t_s, q0, q1, q2, q3, est.roll_rad * deg, est.pitch_rad * deg, est.yaw_rad * deg,
-                est.heading_mag_rad * deg, est.heading_true_rad * deg, s0 * deg, s1 * deg, s2 * deg,
-                b0, b1, b2, int(est.flags)))
-        if len(rows) >= chunk_rows:
-            yield _finish_table(rows, true_north)
-            rows = []
-            append = rows.append
-    if rows:
-        yield _finish_table(rows, true_north)
-
-
-def _finish_table(rows, true_north: bool):
-    import numpy as np
-
-    from ahrsd.core.angles import wrap_pi
-    from ahrsd.estimator.rotations import quat_multiply
-
-    table = np.array(rows, dtype=np.float64).reshape(len(rows), len(OUTPUT_COLUMNS))
-    yaw = np.radians(table[:, 7])
-    if true_north:
-        n = len(table)
-        decl = np.radians(table[:, 9] - table[:, 8])          # per row: the declination in force
-        decl = np.where(np.isfinite(decl), decl, 0.0)
-        rot_z = np.column_stack([np.cos(decl / 2), np.zeros(n), np.zeros(n), np.sin(decl / 2)])
-        q = quat_multiply(rot_z, table[:, 1:5])
-        table[:, 1:5] = q * np.where(q[:, :1] < 0, -1.0, 1.0)
-        yaw = yaw + decl
-    table[:, 7] = np.degrees(wrap_pi(yaw))                      # [−180, 180)
-    return table
-
-
-def replay_arrays(estimator, t_s, gyro_rad_s, accel_m_s2, mag_ut, sample_flags=None, true_north: bool = False):
-    """`replay_samples` on arrays (n,), (n, 3)…: the whole output table (n, len(OUTPUT_COLUMNS))."""
-    import numpy as np
-
-    from ahrsd.core.sample import ImuSample, SampleFlags
-
-    flags = [SampleFlags.NONE] * len(t_s) if sample_flags is None else [SampleFlags(int(v)) for v in sample_flags]
-    samples = (ImuSample(float(t), g, a, m, flags=f, counter=i)
-               for i, (t, g, a, m, f) in enumerate(zip(t_s, gyro_rad_s, accel_m_s2, mag_ut, flags)))
-    chunks = list(replay_samples(estimator, samples, true_north=true_north))
-    return np.concatenate(chunks) if chunks else np.empty((0, len(OUTPUT_COLUMNS)))
-
-
 def format_rows(table) -> str:
     """CSV text of output rows (one `%` over the whole chunk: faster than a format per row)."""
     row = _FORMAT + "\n"
@@ -287,8 +163,9 @@ def _run(args) -> int:
     import sys
     import time
 
-    from ahrsd.drivers.recording import RecordingFormatError
+    from ahrsd.drivers.recording import RecordingFormatError, iter_samples
     from ahrsd.estimator import make_estimator
+    from ahrsd.estimator.replay import ATTITUDE_COLUMNS, replay_attitude
 
     t_start = time.perf_counter()
     cpu_start = time.process_time()
@@ -332,11 +209,14 @@ def _run(args) -> int:
         out = _Output(args.output)
     except OSError as exc:
         raise ReplayError(f"{args.output}: cannot write: {exc.strerror or exc}") from None
+    samples = checked(iter_samples(args.recording))
+    if calibration is not None and not calibration.is_identity:
+        samples = map(calibration.apply, samples)
     t_run = time.process_time()
     try:
-        for table in replay_samples(estimator, checked(iter_recording_samples(args.recording)), calibration,
-                                    true_north=args.lat is not None):
-            out.write(table)
+        order = [ATTITUDE_COLUMNS.index(name) for name in OUTPUT_COLUMNS]
+        for table in replay_attitude(estimator, samples, true_north=args.lat is not None):
+            out.write(table[:, order])
         if count == 0:
             raise ReplayError(f"{args.recording}: the recording has a header but no samples")
         out.commit()

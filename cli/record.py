@@ -5,6 +5,11 @@ from __future__ import annotations
 import argparse
 
 
+SIM_SEED = 0
+SIM_ERRORS = "adis16405"
+SIM_ONLY_OPTIONS = ("seed", "errors", "realtime")   # options of the simulated chip, refused with --spi
+
+
 class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
     """Shows "(default: X)" only for options that have a value by default (not "None"/"False" noise)."""
 
@@ -32,14 +37,15 @@ def register(subparsers) -> None:
     p.add_argument("--seconds", type=float, default=None,
                    help="how long to record (sample time); without it: until Ctrl-C, and --sim then runs in real time "
                    "(with it, --sim runs as fast as possible unless --realtime)")
-    p.add_argument("--seed", type=int, default=0, help="simulation seed (--sim)")
-    p.add_argument("--errors", default="adis16405", choices=("adis16405", "ideal"),
-                   help="simulated sensor errors (--sim)")
+    # --seed/--errors/--realtime default to None so that one given with --spi can be refused (see run)
+    p.add_argument("--seed", type=int, default=None, help=f"simulation seed (--sim) (default: {SIM_SEED})")
+    p.add_argument("--errors", default=None, choices=("adis16405", "ideal"),
+                   help=f"simulated sensor errors (--sim) (default: {SIM_ERRORS})")
     p.add_argument("--rate-hz", type=float, default=None,
                    help="output data rate; the nearest SMPL_PRD setting is used (chip default 819.2)")
     p.add_argument("--filter-taps", type=int, default=None, metavar="N", choices=range(8),
                    help="SENS_AVG Bartlett filter setting N (0..7: two 2^N-tap averages; chip default 2)")
-    p.add_argument("--realtime", action="store_true",
+    p.add_argument("--realtime", action="store_true", default=None,
                    help="with --sim: run the simulated chip on the wall clock (paced) instead of as fast as possible")
     p.add_argument("--no-self-test", action="store_true", help="skip the start-up self-test")
     p.add_argument("--quiet", "-q", action="store_true", help="no live status line")
@@ -53,10 +59,9 @@ def run(args) -> int:
     import sys
     import time
 
-    from ahrsd.drivers.adis16405 import Adis16405
+    from ahrsd.drivers.source import start_chip_source
     from ahrsd.drivers.errors import BusError, DriverError, FrameError
     from ahrsd.drivers.recording import TRUTH_COLUMNS, RecordingWriter
-    from ahrsd.core.sample import SampleFlags
 
     log = logging.getLogger("ahrsd.record")
     if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):   # nan/inf: traceback
@@ -64,6 +69,11 @@ def run(args) -> int:
         return 2
 
     simulated = args.sim is not None
+    sim_only = [f"--{name}" for name in SIM_ONLY_OPTIONS if getattr(args, name) is not None]
+    if not simulated and sim_only:
+        print(f"ahrsd record: {', '.join(sim_only)} only apply to the simulated chip (--sim), not to --spi",
+              file=sys.stderr)
+        return 2
     # a simulated run without an end is a live demo: pace it, or it would fill the disk as fast as the CPU goes
     paced = (not simulated) or args.realtime or args.seconds is None
     clock = time.monotonic if paced else None
@@ -76,13 +86,17 @@ def run(args) -> int:
                 print(f"ahrsd record: unknown scenario {args.sim!r}; choose one of: {', '.join(SCENARIOS)}",
                       file=sys.stderr)
                 return 2
-            bus = SimulatedAdis16405(args.sim, seed=args.seed, errors=args.errors, clock=clock)
+            seed = SIM_SEED if args.seed is None else args.seed
+            errors = SIM_ERRORS if args.errors is None else args.errors
+            bus = SimulatedAdis16405(args.sim, seed=seed, errors=errors, clock=clock)
         else:
             from ahrsd.drivers.spi import SpidevBus
 
             bus = SpidevBus(args.spi)
-        imu = Adis16405(bus, clock=clock)
-        imu.start(self_test=not args.no_self_test, sample_rate_hz=args.rate_hz, filter_n=args.filter_taps)
+        # one timing path (drivers.sample_timer): the host clock, or the free-running chip's own
+        source = start_chip_source(bus, "ADIS16405", clock=clock or bus.now, self_test=not args.no_self_test,
+                                   sample_rate_hz=args.rate_hz, filter_n=args.filter_taps)
+        imu = source.driver
     except DriverError as exc:
         print(f"ahrsd record: {exc}", file=sys.stderr)
         return 1
@@ -107,7 +121,7 @@ def run(args) -> int:
     wall0 = time.monotonic()
     next_poll = wall0
     next_status = wall0
-    last = None
+    first = last = None
     try:
         while n_target is None or written < n_target:
             if paced:
@@ -115,7 +129,7 @@ def run(args) -> int:
                 if delay > 0:
                     time.sleep(delay)
             try:
-                sample = imu.read_sample()
+                sample = source.read_one(source.clock())
             except FrameError:
                 continue                           # counted by the driver; the next read is a new frame
             except BusError as exc:
@@ -129,14 +143,15 @@ def run(args) -> int:
                 continue
             bus_failures = 0
             if paced:
-                # No data-ready line: after a fresh sample the next one is due in one period; aim a little
-                # early and re-poll in quarter periods, so the polling phase locks onto the chip's clock.
-                next_poll = time.monotonic() + (0.25 if sample.flags & SampleFlags.STALE else 0.75) * period
-            if sample.flags & SampleFlags.STALE:
+                # no data-ready line: read when the sample timer expects the next sample
+                next_poll = max(source.next_read_time(),
+                                time.monotonic() + (0.25 * period if sample is None else 0.0))
+            if sample is None:
                 continue
             truth = getattr(bus, "output_truth_q_wxyz", None) if simulated else None
             writer.write(sample, truth_q_wxyz=truth)
             written += 1
+            first = sample if first is None else first
             last = sample
             if status is not None:
                 now = time.monotonic()
@@ -153,7 +168,7 @@ def run(args) -> int:
         status.write("\n")
     elapsed = time.monotonic() - wall0
     problems = {k: v for k, v in imu.counters.items() if v and k not in ("samples", "new_samples")}
-    span = 0.0 if last is None else last.t_s - imu.start_time_s
+    span = 0.0 if first is None else last.t_s - first.t_s
     print(f"ahrsd record: wrote {written} samples ({span:.2f} s of data at {imu.sample_rate_hz:.1f} SPS) to "
           f"{args.output} in {elapsed:.2f} s" + (f"; counters: {problems}" if problems else ""), file=sys.stderr)
     log.debug("counters: %s", imu.counters)

@@ -1,26 +1,15 @@
-"""`ahrsd magcal`: drive a field magnetometer recalibration of a running ahrsd from a terminal.
+"""A ground-station client of the magnetometer-calibration protocol, as `ahrsd magcal` uses it.
 
-The same MAVLink protocol Mission Planner uses (MAV_CMD_DO_START/ACCEPT/CANCEL_MAG_CAL, MAG_CAL_PROGRESS,
-MAG_CAL_REPORT, MAV_CMD_FIXED_MAG_CAL_YAW), addressed to the daemon's component, with a progress bar —
-for operators without a ground station.
-
-    ahrsd magcal start                 # turn the vehicle, watch the bar, accept at the prompt (or --accept)
-    ahrsd magcal status                # what is the daemon doing
-    ahrsd magcal accept | cancel
-    ahrsd magcal fixed-yaw 123.5       # the vehicle points at 123.5° TRUE: offsets from WMM, soft iron kept
-
---connect is a pymavlink URL; the default listens where the daemon sends by default (udpin:127.0.0.1:14550).
---target SYS:COMP defaults to the first component whose HEARTBEAT says MAV_TYPE_IMU (ahrsd: component 200).
+MAV_CMD_DO_START/ACCEPT/CANCEL_MAG_CAL and MAV_CMD_FIXED_MAG_CAL_YAW as COMMAND_LONG to the daemon's
+component, MAG_CAL_PROGRESS drawn as a progress bar, MAG_CAL_REPORT printed, STATUSTEXT (MAVLink 2 chunks
+reassembled) shown. It needs only a pymavlink connection to a running ahrsd, never the service itself.
 """
 
 from __future__ import annotations
 
-import argparse
-import math
 import sys
 import time
 
-DEFAULT_CONNECT = "udpin:127.0.0.1:14550"
 CLIENT_SYSTEM, CLIENT_COMPONENT = 255, 190   # a ground station (MAV_COMP_ID_MISSIONPLANNER)
 MAV_TYPE_IMU = 40
 MAV_COMP_ID_IMU = 200
@@ -29,113 +18,18 @@ STATUS_NAMES = {0: "not started", 1: "waiting to start", 2: "step 1", 3: "step 2
                 10: "FAILED (residuals high)"}
 RESULT_NAMES = {0: "ACCEPTED", 1: "TEMPORARILY_REJECTED", 2: "DENIED", 3: "UNSUPPORTED", 4: "FAILED",
                 5: "IN_PROGRESS"}
-
-
-def _number_arg(lo: float = -math.inf, *, above: bool = False):
-    """argparse type: a finite number >= lo (> lo with above=True); nan/inf never reach the daemon."""
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-        if not math.isfinite(value) or value < lo or (above and value == lo):
-            raise argparse.ArgumentTypeError(f"expected a finite number {'>' if above else '>='} {lo:g}, got {text!r}"
-                                             if math.isfinite(lo) else f"expected a finite number, got {text!r}")
-        return value
-    return parse
-
-
-def _target_arg(text: str) -> str:
-    """argparse type for --target: checked at once (exit 2 with usage), kept as the text for find_target."""
-    try:
-        sys_id, comp_id = (int(part) for part in text.split(":"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be SYS:COMP, e.g. 1:200, got {text!r}") from None
-    if not (1 <= sys_id <= 255 and 1 <= comp_id <= 255):
-        raise argparse.ArgumentTypeError(f"system and component ids are 1..255, got {text!r}")
-    return text
-
-
-def register(subparsers) -> None:
-    p = subparsers.add_parser("magcal", help="run a field magnetometer recalibration on a running daemon",
-                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--connect", default=DEFAULT_CONNECT, metavar="URL", help=f"MAVLink connection (default {DEFAULT_CONNECT})")
-    p.add_argument("--target", metavar="SYS:COMP", type=_target_arg, help="the daemon's system and component id (default: discover)")
-    p.add_argument("--timeout", type=_number_arg(0.0, above=True), default=10.0, metavar="S", help="seconds to wait for the daemon (default 10)")
-    sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
-    s = sub.add_parser("start", help="start a recalibration and follow it")
-    s.add_argument("--retry", action="store_true", help="restart automatically after a failed attempt")
-    s.add_argument("--autosave", action="store_true", help="save a successful result without asking")
-    s.add_argument("--accept", action="store_true", help="accept a successful result without asking")
-    s.add_argument("--delay", type=_number_arg(0.0), default=0.0, metavar="S", help="seconds before sampling starts")
-    s.add_argument("--no-wait", action="store_true", help="start and return at once")
-    s.add_argument("--max-time", type=_number_arg(0.0, above=True), default=600.0, metavar="S", help="give up following after S seconds")
-    sub.add_parser("accept", help="accept (save and apply) a successful result")
-    sub.add_parser("cancel", help="cancel the running calibration")
-    st = sub.add_parser("status", help="print progress or the last report")
-    st.add_argument("--seconds", type=_number_arg(0.0, above=True), default=3.0, help="how long to listen (default 3)")
-    fy = sub.add_parser("fixed-yaw", help="calibrate offsets from a known TRUE heading (WMM field, soft iron kept)")
-    fy.add_argument("yaw_deg", type=_number_arg(), metavar="DEG", help="true heading of the vehicle, degrees")
-    fy.add_argument("--lat", type=float, default=None, metavar="DEG",
-                    help="latitude of the vehicle for the WMM field (with --lon; default: the autopilot's position, "
-                    "else the daemon's [location])")
-    fy.add_argument("--lon", type=float, default=None, metavar="DEG", help="longitude (with --lat)")
-    p.set_defaults(func=run)
-
-
-def _fixed_yaw_position(args) -> tuple[float, float]:
-    """(lat, lon) for MAV_CMD_FIXED_MAG_CAL_YAW p3/p4; (0, 0) asks the daemon for its own position.
-
-    Raises ValueError for one of the two alone (the daemon would silently use 0 for the other) or out of range.
-    """
-    lat, lon = args.lat, args.lon
-    if lat is None and lon is None:
-        return 0.0, 0.0
-    if lat is None or lon is None:
-        raise ValueError("give --lat and --lon together")
-    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
-        raise ValueError(f"position {lat}, {lon} out of range (latitude ±90, longitude ±180)")
-    return lat, lon
-
-
-def run(args) -> int:
-    from ahrsd.daemon.mavlink_io import mavutil  # sets MAVLink 2 + ardupilotmega before pymavlink loads
-
-    if args.action == "fixed-yaw":
-        try:
-            position = _fixed_yaw_position(args)
-        except ValueError as exc:
-            print(f"ahrsd magcal fixed-yaw: {exc}", file=sys.stderr)
-            return 2
-
-    try:
-        conn = mavutil.mavlink_connection(args.connect, source_system=CLIENT_SYSTEM,
-                                          source_component=CLIENT_COMPONENT, autoreconnect=True)
-    except Exception as exc:  # noqa: BLE001 - a bad URL or port is the operator's to fix
-        print(f"cannot open {args.connect}: {exc}", file=sys.stderr)
-        return 2
-    client = MagCalClient(conn, args.timeout)
-    try:
-        if not client.find_target(args.target):
-            print(f"no ahrsd heard on {args.connect} within {args.timeout:.0f} s "
-                  "(check --connect, or give --target SYS:COMP)", file=sys.stderr)
-            return 2
-        if args.action == "start":
-            return client.start(args)
-        if args.action == "accept":
-            return client.simple(42425, "accept")
-        if args.action == "cancel":
-            return client.simple(42426, "cancel")
-        if args.action == "status":
-            return client.status(args.seconds)
-        if args.action == "fixed-yaw":
-            return client.simple(42006, f"fixed-yaw {args.yaw_deg:.1f} deg", args.yaw_deg, 0, *position)
-        return 2
-    finally:
-        conn.close()
+# MAV_CMD ids: ardupilotmega.xml (DO_*_MAG_CAL) and common.xml (FIXED_MAG_CAL_YAW)
+MAV_CMD_DO_START_MAG_CAL = 42424
+MAV_CMD_DO_ACCEPT_MAG_CAL = 42425
+MAV_CMD_DO_CANCEL_MAG_CAL = 42426
+MAV_CMD_FIXED_MAG_CAL_YAW = 42006
+MAG_CAL_SUCCESS = 4
 
 
 class MagCalClient:
+    """One session with one daemon: `find_target`, then an action (`start`, `simple`, `status`) whose exit
+    status it returns; progress and results are written to `out` for a person."""
+
     def __init__(self, conn, timeout_s: float, out=sys.stdout):
         self.conn = conn
         self.timeout_s = timeout_s
@@ -257,8 +151,11 @@ class MagCalClient:
             f"  offdiag  {r.offdiag_x:8.4f} {r.offdiag_y:8.4f} {r.offdiag_z:8.4f}")
 
     # ------------------------------------------------------------------ actions
-    def start(self, args) -> int:
-        result = self.command(42424, 0, float(args.retry), float(args.autosave), float(args.delay), 0)
+    def start(self, *, retry: bool = False, autosave: bool = False, delay_s: float = 0.0, wait: bool = True,
+              max_time_s: float = 600.0, accept: bool = False) -> int:
+        """Start a calibration; unless wait is False follow it to its report (at most max_time_s) and accept a
+        success when `accept`, else after asking on the terminal."""
+        result = self.command(MAV_CMD_DO_START_MAG_CAL, 0, float(retry), float(autosave), float(delay_s), 0)
         if result is None:
             self._print("start: no answer from the daemon")
             return 1
@@ -267,9 +164,9 @@ class MagCalClient:
             self._print(f"start: {RESULT_NAMES.get(result, result)}")
             return 1
         self._print("calibration started: turn the vehicle slowly through 360 deg (Ctrl-C cancels)")
-        if args.no_wait:
+        if not wait:
             return 0
-        deadline = time.monotonic() + args.max_time
+        deadline = time.monotonic() + max_time_s
         try:
             while time.monotonic() < deadline:
                 m = self.conn.recv_match(blocking=True, timeout=0.5)
@@ -279,19 +176,19 @@ class MagCalClient:
                     self._show(m)
                     continue
                 self._report(m)
-                if m.cal_status != 4:
-                    self.command(42426, 0)  # stop the re-sent reports
+                if m.cal_status != MAG_CAL_SUCCESS:
+                    self.command(MAV_CMD_DO_CANCEL_MAG_CAL, 0)  # stop the re-sent reports
                     return 1
                 if m.autosaved:
                     return 0
-                if not args.accept and not _ask("accept and save this calibration? [y/N] "):
-                    self.command(42426, 0)
+                if not accept and not _ask("accept and save this calibration? [y/N] "):
+                    self.command(MAV_CMD_DO_CANCEL_MAG_CAL, 0)
                     self._print("not accepted: calibration unchanged")
                     return 1
-                return self.simple(42425, "accept", 0)
+                return self.simple(MAV_CMD_DO_ACCEPT_MAG_CAL, "accept", 0)
         except KeyboardInterrupt:
             self._print("cancelling...")
-            self.command(42426, 0)
+            self.command(MAV_CMD_DO_CANCEL_MAG_CAL, 0)
             return 130
         self._print("gave up waiting (--max-time); the calibration is still running on the daemon")
         return 1

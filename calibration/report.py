@@ -1,0 +1,118 @@
+"""Calibration results as text for a person: the lines `ahrsd calibrate` prints (the JSON form is to_json_dict).
+
+Each function returns a list of lines (two-space indented under the caller's title line); nothing here prints.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+# quality entries shown elsewhere (the model lines, the deviation card) or too long for a terminal
+_QUALITY_NOT_LISTED = ("position_residuals_m_s2", "faces", "rejected_model", "initial_hard_iron_ut",
+                       "heading_reference")
+_ALLAN_UNITS = {"gyro": ("ARW", "rad/s/√Hz", "rad/s"), "accel": ("VRW", "m/s²/√Hz", "m/s²"),
+                "mag": ("white", "µT/√Hz", "µT")}
+
+
+def fmt_vec(v, fmt: str = "{:+.5f}") -> str:
+    return "[" + ", ".join(fmt.format(x) for x in v) + "]"
+
+
+def fmt_mat(m, fmt: str = "{:+.6f}", indent: str = "    ") -> str:
+    return "\n".join(indent + fmt_vec(row, fmt) for row in m)
+
+
+def fmt_value(value) -> str:
+    """Quality values for a person: 4 significant digits."""
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(fmt_value(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k}: {fmt_value(v)}" for k, v in value.items()) + "}"
+    return str(value)
+
+
+def quality_lines(quality: dict) -> list[str]:
+    """One `key: value` line per quality entry not shown otherwise."""
+    return [f"  {key}: {fmt_value(value)}" for key, value in quality.items() if key not in _QUALITY_NOT_LISTED]
+
+
+def allan_lines(result, kalman: dict) -> list[str]:
+    """An AllanResult per sensor and axis, then the Kalman Q/R diagonals derived from it (`kalman`: the
+    result's to_json_dict()["kalman"])."""
+    lines = []
+    for sensor, axes in result.parameters.items():
+        name, white_unit, bias_unit = _ALLAN_UNITS[sensor]
+        lines.append(f"  {sensor}:")
+        for ax, p in axes.items():
+            bi = ("not visible" if p.bias_instability is None
+                  else f"{p.bias_instability:.3e} {bias_unit} (at τ≈{p.tau_bias_instability_s:.0f} s)")
+            extra = ""
+            if p.gauss_markov_sigma is not None:
+                extra = f", Gauss–Markov σ {p.gauss_markov_sigma:.3e} τc {p.gauss_markov_tau_s:.0f} s"
+            lines.append(f"    {ax}: {name} {p.white_noise:.3e} {white_unit}; bias instability {bi}{extra}")
+            for flag in p.flags:
+                lines.append(f"       note: {flag}")
+    if "Q_diag" in kalman:
+        lines.append("  thesis Kalman Q (eq. 6-1, rad²/s): " + fmt_vec(kalman["Q_diag"], "{:.3e}"))
+    if "R_diag" in kalman:
+        lines.append("  thesis Kalman R (eq. 6-2, µT² then (m/s²)²): " + fmt_vec(kalman["R_diag"], "{:.3e}"))
+    return lines
+
+
+def accel_model_lines(model, result) -> list[str]:
+    """An AccelModel and the residual of the fit (AccelFitResult) that made it."""
+    q = result.quality
+    return [
+        "  bias (m/s²): " + fmt_vec(model.bias_m_s2),
+        "  matrix:\n" + fmt_mat(model.matrix),
+        "  quadratic (1/(m/s²)): " + fmt_vec(model.quadratic, "{:+.3e}"),
+        f"  residual |f| − g: RMS {result.residual_rms_m_s2 * 1e3:.3f} mm/s², "
+        f"max {q.get('residual_max_m_s2', float('nan')) * 1e3:.3f} mm/s²",
+    ]
+
+
+def gyro_model_lines(model, result) -> list[str]:
+    """A GyroModel and the residual of the fit that made it."""
+    return [
+        "  bias (rad/s): " + fmt_vec(model.bias_rad_s, "{:+.6f}")
+        + "  (°/s: " + fmt_vec(np.degrees(model.bias_rad_s), "{:+.4f}") + ")",
+        "  matrix:\n" + fmt_mat(model.matrix),
+        f"  residual RMS {math.degrees(result.residual_rms_rad_s):.4f} °/s",
+    ]
+
+
+def mag_model_lines(model, result) -> list[str]:
+    """A MagModel, the fit's residual and coverage, and the deviation card when there is one."""
+    q = result.quality
+    return [
+        "  hard iron (µT): " + fmt_vec(model.hard_iron_ut, "{:+.3f}"),
+        "  soft iron:\n" + fmt_mat(model.soft_iron),
+        f"  residual | |m| − |F| |: RMS {result.residual_rms_ut:.3f} µT, "
+        f"max {q.get('residual_max_ut', float('nan')):.3f} µT",
+        f"  coverage {q.get('coverage', float('nan')):.0%}; hard-iron 1σ "
+        + fmt_vec(q.get("sigma_hard_iron_ut", [float("nan")] * 3), "{:.3f}") + " µT",
+        *deviation_card_lines(q),
+    ]
+
+
+def deviation_card_lines(quality: dict) -> list[str]:
+    """The deviation card A..E in quality["heading_reference"] (none: no lines)."""
+    rep = quality.get("heading_reference")
+    if not rep:
+        return []
+    src = "swing table " + rep["file"] if rep.get("source") == "swing-table" else "heading_ref_deg column"
+    lines = [f"  deviation card from the {src} ({rep.get('n')} headings; δψ = A + B sinψ + C cosψ + D sin2ψ + E cos2ψ):",
+             f"    A {rep['A_deg']:+.2f}° (A alone {rep['A_only_deg']:+.2f}°), folded into the soft iron: "
+             f"{rep.get('folded_offset_deg', 0.0):+.2f}°",
+             f"    B {rep['B_deg']:+.2f}°  C {rep['C_deg']:+.2f}°  D {rep['D_deg']:+.2f}°  E {rep['E_deg']:+.2f}°"
+             "  (reported, not applied; near 0 after a good field fit)",
+             f"    heading RMS vs the reference {rep['rms_before_deg']:.2f}° before the card, "
+             f"{rep['rms_after_deg']:.2f}° after A..E"]
+    for key in ("note", "warning"):
+        if rep.get(key):
+            lines.append(f"    {key}: {rep[key]}")
+    return lines

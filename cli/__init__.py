@@ -1,0 +1,1 @@
+"""ahrsd.cli: the `ahrsd` command line — argument parsing and printing, one module per subcommand."""

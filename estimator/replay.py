@@ -1,0 +1,80 @@
+"""Run a stream of ImuSamples through an Estimator, one at a time as the daemon does, and tabulate the attitude.
+
+The table has one row per input sample and the columns of ATTITUDE_COLUMNS (degrees for angles, rad/s for the
+gyro bias, EstimateFlags as a number). The samples are used as given: a caller that wants them calibrated maps
+them through its calibration first.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Iterator
+
+import numpy as np
+
+from ahrsd.core.angles import wrap_pi
+from ahrsd.core.sample import ImuSample
+
+from .base import Estimator
+from .rotations import quat_multiply
+
+ATTITUDE_COLUMNS = (
+    "t_s",                                     # the input sample's time, s
+    "qw", "qx", "qy", "qz",                    # body (FRD) → NED, Hamilton, scalar first
+    "roll_deg", "pitch_deg", "yaw_deg",        # ZYX Euler of that quaternion; yaw in [−180, 180)
+    "heading_mag_deg", "heading_true_deg",     # [0, 360); true = magnetic + the estimator's declination
+    "sigma_roll_deg", "sigma_pitch_deg", "sigma_yaw_deg",   # 1σ uncertainty
+    "gyro_bias_x_rad_s", "gyro_bias_y_rad_s", "gyro_bias_z_rad_s",
+    "flags",                                   # EstimateFlags as an integer
+)
+CHUNK_ROWS = 16384   # rows per table yielded (memory stays constant for long recordings)
+_DEG = 180.0 / math.pi
+
+
+def replay_attitude(estimator: Estimator, samples: Iterable[ImuSample], true_north: bool = False,
+                    chunk_rows: int = CHUNK_ROWS) -> Iterator[np.ndarray]:
+    """Feed `samples` to `estimator.update` in order and yield the output as float64 tables of at most
+    `chunk_rows` rows × len(ATTITUDE_COLUMNS).
+
+    true_north: rotate the quaternion and yaw about down by the estimator's declination (heading_true −
+    heading_mag) so they are relative to true north; otherwise they stay relative to magnetic north, as
+    estimated. Rows before the estimator initialised have NaN quaternion and angles.
+    """
+    nan = math.nan
+    deg = _DEG
+    update = estimator.update
+    rows: list[tuple] = []
+    append = rows.append
+    for sample in samples:
+        est = update(sample)
+        if est.roll_rad == est.roll_rad:   # initialised (not NaN)
+            q0, q1, q2, q3 = est.q_wxyz.tolist()
+        else:
+            q0 = q1 = q2 = q3 = nan
+        s0, s1, s2 = est.sigma_rpy_rad.tolist()
+        b0, b1, b2 = est.gyro_bias_rad_s.tolist()
+        append((sample.t_s, q0, q1, q2, q3, est.roll_rad * deg, est.pitch_rad * deg, est.yaw_rad * deg,
+                est.heading_mag_rad * deg, est.heading_true_rad * deg, s0 * deg, s1 * deg, s2 * deg,
+                b0, b1, b2, int(est.flags)))
+        if len(rows) >= chunk_rows:
+            yield _finish_table(rows, true_north)
+            rows = []
+            append = rows.append
+    if rows:
+        yield _finish_table(rows, true_north)
+
+
+def _finish_table(rows: list[tuple], true_north: bool) -> np.ndarray:
+    table = np.array(rows, dtype=np.float64).reshape(len(rows), len(ATTITUDE_COLUMNS))
+    yaw = np.radians(table[:, 7])
+    if true_north:
+        n = len(table)
+        decl = np.radians(table[:, 9] - table[:, 8])          # per row: the declination in force
+        decl = np.where(np.isfinite(decl), decl, 0.0)
+        # q_true = q_z(decl) ⊗ q_mag: the magnetic-north NED frame is the true one turned by decl about down
+        rot_z = np.column_stack([np.cos(decl / 2), np.zeros(n), np.zeros(n), np.sin(decl / 2)])
+        q = quat_multiply(rot_z, table[:, 1:5])
+        table[:, 1:5] = q * np.where(q[:, :1] < 0, -1.0, 1.0)
+        yaw = yaw + decl
+    table[:, 7] = np.degrees(wrap_pi(yaw))                      # [−180, 180)
+    return table
