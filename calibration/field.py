@@ -145,11 +145,14 @@ class FieldCalResult:
 
     def accuracy_text(self) -> str:
         """One line for a person: the predicted heading accuracy and what the offset rests on."""
-        dep = f"heading +-{self.heading_std_deg:.1f} deg" if math.isfinite(self.heading_std_deg) else "heading accuracy unknown"
+        def deg(x: float) -> str:
+            return f"{x:.2f}" if x < 0.095 else f"{x:.1f}"
+
+        dep = f"heading +-{deg(self.heading_std_deg)} deg" if math.isfinite(self.heading_std_deg) else "heading accuracy unknown"
         if self.offset_source == "undetermined":
             off = "offset undetermined: no usable GNSS course (a fixed-yaw command sets it)"
         elif math.isfinite(self.offset_std_deg):
-            off = f"offset +-{self.offset_std_deg:.1f} deg ({self.offset_source})"
+            off = f"offset +-{deg(self.offset_std_deg)} deg ({self.offset_source})"
         else:
             off = f"offset from {self.offset_source}"
         return f"Mag cal: {dep}, {off}"
