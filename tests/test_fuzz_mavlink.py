@@ -9,7 +9,6 @@ in its range, every output rate legal, and a valid request is still answered.
 
 from __future__ import annotations
 
-import asyncio
 import logging
 import math
 
@@ -19,6 +18,7 @@ from hypothesis import strategies as st
 
 from ahrsd.daemon.mavlink_io import mavlink
 from service_rig import gcs_socket, start_service, stop_service
+from support.mavlink_feed import drain, feed
 
 FUZZ = settings(derandomize=True, deadline=None, max_examples=300,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
@@ -53,26 +53,6 @@ def rig(tmp_path_factory):
     stop_service(service, loop)
     gcs.close()
     logging.getLogger("ahrsd").removeHandler(errors)
-
-
-def drain(rig) -> list:
-    """Run pending loop callbacks, then every message the daemon sent to the GCS socket."""
-    rig.loop.run_until_complete(asyncio.sleep(0))
-    parser = mavlink.MAVLink(None)
-    parser.robust_parsing = True
-    out = []
-    while True:
-        try:
-            data = rig.gcs.recv(65536)
-        except BlockingIOError:
-            return out
-        out += [m for m in parser.parse_buffer(data) or () if m.get_type() != "BAD_DATA"]
-
-
-def feed(rig, data: bytes) -> None:
-    """One datagram through the endpoint's parser and dispatch, as the event loop would deliver it."""
-    rig.ep._parse(data)
-    rig.ep._end_of_datagram()
 
 
 def check_invariants(rig) -> None:

@@ -20,7 +20,7 @@ from ahrsd.daemon.config import SigningConfig
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.daemon.signing import ONE_MINUTE, initial_timestamp, read_timestamp
 from service_rig import gcs_socket, start_service, stop_service
-from test_fuzz_mavlink import drain, feed
+from support.mavlink_feed import drain, feed
 
 REPO = Path(__file__).resolve().parents[1]
 KEY = bytes(range(7, 39))                 # 32 bytes

@@ -1,0 +1,205 @@
+"""Valid MAVLink frames with hostile contents, on the real receive path of an in-process daemon: the three
+findings of the hostile-frame review, and the refusal rules every handler follows (the right MAV_RESULT, a
+counted and rate-limited warning, nothing raised — `handler_errors` stays 0, no traceback logged).
+
+Truth for the fixed-yaw calibration is the hard iron injected into the synthetic data (tests/support/field_data),
+never the code under test.
+"""
+
+from __future__ import annotations
+
+import logging
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from ahrsd.calibration.models import Calibration, MagModel
+from ahrsd.core.sample import make_sample
+from ahrsd.daemon.magcal import CMD_FIXED_YAW
+from ahrsd.daemon.mavlink_io import mavlink
+from service_rig import gcs_socket, start_service, stop_service
+from support.field_data import HARD_IRON_UT, MAG_NOISE_UT, SOFT_DISTORTION, trajectory
+from support.mavlink_feed import drain, feed
+
+OUR_SYS, OUR_COMP = 1, 200
+INT32_MAX, INT32_MIN = 2**31 - 1, -2**31
+RATE_HZ = 50.0
+SITE_LAT, SITE_LON = 35.7, 51.4          # where support.field_data.SITE is (its WMM field made the data)
+
+
+class _Records(logging.Handler):
+    def __init__(self):
+        super().__init__(logging.DEBUG)
+        self.records: list[logging.LogRecord] = []
+
+    def emit(self, record):
+        self.records.append(record)
+
+    def tracebacks(self):
+        return [r.getMessage() for r in self.records if r.exc_info]
+
+
+@pytest.fixture
+def rig(tmp_path):
+    gcs = gcs_socket(rcvbuf=1 << 22)
+    service, loop = start_service(gcs, tmp_path / "state")
+    logs = _Records()
+    logging.getLogger("ahrsd").addHandler(logs)
+    rig = SimpleNamespace(service=service, loop=loop, gcs=gcs, ep=service.endpoints[0], logs=logs,
+                          sender=mavlink.MAVLink(None, srcSystem=255, srcComponent=190))
+    clock = [1000.0]
+    service.commands.clock = lambda: clock[0]      # the duplicate window on a clock the test moves
+    rig.clock = clock
+    yield rig
+    logging.getLogger("ahrsd").removeHandler(logs)
+    stop_service(service, loop)
+    gcs.close()
+
+
+def command_long(rig, command, *params):
+    p = list(params) + [0.0] * (7 - len(params))
+    return rig.sender.command_long_encode(OUR_SYS, OUR_COMP, command, 0, *p).pack(rig.sender)
+
+
+def command_int(rig, command, p1=0.0, p2=0.0, p3=0.0, p4=0.0, x=0, y=0, z=0.0, frame=0):
+    return rig.sender.command_int_encode(OUR_SYS, OUR_COMP, frame, command, 0, 0, p1, p2, p3, p4, x, y,
+                                         z).pack(rig.sender)
+
+
+def acks(messages, command):
+    return [m for m in messages if m.get_type() == "COMMAND_ACK" and m.command == command]
+
+
+def assert_no_escape(rig):
+    assert rig.service.commands.counters.handler_errors == 0
+    assert not rig.logs.tracebacks()
+
+
+# ------------------------------------------------------------------------------------------ finding 1
+
+
+def test_request_message_as_command_int_reads_z_as_param7(rig):
+    """REQUEST_MESSAGE as COMMAND_INT: param7 (response target) is `z` there — no AttributeError, a real answer."""
+    drain(rig)
+    feed(rig, command_int(rig, mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION, z=1.0))
+    got = drain(rig)
+    (ack,) = acks(got, mavlink.MAV_CMD_REQUEST_MESSAGE)
+    assert ack.result == mavlink.MAV_RESULT_ACCEPTED
+    assert [m for m in got if m.get_type() == "AUTOPILOT_VERSION"]
+    # ATTITUDE (id 30) with no estimate yet: a protocol answer, not a handler failure
+    feed(rig, command_int(rig, mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_ATTITUDE))
+    (ack,) = acks(drain(rig), mavlink.MAV_CMD_REQUEST_MESSAGE)
+    assert ack.result == mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+    # a response target outside 0..2 is refused, as a COMMAND_INT z as well as a COMMAND_LONG param7
+    feed(rig, command_int(rig, mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION, z=7.0))
+    feed(rig, command_long(rig, mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION,
+                           0, 0, 0, 0, 0, float("nan")))
+    assert [a.result for a in acks(drain(rig), mavlink.MAV_CMD_REQUEST_MESSAGE)] == [mavlink.MAV_RESULT_DENIED] * 2
+    assert rig.service.commands.counters.refused == 2
+    assert_no_escape(rig)
+
+
+# ------------------------------------------------------------------------------------------ fixed yaw
+
+
+def feed_still_samples(rig, t0_s: float, duration_s: float, seed: int = 0) -> float:
+    """A still sensor (roll 4°, pitch −3°, true heading 30°) into the mag-cal listener, each sample calibrated
+    with the calibration in force when it arrives (as the pipeline does). Returns the next sample time."""
+    t = t0_s + np.arange(0.0, duration_s, 1.0 / RATE_HZ)
+    traj = trajectory(t, np.full_like(t, np.radians(4.0)), np.full_like(t, np.radians(-3.0)),
+                      np.full_like(t, np.radians(30.0)), seed=seed)
+    proto = rig.service.magcal
+    for i in range(len(t)):
+        cal = rig.service.pipeline.calibration
+        proto.on_sample(make_sample(t[i], np.zeros(3), traj.accel[i], cal.mag.apply(traj.raw[i])),
+                        SimpleNamespace(roll_rad=traj.roll[i], pitch_rad=traj.pitch[i], yaw_rad=0.0,
+                                        rate_body_rad_s=np.zeros(3)))
+    return float(t[-1] + 1.0 / RATE_HZ)
+
+
+@pytest.fixture
+def stale_hard_iron(rig):
+    """Soft iron right, hard iron stale (zero): the fixed-yaw calibration has the injected hard iron to find."""
+    soft = np.linalg.inv(SOFT_DISTORTION)
+    rig.service.apply_calibration(Calibration.identity().with_sensor("mag", MagModel(np.zeros(3), soft)),
+                                  save=False)
+    n_averaged = int(rig.service.magcal.settings.fixed_yaw_average_s * RATE_HZ)
+    return 5 * MAG_NOISE_UT / np.sqrt(n_averaged)          # 5 σ of the window mean, per axis
+
+
+def test_fixed_yaw_latitude_214_is_denied_up_front(rig, stale_hard_iron):
+    feed_still_samples(rig, 0.0, 1.5)
+    before = rig.service.pipeline.calibration
+    drain(rig)
+    feed(rig, command_long(rig, CMD_FIXED_YAW, 30.0, 0, 214.0, 10.0))
+    got = drain(rig)
+    (ack,) = acks(got, CMD_FIXED_YAW)
+    assert ack.result == mavlink.MAV_RESULT_DENIED
+    texts = [m.text for m in got if m.get_type() == "STATUSTEXT"]
+    assert any("latitude 214" in t for t in texts), texts     # the one-line reason reaches the operator
+    assert rig.service.pipeline.calibration is before
+    assert rig.service.commands.counters.refused == 1
+    assert_no_escape(rig)
+
+
+def test_fixed_yaw_int32_extremes_in_command_int_are_read_as_position_and_denied(rig, stale_hard_iron):
+    """The COMMAND_INT of the finding: x = 2^31−1, y = −2^31 are degE7 (214.7°, −214.7°): DENIED, unchanged."""
+    feed_still_samples(rig, 0.0, 1.5)
+    before = rig.service.pipeline.calibration
+    drain(rig)
+    feed(rig, command_int(rig, CMD_FIXED_YAW, x=INT32_MAX, y=INT32_MIN))
+    (ack,) = acks(drain(rig), CMD_FIXED_YAW)
+    assert ack.result == mavlink.MAV_RESULT_DENIED
+    assert rig.service.pipeline.calibration is before
+    assert_no_escape(rig)
+
+
+def test_fixed_yaw_twice_in_a_row_gives_the_same_calibration(rig, stale_hard_iron):
+    """A COMMAND_LONG, then ~20 ms later the same request as COMMAND_INT (a retry in the other form: a duplicate,
+    answered without re-running), then the request re-run 20 ms after each swap — once with the position as
+    COMMAND_INT x/y: every result is the injected hard iron, never twice it (the samples of the averaging
+    window were calibrated with the model the previous request replaced)."""
+    tolerance_ut = stale_hard_iron
+    t = feed_still_samples(rig, 0.0, 1.5)
+    drain(rig)
+    feed(rig, command_long(rig, CMD_FIXED_YAW, 30.0, 0, SITE_LAT, SITE_LON))
+    assert acks(drain(rig), CMD_FIXED_YAW)[-1].result == mavlink.MAV_RESULT_ACCEPTED
+    first = rig.service.pipeline.calibration.mag.hard_iron_ut.copy()
+    np.testing.assert_allclose(first, HARD_IRON_UT, atol=tolerance_ut)
+
+    t = feed_still_samples(rig, t, 0.02, seed=1)
+    rig.clock[0] += 0.02
+    feed(rig, command_int(rig, CMD_FIXED_YAW, 30.0, 0, SITE_LAT, SITE_LON))
+    assert acks(drain(rig), CMD_FIXED_YAW)[-1].result == mavlink.MAV_RESULT_ACCEPTED
+    assert rig.service.commands.counters.duplicates == 1
+    np.testing.assert_array_equal(rig.service.pipeline.calibration.mag.hard_iron_ut, first)
+
+    for i, frame in enumerate((command_long(rig, CMD_FIXED_YAW, 30.0, 0, SITE_LAT, SITE_LON),
+                               command_int(rig, CMD_FIXED_YAW, 30.0, 0, 0, 0, x=round(SITE_LAT * 1e7),
+                                           y=round(SITE_LON * 1e7)))):
+        rig.clock[0] += 10.0                        # outside the duplicate window: run again
+        t = feed_still_samples(rig, t, 0.02, seed=2 + i)
+        feed(rig, frame)
+        assert acks(drain(rig), CMD_FIXED_YAW)[-1].result == mavlink.MAV_RESULT_ACCEPTED
+        np.testing.assert_allclose(rig.service.pipeline.calibration.mag.hard_iron_ut, HARD_IRON_UT,
+                                   atol=tolerance_ut)
+    assert_no_escape(rig)
+
+
+def test_fixed_yaw_position_as_command_int_equals_command_long(rig, stale_hard_iron):
+    """The one parameter view: the site as COMMAND_LONG param3/4 (deg) and as COMMAND_INT x/y (degE7) give
+    the same WMM reference, hence the same hard iron."""
+    feed_still_samples(rig, 0.0, 1.5)
+    feed(rig, command_long(rig, CMD_FIXED_YAW, 30.0, 0, SITE_LAT, SITE_LON))
+    by_long = rig.service.pipeline.calibration.mag.hard_iron_ut.copy()
+    rig.clock[0] += 10.0
+    feed(rig, command_int(rig, CMD_FIXED_YAW, 30.0, 0, 0, 0, x=round(SITE_LAT * 1e7), y=round(SITE_LON * 1e7)))
+    np.testing.assert_allclose(rig.service.pipeline.calibration.mag.hard_iron_ut, by_long, atol=1e-3)
+    # a different site must give a different reference: the x/y were read, not ignored
+    rig.clock[0] += 10.0
+    feed(rig, command_int(rig, CMD_FIXED_YAW, 30.0, 0, 0, 0, x=-33 * 10**7, y=151 * 10**7))
+    assert np.linalg.norm(rig.service.pipeline.calibration.mag.hard_iron_ut - by_long) > 1.0
+    assert [a.result for a in acks(drain(rig), CMD_FIXED_YAW)] == [mavlink.MAV_RESULT_ACCEPTED] * 3
+    assert_no_escape(rig)
+
