@@ -157,7 +157,7 @@ class CommandRouter:
         signed = bool(msg.get_signed())
         if reg.state_changing and self.require_signed() and not signed:
             self.counters.unsigned_refused += 1
-            log.warning("refused unsigned command %d from %d/%d", cmd, *src)
+            self._log_refusal(cmd, src, "unsigned")
             ack(mavlink.MAV_RESULT_DENIED, remember=False)   # a signed retry must be evaluated afresh
             return
         ctx = CommandContext(self.service, endpoint, src[0], src[1], broadcast, signed,
@@ -171,23 +171,24 @@ class CommandRouter:
         if out is None:
             return   # the handler answers later itself via ctx.finish
         if isinstance(out, Refused):
-            self._count_refusal(cmd, src, out.reason)
+            self.counters.refused += 1
+            self._log_refusal(cmd, src, out.reason, tell_operator=True)
             ack(out.result)
         elif isinstance(out, CommandAck):
             ack(out.result, out.progress, out.result_param2)
         else:
             ack(int(out))
 
-    def _count_refusal(self, cmd: int, src: tuple[int, int], reason: str) -> None:
-        self.counters.refused += 1
-        if self._refusal_log.take(self.clock()):
-            log.warning("command %d from %d/%d refused: %s", cmd, src[0], src[1], reason)
-            send = getattr(self.service, "send", None)
-            if send is not None:      # the operator sees why, not only the MAV_RESULT
-                send(mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_WARNING,
-                                                        f"ahrsd: {reason}".encode("utf-8", "replace")[:50], 0, 0))
-        else:
+    def _log_refusal(self, cmd: int, src: tuple[int, int], reason: str, tell_operator: bool = False) -> None:
+        """One warning per refusal, rate limited (a flooding peer can fill neither the log nor the link)."""
+        if not self._refusal_log.take(self.clock()):
             self.counters.refusal_logs_suppressed += 1
+            return
+        log.warning("command %d from %d/%d refused: %s", cmd, src[0], src[1], reason)
+        send = getattr(self.service, "send", None)
+        if tell_operator and send is not None:      # the operator sees why, not only the MAV_RESULT
+            send(mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_WARNING,
+                                                    f"ahrsd: {reason}".encode("utf-8", "replace")[:50], 0, 0))
 
     def _expire(self, now: float) -> None:
         if len(self._recent) > 64 or self._recent:

@@ -203,3 +203,84 @@ def test_fixed_yaw_position_as_command_int_equals_command_long(rig, stale_hard_i
     assert [a.result for a in acks(drain(rig), CMD_FIXED_YAW)] == [mavlink.MAV_RESULT_ACCEPTED] * 3
     assert_no_escape(rig)
 
+
+
+# ------------------------------------------------------------------------------------------ parameter protocol
+
+
+def param_set(rig, name: bytes, value: float, param_type: int = mavlink.MAV_PARAM_TYPE_REAL32) -> bytes:
+    return rig.sender.param_set_encode(OUR_SYS, OUR_COMP, name, value, param_type).pack(rig.sender)
+
+
+def test_sixteen_char_unterminated_param_id_is_read_as_sixteen_characters(rig):
+    """A 16-character name fills param_id with no NUL: read as 16 characters, not overrun; refused, counted."""
+    from ahrsd.daemon.params import decode_param_id
+
+    assert decode_param_id(b"ABCDEFGHIJKLMNOP") == "ABCDEFGHIJKLMNOP"
+    assert decode_param_id(b"ABCDEFGHIJKLMNOPQRS") == "ABCDEFGHIJKLMNOP"
+    drain(rig)
+    before = rig.service.params.rejected_writes
+    feed(rig, param_set(rig, b"ABCDEFGHIJKLMNOP", 1.0))
+    texts = [m.text for m in drain(rig) if m.get_type() == "STATUSTEXT"]
+    assert any("ABCDEFGHIJKLMNOP" in t for t in texts)
+    assert rig.service.params.rejected_writes == before + 1
+
+
+def test_param_set_with_an_unknown_param_type_is_refused_and_answered_with_the_value_in_force(rig):
+    value = rig.service.params.get("SR_ATTITUDE")
+    drain(rig)
+    feed(rig, param_set(rig, b"SR_ATTITUDE", 20.0, param_type=200))
+    answers = [m for m in drain(rig) if m.get_type() == "PARAM_VALUE"]
+    assert answers and answers[-1].param_value == value and rig.service.params.get("SR_ATTITUDE") == value
+    assert rig.service.params.rejected_writes == 1
+    feed(rig, param_set(rig, b"SR_ATTITUDE", 20.0, param_type=mavlink.MAV_PARAM_TYPE_UINT8))  # C-cast: fine
+    assert rig.service.params.get("SR_ATTITUDE") == 20.0
+
+
+def test_param_read_with_a_bad_index_or_name_is_counted_and_not_answered(rig):
+    drain(rig)
+    for index, name in ((-2, b"SR_ATTITUDE"), (len(rig.service.params), b""), (32767, b""),
+                        (-1, b"\xff\x01BAD"), (-1, b"")):
+        feed(rig, rig.sender.param_request_read_encode(OUR_SYS, OUR_COMP, name, index).pack(rig.sender))
+    got = drain(rig)
+    assert not [m for m in got if m.get_type() == "PARAM_VALUE"]
+    assert rig.service.params.rejected_reads == 5
+    texts = [m.text for m in got if m.get_type() == "STATUSTEXT"]
+    assert all(t.isascii() and t.isprintable() for t in texts), texts   # a hostile name is not echoed raw
+    assert_no_escape(rig)
+
+
+# ------------------------------------------------------------------------------------------ autopilot position
+
+
+def gps_raw_int(rig, lat_e7, lon_e7, alt_mm=100_000, fix_type=3, cog=0):
+    return rig.sender.gps_raw_int_encode(0, fix_type, lat_e7, lon_e7, alt_mm, 100, 100, 0, cog, 10).pack(rig.sender)
+
+
+def global_position_int(rig, lat_e7, lon_e7, alt_mm=100_000):
+    return rig.sender.global_position_int_encode(0, lat_e7, lon_e7, alt_mm, 0, 0, 0, 0, 0).pack(rig.sender)
+
+
+def test_hostile_autopilot_positions_are_refused_counted_and_do_not_step_the_heading(rig):
+    """GPS_RAW_INT / GLOBAL_POSITION_INT from the autopilot feed the WMM declination: a latitude of 214°, the
+    INT32_MAX "unknown" sentinel, an altitude of 2147 km or an unknown fix type are refused and counted; the
+    declination (hence the true heading sent out) does not move and the periodic WMM lookup does not raise."""
+    s = rig.service
+    decl, resets = s.declination_rad, s.reset_counter
+    hostile = [gps_raw_int(rig, 214 * 10**7, 10 * 10**7), gps_raw_int(rig, INT32_MAX, INT32_MAX),
+               gps_raw_int(rig, 35 * 10**7, 51 * 10**7, alt_mm=INT32_MAX), gps_raw_int(rig, 35 * 10**7, 51 * 10**7,
+                                                                                        fix_type=200),
+               global_position_int(rig, INT32_MIN, 10 * 10**7), global_position_int(rig, 10 * 10**7, 181 * 10**7)]
+    for data in hostile:
+        feed(rig, data)
+    drain(rig)
+    assert s.autopilot.lat_deg is None and s.autopilot.rejected_positions == len(hostile)
+    s._resolve_declination()                                           # what housekeeping runs every 10 s
+    assert s.declination_rad == decl and s.reset_counter == resets
+    feed(rig, gps_raw_int(rig, 35 * 10**7, 51 * 10**7, cog=40000))      # a course beyond 359.99°
+    assert s.autopilot.rejected_courses == 1 and s.autopilot.course_rad is None
+    # the valid position of the last frame was taken: the guard refuses only what cannot be true
+    assert s.autopilot.lat_deg == pytest.approx(35.0) and s.autopilot.lon_deg == pytest.approx(51.0)
+    warnings = [r for r in rig.logs.records if r.name == "ahrsd.daemon.autopilot"]
+    assert 1 <= len(warnings) <= 3                                     # rate limited, not one per frame
+    assert_no_escape(rig)
