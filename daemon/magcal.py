@@ -312,8 +312,7 @@ class MagCalProtocol:
             return Refused(mavlink.MAV_RESULT_FAILED, f"DO_START_MAG_CAL: delay {delay_s} s invalid")
         retry, autosave, autoreboot = (bool(f) for f in flags)
         if mask != 0 and not mask & OUR_MASK:
-            self._say(SEV_ERROR, f"Mag cal: no compass in mask {mask} (this unit has compass 0)")
-            return mavlink.MAV_RESULT_FAILED
+            return Refused(mavlink.MAV_RESULT_FAILED, f"Mag cal: no compass in mask {mask} (ours: compass 0)")
         if self.host.armed() and not self.settings.allow_armed:
             self._say(SEV_NOTICE, "Disarm to allow compass calibration")
             return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
@@ -512,8 +511,10 @@ def settings_from_mapping(d: dict[str, Any] | None) -> MagCalSettings:
         want = fields[key]
         if want is bool and not isinstance(value, bool):
             raise ValueError(f"config key magcal.{key} = {value!r} is invalid: true or false")
-        if want is float and (isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0):
-            raise ValueError(f"config key magcal.{key} = {value!r} is invalid: a positive number")
+        if want is float and (isinstance(value, bool) or not isinstance(value, (int, float))
+                              or not (math.isfinite(value) and value > 0)):
+            # inf would pass "> 0": an infinite progress rate makes the mag-cal ticker spin
+            raise ValueError(f"config key magcal.{key} = {value!r} is invalid: a positive finite number")
         if key == "vehicle_type" and value not in ("auto", "level", "tumble"):
             raise ValueError(f"config key magcal.vehicle_type = {value!r} is invalid: one of 'auto', 'level', 'tumble'")
         out[key] = float(value) if want is float else value
