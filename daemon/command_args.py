@@ -19,7 +19,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from ahrsd.daemon.mavlink_io import mavlink
+
 DEG_E7 = 1e-7           # COMMAND_INT x/y positions: degrees × 10^7
+# the MAV_FRAMEs in which COMMAND_INT x/y are a latitude/longitude (common.xml MAV_FRAME: the GLOBAL_* ones)
+GLOBAL_FRAMES = frozenset(v for v, e in mavlink.enums["MAV_FRAME"].items() if e.name.startswith("MAV_FRAME_GLOBAL"))
 
 
 class Refused(int):
@@ -45,13 +49,14 @@ class CommandArgs:
     params: tuple[float, ...]        # param1..param7 as in the table above (x/y as floats of the int32)
     x: int = 0                       # COMMAND_INT only (0 for COMMAND_LONG)
     y: int = 0
+    frame: int = 0                   # COMMAND_INT's MAV_FRAME (0 = MAV_FRAME_GLOBAL for COMMAND_LONG)
 
     @classmethod
     def of(cls, msg) -> "CommandArgs":
         if msg.get_type() == "COMMAND_INT":
             return cls(int(msg.command), True,
                        (msg.param1, msg.param2, msg.param3, msg.param4, float(msg.x), float(msg.y), msg.z),
-                       int(msg.x), int(msg.y))
+                       int(msg.x), int(msg.y), int(msg.frame))
         return cls(int(getattr(msg, "command", 0)), False,
                    (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7))
 
@@ -60,10 +65,16 @@ class CommandArgs:
         return self.params[n - 1]
 
     def int_position_deg(self) -> tuple[float, float] | None:
-        """COMMAND_INT's x/y as latitude/longitude in degrees (degE7); None when not a COMMAND_INT or both 0."""
+        """COMMAND_INT's x/y as latitude/longitude in degrees (degE7); None when not a COMMAND_INT or both 0.
+        Raises nothing; check `position_frame_ok` before trusting it."""
         if not self.is_command_int or (self.x == 0 and self.y == 0):
             return None
         return self.x * DEG_E7, self.y * DEG_E7
+
+    @property
+    def position_frame_ok(self) -> bool:
+        """The frame makes x/y a latitude/longitude (a GLOBAL_* MAV_FRAME)."""
+        return self.frame in GLOBAL_FRAMES
 
 
 def whole_number(value: float, lo: int, hi: int) -> int | None:

@@ -390,6 +390,8 @@ class MagCalProtocol:
             return Refused(mavlink.MAV_RESULT_DENIED, f"FIXED_MAG_CAL_YAW: yaw {yaw_deg} deg invalid")
         int_position = args.int_position_deg()     # COMMAND_INT: a position travels as x/y, degE7
         if int_position is not None:
+            if not args.position_frame_ok:
+                return Refused(mavlink.MAV_RESULT_DENIED, f"FIXED_MAG_CAL_YAW: frame {args.frame} not global")
             if not (lat == 0 and lon == 0):
                 return Refused(mavlink.MAV_RESULT_DENIED, "FIXED_MAG_CAL_YAW: position in both param3/4 and x/y")
             lat, lon = int_position

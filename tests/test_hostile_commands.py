@@ -196,11 +196,17 @@ def test_fixed_yaw_position_as_command_int_equals_command_long(rig, stale_hard_i
     rig.clock[0] += 10.0
     feed(rig, command_int(rig, CMD_FIXED_YAW, 30.0, 0, 0, 0, x=round(SITE_LAT * 1e7), y=round(SITE_LON * 1e7)))
     np.testing.assert_allclose(rig.service.pipeline.calibration.mag.hard_iron_ut, by_long, atol=1e-3)
+    # x/y in a frame that does not make them a latitude/longitude (MAV_FRAME_LOCAL_NED = 1): refused
+    rig.clock[0] += 10.0
+    feed(rig, command_int(rig, CMD_FIXED_YAW, 30.0, 0, 0, 0, x=round(SITE_LAT * 1e7), y=round(SITE_LON * 1e7),
+                          frame=mavlink.MAV_FRAME_LOCAL_NED))
+    assert [a.result for a in acks(drain(rig), CMD_FIXED_YAW)] == [mavlink.MAV_RESULT_ACCEPTED] * 2 + [
+        mavlink.MAV_RESULT_DENIED]
     # a different site must give a different reference: the x/y were read, not ignored
     rig.clock[0] += 10.0
     feed(rig, command_int(rig, CMD_FIXED_YAW, 30.0, 0, 0, 0, x=-33 * 10**7, y=151 * 10**7))
     assert np.linalg.norm(rig.service.pipeline.calibration.mag.hard_iron_ut - by_long) > 1.0
-    assert [a.result for a in acks(drain(rig), CMD_FIXED_YAW)] == [mavlink.MAV_RESULT_ACCEPTED] * 3
+    assert [a.result for a in acks(drain(rig), CMD_FIXED_YAW)] == [mavlink.MAV_RESULT_ACCEPTED]
     assert_no_escape(rig)
 
 
