@@ -51,7 +51,8 @@ def register(subparsers) -> None:
     c.add_argument("--alt-m", type=float, default=0.0, help="height above the ellipsoid (m) for local gravity")
     c.add_argument("--terms", default="auto", choices=("auto", "6", "9", "12"),
                    help="model size: 12 = bias, scale, misalignment, quadratic (thesis)")
-    c.add_argument("--min-still-s", type=float, default=3.0, help="shortest still period used as a position")
+    c.add_argument("--min-still-s", type=float, default=2.0,
+                   help="shortest still period used as a position, s (default 2: holds of 2 s or more)")
     c.add_argument("--live", action="store_true", help="guided live calibration from the sensor")
     c.add_argument("--sim", metavar="SCENARIO", help="with --live: the simulated chip running this scenario")
     c.add_argument("--spi", metavar="DEV", help="with --live: the real ADIS16405 on this spidev node")
@@ -197,12 +198,20 @@ def _allan(args) -> int:
 
 
 def _accel(args) -> int:
+    import dataclasses
+
     import numpy as np
 
+    import math
+
     from ahrsd.calibration import report
-    from ahrsd.calibration.accel_cal import fit_accel, find_still_segments, local_gravity_m_s2
+    from ahrsd.calibration.accel_cal import (AccelFitResult, fit_accel, hold_cost, local_gravity_m_s2,
+                                             short_holds_refusal, split_by_duration, still_periods)
+    from ahrsd.calibration.models import AccelModel
 
     g = local_gravity_m_s2(args.lat, args.alt_m)
+    if not (math.isfinite(args.min_still_s) and args.min_still_s > 0):
+        raise _Usage(f"--min-still-s {args.min_still_s}: expected a positive number of seconds")
     terms = args.terms if args.terms == "auto" else int(args.terms)
     if args.live and args.recording:
         raise _Usage("give a RECORDING or --live, not both")
@@ -214,16 +223,36 @@ def _accel(args) -> int:
         if not args.recording:
             raise _Usage("give a RECORDING, or --live with --sim SCENARIO or --spi DEV")
         rec = _read(args.recording)
-        segs = find_still_segments(rec.accel_m_s2, rec.gyro_rad_s, rec.sample_rate_hz, min_still_s=args.min_still_s)
+        step_s = float(np.median(np.diff(rec.t_s)))
+        if not (math.isfinite(step_s) and step_s > 0):
+            raise _Fail(f"{args.recording}: t_s does not increase (median step {step_s:g} s): the sample times "
+                        "must grow by the sample period")
+        rate = 1.0 / step_s
+        periods = still_periods(rec.accel_m_s2, rec.gyro_rad_s, rate)
+        segs, skipped = split_by_duration(periods, args.min_still_s)
+        holds = hold_cost(segs, skipped, rate)
         means = np.array([s.mean_accel_m_s2 for s in segs]).reshape(-1, 3)
         source = f"{len(segs)} still periods in {args.recording}"
-    res = fit_accel(means, g, terms)
+    if not args.live and not segs:
+        res = AccelFitResult(AccelModel.identity(), math.nan, 6 if terms == "auto" else terms,
+                             {"positions": 0, "holds": holds}, short_holds_refusal(periods, args.min_still_s))
+    else:
+        res = fit_accel(means, g, terms)
+        if not args.live:
+            res.quality["holds"] = holds
+            if not res.ok and skipped:
+                res = dataclasses.replace(res, refused=f"{res.refused}; {len(skipped)} more still periods were "
+                                          f"shorter than --min-still-s {args.min_still_s:g} (the longest "
+                                          f"{max(p.duration_s for p in skipped):.1f} s): lower --min-still-s to "
+                                          "use them")
     payload = {"sensor": "accel", **res.to_json_dict(), "positions_source": source}
     lines = [f"Accelerometer calibration ({res.terms} parameters) from {source}; g = {g:.5f} m/s²"
              + ("" if args.lat is not None else " (standard gravity: give --lat for local gravity)")]
     q = res.quality
     lines.append(f"  distinct orientations: {q.get('distinct_orientations')}; faces up: "
                  + ", ".join(k for k, v in q.get("faces", {}).items() if v))
+    if "holds" in q:
+        lines.append(report.accel_holds_line(q["holds"], args.min_still_s))
     rc = _report_fit(args, res, payload, lines, "accel", report.accel_model_lines,
                      {"method": f"multi-position {res.terms}-parameter", "residual_rms_m_s2": res.residual_rms_m_s2,
                       "positions": q.get("positions"), "g_m_s2": g})
