@@ -8,14 +8,17 @@ Sensor/body frame as recorded, SI units, accelerometer as specific force (+9.81 
 magnetic field in µT. Known extra columns: temp_c, supply_v, flags (SampleFlags as an integer), diag_stat,
 counter, and for simulated data the truth attitude truth_qw,truth_qx,truth_qy,truth_qz (body->NED, scalar
 first). Any other extra column is kept by name. Lines starting with '#' after the header are comments.
+A file whose name ends in `.gz` is gzip-compressed (written and read transparently).
 """
 
 from __future__ import annotations
 
+import gzip
 import itertools
 import logging
 import math
 import os
+import zlib
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -60,7 +63,7 @@ class RecordingWriter:
         self.extra_columns = extra
         self._flush_rows = flush_rows
         self.rows_written = 0
-        self._file = open(self.path, "w", encoding="ascii", newline="\n")
+        self._file = open_text(self.path, "w")
         self._file.write(",".join(names) + "\n")
 
     def write(self, sample: ImuSample, truth_q_wxyz=None, **values) -> None:
@@ -200,14 +203,35 @@ def _parse_chunk(lines: list[str], ncols: int, first_line_no: int, path, columns
     raise RecordingFormatError(f"{path}: cannot parse rows {first_line_no}..{first_line_no + len(lines) - 1}")
 
 
+def open_text(path: str | os.PathLike, mode: str = "r"):
+    """A recording opened as text, `.gz` (gzip) or plain by the file name: mode "r" (UTF-8) or "w" (ASCII)."""
+    if mode not in ("r", "w"):
+        raise ValueError(f"mode must be 'r' or 'w', got {mode!r}")
+    encoding = "utf-8" if mode == "r" else "ascii"
+    newline = "" if mode == "r" else "\n"
+    if os.fspath(path).endswith(".gz"):
+        return gzip.open(path, mode + "t", encoding=encoding, newline=newline)
+    return open(path, mode, encoding=encoding, newline=newline)
+
+
+def _complete_lines(f, path) -> Iterator[str]:
+    """The lines of `f`; a gzip stream cut short (a logger killed, a power loss) ends at what it holds, with
+    a warning: its last line may then be incomplete, which `_iter_tables` drops when not strict."""
+    try:
+        yield from f
+    except (EOFError, gzip.BadGzipFile, zlib.error) as exc:
+        log.warning("%s: the compressed stream ends early (%s): reading what it holds", path, exc)
+
+
 def _iter_tables(path, strict: bool) -> Iterator[tuple[tuple[str, ...], np.ndarray]]:
-    with open(path, encoding="utf-8", newline="") as f:
-        header = f.readline()
+    with open_text(path) as f:
+        lines_in = _complete_lines(f, path)
+        header = next(lines_in, "")
         columns = read_header(header, path)
         ncols = len(columns)
         line_no = 2
         while True:
-            lines = list(itertools.islice(f, CHUNK_ROWS))
+            lines = list(itertools.islice(lines_in, CHUNK_ROWS))
             if not lines:
                 break
             at_end = len(lines) < CHUNK_ROWS
