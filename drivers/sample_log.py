@@ -31,7 +31,9 @@ class SampleLog(RotatingLog):
 
     def _open(self, path: Path) -> RecordingWriter:
         # RecordingWriter flushes its own buffer only every flush_rows rows; the base class flushes on time
-        return RecordingWriter(path, extra_columns=SAMPLE_COLUMNS, flush_rows=1 << 62)
+        writer = RecordingWriter(path, extra_columns=SAMPLE_COLUMNS, flush_rows=1 << 62)
+        writer.flush()   # the header on disk at once: only a crash within this call leaves a file without one
+        return writer
 
     def _write(self, writer: RecordingWriter, sample) -> None:
         writer.write(sample)
