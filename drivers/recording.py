@@ -87,6 +87,11 @@ class RecordingWriter:
         if self.rows_written % self._flush_rows == 0:
             self._file.flush()
 
+    def comment(self, text: str) -> None:
+        """A '#' comment line (readers skip it): e.g. where the samples came from."""
+        for line in text.splitlines() or [""]:
+            self._file.write("# " + line + "\n")
+
     def flush(self) -> None:
         self._file.flush()
 

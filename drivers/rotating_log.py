@@ -59,11 +59,16 @@ class RotatingLog:
     format_name = "log"
 
     def __init__(self, directory: str | os.PathLike, limits: LogLimits = LogLimits(), metadata: dict | None = None,
-                 clock=time.time):
+                 clock=time.time, unix_minus_t=None):
+        """clock: the wall clock (Unix s) for file ages and names. unix_minus_t: a function giving Unix time
+        minus the entries' own clock (for entries stamped with time.monotonic(): time.time() −
+        time.monotonic()), read when a file opens, so the mapping does not depend on how far behind the
+        writer is; None: the wall clock minus the first entry's time at that moment."""
         self.directory = Path(directory)
         self.limits = limits
         self._metadata = dict(metadata or {})
         self._clock = clock
+        self._unix_minus_t = unix_minus_t
         self._queue: queue.Queue = queue.Queue(maxsize=limits.queue_entries)
         self.written = 0            # entries written
         self._dropped_at_put = 0    # entries refused by put(): queue full, or the log stopped
@@ -202,17 +207,25 @@ class RotatingLog:
     def _open_file(self, entry) -> None:
         self.directory.mkdir(parents=True, exist_ok=True)
         wall = self._clock()
-        stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime(wall)) + f".{int(wall % 1 * 1e6):06d}Z"
+        t = self._entry_time_s(entry)
+        offset = None
+        if t is not None:   # entry times are a monotonic clock: this maps them to wall-clock time
+            offset = self._unix_minus_t() if self._unix_minus_t is not None else wall - t
+        named = wall if offset is None else t + offset   # the file is named after its first entry's time
+        stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime(named)) + f".{int(named % 1 * 1e6):06d}Z"
         path = self.directory / f"{self.prefix}-{stamp}{self.suffix}"
+        k = 1
+        while path.exists():   # never overwrite (a clock stepped back, or two files in one µs)
+            path = self.directory / f"{self.prefix}-{stamp}-{k}{self.suffix}"
+            k += 1
         self._file = self._open(path)
         self._path = path
         self._opened_wall = wall
         self.files_opened += 1
-        t = self._entry_time_s(entry)
         self._sidecar = {"format": self.format_name, "file": path.name, "opened_utc": _iso_utc(wall),
                          "opened_unix_s": wall, "entries": 0, "closed": False, **self._metadata}
-        if t is not None:   # entry times are a monotonic clock: this maps them to wall-clock time
-            self._sidecar["unix_minus_t_s"] = wall - t
+        if offset is not None:
+            self._sidecar["unix_minus_t_s"] = offset
         self._write_sidecar()
         self._enforce_total()
 

@@ -14,20 +14,33 @@ crash (up to its last complete line: the writer flushes the gzip stream every `f
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 from .recording import SAMPLE_COLUMNS, RecordingWriter
-from .rotating_log import RotatingLog
+from .rotating_log import LogLimits, RotatingLog
 
 SAMPLE_LOG_PREFIX = "imu"
 SAMPLE_LOG_SUFFIX = ".csv.gz"
 SAMPLE_LOG_FORMAT = "ahrsd-recording"
 
 
+def monotonic_to_unix_s() -> float:
+    """Unix time minus the monotonic clock: the service's sample times (t_s) are on the monotonic clock."""
+    return time.time() - time.monotonic()
+
+
 class SampleLog(RotatingLog):
+    """Metadata the service gives: `calibrated` (bool: were the samples put calibrated?) and `calibration` (a
+    dict naming the calibration in force: checksum, method, date, path)."""
+
     prefix = SAMPLE_LOG_PREFIX
     suffix = SAMPLE_LOG_SUFFIX
     format_name = SAMPLE_LOG_FORMAT
+
+    def __init__(self, directory, limits: LogLimits = LogLimits(), metadata: dict | None = None, clock=time.time,
+                 unix_minus_t=monotonic_to_unix_s):
+        super().__init__(directory, limits, metadata, clock, unix_minus_t)
 
     def _open(self, path: Path) -> RecordingWriter:
         # RecordingWriter flushes its own buffer only every flush_rows rows; the base class flushes on time
