@@ -6,26 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
-PLOT_INSTALL_HINT = "pip install 'ahrsd[plot]'"
-
-
-class PlotUnavailableError(ImportError):
-    """A plot was asked for but matplotlib (the optional `ahrsd[plot]` extra) is not installed."""
-
+from ahrsd.core.plotting import PLOT_INSTALL_HINT, PlotUnavailableError, pyplot  # noqa: F401 (re-exported)
 
 _ALLAN_UNITS = {"gyro": "rad/s", "accel": "m/s²", "mag": "µT"}
-
-
-def pyplot():
-    """matplotlib.pyplot on the file-only Agg backend; PlotUnavailableError when matplotlib is not installed."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError as exc:
-        raise PlotUnavailableError(f"plotting needs matplotlib: {PLOT_INSTALL_HINT} ({exc})") from None
-    return plt
 
 
 def plot_allan(result, path) -> None:
