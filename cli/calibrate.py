@@ -103,11 +103,17 @@ PLOT_NEEDS_MATPLOTLIB = "--plot needs matplotlib: pip install 'ahrsd[plot]'"
 _RECORDING_META: dict = {}
 
 
-def _read(path):
+def _read(path, progress_args=None):
+    """The recording at `path`; with `progress_args` (the command's args), a progress bar while it is read."""
+    import os
+
     from ahrsd.drivers.recording import RecordingFormatError, read_recording
 
+    from .progress import expected_rows, progress_bar
+
     try:
-        rec = read_recording(path)
+        with progress_bar(progress_args, expected_rows(path), f"reading {os.path.basename(path)}") as bar:
+            rec = read_recording(path, on_rows=bar.update)
     except FileNotFoundError:
         raise _Fail(f"{path}: no such file") from None
     except (RecordingFormatError, ValueError, OSError) as exc:
@@ -222,7 +228,7 @@ def _accel(args) -> int:
     else:
         if not args.recording:
             raise _Usage("give a RECORDING, or --live with --sim SCENARIO or --spi DEV")
-        rec = _read(args.recording)
+        rec = _read(args.recording, args)
         step_s = float(np.median(np.diff(rec.t_s)))
         if not (math.isfinite(step_s) and step_s > 0):
             raise _Fail(f"{args.recording}: t_s does not increase (median step {step_s:g} s): the sample times "
@@ -398,7 +404,7 @@ def _mag(args) -> int:
     if args.align_recording and args.method != "three-step":
         raise _Usage("--align-recording goes with --method three-step")
     swing_table = _read_swing_table(args.swing_table) if args.swing_table else None  # bad file: fail before fitting
-    rec = _read(args.recording)
+    rec = _read(args.recording, args)
     stored = _stored(args)
     gyro, accel, _ = stored.apply_arrays(rec.gyro_rad_s, rec.accel_m_s2, None)
     heading_ref, ref_note = _heading_reference_column(rec, args.recording, args.method)

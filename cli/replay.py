@@ -166,23 +166,6 @@ def run(args) -> int:
         return 2 if isinstance(exc, ReplayUsageError) else 1
 
 
-def _expected_samples(path: str) -> int | None:
-    """About how many samples the recording holds (for the progress bar's time left): its size over the length
-    of its first rows; None when that cannot be told cheaply (compressed, unreadable)."""
-    import os
-
-    if path.endswith(".gz"):
-        return None
-    try:
-        size = os.path.getsize(path)
-        with open(path, "rb") as f:
-            head = f.read(1 << 16).split(b"\n")[1:-1]
-    except OSError:
-        return None
-    rows = [r for r in head if r and not r.startswith(b"#")]
-    return int(size / (sum(len(r) + 1 for r in rows) / len(rows))) if rows else None
-
-
 def _plot(args, trace) -> None:
     """The replay figure, with the recording's truth attitude when it has the truth columns."""
     import numpy as np
@@ -219,7 +202,7 @@ def _run(args) -> int:
     from ahrsd.estimator import make_estimator
     from ahrsd.estimator.replay import ATTITUDE_COLUMNS, replay_attitude
 
-    from .progress import progress_bar
+    from .progress import expected_rows, progress_bar
 
     t_start = time.perf_counter()
     cpu_start = time.process_time()
@@ -280,7 +263,7 @@ def _run(args) -> int:
     t_run = time.process_time()
     try:
         order = [ATTITUDE_COLUMNS.index(name) for name in OUTPUT_COLUMNS]
-        with progress_bar(args, _expected_samples(args.recording), "replay") as bar:
+        with progress_bar(args, expected_rows(args.recording), "replay") as bar:
             for table in replay_attitude(estimator, samples, true_north=args.lat is not None, chunk_rows=2048):
                 out.write(table[:, order])
                 bar.update(len(table))

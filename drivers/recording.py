@@ -250,15 +250,18 @@ def _iter_tables(path, strict: bool) -> Iterator[tuple[tuple[str, ...], np.ndarr
             yield columns, table
 
 
-def read_recording(path: str | os.PathLike, strict: bool = True) -> Recording:
+def read_recording(path: str | os.PathLike, strict: bool = True, on_rows=None) -> Recording:
     """Load a whole recording (numpy, chunked). Any file whose header starts with the 10 base columns works.
 
     strict=False drops an incomplete final line (a recorder killed mid-write) with a warning instead of failing.
+    on_rows(n): called after each chunk of n rows (a progress bar).
     """
     columns: tuple[str, ...] = ()
     tables = []
     for columns, table in _iter_tables(path, strict):
         tables.append(table)
+        if on_rows is not None:
+            on_rows(len(table))
     if not columns:
         raise RecordingFormatError(f"{path}: empty file")
     data = np.concatenate(tables) if tables else np.empty((0, len(columns)))
