@@ -121,9 +121,15 @@ class _StuckLog(SampleLog):
 
 def test_overflow_is_dropped_and_counted_and_never_blocks_the_caller(tmp_path):
     log = _StuckLog(tmp_path, LogLimits(queue_entries=10))
-    results = [log.put(s) for s in samples(100)]
-    assert 89 <= log.dropped <= 90 and results.count(False) == log.dropped
+    data, results = samples(100), []
+    caller = threading.Thread(target=lambda: results.extend(log.put(s) for s in data))
+    caller.start()
+    caller.join(5.0)
+    blocked = caller.is_alive()
     log.release.set()
+    caller.join()
+    assert not blocked, "put() waited for the writer"
+    assert 89 <= log.dropped <= 90 and results.count(False) == log.dropped
     log.close()
     assert log.written + log.dropped == 100
     assert len(read_recording(log_files(tmp_path)[0])) == log.written
