@@ -102,7 +102,7 @@ def part_a(seconds: float, warmup: float) -> dict:
 def part_b(seconds: float) -> np.ndarray:
     """Time-stamp error t_s − true ready time of every sample the reader processes."""
     from ahrsd.daemon.config import Config, EndpointConfig, StateConfig
-    from ahrsd.daemon.pipeline import open_source
+    from ahrsd.drivers.source import open_source
     from ahrsd.daemon.service import Service
 
     sink = free_udp_socket()

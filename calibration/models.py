@@ -355,34 +355,30 @@ class Calibration:
         return self._is_identity
 
     def apply(self, sample: ImuSample) -> ImuSample:
-        """The calibrated copy of `sample` (every other field unchanged). Runs once per sample."""
+        """The calibrated copy of `sample` (every other field unchanged)."""
         if self._is_identity:
             return sample
+        gyro, accel, mag = self.apply_vectors(sample.gyro_rad_s, sample.accel_m_s2, sample.mag_ut)
+        return ImuSample(sample.t_s, gyro, accel, mag, sample.temp_c, sample.supply_v, sample.flags,
+                         sample.diag_stat, sample.counter)
+
+    def apply_vectors(self, gyro_rad_s: np.ndarray, accel_m_s2: np.ndarray, mag_ut: np.ndarray):
+        """The calibrated (gyro, accel, mag) of one sample's (3,) vectors, as new arrays. Runs once per sample."""
         g, a, m = self.gyro, self.accel, self.mag
-        acc = sample.accel_m_s2
+        acc = accel_m_s2
         if a._has_quadratic:  # acc − q∘acc∘acc with one allocation
             t = a.quadratic * acc
             t *= acc
             np.subtract(acc, t, out=t)
             acc = t
         # np.dot then an in-place subtraction: one allocation per vector (measured ~2× faster than M @ v − o).
-        gyro = _dot(g.matrix, sample.gyro_rad_s)
+        gyro = _dot(g.matrix, gyro_rad_s)
         gyro -= g._offset
         accel = _dot(a.matrix, acc)
         accel -= a._offset
-        mag = _dot(m.soft_iron, sample.mag_ut)
+        mag = _dot(m.soft_iron, mag_ut)
         mag -= m._offset
-        return ImuSample(
-            sample.t_s,
-            gyro,
-            accel,
-            mag,
-            sample.temp_c,
-            sample.supply_v,
-            sample.flags,
-            sample.diag_stat,
-            sample.counter,
-        )
+        return gyro, accel, mag
 
     def apply_arrays(self, gyro_rad_s=None, accel_m_s2=None, mag_ut=None):
         """Vectorised form for recordings: each argument (n, 3) or None; returns a tuple in the same order."""

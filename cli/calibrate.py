@@ -275,8 +275,8 @@ def _accel_live(args):
     import time
 
     from ahrsd.calibration.accel_cal import GuidedSession
-    from ahrsd.drivers.adis16405 import Adis16405
     from ahrsd.drivers.errors import DriverError, FrameError
+    from ahrsd.drivers.source import start_chip_source
 
     if bool(args.sim) == bool(args.spi):
         raise _Usage("--live needs exactly one of --sim SCENARIO or --spi DEV")
@@ -285,14 +285,14 @@ def _accel_live(args):
             from ahrsd.drivers.simulated import SimulatedAdis16405
 
             bus = SimulatedAdis16405(args.sim, clock=None)
-            clock = None
+            clock = bus.now                      # free-running: the chip's own time
         else:
             from ahrsd.drivers.spi import SpidevBus
 
             bus = SpidevBus(args.spi)
             clock = time.monotonic
-        imu = Adis16405(bus, clock=clock)
-        imu.start()
+        source = start_chip_source(bus, "ADIS16405", clock=clock)   # one timing path (drivers.sample_timer)
+        imu = source.driver
     except DriverError as exc:
         raise _Fail(f"sensor: {exc}") from None
     session = GuidedSession(rate_hz=imu.sample_rate_hz)
@@ -302,11 +302,13 @@ def _accel_live(args):
     try:
         while not session.done:
             try:
-                sample = imu.read_sample()
+                sample = source.read_one(clock())
             except FrameError:
                 continue
             except DriverError as exc:
                 raise _Fail(f"sensor: {exc}") from None
+            if sample is None:
+                continue
             t_first = sample.t_s if t_first is None else t_first
             if sample.t_s - t_first > args.timeout_s:
                 out.write(f"timed out after {args.timeout_s:.0f} s of sensor time; {session.coverage()}\n")

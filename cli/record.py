@@ -59,10 +59,9 @@ def run(args) -> int:
     import sys
     import time
 
-    from ahrsd.drivers.adis16405 import Adis16405
+    from ahrsd.drivers.source import start_chip_source
     from ahrsd.drivers.errors import BusError, DriverError, FrameError
     from ahrsd.drivers.recording import TRUTH_COLUMNS, RecordingWriter
-    from ahrsd.core.sample import SampleFlags
 
     log = logging.getLogger("ahrsd.record")
     if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):   # nan/inf: traceback
@@ -94,8 +93,10 @@ def run(args) -> int:
             from ahrsd.drivers.spi import SpidevBus
 
             bus = SpidevBus(args.spi)
-        imu = Adis16405(bus, clock=clock)
-        imu.start(self_test=not args.no_self_test, sample_rate_hz=args.rate_hz, filter_n=args.filter_taps)
+        # one timing path (drivers.sample_timer): the host clock, or the free-running chip's own
+        source = start_chip_source(bus, "ADIS16405", clock=clock or bus.now, self_test=not args.no_self_test,
+                                   sample_rate_hz=args.rate_hz, filter_n=args.filter_taps)
+        imu = source.driver
     except DriverError as exc:
         print(f"ahrsd record: {exc}", file=sys.stderr)
         return 1
@@ -120,7 +121,7 @@ def run(args) -> int:
     wall0 = time.monotonic()
     next_poll = wall0
     next_status = wall0
-    last = None
+    first = last = None
     try:
         while n_target is None or written < n_target:
             if paced:
@@ -128,7 +129,7 @@ def run(args) -> int:
                 if delay > 0:
                     time.sleep(delay)
             try:
-                sample = imu.read_sample()
+                sample = source.read_one(source.clock())
             except FrameError:
                 continue                           # counted by the driver; the next read is a new frame
             except BusError as exc:
@@ -142,14 +143,15 @@ def run(args) -> int:
                 continue
             bus_failures = 0
             if paced:
-                # No data-ready line: after a fresh sample the next one is due in one period; aim a little
-                # early and re-poll in quarter periods, so the polling phase locks onto the chip's clock.
-                next_poll = time.monotonic() + (0.25 if sample.flags & SampleFlags.STALE else 0.75) * period
-            if sample.flags & SampleFlags.STALE:
+                # no data-ready line: read when the sample timer expects the next sample
+                next_poll = max(source.next_read_time(),
+                                time.monotonic() + (0.25 * period if sample is None else 0.0))
+            if sample is None:
                 continue
             truth = getattr(bus, "output_truth_q_wxyz", None) if simulated else None
             writer.write(sample, truth_q_wxyz=truth)
             written += 1
+            first = sample if first is None else first
             last = sample
             if status is not None:
                 now = time.monotonic()
@@ -166,7 +168,7 @@ def run(args) -> int:
         status.write("\n")
     elapsed = time.monotonic() - wall0
     problems = {k: v for k, v in imu.counters.items() if v and k not in ("samples", "new_samples")}
-    span = 0.0 if last is None else last.t_s - imu.start_time_s
+    span = 0.0 if first is None else last.t_s - first.t_s
     print(f"ahrsd record: wrote {written} samples ({span:.2f} s of data at {imu.sample_rate_hz:.1f} SPS) to "
           f"{args.output} in {elapsed:.2f} s" + (f"; counters: {problems}" if problems else ""), file=sys.stderr)
     log.debug("counters: %s", imu.counters)

@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     plan = None
     if args.sim_faults:
         from ahrsd.cli.fault_schedule import FaultScheduleError, build_plan, parse_schedule
-        from ahrsd.daemon.pipeline import ADIS16405_RATE_HZ
+        from ahrsd.drivers.chip_source import ADIS16405_RATE_HZ
 
         if cfg.sensor.source != "sim":
             print("ahrsd: --sim-faults needs the simulated sensor (--sim), not a real one", file=sys.stderr)
@@ -68,11 +68,12 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if logging.getLogger().level > logging.INFO:
         logging.getLogger("ahrsd").setLevel(logging.INFO)   # the daemon reports its life cycle by default
-    from ahrsd.daemon.sensor_recovery import open_sensor_source, report_sensor_alarms
+    from ahrsd.daemon.sensor_recovery import report_sensor_alarms
+    from ahrsd.drivers.source import open_source
     from ahrsd.daemon.service import Service
 
     # the chip sources retry a failed start and a lost bus with backoff (daemon.sensor_recovery)
-    source = open_sensor_source(cfg.sensor, faults=plan) if cfg.sensor.source in ("sim", "spi") else None
+    source = open_source(cfg.sensor, faults=plan) if cfg.sensor.source in ("sim", "spi") else None
     service = Service(cfg, source=source)
 
     async def main() -> int:

@@ -7,6 +7,7 @@ the arrival time minus the receiver latency the source knows or is configured wi
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import math
 from dataclasses import dataclass, field
@@ -42,6 +43,7 @@ class GnssFix:
     num_sats: int = -1                       # -1: not reported
     source: str = ""                         # which source made it (for logs and status)
     extra: dict = field(default_factory=dict, compare=False)
+    hdop: float = float("nan")               # horizontal dilution of precision (NMEA GGA, GPS_RAW_INT eph)
 
     @property
     def has_position(self) -> bool:
@@ -59,6 +61,26 @@ class GnssFix:
     def course_rad(self) -> float:
         """Course over ground, [0, 2π) from true north (meaningless at low speed)."""
         return math.atan2(float(self.vel_ned_m_s[1]), float(self.vel_ned_m_s[0])) % (2.0 * math.pi)
+
+
+# Accuracies assumed where a source does not report them (a recording without the columns, NMEA, the
+# autopilot's GLOBAL_POSITION_INT): a u-blox M8-class receiver in open sky. Horizontal: the M8 datasheet's
+# 2.5 m CEP; vertical: twice that (VDOP is typically about twice HDOP); speed: 0.1 m/s, twice the datasheet's
+# 0.05 m/s (50 %), as a 1σ. An estimator can weight a fix by these instead of by NaN.
+DEFAULT_H_ACC_M = 2.5
+DEFAULT_V_ACC_M = 5.0
+DEFAULT_S_ACC_M_S = 0.1
+
+
+def with_default_accuracies(fix: GnssFix, h_acc_m: float = DEFAULT_H_ACC_M, v_acc_m: float = DEFAULT_V_ACC_M,
+                            s_acc_m_s: float = DEFAULT_S_ACC_M_S) -> GnssFix:
+    """The fix with every accuracy it does not report (NaN) replaced by the given default."""
+    h, v, s = (fix.h_acc_m if math.isfinite(fix.h_acc_m) else h_acc_m,
+               fix.v_acc_m if math.isfinite(fix.v_acc_m) else v_acc_m,
+               fix.s_acc_m_s if math.isfinite(fix.s_acc_m_s) else s_acc_m_s)
+    if (h, v, s) == (fix.h_acc_m, fix.v_acc_m, fix.s_acc_m_s):
+        return fix
+    return dataclasses.replace(fix, h_acc_m=float(h), v_acc_m=float(v), s_acc_m_s=float(s))
 
 
 def make_fix(t_s, lat_deg, lon_deg, alt_m, vel_ned_m_s, **kw) -> GnssFix:

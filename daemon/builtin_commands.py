@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import math
 import time
+from importlib.metadata import version
 
 from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.commands import CommandAck
 from ahrsd.daemon.mavlink_io import mavlink
 
-AHRSD_VERSION = (0, 1, 0)
 
 
 def register_builtin_commands(service) -> None:
@@ -53,7 +53,7 @@ def get_message_interval(service, msg, ctx) -> int:
 def autopilot_version(service):
     caps = (mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
             | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST)
-    major, minor, patch = AHRSD_VERSION
+    major, minor, patch = (int(part) for part in version("ahrsd").split(".")[:3])
     sw = (major << 24) | (minor << 16) | (patch << 8) | 255   # FIRMWARE_VERSION_TYPE_OFFICIAL in the low byte
     return mavlink.MAVLink_autopilot_version_message(caps, sw, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 0,
                                                      [0] * 18)

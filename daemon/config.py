@@ -27,14 +27,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ahrsd.daemon.magcal import settings_from_mapping
+from ahrsd.daemon.output_registry import OUTPUTS
+from ahrsd.estimator import ESTIMATORS
+from ahrsd.simulation import SCENARIOS
+
 DEFAULT_CONFIG_PATH = Path("/etc/ahrsd/ahrsd.toml")
 DEFAULT_ENDPOINT = "udpout:127.0.0.1:14550"   # the ground-station port by convention (anchor §3.4)
-SCENARIO_NAMES = ("static", "rate-table", "level-turns", "coordinated-turn", "tumble", "auv-out-and-back",
-                  "mag-disturbance")  # CONTRIBUTING.md, ahrsd.simulation.SCENARIOS
-ESTIMATOR_NAMES = ("mekf", "thesis")     # CONTRIBUTING.md, ahrsd.estimator.ESTIMATORS
 MAV_TYPES = {"imu": 40, "onboard_controller": 18}  # MAV_TYPE_IMU / MAV_TYPE_ONBOARD_CONTROLLER (anchor §1.3)
-MAX_OUTPUT_RATE_HZ = 200.0
-MAX_VISION_RATE_HZ = 50.0  # EKF3 extNavIntervalMin_ms = 20 ms (anchor ardupilot-extnav)
 MIN_HEADING_SLEW_DEG_S = 0.1   # slower would take an hour for a 180° change
 MAX_HEADING_SLEW_DEG_S = 90.0
 ENDPOINT_PREFIXES = ("udpout:", "udpin:", "udpbcast:", "udp:", "tcp:", "tcpin:", "uds:", "unix:")
@@ -145,7 +145,7 @@ class SensorConfig:
     @classmethod
     def parse(cls, d: dict, prefix="sensor") -> "SensorConfig":
         cfg = cls(**_parse_table(cls, d, prefix, {
-            "source": _choice_of(("sim", "spi", "replay")), "scenario": _choice_of(SCENARIO_NAMES),
+            "source": _choice_of(("sim", "spi", "replay")), "scenario": _choice_of(SCENARIOS),
             "seed": _number_in(0, 2**32 - 1, integer=True), "errors": _choice_of(("adis16405", "ideal")),
             "spi_device": _string, "replay_file": _string, "replay_realtime": _bool, "mounting_rpy_deg": _mounting,
             "poll_hz": _number_in(10.0, 2000.0), "stale_timeout_s": _number_in(0.005, 10.0)}))
@@ -162,7 +162,7 @@ class EstimatorConfig:
 
     @classmethod
     def parse(cls, d: dict, prefix="estimator") -> "EstimatorConfig":
-        return cls(**_parse_table(cls, d, prefix, {"name": _choice_of(ESTIMATOR_NAMES)}))
+        return cls(**_parse_table(cls, d, prefix, {"name": _choice_of(ESTIMATORS)}))
 
 
 @dataclass(frozen=True)
@@ -220,30 +220,28 @@ class MavlinkConfig:
             "mav_type": _choice_of(tuple(MAV_TYPES)), "accept_broadcast_commands": _bool}))
 
 
-@dataclass(frozen=True)
-class OutputsConfig:
-    """Message rates in Hz (0 = off). HEARTBEAT is always 1 Hz (anchor §1.6)."""
-
-    attitude_hz: float = 50.0
-    attitude_quaternion_hz: float = 10.0
-    vision_position_estimate_hz: float = 30.0   # ArduPilot needs > 3.3 Hz, PX4 > 5 Hz; EKF3 takes ≤ 50 Hz
-    highres_imu_hz: float = 10.0
-    scaled_imu_hz: float = 0.0
-    sys_status_hz: float = 1.0
-    # a calibration change moves the VISION_POSITION_ESTIMATE yaw towards the new heading at this rate, deg/s
-    # (EKF3 rejects an external-yaw step beyond its 3σ gate in flight, anchors/ardupilot-extnav.md)
-    heading_slew_deg_s: float = 2.0
-    # also increment VISION_POSITION_ESTIMATE.reset_counter on a calibration change (PX4 EKF2 then resets
-    # its yaw; ArduPilot reads it as a position reset): docs/daemon.md "reset_counter"
-    reset_counter_on_calibration: bool = False
-
+class _OutputsParse:
     @classmethod
     def parse(cls, d: dict, prefix="outputs") -> "OutputsConfig":
-        checks = {f.name: _number_in(0.0, MAX_OUTPUT_RATE_HZ) for f in dataclasses.fields(cls)}
-        checks["vision_position_estimate_hz"] = _number_in(0.0, MAX_VISION_RATE_HZ)
+        checks = {o.config_key: _number_in(0.0, o.max_rate_hz) for o in OUTPUTS}
         checks["heading_slew_deg_s"] = _number_in(MIN_HEADING_SLEW_DEG_S, MAX_HEADING_SLEW_DEG_S)
         checks["reset_counter_on_calibration"] = _bool
         return cls(**_parse_table(cls, d, prefix, checks))
+
+
+# [outputs]: one rate key per entry of daemon.output_registry.OUTPUTS (Hz, 0 = off; HEARTBEAT is always 1 Hz),
+# then the calibration-change policy:
+# * heading_slew_deg_s: a calibration change moves the VISION_POSITION_ESTIMATE yaw towards the new heading at
+#   this rate (EKF3 rejects an external-yaw step beyond its innovation gate in flight);
+# * reset_counter_on_calibration: also increment VISION_POSITION_ESTIMATE.reset_counter on a calibration change
+#   (PX4 EKF2 then resets its yaw; ArduPilot reads it as a position reset): docs/daemon.md "reset_counter".
+OutputsConfig = dataclasses.make_dataclass(
+    "OutputsConfig",
+    [(o.config_key, float, field(default=o.default_hz)) for o in OUTPUTS]
+    + [("heading_slew_deg_s", float, field(default=2.0)), ("reset_counter_on_calibration", bool, field(default=False))],
+    bases=(_OutputsParse,), frozen=True)
+OutputsConfig.__module__ = __name__
+OutputsConfig.__doc__ = "Message rates in Hz (0 = off), one per output of the registry, and the heading slew."
 
 
 @dataclass(frozen=True)
@@ -314,7 +312,7 @@ class Config:
             raise ConfigError("--sim, --spi and --replay are mutually exclusive")
         if sim is not None:
             cfg = dataclasses.replace(cfg, sensor=dataclasses.replace(
-                cfg.sensor, source="sim", scenario=_choice("--sim", sim, SCENARIO_NAMES)))
+                cfg.sensor, source="sim", scenario=_choice("--sim", sim, SCENARIOS)))
         if spi is not None:
             if not spi.startswith("/dev/"):
                 raise _fail("--spi", spi, "a device path such as /dev/spidev0.0")
@@ -338,13 +336,9 @@ SECTIONS = {
 
 
 def _parse_magcal(value) -> Any:
-    """[magcal] belongs to the field magnetometer calibration (daemon/magcal.py), which validates it."""
+    """[magcal] belongs to the field magnetometer calibration, which validates it."""
     if not isinstance(value, dict):
         raise _fail("magcal", value, "a [magcal] table")
-    try:
-        from ahrsd.daemon.magcal import settings_from_mapping
-    except ImportError as exc:  # pragma: no cover - the module ships with the daemon
-        raise ConfigError(f"[magcal] given but the magnetometer calibration is unavailable: {exc}") from None
     try:
         return settings_from_mapping(value)
     except ValueError as exc:

@@ -3,7 +3,8 @@
 The vehicle must be disarmed and still. The command is long-running: ACK IN_PROGRESS at once, then the final
 ACK (ACCEPTED with the new calibration saved and applied, or FAILED with a STATUSTEXT saying why).
 Calibrated = M·(raw − b); a residual mean rate r measured after the current calibration means the bias is
-b + M⁻¹·r.
+b + M⁻¹·r. The bias itself and its plausibility limit come from the offline bias-only fit
+(calibration.gyro_cal.fit_bias_only), applied to the samples mapped back to raw sensor-frame rates.
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ import math
 import numpy as np
 
 from ahrsd.calibration import GyroModel
+from ahrsd.calibration.gyro_cal import fit_bias_only
+from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
 from ahrsd.daemon.commands import CommandAck
 from ahrsd.daemon.mavlink_io import mavlink
 
@@ -25,8 +28,6 @@ DURATION_S = 2.0
 MAX_GYRO_STD_RAD_S = math.radians(3 * 0.9)
 MAX_ACCEL_NORM_ERR_M_S2 = 0.5
 MAX_ACCEL_STD_M_S2 = 0.3
-MAX_BIAS_RAD_S = math.radians(10.0)   # larger than the 3 °/s turn-on bias NaveGo uses: a rotating vehicle
-G0 = 9.80665
 
 
 class GyroBiasCalibration:
@@ -41,6 +42,7 @@ class GyroBiasCalibration:
         self.g_sq = np.zeros(3)
         self.a_norm_sum = 0.0
         self.a_norm_sq = 0.0
+        self.gyro_rad_s: list[np.ndarray] = []   # calibrated, body frame
         self.done = False
         self._remove = None
 
@@ -56,6 +58,7 @@ class GyroBiasCalibration:
         if self.done:
             return
         g = sample.gyro_rad_s
+        self.gyro_rad_s.append(g)
         self.g_sum += g
         self.g_sq += g * g
         a = math.sqrt(float(sample.accel_m_s2 @ sample.accel_m_s2))
@@ -79,16 +82,19 @@ class GyroBiasCalibration:
         a_std = math.sqrt(max(self.a_norm_sq / n - a_mean * a_mean, 0.0))
         if self.service.autopilot.armed:
             return self._end(mavlink.MAV_RESULT_FAILED, "ahrsd: gyro calibration failed: vehicle armed")
-        if np.any(std > MAX_GYRO_STD_RAD_S) or a_std > MAX_ACCEL_STD_M_S2 or abs(a_mean - G0) > MAX_ACCEL_NORM_ERR_M_S2:
+        if np.any(std > MAX_GYRO_STD_RAD_S) or a_std > MAX_ACCEL_STD_M_S2 or abs(a_mean - STANDARD_GRAVITY_M_S2) > MAX_ACCEL_NORM_ERR_M_S2:
             return self._end(mavlink.MAV_RESULT_FAILED, "ahrsd: gyro calibration failed: vehicle moved")
         cal = self.service.calibration
         model = cal.gyro
-        mounting = self.service.pipeline.mounting     # the samples are in the body frame, the model in the sensor's
-        if mounting is not None:
-            mean = mounting.T @ mean
-        new_bias = model.bias_rad_s + np.linalg.solve(model.matrix, mean)
-        if np.linalg.norm(new_bias) > MAX_BIAS_RAD_S:
+        # back to raw sensor-frame rates: body = mounting · sensor, calibrated = M·(raw − b)
+        body = np.asarray(self.gyro_rad_s)
+        mounting = self.service.pipeline.mounting
+        sensor = body if mounting is None else body @ mounting     # rows: mountingᵀ · g
+        raw = model.bias_rad_s + np.linalg.solve(model.matrix, sensor.T).T
+        fit = fit_bias_only(raw, model.matrix)
+        if not fit.ok:
             return self._end(mavlink.MAV_RESULT_FAILED, "ahrsd: gyro calibration failed: bias implausibly large")
+        new_bias = fit.model.bias_rad_s
         new_cal = cal.with_sensor("gyro", GyroModel(new_bias, model.matrix), method="preflight-rest",
                                   samples=n, residual_rms=float(np.linalg.norm(std)))
         try:

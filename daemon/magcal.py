@@ -448,12 +448,9 @@ class MagCalProtocol:
 
 def _warm_up() -> None:
     """Runs in the fit worker: import what the fits need."""
+    import ahrsd.calibration.backstepping  # noqa: F401
+    import ahrsd.calibration.ellipsoid  # noqa: F401
     import ahrsd.calibration.magfit  # noqa: F401
-    try:
-        import ahrsd.calibration.backstepping  # noqa: F401
-        import ahrsd.calibration.ellipsoid  # noqa: F401
-    except ImportError:
-        pass
 
 
 @dataclass
@@ -502,7 +499,7 @@ class ServiceHost:
     """`MagCalHost` on top of the daemon's public hooks (daemon/service.py: pipeline, commands,
     add_sample_listener, send, set_calibrating, autopilot, state_dir, config)."""
 
-    def __init__(self, service, settings: MagCalSettings):
+    def __init__(self, service):
         self.service = service
         self.protocol: MagCalProtocol | None = None
         self._task: asyncio.Task | None = None
@@ -585,7 +582,7 @@ def attach(service, settings: MagCalSettings | None = None) -> MagCalProtocol:
         raw = getattr(service.config, "magcal", None)
         settings = raw if isinstance(raw, MagCalSettings) else settings_from_mapping(
             dataclasses.asdict(raw) if dataclasses.is_dataclass(raw) else raw)
-    host = ServiceHost(service, settings)
+    host = ServiceHost(service)
     proto = MagCalProtocol(host, settings)
     host.protocol = proto
     proto.register(service.commands)

@@ -1,8 +1,8 @@
 """Builders for the MAVLink messages ahrsd sends: pure functions from estimates/samples to message objects.
 
-Units follow the XML (anchor §1.1): angles rad, rates rad/s, HIGHRES_IMU magnetic field in gauss
+Units follow common.xml: angles rad, rates rad/s, HIGHRES_IMU magnetic field in gauss
 (1 gauss = 100 µT), SCALED_IMU in mG / mrad/s / mgauss int16. Attitudes are published relative to TRUE north
-(both ArduPilot's and PX4's EKFs work in true-north NED; anchor §0.2): the estimator reports a magnetic yaw,
+(both ArduPilot's and PX4's EKFs work in true-north NED): the estimator reports a magnetic yaw,
 the daemon adds the declination.
 """
 
@@ -12,31 +12,23 @@ import math
 
 import numpy as np
 
+from ahrsd.core.angles import STANDARD_GRAVITY_M_S2, wrap_pi
 from ahrsd.daemon.mavlink_io import mavlink
 
-G0 = 9.80665                       # standard gravity, m/s² (mG conversion in SCALED_IMU)
 UT_PER_GAUSS = 100.0               # 1 gauss = 100 µT
-HIGHRES_IMU_FIELDS_ADIS = 0x11FF   # acc, gyro, mag xyz + temperature (anchor §1.1, HIGHRES_IMU_UPDATED_FLAGS)
+HIGHRES_IMU_FIELDS_ADIS = 0x11FF   # acc, gyro, mag xyz + temperature (common.xml HIGHRES_IMU_UPDATED_FLAGS)
 INT16_MAX = 32767
 # VISION_POSITION_ESTIMATE: we have no position; x=y=z=0 with a large variance says "do not use". Both
 # EKFs are configured not to fuse it (ArduPilot EK3_SRC1_POSXY=GPS, PX4 EKF2_EV_CTRL=8), and ArduPilot drops
-# a sample with NaN position (anchor ardupilot-extnav), so the covariance is kept fully finite.
+# a sample with NaN position (AP_NavEKF3 writeExtNavData), so the covariance is kept fully finite.
 VPE_POSITION_VARIANCE_M2 = 1.0e4   # (100 m)², ArduPilot clamps posErr to 100 m
 UPPER_TRIANGLE_DIAG = (0, 6, 11, 15, 18, 20)  # indices of x,y,z,roll,pitch,yaw variances in the 21-vector
 
-# MAV_SYS_STATUS_SENSOR bits (anchor §1.1)
+# MAV_SYS_STATUS_SENSOR bits (common.xml)
 SENSOR_GYRO = mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO
 SENSOR_ACCEL = mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
 SENSOR_MAG = mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG
 SENSOR_AHRS = mavlink.MAV_SYS_STATUS_AHRS
-
-
-def wrap_pi(angle_rad: float) -> float:
-    """Wrap to (−π, π] as ATTITUDE/VISION_POSITION_ESTIMATE expect."""
-    a = math.fmod(angle_rad + math.pi, 2.0 * math.pi)
-    if a <= 0.0:
-        a += 2.0 * math.pi
-    return a - math.pi
 
 
 def true_quaternion(q_wxyz: np.ndarray, declination_rad: float) -> tuple[float, float, float, float]:
@@ -52,7 +44,7 @@ def heartbeat(mav_type: int, system_status: int):
 
 def attitude(est, time_boot_ms: int, yaw_true_rad: float):
     p, q, r = (float(v) for v in est.rate_body_rad_s)
-    return mavlink.MAVLink_attitude_message(time_boot_ms, est.roll_rad, est.pitch_rad, wrap_pi(yaw_true_rad), p, q, r)
+    return mavlink.MAVLink_attitude_message(time_boot_ms, est.roll_rad, est.pitch_rad, float(wrap_pi(yaw_true_rad)), p, q, r)
 
 
 def attitude_quaternion(est, time_boot_ms: int, declination_rad: float):
@@ -71,7 +63,7 @@ def vision_position_estimate(est, usec: int, yaw_true_rad: float, reset_counter:
     if not all(math.isfinite(c) for c in cov[15:]):
         cov[15] = cov[18] = cov[20] = (math.pi / 2) ** 2   # finite "very uncertain" (ArduPilot clamps at 1.5 rad)
     return mavlink.MAVLink_vision_position_estimate_message(
-        usec, 0.0, 0.0, 0.0, est.roll_rad, est.pitch_rad, wrap_pi(yaw_true_rad), cov, reset_counter & 0xFF)
+        usec, 0.0, 0.0, 0.0, est.roll_rad, est.pitch_rad, float(wrap_pi(yaw_true_rad)), cov, reset_counter & 0xFF)
 
 
 def highres_imu(sample, usec: int, imu_id: int = 0):
@@ -90,7 +82,7 @@ def _i16(value: float) -> int:
 
 
 def scaled_imu(sample, time_boot_ms: int):
-    a = sample.accel_m_s2 * (1000.0 / G0)      # mG
+    a = sample.accel_m_s2 * (1000.0 / STANDARD_GRAVITY_M_S2)      # mG
     g = sample.gyro_rad_s * 1000.0             # mrad/s
     m = sample.mag_ut * (1000.0 / UT_PER_GAUSS)  # mgauss
     t = float(sample.temp_c)

@@ -1,4 +1,4 @@
-"""Message rates: one absolute-deadline schedule per output message, settable at run time.
+"""Message rates: one absolute-deadline schedule per output (daemon.output_registry), settable at run time.
 
 Intervals follow MAV_CMD_SET_MESSAGE_INTERVAL semantics (anchor §1.2): interval in µs, −1 disables, 0 restores
 the configured default. Deadlines are absolute (`due += interval`), so rates do not drift with scheduling
@@ -10,26 +10,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.daemon.output_registry import BY_MESSAGE_ID, DEFAULT_MAX_RATE_HZ
 
-MSG_ATTITUDE = mavlink.MAVLINK_MSG_ID_ATTITUDE
-MSG_ATTITUDE_QUATERNION = mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION
-MSG_VISION_POSITION_ESTIMATE = mavlink.MAVLINK_MSG_ID_VISION_POSITION_ESTIMATE
-MSG_HIGHRES_IMU = mavlink.MAVLINK_MSG_ID_HIGHRES_IMU
-MSG_SCALED_IMU = mavlink.MAVLINK_MSG_ID_SCALED_IMU
-MSG_SYS_STATUS = mavlink.MAVLINK_MSG_ID_SYS_STATUS
-
-# config key (OutputsConfig field) → message id, in publishing order
-OUTPUT_KEYS = {
-    "attitude_hz": MSG_ATTITUDE,
-    "attitude_quaternion_hz": MSG_ATTITUDE_QUATERNION,
-    "vision_position_estimate_hz": MSG_VISION_POSITION_ESTIMATE,
-    "highres_imu_hz": MSG_HIGHRES_IMU,
-    "scaled_imu_hz": MSG_SCALED_IMU,
-    "sys_status_hz": MSG_SYS_STATUS,
-}
-MAX_RATE_HZ = {MSG_VISION_POSITION_ESTIMATE: 50.0}   # EKF3 extNavIntervalMin_ms = 20 ms
-DEFAULT_MAX_RATE_HZ = 200.0
 CATCH_UP_LIMIT_S = 0.25   # a late wake sends what fell due (rates stay exact); a longer stall does not burst
 
 
@@ -55,7 +37,8 @@ class OutputSchedule:
         return self._streams[message_id].rate_hz
 
     def max_rate_hz(self, message_id: int) -> float:
-        return MAX_RATE_HZ.get(message_id, DEFAULT_MAX_RATE_HZ)
+        spec = BY_MESSAGE_ID.get(message_id)
+        return DEFAULT_MAX_RATE_HZ if spec is None else spec.max_rate_hz
 
     def set_rate_hz(self, message_id: int, hz: float, *, default: bool = False) -> None:
         s = self._streams[message_id]

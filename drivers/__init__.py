@@ -1,4 +1,5 @@
-"""ahrsd.drivers: SPI buses, the ADIS16405 driver, the byte-level simulated chip, recordings."""
+"""ahrsd.drivers: SPI buses, the ADIS16405 driver, the byte-level simulated chip, recordings, and the sensor
+sources built on them (drivers.source: the SensorSource protocol and the factory)."""
 
 from .adis16405 import Adis16405
 from .errors import BusError, ConfigError, DriverError, FrameError, ProductIdMismatch, SelfTestFailed, ShortRead
@@ -7,7 +8,7 @@ from .recording import RECORDING_HEADER, Recording, RecordingFormatError, Record
 from .spi import SpiBus, SpidevBus
 
 __all__ = [
-    "Adis16405", "SimulatedAdis16405", "FixedStream", "SpiBus", "SpidevBus",
+    "Adis16405", "SimulatedAdis16405", "SpiBus", "SpidevBus", "SensorSource", "open_source",
     "Fault", "FaultKind", "FaultPlan",
     "RECORDING_HEADER", "Recording", "RecordingFormatError", "RecordingWriter", "read_recording", "iter_samples",
     "DriverError", "BusError", "FrameError", "ShortRead", "ProductIdMismatch", "SelfTestFailed", "ConfigError",
@@ -15,10 +16,13 @@ __all__ = [
 
 
 def __getattr__(name):
-    # The simulated chip is imported on first use, so `python -m ahrsd.drivers.simulated` (the benchmark)
-    # does not find it half-imported.
-    if name in ("SimulatedAdis16405", "FixedStream"):
+    # The simulated chip and the sources (which build it) are imported on first use.
+    if name == "SimulatedAdis16405":
         from . import simulated
 
-        return getattr(simulated, name)
+        return simulated.SimulatedAdis16405
+    if name in ("SensorSource", "open_source"):
+        from . import source
+
+        return getattr(source, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

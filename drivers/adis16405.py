@@ -43,7 +43,6 @@ _BURST_BUG_RECOVERED = int(SampleFlags.BURST_BUG_RECOVERED)
 SUPPLY_PLAUSIBLE_V = (3.0, 6.0)      # the chip stops working outside this; 4.75..5.25 V is nominal
 PLAUSIBLE_RANGE_FACTOR = 1.25        # |value| > 1.25 × full scale cannot come from a working sensor
 BURST_BUG_JUMP_DPS = 100.0           # an X-gyro step bigger than this between samples triggers a check read
-CLOCK_DRIFT = 2e-3                   # chip-vs-host clock rate difference followed, in periods per sample
 STUCK_WINDOW_S = 0.5                 # an axis frozen this long while its siblings move is "stuck"
 
 _SUPPLY_MIN_LSB = int(SUPPLY_PLAUSIBLE_V[0] / R.SUPPLY_V_PER_LSB)
@@ -53,7 +52,6 @@ COUNTER_NAMES = (
     "samples",               # samples returned (any flags)
     "new_samples",           # ... of which carried fresh data (ND)
     "stale",                 # ND clear: no new data since the last read (sample repeated, flagged STALE)
-    "lost_samples",          # samples the chip produced that were never read (from the host clock)
     "ea_flags",              # frames with EA set (DIAG_STAT read and decoded)
     "burst_bug_recovered",   # X-gyro bit-13 burst bug fixed from a register read
     "burst_bug_unverified",  # suspected burst bug the register read could not confirm (gyro flagged invalid)
@@ -69,17 +67,16 @@ COUNTER_NAMES = (
 class Adis16405:
     """The ADIS16405 on an `SpiBus`.
 
-    clock: optional host monotonic clock (seconds). With it, samples lost between reads are detected and
-        counted (flag GAP_BEFORE) and t_s starts at the host time of `start()`; without it every fresh
-        sample is one sample period after the previous one and t_s starts at 0.
+    Read alone, every fresh sample is one sample period after the previous one and t_s starts at 0; read
+    through drivers.chip_source.ChipSource (the daemon, `record`, `calibrate --live`), the host-clock
+    SampleTimer stamps and indexes them and counts the samples lost between reads.
     sleep: how to wait for the chip (reset, self-test). Default: the bus's own `sleep` if it has one (the
         simulated chip runs on virtual time), else `time.sleep`.
     """
 
-    def __init__(self, bus: SpiBus, *, clock: Callable[[], float] | None = None,
-                 sleep: Callable[[float], None] | None = None, stuck_window_s: float = STUCK_WINDOW_S):
+    def __init__(self, bus: SpiBus, *, sleep: Callable[[float], None] | None = None,
+                 stuck_window_s: float = STUCK_WINDOW_S):
         self.bus = bus
-        self._clock = clock
         self._sleep = sleep or getattr(bus, "sleep", None) or time.sleep
         self._stuck_window_s = stuck_window_s
         self.counters: dict[str, int] = dict.fromkeys(COUNTER_NAMES, 0)
@@ -109,11 +106,6 @@ class Adis16405:
         return R.decode_sens_avg(self.sens_avg)[0]
 
     @property
-    def start_time_s(self) -> float:
-        """Host-clock time of start() (t_s of sample 0); 0.0 without a host clock."""
-        return self._t0_s
-
-    @property
     def spi_speed_hz(self) -> int:
         """Clock used for register access (burst reads always use 1 MHz)."""
         return self._reg_speed_hz
@@ -134,8 +126,6 @@ class Adis16405:
 
     def _reset_stream_state(self) -> None:
         self._counter = -1                 # index of the last fresh sample
-        self._t0_s = 0.0
-        self._phase = 0.0
         self._last: ImuSample | None = None
         self._prev_gx: int | None = None
         self._prev_raw9 = [None] * 9
@@ -305,8 +295,6 @@ class Adis16405:
                            gyro_range_dps=gyro_range_dps)
         self.read_diag_stat()
         self._reset_stream_state()
-        if self._clock is not None:
-            self._t0_s = self._clock()
         log.info("ADIS16405 started: %.3f SPS, SENS_AVG N=%d, ±%d °/s, SPI %d Hz",
                  self._rate_hz, self.filter_n, self.gyro_range_dps, self._reg_speed_hz)
 
@@ -318,9 +306,12 @@ class Adis16405:
         self.counters["garbage_frames"] += 1
         return FrameError(f"burst frame rejected: {reason}", raw)
 
-    def read_sample(self) -> ImuSample:
+    def read_sample(self, stamp: Callable[[int], tuple[float, int, int]] | None = None) -> ImuSample:
         """One burst read -> ImuSample (SI, sensor frame).
 
+        stamp: `stamp(flags) -> (t_s, counter, extra_flags)`, called once the frame's flags are known, gives
+            the sample its time stamp and index (drivers.chip_source: the host-clock SampleTimer). Without it
+            the driver's own counter is used (see `_advance_counter`).
         Raises FrameError (counted) for frames that cannot be trusted, BusError when the bus fails.
         """
         rx = self._xfer(_BURST_TX, R.SPI_BURST_HZ, 0)
@@ -376,7 +367,9 @@ class Adis16405:
 
         if new_data:
             flags |= _NEW_DATA
-            flags |= self._advance_counter()
+            self.counters["new_samples"] += 1
+            if stamp is None:
+                flags |= self._advance_counter()
             self._prev_gx = gx
             flags |= self._check_stuck(raw9)
         else:
@@ -386,43 +379,28 @@ class Adis16405:
                 self._counter = 0
             flags |= self._stuck_flags()
 
+        if stamp is None:
+            t_s, counter = self._counter * self._period_s, self._counter
+        else:
+            t_s, counter, extra = stamp(flags)
+            flags |= extra
         values = np.array(raw9, dtype=np.float64)
         values *= self._scale9
         sample = ImuSample(
-            self._t0_s + self._counter * self._period_s,
+            t_s,
             values[0:3], values[3:6], values[6:9],
             R.TEMP_C_AT_ZERO + R.TEMP_C_PER_LSB * (((w10 & 0x0FFF) ^ 0x0800) - 0x0800),
             supply * R.SUPPLY_V_PER_LSB,
-            SampleFlags(flags), diag, self._counter,
+            SampleFlags(flags), diag, counter,
         )
         self.counters["samples"] += 1
         self._last = sample
         return sample
 
     def _advance_counter(self) -> int:
-        """Index the fresh sample. Without a host clock: one period after the previous one.
-
-        With a host clock, gaps are found from the host time of the read in sample periods, `host`: the sample
-        read is the newest the chip has, so host - index lies in [phase, phase + 1). `self._phase` tracks the
-        lowest host - index seen (creeping up by CLOCK_DRIFT per sample so a slower chip clock is followed),
-        and index = max(previous + 1, floor(host - phase)): a late read never invents a gap.
-        """
-        self.counters["new_samples"] += 1
-        if self._clock is None:
-            self._counter += 1
-            return 0
-        host = (self._clock() - self._t0_s) * self._rate_hz
-        if self._counter < 0:
-            self._counter = max(0, int(host))
-            self._phase = host - self._counter
-            return 0
-        index = max(self._counter + 1, math.floor(host - self._phase))
-        self._phase = min(self._phase + CLOCK_DRIFT, host - index)
-        steps = index - self._counter
-        self._counter = index
-        if steps > 1:
-            self.counters["lost_samples"] += steps - 1
-            return _GAP_BEFORE
+        """Index the fresh sample without a host clock: one period after the previous one (no gaps can be seen;
+        drivers.chip_source times and indexes samples from the host clock)."""
+        self._counter += 1
         return 0
 
     def _check_burst_bug(self, w1: int, gx: int, flags: int) -> tuple[int, int]:

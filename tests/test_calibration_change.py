@@ -13,6 +13,7 @@ import numpy as np
 from ahrsd.calibration.models import Calibration, MagModel  # noqa: E402
 from ahrsd.daemon.config import Config, OutputsConfig  # noqa: E402
 from ahrsd.daemon.mavlink_io import mavlink  # noqa: E402
+from ahrsd.daemon.output_registry import BY_MESSAGE_ID  # noqa: E402
 from ahrsd.daemon.pipeline import Pipeline  # noqa: E402
 from ahrsd.daemon.service import Service  # noqa: E402
 from ahrsd.core.sample import SampleFlags, make_sample  # noqa: E402
@@ -68,7 +69,7 @@ def run_swap(tmp_path, estimator, swap_at_s=60.0, total_s=130.0, reset_on_cal=Fa
                 flags_after |= int(est.flags)
             if t >= next_vpe:
                 next_vpe = t + 1.0 / VPE_HZ
-                m = svc._build(VPE, est, svc.pipeline.last_sample, t)
+                m = BY_MESSAGE_ID[VPE].build(svc, est, svc.pipeline.last_sample, t)
                 if m is not None:
                     truth = _truth_yaw_deg(b.truth_q_wxyz[i])
                     rows.append((t, float(_wrap_deg(math.degrees(m.yaw) - truth)),

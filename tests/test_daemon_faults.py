@@ -13,7 +13,7 @@ import time
 
 from ahrsd.daemon.config import Config, EndpointConfig, StateConfig
 from ahrsd.daemon.mavlink_io import mavlink
-from ahrsd.daemon.pipeline import DriverSource
+from ahrsd.drivers.chip_source import ChipSource
 from ahrsd.daemon.service import Service
 from ahrsd.drivers.adis16405 import Adis16405
 from ahrsd.drivers.faults import FaultKind, FaultPlan
@@ -33,7 +33,7 @@ def test_corrupt_frames_and_a_vanished_device(tmp_path):
     driver.start()
     plan.add(FaultKind.GARBAGE, start_sample=bus.sample_index, probability=0.02)
     bus_error = plan.add(FaultKind.BUS_ERROR, enabled=False)    # switched on once the daemon is ACTIVE
-    service = Service(cfg, source=DriverSource(driver, bus, "faulty chip"))
+    service = Service(cfg, source=ChipSource(driver, bus, "faulty chip"))
     parser = mavlink.MAVLink(None)
     parser.robust_parsing = True
     events: list[tuple[float, str, object]] = []

@@ -11,7 +11,8 @@ from ahrsd.drivers.adis16405 import Adis16405
 from ahrsd.drivers.errors import BusError, DriverError, FrameError, ShortRead
 from ahrsd.drivers.faults import FaultKind, FaultPlan
 from ahrsd.core.sample import SampleFlags
-from ahrsd.drivers.simulated import FixedStream, SimulatedAdis16405
+from ahrsd.drivers.simulated import SimulatedAdis16405
+from sim_streams import FixedStream
 
 G0 = R.STANDARD_GRAVITY_M_S2
 BAD = (SampleFlags.GYRO_INVALID | SampleFlags.ACCEL_INVALID | SampleFlags.MAG_INVALID | SampleFlags.STALE)

@@ -9,7 +9,8 @@ import pytest
 
 from ahrsd.drivers import registers as R
 from ahrsd.drivers.errors import BusError
-from ahrsd.drivers.simulated import FixedStream, SimulatedAdis16405
+from ahrsd.drivers.simulated import SimulatedAdis16405
+from sim_streams import FixedStream
 from ahrsd.drivers.spi import SpidevBus
 
 

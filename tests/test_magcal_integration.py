@@ -42,7 +42,7 @@ LAUNCH = r"""
 import asyncio, json, logging, sys, time
 logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
 from ahrsd.daemon.config import Config, OutputsConfig, SigningConfig
-from ahrsd.daemon.pipeline import ReplaySource
+from ahrsd.drivers.replay_source import ReplaySource
 from ahrsd.daemon.service import Service
 from ahrsd.daemon.magcal import attach, settings_from_mapping
 from ahrsd.core.sample import make_sample, SampleFlags

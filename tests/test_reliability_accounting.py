@@ -1,7 +1,7 @@
-"""Sample accounting against the simulated chip's ground truth (issue #8: "zero unexplained lost samples").
+"""Sample accounting against the simulated chip's ground truth (zero unexplained lost samples).
 
 The daemon has no sample counter to read (the ADIS16405 has none): the per-sample reader indexes each fresh
-read from the host clock (pipeline.SampleTimer). Here the reader loop of Service._reader_step runs on a fake
+read from the host clock (drivers.sample_timer.SampleTimer). Here the reader, Service._reader_step, runs on a fake
 clock against the byte-level chip, with the two things a loaded machine adds: wakes that come late, and time
 passing between the wake and the SPI transfer (the process preempted before the ioctl). The chip's own index
 at each burst is the ground truth (the daemon never sees it).
@@ -22,25 +22,18 @@ from collections import Counter
 import pytest
 
 from ahrsd.cli.fault_schedule import build_plan, parse_schedule
-from ahrsd.daemon.pipeline import ADIS16405_RATE_HZ, SampleTimer
-from ahrsd.daemon.sensor_recovery import ReconnectingSource
 from ahrsd.drivers import registers as R
-from ahrsd.drivers.errors import BusError, FrameError
-from ahrsd.drivers.simulated import FixedStream, SimulatedAdis16405
+from ahrsd.drivers.chip_source import ADIS16405_RATE_HZ
+from ahrsd.drivers.ground_truth import GroundTruthSource
+from ahrsd.drivers.reconnecting import ReconnectingSource
+from ahrsd.drivers.sample_timer import SampleTimer
+from ahrsd.drivers.simulated import SimulatedAdis16405
+from ahrsd.drivers.source import open_chip_driver
+from reader_rig import FakeClock, ReaderRig
+from sim_streams import FixedStream
 
 CI_FAULTS = ("alarm@3-3.5:bits=SUPPLY_LOW;garbage@4-6:p=0.02;bus_error@7-8;stall@11-11.5;"
              "stuck_axis@13-15:axis=mag_x;short_read@16-17:p=0.01;burst_bug@18-20")   # bench/soak.py CI_FAULTS
-
-
-class FakeClock:
-    def __init__(self):
-        self.t = 1000.0
-
-    def __call__(self):
-        return self.t
-
-    def sleep(self, s):
-        self.t += max(0.0, s)
 
 
 class PreemptedBus:
@@ -73,59 +66,51 @@ def late_wakes(rng):
 
 def run_reader(seconds, seed, faults="", late=late_wakes, delay=lambda rng: rng.uniform(0.0, 200e-6),
                stream=None):
-    """Service._reader_step on a fake clock; returns per-class offset changes and the totals."""
+    """The daemon's reader (Service._reader_step) on a fake clock against the chip; returns per-class offset
+    changes and the totals."""
     rng = random.Random(seed)
-    clock = FakeClock()
+    clock = FakeClock(1000.0)
     plan = build_plan(parse_schedule(faults), ADIS16405_RATE_HZ, seed=seed) if faults else None
     chip = SimulatedAdis16405(stream or FixedStream(noise_std=(1e-3, 1e-2, 0.1), seed=seed), clock=clock,
                               faults=plan)
     bus = PreemptedBus(chip, clock, rng, delay)
-    src = ReconnectingSource(lambda: bus, "test chip", clock=clock, reopen_same_bus=True)
-    src.chip = chip
+    src = GroundTruthSource(ReconnectingSource(lambda: bus, open_chip_driver, "test chip", clock=clock,
+                                               reopen_same_bus=True), chip, bus)
     src.start()
-    period = 1.0 / ADIS16405_RATE_HZ
-    t_end, nxt = clock.t + seconds, clock.t
-    first = prev = None
-    min_offset, offset = 0, 0
-    samples = lost = 0
-    since: list[str] = []
+    seen = {"first": None, "prev": None, "min_offset": 0, "offset": 0, "samples": 0, "lost": 0,
+            "errors": 0, "stale": 0}
     changes = Counter()
-    while clock.t < t_end:
-        clock.t = max(clock.t, nxt) + late(rng)
-        now = clock.t
-        try:
-            s = src.read_one(now)
-        except FrameError:
-            since.append("frame")
-            nxt = now + period
-            continue
-        except BusError:
-            since.append("bus")
-            nxt = now + 0.2
-            continue
-        clock.t += 30e-6                                   # processing
-        if s is None:
-            since.append("stale")
+
+    def on_sample(s):
+        true = bus.burst_index                             # the chip's index at the burst just read
+        since = set(rig.errors[seen["errors"]:])
+        stale = src.counters()["stale_reads"]
+        if stale > seen["stale"]:
+            since.add("stale")
+        seen["errors"], seen["stale"] = len(rig.errors), stale
+        if seen["first"] is None:
+            seen["first"] = (true, s.counter)
         else:
-            true = bus.burst_index
-            if first is None:
-                first = (true, s.counter)
-            else:
-                samples, lost = samples + 1, lost + s.counter - prev - 1
-                new_offset = (s.counter - first[1]) - (true - first[0])
-                if new_offset != offset:
-                    changes["+".join(sorted(set(since))) or "consecutive"] += new_offset - offset
-                offset = new_offset
-                min_offset = min(min_offset, offset)
-            prev = s.counter
-            since = []
-        nxt = src.next_read_time()
-        if nxt <= clock.t:
-            nxt = clock.t + (0.25 * period if s is None else 0.0)
-    timer = src._inner.timer
-    return dict(min_offset=min_offset, offset=offset, changes=changes, samples=samples + 1, lost=lost,
-                chip_total=bus.burst_index - first[0] + 1, ambiguous=getattr(timer, "ambiguous_samples", 0),
-                stats=src.stats, chip=chip)
+            seen["samples"] += 1
+            seen["lost"] += s.counter - seen["prev"] - 1
+            first = seen["first"]
+            new_offset = (s.counter - first[1]) - (true - first[0])
+            if new_offset != seen["offset"]:
+                changes["+".join(sorted(since)) or "consecutive"] += new_offset - seen["offset"]
+            seen["offset"] = new_offset
+            seen["min_offset"] = min(seen["min_offset"], new_offset)
+        seen["prev"] = s.counter
+        clock.t += 30e-6                                   # processing
+
+    rig = ReaderRig(src, clock, on_sample)
+    try:
+        rig.run_for(seconds, lateness=lambda: late(rng))
+    finally:
+        rig.close()
+    return dict(min_offset=seen["min_offset"], offset=seen["offset"], changes=changes,
+                samples=seen["samples"] + 1, lost=seen["lost"], chip_total=src.last_chip_index - seen["first"][0] + 1,
+                ambiguous=src.timer.ambiguous_samples, stats=src.stats, chip=chip,
+                pipeline_lost=rig.pipeline.counters.lost_samples)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

@@ -16,31 +16,24 @@ import pytest
 from ahrsd.cli.fault_schedule import FaultScheduleError, build_plan, parse_schedule
 from ahrsd.daemon.health import Health
 from ahrsd.daemon.messages import SENSOR_AHRS, SENSOR_GYRO, SENSOR_MAG
-from ahrsd.daemon.pipeline import ADIS16405_RATE_HZ, DriverSource, Pipeline, SampleTimer
-from ahrsd.daemon.sensor_recovery import BACKOFF_MAX_S, ReconnectingSource, SensorUnavailable, StallAwareSampleTimer
+from ahrsd.daemon.pipeline import Pipeline
 from ahrsd.drivers import registers as R
 from ahrsd.drivers.adis16405 import Adis16405
 from ahrsd.drivers.errors import DriverError, FrameError
 from ahrsd.drivers.faults import FaultKind, FaultPlan
 from ahrsd.core.sample import SampleFlags
-from ahrsd.drivers.simulated import FixedStream, SimulatedAdis16405
+from ahrsd.drivers.chip_source import ADIS16405_RATE_HZ
+from ahrsd.drivers.ground_truth import BurstIndexTap, GroundTruthSource
+from ahrsd.drivers.reconnecting import BACKOFF_MAX_S, ReconnectingSource, SensorUnavailable
+from ahrsd.drivers.sample_timer import SampleTimer, StallAwareSampleTimer
+from ahrsd.drivers.simulated import SimulatedAdis16405
+from ahrsd.drivers.source import open_chip_driver
 from ahrsd.core.estimate import EstimateFlags
+from reader_rig import FakeClock, ReaderRig
+from sim_streams import FixedStream
 
 G0 = R.STANDARD_GRAVITY_M_S2
 P = 1.0 / ADIS16405_RATE_HZ
-
-
-class FakeClock:
-    """A monotonic clock the chip and the source share; sleep() advances it (no real waiting)."""
-
-    def __init__(self, t0: float = 100.0):
-        self.t = t0
-
-    def __call__(self) -> float:
-        return self.t
-
-    def sleep(self, s: float) -> None:
-        self.t += max(0.0, s)
 
 
 def noisy_stream(seed=3):
@@ -48,38 +41,25 @@ def noisy_stream(seed=3):
                        noise_std=(math.radians(0.5), 0.03, 0.3), seed=seed)
 
 
-def sim_source(plan: FaultPlan, clock: FakeClock) -> ReconnectingSource:
+def sim_source(plan: FaultPlan, clock: FakeClock) -> GroundTruthSource:
     chip = SimulatedAdis16405(noisy_stream(), clock=clock, faults=plan)
-    src = ReconnectingSource(lambda: chip, "test chip", clock=clock, reopen_same_bus=True)
-    src.chip = chip
+    tap = BurstIndexTap(chip)
+    src = GroundTruthSource(ReconnectingSource(lambda: tap, open_chip_driver, "test chip", clock=clock,
+                                               reopen_same_bus=True), chip, tap)
     src.start()
     return src
 
 
 def run_reader(src, clock, seconds: float, lateness=None):
-    """The daemon's per-sample reader without the event loop: read at the source's next read time (+ an
-    optional lateness in s), 0.2 s later after a bus failure. Returns (samples, error names)."""
-    samples, errors = [], []
-    end = clock() + seconds
-    while clock() < end:
-        now = clock()
-        try:
-            s = src.read_one(now)
-        except FrameError:
-            errors.append("frame")
-            clock.sleep(P)
-            continue
-        except DriverError as exc:
-            errors.append(type(exc).__name__)
-            clock.sleep(0.2)
-            continue
-        if s is not None:
-            samples.append(s)
-        target = src.next_read_time()
-        if target <= clock():
-            target = clock() + (0.25 * P if s is None else 0.0)
-        clock.t = target + (lateness(len(samples)) if lateness else 0.0)
-    return samples, errors
+    """The daemon's per-sample reader (Service._reader_step) on the fake clock: each wake at the deadline it
+    armed, plus an optional lateness(samples so far) in s. Returns (samples processed, error names)."""
+    samples = []
+    rig = ReaderRig(src, clock, samples.append)
+    try:
+        rig.run_for(seconds, None if lateness is None else lambda: lateness(len(samples)))
+    finally:
+        rig.close()
+    return samples, rig.errors
 
 
 def never_silent(src, samples) -> bool:
@@ -214,7 +194,7 @@ def test_data_ready_stall_is_counted_as_lost_samples_and_keeps_the_time_grid():
 
 
 def test_the_plain_sample_timer_hides_a_stall():
-    """Why StallAwareSampleTimer exists: pipeline.SampleTimer drags its phase through a stall, so the samples
+    """Why StallAwareSampleTimer exists: drivers.sample_timer.SampleTimer drags its phase through a stall, so the samples
     the chip never delivered are not counted (reported upstream; the daemon's chip source uses the fix)."""
     for timer_cls, hides in ((SampleTimer, True), (StallAwareSampleTimer, False)):
         timer = timer_cls(P)
@@ -268,8 +248,7 @@ def _pipeline_run(plan_text: str, seconds: float):
     clock = FakeClock()
     chip = SimulatedAdis16405("static", seed=4, clock=clock,
                               faults=build_plan(parse_schedule(plan_text), ADIS16405_RATE_HZ))
-    src = ReconnectingSource(lambda: chip, "chip", clock=clock, reopen_same_bus=True)
-    src.chip = chip
+    src = ReconnectingSource(lambda: chip, open_chip_driver, "chip", clock=clock, reopen_same_bus=True)
     src.start()
     pipe = Pipeline(make_estimator("mekf"), Calibration.identity())
     health = Health(stale_timeout_s=0.1)

@@ -93,7 +93,7 @@ def test_unsigned_and_wrongly_signed_writes_are_refused_and_counted(signed_rig):
         assert acks and acks[-1].result == mavlink.MAV_RESULT_DENIED
     assert s.commands.counters.unsigned_refused == 2
     assert s.schedule.rate_hz(mavlink.MAVLINK_MSG_ID_ATTITUDE) == before          # the interval did not change
-    status = s._sys_status(time.monotonic())
+    status = s.sys_status_message(time.monotonic())
     assert status.errors_count1 == 4                                              # refused writes and commands
     # read-only requests stay accepted unsigned
     feed(r, bytes(sender(None).param_request_read_encode(OUR_SYS, OUR_COMP, b"", 0).pack(sender(None))))

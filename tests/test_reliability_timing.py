@@ -10,8 +10,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ahrsd.daemon.pipeline import ADIS16405_RATE_HZ
-from ahrsd.daemon.sensor_recovery import StallAwareSampleTimer
+from ahrsd.drivers.chip_source import ADIS16405_RATE_HZ
+from ahrsd.drivers.sample_timer import StallAwareSampleTimer
 from ahrsd.core.sample import make_sample
 from ahrsd.estimator import make_estimator
 from ahrsd.core.estimate import EstimateFlags

@@ -1,0 +1,94 @@
+"""The MAVLink outputs ahrsd publishes: one entry per message, and everything about an output derives from it.
+
+From `OUTPUTS` come the `[outputs]` config keys and their limits (daemon.config.OutputsConfig), the `SR_`
+rate parameters (daemon.param_protocol), the streams of the scheduler (daemon.outputs.OutputSchedule, in
+this order), and what SET_MESSAGE_INTERVAL / GET_MESSAGE_INTERVAL / REQUEST_MESSAGE accept
+(daemon.builtin_commands). Adding an output is one `OutputSpec` here and one builder (a pure function in
+daemon/messages.py plus the few lines below that feed it the service state).
+
+Later entries fit the same shape: a GNSS output (LOCAL_POSITION_NED, GLOBAL_POSITION_INT, default 0 Hz = off)
+is an entry whose builder reads the navigation state; per-endpoint rate overrides become a per-endpoint
+OutputSchedule built from the same entries; `priority` orders outputs when a link budget must drop some.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+from ahrsd.daemon import messages as msgs
+from ahrsd.daemon.mavlink_io import mavlink
+
+DEFAULT_MAX_RATE_HZ = 200.0
+VISION_MAX_RATE_HZ = 50.0       # ArduPilot EKF3 extNavIntervalMin_ms = 20 ms (AP_NavEKF3_Measurements.cpp)
+
+
+@dataclass(frozen=True)
+class OutputSpec:
+    """One published message.
+
+    build(service, estimate, sample, now) -> message or None (None: nothing trustworthy to send now).
+    needs_estimate: only built once the estimator has produced an estimate and samples are fresh.
+    priority: 0 = most important; for link-budget decisions (not used by the scheduler yet).
+    """
+
+    message_id: int
+    config_key: str          # [outputs] key, Hz
+    param_name: str          # SR_ parameter, ≤ 16 characters
+    default_hz: float
+    max_rate_hz: float
+    build: Callable
+    needs_estimate: bool = True
+    priority: int = 1
+
+
+def _attitude(svc, est, sample, now):
+    return msgs.attitude(est, svc.time_boot_ms(now), est.heading_true_rad)
+
+
+def _attitude_quaternion(svc, est, sample, now):
+    return msgs.attitude_quaternion(est, svc.time_boot_ms(now), svc.declination_rad)
+
+
+def _vision_position_estimate(svc, est, sample, now):
+    if not svc.health.heading_trusted(now):
+        return None   # never feed the autopilot a heading it must not trust
+    from ahrsd.core.angles import yaw_rate_ned_rad_s
+
+    usec = int(svc.sample_time_monotonic(est.t_s) * 1e6)
+    yaw = svc.heading_slew.update(est.t_s, est.heading_true_rad,
+                                  yaw_rate_ned_rad_s(est.rate_body_rad_s, est.roll_rad, est.pitch_rad))
+    return msgs.vision_position_estimate(est, usec, yaw, svc.reset_counter)
+
+
+def _highres_imu(svc, est, sample, now):
+    return None if sample is None else msgs.highres_imu(sample, int(svc.sample_time_monotonic(sample.t_s) * 1e6))
+
+
+def _scaled_imu(svc, est, sample, now):
+    return None if sample is None else msgs.scaled_imu(sample, svc.time_boot_ms(now))
+
+
+def _sys_status(svc, est, sample, now):
+    return svc.sys_status_message(now)
+
+
+OUTPUTS: tuple[OutputSpec, ...] = (
+    OutputSpec(mavlink.MAVLINK_MSG_ID_ATTITUDE, "attitude_hz", "SR_ATTITUDE", 50.0, DEFAULT_MAX_RATE_HZ,
+               _attitude, priority=0),
+    OutputSpec(mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION, "attitude_quaternion_hz", "SR_ATT_QUAT", 10.0,
+               DEFAULT_MAX_RATE_HZ, _attitude_quaternion),
+    # ArduPilot needs > 3.3 Hz, PX4 > 5 Hz
+    OutputSpec(mavlink.MAVLINK_MSG_ID_VISION_POSITION_ESTIMATE, "vision_position_estimate_hz", "SR_VISION_POS",
+               30.0, VISION_MAX_RATE_HZ, _vision_position_estimate, priority=0),
+    OutputSpec(mavlink.MAVLINK_MSG_ID_HIGHRES_IMU, "highres_imu_hz", "SR_HIGHRES_IMU", 10.0, DEFAULT_MAX_RATE_HZ,
+               _highres_imu, priority=2),
+    OutputSpec(mavlink.MAVLINK_MSG_ID_SCALED_IMU, "scaled_imu_hz", "SR_SCALED_IMU", 0.0, DEFAULT_MAX_RATE_HZ,
+               _scaled_imu, priority=2),
+    OutputSpec(mavlink.MAVLINK_MSG_ID_SYS_STATUS, "sys_status_hz", "SR_SYS_STATUS", 1.0, DEFAULT_MAX_RATE_HZ,
+               _sys_status, needs_estimate=False, priority=0),
+)
+
+BY_MESSAGE_ID: dict[int, OutputSpec] = {o.message_id: o for o in OUTPUTS}
+BY_CONFIG_KEY: dict[str, OutputSpec] = {o.config_key: o for o in OUTPUTS}
+BY_PARAM_NAME: dict[str, OutputSpec] = {o.param_name: o for o in OUTPUTS}

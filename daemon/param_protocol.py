@@ -1,0 +1,97 @@
+"""The MAVLink parameter protocol: the stable parameter set (one SR_ rate per output of the registry, the
+mounting, the declination), PARAM_REQUEST_LIST/READ and PARAM_SET (signed when signing is required; always
+answered with the value in force), and what a change does."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+
+from ahrsd.daemon import messages as msgs
+from ahrsd.daemon.mavlink_io import Endpoint, mavlink
+from ahrsd.daemon.output_registry import BY_PARAM_NAME, OUTPUTS
+from ahrsd.daemon.params import ParamError, ParamSpec, decode_param_id
+
+log = logging.getLogger(__name__)
+
+PARAM_STREAM_PAUSE_S = 0.002                     # pause between PARAM_VALUEs of a list
+MOUNTING_PARAMS = ("MNT_ROLL_DEG", "MNT_PITCH_DEG", "MNT_YAW_DEG")
+
+
+def param_specs(cfg) -> list[ParamSpec]:
+    """The stable parameter set (names, order and ranges never change while running)."""
+    out = []
+    for o in OUTPUTS:
+        out.append(ParamSpec(o.param_name, getattr(cfg.outputs, o.config_key), 0.0, o.max_rate_hz,
+                             f"{o.config_key[:-3]} rate, Hz (0 = off)"))
+    r, p, y = cfg.sensor.mounting_rpy_deg
+    out += [
+        ParamSpec("MNT_ROLL_DEG", r, -180.0, 180.0, "sensor mounting roll in the body frame, deg"),
+        ParamSpec("MNT_PITCH_DEG", p, -90.0, 90.0, "sensor mounting pitch in the body frame, deg"),
+        ParamSpec("MNT_YAW_DEG", y, -180.0, 180.0, "sensor mounting yaw in the body frame, deg"),
+        ParamSpec("DECL_MANUAL", 1.0 if cfg.location.declination_deg is not None else 0.0, 0.0, 1.0,
+                  "1 = use DECL_DEG, 0 = WMM at the configured or autopilot position", integer=True),
+        ParamSpec("DECL_DEG", cfg.location.declination_deg or 0.0, -180.0, 180.0,
+                  "magnetic declination, deg east (used when DECL_MANUAL = 1)"),
+    ]
+    return out
+
+
+
+class ParamProtocol:
+    """Service part: PARAM_* messages and parameter changes."""
+
+    def _on_param_change(self, name: str, value: float) -> None:
+        if name.startswith("SR_"):
+            try:
+                self.schedule.set_rate_hz(BY_PARAM_NAME[name].message_id, value, default=True)
+            except ValueError as exc:
+                raise ParamError(f"{name}: {exc}") from None
+        elif name.startswith("MNT_"):
+            if self.pipeline is not None:
+                rpy = [self.params.get(n) for n in MOUNTING_PARAMS]
+                rpy[MOUNTING_PARAMS.index(name)] = value
+                self.pipeline.set_mounting(rpy)
+                self.signal_heading_reset()
+        elif name in ("DECL_MANUAL", "DECL_DEG"):
+            self.loop.call_soon(self._resolve_declination)
+
+    def _param_value(self, index: int):
+        name, value = self.params.item(index)
+        return msgs.param_value(name, value, index, len(self.params))
+
+    async def _stream_params(self, endpoint: Endpoint) -> None:
+        for i in range(len(self.params)):
+            endpoint.send(self._param_value(i))
+            await asyncio.sleep(PARAM_STREAM_PAUSE_S)
+
+    def _on_param_message(self, endpoint: Endpoint, msg, mtype: str, broadcast: bool) -> None:
+        if mtype == "PARAM_REQUEST_LIST":
+            self.loop.create_task(self._stream_params(endpoint))
+            return
+        name = decode_param_id(msg.param_id)
+        if mtype == "PARAM_REQUEST_READ":
+            index = msg.param_index if msg.param_index >= 0 else self.params.index_of(name)
+            if index is None or index >= len(self.params):
+                if not broadcast:
+                    self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unknown parameter {name}"[:50])
+                return
+            endpoint.send(self._param_value(index))
+            return
+        # PARAM_SET
+        index = self.params.index_of(name)
+        if index is None:
+            if not broadcast:
+                self.params.rejected_writes += 1
+                self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unknown parameter {name}"[:50])
+            return
+        if self.signing_required and not msg.get_signed():
+            self.counters.unsigned_refused += 1
+            self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unsigned write of {name} refused"[:50])
+        else:
+            ok, reason = self.params.set(name, msg.param_value)
+            if not ok:
+                self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: {reason}"[:50])
+                log.warning("PARAM_SET refused: %s", reason)
+        self.send(self._param_value(index))   # always answered, with the value in force
+

@@ -1,0 +1,48 @@
+"""The publishers: each output of daemon.output_registry that falls due is built from the latest estimate and
+sample and sent to every endpoint; SYS_STATUS and HEARTBEAT from the health and the counters."""
+
+from __future__ import annotations
+
+from ahrsd.daemon import messages as msgs
+from ahrsd.daemon.output_registry import BY_MESSAGE_ID
+
+
+class Publishers:
+    """Service part: `_publish` (every reader wake), `build_output` (REQUEST_MESSAGE), SYS_STATUS, HEARTBEAT."""
+
+    def _publish(self, now: float) -> None:
+        due = self.schedule.due(now)
+        if not due:
+            return
+        est = self.pipeline.last_estimate
+        sample = self.pipeline.last_sample
+        fresh = self.health.samples_flowing(now) and not self.health.sensor_error
+        for mid in due:
+            spec = BY_MESSAGE_ID[mid]
+            if spec.needs_estimate and not (fresh and est is not None):
+                continue
+            m = spec.build(self, est, sample, now)
+            if m is not None:
+                self.send(m)
+                self.counters.published += 1
+
+    def build_output(self, mid: int, now: float):
+        """The output message `mid` from the current state (REQUEST_MESSAGE), or None if it cannot be sent."""
+        spec = BY_MESSAGE_ID[mid]
+        est = self.pipeline.last_estimate
+        if spec.needs_estimate and est is None:
+            return None
+        return spec.build(self, est, self.pipeline.last_sample, now)
+
+    def sys_status_message(self, now: float):
+        present, enabled, healthy = self.health.sensor_bits(now)
+        links = self.endpoints
+        errors_comm = sum(e.counters.rx_malformed + e.counters.rx_bad_signature for e in links)
+        pc = self.pipeline.counters
+        unsigned = self.commands.counters.unsigned_refused + self.counters.unsigned_refused
+        sensor_errors = self.counters.driver_errors + self.counters.frame_errors
+        return msgs.sys_status(present, enabled, healthy, self.load_permille, errors_comm,
+                               (unsigned, pc.lost_samples, self.counters.overruns, sensor_errors))
+
+    def _send_heartbeat(self, now: float) -> None:
+        self.send(msgs.heartbeat(self.mav_type, self.health.system_status(now)))

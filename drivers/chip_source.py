@@ -1,0 +1,105 @@
+"""The ADIS16405 as a sensor source: one burst read per chip sample, timed by the SampleTimer.
+
+Works on any SpiBus: the real chip (`SpidevBus`) or the byte-level simulated chip (`SimulatedAdis16405`).
+The chip has no sample counter, so the time stamp, the sample index and the samples lost before a read come
+from the host clock (drivers.sample_timer); the driver builds the sample with them (one ImuSample per read).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+
+from ahrsd.core.sample import ImuSample, SampleFlags
+from ahrsd.drivers.errors import FrameError
+from ahrsd.drivers.sample_timer import SampleTimer
+
+log = logging.getLogger(__name__)
+
+ADIS16405_RATE_HZ = 819.2          # ADIS16405 datasheet: default SMPL_PRD = 0x01 → 819.2 SPS
+# IntFlag operators are slow (enum machinery); the per-sample path tests bits on plain ints
+_int_and = int.__and__
+_STALE, _GAP_BEFORE = int(SampleFlags.STALE), int(SampleFlags.GAP_BEFORE)
+# flags of a burst after which the driver read more registers (XGYRO_OUT for the burst bug, DIAG_STAT for an
+# alarm): reading an output register clears ND, so a sample that became ready meanwhile was consumed unseen
+_MORE_READS = int(SampleFlags.BURST_BUG_RECOVERED | SampleFlags.GYRO_INVALID | SampleFlags.ALARM)
+
+
+class ChipSource:
+    """The ADIS16405 driver read once per sample (`read_one`) at the time the timer asks for (`next_read_time`).
+
+    clock: the host clock of the reads (CLOCK_MONOTONIC, the same clock as the reader's `now`). The read is
+        bracketed by the time just before and just after the transfer: the chip latched the sample somewhere in
+        between, and a late transfer (preempted after the wake) must not be indexed by the wake time. None:
+        only the `now` given to `read_one` is used.
+    """
+
+    per_sample = True          # read once per chip sample on the phase lock (see SampleTimer)
+    monotonic_offset_s = 0.0   # the SampleTimer stamps samples in CLOCK_MONOTONIC already
+
+    def __init__(self, driver, bus, description: str, clock=None, timer: SampleTimer | None = None):
+        self.driver = driver
+        self.bus = bus
+        self.description = description
+        self.clock = clock
+        self.sample_rate_hz = float(getattr(driver, "sample_rate_hz", ADIS16405_RATE_HZ) or ADIS16405_RATE_HZ)
+        self.timer = timer if timer is not None else SampleTimer(1.0 / self.sample_rate_hz)
+        self.stale_reads = 0
+        self.lost_samples = 0
+        self._read_start = 0.0
+
+    def read_one(self, now: float) -> ImuSample | None:
+        """One burst read at host time `now`: the new sample (t_s on the sample grid in CLOCK_MONOTONIC
+        seconds, counter = sample index, GAP_BEFORE after lost samples), or None when the chip has no new
+        sample yet (ND clear). Raises FrameError (one corrupt frame) or BusError."""
+        clock = self.clock
+        if clock is not None:
+            now = max(now, clock())
+        self._read_start = now
+        try:
+            s = self.driver.read_sample(self._stamp)
+        except FrameError:
+            # the rejected frame may have carried (and cleared) a new sample
+            self.timer.may_have_consumed(now if clock is None else clock())
+            raise
+        return None if _int_and(s.flags, _STALE) else s
+
+    def _stamp(self, flags: int) -> tuple[float, int, int]:
+        """Called by the driver once the frame's flags are known: (t_s, index, extra flags) of the sample."""
+        timer, clock, now = self.timer, self.clock, self._read_start
+        end = now if clock is None else clock()
+        if _int_and(flags, _STALE):
+            self.stale_reads += 1
+            if _int_and(flags, _MORE_READS):
+                timer.may_have_consumed(end)
+            timer.stale(now)          # not ready at `now` or later: `now` is the safe bound
+            return math.nan, timer.k, 0
+        t_s, k, lost = timer.fresh(now, end)
+        if _int_and(flags, _MORE_READS):
+            timer.may_have_consumed(end)
+        if lost:
+            self.lost_samples += lost
+            return t_s, k, _GAP_BEFORE
+        return t_s, k, 0
+
+    def next_read_time(self) -> float:
+        return self.timer.next_read_time()
+
+    def poll(self, now: float | None = None) -> list[ImuSample]:
+        s = self.read_one(time.monotonic() if now is None else now)
+        return [] if s is None else [s]
+
+    def counters(self) -> dict:
+        c = dict(getattr(self.driver, "counters", {}) or {})
+        c["stale_reads"] = self.stale_reads
+        c["lost_samples_host"] = self.lost_samples
+        c["index_ambiguous_reads"] = self.timer.ambiguous_reads
+        c["index_ambiguous_samples"] = self.timer.ambiguous_samples
+        return c
+
+    def close(self) -> None:
+        try:
+            self.bus.close()
+        except Exception:  # noqa: BLE001 - closing must not mask the shutdown reason
+            log.debug("closing the SPI bus failed", exc_info=True)

@@ -1,0 +1,141 @@
+"""Ground truth of a simulated chip next to the sensor source that reads it: which chip samples were read, and
+why the others were lost (in a fault window, right after a reconnect, or for no injected reason). The soak
+(bench/soak.py) and the reliability tests judge the daemon's own loss accounting against it. Only ever
+wrapped around a source reading `SimulatedAdis16405`; the real sensor's path has none of it.
+"""
+
+from __future__ import annotations
+
+import logging
+
+from ahrsd.drivers.registers import GLOB_CMD
+
+log = logging.getLogger(__name__)
+
+# faults during which the sample flow stops or frames are rejected: samples lost there are explained
+FLOW_STOPPING_FAULTS = ("bus_error", "stall", "garbage", "short_read", "self_test_fail")
+
+
+class BurstIndexTap:
+    """The simulated chip as the SPI bus, noting the chip's sample index at each burst: the ground truth of
+    the sample a burst returned (`chip.sample_index` after the read can be one further when the driver went
+    on with a register read — burst-bug check, DIAG_STAT — during which the chip produced the next sample)."""
+
+    def __init__(self, chip):
+        self.chip = chip
+        self.burst_index = -1
+
+    def transfer(self, tx: bytes, speed_hz: int, delay_us: int = 0) -> bytes:
+        rx = self.chip.transfer(tx, speed_hz, delay_us)
+        if tx[0] == GLOB_CMD and tx[1] == 0:          # 0x3E00 starts a burst read
+            self.burst_index = self.chip.sample_index
+        return rx
+
+    def __getattr__(self, name):
+        return getattr(self.chip, name)
+
+
+class GroundTruthSource:
+    """A per-sample source over `BurstIndexTap(chip)` plus the chip's truth (`truth_stats`, in `counters()`
+    as sensor_*; chip_first/last_index_read). Fault windows of the chip's FaultPlan are rebased to count chip
+    samples from the start (start-up faults) and from the first read (run-time faults): the chip ran while
+    the daemon was loading."""
+
+    per_sample = True
+    monotonic_offset_s = 0.0
+
+    def __init__(self, inner, chip, tap: BurstIndexTap):
+        self.inner = inner
+        self.chip = chip
+        self.tap = tap
+        self.truth_stats = {"lost_in_fault_windows": 0, "lost_after_reconnect": 0, "lost_outside_faults": 0,
+                            "index_mismatches": 0}
+        self.first_chip_index: int | None = None
+        self.last_chip_index: int | None = None
+        self._last_counter = -1
+        self._opens_accounted = 0
+        self._reads_started = False
+
+    # what the inner source says
+    description = property(lambda self: self.inner.description)
+    sample_rate_hz = property(lambda self: self.inner.sample_rate_hz)
+    bus = property(lambda self: self.inner.bus)
+    driver = property(lambda self: self.inner.driver)
+    timer = property(lambda self: self.inner.timer)
+
+    @property
+    def stats(self) -> dict:
+        return {**self.inner.stats, **self.truth_stats}
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+    def _successful_opens(self) -> int:
+        return self.inner.stats["open_attempts"] - self.inner.stats["open_failures"]
+
+    def _rebase_faults(self, kinds_excluded=()) -> None:
+        base = max(0, self.chip.sample_index + 1, int(self.chip.now() * self.chip.sample_rate_hz) + 1)
+        for f in self.chip.faults.faults:
+            if f.kind.value in kinds_excluded:
+                continue
+            f.start_sample += base
+            if f.stop_sample is not None:
+                f.stop_sample += base
+
+    def start(self) -> None:
+        self._rebase_faults()
+        self.inner.start()
+        self._opens_accounted = self._successful_opens()
+
+    def read_one(self, now: float):
+        if not self._reads_started:
+            self._reads_started = True
+            self._rebase_faults(kinds_excluded=("self_test_fail",))   # run-time faults: from the first read
+        s = self.inner.read_one(now)
+        if s is not None:
+            self._account(s)
+        return s
+
+    def _account(self, s) -> None:
+        idx = self.tap.burst_index
+        prev = self.last_chip_index
+        if self.first_chip_index is None:
+            self.first_chip_index = idx
+        self.last_chip_index = idx
+        opens = self._successful_opens()
+        reopened, self._opens_accounted = opens != self._opens_accounted, opens
+        prev_counter, self._last_counter = self._last_counter, s.counter
+        stats = self.truth_stats
+        if prev is not None and idx - prev != s.counter - prev_counter:
+            stats["index_mismatches"] += 1
+            log.debug("sample index mismatch: chip +%d, daemon +%d (flags %s, reopened %s)", idx - prev,
+                      s.counter - prev_counter, s.flags, reopened)
+        if prev is None or idx - prev <= 1:
+            return
+        lost = idx - prev - 1
+        lo, hi = prev + 1, idx                      # lost chip samples: [lo, hi)
+        if any(f.kind.value in FLOW_STOPPING_FAULTS and f.start_sample < hi
+               and (f.stop_sample is None or f.stop_sample > lo) for f in self.chip.faults.faults):
+            stats["lost_in_fault_windows"] += lost
+        elif reopened:
+            stats["lost_after_reconnect"] += lost
+        else:
+            stats["lost_outside_faults"] += lost
+
+    def next_read_time(self) -> float:
+        return self.inner.next_read_time()
+
+    def poll(self, now: float | None = None):
+        s = self.read_one(self.inner._clock() if now is None else now)
+        return [] if s is None else [s]
+
+    def counters(self) -> dict:
+        c = self.inner.counters()
+        c.update({f"sensor_{k}": v for k, v in self.truth_stats.items()})
+        if self.first_chip_index is not None:
+            c["chip_first_index_read"] = self.first_chip_index
+            c["chip_last_index_read"] = self.last_chip_index
+        return c
+
+    def close(self) -> None:
+        self.inner.close()

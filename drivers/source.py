@@ -1,0 +1,98 @@
+"""The sensor-source interface and the one factory that builds the configured source.
+
+A `SensorSource` hands the daemon IMU samples (ahrsd.core.ImuSample, sensor frame, SI units) with a time
+stamp in CLOCK_MONOTONIC seconds (minus `monotonic_offset_s`), a sample index, and GAP_BEFORE on the first
+sample after lost ones: gaps are found once, here. Two ways to be read:
+* `per_sample = True` (a chip): `read_one(now)` once per sample at `next_read_time()`; returns the new sample
+  or None (not ready yet). drivers.chip_source.ChipSource, drivers.reconnecting.ReconnectingSource.
+* `per_sample = False` (a recording): `poll()` on a fixed tick returns every sample that is due.
+  drivers.replay_source.ReplaySource.
+Both raise DriverError subclasses on failure (FrameError: one corrupt frame; BusError: the bus failed).
+A GNSS receiver is a sibling source with its own sample type (ahrsd.core.GnssFix), not an IMU source.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Protocol
+
+from ahrsd.core.sample import ImuSample
+from ahrsd.drivers.adis16405 import Adis16405
+from ahrsd.drivers.chip_source import ChipSource
+from ahrsd.drivers.reconnecting import ReconnectingSource
+from ahrsd.drivers.replay_source import ReplaySource
+
+
+class SensorSource(Protocol):
+    description: str
+    sample_rate_hz: float
+    per_sample: bool
+    monotonic_offset_s: float    # CLOCK_MONOTONIC − sample time stamps
+
+    def read_one(self, now: float) -> ImuSample | None:
+        """per_sample sources: one read at host time `now`; the new sample or None."""
+
+    def next_read_time(self) -> float:
+        """per_sample sources: CLOCK_MONOTONIC time of the next read (0: now)."""
+
+    def poll(self) -> list[ImuSample]:
+        """Every new sample since the last call (possibly none)."""
+
+    def counters(self) -> dict: ...
+
+    def close(self) -> None: ...
+
+
+def open_chip_driver(bus) -> Adis16405:
+    """The IMU driver on a bus (the one place the chip model is named)."""
+    return Adis16405(bus)
+
+
+def start_chip_source(bus, description: str, *, clock=time.monotonic, **start) -> ChipSource:
+    """The chip on `bus`, started (`Adis16405.start(**start)`: self-test, rate, filter), read through the
+    one timing path. clock: the host clock of the reads; for a free-running simulated chip (no real time)
+    pass the chip's own `bus.now`. The bus is closed if the start fails."""
+    driver = open_chip_driver(bus)
+    try:
+        driver.start(**start)
+    except Exception:
+        bus.close()
+        raise
+    return ChipSource(driver, bus, description, clock=clock)
+
+
+def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
+    """The source `sensor_cfg` names (`source` = "sim" | "spi" | "replay", with its keys: any object with the
+    attributes of daemon.config.SensorConfig): a chip with start-up retries and bus reconnection, or a replay.
+
+    faults: a drivers.faults.FaultPlan for the simulated chip (refused for a real sensor); the simulated chip
+    is wrapped in drivers.ground_truth.GroundTruthSource, which accounts its lost samples against the truth.
+    """
+    kind = sensor_cfg.source
+    if kind == "replay":
+        from ahrsd.drivers.recording import iter_samples
+
+        return ReplaySource(iter_samples(sensor_cfg.replay_file), f"replay {sensor_cfg.replay_file}",
+                            realtime=sensor_cfg.replay_realtime, clock=clock)
+    if kind == "spi":
+        if faults is not None:
+            raise ValueError("fault injection (--sim-faults) needs the simulated sensor, not --spi")
+        from ahrsd.drivers.spi import SpidevBus
+
+        path = sensor_cfg.spi_device
+        src = ReconnectingSource(lambda: SpidevBus(path), open_chip_driver, f"ADIS16405 on {path}", clock=clock)
+        src.start()
+        return src
+    if kind != "sim":
+        raise ValueError(f"no sensor source {kind!r}: choose sim, spi or replay")
+    from ahrsd.drivers.ground_truth import BurstIndexTap, GroundTruthSource
+    from ahrsd.drivers.simulated import SimulatedAdis16405
+
+    chip = SimulatedAdis16405(scenario=sensor_cfg.scenario, seed=sensor_cfg.seed, errors=sensor_cfg.errors,
+                              clock=clock, faults=faults)
+    what = f"simulated ADIS16405 ({sensor_cfg.scenario}{', faults injected' if faults is not None else ''})"
+    tap = BurstIndexTap(chip)
+    src = GroundTruthSource(ReconnectingSource(lambda: tap, open_chip_driver, what, clock=clock,
+                                               reopen_same_bus=True), chip, tap)
+    src.start()
+    return src
