@@ -119,7 +119,7 @@ def _read(path, progress_args=None):
     except (RecordingFormatError, ValueError, OSError) as exc:
         raise _Fail(f"cannot read the recording: {exc}") from None
     if len(rec) < 16:
-        raise _Fail(f"{path}: only {len(rec)} samples")
+        raise _Fail(f"{path}: only {len(rec)} samples, too few for any fit: record longer (at least a few seconds)")
     if not _RECORDING_META:  # the first recording read is the one the fit is about: note it in the metadata
         import numpy as np
 
