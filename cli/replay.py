@@ -264,7 +264,7 @@ def _run(args) -> int:
     try:
         order = [ATTITUDE_COLUMNS.index(name) for name in OUTPUT_COLUMNS]
         with progress_bar(args, expected_rows(args.recording), "replay") as bar:
-            for table in replay_attitude(estimator, samples, true_north=args.lat is not None, chunk_rows=2048):
+            for table in replay_attitude(estimator, samples, true_north=args.lat is not None):
                 out.write(table[:, order])
                 bar.update(len(table))
                 if trace is not None:

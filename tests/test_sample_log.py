@@ -277,3 +277,22 @@ def test_the_tlog_reads_in_pymavlink_and_mavlogdump(tmp_path):
                          timeout=60)
     assert out.returncode == 0, out.stderr
     assert out.stdout.count("ATTITUDE") == 5 and "roll : 0.4" in out.stdout
+
+
+def test_a_tlog_cut_mid_frame_reads_up_to_its_last_complete_frame(tmp_path):
+    from pymavlink import mavutil
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=200)
+    with TlogLog(tmp_path / "logs") as tlog:
+        for k in range(10):
+            tlog.put((1.7e9 + k, mav.attitude_encode(k, 0.01 * k, 0, 0, 0, 0, 0).pack(mav)))
+    (path,) = log_files(tmp_path / "logs", ".tlog")
+    whole = path.read_bytes()
+    cut = tmp_path / "cut.tlog"
+    cut.write_bytes(whole[: len(whole) - 7])     # the last frame torn
+    conn = mavutil.mavlink_connection(str(cut), dialect="ardupilotmega")
+    got = []
+    while (m := conn.recv_match(type="ATTITUDE")) is not None:
+        got.append(m.time_boot_ms)
+    assert got == list(range(9))
