@@ -204,16 +204,12 @@ def _allan(args) -> int:
 
 
 def _accel(args) -> int:
-    import dataclasses
+    import math
 
     import numpy as np
 
-    import math
-
     from ahrsd.calibration import report
-    from ahrsd.calibration.accel_cal import (AccelFitResult, fit_accel, hold_cost, local_gravity_m_s2,
-                                             short_holds_refusal, split_by_duration, still_periods)
-    from ahrsd.calibration.models import AccelModel
+    from ahrsd.calibration.accel_cal import fit_accel, local_gravity_m_s2
 
     g = local_gravity_m_s2(args.lat, args.alt_m)
     if not (math.isfinite(args.min_still_s) and args.min_still_s > 0):
@@ -228,29 +224,17 @@ def _accel(args) -> int:
     else:
         if not args.recording:
             raise _Usage("give a RECORDING, or --live with --sim SCENARIO or --spi DEV")
-        rec = _read(args.recording, args)
-        step_s = float(np.median(np.diff(rec.t_s)))
-        if not (math.isfinite(step_s) and step_s > 0):
-            raise _Fail(f"{args.recording}: t_s does not increase (median step {step_s:g} s): the sample times "
-                        "must grow by the sample period")
-        rate = 1.0 / step_s
-        periods = still_periods(rec.accel_m_s2, rec.gyro_rad_s, rate)
-        segs, skipped = split_by_duration(periods, args.min_still_s)
-        holds = hold_cost(segs, skipped, rate)
-        means = np.array([s.mean_accel_m_s2 for s in segs]).reshape(-1, 3)
-        source = f"{len(segs)} still periods in {args.recording}"
-    if not args.live and not segs:
-        res = AccelFitResult(AccelModel.identity(), math.nan, 6 if terms == "auto" else terms,
-                             {"positions": 0, "holds": holds}, short_holds_refusal(periods, args.min_still_s))
-    else:
+        means, source, periods, used, skipped, rate_hz = _still_positions(args)
+    if args.live or len(means):
         res = fit_accel(means, g, terms)
-        if not args.live:
-            res.quality["holds"] = holds
-            if not res.ok and skipped:
-                res = dataclasses.replace(res, refused=f"{res.refused}; {len(skipped)} more still periods were "
-                                          f"shorter than --min-still-s {args.min_still_s:g} (the longest "
-                                          f"{max(p.duration_s for p in skipped):.1f} s): lower --min-still-s to "
-                                          "use them")
+    else:
+        from ahrsd.calibration.accel_cal import AccelFitResult, short_holds_refusal
+        from ahrsd.calibration.models import AccelModel
+
+        res = AccelFitResult(AccelModel.identity(), math.nan, 6 if terms == "auto" else terms, {"positions": 0},
+                             short_holds_refusal(periods, args.min_still_s))
+    if not args.live:
+        res = _with_holds(res, used, skipped, rate_hz, args.min_still_s)
     payload = {"sensor": "accel", **res.to_json_dict(), "positions_source": source}
     lines = [f"Accelerometer calibration ({res.terms} parameters) from {source}; g = {g:.5f} m/s²"
              + ("" if args.lat is not None else " (standard gravity: give --lat for local gravity)")]
@@ -268,6 +252,42 @@ def _accel(args) -> int:
         plot_residuals(np.array(q["position_residuals_m_s2"]) * 1e3, "position", "|f| − g (mm/s²)",
                        "accelerometer residual per position", args.plot)
     return rc
+
+
+def _still_positions(args):
+    """(position means (n, 3), a description, every still period, those used, those too short, the sample
+    rate) of the recording."""
+    import math
+
+    import numpy as np
+
+    from ahrsd.calibration.accel_cal import split_by_duration, still_periods
+
+    rec = _read(args.recording, args)
+    step_s = float(np.median(np.diff(rec.t_s)))
+    if not (math.isfinite(step_s) and step_s > 0):
+        raise _Fail(f"{args.recording}: t_s does not increase (median step {step_s:g} s): the sample times "
+                    "must grow by the sample period")
+    rate_hz = 1.0 / step_s
+    periods = still_periods(rec.accel_m_s2, rec.gyro_rad_s, rate_hz)
+    used, skipped = split_by_duration(periods, args.min_still_s)
+    means = np.array([p.mean_accel_m_s2 for p in used]).reshape(-1, 3)
+    return means, f"{len(used)} still periods in {args.recording}", periods, used, skipped, rate_hz
+
+
+def _with_holds(res, used, skipped, rate_hz, min_still_s):
+    """The fit result with what the holds cost in its quality, and a refusal that names the short holds."""
+    import dataclasses
+
+    from ahrsd.calibration.accel_cal import hold_cost
+
+    quality = {**res.quality, "holds": hold_cost(used, skipped, rate_hz)}
+    refused = res.refused
+    if refused is not None and used and skipped:
+        refused = (f"{refused}; {len(skipped)} more still periods were shorter than --min-still-s "
+                   f"{min_still_s:g} (the longest {max(p.duration_s for p in skipped):.1f} s): lower "
+                   "--min-still-s to use them")
+    return dataclasses.replace(res, quality=quality, refused=refused)
 
 
 def _accel_live(args):

@@ -111,3 +111,24 @@ def test_the_cli_default_is_the_library_default():
 
     args = build_parser().parse_args(["calibrate", "accel", "x.csv"])
     assert args.min_still_s == DEFAULT_MIN_STILL_S
+
+
+def test_too_few_long_holds_refusal_also_names_the_short_ones(tmp_path, capsys):
+    """4 positions held 3 s, then 20 held 1.5 s: 4 distinct orientations cannot fit 6 parameters, and the
+    refusal says that 20 shorter periods were left out and how to use them."""
+    long_sc, long_w, _ = position_holds(4, hold_s=3.0, slew_s=1.0)
+    short_sc, short_w, _ = position_holds(24, hold_s=1.5, slew_s=1.0)
+    a = simulate(long_sc, long_w[-1][1] + 1.0, rate_hz=RATE_HZ, seed=3)
+    b_start_s = short_w[4][0] - 1.0    # from the slew into the 5th position on
+    b = simulate(short_sc, short_w[-1][1] - b_start_s, rate_hz=RATE_HZ, seed=4, start_s=b_start_s)
+    with RecordingWriter(tmp_path / "mixed.csv") as w:
+        for block, t0 in ((a, 0.0), (b, a.t_s[-1] + 1 / RATE_HZ - b.t_s[0])):
+            for i in range(len(block)):
+                w.write(make_sample(t0 + block.t_s[i], block.gyro_rad_s[i], block.accel_m_s2[i], block.mag_ut[i]))
+    rc = calibrate(tmp_path, tmp_path / "mixed.csv")
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 1
+    assert out["refused"].startswith("4 distinct orientations cannot determine 6 parameters")
+    assert "found 4 still positions" in out["refused"]
+    assert "20 more still periods were shorter than --min-still-s 2 (the longest 1.5 s)" in out["refused"]
+    assert out["quality"]["holds"]["still_periods_skipped_short"] == 20
