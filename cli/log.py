@@ -14,6 +14,7 @@ Exit status: 0 done, 1 nothing to cut or bad input, 2 bad usage.
 from __future__ import annotations
 
 DEFAULT_LOG_DIR = "/var/lib/ahrsd/logs"
+_SMALLEST_LOG_BYTES = 30   # a gzip header and a flushed CSV header take more than this
 
 
 def register(subparsers) -> None:
@@ -200,6 +201,8 @@ def _cut(args) -> int:
                     f"samples {_calibration_label(side0)}")
             out.comment(note)
             for path, side, lo, hi in chosen:
+                if side.get("entries") == 0 or path.stat().st_size < _SMALLEST_LOG_BYTES:
+                    continue   # killed within its opening: not even a header to read
                 for sample in iter_samples(path, strict=False):
                     bar.update()
                     if lo <= sample.t_s <= hi:

@@ -141,3 +141,12 @@ def test_samples_from_the_driver_logged_cut_and_replayed_match_the_samples_in_me
     assert got.shape[0] == len(window) == want.shape[0]
     np.testing.assert_allclose(got[:, 0], want[:, 0], atol=1e-6)        # t_s
     np.testing.assert_allclose(got[:, 5:8], want[:, 5:8], atol=2e-6)    # roll, pitch, yaw (deg)
+
+
+def test_a_log_killed_within_its_opening_is_skipped_by_the_cut(tmp_path, capsys):
+    with SampleLog(tmp_path) as log:
+        for k in range(100):
+            log.put(make_sample(k * 0.01, [0, 0, 0], [0, 0, -9.8], [20, 0, 40]))
+    (tmp_path / "imu-29990101T000000.000000Z.csv.gz").write_bytes(b"\x1f\x8b\x08\x00")   # torn in its header
+    assert run("log", "cut", "--dir", tmp_path, "--from", 0, "--to", 1e9, "--output", tmp_path / "x.csv") == 0
+    assert len(read_recording(tmp_path / "x.csv")) == 100
