@@ -14,7 +14,7 @@ from ahrsd.daemon.mavlink_io import mavlink
 
 def register_builtin_commands(service) -> None:
     r = service.commands
-    r.register(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, lambda m, c: set_message_interval(service, m))
+    r.register(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, lambda m, c: set_message_interval(service, m, c))
     r.register(mavlink.MAV_CMD_GET_MESSAGE_INTERVAL, lambda m, c: get_message_interval(service, m, c),
                state_changing=False)
     r.register(mavlink.MAV_CMD_REQUEST_MESSAGE, lambda m, c: request_message(service, m, c), state_changing=False)
@@ -27,12 +27,14 @@ def _message_id(value: float) -> int | None:
     return int(value) if math.isfinite(value) and 0 <= value < 2**24 and value == int(value) else None
 
 
-def set_message_interval(service, msg) -> int:
+def set_message_interval(service, msg, ctx) -> int:
+    """Changes the rate on the endpoint the request came in on only (daemon.endpoint_outputs)."""
+    schedule = service.schedule_for(ctx.endpoint)
     mid = _message_id(msg.param1)
-    if mid is None or mid not in service.schedule or not math.isfinite(msg.param2):
+    if mid is None or mid not in schedule or not math.isfinite(msg.param2):
         return mavlink.MAV_RESULT_DENIED          # an infinite interval would silently switch the output off
     try:
-        service.schedule.set_interval_us(mid, msg.param2)
+        service.set_message_interval(ctx.endpoint, mid, msg.param2)
     except ValueError:
         return mavlink.MAV_RESULT_DENIED
     return mavlink.MAV_RESULT_ACCEPTED
@@ -42,8 +44,8 @@ def get_message_interval(service, msg, ctx) -> int:
     mid = _message_id(msg.param1)
     if mid == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
         interval = 1_000_000
-    elif mid is not None and mid in service.schedule:
-        interval = service.schedule.interval_us(mid)
+    elif mid is not None and mid in service.schedule_for(ctx.endpoint):
+        interval = service.schedule_for(ctx.endpoint).interval_us(mid)
     else:
         interval = 0   # "0: not available"
     service.loop.call_soon(ctx.endpoint.send, msgs.message_interval(mid or 0, interval))
@@ -66,7 +68,7 @@ def request_message(service, msg, ctx) -> int:
         out = autopilot_version(service)
     elif mid == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
         out = msgs.heartbeat(service.mav_type, service.health.system_status(now))
-    elif mid is not None and mid in service.schedule:
+    elif mid is not None and mid in service.schedule_for(ctx.endpoint):
         out = service.build_output(mid, now)
         if out is None:
             return mavlink.MAV_RESULT_TEMPORARILY_REJECTED

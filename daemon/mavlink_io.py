@@ -27,6 +27,8 @@ if mavutil.mavlink.WIRE_PROTOCOL_VERSION != "2.0" or mavutil.current_dialect != 
 
 mavlink = mavutil.mavlink   # the ardupilotmega MAVLink 2 module: message classes and enums
 
+from ahrsd.daemon.serial_queue import SerialOutQueue  # noqa: E402
+
 log = logging.getLogger(__name__)
 
 READ_CHUNK = 4096          # bytes per read on stream links
@@ -42,6 +44,8 @@ class LinkCounters:
     rx_unknown: int = 0        # well-formed frames of message ids outside our dialect (not delivered)
     tx_messages: int = 0
     tx_errors: int = 0
+    tx_dropped: int = 0        # refused by a serial link that could not keep up (daemon.serial_queue)
+    tx_dropped_by_priority: dict = field(default_factory=dict)   # priority -> count
     reconnects: int = 0
 
 
@@ -62,6 +66,17 @@ class Endpoint:
     _fd: int | None = None
     _signing: dict | None = None
     _connect_task: asyncio.Task | None = None
+    # what this endpoint gets (set by the service, daemon.endpoint_outputs): its own OutputSchedule, the
+    # profile and overrides it was built from
+    schedule: object | None = None
+    profile: str = "gcs"
+    overrides_hz: dict = field(default_factory=dict)
+    # serial links: the line's byte rate and the message priority function switch on the non-blocking
+    # priority queue (daemon.serial_queue); None = pymavlink writes directly
+    line_bytes_per_s: float | None = None
+    priority_of: Callable[[int], int] | None = None
+    out_queue: SerialOutQueue | None = None
+    budget: object | None = None       # daemon.link_budget.LinkBudget of a serial endpoint
 
     @property
     def kind(self) -> str:
@@ -117,6 +132,9 @@ class Endpoint:
         self.conn = conn
         if self._signing is not None:
             self._apply_signing()
+        if self.kind == "serial" and self.line_bytes_per_s and getattr(conn, "fd", None) is not None:
+            self.out_queue = SerialOutQueue(conn.fd, self.line_bytes_per_s, self._loop, self.counters)
+            conn.mav.file = self.out_queue
         self._register_fd()
 
     def _register_fd(self) -> None:
@@ -129,9 +147,15 @@ class Endpoint:
         if fd is not None:
             self._loop.add_reader(fd, self._on_readable)
 
+    def _drop_out_queue(self) -> None:
+        if self.out_queue is not None:
+            self.out_queue.close()
+            self.out_queue = None
+
     def close(self) -> None:
         if self._connect_task is not None:
             self._connect_task.cancel()
+        self._drop_out_queue()
         if self._fd is not None and self._loop is not None:
             self._loop.remove_reader(self._fd)
             self._fd = None
@@ -171,6 +195,9 @@ class Endpoint:
         """Pack and send one message on this link; errors are counted, never raised."""
         if self.conn is None:
             return False
+        queue = self.out_queue
+        if queue is not None:
+            queue.priority = self.priority_of(msg.get_msgId())
         try:
             self.conn.mav.send(msg)
         except (OSError, ValueError, TypeError, OverflowError) as exc:
@@ -180,6 +207,8 @@ class Endpoint:
             if self.counters.tx_errors in (1, 100, 10000):
                 log.warning("MAVLink %s: send of %s failed: %s", self.url, msg.get_type(), exc)
             return False
+        if queue is not None and not queue.accepted_last:
+            return False                      # the link is behind: refused by priority, counted
         self.counters.tx_messages += 1
         if self.conn.fd != self._fd:          # pymavlink dropped a TCP client on a write error (tcpin)
             self._register_fd()
@@ -287,6 +316,7 @@ class Endpoint:
         if self._fd is not None:
             self._loop.remove_reader(self._fd)
             self._fd = None
+        self._drop_out_queue()
         try:
             self.conn.close()
         except OSError:

@@ -38,14 +38,13 @@ from ahrsd.daemon.calibration_swap import CalibrationSwap
 from ahrsd.daemon.commands import CommandRouter
 from ahrsd.daemon.config import MAV_TYPES, Config
 from ahrsd.daemon.declination import DeclinationResolver
+from ahrsd.daemon.endpoint_outputs import EndpointOutputs
 from ahrsd.daemon.health import Health
 from ahrsd.daemon.housekeeping import Housekeeping
 from ahrsd.daemon.inbound import InboundDispatch
 from ahrsd.daemon.magcal import attach as attach_magcal
 from ahrsd.daemon.mavlink_io import Endpoint, mavlink
 from ahrsd.daemon.notify import Notifier
-from ahrsd.daemon.output_registry import OUTPUTS
-from ahrsd.daemon.outputs import OutputSchedule
 from ahrsd.daemon.param_protocol import MOUNTING_PARAMS, ParamProtocol, param_specs
 from ahrsd.daemon.params import ParamStore
 from ahrsd.daemon.pipeline import Pipeline
@@ -74,7 +73,7 @@ class ServiceCounters:
 
 
 class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, DeclinationResolver, CalibrationSwap,
-              Housekeeping):
+              Housekeeping, EndpointOutputs):
     def __init__(self, config: Config, *, source=None, environ=os.environ, stdout=None):
         self.config = config
         self.environ = environ
@@ -90,7 +89,6 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         self.component_id = config.mavlink.component_id
         self.mav_type = MAV_TYPES[config.mavlink.mav_type]
         self.endpoints: list[Endpoint] = []
-        self.schedule = OutputSchedule({o.message_id: getattr(config.outputs, o.config_key) for o in OUTPUTS})
         self.params = ParamStore(param_specs(config), self.state_dir, on_change=self._on_param_change)
         self.commands = CommandRouter(self, self._send_on, require_signed=lambda: self.signing_required,
                                       accept_broadcast=config.mavlink.accept_broadcast_commands)
@@ -214,16 +212,15 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         estimator = make_estimator(cfg.estimator.name, declination_rad=self.declination_rad)
         self.pipeline = Pipeline(estimator, calibration)
         self.pipeline.set_mounting([self.params.get(n) for n in MOUNTING_PARAMS])
-        for o in OUTPUTS:
-            self.schedule.set_rate_hz(o.message_id, self.params.get(o.param_name), default=True)
         self._setup_signing()
         for ep_cfg in cfg.endpoints:
-            ep = Endpoint(ep_cfg.url, self.system_id, self.component_id, self._on_message)
+            ep = self._make_endpoint(ep_cfg)        # its own output schedule (daemon.endpoint_outputs)
             if self.signing_key is not None:
                 ep.enable_signing(self.signing_key, cfg.signing.link_id, initial_timestamp(self.state_dir),
                                   lambda _mav, _msgid: True)   # unsigned input is accepted, then policed
             ep.open(self.loop)
             self.endpoints.append(ep)
+            self.check_link_budget(ep)
         register_builtin_commands(self)
         attach_magcal(self)
         if self.source is None:

@@ -83,9 +83,10 @@ def check_invariants(rig) -> None:
         name, value = s.params.item(i)
         spec = s.params.specs[i]
         assert math.isfinite(value) and spec.lo <= value <= spec.hi, (name, value)
-    for mid in s.schedule.ids():
-        hz = s.schedule.rate_hz(mid)
-        assert math.isfinite(hz) and 0.0 <= hz <= s.schedule.max_rate_hz(mid), (mid, hz)
+    for ep in s.endpoints:
+        for mid in ep.schedule.ids():
+            hz = ep.schedule.rate_hz(mid)
+            assert math.isfinite(hz) and 0.0 <= hz <= ep.schedule.max_rate_hz(mid), (mid, hz)
 
 
 def still_answers(rig) -> None:
