@@ -57,8 +57,13 @@ def _vision_position_estimate(svc, est, sample, now):
     from ahrsd.core.angles import yaw_rate_ned_rad_s
 
     usec = int(svc.sample_time_monotonic(est.t_s) * 1e6)
+    restart = svc.restart_heading          # a restart with another heading: daemon.restart_heading
+    if restart is not None:
+        restart.before_publish(est.t_s, est.heading_true_rad)
     yaw = svc.heading_slew.update(est.t_s, est.heading_true_rad,
                                   yaw_rate_ned_rad_s(est.rate_body_rad_s, est.roll_rad, est.pitch_rad))
+    if restart is not None:
+        restart.after_publish(yaw, svc.reset_counter)
     return msgs.vision_position_estimate(est, usec, yaw, svc.reset_counter)
 
 

@@ -50,6 +50,7 @@ from ahrsd.daemon.params import ParamStore
 from ahrsd.daemon.pipeline import Pipeline
 from ahrsd.daemon.publishers import Publishers
 from ahrsd.daemon.rate_limit import TokenBucket
+from ahrsd.daemon.restart_heading import RestartHeading
 from ahrsd.daemon.sample_reader import SampleReader
 from ahrsd.daemon.signing import initial_timestamp, key_fingerprint, load_key, save_timestamp
 from ahrsd.daemon.status_line import StatusLine
@@ -98,6 +99,7 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         self.reset_counter = 0
         # the VISION_POSITION_ESTIMATE yaw after a calibration change (apply_calibration)
         self.heading_slew = HeadingSlew(max_rate_deg_s=config.outputs.heading_slew_deg_s)
+        self.restart_heading: RestartHeading | None = None   # the restart rule (daemon.restart_heading)
         self.declination_rad = 0.0
         self.declination_source = "none"
         self.signing_key: bytes | None = None
@@ -207,6 +209,7 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
                         self.state_dir, exc)
         for warning in self.params.load():
             log.warning("%s", warning)
+        self.start_restart_rule()
         self._resolve_declination(initial=True)
         calibration = CalibrationStore(self.state_dir).load()
         estimator = make_estimator(cfg.estimator.name, declination_rad=self.declination_rad)
@@ -236,6 +239,21 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         self.notifier.status(f"starting: {self.source.description}")
         self._send_heartbeat(time.monotonic())   # routers learn us from our first packet
 
+    def start_restart_rule(self) -> None:
+        """Load what the autopilot last got from us (daemon.restart_heading): the reset_counter continues,
+        and a different heading after the restart is slewed (or, in reset mode, signalled) in."""
+        self.restart_heading = RestartHeading(
+            self.state_dir, self.heading_slew, reset_mode=self.config.outputs.reset_counter_on_calibration,
+            signal_reset=self.signal_heading_reset, background=self._in_background)
+        self.reset_counter = self.restart_heading.initial_reset_counter
+
+    def _in_background(self, fn: Callable[[], None]) -> None:
+        """Small file writes off the event loop thread (the sample reader must not wait on an fsync)."""
+        if self.loop is not None and self.loop.is_running():
+            self.loop.run_in_executor(None, fn)
+        else:
+            fn()
+
     def _setup_signing(self) -> None:
         if not self.config.signing.key_file:
             return
@@ -251,6 +269,8 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
             self.send(msgs.heartbeat(self.mav_type, mavlink.MAV_STATE_POWEROFF))
         if self.signing_key is not None:
             save_timestamp(self.state_dir, max((e.signing_timestamp() for e in self.endpoints), default=0))
+        if self.restart_heading is not None:
+            self.restart_heading.save_now(self.reset_counter)
         for ep in self.endpoints:
             ep.close()
         if self.source is not None:
