@@ -12,8 +12,13 @@ imported mavutil earlier with other settings.
 from __future__ import annotations
 
 import asyncio
+import errno
 import logging
 import os
+import socket
+import struct
+import sys
+import time
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -32,6 +37,12 @@ from ahrsd.daemon.serial_queue import SerialOutQueue  # noqa: E402
 log = logging.getLogger(__name__)
 
 READ_CHUNK = 4096          # bytes per read on stream links
+UDP_MAX_DATAGRAM = 65535
+# Linux SO_TIMESTAMPNS (asm-generic/socket.h; Python's socket module does not export it): the kernel's
+# CLOCK_REALTIME arrival time of each datagram, as a struct timespec in the ancillary data
+SO_TIMESTAMPNS = 35 if sys.platform == "linux" else None
+TIMESPEC = struct.Struct("@qq")
+UDP_KINDS = ("udpin", "udpout", "udpbcast", "udp")
 MAX_READS_PER_WAKE = 64    # bound the work done per readiness callback (datagrams or chunks)
 TCP_RETRY_S = 2.0
 
@@ -77,6 +88,10 @@ class Endpoint:
     priority_of: Callable[[int], int] | None = None
     out_queue: SerialOutQueue | None = None
     budget: object | None = None       # daemon.link_budget.LinkBudget of a serial endpoint
+    # CLOCK_MONOTONIC ns at which the input being parsed arrived: the kernel's time stamp of a UDP datagram
+    # (SO_TIMESTAMPNS), else the start of the read; for TIMESYNC answers (`timesync_stamp_ns`)
+    rx_monotonic_ns: int | None = None
+    _rx_timestamps: bool = False
 
     @property
     def kind(self) -> str:
@@ -132,6 +147,13 @@ class Endpoint:
         self.conn = conn
         if self._signing is not None:
             self._apply_signing()
+        self._rx_timestamps = False
+        if self.kind in UDP_KINDS and SO_TIMESTAMPNS is not None:
+            try:
+                conn.port.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+                self._rx_timestamps = True
+            except (OSError, AttributeError):
+                pass
         if self.kind == "serial" and self.line_bytes_per_s and getattr(conn, "fd", None) is not None:
             self.out_queue = SerialOutQueue(conn.fd, self.line_bytes_per_s, self._loop, self.counters)
             conn.mav.file = self.out_queue
@@ -233,14 +255,52 @@ class Endpoint:
             return data if data else None
         if kind == "serial":
             return conn.recv(READ_CHUNK) or b""
+        if self._rx_timestamps:
+            return self._recv_datagram_stamped()
         data = conn.recv()          # UDP: one datagram ("" when none)
         return data if data else b""
+
+    def _recv_datagram_stamped(self) -> bytes:
+        """One datagram with its kernel arrival time (what pymavlink's mavudp.recv does, plus the time)."""
+        conn = self.conn
+        try:
+            data, ancillary, _flags, addr = conn.port.recvmsg(UDP_MAX_DATAGRAM, socket.CMSG_SPACE(TIMESPEC.size))
+        except OSError as exc:
+            if exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK, errno.ECONNREFUSED):
+                return b""
+            raise
+        if conn.udp_server:                     # as mavudp.recv: remember the client to answer it
+            conn.clients.add(addr)
+            conn.clients_last_alive[addr] = time.time()
+        elif conn.broadcast:
+            conn.last_address = addr
+        for level, kind, payload in ancillary:
+            if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(payload) >= TIMESPEC.size:
+                sec, nsec = TIMESPEC.unpack_from(payload)
+                # CLOCK_REALTIME -> CLOCK_MONOTONIC with the offset between the two clocks now
+                self.rx_monotonic_ns = sec * 1_000_000_000 + nsec - (time.time_ns() - time.monotonic_ns())
+        return data
+
+    def timesync_stamp_ns(self) -> int:
+        """TIMESYNC `tc1` for a request being handled now, CLOCK_MONOTONIC ns (the clock of VPE `usec`).
+
+        The requester computes offset = (ts1 + t_rx)/2 − tc1 (PX4 src/lib/timesync/Timesync.cpp), which is
+        exact when tc1 is the middle of our part of the round trip. Our part runs from the request's arrival
+        to the answer's departure, and includes the time the request waited for the event loop; stamping
+        the midpoint of arrival and now takes that wait out (stamping `now` alone would shift the offset
+        by half of it, ms under load)."""
+        now = time.monotonic_ns()
+        arrival = self.rx_monotonic_ns
+        if arrival is None or not 0 <= now - arrival < 1_000_000_000:
+            return now
+        return (arrival + now) // 2
 
     def _on_readable(self) -> None:
         conn = self.conn
         if conn is None:
             return
         for _ in range(MAX_READS_PER_WAKE):
+            self.rx_monotonic_ns = time.monotonic_ns()    # replaced by the kernel's time of a datagram
             try:
                 data = self._read_chunk()
             except OSError as exc:
