@@ -7,8 +7,6 @@ endpoint"), not taken from daemon.output_profiles.
 
 from __future__ import annotations
 
-import asyncio
-import dataclasses
 import socket
 import subprocess
 import sys
@@ -17,10 +15,9 @@ from pathlib import Path
 
 import pytest
 
-from ahrsd.daemon.config import Config, ConfigError, EndpointConfig, StateConfig, parse_config
+from ahrsd.daemon.config import ConfigError, EndpointConfig, parse_config
 from ahrsd.daemon.mavlink_io import mavlink
-from ahrsd.daemon.service import Service
-from service_rig import DummySource, stop_process
+from service_rig import start_service_on, stop_process, stop_service
 
 ATT, ATTQ, VPE = 30, 31, 102
 HIGHRES, SCALED, SYS_STATUS, HEARTBEAT = 105, 26, 1, 0
@@ -53,38 +50,17 @@ def test_config_profile_and_overrides():
             parse_config({"endpoint": [bad]})
 
 
-def _service(tmp_path, endpoints) -> tuple[Service, asyncio.AbstractEventLoop]:
-    cfg = dataclasses.replace(Config(), endpoints=tuple(endpoints), state=StateConfig(str(tmp_path / "state")))
-    service = Service(cfg, source=DummySource())
-    loop = asyncio.new_event_loop()
-
-    async def start():
-        service.loop = asyncio.get_running_loop()
-        service._stop = asyncio.Event()
-        service._start()
-
-    loop.run_until_complete(start())
-    return service, loop
-
-
-def _stop(service, loop):
-    for t in asyncio.all_tasks(loop):
-        t.cancel()
-    loop.run_until_complete(asyncio.sleep(0.01))
-    service._shutdown_io("test end")
-    loop.close()
-
-
 def _rates(ep) -> dict[int, float]:
     return {mid: ep.schedule.rate_hz(mid) for mid in DEFAULT_HZ}
 
 
 def test_each_endpoint_has_its_profile_rates_and_set_message_interval_changes_only_its_own(tmp_path):
     a, b, c = udp_sink(), udp_sink(), udp_sink()
-    service, loop = _service(tmp_path, [
+    service, loop = start_service_on([
         EndpointConfig(f"udpout:127.0.0.1:{a.getsockname()[1]}"),
         EndpointConfig(f"udpout:127.0.0.1:{b.getsockname()[1]}", profile="autopilot"),
-        EndpointConfig(f"udpout:127.0.0.1:{c.getsockname()[1]}", outputs=(("attitude_hz", 5.0),))])
+        EndpointConfig(f"udpout:127.0.0.1:{c.getsockname()[1]}", outputs=(("attitude_hz", 5.0),))],
+        tmp_path / "state")
     try:
         gcs, ap, slow = service.endpoints
         assert _rates(gcs) == DEFAULT_HZ
@@ -107,7 +83,7 @@ def test_each_endpoint_has_its_profile_rates_and_set_message_interval_changes_on
         ok, _ = service.params.set("SR_VISION_POS", 20.0)
         assert ok and _rates(ap)[VPE] == 20.0 and _rates(gcs)[VPE] == 20.0
     finally:
-        _stop(service, loop)
+        stop_service(service, loop)
         for s in (a, b, c):
             s.close()
 

@@ -9,17 +9,15 @@ and CRC, + 13 when signed, at the documented default rates; a 57600-baud 8N1 lin
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 import logging
 import os
 import tty
 
 import pytest
 
-from ahrsd.daemon.config import Config, EndpointConfig, StateConfig
+from ahrsd.daemon.config import EndpointConfig
 from ahrsd.daemon.mavlink_io import mavlink
-from ahrsd.daemon.service import Service
-from service_rig import DummySource
+from service_rig import start_service_on, stop_service
 
 PAYLOAD = {0: 9, 1: 43, 30: 28, 31: 48, 102: 117, 105: 63}
 DEFAULT_HZ = {0: 1.0, 1: 1.0, 30: 50.0, 31: 10.0, 102: 30.0, 105: 10.0}
@@ -28,28 +26,6 @@ LINE_57600_B_S = 5760.0
 
 def expected_load(rates: dict[int, float], signed: bool) -> float:
     return sum(hz * (12 + PAYLOAD[mid] + (13 if signed else 0)) for mid, hz in rates.items())
-
-
-def _start(tmp_path, endpoint: EndpointConfig, **changes):
-    cfg = dataclasses.replace(Config(), endpoints=(endpoint,), state=StateConfig(str(tmp_path / "state")), **changes)
-    service = Service(cfg, source=DummySource())
-    loop = asyncio.new_event_loop()
-
-    async def start():
-        service.loop = asyncio.get_running_loop()
-        service._stop = asyncio.Event()
-        service._start()
-
-    loop.run_until_complete(start())
-    return service, loop
-
-
-def _stop(service, loop):
-    for t in asyncio.all_tasks(loop):
-        t.cancel()
-    loop.run_until_complete(asyncio.sleep(0.01))
-    service._shutdown_io("test end")
-    loop.close()
 
 
 @pytest.fixture
@@ -69,7 +45,7 @@ def _warnings(caplog) -> list[str]:
 def test_57600_baud_with_default_outputs_warns_once_with_the_figures(tmp_path, pty_pair, caplog):
     _, dev = pty_pair
     caplog.set_level(logging.WARNING, logger="ahrsd")
-    service, loop = _start(tmp_path, EndpointConfig(f"{dev},57600"))
+    service, loop = start_service_on((EndpointConfig(f"{dev},57600"),), tmp_path / "state")
     try:
         texts = _warnings(caplog)
         assert len(texts) == 1, texts
@@ -91,7 +67,7 @@ def test_57600_baud_with_default_outputs_warns_once_with_the_figures(tmp_path, p
         assert len(texts) == 2
         assert f"{expected_load({**DEFAULT_HZ, 105: 0.0}, False):.0f} B/s" in texts[1]
     finally:
-        _stop(service, loop)
+        stop_service(service, loop)
 
 
 def test_autopilot_profile_fits_57600_even_signed(tmp_path, pty_pair, caplog):
@@ -100,8 +76,8 @@ def test_autopilot_profile_fits_57600_even_signed(tmp_path, pty_pair, caplog):
     key.write_bytes(bytes(range(32)))
     caplog.set_level(logging.WARNING, logger="ahrsd")
     from ahrsd.daemon.config import SigningConfig
-    service, loop = _start(tmp_path, EndpointConfig(f"{dev},57600", profile="autopilot"),
-                           signing=SigningConfig(key_file=str(key), refuse_unsigned_commands=False))
+    service, loop = start_service_on((EndpointConfig(f"{dev},57600", profile="autopilot"),), tmp_path / "state",
+                                     signing=SigningConfig(key_file=str(key), refuse_unsigned_commands=False))
     try:
         assert _warnings(caplog) == []
         budget = service.endpoints[0].budget
@@ -115,7 +91,7 @@ def test_autopilot_profile_fits_57600_even_signed(tmp_path, pty_pair, caplog):
         assert len(texts) == 1
         assert f"{expected_load({**rates, 30: 50.0}, signed=True):.0f} B/s (signed)" in texts[0]
     finally:
-        _stop(service, loop)
+        stop_service(service, loop)
 
 
 def _attitude():
@@ -147,7 +123,7 @@ def test_slow_reader_drops_lowest_priority_first_and_never_cuts_a_frame(tmp_path
     from ahrsd.daemon import serial_queue
     monkeypatch.setattr(serial_queue, "QUEUE_SECONDS", 2.0)
     master, dev = pty_pair
-    service, loop = _start(tmp_path, EndpointConfig(f"{dev},57600", profile="autopilot"))
+    service, loop = start_service_on((EndpointConfig(f"{dev},57600", profile="autopilot"),), tmp_path / "state")
     ep = service.endpoints[0]
     parser = mavlink.MAVLink(None)
     parser.robust_parsing = True
@@ -198,7 +174,7 @@ def test_slow_reader_drops_lowest_priority_first_and_never_cuts_a_frame(tmp_path
                 else:
                     received[m.get_type()] = received.get(m.get_type(), 0) + 1
     finally:
-        _stop(service, loop)
+        stop_service(service, loop)
     assert bad == 0                                        # no frame cut by a partial write
     assert dropped > 0                                     # the link was over-subscribed
     assert by_prio.get(0, 0) == 0                          # the heading and the heartbeat always got through
