@@ -124,9 +124,9 @@ def test_px4_stamps_our_samples_within_2_ms(tmp_path):
     err = np.array(errors_ms)
     assert len(err) >= 300, f"only {len(err)} VPEs after convergence (sequence {sync.sequence})"
     assert np.all(np.abs(err) < 2.0), (err.min(), err.max())
+    before = f"; before convergence (arrival time) median {np.median(before_ms):+.3f} ms" if before_ms else ""
     print(f"\nPX4-style stamp − true sample instant: {np.median(err):+.3f} ms median, "
-          f"[{err.min():+.3f}, {err.max():+.3f}] ms over {len(err)} VPEs; arrival-time stamping before "
-          f"convergence: median {np.median(before_ms):+.3f} ms" if before_ms else "")
+          f"[{err.min():+.3f}, {err.max():+.3f}] ms over {len(err)} VPEs{before}")
 
 
 def test_timesync_answer_is_stamped_at_the_middle_of_arrival_and_answer(tmp_path):
