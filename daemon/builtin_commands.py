@@ -19,7 +19,7 @@ from ahrsd.daemon.mavlink_io import mavlink
 
 def register_builtin_commands(service) -> None:
     r = service.commands
-    r.register(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, lambda m, c: set_message_interval(service, m))
+    r.register(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, lambda m, c: set_message_interval(service, m, c))
     r.register(mavlink.MAV_CMD_GET_MESSAGE_INTERVAL, lambda m, c: get_message_interval(service, m, c),
                state_changing=False)
     r.register(mavlink.MAV_CMD_REQUEST_MESSAGE, lambda m, c: request_message(service, m, c), state_changing=False)
@@ -37,22 +37,23 @@ def _message_id(value: float) -> int | None:
     return whole_number(value, 0, MESSAGE_ID_MAX)
 
 
-def set_message_interval(service, msg) -> int:
-    """param1 message id, param2 interval µs (−1 off, 0 default, > 0)."""
+def set_message_interval(service, msg, ctx) -> int:
+    """param1 message id, param2 interval µs (−1 off, 0 default, > 0). Changes the rate on the endpoint the
+    request came in on only (daemon.endpoint_outputs)."""
+    schedule = service.schedule_for(ctx.endpoint)
     args = CommandArgs.of(msg)
     mid, interval_us = _message_id(args.p(1)), args.p(2)
     if mid is None:
         return Refused(mavlink.MAV_RESULT_DENIED, f"SET_MESSAGE_INTERVAL: message id {args.p(1)} invalid")
-    if mid not in service.schedule:
+    if mid not in schedule:
         return Refused(mavlink.MAV_RESULT_DENIED, f"SET_MESSAGE_INTERVAL: message {mid} is not an output")
     # an infinite interval would silently switch the output off, a tiny one exceed its maximum rate
     if not (interval_us in (-1.0, 0.0) or 0.0 < interval_us <= MAX_INTERVAL_US):
         return Refused(mavlink.MAV_RESULT_DENIED, f"SET_MESSAGE_INTERVAL: interval {interval_us} us invalid")
     rate_hz = 1e6 / interval_us if interval_us > 0 else 0.0
-    if rate_hz > service.schedule.max_rate_hz(mid):
-        return Refused(mavlink.MAV_RESULT_DENIED,
-                       f"msg {mid}: {rate_hz:.4g} Hz > max {service.schedule.max_rate_hz(mid):g} Hz")
-    service.schedule.set_interval_us(mid, interval_us)
+    if rate_hz > schedule.max_rate_hz(mid):
+        return Refused(mavlink.MAV_RESULT_DENIED, f"msg {mid}: {rate_hz:.4g} Hz > max {schedule.max_rate_hz(mid):g} Hz")
+    service.set_message_interval(ctx.endpoint, mid, interval_us)
     return mavlink.MAV_RESULT_ACCEPTED
 
 
@@ -65,8 +66,8 @@ def get_message_interval(service, msg, ctx) -> int:
         return Refused(mavlink.MAV_RESULT_DENIED, f"GET_MESSAGE_INTERVAL: message id {raw_id} invalid")
     if mid == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
         interval = 1_000_000
-    elif mid is not None and mid in service.schedule:
-        interval = service.schedule.interval_us(mid)
+    elif mid is not None and mid in service.schedule_for(ctx.endpoint):
+        interval = service.schedule_for(ctx.endpoint).interval_us(mid)
     else:
         interval = 0   # "0: not available"
     service.loop.call_soon(ctx.endpoint.send, msgs.message_interval(mid, interval))
@@ -97,7 +98,7 @@ def request_message(service, msg, ctx) -> int:
         out = autopilot_version(service)
     elif mid == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
         out = msgs.heartbeat(service.mav_type, service.health.system_status(now))
-    elif mid is not None and mid in service.schedule:
+    elif mid is not None and mid in service.schedule_for(ctx.endpoint):
         out = service.build_output(mid, now)
         if out is None:
             return mavlink.MAV_RESULT_TEMPORARILY_REJECTED

@@ -47,7 +47,7 @@ class ParamProtocol:
     def _on_param_change(self, name: str, value: float) -> None:
         if name.startswith("SR_"):
             try:
-                self.schedule.set_rate_hz(BY_PARAM_NAME[name].message_id, value, default=True)
+                self.set_output_rate_hz(BY_PARAM_NAME[name].message_id, value)   # every endpoint following it
             except ValueError as exc:
                 raise ParamError(f"{name}: {exc}") from None
         elif name.startswith("MNT_"):

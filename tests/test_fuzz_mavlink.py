@@ -241,7 +241,7 @@ def state(rig) -> dict:
     mav = rig.ep.conn.mav
     return {
         "params": tuple(s.params.item(i)[1] for i in range(len(s.params))),
-        "rates": tuple(s.schedule.rate_hz(m) for m in s.schedule.ids()),
+        "rates": tuple(ep.schedule.rate_hz(m) for ep in s.endpoints for m in ep.schedule.ids()),
         "calibration": repr(s.pipeline.calibration.to_dict()),
         "magcal_session": s.magcal.session is not None,
         "signing_timestamp": mav.signing.timestamp if rig.signing else None,
@@ -255,9 +255,10 @@ def check_ranges(rig) -> None:
         name, value = s.params.item(i)
         spec = s.params.specs[i]
         assert math.isfinite(value) and spec.lo <= value <= spec.hi, (name, value)
-    for mid in s.schedule.ids():
-        hz = s.schedule.rate_hz(mid)
-        assert math.isfinite(hz) and 0.0 <= hz <= s.schedule.max_rate_hz(mid), (mid, hz)
+    for ep in s.endpoints:
+        for mid in ep.schedule.ids():
+            hz = ep.schedule.rate_hz(mid)
+            assert math.isfinite(hz) and 0.0 <= hz <= ep.schedule.max_rate_hz(mid), (mid, hz)
     ap = s.autopilot
     assert ap.lat_deg is None or (-90 <= ap.lat_deg <= 90 and -180 <= ap.lon_deg <= 180)
     assert math.isfinite(s.declination_rad)

@@ -92,7 +92,7 @@ def test_unsigned_and_wrongly_signed_writes_are_refused_and_counted(signed_rig):
         acks = [m for m in drain(r) if m.get_type() == "COMMAND_ACK" and m.command == cmd]
         assert acks and acks[-1].result == mavlink.MAV_RESULT_DENIED
     assert s.commands.counters.unsigned_refused == 2
-    assert s.schedule.rate_hz(mavlink.MAVLINK_MSG_ID_ATTITUDE) == before          # the interval did not change
+    assert s.endpoints[0].schedule.rate_hz(mavlink.MAVLINK_MSG_ID_ATTITUDE) == before          # the interval did not change
     status = s.sys_status_message(time.monotonic())
     assert status.errors_count1 == 4                                              # refused writes and commands
     # read-only requests stay accepted unsigned
