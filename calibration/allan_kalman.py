@@ -1,4 +1,5 @@
-"""Kalman-filter noise tuning from the noise terms an Allan analysis found (thesis §8.4 form, eq. 6-1/6-2).
+"""Kalman-filter noise tuning from the noise terms an Allan analysis found (the ADIS16405
+AHRS thesis §5-5 form, eq. 6-1/6-2).
 
 Q (6, rad²/s, continuous-time densities) = diag((3·N_i)², (3·w_b,i)²): the gyro white noise N (ARW) and the
 bias-driving noise w_b, both inflated ×3 because the axes' noises are correlated but Q is kept diagonal

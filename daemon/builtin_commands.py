@@ -79,7 +79,8 @@ def request_message(service, msg, ctx) -> int:
 
 def preflight_calibration(service, msg, ctx):
     """param1 = 1: gyro bias (here); param2 = 1/76: magnetometer start/force-save (daemon.magcal, when
-    attached). "Only one sensor per message" (anchor §1.2): anything else is UNSUPPORTED."""
+    attached). "Only one sensor per message" (common.xml MAV_CMD_PREFLIGHT_CALIBRATION):
+    anything else is UNSUPPORTED."""
     from ahrsd.daemon.commands import command_params
 
     p = command_params(msg)
