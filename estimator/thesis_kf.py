@@ -28,7 +28,7 @@ Choices where the thesis is silent, each a field of `ThesisKfParams`:
   going backwards) re-initialise the vectors from the measurement (flags LARGE_DT | REINITIALISED); a repeated
   time stamp (Δt = 0) gets the measurement update only.
 * **τ_w** — 1000 s: long against the filter's settling so a learned bias is kept (the thesis folds it back into
-  the calibration, §6.8); with the thesis's bias-driving noise this is a slow random walk.
+  the calibration, Fig 1-2); with the thesis's bias-driving noise this is a slow random walk.
 * **x̂₀, P₀** — the first sample's m̃, −f̃ with P₀ = R; bias ``initial_bias_rad_s`` with σ ``initial_bias_sigma_rad_s``.
 * **H** — [I₆ 0] with −f̃ as the measurement (equivalent to H = [[I,0,0],[0,−I,0]] on f̃).
 * **Units of Q and R** — Q (eq 6-1) as printed, rad²/s; R (eq 6-2) read as mG and mg (the ADIS16405's display
@@ -167,7 +167,7 @@ _BOTH = np.arange(0, 6)
 
 
 # after a calibration change the reference dip follows the filtered field this long: the field state
-# converges with a time constant of several seconds at the thesis tuning (measured: 66° → 46° in 24 s)
+# converges with a time constant of several seconds at the thesis tuning (tests/test_calibration_change.py)
 RELEARN_DIP_S = 30.0
 
 

@@ -378,7 +378,7 @@ class AuvOutAndBack(ConstantSpeedTrack, EulerScenario):
     out_heading_deg: float = 62.0      # the paper's test 2 (§5)
     back_heading_deg: float = -117.0   # the paper's test 2 (§5)
     name = "auv-out-and-back"
-    description = "AUV legs at 62° and −117° (back-stepping paper, test 2), 240 s each, 60 s turns, pitch ±3°, roll ±1.5°"
+    description = "AUV legs at 62° and −117° (back-stepping paper test 2), 240 s each, 60 s turns, pitch ±3°, roll ±1.5°"
     default_iron = VehicleIron.default()
 
     def __post_init__(self):
