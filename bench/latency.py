@@ -12,7 +12,7 @@ Part B — the daemon's reader in-process for a few seconds: how far those time 
 
     .venv/bin/python bench/latency.py [--seconds 20] [--profile gcs|autopilot|both]
 
-Targets (issue 4): p99 ≤ 2 ms, CPU ≤ 10 % of one core.
+Targets (docs/daemon.md): p99 ≤ 2 ms, CPU ≤ 10 % of one core.
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""Multi-position accelerometer calibration: the thesis's 12-parameter model (thesis §5-6-6; digest §10.2).
+"""Multi-position accelerometer calibration: the 12-parameter model of the ADIS16405
+AHRS thesis §5-6-6 (docs/calibration.md).
 
 Model (our form of eq. 5-47…5-58): f = L · (f̃ − b − q ∘ f̃²), L lower triangular (scale on the diagonal,
 three misalignments below it: the accelerometer's x axis defines the platform frame, so the rotation the
@@ -8,7 +9,8 @@ gravity norm cannot see is fixed), b the bias, q the quadratic nonlinearity. 3 +
    h_i = [S_oy S_oz, −S_ox S_oz, S_ox S_oy, S_ox, S_oy, S_oz, −S_ox², −S_oy², −S_oz², S_ox³, S_oy³, S_oz³]
    X_a = [α_yx, α_xy, α_xz, δS_bx, δS_by, δS_bz, δk_x, δk_y, δk_z, k_nx, k_ny, k_nz]
    (first order in the errors: S^P ≈ S_o + E·S_o + δS_b + K_nl·S_o², E lower triangular).
-2. Exact nonlinear refinement on |f| = g with scipy least_squares (the digest's suggestion), from step 1.
+2. Exact nonlinear refinement on |f| = g with scipy least_squares (step 1 is first order only),
+   from step 1.
 
 Fewer positions support fewer terms: 'auto' fits 12 parameters with ≥ 12 distinct orientations, 9 (no
 quadratic) with ≥ 9, 6 (bias + per-axis scale) with ≥ 6, and refuses below that.
@@ -346,7 +348,7 @@ def hold_cost(used: list[StillSegment], skipped: list[StillSegment], rate_hz: fl
 # ---------------------------------------------------------------------------------------------- guided procedure
 
 # The positions the guided procedure asks for: the six faces, then the eight corners (each with three axes
-# tilted ~35° from vertical), 14 ≥ 12 distinct orientations (thesis §10.2: at least 12, more is better).
+# tilted ~35° from vertical), 14 ≥ 12 distinct orientations (thesis §5-6-6: at least 12, more is better).
 # Each is the direction the accelerometer reads +g along (the "up" direction in sensor axes).
 _S = 1 / math.sqrt(3)
 GUIDED_TARGETS: tuple[tuple[str, tuple[float, float, float]], ...] = (

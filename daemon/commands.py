@@ -1,4 +1,5 @@
-"""COMMAND_LONG / COMMAND_INT dispatch with the command protocol's ACK rules (anchor §1.6).
+"""COMMAND_LONG / COMMAND_INT dispatch with the command protocol's ACK rules (mavlink.io
+en/services/command.md).
 
 `CommandRouter.register(command_id, handler)` is the extension point: a handler gets
 `(msg, ctx: CommandContext)` and returns a MAV_RESULT int or a `CommandAck`. A long-running handler returns

@@ -34,8 +34,8 @@ from ahrsd.estimator import ESTIMATORS
 from ahrsd.simulation import SCENARIOS
 
 DEFAULT_CONFIG_PATH = Path("/etc/ahrsd/ahrsd.toml")
-DEFAULT_ENDPOINT = "udpout:127.0.0.1:14550"   # the ground-station port by convention (anchor §3.4)
-MAV_TYPES = {"imu": 40, "onboard_controller": 18}  # MAV_TYPE_IMU / MAV_TYPE_ONBOARD_CONTROLLER (anchor §1.3)
+DEFAULT_ENDPOINT = "udpout:127.0.0.1:14550"   # the ground-station port by convention (QGC, MAVSDK)
+MAV_TYPES = {"imu": 40, "onboard_controller": 18}  # MAV_TYPE_IMU / MAV_TYPE_ONBOARD_CONTROLLER (minimal.xml)
 MIN_HEADING_SLEW_DEG_S = 0.1   # slower would take an hour for a 180° change
 MAX_HEADING_SLEW_DEG_S = 90.0
 SERIAL_DEFAULT_BAUD = 115200                   # pymavlink mavserial's default
@@ -241,7 +241,7 @@ class EndpointConfig:
 @dataclass(frozen=True)
 class MavlinkConfig:
     system_id: int = 0                  # 0 = latch the first autopilot's system id (1 until then)
-    component_id: int = 200             # MAV_COMP_ID_IMU (anchor §1.3)
+    component_id: int = 200             # MAV_COMP_ID_IMU (minimal.xml MAV_COMPONENT)
     mav_type: str = "imu"               # HEARTBEAT.type: "imu" (40) or "onboard_controller" (18)
     accept_broadcast_commands: bool = True  # act on COMMAND_LONG with target_component 0
 
@@ -294,7 +294,7 @@ class StateConfig:
 
 @dataclass(frozen=True)
 class SigningConfig:
-    """MAVLink 2 signing (anchor §1.5). The key is read from a file and never logged."""
+    """MAVLink 2 signing (mavlink.io en/guide/message_signing.md). The key is read from a file and never logged."""
 
     key_file: str = ""                  # 32 raw bytes, or 64 hex characters; "" = signing off
     link_id: int = 0

@@ -1,14 +1,15 @@
 """The MAVLink side of the field magnetometer recalibration (ArduPilot's onboard-calibration protocol).
 
 Commands (COMMAND_LONG / COMMAND_INT), behaviour mirrored from ArduPilot's AP_Compass_Calibration.cpp
-(anchors/mavlink-adis.md §6) so Mission Planner, MAVProxy and any MAVLink client can drive our component:
+(ArduPilot/ardupilot) so Mission Planner, MAVProxy and any MAVLink client can drive our component:
 
 * MAV_CMD_DO_START_MAG_CAL (42424): p1 magnetometer mask (0 = all; ours is compass 0), p2 retry, p3 autosave,
   p4 delay s, p5 autoreboot (not needed: the new calibration is hot-swapped; logged and ignored).
   ACCEPTED as ArduPilot does; FAILED for a mask outside 0..255 or one that names no compass of ours, for
   retry/autosave/autoreboot other than 0/1 and for a delay that is not finite or outside 0..timeout_s;
   TEMPORARILY_REJECTED + STATUSTEXT "Disarm to allow compass calibration" while the autopilot reports armed
-  (ArduPilot answers FAILED; the issue asks for TEMPORARILY_REJECTED) unless `allow_armed`; a second start
+  (ArduPilot answers FAILED; TEMPORARILY_REJECTED tells the client to retry later, common.xml
+  MAV_RESULT) unless `allow_armed`; a second start
   while a session runs is ACCEPTED and changes nothing (ArduPilot's CompassCalibrator::start returns when
   running); a start after a finished session starts a new one.
 * MAV_CMD_DO_ACCEPT_MAG_CAL (42425): saves a SUCCESS result (atomic store, previous kept), hot-swaps it,

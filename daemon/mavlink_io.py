@@ -1,4 +1,5 @@
-"""MAVLink connections registered with the asyncio event loop (anchor §3.5–3.6).
+"""MAVLink connections registered with the asyncio event loop (pymavlink mavutil connections,
+read through loop.add_reader on their fd).
 
 One `Endpoint` per configured URL wraps a pymavlink `mavfile`. Reception is event driven:
 `loop.add_reader(fd, ...)` drains every byte available and parses it (no polling, no reader threads).
@@ -389,7 +390,7 @@ class Endpoint:
 
 
 def is_for_us(msg, system_id: int, component_id: int) -> tuple[bool, bool]:
-    """MAVLink routing rule (anchor §1.6): (process it?, was it broadcast to all components?).
+    """MAVLink routing rule (mavlink.io en/guide/routing.md): (process it?, was it broadcast to all components?).
 
     Process when target_system is absent/0, or equals ours and target_component is absent/0 or ours.
     """

@@ -1,6 +1,7 @@
 """The MAVLink parameter set: a fixed, ordered list of REAL32 parameters persisted in the state directory.
 
-Protocol rules this follows (anchor §1.6): names ≤ 16 characters; every value is a float sent as
+Protocol rules this follows (MAVLink parameter protocol, mavlink.io
+en/services/parameter.md): names ≤ 16 characters; every value is a float sent as
 MAV_PARAM_TYPE_REAL32 (no byte-wise encoding questions); the set (names, count, indices) never changes once the
 daemon runs; a write is validated against the parameter's range and, accepted or not, answered by a broadcast
 PARAM_VALUE with the value now in force (the caller does the sending).

@@ -1,4 +1,4 @@
-"""MAVLink 2 signing set-up (anchor §1.5): key loading and the persisted signing timestamp.
+"""MAVLink 2 signing set-up (mavlink.io en/guide/message_signing.md): key loading and the persisted signing timestamp.
 
 The key file holds the 32-byte secret either raw or as 64 hex characters. The key is never logged (only a
 short SHA-256 fingerprint, which identifies the key without revealing it). The signing timestamp (10 µs units
