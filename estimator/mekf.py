@@ -51,6 +51,13 @@ class MekfParams:
     """Bias random walk density, rad/s/√s: reaches the ADIS16405 in-run bias stability (0.007°/s, datasheet)
     in about 100 s. Larger values let linear acceleration and field errors leak into the bias in motion
     (measured on BROAD: 1e-4 → mean 2.73° instead of 2.24°)."""
+    gyro_rate_noise_sqrt_s: float = 1e-3
+    """Tilt process noise that grows with the rotation rate: (this · |ω|)² per second is added to the tilt
+    variance rate, for the gyro's scale-factor and axis-misalignment errors (an error of a fraction e of the
+    rate turns the attitude by e·|ω| per second), √s. It balances the acceleration-adaptive tilt noise in fast
+    rotation, where the tilt must be corrected quickly although the apparent vertical swings (BROAD, chosen by
+    cross-validation with acc_adaptive_gain: docs/estimator.md). Heading keeps the angle random walk only (its
+    noise floor mag_heading_noise_rad covers the rest). 0 = off."""
     gyro_bias_clip_rad_s: float = 2.0 * _DEG
     """The bias estimate is clipped to ±this per axis (VQF biasClip); rest is not declared above it."""
     init_bias_sigma_rad_s: float = 0.5 * _DEG
@@ -82,6 +89,14 @@ class MekfParams:
     acc_lowpass_tau_s: float = 1.5
     """Time constant of the low-pass of the specific force in the NED frame, s (0 = off). VQF uses 3 s as
     its only tilt smoothing; the Kalman gain adds its own, so half of that."""
+    acc_adaptive_gain: float = 30.0
+    """Acceleration-adaptive tilt noise (mekf_core._tilt_innovation_spread): the spread of the tilt innovation around its
+    running mean (how much the low-passed vertical swings while a hand moves the sensor about) times this is
+    added to the tilt measurement variance; the factor stands for the low-passed measurement's correlation
+    over many samples. Dimensionless; 0 = off (the filter then leans toward every sustained push). Chosen by
+    cross-validation on BROAD with gyro_rate_noise_sqrt_s (docs/estimator.md)."""
+    acc_adaptive_tau_s: float = 2.0
+    """Window (time constant) of the tilt innovation's running mean and spread, s."""
 
     # --- magnetometer (heading)
     mag_enabled: bool = True
@@ -185,6 +200,9 @@ class MekfParams:
         p[core.P_MAG_REJECT_MAX] = self.mag_reject_max_s
         p[core.P_MAG_HEADING_NOISE_REST] = self.mag_heading_noise_rest_rad
         p[core.P_MAG_REST_CHANGE] = self.mag_rest_change_ut
+        p[core.P_ACC_ADAPT_GAIN] = self.acc_adaptive_gain
+        p[core.P_ACC_ADAPT_TAU] = self.acc_adaptive_tau_s
+        p[core.P_GYRO_RATE_NOISE] = self.gyro_rate_noise_sqrt_s
         return p
 
 

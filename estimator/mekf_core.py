@@ -51,7 +51,9 @@ S_REST_DG = 75        # low-passed squared gyro deviation from its low-pass, (ra
 S_REST_DA = 76        # low-passed squared acc deviation, (m/s²)²
 S_ACC_HOLD_T = 77     # tilt updates stay off this much longer after a sustained push, s
 S_MAG_GATE_OPEN_T = 78  # the heading innovation gate stays open this much longer (new calibration), s
-S_SIZE = 80
+S_ACC_NU_MEAN = 80    # 2: running mean of the tilt innovation (north, east), rad
+S_ACC_NU_VAR = 82     # running mean square deviation of the tilt innovation from that mean, rad²
+S_SIZE = 84
 
 # ----------------------------------------------------------------------------------- parameter layout
 P_GYRO_NOISE = 0        # gyro angle random walk, rad/s/√Hz
@@ -90,7 +92,10 @@ P_MAG_HEADING_NOISE_REST = 32  # heading noise floor at rest (no dynamic errors)
 P_ACC_GATE_RECOVER = 33  # after this long without a tilt update, rejection is overridden (recovery), s
 P_ACC_TURN_DEAD = 34    # turn angles below this add no noise, rad
 P_MAG_REST_CHANGE = 35  # at rest, a low-passed body-frame field change above this is a disturbance, µT
-P_SIZE = 36
+P_ACC_ADAPT_GAIN = 36  # tilt variance added per unit of the innovation's spread (_tilt_innovation_spread), dimensionless
+P_ACC_ADAPT_TAU = 37   # window (time constant) of the innovation's running mean and spread, s (0 = off)
+P_GYRO_RATE_NOISE = 38  # attitude process noise per rad/s of rotation rate (gyro scale/alignment errors), √s
+P_SIZE = 39
 
 # ----------------------------------------------------------------------------------- flags (= EstimateFlags)
 F_INITIALISING = 1
@@ -204,6 +209,32 @@ def _symmetrise(state):
             a = 0.5 * (state[S_P + i * 6 + j] + state[S_P + j * 6 + i])
             state[S_P + i * 6 + j] = a
             state[S_P + j * 6 + i] = a
+
+
+@njit(cache=True)
+def _tilt_innovation_spread(mean_n, mean_e, var, nu_n, nu_e, k):
+    """Running mean and spread of the tilt innovation, for the acceleration-adaptive tilt noise.
+
+    The tilt measurement is the specific force low-pass filtered in the NED frame. With a first-order low-pass
+    of time constant τ the filtered linear acceleration is exactly (v − LP_τ(v)) / τ: the sensor's velocity
+    minus its recent mean, over τ. It is not white noise: a hand that shakes or moves the sensor about leaves a
+    residual that swings with the motion (degrees of apparent tilt for ±5 m/s² at 1 Hz), and a filter that
+    trusts it with a fixed variance leans toward every push. A real tilt error is a slow drift, the residual
+    swings with the motion: so the spread of the innovation around its own running mean measures the
+    residual, and is added to the measurement variance (covariance matching: R. K. Mehra, "On the
+    identification of variances and adaptive Kalman filtering", IEEE TAC 15(2), 1970; A. H. Mohamed,
+    K. P. Schwarz, "Adaptive Kalman filtering for INS/GPS", J. Geodesy 73, 1999). A persistent tilt error
+    moves the mean, not the spread, so it is still corrected.
+
+    nu_n, nu_e: the measured vertical's north/east components in the estimated NED frame, rad;
+    k = 1 − exp(−Δt/τ_w). Returns (mean_n, mean_e, var): new means and the low-passed mean square deviation
+    per axis, rad². (Kept in this file: numba's cache does not notice edits to njit code in other files.)"""
+    mean_n += k * (nu_n - mean_n)
+    mean_e += k * (nu_e - mean_e)
+    dn = nu_n - mean_n
+    de = nu_e - mean_e
+    var += k * (0.5 * (dn * dn + de * de) - var)
+    return mean_n, mean_e, var
 
 
 @njit(cache=True)
@@ -346,14 +377,16 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
         ob20 = state[p + 15]
         ob21 = state[p + 16]
         ob22 = state[p + 17]
+        # angle random walk, plus the gyro's scale and axis-alignment errors, which turn with the rate
         qa = par[P_GYRO_NOISE] * par[P_GYRO_NOISE] * dt
+        qt = qa + (par[P_GYRO_RATE_NOISE] * rate) ** 2 * dt
         qb = par[P_BIAS_WALK] * par[P_BIAS_WALK] * dt
         # rows i of A': A[i][j] − Σk ob[i][k] m[j][k] − Σk m[i][k] b[j][k]
-        state[p + 0] += qa - (ob00 * m00 + ob01 * m01 + ob02 * m02) - (m00 * b00 + m01 * b01 + m02 * b02)
+        state[p + 0] += qt - (ob00 * m00 + ob01 * m01 + ob02 * m02) - (m00 * b00 + m01 * b01 + m02 * b02)
         state[p + 1] += -(ob00 * m10 + ob01 * m11 + ob02 * m12) - (m00 * b10 + m01 * b11 + m02 * b12)
         state[p + 2] += -(ob00 * m20 + ob01 * m21 + ob02 * m22) - (m00 * b20 + m01 * b21 + m02 * b22)
         state[p + 6] += -(ob10 * m00 + ob11 * m01 + ob12 * m02) - (m10 * b00 + m11 * b01 + m12 * b02)
-        state[p + 7] += qa - (ob10 * m10 + ob11 * m11 + ob12 * m12) - (m10 * b10 + m11 * b11 + m12 * b12)
+        state[p + 7] += qt - (ob10 * m10 + ob11 * m11 + ob12 * m12) - (m10 * b10 + m11 * b11 + m12 * b12)
         state[p + 8] += -(ob10 * m20 + ob11 * m21 + ob12 * m22) - (m10 * b20 + m11 * b21 + m12 * b22)
         state[p + 12] += -(ob20 * m00 + ob21 * m01 + ob22 * m02) - (m20 * b00 + m21 * b01 + m22 * b02)
         state[p + 13] += -(ob20 * m10 + ob21 * m11 + ob22 * m12) - (m20 * b10 + m21 * b11 + m22 * b12)
@@ -495,6 +528,16 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
         # unit measured "up" in NED: u = [δθ_E, −δθ_N, −1] (+ noise)
         nu_n = un / unorm if unorm > 0.0 else 0.0
         nu_e = ue / unorm if unorm > 0.0 else 0.0
+        # how much the apparent vertical swings with the motion (_tilt_innovation_spread): extra tilt variance
+        if par[P_ACC_ADAPT_TAU] > 0.0 and dt > 0.0:
+            mean_n, mean_e, spread = _tilt_innovation_spread(
+                state[S_ACC_NU_MEAN], state[S_ACC_NU_MEAN + 1], state[S_ACC_NU_VAR], nu_n, nu_e,
+                1.0 - math.exp(-dt / par[P_ACC_ADAPT_TAU]),
+            )
+            state[S_ACC_NU_MEAN] = mean_n
+            state[S_ACC_NU_MEAN + 1] = mean_e
+            state[S_ACC_NU_VAR] = spread
+        r_motion = par[P_ACC_ADAPT_GAIN] * state[S_ACC_NU_VAR]
         # reject (a) a sustained push: |f| of the low-pass far from g, (b) a vertical more than the gate angle
         # from the estimate (the covariance of a low-passed, correlated measurement is no honest yardstick;
         # an angle is). Either way the low-pass holds the push: stay off until it has forgotten it (4 τ → 2 %
@@ -510,13 +553,13 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
         accepted = False
         if unorm > 0.5 * g_ref and (state[S_ACC_HOLD_T] <= 0.0 or state[S_ACC_REJ_T] > par[P_ACC_GATE_RECOVER]):
             if at_rest:
-                r = (par[P_ACC_NOISE_REST] / g_ref) ** 2
+                r = (par[P_ACC_NOISE_REST] / g_ref) ** 2 + r_motion
             else:
                 # a sustained acceleration a ⟂ g (a turn) tilts the apparent vertical by φ with
                 # cos φ = g/|f|: that angle is the size of the error the measurement can carry
                 ratio = min(unorm, g_ref) / max(unorm, g_ref)
                 phi = par[P_ACC_TURN_GAIN] * max(math.acos(ratio) - par[P_ACC_TURN_DEAD], 0.0)
-                r = (par[P_ACC_NOISE] / g_ref) ** 2 + phi * phi
+                r = (par[P_ACC_NOISE] / g_ref) ** 2 + phi * phi + r_motion
             # never heading; and no bias learning while |f| is off g (a push would be read as bias)
             mask = M_HEADING if abs(fnorm - g_ref) < par[P_REST_ACC_TH] else (M_HEADING | M_BIAS)
             d0, d1, d2, d3, d4, d5 = _scalar_update(state, 1, 1.0, nu_n, r, mask)
