@@ -52,8 +52,10 @@ CANDIDATES: list[tuple[str, dict]] = [
     ("norm_tol=0.05", {"mag_norm_tol": 0.05}),
     ("norm_tol=0.15", {"mag_norm_tol": 0.15}),
 ] + [
-    # the acceleration-adaptive tilt noise (mekf_core._tilt_innovation_spread) with the rate-dependent tilt process noise
-    # that balances it in fast rotation: a 4 × 4 grid
+    ("acc_adapt=0,rate_noise=0", {"acc_adaptive_gain": 0.0, "gyro_rate_noise_sqrt_s": 0.0}),
+] + [
+    # the acceleration-adaptive tilt noise with the rate-dependent tilt process noise that balances it in fast
+    # rotation: off, and a 4 × 4 grid
     (f"acc_adapt={gain:g},rate_noise={rate:g}", {"acc_adaptive_gain": gain, "gyro_rate_noise_sqrt_s": rate})
     for gain in (1.0, 3.0, 10.0, 30.0) for rate in (1e-4, 3e-4, 1e-3, 3e-3)
 ]

@@ -90,8 +90,8 @@ class MekfParams:
     """Time constant of the low-pass of the specific force in the NED frame, s (0 = off). VQF uses 3 s as
     its only tilt smoothing; the Kalman gain adds its own, so half of that."""
     acc_adaptive_gain: float = 30.0
-    """Acceleration-adaptive tilt noise (mekf_core._tilt_innovation_spread): the spread of the tilt innovation around its
-    running mean (how much the low-passed vertical swings while a hand moves the sensor about) times this is
+    """Acceleration-adaptive tilt noise (mekf_core, accelerometer update): the spread of the tilt innovation around
+    its running mean (how much the low-passed vertical swings while a hand moves the sensor about) times this is
     added to the tilt measurement variance; the factor stands for the low-passed measurement's correlation
     over many samples. Dimensionless; 0 = off (the filter then leans toward every sustained push). Chosen by
     cross-validation on BROAD with gyro_rate_noise_sqrt_s (docs/estimator.md)."""

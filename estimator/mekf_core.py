@@ -52,7 +52,7 @@ S_REST_DA = 76        # low-passed squared acc deviation, (m/s²)²
 S_ACC_HOLD_T = 77     # tilt updates stay off this much longer after a sustained push, s
 S_MAG_GATE_OPEN_T = 78  # the heading innovation gate stays open this much longer (new calibration), s
 S_ACC_NU_MEAN = 80    # 2: running mean of the tilt innovation (north, east), rad
-S_ACC_NU_VAR = 82     # running mean square deviation of the tilt innovation from that mean, rad²
+S_ACC_NU_VAR = 82     # 2: running mean square deviation of the tilt innovation from that mean, rad²
 S_SIZE = 84
 
 # ----------------------------------------------------------------------------------- parameter layout
@@ -92,7 +92,7 @@ P_MAG_HEADING_NOISE_REST = 32  # heading noise floor at rest (no dynamic errors)
 P_ACC_GATE_RECOVER = 33  # after this long without a tilt update, rejection is overridden (recovery), s
 P_ACC_TURN_DEAD = 34    # turn angles below this add no noise, rad
 P_MAG_REST_CHANGE = 35  # at rest, a low-passed body-frame field change above this is a disturbance, µT
-P_ACC_ADAPT_GAIN = 36  # tilt variance added per unit of the innovation's spread (_tilt_innovation_spread), dimensionless
+P_ACC_ADAPT_GAIN = 36  # tilt variance added per unit of the tilt innovation's spread, dimensionless
 P_ACC_ADAPT_TAU = 37   # window (time constant) of the innovation's running mean and spread, s (0 = off)
 P_GYRO_RATE_NOISE = 38  # attitude process noise per rad/s of rotation rate (gyro scale/alignment errors), √s
 P_SIZE = 39
@@ -212,29 +212,13 @@ def _symmetrise(state):
 
 
 @njit(cache=True)
-def _tilt_innovation_spread(mean_n, mean_e, var, nu_n, nu_e, k):
-    """Running mean and spread of the tilt innovation, for the acceleration-adaptive tilt noise.
-
-    The tilt measurement is the specific force low-pass filtered in the NED frame. With a first-order low-pass
-    of time constant τ the filtered linear acceleration is exactly (v − LP_τ(v)) / τ: the sensor's velocity
-    minus its recent mean, over τ. It is not white noise: a hand that shakes or moves the sensor about leaves a
-    residual that swings with the motion (degrees of apparent tilt for ±5 m/s² at 1 Hz), and a filter that
-    trusts it with a fixed variance leans toward every push. A real tilt error is a slow drift, the residual
-    swings with the motion: so the spread of the innovation around its own running mean measures the
-    residual, and is added to the measurement variance (covariance matching: R. K. Mehra, "On the
-    identification of variances and adaptive Kalman filtering", IEEE TAC 15(2), 1970; A. H. Mohamed,
-    K. P. Schwarz, "Adaptive Kalman filtering for INS/GPS", J. Geodesy 73, 1999). A persistent tilt error
-    moves the mean, not the spread, so it is still corrected.
-
-    nu_n, nu_e: the measured vertical's north/east components in the estimated NED frame, rad;
-    k = 1 − exp(−Δt/τ_w). Returns (mean_n, mean_e, var): new means and the low-passed mean square deviation
-    per axis, rad². (Kept in this file: numba's cache does not notice edits to njit code in other files.)"""
-    mean_n += k * (nu_n - mean_n)
-    mean_e += k * (nu_e - mean_e)
-    dn = nu_n - mean_n
-    de = nu_e - mean_e
-    var += k * (0.5 * (dn * dn + de * de) - var)
-    return mean_n, mean_e, var
+def _running_spread(mean, var, x, k):
+    """Running mean of x and running mean square deviation of x from it, both low-passed with weight
+    k = 1 − exp(−Δt/τ). Returns (mean, var)."""
+    mean += k * (x - mean)
+    d = x - mean
+    var += k * (d * d - var)
+    return mean, var
 
 
 @njit(cache=True)
@@ -528,16 +512,20 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
         # unit measured "up" in NED: u = [δθ_E, −δθ_N, −1] (+ noise)
         nu_n = un / unorm if unorm > 0.0 else 0.0
         nu_e = ue / unorm if unorm > 0.0 else 0.0
-        # how much the apparent vertical swings with the motion (_tilt_innovation_spread): extra tilt variance
+        # Acceleration-adaptive tilt noise. The low-passed linear acceleration is exactly (v − LP_τ(v)) / τ:
+        # the sensor's velocity minus its recent mean, over τ. A hand shaking or moving the sensor about leaves
+        # a residual that swings with the motion (degrees of apparent tilt for ±5 m/s² at 1 Hz), not white
+        # noise; a real tilt error is a slow drift. So the spread of the innovation around its own running
+        # mean measures the residual and is added to the measurement variance (covariance matching:
+        # R. K. Mehra, IEEE TAC 15(2), 1970; A. H. Mohamed, K. P. Schwarz, J. Geodesy 73, 1999). A persistent
+        # tilt error moves the mean, not the spread, so it is still corrected.
         if par[P_ACC_ADAPT_TAU] > 0.0 and dt > 0.0:
-            mean_n, mean_e, spread = _tilt_innovation_spread(
-                state[S_ACC_NU_MEAN], state[S_ACC_NU_MEAN + 1], state[S_ACC_NU_VAR], nu_n, nu_e,
-                1.0 - math.exp(-dt / par[P_ACC_ADAPT_TAU]),
-            )
-            state[S_ACC_NU_MEAN] = mean_n
-            state[S_ACC_NU_MEAN + 1] = mean_e
-            state[S_ACC_NU_VAR] = spread
-        r_motion = par[P_ACC_ADAPT_GAIN] * state[S_ACC_NU_VAR]
+            kw = 1.0 - math.exp(-dt / par[P_ACC_ADAPT_TAU])
+            state[S_ACC_NU_MEAN], state[S_ACC_NU_VAR] = _running_spread(
+                state[S_ACC_NU_MEAN], state[S_ACC_NU_VAR], nu_n, kw)
+            state[S_ACC_NU_MEAN + 1], state[S_ACC_NU_VAR + 1] = _running_spread(
+                state[S_ACC_NU_MEAN + 1], state[S_ACC_NU_VAR + 1], nu_e, kw)
+        r_motion = par[P_ACC_ADAPT_GAIN] * 0.5 * (state[S_ACC_NU_VAR] + state[S_ACC_NU_VAR + 1])
         # reject (a) a sustained push: |f| of the low-pass far from g, (b) a vertical more than the gate angle
         # from the estimate (the covariance of a low-passed, correlated measurement is no honest yardstick;
         # an angle is). Either way the low-pass holds the push: stay off until it has forgotten it (4 τ → 2 %
