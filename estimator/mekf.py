@@ -130,6 +130,23 @@ class MekfParams:
     """At rest the body does not turn: if the low-passed body-frame field moves more than this from where it
     was when the rest began, something magnetic moved nearby and the field is not used until motion, µT
     (0.5 µT ≈ 1° of heading for a 27 µT horizontal field; the rest low-pass leaves ~0.1 µT of noise)."""
+    mag_offset_tau_s: float = 0.0
+    """Body-fixed field offset (a magnet or iron attached after calibration, mekf_core `_offset_update`):
+    forgetting time constant of its online estimate, s; 0 = off. Once the estimate is known to
+    mag_offset_use_sigma_ut and significant it is subtracted (adopted), and it is forgotten again within about
+    this time after the magnet is removed. Off by default: on BROAD (factory-calibrated magnetometer, a lab
+    with field gradients, rotations to 480 °/s) it learns offsets that help some trials and hurt others
+    (docs/estimator.md); 60 s suits a well-calibrated unit that is turned slowly."""
+    mag_offset_min_angle_rad: float = 10.0 * _DEG
+    """Field snapshots are compared once the body has turned this far, rad."""
+    mag_offset_use_sigma_ut: float = 2.0
+    """The offset estimate is subtracted once its 1σ (largest axis) is below this, µT."""
+    mag_offset_max_tilt_spread_rad2: float = 1e-4
+    """... and only while the sensor is not being moved about (spread of the tilt innovation below this, rad²):
+    moving through the work space's field gradients would be read as an offset."""
+    mag_offset_max_rate_rad_s: float = 1.0
+    """... and only while turning slower than this: a magnetometer that lags the gyro by δt sees the field
+    turned by |ω|·δt (10 ms at 1 rad/s: 0.6°, ≈ 0.5 µT), which fast turns would read as an offset, rad/s."""
     mag_unavailable_s: float = 10.0
     """No heading update for this long sets MAG_UNAVAILABLE, s."""
 
@@ -203,6 +220,11 @@ class MekfParams:
         p[core.P_ACC_ADAPT_GAIN] = self.acc_adaptive_gain
         p[core.P_ACC_ADAPT_TAU] = self.acc_adaptive_tau_s
         p[core.P_GYRO_RATE_NOISE] = self.gyro_rate_noise_sqrt_s
+        p[core.P_MOFF_TAU] = self.mag_offset_tau_s
+        p[core.P_MOFF_MIN_ANGLE] = self.mag_offset_min_angle_rad
+        p[core.P_MOFF_USE_SIGMA] = self.mag_offset_use_sigma_ut
+        p[core.P_MOFF_MAX_TILT_SPREAD] = self.mag_offset_max_tilt_spread_rad2
+        p[core.P_MOFF_MAX_RATE] = self.mag_offset_max_rate_rad_s
         return p
 
 
@@ -320,6 +342,11 @@ class Mekf:
     @property
     def gyro_bias_rad_s(self) -> np.ndarray:
         return self._state[core.S_B : core.S_B + 3].copy()
+
+    @property
+    def field_offset_ut(self) -> np.ndarray:
+        """Estimated body-fixed field offset (an attached magnet), µT; zeros while mag_offset_tau_s is 0."""
+        return self._state[core.S_MOFF_B : core.S_MOFF_B + 3].copy()
 
     @property
     def covariance(self) -> np.ndarray:

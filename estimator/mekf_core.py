@@ -53,7 +53,14 @@ S_ACC_HOLD_T = 77     # tilt updates stay off this much longer after a sustained
 S_MAG_GATE_OPEN_T = 78  # the heading innovation gate stays open this much longer (new calibration), s
 S_ACC_NU_MEAN = 80    # 2: running mean of the tilt innovation (north, east), rad
 S_ACC_NU_VAR = 82     # 2: running mean square deviation of the tilt innovation from that mean, rad²
-S_SIZE = 84
+S_MOFF_B = 84         # 3: estimated body-fixed field offset (a magnet attached after calibration), µT
+S_MOFF_P = 87         # 9: its covariance 3×3 row-major, µT²
+S_MOFF_CM = 96        # 3: C·m (field in the estimated NED frame) at the previous snapshot, µT
+S_MOFF_C = 99         # 9: C_b^n at the previous snapshot
+S_MOFF_T = 108        # time since the previous snapshot, s
+S_MOFF_SET = 109      # 1.0 when the previous snapshot is valid
+S_MOFF_NIS = 110      # running mean of the offset fit's normalised squared innovation (model consistency)
+S_SIZE = 111
 
 # ----------------------------------------------------------------------------------- parameter layout
 P_GYRO_NOISE = 0        # gyro angle random walk, rad/s/√Hz
@@ -95,7 +102,12 @@ P_MAG_REST_CHANGE = 35  # at rest, a low-passed body-frame field change above th
 P_ACC_ADAPT_GAIN = 36  # tilt variance added per unit of the tilt innovation's spread, dimensionless
 P_ACC_ADAPT_TAU = 37   # window (time constant) of the innovation's running mean and spread, s (0 = off)
 P_GYRO_RATE_NOISE = 38  # attitude process noise per rad/s of rotation rate (gyro scale/alignment errors), √s
-P_SIZE = 39
+P_MOFF_TAU = 39        # forgetting time constant of the body-fixed offset estimate, s (0 = off)
+P_MOFF_MIN_ANGLE = 40  # snapshots are compared once the body has turned this far, rad
+P_MOFF_USE_SIGMA = 41  # the offset is subtracted once its 1σ (largest axis) is below this, µT
+P_MOFF_MAX_TILT_SPREAD = 42  # ... and only while the tilt innovation's spread is below this (not translating), rad²
+P_MOFF_MAX_RATE = 43  # ... and only below this rotation rate (magnetometer lag, timing skew), rad/s
+P_SIZE = 44
 
 # ----------------------------------------------------------------------------------- flags (= EstimateFlags)
 F_INITIALISING = 1
@@ -219,6 +231,44 @@ def _running_spread(mean, var, x, k):
     d = x - mean
     var += k * (d * d - var)
     return mean, var
+
+
+@njit(cache=True)
+def _offset_update(state, c00, c01, c02, c10, c11, c12, c20, c21, c22, cmx, cmy, cmz, r):
+    """Recursive least squares for a body-fixed field offset b from two snapshots of the field:
+    the earth field is constant in NED, m = C_nᵇ h + b, so C₂m₂ − C₁m₁ = (C₂ − C₁) b (the attitude's heading
+    error cancels as long as it is the same at both). Three scalar rows, noise variance r (µT²) each.
+    Returns the mean normalised squared innovation of the rows (≈ 1 when the model fits)."""
+    nis = 0.0
+    cn = (c00, c01, c02, c10, c11, c12, c20, c21, c22)
+    y = (cmx - state[S_MOFF_CM], cmy - state[S_MOFF_CM + 1], cmz - state[S_MOFF_CM + 2])
+    for i in range(3):
+        h0 = cn[3 * i] - state[S_MOFF_C + 3 * i]
+        h1 = cn[3 * i + 1] - state[S_MOFF_C + 3 * i + 1]
+        h2 = cn[3 * i + 2] - state[S_MOFF_C + 3 * i + 2]
+        p = S_MOFF_P
+        ph0 = state[p + 0] * h0 + state[p + 1] * h1 + state[p + 2] * h2
+        ph1 = state[p + 3] * h0 + state[p + 4] * h1 + state[p + 5] * h2
+        ph2 = state[p + 6] * h0 + state[p + 7] * h1 + state[p + 8] * h2
+        sv = h0 * ph0 + h1 * ph1 + h2 * ph2 + r
+        nu = y[i] - (h0 * state[S_MOFF_B] + h1 * state[S_MOFF_B + 1] + h2 * state[S_MOFF_B + 2])
+        nis += nu * nu / sv
+        k0 = ph0 / sv
+        k1 = ph1 / sv
+        k2 = ph2 / sv
+        state[S_MOFF_B] += k0 * nu
+        state[S_MOFF_B + 1] += k1 * nu
+        state[S_MOFF_B + 2] += k2 * nu
+        state[p + 0] -= k0 * ph0
+        state[p + 1] -= k0 * ph1
+        state[p + 2] -= k0 * ph2
+        state[p + 3] -= k1 * ph0
+        state[p + 4] -= k1 * ph1
+        state[p + 5] -= k1 * ph2
+        state[p + 6] -= k2 * ph0
+        state[p + 7] -= k2 * ph1
+        state[p + 8] -= k2 * ph2
+    return nis / 3.0
 
 
 @njit(cache=True)
@@ -562,6 +612,79 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
         else:
             flags |= F_ACCEL_REJECTED
             state[S_ACC_REJ_T] += dt
+
+    # ------------------------------------------------------------------ body-fixed field offset (attached magnet)
+    # A magnet or iron attached after calibration adds a constant offset b in the body frame (uncalibrated hard
+    # iron): the norm and dip then change with orientation by a few percent, within the disturbance checks,
+    # and the heading follows the magnet. b is observable from rotation alone (_offset_update), without
+    # knowing the heading; once known to P_MOFF_USE_SIGMA it is subtracted (adopted). Learned only while
+    # the field's magnitude matches the reference (a passing magnet is not a body-fixed offset), forgotten
+    # with time constant P_MOFF_TAU (a magnet that is taken off again is unlearned as fast).
+    if (valid & IN_MAG_OK) and par[P_MOFF_TAU] > 0.0 and par[P_MAG_ENABLED] > 0.0:
+        q0 = state[S_Q]
+        q1 = state[S_Q + 1]
+        q2 = state[S_Q + 2]
+        q3 = state[S_Q + 3]
+        c00 = 1.0 - 2.0 * (q2 * q2 + q3 * q3)
+        c01 = 2.0 * (q1 * q2 - q0 * q3)
+        c02 = 2.0 * (q1 * q3 + q0 * q2)
+        c10 = 2.0 * (q1 * q2 + q0 * q3)
+        c11 = 1.0 - 2.0 * (q1 * q1 + q3 * q3)
+        c12 = 2.0 * (q2 * q3 - q0 * q1)
+        c20 = 2.0 * (q1 * q3 - q0 * q2)
+        c21 = 2.0 * (q2 * q3 + q0 * q1)
+        c22 = 1.0 - 2.0 * (q1 * q1 + q2 * q2)
+        ref = state[S_MAG_REF_NORM]
+        mn0 = math.sqrt(mx * mx + my * my + mz * mz)
+        state[S_MOFF_T] += dt
+        # a magnetometer that lags the gyro by δt sees the field turned by |ω|·δt: only slow turns are evidence
+        still = (0.5 * (state[S_ACC_NU_VAR] + state[S_ACC_NU_VAR + 1]) < par[P_MOFF_MAX_TILT_SPREAD]
+                 and rate < par[P_MOFF_MAX_RATE])
+        if ref > 0.0 and abs(mn0 - ref) < par[P_MAG_NORM_TOL] * ref and still:
+            cmx = c00 * mx + c01 * my + c02 * mz
+            cmy = c10 * mx + c11 * my + c12 * mz
+            cmz = c20 * mx + c21 * my + c22 * mz
+            take = state[S_MOFF_SET] == 0.0 or state[S_MOFF_T] > 2.0
+            if state[S_MOFF_SET] != 0.0:
+                # rotation between the snapshots: cos θ = (trace(C₁ᵀ C₂) − 1) / 2
+                tr = (c00 * state[S_MOFF_C] + c01 * state[S_MOFF_C + 1] + c02 * state[S_MOFF_C + 2]
+                      + c10 * state[S_MOFF_C + 3] + c11 * state[S_MOFF_C + 4] + c12 * state[S_MOFF_C + 5]
+                      + c20 * state[S_MOFF_C + 6] + c21 * state[S_MOFF_C + 7] + c22 * state[S_MOFF_C + 8])
+                if 0.5 * (tr - 1.0) < math.cos(par[P_MOFF_MIN_ANGLE]):
+                    if state[S_MOFF_P] == 0.0:
+                        for i in range(3):
+                            state[S_MOFF_P + 4 * i] = 1e4   # (100 µT)²: nothing known
+                    lam = math.exp(-state[S_MOFF_T] / par[P_MOFF_TAU])
+                    for i in range(9):
+                        state[S_MOFF_P + i] = min(state[S_MOFF_P + i] / lam, 1e4)
+                    nis = _offset_update(state, c00, c01, c02, c10, c11, c12, c20, c21, c22, cmx, cmy, cmz,
+                                         2.0 * par[P_MAG_NOISE] ** 2)
+                    state[S_MOFF_NIS] += (1.0 - lam) * (nis - state[S_MOFF_NIS])
+                    take = True
+            if take:
+                state[S_MOFF_CM] = cmx
+                state[S_MOFF_CM + 1] = cmy
+                state[S_MOFF_CM + 2] = cmz
+                for i in range(3):
+                    state[S_MOFF_C + 3 * i] = c00 if i == 0 else (c10 if i == 1 else c20)
+                    state[S_MOFF_C + 3 * i + 1] = c01 if i == 0 else (c11 if i == 1 else c21)
+                    state[S_MOFF_C + 3 * i + 2] = c02 if i == 0 else (c12 if i == 1 else c22)
+                state[S_MOFF_SET] = 1.0
+                state[S_MOFF_T] = 0.0
+        pmax = max(state[S_MOFF_P], max(state[S_MOFF_P + 4], state[S_MOFF_P + 8]))
+        # adopted when known well enough and significantly non-zero (Σ b²/σ² of the axes > 16: a residual of
+        # the calibration within its noise is not an attached magnet)
+        signif = 0.0
+        if state[S_MOFF_P] > 0.0:
+            for i in range(3):
+                signif += state[S_MOFF_B + i] ** 2 / state[S_MOFF_P + 4 * i]
+        # ... and the data fit a body-fixed offset: a field that changes with position (a magnet the sensor
+        # is carried past, the work space's gradients) leaves innovations far above their predicted variance
+        fits = state[S_MOFF_NIS] < 4.0
+        if state[S_MOFF_P] > 0.0 and pmax < par[P_MOFF_USE_SIGMA] ** 2 and signif > 16.0 and fits:
+            mx -= state[S_MOFF_B]
+            my -= state[S_MOFF_B + 1]
+            mz -= state[S_MOFF_B + 2]
 
     # ------------------------------------------------------------------ magnetometer: heading only
     mag_used = False
