@@ -305,6 +305,9 @@ class Mekf:
         self._initialised = False
         self._reinit_pending = False
         self._step = core.fast_step()
+        self._t_s = math.nan
+        self._bits = -1
+        self._view = MekfView(self)
 
     # ----------------------------------------------------------------------- Estimator protocol
     def reset(self) -> None:
@@ -354,10 +357,18 @@ class Mekf:
         return self._state[core.S_P : core.S_P + 36].reshape(6, 6).copy()
 
     def update(self, sample: ImuSample) -> AttitudeEstimate:
+        return self.step(sample).snapshot()
+
+    def step(self, sample: ImuSample) -> "MekfView":
+        """The hot path: process one sample like `update` and return the estimator's reused `MekfView` — no
+        result object is built. The view reads the latest estimate and changes at the next call;
+        `view.snapshot()` gives the immutable AttitudeEstimate `update` returns (build it only when
+        publishing)."""
         g = sample.gyro_rad_s
         a = sample.accel_m_s2
         m = sample.mag_ut
         sflags = int(sample.flags)
+        self._t_s = sample.t_s
         extra = 0
         if self._initialised:
             f = self._step(
@@ -365,13 +376,16 @@ class Mekf:
                 g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], sflags, self._out,
             )
             if not f & core.NEEDS_INIT:
-                return self._estimate(sample.t_s, f)
+                self._bits = f
+                return self._view
             self._initialised = False
             self._reinit_pending = True
             extra = f & ~core.NEEDS_INIT
         if not self._initialise(sample.t_s, g, a, m, sflags):
-            return self._estimate_uninitialised(sample, extra)
-        return self._estimate(sample.t_s, self._after_init_flags() | extra)
+            self._bits = -1 - extra       # < 0: no estimate yet (snapshot() is the uninitialised estimate)
+            return self._view
+        self._bits = self._after_init_flags() | extra
+        return self._view
 
     # ----------------------------------------------------------------------- batch (replay, benchmarks)
     def run_batch(self, t_s, gyro_rad_s, accel_m_s2, mag_ut, sample_flags=None):
@@ -482,10 +496,10 @@ class Mekf:
             _estimate_flags(f),
         )
 
-    def _estimate_uninitialised(self, sample: ImuSample, extra: int) -> AttitudeEstimate:
+    def _estimate_uninitialised(self, t_s: float, extra: int) -> AttitudeEstimate:
         nan3 = np.full(3, np.nan)
         return AttitudeEstimate(
-            t_s=sample.t_s,
+            t_s=t_s,
             q_wxyz=np.array([1.0, 0.0, 0.0, 0.0]),
             roll_rad=math.nan,
             pitch_rad=math.nan,
@@ -499,4 +513,75 @@ class Mekf:
         )
 
 
-__all__ = ["Mekf", "MekfParams", "DEFAULT_MEKF_PARAMS", "FIXED_WING_MEKF_PARAMS", "initial_attitude"]
+class MekfView:
+    """The latest estimate of a `Mekf`, read in place (returned by `Mekf.step`; one per estimator, reused).
+
+    Attributes read the estimator's output buffer when accessed, so they change at the next step; arrays are
+    views of that buffer (copy what you keep). `snapshot()` returns the immutable AttitudeEstimate.
+    Before the first usable sample (`valid` False) the angles are NaN, as in `update`'s estimate."""
+
+    __slots__ = ("_mekf",)
+
+    def __init__(self, mekf: Mekf):
+        self._mekf = mekf
+
+    def snapshot(self) -> AttitudeEstimate:
+        m = self._mekf
+        if m._bits < 0:
+            return m._estimate_uninitialised(m._t_s, -1 - m._bits)
+        return m._estimate(m._t_s, m._bits)
+
+    @property
+    def valid(self) -> bool:
+        return self._mekf._bits >= 0
+
+    @property
+    def t_s(self) -> float:
+        return self._mekf._t_s
+
+    @property
+    def flags(self) -> EstimateFlags:
+        b = self._mekf._bits
+        return _estimate_flags(b) if b >= 0 else EstimateFlags.INITIALISING | _estimate_flags(-1 - b)
+
+    @property
+    def q_wxyz(self) -> np.ndarray:
+        return self._mekf._out[core.O_Q : core.O_Q + 4] if self.valid else np.array([1.0, 0.0, 0.0, 0.0])
+
+    def _angle(self, i: int) -> float:
+        return float(self._mekf._out[core.O_EULER + i]) if self.valid else math.nan
+
+    @property
+    def roll_rad(self) -> float:
+        return self._angle(0)
+
+    @property
+    def pitch_rad(self) -> float:
+        return self._angle(1)
+
+    @property
+    def yaw_rad(self) -> float:
+        return self._angle(2)
+
+    @property
+    def heading_mag_rad(self) -> float:
+        return self._angle(2) % _TWO_PI
+
+    @property
+    def heading_true_rad(self) -> float:
+        return (self._angle(2) + self._mekf._declination) % _TWO_PI
+
+    @property
+    def rate_body_rad_s(self) -> np.ndarray:
+        return self._mekf._out[core.O_RATE : core.O_RATE + 3] if self.valid else np.full(3, math.nan)
+
+    @property
+    def gyro_bias_rad_s(self) -> np.ndarray:
+        return self._mekf._out[core.O_BIAS : core.O_BIAS + 3] if self.valid else np.zeros(3)
+
+    @property
+    def sigma_rpy_rad(self) -> np.ndarray:
+        return self._mekf._out[core.O_SIGMA : core.O_SIGMA + 3] if self.valid else np.full(3, math.pi)
+
+
+__all__ = ["Mekf", "MekfView", "MekfParams", "DEFAULT_MEKF_PARAMS", "FIXED_WING_MEKF_PARAMS", "initial_attitude"]

@@ -60,7 +60,8 @@ S_MOFF_C = 99         # 9: C_b^n at the previous snapshot
 S_MOFF_T = 108        # time since the previous snapshot, s
 S_MOFF_SET = 109      # 1.0 when the previous snapshot is valid
 S_MOFF_NIS = 110      # running mean of the offset fit's normalised squared innovation (model consistency)
-S_SIZE = 111
+S_LPW = 111           # 8: cached low-pass weights (Δt, 1 − exp(−Δt/τ)) for rest, NED-acc, tilt spread, |g|
+S_SIZE = 119
 
 # ----------------------------------------------------------------------------------- parameter layout
 P_GYRO_NOISE = 0        # gyro angle random walk, rad/s/√Hz
@@ -163,16 +164,64 @@ def _scalar_update(state, j, sign, nu, r, zero_mask):
     k3 = 0.0 if zero_mask & 8 else u3 / s
     k4 = 0.0 if zero_mask & 16 else u4 / s
     k5 = 0.0 if zero_mask & 32 else u5 / s
-    for rr in range(6):
-        kr = k0 if rr == 0 else (k1 if rr == 1 else (k2 if rr == 2 else (k3 if rr == 3 else (k4 if rr == 4 else k5))))
-        ur = u0 if rr == 0 else (u1 if rr == 1 else (u2 if rr == 2 else (u3 if rr == 3 else (u4 if rr == 4 else u5))))
-        base = p0 + rr * 6
-        state[base + 0] += -kr * u0 - ur * k0 + s * kr * k0
-        state[base + 1] += -kr * u1 - ur * k1 + s * kr * k1
-        state[base + 2] += -kr * u2 - ur * k2 + s * kr * k2
-        state[base + 3] += -kr * u3 - ur * k3 + s * kr * k3
-        state[base + 4] += -kr * u4 - ur * k4 + s * kr * k4
-        state[base + 5] += -kr * u5 - ur * k5 + s * kr * k5
+    # the 21 entries of the upper triangle, mirrored (the update is symmetric by construction)
+    v = state[p0 + 0] - k0 * u0 - u0 * k0 + s * k0 * k0
+    state[p0 + 0] = v
+    v = state[p0 + 1] - k0 * u1 - u0 * k1 + s * k0 * k1
+    state[p0 + 1] = v
+    state[p0 + 6] = v
+    v = state[p0 + 2] - k0 * u2 - u0 * k2 + s * k0 * k2
+    state[p0 + 2] = v
+    state[p0 + 12] = v
+    v = state[p0 + 3] - k0 * u3 - u0 * k3 + s * k0 * k3
+    state[p0 + 3] = v
+    state[p0 + 18] = v
+    v = state[p0 + 4] - k0 * u4 - u0 * k4 + s * k0 * k4
+    state[p0 + 4] = v
+    state[p0 + 24] = v
+    v = state[p0 + 5] - k0 * u5 - u0 * k5 + s * k0 * k5
+    state[p0 + 5] = v
+    state[p0 + 30] = v
+    v = state[p0 + 7] - k1 * u1 - u1 * k1 + s * k1 * k1
+    state[p0 + 7] = v
+    v = state[p0 + 8] - k1 * u2 - u1 * k2 + s * k1 * k2
+    state[p0 + 8] = v
+    state[p0 + 13] = v
+    v = state[p0 + 9] - k1 * u3 - u1 * k3 + s * k1 * k3
+    state[p0 + 9] = v
+    state[p0 + 19] = v
+    v = state[p0 + 10] - k1 * u4 - u1 * k4 + s * k1 * k4
+    state[p0 + 10] = v
+    state[p0 + 25] = v
+    v = state[p0 + 11] - k1 * u5 - u1 * k5 + s * k1 * k5
+    state[p0 + 11] = v
+    state[p0 + 31] = v
+    v = state[p0 + 14] - k2 * u2 - u2 * k2 + s * k2 * k2
+    state[p0 + 14] = v
+    v = state[p0 + 15] - k2 * u3 - u2 * k3 + s * k2 * k3
+    state[p0 + 15] = v
+    state[p0 + 20] = v
+    v = state[p0 + 16] - k2 * u4 - u2 * k4 + s * k2 * k4
+    state[p0 + 16] = v
+    state[p0 + 26] = v
+    v = state[p0 + 17] - k2 * u5 - u2 * k5 + s * k2 * k5
+    state[p0 + 17] = v
+    state[p0 + 32] = v
+    v = state[p0 + 21] - k3 * u3 - u3 * k3 + s * k3 * k3
+    state[p0 + 21] = v
+    v = state[p0 + 22] - k3 * u4 - u3 * k4 + s * k3 * k4
+    state[p0 + 22] = v
+    state[p0 + 27] = v
+    v = state[p0 + 23] - k3 * u5 - u3 * k5 + s * k3 * k5
+    state[p0 + 23] = v
+    state[p0 + 33] = v
+    v = state[p0 + 28] - k4 * u4 - u4 * k4 + s * k4 * k4
+    state[p0 + 28] = v
+    v = state[p0 + 29] - k4 * u5 - u4 * k5 + s * k4 * k5
+    state[p0 + 29] = v
+    state[p0 + 34] = v
+    v = state[p0 + 35] - k5 * u5 - u5 * k5 + s * k5 * k5
+    state[p0 + 35] = v
     return k0 * nu, k1 * nu, k2 * nu, k3 * nu, k4 * nu, k5 * nu
 
 
@@ -269,6 +318,16 @@ def _offset_update(state, c00, c01, c02, c10, c11, c12, c20, c21, c22, cmx, cmy,
         state[p + 7] -= k2 * ph1
         state[p + 8] -= k2 * ph2
     return nis / 3.0
+
+
+@njit(cache=True)
+def _lowpass_weight(state, slot, dt, tau):
+    """1 − exp(−Δt/τ), cached in state[slot : slot + 2] for the last Δt (the sample period rarely changes and
+    exp is a good part of a step's cost)."""
+    if state[slot] != dt:
+        state[slot] = dt
+        state[slot + 1] = 1.0 - math.exp(-dt / tau)
+    return state[slot + 1]
 
 
 @njit(cache=True)
@@ -451,7 +510,7 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
     acc_ok = (valid & IN_ACC_OK) != 0
     at_rest = False
     if dt > 0.0:
-        k = 1.0 - math.exp(-dt / par[P_REST_TAU])
+        k = _lowpass_weight(state, S_LPW, dt, par[P_REST_TAU])
         for i in range(3):
             g = gx if i == 0 else (gy if i == 1 else gz)
             state[S_GYR_LP + i] += k * (g - state[S_GYR_LP + i])
@@ -513,11 +572,21 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
         # The per-sample variance is measured right here: at rest the squared deviation from the low-pass
         # (S_REST_DG, 3 axes) is the sensor's own noise, so the same filter suits a 0.1 °/s and a 1 °/s gyro.
         r = max(state[S_REST_DG] / 3.0, par[P_REST_BIAS_NOISE] ** 2 / dt)
+        # sequential scalar updates; the corrections are summed and applied once (each innovation includes
+        # the bias corrections of the updates before it)
+        a0 = a1 = a2 = a3 = a4 = a5 = 0.0
         for i in range(3):
             gi = gx if i == 0 else (gy if i == 1 else gz)
-            nu = gi - state[S_B + i]
+            bi = a3 if i == 0 else (a4 if i == 1 else a5)
+            nu = gi - state[S_B + i] - bi
             d0, d1, d2, d3, d4, d5 = _scalar_update(state, 3 + i, 1.0, nu, r, 0)
-            _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
+            a0 += d0
+            a1 += d1
+            a2 += d2
+            a3 += d3
+            a4 += d4
+            a5 += d5
+        _apply_correction(state, par, a0, a1, a2, a3, a4, a5)
 
     # ------------------------------------------------------------------ accelerometer: tilt only
     if acc_ok:
@@ -542,11 +611,11 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
         g_ref = state[S_G_REF]
         if at_rest and dt > 0.0:
             # learn |g| as this accelerometer sees it (scale error) while nothing moves (τ = 10 s)
-            state[S_G_REF] += (1.0 - math.exp(-dt / 10.0)) * (fnorm - g_ref)
+            state[S_G_REF] += _lowpass_weight(state, S_LPW + 6, dt, 10.0) * (fnorm - g_ref)
         tau = par[P_ACC_TAU]
         if tau > 0.0 and dt > 0.0:
             # low-pass in the (estimated) NED frame: linear acceleration averages out, gravity stays (VQF)
-            ka = 1.0 - math.exp(-dt / tau)
+            ka = _lowpass_weight(state, S_LPW + 2, dt, tau)
             state[S_ACC_I] += ka * (fn - state[S_ACC_I])
             state[S_ACC_I + 1] += ka * (fe - state[S_ACC_I + 1])
             state[S_ACC_I + 2] += ka * (fd - state[S_ACC_I + 2])
@@ -570,7 +639,7 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
         # R. K. Mehra, IEEE TAC 15(2), 1970; A. H. Mohamed, K. P. Schwarz, J. Geodesy 73, 1999). A persistent
         # tilt error moves the mean, not the spread, so it is still corrected.
         if par[P_ACC_ADAPT_TAU] > 0.0 and dt > 0.0:
-            kw = 1.0 - math.exp(-dt / par[P_ACC_ADAPT_TAU])
+            kw = _lowpass_weight(state, S_LPW + 4, dt, par[P_ACC_ADAPT_TAU])
             state[S_ACC_NU_MEAN], state[S_ACC_NU_VAR] = _running_spread(
                 state[S_ACC_NU_MEAN], state[S_ACC_NU_VAR], nu_n, kw)
             state[S_ACC_NU_MEAN + 1], state[S_ACC_NU_VAR + 1] = _running_spread(
@@ -595,17 +664,19 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
             else:
                 # a sustained acceleration a ⟂ g (a turn) tilts the apparent vertical by φ with
                 # cos φ = g/|f|: that angle is the size of the error the measurement can carry
-                ratio = min(unorm, g_ref) / max(unorm, g_ref)
-                phi = par[P_ACC_TURN_GAIN] * max(math.acos(ratio) - par[P_ACC_TURN_DEAD], 0.0)
+                phi = 0.0
+                if par[P_ACC_TURN_GAIN] > 0.0:
+                    ratio = min(unorm, g_ref) / max(unorm, g_ref)
+                    phi = par[P_ACC_TURN_GAIN] * max(math.acos(ratio) - par[P_ACC_TURN_DEAD], 0.0)
                 r = (par[P_ACC_NOISE] / g_ref) ** 2 + phi * phi + r_motion
             # never heading; and no bias learning while |f| is off g (a push would be read as bias)
             mask = M_HEADING if abs(fnorm - g_ref) < par[P_REST_ACC_TH] else (M_HEADING | M_BIAS)
-            d0, d1, d2, d3, d4, d5 = _scalar_update(state, 1, 1.0, nu_n, r, mask)
-            _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
-            # second component: innovation re-evaluated after the first correction (sequential update)
-            nu_e2 = nu_e + d0
+            a0, a1, a2, a3, a4, a5 = _scalar_update(state, 1, 1.0, nu_n, r, mask)
+            # second component: innovation re-evaluated after the first correction (sequential update); the
+            # two corrections are applied together
+            nu_e2 = nu_e + a0
             d0, d1, d2, d3, d4, d5 = _scalar_update(state, 0, -1.0, nu_e2, r, mask)
-            _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
+            _apply_correction(state, par, a0 + d0, a1 + d1, a2 + d2, a3 + d3, a4 + d4, a5 + d5)
             accepted = True
         if accepted:
             state[S_ACC_REJ_T] = 0.0
@@ -788,10 +859,17 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
     out[O_RATE] = gx - state[S_B]
     out[O_RATE + 1] = gy - state[S_B + 1]
     out[O_RATE + 2] = gz - state[S_B + 2]
-    # 1σ roll/pitch: NED tilt covariance rotated into the heading frame; yaw: δθ_D
-    yaw = math.atan2(2.0 * (q1 * q2 + q0 * q3), 1.0 - 2.0 * (q2 * q2 + q3 * q3))
-    cy = math.cos(yaw)
-    sy = math.sin(yaw)
+    # 1σ roll/pitch: NED tilt covariance rotated into the heading frame (cos, sin of yaw = C00, C10 over
+    # their norm); yaw: δθ_D
+    cy = 1.0 - 2.0 * (q2 * q2 + q3 * q3)
+    sy = 2.0 * (q1 * q2 + q0 * q3)
+    hy = math.sqrt(cy * cy + sy * sy)
+    if hy > 1e-12:
+        cy /= hy
+        sy /= hy
+    else:
+        cy = 1.0
+        sy = 0.0
     pnn = state[S_P + 0]
     pne = state[S_P + 1]
     pee = state[S_P + 7]
@@ -801,9 +879,6 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
     out[O_BIAS] = state[S_B]
     out[O_BIAS + 1] = state[S_B + 1]
     out[O_BIAS + 2] = state[S_B + 2]
-    out[O_EULER] = math.atan2(2.0 * (q2 * q3 + q0 * q1), 1.0 - 2.0 * (q1 * q1 + q2 * q2))
-    out[O_EULER + 1] = -math.asin(min(1.0, max(-1.0, 2.0 * (q1 * q3 - q0 * q2))))
-    out[O_EULER + 2] = yaw
     if (
         state[S_T_RUN] < par[P_INIT_TIME]
         or max(out[O_SIGMA], out[O_SIGMA + 1]) > par[P_CONV_TILT]
@@ -811,6 +886,21 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
     ):
         flags |= F_INITIALISING
     return flags
+
+
+@njit(cache=True)
+def mekf_step_full(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, out):
+    """`mekf_step` plus the ZYX Euler angles in out[O_EULER:] (the one-sample path; batch runs skip them)."""
+    f = mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, out)
+    if not f & NEEDS_INIT:
+        q0 = out[O_Q]
+        q1 = out[O_Q + 1]
+        q2 = out[O_Q + 2]
+        q3 = out[O_Q + 3]
+        out[O_EULER] = math.atan2(2.0 * (q2 * q3 + q0 * q1), 1.0 - 2.0 * (q1 * q1 + q2 * q2))
+        out[O_EULER + 1] = -math.asin(min(1.0, max(-1.0, 2.0 * (q1 * q3 - q0 * q2))))
+        out[O_EULER + 2] = math.atan2(2.0 * (q1 * q2 + q0 * q3), 1.0 - 2.0 * (q2 * q2 + q3 * q3))
+    return f
 
 
 @njit(cache=True)
@@ -843,17 +933,17 @@ _SIGNATURE = (
 
 
 def fast_step():
-    """`mekf_step` as a directly callable compiled entry point for one-sample calls.
+    """`mekf_step_full` as a directly callable compiled entry point for one-sample calls.
 
     Numba's dispatcher resolves argument types on every call (≈5 µs for 14 arguments, ten times the
     filter's own arithmetic); the entry point of the one compiled signature skips that. Arguments must
     then have exactly that signature: contiguous float64 arrays, Python/NumPy floats, an int. Falls back to
     the dispatcher if this numba version does not expose entry points (same code, slower call)."""
     try:
-        mekf_step.compile(_SIGNATURE)
-        for sig, cres in mekf_step.overloads.items():
+        mekf_step_full.compile(_SIGNATURE)
+        for sig, cres in mekf_step_full.overloads.items():
             if len(sig) == 14 and str(sig[12]) == "int64" and str(sig[2]) == "float64":
                 return cres.entry_point
     except Exception:  # pragma: no cover - numba internals moved
         pass
-    return mekf_step  # pragma: no cover
+    return mekf_step_full  # pragma: no cover

@@ -110,6 +110,39 @@ def test_update_and_run_batch_are_the_same_filter():
     assert [int(o.flags) for o in outs] == f_batch.tolist()
 
 
+_ESTIMATE_FIELDS = ("t_s", "q_wxyz", "roll_rad", "pitch_rad", "yaw_rad", "heading_mag_rad", "heading_true_rad",
+                    "rate_body_rad_s", "gyro_bias_rad_s", "sigma_rpy_rad", "flags")
+
+
+def _assert_same_estimate(got, want):
+    for name in _ESTIMATE_FIELDS:
+        np.testing.assert_array_equal(np.asarray(getattr(got, name)), np.asarray(getattr(want, name)),
+                                      err_msg=name)
+
+
+def test_step_view_reads_the_same_estimate_as_update_and_snapshots_are_frozen():
+    """The hot path (`step` → reused view, `snapshot()` on demand) is the same filter as `update`, field by
+    field, before initialisation, in motion and across a re-initialising gap; a snapshot keeps its values."""
+    t, g, a, m, _ = _static_samples(2.0, 100.0, seed=13)
+    g = g + 0.05 * np.sin(np.arange(len(t)))[:, None]
+    t = np.concatenate([t, t + 10.0])                 # a 10 s gap: re-initialised
+    g, a, m = (np.vstack([x, x]) for x in (g, a, m))
+    ref, hot = make_estimator("mekf", declination_rad=0.1), make_estimator("mekf", declination_rad=0.1)
+    samples = [make_sample(0.0, [np.nan] * 3, a[0], m[0])] + [
+        make_sample(t[i] + 0.01, g[i], a[i], m[i]) for i in range(len(t))]
+    kept = []
+    for s in samples:
+        want = ref.update(s)
+        view = hot.step(s)
+        _assert_same_estimate(view, want)
+        _assert_same_estimate(view.snapshot(), want)
+        kept.append((view.snapshot(), want))
+    assert not kept[0][0].flags & EstimateFlags.AT_REST and math.isnan(kept[0][0].roll_rad)
+    assert kept[len(t) // 2 + 1][1].flags & EstimateFlags.REINITIALISED   # the first sample after the gap
+    for snap, want in kept[::50]:
+        _assert_same_estimate(snap, want)
+
+
 def test_gyro_bias_is_learned_at_rest():
     bias_dps = (0.5, -0.3, 0.8)
     t, g, a, m, truth = _static_samples(20.0, 200.0, bias_dps=bias_dps, seed=1)
