@@ -1,6 +1,6 @@
 """Per-sample cost of ahrsd's estimators beside VQF and x-io Fusion, measured side by side in one process.
 
-    .venv/bin/python bench/speed.py            # 16 384 samples (20 s at 819.2 SPS), best of 3
+    .venv/bin/python bench/speed.py            # 16 384 samples (20 s at 819.2 SPS), best of 9
     .venv/bin/python bench/speed.py --quick    # 4 096 samples
 
 "one at a time": one Python call per sample, as the daemon does — ahrsd's estimators through
@@ -143,7 +143,7 @@ def jit_warmup() -> dict[str, tuple[float, float]]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--samples", type=int, default=16384)
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--repeat", type=int, default=9)
     ap.add_argument("--quick", action="store_true", help="4096 samples, 2 repeats, no warm-up measurement")
     args = ap.parse_args(argv)
     if args.quick:

@@ -357,7 +357,10 @@ class Mekf:
         return self._state[core.S_P : core.S_P + 36].reshape(6, 6).copy()
 
     def update(self, sample: ImuSample) -> AttitudeEstimate:
-        return self.step(sample).snapshot()
+        self.step(sample)
+        if self._bits >= 0:
+            return self._estimate(self._t_s, self._bits)
+        return self._estimate_uninitialised(self._t_s, -1 - self._bits)
 
     def step(self, sample: ImuSample) -> "MekfView":
         """The hot path: process one sample like `update` and return the estimator's reused `MekfView` — no
