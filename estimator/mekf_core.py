@@ -164,64 +164,29 @@ def _scalar_update(state, j, sign, nu, r, zero_mask):
     k3 = 0.0 if zero_mask & 8 else u3 / s
     k4 = 0.0 if zero_mask & 16 else u4 / s
     k5 = 0.0 if zero_mask & 32 else u5 / s
-    # the 21 entries of the upper triangle, mirrored (the update is symmetric by construction)
-    v = state[p0 + 0] - k0 * u0 - u0 * k0 + s * k0 * k0
-    state[p0 + 0] = v
-    v = state[p0 + 1] - k0 * u1 - u0 * k1 + s * k0 * k1
-    state[p0 + 1] = v
-    state[p0 + 6] = v
-    v = state[p0 + 2] - k0 * u2 - u0 * k2 + s * k0 * k2
-    state[p0 + 2] = v
-    state[p0 + 12] = v
-    v = state[p0 + 3] - k0 * u3 - u0 * k3 + s * k0 * k3
-    state[p0 + 3] = v
-    state[p0 + 18] = v
-    v = state[p0 + 4] - k0 * u4 - u0 * k4 + s * k0 * k4
-    state[p0 + 4] = v
-    state[p0 + 24] = v
-    v = state[p0 + 5] - k0 * u5 - u0 * k5 + s * k0 * k5
-    state[p0 + 5] = v
-    state[p0 + 30] = v
-    v = state[p0 + 7] - k1 * u1 - u1 * k1 + s * k1 * k1
-    state[p0 + 7] = v
-    v = state[p0 + 8] - k1 * u2 - u1 * k2 + s * k1 * k2
-    state[p0 + 8] = v
-    state[p0 + 13] = v
-    v = state[p0 + 9] - k1 * u3 - u1 * k3 + s * k1 * k3
-    state[p0 + 9] = v
-    state[p0 + 19] = v
-    v = state[p0 + 10] - k1 * u4 - u1 * k4 + s * k1 * k4
-    state[p0 + 10] = v
-    state[p0 + 25] = v
-    v = state[p0 + 11] - k1 * u5 - u1 * k5 + s * k1 * k5
-    state[p0 + 11] = v
-    state[p0 + 31] = v
-    v = state[p0 + 14] - k2 * u2 - u2 * k2 + s * k2 * k2
-    state[p0 + 14] = v
-    v = state[p0 + 15] - k2 * u3 - u2 * k3 + s * k2 * k3
-    state[p0 + 15] = v
-    state[p0 + 20] = v
-    v = state[p0 + 16] - k2 * u4 - u2 * k4 + s * k2 * k4
-    state[p0 + 16] = v
-    state[p0 + 26] = v
-    v = state[p0 + 17] - k2 * u5 - u2 * k5 + s * k2 * k5
-    state[p0 + 17] = v
-    state[p0 + 32] = v
-    v = state[p0 + 21] - k3 * u3 - u3 * k3 + s * k3 * k3
-    state[p0 + 21] = v
-    v = state[p0 + 22] - k3 * u4 - u3 * k4 + s * k3 * k4
-    state[p0 + 22] = v
-    state[p0 + 27] = v
-    v = state[p0 + 23] - k3 * u5 - u3 * k5 + s * k3 * k5
-    state[p0 + 23] = v
-    state[p0 + 33] = v
-    v = state[p0 + 28] - k4 * u4 - u4 * k4 + s * k4 * k4
-    state[p0 + 28] = v
-    v = state[p0 + 29] - k4 * u5 - u4 * k5 + s * k4 * k5
-    state[p0 + 29] = v
-    state[p0 + 34] = v
-    v = state[p0 + 35] - k5 * u5 - u5 * k5 + s * k5 * k5
-    state[p0 + 35] = v
+    # the 21 entries of the upper triangle, mirrored (the update is symmetric by construction); unrolled:
+    # a loop indexing tuples of the gains made the whole batch run 1.7× slower (numba)
+    state[p0 + 0] += s * k0 * k0 - 2.0 * k0 * u0
+    state[p0 + 1] = state[p0 + 6] = state[p0 + 1] - k0 * u1 - u0 * k1 + s * k0 * k1
+    state[p0 + 2] = state[p0 + 12] = state[p0 + 2] - k0 * u2 - u0 * k2 + s * k0 * k2
+    state[p0 + 3] = state[p0 + 18] = state[p0 + 3] - k0 * u3 - u0 * k3 + s * k0 * k3
+    state[p0 + 4] = state[p0 + 24] = state[p0 + 4] - k0 * u4 - u0 * k4 + s * k0 * k4
+    state[p0 + 5] = state[p0 + 30] = state[p0 + 5] - k0 * u5 - u0 * k5 + s * k0 * k5
+    state[p0 + 7] += s * k1 * k1 - 2.0 * k1 * u1
+    state[p0 + 8] = state[p0 + 13] = state[p0 + 8] - k1 * u2 - u1 * k2 + s * k1 * k2
+    state[p0 + 9] = state[p0 + 19] = state[p0 + 9] - k1 * u3 - u1 * k3 + s * k1 * k3
+    state[p0 + 10] = state[p0 + 25] = state[p0 + 10] - k1 * u4 - u1 * k4 + s * k1 * k4
+    state[p0 + 11] = state[p0 + 31] = state[p0 + 11] - k1 * u5 - u1 * k5 + s * k1 * k5
+    state[p0 + 14] += s * k2 * k2 - 2.0 * k2 * u2
+    state[p0 + 15] = state[p0 + 20] = state[p0 + 15] - k2 * u3 - u2 * k3 + s * k2 * k3
+    state[p0 + 16] = state[p0 + 26] = state[p0 + 16] - k2 * u4 - u2 * k4 + s * k2 * k4
+    state[p0 + 17] = state[p0 + 32] = state[p0 + 17] - k2 * u5 - u2 * k5 + s * k2 * k5
+    state[p0 + 21] += s * k3 * k3 - 2.0 * k3 * u3
+    state[p0 + 22] = state[p0 + 27] = state[p0 + 22] - k3 * u4 - u3 * k4 + s * k3 * k4
+    state[p0 + 23] = state[p0 + 33] = state[p0 + 23] - k3 * u5 - u3 * k5 + s * k3 * k5
+    state[p0 + 28] += s * k4 * k4 - 2.0 * k4 * u4
+    state[p0 + 29] = state[p0 + 34] = state[p0 + 29] - k4 * u5 - u4 * k5 + s * k4 * k5
+    state[p0 + 35] += s * k5 * k5 - 2.0 * k5 * u5
     return k0 * nu, k1 * nu, k2 * nu, k3 * nu, k4 * nu, k5 * nu
 
 
@@ -318,6 +283,20 @@ def _offset_update(state, c00, c01, c02, c10, c11, c12, c20, c21, c22, cmx, cmy,
         state[p + 7] -= k2 * ph1
         state[p + 8] -= k2 * ph2
     return nis / 3.0
+
+
+@njit(cache=True)
+def _dcm_of_state(state):
+    """C_b^n of the current attitude quaternion, row by row (c00, c01, … c22)."""
+    q0 = state[S_Q]
+    q1 = state[S_Q + 1]
+    q2 = state[S_Q + 2]
+    q3 = state[S_Q + 3]
+    return (
+        1.0 - 2.0 * (q2 * q2 + q3 * q3), 2.0 * (q1 * q2 - q0 * q3), 2.0 * (q1 * q3 + q0 * q2),
+        2.0 * (q1 * q2 + q0 * q3), 1.0 - 2.0 * (q1 * q1 + q3 * q3), 2.0 * (q2 * q3 - q0 * q1),
+        2.0 * (q1 * q3 - q0 * q2), 2.0 * (q2 * q3 + q0 * q1), 1.0 - 2.0 * (q1 * q1 + q2 * q2),
+    )
 
 
 @njit(cache=True)
@@ -591,19 +570,7 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
     # ------------------------------------------------------------------ accelerometer: tilt only
     if acc_ok:
         # rotate the specific force into NED with the current estimate
-        q0 = state[S_Q]
-        q1 = state[S_Q + 1]
-        q2 = state[S_Q + 2]
-        q3 = state[S_Q + 3]
-        e00 = 1.0 - 2.0 * (q2 * q2 + q3 * q3)
-        e01 = 2.0 * (q1 * q2 - q0 * q3)
-        e02 = 2.0 * (q1 * q3 + q0 * q2)
-        e10 = 2.0 * (q1 * q2 + q0 * q3)
-        e11 = 1.0 - 2.0 * (q1 * q1 + q3 * q3)
-        e12 = 2.0 * (q2 * q3 - q0 * q1)
-        e20 = 2.0 * (q1 * q3 - q0 * q2)
-        e21 = 2.0 * (q2 * q3 + q0 * q1)
-        e22 = 1.0 - 2.0 * (q1 * q1 + q2 * q2)
+        e00, e01, e02, e10, e11, e12, e20, e21, e22 = _dcm_of_state(state)
         fn = e00 * ax + e01 * ay + e02 * az
         fe = e10 * ax + e11 * ay + e12 * az
         fd = e20 * ax + e21 * ay + e22 * az
@@ -692,19 +659,7 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
     # the field's magnitude matches the reference (a passing magnet is not a body-fixed offset), forgotten
     # with time constant P_MOFF_TAU (a magnet that is taken off again is unlearned as fast).
     if (valid & IN_MAG_OK) and par[P_MOFF_TAU] > 0.0 and par[P_MAG_ENABLED] > 0.0:
-        q0 = state[S_Q]
-        q1 = state[S_Q + 1]
-        q2 = state[S_Q + 2]
-        q3 = state[S_Q + 3]
-        c00 = 1.0 - 2.0 * (q2 * q2 + q3 * q3)
-        c01 = 2.0 * (q1 * q2 - q0 * q3)
-        c02 = 2.0 * (q1 * q3 + q0 * q2)
-        c10 = 2.0 * (q1 * q2 + q0 * q3)
-        c11 = 1.0 - 2.0 * (q1 * q1 + q3 * q3)
-        c12 = 2.0 * (q2 * q3 - q0 * q1)
-        c20 = 2.0 * (q1 * q3 - q0 * q2)
-        c21 = 2.0 * (q2 * q3 + q0 * q1)
-        c22 = 1.0 - 2.0 * (q1 * q1 + q2 * q2)
+        c00, c01, c02, c10, c11, c12, c20, c21, c22 = _dcm_of_state(state)
         ref = state[S_MAG_REF_NORM]
         mn0 = math.sqrt(mx * mx + my * my + mz * mz)
         state[S_MOFF_T] += dt
