@@ -341,6 +341,7 @@ class Mekf:
         s[core.S_MAG_DIST_T] = 0.0
         s[core.S_MAG_REST_SET] = 0.0          # the at-rest field is the old calibration's: take it again
         s[core.S_MAG_GATE_OPEN_T] = RELEARN_GATE_OPEN_S
+        s[core.S_MOFF_B : core.S_MOFF_NIS + 1] = 0.0   # a body-fixed offset learned against the old calibration
 
     @property
     def gyro_bias_rad_s(self) -> np.ndarray:

@@ -163,3 +163,5 @@ def test_an_attached_magnet_is_learned_and_adopted():
     late = t >= 40.0
     assert float(np.sqrt(np.mean(_heading_error_deg(q[late], truth[late]) ** 2))) < 0.1
     np.testing.assert_allclose(est.field_offset_ut, b, atol=0.3)
+    est.relearn_field_reference()           # a new calibration: the offset it absorbed is learned anew
+    np.testing.assert_array_equal(est.field_offset_ut, 0.0)
