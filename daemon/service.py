@@ -163,7 +163,14 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         bad = sum(ep.counters.rx_malformed + ep.counters.rx_bad_signature for ep in self.endpoints)
         return {"tx": tx, "rx": rx, "bad": bad}
 
+    @property
+    def recording_time_base(self) -> bool:
+        """A replay: outgoing time fields carry the recording's t_s, so a ground station's plot lines up with it."""
+        return bool(getattr(self.source, "recording_time_base", False))
+
     def time_boot_ms(self, now: float | None = None) -> int:
+        if self.recording_time_base and self.pipeline is not None and self.pipeline.last_sample is not None:
+            return int(self.pipeline.last_sample.t_s * 1000.0) & 0xFFFFFFFF
         return int(((time.monotonic() if now is None else now) - self.boot_time) * 1000.0) & 0xFFFFFFFF
 
     # ------------------------------------------------------------------------------------------ start / stop
@@ -211,7 +218,7 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
             log.warning("%s", warning)
         self._resolve_declination(initial=True)
         calibration = CalibrationStore(self.state_dir).load()
-        estimator = make_estimator(cfg.estimator.name, declination_rad=self.declination_rad)
+        estimator = make_estimator(cfg.estimator_name, declination_rad=self.declination_rad)
         self.pipeline = Pipeline(estimator, calibration)
         self.pipeline.set_mounting([self.params.get(n) for n in MOUNTING_PARAMS])
         for o in OUTPUTS:
@@ -233,7 +240,7 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         if self._status_line is not None:
             self._status_line.install_log_filter()
         log.info("ahrsd started: %s, estimator %s, declination %.2f° (%s), MAVLink %s as %d/%d, state in %s",
-                 self.source.description, cfg.estimator.name, math.degrees(self.declination_rad),
+                 self.source.description, cfg.estimator_name, math.degrees(self.declination_rad),
                  self.declination_source, ", ".join(e.url for e in self.endpoints), self.system_id,
                  self.component_id, self.state_dir)
         self.notifier.status(f"starting: {self.source.description}")
