@@ -35,6 +35,8 @@ def collect_stats(service) -> dict:
     out["links"] = {ep.url: dataclasses.asdict(ep.counters) for ep in service.endpoints}
     out["commands"] = dataclasses.asdict(service.commands.counters)
     out["params"] = {"rejected_writes": service.params.rejected_writes}
+    if getattr(service, "gnss", None) is not None:
+        out["gnss"] = service.gnss.stats()
     return out
 
 

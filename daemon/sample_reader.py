@@ -106,6 +106,8 @@ class SampleReader:
                 continue
             if samples:
                 self._process(samples, now)
+                if self.gnss is not None:
+                    self.gnss.advance_to(samples[-1].t_s)   # a GNSS replay, in step with the IMU replay
             elif getattr(source, "finished", False):
                 log.info("replay finished")
                 self.request_stop(0)

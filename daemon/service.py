@@ -38,6 +38,7 @@ from ahrsd.daemon.calibration_swap import CalibrationSwap
 from ahrsd.daemon.commands import CommandRouter
 from ahrsd.daemon.config import MAV_TYPES, Config
 from ahrsd.daemon.declination import DeclinationResolver
+from ahrsd.daemon.gnss_task import GnssTask
 from ahrsd.daemon.health import Health
 from ahrsd.daemon.housekeeping import Housekeeping
 from ahrsd.daemon.inbound import InboundDispatch
@@ -96,6 +97,7 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
                                       accept_broadcast=config.mavlink.accept_broadcast_commands)
         self.notifier = Notifier(environ)
         self.source = source
+        self.gnss: GnssTask | None = None      # [gnss] source (daemon.gnss_task), None without one
         self.pipeline: Pipeline | None = None
         self.reset_counter = 0
         # the VISION_POSITION_ESTIMATE yaw after a calibration change (apply_calibration)
@@ -235,12 +237,16 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         attach_magcal(self)
         if self.source is None:
             self.source = open_source(cfg.sensor, clock=time.monotonic)
+        if cfg.gnss.source != "none":
+            self.gnss = GnssTask(self, cfg.gnss)
+            self.gnss.open()
         want_line = cfg.daemon.status_line == "on" or (cfg.daemon.status_line == "auto" and self._stdout.isatty())
         self._status_line = StatusLine(self._stdout) if want_line else None
         if self._status_line is not None:
             self._status_line.install_log_filter()
-        log.info("ahrsd started: %s, estimator %s, declination %.2f° (%s), MAVLink %s as %d/%d, state in %s",
-                 self.source.description, cfg.estimator_name, math.degrees(self.declination_rad),
+        log.info("ahrsd started: %s, GNSS %s, estimator %s, declination %.2f° (%s), MAVLink %s as %d/%d, state in %s",
+                 self.source.description, self.gnss.description if self.gnss else "none", cfg.estimator_name,
+                 math.degrees(self.declination_rad),
                  self.declination_source, ", ".join(e.url for e in self.endpoints), self.system_id,
                  self.component_id, self.state_dir)
         self.notifier.status(f"starting: {self.source.description}")
@@ -263,6 +269,8 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
             save_timestamp(self.state_dir, max((e.signing_timestamp() for e in self.endpoints), default=0))
         for ep in self.endpoints:
             ep.close()
+        if self.gnss is not None:
+            self.gnss.close()
         if self.source is not None:
             self.source.close()
         self.notifier.close()
