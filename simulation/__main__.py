@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import argparse
+import inspect
 import math
 import time
 
@@ -18,8 +19,8 @@ def main(argv=None) -> int:
     ap.add_argument("--speed", action="store_true", help="time the streams (a few seconds)")
     args = ap.parse_args(argv)
 
-    from ahrsd.simulation import (DEFAULT_SITE, EXTRA_SCENARIOS, SCENARIOS, SensorErrors, make_scenario,
-                                  open_stream, simulate)
+    from ahrsd.simulation import (DEFAULT_SITE, EXTRA_SCENARIOS, SCENARIOS, GnssErrors, SensorErrors, make_scenario,
+                                  open_stream, simulate, simulate_gnss)
 
     f = DEFAULT_SITE.earth_field()
     print(f"site: lat {DEFAULT_SITE.lat_deg}° lon {DEFAULT_SITE.lon_deg}° alt {DEFAULT_SITE.alt_m} m "
@@ -31,6 +32,11 @@ def main(argv=None) -> int:
           f"accel {std['accel_m_s2'] / 9.80665 * 1e3:.2f} mg rms, mag {std['mag_ut'] * 10:.2f} mgauss rms; "
           f"bias instability {math.degrees(e.gyro_bias_instability_rad_s):.3f} °/s, "
           f"{e.accel_bias_instability_m_s2 / 9.80665 * 1e3:.2f} mg")
+    g = GnssErrors()
+    gnss_defaults = inspect.signature(simulate_gnss).parameters
+    print(f"GNSS (simulate_gnss): {gnss_defaults['rate_hz'].default:g} Hz, position σ {g.horizontal_m} m N/E, "
+          f"{g.vertical_m} m D ({g.wander_fraction:.0%} of the variance wandering, τ {g.wander_tau_s:.0f} s), velocity σ "
+          f"{g.velocity_m_s} m/s, latency {gnss_defaults['latency_s'].default:g} s")
     for name in SCENARIOS + tuple(EXTRA_SCENARIOS):
         sc = make_scenario(name)
         iron = "vehicle iron" if sc.default_iron is not None else "no iron"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ahrsd.core.gravity import normal_gravity_m_s2
+from ahrsd.core.gravity import EARTH_RADIUS_M, normal_gravity_m_s2
 
 EARTH_RATE_RAD_S = 7.292e-5         # Earth rotation rate (WGS-84 7.292115e-5 rad/s, rounded)
 
@@ -15,6 +15,18 @@ def gravity_ned_m_s2(lat_deg, alt_m=0.0) -> np.ndarray:
 
 
 def earth_rate_ned_rad_s(lat_deg) -> np.ndarray:
-    """Earth rotation rate expressed in NED at latitude `lat_deg`: ω_ie [cos L, 0, −sin L]."""
-    lat = np.radians(float(lat_deg))
-    return EARTH_RATE_RAD_S * np.array([np.cos(lat), 0.0, -np.sin(lat)])
+    """Earth rotation rate expressed in NED at latitude `lat_deg`: ω_ie [cos L, 0, −sin L] (seed 004 eq. 15).
+
+    (3,) for a scalar latitude, (n, 3) for an array of n latitudes."""
+    lat = np.radians(np.asarray(lat_deg, dtype=float))
+    w = EARTH_RATE_RAD_S * np.stack([np.cos(lat), np.zeros_like(lat), -np.sin(lat)], axis=-1)
+    return w
+
+
+def transport_rate_ned_rad_s(vel_ned_m_s, lat_deg, alt_m) -> np.ndarray:
+    """Rotation rate of the NED frame over the spherical Earth, ω_en = [V_E, −V_N, −V_E tan L] / (R0 + h)
+    (seed 004 eq. 16); vel (n, 3), lat/alt (n,) → (n, 3)."""
+    v = np.asarray(vel_ned_m_s, dtype=float)
+    r = EARTH_RADIUS_M + np.asarray(alt_m, dtype=float)
+    tan_lat = np.tan(np.radians(np.asarray(lat_deg, dtype=float)))
+    return np.stack([v[..., 1], -v[..., 0], -v[..., 1] * tan_lat], axis=-1) / r[..., None]

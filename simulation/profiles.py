@@ -37,9 +37,17 @@ class RateProfile:
 
     When the profile repeats, θ keeps accumulating (each period adds the same angle), so a heading that turns
     360° per period keeps turning.
+
+    blend "cosine": raised cosine, r is C¹ (its derivative is zero at both ends of a segment, the second
+    derivative jumps there). blend "quintic": the smootherstep 10u³ − 15u⁴ + 6u⁵, r is C² (first and second
+    derivatives zero at both ends), for quantities whose derivative drives something else (a car's suspension
+    pitch follows its acceleration, so the pitch rate follows the jerk and must not jump).
     """
 
-    def __init__(self, segments, angle0: float = 0.0):
+    def __init__(self, segments, angle0: float = 0.0, blend: str = "cosine"):
+        if blend not in ("cosine", "quintic"):
+            raise ValueError(f"blend must be 'cosine' or 'quintic', got {blend!r}")
+        self.blend = blend
         segs = list(segments)
         if not segs or any(s.duration_s <= 0 for s in segs):
             raise ValueError("a RateProfile needs segments of positive duration")
@@ -64,20 +72,31 @@ class RateProfile:
 
     def rate(self, t) -> np.ndarray:
         _, k, tau = self._locate(t)
-        blend = 0.5 * (1.0 - np.cos(np.pi * tau / self._dur[k]))
+        u = tau / self._dur[k]
+        if self.blend == "quintic":
+            blend = u**3 * (10.0 - 15.0 * u + 6.0 * u * u)
+        else:
+            blend = 0.5 * (1.0 - np.cos(np.pi * u))
         return self._r0[k] + (self._r1[k] - self._r0[k]) * blend
 
     def angle(self, t) -> np.ndarray:
         n_period, k, tau = self._locate(t)
         T = self._dur[k]
         d = self._r1[k] - self._r0[k]
-        within = self._r0[k] * tau + 0.5 * d * (tau - T / np.pi * np.sin(np.pi * tau / T))
+        if self.blend == "quintic":
+            u = tau / T
+            within = self._r0[k] * tau + d * T * u**4 * (2.5 - 3.0 * u + u * u)   # ∫ smootherstep (half at u=1)
+        else:
+            within = self._r0[k] * tau + 0.5 * d * (tau - T / np.pi * np.sin(np.pi * tau / T))
         return self.angle0 + n_period * self.angle_per_period + self._a0[k] + within
 
     def accel(self, t) -> np.ndarray:
         """dr/dt (rate of change of the rate)."""
         _, k, tau = self._locate(t)
         T = self._dur[k]
+        if self.blend == "quintic":
+            u = tau / T
+            return (self._r1[k] - self._r0[k]) * 30.0 * u * u * (1.0 - u) ** 2 / T
         return (self._r1[k] - self._r0[k]) * 0.5 * np.pi / T * np.sin(np.pi * tau / T)
 
 

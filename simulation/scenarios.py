@@ -38,6 +38,7 @@ class Scenario:
     name: str = ""
     description: str = ""
     default_iron: VehicleIron | None = None  # the vehicle iron this scenario carries unless overridden
+    rotating_earth: bool = False  # simulated on a rotating Earth unless open_stream(earth_rate=...) says otherwise
 
     def attitude(self, t_s: np.ndarray) -> Rotation:
         raise NotImplementedError
@@ -480,6 +481,9 @@ _REGISTRY = {
     "auv-out-and-back": AuvOutAndBack,
     "mag-disturbance": MagDisturbance,
 }
+from ahrsd.simulation.vehicles import VEHICLES  # noqa: E402  (vehicles build on EulerScenario above)
+
+_REGISTRY.update(VEHICLES)
 SCENARIOS: tuple[str, ...] = tuple(_REGISTRY)   # the contract's names (CONTRIBUTING, "Simulation")
 EXTRA_SCENARIOS = {"auv-diver-swing": AuvDiverSwing}   # available by name, not part of the contract
 

@@ -12,11 +12,33 @@ from dataclasses import dataclass
 import numpy as np
 
 from ahrsd.simulation.errors import ErrorProcess, SensorErrors
-from ahrsd.core.gravity import EARTH_RADIUS_M
-from ahrsd.simulation.gravity import earth_rate_ned_rad_s
+from ahrsd.core.gravity import EARTH_RADIUS_M, normal_gravity_m_s2
+from ahrsd.simulation.gravity import earth_rate_ned_rad_s, transport_rate_ned_rad_s
 from ahrsd.simulation.magnetic import VehicleIron
-from ahrsd.simulation.scenarios import CoordinatedTurn, Scenario, make_scenario
+from ahrsd.simulation.scenarios import Scenario, make_scenario
 from ahrsd.simulation.site import DEFAULT_SITE, Site
+from ahrsd.simulation.track import GeodeticTrack
+
+
+@dataclass(frozen=True, eq=False)
+class Truth:
+    """The vehicle's true state at times t_s (n,): attitude q_wxyz (n,4) body→NED (w ≥ 0), body rate w.r.t. NED
+    rate_rad_s (n,3) in body axes, velocity vel_ned_m_s (n,3), geodetic lat_deg, lon_deg, alt_m (n,) on the
+    spherical Earth of seed 004 (R0 = 6 378 137 m, height above it)."""
+
+    t_s: np.ndarray
+    q_wxyz: np.ndarray
+    rate_rad_s: np.ndarray
+    vel_ned_m_s: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    alt_m: np.ndarray
+
+
+def _wxyz(rotation) -> np.ndarray:
+    q = rotation.as_quat()                 # scipy: scalar last [x, y, z, w]
+    q = np.column_stack([q[:, 3], q[:, :3]])
+    return q * np.where(q[:, :1] < 0, -1.0, 1.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -28,7 +50,9 @@ class SensorBlock:
     NED in body axes; truth_mag_ut (n,3) Earth field in body axes, without vehicle iron or disturbances.
     Extra truth: truth_accel_m_s2 (n,3) specific force without errors; truth_disturbance_ut (n,3) local
     disturbance field in body axes (zero when none); truth_gyro_bias_rad_s, truth_accel_bias_m_s2 (n,3) total
-    bias in force at each sample (turn-on + Gauss–Markov + temperature).
+    bias in force at each sample (turn-on + Gauss–Markov + temperature). Where the vehicle is: truth_vel_ned_m_s
+    (n,3) m/s; truth_lat_deg, truth_lon_deg, truth_alt_m (n,) geodetic on seed 004's spherical Earth, from the
+    site at t = 0 (a vehicle that stays put is at the site).
     """
 
     t_s: np.ndarray
@@ -43,6 +67,15 @@ class SensorBlock:
     truth_disturbance_ut: np.ndarray
     truth_gyro_bias_rad_s: np.ndarray
     truth_accel_bias_m_s2: np.ndarray
+    truth_vel_ned_m_s: np.ndarray
+    truth_lat_deg: np.ndarray
+    truth_lon_deg: np.ndarray
+    truth_alt_m: np.ndarray
+
+    def truth(self) -> Truth:
+        """The truth fields as a `Truth` (for the GNSS model)."""
+        return Truth(self.t_s, self.truth_q_wxyz, self.truth_gyro_rad_s, self.truth_vel_ned_m_s,
+                     self.truth_lat_deg, self.truth_lon_deg, self.truth_alt_m)
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -79,7 +112,7 @@ class SensorStream:
 
     `errors` is the SensorErrors in force, vehicle iron included (its hard_iron_ut/soft_iron are what a perfect
     magnetometer calibration must find). `scenario` is the Scenario object (its parameters, helpers like
-    `leg_of`), `site` the Site, `earth_field` the WMM2025 field there.
+    `leg_of`), `site` the Site, `earth_field` the WMM2025 field there, `earth_rate` whether the Earth rotates.
     """
 
     CHUNK = 256  # samples generated at a time for small requests (0.31 s at 819.2 Hz)
@@ -99,9 +132,8 @@ class SensorStream:
         self.earth_field = site.earth_field()
         self._field_ned = self.earth_field.ned_ut
         self._gravity_ned = site.gravity_ned_m_s2
-        self._earth_rate_ned = earth_rate_ned_rad_s(site.lat_deg) if earth_rate else None
-        self._tan_lat = np.tan(np.radians(site.lat_deg))
-        self._radius_m = EARTH_RADIUS_M + site.alt_m
+        self.earth_rate = bool(earth_rate)
+        self._track = GeodeticTrack(scenario.velocity_ned_m_s, site.lat_deg, site.lon_deg, site.alt_m)
         self._process = ErrorProcess(self.errors, self.rate_hz, self.seed)
         self._k = 0  # index of the next sample handed out
         self._k_gen = 0  # index of the next sample to generate
@@ -150,24 +182,39 @@ class SensorStream:
         att = sc.attitude(t)
         ned_to_body = att.inv()
         omega = sc.body_rate_rad_s(t)
-        f_ned = sc.accel_ned_m_s2(t) - self._gravity_ned
-        gyro_sensed = omega
-        if self._earth_rate_ned is not None:
-            # Rotating Earth (seed 004 eqs. 14-16): the sensor also senses the Earth rate and the transport
-            # rate, and the specific force carries the Coriolis and transport terms of the NED velocity equation.
-            v = sc.velocity_ned_m_s(t)
-            w_en = np.column_stack([v[:, 1], -v[:, 0], -v[:, 1] * self._tan_lat]) / self._radius_m
-            f_ned = f_ned + np.cross(2.0 * self._earth_rate_ned + w_en, v)
-            gyro_sensed = omega + ned_to_body.apply(self._earth_rate_ned + w_en)
+        v = sc.velocity_ned_m_s(t)
+        lat_deg, lon_deg, alt_m = self._position_deg(t)
+        if self.earth_rate:
+            # Rotating Earth, seed 004 eqs. 14-18 at the vehicle's position: the gyros sense the body rate w.r.t.
+            # NED plus C_n^b (ω_ie + ω_en) (eq. 21 inverted), and the specific force is
+            # f^n = V̇ + (2 ω_ie + ω_en) × V − g(L, h) (eq. 14 solved for f).
+            w_ie = earth_rate_ned_rad_s(lat_deg)
+            w_en = transport_rate_ned_rad_s(v, lat_deg, alt_m)
+            f_ned = sc.accel_ned_m_s2(t) + np.cross(2.0 * w_ie + w_en, v)
+            f_ned[:, 2] -= normal_gravity_m_s2(lat_deg, alt_m)
+            gyro_sensed = omega + ned_to_body.apply(w_ie + w_en)
+        else:
+            # Flat, non-rotating Earth with the site's gravity throughout.
+            f_ned = sc.accel_ned_m_s2(t) - self._gravity_ned
+            gyro_sensed = omega
         accel_true = ned_to_body.apply(f_ned)
         mag_earth = ned_to_body.apply(self._field_ned)
         dist_ned = sc.disturbance_ned_ut(t)
         dist = ned_to_body.apply(dist_ned) if dist_ned is not None else np.zeros((n, 3))
         gyro, accel, mag, temp, gbias, abias = self._process.apply(t, gyro_sensed, accel_true, mag_earth + dist)
-        q = att.as_quat()                      # scipy: scalar last [x, y, z, w]
-        q = np.column_stack([q[:, 3], q[:, :3]])
-        q *= np.where(q[:, :1] < 0, -1.0, 1.0)
-        return SensorBlock(t, gyro, accel, mag, temp, q, omega, mag_earth, accel_true, dist, gbias, abias)
+        return SensorBlock(t, gyro, accel, mag, temp, _wxyz(att), omega, mag_earth, accel_true, dist, gbias, abias,
+                           v, lat_deg, lon_deg, alt_m)
+
+    def _position_deg(self, t):
+        return self._track.position(t)
+
+    def truth_at(self, t_s) -> Truth:
+        """The exact truth at any times t_s ≥ 0 (not only at sample instants); no effect on the stream."""
+        t = np.atleast_1d(np.asarray(t_s, dtype=float))
+        sc = self.scenario
+        lat_deg, lon_deg, alt_m = self._position_deg(t)
+        return Truth(t, _wxyz(sc.attitude(t)), sc.body_rate_rad_s(t), sc.velocity_ned_m_s(t), lat_deg, lon_deg,
+                     alt_m)
 
 
 def _slice(block: SensorBlock, a: int, b: int) -> SensorBlock:
@@ -180,25 +227,27 @@ def _resolve_scenario(scenario, site: Site) -> Scenario:
     sc = make_scenario(scenario) if isinstance(scenario, str) else scenario
     if not isinstance(sc, Scenario):
         raise TypeError(f"scenario must be a name or a Scenario, got {type(scenario).__name__}")
-    if isinstance(sc, CoordinatedTurn):
-        sc = sc.with_gravity(site.gravity_m_s2)  # coordinated with the local gravity: zero lateral force
+    if hasattr(sc, "with_gravity"):
+        sc = sc.with_gravity(site.gravity_m_s2)  # flying coordinated with the local gravity: zero lateral force
     return sc
 
 
 def open_stream(scenario: str | Scenario, rate_hz: float = 819.2, seed: int = 0,
                 errors: str | SensorErrors = "adis16405", site: Site = DEFAULT_SITE, start_s: float = 0.0,
-                *, vehicle_iron: VehicleIron | str | None = "scenario", earth_rate: bool = False) -> SensorStream:
+                *, vehicle_iron: VehicleIron | str | None = "scenario", earth_rate: bool | None = None) -> SensorStream:
     """An endless simulated sensor stream.
 
     scenario: a name from SCENARIOS or a Scenario instance (e.g. make_scenario("auv-out-and-back", leg_s=120)).
     errors: "adis16405" (datasheet noise, turn-on errors drawn from `seed`), "ideal", or a SensorErrors.
     vehicle_iron: "scenario" (the scenario's default: level-turns, tumble, auv-out-and-back carry
       VehicleIron.default(), the others none), None for no vehicle iron, or a VehicleIron.
-    earth_rate: a rotating Earth (seed 004 eqs. 14-16): the gyros also sense the Earth rate (15 °/h) and the
-      transport rate, and the specific force includes the Coriolis and transport terms, so the seed-004 NED
-      mechanisation (`simulation.strapdown`) reproduces the trajectory. The truth rate is always relative to
-      NED. Off by default (a flat, non-rotating Earth): the Earth rate is below the ADIS16405's bias stability
-      (thesis §10.3). Gravity and the field are those of the site throughout (the tracks are a few km).
+    earth_rate: True for a rotating Earth (seed 004 eqs. 14-18, evaluated at the vehicle's position): the gyros
+      also sense the Earth rate (15 °/h) and the transport rate, the specific force includes the Coriolis and
+      transport terms and gravity is g(L, h) along the track, so the seed-004 NED mechanisation
+      (`simulation.strapdown`) reproduces the trajectory. False for a flat, non-rotating Earth with the site's
+      gravity throughout (the Earth rate is below the ADIS16405's bias stability, thesis §10.3). None (default):
+      the scenario's choice, `Scenario.rotating_earth` (True for boat, car and plane, False for the others).
+      The truth rate is always relative to NED; the magnetic field is the site's throughout (tracks of a few km).
     """
     site = site if site is not None else DEFAULT_SITE
     sc = _resolve_scenario(scenario, site)
@@ -206,6 +255,8 @@ def open_stream(scenario: str | Scenario, rate_hz: float = 819.2, seed: int = 0,
         if vehicle_iron != "scenario":
             raise ValueError(f"vehicle_iron must be 'scenario', None or a VehicleIron, got {vehicle_iron!r}")
         vehicle_iron = sc.default_iron
+    if earth_rate is None:
+        earth_rate = sc.rotating_earth
     return SensorStream(sc, rate_hz, seed, _resolve_errors(errors, seed), site, start_s, vehicle_iron, earth_rate)
 
 

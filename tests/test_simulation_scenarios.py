@@ -25,7 +25,7 @@ def euler_deg(block):
 
 def test_scenario_names_match_the_contract():
     assert SCENARIOS == ("static", "rate-table", "level-turns", "coordinated-turn", "tumble",
-                         "auv-out-and-back", "mag-disturbance")
+                         "auv-out-and-back", "mag-disturbance", "boat", "car", "plane")
 
 
 def test_unknown_scenario_is_a_clear_error():
@@ -53,7 +53,8 @@ def test_shapes_units_and_finite(name):
 
 # Long enough to exercise every part of each scenario (rate-table: one full period of six mountings).
 _DURATION_S = {"rate-table": 250.0, "auv-out-and-back": 620.0, "coordinated-turn": 160.0,
-               "mag-disturbance": 60.0, "static": 5.0, "level-turns": 120.0, "tumble": 120.0}
+               "mag-disturbance": 60.0, "static": 5.0, "level-turns": 120.0, "tumble": 120.0,
+               "boat": 210.0, "car": 175.0, "plane": 185.0}
 
 
 @pytest.mark.parametrize("name", SCENARIOS)
