@@ -33,7 +33,7 @@ class DeclinationResolver:
         elif self.gnss is not None and self.gnss.position is not None:
             lat, lon, alt = self.gnss.position
             decl = earth_field(lat, lon, alt).declination_rad
-            source = f"WMM at {lat:.4f},{lon:.4f} (GNSS)"
+            source = "WMM at the GNSS position"   # no coordinates: they change while moving (logged on change)
         elif loc.use_autopilot_position and self.autopilot.lat_deg is not None:
             ap = self.autopilot
             decl = earth_field(ap.lat_deg, ap.lon_deg, ap.alt_m).declination_rad

@@ -72,6 +72,7 @@ class GnssTask:
         self.description = "none"
         self._fd = -1
         self._next_health = -math.inf
+        self._opened_at = math.inf
         self._shown_state = ""
         self._pending_text = ""
         self._last_text_at = -math.inf
@@ -109,6 +110,7 @@ class GnssTask:
             self.description = (f"simulated receiver ({self.service.config.sensor.scenario}, UBX on {device})"
                                 if kind == "sim" else f"receiver on {device} at {baud} baud ({protocol})")
             self._register_reader()
+        self._opened_at = self.clock()
         log.info("GNSS: %s", self.description)
 
     def close(self) -> None:
@@ -280,6 +282,8 @@ class GnssTask:
     def _report_state(self, now: float) -> None:
         """A STATUSTEXT when the GNSS state changes, at most every STATUSTEXT_MIN_INTERVAL_S (the latest state
         wins when it flaps faster)."""
+        if self.last_fix is None and now - self._opened_at < FIX_STALE_S:
+            return                              # starting: the receiver has not had the time to send a fix
         state = self._state_key(now)
         if state != self._shown_state:
             self._shown_state = state
