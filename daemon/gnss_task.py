@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 from ahrsd.core.estimate import EstimateFlags
 from ahrsd.core.gnss import GnssFix, GnssFixType
+from ahrsd.daemon.local_origin import LocalOrigin
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.drivers.gnss_validation import GnssFixValidator
 
@@ -70,6 +71,7 @@ class GnssTask:
         self.last_fix: GnssFix | None = None          # last accepted
         self.last_accepted_at: float | None = None    # self.clock() when it was accepted
         self.description = "none"
+        self.origin = LocalOrigin()     # LOCAL_POSITION_NED's origin: the first navigation position
         self._fd = -1
         self._next_health = -math.inf
         self._opened_at = math.inf
