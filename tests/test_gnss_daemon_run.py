@@ -1,0 +1,156 @@
+"""`ahrsd run` with GNSS, as a subprocess: the simulated UBX receiver on a pseudo-terminal read through the
+serial source (the hardware path), and a replay of an IMU + GNSS recording whose outgoing time fields are the
+recording's t_s. Also `ahrsd record` writing REC.gnss.csv, and the replay pace."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.drivers.gnss_recording import read_gnss_recording
+from ahrsd.drivers.recording import read_recording
+from ahrsd.estimator import ESTIMATORS
+from support.ahrsd_process import AHRSD, Daemon
+
+GPS = mavlink.MAV_SYS_STATUS_SENSOR_GPS
+TIME_SHIFT_S = 5000.0          # recordings shifted here: far from any boot-relative or monotonic time
+
+
+def record(tmp_path, scenario="boat", seconds=12.0, *extra):
+    out = tmp_path / f"{scenario}.csv"
+    res = subprocess.run([str(AHRSD), "record", "--sim", scenario, "--seconds", str(seconds), "-o", str(out),
+                          *extra], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    return out, res.stderr
+
+
+def shift_times(src, dst, shift_s):
+    """Copy a CSV recording with its first column (t_s) shifted by shift_s."""
+    lines = src.read_text().splitlines()
+    out = [lines[0]]
+    for line in lines[1:]:
+        t, rest = line.split(",", 1)
+        out.append(f"{float(t) + shift_s!r},{rest}")
+    dst.write_text("\n".join(out) + "\n")
+
+
+@pytest.fixture(scope="module")
+def boat(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("boat")
+    rec, _ = record(tmp, "boat", 12.0)
+    shifted = tmp / "shifted.csv"
+    shift_times(rec, shifted, TIME_SHIFT_S)
+    shift_times(tmp / "boat.gnss.csv", tmp / "shifted.gnss.csv", TIME_SHIFT_S)
+    return tmp, rec, shifted
+
+
+def test_record_writes_the_gnss_recording_beside_the_imu_recording(boat):
+    from ahrsd.simulation import open_stream
+
+    tmp, rec, _ = boat
+    fixes = read_gnss_recording(tmp / "boat.gnss.csv")
+    imu = read_recording(rec)
+    t = np.array([f.t_s for f in fixes])
+    assert np.allclose(np.diff(t), 0.2) and imu.t_s[0] <= t[0] and t[-1] <= imu.t_s[-1] + 0.2   # 5 Hz, same base
+    assert len(fixes) >= 55
+    # consistent with the scenario's truth (the simulator's independent trajectory), within its noise
+    truth = open_stream("boat", errors="ideal").truth_at(t)
+    vel = np.array([f.vel_ned_m_s for f in fixes])
+    assert np.max(np.abs(vel - truth.vel_ned_m_s)) < 0.3
+    north_m = (np.array([f.lat_deg for f in fixes]) - truth.lat_deg) * 111_000.0
+    assert np.max(np.abs(north_m)) < 10.0
+    assert np.all([f.fix_type >= 3 for f in fixes])
+
+
+def test_a_scenario_that_does_not_move_records_no_gnss(tmp_path):
+    rec, err = record(tmp_path, "static", 1.0)
+    assert rec.exists() and not (tmp_path / "static.gnss.csv").exists() and "GNSS" not in err
+    rec, err = record(tmp_path, "car", 1.0, "--no-gnss")
+    assert not (tmp_path / "car.gnss.csv").exists()
+
+
+def test_replay_carries_the_recording_time_and_replays_gnss_in_step(boat, tmp_path):
+    _, _, shifted = boat
+    stats = tmp_path / "stats.json"
+    gnss = shifted.with_name("shifted.gnss.csv")
+    d = Daemon(tmp_path, "--gnss-replay", str(gnss), "--replay-speed", "4", "--stats-file", str(stats),
+               source=("--replay", str(shifted)))
+    try:
+        got = d.collect(8.0)
+        d.proc.wait(30)
+    finally:
+        d.stop()
+    assert d.proc.returncode == 0, d.output()
+    t_s = read_recording(shifted).t_s
+    ms = {int(t * 1000.0) for t in t_s}
+    us = {int(t * 1e6) for t in t_s}
+    att = [m.time_boot_ms for _, m in got["ATTITUDE"]]
+    vpe = [m.usec for _, m in got["VISION_POSITION_ESTIMATE"]]
+    imu = [m.time_usec for _, m in got["HIGHRES_IMU"]]
+    assert len(att) > 50 and len(vpe) > 30 and len(imu) > 10
+    assert set(att) <= ms and set(vpe) <= us and set(imu) <= us     # each one is a sample's t_s
+    assert att == sorted(att) and min(att) >= TIME_SHIFT_S * 1000
+    run = json.loads(stats.read_text())
+    n_fixes = len(read_gnss_recording(gnss))
+    g = run["gnss"]
+    assert g["fixes"] == g["accepted"] and n_fixes - 1 <= g["fixes"] <= n_fixes   # all, up to the last sample
+    assert g["rejected"] == 0 and g["source_errors"] == 0
+
+
+def test_sim_receiver_on_a_pty(tmp_path):
+    stats = tmp_path / "stats.json"
+    d = Daemon(tmp_path, "--gnss-sim", "--stats-file", str(stats), scenario="boat")
+    status, texts = None, []
+    try:
+        end = time.monotonic() + 40.0
+        while time.monotonic() < end and (status is None or not texts):
+            m = d.recv(["SYS_STATUS", "STATUSTEXT"], 1.0)
+            if m is None:
+                continue
+            if m.get_type() == "STATUSTEXT" and "GNSS" in m.text:
+                texts.append(m.text)
+            elif m.get_type() == "SYS_STATUS" and m.onboard_control_sensors_health & GPS:
+                status = m
+        d.collect(2.0)              # 10 more fixes for the counters below
+    finally:
+        d.stop()
+    assert status is not None and texts, (status, texts, d.log_path.read_text())
+    assert status.onboard_control_sensors_present & GPS and status.onboard_control_sensors_enabled & GPS
+    aided = "ins" in ESTIMATORS
+    assert any(t.startswith("ahrsd: GNSS 3D 12 sats") for t in texts), texts
+    assert ("aided" if aided else "not used") in texts[-1]
+    run = json.loads(stats.read_text())
+    g = run["gnss"]
+    assert g["serial"]["frames_ubx"] >= 5 and g["serial"]["garbage_bytes"] == 0
+    assert g["accepted"] >= 5 and g["rejected"] == 0
+    assert g["offered" if "ins" in ESTIMATORS else "not_used"] == g["accepted"]
+
+
+def test_replay_source_speed():
+    """--replay-speed X: X seconds of the recording per second of the clock."""
+    from ahrsd.core.sample import make_sample
+    from ahrsd.drivers.replay_source import ReplaySource
+
+    now = [100.0]
+    samples = (make_sample(10.0 + i * 0.01, [0, 0, 0], [0, 0, -9.8], [20, 0, 40], counter=i) for i in range(2000))
+    src = ReplaySource(samples, "test", realtime=True, clock=lambda: now[0], speed=5.0)
+    got = src.poll()
+    for _ in range(40):
+        now[0] += 0.025
+        got += src.poll()
+    # after 1 s of clock: 5 s of recording (samples at t ≤ 15.0), 501 samples
+    assert got[-1].t_s == pytest.approx(15.0) and len(got) == 501
+    with pytest.raises(ValueError):
+        ReplaySource(iter(()), "bad", speed=0.0)
+
+
+def test_run_flags_are_refused_with_their_reason(tmp_path):
+    res = subprocess.run([sys.executable, "-m", "ahrsd.cli", "run", "--sim", "static", "--gnss-replay", "x.csv",
+                          "--check-config"], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 2 and "gnss.source" in res.stderr and "--replay" in res.stderr
