@@ -118,14 +118,8 @@ def _gnss_fixes(path: str, validator):
 
     try:
         fixes = read_gnss_recording(path)
-    except FileNotFoundError:
-        raise ReplayError(f"{path}: no such file") from None
-    except GnssRecordingFormatError as exc:
+    except GnssRecordingFormatError as exc:       # names the file, and the line and column or the OS error
         raise ReplayError(str(exc)) from None
-    except UnicodeDecodeError:
-        raise ReplayError(f"{path}: not a text (UTF-8) CSV file") from None
-    except OSError as exc:
-        raise ReplayError(f"{path}: {exc.strerror or exc}") from None
     good = [f for f in fixes if validator.check(f) is None]
     if not good:
         raise ReplayError(f"{path}: no usable fix ({len(fixes)} rows, {validator.rejected} rejected)")
