@@ -1,101 +1,52 @@
-"""Allan-variance noise analysis of a static recording (thesis §8.3–8.4, IEEE Std 952 conventions).
+"""Allan-variance noise analysis of a static recording (thesis §8.3–8.4, IEEE Std 952-1997 conventions).
 
-`allan_deviation(x, rate_hz)` computes the *overlapping* Allan deviation on log-spaced cluster sizes from
-the cumulative sum in O(n) per τ (vectorised; hours of 100 Hz data take well under a second per axis).
+The recording is consumed a chunk at a time (`StaticAllanAnalysis.add`, or `analyse_chunks` over a chunked
+reader): per sensor a streaming overlapping Allan deviation (allan_adev.py), so a day at 819.2 SPS needs no
+more memory than a chunk. Each axis' curve is then read by a significance test that keeps only the noise terms
+the curve shows (allan_terms.py), and the Kalman tuning is derived from those terms (allan_kalman.py).
 
-`noise_parameters(taus, adev)` reads the curve the way the thesis does (§8.3), made robust:
-  - white noise N (ARW for gyros, rad/s/√Hz = rad/√s; VRW for accelerometers, m/s²/√Hz): the slope −1/2
-    line σ = N/√τ, read at τ = 1 s. The line is fitted (fixed slope, in log space) to every τ where the
-    local slope is within ±0.15 of −1/2 and the curve is well above the flat floor, after removing the
-    floor (the model's constant term) in variance; without such a region the model's τ⁻¹ term is used.
-  - bias instability B: the flat region; B = σ_flat / 0.664 (IEEE Std 952: flicker noise gives
-    σ = √(2 ln2/π)·B ≈ 0.664·B). The flat level is read from a smooth model σ²(τ) = 3Q²/τ² + N²/τ + F
-    [+ s·GM(τ; Tc)] + K²τ/3 fitted to the whole curve by non-negative least squares, so one noisy long-τ
-    point does not decide it (the raw curve minimum is reported beside it). A first-order Gauss–Markov
-    bias (a bump instead of a floor, as in the simulator) is detected and reported as its σ and Tc
-    (gauss_markov_sigma, gauss_markov_tau_s); the IEEE reading of such a bump is 0.617/0.664 = 0.93 σ.
-  - rate random walk K (slope +1/2, σ = K·√(τ/3), read at τ = 3 s) and quantization Q (slope −1,
-    σ = √3·Q/τ) when the fit finds them (else None).
-
-`kalman_tuning(...)` turns the results into the thesis's filter noise (§8.4, eq. 6-1/6-2):
-Q = diag((3·ARW)², (3·ARW/10)²) [rad²/s], R = diag(σ_mag², σ_accel²) from the output standard deviation.
+Per sensor and axis (u = the sample unit: rad/s, m/s², µT):
+  white_noise N (u/√Hz: ARW, VRW), quantization Q (u·s), bias_instability B (u, IEEE reading min σ/0.664
+  where the flicker floor dominates) with tau_bias_instability_s, rate_random_walk K (u/√s), rate_ramp R
+  (u/s), gauss_markov_sigma/gauss_markov_tau_s — each None when the curve does not show it;
+  terms: the kept terms with value, 1σ uncertainty and τ range; not_seen: for the others, the 2σ upper bound
+  and the recording length that would show a term that large; flags: the same in words.
 """
 
 from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-FLICKER_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)  # 0.6643, IEEE Std 952-1997 Table B.1
-Q_INFLATION = 3.0          # thesis §8.4 eq. 5-8: diagonal Q inflated ×3 for correlated axes
-BIAS_DRIVE_FRACTION = 0.1  # thesis eq. 6-1: bias-driving noise = ARW/10
+from .allan_adev import ONE_SIGMA, AllanCurve, StreamingAllan, confidence_interval, edf_overlapping
+from .allan_kalman import kalman_tuning
+from .allan_terms import (
+    TERMS,
+    ModelFit,
+    TermEstimate,
+    flicker_reading,
+    not_seen_report,
+    octave_points,
+    select_terms,
+    term_estimates,
+)
 
-
-def cluster_sizes(n_samples: int, points_per_octave: int = 4, max_fraction: float = 0.25) -> np.ndarray:
-    """Log-spaced cluster sizes m (samples) from 1 to max_fraction·n (unique integers)."""
-    m_max = max(1, int(n_samples * max_fraction))
-    count = int(math.floor(math.log2(m_max) * points_per_octave)) + 1
-    m = np.unique(np.round(2.0 ** (np.arange(count) / points_per_octave)).astype(np.int64))
-    return m[m <= m_max]
-
-
-def allan_deviation(x: np.ndarray, rate_hz: float, m: np.ndarray | None = None,
-                    points_per_octave: int = 4, overlap_stride: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Overlapping Allan deviation of rate samples `x` ((n,) or (n, k) columns) sampled at `rate_hz`.
-
-    Returns (taus_s (j,), adev (j,) or (j, k), n_terms (j,)): n_terms is the number of overlapping
-    differences behind each point (for confidence: relative error ≈ 1/√(2·(n/m − 1)) at worst).
-    overlap_stride: > 0 takes cluster starts every max(1, stride·m) samples instead of every sample (faster
-    on very long records, e.g. 1/8: −40 % time on 4 h at 100 Hz, but the long-τ points then scatter up to
-    ~15 % more). Default 0: every sample, the textbook fully overlapping form.
-    """
-    x = np.asarray(x, dtype=np.float64)
-    squeeze = x.ndim == 1
-    if squeeze:
-        x = x[:, None]
-    n = x.shape[0]
-    if n < 8:
-        raise ValueError(f"Allan variance needs at least 8 samples, got {n}")
-    if not np.all(np.isfinite(x)):
-        raise ValueError("Allan variance input contains non-finite samples")
-    dt = 1.0 / float(rate_hz)
-    m = cluster_sizes(n, points_per_octave) if m is None else np.asarray(m, dtype=np.int64)
-    # theta_k = sum of the first k samples (times dt): cluster averages are differences of theta.
-    x = x - x.mean(axis=0)  # removes the mean: improves the cumulative sum's conditioning, not the result
-    theta = np.zeros((n + 1, x.shape[1]))
-    np.cumsum(x, axis=0, out=theta[1:])
-    theta *= dt
-    adev = np.empty((len(m), x.shape[1]))
-    n_terms = np.empty(len(m), dtype=np.int64)
-    buf = np.empty((n, x.shape[1]))
-    for i, mi in enumerate(m):
-        step = max(1, int(overlap_stride * mi))
-        hi, mid, lo = theta[2 * mi::step], theta[mi:-mi:step], theta[:-2 * mi:step]
-        k = lo.shape[0]
-        d = buf[:k]  # θ[j+2m] − 2θ[j+m] + θ[j], in place (no temporaries: hours of data stay fast)
-        np.subtract(hi[:k], mid[:k], out=d)
-        np.subtract(d, mid[:k], out=d)
-        np.add(d, lo, out=d)
-        tau = mi * dt
-        n_terms[i] = k
-        adev[i] = np.sqrt(np.einsum("ij,ij->j", d, d) / (2.0 * tau * tau * k))
-    taus = m * dt
-    return taus, (adev[:, 0] if squeeze else adev), n_terms
+AXES = ("x", "y", "z")
+SENSORS = ("gyro", "accel", "mag")
+SENSOR_UNITS = {"gyro": "rad/s", "accel": "m/s^2", "mag": "uT"}
+MIN_SAMPLES = 16
+CONFIDENCE_LEVEL = ONE_SIGMA   # the band: 1σ two-sided χ² interval
 
 
 @dataclass(frozen=True)
 class NoiseParameters:
-    """Noise of one sensor axis read off its Allan deviation. Units: u = the sample unit (rad/s, m/s², µT).
+    """Noise of one sensor axis read off its Allan deviation (units in the module doc)."""
 
-    white_noise: u/√Hz (= u·√s; ARW rad/√s, VRW m/s/√s); bias_instability: u; rate_random_walk: u/√s;
-    quantization: u·s; tau_bias_instability_s: where the flat minimum is; flags: what was not seen.
-    """
-
-    white_noise: float
+    white_noise: float | None
     bias_instability: float | None
     rate_random_walk: float | None
     quantization: float | None
@@ -106,234 +57,233 @@ class NoiseParameters:
     gauss_markov_sigma: float | None = None
     gauss_markov_tau_s: float | None = None
     flags: tuple[str, ...] = ()
+    rate_ramp: float | None = None
+    terms: dict = field(default_factory=dict)       # name -> TermEstimate, the terms the curve shows
+    not_seen: dict = field(default_factory=dict)    # name -> {"upper_bound", "recording_needed_s", "note"}
+    fit: ModelFit | None = None                     # the fitted model (for plots; not serialised)
 
     def to_dict(self) -> dict:
-        d = asdict(self)
+        d = {name: getattr(self, name) for name in (
+            "white_noise", "bias_instability", "rate_random_walk", "quantization", "tau_bias_instability_s",
+            "curve_minimum", "tau_curve_minimum_s", "std", "gauss_markov_sigma", "gauss_markov_tau_s",
+            "rate_ramp")}
         d["flags"] = list(self.flags)
+        d["terms"] = {name: (self.terms[name].to_dict() if name in self.terms else None) for name in TERMS}
+        d["not_seen"] = dict(self.not_seen)
+        for name, est in self.terms.items():
+            d[f"{name}_uncertainty"] = est.uncertainty
         return d
 
 
-def gauss_markov_avar(taus: np.ndarray, corr_time_s: float) -> np.ndarray:
-    """Allan variance of a unit-variance first-order Gauss–Markov process with correlation time Tc:
-    σ²(τ) = (2Tc/τ)·[1 − Tc/(2τ)·(3 − 4e^(−τ/Tc) + e^(−2τ/Tc))]  (IEEE Std 952 Annex C / El-Sheimy 2008)."""
-    x = np.asarray(taus, dtype=np.float64) / corr_time_s
-    small = x < 1e-3  # series limit avoids cancellation: σ² ≈ x·(1 − x/3)·... → x for tiny x... use Taylor
-    out = np.empty_like(x)
-    xs = x[~small]
-    out[~small] = (2.0 / xs) * (1.0 - (3.0 - 4.0 * np.exp(-xs) + np.exp(-2.0 * xs)) / (2.0 * xs))
-    xt = x[small]
-    out[small] = (2.0 / 3.0) * xt - (1.0 / 2.0) * xt**2  # Taylor: (2/x)[x/3 − x²/4 + …]... = 2x/3 − x²/2
-    return out
-
-
-@dataclass(frozen=True)
-class _CurveModel:
-    """σ²(τ) = 3Q²/τ² + N²/τ + F + Σ_j s_j·GM(τ; Tc_j) + K²τ/3, every coefficient ≥ 0 (NNLS)."""
-
-    quant_var: float      # 3Q² coefficient of τ⁻²
-    white_var: float      # N²
-    flat_var: float       # F (flicker floor, = (0.664 B)² for pure flicker noise)
-    gm_var: np.ndarray    # s_j: variances of the Gauss–Markov components
-    gm_tc: np.ndarray     # their correlation times Tc_j (s)
-    rrw_var: float        # K²/3 coefficient of τ
-
-    def bias_component(self, taus: np.ndarray) -> np.ndarray:
-        """Allan variance of the bias-instability part (flicker floor + Gauss–Markov terms)."""
-        out = np.full_like(np.asarray(taus, dtype=np.float64), self.flat_var)
-        for s, tc in zip(self.gm_var, self.gm_tc):
-            if s > 0:
-                out = out + s * gauss_markov_avar(taus, tc)
-        return out
-
-    def avar(self, taus: np.ndarray) -> np.ndarray:
-        t = np.asarray(taus, dtype=np.float64)
-        return self.quant_var / t**2 + self.white_var / t + self.bias_component(t) + self.rrw_var * t
-
-
-GM_SELECTION_RATIO = 6.0  # keep the Gauss–Markov term only if it cuts the weighted residual² this much
-
-
-def _model_fit(taus: np.ndarray, adev: np.ndarray, n_terms: np.ndarray, rate_hz: float) -> _CurveModel:
-    """Weighted NNLS fit of σ² = 3Q²/τ² + N²/τ + F + s·GM(τ; Tc) + K²τ/3 to one Allan curve.
-
-    The bias-instability part is a flicker floor F, plus — only when the curve needs it — one Gauss–Markov
-    term (the exponentially correlated bias most simulators and some sensors have: a bump on the curve,
-    no flat floor). Tc is searched on a log grid (8 per octave, from 10·τ_min — shorter ones would mimic
-    white noise — to the longest τ); the other coefficients are linear (NNLS) for each Tc. The GM term is
-    kept only if it cuts the weighted residual² by `GM_SELECTION_RATIO` (measured: pure flicker noise gains
-    at most ×3.6 from it by fitting long-τ scatter, which would inflate the reading; a real GM bump gains
-    ×20 or more). Points are weighted by 1/σ² (relative error) times the √ of the number of independent
-    clusters, so many-cluster short-τ and few-cluster long-τ points count fairly.
-    """
-    from scipy.optimize import nnls
-
-    avar = adev**2
-    m = np.maximum(np.round(taus * rate_hz), 1.0)
-    independent = np.maximum(np.asarray(n_terms) / m, 1.0)
-    w = np.sqrt(independent) / avar
-
-    def solve(cols):
-        basis = np.column_stack(cols) * w[:, None]
-        scale = np.max(np.abs(basis), axis=0)
-        scale[scale == 0] = 1.0
-        coef, resid = nnls(basis / scale, avar * w, maxiter=200)
-        return coef / scale, resid**2
-
-    fixed = [taus**-2.0, taus**-1.0, np.ones_like(taus)]
-    base, base_r2 = solve(fixed + [taus])
-    tc_min = max(10.0 * taus[0], 1.0 / rate_hz)
-    best = None
-    for tc in np.geomspace(tc_min, taus[-1], max(2, int(8 * math.log2(taus[-1] / tc_min)) + 1)):
-        coef, r2 = solve(fixed + [gauss_markov_avar(taus, tc), taus])
-        if best is None or r2 < best[1]:
-            best = (coef, r2, tc)
-    coef, r2, tc = best
-    if coef[3] > 0 and base_r2 >= GM_SELECTION_RATIO * r2:
-        return _CurveModel(float(coef[0]), float(coef[1]), float(coef[2]), np.array([coef[3]]), np.array([tc]),
-                           float(coef[4]))
-    return _CurveModel(float(base[0]), float(base[1]), float(base[2]), np.zeros(0), np.zeros(0), float(base[3]))
-
-
-def noise_parameters(taus: np.ndarray, adev: np.ndarray, n_terms: np.ndarray, rate_hz: float,
-                     std: float = math.nan) -> NoiseParameters:
-    """Read white noise, bias instability, rate random walk and quantization from one Allan curve."""
-    taus = np.asarray(taus, dtype=np.float64)
-    adev = np.asarray(adev, dtype=np.float64)
-    flags: list[str] = []
-    model = _model_fit(taus, adev, np.asarray(n_terms), rate_hz)
-
-    # White noise: fixed-slope −1/2 line through the points where the curve has that slope, after
-    # removing the model's other terms in variance (they lift the line by a few %).
-    logt, logs = np.log(taus), np.log(adev)
-    slope = np.gradient(logs, logt)
-    others = model.avar(taus) - model.white_var / taus
-    on_line = (np.abs(slope + 0.5) < 0.15) & (adev**2 > 4.0 * others)
-    if np.count_nonzero(on_line) >= 2:
-        white_part = np.sqrt(np.maximum(adev[on_line] ** 2 - others[on_line], 1e-300))
-        white = float(np.exp(np.mean(np.log(white_part) + 0.5 * logt[on_line])))
-    elif model.white_var > 0:
-        white = math.sqrt(model.white_var)
-        flags.append("white noise from the model fit (no clean slope −1/2 region)")
-    else:
-        white = float(adev[0] * math.sqrt(taus[0]))
-        flags.append("white noise from the shortest τ (no slope −1/2 region)")
-
-    # Bias instability: the top of the bias part of the curve (flat for flicker noise), / 0.664.
-    grid = np.geomspace(taus[0], taus[-1], 512)
-    bias_curve = np.sqrt(np.maximum(model.bias_component(grid), 0.0))
-    k = int(np.argmax(bias_curve))
-    bias_instability = tau_bi = None
-    gm_sigma = gm_tau = None
-    if bias_curve[k] > 0:
-        bias_instability = float(bias_curve[k] / FLICKER_FACTOR)
-        tau_bi = float(grid[k])
-        if k == len(grid) - 1:
-            flags.append("bias instability still rising at the longest τ: record longer")
-    else:
-        flags.append("no bias instability visible above the white noise (record longer)")
-    if np.any(model.gm_var > 0):
-        gm_total = float(np.sum(model.gm_var))
-        gm_sigma = math.sqrt(gm_total)
-        gm_tau = float(np.exp(np.sum(model.gm_var * np.log(model.gm_tc)) / gm_total))
-    rrw = math.sqrt(3.0 * model.rrw_var) if model.rrw_var > 0 else None
-    quant = math.sqrt(model.quant_var / 3.0) if model.quant_var > 0 else None
+def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float) -> NoiseParameters:
+    """Decide the terms of one axis' curve and read their values."""
+    pts = octave_points(curve, axis)
+    if len(pts.taus) < 3 or not np.all(pts.avar > 0):
+        j = int(np.argmin(curve.adev[:, axis]))
+        return NoiseParameters(None, None, None, None, None, float(curve.adev[j, axis]), float(curve.taus_s[j]),
+                               float(std), flags=("constant signal or too few cluster sizes: no noise terms read",))
+    fit = select_terms(pts)
+    terms: dict[str, TermEstimate] = term_estimates(fit, pts)
+    flags, not_seen = [], {}
+    for name in TERMS:
+        if name not in terms:
+            report = not_seen_report(fit, pts, name, rate_hz)
+            not_seen[name] = report
+            bound = report.get("upper_bound")
+            bound_text = "" if bound is None else f" (≤ {bound:.3g} at 2σ)"
+            flags.append(f"{name.replace('_', ' ')} not seen{bound_text}: {report['note']}")
+    bias = flicker_reading(fit, pts)
+    if "flicker" in terms and bias is None:    # kept but no τ left beside the shortest: not readable
+        del terms["flicker"]
+    adev = curve.adev[:, axis]
     j = int(np.argmin(adev))
+    gm = terms.get("gauss_markov")
     return NoiseParameters(
-        white_noise=white,
-        bias_instability=bias_instability,
-        rate_random_walk=rrw,
-        quantization=quant,
-        tau_bias_instability_s=tau_bi,
+        white_noise=terms["white"].value if "white" in terms else None,
+        bias_instability=None if bias is None else bias[0],
+        rate_random_walk=terms["rate_random_walk"].value if "rate_random_walk" in terms else None,
+        quantization=terms["quantization"].value if "quantization" in terms else None,
+        tau_bias_instability_s=None if bias is None else bias[1],
         curve_minimum=float(adev[j]),
-        tau_curve_minimum_s=float(taus[j]),
+        tau_curve_minimum_s=float(curve.taus_s[j]),
         std=float(std),
-        gauss_markov_sigma=gm_sigma,
-        gauss_markov_tau_s=gm_tau,
+        gauss_markov_sigma=None if gm is None else gm.value,
+        gauss_markov_tau_s=None if gm is None else gm.corr_time_s,
         flags=tuple(flags),
+        rate_ramp=terms["rate_ramp"].value if "rate_ramp" in terms else None,
+        terms=terms,
+        not_seen=not_seen,
+        fit=fit,
     )
-
-
-AXES = ("x", "y", "z")
-SENSOR_UNITS = {"gyro": "rad/s", "accel": "m/s^2", "mag": "uT"}
 
 
 @dataclass(frozen=True)
 class AllanResult:
-    """Per sensor ('gyro', 'accel', 'mag') and axis: the curve and the noise parameters."""
+    """Per sensor ('gyro', 'accel', 'mag') and axis: the curve, its confidence band and the noise parameters."""
 
     rate_hz: float
     duration_s: float
     taus_s: np.ndarray
     adev: dict            # sensor -> (j, 3)
     parameters: dict      # sensor -> {axis: NoiseParameters}
+    adev_lower: dict = field(default_factory=dict)   # sensor -> (j, 3), CONFIDENCE_LEVEL band
+    adev_upper: dict = field(default_factory=dict)
+    clusters: np.ndarray | None = None               # independent clusters T/τ behind each point
+    samples: int = 0
+    replaced_samples: dict = field(default_factory=dict)   # sensor -> non-finite samples replaced by the mean
 
     def to_json_dict(self) -> dict:
         """The public `ahrsd calibrate allan --json` keys: per sensor and axis `white_noise` and
-        `bias_instability` (plus the other parameters), and the thesis's Kalman tuning."""
-        out: dict = {"rate_hz": self.rate_hz, "duration_s": self.duration_s}
+        `bias_instability` (plus the other parameters), the Kalman tuning, and the curves with their band."""
+        out: dict = {"rate_hz": self.rate_hz, "duration_s": self.duration_s, "samples": self.samples}
         for sensor, axes in self.parameters.items():
             out[sensor] = {"unit": SENSOR_UNITS[sensor], **{ax: p.to_dict() for ax, p in axes.items()}}
+            out[sensor]["replaced_samples"] = self.replaced_samples.get(sensor, 0)
         out["kalman"] = kalman_tuning(self)
+        curves: dict = {"taus_s": self.taus_s.tolist(), "confidence_level": CONFIDENCE_LEVEL,
+                        "clusters": None if self.clusters is None else self.clusters.tolist()}
+        for sensor, adev in self.adev.items():
+            curves[sensor] = {
+                ax: {"adev": adev[:, i].tolist(),
+                     "lower": self.adev_lower[sensor][:, i].tolist() if sensor in self.adev_lower else None,
+                     "upper": self.adev_upper[sensor][:, i].tolist() if sensor in self.adev_upper else None}
+                for i, ax in enumerate(AXES)}
+        out["curves"] = curves
         return out
 
 
-def analyse_static(t_s: np.ndarray, gyro_rad_s=None, accel_m_s2=None, mag_ut=None,
-                   points_per_octave: int = 4) -> AllanResult:
-    """Allan analysis of every sensor given ((n, 3) arrays) from one static recording."""
+class StaticAllanAnalysis:
+    """Feed a static recording chunk by chunk (`add`), then `result()`. Memory: one chunk plus O(log n)."""
+
+    def __init__(self):
+        self._start: list[tuple] = []      # chunks held until MIN_SAMPLES give the sample rate
+        self._rate_hz: float | None = None
+        self._allan: dict[str, StreamingAllan] = {}
+        self._sum: dict[str, np.ndarray] = {}
+        self._sum_sq: dict[str, np.ndarray] = {}
+        self._ref: dict[str, np.ndarray] = {}
+        self._replaced: dict[str, int] = {}
+        self._n = 0
+        self._t0 = self._t_last = math.nan
+
+    def add(self, t_s, gyro_rad_s=None, accel_m_s2=None, mag_ut=None) -> None:
+        chunk = (np.asarray(t_s, dtype=np.float64), gyro_rad_s, accel_m_s2, mag_ut)
+        if self._rate_hz is None:
+            self._start.append(chunk)
+            if sum(len(c[0]) for c in self._start) < MIN_SAMPLES:
+                return
+            t = np.concatenate([c[0] for c in self._start])
+            dt = float(np.median(np.diff(t)))
+            if not dt > 0:
+                raise ValueError("sample times do not increase")
+            self._rate_hz = 1.0 / dt
+            self._t0 = float(t[0])
+            held, self._start = self._start, []
+            for c in held:
+                self._take(*c)
+            return
+        self._take(*chunk)
+
+    def _take(self, t_s, gyro, accel, mag) -> None:
+        if len(t_s) == 0:
+            return
+        self._n += len(t_s)
+        self._t_last = float(t_s[-1])
+        for sensor, data in zip(SENSORS, (gyro, accel, mag)):
+            if data is None:
+                continue
+            data = np.array(data, dtype=np.float64, copy=True).reshape(len(t_s), 3)
+            bad = ~np.isfinite(data)
+            if sensor not in self._allan:
+                self._allan[sensor] = StreamingAllan(self._rate_hz, 3)
+                self._ref[sensor] = np.where(np.isfinite(data[0]), data[0], 0.0)
+                self._sum[sensor] = np.zeros(3)
+                self._sum_sq[sensor] = np.zeros(3)
+                self._replaced[sensor] = 0
+            if bad.any():
+                # A few invalid samples of a long record: replaced by the mean so far (one sample each).
+                n_before = self._allan[sensor].n_samples
+                mean = self._ref[sensor] + (self._sum[sensor] / n_before if n_before else 0.0)
+                data = np.where(bad, mean, data)
+                self._replaced[sensor] += int(np.count_nonzero(bad.any(axis=1)))
+            self._allan[sensor].add(data)
+            d = data - self._ref[sensor]
+            self._sum[sensor] += d.sum(axis=0)
+            self._sum_sq[sensor] += np.einsum("ij,ij->j", d, d)
+
+    def result(self) -> AllanResult:
+        if self._rate_hz is None:
+            n = sum(len(c[0]) for c in self._start)
+            raise ValueError(f"recording too short for an Allan analysis ({n} samples)")
+        if not self._allan:
+            raise ValueError("no sensor data given")
+        adevs, params, lower, upper = {}, {}, {}, {}
+        curve = None
+        for sensor, acc in self._allan.items():
+            curve = acc.curve()
+            n = acc.n_samples
+            std = np.sqrt(np.maximum(self._sum_sq[sensor] / n - (self._sum[sensor] / n) ** 2, 0.0))
+            axes = {ax: read_axis(curve, i, std[i], self._rate_hz) for i, ax in enumerate(AXES)}
+            lo, hi = np.empty_like(curve.adev), np.empty_like(curve.adev)
+            for i, ax in enumerate(AXES):
+                fit = axes[ax].fit
+                edf = (fit.edf(curve.taus_s, curve.level_n, curve.level_m) if fit is not None
+                       else np.array([edf_overlapping(0, n + 1.0, m) for n, m in zip(curve.level_n, curve.level_m)]))
+                lo[:, i], hi[:, i] = confidence_interval(curve.adev[:, i], edf, CONFIDENCE_LEVEL)
+            adevs[sensor], params[sensor], lower[sensor], upper[sensor] = curve.adev, axes, lo, hi
+        duration = self._t_last - self._t0 + 1.0 / self._rate_hz
+        return AllanResult(self._rate_hz, duration, curve.taus_s, adevs, params, lower, upper, curve.clusters,
+                           self._n, dict(self._replaced))
+
+
+def analyse_chunks(chunks) -> AllanResult:
+    """Allan analysis of a recording given as chunks with t_s, gyro_rad_s, accel_m_s2, mag_ut (e.g.
+    drivers.recording.iter_recording_chunks), read once, a chunk at a time."""
+    acc = StaticAllanAnalysis()
+    for c in chunks:
+        acc.add(c.t_s, c.gyro_rad_s, c.accel_m_s2, c.mag_ut)
+    return acc.result()
+
+
+def analyse_static(t_s: np.ndarray, gyro_rad_s=None, accel_m_s2=None, mag_ut=None) -> AllanResult:
+    """Allan analysis of every sensor given ((n, 3) arrays) from one static recording in memory."""
     t_s = np.asarray(t_s, dtype=np.float64)
-    if t_s.shape[0] < 16:
+    if t_s.shape[0] < MIN_SAMPLES:
         raise ValueError(f"recording too short for an Allan analysis ({t_s.shape[0]} samples)")
-    dt = float(np.median(np.diff(t_s)))
-    if not dt > 0:
-        raise ValueError("sample times do not increase")
-    rate = 1.0 / dt
-    adevs, params = {}, {}
-    taus = None
-    for sensor, data in (("gyro", gyro_rad_s), ("accel", accel_m_s2), ("mag", mag_ut)):
-        if data is None:
-            continue
-        data = np.asarray(data, dtype=np.float64)
-        good = np.all(np.isfinite(data), axis=1)
-        if not np.all(good):
-            # Fill the few invalid samples with the mean (each is one sample of a long record).
-            data = np.where(good[:, None], data, np.nanmean(np.where(good[:, None], data, np.nan), axis=0))
-        taus, adev, n_terms = allan_deviation(data, rate, points_per_octave=points_per_octave)
-        adevs[sensor] = adev
-        std = data.std(axis=0)
-        params[sensor] = {ax: noise_parameters(taus, adev[:, i], n_terms, rate, std[i]) for i, ax in enumerate(AXES)}
-    if taus is None:
-        raise ValueError("no sensor data given")
-    return AllanResult(rate, float(t_s[-1] - t_s[0] + dt), taus, adevs, params)
+    acc = StaticAllanAnalysis()
+    acc.add(t_s, gyro_rad_s, accel_m_s2, mag_ut)
+    return acc.result()
 
 
-def kalman_tuning(result: AllanResult) -> dict:
-    """The thesis's Kalman Q and R (§8.4, eq. 6-1/6-2) in SI units.
+_REPORT_NAMES = {"gyro": ("ARW", "rad/s/√Hz", "rad/s"), "accel": ("VRW", "m/s²/√Hz", "m/s²"),
+                 "mag": ("white", "µT/√Hz", "µT")}
 
-    Q (6): gyro white noise (3·ARW)² then bias-driving noise (3·ARW/10)², rad²/s (continuous-time density).
-    R (6): magnetometer variance (µT²) then accelerometer variance ((m/s²)²), from the output std (thesis
-    §11.4: "the first three numbers are the magnetometer standard deviations, the next three the
-    accelerometer's").
-    """
-    out: dict = {"source": "thesis eq. 5-8, 6-1, 6-2"}
-    gyro = result.parameters.get("gyro")
-    if gyro:
-        arw = [gyro[ax].white_noise for ax in AXES]
-        out["gyro_arw_rad_sqrt_s"] = arw
-        out["Q_diag"] = [(Q_INFLATION * v) ** 2 for v in arw] + [
-            (Q_INFLATION * BIAS_DRIVE_FRACTION * v) ** 2 for v in arw
-        ]
-        out["Q_units"] = "rad^2/s"
-        bi = [gyro[ax].bias_instability for ax in AXES]
-        out["gyro_bias_instability_rad_s"] = bi
-    mag, acc = result.parameters.get("mag"), result.parameters.get("accel")
-    if mag and acc:
-        out["R_diag"] = [mag[ax].std**2 for ax in AXES] + [acc[ax].std**2 for ax in AXES]
-        out["R_units"] = ["uT^2"] * 3 + ["(m/s^2)^2"] * 3
-    if acc:
-        out["accel_vrw_m_s2_sqrt_hz"] = [acc[ax].white_noise for ax in AXES]
-    if mag:
-        out["mag_white_noise_ut_sqrt_hz"] = [mag[ax].white_noise for ax in AXES]
-    return out
+
+def describe(result: AllanResult) -> list[str]:
+    """The human report: per axis the terms seen (value ± 1σ, τ range) and what was not seen."""
+    lines = []
+    for sensor, axes in result.parameters.items():
+        name, wu, bu = _REPORT_NAMES[sensor]
+        lines.append(f"  {sensor}:")
+        for ax, p in axes.items():
+            white = "not seen" if p.white_noise is None else f"{p.white_noise:.3e} {wu}"
+            bi = ("not seen" if p.bias_instability is None
+                  else f"{p.bias_instability:.3e} {bu} (at τ≈{p.tau_bias_instability_s:.3g} s)")
+            lines.append(f"    {ax}: {name} {white}; bias instability {bi}")
+            for term, est in p.terms.items():
+                extra = f", Tc {est.corr_time_s:.3g} s" if est.corr_time_s else ""
+                lines.append(f"       {term}: {est.value:.3e} ± {est.uncertainty:.1e}{extra} "
+                             f"(τ {est.tau_range_s[0]:.3g}…{est.tau_range_s[1]:.3g} s)")
+            for flag in p.flags:
+                lines.append(f"       note: {flag}")
+    k = kalman_tuning(result)
+    if "Q_diag" in k:
+        lines.append("  Kalman Q (thesis eq. 6-1 form, rad²/s): " + "[" + ", ".join(f"{v:.3e}" for v in k["Q_diag"]) + "]")
+    if "R_diag" in k:
+        lines.append("  Kalman R (thesis eq. 6-2, µT² then (m/s²)²): " + "[" + ", ".join(f"{v:.3e}" for v in k["R_diag"]) + "]")
+    for a in k["assumed"]:
+        lines.append(f"  assumed {a['key']} = {a['value']:.3e}: {a['source']}")
+    return lines
 
 
 NOISE_FILE_NAME = "noise.json"

@@ -1,4 +1,4 @@
-"""Figures of bench calibrations (`ahrsd calibrate ... --plot FILE.png`): Allan deviation, magnetometer before and
+"""Figures of bench calibrations (`ahrsd calibrate ... --plot FILE.png`): magnetometer before and
 after, per-position residuals. matplotlib is the optional `ahrsd[plot]` extra, imported only here.
 """
 
@@ -13,7 +13,6 @@ class PlotUnavailableError(ImportError):
     """A plot was asked for but matplotlib (the optional `ahrsd[plot]` extra) is not installed."""
 
 
-_ALLAN_UNITS = {"gyro": "rad/s", "accel": "m/s²", "mag": "µT"}
 
 
 def pyplot():
@@ -26,24 +25,6 @@ def pyplot():
     except ImportError as exc:
         raise PlotUnavailableError(f"plotting needs matplotlib: {PLOT_INSTALL_HINT} ({exc})") from None
     return plt
-
-
-def plot_allan(result, path) -> None:
-    """Allan deviation σ(τ) per sensor (one panel each) and axis, log–log."""
-    plt = pyplot()
-    sensors = list(result.adev)
-    fig, axes = plt.subplots(1, len(sensors), figsize=(5 * len(sensors), 4), squeeze=False)
-    for ax, sensor in zip(axes[0], sensors):
-        for i, name in enumerate("xyz"):
-            ax.loglog(result.taus_s, result.adev[sensor][:, i], label=name)
-        ax.set_title(f"{sensor} Allan deviation")
-        ax.set_xlabel("τ (s)")
-        ax.set_ylabel(f"σ(τ) ({_ALLAN_UNITS[sensor]})")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
 
 
 def plot_mag(mag_ut: np.ndarray, model, field_ut: float, path) -> None:

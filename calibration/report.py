@@ -40,29 +40,6 @@ def quality_lines(quality: dict) -> list[str]:
     return [f"  {key}: {fmt_value(value)}" for key, value in quality.items() if key not in _QUALITY_NOT_LISTED]
 
 
-def allan_lines(result, kalman: dict) -> list[str]:
-    """An AllanResult per sensor and axis, then the Kalman Q/R diagonals derived from it (`kalman`: the
-    result's to_json_dict()["kalman"])."""
-    lines = []
-    for sensor, axes in result.parameters.items():
-        name, white_unit, bias_unit = _ALLAN_UNITS[sensor]
-        lines.append(f"  {sensor}:")
-        for ax, p in axes.items():
-            bi = ("not visible" if p.bias_instability is None
-                  else f"{p.bias_instability:.3e} {bias_unit} (at τ≈{p.tau_bias_instability_s:.0f} s)")
-            extra = ""
-            if p.gauss_markov_sigma is not None:
-                extra = f", Gauss–Markov σ {p.gauss_markov_sigma:.3e} τc {p.gauss_markov_tau_s:.0f} s"
-            lines.append(f"    {ax}: {name} {p.white_noise:.3e} {white_unit}; bias instability {bi}{extra}")
-            for flag in p.flags:
-                lines.append(f"       note: {flag}")
-    if "Q_diag" in kalman:
-        lines.append("  thesis Kalman Q (eq. 6-1, rad²/s): " + fmt_vec(kalman["Q_diag"], "{:.3e}"))
-    if "R_diag" in kalman:
-        lines.append("  thesis Kalman R (eq. 6-2, µT² then (m/s²)²): " + fmt_vec(kalman["R_diag"], "{:.3e}"))
-    return lines
-
-
 def accel_model_lines(model, result) -> list[str]:
     """An AccelModel and the residual of the fit (AccelFitResult) that made it."""
     q = result.quality

@@ -167,12 +167,15 @@ def _stored(args):
 
 
 def _allan(args) -> int:
-    from ahrsd.calibration import report
-    from ahrsd.calibration.allan import NOISE_FILE_NAME, analyse_static, save_noise_parameters
+    from ahrsd.calibration.allan import NOISE_FILE_NAME, analyse_chunks, describe, save_noise_parameters
+    from ahrsd.drivers.recording import RecordingFormatError, iter_recording_chunks
 
-    rec = _read(args.recording)
-    try:
-        res = analyse_static(rec.t_s, rec.gyro_rad_s, rec.accel_m_s2, rec.mag_ut)
+    try:   # streamed: one chunk of the recording in memory at a time (.csv or .csv.gz)
+        res = analyse_chunks(iter_recording_chunks(args.recording))
+    except FileNotFoundError:
+        raise _Fail(f"{args.recording}: no such file") from None
+    except (RecordingFormatError, OSError) as exc:
+        raise _Fail(f"cannot read the recording: {exc}") from None
     except ValueError as exc:
         raise _Fail(str(exc)) from None
     payload = res.to_json_dict()
@@ -187,11 +190,11 @@ def _allan(args) -> int:
         note = f"saved to {path}"
         payload["saved_to"] = str(path)
     if args.plot:
-        from ahrsd.calibration.plots import plot_allan
+        from ahrsd.calibration.allan_plot import plot_allan
 
         plot_allan(res, args.plot)
-    lines = [f"Allan analysis of {args.recording}: {res.duration_s / 3600:.2f} h at {res.rate_hz:.1f} Hz",
-             *report.allan_lines(res, payload["kalman"]), f"  {note}"]
+    lines = [f"Allan analysis of {args.recording}: {res.duration_s / 3600:.2f} h at {res.rate_hz:.1f} Hz"]
+    lines += describe(res) + [f"  {note}"]
     _emit(args, payload, "\n".join(lines))
     return 0
 

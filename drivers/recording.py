@@ -8,6 +8,8 @@ Sensor/body frame as recorded, SI units, accelerometer as specific force (+9.81 
 magnetic field in µT. Known extra columns: temp_c, supply_v, flags (SampleFlags as an integer), diag_stat,
 counter, and for simulated data the truth attitude truth_qw,truth_qx,truth_qy,truth_qz (body->NED, scalar
 first). Any other extra column is kept by name. Lines starting with '#' after the header are comments.
+A gzip-compressed recording (`.csv.gz`) is read transparently by every reader; `iter_recording_chunks` reads
+a long file a chunk of rows at a time.
 """
 
 from __future__ import annotations
@@ -200,17 +202,32 @@ def _parse_chunk(lines: list[str], ncols: int, first_line_no: int, path, columns
     raise RecordingFormatError(f"{path}: cannot parse rows {first_line_no}..{first_line_no + len(lines) - 1}")
 
 
-def _iter_tables(path, strict: bool) -> Iterator[tuple[tuple[str, ...], np.ndarray]]:
-    with open(path, encoding="utf-8", newline="") as f:
+GZIP_MAGIC = b"\x1f\x8b"
+
+
+def open_recording_text(path: str | os.PathLike):
+    """Open a recording for reading as text: plain CSV, or gzip-compressed (`.csv.gz`, recognised by its
+    magic bytes, whatever the name)."""
+    with open(path, "rb") as raw:
+        magic = raw.read(2)
+    if magic == GZIP_MAGIC:
+        import gzip
+
+        return gzip.open(path, "rt", encoding="utf-8", newline="")
+    return open(path, encoding="utf-8", newline="")
+
+
+def _iter_tables(path, strict: bool, chunk_rows: int = CHUNK_ROWS) -> Iterator[tuple[tuple[str, ...], np.ndarray]]:
+    with open_recording_text(path) as f:
         header = f.readline()
         columns = read_header(header, path)
         ncols = len(columns)
         line_no = 2
         while True:
-            lines = list(itertools.islice(f, CHUNK_ROWS))
+            lines = list(itertools.islice(f, chunk_rows))
             if not lines:
                 break
-            at_end = len(lines) < CHUNK_ROWS
+            at_end = len(lines) < chunk_rows
             if not strict and at_end and lines and not lines[-1].endswith("\n"):
                 last = lines[-1].strip()
                 if last and len(last.split(",")) != ncols:
@@ -222,7 +239,8 @@ def _iter_tables(path, strict: bool) -> Iterator[tuple[tuple[str, ...], np.ndarr
 
 
 def read_recording(path: str | os.PathLike, strict: bool = True) -> Recording:
-    """Load a whole recording (numpy, chunked). Any file whose header starts with the 10 base columns works.
+    """Load a whole recording (numpy, chunked). Any file whose header starts with the 10 base columns works;
+    `.csv.gz` is read transparently.
 
     strict=False drops an incomplete final line (a recorder killed mid-write) with a warning instead of failing.
     """
@@ -233,6 +251,19 @@ def read_recording(path: str | os.PathLike, strict: bool = True) -> Recording:
     if not columns:
         raise RecordingFormatError(f"{path}: empty file")
     data = np.concatenate(tables) if tables else np.empty((0, len(columns)))
+    return _recording(path, columns, data)
+
+
+def iter_recording_chunks(path: str | os.PathLike, strict: bool = True,
+                          chunk_rows: int = CHUNK_ROWS) -> Iterator[Recording]:
+    """Read a recording as consecutive Recordings of up to `chunk_rows` rows each (constant memory for a
+    long file: one chunk at a time). Same checks and messages as `read_recording`; `.csv.gz` too."""
+    for columns, table in _iter_tables(path, strict, chunk_rows):
+        if len(table):
+            yield _recording(path, columns, table)
+
+
+def _recording(path, columns: tuple[str, ...], data: np.ndarray) -> Recording:
     nb = len(BASE_COLUMNS)
     extra = {name: np.ascontiguousarray(data[:, nb + i]) for i, name in enumerate(columns[nb:])}
     return Recording(Path(path), columns, np.ascontiguousarray(data[:, 0]), np.ascontiguousarray(data[:, 1:4]),

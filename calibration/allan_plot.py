@@ -1,0 +1,58 @@
+"""Plot of an Allan analysis: per sensor and axis the Allan deviation with its confidence band, each term the
+curve shows drawn over its τ range, and the IEEE Std 952 readings marked (N at τ = 1 s, B at the flicker
+floor's minimum, K at τ = 3 s). Needs matplotlib (the optional `ahrsd[plot]` extra)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .allan_terms import FLICKER_FACTOR, term_basis
+from .plots import pyplot
+
+TERM_STYLE = {"quantization": ("Q", "tab:purple"), "white": ("N", "tab:blue"), "flicker": ("B", "tab:green"),
+              "rate_random_walk": ("K", "tab:red"), "rate_ramp": ("R", "tab:brown"),
+              "gauss_markov": ("GM", "tab:orange")}
+UNITS = {"gyro": "rad/s", "accel": "m/s²", "mag": "µT"}
+
+
+def plot_allan(result, path) -> None:
+    """Write the figure to `path` (PNG)."""
+    plt = pyplot()
+    sensors = list(result.adev)
+    fig, grid = plt.subplots(len(sensors), 3, figsize=(15, 4.2 * len(sensors)), squeeze=False)
+    taus = result.taus_s
+    for row, sensor in zip(grid, sensors):
+        for i, (ax, axis) in enumerate(zip(row, "xyz")):
+            p = result.parameters[sensor][axis]
+            ax.fill_between(taus, result.adev_lower[sensor][:, i], result.adev_upper[sensor][:, i],
+                            color="0.8", label="68 % band")
+            ax.loglog(taus, result.adev[sensor][:, i], "k.-", lw=1, ms=3, label="Allan deviation")
+            for name, est in p.terms.items():
+                short, colour = TERM_STYLE[name]
+                t = np.geomspace(*est.tau_range_s, 100)
+                ax.loglog(t, np.sqrt(p.fit.contribution(name, t)), "-", color=colour, lw=2,
+                          label=f"{short} {est.value:.3g} ± {est.uncertainty:.1g}")
+                reading = est.reading_tau_s
+                if reading is not None and name in ("white", "rate_random_walk"):
+                    lo, hi = min(reading, est.tau_range_s[0]), max(reading, est.tau_range_s[1])
+                    t = np.geomspace(lo, hi, 100)
+                    ax.loglog(t, np.sqrt(p.fit.contribution(name, t)), ":", color=colour, lw=1)
+                    ax.plot([reading], [est.value], "o", color=colour, mec="k", ms=8)
+                    ax.annotate(f"{short} (τ={reading:g} s)", (reading, est.value), textcoords="offset points",
+                                xytext=(6, 6), color=colour)
+            if p.bias_instability is not None:
+                level = FLICKER_FACTOR * p.bias_instability
+                ax.plot([p.tau_bias_instability_s], [level], "s", color=TERM_STYLE["flicker"][1], mec="k", ms=8)
+                ax.annotate(f"B = min σ / 0.664 = {p.bias_instability:.3g}", (p.tau_bias_instability_s, level), textcoords="offset points",
+                            xytext=(6, -14), color=TERM_STYLE["flicker"][1])
+            if p.fit is not None:
+                model = sum(p.fit.coef[j] * term_basis(n, taus, p.fit.corr_time_s) for j, n in enumerate(p.fit.terms))
+                ax.loglog(taus, np.sqrt(model), "--", color="0.4", lw=1, label="model")
+            ax.set_title(f"{sensor} {axis}")
+            ax.set_xlabel("τ (s)")
+            ax.set_ylabel(f"σ(τ) ({UNITS[sensor]})")
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)

@@ -1,0 +1,425 @@
+"""Which noise terms an Allan curve shows: a weighted fit and a significance test per term (IEEE Std 952).
+
+Model (IEEE Std 952-1997 Annex C, Table C.1), every coefficient ≥ 0, in Allan *variance*:
+    σ²(τ) = 3Q²/τ²            quantization Q (angle/velocity quantization, u·s)
+          + N²/τ              white noise N (ARW / VRW, u/√Hz)
+          + (0.664·B)²        flicker floor, bias instability B (u): 2·ln2/π = 0.664² (Table B.1)
+          + K²·τ/3            rate random walk K (u/√s)
+          + R²·τ²/2           rate ramp R (u/s)
+          + σ_gm²·GM(τ; Tc)   first-order Gauss–Markov bias σ_gm, Tc (Annex C.6; an exponentially
+                              correlated bias: a bump, no floor)
+
+The fit uses the octave-spaced points of the curve (τ doubling) and treats each point's Allan variance as
+σ²·χ²(edf)/edf, with the equivalent degrees of freedom of the overlapping estimator for the noise type that
+the model says dominates there (`allan_adev.edf_overlapping`): the maximum-likelihood fit is an iteratively
+reweighted NNLS (weights edf/σ⁴_model), its deviance the likelihood-ratio statistic. The estimate at 2τ reuses
+the data of τ, so neighbouring octave points are correlated: the deviance (and the information) is halved,
+counting one independent point per two octaves. Each term is kept only if
+  1. significance: adding it lowers the deviance by more than the 0.1 % point of χ²(k) (k = 1, or 2 for
+     Gauss–Markov, whose Tc is fitted too), both when it is added (forward) and given all the other kept terms
+     (backward); a flicker floor and a rate ramp are tested beside a rate random walk, a Gauss–Markov bump
+     beside a flicker floor (TESTED_BESIDE): a term is never read from a shape the other terms explain;
+  2. it is seen: it is the largest term of the fitted model over at least an octave of τ, starting at a τ with
+     at least MIN_CLUSTERS independent clusters (IEEE Std 952 C.2: relative error 1/√(2(K−1)) ≈ 32 % for
+     K = 6 clusters), so a term is never carried by the last, scattered points or hidden under others.
+A term that fails is reported as not seen, with the 2σ upper bound from the deviance profile, the smallest
+value this recording would show, and the recording length (or, for quantization, the sample rate) at which
+one as large as the bound would dominate.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .allan_adev import AllanCurve, alpha_from_slope, edf_overlapping
+
+FLICKER_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)  # 0.6643, IEEE Std 952-1997 Table B.1
+TERMS = ("quantization", "white", "flicker", "rate_random_walk", "rate_ramp", "gauss_markov")
+MIN_CLUSTERS = 6.0
+SIGNIFICANCE_P = 1e-3
+DELTA_CHI2 = {1: 10.83, 2: 13.82}   # χ²(k) at 1 − SIGNIFICANCE_P (scipy.stats.chi2.isf(1e-3, k))
+UPPER_BOUND_SIGMAS = 2.0
+IRLS_ITERATIONS = 6
+OCTAVE_CORRELATION = 0.5
+GM_TC_RANGE = (2.0, 1.0 / 8.0)   # Tc searched from 2·τ_min to τ_max/8 (see fit_terms)
+
+
+def gauss_markov_avar(taus: np.ndarray, corr_time_s: float) -> np.ndarray:
+    """Allan variance of a unit-variance first-order Gauss–Markov process with correlation time Tc:
+    σ²(τ) = (2Tc/τ)·[1 − Tc/(2τ)·(3 − 4e^(−τ/Tc) + e^(−2τ/Tc))]  (IEEE Std 952 Annex C.6)."""
+    x = np.asarray(taus, dtype=np.float64) / corr_time_s
+    small = x < 1e-3   # the bracket cancels for τ ≪ Tc: its Taylor series 2x/3 − x²/2 instead
+    out = np.empty_like(x)
+    xs = x[~small]
+    out[~small] = (2.0 / xs) * (1.0 - (3.0 - 4.0 * np.exp(-xs) + np.exp(-2.0 * xs)) / (2.0 * xs))
+    xt = x[small]
+    out[small] = (2.0 / 3.0) * xt - 0.5 * xt**2
+    return out
+
+
+def term_basis(name: str, taus: np.ndarray, corr_time_s: float | None = None) -> np.ndarray:
+    """Allan variance of the term per unit coefficient (the coefficient is 3Q², N², (0.664B)², K²/3, R²/2, σ²)."""
+    t = np.asarray(taus, dtype=np.float64)
+    if name == "quantization":
+        return t**-2.0
+    if name == "white":
+        return 1.0 / t
+    if name == "flicker":
+        return np.ones_like(t)
+    if name == "rate_random_walk":
+        return t.copy()
+    if name == "rate_ramp":
+        return t**2.0
+    if name == "gauss_markov":
+        return gauss_markov_avar(t, corr_time_s)
+    raise ValueError(f"unknown noise term {name!r}")
+
+
+def coefficient_to_value(name: str, coef: float) -> float:
+    """The IEEE 952 parameter from its variance coefficient (flicker: B from the fitted floor)."""
+    scale = {"quantization": 1.0 / 3.0, "white": 1.0, "flicker": 1.0 / FLICKER_FACTOR**2,
+             "rate_random_walk": 3.0, "rate_ramp": 2.0, "gauss_markov": 1.0}[name]
+    return math.sqrt(max(coef, 0.0) * scale)
+
+
+# τ at which IEEE Std 952 reads each straight line off the plot (its value there is the parameter)
+READING_TAU_S = {"quantization": math.sqrt(3.0), "white": 1.0, "rate_random_walk": 3.0, "rate_ramp": math.sqrt(2.0)}
+
+
+@dataclass(frozen=True)
+class _Points:
+    """The fit's data: octave-spaced points of one axis' curve."""
+
+    taus: np.ndarray
+    avar: np.ndarray
+    level_n: np.ndarray
+    level_m: np.ndarray
+    record_s: float
+    fits: dict = field(default_factory=dict, compare=False, repr=False)   # fit_terms' results by term set
+
+
+@dataclass(frozen=True)
+class ModelFit:
+    """A fitted set of terms: coefficients (variance units), their 1σ, the GM correlation time, χ²."""
+
+    terms: tuple[str, ...]
+    coef: np.ndarray
+    coef_sigma: np.ndarray
+    corr_time_s: float | None
+    chi2: float
+
+    def contribution(self, name: str, taus: np.ndarray) -> np.ndarray:
+        if name not in self.terms:
+            return np.zeros_like(np.asarray(taus, dtype=np.float64))
+        return self.coef[self.terms.index(name)] * term_basis(name, taus, self.corr_time_s)
+
+    def avar(self, taus: np.ndarray) -> np.ndarray:
+        t = np.asarray(taus, dtype=np.float64)
+        out = np.zeros_like(t)
+        for name in self.terms:
+            out = out + self.contribution(name, t)
+        return out
+
+    def edf(self, taus: np.ndarray, level_n: np.ndarray, level_m: np.ndarray) -> np.ndarray:
+        """Equivalent degrees of freedom per point for the noise type the model says dominates there."""
+        t = np.asarray(taus, dtype=np.float64)
+        eps = 1e-3
+        hi, lo = self.avar(t * (1 + eps)), self.avar(t / (1 + eps))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            slope = np.where((hi > 0) & (lo > 0), np.log(hi / lo) / (2 * math.log1p(eps)), -1.0)
+        return np.array([edf_overlapping(alpha_from_slope(s), n + 1.0, m) for s, n, m in zip(slope, level_n, level_m)])
+
+
+def octave_points(curve: AllanCurve, axis: int) -> _Points:
+    """The points of the curve whose cluster size (in samples) is a power of two."""
+    m_samples = curve.taus_s / curve.taus_s[0] * 1.0
+    log2 = np.log2(m_samples)
+    pick = np.abs(log2 - np.round(log2)) < 1e-9
+    return _Points(curve.taus_s[pick], curve.adev[pick, axis] ** 2, curve.level_n[pick], curve.level_m[pick],
+                   curve.record_s)
+
+
+def _nnls_weighted(basis: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    from scipy.optimize import nnls
+
+    a = basis * w[:, None]
+    scale = np.max(np.abs(a), axis=0)
+    scale[scale == 0] = 1.0
+    coef, _ = nnls(a / scale, y * w, maxiter=500)
+    return coef / scale
+
+
+def _fit_fixed(pts: _Points, terms: tuple[str, ...], tc: float | None, fixed: tuple[str, float] | None = None) -> ModelFit:
+    """Iteratively reweighted NNLS: weights 1/(σ²_model·√(2/edf)), edf for the model's local noise type.
+    fixed: (term, coefficient) held at that value beside the fitted terms (for a profile of the deviance)."""
+    basis = np.column_stack([term_basis(t, pts.taus, tc) for t in terms])
+    offset = np.zeros_like(pts.avar) if fixed is None else fixed[1] * term_basis(fixed[0], pts.taus, tc)
+    all_terms = terms if fixed is None else terms + (fixed[0],)
+    model = pts.avar.copy()
+    edf = np.array([edf_overlapping(0, n + 1.0, m) for n, m in zip(pts.level_n, pts.level_m)])
+    coef = np.zeros(len(terms))
+    for _ in range(IRLS_ITERATIONS):
+        # The model's own value sets the weight (a low measured point must not get a high weight); floored so
+        # a term the model lacks cannot make a point's weight infinite.
+        ref = np.maximum(model, 1e-3 * pts.avar)
+        sigma = ref * np.sqrt(2.0 / edf)
+        coef = _nnls_weighted(basis, pts.avar - offset, 1.0 / sigma)
+        whole = ModelFit(all_terms, coef if fixed is None else np.append(coef, fixed[1]), np.zeros(len(all_terms)),
+                         tc, 0.0)
+        model = whole.avar(pts.taus)
+        edf = whole.edf(pts.taus, pts.level_n, pts.level_m)
+    ref = np.maximum(model, 1e-3 * pts.avar)
+    sigma = ref * np.sqrt(2.0 / edf)
+    # Deviance of the χ²(edf) likelihood of each point, σ̂²·edf/σ² ~ χ²(edf): the likelihood-ratio statistic
+    # (≈ the Gaussian χ² near the model, but a high point of few degrees of freedom costs what it should).
+    # The estimate at 2τ is built from the same data as at τ (its clusters are pairs of τ's), so neighbouring
+    # octave points are correlated: they are counted as one independent point per two (OCTAVE_CORRELATION).
+    ratio = pts.avar / ref
+    chi2 = OCTAVE_CORRELATION * float(np.sum(edf * (ratio - 1.0 - np.log(ratio))))
+    # 1σ of the coefficients from the weighted normal equations, inflated when χ² per dof exceeds 1
+    a = basis / sigma[:, None]
+    dof = max(len(pts.taus) - len(terms), 1)
+    try:
+        cov = np.linalg.pinv(a.T @ a) / OCTAVE_CORRELATION * max(1.0, chi2 / dof)
+        coef_sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    except np.linalg.LinAlgError:
+        coef_sigma = np.full(len(terms), math.inf)
+    return ModelFit(terms, coef, coef_sigma, tc, chi2)
+
+
+def profile_upper_bound(pts: _Points, fit: ModelFit, name: str, delta: float) -> float:
+    """Upper confidence bound on a term's coefficient from the deviance profile: the value, held fixed beside
+    the terms of `fit` (refitted), at which the deviance exceeds the best one with the term free by `delta`
+    (4 for 2σ; the likelihood-ratio interval, right for the skewed χ² of few-cluster points)."""
+    free = fit_terms(pts, fit.terms + (name,))
+    best = free.chi2
+    c_hat = float(free.coef[free.terms.index(name)])
+    per_unit = pts.avar / term_basis(name, pts.taus, fit.corr_time_s)
+    hi = float(np.max(per_unit))
+    excess = lambda c: _fit_fixed(pts, fit.terms, fit.corr_time_s, (name, c)).chi2 - best - delta  # noqa: E731
+    if excess(hi) < 0:
+        return hi
+    lo = max(c_hat, float(np.min(per_unit)) * 1e-9)
+    if excess(lo) >= 0:
+        return lo
+    for _ in range(50):   # bisection on log c
+        mid = math.sqrt(lo * hi)
+        lo, hi = (lo, mid) if excess(mid) >= 0 else (mid, hi)
+    return hi
+
+
+def fit_terms(pts: _Points, terms: tuple[str, ...]) -> ModelFit:
+    """Fit the given terms; with a Gauss–Markov term, its Tc is searched (4 per octave) for the least χ²,
+    between twice the shortest τ and an eighth of the longest (its bump, at 1.89·Tc, and two octaves of its
+    1/√τ fall must lie inside the curve: a longer Tc is only a rising slope, which is a rate random walk)."""
+    terms = tuple(t for t in TERMS if t in terms)
+    if terms not in pts.fits:
+        pts.fits[terms] = _fit_searching_tc(pts, terms)
+    return pts.fits[terms]
+
+
+def _fit_searching_tc(pts: _Points, terms: tuple[str, ...]) -> ModelFit:
+    if "gauss_markov" not in terms:
+        return _fit_fixed(pts, terms, None)
+    lo, hi = GM_TC_RANGE[0] * pts.taus[0], GM_TC_RANGE[1] * pts.taus[-1]
+    if hi <= lo:
+        return _fit_fixed(pts, tuple(t for t in terms if t != "gauss_markov"), None)
+    grid = np.geomspace(lo, hi, max(2, int(4 * math.log2(hi / lo)) + 1))
+    fits = [_fit_fixed(pts, terms, tc) for tc in grid]
+    best = min(range(len(fits)), key=lambda i: fits[i].chi2)
+    # refine Tc between the neighbours of the best grid point (golden-section on log Tc)
+    from scipy.optimize import minimize_scalar
+
+    a, b = math.log(grid[max(best - 1, 0)]), math.log(grid[min(best + 1, len(grid) - 1)])
+    if b > a:
+        r = minimize_scalar(lambda u: _fit_fixed(pts, terms, math.exp(u)).chi2, bounds=(a, b), method="bounded",
+                            options={"xatol": 0.01})
+        refined = _fit_fixed(pts, terms, math.exp(r.x))
+        if refined.chi2 < fits[best].chi2:
+            return refined
+    return fits[best]
+
+
+def dominant_range(fit: ModelFit, name: str, tau_lo: float, tau_hi: float) -> tuple[float, float] | None:
+    """The widest τ interval within [tau_lo, tau_hi] over which `name` is the largest term of the model."""
+    grid = np.geomspace(tau_lo, tau_hi, 400)
+    own = fit.contribution(name, grid)
+    others = [fit.contribution(t, grid) for t in fit.terms if t != name]
+    largest_other = np.max(others, axis=0) if others else np.zeros_like(grid)
+    on = (own > largest_other) & (own > 0)
+    best = None
+    start = None
+    for i, flag in enumerate(np.append(on, False)):
+        if flag and start is None:
+            start = i
+        elif not flag and start is not None:
+            span = (float(grid[start]), float(grid[i - 1]))
+            if best is None or span[1] / span[0] > best[1] / best[0]:
+                best = span
+            start = None
+    return best
+
+
+def is_seen(fit: ModelFit, name: str, pts: _Points) -> tuple[float, float] | None:
+    """The term's τ range if it dominates an octave or more from a τ with ≥ MIN_CLUSTERS clusters, else None."""
+    span = dominant_range(fit, name, pts.taus[0], pts.taus[-1])
+    if span is None or span[1] < 2.0 * span[0] * (1 - 1e-9) or pts.record_s / span[0] < MIN_CLUSTERS:
+        return None
+    return span
+
+
+def _threshold(name: str) -> float:
+    return DELTA_CHI2[2 if name == "gauss_markov" else 1]
+
+
+# Terms tested beside a partner that can mimic them over a short τ range: a flicker floor must be seen beyond
+# what a rate random walk explains (a random walk seen through few clusters often bends like a floor; a bias
+# instability is never read from a floor the other terms explain), a rate ramp beyond a random walk, a
+# Gauss–Markov bump beyond a flicker floor. The partner is dropped again if it is then not needed.
+TESTED_BESIDE = {"flicker": "rate_random_walk", "rate_ramp": "rate_random_walk", "gauss_markov": "flicker"}
+
+
+def select_terms(pts: _Points) -> ModelFit:
+    """Forward selection by the largest significant χ² drop, then backward elimination (see module doc)."""
+    singles = [fit_terms(pts, (t,)) for t in TERMS]
+    current = min(singles, key=lambda f: f.chi2)
+    changed, rounds = True, 0
+    while changed and rounds < 4 * len(TERMS):   # a term dropped and re-added forever cannot hang it
+        changed, rounds = False, rounds + 1
+        best = None
+        for name in TERMS:
+            if name in current.terms:
+                continue
+            base = current
+            partner = TESTED_BESIDE.get(name)
+            if partner is not None and partner not in current.terms:
+                base = fit_terms(pts, current.terms + (partner,))
+            trial = fit_terms(pts, base.terms + (name,))
+            gain = base.chi2 - trial.chi2
+            if gain > _threshold(name) and is_seen(trial, name, pts) and (best is None or gain > best[0]):
+                best = (gain, trial)
+        if best is not None:
+            current, changed = best[1], True
+        # backward: drop the least needed term that is no longer significant or no longer seen
+        while len(current.terms) > 1:
+            worst = None
+            for name in current.terms:
+                without = fit_terms(pts, tuple(t for t in current.terms if t != name))
+                gain = without.chi2 - current.chi2
+                weak = gain <= _threshold(name) or not is_seen(current, name, pts)
+                if weak and (worst is None or gain < worst[0]):
+                    worst = (gain, without)
+            if worst is None:
+                break
+            current, changed = worst[1], True
+    return current
+
+
+@dataclass(frozen=True)
+class TermEstimate:
+    """One noise term that the curve shows: its IEEE 952 value, 1σ, the τ range where it dominates, the χ²
+    drop that kept it, and where IEEE 952 reads it (reading_tau_s; the line's value there is `value`)."""
+
+    value: float
+    uncertainty: float
+    tau_range_s: tuple[float, float]
+    delta_chi2: float
+    reading_tau_s: float | None
+    corr_time_s: float | None = None
+
+    def to_dict(self) -> dict:
+        return {"value": self.value, "uncertainty": self.uncertainty, "tau_range_s": list(self.tau_range_s),
+                "delta_chi2": self.delta_chi2, "reading_tau_s": self.reading_tau_s,
+                "corr_time_s": self.corr_time_s}
+
+
+def term_estimates(fit: ModelFit, pts: _Points) -> dict[str, TermEstimate]:
+    """Value (from the fitted coefficient), 1σ and τ range of every kept term."""
+    out = {}
+    for i, name in enumerate(fit.terms):
+        span = is_seen(fit, name, pts) or dominant_range(fit, name, pts.taus[0], pts.taus[-1])
+        if span is None:
+            continue
+        c, sc = float(fit.coef[i]), float(fit.coef_sigma[i])
+        value = coefficient_to_value(name, c)
+        rel = 0.5 * sc / c if c > 0 else math.inf       # p ∝ √c
+        without = fit_terms(pts, tuple(t for t in fit.terms if t != name)) if len(fit.terms) > 1 else None
+        gain = (without.chi2 - fit.chi2) if without is not None else math.inf
+        out[name] = TermEstimate(value, value * rel, span, float(gain), READING_TAU_S.get(name),
+                                 fit.corr_time_s if name == "gauss_markov" else None)
+    return out
+
+
+def not_seen_report(fit: ModelFit, pts: _Points, name: str, rate_hz: float) -> dict:
+    """For a term the curve does not show: the 2σ upper bound the data put on it, and what would show a term
+    that large (a recording length, or for quantization a sample rate)."""
+    if name == "gauss_markov":
+        lo, hi = GM_TC_RANGE[0] * pts.taus[0], GM_TC_RANGE[1] * pts.taus[-1]
+        return {"upper_bound": None, "recording_needed_s": None,
+                "note": f"no Gauss–Markov bump for correlation times {lo:.3g}…{hi:.3g} s; a recording of "
+                        f"≥ {2 * MIN_CLUSTERS * 1.89:.0f}·Tc would show one with a longer Tc"}
+    bound_coef = profile_upper_bound(pts, fit, name, UPPER_BOUND_SIGMAS**2)
+    bound = coefficient_to_value(name, bound_coef)
+    probe = ModelFit(fit.terms + (name,), np.append(fit.coef, bound_coef), np.append(fit.coef_sigma, 0.0),
+                     fit.corr_time_s, fit.chi2)
+    out: dict = {"upper_bound": bound, "recording_needed_s": None}
+    if bound_coef <= 0:
+        out["note"] = "not constrained by this curve"
+        return out
+    if name == "quantization":
+        span = dominant_range(probe, name, 1e-9, pts.taus[-1])
+        if span is None:
+            out["note"] = "hidden under the other terms at any sample rate"
+        else:
+            out["sample_rate_needed_hz"] = 2.0 / span[1]
+            out["note"] = f"would show at a sample rate ≥ {2.0 / span[1]:.4g} Hz if it were this large"
+        return out
+    limit = detection_limit(fit, pts, name)
+    out["detection_limit"] = limit
+    span = dominant_range(probe, name, pts.taus[0], 1e9)
+    if limit is None or span is None or span[1] < 2.0 * span[0]:
+        out["note"] = "hidden under the terms found at every τ, whatever the recording length"
+        return out
+    need = MIN_CLUSTERS * span[0]
+    out["recording_needed_s"] = need
+    out["note"] = (f"this recording would show one ≥ {limit:.3g}; one as large as the bound would dominate from "
+                   f"τ = {span[0]:.3g} s, i.e. in a recording of ≥ {need / 3600:.3g} h")
+    return out
+
+
+def detection_limit(fit: ModelFit, pts: _Points, name: str) -> float | None:
+    """The smallest value of a term (not in `fit`) that this curve would show beside the terms found: the
+    largest term over an octave from a τ with ≥ MIN_CLUSTERS clusters (bisection on its coefficient)."""
+    per_unit = pts.avar / term_basis(name, pts.taus)   # coefficient that alone explains each point
+
+    def shows(coef: float) -> bool:
+        probe = ModelFit(fit.terms + (name,), np.append(fit.coef, coef), np.append(fit.coef_sigma, 0.0),
+                         fit.corr_time_s, fit.chi2)
+        span = dominant_range(probe, name, pts.taus[0], pts.taus[-1])
+        return span is not None and span[1] >= 2.0 * span[0] and pts.record_s / span[0] >= MIN_CLUSTERS
+
+    lo, hi = math.log(float(np.min(per_unit)) * 1e-6), math.log(float(np.max(per_unit)) * 1e3)
+    if not shows(math.exp(hi)):
+        return None
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if shows(math.exp(mid)) else (mid, hi)
+    return coefficient_to_value(name, math.exp(hi))
+
+
+def flicker_reading(fit: ModelFit, pts: _Points) -> tuple[float, float] | None:
+    """IEEE Std 952 reading of the bias instability, B = min σ / 0.664, taken on the fitted curve over the τ
+    range where the flicker floor is the largest term (never the curve's shortest τ; the raw curve's minimum
+    is scattered by its last few clusters). Returns (B, τ of the minimum) or None when flicker is not kept."""
+    if "flicker" not in fit.terms:
+        return None
+    span = is_seen(fit, "flicker", pts)
+    if span is None:
+        return None
+    grid = np.geomspace(max(span[0], pts.taus[1]), span[1], 200)
+    sigma = np.sqrt(fit.avar(grid))
+    j = int(np.argmin(sigma))
+    return float(sigma[j] / FLICKER_FACTOR), float(grid[j])
