@@ -513,17 +513,8 @@ def _apply_heading_reference(model: MagModel, mag, roll, pitch, heading_ref_true
     ok = np.isfinite(heading_ref_true_deg)
     psi = magnetic_heading_deg(model.apply(mag[ok]), roll[ok], pitch[ok])
     ref_mag = (heading_ref_true_deg[ok] - declination_deg) % 360.0
-    rep: dict = {"n": int(ok.sum())}
-    try:
-        dev = swing.fit_deviation(psi, ref_mag)
-    except swing.SwingFitError as exc:
-        dev = swing.fit_offset(psi, ref_mag)
-        rep["note"] = f"A only: {exc}"
-    rep.update(dev.to_dict())
-    # the paper's §5 sanity rule: A from the full fit should agree with A alone
-    if math.isfinite(dev.a_only_deg) and abs(dev.a_deg - dev.a_only_deg) > 1.0:
-        rep["warning"] = (f"A of the full fit ({dev.a_deg:.2f}°) differs from A alone ({dev.a_only_deg:.2f}°): "
-                          "the reference headings are too few or unevenly spread (the paper's §5)")
+    dev, card_report = swing.fit_deviation_card(psi, ref_mag, "reference headings")
+    rep: dict = {"n": int(ok.sum()), **card_report}
     offset = dev.a_only_deg if "note" not in rep else dev.a_deg
     if fold_offset:
         model = fold_heading_offset(model, offset)

@@ -256,3 +256,25 @@ def fit_swing_table(path) -> DeviationCoefficients:
         return fit_deviation(mag, ref)
     except SwingFitError:
         return fit_offset(mag, ref)
+
+
+# A of the full fit and A alone differ by more than this when the headings are too few or bunched together
+A_AGREEMENT_DEG = 1.0
+
+
+def fit_deviation_card(heading_deg, reference_deg, reference_name: str = "swing headings") -> tuple[
+        DeviationCoefficients, dict]:
+    """The card A..E of `heading_deg` against `reference_deg` and its report: the card's to_dict(), a "note"
+    when the headings could give A only, a "warning" when A of the full fit and A alone disagree (headings
+    too few or bunched). Raises SwingFitError when not even A can be fitted."""
+    rep: dict = {}
+    try:
+        card = fit_deviation(heading_deg, reference_deg)
+    except SwingFitError as exc:
+        card = fit_offset(heading_deg, reference_deg)
+        rep["note"] = f"A only: {exc}"
+    rep.update(card.to_dict())
+    if math.isfinite(card.a_only_deg) and abs(card.a_deg - card.a_only_deg) > A_AGREEMENT_DEG:
+        rep["warning"] = (f"A of the full fit ({card.a_deg:.2f}°) differs from A alone ({card.a_only_deg:.2f}°): the "
+                          f"{reference_name} are too few or unevenly spread (the back-stepping paper's §5 check)")
+    return card, rep
