@@ -57,4 +57,8 @@ def aided_levelling(data, fixes, declination_rad: float):
     """Roll and pitch per sample from the aided estimator over the recording with the fixes."""
     from ahrsd.calibration.levelling import roll_pitch_from_estimator
 
-    return roll_pitch_from_estimator(data, LEVELLING_ESTIMATOR, fixes=fixes, declination_rad=declination_rad)
+    # the magnetometer is the one being calibrated: its distorted heading would turn the aided filter's NED
+    # frame, and the GNSS velocity would then tilt the horizon (measured in docs/gnss.md); GNSS and the gyros
+    # carry the heading through the run instead
+    return roll_pitch_from_estimator(data, LEVELLING_ESTIMATOR, fixes=fixes, declination_rad=declination_rad,
+                                     mag_enabled=False)
