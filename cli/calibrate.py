@@ -85,8 +85,10 @@ def register(subparsers) -> None:
                    "iron, report B..E")
     m.add_argument("--gnss", metavar="GNSS.csv", default=None,
                    help="backstepping: a GNSS recording of the run (REC.gnss.csv): level with the GNSS-aided "
-                   "attitude (ins) and take the heading offset from the course on straight tracks above 2 m/s "
-                   "(course = heading + crab: calibrate without current or crosswind)")
+                   "attitude (ins) instead of the accelerometer")
+    m.add_argument("--gnss-course", action="store_true",
+                   help="with --gnss: also take the heading offset from the GNSS course on straight tracks above "
+                   "2 m/s (course = heading + crab: only without current, leeway or crosswind; docs/gnss.md)")
 
 
 # ---------------------------------------------------------------------------------------------- helpers
@@ -379,6 +381,8 @@ def _mag(args) -> int:
         raise _Usage("--align-recording goes with --method three-step")
     if args.gnss and args.method != "backstepping":
         raise _Usage("--gnss goes with --method backstepping")
+    if args.gnss_course and not args.gnss:
+        raise _Usage("--gnss-course needs --gnss GNSS.csv")
     swing_table = _read_swing_table(args.swing_table) if args.swing_table else None  # bad file: fail before fitting
     rec = _read(args.recording)
     stored = _stored(args)
@@ -386,7 +390,7 @@ def _mag(args) -> int:
     heading_ref, ref_note = _heading_reference_column(rec, args.recording, args.method)
     options = {}
     if args.gnss:
-        heading_ref, ref_note = _gnss_for_backstepping(args, rec, accel, gyro, heading_ref, ref, options)
+        heading_ref, ref_note = _gnss_for_backstepping(args, rec, accel, gyro, heading_ref, ref_note, ref, options)
     data = MagFitInput(rec.t_s, rec.mag_ut, accel, gyro, heading_ref)
     if args.method == "backstepping" and args.heading_ref_delay_s:
         options["heading_ref_delay_s"] = args.heading_ref_delay_s
@@ -448,16 +452,17 @@ def _mag(args) -> int:
     return rc
 
 
-def _gnss_for_backstepping(args, rec, accel, gyro, heading_ref, ref, options):
-    """--gnss: aided roll/pitch into `options`, and the course reference (cli.calibrate_gnss)."""
+def _gnss_for_backstepping(args, rec, accel, gyro, heading_ref, ref_note, ref, options):
+    """--gnss: aided roll/pitch into `options`; with --gnss-course the course as the heading reference
+    (cli.calibrate_gnss)."""
     import numpy as np
 
     from ahrsd.calibration.magfit import MagFitInput
     from ahrsd.cli import calibrate_gnss as cg
 
-    if heading_ref is not None:
-        raise _Usage("the recording has a heading_ref_deg column and --gnss gives the course: use one of them")
-    if args.heading_ref_delay_s:
+    if heading_ref is not None and args.gnss_course:
+        raise _Usage("the recording has a heading_ref_deg column and --gnss-course gives the course: use one")
+    if args.heading_ref_delay_s and args.gnss_course:
         raise _Usage("--heading-ref-delay-s is for a heading_ref_deg column; a GNSS recording is stamped at its "
                      "time of validity")
     try:
@@ -468,11 +473,14 @@ def _gnss_for_backstepping(args, rec, accel, gyro, heading_ref, ref, options):
     except (ValueError, ModuleNotFoundError) as exc:      # the aided estimator is missing or refused the data
         raise _Fail(f"--gnss: the aided estimator could not level the recording: {exc}") from None
     options.update(roll_rad=roll, pitch_rad=pitch, speed_m_s=None)    # aided: no centripetal lean to fit out
+    note = (f"levelling: {cg.LEVELLING_ESTIMATOR} aided by {len(fixes)} GNSS fixes of {args.gnss} "
+            f"({validator.rejected} rejected)")
+    if not args.gnss_course:
+        return heading_ref, note + ("; " + ref_note if ref_note else "")
     course = cg.course_reference_deg(fixes, rec.t_s)
     n = int(np.isfinite(course).sum())
-    note = (f"levelling: {cg.LEVELLING_ESTIMATOR} aided by {len(fixes)} GNSS fixes of {args.gnss} "
-            f"({validator.rejected} rejected); heading reference: GNSS course on straight tracks above "
-            f"{cg.COURSE_MIN_SPEED_M_S:g} m/s, {n} of {len(course)} samples ({n / len(course):.0%})")
+    note += (f"; heading reference: GNSS course on straight tracks above {cg.COURSE_MIN_SPEED_M_S:g} m/s, "
+             f"{n} of {len(course)} samples ({n / len(course):.0%})")
     return (course if n else None), note
 
 

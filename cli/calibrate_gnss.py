@@ -1,12 +1,14 @@
-"""`ahrsd calibrate mag --method backstepping --gnss GNSS.csv`: what a GNSS recording gives back-stepping.
+"""`ahrsd calibrate mag --method backstepping --gnss GNSS.csv [--gnss-course]`: what a GNSS recording gives
+back-stepping.
 
-* Levelling: roll and pitch from the aided estimator (ins) run over the recording with the fixes
-  (calibration.levelling), instead of the accelerometer, whose apparent vertical leans in turns, waves and
-  accelerations; no centripetal compensation is then needed.
-* The heading offset: GNSS course over ground as the heading reference (the `heading_ref_deg` column's role),
-  only on straight tracks above COURSE_MIN_SPEED_M_S (calibration.swing.gnss_course_reference). Course is
-  heading + crab (leeway, current, sideslip): a steady crab shifts the fitted offset by as much, so calibrate
-  in still water / no crosswind, or give a heading_ref_deg column from a better reference instead.
+* Levelling: roll and pitch from the aided estimator (ins, its magnetometer update off) run over the recording
+  with the fixes (calibration.levelling), instead of the accelerometer, whose apparent vertical leans in turns,
+  waves and accelerations; no centripetal compensation is then needed.
+* The heading offset (--gnss-course): GNSS course over ground as the heading reference (the `heading_ref_deg`
+  column's role), only on straight tracks above COURSE_MIN_SPEED_M_S (calibration.swing.gnss_course_reference).
+  Course is heading + crab (leeway, current, sideslip): a steady crab shifts the fitted offset by as much
+  (measured in docs/gnss.md), hence opt-in: calibrate in still water / no crosswind, or give a heading_ref_deg
+  column from a better reference instead.
 
 The recording's t_s is the time of validity of each fix (docs/gnss.md), so the course needs no delay.
 """
