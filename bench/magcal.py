@@ -11,7 +11,9 @@ heading with tilt limited to ±2°, ±10°, ±30° or a full sphere. Independent
 Methods: a plain least-squares ellipsoid (algebraic), an ArduPilot-style LM sphere→ellipsoid fit (the
 CompassCalibrator.cpp schedule: sample thinning, 10 sphere iterations, then 15 sphere + 20 ellipsoid, λ/10
 trial, fit_acceptable() checks), the seed 002 sphere fit, and ahrsd's back-stepping (vertical-channel) fit,
-alone and with a GNSS-course heading reference. A second table reproduces the seed 002 test-2 out-and-back
+alone and with a GNSS-course heading reference; beside them the "field session": the same samples fed to the
+field-calibration session a MAVLink client drives (it stops once its coverage is complete, so it fits on the
+part of the recording it needed, and chooses its fit itself). A second table reproduces the seed 002 test-2 out-and-back
 run (its IGRF components, legs at 62° and −117°).
 
     .venv/bin/python bench/magcal.py            # all tables (~1–2 min on 2 cores)
@@ -263,6 +265,34 @@ def gnss_reference(data: MagFitInput, truth: dict, rng, delay_s=2.0, noise_deg=0
     return ref, true_heading
 
 
+def field_session(data: MagFitInput, roll, pitch, yaw, reference, gyro_truth=None):
+    """The same samples through the field-calibration session (calibration/field.py: what a MAVLink session
+    runs), with the true attitude standing in for the estimator (the session uses it for heading coverage;
+    the fit levels with the accelerometer, as the offline fit does). Returns (model or None, seconds of data
+    the session needed, info)."""
+    from types import SimpleNamespace
+
+    from ahrsd.calibration.field import CalStatus, FieldCalConfig, FieldCalibration
+    from ahrsd.calibration.models import Calibration
+    from ahrsd.core.sample import make_sample
+
+    session = FieldCalibration(Calibration.identity(), FieldCalConfig(timeout_s=1e9), reference)
+    session.start()
+    zeros = np.zeros(3)
+    for i in range(len(data.t_s)):
+        gyro = data.gyro_rad_s[i] if data.gyro_rad_s is not None else zeros
+        est = SimpleNamespace(roll_rad=roll[i], pitch_rad=pitch[i], yaw_rad=yaw[i],
+                              rate_body_rad_s=None if gyro_truth is None else gyro_truth[i])
+        session.add_sample(make_sample(data.t_s[i], gyro, data.accel_m_s2[i], data.mag_ut[i]), est)
+        if session.status.finished:
+            break
+    used_s = float(data.t_s[i] - data.t_s[0])
+    res = session.result
+    if session.status != CalStatus.SUCCESS or res is None:
+        return None, used_s, {"refused": session.fail_reason or "did not finish"}
+    return res.model, used_s, {"note": f"{res.method} after {used_s:.0f} s; {res.accuracy_text()[9:]}"}
+
+
 def run_methods(data, truth, *, with_reference=False, seed=0):
     field = truth["field"]
     F = field.total_ut
@@ -279,6 +309,9 @@ def run_methods(data, truth, *, with_reference=False, seed=0):
     t0 = time.perf_counter()
     r = bs.fit_backstepping(data, field, attitude="accel")
     out["backstepping"] = (r.model if r.ok else None, time.perf_counter() - t0, {"refused": r.refused, "q": r.quality})
+    t0 = time.perf_counter()
+    m, _used_s, info = field_session(data, truth["roll"], truth["pitch"], truth["yaw"], field)
+    out["field session"] = (m, time.perf_counter() - t0, info)
     if with_reference:
         rng = np.random.default_rng(seed + 1000)
         ref, _ = gnss_reference(data, truth, rng)
@@ -326,6 +359,8 @@ def calibration_table(seeds, n):
                 a["hr"].append(np.sqrt(np.mean(heading_errors_deg(model, "random", truth) ** 2)))
                 if "accepted" in info:
                     a["notes"].add(f"AP accept {info['accepted']} fit {info['fitness_mg']:.1f} mG n2 {info['step2_samples']}")
+                if "note" in info and seed == seeds[0]:
+                    a["notes"].add(info["note"])
         for name, a in agg.items():
             rows.append((label, name, a))
     print("\n## Calibration accuracy (medians over seeds %s, %d samples at 10 Hz)\n" % (list(seeds), n))
@@ -491,6 +526,11 @@ def simulator_table(seed: int = 1):
                     note += (f", inter-leg step {ob['step_after_ut'] * 1000:.1f} nT (paper sphere fit on the same data: "
                              f"{ob.get('step_sphere_fit_ut', float('nan')) * 1000:.1f} nT)")
             runs.append((label, r.model if r.ok else None, dt, note))
+        q = blk.truth_q_wxyz
+        ypr = Rotation.from_quat(np.column_stack((q[:, 1:], q[:, :1]))).as_euler("ZYX")
+        t0 = time.perf_counter()
+        m, _used_s, info = field_session(data, ypr[:, 2], ypr[:, 1], ypr[:, 0], ref, blk.truth_gyro_rad_s)
+        runs.append(("field session", m, time.perf_counter() - t0, info.get("note") or info.get("refused")))
         if scen == "auv-out-and-back":
             # GNSS course on the straight legs (2 s late, 0.5° noise), gated by speed and straightness
             q = blk.truth_q_wxyz

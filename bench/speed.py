@@ -4,7 +4,8 @@
     .venv/bin/python bench/speed.py --quick    # 4 096 samples
 
 "one at a time": one Python call per sample, as the daemon does — ahrsd's estimators through
-`update(ImuSample) -> AttitudeEstimate`, VQF through `VQF.update(gyr, acc, mag)` + `getQuat9D()`, Fusion
+`update(ImuSample) -> AttitudeEstimate` (`ins+gnss`: the ins also given a 5 Hz GNSS fix through
+`update_gnss`, counted in its per-sample cost; plain `ins`: no fixes, unaided), VQF through `VQF.update(gyr, acc, mag)` + `getQuat9D()`, Fusion
 through `Ahrs.update(gyr, acc, mag)` + `get_quaternion()`. "batch": the whole array in one call
 (`Mekf.run_batch`, `VQF.updateBatch`). Times are the best of `--repeat` runs (the machine is shared: the
 minimum is the least disturbed). Ratios are against VQF measured in the same process, so they hold on any
@@ -29,17 +30,29 @@ RATE_HZ = 819.2
 
 
 def make_samples(n: int):
-    """n consecutive samples of the simulated `level-turns` scenario (ADIS16405 errors) at 819.2 SPS."""
+    """n consecutive samples of the simulated `level-turns` scenario (ADIS16405 errors) at 819.2 SPS, and
+    the 5 Hz GNSS fixes of that track (valid 0.1 s before they are handed over, interleaved by index)."""
+    from ahrsd.core.gnss import make_fix
     from ahrsd.core.sample import ImuSample
-    from ahrsd.simulation import open_stream
+    from ahrsd.simulation import DEFAULT_SITE, open_stream
 
-    b = open_stream("level-turns", rate_hz=RATE_HZ, seed=0, vehicle_iron=None).next_block(n)
+    stream = open_stream("level-turns", rate_hz=RATE_HZ, seed=0, vehicle_iron=None)
+    b = stream.next_block(n)
     g = np.ascontiguousarray(b.gyro_rad_s)
     a = np.ascontiguousarray(b.accel_m_s2)
     m = np.ascontiguousarray(b.mag_ut)
     t = np.ascontiguousarray(b.t_s)
     samples = [ImuSample(float(t[i]), g[i].copy(), a[i].copy(), m[i].copy()) for i in range(n)]
-    return samples, t, g, a, m
+    v = stream.scenario.velocity_ned_m_s(t)
+    ned = np.cumsum(v, axis=0) / RATE_HZ            # a few metres of track: a flat Earth is close enough here
+    fixes = {}
+    step = int(RATE_HZ / 5.0)
+    for i in range(step, n, step):
+        j = i - int(0.1 * RATE_HZ)
+        fixes[i] = make_fix(t[j], DEFAULT_SITE.lat_deg + np.degrees(ned[j, 0] / 6.36e6),
+                            DEFAULT_SITE.lon_deg + np.degrees(ned[j, 1] / 5.13e6), DEFAULT_SITE.alt_m - ned[j, 2],
+                            v[j], h_acc_m=1.5, v_acc_m=2.5, s_acc_m_s=0.05)
+    return samples, t, g, a, m, fixes
 
 
 def best_of(repeat: int, fn) -> float:
@@ -51,9 +64,23 @@ def best_of(repeat: int, fn) -> float:
     return best
 
 
-def one_at_a_time(name: str, samples, g, a, m):
+def one_at_a_time(name: str, samples, g, a, m, fixes=None):
     """A callable that runs every sample through estimator `name`, one call per sample."""
-    if name in ("mekf", "thesis"):
+    if name == "ins+gnss":
+        from ahrsd.estimator import make_estimator
+
+        def run():
+            est = make_estimator("ins")
+            upd = est.update
+            fix_at = fixes or {}
+            for i, s in enumerate(samples):
+                f = fix_at.get(i)
+                if f is not None:
+                    est.update_gnss(f)
+                upd(s)
+
+        return run
+    if name in ("mekf", "thesis", "ins"):
         from ahrsd.estimator import make_estimator
 
         def run():
@@ -138,20 +165,20 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.quick:
         args.samples, args.repeat = 4096, 2
-    samples, t, g, a, m = make_samples(args.samples)
+    samples, t, g, a, m, fixes = make_samples(args.samples)
     n = len(samples)
-    names = ["mekf", "thesis", "vqf", "fusion"]
+    names = ["mekf", "ins", "ins+gnss", "thesis", "vqf", "fusion"]
     avail = []
     for name in names:
         try:
-            one_at_a_time(name, samples[:10], g[:10], a[:10], m[:10])()  # also warms up the JIT
+            one_at_a_time(name, samples[:10], g[:10], a[:10], m[:10], fixes)()  # also warms up the JIT
             avail.append(name)
         except ImportError as exc:
             print(f"note: {name} skipped ({exc})")
     print(f"# estimator speed: {n} samples of simulated level-turns at {RATE_HZ} SPS, best of {args.repeat}")
     rows = {}
     for name in avail:
-        per = best_of(args.repeat, one_at_a_time(name, samples, g, a, m)) / n
+        per = best_of(args.repeat, one_at_a_time(name, samples, g, a, m, fixes)) / n
         b = batch(name, t, g, a, m)
         if b is not None:
             b()
@@ -179,6 +206,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\nmekf one-at-a-time: {1 / per:,.0f} samples/s (target ≥ 50 000), {per * 1e6:.1f} µs/sample "
               f"= {per * RATE_HZ * 100:.2f} % of this core at {RATE_HZ} SPS"
               + (f"; {per / vqf_per:.1f}× VQF's per-sample cost (moonshot ≤ 2×)" if vqf_per else ""))
+    if "mekf" in rows and "ins+gnss" in rows:
+        ins_per = rows["ins+gnss"][0]
+        print(f"ins with 5 Hz GNSS one-at-a-time: {ins_per * 1e6:.1f} µs/sample = {ins_per / rows['mekf'][0]:.2f}× mekf's "
+              f"(target ≤ 3×), {ins_per * RATE_HZ * 100:.2f} % of this core at {RATE_HZ} SPS")
     if not args.quick:
         w = jit_warmup()
         print(f"numba JIT warm-up (fresh process): cold cache: import {w['cold'][0]:.2f} s + first updates "

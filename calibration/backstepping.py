@@ -47,7 +47,8 @@ MAX_FITTED_SPEED_M_S = 15.0      # a fitted centripetal speed above this is not 
 MAX_CENTRIPETAL_LEAN_RAD = 0.2   # …nor a lean into the turn of more than ~11°
 DISTURBANCE_SIGMAS = 5.0         # |H| residual beyond this many robust σ: a magnetically disturbed sample
 DISTURBED_FRACTION_FOR_ROBUST = 0.01
-MAX_VEHICLE_TILT_DEG = 30.0      # 99th-percentile tilt above this: a hand tumble, not a vehicle (no speed model)
+MAX_VEHICLE_TILT_DEG = 45.0      # 99th-percentile tilt above this: a hand tumble, not a vehicle (no speed model);
+                                 # a small boat in a sea or an AUV rolls ±30° and more (tilt up to ~40°)
 
 
 @dataclass(frozen=True)
@@ -121,6 +122,7 @@ class _Usable:
     pitch_rad: np.ndarray | None
     legs: np.ndarray | None
     calibration_mask: np.ndarray | None
+    unfiltered_mag_ut: np.ndarray | None = None   # before the levelling low-pass: for the reported residual
 
 
 @dataclass
@@ -138,6 +140,7 @@ class _Blocks:
     gyro_rad_s: np.ndarray | None
     centripetal: tuple | None       # (gyro per block, speed per block or "fit"), None: no compensation
     sigma_mag_ut: float
+    unfiltered_mag_ut: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -236,7 +239,18 @@ def _levelling_attitude(usable: _Usable, opts: BacksteppingOptions, quality: dic
         return roll_rad, pitch_rad, vehicle_like
     acc = lowpass(full.accel_m_s2, full.t_s, opts.accel_tau_s)
     roll_rad, pitch_rad = roll_pitch_from_accel(acc)
+    # the same low-pass on the magnetometer and the gyro: the filter also attenuates the wave tilt the
+    # accelerometer shows, and the vertical channel compares that tilt with the magnetometer's. Filtered on one
+    # side only, a 2.7 s wave loses ~18 % of its tilt at τ = 0.2 s and the fit bends the soft iron to match
+    # (measured: docs/magcal-vehicle.md). Only on a vehicle: in a hand tumble the field turns fast, and a
+    # low-passed rotating vector is shorter than the field (the magnitude condition would be biased).
     quality["attitude_source"] = f"accelerometer (low-pass τ={opts.accel_tau_s:g} s)"
+    if vehicle_like:
+        usable.unfiltered_mag_ut = full.mag_ut
+        usable.data = dataclasses.replace(full, mag_ut=lowpass(full.mag_ut, full.t_s, opts.accel_tau_s),
+                                          gyro_rad_s=None if full.gyro_rad_s is None else
+                                          lowpass(full.gyro_rad_s, full.t_s, opts.accel_tau_s))
+        quality["attitude_source"] += ", magnetometer and gyro alike"
     return roll_rad, pitch_rad, vehicle_like
 
 
@@ -279,8 +293,9 @@ def _average_blocks(usable: _Usable, opts: BacksteppingOptions, roll_rad, pitch_
     if speed_in is not None and not isinstance(speed_in, str):
         speed_arr = np.broadcast_to(np.asarray(speed_in, dtype=np.float64), (n_input,))[usable.keep].astype(np.float64)
     tb, cols, block_of = block_average(full.t_s, opts.rate_hz, full.mag_ut, down_in_body(roll_rad, pitch_rad),
-                                       leg_f, cal_f, full.gyro_rad_s if speed_in is not None else None, speed_arr)
-    mag, down_b, legf, calf, gyro_b, speed_b = cols
+                                       leg_f, cal_f, full.gyro_rad_s if speed_in is not None else None, speed_arr,
+                                       usable.unfiltered_mag_ut)
+    mag, down_b, legf, calf, gyro_b, speed_b, mag_unfiltered = cols
     heading_ref_b = None
     if href_c is not None:
         nb = mag.shape[0]
@@ -305,7 +320,8 @@ def _average_blocks(usable: _Usable, opts: BacksteppingOptions, roll_rad, pitch_
     per_block = len(full) / max(mag.shape[0], 1)
     sigma_mag_ut = opts.sigma_mag_ut / math.sqrt(max(per_block, 1.0))
     quality["sigma_mag_fit_ut"] = sigma_mag_ut
-    return _Blocks(tb, mag, down_b, roll, pitch, legs_b, cal_b, heading_ref_b, gyro_b, centripetal, sigma_mag_ut)
+    return _Blocks(tb, mag, down_b, roll, pitch, legs_b, cal_b, heading_ref_b, gyro_b, centripetal, sigma_mag_ut,
+                   mag_unfiltered)
 
 
 def _total_source(reference, opts: BacksteppingOptions) -> str:
@@ -357,7 +373,7 @@ def _with_heading_reference(model: MagModel, blocks: _Blocks, ref: _ReferenceFie
     roll_h, pitch_h = blocks.roll_rad, blocks.pitch_rad
     speed_used = levelling.get("speed_m_s")
     if speed_used is not None and not isinstance(speed_used, str) and blocks.gyro_rad_s is not None:
-        d = corrected_down(blocks.down_body, centripetal_direction(blocks.gyro_rad_s), speed_used)
+        d = corrected_down(blocks.down_body, centripetal_direction(blocks.gyro_rad_s, blocks.down_body), speed_used)
         roll_h, pitch_h = np.arctan2(d[:, 1], d[:, 2]), -np.arcsin(np.clip(d[:, 0], -1.0, 1.0))
     return _apply_heading_reference(model, blocks.mag_ut, roll_h, pitch_h, blocks.heading_ref_deg,
                                     ref.declination_deg, opts.fold_offset, quality)
@@ -366,7 +382,8 @@ def _with_heading_reference(model: MagModel, blocks: _Blocks, ref: _ReferenceFie
 def _finish(model: MagModel, blocks: _Blocks, ref: _ReferenceField, quality: dict, t0: float) -> MagFitResult:
     """The result, with the quality keys shared with the other magnetometer fits (`ahrsd calibrate mag`
     prints them)."""
-    res = np.linalg.norm(model.apply(blocks.mag_ut), axis=1) - ref.total_ut
+    mag = blocks.unfiltered_mag_ut if blocks.unfiltered_mag_ut is not None else blocks.mag_ut
+    res = np.linalg.norm(model.apply(mag), axis=1) - ref.total_ut
     quality["coverage"] = quality.get("sphere_coverage")
     quality["residual_max_ut"] = float(np.max(np.abs(res)))
     std = quality.get("parameter_std", {})

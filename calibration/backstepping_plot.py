@@ -31,7 +31,8 @@ def plot_backstepping(result: MagFitResult, data: MagFitInput, path, *, roll_rad
         # level as the fit did: without the accelerometer's lean into turns (the fitted forward speed)
         speed = result.quality.get("vertical_channel", {}).get("centripetal_speed_m_s")
         if isinstance(speed, (int, float)) and d.gyro_rad_s is not None:
-            dn = corrected_down(down_in_body(roll_rad, pitch_rad), centripetal_direction(d.gyro_rad_s), speed)
+            d0 = down_in_body(roll_rad, pitch_rad)
+            dn = corrected_down(d0, centripetal_direction(d.gyro_rad_s, d0), speed)
             roll_rad, pitch_rad = np.arctan2(dn[:, 1], dn[:, 2]), -np.arcsin(np.clip(dn[:, 0], -1.0, 1.0))
     else:
         roll_rad, pitch_rad = np.asarray(roll_rad)[ok], np.asarray(pitch_rad)[ok]

@@ -6,11 +6,18 @@ completion mask over the sphere of corrected field directions, `AP_GeodesicGrid`
 that cannot be tumbled, the coverage of headings; it reports completion %, a direction hint and the
 MAVLink `MAG_CAL_STATUS` states, then picks the fit from the data:
 
-- full sphere seen (tumbled vehicle)            -> 9-parameter ellipsoid (`fit_mag("ellipsoid")`)
-- level turns (boat, rover, large vehicle)       -> back-stepping / constrained fit (`fit_mag("backstepping")`)
-- the data cannot support the full model         -> hard iron only, soft iron kept from the calibration in
-                                                    force ("tilt range too small for full model: fitted
-                                                    offsets only")
+- WMM reference known (level turns or a tumble) -> back-stepping / vertical-channel fit (`fit_mag("backstepping")`),
+                                                    the same call and data path as `ahrsd calibrate mag`; it also
+                                                    sees the rotation part of the soft iron an ellipsoid cannot
+- full sphere seen, no reference                 -> 9-parameter ellipsoid (`fit_mag("ellipsoid")`)
+- the fit's own observability analysis says it   -> hard iron only, soft iron kept from the calibration in
+  does not beat offsets-only (or it refused)        force ("…: fitted offsets only")
+
+The choice between the full fit and offsets-only is made from the fit's parameter covariance
+(observability.compare_with_offsets): the full result is used when its predicted heading error is smaller
+than the heading change it makes relative to the offsets-only model. With GNSS course over ground fed to the
+session (`add_course`, `add_gnss_fix`) the constant heading offset (the swing fit's A) is fitted from course vs
+heading on straight runs (course_offset.py) and folded into the soft iron.
 
 and judges the result against ArduPilot's acceptance rules (fitness = RMS field-magnitude residual in
 mgauss vs `COMPASS_CAL_FIT`, offsets, diagonals, radius). The result is a proposed `Calibration` with the
@@ -26,6 +33,7 @@ check uses the caller's wall clock (`tick(now_s)`).
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import logging
 import math
@@ -41,11 +49,18 @@ from .ardupilot_compass import (COMPASS_CAL_FIT_DEFAULT_MGAUSS, COMPASS_OFFS_MAX
                                 MAX_SCALE_FACTOR, OFFDIAG_MAX, RADIUS_MAX_MGAUSS, RADIUS_MIN_MGAUSS, UT_TO_MGAUSS,
                                 ArduPilotMagParams, to_ardupilot)
 from .geodesic_grid import N_SECTIONS, completion_mask_bytes, geodesic_sections, section_centres
+from .backstepping import fold_heading_offset
+from .backstepping_paper import magnetic_heading_deg
+from .course_offset import (DEFAULT_MAX_TURN_RATE_DEG_S, DEFAULT_STRAIGHT_WINDOW_S, CourseOffsetFit,
+                            fit_course_offset)
 from .mag_offsets import fit_offsets_keep_soft_iron
 from .magfit import MagFitInput, fit_mag
 from .models import Calibration, MagModel
+from .observability import algebraic_sphere_centre, compare_with_offsets
+from .swing import DEFAULT_MIN_SPEED_M_S
 
 if TYPE_CHECKING:  # pragma: no cover
+    from ahrsd.core.gnss import GnssFix
     from ahrsd.core.sample import ImuSample
     from ahrsd.core.estimate import AttitudeEstimate
     from ahrsd.core.wmm import EarthField
@@ -101,9 +116,15 @@ class FieldCalConfig:
     heading_sectors: int = 36         # 10° sectors for level vehicles
     samples_per_sector: int = 3
     sphere_target: float = 0.75       # fraction of the 80 cells for a tumbled vehicle (ArduPilot ≈ 300 spread samples)
-    tumble_tilt_deg: float = 35.0     # AUTO: tilt beyond this means "being tumbled" -> sphere coverage needed
+    # AUTO: tilt beyond this means "being tumbled" -> sphere coverage needed. A boat in a sea or an AUV rolls
+    # ±30° and more but never tumbles; the 80-cell sphere mask cannot fill on such a vehicle.
+    tumble_tilt_deg: float = 60.0
     validation_fraction: float = 1 / 3  # step two: fresh coverage (fraction of step one's): more data, checked fit
-    min_tilt_full_model_deg: float = 4.0  # below this tilt range a level-vehicle fit cannot see the vertical axis
+    course_min_speed_m_s: float = DEFAULT_MIN_SPEED_M_S              # GNSS course used above this ground speed
+    course_max_turn_rate_deg_s: float = DEFAULT_MAX_TURN_RATE_DEG_S  # …on straight runs (heading rate below this)
+    course_window_s: float = DEFAULT_STRAIGHT_WINDOW_S               # …for this long around the fix
+    course_capacity: int = 4096       # GNSS course fixes kept at most
+    max_offset_std_deg: float = 0.5   # a constant heading offset known worse than this is "undetermined"
 
 
 @dataclass(frozen=True)
@@ -117,6 +138,24 @@ class FieldCalResult:
     quality: dict
     ardupilot: ArduPilotMagParams
     partial: bool = False  # True when only the hard iron was fitted
+    heading_std_deg: float = math.nan  # predicted 1σ of the heading-dependent error (within the tilt envelope)
+    offset_std_deg: float = math.nan   # 1σ of the constant heading offset (math.inf: undetermined)
+    offset_source: str = ""            # "GNSS course", "tilt", "calibration in force", "undetermined"
+    undetermined: tuple = ()           # parameters the data could not determine
+
+    def accuracy_text(self) -> str:
+        """One line for a person: the predicted heading accuracy and what the offset rests on."""
+        def deg(x: float) -> str:
+            return f"{x:.2f}" if x < 0.095 else f"{x:.1f}"
+
+        dep = f"heading +-{deg(self.heading_std_deg)} deg" if math.isfinite(self.heading_std_deg) else "heading accuracy unknown"
+        if self.offset_source == "undetermined":
+            off = "offset undetermined: no usable GNSS course (a fixed-yaw command sets it)"
+        elif math.isfinite(self.offset_std_deg):
+            off = f"offset +-{deg(self.offset_std_deg)} deg ({self.offset_source})"
+        else:
+            off = f"offset from {self.offset_source}"
+        return f"Mag cal: {dep}, {off}"
 
     def proposed_calibration(self, current: Calibration) -> Calibration:
         return current.with_sensor(
@@ -125,6 +164,9 @@ class FieldCalResult:
             method=f"field:{self.method}",
             residual_rms_mgauss=self.fitness_mgauss,
             partial=self.partial,
+            heading_std_deg=_finite_or_none(self.heading_std_deg), offset_std_deg=_finite_or_none(self.offset_std_deg),
+            offset_source=self.offset_source, undetermined=list(self.undetermined),
+            data_span_s=self.quality.get("t_span_s"),
             before={"hard_iron_ut": self.before.hard_iron_ut.tolist(), "soft_iron": self.before.soft_iron.tolist()},
         )
 
@@ -139,6 +181,12 @@ class FieldCalResult:
 
 
 FitFunction = Callable[..., Any]  # magfit.fit_mag's signature
+SPHERE_RECENTRE_EVERY = 50       # kept samples between re-centrings of the completion mask (step one, tumbling)
+
+
+def _finite_or_none(x: float) -> float | None:
+    """For the saved metadata (JSON has no NaN/Infinity)."""
+    return float(x) if math.isfinite(x) else None
 
 
 class FieldCalibration:
@@ -179,7 +227,9 @@ class FieldCalibration:
         self._acc = np.empty((cap, 3))
         self._gyro = np.empty((cap, 3))
         self._rpy = np.empty((cap, 3))
+        self._body_yaw = np.empty(cap)   # body yaw − sensor yaw (the mounting): course is the body's
         self._n = 0
+        self._course = np.empty((int(self.config.course_capacity), 4))   # t_s, course_rad, speed, speed acc
         self._w_inv = np.linalg.inv(current.mag.soft_iron)
         self._reset_buffers()
 
@@ -240,15 +290,31 @@ class FieldCalibration:
             if t - self._t_running > self.config.timeout_s:
                 self._fail(CalStatus.FAILED, f"timed out at {self.completion_pct}%: {self._hint_text()}")
                 return
-            if t - self._t_last_kept < self._keep_period:
-                return
             mag = np.asarray(sample.mag_ut, dtype=np.float64)
-            if not np.all(np.isfinite(mag)):
+            acc = np.asarray(sample.accel_m_s2, dtype=np.float64)
+            gyro = np.asarray(sample.gyro_rad_s, dtype=np.float64)
+            if not (np.all(np.isfinite(mag)) and np.all(np.isfinite(acc)) and np.all(np.isfinite(gyro))):
                 self.rejected += 1
                 return
+            # every sample between two kept ones is averaged into the kept one (a block mean, as the offline
+            # fit's block averaging does): the noise drops by √k and nothing is aliased
+            raw = self._w_inv @ mag + self.current.mag.hard_iron_ut if self.samples_are_calibrated else mag
+            # bins of keep_period from the start of the run (aligned with the fit's own block averaging)
+            bin_index = math.floor((t - self._t_running) / self._keep_period)
+            if self._block_n == 0 or bin_index == self._block_bin:
+                self._block_bin = bin_index
+                self._block_sum += np.concatenate(([t], raw, acc, gyro))
+                self._block_n += 1
+                return
+            block = self._block_sum / self._block_n
+            self._block_sum = np.concatenate(([t], raw, acc, gyro))
+            self._block_n = 1
+            self._block_bin = bin_index
+            t = float(block[0])
             dt_kept = t - self._t_last_kept
             self._t_last_kept = t
-            raw = self._w_inv @ mag + self.current.mag.hard_iron_ut if self.samples_are_calibrated else mag
+            t_mean, raw, acc, gyro = float(block[0]), block[1:4], block[4:7], block[7:10]
+            body_yaw_offset = 0.0
             if estimate is not None:
                 roll, pitch = float(estimate.roll_rad), float(estimate.pitch_rad)
                 yaw = float(estimate.yaw_rad)
@@ -261,13 +327,58 @@ class FieldCalibration:
                         self._turn_yaw = yaw if self._turn_yaw is None else self._turn_yaw
                     else:
                         self._turn_yaw += yaw_rate_ned_rad_s(rate, roll, pitch) * dt_kept
+                    body_yaw = getattr(estimate, "body_yaw_rad", None)
+                    if body_yaw is not None:
+                        body_yaw_offset = float(wrap_pi(float(body_yaw) - float(estimate.yaw_rad)))
                     yaw = self._turn_yaw
             else:  # tilt from the accelerometer, heading from the field with the calibration in force
-                roll, pitch = (float(x) for x in roll_pitch_from_accel(sample.accel_m_s2))
+                roll, pitch = (float(x) for x in roll_pitch_from_accel(acc))
                 yaw = float(tilt_compensated_heading_rad(self.current.mag.apply(raw), roll, pitch)[0])
-            self._store(t, raw, sample.accel_m_s2, sample.gyro_rad_s, roll, pitch, yaw)
+            self._store(t_mean, raw, acc, gyro, roll, pitch, yaw, body_yaw_offset)
             self._update_coverage(raw, roll, pitch, yaw)
             self._advance(t)
+
+    def add_course(self, t_s: float, course_rad: float, ground_speed_m_s: float,
+                   speed_acc_m_s: float = math.nan) -> bool:
+        """One GNSS course over ground: t_s = the fix's time of validity on the samples' clock, course from
+        true north (rad), ground speed (m/s), its 1σ accuracy (m/s, NaN unknown). Kept while the session
+        collects; used for the constant heading offset. False (and counted) when rejected."""
+        vals = (float(t_s), float(course_rad), float(ground_speed_m_s), float(speed_acc_m_s))
+        with self._lock:
+            if not self.status.running or self._fit_busy:
+                return False
+            if not all(math.isfinite(v) for v in vals[:3]) or vals[2] < 0:
+                self.course_rejected += 1
+                return False
+            if self._n_course >= self._course.shape[0]:   # full: keep every other fix
+                self._course[: self._n_course // 2] = self._course[: self._n_course: 2][: self._n_course // 2]
+                self._n_course //= 2
+            self._course[self._n_course] = vals
+            self._n_course += 1
+            return True
+
+    def add_gnss_fix(self, fix: "GnssFix") -> bool:
+        """A `GnssFix` (core/gnss.py): its horizontal velocity gives course and speed, `t_s` is its time of
+        validity. Fixes without velocity are rejected (counted)."""
+        if not fix.has_velocity:
+            with self._lock:
+                self.course_rejected += 1
+            return False
+        return self.add_course(fix.t_s, fix.course_rad, fix.ground_speed_m_s, fix.s_acc_m_s)
+
+    def set_heading_offset(self, offset_deg: float, source: str, std_deg: float = math.nan) -> bool:
+        """Rotate the finished (not yet saved) result's heading by `offset_deg` (a known heading, e.g.
+        MAV_CMD_FIXED_MAG_CAL_YAW): the constant offset folded into the soft iron. False when there is no
+        successful result."""
+        with self._lock:
+            if self.status != CalStatus.SUCCESS or self.result is None or not math.isfinite(offset_deg):
+                return False
+            res = self.result
+            self.result = dataclasses.replace(res, model=fold_heading_offset(res.model, offset_deg),
+                                              ardupilot=to_ardupilot(fold_heading_offset(res.model, offset_deg)),
+                                              offset_std_deg=float(std_deg), offset_source=source,
+                                              quality=dict(res.quality, known_heading_offset_deg=float(offset_deg)))
+            return True
 
     # ------------------------------------------------------------------ fitting (off the event loop)
     def pending_fit(self) -> "FitJob | None":
@@ -281,7 +392,8 @@ class FieldCalibration:
             return FitJob(
                 stage=self._fit_request, config=self.config, reference=self.reference, current=self.current.mag,
                 t=self._t[:n].copy(), raw=self._raw[:n].copy(), acc=self._acc[:n].copy(),
-                gyro=self._gyro[:n].copy(), rpy=self._rpy[:n].copy(),
+                gyro=self._gyro[:n].copy(), rpy=self._rpy[:n].copy(), body_yaw=self._body_yaw[:n].copy(),
+                course=self._course[: self._n_course].copy(),
                 sphere_coverage=self.sphere_coverage, heading_coverage=self.heading_coverage,
                 full_sphere=self._needs_sphere(), fit_function=self._fit_function,
             )
@@ -367,6 +479,7 @@ class FieldCalibration:
         self._tilt_max_deg = 0.0
         self._tilt_min_deg = 180.0
         self._prelim: MagModel = self.current.mag
+        self._sphere_centre = np.zeros(3)   # step one, tumbled vehicle: centre of the running sphere fit
         self._fit_request: str | None = None
         self._fit_busy = False
         self._step_two_from = 0
@@ -376,6 +489,11 @@ class FieldCalibration:
         self._last_sample_wall: float | None = None
         self._last_hint_pct = -100
         self.rejected = 0
+        self._block_sum = np.zeros(10)
+        self._block_n = 0
+        self._block_bin = 0
+        self._n_course = 0
+        self.course_rejected = 0
 
     def _begin_attempt(self) -> None:
         self._reset_buffers()
@@ -389,11 +507,11 @@ class FieldCalibration:
         self._messages.append((severity, text))
         log.info("%s", text)
 
-    def _store(self, t, raw, acc, gyro, roll, pitch, yaw) -> None:
+    def _store(self, t, raw, acc, gyro, roll, pitch, yaw, body_yaw_offset=0.0) -> None:
         if self._n >= self._t.shape[0]:  # full: keep every other sample, halve the keep rate
             keep = slice(0, self._n, 2)
             m = len(range(*keep.indices(self._n)))
-            for arr in (self._t, self._raw, self._acc, self._gyro, self._rpy):
+            for arr in (self._t, self._raw, self._acc, self._gyro, self._rpy, self._body_yaw):
                 arr[:m] = arr[keep]
             self._step_two_from = (self._step_two_from + 1) // 2
             self._n = m
@@ -404,10 +522,13 @@ class FieldCalibration:
         self._acc[i] = acc
         self._gyro[i] = gyro
         self._rpy[i] = (roll, pitch, yaw)
+        self._body_yaw[i] = body_yaw_offset
         self._n += 1
 
     def _update_coverage(self, raw, roll, pitch, yaw) -> None:
-        corrected = self._prelim.apply(raw)
+        if self.status == CalStatus.RUNNING_STEP_ONE and self._needs_sphere() and self._n % SPHERE_RECENTRE_EVERY == 0:
+            self._recentre_sphere()
+        corrected = self._prelim.apply(raw) - self._sphere_centre
         self._last_corrected = corrected
         self._last_yaw = yaw
         s = int(geodesic_sections(corrected)[0])
@@ -422,6 +543,19 @@ class FieldCalibration:
         if s >= 0:
             self._cells[s] = True
         self._sector_count[sector] += 1
+
+    def _recentre_sphere(self) -> None:
+        """Step one on a tumbled vehicle: the completion mask counts field directions from the centre of the
+        sphere the samples lie on (a running algebraic sphere fit), as CompassCalibrator's cells follow its
+        running offsets; from the uncorrected origin, strong hard iron would keep half the cells out of reach."""
+        corrected = self._prelim.apply(self._raw[: self._n])
+        centre = algebraic_sphere_centre(corrected)
+        if not np.all(np.isfinite(centre)):
+            return
+        self._sphere_centre = centre
+        cells = geodesic_sections(corrected - centre)
+        self._cells[:] = False
+        self._cells[cells[cells >= 0]] = True
 
     def _needs_sphere(self) -> bool:
         vt = self.config.vehicle_type
@@ -482,6 +616,7 @@ class FieldCalibration:
             return
         model, _quality = payload
         self._prelim = model
+        self._sphere_centre = np.zeros(3)
         # re-mark the completion mask with the corrected field, as CompassCalibrator does after step one
         corrected = model.apply(self._raw[: self._n])
         cells = geodesic_sections(corrected)
@@ -502,6 +637,9 @@ class FieldCalibration:
             self.result = res
             self.status = CalStatus.SUCCESS
             self._say(5, f"Mag cal done: {res.method}, fitness {res.fitness_mgauss:.1f} mG. Accept to save")
+            self._say(6, res.accuracy_text())
+            if res.undetermined:
+                self._say(4, "Mag cal: undetermined: " + ", ".join(res.undetermined))
         else:
             self.result = res
             self._fail(res.status, res.reason)
@@ -528,6 +666,8 @@ class FitJob:
     heading_coverage: float
     full_sphere: bool
     fit_function: FitFunction | None = None
+    body_yaw: np.ndarray | None = None     # body yaw − sensor yaw per sample (rad)
+    course: np.ndarray | None = None       # (k, 4): t_s, course_rad, ground speed m/s, speed accuracy m/s
 
     def __call__(self):
         try:
@@ -542,41 +682,95 @@ class FitJob:
             return self.stage, exc
 
     def _final_fit(self) -> FieldCalResult:
-        cfg, rpy, raw = self.config, self.rpy, self.raw
+        rpy, raw = self.rpy, self.raw
         fit = self.fit_function or fit_mag
         tilt = np.degrees(np.arccos(np.clip(np.cos(rpy[:, 0]) * np.cos(rpy[:, 1]), -1, 1)))
         tilt_range = float(np.percentile(tilt, 98) - np.percentile(tilt, 2)) if len(tilt) else 0.0
         notes: list[str] = []
-        candidates: list[str] = []
-        if self.full_sphere:
-            candidates = ["ellipsoid"]
-        elif tilt_range >= cfg.min_tilt_full_model_deg and self.reference is not None:
-            candidates = ["backstepping"]
+        quality: dict = {"tilt_range_deg": tilt_range, "sphere_coverage": self.sphere_coverage,
+                         "heading_coverage": self.heading_coverage, "n_samples": int(len(self.t)),
+                         "t_span_s": [float(self.t[0]), float(self.t[-1])] if len(self.t) else None}
+        offsets, q_off = fit_offsets_keep_soft_iron(
+            raw, self.current.soft_iron, self.current.hard_iron_ut, rpy[:, 0], rpy[:, 1], self.reference)
+        quality.update({f"offsets_{k}": v for k, v in q_off.items()})
+        # the same data and the same call as `ahrsd calibrate mag --method backstepping`: roll/pitch from the
+        # low-passed accelerometer with the centripetal lean fitted out (an estimator's roll/pitch lean into
+        # turns and cannot be corrected after its filtering: docs/magcal-vehicle.md)
+        data = MagFitInput(self.t, raw, self.acc, self.gyro)
+        chosen: tuple | None = None          # (model, method, heading std, offset std, undetermined)
+        if self.full_sphere and self.reference is None:
+            # without the WMM field the vertical channel has no reference: the attitude-independent ellipsoid
+            fr = fit("ellipsoid", data, self.reference)
+            if fr.refused is None and self._acceptable_shape(fr.model)[0]:
+                chosen = (fr.model, fr.method, math.nan, math.inf, ())
+                self._add_quality(quality, "ellipsoid", fr.quality)
+            else:
+                notes.append(f"ellipsoid {fr.refused or 'rejected (' + self._acceptable_shape(fr.model)[1] + ')'}: "
+                             "fitted offsets only")
         elif self.reference is None:
             notes.append("no WMM reference: fitted offsets only")
         else:
-            notes.append("tilt range too small for full model: fitted offsets only")
-        data = MagFitInput(self.t, raw, self.acc, self.gyro)
-        quality: dict = {"tilt_range_deg": tilt_range, "sphere_coverage": self.sphere_coverage,
-                         "heading_coverage": self.heading_coverage, "n_samples": int(len(self.t))}
-        for method in candidates:
-            options = {"roll_rad": rpy[:, 0], "pitch_rad": rpy[:, 1]} if method == "backstepping" else {}
-            fr = fit(method, data, self.reference, **options)
-            if fr.refused is None:
-                ok, why = self._acceptable_shape(fr.model)
-                if ok:
-                    quality.update({f"{method}_{k}": v for k, v in (fr.quality or {}).items()
-                                    if isinstance(v, (int, float, str, bool))})
-                    return self._judge(fr.model, fr.method, quality, notes, partial=False)
-                notes.append(f"{method} rejected ({why}): offsets only")
+            fr = fit("backstepping", data, self.reference)
+            if fr.refused is not None:
+                log.info("backstepping refused: %s", fr.refused)
+                notes.append(f"full fit refused ({fr.refused}): fitted offsets only")
             else:
-                log.info("%s refused: %s", method, fr.refused)
-                short = "tilt range too small for full model" if not self.full_sphere else fr.refused
-                notes.append(f"{short}: fitted offsets only")
-        model, q = fit_offsets_keep_soft_iron(
-            raw, self.current.soft_iron, self.current.hard_iron_ut, rpy[:, 0], rpy[:, 1], self.reference)
-        quality.update({f"offsets_{k}": v for k, v in q.items()})
-        return self._judge(model, "offsets", quality, notes, partial=True)
+                ok, why = self._acceptable_shape(fr.model)
+                self._add_quality(quality, "backstepping", fr.quality)
+                if not ok:
+                    notes.append(f"backstepping rejected ({why}): fitted offsets only")
+                else:
+                    cmp = compare_with_offsets(fr.model, offsets, fr.quality, self.reference.total_ut,
+                                               self.reference.total_ut * math.sin(self.reference.inclination_rad))
+                    quality["full_vs_offsets"] = cmp
+                    if cmp["use_full"]:
+                        chosen = (fr.model, fr.method, cmp["full_heading_std_deg"], cmp["full_offset_std_deg"],
+                                  tuple(fr.quality.get("undetermined") or ()))
+                    else:
+                        notes.append(f"full fit ({cmp['full_heading_std_deg']:.2f} deg 1-sigma) no better than "
+                                     f"the soft iron in force ({cmp['offsets_heading_change_deg']:.2f} deg "
+                                     "apart): fitted offsets only")
+        if chosen is None:
+            change = quality.get("full_vs_offsets", {}).get("offsets_heading_change_deg", math.nan)
+            chosen = (offsets, "offsets", change, math.inf, ("soft iron (kept from the calibration in force)",))
+        model, method, heading_std, offset_std, undetermined = chosen
+        model, offset_std, offset_source = self._heading_offset(model, offset_std, notes, quality)
+        res = self._judge(model, method, quality, notes, partial=method == "offsets")
+        return dataclasses.replace(res, heading_std_deg=float(heading_std), offset_std_deg=float(offset_std),
+                                   offset_source=offset_source, undetermined=tuple(undetermined))
+
+    @staticmethod
+    def _add_quality(quality: dict, method: str, fit_quality: dict | None) -> None:
+        for k, v in (fit_quality or {}).items():
+            if isinstance(v, (int, float, str, bool)):
+                quality[f"{method}_{k}"] = v
+        for k in ("predicted_heading", "parameter_std", "undetermined"):
+            if fit_quality and k in fit_quality:
+                quality[f"{method}_{k}"] = fit_quality[k]
+
+    def _heading_offset(self, model: MagModel, offset_std: float, notes: list, quality: dict):
+        """The constant heading offset from GNSS course (course_offset.py), folded into the soft iron when it
+        is better known than the field fit's own; else what the offset rests on."""
+        cfg = self.config
+        source = "tilt" if offset_std <= cfg.max_offset_std_deg else "undetermined"
+        if self.course is not None and len(self.course) and self.reference is not None:
+            roll, pitch = self.rpy[:, 0], self.rpy[:, 1]
+            psi = (np.radians(magnetic_heading_deg(model.apply(self.raw), roll, pitch))
+                   + self.reference.declination_rad + (self.body_yaw if self.body_yaw is not None else 0.0))
+            rate = np.array([yaw_rate_ned_rad_s(g, r, p) for g, r, p in zip(self.gyro, roll, pitch)])
+            cf: CourseOffsetFit = fit_course_offset(
+                self.course[:, 0], self.course[:, 1], self.course[:, 2], self.course[:, 3], self.t, psi, rate,
+                min_speed_m_s=cfg.course_min_speed_m_s, max_turn_rate_deg_s=cfg.course_max_turn_rate_deg_s,
+                window_s=cfg.course_window_s)
+            quality["gnss_course"] = cf.to_dict()
+            if cf.refused is not None:
+                notes.append(f"GNSS course not used: {cf.refused}")
+            elif cf.std_deg < offset_std:
+                notes.extend(cf.notes)
+                return fold_heading_offset(model, cf.offset_deg), cf.std_deg, "GNSS course"
+        elif source == "undetermined":
+            quality["gnss_course"] = {"refused": "no GNSS course received"}
+        return model, offset_std, source
 
     def _acceptable_shape(self, model: MagModel) -> tuple[bool, str]:
         ap = to_ardupilot(model)

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ahrsd.core.angles import down_in_body, roll_pitch_from_accel
+from ahrsd.core.angles import down_in_body, roll_pitch_from_accel, tilt_compensated_heading_rad
 
 from .geodesic_grid import N_SECTIONS, geodesic_sections
 
@@ -314,3 +314,51 @@ def assess_support(mag_ut: np.ndarray, accel_m_s2: np.ndarray | None = None, mod
                         "the yaw misalignment cannot be seen; the result is valid near level only, and a "
                         "heading reference is needed for the constant heading offset")
     return DataSupport(model, n, cov, hcov, tilt, refused, warnings, undetermined)
+
+
+# ----------------------------------------------------------------------------- full model vs offsets only
+
+
+def heading_change_deg(model_from, model_to, total_ut: float, vertical_ut: float, tilt_envelope_deg: float,
+                       n_headings: int = 12) -> dict:
+    """How much the heading changes between two magnetometer models, on the attitudes where the field-fit
+    heading accuracy is predicted (vertical_channel.predicted_heading_std_deg's grid: every 360/n_headings° of
+    heading, level and ±envelope in roll and in pitch). The raw field is the one `model_from` maps onto the
+    reference field exactly. Returns the mean difference (a constant offset, deg) and the RMS of the
+    heading-dependent rest (deg)."""
+    from scipy.spatial.transform import Rotation
+
+    hh = math.sqrt(max(total_ut**2 - vertical_ut**2, 0.0))
+    t = math.radians(tilt_envelope_deg)
+    atts = ((0.0, 0.0), (t, 0.0), (-t, 0.0), (0.0, t), (0.0, -t))
+    psi = np.radians(np.arange(n_headings) * 360.0 / n_headings)
+    roll = np.repeat([a[0] for a in atts], psi.size)
+    pitch = np.repeat([a[1] for a in atts], psi.size)
+    yaw = np.tile(psi, len(atts))
+    body_to_ned = Rotation.from_euler("ZYX", np.column_stack((yaw, pitch, roll)))
+    b = body_to_ned.inv().apply(np.array([hh, 0.0, vertical_ut]))
+    raw = b @ np.linalg.inv(model_from.soft_iron).T + model_from.hard_iron_ut
+    h_from = tilt_compensated_heading_rad(model_from.apply(raw), roll, pitch)
+    h_to = tilt_compensated_heading_rad(model_to.apply(raw), roll, pitch)
+    d = np.degrees(np.angle(np.exp(1j * (h_to - h_from))))
+    mean = math.degrees(math.atan2(np.mean(np.sin(np.radians(d))), np.mean(np.cos(np.radians(d)))))
+    rest = d - mean
+    return {"mean_deg": float(mean), "heading_dependent_rms_deg": float(np.sqrt(np.mean(rest**2)))}
+
+
+def compare_with_offsets(full_model, offsets_model, full_quality: dict, total_ut: float, vertical_ut: float) -> dict:
+    """Does the full (vertical-channel) fit beat the offsets-only model (soft iron kept)?
+
+    The full fit predicts its own heading error from its parameter covariance (`predicted_heading`: the
+    heading-dependent 1σ within the data's tilt envelope). If the full model is right to within that, the
+    offsets-only model is wrong by the heading change between the two. So the full model wins when its
+    predicted 1σ is smaller than that change; otherwise the data cannot tell the soft iron in force from the
+    fitted one, and the offsets-only model (which changes less) is kept."""
+    pred = full_quality.get("predicted_heading") or {}
+    sigma = float(pred.get("heading_dependent_std_deg", math.inf))
+    envelope = float(pred.get("envelope_tilt_deg", 10.0))
+    change = heading_change_deg(full_model, offsets_model, total_ut, vertical_ut, envelope)
+    return {"full_heading_std_deg": sigma, "full_offset_std_deg": float(pred.get("offset_std_deg", math.inf)),
+            "offsets_heading_change_deg": change["heading_dependent_rms_deg"],
+            "offsets_offset_change_deg": change["mean_deg"], "envelope_tilt_deg": envelope,
+            "use_full": bool(sigma < change["heading_dependent_rms_deg"])}

@@ -119,11 +119,17 @@ def _ellipsoid_init(raw: np.ndarray, total: float):
     return w0, centre + c0
 
 
-def centripetal_direction(gyro_rad_s: np.ndarray) -> np.ndarray:
-    """k = ω × x̂ / 1 m/s = [0, ω_z, −ω_y]: the body specific force added per m/s of forward speed in a turn
-    (a = ω × v with v = [V, 0, 0] in the body frame, no sideslip)."""
+def centripetal_direction(gyro_rad_s: np.ndarray, down_body: np.ndarray) -> np.ndarray:
+    """k: the body specific force added per m/s of forward speed in a turn. A boat, rover or AUV turning at
+    ψ̇ moves along a horizontal track, so the centripetal acceleration is ψ̇·V along the horizontal right
+    direction r = d × x̂/|d × x̂| (d = down in the body frame): k = ψ̇·r, ψ̇ = (q·d_y + r·d_z)/(d_y² + d_z²)
+    (ZYX kinematics, ψ̇ = (q sinφ + r cosφ)/cosθ). The velocity does not pitch with the hull in waves: the
+    body-fixed form ω × [V, 0, 0] would add −q·V on z, a spurious tilt of V·θ̇/g in every wave."""
     w = np.asarray(gyro_rad_s, dtype=np.float64)
-    return np.column_stack((np.zeros(w.shape[0]), w[:, 2], -w[:, 1]))
+    d = np.asarray(down_body, dtype=np.float64)
+    c2 = np.maximum(d[:, 1] ** 2 + d[:, 2] ** 2, 1e-6)
+    psi_dot = (w[:, 1] * d[:, 1] + w[:, 2] * d[:, 2]) / c2
+    return (psi_dot / np.sqrt(c2))[:, None] * np.column_stack((np.zeros(d.shape[0]), d[:, 2], -d[:, 1]))
 
 
 def corrected_down(d0: np.ndarray, k: np.ndarray | None, speed_m_s) -> np.ndarray:
@@ -161,7 +167,7 @@ def fit_vertical_channel(raw: np.ndarray, roll_rad, pitch_rad, total_ut: float, 
     m = np.asarray(raw, dtype=np.float64)
     d0 = down_in_body(roll_rad, pitch_rad)
     n = m.shape[0]
-    k = centripetal_direction(gyro_rad_s) if (gyro_rad_s is not None and speed_m_s is not None) else None
+    k = centripetal_direction(gyro_rad_s, d0) if (gyro_rad_s is not None and speed_m_s is not None) else None
     fit_speed = k is not None and isinstance(speed_m_s, str)
     if isinstance(speed_m_s, str) and speed_m_s != "fit":
         raise ValueError(f"speed_m_s must be a number, an array or 'fit', not {speed_m_s!r}")

@@ -10,6 +10,8 @@ Exit status: 0 done, 1 bad input (recording, calibration, parameters, output pat
 
 from __future__ import annotations
 
+from ahrsd.estimator import ESTIMATORS
+
 # The CSV columns, picked by name from the replay table (ahrsd.estimator.replay.ATTITUDE_COLUMNS, which
 # documents each); named here so that `ahrsd --help` needs no numpy and the file format cannot drift.
 OUTPUT_COLUMNS = (
@@ -21,7 +23,6 @@ OUTPUT_HEADER = ",".join(OUTPUT_COLUMNS)
 # With --gnss (an aided estimator) these follow (ahrsd.estimator.replay.NAV_COLUMNS): NED velocity and position
 NAV_OUTPUT_COLUMNS = ("vel_n_m_s", "vel_e_m_s", "vel_d_m_s", "lat_deg", "lon_deg", "alt_m")
 AIDED_OUTPUT_HEADER = ",".join(OUTPUT_COLUMNS + NAV_OUTPUT_COLUMNS)
-ESTIMATOR_CHOICES = ("mekf", "thesis", "ins")
 # REFERENCE: the quaternion and yaw are relative to true north (NED) when a position is given (--lat/--lon: the
 # WMM declination rotates the estimator's magnetic-north attitude about down), else to magnetic north.
 _FORMAT = ",".join(["%.6f"] + ["%.9f"] * 4 + ["%.6f"] * 5 + ["%.6f"] * 3 + ["%.6e"] * 3 + ["%d"])
@@ -41,7 +42,7 @@ def register(subparsers) -> None:
         "comes from the first fix's position unless --lat/--lon are given. Documented in docs/replay.md.",
     )
     p.add_argument("recording", metavar="RECORDING", help="CSV recording (header t_s,gyro_x_rad_s,...,mag_z_ut)")
-    p.add_argument("--estimator", "-e", default=None, choices=ESTIMATOR_CHOICES,
+    p.add_argument("--estimator", "-e", default=None, choices=ESTIMATORS,
                    help="mekf (default without --gnss): the error-state quaternion filter; thesis: the thesis's "
                    "vector KF + Wahba; ins (default with --gnss): the GNSS-aided INS")
     p.add_argument("--gnss", metavar="GNSS.csv", default=None,

@@ -16,6 +16,7 @@ EARTH_RADIUS_M = 6_378_137.0        # WGS-84 equatorial radius, used as a spheri
 G_EQUATOR_M_S2 = 9.780327           # 1967 International Gravity Formula
 G_SIN2_COEFF = 0.0053024
 G_SIN2_2L_COEFF = 0.0000058
+EARTH_RATE_RAD_S = 7.292e-5        # Earth rotation rate (WGS-84 7.292115e-5 rad/s, rounded): 15.04 °/h
 
 
 def normal_gravity_m_s2(lat_deg, alt_m=0.0):

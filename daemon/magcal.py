@@ -52,7 +52,10 @@ import numpy as np
 from ahrsd.calibration.ardupilot_compass import UT_TO_MGAUSS
 from ahrsd.calibration.field import CalStatus, FieldCalConfig, FieldCalibration, VehicleType
 from ahrsd.calibration.fixed_yaw import fixed_yaw_calibration
+from ahrsd.calibration.swing import DEFAULT_MIN_SPEED_M_S
+from ahrsd.core.angles import tilt_compensated_heading_rad, wrap_180_deg
 from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.drivers.gnss_mavlink import MavlinkGnssSelector
 
 log = logging.getLogger(__name__)
 
@@ -82,10 +85,18 @@ class MagCalSettings:
     progress_rate_hz: float = 4.0        # MAG_CAL_PROGRESS while running
     report_rate_hz: float = 1.0          # MAG_CAL_REPORT while finished and not accepted/cancelled
     fixed_yaw_average_s: float = 1.0     # raw field averaged for MAV_CMD_FIXED_MAG_CAL_YAW
+    # GNSS course for the heading offset: the fix's time of validity is its arrival minus this latency
+    # (ArduPilot AP_GPS_UBLOX::get_lag: 0.12 s for u-blox M8/F9), used above this ground speed
+    gnss_latency_s: float = 0.12
+    course_min_speed_m_s: float = DEFAULT_MIN_SPEED_M_S
+    # GLOBAL_POSITION_INT (the autopilot's fused velocity) when no GPS_RAW_INT arrives: only when the autopilot
+    # does not fuse our heading (docs/gnss.md "The loop through the autopilot")
+    course_from_global_position_int: bool = False
 
     def field_config(self, retry: bool, delay_s: float) -> FieldCalConfig:
         return FieldCalConfig(vehicle_type=VehicleType(self.vehicle_type), fitness_mgauss=self.fitness_mgauss,
-                              timeout_s=self.timeout_s, retry=retry, delay_s=delay_s)
+                              timeout_s=self.timeout_s, retry=retry, delay_s=delay_s,
+                              course_min_speed_m_s=self.course_min_speed_m_s)
 
 
 class MagCalHost(Protocol):
@@ -120,7 +131,8 @@ def sensor_attitude(estimate, mounting: np.ndarray | None):
     return SimpleNamespace(roll_rad=math.atan2(c[2, 1], c[2, 2]),
                            pitch_rad=-math.asin(max(-1.0, min(1.0, float(c[2, 0])))),
                            yaw_rad=math.atan2(c[1, 0], c[0, 0]),
-                           rate_body_rad_s=None if rate is None else mounting.T @ np.asarray(rate, dtype=float))
+                           rate_body_rad_s=None if rate is None else mounting.T @ np.asarray(rate, dtype=float),
+                           body_yaw_rad=float(estimate.yaw_rad))
 
 
 def statustext_chunks(severity: int, text: str, chunk_id: int) -> list:
@@ -155,6 +167,10 @@ class MagCalProtocol:
         self._last_estimate = None
         self._mounting: np.ndarray | None = None
         self._mask_requested = OUR_MASK
+        self._last_sample_t: float | None = None
+        self.course_fed = 0          # GNSS course fixes handed to a running session
+        self.course_unusable = 0     # GNSS messages without a usable velocity (counted, not fed)
+        self._gnss = MavlinkGnssSelector(use_fused=self.settings.course_from_global_position_int)
 
     # ------------------------------------------------------------------ wiring
     def register(self, router) -> None:
@@ -193,6 +209,7 @@ class MagCalProtocol:
         self._last_estimate = estimate
         self._mounting = mounting
         now = sample.t_s
+        self._last_sample_t = now
         q = self._recent_raw
         q.append((now, sample.mag_ut))
         while q and now - q[0][0] > self.settings.fixed_yaw_average_s:
@@ -200,6 +217,22 @@ class MagCalProtocol:
         s = self.session
         if s is not None and s.status.running:
             s.add_sample(sample, sensor_attitude(estimate, mounting), now_s=self.clock())
+
+    def on_gnss_message(self, msg) -> None:
+        """The autopilot's GPS_RAW_INT (GLOBAL_POSITION_INT only with `course_from_global_position_int`),
+        converted by drivers/gnss_mavlink.py and stamped with the time of validity on the samples' clock (the
+        latest sample time minus `gnss_latency_s`): its course and speed go to a running session. Ignored
+        while no session runs; messages without a usable velocity are counted."""
+        s = self.session
+        if s is None or not s.status.running or self._last_sample_t is None:
+            return
+        fix = self._gnss.handle(msg, self._last_sample_t - self.settings.gnss_latency_s)
+        if fix is None:
+            return          # a repeated GPS_RAW_INT, or GLOBAL_POSITION_INT not wanted (the selector counts them)
+        if s.add_gnss_fix(fix):
+            self.course_fed += 1
+        else:
+            self.course_unusable += 1
 
     # ------------------------------------------------------------------ periodic
     def tick(self) -> None:
@@ -396,6 +429,9 @@ class MagCalProtocol:
         sensor = sensor_attitude(SimpleNamespace(roll_rad=float(est.roll_rad), pitch_rad=float(est.pitch_rad),
                                                  yaw_rad=math.radians(float(yaw_deg)),
                                                  rate_body_rad_s=np.zeros(3)), self._mounting)
+        s = self.session
+        if s is not None and s.status == CalStatus.SUCCESS and not self.saved:
+            return self._known_heading_offset(s, raw_mean, sensor, reference)
         res = fixed_yaw_calibration(math.degrees(sensor.yaw_rad), reference, sensor.roll_rad, sensor.pitch_rad,
                                     raw_mean, current.mag)
         new = current.with_sensor("mag", res.model, method="field:fixed-yaw", true_heading_deg=float(yaw_deg),
@@ -406,6 +442,16 @@ class MagCalProtocol:
         if res.field_mismatch_ut * UT_TO_MGAUSS > 50:
             self._say(SEV_WARNING, f"Mag field {res.field_mismatch_ut * UT_TO_MGAUSS:.0f} mG off WMM: "
                                    "soft iron may be stale, run a full cal")
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _known_heading_offset(self, s: FieldCalibration, raw_mean, sensor, reference) -> int:
+        """A finished session's result, not saved yet, and a known true heading: the constant heading offset
+        (the swing fit's A) of the result is set from it, soft and hard iron otherwise kept; accept saves."""
+        measured = tilt_compensated_heading_rad(s.result.model.apply(raw_mean), sensor.roll_rad, sensor.pitch_rad)
+        offset = float(wrap_180_deg(math.degrees(sensor.yaw_rad - float(measured[0]) - reference.declination_rad)))
+        if not s.set_heading_offset(offset, "known heading"):
+            return mavlink.MAV_RESULT_FAILED
+        self._say(SEV_NOTICE, f"Mag cal: heading offset {offset:+.1f} deg from the known heading. Accept to save")
         return mavlink.MAV_RESULT_ACCEPTED
 
     # ------------------------------------------------------------------ accept / save
@@ -569,6 +615,22 @@ class ServiceHost:
             await asyncio.sleep(period)
 
 
+def _hook_gnss(autopilot, proto: MagCalProtocol) -> None:
+    """Hand the autopilot's GPS_RAW_INT / GLOBAL_POSITION_INT (which the service already routes to its
+    AutopilotState) to the mag-cal protocol as well, without touching the service."""
+    for name in ("on_gps_raw_int", "on_global_position_int"):
+        original = getattr(autopilot, name)
+
+        def hooked(msg, now, _original=original):
+            _original(msg, now)
+            try:
+                proto.on_gnss_message(msg)
+            except Exception:  # noqa: BLE001 - a bad GNSS message must not stop the service's input handling
+                log.exception("magcal: GNSS message %s not usable", msg.get_type())
+
+        setattr(autopilot, name, hooked)
+
+
 def attach(service, settings: MagCalSettings | None = None) -> MagCalProtocol:
     """Install the field magnetometer calibration in a daemon Service (before or after it starts).
 
@@ -587,5 +649,6 @@ def attach(service, settings: MagCalSettings | None = None) -> MagCalProtocol:
     host.protocol = proto
     proto.register(service.commands)
     service.add_sample_listener(host.on_sample)
+    _hook_gnss(service.autopilot, proto)
     service.magcal = proto
     return proto

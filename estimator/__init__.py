@@ -1,10 +1,11 @@
-"""ahrsd.estimator: rotation maths, Wahba solvers, the thesis Kalman filter and the default MEKF."""
+"""ahrsd.estimator: rotation maths, Wahba solvers, the thesis Kalman filter, the default MEKF and the GNSS-aided
+INS."""
 
 from __future__ import annotations
 
 from .base import Estimator
 
-ESTIMATORS = ("mekf", "thesis")
+ESTIMATORS = ("mekf", "thesis", "ins")
 DEFAULT_ESTIMATOR = "mekf"
 
 
@@ -19,6 +20,10 @@ def make_estimator(name: str = DEFAULT_ESTIMATOR, *, declination_rad: float = 0.
         from .thesis_kf import ThesisKf
 
         return ThesisKf(declination_rad=declination_rad, **params)
+    if name == "ins":
+        from .ins import Ins
+
+        return Ins(declination_rad=declination_rad, **params)
     raise ValueError(f"unknown estimator {name!r}; choose one of {', '.join(ESTIMATORS)}")
 
 

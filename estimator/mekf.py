@@ -32,6 +32,7 @@ from ahrsd.core.sample import ImuSample
 
 from . import mekf_core as core
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags
+from .mag_heading import relearn_reference
 from .rotations import euler_to_quat, quat_to_dcm, quat_to_euler
 from .wahba import davenport
 
@@ -229,7 +230,7 @@ _TWO_PI = 2.0 * math.pi
 _FLAG_CACHE: dict[int, EstimateFlags] = {}
 
 
-def _estimate_flags(bits: int) -> EstimateFlags:
+def estimate_flags(bits: int) -> EstimateFlags:
     """EstimateFlags of an int, cached (building an IntFlag costs more than the whole filter step)."""
     f = _FLAG_CACHE.get(bits)
     if f is None:
@@ -252,12 +253,7 @@ class Mekf:
     name = "mekf"
 
     def __init__(self, declination_rad: float = 0.0, params: MekfParams | None = None, **overrides):
-        base = params or DEFAULT_MEKF_PARAMS
-        known = {f.name for f in fields(MekfParams)}
-        unknown = set(overrides) - known
-        if unknown:
-            raise ValueError(f"unknown mekf parameter(s): {', '.join(sorted(unknown))}")
-        self.params = replace(base, **overrides)
+        self.params = with_overrides(params or DEFAULT_MEKF_PARAMS, overrides, "mekf")
         self._par = self.params.to_array()
         self._state = np.zeros(core.S_SIZE)
         self._out = np.zeros(core.O_SIZE)
@@ -288,16 +284,8 @@ class Mekf:
         stays open for RELEARN_GATE_OPEN_S so a larger change (first calibration of strong iron) is taken
         too; the magnitude/dip check still rejects disturbances meanwhile. The daemon bounds the rate at
         which the autopilot sees the change (docs/daemon.md "Calibration changes")."""
-        s = self._state
-        s[core.S_MAG_REF_NORM] = 0.0          # 0 = learn from the next sample (mekf_core)
-        s[core.S_MAG_REF_DIP] = 0.0
-        s[core.S_MAG_CAND_NORM] = 0.0
-        s[core.S_MAG_CAND_DIP] = 0.0
-        s[core.S_MAG_CAND_T] = 0.0
-        s[core.S_MAG_UNDIST_T] = 0.0
-        s[core.S_MAG_DIST_T] = 0.0
-        s[core.S_MAG_REST_SET] = 0.0          # the at-rest field is the old calibration's: take it again
-        s[core.S_MAG_GATE_OPEN_T] = RELEARN_GATE_OPEN_S
+        relearn_reference(self._state, core.S_MAG, RELEARN_GATE_OPEN_S)
+        self._state[core.S_MAG_REST_SET] = 0.0   # the at-rest field is the old calibration's: take it again
 
     @property
     def gyro_bias_rad_s(self) -> np.ndarray:
@@ -412,12 +400,8 @@ class Mekf:
         o[core.O_EULER : core.O_EULER + 3] = quat_to_euler(q)
 
     def _after_init_flags(self) -> int:
-        f = int(EstimateFlags.INITIALISING)
-        if self._reinit_pending:
-            f |= int(EstimateFlags.REINITIALISED | EstimateFlags.LARGE_DT)
-            self._reinit_pending = False
-        if not self.params.mag_enabled:
-            f |= int(EstimateFlags.MAG_UNAVAILABLE)
+        f = after_init_flags(self._reinit_pending, self.params.mag_enabled)
+        self._reinit_pending = False
         return f
 
     def _estimate(self, t_s: float, f: int) -> AttitudeEstimate:
@@ -434,24 +418,47 @@ class Mekf:
             o[core.O_RATE : core.O_RATE + 3],
             o[core.O_BIAS : core.O_BIAS + 3],
             o[core.O_SIGMA : core.O_SIGMA + 3],
-            _estimate_flags(f),
+            estimate_flags(f),
         )
 
     def _estimate_uninitialised(self, sample: ImuSample, extra: int) -> AttitudeEstimate:
-        nan3 = np.full(3, np.nan)
-        return AttitudeEstimate(
-            t_s=sample.t_s,
-            q_wxyz=np.array([1.0, 0.0, 0.0, 0.0]),
-            roll_rad=math.nan,
-            pitch_rad=math.nan,
-            yaw_rad=math.nan,
-            heading_mag_rad=math.nan,
-            heading_true_rad=math.nan,
-            rate_body_rad_s=nan3,
-            gyro_bias_rad_s=np.zeros(3),
-            sigma_rpy_rad=np.full(3, math.pi),
-            flags=EstimateFlags.INITIALISING | _estimate_flags(extra),
-        )
+        return uninitialised_estimate(sample.t_s, extra)
+
+
+def with_overrides(base, overrides: dict, estimator: str):
+    """The parameters dataclass `base` with some fields replaced; ValueError naming any unknown field."""
+    unknown = set(overrides) - {f.name for f in fields(base)}
+    if unknown:
+        raise ValueError(f"unknown {estimator} parameter(s): {', '.join(sorted(unknown))}")
+    return replace(base, **overrides)
+
+
+def after_init_flags(reinitialised: bool, mag_enabled: bool) -> int:
+    """Flags of the first estimate after an initialisation (REINITIALISED | LARGE_DT after a time gap)."""
+    f = int(EstimateFlags.INITIALISING)
+    if reinitialised:
+        f |= int(EstimateFlags.REINITIALISED | EstimateFlags.LARGE_DT)
+    if not mag_enabled:
+        f |= int(EstimateFlags.MAG_UNAVAILABLE)
+    return f
+
+
+def uninitialised_estimate(t_s: float, flag_bits: int) -> AttitudeEstimate:
+    """The estimate of a filter that could not initialise yet: NaN angles, INITIALISING | flag_bits."""
+    nan3 = np.full(3, np.nan)
+    return AttitudeEstimate(
+        t_s=t_s,
+        q_wxyz=np.array([1.0, 0.0, 0.0, 0.0]),
+        roll_rad=math.nan,
+        pitch_rad=math.nan,
+        yaw_rad=math.nan,
+        heading_mag_rad=math.nan,
+        heading_true_rad=math.nan,
+        rate_body_rad_s=nan3,
+        gyro_bias_rad_s=np.zeros(3),
+        sigma_rpy_rad=np.full(3, math.pi),
+        flags=EstimateFlags.INITIALISING | estimate_flags(flag_bits),
+    )
 
 
 __all__ = ["Mekf", "MekfParams", "DEFAULT_MEKF_PARAMS", "FIXED_WING_MEKF_PARAMS", "initial_attitude"]

@@ -23,6 +23,8 @@ from numba import njit
 
 from ahrsd.core.sample import SampleFlags
 
+from . import mag_heading as mag
+
 # ----------------------------------------------------------------------------------- state layout
 S_Q = 0            # 4: attitude quaternion body→NED, scalar first
 S_B = 4            # 3: gyro bias, rad/s
@@ -31,18 +33,11 @@ S_T_LAST = 43      # time of the previous sample, s
 S_GYR_LP = 44      # 3: low-passed gyro for rest detection, rad/s
 S_ACC_LP = 47      # 3: low-passed accelerometer for rest detection, m/s²
 S_REST_T = 50      # time the rest conditions have held, s
-S_MAG_REF_NORM = 51  # reference field magnitude, µT (0 = not yet learned)
-S_MAG_REF_DIP = 52   # reference dip (inclination, positive down), rad
-S_MAG_CAND_NORM = 53  # candidate new field magnitude, µT
-S_MAG_CAND_DIP = 54   # candidate new field dip, rad
-S_MAG_CAND_T = 55     # time the candidate has been consistent while rotating, s
-S_MAG_UNDIST_T = 56   # time the field has matched the reference, s
-S_MAG_LAST_T = 57     # time since the last accepted heading update, s
+# (slots 51–57, 66 and 78 unused: the magnetometer's state moved to the S_MAG block)
 S_G_REF = 58          # gravity magnitude learned at rest, m/s²
 S_ACC_I = 59          # 3: specific force low-passed in the NED frame, m/s²
 S_GYR_LAST = 62       # 3: last valid gyro sample, rad/s
 S_T_RUN = 65          # time since initialisation, s
-S_MAG_DIST_T = 66     # time the field has been continuously disturbed, s
 S_ACC_REJ_T = 67      # time since the last accepted tilt update, s
 S_MAG_LP = 68         # 3: low-passed body-frame field (rest filter), µT
 S_MAG_REST = 71       # 3: body-frame field when the current rest began, µT
@@ -50,8 +45,17 @@ S_MAG_REST_SET = 74   # 1.0 while S_MAG_REST holds this rest's field
 S_REST_DG = 75        # low-passed squared gyro deviation from its low-pass, (rad/s)²
 S_REST_DA = 76        # low-passed squared acc deviation, (m/s²)²
 S_ACC_HOLD_T = 77     # tilt updates stay off this much longer after a sustained push, s
-S_MAG_GATE_OPEN_T = 78  # the heading innovation gate stays open this much longer (new calibration), s
-S_SIZE = 80
+S_MAG = 80            # 9: the magnetometer heading check's state (mag_heading.MS_*)
+S_MAG_REF_NORM = S_MAG + mag.MS_REF_NORM    # reference field magnitude, µT (0 = not yet learned)
+S_MAG_REF_DIP = S_MAG + mag.MS_REF_DIP      # reference dip (inclination, positive down), rad
+S_MAG_CAND_NORM = S_MAG + mag.MS_CAND_NORM  # candidate new field magnitude, µT
+S_MAG_CAND_DIP = S_MAG + mag.MS_CAND_DIP    # candidate new field dip, rad
+S_MAG_CAND_T = S_MAG + mag.MS_CAND_T        # time the candidate has been consistent while rotating, s
+S_MAG_UNDIST_T = S_MAG + mag.MS_UNDIST_T    # time the field has matched the reference, s
+S_MAG_LAST_T = S_MAG + mag.MS_LAST_T        # time since the last accepted heading update, s
+S_MAG_DIST_T = S_MAG + mag.MS_DIST_T        # time the field has been continuously disturbed, s
+S_MAG_GATE_OPEN_T = S_MAG + mag.MS_GATE_OPEN_T  # the heading gate stays open this much longer (new calibration), s
+S_SIZE = S_MAG + mag.MS_SIZE
 
 # ----------------------------------------------------------------------------------- parameter layout
 P_GYRO_NOISE = 0        # gyro angle random walk, rad/s/√Hz
@@ -64,16 +68,7 @@ P_ACC_TURN_GAIN = 6     # tilt noise per rad of the turn angle acos(g/|f|), dime
 P_ACC_REJECT = 7        # reject the accelerometer when | |f| − g | exceeds this, m/s²
 P_ACC_GATE = 8          # tilt innovation gate (angle between measured and estimated vertical), rad
 P_ACC_TAU = 9           # time constant of the NED-frame low-pass of the specific force, s (0 = off)
-P_MAG_NOISE = 10        # magnetometer noise per axis, µT
-P_MAG_HEADING_NOISE = 11  # heading noise floor (residual calibration, local field), rad
-P_MAG_NORM_TOL = 12     # relative field-magnitude tolerance against the reference
-P_MAG_DIP_TOL = 13      # dip-angle tolerance against the reference, rad
-P_MAG_MIN_UNDIST = 14   # the field must match the reference this long before it is used, s
-P_MAG_NEW_TIME = 15     # a consistent new field is accepted after this much rotation time, s
-P_MAG_NEW_MIN_RATE = 16  # rotation counts towards P_MAG_NEW_TIME only above this rate, rad/s
-P_MAG_REF_TAU = 17      # time constant of the reference field's tracking, s
-P_MAG_GATE = 18         # heading innovation gate, in σ
-P_MAG_UNAVAILABLE = 19  # no heading update for this long → MAG_UNAVAILABLE, s
+# (slots 10–19, 31, 32 unused: the magnetometer's parameters moved to the P_MAG block)
 P_REST_GYRO_TH = 20     # rest: gyro deviation from its low-pass below this, rad/s
 P_REST_ACC_TH = 21      # rest: acc deviation from its low-pass below this, m/s²
 P_REST_MIN_T = 22       # rest declared after the conditions held this long, s
@@ -85,12 +80,23 @@ P_INIT_TIME = 27        # INITIALISING is held at least this long, s
 P_CONV_TILT = 28        # ... and until 1σ tilt is below this, rad
 P_CONV_YAW = 29         # ... and 1σ yaw below this, rad
 P_MAG_ENABLED = 30      # 1.0 = use the magnetometer, 0.0 = 6-axis (heading from gyro only)
-P_MAG_REJECT_MAX = 31   # after this long continuously disturbed, the field is trusted again with inflated noise, s
-P_MAG_HEADING_NOISE_REST = 32  # heading noise floor at rest (no dynamic errors), rad
 P_ACC_GATE_RECOVER = 33  # after this long without a tilt update, rejection is overridden (recovery), s
 P_ACC_TURN_DEAD = 34    # turn angles below this add no noise, rad
 P_MAG_REST_CHANGE = 35  # at rest, a low-passed body-frame field change above this is a disturbance, µT
-P_SIZE = 36
+P_MAG = 36              # 12: the magnetometer heading check's parameters (mag_heading.MP_*)
+P_MAG_NOISE = P_MAG + mag.MP_NOISE                # magnetometer noise per axis, µT
+P_MAG_HEADING_NOISE = P_MAG + mag.MP_HEADING_NOISE  # heading noise floor (residual calibration, local field), rad
+P_MAG_NORM_TOL = P_MAG + mag.MP_NORM_TOL          # relative field-magnitude tolerance against the reference
+P_MAG_DIP_TOL = P_MAG + mag.MP_DIP_TOL            # dip-angle tolerance against the reference, rad
+P_MAG_MIN_UNDIST = P_MAG + mag.MP_MIN_UNDIST      # the field must match the reference this long before use, s
+P_MAG_NEW_TIME = P_MAG + mag.MP_NEW_TIME          # a consistent new field is accepted after this rotation time, s
+P_MAG_NEW_MIN_RATE = P_MAG + mag.MP_NEW_MIN_RATE  # rotation counts towards P_MAG_NEW_TIME only above this, rad/s
+P_MAG_REF_TAU = P_MAG + mag.MP_REF_TAU            # time constant of the reference field's tracking, s
+P_MAG_GATE = P_MAG + mag.MP_GATE                  # heading innovation gate, in σ
+P_MAG_UNAVAILABLE = P_MAG + mag.MP_UNAVAILABLE    # no heading update for this long → MAG_UNAVAILABLE, s
+P_MAG_REJECT_MAX = P_MAG + mag.MP_REJECT_MAX      # disturbed this long: field trusted again, inflated noise, s
+P_MAG_HEADING_NOISE_REST = P_MAG + mag.MP_HEADING_NOISE_REST  # heading noise floor at rest, rad
+P_SIZE = P_MAG + mag.MP_SIZE
 
 # ----------------------------------------------------------------------------------- flags (= EstimateFlags)
 F_INITIALISING = 1
@@ -220,20 +226,50 @@ def input_validity(sample_flags, gx, gy, gz, ax, ay, az, mx, my, mz):
 
 
 @njit(cache=True)
+def euler_and_tilt_sigma(q0, q1, q2, q3, pnn, pne, pee):
+    """ZYX roll, pitch, yaw of a body→NED quaternion, and the 1σ roll and pitch from the NED tilt covariance
+    (P_NN, P_NE, P_EE of δθ) rotated into the heading frame."""
+    yaw = math.atan2(2.0 * (q1 * q2 + q0 * q3), 1.0 - 2.0 * (q2 * q2 + q3 * q3))
+    cy = math.cos(yaw)
+    sy = math.sin(yaw)
+    sig_roll = math.sqrt(max(cy * cy * pnn + 2.0 * cy * sy * pne + sy * sy * pee, 0.0))
+    sig_pitch = math.sqrt(max(sy * sy * pnn - 2.0 * cy * sy * pne + cy * cy * pee, 0.0))
+    roll = math.atan2(2.0 * (q2 * q3 + q0 * q1), 1.0 - 2.0 * (q1 * q1 + q2 * q2))
+    pitch = -math.asin(min(1.0, max(-1.0, 2.0 * (q1 * q3 - q0 * q2))))
+    return roll, pitch, yaw, sig_roll, sig_pitch
+
+
+@njit(cache=True)
+def step_dt(dt, large_dt, reinit_dt):
+    """(Δt to propagate over, flag bits) for a sample Δt after the previous one: LARGE_DT when Δt ≤ 0 or
+    > large_dt; NEEDS_INIT as well when Δt > reinit_dt; a repeated or backwards time propagates over 0."""
+    flags = 0
+    if not (dt > 0.0) or dt > large_dt:
+        flags |= F_LARGE_DT
+        if dt > reinit_dt:
+            return dt, flags | NEEDS_INIT
+        if not (dt > 0.0):
+            dt = 0.0  # repeated or backwards time: update without propagating
+    return dt, flags
+
+
+@njit(cache=True)
+def initialising(t_run, sig_roll, sig_pitch, sig_yaw, min_time, conv_tilt, with_heading, conv_yaw):
+    """INITIALISING: less than min_time since (re-)initialisation, or the 1σ tilt (or, with a magnetometer,
+    heading) not yet below its convergence threshold."""
+    return t_run < min_time or max(sig_roll, sig_pitch) > conv_tilt or (with_heading and sig_yaw > conv_yaw)
+
+
+@njit(cache=True)
 def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, out):
     """One sample. Returns EstimateFlags bits (| NEEDS_INIT when the caller must initialise first).
 
     sample_flags: the sample's SampleFlags as an int (invalid or saturated sensors are not used).
     """
     valid = input_validity(sample_flags, gx, gy, gz, ax, ay, az, mx, my, mz)
-    flags = 0
-    dt = t_s - state[S_T_LAST]
-    if not (dt > 0.0) or dt > par[P_LARGE_DT]:
-        flags |= F_LARGE_DT
-        if dt > par[P_REINIT_DT]:
-            return flags | NEEDS_INIT
-        if not (dt > 0.0):
-            dt = 0.0  # repeated or backwards time: update without propagating
+    dt, flags = step_dt(t_s - state[S_T_LAST], par[P_LARGE_DT], par[P_REINIT_DT])
+    if flags & NEEDS_INIT:
+        return flags
     state[S_T_LAST] = t_s
     state[S_T_RUN] += dt
 
@@ -535,85 +571,18 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
     # ------------------------------------------------------------------ magnetometer: heading only
     mag_used = False
     if (valid & IN_MAG_OK) and par[P_MAG_ENABLED] > 0.0:
-        q0 = state[S_Q]
-        q1 = state[S_Q + 1]
-        q2 = state[S_Q + 2]
-        q3 = state[S_Q + 3]
-        mn = (1.0 - 2.0 * (q2 * q2 + q3 * q3)) * mx + 2.0 * (q1 * q2 - q0 * q3) * my + 2.0 * (q1 * q3 + q0 * q2) * mz
-        me = 2.0 * (q1 * q2 + q0 * q3) * mx + (1.0 - 2.0 * (q1 * q1 + q3 * q3)) * my + 2.0 * (q2 * q3 - q0 * q1) * mz
-        md = 2.0 * (q1 * q3 - q0 * q2) * mx + 2.0 * (q2 * q3 + q0 * q1) * my + (1.0 - 2.0 * (q1 * q1 + q2 * q2)) * mz
+        mn, me, md = mag.rotate_to_ned(state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3], mx, my, mz)
         mnorm = math.sqrt(mx * mx + my * my + mz * mz)
-        mh = math.sqrt(mn * mn + me * me)
-        if mnorm > 1e-6:
-            dip = math.atan2(md, mh)
-            ref_norm = state[S_MAG_REF_NORM]
-            if ref_norm <= 0.0:
-                state[S_MAG_REF_NORM] = mnorm
-                state[S_MAG_REF_DIP] = dip
-                state[S_MAG_CAND_NORM] = mnorm
-                state[S_MAG_CAND_DIP] = dip
-                ref_norm = mnorm
-            tol = par[P_MAG_NORM_TOL]
-            dtol = par[P_MAG_DIP_TOL]
-            matches = abs(mnorm - ref_norm) < tol * ref_norm and abs(dip - state[S_MAG_REF_DIP]) < dtol
-            if matches:
-                state[S_MAG_UNDIST_T] += dt
-                state[S_MAG_DIST_T] = 0.0
-            else:
-                state[S_MAG_UNDIST_T] = 0.0
-                state[S_MAG_DIST_T] += dt
-            # candidate for a new (permanently changed) field: must stay consistent while the body rotates
-            cn = state[S_MAG_CAND_NORM]
-            if abs(mnorm - cn) < tol * cn and abs(dip - state[S_MAG_CAND_DIP]) < dtol:
-                kc = 1.0 - math.exp(-dt / par[P_MAG_REF_TAU]) if dt > 0.0 else 0.0
-                state[S_MAG_CAND_NORM] += kc * (mnorm - cn)
-                state[S_MAG_CAND_DIP] += kc * (dip - state[S_MAG_CAND_DIP])
-                if rate > par[P_MAG_NEW_MIN_RATE]:
-                    state[S_MAG_CAND_T] += dt
-            else:
-                state[S_MAG_CAND_NORM] = mnorm
-                state[S_MAG_CAND_DIP] = dip
-                state[S_MAG_CAND_T] = 0.0
-            if (not matches) and state[S_MAG_CAND_T] >= par[P_MAG_NEW_TIME]:
-                # the field has changed for good (new place, new iron): adopt it
-                state[S_MAG_REF_NORM] = state[S_MAG_CAND_NORM]
-                state[S_MAG_REF_DIP] = state[S_MAG_CAND_DIP]
-                state[S_MAG_UNDIST_T] = par[P_MAG_MIN_UNDIST]
-                state[S_MAG_DIST_T] = 0.0
-                matches = True
-            undisturbed = matches and state[S_MAG_UNDIST_T] >= par[P_MAG_MIN_UNDIST] and not mag_moved_at_rest
-            inflate = 1.0
-            if not undisturbed and state[S_MAG_DIST_T] > par[P_MAG_REJECT_MAX]:
-                undisturbed = True  # disturbed for too long: use it, but trust it little
-                inflate = 100.0
-            if undisturbed and mh > 1e-3 * mnorm:
-                if matches and dt > 0.0:
-                    kr = 1.0 - math.exp(-dt / par[P_MAG_REF_TAU])
-                    state[S_MAG_REF_NORM] += kr * (mnorm - state[S_MAG_REF_NORM])
-                    state[S_MAG_REF_DIP] += kr * (dip - state[S_MAG_REF_DIP])
-                # heading measurement: angle of the horizontal field in the estimated NED frame, α = −δθ_D
-                alpha = math.atan2(me, mn)
-                sig_a = par[P_MAG_NOISE] / mh
-                floor = par[P_MAG_HEADING_NOISE_REST] if at_rest else par[P_MAG_HEADING_NOISE]
-                r = (sig_a * sig_a + floor * floor) * inflate
-                s = state[S_P + 2 * 6 + 2] + r
-                gate_open = state[S_MAG_GATE_OPEN_T] > 0.0   # Mekf.relearn_field_reference
-                if alpha * alpha > par[P_MAG_GATE] ** 2 * s and inflate == 1.0 and not gate_open:
-                    flags |= F_MAG_REJECTED
-                else:
-                    d0, d1, d2, d3, d4, d5 = _scalar_update(state, 2, -1.0, alpha, r, M_TILT)
-                    _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
-                    mag_used = True
-            else:
-                flags |= F_MAG_REJECTED
-    if state[S_MAG_GATE_OPEN_T] > 0.0:
-        state[S_MAG_GATE_OPEN_T] = max(0.0, state[S_MAG_GATE_OPEN_T] - dt)
-    if mag_used:
-        state[S_MAG_LAST_T] = 0.0
-    else:
-        state[S_MAG_LAST_T] += dt
-        if state[S_MAG_LAST_T] > par[P_MAG_UNAVAILABLE]:
-            flags |= F_MAG_UNAVAILABLE
+        res, alpha, r = mag.heading_measurement(state, S_MAG, par, P_MAG, dt, rate, at_rest, mag_moved_at_rest,
+                                                mn, me, md, mnorm, 0.0, state[S_P + 2 * 6 + 2])
+        if res == mag.MAG_USE:
+            d0, d1, d2, d3, d4, d5 = _scalar_update(state, 2, -1.0, alpha, r, M_TILT)
+            _apply_correction(state, par, d0, d1, d2, d3, d4, d5)
+            mag_used = True
+        elif res == mag.MAG_REJECTED:
+            flags |= F_MAG_REJECTED
+    if mag.heading_bookkeeping(state, S_MAG, par, P_MAG, dt, mag_used):
+        flags |= F_MAG_UNAVAILABLE
 
     _symmetrise(state)
 
@@ -634,27 +603,19 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
     out[O_RATE] = gx - state[S_B]
     out[O_RATE + 1] = gy - state[S_B + 1]
     out[O_RATE + 2] = gz - state[S_B + 2]
-    # 1σ roll/pitch: NED tilt covariance rotated into the heading frame; yaw: δθ_D
-    yaw = math.atan2(2.0 * (q1 * q2 + q0 * q3), 1.0 - 2.0 * (q2 * q2 + q3 * q3))
-    cy = math.cos(yaw)
-    sy = math.sin(yaw)
-    pnn = state[S_P + 0]
-    pne = state[S_P + 1]
-    pee = state[S_P + 7]
-    out[O_SIGMA] = math.sqrt(max(cy * cy * pnn + 2.0 * cy * sy * pne + sy * sy * pee, 0.0))
-    out[O_SIGMA + 1] = math.sqrt(max(sy * sy * pnn - 2.0 * cy * sy * pne + cy * cy * pee, 0.0))
+    roll, pitch, yaw, sig_roll, sig_pitch = euler_and_tilt_sigma(q0, q1, q2, q3, state[S_P + 0], state[S_P + 1],
+                                                                 state[S_P + 7])
+    out[O_SIGMA] = sig_roll
+    out[O_SIGMA + 1] = sig_pitch
     out[O_SIGMA + 2] = math.sqrt(max(state[S_P + 14], 0.0))
     out[O_BIAS] = state[S_B]
     out[O_BIAS + 1] = state[S_B + 1]
     out[O_BIAS + 2] = state[S_B + 2]
-    out[O_EULER] = math.atan2(2.0 * (q2 * q3 + q0 * q1), 1.0 - 2.0 * (q1 * q1 + q2 * q2))
-    out[O_EULER + 1] = -math.asin(min(1.0, max(-1.0, 2.0 * (q1 * q3 - q0 * q2))))
+    out[O_EULER] = roll
+    out[O_EULER + 1] = pitch
     out[O_EULER + 2] = yaw
-    if (
-        state[S_T_RUN] < par[P_INIT_TIME]
-        or max(out[O_SIGMA], out[O_SIGMA + 1]) > par[P_CONV_TILT]
-        or (par[P_MAG_ENABLED] > 0.0 and out[O_SIGMA + 2] > par[P_CONV_YAW])
-    ):
+    if initialising(state[S_T_RUN], out[O_SIGMA], out[O_SIGMA + 1], out[O_SIGMA + 2], par[P_INIT_TIME],
+                    par[P_CONV_TILT], par[P_MAG_ENABLED] > 0.0, par[P_CONV_YAW]):
         flags |= F_INITIALISING
     return flags
 

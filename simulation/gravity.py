@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ahrsd.core.gravity import EARTH_RADIUS_M, normal_gravity_m_s2
-
-EARTH_RATE_RAD_S = 7.292e-5         # Earth rotation rate (WGS-84 7.292115e-5 rad/s, rounded)
+from ahrsd.core.gravity import EARTH_RADIUS_M, EARTH_RATE_RAD_S, normal_gravity_m_s2
 
 
 def gravity_ned_m_s2(lat_deg, alt_m=0.0) -> np.ndarray:

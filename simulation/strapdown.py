@@ -23,7 +23,7 @@ from scipy.integrate import cumulative_trapezoid
 from scipy.spatial.transform import Rotation
 
 from ahrsd.core.gravity import EARTH_RADIUS_M, normal_gravity_m_s2
-from ahrsd.simulation.gravity import EARTH_RATE_RAD_S
+from ahrsd.core.gravity import EARTH_RATE_RAD_S
 
 
 @dataclass(frozen=True, eq=False)

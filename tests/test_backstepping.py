@@ -507,3 +507,18 @@ def test_estimator_without_gyro_is_a_refusal_with_its_reason(tilt10):
     res = bs.fit_backstepping(MagFitInput(data.t_s, data.mag_ut, data.accel_m_s2), truth["field"], attitude="mekf")
     assert res.refused is not None and "gyro" in res.refused
 
+
+
+def test_centripetal_direction_is_the_turn_of_a_horizontal_track_not_the_hull_pitching():
+    """A boat pitching in a wave without turning feels no centripetal force (its velocity stays horizontal);
+    one turning at ψ̇ while rolled by φ feels ψ̇·V along the horizontal right direction, in body axes
+    [0, cos φ, −sin φ]. Truth from scipy: the NED right vector rotated into the body."""
+    roll, pitch, yaw = np.radians([20.0, -8.0, 40.0])
+    rot = Rotation.from_euler("ZYX", [[yaw, pitch, roll]])
+    down = rot.inv().apply([0.0, 0.0, 1.0])
+    rate_pitch = np.array([[0.0, 0.3 * np.cos(roll), -0.3 * np.sin(roll)]])   # θ̇ = 0.3 rad/s, no turn
+    assert np.allclose(vc.centripetal_direction(rate_pitch, down), 0.0, atol=1e-12)
+    psi_dot = 0.15
+    w_body = rot.inv().apply([0.0, 0.0, psi_dot])            # a pure turn about the vertical
+    right_body = rot.inv().apply([-np.sin(yaw), np.cos(yaw), 0.0])
+    assert np.allclose(vc.centripetal_direction(w_body, down), psi_dot * right_body, atol=1e-9)

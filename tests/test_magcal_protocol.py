@@ -26,7 +26,7 @@ from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.core.sample import make_sample
 
 from support.field_data import HARD_IRON_UT, MAG_NOISE_UT, SOFT_DISTORTION, level_turns, trajectory
-from support.magcal_host import Clock, FakeHost, cmd, drive, wire
+from support.magcal_host import Clock, FakeHost, cmd, drive, tick_settled, wire
 
 @pytest.fixture
 def setup(tmp_path):
@@ -211,3 +211,133 @@ def test_router_ignores_broadcast_unless_configured_and_refuses_unsigned(tmp_pat
     proto.register(signed_router)
     signed_router.handle(cmd(CMD_START), None, broadcast=False)
     assert not proto.calibrating and acks[-1].result == mavlink.MAV_RESULT_DENIED
+
+
+# ------------------------------------------------------------------ GNSS course and a known heading
+
+
+def gps_raw_int(t_valid_s, course_rad, speed_m_s, fix_type=3, vel_acc_mm_s=0):
+    """GPS_RAW_INT as an autopilot sends it (cog cdeg, vel cm/s), packed and parsed by pymavlink."""
+    return wire(mavlink.MAVLink_gps_raw_int_message(
+        int(t_valid_s * 1e6), fix_type, 364200000, 549800000, 1345000, 80, 120, int(round(speed_m_s * 100)),
+        int(round(np.degrees(course_rad) * 100)) % 36000, 12, 0, 0, 0, vel_acc_mm_s, 0, 0))
+
+
+def test_gnss_messages_reach_the_session_once_and_only_with_a_velocity(tmp_path):
+    """GPS_RAW_INT through drivers/gnss_mavlink.py: a repeated fix (same time_usec) is fed once, an unknown
+    course is not fed, GLOBAL_POSITION_INT is left alone by default (the autopilot may fuse our heading), and
+    the fix is stamped with the latest sample time minus gnss_latency_s."""
+    host = FakeHost(tmp_path)
+    proto = MagCalProtocol(host, MagCalSettings(gnss_latency_s=0.25), clock=Clock())
+    proto.handle_start(cmd(CMD_START))
+    proto.on_sample(make_sample(10.0, np.zeros(3), np.array([0, 0, -9.8]), np.array([20.0, 0, 40.0])),
+                    SimpleNamespace(roll_rad=0.0, pitch_rad=0.0, yaw_rad=0.0, rate_body_rad_s=np.zeros(3)))
+    proto.on_gnss_message(gps_raw_int(9.9, np.radians(123.45), 2.5))
+    proto.on_gnss_message(gps_raw_int(9.9, np.radians(123.45), 2.5))          # the same fix again
+    unknown_cog = wire(mavlink.MAVLink_gps_raw_int_message(11_000_000, 3, 1, 1, 0, 0, 0, 200, 0xFFFF, 9))
+    proto.on_gnss_message(unknown_cog)
+    proto.on_gnss_message(wire(mavlink.MAVLink_global_position_int_message(0, 364200000, 549800000, 0, 0,
+                                                                           -100, 173, 0, 0)))
+    s = proto.session
+    assert proto.course_fed == 1 and proto.course_unusable == 1 and s._n_course == 1
+    t, course, speed, _acc = s._course[0]
+    assert t == pytest.approx(10.0 - 0.25) and np.degrees(course) == pytest.approx(123.45, abs=0.01)
+    assert speed == pytest.approx(2.5)
+    proto.close()
+
+
+def _drive_vehicle(proto, clock, block, host, courses=None, until=None):
+    """Feed a fieldcal_sim recording (truth attitude as the estimate) and GPS_RAW_INT at arrival times."""
+    from support.field_vehicle import truth_euler
+
+    eul = truth_euler(block)
+    next_tick, k = 0.0, 0
+    for i in range(len(block.t_s)):
+        t = float(block.t_s[i])
+        clock.t = 1000.0 + t
+        mag = host.cal.mag.apply(block.mag_ut[i])
+        proto.on_sample(make_sample(t, block.gyro_rad_s[i], block.accel_m_s2[i], mag),
+                        SimpleNamespace(roll_rad=eul[i, 2], pitch_rad=eul[i, 1], yaw_rad=eul[i, 0],
+                                        rate_body_rad_s=block.truth_gyro_rad_s[i]))
+        while courses is not None and k < courses[0].size and courses[0][k] <= t:
+            proto.on_gnss_message(gps_raw_int(courses[1][k], courses[2][k], courses[3][k]))
+            k += 1
+        if t >= next_tick:
+            next_tick = t + 0.1
+            tick_settled(proto)
+            if until is not None and until():
+                return i
+    return len(block.t_s) - 1
+
+
+def test_gnss_course_over_mavlink_sets_the_heading_offset(tmp_path):
+    """GPS_RAW_INT course from the simulation truth (0.5° noise, 0.1 s latency, a 0.18 m/s current) during a
+    ±2° session: the accepted calibration's heading on other attitudes, offset included, is within 0.4°."""
+    from support.field_vehicle import SITE_FIELD, course_fixes, heading_rms_deg, injected_iron, record, vehicle
+
+    sc = vehicle(2.0, straight_runs=True)
+    block = record(sc, 300.0)
+    host = FakeHost(tmp_path)
+    host.reference_field = lambda lat_deg=None, lon_deg=None: SITE_FIELD
+    clock = Clock()
+    proto = MagCalProtocol(host, MagCalSettings(vehicle_type="level", gnss_latency_s=0.1), clock=clock)
+    try:
+        assert proto.handle_start(cmd(CMD_START)) == mavlink.MAV_RESULT_ACCEPTED
+        _drive_vehicle(proto, clock, block, host, course_fixes(sc, 300.0, current_ne_m_s=(0.1, -0.15)),
+                       until=lambda: bool(host.of_type("MAG_CAL_REPORT")))
+        assert host.of_type("MAG_CAL_REPORT")[-1].cal_status == CalStatus.SUCCESS, host.texts()
+        assert proto.course_fed > 100
+        texts = host.texts()
+        assert any("GNSS course" in t and "offset +-" in t for t in texts), texts
+        assert proto.handle_accept(cmd(CMD_ACCEPT)) == mavlink.MAV_RESULT_ACCEPTED
+        total = heading_rms_deg(host.cal.mag, injected_iron())
+        print(f"\nGPS_RAW_INT course: heading RMS on other attitudes incl. the offset {total:.2f} deg")
+        assert total <= 0.4
+    finally:
+        proto.close()
+
+
+def test_without_gnss_the_report_says_the_offset_is_undetermined_and_a_known_heading_sets_it(tmp_path):
+    from support.field_vehicle import SITE_FIELD, heading_errors_deg, injected_iron, record, vehicle
+    from scipy.spatial.transform import Rotation
+
+    block = record(vehicle(2.0), 200.0)
+    host = FakeHost(tmp_path)
+    host.reference_field = lambda lat_deg=None, lon_deg=None: SITE_FIELD
+    clock = Clock()
+    proto = MagCalProtocol(host, MagCalSettings(vehicle_type="level"), clock=clock)
+    try:
+        proto.handle_start(cmd(CMD_START))
+        _drive_vehicle(proto, clock, block, host, until=lambda: bool(host.of_type("MAG_CAL_REPORT")))
+        assert proto.session.result.offset_source == "undetermined"
+        assert any("offset undetermined: no usable GNSS course" in t for t in host.texts()), host.texts()
+        before = proto.session.result.model
+        # hold still at a known true heading of 70°, level, for a second: the fixed-yaw command
+        iron = injected_iron()
+        rot = Rotation.from_euler("ZYX", [[np.radians(70.0), 0.0, 0.0]])
+        raw = rot.inv().apply(SITE_FIELD.ned_ut) @ iron.soft_iron.T + iron.hard_iron_ut
+        for j in range(120):
+            proto.on_sample(make_sample(300.0 + j * 0.01, np.zeros(3), np.array([0.0, 0.0, -9.80665]),
+                                        host.cal.mag.apply(raw[0])),
+                            SimpleNamespace(roll_rad=0.0, pitch_rad=0.0, yaw_rad=np.radians(70.0),
+                                            rate_body_rad_s=np.zeros(3)))
+        # an operator who says 72° while the vehicle points at 70° gets a calibration that reads 2° high...
+        assert proto.handle_fixed_yaw(cmd(CMD_FIXED_YAW, 72.0, 0, 0, 0)) == mavlink.MAV_RESULT_ACCEPTED
+        assert not host.applied                     # the result is changed, saving is still the operator's accept
+        told_wrong = float(np.mean(heading_errors_deg(proto.session.result.model, iron)))
+        # ...and the right heading puts the offset back (the known heading sets it, whatever was there)
+        assert proto.handle_fixed_yaw(cmd(CMD_FIXED_YAW, 70.0, 0, 0, 0)) == mavlink.MAV_RESULT_ACCEPTED
+        after = proto.session.result
+        assert after.offset_source == "known heading"
+        assert any("from the known heading" in t for t in host.texts())
+        mean_before = float(np.mean(heading_errors_deg(before, iron)))
+        mean_after = float(np.mean(heading_errors_deg(after.model, iron)))
+        print(f"\nknown heading: mean heading error {mean_before:+.2f} -> told 72: {told_wrong:+.2f}, "
+              f"told 70: {mean_after:+.2f} deg")
+        # (a rotation about the sensor's z axis: a pure heading shift when level, slightly less at ±30° tilt)
+        assert abs(told_wrong - mean_after - 2.0) < 0.25
+        assert abs(mean_after) < 0.1
+        assert proto.handle_accept(cmd(CMD_ACCEPT)) == mavlink.MAV_RESULT_ACCEPTED
+        assert np.allclose(host.cal.mag.soft_iron, after.model.soft_iron)
+    finally:
+        proto.close()

@@ -140,7 +140,7 @@ def test_temperature_drift_follows_the_warm_up():
 
 
 def test_earth_rate_is_sensed_only_when_asked():
-    from ahrsd.simulation.gravity import EARTH_RATE_RAD_S
+    from ahrsd.core.gravity import EARTH_RATE_RAD_S
 
     b = simulate("static", 1.0, rate_hz=10.0, errors="ideal", earth_rate=True)
     sensed = b.gyro_rad_s - b.truth_gyro_rad_s

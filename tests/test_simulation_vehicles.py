@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from ahrsd.simulation import DEFAULT_SITE, SCENARIOS, Site, make_scenario, open_stream, simulate
 from ahrsd.core.gravity import EARTH_RADIUS_M, normal_gravity_m_s2
-from ahrsd.simulation.gravity import EARTH_RATE_RAD_S
+from ahrsd.core.gravity import EARTH_RATE_RAD_S
 from ahrsd.simulation.strapdown import mechanise_ned
 
 VEHICLES = ("boat", "car", "plane")

@@ -57,7 +57,17 @@ class FakeHost:
         return [m for m in self.sent if m.get_type() == name]
 
     def texts(self):
-        return [m.text for m in self.of_type("STATUSTEXT")]
+        """STATUSTEXT lines, MAVLink 2 chunks (same id, chunk_seq 0, 1, ...) joined back into one line."""
+        out, chunks = [], {}
+        for m in self.of_type("STATUSTEXT"):
+            if m.id == 0:
+                out.append(m.text)
+            elif m.chunk_seq == 0:
+                chunks[m.id] = len(out)
+                out.append(m.text)
+            elif m.id in chunks:
+                out[chunks[m.id]] += m.text
+        return out
 
 
 class Clock:
@@ -80,6 +90,14 @@ def body_rate(traj, i):
     return psi_dot * np.array([-np.sin(p), np.sin(r) * np.cos(p), np.cos(r) * np.cos(p)])
 
 
+def tick_settled(proto) -> None:
+    """One protocol tick; a fit it started is waited for and collected (deterministic tests)."""
+    proto.tick()
+    if proto._fit_future is not None:
+        proto._fit_future.result()
+        proto.tick()
+
+
 def drive(proto, clock, traj, host, until=None, max_t=None):
     """Feed the trajectory as calibrated samples; tick at 10 Hz of sample time (clock follows sample time)."""
     next_tick = 0.0
@@ -95,10 +113,7 @@ def drive(proto, clock, traj, host, until=None, max_t=None):
         proto.on_sample(s, est)
         if t >= next_tick:
             next_tick = t + 0.1
-            proto.tick()
-            if proto._fit_future is not None:
-                proto._fit_future.result()  # deterministic: let the worker finish before the next tick
-                proto.tick()
+            tick_settled(proto)
             if until is not None and until():
                 return t
     return traj.t[-1]

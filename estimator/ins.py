@@ -1,0 +1,547 @@
+"""`ins`: GNSS-aided attitude and navigation — a loosely coupled INS/GNSS error-state Kalman filter.
+
+Seed 004 §7 (NED mechanisation with Earth rate, transport rate and normal gravity, `ins_mechanisation.py`) and
+§10 (loose coupling, the 15 error states of §10.2 — attitude, velocity, position, gyro bias, accelerometer
+bias — plus the three gyro scale factors, closed-loop feedback). GNSS velocity and position are fused at their time of validity against a short history of the
+state (fixes arrive 50–200 ms late: the delayed-measurement idea of ArduPilot EKF3's fusion time horizon),
+through the antenna lever arm, weighted by the accuracies the receiver reports, behind a χ² innovation gate.
+The magnetometer corrects heading with mekf's disturbance rejection (`mag_heading.py`, the same code). Before
+the first fix and after a long outage the accelerometer levels the attitude as in mekf (flagged); in a short
+outage the filter dead-reckons.
+
+The arithmetic is compiled with numba (`ins_core.py`). Parameters: `InsParams`; defaults `DEFAULT_INS_PARAMS`.
+See docs/estimator.md ("The aided estimator: ins").
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+from scipy.special import chdtri   # χ² inverse survival function (scipy.stats costs 1.4 s to import)
+
+from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, NavState
+from ahrsd.core.gnss import GnssFix, GnssFixType
+from ahrsd.core.sample import ImuSample
+
+from . import ins_core as core
+from . import mag_heading as mag
+from .mekf import (
+    RELEARN_GATE_OPEN_S,
+    after_init_flags,
+    estimate_flags,
+    initial_attitude,
+    uninitialised_estimate,
+    with_overrides,
+)
+from .mekf_core import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
+from .rotations import quat_to_dcm
+
+log = logging.getLogger(__name__)
+_DEG = math.pi / 180.0
+
+
+@dataclass(frozen=True)
+class InsParams:
+    """Tuning of the ins. SI units, angles in rad. Defaults for an ADIS16405-class IMU and a consumer GNSS
+    receiver on a boat, car or aircraft."""
+
+    # --- inertial sensors (process noise)
+    gyro_noise_rad_s_sqrt_hz: float = 2.0 * _DEG / 60.0
+    """Gyro angle random walk, rad/s/√Hz (ADIS16405 datasheet 2 °/√h)."""
+    gyro_bias_walk_rad_s_sqrt_s: float = 2e-5
+    """Gyro bias random walk, rad/s/√s: the ADIS16405 bias instability (0.007 °/s) over a 100 s correlation
+    time, σ·√(2/τ)."""
+    accel_noise_m_s2_sqrt_hz: float = 0.01
+    """Accelerometer velocity random walk, m/s²/√Hz: three times the ADIS16405 datasheet's 0.2 m/s/√h, for the
+    scale-factor and misalignment errors (0.3 %, 0.1°) the filter does not model."""
+    accel_bias_walk_m_s2_sqrt_s: float = 3e-4
+    """Accelerometer bias random walk, m/s²/√s (0.2 mg bias instability over 100 s)."""
+    init_gyro_bias_sigma_rad_s: float = 0.5 * _DEG
+    init_gyro_scale_sigma: float = 0.005
+    """1σ of each gyro axis's scale-factor error at start-up (0.5 %; the simulated ADIS16405 has 0.3 %); 0
+    removes the three scale states (the 15-state filter)."""
+    gyro_scale_walk_sqrt_s: float = 1e-5
+    """Random walk of the scale-factor errors, 1/√s."""
+    gyro_scale_clip: float = 0.05
+    init_accel_bias_sigma_m_s2: float = 0.1
+    """1σ of the accelerometer bias at start-up, m/s² (10 mg)."""
+    gyro_bias_clip_rad_s: float = 2.0 * _DEG
+    accel_bias_clip_m_s2: float = 0.5
+    cov_period_s: float = 0.01
+    """The covariance is propagated (and the magnetometer and levelling updates run) every this long, with
+    the summed increments of the samples in between, s. 0.01 s = every 8 samples at 819.2 SPS."""
+    earth_rotation: bool = True
+    """Earth rate, transport rate and Coriolis in the mechanisation (seed 004 eqs. 14–16, 21)."""
+    earth_model: str = "wgs84"
+    """Radii of curvature for position (eq. 17) and transport rate (eq. 16): "wgs84" (the ellipsoid receivers
+    report positions on) or "sphere" (seed 004's R0 = 6 378 137 m, for tracks computed on that sphere)."""
+
+    # --- GNSS
+    lever_arm_m: tuple = (0.0, 0.0, 0.0)
+    """Antenna position relative to the IMU in the body frame (FRD), m."""
+    default_h_acc_m: float = 3.0
+    """Horizontal position 1σ used when the fix reports none (NaN: NMEA), m."""
+    default_v_acc_m: float = 6.0
+    """Vertical position 1σ used when the fix reports none, m."""
+    default_s_acc_m_s: float = 0.3
+    """Velocity 1σ per axis used when the fix reports no speed accuracy, m/s."""
+    min_h_acc_m: float = 0.3
+    min_v_acc_m: float = 0.5
+    min_s_acc_m_s: float = 0.03
+    """Floors of the reported accuracies (receivers report optimistic figures in good conditions)."""
+    use_vertical_velocity: bool = True
+    """Fuse the vertical velocity when the fix has one (NaN in GPS_RAW_INT and NMEA)."""
+    gate_false_alarm: float = 1e-5
+    """Innovation gate: a fix is rejected when the χ² of its normalised innovation (velocity and position
+    separately, 2 or 3 degrees of freedom) exceeds the (1 − this) quantile: 25.9 for 3 dof at 1e-5."""
+    reject_reset_s: float = 5.0
+    """A run of rejected velocities (positions) spanning this long resets the velocity (position) to the fix,
+    without touching the attitude: a real, persistent change is re-acquired, s."""
+    gnss_timeout_s: float = 2.5
+    """No fix fused for this long: GNSS_OUTAGE (dead reckoning), s."""
+    dead_reckon_s: float = 60.0
+    """No fix fused for this long: the accelerometer levels the attitude again (unaided behaviour), s."""
+    outage_reset_s: float = 5.0
+    """The first fix after an outage longer than this sets velocity and position (attitude untouched): the
+    dead-reckoned velocity error, fused, would move the tilt by tenths of a degree at once, s."""
+    nav_drop_s: float = 120.0
+    """No fix fused for this long: velocity and position are dropped (NavState None) until a fix sets them
+    again, s."""
+    nav_init_sigma_tilt_rad: float = 5.0 * _DEG
+    """1σ tilt assumed when a fix first sets velocity and position (and after outage_reset_s): the levelled
+    tilt leans into any sustained acceleration (a/g), which the GNSS velocity then corrects in seconds, rad."""
+    max_delay_s: float = 1.0
+    """Fixes whose time of validity is more than this behind the newest sample are not fused, s (the history
+    holds 1024 samples: 1.25 s at 819.2 SPS)."""
+
+    # --- accelerometer levelling (unaided: before the first fix and after dead_reckon_s)
+    level_noise_m_s2: float = 0.15
+    level_reject_m_s2: float = 2.0
+    level_gate_rad: float = 15.0 * _DEG
+    level_lowpass_tau_s: float = 1.5
+    level_recover_s: float = 10.0
+    """As mekf's acc_noise_m_s2, acc_reject_m_s2, acc_gate_rad, acc_lowpass_tau_s, acc_gate_recover_s."""
+
+    # --- magnetometer heading (mag_heading.py, mekf's check): as MekfParams
+    mag_enabled: bool = True
+    mag_noise_ut: float = 0.7
+    mag_heading_noise_rad: float = 0.12
+    mag_heading_noise_rest_rad: float = 0.03
+    mag_norm_tol: float = 0.1
+    mag_dip_tol_rad: float = 15.0 * _DEG
+    mag_min_undisturbed_s: float = 0.5
+    mag_new_time_s: float = 20.0
+    mag_new_min_rate_rad_s: float = 20.0 * _DEG
+    mag_ref_tau_s: float = 20.0
+    mag_gate_sigma: float = 6.0
+    mag_reject_max_s: float = 60.0
+    mag_unavailable_s: float = 10.0
+
+    # --- start-up and time gaps
+    init_sigma_tilt_rad: float = 5.0 * _DEG
+    init_sigma_yaw_rad: float = 10.0 * _DEG
+    init_min_time_s: float = 1.0
+    converged_tilt_rad: float = 1.0 * _DEG
+    converged_yaw_rad: float = 3.0 * _DEG
+    large_dt_s: float = 0.1
+    reinit_dt_s: float = 2.0
+
+    def to_array(self, declination_rad: float) -> np.ndarray:
+        p = np.zeros(core.P_SIZE)
+        p[core.P_GYRO_NOISE] = self.gyro_noise_rad_s_sqrt_hz
+        p[core.P_GYRO_BIAS_WALK] = self.gyro_bias_walk_rad_s_sqrt_s
+        p[core.P_GYRO_SCALE_WALK] = self.gyro_scale_walk_sqrt_s if self.init_gyro_scale_sigma > 0 else 0.0
+        p[core.P_GYRO_SCALE_CLIP] = self.gyro_scale_clip
+        p[core.P_ACC_NOISE_DENS] = self.accel_noise_m_s2_sqrt_hz
+        p[core.P_ACC_BIAS_WALK] = self.accel_bias_walk_m_s2_sqrt_s
+        p[core.P_GYRO_BIAS_CLIP] = self.gyro_bias_clip_rad_s
+        p[core.P_ACC_BIAS_CLIP] = self.accel_bias_clip_m_s2
+        p[core.P_COV_PERIOD] = self.cov_period_s
+        p[core.P_EARTH_ROT] = 1.0 if self.earth_rotation else 0.0
+        if self.earth_model not in ("wgs84", "sphere"):
+            raise ValueError(f"earth_model must be 'wgs84' or 'sphere', got {self.earth_model!r}")
+        p[core.P_SPHERE] = 1.0 if self.earth_model == "sphere" else 0.0
+        p[core.P_LEVEL_NOISE] = self.level_noise_m_s2
+        p[core.P_LEVEL_REJECT] = self.level_reject_m_s2
+        p[core.P_LEVEL_GATE] = self.level_gate_rad
+        p[core.P_LEVEL_TAU] = self.level_lowpass_tau_s
+        p[core.P_LEVEL_RECOVER] = self.level_recover_s
+        p[core.P_MAG_ENABLED] = 1.0 if self.mag_enabled else 0.0
+        p[core.P_DECLINATION] = declination_rad
+        p[core.P_LEVER : core.P_LEVER + 3] = np.asarray(self.lever_arm_m, dtype=float).reshape(3)
+        p[core.P_GATE_CHI2 : core.P_GATE_CHI2 + 3] = chdtri([1.0, 2.0, 3.0], self.gate_false_alarm)
+        p[core.P_REJECT_RESET] = self.reject_reset_s
+        p[core.P_DEAD_RECKON] = self.dead_reckon_s
+        p[core.P_OUTAGE_RESET] = self.outage_reset_s
+        p[core.P_NAV_DROP] = self.nav_drop_s
+        p[core.P_MAX_DELAY] = self.max_delay_s
+        p[core.P_LARGE_DT] = self.large_dt_s
+        p[core.P_REINIT_DT] = self.reinit_dt_s
+        p[core.P_INIT_TIME] = self.init_min_time_s
+        p[core.P_CONV_TILT] = self.converged_tilt_rad
+        p[core.P_CONV_YAW] = self.converged_yaw_rad
+        p[core.P_GNSS_TIMEOUT] = self.gnss_timeout_s
+        p[core.P_NAV_INIT_TILT] = self.nav_init_sigma_tilt_rad
+        m = core.P_MAG
+        p[m + mag.MP_NOISE] = self.mag_noise_ut
+        p[m + mag.MP_HEADING_NOISE] = self.mag_heading_noise_rad
+        p[m + mag.MP_HEADING_NOISE_REST] = self.mag_heading_noise_rest_rad
+        p[m + mag.MP_NORM_TOL] = self.mag_norm_tol
+        p[m + mag.MP_DIP_TOL] = self.mag_dip_tol_rad
+        p[m + mag.MP_MIN_UNDIST] = self.mag_min_undisturbed_s
+        p[m + mag.MP_NEW_TIME] = self.mag_new_time_s
+        p[m + mag.MP_NEW_MIN_RATE] = self.mag_new_min_rate_rad_s
+        p[m + mag.MP_REF_TAU] = self.mag_ref_tau_s
+        p[m + mag.MP_GATE] = self.mag_gate_sigma
+        p[m + mag.MP_REJECT_MAX] = self.mag_reject_max_s
+        p[m + mag.MP_UNAVAILABLE] = self.mag_unavailable_s
+        return p
+
+
+DEFAULT_INS_PARAMS = InsParams()
+
+
+@dataclass
+class GnssCounters:
+    """What became of the fixes offered to `update_gnss` (each fix counts once in `offered`)."""
+
+    offered: int = 0
+    fused_velocity: int = 0
+    fused_position: int = 0
+    rejected_velocity: int = 0      # χ² gate (a spike)
+    rejected_position: int = 0      # χ² gate (a jump)
+    reset_velocity: int = 0         # after reject_reset_s of rejections: re-acquired
+    reset_position: int = 0
+    nav_initialised: int = 0        # first fix, or first after nav_drop_s
+    nav_reset_after_outage: int = 0  # first fix after outage_reset_s: velocity and position set from it
+    invalid: int = 0                # no fix, non-finite position and velocity, bad accuracies
+    time_backwards: int = 0         # not newer than the previous fix
+    too_old: int = 0                # older than max_delay_s / the history
+    queued: int = 0                 # ahead of the IMU: held until the samples reach it
+    before_init: int = 0            # offered before the attitude was initialised
+
+    def as_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+_TWO_PI = 2.0 * math.pi
+_MAX_QUEUED = 16
+
+
+class Ins:
+    """The aided estimator (Estimator protocol plus `update_gnss(fix)`).
+
+    `update(sample) -> AttitudeEstimate` with `nav=NavState` once a fix has set velocity and position;
+    `update_gnss(fix) -> int` (core.R_* bits of what happened; never raises on bad input, counts it in
+    `gnss_counters`); `reset()`, `set_declination(rad)`, `relearn_field_reference()`; read-only `covariance`
+    (18×18), `gyro_bias_rad_s`, `gyro_scale`, `accel_bias_m_s2`, `last_nis` (velocity, position).
+    """
+
+    name = "ins"
+
+    def __init__(self, declination_rad: float = 0.0, params: InsParams | None = None, **overrides):
+        self.params = with_overrides(params or DEFAULT_INS_PARAMS, overrides, "ins")
+        self._declination = float(declination_rad)
+        self._par = self.params.to_array(self._declination)
+        self._x = np.zeros(core.X_SIZE)
+        self._P = np.zeros((core.N_ERR, core.N_ERR))
+        self._hist = np.zeros((core.H_LEN, core.H_SIZE))
+        self._out = np.zeros(core.O_SIZE)
+        self._initialised = False
+        self._reinit_pending = False
+        self._pending_flags = 0
+        self._queue: list[GnssFix] = []
+        self._last_fix_t = -math.inf
+        self.gnss_counters = GnssCounters()
+        self._step = core.fast_step()
+
+    # ----------------------------------------------------------------------- Estimator protocol
+    def reset(self) -> None:
+        self._x[:] = 0.0
+        self._P[:] = 0.0
+        self._initialised = False
+        self._reinit_pending = False
+        self._pending_flags = 0
+        self._queue.clear()
+        self._last_fix_t = -math.inf
+
+    def set_declination(self, declination_rad: float) -> None:
+        """Magnetic declination (rad): the magnetometer heading is compared with true heading − declination,
+        and the estimate's yaw/q are reported relative to magnetic north (as every estimator)."""
+        self._declination = float(declination_rad)
+        self._par[core.P_DECLINATION] = self._declination
+
+    def relearn_field_reference(self) -> None:
+        """As Mekf.relearn_field_reference: forget the learned field magnitude/dip, keep everything else."""
+        mag.relearn_reference(self._x, core.X_MAG, RELEARN_GATE_OPEN_S)
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """Error covariance 18×18 [δθ NED (rad), δv NED (m/s), δp NED (m), δb_g (rad/s), δb_a (m/s²), δs_g]."""
+        return self._P.copy()
+
+    @property
+    def gyro_bias_rad_s(self) -> np.ndarray:
+        return self._x[core.X_BG : core.X_BG + 3].copy()
+
+    @property
+    def gyro_scale(self) -> np.ndarray:
+        """Estimated gyro scale-factor errors per axis (ω_meas = (1 + s) ω + b), fraction."""
+        return self._x[core.X_SG : core.X_SG + 3].copy()
+
+    @property
+    def accel_bias_m_s2(self) -> np.ndarray:
+        return self._x[core.X_BA : core.X_BA + 3].copy()
+
+    @property
+    def last_nis(self) -> tuple[float, float]:
+        """Normalised innovation squared of the last velocity and position fusion attempts."""
+        return float(self._x[core.X_NIS_V]), float(self._x[core.X_NIS_P])
+
+    def true_attitude_q_wxyz(self) -> np.ndarray:
+        """The filter's own attitude quaternion, body → true-north NED."""
+        return self._x[core.X_Q : core.X_Q + 4].copy()
+
+    def update(self, sample: ImuSample) -> AttitudeEstimate:
+        g = sample.gyro_rad_s
+        a = sample.accel_m_s2
+        m = sample.mag_ut
+        sflags = int(sample.flags)
+        extra = 0
+        if self._initialised:
+            f = self._step(self._x, self._P, self._hist, self._par, sample.t_s,
+                           g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], sflags, self._out)
+            if not f & NEEDS_INIT:
+                if self._queue:
+                    self._fuse_queued()
+                return self._estimate(sample.t_s, f)
+            self._initialised = False
+            self._reinit_pending = True
+            extra = f & ~NEEDS_INIT
+        if not self._initialise(sample.t_s, g, a, m, sflags):
+            return self._estimate_uninitialised(sample, extra)
+        return self._estimate(sample.t_s, self._after_init_flags() | extra)
+
+    # ----------------------------------------------------------------------- GNSS
+    def update_gnss(self, fix: GnssFix) -> int:
+        """Offer one fix. Returns core.R_* bits (0 when it was not fused or was held for later). Bad fixes
+        (no fix, NaN fields, time not increasing, older than max_delay_s, χ² outliers) are counted in
+        `gnss_counters`, logged, and flag GNSS_REJECTED on the next estimate; never raises."""
+        c = self.gnss_counters
+        c.offered += 1
+        try:
+            t = float(fix.t_s)
+        except (TypeError, ValueError):
+            t = math.nan
+        if not math.isfinite(t):
+            c.invalid += 1
+            self._reject("non-finite time", fix)
+            return 0
+        if t <= self._last_fix_t:
+            c.time_backwards += 1
+            self._reject(f"time {t:.3f} s not after the previous fix's {self._last_fix_t:.3f} s", fix)
+            return 0
+        if not self._initialised:
+            c.before_init += 1
+            return 0
+        if t > self._x[core.X_T_LAST]:
+            if len(self._queue) >= _MAX_QUEUED:
+                c.invalid += 1
+                self._reject("too far ahead of the IMU samples", fix)
+                return 0
+            c.queued += 1
+            self._last_fix_t = t
+            self._queue.append(fix)
+            return 0
+        self._last_fix_t = t
+        return self._fuse(fix)
+
+    def _fuse_queued(self) -> None:
+        now = self._x[core.X_T_LAST]
+        while self._queue and self._queue[0].t_s <= now:
+            self._fuse(self._queue.pop(0))
+
+    def _fuse(self, fix: GnssFix) -> int:
+        c = self.gnss_counters
+        p = self.params
+        try:
+            fix_type = int(fix.fix_type)
+            lat = float(fix.lat_deg)
+            lon = float(fix.lon_deg)
+            alt = float(fix.alt_m)
+            v = np.asarray(fix.vel_ned_m_s, dtype=float).reshape(3)
+            h_acc, v_acc, s_acc = float(fix.h_acc_m), float(fix.v_acc_m), float(fix.s_acc_m_s)
+        except (TypeError, ValueError, AttributeError):
+            c.invalid += 1
+            self._reject("malformed fix", fix)
+            return 0
+        if fix_type < GnssFixType.FIX_2D:
+            c.invalid += 1
+            self._reject(f"no fix (type {fix_type})", fix)
+            return 0
+        use_pos = math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90.0 and abs(lon) <= 360.0
+        use_alt = use_pos and fix_type >= GnssFixType.FIX_3D and math.isfinite(alt) and abs(alt) < 1e5
+        use_vel = bool(np.all(np.isfinite(v[:2]))) and float(np.max(np.abs(v[:2]))) < 600.0
+        use_vd = use_vel and p.use_vertical_velocity and math.isfinite(v[2]) and abs(v[2]) < 600.0
+        if not (use_pos or use_vel):
+            c.invalid += 1
+            self._reject("neither position nor velocity is finite", fix)
+            return 0
+        sig_h = _accuracy(h_acc, p.default_h_acc_m, p.min_h_acc_m)
+        sig_v = _accuracy(v_acc, p.default_v_acc_m, p.min_v_acc_m)
+        sig_s = _accuracy(s_acc, p.default_s_acc_m_s, p.min_s_acc_m_s)
+        res = core.fuse_gnss(
+            self._x, self._P, self._hist, self._par, float(fix.t_s),
+            math.radians(lat) if use_pos else 0.0, math.radians(lon) if use_pos else 0.0,
+            alt if use_alt else 0.0, v[0] if use_vel else 0.0, v[1] if use_vel else 0.0,
+            v[2] if use_vd else 0.0, sig_h, sig_v, sig_s, use_pos, use_alt, use_vel, use_vd,
+        )
+        if res & core.R_TOO_OLD:
+            c.too_old += 1
+            self._reject("older than the state history", fix)
+        if res & core.R_NAV_INIT:
+            c.nav_initialised += 1
+            log.info("ins: velocity and position set from the GNSS fix at t=%.3f s", fix.t_s)
+        if res & core.R_OUTAGE_RESET:
+            c.nav_reset_after_outage += 1
+            log.info("ins: GNSS back after an outage: velocity and position reset to the fix at t=%.3f s", fix.t_s)
+        c.fused_velocity += bool(res & core.R_VEL_FUSED)
+        c.fused_position += bool(res & core.R_POS_FUSED)
+        if res & core.R_VEL_REJECTED:
+            c.rejected_velocity += 1
+            self._reject(f"velocity innovation χ² {self._x[core.X_NIS_V]:.1f}", fix)
+        if res & core.R_POS_REJECTED:
+            c.rejected_position += 1
+            self._reject(f"position innovation χ² {self._x[core.X_NIS_P]:.1f}", fix)
+        if res & core.R_VEL_RESET:
+            c.reset_velocity += 1
+            log.warning("ins: GNSS velocity rejected for %.1f s: velocity reset to the fix", p.reject_reset_s)
+        if res & core.R_POS_RESET:
+            c.reset_position += 1
+            log.warning("ins: GNSS position rejected for %.1f s: position reset to the fix", p.reject_reset_s)
+        return res
+
+    def _reject(self, why: str, fix) -> None:
+        self._pending_flags |= int(EstimateFlags.GNSS_REJECTED)
+        log.info("ins: GNSS fix rejected (%s)", why)
+
+    # ----------------------------------------------------------------------- internals
+    def _initialise(self, t_s, g, a, m, sample_flags: int) -> bool:
+        valid = input_validity(sample_flags, g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2])
+        if not (valid & IN_ACC_OK) or not (valid & IN_GYRO_OK):
+            return False
+        an = float(np.linalg.norm(a))
+        if an < 2.0 or an > 30.0:
+            return False
+        p = self.params
+        use_mag = bool(valid & IN_MAG_OK) and p.mag_enabled
+        q_mag = initial_attitude(a, m if use_mag else None)
+        # the filter's frame is true north: q_true = q_z(declination) ⊗ q_mag
+        hd = 0.5 * self._declination
+        w, x_, y, z = q_mag
+        c, s = math.cos(hd), math.sin(hd)
+        q0 = np.array([c * w - s * z, c * x_ - s * y, c * y + s * x_, c * z + s * w])
+        x = self._x
+        keep_bg = x[core.X_BG : core.X_BG + 3].copy() if self._reinit_pending else np.zeros(3)
+        keep_ba = x[core.X_BA : core.X_BA + 3].copy() if self._reinit_pending else np.zeros(3)
+        keep_sg = x[core.X_SG : core.X_SG + 3].copy() if self._reinit_pending else np.zeros(3)
+        keep_mag = x[core.X_MAG : core.X_MAG + mag.MS_SIZE].copy() if self._reinit_pending else None
+        x[:] = 0.0
+        x[core.X_Q : core.X_Q + 4] = q0
+        x[core.X_BG : core.X_BG + 3] = keep_bg
+        x[core.X_BA : core.X_BA + 3] = keep_ba
+        x[core.X_SG : core.X_SG + 3] = keep_sg
+        x[core.X_T_LAST] = t_s
+        x[core.X_GYR_LAST : core.X_GYR_LAST + 3] = g
+        x[core.X_ACC_LAST : core.X_ACC_LAST + 3] = a
+        x[core.X_MAG_LAST : core.X_MAG_LAST + 3] = m if valid & IN_MAG_OK else np.nan
+        x[core.X_ACC_LP : core.X_ACC_LP + 3] = np.asarray(quat_to_dcm(q0), dtype=float) @ a
+        x[core.X_GNSS_LAST_T] = -math.inf
+        x[core.X_LAST_FIX_T] = -math.inf
+        x[core.X_VEL_REJ_T0] = math.nan
+        x[core.X_POS_REJ_T0] = math.nan
+        x[core.X_NIS_V] = math.nan
+        x[core.X_NIS_P] = math.nan
+        # the first history row: a fix valid at this very sample can be fused
+        x[core.X_HIST_I] = 0
+        x[core.X_HIST_N] = 1
+        row = self._hist[0]
+        row[:] = 0.0
+        row[core.H_T] = t_s
+        row[core.H_Q : core.H_Q + 4] = q0
+        row[core.H_W : core.H_W + 3] = np.asarray(g, dtype=float) - keep_bg
+        if keep_mag is not None:
+            x[core.X_MAG + mag.MS_REF_NORM] = keep_mag[mag.MS_REF_NORM]
+            x[core.X_MAG + mag.MS_REF_DIP] = keep_mag[mag.MS_REF_DIP]
+            x[core.X_MAG + mag.MS_CAND_NORM] = keep_mag[mag.MS_REF_NORM]
+            x[core.X_MAG + mag.MS_CAND_DIP] = keep_mag[mag.MS_REF_DIP]
+        x[core.X_MAG + mag.MS_UNDIST_T] = p.mag_min_undisturbed_s  # the Wahba heading is already the best
+        P = self._P
+        P[:] = 0.0
+        for i in range(2):
+            P[i, i] = p.init_sigma_tilt_rad ** 2
+        P[2, 2] = (p.init_sigma_yaw_rad if use_mag else math.pi) ** 2
+        for i in range(3):
+            P[core.E_V + i, core.E_V + i] = core.NAV_UNKNOWN_VAR_V
+            P[core.E_P + i, core.E_P + i] = core.NAV_UNKNOWN_VAR_P
+            P[core.E_BG + i, core.E_BG + i] = p.init_gyro_bias_sigma_rad_s ** 2
+            P[core.E_BA + i, core.E_BA + i] = p.init_accel_bias_sigma_m_s2 ** 2
+            P[core.E_SG + i, core.E_SG + i] = p.init_gyro_scale_sigma ** 2
+        self._queue.clear()
+        self._initialised = True
+        core.fill_outputs(x, P, self._par, g[0] - keep_bg[0], g[1] - keep_bg[1], g[2] - keep_bg[2], self._out)
+        return True
+
+    def _after_init_flags(self) -> int:
+        f = after_init_flags(self._reinit_pending, self.params.mag_enabled)
+        self._reinit_pending = False
+        return f
+
+    def _estimate(self, t_s: float, f: int) -> AttitudeEstimate:
+        if self._pending_flags:
+            f |= self._pending_flags
+            self._pending_flags = 0
+        o = self._out.copy()
+        roll, pitch, yaw_true = o[core.O_EULER : core.O_EULER + 3].tolist()
+        yaw = (yaw_true - self._declination + math.pi) % _TWO_PI - math.pi
+        nav = None
+        if self._x[core.X_NAV_OK] > 0.0:
+            nav = NavState(
+                o[core.O_VEL : core.O_VEL + 3],
+                math.degrees(o[core.O_POS]),
+                (math.degrees(o[core.O_POS + 1]) + 180.0) % 360.0 - 180.0,
+                float(o[core.O_POS + 2]),
+                o[core.O_SIG_V : core.O_SIG_V + 3],
+                o[core.O_SIG_P : core.O_SIG_P + 3],
+                o[core.O_BA : core.O_BA + 3],
+            )
+        return AttitudeEstimate(
+            t_s,
+            o[core.O_Q : core.O_Q + 4],
+            roll,
+            pitch,
+            yaw,
+            yaw % _TWO_PI,
+            yaw_true % _TWO_PI,
+            o[core.O_RATE : core.O_RATE + 3],
+            o[core.O_BG : core.O_BG + 3],
+            o[core.O_SIGMA : core.O_SIGMA + 3],
+            estimate_flags(f),
+            nav,
+        )
+
+    def _estimate_uninitialised(self, sample: ImuSample, extra: int) -> AttitudeEstimate:
+        return uninitialised_estimate(sample.t_s, extra | self._pending_flags)
+
+
+def _accuracy(reported: float, default: float, floor: float) -> float:
+    """A reported 1σ, the default when it is missing or not positive, never below the floor."""
+    if not (math.isfinite(reported) and reported > 0.0):
+        return default
+    return max(reported, floor)
+
+
+__all__ = ["Ins", "InsParams", "DEFAULT_INS_PARAMS", "GnssCounters"]
