@@ -378,8 +378,7 @@ class Config:
         """The estimator to run: the configured name, else AIDED_ESTIMATOR with a GNSS source, else UNAIDED."""
         if self.estimator.name:
             return self.estimator.name
-        aided = AIDED_ESTIMATOR if AIDED_ESTIMATOR in ESTIMATORS else UNAIDED_ESTIMATOR
-        return aided if self.gnss.source != "none" else UNAIDED_ESTIMATOR
+        return AIDED_ESTIMATOR if self.gnss.source != "none" else UNAIDED_ESTIMATOR
 
     def check(self) -> None:
         """The checks that involve several sections (run by with_overrides, once the flags are in)."""

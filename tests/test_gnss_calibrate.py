@@ -15,9 +15,6 @@ from ahrsd.calibration.levelling import roll_pitch_from_estimator
 from ahrsd.calibration.magfit import MagFitInput
 from ahrsd.cli.calibrate_gnss import COURSE_MIN_SPEED_M_S, course_reference_deg
 from ahrsd.core.gnss import make_fix
-from ahrsd.estimator import ESTIMATORS
-
-needs_ins = pytest.mark.skipif("ins" not in ESTIMATORS, reason="the ins estimator is not in this tree yet")
 
 
 def fixes_of(t, course_deg, speed):
@@ -88,7 +85,6 @@ def test_gnss_course_needs_gnss(tmp_path):
     assert res.returncode == 2 and "--gnss-course needs --gnss" in res.stderr
 
 
-@needs_ins
 def test_aided_levelling_on_a_boat(tmp_path):
     """The aided roll/pitch against the simulator's truth, and the CLI using it."""
     from scipy.spatial.transform import Rotation

@@ -6,9 +6,6 @@ from __future__ import annotations
 import pytest
 
 from ahrsd.daemon.config import Config, ConfigError, parse_config
-from ahrsd.estimator import ESTIMATORS
-
-needs_ins = pytest.mark.skipif("ins" not in ESTIMATORS, reason="the ins estimator is not in this tree yet")
 
 
 def test_default_is_no_gnss_and_mekf():
@@ -71,7 +68,6 @@ def test_gnss_serial_flag():
         Config().with_overrides(replay="x.csv", replay_speed=-1)
 
 
-@needs_ins
 @pytest.mark.parametrize("source, extra", [("mavlink", {}), ("serial", {"device": "/dev/serial0"}),
                                            ("sim", {})])
 def test_estimator_is_ins_when_gnss_is_configured(source, extra):

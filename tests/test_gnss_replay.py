@@ -12,11 +12,9 @@ import pytest
 from ahrsd.cli.replay import AIDED_OUTPUT_HEADER, OUTPUT_HEADER
 from ahrsd.core.gnss import make_fix
 from ahrsd.core.sample import make_sample
-from ahrsd.estimator import ESTIMATORS, make_estimator
+from ahrsd.estimator import make_estimator
 from ahrsd.estimator.replay import ATTITUDE_COLUMNS, NAV_COLUMNS, replay_attitude
 from test_gnss_daemon import FakeAided
-
-needs_ins = pytest.mark.skipif("ins" not in ESTIMATORS, reason="the ins estimator is not in this tree yet")
 
 
 class RecordingOrder(FakeAided):
@@ -87,7 +85,6 @@ def test_bad_gnss_input_is_a_clear_error(boat, tmp_path):
     assert not (tmp_path / "o.csv").exists()
 
 
-@needs_ins
 def test_replay_with_gnss_adds_the_navigation_columns(boat, tmp_path):
     from ahrsd.drivers.gnss_recording import read_gnss_recording
     from ahrsd.simulation import open_stream
