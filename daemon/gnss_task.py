@@ -179,7 +179,7 @@ class GnssTask:
             except Exception as exc:  # noqa: BLE001 - GnssRecordingFormatError names file, line and column
                 self.counters.source_errors += 1
                 log.error("GNSS recording: %s; no more fixes from it", exc)
-                self.service.statustext(mavlink.MAV_SEVERITY_ERROR, f"ahrsd: GNSS recording unreadable")
+                self.service.statustext(mavlink.MAV_SEVERITY_ERROR, "ahrsd: GNSS recording unreadable")
                 nxt = None
         self._replay_next = nxt
         if nxt is None and not self.replay_finished:

@@ -17,6 +17,7 @@ from ahrsd.core.sample import make_sample
 from ahrsd.daemon.config import GnssConfig, OutputsConfig
 from ahrsd.daemon.mavlink_io import mavlink
 from service_rig import gcs_socket, start_service, stop_service
+from test_fuzz_mavlink import drain
 
 GPS = mavlink.MAV_SYS_STATUS_SENSOR_GPS
 AP_SYS, AP_COMP = 1, 1
@@ -83,15 +84,8 @@ def pump(rig, seconds=0.05):
 
 
 def received(rig) -> list:
-    parser = mavlink.MAVLink(None)
-    parser.robust_parsing = True
-    out = []
-    while True:
-        try:
-            data = rig.gcs.recv(65536)
-        except BlockingIOError:
-            return out
-        out += [m for m in parser.parse_buffer(data) or () if m.get_type() != "BAD_DATA"]
+    """Every message the daemon sent to the ground-station socket so far."""
+    return drain(rig)
 
 
 @pytest.fixture

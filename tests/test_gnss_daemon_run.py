@@ -49,6 +49,16 @@ def boat(tmp_path_factory):
     return tmp, rec, shifted
 
 
+def replay_messages(d) -> dict:
+    """Every message of a replaying daemon, which must end by itself with status 0."""
+    try:
+        got = collect_until_exit(d)
+    finally:
+        d.stop()
+    assert d.proc.returncode == 0, d.output()
+    return got
+
+
 def collect_until_exit(d, timeout_s=120.0) -> dict:
     """Every message of the daemon until it exits (a replay ends by itself), in arrival order per type."""
     got: dict = {}
@@ -94,11 +104,7 @@ def test_replay_carries_the_recording_time_and_replays_gnss_in_step(boat, tmp_pa
     gnss = shifted.with_name("shifted.gnss.csv")
     d = Daemon(tmp_path, "--gnss-replay", str(gnss), "--replay-speed", "4", "--stats-file", str(stats),
                source=("--replay", str(shifted)))
-    try:
-        got = collect_until_exit(d)
-    finally:
-        d.stop()
-    assert d.proc.returncode == 0, d.output()
+    got = replay_messages(d)
     t_s = read_recording(shifted).t_s
     ms = {int(t * 1000.0) for t in t_s}
     us = {int(t * 1e6) for t in t_s}
@@ -163,11 +169,7 @@ def test_end_to_end_boat_replay_is_aided(tmp_path):
         Calibration.identity(), mag=MagModel(np.array(e.hard_iron_ut), np.linalg.inv(e.soft_iron))))
     d = Daemon(tmp_path, "--gnss-replay", str(rec.with_name("boat.gnss.csv")), "--replay-speed", "5",
                source=("--replay", str(rec)))
-    try:
-        got = collect_until_exit(d)
-    finally:
-        d.stop()
-    assert d.proc.returncode == 0, d.output()
+    got = replay_messages(d)
     r = read_recording(rec)
     truth = Rotation.from_quat(np.column_stack([r.extra[c] for c in ("truth_qx", "truth_qy", "truth_qz",
                                                                       "truth_qw")]))
@@ -216,3 +218,27 @@ def test_run_flags_are_refused_with_their_reason(tmp_path):
     res = subprocess.run([sys.executable, "-m", "ahrsd.cli", "run", "--sim", "static", "--gnss-replay", "x.csv",
                           "--check-config"], capture_output=True, text=True, timeout=60)
     assert res.returncode == 2 and "gnss.source" in res.stderr and "--replay" in res.stderr
+
+
+def test_record_with_a_receiver_on_a_serial_port(tmp_path):
+    """`ahrsd record --gnss-serial DEV`: the fixes of a receiver on a (pseudo-)terminal, stamped on the same
+    host clock as the paced IMU samples."""
+    from ahrsd.core.gnss import make_fix
+    from ahrsd.drivers.gnss_simulated import SimulatedGnssReceiver
+
+    t0 = time.monotonic() + 1.0
+    fixes = [make_fix(t0 + 0.2 * k, 47.0 + 1e-6 * k, 8.0, 500.0, [1.0, 0.5, 0.0], num_sats=9) for k in range(40)]
+    with SimulatedGnssReceiver(fixes, protocol="ubx") as rx:
+        rx.start()
+        out = tmp_path / "rec.csv"
+        res = subprocess.run([str(AHRSD), "record", "--sim", "static", "--realtime", "--seconds", "4", "-o",
+                              str(out), "--gnss-serial", f"{rx.device},115200"], capture_output=True, text=True,
+                             timeout=60)
+    assert res.returncode == 0, res.stderr
+    got = read_gnss_recording(tmp_path / "rec.gnss.csv")
+    imu_t = read_recording(out).t_s
+    assert len(got) >= 10 and "GNSS fixes" in res.stderr
+    t = np.array([f.t_s for f in got])
+    # one time base, the host's monotonic clock (a wrong one would be off by the machine's uptime)
+    assert imu_t[0] - 2.0 <= t[0] and t[-1] <= imu_t[-1] + 2.0 and np.all(np.diff(t) > 0)
+    assert all(f.num_sats == 9 and f.vel_ned_m_s[0] == pytest.approx(1.0) for f in got)
