@@ -31,6 +31,7 @@ from ahrsd.drivers.gnss_validation import GnssFixValidator
 log = logging.getLogger(__name__)
 
 HEALTH_PERIOD_S = 1.0           # SerialGnssSource.poll_health: "call it about once a second"
+REOPEN_PERIOD_S = 2.0           # a port that failed to open is tried again this often (as the source re-opens)
 FIX_STALE_S = 2.0               # no accepted fix for this long: GNSS not healthy (SYS_STATUS), state "no fix"
 STATUSTEXT_MIN_INTERVAL_S = 5.0  # GNSS state changes reach the ground station at most this often
 SENSOR_GPS = mavlink.MAV_SYS_STATUS_SENSOR_GPS
@@ -67,6 +68,9 @@ class GnssTask:
         self.selector = None          # MavlinkGnssSelector (mavlink)
         self._replay = None           # iterator of recorded fixes (replay)
         self._replay_next: GnssFix | None = None
+        self._serial_args: tuple | None = None
+        self.open_error = ""          # why the serial port could not be opened ("" = open or not serial)
+        self._next_open = math.inf
         self.replay_finished = False
         self.last_fix: GnssFix | None = None          # last accepted
         self.last_accepted_at: float | None = None    # self.clock() when it was accepted
@@ -97,8 +101,6 @@ class GnssTask:
             self.replay_finished = self._replay_next is None
             self.description = f"GNSS recording {cfg.file}"
         elif kind in ("serial", "sim"):
-            from ahrsd.drivers.gnss_serial import SerialGnssSource
-
             device, baud, protocol, latency = cfg.device, cfg.baud, cfg.protocol, cfg.latency_s
             if kind == "sim":
                 from ahrsd.drivers.gnss_scenario import ScenarioGnssReceiver
@@ -108,10 +110,10 @@ class GnssTask:
                                                      seed=sensor.seed, lever_arm_m=cfg.lever_arm_m).start()
                 device, baud, protocol, latency = (self.receiver.device, self.receiver.baud, "ubx",
                                                    self.receiver.latency_s)
-            self.serial = SerialGnssSource(device, baud, protocol, latency_s=latency, clock=self.clock)
+            self._serial_args = (device, baud, protocol, latency)
             self.description = (f"simulated receiver ({self.service.config.sensor.scenario}, UBX on {device})"
                                 if kind == "sim" else f"receiver on {device} at {baud} baud ({protocol})")
-            self._register_reader()
+            self._open_serial()
         self._opened_at = self.clock()
         log.info("GNSS: %s", self.description)
 
@@ -128,6 +130,25 @@ class GnssTask:
             close()
 
     # ------------------------------------------------------------------------------------------ the sources
+    def _open_serial(self) -> None:
+        """Open the port; a receiver missing at start (unplugged, no permission yet) is retried every
+        REOPEN_PERIOD_S by `tick`: the IMU must not wait for the GNSS."""
+        from ahrsd.drivers.gnss_serial import GnssDeviceError, SerialGnssSource
+
+        device, baud, protocol, latency = self._serial_args
+        try:
+            self.serial = SerialGnssSource(device, baud, protocol, latency_s=latency, clock=self.clock)
+        except GnssDeviceError as exc:
+            if self.open_error != str(exc):
+                log.error("GNSS: %s; retrying every %.0f s", exc, REOPEN_PERIOD_S)
+            self.open_error = str(exc)
+            self._next_open = self.clock() + REOPEN_PERIOD_S
+            return
+        if self.open_error:
+            log.info("GNSS: %s opened", device)
+        self.open_error = ""
+        self._register_reader()
+
     def _register_reader(self) -> None:
         loop = self.service.loop
         fd = self.serial.fileno()
@@ -240,12 +261,14 @@ class GnssTask:
 
     def _state_key(self, now: float) -> str:
         """What a change is reported for: the link state, the fix type (not the satellite count), the aiding."""
-        link = self.serial.state.value if self.serial is not None else ""
+        link = self.serial.state.value if self.serial is not None else ("device_error" if self.open_error else "")
         fix = self.last_fix.fix_type if self.has_fix(now) else None
         return f"{link}/{fix}/{self.aiding()}"
 
     def fix_summary(self, now: float) -> str:
         """"3D 12 sats", "no fix", or the link state of a serial source that has a problem."""
+        if self.open_error:
+            return "device error"
         if self.serial is not None and self.serial.state.value not in ("ok", "waiting"):
             return self.serial.state.value.replace("_", " ")
         if not self.has_fix(now):
@@ -261,13 +284,15 @@ class GnssTask:
     def sensor_bits(self, now: float) -> tuple[int, int, int]:
         """MAV_SYS_STATUS_SENSOR_GPS as (present, enabled, healthy): present and enabled with a source,
         healthy while accepted fixes arrive (and a serial link is not in trouble)."""
-        link_ok = self.serial is None or self.serial.state.value in ("ok", "waiting")
+        link_ok = not self.open_error and (self.serial is None or self.serial.state.value in ("ok", "waiting"))
         healthy = SENSOR_GPS if self.has_fix(now) and link_ok else 0
         return SENSOR_GPS, SENSOR_GPS, healthy
 
     def tick(self, now: float) -> None:
         """Housekeeping (10 Hz): link health once a second, reader re-registration, state changes."""
         try:
+            if self.serial is None and self._serial_args is not None and now >= self._next_open:
+                self._open_serial()
             if self.serial is not None and now >= self._next_health:
                 self._next_health = now + HEALTH_PERIOD_S
                 self.serial.poll_health()

@@ -237,3 +237,42 @@ def process(service, loop, t_s, counter):
         service._process([make_sample(t_s, [0, 0, 0], [0, 0, -9.8], [20, 0, 40], counter=counter)],
                          time.monotonic())
     loop.run_until_complete(step())
+
+
+def test_a_receiver_missing_at_start_is_opened_when_it_appears(tmp_path):
+    """The IMU does not wait for the GNSS: the daemon starts, reports the device error, and opens the port
+    once it exists (checked every REOPEN_PERIOD_S from housekeeping); its fixes then flow."""
+    from ahrsd.core.gnss import make_fix
+    from ahrsd.daemon.gnss_task import REOPEN_PERIOD_S
+    from ahrsd.drivers.gnss_simulated import SimulatedGnssReceiver
+
+    port = tmp_path / "ttyGNSS"                  # a path that appears later (like a USB receiver plugged in)
+    gcs = gcs_socket()
+    service, loop = start_service(gcs, tmp_path / "state",
+                                  gnss=GnssConfig(source="serial", device=str(port), latency_s=0.1))
+    rx = SimulatedGnssReceiver(protocol="ubx")
+    try:
+        g = service.gnss
+        fake = service.pipeline.estimator = FakeAided()
+        now = time.monotonic()
+        assert g.serial is None and g.fix_summary(now) == "device error"
+        assert not service.sys_status_message(now).onboard_control_sensors_health & GPS
+        port.symlink_to(rx.device)
+        g.tick(now + REOPEN_PERIOD_S + 0.1)
+        assert g.serial is not None and g.open_error == ""
+        for k in range(3):
+            rx.write_fix(make_fix(100.0 + k, 47.0, 8.0, 500.0, [1.0, 0.0, 0.0], num_sats=10, h_acc_m=1.0,
+                                  v_acc_m=2.0, s_acc_m_s=0.1))
+            pump(rig_of(service, loop, gcs), 0.1)
+        assert len(fake.fixes) == 3 and g.fix_summary(time.monotonic()) == "3D 10 sats", (g.stats(), g._fd)
+        assert service.sys_status_message(time.monotonic()).onboard_control_sensors_health & GPS
+    finally:
+        rx.close()
+        stop_service(service, loop)
+        gcs.close()
+
+
+def rig_of(service, loop, gcs):
+    r = type("Rig", (), {})()
+    r.service, r.loop, r.gcs = service, loop, gcs
+    return r
