@@ -158,7 +158,10 @@ class Endpoint:
             self._apply_signing()
 
     def _apply_signing(self) -> None:
+        from ahrsd.daemon.signing import verify_signature_before_timestamp
+
         self.conn.setup_signing(**self._signing)
+        verify_signature_before_timestamp(self.conn.mav)
 
     def signing_timestamp(self) -> int:
         if self.conn is None or self._signing is None:

@@ -20,7 +20,7 @@ from ahrsd.daemon.config import SigningConfig
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.daemon.signing import ONE_MINUTE, initial_timestamp, read_timestamp
 from service_rig import gcs_socket, start_service, stop_service
-from test_fuzz_mavlink import drain, feed
+from support.mavlink_feed import drain, feed
 
 REPO = Path(__file__).resolve().parents[1]
 KEY = bytes(range(7, 39))                 # 32 bytes
@@ -166,3 +166,17 @@ def test_systemd_unit_exposure_score_and_device_access():
     assert "SupplementaryGroups=spi dialout" in text
     assert "PrivateDevices=yes" not in text and "PrivateNetwork=yes" not in text   # would cut SPI / UDP
     assert "IPAddressAllow=localhost" in text
+
+
+def test_a_forged_frame_with_a_future_timestamp_does_not_lock_out_the_genuine_sender(signed_rig):
+    """pymavlink records a frame's timestamp for its stream (link, system, component) before it checks the
+    signature: one forged frame with the GCS's ids and a timestamp an hour ahead made every genuine signed frame
+    of the GCS a "replay" for the next hour. The signature is now checked first."""
+    r = signed_rig
+    good = sender(KEY)
+    forger = sender(OTHER_KEY, timestamp=good.signing.timestamp + 60 * ONE_MINUTE)   # same ids and link id
+    feed(r, param_set(forger, b"SR_ATTITUDE", 5.0))
+    assert r.service.params.get("SR_ATTITUDE") != 5.0                       # forged: refused as unsigned
+    feed(r, param_set(good, b"SR_ATTITUDE", 20.0))
+    assert r.service.params.get("SR_ATTITUDE") == 20.0                      # the genuine sender still gets in
+    assert r.ep.conn.mav.signing.timestamp < forger.signing.timestamp       # and ours did not jump ahead
