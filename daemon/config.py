@@ -169,7 +169,14 @@ class EstimatorConfig:
 
     @classmethod
     def parse(cls, d: dict, prefix="estimator") -> "EstimatorConfig":
-        return cls(**_parse_table(cls, d, prefix, {"name": _choice_of(ESTIMATORS)}))
+        return cls(**_parse_table(cls, d, prefix, {"name": _estimator_name}))
+
+
+def _estimator_name(k, value) -> str:
+    if value != "" and value not in ESTIMATORS:
+        raise _fail(k, value, '"" (automatic: ins with a [gnss] source, else mekf) or one of '
+                    + ", ".join(repr(c) for c in ESTIMATORS))
+    return value
 
 
 UNAIDED_ESTIMATOR = "mekf"
@@ -188,7 +195,7 @@ def _lever_arm(k, value):
 
 def _gnss_device(k, value):
     value = _string(k, value)
-    if not value.startswith("/dev/"):
+    if value and not value.startswith("/dev/"):     # "" = not set (required with source = "serial")
         raise _fail(k, value, "a serial device path such as /dev/serial0 or /dev/ttyACM0")
     return value
 
