@@ -1,4 +1,5 @@
-"""Roll and pitch for levelling magnetometer samples: from an attitude estimator run over the recording."""
+"""Roll and pitch for levelling magnetometer samples: from an attitude estimator run over the recording, aided
+by GNSS fixes when there are some (the aided estimator's horizon does not lean into turns and accelerations)."""
 
 from __future__ import annotations
 
@@ -11,15 +12,28 @@ from .backstepping_paper import BacksteppingError
 from .magfit import MagFitInput
 
 
-def roll_pitch_from_estimator(data: MagFitInput, name: str = "mekf") -> tuple[np.ndarray, np.ndarray]:
-    """Run `ahrsd.estimator.make_estimator(name)` over the samples (raw magnetometer: the estimator's design
-    keeps magnetometer errors out of roll/pitch) and return its roll and pitch per sample."""
+def roll_pitch_from_estimator(data: MagFitInput, name: str = "mekf", fixes=None,
+                              **params) -> tuple[np.ndarray, np.ndarray]:
+    """Run `ahrsd.estimator.make_estimator(name, **params)` over the samples (raw magnetometer: the estimator's
+    design keeps magnetometer errors out of roll/pitch) and return its roll and pitch per sample.
+
+    fixes: GNSS fixes (core.gnss.GnssFix, time order, on the samples' time base) for an aided estimator (one
+    with `update_gnss`, e.g. "ins"): each is offered before the first sample not earlier than it, as
+    `ahrsd replay --gnss` does."""
     if data.gyro_rad_s is None or data.accel_m_s2 is None:
         raise BacksteppingError("the estimator needs gyro and accelerometer samples")
-    est = make_estimator(name)
+    est = make_estimator(name, **params)
+    if fixes is not None and not hasattr(est, "update_gnss"):
+        raise BacksteppingError(f"estimator {name!r} takes no GNSS fixes: use an aided one (ins)")
+    fixes = list(fixes) if fixes is not None else []
     n = len(data)
     roll, pitch = np.empty(n), np.empty(n)
+    j = 0
     for i in range(n):
-        e = est.update(make_sample(data.t_s[i], data.gyro_rad_s[i], data.accel_m_s2[i], data.mag_ut[i]))
+        t = data.t_s[i]
+        while j < len(fixes) and fixes[j].t_s <= t:
+            est.update_gnss(fixes[j])
+            j += 1
+        e = est.update(make_sample(t, data.gyro_rad_s[i], data.accel_m_s2[i], data.mag_ut[i]))
         roll[i], pitch[i] = e.roll_rad, e.pitch_rad
     return roll, pitch

@@ -84,6 +84,12 @@ def register(subparsers) -> None:
                    help="compass-swing table (CSV reference_deg,compass_deg; compass = the heading this "
                    "calibration gives): fit the deviation card A..E, fold the constant offset A into the soft "
                    "iron, report B..E")
+    m.add_argument("--gnss", metavar="GNSS.csv", default=None,
+                   help="backstepping: a GNSS recording of the run (REC.gnss.csv): level with the GNSS-aided "
+                   "attitude (ins) instead of the accelerometer")
+    m.add_argument("--gnss-course", action="store_true",
+                   help="with --gnss: also take the heading offset from the GNSS course on straight tracks above "
+                   "2 m/s (course = heading + crab: only without current, leeway or crosswind; docs/gnss.md)")
 
 
 # ---------------------------------------------------------------------------------------------- helpers
@@ -428,13 +434,19 @@ def _mag(args) -> int:
         raise _Usage(f"--heading-ref-delay-s {args.heading_ref_delay_s}: expected 0…60 s")
     if args.align_recording and args.method != "three-step":
         raise _Usage("--align-recording goes with --method three-step")
+    if args.gnss and args.method != "backstepping":
+        raise _Usage("--gnss goes with --method backstepping")
+    if args.gnss_course and not args.gnss:
+        raise _Usage("--gnss-course needs --gnss GNSS.csv")
     swing_table = _read_swing_table(args.swing_table) if args.swing_table else None  # bad file: fail before fitting
     rec = _read(args.recording, args)
     stored = _stored(args)
     gyro, accel, _ = stored.apply_arrays(rec.gyro_rad_s, rec.accel_m_s2, None)
     heading_ref, ref_note = _heading_reference_column(rec, args.recording, args.method)
-    data = MagFitInput(rec.t_s, rec.mag_ut, accel, gyro, heading_ref)
     options = {}
+    if args.gnss:
+        heading_ref, ref_note = _gnss_for_backstepping(args, rec, accel, gyro, heading_ref, ref_note, ref, options)
+    data = MagFitInput(rec.t_s, rec.mag_ut, accel, gyro, heading_ref)
     if args.method == "backstepping" and args.heading_ref_delay_s:
         options["heading_ref_delay_s"] = args.heading_ref_delay_s
     align_note = None
@@ -493,6 +505,38 @@ def _mag(args) -> int:
 
             plot_mag(rec.mag_ut, model, ref.total_ut, args.plot)
     return rc
+
+
+def _gnss_for_backstepping(args, rec, accel, gyro, heading_ref, ref_note, ref, options):
+    """--gnss: aided roll/pitch into `options`; with --gnss-course the course as the heading reference
+    (cli.calibrate_gnss)."""
+    import numpy as np
+
+    from ahrsd.calibration.magfit import MagFitInput
+    from ahrsd.cli import calibrate_gnss as cg
+
+    if heading_ref is not None and args.gnss_course:
+        raise _Usage("the recording has a heading_ref_deg column and --gnss-course gives the course: use one")
+    if args.heading_ref_delay_s and args.gnss_course:
+        raise _Usage("--heading-ref-delay-s is for a heading_ref_deg column; a GNSS recording is stamped at its "
+                     "time of validity")
+    try:
+        fixes, validator = cg.read_validated_fixes(args.gnss)
+        roll, pitch = cg.aided_levelling(MagFitInput(rec.t_s, rec.mag_ut, accel, gyro), fixes, ref.declination_rad)
+    except cg.GnssInputError as exc:
+        raise _Fail(str(exc)) from None
+    except (ValueError, ModuleNotFoundError) as exc:      # the aided estimator is missing or refused the data
+        raise _Fail(f"--gnss: the aided estimator could not level the recording: {exc}") from None
+    options.update(roll_rad=roll, pitch_rad=pitch, speed_m_s=None)    # aided: no centripetal lean to fit out
+    note = (f"levelling: {cg.LEVELLING_ESTIMATOR} aided by {len(fixes)} GNSS fixes of {args.gnss} "
+            f"({validator.rejected} rejected)")
+    if not args.gnss_course:
+        return heading_ref, note + ("; " + ref_note if ref_note else "")
+    course = cg.course_reference_deg(fixes, rec.t_s)
+    n = int(np.isfinite(course).sum())
+    note += (f"; heading reference: GNSS course on straight tracks above {cg.COURSE_MIN_SPEED_M_S:g} m/s, "
+             f"{n} of {len(course)} samples ({n / len(course):.0%})")
+    return (course if n else None), note
 
 
 def _heading_reference_column(rec, path, method):

@@ -25,7 +25,10 @@ def register(subparsers) -> None:
         help="record raw IMU samples to a CSV file (simulated chip or a real ADIS16405 on SPI)",
         description="Read the ADIS16405 through the driver and write every fresh sample to a CSV recording "
         "(header t_s,gyro_x_rad_s,...,mag_z_ut then temp_c,supply_v,flags,counter and, for --sim, the truth "
-        "quaternion truth_qw..truth_qz). With a terminal, a one-line live status shows what is arriving.",
+        "quaternion truth_qw..truth_qz). With a terminal, a one-line live status shows what is arriving. "
+        "Whenever a GNSS source exists (the simulated receiver of a moving vehicle scenario: boat, car, plane; "
+        "or --gnss-serial) its fixes go to REC.gnss.csv beside the recording, on the same time base "
+        "(docs/gnss.md).",
         formatter_class=_HelpFormatter,
     )
     src = p.add_mutually_exclusive_group(required=True)
@@ -48,6 +51,9 @@ def register(subparsers) -> None:
     p.add_argument("--realtime", action="store_true", default=None,
                    help="with --sim: run the simulated chip on the wall clock (paced) instead of as fast as possible")
     p.add_argument("--no-self-test", action="store_true", help="skip the start-up self-test")
+    p.add_argument("--gnss-serial", metavar="DEVICE[,BAUD]", default=None,
+                   help="also record the GNSS receiver (UBX/NMEA) on this serial port (baud default 115200)")
+    p.add_argument("--no-gnss", action="store_true", help="do not record the simulated vehicle's GNSS receiver")
     p.add_argument("--quiet", "-q", action="store_true", help="no live status line")
     p.set_defaults(func=run)
 
@@ -106,6 +112,14 @@ def run(args) -> int:
         writer = RecordingWriter(args.output, extra_columns=extra)
     except OSError as exc:
         print(f"ahrsd record: cannot write {args.output}: {exc}", file=sys.stderr)
+        imu.close()
+        return 1
+    try:
+        gnss = _open_gnss(args, bus, source, paced)
+    except (OSError, ValueError, DriverError) as exc:
+        print(f"ahrsd record: GNSS: {exc}", file=sys.stderr)
+        writer.close()
+        imu.close()
         return 1
 
     def _stop(signum, frame):
@@ -151,6 +165,8 @@ def run(args) -> int:
             truth = getattr(bus, "output_truth_q_wxyz", None) if simulated else None
             writer.write(sample, truth_q_wxyz=truth)
             written += 1
+            if gnss is not None:
+                gnss.poll(sample.t_s, time.monotonic())
             first = sample if first is None else first
             last = sample
             if status is not None:
@@ -164,6 +180,7 @@ def run(args) -> int:
         signal.signal(signal.SIGTERM, previous_sigterm)
         writer.close()
         imu.close()
+        gnss_summary = gnss.close() if gnss is not None else ""
     if status is not None:
         status.write("\n")
     elapsed = time.monotonic() - wall0
@@ -171,10 +188,35 @@ def run(args) -> int:
     span = 0.0 if first is None else last.t_s - first.t_s
     print(f"ahrsd record: wrote {written} samples ({span:.2f} s of data at {imu.sample_rate_hz:.1f} SPS) to "
           f"{args.output} in {elapsed:.2f} s" + (f"; counters: {problems}" if problems else ""), file=sys.stderr)
+    if gnss_summary:
+        print(f"ahrsd record: {gnss_summary}", file=sys.stderr)
     log.debug("counters: %s", imu.counters)
     if simulated:
         log.debug("simulated chip: %s", bus.stats)
     return rc
+
+
+def _open_gnss(args, bus, source, paced: bool):
+    """The GNSS recorder beside the IMU recording, or None (no GNSS source)."""
+    from ahrsd.cli.gnss_record import GnssRecorder
+    from ahrsd.drivers.gnss_recording import gnss_path_for
+
+    path = gnss_path_for(args.output)
+    if args.gnss_serial:
+        device, _, baud = args.gnss_serial.partition(",")
+        if baud and not baud.isdigit():
+            raise ValueError(f"--gnss-serial {args.gnss_serial!r}: expected DEVICE or DEVICE,BAUD")
+        if not paced:
+            raise ValueError("--gnss-serial needs the IMU on the host clock: a real sensor, or --sim with --realtime")
+        return GnssRecorder.for_serial(path, device, int(baud or 115200), source.clock)
+    if args.sim is None or args.no_gnss:
+        return None
+    from ahrsd.simulation.vehicles import VEHICLES
+
+    if args.sim not in VEHICLES:
+        return None        # a scenario that does not move: no receiver to record
+    seed = SIM_SEED if args.seed is None else args.seed
+    return GnssRecorder.for_scenario(path, args.sim, seed, bus.now, source.clock)
 
 
 def _print_status(out, written: int, elapsed: float, s, counters: dict) -> None:

@@ -1,7 +1,8 @@
 """`ahrsd replay`: run a recording through calibration and an estimator, one output row per input sample.
 
     ahrsd replay RECORDING [--estimator {mekf,thesis,ins}] --output OUT.csv [--calibration FILE]
-                 [--lat DEG --lon DEG [--alt-m M] [--date YYYY-MM-DD]] [--set NAME=VALUE ...] [--plot FILE.png]
+                 [--gnss GNSS.csv] [--lat DEG --lon DEG [--alt-m M] [--date YYYY-MM-DD]] [--set NAME=VALUE ...]
+                 [--plot FILE.png]
 
 The output CSV is a public interface (docs/replay.md): it is how the estimator is evaluated on data the
 project has never seen. Its header is exactly OUTPUT_HEADER; the first eight columns are fixed for good.
@@ -22,9 +23,13 @@ OUTPUT_COLUMNS = (
     "gyro_bias_z_rad_s", "flags",
 )
 OUTPUT_HEADER = ",".join(OUTPUT_COLUMNS)
+# With --gnss (an aided estimator) these follow (ahrsd.estimator.replay.NAV_COLUMNS): NED velocity and position
+NAV_OUTPUT_COLUMNS = ("vel_n_m_s", "vel_e_m_s", "vel_d_m_s", "lat_deg", "lon_deg", "alt_m")
+AIDED_OUTPUT_HEADER = ",".join(OUTPUT_COLUMNS + NAV_OUTPUT_COLUMNS)
 # REFERENCE: the quaternion and yaw are relative to true north (NED) when a position is given (--lat/--lon: the
 # WMM declination rotates the estimator's magnetic-north attitude about down), else to magnetic north.
 _FORMAT = ",".join(["%.6f"] + ["%.9f"] * 4 + ["%.6f"] * 5 + ["%.6f"] * 3 + ["%.6e"] * 3 + ["%d"])
+_NAV_FORMAT = ",".join(["%.4f"] * 3 + ["%.9f"] * 2 + ["%.4f"])
 
 
 def register(subparsers) -> None:
@@ -35,11 +40,17 @@ def register(subparsers) -> None:
         "through a calibration (identity without --calibration) and an attitude estimator, and write one row "
         f"per input sample with the header: {OUTPUT_HEADER}. Without --lat/--lon the quaternion, yaw and "
         "heading are referenced to magnetic north; with them, to true north (WMM2025 declination there). The "
-        "speed (× real time) is printed to stderr at the end. Documented in docs/replay.md.",
+        "speed (× real time) is printed to stderr at the end. With --gnss (a GNSS recording, docs/gnss.md) the "
+        f"aided estimator (ins) runs and the rows add {','.join(NAV_OUTPUT_COLUMNS)}; the declination then "
+        "comes from the first fix's position unless --lat/--lon are given. Documented in docs/replay.md.",
     )
     p.add_argument("recording", metavar="RECORDING", help="CSV recording (header t_s,gyro_x_rad_s,...,mag_z_ut)")
-    p.add_argument("--estimator", "-e", default="mekf", choices=ESTIMATORS,
-                   help="mekf (default): the error-state quaternion filter; thesis: the thesis's vector KF + Wahba")
+    p.add_argument("--estimator", "-e", default=None, choices=ESTIMATORS,
+                   help="mekf (default without --gnss): the error-state quaternion filter; thesis: the thesis's "
+                   "vector KF + Wahba; ins (default with --gnss): the GNSS-aided INS")
+    p.add_argument("--gnss", metavar="GNSS.csv", default=None,
+                   help="GNSS recording on the recording's time base (REC.gnss.csv, written by `ahrsd record`): "
+                   "its fixes are merged in time order with the samples")
     p.add_argument("--output", "-o", required=True, metavar="OUT.csv", help="output CSV file ('-' for stdout)")
     p.add_argument("--calibration", "-c", metavar="FILE", default=None,
                    help="calibration file (ahrsd calibrate / the state directory's calibration); default identity")
@@ -77,14 +88,19 @@ def _parse_params(items: list[str]) -> dict:
     return params
 
 
-def _declination_rad(args) -> float:
+def _declination_rad(args, gnss_position=None) -> float:
+    """WMM declination at --lat/--lon, else at the first GNSS fix's position `(lat, lon, alt)`, else 0."""
     import datetime as dt
     import math
 
     if args.lat is None and args.lon is None:
-        return 0.0
-    if args.lat is None or args.lon is None:
+        if gnss_position is None:
+            return 0.0
+        lat, lon, alt = gnss_position
+    elif args.lat is None or args.lon is None:
         raise ReplayError("--lat and --lon go together")
+    else:
+        lat, lon, alt = args.lat, args.lon, args.alt_m
     from ahrsd.core.wmm import earth_field
 
     date = None
@@ -93,17 +109,35 @@ def _declination_rad(args) -> float:
             date = dt.date.fromisoformat(args.date)
         except ValueError:
             raise ReplayError(f"--date {args.date!r}: expected YYYY-MM-DD") from None
-    if not (math.isfinite(args.lat) and math.isfinite(args.lon) and math.isfinite(args.alt_m)):
+    if not (math.isfinite(lat) and math.isfinite(lon) and math.isfinite(alt)):
         raise ReplayError("--lat, --lon and --alt-m must be finite numbers")
     try:
-        return earth_field(args.lat, args.lon, args.alt_m, date).declination_rad
+        return earth_field(lat, lon, alt, date).declination_rad
     except ValueError as exc:
         raise ReplayError(str(exc)) from None
 
 
-def format_rows(table) -> str:
+def _gnss_fixes(path: str, validator):
+    """The recording's fixes that pass the validator (the daemon's edge check), and the first one's position."""
+    import math
+
+    from ahrsd.drivers.gnss_recording import GnssRecordingFormatError, read_gnss_recording
+
+    try:
+        fixes = read_gnss_recording(path)
+    except GnssRecordingFormatError as exc:       # names the file, and the line and column or the OS error
+        raise ReplayError(str(exc)) from None
+    good = [f for f in fixes if validator.check(f) is None]
+    if not good:
+        raise ReplayError(f"{path}: no usable fix ({len(fixes)} rows, {validator.rejected} rejected)")
+    first = good[0]
+    alt = first.alt_m if math.isfinite(first.alt_m) else 0.0
+    return good, (first.lat_deg, first.lon_deg, alt)
+
+
+def format_rows(table, row_format: str = _FORMAT) -> str:
     """CSV text of output rows (one `%` over the whole chunk: faster than a format per row)."""
-    row = _FORMAT + "\n"
+    row = row_format + "\n"
     return (row * len(table)) % tuple(table.ravel().tolist())
 
 
@@ -111,12 +145,13 @@ class _Output:
     """The output file, written to a temporary file beside it and renamed at the end, so a replay that fails
     half-way leaves no partial output; '-' streams to stdout."""
 
-    def __init__(self, path: str):
+    def __init__(self, path: str, header: str = OUTPUT_HEADER, row_format: str = _FORMAT):
         import os
         import sys
         import tempfile
 
         self.path = path
+        self.header, self.row_format = header, row_format
         self._tmp = None
         if path == "-":
             self._file = sys.stdout
@@ -128,9 +163,9 @@ class _Output:
 
     def write(self, table) -> None:
         if not self._header_written:   # not before the first rows: a bad recording prints nothing to stdout
-            self._file.write(OUTPUT_HEADER + "\n")
+            self._file.write(self.header + "\n")
             self._header_written = True
-        self._file.write(format_rows(table))
+        self._file.write(format_rows(table, self.row_format))
 
     def commit(self) -> None:
         import os
@@ -202,7 +237,7 @@ def _run(args) -> int:
 
     from ahrsd.drivers.recording import RecordingFormatError, iter_samples
     from ahrsd.estimator import make_estimator
-    from ahrsd.estimator.replay import ATTITUDE_COLUMNS, replay_attitude
+    from ahrsd.estimator.replay import ATTITUDE_COLUMNS, NAV_COLUMNS, replay_attitude
 
     from .progress import expected_rows, progress_bar
 
@@ -218,9 +253,16 @@ def _run(args) -> int:
         except PlotUnavailableError as exc:
             raise ReplayUsageError(str(exc)) from None
         trace = ReplayTrace()
-        trace.true_north = args.lat is not None
+        trace.true_north = args.lat is not None or args.gnss is not None
     params = _parse_params(args.params)
-    declination = _declination_rad(args)
+    estimator_name = args.estimator or ("ins" if args.gnss else "mekf")
+    fixes, validator, first_position = None, None, None
+    if args.gnss:
+        from ahrsd.drivers.gnss_validation import GnssFixValidator
+
+        validator = GnssFixValidator(name=f"replay {args.gnss}")
+        fixes, first_position = _gnss_fixes(args.gnss, validator)
+    declination = _declination_rad(args, first_position)
 
     calibration = None
     if args.calibration:
@@ -232,11 +274,14 @@ def _run(args) -> int:
             raise ReplayError(str(exc)) from None
 
     try:
-        estimator = make_estimator(args.estimator, declination_rad=declination, **params)
+        estimator = make_estimator(estimator_name, declination_rad=declination, **params)
     except ModuleNotFoundError as exc:
-        raise ReplayError(f"estimator {args.estimator!r} is not available ({exc})") from None
+        raise ReplayError(f"estimator {estimator_name!r} is not available ({exc})") from None
     except (TypeError, ValueError) as exc:
-        raise ReplayError(f"estimator {args.estimator!r}: {exc}") from None
+        raise ReplayError(f"estimator {estimator_name!r}: {exc}") from None
+    aided = fixes is not None
+    if aided and not hasattr(estimator, "update_gnss"):
+        raise ReplayError(f"--gnss needs the aided estimator (ins); {estimator_name} takes no GNSS fixes")
 
     if os.path.isdir(args.recording):
         raise ReplayError(f"{args.recording}: is a directory, not a recording")
@@ -256,7 +301,7 @@ def _run(args) -> int:
             yield sample
 
     try:
-        out = _Output(args.output)
+        out = _Output(args.output, AIDED_OUTPUT_HEADER, _FORMAT + "," + _NAV_FORMAT) if aided else _Output(args.output)
     except OSError as exc:
         raise ReplayError(f"{args.output}: cannot write: {exc.strerror or exc}") from None
     samples = checked(iter_samples(args.recording))
@@ -265,8 +310,11 @@ def _run(args) -> int:
     t_run = time.process_time()
     try:
         order = [ATTITUDE_COLUMNS.index(name) for name in OUTPUT_COLUMNS]
+        if aided:
+            order += [len(ATTITUDE_COLUMNS) + NAV_COLUMNS.index(name) for name in NAV_OUTPUT_COLUMNS]
+        true_north = args.lat is not None or aided
         with progress_bar(args, expected_rows(args.recording), "replay") as bar:
-            for table in replay_attitude(estimator, samples, true_north=args.lat is not None):
+            for table in replay_attitude(estimator, samples, true_north=true_north, fixes=fixes):
                 out.write(table[:, order])
                 bar.update(len(table))
                 if trace is not None:
@@ -297,9 +345,15 @@ def _run(args) -> int:
             duration += 1.0 / rate
         speed = duration / wall if wall > 0 else math.inf
         cpu_speed = duration / cpu if cpu > 0 else math.inf
-        where = ("magnetic north (no position)" if args.lat is None
-                 else f"true north, declination {math.degrees(declination):+.2f}°")
-        print(f"ahrsd replay: {count} samples ({duration:.1f} s at {rate:.1f} Hz) through {args.estimator}, "
+        where = ("magnetic north (no position)" if args.lat is None and not aided
+                 else f"true north, declination {math.degrees(declination):+.2f}°"
+                 + (" at the first fix" if args.lat is None else ""))
+        gnss = ""
+        if aided:
+            reasons = ", ".join(f"{k} {v}" for k, v in validator.counters.items() if k != "accepted" and v)
+            gnss = (f"and {validator.counters['accepted']} GNSS fixes ({validator.rejected} rejected"
+                    f"{': ' + reasons if reasons else ''}) ")
+        print(f"ahrsd replay: {count} samples ({duration:.1f} s at {rate:.1f} Hz) {gnss}through {estimator_name}, "
               f"heading to {where}; {wall:.2f} s wall ({t_loop * 1e6 / count:.1f} CPU µs/sample to read, "
               f"estimate and write): {speed:.1f}× real time ({cpu_speed:.1f}× per CPU second)", file=sys.stderr)
     return 0

@@ -16,6 +16,17 @@ def register(subparsers) -> None:
     src.add_argument("--sim", metavar="SCENARIO", help="simulated ADIS16405 running SCENARIO (default: static)")
     src.add_argument("--spi", metavar="DEVICE", help="real ADIS16405 on this spidev node, e.g. /dev/spidev0.0")
     src.add_argument("--replay", metavar="FILE", help="replay a recording made by `ahrsd record`")
+    p.add_argument("--replay-speed", metavar="X", type=float,
+                   help="with --replay: replay X times faster than real time (default 1)")
+    gnss = p.add_mutually_exclusive_group()
+    gnss.add_argument("--gnss-replay", metavar="GNSS_CSV", help="with --replay: replay this GNSS recording in step "
+                      "with the IMU recording (REC.gnss.csv, written by `ahrsd record`)")
+    gnss.add_argument("--gnss-serial", metavar="DEVICE[,BAUD]", help="a GNSS receiver (UBX/NMEA) on this serial "
+                      "port, e.g. /dev/serial0,115200")
+    gnss.add_argument("--gnss-sim", action="store_true", help="with --sim: the simulated receiver of the scenario, "
+                      "UBX over a pseudo-terminal read as a serial port")
+    p.add_argument("--estimator", metavar="NAME", help="mekf, thesis or ins (default: ins with a GNSS source, "
+                   "else mekf)")
     p.add_argument("--mavlink", metavar="URL", action="append",
                    help="MAVLink endpoint (repeatable; replaces the config's): udpout:HOST:PORT, udpin:HOST:PORT, "
                    "tcp:HOST:PORT, tcpin:HOST:PORT, /dev/ttyAMA0,921600")
@@ -42,7 +53,9 @@ def run(args: argparse.Namespace) -> int:
         path = args.config or default_config_path()
         cfg = load_config(path) if path else Config()
         cfg = cfg.with_overrides(sim=args.sim, spi=args.spi, replay=args.replay, mavlink=args.mavlink,
-                                 state_dir=args.state_dir)
+                                 state_dir=args.state_dir, replay_speed=args.replay_speed,
+                                 gnss_replay=args.gnss_replay, gnss_serial=args.gnss_serial,
+                                 gnss_sim=args.gnss_sim, estimator=args.estimator)
         if args.status_line:
             cfg = dataclasses.replace(cfg, daemon=DaemonConfig(status_line=args.status_line))
     except ConfigError as exc:

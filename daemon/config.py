@@ -2,6 +2,8 @@
 
     [sensor]     -> SensorConfig     where samples come from (simulated chip, SPI, recording), mounting
     [estimator]  -> EstimatorConfig  which attitude filter
+    [gnss]       -> GnssConfig       where GNSS fixes come from (none, serial receiver, autopilot, recording,
+                                     simulator), the antenna lever arm
     [location]   -> LocationConfig   where we are (declination for true heading)
     [mavlink]    -> MavlinkConfig    identity and routing policy
     [[endpoint]] -> EndpointConfig   one pymavlink connection each
@@ -39,6 +41,7 @@ MAV_TYPES = {"imu": 40, "onboard_controller": 18}  # MAV_TYPE_IMU / MAV_TYPE_ONB
 MIN_HEADING_SLEW_DEG_S = 0.1   # slower would take an hour for a 180° change
 MAX_HEADING_SLEW_DEG_S = 90.0
 SERIAL_DEFAULT_BAUD = 115200                   # pymavlink mavserial's default
+MIN_REPLAY_SPEED, MAX_REPLAY_SPEED = 0.01, 100.0
 ENDPOINT_PREFIXES = ("udpout:", "udpin:", "udpbcast:", "udp:", "tcp:", "tcpin:", "uds:", "unix:")
 
 
@@ -140,6 +143,7 @@ class SensorConfig:
     spi_device: str = "/dev/spidev0.0"  # source = "spi"
     replay_file: str = ""               # source = "replay": a recording written by `ahrsd record`
     replay_realtime: bool = True        # replay at the recorded pace (false: as fast as possible)
+    replay_speed: float = 1.0           # realtime replay: this many times faster than recorded (1 = real time)
     mounting_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor axes in the body FRD, ZYX Euler deg
     poll_hz: float = 200.0              # replay: polls per second (the chip is read once per sample)
     stale_timeout_s: float = 0.1        # no new sample for this long = sensor failure
@@ -149,7 +153,8 @@ class SensorConfig:
         cfg = cls(**_parse_table(cls, d, prefix, {
             "source": _choice_of(("sim", "spi", "replay")), "scenario": _choice_of(SCENARIOS),
             "seed": _number_in(0, 2**32 - 1, integer=True), "errors": _choice_of(("adis16405", "ideal")),
-            "spi_device": _string, "replay_file": _string, "replay_realtime": _bool, "mounting_rpy_deg": _mounting,
+            "spi_device": _string, "replay_file": _string, "replay_realtime": _bool,
+            "replay_speed": _number_in(MIN_REPLAY_SPEED, MAX_REPLAY_SPEED), "mounting_rpy_deg": _mounting,
             "poll_hz": _number_in(10.0, 2000.0), "stale_timeout_s": _number_in(0.005, 10.0)}))
         if cfg.source == "replay" and not cfg.replay_file:
             raise _fail(f"{prefix}.replay_file", cfg.replay_file, "a recording path (required when source = 'replay')")
@@ -160,11 +165,81 @@ class SensorConfig:
 
 @dataclass(frozen=True)
 class EstimatorConfig:
-    name: str = "mekf"   # "mekf" (multiplicative EKF) or "thesis" (the thesis filter)
+    # "mekf" (multiplicative EKF), "thesis" (the thesis filter), "ins" (GNSS-aided); "" = automatic:
+    # AIDED_ESTIMATOR when a GNSS source is configured, else UNAIDED_ESTIMATOR (Config.estimator_name)
+    name: str = ""
 
     @classmethod
     def parse(cls, d: dict, prefix="estimator") -> "EstimatorConfig":
-        return cls(**_parse_table(cls, d, prefix, {"name": _choice_of(ESTIMATORS)}))
+        return cls(**_parse_table(cls, d, prefix, {"name": _estimator_name}))
+
+
+def _estimator_name(k, value) -> str:
+    if value != "" and value not in ESTIMATORS:
+        raise _fail(k, value, '"" (automatic: ins with a [gnss] source, else mekf) or one of '
+                    + ", ".join(repr(c) for c in ESTIMATORS))
+    return value
+
+
+UNAIDED_ESTIMATOR = "mekf"
+AIDED_ESTIMATOR = "ins"
+GNSS_SOURCES = ("none", "serial", "mavlink", "replay", "sim")
+GNSS_PROTOCOLS = ("auto", "ubx", "nmea")
+GNSS_BAUDS = (4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
+MAX_LEVER_ARM_M = 100.0
+
+
+def _lever_arm(k, value):
+    if not isinstance(value, list) or len(value) != 3:
+        raise _fail(k, value, "a list of three numbers [x, y, z] in metres, body FRD (antenna relative to the IMU)")
+    return tuple(_number(f"{k}[{i}]", v, -MAX_LEVER_ARM_M, MAX_LEVER_ARM_M) for i, v in enumerate(value))
+
+
+def _gnss_device(k, value):
+    value = _string(k, value)
+    if value and not value.startswith("/dev/"):     # "" = not set (required with source = "serial")
+        raise _fail(k, value, "a serial device path such as /dev/serial0 or /dev/ttyACM0")
+    return value
+
+
+def _gnss_baud(k, value):
+    if isinstance(value, bool) or not isinstance(value, int) or value not in GNSS_BAUDS:
+        raise _fail(k, value, "one of " + ", ".join(map(str, GNSS_BAUDS)))
+    return value
+
+
+@dataclass(frozen=True)
+class GnssConfig:
+    """Where GNSS fixes come from (docs/gnss.md). Every fix goes through one validator, then to the aided
+    estimator; the position also resolves the declination."""
+
+    source: str = "none"           # "none", "serial" (a receiver on a UART/USB), "mavlink" (the autopilot's
+                                   # GPS_RAW_INT), "replay" (a GNSS recording, with [sensor] source = "replay"),
+                                   # "sim" (the simulated receiver of the [sensor] scenario, UBX over a pty)
+    device: str = ""               # serial: the port, e.g. /dev/serial0
+    baud: int = 115200             # serial: the receiver's baud rate
+    protocol: str = "auto"         # serial: "ubx" (NAV-PVT), "nmea" (RMC/GGA/VTG) or "auto" (both, UBX preferred)
+    latency_s: float = 0.12        # serial: receiver output latency (measurement epoch -> end of message), s
+    file: str = ""                 # replay: a GNSS recording (REC.gnss.csv beside the IMU recording)
+    use_fused: bool = False        # mavlink: fall back to GLOBAL_POSITION_INT (the autopilot's fused velocity)
+                                   # when no GPS_RAW_INT fix arrives (docs/gnss.md "The loop through the autopilot")
+    lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # antenna relative to the IMU, body FRD, m
+
+    @classmethod
+    def parse(cls, d: dict, prefix="gnss") -> "GnssConfig":
+        cfg = cls(**_parse_table(cls, d, prefix, {
+            "source": _choice_of(GNSS_SOURCES), "device": _gnss_device,
+            "baud": _gnss_baud,
+            "protocol": _choice_of(GNSS_PROTOCOLS), "latency_s": _number_in(0.0, 2.0), "file": _string,
+            "use_fused": _bool, "lever_arm_m": _lever_arm}))
+        cfg.check(prefix)
+        return cfg
+
+    def check(self, prefix="gnss") -> None:
+        if self.source == "serial" and not self.device:
+            raise _fail(f"{prefix}.device", self.device, "a serial device path (required when source = 'serial')")
+        if self.source == "replay" and not self.file:
+            raise _fail(f"{prefix}.file", self.file, "a GNSS recording path (required when source = 'replay')")
 
 
 @dataclass(frozen=True)
@@ -326,6 +401,7 @@ def _unknown(key: str, cls) -> ConfigError:
 class Config:
     sensor: SensorConfig = field(default_factory=SensorConfig)
     estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
+    gnss: GnssConfig = field(default_factory=GnssConfig)
     location: LocationConfig = field(default_factory=LocationConfig)
     mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
     endpoints: tuple[EndpointConfig, ...] = (EndpointConfig(DEFAULT_ENDPOINT),)
@@ -336,10 +412,31 @@ class Config:
     magcal: Any = None      # daemon.magcal.MagCalSettings, or None for its defaults
     source_path: str = ""   # the file this came from ("" = built-in defaults)
 
+    @property
+    def estimator_name(self) -> str:
+        """The estimator to run: the configured name, else AIDED_ESTIMATOR with a GNSS source, else UNAIDED."""
+        if self.estimator.name:
+            return self.estimator.name
+        return AIDED_ESTIMATOR if self.gnss.source != "none" else UNAIDED_ESTIMATOR
+
+    def check(self) -> None:
+        """The checks that involve several sections (run by with_overrides, once the flags are in)."""
+        if self.gnss.source == "replay" and self.sensor.source != "replay":
+            raise _fail("gnss.source", "replay", "a GNSS recording replays in step with an IMU recording: "
+                        "needs [sensor] source = 'replay' (--replay REC)")
+        if self.gnss.source == "sim" and self.sensor.source != "sim":
+            raise _fail("gnss.source", "sim", "the simulated receiver follows the simulated sensor's scenario: "
+                        "needs [sensor] source = 'sim' (--sim SCENARIO)")
+
     def with_overrides(self, *, sim: str | None = None, spi: str | None = None, replay: str | None = None,
-                       mavlink: list[str] | None = None, state_dir: str | None = None) -> "Config":
+                       mavlink: list[str] | None = None, state_dir: str | None = None,
+                       replay_speed: float | None = None, gnss_replay: str | None = None,
+                       gnss_serial: str | None = None, gnss_sim: bool = False,
+                       estimator: str | None = None) -> "Config":
         """Apply command-line flags (they win over the file); values are validated like file values."""
         cfg = self
+        if sum(bool(x) for x in (gnss_replay, gnss_serial, gnss_sim)) > 1:
+            raise ConfigError("--gnss-replay, --gnss-serial and --gnss-sim are mutually exclusive")
         if sum(x is not None for x in (sim, spi, replay)) > 1:
             raise ConfigError("--sim, --spi and --replay are mutually exclusive")
         if sim is not None:
@@ -357,11 +454,31 @@ class Config:
                 EndpointConfig(_endpoint_url("--mavlink", url)) for url in mavlink))
         if state_dir is not None:
             cfg = dataclasses.replace(cfg, state=StateConfig(dir=state_dir))
+        if replay_speed is not None:
+            cfg = dataclasses.replace(cfg, sensor=dataclasses.replace(
+                cfg.sensor, replay_speed=_number("--replay-speed", replay_speed, MIN_REPLAY_SPEED, MAX_REPLAY_SPEED)))
+        if gnss_replay is not None:
+            cfg = dataclasses.replace(cfg, gnss=dataclasses.replace(cfg.gnss, source="replay", file=gnss_replay))
+        if gnss_serial is not None:
+            device, _, baud = gnss_serial.partition(",")
+            gnss = dataclasses.replace(cfg.gnss, source="serial", device=_gnss_device("--gnss-serial", device))
+            if baud:
+                if not baud.isdigit() or int(baud) not in GNSS_BAUDS:
+                    raise _fail("--gnss-serial", gnss_serial, "DEVICE or DEVICE,BAUD with BAUD one of "
+                                + ", ".join(map(str, GNSS_BAUDS)))
+                gnss = dataclasses.replace(gnss, baud=int(baud))
+            cfg = dataclasses.replace(cfg, gnss=gnss)
+        if gnss_sim:
+            cfg = dataclasses.replace(cfg, gnss=dataclasses.replace(cfg.gnss, source="sim"))
+        if estimator is not None:
+            cfg = dataclasses.replace(cfg, estimator=EstimatorConfig(_choice("--estimator", estimator, ESTIMATORS)))
+        cfg.gnss.check("gnss")
+        cfg.check()
         return cfg
 
 
 SECTIONS = {
-    "sensor": SensorConfig, "estimator": EstimatorConfig, "location": LocationConfig, "mavlink": MavlinkConfig,
+    "sensor": SensorConfig, "estimator": EstimatorConfig, "gnss": GnssConfig, "location": LocationConfig, "mavlink": MavlinkConfig,
     "endpoint": EndpointConfig, "outputs": OutputsConfig, "state": StateConfig, "signing": SigningConfig,
     "daemon": DaemonConfig, "magcal": None,
 }

@@ -1,5 +1,5 @@
 """Declination (true heading = magnetic heading + declination), by priority: DECL_MANUAL/DECL_DEG, the
-configured position, the autopilot's position, the simulator's site; a step larger than
+configured position, the GNSS receiver's position, the autopilot's position, the simulator's site; a step larger than
 DECLINATION_RESET_STEP_RAD is a heading reset the autopilot is told about."""
 
 from __future__ import annotations
@@ -20,7 +20,8 @@ class DeclinationResolver:
     """Service part: `_resolve_declination` (start, every 10 s, on a position or DECL_* change)."""
 
     def _resolve_declination(self, initial: bool = False) -> None:
-        """Declination by priority: DECL_MANUAL/DECL_DEG, configured position, autopilot position, sim site."""
+        """Declination by priority: DECL_MANUAL/DECL_DEG, configured position, GNSS position ([gnss] source),
+        autopilot position, sim site."""
         self._last_decl_update = time.monotonic()
         loc = self.config.location
         decl, source = None, ""
@@ -29,6 +30,10 @@ class DeclinationResolver:
         elif loc.lat_deg is not None:
             decl = earth_field(loc.lat_deg, loc.lon_deg, loc.alt_m).declination_rad
             source = f"WMM at {loc.lat_deg:.4f},{loc.lon_deg:.4f} (config)"
+        elif self.gnss is not None and self.gnss.position is not None:
+            lat, lon, alt = self.gnss.position
+            decl = earth_field(lat, lon, alt).declination_rad
+            source = "WMM at the GNSS position"   # no coordinates: they change while moving (logged on change)
         elif loc.use_autopilot_position and self.autopilot.lat_deg is not None:
             ap = self.autopilot
             decl = earth_field(ap.lat_deg, ap.lon_deg, ap.alt_m).declination_rad
@@ -43,6 +48,11 @@ class DeclinationResolver:
                             "the autopilot reports a position")
             decl, source = 0.0, "none (no position yet)"
         self._set_declination(decl, source)
+
+    def on_gnss_position(self) -> None:
+        """The first GNSS fix: it outranks the autopilot's position and the simulator's site."""
+        if not (self.declination_source == "manual" or self.declination_source.endswith("(config)")):
+            self._resolve_declination()
 
     def _set_declination(self, decl: float, source: str) -> None:
         step = abs(math.remainder(decl - self.declination_rad, 2 * math.pi))

@@ -52,6 +52,8 @@ class Housekeeping:
             if self.signing_key is not None and now >= next_sign:
                 next_sign = now + SIGNING_SAVE_PERIOD_S
                 save_timestamp(self.state_dir, max(e.signing_timestamp() for e in self.endpoints))
+            if self.gnss is not None:
+                self.gnss.tick(now)
             if now - self._last_decl_update > DECLINATION_UPDATE_PERIOD_S:
                 self._resolve_declination()
             if self.heading_slew.active and not any(ep.schedule.rate_hz(VISION_POSITION_ESTIMATE) > 0

@@ -39,6 +39,8 @@ class InboundDispatch:
                     self.autopilot.on_global_position_int(msg, now)
                 else:
                     self.autopilot.on_gps_raw_int(msg, now)
+                if self.gnss is not None:
+                    self.gnss.on_mavlink(msg, now)
                 if self.declination_source.startswith("none"):
                     self._resolve_declination()
             return

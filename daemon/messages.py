@@ -66,6 +66,27 @@ def vision_position_estimate(est, usec: int, yaw_true_rad: float, reset_counter:
         usec, 0.0, 0.0, 0.0, est.roll_rad, est.pitch_rad, float(wrap_pi(yaw_true_rad)), cov, reset_counter & 0xFF)
 
 
+def _clip(value: float, lo: int, hi: int) -> int:
+    return 0 if not math.isfinite(value) else max(lo, min(hi, int(round(value))))
+
+
+def local_position_ned(time_boot_ms: int, pos_ned_m, vel_ned_m_s):
+    """Position (m) from the local origin and velocity (m/s), NED. A NaN down velocity is sent as 0."""
+    x, y, z = (float(v) for v in pos_ned_m)
+    vx, vy, vz = (float(v) if math.isfinite(v) else 0.0 for v in vel_ned_m_s)
+    return mavlink.MAVLink_local_position_ned_message(time_boot_ms, x, y, z, vx, vy, vz)
+
+
+def global_position_int(time_boot_ms: int, lat_deg: float, lon_deg: float, alt_m: float, relative_alt_m: float,
+                        vel_ned_m_s, heading_true_rad: float):
+    """lat/lon degE7, alt/relative_alt mm, velocity cm/s NED (int16), heading cdeg [0, 36000) (common.xml #33)."""
+    vx, vy, vz = (_clip(float(v) * 100.0, -INT16_MAX, INT16_MAX) for v in vel_ned_m_s)
+    hdg = int(round(math.degrees(heading_true_rad) * 100.0)) % 36000 if math.isfinite(heading_true_rad) else 0xFFFF
+    return mavlink.MAVLink_global_position_int_message(
+        time_boot_ms, _clip(lat_deg * 1e7, -900_000_000, 900_000_000), _clip(lon_deg * 1e7, -1_800_000_000, 1_800_000_000),
+        _clip(alt_m * 1000.0, -2**31, 2**31 - 1), _clip(relative_alt_m * 1000.0, -2**31, 2**31 - 1), vx, vy, vz, hdg)
+
+
 def highres_imu(sample, usec: int, imu_id: int = 0):
     a, g, m = sample.accel_m_s2, sample.gyro_rad_s, sample.mag_ut / UT_PER_GAUSS
     temp = float(sample.temp_c)

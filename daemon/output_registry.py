@@ -6,9 +6,9 @@ this order), and what SET_MESSAGE_INTERVAL / GET_MESSAGE_INTERVAL / REQUEST_MESS
 (daemon.builtin_commands). Adding an output is one `OutputSpec` here and one builder (a pure function in
 daemon/messages.py plus the few lines below that feed it the service state).
 
-Later entries fit the same shape: a GNSS output (LOCAL_POSITION_NED, GLOBAL_POSITION_INT, default 0 Hz = off)
-is an entry whose builder reads the navigation state; each endpoint has its own OutputSchedule built from the same
-entries (daemon.endpoint_outputs); `priority` orders outputs when a serial link must drop some.
+The GNSS outputs (LOCAL_POSITION_NED, GLOBAL_POSITION_INT, default 0 Hz = off) are entries whose builders
+read the aided estimator's navigation state (AttitudeEstimate.nav); each endpoint has its own OutputSchedule
+built from the same entries (daemon.endpoint_outputs); `priority` orders outputs when a serial link must drop some.
 """
 
 from __future__ import annotations
@@ -20,7 +20,8 @@ from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.mavlink_io import mavlink
 
 DEFAULT_MAX_RATE_HZ = 200.0
-VISION_MAX_RATE_HZ = 50.0       # ArduPilot EKF3 extNavIntervalMin_ms = 20 ms (AP_NavEKF3_Measurements.cpp)
+VISION_MAX_RATE_HZ = 50.0
+NAV_MAX_RATE_HZ = 50.0          # a display of the track needs a few Hz       # ArduPilot EKF3 extNavIntervalMin_ms = 20 ms (AP_NavEKF3_Measurements.cpp)
 
 
 @dataclass(frozen=True)
@@ -79,6 +80,24 @@ def _sys_status(svc, est, sample, now):
     return svc.sys_status_message(now)
 
 
+def _local_position_ned(svc, est, sample, now):
+    nav = est.nav
+    if nav is None or svc.gnss is None:
+        return None     # no navigation state: an unaided estimator, or no fix yet
+    return msgs.local_position_ned(svc.time_boot_ms(now), svc.gnss.origin.ned_m(nav.lat_deg, nav.lon_deg, nav.alt_m),
+                                   nav.vel_ned_m_s)
+
+
+def _global_position_int(svc, est, sample, now):
+    nav = est.nav
+    if nav is None or svc.gnss is None:
+        return None
+    # alt: the ellipsoid height (ahrsd has no geoid model; docs/gnss.md "Altitude"); relative to the origin
+    relative_alt = -svc.gnss.origin.ned_m(nav.lat_deg, nav.lon_deg, nav.alt_m)[2]
+    return msgs.global_position_int(svc.time_boot_ms(now), nav.lat_deg, nav.lon_deg, nav.alt_m, relative_alt,
+                                    nav.vel_ned_m_s, est.heading_true_rad)
+
+
 OUTPUTS: tuple[OutputSpec, ...] = (
     OutputSpec(mavlink.MAVLINK_MSG_ID_ATTITUDE, "attitude_hz", "SR_ATTITUDE", 50.0, DEFAULT_MAX_RATE_HZ,
                _attitude, priority=2),
@@ -93,6 +112,11 @@ OUTPUTS: tuple[OutputSpec, ...] = (
                _scaled_imu, priority=3),
     OutputSpec(mavlink.MAVLINK_MSG_ID_SYS_STATUS, "sys_status_hz", "SR_SYS_STATUS", 1.0, DEFAULT_MAX_RATE_HZ,
                _sys_status, needs_estimate=False, priority=1),
+    # the aided estimator's navigation state, for a display (off by default; not meant for the autopilot)
+    OutputSpec(mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, "local_position_ned_hz", "SR_LOCAL_POS", 0.0,
+               NAV_MAX_RATE_HZ, _local_position_ned, priority=3),
+    OutputSpec(mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, "global_position_int_hz", "SR_GLOBAL_POS", 0.0,
+               NAV_MAX_RATE_HZ, _global_position_int, priority=3),
 )
 
 BY_MESSAGE_ID: dict[int, OutputSpec] = {o.message_id: o for o in OUTPUTS}

@@ -43,6 +43,9 @@ class Publishers:
 
     def sys_status_message(self, now: float):
         present, enabled, healthy = self.health.sensor_bits(now)
+        if self.gnss is not None:
+            present, enabled, healthy = (a | b for a, b in zip((present, enabled, healthy),
+                                                                self.gnss.sensor_bits(now)))
         links = self.endpoints
         errors_comm = sum(e.counters.rx_malformed + e.counters.rx_bad_signature for e in links)
         pc = self.pipeline.counters

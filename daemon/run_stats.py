@@ -37,6 +37,8 @@ def collect_stats(service) -> dict:
     out["params"] = {"rejected_writes": service.params.rejected_writes, "rejected_reads": service.params.rejected_reads}
     out["autopilot"] = {"rejected_positions": service.autopilot.rejected_positions,
                         "rejected_courses": service.autopilot.rejected_courses}
+    if getattr(service, "gnss", None) is not None:
+        out["gnss"] = service.gnss.stats()
     return out
 
 

@@ -106,6 +106,8 @@ class SampleReader:
                 continue
             if samples:
                 self._process(samples, now)
+                if self.gnss is not None:
+                    self.gnss.advance_to(samples[-1].t_s)   # a GNSS replay, in step with the IMU replay
             elif getattr(source, "finished", False):
                 log.info("replay finished")
                 self.request_stop(0)
@@ -147,8 +149,10 @@ class SampleReader:
                 log.info("first good estimate: READY")
 
     def sample_time_monotonic(self, t_s: float) -> float:
-        """CLOCK_MONOTONIC time of a sample stamped t_s (the chip source stamps in that clock already;
-        a replay is shifted to the moment it started)."""
+        """The time a message carries for a sample stamped t_s: CLOCK_MONOTONIC (the chip source stamps in
+        that clock already); a replay keeps the recording's t_s (Service.recording_time_base)."""
+        if self.recording_time_base:
+            return t_s
         return t_s + getattr(self.source, "monotonic_offset_s", 0.0)
 
     def _on_driver_error(self, exc: Exception) -> None:

@@ -39,6 +39,7 @@ from ahrsd.daemon.commands import CommandRouter
 from ahrsd.daemon.config import MAV_TYPES, Config
 from ahrsd.daemon.declination import DeclinationResolver
 from ahrsd.daemon.endpoint_outputs import EndpointOutputs
+from ahrsd.daemon.gnss_task import GnssTask
 from ahrsd.daemon.health import Health
 from ahrsd.daemon.housekeeping import Housekeeping
 from ahrsd.daemon.inbound import InboundDispatch
@@ -95,6 +96,7 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
                                       accept_broadcast=config.mavlink.accept_broadcast_commands)
         self.notifier = Notifier(environ)
         self.source = source
+        self.gnss: GnssTask | None = None      # [gnss] source (daemon.gnss_task), None without one
         self.pipeline: Pipeline | None = None
         self.reset_counter = 0
         # the VISION_POSITION_ESTIMATE yaw after a calibration change (apply_calibration)
@@ -163,7 +165,14 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         bad = sum(ep.counters.rx_malformed + ep.counters.rx_bad_signature for ep in self.endpoints)
         return {"tx": tx, "rx": rx, "bad": bad}
 
+    @property
+    def recording_time_base(self) -> bool:
+        """A replay: outgoing time fields carry the recording's t_s, so a ground station's plot lines up with it."""
+        return bool(getattr(self.source, "recording_time_base", False))
+
     def time_boot_ms(self, now: float | None = None) -> int:
+        if self.recording_time_base and self.pipeline is not None and self.pipeline.last_sample is not None:
+            return int(self.pipeline.last_sample.t_s * 1000.0) & 0xFFFFFFFF
         return int(((time.monotonic() if now is None else now) - self.boot_time) * 1000.0) & 0xFFFFFFFF
 
     # ------------------------------------------------------------------------------------------ start / stop
@@ -212,7 +221,7 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         self.start_restart_rule()
         self._resolve_declination(initial=True)
         calibration = CalibrationStore(self.state_dir).load()
-        estimator = make_estimator(cfg.estimator.name, declination_rad=self.declination_rad)
+        estimator = make_estimator(cfg.estimator_name, declination_rad=self.declination_rad)
         self.pipeline = Pipeline(estimator, calibration)
         self.pipeline.set_mounting([self.params.get(n) for n in MOUNTING_PARAMS])
         self._setup_signing()
@@ -228,12 +237,16 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         attach_magcal(self)
         if self.source is None:
             self.source = open_source(cfg.sensor, clock=time.monotonic)
+        if cfg.gnss.source != "none":
+            self.gnss = GnssTask(self, cfg.gnss)
+            self.gnss.open()
         want_line = cfg.daemon.status_line == "on" or (cfg.daemon.status_line == "auto" and self._stdout.isatty())
         self._status_line = StatusLine(self._stdout) if want_line else None
         if self._status_line is not None:
             self._status_line.install_log_filter()
-        log.info("ahrsd started: %s, estimator %s, declination %.2f° (%s), MAVLink %s as %d/%d, state in %s",
-                 self.source.description, cfg.estimator.name, math.degrees(self.declination_rad),
+        log.info("ahrsd started: %s, GNSS %s, estimator %s, declination %.2f° (%s), MAVLink %s as %d/%d, state in %s",
+                 self.source.description, self.gnss.description if self.gnss else "none", cfg.estimator_name,
+                 math.degrees(self.declination_rad),
                  self.declination_source, ", ".join(e.url for e in self.endpoints), self.system_id,
                  self.component_id, self.state_dir)
         self.notifier.status(f"starting: {self.source.description}")
@@ -273,6 +286,8 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
             self.restart_heading.save_now(self.reset_counter)
         for ep in self.endpoints:
             ep.close()
+        if self.gnss is not None:
+            self.gnss.close()
         if self.source is not None:
             self.source.close()
         self.notifier.close()

@@ -23,6 +23,8 @@ def format_status(s, now: float) -> str:
     link = s.link_totals()
     parts.append(f"gaps {c.gaps if c else 0} ovr {s.counters.overruns} "
                  f"tx {link['tx']} rx {link['rx']} bad {link['bad']}")
+    if getattr(s, "gnss", None) is not None:
+        parts.append(s.gnss.status(now))
     if s.autopilot.system_id is not None:
         parts.append(f"AP {s.autopilot.system_id}{' ARMED' if s.autopilot.armed else ''}")
     return " | ".join(parts)

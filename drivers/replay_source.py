@@ -21,13 +21,17 @@ class ReplaySource:
     """
 
     per_sample = False   # polled on a fixed tick; each poll returns every sample that is due
-    monotonic_offset_s = 0.0   # CLOCK_MONOTONIC − recording time (set at the first sample)
+    monotonic_offset_s = 0.0   # CLOCK_MONOTONIC − recording time (set at the first sample; at speed 1)
+    recording_time_base = True   # outgoing messages carry the recording's t_s (what a plot lines up with)
 
     def __init__(self, samples: Iterator[ImuSample], description: str, realtime: bool = True,
-                 rate_hz: float = ADIS16405_RATE_HZ, clock=time.monotonic):
+                 rate_hz: float = ADIS16405_RATE_HZ, clock=time.monotonic, speed: float = 1.0):
+        if not speed > 0:
+            raise ValueError(f"replay speed must be > 0, not {speed!r}")
         self._it = iter(samples)
         self.description = description
         self.realtime = realtime
+        self.speed = float(speed)        # realtime: recording seconds per second of `clock`
         self.sample_rate_hz = rate_hz
         self._clock = clock
         self._pending: ImuSample | None = None
@@ -49,7 +53,7 @@ class ReplaySource:
                 if self._t0_clock is None:
                     self._t0_clock, self._t0_sample = now, self._pending.t_s
                     self.monotonic_offset_s = now - self._pending.t_s
-            if self.realtime and self._pending.t_s - self._t0_sample > now - self._t0_clock:
+            if self.realtime and self._pending.t_s - self._t0_sample > (now - self._t0_clock) * self.speed:
                 break
             s, self._pending = self._pending, None
             last, self._last_counter = self._last_counter, s.counter

@@ -73,7 +73,8 @@ def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
         from ahrsd.drivers.recording import iter_samples
 
         return ReplaySource(iter_samples(sensor_cfg.replay_file), f"replay {sensor_cfg.replay_file}",
-                            realtime=sensor_cfg.replay_realtime, clock=clock)
+                            realtime=sensor_cfg.replay_realtime, clock=clock,
+                            speed=getattr(sensor_cfg, "replay_speed", 1.0))
     if kind == "spi":
         if faults is not None:
             raise ValueError("fault injection (--sim-faults) needs the simulated sensor, not --spi")

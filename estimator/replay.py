@@ -3,6 +3,11 @@
 The table has one row per input sample and the columns of ATTITUDE_COLUMNS (degrees for angles, rad/s for the
 gyro bias, EstimateFlags as a number). The samples are used as given: a caller that wants them calibrated maps
 them through its calibration first.
+
+With GNSS fixes (an aided estimator, one that has `update_gnss`), the fixes are merged with the samples in time
+order — each fix is offered before the first sample later than its time of validity — and the table adds
+NAV_COLUMNS (the estimator's NavState; NaN while it has none). The fixes are used as given: a caller validates
+them first (drivers.gnss_validation), as the daemon does.
 """
 
 from __future__ import annotations
@@ -13,6 +18,7 @@ from collections.abc import Iterable, Iterator
 import numpy as np
 
 from ahrsd.core.angles import wrap_pi
+from ahrsd.core.gnss import GnssFix
 from ahrsd.core.sample import ImuSample
 
 from .base import Estimator
@@ -27,25 +33,39 @@ ATTITUDE_COLUMNS = (
     "gyro_bias_x_rad_s", "gyro_bias_y_rad_s", "gyro_bias_z_rad_s",
     "flags",                                   # EstimateFlags as an integer
 )
+NAV_COLUMNS = (
+    "vel_n_m_s", "vel_e_m_s", "vel_d_m_s",     # NED velocity of the IMU, m/s
+    "lat_deg", "lon_deg", "alt_m",             # WGS-84 position of the IMU (alt above the ellipsoid)
+)
 CHUNK_ROWS = 16384   # rows per table yielded (memory stays constant for long recordings)
 _DEG = 180.0 / math.pi
 
 
 def replay_attitude(estimator: Estimator, samples: Iterable[ImuSample], true_north: bool = False,
-                    chunk_rows: int = CHUNK_ROWS) -> Iterator[np.ndarray]:
+                    chunk_rows: int = CHUNK_ROWS, fixes: Iterable[GnssFix] | None = None) -> Iterator[np.ndarray]:
     """Feed `samples` to `estimator.update` in order and yield the output as float64 tables of at most
-    `chunk_rows` rows × len(ATTITUDE_COLUMNS).
+    `chunk_rows` rows × len(ATTITUDE_COLUMNS) (+ len(NAV_COLUMNS) with `fixes`).
 
     true_north: rotate the quaternion and yaw about down by the estimator's declination (heading_true −
     heading_mag) so they are relative to true north; otherwise they stay relative to magnetic north, as
     estimated. Rows before the estimator initialised have NaN quaternion and angles.
+    fixes: GNSS fixes in time order, for an aided estimator (`update_gnss`), offered in time order with the
+    samples; the table then ends with NAV_COLUMNS.
     """
+    if fixes is not None and not hasattr(estimator, "update_gnss"):
+        raise ValueError(f"estimator {getattr(estimator, 'name', estimator)!r} takes no GNSS fixes (not aided)")
     nan = math.nan
     deg = _DEG
     update = estimator.update
     rows: list[tuple] = []
     append = rows.append
+    fix_iter = iter(fixes) if fixes is not None else None
+    next_fix = next(fix_iter, None) if fix_iter is not None else None
+    no_nav = (nan,) * len(NAV_COLUMNS)
     for sample in samples:
+        while next_fix is not None and next_fix.t_s <= sample.t_s:
+            estimator.update_gnss(next_fix)
+            next_fix = next(fix_iter, None)
         est = update(sample)
         if est.roll_rad == est.roll_rad:   # initialised (not NaN)
             q0, q1, q2, q3 = est.q_wxyz.tolist()
@@ -53,9 +73,13 @@ def replay_attitude(estimator: Estimator, samples: Iterable[ImuSample], true_nor
             q0 = q1 = q2 = q3 = nan
         s0, s1, s2 = est.sigma_rpy_rad.tolist()
         b0, b1, b2 = est.gyro_bias_rad_s.tolist()
-        append((sample.t_s, q0, q1, q2, q3, est.roll_rad * deg, est.pitch_rad * deg, est.yaw_rad * deg,
-                est.heading_mag_rad * deg, est.heading_true_rad * deg, s0 * deg, s1 * deg, s2 * deg,
-                b0, b1, b2, int(est.flags)))
+        row = (sample.t_s, q0, q1, q2, q3, est.roll_rad * deg, est.pitch_rad * deg, est.yaw_rad * deg,
+               est.heading_mag_rad * deg, est.heading_true_rad * deg, s0 * deg, s1 * deg, s2 * deg,
+               b0, b1, b2, int(est.flags))
+        if fix_iter is not None:
+            nav = est.nav
+            row += no_nav if nav is None else (*nav.vel_ned_m_s.tolist(), nav.lat_deg, nav.lon_deg, nav.alt_m)
+        append(row)
         if len(rows) >= chunk_rows:
             yield _finish_table(rows, true_north)
             rows = []
@@ -65,7 +89,7 @@ def replay_attitude(estimator: Estimator, samples: Iterable[ImuSample], true_nor
 
 
 def _finish_table(rows: list[tuple], true_north: bool) -> np.ndarray:
-    table = np.array(rows, dtype=np.float64).reshape(len(rows), len(ATTITUDE_COLUMNS))
+    table = np.array(rows, dtype=np.float64).reshape(len(rows), -1)
     yaw = np.radians(table[:, 7])
     if true_north:
         n = len(table)

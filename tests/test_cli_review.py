@@ -96,7 +96,7 @@ def test_magcal_bad_target_is_a_usage_error(target, capsys):
 def test_example_config_values_are_the_defaults_except_the_two_it_names():
     cfg = load_config(EXAMPLE)
     default = Config()
-    for section in ("sensor", "estimator", "location", "mavlink", "outputs", "state", "signing", "daemon"):
+    for section in ("sensor", "estimator", "gnss", "location", "mavlink", "outputs", "state", "signing", "daemon"):
         got, want = dataclasses.asdict(getattr(cfg, section)), dataclasses.asdict(getattr(default, section))
         if section == "sensor":
             assert got.pop("source") == "spi" and want.pop("source") == "sim"

@@ -144,7 +144,7 @@ SCALARS = st.one_of(
 HOSTILE_TOML_VALUES = st.one_of(SCALARS, st.lists(SCALARS, max_size=4),
                                 st.dictionaries(st.text(min_size=1, max_size=6), SCALARS, max_size=3))
 # keys whose (valid) value can make a rule about ANOTHER key of the section fail: the error names that key
-CROSS_KEY_RULES = {("sensor", "source"), ("location", "lat_deg"), ("location", "lon_deg")}
+CROSS_KEY_RULES = {("sensor", "source"), ("location", "lat_deg"), ("location", "lon_deg"), ("gnss", "source")}
 CONFIG_CASES = Counter()
 
 

@@ -24,13 +24,14 @@ GCS_SYS, GCS_COMP = 255, 190
 class Daemon:
     """An `ahrsd run` subprocess plus a pymavlink ground station listening on its udpout port."""
 
-    def __init__(self, tmp: Path, *extra: str, env: dict | None = None, scenario: str = "static"):
+    def __init__(self, tmp: Path, *extra: str, env: dict | None = None, scenario: str = "static",
+                 source: tuple[str, ...] | None = None):
         self.port = free_udp_port()
         self.state_dir = tmp / "state"
         self.log_path = tmp / "ahrsd.log"
         self.gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{self.port}", source_system=GCS_SYS,
                                               source_component=GCS_COMP, dialect="ardupilotmega")
-        cmd = [str(AHRSD), "run", "--sim", scenario, "--mavlink",
+        cmd = [str(AHRSD), "run", *(source or ("--sim", scenario)), "--mavlink",
                f"udpout:127.0.0.1:{self.port}", "--state-dir", str(self.state_dir), "--status-line", "off", *extra]
         full_env = dict(os.environ, PYTHONUNBUFFERED="1")
         full_env.update(env or {})

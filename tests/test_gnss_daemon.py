@@ -1,0 +1,278 @@
+"""The daemon's GNSS input (daemon.gnss_task): a fake autopilot's GPS_RAW_INT over UDP reaches the aided
+estimator, hostile values are rejected and counted at the edge, SYS_STATUS carries the GPS bit, STATUSTEXT
+reports the GNSS state, and the navigation outputs are built from the aided estimator's state."""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import math
+import time
+
+import numpy as np
+import pytest
+
+from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, NavState
+from ahrsd.core.sample import make_sample
+from ahrsd.daemon.config import GnssConfig, OutputsConfig
+from ahrsd.daemon.mavlink_io import mavlink
+from service_rig import gcs_socket, start_service, stop_service
+from test_fuzz_mavlink import drain
+
+GPS = mavlink.MAV_SYS_STATUS_SENSOR_GPS
+AP_SYS, AP_COMP = 1, 1
+
+
+class FakeAided:
+    """An 'aided' estimator (it has update_gnss): a fixed attitude, records the fixes it is offered, and a
+    navigation state once it has one. `flags` is what its estimates carry."""
+
+    name = "fake-aided"
+
+    def __init__(self):
+        self.fixes = []
+        self.flags = EstimateFlags.NONE
+
+    def update_gnss(self, fix):
+        self.fixes.append(fix)
+        return 0
+
+    def update(self, sample):
+        nav = None
+        if self.fixes:
+            f = self.fixes[-1]
+            nav = NavState(np.array([1.5, -2.0, 0.25]), f.lat_deg, f.lon_deg, f.alt_m, np.full(3, 0.1),
+                           np.full(3, 1.0), np.zeros(3))
+        return AttitudeEstimate(sample.t_s, np.array([1.0, 0, 0, 0]), 0.0, 0.0, 0.0, 0.0, 0.0, np.zeros(3),
+                                np.zeros(3), np.full(3, 0.01), self.flags, nav)
+
+    def reset(self):
+        pass
+
+    def set_declination(self, rad):
+        pass
+
+    def relearn_field_reference(self):
+        pass
+
+
+class Autopilot:
+    """A fake autopilot: pymavlink-encoded packets sent over UDP to the daemon's endpoint."""
+
+    def __init__(self, rig):
+        self.rig = rig
+        self.mav = mavlink.MAVLink(None, srcSystem=AP_SYS, srcComponent=AP_COMP)
+        self.time_usec = 1_000_000
+
+    def send(self, msg, sysid=AP_SYS):
+        self.mav.srcSystem = sysid
+        self.rig.gcs.sendto(bytes(msg.pack(self.mav)), self.rig.daemon_addr)
+
+    def heartbeat(self):
+        self.send(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_SURFACE_BOAT,
+                                                    mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4, 3))
+
+    def gps_raw_int(self, lat=473977418, lon=85455939, alt=488000, vel=500, cog=9000, fix_type=3, sats=11,
+                    h_acc=1200, sysid=AP_SYS):
+        self.time_usec += 200_000
+        self.send(mavlink.MAVLink_gps_raw_int_message(self.time_usec, fix_type, lat, lon, alt, 90, 150, vel, cog,
+                                                      sats, 0, h_acc, 2500, 300, 0), sysid)
+
+
+def pump(rig, seconds=0.05):
+    rig.loop.run_until_complete(asyncio.sleep(seconds))
+
+
+def received(rig) -> list:
+    """Every message the daemon sent to the ground-station socket so far."""
+    return drain(rig)
+
+
+@pytest.fixture
+def rig(tmp_path):
+    gcs = gcs_socket()
+    service, loop = start_service(gcs, tmp_path / "state", gnss=GnssConfig(source="mavlink"))
+    r = type("Rig", (), {})()
+    r.service, r.loop, r.gcs = service, loop, gcs
+    loop.run_until_complete(asyncio.sleep(0.05))
+    _, r.daemon_addr = gcs.recvfrom(65536)         # the daemon's first heartbeat says where it listens
+    r.fake = service.pipeline.estimator = FakeAided()
+    r.ap = Autopilot(r)
+    r.ap.heartbeat()
+    pump(r)
+    yield r
+    stop_service(service, loop)
+    gcs.close()
+
+
+def test_gps_raw_int_reaches_the_aided_estimator(rig):
+    for _ in range(3):
+        rig.ap.gps_raw_int()
+    pump(rig)
+    fixes = rig.fake.fixes
+    assert len(fixes) == 3
+    f = fixes[-1]
+    # common.xml: degE7, mm, cm/s ground speed with course in cdeg (9000 = east), h_acc mm
+    assert (f.lat_deg, f.lon_deg, f.alt_m) == pytest.approx((47.3977418, 8.5455939, 488.0))
+    assert f.vel_ned_m_s[:2] == pytest.approx([0.0, 5.0], abs=1e-9) and f.h_acc_m == pytest.approx(1.2)
+    assert f.num_sats == 11
+    # time of validity: arrival on the monotonic clock (the IMU samples' clock) minus the configured latency
+    assert time.monotonic() - 2.0 < f.t_s < time.monotonic() - rig.service.config.gnss.latency_s
+    g = rig.service.gnss
+    assert (g.counters.accepted, g.counters.offered, g.counters.rejected) == (3, 3, 0)
+
+
+@pytest.mark.parametrize("hostile, reason", [
+    ({"lat": 950_000_000}, "out_of_range"),          # 95° latitude
+    ({"lon": -1_900_000_000}, "out_of_range"),       # -190° longitude
+    ({"alt": 100_000_000}, "out_of_range"),          # 100 km
+    ({"vel": 65_000}, "out_of_range"),               # 650 m/s
+    ({"fix_type": 1}, "no_fix"),
+    ({"fix_type": 0, "lat": 0, "lon": 0}, "no_fix"),
+])
+def test_hostile_gps_raw_int_is_rejected_and_counted(rig, hostile, reason):
+    rig.ap.gps_raw_int()
+    rig.ap.gps_raw_int(**hostile)
+    rig.ap.gps_raw_int()
+    pump(rig)
+    g = rig.service.gnss
+    assert len(rig.fake.fixes) == 2                                 # the hostile one never reached it
+    assert g.counters.rejected == 1 and g.validator.counters[reason] == 1
+    assert all(abs(f.lat_deg) <= 90 and f.fix_type >= 2 for f in rig.fake.fixes)
+
+
+def test_only_the_autopilot_is_listened_to_and_repeats_are_dropped(rig):
+    rig.ap.gps_raw_int()
+    rig.ap.gps_raw_int(sysid=7)                     # another system's receiver
+    rig.ap.time_usec = 1_000_000
+    rig.ap.gps_raw_int()                            # the first fix again (ArduPilot streams it at SRx_EXT_STAT)
+    rig.ap.send(mavlink.MAVLink_global_position_int_message(5000, 473977418, 85455939, 488000, 0, 100, 0, 0, 0))
+    pump(rig)
+    assert len(rig.fake.fixes) == 1
+    sel = rig.service.gnss.selector.counters
+    assert sel["gps_raw_int_repeated"] == 1 and sel["global_position_int_skipped"] == 1
+
+
+def test_sys_status_gps_bit_and_statustext(rig):
+    svc = rig.service
+    now = time.monotonic()
+    status = svc.sys_status_message(now)
+    assert status.onboard_control_sensors_present & GPS and status.onboard_control_sensors_enabled & GPS
+    assert not status.onboard_control_sensors_health & GPS          # no fix yet
+    rig.ap.gps_raw_int()
+    pump(rig)
+    now = time.monotonic()
+    assert svc.sys_status_message(now).onboard_control_sensors_health & GPS
+    # stale: no accepted fix for longer than FIX_STALE_S
+    assert not svc.sys_status_message(now + 3.0).onboard_control_sensors_health & GPS
+    received(rig)
+    svc.gnss.tick(now)
+    texts = [m.text for m in received(rig) if m.get_type() == "STATUSTEXT"]
+    assert texts == ["ahrsd: GNSS 3D 11 sats, unaided"]
+    rig.fake.flags = EstimateFlags.GNSS_AIDED
+    process(svc, rig.loop, 1.0, 1)
+    svc.gnss.tick(now + 1.0)                                         # changed, but within the rate limit
+    assert not [m for m in received(rig) if m.get_type() == "STATUSTEXT"]
+    svc.gnss.tick(now + 6.0)
+    texts = [m.text for m in received(rig) if m.get_type() == "STATUSTEXT"]
+    assert texts == ["ahrsd: GNSS no fix, aided"]                    # (its last fix is 6 s old by then)
+    assert svc.gnss.status(now) == "GNSS 3D 11 sats, aided"
+
+
+def test_no_gnss_source_no_gps_bit(tmp_path):
+    gcs = gcs_socket()
+    service, loop = start_service(gcs, tmp_path / "state")
+    try:
+        status = service.sys_status_message(time.monotonic())
+        assert not status.onboard_control_sensors_present & GPS and service.gnss is None
+    finally:
+        stop_service(service, loop)
+        gcs.close()
+
+
+def test_navigation_outputs(tmp_path):
+    gcs = gcs_socket()
+    outputs = dataclasses.replace(OutputsConfig(), local_position_ned_hz=5.0, global_position_int_hz=5.0)
+    service, loop = start_service(gcs, tmp_path / "state", gnss=GnssConfig(source="mavlink"), outputs=outputs)
+    try:
+        fake = service.pipeline.estimator = FakeAided()
+        lpn, gpi = mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT
+        process(service, loop, 1.0, 1)
+        assert service.build_output(lpn, time.monotonic()) is None      # no navigation state yet
+        from ahrsd.core.gnss import make_fix
+
+        fake.update_gnss(make_fix(0.9, 47.0, 8.0, 500.0, [0, 0, 0]))
+        process(service, loop, 1.1, 2)
+        m = service.build_output(lpn, time.monotonic())
+        assert (m.x, m.y, m.z) == pytest.approx((0.0, 0.0, 0.0)) and (m.vx, m.vy, m.vz) == pytest.approx(
+            (1.5, -2.0, 0.25))
+        # 0.001° of latitude north and of longitude east of the origin, 10 m higher: WGS-84 at 47° N
+        # (meridian arc 111 180 m/°, parallel 76 020 m/° at 47°; from the ellipsoid's radii of curvature)
+        fake.update_gnss(make_fix(1.0, 47.001, 8.001, 510.0, [0, 0, 0]))
+        process(service, loop, 1.2, 3)
+        m = service.build_output(lpn, time.monotonic())
+        a, e2, lat = 6378137.0, 6.69437999014e-3, math.radians(47.0)
+        r_n = a * (1 - e2) / (1 - e2 * math.sin(lat) ** 2) ** 1.5
+        r_e = a / math.sqrt(1 - e2 * math.sin(lat) ** 2)
+        assert m.x == pytest.approx(math.radians(0.001) * r_n, abs=0.05)
+        assert m.y == pytest.approx(math.radians(0.001) * r_e * math.cos(lat), abs=0.05)
+        assert m.z == pytest.approx(-10.0, abs=0.01)
+        g = service.build_output(gpi, time.monotonic())
+        assert (g.lat, g.lon, g.alt, g.relative_alt) == (470010000, 80010000, 510000, 10000)
+        assert (g.vx, g.vy, g.vz) == (150, -200, 25)
+        assert service.schedule.rate_hz(lpn) == 5.0 and service.schedule.rate_hz(gpi) == 5.0
+    finally:
+        stop_service(service, loop)
+        gcs.close()
+
+
+def test_navigation_outputs_are_off_by_default():
+    cfg = OutputsConfig()
+    assert cfg.local_position_ned_hz == 0.0 and cfg.global_position_int_hz == 0.0
+
+
+def process(service, loop, t_s, counter):
+    """One sample through the service's hot path, inside its event loop (as the reader runs it)."""
+    async def step():
+        service._process([make_sample(t_s, [0, 0, 0], [0, 0, -9.8], [20, 0, 40], counter=counter)],
+                         time.monotonic())
+    loop.run_until_complete(step())
+
+
+def test_a_receiver_missing_at_start_is_opened_when_it_appears(tmp_path):
+    """The IMU does not wait for the GNSS: the daemon starts, reports the device error, and opens the port
+    once it exists (checked every REOPEN_PERIOD_S from housekeeping); its fixes then flow."""
+    from ahrsd.core.gnss import make_fix
+    from ahrsd.daemon.gnss_task import REOPEN_PERIOD_S
+    from ahrsd.drivers.gnss_simulated import SimulatedGnssReceiver
+
+    port = tmp_path / "ttyGNSS"                  # a path that appears later (like a USB receiver plugged in)
+    gcs = gcs_socket()
+    service, loop = start_service(gcs, tmp_path / "state",
+                                  gnss=GnssConfig(source="serial", device=str(port), latency_s=0.1))
+    rx = SimulatedGnssReceiver(protocol="ubx")
+    try:
+        g = service.gnss
+        fake = service.pipeline.estimator = FakeAided()
+        now = time.monotonic()
+        assert g.serial is None and g.fix_summary(now) == "device error"
+        assert not service.sys_status_message(now).onboard_control_sensors_health & GPS
+        port.symlink_to(rx.device)
+        g.tick(now + REOPEN_PERIOD_S + 0.1)
+        assert g.serial is not None and g.open_error == ""
+        for k in range(3):
+            rx.write_fix(make_fix(100.0 + k, 47.0, 8.0, 500.0, [1.0, 0.0, 0.0], num_sats=10, h_acc_m=1.0,
+                                  v_acc_m=2.0, s_acc_m_s=0.1))
+            pump(rig_of(service, loop, gcs), 0.1)
+        assert len(fake.fixes) == 3 and g.fix_summary(time.monotonic()) == "3D 10 sats", (g.stats(), g._fd)
+        assert service.sys_status_message(time.monotonic()).onboard_control_sensors_health & GPS
+    finally:
+        rx.close()
+        stop_service(service, loop)
+        gcs.close()
+
+
+def rig_of(service, loop, gcs):
+    r = type("Rig", (), {})()
+    r.service, r.loop, r.gcs = service, loop, gcs
+    return r

@@ -1,0 +1,108 @@
+"""`ahrsd replay REC --gnss GNSS.csv`: fixes merged with the samples in time order, the navigation columns
+after the existing ones, the recording's fixes through the validator, clear errors for bad input."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from ahrsd.cli.replay import AIDED_OUTPUT_HEADER, OUTPUT_HEADER
+from ahrsd.core.gnss import make_fix
+from ahrsd.core.sample import make_sample
+from ahrsd.estimator import make_estimator
+from ahrsd.estimator.replay import ATTITUDE_COLUMNS, NAV_COLUMNS, replay_attitude
+from test_gnss_daemon import FakeAided
+
+
+class RecordingOrder(FakeAided):
+    def __init__(self):
+        super().__init__()
+        self.events = []
+
+    def update_gnss(self, fix):
+        self.events.append(("fix", fix.t_s))
+        return super().update_gnss(fix)
+
+    def update(self, sample):
+        self.events.append(("sample", sample.t_s))
+        return super().update(sample)
+
+
+def test_fixes_are_offered_in_time_order_and_nav_columns_follow():
+    samples = [make_sample(0.01 * i, [0, 0, 0], [0, 0, -9.8], [20, 0, 40], counter=i) for i in range(100)]
+    fixes = [make_fix(t, 47.0 + t * 1e-5, 8.0, 400.0 + t, [1.0, 0.0, 0.0]) for t in (0.105, 0.3, 0.555, 0.985, 0.9901)]
+    est = RecordingOrder()
+    table = np.vstack(list(replay_attitude(est, samples, fixes=fixes, chunk_rows=37)))
+    assert table.shape == (100, len(ATTITUDE_COLUMNS) + len(NAV_COLUMNS))
+    # expected: a fix goes in before the first sample not earlier than it (sorted, fixes first on a tie)
+    # and one later than the last sample is never offered (no sample after it)
+    want = sorted([("sample", s.t_s) for s in samples] + [("fix", f.t_s) for f in fixes if f.t_s <= 0.99],
+                  key=lambda e: (e[1], e[0] != "fix"))
+    assert est.events == want
+    nav = table[:, len(ATTITUDE_COLUMNS):]
+    first_nav = int(np.searchsorted([s.t_s for s in samples], 0.105))   # the first sample after the first fix
+    assert np.all(np.isnan(nav[:first_nav])) and np.all(np.isfinite(nav[first_nav:]))
+    row = nav[-1]
+    assert list(row[:3]) == [1.5, -2.0, 0.25]                            # FakeAided's NavState velocity
+    assert tuple(row[3:]) == (fixes[-2].lat_deg, fixes[-2].lon_deg, fixes[-2].alt_m)
+
+
+def test_an_unaided_estimator_takes_no_fixes():
+    with pytest.raises(ValueError, match="not aided"):
+        list(replay_attitude(make_estimator("mekf"), [], fixes=[]))
+
+
+def ahrsd(*args):
+    return subprocess.run([sys.executable, "-m", "ahrsd.cli", *args], capture_output=True, text=True, timeout=120)
+
+
+@pytest.fixture(scope="module")
+def boat(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("replay")
+    rec = tmp / "boat.csv"
+    res = ahrsd("record", "--sim", "boat", "--seconds", "40", "-o", str(rec))
+    assert res.returncode == 0, res.stderr
+    return rec, tmp / "boat.gnss.csv"
+
+
+def test_bad_gnss_input_is_a_clear_error(boat, tmp_path):
+    rec, gnss = boat
+    res = ahrsd("replay", str(rec), "--gnss", str(gnss), "--estimator", "mekf", "-o", str(tmp_path / "o.csv"))
+    assert res.returncode == 1 and "--gnss needs the aided estimator" in res.stderr
+    res = ahrsd("replay", str(rec), "--gnss", str(tmp_path / "none.csv"), "-o", str(tmp_path / "o.csv"))
+    assert res.returncode == 1 and "No such file" in res.stderr
+    bad = tmp_path / "bad.gnss.csv"
+    bad.write_text("t_s,lat,lon_deg,alt_m,vel_n_m_s,vel_e_m_s,vel_d_m_s\n1,2,3,4,5,6,7\n")
+    res = ahrsd("replay", str(rec), "--gnss", str(bad), "-o", str(tmp_path / "o.csv"))
+    assert res.returncode == 1 and "lat_deg" in res.stderr
+    nofix = tmp_path / "nofix.gnss.csv"
+    nofix.write_text("t_s,lat_deg,lon_deg,alt_m,vel_n_m_s,vel_e_m_s,vel_d_m_s,fix_type\n1,2,3,4,5,6,7,1\n")
+    res = ahrsd("replay", str(rec), "--gnss", str(nofix), "-o", str(tmp_path / "o.csv"))
+    assert res.returncode == 1 and "no usable fix" in res.stderr and "1 rejected" in res.stderr
+    assert not (tmp_path / "o.csv").exists()
+
+
+def test_replay_with_gnss_adds_the_navigation_columns(boat, tmp_path):
+    from ahrsd.drivers.gnss_recording import read_gnss_recording
+    from ahrsd.simulation import open_stream
+
+    rec, gnss = boat
+    out = tmp_path / "aided.csv"
+    res = ahrsd("replay", str(rec), "--gnss", str(gnss), "-o", str(out))
+    assert res.returncode == 0, res.stderr
+    assert "GNSS fixes (0 rejected)" in res.stderr and "through ins" in res.stderr
+    lines = out.read_text().splitlines()
+    assert lines[0] == AIDED_OUTPUT_HEADER and lines[0].startswith(OUTPUT_HEADER + ",")
+    data = np.loadtxt(out, delimiter=",", skiprows=1)
+    cols = AIDED_OUTPUT_HEADER.split(",")
+    t = data[:, 0]
+    late = t > 20.0
+    truth = open_stream("boat", errors="ideal").truth_at(t[late])
+    vel = data[late][:, [cols.index(c) for c in ("vel_n_m_s", "vel_e_m_s", "vel_d_m_s")]]
+    assert np.sqrt(np.mean((vel - truth.vel_ned_m_s) ** 2)) < 0.2      # 0.05 m/s receiver noise
+    lat = data[late][:, cols.index("lat_deg")]
+    assert np.max(np.abs(lat - truth.lat_deg)) * 111_000 < 5.0
+    assert len(read_gnss_recording(gnss)) > 150
