@@ -220,7 +220,8 @@ def test_navigation_outputs(tmp_path):
         g = service.build_output(gpi, time.monotonic())
         assert (g.lat, g.lon, g.alt, g.relative_alt) == (470010000, 80010000, 510000, 10000)
         assert (g.vx, g.vy, g.vz) == (150, -200, 25)
-        assert service.schedule.rate_hz(lpn) == 5.0 and service.schedule.rate_hz(gpi) == 5.0
+        for ep in service.endpoints:      # gcs profile (the default): the configured rates on every endpoint
+            assert ep.schedule.rate_hz(lpn) == 5.0 and ep.schedule.rate_hz(gpi) == 5.0
     finally:
         stop_service(service, loop)
         gcs.close()
