@@ -331,6 +331,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--vehicles", action="store_true", help="only the vehicle section (c)")
     ap.add_argument("--no-vehicles", action="store_true", help="skip the vehicle section (c)")
     ap.add_argument("--vehicle-seeds", type=int, default=3, help="seeds per vehicle and site in (c)")
+    ap.add_argument("--vehicle-scenarios", nargs="*", default=None, metavar="SCENARIO",
+                    help="moving scenarios for (c) (default: boat car plane)")
     ap.add_argument("--site", action="append", default=None, metavar="LAT,LON[,ALT_M[,YYYY-MM-DD]]",
                     help="site(s) for (c) instead of the default and 60°N (repeatable)")
     args = ap.parse_args(argv)
@@ -346,10 +348,10 @@ def main(argv: list[str] | None = None) -> int:
     if not args.no_broad and not args.vehicles:
         broad_section(methods, args.trials, args.quick, args.max_samples)
     if not args.no_vehicles:
-        from bench.vehicle_accuracy import vehicle_section
+        from bench.vehicle_accuracy import VEHICLE_SCENARIOS, vehicle_section
 
         sites = {f"site{i + 1}": s for i, s in enumerate(args.site)} if args.site else None
-        vehicle_section(args.quick, args.vehicle_seeds, sites)
+        vehicle_section(args.quick, args.vehicle_seeds, sites, args.vehicle_scenarios or VEHICLE_SCENARIOS)
     return 0
 
 

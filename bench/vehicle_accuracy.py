@@ -65,20 +65,21 @@ def tilt_heading_errors_deg(q_mag_est, q_truth, declination_rad):
     return tilt, np.degrees((dyaw + np.pi) % (2 * np.pi) - np.pi)
 
 
-def longest_turn_after(scenario, t_from_s: float, t_last_start_s: float, min_rate_deg_s: float = 1.0):
-    """Start of the longest turn (|course rate| above min_rate) that starts in [t_from_s, t_last_start_s], s."""
-    t = np.arange(t_from_s, t_last_start_s + 120.0, 0.05)
-    turning = np.abs(np.degrees(scenario.turn_rate_rad_s(t))) > min_rate_deg_s
+def longest_turn_after(t_s, q_wxyz, t_from_s: float, t_last_start_s: float, min_rate_deg_s: float = 1.0):
+    """Start of the longest turn (truth heading rate above min_rate) that starts in [t_from_s, t_last_start_s],
+    s; None when there is none."""
+    yaw = np.unwrap(_rot(q_wxyz).as_euler("ZYX")[:, 0])
+    turning = np.abs(np.degrees(np.gradient(yaw, t_s))) > min_rate_deg_s
     starts = np.flatnonzero(turning[1:] & ~turning[:-1]) + 1
     ends = np.flatnonzero(~turning[1:] & turning[:-1]) + 1
     best, best_len = None, 0.0
     for k in starts:
-        if t[k] > t_last_start_s:
-            break
+        if not t_from_s <= t_s[k] <= t_last_start_s:
+            continue
         after = ends[ends > k]
-        length = (t[after[0]] if after.size else t[-1]) - t[k]
+        length = (t_s[after[0]] if after.size else t_s[-1]) - t_s[k]
         if length > best_len:
-            best, best_len = float(t[k]), length
+            best, best_len = float(t_s[k]), length
     return best
 
 
@@ -95,7 +96,7 @@ def simulate_vehicle(name: str, seconds: float, seed: int, site_text: str | None
     mag = (np.linalg.inv(err.soft_iron) @ (block.mag_ut - err.hard_iron_ut).T).T
     window = None
     if outage:
-        t0 = longest_turn_after(stream.scenario, 60.0, seconds - OUTAGE_S - 10.0)
+        t0 = longest_turn_after(block.t_s, block.truth_q_wxyz, 60.0, seconds - OUTAGE_S - 10.0)
         window = (t0, t0 + OUTAGE_S) if t0 is not None else None
     fixes = simulate_gnss(block, rate_hz=5.0, seed=seed + 1000, outages=[window] if window else [],
                           errors=GnssErrors(horizontal_m=1.5, vertical_m=2.5, velocity_m_s=0.05), latency_s=0.1)
