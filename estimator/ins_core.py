@@ -470,13 +470,14 @@ def _mag_update(x, P, par, dt_epoch, rate):
         mnorm = math.sqrt(mx * mx + my * my + mz * mz)
         # the heading of the horizontal field depends on the tilt too: with m = H u + Z e_D (u the magnetic
         # north), m_est = m − δθ × m gives α = −δθ_D + (Z/H) u·δθ, so a tilt error along magnetic north reads
-        # as tan(dip) times as much heading error (3.4× at 60° N). While the GNSS holds the horizon the row
-        # carries that sensitivity and the update may move the tilt (the GNSS outweighs the magnetometer
-        # there, and the heading no longer inherits the tilt error); unaided, the row is heading only and the
-        # tilt gain zero, as in mekf: a disturbed field must not move a levelled horizon.
+        # as tan(dip) times as much heading error (3.4× at 60° N). While fixes hold the horizon (GNSS_AIDED)
+        # the row carries that sensitivity and the update may move the tilt (the GNSS outweighs the
+        # magnetometer there, and the heading no longer inherits the tilt error); otherwise — before the first
+        # fix, dead reckoning, levelling — the row is heading only and the tilt gain zero, as in mekf: a
+        # disturbed field must not move a horizon nothing else holds.
         h = np.zeros(N_ERR)
         h[2] = -1.0
-        aided = _aided(x, par)
+        aided = x[X_NAV_OK] > 0.0 and x[X_T_LAST] - x[X_GNSS_LAST_T] <= par[P_GNSS_TIMEOUT]
         mh2 = mn * mn + me * me
         if aided and mh2 > 0.0:
             h[0] = md * mn / mh2
