@@ -133,17 +133,21 @@ def test_nees_of_attitude_velocity_and_position_within_chi_square_bounds():
         assert lo < mean < hi, (name, means, (lo, hi))
 
 
+def _banked_turns_with_gyro_error(**gyro_error):
+    """200 s of coordinated turns with one gyro error (white noise otherwise), clean fixes, and the mask of the
+    samples after 100 s (the error learned)."""
+    p = DEFAULT_INS_PARAMS
+    err = SensorErrors.ideal().replace(gyro_noise_density_rad_s_rthz=p.gyro_noise_rad_s_sqrt_hz,
+                                       accel_noise_density_m_s2_rthz=0.2 / 60.0, **gyro_error)
+    run = simulated_run("coordinated-turn", 200.0, rate_hz=200.0, seed=2, errors=err)
+    return run, gnss_fixes(run.truth, seed=12), run.truth.t_s > 100.0
+
+
 def test_gyro_scale_factor_is_learned_in_turns_and_off_gives_the_15_state_filter():
     """A 1 % scale error on the gyro z axis (white noise otherwise): in the banked turns the three scale
     states learn it (to 0.15 %) and horizon and heading are better than without them; init_gyro_scale_sigma=0 freezes
     them (with the misalignment states off too: the 15 states of seed 004 §10.2)."""
-    p = DEFAULT_INS_PARAMS
-    err = SensorErrors.ideal().replace(gyro_scale=[0.0, 0.0, 0.01],
-                                       gyro_noise_density_rad_s_rthz=p.gyro_noise_rad_s_sqrt_hz,
-                                       accel_noise_density_m_s2_rthz=0.2 / 60.0)
-    run = simulated_run("coordinated-turn", 200.0, rate_hz=200.0, seed=2, errors=err)
-    fixes = gnss_fixes(run.truth, seed=12)
-    m = run.truth.t_s > 100.0
+    run, fixes, m = _banked_turns_with_gyro_error(gyro_scale=[0.0, 0.0, 0.01])
     with_scale = Ins(declination_rad=DECLINATION)
     res = run_ins(with_scale, run, fixes)
     frozen = Ins(declination_rad=DECLINATION, init_gyro_scale_sigma=0.0, init_gyro_misalignment_sigma_rad=0.0)
@@ -162,15 +166,9 @@ def test_gyro_misalignment_is_learned_in_turns_and_levels_the_horizon():
     the banked turns the yaw rate leaks into the roll and pitch rates, a tilt drift the GNSS must keep correcting.
     The six misalignment states learn the two leaning towards z to 0.05° and halve the tilt error (measured
     0.10° against 0.36° with them frozen)."""
-    p = DEFAULT_INS_PARAMS
     mis = np.zeros((3, 3))
     mis[0, 2], mis[1, 2], mis[1, 0], mis[2, 0] = np.radians([0.3, -0.3, 0.2, 0.2])
-    err = SensorErrors.ideal().replace(gyro_misalignment_rad=mis,
-                                       gyro_noise_density_rad_s_rthz=p.gyro_noise_rad_s_sqrt_hz,
-                                       accel_noise_density_m_s2_rthz=0.2 / 60.0)
-    run = simulated_run("coordinated-turn", 200.0, rate_hz=200.0, seed=2, errors=err)
-    fixes = gnss_fixes(run.truth, seed=12)
-    m = run.truth.t_s > 100.0
+    run, fixes, m = _banked_turns_with_gyro_error(gyro_misalignment_rad=mis)
     learned = Ins(declination_rad=DECLINATION)
     res = run_ins(learned, run, fixes)
     frozen = Ins(declination_rad=DECLINATION, init_gyro_misalignment_sigma_rad=0.0)
