@@ -4,6 +4,7 @@
     .venv/bin/python bench/accuracy.py --quick         # short simulated runs, 3 BROAD trials
     .venv/bin/python bench/accuracy.py --trials 06 32 --no-sim --methods mekf vqf
     .venv/bin/python bench/accuracy.py --vehicles [--quick]  # only (c): ins with GNSS on boat, car, plane
+    .venv/bin/python bench/accuracy.py --cv --no-sim --no-broad   # cross-validated tuning only (bench/cv.py)
 
 (a) Simulated ADIS16405 (ahrsd.simulation, datasheet noise, 819.2 SPS) read through the byte-level chip
     `drivers.simulated.SimulatedAdis16405` and the real driver `drivers.adis16405.Adis16405` (quantised,
@@ -335,6 +336,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="moving scenarios for (c) (default: boat car plane)")
     ap.add_argument("--site", action="append", default=None, metavar="LAT,LON[,ALT_M[,YYYY-MM-DD]]",
                     help="site(s) for (c) instead of the default and 60°N (repeatable)")
+    ap.add_argument("--cv", action="store_true",
+                    help="cross-validated tuning of mekf on BROAD (leave-one-trial-out and leave-one-pair-out "
+                         "over bench/cv.py's candidate grid, beside VQF)")
     args = ap.parse_args(argv)
     unknown = set(args.methods) - set(METHODS)
     if unknown:
@@ -352,6 +356,10 @@ def main(argv: list[str] | None = None) -> int:
 
         sites = {f"site{i + 1}": s for i, s in enumerate(args.site)} if args.site else None
         vehicle_section(args.quick, args.vehicle_seeds, sites, args.vehicle_scenarios or VEHICLE_SCENARIOS)
+    if args.cv:
+        from bench.cv import print_report, run_grid
+
+        print_report(run_grid(trial_names=args.trials, max_samples=args.max_samples))
     return 0
 
 

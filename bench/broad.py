@@ -1,7 +1,8 @@
 """BROAD trials: loading, frame conversion and BROAD's own error metric (shared by the benchmarks and tests).
 
 BROAD: D. Laidig, M. Caruso, A. Cereatti, T. Seel, "BROAD—A Benchmark for Robust Inertial Orientation
-Estimation", Data 6(7), 2021, doi:10.3390/data6070072 (CC BY 4.0). Format and metric: shared/data/README.md.
+Estimation", Data 6(7), 2021, doi:10.3390/data6070072 (CC BY 4.0). Format and metric: the BROAD
+repository's README (github.com/dlaidig/broad).
 
 The truth is IMU → ENU referenced to *magnetic* north; ahrsd estimates IMU → NED, so every estimate is
 converted with q_enu = [0, 1/√2, 1/√2, 0] ⊗ q_ned and heading is magnetic (no declination).

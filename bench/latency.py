@@ -1,4 +1,5 @@
-"""Sample-ready → MAVLink datagram latency and the daemon's CPU share at 819.2 SPS with default outputs.
+"""Sample-ready → MAVLink datagram latency and the daemon's CPU share at 819.2 SPS, with the default ("gcs")
+outputs and with the autopilot profile (VISION_POSITION_ESTIMATE, SYS_STATUS, HEARTBEAT) side by side.
 
 Part A — `ahrsd run` as a subprocess on the simulated chip (real-time clock), MAVLink to a UDP socket here.
   Latency = arrival time of each VISION_POSITION_ESTIMATE / HIGHRES_IMU datagram (CLOCK_MONOTONIC, taken
@@ -9,9 +10,9 @@ Part B — the daemon's reader in-process for a few seconds: how far those time 
   simulated chip really produced each sample (its public `now()`/`sample_index`), so part A's figures can be
   read as true sample-ready latencies (true latency = A − B).
 
-    .venv/bin/python bench/latency.py [--seconds 20]
+    .venv/bin/python bench/latency.py [--seconds 20] [--profile gcs|autopilot|both]
 
-Targets (issue 4): p99 ≤ 2 ms, CPU ≤ 10 % of one core.
+Targets (docs/daemon.md): p99 ≤ 2 ms, CPU ≤ 10 % of one core.
 """
 
 from __future__ import annotations
@@ -49,13 +50,15 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")   # utime + stime
 
 
-def part_a(seconds: float, warmup: float) -> dict:
+def part_a(seconds: float, warmup: float, profile: str = "gcs") -> dict:
     sock = free_udp_socket()
     port = sock.getsockname()[1]
     with tempfile.TemporaryDirectory() as tmp:
+        config = Path(tmp) / "ahrsd.toml"
+        config.write_text(f'[[endpoint]]\nurl = "udpout:127.0.0.1:{port}"\nprofile = "{profile}"\n')
         proc = subprocess.Popen(
-            [sys.executable, "-m", "ahrsd.cli", "run", "--sim", "static", "--mavlink",
-             f"udpout:127.0.0.1:{port}", "--state-dir", tmp, "--status-line", "off"],
+            [sys.executable, "-m", "ahrsd.cli", "run", "--sim", "static", "--config", str(config),
+             "--state-dir", tmp, "--status-line", "off"],
             cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         parser = mavlink.MAVLink(None)
         parser.robust_parsing = True
@@ -63,6 +66,7 @@ def part_a(seconds: float, warmup: float) -> dict:
         lat: dict[str, list[float]] = {"VISION_POSITION_ESTIMATE": [], "HIGHRES_IMU": []}
         counts: dict[str, int] = {}
         t_start = None
+        nbytes = 0
         cpu0 = 0.0
         try:
             deadline = time.monotonic() + 60.0
@@ -84,8 +88,11 @@ def part_a(seconds: float, warmup: float) -> dict:
                     if cpu0 == 0.0:
                         cpu0, wall0 = cpu_seconds(proc.pid), time.monotonic()
                     counts[mtype] = counts.get(mtype, 0) + 1
+                    if mtype != "VISION_POSITION_ESTIMATE":
+                        nbytes += len(m.get_msgbuf())
                     if mtype == "VISION_POSITION_ESTIMATE":
                         lat[mtype].append(now - m.usec * 1e-6)
+                        nbytes += len(m.get_msgbuf())
                     elif mtype == "HIGHRES_IMU":
                         lat[mtype].append(now - m.time_usec * 1e-6)
             cpu1, wall1 = cpu_seconds(proc.pid), time.monotonic()
@@ -96,7 +103,7 @@ def part_a(seconds: float, warmup: float) -> dict:
     if not active or cpu0 == 0.0:
         raise SystemExit("the daemon never became ACTIVE")
     return {"latency_s": lat, "cpu_share": (cpu1 - cpu0) / (wall1 - wall0), "window_s": wall1 - wall0,
-            "counts": counts}
+            "counts": counts, "bytes_per_s": nbytes / (wall1 - wall0)}
 
 
 def part_b(seconds: float) -> np.ndarray:
@@ -145,21 +152,31 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seconds", type=float, default=20.0, help="measurement window of part A")
     ap.add_argument("--warmup", type=float, default=3.0)
+    ap.add_argument("--profile", choices=("gcs", "autopilot", "both"), default="both",
+                    help="the endpoint's output profile (both: one run each, side by side)")
     args = ap.parse_args()
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f} (shared machine)")
-    a = part_a(args.seconds, args.warmup)
-    print(f"\nA. ahrsd run --sim static, default outputs, {a['window_s']:.1f} s window")
-    for name, values in a["latency_s"].items():
-        print(f"   {name:25s} sample time stamp → datagram received: {pct(np.array(values))}")
-    rates = ", ".join(f"{k} {v / a['window_s']:.1f}/s" for k, v in sorted(a["counts"].items()))
-    print(f"   received: {rates}")
-    print(f"   daemon CPU: {100 * a['cpu_share']:.1f} % of one core (utime+stime / wall)")
+    profiles = ("gcs", "autopilot") if args.profile == "both" else (args.profile,)
+    runs = {p: part_a(args.seconds, args.warmup, p) for p in profiles}
+    for p, r in runs.items():
+        print(f"\nA. ahrsd run --sim static, profile \"{p}\", {r['window_s']:.1f} s window")
+        for name, values in r["latency_s"].items():
+            if values:
+                print(f"   {name:25s} sample time stamp → datagram received: {pct(np.array(values))}")
+        rates = ", ".join(f"{k} {v / r['window_s']:.1f}/s" for k, v in sorted(r["counts"].items()))
+        print(f"   received: {rates}; {r['bytes_per_s']:.0f} B/s on the wire")
+        print(f"   daemon CPU: {100 * r['cpu_share']:.1f} % of one core (utime+stime / wall)")
+    if len(runs) == 2:
+        print("\n   profile    CPU % of one core   B/s")
+        for p, r in runs.items():
+            print(f"   {p:9s}  {100 * r['cpu_share']:17.1f}   {r['bytes_per_s']:5.0f}")
+    a = runs[profiles[0]]
     b = part_b(5.0)
     print("\nB. time stamp − true chip sample-ready time (in-process reader, 5 s):")
     print(f"   {pct(b)}   min {b.min() * 1e3:.3f} ms")
     off = np.mean(b > 0.5 / 819.2)
     print(f"   {100 * off:.2f} % of samples stamped one period late (a wake later than a period: index ambiguity)")
-    all_lat = np.concatenate([np.array(v) for v in a["latency_s"].values()])
+    all_lat = np.concatenate([np.array(v) for v in a["latency_s"].values() if v])
     p99_true = np.percentile(all_lat, 99) + np.percentile(b, 99)
     print(f"\nTrue sample-ready → datagram p99 ≤ {p99_true * 1e3:.3f} ms (A p99 + B p99; target ≤ 2 ms); "
           f"CPU {100 * a['cpu_share']:.1f} % (target ≤ 10 %)")

@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
-"""Magnetometer calibration benchmark for vehicles that cannot be tumbled (issue #6).
+"""Magnetometer calibration benchmark for vehicles that cannot be tumbled.
 
 Simulated vehicle: WMM2025 field at the site, non-symmetric soft iron (a 2° yaw and 1° roll misalignment
-times a symmetric distortion, as in anchors/magcal.md §4), hard iron of several hundred mgauss, ADIS16405
+times a symmetric distortion), hard iron of several hundred mgauss, ADIS16405
 magnetometer noise (1.25 mgauss = 0.125 µT rms, datasheet), accelerometer noise and bias (roll/pitch come from
 the low-passed accelerometer, as the daemon would compute them on a calm vehicle). Training data cover full
 heading with tilt limited to ±2°, ±10°, ±30° or a full sphere. Independent test sets: ±10° envelope, pitch ±30°
@@ -10,10 +10,11 @@ heading with tilt limited to ±2°, ±10°, ±30° or a full sphere. Independent
 
 Methods: a plain least-squares ellipsoid (algebraic), an ArduPilot-style LM sphere→ellipsoid fit (the
 CompassCalibrator.cpp schedule: sample thinning, 10 sphere iterations, then 15 sphere + 20 ellipsoid, λ/10
-trial, fit_acceptable() checks), the seed 002 sphere fit, and ahrsd's back-stepping (vertical-channel) fit,
+trial, fit_acceptable() checks), the sphere fit of Nourmohammadi & Sabet (J. of Control 16(3), 2022), and
+ahrsd's back-stepping (vertical-channel) fit,
 alone and with a GNSS-course heading reference; beside them the "field session": the same samples fed to the
 field-calibration session a MAVLink client drives (it stops once its coverage is complete, so it fits on the
-part of the recording it needed, and chooses its fit itself). A second table reproduces the seed 002 test-2 out-and-back
+part of the recording it needed, and chooses its fit itself). A second table reproduces that paper's test-2 out-and-back
 run (its IGRF components, legs at 62° and −117°).
 
     .venv/bin/python bench/magcal.py            # all tables (~1–2 min on 2 cores)
@@ -39,16 +40,16 @@ from ahrsd.calibration.models import MagModel
 from ahrsd.core.angles import wrap_180_deg
 
 G = 9.80665
-SITE = dict(lat_deg=35.7, lon_deg=51.4)           # Tehran, as in anchors/magcal.md §4
+SITE = dict(lat_deg=35.7, lon_deg=51.4)           # Tehran: a mid-northern-latitude site
 ADIS_MAG_NOISE_UT = 0.125                          # ADIS16405 datasheet: 1.25 mgauss rms
 ADIS_ACCEL_NOISE_M_S2 = 0.0353                     # ADIS16405: 3.6 mg rms (SENS_AVG default)  -> averaged below
-ACCEL_BIAS_M_S2 = (0.03, -0.04, 0.02)              # ≈ 0.2–0.3° of roll/pitch error (anchors §0.3 used 0.3°)
+ACCEL_BIAS_M_S2 = (0.03, -0.04, 0.02)              # ≈ 0.2–0.3° of roll/pitch error
 HARD_IRON_UT = np.array([28.0, -19.0, 35.0])       # 280/−190/350 mgauss
-SYM_DISTORTION = np.array([[1.08, 0.05, -0.03], [0.05, 0.93, 0.04], [-0.03, 0.04, 1.02]])  # anchors §4
+SYM_DISTORTION = np.array([[1.08, 0.05, -0.03], [0.05, 0.93, 0.04], [-0.03, 0.04, 1.02]])  # chosen
 
 
 def vehicle_distortion() -> np.ndarray:
-    """measured = D·true + h, D = Rz(2°)·Rx(1°)·S (non-symmetric: a 2° constant heading error, anchors §4)."""
+    """measured = D·true + h, D = Rz(2°)·Rx(1°)·S (non-symmetric: a 2° constant heading error)."""
     return Rotation.from_euler("ZX", [2.0, 1.0], degrees=True).as_matrix() @ SYM_DISTORTION
 
 
@@ -378,11 +379,11 @@ def calibration_table(seeds, n):
 # ------------------------------------------------------------------------------------- AUV out-and-back
 
 
-PAPER_TEST2_HH_UT, PAPER_TEST2_HZ_UT = 27.451, 40.289   # seed 002 eq. 27 (IGRF at the test-2 midpoint)
+PAPER_TEST2_HH_UT, PAPER_TEST2_HZ_UT = 27.451, 40.289   # Nourmohammadi & Sabet eq. 27 (IGRF, test-2 midpoint)
 
 
 class _PaperField:
-    """The seed 002 test-2 IGRF field as an EarthField-like object (declination ignored, eq. 5)."""
+    """The paper's test-2 IGRF field as an EarthField-like object (declination ignored, eq. 5)."""
 
     north_ut, east_ut, down_ut = PAPER_TEST2_HH_UT, 0.0, PAPER_TEST2_HZ_UT
     declination_rad = 0.0
@@ -393,26 +394,27 @@ class _PaperField:
 
 
 def auv_out_and_back(seed: int = 0, coupling: bool = False):
-    """Seed 002 tests 1 and 2 on a steel-hull AUV. Test 1 = diver rotation (roll ±55°, pitch ±10°, full heading);
+    """Tests 1 and 2 of Nourmohammadi & Sabet (2022) on a steel-hull AUV. Test 1 = diver rotation (roll ±55°,
+    pitch ±10°, full heading);
     test 2 = out-and-back at 62° and −117° (10 min legs, 1 min turn) with different trims on the two legs
     (−3° out, +1° back: current/ballast) and a little pitch/roll motion.
 
     coupling=False: the paper's situation — the vehicle is axis-aligned (diagonal model) but its vertical
-    channel differs between the tests (test 1 near the surface with a diver; seed 002 §4: "coefficients of
-    one test do not perform in another"): z scale ×0.62 (the paper's s_z ratio 0.16142/0.26142), z hard iron
+    channel differs between the tests (test 1 near the surface with a diver; the paper's §4: coefficients of
+    one test do not perform as expected in another): z scale ×0.62 (the paper's s_z ratio 0.16142/0.26142), z hard iron
     +10 µT in test 1. The back-stepping loop
     must recover the test-2 vertical channel.
     coupling=True: the steel hull also couples horizontal field into z (off-diagonal soft iron), which the
-    diagonal model cannot represent (seed 002 §6.4)."""
+    diagonal model cannot represent."""
     rng = np.random.default_rng(seed)
     field = _PaperField()
-    hard_iron = np.array([-18.6, 13.9, -9.0])           # seed 002 eq. 26 magnitudes, in µT
+    hard_iron = np.array([-18.6, 13.9, -9.0])           # the paper's eq. 26 magnitudes, in µT
     d2 = np.diag([1.05, 0.92, 0.88])
     if coupling:
         d2 = d2 + np.array([[0, 0.03, 0.02], [0.02, 0, -0.03], [0.06, -0.04, 0]])
     d1, h1 = d2.copy(), hard_iron.copy()
     if not coupling:
-        d1[2, 2] *= 0.62         # seed 002: s_z went 0.16142 → 0.26142 between the sphere fit and Table 6
+        d1[2, 2] *= 0.62         # the paper: s_z went 0.16142 → 0.26142 between the sphere fit and Table 6
         h1[2] += 10.0
     n1 = 3000                                            # test 1: 300 s at 10 Hz
     t1 = np.arange(n1) / 10.0
@@ -443,7 +445,8 @@ def auv_table(seed: int = 0, coupling: bool = False):
     field = truth["field"]
     res = bs.fit_backstepping(data, field, model="paper", attitude="accel", legs=legs, calibration_mask=cal_mask,
                               rate_hz=None)
-    print("\n## AUV out-and-back after seed 002 test 2 (IGRF Hh 27451 nT, Hz 40289 nT; legs 62° / −117°)"
+    print("\n## AUV out-and-back after Nourmohammadi & Sabet 2022 test 2"
+          " (IGRF Hh 27451 nT, Hz 40289 nT; legs 62° / −117°)"
           + (" — hull with horizontal→z coupling\n" if coupling else " — vertical channel changed since test 1\n"))
     if not res.ok:
         print("refused:", res.refused)

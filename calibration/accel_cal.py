@@ -1,4 +1,5 @@
-"""Multi-position accelerometer calibration: the thesis's 12-parameter model (thesis §5-6-6; digest §10.2).
+"""Multi-position accelerometer calibration: the 12-parameter model of the ADIS16405
+AHRS thesis §5-6-6 (docs/calibration.md).
 
 Model (our form of eq. 5-47…5-58): f = L · (f̃ − b − q ∘ f̃²), L lower triangular (scale on the diagonal,
 three misalignments below it: the accelerometer's x axis defines the platform frame, so the rotation the
@@ -8,7 +9,8 @@ gravity norm cannot see is fixed), b the bias, q the quadratic nonlinearity. 3 +
    h_i = [S_oy S_oz, −S_ox S_oz, S_ox S_oy, S_ox, S_oy, S_oz, −S_ox², −S_oy², −S_oz², S_ox³, S_oy³, S_oz³]
    X_a = [α_yx, α_xy, α_xz, δS_bx, δS_by, δS_bz, δk_x, δk_y, δk_z, k_nx, k_ny, k_nz]
    (first order in the errors: S^P ≈ S_o + E·S_o + δS_b + K_nl·S_o², E lower triangular).
-2. Exact nonlinear refinement on |f| = g with scipy least_squares (the digest's suggestion), from step 1.
+2. Exact nonlinear refinement on |f| = g with scipy least_squares (step 1 is first order only),
+   from step 1.
 
 Fewer positions support fewer terms: 'auto' fits 12 parameters with ≥ 12 distinct orientations, 9 (no
 quadratic) with ≥ 9, 6 (bias + per-axis scale) with ≥ 6, and refuses below that.
@@ -165,7 +167,10 @@ def fit_accel(position_means_m_s2: np.ndarray, g_m_s2: float = STANDARD_GRAVITY_
     if distinct < terms:
         return AccelFitResult(identity, math.nan, terms, quality,
                               f"{distinct} distinct orientations cannot determine {terms} parameters: "
-                              f"record at least {terms} (turn the unit onto each face and the corners between)")
+                              f"record at least {terms} (turn the unit onto each face and the corners between); "
+                              f"found {n_pos} still position{'s' if n_pos != 1 else ''}"
+                              + (", faces up: " + (", ".join(k for k, v in quality["faces"].items() if v) or "none")
+                                 if n_pos else ""))
     # Step 1: the thesis's linear LS (12 parameters; with fewer, drop the columns).
     z, h = regressors(s_o, g_m_s2)
     cols = list(range(12)) if terms == 12 else list(range(9)) if terms == 9 else [3, 4, 5, 6, 7, 8]
@@ -201,9 +206,13 @@ def fit_accel(position_means_m_s2: np.ndarray, g_m_s2: float = STANDARD_GRAVITY_
     quality.update(residual_rms_m_s2=rms, residual_max_m_s2=float(np.max(np.abs(r))),
                    position_residuals_m_s2=r.tolist(), lm_status=int(fit.status))
     if rms > max_residual_m_s2:
+        worst = int(np.argmax(np.abs(r)))
+        mg = 1e3 / STANDARD_GRAVITY_M_S2
         return AccelFitResult(identity, rms, terms, {**quality, "rejected_model": model.to_dict()},
-                              f"residual {rms * 1e3 / STANDARD_GRAVITY_M_S2:.1f} mg is too large: a position was "
-                              "not still, or the wrong local gravity", linear)
+                              f"residual {rms * mg:.1f} mg RMS is too large (limit {max_residual_m_s2 * mg:.1f} mg; "
+                              f"the worst, position {worst + 1} of {n_pos}, is {r[worst] * mg:+.1f} mg off |f| = g): "
+                              "a position was not still (hold each still; re-record that one), or the local "
+                              "gravity is wrong (give --lat and --alt-m)", linear)
     return AccelFitResult(model, rms, terms, quality, None, linear)
 
 
@@ -212,58 +221,134 @@ def fit_accel(position_means_m_s2: np.ndarray, g_m_s2: float = STANDARD_GRAVITY_
 
 @dataclass(frozen=True)
 class StillSegment:
-    start: int            # sample index (inclusive)
+    start: int            # sample index (inclusive) of the samples averaged (the period less `trim_s` each end)
     stop: int             # sample index (exclusive)
     mean_accel_m_s2: np.ndarray
     mean_gyro_rad_s: np.ndarray
-    duration_s: float
+    duration_s: float     # how long the unit was still (the whole period, before trimming)
+    accel_std_m_s2: np.ndarray | None = None   # per-axis sample standard deviation over [start, stop)
+
+    @property
+    def samples(self) -> int:
+        return self.stop - self.start
+
+    @property
+    def mean_noise_m_s2(self) -> float:
+        """1σ white-noise error of `mean_accel_m_s2` (the norm over the axes of std/√n)."""
+        if self.accel_std_m_s2 is None or self.samples < 2:
+            return math.nan
+        return float(np.linalg.norm(self.accel_std_m_s2) / math.sqrt(self.samples))
 
 
-def find_still_segments(accel_m_s2: np.ndarray, gyro_rad_s: np.ndarray | None, rate_hz: float,
-                        window_s: float = 0.5, min_still_s: float = 3.0, max_gyro_rad_s: float = 0.02,
-                        accel_std_factor: float = 4.0, trim_s: float = 0.5) -> list[StillSegment]:
-    """Still periods of a recording: runs of windows where the accelerometer's std is within
-    `accel_std_factor` of the quietest windows' (the noise floor) and the gyro rate is below
-    `max_gyro_rad_s` (so a turning rate table is not "still"). `trim_s` is cut off both ends."""
+DEFAULT_MIN_STILL_S = 2.0   # shortest still period used as a position: a 2-s hold by hand or on a positioner
+
+
+def still_periods(accel_m_s2: np.ndarray, gyro_rad_s: np.ndarray | None, rate_hz: float,
+                  window_s: float = 0.5, max_gyro_rad_s: float = 0.02, accel_std_factor: float = 4.0,
+                  trim_s: float = 0.25) -> list[StillSegment]:
+    """Every still period of a recording, however short.
+
+    A sliding window of `window_s` (stepped by a tenth of its length) is still when the accelerometer's std
+    over it is within `accel_std_factor` of the quietest windows' (the noise floor), the gyro's mean rate is
+    below `max_gyro_rad_s` and its std within the same factor of its own floor (so a rate table turning or
+    starting to turn about the vertical, which the accelerometer cannot see, is not "still"), and its mean has not moved from the
+    still window one length before it (a slow, smooth tilt is not still; a window after a slew has no still
+    predecessor and is not penalised). A period spans its still windows, so its duration is the hold's own,
+    to a step; the mean is taken over the period less `trim_s` at each end (the settling after a slew)."""
     acc = np.asarray(accel_m_s2, dtype=np.float64)
     n = acc.shape[0]
     w = max(2, int(round(window_s * rate_hz)))
-    nw = n // w
-    if nw < 2:
+    if n < 2 * w:
         return []
-    a = acc[: nw * w].reshape(nw, w, 3)
-    a_std = np.linalg.norm(a.std(axis=1), axis=1)
-    floor = float(np.percentile(a_std, 10))
-    still = a_std <= accel_std_factor * max(floor, 1e-6)
-    if gyro_rad_s is not None:
-        g = np.asarray(gyro_rad_s, dtype=np.float64)[: nw * w].reshape(nw, w, 3)
-        still &= np.linalg.norm(g.mean(axis=1), axis=1) <= max_gyro_rad_s
-    # Also require the mean to stay put between neighbouring windows (a slow, smooth tilt is not still).
-    means = a.mean(axis=1)
-    jump = np.r_[0.0, np.linalg.norm(np.diff(means, axis=0), axis=1)]
-    still &= jump <= accel_std_factor * max(floor, 1e-6)
-    segments = []
-    k = 0
+    step = max(1, w // 10)
+    starts = np.arange(0, n - w + 1, step)
+
+    def window_sums(x):
+        c = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
+        return c[starts + w] - c[starts]
+
+    centred = acc - acc.mean(axis=0)              # keeps the running sums of squares well conditioned
+    mean = window_sums(centred) / w
+    var = np.maximum(window_sums(centred * centred) / w - mean * mean, 0.0)
+    a_std = np.sqrt(var.sum(axis=1))
+    floor = max(float(np.percentile(a_std, 10)), 1e-6)
+    still = a_std <= accel_std_factor * floor
+    if gyro_rad_s is not None:   # the gyro quiet too: its mean near zero and its std at its own noise floor
+        gyro = np.asarray(gyro_rad_s, dtype=np.float64)
+        g_mean = window_sums(gyro) / w
+        g_std = np.sqrt(np.maximum(window_sums(gyro * gyro) / w - g_mean * g_mean, 0.0).sum(axis=1))
+        g_floor = max(float(np.percentile(g_std, 10)), 1e-9)
+        still &= (np.linalg.norm(g_mean, axis=1) <= max_gyro_rad_s) & (g_std <= accel_std_factor * g_floor)
+    lag = w // step                               # the window one length earlier
+    moved = np.zeros_like(still)
+    moved[lag:] = still[:-lag] & (np.linalg.norm(mean[lag:] - mean[:-lag], axis=1) > accel_std_factor * floor)
+    still &= ~moved
     trim = int(round(trim_s * rate_hz))
-    while k < nw:
-        if not still[k]:
-            k += 1
-            continue
-        j = k
-        while j < nw and still[j]:
-            j += 1
-        start, stop = k * w + trim, j * w - trim
-        if (stop - start) / rate_hz >= min_still_s:
-            gm = np.zeros(3) if gyro_rad_s is None else np.asarray(gyro_rad_s[start:stop]).mean(axis=0)
-            segments.append(StillSegment(start, stop, acc[start:stop].mean(axis=0), gm, (stop - start) / rate_hz))
-        k = j
-    return segments
+    periods = []
+    edges = np.flatnonzero(np.diff(np.r_[0, still.astype(np.int8), 0]))
+    for first, last in zip(edges[::2], edges[1::2] - 1):
+        begin, end = int(starts[first]), int(starts[last]) + w
+        start, stop = begin + trim, end - trim
+        if stop - start < 2:
+            start, stop = begin, end
+        a = acc[start:stop]
+        gm = np.zeros(3) if gyro_rad_s is None else np.asarray(gyro_rad_s[start:stop]).mean(axis=0)
+        periods.append(StillSegment(start, stop, a.mean(axis=0), gm, (end - begin) / rate_hz, a.std(axis=0)))
+    return periods
+
+
+def find_still_segments(accel_m_s2: np.ndarray, gyro_rad_s: np.ndarray | None, rate_hz: float,
+                        window_s: float = 0.5, min_still_s: float = DEFAULT_MIN_STILL_S,
+                        max_gyro_rad_s: float = 0.02, accel_std_factor: float = 4.0,
+                        trim_s: float = 0.25) -> list[StillSegment]:
+    """The still periods (`still_periods`) that lasted at least `min_still_s`."""
+    periods = still_periods(accel_m_s2, gyro_rad_s, rate_hz, window_s, max_gyro_rad_s, accel_std_factor, trim_s)
+    return split_by_duration(periods, min_still_s, window_s)[0]
+
+
+def split_by_duration(periods: list[StillSegment], min_still_s: float,
+                      window_s: float = 0.5) -> tuple[list[StillSegment], list[StillSegment]]:
+    """(the periods that lasted at least `min_still_s`, the shorter ones). A period's length is known to the
+    detection's step, a tenth of `window_s` (a 2.0-s hold may measure 1.95 s), so that much is allowed."""
+    shortest_s = min_still_s - window_s / 10 - 1e-9
+    return [p for p in periods if p.duration_s >= shortest_s], [p for p in periods if p.duration_s < shortest_s]
+
+
+def short_holds_refusal(periods: list[StillSegment], min_still_s: float) -> str:
+    """Why no position came out of a recording's still periods, and what to do about it."""
+    if not periods:
+        return ("no still period found (the accelerometer never stayed within its noise for 0.5 s with the gyro "
+                "quiet): hold the unit still in each position")
+    longest = max(p.duration_s for p in periods)
+    return (f"{len(periods)} still period{'s' if len(periods) != 1 else ''}, the longest {longest:.1f} s, all "
+            f"shorter than --min-still-s {min_still_s:g}: hold each position at least {max(min_still_s, 2.0):g} s, "
+            f"or lower --min-still-s (to {math.floor(longest * 10) / 10:g} to use these)")
+
+
+def hold_cost(used: list[StillSegment], skipped: list[StillSegment], rate_hz: float,
+              reference_hold_s: float = 10.0) -> dict:
+    """What the holds' lengths cost the fit. Each position's mean carries the sensor's white noise over the
+    samples averaged, σ/√n; the same sensor held `reference_hold_s` would carry σ/√(rate·T_ref) (in-run bias
+    drift, which longer holds do not average away, comes on top of both). Also how many still periods were
+    too short to use."""
+    cost: dict = {"still_periods_skipped_short": len(skipped)}
+    if skipped:
+        cost["skipped_longest_s"] = max(q.duration_s for q in skipped)
+    if not used:
+        return cost
+    noise = np.array([q.mean_noise_m_s2 for q in used])
+    cost.update(hold_s_min=min(q.duration_s for q in used), hold_s_median=float(np.median([q.duration_s for q in used])),
+                averaged_s_min=min(q.samples for q in used) / rate_hz,
+                position_noise_m_s2_median=float(np.median(noise)), position_noise_m_s2_max=float(np.max(noise)))
+    per_sample = np.median(noise * np.sqrt([q.samples for q in used]))   # σ of one sample (norm over axes)
+    cost[f"position_noise_m_s2_{reference_hold_s:g}s_hold"] = float(per_sample / math.sqrt(rate_hz * reference_hold_s))
+    return cost
 
 
 # ---------------------------------------------------------------------------------------------- guided procedure
 
 # The positions the guided procedure asks for: the six faces, then the eight corners (each with three axes
-# tilted ~35° from vertical), 14 ≥ 12 distinct orientations (thesis §10.2: at least 12, more is better).
+# tilted ~35° from vertical), 14 ≥ 12 distinct orientations (thesis §5-6-6: at least 12, more is better).
 # Each is the direction the accelerometer reads +g along (the "up" direction in sensor axes).
 _S = 1 / math.sqrt(3)
 GUIDED_TARGETS: tuple[tuple[str, tuple[float, float, float]], ...] = (

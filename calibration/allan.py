@@ -1,4 +1,5 @@
-"""Allan-variance noise analysis of a static recording (thesis §8.3–8.4, IEEE Std 952-1997 conventions).
+"""Allan-variance noise analysis of a static recording (the ADIS16405 AHRS thesis
+eq. 5-3…5-7 and §5-5; IEEE Std 952-1997 conventions).
 
 The recording is consumed a chunk at a time (`StaticAllanAnalysis.add`, or `analyse_chunks` over a chunked
 reader): per sensor a streaming overlapping Allan deviation (allan_adev.py), so a day at 819.2 SPS needs no

@@ -1,4 +1,5 @@
-"""Kalman-filter noise tuning from the noise terms an Allan analysis found (thesis §8.4 form, eq. 6-1/6-2).
+"""Kalman-filter noise tuning from the noise terms an Allan analysis found (the ADIS16405
+AHRS thesis §5-5 form, eq. 6-1/6-2).
 
 Q (6, rad²/s, continuous-time densities) = diag((3·N_i)², (3·w_b,i)²): the gyro white noise N (ARW) and the
 bias-driving noise w_b, both inflated ×3 because the axes' noises are correlated but Q is kept diagonal
@@ -11,7 +12,7 @@ bias-driving noise w_b, both inflated ×3 because the axes' noises are correlate
     w_b = 0.664·B·√(3/τ_B) (a random walk is the usual finite-state stand-in for 1/f noise).
 With none seen, the thesis's rule w_b = N/10 (eq. 6-1) is used and listed as assumed; a white noise that was not
 seen is taken from the datasheet below and listed as assumed.
-R (6) = diag(σ_mag², σ_accel²) from the output standard deviations (thesis eq. 6-2, §11.4).
+R (6) = diag(σ_mag², σ_accel²) from the output standard deviations (thesis eq. 6-2).
 """
 
 from __future__ import annotations
@@ -49,7 +50,7 @@ def bias_drive(p) -> tuple[float | None, list[str]]:
 
 
 def kalman_tuning(result) -> dict:
-    """The thesis's Kalman Q and R (§8.4, eq. 6-1/6-2) from an AllanResult, saying what was assumed."""
+    """The thesis's Kalman Q and R (§5-5, eq. 6-1/6-2) from an AllanResult, saying what was assumed."""
     out: dict = {"source": "thesis eq. 5-8, 6-1, 6-2; terms from the Allan analysis", "assumed": []}
     gyro = result.parameters.get("gyro")
     if gyro:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from .allan_terms import FLICKER_FACTOR, term_basis
-from .plots import pyplot
+from ahrsd.core.plotting import pyplot
 
 TERM_STYLE = {"quantization": ("Q", "tab:purple"), "white": ("N", "tab:blue"), "flicker": ("B", "tab:green"),
               "rate_random_walk": ("K", "tab:red"), "rate_ramp": ("R", "tab:brown"),

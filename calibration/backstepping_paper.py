@@ -12,8 +12,8 @@ The paper calibrates an AUV's magnetometer in three stages:
    the reference (IGRF/WMM), (ii) change s_z to remove the step of |H| between the legs and (iii) change b_z
    so |H| equals the reference (eqs. 29–30); repeated until the step vanishes (Tables 3–6).
 
-Here (ii)+(iii) are solved in closed form (the paper's §6.4, extended to tilted legs: the levelled vertical
-component is linear in u = 1/s_z and v = b_z/s_z), with a stopping rule and a per-pass report:
+Here (ii)+(iii) are solved in closed form (ahrsd's own; the paper iterates them), extended to tilted legs (the
+levelled vertical component is linear in u = 1/s_z and v = b_z/s_z), with a stopping rule and a per-pass report:
 `backstep_correct`.
 """
 
@@ -64,7 +64,7 @@ class SphereFit:
     """Result of the paper's eq. 12–17 regression. `x` = [bx, (sx/sy)², (sx/sy)²·by, (sx/sz)², (sx/sz)²·bz,
     sx²H² − bx² − (sx/sy)²by² − (sx/sz)²bz²] (in coordinates centred on `origin`). `model` is None and
     `reason` says why when the coefficients are not physical (negative ratios or radicand: "unrealistic,
-    even complex coefficients", the paper's §7.2)."""
+    even complex coefficients", the paper's §5, test 1)."""
 
     model: DiagonalModel | None
     x: np.ndarray
@@ -93,11 +93,11 @@ def sphere_fit_paper(raw: np.ndarray, field_ut: float) -> SphereFit:
     x1, x2, x3, x4, x5, x6 = x
     if not np.all(np.isfinite(x)) or x2 <= 0 or x4 <= 0:
         return SphereFit(None, x, origin, cond, f"non-physical axis ratios (sx/sy)² = {x2:.3g}, (sx/sz)² = "
-                         f"{x4:.3g}: the data lack rotation about enough axes (the paper's §7.2)")
+                         f"{x4:.3g}: the data lack rotation about enough axes (the paper's §5, test 1)")
     radicand = (x6 + x1**2 + x3**2 / x2 + x5**2 / x4) / field_ut**2
     if not radicand > 0:
         return SphereFit(None, x, origin, cond, f"negative radicand {radicand:.3g} for sx²: complex coefficients "
-                         "(the paper's §7.2: data without rich rotation)")
+                         "(the paper's §5, test 1: data without rich rotation)")
     sx = math.sqrt(radicand)
     b = np.array([x1, x3 / x2, x5 / x4]) + origin
     s = np.array([sx, sx / math.sqrt(x2), sx / math.sqrt(x4)])
@@ -146,8 +146,9 @@ def solve_vertical_bias_signed(z_raw_mean: float, sz: float, total: float, hh: f
 
 def closed_form_vertical(z_out: float, z_ret: float, hh_out: float, hh_ret: float, total: float,
                          hz_sign: float = 1.0) -> tuple[float, float]:
-    """The paper's §6.4 for level legs: both legs must read |H| = H_ref, (z_L − b_z)/s_z = V_L = ±√(H² − H_h,L²),
-    so s_z = (z_o − z_r)/(V_o − V_r) and b_z = z_o − s_z·V_o. Raises when the legs carry no information on s_z
+    """Closed form of corrective steps (ii)+(iii) for level legs (the paper iterates them):
+    both legs must read |H| = H_ref, (z_L − b_z)/s_z = V_L = ±√(H² − H_h,L²), so s_z = (z_o − z_r)/(V_o − V_r)
+    and b_z = z_o − s_z·V_o. Raises when the legs carry no information on s_z
     (equal vertical readings or equal horizontal intensities)."""
     v_out = math.copysign(math.sqrt(total**2 - hh_out**2), hz_sign)
     v_ret = math.copysign(math.sqrt(total**2 - hh_ret**2), hz_sign)

@@ -12,7 +12,7 @@ from . import swing
 from .backstepping_paper import BacksteppingError, magnetic_heading_deg
 from .magfit import MagFitInput, MagFitResult, finite_rows
 from .observability import level_vectors, lowpass
-from .plots import PlotUnavailableError, pyplot  # noqa: F401 (PlotUnavailableError: what this module raises)
+from ahrsd.core.plotting import pyplot
 from .vertical_channel import centripetal_direction, corrected_down
 
 def plot_backstepping(result: MagFitResult, data: MagFitInput, path, *, roll_rad=None, pitch_rad=None,

@@ -7,7 +7,9 @@
 
 S is symmetric because the magnitude cannot see a rotation: any S' = R·S fits equally well. Choosing the
 symmetric one is the smallest correction (ArduPilot's CompassCalibrator makes the same choice); the heading
-effect of the missing rotation is the "coefficient A" that only a heading reference removes (anchors/magcal.md).
+effect of the missing rotation is the constant deviation "coefficient A" of the compass-deviation
+series A + B sin ψ + C cos ψ + D sin 2ψ + E cos 2ψ (Bowditch, "The American Practical Navigator"), which only a
+heading reference removes.
 """
 
 from __future__ import annotations

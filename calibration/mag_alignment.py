@@ -1,4 +1,5 @@
-"""The thesis's magnetometer alignment step (thesis eq. 5-41…5-46; digest §10.1.3): the rotation C_m'^p that the
+"""The thesis's magnetometer alignment step (the ADIS16405 AHRS thesis
+eq. 5-41…5-46; docs/calibration.md): the rotation C_m'^p that the
 magnitude-only fits cannot see, from levelled turns about each platform axis.
 
 With platform axis i vertical and the sensor turned about it, the field component along that axis is constant,

@@ -1,4 +1,5 @@
-"""The thesis's three-step magnetometer calibration (thesis §5-6-5-4; digest §10.1.2): hard iron b, scale k and
+"""The thesis's three-step magnetometer calibration (the ADIS16405 AHRS
+thesis §5-6-5-4; docs/calibration.md): hard iron b, scale k and
 the three non-orthogonality angles α_yz, α_zy, α_zx (9 parameters), attitude-independent.
 
 The misalignment T_m^p = C_m'^p · T_m^m' splits into a rotation (unobservable from magnitudes; found by the
@@ -6,7 +7,7 @@ alignment step, `mag_alignment.py`) and the upper-triangular T_m^m'. With γ_yz 
 γ_zy = (k_x/k_z)α_zy, γ_zx = (k_y/k_z)α_zx and b′ (eq. 5-31), each sample gives one linear equation:
 
     step 1:  z = −B_x²,  h = [B_x, B_y², B_y, B_z², B_z, B_xB_y, B_xB_z, B_yB_z, 1],  z = h·X   (LS for X)
-    step 2:  X → (S, γ)         (eq. 5-39, index typos corrected in the digest)
+    step 2:  X → (S, γ)         (eq. 5-39, its index typos corrected)
     step 3:  (S, γ) → (b, k, α) (eq. 5-40)
 
 The result is m = T_m^m' · K⁻¹ · (B − b) (the alignment rotation is the identity until `mag_alignment` runs).

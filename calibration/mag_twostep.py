@@ -1,4 +1,5 @@
-"""The thesis's two-step magnetometer calibration (thesis §5-6-5-3; digest §10.1.1): hard iron b and per-axis
+"""The thesis's two-step magnetometer calibration (the ADIS16405 AHRS
+thesis §5-6-5-3, eq. 5-19…5-26; docs/calibration.md): hard iron b and per-axis
 scale k, no misalignment (6 parameters), attitude-independent.
 
 Model: H0² = Σ_i ((B_i − b_i)/k_i)², an axis-aligned ellipsoid. Multiplying by k_x² and rearranging (eq. 5-19,

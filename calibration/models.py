@@ -2,12 +2,12 @@
 
 All three sensors share one form, calibrated = matrix · (raw − bias):
 
-- gyro:  ω = M_g · (ω̃ − b_g)                       (thesis §10.3 reduced to its 12 g-independent parameters)
+- gyro:  ω = M_g · (ω̃ − b_g)                       (ADIS16405 AHRS thesis §5-6-7, 12 g-independent terms)
 - accel: f = M_a · (f̃ − b_a − k_nl ∘ f̃ ∘ f̃)          (thesis eq. 5-52: bias, 3×3 scale/misalignment, quadratic)
 - mag:   m = S · (m̃ − h)                              (hard iron h in µT, soft iron S a full 3×3)
 
-The thesis's magnetometer form m = C_m'^p · T_m^m' · K⁻¹ · (m̃ − b) (thesis §10.4) is the special case
-built by `MagModel.from_thesis` (and taken apart again by `MagModel.to_thesis`).
+The thesis's magnetometer form m = C_m'^p · T_m^m' · K⁻¹ · (m̃ − b) (thesis §5-6-5, eq. 5-13) is the
+special case built by `MagModel.from_thesis` (and taken apart again by `MagModel.to_thesis`).
 
 Models are frozen; `apply` works on one vector (3,) or a block (n, 3). `Calibration.apply(sample)` is the
 per-sample hot path in the daemon: it precomputes M·b so each sensor costs one mat-vec and one subtraction.
@@ -235,7 +235,7 @@ class MagModel:
         alpha: Mapping[str, float] | None = None,
         alignment: np.ndarray | None = None,
     ) -> "MagModel":
-        """The thesis's b/k/α form: m = C_m'^p · T · K⁻¹ · (m̃ − b) (thesis §10.4, eq. 5-13).
+        """The thesis's b/k/α form: m = C_m'^p · T · K⁻¹ · (m̃ − b) (ADIS16405 AHRS thesis §5-6-5, eq. 5-13).
 
         bias_ut: b (µT). scale: k = (k_x, k_y, k_z) gains. alpha: α_ij (rad, see `misalignment_matrix`);
         the three-step algorithm yields only 'yz', 'zy', 'zx' (T_m^m', upper triangular).
@@ -248,7 +248,8 @@ class MagModel:
         return cls(np.asarray(bias_ut, dtype=np.float64), c @ misalignment_matrix(alpha) @ np.diag(1.0 / k))
 
     def to_thesis(self) -> ThesisMagParameters:
-        """Take soft_iron apart into C_m'^p · T_m^m' · K⁻¹ (the three-step form, thesis §10.1.2–10.1.3).
+        """Take soft_iron apart into C_m'^p · T_m^m' · K⁻¹ (the three-step form, thesis §5-6-5-4
+        and eq. 5-41…5-46).
 
         QR of soft_iron = Q·R with R upper triangular and positive diagonal: Q = C_m'^p, R = T_m^m' · K⁻¹,
         so k_i = 1/R_ii and T = R · K, whose upper entries give −α_yz, α_zy, −α_zx. Exact for small
@@ -371,7 +372,7 @@ class Calibration:
             t *= acc
             np.subtract(acc, t, out=t)
             acc = t
-        # np.dot then an in-place subtraction: one allocation per vector (measured ~2× faster than M @ v − o).
+        # np.dot then an in-place subtraction: one allocation per vector (faster than M @ v − o).
         gyro = _dot(g.matrix, gyro_rad_s)
         gyro -= g._offset
         accel = _dot(a.matrix, acc)

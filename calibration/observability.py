@@ -303,7 +303,7 @@ def assess_support(mag_ut: np.ndarray, accel_m_s2: np.ndarray | None = None, mod
                    "tumble the sensor, or use --method backstepping with the position for the WMM field")
     elif model == "diagonal" and tilt_max is not None and tilt_max < MIN_TILT_ELLIPSOID_DEG:
         warnings.append(f"largest tilt {tilt_max:.1f}°: the sphere fit's z terms are weakly determined "
-                        "(the back-stepping paper's §7.2: data without rotation about all axes give unrealistic coefficients)")
+                        "(the back-stepping paper's §5, test 1: data without rotation about all axes give unrealistic coefficients)")
     elif model == "sphere" and not reference_known and (tilt_max is not None and tilt_max < 10.0) \
             and cov < MIN_SPHERE_COVERAGE_ELLIPSOID:
         refused = ("the data are a level circle: the vertical hard iron and the radius trade off; give the "

@@ -6,25 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 
-PLOT_INSTALL_HINT = "pip install 'ahrsd[plot]'"
-
-
-class PlotUnavailableError(ImportError):
-    """A plot was asked for but matplotlib (the optional `ahrsd[plot]` extra) is not installed."""
+from ahrsd.core.plotting import pyplot
 
 
 
-
-def pyplot():
-    """matplotlib.pyplot on the file-only Agg backend; PlotUnavailableError when matplotlib is not installed."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError as exc:
-        raise PlotUnavailableError(f"plotting needs matplotlib: {PLOT_INSTALL_HINT} ({exc})") from None
-    return plt
 
 
 def plot_mag(mag_ut: np.ndarray, model, field_ut: float, path) -> None:

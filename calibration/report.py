@@ -11,7 +11,7 @@ import numpy as np
 
 # quality entries shown elsewhere (the model lines, the deviation card) or too long for a terminal
 _QUALITY_NOT_LISTED = ("position_residuals_m_s2", "faces", "rejected_model", "initial_hard_iron_ut",
-                       "heading_reference")
+                       "heading_reference", "holds")
 _ALLAN_UNITS = {"gyro": ("ARW", "rad/s/√Hz", "rad/s"), "accel": ("VRW", "m/s²/√Hz", "m/s²"),
                 "mag": ("white", "µT/√Hz", "µT")}
 
@@ -50,6 +50,23 @@ def accel_model_lines(model, result) -> list[str]:
         f"  residual |f| − g: RMS {result.residual_rms_m_s2 * 1e3:.3f} mm/s², "
         f"max {q.get('residual_max_m_s2', float('nan')) * 1e3:.3f} mm/s²",
     ]
+
+
+def accel_holds_line(holds: dict, min_still_s: float) -> str:
+    """What the still periods' lengths cost (accel_cal.hold_cost): how long the holds were, the noise each
+    position mean carries against a 10-s hold's, and what was too short to use."""
+    mg = 1e3 / 9.80665
+    parts = []
+    if "hold_s_min" in holds:
+        parts.append(f"holds {holds['hold_s_min']:.1f}–{holds['hold_s_median']:.1f} s (shortest–median), each "
+                     f"averaged over ≥ {holds['averaged_s_min']:.1f} s; noise on each position mean "
+                     f"{holds['position_noise_m_s2_median'] * mg:.2f} mg median, {holds['position_noise_m_s2_max'] * mg:.2f} "
+                     f"mg worst (10-s holds: {holds['position_noise_m_s2_10s_hold'] * mg:.2f} mg)")
+    skipped = holds.get("still_periods_skipped_short", 0)
+    if skipped:
+        parts.append(f"{skipped} still period{'s' if skipped != 1 else ''} shorter than --min-still-s "
+                     f"{min_still_s:g} not used (the longest {holds['skipped_longest_s']:.1f} s)")
+    return "  " + "; ".join(parts) if parts else ""
 
 
 def gyro_model_lines(model, result) -> list[str]:

@@ -51,7 +51,8 @@ def register(subparsers) -> None:
     c.add_argument("--alt-m", type=float, default=0.0, help="height above the ellipsoid (m) for local gravity")
     c.add_argument("--terms", default="auto", choices=("auto", "6", "9", "12"),
                    help="model size: 12 = bias, scale, misalignment, quadratic (thesis)")
-    c.add_argument("--min-still-s", type=float, default=3.0, help="shortest still period used as a position")
+    c.add_argument("--min-still-s", type=float, default=2.0,
+                   help="shortest still period used as a position, s (default 2: holds of 2 s or more)")
     c.add_argument("--live", action="store_true", help="guided live calibration from the sensor")
     c.add_argument("--sim", metavar="SCENARIO", help="with --live: the simulated chip running this scenario")
     c.add_argument("--spi", metavar="DEV", help="with --live: the real ADIS16405 on this spidev node")
@@ -102,17 +103,23 @@ PLOT_NEEDS_MATPLOTLIB = "--plot needs matplotlib: pip install 'ahrsd[plot]'"
 _RECORDING_META: dict = {}
 
 
-def _read(path):
+def _read(path, progress_args=None):
+    """The recording at `path`; with `progress_args` (the command's args), a progress bar while it is read."""
+    import os
+
     from ahrsd.drivers.recording import RecordingFormatError, read_recording
 
+    from .progress import expected_rows, progress_bar
+
     try:
-        rec = read_recording(path)
+        with progress_bar(progress_args, expected_rows(path), f"reading {os.path.basename(path)}") as bar:
+            rec = read_recording(path, on_rows=bar.update)
     except FileNotFoundError:
         raise _Fail(f"{path}: no such file") from None
     except (RecordingFormatError, ValueError, OSError) as exc:
         raise _Fail(f"cannot read the recording: {exc}") from None
     if len(rec) < 16:
-        raise _Fail(f"{path}: only {len(rec)} samples")
+        raise _Fail(f"{path}: only {len(rec)} samples, too few for any fit: record longer (at least a few seconds)")
     if not _RECORDING_META:  # the first recording read is the one the fit is about: note it in the metadata
         import numpy as np
 
@@ -200,12 +207,16 @@ def _allan(args) -> int:
 
 
 def _accel(args) -> int:
+    import math
+
     import numpy as np
 
     from ahrsd.calibration import report
-    from ahrsd.calibration.accel_cal import fit_accel, find_still_segments, local_gravity_m_s2
+    from ahrsd.calibration.accel_cal import fit_accel, local_gravity_m_s2
 
     g = local_gravity_m_s2(args.lat, args.alt_m)
+    if not (math.isfinite(args.min_still_s) and args.min_still_s > 0):
+        raise _Usage(f"--min-still-s {args.min_still_s}: expected a positive number of seconds")
     terms = args.terms if args.terms == "auto" else int(args.terms)
     if args.live and args.recording:
         raise _Usage("give a RECORDING or --live, not both")
@@ -216,17 +227,25 @@ def _accel(args) -> int:
     else:
         if not args.recording:
             raise _Usage("give a RECORDING, or --live with --sim SCENARIO or --spi DEV")
-        rec = _read(args.recording)
-        segs = find_still_segments(rec.accel_m_s2, rec.gyro_rad_s, rec.sample_rate_hz, min_still_s=args.min_still_s)
-        means = np.array([s.mean_accel_m_s2 for s in segs]).reshape(-1, 3)
-        source = f"{len(segs)} still periods in {args.recording}"
-    res = fit_accel(means, g, terms)
+        means, source, periods, used, skipped, rate_hz = _still_positions(args)
+    if args.live or len(means):
+        res = fit_accel(means, g, terms)
+    else:
+        from ahrsd.calibration.accel_cal import AccelFitResult, short_holds_refusal
+        from ahrsd.calibration.models import AccelModel
+
+        res = AccelFitResult(AccelModel.identity(), math.nan, 6 if terms == "auto" else terms, {"positions": 0},
+                             short_holds_refusal(periods, args.min_still_s))
+    if not args.live:
+        res = _with_holds(res, used, skipped, rate_hz, args.min_still_s)
     payload = {"sensor": "accel", **res.to_json_dict(), "positions_source": source}
     lines = [f"Accelerometer calibration ({res.terms} parameters) from {source}; g = {g:.5f} m/s²"
              + ("" if args.lat is not None else " (standard gravity: give --lat for local gravity)")]
     q = res.quality
     lines.append(f"  distinct orientations: {q.get('distinct_orientations')}; faces up: "
                  + ", ".join(k for k, v in q.get("faces", {}).items() if v))
+    if "holds" in q:
+        lines.append(report.accel_holds_line(q["holds"], args.min_still_s))
     rc = _report_fit(args, res, payload, lines, "accel", report.accel_model_lines,
                      {"method": f"multi-position {res.terms}-parameter", "residual_rms_m_s2": res.residual_rms_m_s2,
                       "positions": q.get("positions"), "g_m_s2": g})
@@ -236,6 +255,42 @@ def _accel(args) -> int:
         plot_residuals(np.array(q["position_residuals_m_s2"]) * 1e3, "position", "|f| − g (mm/s²)",
                        "accelerometer residual per position", args.plot)
     return rc
+
+
+def _still_positions(args):
+    """(position means (n, 3), a description, every still period, those used, those too short, the sample
+    rate) of the recording."""
+    import math
+
+    import numpy as np
+
+    from ahrsd.calibration.accel_cal import split_by_duration, still_periods
+
+    rec = _read(args.recording, args)
+    step_s = float(np.median(np.diff(rec.t_s)))
+    if not (math.isfinite(step_s) and step_s > 0):
+        raise _Fail(f"{args.recording}: t_s does not increase (median step {step_s:g} s): the sample times "
+                    "must grow by the sample period")
+    rate_hz = 1.0 / step_s
+    periods = still_periods(rec.accel_m_s2, rec.gyro_rad_s, rate_hz)
+    used, skipped = split_by_duration(periods, args.min_still_s)
+    means = np.array([p.mean_accel_m_s2 for p in used]).reshape(-1, 3)
+    return means, f"{len(used)} still periods in {args.recording}", periods, used, skipped, rate_hz
+
+
+def _with_holds(res, used, skipped, rate_hz, min_still_s):
+    """The fit result with what the holds cost in its quality, and a refusal that names the short holds."""
+    import dataclasses
+
+    from ahrsd.calibration.accel_cal import hold_cost
+
+    quality = {**res.quality, "holds": hold_cost(used, skipped, rate_hz)}
+    refused = res.refused
+    if refused is not None and used and skipped:
+        refused = (f"{refused}; {len(skipped)} more still periods were shorter than --min-still-s "
+                   f"{min_still_s:g} (the longest {max(p.duration_s for p in skipped):.1f} s): lower "
+                   "--min-still-s to use them")
+    return dataclasses.replace(res, quality=quality, refused=refused)
 
 
 def _accel_live(args):
@@ -374,7 +429,7 @@ def _mag(args) -> int:
     if args.align_recording and args.method != "three-step":
         raise _Usage("--align-recording goes with --method three-step")
     swing_table = _read_swing_table(args.swing_table) if args.swing_table else None  # bad file: fail before fitting
-    rec = _read(args.recording)
+    rec = _read(args.recording, args)
     stored = _stored(args)
     gyro, accel, _ = stored.apply_arrays(rec.gyro_rad_s, rec.accel_m_s2, None)
     heading_ref, ref_note = _heading_reference_column(rec, args.recording, args.method)
@@ -504,7 +559,7 @@ def run(args) -> int:
     except _Fail as exc:
         failure = exc
     except ImportError as exc:   # a plot's PlotUnavailableError, should the check above be bypassed
-        from ahrsd.calibration.plots import PlotUnavailableError
+        from ahrsd.core.plotting import PlotUnavailableError
 
         if not isinstance(exc, PlotUnavailableError):
             raise

@@ -12,10 +12,10 @@ import logging
 import os
 import sys
 
-from ahrsd.cli import calibrate, magcal, record, replay, run
+from ahrsd.cli import calibrate, log, magcal, record, replay, run
 
 # Order is the order shown in `ahrsd --help`.
-SUBCOMMANDS = (run, record, replay, calibrate, magcal)
+SUBCOMMANDS = (run, record, replay, calibrate, magcal, log)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,11 +1,13 @@
 """`ahrsd replay`: run a recording through calibration and an estimator, one output row per input sample.
 
     ahrsd replay RECORDING [--estimator {mekf,thesis,ins}] --output OUT.csv [--calibration FILE]
-                 [--lat DEG --lon DEG [--alt-m M] [--date YYYY-MM-DD]] [--set NAME=VALUE ...]
+                 [--lat DEG --lon DEG [--alt-m M] [--date YYYY-MM-DD]] [--set NAME=VALUE ...] [--plot FILE.png]
 
 The output CSV is a public interface (docs/replay.md): it is how the estimator is evaluated on data the
 project has never seen. Its header is exactly OUTPUT_HEADER; the first eight columns are fixed for good.
-Exit status: 0 done, 1 bad input (recording, calibration, parameters, output path), 2 bad usage.
+On a terminal a progress bar shows the rate and the time left (none in a pipe or with --quiet).
+Exit status: 0 done, 1 bad input (recording, calibration, parameters, output path), 2 bad usage (including
+--plot without matplotlib, checked before the replay runs).
 """
 
 from __future__ import annotations
@@ -48,7 +50,10 @@ def register(subparsers) -> None:
                    help="date of the recording for the WMM (default: today)")
     p.add_argument("--set", dest="params", action="append", default=[], metavar="NAME=VALUE",
                    help="estimator parameter override (a field of MekfParams / ThesisKfParams), repeatable")
-    p.add_argument("--quiet", "-q", action="store_true", help="no summary on stderr")
+    p.add_argument("--plot", metavar="FILE.png", default=None,
+                   help="also draw roll, pitch and heading with their 1σ bands, the flags, and the error against "
+                   "the recording's truth columns when it has them (needs matplotlib: pip install 'ahrsd[plot]')")
+    p.add_argument("--quiet", "-q", action="store_true", help="no summary and no progress bar on stderr")
     p.set_defaults(func=run)
 
 
@@ -149,6 +154,10 @@ class _Output:
             self._tmp = None
 
 
+class ReplayUsageError(ReplayError):
+    """An option that cannot work as given (e.g. --plot without matplotlib): exit status 2."""
+
+
 def run(args) -> int:
     import sys
 
@@ -156,7 +165,33 @@ def run(args) -> int:
         return _run(args)
     except ReplayError as exc:
         print(f"ahrsd replay: error: {exc}", file=sys.stderr)
-        return 1
+        return 2 if isinstance(exc, ReplayUsageError) else 1
+
+
+def _plot(args, trace) -> None:
+    """The replay figure, with the recording's truth attitude when it has the truth columns."""
+    import numpy as np
+
+    from ahrsd.drivers.recording import TRUTH_COLUMNS, open_text, read_header, read_recording
+    from ahrsd.estimator.replay_plot import plot_replay
+
+    with open_text(args.recording) as f:
+        columns = read_header(f.readline(), args.recording)
+    truth_q = truth_t = None
+    if all(c in columns for c in TRUTH_COLUMNS):
+        rec = read_recording(args.recording, strict=False)
+        truth_q, truth_t = rec.truth_q_wxyz, rec.t_s
+        if not np.isfinite(truth_q).any():
+            truth_q = truth_t = None
+    import os
+
+    title = f"{os.path.basename(args.recording)} through {args.estimator}" + (
+        f", heading to true north ({args.lat:.4f}, {args.lon:.4f})" if args.lat is not None
+        else ", heading to magnetic north (give --lat/--lon for true north)")
+    try:
+        plot_replay(trace, args.plot, truth_q, truth_t, title=title)
+    except OSError as exc:
+        raise ReplayError(f"{args.plot}: cannot write the plot: {exc.strerror or exc}") from None
 
 
 def _run(args) -> int:
@@ -169,8 +204,21 @@ def _run(args) -> int:
     from ahrsd.estimator import make_estimator
     from ahrsd.estimator.replay import ATTITUDE_COLUMNS, replay_attitude
 
+    from .progress import expected_rows, progress_bar
+
     t_start = time.perf_counter()
     cpu_start = time.process_time()
+    trace = None
+    if args.plot:
+        from ahrsd.core.plotting import PlotUnavailableError, pyplot
+        from ahrsd.estimator.replay_plot import ReplayTrace
+
+        try:
+            pyplot()
+        except PlotUnavailableError as exc:
+            raise ReplayUsageError(str(exc)) from None
+        trace = ReplayTrace()
+        trace.true_north = args.lat is not None
     params = _parse_params(args.params)
     declination = _declination_rad(args)
 
@@ -217,8 +265,12 @@ def _run(args) -> int:
     t_run = time.process_time()
     try:
         order = [ATTITUDE_COLUMNS.index(name) for name in OUTPUT_COLUMNS]
-        for table in replay_attitude(estimator, samples, true_north=args.lat is not None):
-            out.write(table[:, order])
+        with progress_bar(args, expected_rows(args.recording), "replay") as bar:
+            for table in replay_attitude(estimator, samples, true_north=args.lat is not None):
+                out.write(table[:, order])
+                bar.update(len(table))
+                if trace is not None:
+                    trace.add(table)
         if count == 0:
             raise ReplayError(f"{args.recording}: the recording has a header but no samples")
         out.commit()
@@ -233,6 +285,8 @@ def _run(args) -> int:
     finally:
         out.discard()
     t_loop = time.process_time() - t_run
+    if trace is not None:
+        _plot(args, trace)
     wall = time.perf_counter() - t_start
     cpu = time.process_time() - cpu_start
 

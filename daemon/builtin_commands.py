@@ -1,4 +1,8 @@
-"""The commands every ahrsd answers: message intervals, message requests, gyro calibration."""
+"""The commands every ahrsd answers: message intervals, message requests, gyro calibration.
+
+Every handler reads its parameters through daemon.command_args (the same view of COMMAND_LONG and COMMAND_INT)
+and checks them before acting; a bad request is refused with the MAV_RESULT and a reason (`Refused`).
+Parameters a command does not use are ignored, as the MAVLink command tables say ("reserved")."""
 
 from __future__ import annotations
 
@@ -7,6 +11,7 @@ import time
 from importlib.metadata import version
 
 from ahrsd.daemon import messages as msgs
+from ahrsd.daemon.command_args import CommandArgs, Refused, whole_number
 from ahrsd.daemon.commands import CommandAck
 from ahrsd.daemon.mavlink_io import mavlink
 
@@ -14,7 +19,7 @@ from ahrsd.daemon.mavlink_io import mavlink
 
 def register_builtin_commands(service) -> None:
     r = service.commands
-    r.register(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, lambda m, c: set_message_interval(service, m))
+    r.register(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, lambda m, c: set_message_interval(service, m, c))
     r.register(mavlink.MAV_CMD_GET_MESSAGE_INTERVAL, lambda m, c: get_message_interval(service, m, c),
                state_changing=False)
     r.register(mavlink.MAV_CMD_REQUEST_MESSAGE, lambda m, c: request_message(service, m, c), state_changing=False)
@@ -22,31 +27,50 @@ def register_builtin_commands(service) -> None:
                accept_broadcast=False)
 
 
+MESSAGE_ID_MAX = 2**24 - 1          # MAVLink 2 message ids are 24 bits
+MAX_INTERVAL_US = 3600e6            # SET_MESSAGE_INTERVAL: slower than once an hour is refused, not "almost off"
+RESPONSE_DEFAULT, RESPONSE_REQUESTER, RESPONSE_BROADCAST = 0, 1, 2   # REQUEST_MESSAGE param7
+
+
 def _message_id(value: float) -> int | None:
     # hostile input: NaN/inf params must give None, not raise (int(nan) is a ValueError)
-    return int(value) if math.isfinite(value) and 0 <= value < 2**24 and value == int(value) else None
+    return whole_number(value, 0, MESSAGE_ID_MAX)
 
 
-def set_message_interval(service, msg) -> int:
-    mid = _message_id(msg.param1)
-    if mid is None or mid not in service.schedule or not math.isfinite(msg.param2):
-        return mavlink.MAV_RESULT_DENIED          # an infinite interval would silently switch the output off
-    try:
-        service.schedule.set_interval_us(mid, msg.param2)
-    except ValueError:
-        return mavlink.MAV_RESULT_DENIED
+def set_message_interval(service, msg, ctx) -> int:
+    """param1 message id, param2 interval µs (−1 off, 0 default, > 0). Changes the rate on the endpoint the
+    request came in on only (daemon.endpoint_outputs)."""
+    schedule = service.schedule_for(ctx.endpoint)
+    args = CommandArgs.of(msg)
+    mid, interval_us = _message_id(args.p(1)), args.p(2)
+    if mid is None:
+        return Refused(mavlink.MAV_RESULT_DENIED, f"SET_MESSAGE_INTERVAL: message id {args.p(1)} invalid")
+    if mid not in schedule:
+        return Refused(mavlink.MAV_RESULT_DENIED, f"SET_MESSAGE_INTERVAL: message {mid} is not an output")
+    # an infinite interval would silently switch the output off, a tiny one exceed its maximum rate
+    if not (interval_us in (-1.0, 0.0) or 0.0 < interval_us <= MAX_INTERVAL_US):
+        return Refused(mavlink.MAV_RESULT_DENIED, f"SET_MESSAGE_INTERVAL: interval {interval_us} us invalid")
+    rate_hz = 1e6 / interval_us if interval_us > 0 else 0.0
+    if rate_hz > schedule.max_rate_hz(mid):
+        return Refused(mavlink.MAV_RESULT_DENIED, f"msg {mid}: {rate_hz:.4g} Hz > max {schedule.max_rate_hz(mid):g} Hz")
+    service.set_message_interval(ctx.endpoint, mid, interval_us)
     return mavlink.MAV_RESULT_ACCEPTED
 
 
 def get_message_interval(service, msg, ctx) -> int:
-    mid = _message_id(msg.param1)
+    """param1 message id; answered with MESSAGE_INTERVAL (interval 0: "not available" for a valid id we do
+    not publish)."""
+    raw_id = CommandArgs.of(msg).p(1)
+    mid = _message_id(raw_id)
+    if mid is None:
+        return Refused(mavlink.MAV_RESULT_DENIED, f"GET_MESSAGE_INTERVAL: message id {raw_id} invalid")
     if mid == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
         interval = 1_000_000
-    elif mid is not None and mid in service.schedule:
-        interval = service.schedule.interval_us(mid)
+    elif mid is not None and mid in service.schedule_for(ctx.endpoint):
+        interval = service.schedule_for(ctx.endpoint).interval_us(mid)
     else:
         interval = 0   # "0: not available"
-    service.loop.call_soon(ctx.endpoint.send, msgs.message_interval(mid or 0, interval))
+    service.loop.call_soon(ctx.endpoint.send, msgs.message_interval(mid, interval))
     return mavlink.MAV_RESULT_ACCEPTED
 
 
@@ -60,29 +84,37 @@ def autopilot_version(service):
 
 
 def request_message(service, msg, ctx) -> int:
-    mid = _message_id(msg.param1)
+    """param1 message id, param2..6 message-specific (none of ours uses them), param7 response target
+    (0 default = every endpoint, 1 the requester, 2 broadcast); in COMMAND_INT param7 is z."""
+    args = CommandArgs.of(msg)
+    mid = _message_id(args.p(1))
+    target = whole_number(args.p(7), RESPONSE_DEFAULT, RESPONSE_BROADCAST)
+    if mid is None:
+        return Refused(mavlink.MAV_RESULT_DENIED, f"REQUEST_MESSAGE: message id {args.p(1)} invalid")
+    if target is None:
+        return Refused(mavlink.MAV_RESULT_DENIED, f"REQUEST_MESSAGE: response target {args.p(7)} invalid")
     now = time.monotonic()
     if mid == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
         out = autopilot_version(service)
     elif mid == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
         out = msgs.heartbeat(service.mav_type, service.health.system_status(now))
-    elif mid is not None and mid in service.schedule:
+    elif mid is not None and mid in service.schedule_for(ctx.endpoint):
         out = service.build_output(mid, now)
         if out is None:
             return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
     else:
-        return mavlink.MAV_RESULT_DENIED
+        return Refused(mavlink.MAV_RESULT_DENIED, f"REQUEST_MESSAGE: message {mid} not available")
     # ACK first, then the message (the ACK is sent by the router when we return)
-    service.loop.call_soon(ctx.endpoint.send if msg.param7 == 1 else service.send, out)
+    service.loop.call_soon(ctx.endpoint.send if target == RESPONSE_REQUESTER else service.send, out)
     return mavlink.MAV_RESULT_ACCEPTED
 
 
 def preflight_calibration(service, msg, ctx):
     """param1 = 1: gyro bias (here); param2 = 1/76: magnetometer start/force-save (daemon.magcal, when
-    attached). "Only one sensor per message" (anchor §1.2): anything else is UNSUPPORTED."""
-    from ahrsd.daemon.commands import command_params
-
-    p = command_params(msg)
+    attached). "Only one sensor per message" (MAV_CMD_PREFLIGHT_CALIBRATION): anything else is UNSUPPORTED."""
+    p = CommandArgs.of(msg).params
+    if not all(math.isfinite(v) for v in p):
+        return Refused(mavlink.MAV_RESULT_DENIED, "PREFLIGHT_CALIBRATION: non-finite parameter")
     magcal = getattr(service, "magcal", None)
     if p[0] == 0 and p[1] != 0 and not any(p[2:]) and magcal is not None:
         return magcal.handle_preflight_mag(msg, ctx)

@@ -1,4 +1,5 @@
-"""COMMAND_LONG / COMMAND_INT dispatch with the command protocol's ACK rules (anchor §1.6).
+"""COMMAND_LONG / COMMAND_INT dispatch with the command protocol's ACK rules (mavlink.io
+en/services/command.md).
 
 `CommandRouter.register(command_id, handler)` is the extension point: a handler gets
 `(msg, ctx: CommandContext)` and returns a MAV_RESULT int or a `CommandAck`. A long-running handler returns
@@ -10,10 +11,16 @@ Rules implemented here, so handlers don't repeat them:
   allows; an unknown broadcast command is ignored silently (the autopilot answers it, not us);
 * duplicates of a state-changing command (the sender re-sends when our ACK crossed its timeout) are not
   re-executed: the last ACK sent for the same (source, command, parameters) within DUPLICATE_WINDOW_S is
-  repeated (IN_PROGRESS while a long command runs, its final result afterwards); read-only commands
+  repeated — the parameters as one view of COMMAND_LONG and COMMAND_INT (daemon.command_args), so a retry
+  sent in the other form is a duplicate too (IN_PROGRESS while a long command runs, its final result afterwards); read-only commands
   (REQUEST_MESSAGE, GET_MESSAGE_INTERVAL) are simply answered again;
 * with signing required, an unsigned state-changing command is refused with MAV_RESULT_DENIED and counted;
-* the ACK carries target_system/target_component = the requester.
+* the ACK carries target_system/target_component = the requester;
+* a handler refuses a bad request by returning `Refused(result, reason)`: counted in `refused`, one warning
+  logged and sent as STATUSTEXT (rate limited: a flooding peer can fill neither the log nor the link), ACKed
+  with `result`. Handlers validate their
+  input and never raise; the catch-all below is the last resort, counted in `handler_errors` (the fuzz tests
+  assert it stays 0).
 """
 
 from __future__ import annotations
@@ -23,7 +30,9 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+from ahrsd.daemon.command_args import CommandArgs, Refused
 from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.daemon.rate_limit import TokenBucket
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +70,7 @@ class CommandContext:
             self._finish(int(result), 0)
 
 
-Handler = Callable[[Any, CommandContext], "int | CommandAck"]
+Handler = Callable[[Any, CommandContext], "int | CommandAck | Refused | None"]
 
 
 @dataclass
@@ -77,15 +86,19 @@ class CommandCounters:
     unsupported: int = 0
     duplicates: int = 0
     unsigned_refused: int = 0
-    handler_errors: int = 0
+    handler_errors: int = 0      # exceptions that escaped a handler: a bug (handlers validate and refuse)
     ignored_broadcast: int = 0
+    refused: int = 0             # requests a handler refused as invalid (Refused)
+    refusal_logs_suppressed: int = 0
+
+
+REFUSAL_LOG_RATE_PER_S = 1.0     # refusal warnings in the log: 1/s sustained, bursts of 5
+REFUSAL_LOG_BURST = 5
 
 
 def command_params(msg) -> tuple[float, ...]:
-    """param1..param7 as floats for both COMMAND_LONG and COMMAND_INT (x, y are int32 there)."""
-    if msg.get_type() == "COMMAND_INT":
-        return (msg.param1, msg.param2, msg.param3, msg.param4, float(msg.x), float(msg.y), msg.z)
-    return (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
+    """param1..param7 as floats for both COMMAND_LONG and COMMAND_INT (daemon.command_args)."""
+    return CommandArgs.of(msg).params
 
 
 @dataclass
@@ -98,6 +111,7 @@ class CommandRouter:
     clock: Callable[[], float] = time.monotonic
     _handlers: dict[int, _Registration] = field(default_factory=dict)
     _recent: dict[tuple, tuple[float, Any]] = field(default_factory=dict)
+    _refusal_log: TokenBucket = field(default_factory=lambda: TokenBucket(REFUSAL_LOG_RATE_PER_S, REFUSAL_LOG_BURST))
 
     def register(self, command_id: int, handler: Handler, *, state_changing: bool = True,
                  accept_broadcast: bool = True) -> None:
@@ -121,7 +135,7 @@ class CommandRouter:
         if broadcast and (reg is None or not reg.accept_broadcast or not self.accept_broadcast):
             self.counters.ignored_broadcast += 1
             return
-        key = (src, msg.get_type(), cmd, command_params(msg))
+        key = (src, cmd, command_params(msg))
         now = self.clock()
         self._expire(now)
         previous = self._recent.get(key) if reg is None or reg.state_changing else None
@@ -144,7 +158,7 @@ class CommandRouter:
         signed = bool(msg.get_signed())
         if reg.state_changing and self.require_signed() and not signed:
             self.counters.unsigned_refused += 1
-            log.warning("refused unsigned command %d from %d/%d", cmd, *src)
+            self._log_refusal(cmd, src, "unsigned")
             ack(mavlink.MAV_RESULT_DENIED, remember=False)   # a signed retry must be evaluated afresh
             return
         ctx = CommandContext(self.service, endpoint, src[0], src[1], broadcast, signed,
@@ -157,10 +171,25 @@ class CommandRouter:
             out = mavlink.MAV_RESULT_FAILED
         if out is None:
             return   # the handler answers later itself via ctx.finish
-        if isinstance(out, CommandAck):
+        if isinstance(out, Refused):
+            self.counters.refused += 1
+            self._log_refusal(cmd, src, out.reason, tell_operator=True)
+            ack(out.result)
+        elif isinstance(out, CommandAck):
             ack(out.result, out.progress, out.result_param2)
         else:
             ack(int(out))
+
+    def _log_refusal(self, cmd: int, src: tuple[int, int], reason: str, tell_operator: bool = False) -> None:
+        """One warning per refusal, rate limited (a flooding peer can fill neither the log nor the link)."""
+        if not self._refusal_log.take(self.clock()):
+            self.counters.refusal_logs_suppressed += 1
+            return
+        log.warning("command %d from %d/%d refused: %s", cmd, src[0], src[1], reason)
+        send = getattr(self.service, "send", None)
+        if tell_operator and send is not None:      # the operator sees why, not only the MAV_RESULT
+            send(mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_WARNING,
+                                                    f"ahrsd: {reason}".encode("utf-8", "replace")[:50], 0, 0))
 
     def _expire(self, now: float) -> None:
         if len(self._recent) > 64 or self._recent:

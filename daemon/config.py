@@ -28,15 +28,17 @@ from pathlib import Path
 from typing import Any
 
 from ahrsd.daemon.magcal import settings_from_mapping
-from ahrsd.daemon.output_registry import OUTPUTS
+from ahrsd.daemon.output_profiles import DEFAULT_PROFILE, PROFILES
+from ahrsd.daemon.output_registry import BY_CONFIG_KEY, OUTPUTS
 from ahrsd.estimator import ESTIMATORS
 from ahrsd.simulation import SCENARIOS
 
 DEFAULT_CONFIG_PATH = Path("/etc/ahrsd/ahrsd.toml")
-DEFAULT_ENDPOINT = "udpout:127.0.0.1:14550"   # the ground-station port by convention (anchor §3.4)
-MAV_TYPES = {"imu": 40, "onboard_controller": 18}  # MAV_TYPE_IMU / MAV_TYPE_ONBOARD_CONTROLLER (anchor §1.3)
+DEFAULT_ENDPOINT = "udpout:127.0.0.1:14550"   # the ground-station port by convention (QGC, MAVSDK)
+MAV_TYPES = {"imu": 40, "onboard_controller": 18}  # MAV_TYPE_IMU / MAV_TYPE_ONBOARD_CONTROLLER (minimal.xml)
 MIN_HEADING_SLEW_DEG_S = 0.1   # slower would take an hour for a 180° change
 MAX_HEADING_SLEW_DEG_S = 90.0
+SERIAL_DEFAULT_BAUD = 115200                   # pymavlink mavserial's default
 ENDPOINT_PREFIXES = ("udpout:", "udpin:", "udpbcast:", "udp:", "tcp:", "tcpin:", "uds:", "unix:")
 
 
@@ -191,11 +193,27 @@ class LocationConfig:
         return cls(**out)
 
 
+def _endpoint_outputs(k, value) -> tuple[tuple[str, float], ...]:
+    if not isinstance(value, dict):
+        raise _fail(k, value, "a table of [outputs] rate keys, e.g. { attitude_hz = 10.0 }")
+    limits = {o.config_key: o.max_rate_hz for o in OUTPUTS}
+    out = []
+    for key, hz in value.items():
+        if key not in limits:
+            raise ConfigError(f"unknown config key {k}.{key}: allowed keys are " + ", ".join(limits))
+        out.append((key, _number(f"{k}.{key}", hz, 0.0, limits[key])))
+    return tuple(out)
+
+
 @dataclass(frozen=True)
 class EndpointConfig:
-    """One pymavlink connection: udpout:/udpin:/tcp:/tcpin: URL or a serial port "/dev/ttyAMA0,921600"."""
+    """One pymavlink connection: udpout:/udpin:/tcp:/tcpin: URL or a serial port "/dev/ttyAMA0,921600",
+    with the outputs it gets: a profile (daemon.output_profiles: "gcs" everything, "autopilot" VPE and
+    SYS_STATUS) and per-message rate overrides (`outputs = { attitude_hz = 10.0 }`, Hz, 0 = off)."""
 
     url: str
+    profile: str = DEFAULT_PROFILE
+    outputs: tuple[tuple[str, float], ...] = ()
 
     @classmethod
     def parse(cls, d: dict, prefix="endpoint") -> "EndpointConfig":
@@ -203,13 +221,27 @@ class EndpointConfig:
             raise _fail(prefix, d, "a table with key url")
         if "url" not in d:
             raise _fail(f"{prefix}.url", None, "required (e.g. url = \"udpout:127.0.0.1:14550\")")
-        return cls(**_parse_table(cls, d, prefix, {"url": _endpoint_url}))
+        return cls(**_parse_table(cls, d, prefix, {"url": _endpoint_url, "profile": _choice_of(tuple(PROFILES)),
+                                                   "outputs": _endpoint_outputs}))
+
+    @property
+    def overrides_hz(self) -> dict[int, float]:
+        """The rate overrides by message id."""
+        return {BY_CONFIG_KEY[key].message_id: hz for key, hz in self.outputs}
+
+    @property
+    def serial_baud(self) -> int | None:
+        """The baud rate of a serial endpoint (pymavlink's default 115200 when the URL gives none), else None."""
+        if not self.url.startswith(("/dev/", "COM")):
+            return None
+        _, _, baud = self.url.partition(",")
+        return int(baud) if baud else SERIAL_DEFAULT_BAUD
 
 
 @dataclass(frozen=True)
 class MavlinkConfig:
     system_id: int = 0                  # 0 = latch the first autopilot's system id (1 until then)
-    component_id: int = 200             # MAV_COMP_ID_IMU (anchor §1.3)
+    component_id: int = 200             # MAV_COMP_ID_IMU (minimal.xml MAV_COMPONENT)
     mav_type: str = "imu"               # HEARTBEAT.type: "imu" (40) or "onboard_controller" (18)
     accept_broadcast_commands: bool = True  # act on COMMAND_LONG with target_component 0
 
@@ -262,7 +294,7 @@ class StateConfig:
 
 @dataclass(frozen=True)
 class SigningConfig:
-    """MAVLink 2 signing (anchor §1.5). The key is read from a file and never logged."""
+    """MAVLink 2 signing (mavlink.io en/guide/message_signing.md). The key is read from a file and never logged."""
 
     key_file: str = ""                  # 32 raw bytes, or 64 hex characters; "" = signing off
     link_id: int = 0

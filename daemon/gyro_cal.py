@@ -23,7 +23,8 @@ from ahrsd.daemon.mavlink_io import mavlink
 log = logging.getLogger(__name__)
 
 DURATION_S = 2.0
-# Rest test. ADIS16405 gyro noise ≈ 0.9 °/s rms at full bandwidth (anchor §4.3, [unverified]); 3× that as the
+# Rest test. ADIS16405 gyro noise ≈ 0.9 °/s rms at full bandwidth (ADIS16405 datasheet figure,
+# not re-checked against Rev. B); 3× that as the
 # per-axis standard deviation limit. Accelerometer: |f| within 0.5 m/s² of g and steady.
 MAX_GYRO_STD_RAD_S = math.radians(3 * 0.9)
 MAX_ACCEL_NORM_ERR_M_S2 = 0.5

@@ -33,10 +33,21 @@ class HeadingSlew:
     _published: float | None = None
     _t_last: float | None = None
     _t_start: float | None = None
+    hold_until_s: float | None = None   # until this sample time, follow the vehicle's rotation only
 
     def start_transition(self) -> None:
         self.active = True
         self._t_start = None      # set by the next update (sample time)
+        self.hold_until_s = None
+
+    def start_from(self, published_rad: float, hold_until_s: float | None = None) -> None:
+        """A transition from a heading the autopilot already has (the one published before a restart):
+        the published heading starts there, follows the vehicle's rotation, and — after `hold_until_s` if
+        given — moves to the estimator's heading at `max_rate_deg_s`."""
+        self._published = published_rad % (2 * math.pi)
+        self._t_last = None
+        self.start_transition()
+        self.hold_until_s = hold_until_s
 
     def update(self, t_s: float, heading_rad: float, yaw_rate_rad_s: float = 0.0) -> float:
         """Heading to publish (rad, [0, 2π)) for the estimator's heading at t_s and the vehicle's yaw rate."""
@@ -49,6 +60,12 @@ class HeadingSlew:
         if self._t_start is None:
             self._t_start = t_s
         predicted = self._published + yaw_rate_rad_s * dt
+        if self.hold_until_s is not None:
+            if t_s < self.hold_until_s:
+                self._published = predicted % (2 * math.pi)
+                self._t_start = t_s
+                return self._published
+            self.hold_until_s = None
         err = float(wrap_pi(heading_rad - predicted))
         step = math.radians(self.max_rate_deg_s) * dt
         if abs(err) <= max(step, math.radians(self.done_within_deg)):

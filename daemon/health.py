@@ -1,6 +1,6 @@
 """Health of the sensor chain as MAVLink sees it: HEARTBEAT.system_status and SYS_STATUS sensor bits.
 
-States (MAV_STATE, anchor §7): BOOT until the first estimate; STANDBY while the estimator initialises;
+States (MAV_STATE, minimal.xml): BOOT until the first estimate; STANDBY while the estimator initialises;
 ACTIVE when attitude and heading are good; CALIBRATING while a calibration holds the daemon; CRITICAL when the
 sensor stopped delivering samples or delivers invalid ones.
 """

@@ -54,7 +54,8 @@ class Housekeeping:
                 save_timestamp(self.state_dir, max(e.signing_timestamp() for e in self.endpoints))
             if now - self._last_decl_update > DECLINATION_UPDATE_PERIOD_S:
                 self._resolve_declination()
-            if self.heading_slew.active and self.schedule.rate_hz(VISION_POSITION_ESTIMATE) <= 0:
+            if self.heading_slew.active and not any(ep.schedule.rate_hz(VISION_POSITION_ESTIMATE) > 0
+                                                    for ep in self.endpoints):
                 self.heading_slew.active = False    # nobody receives the slewed yaw: nothing to bring in
             await asyncio.sleep(max(0.0, deadline - loop.time()))
 

@@ -44,7 +44,7 @@ class InboundDispatch:
             return
         if mtype == "TIMESYNC":
             if msg.tc1 == 0:   # a request; answers have tc1 != 0 (MAVLink TIMESYNC v2)
-                endpoint.send(msgs.timesync_reply(time.monotonic_ns(), msg.ts1))
+                endpoint.send(msgs.timesync_reply(endpoint.timesync_stamp_ns(), msg.ts1))
             return
         if mtype in ("COMMAND_LONG", "COMMAND_INT"):
             ours, broadcast = is_for_us(msg, self.system_id, self.component_id)

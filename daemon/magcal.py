@@ -1,13 +1,15 @@
 """The MAVLink side of the field magnetometer recalibration (ArduPilot's onboard-calibration protocol).
 
 Commands (COMMAND_LONG / COMMAND_INT), behaviour mirrored from ArduPilot's AP_Compass_Calibration.cpp
-(anchors/mavlink-adis.md §6) so Mission Planner, MAVProxy and any MAVLink client can drive our component:
+(ArduPilot/ardupilot) so Mission Planner, MAVProxy and any MAVLink client can drive our component:
 
 * MAV_CMD_DO_START_MAG_CAL (42424): p1 magnetometer mask (0 = all; ours is compass 0), p2 retry, p3 autosave,
   p4 delay s, p5 autoreboot (not needed: the new calibration is hot-swapped; logged and ignored).
-  ACCEPTED as ArduPilot does; FAILED for a mask outside 0..255 or one that names no compass of ours;
+  ACCEPTED as ArduPilot does; FAILED for a mask outside 0..255 or one that names no compass of ours, for
+  retry/autosave/autoreboot other than 0/1 and for a delay that is not finite or outside 0..timeout_s;
   TEMPORARILY_REJECTED + STATUSTEXT "Disarm to allow compass calibration" while the autopilot reports armed
-  (ArduPilot answers FAILED; the issue asks for TEMPORARILY_REJECTED) unless `allow_armed`; a second start
+  (ArduPilot answers FAILED; TEMPORARILY_REJECTED tells the client to retry later, common.xml
+  MAV_RESULT) unless `allow_armed`; a second start
   while a session runs is ACCEPTED and changes nothing (ArduPilot's CompassCalibrator::start returns when
   running); a start after a finished session starts a new one.
 * MAV_CMD_DO_ACCEPT_MAG_CAL (42425): saves a SUCCESS result (atomic store, previous kept), hot-swaps it,
@@ -16,8 +18,10 @@ Commands (COMMAND_LONG / COMMAND_INT), behaviour mirrored from ArduPilot's AP_Co
   ArduPilot would stop it, which only throws the operator's turning away).
 * MAV_CMD_DO_CANCEL_MAG_CAL (42426): stops the session, ACCEPTED.
 * MAV_CMD_FIXED_MAG_CAL_YAW (42006): p1 true yaw deg, p2 mask, p3/p4 lat/lon (0/0 = the autopilot's
-  position, else the configured location): offsets from the WMM field at the given attitude, soft iron KEPT;
-  saved and swapped at once (as ArduPilot does).
+  position, else the configured location; as COMMAND_INT the position may come as x/y in degE7):
+  offsets from the WMM field at the given attitude, soft iron KEPT; saved and swapped at once (as ArduPilot
+  does). DENIED up front for a yaw or position that is not finite or out of range. Computed from the raw
+  (uncalibrated) field, so the same request twice gives the same calibration.
 * MAV_CMD_PREFLIGHT_CALIBRATION (241) p2 = 1 starts (retry 0, autosave 1), p2 = 76 accepts — only when the
   daemon has not claimed 241 itself (it can delegate with `handle_preflight_mag`).
 
@@ -54,6 +58,7 @@ from ahrsd.calibration.field import CalStatus, FieldCalConfig, FieldCalibration,
 from ahrsd.calibration.fixed_yaw import fixed_yaw_calibration
 from ahrsd.calibration.swing import DEFAULT_MIN_SPEED_M_S
 from ahrsd.core.angles import tilt_compensated_heading_rad, wrap_180_deg
+from ahrsd.daemon.command_args import CommandArgs, Refused, position_problem, whole_number
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.drivers.gnss_mavlink import MavlinkGnssSelector
 
@@ -211,7 +216,8 @@ class MagCalProtocol:
         now = sample.t_s
         self._last_sample_t = now
         q = self._recent_raw
-        q.append((now, sample.mag_ut))
+        # with the magnetometer model that calibrated it, so the raw field can be recovered later
+        q.append((now, sample.mag_ut, self.host.current_calibration().mag))
         while q and now - q[0][0] > self.settings.fixed_yaw_average_s:
             q.popleft()
         s = self.session
@@ -329,14 +335,18 @@ class MagCalProtocol:
 
     # ------------------------------------------------------------------ command handlers: (msg, ctx) -> MAV_RESULT
     def handle_start(self, msg, ctx=None) -> int:
-        p = _params(msg)
-        mask_f, retry, autosave, delay_s, autoreboot = p[0], p[1] != 0, p[2] != 0, p[3], p[4] != 0
-        if not (0 <= mask_f <= 255) or not math.isfinite(delay_s) or delay_s < 0:
-            return mavlink.MAV_RESULT_FAILED
-        mask = int(mask_f)
+        mask_f, retry_f, autosave_f, delay_s, autoreboot_f = CommandArgs.of(msg).params[:5]
+        mask = whole_number(mask_f, 0, 255)
+        flags = [whole_number(v, 0, 1) for v in (retry_f, autosave_f, autoreboot_f)]
+        if mask is None:
+            return Refused(mavlink.MAV_RESULT_FAILED, f"DO_START_MAG_CAL: mask {mask_f} not in 0..255")
+        if None in flags:
+            return Refused(mavlink.MAV_RESULT_FAILED, "DO_START_MAG_CAL: retry/autosave/autoreboot not 0/1")
+        if not (math.isfinite(delay_s) and 0.0 <= delay_s <= self.settings.timeout_s):
+            return Refused(mavlink.MAV_RESULT_FAILED, f"DO_START_MAG_CAL: delay {delay_s} s invalid")
+        retry, autosave, autoreboot = (bool(f) for f in flags)
         if mask != 0 and not mask & OUR_MASK:
-            self._say(SEV_ERROR, f"Mag cal: no compass in mask {mask} (this unit has compass 0)")
-            return mavlink.MAV_RESULT_FAILED
+            return Refused(mavlink.MAV_RESULT_FAILED, f"Mag cal: no compass in mask {mask} (ours: compass 0)")
         if self.host.armed() and not self.settings.allow_armed:
             self._say(SEV_NOTICE, "Disarm to allow compass calibration")
             return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
@@ -366,9 +376,9 @@ class MagCalProtocol:
         return mavlink.MAV_RESULT_ACCEPTED
 
     def handle_accept(self, msg, ctx=None) -> int:
-        mask_f = _params(msg)[0]
-        if not (0 <= mask_f <= 255):
-            return mavlink.MAV_RESULT_FAILED
+        mask_f = CommandArgs.of(msg).p(1)
+        if whole_number(mask_f, 0, 255) is None:
+            return Refused(mavlink.MAV_RESULT_FAILED, f"DO_ACCEPT_MAG_CAL: mask {mask_f} not in 0..255")
         mask = int(mask_f) or 0xFF
         s = self.session
         if not mask & OUR_MASK or s is None or s.status == CalStatus.NOT_STARTED:
@@ -384,9 +394,9 @@ class MagCalProtocol:
         return mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_FAILED
 
     def handle_cancel(self, msg, ctx=None) -> int:
-        mask_f = _params(msg)[0]
-        if not (0 <= mask_f <= 255):
-            return mavlink.MAV_RESULT_FAILED
+        mask_f = CommandArgs.of(msg).p(1)
+        if whole_number(mask_f, 0, 255) is None:
+            return Refused(mavlink.MAV_RESULT_FAILED, f"DO_CANCEL_MAG_CAL: mask {mask_f} not in 0..255")
         mask = int(mask_f) or 0xFF
         if mask & OUR_MASK and self.session is not None:
             was_running = self.calibrating
@@ -396,7 +406,7 @@ class MagCalProtocol:
         return mavlink.MAV_RESULT_ACCEPTED
 
     def handle_preflight_mag(self, msg, ctx=None) -> int:
-        p2 = _params(msg)[1]
+        p2 = CommandArgs.of(msg).p(2)
         if p2 == PREFLIGHT_MAG_START:
             start = _FakeCommand(0.0, 0.0, 1.0, 0.0, 0.0)
             return self.handle_start(start, ctx)
@@ -405,9 +415,23 @@ class MagCalProtocol:
         return mavlink.MAV_RESULT_UNSUPPORTED
 
     def handle_fixed_yaw(self, msg, ctx=None) -> int:
-        yaw_deg, mask_f, lat, lon = _params(msg)[:4]
-        if not (0 <= mask_f <= 255) or not math.isfinite(yaw_deg) or (int(mask_f) and not int(mask_f) & OUR_MASK):
-            return mavlink.MAV_RESULT_FAILED
+        args = CommandArgs.of(msg)
+        yaw_deg, mask_f, lat, lon = args.params[:4]
+        mask = whole_number(mask_f, 0, 255)
+        if mask is None or (mask and not mask & OUR_MASK):
+            return Refused(mavlink.MAV_RESULT_FAILED, f"FIXED_MAG_CAL_YAW: no compass of ours in mask {mask_f}")
+        if not (math.isfinite(yaw_deg) and -360.0 <= yaw_deg <= 360.0):
+            return Refused(mavlink.MAV_RESULT_DENIED, f"FIXED_MAG_CAL_YAW: yaw {yaw_deg} deg invalid")
+        int_position = args.int_position_deg()     # COMMAND_INT: a position travels as x/y, degE7
+        if int_position is not None:
+            if not args.position_frame_ok:
+                return Refused(mavlink.MAV_RESULT_DENIED, f"FIXED_MAG_CAL_YAW: frame {args.frame} not global")
+            if not (lat == 0 and lon == 0):
+                return Refused(mavlink.MAV_RESULT_DENIED, "FIXED_MAG_CAL_YAW: position in both param3/4 and x/y")
+            lat, lon = int_position
+        problem = None if (lat == 0 and lon == 0) else position_problem(lat, lon)
+        if problem:
+            return Refused(mavlink.MAV_RESULT_DENIED, f"FIXED_MAG_CAL_YAW: {problem}")
         if self.host.armed() and not self.settings.allow_armed:
             self._say(SEV_NOTICE, "Disarm to allow compass calibration")
             return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
@@ -423,8 +447,7 @@ class MagCalProtocol:
             self._say(SEV_ERROR, "Mag: no position available")
             return mavlink.MAV_RESULT_FAILED
         current = self.host.current_calibration()
-        cal_mean = np.mean([m for _t, m in self._recent_raw], axis=0)
-        raw_mean = np.linalg.solve(current.mag.soft_iron, cal_mean) + current.mag.hard_iron_ut
+        raw_mean = self._raw_mag_mean_ut()
         # the fit is in the sensor frame: the attitude of the sensor axes for the body's given true heading
         sensor = sensor_attitude(SimpleNamespace(roll_rad=float(est.roll_rad), pitch_rad=float(est.pitch_rad),
                                                  yaw_rad=math.radians(float(yaw_deg)),
@@ -453,6 +476,18 @@ class MagCalProtocol:
             return mavlink.MAV_RESULT_FAILED
         self._say(SEV_NOTICE, f"Mag cal: heading offset {offset:+.1f} deg from the known heading. Accept to save")
         return mavlink.MAV_RESULT_ACCEPTED
+    def _raw_mag_mean_ut(self) -> np.ndarray:
+        """Mean raw (uncalibrated) field of the recent samples: each sample's own calibration undone
+        (raw = W⁻¹·m + h), so a calibration swapped in meanwhile — a fixed-yaw request a moment ago — does
+        not enter the result twice."""
+        by_model: dict[int, tuple[Any, list]] = {}
+        for _t, mag_ut, model in self._recent_raw:
+            by_model.setdefault(id(model), (model, []))[1].append(mag_ut)
+        total = np.zeros(3)
+        for model, mags in by_model.values():
+            cal = np.asarray(mags, dtype=np.float64)
+            total += np.linalg.solve(model.soft_iron, cal.T).sum(axis=1) + len(mags) * model.hard_iron_ut
+        return total / len(self._recent_raw)
 
     # ------------------------------------------------------------------ accept / save
     def _accept_result(self) -> bool:
@@ -513,12 +548,6 @@ class _FakeCommand:
         return "COMMAND_LONG"
 
 
-def _params(msg) -> tuple[float, ...]:
-    if msg.get_type() == "COMMAND_INT":
-        return (msg.param1, msg.param2, msg.param3, msg.param4, float(msg.x), float(msg.y), msg.z)
-    return (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
-
-
 def settings_from_mapping(d: dict[str, Any] | None) -> MagCalSettings:
     """`[magcal]` TOML table -> MagCalSettings; raises ValueError naming the bad key."""
     d = dict(d or {})
@@ -530,8 +559,10 @@ def settings_from_mapping(d: dict[str, Any] | None) -> MagCalSettings:
         want = fields[key]
         if want is bool and not isinstance(value, bool):
             raise ValueError(f"config key magcal.{key} = {value!r} is invalid: true or false")
-        if want is float and (isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0):
-            raise ValueError(f"config key magcal.{key} = {value!r} is invalid: a positive number")
+        if want is float and (isinstance(value, bool) or not isinstance(value, (int, float))
+                              or not (math.isfinite(value) and value > 0)):
+            # inf would pass "> 0": an infinite progress rate makes the mag-cal ticker spin
+            raise ValueError(f"config key magcal.{key} = {value!r} is invalid: a positive finite number")
         if key == "vehicle_type" and value not in ("auto", "level", "tumble"):
             raise ValueError(f"config key magcal.vehicle_type = {value!r} is invalid: one of 'auto', 'level', 'tumble'")
         out[key] = float(value) if want is float else value

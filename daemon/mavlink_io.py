@@ -1,4 +1,5 @@
-"""MAVLink connections registered with the asyncio event loop (anchor §3.5–3.6).
+"""MAVLink connections registered with the asyncio event loop (pymavlink mavutil connections,
+read through loop.add_reader on their fd).
 
 One `Endpoint` per configured URL wraps a pymavlink `mavfile`. Reception is event driven:
 `loop.add_reader(fd, ...)` drains every byte available and parses it (no polling, no reader threads).
@@ -12,8 +13,13 @@ imported mavutil earlier with other settings.
 from __future__ import annotations
 
 import asyncio
+import errno
 import logging
 import os
+import socket
+import struct
+import sys
+import time
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -27,9 +33,17 @@ if mavutil.mavlink.WIRE_PROTOCOL_VERSION != "2.0" or mavutil.current_dialect != 
 
 mavlink = mavutil.mavlink   # the ardupilotmega MAVLink 2 module: message classes and enums
 
+from ahrsd.daemon.serial_queue import SerialOutQueue  # noqa: E402
+
 log = logging.getLogger(__name__)
 
 READ_CHUNK = 4096          # bytes per read on stream links
+UDP_MAX_DATAGRAM = 65535
+# Linux SO_TIMESTAMPNS (asm-generic/socket.h; Python's socket module does not export it): the kernel's
+# CLOCK_REALTIME arrival time of each datagram, as a struct timespec in the ancillary data
+SO_TIMESTAMPNS = 35 if sys.platform == "linux" else None
+TIMESPEC = struct.Struct("@qq")
+UDP_KINDS = ("udpin", "udpout", "udpbcast", "udp")
 MAX_READS_PER_WAKE = 64    # bound the work done per readiness callback (datagrams or chunks)
 TCP_RETRY_S = 2.0
 
@@ -42,6 +56,8 @@ class LinkCounters:
     rx_unknown: int = 0        # well-formed frames of message ids outside our dialect (not delivered)
     tx_messages: int = 0
     tx_errors: int = 0
+    tx_dropped: int = 0        # refused by a serial link that could not keep up (daemon.serial_queue)
+    tx_dropped_by_priority: dict = field(default_factory=dict)   # priority -> count
     reconnects: int = 0
 
 
@@ -62,6 +78,21 @@ class Endpoint:
     _fd: int | None = None
     _signing: dict | None = None
     _connect_task: asyncio.Task | None = None
+    # what this endpoint gets (set by the service, daemon.endpoint_outputs): its own OutputSchedule, the
+    # profile and overrides it was built from
+    schedule: object | None = None
+    profile: str = "gcs"
+    overrides_hz: dict = field(default_factory=dict)
+    # serial links: the line's byte rate and the message priority function switch on the non-blocking
+    # priority queue (daemon.serial_queue); None = pymavlink writes directly
+    line_bytes_per_s: float | None = None
+    priority_of: Callable[[int], int] | None = None
+    out_queue: SerialOutQueue | None = None
+    budget: object | None = None       # daemon.link_budget.LinkBudget of a serial endpoint
+    # CLOCK_MONOTONIC ns at which the input being parsed arrived: the kernel's time stamp of a UDP datagram
+    # (SO_TIMESTAMPNS), else the start of the read; for TIMESYNC answers (`timesync_stamp_ns`)
+    rx_monotonic_ns: int | None = None
+    _rx_timestamps: bool = False
 
     @property
     def kind(self) -> str:
@@ -117,6 +148,16 @@ class Endpoint:
         self.conn = conn
         if self._signing is not None:
             self._apply_signing()
+        self._rx_timestamps = False
+        if self.kind in UDP_KINDS and SO_TIMESTAMPNS is not None:
+            try:
+                conn.port.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+                self._rx_timestamps = True
+            except (OSError, AttributeError):
+                pass
+        if self.kind == "serial" and self.line_bytes_per_s and getattr(conn, "fd", None) is not None:
+            self.out_queue = SerialOutQueue(conn.fd, self.line_bytes_per_s, self._loop, self.counters)
+            conn.mav.file = self.out_queue
         self._register_fd()
 
     def _register_fd(self) -> None:
@@ -129,9 +170,15 @@ class Endpoint:
         if fd is not None:
             self._loop.add_reader(fd, self._on_readable)
 
+    def _drop_out_queue(self) -> None:
+        if self.out_queue is not None:
+            self.out_queue.close()
+            self.out_queue = None
+
     def close(self) -> None:
         if self._connect_task is not None:
             self._connect_task.cancel()
+        self._drop_out_queue()
         if self._fd is not None and self._loop is not None:
             self._loop.remove_reader(self._fd)
             self._fd = None
@@ -158,7 +205,10 @@ class Endpoint:
             self._apply_signing()
 
     def _apply_signing(self) -> None:
+        from ahrsd.daemon.signing import verify_signature_before_timestamp
+
         self.conn.setup_signing(**self._signing)
+        verify_signature_before_timestamp(self.conn.mav)
 
     def signing_timestamp(self) -> int:
         if self.conn is None or self._signing is None:
@@ -171,6 +221,9 @@ class Endpoint:
         """Pack and send one message on this link; errors are counted, never raised."""
         if self.conn is None:
             return False
+        queue = self.out_queue
+        if queue is not None:
+            queue.priority = self.priority_of(msg.get_msgId())
         try:
             self.conn.mav.send(msg)
         except (OSError, ValueError, TypeError, OverflowError) as exc:
@@ -180,6 +233,8 @@ class Endpoint:
             if self.counters.tx_errors in (1, 100, 10000):
                 log.warning("MAVLink %s: send of %s failed: %s", self.url, msg.get_type(), exc)
             return False
+        if queue is not None and not queue.accepted_last:
+            return False                      # the link is behind: refused by priority, counted
         self.counters.tx_messages += 1
         if self.conn.fd != self._fd:          # pymavlink dropped a TCP client on a write error (tcpin)
             self._register_fd()
@@ -204,14 +259,52 @@ class Endpoint:
             return data if data else None
         if kind == "serial":
             return conn.recv(READ_CHUNK) or b""
+        if self._rx_timestamps:
+            return self._recv_datagram_stamped()
         data = conn.recv()          # UDP: one datagram ("" when none)
         return data if data else b""
+
+    def _recv_datagram_stamped(self) -> bytes:
+        """One datagram with its kernel arrival time (what pymavlink's mavudp.recv does, plus the time)."""
+        conn = self.conn
+        try:
+            data, ancillary, _flags, addr = conn.port.recvmsg(UDP_MAX_DATAGRAM, socket.CMSG_SPACE(TIMESPEC.size))
+        except OSError as exc:
+            if exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK, errno.ECONNREFUSED):
+                return b""
+            raise
+        if conn.udp_server:                     # as mavudp.recv: remember the client to answer it
+            conn.clients.add(addr)
+            conn.clients_last_alive[addr] = time.time()
+        elif conn.broadcast:
+            conn.last_address = addr
+        for level, kind, payload in ancillary:
+            if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(payload) >= TIMESPEC.size:
+                sec, nsec = TIMESPEC.unpack_from(payload)
+                # CLOCK_REALTIME -> CLOCK_MONOTONIC with the offset between the two clocks now
+                self.rx_monotonic_ns = sec * 1_000_000_000 + nsec - (time.time_ns() - time.monotonic_ns())
+        return data
+
+    def timesync_stamp_ns(self) -> int:
+        """TIMESYNC `tc1` for a request being handled now, CLOCK_MONOTONIC ns (the clock of VPE `usec`).
+
+        The requester computes offset = (ts1 + t_rx)/2 − tc1 (PX4 src/lib/timesync/Timesync.cpp), which is
+        exact when tc1 is the middle of our part of the round trip. Our part runs from the request's arrival
+        to the answer's departure, and includes the time the request waited for the event loop; stamping
+        the midpoint of arrival and now takes that wait out (stamping `now` alone would shift the offset
+        by half of it, ms under load)."""
+        now = time.monotonic_ns()
+        arrival = self.rx_monotonic_ns
+        if arrival is None or not 0 <= now - arrival < 1_000_000_000:
+            return now
+        return (arrival + now) // 2
 
     def _on_readable(self) -> None:
         conn = self.conn
         if conn is None:
             return
         for _ in range(MAX_READS_PER_WAKE):
+            self.rx_monotonic_ns = time.monotonic_ns()    # replaced by the kernel's time of a datagram
             try:
                 data = self._read_chunk()
             except OSError as exc:
@@ -287,6 +380,7 @@ class Endpoint:
         if self._fd is not None:
             self._loop.remove_reader(self._fd)
             self._fd = None
+        self._drop_out_queue()
         try:
             self.conn.close()
         except OSError:
@@ -296,7 +390,7 @@ class Endpoint:
 
 
 def is_for_us(msg, system_id: int, component_id: int) -> tuple[bool, bool]:
-    """MAVLink routing rule (anchor §1.6): (process it?, was it broadcast to all components?).
+    """MAVLink routing rule (mavlink.io en/guide/routing.md): (process it?, was it broadcast to all components?).
 
     Process when target_system is absent/0, or equals ours and target_component is absent/0 or ours.
     """

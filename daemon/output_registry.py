@@ -7,8 +7,8 @@ this order), and what SET_MESSAGE_INTERVAL / GET_MESSAGE_INTERVAL / REQUEST_MESS
 daemon/messages.py plus the few lines below that feed it the service state).
 
 Later entries fit the same shape: a GNSS output (LOCAL_POSITION_NED, GLOBAL_POSITION_INT, default 0 Hz = off)
-is an entry whose builder reads the navigation state; per-endpoint rate overrides become a per-endpoint
-OutputSchedule built from the same entries; `priority` orders outputs when a link budget must drop some.
+is an entry whose builder reads the navigation state; each endpoint has its own OutputSchedule built from the same
+entries (daemon.endpoint_outputs); `priority` orders outputs when a serial link must drop some.
 """
 
 from __future__ import annotations
@@ -29,7 +29,8 @@ class OutputSpec:
 
     build(service, estimate, sample, now) -> message or None (None: nothing trustworthy to send now).
     needs_estimate: only built once the estimator has produced an estimate and samples are fresh.
-    priority: 0 = most important; for link-budget decisions (not used by the scheduler yet).
+    priority: 0 = dropped last by a serial link that cannot keep up (daemon.serial_queue), higher numbers
+    first: 0 the heading the autopilot fuses, 1 health, 2 attitude for displays, 3 raw sensor data.
     """
 
     message_id: int
@@ -56,8 +57,13 @@ def _vision_position_estimate(svc, est, sample, now):
     from ahrsd.core.angles import yaw_rate_ned_rad_s
 
     usec = int(svc.sample_time_monotonic(est.t_s) * 1e6)
+    restart = svc.restart_heading          # a restart with another heading: daemon.restart_heading
+    if restart is not None:
+        restart.before_publish(est.t_s, est.heading_true_rad)
     yaw = svc.heading_slew.update(est.t_s, est.heading_true_rad,
                                   yaw_rate_ned_rad_s(est.rate_body_rad_s, est.roll_rad, est.pitch_rad))
+    if restart is not None:
+        restart.after_publish(yaw, svc.reset_counter)
     return msgs.vision_position_estimate(est, usec, yaw, svc.reset_counter)
 
 
@@ -75,18 +81,18 @@ def _sys_status(svc, est, sample, now):
 
 OUTPUTS: tuple[OutputSpec, ...] = (
     OutputSpec(mavlink.MAVLINK_MSG_ID_ATTITUDE, "attitude_hz", "SR_ATTITUDE", 50.0, DEFAULT_MAX_RATE_HZ,
-               _attitude, priority=0),
+               _attitude, priority=2),
     OutputSpec(mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION, "attitude_quaternion_hz", "SR_ATT_QUAT", 10.0,
-               DEFAULT_MAX_RATE_HZ, _attitude_quaternion),
+               DEFAULT_MAX_RATE_HZ, _attitude_quaternion, priority=2),
     # ArduPilot needs > 3.3 Hz, PX4 > 5 Hz
     OutputSpec(mavlink.MAVLINK_MSG_ID_VISION_POSITION_ESTIMATE, "vision_position_estimate_hz", "SR_VISION_POS",
                30.0, VISION_MAX_RATE_HZ, _vision_position_estimate, priority=0),
     OutputSpec(mavlink.MAVLINK_MSG_ID_HIGHRES_IMU, "highres_imu_hz", "SR_HIGHRES_IMU", 10.0, DEFAULT_MAX_RATE_HZ,
-               _highres_imu, priority=2),
+               _highres_imu, priority=3),
     OutputSpec(mavlink.MAVLINK_MSG_ID_SCALED_IMU, "scaled_imu_hz", "SR_SCALED_IMU", 0.0, DEFAULT_MAX_RATE_HZ,
-               _scaled_imu, priority=2),
+               _scaled_imu, priority=3),
     OutputSpec(mavlink.MAVLINK_MSG_ID_SYS_STATUS, "sys_status_hz", "SR_SYS_STATUS", 1.0, DEFAULT_MAX_RATE_HZ,
-               _sys_status, needs_estimate=False, priority=0),
+               _sys_status, needs_estimate=False, priority=1),
 )
 
 BY_MESSAGE_ID: dict[int, OutputSpec] = {o.message_id: o for o in OUTPUTS}

@@ -1,6 +1,6 @@
 """Message rates: one absolute-deadline schedule per output (daemon.output_registry), settable at run time.
 
-Intervals follow MAV_CMD_SET_MESSAGE_INTERVAL semantics (anchor §1.2): interval in µs, −1 disables, 0 restores
+Intervals follow MAV_CMD_SET_MESSAGE_INTERVAL semantics (common.xml): interval in µs, −1 disables, 0 restores
 the configured default. Deadlines are absolute (`due += interval`), so rates do not drift with scheduling
 jitter; a wake up to CATCH_UP_LIMIT_S late catches up, after a longer stall the schedule restarts from now
 instead of bursting.

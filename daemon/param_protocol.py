@@ -10,11 +10,14 @@ import logging
 from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.mavlink_io import Endpoint, mavlink
 from ahrsd.daemon.output_registry import BY_PARAM_NAME, OUTPUTS
-from ahrsd.daemon.params import ParamError, ParamSpec, decode_param_id
+from ahrsd.daemon.params import ParamError, ParamSpec, decode_param_id, printable_param_id
 
 log = logging.getLogger(__name__)
 
 PARAM_STREAM_PAUSE_S = 0.002                     # pause between PARAM_VALUEs of a list
+PARAM_INDEX_BY_NAME = -1                          # PARAM_REQUEST_READ.param_index: "use param_id"
+# PARAM_SET.param_type: any MAV_PARAM_TYPE is taken as a C-cast float (PARAM_ENCODE_C_CAST); others are refused
+PARAM_TYPES = frozenset(mavlink.enums["MAV_PARAM_TYPE"]) - {max(mavlink.enums["MAV_PARAM_TYPE"])}
 MOUNTING_PARAMS = ("MNT_ROLL_DEG", "MNT_PITCH_DEG", "MNT_YAW_DEG")
 
 
@@ -44,7 +47,7 @@ class ParamProtocol:
     def _on_param_change(self, name: str, value: float) -> None:
         if name.startswith("SR_"):
             try:
-                self.schedule.set_rate_hz(BY_PARAM_NAME[name].message_id, value, default=True)
+                self.set_output_rate_hz(BY_PARAM_NAME[name].message_id, value)   # every endpoint following it
             except ValueError as exc:
                 raise ParamError(f"{name}: {exc}") from None
         elif name.startswith("MNT_"):
@@ -70,11 +73,17 @@ class ParamProtocol:
             self.loop.create_task(self._stream_params(endpoint))
             return
         name = decode_param_id(msg.param_id)
+        shown = printable_param_id(name)
         if mtype == "PARAM_REQUEST_READ":
-            index = msg.param_index if msg.param_index >= 0 else self.params.index_of(name)
-            if index is None or index >= len(self.params):
-                if not broadcast:
-                    self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unknown parameter {name}"[:50])
+            if msg.param_index == PARAM_INDEX_BY_NAME:
+                index = self.params.index_of(name)
+            else:
+                index = msg.param_index if 0 <= msg.param_index < len(self.params) else None
+                shown = f"index {msg.param_index}"
+            if index is None:
+                if not broadcast:      # (a broadcast read is for whoever has it: not ours to refuse)
+                    self.params.rejected_reads += 1
+                    self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unknown parameter {shown}"[:50])
                 return
             endpoint.send(self._param_value(index))
             return
@@ -83,15 +92,18 @@ class ParamProtocol:
         if index is None:
             if not broadcast:
                 self.params.rejected_writes += 1
-                self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unknown parameter {name}"[:50])
+                self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unknown parameter {shown}"[:50])
             return
+        # every refusal below: counted, one STATUSTEXT (rate limited by statustext, which also logs it)
         if self.signing_required and not msg.get_signed():
             self.counters.unsigned_refused += 1
             self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unsigned write of {name} refused"[:50])
+        elif msg.param_type not in PARAM_TYPES:
+            self.params.rejected_writes += 1
+            self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: {name}: param_type {msg.param_type} unknown"[:50])
         else:
             ok, reason = self.params.set(name, msg.param_value)
             if not ok:
                 self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: {reason}"[:50])
-                log.warning("PARAM_SET refused: %s", reason)
         self.send(self._param_value(index))   # always answered, with the value in force
 

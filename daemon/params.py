@@ -1,6 +1,7 @@
 """The MAVLink parameter set: a fixed, ordered list of REAL32 parameters persisted in the state directory.
 
-Protocol rules this follows (anchor §1.6): names ≤ 16 characters; every value is a float sent as
+Protocol rules this follows (MAVLink parameter protocol, mavlink.io
+en/services/parameter.md): names ≤ 16 characters; every value is a float sent as
 MAV_PARAM_TYPE_REAL32 (no byte-wise encoding questions); the set (names, count, indices) never changes once the
 daemon runs; a write is validated against the parameter's range and, accepted or not, answered by a broadcast
 PARAM_VALUE with the value now in force (the caller does the sending).
@@ -71,6 +72,7 @@ class ParamStore:
         self.path = Path(state_dir) / PARAMS_FILE if state_dir else None
         self.on_change = on_change
         self.rejected_writes = 0
+        self.rejected_reads = 0        # PARAM_REQUEST_READ of an unknown name or index
 
     def __len__(self) -> int:
         return len(self.specs)
@@ -144,7 +146,13 @@ class ParamStore:
 
 
 def decode_param_id(raw) -> str:
-    """PARAM_* param_id: char[16], NUL-terminated when shorter (pymavlink gives str or bytes)."""
+    """PARAM_* param_id: char[16], NUL-terminated when shorter, no NUL when exactly 16 characters (pymavlink
+    gives str or bytes). At most 16 characters are read, whatever the caller hands in."""
     if isinstance(raw, bytes):
         raw = raw.decode("ascii", "replace")
-    return raw.split("\0", 1)[0]
+    return raw[:16].split("\0", 1)[0]
+
+
+def printable_param_id(name: str) -> str:
+    """`name` fit for a log line or STATUSTEXT: non-printable and non-ASCII characters shown as '?'."""
+    return "".join(c if c.isascii() and c.isprintable() else "?" for c in name)

@@ -1,5 +1,5 @@
 """The publishers: each output of daemon.output_registry that falls due is built from the latest estimate and
-sample and sent to every endpoint; SYS_STATUS and HEARTBEAT from the health and the counters."""
+sample and sent to the endpoints whose own schedule (daemon.endpoint_outputs) has it due; SYS_STATUS and HEARTBEAT from the health and the counters."""
 
 from __future__ import annotations
 
@@ -11,20 +11,27 @@ class Publishers:
     """Service part: `_publish` (every reader wake), `build_output` (REQUEST_MESSAGE), SYS_STATUS, HEARTBEAT."""
 
     def _publish(self, now: float) -> None:
-        due = self.schedule.due(now)
-        if not due:
-            return
-        est = self.pipeline.last_estimate
-        sample = self.pipeline.last_sample
-        fresh = self.health.samples_flowing(now) and not self.health.sensor_error
-        for mid in due:
-            spec = BY_MESSAGE_ID[mid]
-            if spec.needs_estimate and not (fresh and est is not None):
+        """Send what fell due on each endpoint's own schedule; a message due on several endpoints at once is
+        built once."""
+        built = None
+        for ep in self.endpoints:
+            due = ep.schedule.due(now)
+            if not due:
                 continue
-            m = spec.build(self, est, sample, now)
-            if m is not None:
-                self.send(m)
-                self.counters.published += 1
+            if built is None:
+                built = {}
+                est = self.pipeline.last_estimate
+                sample = self.pipeline.last_sample
+                fresh = self.health.samples_flowing(now) and not self.health.sensor_error and est is not None
+            for mid in due:
+                if mid in built:
+                    m = built[mid]
+                else:
+                    spec = BY_MESSAGE_ID[mid]
+                    m = None if spec.needs_estimate and not fresh else spec.build(self, est, sample, now)
+                    built[mid] = m
+                if m is not None and ep.send(m):
+                    self.counters.published += 1
 
     def build_output(self, mid: int, now: float):
         """The output message `mid` from the current state (REQUEST_MESSAGE), or None if it cannot be sent."""

@@ -38,19 +38,19 @@ from ahrsd.daemon.calibration_swap import CalibrationSwap
 from ahrsd.daemon.commands import CommandRouter
 from ahrsd.daemon.config import MAV_TYPES, Config
 from ahrsd.daemon.declination import DeclinationResolver
+from ahrsd.daemon.endpoint_outputs import EndpointOutputs
 from ahrsd.daemon.health import Health
 from ahrsd.daemon.housekeeping import Housekeeping
 from ahrsd.daemon.inbound import InboundDispatch
 from ahrsd.daemon.magcal import attach as attach_magcal
 from ahrsd.daemon.mavlink_io import Endpoint, mavlink
 from ahrsd.daemon.notify import Notifier
-from ahrsd.daemon.output_registry import OUTPUTS
-from ahrsd.daemon.outputs import OutputSchedule
 from ahrsd.daemon.param_protocol import MOUNTING_PARAMS, ParamProtocol, param_specs
 from ahrsd.daemon.params import ParamStore
 from ahrsd.daemon.pipeline import Pipeline
 from ahrsd.daemon.publishers import Publishers
 from ahrsd.daemon.rate_limit import TokenBucket
+from ahrsd.daemon.restart_heading import RestartHeading
 from ahrsd.daemon.sample_reader import SampleReader
 from ahrsd.daemon.signing import initial_timestamp, key_fingerprint, load_key, save_timestamp
 from ahrsd.daemon.status_line import StatusLine
@@ -74,7 +74,7 @@ class ServiceCounters:
 
 
 class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, DeclinationResolver, CalibrationSwap,
-              Housekeeping):
+              Housekeeping, EndpointOutputs):
     def __init__(self, config: Config, *, source=None, environ=os.environ, stdout=None):
         self.config = config
         self.environ = environ
@@ -90,7 +90,6 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         self.component_id = config.mavlink.component_id
         self.mav_type = MAV_TYPES[config.mavlink.mav_type]
         self.endpoints: list[Endpoint] = []
-        self.schedule = OutputSchedule({o.message_id: getattr(config.outputs, o.config_key) for o in OUTPUTS})
         self.params = ParamStore(param_specs(config), self.state_dir, on_change=self._on_param_change)
         self.commands = CommandRouter(self, self._send_on, require_signed=lambda: self.signing_required,
                                       accept_broadcast=config.mavlink.accept_broadcast_commands)
@@ -100,6 +99,7 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         self.reset_counter = 0
         # the VISION_POSITION_ESTIMATE yaw after a calibration change (apply_calibration)
         self.heading_slew = HeadingSlew(max_rate_deg_s=config.outputs.heading_slew_deg_s)
+        self.restart_heading: RestartHeading | None = None   # the restart rule (daemon.restart_heading)
         self.declination_rad = 0.0
         self.declination_source = "none"
         self.signing_key: bytes | None = None
@@ -209,21 +209,21 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
                         self.state_dir, exc)
         for warning in self.params.load():
             log.warning("%s", warning)
+        self.start_restart_rule()
         self._resolve_declination(initial=True)
         calibration = CalibrationStore(self.state_dir).load()
         estimator = make_estimator(cfg.estimator.name, declination_rad=self.declination_rad)
         self.pipeline = Pipeline(estimator, calibration)
         self.pipeline.set_mounting([self.params.get(n) for n in MOUNTING_PARAMS])
-        for o in OUTPUTS:
-            self.schedule.set_rate_hz(o.message_id, self.params.get(o.param_name), default=True)
         self._setup_signing()
         for ep_cfg in cfg.endpoints:
-            ep = Endpoint(ep_cfg.url, self.system_id, self.component_id, self._on_message)
+            ep = self._make_endpoint(ep_cfg)        # its own output schedule (daemon.endpoint_outputs)
             if self.signing_key is not None:
                 ep.enable_signing(self.signing_key, cfg.signing.link_id, initial_timestamp(self.state_dir),
                                   lambda _mav, _msgid: True)   # unsigned input is accepted, then policed
             ep.open(self.loop)
             self.endpoints.append(ep)
+            self.check_link_budget(ep)
         register_builtin_commands(self)
         attach_magcal(self)
         if self.source is None:
@@ -238,6 +238,21 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
                  self.component_id, self.state_dir)
         self.notifier.status(f"starting: {self.source.description}")
         self._send_heartbeat(time.monotonic())   # routers learn us from our first packet
+
+    def start_restart_rule(self) -> None:
+        """Load what the autopilot last got from us (daemon.restart_heading): the reset_counter continues,
+        and a different heading after the restart is slewed (or, in reset mode, signalled) in."""
+        self.restart_heading = RestartHeading(
+            self.state_dir, self.heading_slew, reset_mode=self.config.outputs.reset_counter_on_calibration,
+            signal_reset=self.signal_heading_reset, background=self._in_background)
+        self.reset_counter = self.restart_heading.initial_reset_counter
+
+    def _in_background(self, fn: Callable[[], None]) -> None:
+        """Small file writes off the event loop thread (the sample reader must not wait on an fsync)."""
+        if self.loop is not None and self.loop.is_running():
+            self.loop.run_in_executor(None, fn)
+        else:
+            fn()
 
     def _setup_signing(self) -> None:
         if not self.config.signing.key_file:
@@ -254,6 +269,8 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
             self.send(msgs.heartbeat(self.mav_type, mavlink.MAV_STATE_POWEROFF))
         if self.signing_key is not None:
             save_timestamp(self.state_dir, max((e.signing_timestamp() for e in self.endpoints), default=0))
+        if self.restart_heading is not None:
+            self.restart_heading.save_now(self.reset_counter)
         for ep in self.endpoints:
             ep.close()
         if self.source is not None:

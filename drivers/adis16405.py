@@ -4,7 +4,8 @@ Output: `ImuSample` in SI units in the sensor frame (the daemon applies the moun
 Nothing untrustworthy leaves `read_sample()`: a frame that fails the checks is counted in `counters`
 and raised as a `FrameError`; a sample that is usable but suspect carries `SampleFlags`.
 
-Protocol facts: shared/anchors/mavlink-adis.md §4 (kernel adis16400.c, datasheet, EZ thread 81805).
+Protocol facts: Linux `drivers/iio/imu/adis16400.c` / `adis.c`, the ADIS16405 datasheet (Analog Devices, Rev. B)
+and ADI EngineerZone thread 81805 (see `registers.py`).
 """
 
 from __future__ import annotations
@@ -166,7 +167,7 @@ class Adis16405:
         self._xfer(bytes((R.WRITE_BIT | (byte_addr & 0x7F), value & 0xFF)), self._reg_speed_hz)
 
     def write_register(self, addr: int, value: int) -> None:
-        """16-bit write as two byte writes (upper byte first, anchors §4.1)."""
+        """16-bit write as two byte writes (upper byte first, kernel adis.c adis_write_reg_16)."""
         for frame in R.write_frames(addr, value):
             self._xfer(frame, self._reg_speed_hz)
 

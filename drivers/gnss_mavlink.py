@@ -1,4 +1,4 @@
-"""GNSS from the autopilot over MAVLink: GPS_RAW_INT (#24) and GLOBAL_POSITION_INT (#33) -> GnssFix.
+"""GNSS from the autopilot over MAVLink: GPS_RAW_INT (msg id 24) and GLOBAL_POSITION_INT (msg id 33) -> GnssFix.
 
 Pure converters from pymavlink messages (anything with the fields as attributes) plus a small selector that
 prefers the raw receiver. Field units and "unknown" sentinels follow the MAVLink common.xml definitions:

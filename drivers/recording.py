@@ -8,16 +8,18 @@ Sensor/body frame as recorded, SI units, accelerometer as specific force (+9.81 
 magnetic field in µT. Known extra columns: temp_c, supply_v, flags (SampleFlags as an integer), diag_stat,
 counter, and for simulated data the truth attitude truth_qw,truth_qx,truth_qy,truth_qz (body->NED, scalar
 first). Any other extra column is kept by name. Lines starting with '#' after the header are comments.
-A gzip-compressed recording (`.csv.gz`) is read transparently by every reader; `iter_recording_chunks` reads
-a long file a chunk of rows at a time.
+A gzip-compressed recording (`.csv.gz`) is written by name and read transparently (recognised by its magic
+bytes, whatever the name); `iter_recording_chunks` reads a long file a chunk of rows at a time.
 """
 
 from __future__ import annotations
 
+import gzip
 import itertools
 import logging
 import math
 import os
+import zlib
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -62,7 +64,7 @@ class RecordingWriter:
         self.extra_columns = extra
         self._flush_rows = flush_rows
         self.rows_written = 0
-        self._file = open(self.path, "w", encoding="ascii", newline="\n")
+        self._file = open_text(self.path, "w")
         self._file.write(",".join(names) + "\n")
 
     def write(self, sample: ImuSample, truth_q_wxyz=None, **values) -> None:
@@ -85,6 +87,11 @@ class RecordingWriter:
         self.rows_written += 1
         if self.rows_written % self._flush_rows == 0:
             self._file.flush()
+
+    def comment(self, text: str) -> None:
+        """A '#' comment line (readers skip it): e.g. where the samples came from."""
+        for line in text.splitlines() or [""]:
+            self._file.write("# " + line + "\n")
 
     def flush(self) -> None:
         self._file.flush()
@@ -205,26 +212,40 @@ def _parse_chunk(lines: list[str], ncols: int, first_line_no: int, path, columns
 GZIP_MAGIC = b"\x1f\x8b"
 
 
-def open_recording_text(path: str | os.PathLike):
-    """Open a recording for reading as text: plain CSV, or gzip-compressed (`.csv.gz`, recognised by its
-    magic bytes, whatever the name)."""
-    with open(path, "rb") as raw:
-        magic = raw.read(2)
-    if magic == GZIP_MAGIC:
-        import gzip
+def open_text(path: str | os.PathLike, mode: str = "r"):
+    """A recording opened as text: mode "r" (UTF-8; gzip recognised by its magic bytes, whatever the name) or
+    "w" (ASCII; gzip when the name ends in `.gz`)."""
+    if mode not in ("r", "w"):
+        raise ValueError(f"mode must be 'r' or 'w', got {mode!r}")
+    if mode == "r":
+        with open(path, "rb") as raw:
+            compressed = raw.read(2) == GZIP_MAGIC
+        if compressed:
+            return gzip.open(path, "rt", encoding="utf-8", newline="")
+        return open(path, "r", encoding="utf-8", newline="")
+    if os.fspath(path).endswith(".gz"):
+        return gzip.open(path, "wt", encoding="ascii", newline="\n")
+    return open(path, "w", encoding="ascii", newline="\n")
 
-        return gzip.open(path, "rt", encoding="utf-8", newline="")
-    return open(path, encoding="utf-8", newline="")
+
+def _complete_lines(f, path) -> Iterator[str]:
+    """The lines of `f`; a gzip stream cut short (a logger killed, a power loss) ends at what it holds, with
+    a warning: its last line may then be incomplete, which `_iter_tables` drops when not strict."""
+    try:
+        yield from f
+    except (EOFError, gzip.BadGzipFile, zlib.error) as exc:
+        log.warning("%s: the compressed stream ends early (%s): reading what it holds", path, exc)
 
 
 def _iter_tables(path, strict: bool, chunk_rows: int = CHUNK_ROWS) -> Iterator[tuple[tuple[str, ...], np.ndarray]]:
-    with open_recording_text(path) as f:
-        header = f.readline()
+    with open_text(path) as f:
+        lines_in = _complete_lines(f, path)
+        header = next(lines_in, "")
         columns = read_header(header, path)
         ncols = len(columns)
         line_no = 2
         while True:
-            lines = list(itertools.islice(f, chunk_rows))
+            lines = list(itertools.islice(lines_in, chunk_rows))
             if not lines:
                 break
             at_end = len(lines) < chunk_rows
@@ -238,16 +259,19 @@ def _iter_tables(path, strict: bool, chunk_rows: int = CHUNK_ROWS) -> Iterator[t
             yield columns, table
 
 
-def read_recording(path: str | os.PathLike, strict: bool = True) -> Recording:
+def read_recording(path: str | os.PathLike, strict: bool = True, on_rows=None) -> Recording:
     """Load a whole recording (numpy, chunked). Any file whose header starts with the 10 base columns works;
     `.csv.gz` is read transparently.
 
     strict=False drops an incomplete final line (a recorder killed mid-write) with a warning instead of failing.
+    on_rows(n): called after each chunk of n rows (a progress bar).
     """
     columns: tuple[str, ...] = ()
     tables = []
     for columns, table in _iter_tables(path, strict):
         tables.append(table)
+        if on_rows is not None:
+            on_rows(len(table))
     if not columns:
         raise RecordingFormatError(f"{path}: empty file")
     data = np.concatenate(tables) if tables else np.empty((0, len(columns)))

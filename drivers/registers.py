@@ -5,7 +5,8 @@ simulated chip (`simulated.py`) both use it, so the encode/decode pair is tested
 
 Sources: Linux `drivers/iio/imu/adis16400.c` / `adis.c` (register addresses, bits, timeouts, SPI clocks,
 sample-rate formula, -3 dB table), ADIS16405 datasheet (scales, SENS_AVG, burst), EngineerZone thread 81805
-(worked raw words and the X-gyro burst bug); collected in shared/anchors/mavlink-adis.md §4.
+("X gyro output error on ADIS16405": worked raw words and the X-gyro burst bug), and PSAS's ChibiOS
+`adis16405.c` driver (burst word order).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import numpy as np
 from ahrsd.core.angles import STANDARD_GRAVITY_M_S2  # the g in "mg" (the datasheet's scale)
 
 # --------------------------------------------------------------------------------------------------------
-# Register addresses (16-bit registers at even byte addresses)          # anchors §4.1 / kernel adis16400.c
+# Register addresses (16-bit registers at even byte addresses)          # kernel adis16400.c ADIS16400_* defines
 # --------------------------------------------------------------------------------------------------------
 FLASH_CNT = 0x00
 SUPPLY_OUT = 0x02
@@ -71,13 +72,13 @@ REGISTER_NAMES: dict[int, str] = {addr: name for name, addr in REGISTERS.items()
 
 OUTPUT_REGISTERS = (SUPPLY_OUT, XGYRO_OUT, YGYRO_OUT, ZGYRO_OUT, XACCL_OUT, YACCL_OUT, ZACCL_OUT,
                     XMAGN_OUT, YMAGN_OUT, ZMAGN_OUT, TEMP_OUT, AUX_ADC)
-"""The 12 output registers, in burst-read order."""  # anchors §4.2 (PSAS ADIS16405BurstData, kernel scan order)
+"""The 12 output registers, in burst-read order."""  # PSAS ADIS16405BurstData, kernel scan order
 
 PRODUCT_ID_ADIS16405 = 0x4015  # 16405 decimal; kernel compares prod_id with the part number
 PRODUCT_ID_ADIS16400 = 0x4010  # sibling without magnetometer (reported so a mismatch error can name it)
 
 # --------------------------------------------------------------------------------------------------------
-# SPI frames                                                                             # anchors §4.1-4.2
+# SPI frames                                                          # datasheet SPI timing; kernel adis.c
 # --------------------------------------------------------------------------------------------------------
 WRITE_BIT = 0x80                 # upper byte 0x80|addr: write the data byte to that byte address
 BURST_COMMAND = bytes((GLOB_CMD, 0x00))  # 0x3E00 starts a burst read
@@ -110,7 +111,7 @@ def spi_speed_hz(smpl_prd: int) -> int:
 
 
 # --------------------------------------------------------------------------------------------------------
-# Output word format                                                                        # anchors §4.1
+# Output word format                                                 # datasheet output-register format
 # --------------------------------------------------------------------------------------------------------
 ND = 1 << 15                     # new data since the last read of this register
 EA = 1 << 14                     # error/alarm: read DIAG_STAT
@@ -165,7 +166,7 @@ LSB14_MIN, LSB14_MAX = -(1 << 13), (1 << 13) - 1
 LSB12_MIN, LSB12_MAX = -(1 << 11), (1 << 11) - 1
 
 # --------------------------------------------------------------------------------------------------------
-# Scales (ADIS16405 datasheet; kernel adis16400 channel scales)                            # anchors §4.1
+# Scales (ADIS16405 datasheet; kernel adis16400 channel scales)
 # --------------------------------------------------------------------------------------------------------
 GYRO_DPS_PER_LSB_300 = 0.05      # °/s per LSB at ±300 °/s (default range)
 GYRO_DPS_PER_LSB = {300: 0.05, 150: 0.025, 75: 0.0125}   # per SENS_AVG range setting
@@ -206,7 +207,7 @@ def temp_c_from_lsb(lsb: int) -> float:
 
 
 # --------------------------------------------------------------------------------------------------------
-# DIAG_STAT, MSC_CTRL, GLOB_CMD bits (kernel adis16400.c)                                  # anchors §4.1
+# DIAG_STAT, MSC_CTRL, GLOB_CMD bits (kernel adis16400.c)
 # --------------------------------------------------------------------------------------------------------
 class DiagStat(enum.IntFlag):
     """DIAG_STAT (0x3C) bits. Any of them set raises EA on the output words."""
@@ -280,7 +281,7 @@ PRECISION_AUTO_NULL_TIME_S = 30.0  # precision auto-null averages ~30 s [datashe
 FACTORY_RESTORE_TIME_S = 0.050   # [assumption]
 
 # --------------------------------------------------------------------------------------------------------
-# SMPL_PRD: output data rate                                                               # anchors §4.2
+# SMPL_PRD: output data rate                      # datasheet SMPL_PRD register; kernel adis16400_get_freq()
 # --------------------------------------------------------------------------------------------------------
 SMPL_PRD_TIME_BASE = 1 << 7      # 1: 52.851 Hz base, 0: 1638.404 Hz base
 SMPL_PRD_DIVISOR_MASK = 0x7F
@@ -306,7 +307,7 @@ def smpl_prd_for_rate(rate_hz: float) -> int:
 
 
 # --------------------------------------------------------------------------------------------------------
-# SENS_AVG: gyro range and Bartlett filter                                                 # anchors §4.1
+# SENS_AVG: gyro range and Bartlett filter                               # datasheet SENS_AVG register
 # --------------------------------------------------------------------------------------------------------
 SENS_AVG_RANGE_SHIFT = 8
 SENS_AVG_RANGE_MASK = 0x0700

@@ -10,7 +10,7 @@ from typing import Protocol, runtime_checkable
 
 from .errors import BusError
 
-SPI_MODE_3 = 0b11  # CPOL=1, CPHA=1 (ADIS16405; anchors §4.2)
+SPI_MODE_3 = 0b11  # CPOL=1, CPHA=1 (ADIS16405 datasheet SPI timing; kernel adis16400.c)
 
 
 @runtime_checkable

@@ -7,7 +7,8 @@ roll = atan2(C32, C33), pitch = −asin(C31), yaw = atan2(C21, C11).
 
 Every function is pure and works on numpy arrays; quaternion, vector and DCM arguments may carry leading
 axes (shape ``(..., 4)``, ``(..., 3)``, ``(..., 3, 3)``) and broadcast where that is cheap. Angles are radians.
-Seed 001 (gyro-free INS) writes quaternions scalar last ``[ε1, ε2, ε3, ε4]`` (its eq 43–44, Hamilton):
+Ghasemzadeh & Heyrani Nobari (2011, gyro-free INS) write quaternions scalar last ``[ε1, ε2, ε3, ε4]`` (their
+eq 43–44, Hamilton):
 convert at that boundary with :func:`quat_from_scalar_last` / :func:`quat_to_scalar_last`.
 """
 
@@ -72,7 +73,8 @@ def quat_rotate(q, v) -> np.ndarray:
 
 
 def quat_to_dcm(q) -> np.ndarray:
-    """DCM C_b^n (…, 3, 3) of unit quaternion(s) q (body→NED). Same matrix as seed 001 eq 44 with ε4 = w."""
+    """DCM C_b^n (…, 3, 3) of unit quaternion(s) q (body→NED). Same matrix as
+    Ghasemzadeh & Heyrani Nobari eq 44 with ε4 = w."""
     q = _f(q)
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     xx, yy, zz = x * x, y * y, z * z
@@ -141,7 +143,7 @@ def dcm_rows_to_quat(c) -> tuple[float, float, float, float]:
 
 # --------------------------------------------------------------------------------------------- Euler
 def euler_to_dcm(roll_rad, pitch_rad, yaw_rad) -> np.ndarray:
-    """C_b^n = Rz(yaw)·Ry(pitch)·Rx(roll) (thesis §5.3, full form)."""
+    """C_b^n = Rz(yaw)·Ry(pitch)·Rx(roll) (ADIS16405 AHRS thesis ch. 3, full form)."""
     cr, sr = np.cos(_f(roll_rad)), np.sin(_f(roll_rad))
     cp, sp = np.cos(_f(pitch_rad)), np.sin(_f(pitch_rad))
     cy, sy = np.cos(_f(yaw_rad)), np.sin(_f(yaw_rad))
@@ -280,13 +282,13 @@ def orthonormality_error(c) -> np.ndarray:
 
 
 def quat_from_scalar_last(q_xyzw) -> np.ndarray:
-    """Seed 001's / scipy's scalar-last [x, y, z, w] (ε1, ε2, ε3, ε4) → ahrsd's [w, x, y, z]."""
+    """The gyro-free paper's / scipy's scalar-last [x, y, z, w] (ε1, ε2, ε3, ε4) → ahrsd's [w, x, y, z]."""
     q = _f(q_xyzw)
     return q[..., [3, 0, 1, 2]]
 
 
 def quat_to_scalar_last(q_wxyz) -> np.ndarray:
-    """ahrsd's [w, x, y, z] → scalar-last [x, y, z, w] (seed 001's ε1..ε4, scipy's as_quat())."""
+    """ahrsd's [w, x, y, z] → scalar-last [x, y, z, w] (the gyro-free paper's ε1..ε4, scipy's as_quat())."""
     q = _f(q_wxyz)
     return q[..., [1, 2, 3, 0]]
 

@@ -1,10 +1,12 @@
-"""`thesis`: the thesis's attitude filter (seed 000 §6), reproduced faithfully as a baseline.
+"""`thesis`: the attitude filter of the ADIS16405 AHRS thesis (ch. 4; docs/estimator.md), reproduced faithfully
+as a baseline.
 
 A 9-state Kalman filter estimates the **body-frame** magnetic field and gravity vectors and the gyro bias;
 the gyros only propagate those vectors; the attitude then comes algebraically from the filtered vectors by
 the thesis's Wahba solution (eq 4-34 … 4-41) and its re-orthonormalisation C ← 1.5C − 0.5CCᵀC (eq 4-42).
 
-Model (thesis §6.2–6.4), with the thesis's sign ambiguity (digest §6.2) resolved as ω_true = ω_meas − b − δω
+Model (thesis eq 4-3 … 4-24), with the thesis's sign ambiguity (eq 4-3 … 4-12) resolved as
+ω_true = ω_meas − b − δω
 (so ``gyro_bias_rad_s`` is what is subtracted from the gyro, as in every other ahrsd estimator)::
 
     x = [mᵇ (µT), gᵇ = −fᵇ (m/s²), b (rad/s)]                       (eq 4-15; state holds −f = g)
@@ -14,23 +16,23 @@ Model (thesis §6.2–6.4), with the thesis's sign ambiguity (digest §6.2) reso
     A = [[−[ω×], 0, −[m×]], [0, −[ω×], −[g×]], [0, 0, −I/τ_w]]          (eq 4-16, bias blocks sign-flipped)
     B = [[−[m×], 0], [−[g×], 0], [0, I/τ_w]]                           (eq 4-17)
     F = I + AΔt + ½A²Δt²                                               (eq 4-21, reconstructed)
-    Q_d = B Q B^T Δt   (Q a PSD in rad²/s: digest §6.5's recommended discretisation)
-    z = [m̃ᵇ, −f̃ᵇ],  H = [I₆ 0]                                         (eq 4-23/4-24, digest §6.4)
+    Q_d = B Q B^T Δt   (Q a PSD in rad²/s; the printed GQGᵀ, G = ΔtB, scales as Δt²)
+    z = [m̃ᵇ, −f̃ᵇ],  H = [I₆ 0]                                         (eq 4-23/4-24)
     standard KF predict / update                                       (eq 4-25 … 4-31)
     Cₙᵇ = B_b N_n⁻¹ (version 2 by default, version 1 selectable), C_b^n = (Cₙᵇ)ᵀ, eq 4-42, Euler eq 3-31.
 
-Choices where the thesis is silent (digest §12.1), each a field of `ThesisKfParams`:
+Choices where the thesis is silent, each a field of `ThesisKfParams`:
 
 * **Δt** — from consecutive ``sample.t_s`` (any rate). Gaps above ``large_dt_s`` are propagated in sub-steps
   of at most ``max_substep_s`` with the last rate held (flag LARGE_DT); gaps above ``reinit_dt_s`` (or time
   going backwards) re-initialise the vectors from the measurement (flags LARGE_DT | REINITIALISED); a repeated
   time stamp (Δt = 0) gets the measurement update only.
 * **τ_w** — 1000 s: long against the filter's settling so a learned bias is kept (the thesis folds it back into
-  the calibration, §6.8); with the thesis's bias-driving noise this is a slow random walk.
+  the calibration, Fig 1-2); with the thesis's bias-driving noise this is a slow random walk.
 * **x̂₀, P₀** — the first sample's m̃, −f̃ with P₀ = R; bias ``initial_bias_rad_s`` with σ ``initial_bias_sigma_rad_s``.
-* **H** — [I₆ 0] with −f̃ as the measurement (equivalent to the digest's H = [[I,0,0],[0,−I,0]] on f̃).
+* **H** — [I₆ 0] with −f̃ as the measurement (equivalent to H = [[I,0,0],[0,−I,0]] on f̃).
 * **Units of Q and R** — Q (eq 6-1) as printed, rad²/s; R (eq 6-2) read as mG and mg (the ADIS16405's display
-  units, digest §11.4) and converted to µT² and (m/s²)².
+  units; the thesis does not state them) and converted to µT² and (m/s²)².
 * **Reference vectors** — fⁿ = [0, 0, −g]; mⁿ is taken in the *magnetic* NED frame, [H, 0, Z], so the yaw is
   magnetic (heading_true adds the declination, ahrsd's contract). Its dip is learned from the filtered vectors
   while INITIALISING (``settle_time_s``) unless ``mag_reference_ned_ut`` gives it (e.g. WMM), then frozen.
@@ -39,8 +41,8 @@ Choices where the thesis is silent (digest §12.1), each a field of `ThesisKfPar
   direction variances (from P), mapped to ZYX Euler angles; a lower bound for the algebraic solutions.
 
 Cost: plain numpy for the 9×9 Kalman algebra, scalar maths for the 3×3 Wahba step (shared with
-`wahba.thesis_dcm_from_floats` and `rotations.reorthonormalize_rows`); about 33 µs per update measured here
-(CPU time, best of 7; `bench/speed.py` measures it beside the other estimators).
+`wahba.thesis_dcm_from_floats` and `rotations.reorthonormalize_rows`); `bench/speed.py` measures it beside the
+other estimators (figures in docs/estimator.md).
 
 No gating: the thesis assumes f = −g (its future work, Ch. 7, names linear acceleration as the open problem).
 Samples flagged invalid (or non-finite) skip that sensor's update; an invalid gyro holds the last rate.
@@ -165,7 +167,7 @@ _BOTH = np.arange(0, 6)
 
 
 # after a calibration change the reference dip follows the filtered field this long: the field state
-# converges with a time constant of several seconds at the thesis tuning (measured: 66° → 46° in 24 s)
+# converges with a time constant of several seconds at the thesis tuning (tests/test_calibration_change.py)
 RELEARN_DIP_S = 30.0
 
 
@@ -328,7 +330,7 @@ class ThesisKf:
         f = ad @ (0.5 * ad + self._eye9)
         f += self._eye9                                             # F = I + AΔt + ½A²Δt² (eq 4-21)
         self._x = f @ x                                             # eq 4-26
-        # Q_d = B Q Bᵀ Δt (digest §6.5): B (eq 4-17) has A's coupling blocks −[m×], −[g×] and I/τ for w_b.
+        # Q_d = B Q Bᵀ Δt (Q a PSD): B (eq 4-17) has A's coupling blocks −[m×], −[g×] and I/τ for w_b.
         b = self._b
         b.put(_B_INDEX, coupling)
         if dt != self._qdt_dt:

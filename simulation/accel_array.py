@@ -1,13 +1,15 @@
-"""The gyro-free accelerometer array of seed 001: ten single-axis accelerometers on three arms of length d.
+"""The gyro-free accelerometer array of Ghasemzadeh & Heyrani Nobari, "Error Analyses of Inertial Navigation
+System Based on Only Accelerometers and Without Gyroscope" (2011): ten single-axis accelerometers on three
+arms of length d.
 
 Each accelerometer k at body position r_k with sensing axis u_k reads the specific force of its own point
-(rigid-body lever arm, seed 001 eq. 4 with the proof mass fixed):
+(rigid-body lever arm, the paper's eq. 4 with the proof mass fixed):
 
     f_k = u_k · ( f_b + ω̇ × r_k + ω × (ω × r_k) )
 
 where f_b is the specific force at the reference point b. From the ten readings the paper recovers f_b
-(eq. 13), p², q², r² (eq. 14), q̇ (eq. 17) and ṗ (eq. 19). The layout is the one the seed digest reconstructs
-(§6.4) by checking every printed equation against this kinematics.
+(eq. 13), p², q², r² (eq. 14), q̇ (eq. 17) and ṗ (eq. 19). The layout (the paper's Fig. 8, whose
+image is not available) is reconstructed by checking every printed equation against this kinematics.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# seed 001 §6.4: (position in units of d, sensing axis), sensors m1 … m10
+# The paper's Fig. 8 as reconstructed: (position in units of d, sensing axis), sensors m1 … m10
 SEED001_LAYOUT = (
     ((+1, 0, 0), (1, 0, 0)),   # m1
     ((-1, 0, 0), (1, 0, 0)),   # m2
@@ -51,13 +53,14 @@ class AccelArray:
 
     @classmethod
     def seed001(cls, arm_m: float = 0.1) -> "AccelArray":
-        """The ten-accelerometer configuration of seed 001 with arm length d = arm_m (not given in the paper)."""
+        """The paper's ten-accelerometer configuration with arm length d = arm_m (not given in the paper)."""
         pos = np.array([p for p, _ in SEED001_LAYOUT], dtype=float) * arm_m
         ax = np.array([a for _, a in SEED001_LAYOUT], dtype=float)
         return cls(pos, ax)
 
     def tilted(self, tilt_rotvec_rad) -> "AccelArray":
-        """The same array with each sensing axis misaligned by a small rotation (k,3) rad (seed 001 §8.2)."""
+        """The same array with each sensing axis misaligned by a small rotation (k,3) rad
+        (the paper's Sec. 5, eqs. 26–42)."""
         from scipy.spatial.transform import Rotation
 
         return AccelArray(self.positions_m, Rotation.from_rotvec(np.asarray(tilt_rotvec_rad)).apply(self.axes))
@@ -74,7 +77,7 @@ class AccelArray:
 
 @dataclass(frozen=True, eq=False)
 class GyroFreeSolution:
-    """What seed 001 extracts from the ten readings: f_b (n,3) m/s², rate_sq (n,3) [p², q², r²] in rad²/s²
+    """What the paper extracts from the ten readings: f_b (n,3) m/s², rate_sq (n,3) [p², q², r²] in rad²/s²
     (unclamped: noise can make them negative), rate_abs (n,3) |p|, |q|, |r| (clamped at 0), p_dot, q_dot (n,) rad/s²."""
 
     f_b: np.ndarray
@@ -85,7 +88,7 @@ class GyroFreeSolution:
 
 
 def solve_seed001(readings_m_s2, arm_m: float) -> GyroFreeSolution:
-    """Seed 001 eqs. 13, 14, 17, 19 on readings (n,10) of the `AccelArray.seed001(arm_m)` layout."""
+    """The paper's eqs. 13, 14, 17, 19 on readings (n,10) of the `AccelArray.seed001(arm_m)` layout."""
     f = np.asarray(readings_m_s2, dtype=float)
     if f.ndim != 2 or f.shape[1] != 10:
         raise ValueError("readings must be (n, 10)")

@@ -1,6 +1,7 @@
 """Sensor error model of a MEMS IMU with a magnetometer, with ADIS16405 defaults.
 
-Per axis (seed 004 §9, eqs. 23–24; thesis §8):
+Per axis (the usual inertial-sensor error model: Groves, "Principles of GNSS, Inertial, and Multisensor
+Integrated Navigation Systems", 2nd ed., §4.4; the ADIS16405 AHRS thesis, ch. 5):
 
     gyro  = (I + diag(scale) + misalignment) · ω_true + b_turn_on + b_gm(t) + k_T (T − 25 °C) + n
     accel = (I + diag(scale) + misalignment) · f_true + b_turn_on + b_gm(t) + k_T (T − 25 °C) + n
@@ -27,13 +28,13 @@ from ahrsd.simulation.magnetic import VehicleIron
 
 DEG = np.pi / 180.0
 
-# --- ADIS16405 figures (anchors/mavlink-adis.md §4.3: NaveGo's ADIS16405 profile = datasheet values) ----------
+# --- ADIS16405 figures (NaveGo's ADIS16405 error profile, github.com/rodralez/NaveGo = datasheet values) ------
 ADIS_ARW_DEG_RT_H = 2.0              # gyro angle random walk, °/√h (NaveGo ADIS16405.arw)
 ADIS_GYRO_BIAS_STAB_DEG_S = 0.007    # gyro in-run bias stability, °/s (NaveGo gb_drift)
 ADIS_VRW_M_S_RT_H = 0.2              # accel velocity random walk, m/s/√h (NaveGo)
 ADIS_ACCEL_BIAS_STAB_MG = 0.2        # accel in-run bias stability, mg (NaveGo)
-ADIS_MAG_NOISE_MGAUSS_RMS = 1.25     # magnetometer output noise at 819.2 SPS, mgauss rms (anchor §4.3)
-ADIS_RATE_HZ = 819.2                 # ADIS16405 default output rate (anchor §4.3; 1638.4/2)
+ADIS_MAG_NOISE_MGAUSS_RMS = 1.25     # magnetometer output noise at 819.2 SPS, mgauss rms (datasheet)
+ADIS_RATE_HZ = 819.2                 # ADIS16405 default output rate (datasheet SMPL_PRD default; 1638.4/2)
 # Choices (not datasheet figures), see docs/simulation.md:
 BIAS_CORR_TIME_S = 100.0             # Gauss–Markov correlation time of both bias-instability processes
 GYRO_TURN_ON_SIGMA_DEG_S = 0.1       # residual turn-on bias after factory calibration (NaveGo's 3 °/s is worst case)
@@ -162,7 +163,7 @@ class SensorErrors:
     def adis16405(cls, seed: int = 0) -> "SensorErrors":
         """An ADIS16405 as shipped (factory-calibrated), its turn-on errors drawn from `seed`.
 
-        Noise and bias-instability figures from anchors/mavlink-adis.md §4.3 (NaveGo's datasheet profile);
+        Noise and bias-instability figures from NaveGo's ADIS16405 profile (the datasheet values);
         turn-on biases, scale and misalignment spreads are this simulator's choices (docs/simulation.md).
         """
         rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0xAD15]))

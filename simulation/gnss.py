@@ -27,7 +27,7 @@ Each fix is the antenna's position and velocity at its time of validity `t_s`, p
 
 Every fix carries in `extra`: "t_rx_s" (arrival time), "glitch" (the kind, or None), and "truth" (a `GnssTruth`:
 the antenna's true time of validity, position and velocity), so a test knows what was true. Geodetic positions
-are on the simulator's spherical Earth (seed 004: R0 = 6 378 137 m). Deterministic from `seed`.
+are on the simulator's spherical Earth (R0 = 6 378 137 m, simulation.track). Deterministic from `seed`.
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ def gravity_ned_m_s2(lat_deg, alt_m=0.0) -> np.ndarray:
 
 
 def earth_rate_ned_rad_s(lat_deg) -> np.ndarray:
-    """Earth rotation rate expressed in NED at latitude `lat_deg`: ω_ie [cos L, 0, −sin L] (seed 004 eq. 15).
+    """Earth rotation rate expressed in NED at latitude `lat_deg`: ω_ie [cos L, 0, −sin L] (Groves 2nd ed. §5.4).
 
     (3,) for a scalar latitude, (n, 3) for an array of n latitudes."""
     lat = np.radians(np.asarray(lat_deg, dtype=float))
@@ -23,7 +23,7 @@ def earth_rate_ned_rad_s(lat_deg) -> np.ndarray:
 
 def transport_rate_ned_rad_s(vel_ned_m_s, lat_deg, alt_m) -> np.ndarray:
     """Rotation rate of the NED frame over the spherical Earth, ω_en = [V_E, −V_N, −V_E tan L] / (R0 + h)
-    (seed 004 eq. 16); vel (n, 3), lat/alt (n,) → (n, 3)."""
+    (Groves 2nd ed. §5.4); vel (n, 3), lat/alt (n,) → (n, 3)."""
     v = np.asarray(vel_ned_m_s, dtype=float)
     r = EARTH_RADIUS_M + np.asarray(alt_m, dtype=float)
     tan_lat = np.tan(np.radians(np.asarray(lat_deg, dtype=float)))

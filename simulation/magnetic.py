@@ -47,7 +47,8 @@ class VehicleIron:
 
         Hard iron 280/−350/220 mgauss (1 mgauss = 0.1 µT) and a non-symmetric soft-iron matrix with ±8 %
         scale and a few % cross-coupling, so the field fits (ellipsoid, back-stepping) have something to find.
-        Chosen values, not measured on a vehicle; seed 002 Table 2 reports biases of 1–5 µT and scale
+        Chosen values, not measured on a vehicle; Nourmohammadi & Sabet (J. of Control 16(3), 2022)
+        Table 2 reports biases of 1–5 µT and scale
         differences of ~10 % on a steel AUV hull, the same order.
         """
         return cls(

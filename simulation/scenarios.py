@@ -137,7 +137,8 @@ class Static(EulerScenario):
 # --------------------------------------------------------------------------------------------------------------
 # Mountings of the sensor on a single-axis rate table whose axis is vertical: each puts one body axis up or down
 # (body→NED). With the table turning about NED down, the body turns about that axis. The six static holds are
-# also the classic six-position accelerometer calibration set (thesis §9.1: static gravity reference).
+# also the classic six-position accelerometer calibration set (the ADIS16405 AHRS thesis §5-6: static
+# gravity reference).
 _TABLE_MOUNTS = (
     ("z down (level)", Rotation.identity()),
     ("z up", Rotation.from_euler("X", 180, degrees=True)),
@@ -150,7 +151,8 @@ _TABLE_MOUNTS = (
 
 @dataclass
 class RateTable(Scenario):
-    """The thesis's rate-table gyro calibration (seed 000 §9.3, §10.3), as a self-consistent sequence.
+    """The rate-table gyro calibration of the ADIS16405 AHRS thesis (Table 5-1, §5-6-7; docs/calibration.md),
+    as a self-consistent sequence.
 
     The sensor is mounted in six positions (each body axis up, then down). In each: hold, turn `turns` full
     turns at +`rate_deg_s` (raised-cosine ramps of `ramp_s`), hold, the same at −`rate_deg_s`, hold; then the
@@ -359,11 +361,13 @@ class Tumble(EulerScenario):
 # --------------------------------------------------------------------------------------------------------------
 @dataclass
 class AuvOutAndBack(ConstantSpeedTrack, EulerScenario):
-    """Seed 002 test 2: an AUV runs out on heading 62°, turns, and comes back on −117° (= 243°); repeats.
+    """Test 2 of Nourmohammadi & Sabet, "Back-stepping calibration algorithm for three-axial magnetometer applied
+    to autonomous underwater vehicles with magnetic deviations", J. of Control 16(3), 2022, §5: an AUV runs out
+    on heading 62°, turns, and comes back on −117° (= 243°); repeats.
 
     The paper's legs are ~10 km at a few knots (hours); here each leg lasts `leg_s` (default 240 s) so a test can
-    afford it; the field at the site is WMM's (seed 002 eq. 27 gives IGRF Hh 27.45 µT, Hz 40.29 µT at its
-    undisclosed site; the default site gives Hh 27.85, Hz 41.04 µT, dip 55.8° vs 55.7°). A 60 s turn joins the
+    afford it; the field at the site is WMM's (the paper's eq. 27 gives IGRF Hh 27.45 µT, Hz 40.29 µT at its
+    undisclosed site; docs/simulation.md compares the default site's). A 60 s turn joins the
     legs (rate raised-cosine, up to 6 °/s), speed 1.5 m/s, small pitch (dolphin profile, ±3°) and roll (±1.5°).
     Headings are true (yaw in NED). Carries the default vehicle iron.
     """
@@ -371,10 +375,10 @@ class AuvOutAndBack(ConstantSpeedTrack, EulerScenario):
     leg_s: float = 240.0
     turn_s: float = 60.0
     speed_m_s: float = 1.5
-    out_heading_deg: float = 62.0      # seed 002 §7.3
-    back_heading_deg: float = -117.0   # seed 002 §7.3
+    out_heading_deg: float = 62.0      # the paper's test 2 (§5)
+    back_heading_deg: float = -117.0   # the paper's test 2 (§5)
     name = "auv-out-and-back"
-    description = "AUV legs at 62° and −117° (seed 002 test 2), 240 s each, 60 s turns, pitch ±3°, roll ±1.5°"
+    description = "AUV legs at 62° and −117° (back-stepping paper test 2), 240 s each, 60 s turns, pitch ±3°, roll ±1.5°"
     default_iron = VehicleIron.default()
 
     def __post_init__(self):
@@ -427,21 +431,21 @@ class MagDisturbance(EulerScenario):
 # --------------------------------------------------------------------------------------------------------------
 @dataclass
 class AuvDiverSwing(EulerScenario):
-    """Seed 002 test 1: a diver rotates the floating AUV, first in roll only, then roll + pitch, then roll +
-    pitch + heading (the paper's cases 1–3, 300 s / 430 s / 600 s; §7.2): roll ±55°, pitch ±10°, heading through
-    the full circle only in the last phase. The attitude coverage of a vehicle that cannot be tumbled, for the
-    initial sphere fit of the back-stepping calibration. Not one of the contract's SCENARIOS (use
+    """Test 1 of Nourmohammadi & Sabet (2022, §5): a diver rotates the floating AUV, first in roll only, then
+    roll + pitch, then roll + pitch + heading (the paper's cases 1–3, 300 s / 430 s / 600 s): roll ±55°, pitch
+    ±10°, heading through the full circle only in the last phase. The attitude coverage of a vehicle that cannot
+    be tumbled, for the initial sphere fit of the back-stepping calibration. Not one of the contract's SCENARIOS (use
     `make_scenario("auv-diver-swing")`). Repeats after 1330 s; carries the default vehicle iron.
     """
 
-    roll_amplitude_deg: float = 55.0     # seed 002 §7.2
-    pitch_amplitude_deg: float = 10.0    # seed 002 §7.2
+    roll_amplitude_deg: float = 55.0     # the paper's test 1 (§5)
+    pitch_amplitude_deg: float = 10.0    # the paper's test 1 (§5)
     heading_rate_deg_s: float = 3.0
     heading0_deg: float = 30.0
     name = "auv-diver-swing"
-    description = "seed 002 test 1: diver rolls (±55°), then pitches (±10°), then turns the AUV (300/430/600 s)"
+    description = "back-stepping paper test 1: diver rolls (±55°), then pitches (±10°), then turns the AUV (300/430/600 s)"
     default_iron = VehicleIron.default()
-    _PHASES_S = (300.0, 430.0, 600.0)    # roll only, roll + pitch, roll + pitch + heading (seed 002 Table 2)
+    _PHASES_S = (300.0, 430.0, 600.0)    # roll only, roll + pitch, roll + pitch + heading (the paper's Table 2)
     _ROLL_PERIOD_S = 35.0                # 38 cycles per 1330 s period: continuous when repeating
     _PITCH_PERIOD_S = 33.0
     _FADE_S = 10.0
@@ -455,7 +459,7 @@ class AuvDiverSwing(EulerScenario):
         self.period_s = self._heading.period_s
 
     def phase_of(self, t_s) -> np.ndarray:
-        """1 (roll only), 2 (roll + pitch) or 3 (roll + pitch + heading), as in seed 002's cases."""
+        """1 (roll only), 2 (roll + pitch) or 3 (roll + pitch + heading), as in the paper's cases 1–3."""
         tp = np.mod(np.asarray(t_s, dtype=float), self.period_s)
         p1, p2, _ = self._PHASES_S
         return np.where(tp < p1, 1, np.where(tp < p1 + p2, 2, 3))

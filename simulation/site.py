@@ -1,4 +1,4 @@
-"""Where and when the simulated vehicle is: the place fixes gravity (seed 004) and the WMM2025 field."""
+"""Where and when the simulated vehicle is: the place fixes gravity (core.gravity) and the WMM2025 field."""
 
 from __future__ import annotations
 
@@ -50,7 +50,7 @@ class Site:
 
     @property
     def gravity_m_s2(self) -> float:
-        """Local normal gravity magnitude (seed 004 eq. 18 with the height factor)."""
+        """Local normal gravity magnitude (1967 International Gravity Formula × (R0/(R0+h))², core.gravity)."""
         return normal_gravity_m_s2(self.lat_deg, self.alt_m)
 
     @property
@@ -58,7 +58,8 @@ class Site:
         return np.array([0.0, 0.0, self.gravity_m_s2])
 
 
-# Shahrood, Iran: where the thesis (seed 000 §4.1) built and tested its ADIS16405 AHRS; the seed-002 AUV tests
-# were also at a mid-northern site with a similar field (dip ≈ 55.7°). Date fixed (inside WMM2025's validity)
-# so that simulated data are the same on every run. WMM2025 here: F ≈ 49.6 µT, dip ≈ 55.8°, declination ≈ +5.0°.
+# Shahrood, Iran: where the ADIS16405 AHRS thesis (Shahrood University of Technology) built and tested its AHRS;
+# the AUV tests of Nourmohammadi & Sabet (J. of Control 16(3), 2022) were at a site with a similar field.
+# Date fixed (inside WMM2025's validity) so that simulated data are the same on every run. The field WMM2025
+# gives here is in docs/simulation.md.
 DEFAULT_SITE = Site(lat_deg=36.42, lon_deg=54.98, alt_m=1345.0, date=_dt.date(2026, 1, 1))

@@ -1,15 +1,18 @@
-"""Strapdown inertial navigation in the NED frame (seed 004 §7, eqs. 14–22, Fig. 8).
+"""Strapdown inertial navigation in the NED frame (local-navigation-frame mechanisation:
+Groves, "Principles of GNSS, Inertial, and Multisensor Integrated Navigation Systems", 2nd ed., §5.4;
+Titterton & Weston, "Strapdown Inertial Navigation Technology", 2nd ed., ch. 3).
 
 Integrates gyro and accelerometer samples into attitude, NED velocity and geodetic position on a spherical Earth
-(seed 004's model: R0 = 6 378 137 m, normal gravity eq. 18). It serves to check the simulator (the truth
-specific force and rate must integrate back into the truth trajectory) and as a reference for dead reckoning.
+(R0 = 6 378 137 m; normal gravity from the 1967 International Gravity Formula, core.gravity).
+It serves to check the simulator (the truth specific force and rate must integrate back into the truth
+trajectory) and as a reference for dead reckoning.
 
-Per step k → k+1 (seed 004 §7.10), second order in Δt:
-  1. ω̃ = ω̄ − C_n^b (ω_ie + ω_en)        body rate relative to NED (eq. 21); ω̄ = trapezoid of the gyro samples
-  2. C_b^n ← C_b^n exp(ω̃ Δt)           (eq. 20, exact for a constant rate over the step)
-  3. f^n = C_b^n f^b                    (eq. 19)
-  4. V̇ = f^n − (2ω_ie + ω_en) × V + g   (eq. 14, 15, 16), Heun predictor–corrector
-  5. L̇ = V_N/(R+h), λ̇ = V_E/((R+h) cos L), ḣ = −V_D   (eq. 17), trapezoid
+Per step k → k+1, second order in Δt:
+  1. ω̃ = ω̄ − C_n^b (ω_ie + ω_en)        body rate relative to NED; ω̄ = trapezoid of the gyro samples
+  2. C_b^n ← C_b^n exp(ω̃ Δt)           (exact for a constant rate over the step)
+  3. f^n = C_b^n f^b
+  4. V̇ = f^n − (2ω_ie + ω_en) × V + g   Heun predictor–corrector
+  5. L̇ = V_N/(R+h), λ̇ = V_E/((R+h) cos L), ḣ = −V_D   trapezoid
 Attitude maths is scipy's Rotation (the simulation never uses the estimator's rotation code).
 """
 
@@ -39,7 +42,8 @@ class NavSolution:
 
 
 def _rates_ned(lat, h, v, earth_rate: bool):
-    """(ω_ie^n, ω_en^n) in rad/s at latitude `lat` (rad), height h, NED velocity v (seed 004 eqs. 15, 16)."""
+    """(ω_ie^n, ω_en^n) in rad/s at latitude `lat` (rad), height h, NED velocity v:
+    ω_ie^n = ω_ie [cos L, 0, −sin L], ω_en^n = [V_E, −V_N, −V_E tan L]/(R0 + h) (Groves 2nd ed. §5.4)."""
     r = EARTH_RADIUS_M + h
     w_ie = EARTH_RATE_RAD_S * np.array([np.cos(lat), 0.0, -np.sin(lat)]) if earth_rate else np.zeros(3)
     w_en = np.array([v[1] / r, -v[0] / r, -v[1] * np.tan(lat) / r]) if earth_rate else np.zeros(3)
@@ -51,9 +55,10 @@ def mechanise_ned(t_s, gyro_rad_s, accel_m_s2, q0_wxyz, v0_ned_m_s, lat0_deg: fl
                   gravity_m_s2: Callable[[float, float], float] | None = None) -> NavSolution:
     """Integrate samples (gyro ω_ib^b, accel f^b, body frame) from the initial state at t_s[0].
 
-    earth_rate: True for the seed-004 rotating-Earth mechanisation (Earth rate, transport rate, Coriolis);
+    earth_rate: True for the rotating-Earth mechanisation (Earth rate, transport rate, Coriolis);
     False for a flat, non-rotating Earth (what `open_stream(..., earth_rate=False)` simulates).
-    gravity_m_s2(lat_deg, h_m): local gravity magnitude; default seed 004 eq. 18 with the height factor.
+    gravity_m_s2(lat_deg, h_m): local gravity magnitude; default the 1967 International Gravity Formula
+      with the (R0/(R0+h))² height factor (core.gravity).
     """
     t = np.asarray(t_s, dtype=float)
     w_b = np.asarray(gyro_rad_s, dtype=float)
@@ -127,10 +132,11 @@ def _prefix_product(increments: Rotation) -> Rotation:
 
 def mechanise_inertial(t_s, gyro_rad_s, accel_m_s2, q0_wxyz, v0_m_s, p0_m,
                        gravity_i_m_s2=None) -> InertialSolution:
-    """Navigation in a non-rotating (inertial) frame, seed 004 §5 (Fig. 6) and seed 001 §9.
+    """Navigation in a non-rotating (inertial) frame (Groves 2nd ed. §5.2; Ghasemzadeh & Heyrani Nobari
+    2011, eqs. 43–44).
 
     C_b^i from the gyros (body-frame increments exp(ω̄ Δt), trapezoidal ω̄), f^i = C_b^i f^b, plus the gravity
-    vector `gravity_i_m_s2` if given (seed 001's scenario has none), integrated twice (trapezoid).
+    vector `gravity_i_m_s2` if given (the gyro-free paper's scenario has none), integrated twice (trapezoid).
     """
     t = np.asarray(t_s, dtype=float)
     w = np.asarray(gyro_rad_s, dtype=float)

@@ -24,7 +24,7 @@ from ahrsd.simulation.track import GeodeticTrack
 class Truth:
     """The vehicle's true state at times t_s (n,): attitude q_wxyz (n,4) body→NED (w ≥ 0), body rate w.r.t. NED
     rate_rad_s (n,3) in body axes, velocity vel_ned_m_s (n,3), geodetic lat_deg, lon_deg, alt_m (n,) on the
-    spherical Earth of seed 004 (R0 = 6 378 137 m, height above it)."""
+    spherical Earth (R0 = 6 378 137 m, height above it; simulation.track)."""
 
     t_s: np.ndarray
     q_wxyz: np.ndarray
@@ -51,7 +51,7 @@ class SensorBlock:
     Extra truth: truth_accel_m_s2 (n,3) specific force without errors; truth_disturbance_ut (n,3) local
     disturbance field in body axes (zero when none); truth_gyro_bias_rad_s, truth_accel_bias_m_s2 (n,3) total
     bias in force at each sample (turn-on + Gauss–Markov + temperature). Where the vehicle is: truth_vel_ned_m_s
-    (n,3) m/s; truth_lat_deg, truth_lon_deg, truth_alt_m (n,) geodetic on seed 004's spherical Earth, from the
+    (n,3) m/s; truth_lat_deg, truth_lon_deg, truth_alt_m (n,) geodetic on the simulator's spherical Earth, from the
     site at t = 0 (a vehicle that stays put is at the site).
     """
 
@@ -185,9 +185,9 @@ class SensorStream:
         v = sc.velocity_ned_m_s(t)
         lat_deg, lon_deg, alt_m = self._position_deg(t)
         if self.earth_rate:
-            # Rotating Earth, seed 004 eqs. 14-18 at the vehicle's position: the gyros sense the body rate w.r.t.
-            # NED plus C_n^b (ω_ie + ω_en) (eq. 21 inverted), and the specific force is
-            # f^n = V̇ + (2 ω_ie + ω_en) × V − g(L, h) (eq. 14 solved for f).
+            # Rotating Earth, the local-navigation-frame equations (Groves 2nd ed. §5.4) at the vehicle's position: the
+            # gyros sense the body rate w.r.t. NED plus C_n^b (ω_ie + ω_en), and the specific force is
+            # f^n = V̇ + (2 ω_ie + ω_en) × V − g(L, h) (the velocity equation solved for f).
             w_ie = earth_rate_ned_rad_s(lat_deg)
             w_en = transport_rate_ned_rad_s(v, lat_deg, alt_m)
             f_ned = sc.accel_ned_m_s2(t) + np.cross(2.0 * w_ie + w_en, v)
@@ -241,11 +241,12 @@ def open_stream(scenario: str | Scenario, rate_hz: float = 819.2, seed: int = 0,
     errors: "adis16405" (datasheet noise, turn-on errors drawn from `seed`), "ideal", or a SensorErrors.
     vehicle_iron: "scenario" (the scenario's default: level-turns, tumble, auv-out-and-back carry
       VehicleIron.default(), the others none), None for no vehicle iron, or a VehicleIron.
-    earth_rate: True for a rotating Earth (seed 004 eqs. 14-18, evaluated at the vehicle's position): the gyros
+    earth_rate: True for a rotating Earth (Groves 2nd ed. §5.4, evaluated at the vehicle's position): the gyros
       also sense the Earth rate (15 °/h) and the transport rate, the specific force includes the Coriolis and
-      transport terms and gravity is g(L, h) along the track, so the seed-004 NED mechanisation
+      transport terms and gravity is g(L, h) along the track, so the NED mechanisation
       (`simulation.strapdown`) reproduces the trajectory. False for a flat, non-rotating Earth with the site's
-      gravity throughout (the Earth rate is below the ADIS16405's bias stability, thesis §10.3). None (default):
+      gravity throughout (the Earth rate is below the ADIS16405's bias stability, ADIS16405 AHRS thesis §5-6-7).
+      None (default):
       the scenario's choice, `Scenario.rotating_earth` (True for boat, car and plane, False for the others).
       The truth rate is always relative to NED; the magnetic field is the site's throughout (tracks of a few km).
     """

@@ -1,6 +1,6 @@
-"""Where the vehicle is: its NED velocity integrated into geodetic position on the spherical Earth of seed 004.
+"""Where the vehicle is: its NED velocity integrated into geodetic position on a spherical Earth.
 
-    L̇ = V_N/(R+h),   λ̇ = V_E/((R+h) cos L),   ḣ = −V_D          seed 004 eq. 17, R = R0 = 6 378 137 m
+    L̇ = V_N/(R+h),   λ̇ = V_E/((R+h) cos L),   ḣ = −V_D          Groves 2nd ed. §5.4, R = R0 = 6 378 137 m
 
 from the site at t = 0. The three rates are integrated one after the other (h needs only V_D, L needs h, λ needs
 L and h) on a fixed grid of `STEP_S` with 3-point Gauss–Legendre quadrature per step (exact for polynomials of

@@ -11,8 +11,8 @@ and the attitude follows from these dynamics: the car pitches with the road grad
 dives and rolls outward under acceleration; the aircraft flies coordinated (body x along the air velocity, the
 specific force in its body x–z plane, so bank = atan(V χ̇ / g) in a level turn); the boat heels in turns and rolls,
 pitches and heaves in waves, and its heading differs from its course over ground by the leeway and the current.
-Position is the integral of v_NED on the seed-004 Earth (`simulation.track`). All three are simulated on a rotating
-Earth by default (`Scenario.rotating_earth`). Truth maths uses scipy only (via `EulerScenario`).
+Position is the integral of v_NED on the simulator's spherical Earth (`simulation.track`). All three are simulated on
+a rotating Earth by default (`Scenario.rotating_earth`). Truth maths uses scipy only (via `EulerScenario`).
 """
 
 from __future__ import annotations

@@ -46,8 +46,14 @@ def gcs_socket(rcvbuf: int | None = None) -> socket.socket:
 
 def start_service(gcs: socket.socket, state_dir, **config_changes) -> tuple[Service, asyncio.AbstractEventLoop]:
     """A Service whose only endpoint sends to `gcs`, started (endpoints open, no reader task) on a new loop."""
-    cfg = dataclasses.replace(Config(), endpoints=(EndpointConfig(f"udpout:127.0.0.1:{gcs.getsockname()[1]}"),),
-                              state=StateConfig(str(state_dir)), **config_changes)
+    return start_service_on((EndpointConfig(f"udpout:127.0.0.1:{gcs.getsockname()[1]}"),), state_dir,
+                            **config_changes)
+
+
+def start_service_on(endpoints, state_dir, **config_changes) -> tuple[Service, asyncio.AbstractEventLoop]:
+    """A Service with these endpoints, started (endpoints open, no reader task) on a new loop."""
+    cfg = dataclasses.replace(Config(), endpoints=tuple(endpoints), state=StateConfig(str(state_dir)),
+                              **config_changes)
     service = Service(cfg, source=DummySource())
     loop = asyncio.new_event_loop()
 

@@ -157,7 +157,7 @@ def test_a_position_taken_while_moving_is_refused():
     raw = G * u
     raw[3] *= 1.05  # someone bumped the table
     res = fit_accel(raw, G)
-    assert not res.ok and "residual" in res.refused
+    assert not res.ok and "residual" in res.refused and "position 4 of 26" in res.refused
 
 
 # seed 004 §7.5 worked values: g(L, 0) and g(L, 1000 m) in m/s²
@@ -200,8 +200,10 @@ def test_still_periods_of_a_rate_table_recording_are_found():
     segs = find_still_segments(block.accel_m_s2, block.gyro_rad_s, rate, min_still_s=3.0)
     assert len(segs) >= 12
     for s in segs:
-        # Really still in the truth: no rotation during the segment.
-        assert np.max(np.abs(block.truth_gyro_rad_s[s.start:s.stop])) < 1e-6
+        # Really still in the truth: turned less than 0.01° during the segment (at most the first 0.1 s of a
+        # raised-cosine ramp about the vertical, far below the gyro noise and invisible to the accelerometer).
+        turned_rad = np.sum(np.linalg.norm(block.truth_gyro_rad_s[s.start:s.stop], axis=1)) / rate
+        assert turned_rad < math.radians(0.01)
         assert np.linalg.norm(s.mean_accel_m_s2) == pytest.approx(G, rel=0.02)
     ups = {tuple(np.round(s.mean_accel_m_s2 / G).astype(int)) for s in segs}
     assert len(ups) == 6  # every axis up and down

@@ -119,7 +119,8 @@ def test_every_commented_key_of_the_example_exists_and_parses(tmp_path):
     path.write_text("\n".join(out) + "\n")
     cfg = load_config(path)
     assert cfg.magcal is not None and cfg.magcal.accept_broadcast is False and cfg.magcal.fitness_mgauss == 16.0
-    assert cfg.location.declination_deg == 1.5 and len(cfg.endpoints) == 3
+    assert cfg.location.declination_deg == 1.5 and len(cfg.endpoints) == 4
+    assert [e.profile for e in cfg.endpoints] == ["gcs", "autopilot", "gcs", "autopilot"]   # serial + PX4 examples
 
 
 # -- ahrsd calibrate: usage errors exit 2 (docs/calibration.md), checked before any sensor or file is touched -----

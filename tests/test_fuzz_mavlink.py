@@ -1,147 +1,510 @@
-"""MAVLink input fuzzing at unit level: the real receive path (Endpoint._parse → Service._on_message → command
-router / parameter protocol) of an in-process daemon, fed hostile bytes and hostile field values.
+"""Structure-aware MAVLink fuzzing of an in-process daemon (tests/service_rig.py) on its real receive path
+(Endpoint._parse → Service._on_message → command router / parameter protocol / autopilot state).
 
-Hypothesis with derandomize=True: the examples are a fixed function of the test, so a failure replays. The
-end-to-end flood against the daemon subprocess is in test_reliability_daemon.py; the long one in bench/soak.py.
-Invariants after every example: nothing raised, no handler error logged or counted, every parameter finite and
-in its range, every output rate legal, and a valid request is still answered.
+Frames are CRC-valid MAVLink 2 — unsigned, signed with the daemon's key, with another key, or with a stale
+timestamp — built from pymavlink's definitions (tests/support/mavlink_frames.py) for every message type the
+daemon handles and a sample of the rest, with hostile field values (NaN, ±inf, ±1e38, the extremes of each
+integer type, values outside their enums, char ids of odd lengths without NUL) and payloads cut short.
+
+Properties after every frame:
+* it was parsed (CRC-valid: `rx_messages` + 1) — the fuzzing reaches past the CRC;
+* nothing escaped: no log record with a traceback, no ERROR, `handler_errors` 0;
+* the daemon's state (parameters, output rates, calibration, mag-cal session, signing timestamp and the
+  per-stream replay state) changed only through a request that was answered ACCEPTED (a PARAM_SET counts as
+  accepted when the PARAM_VALUE answering it carries the value asked for);
+* every parameter and output rate stays finite and within its range; the autopilot position stays on Earth.
+
+Budget: CI runs `AHRSD_FUZZ_EXAMPLES` (default 1000) examples per rig, derandomized (the same frames every
+run, so a failure replays). Longer runs from the command line, with a seed of your choice:
+    AHRSD_FUZZ_EXAMPLES=20000 AHRSD_FUZZ_SEED=7 .venv/bin/python -m pytest -s tests/test_fuzz_mavlink.py
+`-s` shows the frames generated per message type (the summary test prints them).
 """
 
 from __future__ import annotations
 
-import asyncio
+import dataclasses
 import logging
 import math
+import os
+import time
+from types import SimpleNamespace
 
+import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, given, seed, settings
 from hypothesis import strategies as st
 
+from ahrsd.calibration.models import Calibration, MagModel
+from ahrsd.core.sample import make_sample
+from ahrsd.daemon.config import Config, SigningConfig
 from ahrsd.daemon.mavlink_io import mavlink
 from service_rig import gcs_socket, start_service, stop_service
+from support.mavlink_feed import drain, feed
+from support.mavlink_frames import (
+    FrameLog,
+    char_values,
+    enum_values,
+    float_values,
+    frame,
+    int_values,
+    message_payloads,
+    sweep_payloads,
+)
 
-FUZZ = settings(derandomize=True, deadline=None, max_examples=300,
-                suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 OUR_SYS, OUR_COMP = 1, 200
+GCS_SYS, GCS_COMP = 255, 190
+KEY = bytes(range(40, 72))
+OTHER_KEY = bytes(range(140, 172))
+EXAMPLES = int(os.environ.get("AHRSD_FUZZ_EXAMPLES", "1000"))
+SEED = os.environ.get("AHRSD_FUZZ_SEED")
 
 
-class _Errors(logging.Handler):
+def fuzz_settings(examples: int = EXAMPLES):
+    """Derandomized unless AHRSD_FUZZ_SEED is set (then that seed: a different, reproducible run)."""
+    s = settings(derandomize=SEED is None, deadline=None, max_examples=examples, database=None,
+                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture,
+                                        HealthCheck.data_too_large])
+
+    def apply(fn):
+        fn = s(fn)
+        return seed(int(SEED))(fn) if SEED is not None else fn
+    return apply
+
+
+FRAMES = FrameLog()
+
+# ------------------------------------------------------------------------------------------ strategies
+
+HANDLED = ("HEARTBEAT", "GLOBAL_POSITION_INT", "GPS_RAW_INT", "TIMESYNC", "COMMAND_LONG", "COMMAND_INT",
+           "PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET")
+CLASSES = {cls.msgname if hasattr(cls, "msgname") else cls.name: cls for cls in mavlink.mavlink_map.values()}
+OTHERS = sorted(set(CLASSES) - set(HANDLED))
+HANDLED_COMMANDS = (mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAV_CMD_GET_MESSAGE_INTERVAL,
+                    mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAV_CMD_PREFLIGHT_CALIBRATION,
+                    42424, 42425, 42426, 42006)
+PARAM_NAMES = (b"SR_ATTITUDE", b"SR_ATT_QUAT", b"SR_VISION_POS", b"SR_HIGHRES_IMU", b"SR_SCALED_IMU",
+               b"SR_SYS_STATUS", b"MNT_ROLL_DEG", b"MNT_PITCH_DEG", b"MNT_YAW_DEG", b"DECL_MANUAL", b"DECL_DEG")
+
+TARGET_SYS = st.sampled_from([OUR_SYS] * 6 + [0, 2, 255])          # mostly ours: the handlers are the target
+TARGET_COMP = st.sampled_from([OUR_COMP] * 6 + [0, 1, 255])
+COMMAND_ID = st.one_of(st.sampled_from(HANDLED_COMMANDS), st.sampled_from(HANDLED_COMMANDS),
+                       st.sampled_from(HANDLED_COMMANDS), enum_values("MAV_CMD", "uint16_t"))
+# plausible command parameters (message ids, intervals, masks, flags, yaw, a position) among hostile floats
+COMMAND_PARAM = st.one_of(st.sampled_from([0.0, 0.0, 1.0, 2.0, -1.0, 30.0, 31.0, 32.0, 148.0, 0.5, 76.0, 20000.0,
+                                           1e6, 35.7, 51.4, 214.0, -91.0, 360.0, 361.0]), float_values("float"))
+POSITION_E7 = st.one_of(st.sampled_from([0, 357000000, 514000000, 900000000, 900000001, -900000001,
+                                         1800000001, 2**31 - 1, -2**31]), int_values("int32_t"))
+PARAM_ID = st.one_of(st.sampled_from(PARAM_NAMES + (b"SR_ATTITUDEXXXXX", b"ABCDEFGHIJKLMNOP", b"")),
+                     char_values(16))
+PARAM_VALUE = st.one_of(st.sampled_from([0.0, 1.0, 5.0, 10.0, 50.0, 0.5, -5.0, 45.0, 90.0, 200.0, 201.0]),
+                        float_values("float"))
+
+OVERRIDES = {
+    "COMMAND_LONG": dict(target_system=TARGET_SYS, target_component=TARGET_COMP,
+                         command=COMMAND_ID,
+                         **{f"param{i}": COMMAND_PARAM for i in range(1, 8)}),
+    "COMMAND_INT": dict(target_system=TARGET_SYS, target_component=TARGET_COMP,
+                        command=COMMAND_ID,
+                        x=POSITION_E7, y=POSITION_E7, z=COMMAND_PARAM,
+                        **{f"param{i}": COMMAND_PARAM for i in range(1, 5)}),
+    "PARAM_SET": dict(target_system=TARGET_SYS, target_component=TARGET_COMP, param_id=PARAM_ID,
+                      param_value=PARAM_VALUE),
+    "PARAM_REQUEST_READ": dict(target_system=TARGET_SYS, target_component=TARGET_COMP, param_id=PARAM_ID,
+                               param_index=st.one_of(st.sampled_from([-1, -1, 0, 10, 11, -2]),
+                                                     int_values("int16_t"))),
+    "PARAM_REQUEST_LIST": dict(target_system=TARGET_SYS, target_component=TARGET_COMP),
+    "GLOBAL_POSITION_INT": dict(lat=POSITION_E7, lon=POSITION_E7),
+    "GPS_RAW_INT": dict(lat=POSITION_E7, lon=POSITION_E7,
+                        fix_type=st.one_of(st.sampled_from([3, 3, 4, 6, 2]), int_values("uint8_t"))),
+}
+
+
+# a valid request per handled command (param1..7): perturbed one field at a time, so that the fuzzing also
+# reaches the ACCEPTED paths and the edges of every range, not only the first refusal
+VALID_COMMANDS = {
+    mavlink.MAV_CMD_SET_MESSAGE_INTERVAL: (30, 20000, 0, 0, 0, 0, 0),
+    mavlink.MAV_CMD_GET_MESSAGE_INTERVAL: (31, 0, 0, 0, 0, 0, 0),
+    mavlink.MAV_CMD_REQUEST_MESSAGE: (148, 0, 0, 0, 0, 0, 1),
+    mavlink.MAV_CMD_PREFLIGHT_CALIBRATION: (1, 0, 0, 0, 0, 0, 0),
+    42424: (0, 0, 0, 0, 0, 0, 0), 42425: (0, 0, 0, 0, 0, 0, 0), 42426: (0, 0, 0, 0, 0, 0, 0),
+    42006: (30, 0, 35.7, 51.4, 0, 0, 0),
+}
+
+
+@st.composite
+def near_valid_command(draw, command_int: bool) -> dict:
+    """Field overrides (as strategies) for a COMMAND_LONG/INT: a valid request with 0–2 fields hostile."""
+    cmd = draw(st.sampled_from(sorted(VALID_COMMANDS)))
+    params = list(map(float, VALID_COMMANDS[cmd]))
+    for _ in range(draw(st.integers(0, 2))):
+        params[draw(st.integers(0, 6))] = draw(COMMAND_PARAM)
+    fields = {"command": cmd, "target_system": OUR_SYS, "target_component": OUR_COMP}
+    if command_int:
+        fields.update(param1=params[0], param2=params[1], param3=params[2], param4=params[3], z=params[6],
+                      x=draw(st.one_of(st.just(0), POSITION_E7)) if params[4] else 0,
+                      y=draw(st.one_of(st.just(0), POSITION_E7)) if params[5] else 0)
+    else:
+        fields.update({f"param{i + 1}": v for i, v in enumerate(params)})
+    return {k: st.just(v) for k, v in fields.items()}
+
+
+@st.composite
+def hostile_frames(draw, signing: bool):
+    """(message type, frame bytes, how it is signed) — a handled type 4 times in 5."""
+    name = draw(st.one_of(st.sampled_from(HANDLED), st.sampled_from(HANDLED), st.sampled_from(HANDLED),
+                          st.sampled_from(HANDLED), st.sampled_from(OTHERS)))
+    cls = CLASSES[name]
+    overrides = OVERRIDES.get(name)
+    if name in ("COMMAND_LONG", "COMMAND_INT") and draw(st.booleans()):
+        overrides = {**overrides, **draw(near_valid_command(name == "COMMAND_INT"))}
+    _values, payload, cut = draw(message_payloads(cls, overrides))
+    src = draw(st.sampled_from([(GCS_SYS, GCS_COMP), (GCS_SYS, GCS_COMP), (OUR_SYS, 1), (7, 1), (OUR_SYS, OUR_COMP)]))
+    sign_kind = draw(st.sampled_from(["unsigned", "key", "key", "other_key", "stale"] if signing
+                                     else ["unsigned", "unsigned", "other_key"]))
+    sign = None
+    if sign_kind != "unsigned":
+        link_id = draw(st.sampled_from([0, 1, 2, 255]))
+        now = int((time.time() - 1420070400) * 100_000)
+        ts = {"stale": now - 10 * 60 * 100_000}.get(sign_kind, now + draw(st.integers(0, 1000)))
+        sign = (OTHER_KEY if sign_kind == "other_key" else KEY, link_id, ts)
+    data = frame(cls.id, cls.crc_extra, payload, seq=draw(st.integers(0, 255)), sysid=src[0], compid=src[1],
+                 sign=sign)
+    return name, data, sign_kind, cut
+
+
+# ------------------------------------------------------------------------------------------ the rigs
+
+
+class _Records(logging.Handler):
     def __init__(self):
-        super().__init__(logging.ERROR)
-        self.records: list[logging.LogRecord] = []
+        super().__init__(logging.DEBUG)
+        self.bad: list[str] = []
 
     def emit(self, record):
-        self.records.append(record)
+        if record.exc_info or record.levelno >= logging.ERROR:
+            self.bad.append(self.format(record))
 
 
+def _make_rig(tmp, signing: bool):
+    gcs = gcs_socket(rcvbuf=1 << 22)
+    changes = dict(mavlink=dataclasses.replace(Config().mavlink, system_id=OUR_SYS))
+    if signing:
+        key_file = tmp / "signing.key"
+        key_file.write_text(KEY.hex() + "\n")
+        changes["signing"] = SigningConfig(key_file=str(key_file))
+    service, loop = start_service(gcs, tmp / "state", **changes)
+    records = _Records()
+    logging.getLogger().addHandler(records)
+    rig = SimpleNamespace(service=service, loop=loop, gcs=gcs, ep=service.endpoints[0], records=records,
+                          signing=signing)
+    # the fit worker process is not what is under test here (a session never gets samples in this rig)
+    service.magcal._warm_worker = lambda: None
+    _give_fixed_yaw_samples(service)
+    return rig
+
+
+def _give_fixed_yaw_samples(service):
+    """A still, level sensor's recent field in the mag-cal window, so FIXED_MAG_CAL_YAW can run to the end."""
+    service.apply_calibration(Calibration.identity().with_sensor("mag", MagModel(np.zeros(3), np.eye(3))),
+                              save=False)
+    for i in range(50):
+        service.magcal.on_sample(make_sample(i * 0.02, np.zeros(3), [0.0, 0.0, -9.81], [20.0, 1.0, 40.0]),
+                                 SimpleNamespace(roll_rad=0.0, pitch_rad=0.0, yaw_rad=0.0,
+                                                 rate_body_rad_s=np.zeros(3)))
+
+
+def _close_rig(rig):
+    logging.getLogger().removeHandler(rig.records)
+    stop_service(rig.service, rig.loop)
+    rig.gcs.close()
 
 
 @pytest.fixture(scope="module")
 def rig(tmp_path_factory):
-    """A started Service (no reader task) whose only endpoint sends to `gcs`, a UDP socket we read."""
-    tmp = tmp_path_factory.mktemp("fuzz")
-    gcs = gcs_socket(rcvbuf=1 << 22)
-    service, loop = start_service(gcs, tmp / "state")
-    errors = _Errors()
-    logging.getLogger("ahrsd").addHandler(errors)
-    rig = type("Rig", (), {})()
-    rig.service, rig.loop, rig.gcs, rig.errors = service, loop, gcs, errors
-    rig.ep = service.endpoints[0]
-    rig.sender = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
-    rig.sender.robust_parsing = True
-    yield rig
-    stop_service(service, loop)
-    gcs.close()
-    logging.getLogger("ahrsd").removeHandler(errors)
+    r = _make_rig(tmp_path_factory.mktemp("fuzz"), signing=False)
+    yield r
+    _close_rig(r)
 
 
-def drain(rig) -> list:
-    """Run pending loop callbacks, then every message the daemon sent to the GCS socket."""
-    rig.loop.run_until_complete(asyncio.sleep(0))
-    parser = mavlink.MAVLink(None)
-    parser.robust_parsing = True
-    out = []
-    while True:
-        try:
-            data = rig.gcs.recv(65536)
-        except BlockingIOError:
-            return out
-        out += [m for m in parser.parse_buffer(data) or () if m.get_type() != "BAD_DATA"]
+@pytest.fixture(scope="module")
+def signed_rig(tmp_path_factory):
+    r = _make_rig(tmp_path_factory.mktemp("fuzz_signed"), signing=True)
+    yield r
+    _close_rig(r)
 
 
-def feed(rig, data: bytes) -> None:
-    """One datagram through the endpoint's parser and dispatch, as the event loop would deliver it."""
-    rig.ep._parse(data)
-    rig.ep._end_of_datagram()
+# ------------------------------------------------------------------------------------------ state and checks
 
 
-def check_invariants(rig) -> None:
+def state(rig) -> dict:
     s = rig.service
-    assert not rig.errors.records, [r.getMessage() for r in rig.errors.records[:3]]
-    assert s.commands.counters.handler_errors == 0
+    mav = rig.ep.conn.mav
+    return {
+        "params": tuple(s.params.item(i)[1] for i in range(len(s.params))),
+        "rates": tuple(ep.schedule.rate_hz(m) for ep in s.endpoints for m in ep.schedule.ids()),
+        "calibration": repr(s.pipeline.calibration.to_dict()),
+        "magcal_session": s.magcal.session is not None,
+        "signing_timestamp": mav.signing.timestamp if rig.signing else None,
+        "signing_streams": dict(mav.signing.stream_timestamps) if rig.signing else None,
+    }
+
+
+def check_ranges(rig) -> None:
+    s = rig.service
     for i in range(len(s.params)):
         name, value = s.params.item(i)
         spec = s.params.specs[i]
         assert math.isfinite(value) and spec.lo <= value <= spec.hi, (name, value)
-    for mid in s.schedule.ids():
-        hz = s.schedule.rate_hz(mid)
-        assert math.isfinite(hz) and 0.0 <= hz <= s.schedule.max_rate_hz(mid), (mid, hz)
+    for ep in s.endpoints:
+        for mid in ep.schedule.ids():
+            hz = ep.schedule.rate_hz(mid)
+            assert math.isfinite(hz) and 0.0 <= hz <= ep.schedule.max_rate_hz(mid), (mid, hz)
+    ap = s.autopilot
+    assert ap.lat_deg is None or (-90 <= ap.lat_deg <= 90 and -180 <= ap.lon_deg <= 180)
+    assert math.isfinite(s.declination_rad)
+    assert np.all(np.isfinite(s.pipeline.calibration.mag.hard_iron_ut))
 
 
-def still_answers(rig) -> None:
-    drain(rig)
-    feed(rig, rig.sender.param_request_read_encode(OUR_SYS, OUR_COMP, b"", 0).pack(rig.sender))
-    got = [m for m in drain(rig) if m.get_type() == "PARAM_VALUE"]
-    assert got and got[0].param_index == 0
+def accepted_requests(sent: list, name: str) -> set:
+    out = set()
+    for m in sent:
+        if m.get_type() == "COMMAND_ACK" and m.result in (mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_IN_PROGRESS):
+            out.add(("command", m.command))
+        elif m.get_type() == "PARAM_VALUE":
+            out.add(("param", m.param_id, m.param_value))
+    return out
 
 
-# ------------------------------------------------------------------------------------------ bytes
-
-
-@FUZZ
-@given(st.binary(min_size=0, max_size=600))
-def test_random_bytes_are_counted_never_raised(rig, data):
-    before = rig.ep.counters.rx_malformed
+def check_frame(rig, name: str, data: bytes, sign_kind: str) -> None:
+    s = rig.service
+    before = state(rig)
+    rx = rig.ep.counters.rx_messages
     feed(rig, data)
-    assert rig.ep.counters.rx_malformed >= before
-    check_invariants(rig)
+    sent = drain(rig)
+    after = state(rig)
+    assert rig.ep.counters.rx_messages == rx + 1, f"{name}: a CRC-valid frame was not parsed"
+    assert not rig.records.bad, rig.records.bad[:2]
+    assert s.commands.counters.handler_errors == 0
+    check_ranges(rig)
+    accepted = accepted_requests(sent, name)
+    for m in sent:
+        if m.get_type() == "COMMAND_ACK":
+            FRAMES.acks[(m.command, mavlink.enums["MAV_RESULT"][m.result].name[len("MAV_RESULT_"):])] += 1
+    sent_signed = len(sent)
+    for key in ("params", "rates", "calibration", "magcal_session"):
+        if after[key] != before[key]:
+            assert any(a[0] == "command" for a in accepted) or any(a[0] == "param" for a in accepted), (
+                f"{name}: {key} changed without an ACCEPTED answer")
+    if after["params"] != before["params"]:
+        changed = [i for i, (a, b) in enumerate(zip(before["params"], after["params"])) if a != b]
+        for i in changed:
+            pname, value = s.params.item(i)
+            assert ("param", pname, value) in accepted, f"{pname} changed to {value} without a PARAM_VALUE of it"
+    if rig.signing and sign_kind != "key":
+        # only a frame signed with our key may move the signing state; our own sends add 1 each
+        assert after["signing_streams"] == before["signing_streams"], f"{name} ({sign_kind}) moved a stream"
+        assert before["signing_timestamp"] <= after["signing_timestamp"] <= before["signing_timestamp"] + sent_signed
 
 
-def _valid_frames(rig):
-    s = rig.sender
+# ------------------------------------------------------------------------------------------ the fuzz tests
+
+
+def fuzz_one(rig, generated) -> None:
+    name, data, sign_kind, cut = generated
+    FRAMES.by_type[name] += 1
+    FRAMES.signed[sign_kind] += 1
+    FRAMES.truncated += cut
+    check_frame(rig, name, data, sign_kind)
+
+
+@fuzz_settings()
+@given(hostile_frames(signing=False))
+def test_hostile_frames_unsigned(rig, generated):
+    fuzz_one(rig, generated)
+
+
+@fuzz_settings()
+@given(hostile_frames(signing=True))
+def test_hostile_frames_signed(signed_rig, generated):
+    fuzz_one(signed_rig, generated)
+
+
+def test_fuzz_summary_every_handled_type_and_signing_case_was_generated(rig, signed_rig):
+    print("\n" + FRAMES.summary())
+    print("COMMAND_ACKs (command, result): " + ", ".join(f"{c}/{r}: {n}" for (c, r), n in sorted(FRAMES.acks.items())))
+    print(f"commands refused {rig.service.commands.counters.refused} + "
+          f"{signed_rig.service.commands.counters.refused}, parameter writes refused "
+          f"{rig.service.params.rejected_writes} + {signed_rig.service.params.rejected_writes}, "
+          f"autopilot positions refused {rig.service.autopilot.rejected_positions} + "
+          f"{signed_rig.service.autopilot.rejected_positions}")
+    if not FRAMES.by_type:
+        pytest.skip("run together with the fuzz tests")
+    assert all(FRAMES.by_type[n] >= 10 for n in HANDLED), FRAMES.by_type
+    assert len(set(FRAMES.by_type) - set(HANDLED)) >= 20
+    assert set(FRAMES.signed) == {"unsigned", "key", "other_key", "stale"}
+    assert FRAMES.truncated > 0
+    assert rig.service.commands.counters.refused > 0 and rig.service.params.rejected_writes > 0
+    assert rig.service.autopilot.rejected_positions > 0
+
+
+def sweep_frames(seq0: int = 0):
+    """Every message of the dialect at its extremes (addressed to us), then every handled command with all
+    parameters NaN / ±inf / ±1e38 and COMMAND_INT x/y at the int32 extremes."""
+    out = []
+    for name, cls, payload in sweep_payloads({"target_system": OUR_SYS, "target_component": OUR_COMP}):
+        out.append((name, frame(cls.id, cls.crc_extra, payload, seq=seq0 + len(out), sysid=GCS_SYS,
+                                compid=GCS_COMP)))
+    mav = mavlink.MAVLink(None, srcSystem=GCS_SYS, srcComponent=GCS_COMP)
+    for cmd in HANDLED_COMMANDS:
+        for v in (math.nan, math.inf, -math.inf, 1e38, -1e38):
+            out.append(("COMMAND_LONG", mav.command_long_encode(OUR_SYS, OUR_COMP, cmd, 0, *[v] * 7).pack(mav)))
+            for x, y in ((2**31 - 1, -2**31), (-2**31, 2**31 - 1)):
+                out.append(("COMMAND_INT", mav.command_int_encode(OUR_SYS, OUR_COMP, 0, cmd, 0, 0, *[v] * 4, x, y,
+                                                                  v).pack(mav)))
+    return out
+
+
+def test_every_message_type_at_its_extremes(rig):
+    """All 300 message types of the dialect with every field at its maximum, at its minimum, cut to one byte;
+    then the handled commands with non-finite and huge parameters: the same properties as the fuzz tests."""
+    frames_ = sweep_frames()
+    for name, data in frames_:
+        check_frame(rig, name, data, "unsigned")
+    refused = rig.service.commands.counters.refused
+    print(f"\nsweep: {len(frames_)} frames of {len({n for n, _ in frames_})} message types; commands refused "
+          f"so far {refused}")
+    assert refused >= 5 * len(HANDLED_COMMANDS) // 2
+
+
+def test_outputs_keep_flowing_under_hostile_frames(tmp_path):
+    """The whole daemon in-process (simulated chip, reader, publishers, housekeeping) while the sweep's
+    hostile frames arrive at ~1000 per second: every default output keeps flowing at its rate. The bound is
+    loose (≥ 80 % of the nominal count: this shares 2 cores with other work); the exact rates under a flood
+    are bench/soak.py's job."""
+    import asyncio
+    from collections import Counter
+
+    from ahrsd.daemon.config import EndpointConfig, StateConfig
+    from ahrsd.daemon.service import Service
+
+    gcs = gcs_socket(rcvbuf=1 << 23)
+    cfg = dataclasses.replace(Config(), endpoints=(EndpointConfig(f"udpout:127.0.0.1:{gcs.getsockname()[1]}"),),
+                              state=StateConfig(str(tmp_path / "state")),
+                              mavlink=dataclasses.replace(Config().mavlink, system_id=OUR_SYS))
+    service = Service(cfg)
+    records = _Records()
+    logging.getLogger().addHandler(records)
+    frames_ = [data for _name, data in sweep_frames()]
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
+    window_s, counts = 4.0, Counter()
+
+    def read_gcs(into):
+        while True:
+            try:
+                data = gcs.recv(65536)
+            except BlockingIOError:
+                return
+            for m in parser.parse_buffer(data) or ():
+                into[m.get_type()] += 1
+
+    async def scenario():
+        run = asyncio.create_task(service.run())
+        await asyncio.sleep(2.0)                    # start-up and the estimator's initialisation
+        read_gcs(Counter())
+        t0, i = time.monotonic(), 0
+        while time.monotonic() - t0 < window_s:
+            ep = service.endpoints[0]
+            for _ in range(5):
+                ep._parse(frames_[i % len(frames_)])
+                ep._end_of_datagram()
+                i += 1
+            read_gcs(counts)
+            await asyncio.sleep(0.005)
+        elapsed = time.monotonic() - t0
+        service.request_stop(0)
+        return await run, i, elapsed
+
+    try:
+        exit_code, fed, elapsed = asyncio.run(scenario())
+    finally:
+        logging.getLogger().removeHandler(records)
+        gcs.close()
+    from ahrsd.daemon.output_registry import OUTPUTS
+
+    nominal = {mavlink.mavlink_map[o.message_id].msgname: o.default_hz for o in OUTPUTS if o.default_hz > 0}
+    nominal["HEARTBEAT"] = 1.0
+    rates = {n: counts[n] / elapsed for n in nominal}
+    print(f"\n{fed} hostile frames in {elapsed:.1f} s; output rates, Hz: "
+          + ", ".join(f"{n} {r:.1f}" for n, r in rates.items()))
+    assert exit_code == 0 and not records.bad, records.bad[:2]
+    assert service.commands.counters.handler_errors == 0
+    for name, hz in nominal.items():
+        assert counts[name] >= int(0.8 * hz * elapsed), (name, rates[name])
+
+
+# ------------------------------------------------------------------------------------------ bytes and damage
+
+
+def _valid_frames():
+    s = mavlink.MAVLink(None, srcSystem=GCS_SYS, srcComponent=GCS_COMP)
     return [s.param_request_read_encode(OUR_SYS, OUR_COMP, b"SR_ATTITUDE", -1).pack(s),
             s.command_long_encode(OUR_SYS, OUR_COMP, 510, 0, 30, 0, 0, 0, 0, 0, 0).pack(s),
             s.timesync_encode(0, 12345).pack(s),
             s.heartbeat_encode(6, 8, 0, 0, 4).pack(s)]
 
 
-@FUZZ
+def _rx_total(rig) -> int:
+    c = rig.ep.counters
+    return c.rx_messages + c.rx_malformed + c.rx_unknown + c.rx_bad_signature
+
+
+@fuzz_settings(examples=max(100, EXAMPLES // 3))
+@given(st.binary(min_size=1, max_size=600))
+def test_random_bytes_are_counted_never_raised(rig, data):
+    """Any non-empty datagram is accounted for: parsed, or counted malformed/unknown/badly signed."""
+    before = _rx_total(rig)
+    feed(rig, data)
+    drain(rig)
+    assert _rx_total(rig) > before
+    assert not rig.records.bad and rig.service.commands.counters.handler_errors == 0
+    check_ranges(rig)
+
+
+@fuzz_settings(examples=max(100, EXAMPLES // 3))
 @given(st.integers(0, 3), st.integers(1, 300), st.integers(0, 255), st.integers(0, 7), st.sampled_from(
     ["truncate", "flip", "oversize", "length_byte", "append_junk"]))
 def test_damaged_frames_are_rejected_and_counted(rig, which, pos, value, bit, how):
-    frame = bytearray(_valid_frames(rig)[which])
-    n = len(frame)
+    good = bytes(_valid_frames()[which])
+    frame_ = bytearray(good)
+    n = len(frame_)
     if how == "truncate":
-        data = bytes(frame[: 1 + pos % (n - 1)])
+        data = bytes(frame_[: 1 + pos % (n - 1)])
     elif how == "flip":
-        frame[pos % n] ^= 1 << bit
-        data = bytes(frame)
+        frame_[pos % n] ^= 1 << bit
+        data = bytes(frame_)
     elif how == "oversize":
-        data = bytes(frame) + bytes([value]) * pos
+        data = good + bytes([value]) * pos
     elif how == "length_byte":
-        frame[1] = value
-        data = bytes(frame)
+        frame_[1] = value
+        data = bytes(frame_)
     else:
-        data = bytes(frame) + bytes([0xFD, value, 0, 0, 1, 255, 190]) + bytes(pos % 20)
-    rx0, bad0 = rig.ep.counters.rx_messages, rig.ep.counters.rx_malformed + rig.ep.counters.rx_unknown
+        data = good + bytes([0xFD, value, 0, 0, 1, 255, 190]) + bytes(pos % 20)
+    malformed = rig.ep.counters.rx_malformed + rig.ep.counters.rx_unknown
+    rx = rig.ep.counters.rx_messages
     feed(rig, data)
-    rx1, bad1 = rig.ep.counters.rx_messages, rig.ep.counters.rx_malformed + rig.ep.counters.rx_unknown
-    assert (rx1 - rx0) + (bad1 - bad0) >= 1 or data == bytes(_valid_frames(rig)[which]) or len(data) == 0
-    check_invariants(rig)
+    drain(rig)
+    if data != good:
+        # a damaged frame is never delivered as itself: either counted bad, or (a flip that happens to keep
+        # a valid CRC is impossible for one bit under X.25) nothing else than the intact prefix got through
+        assert rig.ep.counters.rx_malformed + rig.ep.counters.rx_unknown > malformed or (
+            how in ("oversize", "append_junk") and rig.ep.counters.rx_messages == rx + 1)
+    assert not rig.records.bad
+    check_ranges(rig)
 
 
 def test_bad_crc_truncated_and_junk_each_count_and_a_good_frame_still_passes(rig):
-    good = _valid_frames(rig)[0]
+    good = _valid_frames()[0]
     bad_crc = bytearray(good)
     bad_crc[-1] ^= 0xFF
     c0 = rig.ep.counters.rx_malformed
@@ -151,85 +514,25 @@ def test_bad_crc_truncated_and_junk_each_count_and_a_good_frame_still_passes(rig
     still_answers(rig)
 
 
-# ------------------------------------------------------------------------------------------ hostile field values
-
-HOSTILE_FLOAT = st.one_of(st.sampled_from([math.nan, math.inf, -math.inf, 0.0, -0.0, 1e38, -1e38, 3.4e38, 1e-45]),
-                          st.floats(width=32, allow_nan=True, allow_infinity=True))
-TARGET_SYS = st.sampled_from([0, OUR_SYS, 2, 255])
-TARGET_COMP = st.sampled_from([0, OUR_COMP, 1, 255])
-COMMANDS = st.one_of(st.sampled_from([510, 511, 512, 241, 42424, 42425, 42426, 0, 65535, 246, 400]),
-                     st.integers(0, 65535))
-PARAM_IDS = st.one_of(st.sampled_from([b"SR_ATTITUDE", b"SR_VISION_POS", b"MNT_ROLL_DEG", b"MNT_PITCH_DEG",
-                                       b"DECL_MANUAL", b"DECL_DEG", b"Z" * 16, b"SR_ATTITUDEXXXXX", b""]),
-                      st.binary(min_size=0, max_size=16))
-
-
-@st.composite
-def hostile_messages(draw):
-    kind = draw(st.sampled_from(["command_long", "command_int", "param_set", "param_read", "param_list",
-                                 "timesync", "heartbeat", "global_position_int", "gps_raw_int"]))
-    s = mavlink  # message constructors
-    if kind == "command_long":
-        return s.MAVLink_command_long_message(draw(TARGET_SYS), draw(TARGET_COMP), draw(COMMANDS),
-                                              draw(st.integers(0, 255)), *[draw(HOSTILE_FLOAT) for _ in range(7)])
-    if kind == "command_int":
-        return s.MAVLink_command_int_message(draw(TARGET_SYS), draw(TARGET_COMP), draw(st.integers(0, 255)),
-                                             draw(COMMANDS), draw(st.integers(0, 255)), draw(st.integers(0, 255)),
-                                             *[draw(HOSTILE_FLOAT) for _ in range(4)],
-                                             draw(st.integers(-2**31, 2**31 - 1)),
-                                             draw(st.integers(-2**31, 2**31 - 1)), draw(HOSTILE_FLOAT))
-    if kind == "param_set":
-        return s.MAVLink_param_set_message(draw(TARGET_SYS), draw(TARGET_COMP), draw(PARAM_IDS), draw(HOSTILE_FLOAT),
-                                           draw(st.integers(0, 255)))
-    if kind == "param_read":
-        return s.MAVLink_param_request_read_message(draw(TARGET_SYS), draw(TARGET_COMP), draw(PARAM_IDS),
-                                                    draw(st.integers(-32768, 32767)))
-    if kind == "param_list":
-        return s.MAVLink_param_request_list_message(draw(TARGET_SYS), draw(TARGET_COMP))
-    if kind == "timesync":
-        return s.MAVLink_timesync_message(draw(st.integers(-2**63, 2**63 - 1)), draw(st.integers(-2**63, 2**63 - 1)))
-    if kind == "heartbeat":
-        return s.MAVLink_heartbeat_message(draw(st.integers(0, 255)), draw(st.integers(0, 255)),
-                                           draw(st.integers(0, 255)), draw(st.integers(0, 2**32 - 1)),
-                                           draw(st.integers(0, 255)), 3)
-    if kind == "global_position_int":
-        return s.MAVLink_global_position_int_message(draw(st.integers(0, 2**32 - 1)),
-                                                     *[draw(st.integers(-2**31, 2**31 - 1)) for _ in range(4)],
-                                                     *[draw(st.integers(-32768, 32767)) for _ in range(3)],
-                                                     draw(st.integers(0, 65535)))
-    return s.MAVLink_gps_raw_int_message(draw(st.integers(0, 2**64 - 1)), draw(st.integers(0, 255)),
-                                         *[draw(st.integers(-2**31, 2**31 - 1)) for _ in range(3)],
-                                         *[draw(st.integers(0, 65535)) for _ in range(4)],
-                                         draw(st.integers(0, 255)))
-
-
-@FUZZ
-@given(hostile_messages(), st.sampled_from([(255, 190), (1, 1), (7, 1), (1, 200)]))
-def test_hostile_field_values_are_handled(rig, msg, src):
-    rig.sender.srcSystem, rig.sender.srcComponent = src
-    try:
-        data = msg.pack(rig.sender)
-    finally:
-        rig.sender.srcSystem, rig.sender.srcComponent = 255, 190
-    feed(rig, data)
+def still_answers(rig) -> None:
     drain(rig)
-    check_invariants(rig)
-    # the autopilot state never takes a non-finite position
-    ap = rig.service.autopilot
-    for v in (ap.lat_deg, ap.lon_deg):
-        assert v is None or math.isfinite(v)
+    s = mavlink.MAVLink(None, srcSystem=GCS_SYS, srcComponent=GCS_COMP)
+    feed(rig, s.param_request_read_encode(OUR_SYS, OUR_COMP, b"", 0).pack(s))
+    got = [m for m in drain(rig) if m.get_type() == "PARAM_VALUE"]
+    assert got and got[0].param_index == 0
 
 
-def test_still_answers_after_the_hostile_examples(rig):
+def test_still_answers_after_the_hostile_examples(rig, signed_rig):
     still_answers(rig)
-    check_invariants(rig)
+    still_answers(signed_rig)
+    assert not rig.records.bad and not signed_rig.records.bad
 
 
 def test_flood_of_commands_and_parameter_requests_is_answered(rig):
     """2000 GET_MESSAGE_INTERVALs and 2000 PARAM_REQUEST_READs back to back: each one answered."""
     drain(rig)
     acks = values = 0
-    s = rig.sender
+    s = mavlink.MAVLink(None, srcSystem=GCS_SYS, srcComponent=GCS_COMP)
     n_params = len(rig.service.params)
     for i in range(2000):
         feed(rig, s.command_long_encode(OUR_SYS, OUR_COMP, 510, i % 2, 30, 0, 0, 0, 0, 0, 0).pack(s))
@@ -242,17 +545,4 @@ def test_flood_of_commands_and_parameter_requests_is_answered(rig):
     acks += sum(1 for m in got if m.get_type() == "COMMAND_ACK")
     values += sum(1 for m in got if m.get_type() == "PARAM_VALUE")
     assert acks == 2000 and values == 2000
-    check_invariants(rig)
-
-
-def test_sixteen_char_unterminated_param_id_round_trips(rig):
-    """A 16-character name fills param_id with no NUL: it must be read as 16 characters, not overrun."""
-    from ahrsd.daemon.params import decode_param_id
-
-    assert decode_param_id(b"ABCDEFGHIJKLMNOP") == "ABCDEFGHIJKLMNOP"
-    drain(rig)
-    before = rig.service.params.rejected_writes
-    feed(rig, rig.sender.param_set_encode(OUR_SYS, OUR_COMP, b"ABCDEFGHIJKLMNOP", 1.0, 9).pack(rig.sender))
-    texts = [m.text for m in drain(rig) if m.get_type() == "STATUSTEXT"]
-    assert any("ABCDEFGHIJKLMNOP" in t for t in texts)
-    assert rig.service.params.rejected_writes == before + 1
+    check_ranges(rig)

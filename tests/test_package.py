@@ -12,7 +12,7 @@ from ahrsd.core.sample import ImuSample, SampleFlags, make_sample
 from ahrsd.core.wmm import earth_field
 
 
-SUBCOMMANDS = {"run", "record", "replay", "calibrate", "magcal"}
+SUBCOMMANDS = {"run", "record", "replay", "calibrate", "magcal", "log"}
 
 
 def _ahrsd(*args):

@@ -9,12 +9,16 @@ warnings when state cannot persist, and the last good calibration kept in force 
 from __future__ import annotations
 
 import dataclasses
+import datetime
 import errno
 import json
+import math
+import tomllib
+from collections import Counter
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ahrsd.calibration.models import Calibration, GyroModel
@@ -55,19 +59,152 @@ def test_unreadable_and_missing_config(tmp_path, capsys):
     assert code == 2 and "does not exist" in text
 
 
-@settings(derandomize=True, deadline=None, max_examples=200)
-@given(st.binary(max_size=300))
-def test_any_bytes_as_config_give_config_or_a_configerror(data):
-    import tempfile
-    from pathlib import Path
+# ------------------------------------------------------------------------------------------ valid TOML, bad values
+# Random bytes almost never parse as TOML, so they only reach the TOML parser. These documents are valid TOML
+# (built as dicts and written by the small emitter below: no TOML writer is a dependency) holding the defaults
+# of every section with ONE key changed to a hostile value — a wrong type, out of range, non-finite, an
+# unknown key or section — so every case reaches the validation of that key.
 
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "c.toml"
-        path.write_bytes(data)
-        try:
-            load_config(path)
-        except ConfigError:
-            pass
+
+def _toml_string(s: str) -> str:
+    out = []
+    for ch in s:
+        if ch in '"\\':
+            out.append("\\" + ch)
+        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
+            out.append(f"\\u{ord(ch):04X}")
+        else:
+            out.append(ch)
+    return '"' + "".join(out) + '"'
+
+
+def _toml_key(k: str) -> str:
+    return k if k and all(c.isascii() and (c.isalnum() or c in "_-") for c in k) else _toml_string(k)
+
+
+def toml_value(v) -> str:
+    """TOML 1.0 for bool, int, float (nan/inf included), str, date/datetime, list and inline table."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf") if math.isinf(v) else repr(v)
+    if isinstance(v, str):
+        return _toml_string(v)
+    if isinstance(v, (datetime.date, datetime.datetime)):
+        return v.isoformat()
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{_toml_key(k)} = {toml_value(x)}" for k, x in v.items()) + "}"
+    raise TypeError(type(v))
+
+
+def toml_document(doc: dict) -> str:
+    lines = []
+    for section, table in doc.items():
+        for t in table if isinstance(table, list) else [table]:
+            lines.append(f"[[{_toml_key(section)}]]" if isinstance(table, list) else f"[{_toml_key(section)}]")
+            lines += [f"{_toml_key(k)} = {toml_value(v)}" for k, v in t.items()]
+    return "\n".join(lines) + "\n"
+
+
+def default_document() -> dict:
+    """Every section with its defaults (None = unset is left out: TOML has no null)."""
+    from ahrsd.daemon.config import SECTIONS, Config
+    from ahrsd.daemon.magcal import MagCalSettings
+
+    cfg = Config()
+    doc = {}
+    for section in SECTIONS:
+        if section == "endpoint":
+            doc[section] = [{"url": cfg.endpoints[0].url}]
+            continue
+        value = MagCalSettings() if section == "magcal" else getattr(cfg, section)
+        doc[section] = {k: list(v) if isinstance(v, tuple) else v
+                        for k, v in dataclasses.asdict(value).items() if v is not None}
+    return doc
+
+
+def section_keys() -> dict:
+    from ahrsd.daemon.config import SECTIONS
+    from ahrsd.daemon.magcal import MagCalSettings
+
+    return {s: [f.name for f in dataclasses.fields(cls or MagCalSettings)] for s, cls in SECTIONS.items()}
+
+
+SCALARS = st.one_of(
+    st.text(st.characters(blacklist_categories=("Cs",)), max_size=12),
+    st.sampled_from(["", "sim", "spi", "replay", "udpout:1.2.3.4:99999", "/dev/", "mekf", "auto", "on"]),
+    st.sampled_from([0, 1, -1, 2**31, 2**32, 2**63 - 1, -2**63]), st.integers(-2**63, 2**63 - 1),
+    st.sampled_from([math.nan, math.inf, -math.inf, 1e308, -1e308, 0.0, -0.0, 1e-300, 0.5]), st.floats(),
+    st.booleans(), st.dates(), st.datetimes(),
+)
+HOSTILE_TOML_VALUES = st.one_of(SCALARS, st.lists(SCALARS, max_size=4),
+                                st.dictionaries(st.text(min_size=1, max_size=6), SCALARS, max_size=3))
+# keys whose (valid) value can make a rule about ANOTHER key of the section fail: the error names that key
+CROSS_KEY_RULES = {("sensor", "source"), ("location", "lat_deg"), ("location", "lon_deg")}
+CONFIG_CASES = Counter()
+
+
+@st.composite
+def hostile_documents(draw):
+    keys = section_keys()
+    doc = default_document()
+    how = draw(st.sampled_from(["value", "value", "value", "unknown_key", "unknown_section"]))
+    section = draw(st.sampled_from(sorted(keys)))
+    if how == "unknown_section":
+        name = draw(st.text(st.characters(min_codepoint=97, max_codepoint=122), min_size=1, max_size=10)
+                    .filter(lambda n: n not in keys))
+        doc[name] = {"x": 1}
+        return doc, how, name, None, None
+    key = draw(st.sampled_from(keys[section])) if how == "value" else draw(
+        st.text(st.characters(min_codepoint=97, max_codepoint=122), min_size=1, max_size=12)
+        .filter(lambda k: k not in keys[section]))
+    value = draw(HOSTILE_TOML_VALUES)
+    table = doc[section][0] if section == "endpoint" else doc[section]
+    table[key] = value
+    return doc, how, section, key, value
+
+
+@settings(derandomize=True, deadline=None, max_examples=400, database=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(hostile_documents())
+def test_valid_toml_with_a_hostile_value_gives_a_configerror_naming_the_key(tmp_path, case):
+    doc, how, section, key, value = case
+    path = tmp_path / "ahrsd.toml"
+    path.write_text(toml_document(doc), encoding="utf-8")
+    with open(path, "rb") as f:
+        assert tomllib.load(f) is not None          # the emitter wrote valid TOML: this reaches validation
+    try:
+        cfg = load_config(path)
+    except ConfigError as exc:
+        text = str(exc)
+        assert len(text.splitlines()) == 1 and str(path) in text, text
+        if how == "unknown_section":
+            assert f"[{section}]" in text, text
+        else:
+            prefix = "endpoint[0]" if section == "endpoint" else section
+            named = f"{prefix}.{key}" in text or ((section, key) in CROSS_KEY_RULES and f"{prefix}." in text)
+            assert named, text
+        CONFIG_CASES[(how, "ConfigError")] += 1
+        return
+    # accepted: then the value was a valid one, and what is in force is that value, finite
+    assert how == "value", f"{how} {section}.{key} accepted"
+    got = cfg.endpoints[0].url if section == "endpoint" else getattr(
+        cfg.magcal if section == "magcal" else getattr(cfg, section), key)
+    if isinstance(got, float):
+        assert math.isfinite(got), f"{section}.{key} = {got} accepted"
+    want = tuple(value) if isinstance(value, list) else value
+    assert got == want or (isinstance(want, int) and got == float(want)), (section, key, got, value)
+    CONFIG_CASES[(how, "accepted")] += 1
+
+
+def test_config_fuzz_summary():
+    print("\nconfig cases (mutation, outcome): " + ", ".join(f"{k}: {n}" for k, n in sorted(CONFIG_CASES.items())))
+    if CONFIG_CASES:
+        assert CONFIG_CASES[("value", "ConfigError")] > 100
 
 
 # ------------------------------------------------------------------------------------------ state

@@ -20,7 +20,7 @@ from ahrsd.daemon.config import SigningConfig
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.daemon.signing import ONE_MINUTE, initial_timestamp, read_timestamp
 from service_rig import gcs_socket, start_service, stop_service
-from test_fuzz_mavlink import drain, feed
+from support.mavlink_feed import drain, feed
 
 REPO = Path(__file__).resolve().parents[1]
 KEY = bytes(range(7, 39))                 # 32 bytes
@@ -92,7 +92,7 @@ def test_unsigned_and_wrongly_signed_writes_are_refused_and_counted(signed_rig):
         acks = [m for m in drain(r) if m.get_type() == "COMMAND_ACK" and m.command == cmd]
         assert acks and acks[-1].result == mavlink.MAV_RESULT_DENIED
     assert s.commands.counters.unsigned_refused == 2
-    assert s.schedule.rate_hz(mavlink.MAVLINK_MSG_ID_ATTITUDE) == before          # the interval did not change
+    assert s.endpoints[0].schedule.rate_hz(mavlink.MAVLINK_MSG_ID_ATTITUDE) == before          # the interval did not change
     status = s.sys_status_message(time.monotonic())
     assert status.errors_count1 == 4                                              # refused writes and commands
     # read-only requests stay accepted unsigned
@@ -166,3 +166,17 @@ def test_systemd_unit_exposure_score_and_device_access():
     assert "SupplementaryGroups=spi dialout" in text
     assert "PrivateDevices=yes" not in text and "PrivateNetwork=yes" not in text   # would cut SPI / UDP
     assert "IPAddressAllow=localhost" in text
+
+
+def test_a_forged_frame_with_a_future_timestamp_does_not_lock_out_the_genuine_sender(signed_rig):
+    """pymavlink records a frame's timestamp for its stream (link, system, component) before it checks the
+    signature: one forged frame with the GCS's ids and a timestamp an hour ahead made every genuine signed frame
+    of the GCS a "replay" for the next hour. The signature is now checked first."""
+    r = signed_rig
+    good = sender(KEY)
+    forger = sender(OTHER_KEY, timestamp=good.signing.timestamp + 60 * ONE_MINUTE)   # same ids and link id
+    feed(r, param_set(forger, b"SR_ATTITUDE", 5.0))
+    assert r.service.params.get("SR_ATTITUDE") != 5.0                       # forged: refused as unsigned
+    feed(r, param_set(good, b"SR_ATTITUDE", 20.0))
+    assert r.service.params.get("SR_ATTITUDE") == 20.0                      # the genuine sender still gets in
+    assert r.ep.conn.mav.signing.timestamp < forger.signing.timestamp       # and ours did not jump ahead

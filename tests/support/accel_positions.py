@@ -24,3 +24,36 @@ def up_vectors(n_random: int = 0) -> np.ndarray:
 def roll_pitch_for_up(u: np.ndarray) -> tuple[float, float]:
     """(roll, pitch) in degrees that make the accelerometer read +g along the body vector u."""
     return math.degrees(math.atan2(-u[1], -u[2])), math.degrees(math.asin(np.clip(u[0], -1, 1)))
+
+
+def position_holds(n_positions: int = 24, hold_s: float = 3.0, slew_s: float = 1.0):
+    """A multi-position bench recording's trajectory: `n_positions` orientations (faces, corners, edges of
+    `up_vectors`), each held still for `hold_s`, joined by smooth `slew_s` turns (what a person or a
+    positioner does). Returns (scenario, hold windows [(t_start, t_end)], up vectors)."""
+    from dataclasses import dataclass
+
+    from ahrsd.simulation.scenarios import EulerScenario
+
+    ups = up_vectors(max(0, n_positions - 26))[:n_positions]
+    angles = np.array([[30.0 * k, *roll_pitch_for_up(u)[::-1]] for k, u in enumerate(ups)])  # yaw, pitch, roll
+    for k in range(1, len(angles)):   # turn the short way round between positions
+        angles[k] = angles[k - 1] + (angles[k] - angles[k - 1] + 180.0) % 360.0 - 180.0
+    period = hold_s + slew_s
+    windows = [(k * period, k * period + hold_s) for k in range(len(ups))]
+
+    @dataclass
+    class PositionHolds(EulerScenario):
+        name = "position-holds"
+        description = f"{len(ups)} positions held {hold_s} s, {slew_s} s smooth slews between"
+
+        def euler_rad(self, t_s):
+            t = np.atleast_1d(np.asarray(t_s, dtype=float))
+            k = np.clip((t // period).astype(int), 0, len(angles) - 1)
+            into = t - k * period
+            nxt = np.minimum(k + 1, len(angles) - 1)
+            x = np.clip((into - hold_s) / slew_s, 0.0, 1.0)
+            blend = x * x * (3.0 - 2.0 * x)          # smoothstep: zero rate at both ends of a slew
+            a = angles[k] + blend[:, None] * (angles[nxt] - angles[k])
+            return tuple(np.radians(a[:, i]) for i in range(3))
+
+    return PositionHolds(), windows, ups

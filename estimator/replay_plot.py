@@ -1,0 +1,259 @@
+"""The figure of a replay (`ahrsd replay ... --plot FILE.png`): roll, pitch and heading with their 1σ bands, the
+estimator's flags as shaded spans, and, when the recording has truth, the error against it.
+
+`ReplayTrace` collects the replay's tables as they stream past (ATTITUDE_COLUMNS, estimator/replay.py) and keeps
+at most `max_rows` of them by decimation, OR-ing the flags over each group of rows dropped, so a flag that was
+up for one sample still shows. `plot_replay(trace, path, truth_q_wxyz=None)` draws it.
+
+GNSS: the flags panel has a row for GNSS_AIDED / GNSS_OUTAGE / GNSS_REJECTED whenever they occur (the `ins`
+estimator sets them). `ReplayTrace.gnss` is the hook for GNSS columns of the replay (`gnss_*`, e.g. the fix type
+or the horizontal accuracy, one array per name) once replays carry them: each becomes a line in the GNSS
+panel, which is drawn only when there is something in it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ahrsd.core.angles import wrap_pi
+from ahrsd.core.estimate import EstimateFlags
+from ahrsd.core.plotting import pyplot
+
+from .replay import ATTITUDE_COLUMNS
+from .rotations import quat_to_euler
+
+_COL = {name: i for i, name in enumerate(ATTITUDE_COLUMNS)}
+_KEPT = ("t_s", "roll_deg", "pitch_deg", "yaw_deg", "heading_true_deg", "sigma_roll_deg", "sigma_pitch_deg",
+         "sigma_yaw_deg", "qw", "qx", "qy", "qz", "flags")
+_GNSS_FLAGS = EstimateFlags.GNSS_AIDED | EstimateFlags.GNSS_OUTAGE | EstimateFlags.GNSS_REJECTED
+# flags panel rows, top to bottom, with a colour each (the GNSS ones last, the hook for the aided estimator)
+_FLAG_ROWS = (
+    (EstimateFlags.INITIALISING, "initialising", "tab:gray"),
+    (EstimateFlags.AT_REST, "at rest", "tab:green"),
+    (EstimateFlags.ACCEL_REJECTED, "accel rejected", "tab:orange"),
+    (EstimateFlags.MAG_REJECTED, "mag rejected", "tab:red"),
+    (EstimateFlags.MAG_UNAVAILABLE, "mag unavailable", "tab:purple"),
+    (EstimateFlags.LARGE_DT | EstimateFlags.REINITIALISED, "time gap / reinit", "black"),
+    (EstimateFlags.GNSS_AIDED, "GNSS aided", "tab:blue"),
+    (EstimateFlags.GNSS_OUTAGE, "GNSS outage", "tab:brown"),
+    (EstimateFlags.GNSS_REJECTED, "GNSS rejected", "tab:pink"),
+)
+# flags shaded behind the angle panels: the ones that say "do not trust this stretch as much"
+_SHADED = ((EstimateFlags.INITIALISING, "tab:gray"), (EstimateFlags.MAG_REJECTED, "tab:red"),
+           (EstimateFlags.ACCEL_REJECTED, "tab:orange"), (EstimateFlags.MAG_UNAVAILABLE, "tab:purple"))
+
+
+class ReplayTrace:
+    """The replay output for a figure, at most `max_rows` rows (decimated as it grows)."""
+
+    def __init__(self, max_rows: int = 200_000):
+        self.max_rows = max_rows
+        self.stride = 1
+        self._chunks: list[np.ndarray] = []
+        self._rows = 0
+        self._pending: np.ndarray | None = None   # rows not yet a whole stride
+        self.true_north = False
+        self.gnss: dict[str, np.ndarray] = {}       # hook: gnss_* columns, once replays carry them
+
+    def add(self, table: np.ndarray) -> None:
+        """One table of replay output (ATTITUDE_COLUMNS)."""
+        kept = table[:, [_COL[c] for c in _KEPT]]
+        if self._pending is not None:
+            kept = np.vstack([self._pending, kept])
+            self._pending = None
+        self._append(kept)
+
+    def _append(self, rows: np.ndarray) -> None:
+        n_whole = len(rows) // self.stride * self.stride
+        if n_whole < len(rows):
+            self._pending = rows[n_whole:]
+        if n_whole:
+            self._chunks.append(_decimate(rows[:n_whole], self.stride))
+            self._rows += n_whole // self.stride
+        while self._rows > self.max_rows:   # halve what is kept, double the stride
+            kept = np.vstack(self._chunks)
+            pairs = len(kept) // 2 * 2
+            self._chunks = [_decimate(kept[:pairs], 2)] + ([kept[pairs:]] if pairs < len(kept) else [])
+            self._rows = sum(len(c) for c in self._chunks)
+            self.stride *= 2
+
+    def table(self) -> np.ndarray:
+        parts = list(self._chunks) + ([self._pending[:1]] if self._pending is not None else [])
+        return np.vstack(parts) if parts else np.empty((0, len(_KEPT)))
+
+
+def _decimate(rows: np.ndarray, stride: int) -> np.ndarray:
+    """Every `stride`-th row, with the flags OR-ed over the rows it stands for."""
+    if stride == 1:
+        return rows
+    out = rows[::stride].copy()
+    flags = rows[:, -1].astype(np.int64).reshape(-1, stride)
+    out[:, -1] = np.bitwise_or.reduce(flags, axis=1)
+    return out
+
+
+_FLAG_NAMES = {flag: name for flag, name, _ in _FLAG_ROWS}
+
+
+def _flag_rows(flags: np.ndarray, gnss_rows: bool) -> list[tuple]:
+    """The flags panel's rows: each flag raised somewhere, and the GNSS rows whenever GNSS is in play."""
+    return [r for r in _FLAG_ROWS if (flags & int(r[0])).any() or (gnss_rows and r[0] & _GNSS_FLAGS)]
+
+
+def _flag_row_count(flags: np.ndarray, gnss_rows: bool) -> int:
+    return max(len(_flag_rows(flags, gnss_rows)), 1)
+
+
+def _spans(t: np.ndarray, on: np.ndarray) -> list[tuple[float, float]]:
+    """(start, width) of each run of `on`."""
+    if not on.any():
+        return []
+    edges = np.flatnonzero(np.diff(np.r_[0, on.astype(np.int8), 0]))
+    step = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    return [(float(t[a]), float(t[min(b, len(t)) - 1] - t[a] + step)) for a, b in zip(edges[::2], edges[1::2])]
+
+
+def _break_wraps(t: np.ndarray, deg: np.ndarray, *more: np.ndarray, jump_deg: float = 180.0) -> list[np.ndarray]:
+    """t, deg (and `more` arrays alike) with NaN inserted where the heading wraps (360 → 0), so neither the line
+    nor its band crosses the panel."""
+    cut = np.flatnonzero(np.abs(np.diff(deg)) > jump_deg) + 1
+    return [np.insert(np.asarray(x, dtype=float), cut, np.nan) for x in (t, deg, *more)]
+
+
+def _robust_limits(values: list[np.ndarray], settled: np.ndarray, min_span: float = 1.0) -> tuple[float, float]:
+    """y limits holding the settled rows' values (0.5…99.5 percentiles, 10 % margin): a start-up transient or
+    the wide σ before the filter converged does not squash the rest of the trace."""
+    v = np.concatenate([x[settled] for x in values]) if settled.any() else np.concatenate(values)
+    v = v[np.isfinite(v)]
+    if not v.size:
+        return -1.0, 1.0
+    lo, hi = np.percentile(v, [0.5, 99.5])
+    mid, half = (lo + hi) / 2, max(hi - lo, min_span) / 2 * 1.1
+    return float(mid - half), float(mid + half)
+
+
+def truth_errors_deg(q_est_wxyz: np.ndarray, q_truth_wxyz: np.ndarray) -> np.ndarray:
+    """(n, 3) roll, pitch, heading error (estimate − truth, ZYX Euler, degrees; heading wrapped to ±180)."""
+    est = quat_to_euler(q_est_wxyz)
+    truth = quat_to_euler(q_truth_wxyz)
+    return np.degrees(wrap_pi(est - truth))
+
+
+def plot_replay(trace: ReplayTrace, path, truth_q_wxyz: np.ndarray | None = None, truth_t_s: np.ndarray | None = None,
+                title: str = "") -> None:
+    """The figure, to `path` (PNG). truth_q_wxyz (m, 4) at truth_t_s (m,): the recording's truth attitude
+    (body→NED, true north), interpolated to the kept rows by nearest sample."""
+    plt = pyplot()
+    tab = trace.table()
+    t = tab[:, 0] - (tab[0, 0] if len(tab) else 0.0)
+    roll, pitch, heading = tab[:, 1], tab[:, 2], tab[:, 4]
+    s_roll, s_pitch, s_yaw = tab[:, 5], tab[:, 6], tab[:, 7]
+    flags = tab[:, -1].astype(np.int64)
+    truth_err = truth_euler = None
+    if truth_q_wxyz is not None and len(tab):
+        idx = np.clip(np.searchsorted(truth_t_s, tab[:, 0]), 0, len(truth_t_s) - 1)
+        q_truth = truth_q_wxyz[idx]
+        ok = np.isfinite(tab[:, 8]) & np.all(np.isfinite(q_truth), axis=1)
+        truth_err = np.full((len(tab), 3), np.nan)
+        truth_err[ok] = truth_errors_deg(tab[ok, 8:12], q_truth[ok])
+        truth_euler = np.full((len(tab), 3), np.nan)
+        truth_euler[ok] = np.degrees(quat_to_euler(q_truth[ok]))
+    gnss_rows = bool(flags.any() and (flags & int(_GNSS_FLAGS)).any()) or bool(trace.gnss)
+    panels = ["roll", "pitch", "heading"] + (["error"] if truth_err is not None else []) + ["flags"] + \
+             (["gnss"] if trace.gnss else [])
+    heights = {"roll": 2, "pitch": 2, "heading": 2, "error": 2.2, "flags": 0.35 + 0.3 * _flag_row_count(flags, gnss_rows),
+               "gnss": 1.2}
+    fig, axes = plt.subplots(len(panels), 1, figsize=(13, 1.15 * sum(heights[p] for p in panels) + 0.8),
+                             sharex=True, gridspec_kw={"height_ratios": [heights[p] for p in panels]})
+    settled = (flags & int(EstimateFlags.INITIALISING)) == 0
+    ax = dict(zip(panels, axes))
+    north = "true north" if trace.true_north else "magnetic north (no --lat/--lon)"
+
+    def angle_panel(name, value, sigma, label, truth_col=None, wrap=False):
+        a = ax[name]
+        for flag, colour in _SHADED:
+            for start, width in _spans(t, (flags & int(flag)) != 0):
+                a.axvspan(start, start + width, color=colour, alpha=0.12, lw=0)
+        finite = value[np.isfinite(value) & settled]
+        # a heading that stays within a half turn is drawn on its own scale (continuous across north)
+        local = wrap and finite.size and np.ptp(np.unwrap(np.radians(finite))) < math.pi
+        if local:
+            centre = math.degrees(math.atan2(np.mean(np.sin(np.radians(finite))), np.mean(np.cos(np.radians(finite)))))
+            value = centre + (value - centre + 180.0) % 360.0 - 180.0
+            if truth_col is not None:
+                truth_col = centre + (truth_col - centre + 180.0) % 360.0 - 180.0
+            wrap = False
+        if wrap:
+            tb, vb, lo, hi = _break_wraps(t, value, value - sigma, value + sigma)
+            a.fill_between(tb, lo, hi, color="tab:blue", alpha=0.25, lw=0, label="±1σ")
+            a.plot(tb, vb, color="tab:blue", lw=1.0, label="estimate")
+            a.set_ylim(0, 360)
+            a.set_yticks([0, 90, 180, 270, 360])
+        else:
+            a.fill_between(t, value - sigma, value + sigma, color="tab:blue", alpha=0.25, lw=0, label="±1σ")
+            a.plot(t, value, color="tab:blue", lw=1.0, label="estimate")
+            shown = [value - sigma, value + sigma] + ([truth_col] if truth_col is not None else [])
+            a.set_ylim(*_robust_limits(shown, settled))
+        if truth_col is not None:
+            tv = truth_col % 360.0 if wrap else truth_col
+            a.plot(*(_break_wraps(t, tv) if wrap else (t, tv)), color="black", lw=0.8, ls="--", label="truth")
+        for flag, colour in _SHADED:   # name the shading once, in the first panel
+            if name == "roll" and (flags & int(flag)).any():
+                a.axvspan(np.nan, np.nan, color=colour, alpha=0.25, lw=0, label=_FLAG_NAMES[flag])
+        a.set_ylabel(label)
+        a.grid(alpha=0.3)
+        a.legend(loc="upper right", fontsize=8, ncol=7)
+
+    angle_panel("roll", roll, s_roll, "roll (°)", None if truth_euler is None else truth_euler[:, 0])
+    angle_panel("pitch", pitch, s_pitch, "pitch (°)", None if truth_euler is None else truth_euler[:, 1])
+    if trace.true_north:
+        angle_panel("heading", heading, s_yaw, "true heading (°)",
+                    None if truth_euler is None else truth_euler[:, 2], wrap=True)
+    else:
+        angle_panel("heading", tab[:, 3] % 360.0, s_yaw, "magnetic heading (°)",
+                    None if truth_euler is None else truth_euler[:, 2], wrap=True)
+    if truth_err is not None:
+        a = ax["error"]
+        for k, (name, colour, sigma) in enumerate((("roll", "tab:blue", s_roll), ("pitch", "tab:green", s_pitch),
+                                                    ("heading", "tab:red", s_yaw))):
+            e = truth_err[:, k]
+            rms = math.sqrt(np.nanmean(e * e)) if np.isfinite(e).any() else math.nan
+            a.plot(t, e, color=colour, lw=0.9, label=f"{name} (RMS {rms:.2f}°)")
+            a.fill_between(t, -sigma, sigma, color=colour, alpha=0.10, lw=0)
+        finite = truth_err[np.isfinite(truth_err)]
+        if finite.size:   # the bulk, not a start-up transient, sets the scale
+            span = max(float(np.percentile(np.abs(finite), 99)) * 1.3, 0.5)
+            a.set_ylim(-span, span)
+        a.axhline(0, color="black", lw=0.5)
+        a.set_ylabel("error vs truth (°)")
+        a.grid(alpha=0.3)
+        a.legend(loc="upper right", fontsize=8, ncol=3)
+        if not trace.true_north:
+            a.set_title("heading error includes the declination: give --lat/--lon for true north", fontsize=8,
+                        loc="left")
+    a = ax["flags"]
+    rows = _flag_rows(flags, gnss_rows)
+    for k, (flag, name, colour) in enumerate(rows):
+        a.broken_barh(_spans(t, (flags & int(flag)) != 0), (k - 0.4, 0.8), color=colour)
+    a.set_yticks(range(len(rows)), [name for _, name, _ in rows], fontsize=8)
+    a.set_ylim(-0.6, max(len(rows), 1) - 0.4)
+    a.invert_yaxis()
+    a.grid(axis="x", alpha=0.3)
+    if not rows:
+        a.text(0.5, 0.5, "no flags raised", transform=a.transAxes, ha="center", va="center", fontsize=9)
+        a.set_yticks([])
+    a.set_ylabel("flags")
+    if trace.gnss:
+        a = ax["gnss"]
+        for name, values in trace.gnss.items():
+            a.plot(t[: len(values)], values[: len(t)], lw=0.9, label=name)
+        a.set_ylabel("GNSS")
+        a.grid(alpha=0.3)
+        a.legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("time since the first sample (s)")
+    fig.suptitle(title or f"replay (heading to {north})", fontsize=11)
+    fig.tight_layout(rect=(0, 0, 1, 0.98))
+    fig.savefig(path, dpi=90)
+    plt.close(fig)

@@ -1,0 +1,92 @@
+"""Progress bars on long offline work: shown (tqdm, with the rate and the time left) when stderr is a real
+terminal — a tmux pane here — and absent in a pipe, with --quiet and with --json."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import time
+import uuid
+
+import pytest
+
+from ahrsd.core.sample import make_sample
+from ahrsd.drivers.recording import RecordingWriter
+from ahrsd.simulation import simulate
+
+BAR_RATE = "sample/s"    # tqdm's rate field for unit="sample"
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    path = tmp_path_factory.mktemp("progress") / "tumble.csv"
+    block = simulate("tumble", 120, rate_hz=100.0, seed=1)
+    with RecordingWriter(path) as w:
+        for i in range(len(block)):
+            w.write(make_sample(block.t_s[i], block.gyro_rad_s[i], block.accel_m_s2[i], block.mag_ut[i]))
+    return path
+
+
+def in_tmux(command: list[str], timeout_s: float = 120.0) -> str:
+    """Run `command` in a detached tmux pane (a real terminal) and return what the pane shows when it is done."""
+    if shutil.which("tmux") is None:
+        pytest.skip("tmux is not installed")
+    session = f"ahrsd-test-{uuid.uuid4().hex[:8]}"
+    line = " ".join(f"'{c}'" for c in command) + "; echo __DONE__; sleep 600"
+    subprocess.run(["tmux", "new-session", "-d", "-s", session, "-x", "200", "-y", "50", line], check=True)
+    try:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            shown = subprocess.run(["tmux", "capture-pane", "-p", "-t", session], capture_output=True,
+                                   text=True).stdout
+            if "__DONE__" in shown:
+                return shown
+            time.sleep(0.2)
+        raise AssertionError(f"the command did not finish in {timeout_s} s: {shown}")
+    finally:
+        subprocess.run(["tmux", "kill-session", "-t", session], capture_output=True)
+
+
+def ahrsd(*args) -> list[str]:
+    return [sys.executable, "-m", "ahrsd.cli", *map(str, args)]
+
+
+def test_replay_shows_a_bar_with_rate_and_time_left_in_a_terminal(recording, tmp_path):
+    shown = in_tmux(ahrsd("replay", recording, "--output", tmp_path / "out.csv"))
+    bar = [line for line in shown.splitlines() if line.startswith("replay")]
+    assert bar and BAR_RATE in bar[-1] and "100%" in bar[-1], shown
+    assert "<00:00" in bar[-1]          # the time-left field: elapsed<remaining
+    assert "ahrsd replay: 12000 samples" in shown
+
+
+def test_replay_in_a_terminal_with_quiet_has_no_bar(recording, tmp_path):
+    shown = in_tmux(ahrsd("replay", recording, "--output", tmp_path / "out.csv", "--quiet"))
+    assert BAR_RATE not in shown
+
+
+def test_calibrate_mag_shows_a_bar_while_reading_and_none_with_json(recording, tmp_path):
+    args = ("calibrate", "mag", recording, "--lat", "36.42", "--lon", "54.98", "--dry-run", "--state-dir", tmp_path)
+    shown = in_tmux(ahrsd(*args))
+    assert any(line.startswith("reading tumble.csv") and BAR_RATE in line for line in shown.splitlines()), shown
+    assert BAR_RATE not in in_tmux(ahrsd(*args, "--json"))
+
+
+def test_no_bar_in_a_pipe(recording, tmp_path):
+    proc = subprocess.run(ahrsd("replay", recording, "--output", tmp_path / "out.csv"), capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0
+    assert BAR_RATE not in proc.stderr and "\r" not in proc.stderr
+    assert proc.stderr.startswith("ahrsd replay: 12000 samples")
+
+
+def test_log_cut_shows_a_bar_in_a_terminal(tmp_path):
+    from ahrsd.drivers.sample_log import SampleLog
+
+    with SampleLog(tmp_path / "logs") as log:
+        for k in range(20_000):
+            log.put(make_sample(k * 0.01, [0, 0, 0], [0, 0, -9.8], [20, 0, 40]))
+    shown = in_tmux(ahrsd("log", "cut", "--dir", tmp_path / "logs", "--from", 10, "--to", 150,
+                          "--output", tmp_path / "cut.csv"))
+    bar = [line for line in shown.splitlines() if line.startswith("log cut")]
+    assert bar and BAR_RATE in bar[-1] and "100%" in bar[-1] and "20.0k/20.0k" in bar[-1], shown
