@@ -45,13 +45,20 @@ def _errors(run, q):
 @pytest.mark.parametrize("vehicle", ["boat", "car", "plane"])
 def test_ins_meets_the_targets_where_a_levelling_filter_leans(vehicle):
     """ins with 5 Hz GNSS: tilt RMS ≤ 0.3°, true-heading RMS ≤ 0.5° (measured here 0.10–0.19° and 0.16–0.25°);
-    mekf on the same samples leans into the accelerations (boat 2°, car 9°, plane 12° tilt RMS)."""
+    an accelerometer-levelled filter on the same samples leans into the accelerations."""
     run = _run(vehicle)
     tilt, heading = _errors(run, run_ins(run))
     assert _rms(tilt) <= 0.3 and _rms(heading) <= 0.5, (_rms(tilt), _rms(heading))
     assert tilt.max() < 1.0 and np.abs(heading).max() < 1.5, (tilt.max(), np.abs(heading).max())
+    # a plain accelerometer-levelled filter (mekf without its acceleration-adaptive tilt noise) leans by
+    # 2° / 9° / 12°; mekf as shipped leans less (2.1° / 0.5–0.7° / 0.9–1.2°) but still more than twice as much as ins
+    from ahrsd.estimator.mekf import Mekf
+
+    q_plain, _ = Mekf(acc_adaptive_gain=0.0).run_batch(run.t_s, run.gyro_rad_s, run.accel_m_s2, run.mag_ut, None)
+    tilt_plain, _ = _errors(run, q_plain)
+    assert _rms(tilt_plain) > {"boat": 1.5, "car": 5.0, "plane": 8.0}[vehicle], _rms(tilt_plain)
     tilt_mekf, _ = _errors(run, run_mekf(run))
-    assert _rms(tilt_mekf) > {"boat": 1.5, "car": 5.0, "plane": 8.0}[vehicle], _rms(tilt_mekf)
+    assert _rms(tilt) < _rms(tilt_mekf) / 2.0, (_rms(tilt), _rms(tilt_mekf))
 
 
 @pytest.mark.parametrize("vehicle", ["boat", "car", "plane"])
