@@ -3,6 +3,7 @@
     .venv/bin/python bench/accuracy.py                 # simulated scenarios + all 15 BROAD trials
     .venv/bin/python bench/accuracy.py --quick         # short simulated runs, 3 BROAD trials
     .venv/bin/python bench/accuracy.py --trials 06 32 --no-sim --methods mekf vqf
+    .venv/bin/python bench/accuracy.py --vehicles [--quick]  # only (c): ins with GNSS on boat, car, plane
     .venv/bin/python bench/accuracy.py --cv --no-sim --no-broad   # cross-validated tuning only (bench/cv.py)
 
 (a) Simulated ADIS16405 (ahrsd.simulation, datasheet noise, 819.2 SPS) read through the byte-level chip
@@ -16,6 +17,8 @@
     is added to every method alike).
 (b) BROAD (Laidig et al., Data 6(7) 2021, doi:10.3390/data6070072, CC BY 4.0): BROAD's own metric (total,
     heading, inclination RMSE in movement phases), per trial and method, means per group, mekf/VQF ratio.
+(c) Vehicles (bench/vehicle_accuracy.py): `ins` with simulated GNSS beside mekf and VQF on boat, car and plane
+    at two sites, tilt and true-heading RMS, and a 30 s GNSS outage in a turn.
 
 Peers (benchmark-only packages, never imported by ahrsd itself): `vqf` 9D defaults (causal) and
 `offlineVQF` (acausal), `imufusion` defaults (x-io Fusion), `ahrs` Madgwick (β = 0.12, BROAD's tuned value)
@@ -326,6 +329,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-sim", action="store_true", help="skip the simulated scenarios")
     ap.add_argument("--no-broad", action="store_true", help="skip BROAD")
     ap.add_argument("--max-samples", type=int, default=None, help="truncate each BROAD trial")
+    ap.add_argument("--vehicles", action="store_true", help="only the vehicle section (c)")
+    ap.add_argument("--no-vehicles", action="store_true", help="skip the vehicle section (c)")
+    ap.add_argument("--vehicle-seeds", type=int, default=3, help="seeds per vehicle and site in (c)")
+    ap.add_argument("--vehicle-scenarios", nargs="*", default=None, metavar="SCENARIO",
+                    help="moving scenarios for (c) (default: boat car plane)")
+    ap.add_argument("--site", action="append", default=None, metavar="LAT,LON[,ALT_M[,YYYY-MM-DD]]",
+                    help="site(s) for (c) instead of the default and 60°N (repeatable)")
     ap.add_argument("--cv", action="store_true",
                     help="cross-validated tuning of mekf on BROAD (leave-one-trial-out and leave-one-pair-out "
                          "over bench/cv.py's candidate grid, beside VQF)")
@@ -337,10 +347,15 @@ def main(argv: list[str] | None = None) -> int:
     print("# ahrsd attitude accuracy benchmark")
     for name, note in notes.items():
         print(f"note: {name} {note}")
-    if not args.no_sim:
+    if not args.no_sim and not args.vehicles:
         sim_section(methods, args.quick)
-    if not args.no_broad:
+    if not args.no_broad and not args.vehicles:
         broad_section(methods, args.trials, args.quick, args.max_samples)
+    if not args.no_vehicles:
+        from bench.vehicle_accuracy import VEHICLE_SCENARIOS, vehicle_section
+
+        sites = {f"site{i + 1}": s for i, s in enumerate(args.site)} if args.site else None
+        vehicle_section(args.quick, args.vehicle_seeds, sites, args.vehicle_scenarios or VEHICLE_SCENARIOS)
     if args.cv:
         from bench.cv import print_report, run_grid
 

@@ -2,7 +2,7 @@
 
 Seed 004 §7 (NED mechanisation with Earth rate, transport rate and normal gravity, `ins_mechanisation.py`) and
 §10 (loose coupling, the 15 error states of §10.2 — attitude, velocity, position, gyro bias, accelerometer
-bias — plus the three gyro scale factors, closed-loop feedback). GNSS velocity and position are fused at their time of validity against a short history of the
+bias — plus the gyro's three scale factors and six misalignments, closed-loop feedback). GNSS velocity and position are fused at their time of validity against a short history of the
 state (fixes arrive 50–200 ms late: the delayed-measurement idea of ArduPilot EKF3's fusion time horizon),
 through the antenna lever arm, weighted by the accuracies the receiver reports, behind a χ² innovation gate.
 The magnetometer corrects heading with mekf's disturbance rejection (`mag_heading.py`, the same code). Before
@@ -65,7 +65,14 @@ class InsParams:
     removes the three scale states (the 15-state filter)."""
     gyro_scale_walk_sqrt_s: float = 1e-5
     """Random walk of the scale-factor errors, 1/√s."""
+    init_gyro_misalignment_sigma_rad: float = 0.2 * _DEG
+    """1σ of each off-diagonal element of the gyro's misalignment matrix at start-up (a gyro's axes lean by a
+    tenth of a degree or so towards each other and towards the accelerometer's: the simulated ADIS16405 has
+    0.1°); 0 removes the six misalignment states."""
+    gyro_misalignment_walk_rad_sqrt_s: float = 1e-5
+    """Random walk of the misalignment errors, rad/√s."""
     gyro_scale_clip: float = 0.05
+    """Limit of each scale-factor and misalignment estimate (fraction, rad)."""
     init_accel_bias_sigma_m_s2: float = 0.1
     """1σ of the accelerometer bias at start-up, m/s² (10 mg)."""
     gyro_bias_clip_rad_s: float = 2.0 * _DEG
@@ -155,6 +162,8 @@ class InsParams:
         p[core.P_GYRO_BIAS_WALK] = self.gyro_bias_walk_rad_s_sqrt_s
         p[core.P_GYRO_SCALE_WALK] = self.gyro_scale_walk_sqrt_s if self.init_gyro_scale_sigma > 0 else 0.0
         p[core.P_GYRO_SCALE_CLIP] = self.gyro_scale_clip
+        p[core.P_GYRO_MIS_WALK] = (self.gyro_misalignment_walk_rad_sqrt_s
+                                   if self.init_gyro_misalignment_sigma_rad > 0 else 0.0)
         p[core.P_ACC_NOISE_DENS] = self.accel_noise_m_s2_sqrt_hz
         p[core.P_ACC_BIAS_WALK] = self.accel_bias_walk_m_s2_sqrt_s
         p[core.P_GYRO_BIAS_CLIP] = self.gyro_bias_clip_rad_s
@@ -237,7 +246,8 @@ class Ins:
     `update(sample) -> AttitudeEstimate` with `nav=NavState` once a fix has set velocity and position;
     `update_gnss(fix) -> int` (core.R_* bits of what happened; never raises on bad input, counts it in
     `gnss_counters`); `reset()`, `set_declination(rad)`, `relearn_field_reference()`; read-only `covariance`
-    (18×18), `gyro_bias_rad_s`, `gyro_scale`, `accel_bias_m_s2`, `last_nis` (velocity, position).
+    (24×24), `gyro_bias_rad_s`, `gyro_scale`, `gyro_misalignment_rad`, `accel_bias_m_s2`, `last_nis` (velocity,
+    position).
     """
 
     name = "ins"
@@ -280,7 +290,8 @@ class Ins:
 
     @property
     def covariance(self) -> np.ndarray:
-        """Error covariance 18×18 [δθ NED (rad), δv NED (m/s), δp NED (m), δb_g (rad/s), δb_a (m/s²), δs_g]."""
+        """Error covariance 24×24 [δθ NED (rad), δv NED (m/s), δp NED (m), δb_g (rad/s), δb_a (m/s²), δs_g,
+        δm_g (xy, xz, yx, yz, zx, zy, rad)]."""
         return self._P.copy()
 
     @property
@@ -291,6 +302,14 @@ class Ins:
     def gyro_scale(self) -> np.ndarray:
         """Estimated gyro scale-factor errors per axis (ω_meas = (1 + s) ω + b), fraction."""
         return self._x[core.X_SG : core.X_SG + 3].copy()
+
+    @property
+    def gyro_misalignment_rad(self) -> np.ndarray:
+        """Estimated gyro misalignment M (3×3, zero diagonal; ω_meas = (I + diag(s) + M) ω + b), rad."""
+        m = np.zeros((3, 3))
+        for n in range(6):
+            m[core.MIS_ROW[n], core.MIS_COL[n]] = self._x[core.X_MG + n]
+        return m
 
     @property
     def accel_bias_m_s2(self) -> np.ndarray:
@@ -448,12 +467,14 @@ class Ins:
         keep_bg = x[core.X_BG : core.X_BG + 3].copy() if self._reinit_pending else np.zeros(3)
         keep_ba = x[core.X_BA : core.X_BA + 3].copy() if self._reinit_pending else np.zeros(3)
         keep_sg = x[core.X_SG : core.X_SG + 3].copy() if self._reinit_pending else np.zeros(3)
+        keep_mg = x[core.X_MG : core.X_MG + 6].copy() if self._reinit_pending else np.zeros(6)
         keep_mag = x[core.X_MAG : core.X_MAG + mag.MS_SIZE].copy() if self._reinit_pending else None
         x[:] = 0.0
         x[core.X_Q : core.X_Q + 4] = q0
         x[core.X_BG : core.X_BG + 3] = keep_bg
         x[core.X_BA : core.X_BA + 3] = keep_ba
         x[core.X_SG : core.X_SG + 3] = keep_sg
+        x[core.X_MG : core.X_MG + 6] = keep_mg
         x[core.X_T_LAST] = t_s
         x[core.X_GYR_LAST : core.X_GYR_LAST + 3] = g
         x[core.X_ACC_LAST : core.X_ACC_LAST + 3] = a
@@ -490,6 +511,8 @@ class Ins:
             P[core.E_BG + i, core.E_BG + i] = p.init_gyro_bias_sigma_rad_s ** 2
             P[core.E_BA + i, core.E_BA + i] = p.init_accel_bias_sigma_m_s2 ** 2
             P[core.E_SG + i, core.E_SG + i] = p.init_gyro_scale_sigma ** 2
+        for i in range(6):
+            P[core.E_MG + i, core.E_MG + i] = p.init_gyro_misalignment_sigma_rad ** 2
         self._queue.clear()
         self._initialised = True
         core.fill_outputs(x, P, self._par, g[0] - keep_bg[0], g[1] - keep_bg[1], g[2] - keep_bg[2], self._out)

@@ -1,24 +1,27 @@
-"""The `ins` estimator's compiled kernels (numba): NED strapdown mechanisation, 18-state error covariance,
+"""The `ins` estimator's compiled kernels (numba): NED strapdown mechanisation, 24-state error covariance,
 accelerometer levelling while unaided, magnetometer heading, and the delayed GNSS velocity/position fusion.
 
 `ins.py` owns the parameters, initialisation, input checks and the Estimator interface; this module is the
-arithmetic. Arrays: `x` (nominal state and bookkeeping, layout `X_*`), `P` (18×18 error covariance), `hist`
+arithmetic. Arrays: `x` (nominal state and bookkeeping, layout `X_*`), `P` (24×24 error covariance), `hist`
 (ring buffer of past nominal states for fusing a fix at its time of validity, layout `H_*`), `par`
 (parameters, layout `P_*`), `out` (per-step outputs, layout `O_*`).
 
 Nominal state: attitude q (body FRD → true-north NED, Hamilton scalar first), NED velocity v, WGS-84 geodetic
-position (L, λ, h), gyro bias b_g, accelerometer bias b_a (body frame).
-Error state δx (15, true − estimate), in this order:
+position (L, λ, h), gyro bias b_g, accelerometer bias b_a (body frame), gyro scale factors and misalignment.
+Error state δx (24, true − estimate), in this order:
   δθ (0–2)  attitude error in NED, C_true = (I + [δθ×]) C_est; tilt δθ_N, δθ_E, heading δθ_D
   δv (3–5)  velocity error, NED, m/s
   δp (6–8)  position error, NED, m
   δb_g (9–11) gyro bias error, rad/s;  δb_a (12–14) accelerometer bias error, m/s²
-  δs_g (15–17) gyro scale-factor error (ω_meas = (1 + s) ω + b), fraction
+  δs_g (15–17) gyro scale-factor error (ω_meas = (I + diag(s) + M) ω + b), fraction
+  δm_g (18–23) gyro misalignment M's off-diagonal elements xy, xz, yx, yz, zx, zy (ω_j picks up m_jk ω_k), rad
 Error dynamics (seed 004 §10.2, Groves ch. 14; the ω_in^n × δθ, Coriolis and gravity-gradient couplings are
 below the ADIS16405's noise over the filter's time constants and are left out):
-  δθ̇ = −C δb_g − C diag(ω) δs_g + w_g,  δv̇ = −[f^n×] δθ − C δb_a + w_a,  δṗ = δv,  biases and scale
-  factors random walks. An uncalibrated 0.3 % gyro scale error turns into 0.07 °/s of attitude drift in a
-  13 °/s turn, the largest error left on a vehicle; with these states the GNSS learns it.
+  δθ̇ = −C δb_g − C diag(ω) δs_g − C W(ω) δm_g + w_g,  δv̇ = −[f^n×] δθ − C δb_a + w_a,  δṗ = δv,  biases,
+  scale factors and misalignments random walks (W(ω): the 3×6 map of δm_g into δω). An uncalibrated 0.3 %
+  gyro scale error turns into 0.07 °/s of attitude drift in a 13 °/s turn, a 0.1° misalignment of the x or
+  y gyro towards z into 0.02 °/s of tilt drift — in a long turn a lean the GNSS must keep correcting; with
+  these states the GNSS learns both (the turn itself makes them observable).
 The covariance is propagated every `cov_period_s` (not every sample) with the transition matrix of the whole
 interval built from the summed increments ∫C dt and ΔV^n = ∫f^n dt (first order in the interval, plus the
 ½T terms of the position rows); the magnetometer and the accelerometer levelling update at that rate too.
@@ -53,8 +56,11 @@ from .mekf_core import (
     step_dt,
 )
 
-N_ERR = 18
-E_TH, E_V, E_P, E_BG, E_BA, E_SG = 0, 3, 6, 9, 12, 15
+N_ERR = 24
+E_TH, E_V, E_P, E_BG, E_BA, E_SG, E_MG = 0, 3, 6, 9, 12, 15, 18
+# (row j, column k) of each misalignment error component E_MG + n: δω_j = δm_jk ω_k
+MIS_ROW = (0, 0, 1, 1, 2, 2)
+MIS_COL = (1, 2, 0, 2, 0, 1)
 
 # ----------------------------------------------------------------------------------- nominal state x
 X_Q = 0            # 4 attitude body → true NED
@@ -85,9 +91,10 @@ X_WAS_AIDED = 51   # 1.0 once a fix has been fused (GNSS_OUTAGE only after that)
 X_LAST_FIX_T = 52  # time of validity of the last fix offered (accepted or not), s
 X_NIS_V = 53       # normalised innovation squared of the last velocity fusion (diagnostic)
 X_NIS_P = 54       # ... position
-X_SG = 56          # 3 gyro scale-factor errors (ω_meas = (1 + s) ω + b), fraction
-X_COV_CW = 59      # 9: ∫ C diag(ω) dt since the last covariance propagation (row-major), rad
-X_MAG = 68         # mag_heading state block (MS_SIZE)
+X_SG = 56          # 3 gyro scale-factor errors (ω_meas = (I + diag(s) + M) ω + b), fraction
+X_MG = 59          # 6 gyro misalignment M: xy, xz, yx, yz, zx, zy (MIS_ROW, MIS_COL), rad
+X_COV_CWW = 68     # 27: ∫ C_ij ω_k dt since the last covariance propagation (index 9 i + 3 j + k), rad
+X_MAG = 95         # mag_heading state block (MS_SIZE)
 X_SIZE = X_MAG + mag.MS_SIZE
 
 # ----------------------------------------------------------------------------------- history ring buffer
@@ -134,8 +141,9 @@ P_NAV_DROP = 44         # without a fused fix for this long, velocity and positi
 P_SPHERE = 45           # 1.0: spherical Earth (radius R0, seed 004) instead of the WGS-84 ellipsoid's radii
 P_MAG = 32              # mag_heading parameter block (MP_SIZE): 32–43
 P_GYRO_SCALE_WALK = 46  # gyro scale-factor random walk, 1/√s
-P_GYRO_SCALE_CLIP = 47  # |s| limit per axis
-P_SIZE = 48
+P_GYRO_SCALE_CLIP = 47  # |s| and |m| limit per element
+P_GYRO_MIS_WALK = 48    # gyro misalignment random walk, rad/√s
+P_SIZE = 49
 assert P_MAG + mag.MP_SIZE <= P_NAV_DROP < P_SIZE
 
 # ----------------------------------------------------------------------------------- outputs
@@ -177,6 +185,7 @@ M_HEADING = 0b100
 M_GYRO_BIAS = 0b111 << E_BG
 M_ACC_BIAS = 0b111 << E_BA
 M_GYRO_SCALE = 0b111 << E_SG
+M_GYRO_MIS = 0b111111 << E_MG
 M_NAV = 0b111111 << E_V
 NAV_UNKNOWN_VAR_V = 100.0    # (10 m/s)², velocity variance before a fix sets it
 NAV_UNKNOWN_VAR_P = 1e6      # (1 km)², position variance before a fix sets it
@@ -293,6 +302,8 @@ def _apply_correction(x, par, dx):
         x[X_BG + i] = min(max(x[X_BG + i] + dx[E_BG + i], -gc), gc)
         x[X_BA + i] = min(max(x[X_BA + i] + dx[E_BA + i], -ac), ac)
         x[X_SG + i] = min(max(x[X_SG + i] + dx[E_SG + i], -sc), sc)
+    for i in range(6):
+        x[X_MG + i] = min(max(x[X_MG + i] + dx[E_MG + i], -sc), sc)
     # the NED-frame low-passed specific force lives in the estimated NED frame: keep it there
     an = x[X_ACC_LP]
     ae = x[X_ACC_LP + 1]
@@ -302,13 +313,34 @@ def _apply_correction(x, par, dx):
     x[X_ACC_LP + 2] = ad + dx[0] * ae - dx[1] * an
 
 
+@njit(cache=True)
+def _gyro_matrix_corrected(x, ux, uy, uz):
+    """(I − diag(s) − M) u: the bias-corrected rate u with the scale-factor and misalignment estimates removed
+    (first order of (I + diag(s) + M)⁻¹, exact to < 1e-5 relative for |s|, |m| < 0.3 %)."""
+    return (ux - x[X_SG] * ux - x[X_MG] * uy - x[X_MG + 1] * uz,
+            uy - x[X_SG + 1] * uy - x[X_MG + 2] * ux - x[X_MG + 3] * uz,
+            uz - x[X_SG + 2] * uz - x[X_MG + 4] * ux - x[X_MG + 5] * uy)
+
+
+@njit(cache=True)
+def _accumulate_c_omega(x, c00, c01, c02, c10, c11, c12, c20, c21, c22, tx, ty, tz):
+    """∫ C_ij ω_k dt += C_ij θ_k for the step's rotation increment θ = ω dt (Φ's scale/misalignment blocks)."""
+    c = (c00, c01, c02, c10, c11, c12, c20, c21, c22)
+    for ij in range(9):
+        b = X_COV_CWW + 3 * ij
+        x[b] += c[ij] * tx
+        x[b + 1] += c[ij] * ty
+        x[b + 2] += c[ij] * tz
+
+
 # ----------------------------------------------------------------------------------- covariance propagation
 @njit(cache=True)
 def propagate_covariance(x, P, par):
     """P ← Φ P Φᵀ + Q over the time accumulated since the last call (X_COV_T), then clear the sums.
 
-    Φ (3×3 blocks, order δθ, δv, δp, δb_g, δb_a), with A = −∫C dt and B = −[ΔV^n×]:
-        δθ: [I, 0, 0, A, 0];  δv: [B, I, 0, 0, A];  δp: [½T B, T I, I, 0, ½T A];  biases: identity.
+    Φ (3×3 blocks, order δθ, δv, δp, δb_g, δb_a, then δs_g, δm_g), with A = −∫C dt and B = −[ΔV^n×]:
+        δθ: [I, 0, 0, A, 0, −∫C diag(ω) dt, −∫C W(ω) dt];  δv: [B, I, 0, 0, A, 0, 0];
+        δp: [½T B, T I, I, 0, ½T A, 0, 0];  biases, scale factors, misalignments: identity.
     Q: white gyro and accelerometer noise and bias random walks, density² · T on the diagonal (isotropic, so
     rotating it by C changes nothing)."""
     T = x[X_COV_T]
@@ -317,11 +349,13 @@ def propagate_covariance(x, P, par):
     phi = np.eye(N_ERR)
     for i in range(3):
         for j in range(3):
-            phi[E_TH + i, E_SG + j] = -x[X_COV_CW + 3 * i + j]   # δθ̇ = −C diag(ω) δs
+            phi[E_TH + i, E_SG + j] = -x[X_COV_CWW + 9 * i + 4 * j]   # δθ̇ = −C diag(ω) δs: ∫ C_ij ω_j
             a = -x[X_COV_C + 3 * i + j]
             phi[E_TH + i, E_BG + j] = a
             phi[E_V + i, E_BA + j] = a
             phi[E_P + i, E_BA + j] = 0.5 * T * a
+        for n in range(6):   # δθ̇ = −C W(ω) δm: δm_jk moves ω_j by δm_jk ω_k
+            phi[E_TH + i, E_MG + n] = -x[X_COV_CWW + 9 * i + 3 * MIS_ROW[n] + MIS_COL[n]]
     dvn = x[X_COV_DV]
     dve = x[X_COV_DV + 1]
     dvd = x[X_COV_DV + 2]
@@ -362,11 +396,14 @@ def propagate_covariance(x, P, par):
         P[E_BG + i, E_BG + i] += qbg
         P[E_BA + i, E_BA + i] += qba
         P[E_SG + i, E_SG + i] += par[P_GYRO_SCALE_WALK] ** 2 * T
+        P[E_MG + i, E_MG + i] += par[P_GYRO_MIS_WALK] ** 2 * T
+        P[E_MG + 3 + i, E_MG + 3 + i] += par[P_GYRO_MIS_WALK] ** 2 * T
     _symmetrise(P)
     x[X_COV_T] = 0.0
     for i in range(9):
         x[X_COV_C + i] = 0.0
-        x[X_COV_CW + i] = 0.0
+    for i in range(27):
+        x[X_COV_CWW + i] = 0.0
     for i in range(3):
         x[X_COV_DV + i] = 0.0
 
@@ -407,7 +444,7 @@ def _level(x, P, par, dt_epoch):
         x[X_ACC_REJ_T] += dt_epoch
         return F_ACCEL_REJECTED
     r = (par[P_LEVEL_NOISE] / g) ** 2
-    mask = M_HEADING | M_ACC_BIAS | M_GYRO_BIAS | M_GYRO_SCALE   # tilt only (see the docstring)
+    mask = M_HEADING | M_ACC_BIAS | M_GYRO_BIAS | M_GYRO_SCALE | M_GYRO_MIS   # tilt only (see the docstring)
     dx = np.zeros(N_ERR)
     h = np.zeros(N_ERR)
     h[1] = 1.0
@@ -422,7 +459,7 @@ def _level(x, P, par, dt_epoch):
 
 @njit(cache=True)
 def _mag_update(x, P, par, dt_epoch, rate):
-    """Magnetometer heading update (the shared check of mag_heading.py), heading only: returns flag bits."""
+    """Magnetometer heading update (the shared check of mag_heading.py): returns flag bits."""
     flags = 0
     used = False
     mx = x[X_MAG_LAST]
@@ -431,13 +468,29 @@ def _mag_update(x, P, par, dt_epoch, rate):
     if par[P_MAG_ENABLED] > 0.0 and math.isfinite(mx):
         mn, me, md = mag.rotate_to_ned(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], mx, my, mz)
         mnorm = math.sqrt(mx * mx + my * my + mz * mz)
+        # the heading of the horizontal field depends on the tilt too: with m = H u + Z e_D (u the magnetic
+        # north), m_est = m − δθ × m gives α = −δθ_D + (Z/H) u·δθ, so a tilt error along magnetic north reads
+        # as tan(dip) times as much heading error (3.4× at 60° N). While fixes hold the horizon (GNSS_AIDED)
+        # the row carries that sensitivity and the update may move the tilt (the GNSS outweighs the
+        # magnetometer there, and the heading no longer inherits the tilt error); otherwise — before the first
+        # fix, dead reckoning, levelling — the row is heading only and the tilt gain zero, as in mekf: a
+        # disturbed field must not move a horizon nothing else holds.
+        h = np.zeros(N_ERR)
+        h[2] = -1.0
+        aided = x[X_NAV_OK] > 0.0 and x[X_T_LAST] - x[X_GNSS_LAST_T] <= par[P_GNSS_TIMEOUT]
+        mh2 = mn * mn + me * me
+        if aided and mh2 > 0.0:
+            h[0] = md * mn / mh2
+            h[1] = md * me / mh2
+        hph = 0.0
+        for i in range(3):
+            for j in range(3):
+                hph += h[i] * P[i, j] * h[j]
         res, alpha, r = mag.heading_measurement(x, X_MAG, par, P_MAG, dt_epoch, rate, False, False, mn, me, md,
-                                                mnorm, par[P_DECLINATION], P[2, 2])
+                                                mnorm, par[P_DECLINATION], hph)
         if res == mag.MAG_USE:
             dx = np.zeros(N_ERR)
-            h = np.zeros(N_ERR)
-            h[2] = -1.0
-            _scalar_update(P, h, alpha, r, M_TILT, dx)
+            _scalar_update(P, h, alpha, r, 0 if aided else M_TILT, dx)
             _apply_correction(x, par, dx)
             used = True
         elif res == mag.MAG_REJECTED:
@@ -485,13 +538,9 @@ def ins_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_fl
     mwx = 0.5 * (pgx + x[X_GYR_LAST]) - x[X_BG]
     mwy = 0.5 * (pgy + x[X_GYR_LAST + 1]) - x[X_BG + 1]
     mwz = 0.5 * (pgz + x[X_GYR_LAST + 2]) - x[X_BG + 2]
-    # scale-factor error: ω = (ω_meas − b) / (1 + s) ≈ (ω_meas − b)(1 − s)
-    wx *= 1.0 - x[X_SG]
-    wy *= 1.0 - x[X_SG + 1]
-    wz *= 1.0 - x[X_SG + 2]
-    mwx *= 1.0 - x[X_SG]
-    mwy *= 1.0 - x[X_SG + 1]
-    mwz *= 1.0 - x[X_SG + 2]
+    # scale factor and misalignment: ω = (I + diag(s) + M)⁻¹ (ω_meas − b) ≈ (I − diag(s) − M)(ω_meas − b)
+    wx, wy, wz = _gyro_matrix_corrected(x, wx, wy, wz)
+    mwx, mwy, mwz = _gyro_matrix_corrected(x, mwx, mwy, mwz)
     fx = 0.5 * (pax + x[X_ACC_LAST]) - x[X_BA]
     fy = 0.5 * (pay + x[X_ACC_LAST + 1]) - x[X_BA + 1]
     fz = 0.5 * (paz + x[X_ACC_LAST + 2]) - x[X_BA + 2]
@@ -575,15 +624,7 @@ def ins_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_fl
         x[X_COV_DV] += fn * dt
         x[X_COV_DV + 1] += fe * dt
         x[X_COV_DV + 2] += fd * dt
-        x[X_COV_CW] += c00 * mwx * dt
-        x[X_COV_CW + 1] += c01 * mwy * dt
-        x[X_COV_CW + 2] += c02 * mwz * dt
-        x[X_COV_CW + 3] += c10 * mwx * dt
-        x[X_COV_CW + 4] += c11 * mwy * dt
-        x[X_COV_CW + 5] += c12 * mwz * dt
-        x[X_COV_CW + 6] += c20 * mwx * dt
-        x[X_COV_CW + 7] += c21 * mwy * dt
-        x[X_COV_CW + 8] += c22 * mwz * dt
+        _accumulate_c_omega(x, c00, c01, c02, c10, c11, c12, c20, c21, c22, mwx * dt, mwy * dt, mwz * dt)
         # NED-frame low-pass of the specific force for the levelling (linear acceleration averages out)
         tau = par[P_LEVEL_TAU]
         k = 1.0 - math.exp(-dt / tau) if tau > 0.0 else 1.0
