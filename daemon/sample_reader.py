@@ -125,7 +125,10 @@ class SampleReader:
             self.statustext(mavlink.MAV_SEVERITY_NOTICE, "ahrsd: sensor recovered")
         est = None
         listeners = self._listeners
+        log_put = self._sample_log_put        # daemon.vehicle_log: a queue append, never blocks
         for raw in samples:
+            if log_put is not None:
+                log_put(raw)
             est = pipeline.process(raw)
             if listeners and est is not None:
                 for fn in tuple(listeners):
