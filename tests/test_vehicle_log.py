@@ -188,6 +188,10 @@ def test_a_calibration_swap_starts_a_file_naming_the_new_calibration(tmp_path):
     assert len(cals) == 2 and cals[0]["identity"] and not cals[1]["identity"]
     from ahrsd.calibration.store import checksum
     assert cals[1]["checksum"] == checksum(cal.to_dict()) and "gyro:test-bias" in cals[1]["method"]
+    # raw samples: a window across the swap is still one recording
+    assert main(["log", "cut", "--dir", str(tmp_path / "state" / "logs"), "--from", "0", "--to", "1e9",
+                 "--output", str(tmp_path / "all.csv"), "--quiet"]) == 0
+    assert len(read_recording(tmp_path / "all.csv").t_s) == len(service.source.samples)
 
 
 def failing_write(err):
