@@ -3,6 +3,7 @@
     .venv/bin/python bench/accuracy.py                 # simulated scenarios + all 15 BROAD trials
     .venv/bin/python bench/accuracy.py --quick         # short simulated runs, 3 BROAD trials
     .venv/bin/python bench/accuracy.py --trials 06 32 --no-sim --methods mekf vqf
+    .venv/bin/python bench/accuracy.py --cv --no-sim --no-broad   # cross-validated tuning only (bench/cv.py)
 
 (a) Simulated ADIS16405 (ahrsd.simulation, datasheet noise, 819.2 SPS) read through the byte-level chip
     `drivers.simulated.SimulatedAdis16405` and the real driver `drivers.adis16405.Adis16405` (quantised,
@@ -325,6 +326,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-sim", action="store_true", help="skip the simulated scenarios")
     ap.add_argument("--no-broad", action="store_true", help="skip BROAD")
     ap.add_argument("--max-samples", type=int, default=None, help="truncate each BROAD trial")
+    ap.add_argument("--cv", action="store_true",
+                    help="cross-validated tuning of mekf on BROAD (leave-one-trial-out and leave-one-pair-out "
+                         "over bench/cv.py's candidate grid, beside VQF)")
     args = ap.parse_args(argv)
     unknown = set(args.methods) - set(METHODS)
     if unknown:
@@ -337,6 +341,10 @@ def main(argv: list[str] | None = None) -> int:
         sim_section(methods, args.quick)
     if not args.no_broad:
         broad_section(methods, args.trials, args.quick, args.max_samples)
+    if args.cv:
+        from bench.cv import print_report, run_grid
+
+        print_report(run_grid(trial_names=args.trials, max_samples=args.max_samples))
     return 0
 
 

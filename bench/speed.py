@@ -1,11 +1,13 @@
 """Per-sample cost of ahrsd's estimators beside VQF and x-io Fusion, measured side by side in one process.
 
-    .venv/bin/python bench/speed.py            # 16 384 samples (20 s at 819.2 SPS), best of 3
+    .venv/bin/python bench/speed.py            # 16 384 samples (20 s at 819.2 SPS), best of 9
     .venv/bin/python bench/speed.py --quick    # 4 096 samples
 
 "one at a time": one Python call per sample, as the daemon does — ahrsd's estimators through
 `update(ImuSample) -> AttitudeEstimate` (`ins+gnss`: the ins also given a 5 Hz GNSS fix through
-`update_gnss`, counted in its per-sample cost; plain `ins`: no fixes, unaided), VQF through `VQF.update(gyr, acc, mag)` + `getQuat9D()`, Fusion
+`update_gnss`, counted in its per-sample cost; plain `ins`: no fixes, unaided); `mekf-view` through the hot
+path `Mekf.step(ImuSample)` (the reused view, its quaternion read, no AttitudeEstimate built:
+`view.snapshot()` builds one when publishing); VQF through `VQF.update(gyr, acc, mag)` + `getQuat9D()`, Fusion
 through `Ahrs.update(gyr, acc, mag)` + `get_quaternion()`. "batch": the whole array in one call
 (`Mekf.run_batch`, `VQF.updateBatch`). Times are the best of `--repeat` runs (the machine is shared: the
 minimum is the least disturbed). Ratios are against VQF measured in the same process, so they hold on any
@@ -90,6 +92,15 @@ def one_at_a_time(name: str, samples, g, a, m, fixes=None):
                 upd(s)
 
         return run
+    if name == "mekf-view":
+        from ahrsd.estimator.mekf import Mekf
+
+        def run():
+            step = Mekf().step
+            for s in samples:
+                step(s).q_wxyz
+
+        return run
     if name == "vqf":
         from vqf import VQF
 
@@ -160,14 +171,14 @@ def jit_warmup() -> dict[str, tuple[float, float]]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--samples", type=int, default=16384)
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--repeat", type=int, default=9)
     ap.add_argument("--quick", action="store_true", help="4096 samples, 2 repeats, no warm-up measurement")
     args = ap.parse_args(argv)
     if args.quick:
         args.samples, args.repeat = 4096, 2
     samples, t, g, a, m, fixes = make_samples(args.samples)
     n = len(samples)
-    names = ["mekf", "ins", "ins+gnss", "thesis", "vqf", "fusion"]
+    names = ["mekf", "mekf-view", "ins", "ins+gnss", "thesis", "vqf", "fusion"]
     avail = []
     for name in names:
         try:
@@ -201,6 +212,11 @@ def main(argv: list[str] | None = None) -> int:
         else:
             line += f"   {'n/a':>12s}"
         print(line)
+    if "mekf-view" in rows and vqf_per:
+        print(f"\nmekf-view (step + quaternion read): {rows['mekf-view'][0] / vqf_per:.2f}× VQF's per-sample cost "
+              "(target ≤ 2×)")
+    if "mekf" in rows and vqf_bat:
+        print(f"mekf batch: {rows['mekf'][1] / vqf_bat:.2f}× VQF's batch cost (target ≤ 1.0×)")
     if "mekf" in rows:
         per = rows["mekf"][0]
         print(f"\nmekf one-at-a-time: {1 / per:,.0f} samples/s (target ≥ 50 000), {per * 1e6:.1f} µs/sample "

@@ -60,7 +60,8 @@ class Pipeline:
     mounting: np.ndarray | None = None
     counters: PipelineCounters = field(default_factory=PipelineCounters)
     last_sample: ImuSample | None = None       # calibrated, body frame
-    last_estimate: object | None = None
+    _view: object | None = None                # the estimator's in-place view of its latest estimate (step())
+    _snapshot: object | None = None            # the immutable AttitudeEstimate of _view, built on demand
     _last_counter: int | None = None
     _sensor: tuple | None = None               # (sample, gyro, accel, mag) calibrated in the sensor frame
     _sensor_sample: ImuSample | None = None
@@ -79,9 +80,18 @@ class Pipeline:
             self._sensor_sample = ImuSample(s.t_s, g, a, m, s.temp_c, s.supply_v, s.flags, s.diag_stat, s.counter)
         return self._sensor_sample
 
+    @property
+    def last_estimate(self):
+        """The latest AttitudeEstimate (immutable), built only when someone asks: the publishers at their
+        rates, not the reader at 819.2 SPS (the estimator's `step` view is read in place meanwhile)."""
+        if self._snapshot is None and self._view is not None:
+            self._snapshot = self._view.snapshot()
+        return self._snapshot
+
     def process(self, raw: ImuSample):
         """One sample through calibration (sensor frame), mounting (sensor → body) and the estimator;
-        returns the estimate."""
+        returns the estimate: the estimator's in-place view when it has `step` (read it now, or take
+        `last_estimate` to keep it), else its AttitudeEstimate."""
         c = self.counters
         c.samples += 1
         flags = raw.flags
@@ -108,13 +118,18 @@ class Pipeline:
                 g, a, mag = m @ g, m @ a, m @ mag
             sample = ImuSample(raw.t_s, g, a, mag, raw.temp_c, raw.supply_v, flags, raw.diag_stat, raw.counter)
         self.last_sample = sample
+        estimator = self.estimator
+        step = getattr(estimator, "step", None)    # the cheap hot path where the estimator has one
         try:
-            est = self.estimator.update(sample)
+            est = step(sample) if step is not None else estimator.update(sample)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
             c.estimator_errors += 1
             if c.estimator_errors in (1, 100, 10000):
                 log.error("estimator rejected sample %d: %s; resetting it", raw.counter, exc)
             self.estimator.reset()
             return None
-        self.last_estimate = est
+        if step is not None:
+            self._view, self._snapshot = est, None
+        else:
+            self._view, self._snapshot = None, est
         return est

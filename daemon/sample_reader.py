@@ -131,9 +131,10 @@ class SampleReader:
                 log_put(raw)
             est = pipeline.process(raw)
             if listeners and est is not None:
+                snapshot = pipeline.last_estimate      # listeners may keep it: the immutable one
                 for fn in tuple(listeners):
                     try:
-                        fn(pipeline.last_sample, est)
+                        fn(pipeline.last_sample, snapshot)
                     except Exception:  # noqa: BLE001 - a faulty listener is dropped, the reader carries on
                         log.exception("sample listener %r failed; removed", fn)
                         listeners.remove(fn)

@@ -20,3 +20,8 @@ class Estimator(Protocol):
     def relearn_field_reference(self) -> None:
         """The magnetometer calibration changed: re-learn whatever reference of the field the estimator
         keeps (magnitude, dip) from the next samples, keeping attitude and gyro bias (no heading step)."""
+
+    # Optional hot path (mekf): `step(sample)` updates like `update` but returns a reused, in-place view of
+    # the estimate (the AttitudeEstimate's fields, valid until the next step) with `snapshot() ->
+    # AttitudeEstimate`, so a caller that publishes at a lower rate builds the immutable result only then.
+    # The daemon's pipeline uses it where it exists (daemon/pipeline.py).

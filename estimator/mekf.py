@@ -52,6 +52,13 @@ class MekfParams:
     """Bias random walk density, rad/s/√s: reaches the ADIS16405 in-run bias stability (0.007°/s, datasheet)
     in about 100 s. Larger values let linear acceleration and field errors leak into the bias in motion
     (measured on BROAD: 1e-4 → mean 2.73° instead of 2.24°)."""
+    gyro_rate_noise_sqrt_s: float = 1e-3
+    """Tilt process noise that grows with the rotation rate: (this · |ω|)² per second is added to the tilt
+    variance rate, for the gyro's scale-factor and axis-misalignment errors (an error of a fraction e of the
+    rate turns the attitude by e·|ω| per second), √s. It balances the acceleration-adaptive tilt noise in fast
+    rotation, where the tilt must be corrected quickly although the apparent vertical swings (BROAD, chosen by
+    cross-validation with acc_adaptive_gain: docs/estimator.md). Heading keeps the angle random walk only (its
+    noise floor mag_heading_noise_rad covers the rest). 0 = off."""
     gyro_bias_clip_rad_s: float = 2.0 * _DEG
     """The bias estimate is clipped to ±this per axis (VQF biasClip); rest is not declared above it."""
     init_bias_sigma_rad_s: float = 0.5 * _DEG
@@ -83,6 +90,14 @@ class MekfParams:
     acc_lowpass_tau_s: float = 1.5
     """Time constant of the low-pass of the specific force in the NED frame, s (0 = off). VQF uses 3 s as
     its only tilt smoothing; the Kalman gain adds its own, so half of that."""
+    acc_adaptive_gain: float = 30.0
+    """Acceleration-adaptive tilt noise (mekf_core, accelerometer update): the spread of the tilt innovation around
+    its running mean (how much the low-passed vertical swings while a hand moves the sensor about) times this is
+    added to the tilt measurement variance; the factor stands for the low-passed measurement's correlation
+    over many samples. Dimensionless; 0 = off (the filter then leans toward every sustained push). Chosen by
+    cross-validation on BROAD with gyro_rate_noise_sqrt_s (docs/estimator.md)."""
+    acc_adaptive_tau_s: float = 2.0
+    """Window (time constant) of the tilt innovation's running mean and spread, s."""
 
     # --- magnetometer (heading)
     mag_enabled: bool = True
@@ -116,6 +131,23 @@ class MekfParams:
     """At rest the body does not turn: if the low-passed body-frame field moves more than this from where it
     was when the rest began, something magnetic moved nearby and the field is not used until motion, µT
     (0.5 µT ≈ 1° of heading for a 27 µT horizontal field; the rest low-pass leaves ~0.1 µT of noise)."""
+    mag_offset_tau_s: float = 0.0
+    """Body-fixed field offset (a magnet or iron attached after calibration, mekf_core `_offset_update`):
+    forgetting time constant of its online estimate, s; 0 = off. Once the estimate is known to
+    mag_offset_use_sigma_ut and significant it is subtracted (adopted), and it is forgotten again within about
+    this time after the magnet is removed. Off by default: on BROAD (factory-calibrated magnetometer, a lab
+    with field gradients, rotations to 480 °/s) it learns offsets that help some trials and hurt others
+    (docs/estimator.md); 60 s suits a well-calibrated unit that is turned slowly."""
+    mag_offset_min_angle_rad: float = 10.0 * _DEG
+    """Field snapshots are compared once the body has turned this far, rad."""
+    mag_offset_use_sigma_ut: float = 2.0
+    """The offset estimate is subtracted once its 1σ (largest axis) is below this, µT."""
+    mag_offset_max_tilt_spread_rad2: float = 1e-4
+    """... and only while the sensor is not being moved about (spread of the tilt innovation below this, rad²):
+    moving through the work space's field gradients would be read as an offset."""
+    mag_offset_max_rate_rad_s: float = 1.0
+    """... and only while turning slower than this: a magnetometer that lags the gyro by δt sees the field
+    turned by |ω|·δt (10 ms at 1 rad/s: 0.6°, ≈ 0.5 µT), which fast turns would read as an offset, rad/s."""
     mag_unavailable_s: float = 10.0
     """No heading update for this long sets MAG_UNAVAILABLE, s."""
 
@@ -186,6 +218,14 @@ class MekfParams:
         p[core.P_MAG_REJECT_MAX] = self.mag_reject_max_s
         p[core.P_MAG_HEADING_NOISE_REST] = self.mag_heading_noise_rest_rad
         p[core.P_MAG_REST_CHANGE] = self.mag_rest_change_ut
+        p[core.P_ACC_ADAPT_GAIN] = self.acc_adaptive_gain
+        p[core.P_ACC_ADAPT_TAU] = self.acc_adaptive_tau_s
+        p[core.P_GYRO_RATE_NOISE] = self.gyro_rate_noise_sqrt_s
+        p[core.P_MOFF_TAU] = self.mag_offset_tau_s
+        p[core.P_MOFF_MIN_ANGLE] = self.mag_offset_min_angle_rad
+        p[core.P_MOFF_USE_SIGMA] = self.mag_offset_use_sigma_ut
+        p[core.P_MOFF_MAX_TILT_SPREAD] = self.mag_offset_max_tilt_spread_rad2
+        p[core.P_MOFF_MAX_RATE] = self.mag_offset_max_rate_rad_s
         return p
 
 
@@ -261,6 +301,9 @@ class Mekf:
         self._initialised = False
         self._reinit_pending = False
         self._step = core.fast_step()
+        self._t_s = math.nan
+        self._bits = -1
+        self._view = MekfView(self)
 
     # ----------------------------------------------------------------------- Estimator protocol
     def reset(self) -> None:
@@ -285,11 +328,18 @@ class Mekf:
         too; the magnitude/dip check still rejects disturbances meanwhile. The daemon bounds the rate at
         which the autopilot sees the change (docs/daemon.md "Calibration changes")."""
         relearn_reference(self._state, core.S_MAG, RELEARN_GATE_OPEN_S)
-        self._state[core.S_MAG_REST_SET] = 0.0   # the at-rest field is the old calibration's: take it again
+        s = self._state
+        s[core.S_MAG_REST_SET] = 0.0   # the at-rest field is the old calibration's: take it again
+        s[core.S_MOFF_B : core.S_MOFF_NIS + 1] = 0.0   # a body-fixed offset learned against the old calibration
 
     @property
     def gyro_bias_rad_s(self) -> np.ndarray:
         return self._state[core.S_B : core.S_B + 3].copy()
+
+    @property
+    def field_offset_ut(self) -> np.ndarray:
+        """Estimated body-fixed field offset (an attached magnet), µT; zeros while mag_offset_tau_s is 0."""
+        return self._state[core.S_MOFF_B : core.S_MOFF_B + 3].copy()
 
     @property
     def covariance(self) -> np.ndarray:
@@ -297,10 +347,21 @@ class Mekf:
         return self._state[core.S_P : core.S_P + 36].reshape(6, 6).copy()
 
     def update(self, sample: ImuSample) -> AttitudeEstimate:
+        self.step(sample)
+        if self._bits >= 0:
+            return self._estimate(self._t_s, self._bits)
+        return self._estimate_uninitialised(self._t_s, -1 - self._bits)
+
+    def step(self, sample: ImuSample) -> "MekfView":
+        """The hot path: process one sample like `update` and return the estimator's reused `MekfView` — no
+        result object is built. The view reads the latest estimate and changes at the next call;
+        `view.snapshot()` gives the immutable AttitudeEstimate `update` returns (build it only when
+        publishing)."""
         g = sample.gyro_rad_s
         a = sample.accel_m_s2
         m = sample.mag_ut
         sflags = int(sample.flags)
+        self._t_s = sample.t_s
         extra = 0
         if self._initialised:
             f = self._step(
@@ -308,13 +369,16 @@ class Mekf:
                 g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], sflags, self._out,
             )
             if not f & core.NEEDS_INIT:
-                return self._estimate(sample.t_s, f)
+                self._bits = f
+                return self._view
             self._initialised = False
             self._reinit_pending = True
             extra = f & ~core.NEEDS_INIT
         if not self._initialise(sample.t_s, g, a, m, sflags):
-            return self._estimate_uninitialised(sample, extra)
-        return self._estimate(sample.t_s, self._after_init_flags() | extra)
+            self._bits = -1 - extra       # < 0: no estimate yet (snapshot() is the uninitialised estimate)
+            return self._view
+        self._bits = self._after_init_flags() | extra
+        return self._view
 
     # ----------------------------------------------------------------------- batch (replay, benchmarks)
     def run_batch(self, t_s, gyro_rad_s, accel_m_s2, mag_ut, sample_flags=None):
@@ -421,8 +485,8 @@ class Mekf:
             estimate_flags(f),
         )
 
-    def _estimate_uninitialised(self, sample: ImuSample, extra: int) -> AttitudeEstimate:
-        return uninitialised_estimate(sample.t_s, extra)
+    def _estimate_uninitialised(self, t_s: float, extra: int) -> AttitudeEstimate:
+        return uninitialised_estimate(t_s, extra)
 
 
 def with_overrides(base, overrides: dict, estimator: str):
@@ -461,4 +525,75 @@ def uninitialised_estimate(t_s: float, flag_bits: int) -> AttitudeEstimate:
     )
 
 
-__all__ = ["Mekf", "MekfParams", "DEFAULT_MEKF_PARAMS", "FIXED_WING_MEKF_PARAMS", "initial_attitude"]
+class MekfView:
+    """The latest estimate of a `Mekf`, read in place (returned by `Mekf.step`; one per estimator, reused).
+
+    Attributes read the estimator's output buffer when accessed, so they change at the next step; arrays are
+    views of that buffer (copy what you keep). `snapshot()` returns the immutable AttitudeEstimate.
+    Before the first usable sample (`valid` False) the angles are NaN, as in `update`'s estimate."""
+
+    __slots__ = ("_mekf",)
+
+    def __init__(self, mekf: Mekf):
+        self._mekf = mekf
+
+    def snapshot(self) -> AttitudeEstimate:
+        m = self._mekf
+        if m._bits < 0:
+            return m._estimate_uninitialised(m._t_s, -1 - m._bits)
+        return m._estimate(m._t_s, m._bits)
+
+    @property
+    def valid(self) -> bool:
+        return self._mekf._bits >= 0
+
+    @property
+    def t_s(self) -> float:
+        return self._mekf._t_s
+
+    @property
+    def flags(self) -> EstimateFlags:
+        b = self._mekf._bits
+        return estimate_flags(b) if b >= 0 else EstimateFlags.INITIALISING | estimate_flags(-1 - b)
+
+    @property
+    def q_wxyz(self) -> np.ndarray:
+        return self._mekf._out[core.O_Q : core.O_Q + 4] if self.valid else np.array([1.0, 0.0, 0.0, 0.0])
+
+    def _angle(self, i: int) -> float:
+        return float(self._mekf._out[core.O_EULER + i]) if self.valid else math.nan
+
+    @property
+    def roll_rad(self) -> float:
+        return self._angle(0)
+
+    @property
+    def pitch_rad(self) -> float:
+        return self._angle(1)
+
+    @property
+    def yaw_rad(self) -> float:
+        return self._angle(2)
+
+    @property
+    def heading_mag_rad(self) -> float:
+        return self._angle(2) % _TWO_PI
+
+    @property
+    def heading_true_rad(self) -> float:
+        return (self._angle(2) + self._mekf._declination) % _TWO_PI
+
+    @property
+    def rate_body_rad_s(self) -> np.ndarray:
+        return self._mekf._out[core.O_RATE : core.O_RATE + 3] if self.valid else np.full(3, math.nan)
+
+    @property
+    def gyro_bias_rad_s(self) -> np.ndarray:
+        return self._mekf._out[core.O_BIAS : core.O_BIAS + 3] if self.valid else np.zeros(3)
+
+    @property
+    def sigma_rpy_rad(self) -> np.ndarray:
+        return self._mekf._out[core.O_SIGMA : core.O_SIGMA + 3] if self.valid else np.full(3, math.pi)
+
+
+__all__ = ["Mekf", "MekfView", "MekfParams", "DEFAULT_MEKF_PARAMS", "FIXED_WING_MEKF_PARAMS", "initial_attitude"]

@@ -63,8 +63,10 @@ def _step_deg(res_a, res_b):
 # ------------------------------------------------------------------------------ the point of it all
 def test_coordinated_turn_tilt_stays_small_where_a_levelling_filter_leans_by_the_bank():
     """25 m/s, 30° banked coordinated turns: the specific force stays on the body −z axis, so an
-    accelerometer-levelled filter (mekf, and ins before any fix) leans by the bank; GNSS velocity says what
-    the acceleration is."""
+    accelerometer-levelled filter (mekf without its acceleration-adaptive tilt noise, and ins before any fix)
+    leans by the bank; GNSS velocity says what the acceleration is. (mekf's default adaptive noise sees the
+    apparent vertical swing round in NED as the heading turns and leans far less, but not to the aided
+    bound.)"""
     run, fixes, res = _clean("coordinated-turn", 200.0)
     m = run.truth.t_s > 30.0
     tilt, heading = tilt_heading_errors_deg(res.q_mag, run.truth.q_wxyz)
@@ -72,11 +74,12 @@ def test_coordinated_turn_tilt_stays_small_where_a_levelling_filter_leans_by_the
     assert _rms(heading[m]) < 0.6, _rms(heading[m])
     assert np.all(res.flags[m] & AIDED)
 
-    mekf = Mekf(declination_rad=DECLINATION)
-    q = np.array([mekf.update(make_sample(run.truth.t_s[k], run.gyro[k], run.accel[k], run.mag[k])).q_wxyz
-                  for k in range(len(run.truth.t_s))])
-    tilt_mekf, _ = tilt_heading_errors_deg(q, run.truth.q_wxyz)
-    assert tilt_mekf[m].max() > 20.0, tilt_mekf[m].max()
+    for params, leans_by_deg in (({"acc_adaptive_gain": 0.0}, 20.0), ({}, 1.0)):
+        mekf = Mekf(declination_rad=DECLINATION, **params)
+        q = np.array([mekf.update(make_sample(run.truth.t_s[k], run.gyro[k], run.accel[k], run.mag[k])).q_wxyz
+                      for k in range(len(run.truth.t_s))])
+        tilt_mekf, _ = tilt_heading_errors_deg(q, run.truth.q_wxyz)
+        assert tilt_mekf[m].max() > leans_by_deg, (params, tilt_mekf[m].max())
 
     unaided = run_ins(Ins(declination_rad=DECLINATION), run, [])       # no GNSS at all: levelling
     tilt_unaided, _ = tilt_heading_errors_deg(unaided.q_mag, run.truth.q_wxyz)

@@ -110,6 +110,39 @@ def test_update_and_run_batch_are_the_same_filter():
     assert [int(o.flags) for o in outs] == f_batch.tolist()
 
 
+_ESTIMATE_FIELDS = ("t_s", "q_wxyz", "roll_rad", "pitch_rad", "yaw_rad", "heading_mag_rad", "heading_true_rad",
+                    "rate_body_rad_s", "gyro_bias_rad_s", "sigma_rpy_rad", "flags")
+
+
+def _assert_same_estimate(got, want):
+    for name in _ESTIMATE_FIELDS:
+        np.testing.assert_array_equal(np.asarray(getattr(got, name)), np.asarray(getattr(want, name)),
+                                      err_msg=name)
+
+
+def test_step_view_reads_the_same_estimate_as_update_and_snapshots_are_frozen():
+    """The hot path (`step` → reused view, `snapshot()` on demand) is the same filter as `update`, field by
+    field, before initialisation, in motion and across a re-initialising gap; a snapshot keeps its values."""
+    t, g, a, m, _ = _static_samples(2.0, 100.0, seed=13)
+    g = g + 0.05 * np.sin(np.arange(len(t)))[:, None]
+    t = np.concatenate([t, t + 10.0])                 # a 10 s gap: re-initialised
+    g, a, m = (np.vstack([x, x]) for x in (g, a, m))
+    ref, hot = make_estimator("mekf", declination_rad=0.1), make_estimator("mekf", declination_rad=0.1)
+    samples = [make_sample(0.0, [np.nan] * 3, a[0], m[0])] + [
+        make_sample(t[i] + 0.01, g[i], a[i], m[i]) for i in range(len(t))]
+    kept = []
+    for s in samples:
+        want = ref.update(s)
+        view = hot.step(s)
+        _assert_same_estimate(view, want)
+        _assert_same_estimate(view.snapshot(), want)
+        kept.append((view.snapshot(), want))
+    assert not kept[0][0].flags & EstimateFlags.AT_REST and math.isnan(kept[0][0].roll_rad)
+    assert kept[len(t) // 2 + 1][1].flags & EstimateFlags.REINITIALISED   # the first sample after the gap
+    for snap, want in kept[::50]:
+        _assert_same_estimate(snap, want)
+
+
 def test_gyro_bias_is_learned_at_rest():
     bias_dps = (0.5, -0.3, 0.8)
     t, g, a, m, truth = _static_samples(20.0, 200.0, bias_dps=bias_dps, seed=1)
@@ -186,24 +219,17 @@ def test_an_accelerometer_update_never_moves_heading():
 
 
 def test_coordinated_turn_tilt_error_is_bounded():
-    """30° banked coordinated turns: the specific force stays on the body's −z axis, so every
-    accelerometer-levelled filter is pulled towards the wrong vertical. Defaults (the known limitation): the
-    estimate is pulled most of the way to level but still banks the right way (measured 21° roll RMS error
-    against the 28° of a filter that always says level, 15° pitch RMS); the fixed-wing profile de-weights the
-    turn: measured 0.56° roll RMS."""
+    """30° banked coordinated turns: the specific force stays on the body's −z axis, so an accelerometer-levelled
+    filter that trusts it is pulled towards the wrong vertical (measured 21° roll RMS without the adaptive tilt
+    noise, against the 28° of a filter that always says level). Entering and leaving each turn swings the
+    apparent vertical, so the acceleration-adaptive noise de-weights it: measured 0.78° roll / 0.89° pitch RMS
+    with the defaults; the fixed-wing profile also de-weights the turn angle: 0.63° / 0.72°."""
     t, g, a, m, truth = _simulated("coordinated-turn", 156.0, 204.8)
     settled = t >= 10.0
     q, _ = Mekf().run_batch(t, g, a, m)
     err = _euler_errors_deg(q[settled], truth[settled], DECLINATION)
-    roll_true_deg = np.degrees(_rot(truth[settled]).as_euler("ZYX")[:, 2])
-    roll_est_deg = np.degrees(_rot(q[settled]).as_euler("ZYX")[:, 2])
-    banked = np.abs(roll_true_deg) > 20.0
-    always_level_rms = np.sqrt(np.mean(roll_true_deg**2))
     rms = np.sqrt(np.mean(err**2, axis=0))
-    assert rms[0] < 0.85 * always_level_rms, (rms, always_level_rms)
-    assert np.mean(np.sign(roll_est_deg[banked]) == np.sign(roll_true_deg[banked])) > 0.95
-    assert np.mean(np.abs(roll_est_deg[banked])) > 5.0     # measured 7.7°: shows the bank, if too little of it
-    assert rms[1] < 18.0, rms
+    assert rms[0] < 1.5 and rms[1] < 1.5 and rms[2] < 2.0, rms
     q, _ = Mekf(params=FIXED_WING_MEKF_PARAMS).run_batch(t, g, a, m)
     err = _euler_errors_deg(q[settled], truth[settled], DECLINATION)
     rms = np.sqrt(np.mean(err**2, axis=0))
@@ -261,12 +287,12 @@ def test_mag_rejected_on_field_magnitude_jump_and_recovers():
 
 
 @pytest.mark.parametrize("push_m_s2, params, max_pitch_err_deg", [
-    (7.0, DEFAULT_MEKF_PARAMS, 2.5),      # gated at 15°, then |f| − g = 2.2 m/s² > acc_reject_m_s2 (measured 2.0°)
+    (7.0, DEFAULT_MEKF_PARAMS, 0.5),      # |f| − g = 2.2 m/s² > acc_reject_m_s2: rejected (measured 0.14°)
     (4.0, FIXED_WING_MEKF_PARAMS, 0.5),   # 22° turn angle de-weighted, then gated (measured 0.03°)
 ])
 def test_accel_rejected_under_sustained_linear_acceleration(push_m_s2, params, max_pitch_err_deg):
-    """A sustained forward acceleration (3 s) tilts the apparent vertical by atan(a/g). The defaults (tuned on
-    handheld motion) let a 4 m/s² push drag the pitch by 8° (measured); above 2 m/s² of |f| − g they reject."""
+    """A sustained forward acceleration (3 s) tilts the apparent vertical by atan(a/g) = 35° for 7 m/s²; above
+    2 m/s² of |f| − g the accelerometer is rejected (without the adaptive noise the pitch moved 2.0° first)."""
     t, g, a, m, truth = _static_samples(20.0, 100.0, seed=8)
     est = Mekf(params=params)
     _feed(est, t[:300], g[:300], a[:300], m[:300])
@@ -279,6 +305,20 @@ def test_accel_rejected_under_sustained_linear_acceleration(push_m_s2, params, m
     assert not outs[-1].flags & EstimateFlags.ACCEL_REJECTED
     err = _euler_errors_deg(outs[-1].q_wxyz[None], truth[None])[0]
     assert np.all(np.abs(err) < 0.5), err
+
+
+@pytest.mark.parametrize("push_m_s2", [2.0, 4.0])
+def test_a_sustained_push_below_the_rejection_threshold_does_not_tilt_the_horizon(push_m_s2):
+    """2 and 4 m/s² forward for 3 s: |f| stays within acc_reject_m_s2 of g, so only the acceleration-adaptive
+    noise stands between the push and the horizon (the apparent vertical leans 11.5° and 22°). Measured: pitch
+    error ≤ 0.5° during and after (without the adaptive noise: 8.6° and 11.4°)."""
+    t, g, a, m, _ = _static_samples(20.0, 100.0, seed=8)
+    est = Mekf()
+    _feed(est, t[:300], g[:300], a[:300], m[:300])
+    outs = _feed(est, t[300:600], g[300:600], a[300:600] + np.array([push_m_s2, 0.0, 0.0]), m[300:600])
+    outs += _feed(est, t[600:], g[600:], a[600:], m[600:])
+    assert max(abs(math.degrees(o.pitch_rad) - (-3.0)) for o in outs) < 1.0
+    assert abs(math.degrees(outs[-1].pitch_rad) - (-3.0)) < 0.2
 
 
 def test_invalid_and_non_finite_inputs_are_skipped_not_fatal():
@@ -346,14 +386,14 @@ def test_outputs_declination_reset_and_params():
 # ------------------------------------------------------------------------------------ real data
 def test_golden_broad_slice(broad_dir):
     """Regression pin on real data: BROAD trial 01 (slow rotation), first 90 s (35 s rest, then motion).
-    Measured total RMSE 1.82° in the movement phase of this slice (VQF 9D defaults: 2.59° on the same slice);
-    the bound leaves 15 % for numerical/platform differences."""
+    Measured total RMSE 1.88° in the movement phase of this slice (1.84° before the acceleration-adaptive tilt
+    noise; VQF 9D defaults: 2.59° on the same slice); the bound leaves 11 % for numerical/platform differences."""
     from bench.broad import broad_errors, load_trial, ned_to_enu
 
     trial = load_trial(broad_dir / "01_undisturbed_slow_rotation_A.npz", max_samples=int(90 * 285.714))
     q, _ = Mekf().run_batch(trial.t_s, trial.gyro_rad_s, trial.accel_m_s2, trial.mag_ut)
     err = broad_errors(ned_to_enu(q), trial)
-    assert err.total_deg < 1.82 * 1.15, err
+    assert err.total_deg < 2.09, err
     assert err.inclination_deg < err.total_deg
 
 
