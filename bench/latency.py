@@ -10,7 +10,10 @@ Part B — the daemon's reader in-process for a few seconds: how far those time 
   simulated chip really produced each sample (its public `now()`/`sample_index`), so part A's figures can be
   read as true sample-ready latencies (true latency = A − B).
 
-    .venv/bin/python bench/latency.py [--seconds 20] [--profile gcs|autopilot|both]
+    .venv/bin/python bench/latency.py [--seconds 20] [--profile gcs|autopilot|both] [--log off|on|both]
+
+--log on: the daemon keeps its on-vehicle logs (raw samples .csv.gz + MAVLink .tlog, `--log-dir`); the disk
+rate is the growth of the log directory over the window (the writer flushes every second).
 
 Targets (docs/daemon.md): p99 ≤ 2 ms, CPU ≤ 10 % of one core.
 """
@@ -50,7 +53,11 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")   # utime + stime
 
 
-def part_a(seconds: float, warmup: float, profile: str = "gcs") -> dict:
+def dir_bytes(path: Path) -> int:
+    return sum(p.stat().st_size for p in path.glob("*") if p.is_file()) if path.is_dir() else 0
+
+
+def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = False) -> dict:
     sock = free_udp_socket()
     port = sock.getsockname()[1]
     with tempfile.TemporaryDirectory() as tmp:
@@ -58,7 +65,8 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs") -> dict:
         config.write_text(f'[[endpoint]]\nurl = "udpout:127.0.0.1:{port}"\nprofile = "{profile}"\n')
         proc = subprocess.Popen(
             [sys.executable, "-m", "ahrsd.cli", "run", "--sim", "static", "--config", str(config),
-             "--state-dir", tmp, "--status-line", "off"],
+             "--state-dir", tmp, "--status-line", "off",
+             *(("--log-dir", str(Path(tmp) / "logs")) if log else ("--no-log",))],
             cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         parser = mavlink.MAVLink(None)
         parser.robust_parsing = True
@@ -87,6 +95,7 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs") -> dict:
                         continue
                     if cpu0 == 0.0:
                         cpu0, wall0 = cpu_seconds(proc.pid), time.monotonic()
+                        log0 = dir_bytes(Path(tmp) / "logs")
                     counts[mtype] = counts.get(mtype, 0) + 1
                     if mtype != "VISION_POSITION_ESTIMATE":
                         nbytes += len(m.get_msgbuf())
@@ -96,6 +105,7 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs") -> dict:
                     elif mtype == "HIGHRES_IMU":
                         lat[mtype].append(now - m.time_usec * 1e-6)
             cpu1, wall1 = cpu_seconds(proc.pid), time.monotonic()
+            log1 = dir_bytes(Path(tmp) / "logs")
         finally:
             proc.send_signal(signal.SIGTERM)
             proc.wait(10)
@@ -103,7 +113,8 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs") -> dict:
     if not active or cpu0 == 0.0:
         raise SystemExit("the daemon never became ACTIVE")
     return {"latency_s": lat, "cpu_share": (cpu1 - cpu0) / (wall1 - wall0), "window_s": wall1 - wall0,
-            "counts": counts, "bytes_per_s": nbytes / (wall1 - wall0)}
+            "counts": counts, "bytes_per_s": nbytes / (wall1 - wall0),
+            "log_mb_per_h": (log1 - log0) / (wall1 - wall0) * 3600 / 1e6}
 
 
 def part_b(seconds: float) -> np.ndarray:
@@ -154,23 +165,30 @@ def main() -> None:
     ap.add_argument("--warmup", type=float, default=3.0)
     ap.add_argument("--profile", choices=("gcs", "autopilot", "both"), default="both",
                     help="the endpoint's output profile (both: one run each, side by side)")
+    ap.add_argument("--log", choices=("off", "on", "both"), default="off",
+                    help="on-vehicle logging in the daemon (both: one run each, side by side)")
     args = ap.parse_args()
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f} (shared machine)")
     profiles = ("gcs", "autopilot") if args.profile == "both" else (args.profile,)
-    runs = {p: part_a(args.seconds, args.warmup, p) for p in profiles}
-    for p, r in runs.items():
-        print(f"\nA. ahrsd run --sim static, profile \"{p}\", {r['window_s']:.1f} s window")
+    logs = {"off": (False,), "on": (True,), "both": (False, True)}[args.log]
+    runs = {(p, lg): part_a(args.seconds, args.warmup, p, lg) for p in profiles for lg in logs}
+    for (p, lg), r in runs.items():
+        print(f"\nA. ahrsd run --sim static, profile \"{p}\", logging {'on' if lg else 'off'}, "
+              f"{r['window_s']:.1f} s window")
         for name, values in r["latency_s"].items():
             if values:
                 print(f"   {name:25s} sample time stamp → datagram received: {pct(np.array(values))}")
         rates = ", ".join(f"{k} {v / r['window_s']:.1f}/s" for k, v in sorted(r["counts"].items()))
         print(f"   received: {rates}; {r['bytes_per_s']:.0f} B/s on the wire")
         print(f"   daemon CPU: {100 * r['cpu_share']:.1f} % of one core (utime+stime / wall)")
-    if len(runs) == 2:
-        print("\n   profile    CPU % of one core   B/s")
-        for p, r in runs.items():
-            print(f"   {p:9s}  {100 * r['cpu_share']:17.1f}   {r['bytes_per_s']:5.0f}")
-    a = runs[profiles[0]]
+        if lg:
+            print(f"   log directory growth: {r['log_mb_per_h']:.1f} MB/h")
+    if len(runs) >= 2:
+        print("\n   profile    log   CPU % of one core   B/s   log MB/h")
+        for (p, lg), r in runs.items():
+            print(f"   {p:9s}  {'on' if lg else 'off':4s} {100 * r['cpu_share']:17.1f}   {r['bytes_per_s']:5.0f}"
+                  f"   {r['log_mb_per_h']:8.1f}")
+    a = next(iter(runs.values()))
     b = part_b(5.0)
     print("\nB. time stamp − true chip sample-ready time (in-process reader, 5 s):")
     print(f"   {pct(b)}   min {b.min() * 1e3:.3f} ms")

@@ -184,7 +184,9 @@ def _cut(args) -> int:
     if not chosen:
         raise LogError(f"no logged samples between {args.t_from} and {args.t_to} in {args.dir} "
                        "(`ahrsd log list` shows what is there)")
-    calibrations = {json.dumps([bool(s.get("calibrated")), s.get("calibration")], sort_keys=True) for _, s, _, _ in chosen}
+    # raw samples do not depend on the calibration the daemon had in force: only calibrated ones must agree
+    calibrations = {json.dumps([bool(s.get("calibrated")), s.get("calibration") if s.get("calibrated") else None],
+                               sort_keys=True) for _, s, _, _ in chosen}
     if len(calibrations) > 1:
         changes = "; ".join(f"{p.name}: {_calibration_label(s)}" for p, s, _, _ in chosen)
         raise LogError(f"the window spans more than one calibration ({changes}): cut it where the calibration "

@@ -36,6 +36,10 @@ def register(subparsers) -> None:
     p.add_argument("--check-config", action="store_true", help="validate the configuration, print it and exit")
     p.add_argument("--sim-faults", metavar="SCHEDULE", help="inject faults into the simulated chip, e.g. "
                    "'bus_error@3-4;garbage@1-2:p=0.05' (see docs/reliability.md; simulated sensor only)")
+    logs = p.add_mutually_exclusive_group()
+    logs.add_argument("--log-dir", metavar="DIR", help="keep on-vehicle logs (raw samples, MAVLink .tlog) here "
+                      "(turns logging on; default [log] dir: <state dir>/logs)")
+    logs.add_argument("--no-log", action="store_true", help="no on-vehicle logs, whatever [log] enabled says")
     p.add_argument("--stats-file", metavar="FILE", help="write every counter of the run as JSON here on exit")
     p.set_defaults(func=run)
 
@@ -55,7 +59,8 @@ def run(args: argparse.Namespace) -> int:
         cfg = cfg.with_overrides(sim=args.sim, spi=args.spi, replay=args.replay, mavlink=args.mavlink,
                                  state_dir=args.state_dir, replay_speed=args.replay_speed,
                                  gnss_replay=args.gnss_replay, gnss_serial=args.gnss_serial,
-                                 gnss_sim=args.gnss_sim, estimator=args.estimator)
+                                 gnss_sim=args.gnss_sim, estimator=args.estimator,
+                                 log_dir=args.log_dir, log_enabled=False if args.no_log else None)
         if args.status_line:
             cfg = dataclasses.replace(cfg, daemon=DaemonConfig(status_line=args.status_line))
     except ConfigError as exc:

@@ -32,6 +32,7 @@ class CalibrationSwap:
         if save:
             CalibrationStore(self.state_dir).save(cal)
         self.pipeline.calibration = cal
+        self._log_calibration(cal)               # the sample log's next file names it (daemon.vehicle_log)
         relearn = getattr(self.pipeline.estimator, "relearn_field_reference", None)
         if relearn is not None:
             relearn()

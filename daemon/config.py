@@ -11,6 +11,7 @@
     [state]      -> StateConfig      the state directory (calibration, parameters, signing timestamp)
     [signing]    -> SigningConfig    optional MAVLink 2 signing
     [daemon]     -> DaemonConfig     process behaviour (status line)
+    [log]        -> LogConfig        on-vehicle logs: raw samples and MAVLink traffic (daemon.vehicle_log)
     [magcal]     -> daemon.magcal.MagCalSettings  field magnetometer calibration (validated by that module)
 
 Every key is checked; an error names the key, the bad value and what is allowed. Unknown sections and keys
@@ -390,6 +391,37 @@ class DaemonConfig:
         return cls(**_parse_table(cls, d, prefix, {"status_line": _choice_of(("auto", "on", "off"))}))
 
 
+@dataclass(frozen=True)
+class LogConfig:
+    """On-vehicle logs (docs/logging.md): raw samples as .csv.gz, MAVLink traffic as .tlog."""
+
+    enabled: bool | None = None   # None = on when run by systemd (NOTIFY_SOCKET or INVOCATION_ID set), else off
+    dir: str = ""                 # "" = <state dir>/logs
+    max_total_mb: float = 1024.0  # all the log files together (each log its share, oldest files deleted first)
+    rotate_mb: float = 64.0       # a new file at this size ...
+    rotate_s: float = 3600.0      # ... or this age
+    samples: bool = True          # raw driver samples
+    tlog: bool = True             # every MAVLink frame in and out
+
+    @classmethod
+    def parse(cls, d: dict, prefix="log") -> "LogConfig":
+        cfg = cls(**_parse_table(cls, d, prefix, {
+            "enabled": _bool, "dir": _string, "max_total_mb": _number_in(1.0, 1e7),
+            "rotate_mb": _number_in(0.01, 1e6), "rotate_s": _number_in(1.0, 7 * 86400.0),
+            "samples": _bool, "tlog": _bool}))
+        if cfg.rotate_mb > cfg.max_total_mb:
+            raise _fail(f"{prefix}.rotate_mb", cfg.rotate_mb, f"at most max_total_mb ({cfg.max_total_mb:g})")
+        return cfg
+
+    def is_enabled(self, environ=os.environ) -> bool:
+        if self.enabled is not None:
+            return self.enabled
+        return bool(environ.get("NOTIFY_SOCKET") or environ.get("INVOCATION_ID"))
+
+    def resolve_dir(self, state_dir: Path) -> Path:
+        return Path(self.dir).expanduser() if self.dir else Path(state_dir) / "logs"
+
+
 def _unknown(key: str, cls) -> ConfigError:
     if cls is None:
         return ConfigError(f"unknown config section [{key}]: allowed sections are " + ", ".join(SECTIONS))
@@ -409,6 +441,7 @@ class Config:
     state: StateConfig = field(default_factory=StateConfig)
     signing: SigningConfig = field(default_factory=SigningConfig)
     daemon: DaemonConfig = field(default_factory=DaemonConfig)
+    log: LogConfig = field(default_factory=LogConfig)
     magcal: Any = None      # daemon.magcal.MagCalSettings, or None for its defaults
     source_path: str = ""   # the file this came from ("" = built-in defaults)
 
@@ -432,7 +465,8 @@ class Config:
                        mavlink: list[str] | None = None, state_dir: str | None = None,
                        replay_speed: float | None = None, gnss_replay: str | None = None,
                        gnss_serial: str | None = None, gnss_sim: bool = False,
-                       estimator: str | None = None) -> "Config":
+                       estimator: str | None = None,
+                       log_dir: str | None = None, log_enabled: bool | None = None) -> "Config":
         """Apply command-line flags (they win over the file); values are validated like file values."""
         cfg = self
         if sum(bool(x) for x in (gnss_replay, gnss_serial, gnss_sim)) > 1:
@@ -472,6 +506,11 @@ class Config:
             cfg = dataclasses.replace(cfg, gnss=dataclasses.replace(cfg.gnss, source="sim"))
         if estimator is not None:
             cfg = dataclasses.replace(cfg, estimator=EstimatorConfig(_choice("--estimator", estimator, ESTIMATORS)))
+        if log_dir is not None:   # --log-dir turns logging on unless --no-log says otherwise
+            cfg = dataclasses.replace(cfg, log=dataclasses.replace(cfg.log, dir=_string("--log-dir", log_dir),
+                                                                   enabled=True))
+        if log_enabled is not None:
+            cfg = dataclasses.replace(cfg, log=dataclasses.replace(cfg.log, enabled=log_enabled))
         cfg.gnss.check("gnss")
         cfg.check()
         return cfg
@@ -480,7 +519,7 @@ class Config:
 SECTIONS = {
     "sensor": SensorConfig, "estimator": EstimatorConfig, "gnss": GnssConfig, "location": LocationConfig, "mavlink": MavlinkConfig,
     "endpoint": EndpointConfig, "outputs": OutputsConfig, "state": StateConfig, "signing": SigningConfig,
-    "daemon": DaemonConfig, "magcal": None,
+    "daemon": DaemonConfig, "log": LogConfig, "magcal": None,
 }
 
 

@@ -93,6 +93,8 @@ class Endpoint:
     # (SO_TIMESTAMPNS), else the start of the read; for TIMESYNC answers (`timesync_stamp_ns`)
     rx_monotonic_ns: int | None = None
     _rx_timestamps: bool = False
+    # every frame in and out, as its raw bytes (daemon.vehicle_log: TlogLog.put, a queue append); None = off
+    traffic_log: Callable[[bytes], object] | None = None
 
     @property
     def kind(self) -> str:
@@ -236,6 +238,8 @@ class Endpoint:
         if queue is not None and not queue.accepted_last:
             return False                      # the link is behind: refused by priority, counted
         self.counters.tx_messages += 1
+        if self.traffic_log is not None:
+            self.traffic_log(msg.get_msgbuf())    # the bytes just packed (and signed) for this link
         if self.conn.fd != self._fd:          # pymavlink dropped a TCP client on a write error (tcpin)
             self._register_fd()
         return True
@@ -358,6 +362,8 @@ class Endpoint:
                 self.counters.rx_unknown += 1
                 continue
             self.counters.rx_messages += 1
+            if self.traffic_log is not None:
+                self.traffic_log(msg.get_msgbuf())
             try:
                 self.on_message(self, msg)
             except Exception:  # noqa: BLE001 - a handler bug must not take the link down

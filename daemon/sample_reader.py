@@ -127,7 +127,10 @@ class SampleReader:
             self.statustext(mavlink.MAV_SEVERITY_NOTICE, "ahrsd: sensor recovered")
         est = None
         listeners = self._listeners
+        log_put = self._sample_log_put        # daemon.vehicle_log: a queue append, never blocks
         for raw in samples:
+            if log_put is not None:
+                log_put(raw)
             est = pipeline.process(raw)
             if listeners and est is not None:
                 snapshot = pipeline.last_estimate      # listeners may keep it: the immutable one

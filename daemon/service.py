@@ -55,6 +55,7 @@ from ahrsd.daemon.restart_heading import RestartHeading
 from ahrsd.daemon.sample_reader import SampleReader
 from ahrsd.daemon.signing import initial_timestamp, key_fingerprint, load_key, save_timestamp
 from ahrsd.daemon.status_line import StatusLine
+from ahrsd.daemon.vehicle_log import VehicleLogging
 from ahrsd.drivers.source import open_source
 from ahrsd.estimator import make_estimator
 
@@ -75,7 +76,7 @@ class ServiceCounters:
 
 
 class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, DeclinationResolver, CalibrationSwap,
-              Housekeeping, EndpointOutputs):
+              Housekeeping, EndpointOutputs, VehicleLogging):
     def __init__(self, config: Config, *, source=None, environ=os.environ, stdout=None):
         self.config = config
         self.environ = environ
@@ -233,6 +234,7 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
             ep.open(self.loop)
             self.endpoints.append(ep)
             self.check_link_budget(ep)
+        self._start_logs()                          # raw samples and MAVLink traffic (daemon.vehicle_log)
         register_builtin_commands(self)
         attach_magcal(self)
         if self.source is None:
@@ -284,6 +286,7 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
             save_timestamp(self.state_dir, max((e.signing_timestamp() for e in self.endpoints), default=0))
         if self.restart_heading is not None:
             self.restart_heading.save_now(self.reset_counter)
+        self._close_logs()                          # after the last frames went out
         for ep in self.endpoints:
             ep.close()
         if self.gnss is not None:

@@ -167,6 +167,7 @@ class RotatingLog:
                 if item is not None and not (isinstance(item, tuple) and item and item[0] is _ROTATE):
                     self._dropped_unwritten += 1
                 continue
+            written_before = self.written
             try:
                 if self._pending_metadata:
                     with self._pending_lock:
@@ -185,6 +186,9 @@ class RotatingLog:
                     self._flush(self._file)
                     self._rotate_if_full()
             except OSError as exc:
+                is_entry = item is not None and not (isinstance(item, tuple) and item and item[0] is _ROTATE)
+                if is_entry and self.written == written_before:
+                    self._dropped_unwritten += 1    # the entry whose write failed is counted as dropped too
                 self._fail(exc)
         try:
             self._close_file()

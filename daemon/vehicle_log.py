@@ -1,0 +1,83 @@
+"""The daemon's on-vehicle logs ([log], docs/logging.md): every raw driver sample into a SampleLog (.csv.gz)
+and every MAVLink frame in and out into a TlogLog (.tlog), both behind the bounded queues of
+drivers/rotating_log.py, so the reader's cost is one queue append per sample and nothing on it ever waits for
+the disk. A full disk or a read-only directory stops a log with one warning; the daemon keeps running, and
+the counters (written, dropped, failure) go into the stats file (`log_counters`).
+"""
+
+from __future__ import annotations
+
+import logging
+
+from ahrsd.calibration.store import checksum
+from ahrsd.drivers.rotating_log import LogLimits
+from ahrsd.drivers.sample_log import SampleLog
+from ahrsd.drivers.tlog import TlogLog
+
+log = logging.getLogger(__name__)
+
+MB = 1024 * 1024
+TLOG_SHARE = 0.25   # of max_total_mb when both logs are on (the sample log is the larger: docs/logging.md)
+
+
+def calibration_summary(cal) -> dict:
+    """What the sidecar says about the calibration in force: its checksum (as calibration/store.py computes
+    it for the file), the methods and the latest date of the per-sensor sections."""
+    sections = [cal.metadata[s] for s in ("gyro", "accel", "mag") if isinstance(cal.metadata.get(s), dict)]
+    methods = [f"{s}:{cal.metadata[s].get('method', '?')}" for s in ("gyro", "accel", "mag")
+               if isinstance(cal.metadata.get(s), dict)]
+    dates = sorted(str(sec["date"]) for sec in sections if sec.get("date"))
+    return {"checksum": checksum(cal.to_dict()), "identity": cal.is_identity,
+            "method": ", ".join(methods) or str(cal.metadata.get("method", "")), "date": dates[-1] if dates else ""}
+
+
+class VehicleLogging:
+    """Service part: `_start_logs` (after the pipeline and the endpoints exist), `_log_calibration` (after a
+    calibration swap), `_close_logs` (at shutdown), `log_counters` (for the stats file)."""
+
+    sample_log: SampleLog | None = None
+    mavlink_log: TlogLog | None = None
+    _sample_log_put = None       # the reader's one call per raw sample (None: not logging samples)
+
+    def _start_logs(self) -> None:
+        cfg = self.config.log
+        if not cfg.is_enabled(self.environ) or not (cfg.samples or cfg.tlog):
+            return
+        directory = cfg.resolve_dir(self.state_dir)
+        total_bytes = int(cfg.max_total_mb * MB)
+        tlog_bytes = int(total_bytes * TLOG_SHARE) if cfg.samples else total_bytes
+
+        def limits(cap_bytes: int) -> LogLimits:
+            return LogLimits(max_file_bytes=int(cfg.rotate_mb * MB), max_file_age_s=cfg.rotate_s,
+                             max_total_bytes=max(cap_bytes, int(cfg.rotate_mb * MB)))
+
+        if cfg.samples:
+            # raw driver samples: replay and calibrate re-apply whatever calibration they are given; the
+            # sidecar still names the calibration the daemon had in force
+            self.sample_log = SampleLog(directory, limits(total_bytes - tlog_bytes if cfg.tlog else total_bytes),
+                                        metadata={"calibrated": False,
+                                                  "calibration": calibration_summary(self.pipeline.calibration)})
+            self._sample_log_put = self.sample_log.put
+        if cfg.tlog:
+            self.mavlink_log = TlogLog(directory, limits(tlog_bytes))
+            for ep in self.endpoints:
+                ep.traffic_log = self.mavlink_log.put
+        log.info("logging %s to %s", " and ".join(n for n, on in (("raw samples", cfg.samples),
+                                                                   ("MAVLink traffic", cfg.tlog)) if on), directory)
+
+    def _log_calibration(self, cal) -> None:
+        if self.sample_log is not None:
+            self.sample_log.set_metadata(calibration=calibration_summary(cal))
+
+    def _close_logs(self) -> None:
+        self._sample_log_put = None
+        for ep in self.endpoints:
+            ep.traffic_log = None
+        for kind in (self.sample_log, self.mavlink_log):
+            if kind is not None:
+                kind.close()
+
+    def log_counters(self) -> dict:
+        """Per log: written, dropped (queue full or stopped), failure (why it stopped, None while OK), files."""
+        return {name: kind.counters for name, kind in (("samples", self.sample_log), ("tlog", self.mavlink_log))
+                if kind is not None}
