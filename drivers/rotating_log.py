@@ -222,15 +222,17 @@ class RotatingLog:
         while path.exists():   # never overwrite (a clock stepped back, or two files in one µs)
             path = self.directory / f"{self.prefix}-{stamp}-{k}{self.suffix}"
             k += 1
-        self._file = self._open(path)
+        # the sidecar first: a crash between the two then leaves a sidecar without data (ignored), never a data
+        # file whose calibration and time base are unknown
         self._path = path
-        self._opened_wall = wall
-        self.files_opened += 1
         self._sidecar = {"format": self.format_name, "file": path.name, "opened_utc": _iso_utc(wall),
                          "opened_unix_s": wall, "entries": 0, "closed": False, **self._metadata}
         if offset is not None:
             self._sidecar["unix_minus_t_s"] = offset
         self._write_sidecar()
+        self._file = self._open(path)
+        self._opened_wall = wall
+        self.files_opened += 1
         self._enforce_total()
 
     def _rotate_if_full(self) -> None:
