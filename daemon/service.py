@@ -58,6 +58,7 @@ from ahrsd.daemon.status_line import StatusLine
 from ahrsd.daemon.vehicle_log import VehicleLogging
 from ahrsd.drivers.source import open_source
 from ahrsd.estimator import make_estimator
+from ahrsd.estimator.warm_up import warm_up
 
 log = logging.getLogger(__name__)
 
@@ -222,6 +223,11 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         self.start_restart_rule()
         self._resolve_declination(initial=True)
         calibration = CalibrationStore(self.state_dir).load()
+        started = time.monotonic()
+        warm_up(cfg.estimator_name)                 # compile before the loop, not on its first sample/fix
+        if time.monotonic() - started > 1.0:
+            log.info("compiled the %s estimator in %.1f s (cached for the next start)", cfg.estimator_name,
+                     time.monotonic() - started)
         estimator = make_estimator(cfg.estimator_name, declination_rad=self.declination_rad)
         self.pipeline = Pipeline(estimator, calibration)
         self.pipeline.set_mounting([self.params.get(n) for n in MOUNTING_PARAMS])
