@@ -51,7 +51,7 @@ from ahrsd.daemon.magcal import attach, settings_from_mapping
 from ahrsd.drivers.replay_source import ReplaySource
 from ahrsd.daemon.service import Service
 cfg = Config().with_overrides(sim="level-turns", mavlink=[a["url"]], state_dir=a["state_dir"])
-cfg = dataclasses.replace(cfg, outputs=OutputsConfig.parse({"highres_imu_hz": 50.0}))
+cfg = dataclasses.replace(cfg, outputs=OutputsConfig.parse({"highres_imu_hz": a["highres_imu_hz"]}))
 block = record(vehicle(a["tilt_deg"], a["straight_runs"]), a["seconds"])
 def samples():
     for i in range(len(block.t_s)):
@@ -69,10 +69,10 @@ sys.exit(asyncio.run(service.run()))
 
 
 def start_daemon(tmp_path: Path, port: int, tilt_deg: float, straight_runs: bool, time_scale: float,
-                 magcal: dict | None = None):
+                 magcal: dict | None = None, highres_imu_hz: float = 50.0):
     args = {"url": f"udpout:127.0.0.1:{port}", "state_dir": str(tmp_path / "state"), "tilt_deg": tilt_deg,
             "straight_runs": straight_runs, "seconds": RECORDING_S, "time_scale": time_scale,
-            "magcal": magcal or {}, "tests_dir": str(Path(__file__).parent)}
+            "magcal": magcal or {}, "highres_imu_hz": highres_imu_hz, "tests_dir": str(Path(__file__).parent)}
     log = open(tmp_path / "daemon.log", "w")
     proc = subprocess.Popen([sys.executable, "-c", LAUNCH, json.dumps(args)], stderr=log, stdout=subprocess.DEVNULL)
     return proc, log
@@ -168,8 +168,10 @@ def test_daemon_session_with_gnss_course_removes_the_offset(tmp_path):
     arrival, valid, course, speed = course_fixes(sc, RECORDING_S, current_ne_m_s=(0.1, -0.15))
     port = free_udp_port()
     client = Client(port)
-    proc, log = start_daemon(tmp_path, port, 2.0, straight_runs=True, time_scale=4.0,
-                             magcal={"gnss_latency_s": 0.1})
+    # HIGHRES_IMU at 200 Hz of wall time is 20 Hz of recording time at 10x: the fixes go out within 50 ms of
+    # their arrival time
+    proc, log = start_daemon(tmp_path, port, 2.0, straight_runs=True, time_scale=20.0,
+                             magcal={"gnss_latency_s": 0.1}, highres_imu_hz=200.0)
     mav = client.conn.mav
     state = {"offset_s": None, "next": 0}
 

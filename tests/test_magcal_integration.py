@@ -35,7 +35,8 @@ from ahrsd.calibration.store import CalibrationStore  # noqa: E402
 from ahrsd.daemon.mavlink_io import mavlink, mavutil  # noqa: E402
 from ahrsd.simulation import DEFAULT_SITE, open_stream  # noqa: E402
 
-TIME_SCALE = 8.0   # when the CPU cannot keep up the replay simply runs as fast as it can
+TIME_SCALE = 16.0  # when the CPU cannot keep up the replay simply runs as fast as it can
+SIM_RATE_HZ = 204.8   # the chip's 819.2 SPS decimated by 4 (SMPL_PRD): a quarter of the CPU per simulated second
 MAV_STATE_CALIBRATING = 2
 
 LAUNCH = r"""
@@ -59,15 +60,16 @@ t0 = time.monotonic()
 def clock():
     return t0 + scale * (time.monotonic() - t0)
 def samples():
-    stream = open_stream(a["sim"], seed=0)
+    stream = open_stream(a["sim"], rate_hz=a["rate_hz"], seed=0)
     k = 0
     while True:
-        b = stream.next_block(410)
+        b = stream.next_block(int(a["rate_hz"] / 2))
         for i in range(len(b.t_s)):
             yield make_sample(b.t_s[i], b.gyro_rad_s[i], b.accel_m_s2[i], b.mag_ut[i], temp_c=float(b.temp_c[i]),
                               counter=k, flags=SampleFlags.NEW_DATA)
             k += 1
-service = Service(cfg, source=ReplaySource(samples(), "simulator " + a["sim"], realtime=True, clock=clock))
+service = Service(cfg, source=ReplaySource(samples(), "simulator " + a["sim"], realtime=True, clock=clock,
+                                           rate_hz=a["rate_hz"]))
 attach(service, settings_from_mapping(a.get("magcal")))
 sys.exit(asyncio.run(service.run()))
 """
@@ -77,7 +79,7 @@ class Daemon:
     def __init__(self, state_dir: Path, port: int, magcal: dict | None = None, key_file: str | None = None,
                  log_path: Path | None = None, outputs: dict | None = None):
         args = {"sim": "level-turns", "url": f"udpout:127.0.0.1:{port}", "state_dir": str(state_dir),
-                "time_scale": TIME_SCALE, "magcal": magcal or {}, "key_file": key_file, "outputs": outputs or {}}
+                "time_scale": TIME_SCALE, "rate_hz": SIM_RATE_HZ, "magcal": magcal or {}, "key_file": key_file, "outputs": outputs or {}}
         self.log_path = log_path or state_dir.parent / f"daemon-{port}.log"
         self.log = open(self.log_path, "a")
         self.proc = subprocess.Popen([sys.executable, "-c", LAUNCH, json.dumps(args)], stderr=self.log,
