@@ -7,10 +7,10 @@ from bench import soak
 
 
 def test_short_soak_meets_the_criteria(tmp_path):
-    # bench/soak.py's CI schedule (every fault kind once) compressed into 14 s
-    faults = ("alarm@2-2.5:bits=SUPPLY_LOW;garbage@3-4:p=0.02;bus_error@4.5-5.5;stall@6.5-7;"
-              "stuck_axis@7.5-8.5:axis=mag_x;short_read@9-9.5:p=0.01;burst_bug@10-11")
-    r = soak.soak(14.0, faults, 300.0, 1, tmp_path, False)
+    # bench/soak.py's CI schedule (every fault kind once, each window as long as there) with the gaps closed up
+    faults = ("alarm@2-2.5:bits=SUPPLY_LOW;garbage@3-5:p=0.02;bus_error@5.5-6.5;stall@7.5-8;"
+              "stuck_axis@8.5-10.5:axis=mag_x;short_read@11-12:p=0.01;burst_bug@12.5-14.5")
+    r = soak.soak(18.0, faults, 300.0, 1, tmp_path, False)
     lines, failed = soak.evaluate(r)
     print("\n".join(lines))
     # every sample the chip produced while read is processed or counted lost (none hidden); a lost sample
