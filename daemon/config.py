@@ -333,6 +333,7 @@ class _OutputsParse:
     def parse(cls, d: dict, prefix="outputs") -> "OutputsConfig":
         checks = {o.config_key: _number_in(0.0, o.max_rate_hz) for o in OUTPUTS}
         checks["heading_slew_deg_s"] = _number_in(MIN_HEADING_SLEW_DEG_S, MAX_HEADING_SLEW_DEG_S)
+        checks["restart_slew_deg_s"] = _number_in(MIN_HEADING_SLEW_DEG_S, MAX_HEADING_SLEW_DEG_S)
         checks["reset_counter_on_calibration"] = _bool
         return cls(**_parse_table(cls, d, prefix, checks))
 
@@ -341,12 +342,15 @@ class _OutputsParse:
 # then the calibration-change policy:
 # * heading_slew_deg_s: a calibration change moves the VISION_POSITION_ESTIMATE yaw towards the new heading at
 #   this rate (EKF3 rejects an external-yaw step beyond its innovation gate in flight);
+# * restart_slew_deg_s: the same after a restart with another heading (daemon.restart_heading: the lag of
+#   EKF3's yaw behind a ramp must stay inside its smallest gate; docs/daemon.md "Restarts");
 # * reset_counter_on_calibration: also increment VISION_POSITION_ESTIMATE.reset_counter on a calibration change
 #   (PX4 EKF2 then resets its yaw; ArduPilot reads it as a position reset): docs/daemon.md "reset_counter".
 OutputsConfig = dataclasses.make_dataclass(
     "OutputsConfig",
     [(o.config_key, float, field(default=o.default_hz)) for o in OUTPUTS]
-    + [("heading_slew_deg_s", float, field(default=2.0)), ("reset_counter_on_calibration", bool, field(default=False))],
+    + [("heading_slew_deg_s", float, field(default=2.0)), ("restart_slew_deg_s", float, field(default=3.0)),
+       ("reset_counter_on_calibration", bool, field(default=False))],
     bases=(_OutputsParse,), frozen=True)
 OutputsConfig.__module__ = __name__
 OutputsConfig.__doc__ = "Message rates in Hz (0 = off), one per output of the registry, and the heading slew."

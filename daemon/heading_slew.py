@@ -16,7 +16,9 @@ class HeadingSlew:
     ArduPilot EKF3 rejects an external-yaw innovation beyond its gate in flight and then keeps its old yaw
     (libraries/AP_NavEKF3/AP_NavEKF3_MagFusion.cpp, fuseEulerYaw, gate EK3_YAW_I_GATE), so after
     `start_transition()` the published heading follows the vehicle's own rotation (yaw rate from the
-    estimator) and moves towards the estimator's new heading at no more than `max_rate_deg_s`. Outside a transition it passes the heading through unchanged.
+    estimator) and moves towards the estimator's new heading at no more than `max_rate_deg_s` (a restart
+    with another heading uses its own rate: daemon.restart_heading). Outside a transition it passes the
+    heading through unchanged.
 
     VISION_POSITION_ESTIMATE.reset_counter is NOT touched by a calibration change: in ArduPilot a new
     reset_counter value makes AP_VisualOdom stamp a new reset time, which EKF3 (writeExtNavData) treats as a
@@ -24,7 +26,7 @@ class HeadingSlew:
     never re-aligns yaw. So a heading change is slewed in, never signalled as a reset.
     """
 
-    max_rate_deg_s: float = 2.0
+    max_rate_deg_s: float = 2.0         # a calibration change
     done_within_deg: float = 0.05
     # the estimator needs a moment to take the new field (MEKF: 0.5 s undisturbed wait, then ≈ 1 s time
     # constant): the transition lasts at least this long, so it does not end before the heading moves, s
@@ -34,20 +36,28 @@ class HeadingSlew:
     _t_last: float | None = None
     _t_start: float | None = None
     hold_until_s: float | None = None   # until this sample time, follow the vehicle's rotation only
+    rate_deg_s: float | None = None     # the running transition's rate (None: max_rate_deg_s)
 
-    def start_transition(self) -> None:
+    def start_transition(self, rate_deg_s: float | None = None) -> None:
+        """A calibration change (at `max_rate_deg_s`), or another transition at `rate_deg_s`."""
         self.active = True
         self._t_start = None      # set by the next update (sample time)
         self.hold_until_s = None
+        self.rate_deg_s = rate_deg_s
 
-    def start_from(self, published_rad: float, hold_until_s: float | None = None) -> None:
+    def start_from(self, published_rad: float, hold_until_s: float | None = None,
+                   rate_deg_s: float | None = None) -> None:
         """A transition from a heading the autopilot already has (the one published before a restart):
         the published heading starts there, follows the vehicle's rotation, and — after `hold_until_s` if
-        given — moves to the estimator's heading at `max_rate_deg_s`."""
+        given — moves to the estimator's heading at `rate_deg_s` (default `max_rate_deg_s`)."""
         self._published = published_rad % (2 * math.pi)
         self._t_last = None
-        self.start_transition()
+        self.start_transition(rate_deg_s)
         self.hold_until_s = hold_until_s
+
+    @property
+    def current_rate_deg_s(self) -> float:
+        return self.max_rate_deg_s if self.rate_deg_s is None else self.rate_deg_s
 
     def update(self, t_s: float, heading_rad: float, yaw_rate_rad_s: float = 0.0) -> float:
         """Heading to publish (rad, [0, 2π)) for the estimator's heading at t_s and the vehicle's yaw rate."""
@@ -67,7 +77,7 @@ class HeadingSlew:
                 return self._published
             self.hold_until_s = None
         err = float(wrap_pi(heading_rad - predicted))
-        step = math.radians(self.max_rate_deg_s) * dt
+        step = math.radians(self.current_rate_deg_s) * dt
         if abs(err) <= max(step, math.radians(self.done_within_deg)):
             self._published = heading_rad % (2 * math.pi)
             if abs(err) <= math.radians(self.done_within_deg) and t_s - self._t_start >= self.min_duration_s:

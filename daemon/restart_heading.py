@@ -17,11 +17,18 @@ The rule (docs/daemon.md, "Restarts"):
 2. The last published heading is saved every SAVE_PERIOD_S and on shutdown. If, at the first heading after
    a restart, the estimator's heading differs from it by more than RESTART_STEP_DEG (and the memory is no
    older than MAX_AGE_S), the published heading starts at the remembered one and
-   * default: slews to the new one at `[outputs] heading_slew_deg_s` (as after a calibration change): every
-     step stays inside both EKFs' gates;
+   * default: slews to the new one at `[outputs] restart_slew_deg_s`, a rate chosen so that the lag of
+     the autopilot's yaw behind ours stays inside EKF3's gate (below);
    * with `reset_counter_on_calibration = true` (PX4): holds the remembered heading (following the
      vehicle's rotation) for RESET_HOLD_S, long enough for EKF2 to restart EV yaw fusion, then increments
-     reset_counter and sends the new heading: EKF2 resets its yaw to it at once.
+     reset_counter and sends the new heading: EKF2 resets its yaw to it at once. (ArduPilot would see
+     that as a step: use the default with ArduPilot.)
+
+Why a slew is accepted: EKF3 (AP_NavEKF3_MagFusion.cpp, fuseEulerYaw) rejects an ExtNav yaw in flight
+when innov² > (EK3_YAW_I_GATE/100)² · (H·P·Hᵀ + R), R = max(angErr, 5°)² (writeExtNavData) with angErr
+clamped to [VISO_YAW_M_NSE, 1.5 rad] (AP_VisualOdom_MAV.cpp). The innovation is our yaw minus EKF3's, so
+what the gate sees during a slew is how far EKF3's yaw lags behind ours, not our per-message step. A ramp
+of r makes that lag grow to r · T_lag; restart_slew_deg_s keeps it below the smallest gate, 3 · 5°.
 """
 
 from __future__ import annotations
@@ -76,9 +83,11 @@ class RestartHeading:
     sent, `after_publish` with what was sent; `save_now` at shutdown."""
 
     def __init__(self, state_dir: Path, slew, *, reset_mode: bool, signal_reset: Callable[[], None],
+                 slew_rate_deg_s: float | None = None,
                  background: Callable[[Callable[[], None]], None] | None = None, clock=time.time):
         self.state_dir = Path(state_dir)
         self.slew = slew
+        self.slew_rate_deg_s = slew.max_rate_deg_s if slew_rate_deg_s is None else slew_rate_deg_s
         self.reset_mode = reset_mode
         self.signal_reset = signal_reset
         self.background = background or (lambda fn: fn())
@@ -116,8 +125,8 @@ class RestartHeading:
             self._reset_at_s = t_s + RESET_HOLD_S
             how = f"held {RESET_HOLD_S:g} s, then reset_counter + 1"
         else:
-            self.slew.start_from(mem.heading_rad)
-            how = f"slewed at {self.slew.max_rate_deg_s:g} deg/s"
+            self.slew.start_from(mem.heading_rad, rate_deg_s=self.slew_rate_deg_s)
+            how = f"slewed at {self.slew_rate_deg_s:g} deg/s"
         log.info("heading after restart differs by %+.1f° from the one last sent %.0f s ago: %s",
                  step, age, how)
 

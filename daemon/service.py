@@ -265,7 +265,8 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         and a different heading after the restart is slewed (or, in reset mode, signalled) in."""
         self.restart_heading = RestartHeading(
             self.state_dir, self.heading_slew, reset_mode=self.config.outputs.reset_counter_on_calibration,
-            signal_reset=self.signal_heading_reset, background=self._in_background)
+            signal_reset=self.signal_heading_reset, slew_rate_deg_s=self.config.outputs.restart_slew_deg_s,
+            background=self._in_background)
         self.reset_counter = self.restart_heading.initial_reset_counter
 
     def _in_background(self, fn: Callable[[], None]) -> None:
