@@ -1,5 +1,5 @@
 """The thesis's three-step magnetometer calibration (the ADIS16405 AHRS
-thesis §5-6-5-4; docs/calibration.md): hard iron b, scale k and
+thesis; docs/calibration.md): hard iron b, scale k and
 the three non-orthogonality angles α_yz, α_zy, α_zx (9 parameters), attitude-independent.
 
 The misalignment T_m^p = C_m'^p · T_m^m' splits into a rotation (unobservable from magnitudes; found by the

@@ -1,9 +1,9 @@
 """The thesis's two-step magnetometer calibration (the ADIS16405 AHRS
-thesis §5-6-5-3, eq. 5-19…5-26; docs/calibration.md): hard iron b and per-axis
+thesis; docs/calibration.md): hard iron b and per-axis
 scale k, no misalignment (6 parameters), attitude-independent.
 
-Model: H0² = Σ_i ((B_i − b_i)/k_i)², an axis-aligned ellipsoid. Multiplying by k_x² and rearranging (eq. 5-19,
-5-20) gives one linear equation per sample:
+Model: H0² = Σ_i ((B_i − b_i)/k_i)², an axis-aligned ellipsoid. Multiplying by k_x² and rearranging
+gives one linear equation per sample:
 
     −B_x² = S1·B_x + S2·B_y² + S3·B_y + S4·B_z² + S5·B_z + S6
 
@@ -36,7 +36,7 @@ def forward_mapping(b: np.ndarray, k: np.ndarray, field_ut: float) -> np.ndarray
 
 
 def inverse_mapping(s: np.ndarray, field_ut: float) -> tuple[np.ndarray, np.ndarray]:
-    """(b, k) from S (thesis eq. 5-26). Raises ValueError when S does not describe an ellipsoid."""
+    """(b, k) from S: b_x = −S1/2, b_y = −S3/(2 S2), b_z = −S5/(2 S4), then k from H0. Raises ValueError when S does not describe an ellipsoid."""
     s1, s2, s3, s4, s5, s6 = s
     if not (s2 > 0 and s4 > 0):
         raise ValueError(f"S2 = {s2:.4g}, S4 = {s4:.4g}: not an ellipsoid (need both > 0)")
