@@ -7,7 +7,7 @@ gives one linear equation per sample:
 
     −B_x² = S1·B_x + S2·B_y² + S3·B_y + S4·B_z² + S5·B_z + S6
 
-solved by least squares for S (step 1); then b and k follow from S (step 2, eq. 5-26, `inverse_mapping`).
+solved by least squares for S (step 1); then b and k follow from S (step 2, `inverse_mapping`).
 """
 
 from __future__ import annotations
@@ -21,14 +21,14 @@ METHOD = "two-step"
 
 
 def regressors(mag_ut: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(z, H) of eq. 5-20: z(k) = −B_x², h(k) = [B_x, B_y², B_y, B_z², B_z, 1]."""
+    """(z, H) of the regression above: z(k) = −B_x², h(k) = [B_x, B_y², B_y, B_z², B_z, 1]."""
     bx, by, bz = mag_ut[:, 0], mag_ut[:, 1], mag_ut[:, 2]
     h = np.column_stack([bx, by * by, by, bz * bz, bz, np.ones_like(bx)])
     return -bx * bx, h
 
 
 def forward_mapping(b: np.ndarray, k: np.ndarray, field_ut: float) -> np.ndarray:
-    """S from (b, k, H0) (eq. 5-20) — the inverse of `inverse_mapping`, used by the tests."""
+    """S from (b, k, H0) — the inverse of `inverse_mapping`, used by the tests."""
     bx, by, bz = b
     kx, ky, kz = k
     s2, s4 = kx**2 / ky**2, kx**2 / kz**2
