@@ -10,7 +10,7 @@ on a rotating Earth at a `Site` (default: DEFAULT_SITE and 60.17° N 24.94° E, 
 74° and heading from the magnetometer is 2.5× more sensitive to tilt). GNSS from the simulator's receiver
 model (`simulate_gnss`): 5 Hz, 1.5 m horizontal / 2.5 m vertical position (half of the variance a slow
 wander, τ 300 s) and 0.05 m/s velocity, 0.1 s latency, delivered in arrival order. The simulator's track is on
-seed 004's sphere (R0 = 6 378 137 m); `ins` runs with its default `earth_model="wgs84"` (what a receiver
+a spherical Earth (R0 = 6 378 137 m); `ins` runs with its default `earth_model="wgs84"` (what a receiver
 reports) and, as `ins-sphere`, with the sphere the track was computed on.
 
 Reported: RMS after 30 s of the tilt error (the horizontal part of the error rotation) and of the true-heading

@@ -1,11 +1,11 @@
 """Multi-position accelerometer calibration: the 12-parameter model of the ADIS16405
-AHRS thesis §5-6-6 (docs/calibration.md).
+AHRS thesis (docs/calibration.md).
 
-Model (our form of eq. 5-47…5-58): f = L · (f̃ − b − q ∘ f̃²), L lower triangular (scale on the diagonal,
+Model (our form of the thesis's): f = L · (f̃ − b − q ∘ f̃²), L lower triangular (scale on the diagonal,
 three misalignments below it: the accelerometer's x axis defines the platform frame, so the rotation the
 gravity norm cannot see is fixed), b the bias, q the quadratic nonlinearity. 3 + 3 + 3 + 3 = 12 parameters.
 
-1. Linear LS (eq. 5-63…5-68): for each static position i, z_i = (g − |S_o,i|)·g = h_i·X_a with
+1. Linear LS: for each static position i, z_i = (g − |S_o,i|)·g = h_i·X_a with
    h_i = [S_oy S_oz, −S_ox S_oz, S_ox S_oy, S_ox, S_oy, S_oz, −S_ox², −S_oy², −S_oz², S_ox³, S_oy³, S_oz³]
    X_a = [α_yx, α_xy, α_xz, δS_bx, δS_by, δS_bz, δk_x, δk_y, δk_z, k_nx, k_ny, k_nz]
    (first order in the errors: S^P ≈ S_o + E·S_o + δS_b + K_nl·S_o², E lower triangular).
@@ -44,7 +44,7 @@ def local_gravity_m_s2(lat_deg: float | None, alt_m: float = 0.0) -> float:
 
 
 def regressors(s_o: np.ndarray, g: float) -> tuple[np.ndarray, np.ndarray]:
-    """(z, H) of thesis eq. 5-63…5-68 for positions s_o (N, 3) in m/s²."""
+    """(z, H) of the linear LS step (module doc, step 1) for positions s_o (N, 3) in m/s²."""
     x, y, z = s_o[:, 0], s_o[:, 1], s_o[:, 2]
     h = np.column_stack([y * z, -x * z, x * y, x, y, z, -x * x, -y * y, -z * z, x**3, y**3, z**3])
     return (g - np.linalg.norm(s_o, axis=1)) * g, h
@@ -348,7 +348,7 @@ def hold_cost(used: list[StillSegment], skipped: list[StillSegment], rate_hz: fl
 # ---------------------------------------------------------------------------------------------- guided procedure
 
 # The positions the guided procedure asks for: the six faces, then the eight corners (each with three axes
-# tilted ~35° from vertical), 14 ≥ 12 distinct orientations (thesis §5-6-6: at least 12, more is better).
+# tilted ~35° from vertical), 14 ≥ 12 distinct orientations (12 parameters need at least 12; more is better).
 # Each is the direction the accelerometer reads +g along (the "up" direction in sensor axes).
 _S = 1 / math.sqrt(3)
 GUIDED_TARGETS: tuple[tuple[str, tuple[float, float, float]], ...] = (

@@ -1,5 +1,5 @@
-"""Allan-variance noise analysis of a static recording (the ADIS16405 AHRS thesis
-eq. 5-3…5-7 and §5-5; IEEE Std 952-1997 conventions).
+"""Allan-variance noise analysis of a static recording (IEEE Std 952-1997 conventions; NIST SP 1065
+for the estimators and confidence intervals; the analysis the ADIS16405 AHRS thesis runs).
 
 The recording is consumed a chunk at a time (`StaticAllanAnalysis.add`, or `analyse_chunks` over a chunked
 reader): per sensor a streaming overlapping Allan deviation (allan_adev.py), so a day at 819.2 SPS needs no

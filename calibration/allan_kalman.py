@@ -1,18 +1,18 @@
-"""Kalman-filter noise tuning from the noise terms an Allan analysis found (the ADIS16405
-AHRS thesis §5-5 form, eq. 6-1/6-2).
+"""Kalman-filter noise tuning from the noise terms an Allan analysis found (in the form the
+ADIS16405 AHRS thesis tunes its filter with).
 
 Q (6, rad²/s, continuous-time densities) = diag((3·N_i)², (3·w_b,i)²): the gyro white noise N (ARW) and the
 bias-driving noise w_b, both inflated ×3 because the axes' noises are correlated but Q is kept diagonal
-(thesis eq. 5-8). w_b comes from the bias terms that were seen, as the density of a random-walk bias
+(the thesis's rule). w_b comes from the bias terms that were seen, as the density of a random-walk bias
 ḃ = w_b (variances add when several are seen):
   - rate random walk K: w_b = K (IEEE Std 952 C.4: the RRW is exactly a random walk of the rate);
   - first-order Gauss–Markov σ, Tc: w_b = σ·√(2/Tc), the driving density of ḃ = −b/Tc + w (IEEE Std 952 C.6),
     with Tc reported for a filter that models the Markov state;
   - flicker B read at τ_B: the random walk whose Allan deviation equals the floor 0.664·B at τ_B:
     w_b = 0.664·B·√(3/τ_B) (a random walk is the usual finite-state stand-in for 1/f noise).
-With none seen, the thesis's rule w_b = N/10 (eq. 6-1) is used and listed as assumed; a white noise that was not
+With none seen, the thesis's rule w_b = N/10 is used and listed as assumed; a white noise that was not
 seen is taken from the datasheet below and listed as assumed.
-R (6) = diag(σ_mag², σ_accel²) from the output standard deviations (thesis eq. 6-2).
+R (6) = diag(σ_mag², σ_accel²) from the output standard deviations.
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ import math
 
 from .allan_terms import FLICKER_FACTOR
 
-Q_INFLATION = 3.0          # thesis eq. 5-8: diagonal Q inflated ×3 for correlated axes
-BIAS_DRIVE_FRACTION = 0.1  # thesis eq. 6-1: bias-driving noise = ARW/10 (used only when no bias term is seen)
+Q_INFLATION = 3.0          # the thesis's rule: diagonal Q inflated ×3 for correlated axes
+BIAS_DRIVE_FRACTION = 0.1  # the thesis's rule: bias-driving noise = ARW/10 (used only when no bias term is seen)
 AXES = ("x", "y", "z")
 
 # Analog Devices ADIS16405 data sheet (Rev. B), Table 1: used only where the recording did not show the term.
@@ -50,7 +50,7 @@ def bias_drive(p) -> tuple[float | None, list[str]]:
 
 
 def kalman_tuning(result) -> dict:
-    """The thesis's Kalman Q and R (§5-5, eq. 6-1/6-2) from an AllanResult, saying what was assumed."""
+    """The thesis's Kalman Q and R (form above) from an AllanResult, saying what was assumed."""
     out: dict = {"source": "thesis eq. 5-8, 6-1, 6-2; terms from the Allan analysis", "assumed": []}
     gyro = result.parameters.get("gyro")
     if gyro:

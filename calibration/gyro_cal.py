@@ -1,11 +1,11 @@
-"""Gyroscope calibration: rate-table (12 g-independent parameters, the ADIS16405 AHRS thesis
-§5-6-7; docs/calibration.md) and bias only.
+"""Gyroscope calibration: rate-table (12 g-independent parameters, after the ADIS16405 AHRS thesis;
+docs/calibration.md) and bias only.
 
 Model: ω = M · (ω̃ − b), M a full 3×3 (scale and misalignment, 9) and b the bias (3): a
-self-consistent form of the thesis's 12 g-independent parameters (eq. 5-103…5-108; its linearised rows,
-eq. 5-88, do not match its printed T_g^P). MEMS gyros have no
+self-consistent form of the thesis's 12 g-independent parameters (its linearised rows do not match
+its printed misalignment matrix T_g^P). MEMS gyros have no
 spinning mass, so the thesis drops the 27 g-dependent terms; the Earth rate (7.3e-5 rad/s) is below the
-ADIS16405 bias stability and is ignored (thesis §5-6-7).
+ADIS16405 bias stability and is ignored.
 
 Rate-table fit: with reference rates ω_ref (the table's known rate about its axis, expressed in the sensor
 frame) and the mean raw rates of steady segments, each component i is linear in row i of M and c = M·b:

@@ -1,5 +1,5 @@
-"""The thesis's magnetometer alignment step (the ADIS16405 AHRS thesis
-eq. 5-41…5-46; docs/calibration.md): the rotation C_m'^p that the
+"""The thesis's magnetometer alignment step (the ADIS16405 AHRS thesis;
+docs/calibration.md): the rotation C_m'^p that the
 magnitude-only fits cannot see, from levelled turns about each platform axis.
 
 With platform axis i vertical and the sensor turned about it, the field component along that axis is constant,
@@ -9,7 +9,7 @@ or up). Each sample of the magnitude-calibrated field H^m' gives one linear equa
     H_down · s_i = [H_x^m', H_y^m', H_z^m'] · [C_i1, C_i2, C_i3]ᵀ        (s_i = +1 axis down, −1 axis up)
 
 solved by least squares. Two axes suffice (the third row is their cross product); three over-determine it.
-The noisy Ĉ is made a rotation either as the thesis does, Ĉ·chol(ĈᵀĈ)⁻¹ (refs [28-31]), or by the nearest
+The noisy Ĉ is made a rotation either as the thesis does, Ĉ·chol(ĈᵀĈ)⁻¹ (upper Cholesky factor), or by the nearest
 rotation in the Frobenius sense (SVD polar factor, the default: it spreads the error over all rows instead of
 trusting the first).
 """

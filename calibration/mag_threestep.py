@@ -1,14 +1,14 @@
 """The thesis's three-step magnetometer calibration (the ADIS16405 AHRS
-thesis §5-6-5-4; docs/calibration.md): hard iron b, scale k and
+thesis; docs/calibration.md): hard iron b, scale k and
 the three non-orthogonality angles α_yz, α_zy, α_zx (9 parameters), attitude-independent.
 
 The misalignment T_m^p = C_m'^p · T_m^m' splits into a rotation (unobservable from magnitudes; found by the
 alignment step, `mag_alignment.py`) and the upper-triangular T_m^m'. With γ_yz = (k_x/k_y)α_yz,
-γ_zy = (k_x/k_z)α_zy, γ_zx = (k_y/k_z)α_zx and b′ (eq. 5-31), each sample gives one linear equation:
+γ_zy = (k_x/k_z)α_zy, γ_zx = (k_y/k_z)α_zx and the shifted bias b′, each sample gives one linear equation:
 
     step 1:  z = −B_x²,  h = [B_x, B_y², B_y, B_z², B_z, B_xB_y, B_xB_z, B_yB_z, 1],  z = h·X   (LS for X)
-    step 2:  X → (S, γ)         (eq. 5-39, its index typos corrected)
-    step 3:  (S, γ) → (b, k, α) (eq. 5-40)
+    step 2:  X → (S, γ)         (the thesis's relations, its index typos corrected)
+    step 3:  (S, γ) → (b, k, α)
 
 The result is m = T_m^m' · K⁻¹ · (B − b) (the alignment rotation is the identity until `mag_alignment` runs).
 """
@@ -46,7 +46,7 @@ def regressors(mag_ut: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def x_from_s_gamma(s: np.ndarray, g_yz: float, g_zy: float, g_zx: float) -> np.ndarray:
-    """X from S and γ (the definition below eq. 5-31) — the forward direction, for tests."""
+    """X from S and γ (the definition of X) — the forward direction, for tests."""
     s1, s2, s3, s4, s5, s6 = s
     return np.array([
         s1,
@@ -62,7 +62,7 @@ def x_from_s_gamma(s: np.ndarray, g_yz: float, g_zy: float, g_zx: float) -> np.n
 
 
 def s_gamma_from_x(x: np.ndarray) -> tuple[np.ndarray, dict]:
-    """Step 2 (eq. 5-39, corrected): X → S (6) and γ."""
+    """Step 2 (index typos corrected): X → S (6) and γ."""
     x1, x2, x3, x4, x5, x6, x7, x8, x9 = x
     s1, s6 = x1, x9
     g_yz, g_zy = -0.5 * x6, 0.5 * x7
@@ -79,7 +79,7 @@ def s_gamma_from_x(x: np.ndarray) -> tuple[np.ndarray, dict]:
 
 
 def b_k_alpha_from_s_gamma(s: np.ndarray, gamma: dict, field_ut: float):
-    """Step 3 (eq. 5-40): (S, γ) → b′, b, k, α."""
+    """Step 3: (S, γ) → b′, b, k, α."""
     s1, s2, s3, s4, s5, s6 = s
     bpx, bpy, bpz = -0.5 * s1, -s3 / (2 * s2), -s5 / (2 * s4)
     kx2 = (bpx**2 + s2 * bpy**2 + s4 * bpz**2 - s6) / field_ut**2

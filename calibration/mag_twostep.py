@@ -1,13 +1,13 @@
 """The thesis's two-step magnetometer calibration (the ADIS16405 AHRS
-thesis §5-6-5-3, eq. 5-19…5-26; docs/calibration.md): hard iron b and per-axis
+thesis; docs/calibration.md): hard iron b and per-axis
 scale k, no misalignment (6 parameters), attitude-independent.
 
-Model: H0² = Σ_i ((B_i − b_i)/k_i)², an axis-aligned ellipsoid. Multiplying by k_x² and rearranging (eq. 5-19,
-5-20) gives one linear equation per sample:
+Model: H0² = Σ_i ((B_i − b_i)/k_i)², an axis-aligned ellipsoid. Multiplying by k_x² and rearranging
+gives one linear equation per sample:
 
     −B_x² = S1·B_x + S2·B_y² + S3·B_y + S4·B_z² + S5·B_z + S6
 
-solved by least squares for S (step 1); then b and k follow from S (step 2, eq. 5-26, `inverse_mapping`).
+solved by least squares for S (step 1); then b and k follow from S (step 2, `inverse_mapping`).
 """
 
 from __future__ import annotations
@@ -21,14 +21,14 @@ METHOD = "two-step"
 
 
 def regressors(mag_ut: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(z, H) of eq. 5-20: z(k) = −B_x², h(k) = [B_x, B_y², B_y, B_z², B_z, 1]."""
+    """(z, H) of the regression above: z(k) = −B_x², h(k) = [B_x, B_y², B_y, B_z², B_z, 1]."""
     bx, by, bz = mag_ut[:, 0], mag_ut[:, 1], mag_ut[:, 2]
     h = np.column_stack([bx, by * by, by, bz * bz, bz, np.ones_like(bx)])
     return -bx * bx, h
 
 
 def forward_mapping(b: np.ndarray, k: np.ndarray, field_ut: float) -> np.ndarray:
-    """S from (b, k, H0) (eq. 5-20) — the inverse of `inverse_mapping`, used by the tests."""
+    """S from (b, k, H0) — the inverse of `inverse_mapping`, used by the tests."""
     bx, by, bz = b
     kx, ky, kz = k
     s2, s4 = kx**2 / ky**2, kx**2 / kz**2
@@ -36,7 +36,7 @@ def forward_mapping(b: np.ndarray, k: np.ndarray, field_ut: float) -> np.ndarray
 
 
 def inverse_mapping(s: np.ndarray, field_ut: float) -> tuple[np.ndarray, np.ndarray]:
-    """(b, k) from S (thesis eq. 5-26). Raises ValueError when S does not describe an ellipsoid."""
+    """(b, k) from S: b_x = −S1/2, b_y = −S3/(2 S2), b_z = −S5/(2 S4), then k from H0. Raises ValueError when S does not describe an ellipsoid."""
     s1, s2, s3, s4, s5, s6 = s
     if not (s2 > 0 and s4 > 0):
         raise ValueError(f"S2 = {s2:.4g}, S4 = {s4:.4g}: not an ellipsoid (need both > 0)")

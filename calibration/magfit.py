@@ -2,8 +2,8 @@
 
 Methods:
   ellipsoid     full 9-parameter ellipsoid (algebraic guess + Levenberg–Marquardt)      calibration/ellipsoid.py
-  two-step      thesis §5-6-5-3, 6 parameters: hard iron + per-axis scale                 calibration/mag_twostep.py
-  three-step    thesis §5-6-5-4, 9 parameters: + non-orthogonality                        calibration/mag_threestep.py
+  two-step      thesis,         6 parameters: hard iron + per-axis scale                 calibration/mag_twostep.py
+  three-step    thesis,         9 parameters: + non-orthogonality                        calibration/mag_threestep.py
   backstepping  Nourmohammadi & Sabet 2022, for vehicles that cannot be tumbled         calibration/backstepping.py
 
 Every method returns a `MagFitResult` whose `model` maps raw µT to calibrated µT

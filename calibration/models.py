@@ -1,12 +1,12 @@
-"""Sensor error models and the `Calibration` bundle the daemon applies to every sample (design §2).
+"""Sensor error models and the `Calibration` bundle the daemon applies to every sample (CONTRIBUTING.md).
 
 All three sensors share one form, calibrated = matrix · (raw − bias):
 
-- gyro:  ω = M_g · (ω̃ − b_g)                       (ADIS16405 AHRS thesis §5-6-7, 12 g-independent terms)
-- accel: f = M_a · (f̃ − b_a − k_nl ∘ f̃ ∘ f̃)          (thesis eq. 5-52: bias, 3×3 scale/misalignment, quadratic)
+- gyro:  ω = M_g · (ω̃ − b_g)                       (12 g-independent terms: bias, scale, misalignment)
+- accel: f = M_a · (f̃ − b_a − k_nl ∘ f̃ ∘ f̃)          (bias, 3×3 scale/misalignment, quadratic)
 - mag:   m = S · (m̃ − h)                              (hard iron h in µT, soft iron S a full 3×3)
 
-The thesis's magnetometer form m = C_m'^p · T_m^m' · K⁻¹ · (m̃ − b) (thesis §5-6-5, eq. 5-13) is the
+The thesis's magnetometer form m = C_m'^p · T_m^m' · K⁻¹ · (m̃ − b) is the
 special case built by `MagModel.from_thesis` (and taken apart again by `MagModel.to_thesis`).
 
 Models are frozen; `apply` works on one vector (3,) or a block (n, 3). `Calibration.apply(sample)` is the
@@ -81,7 +81,7 @@ def _apply_affine(matrix: np.ndarray, offset: np.ndarray, raw: np.ndarray) -> np
 
 
 def misalignment_matrix(alpha: Mapping[str, float] | None) -> np.ndarray:
-    """The thesis's small-angle misalignment T (eq. 5-2 / 5-12), α_ij = rotation of sensor axis i about
+    """The thesis's small-angle misalignment T (below), α_ij = rotation of sensor axis i about
     platform axis j, in rad. Keys: 'yz', 'zy', 'zx', 'xz', 'xy', 'yx' (missing ones are 0).
 
         T = [[1, −α_yz, α_zy], [α_xz, 1, −α_zx], [−α_xy, α_yx, 1]]
@@ -140,8 +140,8 @@ class GyroModel:
 class AccelModel:
     """f_calibrated = matrix · (f_raw − bias_m_s2 − quadratic ∘ f_raw²).
 
-    `quadratic` (unit 1/(m/s²)) is the thesis's nonlinearity K_nl (eq. 5-52), per axis on that axis's own
-    raw reading; `matrix` holds scale and misalignment (thesis T_a^P · diag(1/(1+δk)), eq. 5-47…5-58).
+    `quadratic` (unit 1/(m/s²)) is the thesis's nonlinearity K_nl, per axis on that axis's own
+    raw reading; `matrix` holds scale and misalignment (the thesis's T_a^P · diag(1/(1+δk))).
     """
 
     bias_m_s2: np.ndarray
@@ -196,7 +196,7 @@ class AccelModel:
 
 @dataclass(frozen=True, slots=True)
 class ThesisMagParameters:
-    """The thesis's magnetometer parameters (eq. 5-11…5-13, §10.1.2–10.1.3).
+    """The thesis's magnetometer parameters: m = C_m'^p · T_m^m' · K⁻¹ · (m̃ − b).
 
     bias_ut: b (µT); scale: k (dimensionless gains, raw = k · true + b on an orthogonal sensor);
     alpha: the six α_ij (rad) of T_m^p; alignment: C_m'^p (rotation, identity when not determined).
@@ -235,7 +235,7 @@ class MagModel:
         alpha: Mapping[str, float] | None = None,
         alignment: np.ndarray | None = None,
     ) -> "MagModel":
-        """The thesis's b/k/α form: m = C_m'^p · T · K⁻¹ · (m̃ − b) (ADIS16405 AHRS thesis §5-6-5, eq. 5-13).
+        """The thesis's b/k/α form: m = C_m'^p · T · K⁻¹ · (m̃ − b).
 
         bias_ut: b (µT). scale: k = (k_x, k_y, k_z) gains. alpha: α_ij (rad, see `misalignment_matrix`);
         the three-step algorithm yields only 'yz', 'zy', 'zx' (T_m^m', upper triangular).
@@ -248,8 +248,8 @@ class MagModel:
         return cls(np.asarray(bias_ut, dtype=np.float64), c @ misalignment_matrix(alpha) @ np.diag(1.0 / k))
 
     def to_thesis(self) -> ThesisMagParameters:
-        """Take soft_iron apart into C_m'^p · T_m^m' · K⁻¹ (the three-step form, thesis §5-6-5-4
-        and eq. 5-41…5-46).
+        """Take soft_iron apart into C_m'^p · T_m^m' · K⁻¹ (the three-step form and
+        the alignment step).
 
         QR of soft_iron = Q·R with R upper triangular and positive diagonal: Q = C_m'^p, R = T_m^m' · K⁻¹,
         so k_i = 1/R_ii and T = R · K, whose upper entries give −α_yz, α_zy, −α_zx. Exact for small

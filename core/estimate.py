@@ -1,4 +1,4 @@
-"""The estimate every estimator produces (design §5): attitude of the body in NED, with flags and 1σ."""
+"""The estimate every estimator produces (CONTRIBUTING.md): attitude of the body in NED, with flags and 1σ."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ class EstimateFlags(enum.IntFlag):
 class AttitudeEstimate:
     """Attitude of the body (FRD) in NED at time t_s.
 
-    q_wxyz: Hamilton, scalar first, rotates body vectors into NED (design §4).
+    q_wxyz: Hamilton, scalar first, rotates body vectors into NED.
     roll/pitch/yaw_rad: ZYX Euler; yaw is magnetic (relative to magnetic north).
     heading_true_rad = yaw + declination, wrapped to [0, 2π).
     sigma_rpy_rad: 1σ uncertainty of roll, pitch, yaw.

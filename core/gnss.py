@@ -1,4 +1,4 @@
-"""The GNSS fix every GNSS source delivers (design §2): a receiver's position and velocity solution.
+"""The GNSS fix every GNSS source delivers (CONTRIBUTING.md): a receiver's position and velocity solution.
 
 Time: `t_s` is the time of validity of the solution on the pipeline's clock (the IMU samples' `t_s`), i.e.
 the arrival time minus the receiver latency the source knows or is configured with. Missing values are NaN

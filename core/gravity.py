@@ -1,9 +1,11 @@
-"""Normal gravity at a place: the 1967 International Gravity Formula with a spherical height correction.
+"""Normal gravity at a place: the 1980 International Gravity Formula (GRS80 series) with a spherical
+height correction.
 
 g(L, 0) = 9.780327 (1 + 0.0053024 sin²L − 0.0000058 sin²2L)  m/s²
 g(L, h) = g(L, 0) · (R0 / (R0 + h))²,  R0 = 6 378 137 m (WGS-84 equatorial radius)
 
-(as in Titterton & Weston, "Strapdown Inertial Navigation Technology", 2nd ed.). "Gravity" here is mass
+(the series form of GRS80 normal gravity, H. Moritz, "Geodetic Reference System 1980", J. Geodesy 74, 2000;
+the 1967 formula has 9.780318 and 0.0000059). "Gravity" here is mass
 attraction plus the centripetal term of the Earth's rotation, i.e. what a level accelerometer at rest reads
 (with the sign flipped: specific force points up).
 """
@@ -13,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 EARTH_RADIUS_M = 6_378_137.0        # WGS-84 equatorial radius, used as a spherical Earth radius
-G_EQUATOR_M_S2 = 9.780327           # 1967 International Gravity Formula
+G_EQUATOR_M_S2 = 9.780327           # 1980 International Gravity Formula (GRS80 series)
 G_SIN2_COEFF = 0.0053024
 G_SIN2_2L_COEFF = 0.0000058
 EARTH_RATE_RAD_S = 7.292e-5        # Earth rotation rate (WGS-84 7.292115e-5 rad/s, rounded): 15.04 °/h

@@ -1,6 +1,6 @@
-"""The sample that flows from the driver through calibration into the estimator (design §2).
+"""The sample that flows from the driver through calibration into the estimator (CONTRIBUTING.md).
 
-Body frame FRD after mounting; SI units (design §4). Magnetic field in µT.
+Body frame FRD after mounting; SI units. Magnetic field in µT.
 """
 
 from __future__ import annotations

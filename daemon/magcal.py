@@ -117,7 +117,7 @@ class MagCalHost(Protocol):
 
 
 def _dcm_zyx(roll_rad: float, pitch_rad: float, yaw_rad: float) -> np.ndarray:
-    """C = Rz(yaw) · Ry(pitch) · Rx(roll) (design §4: body → NED for the body's Euler angles)."""
+    """C = Rz(yaw) · Ry(pitch) · Rx(roll) (ZYX Euler: body → NED for the body's Euler angles)."""
     cr, sr, cp, sp = math.cos(roll_rad), math.sin(roll_rad), math.cos(pitch_rad), math.sin(pitch_rad)
     cy, sy = math.cos(yaw_rad), math.sin(yaw_rad)
     return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],

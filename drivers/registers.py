@@ -177,7 +177,7 @@ TEMP_C_AT_ZERO = 25.0            # 0 LSB = 25 °C
 SUPPLY_V_PER_LSB = 2.418e-3      # 2.418 mV/LSB, 14-bit unsigned
 AUX_V_PER_LSB = 805.8e-6         # 805.8 µV/LSB, 12-bit unsigned
 
-UT_PER_GAUSS = 100.0             # 1 gauss = 100 µT (design §4)
+UT_PER_GAUSS = 100.0             # 1 gauss = 100 µT
 
 GYRO_RAD_S_PER_LSB = math.radians(GYRO_DPS_PER_LSB_300)
 ACCEL_M_S2_PER_LSB = ACCEL_G_PER_LSB * STANDARD_GRAVITY_M_S2

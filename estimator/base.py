@@ -1,4 +1,4 @@
-"""The estimator interface shared by every attitude estimator (design §5)."""
+"""The estimator interface shared by every attitude estimator (CONTRIBUTING.md)."""
 
 from __future__ import annotations
 

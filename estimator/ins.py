@@ -1,7 +1,8 @@
 """`ins`: GNSS-aided attitude and navigation — a loosely coupled INS/GNSS error-state Kalman filter.
 
-Seed 004 §7 (NED mechanisation with Earth rate, transport rate and normal gravity, `ins_mechanisation.py`) and
-§10 (loose coupling, the 15 error states of §10.2 — attitude, velocity, position, gyro bias, accelerometer
+Groves, Principles of GNSS, Inertial, and Multisensor Integrated Navigation Systems, 2nd ed. (2013): §5.4 (NED
+mechanisation with Earth rate, transport rate and normal gravity, `ins_mechanisation.py`) and ch. 14 (loose
+coupling, the 15 error states — attitude, velocity, position, gyro bias, accelerometer
 bias — plus the gyro's three scale factors and six misalignments, closed-loop feedback). GNSS velocity and position are fused at their time of validity against a short history of the
 state (fixes arrive 50–200 ms late: the delayed-measurement idea of ArduPilot EKF3's fusion time horizon),
 through the antenna lever arm, weighted by the accuracies the receiver reports, behind a χ² innovation gate.
@@ -81,10 +82,10 @@ class InsParams:
     """The covariance is propagated (and the magnetometer and levelling updates run) every this long, with
     the summed increments of the samples in between, s. 0.01 s = every 8 samples at 819.2 SPS."""
     earth_rotation: bool = True
-    """Earth rate, transport rate and Coriolis in the mechanisation (seed 004 eqs. 14–16, 21)."""
+    """Earth rate, transport rate and Coriolis in the mechanisation (Groves 2nd ed. eqs. 2.123, 5.44, 5.54)."""
     earth_model: str = "wgs84"
-    """Radii of curvature for position (eq. 17) and transport rate (eq. 16): "wgs84" (the ellipsoid receivers
-    report positions on) or "sphere" (seed 004's R0 = 6 378 137 m, for tracks computed on that sphere)."""
+    """Radii of curvature for position (Groves eq. 5.56) and transport rate (eq. 5.44): "wgs84" (the ellipsoid receivers
+    report positions on) or "sphere" (R0 = 6 378 137 m, for tracks computed on that sphere)."""
 
     # --- GNSS
     lever_arm_m: tuple = (0.0, 0.0, 0.0)

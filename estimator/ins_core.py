@@ -15,7 +15,7 @@ Error state δx (24, true − estimate), in this order:
   δb_g (9–11) gyro bias error, rad/s;  δb_a (12–14) accelerometer bias error, m/s²
   δs_g (15–17) gyro scale-factor error (ω_meas = (I + diag(s) + M) ω + b), fraction
   δm_g (18–23) gyro misalignment M's off-diagonal elements xy, xz, yx, yz, zx, zy (ω_j picks up m_jk ω_k), rad
-Error dynamics (seed 004 §10.2, Groves ch. 14; the ω_in^n × δθ, Coriolis and gravity-gradient couplings are
+Error dynamics (Groves 2nd ed. ch. 14; the ω_in^n × δθ, Coriolis and gravity-gradient couplings are
 below the ADIS16405's noise over the filter's time constants and are left out):
   δθ̇ = −C δb_g − C diag(ω) δs_g − C W(ω) δm_g + w_g,  δv̇ = −[f^n×] δθ − C δb_a + w_a,  δṗ = δv,  biases,
   scale factors and misalignments random walks (W(ω): the 3×6 map of δm_g into δω). An uncalibrated 0.3 %
@@ -138,7 +138,7 @@ P_CONV_YAW = 29         # ... and 1σ heading is below this, rad
 P_GNSS_TIMEOUT = 30     # no fused fix for this long: GNSS_OUTAGE, s
 P_NAV_INIT_TILT = 31    # 1σ tilt assumed when a fix first sets velocity/position (levelled tilt leans), rad
 P_NAV_DROP = 44         # without a fused fix for this long, velocity and position are dropped, s
-P_SPHERE = 45           # 1.0: spherical Earth (radius R0, seed 004) instead of the WGS-84 ellipsoid's radii
+P_SPHERE = 45           # 1.0: spherical Earth (radius R0 = 6 378 137 m) instead of the WGS-84 ellipsoid's radii
 P_MAG = 32              # mag_heading parameter block (MP_SIZE): 32–43
 P_GYRO_SCALE_WALK = 46  # gyro scale-factor random walk, 1/√s
 P_GYRO_SCALE_CLIP = 47  # |s| and |m| limit per element
@@ -566,7 +566,7 @@ def ins_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_fl
         vn = ve = vd = 0.0
     earth = par[P_EARTH_ROT] > 0.0 and nav_ok   # the Earth rate needs the latitude
     if dt > 0.0:
-        # body rate relative to NED: ω_nb = ω_ib − C_n^b (ω_ie + ω_en)   (seed 004 eq. 21)
+        # body rate relative to NED: ω_nb = ω_ib − C_n^b (ω_ie + ω_en)   (as in Groves 2nd ed. eq. 5.77)
         rx, ry, rz = mwx, mwy, mwz
         if earth:
             en, ee, ed = earth_rate_ned(lat)

@@ -1,14 +1,16 @@
 """NED strapdown mechanisation of the `ins` estimator: gravity, Earth rate, transport rate, position and
-velocity rates (seed 004 §7, eqs. 14–18 and 22), as scalar functions compiled with numba.
+velocity rates (the local-navigation-frame equations of Groves, "Principles of GNSS, Inertial, and Multisensor
+Integrated Navigation Systems", 2nd ed., 2013, §5.4), as scalar functions compiled with numba.
 
 They are called from the filter kernel (`ins_core.py`) and are plain callables from Python too (the tests
 check them against the equations and worked values).
 
-Earth model. Gravity is seed 004's normal-gravity series (eq. 18) with its height factor. The radii are those
+Earth model. Gravity is the 1980 International Gravity Formula (GRS80 series, core/gravity.py) with a spherical
+(R0/(R0+h))² height factor. The radii are those
 of the WGS-84 ellipsoid (meridian R_N and prime-vertical R_E, Groves 2nd ed. eqs. 2.105–2.106) instead of the
-seed's sphere: GNSS receivers report WGS-84 geodetic positions, and on the sphere a north displacement would
+sphere of radius R0: GNSS receivers report WGS-84 geodetic positions, and on the sphere a north displacement would
 be mis-scaled by up to 0.7 % (15 m over 2 km at mid-latitudes). With r_n = r_e = R every function is exactly
-the seed's spherical form (eqs. 16, 17, 22).
+the spherical form (R_N = R_E = R0).
 """
 
 from __future__ import annotations
@@ -29,7 +31,8 @@ WGS84_E2 = 6.69437999014e-3          # WGS-84 first eccentricity squared
 @njit(cache=True)
 def normal_gravity_m_s2(lat_rad, h_m):
     """Local gravity magnitude g(L, h) = 9.780327 (1 + 0.0053024 sin²L − 0.0000058 sin²2L) (R0/(R0+h))²,
-    m/s² (seed 004 eq. 18): mass attraction plus the centripetal term of the Earth's rotation."""
+    m/s² (1980 International Gravity Formula, GRS80 series): mass attraction plus the centripetal term of the
+    Earth's rotation."""
     s = math.sin(lat_rad)
     s2 = math.sin(2.0 * lat_rad)
     g0 = G_EQUATOR_M_S2 * (1.0 + G_SIN2_COEFF * s * s - G_SIN2_2L_COEFF * s2 * s2)
@@ -39,7 +42,7 @@ def normal_gravity_m_s2(lat_rad, h_m):
 
 @njit(cache=True)
 def earth_rate_ned(lat_rad):
-    """ω_ie^n = ω_ie [cos L, 0, −sin L], rad/s (seed 004 eq. 15)."""
+    """ω_ie^n = ω_ie [cos L, 0, −sin L], rad/s (Groves 2nd ed. eq. 2.123)."""
     return EARTH_RATE_RAD_S * math.cos(lat_rad), 0.0, -EARTH_RATE_RAD_S * math.sin(lat_rad)
 
 
@@ -54,22 +57,23 @@ def radii_of_curvature_m(lat_rad):
 
 @njit(cache=True)
 def transport_rate_ned(lat_rad, h_m, vn, ve, r_n, r_e):
-    """ω_en^n = [V_E/(R_E+h), −V_N/(R_N+h), −V_E tan L/(R_E+h)], rad/s (seed 004 eq. 16; R_N = R_E = R
-    is the seed's sphere)."""
+    """ω_en^n = [V_E/(R_E+h), −V_N/(R_N+h), −V_E tan L/(R_E+h)], rad/s (Groves 2nd ed. eq. 5.44; R_N = R_E = R
+    is the spherical Earth)."""
     re = r_e + h_m
     return ve / re, -vn / (r_n + h_m), -ve * math.tan(lat_rad) / re
 
 
 @njit(cache=True)
 def position_rates(lat_rad, h_m, vn, ve, vd, r_n, r_e):
-    """(L̇, λ̇, ḣ) = (V_N/(R_N+h), V_E/((R_E+h) cos L), −V_D) in rad/s, rad/s, m/s (seed 004 eq. 17)."""
+    """(L̇, λ̇, ḣ) = (V_N/(R_N+h), V_E/((R_E+h) cos L), −V_D) in rad/s, rad/s, m/s (the rates Groves 2nd ed.
+    eq. 5.56 integrates)."""
     return vn / (r_n + h_m), ve / ((r_e + h_m) * math.cos(lat_rad)), -vd
 
 
 @njit(cache=True)
 def velocity_rate_ned(fn, fe, fd, vn, ve, vd, lat_rad, h_m, r_n, r_e, earth_rotates):
-    """V̇ = f^n − (2 ω_ie^n + ω_en^n) × V + g_l^n, m/s² (seed 004 eq. 14 with eqs. 15, 16, 18), f^n = C_b^n f^b
-    (eq. 19). earth_rotates False drops the Earth rate and transport rate (a flat, non-rotating Earth)."""
+    """V̇ = f^n − (2 ω_ie^n + ω_en^n) × V + g_l^n, m/s² (Groves 2nd ed. eq. 5.54 in continuous form),
+    f^n = C_b^n f^b. earth_rotates False drops the Earth rate and transport rate (a flat, non-rotating Earth)."""
     g = normal_gravity_m_s2(lat_rad, h_m)
     if not earth_rotates:
         return fn, fe, fd + g

@@ -1,8 +1,8 @@
-"""Rotation maths on ahrsd's conventions (design §4).
+"""Rotation maths on ahrsd's conventions (CONTRIBUTING.md).
 
 Frames: navigation NED, body FRD. Quaternions are Hamilton, **scalar first** ``[w, x, y, z]``, and rotate
 body vectors into NED: ``v_ned = q ⊗ v_body ⊗ q*`` = ``C_b^n v_body``. Euler angles are ZYX (yaw, pitch, roll):
-``C_b^n = Rz(yaw) Ry(pitch) Rx(roll)``, and from C_b^n (thesis eq 3-31 / 4-43, typo fixed):
+``C_b^n = Rz(yaw) Ry(pitch) Rx(roll)``, and from C_b^n:
 roll = atan2(C32, C33), pitch = −asin(C31), yaw = atan2(C21, C11).
 
 Every function is pure and works on numpy arrays; quaternion, vector and DCM arguments may carry leading
@@ -143,7 +143,7 @@ def dcm_rows_to_quat(c) -> tuple[float, float, float, float]:
 
 # --------------------------------------------------------------------------------------------- Euler
 def euler_to_dcm(roll_rad, pitch_rad, yaw_rad) -> np.ndarray:
-    """C_b^n = Rz(yaw)·Ry(pitch)·Rx(roll) (ADIS16405 AHRS thesis ch. 3, full form)."""
+    """C_b^n = Rz(yaw)·Ry(pitch)·Rx(roll) (full form)."""
     cr, sr = np.cos(_f(roll_rad)), np.sin(_f(roll_rad))
     cp, sp = np.cos(_f(pitch_rad)), np.sin(_f(pitch_rad))
     cy, sy = np.cos(_f(yaw_rad)), np.sin(_f(yaw_rad))
@@ -162,7 +162,7 @@ def euler_to_dcm(roll_rad, pitch_rad, yaw_rad) -> np.ndarray:
 
 
 def dcm_to_euler(c) -> np.ndarray:
-    """ZYX Euler angles [roll, pitch, yaw] (…, 3) from C_b^n (thesis eq 3-31; yaw in [−π, π])."""
+    """ZYX Euler angles [roll, pitch, yaw] (…, 3) from C_b^n (yaw in [−π, π])."""
     c = _f(c)
     roll = np.arctan2(c[..., 2, 1], c[..., 2, 2])
     pitch = -np.arcsin(np.clip(c[..., 2, 0], -1.0, 1.0))
@@ -186,7 +186,7 @@ def euler_to_quat(roll_rad, pitch_rad, yaw_rad) -> np.ndarray:
 
 
 def quat_to_euler(q) -> np.ndarray:
-    """ZYX Euler angles [roll, pitch, yaw] (…, 3) of unit quaternion(s), via the DCM elements used by eq 3-31."""
+    """ZYX Euler angles [roll, pitch, yaw] (…, 3) of unit quaternion(s), via the DCM elements of dcm_to_euler."""
     q = _f(q)
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     roll = np.arctan2(2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y))
@@ -247,7 +247,7 @@ def skew(v) -> np.ndarray:
 
 
 def reorthonormalize(c, iterations: int = 1) -> np.ndarray:
-    """The thesis's re-orthonormalisation (eq 4-42, ref [17]): C ← 1.5·C − 0.5·C·Cᵀ·C, `iterations` times.
+    """The re-orthonormalisation the thesis filter uses: C ← 1.5·C − 0.5·C·Cᵀ·C, `iterations` times.
 
     Each step is one Newton–Schulz step towards the orthogonal polar factor of C (the nearest orthogonal
     matrix); it converges quadratically when the singular values of C lie in (0, √3).
@@ -259,7 +259,7 @@ def reorthonormalize(c, iterations: int = 1) -> np.ndarray:
 
 
 def reorthonormalize_rows(c):
-    """One step of eq 4-42, C ← 1.5C − 0.5CCᵀC = C(1.5I − 0.5CᵀC), on one 3×3 given as three rows of floats
+    """One re-orthonormalisation, C ← 1.5C − 0.5CCᵀC = C(1.5I − 0.5CᵀC), on one 3×3 given as three rows of floats
     (scalar maths for per-sample hot paths; same result as `reorthonormalize(c, 1)`). Returns three row tuples."""
     (c00, c01, c02), (c10, c11, c12), (c20, c21, c22) = c
     s00 = c00 * c00 + c10 * c10 + c20 * c20

@@ -1,25 +1,26 @@
-"""`thesis`: the attitude filter of the ADIS16405 AHRS thesis (ch. 4; docs/estimator.md), reproduced faithfully
+"""`thesis`: the attitude filter of the ADIS16405 AHRS thesis (docs/estimator.md says which), reproduced faithfully
 as a baseline.
 
 A 9-state Kalman filter estimates the **body-frame** magnetic field and gravity vectors and the gyro bias;
 the gyros only propagate those vectors; the attitude then comes algebraically from the filtered vectors by
-the thesis's Wahba solution (eq 4-34 … 4-41) and its re-orthonormalisation C ← 1.5C − 0.5CCᵀC (eq 4-42).
+the thesis's two-vector Wahba solution (C_n^b = B N⁻¹ from stacked vectors, `wahba.py`) and its
+re-orthonormalisation C ← 1.5C − 0.5CCᵀC.
 
-Model (thesis eq 4-3 … 4-24), with the thesis's sign ambiguity (eq 4-3 … 4-12) resolved as
+Model, with the sign of the bias, which the thesis leaves ambiguous, resolved as
 ω_true = ω_meas − b − δω
 (so ``gyro_bias_rad_s`` is what is subtracted from the gyro, as in every other ahrsd estimator)::
 
-    x = [mᵇ (µT), gᵇ = −fᵇ (m/s²), b (rad/s)]                       (eq 4-15; state holds −f = g)
-    ṁᵇ = −[ω×]mᵇ − [mᵇ×]b − [mᵇ×]δω,   ω = ω_meas                     (eq 4-9, 4-13)
+    x = [mᵇ (µT), gᵇ = −fᵇ (m/s²), b (rad/s)]                       (state holds −f = g)
+    ṁᵇ = −[ω×]mᵇ − [mᵇ×]b − [mᵇ×]δω,   ω = ω_meas
     ġᵇ = −[ω×]gᵇ − [gᵇ×]b − [gᵇ×]δω
-    ḃ  = −b/τ_w + w_b/τ_w                                              (eq 4-11, Gauss–Markov)
-    A = [[−[ω×], 0, −[m×]], [0, −[ω×], −[g×]], [0, 0, −I/τ_w]]          (eq 4-16, bias blocks sign-flipped)
-    B = [[−[m×], 0], [−[g×], 0], [0, I/τ_w]]                           (eq 4-17)
-    F = I + AΔt + ½A²Δt²                                               (eq 4-21, reconstructed)
+    ḃ  = −b/τ_w + w_b/τ_w                                              (Gauss–Markov)
+    A = [[−[ω×], 0, −[m×]], [0, −[ω×], −[g×]], [0, 0, −I/τ_w]]          (bias sign as above)
+    B = [[−[m×], 0], [−[g×], 0], [0, I/τ_w]]
+    F = I + AΔt + ½A²Δt²                                               (second-order transition matrix)
     Q_d = B Q B^T Δt   (Q a PSD in rad²/s; the printed GQGᵀ, G = ΔtB, scales as Δt²)
-    z = [m̃ᵇ, −f̃ᵇ],  H = [I₆ 0]                                         (eq 4-23/4-24)
-    standard KF predict / update                                       (eq 4-25 … 4-31)
-    Cₙᵇ = B_b N_n⁻¹ (version 2 by default, version 1 selectable), C_b^n = (Cₙᵇ)ᵀ, eq 4-42, Euler eq 3-31.
+    z = [m̃ᵇ, −f̃ᵇ],  H = [I₆ 0]
+    standard KF predict / update
+    Cₙᵇ = B_b N_n⁻¹ (version 2 by default, version 1 selectable), C_b^n = (Cₙᵇ)ᵀ, then C ← 1.5C − 0.5CCᵀC.
 
 Choices where the thesis is silent, each a field of `ThesisKfParams`:
 
@@ -28,15 +29,15 @@ Choices where the thesis is silent, each a field of `ThesisKfParams`:
   going backwards) re-initialise the vectors from the measurement (flags LARGE_DT | REINITIALISED); a repeated
   time stamp (Δt = 0) gets the measurement update only.
 * **τ_w** — 1000 s: long against the filter's settling so a learned bias is kept (the thesis folds it back into
-  the calibration, Fig 1-2); with the thesis's bias-driving noise this is a slow random walk.
+  the calibration); with the thesis's bias-driving noise this is a slow random walk.
 * **x̂₀, P₀** — the first sample's m̃, −f̃ with P₀ = R; bias ``initial_bias_rad_s`` with σ ``initial_bias_sigma_rad_s``.
 * **H** — [I₆ 0] with −f̃ as the measurement (equivalent to H = [[I,0,0],[0,−I,0]] on f̃).
-* **Units of Q and R** — Q (eq 6-1) as printed, rad²/s; R (eq 6-2) read as mG and mg (the ADIS16405's display
+* **Units of Q and R** — Q as the thesis prints it, rad²/s; R read as mG and mg (the ADIS16405's display
   units; the thesis does not state them) and converted to µT² and (m/s²)².
 * **Reference vectors** — fⁿ = [0, 0, −g]; mⁿ is taken in the *magnetic* NED frame, [H, 0, Z], so the yaw is
   magnetic (heading_true adds the declination, ahrsd's contract). Its dip is learned from the filtered vectors
   while INITIALISING (``settle_time_s``) unless ``mag_reference_ned_ut`` gives it (e.g. WMM), then frozen.
-  Vectors are normalised before the Wahba step (eq 4-32 states unit vectors).
+  Vectors are normalised before the Wahba step (Wahba's problem is posed on unit vectors).
 * **1σ outputs** — the attitude covariance of the optimal two-vector solution given the filtered vectors'
   direction variances (from P), mapped to ZYX Euler angles; a lower bound for the algebraic solutions.
 
@@ -44,7 +45,7 @@ Cost: plain numpy for the 9×9 Kalman algebra, scalar maths for the 3×3 Wahba s
 `wahba.thesis_dcm_from_floats` and `rotations.reorthonormalize_rows`); `bench/speed.py` measures it beside the
 other estimators (figures in docs/estimator.md).
 
-No gating: the thesis assumes f = −g (its future work, Ch. 7, names linear acceleration as the open problem).
+No gating: the thesis assumes f = −g (its future work names linear acceleration as the open problem).
 Samples flagged invalid (or non-finite) skip that sensor's update; an invalid gyro holds the last rate.
 """
 
@@ -81,19 +82,21 @@ _FLAGS: dict[int, EstimateFlags] = {}   # int → EstimateFlags, filled on first
 
 @dataclass(frozen=True)
 class ThesisKfParams:
-    """Tuning of the thesis filter. Defaults reproduce the thesis (eq 6-1, 6-2) where it gives numbers."""
+    """Tuning of the thesis filter. Defaults reproduce the thesis's tuning where it gives numbers."""
 
     gyro_arw_rad_sqrt_s: tuple[float, float, float] = (0.05 * DEG, 0.05 * DEG, 0.06 * DEG)
-    """Gyro white noise δω (angle random walk) per axis x, y, z, rad/√s. thesis Table 6-4 / eq 6-1."""
+    """Gyro white noise δω (angle random walk) per axis x, y, z, rad/√s: 0.05, 0.05, 0.06 °/√s
+    (the thesis's Allan figures)."""
     gyro_bias_drive_rad_sqrt_s: tuple[float, float, float] = (0.005 * DEG, 0.005 * DEG, 0.006 * DEG)
-    """Bias-driving noise w_b of the Gauss–Markov bias, rad/√s. thesis eq 6-1 (= ARW/10)."""
+    """Bias-driving noise w_b of the Gauss–Markov bias, rad/√s: ARW/10 (the thesis's rule)."""
     q_inflation: float = 3.0
-    """Factor on the noise densities above before squaring: Q = diag((3·ARW)², (3·w_b)²). thesis eq 5-8, 6-1."""
+    """Factor on the noise densities above before squaring: Q = diag((3·ARW)², (3·w_b)²) (the thesis's
+    inflation for correlated axes)."""
     mag_noise_ut: tuple[float, float, float] = (0.74 * MGAUSS_TO_UT, 0.66 * MGAUSS_TO_UT, 0.52 * MGAUSS_TO_UT)
-    """Magnetometer measurement noise 1σ per axis, µT. thesis eq 6-2 (0.74, 0.66, 0.52, read as mG)."""
+    """Magnetometer measurement noise 1σ per axis, µT: 0.74, 0.66, 0.52 read as mG (the thesis's R)."""
     accel_noise_m_s2: tuple[float, float, float] = (3.65e-3 * STANDARD_GRAVITY_M_S2, 3.44e-3 * STANDARD_GRAVITY_M_S2,
                                                      3.72e-3 * STANDARD_GRAVITY_M_S2)
-    """Accelerometer measurement noise 1σ per axis, m/s². thesis eq 6-2 (3.65, 3.44, 3.72, read as mg)."""
+    """Accelerometer measurement noise 1σ per axis, m/s²: 3.65, 3.44, 3.72 read as mg (the thesis's R)."""
     bias_time_constant_s: float = 1000.0
     """Gauss–Markov time constant τ_w of the gyro bias, s. Not in the thesis (chosen, see module doc)."""
     initial_bias_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -101,10 +104,10 @@ class ThesisKfParams:
     initial_bias_sigma_rad_s: float = 0.5 * DEG
     """1σ of the residual gyro bias at start, rad/s. Not in the thesis."""
     wahba_version: int = 2
-    """Wahba step: 2 = eq 4-40/4-41 (orthogonal columns, magnetometer anchor; "more accurate" per the thesis),
-    1 = eq 4-34 … 4-39 (three-vector inversion with [m, f, f×m])."""
+    """Wahba step: 2 = [m, f×m, (f×m)×m] (orthogonal columns, magnetometer anchor; "more accurate" per the thesis),
+    1 = three-vector inversion with [m, f, f×m]."""
     reorthonormalize_iterations: int = 1
-    """Steps of C ← 1.5C − 0.5CCᵀC per sample (eq 4-42: the thesis applies one per program step)."""
+    """Steps of C ← 1.5C − 0.5CCᵀC per sample (the thesis applies one per program step)."""
     mag_reference_ned_ut: tuple[float, float, float] | None = None
     """Earth field in NED, µT (e.g. WMM). Only its dip is used (yaw stays magnetic). None: learn the dip from
     the filtered vectors while initialising."""
@@ -143,12 +146,12 @@ class ThesisKfParams:
 
     @property
     def q_diag(self) -> np.ndarray:
-        """The 6 diagonal entries of Q (rad²/s): eq 6-1."""
+        """The 6 diagonal entries of Q (rad²/s): (q_inflation · [ARW, w_b])²."""
         return (self.q_inflation * np.concatenate((self.gyro_arw_rad_sqrt_s, self.gyro_bias_drive_rad_sqrt_s))) ** 2
 
     @property
     def r_diag(self) -> np.ndarray:
-        """The 6 diagonal entries of R (µT², (m/s²)²): eq 6-2, mag first."""
+        """The 6 diagonal entries of R (µT², (m/s²)²): σ², mag first."""
         return np.concatenate((self.mag_noise_ut, self.accel_noise_m_s2)) ** 2
 
 
@@ -188,9 +191,9 @@ class ThesisKf:
         self._inv_tau = 1.0 / p.bias_time_constant_s
         self._x = np.zeros(9)
         self._p = np.zeros((9, 9))
-        self._a = np.zeros((9, 9))      # preallocated continuous-time A (eq 4-16)
-        self._a[6, 6] = self._a[7, 7] = self._a[8, 8] = -self._inv_tau  # Gauss–Markov bias (eq 4-11)
-        self._b = np.zeros((9, 6))      # preallocated noise input matrix B (eq 4-17)
+        self._a = np.zeros((9, 9))      # preallocated continuous-time A
+        self._a[6, 6] = self._a[7, 7] = self._a[8, 8] = -self._inv_tau  # Gauss–Markov bias
+        self._b = np.zeros((9, 6))      # preallocated noise input matrix B
         self._b[6, 3] = self._b[7, 4] = self._b[8, 5] = self._inv_tau
         self._q_diag = p.q_diag
         self._qdt_dt, self._qdt = math.nan, self._q_diag
@@ -316,31 +319,31 @@ class ThesisKf:
         return True
 
     def _predict(self, dt: float) -> None:
-        """KF time update (eq 4-20 … 4-22, 4-26, 4-27) over dt with the held measured rate.
+        """KF time update x ← F x, P ← F P Fᵀ + Q_d over dt with the held measured rate.
 
         A uses the measured rate; the bias enters through A's coupling blocks (so F·x applies ω_meas − b̂).
         """
         x, a = self._x, self._a
         wx, wy, wz = self._rate_list
         mx, my, mz, gx, gy, gz = x[0:6].tolist()
-        # A (eq 4-16): −[ω×] on both vector blocks, −[v×] coupling each vector to the bias (one `put`).
+        # A: −[ω×] on both vector blocks, −[v×] coupling each vector to the bias (one `put`).
         coupling = (mz, -my, -mz, mx, my, -mx, gz, -gy, -gz, gx, gy, -gx)
         a.put(_A_INDEX, (wz, -wy, -wz, wx, wy, -wx, wz, -wy, -wz, wx, wy, -wx) + coupling)
         ad = a * dt
         f = ad @ (0.5 * ad + self._eye9)
-        f += self._eye9                                             # F = I + AΔt + ½A²Δt² (eq 4-21)
-        self._x = f @ x                                             # eq 4-26
-        # Q_d = B Q Bᵀ Δt (Q a PSD): B (eq 4-17) has A's coupling blocks −[m×], −[g×] and I/τ for w_b.
+        f += self._eye9                                             # F = I + AΔt + ½A²Δt²
+        self._x = f @ x                                             # x ← F x
+        # Q_d = B Q Bᵀ Δt (Q a PSD): B has A's coupling blocks −[m×], −[g×] and I/τ for w_b.
         b = self._b
         b.put(_B_INDEX, coupling)
         if dt != self._qdt_dt:
             self._qdt_dt, self._qdt = dt, self._q_diag * dt
-        p = f @ self._p @ f.T                                       # eq 4-27
+        p = f @ self._p @ f.T                                       # F P Fᵀ
         p += (b * self._qdt) @ b.T
         self._p = p
 
     def _correct(self, idx: np.ndarray, mag, accel) -> None:
-        """KF measurement update (eq 4-28 … 4-31) with z = [m̃, −f̃] (rows idx), H = [I₆ 0]."""
+        """KF measurement update with z = [m̃, −f̃] (rows idx), H = [I₆ 0]."""
         x, p = self._x, self._p
         if len(idx) == 6:
             m0, m1, m2 = mag
@@ -356,7 +359,7 @@ class ThesisKf:
         if info != 0:
             return                                                  # S not positive definite: skip this update
         x += y @ k_t
-        p -= k_t.T @ pht                                             # P − K H P = P − K S Kᵀ (eq 4-31)
+        p -= k_t.T @ pht                                             # P − K H P = P − K S Kᵀ
         self._n_updates += 1
         if not self._n_updates & 31:                                 # keep P symmetric against rounding
             p += p.T
@@ -366,7 +369,7 @@ class ThesisKf:
     def _set_dip(self, dip: float) -> None:
         self._dip = dip
         ref_mag = (math.cos(dip), 0.0, math.sin(dip))   # magnetic NED: yaw is magnetic
-        ref_f = (0.0, 0.0, -1.0)                          # fⁿ = [0, 0, −g] (eq 4-1), unit
+        ref_f = (0.0, 0.0, -1.0)                          # fⁿ = [0, 0, −g], unit
         self._n_inv_t = np.linalg.inv(thesis_matrix(ref_mag, ref_f, self.params.wahba_version)).T.tolist()
 
     def _learn_dip(self) -> None:
@@ -375,7 +378,8 @@ class ThesisKf:
         self._set_dip(math.asin(max(-1.0, min(1.0, s))))
 
     def attitude_dcm(self) -> np.ndarray:
-        """C_b^n from the filtered vectors: thesis eq 4-37/4-38 (or 4-40/4-41) then eq 4-42."""
+        """C_b^n from the filtered vectors: C_b^n = (B_b N_n⁻¹)ᵀ, version 1 or 2, then
+        C ← 1.5C − 0.5CCᵀC."""
         return np.array(self._attitude_rows())
 
     def _attitude_rows(self):
@@ -386,7 +390,7 @@ class ThesisKf:
         c = thesis_dcm_from_floats(mx * mn, my * mn, mz * mn, gx * gn, gy * gn, gz * gn, self._n_inv_t,
                                    self.params.wahba_version)          # C_b^n = (B_b N_n⁻¹)ᵀ
         for _ in range(self.params.reorthonormalize_iterations):
-            c = reorthonormalize_rows(c)                              # eq 4-42
+            c = reorthonormalize_rows(c)                              # C ← 1.5C − 0.5CCᵀC
         return c
 
     def _estimate(self, t: float, flags: int) -> AttitudeEstimate:
@@ -398,7 +402,7 @@ class ThesisKf:
                 self._relearn_t0 = t
             self._learn_dip()
             self._relearning = t - self._relearn_t0 < RELEARN_DIP_S
-        # Normalised quaternion: removes what one eq 4-42 step leaves of the non-orthonormality.
+        # Normalised quaternion: removes what one re-orthonormalisation step leaves of the non-orthonormality.
         w, qx, qy, qz = dcm_rows_to_quat(self._attitude_rows())
         roll = math.atan2(2.0 * (qy * qz + w * qx), 1.0 - 2.0 * (qx * qx + qy * qy))
         pitch = -math.asin(max(-1.0, min(1.0, 2.0 * (qx * qz - w * qy))))

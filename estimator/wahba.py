@@ -1,25 +1,26 @@
 """Wahba's problem: the rotation that best maps body-frame vectors onto their reference-frame counterparts.
 
-Wahba (1965; thesis eq 4-32): find C minimising J(C) = ½ Σ kᵢ ‖rᵢ − C bᵢ‖², ‖rᵢ‖ = ‖bᵢ‖ = 1, Σ kᵢ = 1.
+Wahba (1965, SIAM Review 7(3); Markley & Crassidis, "Fundamentals of Spacecraft Attitude Determination
+and Control", 2014, ch. 5): find C minimising J(C) = ½ Σ kᵢ ‖rᵢ − C bᵢ‖², ‖rᵢ‖ = ‖bᵢ‖ = 1, Σ kᵢ = 1.
 
 Every solver has one signature::
 
     solver(body_vectors (N, 3), reference_vectors (N, 3), weights (N,) | None) -> WahbaSolution
 
 and returns the rotation **body → reference** (C_b^n when the reference is NED) as a scalar-first quaternion.
-Vectors are normalised to unit length before solving (eq 4-32 states unit vectors; it also makes the thesis's
-formulas independent of the units of g and H0). ``weights`` are the inverse variances 1/σᵢ² (σᵢ in rad,
+Vectors are normalised to unit length before solving (Wahba's problem is posed on unit vectors; it also
+makes the thesis's formulas independent of the units of g and H0). ``weights`` are the inverse variances 1/σᵢ² (σᵢ in rad,
 the direction noise of vector i); they set the loss weights kᵢ (normalised to Σ kᵢ = 1) and the scale of the
 covariance. The algebraic methods (thesis, TRIAD) ignore weights when solving; the loss and covariance are
 still evaluated with them so every method is judged on the same scale.
 
 Methods (``SOLVERS``, by name):
 
-* ``three-vector`` — the thesis's inversion (eq 4-33 … 4-39, "version 1"): stack three vectors in each frame and
-  invert the reference matrix, C_n^b = B N⁻¹. Given two vectors (m, f) the third is f × m, exactly as eq 4-34.
+* ``three-vector`` — the thesis's inversion ("version 1"): stack three vectors in each frame and
+  invert the reference matrix, C_n^b = B N⁻¹. Given two vectors (m, f) the third is f × m, as the thesis does.
   Given more than three, the weighted least-squares generalisation C_n^b = B K Nᵀ (N K Nᵀ)⁻¹. The raw C is not
-  orthonormal with noisy data; the thesis's C ← 1.5C − 0.5CCᵀC (eq 4-42) is iterated to convergence.
-* ``thesis-v2`` — eq 4-40/4-41, "version 2": B = [m, f×m, (f×m)×m], N likewise, C_n^b = B N⁻¹, then eq 4-42.
+  orthonormal with noisy data; the thesis's C ← 1.5C − 0.5CCᵀC is iterated to convergence.
+* ``thesis-v2`` — "version 2": B = [m, f×m, (f×m)×m], N likewise, C_n^b = B N⁻¹, then re-orthonormalised.
   Anchors on the first vector (the magnetometer in the thesis). After re-orthonormalisation it is exactly
   TRIAD anchored on the first vector (the column scales sin∠ cancel in the polar factor).
 * ``triad-first`` / ``triad-second`` (``triad`` = ``triad-first``) — TRIAD with the first or second vector as
@@ -132,7 +133,7 @@ def profile_matrix(body_unit, reference_unit, weights) -> np.ndarray:
 
 
 def polar_reorthonormalize(c, tol: float = 1e-13, max_iterations: int = 50) -> np.ndarray:
-    """Iterate the thesis's eq 4-42 until orthonormal; the SVD polar factor if that does not converge."""
+    """Iterate C ← 1.5C − 0.5CCᵀC until orthonormal; the SVD polar factor if that does not converge."""
     for _ in range(max_iterations):
         if orthonormality_error(c) < tol:
             break
@@ -145,11 +146,11 @@ def polar_reorthonormalize(c, tol: float = 1e-13, max_iterations: int = 50) -> n
     return c
 
 
-# ----------------------------------------------------------------------------------- thesis (eq 4-33…4-42)
+# ----------------------------------------------------------------------------------- thesis (versions 1, 2)
 def thesis_matrix(v0, v1, version: int) -> np.ndarray:
     """The 3×3 matrix of column vectors the thesis builds from its two vectors (m, f) in one frame.
 
-    version 1 (eq 4-34/4-35): [m, f, f×m]; version 2 (eq 4-40/4-41): [m, f×m, (f×m)×m].
+    version 1: [m, f, f×m]; version 2: [m, f×m, (f×m)×m].
     """
     a0, a1, a2 = np.asarray(v0, dtype=np.float64).tolist()
     b0, b1, b2 = np.asarray(v1, dtype=np.float64).tolist()
@@ -170,7 +171,7 @@ def thesis_matrix_from_floats(a0: float, a1: float, a2: float, b0: float, b1: fl
 
 
 def thesis_dcm_body_to_ref(body0, body1, reference_matrix_inverse, version: int) -> np.ndarray:
-    """C_b^n = (B_b N_n⁻¹)ᵀ (eq 4-37/4-38) with the reference matrix inverse precomputed (it is constant)."""
+    """C_b^n = (B_b N_n⁻¹)ᵀ with the reference matrix inverse precomputed (it is constant)."""
     a0, a1, a2 = np.asarray(body0, dtype=np.float64).tolist()
     b0, b1, b2 = np.asarray(body1, dtype=np.float64).tolist()
     n_inv_t = np.asarray(reference_matrix_inverse, dtype=np.float64).T.tolist()
@@ -184,10 +185,10 @@ def thesis_dcm_from_floats(a0: float, a1: float, a2: float, b0: float, b1: float
     as three row tuples (not re-orthonormalised)."""
     c0, c1, c2 = b1 * a2 - b2 * a1, b2 * a0 - b0 * a2, b0 * a1 - b1 * a0  # f × m
     if version == 1:
-        r0, r1, r2 = (a0, a1, a2), (b0, b1, b2), (c0, c1, c2)          # rows of B_bᵀ: m, f, f×m (eq 4-34)
+        r0, r1, r2 = (a0, a1, a2), (b0, b1, b2), (c0, c1, c2)          # rows of B_bᵀ: m, f, f×m
     elif version == 2:
         d0, d1, d2 = c1 * a2 - c2 * a1, c2 * a0 - c0 * a2, c0 * a1 - c1 * a0
-        r0, r1, r2 = (a0, a1, a2), (c0, c1, c2), (d0, d1, d2)          # m, f×m, (f×m)×m (eq 4-40)
+        r0, r1, r2 = (a0, a1, a2), (c0, c1, c2), (d0, d1, d2)          # m, f×m, (f×m)×m
     else:
         raise ValueError("thesis Wahba version is 1 or 2")
     out = []
@@ -199,7 +200,7 @@ def thesis_dcm_from_floats(a0: float, a1: float, a2: float, b0: float, b1: float
 
 
 def three_vector(body_vectors, reference_vectors, weights=None) -> WahbaSolution:
-    """Thesis version 1 / eq 4-33: invert the stacked reference vectors (two vectors: append f × m)."""
+    """Thesis version 1: invert the stacked reference vectors (two vectors: append f × m)."""
     b, r, w = _prepare(body_vectors, reference_vectors, weights)
     if len(b) == 2:
         raw = thesis_dcm_body_to_ref(b[0], b[1], np.linalg.inv(thesis_matrix(r[0], r[1], 1)), 1)
@@ -218,7 +219,7 @@ def three_vector(body_vectors, reference_vectors, weights=None) -> WahbaSolution
 
 
 def thesis_v2(body_vectors, reference_vectors, weights=None) -> WahbaSolution:
-    """Thesis version 2 (eq 4-40/4-41), anchored on the first vector; uses the first two vectors."""
+    """Thesis version 2 ([m, f×m, (f×m)×m]), anchored on the first vector; uses the first two vectors."""
     b, r, w = _prepare(body_vectors, reference_vectors, weights)
     raw = thesis_dcm_body_to_ref(b[0], b[1], np.linalg.inv(thesis_matrix(r[0], r[1], 2)), 2)
     return _solution("thesis-v2", polar_reorthonormalize(raw), b, r, w, dcm_raw=raw)

@@ -88,7 +88,7 @@ class GyroFreeSolution:
 
 
 def solve_seed001(readings_m_s2, arm_m: float) -> GyroFreeSolution:
-    """The paper's eqs. 13, 14, 17, 19 on readings (n,10) of the `AccelArray.seed001(arm_m)` layout."""
+    """f_b, p², q², r², q̇ and ṗ (module doc) from readings (n,10) of the `AccelArray.seed001(arm_m)` layout."""
     f = np.asarray(readings_m_s2, dtype=float)
     if f.ndim != 2 or f.shape[1] != 10:
         raise ValueError("readings must be (n, 10)")

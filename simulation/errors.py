@@ -1,7 +1,7 @@
 """Sensor error model of a MEMS IMU with a magnetometer, with ADIS16405 defaults.
 
 Per axis (the usual inertial-sensor error model: Groves, "Principles of GNSS, Inertial, and Multisensor
-Integrated Navigation Systems", 2nd ed., §4.4; the ADIS16405 AHRS thesis, ch. 5):
+Integrated Navigation Systems", 2nd ed., §4.4, eqs. 4.16–4.17, with a magnetometer added):
 
     gyro  = (I + diag(scale) + misalignment) · ω_true + b_turn_on + b_gm(t) + k_T (T − 25 °C) + n
     accel = (I + diag(scale) + misalignment) · f_true + b_turn_on + b_gm(t) + k_T (T − 25 °C) + n

@@ -28,7 +28,7 @@ _RATE_STEP_S = 1e-5  # half-width of the central difference for the body rate
 
 
 def euler_zyx(yaw, pitch, roll) -> Rotation:
-    """C_b^n = Rz(yaw) Ry(pitch) Rx(roll) (design §4: ZYX Euler, body→NED)."""
+    """C_b^n = Rz(yaw) Ry(pitch) Rx(roll) (ZYX Euler, body→NED)."""
     return Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll]))
 
 
@@ -137,8 +137,8 @@ class Static(EulerScenario):
 # --------------------------------------------------------------------------------------------------------------
 # Mountings of the sensor on a single-axis rate table whose axis is vertical: each puts one body axis up or down
 # (body→NED). With the table turning about NED down, the body turns about that axis. The six static holds are
-# also the classic six-position accelerometer calibration set (the ADIS16405 AHRS thesis §5-6: static
-# gravity reference).
+# also the classic six-position accelerometer calibration set (static gravity reference, as the ADIS16405
+# AHRS thesis calibrates with).
 _TABLE_MOUNTS = (
     ("z down (level)", Rotation.identity()),
     ("z up", Rotation.from_euler("X", 180, degrees=True)),
@@ -151,7 +151,7 @@ _TABLE_MOUNTS = (
 
 @dataclass
 class RateTable(Scenario):
-    """The rate-table gyro calibration of the ADIS16405 AHRS thesis (Table 5-1, §5-6-7; docs/calibration.md),
+    """The rate-table gyro calibration of the ADIS16405 AHRS thesis (docs/calibration.md),
     as a self-consistent sequence.
 
     The sensor is mounted in six positions (each body axis up, then down). In each: hold, turn `turns` full

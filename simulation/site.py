@@ -50,7 +50,7 @@ class Site:
 
     @property
     def gravity_m_s2(self) -> float:
-        """Local normal gravity magnitude (1967 International Gravity Formula × (R0/(R0+h))², core.gravity)."""
+        """Local normal gravity magnitude (1980 International Gravity Formula × (R0/(R0+h))², core.gravity)."""
         return normal_gravity_m_s2(self.lat_deg, self.alt_m)
 
     @property

@@ -3,7 +3,7 @@ Groves, "Principles of GNSS, Inertial, and Multisensor Integrated Navigation Sys
 Titterton & Weston, "Strapdown Inertial Navigation Technology", 2nd ed., ch. 3).
 
 Integrates gyro and accelerometer samples into attitude, NED velocity and geodetic position on a spherical Earth
-(R0 = 6 378 137 m; normal gravity from the 1967 International Gravity Formula, core.gravity).
+(R0 = 6 378 137 m; normal gravity from the 1980 International Gravity Formula, core.gravity).
 It serves to check the simulator (the truth specific force and rate must integrate back into the truth
 trajectory) and as a reference for dead reckoning.
 
@@ -57,7 +57,7 @@ def mechanise_ned(t_s, gyro_rad_s, accel_m_s2, q0_wxyz, v0_ned_m_s, lat0_deg: fl
 
     earth_rate: True for the rotating-Earth mechanisation (Earth rate, transport rate, Coriolis);
     False for a flat, non-rotating Earth (what `open_stream(..., earth_rate=False)` simulates).
-    gravity_m_s2(lat_deg, h_m): local gravity magnitude; default the 1967 International Gravity Formula
+    gravity_m_s2(lat_deg, h_m): local gravity magnitude; default the 1980 International Gravity Formula
       with the (R0/(R0+h))² height factor (core.gravity).
     """
     t = np.asarray(t_s, dtype=float)

@@ -245,7 +245,7 @@ def open_stream(scenario: str | Scenario, rate_hz: float = 819.2, seed: int = 0,
       also sense the Earth rate (15 °/h) and the transport rate, the specific force includes the Coriolis and
       transport terms and gravity is g(L, h) along the track, so the NED mechanisation
       (`simulation.strapdown`) reproduces the trajectory. False for a flat, non-rotating Earth with the site's
-      gravity throughout (the Earth rate is below the ADIS16405's bias stability, ADIS16405 AHRS thesis §5-6-7).
+      gravity throughout (the Earth rate is below the ADIS16405's bias stability).
       None (default):
       the scenario's choice, `Scenario.rotating_earth` (True for boat, car and plane, False for the others).
       The truth rate is always relative to NED; the magnetic field is the site's throughout (tracks of a few km).

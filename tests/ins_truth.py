@@ -28,7 +28,7 @@ def wgs84_radii(lat_rad):
 
 
 def sphere_radii(lat_rad):
-    """Seed 004's spherical Earth: R0 = 6 378 137 m for both radii."""
+    """Spherical Earth: R0 = 6 378 137 m for both radii."""
     r = np.full(np.shape(lat_rad), 6378137.0)
     return r, r
 

@@ -1,4 +1,4 @@
-"""Back-stepping magnetometer calibration (seed 002): the paper's arithmetic, the sphere fit, the corrective
+"""Back-stepping magnetometer calibration (Nourmohammadi & Sabet, J. of Control 16(3), 2022): the paper's arithmetic, the sphere fit, the corrective
 loop on an out-and-back run, the generalised vertical-channel fit on limited-tilt data, and refusals."""
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ def field_tehran():
 
 
 DISTORTION = Rotation.from_euler("ZX", [2.0, 1.0], degrees=True).as_matrix() @ np.array(
-    [[1.08, 0.05, -0.03], [0.05, 0.93, 0.04], [-0.03, 0.04, 1.02]])   # non-symmetric (anchors/magcal.md §4)
+    [[1.08, 0.05, -0.03], [0.05, 0.93, 0.04], [-0.03, 0.04, 1.02]])   # non-symmetric (soft iron with an asymmetric part)
 HARD_IRON = np.array([28.0, -19.0, 35.0])                               # µT (280/−190/350 mgauss)
 
 
@@ -74,7 +74,7 @@ def test_heading_rms_deg(model, field, tilt_deg=10.0, n=1500, seed=7):
 test_heading_rms_deg.__test__ = False   # a helper, not a test
 
 
-# --------------------------------------------------------------------------- seed 002 §9: paper arithmetic
+# --------------------------------------------------------------------------- the paper's arithmetic
 
 
 def test_corrective_step1_scales_reproduce_table3():
@@ -100,7 +100,7 @@ def test_corrective_step3_bz_eq30_reproduces_table5():
     ("3", 38810, 0.16142, -903), ("4", 30350, 0.20642, -903), ("5", 40290, 0.20642, -2955),
     ("6", 40291, 0.26142, -5171)])
 def test_tables_3_to_6_imply_one_raw_vertical_reading(table, hz, sz, bz):
-    # Hz = (Ĥz − bz)/sz with the same mean raw z ≈ 5362 in every table (digest §9)
+    # Hz = (Ĥz − bz)/sz with the same mean raw z ≈ 5362 in every table of the paper (Tables 3–6)
     assert hz * sz + bz == pytest.approx(5362.0, abs=1.0)
 
 
@@ -168,7 +168,7 @@ def test_sphere_fit_reports_non_physical_coefficients_on_a_level_circle():
 
 
 def _out_and_back(seed=0, noise=NOISE_UT):
-    """Seed 002 test 2 after its eq. 27 field: legs at 62° and −117° with trims −3° / +1°; the vertical
+    """The paper's test 2 with its IGRF field (Hh 27.451, Hz 40.289 µT): legs at 62° and −117° with trims −3° / +1°; the vertical
     channel (z scale, z hard iron) differs from the test-1 coefficients we start from."""
     rng = np.random.default_rng(seed)
     hh, hz = 27.451, 40.289
@@ -295,7 +295,7 @@ def test_free_dip_fit_without_position_on_10deg_data():
 
 def test_paper_mode_runs_the_corrective_loop_and_reports_passes():
     raw, roll, pitch, legs, start, hh, hz = _out_and_back()
-    # test 1 for the sphere fit: roll ±55°, pitch ±10°, full heading (seed 002 §7.2)
+    # test 1 for the sphere fit: roll ±55°, pitch ±10°, full heading (the paper's test 1)
     rng = np.random.default_rng(1)
     n1 = 2000
     tt = np.arange(n1) / 10.0

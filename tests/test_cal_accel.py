@@ -64,7 +64,7 @@ def test_roll_pitch_helper_puts_gravity_where_asked():
 @settings(derandomize=True, max_examples=60, deadline=None)
 @given(st.lists(st.floats(-2e-3, 2e-3), min_size=12, max_size=12))
 def test_regressor_rows_are_the_first_order_expansion_of_the_norm(x):
-    """eq. 5-63…5-68: (g − |S_o|)·g = h·X_a up to second order in the errors, for |S^P| = g."""
+    """The linear step: (g − |S_o|)·g = h·X_a up to second order in the errors, for |S^P| = g."""
     x_a = np.array(x) * np.array([1, 1, 1, 50, 50, 50, 1, 1, 1, 1e-3, 1e-3, 1e-3])
     model = model_from_linear(x_a)
     rng = np.random.default_rng(0)
@@ -117,8 +117,8 @@ def test_simulated_adis16405_positions_are_recovered():
     np.testing.assert_allclose(gram(res.model.matrix), gram(truth), atol=2 * TOL_MATRIX)
 
 
-def test_thesis_table_6_1_as_truth_is_recovered():
-    """Thesis Table 6-1 (digest §11.1): bias −17.5, −24.68, −18.57 mg; gains 0.92, 1.04, 0.98; the
+def test_thesis_accel_calibration_figures_as_truth_are_recovered():
+    """Worked example, the thesis's accelerometer calibration result: bias −17.5, −24.68, −18.57 mg; gains 0.92, 1.04, 0.98; the
     speculative misalignments α_xy = −0.0002, α_xz = −0.0005, α_yx = −0.0052 rad. Injected as
     raw = diag(gain)·T⁻¹·f + b (T the thesis's lower-triangular T_a^P) and fitted with all 12 terms."""
     bias = np.array([-17.5, -24.68, -18.57]) * MG
@@ -133,7 +133,7 @@ def test_thesis_table_6_1_as_truth_is_recovered():
     np.testing.assert_allclose(res.model.bias_m_s2, bias, atol=2 * TOL_BIAS)
     truth = np.linalg.inv(a)
     np.testing.assert_allclose(gram(res.model.matrix), gram(truth), atol=4 * TOL_MATRIX)
-    # Scale factors to 0.1 %: the gains of Table 6-1 are recovered.
+    # Scale factors to 0.1 %: the thesis's accelerometer gains are recovered.
     np.testing.assert_allclose(1 / np.sqrt(np.diag(gram(res.model.matrix))), 1 / np.sqrt(np.diag(gram(truth))),
                                atol=2e-3)
 
@@ -160,8 +160,8 @@ def test_a_position_taken_while_moving_is_refused():
     assert not res.ok and "residual" in res.refused and "position 4 of 26" in res.refused
 
 
-# seed 004 §7.5 worked values: g(L, 0) and g(L, 1000 m) in m/s²
-SEED004_GRAVITY = [(0.0, 9.780327, 9.777261), (30.0, 9.793249, 9.790179), (35.7, 9.797935, 9.794864),
+# worked values of the 1980 International Gravity Formula × (R0/(R0+h))²: g(L, 0) and g(L, 1000 m) in m/s²
+GRAVITY_WORKED_VALUES = [(0.0, 9.780327, 9.777261), (30.0, 9.793249, 9.790179), (35.7, 9.797935, 9.794864),
                    (45.0, 9.806200, 9.803126), (60.0, 9.819179, 9.816101), (90.0, 9.832186, 9.829104)]
 
 
@@ -174,8 +174,8 @@ def somigliana_m_s2(lat_deg: float, alt_m: float) -> float:
     return g0 - 3.086e-6 * alt_m
 
 
-@pytest.mark.parametrize("lat, g0, g1000", SEED004_GRAVITY)
-def test_local_gravity_matches_the_seed_table(lat, g0, g1000):
+@pytest.mark.parametrize("lat, g0, g1000", GRAVITY_WORKED_VALUES)
+def test_local_gravity_matches_the_worked_values(lat, g0, g1000):
     assert local_gravity_m_s2(lat, 0.0) == pytest.approx(g0, abs=1.5e-6)
     assert local_gravity_m_s2(lat, 1000.0) == pytest.approx(g1000, abs=1.5e-6)
 

@@ -56,7 +56,7 @@ def test_overlapping_allan_variance_matches_the_definition():
         assert nt == len(terms)
         assert tau == pytest.approx(m / rate)
         assert value == pytest.approx(math.sqrt(sum(terms) / (2 * tau * tau * len(terms))), rel=1e-10)
-    # Cluster-mean form of the thesis (eq. 5-3…5-7) for m = 1: ½ mean of squared differences of samples.
+    # Cluster-mean form (IEEE Std 952-1997) for m = 1: ½ mean of squared differences of samples.
     assert curve.adev[0, 0] ** 2 == pytest.approx(0.5 * np.mean(np.diff(x) ** 2), rel=1e-10)
 
 
@@ -267,11 +267,11 @@ def _params(white: float | None, std: float, **kw) -> NoiseParameters:
                            kw.get("gm_sigma"), kw.get("gm_tau"))
 
 
-def test_kalman_tuning_reproduces_thesis_eq_6_1_and_6_2_when_no_bias_term_is_seen():
-    """Thesis eq. 6-1: ARW 0.05, 0.05, 0.06 °/√s → Q = diag(6.854e-6, 6.854e-6, 9.870e-6, ×1/100 …);
-    eq. 6-2: R from the output std (mag first, then accel). The ARW/10 bias drive is listed as assumed."""
-    arw = [math.radians(v) for v in (0.05, 0.05, 0.06)]      # thesis Table 6-4
-    mag_std = [0.74, 0.66, 0.52]                              # thesis eq. 6-2 (units as printed)
+def test_kalman_tuning_reproduces_the_thesis_q_and_r_when_no_bias_term_is_seen():
+    """Worked example, the thesis's tuning: ARW 0.05, 0.05, 0.06 °/√s → Q = diag(6.854e-6, 6.854e-6, 9.870e-6, ×1/100 …);
+    R from the output std (mag first, then accel). The ARW/10 bias drive is listed as assumed."""
+    arw = [math.radians(v) for v in (0.05, 0.05, 0.06)]      # the thesis's Allan ARW, °/√s
+    mag_std = [0.74, 0.66, 0.52]                              # the thesis's R (units as printed)
     acc_std = [3.65, 3.44, 3.72]
     res = AllanResult(
         1.0, 1.0, np.array([1.0]), {},

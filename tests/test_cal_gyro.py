@@ -48,8 +48,8 @@ def test_rate_table_recovers_the_simulated_adis16405():
     np.testing.assert_allclose(res.model.matrix, np.linalg.inv(errs.gyro_matrix), atol=TOL_MATRIX)
 
 
-def test_thesis_table_6_3_as_truth_is_recovered():
-    """Thesis Table 6-3 (digest §11.3): gains 0.98, 0.96, 0.99; biases (ambiguous digits) read as
+def test_thesis_gyro_calibration_figures_as_truth_are_recovered():
+    """Worked example, the thesis's gyro calibration result: gains 0.98, 0.96, 0.99; biases (ambiguous digits) read as
     0.01, 0.005, 0.001 rad/s; misalignments of the order of 1e-3 rad (unrecoverable glyphs)."""
     gain = np.array([0.98, 0.96, 0.99])
     bias = np.array([0.01, 0.005, 0.001])

@@ -54,15 +54,15 @@ SMALL = st.floats(-0.08, 0.08)
 
 @settings(derandomize=True, max_examples=80, deadline=None)
 @given(BIAS, BIAS, BIAS, POS, POS, POS, st.floats(20.0, 65.0))
-def test_two_step_inverse_mapping_eq_5_26(bx, by, bz, kx, ky, kz, h0):
-    """S(b, k, H0) of eq. 5-20 mapped back by eq. 5-26 gives b and k."""
+def test_two_step_inverse_mapping(bx, by, bz, kx, ky, kz, h0):
+    """S(b, k, H0) of the two-step regression mapped back by inverse_mapping gives b and k."""
     s = mag_twostep.forward_mapping(np.array([bx, by, bz]), np.array([kx, ky, kz]), h0)
     b, k = mag_twostep.inverse_mapping(s, h0)
     np.testing.assert_allclose(b, [bx, by, bz], atol=1e-9 * (1 + abs(bx) + abs(by) + abs(bz)))
     np.testing.assert_allclose(k, [kx, ky, kz], rtol=1e-8)
 
 
-def test_two_step_regression_rows_are_eq_5_20():
+def test_two_step_regression_rows_are_the_linearised_ellipsoid():
     rng = np.random.default_rng(0)
     b, k, h0 = np.array([10.0, -5.0, 3.0]), np.array([1.1, 0.9, 1.05]), 48.0
     u = rng.normal(size=(50, 3))
@@ -74,7 +74,7 @@ def test_two_step_regression_rows_are_eq_5_20():
 @settings(derandomize=True, max_examples=80, deadline=None)
 @given(BIAS, BIAS, BIAS, POS, POS, POS, SMALL, SMALL, SMALL, st.floats(20.0, 65.0))
 def test_three_step_chain_x_to_s_gamma_to_b_k_alpha(bx, by, bz, kx, ky, kz, a_yz, a_zy, a_zx, h0):
-    """§10.1.2: (b, k, α) → (b′, γ, S) → X, and the corrected eq. 5-39/5-40 take X back to (b, k, α)."""
+    """(b, k, α) → (b′, γ, S) → X, and the corrected inverse relations take X back to (b, k, α)."""
     b, k = np.array([bx, by, bz]), np.array([kx, ky, kz])
     g_yz, g_zy, g_zx = kx / ky * a_yz, kx / kz * a_zy, ky / kz * a_zx
     bp = np.array([bx - g_yz * by + g_zy * bz, by - g_zx * bz, bz])
@@ -91,7 +91,7 @@ def test_three_step_chain_x_to_s_gamma_to_b_k_alpha(bx, by, bz, kx, ky, kz, a_yz
 
 
 def test_three_step_regression_is_exact_on_its_own_model():
-    """Noise-free data from B = b + K·T⁻¹·H (eq. 5-13, upper-triangular T): the raw algorithm is exact."""
+    """Noise-free data from B = b + K·T⁻¹·H (the thesis's model, upper-triangular T): the raw algorithm is exact."""
     rng = np.random.default_rng(5)
     b, k, alpha = np.array([12.0, -7.0, 30.0]), np.array([0.95, 1.08, 1.02]), {"yz": 0.02, "zy": -0.03, "zx": 0.015}
     u = rng.normal(size=(300, 3))
@@ -136,8 +136,8 @@ def test_full_fits_recover_a_non_symmetric_soft_iron_up_to_rotation(method):
     assert res.residual_rms_ut < 1.3 * SIGMA_M_UT
 
 
-def test_thesis_table_6_2_as_truth_three_step_plus_alignment_recovers_everything():
-    """Thesis Table 6-2 (digest §11.2, the speculative misalignment reading): b = 75.7678, −5.02, −28.39 mG,
+def test_thesis_mag_calibration_figures_as_truth_three_step_plus_alignment_recovers_everything():
+    """Worked example, the thesis's magnetometer calibration result (one reading of its misalignments): b = 75.7678, −5.02, −28.39 mG,
     k = 0.91, 0.9069, 0.9334, six α. Three-step on a tumble, then the alignment step on levelled turns
     about each axis (the simulated rate table), recover the full soft iron T·K⁻¹ including its rotation."""
     b = np.array([75.7678, -5.02, -28.39]) * 0.1            # mG → µT

@@ -128,7 +128,7 @@ ANGLE = st.floats(-0.05, 0.05)
     st.lists(st.floats(-0.3, 0.3), min_size=3, max_size=3),
 )
 def test_thesis_form_round_trips_through_soft_iron(b, k, a_yz, a_zy, a_zx, rotvec):
-    """from_thesis(b, k, α, C) = C·T·K⁻¹ and to_thesis takes it apart again (QR, thesis §10.1.2–10.1.3)."""
+    """from_thesis(b, k, α, C) = C·T·K⁻¹ and to_thesis takes it apart again (QR)."""
     from scipy.spatial.transform import Rotation
 
     c = Rotation.from_rotvec(rotvec).as_matrix()
@@ -145,7 +145,7 @@ def test_thesis_form_round_trips_through_soft_iron(b, k, a_yz, a_zy, a_zx, rotve
 
 
 def test_thesis_measurement_model_is_inverted():
-    """B = b + K·T⁻¹·H (thesis eq. 5-13) → soft_iron·(B − b) = H."""
+    """B = b + K·T⁻¹·H (the thesis's measurement model) → soft_iron·(B − b) = H."""
     b = np.array([7.57678, -0.502, -2.839])
     k = np.array([0.91, 0.9069, 0.9334])
     alpha = {"xy": 0.0055, "xz": 0.0052, "yx": -0.0555, "yz": -0.0202, "zx": 0.0022, "zy": -0.0002}

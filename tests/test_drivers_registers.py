@@ -1,4 +1,5 @@
-"""Register map, bits, scales and codecs against the numbers in shared/anchors/mavlink-adis.md §4."""
+"""Register map, bits, scales and codecs against the ADIS16405 datasheet (Analog Devices, Rev. B) register map and the
+Linux IIO driver drivers/iio/imu/adis16400.c."""
 
 import math
 
@@ -8,7 +9,7 @@ from hypothesis import given, settings, strategies as st
 
 from ahrsd.drivers import registers as R
 
-# anchors §4.1 register table, verbatim
+# the register table of the datasheet / Linux adis16400 driver
 ANCHOR_MAP = {
     "FLASH_CNT": 0x00, "SUPPLY_OUT": 0x02, "XGYRO_OUT": 0x04, "YGYRO_OUT": 0x06, "ZGYRO_OUT": 0x08,
     "XACCL_OUT": 0x0A, "YACCL_OUT": 0x0C, "ZACCL_OUT": 0x0E, "XMAGN_OUT": 0x10, "YMAGN_OUT": 0x12,

@@ -149,7 +149,7 @@ def _banked_turns_with_gyro_error(**gyro_error):
 def test_gyro_scale_factor_is_learned_in_turns_and_off_gives_the_15_state_filter():
     """A 1 % scale error on the gyro z axis (white noise otherwise): in the banked turns the three scale
     states learn it (to 0.15 %) and horizon and heading are better than without them; init_gyro_scale_sigma=0 freezes
-    them (with the misalignment states off too: the 15 states of seed 004 §10.2)."""
+    them (with the misalignment states off too: the classic 15 states, Groves 2nd ed. ch. 14)."""
     run, fixes, m = _banked_turns_with_gyro_error(gyro_scale=[0.0, 0.0, 0.01])
     with_scale = Ins(declination_rad=DECLINATION)
     res = run_ins(with_scale, run, fixes)
@@ -229,7 +229,7 @@ def test_lever_arm_is_applied_to_position_and_velocity():
 
 @pytest.mark.parametrize("earth", ["wgs84", "sphere"])
 def test_position_follows_the_earth_model_the_fixes_are_on(earth):
-    """Fixes on the WGS-84 ellipsoid or on seed 004's sphere: with the matching earth_model the position is
+    """Fixes on the WGS-84 ellipsoid or on the R0 sphere: with the matching earth_model the position is
     unbiased. With the other one the north scale is 0.3 % off (R vs R_N at 36°), which the position updates
     absorb without changing the attitude."""
     run = simulated_run("coordinated-turn", 150.0, rate_hz=200.0, seed=1, earth=earth)

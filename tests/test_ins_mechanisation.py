@@ -1,4 +1,5 @@
-"""The ins mechanisation against seed 004 §7 (eqs. 14–18, 22) and its worked values (§7.5, §11), and the
+"""The ins mechanisation against the local-navigation-frame equations (Groves 2nd ed. §5.4) and worked values,
+and the
 filter's strapdown integration against the simulator's analytic trajectories (static on a rotating Earth,
 a coordinated turn)."""
 
@@ -17,22 +18,22 @@ from ahrsd.estimator.ins import Ins
 from ahrsd.simulation import DEFAULT_SITE
 
 from ins_truth import attitude_error_ned, position_error_ned, run_ins, simulated_run
-from test_simulation_environment import SEED004_GRAVITY   # seed 004 §7.5's table: g(0, L) and g(1000 m, L)
+from test_simulation_environment import GRAVITY_WORKED_VALUES   # g(0, L) and g(1000 m, L)
 
-R0 = 6_378_137.0        # seed 004 §11
-OMEGA_IE = 7.292e-5     # seed 004 eq. 15
+R0 = 6_378_137.0        # spherical Earth radius (WGS-84 a)
+OMEGA_IE = 7.292e-5     # Earth rate, rounded, rad/s
 
-@pytest.mark.parametrize("lat_deg, g0, g1000", SEED004_GRAVITY)
-def test_gravity_matches_the_seed_table(lat_deg, g0, g1000):
+@pytest.mark.parametrize("lat_deg, g0, g1000", GRAVITY_WORKED_VALUES)
+def test_gravity_matches_the_worked_values(lat_deg, g0, g1000):
     assert mech.normal_gravity_m_s2(math.radians(lat_deg), 0.0) == pytest.approx(g0, abs=1e-6)
     assert mech.normal_gravity_m_s2(math.radians(lat_deg), 1000.0) == pytest.approx(g1000, abs=1e-6)
 
 
-def test_earth_rate_is_15_04_deg_per_hour_with_the_seed_components():
+def test_earth_rate_is_15_04_deg_per_hour_with_the_worked_components():
     lat = math.radians(35.7)
     w = np.array(mech.earth_rate_ned(lat))
     assert math.degrees(np.linalg.norm(w)) * 3600.0 == pytest.approx(15.04, abs=0.005)
-    np.testing.assert_allclose(w, [5.92e-5, 0.0, -4.26e-5], atol=0.006e-5)     # seed 004 §11 [N]
+    np.testing.assert_allclose(w, [5.92e-5, 0.0, -4.26e-5], atol=0.006e-5)     # worked: 7.292e-5·(cos, −sin) 35.7°
     # at the poles it is all vertical, at the equator all north
     np.testing.assert_allclose(mech.earth_rate_ned(math.pi / 2), [0.0, 0.0, -OMEGA_IE], atol=1e-15)
     np.testing.assert_allclose(mech.earth_rate_ned(0.0), [OMEGA_IE, 0.0, 0.0], atol=1e-15)

@@ -14,7 +14,7 @@ from ahrsd.core import angles
 from ahrsd.estimator.rotations import euler_to_dcm
 
 G = 9.80665
-FIELD_NED = np.array([28.0, 2.4, 39.9])    # µT, Tehran-like (anchors/magcal.md §6)
+FIELD_NED = np.array([28.0, 2.4, 39.9])    # µT, Tehran-like (WMM2025)
 
 
 def _data(tilt_deg, n=1500, turns=2.0, seed=0, sphere=False):

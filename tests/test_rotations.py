@@ -56,23 +56,23 @@ def test_positive_roll_drops_right_wing():
     np.testing.assert_allclose(v, [0, math.cos(math.radians(30)), 0.5], atol=1e-15)
 
 
-def test_dcm_matches_thesis_full_form_and_eq_3_31():
+def test_dcm_matches_the_zyx_full_form_and_its_euler_inverse():
     roll, pitch, yaw = 0.3, -0.2, 2.5
     c = rot.euler_to_dcm(roll, pitch, yaw)
     np.testing.assert_allclose(c, Rotation.from_euler("ZYX", [yaw, pitch, roll]).as_matrix(), atol=1e-15)
-    assert math.isclose(c[2, 0], -math.sin(pitch))  # C31 = −sin θ (thesis §5.3)
+    assert math.isclose(c[2, 0], -math.sin(pitch))  # C31 = −sin θ
     np.testing.assert_allclose(rot.dcm_to_euler(c), [roll, pitch, yaw], atol=1e-14)
 
 
-def test_small_angle_dcm_matches_thesis_form():
+def test_small_angle_dcm_matches_the_first_order_form():
     a = 1e-4
     c = rot.euler_to_dcm(a, 2 * a, 3 * a)
     small = np.array([[1, -3 * a, 2 * a], [3 * a, 1, -a], [-2 * a, a, 1]])
     np.testing.assert_allclose(c, small, atol=1e-7)  # second-order terms are ~(3a)²/2
 
 
-def test_seed001_final_quaternion_and_euler():
-    # Seed 001 §10.4: constant ω = [1, 2, 3] rad/s for 10 s from identity, scalar-last final quaternion,
+def test_constant_rate_worked_example_final_quaternion_and_euler():
+    # worked example: constant ω = [1, 2, 3] rad/s for 10 s from identity, scalar-last final quaternion,
     # ZYX Euler roll −3.339°, pitch −9.063°, yaw −12.746°.
     q = rot.quat_exp(np.array([1.0, 2.0, 3.0]) * 10.0)
     q_xyzw = rot.quat_to_scalar_last(rot.quat_canonical(q))
@@ -80,7 +80,7 @@ def test_seed001_final_quaternion_and_euler():
     np.testing.assert_allclose(np.degrees(rot.quat_to_euler(q)), [-3.339, -9.063, -12.746], atol=1e-3)
 
 
-def test_seed001_eq44_dcm_is_quat_to_dcm():
+def test_scalar_last_quaternion_dcm_formula_is_quat_to_dcm():
     e = np.array([0.1, -0.5, 0.3, 0.8])
     e /= np.linalg.norm(e)
     e1, e2, e3, e4 = e

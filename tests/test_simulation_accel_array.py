@@ -1,4 +1,5 @@
-"""Seed 001: the ten-accelerometer gyro-free array and inertial-frame navigation against the seed's oracle."""
+"""The ten-accelerometer gyro-free array (Ghasemzadeh & Heyrani Nobari 2011) and inertial-frame navigation
+against a worked example."""
 
 from __future__ import annotations
 
@@ -44,20 +45,20 @@ def test_equal_biases_cancel_in_the_rates_and_a_spread_gives_eq24():
     zero = np.zeros((n, 3))
     still = arr.specific_force(zero, zero, zero)
     same = solve_seed001(still + 1e-3, D)
-    np.testing.assert_allclose(same.rate_sq, 0.0, atol=1e-15)            # seed 001 §8.1 remark
+    np.testing.assert_allclose(same.rate_sq, 0.0, atol=1e-15)            # a common bias cancels in the rate products
     np.testing.assert_allclose(same.f_b, 1e-3)                            # eq. 22
     # adversarial signs for p (eq. 23): +F1 −F2 −F3 +F4 −F5 +F6 → Δp² = 6F/(4d) = 1.5 F/d; F = 1 µm/s²
     F = 1e-6
     bias = F * np.array([1, -1, -1, 1, -1, 1, 0, 0, 0, 0])
     worst = solve_seed001(still + bias, D)
     np.testing.assert_allclose(worst.rate_abs[:, 0], np.sqrt(1.5 * F / D))
-    assert np.sqrt(1.5 * F / D) == pytest.approx(3.9e-3, abs=0.05e-3)     # seed 001 §8.1 table, d = 0.10 m
+    assert np.sqrt(1.5 * F / D) == pytest.approx(3.9e-3, abs=0.05e-3)     # worked: √(1.5·F/d) at d = 0.10 m
 
 
 def test_misaligned_axes_leak_cross_axis_force():
     arr = AccelArray.seed001(D)
     tilt = np.zeros((10, 3))
-    tilt[0, 1] = np.radians(0.1)      # m1 tilted 0.1° about b2 (in the b1b3 plane, seed 001 §8.2)
+    tilt[0, 1] = np.radians(0.1)      # m1 tilted 0.1° about b2 (in the b1b3 plane)
     f = np.array([[50.0, 10.0, 10.0]])
     zero = np.zeros((1, 3))
     diff = arr.tilted(tilt).specific_force(f, zero, zero) - arr.specific_force(f, zero, zero)
@@ -67,8 +68,8 @@ def test_misaligned_axes_leak_cross_axis_force():
     np.testing.assert_allclose(diff[0, 1:], 0.0)
 
 
-# seed 001 §10.4: a^b = [50, 10, 10] m/s², ω = [1, 2, 3] rad/s, from rest, identity attitude, no gravity.
-SEED001_ORACLE = [
+# worked example: a^b = [50, 10, 10] m/s², ω = [1, 2, 3] rad/s, from rest, identity attitude, no gravity.
+GYROFREE_WORKED_EXAMPLE = [
     (1, (8.337, 18.093, 1.826), (-0.629, 33.186, 11.419)),
     (2, (14.987, 45.885, 31.081), (24.506, 33.881, 35.910)),
     (5, (85.718, 228.945, 235.464), (34.094, 71.690, 107.509)),
@@ -76,11 +77,11 @@ SEED001_ORACLE = [
 ]
 
 
-def test_inertial_mechanisation_reproduces_the_seed001_trajectory():
+def test_inertial_mechanisation_reproduces_the_worked_trajectory():
     t = np.arange(10001) * 1e-3
     nav = mechanise_inertial(t, np.tile([1.0, 2.0, 3.0], (len(t), 1)), np.tile([50.0, 10.0, 10.0], (len(t), 1)),
                              [1, 0, 0, 0], np.zeros(3), np.zeros(3))
-    for sec, pos, vel in SEED001_ORACLE:
+    for sec, pos, vel in GYROFREE_WORKED_EXAMPLE:
         k = sec * 1000
         np.testing.assert_allclose(nav.p_m[k], pos, atol=2e-3)
         np.testing.assert_allclose(nav.v_m_s[k], vel, atol=2e-3)

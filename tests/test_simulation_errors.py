@@ -15,7 +15,7 @@ RATE = 819.2
 
 def test_adis16405_defaults_match_the_anchor_figures():
     e = SensorErrors.adis16405(0)
-    # ARW 2 °/√h, bias stability 0.007 °/s, VRW 0.2 m/s/√h, 0.2 mg, 1.25 mgauss rms (anchors §4.3)
+    # ARW 2 °/√h, bias stability 0.007 °/s, VRW 0.2 m/s/√h, 0.2 mg, 1.25 mgauss rms (ADIS16405 datasheet, Rev. B)
     assert e.gyro_noise_density_rad_s_rthz == pytest.approx(2.0 / 60.0 * DEG)
     assert e.gyro_bias_instability_rad_s == pytest.approx(0.007 * DEG)
     assert e.accel_noise_density_m_s2_rthz == pytest.approx(0.2 / 60.0)
@@ -145,7 +145,7 @@ def test_earth_rate_is_sensed_only_when_asked():
     b = simulate("static", 1.0, rate_hz=10.0, errors="ideal", earth_rate=True)
     sensed = b.gyro_rad_s - b.truth_gyro_rad_s
     np.testing.assert_allclose(np.linalg.norm(sensed, axis=1), EARTH_RATE_RAD_S, rtol=1e-9)
-    # level: the vertical component is −ω sin L (seed 004 eq. 15)
+    # level: the vertical component is −ω sin L (Groves 2nd ed. eq. 2.123)
     np.testing.assert_allclose(sensed[:, 2], -EARTH_RATE_RAD_S * np.sin(np.radians(36.42)), rtol=1e-9)
 
 

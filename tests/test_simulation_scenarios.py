@@ -163,7 +163,7 @@ def test_rate_table_turns_each_axis_both_ways_with_static_holds():
     assert np.max(np.linalg.norm(b.truth_gyro_rad_s, axis=1)) < 100 * DEG  # remounting is gentle
 
 
-def test_auv_legs_at_seed002_headings_with_small_pitch_and_roll():
+def test_auv_legs_at_the_back_stepping_paper_headings_with_small_pitch_and_roll():
     stream = open_stream("auv-out-and-back", rate_hz=5.0, errors="ideal")
     sc = stream.scenario
     b = stream.next_block(int(2 * sc.period_s * 5))
@@ -221,7 +221,7 @@ def test_analytic_rate_matches_the_rotation_difference(name):
     np.testing.assert_allclose(sc.body_rate_rad_s(t), Scenario.body_rate_rad_s(sc, t), atol=1e-9)
 
 
-def test_auv_diver_swing_follows_seed002_test1_phases():
+def test_auv_diver_swing_follows_the_back_stepping_paper_test1_phases():
     stream = open_stream("auv-diver-swing", rate_hz=5.0, errors="ideal")
     sc = stream.scenario
     assert "auv-diver-swing" not in SCENARIOS and sc.period_s == pytest.approx(1330.0)

@@ -1,4 +1,4 @@
-"""The seed-004 NED mechanisation integrates the simulator's truth back into its trajectory."""
+"""The NED mechanisation (Groves 2nd ed. §5.4) integrates the simulator's truth back into its trajectory."""
 
 from __future__ import annotations
 
@@ -72,7 +72,7 @@ def test_ignoring_the_earth_rate_on_a_rotating_earth_is_detected():
     assert np.max(np.linalg.norm(nav.v_ned_m_s - v_true, axis=1)) > 0.2
 
 
-def test_static_mechanisation_holds_still_with_seed004_gravity():
+def test_static_mechanisation_holds_still_with_normal_gravity():
     stream = open_stream("static", rate_hz=20.0, errors="ideal", earth_rate=True)
     b = stream.next_block(20 * 60)
     nav = mechanise_ned(b.t_s, b.gyro_rad_s, b.accel_m_s2, b.truth_q_wxyz[0], np.zeros(3), DEFAULT_SITE.lat_deg,

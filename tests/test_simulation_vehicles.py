@@ -1,5 +1,5 @@
 """Vehicle scenarios (boat, car, plane): position, velocity, acceleration, attitude and the sensed rate and specific
-force come from one consistent trajectory on the seed-004 Earth.
+force come from one consistent trajectory on a spherical Earth (R0 = 6 378 137 m).
 
 Truth here is computed independently of the simulator's code: finite differences and trapezoid integrals of its
 own outputs, scipy's Rotation, and the textbook relations (coordinated bank atan(Vω/g), eq. 17 position rates).
@@ -50,7 +50,7 @@ def test_vehicles_are_scenarios_of_the_contract():
 
 @pytest.mark.parametrize("name", MOVING)
 def test_position_changes_at_the_truth_velocity(name):
-    """Central differences of lat/lon/alt, scaled by seed 004 eq. 17 (R0 + h), give back the truth velocity."""
+    """Central differences of lat/lon/alt, scaled by the position rates L̇ = V_N/(R0+h), λ̇ = V_E/((R0+h) cos L), give back the truth velocity."""
     rate = 50.0
     _, b = full_period(name, rate)
     dt_s = 1.0 / rate
@@ -154,7 +154,7 @@ def test_boat_turns_in_waves_and_its_course_over_ground_is_not_its_heading():
 
 
 def _ned_offset_m(lat_deg, lon_deg, alt_m):
-    """North/east/down of each point from the site (spherical Earth of seed 004, small offsets)."""
+    """North/east/down of each point from the site (spherical Earth R0, small offsets)."""
     r = EARTH_RADIUS_M + alt_m
     north = np.radians(lat_deg - DEFAULT_SITE.lat_deg) * r
     east = np.radians(lon_deg - DEFAULT_SITE.lon_deg) * r * np.cos(np.radians(lat_deg))
@@ -182,7 +182,7 @@ def _strapdown_errors(name, rate_hz, seconds=60.0):
 
 @pytest.mark.parametrize("name", VEHICLES)
 def test_strapdown_of_the_ideal_sensors_reproduces_the_trajectory(name):
-    """The seed-004 NED mechanisation with Earth rate, transport rate and g(L, h) integrates the simulated ideal
+    """The NED mechanisation (Groves 2nd ed. §5.4) with Earth rate, transport rate and g(L, h) integrates the simulated ideal
     gyro and accelerometer back into the truth over 60 s. The only error left is the mechanisation's own
     second-order integration error: it shrinks ~4× when the rate doubles (a missing Coriolis, transport or
     gravity term would leave a floor: 2 ω_ie V alone is 3e-3 m/s² at 25 m/s, 5 m after 60 s). Bounds: the

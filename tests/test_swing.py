@@ -1,4 +1,4 @@
-"""Heading-deviation (swing) fit δψ = A + B sinψ + C cosψ + D sin2ψ + E cos2ψ (seed 002 eqs. 19–21, 31)."""
+"""Heading-deviation (swing) fit δψ = A + B sinψ + C cosψ + D sin2ψ + E cos2ψ (Nourmohammadi & Sabet 2022, eqs. 19–21, 31)."""
 
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ def test_fit_recovers_injected_coefficients_exactly(coef):
 
 def test_fit_with_noise_is_within_its_standard_error():
     rng = np.random.default_rng(0)
-    coef = (8.135, -0.631, 0.614, 0.350, 3.167)   # seed 002 Table 7 in degrees (0.14199 rad = 8.135°, …)
+    coef = (8.135, -0.631, 0.614, 0.350, 3.167)   # the paper's Table 7 in degrees (0.14199 rad = 8.135°, …)
     psi = rng.uniform(0, 360, 400)
     ref = psi + _dev(coef, psi) + rng.normal(0, 0.5, psi.size)
     dev = swing.fit_deviation(psi, ref)
@@ -43,17 +43,17 @@ def test_fit_with_noise_is_within_its_standard_error():
 
 
 def test_paper_table7_radians_applied_as_eq31():
-    a, b, c, d, e = 0.14199, -0.01101, 0.01071, 0.00610, 0.05528     # seed 002 Table 7 (rad)
+    a, b, c, d, e = 0.14199, -0.01101, 0.01071, 0.00610, 0.05528     # the paper's Table 7 (rad)
     dev = swing.DeviationCoefficients(*np.degrees([a, b, c, d, e]))
     psi = 62.0
     r = math.radians(psi)
     expected = psi + math.degrees(a + b * math.sin(r) + c * math.cos(r) + d * math.sin(2 * r) + e * math.cos(2 * r))
     assert float(dev.apply(psi)) == pytest.approx(expected, abs=1e-9)
-    assert math.hypot(dev.d_deg, dev.e_deg) == pytest.approx(3.19, abs=0.01)   # digest §7.4: 2ψ term dominates
+    assert math.hypot(dev.d_deg, dev.e_deg) == pytest.approx(3.19, abs=0.01)   # √(D² + E²) of Table 7: the 2ψ term dominates
 
 
 def test_pub226_eight_point_example_and_least_squares_agree():
-    # NGA Pub. 226 ch. V example deviations (east +): anchors/magcal.md §3 → A 1.0, B 12.0, C 8.0, D 5.0, E 1.5
+    # NGA Pub. 226 ch. V example deviations (east +): A 1.0, B 12.0, C 8.0, D 5.0, E 1.5
     d = dict(N=10.5, NE=20.0, E=11.5, SE=-1.2, S=-5.5, SW=-8.0, W=-12.5, NW=-6.8)
     c = swing.pub226_eight_point(d)
     np.testing.assert_allclose(c.as_array(), [1.0, 12.0, 8.0, 5.0, 1.5], atol=0.15)

@@ -1,5 +1,5 @@
-"""The thesis filter: its Q/R (eq 6-1, 6-2), accuracy on the simulated ADIS16405 against the thesis's table
-(§11.7), convergence, bias learning, time gaps, invalid sensors and the Estimator protocol."""
+"""The thesis filter: its Q/R, accuracy on the simulated ADIS16405 against the thesis's accuracy figures,
+convergence, bias learning, time gaps, invalid sensors and the Estimator protocol."""
 
 from __future__ import annotations
 
@@ -57,11 +57,11 @@ def rms(a, axis=0):
 
 
 # ------------------------------------------------------------------------------------------- the thesis's numbers
-def test_q_and_r_are_the_thesis_eq_6_1_and_6_2():
+def test_q_and_r_are_the_thesis_tuning():
     p = ThesisKfParams()
-    # eq 6-1 as the digest evaluates it: diag(6.854e-6, 6.854e-6, 9.870e-6, 6.854e-8, 6.854e-8, 9.870e-8) rad²/s
+    # worked: (3·[0.05, 0.05, 0.06, 0.005, 0.005, 0.006] °/√s)² = diag(6.854e-6, 6.854e-6, 9.870e-6, 6.854e-8, 6.854e-8, 9.870e-8) rad²/s
     np.testing.assert_allclose(p.q_diag, [6.854e-6, 6.854e-6, 9.870e-6, 6.854e-8, 6.854e-8, 9.870e-8], rtol=1e-3)
-    # eq 6-2: diag(0.74², 0.66², 0.52², 3.65², 3.44², 3.72²) in mG² and mg², here in µT² and (m/s²)²
+    # R: diag(0.74², 0.66², 0.52², 3.65², 3.44², 3.72²) in mG² and mg², here in µT² and (m/s²)²
     r = p.r_diag / np.array([0.01] * 3 + [(9.80665e-3) ** 2] * 3)
     np.testing.assert_allclose(r, [0.5476, 0.4356, 0.2704, 13.3225, 11.8336, 13.8384], rtol=1e-12)
 
@@ -71,10 +71,10 @@ def test_noise_free_data_give_the_exact_attitude_both_versions():
     for version in (1, 2):
         q, _, _ = run(ThesisKf(wahba_version=version), block)
         err = quat_angle_between(quat_multiply(euler_to_quat(0.0, 0.0, DECL), q[1:]), block.truth_q_wxyz[1:])
-        assert np.degrees(err.max()) < 0.02, version  # only the F truncation error (eq 4-21) at 90 °/s remains
+        assert np.degrees(err.max()) < 0.02, version  # only the F = I + AΔt + ½A²Δt² truncation error at 90 °/s remains
 
 
-# ------------------------------------------------------------------------------------ accuracy (thesis §11.7)
+# ------------------------------------------------------------------------------------ accuracy (the thesis's figures)
 @pytest.mark.parametrize("version", [2, 1])
 def test_static_accuracy_beats_the_thesis_table(version):
     block = simulate("static", 10.0, seed=3)
@@ -258,7 +258,7 @@ def test_initial_covariance_is_r_and_the_bias_prior():
 
 
 def test_bias_is_a_gauss_markov_process_with_time_constant_tau():
-    # With no measurements (both flagged invalid) the bias estimate decays as exp(−t/τ_w) (eq 4-11).
+    # With no measurements (both flagged invalid) the bias estimate decays as exp(−t/τ_w) (the Gauss–Markov model).
     tau = 50.0
     kf = ThesisKf(bias_time_constant_s=tau, initial_bias_rad_s=(0.01, -0.02, 0.005))
     kf.update(make_sample(0.0, [0, 0, 0], [0, 0, -9.8], [20.0, 0, 40.0]))

@@ -1,4 +1,4 @@
-"""Wahba solvers: exact recovery, agreement with the SVD optimum, the thesis's §6.6-6.7 relationships, quality."""
+"""Wahba solvers: exact recovery, agreement with the SVD optimum, the thesis methods' relationships to TRIAD, quality."""
 
 from __future__ import annotations
 
@@ -86,11 +86,11 @@ def test_thesis_v2_reorthonormalised_is_triad_anchored_on_the_first_vector(seed)
     np.testing.assert_allclose(second.dcm @ (noisy_b[1] / np.linalg.norm(noisy_b[1])), r[1], atol=1e-12)
 
 
-def test_thesis_closed_form_eq_4_39():
+def test_thesis_version_1_reference_matrix_closed_form():
     # N_n = [mⁿ, fⁿ, fⁿ×mⁿ] with mⁿ = [hn, he, hd], fⁿ = [0, 0, −g]: N_n^{-T} is the printed matrix.
     hn, he, hd, g = 21.3, 1.9, 44.7, 9.80665
     n_matrix = wahba.thesis_matrix([hn, he, hd], [0.0, 0.0, -g], 1)
-    np.testing.assert_allclose(n_matrix[:, 2], [g * he, -g * hn, 0.0])  # the digest's check: fⁿ×mⁿ
+    np.testing.assert_allclose(n_matrix[:, 2], [g * he, -g * hn, 0.0])  # third column fⁿ×mⁿ
     h2 = hn**2 + he**2
     printed = np.array([
         [hn / h2, hn * hd / (g * h2), he / (g * h2)],
@@ -98,14 +98,14 @@ def test_thesis_closed_form_eq_4_39():
         [0.0, -1.0 / g, 0.0],
     ])
     np.testing.assert_allclose(np.linalg.inv(n_matrix).T, printed, rtol=1e-13, atol=1e-16)
-    # And C_b^n = N^{-T} Bᵀ recovers a rotation from the raw (un-normalised) body vectors: eq 4-38.
+    # And C_b^n = N^{-T} Bᵀ recovers a rotation from the raw (un-normalised) body vectors.
     truth = Rotation.from_euler("ZYX", [1.1, 0.2, -0.3]).as_matrix()
     mb, fb = truth.T @ [hn, he, hd], truth.T @ [0.0, 0.0, -g]
     c = printed @ np.vstack((mb, fb, np.cross(fb, mb)))
     np.testing.assert_allclose(c, truth, atol=1e-13)
 
 
-def test_three_vector_is_w_v_inverse_for_three_vectors_eq_4_33():
+def test_three_vector_is_w_v_inverse_for_three_vectors():
     truth, b, r, rng = random_case(7, 3)
     noisy_b = b + rng.normal(scale=0.02, size=b.shape)
     sol = wahba.three_vector(noisy_b, r)
@@ -113,10 +113,10 @@ def test_three_vector_is_w_v_inverse_for_three_vectors_eq_4_33():
     c_nb = unit_b.T @ np.linalg.inv(r.T)  # C_n^b = B N⁻¹ with vectors as columns
     np.testing.assert_allclose(sol.dcm_raw, c_nb.T, atol=1e-12)
     assert orthonormality_error(sol.dcm_raw) > 1e-3  # noisy data: the raw inversion is not a rotation ...
-    assert orthonormality_error(sol.dcm) < 1e-12     # ... until eq 4-42 is applied
+    assert orthonormality_error(sol.dcm) < 1e-12     # ... until C ← 1.5C − 0.5CCᵀC is applied
 
 
-def test_version_1_raw_dcm_is_not_orthonormal_and_eq_4_42_fixes_it():
+def test_version_1_raw_dcm_is_not_orthonormal_and_reorthonormalisation_fixes_it():
     truth, b, r, rng = random_case(11, 2)
     sol = wahba.three_vector(b + rng.normal(scale=0.01, size=b.shape), r)
     assert orthonormality_error(sol.dcm_raw) > 1e-3
