@@ -306,7 +306,7 @@ def run_methods(data, truth, *, with_reference=False, seed=0):
     out["ArduPilot LM"] = (m, time.perf_counter() - t0, info)
     t0 = time.perf_counter()
     sph = paper.sphere_fit_paper(data.mag_ut, F)
-    out["seed002 sphere"] = (sph.model.to_mag_model() if sph.model else None, time.perf_counter() - t0, {})
+    out["back-stepping paper sphere"] = (sph.model.to_mag_model() if sph.model else None, time.perf_counter() - t0, {})
     t0 = time.perf_counter()
     r = bs.fit_backstepping(data, field, attitude="accel")
     out["backstepping"] = (r.model if r.ok else None, time.perf_counter() - t0, {"refused": r.refused, "q": r.quality})

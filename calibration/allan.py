@@ -279,9 +279,9 @@ def describe(result: AllanResult) -> list[str]:
                 lines.append(f"       note: {flag}")
     k = kalman_tuning(result)
     if "Q_diag" in k:
-        lines.append("  Kalman Q (thesis eq. 6-1 form, rad²/s): " + "[" + ", ".join(f"{v:.3e}" for v in k["Q_diag"]) + "]")
+        lines.append("  Kalman Q = diag((3·N)², (3·w_b)²), rad²/s: " + "[" + ", ".join(f"{v:.3e}" for v in k["Q_diag"]) + "]")
     if "R_diag" in k:
-        lines.append("  Kalman R (thesis eq. 6-2, µT² then (m/s²)²): " + "[" + ", ".join(f"{v:.3e}" for v in k["R_diag"]) + "]")
+        lines.append("  Kalman R = diag(σ_mag², σ_accel²), µT² then (m/s²)²: " + "[" + ", ".join(f"{v:.3e}" for v in k["R_diag"]) + "]")
     for a in k["assumed"]:
         lines.append(f"  assumed {a['key']} = {a['value']:.3e}: {a['source']}")
     return lines

@@ -51,7 +51,7 @@ def bias_drive(p) -> tuple[float | None, list[str]]:
 
 def kalman_tuning(result) -> dict:
     """The thesis's Kalman Q and R (form above) from an AllanResult, saying what was assumed."""
-    out: dict = {"source": "thesis eq. 5-8, 6-1, 6-2; terms from the Allan analysis", "assumed": []}
+    out: dict = {"source": "Q = diag((3·N)², (3·w_b)²), R = diag(σ²); terms from the Allan analysis", "assumed": []}
     gyro = result.parameters.get("gyro")
     if gyro:
         arw, drive, drive_src, corr = [], [], [], []
@@ -66,7 +66,7 @@ def kalman_tuning(result) -> dict:
             if w is None:
                 w = BIAS_DRIVE_FRACTION * n
                 out["assumed"].append({"key": f"gyro_bias_drive_rad_s_sqrt_s.{ax}", "value": w,
-                                       "source": "thesis eq. 6-1 rule ARW/10 (no bias term seen)"})
+                                       "source": "rule w_b = ARW/10 (no bias term seen)"})
                 src = ["assumed: ARW/10"]
             if p.bias_instability is None:
                 value, why = DATASHEET["gyro_bias_instability"]

@@ -63,7 +63,7 @@ def register(subparsers) -> None:
     g.add_argument("--bias-only", action="store_true", help="bias from the still periods (no rate table)")
     g.add_argument("--estimator-bias", action="store_true",
                    help="with --bias-only: run the estimator over the recording and add its converged gyro bias "
-                   "(thesis §12: the KF bias is folded back into the calibration)")
+                   "(the filter's bias is folded back into the calibration)")
     g.add_argument("--table-rate-deg-s", type=float, default=None,
                    help="the rate table's rate (table axis vertical); default: the recording's truth columns")
 
