@@ -1,5 +1,6 @@
 """Back-stepping on the heaving, turning boat: accelerometer levelling, GNSS-aided levelling (one pass, as
-before), the true attitude (an oracle), and the aided fit with its safeguard (calibration.backstepping_aided), side by side.
+before), the true attitude (an oracle), and the aided fit with its safeguard (calibration.backstepping_aided),
+side by side.
 
     .venv/bin/python bench/backstepping_gnss.py                 # held-out seeds 4..8 × 2 sites (~3 min)
     .venv/bin/python bench/backstepping_gnss.py --seeds 1 2 3   # the tuning seeds
