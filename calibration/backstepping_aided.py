@@ -82,7 +82,8 @@ def fit_backstepping_aided(data: MagFitInput, fixes, reference, declination_rad:
             calibrated = dataclasses.replace(data, mag_ut=np.ascontiguousarray(model.apply(data.mag_ut)))
             roll, pitch, settled, health = _level(calibrated, fixes, declination_rad, True, settled_tilt_sigma_deg)
             res = _fit_settled(data, roll, pitch, settled, reference, options)
-            passes.append({"magnetometer": "the previous fit's calibration", **_pass_report(data, settled, res, health)})
+            passes.append({"magnetometer": "the previous fit's calibration",
+                           **_pass_report(data, settled, res, health)})
             if not res.ok:
                 break
             result, model = res, res.model
