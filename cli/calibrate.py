@@ -444,8 +444,9 @@ def _mag(args) -> int:
     gyro, accel, _ = stored.apply_arrays(rec.gyro_rad_s, rec.accel_m_s2, None)
     heading_ref, ref_note = _heading_reference_column(rec, args.recording, args.method)
     options = {}
+    fixes = None
     if args.gnss:
-        heading_ref, ref_note = _gnss_for_backstepping(args, rec, accel, gyro, heading_ref, ref_note, ref, options)
+        fixes, heading_ref, ref_note = _gnss_for_backstepping(args, rec, heading_ref, ref_note)
     data = MagFitInput(rec.t_s, rec.mag_ut, accel, gyro, heading_ref)
     if args.method == "backstepping" and args.heading_ref_delay_s:
         options["heading_ref_delay_s"] = args.heading_ref_delay_s
@@ -464,9 +465,18 @@ def _mag(args) -> int:
             options["alignment"] = al.rotation
             align_note = f"alignment from {len(turns)} levelled turns, rotation {al.quality['rotation_angle_deg']:.2f}°"
     try:
-        res = fit_mag(args.method, data, ref, **options)
+        if fixes is not None:
+            from ahrsd.cli.calibrate_gnss import fit_aided
+
+            res = fit_aided(data, fixes, ref, **options)
+        else:
+            res = fit_mag(args.method, data, ref, **options)
     except NotImplementedError as exc:
         raise _Fail(str(exc)) from None
+    except (ValueError, ModuleNotFoundError) as exc:      # the aided estimator is missing or refused the data
+        if fixes is None:
+            raise
+        raise _Fail(f"--gnss: the aided estimator could not level the recording: {exc}") from None
     if swing_table is not None and res.ok:
         from ahrsd.calibration.swing import SwingFitError
         from ahrsd.calibration.swing_table import apply_swing_table
@@ -507,12 +517,11 @@ def _mag(args) -> int:
     return rc
 
 
-def _gnss_for_backstepping(args, rec, accel, gyro, heading_ref, ref_note, ref, options):
-    """--gnss: aided roll/pitch into `options`; with --gnss-course the course as the heading reference
-    (cli.calibrate_gnss)."""
+def _gnss_for_backstepping(args, rec, heading_ref, ref_note):
+    """--gnss: the validated fixes (the fit levels with the aided estimator over them: cli.calibrate_gnss), and
+    with --gnss-course the course as the heading reference."""
     import numpy as np
 
-    from ahrsd.calibration.magfit import MagFitInput
     from ahrsd.cli import calibrate_gnss as cg
 
     if heading_ref is not None and args.gnss_course:
@@ -522,21 +531,17 @@ def _gnss_for_backstepping(args, rec, accel, gyro, heading_ref, ref_note, ref, o
                      "time of validity")
     try:
         fixes, validator = cg.read_validated_fixes(args.gnss)
-        roll, pitch = cg.aided_levelling(MagFitInput(rec.t_s, rec.mag_ut, accel, gyro), fixes, ref.declination_rad)
     except cg.GnssInputError as exc:
         raise _Fail(str(exc)) from None
-    except (ValueError, ModuleNotFoundError) as exc:      # the aided estimator is missing or refused the data
-        raise _Fail(f"--gnss: the aided estimator could not level the recording: {exc}") from None
-    options.update(roll_rad=roll, pitch_rad=pitch, speed_m_s=None)    # aided: no centripetal lean to fit out
     note = (f"levelling: {cg.LEVELLING_ESTIMATOR} aided by {len(fixes)} GNSS fixes of {args.gnss} "
             f"({validator.rejected} rejected)")
     if not args.gnss_course:
-        return heading_ref, note + ("; " + ref_note if ref_note else "")
+        return fixes, heading_ref, note + ("; " + ref_note if ref_note else "")
     course = cg.course_reference_deg(fixes, rec.t_s)
     n = int(np.isfinite(course).sum())
     note += (f"; heading reference: GNSS course on straight tracks above {cg.COURSE_MIN_SPEED_M_S:g} m/s, "
              f"{n} of {len(course)} samples ({n / len(course):.0%})")
-    return (course if n else None), note
+    return fixes, (course if n else None), note
 
 
 def _heading_reference_column(rec, path, method):

@@ -2,8 +2,10 @@
 back-stepping.
 
 * Levelling: roll and pitch from the aided estimator (ins, its magnetometer update off) run over the recording
-  with the fixes (calibration.levelling), instead of the accelerometer, whose apparent vertical leans in turns,
-  waves and accelerations; no centripetal compensation is then needed.
+  with the fixes, instead of the accelerometer, whose apparent vertical leans in turns, waves and
+  accelerations; no centripetal compensation is then needed. When that filter does not acquire its heading
+  from the GNSS velocity, the run is levelled again with the magnetometer calibrated by a first fit
+  (calibration.backstepping_aided).
 * The heading offset (--gnss-course): GNSS course over ground as the heading reference (the `heading_ref_deg`
   column's role), only on straight tracks above COURSE_MIN_SPEED_M_S (calibration.swing.gnss_course_reference).
   Course is heading + crab (leeway, current, sideslip): a steady crab shifts the fitted offset by as much
@@ -53,6 +55,13 @@ def course_reference_deg(fixes, t_s):
     speed = np.array([f.ground_speed_m_s if f.has_velocity else np.nan for f in fixes])
     return gnss_course_reference(tf, course, speed, delay_s=0.0, min_speed_m_s=COURSE_MIN_SPEED_M_S,
                                  max_turn_rate_deg_s=COURSE_MAX_TURN_RATE_DEG_S, at_t_s=t_s)
+
+
+def fit_aided(data, fixes, reference, **options):
+    """The back-stepping fit levelled by the aided estimator (calibration.backstepping_aided)."""
+    from ahrsd.calibration.backstepping_aided import fit_backstepping_aided
+
+    return fit_backstepping_aided(data, fixes, reference, reference.declination_rad, **options)
 
 
 def aided_levelling(data, fixes, declination_rad: float):

@@ -48,7 +48,7 @@ class Recorder:
 
     def update(self, sample):
         self.events.append(("sample", sample.t_s))
-        return type("E", (), {"roll_rad": 0.1, "pitch_rad": -0.2})()
+        return type("E", (), {"roll_rad": 0.1, "pitch_rad": -0.2, "sigma_rpy_rad": np.zeros(3)})()
 
 
 def test_levelling_offers_the_fixes_in_time_order(monkeypatch):

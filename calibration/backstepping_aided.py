@@ -1,0 +1,95 @@
+"""Back-stepping levelled by the GNSS-aided estimator (`ahrsd calibrate mag --method backstepping --gnss`).
+
+The vertical-channel fit (vertical_channel.py) takes the levelling as truth: a roll/pitch error δ is read as a
+vertical-field error H·δ and the fit bends the soft iron to explain it, so the heading moves by about
+tan(dip)·δ. With the true attitude the fit leaves hundredths of a degree of heading error on a heaving boat:
+the error is the levelling's (measured in docs/magcal-vehicle.md). What this module does about it:
+
+- **The filter's start.** Until the aided filter has converged (the first 20–30 s) its tilt is off by tenths of
+  a degree; `settled_tilt_sigma_deg` leaves out the samples whose filter tilt 1σ is above it (off by default:
+  measured, it did not help on the whole).
+- **No magnetometer in the filter**, whose raw heading is tens of degrees off (the vehicle iron): the yaw then
+  comes from the GNSS velocity in accelerations alone (Groves, Principles of GNSS, Inertial, and Multisensor
+  Integrated Navigation Systems, 2nd ed., §14.2.1). When that fails — the filter keeps rejecting the GNSS
+  velocity and resets it, a yaw it never acquired — its tilt is degrees off; the run is then levelled again with
+  the magnetometer calibrated by the accelerometer-levelled fit (heading within a degree or two, which moves
+  the aided tilt by only ψ̃·a/g), twice, and the result says so.
+
+No centripetal compensation is applied: the aided horizon does not lean into turns.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from .levelling import attitude_from_estimator
+from .magfit import MagFitInput, MagFitResult
+
+AIDED_ESTIMATOR = "ins"
+SETTLED_TILT_SIGMA_DEG = math.inf   # fit only where the filter's tilt 1σ is below this; on the tuning seeds
+                                    # (bench/backstepping_gnss.py --sweep) no limit did as well as any
+FALLBACK_PASSES = 2             # aided levelling passes with the magnetometer, when the first one failed
+MAX_REJECTED_VELOCITY_FRACTION = 0.01   # of the offered fixes: more, and the filter did not converge
+MIN_SETTLED_FRACTION = 0.25    # fewer settled samples than this: fit them all (a short run)
+
+
+def _level(data: MagFitInput, fixes, declination_rad: float, mag_enabled: bool, settled_tilt_sigma_deg: float):
+    """Roll, pitch, the settled mask and whether the filter fused the GNSS velocity cleanly."""
+    from ahrsd.estimator import make_estimator
+
+    est = make_estimator(AIDED_ESTIMATOR, declination_rad=declination_rad, mag_enabled=mag_enabled)
+    roll, pitch, tilt_sigma = attitude_from_estimator(data, AIDED_ESTIMATOR, fixes=fixes, estimator=est)
+    settled = tilt_sigma <= math.radians(settled_tilt_sigma_deg)
+    if settled.mean() < MIN_SETTLED_FRACTION:
+        settled = np.ones(len(data), dtype=bool)
+    c = est.gnss_counters
+    healthy = c.reset_velocity == 0 and c.rejected_velocity <= MAX_REJECTED_VELOCITY_FRACTION * max(c.offered, 1)
+    return roll, pitch, settled, {"gnss": {"offered": c.offered, "fused_velocity": c.fused_velocity,
+                                           "rejected_velocity": c.rejected_velocity,
+                                           "reset_velocity": c.reset_velocity}, "healthy": healthy}
+
+
+def _fit_settled(data: MagFitInput, roll, pitch, settled, reference, options: dict) -> MagFitResult:
+    from .backstepping import fit_backstepping
+
+    return fit_backstepping(data.select(settled), reference, roll_rad=roll[settled], pitch_rad=pitch[settled],
+                            speed_m_s=None, **options)
+
+
+def _pass_report(data: MagFitInput, settled, res: MagFitResult, health: dict) -> dict:
+    return {"n_settled": int(settled.sum()), "settled_from_s": float(data.t_s[np.argmax(settled)]),
+            "ok": res.ok, "refused": res.refused, **health}
+
+
+def fit_backstepping_aided(data: MagFitInput, fixes, reference, declination_rad: float,
+                           settled_tilt_sigma_deg: float = SETTLED_TILT_SIGMA_DEG, **options) -> MagFitResult:
+    """Back-stepping (`fit_backstepping`, `options` its BacksteppingOptions fields) levelled by the aided
+    estimator over `data` (raw magnetometer) with the GNSS `fixes` (time of validity on the samples' time base).
+    See the module docstring; `quality["aided_levelling"]` reports each pass."""
+    from .backstepping import fit_backstepping
+
+    roll, pitch, settled, health = _level(data, fixes, declination_rad, False, settled_tilt_sigma_deg)
+    result = _fit_settled(data, roll, pitch, settled, reference, options)
+    passes = [{"magnetometer": "off", **_pass_report(data, settled, result, health)}]
+    if not health["healthy"]:
+        seed = fit_backstepping(data, reference, **options)
+        passes.append({"levelling": "accelerometer", "ok": seed.ok, "refused": seed.refused})
+        model = seed.model if seed.ok else None
+        for _ in range(FALLBACK_PASSES if model is not None else 0):
+            calibrated = dataclasses.replace(data, mag_ut=np.ascontiguousarray(model.apply(data.mag_ut)))
+            roll, pitch, settled, health = _level(calibrated, fixes, declination_rad, True, settled_tilt_sigma_deg)
+            res = _fit_settled(data, roll, pitch, settled, reference, options)
+            passes.append({"magnetometer": "the previous fit's calibration",
+                           **_pass_report(data, settled, res, health)})
+            if not res.ok:
+                break
+            result, model = res, res.model
+        result.quality.setdefault("warnings", []).append(
+            "the aided filter without a magnetometer did not acquire its heading from the GNSS velocity (velocity "
+            "rejected and reset): levelled again with the magnetometer calibrated by the accelerometer-levelled fit")
+    result.quality["aided_levelling"] = {"estimator": AIDED_ESTIMATOR,
+                                         "settled_tilt_sigma_deg": settled_tilt_sigma_deg, "passes": passes}
+    return result
