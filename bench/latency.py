@@ -1,5 +1,6 @@
 """Sample-ready → MAVLink datagram latency and the daemon's CPU share at 819.2 SPS, with the default ("gcs")
-outputs and with the autopilot profile (VISION_POSITION_ESTIMATE, SYS_STATUS, HEARTBEAT) side by side.
+outputs and with the autopilot profile (VISION_POSITION_ESTIMATE, SYS_STATUS, HEARTBEAT), without and with
+GNSS, side by side.
 
 Part A — `ahrsd run` as a subprocess on the simulated chip (real-time clock), MAVLink to a UDP socket here.
   Latency = arrival time of each VISION_POSITION_ESTIMATE / HIGHRES_IMU datagram (CLOCK_MONOTONIC, taken
@@ -11,11 +12,19 @@ Part B — the daemon's reader in-process for a few seconds: how far those time 
   read as true sample-ready latencies (true latency = A − B).
 
     .venv/bin/python bench/latency.py [--seconds 20] [--profile gcs|autopilot|both] [--log off|on|both]
+                                      [--gnss off|on|both] [--scenario boat]
+
+--gnss on: `--gnss-sim`, the scenario's simulated receiver (UBX NAV-PVT at 5 Hz over a pty, read by the serial
+source as on hardware), so the default estimator is `ins` fed 5 fixes a second; off: no GNSS, `mekf`. Both run
+the same moving scenario (`--scenario`, default boat), so the difference is the GNSS path and ins. The daemon's
+figure includes the simulated receiver's writer thread (the simulator and the UBX encoding run in the daemon
+process, as the simulated chip does); part C measures that thread's own cost in-process, to subtract. With
+GNSS the window opens `--warmup` s after the first "aided" STATUSTEXT (ACTIVE alone without): the steady cost.
 
 --log on: the daemon keeps its on-vehicle logs (raw samples .csv.gz + MAVLink .tlog, `--log-dir`); the disk
 rate is the growth of the log directory over the window (the writer flushes every second).
 
-Targets (docs/daemon.md): p99 ≤ 2 ms, CPU ≤ 10 % of one core.
+Targets (docs/daemon.md, docs/gnss.md): p99 ≤ 2 ms, CPU ≤ 10 % of one core; with GNSS ≤ 12 %.
 """
 
 from __future__ import annotations
@@ -23,6 +32,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import dataclasses
+import json
 import os
 import signal
 import socket
@@ -48,8 +58,10 @@ def free_udp_socket() -> socket.socket:
     return s
 
 
-def cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+def cpu_seconds(pid: int, tid: int | None = None) -> float:
+    """utime + stime of the process, or of one of its threads (`tid`; the main thread's is the pid)."""
+    path = f"/proc/{pid}/task/{tid}/stat" if tid is not None else f"/proc/{pid}/stat"
+    fields = Path(path).read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")   # utime + stime
 
 
@@ -57,15 +69,18 @@ def dir_bytes(path: Path) -> int:
     return sum(p.stat().st_size for p in path.glob("*") if p.is_file()) if path.is_dir() else 0
 
 
-def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = False) -> dict:
+def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = False, gnss: bool = False,
+           scenario: str = "static") -> dict:
     sock = free_udp_socket()
     port = sock.getsockname()[1]
     with tempfile.TemporaryDirectory() as tmp:
         config = Path(tmp) / "ahrsd.toml"
         config.write_text(f'[[endpoint]]\nurl = "udpout:127.0.0.1:{port}"\nprofile = "{profile}"\n')
+        stats_path = Path(tmp) / "stats.json"
         proc = subprocess.Popen(
-            [sys.executable, "-m", "ahrsd.cli", "run", "--sim", "static", "--config", str(config),
-             "--state-dir", tmp, "--status-line", "off",
+            [sys.executable, "-m", "ahrsd.cli", "run", "--sim", scenario, *(("--gnss-sim",) if gnss else ()),
+             "--config", str(config),
+             "--state-dir", tmp, "--status-line", "off", "--stats-file", str(stats_path),
              *(("--log-dir", str(Path(tmp) / "logs")) if log else ("--no-log",))],
             cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         parser = mavlink.MAVLink(None)
@@ -78,7 +93,7 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
         cpu0 = 0.0
         try:
             deadline = time.monotonic() + 60.0
-            active = False
+            active = aided = False
             while time.monotonic() < deadline:
                 try:
                     data = sock.recv(4096)
@@ -87,14 +102,20 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
                 now = time.monotonic()
                 for m in parser.parse_buffer(data) or ():
                     mtype = m.get_type()
-                    if mtype == "HEARTBEAT" and m.system_status == mavlink.MAV_STATE_ACTIVE and not active:
+                    if mtype == "HEARTBEAT" and m.system_status == mavlink.MAV_STATE_ACTIVE:
                         active = True
+                    if mtype == "STATUSTEXT" and m.text.endswith(", aided"):
+                        aided = True
+                    # with GNSS the window opens once ins is aided: the first fixes' one-off work (navigation
+                    # set-up, the declination at the GNSS position) is start-up, not the steady cost
+                    if t_start is None and active and (aided or not gnss):
                         deadline = now + warmup + seconds
                         t_start = now + warmup
                     if t_start is None or now < t_start:
                         continue
                     if cpu0 == 0.0:
                         cpu0, wall0 = cpu_seconds(proc.pid), time.monotonic()
+                        main0 = cpu_seconds(proc.pid, proc.pid)
                         log0 = dir_bytes(Path(tmp) / "logs")
                     counts[mtype] = counts.get(mtype, 0) + 1
                     if mtype != "VISION_POSITION_ESTIMATE":
@@ -105,16 +126,19 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
                     elif mtype == "HIGHRES_IMU":
                         lat[mtype].append(now - m.time_usec * 1e-6)
             cpu1, wall1 = cpu_seconds(proc.pid), time.monotonic()
+            main1 = cpu_seconds(proc.pid, proc.pid)
             log1 = dir_bytes(Path(tmp) / "logs")
         finally:
             proc.send_signal(signal.SIGTERM)
             proc.wait(10)
             sock.close()
+        stats = json.loads(stats_path.read_text()) if stats_path.exists() else {}
     if not active or cpu0 == 0.0:
         raise SystemExit("the daemon never became ACTIVE")
     return {"latency_s": lat, "cpu_share": (cpu1 - cpu0) / (wall1 - wall0), "window_s": wall1 - wall0,
+            "main_thread_share": (main1 - main0) / (wall1 - wall0),
             "counts": counts, "bytes_per_s": nbytes / (wall1 - wall0),
-            "log_mb_per_h": (log1 - log0) / (wall1 - wall0) * 3600 / 1e6}
+            "log_mb_per_h": (log1 - log0) / (wall1 - wall0) * 3600 / 1e6, "stats": stats}
 
 
 def part_b(seconds: float) -> np.ndarray:
@@ -154,6 +178,42 @@ def part_b(seconds: float) -> np.ndarray:
     return np.array(errors[int(0.2 * len(errors)):])   # skip the lock-in
 
 
+def part_c(scenario: str, seconds: float = 60.0) -> float:
+    """CPU seconds per second of the simulated receiver's writer (drivers.gnss_scenario: the simulator's epochs
+    and the UBX encoding into the pty), stepped in-process over `seconds` of scenario time."""
+    import select
+
+    from ahrsd.drivers.gnss_scenario import ScenarioGnssReceiver
+
+    clock = type("Clock", (), {"t": 0.0, "__call__": lambda self: self.t})()
+    rx = ScenarioGnssReceiver(scenario, clock)
+    cpu = 0.0
+    try:
+        for k in range(int(seconds * 100)):
+            clock.t = k / 100.0
+            c0 = time.thread_time()
+            rx.write_due()
+            cpu += time.thread_time() - c0
+            while select.select([rx.receiver.slave_fd], [], [], 0)[0]:
+                os.read(rx.receiver.slave_fd, 4096)
+    finally:
+        rx.close()
+    if rx.fixes_written < 0.9 * 5 * seconds:
+        raise SystemExit(f"the simulated receiver wrote only {rx.fixes_written} fixes")
+    return cpu / seconds
+
+
+def gnss_summary(stats: dict) -> str:
+    g = stats.get("gnss") or {}
+    if not g:
+        return "no GNSS"
+    est = g.get("estimator")
+    if est is None:
+        return f"GNSS not fused; fixes accepted {g.get('accepted', 0)}"
+    return (f"ins; fixes accepted {g.get('accepted', 0)}, fused velocity "
+            f"{est.get('fused_velocity', 0)}, position {est.get('fused_position', 0)}, rejected {g.get('rejected', 0)}")
+
+
 def pct(x: np.ndarray) -> str:
     p50, p99 = np.percentile(x, [50, 99])
     return f"p50 {p50 * 1e3:6.3f} ms  p99 {p99 * 1e3:6.3f} ms  max {x.max() * 1e3:6.3f} ms  (n={len(x)})"
@@ -167,27 +227,41 @@ def main() -> None:
                     help="the endpoint's output profile (both: one run each, side by side)")
     ap.add_argument("--log", choices=("off", "on", "both"), default="off",
                     help="on-vehicle logging in the daemon (both: one run each, side by side)")
+    ap.add_argument("--gnss", choices=("off", "on", "both"), default="both",
+                    help="--gnss-sim (ins with 5 Hz fixes) or no GNSS (mekf) (both: one run each, side by side)")
+    ap.add_argument("--scenario", default=None,
+                    help="the simulated scenario (default: boat, a moving one for GNSS; static with --gnss off)")
     args = ap.parse_args()
+    scenario = args.scenario or ("static" if args.gnss == "off" else "boat")
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f} (shared machine)")
     profiles = ("gcs", "autopilot") if args.profile == "both" else (args.profile,)
     logs = {"off": (False,), "on": (True,), "both": (False, True)}[args.log]
-    runs = {(p, lg): part_a(args.seconds, args.warmup, p, lg) for p in profiles for lg in logs}
-    for (p, lg), r in runs.items():
-        print(f"\nA. ahrsd run --sim static, profile \"{p}\", logging {'on' if lg else 'off'}, "
-              f"{r['window_s']:.1f} s window")
+    gnss_runs = {"off": (False,), "on": (True,), "both": (False, True)}[args.gnss]
+    runs = {(p, lg, gn): part_a(args.seconds, args.warmup, p, lg, gn, scenario)
+            for gn in gnss_runs for p in profiles for lg in logs}
+    for (p, lg, gn), r in runs.items():
+        print(f"\nA. ahrsd run --sim {scenario}{' --gnss-sim' if gn else ''}, profile \"{p}\", logging "
+              f"{'on' if lg else 'off'}, {r['window_s']:.1f} s window")
+        print(f"   {gnss_summary(r['stats'])}")
         for name, values in r["latency_s"].items():
             if values:
                 print(f"   {name:25s} sample time stamp → datagram received: {pct(np.array(values))}")
         rates = ", ".join(f"{k} {v / r['window_s']:.1f}/s" for k, v in sorted(r["counts"].items()))
         print(f"   received: {rates}; {r['bytes_per_s']:.0f} B/s on the wire")
-        print(f"   daemon CPU: {100 * r['cpu_share']:.1f} % of one core (utime+stime / wall)")
+        print(f"   daemon CPU: {100 * r['cpu_share']:.1f} % of one core (utime+stime / wall), of which the event loop's "
+              f"thread {100 * r['main_thread_share']:.1f} %")
         if lg:
             print(f"   log directory growth: {r['log_mb_per_h']:.1f} MB/h")
+    rx_share = part_c(scenario) if True in gnss_runs else 0.0
     if len(runs) >= 2:
-        print("\n   profile    log   CPU % of one core   B/s   log MB/h")
-        for (p, lg), r in runs.items():
-            print(f"   {p:9s}  {'on' if lg else 'off':4s} {100 * r['cpu_share']:17.1f}   {r['bytes_per_s']:5.0f}"
-                  f"   {r['log_mb_per_h']:8.1f}")
+        print(f"\n   scenario {scenario}; load average {os.getloadavg()[0]:.2f}")
+        print("   GNSS  profile    log   CPU % of one core (event loop thread)   B/s   log MB/h")
+        for (p, lg, gn), r in runs.items():
+            print(f"   {'on' if gn else 'off':4s}  {p:9s}  {'on' if lg else 'off':4s} {100 * r['cpu_share']:17.1f} "
+                  f"({100 * r['main_thread_share']:4.1f})             {r['bytes_per_s']:5.0f}   {r['log_mb_per_h']:8.1f}")
+    if rx_share:
+        print(f"\nC. the simulated receiver's writer thread (in the daemon process with --gnss-sim; not there with a "
+              f"real receiver): {100 * rx_share:.2f} % of one core")
     a = next(iter(runs.values()))
     b = part_b(5.0)
     print("\nB. time stamp − true chip sample-ready time (in-process reader, 5 s):")
@@ -198,6 +272,10 @@ def main() -> None:
     p99_true = np.percentile(all_lat, 99) + np.percentile(b, 99)
     print(f"\nTrue sample-ready → datagram p99 ≤ {p99_true * 1e3:.3f} ms (A p99 + B p99; target ≤ 2 ms); "
           f"CPU {100 * a['cpu_share']:.1f} % (target ≤ 10 %)")
+    for (p, lg, gn), r in runs.items():
+        if gn:
+            print(f"With GNSS ({p}, logging {'on' if lg else 'off'}): CPU {100 * r['cpu_share']:.1f} % of one core "
+                  f"(target ≤ 12 %), of which the simulated receiver about {100 * rx_share:.1f} %")
 
 
 if __name__ == "__main__":

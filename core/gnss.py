@@ -63,13 +63,19 @@ class GnssFix:
         return math.atan2(float(self.vel_ned_m_s[1]), float(self.vel_ned_m_s[0])) % (2.0 * math.pi)
 
 
-# Accuracies assumed where a source does not report them (a recording without the columns, NMEA, the
-# autopilot's GLOBAL_POSITION_INT): a u-blox M8-class receiver in open sky. Horizontal: the M8 datasheet's
-# 2.5 m CEP; vertical: twice that (VDOP is typically about twice HDOP); speed: 0.1 m/s, twice the datasheet's
-# 0.05 m/s (50 %), as a 1σ. An estimator can weight a fix by these instead of by NaN.
-DEFAULT_H_ACC_M = 2.5
-DEFAULT_V_ACC_M = 5.0
-DEFAULT_S_ACC_M_S = 0.1
+# The 1σ assumed where a source does not report one (NMEA, the autopilot's GLOBAL_POSITION_INT, a recording
+# without the columns): the one definition, used by the recording reader and by the aided estimator alike, so a
+# live fix and the same fix replayed from a recording weigh the same. The receiver is a u-blox M8-class one in
+# open sky (u-blox NEO-M8 data sheet, UBX-15031086: horizontal position 2.5 m CEP, velocity 0.05 m/s at 50 %).
+# h: per axis (north, east), as the filter uses it: the CEP of a circular normal is sqrt(2 ln 2) σ = 1.177 σ,
+#    2.5 / 1.177 = 2.1 m.
+# v: the data sheet gives none; the GPS SPS Performance Standard (2008, §3.8) quotes well-designed receivers at
+#    3 m horizontal and 5 m vertical 95 %: 2D 95 % is 2.448 σ, 1D 1.96 σ, so σ_v = 2.08 σ_h = 4.4 m.
+# s: per axis; the 50 % figure read as the median absolute error of one axis (0.6745 σ), the larger of its
+#    readings (the radial one gives 0.042): 0.05 / 0.6745 = 0.074 m/s.
+DEFAULT_H_ACC_M = 2.1
+DEFAULT_V_ACC_M = 4.4
+DEFAULT_S_ACC_M_S = 0.074
 
 
 def with_default_accuracies(fix: GnssFix, h_acc_m: float = DEFAULT_H_ACC_M, v_acc_m: float = DEFAULT_V_ACC_M,

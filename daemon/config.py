@@ -187,6 +187,10 @@ AIDED_ESTIMATOR = "ins"
 GNSS_SOURCES = ("none", "serial", "mavlink", "replay", "sim")
 GNSS_PROTOCOLS = ("auto", "ubx", "nmea")
 GNSS_BAUDS = (4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
+GNSS_SIM_GLITCH_KINDS = ("position_jump", "velocity_spike", "nan")   # simulation.gnss.GLITCH_KINDS a wire carries
+MAX_SIM_TIME_S = 7 * 86400.0         # sim faults are placed within a week of scenario time
+MIN_SIM_GLITCH_EVERY_S = 1.0         # a glitch on every fix (0.2 s) would be a broken receiver, not a glitch
+MAX_SIM_GLITCH_MAGNITUDE = 1000.0    # m or m/s
 MAX_LEVER_ARM_M = 100.0
 
 
@@ -200,6 +204,13 @@ def _gnss_device(k, value):
     value = _string(k, value)
     if value and not value.startswith("/dev/"):     # "" = not set (required with source = "serial")
         raise _fail(k, value, "a serial device path such as /dev/serial0 or /dev/ttyACM0")
+    return value
+
+
+def _sim_glitch_every(k, value):
+    value = _number(k, value, 0.0, MAX_SIM_TIME_S)
+    if 0.0 < value < MIN_SIM_GLITCH_EVERY_S:
+        raise _fail(k, value, f"0 (no glitches) or a period of at least {MIN_SIM_GLITCH_EVERY_S:g} s")
     return value
 
 
@@ -225,6 +236,13 @@ class GnssConfig:
     use_fused: bool = False        # mavlink: fall back to GLOBAL_POSITION_INT (the autopilot's fused velocity)
                                    # when no GPS_RAW_INT fix arrives (docs/gnss.md "The loop through the autopilot")
     lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # antenna relative to the IMU, body FRD, m
+    # sim: faults of the simulated receiver, on the scenario's time (seconds since the simulated sensor started)
+    sim_outage_start_s: float = 60.0   # the receiver loses the sky at this time, s
+    sim_outage_s: float = 0.0          # for this long (0: no outage), s
+    sim_outage_no_fix: bool = False    # during it, NO_FIX solutions (a u-blox that lost lock) instead of silence
+    sim_glitch_every_s: float = 0.0    # a bad fix reported as good at every multiple of this (0: none), s
+    sim_glitch_kind: str = "position_jump"   # "position_jump", "velocity_spike" or "nan" (invalid position)
+    sim_glitch_magnitude: float = 0.0  # the jump (m) or spike (m/s); 0: the simulator's 50 m / 5 m/s
 
     @classmethod
     def parse(cls, d: dict, prefix="gnss") -> "GnssConfig":
@@ -232,7 +250,11 @@ class GnssConfig:
             "source": _choice_of(GNSS_SOURCES), "device": _gnss_device,
             "baud": _gnss_baud,
             "protocol": _choice_of(GNSS_PROTOCOLS), "latency_s": _number_in(0.0, 2.0), "file": _string,
-            "use_fused": _bool, "lever_arm_m": _lever_arm}))
+            "use_fused": _bool, "lever_arm_m": _lever_arm,
+            "sim_outage_start_s": _number_in(0.0, MAX_SIM_TIME_S), "sim_outage_s": _number_in(0.0, MAX_SIM_TIME_S),
+            "sim_outage_no_fix": _bool, "sim_glitch_every_s": _sim_glitch_every,
+            "sim_glitch_kind": _choice_of(GNSS_SIM_GLITCH_KINDS),
+            "sim_glitch_magnitude": _number_in(0.0, MAX_SIM_GLITCH_MAGNITUDE)}))
         cfg.check(prefix)
         return cfg
 

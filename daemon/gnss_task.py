@@ -41,6 +41,17 @@ FIX_NAMES = {GnssFixType.NO_GPS: "no GPS", GnssFixType.NO_FIX: "no fix", GnssFix
              GnssFixType.RTK_FIXED: "RTK fixed"}
 
 
+def _sim_faults(cfg) -> str:
+    """The simulated receiver's configured faults, for the log: "; outage 60–90 s; position_jump every 20 s"."""
+    out = ""
+    if cfg.sim_outage_s > 0:
+        out += (f"; outage {cfg.sim_outage_start_s:g}–{cfg.sim_outage_start_s + cfg.sim_outage_s:g} s"
+                f"{' (no fix)' if cfg.sim_outage_no_fix else ''}")
+    if cfg.sim_glitch_every_s > 0:
+        out += f"; {cfg.sim_glitch_kind} every {cfg.sim_glitch_every_s:g} s"
+    return out
+
+
 @dataclass
 class GnssTaskCounters:
     fixes: int = 0               # fixes the source delivered
@@ -106,12 +117,17 @@ class GnssTask:
                 from ahrsd.drivers.gnss_scenario import ScenarioGnssReceiver
 
                 sensor = self.service.config.sensor
-                self.receiver = ScenarioGnssReceiver(sensor.scenario, chip_clock=self.service.source.chip.now,
-                                                     seed=sensor.seed, lever_arm_m=cfg.lever_arm_m).start()
+                outages = ([(cfg.sim_outage_start_s, cfg.sim_outage_start_s + cfg.sim_outage_s,
+                             cfg.sim_outage_no_fix)] if cfg.sim_outage_s > 0 else [])
+                self.receiver = ScenarioGnssReceiver(
+                    sensor.scenario, chip_clock=self.service.source.chip.now, seed=sensor.seed,
+                    lever_arm_m=cfg.lever_arm_m, outages=outages, glitch_every_s=cfg.sim_glitch_every_s,
+                    glitch_kind=cfg.sim_glitch_kind, glitch_magnitude=cfg.sim_glitch_magnitude or None).start()
                 device, baud, protocol, latency = (self.receiver.device, self.receiver.baud, "ubx",
                                                    self.receiver.latency_s)
             self._serial_args = (device, baud, protocol, latency)
-            self.description = (f"simulated receiver ({self.service.config.sensor.scenario}, UBX on {device})"
+            self.description = (f"simulated receiver ({self.service.config.sensor.scenario}, UBX on {device}"
+                                f"{_sim_faults(cfg)})"
                                 if kind == "sim" else f"receiver on {device} at {baud} baud ({protocol})")
             self._open_serial()
         self._opened_at = self.clock()
@@ -326,6 +342,8 @@ class GnssTask:
         out = {**vars(self.counters), "validator": dict(self.validator.counters)}
         if self.serial is not None:
             out["serial"] = dict(self.serial.counters)
+        if self.receiver is not None:
+            out["sim_receiver"] = self.receiver.counters()
         if self.selector is not None:
             out["mavlink"] = dict(self.selector.counters)
         est = self.service.pipeline.estimator if self.service.pipeline is not None else None

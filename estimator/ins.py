@@ -24,7 +24,7 @@ import numpy as np
 from scipy.special import chdtri   # χ² inverse survival function (scipy.stats costs 1.4 s to import)
 
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, NavState
-from ahrsd.core.gnss import GnssFix, GnssFixType
+from ahrsd.core.gnss import DEFAULT_H_ACC_M, DEFAULT_S_ACC_M_S, DEFAULT_V_ACC_M, GnssFix, GnssFixType
 from ahrsd.core.sample import ImuSample
 
 from . import ins_core as core
@@ -90,16 +90,12 @@ class InsParams:
     # --- GNSS
     lever_arm_m: tuple = (0.0, 0.0, 0.0)
     """Antenna position relative to the IMU in the body frame (FRD), m."""
-    default_h_acc_m: float = 3.0
-    """Horizontal position 1σ used when the fix reports none (NaN: NMEA), m."""
-    default_v_acc_m: float = 6.0
-    """Vertical position 1σ used when the fix reports none, m."""
-    default_s_acc_m_s: float = 0.3
-    """Velocity 1σ per axis used when the fix reports no speed accuracy, m/s."""
     min_h_acc_m: float = 0.3
     min_v_acc_m: float = 0.5
     min_s_acc_m_s: float = 0.03
-    """Floors of the reported accuracies (receivers report optimistic figures in good conditions)."""
+    """Floors of the reported accuracies (receivers report optimistic figures in good conditions). A fix that
+    reports none (NaN: NMEA) is weighted by ahrsd.core.gnss's DEFAULT_H_ACC_M, DEFAULT_V_ACC_M, DEFAULT_S_ACC_M_S,
+    the defaults the recording reader fills in, so a live fix and its recording weigh the same."""
     use_vertical_velocity: bool = True
     """Fuse the vertical velocity when the fix has one (NaN in GPS_RAW_INT and NMEA)."""
     gate_false_alarm: float = 1e-5
@@ -410,9 +406,9 @@ class Ins:
             c.invalid += 1
             self._reject("neither position nor velocity is finite", fix)
             return 0
-        sig_h = _accuracy(h_acc, p.default_h_acc_m, p.min_h_acc_m)
-        sig_v = _accuracy(v_acc, p.default_v_acc_m, p.min_v_acc_m)
-        sig_s = _accuracy(s_acc, p.default_s_acc_m_s, p.min_s_acc_m_s)
+        sig_h = _accuracy(h_acc, DEFAULT_H_ACC_M, p.min_h_acc_m)
+        sig_v = _accuracy(v_acc, DEFAULT_V_ACC_M, p.min_v_acc_m)
+        sig_s = _accuracy(s_acc, DEFAULT_S_ACC_M_S, p.min_s_acc_m_s)
         res = core.fuse_gnss(
             self._x, self._P, self._hist, self._par, float(fix.t_s),
             math.radians(lat) if use_pos else 0.0, math.radians(lon) if use_pos else 0.0,

@@ -49,7 +49,7 @@ def test_base_columns_only_take_documented_defaults(tmp_path):
     fixes = read_gnss_recording(path)
     assert len(fixes) == 2
     f = fixes[0]
-    assert (f.h_acc_m, f.v_acc_m, f.s_acc_m_s) == (2.5, 5.0, 0.1) == (DEFAULT_H_ACC_M, DEFAULT_V_ACC_M,
+    assert (f.h_acc_m, f.v_acc_m, f.s_acc_m_s) == (2.1, 4.4, 0.074) == (DEFAULT_H_ACC_M, DEFAULT_V_ACC_M,
                                                                       DEFAULT_S_ACC_M_S)
     assert f.fix_type == GnssFixType.FIX_3D and f.num_sats == -1
     assert math.isnan(f.vel_ned_m_s[2]) and math.isnan(fixes[1].vel_ned_m_s[2])
@@ -60,8 +60,8 @@ def test_optional_columns_in_any_subset_and_order(tmp_path):
     path.write_text(BASE + ",num_sats,s_acc_m_s,fix_type\n1.0,47.5,8.25,500.0,1.0,2.0,0.5,7,0.3,2\n"
                     "2.0,47.5,8.25,500.0,1.0,2.0,0.5,,nan,\n")
     a, b = read_gnss_recording(path)
-    assert (a.num_sats, a.s_acc_m_s, a.fix_type, a.h_acc_m, a.v_acc_m) == (7, 0.3, GnssFixType.FIX_2D, 2.5, 5.0)
-    assert (b.num_sats, b.s_acc_m_s, b.fix_type) == (-1, 0.1, GnssFixType.FIX_3D)
+    assert (a.num_sats, a.s_acc_m_s, a.fix_type, a.h_acc_m, a.v_acc_m) == (7, 0.3, GnssFixType.FIX_2D, 2.1, 4.4)
+    assert (b.num_sats, b.s_acc_m_s, b.fix_type) == (-1, 0.074, GnssFixType.FIX_3D)
 
 
 @pytest.mark.parametrize("header, what", [
