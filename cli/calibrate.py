@@ -180,11 +180,21 @@ def _stored(args):
 
 
 def _allan(args) -> int:
-    from ahrsd.calibration.allan import NOISE_FILE_NAME, analyse_chunks, describe, save_noise_parameters
+    import os
+
+    from ahrsd.calibration.allan import NOISE_FILE_NAME, StaticAllanAnalysis, describe, save_noise_parameters
     from ahrsd.drivers.recording import RecordingFormatError, iter_recording_chunks
 
+    from .progress import activity, expected_rows, progress_bar
+
     try:   # streamed: one chunk of the recording in memory at a time (.csv or .csv.gz)
-        res = analyse_chunks(iter_recording_chunks(args.recording))
+        analysis = StaticAllanAnalysis()
+        with progress_bar(args, expected_rows(args.recording), f"reading {os.path.basename(args.recording)}") as bar:
+            for chunk in iter_recording_chunks(args.recording):
+                analysis.add(chunk.t_s, chunk.gyro_rad_s, chunk.accel_m_s2, chunk.mag_ut)
+                bar.update(len(chunk))
+        with activity(args, "Allan analysis"):
+            res = analysis.result()
     except FileNotFoundError:
         raise _Fail(f"{args.recording}: no such file") from None
     except (RecordingFormatError, OSError) as exc:
@@ -423,6 +433,8 @@ def _mag(args) -> int:
     from ahrsd.calibration.magfit import MagFitInput, fit_mag
     from ahrsd.core.wmm import earth_field
 
+    from .progress import activity
+
     try:
         date = dt.date.fromisoformat(args.date) if args.date else None
         ref = earth_field(args.lat, args.lon, args.alt_m, date)
@@ -453,18 +465,21 @@ def _mag(args) -> int:
     if args.align_recording:
         from ahrsd.calibration.mag_alignment import fit_alignment, segment_level_turns
 
-        first = fit_mag("three-step", data, ref)
+        with activity(args, f"fitting (three-step) {len(data)} samples"):
+            first = fit_mag("three-step", data, ref)
         if first.ok:
-            arec = _read(args.align_recording)
+            arec = _read(args.align_recording, args)
             a_acc = stored.accel.apply(arec.accel_m_s2)
-            turns = segment_level_turns(arec.gyro_rad_s, a_acc, arec.mag_ut, arec.sample_rate_hz)
-            al = fit_alignment(turns, first.model, ref.down_ut)
+            with activity(args, "fitting the alignment"):
+                turns = segment_level_turns(arec.gyro_rad_s, a_acc, arec.mag_ut, arec.sample_rate_hz)
+                al = fit_alignment(turns, first.model, ref.down_ut)
             if not al.ok:
                 raise _Fail(f"alignment step refused: {al.refused}")
             options["alignment"] = al.rotation
             align_note = f"alignment from {len(turns)} levelled turns, rotation {al.quality['rotation_angle_deg']:.2f}°"
     try:
-        res = fit_mag(args.method, data, ref, **options)
+        with activity(args, f"fitting ({args.method}) {len(data)} samples"):
+            res = fit_mag(args.method, data, ref, **options)
     except NotImplementedError as exc:
         raise _Fail(str(exc)) from None
     if swing_table is not None and res.ok:
