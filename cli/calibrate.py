@@ -363,6 +363,7 @@ def _accel_live(args):
 
 
 def _gyro(args) -> int:
+    import dataclasses
     import math
 
     import numpy as np
@@ -377,7 +378,11 @@ def _gyro(args) -> int:
         segs = find_still_segments(rec.accel_m_s2, None, rate, min_still_s=3.0)
         idx = np.concatenate([np.arange(s.start, s.stop) for s in segs]) if segs else np.arange(len(rec))
         res = gyro_cal.fit_bias_only(rec.gyro_rad_s[idx], stored.gyro.matrix)
-        source = f"{len(idx)} still samples of {args.recording}"
+        source = (f"{len(idx)} still samples of {args.recording}" if segs else
+                  f"all {len(idx)} samples of {args.recording} (no still period of 3 s or more found)")
+        if not res.ok and not segs:
+            res = dataclasses.replace(res, refused=f"{res.refused} (the accelerometer showed no still period of 3 s "
+                                      "or more either)")
         if args.estimator_bias and res.ok:
             res, source = _fold_estimator_bias(rec, stored, res, source)
     else:
@@ -391,7 +396,9 @@ def _gyro(args) -> int:
             ref = gyro_cal.reference_rates_from_truth(segs, truth)
             source = f"{len(segs)} steady segments, reference from the recording's truth attitude"
         else:
-            raise _Fail("give --table-rate-deg-s (the recording has no truth columns) or use --bias-only")
+            raise _Fail(f"{len(segs)} steady segments found but nothing to compare them with: give "
+                        "--table-rate-deg-s (the table's rate; the recording has no truth columns), or use "
+                        "--bias-only for a still recording")
         raw = np.array([s.mean_gyro_rad_s for s in segs]).reshape(-1, 3)
         res = gyro_cal.fit_rate_table(raw, ref, weights=[s.stop - s.start for s in segs])
     payload = {"sensor": "gyro", **res.to_json_dict(), "source": source}
