@@ -389,7 +389,9 @@ def evaluate(r: dict) -> tuple[list[str], list[str]]:
                 failed.append(f"logging was on but the stats have no {name} log")
                 continue
             lines.append(f"log {name}: written {c['written']}, dropped {c['dropped']}, files {c['files_opened']} "
-                         f"(deleted {c['files_deleted']}), failure {c['failure']}")
+                         f"(deleted {c['files_deleted']}), failure {c['failure']}, writer thread CPU "
+                         f"{c.get('writer_cpu_s', 0.0):.2f} s over the run (≈ {100 * c.get('writer_cpu_s', 0.0) / r['seconds']:.2f} % "
+                         "of one core over the soak window)")
             if c["failure"] is None and c["dropped"]:
                 failed.append(f"the {name} log dropped {c['dropped']} entries while healthy")
         c = logs.get("samples")

@@ -91,6 +91,7 @@ class RotatingLog:
         self._dropped_unwritten = 0  # entries queued before the log stopped, never written
         self.files_opened = 0
         self.files_deleted = 0
+        self.writer_cpu_s = 0.0     # CPU time of the writer thread so far (what logging costs besides put())
         self.failure: str | None = None   # why the log stopped (e.g. "No space left on device"), None while OK
         self._stopped = threading.Event()
         self._file = None
@@ -128,7 +129,8 @@ class RotatingLog:
     @property
     def counters(self) -> dict:
         return {"written": self.written, "dropped": self.dropped, "files_opened": self.files_opened,
-                "files_deleted": self.files_deleted, "queued": self.queued, "failure": self.failure}
+                "files_deleted": self.files_deleted, "queued": self.queued, "failure": self.failure,
+                "writer_cpu_s": round(self.writer_cpu_s, 3)}
 
     @property
     def current_path(self) -> Path | None:
@@ -193,7 +195,9 @@ class RotatingLog:
             if now >= next_flush:
                 next_flush = now + limits.flush_interval_s
                 self._guarded(self._flush_and_check)
+            self.writer_cpu_s = time.thread_time()
         self._guarded(self._close_file)
+        self.writer_cpu_s = time.thread_time()
 
     def _guarded(self, action, *args) -> bool:
         """Run a file operation; an OSError stops the log (one warning). False once the log has stopped."""

@@ -25,13 +25,28 @@ from .rotating_log import LogLimits, RotatingLog
 SAMPLE_LOG_PREFIX = "imu"
 SAMPLE_LOG_SUFFIX = ".csv.gz"
 SAMPLE_LOG_FORMAT = "ahrsd-recording"
-# zlib's default level: level 9 costs the writer ~40 % more CPU for ~1 % fewer bytes, levels 1–4 save ~10 % of
-# its CPU for 10–30 % more bytes (bench/log_size.py; figures in docs/logging.md)
-GZIP_LEVEL = 6
+# zlib level 4, the knee for these rows (bench/log_size.py, figures in docs/logging.md): the default (6) costs
+# the writer ~20 % more CPU for ~9 % fewer bytes, level 1 saves ~15 % of its CPU for ~20 % more bytes
+GZIP_LEVEL = 4
 SAMPLE_LOG_COLUMNS = BASE_COLUMNS + SAMPLE_COLUMNS
-# one row of SAMPLE_LOG_COLUMNS: %r of a Python float is repr, the shortest text that reads back to the same
-# double (bit-exact); flags, diag_stat and counter are integers
-_ROW = ",".join(["%r"] * 12 + ["%d"] * 3) + "\n"
+
+
+class _ReprCache(dict):
+    """repr(value) of the sensor values, remembered: a chip's readings are its LSB times a scale, so a few
+    thousand distinct values recur for hours, and repr (the shortest text that reads back to the same double,
+    hence bit-exact) is most of the writer's time. ±0.0 (equal as keys, different texts) and nan are never
+    stored; past MAX_ENTRIES (a few MB) new values are formatted without being kept."""
+
+    MAX_ENTRIES = 32768
+
+    def __missing__(self, value: float) -> str:
+        text = repr(value)
+        if value == value and value != 0.0 and len(self) < self.MAX_ENTRIES:
+            self[value] = text
+        return text
+
+
+_repr_of = _ReprCache().__getitem__
 
 
 def monotonic_to_unix_s() -> float:
@@ -41,9 +56,10 @@ def monotonic_to_unix_s() -> float:
 
 def format_rows(samples) -> bytes:
     """The CSV rows of `samples` (ImuSample) in SAMPLE_LOG_COLUMNS, as the recording writer writes them."""
-    return "".join([_ROW % (float(s.t_s), *s.gyro_rad_s.tolist(), *s.accel_m_s2.tolist(), *s.mag_ut.tolist(),
-                            float(s.temp_c), float(s.supply_v), s.flags, s.diag_stat, s.counter)
-                    for s in samples]).encode("ascii")
+    return "".join([repr(float(s.t_s)) + "," + ",".join(map(_repr_of, [*s.gyro_rad_s.tolist(), *s.accel_m_s2.tolist(),
+                                                                       *s.mag_ut.tolist(), float(s.temp_c),
+                                                                       float(s.supply_v)]))
+                    + ",%d,%d,%d\n" % (s.flags, s.diag_stat, s.counter) for s in samples]).encode("ascii")
 
 
 class SampleFile:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import errno
 import json
 import logging
+import math
 import os
 import shutil
 import signal
@@ -60,6 +61,24 @@ def test_samples_read_back_exactly_with_the_calibration_in_the_sidecar(tmp_path)
     assert side["calibration"] == cal and side["calibrated"] is True and side["closed"] is True
     assert side["entries"] == 5000 and side["t_first_s"] == data[0].t_s and side["t_last_s"] == data[-1].t_s
     assert abs(side["unix_minus_t_s"] - (time.time() - time.monotonic())) < 1.0   # t_s is the monotonic clock
+
+
+def test_repeated_values_signed_zeros_and_nan_read_back_exactly(tmp_path):
+    """The writer remembers the text of values it has formatted (a chip's values recur): −0.0 must stay −0.0
+    after a 0.0 was written, and nan stays nan."""
+    values = [0.0, -0.0, 0.1, -0.1, 1e-300, -1e300, math.inf, math.nan, 0.30000000000000004]
+    data = [make_sample(100.0 + k / 819.2, [values[k % 9], values[(k + 1) % 9], values[(k + 2) % 9]],
+                        [values[(k + 3) % 9], 0.0, -0.0], [values[(k + 5) % 9], -0.0, 0.0], temp_c=values[k % 9],
+                        counter=k) for k in range(90)]
+    with SampleLog(tmp_path) as log:
+        for s in data:
+            log.put(s)
+    (path,) = log_files(tmp_path)
+    rec = read_recording(path)
+    for got, want in ((rec.gyro_rad_s, [s.gyro_rad_s for s in data]), (rec.accel_m_s2, [s.accel_m_s2 for s in data]),
+                      (rec.mag_ut, [s.mag_ut for s in data]), (rec["temp_c"], [s.temp_c for s in data])):
+        # bit patterns, so that -0.0 vs 0.0 and nan compare exactly
+        np.testing.assert_array_equal(np.asarray(got).view(np.int64), np.asarray(want, dtype=np.float64).view(np.int64))
 
 
 def test_a_calibration_change_starts_a_new_file_saying_so(tmp_path):
