@@ -85,7 +85,7 @@ def main() -> int:
         cpu_us = r["writer_cpu_s"] / n * 1e6
         print(f"  {level:5d}  {r['gz_bytes'] / n:8.1f}  {per_hour / 1e6:17.1f}  {1e9 / per_hour:8.1f} h"
               f"  {r['raw_bytes'] / n:17.1f}  {cpu_us:16.1f}  {cpu_us * RATE_HZ / 1e4:11.2f}"
-              f"  {r['put_s'] / n * 1e6:8.2f}")
+              f"  {'—' if args.paced else format(r['put_s'] / n * 1e6, '.2f'):>8s}")
     return 0
 
 
