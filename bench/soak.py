@@ -11,13 +11,18 @@ reader overrun the daemon counted; "unexplained" = samples the chip produced tha
 nor counted; "over-counted" = lost samples counted that the chip did not lose, bounded by the reads whose index
 was ambiguous), output messages received per type vs the configured rate (over the seconds no fault touched),
 the latency sample → VISION_POSITION_ESTIMATE on the wire, the daemon's RSS at start and end, and every
-counter. Exit status 1 if a criterion fails:
+counter. `--log on` runs the daemon with its on-vehicle logs (raw samples + .tlog, `--log-dir`; `--log-dir DIR`
+puts them in DIR, e.g. a small tmpfs, to see a full disk): it then prints what each log wrote and dropped,
+the disk rate, and the daemon's CPU share (printed in every run) to compare with a run without.
+Exit status 1 if a criterion fails:
 
 * zero unexplained lost samples, and no more over-counted ones than the daemon reported as ambiguous;
 * each output within 5 % of its configured rate under the flood (fault-free seconds);
 * RSS growth < 5 MB (from 10 s after start to the end);
 * no exception escaped a task or a handler (exit code 0, no traceback in the log, handler_errors 0);
-* ≥ 95 % of the valid requests answered.
+* ≥ 95 % of the valid requests answered;
+* with logging on: every sample the daemon processed is written or counted as dropped by the sample log, and
+  none is dropped while the log is healthy (a log stopped by a full disk says why and drops the rest).
 """
 
 from __future__ import annotations
@@ -148,7 +153,18 @@ class Flood:
                 nxt = time.monotonic()
 
 
-def soak(seconds: float, faults: str, flood_rate: float, seed: int, workdir: Path, verbose: bool) -> dict:
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")   # utime + stime
+
+
+def dir_bytes(path: Path) -> int:
+    return sum(p.stat().st_size for p in path.glob("*") if p.is_file()) if path.is_dir() else 0
+
+
+def soak(seconds: float, faults: str, flood_rate: float, seed: int, workdir: Path, verbose: bool,
+         log_dir: Path | None = None) -> dict:
+    """log_dir: the daemon logs raw samples and MAVLink traffic there (None: --no-log)."""
     port_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     port_sock.bind(("127.0.0.1", 0))
     port_sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
@@ -158,6 +174,7 @@ def soak(seconds: float, faults: str, flood_rate: float, seed: int, workdir: Pat
     cmd = [sys.executable, "-m", "ahrsd.cli", "run", "--sim", "static", "--mavlink",
            f"udpout:127.0.0.1:{port}", "--state-dir", str(workdir / "state"), "--status-line", "off",
            "--stats-file", str(stats_path)]
+    cmd += ["--log-dir", str(log_dir)] if log_dir is not None else ["--no-log"]
     if faults:
         cmd += ["--sim-faults", faults]
     log = open(log_path, "w")
@@ -176,6 +193,7 @@ def soak(seconds: float, faults: str, flood_rate: float, seed: int, workdir: Pat
     rss_start = rss_end = None
     rss_trace: list[tuple[float, float]] = []
     t_start = None
+    cpu = {}
     try:
         deadline_boot = time.monotonic() + 180
         while True:                                              # wait for the first ACTIVE heartbeat
@@ -190,6 +208,7 @@ def soak(seconds: float, faults: str, flood_rate: float, seed: int, workdir: Pat
                 daemon_addr, sysid = addr, msgs[0].get_srcSystem()
                 break
         t_start = time.monotonic()
+        cpu["start"] = (cpu_seconds(proc.pid), t_start, dir_bytes(log_dir) if log_dir else 0)
         flood = Flood(port_sock, daemon_addr, sysid, flood_rate, seed)
         threading.Thread(target=flood.run, daemon=True).start()
         t_end = t_start + seconds
@@ -243,6 +262,7 @@ def soak(seconds: float, faults: str, flood_rate: float, seed: int, workdir: Pat
                 elif t == "TIMESYNC" and m.ts1 in flood.timesync_marks:
                     answers["timesync"] += 1
         rss_end = rss_mb(proc.pid)
+        cpu["end"] = (cpu_seconds(proc.pid), time.monotonic(), dir_bytes(log_dir) if log_dir else 0)
         rss_trace.append((time.monotonic() - t_start, rss_end))
     finally:
         if flood is not None:
@@ -260,7 +280,7 @@ def soak(seconds: float, faults: str, flood_rate: float, seed: int, workdir: Pat
     return dict(seconds=seconds, t_start=t_start, t_end=t_start + seconds, arrivals=arrivals, states=states,
                 texts=texts, latencies=latencies, answers=answers, flood=flood, rss_start=rss_start,
                 rss_end=rss_end, rss_trace=rss_trace, stats=stats, exit_code=proc.returncode,
-                log=log_path.read_text(), last_sys_status=last_sys_status)
+                log=log_path.read_text(), last_sys_status=last_sys_status, cpu=cpu, logging=log_dir is not None)
 
 
 def fault_free_seconds(r: dict) -> list[int]:
@@ -356,6 +376,28 @@ def evaluate(r: dict) -> tuple[list[str], list[str]]:
         lines.append(f"last SYS_STATUS: errors_comm {ss.errors_comm}, count1 (refused unsigned) {ss.errors_count1}, "
                      f"count2 (lost samples) {ss.errors_count2}, count3 (overruns) {ss.errors_count3}, "
                      f"count4 (sensor errors) {ss.errors_count4}")
+    if "start" in r["cpu"] and "end" in r["cpu"]:
+        (c0, w0, b0), (c1, w1, b1) = r["cpu"]["start"], r["cpu"]["end"]
+        lines.append(f"daemon CPU {100 * (c1 - c0) / (w1 - w0):.1f} % of one core over the soak (utime+stime / wall, "
+                     f"flood included; load average {os.getloadavg()[0]:.2f})"
+                     + (f"; log directory growth {(b1 - b0) / (w1 - w0) * 3600 / 1e6:.1f} MB/h" if r["logging"] else ""))
+    if r["logging"]:
+        logs = st.get("logs", {})
+        for name in ("samples", "tlog"):
+            c = logs.get(name)
+            if c is None:
+                failed.append(f"logging was on but the stats have no {name} log")
+                continue
+            lines.append(f"log {name}: written {c['written']}, dropped {c['dropped']}, files {c['files_opened']} "
+                         f"(deleted {c['files_deleted']}), failure {c['failure']}, writer thread CPU "
+                         f"{c.get('writer_cpu_s', 0.0):.2f} s over the run (≈ {100 * c.get('writer_cpu_s', 0.0) / r['seconds']:.2f} % "
+                         "of one core over the soak window)")
+            if c["failure"] is None and c["dropped"]:
+                failed.append(f"the {name} log dropped {c['dropped']} entries while healthy")
+        c = logs.get("samples")
+        if c is not None and c["written"] + c["dropped"] != pipe.get("samples", 0):
+            failed.append(f"the sample log accounts for {c['written'] + c['dropped']} samples, the daemon processed "
+                          f"{pipe.get('samples', 0)}")
     lines.append("commands: " + ", ".join(f"{k} {v}" for k, v in st.get("commands", {}).items())
                  + f"; params rejected_writes {st.get('params', {}).get('rejected_writes', 0)}")
     lines.append("faults injected (chip): " + ", ".join(f"{k} {v}" for k, v in sorted(st.get("faults_injected", {}).items())))
@@ -383,13 +425,18 @@ def main(argv=None) -> int:
     p.add_argument("--flood-rate", type=float, default=300.0, help="client datagrams per second (300)")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--keep", metavar="DIR", help="keep the daemon's log and stats in DIR")
+    p.add_argument("--log", choices=("off", "on"), default="off",
+                   help="the daemon's on-vehicle logs (raw samples + .tlog) off or on (default off)")
+    p.add_argument("--log-dir", metavar="DIR", help="log into DIR (implies --log on; default: the work directory)")
     args = p.parse_args(argv)
     faults = args.faults if args.faults is not None else (DEFAULT_FAULTS if args.seconds > 120 else CI_FAULTS)
     with tempfile.TemporaryDirectory(prefix="ahrsd-soak-") as tmp:
         workdir = Path(args.keep) if args.keep else Path(tmp)
         workdir.mkdir(parents=True, exist_ok=True)
-        print(f"soak: {args.seconds:.0f} s, flood {args.flood_rate:.0f}/s, faults: {faults or 'none'}", flush=True)
-        r = soak(args.seconds, faults, args.flood_rate, args.seed, workdir, False)
+        log_dir = Path(args.log_dir) if args.log_dir else workdir / "logs" if args.log == "on" else None
+        print(f"soak: {args.seconds:.0f} s, flood {args.flood_rate:.0f}/s, faults: {faults or 'none'}, logging "
+              f"{'off' if log_dir is None else f'on into {log_dir}'}", flush=True)
+        r = soak(args.seconds, faults, args.flood_rate, args.seed, workdir, False, log_dir)
         lines, failed = evaluate(r)
     print("\n".join(lines))
     if failed:

@@ -105,7 +105,8 @@ def fit_ellipsoid(data: MagFitInput, reference=None, *, field_ut: float | None =
     try:
         model, sol = refine(mag, h0, initial)
     except (ValueError, np.linalg.LinAlgError) as exc:
-        return refuse(METHOD, f"the Levenberg–Marquardt refinement failed: {exc}", **quality)
+        return refuse(METHOD, f"the Levenberg–Marquardt refinement failed ({exc}): turn the sensor through more "
+                      "attitudes, or try --method two-step", **quality)
     quality.update(lm_status=int(sol.status), lm_evaluations=int(sol.nfev))
     if sol.status <= 0:
         reason = f"the Levenberg–Marquardt refinement did not converge ({sol.message})"

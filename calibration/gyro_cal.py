@@ -60,14 +60,17 @@ def fit_bias_only(gyro_rad_s: np.ndarray, matrix: np.ndarray | None = None, max_
     m = np.eye(3) if matrix is None else np.asarray(matrix, dtype=np.float64)
     quality = {"n_used": int(g.shape[0])}
     if g.shape[0] < 10:
-        return GyroFitResult(GyroModel.identity(), math.nan, "bias-only", quality, f"too few samples ({g.shape[0]})")
+        return GyroFitResult(GyroModel.identity(), math.nan, "bias-only", quality,
+                             f"only {g.shape[0]} samples with finite gyro rates: record the unit still for a few "
+                             "seconds or more")
     bias = g.mean(axis=0)
     std = g.std(axis=0)
     quality.update(std_rad_s=std.tolist(), sigma_bias_rad_s=(std / math.sqrt(g.shape[0])).tolist())
     if np.linalg.norm(bias) > max_rate_rad_s:
         return GyroFitResult(GyroModel.identity(), math.nan, "bias-only", quality,
-                             f"mean rate {np.degrees(np.linalg.norm(bias)):.2f} °/s is too large for a bias: "
-                             "was the unit still?")
+                             f"mean rate {np.degrees(np.linalg.norm(bias)):.2f} °/s over {g.shape[0]} samples is "
+                             f"more than the {np.degrees(max_rate_rad_s):.2f} °/s a bias can be: was the unit still? "
+                             "Record it at rest (not handheld, engine off) and try again")
     return GyroFitResult(GyroModel(bias, m), float(np.sqrt(np.mean(std**2))), "bias-only", quality, None)
 
 
@@ -91,7 +94,9 @@ def fit_rate_table(raw_means_rad_s: np.ndarray, reference_rad_s: np.ndarray, wei
     quality["static_segments"] = int((~turning).sum())
     if raw.shape[0] < 4:
         return GyroFitResult(GyroModel.identity(), math.nan, "rate-table", quality,
-                             f"only {raw.shape[0]} steady segments: need turns about each axis plus a static one")
+                             f"only {raw.shape[0]} steady segments (constant rate for ≥ 2 s; turned: "
+                             f"{', '.join(quality['axes_turned']) or 'none'}): record a still period and a "
+                             "constant-rate turn about each of the three sensor axes, each held 3 s or more")
     h = regressors(raw)
     sw = np.sqrt(w)[:, None]
     # Not column-normalised: a column of pure noise (an axis never turned) must show as ill-conditioned.
@@ -109,14 +114,17 @@ def fit_rate_table(raw_means_rad_s: np.ndarray, reference_rad_s: np.ndarray, wei
         bias = np.linalg.solve(m, c)
         model = GyroModel(bias, m)
     except (np.linalg.LinAlgError, ValueError) as exc:
-        return GyroFitResult(GyroModel.identity(), math.nan, "rate-table", quality, f"singular solution ({exc})")
+        return GyroFitResult(GyroModel.identity(), math.nan, "rate-table", quality,
+                             f"the fitted scale matrix is singular ({exc}): turn the table about each sensor axis, "
+                             f"in both directions (seen: {', '.join(quality['axes_turned']) or 'none'})")
     resid = model.apply(raw) - ref
     rms = float(np.sqrt(np.mean(resid**2)))
     quality.update(residual_rms_rad_s=rms, residual_max_rad_s=float(np.max(np.abs(resid))))
     if rms > max_residual_rad_s:
         return GyroFitResult(GyroModel.identity(), rms, "rate-table", {**quality, "rejected_model": model.to_dict()},
-                             f"residual {math.degrees(rms):.3f} °/s is too large: wrong table rate, or the "
-                             "segments were not steady")
+                             f"residual {math.degrees(rms):.3f} °/s RMS over {raw.shape[0]} segments is more than "
+                             f"{math.degrees(max_residual_rad_s):.3f} °/s: check --table-rate-deg-s against the "
+                             "table's rate, and hold each rate steady (no start/stop inside a segment)")
     return GyroFitResult(model, rms, "rate-table", quality, None)
 
 

@@ -125,13 +125,15 @@ def fit_three_step(data: MagFitInput, reference=None, *, field_ut: float | None 
     try:
         p = solve(u, 1.0)
     except ValueError as exc:
-        return refuse(METHOD, f"the data do not describe an ellipsoid ({exc})", **quality)
+        return refuse(METHOD, f"the data do not describe an ellipsoid ({exc}): too little rotation, or a disturbance that "
+                      "moved (a magnet, steel, a current); record again away from it, turning through all attitudes", **quality)
     b = centre + scale * p.b
     k = p.k * scale / h0
     try:
         model = MagModel.from_thesis(b, k, p.alpha)
     except ValueError as exc:
-        return refuse(METHOD, f"non-physical solution ({exc})", **quality)
+        return refuse(METHOD, f"non-physical solution ({exc}): turn the sensor through more attitudes; with little "
+                      "rotation about one axis use --method two-step", **quality)
     quality.update(scale_k=k.tolist(), alpha_rad={key: float(v) for key, v in p.alpha.items()})
     def refit(m: np.ndarray) -> MagModel:
         c = m.mean(axis=0)

@@ -83,6 +83,7 @@ def fit_two_step(data: MagFitInput, reference=None, *, field_ut: float | None = 
     try:
         model = solve_model(mag, h0)
     except ValueError as exc:
-        return refuse(METHOD, f"the data do not describe an ellipsoid ({exc})", **quality)
+        return refuse(METHOD, f"the data do not describe an ellipsoid ({exc}): too little rotation, or a disturbance that "
+                      "moved (a magnet, steel, a current); record again away from it, turning through all attitudes", **quality)
     quality["scale_k"] = (1.0 / np.diag(model.soft_iron)).tolist()
     return assess(METHOD, model, mag, h0, quality, params="diag", refit=lambda m: solve_model(m, h0), **checks)

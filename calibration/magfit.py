@@ -184,10 +184,13 @@ def prepare(data: MagFitInput, reference, field_ut: float | None, min_samples: i
     mag = np.asarray(data.mag_ut[good])
     quality: dict = {"n_samples": int(len(data)), "n_used": int(mag.shape[0]), "n_dropped_non_finite": int((~good).sum())}
     if mag.shape[0] < min_samples:
-        return refuse(method, f"too few samples: {mag.shape[0]} usable, need at least {min_samples}", **quality)
+        dropped = quality["n_dropped_non_finite"]
+        return refuse(method, f"too few samples: {mag.shape[0]} usable" + (f" ({dropped} non-finite dropped)" if dropped
+                      else "") + f", need at least {min_samples}: record longer while turning the sensor", **quality)
     h0, source = reference_magnitude_ut(reference, mag, field_ut)
     if not (h0 > 0 and math.isfinite(h0)):
-        return refuse(method, f"reference field magnitude {h0!r} is not positive", **quality)
+        return refuse(method, f"reference field magnitude {h0!r} µT is not positive: check --lat/--lon/--alt-m "
+                      "(or the field given)", **quality)
     quality["field_ut"] = h0
     quality["field_source"] = source
     quality["raw_coverage"] = direction_coverage(mag - mag.mean(axis=0))
@@ -262,12 +265,16 @@ def assess(method: str, model: MagModel, mag_ut: np.ndarray, field_ut: float, qu
         reasons.append(f"residual {rms:.2f} µT RMS is over {max_residual_ut} µT: the model does not describe the "
                        "data (a magnetic disturbance or a moving magnet during the calibration?)")
     if not np.all(sig_h <= max_sigma_hard_ut):
-        reasons.append(f"hard iron poorly determined (1σ up to {np.max(sig_h):.2f} µT > {max_sigma_hard_ut} µT)")
+        reasons.append(f"hard iron poorly determined (1σ up to {np.max(sig_h):.2f} µT > {max_sigma_hard_ut} µT, "
+                       f"coverage {coverage:.0%}): turn the sensor through more attitudes, slowly")
     if not np.all(sig_s <= max_sigma_soft):
-        reasons.append(f"soft iron poorly determined (1σ up to {np.max(sig_s):.3f} > {max_sigma_soft})")
+        reasons.append(f"soft iron poorly determined (1σ up to {np.max(sig_s):.3f} > {max_sigma_soft}, coverage "
+                       f"{coverage:.0%}): turn the sensor through more attitudes, or use --method two-step "
+                       "(fewer parameters)")
     lo, hi = SOFT_IRON_GAIN_RANGE
     if gains.min() < lo or gains.max() > hi:
-        reasons.append(f"soft-iron gains {gains.min():.2f}…{gains.max():.2f} outside {lo}…{hi}: not physical")
+        reasons.append(f"soft-iron gains {gains.min():.2f}…{gains.max():.2f} outside {lo}…{hi}: not physical; a "
+                       "magnet or steel right at the sensor, or a wrong reference field (--lat/--lon)?")
     if refit is not None and not reasons:
         split = _split_halves(model, mag_ut, cal, refit, min_coverage)
         quality["split_halves"] = split

@@ -180,11 +180,21 @@ def _stored(args):
 
 
 def _allan(args) -> int:
-    from ahrsd.calibration.allan import NOISE_FILE_NAME, analyse_chunks, describe, save_noise_parameters
+    import os
+
+    from ahrsd.calibration.allan import NOISE_FILE_NAME, StaticAllanAnalysis, describe, save_noise_parameters
     from ahrsd.drivers.recording import RecordingFormatError, iter_recording_chunks
 
+    from .progress import activity, expected_rows, progress_bar
+
     try:   # streamed: one chunk of the recording in memory at a time (.csv or .csv.gz)
-        res = analyse_chunks(iter_recording_chunks(args.recording))
+        analysis = StaticAllanAnalysis()
+        with progress_bar(args, expected_rows(args.recording), f"reading {os.path.basename(args.recording)}") as bar:
+            for chunk in iter_recording_chunks(args.recording):
+                analysis.add(chunk.t_s, chunk.gyro_rad_s, chunk.accel_m_s2, chunk.mag_ut)
+                bar.update(len(chunk))
+        with activity(args, "Allan analysis"):
+            res = analysis.result()
     except FileNotFoundError:
         raise _Fail(f"{args.recording}: no such file") from None
     except (RecordingFormatError, OSError) as exc:
@@ -353,6 +363,7 @@ def _accel_live(args):
 
 
 def _gyro(args) -> int:
+    import dataclasses
     import math
 
     import numpy as np
@@ -367,7 +378,11 @@ def _gyro(args) -> int:
         segs = find_still_segments(rec.accel_m_s2, None, rate, min_still_s=3.0)
         idx = np.concatenate([np.arange(s.start, s.stop) for s in segs]) if segs else np.arange(len(rec))
         res = gyro_cal.fit_bias_only(rec.gyro_rad_s[idx], stored.gyro.matrix)
-        source = f"{len(idx)} still samples of {args.recording}"
+        source = (f"{len(idx)} still samples of {args.recording}" if segs else
+                  f"all {len(idx)} samples of {args.recording} (no still period of 3 s or more found)")
+        if not res.ok and not segs:
+            res = dataclasses.replace(res, refused=f"{res.refused} (the accelerometer showed no still period of 3 s "
+                                      "or more either)")
         if args.estimator_bias and res.ok:
             res, source = _fold_estimator_bias(rec, stored, res, source)
     else:
@@ -381,7 +396,9 @@ def _gyro(args) -> int:
             ref = gyro_cal.reference_rates_from_truth(segs, truth)
             source = f"{len(segs)} steady segments, reference from the recording's truth attitude"
         else:
-            raise _Fail("give --table-rate-deg-s (the recording has no truth columns) or use --bias-only")
+            raise _Fail(f"{len(segs)} steady segments found but nothing to compare them with: give "
+                        "--table-rate-deg-s (the table's rate; the recording has no truth columns), or use "
+                        "--bias-only for a still recording")
         raw = np.array([s.mean_gyro_rad_s for s in segs]).reshape(-1, 3)
         res = gyro_cal.fit_rate_table(raw, ref, weights=[s.stop - s.start for s in segs])
     payload = {"sensor": "gyro", **res.to_json_dict(), "source": source}
@@ -423,6 +440,8 @@ def _mag(args) -> int:
     from ahrsd.calibration.magfit import MagFitInput, fit_mag
     from ahrsd.core.wmm import earth_field
 
+    from .progress import activity
+
     try:
         date = dt.date.fromisoformat(args.date) if args.date else None
         ref = earth_field(args.lat, args.lon, args.alt_m, date)
@@ -454,23 +473,27 @@ def _mag(args) -> int:
     if args.align_recording:
         from ahrsd.calibration.mag_alignment import fit_alignment, segment_level_turns
 
-        first = fit_mag("three-step", data, ref)
+        with activity(args, f"fitting (three-step) {len(data)} samples"):
+            first = fit_mag("three-step", data, ref)
         if first.ok:
-            arec = _read(args.align_recording)
+            arec = _read(args.align_recording, args)
             a_acc = stored.accel.apply(arec.accel_m_s2)
-            turns = segment_level_turns(arec.gyro_rad_s, a_acc, arec.mag_ut, arec.sample_rate_hz)
-            al = fit_alignment(turns, first.model, ref.down_ut)
+            with activity(args, "fitting the alignment"):
+                turns = segment_level_turns(arec.gyro_rad_s, a_acc, arec.mag_ut, arec.sample_rate_hz)
+                al = fit_alignment(turns, first.model, ref.down_ut)
             if not al.ok:
                 raise _Fail(f"alignment step refused: {al.refused}")
             options["alignment"] = al.rotation
             align_note = f"alignment from {len(turns)} levelled turns, rotation {al.quality['rotation_angle_deg']:.2f}°"
     try:
-        if fixes is not None:
-            from ahrsd.cli.calibrate_gnss import fit_aided
+        with activity(args, f"fitting ({args.method}{', levelled with GNSS' if fixes is not None else ''}) "
+                            f"{len(data)} samples"):
+            if fixes is not None:
+                from ahrsd.cli.calibrate_gnss import fit_aided
 
-            res = fit_aided(data, fixes, ref, **options)
-        else:
-            res = fit_mag(args.method, data, ref, **options)
+                res = fit_aided(data, fixes, ref, **options)
+            else:
+                res = fit_mag(args.method, data, ref, **options)
     except NotImplementedError as exc:
         raise _Fail(str(exc)) from None
     except (ValueError, ModuleNotFoundError) as exc:      # the aided estimator is missing or refused the data

@@ -3,11 +3,14 @@
     ahrsd log list [--dir DIR] [--json]
     ahrsd log cut --from TIME --to TIME --output REC.csv [--dir DIR] [--quiet]
 
-The logs are drivers/sample_log.py's `imu-*.csv.gz` files and their `.json` sidecars. TIME is ISO-8601
+The logs are drivers/sample_log.py's `imu-*.csv.gz` files, drivers/gnss_log.py's `gnss-*.gnss.csv.gz` (every
+GNSS fix delivered, accepted or rejected) and their `.json` sidecars. TIME is ISO-8601
 (`2026-12-01T10:42:00`, UTC unless it carries an offset; mapped to sample times through each file's sidecar)
 or a number of seconds on the samples' own clock (the t_s column, as `log list` shows it). The cut is a
 plain recording (`.csv`, or `.csv.gz` by its name) that `replay` and `calibrate` take as it is; when the
 samples were logged calibrated, a comment line in it and `<output>.json` say which calibration was in force.
+With GNSS logs in the directory, the fixes over the cut's span go to `REC.gnss.csv` beside it (the GNSS
+recording format: `ahrsd run --replay REC.csv --gnss-replay REC.gnss.csv` replays both).
 Exit status: 0 done, 1 nothing to cut or bad input, 2 bad usage.
 """
 
@@ -53,19 +56,22 @@ def run(args) -> int:
 # ---------------------------------------------------------------------------------------------- the files
 
 
-def _log_files(directory: str) -> list[tuple]:
-    """[(path, sidecar dict)] of the sample logs in `directory`, oldest first."""
+def _log_files(directory: str, kind: str = "samples") -> list[tuple]:
+    """[(path, sidecar dict)] of the sample logs (kind "samples") or GNSS logs ("gnss") in `directory`, oldest
+    first."""
     import json
     from pathlib import Path
 
+    from ahrsd.drivers.gnss_log import GNSS_LOG_PREFIX, GNSS_LOG_SUFFIX
     from ahrsd.drivers.rotating_log import SIDECAR_SUFFIX
     from ahrsd.drivers.sample_log import SAMPLE_LOG_PREFIX, SAMPLE_LOG_SUFFIX
 
     d = Path(directory)
     if not d.is_dir():
         raise LogError(f"{directory}: no such log directory (the service's is {DEFAULT_LOG_DIR}; give --dir)")
+    prefix, suffix = {"samples": (SAMPLE_LOG_PREFIX, SAMPLE_LOG_SUFFIX), "gnss": (GNSS_LOG_PREFIX, GNSS_LOG_SUFFIX)}[kind]
     out = []
-    for path in sorted(d.glob(f"{SAMPLE_LOG_PREFIX}-*{SAMPLE_LOG_SUFFIX}")):
+    for path in sorted(d.glob(f"{prefix}-*{suffix}")):
         try:
             side = json.loads(path.with_name(path.name + SIDECAR_SUFFIX).read_text(encoding="utf-8"))
         except (OSError, ValueError):
@@ -103,13 +109,14 @@ def _list(args) -> int:
     files = _log_files(args.dir)
     if not files:
         raise LogError(f"{args.dir}: no sample logs (imu-*.csv.gz) there")
+    gnss_files = _log_files(args.dir, "gnss")
     total = 0
     for path, side in files:
         size = path.stat().st_size
         total += size
         first, last = _span_unix(side)
         if args.json:
-            print(json.dumps({"file": str(path), "size_bytes": size, "start_utc": None if first is None else _iso(first),
+            print(json.dumps({"kind": "samples", "file": str(path), "size_bytes": size, "start_utc": None if first is None else _iso(first),
                               "end_utc": None if last is None else _iso(last), "t_first_s": side.get("t_first_s"),
                               "t_last_s": side.get("t_last_s"), "samples": side.get("entries"),
                               "closed": side.get("closed", False), "calibrated": bool(side.get("calibrated")),
@@ -119,8 +126,24 @@ def _list(args) -> int:
         t = (f"t_s {side['t_first_s']:.1f}…{side.get('t_last_s', float('nan')):.1f}" if "t_first_s" in side else "t_s ?")
         print(f"{path.name}  {_iso(first)} → {_iso(last)}  {t}  {side.get('entries', '?')} samples  "
               f"{size / 1e6:.2f} MB  {_calibration_label(side)}{state}")
+    for path, side in gnss_files:
+        size = path.stat().st_size
+        total += size
+        first, last = _span_unix(side)
+        if args.json:
+            print(json.dumps({"kind": "gnss", "file": str(path), "size_bytes": size,
+                              "start_utc": None if first is None else _iso(first),
+                              "end_utc": None if last is None else _iso(last), "t_first_s": side.get("t_first_s"),
+                              "t_last_s": side.get("t_last_s"), "fixes": side.get("entries"),
+                              "closed": side.get("closed", False)}, sort_keys=True))
+            continue
+        state = "" if side.get("closed") else " (open, or cut by a crash)"
+        t = (f"t_s {side['t_first_s']:.1f}…{side.get('t_last_s', float('nan')):.1f}" if "t_first_s" in side else "t_s ?")
+        print(f"{path.name}  {_iso(first)} → {_iso(last)}  {t}  {side.get('entries', '?')} GNSS fixes (accepted "
+              f"and rejected)  {size / 1e6:.2f} MB{state}")
     if not args.json:
-        print(f"{len(files)} files, {total / 1e6:.1f} MB in {args.dir}")
+        extra = f" ({len(gnss_files)} of GNSS fixes)" if gnss_files else ""
+        print(f"{len(files) + len(gnss_files)} files{extra}, {total / 1e6:.1f} MB in {args.dir}")
     return 0
 
 
@@ -227,10 +250,57 @@ def _cut(args) -> int:
             "calibration": side0.get("calibration")}
     if "unix_minus_t_s" in side0:
         meta["unix_minus_t_s"] = side0["unix_minus_t_s"]
+    gnss = _cut_gnss(args.dir, args.output, first_t, last_t)
+    if gnss is not None:
+        meta["gnss"] = gnss
     with open(f"{args.output}.json", "w", encoding="utf-8") as f:
         json.dump(meta, f, indent=1, sort_keys=True)
         f.write("\n")
     if not args.quiet:
         print(f"ahrsd log cut: {count} samples, t_s {first_t:.3f}…{last_t:.3f} ({last_t - first_t:.1f} s) from "
               f"{len(chosen)} file(s) into {args.output}; samples {_calibration_label(side0)}", file=sys.stderr)
+        if gnss is not None:
+            print(f"ahrsd log cut: {gnss['fixes']} GNSS fixes ({gnss['rejected']} rejected live) into "
+                  f"{gnss['file']}", file=sys.stderr)
     return 0
+
+
+def _cut_gnss(directory: str, output: str, first_t: float, last_t: float) -> dict | None:
+    """The logged GNSS fixes with t_s in [first_t, last_t] (the samples' span of the cut), accepted and rejected
+    as they came, into the GNSS recording beside `output`; what it holds, or None without GNSS logs."""
+    import math
+    import os
+    import sys
+
+    from ahrsd.drivers.gnss_log import GNSS_LOG_EXTRA_COLUMNS, REJECTION_CODES
+    from ahrsd.drivers.gnss_recording import (GnssRecordingFormatError, GnssRecordingWriter, gnss_path_for,
+                                              iter_gnss_fixes)
+
+    logged = _log_files(directory, "gnss")
+    if not logged:
+        return None
+    files = [(p, s) for p, s in logged if s.get("t_last_s", math.inf) >= first_t and s.get("t_first_s", -math.inf) <= last_t]
+    target = gnss_path_for(output)
+    tmp = target.with_name(f".{target.name}.part" + (".gz" if target.name.endswith(".gz") else ""))
+    fixes = rejected = 0
+    try:
+        with GnssRecordingWriter(tmp, extra_columns=GNSS_LOG_EXTRA_COLUMNS) as out:
+            for path, side in files:
+                if side.get("entries") == 0 or path.stat().st_size < _SMALLEST_LOG_BYTES:
+                    continue
+                try:
+                    for fix in iter_gnss_fixes(path, source="log"):
+                        if first_t <= fix.t_s <= last_t:
+                            out.write(fix)
+                            fixes += 1
+                            rejected += fix.extra.get("rejection", 0.0) != 0.0
+                except GnssRecordingFormatError as exc:   # a file cut by a crash: what it held up to there
+                    print(f"ahrsd log cut: {exc}; the fixes before it are kept", file=sys.stderr)
+        os.replace(tmp, target)
+    except OSError as exc:
+        raise LogError(f"{exc.filename or target}: {exc.strerror or exc}") from None
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return {"file": str(target), "files": [p.name for p, _ in files], "fixes": fixes, "rejected": rejected,
+            "rejection_codes": REJECTION_CODES}

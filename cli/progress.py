@@ -1,10 +1,15 @@
 """Progress bars for long offline work (`replay`, `calibrate allan|mag`, `log cut`): tqdm on stderr with the
 rate and the time left, only when stderr is a terminal and the command was not asked for --json or --quiet
-(a pipe, a log file or a script gets no bar and no control characters)."""
+(a pipe, a log file or a script gets no bar and no control characters).
+
+Two kinds: `progress_bar` counts rows (reading, replaying, cutting: rate and time left); `activity` is for one
+step whose progress cannot be counted from outside (a fit, the Allan analysis after the reading): a line that
+shows how long it has run, refreshed twice a second, ending in "done"."""
 
 from __future__ import annotations
 
 import sys
+import threading
 
 
 class _NoBar:
@@ -39,6 +44,49 @@ def progress_bar(args, total: float | None, desc: str, unit: str = "sample", uni
 
     return _EstimatedTotalBar(tqdm(total=total, desc=desc, unit=unit, unit_scale=unit_scale, file=sys.stderr,
                                    dynamic_ncols=True, mininterval=0.2, leave=True))
+
+
+def activity(args, desc: str):
+    """A context manager showing `desc: <elapsed>` while its block runs (or nothing when not `wanted`)."""
+    if not wanted(args):
+        return _NoBar()
+    from tqdm import tqdm
+
+    return _ActivityLine(tqdm(total=None, desc=desc, bar_format="{desc}: {elapsed}{postfix}", file=sys.stderr,
+                              dynamic_ncols=True, leave=True))
+
+
+class _ActivityLine:
+    """tqdm redraws only on update(): a thread refreshes the line so the elapsed time moves during the step."""
+
+    REFRESH_S = 0.5
+
+    def __init__(self, bar):
+        self._bar = bar
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._refresh, name="progress-activity", daemon=True)
+        self._thread.start()
+
+    def _refresh(self) -> None:
+        while not self._done.wait(self.REFRESH_S):
+            self._bar.refresh()
+
+    def update(self, n: int = 1) -> None:
+        pass
+
+    def close(self, ok: bool = True) -> None:
+        if self._done.is_set():
+            return
+        self._done.set()
+        self._thread.join()
+        self._bar.set_postfix_str("done" if ok else "stopped", refresh=True)
+        self._bar.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, *exc) -> None:
+        self.close(ok=exc_type is None)
 
 
 class _EstimatedTotalBar:

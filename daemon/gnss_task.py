@@ -228,7 +228,9 @@ class GnssTask:
         """One fix from the source: validate, then hand it to the aided estimator."""
         c = self.counters
         c.fixes += 1
-        if self.validator.check(fix) is not None:
+        rejection = self.validator.check(fix)
+        self.service.log_gnss_fix(fix, rejection)      # daemon.vehicle_log: every fix, with its verdict
+        if rejection is not None:
             c.rejected += 1
             return
         c.accepted += 1

@@ -1,7 +1,8 @@
-"""The daemon's on-vehicle logs ([log], docs/logging.md): every raw driver sample into a SampleLog (.csv.gz)
-and every MAVLink frame in and out into a TlogLog (.tlog), both behind the bounded queues of
-drivers/rotating_log.py, so the reader's cost is one queue append per sample and nothing on it ever waits for
-the disk. A full disk or a read-only directory stops a log with one warning; the daemon keeps running, and
+"""The daemon's on-vehicle logs ([log], docs/logging.md): every raw driver sample into a SampleLog (.csv.gz),
+every GNSS fix the source delivered, accepted or rejected (with the validator's reason), into a GnssLog
+(.gnss.csv.gz, beside the samples whenever they are logged and a GNSS source is configured) and every MAVLink
+frame in and out into a TlogLog (.tlog), all behind the bounded queues of drivers/rotating_log.py, so the
+reader's cost is one deque append per sample and nothing on it ever waits for the disk. A full disk or a read-only directory stops a log with one warning; the daemon keeps running, and
 the counters (written, dropped, failure) go into the stats file (`log_counters`).
 """
 
@@ -10,6 +11,8 @@ from __future__ import annotations
 import logging
 
 from ahrsd.calibration.store import checksum
+from ahrsd.drivers.gnss_log import GnssLog
+from ahrsd.drivers.gnss_validation import GnssRejection
 from ahrsd.drivers.rotating_log import LogLimits
 from ahrsd.drivers.sample_log import SampleLog
 from ahrsd.drivers.tlog import TlogLog
@@ -18,6 +21,7 @@ log = logging.getLogger(__name__)
 
 MB = 1024 * 1024
 TLOG_SHARE = 0.25   # of max_total_mb when both logs are on (the sample log is the larger: docs/logging.md)
+GNSS_SHARE = 0.02   # of the samples' share for their GNSS fixes (10 fixes/s are ~1 % of 819.2 samples/s)
 
 
 def calibration_summary(cal) -> dict:
@@ -33,9 +37,11 @@ def calibration_summary(cal) -> dict:
 
 class VehicleLogging:
     """Service part: `_start_logs` (after the pipeline and the endpoints exist), `_log_calibration` (after a
-    calibration swap), `_close_logs` (at shutdown), `log_counters` (for the stats file)."""
+    calibration swap), `log_gnss_fix` (every fix, from daemon.gnss_task), `_close_logs` (at shutdown),
+    `log_counters` (for the stats file)."""
 
     sample_log: SampleLog | None = None
+    gnss_log: GnssLog | None = None
     mavlink_log: TlogLog | None = None
     _sample_log_put = None       # the reader's one call per raw sample (None: not logging samples)
 
@@ -54,30 +60,41 @@ class VehicleLogging:
         if cfg.samples:
             # raw driver samples: replay and calibrate re-apply whatever calibration they are given; the
             # sidecar still names the calibration the daemon had in force
-            self.sample_log = SampleLog(directory, limits(total_bytes - tlog_bytes if cfg.tlog else total_bytes),
+            samples_bytes = total_bytes - tlog_bytes if cfg.tlog else total_bytes
+            gnss_bytes = int(samples_bytes * GNSS_SHARE) if self.config.gnss.source != "none" else 0
+            self.sample_log = SampleLog(directory, limits(samples_bytes - gnss_bytes),
                                         metadata={"calibrated": False,
                                                   "calibration": calibration_summary(self.pipeline.calibration)})
             self._sample_log_put = self.sample_log.put
+            if gnss_bytes:
+                self.gnss_log = GnssLog(directory, limits(gnss_bytes), metadata={"gnss_source": self.config.gnss.source})
         if cfg.tlog:
             self.mavlink_log = TlogLog(directory, limits(tlog_bytes))
             for ep in self.endpoints:
                 ep.traffic_log = self.mavlink_log.put
-        log.info("logging %s to %s", " and ".join(n for n, on in (("raw samples", cfg.samples),
-                                                                   ("MAVLink traffic", cfg.tlog)) if on), directory)
+        log.info("logging %s to %s", ", ".join(n for n, on in (("raw samples", cfg.samples),
+                                                                 ("GNSS fixes", self.gnss_log is not None),
+                                                                 ("MAVLink traffic", cfg.tlog)) if on), directory)
 
     def _log_calibration(self, cal) -> None:
         if self.sample_log is not None:
             self.sample_log.set_metadata(calibration=calibration_summary(cal))
 
+    def log_gnss_fix(self, fix, rejection) -> None:
+        """One fix as the GNSS source delivered it, with the validator's verdict (None: accepted). A malformed
+        object (not a fix the format can hold) is not logged: the validator has counted it."""
+        if self.gnss_log is not None and rejection is not GnssRejection.MALFORMED:
+            self.gnss_log.put((fix, rejection))
+
     def _close_logs(self) -> None:
         self._sample_log_put = None
         for ep in self.endpoints:
             ep.traffic_log = None
-        for kind in (self.sample_log, self.mavlink_log):
+        for kind in (self.sample_log, self.gnss_log, self.mavlink_log):
             if kind is not None:
                 kind.close()
 
     def log_counters(self) -> dict:
         """Per log: written, dropped (queue full or stopped), failure (why it stopped, None while OK), files."""
-        return {name: kind.counters for name, kind in (("samples", self.sample_log), ("tlog", self.mavlink_log))
-                if kind is not None}
+        return {name: kind.counters for name, kind in (("samples", self.sample_log), ("gnss", self.gnss_log),
+                                                       ("tlog", self.mavlink_log)) if kind is not None}

@@ -36,6 +36,6 @@ class TlogLog(RotatingLog):
     def _open(self, path: Path):
         return open(path, "wb")
 
-    def _write(self, file, entry) -> None:
-        unix_s, frame = entry
-        file.write(_TIMESTAMP.pack(int(unix_s * 1e6)) + frame)
+    def _write_block(self, file, entries: list) -> None:
+        pack = _TIMESTAMP.pack
+        file.write(b"".join([pack(int(unix_s * 1e6)) + frame for unix_s, frame in entries]))

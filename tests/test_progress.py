@@ -69,7 +69,19 @@ def test_calibrate_mag_shows_a_bar_while_reading_and_none_with_json(recording, t
     args = ("calibrate", "mag", recording, "--lat", "36.42", "--lon", "54.98", "--dry-run", "--state-dir", tmp_path)
     shown = in_tmux(ahrsd(*args))
     assert any(line.startswith("reading tumble.csv") and BAR_RATE in line for line in shown.splitlines()), shown
-    assert BAR_RATE not in in_tmux(ahrsd(*args, "--json"))
+    # the fit itself: a line with its elapsed time while it runs, "done" when it ends
+    assert any(line.startswith("fitting (ellipsoid) 12000 samples: 00:") and line.endswith("done")
+               for line in shown.splitlines()), shown
+    with_json = in_tmux(ahrsd(*args, "--json"))
+    assert BAR_RATE not in with_json and "fitting" not in with_json
+
+
+def test_calibrate_allan_streams_with_a_bar_and_shows_the_analysis_in_a_terminal(recording, tmp_path):
+    args = ("calibrate", "allan", recording, "--dry-run", "--state-dir", tmp_path)
+    shown = in_tmux(["sh", "-c", " ".join(ahrsd(*args)) + " > /dev/null"])   # the report is longer than the pane
+    lines = shown.splitlines()
+    assert any(line.startswith("reading tumble.csv: 100%") and BAR_RATE in line for line in lines), shown
+    assert any(line.startswith("Allan analysis: 00:") and line.endswith("done") for line in lines), shown
 
 
 def test_no_bar_in_a_pipe(recording, tmp_path):

@@ -8,6 +8,7 @@ from __future__ import annotations
 import errno
 import json
 import logging
+import math
 import os
 import shutil
 import signal
@@ -23,7 +24,7 @@ import pytest
 from ahrsd.core.sample import SampleFlags, make_sample
 from ahrsd.drivers.recording import iter_samples, read_recording
 from ahrsd.drivers.rotating_log import LogLimits
-from ahrsd.drivers.sample_log import SampleLog
+from ahrsd.drivers.sample_log import SampleFile, SampleLog
 from ahrsd.drivers.tlog import TlogLog
 
 
@@ -62,6 +63,24 @@ def test_samples_read_back_exactly_with_the_calibration_in_the_sidecar(tmp_path)
     assert abs(side["unix_minus_t_s"] - (time.time() - time.monotonic())) < 1.0   # t_s is the monotonic clock
 
 
+def test_repeated_values_signed_zeros_and_nan_read_back_exactly(tmp_path):
+    """The writer remembers the text of values it has formatted (a chip's values recur): −0.0 must stay −0.0
+    after a 0.0 was written, and nan stays nan."""
+    values = [0.0, -0.0, 0.1, -0.1, 1e-300, -1e300, math.inf, math.nan, 0.30000000000000004]
+    data = [make_sample(100.0 + k / 819.2, [values[k % 9], values[(k + 1) % 9], values[(k + 2) % 9]],
+                        [values[(k + 3) % 9], 0.0, -0.0], [values[(k + 5) % 9], -0.0, 0.0], temp_c=values[k % 9],
+                        counter=k) for k in range(90)]
+    with SampleLog(tmp_path) as log:
+        for s in data:
+            log.put(s)
+    (path,) = log_files(tmp_path)
+    rec = read_recording(path)
+    for got, want in ((rec.gyro_rad_s, [s.gyro_rad_s for s in data]), (rec.accel_m_s2, [s.accel_m_s2 for s in data]),
+                      (rec.mag_ut, [s.mag_ut for s in data]), (rec["temp_c"], [s.temp_c for s in data])):
+        # bit patterns, so that -0.0 vs 0.0 and nan compare exactly
+        np.testing.assert_array_equal(np.asarray(got).view(np.int64), np.asarray(want, dtype=np.float64).view(np.int64))
+
+
 def test_a_calibration_change_starts_a_new_file_saying_so(tmp_path):
     data = samples(200)
     with SampleLog(tmp_path, metadata={"calibration": {"checksum": "old"}}) as log:
@@ -82,7 +101,7 @@ def test_files_rotate_by_size_and_the_oldest_go_beyond_the_total(tmp_path):
     with SampleLog(tmp_path, limits) as log:
         for s in data:
             log.put(s)
-            if log._queue.qsize() > 30_000:   # keep within the queue: this test is about rotation, not overflow
+            if log.queued > 30_000:   # keep within the queue: this test is about rotation, not overflow
                 time.sleep(0.01)
     files = log_files(tmp_path)
     total = sum(p.stat().st_size + Path(str(p) + ".json").stat().st_size for p in files)
@@ -102,9 +121,9 @@ def test_files_rotate_by_age(tmp_path):
         for block in range(3):
             for s in samples(100, t0=block * 1000.0):
                 log.put(s)
-            while log._queue.qsize():
+            deadline = time.monotonic() + 10
+            while log.written < 100 * (block + 1) and time.monotonic() < deadline:
                 time.sleep(0.005)
-            time.sleep(0.05)
             now[0] += 601.0
     assert len(log_files(tmp_path)) == 3
 
@@ -114,9 +133,9 @@ class _StuckLog(SampleLog):
 
     release = threading.Event()
 
-    def _write(self, writer, sample):
+    def _write_block(self, file, block):
         self.release.wait(10)
-        super()._write(writer, sample)
+        super()._write_block(file, block)
 
 
 def test_overflow_is_dropped_and_counted_and_never_blocks_the_caller(tmp_path):
@@ -129,7 +148,8 @@ def test_overflow_is_dropped_and_counted_and_never_blocks_the_caller(tmp_path):
     log.release.set()
     caller.join()
     assert not blocked, "put() waited for the writer"
-    assert 89 <= log.dropped <= 90 and results.count(False) == log.dropped
+    # the writer may take the queue's 10 (and then block) a few times while the caller runs: most are dropped
+    assert 50 <= log.dropped <= 90 and results.count(False) == log.dropped
     log.close()
     assert log.written + log.dropped == 100
     assert len(read_recording(log_files(tmp_path)[0])) == log.written
@@ -139,10 +159,8 @@ class _FullDiskLog(SampleLog):
     """The file's writes go to /dev/full: ENOSPC at the first flush."""
 
     def _open(self, path):
-        writer = super()._open(path)
-        writer._file.close()
-        writer._file = open("/dev/full", "w")
-        return writer
+        super()._open(path).close()
+        return SampleFile(open("/dev/full", "wb"))
 
 
 @pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full")
@@ -219,7 +237,7 @@ import sys, time
 sys.path.insert(0, {tests!r})
 from test_sample_log import samples
 from ahrsd.drivers.rotating_log import LogLimits
-from ahrsd.drivers.sample_log import SampleLog
+from ahrsd.drivers.sample_log import SampleFile, SampleLog
 log = SampleLog({d!r}, LogLimits(max_file_bytes=8000, flush_entries=50, flush_interval_s=0.01))
 k = 0
 while True:

@@ -113,7 +113,7 @@ def cli(*argv):
 @pytest.fixture(scope="module")
 def logged_run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("vehicle_log")
-    return tmp, run_daemon(tmp, 8.0, LogConfig(enabled=True, rotate_mb=0.1))
+    return tmp, run_daemon(tmp, 8.0, LogConfig(enabled=True, rotate_mb=0.05))
 
 
 def test_the_cut_is_exactly_the_samples_the_daemon_read(logged_run, capsys):
@@ -121,7 +121,7 @@ def test_the_cut_is_exactly_the_samples_the_daemon_read(logged_run, capsys):
     logs = run.stats["logs"]
     assert logs["samples"]["written"] == len(run.samples) > 4000    # 8 s at 819.2 SPS, less start-up
     assert logs["samples"]["dropped"] == 0 and logs["samples"]["failure"] is None
-    assert logs["samples"]["files_opened"] >= 2                       # rotated at 0.1 MB
+    assert logs["samples"]["files_opened"] >= 2                       # rotated at 0.05 MB
     t0, t1 = run.samples[0].t_s, run.samples[-1].t_s
     cut = tmp / "cut.csv.gz"
     assert cli("log", "cut", "--dir", tmp / "state" / "logs", "--from", t0 - 1, "--to", t1 + 1, "--output", cut,
@@ -195,23 +195,23 @@ def test_a_calibration_swap_starts_a_file_naming_the_new_calibration(tmp_path):
 
 
 def failing_write(err):
-    """SampleLog._write that fails like the disk would once 1000 samples are in."""
-    original = SampleLog._write
+    """SampleLog._write_block that fails like the disk would once 1000 samples are in."""
+    original = SampleLog._write_block
 
-    def write(self, writer, sample):
-        if self.written >= 1000:
+    def write(self, file, block):
+        if self.written + len(block) > 1000:
             raise OSError(err, __import__("os").strerror(err))
-        original(self, writer, sample)
+        original(self, file, block)
     return write
 
 
 @pytest.mark.parametrize("err", [errno.ENOSPC, errno.EROFS])
 def test_a_full_or_read_only_disk_stops_the_log_and_the_daemon_carries_on(tmp_path, monkeypatch, caplog, err):
-    monkeypatch.setattr(SampleLog, "_write", failing_write(err))
+    monkeypatch.setattr(SampleLog, "_write_block", failing_write(err))
     with caplog.at_level(logging.WARNING, logger="ahrsd.drivers.rotating_log"):
         run = run_daemon(tmp_path, 5.0, LogConfig(enabled=True))
     s = run.stats["logs"]["samples"]
-    assert s["failure"] == __import__("os").strerror(err) and s["written"] == 1000
+    assert s["failure"] == __import__("os").strerror(err) and 500 < s["written"] <= 1000
     assert s["written"] + s["dropped"] == len(run.samples)   # every sample the reader saw is accounted for
     assert len([r for r in caplog.records if "stopped" in r.getMessage()]) == 1
     # the daemon kept reading and sending after the failure (1000 samples ≈ 1.2 s into the run)
