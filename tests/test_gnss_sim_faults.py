@@ -47,6 +47,9 @@ class FakeService:
     def on_gnss_position(self):
         pass
 
+    def log_gnss_fix(self, fix, rejection):
+        pass
+
 
 def _config(gnss: str):
     return parse_config(tomllib.loads(f'[sensor]\nsource = "sim"\nscenario = "{SCENARIO}"\nseed = {SEED}\n'
