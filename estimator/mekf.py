@@ -131,23 +131,23 @@ class MekfParams:
     """At rest the body does not turn: if the low-passed body-frame field moves more than this from where it
     was when the rest began, something magnetic moved nearby and the field is not used until motion, µT
     (0.5 µT ≈ 1° of heading for a 27 µT horizontal field; the rest low-pass leaves ~0.1 µT of noise)."""
-    mag_offset_tau_s: float = 0.0
-    """Body-fixed field offset (a magnet or iron attached after calibration, mekf_core `_offset_update`):
-    forgetting time constant of its online estimate, s; 0 = off. Once the estimate is known to
-    mag_offset_use_sigma_ut and significant it is subtracted (adopted), and it is forgotten again within about
-    this time after the magnet is removed. Off by default: on BROAD (factory-calibrated magnetometer, a lab
-    with field gradients, rotations to 480 °/s) it learns offsets that help some trials and hurt others
-    (docs/estimator.md); 60 s suits a well-calibrated unit that is turned slowly."""
-    mag_offset_min_angle_rad: float = 10.0 * _DEG
+    mag_offset_tau_s: float = 60.0
+    """Body-fixed field offset (a magnet or iron attached after calibration, mekf_core `_field_offset`):
+    forgetting time constant of its online estimate, s; 0 = off. Learned from rotation, used only while it
+    explains why the field's norm and dip disagree with the reference learned before
+    (mag_offset_explain_ratio). Chosen by cross-validation on BROAD (docs/estimator.md)."""
+    mag_offset_min_angle_rad: float = 20.0 * _DEG
     """Field snapshots are compared once the body has turned this far, rad."""
     mag_offset_use_sigma_ut: float = 2.0
-    """The offset estimate is subtracted once its 1σ (largest axis) is below this, µT."""
-    mag_offset_max_tilt_spread_rad2: float = 1e-4
-    """... and only while the sensor is not being moved about (spread of the tilt innovation below this, rad²):
-    moving through the work space's field gradients would be read as an offset."""
-    mag_offset_max_rate_rad_s: float = 1.0
-    """... and only while turning slower than this: a magnetometer that lags the gyro by δt sees the field
-    turned by |ω|·δt (10 ms at 1 rad/s: 0.6°, ≈ 0.5 µT), which fast turns would read as an offset, rad/s."""
+    """The offset estimate is used once its 1σ (largest axis) is below this, µT."""
+    mag_offset_lag_s: float = 0.005
+    """Timing skew between magnetometer and gyro samples: a snapshot taken while turning at |ω| sees the field
+    turned by |ω|·this, which enters the offset fit as |ω|·this·|m| of noise, s."""
+    mag_offset_agree_tau_s: float = 2.0
+    """Time constant of the running disagreement between the field and the reference (raw and corrected), s."""
+    mag_offset_explain_ratio: float = 0.5
+    """The offset is subtracted while the corrected field's running disagreement with the reference is below
+    this fraction of the raw field's: a body-fixed offset must explain why the field disagrees."""
     mag_unavailable_s: float = 10.0
     """No heading update for this long sets MAG_UNAVAILABLE, s."""
 
@@ -224,8 +224,9 @@ class MekfParams:
         p[core.P_MOFF_TAU] = self.mag_offset_tau_s
         p[core.P_MOFF_MIN_ANGLE] = self.mag_offset_min_angle_rad
         p[core.P_MOFF_USE_SIGMA] = self.mag_offset_use_sigma_ut
-        p[core.P_MOFF_MAX_TILT_SPREAD] = self.mag_offset_max_tilt_spread_rad2
-        p[core.P_MOFF_MAX_RATE] = self.mag_offset_max_rate_rad_s
+        p[core.P_MOFF_LAG] = self.mag_offset_lag_s
+        p[core.P_MOFF_AGREE_TAU] = self.mag_offset_agree_tau_s
+        p[core.P_MOFF_EXPLAIN] = self.mag_offset_explain_ratio
         return p
 
 
@@ -330,7 +331,7 @@ class Mekf:
         relearn_reference(self._state, core.S_MAG, RELEARN_GATE_OPEN_S)
         s = self._state
         s[core.S_MAG_REST_SET] = 0.0   # the at-rest field is the old calibration's: take it again
-        s[core.S_MOFF_B : core.S_MOFF_NIS + 1] = 0.0   # a body-fixed offset learned against the old calibration
+        s[core.S_MOFF_B : core.S_MOFF_D_COR + 1] = 0.0   # a body-fixed offset learned against the old calibration
 
     @property
     def gyro_bias_rad_s(self) -> np.ndarray:

@@ -65,8 +65,10 @@ S_MOFF_C = S_MOFF_CM + 3             # 9: C_b^n at the previous snapshot
 S_MOFF_T = S_MOFF_C + 9              # time since the previous snapshot, s
 S_MOFF_SET = S_MOFF_T + 1            # 1.0 when the previous snapshot is valid
 S_MOFF_NIS = S_MOFF_SET + 1          # running mean of the offset fit's normalised squared innovation (fit)
-S_LPW = S_MOFF_NIS + 1               # 8: cached low-pass weights (Δt, 1 − exp(−Δt/τ)): rest, NED acc, spread, g
-S_SIZE = S_LPW + 8
+S_MOFF_D_RAW = S_MOFF_NIS + 1        # running mean of the raw field's disagreement with the reference (_disagreement)
+S_MOFF_D_COR = S_MOFF_D_RAW + 1      # ... of the offset-corrected field's
+S_LPW = S_MOFF_D_COR + 1             # 10: cached low-pass weights (Δt, 1 − exp(−Δt/τ)): rest, NED acc, spread, g,
+S_SIZE = S_LPW + 10                  # field disagreement
 
 # ----------------------------------------------------------------------------------- parameter layout
 P_GYRO_NOISE = 0        # gyro angle random walk, rad/s/√Hz
@@ -114,9 +116,11 @@ P_GYRO_RATE_NOISE = P_ACC_ADAPT_TAU + 1  # attitude process noise per rad/s of r
 P_MOFF_TAU = P_GYRO_RATE_NOISE + 1      # forgetting time constant of the body-fixed offset estimate, s (0 = off)
 P_MOFF_MIN_ANGLE = P_MOFF_TAU + 1       # snapshots are compared once the body has turned this far, rad
 P_MOFF_USE_SIGMA = P_MOFF_MIN_ANGLE + 1  # the offset is subtracted once its 1σ (largest axis) is below this, µT
-P_MOFF_MAX_TILT_SPREAD = P_MOFF_USE_SIGMA + 1  # ... only while the tilt innovation's spread is below this, rad²
-P_MOFF_MAX_RATE = P_MOFF_MAX_TILT_SPREAD + 1  # ... only below this rotation rate (magnetometer lag, skew), rad/s
-P_SIZE = P_MOFF_MAX_RATE + 1
+P_MOFF_LAG = P_MOFF_USE_SIGMA + 1       # magnetometer–gyro timing skew: |ω|·this·|m| of noise per fit row, s
+P_MOFF_AGREE_TAU = P_MOFF_LAG + 1       # time constant of the running field disagreement, s
+P_MOFF_EXPLAIN = P_MOFF_AGREE_TAU + 1   # the offset is used while the corrected field's disagreement is below
+                                        # this fraction of the raw field's
+P_SIZE = P_MOFF_EXPLAIN + 1
 
 # ----------------------------------------------------------------------------------- flags (= EstimateFlags)
 F_INITIALISING = 1
@@ -291,6 +295,99 @@ def _offset_update(state, c00, c01, c02, c10, c11, c12, c20, c21, c22, cmx, cmy,
         state[p + 7] -= k2 * ph1
         state[p + 8] -= k2 * ph2
     return nis / 3.0
+
+
+@njit(cache=True)
+def _disagreement(state, par, fn, fe, fd):
+    """How far a field (in the estimated NED frame, µT) is from the learned reference, in units of the
+    disturbance checks' tolerances: ((|m| − ref) / (tol·ref))² + ((dip − ref dip) / dip tol)²; > 1 is outside."""
+    ref = state[S_MAG_REF_NORM]
+    n = math.sqrt(fn * fn + fe * fe + fd * fd)
+    dip = math.atan2(fd, math.sqrt(fn * fn + fe * fe))
+    dn = (n - ref) / (par[P_MAG_NORM_TOL] * ref)
+    dd = (dip - state[S_MAG_REF_DIP]) / par[P_MAG_DIP_TOL]
+    return dn * dn + dd * dd
+
+
+@njit(cache=True)
+def _field_offset(state, par, dt, rate, mx, my, mz):
+    """Learn and, where it explains the field, remove a body-fixed field offset b (a magnet or iron attached
+    after calibration: uncalibrated hard iron). Returns the field to use (mx, my, mz), µT.
+
+    m = C_nᵇ h + b: the norm and dip of m change with orientation, so the field disagrees with the reference
+    learned before the magnet came. b is observable from rotation alone (_offset_update: the heading error
+    cancels between two snapshots), learned by recursive least squares forgetting with time constant
+    P_MOFF_TAU. A fit also reads the residual calibration errors and the field gradients of an undisturbed
+    work space as an offset of a few µT, so b is used only while it explains why the field disagrees with the
+    reference: the corrected field's running disagreement (_disagreement, time constant P_MOFF_AGREE_TAU) is
+    below P_MOFF_EXPLAIN times the raw field's. An offset that leaves the field's norm and dip as they were is
+    not used; nor is one fitted to a magnet in the surroundings (its field depends on position, not on
+    orientation, and the fit is inconsistent); when the magnet is removed the raw field agrees again and b is
+    no longer used."""
+    if state[S_MAG_REF_NORM] <= 0.0:
+        return mx, my, mz
+    c00, c01, c02, c10, c11, c12, c20, c21, c22 = _dcm_of_state(state)
+    cmx = c00 * mx + c01 * my + c02 * mz
+    cmy = c10 * mx + c11 * my + c12 * mz
+    cmz = c20 * mx + c21 * my + c22 * mz
+    kd = _lowpass_weight(state, S_LPW + 8, dt, par[P_MOFF_AGREE_TAU]) if dt > 0.0 else 0.0
+    state[S_MOFF_D_RAW] += kd * (_disagreement(state, par, cmx, cmy, cmz) - state[S_MOFF_D_RAW])
+    state[S_MOFF_T] += dt
+    take = state[S_MOFF_SET] == 0.0 or state[S_MOFF_T] > 2.0
+    if state[S_MOFF_SET] != 0.0:
+        # rotation between the snapshots: cos θ = (trace(C₁ᵀ C₂) − 1) / 2
+        tr = (c00 * state[S_MOFF_C] + c01 * state[S_MOFF_C + 1] + c02 * state[S_MOFF_C + 2]
+              + c10 * state[S_MOFF_C + 3] + c11 * state[S_MOFF_C + 4] + c12 * state[S_MOFF_C + 5]
+              + c20 * state[S_MOFF_C + 6] + c21 * state[S_MOFF_C + 7] + c22 * state[S_MOFF_C + 8])
+        if 0.5 * (tr - 1.0) < math.cos(par[P_MOFF_MIN_ANGLE]):
+            if state[S_MOFF_P] == 0.0:
+                for i in range(3):
+                    state[S_MOFF_P + 4 * i] = 1e4   # (100 µT)²: nothing known
+            lam = math.exp(-state[S_MOFF_T] / par[P_MOFF_TAU])
+            for i in range(9):
+                state[S_MOFF_P + i] = min(state[S_MOFF_P + i] / lam, 1e4)
+            # a magnetometer sampled δt apart from the gyro sees the field turned by |ω|·δt
+            lag_ut = rate * par[P_MOFF_LAG] * math.sqrt(mx * mx + my * my + mz * mz)
+            nis = _offset_update(state, c00, c01, c02, c10, c11, c12, c20, c21, c22, cmx, cmy, cmz,
+                                 2.0 * (par[P_MAG_NOISE] ** 2 + lag_ut * lag_ut))
+            state[S_MOFF_NIS] += (1.0 - lam) * (nis - state[S_MOFF_NIS])
+            take = True
+    if take:
+        state[S_MOFF_CM] = cmx
+        state[S_MOFF_CM + 1] = cmy
+        state[S_MOFF_CM + 2] = cmz
+        state[S_MOFF_C] = c00
+        state[S_MOFF_C + 1] = c01
+        state[S_MOFF_C + 2] = c02
+        state[S_MOFF_C + 3] = c10
+        state[S_MOFF_C + 4] = c11
+        state[S_MOFF_C + 5] = c12
+        state[S_MOFF_C + 6] = c20
+        state[S_MOFF_C + 7] = c21
+        state[S_MOFF_C + 8] = c22
+        state[S_MOFF_SET] = 1.0
+        state[S_MOFF_T] = 0.0
+    if state[S_MOFF_P] <= 0.0:
+        return mx, my, mz
+    pmax = max(state[S_MOFF_P], max(state[S_MOFF_P + 4], state[S_MOFF_P + 8]))
+    # known well enough, significantly non-zero (Σ b²/σ² > 16: not calibration residue within the noise), and
+    # the data fit a body-fixed offset (a field that changes with position leaves innovations far above their
+    # predicted variance)
+    signif = 0.0
+    for i in range(3):
+        signif += state[S_MOFF_B + i] ** 2 / state[S_MOFF_P + 4 * i]
+    if not (pmax < par[P_MOFF_USE_SIGMA] ** 2 and signif > 16.0 and state[S_MOFF_NIS] < 4.0):
+        state[S_MOFF_D_COR] = state[S_MOFF_D_RAW]
+        return mx, my, mz
+    bx = state[S_MOFF_B]
+    by = state[S_MOFF_B + 1]
+    bz = state[S_MOFF_B + 2]
+    d_cor = _disagreement(state, par, cmx - (c00 * bx + c01 * by + c02 * bz),
+                          cmy - (c10 * bx + c11 * by + c12 * bz), cmz - (c20 * bx + c21 * by + c22 * bz))
+    state[S_MOFF_D_COR] += kd * (d_cor - state[S_MOFF_D_COR])
+    if state[S_MOFF_D_COR] < par[P_MOFF_EXPLAIN] * state[S_MOFF_D_RAW]:
+        return mx - bx, my - by, mz - bz
+    return mx, my, mz
 
 
 @njit(cache=True)
@@ -703,65 +800,8 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
             state[S_ACC_REJ_T] += dt
 
     # ------------------------------------------------------------------ body-fixed field offset (attached magnet)
-    # A magnet or iron attached after calibration adds a constant offset b in the body frame (uncalibrated hard
-    # iron): the norm and dip then change with orientation by a few percent, within the disturbance checks,
-    # and the heading follows the magnet. b is observable from rotation alone (_offset_update), without
-    # knowing the heading; once known to P_MOFF_USE_SIGMA it is subtracted (adopted). Learned only while
-    # the field's magnitude matches the reference (a passing magnet is not a body-fixed offset), forgotten
-    # with time constant P_MOFF_TAU (a magnet that is taken off again is unlearned as fast).
     if (valid & IN_MAG_OK) and par[P_MOFF_TAU] > 0.0 and par[P_MAG_ENABLED] > 0.0:
-        c00, c01, c02, c10, c11, c12, c20, c21, c22 = _dcm_of_state(state)
-        ref = state[S_MAG_REF_NORM]
-        mn0 = math.sqrt(mx * mx + my * my + mz * mz)
-        state[S_MOFF_T] += dt
-        # a magnetometer that lags the gyro by δt sees the field turned by |ω|·δt: only slow turns are evidence
-        still = (0.5 * (state[S_ACC_NU_VAR] + state[S_ACC_NU_VAR + 1]) < par[P_MOFF_MAX_TILT_SPREAD]
-                 and rate < par[P_MOFF_MAX_RATE])
-        if ref > 0.0 and abs(mn0 - ref) < par[P_MAG_NORM_TOL] * ref and still:
-            cmx = c00 * mx + c01 * my + c02 * mz
-            cmy = c10 * mx + c11 * my + c12 * mz
-            cmz = c20 * mx + c21 * my + c22 * mz
-            take = state[S_MOFF_SET] == 0.0 or state[S_MOFF_T] > 2.0
-            if state[S_MOFF_SET] != 0.0:
-                # rotation between the snapshots: cos θ = (trace(C₁ᵀ C₂) − 1) / 2
-                tr = (c00 * state[S_MOFF_C] + c01 * state[S_MOFF_C + 1] + c02 * state[S_MOFF_C + 2]
-                      + c10 * state[S_MOFF_C + 3] + c11 * state[S_MOFF_C + 4] + c12 * state[S_MOFF_C + 5]
-                      + c20 * state[S_MOFF_C + 6] + c21 * state[S_MOFF_C + 7] + c22 * state[S_MOFF_C + 8])
-                if 0.5 * (tr - 1.0) < math.cos(par[P_MOFF_MIN_ANGLE]):
-                    if state[S_MOFF_P] == 0.0:
-                        for i in range(3):
-                            state[S_MOFF_P + 4 * i] = 1e4   # (100 µT)²: nothing known
-                    lam = math.exp(-state[S_MOFF_T] / par[P_MOFF_TAU])
-                    for i in range(9):
-                        state[S_MOFF_P + i] = min(state[S_MOFF_P + i] / lam, 1e4)
-                    nis = _offset_update(state, c00, c01, c02, c10, c11, c12, c20, c21, c22, cmx, cmy, cmz,
-                                         2.0 * par[P_MAG_NOISE] ** 2)
-                    state[S_MOFF_NIS] += (1.0 - lam) * (nis - state[S_MOFF_NIS])
-                    take = True
-            if take:
-                state[S_MOFF_CM] = cmx
-                state[S_MOFF_CM + 1] = cmy
-                state[S_MOFF_CM + 2] = cmz
-                for i in range(3):
-                    state[S_MOFF_C + 3 * i] = c00 if i == 0 else (c10 if i == 1 else c20)
-                    state[S_MOFF_C + 3 * i + 1] = c01 if i == 0 else (c11 if i == 1 else c21)
-                    state[S_MOFF_C + 3 * i + 2] = c02 if i == 0 else (c12 if i == 1 else c22)
-                state[S_MOFF_SET] = 1.0
-                state[S_MOFF_T] = 0.0
-        pmax = max(state[S_MOFF_P], max(state[S_MOFF_P + 4], state[S_MOFF_P + 8]))
-        # adopted when known well enough and significantly non-zero (Σ b²/σ² of the axes > 16: a residual of
-        # the calibration within its noise is not an attached magnet)
-        signif = 0.0
-        if state[S_MOFF_P] > 0.0:
-            for i in range(3):
-                signif += state[S_MOFF_B + i] ** 2 / state[S_MOFF_P + 4 * i]
-        # ... and the data fit a body-fixed offset: a field that changes with position (a magnet the sensor
-        # is carried past, the work space's gradients) leaves innovations far above their predicted variance
-        fits = state[S_MOFF_NIS] < 4.0
-        if state[S_MOFF_P] > 0.0 and pmax < par[P_MOFF_USE_SIGMA] ** 2 and signif > 16.0 and fits:
-            mx -= state[S_MOFF_B]
-            my -= state[S_MOFF_B + 1]
-            mz -= state[S_MOFF_B + 2]
+        mx, my, mz = _field_offset(state, par, dt, rate, mx, my, mz)
 
     # ------------------------------------------------------------------ magnetometer: heading only
     mag_used = False
