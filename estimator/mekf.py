@@ -222,7 +222,7 @@ class MekfParams:
         p[core.P_ACC_ADAPT_TAU] = self.acc_adaptive_tau_s
         p[core.P_GYRO_RATE_NOISE] = self.gyro_rate_noise_sqrt_s
         p[core.P_MOFF_TAU] = self.mag_offset_tau_s
-        p[core.P_MOFF_MIN_ANGLE] = self.mag_offset_min_angle_rad
+        p[core.P_MOFF_MIN_COS] = math.cos(self.mag_offset_min_angle_rad)
         p[core.P_MOFF_USE_SIGMA] = self.mag_offset_use_sigma_ut
         p[core.P_MOFF_LAG] = self.mag_offset_lag_s
         p[core.P_MOFF_AGREE_TAU] = self.mag_offset_agree_tau_s
@@ -295,9 +295,18 @@ class Mekf:
 
     def __init__(self, declination_rad: float = 0.0, params: MekfParams | None = None, **overrides):
         self.params = with_overrides(params or DEFAULT_MEKF_PARAMS, overrides, "mekf")
-        self._par = self.params.to_array()
-        self._state = np.zeros(core.S_SIZE)
-        self._out = np.zeros(core.O_SIZE)
+        # one buffer [state | parameters | outputs] for the one-sample kernel (one array to pass per call);
+        # the three are views of it
+        self._buf = np.zeros(core.B_SIZE)
+        self._state = self._buf[: core.B_PAR]
+        self._par = self._buf[core.B_PAR : core.B_OUT]
+        self._par[:] = self.params.to_array()
+        self._out = self._buf[core.B_OUT :]
+        # the outputs the view hands out, as fixed views (slicing per read costs more than the filter step)
+        self._q_out = self._out[core.O_Q : core.O_Q + 4]
+        self._rate_out = self._out[core.O_RATE : core.O_RATE + 3]
+        self._bias_out = self._out[core.O_BIAS : core.O_BIAS + 3]
+        self._sigma_out = self._out[core.O_SIGMA : core.O_SIGMA + 3]
         self._declination = float(declination_rad)
         self._initialised = False
         self._reinit_pending = False
@@ -331,7 +340,7 @@ class Mekf:
         relearn_reference(self._state, core.S_MAG, RELEARN_GATE_OPEN_S)
         s = self._state
         s[core.S_MAG_REST_SET] = 0.0   # the at-rest field is the old calibration's: take it again
-        s[core.S_MOFF_B : core.S_MOFF_D_COR + 1] = 0.0   # a body-fixed offset learned against the old calibration
+        s[core.S_MOFF_B : core.S_MOFF_DIP_AT + 3] = 0.0   # a body-fixed offset learned against the old calibration
 
     @property
     def gyro_bias_rad_s(self) -> np.ndarray:
@@ -358,24 +367,25 @@ class Mekf:
         result object is built. The view reads the latest estimate and changes at the next call;
         `view.snapshot()` gives the immutable AttitudeEstimate `update` returns (build it only when
         publishing)."""
-        g = sample.gyro_rad_s
-        a = sample.accel_m_s2
-        m = sample.mag_ut
-        sflags = int(sample.flags)
-        self._t_s = sample.t_s
+        t_s = self._t_s = sample.t_s
         extra = 0
         if self._initialised:
-            f = self._step(
-                self._state, self._par, sample.t_s,
-                g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], sflags, self._out,
-            )
+            # Python floats from tolist(): cheaper than nine array indexings
+            gx, gy, gz = sample.gyro_rad_s.tolist()
+            ax, ay, az = sample.accel_m_s2.tolist()
+            mx, my, mz = sample.mag_ut.tolist()
+            f = self._step(self._buf, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, int(sample.flags))
             if not f & core.NEEDS_INIT:
                 self._bits = f
                 return self._view
             self._initialised = False
             self._reinit_pending = True
             extra = f & ~core.NEEDS_INIT
-        if not self._initialise(sample.t_s, g, a, m, sflags):
+        g = sample.gyro_rad_s
+        a = sample.accel_m_s2
+        m = sample.mag_ut
+        sflags = int(sample.flags)
+        if not self._initialise(t_s, g, a, m, sflags):
             self._bits = -1 - extra       # < 0: no estimate yet (snapshot() is the uninitialised estimate)
             return self._view
         self._bits = self._after_init_flags() | extra
@@ -559,10 +569,12 @@ class MekfView:
 
     @property
     def q_wxyz(self) -> np.ndarray:
-        return self._mekf._out[core.O_Q : core.O_Q + 4] if self.valid else np.array([1.0, 0.0, 0.0, 0.0])
+        m = self._mekf
+        return m._q_out if m._bits >= 0 else np.array([1.0, 0.0, 0.0, 0.0])
 
     def _angle(self, i: int) -> float:
-        return float(self._mekf._out[core.O_EULER + i]) if self.valid else math.nan
+        m = self._mekf
+        return float(m._out[core.O_EULER + i]) if m._bits >= 0 else math.nan
 
     @property
     def roll_rad(self) -> float:
@@ -586,15 +598,18 @@ class MekfView:
 
     @property
     def rate_body_rad_s(self) -> np.ndarray:
-        return self._mekf._out[core.O_RATE : core.O_RATE + 3] if self.valid else np.full(3, math.nan)
+        m = self._mekf
+        return m._rate_out if m._bits >= 0 else np.full(3, math.nan)
 
     @property
     def gyro_bias_rad_s(self) -> np.ndarray:
-        return self._mekf._out[core.O_BIAS : core.O_BIAS + 3] if self.valid else np.zeros(3)
+        m = self._mekf
+        return m._bias_out if m._bits >= 0 else np.zeros(3)
 
     @property
     def sigma_rpy_rad(self) -> np.ndarray:
-        return self._mekf._out[core.O_SIGMA : core.O_SIGMA + 3] if self.valid else np.full(3, math.pi)
+        m = self._mekf
+        return m._sigma_out if m._bits >= 0 else np.full(3, math.pi)
 
 
 __all__ = ["Mekf", "MekfView", "MekfParams", "DEFAULT_MEKF_PARAMS", "FIXED_WING_MEKF_PARAMS", "initial_attitude"]
