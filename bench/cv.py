@@ -66,7 +66,7 @@ CANDIDATES: list[tuple[str, dict]] = [
 ] + [
     (f"mag_offset_angle={deg:g}", {"mag_offset_min_angle_rad": deg * _DEG}) for deg in (10.0, 30.0)
 ] + [
-    (f"mag_offset_explain={ratio:g}", {"mag_offset_explain_ratio": ratio}) for ratio in (0.1, 0.5)
+    (f"mag_offset_explain={ratio:g}", {"mag_offset_explain_ratio": ratio}) for ratio in (0.25, 0.75)
 ]
 
 

@@ -269,6 +269,12 @@ def initial_attitude(accel_m_s2: np.ndarray, mag_ut: np.ndarray | None) -> np.nd
 
 _TWO_PI = 2.0 * math.pi
 _FLAG_CACHE: dict[int, EstimateFlags] = {}
+_F64 = np.dtype(np.float64)
+_NEEDS_INIT_OR_BAD = core.NEEDS_INIT | core.BAD_SHAPE
+
+
+def _as_f64(v) -> np.ndarray:
+    return np.asarray(v, dtype=np.float64)
 
 
 def estimate_flags(bits: int) -> EstimateFlags:
@@ -340,7 +346,7 @@ class Mekf:
         relearn_reference(self._state, core.S_MAG, RELEARN_GATE_OPEN_S)
         s = self._state
         s[core.S_MAG_REST_SET] = 0.0   # the at-rest field is the old calibration's: take it again
-        s[core.S_MOFF_B : core.S_MOFF_DIP_AT + 3] = 0.0   # a body-fixed offset learned against the old calibration
+        s[core.S_MOFF_B : core.S_MOFF_READY + 1] = 0.0   # a body-fixed offset learned against the old calibration
 
     @property
     def gyro_bias_rad_s(self) -> np.ndarray:
@@ -368,22 +374,24 @@ class Mekf:
         `view.snapshot()` gives the immutable AttitudeEstimate `update` returns (build it only when
         publishing)."""
         t_s = self._t_s = sample.t_s
-        extra = 0
-        if self._initialised:
-            # Python floats from tolist(): cheaper than nine array indexings
-            gx, gy, gz = sample.gyro_rad_s.tolist()
-            ax, ay, az = sample.accel_m_s2.tolist()
-            mx, my, mz = sample.mag_ut.tolist()
-            f = self._step(self._buf, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, int(sample.flags))
-            if not f & core.NEEDS_INIT:
-                self._bits = f
-                return self._view
-            self._initialised = False
-            self._reinit_pending = True
-            extra = f & ~core.NEEDS_INIT
         g = sample.gyro_rad_s
         a = sample.accel_m_s2
         m = sample.mag_ut
+        extra = 0
+        if self._initialised:
+            # the vectors go to the kernel as they are when they are float64 (the kernel's entry point reads
+            # any 8-byte dtype as float64 unchecked), else as float64 copies
+            if not (g.dtype is _F64 and a.dtype is _F64 and m.dtype is _F64):
+                g, a, m = _as_f64(g), _as_f64(a), _as_f64(m)
+            f = self._step(self._buf, t_s, g, a, m, int(sample.flags))
+            if not f & _NEEDS_INIT_OR_BAD:
+                self._bits = f
+                return self._view
+            if f & core.BAD_SHAPE:
+                raise ValueError("ImuSample vectors must have 3 elements")
+            self._initialised = False
+            self._reinit_pending = True
+            extra = f & ~core.NEEDS_INIT
         sflags = int(sample.flags)
         if not self._initialise(t_s, g, a, m, sflags):
             self._bits = -1 - extra       # < 0: no estimate yet (snapshot() is the uninitialised estimate)

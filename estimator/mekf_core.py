@@ -68,7 +68,8 @@ S_MOFF_NIS = S_MOFF_SET + 1          # running mean of the offset fit's normalis
 S_MOFF_D_RAW = S_MOFF_NIS + 1        # running mean of the raw field's disagreement with the reference (_disagreement)
 S_MOFF_D_COR = S_MOFF_D_RAW + 1      # ... of the offset-corrected field's
 S_MOFF_DIP_AT = S_MOFF_D_COR + 1     # 3: the reference dip, rad, its sine and cosine (cached for _disagreement)
-S_LPW = S_MOFF_DIP_AT + 3             # 10: cached low-pass weights (Δt, 1 − exp(−Δt/τ)): rest, NED acc, spread, g,
+S_MOFF_READY = S_MOFF_DIP_AT + 3     # 1.0 while the estimate is known well enough, significant and consistent
+S_LPW = S_MOFF_READY + 1             # 10: cached low-pass weights (Δt, 1 − exp(−Δt/τ)): rest, NED acc, spread, g,
 S_SIZE = S_LPW + 10                  # field disagreement
 
 # ----------------------------------------------------------------------------------- parameter layout
@@ -137,6 +138,8 @@ M_HEADING = 4
 M_BIAS = 8 | 16 | 32
 # step result: the caller must (re-)initialise from this sample (the step changed nothing)
 NEEDS_INIT = 1 << 16
+# one-sample step result: a vector of the sample does not have 3 elements (the step changed nothing)
+BAD_SHAPE = 1 << 17
 
 # input validity: a sensor is used when its SampleFlags bits below are clear and its values are finite
 IN_GYRO_OK = 1
@@ -242,15 +245,6 @@ def _apply_correction(state, par, dx0, dx1, dx2, dx3, dx4, dx5):
 
 
 @njit(cache=True)
-def _symmetrise(state):
-    for i in range(6):
-        for j in range(i + 1, 6):
-            a = 0.5 * (state[S_P + i * 6 + j] + state[S_P + j * 6 + i])
-            state[S_P + i * 6 + j] = a
-            state[S_P + j * 6 + i] = a
-
-
-@njit(cache=True)
 def _running_spread(mean, var, x, k):
     """Running mean of x and running mean square deviation of x from it, both low-passed with weight
     k = 1 − exp(−Δt/τ). Returns (mean, var)."""
@@ -320,7 +314,8 @@ def _disagreement(state, par, fn, fe, fd):
 @njit(cache=True)
 def _field_offset(state, par, dt, rate, mx, my, mz):
     """Learn and, where it explains the field, remove a body-fixed field offset b (a magnet or iron attached
-    after calibration: uncalibrated hard iron). Returns the field to use (mx, my, mz), µT.
+    after calibration: uncalibrated hard iron). Returns the field to use in the body frame (mx, my, mz) and in
+    the estimated NED frame (mn, me, md), µT.
 
     m = C_nᵇ h + b: the norm and dip of m change with orientation, so the field disagrees with the reference
     learned before the magnet came. b is observable from rotation alone (_offset_update: the heading error
@@ -332,12 +327,12 @@ def _field_offset(state, par, dt, rate, mx, my, mz):
     not used; nor is one fitted to a magnet in the surroundings (its field depends on position, not on
     orientation, and the fit is inconsistent); when the magnet is removed the raw field agrees again and b is
     no longer used."""
-    if state[S_MAG_REF_NORM] <= 0.0:
-        return mx, my, mz
     c00, c01, c02, c10, c11, c12, c20, c21, c22 = _dcm_of_state(state)
     cmx = c00 * mx + c01 * my + c02 * mz
     cmy = c10 * mx + c11 * my + c12 * mz
     cmz = c20 * mx + c21 * my + c22 * mz
+    if state[S_MAG_REF_NORM] <= 0.0:
+        return mx, my, mz, cmx, cmy, cmz
     kd = _lowpass_weight(state, S_LPW + 8, dt, par[P_MOFF_AGREE_TAU]) if dt > 0.0 else 0.0
     state[S_MOFF_D_RAW] += kd * (_disagreement(state, par, cmx, cmy, cmz) - state[S_MOFF_D_RAW])
     state[S_MOFF_T] += dt
@@ -360,6 +355,15 @@ def _field_offset(state, par, dt, rate, mx, my, mz):
                                  2.0 * (par[P_MAG_NOISE] ** 2 + lag_ut * lag_ut))
             state[S_MOFF_NIS] += (1.0 - lam) * (nis - state[S_MOFF_NIS])
             take = True
+            # usable: known well enough, significantly non-zero (Σ b²/σ² > 16: not calibration residue within
+            # the noise), and the data fit a body-fixed offset (a field that changes with position leaves
+            # innovations far above their predicted variance). P and the fit change only here.
+            pmax = max(state[S_MOFF_P], max(state[S_MOFF_P + 4], state[S_MOFF_P + 8]))
+            signif = 0.0
+            for i in range(3):
+                signif += state[S_MOFF_B + i] ** 2 / state[S_MOFF_P + 4 * i]
+            ok = pmax < par[P_MOFF_USE_SIGMA] ** 2 and signif > 16.0 and state[S_MOFF_NIS] < 4.0
+            state[S_MOFF_READY] = 1.0 if ok else 0.0
     if take:
         state[S_MOFF_CM] = cmx
         state[S_MOFF_CM + 1] = cmy
@@ -375,27 +379,19 @@ def _field_offset(state, par, dt, rate, mx, my, mz):
         state[S_MOFF_C + 8] = c22
         state[S_MOFF_SET] = 1.0
         state[S_MOFF_T] = 0.0
-    if state[S_MOFF_P] <= 0.0:
-        return mx, my, mz
-    pmax = max(state[S_MOFF_P], max(state[S_MOFF_P + 4], state[S_MOFF_P + 8]))
-    # known well enough, significantly non-zero (Σ b²/σ² > 16: not calibration residue within the noise), and
-    # the data fit a body-fixed offset (a field that changes with position leaves innovations far above their
-    # predicted variance)
-    signif = 0.0
-    for i in range(3):
-        signif += state[S_MOFF_B + i] ** 2 / state[S_MOFF_P + 4 * i]
-    if not (pmax < par[P_MOFF_USE_SIGMA] ** 2 and signif > 16.0 and state[S_MOFF_NIS] < 4.0):
+    if state[S_MOFF_READY] == 0.0:
         state[S_MOFF_D_COR] = state[S_MOFF_D_RAW]
-        return mx, my, mz
+        return mx, my, mz, cmx, cmy, cmz
     bx = state[S_MOFF_B]
     by = state[S_MOFF_B + 1]
     bz = state[S_MOFF_B + 2]
-    d_cor = _disagreement(state, par, cmx - (c00 * bx + c01 * by + c02 * bz),
-                          cmy - (c10 * bx + c11 * by + c12 * bz), cmz - (c20 * bx + c21 * by + c22 * bz))
-    state[S_MOFF_D_COR] += kd * (d_cor - state[S_MOFF_D_COR])
+    cbx = cmx - (c00 * bx + c01 * by + c02 * bz)
+    cby = cmy - (c10 * bx + c11 * by + c12 * bz)
+    cbz = cmz - (c20 * bx + c21 * by + c22 * bz)
+    state[S_MOFF_D_COR] += kd * (_disagreement(state, par, cbx, cby, cbz) - state[S_MOFF_D_COR])
     if state[S_MOFF_D_COR] < par[P_MOFF_EXPLAIN] * state[S_MOFF_D_RAW]:
-        return mx - bx, my - by, mz - bz
-    return mx, my, mz
+        return mx - bx, my - by, mz - bz, cbx, cby, cbz
+    return mx, my, mz, cmx, cmy, cmz
 
 
 @njit(cache=True)
@@ -617,12 +613,14 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
         state[p + 0] += qt - (ob00 * m00 + ob01 * m01 + ob02 * m02) - (m00 * b00 + m01 * b01 + m02 * b02)
         state[p + 1] += -(ob00 * m10 + ob01 * m11 + ob02 * m12) - (m00 * b10 + m01 * b11 + m02 * b12)
         state[p + 2] += -(ob00 * m20 + ob01 * m21 + ob02 * m22) - (m00 * b20 + m01 * b21 + m02 * b22)
-        state[p + 6] += -(ob10 * m00 + ob11 * m01 + ob12 * m02) - (m10 * b00 + m11 * b01 + m12 * b02)
         state[p + 7] += qt - (ob10 * m10 + ob11 * m11 + ob12 * m12) - (m10 * b10 + m11 * b11 + m12 * b12)
         state[p + 8] += -(ob10 * m20 + ob11 * m21 + ob12 * m22) - (m10 * b20 + m11 * b21 + m12 * b22)
-        state[p + 12] += -(ob20 * m00 + ob21 * m01 + ob22 * m02) - (m20 * b00 + m21 * b01 + m22 * b02)
-        state[p + 13] += -(ob20 * m10 + ob21 * m11 + ob22 * m12) - (m20 * b10 + m21 * b11 + m22 * b12)
         state[p + 14] += qa - (ob20 * m20 + ob21 * m21 + ob22 * m22) - (m20 * b20 + m21 * b21 + m22 * b22)
+        # A' is symmetric (A and D are, and M B'ᵀ + B Mᵀ = M Bᵀ + B Mᵀ − M D Mᵀ is): mirror the upper triangle,
+        # as the scalar updates do, so P stays exactly symmetric without a symmetrising pass
+        state[p + 6] = state[p + 1]
+        state[p + 12] = state[p + 2]
+        state[p + 13] = state[p + 8]
         state[p + 3] = b00
         state[p + 4] = b01
         state[p + 5] = b02
@@ -812,13 +810,16 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
             state[S_ACC_REJ_T] += dt
 
     # ------------------------------------------------------------------ body-fixed field offset (attached magnet)
-    if (valid & IN_MAG_OK) and par[P_MOFF_TAU] > 0.0 and par[P_MAG_ENABLED] > 0.0:
-        mx, my, mz = _field_offset(state, par, dt, rate, mx, my, mz)
+    offset_on = (valid & IN_MAG_OK) and par[P_MOFF_TAU] > 0.0 and par[P_MAG_ENABLED] > 0.0
+    mn = me = md = 0.0
+    if offset_on:
+        mx, my, mz, mn, me, md = _field_offset(state, par, dt, rate, mx, my, mz)
 
     # ------------------------------------------------------------------ magnetometer: heading only
     mag_used = False
     if (valid & IN_MAG_OK) and par[P_MAG_ENABLED] > 0.0:
-        mn, me, md = mag.rotate_to_ned(state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3], mx, my, mz)
+        if not offset_on:
+            mn, me, md = mag.rotate_to_ned(state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3], mx, my, mz)
         mnorm = math.sqrt(mx * mx + my * my + mz * mz)
         res, alpha, r = mag.heading_measurement(state, S_MAG, par, P_MAG, dt, rate, at_rest, mag_moved_at_rest,
                                                 mn, me, md, mnorm, 0.0, state[S_P + 2 * 6 + 2])
@@ -830,8 +831,6 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
             flags |= F_MAG_REJECTED
     if mag.heading_bookkeeping(state, S_MAG, par, P_MAG, dt, mag_used):
         flags |= F_MAG_UNAVAILABLE
-
-    _symmetrise(state)
 
     # ------------------------------------------------------------------ outputs
     q0 = state[S_Q]
@@ -879,13 +878,17 @@ B_SIZE = B_OUT + O_SIZE
 
 
 @njit(cache=True)
-def mekf_step_full(buf, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags):
-    """`mekf_step` on the buffer `buf` (layout B_*) plus the ZYX Euler angles in its out[O_EULER:] (the
-    one-sample path; batch runs skip them)."""
+def mekf_step_full(buf, t_s, gyro, acc, mag, sample_flags):
+    """`mekf_step` on the buffer `buf` (layout B_*) for one sample's (3,) vectors, plus the ZYX Euler angles in
+    its out[O_EULER:] (the one-sample path; batch runs skip them). Returns BAD_SHAPE if a vector does not have
+    3 elements (nothing changed)."""
+    if gyro.shape[0] != 3 or acc.shape[0] != 3 or mag.shape[0] != 3:
+        return BAD_SHAPE
     state = buf[:B_PAR]
     par = buf[B_PAR:B_OUT]
     out = buf[B_OUT:]
-    f = mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, out)
+    f = mekf_step(state, par, t_s, gyro[0], gyro[1], gyro[2], acc[0], acc[1], acc[2], mag[0], mag[1], mag[2],
+                  sample_flags, out)
     if not f & NEEDS_INIT:
         roll, pitch, yaw = euler_zyx(out[O_Q], out[O_Q + 1], out[O_Q + 2], out[O_Q + 3])
         out[O_EULER] = roll
@@ -917,24 +920,22 @@ def mekf_run(state, par, t_s, gyro, acc, mag, sample_flags, start, q_out, flags_
     return n
 
 
-_SIGNATURE = (
-    "int64(float64[::1], float64, float64, float64, float64, float64, float64, float64, float64, float64, "
-    "float64, int64)"
-)
+_SIGNATURE = "int64(float64[::1], float64, float64[:], float64[:], float64[:], int64)"
 
 
 def fast_step():
     """`mekf_step_full` as a directly callable compiled entry point for one-sample calls.
 
-    Numba's dispatcher resolves argument types on every call (≈5 µs for 12 arguments, ten times the
-    filter's own arithmetic); the entry point of the one compiled signature skips that. Arguments must
-    then have exactly that signature: a contiguous float64 array (it is not checked: the caller owns it),
-    Python/NumPy floats, an int. Falls back to the dispatcher if this numba version does not expose entry
-    points (same code, slower call)."""
+    Numba's dispatcher resolves argument types on every call (≈5 µs, ten times the filter's own
+    arithmetic); the entry point of the one compiled signature skips that. Arguments must then have exactly
+    that signature, which the entry point does not check (an int64 array would be read as float64): the
+    buffer is the caller's own, and the caller passes only float64 vectors (dtype checked; their length is
+    checked here). Falls back to the dispatcher if this numba version does not expose entry points (same
+    code, slower call)."""
     try:
         mekf_step_full.compile(_SIGNATURE)
         for sig, cres in mekf_step_full.overloads.items():
-            if len(sig) == 12 and str(sig[11]) == "int64" and str(sig[1]) == "float64":
+            if len(sig) == 6 and str(sig[5]) == "int64" and str(sig[1]) == "float64":
                 return cres.entry_point
     except Exception:  # pragma: no cover - numba internals moved
         pass

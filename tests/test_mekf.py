@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from ahrsd.core.sample import SampleFlags, make_sample
+from ahrsd.core.sample import ImuSample, SampleFlags, make_sample
 from ahrsd.core.estimate import EstimateFlags
 from ahrsd.estimator import make_estimator
 from ahrsd.estimator.mekf import DEFAULT_MEKF_PARAMS, FIXED_WING_MEKF_PARAMS, Mekf, initial_attitude
@@ -447,3 +447,30 @@ def test_garbage_input_never_raises_and_never_corrupts_the_state(rows):
     outs = _feed(est, ts, g, a, m)
     err = _euler_errors_deg(outs[-1].q_wxyz[None], truth[None])[0]
     assert np.all(np.abs(err) < 1.0), err
+
+
+def test_step_reads_vectors_of_any_dtype_and_layout_and_rejects_wrong_lengths():
+    """The one-sample path hands the sample's arrays to the compiled kernel as they are: integer, big-endian
+    and strided vectors must give the estimate of the same values as float64 (an int64 array read as float64
+    bits would not), and a vector without 3 elements is a clear error."""
+    rng = np.random.default_rng(3)
+    # integral values, so that an int64 copy holds exactly the same numbers
+    rows = [(i * 0.01, rng.integers(-1, 2, 3), np.array([0, 0, -10]) + rng.integers(-1, 2, 3),
+             np.array([20, 3, 40]) + rng.integers(-2, 3, 3)) for i in range(200)]
+    variants = {
+        "float64": lambda v: np.asarray(v, dtype=np.float64),
+        "int64": lambda v: np.asarray(v, dtype=np.int64),
+        "big-endian": lambda v: np.asarray(v, dtype=">f8"),
+        "strided": lambda v: np.repeat(np.asarray(v, dtype=np.float64), 2)[::2],
+    }
+    out = {}
+    for name, conv in variants.items():
+        est = Mekf()
+        out[name] = np.array([est.step(ImuSample(t, conv(g), conv(a), conv(m))).q_wxyz.copy()
+                              for t, g, a, m in rows])
+    for name in ("int64", "big-endian", "strided"):
+        np.testing.assert_array_equal(out[name], out["float64"], err_msg=name)
+    est = Mekf()
+    est.step(make_sample(0.0, [0, 0, 0], [0, 0, -9.81], [20, 0, 40]))
+    with pytest.raises(ValueError, match="3 elements"):
+        est.step(ImuSample(0.01, np.zeros(2), np.array([0.0, 0.0, -9.81]), np.array([20.0, 0.0, 40.0])))
