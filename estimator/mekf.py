@@ -11,7 +11,9 @@ Initialised from a weighted Wahba solution of the first sample's gravity and fie
 * the magnetometer corrects **heading only** (the angle of the horizontal field in the estimated NED frame,
   gain forced to zero on tilt), so a magnetic disturbance cannot tilt the horizon; the field is checked
   against a learned reference (magnitude, dip, and at rest its direction in the body), rejected while it
-  differs, and a consistently changed field is adopted after a while (as VQF does);
+  differs, and a consistently changed field is adopted after a while (as VQF does); a body-fixed offset (a
+  magnet attached after calibration) is learned from rotation and subtracted while it explains why the
+  field's norm and dip disagree with the reference;
 * rest detection (gyro and accelerometer steady, noise-aware) makes every gyro sample a direct bias
   measurement with the noise measured at rest.
 
