@@ -60,8 +60,13 @@ CANDIDATES: list[tuple[str, dict]] = [
     (f"acc_adapt={gain:g},rate_noise={rate:g}", {"acc_adaptive_gain": gain, "gyro_rate_noise_sqrt_s": rate})
     for gain in (1.0, 3.0, 10.0, 30.0) for rate in (1e-4, 3e-4, 1e-3, 3e-3)
 ] + [
-    # the body-fixed field offset (attached magnet): off, or learned with a forgetting time constant
-    (f"mag_offset_tau={tau:g}", {"mag_offset_tau_s": tau}) for tau in (0.0, 30.0, 60.0, 120.0)
+    # the body-fixed field offset (attached magnet): off, or learned with a forgetting time constant, and the
+    # rotation between the snapshots it compares
+    (f"mag_offset_tau={tau:g}", {"mag_offset_tau_s": tau}) for tau in (0.0, 30.0, 120.0)
+] + [
+    (f"mag_offset_angle={deg:g}", {"mag_offset_min_angle_rad": deg * _DEG}) for deg in (10.0, 30.0)
+] + [
+    (f"mag_offset_explain={ratio:g}", {"mag_offset_explain_ratio": ratio}) for ratio in (0.25, 0.75)
 ]
 
 
@@ -70,8 +75,8 @@ GRIDS: dict[str, tuple[str, ...]] = {
     "defaults only": ("defaults",),
     "one at a time": ("defaults", "acc_tau", "acc_noise", "acc_reject", "bias_", "hdg_", "dip_", "norm_"),
     "adaptive tilt": ("defaults", "acc_adapt="),
-    "attached-magnet offset": ("defaults", "mag_offset_tau="),
-    "adaptive tilt + offset": ("defaults", "acc_adapt=", "mag_offset_tau="),
+    "attached-magnet offset": ("defaults", "mag_offset_"),
+    "adaptive tilt + offset": ("defaults", "acc_adapt=", "mag_offset_"),
     "all": ("",),
 }
 

@@ -11,7 +11,9 @@ Initialised from a weighted Wahba solution of the first sample's gravity and fie
 * the magnetometer corrects **heading only** (the angle of the horizontal field in the estimated NED frame,
   gain forced to zero on tilt), so a magnetic disturbance cannot tilt the horizon; the field is checked
   against a learned reference (magnitude, dip, and at rest its direction in the body), rejected while it
-  differs, and a consistently changed field is adopted after a while (as VQF does);
+  differs, and a consistently changed field is adopted after a while (as VQF does); a body-fixed offset (a
+  magnet attached after calibration) is learned from rotation and subtracted while it explains why the
+  field's norm and dip disagree with the reference;
 * rest detection (gyro and accelerometer steady, noise-aware) makes every gyro sample a direct bias
   measurement with the noise measured at rest.
 
@@ -131,23 +133,23 @@ class MekfParams:
     """At rest the body does not turn: if the low-passed body-frame field moves more than this from where it
     was when the rest began, something magnetic moved nearby and the field is not used until motion, µT
     (0.5 µT ≈ 1° of heading for a 27 µT horizontal field; the rest low-pass leaves ~0.1 µT of noise)."""
-    mag_offset_tau_s: float = 0.0
-    """Body-fixed field offset (a magnet or iron attached after calibration, mekf_core `_offset_update`):
-    forgetting time constant of its online estimate, s; 0 = off. Once the estimate is known to
-    mag_offset_use_sigma_ut and significant it is subtracted (adopted), and it is forgotten again within about
-    this time after the magnet is removed. Off by default: on BROAD (factory-calibrated magnetometer, a lab
-    with field gradients, rotations to 480 °/s) it learns offsets that help some trials and hurt others
-    (docs/estimator.md); 60 s suits a well-calibrated unit that is turned slowly."""
-    mag_offset_min_angle_rad: float = 10.0 * _DEG
+    mag_offset_tau_s: float = 60.0
+    """Body-fixed field offset (a magnet or iron attached after calibration, mekf_core `_field_offset`):
+    forgetting time constant of its online estimate, s; 0 = off. Learned from rotation, used only while it
+    explains why the field's norm and dip disagree with the reference learned before
+    (mag_offset_explain_ratio). Chosen by cross-validation on BROAD (docs/estimator.md)."""
+    mag_offset_min_angle_rad: float = 20.0 * _DEG
     """Field snapshots are compared once the body has turned this far, rad."""
     mag_offset_use_sigma_ut: float = 2.0
-    """The offset estimate is subtracted once its 1σ (largest axis) is below this, µT."""
-    mag_offset_max_tilt_spread_rad2: float = 1e-4
-    """... and only while the sensor is not being moved about (spread of the tilt innovation below this, rad²):
-    moving through the work space's field gradients would be read as an offset."""
-    mag_offset_max_rate_rad_s: float = 1.0
-    """... and only while turning slower than this: a magnetometer that lags the gyro by δt sees the field
-    turned by |ω|·δt (10 ms at 1 rad/s: 0.6°, ≈ 0.5 µT), which fast turns would read as an offset, rad/s."""
+    """The offset estimate is used once its 1σ (largest axis) is below this, µT."""
+    mag_offset_lag_s: float = 0.005
+    """Timing skew between magnetometer and gyro samples: a snapshot taken while turning at |ω| sees the field
+    turned by |ω|·this, which enters the offset fit as |ω|·this·|m| of noise, s."""
+    mag_offset_agree_tau_s: float = 2.0
+    """Time constant of the running disagreement between the field and the reference (raw and corrected), s."""
+    mag_offset_explain_ratio: float = 0.5
+    """The offset is subtracted while the corrected field's running disagreement with the reference is below
+    this fraction of the raw field's: a body-fixed offset must explain why the field disagrees."""
     mag_unavailable_s: float = 10.0
     """No heading update for this long sets MAG_UNAVAILABLE, s."""
 
@@ -222,10 +224,11 @@ class MekfParams:
         p[core.P_ACC_ADAPT_TAU] = self.acc_adaptive_tau_s
         p[core.P_GYRO_RATE_NOISE] = self.gyro_rate_noise_sqrt_s
         p[core.P_MOFF_TAU] = self.mag_offset_tau_s
-        p[core.P_MOFF_MIN_ANGLE] = self.mag_offset_min_angle_rad
+        p[core.P_MOFF_MIN_COS] = math.cos(self.mag_offset_min_angle_rad)
         p[core.P_MOFF_USE_SIGMA] = self.mag_offset_use_sigma_ut
-        p[core.P_MOFF_MAX_TILT_SPREAD] = self.mag_offset_max_tilt_spread_rad2
-        p[core.P_MOFF_MAX_RATE] = self.mag_offset_max_rate_rad_s
+        p[core.P_MOFF_LAG] = self.mag_offset_lag_s
+        p[core.P_MOFF_AGREE_TAU] = self.mag_offset_agree_tau_s
+        p[core.P_MOFF_EXPLAIN] = self.mag_offset_explain_ratio
         return p
 
 
@@ -268,6 +271,12 @@ def initial_attitude(accel_m_s2: np.ndarray, mag_ut: np.ndarray | None) -> np.nd
 
 _TWO_PI = 2.0 * math.pi
 _FLAG_CACHE: dict[int, EstimateFlags] = {}
+_F64 = np.dtype(np.float64)
+_NEEDS_INIT_OR_BAD = core.NEEDS_INIT | core.BAD_SHAPE
+
+
+def _as_f64(v) -> np.ndarray:
+    return np.asarray(v, dtype=np.float64)
 
 
 def estimate_flags(bits: int) -> EstimateFlags:
@@ -294,9 +303,18 @@ class Mekf:
 
     def __init__(self, declination_rad: float = 0.0, params: MekfParams | None = None, **overrides):
         self.params = with_overrides(params or DEFAULT_MEKF_PARAMS, overrides, "mekf")
-        self._par = self.params.to_array()
-        self._state = np.zeros(core.S_SIZE)
-        self._out = np.zeros(core.O_SIZE)
+        # one buffer [state | parameters | outputs] for the one-sample kernel (one array to pass per call);
+        # the three are views of it
+        self._buf = np.zeros(core.B_SIZE)
+        self._state = self._buf[: core.B_PAR]
+        self._par = self._buf[core.B_PAR : core.B_OUT]
+        self._par[:] = self.params.to_array()
+        self._out = self._buf[core.B_OUT :]
+        # the outputs the view hands out, as fixed views (slicing per read costs more than the filter step)
+        self._q_out = self._out[core.O_Q : core.O_Q + 4]
+        self._rate_out = self._out[core.O_RATE : core.O_RATE + 3]
+        self._bias_out = self._out[core.O_BIAS : core.O_BIAS + 3]
+        self._sigma_out = self._out[core.O_SIGMA : core.O_SIGMA + 3]
         self._declination = float(declination_rad)
         self._initialised = False
         self._reinit_pending = False
@@ -330,7 +348,7 @@ class Mekf:
         relearn_reference(self._state, core.S_MAG, RELEARN_GATE_OPEN_S)
         s = self._state
         s[core.S_MAG_REST_SET] = 0.0   # the at-rest field is the old calibration's: take it again
-        s[core.S_MOFF_B : core.S_MOFF_NIS + 1] = 0.0   # a body-fixed offset learned against the old calibration
+        s[core.S_MOFF_B : core.S_MOFF_READY + 1] = 0.0   # a body-fixed offset learned against the old calibration
 
     @property
     def gyro_bias_rad_s(self) -> np.ndarray:
@@ -357,24 +375,27 @@ class Mekf:
         result object is built. The view reads the latest estimate and changes at the next call;
         `view.snapshot()` gives the immutable AttitudeEstimate `update` returns (build it only when
         publishing)."""
+        t_s = self._t_s = sample.t_s
         g = sample.gyro_rad_s
         a = sample.accel_m_s2
         m = sample.mag_ut
-        sflags = int(sample.flags)
-        self._t_s = sample.t_s
         extra = 0
         if self._initialised:
-            f = self._step(
-                self._state, self._par, sample.t_s,
-                g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], sflags, self._out,
-            )
-            if not f & core.NEEDS_INIT:
+            # the vectors go to the kernel as they are when they are float64 (the kernel's entry point reads
+            # any 8-byte dtype as float64 unchecked), else as float64 copies
+            if not (g.dtype is _F64 and a.dtype is _F64 and m.dtype is _F64):
+                g, a, m = _as_f64(g), _as_f64(a), _as_f64(m)
+            f = self._step(self._buf, t_s, g, a, m, int(sample.flags))
+            if not f & _NEEDS_INIT_OR_BAD:
                 self._bits = f
                 return self._view
+            if f & core.BAD_SHAPE:
+                raise ValueError("ImuSample vectors must have 3 elements")
             self._initialised = False
             self._reinit_pending = True
             extra = f & ~core.NEEDS_INIT
-        if not self._initialise(sample.t_s, g, a, m, sflags):
+        sflags = int(sample.flags)
+        if not self._initialise(t_s, g, a, m, sflags):
             self._bits = -1 - extra       # < 0: no estimate yet (snapshot() is the uninitialised estimate)
             return self._view
         self._bits = self._after_init_flags() | extra
@@ -558,10 +579,12 @@ class MekfView:
 
     @property
     def q_wxyz(self) -> np.ndarray:
-        return self._mekf._out[core.O_Q : core.O_Q + 4] if self.valid else np.array([1.0, 0.0, 0.0, 0.0])
+        m = self._mekf
+        return m._q_out if m._bits >= 0 else np.array([1.0, 0.0, 0.0, 0.0])
 
     def _angle(self, i: int) -> float:
-        return float(self._mekf._out[core.O_EULER + i]) if self.valid else math.nan
+        m = self._mekf
+        return float(m._out[core.O_EULER + i]) if m._bits >= 0 else math.nan
 
     @property
     def roll_rad(self) -> float:
@@ -585,15 +608,18 @@ class MekfView:
 
     @property
     def rate_body_rad_s(self) -> np.ndarray:
-        return self._mekf._out[core.O_RATE : core.O_RATE + 3] if self.valid else np.full(3, math.nan)
+        m = self._mekf
+        return m._rate_out if m._bits >= 0 else np.full(3, math.nan)
 
     @property
     def gyro_bias_rad_s(self) -> np.ndarray:
-        return self._mekf._out[core.O_BIAS : core.O_BIAS + 3] if self.valid else np.zeros(3)
+        m = self._mekf
+        return m._bias_out if m._bits >= 0 else np.zeros(3)
 
     @property
     def sigma_rpy_rad(self) -> np.ndarray:
-        return self._mekf._out[core.O_SIGMA : core.O_SIGMA + 3] if self.valid else np.full(3, math.pi)
+        m = self._mekf
+        return m._sigma_out if m._bits >= 0 else np.full(3, math.pi)
 
 
 __all__ = ["Mekf", "MekfView", "MekfParams", "DEFAULT_MEKF_PARAMS", "FIXED_WING_MEKF_PARAMS", "initial_attitude"]

@@ -65,8 +65,12 @@ S_MOFF_C = S_MOFF_CM + 3             # 9: C_b^n at the previous snapshot
 S_MOFF_T = S_MOFF_C + 9              # time since the previous snapshot, s
 S_MOFF_SET = S_MOFF_T + 1            # 1.0 when the previous snapshot is valid
 S_MOFF_NIS = S_MOFF_SET + 1          # running mean of the offset fit's normalised squared innovation (fit)
-S_LPW = S_MOFF_NIS + 1               # 8: cached low-pass weights (Δt, 1 − exp(−Δt/τ)): rest, NED acc, spread, g
-S_SIZE = S_LPW + 8
+S_MOFF_D_RAW = S_MOFF_NIS + 1        # running mean of the raw field's disagreement with the reference (_disagreement)
+S_MOFF_D_COR = S_MOFF_D_RAW + 1      # ... of the offset-corrected field's
+S_MOFF_DIP_AT = S_MOFF_D_COR + 1     # 3: the reference dip, rad, its sine and cosine (cached for _disagreement)
+S_MOFF_READY = S_MOFF_DIP_AT + 3     # 1.0 while the estimate is known well enough, significant and consistent
+S_LPW = S_MOFF_READY + 1             # 10: cached low-pass weights (Δt, 1 − exp(−Δt/τ)): rest, NED acc, spread, g,
+S_SIZE = S_LPW + 10                  # field disagreement
 
 # ----------------------------------------------------------------------------------- parameter layout
 P_GYRO_NOISE = 0        # gyro angle random walk, rad/s/√Hz
@@ -112,11 +116,13 @@ P_ACC_ADAPT_GAIN = P_MAG + mag.MP_SIZE  # tilt variance added per unit of the ti
 P_ACC_ADAPT_TAU = P_ACC_ADAPT_GAIN + 1  # window (time constant) of the innovation's running mean, spread, s (0 = off)
 P_GYRO_RATE_NOISE = P_ACC_ADAPT_TAU + 1  # attitude process noise per rad/s of rate (gyro scale/alignment errors), √s
 P_MOFF_TAU = P_GYRO_RATE_NOISE + 1      # forgetting time constant of the body-fixed offset estimate, s (0 = off)
-P_MOFF_MIN_ANGLE = P_MOFF_TAU + 1       # snapshots are compared once the body has turned this far, rad
-P_MOFF_USE_SIGMA = P_MOFF_MIN_ANGLE + 1  # the offset is subtracted once its 1σ (largest axis) is below this, µT
-P_MOFF_MAX_TILT_SPREAD = P_MOFF_USE_SIGMA + 1  # ... only while the tilt innovation's spread is below this, rad²
-P_MOFF_MAX_RATE = P_MOFF_MAX_TILT_SPREAD + 1  # ... only below this rotation rate (magnetometer lag, skew), rad/s
-P_SIZE = P_MOFF_MAX_RATE + 1
+P_MOFF_MIN_COS = P_MOFF_TAU + 1         # snapshots are compared once the body has turned this far: its cosine
+P_MOFF_USE_SIGMA = P_MOFF_MIN_COS + 1    # the offset is subtracted once its 1σ (largest axis) is below this, µT
+P_MOFF_LAG = P_MOFF_USE_SIGMA + 1       # magnetometer–gyro timing skew: |ω|·this·|m| of noise per fit row, s
+P_MOFF_AGREE_TAU = P_MOFF_LAG + 1       # time constant of the running field disagreement, s
+P_MOFF_EXPLAIN = P_MOFF_AGREE_TAU + 1   # the offset is used while the corrected field's disagreement is below
+                                        # this fraction of the raw field's
+P_SIZE = P_MOFF_EXPLAIN + 1
 
 # ----------------------------------------------------------------------------------- flags (= EstimateFlags)
 F_INITIALISING = 1
@@ -132,6 +138,8 @@ M_HEADING = 4
 M_BIAS = 8 | 16 | 32
 # step result: the caller must (re-)initialise from this sample (the step changed nothing)
 NEEDS_INIT = 1 << 16
+# one-sample step result: a vector of the sample does not have 3 elements (the step changed nothing)
+BAD_SHAPE = 1 << 17
 
 # input validity: a sensor is used when its SampleFlags bits below are clear and its values are finite
 IN_GYRO_OK = 1
@@ -237,15 +245,6 @@ def _apply_correction(state, par, dx0, dx1, dx2, dx3, dx4, dx5):
 
 
 @njit(cache=True)
-def _symmetrise(state):
-    for i in range(6):
-        for j in range(i + 1, 6):
-            a = 0.5 * (state[S_P + i * 6 + j] + state[S_P + j * 6 + i])
-            state[S_P + i * 6 + j] = a
-            state[S_P + j * 6 + i] = a
-
-
-@njit(cache=True)
 def _running_spread(mean, var, x, k):
     """Running mean of x and running mean square deviation of x from it, both low-passed with weight
     k = 1 − exp(−Δt/τ). Returns (mean, var)."""
@@ -291,6 +290,108 @@ def _offset_update(state, c00, c01, c02, c10, c11, c12, c20, c21, c22, cmx, cmy,
         state[p + 7] -= k2 * ph1
         state[p + 8] -= k2 * ph2
     return nis / 3.0
+
+
+@njit(cache=True)
+def _disagreement(state, par, fn, fe, fd):
+    """How far a field (in the estimated NED frame, µT) is from the learned reference, in units of the
+    disturbance checks' tolerances: ((|m| − ref) / (tol·ref))² + (sin(dip − ref dip) / dip tol)²; > 1 is
+    outside. (The sine of the dip difference, from the cached sine and cosine of the reference dip, instead of
+    the difference itself: no atan2 per sample, and within 1.2 % of it up to 15°.)"""
+    ref = state[S_MAG_REF_NORM]
+    ref_dip = state[S_MAG_REF_DIP]
+    if state[S_MOFF_DIP_AT + 2] == 0.0 or abs(ref_dip - state[S_MOFF_DIP_AT]) > 1e-3:
+        state[S_MOFF_DIP_AT] = ref_dip
+        state[S_MOFF_DIP_AT + 1] = math.sin(ref_dip)
+        state[S_MOFF_DIP_AT + 2] = math.cos(ref_dip)
+    fh = math.sqrt(fn * fn + fe * fe)
+    n = math.sqrt(fh * fh + fd * fd)
+    dn = (n - ref) / (par[P_MAG_NORM_TOL] * ref)
+    dd = (fd * state[S_MOFF_DIP_AT + 2] - fh * state[S_MOFF_DIP_AT + 1]) / (n * par[P_MAG_DIP_TOL])
+    return dn * dn + dd * dd
+
+
+@njit(cache=True)
+def _field_offset(state, par, dt, rate, mx, my, mz):
+    """Learn and, where it explains the field, remove a body-fixed field offset b (a magnet or iron attached
+    after calibration: uncalibrated hard iron). Returns the field to use in the body frame (mx, my, mz) and in
+    the estimated NED frame (mn, me, md), µT.
+
+    m = C_nᵇ h + b: the norm and dip of m change with orientation, so the field disagrees with the reference
+    learned before the magnet came. b is observable from rotation alone (_offset_update: the heading error
+    cancels between two snapshots), learned by recursive least squares forgetting with time constant
+    P_MOFF_TAU. A fit also reads the residual calibration errors and the field gradients of an undisturbed
+    work space as an offset of a few µT, so b is used only while it explains why the field disagrees with the
+    reference: the corrected field's running disagreement (_disagreement, time constant P_MOFF_AGREE_TAU) is
+    below P_MOFF_EXPLAIN times the raw field's. An offset that leaves the field's norm and dip as they were is
+    not used; nor is one fitted to a magnet in the surroundings (its field depends on position, not on
+    orientation, and the fit is inconsistent); when the magnet is removed the raw field agrees again and b is
+    no longer used."""
+    c00, c01, c02, c10, c11, c12, c20, c21, c22 = _dcm_of_state(state)
+    cmx = c00 * mx + c01 * my + c02 * mz
+    cmy = c10 * mx + c11 * my + c12 * mz
+    cmz = c20 * mx + c21 * my + c22 * mz
+    if state[S_MAG_REF_NORM] <= 0.0:
+        return mx, my, mz, cmx, cmy, cmz
+    kd = _lowpass_weight(state, S_LPW + 8, dt, par[P_MOFF_AGREE_TAU]) if dt > 0.0 else 0.0
+    state[S_MOFF_D_RAW] += kd * (_disagreement(state, par, cmx, cmy, cmz) - state[S_MOFF_D_RAW])
+    state[S_MOFF_T] += dt
+    take = state[S_MOFF_SET] == 0.0 or state[S_MOFF_T] > 2.0
+    if state[S_MOFF_SET] != 0.0:
+        # rotation between the snapshots: cos θ = (trace(C₁ᵀ C₂) − 1) / 2
+        tr = (c00 * state[S_MOFF_C] + c01 * state[S_MOFF_C + 1] + c02 * state[S_MOFF_C + 2]
+              + c10 * state[S_MOFF_C + 3] + c11 * state[S_MOFF_C + 4] + c12 * state[S_MOFF_C + 5]
+              + c20 * state[S_MOFF_C + 6] + c21 * state[S_MOFF_C + 7] + c22 * state[S_MOFF_C + 8])
+        if 0.5 * (tr - 1.0) < par[P_MOFF_MIN_COS]:
+            if state[S_MOFF_P] == 0.0:
+                for i in range(3):
+                    state[S_MOFF_P + 4 * i] = 1e4   # (100 µT)²: nothing known
+            lam = math.exp(-state[S_MOFF_T] / par[P_MOFF_TAU])
+            for i in range(9):
+                state[S_MOFF_P + i] = min(state[S_MOFF_P + i] / lam, 1e4)
+            # a magnetometer sampled δt apart from the gyro sees the field turned by |ω|·δt
+            lag_ut = rate * par[P_MOFF_LAG] * math.sqrt(mx * mx + my * my + mz * mz)
+            nis = _offset_update(state, c00, c01, c02, c10, c11, c12, c20, c21, c22, cmx, cmy, cmz,
+                                 2.0 * (par[P_MAG_NOISE] ** 2 + lag_ut * lag_ut))
+            state[S_MOFF_NIS] += (1.0 - lam) * (nis - state[S_MOFF_NIS])
+            take = True
+            # usable: known well enough, significantly non-zero (Σ b²/σ² > 16: not calibration residue within
+            # the noise), and the data fit a body-fixed offset (a field that changes with position leaves
+            # innovations far above their predicted variance). P and the fit change only here.
+            pmax = max(state[S_MOFF_P], max(state[S_MOFF_P + 4], state[S_MOFF_P + 8]))
+            signif = 0.0
+            for i in range(3):
+                signif += state[S_MOFF_B + i] ** 2 / state[S_MOFF_P + 4 * i]
+            ok = pmax < par[P_MOFF_USE_SIGMA] ** 2 and signif > 16.0 and state[S_MOFF_NIS] < 4.0
+            state[S_MOFF_READY] = 1.0 if ok else 0.0
+    if take:
+        state[S_MOFF_CM] = cmx
+        state[S_MOFF_CM + 1] = cmy
+        state[S_MOFF_CM + 2] = cmz
+        state[S_MOFF_C] = c00
+        state[S_MOFF_C + 1] = c01
+        state[S_MOFF_C + 2] = c02
+        state[S_MOFF_C + 3] = c10
+        state[S_MOFF_C + 4] = c11
+        state[S_MOFF_C + 5] = c12
+        state[S_MOFF_C + 6] = c20
+        state[S_MOFF_C + 7] = c21
+        state[S_MOFF_C + 8] = c22
+        state[S_MOFF_SET] = 1.0
+        state[S_MOFF_T] = 0.0
+    if state[S_MOFF_READY] == 0.0:
+        state[S_MOFF_D_COR] = state[S_MOFF_D_RAW]
+        return mx, my, mz, cmx, cmy, cmz
+    bx = state[S_MOFF_B]
+    by = state[S_MOFF_B + 1]
+    bz = state[S_MOFF_B + 2]
+    cbx = cmx - (c00 * bx + c01 * by + c02 * bz)
+    cby = cmy - (c10 * bx + c11 * by + c12 * bz)
+    cbz = cmz - (c20 * bx + c21 * by + c22 * bz)
+    state[S_MOFF_D_COR] += kd * (_disagreement(state, par, cbx, cby, cbz) - state[S_MOFF_D_COR])
+    if state[S_MOFF_D_COR] < par[P_MOFF_EXPLAIN] * state[S_MOFF_D_RAW]:
+        return mx - bx, my - by, mz - bz, cbx, cby, cbz
+    return mx, my, mz, cmx, cmy, cmz
 
 
 @njit(cache=True)
@@ -411,13 +512,17 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
     qy = state[S_Q + 2]
     qz = state[S_Q + 3]
     if dt > 0.0:
-        ang = rate * dt
-        if ang > 1e-9:
-            s = math.sin(0.5 * ang) / rate
-            cw = math.cos(0.5 * ang)
+        h = 0.5 * rate * dt   # half the rotation angle of this step
+        if h < 0.01:
+            # sin h / h and cos h by their series: the rest is below h⁶/720 ≈ 1.4e-15 (exact to double
+            # precision); a step turns by 0.01 rad only at 16 rad/s at 819.2 SPS, and libm's sin and cos are
+            # a good part of the one-sample cost
+            h2 = h * h
+            s = 0.5 * dt * (1.0 - h2 / 6.0 * (1.0 - h2 / 20.0))
+            cw = 1.0 - 0.5 * h2 * (1.0 - h2 / 12.0)
         else:
-            s = 0.5 * dt
-            cw = 1.0
+            s = math.sin(h) / rate
+            cw = math.cos(h)
         ex = wx * s
         ey = wy * s
         ez = wz * s
@@ -508,12 +613,14 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
         state[p + 0] += qt - (ob00 * m00 + ob01 * m01 + ob02 * m02) - (m00 * b00 + m01 * b01 + m02 * b02)
         state[p + 1] += -(ob00 * m10 + ob01 * m11 + ob02 * m12) - (m00 * b10 + m01 * b11 + m02 * b12)
         state[p + 2] += -(ob00 * m20 + ob01 * m21 + ob02 * m22) - (m00 * b20 + m01 * b21 + m02 * b22)
-        state[p + 6] += -(ob10 * m00 + ob11 * m01 + ob12 * m02) - (m10 * b00 + m11 * b01 + m12 * b02)
         state[p + 7] += qt - (ob10 * m10 + ob11 * m11 + ob12 * m12) - (m10 * b10 + m11 * b11 + m12 * b12)
         state[p + 8] += -(ob10 * m20 + ob11 * m21 + ob12 * m22) - (m10 * b20 + m11 * b21 + m12 * b22)
-        state[p + 12] += -(ob20 * m00 + ob21 * m01 + ob22 * m02) - (m20 * b00 + m21 * b01 + m22 * b02)
-        state[p + 13] += -(ob20 * m10 + ob21 * m11 + ob22 * m12) - (m20 * b10 + m21 * b11 + m22 * b12)
         state[p + 14] += qa - (ob20 * m20 + ob21 * m21 + ob22 * m22) - (m20 * b20 + m21 * b21 + m22 * b22)
+        # A' is symmetric (A and D are, and M B'ᵀ + B Mᵀ = M Bᵀ + B Mᵀ − M D Mᵀ is): mirror the upper triangle,
+        # as the scalar updates do, so P stays exactly symmetric without a symmetrising pass
+        state[p + 6] = state[p + 1]
+        state[p + 12] = state[p + 2]
+        state[p + 13] = state[p + 8]
         state[p + 3] = b00
         state[p + 4] = b01
         state[p + 5] = b02
@@ -703,70 +810,16 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
             state[S_ACC_REJ_T] += dt
 
     # ------------------------------------------------------------------ body-fixed field offset (attached magnet)
-    # A magnet or iron attached after calibration adds a constant offset b in the body frame (uncalibrated hard
-    # iron): the norm and dip then change with orientation by a few percent, within the disturbance checks,
-    # and the heading follows the magnet. b is observable from rotation alone (_offset_update), without
-    # knowing the heading; once known to P_MOFF_USE_SIGMA it is subtracted (adopted). Learned only while
-    # the field's magnitude matches the reference (a passing magnet is not a body-fixed offset), forgotten
-    # with time constant P_MOFF_TAU (a magnet that is taken off again is unlearned as fast).
-    if (valid & IN_MAG_OK) and par[P_MOFF_TAU] > 0.0 and par[P_MAG_ENABLED] > 0.0:
-        c00, c01, c02, c10, c11, c12, c20, c21, c22 = _dcm_of_state(state)
-        ref = state[S_MAG_REF_NORM]
-        mn0 = math.sqrt(mx * mx + my * my + mz * mz)
-        state[S_MOFF_T] += dt
-        # a magnetometer that lags the gyro by δt sees the field turned by |ω|·δt: only slow turns are evidence
-        still = (0.5 * (state[S_ACC_NU_VAR] + state[S_ACC_NU_VAR + 1]) < par[P_MOFF_MAX_TILT_SPREAD]
-                 and rate < par[P_MOFF_MAX_RATE])
-        if ref > 0.0 and abs(mn0 - ref) < par[P_MAG_NORM_TOL] * ref and still:
-            cmx = c00 * mx + c01 * my + c02 * mz
-            cmy = c10 * mx + c11 * my + c12 * mz
-            cmz = c20 * mx + c21 * my + c22 * mz
-            take = state[S_MOFF_SET] == 0.0 or state[S_MOFF_T] > 2.0
-            if state[S_MOFF_SET] != 0.0:
-                # rotation between the snapshots: cos θ = (trace(C₁ᵀ C₂) − 1) / 2
-                tr = (c00 * state[S_MOFF_C] + c01 * state[S_MOFF_C + 1] + c02 * state[S_MOFF_C + 2]
-                      + c10 * state[S_MOFF_C + 3] + c11 * state[S_MOFF_C + 4] + c12 * state[S_MOFF_C + 5]
-                      + c20 * state[S_MOFF_C + 6] + c21 * state[S_MOFF_C + 7] + c22 * state[S_MOFF_C + 8])
-                if 0.5 * (tr - 1.0) < math.cos(par[P_MOFF_MIN_ANGLE]):
-                    if state[S_MOFF_P] == 0.0:
-                        for i in range(3):
-                            state[S_MOFF_P + 4 * i] = 1e4   # (100 µT)²: nothing known
-                    lam = math.exp(-state[S_MOFF_T] / par[P_MOFF_TAU])
-                    for i in range(9):
-                        state[S_MOFF_P + i] = min(state[S_MOFF_P + i] / lam, 1e4)
-                    nis = _offset_update(state, c00, c01, c02, c10, c11, c12, c20, c21, c22, cmx, cmy, cmz,
-                                         2.0 * par[P_MAG_NOISE] ** 2)
-                    state[S_MOFF_NIS] += (1.0 - lam) * (nis - state[S_MOFF_NIS])
-                    take = True
-            if take:
-                state[S_MOFF_CM] = cmx
-                state[S_MOFF_CM + 1] = cmy
-                state[S_MOFF_CM + 2] = cmz
-                for i in range(3):
-                    state[S_MOFF_C + 3 * i] = c00 if i == 0 else (c10 if i == 1 else c20)
-                    state[S_MOFF_C + 3 * i + 1] = c01 if i == 0 else (c11 if i == 1 else c21)
-                    state[S_MOFF_C + 3 * i + 2] = c02 if i == 0 else (c12 if i == 1 else c22)
-                state[S_MOFF_SET] = 1.0
-                state[S_MOFF_T] = 0.0
-        pmax = max(state[S_MOFF_P], max(state[S_MOFF_P + 4], state[S_MOFF_P + 8]))
-        # adopted when known well enough and significantly non-zero (Σ b²/σ² of the axes > 16: a residual of
-        # the calibration within its noise is not an attached magnet)
-        signif = 0.0
-        if state[S_MOFF_P] > 0.0:
-            for i in range(3):
-                signif += state[S_MOFF_B + i] ** 2 / state[S_MOFF_P + 4 * i]
-        # ... and the data fit a body-fixed offset: a field that changes with position (a magnet the sensor
-        # is carried past, the work space's gradients) leaves innovations far above their predicted variance
-        fits = state[S_MOFF_NIS] < 4.0
-        if state[S_MOFF_P] > 0.0 and pmax < par[P_MOFF_USE_SIGMA] ** 2 and signif > 16.0 and fits:
-            mx -= state[S_MOFF_B]
-            my -= state[S_MOFF_B + 1]
-            mz -= state[S_MOFF_B + 2]
+    offset_on = (valid & IN_MAG_OK) and par[P_MOFF_TAU] > 0.0 and par[P_MAG_ENABLED] > 0.0
+    mn = me = md = 0.0
+    if offset_on:
+        mx, my, mz, mn, me, md = _field_offset(state, par, dt, rate, mx, my, mz)
 
     # ------------------------------------------------------------------ magnetometer: heading only
     mag_used = False
     if (valid & IN_MAG_OK) and par[P_MAG_ENABLED] > 0.0:
-        mn, me, md = mag.rotate_to_ned(state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3], mx, my, mz)
+        if not offset_on:
+            mn, me, md = mag.rotate_to_ned(state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3], mx, my, mz)
         mnorm = math.sqrt(mx * mx + my * my + mz * mz)
         res, alpha, r = mag.heading_measurement(state, S_MAG, par, P_MAG, dt, rate, at_rest, mag_moved_at_rest,
                                                 mn, me, md, mnorm, 0.0, state[S_P + 2 * 6 + 2])
@@ -778,8 +831,6 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
             flags |= F_MAG_REJECTED
     if mag.heading_bookkeeping(state, S_MAG, par, P_MAG, dt, mag_used):
         flags |= F_MAG_UNAVAILABLE
-
-    _symmetrise(state)
 
     # ------------------------------------------------------------------ outputs
     q0 = state[S_Q]
@@ -820,10 +871,24 @@ def mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags,
     return flags
 
 
+# the one-sample path's buffer: [state | par | out] in one array, so a call unboxes one array, not three
+B_PAR = S_SIZE
+B_OUT = S_SIZE + P_SIZE
+B_SIZE = B_OUT + O_SIZE
+
+
 @njit(cache=True)
-def mekf_step_full(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, out):
-    """`mekf_step` plus the ZYX Euler angles in out[O_EULER:] (the one-sample path; batch runs skip them)."""
-    f = mekf_step(state, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, out)
+def mekf_step_full(buf, t_s, gyro, acc, mag, sample_flags):
+    """`mekf_step` on the buffer `buf` (layout B_*) for one sample's (3,) vectors, plus the ZYX Euler angles in
+    its out[O_EULER:] (the one-sample path; batch runs skip them). Returns BAD_SHAPE if a vector does not have
+    3 elements (nothing changed)."""
+    if gyro.shape[0] != 3 or acc.shape[0] != 3 or mag.shape[0] != 3:
+        return BAD_SHAPE
+    state = buf[:B_PAR]
+    par = buf[B_PAR:B_OUT]
+    out = buf[B_OUT:]
+    f = mekf_step(state, par, t_s, gyro[0], gyro[1], gyro[2], acc[0], acc[1], acc[2], mag[0], mag[1], mag[2],
+                  sample_flags, out)
     if not f & NEEDS_INIT:
         roll, pitch, yaw = euler_zyx(out[O_Q], out[O_Q + 1], out[O_Q + 2], out[O_Q + 3])
         out[O_EULER] = roll
@@ -855,23 +920,22 @@ def mekf_run(state, par, t_s, gyro, acc, mag, sample_flags, start, q_out, flags_
     return n
 
 
-_SIGNATURE = (
-    "int64(float64[::1], float64[::1], float64, float64, float64, float64, float64, float64, float64, "
-    "float64, float64, float64, int64, float64[::1])"
-)
+_SIGNATURE = "int64(float64[::1], float64, float64[:], float64[:], float64[:], int64)"
 
 
 def fast_step():
     """`mekf_step_full` as a directly callable compiled entry point for one-sample calls.
 
-    Numba's dispatcher resolves argument types on every call (≈5 µs for 14 arguments, ten times the
-    filter's own arithmetic); the entry point of the one compiled signature skips that. Arguments must
-    then have exactly that signature: contiguous float64 arrays, Python/NumPy floats, an int. Falls back to
-    the dispatcher if this numba version does not expose entry points (same code, slower call)."""
+    Numba's dispatcher resolves argument types on every call (≈5 µs, ten times the filter's own
+    arithmetic); the entry point of the one compiled signature skips that. Arguments must then have exactly
+    that signature, which the entry point does not check (an int64 array would be read as float64): the
+    buffer is the caller's own, and the caller passes only float64 vectors (dtype checked; their length is
+    checked here). Falls back to the dispatcher if this numba version does not expose entry points (same
+    code, slower call)."""
     try:
         mekf_step_full.compile(_SIGNATURE)
         for sig, cres in mekf_step_full.overloads.items():
-            if len(sig) == 14 and str(sig[12]) == "int64" and str(sig[2]) == "float64":
+            if len(sig) == 6 and str(sig[5]) == "int64" and str(sig[1]) == "float64":
                 return cres.entry_point
     except Exception:  # pragma: no cover - numba internals moved
         pass
