@@ -39,6 +39,7 @@ def position_problem_e7(lat_e7: int, lon_e7: int, alt_mm: int) -> str | None:
 class AutopilotState:
     system_id: int | None = None        # sysid of the first autopilot heartbeat seen
     component_id: int | None = None
+    autopilot_kind: int | None = None   # HEARTBEAT.autopilot (MAV_AUTOPILOT: 3 ArduPilot, 12 PX4)
     armed: bool = False
     last_heartbeat: float | None = None
     lat_deg: float | None = None
@@ -69,6 +70,7 @@ class AutopilotState:
             self.system_id, self.component_id = msg.get_srcSystem(), msg.get_srcComponent()
             latched = True
         if self.from_this_autopilot(msg):
+            self.autopilot_kind = msg.autopilot
             self.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
             self.last_heartbeat = now
         return latched

@@ -350,6 +350,9 @@ class MavlinkConfig:
             "mav_type": _choice_of(tuple(MAV_TYPES)), "accept_broadcast_commands": _bool}))
 
 
+RESTART_YAW_MODES = ("auto", "slew", "reset_counter", "source_set")
+
+
 class _OutputsParse:
     @classmethod
     def parse(cls, d: dict, prefix="outputs") -> "OutputsConfig":
@@ -357,7 +360,12 @@ class _OutputsParse:
         checks["heading_slew_deg_s"] = _number_in(MIN_HEADING_SLEW_DEG_S, MAX_HEADING_SLEW_DEG_S)
         checks["restart_slew_deg_s"] = _number_in(MIN_HEADING_SLEW_DEG_S, MAX_HEADING_SLEW_DEG_S)
         checks["reset_counter_on_calibration"] = _bool
-        return cls(**_parse_table(cls, d, prefix, checks))
+        checks["restart_yaw"] = _choice_of(RESTART_YAW_MODES)
+        checks["ardupilot_source_set"] = lambda k, v: _choice(k, _number(k, v, 0, 3, integer=True), (0, 2, 3))
+        out = cls(**_parse_table(cls, d, prefix, checks))
+        if out.restart_yaw == "source_set" and out.ardupilot_source_set == 0:
+            raise _fail(f"{prefix}.restart_yaw", "source_set", "needs ardupilot_source_set = 2 or 3")
+        return out
 
 
 # [outputs]: one rate key per entry of daemon.output_registry.OUTPUTS (Hz, 0 = off; HEARTBEAT is always 1 Hz),
@@ -368,11 +376,17 @@ class _OutputsParse:
 #   EKF3's yaw behind a ramp must stay inside its smallest gate; docs/daemon.md "Restarts");
 # * reset_counter_on_calibration: also increment VISION_POSITION_ESTIMATE.reset_counter on a calibration change
 #   (PX4 EKF2 then resets its yaw; ArduPilot reads it as a position reset): docs/daemon.md "reset_counter".
+# * restart_yaw: how a restart with another heading reaches the autopilot (daemon.restart_heading): "slew",
+#   "reset_counter" (PX4), "source_set" (ArduPilot, needs ardupilot_source_set), or "auto" (by the autopilot's
+#   HEARTBEAT: PX4 → reset_counter, ArduPilot with ardupilot_source_set → source_set, else slew);
+# * ardupilot_source_set: 0 (off), or the EKF source set (2, 3) ahrsd may switch ArduPilot to and back to
+#   re-align EKF3's yaw (daemon.source_set_realign): identical to set 1 except a yaw source other than ExtNav.
 OutputsConfig = dataclasses.make_dataclass(
     "OutputsConfig",
     [(o.config_key, float, field(default=o.default_hz)) for o in OUTPUTS]
     + [("heading_slew_deg_s", float, field(default=2.0)), ("restart_slew_deg_s", float, field(default=3.0)),
-       ("reset_counter_on_calibration", bool, field(default=False))],
+       ("reset_counter_on_calibration", bool, field(default=False)),
+       ("restart_yaw", str, field(default="auto")), ("ardupilot_source_set", int, field(default=0))],
     bases=(_OutputsParse,), frozen=True)
 OutputsConfig.__module__ = __name__
 OutputsConfig.__doc__ = "Message rates in Hz (0 = off), one per output of the registry, and the heading slew."

@@ -55,6 +55,11 @@ class HeadingSlew:
         self.start_transition(rate_deg_s)
         self.hold_until_s = hold_until_s
 
+    def release(self, rate_deg_s: float) -> None:
+        """End a hold now: move from the held heading to the estimator's at `rate_deg_s`."""
+        self.hold_until_s = None
+        self.rate_deg_s = rate_deg_s
+
     @property
     def current_rate_deg_s(self) -> float:
         return self.max_rate_deg_s if self.rate_deg_s is None else self.rate_deg_s

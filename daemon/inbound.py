@@ -48,6 +48,10 @@ class InboundDispatch:
             if msg.tc1 == 0:   # a request; answers have tc1 != 0 (MAVLink TIMESYNC v2)
                 endpoint.send(msgs.timesync_reply(endpoint.timesync_stamp_ns(), msg.ts1))
             return
+        if mtype == "COMMAND_ACK":
+            if self.restart_heading is not None and self.autopilot.from_this_autopilot(msg):
+                self.restart_heading.on_command_ack(msg)
+            return
         if mtype in ("COMMAND_LONG", "COMMAND_INT"):
             ours, broadcast = is_for_us(msg, self.system_id, self.component_id)
             if ours:

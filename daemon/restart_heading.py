@@ -16,13 +16,18 @@ The rule (docs/daemon.md, "Restarts"):
 1. `reset_counter` persists: a restart continues with the value the autopilot last saw (no spurious reset).
 2. The last published heading is saved every SAVE_PERIOD_S and on shutdown. If, at the first heading after
    a restart, the estimator's heading differs from it by more than RESTART_STEP_DEG (and the memory is no
-   older than MAX_AGE_S), the published heading starts at the remembered one and
-   * default: slews to the new one at `[outputs] restart_slew_deg_s`, a rate chosen so that the lag of
-     the autopilot's yaw behind ours stays inside EKF3's gate (below);
-   * with `reset_counter_on_calibration = true` (PX4): holds the remembered heading (following the
-     vehicle's rotation) for RESET_HOLD_S, long enough for EKF2 to restart EV yaw fusion, then increments
-     reset_counter and sends the new heading: EKF2 resets its yaw to it at once. (ArduPilot would see
-     that as a step: use the default with ArduPilot.)
+   older than MAX_AGE_S), the published heading starts at the remembered one, follows the vehicle's
+   rotation, and reaches the new one by `[outputs] restart_yaw`:
+   * "slew": at `restart_slew_deg_s`, a rate chosen so that the lag of the autopilot's yaw behind ours stays
+     inside EKF3's gate (below); any autopilot takes it, but learns part of it as gyro bias (overshoot);
+   * "reset_counter" (PX4): hold for HOLD_S, long enough for EKF2 to restart EV yaw fusion, then increment
+     reset_counter and send the new heading: EKF2 resets its yaw to it at once (ArduPilot: a step);
+   * "source_set" (ArduPilot, opted in with `ardupilot_source_set`): hold for HOLD_S, then switch EKF3's
+     source set away and back (daemon.source_set_realign): EKF3 re-aligns its yaw to the new heading; if the
+     autopilot refuses the switch, slew;
+   * "auto" (default): by the autopilot's HEARTBEAT — PX4 → reset_counter; ArduPilot with
+     `ardupilot_source_set` → source_set; any other → slew. An autopilot not heard from yet is waited for
+     during the hold; `reset_counter_on_calibration = true` keeps choosing reset_counter as before.
 
 Why a slew is accepted: EKF3 (AP_NavEKF3_MagFusion.cpp, fuseEulerYaw) rejects an ExtNav yaw in flight
 when innov² > (EK3_YAW_I_GATE/100)² · (H·P·Hᵀ + R), R = max(angErr, 5°)² (writeExtNavData) with angErr
@@ -43,6 +48,8 @@ from typing import Callable
 
 from ahrsd.calibration.atomic_file import write_atomic
 from ahrsd.core.angles import wrap_pi
+from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.daemon.source_set_realign import SourceSetRealign
 
 log = logging.getLogger(__name__)
 
@@ -51,8 +58,10 @@ SAVE_PERIOD_S = 5.0          # a crash loses at most this much of the vehicle's 
 MAX_AGE_S = 600.0            # older memory: the autopilot has long been on its own yaw; no slew from it
 RESTART_STEP_DEG = 1.0       # smaller restart differences are sent as they are
 # PX4 restarts EV yaw fusion once samples arrive < 200 ms apart and > 1 s after its last fusion
-# (ev_control.cpp, ev_yaw_control.cpp); hold the old heading long enough for that, then reset
-RESET_HOLD_S = 2.0
+# (ev_control.cpp, ev_yaw_control.cpp); hold the old heading long enough for that, then reset. An autopilot
+# heartbeat (1 Hz) also arrives within it.
+HOLD_S = 2.0
+RESET_HOLD_S = HOLD_S
 
 
 @dataclass(frozen=True)
@@ -80,22 +89,29 @@ def load_memory(state_dir: Path) -> RememberedHeading | None:
 
 class RestartHeading:
     """The restart rule above, for the VISION_POSITION_ESTIMATE builder: `before_publish` at every heading
-    sent, `after_publish` with what was sent; `save_now` at shutdown."""
+    sent, `after_publish` with what was sent; `save_now` at shutdown; `on_command_ack` for the autopilot's
+    COMMAND_ACKs."""
 
-    def __init__(self, state_dir: Path, slew, *, reset_mode: bool, signal_reset: Callable[[], None],
+    def __init__(self, state_dir: Path, slew, *, mode: str = "slew", signal_reset: Callable[[], None],
                  slew_rate_deg_s: float | None = None,
+                 autopilot_kind: Callable[[], int | None] = lambda: None,
+                 make_realign: Callable[[], SourceSetRealign] | None = None,
                  background: Callable[[Callable[[], None]], None] | None = None, clock=time.time):
         self.state_dir = Path(state_dir)
         self.slew = slew
         self.slew_rate_deg_s = slew.max_rate_deg_s if slew_rate_deg_s is None else slew_rate_deg_s
-        self.reset_mode = reset_mode
+        self.mode = mode
         self.signal_reset = signal_reset
+        self.autopilot_kind = autopilot_kind
+        self.make_realign = make_realign
         self.background = background or (lambda fn: fn())
         self.clock = clock
         self.memory = load_memory(self.state_dir)
         self.decided = False
         self.restart_step_deg: float | None = None   # measured at the first heading (None: no restart rule)
-        self._reset_at_s: float | None = None
+        self.how: str | None = None                  # what was done: "slew", "reset_counter", "source_set"
+        self.realign: SourceSetRealign | None = None
+        self._hold_end_s: float | None = None
         self._last_save = -math.inf
         self._last_published: tuple[float, int] | None = None
 
@@ -103,13 +119,35 @@ class RestartHeading:
     def initial_reset_counter(self) -> int:
         return 0 if self.memory is None else self.memory.reset_counter
 
+    def _resolve(self, final: bool) -> str | None:
+        """The mode to use now; None while "auto" still waits for the autopilot (not `final`)."""
+        if self.mode != "auto":
+            return self.mode
+        kind = self.autopilot_kind()
+        if kind == mavlink.MAV_AUTOPILOT_PX4:
+            return "reset_counter"
+        if kind == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA and self.make_realign is not None:
+            return "source_set"
+        return None if kind is None and not final else "slew"
+
     def before_publish(self, t_s: float, heading_rad: float) -> None:
         if not self.decided:
             self.decided = True
             self._decide(t_s, heading_rad)
-        if self._reset_at_s is not None and t_s >= self._reset_at_s:
-            self._reset_at_s = None
-            self.signal_reset()
+        if self._hold_end_s is not None and t_s >= self._hold_end_s:
+            self._hold_end_s = None
+            self._after_hold(t_s)
+        if self.realign is not None:
+            self.realign.tick(t_s)
+            if self.realign.gave_up:
+                self.realign = None
+                self._start_slew()
+            elif self.realign.publish_new_heading and self.slew.active:
+                self.slew.active = False             # EKF3 ignores ExtNav yaw now; it aligns on set 1
+
+    def on_command_ack(self, msg) -> None:
+        if self.realign is not None:
+            self.realign.on_command_ack(msg)
 
     def _decide(self, t_s: float, heading_rad: float) -> None:
         mem = self.memory
@@ -120,15 +158,33 @@ class RestartHeading:
         self.restart_step_deg = step
         if abs(step) <= RESTART_STEP_DEG or not 0.0 <= age <= MAX_AGE_S:
             return
-        if self.reset_mode:
-            self.slew.start_from(mem.heading_rad, hold_until_s=t_s + RESET_HOLD_S)
-            self._reset_at_s = t_s + RESET_HOLD_S
-            how = f"held {RESET_HOLD_S:g} s, then reset_counter + 1"
+        log.info("heading after restart differs by %+.1f° from the one last sent %.0f s ago", step, age)
+        if self._resolve(final=False) != "slew":
+            self.slew.start_from(mem.heading_rad, hold_until_s=math.inf)
+            self._hold_end_s = t_s + HOLD_S
         else:
             self.slew.start_from(mem.heading_rad, rate_deg_s=self.slew_rate_deg_s)
-            how = f"slewed at {self.slew_rate_deg_s:g} deg/s"
-        log.info("heading after restart differs by %+.1f° from the one last sent %.0f s ago: %s",
-                 step, age, how)
+            self._start_slew()
+
+    def _after_hold(self, t_s: float) -> None:
+        mode = self._resolve(final=True)
+        if mode == "reset_counter":
+            self.how = mode
+            self.slew.release(self.slew_rate_deg_s)
+            self.signal_reset()                      # reset_counter + 1, the new heading sent as it is
+            log.info("restart: held %g s, then reset_counter + 1", HOLD_S)
+        elif mode == "source_set" and self.make_realign is not None:
+            self.how = mode
+            self.realign = self.make_realign()
+            self.realign.start(t_s)
+            log.info("restart: held %g s, now switching EKF source sets to re-align the autopilot's yaw", HOLD_S)
+        else:
+            self._start_slew()
+
+    def _start_slew(self) -> None:
+        self.how = "slew"
+        self.slew.release(self.slew_rate_deg_s)
+        log.info("restart: slewing the heading in at %g deg/s", self.slew_rate_deg_s)
 
     def after_publish(self, yaw_rad: float, reset_counter: int) -> None:
         self._last_published = (yaw_rad, reset_counter)

@@ -52,6 +52,7 @@ from ahrsd.daemon.pipeline import Pipeline
 from ahrsd.daemon.publishers import Publishers
 from ahrsd.daemon.rate_limit import TokenBucket
 from ahrsd.daemon.restart_heading import RestartHeading
+from ahrsd.daemon.source_set_realign import MAV_CMD_SET_EKF_SOURCE_SET, SourceSetRealign
 from ahrsd.daemon.sample_reader import SampleReader
 from ahrsd.daemon.signing import initial_timestamp, key_fingerprint, load_key, save_timestamp
 from ahrsd.daemon.status_line import StatusLine
@@ -263,11 +264,24 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
     def start_restart_rule(self) -> None:
         """Load what the autopilot last got from us (daemon.restart_heading): the reset_counter continues,
         and a different heading after the restart is slewed (or, in reset mode, signalled) in."""
+        out = self.config.outputs
+        mode = "reset_counter" if out.restart_yaw == "auto" and out.reset_counter_on_calibration else out.restart_yaw
+        make_realign = None
+        if out.ardupilot_source_set:
+            make_realign = lambda: SourceSetRealign(     # noqa: E731
+                out.ardupilot_source_set, send_command=self._send_source_set_command,
+                warn_operator=lambda text: self.statustext(mavlink.MAV_SEVERITY_CRITICAL, text))
         self.restart_heading = RestartHeading(
-            self.state_dir, self.heading_slew, reset_mode=self.config.outputs.reset_counter_on_calibration,
-            signal_reset=self.signal_heading_reset, slew_rate_deg_s=self.config.outputs.restart_slew_deg_s,
-            background=self._in_background)
+            self.state_dir, self.heading_slew, mode=mode, signal_reset=self.signal_heading_reset,
+            slew_rate_deg_s=out.restart_slew_deg_s, autopilot_kind=lambda: self.autopilot.autopilot_kind,
+            make_realign=make_realign, background=self._in_background)
         self.reset_counter = self.restart_heading.initial_reset_counter
+
+    def _send_source_set_command(self, source_set: int) -> None:
+        """MAV_CMD_SET_EKF_SOURCE_SET to the autopilot (daemon.source_set_realign)."""
+        target = (self.autopilot.system_id or self.system_id, self.autopilot.component_id or 1)
+        self.send(mavlink.MAVLink_command_long_message(*target, MAV_CMD_SET_EKF_SOURCE_SET, 0, float(source_set),
+                                                       0, 0, 0, 0, 0, 0))
 
     def _in_background(self, fn: Callable[[], None]) -> None:
         """Small file writes off the event loop thread (the sample reader must not wait on an fsync)."""

@@ -14,6 +14,8 @@ import math
 import numpy as np
 from support.fake_autopilot_yaw import FakeEkf2, FakeEkf3, warm_up
 
+from ahrsd.daemon.mavlink_io import mavlink
+
 from ahrsd.calibration.models import Calibration
 from ahrsd.core.sample import SampleFlags, make_sample
 from ahrsd.daemon.config import Config, OutputsConfig
@@ -35,7 +37,7 @@ def wrap_deg(x):
 
 
 def run(tmp_path, mounting_yaw_deg, seconds, autopilots, t0, *, reset_mode=False, outputs=None, resets=0,
-        warm=False):
+        warm=False, connect=None):
     """One run of the service: VPEs at 30 Hz fed to the fake autopilots at autopilot time t0 + t (with
     `warm`, they first fuse the run's first heading for WARM_S). Returns (t, published yaw deg, estimator
     heading deg, reset_counter) per VPE, and the service."""
@@ -45,6 +47,8 @@ def run(tmp_path, mounting_yaw_deg, seconds, autopilots, t0, *, reset_mode=False
                               sensor=dataclasses.replace(cfg.sensor, mounting_rpy_deg=(0.0, 0.0, mounting_yaw_deg)))
     svc = Service(cfg)
     svc.state_dir.mkdir(parents=True, exist_ok=True)
+    if connect is not None:
+        connect(svc)                   # the autopilot's side of the link (its HEARTBEAT, its command answers)
     svc.start_restart_rule()
     svc.pipeline = Pipeline(make_estimator("mekf"), Calibration.identity())
     svc.pipeline.set_mounting([0.0, 0.0, mounting_yaw_deg])
@@ -112,10 +116,12 @@ def test_a_30_degree_restart_step_is_slewed_in_and_no_autopilot_gate_rejects_it(
     fakes = {"EKF3 VISO_YAW_M_NSE=0.05": FakeEkf3(0.05), "EKF3 VISO_YAW_M_NSE=0.2": FakeEkf3(0.2),
              "EKF2 EKF2_EVA_NOISE=0.05": FakeEkf2(0.05)}
     recorders = [Recorder(ap) for ap in fakes.values()]
-    first, svc1 = run(tmp_path, 0.0, 4.0, recorders, 0.0, warm=True)
+    slew = {"restart_yaw": "slew"}
+    first, svc1 = run(tmp_path, 0.0, 4.0, recorders, 0.0, warm=True, outputs=slew)
     counter1 = svc1.reset_counter
     t0 = 4.0 + GAP_S
-    second, svc2 = run(tmp_path, STEP_DEG, 2.0 + STEP_DEG / rate + 2.0, recorders, t0)
+    second, svc2 = run(tmp_path, STEP_DEG, 2.0 + STEP_DEG / rate + 2.0, recorders, t0, outputs=slew)
+    assert svc2.restart_heading.how == "slew"
     new_heading = second[-1, 2]
     step = wrap_deg(new_heading - first[-1, 2])
     assert abs(abs(step) - STEP_DEG) < 1.0                                # the restart really changed it
@@ -184,3 +190,84 @@ def test_restart_with_the_same_heading_changes_nothing(tmp_path):
     assert ekf2.resets == 0
     assert not svc2.heading_slew.active
     assert np.max(np.abs(wrap_deg(second[:, 1] - second[:, 2]))) < 1e-6  # sent as estimated
+
+
+def connect_autopilot(autopilot_kind, ekf=None, *, answers=True):
+    """The autopilot's side of the link: its HEARTBEAT, and COMMAND_LONGs handed to the fake EKF, whose
+    COMMAND_ACKs come back through the service's inbound dispatch (`answers=False`: it never answers).
+    Returns (connect, the commands it received)."""
+    received = []
+
+    def from_autopilot(msg):
+        msg._header = mavlink.MAVLink_header(msg.id, srcSystem=1, srcComponent=1)
+        return msg
+
+    def connect(svc):
+        svc._on_message(None, from_autopilot(mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_GROUND_ROVER, autopilot_kind, 0, 0, mavlink.MAV_STATE_ACTIVE, 3)))
+
+        def send(msg, endpoint=None):
+            if msg.get_type() != "COMMAND_LONG":
+                return
+            received.append((msg.target_system, msg.target_component, msg.command, msg.param1))
+            if answers and ekf is not None:
+                result = ekf.command_long(msg.command, msg.param1)
+                svc._on_message(None, from_autopilot(mavlink.MAVLink_command_ack_message(
+                    msg.command, result, 0, 0, svc.system_id, svc.component_id)))
+        svc.send = send
+    return connect, received
+
+
+def test_ardupilot_with_a_source_set_takes_a_30_degree_restart_as_a_yaw_alignment(tmp_path):
+    ekf3 = FakeEkf3(0.05, src_yaw=(6, 0, 0))
+    rec = Recorder(ekf3)
+    outputs = {"ardupilot_source_set": 2}
+    connect, received = connect_autopilot(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, ekf3)
+    first, _ = run(tmp_path, 0.0, 4.0, (rec,), 0.0, warm=True, outputs=outputs, connect=connect)
+    assert received == []                               # a first start: nothing to re-align
+    t0 = 4.0 + GAP_S
+    second, svc2 = run(tmp_path, STEP_DEG, 6.0, (rec,), t0, outputs=outputs, connect=connect)
+    new_heading = second[-1, 2]
+    assert svc2.restart_heading.how == "source_set"
+    # away to set 2, back to set 1, addressed to the autopilot
+    assert received == [(1, 1, 42007, 2.0), (1, 1, 42007, 1.0)]
+    assert ekf3.active_set == 0 and ekf3.aligns == 1 and ekf3.rejected == 0
+    assert np.all(second[:, 3] == second[0, 3])          # reset_counter untouched (ArduPilot: position reset)
+    t_restart = t0 + second[0, 0]
+    overshoot, settled = settle(rec, new_heading, t_restart, t_restart + 60.0)
+    print(f"EKF3 with EK3_SRC2_YAW=0: 30° restart step: overshoot {overshoot:.2f}°, within 1° after {settled:.1f} s")
+    assert overshoot <= 0.2 and settled <= 3.5            # hold 2 s + switch back 0.5 s: aligned, not pulled
+    assert abs(wrap_deg(math.degrees(ekf3.yaw) - new_heading)) < 0.1
+
+
+def test_a_source_set_switch_the_autopilot_refuses_falls_back_to_the_slew(tmp_path):
+    ekf3 = FakeEkf3(0.05)
+    rec = Recorder(ekf3)
+    outputs = {"ardupilot_source_set": 3}
+    connect, received = connect_autopilot(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, ekf3, answers=False)
+    run(tmp_path, 0.0, 4.0, (rec,), 0.0, warm=True, outputs=outputs, connect=connect)
+    rate = OutputsConfig().restart_slew_deg_s
+    second, svc2 = run(tmp_path, STEP_DEG, 2.0 + 1.0 + STEP_DEG / rate + 2.0, (rec,), 4.0 + GAP_S,
+                       outputs=outputs, connect=connect)
+    assert received == [(1, 1, 42007, 3.0)]               # never told to switch: never switched back
+    assert svc2.restart_heading.how == "slew"
+    assert ekf3.rejected == 0 and ekf3.aligns == 0        # the old heading held, then slewed: never a step
+    assert np.max(np.abs(wrap_deg(np.diff(second[:, 1])))) <= rate / VPE_HZ * 1.05
+    assert abs(wrap_deg(second[-1, 1] - second[-1, 2])) < 0.05
+
+
+def test_auto_mode_resets_px4_and_slews_for_an_ardupilot_without_a_source_set(tmp_path):
+    ekf2 = FakeEkf2()
+    connect, _ = connect_autopilot(mavlink.MAV_AUTOPILOT_PX4)
+    run(tmp_path / "px4", 0.0, 4.0, (ekf2,), 0.0, warm=True, connect=connect)
+    second, svc2 = run(tmp_path / "px4", STEP_DEG, 4.0, (ekf2,), 4.0 + GAP_S, connect=connect)
+    assert svc2.restart_heading.how == "reset_counter" and ekf2.resets == 1
+    assert abs(wrap_deg(math.degrees(ekf2.yaw) - second[-1, 2])) < 0.1
+
+    ekf3 = FakeEkf3(0.05)
+    connect, received = connect_autopilot(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, ekf3)
+    run(tmp_path / "ap", 0.0, 4.0, (ekf3,), 0.0, warm=True, connect=connect)
+    second, svc2 = run(tmp_path / "ap", STEP_DEG, 3.0, (ekf3,), 4.0 + GAP_S, connect=connect)
+    assert svc2.restart_heading.how == "slew" and received == []
+    rate = OutputsConfig().restart_slew_deg_s
+    assert abs(wrap_deg(second[-1, 1] - second[0, 1])) > 0.8 * rate * (second[-1, 0] - second[0, 0])  # no hold

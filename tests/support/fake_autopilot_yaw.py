@@ -11,6 +11,11 @@ AP_NavEKF3_MagFusion.cpp, AP_NavEKF3_core.cpp, AP_NavEKF3.cpp):
 * fuseEulerYaw: innovation = EKF yaw − ours, varInnov = H·P·Hᵀ + R_YAW, yawTestRatio = innov² /
   (max(0.01·EK3_YAW_I_GATE, 1)² · varInnov); in flight a ratio > 1 is not fused; the state correction uses
   the innovation clipped to ±0.5 rad;
+* the yaw source is that of the active EKF source set (EK3_SRCn_YAW; 6 = ExternalNav); MAV_CMD_SET_EKF_SOURCE_SET
+  (42007, param1 = 1..3) changes the set (AP_NavEKF_Source::setPosVelYawSourceSet). While the yaw source is
+  not ExternalNav our yaw is not used; a change of yaw source sets yaw_source_reset, and the next ExtNav yaw
+  taken with the source on ExternalNav is applied by alignYawAngle (a reset), not fused
+  (AP_NavEKF3_MagFusion.cpp, SelectMagFusion);
 * covariance prediction every 12 ms (EKF_TARGET_DT): yaw += (dt·EK3_GYRO_P_NSE)², delta-angle bias +=
   (dt²·EK3_GBIAS_P_NSE)² (here as a rate bias in rad/s: (dt·EK3_GBIAS_P_NSE)²), defaults 0.015 rad/s and
   0.001 rad/s².
@@ -86,8 +91,19 @@ def vpe_angle_vars(msg) -> tuple[float, float, float]:
     return c[15], c[18], c[20]
 
 
+EXTNAV_YAW_SOURCE = 6
+MAV_CMD_SET_EKF_SOURCE_SET = 42007
+MAV_RESULT_ACCEPTED, MAV_RESULT_DENIED = 0, 2
+
+
 class FakeEkf3:
-    def __init__(self, viso_yaw_m_nse: float = 0.05, yaw_i_gate: float = 300.0):
+    def __init__(self, viso_yaw_m_nse: float = 0.05, yaw_i_gate: float = 300.0,
+                 src_yaw=(EXTNAV_YAW_SOURCE, 0, 0)):
+        self.src_yaw = src_yaw                  # EK3_SRC1_YAW, EK3_SRC2_YAW, EK3_SRC3_YAW
+        self.active_set = 0
+        self.yaw_source_last = src_yaw[0]
+        self.yaw_source_reset = False
+        self.aligns = 0                         # alignYawAngle calls after the first
         self.viso_yaw_m_nse = viso_yaw_m_nse
         self.gate = max(0.01 * yaw_i_gate, 1.0)
         self.filter = YawBiasFilter(0.012, 1.5e-2, 1.0e-3)
@@ -107,10 +123,29 @@ class FakeEkf3:
         r, _ = self.r_yaw_rad2(*angle_vars)
         return math.degrees(self.gate * math.sqrt(self.filter.p[0][0] + r))
 
+    def command_long(self, command: int, param1: float) -> int:
+        """GCS_MAVLINK handling of MAV_CMD_SET_EKF_SOURCE_SET: the MAV_RESULT."""
+        if command != MAV_CMD_SET_EKF_SOURCE_SET or param1 not in (1, 2, 3):
+            return MAV_RESULT_DENIED
+        self.active_set = int(param1) - 1
+        return MAV_RESULT_ACCEPTED
+
     def feed(self, t_s: float, yaw_rad: float, reset_counter: int, angle_vars=(0.0, 0.0, 0.0)) -> None:
         # reset_counter: a position reset only (writeExtNavData posReset); it never touches the yaw
         r, yaw_ang_err = self.r_yaw_rad2(*angle_vars)
         self.filter.predict_to(t_s)
+        yaw_source = self.src_yaw[self.active_set]
+        if yaw_source != self.yaw_source_last:
+            self.yaw_source_last = yaw_source
+            self.yaw_source_reset = True
+        if yaw_source != EXTNAV_YAW_SOURCE:
+            self.yaw_source_reset = False       # consumed by realignYawGPS (a no-op here: not moving)
+            return                              # our yaw is not used
+        if self.aligned and self.yaw_source_reset:
+            self.yaw_source_reset = False
+            self.aligns += 1
+            self.filter.reset_yaw(yaw_rad, max(yaw_ang_err, 1e-2) ** 2)   # alignYawAngle
+            return
         if not self.aligned:
             self.filter.reset_yaw(yaw_rad, max(yaw_ang_err, 1e-2) ** 2)
             self.aligned = True

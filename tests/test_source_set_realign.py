@@ -1,0 +1,77 @@
+"""The ArduPilot source-set re-alignment sequence (daemon.source_set_realign) on its own: the order of the
+commands, the retries of the switch back, and what the operator is told when the autopilot never confirms."""
+
+from __future__ import annotations
+
+import pytest
+
+from ahrsd.daemon.config import ConfigError, OutputsConfig
+from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.daemon.source_set_realign import ACK_TIMEOUT_S, SWITCH_BACK_S, SourceSetRealign
+
+
+def ack(result, command=42007):
+    return mavlink.MAVLink_command_ack_message(command, result, 0, 0, 1, 200)
+
+
+def make(alternate=2):
+    sent, warnings = [], []
+    return SourceSetRealign(alternate, sent.append, warnings.append), sent, warnings
+
+
+def test_switches_away_publishes_then_switches_back_after_the_delay():
+    r, sent, _ = make(3)
+    r.start(10.0)
+    assert sent == [3] and not r.publish_new_heading
+    r.on_command_ack(ack(mavlink.MAV_RESULT_ACCEPTED, command=400))      # another command's answer: not ours
+    r.tick(10.1)
+    assert not r.publish_new_heading
+    r.on_command_ack(ack(mavlink.MAV_RESULT_ACCEPTED))
+    r.tick(10.2)
+    assert r.publish_new_heading and sent == [3]
+    r.tick(10.2 + SWITCH_BACK_S - 0.01)
+    assert sent == [3]                                   # not before the fusion horizon has the new heading
+    r.tick(10.2 + SWITCH_BACK_S)
+    assert sent == [3, 1]
+    r.on_command_ack(ack(mavlink.MAV_RESULT_ACCEPTED))
+    r.tick(10.8)
+    assert r.state == r.DONE and not r.gave_up
+
+
+@pytest.mark.parametrize("answer", [mavlink.MAV_RESULT_DENIED, None])
+def test_a_refused_or_unanswered_first_switch_gives_up_before_anything_changed(answer):
+    r, sent, _ = make()
+    r.start(0.0)
+    if answer is not None:
+        r.on_command_ack(ack(answer))
+        r.tick(0.05)
+    else:
+        r.tick(ACK_TIMEOUT_S - 0.01)
+        assert not r.gave_up
+        r.tick(ACK_TIMEOUT_S)
+    assert r.gave_up and not r.publish_new_heading and sent == [2]
+
+
+def test_the_switch_back_is_retried_and_the_operator_told_when_never_confirmed():
+    r, sent, warnings = make()
+    r.start(0.0)
+    r.on_command_ack(ack(mavlink.MAV_RESULT_ACCEPTED))
+    r.tick(0.0)
+    t = SWITCH_BACK_S
+    r.tick(t)
+    for _ in range(3):
+        t += ACK_TIMEOUT_S
+        r.tick(t)
+    assert sent == [2, 1, 1, 1]
+    assert len(warnings) == 1 and "set 2" in warnings[0] and len(warnings[0]) <= 50   # one STATUSTEXT
+    assert r.publish_new_heading                         # the new heading stays: it is the right one
+
+
+def test_config_needs_a_valid_alternate_set_for_source_set_mode():
+    assert OutputsConfig.parse({"restart_yaw": "source_set", "ardupilot_source_set": 2}).ardupilot_source_set == 2
+    for bad in ({"restart_yaw": "source_set"}, {"ardupilot_source_set": 1}, {"ardupilot_source_set": True},
+                {"ardupilot_source_set": 2.0}, {"restart_yaw": "reset"}):
+        with pytest.raises(ConfigError):
+            OutputsConfig.parse(bad)
+    with pytest.raises(ValueError):
+        SourceSetRealign(1, print, print)
