@@ -20,6 +20,8 @@ import math
 
 import numpy as np
 from numba import njit
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from ahrsd.core.sample import SampleFlags
 
@@ -156,6 +158,34 @@ O_SIGMA = 7    # 3 roll, pitch, yaw 1σ
 O_BIAS = 10    # 3 gyro bias
 O_EULER = 13   # 3 roll, pitch, yaw (ZYX, yaw magnetic in [−π, π])
 O_SIZE = 16
+
+
+@intrinsic
+def borrowed(typingctx, arr):
+    """A view of the array `arr` (same data, shape, strides) that holds no reference to its owner (numba's
+    meminfo is null), for compiled code only.
+
+    Numba counts references to an array with atomic instructions (`NRT_incref`/`NRT_decref`: a `lock incq`
+    each) when a compiled function that receives it starts and returns; its reference-count pruning pass removes
+    them only in functions with simple control flow. In the step kernel they stayed in `mekf_step`,
+    `_field_offset` and `heading_measurement` (branches, loops, calls passing the array on): about a dozen
+    atomic operations per sample, on a null meminfo a test and a jump. Valid only while the owner is alive:
+    the entry points borrow their own arguments (which the caller holds for the whole call) and use the
+    view only inside that call."""
+
+    def codegen(context, builder, sig, args):
+        src = context.make_array(sig.args[0])(context, builder, args[0])
+        dst = context.make_array(sig.return_type)(context, builder)
+        dst.meminfo = cgutils.get_null_value(dst.meminfo.type)
+        dst.parent = cgutils.get_null_value(dst.parent.type)
+        dst.nitems = src.nitems
+        dst.itemsize = src.itemsize
+        dst.data = src.data
+        dst.shape = src.shape
+        dst.strides = src.strides
+        return dst._getvalue()
+
+    return arr(arr), codegen
 
 
 @njit(cache=True)
@@ -884,9 +914,10 @@ def mekf_step_full(buf, t_s, gyro, acc, mag, sample_flags):
     3 elements (nothing changed)."""
     if gyro.shape[0] != 3 or acc.shape[0] != 3 or mag.shape[0] != 3:
         return BAD_SHAPE
-    state = buf[:B_PAR]
-    par = buf[B_PAR:B_OUT]
-    out = buf[B_OUT:]
+    b = borrowed(buf)   # the caller holds buf for the call: no reference counting in the step
+    state = b[:B_PAR]
+    par = b[B_PAR:B_OUT]
+    out = b[B_OUT:]
     f = mekf_step(state, par, t_s, gyro[0], gyro[1], gyro[2], acc[0], acc[1], acc[2], mag[0], mag[1], mag[2],
                   sample_flags, out)
     if not f & NEEDS_INIT:
@@ -903,14 +934,18 @@ def mekf_run(state, par, t_s, gyro, acc, mag, sample_flags, start, q_out, flags_
     (re-)initialisation, or len(t_s) when all were processed. sample_flags (N,) int64 SampleFlags;
     q_out (N, 4), flags_out (N,)."""
     out = np.empty(O_SIZE)
+    # views without reference counting (`borrowed`): state and par are the caller's, held for the whole call;
+    # out is read below after every step, so it lives through the loop
+    st = borrowed(state)
+    pa = borrowed(par)
     n = t_s.shape[0]
     for i in range(start, n):
         f = mekf_step(
-            state, par, t_s[i],
+            st, pa, t_s[i],
             gyro[i, 0], gyro[i, 1], gyro[i, 2],
             acc[i, 0], acc[i, 1], acc[i, 2],
             mag[i, 0], mag[i, 1], mag[i, 2],
-            sample_flags[i], out,
+            sample_flags[i], borrowed(out),
         )
         if f & NEEDS_INIT:
             return i
@@ -923,8 +958,12 @@ def mekf_run(state, par, t_s, gyro, acc, mag, sample_flags, start, q_out, flags_
 _SIGNATURE = "int64(float64[::1], float64, float64[:], float64[:], float64[:], int64)"
 
 
+_FAST_STEP = []   # the entry point, once looked up (each Mekf() asks for it; resolving it costs ≈ 60 µs)
+
+
 def fast_step():
-    """`mekf_step_full` as a directly callable compiled entry point for one-sample calls.
+    """`mekf_step_full` as a directly callable compiled entry point for one-sample calls (looked up once per
+    process).
 
     Numba's dispatcher resolves argument types on every call (≈5 µs, ten times the filter's own
     arithmetic); the entry point of the one compiled signature skips that. Arguments must then have exactly
@@ -932,6 +971,12 @@ def fast_step():
     buffer is the caller's own, and the caller passes only float64 vectors (dtype checked; their length is
     checked here). Falls back to the dispatcher if this numba version does not expose entry points (same
     code, slower call)."""
+    if not _FAST_STEP:
+        _FAST_STEP.append(_entry_point())
+    return _FAST_STEP[0]
+
+
+def _entry_point():
     try:
         mekf_step_full.compile(_SIGNATURE)
         for sig, cres in mekf_step_full.overloads.items():
