@@ -20,8 +20,8 @@ model). With s_n the smoothed error relative to the a-posteriori nominal at n:
 
 Memory: nodes are grouped into blocks that end at a GNSS epoch (or every MAX_BLOCK_S); within a block the
 recursions compose, s_k = A s_K + b and Ps_k = D + A Ps_K Aᵀ, with A, b, D accumulated in the forward pass, so
-only one (A, b, D) per block is kept (about 8 MB for 180 s at 5 Hz, whatever the sample rate or the number of
-magnetometer updates). Between block ends the correction is interpolated linearly in time (0.2 s apart).
+only one (A, b, D) per block is kept (about 3 MB per minute at 5 Hz, whatever the sample rate or the number
+of magnetometer updates; plus 48 bytes per sample). Between block ends the correction is interpolated linearly in time (0.2 s apart).
 
 **Cuts.** Where the filter is not a Kalman filter — before the first fix sets velocity and position (their
 covariance is reset every epoch), while it levels on the accelerometer (unaided, a tilt-only gain), at a
@@ -155,9 +155,8 @@ class SmoothingIns(Ins):
         self._shadow_hist = np.zeros_like(self._hist)
         self._shadow_out = np.zeros(core.O_SIZE)
         self._p_before = np.zeros_like(self._P)
-        self._t_rec: list[float] = []
-        self._q_rec: list[np.ndarray] = []
-        self._sigma_rec: list[float] = []
+        self._rec = np.empty((4096, 6))   # per sample: t, q (4; NaN before initialisation), tilt 1σ
+        self._n_rec = 0
         self._block_t = -math.inf
 
     # ------------------------------------------------------------------ recording
@@ -212,10 +211,13 @@ class SmoothingIns(Ins):
 
     def update(self, sample):
         e = super().update(sample)
-        self._t_rec.append(float(sample.t_s))
-        self._q_rec.append(self._x[core.X_Q : core.X_Q + 4].copy() if self._initialised
-                           else np.full(4, np.nan))
-        self._sigma_rec.append(float(np.hypot(e.sigma_rpy_rad[0], e.sigma_rpy_rad[1])))
+        if self._n_rec == len(self._rec):
+            self._rec = np.concatenate([self._rec, np.empty_like(self._rec)])
+        row = self._rec[self._n_rec]
+        row[0] = sample.t_s
+        row[1:5] = self._x[core.X_Q : core.X_Q + 4] if self._initialised else np.nan
+        row[5] = math.hypot(e.sigma_rpy_rad[0], e.sigma_rpy_rad[1])
+        self._n_rec += 1
         return e
 
     # ------------------------------------------------------------------ result
@@ -223,9 +225,9 @@ class SmoothingIns(Ins):
         """Per recorded sample: the smoothed error-state correction (N_ERR) relative to the filter's state after
         that sample, and the smoothed tilt 1σ (rad; the filter's own where nothing was smoothed)."""
         t_node, s_post, s_pre, p_s = self.smoother.smooth()
-        t = np.asarray(self._t_rec)
+        t = self._rec[: self._n_rec, 0]
         corr = np.zeros((len(t), core.N_ERR))
-        sigma = np.asarray(self._sigma_rec, dtype=float).copy()
+        sigma = self._rec[: self._n_rec, 5].copy()
         if len(t_node) < 2:
             return corr, sigma
         # sample i follows block end k = the last one at or before it (a node happens within a sample's update)
@@ -245,7 +247,7 @@ class SmoothingIns(Ins):
         """Roll, pitch (rad) and tilt 1σ per recorded sample, smoothed over the whole run (NaN before the
         filter initialised)."""
         corr, sigma = self.smoothed_corrections()
-        q = np.asarray(self._q_rec)
+        q = self._rec[: self._n_rec, 1:5]
         qs = quat_multiply(quat_exp(corr[:, 0:3]), q)
         rpy = quat_to_euler(qs)
         return rpy[:, 0], rpy[:, 1], sigma
