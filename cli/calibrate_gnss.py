@@ -2,8 +2,9 @@
 back-stepping.
 
 * Levelling: roll and pitch from the aided estimator (ins, its magnetometer update off) run over the recording
-  with the fixes, instead of the accelerometer, whose apparent vertical leans in turns, waves and
-  accelerations; no centripetal compensation is then needed. When that filter does not acquire its heading
+  with the fixes and smoothed over the whole run (RTS, estimator/ins_smoother.py), instead of the
+  accelerometer, whose apparent vertical leans in turns, waves and accelerations; no centripetal compensation
+  is then needed. When that filter does not acquire its heading
   from the GNSS velocity, the run is levelled again with the magnetometer calibrated by a first fit
   (calibration.backstepping_aided).
 * The heading offset (--gnss-course): GNSS course over ground as the heading reference (the `heading_ref_deg`
@@ -65,7 +66,8 @@ def fit_aided(data, fixes, reference, **options):
 
 
 def aided_levelling(data, fixes, declination_rad: float):
-    """Roll and pitch per sample from the aided estimator over the recording with the fixes."""
+    """Roll and pitch per sample from the aided estimator over the recording with the fixes (the forward filter;
+    the fit levels with its smoothed run, calibration.backstepping_aided)."""
     from ahrsd.calibration.levelling import roll_pitch_from_estimator
 
     # the magnetometer is the one being calibrated: its distorted heading would turn the aided filter's NED

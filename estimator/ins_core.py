@@ -335,17 +335,14 @@ def _accumulate_c_omega(x, c00, c01, c02, c10, c11, c12, c20, c21, c22, tx, ty, 
 
 # ----------------------------------------------------------------------------------- covariance propagation
 @njit(cache=True)
-def propagate_covariance(x, P, par):
-    """P ← Φ P Φᵀ + Q over the time accumulated since the last call (X_COV_T), then clear the sums.
-
-    Φ (3×3 blocks, order δθ, δv, δp, δb_g, δb_a, then δs_g, δm_g), with A = −∫C dt and B = −[ΔV^n×]:
+def transition_matrix(x, par):
+    """Φ (N_ERR × N_ERR) of the interval accumulated since the last propagation (X_COV_T, the sums ∫C dt,
+    ∫C ω dt, ΔV^n), as `propagate_covariance` applies it (3×3 blocks, order δθ, δv, δp, δb_g, δb_a, then δs_g,
+    δm_g), with A = −∫C dt and B = −[ΔV^n×]:
         δθ: [I, 0, 0, A, 0, −∫C diag(ω) dt, −∫C W(ω) dt];  δv: [B, I, 0, 0, A, 0, 0];
         δp: [½T B, T I, I, 0, ½T A, 0, 0];  biases, scale factors, misalignments: identity.
-    Q: white gyro and accelerometer noise and bias random walks, density² · T on the diagonal (isotropic, so
-    rotating it by C changes nothing)."""
+    The offline smoother (ins_smoother.py) reads it too."""
     T = x[X_COV_T]
-    if T <= 0.0:
-        return
     phi = np.eye(N_ERR)
     for i in range(3):
         for j in range(3):
@@ -366,6 +363,19 @@ def propagate_covariance(x, P, par):
         for j in range(3):
             phi[E_V + i, E_TH + j] = b[i][j]
             phi[E_P + i, E_TH + j] = 0.5 * T * b[i][j]
+    return phi
+
+
+@njit(cache=True)
+def propagate_covariance(x, P, par):
+    """P ← Φ P Φᵀ + Q over the time accumulated since the last call (X_COV_T), then clear the sums.
+
+    Φ: `transition_matrix`. Q: white gyro and accelerometer noise and bias random walks, density² · T on the
+    diagonal (isotropic, so rotating it by C changes nothing)."""
+    T = x[X_COV_T]
+    if T <= 0.0:
+        return
+    phi = transition_matrix(x, par)
     # M = Φ P (skipping Φ's zeros), then P = M Φᵀ
     m = np.zeros((N_ERR, N_ERR))
     for i in range(N_ERR):

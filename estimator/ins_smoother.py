@@ -1,0 +1,256 @@
+"""Offline Rauch–Tung–Striebel smoothing of the `ins` error-state filter (fixed interval: the whole recording).
+
+The forward pass is the daemon's own filter (`Ins`, unchanged); `SmoothingIns` records, per update epoch, what
+the backward pass needs, and `smoothed_roll_pitch()` returns the attitude given every fix of the run, past and
+future. The physical gain: the accelerometer and gyro bias states converge over the whole run, and the smoother
+carries the end-of-run knowledge back to the start, so the body-fixed tilt error of the forward filter (bias
+and misalignment not yet separated from tilt) shrinks. Offline only (calibration levelling).
+
+**The backward pass** (Rauch, Tung & Striebel, AIAA J. 3(8), 1965; Groves, Principles of GNSS, Inertial, and
+Multisensor Integrated Navigation Systems, 2nd ed., §3.4.2), on the error state of a closed-loop filter. Node n
+is an epoch where a measurement changed the state: a-priori covariance P⁻_n, a-posteriori P⁺_n, and the
+correction dx_n folded into the nominal (the error state is reset to 0 after it). Φ_n is the transition from
+node n to n+1 (the product of the filter's own propagation matrices in between, exact for the linearised
+model). With s_n the smoothed error relative to the a-posteriori nominal at n:
+
+    C_n  = P⁺_n Φ_nᵀ (P⁻_{n+1})⁻¹
+    s_n  = C_n (s_{n+1} + dx_{n+1})                 (δx_s,n = δx_n|n + C_n (δx_s,n+1 − δx_n+1|n), δx_n|n = 0,
+                                                     relative to the a-priori nominal at n+1: s_{n+1} + dx_{n+1})
+    Ps_n = P⁺_n + C_n (Ps_{n+1} − P⁻_{n+1}) C_nᵀ,   s_N = 0, Ps_N = P⁺_N at the last node.
+
+Memory: nodes are grouped into blocks that end at a GNSS epoch (or every MAX_BLOCK_S); within a block the
+recursions compose, s_k = A s_K + b and Ps_k = D + A Ps_K Aᵀ, with A, b, D accumulated in the forward pass, so
+only one (A, b, D) per block is kept (about 3 MB per minute at 5 Hz, whatever the sample rate or the number
+of magnetometer updates; plus 48 bytes per sample). Between block ends the correction is interpolated linearly in time (0.2 s apart).
+
+**Cuts.** Where the filter is not a Kalman filter — before the first fix sets velocity and position (their
+covariance is reset every epoch), while it levels on the accelerometer (unaided, a tilt-only gain), at a
+velocity/position reset after a run of rejections or an outage, at a re-initialisation — no information
+passes backward across (C = 0): the smoothed values there are the filter's own.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from . import ins_core as core
+from .ins import Ins
+from .rotations import quat_exp, quat_log, quat_multiply, quat_conjugate, quat_to_euler
+
+MAX_BLOCK_S = 0.5   # a block also ends after this long without a fix (magnetometer updates in an outage)
+_CUT_RESULTS = core.R_NAV_INIT | core.R_OUTAGE_RESET | core.R_VEL_RESET | core.R_POS_RESET
+
+
+class RtsSmoother:
+    """The bookkeeping of a fixed-interval RTS smoother over a closed-loop (error-state) Kalman filter of any
+    dimension, fed in time order by the filter:
+
+    - `propagate(phi)` for each transition between measurement epochs (several multiply up);
+    - `node(t, p_prior, p_post, dx, cut=False, block_end=True)` at each epoch whose measurement changed the
+      state (dx: the correction folded into the nominal; `cut`: do not smooth across the link into this node,
+      `p_prior` is then ignored; `block_end=False`: an intermediate node, composed into the current block);
+    - `smooth()` → (t, s_post, s_pre, P_s) per block end: the smoothed error relative to the filter's
+      a-posteriori nominal at that node, relative to its a-priori nominal (s_post + dx; 0 at a cut), and the
+      smoothed covariance.
+    """
+
+    def __init__(self, n: int):
+        self.n = n
+        self._eye = np.eye(n)
+        self._phi = self._eye.copy()
+        self._p_post = None          # P⁺ of the last node
+        self._open_block()
+        self._t, self._a, self._b, self._d, self._dx, self._cut = [], [], [], [], [], []
+        self._p_last = None
+
+    def _open_block(self) -> None:
+        self._A = self._eye.copy()
+        self._B = np.zeros(self.n)
+        self._D = np.zeros((self.n, self.n))
+
+    def propagate(self, phi: np.ndarray) -> None:
+        self._phi = phi @ self._phi
+
+    def node(self, t: float, p_prior, p_post, dx, cut: bool = False, block_end: bool = True) -> None:
+        p_post = np.array(p_post, dtype=float)
+        dx = np.asarray(dx, dtype=float)
+        if self._p_post is not None:
+            if cut:
+                c = np.zeros((self.n, self.n))
+                e = self._p_post
+            else:
+                p_prior = np.asarray(p_prior, dtype=float)
+                # P⁺ Φᵀ (P⁻)⁻¹ (P symmetric) over the states the filter has (a state switched off has variance 0)
+                on = np.diag(p_prior) > 0.0
+                c = np.zeros((self.n, self.n))
+                c[:, on] = np.linalg.solve(p_prior[np.ix_(on, on)], (self._phi @ self._p_post)[on]).T
+                e = self._p_post - c @ p_prior @ c.T
+            self._D += self._A @ e @ self._A.T
+            self._A = self._A @ c
+            self._B += self._A @ dx
+        if block_end or cut:
+            if self._t:   # close the block that started at the previous block end
+                self._a.append(self._A)
+                self._b.append(self._B)
+                self._d.append(self._D)
+            self._t.append(float(t))
+            self._dx.append(dx.copy())
+            self._cut.append(bool(cut))
+            self._open_block()
+        self._p_post = p_post
+        self._p_last = p_post
+        self._phi = self._eye.copy()
+
+    def smooth(self):
+        """Backward pass. Returns (t, s_post, s_pre, P_s), arrays over the block ends (see the class)."""
+        m = len(self._t)
+        s_post = np.zeros((m, self.n))
+        p_s = np.zeros((m, self.n, self.n))
+        if m == 0:
+            return np.zeros(0), s_post, s_post.copy(), p_s
+        # the block still open after the last block end (identity when no node followed it) ends at the last
+        # node, where the smoothed error is 0 and its covariance the filter's
+        s_post[m - 1] = self._B
+        p_s[m - 1] = self._D + self._A @ self._p_last @ self._A.T
+        for k in range(m - 2, -1, -1):
+            a, b, d = self._a[k], self._b[k], self._d[k]
+            s_post[k] = a @ s_post[k + 1] + b
+            p_s[k] = d + a @ p_s[k + 1] @ a.T
+        s_pre = s_post + np.array(self._dx)
+        s_pre[np.array(self._cut)] = 0.0
+        return np.array(self._t), s_post, s_pre, p_s
+
+
+def nominal_difference(x_before: np.ndarray, x_after: np.ndarray, par: np.ndarray) -> np.ndarray:
+    """The error-state correction (core's 24 components) that takes the nominal state x_before to x_after:
+    δθ with C_after = exp([δθ×]) C_before (NED), δv, δp (NED, m), and the sensor-error states' differences."""
+    dx = np.zeros(core.N_ERR)
+    q0 = x_before[core.X_Q : core.X_Q + 4]
+    q1 = x_after[core.X_Q : core.X_Q + 4]
+    dx[0:3] = quat_log(quat_multiply(q1, quat_conjugate(q0)))
+    dx[3:6] = x_after[core.X_V : core.X_V + 3] - x_before[core.X_V : core.X_V + 3]
+    lat, h = x_before[core.X_LAT], x_before[core.X_H]
+    r_n, r_e = core._radii(par, lat)
+    dx[6] = (x_after[core.X_LAT] - lat) * (r_n + h)
+    dx[7] = (x_after[core.X_LON] - x_before[core.X_LON]) * (r_e + h) * math.cos(lat)
+    dx[8] = -(x_after[core.X_H] - h)
+    dx[9:12] = x_after[core.X_BG : core.X_BG + 3] - x_before[core.X_BG : core.X_BG + 3]
+    dx[12:15] = x_after[core.X_BA : core.X_BA + 3] - x_before[core.X_BA : core.X_BA + 3]
+    dx[15:18] = x_after[core.X_SG : core.X_SG + 3] - x_before[core.X_SG : core.X_SG + 3]
+    dx[18:24] = x_after[core.X_MG : core.X_MG + 6] - x_before[core.X_MG : core.X_MG + 6]
+    return dx
+
+
+class SmoothingIns(Ins):
+    """`Ins` that records its epochs for `RtsSmoother` (same estimates, same counters, ~2× the run time). Run it
+    over a recording (`update`, `update_gnss` as for Ins), then `smoothed_roll_pitch()`."""
+
+    def __init__(self, declination_rad: float = 0.0, params=None, **overrides):
+        super().__init__(declination_rad, params, **overrides)
+        self.smoother = RtsSmoother(core.N_ERR)
+        self._live_step = self._step
+        self._step = self._recorded_step
+        self._shadow_hist = np.zeros_like(self._hist)
+        self._shadow_out = np.zeros(core.O_SIZE)
+        self._p_before = np.zeros_like(self._P)
+        self._rec = np.empty((4096, 6))   # per sample: t, q (4; NaN before initialisation), tilt 1σ
+        self._n_rec = 0
+        self._block_t = -math.inf
+
+    # ------------------------------------------------------------------ recording
+    def _cut_here(self, x) -> bool:
+        """The filter is not a Kalman filter at this epoch (see the module docstring)."""
+        return not (x[core.X_NAV_OK] > 0.0 and core._aided(x, self._par))
+
+    def _epoch(self, x_pre, p_before, t, cut: bool, block_end: bool) -> None:
+        """After a call that may have propagated the covariance (with the sums in x_pre) and then updated the
+        state: a propagation, and a node when a measurement (or a reset: `cut`) changed the state."""
+        propagated = x_pre[core.X_COV_T] > 0.0 and self._x[core.X_COV_T] < x_pre[core.X_COV_T]
+        p_prior = p_before
+        if propagated:
+            self.smoother.propagate(core.transition_matrix(x_pre, self._par))
+            p_prior = p_before.copy()
+            core.propagate_covariance(x_pre.copy(), p_prior, self._par)
+        if not cut and np.array_equal(p_prior, self._P):
+            return   # no measurement at this epoch
+        end = block_end or cut or t - self._block_t >= MAX_BLOCK_S
+        self.smoother.node(t, p_prior, self._P, nominal_difference(x_pre, self._x, self._par), cut=cut,
+                           block_end=end)
+        if end:
+            self._block_t = t
+
+    def _recorded_step(self, x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sflags, out):
+        # the mechanisation alone (no covariance epoch) on a copy: its sums are those the epoch will use
+        shadow_par = par.copy()
+        shadow_par[core.P_COV_PERIOD] = math.inf
+        xs = x.copy()
+        self._live_step(xs, P, self._shadow_hist, shadow_par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sflags,
+                        self._shadow_out)
+        np.copyto(self._p_before, P)
+        f = self._live_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sflags, out)
+        if f & core.NEEDS_INIT:
+            return f
+        self._epoch(xs, self._p_before, float(x[core.X_T_LAST]), self._cut_here(x), False)
+        return f
+
+    def _fuse(self, fix) -> int:
+        x_pre, p_before = self._x.copy(), self._P.copy()
+        res = super()._fuse(fix)
+        cut = bool(res & _CUT_RESULTS) or self._cut_here(self._x)
+        self._epoch(x_pre, p_before, float(self._x[core.X_T_LAST]), cut, True)
+        return res
+
+    def _initialise(self, t_s, g, a, m, sample_flags: int) -> bool:
+        ok = super()._initialise(t_s, g, a, m, sample_flags)
+        if ok:
+            self._block_t = float(t_s)
+            self.smoother.node(float(t_s), None, self._P, np.zeros(core.N_ERR), cut=True)
+        return ok
+
+    def update(self, sample):
+        e = super().update(sample)
+        if self._n_rec == len(self._rec):
+            self._rec = np.concatenate([self._rec, np.empty_like(self._rec)])
+        row = self._rec[self._n_rec]
+        row[0] = sample.t_s
+        row[1:5] = self._x[core.X_Q : core.X_Q + 4] if self._initialised else np.nan
+        row[5] = math.hypot(e.sigma_rpy_rad[0], e.sigma_rpy_rad[1])
+        self._n_rec += 1
+        return e
+
+    # ------------------------------------------------------------------ result
+    def smoothed_corrections(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per recorded sample: the smoothed error-state correction (N_ERR) relative to the filter's state after
+        that sample, and the smoothed tilt 1σ (rad; the filter's own where nothing was smoothed)."""
+        t_node, s_post, s_pre, p_s = self.smoother.smooth()
+        t = self._rec[: self._n_rec, 0]
+        corr = np.zeros((len(t), core.N_ERR))
+        sigma = self._rec[: self._n_rec, 5].copy()
+        if len(t_node) < 2:
+            return corr, sigma
+        # sample i follows block end k = the last one at or before it (a node happens within a sample's update)
+        k = np.searchsorted(t_node, t, side="right") - 1
+        inside = (k >= 0) & (k < len(t_node) - 1)
+        ki = k[inside]
+        w = (t[inside] - t_node[ki]) / np.maximum(t_node[ki + 1] - t_node[ki], 1e-12)
+        corr[inside] = s_post[ki] + w[:, None] * (s_pre[ki + 1] - s_post[ki])
+        last = k == len(t_node) - 1
+        corr[last] = s_post[-1]
+        tilt_var = p_s[:, 0, 0] + p_s[:, 1, 1]
+        smoothed = inside | last
+        sigma[smoothed] = np.sqrt(np.maximum(tilt_var[k[smoothed]], 0.0))
+        return corr, sigma
+
+    def smoothed_roll_pitch(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Roll, pitch (rad) and tilt 1σ per recorded sample, smoothed over the whole run (NaN before the
+        filter initialised)."""
+        corr, sigma = self.smoothed_corrections()
+        q = self._rec[: self._n_rec, 1:5]
+        qs = quat_multiply(quat_exp(corr[:, 0:3]), q)
+        rpy = quat_to_euler(qs)
+        return rpy[:, 0], rpy[:, 1], sigma
+
+
+__all__ = ["RtsSmoother", "SmoothingIns", "nominal_difference", "MAX_BLOCK_S"]
