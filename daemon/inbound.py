@@ -8,7 +8,7 @@ import time
 
 from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.autopilot import AutopilotState
-from ahrsd.daemon.mavlink_io import Endpoint, is_for_us
+from ahrsd.daemon.mavlink_io import Endpoint, is_for_us, mavlink
 
 log = logging.getLogger(__name__)
 
@@ -32,6 +32,13 @@ class InboundDispatch:
                     self.system_id = src_sys
                     for ep in self.endpoints:
                         ep.set_system_id(src_sys)
+            if (self.source_set_check is not None and self.autopilot.from_this_autopilot(msg)
+                    and msg.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA):
+                self.source_set_check.on_autopilot_heartbeat()     # reads its EK3_SRC parameters
+            return
+        if mtype == "PARAM_VALUE":
+            if self.source_set_check is not None and self.autopilot.from_this_autopilot(msg):
+                self.source_set_check.on_param_value(msg)
             return
         if mtype in ("GLOBAL_POSITION_INT", "GPS_RAW_INT"):
             if self.autopilot.system_id is None or src_sys == self.autopilot.system_id:

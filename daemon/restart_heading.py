@@ -95,7 +95,7 @@ class RestartHeading:
     def __init__(self, state_dir: Path, slew, *, mode: str = "slew", signal_reset: Callable[[], None],
                  slew_rate_deg_s: float | None = None,
                  autopilot_kind: Callable[[], int | None] = lambda: None,
-                 make_realign: Callable[[], SourceSetRealign] | None = None,
+                 make_realign: Callable[[], SourceSetRealign | None] | None = None,
                  background: Callable[[Callable[[], None]], None] | None = None, clock=time.time):
         self.state_dir = Path(state_dir)
         self.slew = slew
@@ -173,10 +173,10 @@ class RestartHeading:
             self.slew.release(self.slew_rate_deg_s)
             self.signal_reset()                      # reset_counter + 1, the new heading sent as it is
             log.info("restart: held %g s, then reset_counter + 1", HOLD_S)
-        elif mode == "source_set" and self.make_realign is not None:
+        elif mode == "source_set" and (realign := self.make_realign() if self.make_realign else None):
             self.how = mode
-            self.realign = self.make_realign()
-            self.realign.start(t_s)
+            self.realign = realign
+            realign.start(t_s)
             log.info("restart: held %g s, now switching EKF source sets to re-align the autopilot's yaw", HOLD_S)
         else:
             self._start_slew()

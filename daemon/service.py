@@ -52,6 +52,7 @@ from ahrsd.daemon.pipeline import Pipeline
 from ahrsd.daemon.publishers import Publishers
 from ahrsd.daemon.rate_limit import TokenBucket
 from ahrsd.daemon.restart_heading import RestartHeading
+from ahrsd.daemon.source_set_check import SourceSetCheck
 from ahrsd.daemon.source_set_realign import MAV_CMD_SET_EKF_SOURCE_SET, SourceSetRealign
 from ahrsd.daemon.sample_reader import SampleReader
 from ahrsd.daemon.signing import initial_timestamp, key_fingerprint, load_key, save_timestamp
@@ -105,6 +106,7 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         # the VISION_POSITION_ESTIMATE yaw after a calibration change (apply_calibration)
         self.heading_slew = HeadingSlew(max_rate_deg_s=config.outputs.heading_slew_deg_s)
         self.restart_heading: RestartHeading | None = None   # the restart rule (daemon.restart_heading)
+        self.source_set_check: SourceSetCheck | None = None  # may ArduPilot's source set be switched (same)
         self.declination_rad = 0.0
         self.declination_source = "none"
         self.signing_key: bytes | None = None
@@ -268,9 +270,16 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         mode = "reset_counter" if out.restart_yaw == "auto" and out.reset_counter_on_calibration else out.restart_yaw
         make_realign = None
         if out.ardupilot_source_set:
-            make_realign = lambda: SourceSetRealign(     # noqa: E731
-                out.ardupilot_source_set, send_command=self._send_source_set_command,
-                warn_operator=lambda text: self.statustext(mavlink.MAV_SEVERITY_CRITICAL, text))
+            check = self.source_set_check = SourceSetCheck(out.ardupilot_source_set, lambda m: self.send(m),
+                                                           self._autopilot_target)
+
+            def make_realign() -> SourceSetRealign | None:
+                if not check.allowed:
+                    log.warning("restart: not switching ArduPilot's EKF source set (%s)",
+                                check.verdict[1] if check.verdict else "its EK3_SRC parameters not read yet")
+                    return None
+                return SourceSetRealign(out.ardupilot_source_set, send_command=self._send_source_set_command,
+                                        warn_operator=lambda text: self.statustext(mavlink.MAV_SEVERITY_CRITICAL, text))
         self.restart_heading = RestartHeading(
             self.state_dir, self.heading_slew, mode=mode, signal_reset=self.signal_heading_reset,
             slew_rate_deg_s=out.restart_slew_deg_s, autopilot_kind=lambda: self.autopilot.autopilot_kind,
@@ -279,9 +288,11 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
 
     def _send_source_set_command(self, source_set: int) -> None:
         """MAV_CMD_SET_EKF_SOURCE_SET to the autopilot (daemon.source_set_realign)."""
-        target = (self.autopilot.system_id or self.system_id, self.autopilot.component_id or 1)
-        self.send(mavlink.MAVLink_command_long_message(*target, MAV_CMD_SET_EKF_SOURCE_SET, 0, float(source_set),
-                                                       0, 0, 0, 0, 0, 0))
+        self.send(mavlink.MAVLink_command_long_message(*self._autopilot_target(), MAV_CMD_SET_EKF_SOURCE_SET, 0,
+                                                       float(source_set), 0, 0, 0, 0, 0, 0))
+
+    def _autopilot_target(self) -> tuple[int, int]:
+        return self.autopilot.system_id or self.system_id, self.autopilot.component_id or 1
 
     def _in_background(self, fn: Callable[[], None]) -> None:
         """Small file writes off the event loop thread (the sample reader must not wait on an fsync)."""

@@ -47,9 +47,9 @@ def run(tmp_path, mounting_yaw_deg, seconds, autopilots, t0, *, reset_mode=False
                               sensor=dataclasses.replace(cfg.sensor, mounting_rpy_deg=(0.0, 0.0, mounting_yaw_deg)))
     svc = Service(cfg)
     svc.state_dir.mkdir(parents=True, exist_ok=True)
-    if connect is not None:
-        connect(svc)                   # the autopilot's side of the link (its HEARTBEAT, its command answers)
     svc.start_restart_rule()
+    if connect is not None:
+        connect(svc)                   # the autopilot's side of the link (its HEARTBEAT, its answers)
     svc.pipeline = Pipeline(make_estimator("mekf"), Calibration.identity())
     svc.pipeline.set_mounting([0.0, 0.0, mounting_yaw_deg])
     stream = open_stream("static", seed=5, errors="ideal")
@@ -192,10 +192,11 @@ def test_restart_with_the_same_heading_changes_nothing(tmp_path):
     assert np.max(np.abs(wrap_deg(second[:, 1] - second[:, 2]))) < 1e-6  # sent as estimated
 
 
-def connect_autopilot(autopilot_kind, ekf=None, *, answers=True):
-    """The autopilot's side of the link: its HEARTBEAT, and COMMAND_LONGs handed to the fake EKF, whose
-    COMMAND_ACKs come back through the service's inbound dispatch (`answers=False`: it never answers).
-    Returns (connect, the commands it received)."""
+def connect_autopilot(autopilot_kind, ekf=None, *, answer_commands=True):
+    """The autopilot's side of the link: its HEARTBEAT; COMMAND_LONGs handed to the fake EKF, whose
+    COMMAND_ACKs come back through the service's inbound dispatch (`answer_commands=False`: it never answers);
+    PARAM_REQUEST_READs answered with PARAM_VALUE from the fake's parameters. Returns (connect, the commands
+    it received)."""
     received = []
 
     def from_autopilot(msg):
@@ -203,18 +204,23 @@ def connect_autopilot(autopilot_kind, ekf=None, *, answers=True):
         return msg
 
     def connect(svc):
+        def send(msg, endpoint=None):
+            if ekf is None:
+                return
+            if msg.get_type() == "PARAM_REQUEST_READ":
+                value = ekf.param(msg.param_id)
+                if value is not None:
+                    svc._on_message(None, from_autopilot(mavlink.MAVLink_param_value_message(
+                        msg.param_id.encode(), value, mavlink.MAV_PARAM_TYPE_INT8, 900, 0)))
+            elif msg.get_type() == "COMMAND_LONG":
+                received.append((msg.target_system, msg.target_component, msg.command, msg.param1))
+                if answer_commands:
+                    result = ekf.command_long(msg.command, msg.param1)
+                    svc._on_message(None, from_autopilot(mavlink.MAVLink_command_ack_message(
+                        msg.command, result, 0, 0, svc.system_id, svc.component_id)))
+        svc.send = send
         svc._on_message(None, from_autopilot(mavlink.MAVLink_heartbeat_message(
             mavlink.MAV_TYPE_GROUND_ROVER, autopilot_kind, 0, 0, mavlink.MAV_STATE_ACTIVE, 3)))
-
-        def send(msg, endpoint=None):
-            if msg.get_type() != "COMMAND_LONG":
-                return
-            received.append((msg.target_system, msg.target_component, msg.command, msg.param1))
-            if answers and ekf is not None:
-                result = ekf.command_long(msg.command, msg.param1)
-                svc._on_message(None, from_autopilot(mavlink.MAVLink_command_ack_message(
-                    msg.command, result, 0, 0, svc.system_id, svc.component_id)))
-        svc.send = send
     return connect, received
 
 
@@ -244,7 +250,7 @@ def test_a_source_set_switch_the_autopilot_refuses_falls_back_to_the_slew(tmp_pa
     ekf3 = FakeEkf3(0.05)
     rec = Recorder(ekf3)
     outputs = {"ardupilot_source_set": 3}
-    connect, received = connect_autopilot(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, ekf3, answers=False)
+    connect, received = connect_autopilot(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, ekf3, answer_commands=False)
     run(tmp_path, 0.0, 4.0, (rec,), 0.0, warm=True, outputs=outputs, connect=connect)
     rate = OutputsConfig().restart_slew_deg_s
     second, svc2 = run(tmp_path, STEP_DEG, 2.0 + 1.0 + STEP_DEG / rate + 2.0, (rec,), 4.0 + GAP_S,
@@ -271,3 +277,15 @@ def test_auto_mode_resets_px4_and_slews_for_an_ardupilot_without_a_source_set(tm
     assert svc2.restart_heading.how == "slew" and received == []
     rate = OutputsConfig().restart_slew_deg_s
     assert abs(wrap_deg(second[-1, 1] - second[0, 1])) > 0.8 * rate * (second[-1, 0] - second[0, 0])  # no hold
+
+
+def test_a_source_set_that_differs_from_set_1_in_more_than_the_yaw_is_never_switched_to(tmp_path, caplog):
+    ekf3 = FakeEkf3(0.05, src_posvel=((3, 3, 1, 3), (0, 0, 0, 0), (3, 3, 1, 3)))   # set 2 left at its defaults
+    outputs = {"ardupilot_source_set": 2}
+    connect, received = connect_autopilot(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, ekf3)
+    run(tmp_path, 0.0, 4.0, (ekf3,), 0.0, warm=True, outputs=outputs, connect=connect)
+    second, svc2 = run(tmp_path, STEP_DEG, 4.0, (ekf3,), 4.0 + GAP_S, outputs=outputs, connect=connect)
+    assert svc2.source_set_check.verdict[0] is False and "POSXY,VELXY,POSZ,VELZ" in svc2.source_set_check.verdict[1]
+    assert received == [] and svc2.restart_heading.how == "slew"
+    assert ekf3.rejected == 0 and ekf3.aligns == 0
+    assert "will NOT be used" in caplog.text

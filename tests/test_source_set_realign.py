@@ -3,10 +3,13 @@ commands, the retries of the switch back, and what the operator is told when the
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
 from ahrsd.daemon.config import ConfigError, OutputsConfig
 from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.daemon.source_set_check import AXES, MAX_REQUESTS, SourceSetCheck
 from ahrsd.daemon.source_set_realign import ACK_TIMEOUT_S, SWITCH_BACK_S, SourceSetRealign
 
 
@@ -75,3 +78,48 @@ def test_config_needs_a_valid_alternate_set_for_source_set_mode():
             OutputsConfig.parse(bad)
     with pytest.raises(ValueError):
         SourceSetRealign(1, print, print)
+
+
+# -- the check of the autopilot's EK3_SRC parameters before any switch (daemon.source_set_check) -------------
+
+def _param(name, value):
+    return mavlink.MAVLink_param_value_message(name.encode(), value, mavlink.MAV_PARAM_TYPE_INT8, 900, 0)
+
+
+def _answers(check, sets):
+    """Answer every request of the last round from `sets` {set: (POSXY, VELXY, POSZ, VELZ, YAW)}."""
+    for name in check.names:
+        check.on_param_value(_param(name, float(sets[int(name[7])][AXES.index(name[9:])])))
+
+
+@pytest.mark.parametrize("sets, allowed, why", [
+    ({1: (3, 3, 1, 3, 6), 2: (3, 3, 1, 3, 0)}, True, "equal set 1"),
+    ({1: (3, 3, 1, 3, 6), 2: (3, 3, 1, 3, 6)}, False, "6 too"),
+    ({1: (3, 3, 1, 3, 1), 2: (3, 3, 1, 3, 0)}, False, "EK3_SRC1_YAW is 1"),
+    ({1: (3, 3, 1, 3, 6), 2: (3, 0, 1, 3, 0)}, False, "VELXY"),
+    ({1: (3, 3, 1, 3, 6), 2: (3, 3, 2, 3, 0)}, False, "POSZ"),
+])
+def test_the_switch_is_allowed_only_when_the_sets_differ_in_the_yaw_alone(sets, allowed, why):
+    sent = []
+    check = SourceSetCheck(2, sent.append, lambda: (7, 1))
+    check.on_autopilot_heartbeat()
+    assert sorted(m.param_id for m in sent) == sorted(f"EK3_SRC{s}_{a}" for s in (1, 2) for a in AXES)
+    assert {(m.target_system, m.target_component, m.param_index) for m in sent} == {(7, 1, -1)}
+    assert check.verdict is None and not check.allowed
+    _answers(check, sets)
+    assert check.allowed is allowed and why in check.verdict[1]
+
+
+def test_missing_or_invalid_answers_are_asked_again_then_the_switch_is_refused():
+    sent = []
+    check = SourceSetCheck(3, sent.append, lambda: (1, 1))
+    check.on_autopilot_heartbeat()
+    check.on_param_value(_param("EK3_SRC1_YAW", 6.0))
+    check.on_param_value(_param("EK3_SRC3_YAW", math.nan))          # hostile: ignored, asked again
+    check.on_param_value(_param("SOMETHING_ELSE", 1.0))
+    sent.clear()
+    check.on_autopilot_heartbeat()
+    assert len(sent) == 9 and "EK3_SRC1_YAW" not in [m.param_id for m in sent]
+    for _ in range(MAX_REQUESTS):
+        check.on_autopilot_heartbeat()
+    assert check.verdict is not None and not check.allowed and "EK3_SRC3_YAW" in check.verdict[1]

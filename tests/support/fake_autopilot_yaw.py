@@ -98,8 +98,9 @@ MAV_RESULT_ACCEPTED, MAV_RESULT_DENIED = 0, 2
 
 class FakeEkf3:
     def __init__(self, viso_yaw_m_nse: float = 0.05, yaw_i_gate: float = 300.0,
-                 src_yaw=(EXTNAV_YAW_SOURCE, 0, 0)):
+                 src_yaw=(EXTNAV_YAW_SOURCE, 0, 0), src_posvel=((3, 3, 1, 3),) * 3):
         self.src_yaw = src_yaw                  # EK3_SRC1_YAW, EK3_SRC2_YAW, EK3_SRC3_YAW
+        self.src_posvel = src_posvel            # per set: EK3_SRCn_POSXY, _VELXY, _POSZ, _VELZ
         self.active_set = 0
         self.yaw_source_last = src_yaw[0]
         self.yaw_source_reset = False
@@ -122,6 +123,16 @@ class FakeEkf3:
         """The largest innovation fused now, deg."""
         r, _ = self.r_yaw_rad2(*angle_vars)
         return math.degrees(self.gate * math.sqrt(self.filter.p[0][0] + r))
+
+    def param(self, name: str) -> float | None:
+        """The EK3_SRCn_* parameters (None for any other name)."""
+        if not (name.startswith("EK3_SRC") and name[7:8] in "123" and name[8:9] == "_"):
+            return None
+        n, axis = int(name[7]) - 1, name[9:]
+        if axis == "YAW":
+            return float(self.src_yaw[n])
+        axes = ("POSXY", "VELXY", "POSZ", "VELZ")
+        return float(self.src_posvel[n][axes.index(axis)]) if axis in axes else None
 
     def command_long(self, command: int, param1: float) -> int:
         """GCS_MAVLINK handling of MAV_CMD_SET_EKF_SOURCE_SET: the MAV_RESULT."""
