@@ -61,7 +61,6 @@ RESTART_STEP_DEG = 1.0       # smaller restart differences are sent as they are
 # (ev_control.cpp, ev_yaw_control.cpp); hold the old heading long enough for that, then reset. An autopilot
 # heartbeat (1 Hz) also arrives within it.
 HOLD_S = 2.0
-RESET_HOLD_S = HOLD_S
 
 
 @dataclass(frozen=True)
@@ -163,8 +162,8 @@ class RestartHeading:
             self.slew.start_from(mem.heading_rad, hold_until_s=math.inf)
             self._hold_end_s = t_s + HOLD_S
         else:
-            self.slew.start_from(mem.heading_rad, rate_deg_s=self.slew_rate_deg_s)
-            self._start_slew()
+            self.slew.start_from(mem.heading_rad)
+            self._start_slew()                       # at the restart rate
 
     def _after_hold(self, t_s: float) -> None:
         mode = self._resolve(final=True)

@@ -265,7 +265,8 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
 
     def start_restart_rule(self) -> None:
         """Load what the autopilot last got from us (daemon.restart_heading): the reset_counter continues,
-        and a different heading after the restart is slewed (or, in reset mode, signalled) in."""
+        and a different heading after the restart is brought in as `[outputs] restart_yaw` says (slewed, or
+        a yaw reset: reset_counter for PX4, an EKF source-set switch for ArduPilot)."""
         out = self.config.outputs
         mode = "reset_counter" if out.restart_yaw == "auto" and out.reset_counter_on_calibration else out.restart_yaw
         make_realign = None

@@ -55,7 +55,6 @@ class SourceSetRealign:
         self._switch_back_at_s = math.inf
         self._acked: int | None = None           # MAV_RESULT of the outstanding command, once answered
         self._attempts = 0
-        self._t_s = -math.inf
 
     @property
     def publish_new_heading(self) -> bool:
@@ -76,7 +75,6 @@ class SourceSetRealign:
             self._acked = msg.result
 
     def tick(self, t_s: float) -> None:
-        self._t_s = t_s
         if self.state == self.SWITCHING_AWAY:
             if self._acked == mavlink.MAV_RESULT_ACCEPTED:
                 self.state = self.ON_ALTERNATE

@@ -63,7 +63,6 @@ class RtsSmoother:
         self._p_post = None          # P⁺ of the last node
         self._open_block()
         self._t, self._a, self._b, self._d, self._dx, self._cut = [], [], [], [], [], []
-        self._p_last = None
 
     def _open_block(self) -> None:
         self._A = self._eye.copy()
@@ -100,7 +99,6 @@ class RtsSmoother:
             self._cut.append(bool(cut))
             self._open_block()
         self._p_post = p_post
-        self._p_last = p_post
         self._phi = self._eye.copy()
 
     def smooth(self):
@@ -113,7 +111,7 @@ class RtsSmoother:
         # the block still open after the last block end (identity when no node followed it) ends at the last
         # node, where the smoothed error is 0 and its covariance the filter's
         s_post[m - 1] = self._B
-        p_s[m - 1] = self._D + self._A @ self._p_last @ self._A.T
+        p_s[m - 1] = self._D + self._A @ self._p_post @ self._A.T
         for k in range(m - 2, -1, -1):
             a, b, d = self._a[k], self._b[k], self._d[k]
             s_post[k] = a @ s_post[k + 1] + b
