@@ -44,11 +44,11 @@ MIN_SETTLED_FRACTION = 0.25    # fewer settled samples than this: fit them all (
 SMOOTH_LEVELLING = True        # level with the RTS smoother over the whole run (estimator/ins_smoother.py)
 
 
-def _level(data: MagFitInput, fixes, declination_rad: float, mag_enabled: bool, settled_tilt_sigma_deg: float,
-           smooth: bool = True):
-    """Roll, pitch, the settled mask and whether the filter fused the GNSS velocity cleanly. `smooth`: the
-    roll/pitch of the RTS smoother over the filter's run (given every fix, before and after) instead of the
-    filter's own (given the fixes before)."""
+def aided_roll_pitch(data: MagFitInput, fixes, declination_rad: float, mag_enabled: bool = False,
+                     smooth: bool = SMOOTH_LEVELLING):
+    """The levelling the fit uses: roll, pitch and tilt 1σ (rad, per sample) of the aided estimator over `data`
+    with the GNSS `fixes`, and the estimator (its GNSS counters). `smooth`: those of the RTS smoother over the
+    filter's run (given every fix, before and after) instead of the filter's own (given the fixes before)."""
     from ahrsd.estimator import make_estimator
     from ahrsd.estimator.ins_smoother import SmoothingIns
 
@@ -59,6 +59,13 @@ def _level(data: MagFitInput, fixes, declination_rad: float, mag_enabled: bool, 
         sr, sp, ss = est.smoothed_roll_pitch()
         ok = np.isfinite(sr) & np.isfinite(sp)
         roll, pitch, tilt_sigma = np.where(ok, sr, roll), np.where(ok, sp, pitch), np.where(ok, ss, tilt_sigma)
+    return roll, pitch, tilt_sigma, est
+
+
+def _level(data: MagFitInput, fixes, declination_rad: float, mag_enabled: bool, settled_tilt_sigma_deg: float,
+           smooth: bool = True):
+    """Roll, pitch, the settled mask and whether the filter fused the GNSS velocity cleanly."""
+    roll, pitch, tilt_sigma, est = aided_roll_pitch(data, fixes, declination_rad, mag_enabled, smooth)
     settled = tilt_sigma <= math.radians(settled_tilt_sigma_deg)
     if settled.mean() < MIN_SETTLED_FRACTION:
         settled = np.ones(len(data), dtype=bool)

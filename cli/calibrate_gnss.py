@@ -22,7 +22,6 @@ import math
 
 COURSE_MIN_SPEED_M_S = 2.0      # course 1σ ≈ speed accuracy / speed: 0.05/2 rad ≈ 1.4° (u-blox M8 sAcc)
 COURSE_MAX_TURN_RATE_DEG_S = 1.0   # a straight track (calibration.swing's default gate)
-LEVELLING_ESTIMATOR = "ins"
 
 
 class GnssInputError(ValueError):
@@ -63,15 +62,3 @@ def fit_aided(data, fixes, reference, **options):
     from ahrsd.calibration.backstepping_aided import fit_backstepping_aided
 
     return fit_backstepping_aided(data, fixes, reference, reference.declination_rad, **options)
-
-
-def aided_levelling(data, fixes, declination_rad: float):
-    """Roll and pitch per sample from the aided estimator over the recording with the fixes (the forward filter;
-    the fit levels with its smoothed run, calibration.backstepping_aided)."""
-    from ahrsd.calibration.levelling import roll_pitch_from_estimator
-
-    # the magnetometer is the one being calibrated: its distorted heading would turn the aided filter's NED
-    # frame, and the GNSS velocity would then tilt the horizon (measured in docs/gnss.md); GNSS and the gyros
-    # carry the heading through the run instead
-    return roll_pitch_from_estimator(data, LEVELLING_ESTIMATOR, fixes=fixes, declination_rad=declination_rad,
-                                     mag_enabled=False)

@@ -89,7 +89,7 @@ def test_aided_levelling_on_a_boat(tmp_path):
     """The aided roll/pitch against the simulator's truth, and the CLI using it."""
     from scipy.spatial.transform import Rotation
 
-    from ahrsd.cli.calibrate_gnss import aided_levelling
+    from ahrsd.calibration.backstepping_aided import aided_roll_pitch
     from ahrsd.core.wmm import earth_field
     from ahrsd.drivers.gnss_recording import read_gnss_recording
     from ahrsd.drivers.recording import read_recording
@@ -100,8 +100,8 @@ def test_aided_levelling_on_a_boat(tmp_path):
     assert res.returncode == 0, res.stderr
     r = read_recording(rec)
     data = MagFitInput(r.t_s, r.mag_ut, r.accel_m_s2, r.gyro_rad_s)
-    roll, pitch = aided_levelling(data, read_gnss_recording(tmp_path / "boat.gnss.csv"),
-                                  earth_field(36.42, 54.98).declination_rad)
+    roll, pitch, _, _ = aided_roll_pitch(data, read_gnss_recording(tmp_path / "boat.gnss.csv"),
+                                         earth_field(36.42, 54.98).declination_rad)
     truth = Rotation.from_quat(np.column_stack([r.extra[c] for c in ("truth_qx", "truth_qy", "truth_qz",
                                                                       "truth_qw")])).as_euler("ZYX")
     late = r.t_s > 30.0
