@@ -21,6 +21,7 @@ from ahrsd.daemon.params import ParamSpec, ParamStore
 from ahrsd.daemon.pipeline import mounting_matrix
 from ahrsd.drivers.sample_timer import SampleTimer
 from ahrsd.core.sample import make_sample
+from support.mavlink_feed import as_if_from
 
 # ------------------------------------------------------------------------------------------ command router
 
@@ -32,7 +33,7 @@ def command(cmd, *params, src=(255, 190), signed=False, target=(1, 200), int_for
                                                 p[6])
     else:
         m = mavlink.MAVLink_command_long_message(target[0], target[1], cmd, 0, *p)
-    m._header = mavlink.MAVLink_header(m.id, srcSystem=src[0], srcComponent=src[1])
+    as_if_from(m, *src)
     m._signed = signed
     return m
 
@@ -411,30 +412,25 @@ def test_endpoint_handler_exception_is_contained():
 # ------------------------------------------------------------------------------------------ autopilot inputs
 
 
-def _from(msg, sysid=1, compid=1):
-    msg._header = mavlink.MAVLink_header(msg.id, srcSystem=sysid, srcComponent=compid)
-    return msg
-
-
 def test_autopilot_state_latches_and_reads_position_course_speed():
     from ahrsd.daemon.autopilot import AutopilotState
 
     ap = AutopilotState()
-    gcs = _from(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3),
+    gcs = as_if_from(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3),
                 255, 190)
     assert not AutopilotState.is_autopilot_heartbeat(gcs)
-    hb = _from(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_SURFACE_BOAT, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+    hb = as_if_from(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_SURFACE_BOAT, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
                                                  mavlink.MAV_MODE_FLAG_SAFETY_ARMED, 0, 4, 3), 3, 1)
     assert AutopilotState.is_autopilot_heartbeat(hb) and ap.on_heartbeat(hb, 1.0)
     assert (ap.system_id, ap.armed) == (3, True)
-    ap.on_global_position_int(_from(mavlink.MAVLink_global_position_int_message(
+    ap.on_global_position_int(as_if_from(mavlink.MAVLink_global_position_int_message(
         0, 520000000, 44000000, 12000, 0, 0, 300, 0, 9000), 3), 2.0)          # north-east? vx=0, vy=3 m/s
     assert (ap.lat_deg, ap.lon_deg, ap.alt_m) == pytest.approx((52.0, 4.4, 12.0))
     assert ap.course_rad == pytest.approx(math.pi / 2) and ap.ground_speed_m_s == pytest.approx(3.0)
-    ap.on_gps_raw_int(_from(mavlink.MAVLink_gps_raw_int_message(
+    ap.on_gps_raw_int(as_if_from(mavlink.MAVLink_gps_raw_int_message(
         0, 3, 510000000, 1000000, 0, 100, 100, 250, 18000, 10), 3), 3.0)       # 2.5 m/s, course 180°
     assert ap.lat_deg == pytest.approx(51.0) and ap.course_rad == pytest.approx(math.pi)
-    ap.on_gps_raw_int(_from(mavlink.MAVLink_gps_raw_int_message(
+    ap.on_gps_raw_int(as_if_from(mavlink.MAVLink_gps_raw_int_message(
         0, 1, 0, 0, 0, 100, 100, 0, 0, 0), 3), 4.0)                            # no fix: ignored
     assert ap.lat_deg == pytest.approx(51.0)
 
@@ -451,9 +447,9 @@ def test_declination_priority(tmp_path):
     svc = Service(cfg)
     svc._resolve_declination(initial=True)
     assert svc.declination_rad == 0.0 and svc.declination_source.startswith("none")
-    svc._on_message(None, _from(mavlink.MAVLink_heartbeat_message(
+    svc._on_message(None, as_if_from(mavlink.MAVLink_heartbeat_message(
         mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 0, 0, 4, 3), 1, 1))
-    svc._on_message(None, _from(mavlink.MAVLink_global_position_int_message(
+    svc._on_message(None, as_if_from(mavlink.MAVLink_global_position_int_message(
         0, 640000000, -220000000, 0, 0, 0, 0, 0, 0), 1, 1))                    # Iceland: large declination
     assert svc.declination_rad == pytest.approx(earth_field(64.0, -22.0, 0.0).declination_rad)
     assert "autopilot" in svc.declination_source

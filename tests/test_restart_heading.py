@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 from support.fake_autopilot_yaw import FakeEkf2, FakeEkf3, warm_up
+from support.mavlink_feed import as_if_from
 
 from ahrsd.daemon.mavlink_io import mavlink
 
@@ -199,10 +200,6 @@ def connect_autopilot(autopilot_kind, ekf=None, *, answer_commands=True):
     it received)."""
     received = []
 
-    def from_autopilot(msg):
-        msg._header = mavlink.MAVLink_header(msg.id, srcSystem=1, srcComponent=1)
-        return msg
-
     def connect(svc):
         def send(msg, endpoint=None):
             if ekf is None:
@@ -210,16 +207,16 @@ def connect_autopilot(autopilot_kind, ekf=None, *, answer_commands=True):
             if msg.get_type() == "PARAM_REQUEST_READ":
                 value = ekf.param(msg.param_id)
                 if value is not None:
-                    svc._on_message(None, from_autopilot(mavlink.MAVLink_param_value_message(
+                    svc._on_message(None, as_if_from(mavlink.MAVLink_param_value_message(
                         msg.param_id.encode(), value, mavlink.MAV_PARAM_TYPE_INT8, 900, 0)))
             elif msg.get_type() == "COMMAND_LONG":
                 received.append((msg.target_system, msg.target_component, msg.command, msg.param1))
                 if answer_commands:
                     result = ekf.command_long(msg.command, msg.param1)
-                    svc._on_message(None, from_autopilot(mavlink.MAVLink_command_ack_message(
+                    svc._on_message(None, as_if_from(mavlink.MAVLink_command_ack_message(
                         msg.command, result, 0, 0, svc.system_id, svc.component_id)))
         svc.send = send
-        svc._on_message(None, from_autopilot(mavlink.MAVLink_heartbeat_message(
+        svc._on_message(None, as_if_from(mavlink.MAVLink_heartbeat_message(
             mavlink.MAV_TYPE_GROUND_ROVER, autopilot_kind, 0, 0, mavlink.MAV_STATE_ACTIVE, 3)))
     return connect, received
 

@@ -26,3 +26,10 @@ def feed(rig, data: bytes) -> None:
     """One datagram through the endpoint's parser and dispatch, as the event loop would deliver it."""
     rig.ep._parse(data)
     rig.ep._end_of_datagram()
+
+
+def as_if_from(msg, sysid: int = 1, compid: int = 1):
+    """`msg` with the sender header a parsed message from (sysid, compid) carries, for handing straight to the
+    daemon's dispatch (pymavlink sets it only when it parses or packs)."""
+    msg._header = mavlink.MAVLink_header(msg.id, srcSystem=sysid, srcComponent=compid)
+    return msg
