@@ -27,6 +27,13 @@ and judged four ways, true heading error RMS in degrees, the mean offset NOT rem
   that is fixed to the body enters the calibration and the daemon's tilt alike, and partly cancels here;
   `grid` keeps it.
 
+`acal` is the `rts` fit as a user with a bench accelerometer calibration runs it: the same sensor's guided
+14-position calibration (`ahrsd calibrate accel`: faces and corners, each position's mean with 0.3 mg of noise
+and in-run drift) applied to the recording, and the aided levelling told the bias is known to
+ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 (calibration.backstepping_aided); its `ins` and `op` use the calibrated
+accelerometer too, as the daemon would. The simulated sensor keeps its turn-on bias from the bench to the boat
+(no power-up repeatability error), so this is the best case of that workflow.
+
 `frame` is the oracle levelled in the accelerometer triad's own frame: the true attitude rotated by the rotation
 part (skew-symmetric half) of the simulated accelerometer's misalignment matrix. No sensor on the vehicle sees
 the simulator's body frame; an aided filter levels the frame its accelerometer measures in (a pure rotation of
@@ -39,6 +46,7 @@ truth) of the aided filter without a magnetometer, forward / smoothed (one pass,
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import math
 import time
@@ -85,6 +93,26 @@ class BoatRun:
         self.yaw, self.pitch, self.roll = ypr[:, 0], ypr[:, 1], ypr[:, 2]
         self.late = b.t_s >= SETTLE_S
         self.accel_roll, self.accel_pitch = accel_triad_roll_pitch(q, stream.errors.accel_misalignment_rad)
+        self.accel_model = bench_accel_calibration(stream.errors, site.gravity_m_s2, seed)
+        self.data_acal = dataclasses.replace(self.data, accel_m_s2=np.ascontiguousarray(
+            self.accel_model.apply(b.accel_m_s2)))
+
+
+def bench_accel_calibration(errors, g_m_s2: float, seed: int):
+    """The AccelModel `ahrsd calibrate accel` fits to this sensor: the guided positions' mean specific force
+    (f = g·d for target direction d), each with 0.3 mg of noise (a 10 s mean: 0.1 mg of white noise, 0.2 mg of
+    in-run instability)."""
+    from ahrsd.calibration.accel_cal import GUIDED_TARGETS, fit_accel
+
+    d = np.array([v for _, v in GUIDED_TARGETS], dtype=float)
+    f = g_m_s2 * d / np.linalg.norm(d, axis=1, keepdims=True)
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0xACA1]))
+    means = f @ errors.accel_matrix.T + errors.accel_bias_m_s2 + rng.normal(0.0, 0.3e-3 * STANDARD_GRAVITY_M_S2,
+                                                                            f.shape)
+    fit = fit_accel(means, g_m_s2)
+    if not fit.ok:
+        raise RuntimeError(f"bench accelerometer calibration refused: {fit.refused}")
+    return fit.model
 
 
 def accel_triad_roll_pitch(truth_q_wxyz, accel_misalignment_rad):
@@ -117,12 +145,11 @@ def recording_error_deg(run: BoatRun, model) -> np.ndarray:
     return np.degrees(_wrap_rad(psi - run.yaw))[run.late]
 
 
-def ins_error_deg(run: BoatRun, model):
-    """The daemon's aided estimator over the recording with the calibration applied: its true-heading error
-    after SETTLE_S (deg), and the estimator at the end."""
-    import dataclasses
-
-    cal = dataclasses.replace(run.data, mag_ut=np.ascontiguousarray(model.apply(run.block.mag_ut)))
+def ins_error_deg(run: BoatRun, model, data=None):
+    """The daemon's aided estimator over the recording (`data`: default run.data) with the calibration applied:
+    its true-heading error after SETTLE_S (deg), and the estimator at the end."""
+    cal = dataclasses.replace(run.data if data is None else data,
+                              mag_ut=np.ascontiguousarray(model.apply(run.block.mag_ut)))
     yaw, est = _yaw_from_ins(cal, run)
     return np.degrees(_wrap_rad(yaw + run.field.declination_rad - run.yaw))[run.late], est
 
@@ -142,15 +169,17 @@ def _yaw_from_ins(data, run: BoatRun):
     return yaw, est
 
 
-def operational_grid_error_deg(run: BoatRun, model, accel_bias_estimate_m_s2, tilt_deg: float = 8.0) -> np.ndarray:
+def operational_grid_error_deg(run: BoatRun, model, accel_bias_estimate_m_s2, tilt_deg: float = 8.0,
+                               accel_model=None) -> np.ndarray:
     """`op` of the docstring: true-heading error (deg) at the grid's attitudes, at rest, levelled by the
-    sensor's accelerometer less the estimated bias."""
+    sensor's accelerometer (through `accel_model`, if given) less the estimated bias."""
     yaw, tilt = np.radians(np.arange(0.0, 360.0, 5.0)), np.radians(np.linspace(-tilt_deg, tilt_deg, 5))
     y, p, r = (a.ravel() for a in np.meshgrid(yaw, tilt, tilt, indexing="ij"))
     to_body = Rotation.from_euler("ZYX", np.column_stack([y, p, r])).inv()
     raw_mag = to_body.apply(run.field.ned_ut) @ run.soft_iron.T + run.hard_iron_ut
     f = to_body.apply([0.0, 0.0, -STANDARD_GRAVITY_M_S2])        # specific force at rest, body frame
-    f = f @ run.errors.accel_matrix.T + run.errors.accel_bias_m_s2 - accel_bias_estimate_m_s2
+    f = f @ run.errors.accel_matrix.T + run.errors.accel_bias_m_s2
+    f = (f if accel_model is None else accel_model.apply(f)) - accel_bias_estimate_m_s2
     roll, pitch = np.arctan2(-f[:, 1], -f[:, 2]), np.arctan2(f[:, 0], np.hypot(f[:, 1], f[:, 2]))
     psi = _tilt_compensated_true_heading(model.apply(raw_mag), pitch, roll, run.field.declination_rad)
     return np.degrees(_wrap_rad(psi - y))
@@ -158,7 +187,8 @@ def operational_grid_error_deg(run: BoatRun, model, accel_bias_estimate_m_s2, ti
 
 def calibrations(run: BoatRun, settled_tilt_sigma_deg: float | None = None) -> dict:
     """name -> MagFitResult."""
-    from ahrsd.calibration.backstepping_aided import SETTLED_TILT_SIGMA_DEG, fit_backstepping_aided
+    from ahrsd.calibration.backstepping_aided import (ACCEL_BIAS_SIGMA_CALIBRATED_M_S2, SETTLED_TILT_SIGMA_DEG,
+                                                      fit_backstepping_aided)
     from ahrsd.calibration.levelling import roll_pitch_from_estimator
     from ahrsd.calibration.magfit import fit_mag
 
@@ -177,6 +207,8 @@ def calibrations(run: BoatRun, settled_tilt_sigma_deg: float | None = None) -> d
                                       smooth=False),
         "rts": fit_backstepping_aided(run.data, run.fixes, run.field, decl, settled_tilt_sigma_deg=thr,
                                       smooth=True),
+        "acal": fit_backstepping_aided(run.data_acal, run.fixes, run.field, decl, settled_tilt_sigma_deg=thr,
+                                       accel_bias_sigma_m_s2=ACCEL_BIAS_SIGMA_CALIBRATED_M_S2),
     }
 
 
@@ -227,7 +259,7 @@ def main(argv=None) -> int:
     seeds = args.seeds or HELD_OUT_SEEDS
     kind = "tuning" if set(seeds) <= set(TUNING_SEEDS) else ("held-out" if not set(seeds) & set(TUNING_SEEDS)
                                                             else "mixed")
-    names = ("plain", "gnss-1pass", "oracle", "frame", "fix", "rts")
+    names = ("plain", "gnss-1pass", "oracle", "frame", "fix", "rts", "acal")
     print(f"# back-stepping on the boat, {SECONDS:.0f} s, {kind} seeds {list(seeds)}: true-heading RMS (deg, mean "
           f"offset kept; target ≤ {TARGET_DEG}), grid / rec / ins / op (see the docstring)")
     hdr = f"{'site':8s} {'seed':>4s} " + "".join(f"{n:>28s}" for n in names) + f"{'tilt fwd/rts':>14s}"
@@ -247,8 +279,11 @@ def main(argv=None) -> int:
                     continue
                 g = _rms(grid_error_deg(run, res.model))
                 r = _rms(recording_error_deg(run, res.model))
-                i, est = (math.nan, None) if args.no_ins else ins_error_deg(run, res.model)
-                o = math.nan if est is None else _rms(operational_grid_error_deg(run, res.model, est.accel_bias_m_s2))
+                acal = name == "acal"
+                i, est = (math.nan, None) if args.no_ins else ins_error_deg(run, res.model,
+                                                                            run.data_acal if acal else None)
+                o = math.nan if est is None else _rms(operational_grid_error_deg(
+                    run, res.model, est.accel_bias_m_s2, accel_model=run.accel_model if acal else None))
                 table[name].append((g, r, _rms(i), o))
                 line += f"{g:8.2f}/{r:5.2f}/{_rms(i):5.2f}/{o:5.2f}  "
             tilts.append(levelling_tilt_error_deg(run))

@@ -22,6 +22,14 @@ the error is the levelling's (measured in docs/magcal-vehicle.md). What this mod
   the magnetometer calibrated by the accelerometer-levelled fit (heading within a degree or two, which moves
   the aided tilt by only ψ̃·a/g), twice, and the result says so.
 
+- **The accelerometer bias.** On a boat that stays near level and mostly yaws, a body-fixed accelerometer bias b
+  and a tilt b/g give nearly the same GNSS velocities, so 180 s of motion splits them only weakly and the
+  levelling's tilt is off by up to the bias the filter's prior allows (its default 10 mg: up to 0.6°). What
+  splits them is a bench calibration: with the accelerometer calibrated (`ahrsd calibrate accel`, applied
+  before the fit), pass `accel_bias_sigma_m_s2` = how well that calibration knows the bias
+  (ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 by default in the CLI), and the filter keeps the bias near zero and takes
+  the tilt from the data (measured in docs/magcal-vehicle.md).
+
 No centripetal compensation is applied: the aided horizon does not lean into turns.
 """
 
@@ -42,18 +50,24 @@ FALLBACK_PASSES = 2             # aided levelling passes with the magnetometer, 
 MAX_REJECTED_VELOCITY_FRACTION = 0.01   # of the offered fixes: more, and the filter did not converge
 MIN_SETTLED_FRACTION = 0.25    # fewer settled samples than this: fit them all (a short run)
 SMOOTH_LEVELLING = True        # level with the RTS smoother over the whole run (estimator/ins_smoother.py)
+ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 = 2e-3 * 9.80665   # residual accelerometer bias 1σ with a bench calibration in
+    # force: the fit's own 0.1–0.3 mg (26 positions), the ADIS16405's 0.2 mg in-run instability, and the bias
+    # change between the bench power-up and the run's, which the data sheet does not give (a margin)
 
 
 def aided_roll_pitch(data: MagFitInput, fixes, declination_rad: float, mag_enabled: bool = False,
-                     smooth: bool = SMOOTH_LEVELLING):
+                     smooth: bool = SMOOTH_LEVELLING, accel_bias_sigma_m_s2: float | None = None):
     """The levelling the fit uses: roll, pitch and tilt 1σ (rad, per sample) of the aided estimator over `data`
     with the GNSS `fixes`, and the estimator (its GNSS counters). `smooth`: those of the RTS smoother over the
-    filter's run (given every fix, before and after) instead of the filter's own (given the fixes before)."""
+    filter's run (given every fix, before and after) instead of the filter's own (given the fixes before).
+    `accel_bias_sigma_m_s2`: the filter's accelerometer-bias prior (None: its default, for an uncalibrated
+    accelerometer)."""
     from ahrsd.estimator import make_estimator
     from ahrsd.estimator.ins_smoother import SmoothingIns
 
-    est = (SmoothingIns(declination_rad=declination_rad, mag_enabled=mag_enabled) if smooth else
-           make_estimator(AIDED_ESTIMATOR, declination_rad=declination_rad, mag_enabled=mag_enabled))
+    prior = {} if accel_bias_sigma_m_s2 is None else {"init_accel_bias_sigma_m_s2": float(accel_bias_sigma_m_s2)}
+    est = (SmoothingIns(declination_rad=declination_rad, mag_enabled=mag_enabled, **prior) if smooth else
+           make_estimator(AIDED_ESTIMATOR, declination_rad=declination_rad, mag_enabled=mag_enabled, **prior))
     roll, pitch, tilt_sigma = attitude_from_estimator(data, AIDED_ESTIMATOR, fixes=fixes, estimator=est)
     if smooth:
         sr, sp, ss = est.smoothed_roll_pitch()
@@ -63,9 +77,10 @@ def aided_roll_pitch(data: MagFitInput, fixes, declination_rad: float, mag_enabl
 
 
 def _level(data: MagFitInput, fixes, declination_rad: float, mag_enabled: bool, settled_tilt_sigma_deg: float,
-           smooth: bool = True):
+           smooth: bool, accel_bias_sigma_m_s2: float | None):
     """Roll, pitch, the settled mask and whether the filter fused the GNSS velocity cleanly."""
-    roll, pitch, tilt_sigma, est = aided_roll_pitch(data, fixes, declination_rad, mag_enabled, smooth)
+    roll, pitch, tilt_sigma, est = aided_roll_pitch(data, fixes, declination_rad, mag_enabled, smooth,
+                                                    accel_bias_sigma_m_s2)
     settled = tilt_sigma <= math.radians(settled_tilt_sigma_deg)
     if settled.mean() < MIN_SETTLED_FRACTION:
         settled = np.ones(len(data), dtype=bool)
@@ -90,13 +105,18 @@ def _pass_report(data: MagFitInput, settled, res: MagFitResult, health: dict) ->
 
 def fit_backstepping_aided(data: MagFitInput, fixes, reference, declination_rad: float,
                            settled_tilt_sigma_deg: float = SETTLED_TILT_SIGMA_DEG, smooth: bool = SMOOTH_LEVELLING,
-                           **options) -> MagFitResult:
+                           accel_bias_sigma_m_s2: float | None = None, **options) -> MagFitResult:
     """Back-stepping (`fit_backstepping`, `options` its BacksteppingOptions fields) levelled by the aided
-    estimator over `data` (raw magnetometer) with the GNSS `fixes` (time of validity on the samples' time base).
-    See the module docstring; `quality["aided_levelling"]` reports each pass."""
+    estimator over `data` (raw magnetometer; the accelerometer as calibrated, if it is) with the GNSS `fixes`
+    (time of validity on the samples' time base). `accel_bias_sigma_m_s2`: how well the accelerometer bias is
+    known (None: uncalibrated, the filter's default prior). See the module docstring;
+    `quality["aided_levelling"]` reports each pass."""
     from .backstepping import fit_backstepping
 
-    roll, pitch, settled, health = _level(data, fixes, declination_rad, False, settled_tilt_sigma_deg, smooth)
+    if accel_bias_sigma_m_s2 is not None and not (math.isfinite(accel_bias_sigma_m_s2) and accel_bias_sigma_m_s2 > 0):
+        raise ValueError(f"accel_bias_sigma_m_s2 must be a positive number, got {accel_bias_sigma_m_s2!r}")
+    roll, pitch, settled, health = _level(data, fixes, declination_rad, False, settled_tilt_sigma_deg, smooth,
+                                          accel_bias_sigma_m_s2)
     result = _fit_settled(data, roll, pitch, settled, reference, options)
     passes = [{"magnetometer": "off", **_pass_report(data, settled, result, health)}]
     if not health["healthy"]:
@@ -106,7 +126,7 @@ def fit_backstepping_aided(data: MagFitInput, fixes, reference, declination_rad:
         for _ in range(FALLBACK_PASSES if model is not None else 0):
             calibrated = dataclasses.replace(data, mag_ut=np.ascontiguousarray(model.apply(data.mag_ut)))
             roll, pitch, settled, health = _level(calibrated, fixes, declination_rad, True, settled_tilt_sigma_deg,
-                                                  smooth)
+                                                  smooth, accel_bias_sigma_m_s2)
             res = _fit_settled(data, roll, pitch, settled, reference, options)
             passes.append({"magnetometer": "the previous fit's calibration",
                            **_pass_report(data, settled, res, health)})
@@ -117,5 +137,6 @@ def fit_backstepping_aided(data: MagFitInput, fixes, reference, declination_rad:
             "the aided filter without a magnetometer did not acquire its heading from the GNSS velocity (velocity "
             "rejected and reset): levelled again with the magnetometer calibrated by the accelerometer-levelled fit")
     result.quality["aided_levelling"] = {"estimator": AIDED_ESTIMATOR, "smoothed": smooth,
+                                         "accel_bias_sigma_m_s2": accel_bias_sigma_m_s2,
                                          "settled_tilt_sigma_deg": settled_tilt_sigma_deg, "passes": passes}
     return result

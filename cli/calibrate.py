@@ -90,6 +90,9 @@ def register(subparsers) -> None:
     m.add_argument("--gnss-course", action="store_true",
                    help="with --gnss: also take the heading offset from the GNSS course on straight tracks above "
                    "2 m/s (course = heading + crab: only without current, leeway or crosswind; docs/gnss.md)")
+    m.add_argument("--accel-bias-sigma-mg", type=float, default=None, metavar="MG",
+                   help="with --gnss: how well the accelerometer bias is known, 1σ in mg (default: 2 with an "
+                   "accelerometer calibration in the state directory, else the aided filter's 10)")
 
 
 # ---------------------------------------------------------------------------------------------- helpers
@@ -457,6 +460,11 @@ def _mag(args) -> int:
         raise _Usage("--gnss goes with --method backstepping")
     if args.gnss_course and not args.gnss:
         raise _Usage("--gnss-course needs --gnss GNSS.csv")
+    if args.accel_bias_sigma_mg is not None and not args.gnss:
+        raise _Usage("--accel-bias-sigma-mg needs --gnss GNSS.csv")
+    if args.accel_bias_sigma_mg is not None and not (math.isfinite(args.accel_bias_sigma_mg)
+                                                     and 0.0 < args.accel_bias_sigma_mg <= 1000.0):
+        raise _Usage(f"--accel-bias-sigma-mg {args.accel_bias_sigma_mg}: expected 0 < MG ≤ 1000")
     swing_table = _read_swing_table(args.swing_table) if args.swing_table else None  # bad file: fail before fitting
     rec = _read(args.recording, args)
     stored = _stored(args)
@@ -464,8 +472,11 @@ def _mag(args) -> int:
     heading_ref, ref_note = _heading_reference_column(rec, args.recording, args.method)
     options = {}
     fixes = None
+    accel_bias_sigma_m_s2 = None
     if args.gnss:
         fixes, heading_ref, ref_note = _gnss_for_backstepping(args, rec, heading_ref, ref_note)
+        accel_bias_sigma_m_s2, prior_note = _levelling_accel_bias_prior(args, stored)
+        ref_note = ref_note + "; " + prior_note
     data = MagFitInput(rec.t_s, rec.mag_ut, accel, gyro, heading_ref)
     if args.method == "backstepping" and args.heading_ref_delay_s:
         options["heading_ref_delay_s"] = args.heading_ref_delay_s
@@ -491,7 +502,7 @@ def _mag(args) -> int:
             if fixes is not None:
                 from ahrsd.cli.calibrate_gnss import fit_aided
 
-                res = fit_aided(data, fixes, ref, **options)
+                res = fit_aided(data, fixes, ref, accel_bias_sigma_m_s2=accel_bias_sigma_m_s2, **options)
             else:
                 res = fit_mag(args.method, data, ref, **options)
     except NotImplementedError as exc:
@@ -567,6 +578,26 @@ def _gnss_for_backstepping(args, rec, heading_ref, ref_note):
     note += (f"; heading reference: GNSS course on straight tracks above {cg.COURSE_MIN_SPEED_M_S:g} m/s, "
              f"{n} of {len(course)} samples ({n / len(course):.0%})")
     return fixes, (course if n else None), note
+
+
+def _levelling_accel_bias_prior(args, stored):
+    """--gnss: the aided levelling's accelerometer-bias prior (m/s², None: the filter's default) and a note. The
+    levelling cannot tell a bias from a tilt on a vehicle that stays level (calibration.backstepping_aided), so
+    what splits them is the bench calibration: known to ~2 mg when there is one."""
+    from ahrsd.calibration.backstepping_aided import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
+    from ahrsd.calibration.models import AccelModel
+    from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
+
+    mg = 1e-3 * STANDARD_GRAVITY_M_S2
+    calibrated = stored.accel != AccelModel.identity()
+    if args.accel_bias_sigma_mg is not None:
+        return args.accel_bias_sigma_mg * mg, f"accelerometer bias prior {args.accel_bias_sigma_mg:g} mg (given)"
+    if calibrated:
+        return (ACCEL_BIAS_SIGMA_CALIBRATED_M_S2,
+                f"accelerometer calibrated: bias prior {ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 / mg:g} mg")
+    return None, ("WARNING: no accelerometer calibration in the state directory: the horizon is only as good as "
+                  "the filter can separate the accelerometer bias from tilt (prior 10 mg, up to 0.6°); run "
+                  "`ahrsd calibrate accel` first (docs/magcal-vehicle.md)")
 
 
 def _heading_reference_column(rec, path, method):

@@ -121,7 +121,40 @@ def test_aided_levelling_on_a_boat(tmp_path):
     assert aided_tilt < 0.5 * accel_tilt, (aided_tilt, accel_tilt)
     res = subprocess.run([sys.executable, "-m", "ahrsd.cli", "calibrate", "mag", str(rec), "--lat", "36.42",
                           "--lon", "54.98", "--method", "backstepping", "--gnss", str(tmp_path / "boat.gnss.csv"),
-                          "--dry-run"], capture_output=True, text=True, timeout=300)
+                          "--dry-run", "--state-dir", str(tmp_path)], capture_output=True, text=True, timeout=300)
     # 90 s of this boat cover ~210° of heading: the fit refuses (a full circle needs longer), after levelling
     assert res.returncode in (0, 1) and "levelling: ins aided by" in res.stdout, res.stdout + res.stderr
     assert "0 rejected" in res.stdout
+    assert "WARNING: no accelerometer calibration" in res.stdout    # the state directory holds none
+
+
+def test_the_levelling_bias_prior_follows_the_accelerometer_calibration(tmp_path):
+    """--gnss: the aided levelling is told how well the accelerometer bias is known — the filter's own prior
+    (and a warning) without a calibration, ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 with one, the operator's figure when
+    given."""
+    import argparse
+
+    from ahrsd.calibration.backstepping_aided import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
+    from ahrsd.calibration.models import AccelModel, Calibration
+    from ahrsd.cli.calibrate import _levelling_accel_bias_prior
+
+    none = Calibration.identity()
+    cal = Calibration(accel=AccelModel(bias_m_s2=np.array([0.05, -0.02, 0.01]), matrix=np.eye(3)))
+    sigma, note = _levelling_accel_bias_prior(argparse.Namespace(accel_bias_sigma_mg=None), none)
+    assert sigma is None and note.startswith("WARNING: no accelerometer calibration")
+    sigma, note = _levelling_accel_bias_prior(argparse.Namespace(accel_bias_sigma_mg=None), cal)
+    assert sigma == ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 and "accelerometer calibrated" in note
+    sigma, note = _levelling_accel_bias_prior(argparse.Namespace(accel_bias_sigma_mg=5.0), cal)
+    assert sigma == pytest.approx(5e-3 * 9.80665) and "5 mg (given)" in note
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--accel-bias-sigma-mg", "2"], "--accel-bias-sigma-mg needs --gnss"),
+    (["--gnss", "g.csv", "--accel-bias-sigma-mg", "0"], "expected 0 < MG"),
+    (["--gnss", "g.csv", "--accel-bias-sigma-mg", "nan"], "expected 0 < MG"),
+])
+def test_accel_bias_sigma_usage(tmp_path, extra, message):
+    res = subprocess.run([sys.executable, "-m", "ahrsd.cli", "calibrate", "mag", str(tmp_path / "x.csv"), "--lat",
+                          "50", "--lon", "5", "--method", "backstepping", "--dry-run", *extra],
+                         capture_output=True, text=True, timeout=60)
+    assert res.returncode == 2 and message in res.stderr, res.stderr
