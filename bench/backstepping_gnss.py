@@ -7,6 +7,7 @@ default now: estimator/ins_smoother.py), side by side.
     .venv/bin/python bench/backstepping_gnss.py                 # held-out seeds 4..8 × 2 sites (~3 min)
     .venv/bin/python bench/backstepping_gnss.py --seeds 1 2 3   # the tuning seeds
     .venv/bin/python bench/backstepping_gnss.py --sweep         # SETTLED_TILT_SIGMA_DEG on the tuning seeds
+    .venv/bin/python bench/backstepping_gnss.py --acal-sigma-mg 1 --seeds 1 2 3 9 10 11   # another acal prior
 
 Data: the simulator's `boat` (waves, heave, turns, 0.7 m/s current, the default vehicle iron) with ADIS16405
 errors, 180 s at 200 SPS, GNSS from `simulate_gnss` (5 Hz, 1.5 m / 0.05 m/s), at DEFAULT_SITE (dip 53°) and at
@@ -185,8 +186,9 @@ def operational_grid_error_deg(run: BoatRun, model, accel_bias_estimate_m_s2, ti
     return np.degrees(_wrap_rad(psi - y))
 
 
-def calibrations(run: BoatRun, settled_tilt_sigma_deg: float | None = None) -> dict:
-    """name -> MagFitResult."""
+def calibrations(run: BoatRun, settled_tilt_sigma_deg: float | None = None,
+                 acal_sigma_m_s2: float | None = None) -> dict:
+    """name -> MagFitResult. `acal_sigma_m_s2`: the `acal` bias prior (default ACCEL_BIAS_SIGMA_CALIBRATED_M_S2)."""
     from ahrsd.calibration.backstepping_aided import (ACCEL_BIAS_SIGMA_CALIBRATED_M_S2, SETTLED_TILT_SIGMA_DEG,
                                                       fit_backstepping_aided)
     from ahrsd.calibration.levelling import roll_pitch_from_estimator
@@ -208,7 +210,7 @@ def calibrations(run: BoatRun, settled_tilt_sigma_deg: float | None = None) -> d
         "rts": fit_backstepping_aided(run.data, run.fixes, run.field, decl, settled_tilt_sigma_deg=thr,
                                       smooth=True),
         "acal": fit_backstepping_aided(run.data_acal, run.fixes, run.field, decl, settled_tilt_sigma_deg=thr,
-                                       accel_bias_sigma_m_s2=ACCEL_BIAS_SIGMA_CALIBRATED_M_S2),
+                                       accel_bias_sigma_m_s2=acal_sigma_m_s2 or ACCEL_BIAS_SIGMA_CALIBRATED_M_S2),
     }
 
 
@@ -250,6 +252,8 @@ def main(argv=None) -> int:
     ap.add_argument("--sites", nargs="+", default=list(SITES), choices=list(SITES))
     ap.add_argument("--sweep", action="store_true", help="sweep SETTLED_TILT_SIGMA_DEG on the tuning seeds")
     ap.add_argument("--no-ins", action="store_true", help="skip the daemon-estimator column (faster)")
+    ap.add_argument("--acal-sigma-mg", type=float, default=None,
+                    help="the acal column's accelerometer-bias prior, mg (default: the CLI's, 2)")
     args = ap.parse_args(argv)
     logging.getLogger("ahrsd.estimator.ins").setLevel(logging.ERROR)   # the failing runs' resets: counted instead
     sites = {k: SITES[k] for k in args.sites}
@@ -272,7 +276,8 @@ def main(argv=None) -> int:
         for seed in seeds:
             run = BoatRun(seed, text)
             line = f"{label:8s} {seed:4d} "
-            for name, res in calibrations(run).items():
+            acal_sigma = None if args.acal_sigma_mg is None else args.acal_sigma_mg * 1e-3 * STANDARD_GRAVITY_M_S2
+            for name, res in calibrations(run, acal_sigma_m_s2=acal_sigma).items():
                 if not res.ok:
                     line += f"{'refused':>28s}"
                     table[name].append((math.nan,) * 4)
