@@ -126,6 +126,21 @@ def test_aided_levelling_on_a_boat(tmp_path):
     assert res.returncode in (0, 1) and "levelling: ins aided by" in res.stdout, res.stdout + res.stderr
     assert "0 rejected" in res.stdout
     assert "WARNING: no accelerometer calibration" in res.stdout    # the state directory holds none
+    # with an accelerometer calibration stored, the fit is told the bias prior (its JSON says what it got)
+    import json
+
+    from ahrsd.calibration.backstepping_aided import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
+    from ahrsd.calibration.models import AccelModel, Calibration
+    from ahrsd.calibration.store import CalibrationStore
+
+    CalibrationStore(tmp_path / "state").save(Calibration(accel=AccelModel(bias_m_s2=np.array([0.02, -0.01, 0.0]),
+                                                                             matrix=np.eye(3))))
+    res = subprocess.run([sys.executable, "-m", "ahrsd.cli", "calibrate", "mag", str(rec), "--lat", "36.42",
+                          "--lon", "54.98", "--method", "backstepping", "--gnss", str(tmp_path / "boat.gnss.csv"),
+                          "--dry-run", "--state-dir", str(tmp_path / "state"), "--json"], capture_output=True,
+                         text=True, timeout=300)
+    levelling = json.loads(res.stdout)["quality"]["aided_levelling"]
+    assert levelling["accel_bias_sigma_m_s2"] == pytest.approx(ACCEL_BIAS_SIGMA_CALIBRATED_M_S2), levelling
 
 
 def test_the_levelling_bias_prior_follows_the_accelerometer_calibration(tmp_path):
