@@ -18,10 +18,10 @@ Frame: the sensor frame, which the simulator takes equal to the body frame (FRD)
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
 from ahrsd.simulation.magnetic import VehicleIron
@@ -209,6 +209,30 @@ class SensorErrors:
         )
 
 
+def first_order_recursion(phi: float, w: np.ndarray, state: np.ndarray):
+    """y[k] = φ·y[k−1] + w[k] for the rows of w (n, 3), with y[−1] = state; returns y and its last row.
+
+    Closed form, y[j] = φʲ·(φ·y[−1] + Σ_{i≤j} φ⁻ⁱ·w[i]), over chunks short enough that φ⁻ⁱ stays below 1e3
+    (numpy only: scipy.signal.lfilter, which computes the same, costs 0.5–1 s of import on every start of the
+    simulated daemon)."""
+    w = np.asarray(w, dtype=float)
+    n = len(w)
+    out = np.empty_like(w)
+    if n == 0:
+        return out, state
+    if phi == 0.0:
+        out[:] = w
+        return out, out[-1]
+    chunk = n if phi >= 1.0 else max(1, min(n, int(math.log(1e3) / -math.log(phi))))
+    y = np.asarray(state, dtype=float)
+    for a in range(0, n, chunk):
+        blk = w[a : a + chunk]
+        p = phi ** np.arange(len(blk), dtype=float)[:, None]
+        out[a : a + len(blk)] = p * (phi * y + np.cumsum(blk / p, axis=0))
+        y = out[a + len(blk) - 1]
+    return out, y
+
+
 class ErrorProcess:
     """Applies a `SensorErrors` to blocks of truth, keeping the random processes' state between blocks.
 
@@ -242,9 +266,7 @@ class ErrorProcess:
         if w_std == 0.0:
             out = state[None, :] * phi ** np.arange(1, n + 1)[:, None]
             return out, (out[-1] if n else state)
-        w = rng.standard_normal((n, 3)) * w_std
-        out, _ = lfilter([1.0], [1.0, -phi], w, axis=0, zi=(phi * state)[None, :])
-        return out, out[-1]
+        return first_order_recursion(phi, rng.standard_normal((n, 3)) * w_std, state)
 
     def temperature_c(self, t_s: np.ndarray) -> np.ndarray:
         e = self.errors

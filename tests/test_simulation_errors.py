@@ -256,3 +256,22 @@ def test_deterministic_errors_are_exactly_matrix_times_truth_plus_bias(vals, see
     # and the documented perfect calibrations undo them
     np.testing.assert_allclose((b.gyro_rad_s - e.gyro_bias_rad_s) @ np.linalg.inv(e.gyro_matrix).T,
                                b.truth_gyro_rad_s, atol=1e-12)
+
+
+@pytest.mark.parametrize("phi", [0.0, 0.3, 0.99, 0.9999878, 1.0])
+@pytest.mark.parametrize("n", [0, 1, 7, 5000])
+def test_first_order_recursion_is_the_iir_filter(phi, n):
+    """The simulator's Gauss–Markov recursion against scipy's IIR filter of the same difference equation."""
+    from scipy.signal import lfilter
+
+    from ahrsd.simulation.errors import first_order_recursion
+
+    rng = np.random.default_rng(3)
+    w, state = rng.standard_normal((n, 3)), rng.standard_normal(3)
+    out, last = first_order_recursion(phi, w, state)
+    if n == 0:
+        assert out.shape == (0, 3) and np.array_equal(last, state)
+        return
+    ref, _ = lfilter([1.0], [1.0, -phi], w, axis=0, zi=(phi * state)[None, :])
+    np.testing.assert_allclose(out, ref, rtol=1e-9, atol=1e-9)
+    np.testing.assert_array_equal(last, out[-1])
