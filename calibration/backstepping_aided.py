@@ -40,6 +40,8 @@ import math
 
 import numpy as np
 
+from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
+
 from .levelling import attitude_from_estimator
 from .magfit import MagFitInput, MagFitResult
 
@@ -50,9 +52,10 @@ FALLBACK_PASSES = 2             # aided levelling passes with the magnetometer, 
 MAX_REJECTED_VELOCITY_FRACTION = 0.01   # of the offered fixes: more, and the filter did not converge
 MIN_SETTLED_FRACTION = 0.25    # fewer settled samples than this: fit them all (a short run)
 SMOOTH_LEVELLING = True        # level with the RTS smoother over the whole run (estimator/ins_smoother.py)
-ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 = 2e-3 * 9.80665   # residual accelerometer bias 1σ with a bench calibration in
-    # force: the fit's own 0.1–0.3 mg (26 positions), the ADIS16405's 0.2 mg in-run instability, and the bias
-    # change between the bench power-up and the run's, which the data sheet does not give (a margin)
+ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 = 2e-3 * STANDARD_GRAVITY_M_S2   # residual accelerometer bias 1σ with a bench
+    # calibration in force: the fit's own uncertainty (its quality.sigma_bias_m_s2), the ADIS16405's 0.2 mg
+    # in-run instability, and a margin for the change between the bench power-up and the run's, which the data
+    # sheet does not give
 
 
 def aided_roll_pitch(data: MagFitInput, fixes, declination_rad: float, mag_enabled: bool = False,

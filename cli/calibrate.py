@@ -589,10 +589,9 @@ def _levelling_accel_bias_prior(args, stored):
     from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
 
     mg = 1e-3 * STANDARD_GRAVITY_M_S2
-    calibrated = stored.accel != AccelModel.identity()
     if args.accel_bias_sigma_mg is not None:
         return args.accel_bias_sigma_mg * mg, f"accelerometer bias prior {args.accel_bias_sigma_mg:g} mg (given)"
-    if calibrated:
+    if stored.accel != AccelModel.identity():
         return (ACCEL_BIAS_SIGMA_CALIBRATED_M_S2,
                 f"accelerometer calibrated: bias prior {ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 / mg:g} mg")
     return None, ("WARNING: no accelerometer calibration in the state directory: the horizon is only as good as "
