@@ -270,13 +270,13 @@ def main(argv=None) -> int:
     print(hdr)
     print("-" * len(hdr))
     t0 = time.perf_counter()
+    acal_sigma = None if args.acal_sigma_mg is None else args.acal_sigma_mg * 1e-3 * STANDARD_GRAVITY_M_S2
     table = {n: [] for n in names}
     tilts = []
     for label, text in sites.items():
         for seed in seeds:
             run = BoatRun(seed, text)
             line = f"{label:8s} {seed:4d} "
-            acal_sigma = None if args.acal_sigma_mg is None else args.acal_sigma_mg * 1e-3 * STANDARD_GRAVITY_M_S2
             for name, res in calibrations(run, acal_sigma_m_s2=acal_sigma).items():
                 if not res.ok:
                     line += f"{'refused':>28s}"

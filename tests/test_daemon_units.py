@@ -416,11 +416,12 @@ def test_autopilot_state_latches_and_reads_position_course_speed():
     from ahrsd.daemon.autopilot import AutopilotState
 
     ap = AutopilotState()
-    gcs = as_if_from(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3),
-                255, 190)
+    gcs = as_if_from(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0,
+                                                       3), 255, 190)
     assert not AutopilotState.is_autopilot_heartbeat(gcs)
-    hb = as_if_from(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_SURFACE_BOAT, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
-                                                 mavlink.MAV_MODE_FLAG_SAFETY_ARMED, 0, 4, 3), 3, 1)
+    hb = as_if_from(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_SURFACE_BOAT,
+                                                      mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                                                      mavlink.MAV_MODE_FLAG_SAFETY_ARMED, 0, 4, 3), 3, 1)
     assert AutopilotState.is_autopilot_heartbeat(hb) and ap.on_heartbeat(hb, 1.0)
     assert (ap.system_id, ap.armed) == (3, True)
     ap.on_global_position_int(as_if_from(mavlink.MAVLink_global_position_int_message(
