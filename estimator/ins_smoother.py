@@ -34,10 +34,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from . import ins_core as core
 from .ins import Ins
-from .rotations import quat_exp, quat_log, quat_multiply, quat_conjugate, quat_to_euler
+from .rotations import _SMALL_ANGLE_RAD, quat_exp, quat_multiply, quat_to_euler
 
 MAX_BLOCK_S = 0.5   # a block also ends after this long without a fix (magnetometer updates in an outage)
 _CUT_RESULTS = core.R_NAV_INIT | core.R_OUTAGE_RESET | core.R_VEL_RESET | core.R_POS_RESET
@@ -76,19 +77,9 @@ class RtsSmoother:
         p_post = np.array(p_post, dtype=float)
         dx = np.asarray(dx, dtype=float)
         if self._p_post is not None:
-            if cut:
-                c = np.zeros((self.n, self.n))
-                e = self._p_post
-            else:
-                p_prior = np.asarray(p_prior, dtype=float)
-                # P⁺ Φᵀ (P⁻)⁻¹ (P symmetric) over the states the filter has (a state switched off has variance 0)
-                on = np.diag(p_prior) > 0.0
-                c = np.zeros((self.n, self.n))
-                c[:, on] = np.linalg.solve(p_prior[np.ix_(on, on)], (self._phi @ self._p_post)[on]).T
-                e = self._p_post - c @ p_prior @ c.T
-            self._D += self._A @ e @ self._A.T
-            self._A = self._A @ c
-            self._B += self._A @ dx
+            prior = self._p_post if cut else np.asarray(p_prior, dtype=float)
+            self._A, self._B, self._D = _compose_link(self._A, self._B, self._D, self._phi, self._p_post, prior, dx,
+                                                      cut)
         if block_end or cut:
             if self._t:   # close the block that started at the previous block end
                 self._a.append(self._A)
@@ -121,23 +112,69 @@ class RtsSmoother:
         return np.array(self._t), s_post, s_pre, p_s
 
 
+@njit(cache=True)
+def _compose_link(a, b, d, phi, p_post_prev, p_prior, dx, cut):
+    """One link of the backward recursion composed into the block (A, b, D) — see the module docstring:
+    C = P⁺ Φᵀ (P⁻)⁻¹ over the states the filter has (a state switched off has variance 0; P symmetric), or 0 at
+    a cut; E = P⁺ − C P⁻ Cᵀ; then D += A E Aᵀ, A ← A C, b += A dx."""
+    n = p_post_prev.shape[0]
+    c = np.zeros((n, n))
+    if cut:
+        e = p_post_prev.copy()
+    else:
+        on = np.where(np.diag(p_prior) > 0.0)[0]
+        m = len(on)
+        pp = phi @ p_post_prev
+        sub = np.empty((m, m))
+        rhs = np.empty((m, n))
+        for i in range(m):
+            for j in range(m):
+                sub[i, j] = p_prior[on[i], on[j]]
+            rhs[i, :] = pp[on[i], :]
+        sol = np.linalg.solve(sub, rhs)
+        for i in range(m):
+            c[:, on[i]] = sol[i, :]
+        e = p_post_prev - c @ p_prior @ c.T
+    d = d + a @ e @ a.T
+    a = a @ c
+    b = b + a @ dx
+    return a, b, d
+
+
+@njit(cache=True)
 def nominal_difference(x_before: np.ndarray, x_after: np.ndarray, par: np.ndarray) -> np.ndarray:
     """The error-state correction (core's 24 components) that takes the nominal state x_before to x_after:
-    δθ with C_after = exp([δθ×]) C_before (NED), δv, δp (NED, m), and the sensor-error states' differences."""
+    δθ with C_after = exp([δθ×]) C_before (NED), δv, δp (NED, m), and the sensor-error states' differences.
+    Scalar arithmetic (numba): it runs at every epoch of the recorded filter."""
     dx = np.zeros(core.N_ERR)
-    q0 = x_before[core.X_Q : core.X_Q + 4]
-    q1 = x_after[core.X_Q : core.X_Q + 4]
-    dx[0:3] = quat_log(quat_multiply(q1, quat_conjugate(q0)))
-    dx[3:6] = x_after[core.X_V : core.X_V + 3] - x_before[core.X_V : core.X_V + 3]
+    a0, a1, a2, a3 = x_after[core.X_Q], x_after[core.X_Q + 1], x_after[core.X_Q + 2], x_after[core.X_Q + 3]
+    b0, b1, b2, b3 = x_before[core.X_Q], -x_before[core.X_Q + 1], -x_before[core.X_Q + 2], -x_before[core.X_Q + 3]
+    # q_after ⊗ q_before* (Hamilton), then its rotation vector with w ≥ 0 (rotations.quat_log)
+    w = a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3
+    u0 = a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2
+    u1 = a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1
+    u2 = a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0
+    if w < 0.0:
+        w, u0, u1, u2 = -w, -u0, -u1, -u2
+    s = math.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+    if s < _SMALL_ANGLE_RAD:
+        factor = 2.0 / w * (1.0 - s * s / (3.0 * w * w))
+    else:
+        factor = 2.0 * math.atan2(s, w) / s
+    dx[0], dx[1], dx[2] = factor * u0, factor * u1, factor * u2
+    for i in range(3):
+        dx[3 + i] = x_after[core.X_V + i] - x_before[core.X_V + i]
     lat, h = x_before[core.X_LAT], x_before[core.X_H]
     r_n, r_e = core._radii(par, lat)
     dx[6] = (x_after[core.X_LAT] - lat) * (r_n + h)
     dx[7] = (x_after[core.X_LON] - x_before[core.X_LON]) * (r_e + h) * math.cos(lat)
     dx[8] = -(x_after[core.X_H] - h)
-    dx[9:12] = x_after[core.X_BG : core.X_BG + 3] - x_before[core.X_BG : core.X_BG + 3]
-    dx[12:15] = x_after[core.X_BA : core.X_BA + 3] - x_before[core.X_BA : core.X_BA + 3]
-    dx[15:18] = x_after[core.X_SG : core.X_SG + 3] - x_before[core.X_SG : core.X_SG + 3]
-    dx[18:24] = x_after[core.X_MG : core.X_MG + 6] - x_before[core.X_MG : core.X_MG + 6]
+    for i in range(3):
+        dx[9 + i] = x_after[core.X_BG + i] - x_before[core.X_BG + i]
+        dx[12 + i] = x_after[core.X_BA + i] - x_before[core.X_BA + i]
+        dx[15 + i] = x_after[core.X_SG + i] - x_before[core.X_SG + i]
+    for i in range(6):
+        dx[18 + i] = x_after[core.X_MG + i] - x_before[core.X_MG + i]
     return dx
 
 
