@@ -204,6 +204,15 @@ def edf_overlapping(alpha: int, n_points: float, m: float) -> float:
     return max(edf, 1.0)
 
 
+EDF_ALPHAS = (-2, -1, 0, 1, 2)   # the noise types edf_overlapping has a formula for
+
+
+def edf_by_alpha(level_n: np.ndarray, level_m: np.ndarray) -> np.ndarray:
+    """edf_overlapping of every point (series length n, i.e. n + 1 phase points; cluster size m) for every
+    noise type: row α + 2 for α = −2…2, so a point's edf for a given α is a look-up."""
+    return np.array([[edf_overlapping(alpha, n + 1.0, m) for n, m in zip(level_n, level_m)] for alpha in EDF_ALPHAS])
+
+
 def alpha_from_slope(avar_slope: float) -> int:
     """Power-law exponent α of S_y ∝ f^α from the local log-log slope μ of σ²(τ) ∝ τ^μ: μ = −α − 1 for
     −2 ≤ α ≤ 1 (white PM, α = 2, also has μ = −2: the quantization noise here)."""

@@ -31,10 +31,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property, lru_cache
 
 import numpy as np
 
-from .allan_adev import AllanCurve, alpha_from_slope, edf_overlapping
+from .allan_adev import AllanCurve, edf_by_alpha
+from .allan_irls import SLOPE_STEP, model_and_edf, weighted_system
 
 FLICKER_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)  # 0.6643, IEEE Std 952-1997 Table B.1
 TERMS = ("quantization", "white", "flicker", "rate_random_walk", "rate_ramp", "gauss_markov")
@@ -99,6 +101,12 @@ class _Points:
     level_m: np.ndarray
     record_s: float
     fits: dict = field(default_factory=dict, compare=False, repr=False)   # fit_terms' results by term set
+    bases: dict = field(default_factory=dict, compare=False, repr=False)   # _stacked_basis' columns by (term, Tc)
+
+    @cached_property
+    def edf_table(self) -> np.ndarray:
+        """edf of every point for every noise type (allan_adev.edf_by_alpha)."""
+        return edf_by_alpha(self.level_n, self.level_m)
 
 
 @dataclass(frozen=True)
@@ -126,11 +134,13 @@ class ModelFit:
     def edf(self, taus: np.ndarray, level_n: np.ndarray, level_m: np.ndarray) -> np.ndarray:
         """Equivalent degrees of freedom per point for the noise type the model says dominates there."""
         t = np.asarray(taus, dtype=np.float64)
-        eps = 1e-3
-        hi, lo = self.avar(t * (1 + eps)), self.avar(t / (1 + eps))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            slope = np.where((hi > 0) & (lo > 0), np.log(hi / lo) / (2 * math.log1p(eps)), -1.0)
-        return np.array([edf_overlapping(alpha_from_slope(s), n + 1.0, m) for s, n, m in zip(slope, level_n, level_m)])
+        stacked = np.column_stack([term_basis(name, _with_slope_taus(t), self.corr_time_s) for name in self.terms])
+        return model_and_edf(stacked, self.coef, edf_by_alpha(level_n, level_m))[1]
+
+
+def _with_slope_taus(taus: np.ndarray) -> np.ndarray:
+    """τ, then τ·(1 + SLOPE_STEP), then τ/(1 + SLOPE_STEP): where allan_irls.model_and_edf wants the basis."""
+    return np.concatenate([taus, taus * (1 + SLOPE_STEP), taus / (1 + SLOPE_STEP)])
 
 
 def octave_points(curve: AllanCurve, axis: int) -> _Points:
@@ -145,33 +155,45 @@ def octave_points(curve: AllanCurve, axis: int) -> _Points:
 def _nnls_weighted(basis: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
     from scipy.optimize import nnls
 
-    a = basis * w[:, None]
-    scale = np.max(np.abs(a), axis=0)
-    scale[scale == 0] = 1.0
-    coef, _ = nnls(a / scale, y * w, maxiter=500)
+    a, yw, scale = weighted_system(basis, y, w)
+    coef, _ = nnls(a, yw, maxiter=500)
     return coef / scale
+
+
+def _stacked_basis(pts: _Points, terms: tuple[str, ...], tc: float | None) -> np.ndarray:
+    """term_basis of each term (columns) at _with_slope_taus(pts.taus) (rows), for allan_irls.model_and_edf;
+    each column computed once per (term, Tc)."""
+    keys = [(name, tc if name == "gauss_markov" else None) for name in terms]   # only GM depends on Tc
+    for name, key in zip(terms, keys):
+        if key not in pts.bases:
+            pts.bases[key] = term_basis(name, _with_slope_taus(pts.taus), tc)
+    return np.column_stack([pts.bases[key] for key in keys])
 
 
 def _fit_fixed(pts: _Points, terms: tuple[str, ...], tc: float | None, fixed: tuple[str, float] | None = None) -> ModelFit:
     """Iteratively reweighted NNLS: weights 1/(σ²_model·√(2/edf)), edf for the model's local noise type.
     fixed: (term, coefficient) held at that value beside the fitted terms (for a profile of the deviance)."""
-    basis = np.column_stack([term_basis(t, pts.taus, tc) for t in terms])
-    offset = np.zeros_like(pts.avar) if fixed is None else fixed[1] * term_basis(fixed[0], pts.taus, tc)
     all_terms = terms if fixed is None else terms + (fixed[0],)
+    n = len(pts.taus)
+    stacked = _stacked_basis(pts, all_terms, tc)
+    basis = np.ascontiguousarray(stacked[:n, :len(terms)])
+    offset = np.zeros_like(pts.avar) if fixed is None else fixed[1] * stacked[:n, -1]
     model = pts.avar.copy()
-    edf = np.array([edf_overlapping(0, n + 1.0, m) for n, m in zip(pts.level_n, pts.level_m)])
+    edf = pts.edf_table[2]   # α = 0 (white rate noise) until the model says otherwise
     coef = np.zeros(len(terms))
+    coef_all = np.zeros(len(all_terms))   # the fitted terms' coefficients, then the fixed one
+    if fixed is not None:
+        coef_all[-1] = fixed[1]
+    target, floor = pts.avar - offset, 1e-3 * pts.avar
     for _ in range(IRLS_ITERATIONS):
         # The model's own value sets the weight (a low measured point must not get a high weight); floored so
         # a term the model lacks cannot make a point's weight infinite.
-        ref = np.maximum(model, 1e-3 * pts.avar)
+        ref = np.maximum(model, floor)
         sigma = ref * np.sqrt(2.0 / edf)
-        coef = _nnls_weighted(basis, pts.avar - offset, 1.0 / sigma)
-        whole = ModelFit(all_terms, coef if fixed is None else np.append(coef, fixed[1]), np.zeros(len(all_terms)),
-                         tc, 0.0)
-        model = whole.avar(pts.taus)
-        edf = whole.edf(pts.taus, pts.level_n, pts.level_m)
-    ref = np.maximum(model, 1e-3 * pts.avar)
+        coef = _nnls_weighted(basis, target, 1.0 / sigma)
+        coef_all[:len(terms)] = coef
+        model, edf = model_and_edf(stacked, coef_all, pts.edf_table)
+    ref = np.maximum(model, floor)
     sigma = ref * np.sqrt(2.0 / edf)
     # Deviance of the χ²(edf) likelihood of each point, σ̂²·edf/σ² ~ χ²(edf): the likelihood-ratio statistic
     # (≈ the Gaussian χ² near the model, but a high point of few degrees of freedom costs what it should).
@@ -243,24 +265,27 @@ def _fit_searching_tc(pts: _Points, terms: tuple[str, ...]) -> ModelFit:
     return fits[best]
 
 
+@lru_cache(maxsize=64)
+def _log_grid(tau_lo: float, tau_hi: float) -> np.ndarray:
+    """400 log-spaced τ from tau_lo to tau_hi (read-only: shared by every caller with the same range)."""
+    grid = np.geomspace(tau_lo, tau_hi, 400)
+    grid.flags.writeable = False
+    return grid
+
+
 def dominant_range(fit: ModelFit, name: str, tau_lo: float, tau_hi: float) -> tuple[float, float] | None:
     """The widest τ interval within [tau_lo, tau_hi] over which `name` is the largest term of the model."""
-    grid = np.geomspace(tau_lo, tau_hi, 400)
+    grid = _log_grid(tau_lo, tau_hi)
     own = fit.contribution(name, grid)
     others = [fit.contribution(t, grid) for t in fit.terms if t != name]
     largest_other = np.max(others, axis=0) if others else np.zeros_like(grid)
     on = (own > largest_other) & (own > 0)
-    best = None
-    start = None
-    for i, flag in enumerate(np.append(on, False)):
-        if flag and start is None:
-            start = i
-        elif not flag and start is not None:
-            span = (float(grid[start]), float(grid[i - 1]))
-            if best is None or span[1] / span[0] > best[1] / best[0]:
-                best = span
-            start = None
-    return best
+    edges = np.diff(np.concatenate([[0], on.astype(np.int8), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1   # runs of `on`, inclusive
+    if len(starts) == 0:
+        return None
+    widest = int(np.argmax(grid[ends] / grid[starts]))   # the first of equally wide runs
+    return float(grid[starts[widest]]), float(grid[ends[widest]])
 
 
 def is_seen(fit: ModelFit, name: str, pts: _Points) -> tuple[float, float] | None:

@@ -1,0 +1,56 @@
+"""The per-iteration arithmetic of the Allan-term fit (allan_terms._fit_fixed), compiled (numba): it runs a few
+hundred thousand times on vectors of a few dozen points, where numpy's per-call cost would dominate.
+
+Both kernels do element by element what the numpy expressions in their docstrings do, in the same order, so
+the fit's numbers do not depend on which one ran.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+SLOPE_STEP = 1e-3   # the model's local log-log slope from its values at τ·(1 ± SLOPE_STEP)
+
+
+@njit(cache=True)
+def weighted_system(basis: np.ndarray, y: np.ndarray, w: np.ndarray):
+    """The row-weighted least-squares system with unit-max columns, for NNLS:
+    a = basis·w[:, None]; scale = max|a| per column (1 where 0); returns (a / scale, y·w, scale)."""
+    n, k = basis.shape
+    a = np.empty((n, k))
+    scale = np.zeros(k)
+    for r in range(n):
+        for i in range(k):
+            a[r, i] = basis[r, i] * w[r]
+            scale[i] = max(scale[i], abs(a[r, i]))
+    for i in range(k):
+        if scale[i] == 0.0:
+            scale[i] = 1.0
+    for r in range(n):
+        for i in range(k):
+            a[r, i] = a[r, i] / scale[i]
+    return a, y * w, scale
+
+
+@njit(cache=True)
+def model_and_edf(stacked: np.ndarray, coef: np.ndarray, edf_table: np.ndarray):
+    """The model σ²(τ) = Σ_i coef_i·basis_i(τ) (summed in term order, as ModelFit.avar) and each point's edf for
+    the noise type of its local slope μ = d ln σ² / d ln τ (α from μ as allan_adev.alpha_from_slope: −μ − 1
+    rounded half to even, clipped to −2…2; μ = −1 where the model is not positive).
+    stacked: the basis (columns) at the n points' τ, then at τ·(1 + SLOPE_STEP), then at τ/(1 + SLOPE_STEP)
+    (3n rows); edf_table: row α + 2 of allan_adev.edf_by_alpha."""
+    n = stacked.shape[0] // 3
+    values = np.zeros(3 * n)
+    for r in range(3 * n):
+        for i in range(stacked.shape[1]):
+            values[r] = values[r] + coef[i] * stacked[r, i]
+    edf = np.empty(n)
+    for r in range(n):
+        above, below = values[n + r], values[2 * n + r]
+        slope = math.log(above / below) / (2 * math.log1p(SLOPE_STEP)) if above > 0 and below > 0 else -1.0
+        alpha = min(2.0, max(-2.0, np.rint(-slope - 1.0)))
+        edf[r] = edf_table[int(alpha) + 2, r]
+    return values[:n].copy(), edf
