@@ -1,13 +1,14 @@
 """Back-stepping on the heaving, turning boat: accelerometer levelling, GNSS-aided levelling (one pass, as
 before), the true attitude (an oracle), the true attitude of the accelerometer triad (`frame`: the best any
-levelling from the sensors can give, see below), and the aided fit with its safeguard (calibration.backstepping_aided)
+levelling from the sensors on the vehicle can give, see below), and the aided fit with its safeguard (calibration.backstepping_aided)
 levelled by the forward filter (`fix`, as before) and by the RTS smoother over the whole run (`rts`, the
-default now: estimator/ins_smoother.py), side by side.
+default now: estimator/ins_smoother.py), with a bench accelerometer calibration (`acal`) and with it also
+aligned to the housing (`afix`), side by side.
 
-    .venv/bin/python bench/backstepping_gnss.py                 # held-out seeds 4..8 × 2 sites (~3 min)
+    .venv/bin/python bench/backstepping_gnss.py                 # held-out seeds 4..8 × 2 sites (~3–4 min)
     .venv/bin/python bench/backstepping_gnss.py --seeds 1 2 3   # the tuning seeds
     .venv/bin/python bench/backstepping_gnss.py --sweep         # SETTLED_TILT_SIGMA_DEG on the tuning seeds
-    .venv/bin/python bench/backstepping_gnss.py --acal-sigma-mg 1 --seeds 1 2 3 9 10 11   # another acal prior
+    .venv/bin/python bench/backstepping_gnss.py --acal-sigma-mg 1 --seeds 1 2 3 9 10 11   # another acal/afix prior
 
 Data: the simulator's `boat` (waves, heave, turns, 0.7 m/s current, the default vehicle iron) with ADIS16405
 errors, 180 s at 200 SPS, GNSS from `simulate_gnss` (5 Hz, 1.5 m / 0.05 m/s), at DEFAULT_SITE (dip 53°) and at
@@ -34,6 +35,12 @@ and in-run drift) applied to the recording, and the aided levelling told the bia
 ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 (calibration.backstepping_aided); its `ins` and `op` use the calibrated
 accelerometer too, as the daemon would. The simulated sensor keeps its turn-on bias from the bench to the boat
 (no power-up repeatability error), so this is the best case of that workflow.
+
+`afix` is `acal` with the accelerometer calibration also aligned to the housing (`ahrsd calibrate accel
+--align-to-faces`, calibration/accel_alignment.py): the six faces on a surface that is level to
+FACE_PLACEMENT_DEG (each face's true up direction that far off its axis, in a random direction: a surface
+levelled to about 0.02° and the unit seated on it), which brings the levelling frame to the body's (the
+simulator's body is the housing).
 
 `frame` is the oracle levelled in the accelerometer triad's own frame: the true attitude rotated by the rotation
 part (skew-symmetric half) of the simulated accelerometer's misalignment matrix. No sensor on the vehicle sees
@@ -64,6 +71,7 @@ SECONDS = 180.0
 RATE_HZ = 200.0
 SETTLE_S = 30.0
 TARGET_DEG = 0.3
+FACE_PLACEMENT_DEG = 0.025   # `afix`: a surface levelled to ~0.02° and the unit's seating on it
 
 
 def _wrap_rad(a):
@@ -97,20 +105,32 @@ class BoatRun:
         self.accel_model = bench_accel_calibration(stream.errors, site.gravity_m_s2, seed)
         self.data_acal = dataclasses.replace(self.data, accel_m_s2=np.ascontiguousarray(
             self.accel_model.apply(b.accel_m_s2)))
+        self.accel_model_afix = bench_accel_calibration(stream.errors, site.gravity_m_s2, seed, align=True)
+        self.data_afix = dataclasses.replace(self.data, accel_m_s2=np.ascontiguousarray(
+            self.accel_model_afix.apply(b.accel_m_s2)))
 
 
-def bench_accel_calibration(errors, g_m_s2: float, seed: int):
+def bench_accel_calibration(errors, g_m_s2: float, seed: int, align: bool = False):
     """The AccelModel `ahrsd calibrate accel` fits to this sensor: the guided positions' mean specific force
     (f = g·d for target direction d), each with 0.3 mg of noise (a 10 s mean: 0.1 mg of white noise, 0.2 mg of
-    in-run instability)."""
+    in-run instability). `align`: with `--align-to-faces`, each position's true up direction FACE_PLACEMENT_DEG
+    off its target in a random direction."""
+    from ahrsd.calibration.accel_alignment import align_to_faces
     from ahrsd.calibration.accel_cal import GUIDED_TARGETS, fit_accel
 
     d = np.array([v for _, v in GUIDED_TARGETS], dtype=float)
-    f = g_m_s2 * d / np.linalg.norm(d, axis=1, keepdims=True)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    if align:
+        off = np.cross(d, np.random.default_rng(np.random.SeedSequence([seed, 0xFACE])).normal(size=d.shape))
+        off *= math.radians(FACE_PLACEMENT_DEG) / np.linalg.norm(off, axis=1, keepdims=True)
+        d = Rotation.from_rotvec(off).apply(d)
+    f = g_m_s2 * d
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0xACA1]))
     means = f @ errors.accel_matrix.T + errors.accel_bias_m_s2 + rng.normal(0.0, 0.3e-3 * STANDARD_GRAVITY_M_S2,
                                                                             f.shape)
     fit = fit_accel(means, g_m_s2)
+    if align:
+        fit = align_to_faces(fit, means)
     if not fit.ok:
         raise RuntimeError(f"bench accelerometer calibration refused: {fit.refused}")
     return fit.model
@@ -211,6 +231,8 @@ def calibrations(run: BoatRun, settled_tilt_sigma_deg: float | None = None,
                                       smooth=True),
         "acal": fit_backstepping_aided(run.data_acal, run.fixes, run.field, decl, settled_tilt_sigma_deg=thr,
                                        accel_bias_sigma_m_s2=acal_sigma_m_s2 or ACCEL_BIAS_SIGMA_CALIBRATED_M_S2),
+        "afix": fit_backstepping_aided(run.data_afix, run.fixes, run.field, decl, settled_tilt_sigma_deg=thr,
+                                       accel_bias_sigma_m_s2=acal_sigma_m_s2 or ACCEL_BIAS_SIGMA_CALIBRATED_M_S2),
     }
 
 
@@ -253,7 +275,7 @@ def main(argv=None) -> int:
     ap.add_argument("--sweep", action="store_true", help="sweep SETTLED_TILT_SIGMA_DEG on the tuning seeds")
     ap.add_argument("--no-ins", action="store_true", help="skip the daemon-estimator column (faster)")
     ap.add_argument("--acal-sigma-mg", type=float, default=None,
-                    help="the acal column's accelerometer-bias prior, mg (default: the CLI's, 2)")
+                    help="the acal and afix columns' accelerometer-bias prior, mg (default: the CLI's, 2)")
     args = ap.parse_args(argv)
     logging.getLogger("ahrsd.estimator.ins").setLevel(logging.ERROR)   # the failing runs' resets: counted instead
     sites = {k: SITES[k] for k in args.sites}
@@ -263,7 +285,7 @@ def main(argv=None) -> int:
     seeds = args.seeds or HELD_OUT_SEEDS
     kind = "tuning" if set(seeds) <= set(TUNING_SEEDS) else ("held-out" if not set(seeds) & set(TUNING_SEEDS)
                                                             else "mixed")
-    names = ("plain", "gnss-1pass", "oracle", "frame", "fix", "rts", "acal")
+    names = ("plain", "gnss-1pass", "oracle", "frame", "fix", "rts", "acal", "afix")
     print(f"# back-stepping on the boat, {SECONDS:.0f} s, {kind} seeds {list(seeds)}: true-heading RMS (deg, mean "
           f"offset kept; target ≤ {TARGET_DEG}), grid / rec / ins / op (see the docstring)")
     hdr = f"{'site':8s} {'seed':>4s} " + "".join(f"{n:>28s}" for n in names) + f"{'tilt fwd/rts':>14s}"
@@ -284,11 +306,11 @@ def main(argv=None) -> int:
                     continue
                 g = _rms(grid_error_deg(run, res.model))
                 r = _rms(recording_error_deg(run, res.model))
-                acal = name == "acal"
-                i, est = (math.nan, None) if args.no_ins else ins_error_deg(run, res.model,
-                                                                            run.data_acal if acal else None)
+                data, accel_model = {"acal": (run.data_acal, run.accel_model),
+                                     "afix": (run.data_afix, run.accel_model_afix)}.get(name, (None, None))
+                i, est = (math.nan, None) if args.no_ins else ins_error_deg(run, res.model, data)
                 o = math.nan if est is None else _rms(operational_grid_error_deg(
-                    run, res.model, est.accel_bias_m_s2, accel_model=run.accel_model if acal else None))
+                    run, res.model, est.accel_bias_m_s2, accel_model=accel_model))
                 table[name].append((g, r, _rms(i), o))
                 line += f"{g:8.2f}/{r:5.2f}/{_rms(i):5.2f}/{o:5.2f}  "
             tilts.append(levelling_tilt_error_deg(run))

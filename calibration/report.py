@@ -11,7 +11,7 @@ import numpy as np
 
 # quality entries shown elsewhere (the model lines, the deviation card) or too long for a terminal
 _QUALITY_NOT_LISTED = ("position_residuals_m_s2", "faces", "rejected_model", "initial_hard_iron_ut",
-                       "heading_reference", "holds")
+                       "heading_reference", "holds", "face_alignment")
 _ALLAN_UNITS = {"gyro": ("ARW", "rad/s/√Hz", "rad/s"), "accel": ("VRW", "m/s²/√Hz", "m/s²"),
                 "mag": ("white", "µT/√Hz", "µT")}
 
@@ -50,6 +50,13 @@ def accel_model_lines(model, result) -> list[str]:
         f"  residual |f| − g: RMS {result.residual_rms_m_s2 * 1e3:.3f} mm/s², "
         f"max {q.get('residual_max_m_s2', float('nan')) * 1e3:.3f} mm/s²",
     ]
+
+
+def accel_alignment_line(alignment: dict) -> str:
+    """The housing alignment of `calibrate accel --align-to-faces` (accel_alignment.align_to_faces)."""
+    return (f"  housing alignment: a rotation of {alignment['rotation_deg']:.3f}° (rotation vector "
+            + fmt_vec(alignment["rotation_vector_deg"], "{:+.3f}") + " deg), after which the six faces agree to "
+            f"{alignment['face_residual_rms_deg']:.3f}° RMS")
 
 
 def accel_holds_line(holds: dict, min_still_s: float) -> str:

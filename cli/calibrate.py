@@ -53,6 +53,9 @@ def register(subparsers) -> None:
                    help="model size: 12 = bias, scale, misalignment, quadratic (thesis)")
     c.add_argument("--min-still-s", type=float, default=2.0,
                    help="shortest still period used as a position, s (default 2: holds of 2 s or more)")
+    c.add_argument("--align-to-faces", action="store_true",
+                   help="also align the calibration to the unit's housing: it must have rested flat on each of its "
+                   "six faces on a surface levelled to about 0.02° (docs/calibration.md)")
     c.add_argument("--live", action="store_true", help="guided live calibration from the sensor")
     c.add_argument("--sim", metavar="SCENARIO", help="with --live: the simulated chip running this scenario")
     c.add_argument("--spi", metavar="DEV", help="with --live: the real ADIS16405 on this spidev node")
@@ -257,6 +260,10 @@ def _accel(args) -> int:
                              short_holds_refusal(periods, args.min_still_s))
     if not args.live:
         res = _with_holds(res, used, skipped, rate_hz, args.min_still_s)
+    if args.align_to_faces:
+        from ahrsd.calibration.accel_alignment import align_to_faces
+
+        res = align_to_faces(res, means)
     payload = {"sensor": "accel", **res.to_json_dict(), "positions_source": source}
     lines = [f"Accelerometer calibration ({res.terms} parameters) from {source}; g = {g:.5f} m/s²"
              + ("" if args.lat is not None else " (standard gravity: give --lat for local gravity)")]
@@ -265,9 +272,12 @@ def _accel(args) -> int:
                  + ", ".join(k for k, v in q.get("faces", {}).items() if v))
     if "holds" in q:
         lines.append(report.accel_holds_line(q["holds"], args.min_still_s))
+    if "face_alignment" in q:
+        lines.append(report.accel_alignment_line(q["face_alignment"]))
     rc = _report_fit(args, res, payload, lines, "accel", report.accel_model_lines,
                      {"method": f"multi-position {res.terms}-parameter", "residual_rms_m_s2": res.residual_rms_m_s2,
-                      "positions": q.get("positions"), "g_m_s2": g})
+                      "positions": q.get("positions"), "g_m_s2": g,
+                      **({"face_alignment": q["face_alignment"]} if "face_alignment" in q else {})})
     if args.plot and res.ok:
         from ahrsd.calibration.plots import plot_residuals
 
@@ -592,8 +602,12 @@ def _levelling_accel_bias_prior(args, stored):
     if args.accel_bias_sigma_mg is not None:
         return args.accel_bias_sigma_mg * mg, f"accelerometer bias prior {args.accel_bias_sigma_mg:g} mg (given)"
     if stored.accel != AccelModel.identity():
+        aligned = "face_alignment" in (stored.metadata.get("accel") or {})
         return (ACCEL_BIAS_SIGMA_CALIBRATED_M_S2,
-                f"accelerometer calibrated: bias prior {ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 / mg:g} mg")
+                f"accelerometer calibrated: bias prior {ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 / mg:g} mg"
+                + ("" if aligned else "; its frame is not aligned to the housing (`ahrsd calibrate accel "
+                   "--align-to-faces`: at a dip I, each 0.1° of the triad's rotation moves the heading by up to "
+                   "0.1°·tan I; docs/calibration.md)"))
     return None, ("WARNING: no accelerometer calibration in the state directory: the horizon is only as good as "
                   "the filter can separate the accelerometer bias from tilt (prior 10 mg, up to 0.6°); run "
                   "`ahrsd calibrate accel` first (docs/magcal-vehicle.md)")

@@ -24,3 +24,13 @@ def broad_dir() -> Path:
     if not BROAD_DIR.is_dir() or not any(BROAD_DIR.glob("*.npz")):
         pytest.skip(f"BROAD data not found at {BROAD_DIR} (needs ../shared/data/broad beside the checkout)")
     return BROAD_DIR
+
+
+@pytest.fixture(autouse=True)
+def _no_system_state_dir(tmp_path_factory, monkeypatch):
+    """`ahrsd calibrate` run in-process without --state-dir reads (and, without --dry-run, writes) its default,
+    /var/lib/ahrsd: point that at an empty directory, so no test depends on, or changes, the machine's own
+    calibration."""
+    import ahrsd.cli.calibrate as calibrate_cli
+
+    monkeypatch.setattr(calibrate_cli, "DEFAULT_STATE_DIR", str(tmp_path_factory.mktemp("default-state")))

@@ -201,3 +201,45 @@ def test_plots_are_written(recordings, tmp_path, ahrsd_inproc):
     png = tmp_path / "allan.png"
     ahrsd_inproc("allan", recordings["static"], "--state-dir", tmp_path, "--dry-run", "--plot", png, check_rc=0)
     assert png.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_accel_align_to_faces_stores_the_housing_frame_and_refuses_without_all_faces(recordings, tmp_path,
+                                                                                    ahrsd_inproc):
+    from scipy.spatial.transform import Rotation
+
+    from support.accel_positions import roll_pitch_for_up, up_vectors
+
+    from ahrsd.simulation.scenarios import Static
+
+    errs = recordings["errors"]
+
+    def frame_rotation_deg(matrix):   # the calibrated frame's rotation from the housing (polar decomposition)
+        u, _, vt = np.linalg.svd(np.asarray(matrix) @ errs.accel_matrix)
+        return float(np.degrees(Rotation.from_matrix(u @ vt).magnitude()))
+
+    site = ["--lat", DEFAULT_SITE.lat_deg, "--alt-m", DEFAULT_SITE.alt_m]
+    plain = json.loads(ahrsd_inproc("accel", recordings["positions"], *site, "--dry-run", "--json",
+                                    check_rc=0).stdout)
+    state = tmp_path / "state"
+    proc = ahrsd_inproc("accel", recordings["positions"], *site, "--align-to-faces", "--state-dir", state,
+                        "--json", check_rc=0)
+    aligned = json.loads(proc.stdout)
+    print(f"frame rotation from the housing: {frame_rotation_deg(plain['matrix']):.3f}° plain, "
+          f"{frame_rotation_deg(aligned['matrix']):.3f}° aligned")
+    assert frame_rotation_deg(plain["matrix"]) > 0.05 and frame_rotation_deg(aligned["matrix"]) < 0.02
+    fa = aligned["quality"]["face_alignment"]
+    assert fa["face_residual_rms_deg"] < 0.06
+    cal = CalibrationStore(state).load()
+    np.testing.assert_allclose(cal.accel.matrix, aligned["matrix"])
+    assert cal.metadata["accel"]["face_alignment"]["rotation_deg"] == pytest.approx(fa["rotation_deg"])
+    text = ahrsd_inproc("accel", recordings["positions"], *site, "--align-to-faces", "--dry-run",
+                        check_rc=0).stdout
+    assert "housing alignment: a rotation of" in text
+
+    # Never on its "Z down" face (the corners and edges only, and the other five faces): refused, nothing saved.
+    blocks = [simulate(Static(roll_deg=r, pitch_deg=p), 6, rate_hz=20, seed=70 + k, errors=errs)
+              for k, (r, p) in enumerate(roll_pitch_for_up(u) for u in up_vectors() if not np.allclose(u, [0, 0, -1]))]
+    rec = write_recording(tmp_path / "five-faces.csv", blocks)
+    state2 = tmp_path / "state2"
+    refused = ahrsd_inproc("accel", rec, *site, "--align-to-faces", "--state-dir", state2, check_rc=1).stdout
+    assert "missing: Z down" in refused and not (state2 / "calibration.json").exists()

@@ -154,10 +154,11 @@ def _swing_table(boat, soft_iron, hard_iron_ut, path: Path) -> Path:
 
 
 def test_swing_table_removes_the_offset_and_reports_the_card(boat, tmp_path, ahrsd_inproc):
-    rc, out, err = ahrsd_inproc("mag", "--method", "backstepping", boat["noref"], *SITE_ARGS, "--dry-run", "--json")
+    state = tmp_path / "state"    # empty: the same (no) bench calibration for both fits
+    rc, out, err = ahrsd_inproc("mag", "--method", "backstepping", boat["noref"], *SITE_ARGS, "--state-dir", state,
+                                "--dry-run", "--json")
     first = json.loads(out)
     table = _swing_table(boat, first["soft_iron"], first["hard_iron_ut"], tmp_path / "swing.csv")
-    state = tmp_path / "state"
     proc = ahrsd("mag", "--method", "backstepping", boat["noref"], *SITE_ARGS, "--state-dir", state,
                  "--swing-table", table, "--json")
     assert proc.returncode == 0, proc.stdout + proc.stderr

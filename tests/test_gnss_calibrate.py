@@ -162,6 +162,10 @@ def test_the_levelling_bias_prior_follows_the_accelerometer_calibration(tmp_path
     assert sigma is None and note.startswith("WARNING: no accelerometer calibration")
     sigma, note = _levelling_accel_bias_prior(argparse.Namespace(accel_bias_sigma_mg=None), cal)
     assert sigma == ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 and "accelerometer calibrated" in note
+    assert "not aligned to the housing" in note and "--align-to-faces" in note
+    aligned = Calibration(accel=cal.accel, metadata={"accel": {"face_alignment": {"rotation_deg": 0.1}}})
+    sigma, note = _levelling_accel_bias_prior(argparse.Namespace(accel_bias_sigma_mg=None), aligned)
+    assert sigma == ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 and "not aligned" not in note
     sigma, note = _levelling_accel_bias_prior(argparse.Namespace(accel_bias_sigma_mg=5.0), cal)
     assert sigma == pytest.approx(5e-3 * 9.80665) and "5 mg (given)" in note
 
