@@ -104,3 +104,30 @@ def test_a_surface_that_is_not_level_is_refused_not_folded_in():
 def test_face_axes_are_the_six_signed_axes():
     assert sorted(map(tuple, FACE_AXES.astype(int).tolist())) == sorted(
         [tuple(s * np.eye(3, dtype=int)[i]) for i in range(3) for s in (1, -1)])
+
+
+def test_each_face_twice_turned_half_round_cancels_a_tilted_surface():
+    """On a surface tilted by τ, turning the unit 180° about the vertical on the same face reverses the tilt's
+    component in the housing frame, so the mean of the pair lies on the axis (to first order) and the
+    alignment is accepted and right."""
+    errs = SensorErrors.adis16405(seed=7)
+    tilt = Rotation.from_rotvec(np.radians([0.25, -0.2, 0.0]))      # the surface: 0.32° off level
+    half_turn = Rotation.from_rotvec([0.0, 0.0, math.pi])
+    rng = np.random.default_rng(5)
+    ups = []
+    for axis in FACE_AXES:
+        # The unit resting on the face whose outward normal is −axis (axis up), at a random heading on the surface.
+        rest = Rotation.align_vectors([[0.0, 0.0, 1.0]], [axis])[0]            # housing → a level world frame
+        rest = Rotation.from_rotvec([0.0, 0.0, rng.uniform(0, 2 * math.pi)]) * rest
+        for placement in (rest, half_turn * rest):
+            ups.append(placement.inv().apply(tilt.apply([0.0, 0.0, 1.0])))     # the surface's up, housing axes
+    corners = up_vectors()[6:14]
+    ups = np.vstack([ups, corners])
+    means = position_means(errs, ups, 7)
+    res = align_to_faces(fit_accel(means, G), means)
+    assert res.ok, res.refused
+    assert frame_rotation_deg(res.model, errs) < 0.02
+    # One placement per face on the same surface is refused (the faces disagree).
+    single = np.vstack([np.array(ups[:12])[::2], corners])
+    single_means = position_means(errs, single, 7)
+    assert not align_to_faces(fit_accel(single_means, G), single_means).ok
