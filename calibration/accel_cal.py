@@ -364,6 +364,13 @@ GUIDED_TARGETS: tuple[tuple[str, tuple[float, float, float]], ...] = (
     for sx in (1, -1) for sy in (1, -1) for sz in (1, -1)
 )
 
+# With face pairs (`calibrate accel --live --align-to-faces`), each face is held a second time, turned half round
+# about the vertical on the surface: that reverses a surface tilt's component in the housing frame, and the mean
+# of the two cancels it (calibration/accel_alignment.py).
+GUIDED_TARGETS_FACE_PAIRS = tuple(
+    t for face in GUIDED_TARGETS[:6] for t in (face, (f"{face[0]}, again, turned half round on the surface",
+                                                     face[1]))) + GUIDED_TARGETS[6:]
+
 
 @dataclass
 class GuidedSession:
@@ -371,7 +378,9 @@ class GuidedSession:
 
     `prompt` says which position to put the unit in next; `feed(sample)` returns a status line when
     something happens (still detected, position recorded, wrong position). Any target position counts when
-    the unit is still in it (not only the one prompted), so the operator may go in any order.
+    the unit is still in it (not only the one prompted), so the operator may go in any order. Targets that share
+    a direction (GUIDED_TARGETS_FACE_PAIRS) are filled in turn, one per still period: the unit must move
+    between them.
     """
 
     rate_hz: float
@@ -441,16 +450,19 @@ class GuidedSession:
         self._count = 0
         u = mean / np.linalg.norm(mean)
         cos_lim = math.cos(math.radians(self.tolerance_deg))
-        for i, (text, d) in enumerate(self.targets):
-            if float(u @ np.array(d)) > cos_lim:
-                if i in self.recorded:
-                    if self._announced == i:
-                        return None
-                    self._announced = i
-                    return f"already have '{text}'; next: {self.prompt}"
-                self.recorded[i] = mean
-                self._announced = i
-                return f"recorded '{text}' ({self.coverage()})" + ("" if self.done else f"; next: {self.prompt}")
+        matches = [i for i, (_, d) in enumerate(self.targets) if float(u @ np.array(d)) > cos_lim]
+        if matches:
+            if self._announced in matches:     # this still period has been recorded or reported already
+                return None
+            fresh = [i for i in matches if i not in self.recorded]
+            if not fresh:
+                self._announced = matches[0]
+                return f"already have '{self.targets[matches[0]][0]}'; next: {self.prompt}"
+            i = fresh[0]
+            self.recorded[i] = mean
+            self._announced = i
+            return (f"recorded '{self.targets[i][0]}' ({self.coverage()})"
+                    + ("" if self.done else f"; next: {self.prompt}"))
         if self._announced == -1:
             return None
         self._announced = -1

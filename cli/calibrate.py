@@ -326,7 +326,7 @@ def _accel_live(args):
     import sys
     import time
 
-    from ahrsd.calibration.accel_cal import GuidedSession
+    from ahrsd.calibration.accel_cal import GUIDED_TARGETS, GUIDED_TARGETS_FACE_PAIRS, GuidedSession
     from ahrsd.drivers.errors import DriverError, FrameError
     from ahrsd.drivers.source import start_chip_source
 
@@ -347,7 +347,9 @@ def _accel_live(args):
         imu = source.driver
     except DriverError as exc:
         raise _Fail(f"sensor: {exc}") from None
-    session = GuidedSession(rate_hz=imu.sample_rate_hz)
+    # --align-to-faces: each face twice, turned half round between, so a surface tilt cancels (accel_alignment)
+    session = GuidedSession(rate_hz=imu.sample_rate_hz,
+                            targets=GUIDED_TARGETS_FACE_PAIRS if args.align_to_faces else GUIDED_TARGETS)
     out = sys.stderr
     out.write(session.prompt + "\n")
     t_first = None

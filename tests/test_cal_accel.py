@@ -261,3 +261,27 @@ def test_guided_session_prompts_detects_stillness_records_and_fits():
     assert res.ok and res.terms == 12
     np.testing.assert_allclose(res.model.bias_m_s2, bias, atol=5e-3)
     np.testing.assert_allclose(gram(res.model.matrix), gram(np.linalg.inv(a)), atol=2e-3)
+
+
+def test_guided_face_pairs_take_a_second_hold_of_each_face_only_after_the_unit_moved():
+    """`--live --align-to-faces`: each face is asked for twice (turned half round between); a hold that
+    continues the one just recorded does not count as the second."""
+    from ahrsd.calibration.accel_cal import GUIDED_TARGETS_FACE_PAIRS
+
+    rate = 50.0
+    op = FakeOperator(rate, np.zeros(3), np.eye(3))
+    session = GuidedSession(rate_hz=rate, still_s=3.0, targets=GUIDED_TARGETS_FACE_PAIRS)
+    assert session.prompt.startswith("position 1/20")
+    face = session.targets[0][1]
+    for s in op.samples(face, 10.0):           # one long hold: three still periods' worth, never moved
+        session.feed(s)
+    assert sorted(session.recorded) == [0]
+    assert "again, turned half round" in session.prompt
+    for s in op.samples(face, 0.5, moving=True):
+        session.feed(s)
+    messages = [m for s in op.samples(face, 3.5) if (m := session.feed(s))]
+    assert sorted(session.recorded) == [0, 1] and messages[0].startswith("recorded") and "half round" in messages[0]
+    for s in op.samples(face, 0.5, moving=True):
+        session.feed(s)
+    messages = [m for s in op.samples(face, 3.5) if (m := session.feed(s))]
+    assert sorted(session.recorded) == [0, 1] and messages[0].startswith("already have")
