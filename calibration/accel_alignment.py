@@ -9,8 +9,8 @@ Through the magnetic dip I a tilt error δ moves a tilt-compensated heading by u
 
 When the unit rests flat on each of its six faces on a level surface, gravity is known in the housing frame
 there: +g along the axis pointing up. The rotation R that best maps the calibrated face readings c_i onto
-those directions a_i (Wahba's problem, min Σ‖a_i − R ĉ_i‖², solved by the SVD: Markley, J. Astronaut. Sci.
-36(3), 1988) is folded into the matrix: f = R·L·(f̃ − b − q∘f̃²). Bias, scale, non-orthogonality and the
+those directions a_i (Wahba's problem, min Σ‖a_i − R ĉ_i‖², by the project's SVD solver: estimator/wahba.py,
+Markley 1988) is folded into the matrix: f = R·L·(f̃ − b − q∘f̃²). Bias, scale, non-orthogonality and the
 quadratic terms are unchanged, and so is |f|.
 
 The surface must be level (a machinist's level to about 0.02°) and each face must sit flat on it. A surface
@@ -26,6 +26,9 @@ import math
 
 import numpy as np
 
+from ahrsd.estimator import wahba
+from ahrsd.estimator.rotations import quat_log
+
 from .accel_cal import AccelFitResult
 from .models import AccelModel
 
@@ -33,15 +36,6 @@ FACE_AXES = np.vstack([np.eye(3), -np.eye(3)])        # the up direction in hous
 FACE_NAMES = ("X up", "Y up", "Z up", "X down", "Y down", "Z down")
 FACE_TOLERANCE_DEG = 5.0        # a still position this close to a face axis is taken as resting on that face
 MAX_FACE_RESIDUAL_DEG = 0.1     # faces disagreeing by more (RMS) after the best rotation: not level, or not flat
-
-
-def wahba_rotation(observed: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """The proper rotation R minimising Σ‖reference_i − R·observed_i‖² (rows are vectors), by the SVD of
-    B = Σ reference_i observed_iᵀ (Markley 1988): R = U·diag(1, 1, det U·det V)·Vᵀ."""
-    b = np.asarray(reference, dtype=float).T @ np.asarray(observed, dtype=float)
-    u, _, vt = np.linalg.svd(b)
-    d = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(u) * np.linalg.det(vt)))])
-    return u @ d @ vt
 
 
 def face_directions(model: AccelModel, position_means_m_s2: np.ndarray,
@@ -77,14 +71,13 @@ def align_to_faces(result: AccelFitResult, position_means_m_s2: np.ndarray,
     faces = sorted(found)
     observed = np.array([found[k] for k in faces])
     axes = FACE_AXES[faces]
-    rot = wahba_rotation(observed, axes)
+    solution = wahba.svd(observed, axes)     # the rotation calibrated frame → housing
+    rot = solution.dcm
     after = observed @ rot.T
     residual_deg = np.degrees(np.arccos(np.clip(np.sum(after * axes, axis=1), -1.0, 1.0)))
     rms_deg = float(np.sqrt(np.mean(residual_deg**2)))
-    angle_deg = math.degrees(math.acos(np.clip((np.trace(rot) - 1.0) / 2.0, -1.0, 1.0)))
-    vee = 0.5 * np.array([rot[2, 1] - rot[1, 2], rot[0, 2] - rot[2, 0], rot[1, 0] - rot[0, 1]])   # sin θ · axis
-    sin_angle = float(np.linalg.norm(vee))
-    rotvec_deg = vee / sin_angle * angle_deg if sin_angle > 0 else np.zeros(3)
+    rotvec_deg = np.degrees(quat_log(solution.q_wxyz))
+    angle_deg = float(np.linalg.norm(rotvec_deg))
     quality = {**result.quality, "face_alignment": {
         "rotation_deg": angle_deg, "rotation_vector_deg": rotvec_deg.tolist(),
         "face_residual_rms_deg": rms_deg, "face_residuals_deg": dict(zip([FACE_NAMES[k] for k in faces],
