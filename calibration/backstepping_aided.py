@@ -59,16 +59,20 @@ ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 = 2e-3 * STANDARD_GRAVITY_M_S2   # residual acc
 
 
 def aided_roll_pitch(data: MagFitInput, fixes, declination_rad: float, mag_enabled: bool = False,
-                     smooth: bool = SMOOTH_LEVELLING, accel_bias_sigma_m_s2: float | None = None):
+                     smooth: bool = SMOOTH_LEVELLING, accel_bias_sigma_m_s2: float | None = None,
+                     filter_overrides: dict | None = None):
     """The levelling the fit uses: roll, pitch and tilt 1σ (rad, per sample) of the aided estimator over `data`
     with the GNSS `fixes`, and the estimator (its GNSS counters). `smooth`: those of the RTS smoother over the
     filter's run (given every fix, before and after) instead of the filter's own (given the fixes before).
     `accel_bias_sigma_m_s2`: the filter's accelerometer-bias prior (None: its default, for an uncalibrated
-    accelerometer)."""
+    accelerometer). `filter_overrides`: other InsParams fields of the filter (e.g. the gyro-misalignment prior of
+    a rate-table-calibrated gyro)."""
     from ahrsd.estimator import make_estimator
     from ahrsd.estimator.ins_smoother import SmoothingIns
 
-    prior = {} if accel_bias_sigma_m_s2 is None else {"init_accel_bias_sigma_m_s2": float(accel_bias_sigma_m_s2)}
+    prior = dict(filter_overrides or {})
+    if accel_bias_sigma_m_s2 is not None:
+        prior["init_accel_bias_sigma_m_s2"] = float(accel_bias_sigma_m_s2)
     est = (SmoothingIns(declination_rad=declination_rad, mag_enabled=mag_enabled, **prior) if smooth else
            make_estimator(AIDED_ESTIMATOR, declination_rad=declination_rad, mag_enabled=mag_enabled, **prior))
     roll, pitch, tilt_sigma = attitude_from_estimator(data, AIDED_ESTIMATOR, fixes=fixes, estimator=est)
@@ -80,10 +84,10 @@ def aided_roll_pitch(data: MagFitInput, fixes, declination_rad: float, mag_enabl
 
 
 def _level(data: MagFitInput, fixes, declination_rad: float, mag_enabled: bool, settled_tilt_sigma_deg: float,
-           smooth: bool, accel_bias_sigma_m_s2: float | None):
+           smooth: bool, accel_bias_sigma_m_s2: float | None, filter_overrides: dict | None):
     """Roll, pitch, the settled mask and whether the filter fused the GNSS velocity cleanly."""
     roll, pitch, tilt_sigma, est = aided_roll_pitch(data, fixes, declination_rad, mag_enabled, smooth,
-                                                    accel_bias_sigma_m_s2)
+                                                    accel_bias_sigma_m_s2, filter_overrides)
     settled = tilt_sigma <= math.radians(settled_tilt_sigma_deg)
     if settled.mean() < MIN_SETTLED_FRACTION:
         settled = np.ones(len(data), dtype=bool)
@@ -108,18 +112,20 @@ def _pass_report(data: MagFitInput, settled, res: MagFitResult, health: dict) ->
 
 def fit_backstepping_aided(data: MagFitInput, fixes, reference, declination_rad: float,
                            settled_tilt_sigma_deg: float = SETTLED_TILT_SIGMA_DEG, smooth: bool = SMOOTH_LEVELLING,
-                           accel_bias_sigma_m_s2: float | None = None, **options) -> MagFitResult:
+                           accel_bias_sigma_m_s2: float | None = None, filter_overrides: dict | None = None,
+                           **options) -> MagFitResult:
     """Back-stepping (`fit_backstepping`, `options` its BacksteppingOptions fields) levelled by the aided
     estimator over `data` (raw magnetometer; the accelerometer as calibrated, if it is) with the GNSS `fixes`
     (time of validity on the samples' time base). `accel_bias_sigma_m_s2`: how well the accelerometer bias is
-    known (None: uncalibrated, the filter's default prior). See the module docstring;
+    known (None: uncalibrated, the filter's default prior); `filter_overrides`: other InsParams fields of the
+    levelling filter. See the module docstring;
     `quality["aided_levelling"]` reports each pass."""
     from .backstepping import fit_backstepping
 
     if accel_bias_sigma_m_s2 is not None and not (math.isfinite(accel_bias_sigma_m_s2) and accel_bias_sigma_m_s2 > 0):
         raise ValueError(f"accel_bias_sigma_m_s2 must be a positive number, got {accel_bias_sigma_m_s2!r}")
     roll, pitch, settled, health = _level(data, fixes, declination_rad, False, settled_tilt_sigma_deg, smooth,
-                                          accel_bias_sigma_m_s2)
+                                          accel_bias_sigma_m_s2, filter_overrides)
     result = _fit_settled(data, roll, pitch, settled, reference, options)
     passes = [{"magnetometer": "off", **_pass_report(data, settled, result, health)}]
     if not health["healthy"]:
@@ -129,7 +135,7 @@ def fit_backstepping_aided(data: MagFitInput, fixes, reference, declination_rad:
         for _ in range(FALLBACK_PASSES if model is not None else 0):
             calibrated = dataclasses.replace(data, mag_ut=np.ascontiguousarray(model.apply(data.mag_ut)))
             roll, pitch, settled, health = _level(calibrated, fixes, declination_rad, True, settled_tilt_sigma_deg,
-                                                  smooth, accel_bias_sigma_m_s2)
+                                                  smooth, accel_bias_sigma_m_s2, filter_overrides)
             res = _fit_settled(data, roll, pitch, settled, reference, options)
             passes.append({"magnetometer": "the previous fit's calibration",
                            **_pass_report(data, settled, res, health)})
@@ -141,5 +147,6 @@ def fit_backstepping_aided(data: MagFitInput, fixes, reference, declination_rad:
             "rejected and reset): levelled again with the magnetometer calibrated by the accelerometer-levelled fit")
     result.quality["aided_levelling"] = {"estimator": AIDED_ESTIMATOR, "smoothed": smooth,
                                          "accel_bias_sigma_m_s2": accel_bias_sigma_m_s2,
+                                         "filter_overrides": dict(filter_overrides or {}),
                                          "settled_tilt_sigma_deg": settled_tilt_sigma_deg, "passes": passes}
     return result

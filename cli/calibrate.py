@@ -96,6 +96,9 @@ def register(subparsers) -> None:
     m.add_argument("--accel-bias-sigma-mg", type=float, default=None, metavar="MG",
                    help="with --gnss: how well the accelerometer bias is known, 1σ in mg (default: 2 with an "
                    "accelerometer calibration in the state directory, else the aided filter's 10)")
+    m.add_argument("--lever-arm-m", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                   help="with --gnss: the GNSS antenna's position relative to the IMU, body FRD (x forward, y right, "
+                   "z down), m, as the daemon's [gnss] lever_arm_m (default 0 0 0)")
 
 
 # ---------------------------------------------------------------------------------------------- helpers
@@ -474,6 +477,14 @@ def _mag(args) -> int:
         raise _Usage("--gnss-course needs --gnss GNSS.csv")
     if args.accel_bias_sigma_mg is not None and not args.gnss:
         raise _Usage("--accel-bias-sigma-mg needs --gnss GNSS.csv")
+    if args.lever_arm_m is not None:
+        from ahrsd.daemon.config import MAX_LEVER_ARM_M
+
+        if not args.gnss:
+            raise _Usage("--lever-arm-m needs --gnss GNSS.csv")
+        if not all(math.isfinite(v) and abs(v) <= MAX_LEVER_ARM_M for v in args.lever_arm_m):
+            raise _Usage(f"--lever-arm-m {' '.join(f'{v:g}' for v in args.lever_arm_m)}: expected three numbers "
+                         f"in [-{MAX_LEVER_ARM_M:g}, {MAX_LEVER_ARM_M:g}] m")
     if args.accel_bias_sigma_mg is not None and not (math.isfinite(args.accel_bias_sigma_mg)
                                                      and 0.0 < args.accel_bias_sigma_mg <= 1000.0):
         raise _Usage(f"--accel-bias-sigma-mg {args.accel_bias_sigma_mg}: expected 0 < MG ≤ 1000")
@@ -514,7 +525,9 @@ def _mag(args) -> int:
             if fixes is not None:
                 from ahrsd.cli.calibrate_gnss import fit_aided
 
-                res = fit_aided(data, fixes, ref, accel_bias_sigma_m_s2=accel_bias_sigma_m_s2, **options)
+                arm = ({} if args.lever_arm_m is None else
+                       {"filter_overrides": {"lever_arm_m": tuple(args.lever_arm_m)}})
+                res = fit_aided(data, fixes, ref, accel_bias_sigma_m_s2=accel_bias_sigma_m_s2, **arm, **options)
             else:
                 res = fit_mag(args.method, data, ref, **options)
     except NotImplementedError as exc:
@@ -582,7 +595,9 @@ def _gnss_for_backstepping(args, rec, heading_ref, ref_note):
     from ahrsd.calibration.backstepping_aided import AIDED_ESTIMATOR, SMOOTH_LEVELLING
 
     note = (f"levelling: {AIDED_ESTIMATOR} aided by {len(fixes)} GNSS fixes of {args.gnss} "
-            f"({validator.rejected} rejected)" + (", smoothed over the run (RTS)" if SMOOTH_LEVELLING else ""))
+            f"({validator.rejected} rejected)" + (", smoothed over the run (RTS)" if SMOOTH_LEVELLING else "")
+            + ("" if args.lever_arm_m is None else
+               ", antenna at " + " ".join(f"{v:g}" for v in args.lever_arm_m) + " m (body FRD)"))
     if not args.gnss_course:
         return fixes, heading_ref, note + ("; " + ref_note if ref_note else "")
     course = cg.course_reference_deg(fixes, rec.t_s)

@@ -492,6 +492,11 @@ class Config:
             return self.estimator.name
         return AIDED_ESTIMATOR if self.gnss.source != "none" else UNAIDED_ESTIMATOR
 
+    @property
+    def estimator_options(self) -> dict:
+        """What the estimator needs from the rest of the configuration: the aided one, the antenna lever arm."""
+        return {"lever_arm_m": self.gnss.lever_arm_m} if self.estimator_name == AIDED_ESTIMATOR else {}
+
     def check(self) -> None:
         """The checks that involve several sections (run by with_overrides, once the flags are in)."""
         if self.gnss.source == "replay" and self.sensor.source != "replay":

@@ -231,7 +231,8 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         if time.monotonic() - started > 1.0:
             log.info("compiled the %s estimator in %.1f s (cached for the next start)", cfg.estimator_name,
                      time.monotonic() - started)
-        estimator = make_estimator(cfg.estimator_name, declination_rad=self.declination_rad)
+        estimator = make_estimator(cfg.estimator_name, declination_rad=self.declination_rad,
+                                   **cfg.estimator_options)
         self.pipeline = Pipeline(estimator, calibration)
         self.pipeline.set_mounting([self.params.get(n) for n in MOUNTING_PARAMS])
         self._setup_signing()

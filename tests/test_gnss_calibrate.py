@@ -140,10 +140,11 @@ def test_aided_levelling_on_a_boat(tmp_path):
                                                                              matrix=np.eye(3))))
     res = subprocess.run([sys.executable, "-m", "ahrsd.cli", "calibrate", "mag", str(rec), "--lat", "36.42",
                           "--lon", "54.98", "--method", "backstepping", "--gnss", str(tmp_path / "boat.gnss.csv"),
-                          "--dry-run", "--state-dir", str(tmp_path / "state"), "--json"], capture_output=True,
-                         text=True, timeout=300)
+                          "--dry-run", "--state-dir", str(tmp_path / "state"), "--json", "--lever-arm-m", "0.1", "0",
+                          "-0.2"], capture_output=True, text=True, timeout=300)
     levelling = json.loads(res.stdout)["quality"]["aided_levelling"]
     assert levelling["accel_bias_sigma_m_s2"] == pytest.approx(ACCEL_BIAS_SIGMA_CALIBRATED_M_S2), levelling
+    assert levelling["filter_overrides"] == {"lever_arm_m": [0.1, 0.0, -0.2]}, levelling   # the antenna's place
 
 
 def test_the_levelling_bias_prior_follows_the_accelerometer_calibration(tmp_path):
@@ -176,6 +177,18 @@ def test_the_levelling_bias_prior_follows_the_accelerometer_calibration(tmp_path
     (["--gnss", "g.csv", "--accel-bias-sigma-mg", "nan"], "expected 0 < MG"),
 ])
 def test_accel_bias_sigma_usage(tmp_path, extra, message):
+    res = subprocess.run([sys.executable, "-m", "ahrsd.cli", "calibrate", "mag", str(tmp_path / "x.csv"), "--lat",
+                          "50", "--lon", "5", "--method", "backstepping", "--dry-run", *extra],
+                         capture_output=True, text=True, timeout=60)
+    assert res.returncode == 2 and message in res.stderr, res.stderr
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--lever-arm-m", "0", "0", "-1"], "--lever-arm-m needs --gnss"),
+    (["--gnss", "g.csv", "--lever-arm-m", "0", "0", "-101"], "expected three numbers in [-100, 100] m"),
+    (["--gnss", "g.csv", "--lever-arm-m", "nan", "0", "0"], "expected three numbers"),
+])
+def test_lever_arm_usage(tmp_path, extra, message):
     res = subprocess.run([sys.executable, "-m", "ahrsd.cli", "calibrate", "mag", str(tmp_path / "x.csv"), "--lat",
                           "50", "--lon", "5", "--method", "backstepping", "--dry-run", *extra],
                          capture_output=True, text=True, timeout=60)

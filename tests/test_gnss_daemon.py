@@ -14,7 +14,7 @@ import pytest
 
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, NavState
 from ahrsd.core.sample import make_sample
-from ahrsd.daemon.config import GnssConfig, OutputsConfig
+from ahrsd.daemon.config import Config, EstimatorConfig, GnssConfig, OutputsConfig
 from ahrsd.daemon.mavlink_io import mavlink
 from service_rig import gcs_socket, start_service, stop_service
 from test_fuzz_mavlink import drain
@@ -225,6 +225,21 @@ def test_navigation_outputs(tmp_path):
     finally:
         stop_service(service, loop)
         gcs.close()
+
+
+def test_the_configured_antenna_lever_arm_reaches_the_aided_estimator(tmp_path):
+    """[gnss] lever_arm_m is the aided filter's (it was once only the simulated receiver's); mekf takes none."""
+    gcs = gcs_socket()
+    arm = (0.5, -0.25, -1.5)
+    service, loop = start_service(gcs, tmp_path / "state", gnss=GnssConfig(source="mavlink", lever_arm_m=arm))
+    try:
+        assert tuple(service.pipeline.estimator.params.lever_arm_m) == arm
+    finally:
+        stop_service(service, loop)
+    cfg = dataclasses.replace(Config(), gnss=GnssConfig(source="mavlink", lever_arm_m=arm),
+                              estimator=EstimatorConfig(name="mekf"))
+    assert cfg.estimator_options == {}
+    gcs.close()
 
 
 def test_navigation_outputs_are_off_by_default():
