@@ -110,6 +110,22 @@ def _pass_report(data: MagFitInput, settled, res: MagFitResult, health: dict) ->
             "ok": res.ok, "refused": res.refused, **health}
 
 
+def _fallback_warning(passes: list, filter_overrides: dict | None) -> str:
+    """What the fallback says: the first pass's GNSS counts, and when the passes with the magnetometer still
+    reject velocities, the likely causes (a filter whose heading is right fuses a correct fix)."""
+    first = passes[0]["gnss"]
+    text = (f"the aided filter without a magnetometer rejected {first['rejected_velocity']} of {first['offered']} GNSS "
+            f"velocities and reset its velocity {first['reset_velocity']} times: it did not acquire its heading from "
+            "them; levelled again with the magnetometer calibrated by the accelerometer-levelled fit")
+    last = passes[-1]
+    if len(passes) > 2 and not last.get("healthy", True):
+        arm = tuple(float(v) for v in (filter_overrides or {}).get("lever_arm_m", (0.0, 0.0, 0.0)))
+        text += (f", which still rejected {last['gnss']['rejected_velocity']} of {last['gnss']['offered']}: check "
+                 f"the antenna's lever arm (the levelling was told {' '.join(f'{v:g}' for v in arm)} m, body FRD "
+                 "from the IMU) and the fixes' time stamps")
+    return text
+
+
 def fit_backstepping_aided(data: MagFitInput, fixes, reference, declination_rad: float,
                            settled_tilt_sigma_deg: float = SETTLED_TILT_SIGMA_DEG, smooth: bool = SMOOTH_LEVELLING,
                            accel_bias_sigma_m_s2: float | None = None, filter_overrides: dict | None = None,
@@ -142,9 +158,7 @@ def fit_backstepping_aided(data: MagFitInput, fixes, reference, declination_rad:
             if not res.ok:
                 break
             result, model = res, res.model
-        result.quality.setdefault("warnings", []).append(
-            "the aided filter without a magnetometer did not acquire its heading from the GNSS velocity (velocity "
-            "rejected and reset): levelled again with the magnetometer calibrated by the accelerometer-levelled fit")
+        result.quality.setdefault("warnings", []).append(_fallback_warning(passes, filter_overrides))
     result.quality["aided_levelling"] = {"estimator": AIDED_ESTIMATOR, "smoothed": smooth,
                                          "accel_bias_sigma_m_s2": accel_bias_sigma_m_s2,
                                          "filter_overrides": dict(filter_overrides or {}),

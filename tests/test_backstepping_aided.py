@@ -98,3 +98,23 @@ def test_the_antenna_lever_arm_reaches_the_levelling_filter(caplog):
     print(out)
     assert out["ignored"][0] > 100 and out["given"][0] == 0, out
     assert out["given"][1] < 0.5 * out["ignored"][1], out
+
+
+def test_an_untold_lever_arm_is_named_in_the_warning(caplog):
+    """The fallback's warning counts the rejected velocities, and when the passes with the magnetometer still
+    reject them it points at the antenna's lever arm; told the arm, the fit needs no fallback."""
+    caplog.set_level(logging.ERROR)
+    arm = (-1.0, 0.0, -2.0)
+    stream = open_stream("boat", rate_hz=100.0, seed=4, site=DEFAULT_SITE)
+    b = stream.next_block(18000)   # 180 s: a full circle
+    fixes = simulate_gnss(b, rate_hz=5.0, seed=1004, lever_arm_m=arm)
+    data = MagFitInput(b.t_s, b.mag_ut, b.accel_m_s2, b.gyro_rad_s)
+    decl = stream.earth_field.declination_rad
+    untold = fit_backstepping_aided(data, fixes, stream.earth_field, decl, smooth=False)
+    warning = " ".join(untold.quality.get("warnings", []))
+    assert "did not acquire its heading" in warning and "check the antenna's lever arm" in warning, warning
+    assert "told 0 0 0 m" in warning, warning
+    told = fit_backstepping_aided(data, fixes, stream.earth_field, decl, smooth=False,
+                                  filter_overrides={"lever_arm_m": arm})
+    assert len(told.quality["aided_levelling"]["passes"]) == 1, told.quality["aided_levelling"]
+    assert not any("lever arm" in w for w in told.quality.get("warnings", []))
