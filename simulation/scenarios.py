@@ -489,7 +489,10 @@ from ahrsd.simulation.vehicles import VEHICLES  # noqa: E402  (vehicles build on
 
 _REGISTRY.update(VEHICLES)
 SCENARIOS: tuple[str, ...] = tuple(_REGISTRY)   # the contract's names (CONTRIBUTING, "Simulation")
-EXTRA_SCENARIOS = {"auv-diver-swing": AuvDiverSwing}   # available by name, not part of the contract
+from ahrsd.simulation.bench_positions import AccelPositions  # noqa: E402  (builds on Scenario above)
+
+EXTRA_SCENARIOS = {"auv-diver-swing": AuvDiverSwing,    # available by name, not part of the contract
+                   "accel-positions": AccelPositions}
 
 
 def make_scenario(name: str, **params) -> Scenario:

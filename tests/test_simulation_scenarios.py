@@ -243,3 +243,29 @@ def test_auv_diver_swing_follows_the_back_stepping_paper_test1_phases():
     for j in range(len(inc)):
         q = q * inc[j]
     assert (r[-1].inv() * q).magnitude() < 1e-4
+
+
+def test_accel_positions_walks_the_faces_twice_on_a_tilted_surface():
+    """`accel-positions`: during each hold the ideal accelerometer's up direction is the position's axis tipped by
+    the surface's 0.2°; a face's second placement (turned half round about the surface normal) tips it the other
+    way, so the pair's mean is on the axis; still in the holds, turning between them."""
+    from ahrsd.simulation.bench_positions import CORNERS, FACES
+
+    sc = make_scenario("accel-positions")
+    assert "accel-positions" not in SCENARIOS and sc.n_positions == 20
+    period = sc.hold_s + sc.move_s
+    b = simulate("accel-positions", 20 * period, rate_hz=50.0, errors="ideal")
+    ups = []
+    for k in range(20):
+        hold = (b.t_s >= k * period + 1.0) & (b.t_s < k * period + sc.hold_s - 1.0)
+        f = b.accel_m_s2[hold].mean(axis=0)
+        ups.append(f / np.linalg.norm(f))
+        assert np.abs(b.gyro_rad_s[hold]).max() < 1e-9
+        assert np.abs(b.gyro_rad_s[(b.t_s > k * period + sc.hold_s + 0.5 * sc.move_s)][:5]).max() > 0.05 or k == 19
+    targets = [np.array(d) / np.linalg.norm(d) for d in FACES for _ in (0, 1)] + \
+        [np.array(d) / np.sqrt(3.0) for d in CORNERS]
+    tips = [np.degrees(np.arccos(np.clip(u @ t, -1, 1))) for u, t in zip(ups, targets)]
+    np.testing.assert_allclose(tips, 0.2, atol=1e-6)
+    for k in range(0, 12, 2):
+        pair = ups[k] + ups[k + 1]
+        assert np.degrees(np.arccos(pair @ targets[k] / np.linalg.norm(pair))) < 1e-5
