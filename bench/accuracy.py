@@ -334,6 +334,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--vehicle-seeds", type=int, default=3, help="seeds per vehicle and site in (c)")
     ap.add_argument("--vehicle-scenarios", nargs="*", default=None, metavar="SCENARIO",
                     help="moving scenarios for (c) (default: boat car plane)")
+    ap.add_argument("--lever-arm", action="store_true",
+                    help="(c): the GNSS antenna away from the IMU on each vehicle, ins told (and ins-untold not)")
     ap.add_argument("--site", action="append", default=None, metavar="LAT,LON[,ALT_M[,YYYY-MM-DD]]",
                     help="site(s) for (c) instead of the default and 60°N (repeatable)")
     ap.add_argument("--cv", action="store_true",
@@ -355,7 +357,8 @@ def main(argv: list[str] | None = None) -> int:
         from bench.vehicle_accuracy import VEHICLE_SCENARIOS, vehicle_section
 
         sites = {f"site{i + 1}": s for i, s in enumerate(args.site)} if args.site else None
-        vehicle_section(args.quick, args.vehicle_seeds, sites, args.vehicle_scenarios or VEHICLE_SCENARIOS)
+        vehicle_section(args.quick, args.vehicle_seeds, sites, args.vehicle_scenarios or VEHICLE_SCENARIOS,
+                        lever_arm=args.lever_arm)
     if args.cv:
         from bench.cv import print_report, run_grid
 

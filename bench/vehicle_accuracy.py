@@ -13,6 +13,10 @@ wander, τ 300 s) and 0.05 m/s velocity, 0.1 s latency, delivered in arrival ord
 a spherical Earth (R0 = 6 378 137 m); `ins` runs with its default `earth_model="wgs84"` (what a receiver
 reports) and, as `ins-sphere`, with the sphere the track was computed on.
 
+With `--lever-arm` (bench/accuracy.py) the receiver's antenna is where it would be on each vehicle
+(LEVER_ARMS_M: a boat's mast, a car's roof, a plane's wing root) and `ins` is told it, as `[gnss] lever_arm_m`
+does in the daemon; the column `ins-untold` is the same filter not told.
+
 Reported: RMS after 30 s of the tilt error (the horizontal part of the error rotation) and of the true-heading
 error (magnetic estimates plus the site's WMM declination), and for a 30 s GNSS outage from the start of the
 longest turn starting after 60 s the worst tilt and heading error inside it and the largest attitude change within 1 s
@@ -33,6 +37,7 @@ VEHICLE_SCENARIOS = ("boat", "car", "plane")
 VEHICLE_SITES = {"default": None, "60N": "60.17,24.94,20,2026-06-15"}
 RATE_HZ = 200.0
 TARGETS = {"tilt": 0.3, "heading": 0.5, "outage_tilt": 1.0, "outage_heading": 2.0}
+LEVER_ARMS_M = {"boat": (-1.0, 0.0, -2.0), "car": (-0.5, 0.0, -1.5), "plane": (0.3, 0.2, -0.2)}   # body FRD, m
 
 
 @dataclass
@@ -47,6 +52,7 @@ class VehicleRun:
     declination_rad: float
     fixes: list
     outage: tuple[float, float] | None
+    lever_arm_m: tuple = (0.0, 0.0, 0.0)     # the receiver's antenna, body FRD from the IMU, m
 
 
 def _rot(q_wxyz) -> Rotation:
@@ -84,9 +90,10 @@ def longest_turn_after(t_s, q_wxyz, t_from_s: float, t_last_start_s: float, min_
 
 
 def simulate_vehicle(name: str, seconds: float, seed: int, site_text: str | None, outage: bool = False,
-                     rate_hz: float = RATE_HZ) -> VehicleRun:
+                     rate_hz: float = RATE_HZ, lever_arm: bool = False) -> VehicleRun:
     """`seconds` of vehicle `name` at the site ("LAT,LON[,ALT[,DATE]]", None: DEFAULT_SITE) with its GNSS fixes
-    (in arrival order), with a 30 s outage from the start of the longest turn after 60 s when `outage`."""
+    (in arrival order), with a 30 s outage from the start of the longest turn after 60 s when `outage`, the
+    antenna at LEVER_ARMS_M[name] when `lever_arm`."""
     from ahrsd.simulation import DEFAULT_SITE, GnssErrors, Site, open_stream, simulate_gnss
 
     site = Site.parse(site_text) if site_text else DEFAULT_SITE
@@ -98,19 +105,22 @@ def simulate_vehicle(name: str, seconds: float, seed: int, site_text: str | None
     if outage:
         t0 = longest_turn_after(block.t_s, block.truth_q_wxyz, 60.0, seconds - OUTAGE_S - 10.0)
         window = (t0, t0 + OUTAGE_S) if t0 is not None else None
+    arm = LEVER_ARMS_M.get(name, (0.0, 0.0, 0.0)) if lever_arm else (0.0, 0.0, 0.0)
     fixes = simulate_gnss(block, rate_hz=5.0, seed=seed + 1000, outages=[window] if window else [],
-                          errors=GnssErrors(horizontal_m=1.5, vertical_m=2.5, velocity_m_s=0.05), latency_s=0.1)
+                          errors=GnssErrors(horizontal_m=1.5, vertical_m=2.5, velocity_m_s=0.05), latency_s=0.1,
+                          lever_arm_m=arm)
     fixes.sort(key=lambda f: f.extra["t_rx_s"])
     return VehicleRun(block.t_s, block.gyro_rad_s, block.accel_m_s2, np.ascontiguousarray(mag),
-                      block.truth_q_wxyz, stream.earth_field.declination_rad, fixes, window)
+                      block.truth_q_wxyz, stream.earth_field.declination_rad, fixes, window, arm)
 
 
 def run_ins(run: VehicleRun, use_gnss: bool = True, **params) -> np.ndarray:
-    """The `ins` fed sample by sample, each fix once the IMU clock passes its arrival time; q body → magnetic."""
+    """The `ins` fed sample by sample, each fix once the IMU clock passes its arrival time; q body → magnetic.
+    Told the run's antenna lever arm unless `params` say otherwise."""
     from ahrsd.core.sample import SampleFlags, make_sample
     from ahrsd.estimator.ins import Ins
 
-    est = Ins(declination_rad=run.declination_rad, **params)
+    est = Ins(declination_rad=run.declination_rad, **{"lever_arm_m": run.lever_arm_m, **params})
     t, g, a, m = run.t_s, run.gyro_rad_s, run.accel_m_s2, run.mag_ut
     fixes = run.fixes if use_gnss else []
     q = np.empty((len(t), 4))
@@ -143,6 +153,7 @@ def run_vqf(run: VehicleRun) -> np.ndarray:
 METHODS = {
     "ins": lambda run: run_ins(run),
     "ins-sphere": lambda run: run_ins(run, earth_model="sphere"),
+    "ins-untold": lambda run: run_ins(run, lever_arm_m=(0.0, 0.0, 0.0)),
     "mekf": run_mekf,
     "vqf": run_vqf,
 }
@@ -163,7 +174,8 @@ def attitude_steps_deg(q_a, q_truth, t_s, times) -> list[float]:
 
 
 def vehicle_section(quick: bool = False, seeds: int = 3, sites: dict | None = None,
-                    scenarios=VEHICLE_SCENARIOS, methods=None, seconds: float | None = None) -> dict:
+                    scenarios=VEHICLE_SCENARIOS, methods=None, seconds: float | None = None,
+                    lever_arm: bool = False) -> dict:
     """Print the vehicle tables; return {(scenario, site, seed, method): (tilt RMS, heading RMS)} and the outage
     rows under key "outage"."""
     from bench.accuracy import available_methods
@@ -173,12 +185,15 @@ def vehicle_section(quick: bool = False, seeds: int = 3, sites: dict | None = No
         seeds = 1
         sites = {k: v for k, v in sites.items() if v is not None} or sites
     seconds = seconds or 200.0
-    names, notes = available_methods(list(methods or METHODS))
+    names, notes = available_methods(list(methods or (m for m in METHODS if lever_arm or m != "ins-untold")))
     names = [n for n in names if n in METHODS]
     print(f"\n## (c) Vehicles: ins with GNSS beside mekf and VQF ({', '.join(scenarios)}), {seconds:.0f} s, "
           f"seeds 1..{seeds}")
     print("ADIS16405 errors (gyro and accelerometer raw, magnetometer calibrated), 200 SPS, rotating Earth; GNSS "
           "5 Hz, 1.5 m / 0.05 m/s, 0.1 s latency.")
+    if lever_arm:
+        print("antenna lever arm (body FRD, m; ins told, ins-untold not): " +
+              ", ".join(f"{k} {v}" for k, v in LEVER_ARMS_M.items() if k in scenarios))
     print(f"RMS after {SETTLE_S:.0f} s, degrees; targets for ins: tilt ≤ {TARGETS['tilt']}, heading ≤ "
           f"{TARGETS['heading']}")
     for name, note in notes.items():
@@ -193,7 +208,7 @@ def vehicle_section(quick: bool = False, seeds: int = 3, sites: dict | None = No
     for scen in scenarios:
         for label, text in sites.items():
             for seed in range(1, seeds + 1):
-                run = simulate_vehicle(scen, seconds, seed, text)
+                run = simulate_vehicle(scen, seconds, seed, text, lever_arm=lever_arm)
                 settle = run.t_s >= SETTLE_S
                 line = f"{scen:8s} {label:8s} {seed:4d} "
                 for n in names:
@@ -216,7 +231,7 @@ def vehicle_section(quick: bool = False, seeds: int = 3, sites: dict | None = No
         for scen in scenarios:
             for label, text in sites.items():
                 for seed in range(1, seeds + 1):
-                    run = simulate_vehicle(scen, seconds, seed, text, outage=True)
+                    run = simulate_vehicle(scen, seconds, seed, text, outage=True, lever_arm=lever_arm)
                     if run.outage is None:
                         continue
                     t0, t1 = run.outage

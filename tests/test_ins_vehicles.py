@@ -83,3 +83,16 @@ def test_heading_at_high_dip_does_not_inherit_the_tilt_error():
     run = simulate_vehicle("boat", SECONDS, SEED, "69.65,18.96,10,2026-07-01")
     tilt, heading = _errors(run, run_ins(run))
     assert _rms(heading) <= 0.5 and _rms(tilt) <= 0.3, (_rms(heading), _rms(tilt))
+
+
+def test_an_antenna_on_a_mast_is_within_the_targets_when_the_filter_is_told():
+    """The boat's receiver antenna 1 m aft and 2 m above the IMU (LEVER_ARMS_M): in the waves it moves at tenths
+    of a m/s the IMU does not. Told the lever arm ([gnss] lever_arm_m), ins stays within the targets; not told,
+    its heading is not (tilt / heading RMS at this seed: 0.13° / 0.23° told, 0.34° / 0.90° not)."""
+    run = simulate_vehicle("boat", SECONDS, SEED, SITE, lever_arm=True)
+    assert run.lever_arm_m == (-1.0, 0.0, -2.0)
+    tilt, heading = _errors(run, run_ins(run))
+    assert _rms(tilt) <= 0.3 and _rms(heading) <= 0.5, (_rms(tilt), _rms(heading))
+    tilt_untold, heading_untold = _errors(run, run_ins(run, lever_arm_m=(0.0, 0.0, 0.0)))
+    print(f"told {_rms(tilt):.2f}/{_rms(heading):.2f}, untold {_rms(tilt_untold):.2f}/{_rms(heading_untold):.2f}")
+    assert _rms(heading_untold) > 1.5 * _rms(heading), (_rms(heading), _rms(heading_untold))
