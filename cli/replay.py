@@ -88,6 +88,24 @@ def _parse_params(items: list[str]) -> dict:
     return params
 
 
+GATE_HINT_FRACTION = 0.1   # of the fixes offered: more velocities rejected than this, and the replay says why it may be
+
+
+def _gate_summary(estimator) -> str:
+    """What the aided filter's innovation gate did with the fixes, and a hint when it rejected many velocities:
+    a filter whose attitude is right rejects a correct fix only if the antenna is not where it was told."""
+    c = getattr(estimator, "gnss_counters", None)
+    if c is None:
+        return "not offered"
+    text = (f"the filter fused {c.fused_velocity} velocities and {c.fused_position} positions, its gate rejected "
+            f"{c.rejected_velocity} and {c.rejected_position}")
+    if c.rejected_velocity > GATE_HINT_FRACTION * max(c.offered, 1):
+        arm = " ".join(f"{v:g}" for v in estimator.params.lever_arm_m)
+        text += (f"; WARNING: that many rejected velocities usually mean the antenna is not where the filter was "
+                 f"told ({arm} m, body FRD: --set \"lever_arm_m=(x, y, z)\") or the fixes' time stamps are off")
+    return text
+
+
 def _declination_rad(args, gnss_position=None) -> float:
     """WMM declination at --lat/--lon, else at the first GNSS fix's position `(lat, lon, alt)`, else 0."""
     import datetime as dt
@@ -352,7 +370,7 @@ def _run(args) -> int:
         if aided:
             reasons = ", ".join(f"{k} {v}" for k, v in validator.counters.items() if k != "accepted" and v)
             gnss = (f"and {validator.counters['accepted']} GNSS fixes ({validator.rejected} rejected"
-                    f"{': ' + reasons if reasons else ''}) ")
+                    f"{': ' + reasons if reasons else ''}; {_gate_summary(estimator)}) ")
         print(f"ahrsd replay: {count} samples ({duration:.1f} s at {rate:.1f} Hz) {gnss}through {estimator_name}, "
               f"heading to {where}; {wall:.2f} s wall ({t_loop * 1e6 / count:.1f} CPU µs/sample to read, "
               f"estimate and write): {speed:.1f}× real time ({cpu_speed:.1f}× per CPU second)", file=sys.stderr)

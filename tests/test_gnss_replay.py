@@ -93,7 +93,7 @@ def test_replay_with_gnss_adds_the_navigation_columns(boat, tmp_path):
     out = tmp_path / "aided.csv"
     res = ahrsd("replay", str(rec), "--gnss", str(gnss), "-o", str(out))
     assert res.returncode == 0, res.stderr
-    assert "GNSS fixes (0 rejected)" in res.stderr and "through ins" in res.stderr
+    assert "GNSS fixes (0 rejected;" in res.stderr and "through ins" in res.stderr
     lines = out.read_text().splitlines()
     assert lines[0] == AIDED_OUTPUT_HEADER and lines[0].startswith(OUTPUT_HEADER + ",")
     data = np.loadtxt(out, delimiter=",", skiprows=1)
@@ -106,3 +106,17 @@ def test_replay_with_gnss_adds_the_navigation_columns(boat, tmp_path):
     lat = data[late][:, cols.index("lat_deg")]
     assert np.max(np.abs(lat - truth.lat_deg)) * 111_000 < 5.0
     assert len(read_gnss_recording(gnss)) > 150
+
+
+def test_replay_reports_the_gate_and_hints_at_a_wrong_lever_arm(boat, tmp_path):
+    """The summary says what the filter's innovation gate did; told an antenna 4 m above the IMU that the
+    recording's receiver does not have (the simulator's antenna is at the IMU), the rocking boat's fixes are
+    rejected and the summary points at the lever arm."""
+    rec, gnss = boat
+    res = ahrsd("replay", str(rec), "--gnss", str(gnss), "-o", str(tmp_path / "a.csv"))
+    assert res.returncode == 0 and "its gate rejected 0 and 0" in res.stderr, res.stderr
+    assert "WARNING" not in res.stderr
+    res = ahrsd("replay", str(rec), "--gnss", str(gnss), "--set", "lever_arm_m=(0, 0, -4)",
+                "-o", str(tmp_path / "b.csv"))
+    assert res.returncode == 0 and "WARNING: that many rejected velocities" in res.stderr, res.stderr
+    assert "(0 0 -4 m, body FRD" in res.stderr
