@@ -34,6 +34,9 @@ HEALTH_PERIOD_S = 1.0           # SerialGnssSource.poll_health: "call it about o
 REOPEN_PERIOD_S = 2.0           # a port that failed to open is tried again this often (as the source re-opens)
 FIX_STALE_S = 2.0               # no accepted fix for this long: GNSS not healthy (SYS_STATUS), state "no fix"
 STATUSTEXT_MIN_INTERVAL_S = 5.0  # GNSS state changes reach the ground station at most this often
+GATE_WINDOW_S = 30.0            # the estimator's innovation gate is checked over windows this long
+GATE_MIN_OFFERED = 20           # ... holding at least this many fixes
+GATE_WARN_FRACTION = 0.3        # ... and it rejected more than this share of their velocities: a STATUSTEXT warning
 SENSOR_GPS = mavlink.MAV_SYS_STATUS_SENSOR_GPS
 _GNSS_AIDED, _GNSS_OUTAGE = int(EstimateFlags.GNSS_AIDED), int(EstimateFlags.GNSS_OUTAGE)
 FIX_NAMES = {GnssFixType.NO_GPS: "no GPS", GnssFixType.NO_FIX: "no fix", GnssFixType.FIX_2D: "2D",
@@ -61,6 +64,7 @@ class GnssTaskCounters:
     not_used: int = 0            # accepted, but the estimator is not aided
     estimator_errors: int = 0    # update_gnss raised (a bug: counted, logged, the fix dropped)
     source_errors: int = 0       # the source failed to deliver (a read or a recording row)
+    gate_warnings: int = 0       # windows in which the estimator's gate rejected most velocities (_watch_gate)
 
 
 class GnssTask:
@@ -93,6 +97,7 @@ class GnssTask:
         self._shown_state = ""
         self._pending_text = ""
         self._last_text_at = -math.inf
+        self._gate_window = None        # (start time, offered, rejected velocities) of the estimator's counters
 
     # ------------------------------------------------------------------------------------------ start / stop
     def open(self) -> None:
@@ -320,6 +325,7 @@ class GnssTask:
                     self._unregister_reader()
                     self._register_reader()
             self._report_state(now)
+            self._watch_gate(now)
         except Exception:  # noqa: BLE001 - housekeeping carries on whatever the GNSS source does
             self.counters.source_errors += 1
             log.exception("GNSS housekeeping failed")
@@ -338,6 +344,31 @@ class GnssTask:
             severity = mavlink.MAV_SEVERITY_INFO if healthy else mavlink.MAV_SEVERITY_WARNING
             self.service.statustext(severity, self._pending_text)
             self._pending_text, self._last_text_at = "", now
+
+    def _watch_gate(self, now: float) -> None:
+        """Over each GATE_WINDOW_S, the share of offered velocities the estimator's innovation gate rejected.
+        A filter with a sound attitude rejects correct fixes only when they do not fit the IMU's motion: most
+        often an antenna that is not where `[gnss] lever_arm_m` says (it moves as the vehicle rolls), or a wrong
+        `latency_s`. Logged and sent as a STATUSTEXT warning, counted in gate_warnings."""
+        est = self.service.pipeline.estimator if self.service.pipeline is not None else None
+        c = getattr(est, "gnss_counters", None)
+        if c is None:
+            return
+        if self._gate_window is None:
+            self._gate_window = (now, c.offered, c.rejected_velocity)
+            return
+        t0, offered0, rejected0 = self._gate_window
+        if now - t0 < GATE_WINDOW_S:
+            return
+        offered, rejected = c.offered - offered0, c.rejected_velocity - rejected0
+        self._gate_window = (now, c.offered, c.rejected_velocity)
+        if offered >= GATE_MIN_OFFERED and rejected > GATE_WARN_FRACTION * offered:
+            self.counters.gate_warnings += 1
+            log.warning("the aided filter rejected %d of %d GNSS velocities in the last %.0f s: check [gnss] "
+                        "lever_arm_m (%s m, body FRD from the IMU) and latency_s", rejected, offered, now - t0,
+                        " ".join(f"{v:g}" for v in self.cfg.lever_arm_m))
+            self.service.statustext(mavlink.MAV_SEVERITY_WARNING,
+                                    f"ahrsd: GNSS vel rejected {rejected}/{offered}: lever arm?")
 
     def stats(self) -> dict:
         """Every counter, for `--stats-file` and the tests."""

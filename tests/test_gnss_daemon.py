@@ -179,6 +179,31 @@ def test_sys_status_gps_bit_and_statustext(rig):
     assert svc.gnss.status(now) == "GNSS 3D 11 sats, aided"
 
 
+def test_a_gate_that_rejects_most_velocities_warns_the_operator(rig):
+    """Over each 30 s window the daemon looks at what the estimator's innovation gate did; when it rejected
+    most of the offered velocities (an antenna not where lever_arm_m says, rolling with the vehicle) the ground
+    station gets a warning, once per window, and the counter says so."""
+    from types import SimpleNamespace
+
+    from ahrsd.daemon.gnss_task import GATE_WINDOW_S
+
+    svc = rig.service
+    rig.fake.gnss_counters = counters = SimpleNamespace(offered=0, rejected_velocity=0)
+    now = time.monotonic()
+    svc.gnss.tick(now)
+    received(rig)
+    counters.offered, counters.rejected_velocity = 150, 10        # a healthy window: nothing said
+    svc.gnss.tick(now + GATE_WINDOW_S + 0.1)
+    assert not [m for m in received(rig) if m.get_type() == "STATUSTEXT" and "rejected" in m.text]
+    counters.offered, counters.rejected_velocity = 300, 100        # 90 of the next 150
+    svc.gnss.tick(now + 2 * GATE_WINDOW_S + 0.2)
+    texts = [m.text for m in received(rig) if m.get_type() == "STATUSTEXT" and "rejected" in m.text]
+    assert texts == ["ahrsd: GNSS vel rejected 90/150: lever arm?"] and len(texts[0]) <= 50
+    assert svc.gnss.counters.gate_warnings == 1
+    svc.gnss.tick(now + 2 * GATE_WINDOW_S + 5.0)                   # within the window: not repeated
+    assert not [m for m in received(rig) if m.get_type() == "STATUSTEXT" and "rejected" in m.text]
+
+
 def test_no_gnss_source_no_gps_bit(tmp_path):
     gcs = gcs_socket()
     service, loop = start_service(gcs, tmp_path / "state")
