@@ -29,13 +29,15 @@ class GnssRecorder:
         self._next_health = -math.inf
 
     @classmethod
-    def for_scenario(cls, path, scenario: str, seed: int, chip_now, recording_clock) -> "GnssRecorder":
-        """The simulated receiver of `scenario` (5 Hz, the simulator's default noise and latency)."""
+    def for_scenario(cls, path, scenario: str, seed: int, chip_now, recording_clock,
+                     lever_arm_m=(0.0, 0.0, 0.0)) -> "GnssRecorder":
+        """The simulated receiver of `scenario` (5 Hz, the simulator's default noise and latency), its antenna at
+        `lever_arm_m` (body FRD from the IMU, m)."""
         from ahrsd.simulation import GnssSimulator, open_stream
 
         truth = open_stream(scenario, seed=seed, errors="ideal")
         t0 = chip_now()
-        simulator = GnssSimulator(truth.truth_at, seed=seed, start_s=max(0.0, t0))
+        simulator = GnssSimulator(truth.truth_at, seed=seed, start_s=max(0.0, t0), lever_arm_m=lever_arm_m)
         return cls(path, simulator=simulator, time_offset_s=recording_clock() - t0)
 
     @classmethod

@@ -54,6 +54,9 @@ def register(subparsers) -> None:
     p.add_argument("--gnss-serial", metavar="DEVICE[,BAUD]", default=None,
                    help="also record the GNSS receiver (UBX/NMEA) on this serial port (baud default 115200)")
     p.add_argument("--no-gnss", action="store_true", help="do not record the simulated vehicle's GNSS receiver")
+    p.add_argument("--gnss-lever-arm-m", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                   help="--sim: the simulated receiver's antenna relative to the IMU, body FRD, m (default 0 0 0; "
+                   "give the same to replay/calibrate, or [gnss] lever_arm_m)")
     p.add_argument("--quiet", "-q", action="store_true", help="no live status line")
     p.set_defaults(func=run)
 
@@ -198,6 +201,8 @@ def run(args) -> int:
 
 def _open_gnss(args, bus, source, paced: bool):
     """The GNSS recorder beside the IMU recording, or None (no GNSS source)."""
+    import math
+
     from ahrsd.cli.gnss_record import GnssRecorder
     from ahrsd.drivers.gnss_recording import gnss_path_for
 
@@ -209,6 +214,15 @@ def _open_gnss(args, bus, source, paced: bool):
         if not paced:
             raise ValueError("--gnss-serial needs the IMU on the host clock: a real sensor, or --sim with --realtime")
         return GnssRecorder.for_serial(path, device, int(baud or 115200), source.clock)
+    arm = (0.0, 0.0, 0.0) if args.gnss_lever_arm_m is None else tuple(args.gnss_lever_arm_m)
+    if args.gnss_lever_arm_m is not None:
+        from ahrsd.daemon.config import MAX_LEVER_ARM_M
+
+        if args.sim is None or args.no_gnss:
+            raise ValueError("--gnss-lever-arm-m is the simulated receiver's: it goes with --sim (and GNSS)")
+        if not all(math.isfinite(v) and abs(v) <= MAX_LEVER_ARM_M for v in arm):
+            raise ValueError(f"--gnss-lever-arm-m: expected three numbers in [-{MAX_LEVER_ARM_M:g}, "
+                             f"{MAX_LEVER_ARM_M:g}] m")
     if args.sim is None or args.no_gnss:
         return None
     from ahrsd.simulation.vehicles import VEHICLES
@@ -216,7 +230,7 @@ def _open_gnss(args, bus, source, paced: bool):
     if args.sim not in VEHICLES:
         return None        # a scenario that does not move: no receiver to record
     seed = SIM_SEED if args.seed is None else args.seed
-    return GnssRecorder.for_scenario(path, args.sim, seed, bus.now, source.clock)
+    return GnssRecorder.for_scenario(path, args.sim, seed, bus.now, source.clock, lever_arm_m=arm)
 
 
 def _print_status(out, written: int, elapsed: float, s, counters: dict) -> None:

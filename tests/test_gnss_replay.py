@@ -120,3 +120,21 @@ def test_replay_reports_the_gate_and_hints_at_a_wrong_lever_arm(boat, tmp_path):
                 "-o", str(tmp_path / "b.csv"))
     assert res.returncode == 0 and "WARNING: that many rejected velocities" in res.stderr, res.stderr
     assert "(0 0 -4 m, body FRD" in res.stderr
+
+
+def test_a_recorded_antenna_lever_arm_replays_clean_only_when_given(tmp_path):
+    """`record --sim boat --gnss-lever-arm-m` puts the simulated receiver's antenna on a mast; replayed without
+    the arm the filter's gate rejects the rocking antenna's velocities and the summary warns, given the same arm
+    (`--set lever_arm_m=...`) it does not."""
+    rec = tmp_path / "mast.csv"
+    res = ahrsd("record", "--sim", "boat", "--seconds", "40", "--gnss-lever-arm-m", "-1", "0", "-2", "-o", str(rec))
+    assert res.returncode == 0, res.stderr
+    gnss = tmp_path / "mast.gnss.csv"
+    res = ahrsd("replay", str(rec), "--gnss", str(gnss), "-o", str(tmp_path / "a.csv"))
+    assert res.returncode == 0 and "WARNING: that many rejected velocities" in res.stderr, res.stderr
+    res = ahrsd("replay", str(rec), "--gnss", str(gnss), "--set", "lever_arm_m=(-1, 0, -2)",
+                "-o", str(tmp_path / "b.csv"))
+    assert res.returncode == 0 and "WARNING" not in res.stderr, res.stderr
+    bad = ahrsd("record", "--sim", "static", "--seconds", "1", "--gnss-lever-arm-m", "0", "0", "-200",
+                "-o", str(tmp_path / "c.csv"))
+    assert bad.returncode == 1 and "expected three numbers" in bad.stderr, bad.stderr
