@@ -3,9 +3,12 @@ terminal — a tmux pane here — and absent in a pipe, with --quiet and with --
 
 from __future__ import annotations
 
+import contextlib
+import os
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 import uuid
 
@@ -33,19 +36,27 @@ def in_tmux(command: list[str], timeout_s: float = 120.0) -> str:
     if shutil.which("tmux") is None:
         pytest.skip("tmux is not installed")
     session = f"ahrsd-test-{uuid.uuid4().hex[:8]}"
+    # a tmux server of its own (-S): on the shared default server a new session could race the server's exit
+    # after the previous test killed its last session (seen once in CI: new-session exit status 1)
+    sock = os.path.join(tempfile.gettempdir(), f"{session}.tmux")
+    tmux = ["tmux", "-S", sock]
     line = " ".join(f"'{c}'" for c in command) + "; echo __DONE__; sleep 600"
-    subprocess.run(["tmux", "new-session", "-d", "-s", session, "-x", "200", "-y", "50", line], check=True)
+    started = subprocess.run([*tmux, "new-session", "-d", "-s", session, "-x", "200", "-y", "50", line],
+                             capture_output=True, text=True)
+    assert started.returncode == 0, f"tmux new-session: {started.stderr}"
     try:
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
-            shown = subprocess.run(["tmux", "capture-pane", "-p", "-t", session], capture_output=True,
+            shown = subprocess.run([*tmux, "capture-pane", "-p", "-t", session], capture_output=True,
                                    text=True).stdout
             if "__DONE__" in shown:
                 return shown
             time.sleep(0.2)
         raise AssertionError(f"the command did not finish in {timeout_s} s: {shown}")
     finally:
-        subprocess.run(["tmux", "kill-session", "-t", session], capture_output=True)
+        subprocess.run([*tmux, "kill-server"], capture_output=True)
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(sock)
 
 
 def ahrsd(*args) -> list[str]:
