@@ -478,13 +478,14 @@ def _mag(args) -> int:
     if args.accel_bias_sigma_mg is not None and not args.gnss:
         raise _Usage("--accel-bias-sigma-mg needs --gnss GNSS.csv")
     if args.lever_arm_m is not None:
-        from ahrsd.daemon.config import MAX_LEVER_ARM_M
+        from ahrsd.daemon.config import checked_lever_arm_m
 
         if not args.gnss:
             raise _Usage("--lever-arm-m needs --gnss GNSS.csv")
-        if not all(math.isfinite(v) and abs(v) <= MAX_LEVER_ARM_M for v in args.lever_arm_m):
-            raise _Usage(f"--lever-arm-m {' '.join(f'{v:g}' for v in args.lever_arm_m)}: expected three numbers "
-                         f"in [-{MAX_LEVER_ARM_M:g}, {MAX_LEVER_ARM_M:g}] m")
+        try:
+            checked_lever_arm_m(args.lever_arm_m)
+        except ValueError as exc:
+            raise _Usage(f"--lever-arm-m {exc}") from None
     if args.accel_bias_sigma_mg is not None and not (math.isfinite(args.accel_bias_sigma_mg)
                                                      and 0.0 < args.accel_bias_sigma_mg <= 1000.0):
         raise _Usage(f"--accel-bias-sigma-mg {args.accel_bias_sigma_mg}: expected 0 < MG ≤ 1000")

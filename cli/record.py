@@ -201,8 +201,6 @@ def run(args) -> int:
 
 def _open_gnss(args, bus, source, paced: bool):
     """The GNSS recorder beside the IMU recording, or None (no GNSS source)."""
-    import math
-
     from ahrsd.cli.gnss_record import GnssRecorder
     from ahrsd.drivers.gnss_recording import gnss_path_for
 
@@ -214,15 +212,16 @@ def _open_gnss(args, bus, source, paced: bool):
         if not paced:
             raise ValueError("--gnss-serial needs the IMU on the host clock: a real sensor, or --sim with --realtime")
         return GnssRecorder.for_serial(path, device, int(baud or 115200), source.clock)
-    arm = (0.0, 0.0, 0.0) if args.gnss_lever_arm_m is None else tuple(args.gnss_lever_arm_m)
+    arm = (0.0, 0.0, 0.0)
     if args.gnss_lever_arm_m is not None:
-        from ahrsd.daemon.config import MAX_LEVER_ARM_M
+        from ahrsd.daemon.config import checked_lever_arm_m
 
         if args.sim is None or args.no_gnss:
             raise ValueError("--gnss-lever-arm-m is the simulated receiver's: it goes with --sim (and GNSS)")
-        if not all(math.isfinite(v) and abs(v) <= MAX_LEVER_ARM_M for v in arm):
-            raise ValueError(f"--gnss-lever-arm-m: expected three numbers in [-{MAX_LEVER_ARM_M:g}, "
-                             f"{MAX_LEVER_ARM_M:g}] m")
+        try:
+            arm = checked_lever_arm_m(args.gnss_lever_arm_m)
+        except ValueError as exc:
+            raise ValueError(f"--gnss-lever-arm-m {exc}") from None
     if args.sim is None or args.no_gnss:
         return None
     from ahrsd.simulation.vehicles import VEHICLES

@@ -194,6 +194,16 @@ MAX_SIM_GLITCH_MAGNITUDE = 1000.0    # m or m/s
 MAX_LEVER_ARM_M = 100.0
 
 
+def checked_lever_arm_m(values) -> tuple[float, float, float]:
+    """An antenna lever arm given on a command line (body FRD from the IMU, m): three finite numbers within
+    ±MAX_LEVER_ARM_M, the bound of `[gnss] lever_arm_m`; ValueError otherwise."""
+    arm = tuple(float(v) for v in values)
+    if len(arm) != 3 or not all(math.isfinite(v) and abs(v) <= MAX_LEVER_ARM_M for v in arm):
+        raise ValueError(f"{' '.join(f'{v:g}' for v in arm)}: expected three numbers in "
+                         f"[-{MAX_LEVER_ARM_M:g}, {MAX_LEVER_ARM_M:g}] m")
+    return arm
+
+
 def _lever_arm(k, value):
     if not isinstance(value, list) or len(value) != 3:
         raise _fail(k, value, "a list of three numbers [x, y, z] in metres, body FRD (antenna relative to the IMU)")
