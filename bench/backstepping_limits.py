@@ -1,7 +1,7 @@
 """What limits back-stepping `--gnss` at a high dip: the aided levelling's error sources, removed one at a time.
 
     .venv/bin/python bench/backstepping_limits.py                         # 60° N, held-out seeds 4..8 (~2 min)
-    .venv/bin/python bench/backstepping_limits.py --sites default 60N     # both sites (~4 min: docs/magcal-vehicle.md)
+    .venv/bin/python bench/backstepping_limits.py --sites default 60N     # both sites (~5 min: docs/magcal-vehicle.md)
     .venv/bin/python bench/backstepping_limits.py --sites default --seeds 1 2 3
 
 The runs are bench/backstepping_gnss.py's boat in its `afix` case (the accelerometer calibrated and aligned to
@@ -17,7 +17,10 @@ mean, in degrees (target ≤ 0.3).
   (calibration/gyro_cal.py), and the filter told they are known (0.05 %, 0.02°: `filter_overrides`).
 - `bias 0.5mg`: the levelling told the accelerometer bias is known to 0.5 mg (`--accel-bias-sigma-mg 0.5`) instead
   of 2: a bias calibrated on the run's own power-up.
-- `exact GNSS`: each fix's position and velocity are the truth (still weighted as 1.5 m and 0.05 m/s).
+- `exact GNSS`: each fix's position and velocity are the truth (still weighted as 1.5 m and 0.05 m/s);
+  `exact pos`, `exact vel`: only the position (only the velocity) the truth, to tell which of the two limits it.
+- `vel 0.02`: a receiver whose velocity noise, and the accuracy it reports, is 0.02 m/s instead of 0.05 (a
+  dual-frequency or RTK receiver's Doppler velocity); position as before.
 - `GNSS 10 Hz`: the same receiver solving at 10 Hz instead of 5 (u-blox M8 and later do, GPS only or with fewer
   constellations).
 - `ideal IMU`: no gyro or accelerometer error at all (noise, biases, scale, misalignment, temperature).
@@ -47,8 +50,8 @@ from bench.backstepping_gnss import SITES, TARGET_DEG, BoatRun, _rms, grid_error
 HELD_OUT_SEEDS = (4, 5, 6, 7, 8)
 ARM_M = (-1.0, 0.0, -2.0)
 GYRO_CAL_OVERRIDES = {"init_gyro_scale_sigma": 5e-4, "init_gyro_misalignment_sigma_rad": math.radians(0.02)}
-VARIANTS = ("as is", "no gyro noise", "no accel noise", "gyro cal", "bias 0.5mg", "exact GNSS", "GNSS 10 Hz",
-            "ideal IMU", "ideal+exact", "arm untold", "arm told")
+VARIANTS = ("as is", "no gyro noise", "no accel noise", "gyro cal", "bias 0.5mg", "exact GNSS", "exact pos",
+            "exact vel", "vel 0.02", "GNSS 10 Hz", "ideal IMU", "ideal+exact", "arm untold", "arm told")
 _Z3, _Z33 = np.zeros(3), np.zeros((3, 3))
 IDEAL_IMU = dict(gyro_bias_rad_s=_Z3, gyro_scale=_Z3, gyro_misalignment_rad=_Z33, gyro_noise_density_rad_s_rthz=0.0,
                  gyro_bias_instability_rad_s=0.0, gyro_bias_temp_rad_s_per_c=_Z3, accel_bias_m_s2=_Z3,
@@ -72,13 +75,16 @@ def _resimulated(run: BoatRun, site_text, seed: int, **error_changes):
     return b
 
 
-def _exact(fixes):
-    """The fixes with the truth in place of the measured position and velocity."""
+def _exact(fixes, position: bool = True, velocity: bool = True):
+    """The fixes with the truth in place of the measured position and/or velocity."""
     out = []
     for f in fixes:
         t = f.extra["truth"]
-        out.append(dataclasses.replace(f, lat_deg=t.lat_deg, lon_deg=t.lon_deg, alt_m=t.alt_m,
-                                       vel_ned_m_s=np.array(t.vel_ned_m_s, dtype=float)))
+        if position:
+            f = dataclasses.replace(f, lat_deg=t.lat_deg, lon_deg=t.lon_deg, alt_m=t.alt_m)
+        if velocity:
+            f = dataclasses.replace(f, vel_ned_m_s=np.array(t.vel_ned_m_s, dtype=float))
+        out.append(f)
     return out
 
 
@@ -87,7 +93,7 @@ def variant_inputs(run: BoatRun, site_text, seed: int, name: str):
     from ahrsd.calibration.backstepping_aided import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
     from ahrsd.calibration.magfit import MagFitInput
     from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
-    from ahrsd.simulation import simulate_gnss
+    from ahrsd.simulation import GnssErrors, simulate_gnss
 
     data, fixes, prior, overrides = run.data_afix, run.fixes, ACCEL_BIAS_SIGMA_CALIBRATED_M_S2, None
 
@@ -110,6 +116,11 @@ def variant_inputs(run: BoatRun, site_text, seed: int, name: str):
         data = MagFitInput(b.t_s, b.mag_ut, b.accel_m_s2, b.gyro_rad_s)
     if name in ("exact GNSS", "ideal+exact"):
         fixes = _exact(fixes)
+    if name in ("exact pos", "exact vel"):
+        fixes = _exact(fixes, position=name == "exact pos", velocity=name == "exact vel")
+    if name == "vel 0.02":
+        fixes = simulate_gnss(run.block, rate_hz=5.0, seed=seed + 1000,
+                              errors=dataclasses.replace(GnssErrors(), velocity_m_s=0.02))
     if name == "GNSS 10 Hz":
         fixes = simulate_gnss(run.block, rate_hz=10.0, seed=seed + 1000)
     if name in ("arm untold", "arm told"):

@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ahrsd.estimator.rotations import quat_multiply  # noqa: F401  (re-exported for bench/accuracy.py)
+
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("AHRSD_SHARED", REPO.parent / "shared"))
 BROAD_DIR = SHARED / "data" / "broad"
@@ -71,21 +73,6 @@ def load_trial(path: Path, max_samples: int | None = None) -> BroadTrial:
         mag_ut=np.ascontiguousarray(d["mag_ut"][sl], dtype=np.float64),
         truth_q_enu=np.asarray(d["truth_quat_wxyz"][sl], dtype=np.float64),
         movement=np.asarray(d["movement"][sl], dtype=bool),
-    )
-
-
-def quat_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Hamilton product p ⊗ q of (…, 4) scalar-first arrays (vectorised; benchmark use only)."""
-    pw, px, py, pz = np.moveaxis(np.asarray(p), -1, 0)
-    qw, qx, qy, qz = np.moveaxis(np.asarray(q), -1, 0)
-    return np.stack(
-        [
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ],
-        axis=-1,
     )
 
 
