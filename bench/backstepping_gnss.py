@@ -1,8 +1,9 @@
-"""Back-stepping on the heaving, turning boat: accelerometer levelling, GNSS-aided levelling (one pass, as
-before), the true attitude (an oracle), the true attitude of the accelerometer triad (`frame`: the best any
-levelling from the sensors on the vehicle can give, see below), and the aided fit with its safeguard (calibration.backstepping_aided)
-levelled by the forward filter (`fix`, as before) and by the RTS smoother over the whole run (`rts`, the
-default now: estimator/ins_smoother.py), with a bench accelerometer calibration (`acal`) and with it also
+"""Back-stepping on the heaving, turning boat: accelerometer levelling, GNSS-aided levelling (one pass without a
+magnetometer, as first built), the true attitude (an oracle), the true attitude of the accelerometer triad
+(`frame`: the best any levelling from the sensors on the vehicle can give, see below), and the aided fit
+(calibration.backstepping_aided: levelled with the magnetometer, heading only, calibrated by the previous fit)
+levelled by the forward filter (`fix`) and by the RTS smoother over the whole run (`rts`, the default:
+estimator/ins_smoother.py), with a bench accelerometer calibration (`acal`) and with it also
 aligned to the housing (`afix`), side by side.
 
     .venv/bin/python bench/backstepping_gnss.py                 # held-out seeds 4..8 × 2 sites (~3–4 min)

@@ -15,13 +15,18 @@ the error is the levelling's (measured in docs/magcal-vehicle.md). What this mod
 - **The filter's start.** Until the aided filter has converged (the first 20–30 s) its tilt is off by tenths of
   a degree; `settled_tilt_sigma_deg` leaves out the samples whose filter tilt 1σ is above it (off by default:
   measured, it did not help on the whole).
-- **No magnetometer in the filter**, whose raw heading is tens of degrees off (the vehicle iron): the yaw then
-  comes from the GNSS velocity in accelerations alone (Groves, Principles of GNSS, Inertial, and Multisensor
-  Integrated Navigation Systems, 2nd ed., §14.2.1). When that fails — the filter keeps rejecting the GNSS
-  velocity and resets it, a yaw it never acquired — its tilt is degrees off; the run is then levelled again with
-  the magnetometer calibrated by the accelerometer-levelled fit (heading within a degree or two, which moves
-  the aided tilt by only ψ̃·a/g), twice, and the result says so.
-
+- **The heading: the magnetometer, heading only.** Levelled without a heading, the filter has to take its yaw
+  from the GNSS velocity during accelerations (Groves, Principles of GNSS, Inertial, and Multisensor Integrated
+  Navigation Systems, 2nd ed., §14.2.1), and on a boat that turns steadily a yaw error looks like an
+  accelerometer bias (the centripetal force, body-fixed in a steady turn, turned by the yaw error): on some runs
+  it never acquires the yaw (it keeps rejecting and resetting the velocity, its tilt degrees off), on others it
+  settles 10° off and the bias it draws to match tilts the horizon. So the run is levelled with the
+  magnetometer in the filter, calibrated by the accelerometer-levelled fit (its heading within a degree or two),
+  as a **heading-only** update (`mag_moves_tilt=False`): its calibration error must not move the tilt, which
+  it would by tan(dip) times the heading error. The fit from that levelling calibrates the magnetometer for the
+  next pass (MAG_HEADING_PASSES). Only when the accelerometer-levelled fit is refused does the filter level
+  without a magnetometer. `quality["aided_levelling"]["passes"]` reports each pass and its GNSS counters, and a
+  warning says when a pass rejected the GNSS velocities (a lever arm or time stamps the filter was not told).
 - **The accelerometer bias.** On a boat that stays near level and mostly yaws, a body-fixed accelerometer bias b
   and a tilt b/g give nearly the same GNSS velocities, so 180 s of motion splits them only weakly and the
   levelling's tilt is off by up to the bias the filter's prior allows (its default 10 mg: up to 0.6°). What
@@ -48,7 +53,8 @@ from .magfit import MagFitInput, MagFitResult
 AIDED_ESTIMATOR = "ins"
 SETTLED_TILT_SIGMA_DEG = math.inf   # fit only where the filter's tilt 1σ is below this; on the tuning seeds
                                     # (bench/backstepping_gnss.py --sweep) no limit did as well as any
-FALLBACK_PASSES = 2             # aided levelling passes with the magnetometer, when the first one failed
+MAG_HEADING_PASSES = 2          # aided levelling passes with the magnetometer (heading only), each calibrated by
+                                # the previous fit; chosen on the tuning seeds (docs/magcal-vehicle.md)
 MAX_REJECTED_VELOCITY_FRACTION = 0.01   # of the offered fixes: more, and the filter did not converge
 MIN_SETTLED_FRACTION = 0.25    # fewer settled samples than this: fit them all (a short run)
 SMOOTH_LEVELLING = True        # level with the RTS smoother over the whole run (estimator/ins_smoother.py)
@@ -110,20 +116,18 @@ def _pass_report(data: MagFitInput, settled, res: MagFitResult, health: dict) ->
             "ok": res.ok, "refused": res.refused, **health}
 
 
-def _fallback_warning(passes: list, filter_overrides: dict | None) -> str:
-    """What the fallback says: the first pass's GNSS counts, and when the passes with the magnetometer still
-    reject velocities, the likely causes (a filter whose heading is right fuses a correct fix)."""
-    first = passes[0]["gnss"]
-    text = (f"the aided filter without a magnetometer rejected {first['rejected_velocity']} of {first['offered']} GNSS "
-            f"velocities and reset its velocity {first['reset_velocity']} times: it did not acquire its heading from "
-            "them; levelled again with the magnetometer calibrated by the accelerometer-levelled fit")
-    last = passes[-1]
-    if len(passes) > 2 and not last.get("healthy", True):
-        arm = tuple(float(v) for v in (filter_overrides or {}).get("lever_arm_m", (0.0, 0.0, 0.0)))
-        text += (f", which still rejected {last['gnss']['rejected_velocity']} of {last['gnss']['offered']}: check "
-                 f"the antenna's lever arm (the levelling was told {' '.join(f'{v:g}' for v in arm)} m, body FRD "
-                 "from the IMU) and the fixes' time stamps")
-    return text
+def _rejection_warning(passes: list, filter_overrides: dict | None) -> str | None:
+    """When a levelling pass did not fuse the GNSS velocities cleanly: its counts and the likely causes (a filter
+    whose heading is right fuses a correct fix)."""
+    bad = [p for p in passes if not p.get("healthy", True)]
+    if not bad:
+        return None
+    g = bad[-1]["gnss"]
+    arm = tuple(float(v) for v in (filter_overrides or {}).get("lever_arm_m", (0.0, 0.0, 0.0)))
+    return (f"the aided levelling ({bad[-1]['magnetometer']}) rejected {g['rejected_velocity']} of {g['offered']} "
+            f"GNSS velocities and reset its velocity {g['reset_velocity']} times: check the antenna's lever arm "
+            f"(the levelling was told {' '.join(f'{v:g}' for v in arm)} m, body FRD from the IMU) and the fixes' "
+            "time stamps")
 
 
 def fit_backstepping_aided(data: MagFitInput, fixes, reference, declination_rad: float,
@@ -140,25 +144,28 @@ def fit_backstepping_aided(data: MagFitInput, fixes, reference, declination_rad:
 
     if accel_bias_sigma_m_s2 is not None and not (math.isfinite(accel_bias_sigma_m_s2) and accel_bias_sigma_m_s2 > 0):
         raise ValueError(f"accel_bias_sigma_m_s2 must be a positive number, got {accel_bias_sigma_m_s2!r}")
-    roll, pitch, settled, health = _level(data, fixes, declination_rad, False, settled_tilt_sigma_deg, smooth,
-                                          accel_bias_sigma_m_s2, filter_overrides)
-    result = _fit_settled(data, roll, pitch, settled, reference, options)
-    passes = [{"magnetometer": "off", **_pass_report(data, settled, result, health)}]
-    if not health["healthy"]:
-        seed = fit_backstepping(data, reference, **options)
-        passes.append({"levelling": "accelerometer", "ok": seed.ok, "refused": seed.refused})
-        model = seed.model if seed.ok else None
-        for _ in range(FALLBACK_PASSES if model is not None else 0):
-            calibrated = dataclasses.replace(data, mag_ut=np.ascontiguousarray(model.apply(data.mag_ut)))
-            roll, pitch, settled, health = _level(calibrated, fixes, declination_rad, True, settled_tilt_sigma_deg,
-                                                  smooth, accel_bias_sigma_m_s2, filter_overrides)
-            res = _fit_settled(data, roll, pitch, settled, reference, options)
-            passes.append({"magnetometer": "the previous fit's calibration",
-                           **_pass_report(data, settled, res, health)})
-            if not res.ok:
-                break
-            result, model = res, res.model
-        result.quality.setdefault("warnings", []).append(_fallback_warning(passes, filter_overrides))
+    seed = fit_backstepping(data, reference, **options)
+    passes = [{"levelling": "accelerometer", "ok": seed.ok, "refused": seed.refused}]
+    result, model = None, (seed.model if seed.ok else None)
+    heading_only = {**(filter_overrides or {}), "mag_moves_tilt": False}
+    for _ in range(MAG_HEADING_PASSES if model is not None else 0):
+        calibrated = dataclasses.replace(data, mag_ut=np.ascontiguousarray(model.apply(data.mag_ut)))
+        roll, pitch, settled, health = _level(calibrated, fixes, declination_rad, True, settled_tilt_sigma_deg,
+                                              smooth, accel_bias_sigma_m_s2, heading_only)
+        res = _fit_settled(data, roll, pitch, settled, reference, options)
+        passes.append({"magnetometer": "heading only, the previous fit's calibration",
+                       **_pass_report(data, settled, res, health)})
+        if not res.ok:
+            break
+        result, model = res, res.model
+    if result is None:   # no calibration to take the heading from: the GNSS velocity alone
+        roll, pitch, settled, health = _level(data, fixes, declination_rad, False, settled_tilt_sigma_deg, smooth,
+                                              accel_bias_sigma_m_s2, filter_overrides)
+        result = _fit_settled(data, roll, pitch, settled, reference, options)
+        passes.append({"magnetometer": "off", **_pass_report(data, settled, result, health)})
+    warning = _rejection_warning(passes, filter_overrides)
+    if warning:
+        result.quality.setdefault("warnings", []).append(warning)
     result.quality["aided_levelling"] = {"estimator": AIDED_ESTIMATOR, "smoothed": smooth,
                                          "accel_bias_sigma_m_s2": accel_bias_sigma_m_s2,
                                          "filter_overrides": dict(filter_overrides or {}),

@@ -131,6 +131,9 @@ class InsParams:
 
     # --- magnetometer heading (mag_heading.py, mekf's check): as MekfParams
     mag_enabled: bool = True
+    mag_moves_tilt: bool = True
+    """While GNSS-aided, the magnetometer update carries its tilt sensitivity and may move the tilt (see
+    ins_core._mag_update). False: heading only, as when unaided."""
     mag_noise_ut: float = 0.7
     mag_heading_noise_rad: float = 0.12
     mag_heading_noise_rest_rad: float = 0.03
@@ -170,6 +173,7 @@ class InsParams:
         if self.earth_model not in ("wgs84", "sphere"):
             raise ValueError(f"earth_model must be 'wgs84' or 'sphere', got {self.earth_model!r}")
         p[core.P_SPHERE] = 1.0 if self.earth_model == "sphere" else 0.0
+        p[core.P_MAG_TILT] = 1.0 if self.mag_moves_tilt else 0.0
         p[core.P_LEVEL_NOISE] = self.level_noise_m_s2
         p[core.P_LEVEL_REJECT] = self.level_reject_m_s2
         p[core.P_LEVEL_GATE] = self.level_gate_rad

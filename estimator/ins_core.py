@@ -143,7 +143,8 @@ P_MAG = 32              # mag_heading parameter block (MP_SIZE): 32–43
 P_GYRO_SCALE_WALK = 46  # gyro scale-factor random walk, 1/√s
 P_GYRO_SCALE_CLIP = 47  # |s| and |m| limit per element
 P_GYRO_MIS_WALK = 48    # gyro misalignment random walk, rad/√s
-P_SIZE = 49
+P_MAG_TILT = 49         # 1.0: while aided the magnetometer row carries its tilt sensitivity and may move the tilt
+P_SIZE = 50
 assert P_MAG + mag.MP_SIZE <= P_NAV_DROP < P_SIZE
 
 # ----------------------------------------------------------------------------------- outputs
@@ -489,6 +490,7 @@ def _mag_update(x, P, par, dt_epoch, rate):
         h[2] = -1.0
         aided = x[X_NAV_OK] > 0.0 and x[X_T_LAST] - x[X_GNSS_LAST_T] <= par[P_GNSS_TIMEOUT]
         mh2 = mn * mn + me * me
+        aided = aided and par[P_MAG_TILT] > 0.0
         if aided and mh2 > 0.0:
             h[0] = md * mn / mh2
             h[1] = md * me / mh2
