@@ -1,12 +1,10 @@
 """`ahrsd calibrate mag --method backstepping --gnss GNSS.csv [--gnss-course]`: what a GNSS recording gives
 back-stepping.
 
-* Levelling: roll and pitch from the aided estimator (ins, its magnetometer update off) run over the recording
-  with the fixes and smoothed over the whole run (RTS, estimator/ins_smoother.py), instead of the
-  accelerometer, whose apparent vertical leans in turns, waves and accelerations; no centripetal compensation
-  is then needed. When that filter does not acquire its heading
-  from the GNSS velocity, the run is levelled again with the magnetometer calibrated by a first fit
-  (calibration.backstepping_aided).
+* Levelling: roll and pitch from the aided estimator (ins, its magnetometer a heading-only update calibrated
+  by a first, accelerometer-levelled fit) run over the recording with the fixes and smoothed over the whole run
+  (RTS, estimator/ins_smoother.py), instead of the accelerometer, whose apparent vertical leans in turns, waves
+  and accelerations; no centripetal compensation is then needed (calibration.backstepping_aided).
 * The heading offset (--gnss-course): GNSS course over ground as the heading reference (the `heading_ref_deg`
   column's role), only on straight tracks above COURSE_MIN_SPEED_M_S (calibration.swing.gnss_course_reference).
   Course is heading + crab (leeway, current, sideslip): a steady crab shifts the fitted offset by as much
