@@ -6,7 +6,7 @@ levelled by the forward filter (`fix`) and by the RTS smoother over the whole ru
 estimator/ins_smoother.py), with a bench accelerometer calibration (`acal`) and with it also
 aligned to the housing (`afix`), side by side.
 
-    .venv/bin/python bench/backstepping_gnss.py                 # held-out seeds 4..8 × 2 sites (~3–4 min)
+    .venv/bin/python bench/backstepping_gnss.py                 # held-out seeds 4..8 × 2 sites (~7 min)
     .venv/bin/python bench/backstepping_gnss.py --seeds 1 2 3   # the tuning seeds
     .venv/bin/python bench/backstepping_gnss.py --sweep         # SETTLED_TILT_SIGMA_DEG on the tuning seeds
     .venv/bin/python bench/backstepping_gnss.py --acal-sigma-mg 1 --seeds 1 2 3 9 10 11   # another acal/afix prior
