@@ -41,7 +41,8 @@ import numpy as np
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.broad import Q_NED_TO_ENU, broad_errors, load_trial, ned_to_enu, quat_multiply, trial_paths  # noqa: E402
+from ahrsd.estimator.rotations import quat_multiply  # noqa: E402
+from bench.broad import Q_NED_TO_ENU, broad_errors, load_trial, ned_to_enu, trial_paths  # noqa: E402
 
 _S = 1.0 / math.sqrt(2.0)
 Q_NWU_TO_ENU = np.array([_S, 0.0, 0.0, _S])  # +90° about up: (N, W, U) coordinates → (E, N, U)

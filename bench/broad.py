@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ahrsd.estimator.rotations import quat_multiply  # noqa: F401  (re-exported for bench/accuracy.py)
+from ahrsd.estimator.rotations import quat_multiply
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("AHRSD_SHARED", REPO.parent / "shared"))

@@ -143,7 +143,7 @@ def run_mekf(run: VehicleRun) -> np.ndarray:
 def run_vqf(run: VehicleRun) -> np.ndarray:
     from vqf import VQF
 
-    from bench.broad import quat_multiply
+    from ahrsd.estimator.rotations import quat_multiply
     from bench.accuracy import Q_ENU_TO_NED
 
     out = VQF(1.0 / RATE_HZ).updateBatch(run.gyro_rad_s, run.accel_m_s2, run.mag_ut)

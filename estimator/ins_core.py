@@ -489,9 +489,9 @@ def _mag_update(x, P, par, dt_epoch, rate):
         h = np.zeros(N_ERR)
         h[2] = -1.0
         aided = x[X_NAV_OK] > 0.0 and x[X_T_LAST] - x[X_GNSS_LAST_T] <= par[P_GNSS_TIMEOUT]
+        tilt_row = aided and par[P_MAG_TILT] > 0.0     # mag_moves_tilt=False: heading only even while aided
         mh2 = mn * mn + me * me
-        aided = aided and par[P_MAG_TILT] > 0.0
-        if aided and mh2 > 0.0:
+        if tilt_row and mh2 > 0.0:
             h[0] = md * mn / mh2
             h[1] = md * me / mh2
         hph = 0.0
@@ -502,7 +502,7 @@ def _mag_update(x, P, par, dt_epoch, rate):
                                                 mnorm, par[P_DECLINATION], hph)
         if res == mag.MAG_USE:
             dx = np.zeros(N_ERR)
-            _scalar_update(P, h, alpha, r, 0 if aided else M_TILT, dx)
+            _scalar_update(P, h, alpha, r, 0 if tilt_row else M_TILT, dx)
             _apply_correction(x, par, dx)
             used = True
         elif res == mag.MAG_REJECTED:

@@ -428,13 +428,7 @@ def test_a_heading_only_magnetometer_does_not_pull_the_aided_horizon():
     from ahrsd.simulation import Site, open_stream, simulate_gnss
 
     site = Site.parse("60.17,24.94,20,2026-06-15")
-    z3, z33 = np.zeros(3), np.zeros((3, 3))
-    ideal = dict(gyro_bias_rad_s=z3, gyro_scale=z3, gyro_misalignment_rad=z33, gyro_noise_density_rad_s_rthz=0.0,
-                 gyro_bias_instability_rad_s=0.0, gyro_bias_temp_rad_s_per_c=z3, accel_bias_m_s2=z3,
-                 accel_scale=z3, accel_misalignment_rad=z33, accel_noise_density_m_s2_rthz=0.0,
-                 accel_bias_instability_m_s2=0.0, accel_bias_temp_m_s2_per_c=z3)
-    errors = dataclasses.replace(open_stream("boat", rate_hz=100.0, seed=3, site=site).errors, **ideal)
-    stream = open_stream("boat", rate_hz=100.0, seed=3, site=site, errors=errors)
+    stream = open_stream("boat", rate_hz=100.0, seed=3, site=site, errors="ideal")
     b = stream.next_block(9000)
     fixes = simulate_gnss(b, rate_hz=5.0, seed=1003)
     q = b.truth_q_wxyz
