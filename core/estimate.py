@@ -22,6 +22,36 @@ class EstimateFlags(enum.IntFlag):
     GNSS_REJECTED = 1 << 9    # ins: a GNSS measurement was gated out on this step (glitch)
 
 
+class HeadingState(enum.IntEnum):
+    """Where the published heading comes from, and whether it can be trusted (docs/estimator.md "Heading state").
+
+    UNKNOWN: no heading reference is good enough to publish one (initialising, magnetometer rejected and no
+    GNSS yaw yet): consumers must not use the heading; the daemon withholds VISION_POSITION_ESTIMATE.
+    MAGNETOMETER: the magnetometer is the heading reference and is consistent (with GNSS, when there is one).
+    GNSS_ONLY: the magnetometer is rejected (disagrees with the GNSS yaw, or disturbed) and the heading is held
+    by the GNSS velocity (the aided filter, reset to the Gaussian-sum yaw when needed).
+    LEARNING: GNSS holds the heading while the magnetometer's remaining error (iron) is being learned; the
+    magnetometer re-enters once its learned correction is consistent.
+    """
+
+    UNKNOWN = 0
+    MAGNETOMETER = 1
+    GNSS_ONLY = 2
+    LEARNING = 3
+
+
+@dataclass(frozen=True, slots=True)
+class HeadingIntegrity:
+    """The heading checks of an aided estimator at one instant (angles true, rad; NaN where not known)."""
+
+    gsf_yaw_rad: float                   # the magnetometer-free GNSS yaw (Gaussian-sum estimator), true north
+    gsf_sigma_rad: float                 # its 1σ (includes the spread between hypotheses)
+    gsf_valid: bool                      # enough horizontal acceleration seen, σ below the validity limit
+    mag_disagreement_rad: float          # magnetometer heading − GNSS yaw, wrapped to ±π
+    iron_offset_ut: np.ndarray           # (3,) learned hard iron (body frame) on top of the calibration, µT
+    iron_sigma_ut: np.ndarray            # (3,) its 1σ
+
+
 @dataclass(frozen=True, slots=True)
 class AttitudeEstimate:
     """Attitude of the body (FRD) in NED at time t_s.
@@ -44,6 +74,8 @@ class AttitudeEstimate:
     sigma_rpy_rad: np.ndarray
     flags: EstimateFlags = EstimateFlags.NONE
     nav: "NavState | None" = None    # position/velocity, only from an aided estimator
+    heading_state: HeadingState = HeadingState.MAGNETOMETER
+    integrity: "HeadingIntegrity | None" = None  # only from an aided estimator
 
 
 @dataclass(frozen=True, slots=True)
