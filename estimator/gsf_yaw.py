@@ -109,11 +109,14 @@ class GsfParams:
     tilt_align_gain_per_s: float = 1.0
     """... during the first `tilt_align_s` after a reset, 1/s."""
     tilt_align_s: float = 5.0
-    kin_accel_tau_s: float = 0.5
+    kin_accel_tau_s: float = 0.2
     """Low-pass time constant of the kinematic acceleration from successive GNSS velocities, s."""
+    manoeuvre_tau_s: float = 2.0
+    """Low-pass time constant of the horizontal kinematic acceleration the manoeuvre detector looks at (longer
+    than `kin_accel_tau_s`: differenced GNSS velocity noise must not look like a manoeuvre), s."""
     manoeuvre_accel_m_s2: float = 0.3
-    """A manoeuvre: low-passed horizontal kinematic acceleration above this (PX4 EKF2_MAG_ACCLIM 0.5;
-    lower here for a boat's 0.5 m/s² turns)..."""
+    """A manoeuvre: that low-passed horizontal acceleration above this (PX4 EKF2_MAG_ACCLIM 0.5; lower here
+    for a boat's 0.5 m/s² turns)..."""
     manoeuvre_min_s: float = 1.0
     """... sustained this long, s."""
     stale_after_s: float = 30.0
@@ -132,6 +135,8 @@ class GsfParams:
     """Fixes valid longer ago than this (or than the ring holds) are rejected, s."""
     reset_after_rejected_fixes: int = 5
     """Consecutive all-models-clipped fixes that restart the bank."""
+    tilt_accel_model: int = 1
+    """EXPERIMENT 0 none, 1 kinematic per model, 2 body speed"""
     lever_arm_m: tuple = (0.0, 0.0, 0.0)
     """GNSS antenna position from the IMU, body FRD, m: the antenna velocity is v + C (ω × r)."""
 
@@ -184,12 +189,16 @@ def gsf_state_dtype(n_models: int = 5) -> np.dtype:
         ("acc_dvel_m_s", np.float64, (3,)),
         ("rate_rad_s", np.float64, (3,)),              # body rate over the last prediction interval
         # GNSS bookkeeping
-        ("kin_accel_ned_m_s2", np.float64, (3,)),      # low-passed kinematic acceleration
+        ("kin_accel_ned_m_s2", np.float64, (3,)),      # low-passed kinematic acceleration, at the clock's time
+        ("yaw_rate_rad_s", np.float64),                # NED yaw rate over the last prediction interval
         ("have_prev_fix", np.bool_),
         ("prev_fix_t_s", np.float64),
         ("prev_fix_vel_ned_m_s", np.float64, (3,)),
         ("prev_fix_has_down", np.bool_),
         ("last_fused_t_s", np.float64),
+        ("speed_m_s", np.float64),
+        ("speed_rate_m_s2", np.float64),
+        ("manoeuvre_accel_ne_m_s2", np.float64, (2,)),  # the detector's low-passed horizontal acceleration
         ("manoeuvre_run_s", np.float64),               # how long the kinematic acceleration has been high
         ("last_manoeuvre_t_s", np.float64),            # NaN: none since the reset
         # status
@@ -421,9 +430,17 @@ def _predict(state, params):
         dve = c[1, 0] * dvb[0] + c[1, 1] * dvb[1] + c[1, 2] * dvb[2]
         # tilt AHRS: measured down = −(f − Cᵀa)/|·|, estimated down = Cᵀ ẑ (row 2 of C);
         # δθ = k Δt (down_meas × down_est) turns the estimate towards the measurement (tilt only: ⟂ down)
-        ux = fx - (c[0, 0] * ka[0] + c[1, 0] * ka[1] + c[2, 0] * ka[2])
-        uy = fy - (c[0, 1] * ka[0] + c[1, 1] * ka[1] + c[2, 1] * ka[2])
-        uz = fz - (c[0, 2] * ka[0] + c[1, 2] * ka[1] + c[2, 2] * ka[2])
+        if params.tilt_accel_model == 1:
+            ux = fx - (c[0, 0] * ka[0] + c[1, 0] * ka[1] + c[2, 0] * ka[2])
+            uy = fy - (c[0, 1] * ka[0] + c[1, 1] * ka[1] + c[2, 1] * ka[2])
+            uz = fz - (c[0, 2] * ka[0] + c[1, 2] * ka[1] + c[2, 2] * ka[2])
+        elif params.tilt_accel_model == 2:
+            V = state.speed_m_s
+            ux = fx - state.speed_rate_m_s2
+            uy = fy - wz * V
+            uz = fz + wy * V
+        else:
+            ux, uy, uz = fx, fy, fz
         un = math.sqrt(ux * ux + uy * uy + uz * uz)
         cx = cy = cz = 0.0
         if un > 0.0:
@@ -468,6 +485,15 @@ def _predict(state, params):
             c[0, 0] * arm_x + c[0, 1] * arm_y + c[0, 2] * arm_z
         state.ring_vel_ne_m_s[slot, i, 1] = state.vel_ne_m_s[i, 1] + \
             c[1, 0] * arm_x + c[1, 1] * arm_y + c[1, 2] * arm_z
+    # a turning vehicle's acceleration turns with it (a centripetal one is fixed in the heading frame): carry the
+    # low-passed kinematic acceleration round with the yaw increment, so its lag does not tilt the AHRS in turns
+    c = state.dcm[0]
+    dpsi = (c[2, 0] * th[0] + c[2, 1] * th[1] + c[2, 2] * th[2]) / max(c[2, 2], 0.1)
+    state.yaw_rate_rad_s = dpsi / dt
+    cs, sn = math.cos(dpsi), math.sin(dpsi)
+    a_n, a_e = ka[0], ka[1]
+    ka[0] = cs * a_n - sn * a_e
+    ka[1] = sn * a_n + cs * a_e
     state.ring_next = (slot + 1) % RING_LEN
     if state.ring_count < RING_LEN:
         state.ring_count += 1
@@ -527,13 +553,26 @@ def _kinematic_acceleration(state, params, t_s, vn, ve, vd, has_down):
         if 0.0 < dt <= 1.0:
             a = min(1.0, dt / params.kin_accel_tau_s)
             ka = state.kin_accel_ned_m_s2
-            ka[0] += a * ((vn - state.prev_fix_vel_ned_m_s[0]) / dt - ka[0])
-            ka[1] += a * ((ve - state.prev_fix_vel_ned_m_s[1]) / dt - ka[1])
+            # the difference is the acceleration at the fixes' midpoint: turned on to the clock's time
+            turn = state.yaw_rate_rad_s * (state.t_s - 0.5 * (t_s + state.prev_fix_t_s))
+            cs, sn = math.cos(turn), math.sin(turn)
+            m_n = (vn - state.prev_fix_vel_ned_m_s[0]) / dt
+            m_e = (ve - state.prev_fix_vel_ned_m_s[1]) / dt
+            ka[0] += a * (cs * m_n - sn * m_e - ka[0])
+            ka[1] += a * (sn * m_n + cs * m_e - ka[1])
+            sp = math.sqrt(vn * vn + ve * ve + vd * vd)
+            sp0 = math.sqrt(state.prev_fix_vel_ned_m_s[0] ** 2 + state.prev_fix_vel_ned_m_s[1] ** 2 + state.prev_fix_vel_ned_m_s[2] ** 2)
+            state.speed_rate_m_s2 += a * ((sp - sp0) / dt - state.speed_rate_m_s2)
+            state.speed_m_s = sp
             if has_down and state.prev_fix_has_down:
                 ka[2] += a * ((vd - state.prev_fix_vel_ned_m_s[2]) / dt - ka[2])
             else:
                 ka[2] -= a * ka[2]
-            if math.hypot(ka[0], ka[1]) >= params.manoeuvre_accel_m_s2:
+            md = state.manoeuvre_accel_ne_m_s2
+            b = min(1.0, dt / params.manoeuvre_tau_s)
+            md[0] += b * (ka[0] - md[0])
+            md[1] += b * (ka[1] - md[1])
+            if math.hypot(md[0], md[1]) >= params.manoeuvre_accel_m_s2:
                 state.manoeuvre_run_s += dt
                 if state.manoeuvre_run_s >= params.manoeuvre_min_s:
                     state.last_manoeuvre_t_s = t_s
@@ -542,6 +581,8 @@ def _kinematic_acceleration(state, params, t_s, vn, ve, vd, has_down):
         elif dt > 1.0:
             for j in range(3):
                 state.kin_accel_ned_m_s2[j] = 0.0
+            state.manoeuvre_accel_ne_m_s2[0] = 0.0
+            state.manoeuvre_accel_ne_m_s2[1] = 0.0
             state.manoeuvre_run_s = 0.0
         if dt <= 0.0:
             return
