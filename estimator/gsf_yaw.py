@@ -623,9 +623,9 @@ def gsf_fuse_velocity(state, params, t_s, vel_ne_m_s, vel_sigma_m_s):
     if state.t_s - t_s > params.max_fix_delay_s:
         state.n_rejected += 1
         return REJECTED_TOO_OLD
-    _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down)
     n = state.weight.shape[0]
     if not state.tilt_aligned or state.ring_count == 0:
+        _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down)
         return WAITING_FOR_TILT
     gap = math.isnan(state.last_fused_t_s) or t_s - state.last_fused_t_s > params.max_fix_gap_s
     if not state.vel_seeded or gap:
@@ -648,6 +648,7 @@ def gsf_fuse_velocity(state, params, t_s, vel_ne_m_s, vel_sigma_m_s):
         state.vel_seeded = True
         state.last_fused_t_s = t_s
         state.n_passing_fixes = 0
+        _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down)
         return SEEDED
     r = max(vel_sigma_m_s, params.vel_sigma_floor_m_s) ** 2
     clip2 = params.innov_clip_sigma ** 2
@@ -675,8 +676,11 @@ def gsf_fuse_velocity(state, params, t_s, vel_ne_m_s, vel_sigma_m_s):
         if state.n_rejected_in_row >= params.reset_after_rejected_fixes:
             q = np.full(4, np.nan)
             gsf_reset(state, params, state.t_s, q)
+            _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down)
         return REJECTED_CLIPPED
     state.n_rejected_in_row = 0
+    # the speed and manoeuvre bookkeeping take only fixes some hypothesis explains (not a glitch)
+    _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down)
     # EKF updates (innovation at t_s, correction now) and log-likelihoods
     log_w = np.empty(n)
     best = -np.inf
