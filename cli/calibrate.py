@@ -128,7 +128,7 @@ def _read(path, progress_args=None):
 
     try:
         with progress_bar(progress_args, expected_rows(path), f"reading {os.path.basename(path)}") as bar:
-            rec = read_recording(path, on_rows=bar.update)
+            rec = read_recording(path, strict=False, on_rows=bar.update)   # a file cut mid-row: its complete rows
     except FileNotFoundError:
         raise _Fail(f"{path}: no such file") from None
     except (RecordingFormatError, ValueError, OSError) as exc:
@@ -199,7 +199,7 @@ def _allan(args) -> int:
     try:   # streamed: one chunk of the recording in memory at a time (.csv or .csv.gz)
         analysis = StaticAllanAnalysis()
         with progress_bar(args, expected_rows(args.recording), f"reading {os.path.basename(args.recording)}") as bar:
-            for chunk in iter_recording_chunks(args.recording):
+            for chunk in iter_recording_chunks(args.recording, strict=False):
                 analysis.add(chunk.t_s, chunk.gyro_rad_s, chunk.accel_m_s2, chunk.mag_ut)
                 bar.update(len(chunk))
         with activity(args, "Allan analysis"):
