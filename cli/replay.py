@@ -63,7 +63,7 @@ def register(subparsers) -> None:
                    help="estimator parameter override (a field of MekfParams / ThesisKfParams), repeatable")
     p.add_argument("--plot", metavar="FILE.png", default=None,
                    help="also draw roll, pitch and heading with their 1σ bands, the flags, and the error against "
-                   "the recording's truth columns when it has them (needs matplotlib: pip install 'ahrsd[plot]')")
+                   "the recording's truth columns when it has them (needs matplotlib: pip install matplotlib, or install ahrsd with -e '.[plot]')")
     p.add_argument("--quiet", "-q", action="store_true", help="no summary and no progress bar on stderr")
     p.set_defaults(func=run)
 
