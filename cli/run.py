@@ -87,11 +87,20 @@ def run(args: argparse.Namespace) -> int:
     if logging.getLogger().level > logging.INFO:
         logging.getLogger("ahrsd").setLevel(logging.INFO)   # the daemon reports its life cycle by default
     from ahrsd.daemon.sensor_recovery import report_sensor_alarms
-    from ahrsd.drivers.source import open_source
     from ahrsd.daemon.service import Service
+    from ahrsd.drivers.replay_source import ReplaySource
+    from ahrsd.drivers.source import open_source
 
+    if cfg.sensor.source == "replay":
+        from ahrsd.drivers.recording import check_recording
+
+        try:   # before the estimator compiles: a wrong path fails at once, in one line
+            check_recording(cfg.sensor.replay_file)
+        except (OSError, ValueError) as exc:
+            print(f"ahrsd run: error: cannot replay {_os_error_text(exc, cfg.sensor.replay_file)}", file=sys.stderr)
+            return 1
     # the chip sources retry a failed start and a lost bus with backoff (daemon.sensor_recovery)
-    source = open_source(cfg.sensor, faults=plan) if cfg.sensor.source in ("sim", "spi") else None
+    source = open_source(cfg.sensor, faults=plan)
     service = Service(cfg, source=source)
 
     async def main() -> int:
@@ -102,7 +111,14 @@ def run(args: argparse.Namespace) -> int:
             alarms.cancel()
 
     try:
-        return asyncio.run(main())
+        code = asyncio.run(main())
+        replay_error = source.error if isinstance(source, ReplaySource) else None
+        if replay_error is not None and code == 0:
+            # the reader reported the sensor failure; a replay that could not be read to its end is a failed run
+            print(f"ahrsd run: error: the replay stopped early: {_os_error_text(replay_error, cfg.sensor.replay_file)}",
+                  file=sys.stderr)
+            return 1
+        return code
     except KeyboardInterrupt:
         log.info("interrupted")
         return 130
@@ -111,3 +127,10 @@ def run(args: argparse.Namespace) -> int:
             from ahrsd.daemon.run_stats import write_stats
 
             write_stats(service, args.stats_file)
+
+
+def _os_error_text(exc: Exception, path: str) -> str:
+    """`path: reason` for an OSError (whose str() repeats errno and path), else the exception's own text."""
+    if isinstance(exc, OSError):
+        return f"{exc.filename or path}: {exc.strerror or exc}"
+    return str(exc)
