@@ -152,6 +152,9 @@ class SimulatedAdis16405:
 
     def close(self) -> None:
         self._closed = True
+        if self._prefetcher is not None:
+            self._prefetcher.shutdown(wait=False, cancel_futures=True)
+            self._prefetcher = None
 
     def power_cycle(self) -> None:
         """Back to the flash settings with a clean DIAG_STAT (like a reset, but instant)."""
@@ -462,7 +465,7 @@ class SimulatedAdis16405:
         if self._blk is not None:
             keep = _MAX_FILTER_HISTORY
             self._tail = np.concatenate([self._tail, self._blk_raw])[-keep:]
-        blk = self._stream.next_block(BLOCK_SAMPLES)
+        blk = self._next_block()
         n = len(blk.t_s)
         raw = np.empty((n, 9))
         np.degrees(blk.gyro_rad_s, out=raw[:, 0:3])
@@ -478,6 +481,28 @@ class SimulatedAdis16405:
         self._blk_truth_q = getattr(blk, "truth_q_wxyz", None)
         self._blk_truth_gyro = getattr(blk, "truth_gyro_rad_s", None)
         self._encode()
+
+    def _next_block(self):
+        """The stream's next block. On a real-time clock the block after it is computed meanwhile in a helper
+        thread: the simulator takes milliseconds per block, and computed inside a read it would make that read
+        late and lose chip samples the real part would not lose (the real chip's work is in silicon)."""
+        if self._clock is None:
+            return self._stream.next_block(BLOCK_SAMPLES)
+        stream = self._stream
+        ahead = self._prefetched
+        if ahead is not None and ahead[0] is stream:       # (a rate change opened a new stream: not this one's)
+            blk = ahead[1].result()
+        else:
+            blk = stream.next_block(BLOCK_SAMPLES)
+        if self._prefetcher is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._prefetcher = ThreadPoolExecutor(1, thread_name_prefix="sim-adis16405-blocks")
+        self._prefetched = (stream, self._prefetcher.submit(stream.next_block, BLOCK_SAMPLES))
+        return blk
+
+    _prefetcher = None
+    _prefetched = None
 
     def _encode(self) -> None:
         """Bartlett filter, offsets, quantisation, saturation and word encoding for the whole block."""
