@@ -49,6 +49,11 @@ def open_chip_driver(bus) -> Adis16405:
     return Adis16405(bus)
 
 
+def _data_ready_driver(bus) -> Adis16405:
+    """The IMU driver with data-ready routed to DIO1 at every (re)start."""
+    return Adis16405(bus, data_ready=True)
+
+
 def start_chip_source(bus, description: str, *, clock=time.monotonic, **start) -> ChipSource:
     """The chip on `bus`, started (`Adis16405.start(**start)`: self-test, rate, filter), read through the
     one timing path. clock: the host clock of the reads; for a free-running simulated chip (no real time)
@@ -83,7 +88,16 @@ def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
         from ahrsd.drivers.spi import SpidevBus
 
         path = sensor_cfg.spi_device
-        src = ReconnectingSource(lambda: SpidevBus(path), open_chip_driver, f"ADIS16405 on {path}", clock=clock)
+        spec = getattr(sensor_cfg, "data_ready", "")
+        if spec:
+            from ahrsd.drivers.data_ready import DataReadyTimer, open_gpio_line
+
+            line = open_gpio_line(spec)
+            src = ReconnectingSource(lambda: SpidevBus(path), _data_ready_driver,
+                                     f"ADIS16405 on {path}, paced by data-ready on {spec}", clock=clock,
+                                     make_timer=lambda period_s: DataReadyTimer(line, period_s))
+        else:
+            src = ReconnectingSource(lambda: SpidevBus(path), open_chip_driver, f"ADIS16405 on {path}", clock=clock)
         src.start()
         return _off_the_loop(src, sensor_cfg, clock)
     if kind != "sim":
@@ -95,8 +109,16 @@ def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
                               clock=clock, faults=faults)
     what = f"simulated ADIS16405 ({sensor_cfg.scenario}{', faults injected' if faults is not None else ''})"
     tap = BurstIndexTap(chip)
-    src = GroundTruthSource(ReconnectingSource(lambda: tap, open_chip_driver, what, clock=clock,
-                                               reopen_same_bus=True), chip, tap)
+    timing = {}
+    if getattr(sensor_cfg, "data_ready", ""):       # the simulated chip's own DIO1 (drivers.simulated)
+        from ahrsd.drivers.data_ready import DataReadyTimer
+        from ahrsd.drivers.simulated import SimulatedDataReadyLine
+
+        line = SimulatedDataReadyLine(chip, host_clock=clock)
+        timing = {"make_timer": lambda period_s: DataReadyTimer(line, period_s)}
+        what += ", paced by its data-ready line"
+    src = GroundTruthSource(ReconnectingSource(lambda: tap, _data_ready_driver if timing else open_chip_driver,
+                                               what, clock=clock, reopen_same_bus=True, **timing), chip, tap)
     src.start()
     return _off_the_loop(src, sensor_cfg, clock)
 

@@ -63,14 +63,15 @@ class ThreadedSource:
     last call. Sensor failures reach the daemon as exceptions from `poll()` once the buffer is drained.
 
     clock: the host clock of the reads (the inner source's); sleep_until(t): wait until clock() ≥ t (a test's
-        stepped clock); wait_ready: None (the inner source's SampleTimer paces the reads) or a
-        drivers.data_ready pacer whose `wait(timeout_s)` returns when the chip raised data-ready.
+        stepped clock). Pacing: when the inner source's timer can `wait(timeout_s)` for the chip's data-ready
+        (drivers.data_ready.DataReadyTimer) each read follows an edge; otherwise the thread sleeps until the
+        SampleTimer's next read time.
     """
 
     per_sample = False
     monotonic_offset_s = 0.0
 
-    def __init__(self, inner, *, clock=time.monotonic, sleep_until=None, wait_ready=None,
+    def __init__(self, inner, *, clock=time.monotonic, sleep_until=None,
                  capacity_samples: int = CAPACITY_SAMPLES, realtime: bool = True,
                  switch_interval_s: float | None = SWITCH_INTERVAL_S):
         if getattr(inner, "per_sample", False) is not True:
@@ -80,7 +81,6 @@ class ThreadedSource:
         self.sample_rate_hz = inner.sample_rate_hz
         self._clock = clock
         self._sleep_until = sleep_until or (lambda t: _sleep_until(clock, t))
-        self._wait_ready = wait_ready
         self._capacity = int(capacity_samples)
         self._realtime = realtime
         self._switch_interval_s = switch_interval_s
@@ -120,8 +120,10 @@ class ThreadedSource:
         consecutive_frame_errors = 0
         inner, clock, stop = self.inner, self._clock, self._stop
         while not stop.is_set():
-            if self._wait_ready is not None:
-                self._wait_ready.wait(0.1)
+            wait_edge = getattr(getattr(inner, "timer", None), "wait", None)
+            if wait_edge is not None:
+                if not wait_edge(0.1):
+                    continue
             else:
                 target = inner.next_read_time()
                 if target > 0.0:
@@ -186,9 +188,6 @@ class ThreadedSource:
 
     def close(self) -> None:
         self._stop.set()
-        wake = getattr(self._wait_ready, "close", None)
-        if wake is not None:
-            wake()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(2.0)
         if self._saved_switch_interval is not None:
