@@ -137,11 +137,16 @@ def _parse_table(cls, d: dict, prefix: str, checks: dict) -> dict:
 class SensorConfig:
     """Where samples come from and how the sensor sits in the vehicle."""
 
-    source: str = "sim"                 # "sim" (simulated ADIS16405 chip), "spi" (real chip), "replay" (CSV)
+    source: str = "sim"                 # "sim" (simulated ADIS16405 chip), "spi" (real chip), "iio" (the kernel's
+                                        # adis16400 IIO driver), "replay" (CSV)
     scenario: str = "static"            # simulated scenario (source = "sim")
     seed: int = 0                       # simulator noise seed
     errors: str = "adis16405"           # simulated sensor errors: "adis16405" (datasheet) or "ideal"
     spi_device: str = "/dev/spidev0.0"  # source = "spi"
+    data_ready: str = ""                # source = "spi": the GPIO of the chip's DIO1 data-ready, "gpiochip0:25"
+                                        # ("": reads paced by the host timer)
+    iio_device: str = "iio:device0"     # source = "iio": the IIO device (name under /sys/bus/iio/devices)
+    reader: str = "thread"              # sim/spi: "thread" (read in a dedicated thread) or "event_loop"
     replay_file: str = ""               # source = "replay": a recording written by `ahrsd record`
     replay_realtime: bool = True        # replay at the recorded pace (false: as fast as possible)
     replay_speed: float = 1.0           # realtime replay: this many times faster than recorded (1 = real time)
@@ -152,7 +157,8 @@ class SensorConfig:
     @classmethod
     def parse(cls, d: dict, prefix="sensor") -> "SensorConfig":
         cfg = cls(**_parse_table(cls, d, prefix, {
-            "source": _choice_of(("sim", "spi", "replay")), "scenario": _choice_of(SCENARIOS),
+            "source": _choice_of(("sim", "spi", "iio", "replay")), "data_ready": _string, "iio_device": _string,
+            "reader": _choice_of(("thread", "event_loop")), "scenario": _choice_of(SCENARIOS),
             "seed": _number_in(0, 2**32 - 1, integer=True), "errors": _choice_of(("adis16405", "ideal")),
             "spi_device": _string, "replay_file": _string, "replay_realtime": _bool,
             "replay_speed": _number_in(MIN_REPLAY_SPEED, MAX_REPLAY_SPEED), "mounting_rpy_deg": _mounting,
