@@ -1,15 +1,15 @@
 """The daemon's GNSS input: one configured source ([gnss] source), one validator, the aided estimator.
 
 Sources (docs/gnss.md):
-* "serial": a receiver on a UART/USB (drivers.gnss_serial.SerialGnssSource); its fd is registered with the
+* "serial": a receiver on a UART/USB (drivers.gnss.serial_port.SerialGnssSource); its fd is registered with the
   event loop and re-registered when a re-open changes it; `poll_health` once a second;
 * "sim": the simulated receiver of the [sensor] scenario writing UBX into a pseudo-terminal
-  (drivers.gnss_scenario), read by the same serial source: the hardware path, byte for byte;
+  (drivers.gnss.scenario), read by the same serial source: the hardware path, byte for byte;
 * "mavlink": the autopilot's GPS_RAW_INT (GLOBAL_POSITION_INT only as the opt-in fallback), through
-  drivers.gnss_mavlink.MavlinkGnssSelector, fed by daemon.inbound;
+  drivers.gnss.mavlink.MavlinkGnssSelector, fed by daemon.inbound;
 * "replay": a GNSS recording released in step with the IMU replay, on the recording's time base.
 
-Every fix goes through one drivers.gnss_validation.GnssFixValidator (rejections counted and logged by it),
+Every fix goes through one drivers.gnss.validation.GnssFixValidator (rejections counted and logged by it),
 then to `estimator.update_gnss(fix)` when the estimator is aided (has `update_gnss`). The last accepted
 position resolves the declination. Nothing raises out of here: a failing source or estimator call is
 counted and logged.
@@ -26,7 +26,7 @@ from ahrsd.core.estimate import EstimateFlags
 from ahrsd.core.gnss import GnssFix, GnssFixType
 from ahrsd.daemon.local_origin import LocalOrigin
 from ahrsd.daemon.mavlink_io import mavlink
-from ahrsd.drivers.gnss_validation import GnssFixValidator
+from ahrsd.drivers.gnss.validation import GnssFixValidator
 
 log = logging.getLogger(__name__)
 
@@ -105,12 +105,12 @@ class GnssTask:
         recording), so `ahrsd run` fails at start with the reason."""
         cfg, kind = self.cfg, self.kind
         if kind == "mavlink":
-            from ahrsd.drivers.gnss_mavlink import MavlinkGnssSelector
+            from ahrsd.drivers.gnss.mavlink import MavlinkGnssSelector
 
             self.selector = MavlinkGnssSelector(use_fused=cfg.use_fused)
             self.description = "autopilot GPS_RAW_INT" + (" (GLOBAL_POSITION_INT fallback)" if cfg.use_fused else "")
         elif kind == "replay":
-            from ahrsd.drivers.gnss_recording import iter_gnss_fixes
+            from ahrsd.drivers.gnss.recording import iter_gnss_fixes
 
             self._replay = iter_gnss_fixes(cfg.file)
             self._replay_next = next(self._replay, None)     # a bad header fails the start, with its reason
@@ -119,7 +119,7 @@ class GnssTask:
         elif kind in ("serial", "sim"):
             device, baud, protocol, latency = cfg.device, cfg.baud, cfg.protocol, cfg.latency_s
             if kind == "sim":
-                from ahrsd.drivers.gnss_scenario import ScenarioGnssReceiver
+                from ahrsd.drivers.gnss.scenario import ScenarioGnssReceiver
 
                 sensor = self.service.config.sensor
                 outages = ([(cfg.sim_outage_start_s, cfg.sim_outage_start_s + cfg.sim_outage_s,
@@ -154,7 +154,7 @@ class GnssTask:
     def _open_serial(self) -> None:
         """Open the port; a receiver missing at start (unplugged, no permission yet) is retried every
         REOPEN_PERIOD_S by `tick`: the IMU must not wait for the GNSS."""
-        from ahrsd.drivers.gnss_serial import GnssDeviceError, SerialGnssSource
+        from ahrsd.drivers.gnss.serial_port import GnssDeviceError, SerialGnssSource
 
         device, baud, protocol, latency = self._serial_args
         try:

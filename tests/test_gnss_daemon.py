@@ -285,7 +285,7 @@ def test_a_receiver_missing_at_start_is_opened_when_it_appears(tmp_path):
     once it exists (checked every REOPEN_PERIOD_S from housekeeping); its fixes then flow."""
     from ahrsd.core.gnss import make_fix
     from ahrsd.daemon.gnss_task import REOPEN_PERIOD_S
-    from ahrsd.drivers.gnss_simulated import SimulatedGnssReceiver
+    from ahrsd.drivers.gnss.simulated import SimulatedGnssReceiver
 
     port = tmp_path / "ttyGNSS"                  # a path that appears later (like a USB receiver plugged in)
     gcs = gcs_socket()

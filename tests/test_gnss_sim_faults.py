@@ -18,7 +18,7 @@ from ahrsd.core.estimate import EstimateFlags
 from ahrsd.core.sample import SampleFlags, make_sample
 from ahrsd.daemon.config import ConfigError, parse_config
 from ahrsd.daemon.gnss_task import GnssTask
-from ahrsd.drivers.gnss_scenario import ScenarioGnssReceiver
+from ahrsd.drivers.gnss.scenario import ScenarioGnssReceiver
 from ahrsd.estimator.ins import Ins
 from ahrsd.simulation import simulate
 

@@ -21,8 +21,8 @@ from collections.abc import Callable
 
 import serial
 
-from .errors import DriverError
-from .gnss_stream import PROTOCOLS, GnssStreamDecoder
+from ..errors import DriverError
+from .stream import PROTOCOLS, GnssStreamDecoder
 from ahrsd.core.gnss import GnssFix
 
 log = logging.getLogger(__name__)
