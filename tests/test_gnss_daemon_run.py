@@ -147,7 +147,7 @@ def test_sim_receiver_on_a_pty(tmp_path):
     run = json.loads(stats.read_text())
     g = run["gnss"]
     assert g["serial"]["frames_ubx"] >= 5 and g["serial"]["garbage_bytes"] == 0
-    assert g["accepted"] >= 5 and g["rejected"] == 0
+    assert g["accepted"] >= 5 and g["rejected"] == 0, g
     assert g["offered"] == g["accepted"] and g["estimator"]["fused_velocity"] >= 5
 
 
