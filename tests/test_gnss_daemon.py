@@ -265,7 +265,7 @@ def test_navigation_outputs(tmp_path):
 
 
 def test_the_configured_antenna_lever_arm_reaches_the_aided_estimator(tmp_path):
-    """[gnss] lever_arm_m is the aided filter's (it was once only the simulated receiver's); mekf takes none."""
+    """[gnss] lever_arm_m reaches the aided filter as well as the simulated receiver; mekf takes none."""
     gcs = gcs_socket()
     arm = (0.5, -0.25, -1.5)
     service, loop = start_service(gcs, tmp_path / "state", gnss=GnssConfig(source="mavlink", lever_arm_m=arm))
