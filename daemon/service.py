@@ -39,7 +39,7 @@ from ahrsd.daemon.commands import CommandRouter
 from ahrsd.daemon.config import MAV_TYPES, Config
 from ahrsd.daemon.declination import DeclinationResolver
 from ahrsd.daemon.endpoint_outputs import EndpointOutputs
-from ahrsd.daemon.gnss_task import GnssTask
+from ahrsd.daemon.gnss_task import GnssTask, gnss_backend_for, newest_sample_time, on_first_fix
 from ahrsd.daemon.health import Health
 from ahrsd.daemon.housekeeping import Housekeeping
 from ahrsd.daemon.inbound import InboundDispatch
@@ -250,8 +250,13 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         if self.source is None:
             self.source = open_source(cfg.sensor, clock=time.monotonic)
         if cfg.gnss.source != "none":
-            self.gnss = GnssTask(self, cfg.gnss)
-            self.gnss.open()
+            backend = gnss_backend_for(cfg.gnss, clock=time.monotonic, sensor=cfg.sensor,
+                                       scenario_clock=self.source.chip.now if cfg.gnss.source == "sim" else None,
+                                       replay_time_s=newest_sample_time(self.pipeline))
+            self.gnss = GnssTask(backend, cfg.gnss, clock=time.monotonic, estimator=self.pipeline,
+                                 statustext=self.statustext, log_fix=self.log_gnss_fix,
+                                 subscribers=[on_first_fix(self.on_gnss_position)])
+            self.gnss.open(self.loop)
         want_line = cfg.daemon.status_line == "on" or (cfg.daemon.status_line == "auto" and self._stdout.isatty())
         self._status_line = StatusLine(self._stdout) if want_line else None
         if self._status_line is not None:
