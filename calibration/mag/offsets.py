@@ -10,7 +10,7 @@ import numpy as np
 
 from ahrsd.core.angles import down_in_body
 
-from .models import MagModel
+from ..models import MagModel
 
 if TYPE_CHECKING:  # pragma: no cover
     from ahrsd.core.wmm import EarthField

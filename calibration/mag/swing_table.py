@@ -13,7 +13,7 @@ import dataclasses
 
 from . import swing
 from .backstepping import fold_heading_offset
-from .magfit import MagFitResult
+from .fit_types import MagFitResult
 
 def apply_swing_table(result: MagFitResult, reference_deg, compass_deg, path) -> MagFitResult:
     """`result` with A folded into its model and the card in quality["heading_reference"] (an earlier

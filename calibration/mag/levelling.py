@@ -9,7 +9,7 @@ from ahrsd.core.sample import make_sample
 from ahrsd.estimator import make_estimator
 
 from .backstepping_paper import BacksteppingError
-from .magfit import MagFitInput
+from .fit_types import MagFitInput
 
 
 def roll_pitch_from_estimator(data: MagFitInput, name: str = "mekf", fixes=None,

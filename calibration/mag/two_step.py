@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .magfit import MagFitInput, MagFitResult, assess, prepare, refuse
-from .models import MagModel
+from .acceptance import assess, prepare
+from .fit_types import MagFitInput, MagFitResult, refuse
+from ..models import MagModel
 
 METHOD = "two-step"
 
@@ -68,7 +69,7 @@ def solve_model(mag: np.ndarray, field_ut: float) -> MagModel:
 def fit_two_step(data: MagFitInput, reference=None, *, field_ut: float | None = None, min_samples: int = 30,
                  max_condition: float = 1e7, **checks) -> MagFitResult:
     """Two-step fit of `data.mag_ut`. `reference` (EarthField) or `field_ut` give H0; `checks` go to
-    `magfit.assess` (min_coverage, max_sigma_hard_ut, max_sigma_soft, ...)."""
+    `acceptance.assess` (min_coverage, max_sigma_hard_ut, max_sigma_soft, ...)."""
     prep = prepare(data, reference, field_ut, min_samples, METHOD)
     if isinstance(prep, MagFitResult):
         return prep

@@ -48,7 +48,7 @@ import numpy as np
 from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
 
 from .levelling import attitude_from_estimator
-from .magfit import MagFitInput, MagFitResult
+from .fit_types import MagFitInput, MagFitResult
 
 AIDED_ESTIMATOR = "ins"
 SETTLED_TILT_SIGMA_DEG = math.inf   # fit only where the filter's tilt 1σ is below this; on the tuning seeds

@@ -9,7 +9,7 @@ import numpy as np
 
 from ahrsd.core.angles import tilt_compensated_heading_rad, wrap_pi
 
-from .models import MagModel
+from ..models import MagModel
 
 
 def max_heading_change_deg(old: MagModel, new: MagModel, field_body_ut: np.ndarray, roll_rad: float,

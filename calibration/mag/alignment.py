@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .models import MagModel
+from ..models import MagModel
 
 AXES = "xyz"
 MIN_TURN_DEG = 180.0     # a turn must sweep at least half a circle to fix the row

@@ -1,7 +1,7 @@
 """The accelerometer calibration aligned to the unit's housing from its six faces (`calibrate accel
 --align-to-faces`, opt-in).
 
-The multi-position fit (accel_cal) sees only the gravity norm, so a rotation of the calibrated triad is
+The multi-position fit (`accel.py`) sees only the gravity norm, so a rotation of the calibrated triad is
 invisible to it: it fixes the frame by the accelerometer's own x axis. That frame is off the housing by the
 triad's rotation (part of the sensor's axis-to-package alignment error), and so is any levelling done in it:
 the horizon the estimators hold, and the frame a magnetometer calibration levelled by them is fitted in.
@@ -29,8 +29,8 @@ import numpy as np
 from ahrsd.estimator import wahba
 from ahrsd.estimator.rotations import quat_log
 
-from .accel_cal import AccelFitResult
-from .models import AccelModel
+from .accel import AccelFitResult
+from ..models import AccelModel
 
 FACE_AXES = np.vstack([np.eye(3), -np.eye(3)])        # the up direction in housing axes, per face
 FACE_NAMES = ("X up", "Y up", "Z up", "X down", "Y down", "Z down")

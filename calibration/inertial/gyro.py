@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .models import GyroModel
+from ..models import GyroModel
 
 
 @dataclass(frozen=True)
@@ -40,7 +40,7 @@ class GyroFitResult:
         return self.refused is None
 
     def to_json_dict(self) -> dict:
-        from .models import _jsonable
+        from ..models import _jsonable
 
         return {
             "method": self.method,

@@ -14,7 +14,7 @@ accelerometer or an estimator: levelling.py), block averaging to the fit rate (b
 reference field, what the data support (observability.py), the fit, and — when the recording has a heading
 reference — the deviation card with its constant offset folded into the soft iron (swing.py). A constant
 heading offset (sensor yaw misalignment, coefficient A) is only weakly visible through tilt, hence the
-reference. The report figure is `backstepping_plot.plot_backstepping`.
+reference. The report figure is `ahrsd.cli.plots.backstepping.plot_backstepping`.
 """
 
 from __future__ import annotations
@@ -34,8 +34,8 @@ from .backstepping_paper import (PAPER_STEP_TOL_UT, BacksteppingError, backstep_
                                  leg_statistics, magnetic_heading_deg, segment_legs, sphere_fit_paper)
 from .block_average import block_average
 from .levelling import roll_pitch_from_estimator
-from .magfit import MagFitInput, MagFitResult, finite_rows, refuse
-from .models import MagModel
+from .fit_types import MagFitInput, MagFitResult, finite_rows, refuse
+from ..models import MagModel
 from .observability import assess_support, lowpass, parameter_uncertainty
 from .vertical_channel import (ADIS16405_MAG_NOISE_UT, DEFAULT_TILT_SIGMA_DEG, centripetal_direction, corrected_down,
                                fit_vertical_channel, predicted_heading_std_deg)

@@ -8,12 +8,12 @@ import numpy as np
 
 from ahrsd.core.angles import down_in_body, roll_pitch_from_accel, wrap_180_deg
 
-from . import swing
-from .backstepping_paper import BacksteppingError, magnetic_heading_deg
-from .magfit import MagFitInput, MagFitResult, finite_rows
-from .observability import level_vectors, lowpass
+from ahrsd.calibration.mag import swing
+from ahrsd.calibration.mag.backstepping_paper import BacksteppingError, magnetic_heading_deg
+from ahrsd.calibration.mag.fit_types import MagFitInput, MagFitResult, finite_rows
+from ahrsd.calibration.mag.observability import level_vectors, lowpass
 from ahrsd.core.plotting import pyplot
-from .vertical_channel import centripetal_direction, corrected_down
+from ahrsd.calibration.mag.vertical_channel import centripetal_direction, corrected_down
 
 def plot_backstepping(result: MagFitResult, data: MagFitInput, path, *, roll_rad=None, pitch_rad=None,
                       reference=None, swing_table=None) -> None:

@@ -3,14 +3,14 @@ thesis; docs/calibration.md): hard iron b, scale k and
 the three non-orthogonality angles α_yz, α_zy, α_zx (9 parameters), attitude-independent.
 
 The misalignment T_m^p = C_m'^p · T_m^m' splits into a rotation (unobservable from magnitudes; found by the
-alignment step, `mag_alignment.py`) and the upper-triangular T_m^m'. With γ_yz = (k_x/k_y)α_yz,
+alignment step, `alignment.py`) and the upper-triangular T_m^m'. With γ_yz = (k_x/k_y)α_yz,
 γ_zy = (k_x/k_z)α_zy, γ_zx = (k_y/k_z)α_zx and the shifted bias b′, each sample gives one linear equation:
 
     step 1:  z = −B_x²,  h = [B_x, B_y², B_y, B_z², B_z, B_xB_y, B_xB_z, B_yB_z, 1],  z = h·X   (LS for X)
     step 2:  X → (S, γ)         (the thesis's relations, its index typos corrected)
     step 3:  (S, γ) → (b, k, α)
 
-The result is m = T_m^m' · K⁻¹ · (B − b) (the alignment rotation is the identity until `mag_alignment` runs).
+The result is m = T_m^m' · K⁻¹ · (B − b) (the alignment rotation is the identity until `alignment` runs).
 """
 
 from __future__ import annotations
@@ -19,8 +19,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .magfit import MagFitInput, MagFitResult, assess, prepare, refuse
-from .models import MagModel
+from .acceptance import assess, prepare
+from .fit_types import MagFitInput, MagFitResult, refuse
+from ..models import MagModel
 
 METHOD = "three-step"
 
@@ -106,7 +107,7 @@ def solve(mag_ut: np.ndarray, field_ut: float) -> ThreeStepParameters:
 def fit_three_step(data: MagFitInput, reference=None, *, field_ut: float | None = None, min_samples: int = 30,
                    max_condition: float = 1e7, alignment: np.ndarray | None = None, **checks) -> MagFitResult:
     """Three-step fit of `data.mag_ut`. `reference` (EarthField) or `field_ut` give H0. `alignment`: a
-    C_m'^p from `mag_alignment.fit_alignment` to fold in (default identity). `checks` go to `magfit.assess`."""
+    C_m'^p from `alignment.fit_alignment` to fold in (default identity). `checks` go to `acceptance.assess`."""
     prep = prepare(data, reference, field_ut, min_samples, METHOD)
     if isinstance(prep, MagFitResult):
         return prep

@@ -29,7 +29,7 @@ import numpy as np
 from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
 from ahrsd.core.gravity import normal_gravity_m_s2
 
-from .models import AccelModel
+from ..models import AccelModel
 
 
 def local_gravity_m_s2(lat_deg: float | None, alt_m: float = 0.0) -> float:
@@ -107,7 +107,7 @@ class AccelFitResult:
         return self.refused is None
 
     def to_json_dict(self) -> dict:
-        from .models import _jsonable
+        from ..models import _jsonable
 
         return {
             "bias_m_s2": self.model.bias_m_s2.tolist(),
@@ -366,7 +366,7 @@ GUIDED_TARGETS: tuple[tuple[str, tuple[float, float, float]], ...] = (
 
 # With face pairs (`calibrate accel --live --align-to-faces`), each face is held a second time, turned half round
 # about the vertical on the surface: that reverses a surface tilt's component in the housing frame, and the mean
-# of the two cancels it (calibration/accel_alignment.py).
+# of the two cancels it (calibration/inertial/accel_alignment.py).
 GUIDED_TARGETS_FACE_PAIRS = tuple(
     t for face in GUIDED_TARGETS[:6] for t in (face, (f"{face[0]}, again, turned half round on the surface",
                                                      face[1]))) + GUIDED_TARGETS[6:]

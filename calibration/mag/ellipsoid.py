@@ -16,8 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .magfit import MIN_COVERAGE, MagFitInput, MagFitResult, assess, prepare, refuse
-from .models import MagModel
+from .acceptance import MIN_COVERAGE, assess, prepare
+from .fit_types import MagFitInput, MagFitResult, refuse
+from ..models import MagModel
 
 METHOD = "ellipsoid"
 _UPPER = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
@@ -86,7 +87,7 @@ def refine(mag_ut: np.ndarray, field_ut: float, initial: MagModel, max_nfev: int
 def fit_ellipsoid(data: MagFitInput, reference=None, *, field_ut: float | None = None, min_samples: int = 30,
                   **checks) -> MagFitResult:
     """Ellipsoid fit of `data.mag_ut` (algebraic guess + LM). `reference` (EarthField) or `field_ut` give H0;
-    `checks` go to `magfit.assess`."""
+    `checks` go to `acceptance.assess`."""
     prep = prepare(data, reference, field_ut, min_samples, METHOD)
     if isinstance(prep, MagFitResult):
         return prep

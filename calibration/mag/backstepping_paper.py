@@ -26,7 +26,7 @@ import numpy as np
 
 from ahrsd.core.angles import tilt_compensated_heading_rad, wrap_pi
 
-from .models import MagModel
+from ..models import MagModel
 from .observability import level_vectors
 
 PAPER_STEP_TOL_UT = 0.02         # the paper's Table 6 / Fig. 12: final out-and-back step 20 nT
