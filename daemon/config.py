@@ -12,7 +12,7 @@
     [signing]    -> SigningConfig    optional MAVLink 2 signing
     [daemon]     -> DaemonConfig     process behaviour (status line)
     [log]        -> LogConfig        on-vehicle logs: raw samples and MAVLink traffic (daemon.vehicle_log)
-    [magcal]     -> daemon.magcal.MagCalSettings  field magnetometer calibration (validated by that module)
+    [magcal]     -> daemon.magcal_settings.MagCalSettings  field magnetometer calibration (validated by that module)
 
 Every key is checked; an error names the key, the bad value and what is allowed. Unknown sections and keys
 are rejected by name (a typo must not silently fall back to a default). Command-line flags override the file
@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ahrsd.daemon.magcal import settings_from_mapping
+from ahrsd.daemon.magcal_settings import settings_from_mapping
 from ahrsd.daemon.output_profiles import DEFAULT_PROFILE, PROFILES
 from ahrsd.daemon.output_registry import BY_CONFIG_KEY, OUTPUTS
 from ahrsd.estimator import ESTIMATORS
@@ -279,8 +279,9 @@ class GnssConfig:
 class LocationConfig:
     """Where the vehicle is, for the WMM declination (true heading = magnetic heading + declination).
 
-    Priority: declination_deg if set; else lat/lon if set; else the autopilot's GLOBAL_POSITION_INT/GPS_RAW_INT
-    (when use_autopilot_position); else the simulator's site for source = "sim"; else 0 with a warning.
+    Priority: declination_deg if set; else lat/lon if set; else the [gnss] receiver's position; else the
+    autopilot's GLOBAL_POSITION_INT/GPS_RAW_INT (when use_autopilot_position); else the simulator's site for
+    source = "sim"; else 0 with a warning (daemon.position, daemon.declination).
     """
 
     lat_deg: float | None = None
@@ -492,7 +493,7 @@ class Config:
     signing: SigningConfig = field(default_factory=SigningConfig)
     daemon: DaemonConfig = field(default_factory=DaemonConfig)
     log: LogConfig = field(default_factory=LogConfig)
-    magcal: Any = None      # daemon.magcal.MagCalSettings, or None for its defaults
+    magcal: Any = None      # daemon.magcal_settings.MagCalSettings, or None for its defaults
     source_path: str = ""   # the file this came from ("" = built-in defaults)
 
     @property
