@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from ahrsd.calibration import GyroModel
-from ahrsd.calibration.gyro_cal import fit_bias_only
+from ahrsd.calibration.inertial.gyro import fit_bias_only
 from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
 from ahrsd.daemon.autopilot import AutopilotState
 from ahrsd.daemon.calibration_swap import CalibrationSwap

@@ -65,7 +65,7 @@ from ahrsd.daemon.magcal_settings import MagCalSettings, settings_from_mapping  
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.daemon.outbound import Outbound
 from ahrsd.daemon.position import PositionResolver
-from ahrsd.drivers.gnss_mavlink import MavlinkGnssSelector
+from ahrsd.drivers.gnss.mavlink import MavlinkGnssSelector
 
 log = logging.getLogger(__name__)
 
@@ -211,7 +211,7 @@ class MagCalProtocol:
 
     def on_gnss_message(self, msg) -> None:
         """The autopilot's GPS_RAW_INT (GLOBAL_POSITION_INT only with `course_from_global_position_int`),
-        converted by drivers/gnss_mavlink.py and stamped with the time of validity on the samples' clock (the
+        converted by drivers/gnss/mavlink.py and stamped with the time of validity on the samples' clock (the
         latest sample time minus `gnss_latency_s`): its course and speed go to a running session. Ignored
         while no session runs; messages without a usable velocity are counted."""
         s = self.session
@@ -514,9 +514,9 @@ class MagCalProtocol:
 
 def _warm_up() -> None:
     """Runs in the fit worker: import what the fits need."""
-    import ahrsd.calibration.backstepping  # noqa: F401
-    import ahrsd.calibration.ellipsoid  # noqa: F401
-    import ahrsd.calibration.magfit  # noqa: F401
+    import ahrsd.calibration.mag.backstepping  # noqa: F401
+    import ahrsd.calibration.mag.ellipsoid  # noqa: F401
+    import ahrsd.calibration.mag.fit  # noqa: F401
 
 
 @dataclass

@@ -7,7 +7,7 @@ import math
 from dataclasses import dataclass, replace
 from typing import Any
 
-from ahrsd.calibration.swing import DEFAULT_MIN_SPEED_M_S
+from ahrsd.calibration.mag.swing import DEFAULT_MIN_SPEED_M_S
 
 
 @dataclass(frozen=True)

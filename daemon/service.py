@@ -38,7 +38,7 @@ from ahrsd.daemon.config import MAV_TYPES, Config
 from ahrsd.daemon.counters import ServiceCounters
 from ahrsd.daemon.declination import Declination
 from ahrsd.daemon.endpoint_outputs import EndpointOutputs
-from ahrsd.daemon.gnss_task import GnssTask
+from ahrsd.daemon.gnss_task import GnssTask, gnss_backend_for, newest_sample_time, on_first_fix
 from ahrsd.daemon.gyro_cal import GyroBiasCalibration
 from ahrsd.daemon.heading_resets import HeadingResets
 from ahrsd.daemon.heading_slew import HeadingSlew
@@ -48,6 +48,7 @@ from ahrsd.daemon.inbound import InboundDispatch
 from ahrsd.daemon.magcal import DaemonMagCalHost, FieldCalibrationPart, MagCalProtocol
 from ahrsd.daemon.magcal_settings import MagCalSettings
 from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.daemon.nmea_output import NmeaOutputs
 from ahrsd.daemon.notify import Notifier, watchdog_interval_s
 from ahrsd.daemon.outbound import Identity, Outbound
 from ahrsd.daemon.output_registry import BY_PARAM_NAME, OUTPUTS
@@ -104,6 +105,7 @@ class Service:
         # the VISION_POSITION_ESTIMATE yaw after a calibration change, and reset_counter
         self.heading = HeadingResets(HeadingSlew(max_rate_deg_s=config.outputs.heading_slew_deg_s))
         self.gnss: GnssTask | None = None      # [gnss] source (daemon.gnss_task), None without one
+        self.nmea: NmeaOutputs | None = None    # [[nmea]] outputs (daemon.nmea_output), None without any
         self.positions = PositionResolver(config.location, gnss_position=self._gnss_position,
                                           autopilot=self.autopilot, simulator=config.sensor.source == "sim")
         self.declination = Declination(self.params, self.positions, signal_reset=self.heading.signal)
@@ -238,21 +240,10 @@ class Service:
     def build_output(self, mid: int, now: float):
         return self.publishers.build_output(mid, now)
 
-    # ------------------------------------------------------------------------------------------ GNSS task host
+    # ------------------------------------------------------------------------------------------ GNSS
 
     def _gnss_position(self):
         return None if self.gnss is None else self.gnss.position
-
-    def on_gnss_position(self) -> None:
-        """The GNSS task's first fix (daemon.gnss_task)."""
-        self.declination.on_gnss_position()
-
-    def log_gnss_fix(self, fix, rejection) -> None:
-        """Every fix the GNSS task received, with its verdict (daemon.vehicle_log)."""
-        self.logs.log_gnss_fix(fix, rejection)
-
-    def log_counters(self) -> dict:
-        return self.logs.counters()
 
     # ------------------------------------------------------------------------------------------ parameters
 
@@ -349,6 +340,10 @@ class Service:
         self.field_calibration = FieldCalibrationPart(host, cfg.magcal or MagCalSettings(), commands=self.commands,
                                                       autopilot=self.autopilot, set_calibrating=self.set_calibrating)
         self.listeners.add(self.field_calibration.on_sample)
+        if cfg.nmea:
+            self.nmea = NmeaOutputs(cfg.nmea)
+            self.nmea.open(self.loop)
+            self.listeners.add(lambda _sample, est: self.nmea.on_estimate(est))
         if self.source is None:
             self.source = open_source(cfg.sensor, clock=time.monotonic)
         BuiltinCommands(endpoint_outputs=self.endpoint_outputs, publishers=self.publishers, outbound=self.outbound,
@@ -357,8 +352,13 @@ class Service:
                         start_gyro_calibration=self._start_gyro_calibration,
                         call_soon=self.loop.call_soon).register(self.commands)
         if cfg.gnss.source != "none":     # once the sensor source is open: a simulated receiver runs on its clock
-            self.gnss = GnssTask(self, cfg.gnss)
-            self.gnss.open()
+            backend = gnss_backend_for(cfg.gnss, clock=time.monotonic, sensor=cfg.sensor,
+                                       scenario_clock=self.source.chip.now if cfg.gnss.source == "sim" else None,
+                                       replay_time_s=newest_sample_time(pipeline))
+            self.gnss = GnssTask(backend, cfg.gnss, clock=time.monotonic, estimator=pipeline,
+                                 statustext=self.outbound.statustext, log_fix=self.logs.log_gnss_fix,
+                                 subscribers=[on_first_fix(self.declination.on_gnss_position)])
+            self.gnss.open(self.loop)
         self.inbound = self.build_inbound()
         self.reader.source = self.source
         self.reader.outputs.raw_sink = self.logs.put_sample
@@ -436,7 +436,7 @@ class Service:
 
     def _on_replay_batch(self, t_s: float) -> None:
         if self.gnss is not None:
-            self.gnss.advance_to(t_s)    # a GNSS replay, in step with the IMU replay
+            self.gnss.poll()        # a GNSS recording's fixes are due by the samples' time
 
     def _start_gyro_calibration(self, ctx) -> CommandAck:
         cal = GyroBiasCalibration(ctx, self.source.sample_rate_hz, listeners=self.listeners, loop=self.loop,
@@ -509,6 +509,8 @@ class Service:
         self.logs.close(self.endpoints)             # after the last frames went out
         for ep in self.endpoints:
             ep.close()
+        if self.nmea is not None:
+            self.nmea.close()
         if self.field_calibration is not None:
             self.field_calibration.close()
         if self.gnss is not None:
