@@ -279,7 +279,10 @@ def test_gyro_calibration_command_reports_a_failed_save(tmp_path, monkeypatch):
     CalibrationStore(state).save(_cal(0.1))
     service, close = _started_service(state, tmp_path)
     texts = []
-    service.statustext = lambda sev, text: texts.append(text)
+
+    class Operator:      # what the calibration tells the operator
+        def statustext(self, sev, text):
+            texts.append(text)
 
     class Ctx:
         results: list = []
@@ -291,7 +294,8 @@ def test_gyro_calibration_command_reports_a_failed_save(tmp_path, monkeypatch):
             pass
     try:
         ctx = Ctx()
-        cal = GyroBiasCalibration(service, ctx, 819.2)
+        cal = GyroBiasCalibration(ctx, 819.2, listeners=service.listeners, loop=service.loop, health=service.health,
+                                  outbound=Operator(), autopilot=service.autopilot, swap=service.swap)
         cal.start()
         still = make_sample(0.0, np.radians([0.1 + 0.3, 0.0, 0.0]), [0.0, 0.0, -9.80665], [20.0, 0.0, 45.0])
         for _ in range(cal.needed):
