@@ -125,7 +125,8 @@ def test_nees_of_attitude_velocity_and_position_within_chi_square_bounds():
             accel_noise_density_m_s2_rthz=p.accel_noise_m_s2_sqrt_hz,
             mag_noise_density_ut_rthz=0.125 / math.sqrt(819.2))
         run = simulated_run("level-turns", 120.0, rate_hz=200.0, seed=seed, errors=err)
-        est = Ins(declination_rad=DECLINATION, mag_calibration_sigma_rad=0.0, mag_heading_noise_rad=p.mag_heading_noise_rest_rad)
+        est = Ins(declination_rad=DECLINATION, mag_calibration_sigma_rad=0.0, mag_heading_noise_rad=p.mag_heading_noise_rest_rad,
+                  heading_monitor=False, mag_moves_tilt=True)
         res = run_ins(est, run, gnss_fixes(run.truth, seed=seed + 10), cov_every=2000)
         e = np.column_stack([attitude_error_ned(res.q_true, run.truth.q_wxyz),
                              run.truth.vel_ned_m_s - res.vel, position_error_ned(res, run.truth)])
