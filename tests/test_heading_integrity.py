@@ -110,3 +110,34 @@ def test_learned_iron_api_round_trips_and_refuses_garbage():
         ins.set_learned_iron([0.0, 0.0, 0.0], -np.eye(3))
     ins.reset_learned_iron()
     assert np.all(ins.learned_iron()[0] == 0.0)
+
+
+def test_an_aided_magnetometer_update_never_moves_the_horizon():
+    """After 60 s of the boat with GNSS (tilt–heading covariance far from zero), one magnetometer update with a
+    field turned by 10° rotates the attitude about down only; with mag_moves_tilt it leans the horizon."""
+    from scipy.spatial.transform import Rotation
+
+    from ahrsd.estimator import ins_core as core
+
+    run = simulate_vehicle("boat", 60.0, 4, None)
+    out = run_ins_detailed(run)
+    ins = out["ins"]
+    P = ins._P
+    assert abs(P[0, 2]) + abs(P[1, 2]) > 1e-3 * math.sqrt(P[0, 0] * P[2, 2])
+
+    def tilt_of_one_update(moves_tilt: bool) -> float:
+        x, P1, par = ins._x.copy(), ins._P.copy(), ins._par.copy()
+        par[core.P_MAG_TILT] = 1.0 if moves_tilt else 0.0
+        par[core.P_MAG_USE] = 1.0
+        m = x[core.X_MAG_LAST : core.X_MAG_LAST + 3]
+        x[core.X_MAG_LAST : core.X_MAG_LAST + 3] = Rotation.from_euler("z", 10.0, degrees=True).apply(m)
+        q0 = x[core.X_Q : core.X_Q + 4].copy()
+        x[core.X_MAG + 8] = 1.0   # the gate open (as after a new calibration): the update is applied
+        core._mag_update(x, P1, par, 0.01, 0.0)
+        d = (Rotation.from_quat(np.roll(x[core.X_Q : core.X_Q + 4], -1))
+             * Rotation.from_quat(np.roll(q0, -1)).inv()).as_rotvec()
+        assert abs(d[2]) > 1e-6      # the heading moved
+        return float(np.hypot(d[0], d[1]))
+
+    assert tilt_of_one_update(False) < 1e-12
+    assert tilt_of_one_update(True) > 1e-7
