@@ -109,11 +109,19 @@ class GsfParams:
     tilt_align_gain_per_s: float = 1.0
     """... during the first `tilt_align_s` after a reset, 1/s."""
     tilt_align_s: float = 5.0
-    kin_accel_tau_s: float = 0.5
-    """Low-pass time constant of the kinematic acceleration from successive GNSS velocities, s."""
+    speed_rate_tau_s: float = 0.2
+    """Low-pass time constant of the rate of change of the GNSS speed (the tilt AHRS's longitudinal
+    acceleration), s."""
+    sideslip_sigma_rad: float = math.radians(5.0)
+    """1σ of the angle between the body x axis and the velocity over ground (a car's tyre slip, a boat's leeway
+    and current, a plane's wind drift). The tilt AHRS assumes it zero; its effect, ω·V·β forward and V̇·β
+    sideways, is kept in the bias states' variance, so in a steady turn σψ cannot fall below about this."""
+    manoeuvre_tau_s: float = 2.0
+    """Low-pass time constant of the horizontal acceleration (differenced GNSS velocities) the manoeuvre
+    detector looks at (differenced velocity noise must not look like a manoeuvre), s."""
     manoeuvre_accel_m_s2: float = 0.3
-    """A manoeuvre: low-passed horizontal kinematic acceleration above this (PX4 EKF2_MAG_ACCLIM 0.5;
-    lower here for a boat's 0.5 m/s² turns)..."""
+    """A manoeuvre: that low-passed horizontal acceleration above this (PX4 EKF2_MAG_ACCLIM 0.5; lower here
+    for a boat's 0.5 m/s² turns)..."""
     manoeuvre_min_s: float = 1.0
     """... sustained this long, s."""
     stale_after_s: float = 30.0
@@ -184,12 +192,14 @@ def gsf_state_dtype(n_models: int = 5) -> np.dtype:
         ("acc_dvel_m_s", np.float64, (3,)),
         ("rate_rad_s", np.float64, (3,)),              # body rate over the last prediction interval
         # GNSS bookkeeping
-        ("kin_accel_ned_m_s2", np.float64, (3,)),      # low-passed kinematic acceleration
         ("have_prev_fix", np.bool_),
         ("prev_fix_t_s", np.float64),
         ("prev_fix_vel_ned_m_s", np.float64, (3,)),
         ("prev_fix_has_down", np.bool_),
         ("last_fused_t_s", np.float64),
+        ("speed_m_s", np.float64),                     # GNSS speed (3-D when the fix has a down velocity)
+        ("speed_rate_m_s2", np.float64),               # its low-passed rate of change
+        ("manoeuvre_accel_ne_m_s2", np.float64, (2,)),  # the detector's low-passed horizontal acceleration
         ("manoeuvre_run_s", np.float64),               # how long the kinematic acceleration has been high
         ("last_manoeuvre_t_s", np.float64),            # NaN: none since the reset
         # status
@@ -404,7 +414,6 @@ def _predict(state, params):
         return
     gain = params.tilt_align_gain_per_s if state.t_s - state.reset_t_s < params.tilt_align_s \
         else params.tilt_gain_per_s
-    ka = state.kin_accel_ned_m_s2
     q_vel = params.accel_noise_m_s2_rthz ** 2 * dt
     q_bias = params.accel_bias_walk_m_s2_rts ** 2 * dt
     q_yaw_white = params.yaw_rate_noise_rad_s_rthz ** 2 * dt
@@ -412,6 +421,15 @@ def _predict(state, params):
     wx, wy, wz = state.rate_rad_s[0], state.rate_rad_s[1], state.rate_rad_s[2]
     # ω × r: the antenna's velocity relative to the IMU, body frame
     arm_x, arm_y, arm_z = wy * lz - wz * ly, wz * lx - wx * lz, wx * ly - wy * lx
+    # the body's kinematic acceleration with the velocity along body x (no sideslip), speed V from the GNSS:
+    # a = d/dt (V x̂) + ω × V x̂ = (V̇, ω_z V, −ω_y V). It does not depend on any model's yaw, so no model can
+    # explain its yaw error away by tilting (ArduPilot's TAS term, plus V̇, with the GNSS speed for TAS)
+    speed = max(0.0, state.speed_m_s + state.speed_rate_m_s2 * (state.t_s - state.prev_fix_t_s)) \
+        if state.have_prev_fix else 0.0
+    acc_x, acc_y, acc_z = state.speed_rate_m_s2, wz * speed, -wy * speed
+    # what the no-sideslip assumption can get wrong (ω V β forward, V̇ β sideways) stays in the bias variance
+    bias_floor_f = (wz * speed * params.sideslip_sigma_rad) ** 2
+    bias_floor_r = (state.speed_rate_m_s2 * params.sideslip_sigma_rad) ** 2
     slot = state.ring_next
     state.ring_t_s[slot] = state.t_s
     for i in range(n):
@@ -419,11 +437,9 @@ def _predict(state, params):
         # horizontal velocity increment from this model's attitude at the start of the interval
         dvn = c[0, 0] * dvb[0] + c[0, 1] * dvb[1] + c[0, 2] * dvb[2]
         dve = c[1, 0] * dvb[0] + c[1, 1] * dvb[1] + c[1, 2] * dvb[2]
-        # tilt AHRS: measured down = −(f − Cᵀa)/|·|, estimated down = Cᵀ ẑ (row 2 of C);
+        # tilt AHRS: measured down = −(f − a)/|·|, estimated down = Cᵀ ẑ (row 2 of C);
         # δθ = k Δt (down_meas × down_est) turns the estimate towards the measurement (tilt only: ⟂ down)
-        ux = fx - (c[0, 0] * ka[0] + c[1, 0] * ka[1] + c[2, 0] * ka[2])
-        uy = fy - (c[0, 1] * ka[0] + c[1, 1] * ka[1] + c[2, 1] * ka[2])
-        uz = fz - (c[0, 2] * ka[0] + c[1, 2] * ka[1] + c[2, 2] * ka[2])
+        ux, uy, uz = fx - acc_x, fy - acc_y, fz - acc_z
         un = math.sqrt(ux * ux + uy * uy + uz * uz)
         cx = cy = cz = 0.0
         if un > 0.0:
@@ -461,8 +477,8 @@ def _predict(state, params):
         p[_VN, _VN] += q_vel
         p[_VE, _VE] += q_vel
         p[_YAW, _YAW] += q_yaw_white + (params.yaw_rate_scale_sqrt_s * dpsi) ** 2 / dt
-        p[_BF, _BF] += q_bias
-        p[_BR, _BR] += q_bias
+        p[_BF, _BF] = max(p[_BF, _BF] + q_bias, bias_floor_f)
+        p[_BR, _BR] = max(p[_BR, _BR] + q_bias, bias_floor_r)
         # the ring holds the antenna's predicted velocity
         state.ring_vel_ne_m_s[slot, i, 0] = state.vel_ne_m_s[i, 0] + \
             c[0, 0] * arm_x + c[0, 1] * arm_y + c[0, 2] * arm_z
@@ -520,31 +536,36 @@ def _update_validity(state, params):
 
 # ----------------------------------------------------------------------------------------- fusion
 @njit(cache=True)
-def _kinematic_acceleration(state, params, t_s, vn, ve, vd, has_down):
-    """Low-pass of the acceleration between successive fixes (NED), and the manoeuvre bookkeeping."""
+def _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down):
+    """From successive fixes: the speed and its low-passed rate (the tilt AHRS's kinematic acceleration) and the
+    low-passed horizontal acceleration that detects manoeuvres."""
     if state.have_prev_fix:
         dt = t_s - state.prev_fix_t_s
-        if 0.0 < dt <= 1.0:
-            a = min(1.0, dt / params.kin_accel_tau_s)
-            ka = state.kin_accel_ned_m_s2
-            ka[0] += a * ((vn - state.prev_fix_vel_ned_m_s[0]) / dt - ka[0])
-            ka[1] += a * ((ve - state.prev_fix_vel_ned_m_s[1]) / dt - ka[1])
-            if has_down and state.prev_fix_has_down:
-                ka[2] += a * ((vd - state.prev_fix_vel_ned_m_s[2]) / dt - ka[2])
-            else:
-                ka[2] -= a * ka[2]
-            if math.hypot(ka[0], ka[1]) >= params.manoeuvre_accel_m_s2:
+        if dt <= 0.0:
+            return
+        pv = state.prev_fix_vel_ned_m_s
+        down = has_down and state.prev_fix_has_down
+        speed = math.sqrt(vn * vn + ve * ve + (vd * vd if down else 0.0))
+        speed0 = math.sqrt(pv[0] * pv[0] + pv[1] * pv[1] + (pv[2] * pv[2] if down else 0.0))
+        md = state.manoeuvre_accel_ne_m_s2
+        if dt <= 1.0:
+            a = min(1.0, dt / params.speed_rate_tau_s)
+            state.speed_rate_m_s2 += a * ((speed - speed0) / dt - state.speed_rate_m_s2)
+            b = min(1.0, dt / params.manoeuvre_tau_s)
+            md[0] += b * ((vn - pv[0]) / dt - md[0])
+            md[1] += b * ((ve - pv[1]) / dt - md[1])
+            if math.hypot(md[0], md[1]) >= params.manoeuvre_accel_m_s2:
                 state.manoeuvre_run_s += dt
                 if state.manoeuvre_run_s >= params.manoeuvre_min_s:
                     state.last_manoeuvre_t_s = t_s
             else:
                 state.manoeuvre_run_s = 0.0
-        elif dt > 1.0:
-            for j in range(3):
-                state.kin_accel_ned_m_s2[j] = 0.0
+        else:
+            state.speed_rate_m_s2 = 0.0
+            md[0] = 0.0
+            md[1] = 0.0
             state.manoeuvre_run_s = 0.0
-        if dt <= 0.0:
-            return
+    state.speed_m_s = math.sqrt(vn * vn + ve * ve + (vd * vd if has_down else 0.0))
     state.have_prev_fix = True
     state.prev_fix_t_s = t_s
     state.prev_fix_vel_ned_m_s[0] = vn
@@ -602,9 +623,9 @@ def gsf_fuse_velocity(state, params, t_s, vel_ne_m_s, vel_sigma_m_s):
     if state.t_s - t_s > params.max_fix_delay_s:
         state.n_rejected += 1
         return REJECTED_TOO_OLD
-    _kinematic_acceleration(state, params, t_s, vn, ve, vd, has_down)
     n = state.weight.shape[0]
     if not state.tilt_aligned or state.ring_count == 0:
+        _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down)
         return WAITING_FOR_TILT
     gap = math.isnan(state.last_fused_t_s) or t_s - state.last_fused_t_s > params.max_fix_gap_s
     if not state.vel_seeded or gap:
@@ -627,6 +648,7 @@ def gsf_fuse_velocity(state, params, t_s, vel_ne_m_s, vel_sigma_m_s):
         state.vel_seeded = True
         state.last_fused_t_s = t_s
         state.n_passing_fixes = 0
+        _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down)
         return SEEDED
     r = max(vel_sigma_m_s, params.vel_sigma_floor_m_s) ** 2
     clip2 = params.innov_clip_sigma ** 2
@@ -654,8 +676,11 @@ def gsf_fuse_velocity(state, params, t_s, vel_ne_m_s, vel_sigma_m_s):
         if state.n_rejected_in_row >= params.reset_after_rejected_fixes:
             q = np.full(4, np.nan)
             gsf_reset(state, params, state.t_s, q)
+            _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down)
         return REJECTED_CLIPPED
     state.n_rejected_in_row = 0
+    # the speed and manoeuvre bookkeeping take only fixes some hypothesis explains (not a glitch)
+    _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down)
     # EKF updates (innovation at t_s, correction now) and log-likelihoods
     log_w = np.empty(n)
     best = -np.inf
