@@ -351,6 +351,7 @@ class Ins:
         self._field_ned = None
         self._mag_var = p.calibration_sigma_rad ** 2
         self.yaw_resets = 0
+        self.heading_interventions = 0    # yaw resets and raised yaw variances (not Kalman updates)
         self._par[core.P_MAG_USE] = 1.0
         self._par[core.P_MAG_BIAS_VAR] = p.calibration_sigma_rad ** 2
         self._par[core.P_IRON : core.P_IRON + 3] = self._iron.offset_ut
@@ -605,6 +606,7 @@ class Ins:
                                 float(x[core.X_NIS_V]))
         if d.yaw_var_floor_rad2 > P[2, 2]:
             P[2, 2] = d.yaw_var_floor_rad2
+            self.heading_interventions += 1
             log.warning("ins: magnetometer disagrees with the GNSS-held heading by %.1f°: calibration wrong or "
                         "iron changed; magnetometer rejected", math.degrees(self._monitor.lowpassed_innovation_rad))
         if d.reset_yaw_to_rad is not None:
@@ -655,6 +657,7 @@ class Ins:
             P[:, i] = 0.0
             P[i, i] = var
         self.yaw_resets += 1
+        self.heading_interventions += 1
         self._pending_flags |= int(EstimateFlags.YAW_RESET)
         log.warning("ins: heading reset to the GNSS yaw by %.1f° (reset %d)", math.degrees(dyaw), self.yaw_resets)
 
