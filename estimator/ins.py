@@ -134,8 +134,15 @@ class InsParams:
     # --- magnetometer heading (mag_heading.py, mekf's check): as MekfParams
     mag_enabled: bool = True
     mag_moves_tilt: bool = False
-    """While GNSS-aided, let the magnetometer update move the tilt too (its row carries the tilt sensitivity
-    either way, see ins_core._mag_update). False (default): a wrong magnetometer never moves the horizon."""
+    """While GNSS-aided, always let the magnetometer update move the tilt too (its row carries the tilt
+    sensitivity either way, see ins_core._mag_update). False (default): only a trusted, consistent magnetometer
+    may (`mag_trusted_moves_tilt`); a suspect one never moves the horizon."""
+    mag_trusted_moves_tilt: bool = True
+    """While the heading monitor finds the magnetometer consistent and its calibration trusted (heading state
+    MAGNETOMETER, its heading 1σ below 3°), its update may correct the tilt too (at high dip a tilt error along
+    magnetic north turns the magnetometer heading by tan(dip) times as much; the GNSS-held tilt alone leaves
+    that in the heading). A magnetometer under suspicion — uncalibrated, learning, rejected, before the first
+    check — never moves the horizon."""
     mag_calibration_sigma_rad: float = math.nan
     """1σ heading error the magnetometer calibration predicts (the daemon passes its calibration's figure). NaN:
     no calibration or its quality unknown — `mag_uncalibrated_sigma_rad`."""
@@ -270,6 +277,13 @@ class InsParams:
 DEFAULT_INS_PARAMS = InsParams()
 
 
+@dataclass(frozen=True)
+class HeadingReport:
+    mag_rejections: int            # times the heading monitor rejected the magnetometer
+    max_disagreement_deg: float    # the largest disagreement (with the GNSS-held heading or yaw) at a rejection
+    yaw_resets: int                # resets of the yaw to the GNSS yaw
+
+
 @dataclass
 class GnssCounters:
     """What became of the fixes offered to `update_gnss` (each fix counts once in `offered`)."""
@@ -353,6 +367,7 @@ class Ins:
         self.yaw_resets = 0
         self.heading_interventions = 0    # yaw resets and raised yaw variances (not Kalman updates)
         self._par[core.P_MAG_USE] = 1.0
+        self._par[core.P_MAG_TILT] = 1.0 if p.mag_moves_tilt else 0.0
         self._par[core.P_MAG_BIAS_VAR] = p.calibration_sigma_rad ** 2
         self._par[core.P_IRON : core.P_IRON + 3] = self._iron.offset_ut
 
@@ -384,6 +399,11 @@ class Ins:
         self._iron.reset()
         self._iron_restored = False
         self._par[core.P_IRON : core.P_IRON + 3] = self._iron.offset_ut
+
+    def heading_report(self) -> HeadingReport:
+        """What the heading checks did so far (replay's summary, the daemon's warning)."""
+        m = self._monitor
+        return HeadingReport(m.rejections, math.degrees(m.max_disagreement_rad), self.yaw_resets)
 
     @property
     def heading_state(self) -> HeadingState:
@@ -583,6 +603,7 @@ class Ins:
         m_body = x[core.X_MAG_LAST : core.X_MAG_LAST + 3] - self._iron.offset_ut
         mag_yaw = math.nan
         mag_var = math.inf
+        noise = 0.0
         if np.all(np.isfinite(m_body)):
             m_ned = c_bn @ m_body
             h = math.hypot(m_ned[0], m_ned[1])
@@ -603,7 +624,7 @@ class Ins:
                 gsf_yaw, gsf_var, gsf_valid = float(y), float(sg) ** 2, bool(valid)
         observable = yaw_var < p.heading_observable_sigma_rad ** 2
         d = self._monitor.check(t_s, yaw, yaw_var, mag_yaw, mag_var, gsf_yaw, gsf_var, gsf_valid, observable,
-                                float(x[core.X_NIS_V]))
+                                float(x[core.X_NIS_V]), mag_var - noise if math.isfinite(mag_var) else math.nan)
         if d.yaw_var_floor_rad2 > P[2, 2]:
             P[2, 2] = d.yaw_var_floor_rad2
             self.heading_interventions += 1
@@ -612,8 +633,10 @@ class Ins:
         if d.reset_yaw_to_rad is not None:
             self._reset_yaw(d.reset_yaw_to_rad - yaw, d.reset_yaw_var_rad2)
         self._par[core.P_MAG_USE] = 1.0 if d.mag_use else 0.0
+        trusted = d.mag_use and self._mag_var < self._monitor.trusted_sigma_rad ** 2
+        self._par[core.P_MAG_TILT] = 1.0 if p.mag_moves_tilt or (p.mag_trusted_moves_tilt and trusted) else 0.0
         if math.isfinite(mag_var):
-            self._mag_var = mag_var
+            self._mag_var = mag_var - noise      # the slowly varying part: what trust and the heading state use
             self._par[core.P_MAG_BIAS_VAR] = mag_var - noise   # the white part is the kernel's own noise
             learned = self._iron.updates > 0 or self._iron_restored
             self._par[core.P_MAG_BIAS_TAU] = p.mag_uncalibrated_tau_s if learned else p.mag_bias_tau
