@@ -337,8 +337,10 @@ class Ins:
         self._queue: list[GnssFix] = []
         self._last_fix_t = -math.inf
         self.gnss_counters = GnssCounters()
-        self._gsf_par = GsfParams(lever_arm_m=tuple(self.params.lever_arm_m)).to_record()
-        self._gsf = new_gsf_state(GsfParams(), 0.0)
+        self._gsf_par_arr = _one_record_array(GsfParams(lever_arm_m=tuple(self.params.lever_arm_m)).to_record())
+        self._gsf_arr = _one_record_array(new_gsf_state(GsfParams(), 0.0))
+        self._gsf_par = self._gsf_par_arr[0]      # record views of the arrays the compiled step takes
+        self._gsf = self._gsf_arr[0]
         self._par[core.P_GSF] = 1.0 if self.params.gnss_yaw else 0.0
         self._step = core.fast_step(self._step_args_example())
         self._iron = IronLearner(self.params.iron_prior_sigma_ut)
@@ -348,12 +350,12 @@ class Ins:
 
     def _step_args_example(self) -> tuple:
         """Scratch arguments of the step's types (compiling it must not touch the filter's own arrays)."""
-        gsf = new_gsf_state(GsfParams(), 0.0)
+        gsf = _one_record_array(new_gsf_state(GsfParams(), 0.0))
         x = np.zeros(core.X_SIZE)
         x[core.X_Q] = 1.0
         x[core.X_T_LAST] = 0.995
         return (x, np.eye(core.N_ERR), np.zeros((core.H_LEN, core.H_SIZE)), self._par.copy(),
-                1.0, 0.0, 0.0, 0.0, 0.0, 0.0, -9.8, 20.0, 0.0, 40.0, 0, np.zeros(core.O_SIZE), gsf, self._gsf_par)
+                1.0, 0.0, 0.0, 0.0, 0.0, 0.0, -9.8, 20.0, 0.0, 40.0, 0, np.zeros(core.O_SIZE), gsf, self._gsf_par_arr)
 
     def _new_heading_checks(self) -> None:
         p = self.params
@@ -464,7 +466,7 @@ class Ins:
         if self._initialised:
             f = self._step(self._x, self._P, self._hist, self._par, sample.t_s,
                            g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], sflags, self._out,
-                           self._gsf, self._gsf_par)
+                           self._gsf_arr, self._gsf_par_arr)
             if not f & NEEDS_INIT:
                 if self._queue:
                     self._fuse_queued()
@@ -816,6 +818,13 @@ class Ins:
 
     def _estimate_uninitialised(self, sample: ImuSample, extra: int) -> AttitudeEstimate:
         return uninitialised_estimate(sample.t_s, extra | self._pending_flags)
+
+
+def _one_record_array(record) -> np.recarray:
+    """A 1-element record array holding a copy of `record`."""
+    arr = np.zeros(1, dtype=record.dtype).view(np.recarray)
+    arr[0] = record
+    return arr
 
 
 def _accuracy(reported: float, default: float, floor: float) -> float:
