@@ -3,7 +3,7 @@
     .venv/bin/python bench/accuracy.py                 # simulated scenarios + all 15 BROAD trials
     .venv/bin/python bench/accuracy.py --quick         # short simulated runs, 3 BROAD trials
     .venv/bin/python bench/accuracy.py --trials 06 32 --no-sim --methods mekf vqf
-    .venv/bin/python bench/accuracy.py --vehicles [--quick]  # only (c): ins with GNSS on boat, car, plane
+    .venv/bin/python bench/accuracy.py --vehicles [--quick]  # only (c) and (d): ins with GNSS on boat, car, plane
     .venv/bin/python bench/accuracy.py --cv --no-sim --no-broad   # cross-validated tuning only (bench/cv.py)
 
 (a) Simulated ADIS16405 (ahrsd.simulation, datasheet noise, 819.2 SPS) read through the byte-level chip
@@ -339,6 +339,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="(c): the GNSS antenna away from the IMU on each vehicle, ins told (and ins-untold not)")
     ap.add_argument("--site", action="append", default=None, metavar="LAT,LON[,ALT_M[,YYYY-MM-DD]]",
                     help="site(s) for (c) instead of the default and 60°N (repeatable)")
+    ap.add_argument("--honesty-seconds", type=float, default=600.0,
+                    help="(d) honest heading: run length of the uncalibrated / iron-change vehicles, s")
+    ap.add_argument("--honesty-seeds", type=int, nargs="*", default=None,
+                    help="(d): seeds (default 1 at the default site and 11 at the held-out one; --quick: 11 only)")
+    ap.add_argument("--no-honesty", action="store_true", help="skip the honest-heading section (d)")
     ap.add_argument("--cv", action="store_true",
                     help="cross-validated tuning of mekf on BROAD (leave-one-trial-out and leave-one-pair-out "
                          "over bench/cv.py's candidate grid, beside VQF)")
@@ -360,6 +365,16 @@ def main(argv: list[str] | None = None) -> int:
         sites = {f"site{i + 1}": s for i, s in enumerate(args.site)} if args.site else None
         vehicle_section(args.quick, args.vehicle_seeds, sites, args.vehicle_scenarios or VEHICLE_SCENARIOS,
                         lever_arm=args.lever_arm)
+    if not args.no_vehicles and not args.no_honesty:
+        from bench.vehicle_accuracy import HONESTY_SITES, VEHICLE_SCENARIOS, honesty_section
+
+        scen = args.vehicle_scenarios or VEHICLE_SCENARIOS
+        if args.honesty_seeds:
+            honesty_section(args.honesty_seconds, tuple(args.honesty_seeds), HONESTY_SITES, scen)
+        else:
+            if not args.quick:
+                honesty_section(args.honesty_seconds, (1,), {"default": HONESTY_SITES["default"]}, scen)
+            honesty_section(args.honesty_seconds, (11,), {"held-out": HONESTY_SITES["held-out"]}, scen)
     if args.cv:
         from bench.cv import print_report, run_grid
 

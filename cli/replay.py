@@ -25,11 +25,15 @@ OUTPUT_COLUMNS = (
 OUTPUT_HEADER = ",".join(OUTPUT_COLUMNS)
 # With --gnss (an aided estimator) these follow (ahrsd.estimator.replay.NAV_COLUMNS): NED velocity and position
 NAV_OUTPUT_COLUMNS = ("vel_n_m_s", "vel_e_m_s", "vel_d_m_s", "lat_deg", "lon_deg", "alt_m")
-AIDED_OUTPUT_HEADER = ",".join(OUTPUT_COLUMNS + NAV_OUTPUT_COLUMNS)
+# ... and the heading checks (ahrsd.estimator.replay.HEADING_COLUMNS): the magnetometer-free GNSS yaw (true
+# north) and its 1σ (NaN until the bank has one), the heading state (0 unknown, 1 magnetometer, 2 GNSS only,
+# 3 learning)
+HEADING_OUTPUT_COLUMNS = ("gsf_yaw_deg", "gsf_sigma_deg", "heading_state")
+AIDED_OUTPUT_HEADER = ",".join(OUTPUT_COLUMNS + NAV_OUTPUT_COLUMNS + HEADING_OUTPUT_COLUMNS)
 # REFERENCE: the quaternion and yaw are relative to true north (NED) when a position is given (--lat/--lon: the
 # WMM declination rotates the estimator's magnetic-north attitude about down), else to magnetic north.
 _FORMAT = ",".join(["%.6f"] + ["%.9f"] * 4 + ["%.6f"] * 5 + ["%.6f"] * 3 + ["%.6e"] * 3 + ["%d"])
-_NAV_FORMAT = ",".join(["%.4f"] * 3 + ["%.9f"] * 2 + ["%.4f"])
+_NAV_FORMAT = ",".join(["%.4f"] * 3 + ["%.9f"] * 2 + ["%.4f"] + ["%.4f"] * 2 + ["%d"])
 
 
 def register(subparsers) -> None:
@@ -99,11 +103,47 @@ def _gate_summary(estimator) -> str:
         return "not offered"
     text = (f"the filter fused {c.fused_velocity} velocities and {c.fused_position} positions, its gate rejected "
             f"{c.rejected_velocity} and {c.rejected_position}")
+    heading = getattr(estimator, "heading_report", None)
+    report = heading() if heading is not None else None
+    if report is not None and report.mag_rejections:
+        # the magnetometer, not the antenna: a filter pulled by a wrong magnetometer rejects correct fixes
+        text += (f"; WARNING: magnetometer disagrees with GNSS by {report.max_disagreement_deg:.0f}°: calibration "
+                 f"wrong or iron changed (rejected {report.mag_rejections}×, heading reset to the GNSS yaw "
+                 f"{report.yaw_resets}×)")
     if c.rejected_velocity > GATE_HINT_FRACTION * max(c.offered, 1):
         arm = " ".join(f"{v:g}" for v in estimator.params.lever_arm_m)
         text += (f"; WARNING: that many rejected velocities usually mean the antenna is not where the filter was "
                  f"told ({arm} m, body FRD: --set \"lever_arm_m=(x, y, z)\") or the fixes' time stamps are off")
     return text
+
+
+_STATE_NAMES = {0: "unknown", 1: "magnetometer", 2: "GNSS only", 3: "learning"}
+MAX_STATE_CHANGES_SHOWN = 12
+
+
+def _state_changes(t_s, states, history: list) -> None:
+    """Append (t, state) at each change of the heading state column."""
+    import numpy as np
+
+    s = states.astype(int)
+    prev = history[-1][1] if history else None
+    change = np.flatnonzero(np.diff(s)) + 1
+    if prev is None or (len(s) and s[0] != prev):
+        change = np.concatenate([[0], change])
+    history.extend((float(t_s[k]), int(s[k])) for k in change)
+
+
+def _history_text(history: list, last_t: float) -> str:
+    """The time spent in each heading state and its first changes."""
+    if not history:
+        return "(none)"
+    spent: dict[int, float] = {}
+    for (t0, st), (t1, _) in zip(history, history[1:] + [(last_t, -1)]):
+        spent[st] = spent.get(st, 0.0) + max(t1 - t0, 0.0)
+    total = ", ".join(f"{_STATE_NAMES.get(k, k)} {v:.0f} s" for k, v in sorted(spent.items()))
+    changes = " → ".join(f"{_STATE_NAMES.get(st, st)} at {t:.1f} s" for t, st in history[:MAX_STATE_CHANGES_SHOWN])
+    more = f" (+{len(history) - MAX_STATE_CHANGES_SHOWN} more)" if len(history) > MAX_STATE_CHANGES_SHOWN else ""
+    return f"{total}; {changes}{more}"
 
 
 def _declination_rad(args, gnss_position=None) -> float:
@@ -255,7 +295,7 @@ def _run(args) -> int:
 
     from ahrsd.drivers.recording import RecordingFormatError, iter_samples
     from ahrsd.estimator import make_estimator
-    from ahrsd.estimator.replay import ATTITUDE_COLUMNS, NAV_COLUMNS, replay_attitude
+    from ahrsd.estimator.replay import ATTITUDE_COLUMNS, HEADING_COLUMNS, NAV_COLUMNS, replay_attitude
 
     from .progress import expected_rows, progress_bar
 
@@ -330,10 +370,16 @@ def _run(args) -> int:
         order = [ATTITUDE_COLUMNS.index(name) for name in OUTPUT_COLUMNS]
         if aided:
             order += [len(ATTITUDE_COLUMNS) + NAV_COLUMNS.index(name) for name in NAV_OUTPUT_COLUMNS]
+            order += [len(ATTITUDE_COLUMNS) + len(NAV_COLUMNS) + HEADING_COLUMNS.index(name)
+                      for name in HEADING_OUTPUT_COLUMNS]
+        state_col = len(ATTITUDE_COLUMNS) + len(NAV_COLUMNS) + HEADING_COLUMNS.index("heading_state")
+        history: list[tuple[float, int]] = []
         true_north = args.lat is not None or aided
         with progress_bar(args, expected_rows(args.recording), "replay") as bar:
             for table in replay_attitude(estimator, samples, true_north=true_north, fixes=fixes):
                 out.write(table[:, order])
+                if aided:
+                    _state_changes(table[:, 0], table[:, state_col], history)
                 bar.update(len(table))
                 if trace is not None:
                     trace.add(table)
@@ -374,4 +420,6 @@ def _run(args) -> int:
         print(f"ahrsd replay: {count} samples ({duration:.1f} s at {rate:.1f} Hz) {gnss}through {estimator_name}, "
               f"heading to {where}; {wall:.2f} s wall ({t_loop * 1e6 / count:.1f} CPU µs/sample to read, "
               f"estimate and write): {speed:.1f}× real time ({cpu_speed:.1f}× per CPU second)", file=sys.stderr)
+        if aided:
+            print(f"ahrsd replay: heading state {_history_text(history, last_t)}", file=sys.stderr)
     return 0

@@ -134,6 +134,8 @@ class HeadingMonitor:
     last_t_s: float = math.nan
     learning: bool = False
     reset_velocity_nis: float = 6.0
+    rejections: int = 0
+    max_disagreement_rad: float = 0.0   # largest low-passed disagreement seen when the magnetometer was rejected
     lowpassed_velocity_nis: float = 0.0
 
     def mag_sigma_rad2(self, iron_var_rad2: float, noise_var_rad2: float) -> float:
@@ -141,14 +143,16 @@ class HeadingMonitor:
 
     def check(self, t_s: float, yaw_rad: float, yaw_var_rad2: float, mag_yaw_rad: float, mag_var_rad2: float,
               gsf_yaw_rad: float, gsf_var_rad2: float, gsf_valid: bool, heading_observable: bool,
-              velocity_nis: float = math.nan) -> MonitorDecision:
+              velocity_nis: float = math.nan, mag_bias_var_rad2: float = math.nan) -> MonitorDecision:
         """One check at a fused GNSS fix. yaw: the filter's (true); mag_yaw: the heading the magnetometer (with
         the learned iron removed) gives at the filter's tilt, NaN when it has none; mag_var: its variance
         (calibration + learned iron + noise); gsf_*: the Gaussian-sum yaw; heading_observable: the filter's yaw
         σ is small enough that the GNSS holds the heading (iron learning and magnetometer re-entry need it);
         velocity_nis: the filter's last GNSS velocity NIS (2–3 dof) — a reset to the GNSS yaw also needs the
         filter's own velocity fusion to show the heading is wrong (low-passed NIS above `reset_velocity_nis`),
-        as EKF3's realignYawGPS needs a failing velocity test."""
+        as EKF3's realignYawGPS needs a failing velocity test; mag_bias_var: the slowly varying part of mag_var
+        (without the white noise of one sample), which decides whether the magnetometer is trusted."""
+        bias_var = mag_var_rad2 if math.isnan(mag_bias_var_rad2) else mag_bias_var_rad2
         dt = 0.0 if math.isnan(self.last_t_s) else max(0.0, t_s - self.last_t_s)
         self.last_t_s = t_s
         floor = 0.0
@@ -180,15 +184,19 @@ class HeadingMonitor:
             # σ first: cover what the magnetometer may already have pulled the heading by (its low-passed
             # innovation: a step just seen has not moved the filter yet) and the disagreement with the GNSS yaw
             self.mag_rejected = True
+            self.rejections += 1
+            seen = abs(self.disagreement_rad) if math.isfinite(self.disagreement_rad) else 0.0
+            self.max_disagreement_rad = max(self.max_disagreement_rad, abs(self.lowpassed_innovation_rad),
+                                            abs(innovation), seen)
             floor = self.lowpassed_innovation_rad ** 2 + yaw_var_rad2
             if gsf_valid:
                 floor = max(floor, wrap_pi(yaw_rad - gsf_yaw_rad) ** 2 + gsf_var_rad2)
         elif self.mag_rejected and have_mag and heading_observable and self.consistent_s >= self.reentry_s \
-                and mag_var_rad2 < self.trusted_sigma_rad ** 2:
+                and bias_var < self.trusted_sigma_rad ** 2:
             self.mag_rejected = False
         if math.isfinite(velocity_nis):
             self.lowpassed_velocity_nis += k * (min(velocity_nis, 100.0) - self.lowpassed_velocity_nis)
-        if gsf_valid and self.lowpassed_velocity_nis > self.reset_velocity_nis and (self.mag_rejected or not have_mag or mag_var_rad2 > self.trusted_sigma_rad ** 2):
+        if gsf_valid and self.lowpassed_velocity_nis > self.reset_velocity_nis and (self.mag_rejected or not have_mag or bias_var > self.trusted_sigma_rad ** 2):
             d = wrap_pi(gsf_yaw_rad - yaw_rad)
             if d * d > self.gate_sigma ** 2 * (yaw_var_rad2 + gsf_var_rad2) and self.resets < self.max_resets \
                     and t_s - self.last_reset_t_s >= self.reset_spacing_s:
@@ -196,7 +204,7 @@ class HeadingMonitor:
                 reset_var = gsf_var_rad2
                 self.resets += 1
                 self.last_reset_t_s = t_s
-        self.learning = heading_observable and (self.mag_rejected or mag_var_rad2 > self.trusted_sigma_rad ** 2)
+        self.learning = heading_observable and (self.mag_rejected or bias_var > self.trusted_sigma_rad ** 2)
         return MonitorDecision(not self.mag_rejected, mag_var_rad2 if not self.mag_rejected else 0.0, floor,
                                reset_to, reset_var)
 

@@ -134,8 +134,15 @@ class InsParams:
     # --- magnetometer heading (mag_heading.py, mekf's check): as MekfParams
     mag_enabled: bool = True
     mag_moves_tilt: bool = False
-    """While GNSS-aided, let the magnetometer update move the tilt too (its row carries the tilt sensitivity
-    either way, see ins_core._mag_update). False (default): a wrong magnetometer never moves the horizon."""
+    """While GNSS-aided, always let the magnetometer update move the tilt too (its row carries the tilt
+    sensitivity either way, see ins_core._mag_update). False (default): only a trusted, consistent magnetometer
+    may (`mag_trusted_moves_tilt`); a suspect one never moves the horizon."""
+    mag_trusted_moves_tilt: bool = True
+    """While the heading monitor finds the magnetometer consistent and its calibration trusted (heading state
+    MAGNETOMETER, its heading 1σ below 3°), its update may correct the tilt too (at high dip a tilt error along
+    magnetic north turns the magnetometer heading by tan(dip) times as much; the GNSS-held tilt alone leaves
+    that in the heading). A magnetometer under suspicion — uncalibrated, learning, rejected, before the first
+    check — never moves the horizon."""
     mag_calibration_sigma_rad: float = math.nan
     """1σ heading error the magnetometer calibration predicts (the daemon passes its calibration's figure). NaN:
     no calibration or its quality unknown — `mag_uncalibrated_sigma_rad`."""
@@ -270,6 +277,13 @@ class InsParams:
 DEFAULT_INS_PARAMS = InsParams()
 
 
+@dataclass(frozen=True)
+class HeadingReport:
+    mag_rejections: int            # times the heading monitor rejected the magnetometer
+    max_disagreement_deg: float    # the largest disagreement (with the GNSS-held heading or yaw) at a rejection
+    yaw_resets: int                # resets of the yaw to the GNSS yaw
+
+
 @dataclass
 class GnssCounters:
     """What became of the fixes offered to `update_gnss` (each fix counts once in `offered`)."""
@@ -323,8 +337,10 @@ class Ins:
         self._queue: list[GnssFix] = []
         self._last_fix_t = -math.inf
         self.gnss_counters = GnssCounters()
-        self._gsf_par = GsfParams(lever_arm_m=tuple(self.params.lever_arm_m)).to_record()
-        self._gsf = new_gsf_state(GsfParams(), 0.0)
+        self._gsf_par_arr = _one_record_array(GsfParams(lever_arm_m=tuple(self.params.lever_arm_m)).to_record())
+        self._gsf_arr = _one_record_array(new_gsf_state(GsfParams(), 0.0))
+        self._gsf_par = self._gsf_par_arr[0]      # record views of the arrays the compiled step takes
+        self._gsf = self._gsf_arr[0]
         self._par[core.P_GSF] = 1.0 if self.params.gnss_yaw else 0.0
         self._step = core.fast_step(self._step_args_example())
         self._iron = IronLearner(self.params.iron_prior_sigma_ut)
@@ -334,12 +350,12 @@ class Ins:
 
     def _step_args_example(self) -> tuple:
         """Scratch arguments of the step's types (compiling it must not touch the filter's own arrays)."""
-        gsf = new_gsf_state(GsfParams(), 0.0)
+        gsf = _one_record_array(new_gsf_state(GsfParams(), 0.0))
         x = np.zeros(core.X_SIZE)
         x[core.X_Q] = 1.0
         x[core.X_T_LAST] = 0.995
         return (x, np.eye(core.N_ERR), np.zeros((core.H_LEN, core.H_SIZE)), self._par.copy(),
-                1.0, 0.0, 0.0, 0.0, 0.0, 0.0, -9.8, 20.0, 0.0, 40.0, 0, np.zeros(core.O_SIZE), gsf, self._gsf_par)
+                1.0, 0.0, 0.0, 0.0, 0.0, 0.0, -9.8, 20.0, 0.0, 40.0, 0, np.zeros(core.O_SIZE), gsf, self._gsf_par_arr)
 
     def _new_heading_checks(self) -> None:
         p = self.params
@@ -351,7 +367,9 @@ class Ins:
         self._field_ned = None
         self._mag_var = p.calibration_sigma_rad ** 2
         self.yaw_resets = 0
+        self.heading_interventions = 0    # yaw resets and raised yaw variances (not Kalman updates)
         self._par[core.P_MAG_USE] = 1.0
+        self._par[core.P_MAG_TILT] = 1.0 if p.mag_moves_tilt else 0.0
         self._par[core.P_MAG_BIAS_VAR] = p.calibration_sigma_rad ** 2
         self._par[core.P_IRON : core.P_IRON + 3] = self._iron.offset_ut
 
@@ -383,6 +401,11 @@ class Ins:
         self._iron.reset()
         self._iron_restored = False
         self._par[core.P_IRON : core.P_IRON + 3] = self._iron.offset_ut
+
+    def heading_report(self) -> HeadingReport:
+        """What the heading checks did so far (replay's summary, the daemon's warning)."""
+        m = self._monitor
+        return HeadingReport(m.rejections, math.degrees(m.max_disagreement_rad), self.yaw_resets)
 
     @property
     def heading_state(self) -> HeadingState:
@@ -443,7 +466,7 @@ class Ins:
         if self._initialised:
             f = self._step(self._x, self._P, self._hist, self._par, sample.t_s,
                            g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], sflags, self._out,
-                           self._gsf, self._gsf_par)
+                           self._gsf_arr, self._gsf_par_arr)
             if not f & NEEDS_INIT:
                 if self._queue:
                     self._fuse_queued()
@@ -582,6 +605,7 @@ class Ins:
         m_body = x[core.X_MAG_LAST : core.X_MAG_LAST + 3] - self._iron.offset_ut
         mag_yaw = math.nan
         mag_var = math.inf
+        noise = 0.0
         if np.all(np.isfinite(m_body)):
             m_ned = c_bn @ m_body
             h = math.hypot(m_ned[0], m_ned[1])
@@ -602,16 +626,19 @@ class Ins:
                 gsf_yaw, gsf_var, gsf_valid = float(y), float(sg) ** 2, bool(valid)
         observable = yaw_var < p.heading_observable_sigma_rad ** 2
         d = self._monitor.check(t_s, yaw, yaw_var, mag_yaw, mag_var, gsf_yaw, gsf_var, gsf_valid, observable,
-                                float(x[core.X_NIS_V]))
+                                float(x[core.X_NIS_V]), mag_var - noise if math.isfinite(mag_var) else math.nan)
         if d.yaw_var_floor_rad2 > P[2, 2]:
             P[2, 2] = d.yaw_var_floor_rad2
+            self.heading_interventions += 1
             log.warning("ins: magnetometer disagrees with the GNSS-held heading by %.1f°: calibration wrong or "
                         "iron changed; magnetometer rejected", math.degrees(self._monitor.lowpassed_innovation_rad))
         if d.reset_yaw_to_rad is not None:
             self._reset_yaw(d.reset_yaw_to_rad - yaw, d.reset_yaw_var_rad2)
         self._par[core.P_MAG_USE] = 1.0 if d.mag_use else 0.0
+        trusted = d.mag_use and self._mag_var < self._monitor.trusted_sigma_rad ** 2
+        self._par[core.P_MAG_TILT] = 1.0 if p.mag_moves_tilt or (p.mag_trusted_moves_tilt and trusted) else 0.0
         if math.isfinite(mag_var):
-            self._mag_var = mag_var
+            self._mag_var = mag_var - noise      # the slowly varying part: what trust and the heading state use
             self._par[core.P_MAG_BIAS_VAR] = mag_var - noise   # the white part is the kernel's own noise
             learned = self._iron.updates > 0 or self._iron_restored
             self._par[core.P_MAG_BIAS_TAU] = p.mag_uncalibrated_tau_s if learned else p.mag_bias_tau
@@ -655,6 +682,7 @@ class Ins:
             P[:, i] = 0.0
             P[i, i] = var
         self.yaw_resets += 1
+        self.heading_interventions += 1
         self._pending_flags |= int(EstimateFlags.YAW_RESET)
         log.warning("ins: heading reset to the GNSS yaw by %.1f° (reset %d)", math.degrees(dyaw), self.yaw_resets)
 
@@ -790,6 +818,13 @@ class Ins:
 
     def _estimate_uninitialised(self, sample: ImuSample, extra: int) -> AttitudeEstimate:
         return uninitialised_estimate(sample.t_s, extra | self._pending_flags)
+
+
+def _one_record_array(record) -> np.recarray:
+    """A 1-element record array holding a copy of `record`."""
+    arr = np.zeros(1, dtype=record.dtype).view(np.recarray)
+    arr[0] = record
+    return arr
 
 
 def _accuracy(reported: float, default: float, floor: float) -> float:

@@ -531,7 +531,8 @@ def _mag_update(x, P, par, dt_epoch, rate):
 def ins_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, out, gsf, gsf_par):
     """One IMU sample: mechanise, accumulate the covariance increments, every P_COV_PERIOD propagate the
     covariance and run the levelling (when unaided) and magnetometer updates; feed the magnetometer-free GNSS
-    yaw bank (`gsf`, gsf_yaw.py: its own tilt and yaw, never this filter's heading) the bias-corrected sample;
+    yaw bank (`gsf`, `gsf_par`: 1-element record arrays of gsf_yaw.py's state and parameters — arrays unbox
+    far cheaper per call than records; its own tilt and yaw, never this filter's heading) the bias-corrected sample;
     fill `out`. Returns
     EstimateFlags bits (| NEEDS_INIT when the caller must initialise from this sample first)."""
     valid = input_validity(sample_flags, gx, gy, gz, ax, ay, az, mx, my, mz)
@@ -574,7 +575,7 @@ def ins_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_fl
     fy = 0.5 * (pay + x[X_ACC_LAST + 1]) - x[X_BA + 1]
     fz = 0.5 * (paz + x[X_ACC_LAST + 2]) - x[X_BA + 2]
     if par[P_GSF] > 0.0:
-        gsf_accumulate_imu(gsf, gsf_par, dt, np.array((mwx, mwy, mwz)), np.array((fx, fy, fz)))
+        gsf_accumulate_imu(gsf[0], gsf_par[0], dt, np.array((mwx, mwy, mwz)), np.array((fx, fy, fz)))
     q0 = x[X_Q]
     q1 = x[X_Q + 1]
     q2 = x[X_Q + 2]

@@ -216,15 +216,17 @@ class SmoothingIns(Ins):
         if end:
             self._block_t = t
 
-    def _recorded_step(self, x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sflags, out):
-        # the mechanisation alone (no covariance epoch) on a copy: its sums are those the epoch will use
+    def _recorded_step(self, x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sflags, out, gsf, gsf_par):
+        # the mechanisation alone (no covariance epoch, no GNSS-yaw bank) on a copy: its sums are those the
+        # epoch will use
         shadow_par = par.copy()
         shadow_par[core.P_COV_PERIOD] = math.inf
+        shadow_par[core.P_GSF] = 0.0
         xs = x.copy()
         self._live_step(xs, P, self._shadow_hist, shadow_par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sflags,
-                        self._shadow_out)
+                        self._shadow_out, gsf, gsf_par)
         np.copyto(self._p_before, P)
-        f = self._live_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sflags, out)
+        f = self._live_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sflags, out, gsf, gsf_par)
         if f & core.NEEDS_INIT:
             return f
         self._epoch(xs, self._p_before, float(x[core.X_T_LAST]), self._cut_here(x), False)
@@ -232,8 +234,10 @@ class SmoothingIns(Ins):
 
     def _fuse(self, fix) -> int:
         x_pre, p_before = self._x.copy(), self._P.copy()
+        interventions = self.heading_interventions
         res = super()._fuse(fix)
-        cut = bool(res & _CUT_RESULTS) or self._cut_here(self._x)
+        # a yaw reset or a raised yaw variance (heading monitor) is not a Kalman update: cut there too
+        cut = bool(res & _CUT_RESULTS) or self._cut_here(self._x) or self.heading_interventions != interventions
         self._epoch(x_pre, p_before, float(self._x[core.X_T_LAST]), cut, True)
         return res
 

@@ -456,7 +456,8 @@ def input_validity(sample_flags, gx, gy, gz, ax, ay, az, mx, my, mz):
         valid |= IN_GYRO_OK
     if not (sample_flags & ACC_BAD_BITS) and math.isfinite(ax + ay + az):
         valid |= IN_ACC_OK
-    if not (sample_flags & MAG_BAD_BITS) and math.isfinite(mx + my + mz):
+    # an all-zero field is no field (a magnetometer that stopped answering): it has no direction to use
+    if not (sample_flags & MAG_BAD_BITS) and math.isfinite(mx + my + mz) and mx * mx + my * my + mz * mz > 1e-12:
         valid |= IN_MAG_OK
     return valid
 

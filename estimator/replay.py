@@ -37,6 +37,10 @@ NAV_COLUMNS = (
     "vel_n_m_s", "vel_e_m_s", "vel_d_m_s",     # NED velocity of the IMU, m/s
     "lat_deg", "lon_deg", "alt_m",             # WGS-84 position of the IMU (alt above the ellipsoid)
 )
+HEADING_COLUMNS = (
+    "gsf_yaw_deg", "gsf_sigma_deg",            # the magnetometer-free GNSS yaw (true north) and its 1σ; NaN: none yet
+    "heading_state",                           # HeadingState as an integer (0 unknown, 1 magnetometer, 2 GNSS only, 3 learning)
+)
 CHUNK_ROWS = 16384   # rows per table yielded (memory stays constant for long recordings)
 _DEG = 180.0 / math.pi
 
@@ -50,7 +54,7 @@ def replay_attitude(estimator: Estimator, samples: Iterable[ImuSample], true_nor
     heading_mag) so they are relative to true north; otherwise they stay relative to magnetic north, as
     estimated. Rows before the estimator initialised have NaN quaternion and angles.
     fixes: GNSS fixes in time order, for an aided estimator (`update_gnss`), offered in time order with the
-    samples; the table then ends with NAV_COLUMNS.
+    samples; the table then ends with NAV_COLUMNS and HEADING_COLUMNS.
     """
     if fixes is not None and not hasattr(estimator, "update_gnss"):
         raise ValueError(f"estimator {getattr(estimator, 'name', estimator)!r} takes no GNSS fixes (not aided)")
@@ -62,6 +66,7 @@ def replay_attitude(estimator: Estimator, samples: Iterable[ImuSample], true_nor
     fix_iter = iter(fixes) if fixes is not None else None
     next_fix = next(fix_iter, None) if fix_iter is not None else None
     no_nav = (nan,) * len(NAV_COLUMNS)
+    no_gsf = (nan, nan)
     for sample in samples:
         while next_fix is not None and next_fix.t_s <= sample.t_s:
             estimator.update_gnss(next_fix)
@@ -79,6 +84,8 @@ def replay_attitude(estimator: Estimator, samples: Iterable[ImuSample], true_nor
         if fix_iter is not None:
             nav = est.nav
             row += no_nav if nav is None else (*nav.vel_ned_m_s.tolist(), nav.lat_deg, nav.lon_deg, nav.alt_m)
+            hi = est.integrity
+            row += (no_gsf if hi is None else (hi.gsf_yaw_rad * deg, hi.gsf_sigma_rad * deg)) + (int(est.heading_state),)
         append(row)
         if len(rows) >= chunk_rows:
             yield _finish_table(rows, true_north)

@@ -13,7 +13,7 @@ from ahrsd.cli.replay import AIDED_OUTPUT_HEADER, OUTPUT_HEADER
 from ahrsd.core.gnss import make_fix
 from ahrsd.core.sample import make_sample
 from ahrsd.estimator import make_estimator
-from ahrsd.estimator.replay import ATTITUDE_COLUMNS, NAV_COLUMNS, replay_attitude
+from ahrsd.estimator.replay import ATTITUDE_COLUMNS, HEADING_COLUMNS, NAV_COLUMNS, replay_attitude
 from test_gnss_daemon import FakeAided
 
 
@@ -36,13 +36,13 @@ def test_fixes_are_offered_in_time_order_and_nav_columns_follow():
     fixes = [make_fix(t, 47.0 + t * 1e-5, 8.0, 400.0 + t, [1.0, 0.0, 0.0]) for t in (0.105, 0.3, 0.555, 0.985, 0.9901)]
     est = RecordingOrder()
     table = np.vstack(list(replay_attitude(est, samples, fixes=fixes, chunk_rows=37)))
-    assert table.shape == (100, len(ATTITUDE_COLUMNS) + len(NAV_COLUMNS))
+    assert table.shape == (100, len(ATTITUDE_COLUMNS) + len(NAV_COLUMNS) + len(HEADING_COLUMNS))
     # expected: a fix goes in before the first sample not earlier than it (sorted, fixes first on a tie)
     # and one later than the last sample is never offered (no sample after it)
     want = sorted([("sample", s.t_s) for s in samples] + [("fix", f.t_s) for f in fixes if f.t_s <= 0.99],
                   key=lambda e: (e[1], e[0] != "fix"))
     assert est.events == want
-    nav = table[:, len(ATTITUDE_COLUMNS):]
+    nav = table[:, len(ATTITUDE_COLUMNS) : len(ATTITUDE_COLUMNS) + len(NAV_COLUMNS)]
     first_nav = int(np.searchsorted([s.t_s for s in samples], 0.105))   # the first sample after the first fix
     assert np.all(np.isnan(nav[:first_nav])) and np.all(np.isfinite(nav[first_nav:]))
     row = nav[-1]

@@ -1,0 +1,143 @@
+"""The aided filter's heading is honest (issue 28): a wrong or changed magnetometer calibration is caught, the
+published σ covers the heading error, the iron is learned, the yaw is reset to the GNSS yaw when needed.
+
+Truth is the simulator's (scipy rotations in bench.vehicle_accuracy); runs are short and shared (module scope)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from ahrsd.core.estimate import EstimateFlags, HeadingState
+from bench.vehicle_accuracy import (
+    IRON_STEP_UT,
+    honesty_figures,
+    run_ins_detailed,
+    simulate_vehicle,
+    tilt_heading_errors_deg,
+)
+
+SECONDS = 240.0
+
+
+@pytest.fixture(scope="module")
+def uncalibrated_boat():
+    return simulate_vehicle("boat", SECONDS, 2, None, mag="uncalibrated")
+
+
+@pytest.fixture(scope="module")
+def iron_step_boat():
+    return simulate_vehicle("boat", SECONDS, 3, None, mag="iron-step")
+
+
+@pytest.fixture(scope="module")
+def iron_step_out(iron_step_boat):
+    return run_ins_detailed(iron_step_boat)
+
+
+def test_heading_nees_under_a_wrong_calibration_is_not_overconfident(uncalibrated_boat):
+    """The boat's raw field (tens of µT of non-symmetric iron, no calibration): the heading NEES e²/σ² sampled
+    every 10 s after 30 s stays below the 99 % χ² bound of its mean, and ≤ 1 % of the samples are beyond 3σ.
+    The old filter (magnetometer trusted as calibrated, no monitor) says 0.4° while 30° off."""
+    run = uncalibrated_boat
+    n = len(run.t_s)
+    picks = np.searchsorted(run.t_s, np.arange(30.0, SECONDS, 10.0))
+    hi = chi2.ppf(0.99, len(picks)) / len(picks)
+
+    def mean_nees(out):
+        _, hdg = tilt_heading_errors_deg(out["q"], run.truth_q_wxyz, run.declination_rad)
+        e = np.radians(hdg[picks])
+        return float(np.mean(e ** 2 / out["sigma_yaw_rad"][picks] ** 2))
+
+    honest = run_ins_detailed(run)
+    assert mean_nees(honest) < hi, (mean_nees(honest), hi)
+    assert honesty_figures(run, honest, 30.0)["beyond_3sigma"] <= 0.01
+    states = set(np.unique(honest["heading_state"][run.t_s > 60.0]).tolist())
+    assert int(HeadingState.MAGNETOMETER) not in states, states     # never "heading good" from this magnetometer
+    trusting = run_ins_detailed(run, mag_calibration_sigma_rad=0.0, heading_monitor=False, gnss_yaw=False)
+    assert mean_nees(trusting) > 10.0 * hi
+    assert n == len(honest["q"])
+
+
+def test_an_iron_step_is_learned_without_a_published_step(iron_step_boat, iron_step_out):
+    """Calibrated boat; the hard iron moves by 9 µT half-way: the magnetometer is rejected, the iron learned (to
+    1.5 µT per axis), the magnetometer re-enters, and the heading is within 0.5° RMS from 60 s after the step
+    and none beyond 3σ. (The largest change of the published heading error within 0.1 s is reported by the
+    bench, docs/estimator.md: it misses the issue's 0.5° while σ is raised after the rejection.)"""
+    run, out = iron_step_boat, iron_step_out
+    t_step = 0.5 * SECONDS
+    offset, cov = out["ins"].learned_iron()
+    assert np.all(np.abs(offset - np.array(IRON_STEP_UT)) < 1.5), offset
+    assert np.all(np.sqrt(np.diag(cov)) < 2.0)
+    after = honesty_figures(run, out, t_step + 60.0)
+    assert after["heading_rms"] < 0.5 and after["beyond_3sigma"] == 0.0, after
+    state = out["heading_state"]
+    assert np.any(state[(run.t_s > t_step) & (run.t_s < t_step + 30.0)] != int(HeadingState.MAGNETOMETER))
+    assert state[-1] == int(HeadingState.MAGNETOMETER)
+
+
+def test_without_iron_learning_the_magnetometer_stays_out(iron_step_boat):
+    run = iron_step_boat
+    out = run_ins_detailed(run, iron_learning=False)
+    assert np.all(out["ins"].learned_iron()[0] == 0.0)
+    assert out["heading_state"][-1] != int(HeadingState.MAGNETOMETER)
+
+
+def test_sigma_is_raised_when_the_magnetometer_is_rejected(iron_step_boat, iron_step_out):
+    """Within 2 s of the iron step the published yaw σ is raised to at least 3× its value before (the estimate
+    has not moved yet: the heading error stays within 3σ throughout)."""
+    run, out = iron_step_boat, iron_step_out
+    t_step = 0.5 * SECONDS
+    before = out["sigma_yaw_rad"][(run.t_s > t_step - 5.0) & (run.t_s < t_step)].max()
+    after = out["sigma_yaw_rad"][(run.t_s > t_step) & (run.t_s < t_step + 2.0)].max()
+    assert after > 3.0 * before, (before, after)
+    assert np.any(out["flags"][run.t_s > t_step] & int(EstimateFlags.MAG_REJECTED))
+
+
+def test_learned_iron_api_round_trips_and_refuses_garbage():
+    from ahrsd.estimator.ins import Ins
+
+    ins = Ins()
+    ins.set_learned_iron([1.0, -2.0, 3.0], np.eye(3) * 4.0)
+    off, cov = ins.learned_iron()
+    assert np.allclose(off, [1.0, -2.0, 3.0]) and np.allclose(cov, np.eye(3) * 4.0)
+    with pytest.raises(ValueError):
+        ins.set_learned_iron([math.nan, 0.0, 0.0], np.eye(3))
+    with pytest.raises(ValueError):
+        ins.set_learned_iron([0.0, 0.0, 0.0], -np.eye(3))
+    ins.reset_learned_iron()
+    assert np.all(ins.learned_iron()[0] == 0.0)
+
+
+def test_an_aided_magnetometer_update_never_moves_the_horizon():
+    """After 60 s of the boat with GNSS (tilt–heading covariance far from zero), one magnetometer update with a
+    field turned by 10° rotates the attitude about down only; with mag_moves_tilt it leans the horizon."""
+    from scipy.spatial.transform import Rotation
+
+    from ahrsd.estimator import ins_core as core
+
+    run = simulate_vehicle("boat", 60.0, 4, None)
+    out = run_ins_detailed(run)
+    ins = out["ins"]
+    P = ins._P
+    assert abs(P[0, 2]) + abs(P[1, 2]) > 1e-3 * math.sqrt(P[0, 0] * P[2, 2])
+
+    def tilt_of_one_update(moves_tilt: bool) -> float:
+        x, P1, par = ins._x.copy(), ins._P.copy(), ins._par.copy()
+        par[core.P_MAG_TILT] = 1.0 if moves_tilt else 0.0
+        par[core.P_MAG_USE] = 1.0
+        m = x[core.X_MAG_LAST : core.X_MAG_LAST + 3]
+        x[core.X_MAG_LAST : core.X_MAG_LAST + 3] = Rotation.from_euler("z", 10.0, degrees=True).apply(m)
+        q0 = x[core.X_Q : core.X_Q + 4].copy()
+        x[core.X_MAG + 8] = 1.0   # the gate open (as after a new calibration): the update is applied
+        core._mag_update(x, P1, par, 0.01, 0.0)
+        d = (Rotation.from_quat(np.roll(x[core.X_Q : core.X_Q + 4], -1))
+             * Rotation.from_quat(np.roll(q0, -1)).inv()).as_rotvec()
+        assert abs(d[2]) > 1e-6      # the heading moved
+        return float(np.hypot(d[0], d[1]))
+
+    assert tilt_of_one_update(False) < 1e-12
+    assert tilt_of_one_update(True) > 1e-7

@@ -1,0 +1,46 @@
+"""`ahrsd replay --gnss` of a vehicle recorded without a magnetometer calibration (what a new user does first):
+the output carries the GNSS yaw, its σ and the heading state, and the summary names the heading states."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ahrsd.cli.replay import AIDED_OUTPUT_HEADER, HEADING_OUTPUT_COLUMNS
+from ahrsd.core.estimate import HeadingState
+
+
+def ahrsd(*args):
+    return subprocess.run([sys.executable, "-m", "ahrsd.cli", *args], capture_output=True, text=True, timeout=600)
+
+
+def test_an_uncalibrated_boat_replays_with_an_honest_heading(tmp_path):
+    from ahrsd.simulation import open_stream
+
+    rec = tmp_path / "boat.csv"
+    res = ahrsd("record", "--sim", "boat", "--seconds", "90", "-o", str(rec))
+    assert res.returncode == 0, res.stderr
+    out = tmp_path / "out.csv"
+    res = ahrsd("replay", str(rec), "--gnss", str(tmp_path / "boat.gnss.csv"), "-o", str(out))
+    assert res.returncode == 0, res.stderr
+    assert "heading state" in res.stderr and "unknown" in res.stderr, res.stderr
+    lines = out.read_text().splitlines()
+    assert lines[0] == AIDED_OUTPUT_HEADER and lines[0].endswith(",".join(HEADING_OUTPUT_COLUMNS))
+    cols = lines[0].split(",")
+    data = np.loadtxt(out, delimiter=",", skiprows=1)
+    t = data[:, 0]
+    late = t > 30.0
+    state = data[late, cols.index("heading_state")].astype(int)
+    # the recording's magnetometer is raw (vehicle iron, no calibration): never "magnetometer" as the reference
+    assert not np.any(state == int(HeadingState.MAGNETOMETER)), np.unique(state)
+    truth = open_stream("boat", errors="ideal").truth_at(t[late])
+    q = truth.q_wxyz
+    truth_yaw = Rotation.from_quat(np.column_stack([q[:, 1:], q[:, :1]])).as_euler("ZYX", degrees=True)[:, 0]
+    err = (data[late, cols.index("yaw_deg")] - truth_yaw + 180.0) % 360.0 - 180.0
+    sigma = data[late, cols.index("sigma_yaw_deg")]
+    assert np.mean(np.abs(err) <= 3.0 * sigma) >= 0.99, (np.sqrt(np.mean(err ** 2)), np.median(sigma))
+    gsf_sigma = data[late, cols.index("gsf_sigma_deg")]
+    assert np.any(np.isfinite(gsf_sigma))
