@@ -196,6 +196,7 @@ def gsf_state_dtype(n_models: int = 5) -> np.dtype:
         ("prev_fix_t_s", np.float64),
         ("prev_fix_vel_ned_m_s", np.float64, (3,)),
         ("prev_fix_has_down", np.bool_),
+        ("prev_fix_arm_x_m_s", np.float64),
         ("last_fused_t_s", np.float64),
         ("speed_m_s", np.float64),                     # GNSS speed (3-D when the fix has a down velocity)
         ("speed_rate_m_s2", np.float64),               # its low-passed rate of change
@@ -537,16 +538,19 @@ def _update_validity(state, params):
 # ----------------------------------------------------------------------------------------- fusion
 @njit(cache=True)
 def _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down):
-    """From successive fixes: the speed and its low-passed rate (the tilt AHRS's kinematic acceleration) and the
-    low-passed horizontal acceleration that detects manoeuvres."""
+    """From successive fixes: the IMU's speed and its low-passed rate (the tilt AHRS's kinematic acceleration)
+    and the low-passed horizontal acceleration that detects manoeuvres."""
+    # the antenna's speed less its lever-arm velocity along body x (where the no-sideslip model puts the velocity)
+    w = state.rate_rad_s
+    arm_x = w[1] * params.lever_arm_m[2] - w[2] * params.lever_arm_m[1]
     if state.have_prev_fix:
         dt = t_s - state.prev_fix_t_s
         if dt <= 0.0:
             return
         pv = state.prev_fix_vel_ned_m_s
         down = has_down and state.prev_fix_has_down
-        speed = math.sqrt(vn * vn + ve * ve + (vd * vd if down else 0.0))
-        speed0 = math.sqrt(pv[0] * pv[0] + pv[1] * pv[1] + (pv[2] * pv[2] if down else 0.0))
+        speed = math.sqrt(vn * vn + ve * ve + (vd * vd if down else 0.0)) - arm_x
+        speed0 = math.sqrt(pv[0] * pv[0] + pv[1] * pv[1] + (pv[2] * pv[2] if down else 0.0)) - state.prev_fix_arm_x_m_s
         md = state.manoeuvre_accel_ne_m_s2
         if dt <= 1.0:
             a = min(1.0, dt / params.speed_rate_tau_s)
@@ -565,7 +569,8 @@ def _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down):
             md[0] = 0.0
             md[1] = 0.0
             state.manoeuvre_run_s = 0.0
-    state.speed_m_s = math.sqrt(vn * vn + ve * ve + (vd * vd if has_down else 0.0))
+    state.speed_m_s = math.sqrt(vn * vn + ve * ve + (vd * vd if has_down else 0.0)) - arm_x
+    state.prev_fix_arm_x_m_s = arm_x
     state.have_prev_fix = True
     state.prev_fix_t_s = t_s
     state.prev_fix_vel_ned_m_s[0] = vn
