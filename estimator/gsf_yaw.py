@@ -367,15 +367,23 @@ def gsf_reset(state, params, t_s, tilt_q_wxyz):
 @njit(cache=True)
 def gsf_accumulate_imu(state, params, dt_s, gyro_rad_s, accel_m_s2):
     """Add one IMU sample (bias-corrected gyro rad/s and specific force m/s², body FRD, held over `dt_s`); the
-    bank predicts once `predict_interval_s` has accumulated. Non-finite or non-positive input is skipped."""
+    bank predicts once `predict_interval_s` has accumulated. Non-finite or non-positive input is skipped; a step
+    over 0.1 s moves the clock without integrating."""
+    gsf_accumulate_imu_xyz(state, params, dt_s, gyro_rad_s[0], gyro_rad_s[1], gyro_rad_s[2],
+                           accel_m_s2[0], accel_m_s2[1], accel_m_s2[2])
+
+
+@njit(cache=True)
+def gsf_accumulate_imu_xyz(state, params, dt_s, gx_rad_s, gy_rad_s, gz_rad_s, ax_m_s2, ay_m_s2, az_m_s2):
+    """`gsf_accumulate_imu` with the components as scalars: no array to build per sample in a compiled caller."""
     if not dt_s > 0.0:
         return
     if dt_s > 0.1:
         # a gap in the samples: the clock moves on, the gap is not integrated
         state.t_s += dt_s
         return
-    gx, gy, gz = gyro_rad_s[0] * dt_s, gyro_rad_s[1] * dt_s, gyro_rad_s[2] * dt_s
-    ax, ay, az = accel_m_s2[0] * dt_s, accel_m_s2[1] * dt_s, accel_m_s2[2] * dt_s
+    gx, gy, gz = gx_rad_s * dt_s, gy_rad_s * dt_s, gz_rad_s * dt_s
+    ax, ay, az = ax_m_s2 * dt_s, ay_m_s2 * dt_s, az_m_s2 * dt_s
     if not (math.isfinite(gx + gy + gz) and math.isfinite(ax + ay + az)):
         return
     th = state.acc_dtheta_rad
@@ -831,6 +839,7 @@ def _feed(state, params, t_s, gyro, accel):
 
 
 __all__ = ["GsfParams", "DEFAULT_GSF_PARAMS", "GSF_PARAMS_DTYPE", "GSF_STATE_DTYPE", "gsf_state_dtype",
-           "MODEL_STATE_NAMES", "new_gsf_state", "gsf_reset", "gsf_accumulate_imu", "gsf_fuse_velocity",
+           "MODEL_STATE_NAMES", "new_gsf_state", "gsf_reset", "gsf_accumulate_imu", "gsf_accumulate_imu_xyz",
+           "gsf_fuse_velocity",
            "gsf_output", "GsfYaw", "FUSED", "SEEDED", "REJECTED_CLIPPED", "REJECTED_TOO_OLD",
            "REJECTED_BAD_INPUT", "WAITING_FOR_TILT"]
