@@ -10,17 +10,23 @@ The bank: `n_models` (default 5) models, model i started at yaw −180° + 360°
 the spacing. Each model has
 
 * its own tilt AHRS: a body→NED rotation matrix propagated with the summed gyro increments and pulled towards
-  the measured vertical by a complementary gain, where the measured vertical is the specific force **minus the
-  vehicle's kinematic acceleration** (low-passed from successive GNSS velocities) rotated into the body with the
-  model's own attitude: f − Cᵀa = −Cᵀg. This keeps the tilt right in coordinated turns and accelerations; the
-  correction is yaw-dependent, which is right per model (a model with the wrong yaw also gets the wrong tilt,
-  so its velocity prediction is wrong too, and its weight falls);
+  the measured vertical by a complementary gain (AP/PX4: 0.2 /s), where the measured vertical is the specific
+  force **minus the body's kinematic acceleration** with the velocity along body x: a = (V̇, ω_z V, −ω_y V), V the
+  GNSS speed (less the antenna's lever-arm velocity). This is ArduPilot's TAS term (0, r·TAS, −q·TAS) with the
+  GNSS speed for the TAS and V̇ added, so the tilt stays right in coordinated turns, braking and climbs. It does
+  not depend on the model's yaw, on purpose: subtracting the GNSS NED acceleration rotated into the body with
+  each model's own attitude lets every model tilt its yaw error away on the AHRS time constant (a wrong yaw's
+  misdirected acceleration becomes a tilt, and the model predicts the GNSS velocity as well as the right one),
+  so a bank started in a steady turn settled confidently wrong (15° off at σ 2°: docs/estimator.md). The price
+  is the no-sideslip assumption: a slip angle β (tyres, a boat's leeway and current, wind drift) leaves ω·V·β
+  forward and V̇·β sideways, which the bias states below absorb and `sideslip_sigma_rad` keeps in their variance;
 * a 5-state EKF x = [v_N, v_E, ψ, b_f, b_r] (`MODEL_STATE_NAMES`): horizontal velocity (m/s), yaw (rad) and a
   horizontal specific-force bias in the level heading frame (front, right; m/s²). The velocity is predicted
   with the AHRS's horizontal velocity increment, v ← v + Rz(ψ)(Δv_h − b Δt). The bias states are the
   steady-turn fix (anchor §7): in a steady turn the body-frame acceleration is constant, so a yaw error δψ is
-  indistinguishable from a forward bias δψ·a_lat; with the bias states the filter keeps σψ ≈ σ_b / a_lat there
-  instead of collapsing, and only a change of turn rate or speed, or turns both ways, separate them.
+  indistinguishable from a forward specific-force error δψ·a_lat (an accelerometer bias, or the slip above);
+  with the bias states the filter keeps σψ ≈ σ_b / a_lat there instead of collapsing, and only a change of turn
+  rate or speed, or turns both ways, separate them.
 
 The Gaussian sum: after each fused fix, w_i ← w_i · N(ν_i; 0, S_i), normalised (log domain), floored at
 `weight_floor`; composite yaw = atan2(Σ w sin ψ, Σ w cos ψ), composite variance = Σ w (P_ψψ + wrap(ψ_i − ψ̄)²).
@@ -36,9 +42,10 @@ Validity (`state.valid`), re-evaluated at every prediction step: all of
   1. composite σ < `sigma_valid_max_rad` (AP/PX4: 15°);
   2. ≥ `valid_fixes_required` consecutive fused fixes whose σ and weighted velocity innovation
      (< `max_vel_innov_m_s`, AP 2 m/s) passed (AP: 5), and ≥ `min_active_s` since the bank (re)started (PX4 10 s);
-  3. a manoeuvre seen recently: the low-passed horizontal kinematic acceleration stayed above
-     `manoeuvre_accel_m_s2` for `manoeuvre_min_s`, and that ended at most `stale_after_s` ago. This is what ages
-     the validity on straight constant-speed legs, where the GNSS says nothing about yaw;
+  3. a manoeuvre seen recently: the horizontal acceleration from differenced GNSS velocities, low-passed over
+     `manoeuvre_tau_s`, stayed above `manoeuvre_accel_m_s2` for `manoeuvre_min_s`, and that ended at most
+     `stale_after_s` ago. This is what ages the validity on straight constant-speed legs, where the GNSS says
+     nothing about yaw (σ itself grows only with the gyro's residual errors there);
   4. a fix fused within `max_fix_gap_s` (no stale validity after a GNSS loss: AP #15651).
 
 Resets (`gsf_reset`): at start, on request, and when `reset_after_rejected_fixes` consecutive fixes were
@@ -48,8 +55,9 @@ than `max_fix_gap_s` the velocities are re-seeded from the next fix (yaws and we
 count restarts.
 
 Units: SI, angles rad, body FRD, NED; the gyro and accelerometer given to it are bias-corrected (the `ins`
-supplies its estimates). The state and the parameters are numpy structured records (numba Records): named
-fields, no index tables; `P[i]` is model i's 5×5 covariance in the order `MODEL_STATE_NAMES`.
+supplies its estimates); the bank does not learn a gyro bias itself. It assumes forward motion (a reversing
+vehicle turns the no-sideslip term's sign). The state and the parameters are numpy structured records (numba
+Records): named fields, no index tables; `P[i]` is model i's 5×5 covariance in the order `MODEL_STATE_NAMES`.
 """
 
 from __future__ import annotations
