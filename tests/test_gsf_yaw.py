@@ -216,3 +216,19 @@ def test_bad_input_is_rejected_and_counted_not_fused():
     assert after.n_rejected == before.n_rejected + 2
     for field in ("weight", "yaw_rad", "vel_ne_m_s", "P", "dcm"):
         assert np.array_equal(after[field], before[field]), field
+
+
+def test_a_gnss_outage_ends_validity_and_the_return_re_seeds_without_a_jump():
+    """No fixes for 20 s from 80 s (the car keeps manoeuvring): not valid from `max_fix_gap_s` after the last fix
+    (no stale validity: ArduPilot #15651); the first fix back re-seeds the velocities, the persistence window
+    restarts, and the yaw, which the gyro carried through the gap, is valid again within 3 s and inside 3σ."""
+    sim = vehicle_sim("car")
+    p = GsfParams()
+    t0, t1 = 80.0, 100.0
+    tr = run_gsf(sim, fixes=[f for f in sim.fixes if not t0 <= f.t_s < t1])
+    last_rx = max(f.extra["t_rx_s"] for f in sim.fixes if f.t_s < t0)
+    assert not tr.valid[(tr.t_s > last_rx + p.max_fix_gap_s + 0.25) & (tr.t_s < t1)].any()
+    assert tr.valid[(tr.t_s > t1 + 3.0)].all()
+    v = tr.valid
+    assert np.all(np.abs(tr.err_deg[v]) <= 3.0 * tr.sigma_deg[v])
+    assert np.abs(tr.err_deg[(tr.t_s > t0) & (tr.t_s < t1 + 5.0)]).max() <= 3.0
