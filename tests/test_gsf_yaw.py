@@ -232,3 +232,24 @@ def test_a_gnss_outage_ends_validity_and_the_return_re_seeds_without_a_jump():
     v = tr.valid
     assert np.all(np.abs(tr.err_deg[v]) <= 3.0 * tr.sigma_deg[v])
     assert np.abs(tr.err_deg[(tr.t_s > t0) & (tr.t_s < t1 + 5.0)]).max() <= 3.0
+
+
+def test_imu_samples_one_by_one_and_in_arrays_give_the_same_bank():
+    """`GsfYaw.update_imu(ImuSample)` (as replay feeds it) and `update_imu(t, gyro, accel)` arrays are one path."""
+    from ahrsd.core.sample import make_sample
+    from ahrsd.estimator.gsf_yaw import GsfYaw
+
+    sim = vehicle_sim("car")
+    n = int(15.0 * 200.0)
+    a, b = GsfYaw(), GsfYaw()
+    fi = 0
+    for k in range(n):
+        while fi < len(sim.fixes) and sim.fixes[fi].extra["t_rx_s"] <= sim.t_s[k]:
+            a.update_gnss(sim.fixes[fi])
+            b.update_gnss(sim.fixes[fi])
+            fi += 1
+        a.update_imu(make_sample(sim.t_s[k], sim.gyro_rad_s[k], sim.accel_m_s2[k], [20.0, 0.0, 40.0]))
+        b.update_imu(sim.t_s[k:k + 1], sim.gyro_rad_s[k:k + 1], sim.accel_m_s2[k:k + 1])
+    assert a.state.n_fused > 50
+    assert a.output == b.output
+    assert np.array_equal(a.state["P"], b.state["P"])
