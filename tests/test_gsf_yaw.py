@@ -253,3 +253,13 @@ def test_imu_samples_one_by_one_and_in_arrays_give_the_same_bank():
     assert a.state.n_fused > 50
     assert a.output == b.output
     assert np.array_equal(a.state["P"], b.state["P"])
+
+
+def test_a_vehicle_standing_still_is_never_valid():
+    """A car parked for 90 s: the GNSS velocity is noise (ArduPilot #15813: a GSF converging on it reset a
+    vehicle's yaw wrongly). No manoeuvre is seen, so it is never valid, and its σ — the hypotheses' spread —
+    says it does not know."""
+    tr = run_gsf(simulate(CarOnLegs(heading0_deg=START_HEADING_DEG, legs=(Leg(90.0),), speed0_m_s=0.0), 90.0,
+                          seed=8))
+    assert not tr.valid.any()
+    assert tr.sigma_deg[tr.t_s > 10.0].min() > 60.0      # the hypotheses stay spread over the circle
