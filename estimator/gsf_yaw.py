@@ -10,17 +10,23 @@ The bank: `n_models` (default 5) models, model i started at yaw −180° + 360°
 the spacing. Each model has
 
 * its own tilt AHRS: a body→NED rotation matrix propagated with the summed gyro increments and pulled towards
-  the measured vertical by a complementary gain, where the measured vertical is the specific force **minus the
-  vehicle's kinematic acceleration** (low-passed from successive GNSS velocities) rotated into the body with the
-  model's own attitude: f − Cᵀa = −Cᵀg. This keeps the tilt right in coordinated turns and accelerations; the
-  correction is yaw-dependent, which is right per model (a model with the wrong yaw also gets the wrong tilt,
-  so its velocity prediction is wrong too, and its weight falls);
+  the measured vertical by a complementary gain (AP/PX4: 0.2 /s), where the measured vertical is the specific
+  force **minus the body's kinematic acceleration** with the velocity along body x: a = (V̇, ω_z V, −ω_y V), V the
+  GNSS speed (less the antenna's lever-arm velocity). This is ArduPilot's TAS term (0, r·TAS, −q·TAS) with the
+  GNSS speed for the TAS and V̇ added, so the tilt stays right in coordinated turns, braking and climbs. It does
+  not depend on the model's yaw, on purpose: subtracting the GNSS NED acceleration rotated into the body with
+  each model's own attitude lets every model tilt its yaw error away on the AHRS time constant (a wrong yaw's
+  misdirected acceleration becomes a tilt, and the model predicts the GNSS velocity as well as the right one),
+  so a bank started in a steady turn settled confidently wrong (15° off at σ 2°: docs/estimator.md). The price
+  is the no-sideslip assumption: a slip angle β (tyres, a boat's leeway and current, wind drift) leaves ω·V·β
+  forward and V̇·β sideways, which the bias states below absorb and `sideslip_sigma_rad` keeps in their variance;
 * a 5-state EKF x = [v_N, v_E, ψ, b_f, b_r] (`MODEL_STATE_NAMES`): horizontal velocity (m/s), yaw (rad) and a
   horizontal specific-force bias in the level heading frame (front, right; m/s²). The velocity is predicted
   with the AHRS's horizontal velocity increment, v ← v + Rz(ψ)(Δv_h − b Δt). The bias states are the
   steady-turn fix (anchor §7): in a steady turn the body-frame acceleration is constant, so a yaw error δψ is
-  indistinguishable from a forward bias δψ·a_lat; with the bias states the filter keeps σψ ≈ σ_b / a_lat there
-  instead of collapsing, and only a change of turn rate or speed, or turns both ways, separate them.
+  indistinguishable from a forward specific-force error δψ·a_lat (an accelerometer bias, or the slip above);
+  with the bias states the filter keeps σψ ≈ σ_b / a_lat there instead of collapsing, and only a change of turn
+  rate or speed, or turns both ways, separate them.
 
 The Gaussian sum: after each fused fix, w_i ← w_i · N(ν_i; 0, S_i), normalised (log domain), floored at
 `weight_floor`; composite yaw = atan2(Σ w sin ψ, Σ w cos ψ), composite variance = Σ w (P_ψψ + wrap(ψ_i − ψ̄)²).
@@ -36,9 +42,10 @@ Validity (`state.valid`), re-evaluated at every prediction step: all of
   1. composite σ < `sigma_valid_max_rad` (AP/PX4: 15°);
   2. ≥ `valid_fixes_required` consecutive fused fixes whose σ and weighted velocity innovation
      (< `max_vel_innov_m_s`, AP 2 m/s) passed (AP: 5), and ≥ `min_active_s` since the bank (re)started (PX4 10 s);
-  3. a manoeuvre seen recently: the low-passed horizontal kinematic acceleration stayed above
-     `manoeuvre_accel_m_s2` for `manoeuvre_min_s`, and that ended at most `stale_after_s` ago. This is what ages
-     the validity on straight constant-speed legs, where the GNSS says nothing about yaw;
+  3. a manoeuvre seen recently: the horizontal acceleration from differenced GNSS velocities, low-passed over
+     `manoeuvre_tau_s`, stayed above `manoeuvre_accel_m_s2` for `manoeuvre_min_s`, and that ended at most
+     `stale_after_s` ago. This is what ages the validity on straight constant-speed legs, where the GNSS says
+     nothing about yaw (σ itself grows only with the gyro's residual errors there);
   4. a fix fused within `max_fix_gap_s` (no stale validity after a GNSS loss: AP #15651).
 
 Resets (`gsf_reset`): at start, on request, and when `reset_after_rejected_fixes` consecutive fixes were
@@ -48,8 +55,9 @@ than `max_fix_gap_s` the velocities are re-seeded from the next fix (yaws and we
 count restarts.
 
 Units: SI, angles rad, body FRD, NED; the gyro and accelerometer given to it are bias-corrected (the `ins`
-supplies its estimates). The state and the parameters are numpy structured records (numba Records): named
-fields, no index tables; `P[i]` is model i's 5×5 covariance in the order `MODEL_STATE_NAMES`.
+supplies its estimates); the bank does not learn a gyro bias itself. It assumes forward motion (a reversing
+vehicle turns the no-sideslip term's sign). The state and the parameters are numpy structured records (numba
+Records): named fields, no index tables; `P[i]` is model i's 5×5 covariance in the order `MODEL_STATE_NAMES`.
 """
 
 from __future__ import annotations
@@ -196,6 +204,7 @@ def gsf_state_dtype(n_models: int = 5) -> np.dtype:
         ("prev_fix_t_s", np.float64),
         ("prev_fix_vel_ned_m_s", np.float64, (3,)),
         ("prev_fix_has_down", np.bool_),
+        ("prev_fix_arm_x_m_s", np.float64),
         ("last_fused_t_s", np.float64),
         ("speed_m_s", np.float64),                     # GNSS speed (3-D when the fix has a down velocity)
         ("speed_rate_m_s2", np.float64),               # its low-passed rate of change
@@ -366,15 +375,23 @@ def gsf_reset(state, params, t_s, tilt_q_wxyz):
 @njit(cache=True)
 def gsf_accumulate_imu(state, params, dt_s, gyro_rad_s, accel_m_s2):
     """Add one IMU sample (bias-corrected gyro rad/s and specific force m/s², body FRD, held over `dt_s`); the
-    bank predicts once `predict_interval_s` has accumulated. Non-finite or non-positive input is skipped."""
+    bank predicts once `predict_interval_s` has accumulated. Non-finite or non-positive input is skipped; a step
+    over 0.1 s moves the clock without integrating."""
+    gsf_accumulate_imu_xyz(state, params, dt_s, gyro_rad_s[0], gyro_rad_s[1], gyro_rad_s[2],
+                           accel_m_s2[0], accel_m_s2[1], accel_m_s2[2])
+
+
+@njit(cache=True)
+def gsf_accumulate_imu_xyz(state, params, dt_s, gx_rad_s, gy_rad_s, gz_rad_s, ax_m_s2, ay_m_s2, az_m_s2):
+    """`gsf_accumulate_imu` with the components as scalars: no array to build per sample in a compiled caller."""
     if not dt_s > 0.0:
         return
     if dt_s > 0.1:
         # a gap in the samples: the clock moves on, the gap is not integrated
         state.t_s += dt_s
         return
-    gx, gy, gz = gyro_rad_s[0] * dt_s, gyro_rad_s[1] * dt_s, gyro_rad_s[2] * dt_s
-    ax, ay, az = accel_m_s2[0] * dt_s, accel_m_s2[1] * dt_s, accel_m_s2[2] * dt_s
+    gx, gy, gz = gx_rad_s * dt_s, gy_rad_s * dt_s, gz_rad_s * dt_s
+    ax, ay, az = ax_m_s2 * dt_s, ay_m_s2 * dt_s, az_m_s2 * dt_s
     if not (math.isfinite(gx + gy + gz) and math.isfinite(ax + ay + az)):
         return
     th = state.acc_dtheta_rad
@@ -537,16 +554,19 @@ def _update_validity(state, params):
 # ----------------------------------------------------------------------------------------- fusion
 @njit(cache=True)
 def _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down):
-    """From successive fixes: the speed and its low-passed rate (the tilt AHRS's kinematic acceleration) and the
-    low-passed horizontal acceleration that detects manoeuvres."""
+    """From successive fixes: the IMU's speed and its low-passed rate (the tilt AHRS's kinematic acceleration)
+    and the low-passed horizontal acceleration that detects manoeuvres."""
+    # the antenna's speed less its lever-arm velocity along body x (where the no-sideslip model puts the velocity)
+    w = state.rate_rad_s
+    arm_x = w[1] * params.lever_arm_m[2] - w[2] * params.lever_arm_m[1]
     if state.have_prev_fix:
         dt = t_s - state.prev_fix_t_s
         if dt <= 0.0:
             return
         pv = state.prev_fix_vel_ned_m_s
         down = has_down and state.prev_fix_has_down
-        speed = math.sqrt(vn * vn + ve * ve + (vd * vd if down else 0.0))
-        speed0 = math.sqrt(pv[0] * pv[0] + pv[1] * pv[1] + (pv[2] * pv[2] if down else 0.0))
+        speed = math.sqrt(vn * vn + ve * ve + (vd * vd if down else 0.0)) - arm_x
+        speed0 = math.sqrt(pv[0] * pv[0] + pv[1] * pv[1] + (pv[2] * pv[2] if down else 0.0)) - state.prev_fix_arm_x_m_s
         md = state.manoeuvre_accel_ne_m_s2
         if dt <= 1.0:
             a = min(1.0, dt / params.speed_rate_tau_s)
@@ -565,7 +585,8 @@ def _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down):
             md[0] = 0.0
             md[1] = 0.0
             state.manoeuvre_run_s = 0.0
-    state.speed_m_s = math.sqrt(vn * vn + ve * ve + (vd * vd if has_down else 0.0))
+    state.speed_m_s = math.sqrt(vn * vn + ve * ve + (vd * vd if has_down else 0.0)) - arm_x
+    state.prev_fix_arm_x_m_s = arm_x
     state.have_prev_fix = True
     state.prev_fix_t_s = t_s
     state.prev_fix_vel_ned_m_s[0] = vn
@@ -826,6 +847,7 @@ def _feed(state, params, t_s, gyro, accel):
 
 
 __all__ = ["GsfParams", "DEFAULT_GSF_PARAMS", "GSF_PARAMS_DTYPE", "GSF_STATE_DTYPE", "gsf_state_dtype",
-           "MODEL_STATE_NAMES", "new_gsf_state", "gsf_reset", "gsf_accumulate_imu", "gsf_fuse_velocity",
+           "MODEL_STATE_NAMES", "new_gsf_state", "gsf_reset", "gsf_accumulate_imu", "gsf_accumulate_imu_xyz",
+           "gsf_fuse_velocity",
            "gsf_output", "GsfYaw", "FUSED", "SEEDED", "REJECTED_CLIPPED", "REJECTED_TOO_OLD",
            "REJECTED_BAD_INPUT", "WAITING_FOR_TILT"]
