@@ -41,12 +41,19 @@ def daemon(tmp_path_factory):
 
 
 def test_outputs_arrive_at_their_default_rates(daemon):
-    got = daemon.collect(6.0)
+    """The exact default rates are checked on a stepped clock (test_default_output_rates.py); here, in real
+    time, every default output arrives, never faster than its rate, and at least at half of it: bounds that
+    hold on a loaded machine (the daemon and this reader starved in turns), yet fail for an output that is
+    missing, sent per sample or throttled to a fraction of its rate."""
+    window_s = 6.0
+    got = daemon.collect(window_s)
     expected = {"ATTITUDE": 50.0, "ATTITUDE_QUATERNION": 10.0, "VISION_POSITION_ESTIMATE": 30.0,
                 "HIGHRES_IMU": 10.0, "SYS_STATUS": 1.0, "HEARTBEAT": 1.0}
     for name, hz in expected.items():
         assert name in got, f"no {name} in {sorted(got)}"
-        assert rate_hz(got[name]) == pytest.approx(hz, rel=0.10), name
+        n = len(got[name])
+        # a late reader can receive, inside the window, what was queued in the socket before it opened
+        assert 0.5 * hz * window_s - 1 <= n <= 1.1 * hz * window_s + 2, (name, n)
     assert "SCALED_IMU" not in got   # off by default
 
 
