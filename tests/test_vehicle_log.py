@@ -96,7 +96,7 @@ def run_daemon(tmp_path, seconds: float, log_cfg: LogConfig, min_samples: int = 
         loop.add_reader(gcs.fileno(), on_gcs_readable)
         gs = loop.create_task(ground_station())
         async def stop_when_enough():
-            t_end, t_give_up = time.monotonic() + seconds, time.monotonic() + seconds + 120.0
+            t_end, t_give_up = time.monotonic() + seconds, time.monotonic() + seconds + 600.0
             while time.monotonic() < t_give_up and (time.monotonic() < t_end or len(tap.samples) < min_samples):
                 await asyncio.sleep(0.1)
             service.request_stop(0)
