@@ -299,7 +299,8 @@ class ReplayBus:
 
 
 @settings(derandomize=True, max_examples=300, deadline=None)
-@given(st.lists(st.binary(min_size=0, max_size=30), min_size=1, max_size=4))
+@given(st.lists(st.one_of(st.binary(min_size=0, max_size=30), st.binary(min_size=26, max_size=26)),  # 26: a burst
+                min_size=1, max_size=4))
 def test_random_bus_answers_never_crash_the_driver(answers):
     """Random bytes (almost never a frame that passes the ND/EA and supply checks) give a DriverError or a sample,
     never another exception; what an accepted frame must decode to is tested on well-formed frames below."""
