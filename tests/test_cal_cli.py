@@ -260,7 +260,7 @@ def test_live_align_to_faces_asks_for_each_face_twice(tmp_path):
     assert "position 1/14" in plain.stderr and "half round" not in plain.stderr
 
 
-def test_live_align_to_faces_end_to_end_on_a_tilted_bench(tmp_path):
+def test_live_align_to_faces_end_to_end_on_a_tilted_bench(tmp_path, ahrsd_inproc):
     """The whole live workflow on the simulated chip (SPI bytes): `accel-positions` walks the 20 positions on a
     surface 0.2° off level. Each face's pair cancels the tilt, the faces agree, and the calibration maps the
     chip's raw specific force along each housing axis onto that axis: within 0.07° with the alignment (most of
@@ -277,8 +277,10 @@ def test_live_align_to_faces_end_to_end_on_a_tilted_bench(tmp_path):
     from ahrsd.simulation import open_stream
 
     errors = open_stream("accel-positions", seed=0).errors      # the chip's: SimulatedAdis16405's default seed
-    out = json.loads(ahrsd("accel", "--live", "--sim", "accel-positions", "--timeout-s", "400", "--dry-run",
-                           "--json", "--state-dir", tmp_path / "st", "--align-to-faces", check_rc=0).stdout)
+    # in this process: four minutes of simulated SPI take minutes of CPU on a loaded machine, and no
+    # subprocess time limit should judge that
+    out = json.loads(ahrsd_inproc("accel", "--live", "--sim", "accel-positions", "--timeout-s", "400", "--dry-run",
+                                  "--json", "--state-dir", tmp_path / "st", "--align-to-faces", check_rc=0).stdout)
     align = out["quality"]["face_alignment"]
     assert align["face_residual_rms_deg"] < 0.06, align       # 0.2° of surface tilt, cancelled by the pairs
     applied = Rotation.from_rotvec(np.radians(align["rotation_vector_deg"]))
