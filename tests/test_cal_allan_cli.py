@@ -60,13 +60,28 @@ def test_json_keys_old_and_new(static_gz, tmp_path, capsys):
     assert json.loads((tmp_path / "noise.json").read_text())["format"] == "ahrsd-noise"
 
 
-def test_report_and_plot(static_gz, tmp_path, capsys):
+def test_report_and_plot(static_gz, tmp_path, capsys, monkeypatch):
+    """The plot's Allan deviation curves are white noise's N/√τ (the densities the recording was made with), for
+    τ ≤ 10 s of the 20 min, within IEEE Std 952's 3σ."""
     pytest.importorskip("matplotlib")
+    from support.figures import line, saved_figures
+
     png = tmp_path / "allan.png"
-    rc, out, err = run(capsys, static_gz, "--state-dir", tmp_path, "--dry-run", "--plot", png)
+    with saved_figures(monkeypatch) as figs:
+        rc, out, err = run(capsys, static_gz, "--state-dir", tmp_path, "--dry-run", "--plot", png)
     assert rc == 0, err
     assert "ARW 5.8" in out and "not seen" in out and "not saved (--dry-run)" in out
-    assert png.read_bytes()[:4] == b"\x89PNG"
+    assert png.read_bytes()[:4] == b"\x89PNG" and len(figs) == 1
+    density = {"gyro": ARW, "accel": 0.2 / 60.0, "mag": 0.125 / math.sqrt(50.0)}     # per √s, as generated
+    panels = {ax.get_title(): ax for ax in figs[0].axes}
+    for sensor, n in density.items():
+        for axis in "xyz":
+            curve = line(panels[f"{sensor} {axis}"], "Allan deviation")
+            short = curve[curve[:, 0] <= 10.0]
+            assert len(short) >= 5, curve[:, 0]
+            # IEEE Std 952 (C.2): a σ read at τ from T seconds is known to 1/√(2(T/τ − 1)); 3 of those
+            tol = 3.0 / np.sqrt(2.0 * (1200.0 / short[:, 0] - 1.0))
+            assert np.all(np.abs(short[:, 1] / (n / np.sqrt(short[:, 0])) - 1) < tol), (sensor, axis)
     assert not (tmp_path / "noise.json").exists()
 
 
