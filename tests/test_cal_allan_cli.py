@@ -61,10 +61,11 @@ def test_json_keys_old_and_new(static_gz, tmp_path, capsys):
 
 
 def test_report_and_plot(static_gz, tmp_path, capsys, monkeypatch):
-    """The plot's Allan deviation curves are white noise's N/√τ (the densities the recording was made with), for
-    τ ≤ 10 s of the 20 min, within IEEE Std 952's 3σ."""
+    """The plot's Allan deviation curves are the recording's overlapping Allan deviation (from its definition) and
+    white noise's N/√τ (the densities the recording was made with) for τ ≤ 10 s, within IEEE Std 952's 3σ."""
     pytest.importorskip("matplotlib")
-    from support.figures import line, saved_figures
+    from ahrsd.drivers.recording import read_recording
+    from support.figures import line, overlapping_adev, saved_figures
 
     png = tmp_path / "allan.png"
     with saved_figures(monkeypatch) as figs:
@@ -74,9 +75,14 @@ def test_report_and_plot(static_gz, tmp_path, capsys, monkeypatch):
     assert png.read_bytes()[:4] == b"\x89PNG" and len(figs) == 1
     density = {"gyro": ARW, "accel": 0.2 / 60.0, "mag": 0.125 / math.sqrt(50.0)}     # per √s, as generated
     panels = {ax.get_title(): ax for ax in figs[0].axes}
+    rec = read_recording(static_gz)
+    data = {"gyro": rec.gyro_rad_s, "accel": rec.accel_m_s2, "mag": rec.mag_ut}
     for sensor, n in density.items():
-        for axis in "xyz":
+        for i, axis in enumerate("xyz"):
             curve = line(panels[f"{sensor} {axis}"], "Allan deviation")
+            for tau, adev in curve[[0, len(curve) // 2]]:      # exactly this recording's Allan deviation
+                assert adev == pytest.approx(overlapping_adev(data[sensor][:, i], 50.0, int(round(tau * 50.0))),
+                                             rel=0.01), (sensor, axis, tau)
             short = curve[curve[:, 0] <= 10.0]
             assert len(short) >= 5, curve[:, 0]
             # IEEE Std 952 (C.2): a σ read at τ from T seconds is known to 1/√(2(T/τ − 1)); 3 of those
