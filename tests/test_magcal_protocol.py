@@ -200,12 +200,12 @@ def test_router_ignores_broadcast_unless_configured_and_refuses_unsigned(tmp_pat
     for accept_broadcast in (False, True):
         host = FakeHost(tmp_path)
         proto = MagCalProtocol(host, MagCalSettings(accept_broadcast=accept_broadcast), clock=Clock())
-        router = commands.CommandRouter(service=None, send_ack=lambda ep, m: acks.append(m))
+        router = commands.CommandRouter(send_ack=lambda ep, m: acks.append(m))
         proto.register(router)
         msg = wire(mavlink.MAVLink_command_long_message(1, 0, CMD_START, 0, 0, 0, 1, 0, 0, 0, 0))
         router.handle(msg, None, broadcast=True)
         assert proto.calibrating is accept_broadcast
-    signed_router = commands.CommandRouter(service=None, send_ack=lambda ep, m: acks.append(m),
+    signed_router = commands.CommandRouter(send_ack=lambda ep, m: acks.append(m),
                                            require_signed=lambda: True)
     proto = MagCalProtocol(FakeHost(tmp_path), MagCalSettings(), clock=Clock())
     proto.register(signed_router)
@@ -224,7 +224,7 @@ def gps_raw_int(t_valid_s, course_rad, speed_m_s, fix_type=3, vel_acc_mm_s=0):
 
 
 def test_gnss_messages_reach_the_session_once_and_only_with_a_velocity(tmp_path):
-    """GPS_RAW_INT through drivers/gnss_mavlink.py: a repeated fix (same time_usec) is fed once, an unknown
+    """GPS_RAW_INT through drivers/gnss/mavlink.py: a repeated fix (same time_usec) is fed once, an unknown
     course is not fed, GLOBAL_POSITION_INT is left alone by default (the autopilot may fuse our heading), and
     the fix is stamped with the latest sample time minus gnss_latency_s."""
     host = FakeHost(tmp_path)
