@@ -6,6 +6,7 @@ Shared helpers live in tests/support (import `support.<module>`); the benchmark 
 from __future__ import annotations
 
 import os
+import subprocess
 import sys
 from pathlib import Path
 
@@ -34,3 +35,23 @@ def _no_system_state_dir(tmp_path_factory, monkeypatch):
     import ahrsd.cli.calibrate as calibrate_cli
 
     monkeypatch.setattr(calibrate_cli, "DEFAULT_STATE_DIR", str(tmp_path_factory.mktemp("default-state")))
+
+
+@pytest.fixture
+def ahrsd_inproc(capsys):
+    """`ahrsd calibrate ARGS` run in this process (what the subprocess form checks, without an interpreter
+    start-up and numba's cache load per call). Returns a CompletedProcess; check_rc asserts the exit code."""
+    from ahrsd.cli.main import main
+
+    def run(*args, check_rc=None):
+        capsys.readouterr()
+        try:
+            rc = main(["calibrate", *map(str, args)])
+        except SystemExit as exc:  # argparse usage errors
+            rc = exc.code
+        out, err = capsys.readouterr()
+        if check_rc is not None:
+            assert rc == check_rc, out + err
+        return subprocess.CompletedProcess(["ahrsd", "calibrate", *map(str, args)], rc, out, err)
+
+    return run

@@ -362,11 +362,26 @@ def test_nonfinite_rows_are_dropped_and_counted(tilt10):
     assert res.ok and res.quality["n_dropped_nonfinite"] == int(np.ceil(mag.shape[0] / 97))
 
 
-def test_plot_writes_a_file(tmp_path, tilt10):
+def test_plot_shows_the_levelled_field_on_the_wmm_circle(tmp_path, tilt10, monkeypatch):
+    """What the figure draws, against the simulated truth: the calibrated, levelled horizontal field on the
+    circle of the WMM horizontal strength (the raw one off it), |H| calibrated at the total field."""
+    from support.figures import line, saved_figures
+
     data, truth, res = tilt10
     out = tmp_path / "bs.png"
-    bsplot.plot_backstepping(res, data, out)
-    assert out.stat().st_size > 10_000
+    with saved_figures(monkeypatch) as figs:
+        bsplot.plot_backstepping(res, data, out)
+    assert out.read_bytes()[:4] == b"\x89PNG" and len(figs) == 1
+    levelled, over_time = figs[0].axes[0], figs[0].axes[1]
+    field = truth["field"]
+    h_ut = math.hypot(field.ned_ut[0], field.ned_ut[1])
+    radius = np.linalg.norm(line(levelled, "calibrated"), axis=1)
+    assert np.sqrt(np.mean((radius - h_ut) ** 2)) < 0.02 * h_ut, (radius.mean(), h_ut)
+    raw_radius = np.linalg.norm(line(levelled, "raw (centred)"), axis=1)
+    assert np.sqrt(np.mean((raw_radius - h_ut) ** 2)) > 0.05 * h_ut
+    total = line(over_time, "|H| calibrated")
+    np.testing.assert_allclose(total[:, 0], data.t_s)
+    assert np.median(np.abs(total[:, 1] / np.linalg.norm(field.ned_ut) - 1)) < 0.01
 
 
 # --------------------------------------------------------------- the project's simulator (ahrsd.simulation)

@@ -60,13 +60,34 @@ def test_json_keys_old_and_new(static_gz, tmp_path, capsys):
     assert json.loads((tmp_path / "noise.json").read_text())["format"] == "ahrsd-noise"
 
 
-def test_report_and_plot(static_gz, tmp_path, capsys):
+def test_report_and_plot(static_gz, tmp_path, capsys, monkeypatch):
+    """The plot's Allan deviation curves are the recording's overlapping Allan deviation (from its definition) and
+    white noise's N/√τ (the densities the recording was made with) for τ ≤ 10 s, within IEEE Std 952's 3σ."""
     pytest.importorskip("matplotlib")
+    from ahrsd.drivers.recording import read_recording
+    from support.figures import line, overlapping_adev, saved_figures
+
     png = tmp_path / "allan.png"
-    rc, out, err = run(capsys, static_gz, "--state-dir", tmp_path, "--dry-run", "--plot", png)
+    with saved_figures(monkeypatch) as figs:
+        rc, out, err = run(capsys, static_gz, "--state-dir", tmp_path, "--dry-run", "--plot", png)
     assert rc == 0, err
     assert "ARW 5.8" in out and "not seen" in out and "not saved (--dry-run)" in out
-    assert png.read_bytes()[:4] == b"\x89PNG"
+    assert png.read_bytes()[:4] == b"\x89PNG" and len(figs) == 1
+    density = {"gyro": ARW, "accel": 0.2 / 60.0, "mag": 0.125 / math.sqrt(50.0)}     # per √s, as generated
+    panels = {ax.get_title(): ax for ax in figs[0].axes}
+    rec = read_recording(static_gz)
+    data = {"gyro": rec.gyro_rad_s, "accel": rec.accel_m_s2, "mag": rec.mag_ut}
+    for sensor, n in density.items():
+        for i, axis in enumerate("xyz"):
+            curve = line(panels[f"{sensor} {axis}"], "Allan deviation")
+            for tau, adev in curve[[0, len(curve) // 2]]:      # exactly this recording's Allan deviation
+                assert adev == pytest.approx(overlapping_adev(data[sensor][:, i], 50.0, int(round(tau * 50.0))),
+                                             rel=0.01), (sensor, axis, tau)
+            short = curve[curve[:, 0] <= 10.0]
+            assert len(short) >= 5, curve[:, 0]
+            # IEEE Std 952 (C.2): a σ read at τ from T seconds is known to 1/√(2(T/τ − 1)); 3 of those
+            tol = 3.0 / np.sqrt(2.0 * (1200.0 / short[:, 0] - 1.0))
+            assert np.all(np.abs(short[:, 1] / (n / np.sqrt(short[:, 0])) - 1) < tol), (sensor, axis)
     assert not (tmp_path / "noise.json").exists()
 
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -39,32 +38,6 @@ def ahrsd(*args, check_rc=None):
     if check_rc is not None:
         assert proc.returncode == check_rc, proc.stdout + proc.stderr
     return proc
-
-
-@dataclass
-class Result:
-    returncode: int
-    stdout: str
-    stderr: str
-
-
-@pytest.fixture
-def ahrsd_inproc(capsys):
-    """The same command line run in this process (saves the interpreter start-up: the suite is shared)."""
-    from ahrsd.cli.main import main
-
-    def run(*args, check_rc=None):
-        capsys.readouterr()
-        try:
-            rc = main(["calibrate", *map(str, args)])
-        except SystemExit as exc:  # argparse usage errors
-            rc = exc.code
-        out, err = capsys.readouterr()
-        if check_rc is not None:
-            assert rc == check_rc, out + err
-        return Result(rc, out, err)
-
-    return run
 
 
 @pytest.fixture(scope="module")
@@ -193,14 +166,44 @@ def test_corrupt_stored_calibration_falls_back_and_is_replaced(recordings, tmp_p
     assert load_calibration_file(state / "calibration.json").metadata["mag"]["method"] == "ellipsoid"
 
 
-def test_plots_are_written(recordings, tmp_path, ahrsd_inproc):
+def test_plots_are_written(recordings, tmp_path, ahrsd_inproc, monkeypatch):
+    """The figures show what they say: the mag plot's calibrated points lie on the WMM sphere (the raw ones do
+    not) and its circle is the WMM field; the Allan plot's curve for each sensor axis is the overlapping Allan
+    deviation of the recording (computed here from its definition)."""
+    from ahrsd.core.wmm import earth_field
+    from ahrsd.drivers.recording import read_recording
+    from support.figures import line, overlapping_adev, saved_figures
+
+    total_ut = earth_field(DEFAULT_SITE.lat_deg, DEFAULT_SITE.lon_deg).total_ut
     png = tmp_path / "mag.png"
-    ahrsd_inproc("mag", recordings["tumble"], *SITE_ARGS, "--state-dir", tmp_path, "--dry-run", "--plot", png,
-                 check_rc=0)
-    assert png.read_bytes()[:4] == b"\x89PNG"
+    with saved_figures(monkeypatch) as figs:
+        ahrsd_inproc("mag", recordings["tumble"], *SITE_ARGS, "--state-dir", tmp_path, "--dry-run", "--plot", png,
+                     check_rc=0)
+    assert png.read_bytes()[:4] == b"\x89PNG" and len(figs) == 1
+    xy, xz = figs[0].axes[0], figs[0].axes[1]                 # panels (x, y), (x, z), (y, z)
+    for label, spread in (("calibrated", 0.02), ("raw", None)):
+        a, b = line(xy, label), line(xz, label)
+        np.testing.assert_array_equal(a[:, 0], b[:, 0])
+        norm = np.linalg.norm(np.column_stack([a, b[:, 1]]), axis=1)
+        if spread:
+            assert np.all(np.abs(norm / total_ut - 1) < spread), (norm.min(), norm.max(), total_ut)
+        else:
+            assert np.abs(norm / total_ut - 1).max() > 0.1      # the hard iron moves the raw field off the sphere
+    np.testing.assert_allclose(np.linalg.norm(line(xy, "|F| (WMM)"), axis=1), total_ut, rtol=0.01)   # any date
+
     png = tmp_path / "allan.png"
-    ahrsd_inproc("allan", recordings["static"], "--state-dir", tmp_path, "--dry-run", "--plot", png, check_rc=0)
-    assert png.read_bytes()[:4] == b"\x89PNG"
+    with saved_figures(monkeypatch) as figs:
+        ahrsd_inproc("allan", recordings["static"], "--state-dir", tmp_path, "--dry-run", "--plot", png, check_rc=0)
+    assert png.read_bytes()[:4] == b"\x89PNG" and len(figs) == 1
+    rec = read_recording(recordings["static"])
+    rate_hz = 1.0 / np.median(np.diff(rec.t_s))
+    panels = {ax.get_title(): ax for ax in figs[0].axes}
+    for sensor, x in (("gyro", rec.gyro_rad_s), ("accel", rec.accel_m_s2), ("mag", rec.mag_ut)):
+        for i, axis in enumerate("xyz"):
+            curve = line(panels[f"{sensor} {axis}"], "Allan deviation")
+            for tau, adev in curve[[0, len(curve) // 2]]:
+                m = int(round(tau * rate_hz))
+                assert adev == pytest.approx(overlapping_adev(x[:, i], rate_hz, m), rel=0.02), (sensor, axis, tau)
 
 
 def test_accel_align_to_faces_stores_the_housing_frame_and_refuses_without_all_faces(recordings, tmp_path,
@@ -257,7 +260,7 @@ def test_live_align_to_faces_asks_for_each_face_twice(tmp_path):
     assert "position 1/14" in plain.stderr and "half round" not in plain.stderr
 
 
-def test_live_align_to_faces_end_to_end_on_a_tilted_bench(tmp_path):
+def test_live_align_to_faces_end_to_end_on_a_tilted_bench(tmp_path, ahrsd_inproc):
     """The whole live workflow on the simulated chip (SPI bytes): `accel-positions` walks the 20 positions on a
     surface 0.2° off level. Each face's pair cancels the tilt, the faces agree, and the calibration maps the
     chip's raw specific force along each housing axis onto that axis: within 0.07° with the alignment (most of
@@ -274,8 +277,10 @@ def test_live_align_to_faces_end_to_end_on_a_tilted_bench(tmp_path):
     from ahrsd.simulation import open_stream
 
     errors = open_stream("accel-positions", seed=0).errors      # the chip's: SimulatedAdis16405's default seed
-    out = json.loads(ahrsd("accel", "--live", "--sim", "accel-positions", "--timeout-s", "400", "--dry-run",
-                           "--json", "--state-dir", tmp_path / "st", "--align-to-faces", check_rc=0).stdout)
+    # in this process: four minutes of simulated SPI take minutes of CPU on a loaded machine, and no
+    # subprocess time limit should judge that
+    out = json.loads(ahrsd_inproc("accel", "--live", "--sim", "accel-positions", "--timeout-s", "400", "--dry-run",
+                                  "--json", "--state-dir", tmp_path / "st", "--align-to-faces", check_rc=0).stdout)
     align = out["quality"]["face_alignment"]
     assert align["face_residual_rms_deg"] < 0.06, align       # 0.2° of surface tilt, cancelled by the pairs
     applied = Rotation.from_rotvec(np.radians(align["rotation_vector_deg"]))

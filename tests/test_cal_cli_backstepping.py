@@ -101,12 +101,15 @@ def hull_heading_error_deg(boat, soft_iron, hard_iron_ut):
     return -swing.fit_deviation(psi, hull_mag).a_deg, float(np.sqrt(np.mean(err**2)))
 
 
-def test_heading_ref_column_removes_the_offset_json_and_plot(boat, tmp_path):
+def test_heading_ref_column_removes_the_offset_json_and_plot(boat, tmp_path, ahrsd_inproc, monkeypatch):
+    from support.figures import line, saved_figures
+
     state, png = tmp_path / "state", tmp_path / "bs.png"
-    proc = ahrsd("mag", "--method", "backstepping", boat["ref"], *SITE_ARGS, "--state-dir", state, "--json",
-                 "--plot", png)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    out = json.loads(proc.stdout)
+    with saved_figures(monkeypatch) as figs:
+        rc, stdout, stderr = ahrsd_inproc("mag", "--method", "backstepping", boat["ref"], *SITE_ARGS, "--state-dir",
+                                          state, "--json", "--plot", png)
+    assert rc == 0, stdout + stderr
+    out = json.loads(stdout)
     assert out["method"] == "backstepping" and out["refused"] is None
     assert len(out["hard_iron_ut"]) == 3 and np.asarray(out["soft_iron"]).shape == (3, 3)
     assert 0 < out["residual_rms_ut"] < 0.2 and out["saved_to"] == str(state / "calibration.json")
@@ -123,7 +126,14 @@ def test_heading_ref_column_removes_the_offset_json_and_plot(boat, tmp_path):
     stored = load_calibration_file(state / "calibration.json")
     np.testing.assert_allclose(stored.mag.soft_iron, out["soft_iron"])
     assert stored.metadata["mag"]["heading_reference"]["folded_offset_deg"] == pytest.approx(card["folded_offset_deg"])
-    assert png.read_bytes()[:4] == b"\x89PNG" and png.stat().st_size > 20_000
+    assert png.read_bytes()[:4] == b"\x89PNG" and len(figs) == 1
+    # the figure's heading errors are the recording's reference against the calibrated compass, offset folded
+    # in: around zero at every heading (the simulated hull offset is gone), all round the circle
+    err = line(figs[0].axes[2], "recording (heading_ref_deg)")
+    err = err[np.isfinite(err[:, 1])]                     # rows without a reference are drawn as gaps
+    assert np.ptp(err[:, 0]) > 300
+    print(f"plotted heading error: median {np.median(err[:, 1]):.3f}°, RMS {np.sqrt(np.mean(err[:, 1] ** 2)):.3f}°")
+    assert abs(np.median(err[:, 1])) < OFFSET_TOL_DEG and np.sqrt(np.mean(err[:, 1] ** 2)) < 1.0
 
 
 def test_without_reference_the_mounting_offset_stays(boat, ahrsd_inproc):

@@ -58,6 +58,8 @@ def test_offset_and_current_separated_over_headings_all_round():
           f"{fit.n_used} of {fit.n_offered} fixes")
     assert abs(fit.offset_deg - offset_deg) < max(4 * fit.std_deg, 0.1)
     assert fit.std_deg < 0.1
+    # the current the courses were made with, separated from the offset (not just "some current")
+    np.testing.assert_allclose(fit.current_ne_m_s, (0.3, -0.2), atol=0.05)
     assert np.allclose(fit.current_ne_m_s, (0.3, -0.2), atol=0.03)
 
 

@@ -51,14 +51,19 @@ def test_corrupt_frames_and_a_vanished_device(tmp_path):
         loop = asyncio.get_running_loop()
         loop.add_reader(rx.fileno(), collect)
         task = asyncio.create_task(service.run())
-        end = time.monotonic() + 60
+        # each phase ends on what the ground station saw, not on a fixed time: a loaded machine only takes
+        # longer (the overall limit is for a daemon that never recovers)
+        end = time.monotonic() + 300
         phase, t_phase = "wait-active", 0.0
         while time.monotonic() < end and phase != "done":
             await asyncio.sleep(0.1)
             s = states()
             if phase == "wait-active" and s and s[-1] == mavlink.MAV_STATE_ACTIVE:
-                bus_error.enabled, phase, t_phase = True, "device-gone", time.monotonic()
-            elif phase == "device-gone" and time.monotonic() - t_phase > 2.5:     # ≥ 2 heartbeats
+                bus_error.enabled, phase = True, "device-gone"
+                fault.update(t=time.monotonic(), n_states=len(s))
+            elif phase == "device-gone" and mavlink.MAV_STATE_CRITICAL in after_fault() and failure_reported():
+                phase, t_phase = "gone-for-a-while", time.monotonic()
+            elif phase == "gone-for-a-while" and time.monotonic() - t_phase > 2.5:     # ≥ 2 heartbeats
                 bus_error.enabled, phase = False, "recovering"
             elif phase == "recovering" and recovered():
                 phase, t_phase = "after", time.monotonic()
@@ -72,22 +77,32 @@ def test_corrupt_frames_and_a_vanished_device(tmp_path):
     def states():
         return [m.system_status for _, t, m in events if t == "HEARTBEAT"]
 
+    # a starved daemon may report CRITICAL while it boots: everything is judged from the fault's start
+    fault = {"t": float("inf"), "n_states": 0}
+
+    def after_fault():
+        return states()[fault["n_states"]:]
+
+    def failure_reported():
+        return any(kind == "STATUSTEXT" and "sensor failure" in m.text and t > fault["t"] for t, kind, m in events)
+
     def recovered():
-        s = states()
+        s = after_fault()
         return mavlink.MAV_STATE_CRITICAL in s and s[-1] == mavlink.MAV_STATE_ACTIVE
 
     assert asyncio.run(main()) == 0
     rx.close()
     s = states()
-    first_critical = s.index(mavlink.MAV_STATE_CRITICAL)
-    assert mavlink.MAV_STATE_ACTIVE in s[:first_critical]       # was good before the fault
-    assert s[-1] == mavlink.MAV_STATE_ACTIVE                    # recovered without a restart
+    assert s[fault["n_states"] - 1] == mavlink.MAV_STATE_ACTIVE         # was good before the fault
+    assert mavlink.MAV_STATE_CRITICAL in after_fault()
+    assert s[-1] == mavlink.MAV_STATE_ACTIVE                            # recovered without a restart
     texts = [m.text for _, t, m in events if t == "STATUSTEXT"]
     assert any("sensor failure" in x for x in texts) and any("recovered" in x for x in texts)
     assert service.counters.frame_errors > 0 and service.counters.driver_errors > 0
     # no heading for the autopilot while the device was gone, and it resumes afterwards
-    t_fail = next(t for t, kind, m in events if kind == "STATUSTEXT" and "sensor failure" in m.text)
-    t_back = next(t for t, kind, m in events if kind == "STATUSTEXT" and "recovered" in m.text)
+    t_fail = next(t for t, kind, m in events if kind == "STATUSTEXT" and "sensor failure" in m.text
+                  and t > fault["t"])
+    t_back = next(t for t, kind, m in events if kind == "STATUSTEXT" and "recovered" in m.text and t > t_fail)
     vpe_t = [t for t, kind, _ in events if kind == "VISION_POSITION_ESTIMATE"]
     assert t_back - t_fail > 2.0
     assert not [t for t in vpe_t if t_fail + 0.05 < t < t_back]

@@ -299,15 +299,26 @@ class ReplayBus:
 
 
 @settings(derandomize=True, max_examples=300, deadline=None)
-@given(st.lists(st.binary(min_size=0, max_size=30), min_size=1, max_size=4))
+@given(st.lists(st.one_of(st.binary(min_size=0, max_size=30), st.binary(min_size=26, max_size=26)),  # 26: a burst
+                min_size=1, max_size=4))
 def test_random_bus_answers_never_crash_the_driver(answers):
     """Random bytes (almost never a frame that passes the ND/EA and supply checks) give a DriverError or a sample,
     never another exception; what an accepted frame must decode to is tested on well-formed frames below."""
     imu = Adis16405(ReplayBus(answers))
+    rejections = ("garbage_frames", "short_reads", "bus_errors")
+    before = {k: imu.counters[k] for k in (*rejections, "samples")}
     try:
-        imu.read_sample()
+        sample = imu.read_sample()
     except DriverError:
-        pass
+        # every rejection at the edge is counted, once
+        assert sum(imu.counters[k] - before[k] for k in rejections) == 1, imu.counters
+        assert imu.counters["samples"] == before["samples"]
+        return
+    # what passed: a counted sample with finite values and a supply the chip could run on (3-6 V, beyond the
+    # data sheet's 4.75-5.25 V operating range but short of its absolute limits)
+    assert imu.counters["samples"] == before["samples"] + 1
+    assert all(np.all(np.isfinite(v)) for v in (sample.gyro_rad_s, sample.accel_m_s2, sample.mag_ut))
+    assert 3.0 <= sample.supply_v <= 6.0, sample.supply_v
 
 
 class FrameBus:

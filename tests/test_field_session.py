@@ -201,3 +201,6 @@ def test_calibrated_input_is_unwrapped_to_raw():
     feed(b, traj, None)
     assert a.result is not None and b.result is not None
     assert np.allclose(a.result.model.hard_iron_ut, b.result.model.hard_iron_ut, atol=1e-6)
+    # and both are the iron the data were made with (not merely the same answer twice)
+    for res in (a.result, b.result):
+        assert np.linalg.norm(res.model.hard_iron_ut - HARD_IRON_UT) < 1.0, res.model.hard_iron_ut

@@ -71,21 +71,18 @@ def test_levelling_refuses_fixes_for_an_unaided_estimator():
         roll_pitch_from_estimator(data, "mekf", fixes=[])
 
 
-def test_gnss_needs_backstepping(tmp_path):
-    res = subprocess.run([sys.executable, "-m", "ahrsd.cli", "calibrate", "mag", str(tmp_path / "x.csv"),
-                          "--lat", "50", "--lon", "5", "--gnss", "x.gnss.csv", "--dry-run"],
-                         capture_output=True, text=True, timeout=60)
+def test_gnss_needs_backstepping(tmp_path, ahrsd_inproc):
+    res = ahrsd_inproc("mag", tmp_path / "x.csv", "--lat", "50", "--lon", "5", "--gnss", "x.gnss.csv", "--dry-run")
     assert res.returncode == 2 and "--gnss goes with --method backstepping" in res.stderr
 
 
-def test_gnss_course_needs_gnss(tmp_path):
-    res = subprocess.run([sys.executable, "-m", "ahrsd.cli", "calibrate", "mag", str(tmp_path / "x.csv"),
-                          "--lat", "50", "--lon", "5", "--method", "backstepping", "--gnss-course", "--dry-run"],
-                         capture_output=True, text=True, timeout=60)
+def test_gnss_course_needs_gnss(tmp_path, ahrsd_inproc):
+    res = ahrsd_inproc("mag", tmp_path / "x.csv", "--lat", "50", "--lon", "5", "--method", "backstepping",
+                       "--gnss-course", "--dry-run")
     assert res.returncode == 2 and "--gnss-course needs --gnss" in res.stderr
 
 
-def test_aided_levelling_on_a_boat(tmp_path):
+def test_aided_levelling_on_a_boat(tmp_path, ahrsd_inproc):
     """The aided roll/pitch against the simulator's truth, and the CLI using it."""
     from scipy.spatial.transform import Rotation
 
@@ -122,9 +119,8 @@ def test_aided_levelling_on_a_boat(tmp_path):
     aided_tilt = tilt_rms_deg(roll, pitch)
     print(f"tilt RMS after 30 s: aided {aided_tilt:.3f}°, accelerometer {accel_tilt:.3f}°")
     assert aided_tilt < 0.5 * accel_tilt, (aided_tilt, accel_tilt)
-    res = subprocess.run([sys.executable, "-m", "ahrsd.cli", "calibrate", "mag", str(rec), "--lat", "36.42",
-                          "--lon", "54.98", "--method", "backstepping", "--gnss", str(tmp_path / "boat.gnss.csv"),
-                          "--dry-run", "--state-dir", str(tmp_path)], capture_output=True, text=True, timeout=300)
+    res = ahrsd_inproc("mag", rec, "--lat", "36.42", "--lon", "54.98", "--method", "backstepping", "--gnss",
+                       tmp_path / "boat.gnss.csv", "--dry-run", "--state-dir", tmp_path)
     # 90 s of this boat cover ~210° of heading: the fit refuses (a full circle needs longer), after levelling
     assert res.returncode in (0, 1) and "levelling: ins aided by" in res.stdout, res.stdout + res.stderr
     assert "0 rejected" in res.stdout
@@ -138,10 +134,9 @@ def test_aided_levelling_on_a_boat(tmp_path):
 
     CalibrationStore(tmp_path / "state").save(Calibration(accel=AccelModel(bias_m_s2=np.array([0.02, -0.01, 0.0]),
                                                                              matrix=np.eye(3))))
-    res = subprocess.run([sys.executable, "-m", "ahrsd.cli", "calibrate", "mag", str(rec), "--lat", "36.42",
-                          "--lon", "54.98", "--method", "backstepping", "--gnss", str(tmp_path / "boat.gnss.csv"),
-                          "--dry-run", "--state-dir", str(tmp_path / "state"), "--json", "--lever-arm-m", "0.1", "0",
-                          "-0.2"], capture_output=True, text=True, timeout=300)
+    res = ahrsd_inproc("mag", rec, "--lat", "36.42", "--lon", "54.98", "--method", "backstepping", "--gnss",
+                       tmp_path / "boat.gnss.csv", "--dry-run", "--state-dir", tmp_path / "state", "--json",
+                       "--lever-arm-m", "0.1", "0", "-0.2")
     levelling = json.loads(res.stdout)["quality"]["aided_levelling"]
     assert levelling["accel_bias_sigma_m_s2"] == pytest.approx(ACCEL_BIAS_SIGMA_CALIBRATED_M_S2), levelling
     assert levelling["filter_overrides"] == {"lever_arm_m": [0.1, 0.0, -0.2]}, levelling   # the antenna's place
@@ -176,10 +171,9 @@ def test_the_levelling_bias_prior_follows_the_accelerometer_calibration(tmp_path
     (["--gnss", "g.csv", "--accel-bias-sigma-mg", "0"], "expected 0 < MG"),
     (["--gnss", "g.csv", "--accel-bias-sigma-mg", "nan"], "expected 0 < MG"),
 ])
-def test_accel_bias_sigma_usage(tmp_path, extra, message):
-    res = subprocess.run([sys.executable, "-m", "ahrsd.cli", "calibrate", "mag", str(tmp_path / "x.csv"), "--lat",
-                          "50", "--lon", "5", "--method", "backstepping", "--dry-run", *extra],
-                         capture_output=True, text=True, timeout=60)
+def test_accel_bias_sigma_usage(tmp_path, extra, message, ahrsd_inproc):
+    res = ahrsd_inproc("mag", tmp_path / "x.csv", "--lat", "50", "--lon", "5", "--method", "backstepping",
+                       "--dry-run", *extra)
     assert res.returncode == 2 and message in res.stderr, res.stderr
 
 
@@ -188,8 +182,7 @@ def test_accel_bias_sigma_usage(tmp_path, extra, message):
     (["--gnss", "g.csv", "--lever-arm-m", "0", "0", "-101"], "expected three numbers in [-100, 100] m"),
     (["--gnss", "g.csv", "--lever-arm-m", "nan", "0", "0"], "expected three numbers"),
 ])
-def test_lever_arm_usage(tmp_path, extra, message):
-    res = subprocess.run([sys.executable, "-m", "ahrsd.cli", "calibrate", "mag", str(tmp_path / "x.csv"), "--lat",
-                          "50", "--lon", "5", "--method", "backstepping", "--dry-run", *extra],
-                         capture_output=True, text=True, timeout=60)
+def test_lever_arm_usage(tmp_path, extra, message, ahrsd_inproc):
+    res = ahrsd_inproc("mag", tmp_path / "x.csv", "--lat", "50", "--lon", "5", "--method", "backstepping",
+                       "--dry-run", *extra)
     assert res.returncode == 2 and message in res.stderr, res.stderr

@@ -228,14 +228,31 @@ def test_record_with_a_receiver_on_a_serial_port(tmp_path):
     from ahrsd.core.gnss import make_fix
     from ahrsd.drivers.gnss.simulated import SimulatedGnssReceiver
 
-    t0 = time.monotonic() + 1.0
-    fixes = [make_fix(t0 + 0.2 * k, 47.0 + 1e-6 * k, 8.0, 500.0, [1.0, 0.5, 0.0], num_sats=9) for k in range(40)]
-    with SimulatedGnssReceiver(fixes, protocol="ubx") as rx:
+    fixes = [make_fix(0.2 * k, 47.0 + 1e-6 * k, 8.0, 500.0, [1.0, 0.5, 0.0], num_sats=9) for k in range(100)]
+    # the receiver's clock stands still (before the first fix) until `record` has started: however long its
+    # start-up takes on a loaded machine, its 4 s of recording see the fixes
+    held = [True]
+    started_at = [0.0]
+
+    def receiver_clock():
+        return -1.0 if held[0] else time.monotonic() - started_at[0]
+
+    out = tmp_path / "rec.csv"
+    with SimulatedGnssReceiver(fixes, protocol="ubx", clock=receiver_clock) as rx:
         rx.start()
-        out = tmp_path / "rec.csv"
-        res = subprocess.run([str(AHRSD), "record", "--sim", "static", "--realtime", "--seconds", "4", "-o",
-                              str(out), "--gnss-serial", f"{rx.device},115200"], capture_output=True, text=True,
-                             timeout=60)
+        proc = subprocess.Popen([str(AHRSD), "record", "--sim", "static", "--realtime", "--seconds", "4", "-o",
+                                 str(out), "--gnss-serial", f"{rx.device},115200"], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+        try:
+            deadline = time.monotonic() + 240
+            while not out.exists() and proc.poll() is None and time.monotonic() < deadline:
+                time.sleep(0.02)
+            started_at[0], held[0] = time.monotonic(), False
+            stdout, stderr = proc.communicate(timeout=240)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+    res = subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)
     assert res.returncode == 0, res.stderr
     got = read_gnss_recording(tmp_path / "rec.gnss.csv")
     imu_t = read_recording(out).t_s

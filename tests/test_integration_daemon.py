@@ -25,9 +25,15 @@ from ahrsd.calibration.store import CalibrationStore
 from ahrsd.daemon import gyro_cal  # noqa: E402
 from ahrsd.simulation import open_stream  # noqa: E402
 
-def rate_hz(stamps: list[tuple[float, object]]) -> float:
-    t = [s[0] for s in stamps]
-    return (len(t) - 1) / (t[-1] - t[0])
+def assert_sent_at(stamps: list[tuple[float, object]], hz: float) -> None:
+    """The rate the daemon sent at, from its own time stamps (time_boot_ms / time_usec: no delivery jitter),
+    skipping the first 0.5 s (what was sent before a rate change can still be arriving): never above the rate,
+    and not below half of it (a starved daemon on a loaded machine drops what it cannot send in time)."""
+    t = np.array([m.time_boot_ms * 1e-3 if hasattr(m, "time_boot_ms") else m.time_usec * 1e-6 for _, m in stamps])
+    t = t[t >= t[0] + 0.5]
+    assert t.size >= 2, t
+    sent_hz = (t.size - 1) / (t[-1] - t[0])
+    assert 0.5 * hz <= sent_hz <= 1.1 * hz, (sent_hz, hz)
 
 
 @pytest.fixture(scope="module")
@@ -41,12 +47,19 @@ def daemon(tmp_path_factory):
 
 
 def test_outputs_arrive_at_their_default_rates(daemon):
-    got = daemon.collect(6.0)
+    """The exact default rates are checked on a stepped clock (test_default_output_rates.py); here, in real
+    time, every default output arrives, never faster than its rate, and at least at half of it: bounds that
+    hold on a loaded machine (the daemon and this reader starved in turns), yet fail for an output that is
+    missing, sent per sample or throttled to a fraction of its rate."""
+    window_s = 6.0
+    got = daemon.collect(window_s)
     expected = {"ATTITUDE": 50.0, "ATTITUDE_QUATERNION": 10.0, "VISION_POSITION_ESTIMATE": 30.0,
                 "HIGHRES_IMU": 10.0, "SYS_STATUS": 1.0, "HEARTBEAT": 1.0}
     for name, hz in expected.items():
         assert name in got, f"no {name} in {sorted(got)}"
-        assert rate_hz(got[name]) == pytest.approx(hz, rel=0.10), name
+        n = len(got[name])
+        # a late reader can receive, inside the window, what was queued in the socket before it opened
+        assert 0.5 * hz * window_s - 1 <= n <= 1.1 * hz * window_s + 2, (name, n)
     assert "SCALED_IMU" not in got   # off by default
 
 
@@ -128,12 +141,12 @@ def test_message_interval_set_get_and_restore(daemon):
     mi = daemon.recv("MESSAGE_INTERVAL", 5.0)
     assert (mi.message_id, mi.interval_us) == (mavlink.MAVLINK_MSG_ID_ATTITUDE, 100_000)
     got = daemon.collect(4.0)
-    assert rate_hz(got["ATTITUDE"]) == pytest.approx(10.0, rel=0.10)
+    assert_sent_at(got["ATTITUDE"], 10.0)
     # SCALED_IMU on at 20 Hz, then disable it again (−1) and ATTITUDE back to its default (0)
     daemon.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAVLINK_MSG_ID_SCALED_IMU, 50_000)
     assert daemon.ack(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL).result == mavlink.MAV_RESULT_ACCEPTED
     got = daemon.collect(3.0)
-    assert rate_hz(got["SCALED_IMU"]) == pytest.approx(20.0, rel=0.10)
+    assert_sent_at(got["SCALED_IMU"], 20.0)
     s = got["SCALED_IMU"][-1][1]
     assert math.hypot(s.xacc, s.yacc, s.zacc) == pytest.approx(1000, rel=0.05)   # mG
     for mid, interval in ((mavlink.MAVLINK_MSG_ID_SCALED_IMU, -1), (mavlink.MAVLINK_MSG_ID_ATTITUDE, 0)):
@@ -146,7 +159,7 @@ def test_message_interval_set_get_and_restore(daemon):
     assert daemon.ack(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL).result == mavlink.MAV_RESULT_DENIED
     got = daemon.collect(3.0)
     assert "SCALED_IMU" not in got
-    assert rate_hz(got["ATTITUDE"]) == pytest.approx(50.0, rel=0.10)
+    assert_sent_at(got["ATTITUDE"], 50.0)
 
 
 def test_request_message(daemon):
@@ -221,7 +234,7 @@ def test_parameter_protocol(daemon):
     m = daemon.recv("PARAM_VALUE", 2.0, lambda m: m.param_id == "SR_HIGHRES_IMU")
     assert m.param_value == 25.0
     got = daemon.collect(3.0)
-    assert rate_hz(got["HIGHRES_IMU"]) == pytest.approx(25.0, rel=0.10)
+    assert_sent_at(got["HIGHRES_IMU"], 25.0)
     assert '"SR_HIGHRES_IMU": 25.0' in (daemon.state_dir / "params.json").read_text()
     g.mav.param_set_send(daemon.sysid, OUR_COMP, b"SR_HIGHRES_IMU", 10.0, mavlink.MAV_PARAM_TYPE_REAL32)
     assert daemon.recv("PARAM_VALUE", 2.0, lambda m: m.param_id == "SR_HIGHRES_IMU").param_value == 10.0

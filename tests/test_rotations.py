@@ -118,13 +118,29 @@ def test_single_and_batch_dcm_to_quat_agree():
     assert set(pivots) == {0, 1, 2, 3}
 
 
-def test_vectorised_shapes():
+def test_vectorised_shapes_and_values():
+    """(4, 5) batches give (4, 5, …) results, element by element what scipy gives for that quaternion."""
     q = rot.quat_normalize(np.random.default_rng(0).normal(size=(4, 5, 4)))
-    assert rot.quat_to_dcm(q).shape == (4, 5, 3, 3)
-    assert rot.dcm_to_quat(rot.quat_to_dcm(q)).shape == (4, 5, 4)
-    assert rot.quat_to_euler(q).shape == (4, 5, 3)
-    assert rot.quat_log(q).shape == (4, 5, 3)
-    assert rot.quat_integrate(q, np.ones(3), np.full((4, 5), 0.01)).shape == (4, 5, 4)
+    ref = scipy_rot(q.reshape(-1, 4))                 # the same 20 rotations, flat
+    dt = np.random.default_rng(1).uniform(0.001, 0.05, size=(4, 5))
+    omega = np.array([0.3, -1.2, 2.0])
+    dcm = rot.quat_to_dcm(q)
+    assert dcm.shape == (4, 5, 3, 3)
+    np.testing.assert_allclose(dcm.reshape(-1, 3, 3), ref.as_matrix(), atol=1e-14)
+    back = rot.dcm_to_quat(dcm)
+    assert back.shape == (4, 5, 4)
+    np.testing.assert_allclose(np.abs(np.sum(back * q, axis=-1)), 1.0, atol=1e-14)    # ±q: the same rotation
+    euler = rot.quat_to_euler(q)
+    assert euler.shape == (4, 5, 3)
+    np.testing.assert_allclose(euler.reshape(-1, 3)[:, ::-1], ref.as_euler("ZYX"), atol=1e-12)
+    log = rot.quat_log(q)
+    assert log.shape == (4, 5, 3)
+    np.testing.assert_allclose(log.reshape(-1, 3), ref.as_rotvec(), atol=1e-12)
+    q1 = rot.quat_integrate(q, omega, dt)
+    assert q1.shape == (4, 5, 4)
+    want = ref * Rotation.from_rotvec(omega[None, :] * dt.reshape(-1, 1))   # body rate: right-multiplied
+    np.testing.assert_allclose(np.abs(np.sum(q1.reshape(-1, 4) * rot.quat_from_scalar_last(want.as_quat()), axis=-1)),
+                               1.0, atol=1e-14)
 
 
 # ------------------------------------------------------------------------------------------- properties

@@ -56,7 +56,7 @@ def geodesic_sections(vectors: np.ndarray) -> np.ndarray:
     w = np.einsum("tij,nj->nti", _TRI_INV, vg)              # (n, 20, 3) coefficients on each triangle
     tri = np.argmax(w.min(axis=2) >= -1e-9 * np.linalg.norm(vg, axis=1)[:, None], axis=1)
     wm = np.einsum("nij,nj->ni", _MID_INV[tri], vg)          # coefficients on the middle triangle
-    eps = 1e-12
+    eps = 1e-12 * np.linalg.norm(vg, axis=1)               # relative, as above: a section is a direction
     sub = np.where(wm[:, 0] < -eps, 3, np.where(wm[:, 1] < -eps, 1, np.where(wm[:, 2] < -eps, 2, 0)))
     out[good] = 4 * tri + sub
     return out

@@ -58,7 +58,7 @@ class Daemon:
                 return m
         return None
 
-    def wait_active(self, timeout: float = 60.0) -> None:
+    def wait_active(self, timeout: float = 300.0) -> None:   # a loaded machine starts it in minutes
         hb = self.recv("HEARTBEAT", timeout, lambda m: m.system_status == mavlink.MAV_STATE_ACTIVE)
         assert hb is not None, f"no ACTIVE heartbeat:\n{self.output()}"
         self.sysid = hb.get_srcSystem()
