@@ -10,7 +10,7 @@ are a public interface (docs/calibration.md):
   gyro:  bias_rad_s [3], matrix [3][3]                            calibrated = matrix · (raw − bias)
   allan: <sensor>.<axis>.white_noise, .bias_instability (+ kalman Q/R)
 Exit status: 0 fitted (and saved), 1 refused or failed, 2 bad usage (including --plot without matplotlib,
-the optional `ahrsd[plot]` extra: checked before anything is fitted or saved).
+matplotlib, the optional `plot` extra: checked before anything is fitted or saved).
 """
 
 from __future__ import annotations
@@ -34,7 +34,8 @@ def register(subparsers) -> None:
                         help=f"where the calibration is stored (default: {DEFAULT_STATE_DIR}, the service's; "
                         "`ahrsd run` started by hand reads ~/.local/state/ahrsd unless given --state-dir)")
         sp.add_argument("--json", action="store_true", help="print one JSON object instead of a report")
-        sp.add_argument("--plot", metavar="FILE.png", help="write a plot (needs matplotlib: pip install 'ahrsd[plot]')")
+        sp.add_argument("--plot", metavar="FILE.png", help="write a plot (needs matplotlib: pip install matplotlib, or install "
+                        "ahrsd with -e '.[plot]')")
         sp.add_argument("--dry-run", action="store_true", help="fit and report, but do not save")
         sp.add_argument("--sensor-id", default=None, help="sensor serial or id to record in the metadata")
         sp.set_defaults(func=run)
@@ -112,7 +113,10 @@ class _Usage(_Fail):
     """Bad usage (an option that cannot work as given): message for the person, exit status 2."""
 
 
-PLOT_NEEDS_MATPLOTLIB = "--plot needs matplotlib: pip install 'ahrsd[plot]'"
+def _plot_needs_matplotlib() -> str:
+    from ahrsd.core.plotting import PLOT_INSTALL_HINT
+
+    return f"--plot needs matplotlib: {PLOT_INSTALL_HINT}"
 
 
 _RECORDING_META: dict = {}
@@ -128,7 +132,7 @@ def _read(path, progress_args=None):
 
     try:
         with progress_bar(progress_args, expected_rows(path), f"reading {os.path.basename(path)}") as bar:
-            rec = read_recording(path, on_rows=bar.update)
+            rec = read_recording(path, strict=False, on_rows=bar.update)   # a file cut mid-row: its complete rows
     except FileNotFoundError:
         raise _Fail(f"{path}: no such file") from None
     except (RecordingFormatError, ValueError, OSError) as exc:
@@ -199,7 +203,7 @@ def _allan(args) -> int:
     try:   # streamed: one chunk of the recording in memory at a time (.csv or .csv.gz)
         analysis = StaticAllanAnalysis()
         with progress_bar(args, expected_rows(args.recording), f"reading {os.path.basename(args.recording)}") as bar:
-            for chunk in iter_recording_chunks(args.recording):
+            for chunk in iter_recording_chunks(args.recording, strict=False):
                 analysis.add(chunk.t_s, chunk.gyro_rad_s, chunk.accel_m_s2, chunk.mag_ut)
                 bar.update(len(chunk))
         with activity(args, "Allan analysis"):
@@ -224,7 +228,7 @@ def _allan(args) -> int:
     if args.plot:
         from ahrsd.calibration.allan_plot import plot_allan
 
-        plot_allan(res, args.plot)
+        _write_plot(args, plot_allan, res)
     lines = [f"Allan analysis of {args.recording}: {res.duration_s / 3600:.2f} h at {res.rate_hz:.1f} Hz"]
     lines += describe(res) + [f"  {note}"]
     _emit(args, payload, "\n".join(lines))
@@ -284,8 +288,8 @@ def _accel(args) -> int:
     if args.plot and res.ok:
         from ahrsd.cli.plots.mag import plot_residuals
 
-        plot_residuals(np.array(q["position_residuals_m_s2"]) * 1e3, "position", "|f| − g (mm/s²)",
-                       "accelerometer residual per position", args.plot)
+        _write_plot(args, plot_residuals, np.array(q["position_residuals_m_s2"]) * 1e3, "position", "|f| − g (mm/s²)",
+                    "accelerometer residual per position")
     return rc
 
 
@@ -422,8 +426,33 @@ def _gyro(args) -> int:
         res = gyro_cal.fit_rate_table(raw, ref, weights=[s.stop - s.start for s in segs])
     payload = {"sensor": "gyro", **res.to_json_dict(), "source": source}
     lines = [f"Gyro calibration ({res.method}) from {source}"]
-    return _report_fit(args, res, payload, lines, "gyro", report.gyro_model_lines,
-                       {"method": res.method, "residual_rms_rad_s": res.residual_rms_rad_s})
+    rc = _report_fit(args, res, payload, lines, "gyro", report.gyro_model_lines,
+                     {"method": res.method, "residual_rms_rad_s": res.residual_rms_rad_s})
+    if args.plot:
+        from . import gyro_plot
+
+        title = f"gyro calibration ({res.method}) of {args.recording}" + ("" if res.ok else ": REFUSED")
+        if args.bias_only:
+            used = [(s.start, s.stop) for s in segs] or [(0, len(rec))]
+            q = res.quality
+            fig = gyro_plot.bias_figure(rec.t_s, rec.gyro_rad_s, used, res.model.bias_rad_s if res.ok else None,
+                                        q.get("std_rad_s"), title)
+        else:
+            fig = gyro_plot.rate_table_figure(ref, res.model.apply(raw) if res.ok else raw, title,
+                                              "calibrated" if res.ok else "raw")
+        _write_plot(args, gyro_plot.save, fig)
+    return rc
+
+
+def _write_plot(args, save, *what) -> None:
+    """save(*what, args.plot), then say where the figure is (stderr: --json keeps stdout one object)."""
+    import sys
+
+    try:
+        save(*what, args.plot)
+    except OSError as exc:
+        raise _Fail(f"{args.plot}: cannot write the plot: {exc.strerror or exc}") from None
+    print(f"ahrsd calibrate {args.sensor}: figure written to {args.plot}", file=sys.stderr)
 
 
 def _fold_estimator_bias(rec, stored, res, source):
@@ -677,7 +706,7 @@ def run(args) -> int:
 
         if not isinstance(exc, PlotUnavailableError):
             raise
-        failure = _Usage(PLOT_NEEDS_MATPLOTLIB)
+        failure = _Usage(_plot_needs_matplotlib())
     if getattr(args, "json", False):
         import json
 
@@ -692,4 +721,4 @@ def _check_matplotlib() -> None:
     try:
         importlib.import_module("matplotlib")
     except ImportError:
-        raise _Usage(PLOT_NEEDS_MATPLOTLIB) from None
+        raise _Usage(_plot_needs_matplotlib()) from None

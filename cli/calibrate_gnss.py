@@ -28,8 +28,8 @@ class GnssInputError(ValueError):
 
 def read_validated_fixes(path):
     """The recording's fixes that pass the validator, and the validator (for its counters)."""
-    from ahrsd.drivers.gnss_recording import GnssRecordingFormatError, read_gnss_recording
-    from ahrsd.drivers.gnss_validation import GnssFixValidator
+    from ahrsd.drivers.gnss.recording import GnssRecordingFormatError, read_gnss_recording
+    from ahrsd.drivers.gnss.validation import GnssFixValidator
 
     try:
         fixes = read_gnss_recording(path)

@@ -1,5 +1,6 @@
 """What a failed read of a per-sample source means: one policy for every reader (the daemon's sample reader,
-`ahrsd record`), so a recording and the running daemon call the same sensor failed.
+the reader thread of drivers.threaded_source, `ahrsd record`), so a recording and the running daemon call the
+same sensor failed.
 
 * A corrupt frame (`FrameError`: garbage, a short read, implausible values) is counted by the driver and the
   next sample is read one period later: one bad frame is interference, not a failure. FRAME_ERRORS_FOR_FAILURE

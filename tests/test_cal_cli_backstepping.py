@@ -212,14 +212,14 @@ def test_plot_without_matplotlib_is_a_clear_usage_error(boat, tmp_path, ahrsd_in
     rc, out, err = ahrsd_inproc("mag", "--method", "backstepping", boat["ref"], *SITE_ARGS, "--state-dir", state,
                                 "--plot", png)
     assert rc == 2
-    assert "--plot needs matplotlib: pip install 'ahrsd[plot]'" in err and "Traceback" not in out + err
+    assert f"--plot needs matplotlib: {sys.executable} -m pip install matplotlib" in err and "Traceback" not in out + err
     assert not png.exists() and not (state / "calibration.json").exists()   # refused before fitting or saving
     # the library function raises a typed error (an ImportError) with the same hint
     data = MagFitInput(boat["blk"].t_s, boat["blk"].mag_ut, boat["blk"].accel_m_s2)
     res = bs.fit_backstepping(data, boat["field"], speed_m_s=None)
     from ahrsd.core.plotting import PlotUnavailableError
 
-    with pytest.raises(PlotUnavailableError, match=r"ahrsd\[plot\]"):
+    with pytest.raises(PlotUnavailableError, match="-m pip install matplotlib"):
         bsplot.plot_backstepping(res, data, png)
     assert issubclass(PlotUnavailableError, ImportError)
 

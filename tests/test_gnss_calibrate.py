@@ -91,7 +91,7 @@ def test_aided_levelling_on_a_boat(tmp_path):
 
     from ahrsd.calibration.mag.backstepping_aided import aided_roll_pitch
     from ahrsd.core.wmm import earth_field
-    from ahrsd.drivers.gnss_recording import read_gnss_recording
+    from ahrsd.drivers.gnss.recording import read_gnss_recording
     from ahrsd.drivers.recording import read_recording
 
     rec = tmp_path / "boat.csv"

@@ -1,5 +1,5 @@
 """The on-vehicle GNSS log: every fix the GNSS source delivered, accepted or rejected by the validator, as GNSS
-recordings (`.gnss.csv.gz`, the format of drivers/gnss_recording.py that `--gnss-replay` reads), rotating and
+recordings (`.gnss.csv.gz`, the format of drivers/gnss/recording.py that `--gnss-replay` reads), rotating and
 capped like the sample log beside it (drivers/rotating_log.py).
 
     log = GnssLog("/var/lib/ahrsd/logs")
@@ -20,10 +20,10 @@ import math
 import time
 from pathlib import Path
 
-from .gnss_recording import GnssRecordingWriter
-from .gnss_validation import GnssRejection
-from .rotating_log import LogLimits, RotatingLog
-from .sample_log import monotonic_to_unix_s
+from .recording import GnssRecordingWriter
+from .validation import GnssRejection
+from ..rotating_log import LogLimits, RotatingLog
+from ..sample_log import monotonic_to_unix_s
 
 GNSS_LOG_PREFIX = "gnss"
 GNSS_LOG_SUFFIX = ".gnss.csv.gz"

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 from pyubx2 import ERR_RAISE, GET, NMEA_PROTOCOL, RTCM3_PROTOCOL, UBX_PROTOCOL, VALCKSUM, UBXReader
 
-from .gnss_nmea import NmeaEpochAssembler
-from .gnss_ubx import NAV_PVT_IDENTITY, fix_from_nav_pvt
+from .nmea import NmeaEpochAssembler
+from .ubx import NAV_PVT_IDENTITY, fix_from_nav_pvt
 from ahrsd.core.gnss import GnssFix
 
 log = logging.getLogger(__name__)

@@ -1,19 +1,21 @@
-"""A GNSS receiver on a serial port (pyserial): UBX NAV-PVT and/or NMEA, non-blocking, with link health.
+"""The serial backend: a GNSS receiver on a UART/USB (pyserial) sending UBX NAV-PVT and/or NMEA.
 
-Use from an event loop: register `fileno()` for reading and call `read_available()` when it is readable
-(it never blocks and never raises on bad bytes or a lost device); call `poll_health()` about once a second
-from a timer, since silence produces no readable event. `fileno()` changes after the device is re-opened
-(a USB receiver unplugged and plugged back): `reopen_count` says when to re-register.
+The bytes go through the stream decoder (stream.GnssStreamDecoder); this adds the port, the time stamps and
+the link health. As a `GnssBackend` (backend.py): `fileno()` is the port's descriptor (it changes when the
+device is re-opened, -1 while it is lost), `read()` reads what is there and re-opens a lost device every
+REOPEN_INTERVAL_S, `health()` tells silence, garbage (a baud mismatch), a wrong protocol and a lost device
+apart. For tools that want the port at once: the constructor opens it and raises GnssDeviceError, unless
+`missing_ok` (the daemon: the receiver may be plugged in later); `read_available()` and `poll_health()` are
+the plain read and the once-a-second check.
 
-Time stamping: each fix gets t_s = (the caller's monotonic clock when its last byte was read) − latency_s.
+Time stamping: each fix gets t_s = (the caller's clock when its last byte was read) − latency_s.
 latency_s is the receiver's output latency (measurement epoch to the end of the message on the wire): the
-navigation computation (u-blox: tens of ms) plus the transmission time of the epoch's messages at the baud
-rate (a 100-byte NAV-PVT takes 8.7 ms at 115200 baud, 104 ms at 9600). docs/gnss.md has the figures.
+navigation computation plus the transmission time of the epoch's messages at the baud rate (10 bits per
+byte: a 100-byte NAV-PVT is 1000/baud s). docs/gnss.md has the figures.
 """
 
 from __future__ import annotations
 
-import enum
 import logging
 import math
 import time
@@ -21,8 +23,9 @@ from collections.abc import Callable
 
 import serial
 
-from .errors import DriverError
-from .gnss_stream import PROTOCOLS, GnssStreamDecoder
+from ..errors import DriverError
+from .backend import GnssBackend, GnssHealth, GnssLinkState
+from .stream import PROTOCOLS, GnssStreamDecoder
 from ahrsd.core.gnss import GnssFix
 
 log = logging.getLogger(__name__)
@@ -38,32 +41,22 @@ READ_CHUNK = 4096
 MAX_READ_PER_CALL = 65536
 
 
-class GnssLinkState(enum.Enum):
-    """What the serial link is doing, as seen from the bytes (not from the fix quality)."""
-
-    WAITING = "waiting"              # opened, nothing yet (within the timeouts)
-    OK = "ok"                        # fix messages of the configured protocol arrive
-    SILENT = "silent"                # no bytes at all
-    GARBAGE = "garbage"              # bytes but no valid frame: baud mismatch, wrong wiring, noise
-    WRONG_PROTOCOL = "wrong_protocol"  # valid frames, but none this source can use
-    DEVICE_ERROR = "device_error"    # the device could not be read (unplugged); re-opening
-
-
 class GnssDeviceError(DriverError):
     """The serial device cannot be opened (missing, permission, busy)."""
 
 
-class SerialGnssSource:
+class SerialGnssSource(GnssBackend):
     """A GNSS receiver on `device` at `baud`, protocol "ubx" | "nmea" | "auto".
 
-    `read_available() -> list[GnssFix]`; `poll_health() -> GnssLinkState`; `state`, `status_message`,
+    `clock` is the time base of the fixes (the IMU samples' monotonic clock). Opening fails with
+    GnssDeviceError, unless `missing_ok`: then a port that cannot be opened is a lost device from the start.
     `counters` (dict: bytes, frames, garbage bytes, rejected frames, checksum failures, read errors, ...).
-    `clock` is the caller's monotonic clock (the IMU pipeline's). Opening fails with GnssDeviceError.
     """
 
     def __init__(self, device: str, baud: int = 115200, protocol: str = "auto",
                  latency_s: float = DEFAULT_LATENCY_S, clock: Callable[[], float] = time.monotonic,
-                 silence_timeout_s: float = SILENCE_TIMEOUT_S, no_frame_timeout_s: float = NO_FRAME_TIMEOUT_S):
+                 silence_timeout_s: float = SILENCE_TIMEOUT_S, no_frame_timeout_s: float = NO_FRAME_TIMEOUT_S,
+                 missing_ok: bool = False):
         if protocol not in PROTOCOLS:
             raise ValueError(f"[gnss] protocol must be one of {', '.join(PROTOCOLS)}, not {protocol!r}")
         if not (isinstance(baud, int) and baud > 0):
@@ -71,11 +64,13 @@ class SerialGnssSource:
         if not (math.isfinite(latency_s) and 0.0 <= latency_s < 2.0):
             raise ValueError(f"[gnss] latency_s must be in [0, 2) s, not {latency_s!r}")
         self.device, self.baud, self.protocol, self.latency_s = device, baud, protocol, float(latency_s)
+        self.description = f"receiver on {device} at {baud} baud ({protocol})"
         self.clock = clock
         self.silence_timeout_s, self.no_frame_timeout_s = silence_timeout_s, no_frame_timeout_s
         self.decoder = GnssStreamDecoder(protocol, source=f"serial:{device}")
         self.read_errors = 0
         self.reopen_count = 0
+        self.internal_errors = 0
         self.state = GnssLinkState.WAITING
         self.status_message = f"{device}: waiting for data at {baud} baud ({protocol})"
         now = clock()
@@ -86,7 +81,13 @@ class SerialGnssSource:
         self._bytes_since_frame = 0
         self._last_open_try = now
         self._open_error = ""
-        self._serial = self._open()
+        try:
+            self._serial = self._open()
+        except GnssDeviceError as exc:
+            if not missing_ok:
+                raise
+            self._serial, self._open_error = None, str(exc)
+            self._update_state(now)
 
     # ------------------------------------------------------------------------------------------------ API
     def fileno(self) -> int:
@@ -116,21 +117,32 @@ class SerialGnssSource:
     def poll_health(self) -> GnssLinkState:
         """Re-evaluate the link state (call ~1 Hz); re-opens a lost device every REOPEN_INTERVAL_S."""
         now = self.clock()
-        if self._serial is None and now - self._last_open_try >= REOPEN_INTERVAL_S:
-            self._last_open_try = now
-            try:
-                self._serial = self._open()
-                self.reopen_count += 1
-                log.info("%s: re-opened", self.device)
-            except GnssDeviceError as exc:
-                self._open_error = str(exc)
+        self._reopen_if_due(now)
         self._update_state(now)
         return self.state
+
+    # ------------------------------------------------------------------------------------------------ backend
+    def read(self) -> list[GnssFix]:
+        """GnssBackend.read: re-open a lost device when due, then `read_available()`."""
+        try:
+            self._reopen_if_due(self.clock())
+            return self.read_available()
+        except Exception as exc:  # noqa: BLE001 - read() never raises (backend.py); a bug is counted
+            self.internal_errors += 1
+            log.exception("%s: reading failed: %s", self.device, exc)
+            return []
+
+    def health(self) -> GnssHealth:
+        self._update_state(self.clock())
+        return GnssHealth(self.state, self.status_message)
+
+    def stats(self) -> dict[str, dict]:
+        return {"serial": self.counters}
 
     @property
     def counters(self) -> dict:
         c = self.decoder.counters.as_dict()
-        c.update(read_errors=self.read_errors, reopens=self.reopen_count)
+        c.update(read_errors=self.read_errors, reopens=self.reopen_count, internal_errors=self.internal_errors)
         return c
 
     def close(self) -> None:
@@ -145,6 +157,19 @@ class SerialGnssSource:
         self.close()
 
     # ------------------------------------------------------------------------------------------------ internal
+    def _reopen_if_due(self, now: float) -> None:
+        if self._serial is not None or now - self._last_open_try < REOPEN_INTERVAL_S:
+            return
+        self._last_open_try = now
+        try:
+            self._serial = self._open()
+        except GnssDeviceError as exc:
+            self._open_error = str(exc)
+            return
+        self.reopen_count += 1
+        self._open_error = ""
+        log.info("%s: opened", self.device)
+
     def _open(self) -> serial.Serial:
         try:
             return serial.Serial(self.device, self.baud, timeout=0, exclusive=True)
@@ -183,7 +208,8 @@ class SerialGnssSource:
         dev = self.device
         if self._serial is None:
             state = GnssLinkState.DEVICE_ERROR
-            msg = f"{dev}: device lost ({self.read_errors} read errors), re-opening every {REOPEN_INTERVAL_S:.0f} s"
+            msg = (f"{dev}: device lost ({self.read_errors} read errors), re-opening every {REOPEN_INTERVAL_S:.0f} s"
+                   if self.read_errors else f"{dev}: cannot open, trying every {REOPEN_INTERVAL_S:.0f} s")
             if self._open_error:
                 msg += f" (last attempt: {self._open_error})"
         elif self._since(now, self._last_byte_at) > self.silence_timeout_s:

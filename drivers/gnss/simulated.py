@@ -24,8 +24,8 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from .gnss_nmea import nmea_epoch_sentences
-from .gnss_ubx import nav_pvt_message
+from .nmea import nmea_epoch_sentences
+from .ubx import nav_pvt_message
 from ahrsd.core.gnss import GnssFix
 
 GPS_EPOCH = dt.datetime(1980, 1, 6, tzinfo=dt.timezone.utc)

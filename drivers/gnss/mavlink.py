@@ -1,7 +1,8 @@
-"""GNSS from the autopilot over MAVLink: GPS_RAW_INT (msg id 24) and GLOBAL_POSITION_INT (msg id 33) -> GnssFix.
+"""The autopilot backend: GNSS from MAVLink GPS_RAW_INT (msg id 24) and GLOBAL_POSITION_INT (msg id 33).
 
-Pure converters from pymavlink messages (anything with the fields as attributes) plus a small selector that
-prefers the raw receiver. Field units and "unknown" sentinels follow the MAVLink common.xml definitions:
+Pure converters from pymavlink messages (anything with the fields as attributes), a small selector that
+prefers the raw receiver, and `MavlinkGnssBackend`, the GnssBackend (backend.py) fed every message from the
+autopilot through `offer(msg, t_s)`. Field units and "unknown" sentinels follow the MAVLink common.xml definitions:
 
 - GPS_RAW_INT: fix_type (GPS_FIX_TYPE), lat/lon degE7, alt mm (MSL), eph/epv DOP×100 (UINT16_MAX unknown),
   vel cm/s ground speed and cog cdeg (UINT16_MAX unknown), satellites_visible (UINT8_MAX unknown); MAVLink 2
@@ -14,9 +15,13 @@ prefers the raw receiver. Field units and "unknown" sentinels follow the MAVLink
 
 from __future__ import annotations
 
+import logging
 import math
 
+from .backend import GnssBackend, GnssHealth, GnssLinkState
 from ahrsd.core.gnss import GnssFix, GnssFixType, make_fix
+
+log = logging.getLogger(__name__)
 
 UINT8_MAX = 0xFF
 UINT16_MAX = 0xFFFF
@@ -109,3 +114,43 @@ class MavlinkGnssSelector:
                 return fix_from_global_position_int(msg, t_s)
             self.counters["global_position_int_skipped"] += 1
         return None
+
+
+class MavlinkGnssBackend(GnssBackend):
+    """The autopilot's receiver as a GnssBackend: `offer(msg, t_s)` takes every message from the autopilot
+    (received at `t_s` on the samples' clock), the selector converts GPS_RAW_INT (and the opt-in
+    GLOBAL_POSITION_INT fallback) into fixes valid at t_s − latency_s, `read()` hands them over once.
+
+    A message the converter cannot use (a hostile or malformed field) is counted in `unusable` and logged,
+    never raised."""
+
+    def __init__(self, use_fused: bool = False, latency_s: float = 0.0):
+        self.selector = MavlinkGnssSelector(use_fused=use_fused)
+        self.latency_s = float(latency_s)
+        self.description = "autopilot GPS_RAW_INT" + (" (GLOBAL_POSITION_INT fallback)" if use_fused else "")
+        self.unusable = 0
+        self._ready: list[GnssFix] = []
+
+    def offer(self, msg, t_s: float) -> None:
+        try:
+            fix = self.selector.handle(msg, t_s - self.latency_s)
+        except Exception as exc:  # noqa: BLE001 - a hostile message must not reach past the edge
+            self.unusable += 1
+            log.warning("GNSS: %s not usable: %s", type(msg).__name__, exc)
+            return
+        if fix is not None:
+            self._ready.append(fix)
+
+    def read(self) -> list[GnssFix]:
+        fixes, self._ready = self._ready, []
+        return fixes
+
+    def health(self) -> GnssHealth:
+        c = self.selector.counters
+        used = c["gps_raw_int"] + c["global_position_int"]
+        if used == 0:
+            return GnssHealth(GnssLinkState.WAITING, "no GPS_RAW_INT from the autopilot yet")
+        return GnssHealth(GnssLinkState.OK, f"{used} messages from the autopilot, {self.unusable} unusable")
+
+    def stats(self) -> dict[str, dict]:
+        return {"mavlink": {**self.selector.counters, "unusable": self.unusable}}

@@ -2,10 +2,10 @@
 
 `ScenarioGnssReceiver(scenario, chip_clock)` computes the fixes of `simulation.gnss.GnssSimulator` on the
 scenario's exact truth (`SensorStream.truth_at`) and writes each as a UBX NAV-PVT (or NMEA) into a
-pseudo-terminal (`gnss_simulated.SimulatedGnssReceiver`) when its arrival time (time of validity + the
+pseudo-terminal (`simulated.SimulatedGnssReceiver`) when its arrival time (time of validity + the
 receiver's latency) comes on `chip_clock` — the simulated chip's own scenario time (`SimulatedAdis16405.now`),
 so the fixes and the IMU samples describe the same motion at the same instants. Give `.device` to
-`gnss_serial.SerialGnssSource` with `latency_s = .latency_s`: the daemon then reads it exactly as a receiver
+`serial_port.SerialGnssSource` with `latency_s = .latency_s`: the daemon then reads it exactly as a receiver
 on a UART, and stamps it on the same monotonic clock as the chip's samples.
 
 Faults, on the scenario's time (the chip clock): `outages=[(start_s, stop_s[, reports_no_fix])]` (the
@@ -22,7 +22,7 @@ import math
 import threading
 from collections.abc import Callable
 
-from .gnss_simulated import SimulatedGnssReceiver
+from .simulated import SimulatedGnssReceiver
 
 LOOKAHEAD_S = 1.0       # fixes computed this far ahead of the chip clock, then written at their arrival time
 MAX_WAIT_S = 0.05       # the writer thread re-checks the stop flag at least this often

@@ -21,7 +21,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TextIO
 
-from .errors import DriverError
+from ..errors import DriverError
 from ahrsd.core.gnss import (DEFAULT_H_ACC_M, DEFAULT_S_ACC_M_S, DEFAULT_V_ACC_M, GnssFix, GnssFixType,
                              make_fix)
 
@@ -119,7 +119,7 @@ def iter_gnss_fixes(path: str | os.PathLike, source: str = "recording") -> Itera
     """Read a GNSS recording one fix at a time. Raises GnssRecordingFormatError naming the bad line.
 
     Values are not judged here beyond being numbers (nan is allowed anywhere): the validator at the edge
-    (drivers.gnss_validation) counts and rejects implausible fixes, as for a live receiver.
+    (drivers.gnss.validation) counts and rejects implausible fixes, as for a live receiver.
     """
     path = Path(path)
     try:
