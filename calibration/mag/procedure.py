@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Callable, ContextManager
 import numpy as np
 
 from .alignment import fit_alignment, segment_level_turns
+from .backstepping_aided import fit_backstepping_aided
 from .fit import fit_mag
 from .fit_types import MagFitInput, MagFitResult
 from .swing import SwingFitError
@@ -103,8 +104,6 @@ def calibrate_mag(method: str, data: MagFitInput, reference: "EarthField", *,
     if gnss is not None:
         if method != "backstepping":
             raise MagCalibrationError("gnss", "GNSS levelling goes with the back-stepping fit")
-        from .backstepping_aided import fit_backstepping_aided
-
         with step(f"fitting ({method}, levelled with GNSS) {len(data)} samples"):
             try:
                 result = fit_backstepping_aided(data, gnss.fixes, reference, reference.declination_rad,
