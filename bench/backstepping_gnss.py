@@ -6,7 +6,7 @@ levelled by the forward filter (`fix`) and by the RTS smoother over the whole ru
 estimator/ins_smoother.py), with a bench accelerometer calibration (`acal`) and with it also
 aligned to the housing (`afix`), side by side.
 
-    .venv/bin/python bench/backstepping_gnss.py                 # held-out seeds 4..8 × 2 sites (~7 min)
+    .venv/bin/python bench/backstepping_gnss.py                 # held-out seeds 4..8 × 2 sites
     .venv/bin/python bench/backstepping_gnss.py --seeds 1 2 3   # the tuning seeds
     .venv/bin/python bench/backstepping_gnss.py --sweep         # SETTLED_TILT_SIGMA_DEG on the tuning seeds
     .venv/bin/python bench/backstepping_gnss.py --acal-sigma-mg 1 --seeds 1 2 3 9 10 11   # another acal/afix prior
@@ -20,7 +20,7 @@ and judged four ways, true heading error RMS in degrees, the mean offset NOT rem
   (every 5° of heading, roll and pitch each in −8…8°), heading tilt-compensated with that true tilt: the
   calibration's own error, what the issue asks (≤ 0.3°);
 - `rec`: on the recording after 30 s, tilt-compensated with the true roll/pitch (the per-sample magnetometer
-  noise adds ≈ 0.13° here);
+  noise adds to this one: docs/magcal-vehicle.md);
 - `ins`: what a user sees: the daemon's aided estimator (ins, GNSS, magnetometer on) run over the recording with
   the calibration applied, its true heading against the truth after 30 s.
 

@@ -1,6 +1,6 @@
 """What limits back-stepping `--gnss` at a high dip: the aided levelling's error sources, removed one at a time.
 
-    .venv/bin/python bench/backstepping_limits.py                         # 60° N, held-out seeds 4..8 (~4 min)
+    .venv/bin/python bench/backstepping_limits.py                         # 60° N, held-out seeds 4..8
     .venv/bin/python bench/backstepping_limits.py --sites default 60N     # both sites (~8 min: docs/magcal-vehicle.md)
     .venv/bin/python bench/backstepping_limits.py --sites default --seeds 1 2 3
 

@@ -5,7 +5,7 @@ asked for, side by side.
     .venv/bin/python bench/log_size.py [--seconds 120] [--scenario level-turns] [--levels 1,4,6,9] [--paced]
 
 --paced: the samples are put at 819.2 SPS in real time, in bursts of 50 ms as the daemon's reader does, so
-the writer works in the daemon's small blocks (slower per sample than in bulk: ~1.5x here); each level then
+the writer works in the daemon's small blocks (slower per sample than in bulk: docs/logging.md has both); each level then
 takes --seconds of wall time. Prints per level the compressed and uncompressed bytes per sample, MB per hour at 819.2 SPS, how long 1 GB
 lasts, and the writer thread's CPU time per sample (the put() side is a deque append on the reader's thread).
 """

@@ -1,7 +1,7 @@
 """Can a shaped yaw profile land an autopilot's EKF on a new heading without overshoot? The bound behind
 docs/daemon.md "Restarts".
 
-    .venv/bin/python bench/restart_shaping.py            # EKF3 VISO_YAW_M_NSE=0.05, T = 10, 20, 30, 35 s (~1 min)
+    .venv/bin/python bench/restart_shaping.py            # EKF3 VISO_YAW_M_NSE=0.05, T = 10, 20, 30, 35 s
 
 The fake EKFs of tests/support/fake_autopilot_yaw.py (yaw + z gyro bias, the sources' noise and gates) are
 linear while every sample is fused, with gains that no longer change after 2 min of warm-up. So the

@@ -1,7 +1,7 @@
 """Soak: `ahrsd run` on the simulated ADIS16405 (819.2 SPS) under a MAVLink flood and scheduled sensor faults.
 
     python bench/soak.py                 # 10 minutes (the issue's benchmark)
-    python bench/soak.py --seconds 30    # CI length (tests/test_reliability_soak.py runs ~25 s)
+    python bench/soak.py --seconds 30    # a short run (tests/test_reliability_soak.py runs a shorter one)
 
 A client floods the daemon with mixed traffic (valid requests that must be answered, junk bytes, truncated and
 oversized frames, bad CRCs, hostile field values, unknown commands, refused parameter writes) while the

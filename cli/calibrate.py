@@ -485,8 +485,8 @@ def _mag(args) -> int:
     import numpy as np
 
     from ahrsd.calibration import report
+    from ahrsd.calibration.mag import procedure
     from ahrsd.calibration.mag.fit_types import MagFitInput
-    from ahrsd.calibration.mag.fit import fit_mag
     from ahrsd.core.wmm import earth_field
 
     from .progress import activity
@@ -525,64 +525,40 @@ def _mag(args) -> int:
     stored = _stored(args)
     gyro, accel, _ = stored.apply_arrays(rec.gyro_rad_s, rec.accel_m_s2, None)
     heading_ref, ref_note = _heading_reference_column(rec, args.recording, args.method)
-    options = {}
-    fixes = None
-    accel_bias_sigma_m_s2 = None
+    gnss = None
     if args.gnss:
         fixes, heading_ref, ref_note = _gnss_for_backstepping(args, rec, heading_ref, ref_note)
         accel_bias_sigma_m_s2, prior_note = _levelling_accel_bias_prior(args, stored)
         ref_note = ref_note + "; " + prior_note
+        gnss_options = {"accel_bias_sigma_m_s2": accel_bias_sigma_m_s2}
+        if args.lever_arm_m is not None:
+            gnss_options["filter_overrides"] = {"lever_arm_m": tuple(args.lever_arm_m)}
+        gnss = procedure.GnssLevelling(fixes, gnss_options)
+    alignment = None
+    if args.align_recording:
+        arec = _read(args.align_recording, args)
+        alignment = procedure.AlignmentRecording(arec.gyro_rad_s, stored.accel.apply(arec.accel_m_s2), arec.mag_ut,
+                                                 arec.sample_rate_hz)
     data = MagFitInput(rec.t_s, rec.mag_ut, accel, gyro, heading_ref)
+    options = {}
     if args.method == "backstepping" and args.heading_ref_delay_s:
         options["heading_ref_delay_s"] = args.heading_ref_delay_s
-    align_note = None
-    if args.align_recording:
-        from ahrsd.calibration.mag.alignment import fit_alignment, segment_level_turns
-
-        with activity(args, f"fitting (three-step) {len(data)} samples"):
-            first = fit_mag("three-step", data, ref)
-        if first.ok:
-            arec = _read(args.align_recording, args)
-            a_acc = stored.accel.apply(arec.accel_m_s2)
-            with activity(args, "fitting the alignment"):
-                turns = segment_level_turns(arec.gyro_rad_s, a_acc, arec.mag_ut, arec.sample_rate_hz)
-                al = fit_alignment(turns, first.model, ref.down_ut)
-            if not al.ok:
-                raise _Fail(f"alignment step refused: {al.refused}")
-            options["alignment"] = al.rotation
-            align_note = f"alignment from {len(turns)} levelled turns, rotation {al.quality['rotation_angle_deg']:.2f}°"
     try:
-        with activity(args, f"fitting ({args.method}{', levelled with GNSS' if fixes is not None else ''}) "
-                            f"{len(data)} samples"):
-            if fixes is not None:
-                from ahrsd.cli.calibrate_gnss import fit_aided
-
-                arm = ({} if args.lever_arm_m is None else
-                       {"filter_overrides": {"lever_arm_m": tuple(args.lever_arm_m)}})
-                res = fit_aided(data, fixes, ref, accel_bias_sigma_m_s2=accel_bias_sigma_m_s2, **arm, **options)
-            else:
-                res = fit_mag(args.method, data, ref, **options)
+        calibrated = procedure.calibrate_mag(
+            args.method, data, ref, alignment=alignment, gnss=gnss, fit_options=options,
+            swing_table=None if swing_table is None else procedure.SwingTable(*swing_table, args.swing_table),
+            step=lambda description: activity(args, description))
     except NotImplementedError as exc:
         raise _Fail(str(exc)) from None
-    except (ValueError, ModuleNotFoundError) as exc:      # the aided estimator is missing or refused the data
-        if fixes is None:
-            raise
-        raise _Fail(f"--gnss: the aided estimator could not level the recording: {exc}") from None
-    if swing_table is not None and res.ok:
-        from ahrsd.calibration.mag.swing import SwingFitError
-        from ahrsd.calibration.mag.swing_table import apply_swing_table
-
-        try:
-            res = apply_swing_table(res, *swing_table, args.swing_table)
-        except SwingFitError as exc:
-            raise _Fail(f"swing table {args.swing_table}: {exc}") from None
+    except procedure.MagCalibrationError as exc:
+        raise _Fail(("--gnss: " if exc.step == "gnss" else "") + str(exc)) from None
+    res = calibrated.result
     payload = {"sensor": "mag", **res.to_json_dict(), "field_ut": ref.total_ut,
                "inclination_deg": float(np.degrees(ref.inclination_rad))}
     lines = [f"Magnetometer calibration ({res.method}) from {len(data)} samples of {args.recording}",
              f"  reference field (WMM2025 at {args.lat:.4f}, {args.lon:.4f}): |F| = {ref.total_ut:.2f} µT, "
              f"dip {np.degrees(ref.inclination_rad):.2f}°"]
-    if align_note:
-        lines.append("  " + align_note)
+    lines += ["  " + note for note in calibrated.notes]
     if ref_note:
         lines.append("  " + ref_note)
     q = res.quality

@@ -4,9 +4,9 @@ back-stepping.
 * Levelling: roll and pitch from the aided estimator (ins, its magnetometer a heading-only update calibrated
   by a first, accelerometer-levelled fit) run over the recording with the fixes and smoothed over the whole run
   (RTS, estimator/ins_smoother.py), instead of the accelerometer, whose apparent vertical leans in turns, waves
-  and accelerations; no centripetal compensation is then needed (calibration.backstepping_aided).
+  and accelerations; no centripetal compensation is then needed (calibration.mag.backstepping_aided).
 * The heading offset (--gnss-course): GNSS course over ground as the heading reference (the `heading_ref_deg`
-  column's role), only on straight tracks above COURSE_MIN_SPEED_M_S (calibration.swing.gnss_course_reference).
+  column's role), only on straight tracks above COURSE_MIN_SPEED_M_S (calibration.mag.swing.gnss_course_reference).
   Course is heading + crab (leeway, current, sideslip): a steady crab shifts the fitted offset by as much
   (measured in docs/gnss.md), hence opt-in: calibrate in still water / no crosswind, or give a heading_ref_deg
   column from a better reference instead.
@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 
 COURSE_MIN_SPEED_M_S = 2.0      # course 1σ ≈ speed accuracy / speed: 0.05/2 rad ≈ 1.4° (u-blox M8 sAcc)
-COURSE_MAX_TURN_RATE_DEG_S = 1.0   # a straight track (calibration.swing's default gate)
+COURSE_MAX_TURN_RATE_DEG_S = 1.0   # a straight track (calibration.mag.swing's default gate)
 
 
 class GnssInputError(ValueError):
@@ -53,10 +53,3 @@ def course_reference_deg(fixes, t_s):
     speed = np.array([f.ground_speed_m_s if f.has_velocity else np.nan for f in fixes])
     return gnss_course_reference(tf, course, speed, delay_s=0.0, min_speed_m_s=COURSE_MIN_SPEED_M_S,
                                  max_turn_rate_deg_s=COURSE_MAX_TURN_RATE_DEG_S, at_t_s=t_s)
-
-
-def fit_aided(data, fixes, reference, **options):
-    """The back-stepping fit levelled by the aided estimator (calibration.backstepping_aided)."""
-    from ahrsd.calibration.mag.backstepping_aided import fit_backstepping_aided
-
-    return fit_backstepping_aided(data, fixes, reference, reference.declination_rad, **options)

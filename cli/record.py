@@ -68,9 +68,10 @@ def run(args) -> int:
     import sys
     import time
 
-    from ahrsd.drivers.source import start_chip_source
-    from ahrsd.drivers.errors import BusError, DriverError, FrameError
+    from ahrsd.drivers.errors import DriverError, FrameError
+    from ahrsd.drivers.read_failures import ReadFailures
     from ahrsd.drivers.recording import TRUTH_COLUMNS, RecordingWriter
+    from ahrsd.drivers.source import open_chip_bus, start_chip_source
 
     log = logging.getLogger("ahrsd.record")
     if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):   # nan/inf: traceback
@@ -88,20 +89,16 @@ def run(args) -> int:
     clock = time.monotonic if paced else None
     try:
         if simulated:
-            from ahrsd.drivers.simulated import SimulatedAdis16405
             from ahrsd.simulation import SCENARIOS
 
             if args.sim not in SCENARIOS:
                 print(f"ahrsd record: unknown scenario {args.sim!r}; choose one of: {', '.join(SCENARIOS)}",
                       file=sys.stderr)
                 return 2
-            seed = SIM_SEED if args.seed is None else args.seed
-            errors = SIM_ERRORS if args.errors is None else args.errors
-            bus = SimulatedAdis16405(args.sim, seed=seed, errors=errors, clock=clock)
+            bus = open_chip_bus("sim", scenario=args.sim, seed=SIM_SEED if args.seed is None else args.seed,
+                                errors=SIM_ERRORS if args.errors is None else args.errors, clock=clock)
         else:
-            from ahrsd.drivers.spi import SpidevBus
-
-            bus = SpidevBus(args.spi)
+            bus = open_chip_bus("spi", spi_device=args.spi)
         # one timing path (drivers.sample_timer): the host clock, or the free-running chip's own
         source = start_chip_source(bus, "ADIS16405", clock=clock or bus.now, self_test=not args.no_self_test,
                                    sample_rate_hz=args.rate_hz, filter_n=args.filter_taps)
@@ -133,7 +130,7 @@ def run(args) -> int:
     period = imu.sample_period_s
     n_target = None if args.seconds is None else max(1, int(round(args.seconds * imu.sample_rate_hz)))
     written = 0
-    bus_failures = 0
+    failures = ReadFailures()     # the daemon's failure policy (drivers.read_failures)
     rc = 0
     wall0 = time.monotonic()
     next_poll = wall0
@@ -147,18 +144,16 @@ def run(args) -> int:
                     time.sleep(delay)
             try:
                 sample = source.read_one(source.clock())
-            except FrameError:
-                continue                           # counted by the driver; the next read is a new frame
-            except BusError as exc:
-                bus_failures += 1
-                if bus_failures >= 20:
-                    print(f"\nahrsd record: giving up after {bus_failures} bus errors in a row: {exc}",
-                          file=sys.stderr)
+            except (DriverError, OSError) as exc:
+                if failures.read_failed(exc).failed:
+                    why = (f" ({failures.consecutive_frame_errors} corrupt frames in a row)"
+                           if isinstance(exc, FrameError) else "")
+                    print(f"\nahrsd record: sensor failure{why}: {exc}", file=sys.stderr)
                     rc = 1
                     break
-                time.sleep(0.01)
+                next_poll = time.monotonic() + period   # a corrupt frame: read the next sample
                 continue
-            bus_failures = 0
+            failures.read_ok()
             if paced:
                 # no data-ready line: read when the sample timer expects the next sample
                 next_poll = max(source.next_read_time(),

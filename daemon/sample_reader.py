@@ -19,11 +19,10 @@ from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.daemon.pipeline import Pipeline
 from ahrsd.daemon.timerfd import DeadlineTimer
 from ahrsd.drivers.errors import FrameError
+from ahrsd.drivers.read_failures import FRAME_ERRORS_FOR_FAILURE
+from ahrsd.drivers.read_failures import RETRY_AFTER_FAILURE_S as DRIVER_RETRY_S
 
 log = logging.getLogger(__name__)
-
-DRIVER_RETRY_S = 0.2
-FRAME_ERRORS_FOR_FAILURE = 100                   # consecutive corrupt frames (≈ 0.12 s) = sensor failure
 
 # IntFlag operators go through the enum machinery (µs each); the per-sample path tests bits on plain ints
 _int_and = int.__and__

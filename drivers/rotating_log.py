@@ -33,7 +33,8 @@ _STOP = object()
 _ROTATE = object()
 # entries formatted between two writes to the file. A write (zlib, the kernel) releases the GIL; between two,
 # the writer holds it and a reader wake that falls there waits (CPython hands the GIL over on request only
-# after sys.getswitchinterval(), 5 ms). ~5 µs per sample row: ~0.15 ms, well inside the 1.22 ms sample period.
+# after sys.getswitchinterval(), 5 ms). 32 rows keep that hold well inside the 1.22 ms sample period (the
+# writer's cost per row: docs/logging.md).
 _CHUNK_ENTRIES = 32
 
 

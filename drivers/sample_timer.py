@@ -34,7 +34,7 @@ class SampleTimer:
     HI_LEAK_S_PER_S = 100e-6   # upper bound relaxes: oscillator drift between chip and host
     # The lower bound only rises on stale (too early) reads; if the reads all land late (wakes delayed,
     # or a wrong first guess) nothing would ever pull the estimate earlier, so it relaxes faster: the
-    # reader then probes a little earlier until it meets a stale read (≈ 1 extra read per 100 samples).
+    # reader then probes a little earlier until it meets a stale read (an occasional extra read).
     LO_LEAK_S_PER_S = 1e-3
     GUARD_S = 50e-6         # read this much after the predicted ready time
 

@@ -44,6 +44,24 @@ class SensorSource(Protocol):
     def close(self) -> None: ...
 
 
+def open_chip_bus(kind: str, *, spi_device: str = "", scenario: str = "static", seed: int = 0,
+                  errors: str = "adis16405", clock=time.monotonic, faults=None):
+    """The SPI bus the chip answers on (the one place a chip is built): kind "spi", the spidev node `spi_device`;
+    kind "sim", the byte-level simulated ADIS16405 flying `scenario` (clock None: it runs free, one sample
+    period per read, as fast as it is read; faults: a drivers.faults.FaultPlan)."""
+    if kind == "spi":
+        if faults is not None:
+            raise ValueError("faults are injected into the simulated chip only")
+        from ahrsd.drivers.spi import SpidevBus
+
+        return SpidevBus(spi_device)
+    if kind == "sim":
+        from ahrsd.drivers.simulated import SimulatedAdis16405
+
+        return SimulatedAdis16405(scenario=scenario, seed=seed, errors=errors, clock=clock, faults=faults)
+    raise ValueError(f"no chip bus {kind!r}: choose sim or spi")
+
+
 def open_chip_driver(bus) -> Adis16405:
     """The IMU driver on a bus (the one place the chip model is named)."""
     return Adis16405(bus)
@@ -86,28 +104,26 @@ def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
     if kind == "spi":
         if faults is not None:
             raise ValueError("fault injection (--sim-faults) needs the simulated sensor, not --spi")
-        from ahrsd.drivers.spi import SpidevBus
-
         path = sensor_cfg.spi_device
         spec = getattr(sensor_cfg, "data_ready", "")
         if spec:
             from ahrsd.drivers.data_ready import DataReadyTimer, open_gpio_line
 
             line = open_gpio_line(spec)
-            src = ReconnectingSource(lambda: SpidevBus(path), _data_ready_driver,
+            src = ReconnectingSource(lambda: open_chip_bus("spi", spi_device=path), _data_ready_driver,
                                      f"ADIS16405 on {path}, paced by data-ready on {spec}", clock=clock,
                                      make_timer=lambda period_s: DataReadyTimer(line, period_s))
         else:
-            src = ReconnectingSource(lambda: SpidevBus(path), open_chip_driver, f"ADIS16405 on {path}", clock=clock)
+            src = ReconnectingSource(lambda: open_chip_bus("spi", spi_device=path), open_chip_driver,
+                                     f"ADIS16405 on {path}", clock=clock)
         src.start()
         return _off_the_loop(src, sensor_cfg, clock)
     if kind != "sim":
         raise ValueError(f"no sensor source {kind!r}: choose sim, spi, iio or replay")
     from ahrsd.drivers.ground_truth import BurstIndexTap, GroundTruthSource
-    from ahrsd.drivers.simulated import SimulatedAdis16405
 
-    chip = SimulatedAdis16405(scenario=sensor_cfg.scenario, seed=sensor_cfg.seed, errors=sensor_cfg.errors,
-                              clock=clock, faults=faults)
+    chip = open_chip_bus("sim", scenario=sensor_cfg.scenario, seed=sensor_cfg.seed, errors=sensor_cfg.errors,
+                         clock=clock, faults=faults)
     what = f"simulated ADIS16405 ({sensor_cfg.scenario}{', faults injected' if faults is not None else ''})"
     tap = BurstIndexTap(chip)
     timing = {}

@@ -29,12 +29,11 @@ import time
 
 from ahrsd.core.sample import ImuSample, SampleFlags
 from ahrsd.drivers.errors import FrameError
+from ahrsd.drivers.read_failures import ReadFailures
 
 log = logging.getLogger(__name__)
 
 CAPACITY_SAMPLES = 8192            # about 10 s at 819.2 SPS: the longest event-loop stall without a loss
-RETRY_S = 0.2                      # after a bus failure (the inner source backs off on its own)
-FRAME_ERRORS_FOR_FAILURE = 100     # consecutive corrupt frames reported as a sensor failure (as the daemon does)
 SWITCH_INTERVAL_S = 0.0002         # the GIL hand-over bound while a reader thread runs (default 0.005)
 FIFO_PRIORITY = 50                 # SCHED_FIFO priority of the reader (1..99; below the kernel's IRQ threads)
 _GAP_BEFORE = int(SampleFlags.GAP_BEFORE)
@@ -117,7 +116,7 @@ class ThreadedSource:
     def _run(self) -> None:
         if self._realtime:
             self.stats["realtime_priority"] = int(set_realtime_priority())
-        consecutive_frame_errors = 0
+        failures = ReadFailures()    # when a failed read is a sensor failure (drivers.read_failures)
         inner, clock, stop = self.inner, self._clock, self._stop
         while not stop.is_set():
             wait_edge = getattr(getattr(inner, "timer", None), "wait", None)
@@ -133,19 +132,16 @@ class ThreadedSource:
             try:
                 with self._inner_lock:
                     sample = inner.read_one(clock())
-            except FrameError as exc:
-                self.stats["corrupt_frames"] += 1
-                consecutive_frame_errors += 1
-                if consecutive_frame_errors >= FRAME_ERRORS_FOR_FAILURE:
+            except Exception as exc:  # noqa: BLE001 - FrameError / BusError / SensorUnavailable / OSError
+                self.stats["corrupt_frames" if isinstance(exc, FrameError) else "read_failures"] += 1
+                verdict = failures.read_failed(exc)
+                if verdict.failed:
                     self._set_error(exc)
-                continue
-            except Exception as exc:  # noqa: BLE001 - BusError / SensorUnavailable / OSError: report, retry
-                self.stats["read_failures"] += 1
-                self._set_error(exc)
-                self._sleep_until(clock() + RETRY_S)
+                if verdict.retry_after_s is not None:      # a bus failure (the inner source backs off on its own)
+                    self._sleep_until(clock() + verdict.retry_after_s)
                 continue
             self.stats["reads"] += 1
-            consecutive_frame_errors = 0
+            failures.read_ok()
             if sample is not None:
                 self._hand_over(sample)
 

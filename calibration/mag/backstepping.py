@@ -241,8 +241,8 @@ def _levelling_attitude(usable: _Usable, opts: BacksteppingOptions, quality: dic
     roll_rad, pitch_rad = roll_pitch_from_accel(acc)
     # the same low-pass on the magnetometer and the gyro: the filter also attenuates the wave tilt the
     # accelerometer shows, and the vertical channel compares that tilt with the magnetometer's. Filtered on one
-    # side only, a 2.7 s wave loses ~18 % of its tilt at τ = 0.2 s and the fit bends the soft iron to match
-    # (measured: docs/magcal-vehicle.md). Only on a vehicle: in a hand tumble the field turns fast, and a
+    # side only, a wave's tilt is shrunk on the accelerometer's side and the fit bends the soft iron to match
+    # (how much: docs/magcal-vehicle.md). Only on a vehicle: in a hand tumble the field turns fast, and a
     # low-passed rotating vector is shorter than the field (the magnitude condition would be biased).
     quality["attitude_source"] = f"accelerometer (low-pass τ={opts.accel_tau_s:g} s)"
     if vehicle_like:

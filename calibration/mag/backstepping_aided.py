@@ -7,14 +7,14 @@ the error is the levelling's (measured in docs/magcal-vehicle.md). What this mod
 
 - **Smoothing** (`smooth`, on by default). The roll/pitch are those of the RTS smoother over the filter's whole
   run (estimator/ins_smoother.py): each sample levelled with every fix, before and after it, so the bias
-  estimates of the end of the run reach back to its start. It removes most of the time-varying tilt error (on
-  the tuning seeds its spread about the mean drops from 0.06–0.10° to 0.03–0.04° per axis). A constant,
+  estimates of the end of the run reach back to its start. It removes most of the time-varying tilt error
+  (docs/magcal-vehicle.md, "What the smoother removes"). A constant,
   body-fixed part remains: a tilt ε with the accelerometer bias g·e_z×ε and the gyro misalignments m_xz = ε_y,
   m_yz = −ε_x is (nearly) unobservable on a boat that mostly yaws, so what the heading acquisition and the
   sensor's own errors put there stays (measured in docs/magcal-vehicle.md).
 - **The filter's start.** Until the aided filter has converged (the first 20–30 s) its tilt is off by tenths of
   a degree; `settled_tilt_sigma_deg` leaves out the samples whose filter tilt 1σ is above it (off by default:
-  measured, it did not help on the whole).
+  docs/magcal-vehicle.md has why).
 - **The heading: the magnetometer, heading only.** Levelled without a heading, the filter has to take its yaw
   from the GNSS velocity during accelerations (Groves, Principles of GNSS, Inertial, and Multisensor Integrated
   Navigation Systems, 2nd ed., §14.2.1), and on a boat that turns steadily a yaw error looks like an
