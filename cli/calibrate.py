@@ -241,7 +241,7 @@ def _accel(args) -> int:
     import numpy as np
 
     from ahrsd.calibration import report
-    from ahrsd.calibration.accel_cal import fit_accel, local_gravity_m_s2
+    from ahrsd.calibration.inertial.accel import fit_accel, local_gravity_m_s2
 
     g = local_gravity_m_s2(args.lat, args.alt_m)
     if not (math.isfinite(args.min_still_s) and args.min_still_s > 0):
@@ -260,7 +260,7 @@ def _accel(args) -> int:
     if args.live or len(means):
         res = fit_accel(means, g, terms)
     else:
-        from ahrsd.calibration.accel_cal import AccelFitResult, short_holds_refusal
+        from ahrsd.calibration.inertial.accel import AccelFitResult, short_holds_refusal
         from ahrsd.calibration.models import AccelModel
 
         res = AccelFitResult(AccelModel.identity(), math.nan, 6 if terms == "auto" else terms, {"positions": 0},
@@ -268,7 +268,7 @@ def _accel(args) -> int:
     if not args.live:
         res = _with_holds(res, used, skipped, rate_hz, args.min_still_s)
     if args.align_to_faces:
-        from ahrsd.calibration.accel_alignment import align_to_faces
+        from ahrsd.calibration.inertial.accel_alignment import align_to_faces
 
         res = align_to_faces(res, means)
     payload = {"sensor": "accel", **res.to_json_dict(), "positions_source": source}
@@ -286,7 +286,7 @@ def _accel(args) -> int:
                       "positions": q.get("positions"), "g_m_s2": g,
                       **({"face_alignment": q["face_alignment"]} if "face_alignment" in q else {})})
     if args.plot and res.ok:
-        from ahrsd.calibration.plots import plot_residuals
+        from ahrsd.cli.plots.mag import plot_residuals
 
         _write_plot(args, plot_residuals, np.array(q["position_residuals_m_s2"]) * 1e3, "position", "|f| − g (mm/s²)",
                     "accelerometer residual per position")
@@ -300,7 +300,7 @@ def _still_positions(args):
 
     import numpy as np
 
-    from ahrsd.calibration.accel_cal import split_by_duration, still_periods
+    from ahrsd.calibration.inertial.accel import split_by_duration, still_periods
 
     rec = _read(args.recording, args)
     step_s = float(np.median(np.diff(rec.t_s)))
@@ -318,7 +318,7 @@ def _with_holds(res, used, skipped, rate_hz, min_still_s):
     """The fit result with what the holds cost in its quality, and a refusal that names the short holds."""
     import dataclasses
 
-    from ahrsd.calibration.accel_cal import hold_cost
+    from ahrsd.calibration.inertial.accel import hold_cost
 
     quality = {**res.quality, "holds": hold_cost(used, skipped, rate_hz)}
     refused = res.refused
@@ -333,7 +333,7 @@ def _accel_live(args):
     import sys
     import time
 
-    from ahrsd.calibration.accel_cal import GUIDED_TARGETS, GUIDED_TARGETS_FACE_PAIRS, GuidedSession
+    from ahrsd.calibration.inertial.accel import GUIDED_TARGETS, GUIDED_TARGETS_FACE_PAIRS, GuidedSession
     from ahrsd.drivers.errors import DriverError, FrameError
     from ahrsd.drivers.source import start_chip_source
 
@@ -390,8 +390,9 @@ def _gyro(args) -> int:
 
     import numpy as np
 
-    from ahrsd.calibration import gyro_cal, report
-    from ahrsd.calibration.accel_cal import find_still_segments
+    from ahrsd.calibration import report
+    from ahrsd.calibration.inertial import gyro as gyro_cal
+    from ahrsd.calibration.inertial.accel import find_still_segments
 
     rec = _read(args.recording)
     stored = _stored(args)
@@ -484,7 +485,8 @@ def _mag(args) -> int:
     import numpy as np
 
     from ahrsd.calibration import report
-    from ahrsd.calibration.magfit import MagFitInput, fit_mag
+    from ahrsd.calibration.mag.fit_types import MagFitInput
+    from ahrsd.calibration.mag.fit import fit_mag
     from ahrsd.core.wmm import earth_field
 
     from .progress import activity
@@ -535,7 +537,7 @@ def _mag(args) -> int:
         options["heading_ref_delay_s"] = args.heading_ref_delay_s
     align_note = None
     if args.align_recording:
-        from ahrsd.calibration.mag_alignment import fit_alignment, segment_level_turns
+        from ahrsd.calibration.mag.alignment import fit_alignment, segment_level_turns
 
         with activity(args, f"fitting (three-step) {len(data)} samples"):
             first = fit_mag("three-step", data, ref)
@@ -567,8 +569,8 @@ def _mag(args) -> int:
             raise
         raise _Fail(f"--gnss: the aided estimator could not level the recording: {exc}") from None
     if swing_table is not None and res.ok:
-        from ahrsd.calibration.swing import SwingFitError
-        from ahrsd.calibration.swing_table import apply_swing_table
+        from ahrsd.calibration.mag.swing import SwingFitError
+        from ahrsd.calibration.mag.swing_table import apply_swing_table
 
         try:
             res = apply_swing_table(res, *swing_table, args.swing_table)
@@ -591,8 +593,8 @@ def _mag(args) -> int:
     rc = _report_fit(args, res, payload, lines, "mag", report.mag_model_lines, meta)
     if args.plot:
         if args.method == "backstepping" and res.ok:
-            from ahrsd.calibration.backstepping_paper import BacksteppingError
-            from ahrsd.calibration.backstepping_plot import plot_backstepping
+            from ahrsd.calibration.mag.backstepping_paper import BacksteppingError
+            from ahrsd.cli.plots.backstepping import plot_backstepping
 
             try:
                 plot_backstepping(res, data, args.plot, swing_table=swing_table)
@@ -600,7 +602,7 @@ def _mag(args) -> int:
                 raise _Fail(f"cannot plot: {exc}") from None
         else:
             model = res.model if res.ok else None
-            from ahrsd.calibration.plots import plot_mag
+            from ahrsd.cli.plots.mag import plot_mag
 
             plot_mag(rec.mag_ut, model, ref.total_ut, args.plot)
     return rc
@@ -622,7 +624,7 @@ def _gnss_for_backstepping(args, rec, heading_ref, ref_note):
         fixes, validator = cg.read_validated_fixes(args.gnss)
     except cg.GnssInputError as exc:
         raise _Fail(str(exc)) from None
-    from ahrsd.calibration.backstepping_aided import AIDED_ESTIMATOR, SMOOTH_LEVELLING
+    from ahrsd.calibration.mag.backstepping_aided import AIDED_ESTIMATOR, SMOOTH_LEVELLING
 
     note = (f"levelling: {AIDED_ESTIMATOR} aided by {len(fixes)} GNSS fixes of {args.gnss} "
             f"({validator.rejected} rejected)" + (", smoothed over the run (RTS)" if SMOOTH_LEVELLING else "")
@@ -641,7 +643,7 @@ def _levelling_accel_bias_prior(args, stored):
     """--gnss: the aided levelling's accelerometer-bias prior (m/s², None: the filter's default) and a note. The
     levelling cannot tell a bias from a tilt on a vehicle that stays level (calibration.backstepping_aided), so
     what splits them is the bench calibration: known to ~2 mg when there is one."""
-    from ahrsd.calibration.backstepping_aided import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
+    from ahrsd.calibration.mag.backstepping_aided import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
     from ahrsd.calibration.models import AccelModel
     from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
 
@@ -685,7 +687,7 @@ def _heading_reference_column(rec, path, method):
 
 
 def _read_swing_table(path):
-    from ahrsd.calibration.swing import SwingTableError, load_swing_table
+    from ahrsd.calibration.mag.swing import SwingTableError, load_swing_table
 
     try:
         return load_swing_table(path)

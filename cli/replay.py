@@ -139,7 +139,7 @@ def _gnss_fixes(path: str, validator):
     """The recording's fixes that pass the validator (the daemon's edge check), and the first one's position."""
     import math
 
-    from ahrsd.drivers.gnss_recording import GnssRecordingFormatError, read_gnss_recording
+    from ahrsd.drivers.gnss.recording import GnssRecordingFormatError, read_gnss_recording
 
     try:
         fixes = read_gnss_recording(path)
@@ -271,7 +271,7 @@ def _run(args) -> int:
     estimator_name = args.estimator or ("ins" if args.gnss else "mekf")
     fixes, validator, first_position = None, None, None
     if args.gnss:
-        from ahrsd.drivers.gnss_validation import GnssFixValidator
+        from ahrsd.drivers.gnss.validation import GnssFixValidator
 
         validator = GnssFixValidator(name=f"replay {args.gnss}")
         fixes, first_position = _gnss_fixes(args.gnss, validator)

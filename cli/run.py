@@ -30,6 +30,9 @@ def register(subparsers) -> None:
     p.add_argument("--mavlink", metavar="URL", action="append",
                    help="MAVLink endpoint (repeatable; replaces the config's): udpout:HOST:PORT, udpin:HOST:PORT, "
                    "tcp:HOST:PORT, tcpin:HOST:PORT, /dev/ttyAMA0,921600")
+    p.add_argument("--nmea", metavar="URL", action="append",
+                   help="NMEA 0183 heading output (repeatable; replaces the config's [[nmea]]): udp:HOST:PORT, "
+                   "udpbcast:HOST:PORT, tcpserver:HOST:PORT, serial:/dev/ttyUSB0[,BAUD] (docs/marine.md)")
     p.add_argument("--state-dir", metavar="DIR", help="calibration/parameter directory (default: $STATE_DIRECTORY "
                    "under systemd, else ~/.local/state/ahrsd)")
     p.add_argument("--status-line", choices=("auto", "on", "off"), help="live status line (default auto: on a TTY)")
@@ -60,7 +63,8 @@ def run(args: argparse.Namespace) -> int:
                                  state_dir=args.state_dir, replay_speed=args.replay_speed,
                                  gnss_replay=args.gnss_replay, gnss_serial=args.gnss_serial,
                                  gnss_sim=args.gnss_sim, estimator=args.estimator,
-                                 log_dir=args.log_dir, log_enabled=False if args.no_log else None)
+                                 log_dir=args.log_dir, log_enabled=False if args.no_log else None,
+                                 nmea=args.nmea)
         if args.status_line:
             cfg = dataclasses.replace(cfg, daemon=DaemonConfig(status_line=args.status_line))
     except ConfigError as exc:

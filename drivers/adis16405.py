@@ -76,8 +76,9 @@ class Adis16405:
     """
 
     def __init__(self, bus: SpiBus, *, sleep: Callable[[float], None] | None = None,
-                 stuck_window_s: float = STUCK_WINDOW_S):
+                 stuck_window_s: float = STUCK_WINDOW_S, data_ready: bool = False):
         self.bus = bus
+        self.data_ready = data_ready      # start() routes data-ready to DIO1 (reads paced by drivers.data_ready)
         self._sleep = sleep or getattr(bus, "sleep", None) or time.sleep
         self._stuck_window_s = stuck_window_s
         self.counters: dict[str, int] = dict.fromkeys(COUNTER_NAMES, 0)
@@ -207,6 +208,19 @@ class Adis16405:
         self.write_byte(R.GLOB_CMD, R.GlobCmd.FLASH_UPDATE)
         self._sleep(0.05)
 
+    def enable_data_ready(self) -> None:
+        """Data-ready on DIO1, active high: MSC_CTRL bit 2 DATA_RDY_EN, bit 1 DATA_RDY_POL_HIGH, bit 0 clear
+        (DIO1, not DIO2) — kernel adis16400.c ADIS16400_MSC_CTRL_DATA_RDY_*; the other bits are kept (bit 10,
+        the self-clearing self-test, is never written). All three are in the low byte: one byte write, then
+        read back."""
+        msc = self.read_register(R.MSC_CTRL)
+        want = (msc | R.MscCtrl.DATA_RDY_EN | R.MscCtrl.DATA_RDY_POL_HIGH) & ~R.MscCtrl.DATA_RDY_DIO2
+        self.write_byte(R.MSC_CTRL, int(want) & 0xFF)
+        back = self.read_register(R.MSC_CTRL)
+        if back & 0x07 != int(want) & 0x07:
+            raise DriverError(f"MSC_CTRL data-ready write did not take: wrote {int(want) & 0xFF:#04x}, "
+                              f"read {back:#06x}")
+
     def gyro_offsets_dps(self) -> np.ndarray:
         raw = self.read_registers([R.XGYRO_OFF, R.YGYRO_OFF, R.ZGYRO_OFF])
         return np.array([R.decode_signed12(w) * R.GYRO_OFF_DPS_PER_LSB for w in raw])
@@ -294,6 +308,8 @@ class Adis16405:
         if any(v is not None for v in (smpl_prd, sample_rate_hz, filter_n, gyro_range_dps)):
             self.configure(smpl_prd=smpl_prd, sample_rate_hz=sample_rate_hz, filter_n=filter_n,
                            gyro_range_dps=gyro_range_dps)
+        if self.data_ready:
+            self.enable_data_ready()
         self.read_diag_stat()
         self._reset_stream_state()
         log.info("ADIS16405 started: %.3f SPS, SENS_AVG N=%d, ±%d °/s, SPI %d Hz",

@@ -43,11 +43,12 @@ class ReconnectingSource:
     monotonic_offset_s = 0.0
 
     def __init__(self, open_bus, make_driver, description: str, *, clock=time.monotonic,
-                 reopen_same_bus: bool = False):
+                 reopen_same_bus: bool = False, make_timer=StallAwareSampleTimer):
         self._open_bus = open_bus
         self._make_driver = make_driver
         self._clock = clock
         self._reopen_same_bus = reopen_same_bus
+        self._make_timer = make_timer      # (period_s) -> the sample timer (drivers.data_ready: edges)
         self.description = description
         self.sample_rate_hz = ADIS16405_RATE_HZ
         self._inner: ChipSource | None = None   # created at the first successful start; keeps its SampleTimer
@@ -86,7 +87,7 @@ class ReconnectingSource:
             return False
         if self._inner is None:
             self._inner = ChipSource(self.driver, self.bus, self.description, clock=self._clock,
-                                     timer=StallAwareSampleTimer(1.0 / self.driver.sample_rate_hz))
+                                     timer=self._make_timer(1.0 / self.driver.sample_rate_hz))
             self.sample_rate_hz = self._inner.sample_rate_hz
         else:
             self._inner.driver, self._inner.bus = self.driver, self.bus

@@ -137,6 +137,22 @@ class SimulatedAdis16405:
             return None
         return self._blk_truth_gyro[self._out_row]
 
+    def ready_clock_time(self, index: int) -> float:
+        """The value of the chip's `clock` at which sample `index` becomes ready (its data-ready pulse): the
+        chip's own sample grid (clock mode only)."""
+        return self._t_origin + self._seg_t0 + (index - self._seg_index0) / self._rate
+
+    def first_index_after(self, clock_time: float) -> int:
+        """The first sample index that becomes ready after `clock_time` (a value of the chip's clock)."""
+        return self._seg_index0 + int(math.floor((clock_time - self._t_origin - self._seg_t0) * self._rate)) + 1
+
+    @property
+    def data_ready_on_dio1(self) -> bool:
+        """MSC_CTRL routes data-ready to DIO1, active high (bit 2 enable, bit 1 polarity, bit 0 clear = DIO1)."""
+        msc = self._regs[R.MSC_CTRL >> 1]
+        want = R.MscCtrl.DATA_RDY_EN | R.MscCtrl.DATA_RDY_POL_HIGH
+        return (msc & (want | R.MscCtrl.DATA_RDY_DIO2)) == want
+
     def now(self) -> float:
         """Chip time in seconds."""
         return self._vt if self._clock is None else self._clock() - self._t_origin
@@ -152,6 +168,9 @@ class SimulatedAdis16405:
 
     def close(self) -> None:
         self._closed = True
+        if self._prefetcher is not None:
+            self._prefetcher.shutdown(wait=False, cancel_futures=True)
+            self._prefetcher = None
 
     def power_cycle(self) -> None:
         """Back to the flash settings with a clean DIAG_STAT (like a reset, but instant)."""
@@ -462,7 +481,7 @@ class SimulatedAdis16405:
         if self._blk is not None:
             keep = _MAX_FILTER_HISTORY
             self._tail = np.concatenate([self._tail, self._blk_raw])[-keep:]
-        blk = self._stream.next_block(BLOCK_SAMPLES)
+        blk = self._next_block()
         n = len(blk.t_s)
         raw = np.empty((n, 9))
         np.degrees(blk.gyro_rad_s, out=raw[:, 0:3])
@@ -478,6 +497,28 @@ class SimulatedAdis16405:
         self._blk_truth_q = getattr(blk, "truth_q_wxyz", None)
         self._blk_truth_gyro = getattr(blk, "truth_gyro_rad_s", None)
         self._encode()
+
+    def _next_block(self):
+        """The stream's next block. On a real-time clock the block after it is computed meanwhile in a helper
+        thread: the simulator takes milliseconds per block, and computed inside a read it would make that read
+        late and lose chip samples the real part would not lose (the real chip's work is in silicon)."""
+        if self._clock is None:
+            return self._stream.next_block(BLOCK_SAMPLES)
+        stream = self._stream
+        ahead = self._prefetched
+        if ahead is not None and ahead[0] is stream:       # (a rate change opened a new stream: not this one's)
+            blk = ahead[1].result()
+        else:
+            blk = stream.next_block(BLOCK_SAMPLES)
+        if self._prefetcher is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._prefetcher = ThreadPoolExecutor(1, thread_name_prefix="sim-adis16405-blocks")
+        self._prefetched = (stream, self._prefetcher.submit(stream.next_block, BLOCK_SAMPLES))
+        return blk
+
+    _prefetcher = None
+    _prefetched = None
 
     def _encode(self) -> None:
         """Bartlett filter, offsets, quantisation, saturation and word encoding for the whole block."""
@@ -509,3 +550,95 @@ class SimulatedAdis16405:
         framed = np.zeros((n, 13), dtype=">u2")               # 2 pipeline bytes + 24 data bytes per row
         framed[:, 1:] = self._blk_words | R.ND
         self._blk_bytes_nd = framed.tobytes()
+
+
+class EdgeEvent:
+    """What libgpiod's `gpiod.EdgeEvent` carries (event_type, timestamp_ns, line_offset, global_seqno,
+    line_seqno)."""
+
+    __slots__ = ("event_type", "timestamp_ns", "line_offset", "global_seqno", "line_seqno")
+    RISING_EDGE = 1
+
+    def __init__(self, timestamp_ns: int, line_offset: int, seqno: int):
+        self.event_type = self.RISING_EDGE
+        self.timestamp_ns = timestamp_ns
+        self.line_offset = line_offset
+        self.global_seqno = self.line_seqno = seqno
+
+
+class SimulatedDataReadyLine:
+    """The chip's DIO1 data-ready line on a GPIO, as libgpiod's `LineRequest` for one line with rising-edge
+    detection presents it (`wait_edge_events(timeout)`, `read_edge_events(max_events)`, `release()`): one
+    rising edge per sample on the chip's own sample clock, only while MSC_CTRL routes data-ready to DIO1
+    active high. Time stamps are the host clock's (CLOCK_MONOTONIC, libgpiod's default event clock); like the
+    kernel's buffer (16 events per line) it keeps the newest events, and the sequence numbers count every edge.
+
+    chip: a SimulatedAdis16405 on a clock. to_host(t): the host time of chip-clock time t (identity unless the
+    test's chip clock drifts); host_clock / sleep_until: the reader's clock and how to wait on it.
+    """
+
+    BUFFER_EVENTS = 16        # the kernel's default event buffer: 16 events per requested line
+
+    def __init__(self, chip: "SimulatedAdis16405", *, offset: int = 25, host_clock=None, to_host=None,
+                 sleep_until=None):
+        if chip._clock is None:
+            raise ValueError("a data-ready line needs the chip on a clock (free-running chips have no edges)")
+        self.chip = chip
+        self.offset = offset
+        self._host = host_clock or chip._clock
+        self._to_host = to_host or getattr(chip._clock, "to_host", None) or (lambda t: t)
+        self._sleep_until = sleep_until or getattr(self._host, "sleep_until", None) or self._sleep_real
+        self._first: int | None = None          # the chip index of edge seqno 1
+        self._next = None                       # the chip index of the next edge not yet read
+        self.released = False
+
+    def _sleep_real(self, t: float) -> None:
+        dt = t - self._host()
+        if dt > 0:
+            time.sleep(dt)
+
+    def _edge_host_time(self, index: int) -> float:
+        return self._to_host(self.chip.ready_clock_time(index))
+
+    def _due(self) -> int:
+        """How many edges are waiting (0 while data-ready is not routed to this line)."""
+        chip = self.chip
+        if not chip.data_ready_on_dio1:
+            self._next = None
+            return 0
+        now_chip = chip._clock()
+        if self._next is None:                  # edges start now (the request, or data-ready enabled)
+            self._next = chip.first_index_after(now_chip)
+            if self._first is None:
+                self._first = self._next
+        newest = chip.first_index_after(now_chip) - 1
+        return max(0, newest - self._next + 1)
+
+    def wait_edge_events(self, timeout=None) -> bool:
+        if self.released:
+            raise OSError(errno.EBADF, "line request released")
+        if self._due():
+            return True
+        limit = None if timeout is None else self._host() + float(getattr(timeout, "total_seconds", lambda: timeout)())
+        if self._next is None:
+            target = limit if limit is not None else self._host() + 0.1
+        else:
+            target = self._edge_host_time(self._next)
+            if limit is not None:
+                target = min(target, limit)
+        self._sleep_until(target)
+        return self._due() > 0
+
+    def read_edge_events(self, max_events: int | None = None) -> list:
+        n = self._due()
+        if n == 0:
+            self.wait_edge_events(None)         # libgpiod blocks until an event comes
+            n = self._due()
+        first, last = self._next, self._next + n - 1
+        self._next = last + 1
+        keep = min(n, self.BUFFER_EVENTS, max_events or self.BUFFER_EVENTS)
+        return [EdgeEvent(int(round(self._edge_host_time(i) * 1e9)), self.offset, i - self._first + 1)
+                for i in range(last - keep + 1, last + 1)]
+
+    def release(self) -> None:
+        self.released = True

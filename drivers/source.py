@@ -5,8 +5,9 @@ stamp in CLOCK_MONOTONIC seconds (minus `monotonic_offset_s`), a sample index, a
 sample after lost ones: gaps are found once, here. Two ways to be read:
 * `per_sample = True` (a chip): `read_one(now)` once per sample at `next_read_time()`; returns the new sample
   or None (not ready yet). drivers.chip_source.ChipSource, drivers.reconnecting.ReconnectingSource.
-* `per_sample = False` (a recording): `poll()` on a fixed tick returns every sample that is due.
-  drivers.replay_source.ReplaySource.
+* `per_sample = False` (a recording, or a reader off the event loop): `poll()` on a fixed tick returns every
+  sample that is due. drivers.replay_source.ReplaySource, drivers.threaded_source.ThreadedSource (a chip read
+  in its own thread).
 Both raise DriverError subclasses on failure (FrameError: one corrupt frame; BusError: the bus failed).
 A GNSS receiver is a sibling source with its own sample type (ahrsd.core.GnssFix), not an IMU source.
 """
@@ -48,6 +49,11 @@ def open_chip_driver(bus) -> Adis16405:
     return Adis16405(bus)
 
 
+def _data_ready_driver(bus) -> Adis16405:
+    """The IMU driver with data-ready routed to DIO1 at every (re)start."""
+    return Adis16405(bus, data_ready=True)
+
+
 def start_chip_source(bus, description: str, *, clock=time.monotonic, **start) -> ChipSource:
     """The chip on `bus`, started (`Adis16405.start(**start)`: self-test, rate, filter), read through the
     one timing path. clock: the host clock of the reads; for a free-running simulated chip (no real time)
@@ -63,7 +69,8 @@ def start_chip_source(bus, description: str, *, clock=time.monotonic, **start) -
 
 def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
     """The source `sensor_cfg` names (`source` = "sim" | "spi" | "replay", with its keys: any object with the
-    attributes of daemon.config.SensorConfig): a chip with start-up retries and bus reconnection, or a replay.
+    attributes of daemon.config.SensorConfig): a chip with start-up retries and bus reconnection — read in a
+    dedicated thread unless `reader` = "event_loop" — or a replay.
 
     faults: a drivers.faults.FaultPlan for the simulated chip (refused for a real sensor); the simulated chip
     is wrapped in drivers.ground_truth.GroundTruthSource, which accounts its lost samples against the truth.
@@ -82,11 +89,20 @@ def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
         from ahrsd.drivers.spi import SpidevBus
 
         path = sensor_cfg.spi_device
-        src = ReconnectingSource(lambda: SpidevBus(path), open_chip_driver, f"ADIS16405 on {path}", clock=clock)
+        spec = getattr(sensor_cfg, "data_ready", "")
+        if spec:
+            from ahrsd.drivers.data_ready import DataReadyTimer, open_gpio_line
+
+            line = open_gpio_line(spec)
+            src = ReconnectingSource(lambda: SpidevBus(path), _data_ready_driver,
+                                     f"ADIS16405 on {path}, paced by data-ready on {spec}", clock=clock,
+                                     make_timer=lambda period_s: DataReadyTimer(line, period_s))
+        else:
+            src = ReconnectingSource(lambda: SpidevBus(path), open_chip_driver, f"ADIS16405 on {path}", clock=clock)
         src.start()
-        return src
+        return _off_the_loop(src, sensor_cfg, clock)
     if kind != "sim":
-        raise ValueError(f"no sensor source {kind!r}: choose sim, spi or replay")
+        raise ValueError(f"no sensor source {kind!r}: choose sim, spi, iio or replay")
     from ahrsd.drivers.ground_truth import BurstIndexTap, GroundTruthSource
     from ahrsd.drivers.simulated import SimulatedAdis16405
 
@@ -94,7 +110,25 @@ def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
                               clock=clock, faults=faults)
     what = f"simulated ADIS16405 ({sensor_cfg.scenario}{', faults injected' if faults is not None else ''})"
     tap = BurstIndexTap(chip)
-    src = GroundTruthSource(ReconnectingSource(lambda: tap, open_chip_driver, what, clock=clock,
-                                               reopen_same_bus=True), chip, tap)
+    timing = {}
+    if getattr(sensor_cfg, "data_ready", ""):       # the simulated chip's own DIO1 (drivers.simulated)
+        from ahrsd.drivers.data_ready import DataReadyTimer
+        from ahrsd.drivers.simulated import SimulatedDataReadyLine
+
+        line = SimulatedDataReadyLine(chip, host_clock=clock)
+        timing = {"make_timer": lambda period_s: DataReadyTimer(line, period_s)}
+        what += ", paced by its data-ready line"
+    src = GroundTruthSource(ReconnectingSource(lambda: tap, _data_ready_driver if timing else open_chip_driver,
+                                               what, clock=clock, reopen_same_bus=True, **timing), chip, tap)
     src.start()
-    return src
+    return _off_the_loop(src, sensor_cfg, clock)
+
+
+def _off_the_loop(src, sensor_cfg, clock):
+    """The per-sample chip source read in its own thread (`[sensor] reader = "thread"`, the default:
+    drivers.threaded_source), or left to the daemon's event loop ("event_loop")."""
+    if getattr(sensor_cfg, "reader", "thread") != "thread":
+        return src
+    from ahrsd.drivers.threaded_source import ThreadedSource
+
+    return ThreadedSource(src, clock=clock)     # the reader thread starts at the daemon's first poll

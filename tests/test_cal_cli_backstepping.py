@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ahrsd.calibration import backstepping as bs
-from ahrsd.calibration import backstepping_plot as bsplot
-from ahrsd.calibration import backstepping_paper as paper
-from ahrsd.calibration import swing
-from ahrsd.calibration.magfit import MagFitInput
+from ahrsd.calibration.mag import backstepping as bs
+from ahrsd.cli.plots import backstepping as bsplot
+from ahrsd.calibration.mag import backstepping_paper as paper
+from ahrsd.calibration.mag import swing
+from ahrsd.calibration.mag.fit_types import MagFitInput
 from ahrsd.calibration.models import MagModel
 from ahrsd.calibration.store import load_calibration_file
 from ahrsd.drivers.recording import TRUTH_COLUMNS, RecordingWriter

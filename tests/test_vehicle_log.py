@@ -44,6 +44,11 @@ class TappedSource:
             self.samples.append(sample)
         return sample
 
+    def poll(self):                       # the chip read in its own thread (drivers.threaded_source)
+        samples = self._source.poll()
+        self.samples.extend(samples)
+        return samples
+
     def __getattr__(self, name):
         return getattr(self._source, name)
 

@@ -1,0 +1,196 @@
+"""A chip read off the event loop: a per-sample source (drivers.chip_source / reconnecting / ground_truth) read
+in a dedicated thread, its samples handed to the daemon in blocks through a bounded buffer (`poll()`, the
+block path a recording uses), so a slow MAVLink peer, a log flush or a GNSS burst on the event loop never
+delays a read.
+
+Why a thread and not a process, and what the GIL does to it: docs/drivers.md ("A reader the event loop cannot
+starve", measured with bench/reader_gil.py). The interpreter's switch interval bounds how long a thread that
+wants the GIL waits while the event loop runs Python code; at 819.2 SPS the chip keeps a sample for 1.22 ms,
+so the source lowers it to SWITCH_INTERVAL_S for the whole process while it runs.
+
+The thread asks for SCHED_FIFO (`os.sched_setscheduler`) when the system allows it (root, CAP_SYS_NICE or an
+RLIMIT_RTPRIO, e.g. systemd's `LimitRTPRIO=`); when not, it says so once in the log and runs at normal priority.
+
+Loss accounting stays where it was: the inner source's SampleTimer (or the data-ready pacing, drivers.data_ready)
+flags GAP_BEFORE on the first sample after lost ones. A sample the chip produced and the reader read but the
+daemon did not take in time (the buffer full: the event loop stalled for seconds) is dropped here, counted
+(`handover_dropped`) and the next sample handed over carries GAP_BEFORE, so the pipeline counts it from the
+sample indices like any other loss.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import sys
+import threading
+import time
+
+from ahrsd.core.sample import ImuSample, SampleFlags
+from ahrsd.drivers.errors import FrameError
+
+log = logging.getLogger(__name__)
+
+CAPACITY_SAMPLES = 8192            # about 10 s at 819.2 SPS: the longest event-loop stall without a loss
+RETRY_S = 0.2                      # after a bus failure (the inner source backs off on its own)
+FRAME_ERRORS_FOR_FAILURE = 100     # consecutive corrupt frames reported as a sensor failure (as the daemon does)
+SWITCH_INTERVAL_S = 0.0002         # the GIL hand-over bound while a reader thread runs (default 0.005)
+FIFO_PRIORITY = 50                 # SCHED_FIFO priority of the reader (1..99; below the kernel's IRQ threads)
+_GAP_BEFORE = int(SampleFlags.GAP_BEFORE)
+
+
+def _sleep_until(clock, t: float) -> None:
+    dt = t - clock()
+    if dt > 0:
+        time.sleep(dt)
+
+
+def set_realtime_priority(priority: int = FIFO_PRIORITY) -> bool:
+    """SCHED_FIFO for the calling thread (Linux: pid 0 is the calling thread). False (logged) when not allowed."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (PermissionError, OSError, AttributeError) as exc:
+        log.info("sensor reader: no real-time priority (%s); running at normal priority. Allow it with "
+                 "systemd LimitRTPRIO=%d or CAP_SYS_NICE", exc, priority)
+        return False
+    log.info("sensor reader: SCHED_FIFO priority %d", priority)
+    return True
+
+
+class ThreadedSource:
+    """`inner` (a started per-sample source) read in its own thread; `poll()` returns every sample read since the
+    last call. Sensor failures reach the daemon as exceptions from `poll()` once the buffer is drained.
+
+    clock: the host clock of the reads (the inner source's); sleep_until(t): wait until clock() ≥ t (a test's
+        stepped clock). Pacing: when the inner source's timer can `wait(timeout_s)` for the chip's data-ready
+        (drivers.data_ready.DataReadyTimer) each read follows an edge; otherwise the thread sleeps until the
+        SampleTimer's next read time.
+    """
+
+    per_sample = False
+    monotonic_offset_s = 0.0
+
+    def __init__(self, inner, *, clock=time.monotonic, sleep_until=None,
+                 capacity_samples: int = CAPACITY_SAMPLES, realtime: bool = True,
+                 switch_interval_s: float | None = SWITCH_INTERVAL_S):
+        if getattr(inner, "per_sample", False) is not True:
+            raise TypeError("ThreadedSource reads a per-sample source (read_one / next_read_time)")
+        self.inner = inner
+        self.description = f"{inner.description}, read in a dedicated thread"
+        self.sample_rate_hz = inner.sample_rate_hz
+        self._clock = clock
+        self._sleep_until = sleep_until or (lambda t: _sleep_until(clock, t))
+        self._capacity = int(capacity_samples)
+        self._realtime = realtime
+        self._switch_interval_s = switch_interval_s
+        self._saved_switch_interval: float | None = None
+        self._lock = threading.Lock()          # the hand-over buffer and the error
+        self._inner_lock = threading.Lock()    # the inner source: a read, or counters() from the event loop
+        self._buf: list[ImuSample] = []
+        self._gap_pending = False
+        self._error: Exception | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.stats = {"reads": 0, "corrupt_frames": 0, "read_failures": 0, "handover_dropped": 0,
+                      "handover_max_backlog": 0, "realtime_priority": 0}
+
+    def __getattr__(self, name):
+        # what else the daemon and the tools ask of a chip source (chip, bus, driver, timer) is the inner one's
+        if name == "inner":
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
+    # -- the reader thread -------------------------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Start the reader thread (the first `poll()` does it if nobody did: samples the chip produced while
+        the daemon was still starting are not read, hence not lost — as with a reader on the event loop)."""
+        if self._thread is not None:
+            return
+        if self._switch_interval_s is not None:
+            self._saved_switch_interval = sys.getswitchinterval()
+            sys.setswitchinterval(min(self._saved_switch_interval, self._switch_interval_s))
+        self._thread = threading.Thread(target=self._run, name="ahrsd-sensor-reader", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        if self._realtime:
+            self.stats["realtime_priority"] = int(set_realtime_priority())
+        consecutive_frame_errors = 0
+        inner, clock, stop = self.inner, self._clock, self._stop
+        while not stop.is_set():
+            wait_edge = getattr(getattr(inner, "timer", None), "wait", None)
+            if wait_edge is not None:
+                if not wait_edge(0.1):
+                    continue
+            else:
+                target = inner.next_read_time()
+                if target > 0.0:
+                    self._sleep_until(target)
+            if stop.is_set():
+                break
+            try:
+                with self._inner_lock:
+                    sample = inner.read_one(clock())
+            except FrameError as exc:
+                self.stats["corrupt_frames"] += 1
+                consecutive_frame_errors += 1
+                if consecutive_frame_errors >= FRAME_ERRORS_FOR_FAILURE:
+                    self._set_error(exc)
+                continue
+            except Exception as exc:  # noqa: BLE001 - BusError / SensorUnavailable / OSError: report, retry
+                self.stats["read_failures"] += 1
+                self._set_error(exc)
+                self._sleep_until(clock() + RETRY_S)
+                continue
+            self.stats["reads"] += 1
+            consecutive_frame_errors = 0
+            if sample is not None:
+                self._hand_over(sample)
+
+    def _set_error(self, exc: Exception) -> None:
+        with self._lock:
+            self._error = exc
+
+    def _hand_over(self, sample: ImuSample) -> None:
+        with self._lock:
+            self._error = None
+            buf = self._buf
+            if len(buf) >= self._capacity:
+                self.stats["handover_dropped"] += 1
+                self._gap_pending = True
+                return
+            if self._gap_pending:
+                self._gap_pending = False
+                sample = dataclasses.replace(sample, flags=sample.flags | SampleFlags.GAP_BEFORE)
+            buf.append(sample)
+            if len(buf) > self.stats["handover_max_backlog"]:
+                self.stats["handover_max_backlog"] = len(buf)
+
+    # -- the SensorSource interface ------------------------------------------------------------------------------
+
+    def poll(self) -> list[ImuSample]:
+        if self._thread is None:
+            self.start()
+        with self._lock:
+            out, self._buf = self._buf, []
+            error = self._error
+        if not out and error is not None:
+            raise error
+        return out
+
+    def counters(self) -> dict:
+        with self._inner_lock:
+            c = dict(self.inner.counters())
+        c.update({f"reader_{k}": v for k, v in self.stats.items()})
+        return c
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(2.0)
+        if self._saved_switch_interval is not None:
+            sys.setswitchinterval(self._saved_switch_interval)
+            self._saved_switch_interval = None
+        self.inner.close()

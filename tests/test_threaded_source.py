@@ -1,0 +1,136 @@
+"""drivers.threaded_source: the chip read in a dedicated thread, handed to the event loop in blocks.
+
+All on a stepped clock (tests/stepped_clock.py): the simulated chip produces samples on it, the reader thread
+sleeps on it, and the event loop's handler that "sleeps 50 ms" advances it by 50 ms without polling."""
+
+from __future__ import annotations
+
+import asyncio
+
+import pytest
+
+from ahrsd.core.sample import SampleFlags
+from ahrsd.drivers.errors import BusError
+from ahrsd.drivers.simulated import SimulatedAdis16405
+from ahrsd.drivers.source import start_chip_source
+from ahrsd.drivers.threaded_source import ThreadedSource
+
+from support.stepped_clock import SteppedClock
+
+PERIOD_S = 1 / 819.2
+
+
+def chip_and_source(clock):
+    chip = SimulatedAdis16405("static", seed=3, clock=clock)
+    return chip, start_chip_source(chip, "test chip", clock=clock, self_test=False)
+
+
+def gap_samples(samples) -> int:
+    """Samples missing between the delivered ones, counted as the pipeline does (GAP_BEFORE + index jump)."""
+    lost = 0
+    for a, b in zip(samples, samples[1:]):
+        assert b.counter > a.counter
+        if b.counter != a.counter + 1:
+            assert b.flags & SampleFlags.GAP_BEFORE
+            lost += b.counter - a.counter - 1
+    return lost
+
+
+async def starved_loop(clock, poll, stalls: int, got: list) -> None:
+    """An event loop whose poll runs every 5 ms, and every 10th iteration a handler holds it for 50 ms."""
+    for i in range(10 * stalls):
+        got.extend(poll())
+        clock.run_for(0.005)                  # the loop idles 5 ms
+        if i % 10 == 5:
+            clock.run_for(0.050)              # a handler sleeping 50 ms: no poll, no other task
+        await asyncio.sleep(0)
+    clock.run_for(0.005)
+    got.extend(poll())
+
+
+def test_a_starved_event_loop_loses_no_sample():
+    clock = SteppedClock()
+    chip, inner = chip_and_source(clock)
+    src = ThreadedSource(inner, clock=clock, sleep_until=clock.sleep_until, realtime=False)
+    src.start()
+    got: list = []
+    try:
+        asyncio.run(starved_loop(clock, src.poll, stalls=8, got=got))
+    finally:
+        clock.close()
+        src.close()
+    produced_while_read = got[-1].counter - got[0].counter + 1
+    assert produced_while_read > 8 * 0.1 / PERIOD_S * 0.95           # 8 × 100 ms of chip time went by
+    assert len(got) == produced_while_read
+    assert gap_samples(got) == 0
+    assert chip.stats["samples_lost"] == 0                           # the chip's own truth
+    assert src.stats["handover_max_backlog"] >= int(0.05 / PERIOD_S)  # the stalls really held samples back
+
+
+def test_the_same_stall_on_the_event_loop_reader_loses_samples():
+    """The contrast: reading on the loop (a read per poll, as a loop-bound reader would) loses each stall."""
+    clock = SteppedClock()
+    chip, inner = chip_and_source(clock)
+    got: list = []
+
+    def poll_on_the_loop():
+        out = []
+        for _ in range(8):                    # as many reads as are due, right now
+            s = inner.read_one(clock())
+            if s is not None:
+                out.append(s)
+        return out
+
+    async def loop_reader():
+        for i in range(40):
+            got.extend(poll_on_the_loop())
+            clock.t += 0.001
+            if i % 10 == 5:
+                clock.t += 0.050
+            await asyncio.sleep(0)
+
+    asyncio.run(loop_reader())
+    assert gap_samples(got) >= 4 * 0.045 / PERIOD_S
+    assert chip.stats["samples_lost"] == gap_samples(got)
+
+
+def test_a_full_handover_buffer_is_counted_as_lost_samples():
+    clock = SteppedClock()
+    chip, inner = chip_and_source(clock)
+    src = ThreadedSource(inner, clock=clock, sleep_until=clock.sleep_until, realtime=False, capacity_samples=16)
+    src.start()
+    got: list = []
+    try:
+        got.extend(src.poll())
+        clock.run_for(0.010)
+        got.extend(src.poll())
+        clock.run_for(0.100)                  # 82 samples, 16 fit
+        got.extend(src.poll())
+        clock.run_for(0.010)
+        got.extend(src.poll())
+    finally:
+        clock.close()
+        src.close()
+    dropped = src.stats["handover_dropped"]
+    assert dropped >= 0.1 / PERIOD_S - 16 - 2
+    assert gap_samples(got) == dropped
+    assert chip.stats["samples_lost"] == 0                           # read from the chip, dropped here
+
+
+def test_a_bus_failure_reaches_the_daemon_from_poll():
+    clock = SteppedClock()
+    chip, inner = chip_and_source(clock)
+    src = ThreadedSource(inner, clock=clock, sleep_until=clock.sleep_until, realtime=False)
+    src.start()
+    try:
+        clock.run_for(0.01)
+        assert src.poll()
+        chip.close()                          # the device node went away
+        clock.run_for(0.01)
+        with pytest.raises(BusError, match="closed"):
+            src.poll()                        # (after what was read before the failure, if any)
+            src.poll()
+        assert src.counters()["reader_read_failures"] >= 1
+    finally:
+        clock.close()
+        src.close()
