@@ -429,7 +429,7 @@ def _gyro(args) -> int:
     rc = _report_fit(args, res, payload, lines, "gyro", report.gyro_model_lines,
                      {"method": res.method, "residual_rms_rad_s": res.residual_rms_rad_s})
     if args.plot:
-        from . import gyro_plot
+        from .plots import gyro as gyro_plot
 
         title = f"gyro calibration ({res.method}) of {args.recording}" + ("" if res.ok else ": REFUSED")
         if args.bias_only:

@@ -12,10 +12,10 @@ import logging
 import os
 import sys
 
-from ahrsd.cli import calibrate, log, magcal, record, replay, run
+from ahrsd.cli import calibrate, log, magcal, record, replay, run, warm_up
 
 # Order is the order shown in `ahrsd --help`.
-SUBCOMMANDS = (run, record, replay, calibrate, magcal, log)
+SUBCOMMANDS = (run, record, replay, calibrate, magcal, log, warm_up)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -103,6 +103,13 @@ def run(args: argparse.Namespace) -> int:
         except (OSError, ValueError) as exc:
             print(f"ahrsd run: error: cannot replay {_os_error_text(exc, cfg.sensor.replay_file)}", file=sys.stderr)
             return 1
+    from ahrsd.cli.warm_up import compile_estimator
+
+    try:   # said before a compile (first start only), not after it
+        compile_estimator(cfg.estimator_name)
+    except (ValueError, ModuleNotFoundError) as exc:
+        print(f"ahrsd run: error: estimator {cfg.estimator_name!r}: {exc}", file=sys.stderr)
+        return 1
     # the chip sources retry a failed start and a lost bus with backoff (daemon.sensor_recovery)
     source = open_source(cfg.sensor, faults=plan)
     service = Service(cfg, source=source)
