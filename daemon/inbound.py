@@ -8,6 +8,7 @@ import time
 
 from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.autopilot import AutopilotState
+from ahrsd.daemon.ftp_nak import ftp_nak
 from ahrsd.daemon.mavlink_io import Endpoint, is_for_us, mavlink
 
 log = logging.getLogger(__name__)
@@ -63,6 +64,11 @@ class InboundDispatch:
             ours, broadcast = is_for_us(msg, self.system_id, self.component_id)
             if ours:
                 self.commands.handle(msg, endpoint, broadcast)
+            return
+        if mtype == "FILE_TRANSFER_PROTOCOL":
+            reply = ftp_nak(msg, self.system_id, self.component_id)
+            if reply is not None:
+                endpoint.send(reply)
             return
         if mtype in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"):
             ours, broadcast = is_for_us(msg, self.system_id, self.component_id)

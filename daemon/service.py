@@ -60,6 +60,7 @@ from ahrsd.daemon.signing import initial_timestamp, key_fingerprint, load_key, s
 from ahrsd.daemon.status_line import StatusLine
 from ahrsd.daemon.vehicle_log import VehicleLogging
 from ahrsd.drivers.source import open_source
+from ahrsd.daemon.broadcast_notice import BroadcastNotice
 from ahrsd.estimator import make_estimator
 from ahrsd.estimator.warm_up import warm_up
 
@@ -99,6 +100,7 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         self.params = ParamStore(param_specs(config), self.state_dir, on_change=self._on_param_change)
         self.commands = CommandRouter(self, self._send_on, require_signed=lambda: self.signing_required,
                                       accept_broadcast=config.mavlink.accept_broadcast_commands)
+        self.commands.broadcast_notice = BroadcastNotice(self.statustext, config.mavlink.component_id)
         self.notifier = Notifier(environ)
         self.source = source
         self.gnss: GnssTask | None = None      # [gnss] source (daemon.gnss_task), None without one
