@@ -696,20 +696,34 @@ def _read_swing_table(path):
 
 
 def _report_fit(args, res, payload, lines, sensor, describe, meta) -> int:
-    """Common tail: refused → report and 1; else save, report parameters and 0."""
+    """Common tail: refused → report and 1; else save, report parameters and 0. The magnetometer report leads
+    with what the operator decides on (cli.fit_summary), the details after it."""
+    from ahrsd.calibration.report import _QUALITY_NOT_LISTED, quality_lines
+
+    from .fit_summary import detail_lines, mag_decision_lines
+
     if not res.ok:
         payload["saved_to"] = None
-        lines.append(f"  REFUSED: {res.refused}")
+        if sensor == "mag":
+            lines[1:1] = mag_decision_lines(res, f"REFUSED: {res.refused}")
+        else:
+            lines.append(f"  REFUSED: {res.refused}")
         _emit(args, payload, "\n".join(lines))
         return 1
     model = res.model
     path, note = _save(args, sensor, model, meta)
     payload["saved_to"] = None if path is None else str(path)
-    from ahrsd.calibration.report import quality_lines
-
-    lines += describe(model, res)
-    lines += quality_lines(res.quality)
-    lines.append(f"  {note}")
+    if sensor == "mag":
+        lines[1:1] = mag_decision_lines(res, f"accepted, {note}")
+        lines += describe(model, res)
+        lines.append("  details:")
+        lines += detail_lines(res.quality, frozenset(_QUALITY_NOT_LISTED) | {
+            "predicted_heading", "heading_coverage", "coverage", "sphere_coverage", "tilt", "warnings",
+            "attitude_source", "residual_max_ut", "sigma_hard_iron_ut"})
+    else:
+        lines += describe(model, res)
+        lines += quality_lines(res.quality)
+        lines.append(f"  {note}")
     _emit(args, payload, "\n".join(lines))
     return 0
 
