@@ -14,7 +14,7 @@ from ahrsd.calibration.store import checksum
 from ahrsd.drivers.gnss.log import GnssLog
 from ahrsd.drivers.gnss.validation import GnssRejection
 from ahrsd.drivers.rotating_log import LogLimits
-from ahrsd.drivers.sample_log import SampleLog
+from ahrsd.drivers.sample_log import SampleLog, monotonic_to_unix_s
 from ahrsd.drivers.tlog import TlogLog
 
 log = logging.getLogger(__name__)
@@ -62,12 +62,17 @@ class VehicleLogging:
             # sidecar still names the calibration the daemon had in force
             samples_bytes = total_bytes - tlog_bytes if cfg.tlog else total_bytes
             gnss_bytes = int(samples_bytes * GNSS_SHARE) if self.config.gnss.source != "none" else 0
+            # a replay's t_s is the recording's own time, not the monotonic clock: None dates each file by the wall
+            # clock when it opens (drivers.rotating_log), i.e. when the replay ran
+            unix_minus_t = None if self.recording_time_base else monotonic_to_unix_s
             self.sample_log = SampleLog(directory, limits(samples_bytes - gnss_bytes),
                                         metadata={"calibrated": False,
-                                                  "calibration": calibration_summary(self.pipeline.calibration)})
+                                                  "calibration": calibration_summary(self.pipeline.calibration)},
+                                        unix_minus_t=unix_minus_t)
             self._sample_log_put = self.sample_log.put
             if gnss_bytes:
-                self.gnss_log = GnssLog(directory, limits(gnss_bytes), metadata={"gnss_source": self.config.gnss.source})
+                self.gnss_log = GnssLog(directory, limits(gnss_bytes), metadata={"gnss_source": self.config.gnss.source},
+                                        unix_minus_t=unix_minus_t)
         if cfg.tlog:
             self.mavlink_log = TlogLog(directory, limits(tlog_bytes))
             for ep in self.endpoints:
