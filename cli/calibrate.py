@@ -58,7 +58,8 @@ def register(subparsers) -> None:
                    help="also align the calibration to the unit's housing: it must have rested flat on each of its "
                    "six faces on a surface levelled to about 0.02° (docs/calibration.md)")
     c.add_argument("--live", action="store_true", help="guided live calibration from the sensor")
-    c.add_argument("--sim", metavar="SCENARIO", help="with --live: the simulated chip running this scenario")
+    c.add_argument("--sim", metavar="SCENARIO", help="with --live: the simulated chip running this scenario "
+                   "(accel-positions: the guided positions of a six-face calibration)")
     c.add_argument("--spi", metavar="DEV", help="with --live: the real ADIS16405 on this spidev node")
     c.add_argument("--timeout-s", type=float, default=900.0, help="with --live: give up after this long")
 
@@ -169,7 +170,9 @@ def _save(args, sensor, model, meta):
         base = "no earlier calibration"
     else:
         base = f"the other sensors of {last_load.path}"
-    return path, f"saved to {path} (merged with {base}; the previous file is kept as {store.previous_path.name})"
+    kept = (f"the previous file is kept as {store.previous_path.name}" if store.previous_path.exists()
+            else "there was no previous file")
+    return path, f"saved to {path} (merged with {base}; {kept})"
 
 
 def _emit(args, payload: dict, text: str) -> None:

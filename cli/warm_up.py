@@ -45,11 +45,17 @@ def compile_estimator(name: str, clock=time.monotonic, announce_after_s: float =
 
     timer = threading.Timer(announce_after_s, announce)
     timer.daemon = True
+    # the throwaway estimator's own news ("velocity and position set from the GNSS fix at t=0.000 s") is not the
+    # daemon's: below WARNING it is kept out of the log while it runs
+    estimator_log = logging.getLogger("ahrsd.estimator")
+    level = estimator_log.level
+    estimator_log.setLevel(max(level, logging.WARNING))
     timer.start()
     try:
         warm_up(name)
     finally:
         timer.cancel()
+        estimator_log.setLevel(level)
     took = clock() - started
     if announced.is_set():
         log.info("compiled the %s estimator in %.1f s", name, took)
