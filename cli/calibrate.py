@@ -232,8 +232,11 @@ def _allan(args) -> int:
         from ahrsd.calibration.allan_plot import plot_allan
 
         _write_plot(args, plot_allan, res)
-    lines = [f"Allan analysis of {args.recording}: {res.duration_s / 3600:.2f} h at {res.rate_hz:.1f} Hz"]
-    lines += describe(res) + [f"  {note}"]
+    from ahrsd.calibration.allan import summary
+
+    lines = [f"Allan analysis of {args.recording}: {res.duration_s / 3600:.2f} h at {res.rate_hz:.1f} Hz; noise "
+             f"parameters {note}"]
+    lines += summary(res) + ["  details:"] + ["  " + line for line in describe(res)]
     _emit(args, payload, "\n".join(lines))
     return 0
 

@@ -11,7 +11,7 @@ import pytest
 
 pytest.importorskip("matplotlib")
 
-from ahrsd.cli import gyro_plot  # noqa: E402
+from ahrsd.cli.plots import gyro as gyro_plot  # noqa: E402
 from ahrsd.cli import main as cli  # noqa: E402
 from ahrsd.drivers.recording import RECORDING_HEADER  # noqa: E402
 
