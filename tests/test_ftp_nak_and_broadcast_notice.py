@@ -68,7 +68,7 @@ def test_the_command_router_tells_the_notice_about_a_handled_command_sent_to_com
             noted.append((command_id, source))
 
     acks = []
-    router = CommandRouter(service=None, send_ack=lambda ep, m: acks.append(m), broadcast_notice=Notice())
+    router = CommandRouter(send_ack=lambda ep, m: acks.append(m), broadcast_notice=Notice())
     router.register(42424, lambda ctx: None, accept_broadcast=False)
     msg = mavlink.MAVLink_command_long_message(1, 0, 42424, 0, 0, 0, 0, 0, 0, 0, 0)
     msg = mavlink.MAVLink(None).parse_char(msg.pack(mavlink.MAVLink(None, srcSystem=255, srcComponent=190)))
