@@ -37,6 +37,9 @@ def test_white_noise_at_the_chip_rate_is_the_configured_density(chip_record):
     configured = {"gyro": errors.gyro_noise_density_rad_s_rthz, "accel": errors.accel_noise_density_m_s2_rthz,
                   "mag": errors.mag_noise_density_ut_rthz}
     for sensor, axes in res.parameters.items():
+        print(f"{sensor} white noise vs configured: " + ", ".join(
+            f"{axis} {(p.white_noise / configured[sensor] - 1) * 100:+.1f} %" for axis, p in axes.items()
+            if p.white_noise is not None))
         for axis, p in axes.items():
             assert p.white_noise is not None, (sensor, axis, p.flags)
             assert p.white_noise == pytest.approx(configured[sensor], rel=0.05), (sensor, axis)
