@@ -80,3 +80,17 @@ def test_the_warm_up_estimators_news_stays_out_of_the_log(monkeypatch, caplog):
     assert "a real problem" in caplog.text and "set from the GNSS fix" not in caplog.text
     logging.getLogger("ahrsd.estimator.ins").info("after the warm-up")
     assert "after the warm-up" in caplog.text            # the level is restored
+
+
+def test_an_endpoint_that_cannot_bind_is_named():
+    import asyncio
+
+    from ahrsd.daemon.mavlink_io import Endpoint
+
+    loop = asyncio.new_event_loop()
+    try:
+        ep = Endpoint("udpin:192.0.2.1:14550", 1, 200, lambda e, m: None)   # TEST-NET-1: not this machine's
+        with pytest.raises(OSError, match=r"MAVLink endpoint udpin:192\.0\.2\.1:14550: "):
+            ep.open(loop)
+    finally:
+        loop.close()

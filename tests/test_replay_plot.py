@@ -59,21 +59,14 @@ def truth_recording(tmp_path_factory):
 @pytest.fixture
 def figures(monkeypatch):
     """The figures `ahrsd replay --plot` draws, kept open for the test to read (and still written to the file)."""
-    import matplotlib.pyplot as plt
-
     from ahrsd.estimator import replay_plot
+    from support.kept_figures import kept_figures
 
-    kept = []
+    def figure_and_path(trace, path, *args, **kwargs):
+        return replay_plot.replay_figure(trace, *args, **kwargs), path
 
-    def keep(trace, path, *args, **kwargs):
-        fig = replay_plot.replay_figure(trace, *args, **kwargs)
-        kept.append(fig)
-        fig.savefig(path, dpi=40)
-
-    monkeypatch.setattr(replay_plot, "plot_replay", keep)
-    yield kept
-    for fig in kept:
-        plt.close(fig)
+    with kept_figures(monkeypatch, replay_plot, "plot_replay", figure_and_path) as kept:
+        yield kept
 
 
 def axis_labelled(fig, ylabel):
