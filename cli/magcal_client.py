@@ -134,10 +134,14 @@ class MagCalClient:
         filled = int(width * m.completion_pct / 100)
         cells = sum(bin(b).count("1") for b in m.completion_mask)
         hint = ""
-        if abs(m.direction_y) > 0.1 and m.direction_z == 0:
+        level = m.direction_z == 0     # the daemon asks a level vehicle only to turn, never to tilt
+        if abs(m.direction_y) > 0.1 and level:
             hint = "turn right" if m.direction_y > 0 else "turn left"
+        # the 80 sphere cells are ArduPilot's tumble coverage: a level vehicle never fills them, so only the
+        # completion (the daemon's, for the model its data supports) is shown for it
+        sphere = "" if level else f"cells {cells:2d}/80 "
         line = (f"\r[{'#' * filled}{'.' * (width - filled)}] {m.completion_pct:3d}% "
-                f"{STATUS_NAMES.get(m.cal_status, m.cal_status):<16} attempt {m.attempt} cells {cells:2d}/80 {hint:<10}")
+                f"{STATUS_NAMES.get(m.cal_status, m.cal_status):<16} attempt {m.attempt} {sphere}{hint:<10}")
         self.out.write(line)
         self.out.flush()
         self._bar_shown = True

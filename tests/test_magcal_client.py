@@ -33,7 +33,11 @@ def test_client_reassembles_chunked_statustext_and_draws_bar():
     assert f"[ahrsd] {text}\n" in out.getvalue()
     prog = wire(mavlink.MAVLink_mag_cal_progress_message(0, 1, 2, 1, 40, [255, 1] + [0] * 8, 0.7, 0.7, 0.0))
     client._show(prog)
-    assert "40%" in out.getvalue() and "cells  9/80" in out.getvalue() and "turn right" in out.getvalue()
+    assert "40%" in out.getvalue() and "turn right" in out.getvalue()
+    assert "/80" not in out.getvalue()          # a level vehicle: no tumble cells it could never fill
+    tumble = wire(mavlink.MAVLink_mag_cal_progress_message(0, 1, 2, 1, 55, [255, 3] + [0] * 8, 0.0, 0.3, 0.8))
+    client._show(tumble)
+    assert "55%" in out.getvalue() and "cells 10/80" in out.getvalue()
 
 
 def test_find_target_rejects_bad_target_text():
