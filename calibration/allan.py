@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .allan_adev import ONE_SIGMA, AllanCurve, StreamingAllan, confidence_interval, edf_overlapping
+from .allan_correlation import SampleCorrelation, shortest_fit_tau_s
 from .allan_kalman import kalman_tuning
 from .allan_terms import (
     TERMS,
@@ -76,9 +77,17 @@ class NoiseParameters:
         return d
 
 
-def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float) -> NoiseParameters:
-    """Decide the terms of one axis' curve and read their values."""
+def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float, correlation_samples: int = 1) -> NoiseParameters:
+    """Decide the terms of one axis' curve and read their values. correlation_samples: how many samples apart
+    the samples stop being correlated (allan_correlation): the fit uses only the τ beyond a few of those."""
     pts = octave_points(curve, axis)
+    min_tau_s = shortest_fit_tau_s(correlation_samples, rate_hz)
+    short_note = []
+    if min_tau_s > 0 and np.count_nonzero(pts.taus >= min_tau_s) >= 3:
+        keep = pts.taus >= min_tau_s
+        pts = type(pts)(pts.taus[keep], pts.avar[keep], pts.level_n[keep], pts.level_m[keep], pts.record_s)
+        short_note = [f"τ < {min_tau_s:.3g} s not fitted: the samples are correlated over {correlation_samples} "
+                      "samples (the sensor's filter), which bends the curve there"]
     if len(pts.taus) < 3 or not np.all(pts.avar > 0):
         j = int(np.argmin(curve.adev[:, axis]))
         return NoiseParameters(None, None, None, None, None, float(curve.adev[j, axis]), float(curve.taus_s[j]),
@@ -93,6 +102,7 @@ def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float) -> Noise
             bound = report.get("upper_bound")
             bound_text = "" if bound is None else f" (≤ {bound:.3g} at 2σ)"
             flags.append(f"{name.replace('_', ' ')} not seen{bound_text}: {report['note']}")
+    flags = short_note + flags
     bias = flicker_reading(fit, pts)
     if "flicker" in terms and bias is None:    # kept but no τ left beside the shortest: not readable
         del terms["flicker"]
@@ -164,6 +174,7 @@ class StaticAllanAnalysis:
         self._sum_sq: dict[str, np.ndarray] = {}
         self._ref: dict[str, np.ndarray] = {}
         self._replaced: dict[str, int] = {}
+        self._correlation: dict[str, SampleCorrelation] = {}
         self._n = 0
         self._t0 = self._t_last = math.nan
 
@@ -201,6 +212,7 @@ class StaticAllanAnalysis:
                 self._sum[sensor] = np.zeros(3)
                 self._sum_sq[sensor] = np.zeros(3)
                 self._replaced[sensor] = 0
+                self._correlation[sensor] = SampleCorrelation()
             if bad.any():
                 # A few invalid samples of a long record: replaced by the mean so far (one sample each).
                 n_before = self._allan[sensor].n_samples
@@ -208,6 +220,7 @@ class StaticAllanAnalysis:
                 data = np.where(bad, mean, data)
                 self._replaced[sensor] += int(np.count_nonzero(bad.any(axis=1)))
             self._allan[sensor].add(data)
+            self._correlation[sensor].add(data)
             d = data - self._ref[sensor]
             self._sum[sensor] += d.sum(axis=0)
             self._sum_sq[sensor] += np.einsum("ij,ij->j", d, d)
@@ -224,7 +237,8 @@ class StaticAllanAnalysis:
             curve = acc.curve()
             n = acc.n_samples
             std = np.sqrt(np.maximum(self._sum_sq[sensor] / n - (self._sum[sensor] / n) ** 2, 0.0))
-            axes = {ax: read_axis(curve, i, std[i], self._rate_hz) for i, ax in enumerate(AXES)}
+            lengths = self._correlation[sensor].lengths()
+            axes = {ax: read_axis(curve, i, std[i], self._rate_hz, int(lengths[i])) for i, ax in enumerate(AXES)}
             lo, hi = np.empty_like(curve.adev), np.empty_like(curve.adev)
             for i, ax in enumerate(AXES):
                 fit = axes[ax].fit
@@ -258,6 +272,31 @@ def analyse_static(t_s: np.ndarray, gyro_rad_s=None, accel_m_s2=None, mag_ut=Non
 
 _REPORT_NAMES = {"gyro": ("ARW", "rad/s/√Hz", "rad/s"), "accel": ("VRW", "m/s²/√Hz", "m/s²"),
                  "mag": ("white", "µT/√Hz", "µT")}
+
+
+# What an operator compares with a data sheet: white noise in the data sheet's units (value per rad/s/√Hz etc.)
+_SUMMARY_UNITS = {"gyro": ("ARW", "°/√h", math.degrees(1.0) * 60.0), "accel": ("VRW", "m/s/√h", 60.0),
+                  "mag": ("white noise", "µT/√Hz", 1.0)}
+_BIAS_UNITS = {"gyro": ("°/h", math.degrees(1.0) * 3600.0), "accel": ("mg", 1e3 / 9.80665), "mag": ("µT", 1.0)}
+
+
+def summary(result: AllanResult) -> list[str]:
+    """The lead of the report: per sensor the white noise and bias instability of each axis in data-sheet
+    units (or that it was not seen and what the filter assumes instead), and where the filter tuning comes from."""
+    lines = []
+    assumed = {a["key"]: a for a in kalman_tuning(result)["assumed"]}
+    for sensor, axes in result.parameters.items():
+        name, unit, scale = _SUMMARY_UNITS[sensor]
+        bias_unit, bias_scale = _BIAS_UNITS[sensor]
+        white = "  ".join(f"{ax} " + ("not seen" if p.white_noise is None else f"{p.white_noise * scale:.3g}")
+                          for ax, p in axes.items())
+        bias = "  ".join(f"{ax} " + ("not seen" if p.bias_instability is None
+                                     else f"{p.bias_instability * bias_scale:.3g}") for ax, p in axes.items())
+        lines.append(f"  {sensor:<5} {name} ({unit}): {white};  bias instability ({bias_unit}): {bias}")
+    if assumed:
+        keys = sorted({key.rsplit(".", 1)[0] for key in assumed})
+        lines.append(f"  not seen in this recording, the filter assumes instead: {', '.join(keys)} (details below)")
+    return lines
 
 
 def describe(result: AllanResult) -> list[str]:

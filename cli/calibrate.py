@@ -58,7 +58,8 @@ def register(subparsers) -> None:
                    help="also align the calibration to the unit's housing: it must have rested flat on each of its "
                    "six faces on a surface levelled to about 0.02° (docs/calibration.md)")
     c.add_argument("--live", action="store_true", help="guided live calibration from the sensor")
-    c.add_argument("--sim", metavar="SCENARIO", help="with --live: the simulated chip running this scenario")
+    c.add_argument("--sim", metavar="SCENARIO", help="with --live: the simulated chip running this scenario "
+                   "(accel-positions: the guided positions of a six-face calibration)")
     c.add_argument("--spi", metavar="DEV", help="with --live: the real ADIS16405 on this spidev node")
     c.add_argument("--timeout-s", type=float, default=900.0, help="with --live: give up after this long")
 
@@ -169,7 +170,9 @@ def _save(args, sensor, model, meta):
         base = "no earlier calibration"
     else:
         base = f"the other sensors of {last_load.path}"
-    return path, f"saved to {path} (merged with {base}; the previous file is kept as {store.previous_path.name})"
+    kept = (f"the previous file is kept as {store.previous_path.name}" if store.previous_path.exists()
+            else "there was no previous file")
+    return path, f"saved to {path} (merged with {base}; {kept})"
 
 
 def _emit(args, payload: dict, text: str) -> None:
@@ -229,8 +232,11 @@ def _allan(args) -> int:
         from ahrsd.calibration.allan_plot import plot_allan
 
         _write_plot(args, plot_allan, res)
-    lines = [f"Allan analysis of {args.recording}: {res.duration_s / 3600:.2f} h at {res.rate_hz:.1f} Hz"]
-    lines += describe(res) + [f"  {note}"]
+    from ahrsd.calibration.allan import summary
+
+    lines = [f"Allan analysis of {args.recording}: {res.duration_s / 3600:.2f} h at {res.rate_hz:.1f} Hz; noise "
+             f"parameters {note}"]
+    lines += summary(res) + ["  details:"] + ["  " + line for line in describe(res)]
     _emit(args, payload, "\n".join(lines))
     return 0
 
@@ -429,7 +435,7 @@ def _gyro(args) -> int:
     rc = _report_fit(args, res, payload, lines, "gyro", report.gyro_model_lines,
                      {"method": res.method, "residual_rms_rad_s": res.residual_rms_rad_s})
     if args.plot:
-        from . import gyro_plot
+        from .plots import gyro as gyro_plot
 
         title = f"gyro calibration ({res.method}) of {args.recording}" + ("" if res.ok else ": REFUSED")
         if args.bias_only:
@@ -672,20 +678,34 @@ def _read_swing_table(path):
 
 
 def _report_fit(args, res, payload, lines, sensor, describe, meta) -> int:
-    """Common tail: refused → report and 1; else save, report parameters and 0."""
+    """Common tail: refused → report and 1; else save, report parameters and 0. The magnetometer report leads
+    with what the operator decides on (cli.fit_summary), the details after it."""
+    from ahrsd.calibration.report import _QUALITY_NOT_LISTED, quality_lines
+
+    from .fit_summary import detail_lines, mag_decision_lines
+
     if not res.ok:
         payload["saved_to"] = None
-        lines.append(f"  REFUSED: {res.refused}")
+        if sensor == "mag":
+            lines[1:1] = mag_decision_lines(res, f"REFUSED: {res.refused}")
+        else:
+            lines.append(f"  REFUSED: {res.refused}")
         _emit(args, payload, "\n".join(lines))
         return 1
     model = res.model
     path, note = _save(args, sensor, model, meta)
     payload["saved_to"] = None if path is None else str(path)
-    from ahrsd.calibration.report import quality_lines
-
-    lines += describe(model, res)
-    lines += quality_lines(res.quality)
-    lines.append(f"  {note}")
+    if sensor == "mag":
+        lines[1:1] = mag_decision_lines(res, f"accepted, {note}")
+        lines += describe(model, res)
+        lines.append("  details:")
+        lines += detail_lines(res.quality, frozenset(_QUALITY_NOT_LISTED) | {
+            "predicted_heading", "heading_coverage", "coverage", "sphere_coverage", "tilt", "warnings",
+            "attitude_source", "residual_max_ut", "sigma_hard_iron_ut"})
+    else:
+        lines += describe(model, res)
+        lines += quality_lines(res.quality)
+        lines.append(f"  {note}")
     _emit(args, payload, "\n".join(lines))
     return 0
 

@@ -134,10 +134,14 @@ class MagCalClient:
         filled = int(width * m.completion_pct / 100)
         cells = sum(bin(b).count("1") for b in m.completion_mask)
         hint = ""
-        if abs(m.direction_y) > 0.1 and m.direction_z == 0:
+        level = m.direction_z == 0     # the daemon asks a level vehicle only to turn, never to tilt
+        if abs(m.direction_y) > 0.1 and level:
             hint = "turn right" if m.direction_y > 0 else "turn left"
+        # the 80 sphere cells are ArduPilot's tumble coverage: a level vehicle never fills them, so only the
+        # completion (the daemon's, for the model its data supports) is shown for it
+        sphere = "" if level else f"cells {cells:2d}/80 "
         line = (f"\r[{'#' * filled}{'.' * (width - filled)}] {m.completion_pct:3d}% "
-                f"{STATUS_NAMES.get(m.cal_status, m.cal_status):<16} attempt {m.attempt} cells {cells:2d}/80 {hint:<10}")
+                f"{STATUS_NAMES.get(m.cal_status, m.cal_status):<16} attempt {m.attempt} {sphere}{hint:<10}")
         self.out.write(line)
         self.out.flush()
         self._bar_shown = True
@@ -181,7 +185,15 @@ class MagCalClient:
                     return 1
                 if m.autosaved:
                     return 0
-                if not accept and not _ask("accept and save this calibration? [y/N] "):
+                answer = accept or _ask("accept and save this calibration? [y/N] ")
+                elsewhere = self._settled_elsewhere()   # while we waited at the prompt
+                if elsewhere == "saved":
+                    self._print("accepted from another ground station or terminal: calibration saved")
+                    return 0
+                if elsewhere == "cancelled":
+                    self._print("cancelled from another ground station or terminal: calibration unchanged")
+                    return 1
+                if not answer:
                     self.command(MAV_CMD_DO_CANCEL_MAG_CAL, 0)
                     self._print("not accepted: calibration unchanged")
                     return 1
@@ -192,6 +204,25 @@ class MagCalClient:
             return 130
         self._print("gave up waiting (--max-time); the calibration is still running on the daemon")
         return 1
+
+    def _settled_elsewhere(self, listen_s: float = 0.5) -> str | None:
+        """"saved" or "cancelled" when the daemon said so (STATUSTEXT) in the messages that arrived while we
+        waited, or within `listen_s` more; None when the session is still waiting for an answer."""
+        end = time.monotonic() + listen_s
+        while True:
+            m = self.conn.recv_match(blocking=False)
+            if m is None:
+                if time.monotonic() >= end:
+                    return None
+                time.sleep(0.02)
+                continue
+            if not self._from_target(m) or m.get_type() != "STATUSTEXT":
+                continue
+            text = self._statustext(m) or ""
+            if text.startswith("Mag cal saved"):
+                return "saved"
+            if text.startswith("Mag cal cancelled"):
+                return "cancelled"
 
     def status(self, seconds: float) -> int:
         end = time.monotonic() + seconds

@@ -12,10 +12,10 @@ import logging
 import os
 import sys
 
-from ahrsd.cli import calibrate, log, magcal, record, replay, run
+from ahrsd.cli import calibrate, log, magcal, record, replay, run, warm_up
 
 # Order is the order shown in `ahrsd --help`.
-SUBCOMMANDS = (run, record, replay, calibrate, magcal, log)
+SUBCOMMANDS = (run, record, replay, calibrate, magcal, log, warm_up)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -25,6 +25,7 @@ def build_parser() -> argparse.ArgumentParser:
         "with bench and field magnetometer calibration.",
     )
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    parser.add_argument("--version", action="version", version=f"ahrsd {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for module in SUBCOMMANDS:
         module.register(sub)
@@ -52,6 +53,15 @@ def _main(argv: list[str] | None) -> int:
         parser.print_help()
         return 2
     return int(args.func(args) or 0)
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("ahrsd")
+    except PackageNotFoundError:
+        return "(not installed)"
 
 
 def _silence_stdout() -> None:

@@ -91,7 +91,8 @@ class _ActivityLine:
 
 class _EstimatedTotalBar:
     """A tqdm bar whose total is an estimate (a file's size over its rows' length): grown when passed, so the
-    bar keeps its time left, and set to what was done at the end, so it closes at 100 %."""
+    bar keeps its time left, and set to what was done at the end of a finished run, so it closes at 100 %; a run
+    stopped part-way (Ctrl-C, an error) keeps the estimate and says "stopped", so it never shows 100 %."""
 
     def __init__(self, bar):
         self._bar = bar
@@ -102,9 +103,11 @@ class _EstimatedTotalBar:
             bar.total = int((bar.n + n) * 1.02) + 1
         bar.update(n)
 
-    def close(self) -> None:
+    def close(self, finished: bool = True) -> None:
         bar = self._bar
-        if bar.total is not None and bar.n != bar.total:
+        if not finished:
+            bar.set_postfix_str("stopped", refresh=True)
+        elif bar.total is not None and bar.n != bar.total:
             bar.total = bar.n
             bar.refresh()
         bar.close()
@@ -112,8 +115,8 @@ class _EstimatedTotalBar:
     def __enter__(self):
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type, *exc) -> None:
+        self.close(finished=exc_type is None)
 
 
 def expected_rows(path: str) -> int | None:

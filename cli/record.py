@@ -34,7 +34,8 @@ def register(subparsers) -> None:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--sim", metavar="SCENARIO", nargs="?", const="static",
                      help="simulated ADIS16405 driven by a simulation scenario (static, rate-table, level-turns, "
-                     "coordinated-turn, tumble, auv-out-and-back, mag-disturbance; --sim alone: static)")
+                     "coordinated-turn, tumble, auv-out-and-back, mag-disturbance, and the vehicles with a GNSS "
+                     "receiver: boat, car, plane; --sim alone: static)")
     src.add_argument("--spi", metavar="DEV", help="real ADIS16405 on this spidev node, e.g. /dev/spidev0.0")
     p.add_argument("--output", "-o", required=True, metavar="FILE", help="CSV file to write")
     p.add_argument("--seconds", type=float, default=None,

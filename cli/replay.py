@@ -261,7 +261,7 @@ def run(args) -> int:
         return 2 if isinstance(exc, ReplayUsageError) else 1
 
 
-def _plot(args, trace) -> None:
+def _plot(args, trace, title: str, fixes) -> None:
     """The replay figure, with the recording's truth attitude when it has the truth columns."""
     import numpy as np
 
@@ -276,13 +276,8 @@ def _plot(args, trace) -> None:
         truth_q, truth_t = rec.truth_q_wxyz, rec.t_s
         if not np.isfinite(truth_q).any():
             truth_q = truth_t = None
-    import os
-
-    title = f"{os.path.basename(args.recording)} through {args.estimator}" + (
-        f", heading to true north ({args.lat:.4f}, {args.lon:.4f})" if args.lat is not None
-        else ", heading to magnetic north (give --lat/--lon for true north)")
     try:
-        plot_replay(trace, args.plot, truth_q, truth_t, title=title)
+        plot_replay(trace, args.plot, truth_q, truth_t, title=title, fixes=fixes or ())
     except OSError as exc:
         raise ReplayError(f"{args.plot}: cannot write the plot: {exc.strerror or exc}") from None
 
@@ -398,7 +393,12 @@ def _run(args) -> int:
         out.discard()
     t_loop = time.process_time() - t_run
     if trace is not None:
-        _plot(args, trace)
+        from ahrsd.estimator.replay_plot import replay_title
+
+        position = (args.lat, args.lon) if args.lat is not None else first_position
+        _plot(args, trace, replay_title(os.path.basename(args.recording), estimator_name, aided=aided,
+                                        declination_rad=declination, position_deg=position,
+                                        position_from_gnss=args.lat is None), fixes)
     wall = time.perf_counter() - t_start
     cpu = time.process_time() - cpu_start
 

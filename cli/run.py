@@ -13,7 +13,9 @@ def register(subparsers) -> None:
     p.add_argument("--config", metavar="FILE", help="TOML config (default: $CONFIGURATION_DIRECTORY/ahrsd.toml or "
                    "/etc/ahrsd/ahrsd.toml when present)")
     src = p.add_mutually_exclusive_group()
-    src.add_argument("--sim", metavar="SCENARIO", help="simulated ADIS16405 running SCENARIO (default: static)")
+    src.add_argument("--sim", metavar="SCENARIO", help="simulated ADIS16405 running SCENARIO: static (default), "
+                     "rate-table, level-turns, coordinated-turn, tumble, auv-out-and-back, mag-disturbance, boat, "
+                     "car, plane (the last three with a GNSS receiver: --gnss-sim)")
     src.add_argument("--spi", metavar="DEVICE", help="real ADIS16405 on this spidev node, e.g. /dev/spidev0.0")
     src.add_argument("--replay", metavar="FILE", help="replay a recording made by `ahrsd record`")
     p.add_argument("--replay-speed", metavar="X", type=float,
@@ -103,6 +105,13 @@ def run(args: argparse.Namespace) -> int:
         except (OSError, ValueError) as exc:
             print(f"ahrsd run: error: cannot replay {_os_error_text(exc, cfg.sensor.replay_file)}", file=sys.stderr)
             return 1
+    from ahrsd.cli.warm_up import compile_estimator
+
+    try:   # said before a compile (first start only), not after it
+        compile_estimator(cfg.estimator_name)
+    except (ValueError, ModuleNotFoundError) as exc:
+        print(f"ahrsd run: error: estimator {cfg.estimator_name!r}: {exc}", file=sys.stderr)
+        return 1
     # the chip sources retry a failed start and a lost bus with backoff (daemon.sensor_recovery)
     source = open_source(cfg.sensor, faults=plan)
     service = Service(cfg, source=source)

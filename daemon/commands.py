@@ -111,6 +111,7 @@ class CommandRouter:
     _handlers: dict[int, _Registration] = field(default_factory=dict)
     _recent: dict[tuple, tuple[float, Any]] = field(default_factory=dict)
     _refusal_log: TokenBucket = field(default_factory=lambda: TokenBucket(REFUSAL_LOG_RATE_PER_S, REFUSAL_LOG_BURST))
+    broadcast_notice: Any = None       # daemon.broadcast_notice.BroadcastNotice: says why a broadcast was ignored
 
     def register(self, command_id: int, handler: Handler, *, state_changing: bool = True,
                  accept_broadcast: bool = True) -> None:
@@ -133,6 +134,8 @@ class CommandRouter:
         reg = self._handlers.get(cmd)
         if broadcast and (reg is None or not reg.accept_broadcast or not self.accept_broadcast):
             self.counters.ignored_broadcast += 1
+            if reg is not None and self.broadcast_notice is not None:
+                self.broadcast_notice.note(cmd, src)    # ours, but not on a broadcast: say so
             return
         key = (src, cmd, command_params(msg))
         now = self.clock()

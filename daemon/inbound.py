@@ -14,6 +14,7 @@ from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.autopilot import AutopilotState
 from ahrsd.daemon.commands import CommandRouter
 from ahrsd.daemon.declination import Declination
+from ahrsd.daemon.ftp_nak import ftp_nak
 from ahrsd.daemon.mavlink_io import Endpoint, is_for_us, mavlink
 from ahrsd.daemon.outbound import Outbound
 from ahrsd.daemon.param_protocol import ParamProtocol
@@ -92,6 +93,11 @@ class InboundDispatch:
             ours, broadcast = is_for_us(msg, identity.system_id, identity.component_id)
             if ours:
                 self.commands.handle(msg, endpoint, broadcast)
+            return
+        if mtype == "FILE_TRANSFER_PROTOCOL":
+            reply = ftp_nak(msg, identity.system_id, identity.component_id)
+            if reply is not None:
+                endpoint.send(reply)
             return
         if mtype in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"):
             ours, broadcast = is_for_us(msg, identity.system_id, identity.component_id)

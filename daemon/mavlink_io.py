@@ -117,8 +117,8 @@ class Endpoint:
         try:
             conn = self._make_connection()
         except OSError as exc:
-            if self.kind != "serial":
-                raise
+            if self.kind != "serial":   # a configuration error: say which endpoint (the OS error names none)
+                raise OSError(exc.errno, f"MAVLink endpoint {self.url}: {exc.strerror or exc}") from exc
             log.warning("MAVLink %s: %s; retrying every %.0f s", self.url, exc, TCP_RETRY_S)
             self._connect_task = loop.create_task(self._connect_retrying())
             return

@@ -65,6 +65,7 @@ from ahrsd.daemon.source_set_realign import MAV_CMD_SET_EKF_SOURCE_SET, SourceSe
 from ahrsd.daemon.status_line import StatusLine, format_status
 from ahrsd.daemon.vehicle_log import VehicleLogs
 from ahrsd.drivers.source import open_source
+from ahrsd.daemon.broadcast_notice import BroadcastNotice
 from ahrsd.estimator import make_estimator
 from ahrsd.estimator.warm_up import warm_up
 
@@ -99,7 +100,9 @@ class Service:
         self.params = ParamStore(param_specs(config), self.state_dir, on_change=self._on_param_change)
         self.commands = CommandRouter(lambda endpoint, msg: endpoint.send(msg),
                                       require_signed=lambda: self.signing_required, send=self.outbound.send,
-                                      accept_broadcast=config.mavlink.accept_broadcast_commands)
+                                      accept_broadcast=config.mavlink.accept_broadcast_commands,
+                                      broadcast_notice=BroadcastNotice(self.outbound.statustext,
+                                                                       config.mavlink.component_id))
         self.notifier = Notifier(environ)
         self.listeners = SampleListeners()
         # the VISION_POSITION_ESTIMATE yaw after a calibration change, and reset_counter
@@ -110,7 +113,7 @@ class Service:
                                           autopilot=self.autopilot, simulator=config.sensor.source == "sim")
         self.declination = Declination(self.params, self.positions, signal_reset=self.heading.signal)
         self.logs = VehicleLogs(config.log, state_dir=self.state_dir, environ=environ,
-                                gnss_source=config.gnss.source)
+                                gnss_source=config.gnss.source, recording_time_base=config.sensor.source == "replay")
         self.endpoint_outputs = EndpointOutputs(
             self.outbound, base_rates_hz=lambda: {o.message_id: self.params.get(o.param_name) for o in OUTPUTS},
             signed=lambda: self.signing_key is not None, warn_soon=self._statustext_soon)

@@ -14,7 +14,7 @@ from ahrsd.calibration.store import checksum
 from ahrsd.drivers.gnss.log import GnssLog
 from ahrsd.drivers.gnss.validation import GnssRejection
 from ahrsd.drivers.rotating_log import LogLimits
-from ahrsd.drivers.sample_log import SampleLog
+from ahrsd.drivers.sample_log import SampleLog, monotonic_to_unix_s
 from ahrsd.drivers.tlog import TlogLog
 
 log = logging.getLogger(__name__)
@@ -41,8 +41,9 @@ class VehicleLogs:
     daemon.gnss_task); `close(endpoints)` at shutdown; `counters()` for the stats file. `put_sample` is the
     reader's one call per raw sample (None: not logging samples)."""
 
-    def __init__(self, cfg, *, state_dir, environ, gnss_source: str):
+    def __init__(self, cfg, *, state_dir, environ, gnss_source: str, recording_time_base: bool = False):
         self.cfg = cfg
+        self.recording_time_base = recording_time_base   # sample times are a recording's (a replay)
         self.state_dir = state_dir
         self.environ = environ
         self.gnss_source = gnss_source
@@ -68,12 +69,17 @@ class VehicleLogs:
             # sidecar still names the calibration the daemon had in force
             samples_bytes = total_bytes - tlog_bytes if cfg.tlog else total_bytes
             gnss_bytes = int(samples_bytes * GNSS_SHARE) if self.gnss_source != "none" else 0
+            # a replay's t_s is the recording's own time, not the monotonic clock: None dates each file by the wall
+            # clock when it opens (drivers.rotating_log), i.e. when the replay ran
+            unix_minus_t = None if self.recording_time_base else monotonic_to_unix_s
             self.sample_log = SampleLog(directory, limits(samples_bytes - gnss_bytes),
                                         metadata={"calibrated": False,
-                                                  "calibration": calibration_summary(calibration)})
+                                                  "calibration": calibration_summary(calibration)},
+                                        unix_minus_t=unix_minus_t)
             self.put_sample = self.sample_log.put
             if gnss_bytes:
-                self.gnss_log = GnssLog(directory, limits(gnss_bytes), metadata={"gnss_source": self.gnss_source})
+                self.gnss_log = GnssLog(directory, limits(gnss_bytes), metadata={"gnss_source": self.gnss_source},
+                                        unix_minus_t=unix_minus_t)
         if cfg.tlog:
             self.mavlink_log = TlogLog(directory, limits(tlog_bytes))
             for ep in endpoints:

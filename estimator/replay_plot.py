@@ -1,14 +1,16 @@
 """The figure of a replay (`ahrsd replay ... --plot FILE.png`): roll, pitch and heading with their 1σ bands, the
 estimator's flags as shaded spans, and, when the recording has truth, the error against it.
 
-`ReplayTrace` collects the replay's tables as they stream past (ATTITUDE_COLUMNS, estimator/replay.py) and keeps
-at most `max_rows` of them by decimation, OR-ing the flags over each group of rows dropped, so a flag that was
-up for one sample still shows. `plot_replay(trace, path, truth_q_wxyz=None)` draws it.
+`ReplayTrace` collects the replay's tables as they stream past (ATTITUDE_COLUMNS, estimator/replay.py, and
+NAV_COLUMNS after them for an aided run) and keeps at most `max_rows` of them by decimation, OR-ing the flags
+over each group of rows dropped, so a flag that was up for one sample still shows. `replay_figure(trace, ...)`
+draws it and returns the matplotlib figure; `plot_replay(trace, path, ...)` writes it to a file.
 
 GNSS: the flags panel has a row for GNSS_AIDED / GNSS_OUTAGE / GNSS_REJECTED whenever they occur (the `ins`
-estimator sets them). `ReplayTrace.gnss` is the hook for GNSS columns of the replay (`gnss_*`, e.g. the fix type
-or the horizontal accuracy, one array per name) once replays carry them: each becomes a line in the GNSS
-panel, which is drawn only when there is something in it.
+estimator sets them). An aided run (the trace holds NAV_COLUMNS) adds a velocity panel (north, east, down, with
+the GNSS fixes' velocities as points) and the track beside the time panels (north/east metres from the first
+position, the fixes as points). `ReplayTrace.gnss` is the hook for further GNSS columns (`gnss_*`, one array
+per name): each becomes a line in the GNSS panel, which is drawn only when there is something in it.
 """
 
 from __future__ import annotations
@@ -21,12 +23,13 @@ from ahrsd.core.angles import wrap_pi
 from ahrsd.core.estimate import EstimateFlags
 from ahrsd.core.plotting import pyplot
 
-from .replay import ATTITUDE_COLUMNS
+from .replay import ATTITUDE_COLUMNS, NAV_COLUMNS
 from .rotations import quat_to_euler
 
-_COL = {name: i for i, name in enumerate(ATTITUDE_COLUMNS)}
+_COL = {name: i for i, name in enumerate(ATTITUDE_COLUMNS + NAV_COLUMNS)}
 _KEPT = ("t_s", "roll_deg", "pitch_deg", "yaw_deg", "heading_true_deg", "sigma_roll_deg", "sigma_pitch_deg",
          "sigma_yaw_deg", "qw", "qx", "qy", "qz", "flags")
+_KEPT_NAV = _KEPT[:-1] + NAV_COLUMNS + ("flags",)     # flags stay last: decimation ORs that column
 _GNSS_FLAGS = EstimateFlags.GNSS_AIDED | EstimateFlags.GNSS_OUTAGE | EstimateFlags.GNSS_REJECTED
 # flags panel rows, top to bottom, with a colour each (the GNSS ones last, the hook for the aided estimator)
 _FLAG_ROWS = (
@@ -56,10 +59,17 @@ class ReplayTrace:
         self._pending: np.ndarray | None = None   # rows not yet a whole stride
         self.true_north = False
         self.gnss: dict[str, np.ndarray] = {}       # hook: gnss_* columns, once replays carry them
+        self.columns: tuple[str, ...] = _KEPT        # what table() holds: _KEPT_NAV once an aided table came
+
+    @property
+    def aided(self) -> bool:
+        return self.columns is _KEPT_NAV
 
     def add(self, table: np.ndarray) -> None:
-        """One table of replay output (ATTITUDE_COLUMNS)."""
-        kept = table[:, [_COL[c] for c in _KEPT]]
+        """One table of replay output: ATTITUDE_COLUMNS, or ATTITUDE_COLUMNS + NAV_COLUMNS (an aided run)."""
+        if self._rows == 0 and self._pending is None and table.shape[1] == len(ATTITUDE_COLUMNS) + len(NAV_COLUMNS):
+            self.columns = _KEPT_NAV
+        kept = table[:, [_COL[c] for c in self.columns]]
         if self._pending is not None:
             kept = np.vstack([self._pending, kept])
             self._pending = None
@@ -81,7 +91,7 @@ class ReplayTrace:
 
     def table(self) -> np.ndarray:
         parts = list(self._chunks) + ([self._pending[:1]] if self._pending is not None else [])
-        return np.vstack(parts) if parts else np.empty((0, len(_KEPT)))
+        return np.vstack(parts) if parts else np.empty((0, len(self.columns)))
 
 
 def _decimate(rows: np.ndarray, stride: int) -> np.ndarray:
@@ -141,32 +151,80 @@ def truth_errors_deg(q_est_wxyz: np.ndarray, q_truth_wxyz: np.ndarray) -> np.nda
     return np.degrees(wrap_pi(est - truth))
 
 
+def replay_title(recording_name: str, estimator_name: str, *, aided: bool, declination_rad: float,
+                 position_deg: tuple | None, position_from_gnss: bool) -> str:
+    """What the figure shows: the recording, the estimator that ran (the default when none was named), and the
+    north the heading is referred to, with the declination and where it came from."""
+    what = f"{recording_name} through {estimator_name}" + (" aided by GNSS" if aided else "")
+    if position_deg is None:
+        return what + ", heading to magnetic north (give --lat/--lon for true north)"
+    where = "the first GNSS fix" if position_from_gnss else "--lat/--lon"
+    return (what + f", heading to true north (declination {math.degrees(declination_rad):+.2f}° at {where} "
+            f"{position_deg[0]:.5f}, {position_deg[1]:.5f})")
+
+
 def plot_replay(trace: ReplayTrace, path, truth_q_wxyz: np.ndarray | None = None, truth_t_s: np.ndarray | None = None,
-                title: str = "") -> None:
-    """The figure, to `path` (PNG). truth_q_wxyz (m, 4) at truth_t_s (m,): the recording's truth attitude
-    (body→NED, true north), interpolated to the kept rows by nearest sample."""
+                title: str = "", fixes=()) -> None:
+    """The figure (`replay_figure`), to `path` (PNG)."""
+    plt = pyplot()
+    fig = replay_figure(trace, truth_q_wxyz, truth_t_s, title, fixes)
+    try:
+        fig.savefig(path, dpi=90)
+    finally:
+        plt.close(fig)
+
+
+EARTH_RADIUS_M = 6_371_008.8    # mean radius: the track is drawn in local metres (flat earth over a run)
+
+
+def _local_ne_m(lat_deg, lon_deg, lat0_deg: float, lon0_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    north = np.radians(np.asarray(lat_deg, dtype=float) - lat0_deg) * EARTH_RADIUS_M
+    east = np.radians(np.asarray(lon_deg, dtype=float) - lon0_deg) * EARTH_RADIUS_M * math.cos(math.radians(lat0_deg))
+    return north, east
+
+
+def replay_figure(trace: ReplayTrace, truth_q_wxyz: np.ndarray | None = None, truth_t_s: np.ndarray | None = None,
+                  title: str = "", fixes=()):
+    """The figure (a matplotlib Figure; the caller saves and closes it). truth_q_wxyz (m, 4) at truth_t_s (m,):
+    the recording's truth attitude (body→NED, true north), interpolated to the kept rows by nearest sample.
+    fixes: the GNSS fixes the run was aided with (core.gnss.GnssFix), drawn as points on the velocity and track
+    panels of an aided trace.
+
+    Panels, each found by its label: roll, pitch, heading; "error vs truth (°)" with truth; "velocity (m/s)" and
+    the track ("north (m)" against "east (m)") for an aided run; the flags."""
     plt = pyplot()
     tab = trace.table()
+    col = {name: i for i, name in enumerate(trace.columns)}
     t = tab[:, 0] - (tab[0, 0] if len(tab) else 0.0)
-    roll, pitch, heading = tab[:, 1], tab[:, 2], tab[:, 4]
-    s_roll, s_pitch, s_yaw = tab[:, 5], tab[:, 6], tab[:, 7]
+    roll, pitch, heading = tab[:, col["roll_deg"]], tab[:, col["pitch_deg"]], tab[:, col["heading_true_deg"]]
+    s_roll, s_pitch, s_yaw = tab[:, col["sigma_roll_deg"]], tab[:, col["sigma_pitch_deg"]], tab[:, col["sigma_yaw_deg"]]
+    quat = tab[:, [col["qw"], col["qx"], col["qy"], col["qz"]]]
     flags = tab[:, -1].astype(np.int64)
     truth_err = truth_euler = None
     if truth_q_wxyz is not None and len(tab):
         idx = np.clip(np.searchsorted(truth_t_s, tab[:, 0]), 0, len(truth_t_s) - 1)
         q_truth = truth_q_wxyz[idx]
-        ok = np.isfinite(tab[:, 8]) & np.all(np.isfinite(q_truth), axis=1)
+        ok = np.isfinite(quat[:, 0]) & np.all(np.isfinite(q_truth), axis=1)
         truth_err = np.full((len(tab), 3), np.nan)
-        truth_err[ok] = truth_errors_deg(tab[ok, 8:12], q_truth[ok])
+        truth_err[ok] = truth_errors_deg(quat[ok], q_truth[ok])
         truth_euler = np.full((len(tab), 3), np.nan)
         truth_euler[ok] = np.degrees(quat_to_euler(q_truth[ok]))
     gnss_rows = bool(flags.any() and (flags & int(_GNSS_FLAGS)).any()) or bool(trace.gnss)
-    panels = ["roll", "pitch", "heading"] + (["error"] if truth_err is not None else []) + ["flags"] + \
-             (["gnss"] if trace.gnss else [])
-    heights = {"roll": 2, "pitch": 2, "heading": 2, "error": 2.2, "flags": 0.35 + 0.3 * _flag_row_count(flags, gnss_rows),
-               "gnss": 1.2}
-    fig, axes = plt.subplots(len(panels), 1, figsize=(13, 1.15 * sum(heights[p] for p in panels) + 0.8),
-                             sharex=True, gridspec_kw={"height_ratios": [heights[p] for p in panels]})
+    panels = ["roll", "pitch", "heading"] + (["error"] if truth_err is not None else []) + \
+             (["velocity"] if trace.aided else []) + ["flags"] + (["gnss"] if trace.gnss else [])
+    heights = {"roll": 2, "pitch": 2, "heading": 2, "error": 2.2, "velocity": 2,
+               "flags": 0.35 + 0.3 * _flag_row_count(flags, gnss_rows), "gnss": 1.2}
+    height_in = 1.15 * sum(heights[p] for p in panels) + 0.8
+    if trace.aided:   # the track beside the time panels
+        fig = plt.figure(figsize=(18, height_in))
+        grid = fig.add_gridspec(len(panels), 2, width_ratios=(3.2, 1.4), height_ratios=[heights[p] for p in panels])
+        axes = [fig.add_subplot(grid[0, 0])]
+        axes += [fig.add_subplot(grid[k, 0], sharex=axes[0]) for k in range(1, len(panels))]
+        track_ax = fig.add_subplot(grid[:, 1])
+    else:
+        fig, axes = plt.subplots(len(panels), 1, figsize=(13, height_in), sharex=True,
+                                 gridspec_kw={"height_ratios": [heights[p] for p in panels]})
+        axes, track_ax = list(np.atleast_1d(axes)), None
     settled = (flags & int(EstimateFlags.INITIALISING)) == 0
     ax = dict(zip(panels, axes))
     north = "true north" if trace.true_north else "magnetic north (no --lat/--lon)"
@@ -212,7 +270,7 @@ def plot_replay(trace: ReplayTrace, path, truth_q_wxyz: np.ndarray | None = None
         angle_panel("heading", heading, s_yaw, "true heading (°)",
                     None if truth_euler is None else truth_euler[:, 2], wrap=True)
     else:
-        angle_panel("heading", tab[:, 3] % 360.0, s_yaw, "magnetic heading (°)",
+        angle_panel("heading", tab[:, col["yaw_deg"]] % 360.0, s_yaw, "magnetic heading (°)",
                     None if truth_euler is None else truth_euler[:, 2], wrap=True)
     if truth_err is not None:
         a = ax["error"]
@@ -252,8 +310,55 @@ def plot_replay(trace: ReplayTrace, path, truth_q_wxyz: np.ndarray | None = None
         a.set_ylabel("GNSS")
         a.grid(alpha=0.3)
         a.legend(loc="upper right", fontsize=8)
+    if trace.aided:
+        _navigation_panels(ax["velocity"], track_ax, tab, col, t, fixes)
+    for a in axes[:-1]:
+        a.tick_params(labelbottom=False)
     axes[-1].set_xlabel("time since the first sample (s)")
     fig.suptitle(title or f"replay (heading to {north})", fontsize=11)
     fig.tight_layout(rect=(0, 0, 1, 0.98))
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    return fig
+
+
+def _navigation_panels(vel_ax, track_ax, tab: np.ndarray, col: dict, t: np.ndarray, fixes) -> None:
+    """An aided run's velocity (estimate as lines, the GNSS fixes' velocities as points) and track."""
+    t0 = tab[0, 0] if len(tab) else 0.0
+    fixes = [f for f in fixes if f.t_s >= t0]
+    for k, (name, colour) in enumerate((("north", "tab:blue"), ("east", "tab:orange"), ("down", "tab:green"))):
+        vel_ax.plot(t, tab[:, col[NAV_COLUMNS[k]]], color=colour, lw=1.0, label=f"{name}")
+        fv = [(f.t_s - t0, f.vel_ned_m_s[k]) for f in fixes if math.isfinite(f.vel_ned_m_s[k])]
+        if fv:
+            ft, v = np.array(fv).T
+            vel_ax.plot(ft, v, ".", color=colour, ms=3, label="GNSS fixes" if k == 0 else None)
+    vel_ax.set_ylabel("velocity (m/s)")
+    vel_ax.grid(alpha=0.3)
+    vel_ax.legend(loc="upper right", fontsize=8, ncol=4)
+
+    lat, lon = tab[:, col["lat_deg"]], tab[:, col["lon_deg"]]
+    # the position exists from the first fix the filter took (before it, the columns hold no position)
+    aided_rows = np.flatnonzero(tab[:, -1].astype(np.int64) & int(EstimateFlags.GNSS_AIDED))
+    ok = np.isfinite(lat) & np.isfinite(lon)
+    ok[: aided_rows[0] if len(aided_rows) else len(ok)] = False
+    with_position = [f for f in fixes if f.has_position]
+    if ok.any():
+        lat0, lon0 = float(lat[ok][0]), float(lon[ok][0])
+    elif with_position:
+        lat0, lon0 = with_position[0].lat_deg, with_position[0].lon_deg
+    else:
+        track_ax.text(0.5, 0.5, "no position", transform=track_ax.transAxes, ha="center", va="center")
+        track_ax.set_xlabel("east (m)")
+        track_ax.set_ylabel("north (m)")
+        return
+    n, e = _local_ne_m(lat[ok], lon[ok], lat0, lon0)
+    track_ax.plot(e, n, color="tab:blue", lw=1.0, label="estimate")
+    if with_position:
+        fn, fe = _local_ne_m([f.lat_deg for f in with_position], [f.lon_deg for f in with_position], lat0, lon0)
+        track_ax.plot(fe, fn, ".", color="black", ms=2, label="GNSS fixes")
+    if len(n):
+        track_ax.plot(e[:1], n[:1], "o", color="tab:green", label="start")
+    track_ax.set_aspect("equal", adjustable="datalim")
+    track_ax.set_xlabel("east (m)")
+    track_ax.set_ylabel("north (m)")
+    track_ax.set_title(f"track from {lat0:.5f}, {lon0:.5f}", fontsize=9)
+    track_ax.grid(alpha=0.3)
+    track_ax.legend(loc="best", fontsize=8)

@@ -11,9 +11,10 @@ import pytest
 
 pytest.importorskip("matplotlib")
 
-from ahrsd.cli import gyro_plot  # noqa: E402
+from ahrsd.cli.plots import gyro as gyro_plot  # noqa: E402
 from ahrsd.cli import main as cli  # noqa: E402
 from ahrsd.drivers.recording import RECORDING_HEADER  # noqa: E402
+from support.kept_figures import kept_figures  # noqa: E402
 
 RATE_HZ = 100.0
 BIAS_RAD_S = np.array([0.004, -0.003, 0.0015])
@@ -24,20 +25,8 @@ HANDLED = (10.0, 16.0)      # s: the unit picked up and turned: not still, and n
 @pytest.fixture
 def figures(monkeypatch):
     """The figures the command saves (kept open for the test to read)."""
-    kept = []
-    real_save = gyro_plot.save
-
-    def keep(fig, path):
-        kept.append(fig)
-        fig.savefig(path, dpi=50)
-
-    monkeypatch.setattr(gyro_plot, "save", keep)
-    yield kept
-    import matplotlib.pyplot as plt
-
-    for fig in kept:
-        plt.close(fig)
-    assert real_save is not None
+    with kept_figures(monkeypatch, gyro_plot, "save", lambda fig, path: (fig, path)) as kept:
+        yield kept
 
 
 def still_with_handling(path, seconds=40.0, seed=3):

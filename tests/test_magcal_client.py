@@ -33,9 +33,68 @@ def test_client_reassembles_chunked_statustext_and_draws_bar():
     assert f"[ahrsd] {text}\n" in out.getvalue()
     prog = wire(mavlink.MAVLink_mag_cal_progress_message(0, 1, 2, 1, 40, [255, 1] + [0] * 8, 0.7, 0.7, 0.0))
     client._show(prog)
-    assert "40%" in out.getvalue() and "cells  9/80" in out.getvalue() and "turn right" in out.getvalue()
+    assert "40%" in out.getvalue() and "turn right" in out.getvalue()
+    assert "/80" not in out.getvalue()          # a level vehicle: no tumble cells it could never fill
+    tumble = wire(mavlink.MAVLink_mag_cal_progress_message(0, 1, 2, 1, 55, [255, 3] + [0] * 8, 0.0, 0.3, 0.8))
+    client._show(tumble)
+    assert "55%" in out.getvalue() and "cells 10/80" in out.getvalue()
 
 
 def test_find_target_rejects_bad_target_text():
     client = MagCalClient(conn=SimpleNamespace(), timeout_s=0.1, out=io.StringIO())
     assert client.find_target("nonsense") is False
+
+
+class _ScriptedConn:
+    """A daemon's side of the link: answers each COMMAND_LONG with an ACK, then hands out `queued` messages."""
+
+    def __init__(self, queued):
+        self.queued = list(queued)
+        self.sent = []
+        self.mav = SimpleNamespace(command_long_send=self._command)
+
+    def _command(self, sys_id, comp, command, confirmation, *params):
+        self.sent.append(command)
+        self.queued.insert(0, wire(mavlink.MAVLink_command_ack_message(command, 0)))
+
+    def recv_match(self, blocking=True, timeout=None, type=None):
+        return self.queued.pop(0) if self.queued else None
+
+
+def _report():
+    return wire(mavlink.MAVLink_mag_cal_report_message(0, 1, 4, 0, 2.0, 1, 2, 3, 1, 1, 1, 0, 0, 0))
+
+
+def test_a_session_accepted_elsewhere_while_we_asked_is_reported_as_saved(monkeypatch):
+    import ahrsd.cli.magcal_client as client_module
+
+    saved = [wire(m) for m in statustext_chunks(5, "Mag cal saved: ofs [1, 2, 3] mG, heading change 0.4 deg", 3)]
+    asked = []
+
+    def ask(prompt):                       # the operator answers no, after the other terminal accepted
+        conn.queued.extend(saved)
+        asked.append(prompt)
+        return False
+
+    conn = _ScriptedConn([_report()])
+    monkeypatch.setattr(client_module, "_ask", ask)
+    out = io.StringIO()
+    client = MagCalClient(conn=conn, timeout_s=1.0, out=out)
+    client.sys, client.comp = 1, 200
+    assert client.start() == 0
+    assert asked and "accepted from another ground station or terminal: calibration saved" in out.getvalue()
+    assert "not accepted" not in out.getvalue()
+    assert client_module.MAV_CMD_DO_CANCEL_MAG_CAL not in conn.sent      # nothing cancelled afterwards
+
+
+def test_no_still_cancels_when_nobody_else_answered(monkeypatch):
+    import ahrsd.cli.magcal_client as client_module
+
+    conn = _ScriptedConn([_report()])
+    monkeypatch.setattr(client_module, "_ask", lambda prompt: False)
+    out = io.StringIO()
+    client = MagCalClient(conn=conn, timeout_s=1.0, out=out)
+    client.sys, client.comp = 1, 200
+    assert client.start() == 1
+    assert "not accepted: calibration unchanged" in out.getvalue()
+    assert conn.sent[-1] == client_module.MAV_CMD_DO_CANCEL_MAG_CAL

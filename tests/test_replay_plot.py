@@ -56,13 +56,76 @@ def truth_recording(tmp_path_factory):
     return path
 
 
-def test_replay_writes_the_plot_beside_the_csv(truth_recording, tmp_path):
-    png = tmp_path / "replay.png"
-    rc = main(["replay", str(truth_recording), "--output", str(tmp_path / "out.csv"), "--plot", str(png),
+@pytest.fixture
+def figures(monkeypatch):
+    """The figures `ahrsd replay --plot` draws, kept open for the test to read (and still written to the file)."""
+    from ahrsd.estimator import replay_plot
+    from support.kept_figures import kept_figures
+
+    def figure_and_path(trace, path, *args, **kwargs):
+        return replay_plot.replay_figure(trace, *args, **kwargs), path
+
+    with kept_figures(monkeypatch, replay_plot, "plot_replay", figure_and_path) as kept:
+        yield kept
+
+
+def axis_labelled(fig, ylabel):
+    found = [a for a in fig.axes if a.get_ylabel() == ylabel]
+    assert len(found) == 1, [a.get_ylabel() for a in fig.axes]
+    return found[0]
+
+
+def scipy_errors_deg(out_csv, recording):
+    """roll, pitch, heading error of the replay output against the recording's truth, by scipy (ZYX)."""
+    from ahrsd.drivers.recording import read_recording
+
+    header = out_csv.read_text().splitlines()[0].split(",")
+    out = np.loadtxt(out_csv, delimiter=",", skiprows=1, ndmin=2)
+    q = out[:, [header.index(c) for c in ("qw", "qx", "qy", "qz")]]
+    truth = read_recording(recording).truth_q_wxyz
+    to_xyzw = lambda wxyz: np.roll(wxyz, -1, axis=1)   # noqa: E731 - scipy is scalar-last
+    est = Rotation.from_quat(to_xyzw(q)).as_euler("ZYX", degrees=True)
+    ref = Rotation.from_quat(to_xyzw(truth)).as_euler("ZYX", degrees=True)
+    d = (est - ref + 180.0) % 360.0 - 180.0
+    return d[:, ::-1]                                   # roll, pitch, heading
+
+
+def test_replay_plot_draws_the_truth_error_panel_that_scipy_computes(truth_recording, tmp_path, figures):
+    png, out = tmp_path / "replay.png", tmp_path / "out.csv"
+    rc = main(["replay", str(truth_recording), "--output", str(out), "--plot", str(png),
                "--lat", "36.42", "--lon", "54.98", "--quiet"])
     assert rc == 0
-    assert png.read_bytes()[:8] == PNG_MAGIC and png.stat().st_size > 20_000
-    assert (tmp_path / "out.csv").exists()
+    assert png.read_bytes()[:8] == PNG_MAGIC and out.exists()
+    (fig,) = figures
+    assert "through mekf" in fig.texts[0].get_text() and "true north" in fig.texts[0].get_text()
+    error_ax = axis_labelled(fig, "error vs truth (°)")
+    lines = {ln.get_label().split(" ")[0]: ln for ln in error_ax.get_lines() if "RMS" in ln.get_label()}
+    assert sorted(lines) == ["heading", "pitch", "roll"]
+    expected = scipy_errors_deg(out, truth_recording)
+    for k, name in enumerate(("roll", "pitch", "heading")):
+        drawn = np.asarray(lines[name].get_ydata(), dtype=float)
+        assert len(drawn) == len(expected)               # 2000 rows: not decimated
+        settled = slice(100, None)
+        np.testing.assert_allclose(drawn[settled], expected[settled, k], atol=1e-3)
+        rms = float(np.sqrt(np.nanmean(drawn ** 2)))
+        assert f"RMS {rms:.2f}°" in lines[name].get_label()
+    # the truth is drawn on each angle panel too
+    for ylabel in ("roll (°)", "pitch (°)", "true heading (°)"):
+        assert [ln for ln in axis_labelled(fig, ylabel).get_lines() if ln.get_label() == "truth"]
+
+
+def test_without_truth_columns_there_is_no_error_panel(tmp_path, figures):
+    rec = tmp_path / "plain.csv"
+    block = simulate("static", 10, rate_hz=50.0, seed=3)
+    with RecordingWriter(rec) as w:
+        for i in range(len(block)):
+            w.write(make_sample(block.t_s[i], block.gyro_rad_s[i], block.accel_m_s2[i], block.mag_ut[i]))
+    assert main(["replay", str(rec), "--output", str(tmp_path / "o.csv"), "--plot", str(tmp_path / "p.png"),
+                 "--quiet"]) == 0
+    (fig,) = figures
+    labels = [a.get_ylabel() for a in fig.axes]
+    assert "error vs truth (°)" not in labels and "magnetic heading (°)" in labels
+    assert "heading to magnetic north" in fig.texts[0].get_text() and "through mekf" in fig.texts[0].get_text()
 
 
 def test_replay_plot_without_matplotlib_is_a_usage_error_before_any_work(truth_recording, tmp_path, monkeypatch,
@@ -72,3 +135,58 @@ def test_replay_plot_without_matplotlib_is_a_usage_error_before_any_work(truth_r
                str(tmp_path / "x.png")])
     assert rc == 2 and f"{sys.executable} -m pip install matplotlib" in capsys.readouterr().err
     assert not (tmp_path / "out.csv").exists()
+
+
+@pytest.fixture(scope="module")
+def boat_with_gnss(tmp_path_factory):
+    import subprocess
+
+    path = tmp_path_factory.mktemp("aided") / "boat.csv"
+    r = subprocess.run([sys.executable, "-m", "ahrsd.cli", "record", "--sim", "boat", "--seconds", "30", "--rate-hz",
+                        "100", "--output", str(path), "--quiet"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    return path, path.with_name("boat.gnss.csv")
+
+
+def test_an_aided_replay_plot_names_ins_and_true_north_and_draws_velocity_and_track(boat_with_gnss, tmp_path,
+                                                                                    figures):
+    rec, gnss = boat_with_gnss
+    out = tmp_path / "out.csv"
+    assert main(["replay", str(rec), "--gnss", str(gnss), "--output", str(out), "--plot", str(tmp_path / "p.png"),
+                 "--quiet"]) == 0
+    (fig,) = figures
+    title = fig.texts[0].get_text()
+    assert "through ins aided by GNSS" in title and "heading to true north" in title
+    assert "at the first GNSS fix" in title and "None" not in title
+    assert axis_labelled(fig, "true heading (°)")
+
+    header = out.read_text().splitlines()[0].split(",")
+    table = np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2)
+    fixes = np.genfromtxt(gnss, delimiter=",", names=True)
+    t0 = table[0, 0]
+    velocity = axis_labelled(fig, "velocity (m/s)")
+    lines = {ln.get_label(): ln for ln in velocity.get_lines()}
+    np.testing.assert_allclose(lines["north"].get_ydata(), table[:, header.index("vel_n_m_s")], atol=6e-5, equal_nan=True)
+    np.testing.assert_allclose(lines["east"].get_ydata(), table[:, header.index("vel_e_m_s")], atol=6e-5, equal_nan=True)
+    # the fixes' north velocity, as the receiver reported it, at their own times
+    points = lines["GNSS fixes"]
+    in_run = fixes["t_s"] >= t0
+    np.testing.assert_allclose(points.get_xdata(), fixes["t_s"][in_run] - t0, atol=1e-6)   # t_s printed to 1 µs
+    np.testing.assert_allclose(points.get_ydata(), fixes["vel_n_m_s"][in_run], atol=1e-9)
+
+    track = axis_labelled(fig, "north (m)")
+    assert track.get_xlabel() == "east (m)"
+    drawn = {ln.get_label(): ln for ln in track.get_lines()}
+    lat, lon = fixes["lat_deg"][in_run], fixes["lon_deg"][in_run]
+    # the origin is the filter's first aided position (near the first fix), metres by the local radii
+    est_lat = table[:, header.index("lat_deg")]
+    flags = table[:, header.index("flags")].astype(int)
+    first = np.flatnonzero(flags & int(EstimateFlags.GNSS_AIDED))[0]
+    lat0, lon0 = est_lat[first], table[first, header.index("lon_deg")]
+    north_m = np.radians(lat - lat0) * 6_371_008.8
+    east_m = np.radians(lon - lon0) * 6_371_008.8 * np.cos(np.radians(lat0))
+    np.testing.assert_allclose(drawn["GNSS fixes"].get_ydata(), north_m, atol=1e-3)   # lat, lon printed to 1e-9°
+    np.testing.assert_allclose(drawn["GNSS fixes"].get_xdata(), east_m, atol=1e-3)
+    assert np.hypot(*[np.asarray(v)[0] for v in drawn["start"].get_data()]) < 1e-9
+    est_n = np.asarray(drawn["estimate"].get_ydata())
+    assert np.all(np.isfinite(est_n)) and np.ptp(est_n) > 10     # the boat moved: a track, not a point at 0, 0

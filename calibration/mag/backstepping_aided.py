@@ -157,11 +157,12 @@ def fit_backstepping_aided(data: MagFitInput, fixes, reference, declination_rad:
                        **_pass_report(data, settled, res, health)})
         if not res.ok:
             break
-        result, model = res, res.model
+        result, model, levelling = res, res.model, (roll, pitch, settled)
     if result is None:   # no calibration to take the heading from: the GNSS velocity alone
         roll, pitch, settled, health = _level(data, fixes, declination_rad, False, settled_tilt_sigma_deg, smooth,
                                               accel_bias_sigma_m_s2, filter_overrides)
         result = _fit_settled(data, roll, pitch, settled, reference, options)
+        levelling = (roll, pitch, settled)
         passes.append({"magnetometer": "off", **_pass_report(data, settled, result, health)})
     warning = _rejection_warning(passes, filter_overrides)
     if warning:
@@ -170,4 +171,4 @@ def fit_backstepping_aided(data: MagFitInput, fixes, reference, declination_rad:
                                          "accel_bias_sigma_m_s2": accel_bias_sigma_m_s2,
                                          "filter_overrides": dict(filter_overrides or {}),
                                          "settled_tilt_sigma_deg": settled_tilt_sigma_deg, "passes": passes}
-    return result
+    return dataclasses.replace(result, levelling=levelling)

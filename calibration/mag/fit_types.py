@@ -87,6 +87,9 @@ class MagFitResult:
     method: str
     quality: dict = field(default_factory=dict)
     refused: str | None = None
+    # (roll_rad, pitch_rad, used) per input row when the fit levelled with an attitude other than the
+    # accelerometer's (the aided levelling), so a figure draws the field as the fit saw it; not in the JSON
+    levelling: tuple | None = field(default=None, compare=False, repr=False)
 
     @property
     def ok(self) -> bool:

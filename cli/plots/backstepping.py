@@ -1,4 +1,8 @@
-"""The back-stepping report figure (matplotlib, the optional `ahrsd[plot]` extra)."""
+"""The back-stepping report figure (matplotlib, the optional `plot` extra).
+
+The field is levelled with the attitude the fit used: the aided levelling of `--gnss` when the result carries it
+(MagFitResult.levelling), else the accelerometer as the fit took it, so the vertical field drawn is the one whose
+residual the fit reports."""
 
 from __future__ import annotations
 
@@ -15,13 +19,32 @@ from ahrsd.calibration.mag.observability import level_vectors, lowpass
 from ahrsd.core.plotting import pyplot
 from ahrsd.calibration.mag.vertical_channel import centripetal_direction, corrected_down
 
-def plot_backstepping(result: MagFitResult, data: MagFitInput, path, *, roll_rad=None, pitch_rad=None,
-                      reference=None, swing_table=None) -> None:
-    """Report figure: levelled horizontal field before/after (should be a circle of radius H_h), |H| and H_z
-    over time before/after, and heading error vs heading when data.heading_ref_deg exists or a compass-swing
-    table `swing_table=(reference_deg, compass_deg)` is given (its points and the fitted card). Writes `path`.
-    Raises PlotUnavailableError when matplotlib (the `ahrsd[plot]` extra) is not installed."""
+def plot_backstepping(result: MagFitResult, data: MagFitInput, path, **options) -> None:
+    """`backstepping_figure(result, data, **options)` written to `path`."""
     plt = pyplot()
+    fig = backstepping_figure(result, data, **options)
+    try:
+        fig.savefig(path, dpi=110)
+    finally:
+        plt.close(fig)
+
+
+def backstepping_figure(result: MagFitResult, data: MagFitInput, *, roll_rad=None, pitch_rad=None,
+                        reference=None, swing_table=None):
+    """Report figure (returned; the caller saves and closes it): levelled horizontal field before/after (should
+    be a circle of radius H_h), |H| and H_z over time before/after, and heading error vs heading when
+    data.heading_ref_deg exists or a compass-swing table `swing_table=(reference_deg, compass_deg)` is given (its
+    points and the fitted card). roll_rad/pitch_rad: the levelling, per row of `data` (default: the fit's own,
+    `result.levelling`, then the accelerometer). Raises PlotUnavailableError when matplotlib is not installed."""
+    plt = pyplot()
+    levelled_by = "the accelerometer"
+    if roll_rad is None and result.levelling is not None:
+        roll_rad, pitch_rad, used = result.levelling
+        data = data.select(used)
+        roll_rad, pitch_rad = np.asarray(roll_rad)[used], np.asarray(pitch_rad)[used]
+        levelled_by = "the aided attitude the fit used"
+    elif roll_rad is not None:
+        levelled_by = "the given attitude"
     ok = finite_rows(data.mag_ut)
     d = data.select(ok)
     if roll_rad is None:
@@ -63,7 +86,10 @@ def plot_backstepping(result: MagFitResult, data: MagFitInput, path, *, roll_rad
         ax.axhline(q["vertical_ut"], color="k", ls=":", lw=0.8)
     ax.set_xlabel("t (s)")
     ax.set_ylabel("µT")
-    ax.set_title(f"{result.method}: residual {result.residual_rms_ut:.3f} µT")
+    vertical = (result.quality.get("vertical_channel") or {}).get("vertical_rms_ut")
+    ax.set_title(f"{result.method}: |H| residual {result.residual_rms_ut:.3f} µT"
+                 + (f", H_z {vertical:.3f} µT" if isinstance(vertical, (int, float)) else "")
+                 + f"\nlevelled by {levelled_by}", fontsize=9)
     ax.legend(fontsize=7)
     if has_ref:
         ax = axes[2]
@@ -86,5 +112,4 @@ def plot_backstepping(result: MagFitResult, data: MagFitInput, path, *, roll_rad
         ax.set_ylabel("reference − magnetometer (deg)")
         ax.set_title("heading error vs heading")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig

@@ -1,0 +1,73 @@
+"""What the operator decides on, printed first by `ahrsd calibrate mag` (the verdict, the heading error the fit
+predicts, the coverage behind it, the residuals) and the details after it without the fitting internals
+(optimiser messages, iteration counts, the paper's intermediate sphere fit, the fit's own CPU time)."""
+
+from __future__ import annotations
+
+import math
+
+from ahrsd.calibration.report import fmt_value
+
+# quality keys a reader of the report cannot act on: the optimiser's own bookkeeping and intermediate fits
+INTERNAL_KEYS = frozenset({"sphere_fit_paper", "time_s", "backstep", "fit_rate_hz", "n_samples", "support_model"})
+INTERNAL_NESTED = frozenset({"message", "nfev", "init", "converged"})
+
+
+def _num(value) -> float:
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan
+
+
+def mag_decision_lines(result, outcome: str) -> list[str]:
+    """The lead of the magnetometer report: verdict (`outcome`: saved where / not saved / refused why), the
+    predicted heading error, the coverage and the residuals."""
+    q = result.quality
+    lines = [f"  verdict: {outcome}"]
+    pred = q.get("predicted_heading") or {}
+    offset, varying = _num(pred.get("offset_std_deg")), _num(pred.get("heading_dependent_std_deg"))
+    if math.isfinite(offset) or math.isfinite(varying):
+        envelope = _num(pred.get("envelope_tilt_deg"))
+        lines.append(f"  predicted heading error (1σ): {offset:.2f}° constant offset, {varying:.2f}° varying with "
+                     "heading" + (f", for tilts within ±{envelope:g}°" if math.isfinite(envelope) else ""))
+    parts = []
+    heading_cov = _num(q.get("heading_coverage"))
+    if math.isfinite(heading_cov):
+        parts.append(f"headings {heading_cov:.0%}")
+    sphere = _num(q.get("coverage"))
+    if math.isfinite(sphere):
+        parts.append(f"sphere {sphere:.0%}")
+    tilt = q.get("tilt") or {}
+    if math.isfinite(_num(tilt.get("tilt_max_deg"))):
+        parts.append(f"tilt up to {tilt['tilt_max_deg']:.1f}°")
+    if parts:
+        lines.append("  coverage: " + ", ".join(parts))
+    residual = f"  residual: |m| − |F| RMS {result.residual_rms_ut:.3f} µT"
+    vertical = _num((q.get("vertical_channel") or {}).get("vertical_rms_ut"))
+    if math.isfinite(vertical):
+        residual += f", vertical field {vertical:.3f} µT"
+    lines.append(residual + f" (levelled by {q['attitude_source']})" if q.get("attitude_source") else residual)
+    for warning in q.get("warnings", ()):
+        lines.append(f"  WARNING: {warning}")
+    return lines
+
+
+def detail_lines(quality: dict, shown: frozenset) -> list[str]:
+    """`key: value` for each quality entry not in `shown` and not internal; a nested dict loses its internal
+    keys, and an infinite threshold reads as "none"."""
+    out = []
+    for key, value in quality.items():
+        if key in shown or key in INTERNAL_KEYS:
+            continue
+        if isinstance(value, dict):
+            value = {k: _readable(v) for k, v in value.items() if k not in INTERNAL_NESTED}
+        out.append(f"    {key}: {fmt_value(_readable(value))}")
+    return out
+
+
+def _readable(value):
+    if isinstance(value, float) and math.isinf(value):
+        return "none"
+    if isinstance(value, dict):
+        return {k: _readable(v) for k, v in value.items() if k not in INTERNAL_NESTED}
+    if isinstance(value, list):
+        return [_readable(v) for v in value]
+    return value

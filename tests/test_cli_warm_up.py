@@ -1,0 +1,72 @@
+"""The first start says it is compiling before it compiles (not after), a cached start says nothing, and
+`ahrsd warm-up` (the unit's ExecStartPre) compiles the configured estimator into the cache."""
+
+from __future__ import annotations
+
+import logging
+import subprocess
+import sys
+import threading
+
+from ahrsd.cli import warm_up as cli_warm_up
+from ahrsd.estimator import warm_up as estimator_warm_up
+
+
+class _Announced(logging.Handler):
+    def __init__(self):
+        super().__init__()
+        self.messages = []
+        self.compiling = threading.Event()
+
+    def emit(self, record):
+        self.messages.append(record.getMessage())
+        if record.getMessage().startswith("compiling"):
+            self.compiling.set()
+
+
+def _handler():
+    handler = _Announced()
+    logger = logging.getLogger("ahrsd")
+    logger.addHandler(handler)
+    old = logger.level
+    logger.setLevel(logging.INFO)
+    return handler, lambda: (logger.removeHandler(handler), logger.setLevel(old))
+
+
+def test_a_compile_is_announced_while_it_runs(monkeypatch):
+    handler, restore = _handler()
+    seen_during = []
+
+    def slow_compile(name):          # a compile: runs until the announcement has gone out
+        seen_during.append(handler.compiling.wait(timeout=30))
+
+    monkeypatch.setattr(estimator_warm_up, "warm_up", slow_compile)
+    try:
+        cli_warm_up.compile_estimator("mekf", announce_after_s=0.01)
+    finally:
+        restore()
+    assert seen_during == [True]
+    assert handler.messages[0] == "compiling the mekf estimator (first start only, cached afterwards) …"
+    assert handler.messages[1].startswith("compiled the mekf estimator in ")
+
+
+def test_a_cached_start_is_silent(monkeypatch):
+    handler, restore = _handler()
+    monkeypatch.setattr(estimator_warm_up, "warm_up", lambda name: None)
+    try:
+        cli_warm_up.compile_estimator("mekf", announce_after_s=600.0)
+    finally:
+        restore()
+    assert handler.messages == []
+
+
+def test_warm_up_command_compiles_the_configured_estimator(tmp_path):
+    cfg = tmp_path / "ahrsd.toml"
+    cfg.write_text('[estimator]\nname = "mekf"\n')
+    r = subprocess.run([sys.executable, "-m", "ahrsd.cli", "warm-up", "--config", str(cfg)], capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.startswith("ahrsd warm-up: the mekf estimator is ready in ")
+    r = subprocess.run([sys.executable, "-m", "ahrsd.cli", "warm-up", "--estimator", "nonesuch"], capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode != 0 and "nonesuch" in r.stderr and "Traceback" not in r.stderr
