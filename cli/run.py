@@ -15,6 +15,8 @@ def register(subparsers) -> None:
     src = p.add_mutually_exclusive_group()
     src.add_argument("--sim", metavar="SCENARIO", help="simulated ADIS16405 running SCENARIO (default: static)")
     src.add_argument("--spi", metavar="DEVICE", help="real ADIS16405 on this spidev node, e.g. /dev/spidev0.0")
+    src.add_argument("--iio", metavar="DEVICE", help="the ADIS16405 through the kernel's adis16400 IIO driver: "
+                     "iio:deviceN, its name (adis16405) or its sysfs directory")
     src.add_argument("--replay", metavar="FILE", help="replay a recording made by `ahrsd record`")
     p.add_argument("--replay-speed", metavar="X", type=float,
                    help="with --replay: replay X times faster than real time (default 1)")
@@ -56,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         path = args.config or default_config_path()
         cfg = load_config(path) if path else Config()
-        cfg = cfg.with_overrides(sim=args.sim, spi=args.spi, replay=args.replay, mavlink=args.mavlink,
+        cfg = cfg.with_overrides(sim=args.sim, spi=args.spi, iio=args.iio, replay=args.replay, mavlink=args.mavlink,
                                  state_dir=args.state_dir, replay_speed=args.replay_speed,
                                  gnss_replay=args.gnss_replay, gnss_serial=args.gnss_serial,
                                  gnss_sim=args.gnss_sim, estimator=args.estimator,
@@ -91,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
     from ahrsd.daemon.service import Service
 
     # the chip sources retry a failed start and a lost bus with backoff (daemon.sensor_recovery)
-    source = open_source(cfg.sensor, faults=plan) if cfg.sensor.source in ("sim", "spi") else None
+    source = open_source(cfg.sensor, faults=plan) if cfg.sensor.source in ("sim", "spi", "iio") else None
     service = Service(cfg, source=source)
 
     async def main() -> int:

@@ -165,6 +165,9 @@ class SensorConfig:
             "poll_hz": _number_in(10.0, 2000.0), "stale_timeout_s": _number_in(0.005, 10.0)}))
         if cfg.source == "replay" and not cfg.replay_file:
             raise _fail(f"{prefix}.replay_file", cfg.replay_file, "a recording path (required when source = 'replay')")
+        if cfg.source == "iio" and not cfg.iio_device:
+            raise _fail(f"{prefix}.iio_device", cfg.iio_device, "an IIO device: iio:device0, its name (adis16405) "
+                        "or its sysfs directory")
         if cfg.source == "spi" and not cfg.spi_device.startswith("/dev/"):
             raise _fail(f"{prefix}.spi_device", cfg.spi_device, "a device path such as /dev/spidev0.0")
         return cfg
@@ -523,6 +526,7 @@ class Config:
                         "needs [sensor] source = 'sim' (--sim SCENARIO)")
 
     def with_overrides(self, *, sim: str | None = None, spi: str | None = None, replay: str | None = None,
+                       iio: str | None = None,
                        mavlink: list[str] | None = None, state_dir: str | None = None,
                        replay_speed: float | None = None, gnss_replay: str | None = None,
                        gnss_serial: str | None = None, gnss_sim: bool = False,
@@ -532,8 +536,12 @@ class Config:
         cfg = self
         if sum(bool(x) for x in (gnss_replay, gnss_serial, gnss_sim)) > 1:
             raise ConfigError("--gnss-replay, --gnss-serial and --gnss-sim are mutually exclusive")
-        if sum(x is not None for x in (sim, spi, replay)) > 1:
-            raise ConfigError("--sim, --spi and --replay are mutually exclusive")
+        if sum(x is not None for x in (sim, spi, replay, iio)) > 1:
+            raise ConfigError("--sim, --spi, --iio and --replay are mutually exclusive")
+        if iio is not None:
+            if not iio:
+                raise _fail("--iio", iio, "an IIO device: iio:device0, its name (adis16405) or its sysfs directory")
+            cfg = dataclasses.replace(cfg, sensor=dataclasses.replace(cfg.sensor, source="iio", iio_device=iio))
         if sim is not None:
             cfg = dataclasses.replace(cfg, sensor=dataclasses.replace(
                 cfg.sensor, source="sim", scenario=_choice("--sim", sim, SCENARIOS)))

@@ -68,9 +68,9 @@ def start_chip_source(bus, description: str, *, clock=time.monotonic, **start) -
 
 
 def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
-    """The source `sensor_cfg` names (`source` = "sim" | "spi" | "replay", with its keys: any object with the
+    """The source `sensor_cfg` names (`source` = "sim" | "spi" | "iio" | "replay", with its keys: any object with the
     attributes of daemon.config.SensorConfig): a chip with start-up retries and bus reconnection — read in a
-    dedicated thread unless `reader` = "event_loop" — or a replay.
+    dedicated thread unless `reader` = "event_loop" —, the kernel's IIO driver (drivers.iio_source), or a replay.
 
     faults: a drivers.faults.FaultPlan for the simulated chip (refused for a real sensor); the simulated chip
     is wrapped in drivers.ground_truth.GroundTruthSource, which accounts its lost samples against the truth.
@@ -82,6 +82,14 @@ def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
         return ReplaySource(iter_samples(sensor_cfg.replay_file), f"replay {sensor_cfg.replay_file}",
                             realtime=sensor_cfg.replay_realtime, clock=clock,
                             speed=getattr(sensor_cfg, "replay_speed", 1.0))
+    if kind == "iio":
+        if faults is not None:
+            raise ValueError("fault injection (--sim-faults) needs the simulated sensor, not --iio")
+        from ahrsd.drivers.iio_source import IioSource
+
+        src = IioSource(sensor_cfg.iio_device)
+        src.start()
+        return src
     if kind == "spi":
         if faults is not None:
             raise ValueError("fault injection (--sim-faults) needs the simulated sensor, not --spi")
