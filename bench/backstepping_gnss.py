@@ -38,7 +38,7 @@ accelerometer too, as the daemon would. The simulated sensor keeps its turn-on b
 (no power-up repeatability error), so this is the best case of that workflow.
 
 `afix` is `acal` with the accelerometer calibration also aligned to the housing (`ahrsd calibrate accel
---align-to-faces`, calibration/accel_alignment.py): the six faces on a surface that is level to
+--align-to-faces`, calibration/inertial/accel_alignment.py): the six faces on a surface that is level to
 FACE_PLACEMENT_DEG (each face's true up direction that far off its axis, in a random direction: a surface
 levelled to about 0.02° and the unit seated on it), which brings the levelling frame to the body's (the
 simulator's body is the housing).
@@ -87,7 +87,7 @@ class BoatRun:
     """One simulated run: the recording's inputs, the truth, the sensor's true magnetometer errors."""
 
     def __init__(self, seed: int, site_text: str | None):
-        from ahrsd.calibration.magfit import MagFitInput
+        from ahrsd.calibration.mag.fit_types import MagFitInput
         from ahrsd.simulation import DEFAULT_SITE, Site, open_stream, simulate_gnss
 
         site = Site.parse(site_text) if site_text else DEFAULT_SITE
@@ -116,8 +116,8 @@ def bench_accel_calibration(errors, g_m_s2: float, seed: int, align: bool = Fals
     (f = g·d for target direction d), each with 0.3 mg of noise (a 10 s mean: 0.1 mg of white noise, 0.2 mg of
     in-run instability). `align`: with `--align-to-faces`, each position's true up direction FACE_PLACEMENT_DEG
     off its target in a random direction."""
-    from ahrsd.calibration.accel_alignment import align_to_faces
-    from ahrsd.calibration.accel_cal import GUIDED_TARGETS, fit_accel
+    from ahrsd.calibration.inertial.accel_alignment import align_to_faces
+    from ahrsd.calibration.inertial.accel import GUIDED_TARGETS, fit_accel
 
     d = np.array([v for _, v in GUIDED_TARGETS], dtype=float)
     d /= np.linalg.norm(d, axis=1, keepdims=True)
@@ -210,10 +210,10 @@ def operational_grid_error_deg(run: BoatRun, model, accel_bias_estimate_m_s2, ti
 def calibrations(run: BoatRun, settled_tilt_sigma_deg: float | None = None,
                  acal_sigma_m_s2: float | None = None) -> dict:
     """name -> MagFitResult. `acal_sigma_m_s2`: the `acal` bias prior (default ACCEL_BIAS_SIGMA_CALIBRATED_M_S2)."""
-    from ahrsd.calibration.backstepping_aided import (ACCEL_BIAS_SIGMA_CALIBRATED_M_S2, SETTLED_TILT_SIGMA_DEG,
+    from ahrsd.calibration.mag.backstepping_aided import (ACCEL_BIAS_SIGMA_CALIBRATED_M_S2, SETTLED_TILT_SIGMA_DEG,
                                                       fit_backstepping_aided)
-    from ahrsd.calibration.levelling import roll_pitch_from_estimator
-    from ahrsd.calibration.magfit import fit_mag
+    from ahrsd.calibration.mag.levelling import roll_pitch_from_estimator
+    from ahrsd.calibration.mag.fit import fit_mag
 
     thr = SETTLED_TILT_SIGMA_DEG if settled_tilt_sigma_deg is None else settled_tilt_sigma_deg
     decl = run.field.declination_rad
@@ -239,7 +239,7 @@ def calibrations(run: BoatRun, settled_tilt_sigma_deg: float | None = None,
 
 def levelling_tilt_error_deg(run: BoatRun) -> tuple[float, float]:
     """Tilt error RMS after SETTLE_S of the aided filter without a magnetometer: forward, smoothed."""
-    from ahrsd.calibration.levelling import attitude_from_estimator
+    from ahrsd.calibration.mag.levelling import attitude_from_estimator
     from ahrsd.estimator.ins_smoother import SmoothingIns
 
     est = SmoothingIns(declination_rad=run.field.declination_rad, mag_enabled=False)
@@ -250,7 +250,7 @@ def levelling_tilt_error_deg(run: BoatRun) -> tuple[float, float]:
 
 
 def sweep(seeds, sites) -> None:
-    from ahrsd.calibration.backstepping_aided import fit_backstepping_aided
+    from ahrsd.calibration.mag.backstepping_aided import fit_backstepping_aided
 
     thresholds = (0.2, 0.3, 0.4, 1e9)
     print("# settled_tilt_sigma_deg sweep, grid heading RMS, degrees; 1e9 = fit every sample (the default)")

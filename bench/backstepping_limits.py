@@ -14,7 +14,7 @@ mean, in degrees (target ≤ 0.3).
 - `no gyro noise`, `no accel noise`: the same sensor without the gyro's (accelerometer's) white noise: the angle
   (velocity) random walk. Everything else is the same draw: the simulator keeps a random stream per error source.
 - `gyro cal`: the gyro's scale and misalignment removed from the data, as an exact rate-table calibration would
-  (calibration/gyro_cal.py), and the filter told they are known (0.05 %, 0.02°: `filter_overrides`).
+  (calibration/inertial/gyro.py), and the filter told they are known (0.05 %, 0.02°: `filter_overrides`).
 - `bias 0.5mg`: the levelling told the accelerometer bias is known to 0.5 mg (`--accel-bias-sigma-mg 0.5`) instead
   of 2: a bias calibrated on the run's own power-up.
 - `exact GNSS`: each fix's position and velocity are the truth (still weighted as 1.5 m and 0.05 m/s);
@@ -90,8 +90,8 @@ def _exact(fixes, position: bool = True, velocity: bool = True):
 
 def variant_inputs(run: BoatRun, site_text, seed: int, name: str):
     """(data, fixes, accel-bias prior m/s², filter overrides) of one column."""
-    from ahrsd.calibration.backstepping_aided import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
-    from ahrsd.calibration.magfit import MagFitInput
+    from ahrsd.calibration.mag.backstepping_aided import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
+    from ahrsd.calibration.mag.fit_types import MagFitInput
     from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
     from ahrsd.simulation import GnssErrors, simulate_gnss
 
@@ -131,7 +131,7 @@ def variant_inputs(run: BoatRun, site_text, seed: int, name: str):
 
 def one_run(job):
     """Grid RMS and mean (deg) of every column for one (site, seed)."""
-    from ahrsd.calibration.backstepping_aided import fit_backstepping_aided
+    from ahrsd.calibration.mag.backstepping_aided import fit_backstepping_aided
 
     label, site_text, seed = job
     logging.getLogger("ahrsd.estimator.ins").setLevel(logging.ERROR)

@@ -1,4 +1,4 @@
-"""CPU cost of decoding a GNSS receiver's bytes (drivers.gnss_stream), per epoch and for a garbage stream.
+"""CPU cost of decoding a GNSS receiver's bytes (drivers.gnss.stream), per epoch and for a garbage stream.
 
     .venv/bin/python bench/gnss_decode.py
 
@@ -16,10 +16,10 @@ import random
 import time
 
 from ahrsd.core.gnss import make_fix
-from ahrsd.drivers.gnss_nmea import nmea_epoch_sentences
-from ahrsd.drivers.gnss_simulated import uart_resample
-from ahrsd.drivers.gnss_stream import GnssStreamDecoder
-from ahrsd.drivers.gnss_ubx import nav_pvt_message
+from ahrsd.drivers.gnss.nmea import nmea_epoch_sentences
+from ahrsd.drivers.gnss.simulated import uart_resample
+from ahrsd.drivers.gnss.stream import GnssStreamDecoder
+from ahrsd.drivers.gnss.ubx import nav_pvt_message
 
 EPOCHS = 2000
 REPEAT = 5

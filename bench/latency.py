@@ -179,11 +179,11 @@ def part_b(seconds: float) -> np.ndarray:
 
 
 def part_c(scenario: str, seconds: float = 60.0) -> float:
-    """CPU seconds per second of the simulated receiver's writer (drivers.gnss_scenario: the simulator's epochs
+    """CPU seconds per second of the simulated receiver's writer (drivers.gnss.scenario: the simulator's epochs
     and the UBX encoding into the pty), stepped in-process over `seconds` of scenario time."""
     import select
 
-    from ahrsd.drivers.gnss_scenario import ScenarioGnssReceiver
+    from ahrsd.drivers.gnss.scenario import ScenarioGnssReceiver
 
     clock = type("Clock", (), {"t": 0.0, "__call__": lambda self: self.t})()
     rx = ScenarioGnssReceiver(scenario, clock)

@@ -31,11 +31,11 @@ import time
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ahrsd.calibration import backstepping as bs
-from ahrsd.calibration import backstepping_paper as paper
-from ahrsd.calibration import vertical_channel as vc
-from ahrsd.calibration import swing
-from ahrsd.calibration.magfit import MagFitInput
+from ahrsd.calibration.mag import backstepping as bs
+from ahrsd.calibration.mag import backstepping_paper as paper
+from ahrsd.calibration.mag import vertical_channel as vc
+from ahrsd.calibration.mag import swing
+from ahrsd.calibration.mag.fit_types import MagFitInput
 from ahrsd.calibration.models import MagModel
 from ahrsd.core.angles import wrap_180_deg
 

@@ -37,6 +37,10 @@ VEHICLE_SCENARIOS = ("boat", "car", "plane")
 VEHICLE_SITES = {"default": None, "60N": "60.17,24.94,20,2026-06-15"}
 RATE_HZ = 200.0
 TARGETS = {"tilt": 0.3, "heading": 0.5, "outage_tilt": 1.0, "outage_heading": 2.0}
+CALIBRATED_SIGMA_RAD = np.radians(0.5)   # the heading error a good calibration reports of itself (1σ)
+MAG_CASES = ("calibrated", "uncalibrated", "iron-step")
+IRON_STEP_UT = (6.0, -5.0, 4.5)          # the hard iron moves by 9.0 µT (a battery or a winch moved)
+IRON_STEP_AT = 0.5                       # ... half-way through the run
 LEVER_ARMS_M = {"boat": (-1.0, 0.0, -2.0), "car": (-0.5, 0.0, -1.5), "plane": (0.3, 0.2, -0.2)}   # body FRD, m
 
 
@@ -53,6 +57,7 @@ class VehicleRun:
     fixes: list
     outage: tuple[float, float] | None
     lever_arm_m: tuple = (0.0, 0.0, 0.0)     # the receiver's antenna, body FRD from the IMU, m
+    mag_calibration_sigma_rad: float = float("nan")   # what the calibration says of its heading error (NaN: none)
 
 
 def _rot(q_wxyz) -> Rotation:
@@ -90,17 +95,32 @@ def longest_turn_after(t_s, q_wxyz, t_from_s: float, t_last_start_s: float, min_
 
 
 def simulate_vehicle(name: str, seconds: float, seed: int, site_text: str | None, outage: bool = False,
-                     rate_hz: float = RATE_HZ, lever_arm: bool = False) -> VehicleRun:
+                     rate_hz: float = RATE_HZ, lever_arm: bool = False, mag: str = "calibrated",
+                     iron: str | None = None) -> VehicleRun:
     """`seconds` of vehicle `name` at the site ("LAT,LON[,ALT[,DATE]]", None: DEFAULT_SITE) with its GNSS fixes
     (in arrival order), with a 30 s outage from the start of the longest turn after 60 s when `outage`, the
-    antenna at LEVER_ARMS_M[name] when `lever_arm`."""
-    from ahrsd.simulation import DEFAULT_SITE, GnssErrors, Site, open_stream, simulate_gnss
+    antenna at LEVER_ARMS_M[name] when `lever_arm`.
 
+    mag: "calibrated" (the iron in force removed, a perfect calibration), "uncalibrated" (the raw field with the
+    vehicle's strong non-symmetric iron, what a new user feeds), "iron-step" (calibrated for the iron at the
+    start; the hard iron moves by IRON_STEP_UT at IRON_STEP_AT of the run). iron: None (the scenario's own
+    vehicle iron), "default" (VehicleIron.default) or "held-out" (VehicleIron.held_out), on every vehicle."""
+    from ahrsd.simulation import DEFAULT_SITE, GnssErrors, SensorErrors, Site, VehicleIron, open_stream, simulate_gnss
+
+    if mag not in MAG_CASES:
+        raise ValueError(f"mag must be one of {MAG_CASES}, got {mag!r}")
     site = Site.parse(site_text) if site_text else DEFAULT_SITE
-    stream = open_stream(name, rate_hz=rate_hz, seed=seed, site=site)
+    errors = SensorErrors.adis16405(seed)
+    if mag == "iron-step":
+        errors = errors.replace(hard_iron_step_ut=IRON_STEP_UT, hard_iron_step_t_s=IRON_STEP_AT * seconds)
+    irons = {None: "scenario", "default": VehicleIron.default(), "held-out": VehicleIron.held_out()}
+    stream = open_stream(name, rate_hz=rate_hz, seed=seed, site=site, errors=errors, vehicle_iron=irons[iron])
     block = stream.next_block(int(round(seconds * rate_hz)))
     err = stream.errors
-    mag = (np.linalg.inv(err.soft_iron) @ (block.mag_ut - err.hard_iron_ut).T).T
+    if mag == "uncalibrated":
+        mag_ut = np.array(block.mag_ut, dtype=float)
+    else:
+        mag_ut = (np.linalg.inv(err.soft_iron) @ (block.mag_ut - err.hard_iron_ut).T).T
     window = None
     if outage:
         t0 = longest_turn_after(block.t_s, block.truth_q_wxyz, 60.0, seconds - OUTAGE_S - 10.0)
@@ -110,8 +130,9 @@ def simulate_vehicle(name: str, seconds: float, seed: int, site_text: str | None
                           errors=GnssErrors(horizontal_m=1.5, vertical_m=2.5, velocity_m_s=0.05), latency_s=0.1,
                           lever_arm_m=arm)
     fixes.sort(key=lambda f: f.extra["t_rx_s"])
-    return VehicleRun(block.t_s, block.gyro_rad_s, block.accel_m_s2, np.ascontiguousarray(mag),
-                      block.truth_q_wxyz, stream.earth_field.declination_rad, fixes, window, arm)
+    return VehicleRun(block.t_s, block.gyro_rad_s, block.accel_m_s2, np.ascontiguousarray(mag_ut),
+                      block.truth_q_wxyz, stream.earth_field.declination_rad, fixes, window, arm,
+                      float("nan") if mag == "uncalibrated" else CALIBRATED_SIGMA_RAD)
 
 
 def run_ins(run: VehicleRun, use_gnss: bool = True, **params) -> np.ndarray:
@@ -120,7 +141,9 @@ def run_ins(run: VehicleRun, use_gnss: bool = True, **params) -> np.ndarray:
     from ahrsd.core.sample import SampleFlags, make_sample
     from ahrsd.estimator.ins import Ins
 
-    est = Ins(declination_rad=run.declination_rad, **{"lever_arm_m": run.lever_arm_m, **params})
+    est = Ins(declination_rad=run.declination_rad, **{"lever_arm_m": run.lever_arm_m,
+                                                      "mag_calibration_sigma_rad": run.mag_calibration_sigma_rad,
+                                                      **params})
     t, g, a, m = run.t_s, run.gyro_rad_s, run.accel_m_s2, run.mag_ut
     fixes = run.fixes if use_gnss else []
     q = np.empty((len(t), 4))
@@ -131,6 +154,53 @@ def run_ins(run: VehicleRun, use_gnss: bool = True, **params) -> np.ndarray:
             fi += 1
         q[k] = est.update(make_sample(t[k], g[k], a[k], m[k], flags=SampleFlags.NEW_DATA)).q_wxyz
     return q
+
+
+def run_ins_detailed(run: VehicleRun, **params) -> dict:
+    """As run_ins, keeping what the honesty figures need: q (body → magnetic), the published yaw 1σ (rad), the
+    heading state and the flags of every sample."""
+    from ahrsd.core.sample import SampleFlags, make_sample
+    from ahrsd.estimator.ins import Ins
+
+    est = Ins(declination_rad=run.declination_rad, **{"lever_arm_m": run.lever_arm_m,
+                                                      "mag_calibration_sigma_rad": run.mag_calibration_sigma_rad,
+                                                      **params})
+    t, g, a, m = run.t_s, run.gyro_rad_s, run.accel_m_s2, run.mag_ut
+    n = len(t)
+    q = np.empty((n, 4))
+    sigma = np.empty(n)
+    state = np.zeros(n, dtype=np.int8)
+    flags = np.zeros(n, dtype=np.int64)
+    fi = 0
+    for k in range(n):
+        while fi < len(run.fixes) and run.fixes[fi].extra["t_rx_s"] <= t[k]:
+            est.update_gnss(run.fixes[fi])
+            fi += 1
+        e = est.update(make_sample(t[k], g[k], a[k], m[k], flags=SampleFlags.NEW_DATA))
+        q[k] = e.q_wxyz
+        sigma[k] = e.sigma_rpy_rad[2]
+        state[k] = int(e.heading_state)
+        flags[k] = int(e.flags)
+    return {"q": q, "sigma_yaw_rad": sigma, "heading_state": state, "flags": flags, "ins": est}
+
+
+def honesty_figures(run: VehicleRun, out: dict, from_s: float, to_s: float = np.inf,
+                    sigma_from_s: float = SETTLE_S) -> dict:
+    """Heading RMS and tilt RMS over [from_s, to_s), the median published yaw σ and the share of samples whose
+    |heading error| exceeds 3σ (from `sigma_from_s` on), and the largest change of the published heading error
+    within 0.1 s (from SETTLE_S on), degrees. Truth from the simulator (scipy rotations)."""
+    tilt, hdg = tilt_heading_errors_deg(out["q"], run.truth_q_wxyz, run.declination_rad)
+    t = run.t_s
+    win = (t >= from_s) & (t < to_s)
+    honest = t >= sigma_from_s
+    sig_deg = np.degrees(out["sigma_yaw_rad"])
+    beyond = np.abs(hdg[honest]) > 3.0 * sig_deg[honest]
+    settled = t >= SETTLE_S
+    lag = max(1, int(round(0.1 / (t[1] - t[0]))))
+    h = np.unwrap(np.radians(hdg[settled]))
+    step = float(np.degrees(np.max(np.abs(h[lag:] - h[:-lag])))) if h.size > lag else 0.0
+    return {"heading_rms": _rms(hdg[win]), "tilt_rms": _rms(tilt[win]), "sigma_median": float(np.median(sig_deg[honest])),
+            "beyond_3sigma": float(np.mean(beyond)), "max_step_0_1s": step}
 
 
 def run_mekf(run: VehicleRun) -> np.ndarray:

@@ -24,7 +24,7 @@ mgauss vs `COMPASS_CAL_FIT`, offsets, diagonals, radius). The result is a propos
 before/after parameters; accepting it (saving and hot-swapping) is the daemon's job (daemon/magcal.py).
 
 The parts it uses live beside it: the completion mask in `geodesic_grid.py`, ArduPilot's conventions and
-acceptance limits in `ardupilot_compass.py`, the offsets-only fit in `mag_offsets.py`.
+acceptance limits in `ardupilot_compass.py`, the offsets-only fit in `mag/offsets.py`.
 
 Time: every duration in the session (start delay, timeout) is measured in *sample* time (`sample.t_s`), so
 a simulation running faster than real time behaves like the real thing; only the "no samples arriving"
@@ -48,16 +48,17 @@ from ahrsd.core.angles import roll_pitch_from_accel, tilt_compensated_heading_ra
 from .ardupilot_compass import (COMPASS_CAL_FIT_DEFAULT_MGAUSS, COMPASS_OFFS_MAX_MGAUSS, DIAG_MAX, DIAG_MIN,
                                 MAX_SCALE_FACTOR, OFFDIAG_MAX, RADIUS_MAX_MGAUSS, RADIUS_MIN_MGAUSS, UT_TO_MGAUSS,
                                 ArduPilotMagParams, to_ardupilot)
-from .geodesic_grid import N_SECTIONS, completion_mask_bytes, geodesic_sections, section_centres
-from .backstepping import fold_heading_offset
-from .backstepping_paper import magnetic_heading_deg
-from .course_offset import (DEFAULT_MAX_TURN_RATE_DEG_S, DEFAULT_STRAIGHT_WINDOW_S, CourseOffsetFit,
+from .mag.geodesic_grid import N_SECTIONS, completion_mask_bytes, geodesic_sections, section_centres
+from .mag.backstepping import fold_heading_offset
+from .mag.backstepping_paper import magnetic_heading_deg
+from .mag.course_offset import (DEFAULT_MAX_TURN_RATE_DEG_S, DEFAULT_STRAIGHT_WINDOW_S, CourseOffsetFit,
                             fit_course_offset)
-from .mag_offsets import fit_offsets_keep_soft_iron
-from .magfit import MagFitInput, fit_mag
+from .mag.offsets import fit_offsets_keep_soft_iron
+from .mag.fit import fit_mag
+from .mag.fit_types import MagFitInput
 from .models import Calibration, MagModel
-from .observability import algebraic_sphere_centre, compare_with_offsets
-from .swing import DEFAULT_MIN_SPEED_M_S
+from .mag.observability import algebraic_sphere_centre, compare_with_offsets
+from .mag.swing import DEFAULT_MIN_SPEED_M_S
 
 if TYPE_CHECKING:  # pragma: no cover
     from ahrsd.core.gnss import GnssFix
@@ -180,7 +181,7 @@ class FieldCalResult:
         )
 
 
-FitFunction = Callable[..., Any]  # magfit.fit_mag's signature
+FitFunction = Callable[..., Any]  # mag.fit.fit_mag's signature
 SPHERE_RECENTRE_EVERY = 50       # kept samples between re-centrings of the completion mask (step one, tumbling)
 
 
@@ -213,7 +214,7 @@ class FieldCalibration:
         self.config = config or FieldCalConfig()
         self.reference = reference
         self.samples_are_calibrated = samples_are_calibrated
-        self._fit_function = fit_function  # None: ahrsd.calibration.magfit.fit_mag (picklable jobs)
+        self._fit_function = fit_function  # None: ahrsd.calibration.mag.fit.fit_mag (picklable jobs)
         self.auto_fit = auto_fit
         self._lock = threading.RLock()
         self._messages: list[tuple[int, str]] = []

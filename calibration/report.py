@@ -60,7 +60,7 @@ def accel_alignment_line(alignment: dict) -> str:
 
 
 def accel_holds_line(holds: dict, min_still_s: float) -> str:
-    """What the still periods' lengths cost (accel_cal.hold_cost): how long the holds were, the noise each
+    """What the still periods' lengths cost (inertial.accel.hold_cost): how long the holds were, the noise each
     position mean carries against a 10-s hold's, and what was too short to use."""
     mg = 1e3 / 9.80665
     parts = []

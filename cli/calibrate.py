@@ -10,7 +10,7 @@ are a public interface (docs/calibration.md):
   gyro:  bias_rad_s [3], matrix [3][3]                            calibrated = matrix · (raw − bias)
   allan: <sensor>.<axis>.white_noise, .bias_instability (+ kalman Q/R)
 Exit status: 0 fitted (and saved), 1 refused or failed, 2 bad usage (including --plot without matplotlib,
-the optional `ahrsd[plot]` extra: checked before anything is fitted or saved).
+matplotlib, the optional `plot` extra: checked before anything is fitted or saved).
 """
 
 from __future__ import annotations
@@ -34,7 +34,8 @@ def register(subparsers) -> None:
                         help=f"where the calibration is stored (default: {DEFAULT_STATE_DIR}, the service's; "
                         "`ahrsd run` started by hand reads ~/.local/state/ahrsd unless given --state-dir)")
         sp.add_argument("--json", action="store_true", help="print one JSON object instead of a report")
-        sp.add_argument("--plot", metavar="FILE.png", help="write a plot (needs matplotlib: pip install 'ahrsd[plot]')")
+        sp.add_argument("--plot", metavar="FILE.png", help="write a plot (needs matplotlib: pip install matplotlib, or install "
+                        "ahrsd with -e '.[plot]')")
         sp.add_argument("--dry-run", action="store_true", help="fit and report, but do not save")
         sp.add_argument("--sensor-id", default=None, help="sensor serial or id to record in the metadata")
         sp.set_defaults(func=run)
@@ -112,7 +113,10 @@ class _Usage(_Fail):
     """Bad usage (an option that cannot work as given): message for the person, exit status 2."""
 
 
-PLOT_NEEDS_MATPLOTLIB = "--plot needs matplotlib: pip install 'ahrsd[plot]'"
+def _plot_needs_matplotlib() -> str:
+    from ahrsd.core.plotting import PLOT_INSTALL_HINT
+
+    return f"--plot needs matplotlib: {PLOT_INSTALL_HINT}"
 
 
 _RECORDING_META: dict = {}
@@ -128,7 +132,7 @@ def _read(path, progress_args=None):
 
     try:
         with progress_bar(progress_args, expected_rows(path), f"reading {os.path.basename(path)}") as bar:
-            rec = read_recording(path, on_rows=bar.update)
+            rec = read_recording(path, strict=False, on_rows=bar.update)   # a file cut mid-row: its complete rows
     except FileNotFoundError:
         raise _Fail(f"{path}: no such file") from None
     except (RecordingFormatError, ValueError, OSError) as exc:
@@ -199,7 +203,7 @@ def _allan(args) -> int:
     try:   # streamed: one chunk of the recording in memory at a time (.csv or .csv.gz)
         analysis = StaticAllanAnalysis()
         with progress_bar(args, expected_rows(args.recording), f"reading {os.path.basename(args.recording)}") as bar:
-            for chunk in iter_recording_chunks(args.recording):
+            for chunk in iter_recording_chunks(args.recording, strict=False):
                 analysis.add(chunk.t_s, chunk.gyro_rad_s, chunk.accel_m_s2, chunk.mag_ut)
                 bar.update(len(chunk))
         with activity(args, "Allan analysis"):
@@ -224,7 +228,7 @@ def _allan(args) -> int:
     if args.plot:
         from ahrsd.calibration.allan_plot import plot_allan
 
-        plot_allan(res, args.plot)
+        _write_plot(args, plot_allan, res)
     lines = [f"Allan analysis of {args.recording}: {res.duration_s / 3600:.2f} h at {res.rate_hz:.1f} Hz"]
     lines += describe(res) + [f"  {note}"]
     _emit(args, payload, "\n".join(lines))
@@ -237,7 +241,7 @@ def _accel(args) -> int:
     import numpy as np
 
     from ahrsd.calibration import report
-    from ahrsd.calibration.accel_cal import fit_accel, local_gravity_m_s2
+    from ahrsd.calibration.inertial.accel import fit_accel, local_gravity_m_s2
 
     g = local_gravity_m_s2(args.lat, args.alt_m)
     if not (math.isfinite(args.min_still_s) and args.min_still_s > 0):
@@ -256,7 +260,7 @@ def _accel(args) -> int:
     if args.live or len(means):
         res = fit_accel(means, g, terms)
     else:
-        from ahrsd.calibration.accel_cal import AccelFitResult, short_holds_refusal
+        from ahrsd.calibration.inertial.accel import AccelFitResult, short_holds_refusal
         from ahrsd.calibration.models import AccelModel
 
         res = AccelFitResult(AccelModel.identity(), math.nan, 6 if terms == "auto" else terms, {"positions": 0},
@@ -264,7 +268,7 @@ def _accel(args) -> int:
     if not args.live:
         res = _with_holds(res, used, skipped, rate_hz, args.min_still_s)
     if args.align_to_faces:
-        from ahrsd.calibration.accel_alignment import align_to_faces
+        from ahrsd.calibration.inertial.accel_alignment import align_to_faces
 
         res = align_to_faces(res, means)
     payload = {"sensor": "accel", **res.to_json_dict(), "positions_source": source}
@@ -282,10 +286,10 @@ def _accel(args) -> int:
                       "positions": q.get("positions"), "g_m_s2": g,
                       **({"face_alignment": q["face_alignment"]} if "face_alignment" in q else {})})
     if args.plot and res.ok:
-        from ahrsd.calibration.plots import plot_residuals
+        from ahrsd.cli.plots.mag import plot_residuals
 
-        plot_residuals(np.array(q["position_residuals_m_s2"]) * 1e3, "position", "|f| − g (mm/s²)",
-                       "accelerometer residual per position", args.plot)
+        _write_plot(args, plot_residuals, np.array(q["position_residuals_m_s2"]) * 1e3, "position", "|f| − g (mm/s²)",
+                    "accelerometer residual per position")
     return rc
 
 
@@ -296,7 +300,7 @@ def _still_positions(args):
 
     import numpy as np
 
-    from ahrsd.calibration.accel_cal import split_by_duration, still_periods
+    from ahrsd.calibration.inertial.accel import split_by_duration, still_periods
 
     rec = _read(args.recording, args)
     step_s = float(np.median(np.diff(rec.t_s)))
@@ -314,7 +318,7 @@ def _with_holds(res, used, skipped, rate_hz, min_still_s):
     """The fit result with what the holds cost in its quality, and a refusal that names the short holds."""
     import dataclasses
 
-    from ahrsd.calibration.accel_cal import hold_cost
+    from ahrsd.calibration.inertial.accel import hold_cost
 
     quality = {**res.quality, "holds": hold_cost(used, skipped, rate_hz)}
     refused = res.refused
@@ -329,7 +333,7 @@ def _accel_live(args):
     import sys
     import time
 
-    from ahrsd.calibration.accel_cal import GUIDED_TARGETS, GUIDED_TARGETS_FACE_PAIRS, GuidedSession
+    from ahrsd.calibration.inertial.accel import GUIDED_TARGETS, GUIDED_TARGETS_FACE_PAIRS, GuidedSession
     from ahrsd.drivers.errors import DriverError, FrameError
     from ahrsd.drivers.source import start_chip_source
 
@@ -386,8 +390,9 @@ def _gyro(args) -> int:
 
     import numpy as np
 
-    from ahrsd.calibration import gyro_cal, report
-    from ahrsd.calibration.accel_cal import find_still_segments
+    from ahrsd.calibration import report
+    from ahrsd.calibration.inertial import gyro as gyro_cal
+    from ahrsd.calibration.inertial.accel import find_still_segments
 
     rec = _read(args.recording)
     stored = _stored(args)
@@ -421,8 +426,33 @@ def _gyro(args) -> int:
         res = gyro_cal.fit_rate_table(raw, ref, weights=[s.stop - s.start for s in segs])
     payload = {"sensor": "gyro", **res.to_json_dict(), "source": source}
     lines = [f"Gyro calibration ({res.method}) from {source}"]
-    return _report_fit(args, res, payload, lines, "gyro", report.gyro_model_lines,
-                       {"method": res.method, "residual_rms_rad_s": res.residual_rms_rad_s})
+    rc = _report_fit(args, res, payload, lines, "gyro", report.gyro_model_lines,
+                     {"method": res.method, "residual_rms_rad_s": res.residual_rms_rad_s})
+    if args.plot:
+        from . import gyro_plot
+
+        title = f"gyro calibration ({res.method}) of {args.recording}" + ("" if res.ok else ": REFUSED")
+        if args.bias_only:
+            used = [(s.start, s.stop) for s in segs] or [(0, len(rec))]
+            q = res.quality
+            fig = gyro_plot.bias_figure(rec.t_s, rec.gyro_rad_s, used, res.model.bias_rad_s if res.ok else None,
+                                        q.get("std_rad_s"), title)
+        else:
+            fig = gyro_plot.rate_table_figure(ref, res.model.apply(raw) if res.ok else raw, title,
+                                              "calibrated" if res.ok else "raw")
+        _write_plot(args, gyro_plot.save, fig)
+    return rc
+
+
+def _write_plot(args, save, *what) -> None:
+    """save(*what, args.plot), then say where the figure is (stderr: --json keeps stdout one object)."""
+    import sys
+
+    try:
+        save(*what, args.plot)
+    except OSError as exc:
+        raise _Fail(f"{args.plot}: cannot write the plot: {exc.strerror or exc}") from None
+    print(f"ahrsd calibrate {args.sensor}: figure written to {args.plot}", file=sys.stderr)
 
 
 def _fold_estimator_bias(rec, stored, res, source):
@@ -455,7 +485,8 @@ def _mag(args) -> int:
     import numpy as np
 
     from ahrsd.calibration import report
-    from ahrsd.calibration.magfit import MagFitInput, fit_mag
+    from ahrsd.calibration.mag.fit_types import MagFitInput
+    from ahrsd.calibration.mag.fit import fit_mag
     from ahrsd.core.wmm import earth_field
 
     from .progress import activity
@@ -506,7 +537,7 @@ def _mag(args) -> int:
         options["heading_ref_delay_s"] = args.heading_ref_delay_s
     align_note = None
     if args.align_recording:
-        from ahrsd.calibration.mag_alignment import fit_alignment, segment_level_turns
+        from ahrsd.calibration.mag.alignment import fit_alignment, segment_level_turns
 
         with activity(args, f"fitting (three-step) {len(data)} samples"):
             first = fit_mag("three-step", data, ref)
@@ -538,8 +569,8 @@ def _mag(args) -> int:
             raise
         raise _Fail(f"--gnss: the aided estimator could not level the recording: {exc}") from None
     if swing_table is not None and res.ok:
-        from ahrsd.calibration.swing import SwingFitError
-        from ahrsd.calibration.swing_table import apply_swing_table
+        from ahrsd.calibration.mag.swing import SwingFitError
+        from ahrsd.calibration.mag.swing_table import apply_swing_table
 
         try:
             res = apply_swing_table(res, *swing_table, args.swing_table)
@@ -562,8 +593,8 @@ def _mag(args) -> int:
     rc = _report_fit(args, res, payload, lines, "mag", report.mag_model_lines, meta)
     if args.plot:
         if args.method == "backstepping" and res.ok:
-            from ahrsd.calibration.backstepping_paper import BacksteppingError
-            from ahrsd.calibration.backstepping_plot import plot_backstepping
+            from ahrsd.calibration.mag.backstepping_paper import BacksteppingError
+            from ahrsd.cli.plots.backstepping import plot_backstepping
 
             try:
                 plot_backstepping(res, data, args.plot, swing_table=swing_table)
@@ -571,7 +602,7 @@ def _mag(args) -> int:
                 raise _Fail(f"cannot plot: {exc}") from None
         else:
             model = res.model if res.ok else None
-            from ahrsd.calibration.plots import plot_mag
+            from ahrsd.cli.plots.mag import plot_mag
 
             plot_mag(rec.mag_ut, model, ref.total_ut, args.plot)
     return rc
@@ -593,7 +624,7 @@ def _gnss_for_backstepping(args, rec, heading_ref, ref_note):
         fixes, validator = cg.read_validated_fixes(args.gnss)
     except cg.GnssInputError as exc:
         raise _Fail(str(exc)) from None
-    from ahrsd.calibration.backstepping_aided import AIDED_ESTIMATOR, SMOOTH_LEVELLING
+    from ahrsd.calibration.mag.backstepping_aided import AIDED_ESTIMATOR, SMOOTH_LEVELLING
 
     note = (f"levelling: {AIDED_ESTIMATOR} aided by {len(fixes)} GNSS fixes of {args.gnss} "
             f"({validator.rejected} rejected)" + (", smoothed over the run (RTS)" if SMOOTH_LEVELLING else "")
@@ -612,7 +643,7 @@ def _levelling_accel_bias_prior(args, stored):
     """--gnss: the aided levelling's accelerometer-bias prior (m/s², None: the filter's default) and a note. The
     levelling cannot tell a bias from a tilt on a vehicle that stays level (calibration.backstepping_aided), so
     what splits them is the bench calibration: known to ~2 mg when there is one."""
-    from ahrsd.calibration.backstepping_aided import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
+    from ahrsd.calibration.mag.backstepping_aided import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
     from ahrsd.calibration.models import AccelModel
     from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
 
@@ -656,7 +687,7 @@ def _heading_reference_column(rec, path, method):
 
 
 def _read_swing_table(path):
-    from ahrsd.calibration.swing import SwingTableError, load_swing_table
+    from ahrsd.calibration.mag.swing import SwingTableError, load_swing_table
 
     try:
         return load_swing_table(path)
@@ -699,7 +730,7 @@ def run(args) -> int:
 
         if not isinstance(exc, PlotUnavailableError):
             raise
-        failure = _Usage(PLOT_NEEDS_MATPLOTLIB)
+        failure = _Usage(_plot_needs_matplotlib())
     if getattr(args, "json", False):
         import json
 
@@ -714,4 +745,4 @@ def _check_matplotlib() -> None:
     try:
         importlib.import_module("matplotlib")
     except ImportError:
-        raise _Usage(PLOT_NEEDS_MATPLOTLIB) from None
+        raise _Usage(_plot_needs_matplotlib()) from None

@@ -28,8 +28,8 @@ class GnssInputError(ValueError):
 
 def read_validated_fixes(path):
     """The recording's fixes that pass the validator, and the validator (for its counters)."""
-    from ahrsd.drivers.gnss_recording import GnssRecordingFormatError, read_gnss_recording
-    from ahrsd.drivers.gnss_validation import GnssFixValidator
+    from ahrsd.drivers.gnss.recording import GnssRecordingFormatError, read_gnss_recording
+    from ahrsd.drivers.gnss.validation import GnssFixValidator
 
     try:
         fixes = read_gnss_recording(path)
@@ -46,7 +46,7 @@ def course_reference_deg(fixes, t_s):
     """GNSS course as a true-heading reference at the sample times `t_s` (NaN where slow or turning)."""
     import numpy as np
 
-    from ahrsd.calibration.swing import gnss_course_reference
+    from ahrsd.calibration.mag.swing import gnss_course_reference
 
     tf = np.array([f.t_s for f in fixes])
     course = np.array([math.degrees(f.course_rad) if f.has_velocity else np.nan for f in fixes])
@@ -57,6 +57,6 @@ def course_reference_deg(fixes, t_s):
 
 def fit_aided(data, fixes, reference, **options):
     """The back-stepping fit levelled by the aided estimator (calibration.backstepping_aided)."""
-    from ahrsd.calibration.backstepping_aided import fit_backstepping_aided
+    from ahrsd.calibration.mag.backstepping_aided import fit_backstepping_aided
 
     return fit_backstepping_aided(data, fixes, reference, reference.declination_rad, **options)

@@ -2,7 +2,7 @@
 
 Sources: the simulated receiver of a vehicle scenario (`simulation.gnss.GnssSimulator` on the scenario's truth:
 its fixes carry the chip's scenario time, shifted to the recording's clock), or a receiver on a serial port
-(`drivers.gnss_serial.SerialGnssSource`, stamped on the recording's host clock). Fixes are written as they
+(`drivers.gnss.serial_port.SerialGnssSource`, stamped on the recording's host clock). Fixes are written as they
 come: judging them is the validator's, when the recording is replayed (docs/gnss.md, "The recording").
 """
 
@@ -18,12 +18,12 @@ class GnssRecorder:
     of the newest sample after every read, `close()` at the end (returns a one-line summary)."""
 
     def __init__(self, path, *, simulator=None, time_offset_s: float = 0.0, serial=None):
-        from ahrsd.drivers.gnss_recording import GnssRecordingWriter
+        from ahrsd.drivers.gnss.recording import GnssRecordingWriter
 
         self.path = path
         self.simulator = simulator          # simulation.gnss.GnssSimulator (scenario time)
         self.time_offset_s = time_offset_s  # recording clock − scenario time
-        self.serial = serial                # drivers.gnss_serial.SerialGnssSource (recording clock)
+        self.serial = serial                # drivers.gnss.serial_port.SerialGnssSource (recording clock)
         self.writer = GnssRecordingWriter(path)
         self.written = 0
         self._next_health = -math.inf
@@ -42,7 +42,7 @@ class GnssRecorder:
 
     @classmethod
     def for_serial(cls, path, device: str, baud: int, clock) -> "GnssRecorder":
-        from ahrsd.drivers.gnss_serial import SerialGnssSource
+        from ahrsd.drivers.gnss.serial_port import SerialGnssSource
 
         return cls(path, serial=SerialGnssSource(device, baud, "auto", clock=clock))
 

@@ -3,7 +3,7 @@
     ahrsd log list [--dir DIR] [--json]
     ahrsd log cut --from TIME --to TIME --output REC.csv [--dir DIR] [--quiet]
 
-The logs are drivers/sample_log.py's `imu-*.csv.gz` files, drivers/gnss_log.py's `gnss-*.gnss.csv.gz` (every
+The logs are drivers/sample_log.py's `imu-*.csv.gz` files, drivers/gnss/log.py's `gnss-*.gnss.csv.gz` (every
 GNSS fix delivered, accepted or rejected) and their `.json` sidecars. TIME is ISO-8601
 (`2026-12-01T10:42:00`, UTC unless it carries an offset; mapped to sample times through each file's sidecar)
 or a number of seconds on the samples' own clock (the t_s column, as `log list` shows it). The cut is a
@@ -62,7 +62,7 @@ def _log_files(directory: str, kind: str = "samples") -> list[tuple]:
     import json
     from pathlib import Path
 
-    from ahrsd.drivers.gnss_log import GNSS_LOG_PREFIX, GNSS_LOG_SUFFIX
+    from ahrsd.drivers.gnss.log import GNSS_LOG_PREFIX, GNSS_LOG_SUFFIX
     from ahrsd.drivers.rotating_log import SIDECAR_SUFFIX
     from ahrsd.drivers.sample_log import SAMPLE_LOG_PREFIX, SAMPLE_LOG_SUFFIX
 
@@ -272,8 +272,8 @@ def _cut_gnss(directory: str, output: str, first_t: float, last_t: float) -> dic
     import os
     import sys
 
-    from ahrsd.drivers.gnss_log import GNSS_LOG_EXTRA_COLUMNS, REJECTION_CODES
-    from ahrsd.drivers.gnss_recording import (GnssRecordingFormatError, GnssRecordingWriter, gnss_path_for,
+    from ahrsd.drivers.gnss.log import GNSS_LOG_EXTRA_COLUMNS, REJECTION_CODES
+    from ahrsd.drivers.gnss.recording import (GnssRecordingFormatError, GnssRecordingWriter, gnss_path_for,
                                               iter_gnss_fixes)
 
     logged = _log_files(directory, "gnss")

@@ -202,7 +202,7 @@ def run(args) -> int:
 def _open_gnss(args, bus, source, paced: bool):
     """The GNSS recorder beside the IMU recording, or None (no GNSS source)."""
     from ahrsd.cli.gnss_record import GnssRecorder
-    from ahrsd.drivers.gnss_recording import gnss_path_for
+    from ahrsd.drivers.gnss.recording import gnss_path_for
 
     path = gnss_path_for(args.output)
     if args.gnss_serial:

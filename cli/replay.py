@@ -63,7 +63,7 @@ def register(subparsers) -> None:
                    help="estimator parameter override (a field of MekfParams / ThesisKfParams), repeatable")
     p.add_argument("--plot", metavar="FILE.png", default=None,
                    help="also draw roll, pitch and heading with their 1σ bands, the flags, and the error against "
-                   "the recording's truth columns when it has them (needs matplotlib: pip install 'ahrsd[plot]')")
+                   "the recording's truth columns when it has them (needs matplotlib: pip install matplotlib, or install ahrsd with -e '.[plot]')")
     p.add_argument("--quiet", "-q", action="store_true", help="no summary and no progress bar on stderr")
     p.set_defaults(func=run)
 
@@ -139,7 +139,7 @@ def _gnss_fixes(path: str, validator):
     """The recording's fixes that pass the validator (the daemon's edge check), and the first one's position."""
     import math
 
-    from ahrsd.drivers.gnss_recording import GnssRecordingFormatError, read_gnss_recording
+    from ahrsd.drivers.gnss.recording import GnssRecordingFormatError, read_gnss_recording
 
     try:
         fixes = read_gnss_recording(path)
@@ -276,7 +276,7 @@ def _run(args) -> int:
     estimator_name = args.estimator or ("ins" if args.gnss else "mekf")
     fixes, validator, first_position = None, None, None
     if args.gnss:
-        from ahrsd.drivers.gnss_validation import GnssFixValidator
+        from ahrsd.drivers.gnss.validation import GnssFixValidator
 
         validator = GnssFixValidator(name=f"replay {args.gnss}")
         fixes, first_position = _gnss_fixes(args.gnss, validator)
@@ -322,7 +322,7 @@ def _run(args) -> int:
         out = _Output(args.output, AIDED_OUTPUT_HEADER, _FORMAT + "," + _NAV_FORMAT) if aided else _Output(args.output)
     except OSError as exc:
         raise ReplayError(f"{args.output}: cannot write: {exc.strerror or exc}") from None
-    samples = checked(iter_samples(args.recording))
+    samples = checked(iter_samples(args.recording, strict=False))   # a file cut mid-row: its complete rows
     if calibration is not None and not calibration.is_identity:
         samples = map(calibration.apply, samples)
     t_run = time.process_time()

@@ -32,6 +32,9 @@ def register(subparsers) -> None:
     p.add_argument("--mavlink", metavar="URL", action="append",
                    help="MAVLink endpoint (repeatable; replaces the config's): udpout:HOST:PORT, udpin:HOST:PORT, "
                    "tcp:HOST:PORT, tcpin:HOST:PORT, /dev/ttyAMA0,921600")
+    p.add_argument("--nmea", metavar="URL", action="append",
+                   help="NMEA 0183 heading output (repeatable; replaces the config's [[nmea]]): udp:HOST:PORT, "
+                   "udpbcast:HOST:PORT, tcpserver:HOST:PORT, serial:/dev/ttyUSB0[,BAUD] (docs/marine.md)")
     p.add_argument("--state-dir", metavar="DIR", help="calibration/parameter directory (default: $STATE_DIRECTORY "
                    "under systemd, else ~/.local/state/ahrsd)")
     p.add_argument("--status-line", choices=("auto", "on", "off"), help="live status line (default auto: on a TTY)")
@@ -58,11 +61,12 @@ def run(args: argparse.Namespace) -> int:
     try:
         path = args.config or default_config_path()
         cfg = load_config(path) if path else Config()
-        cfg = cfg.with_overrides(sim=args.sim, spi=args.spi, iio=args.iio, replay=args.replay, mavlink=args.mavlink,
-                                 state_dir=args.state_dir, replay_speed=args.replay_speed,
+        cfg = cfg.with_overrides(sim=args.sim, spi=args.spi, iio=args.iio, replay=args.replay,
+                                 mavlink=args.mavlink, state_dir=args.state_dir, replay_speed=args.replay_speed,
                                  gnss_replay=args.gnss_replay, gnss_serial=args.gnss_serial,
                                  gnss_sim=args.gnss_sim, estimator=args.estimator,
-                                 log_dir=args.log_dir, log_enabled=False if args.no_log else None)
+                                 log_dir=args.log_dir, log_enabled=False if args.no_log else None,
+                                 nmea=args.nmea)
         if args.status_line:
             cfg = dataclasses.replace(cfg, daemon=DaemonConfig(status_line=args.status_line))
     except ConfigError as exc:
@@ -89,11 +93,20 @@ def run(args: argparse.Namespace) -> int:
     if logging.getLogger().level > logging.INFO:
         logging.getLogger("ahrsd").setLevel(logging.INFO)   # the daemon reports its life cycle by default
     from ahrsd.daemon.sensor_recovery import report_sensor_alarms
-    from ahrsd.drivers.source import open_source
     from ahrsd.daemon.service import Service
+    from ahrsd.drivers.replay_source import ReplaySource
+    from ahrsd.drivers.source import open_source
 
+    if cfg.sensor.source == "replay":
+        from ahrsd.drivers.recording import check_recording
+
+        try:   # before the estimator compiles: a wrong path fails at once, in one line
+            check_recording(cfg.sensor.replay_file)
+        except (OSError, ValueError) as exc:
+            print(f"ahrsd run: error: cannot replay {_os_error_text(exc, cfg.sensor.replay_file)}", file=sys.stderr)
+            return 1
     # the chip sources retry a failed start and a lost bus with backoff (daemon.sensor_recovery)
-    source = open_source(cfg.sensor, faults=plan) if cfg.sensor.source in ("sim", "spi", "iio") else None
+    source = open_source(cfg.sensor, faults=plan)
     service = Service(cfg, source=source)
 
     async def main() -> int:
@@ -104,7 +117,14 @@ def run(args: argparse.Namespace) -> int:
             alarms.cancel()
 
     try:
-        return asyncio.run(main())
+        code = asyncio.run(main())
+        replay_error = source.error if isinstance(source, ReplaySource) else None
+        if replay_error is not None and code == 0:
+            # the reader reported the sensor failure; a replay that could not be read to its end is a failed run
+            print(f"ahrsd run: error: the replay stopped early: {_os_error_text(replay_error, cfg.sensor.replay_file)}",
+                  file=sys.stderr)
+            return 1
+        return code
     except KeyboardInterrupt:
         log.info("interrupted")
         return 130
@@ -113,3 +133,10 @@ def run(args: argparse.Namespace) -> int:
             from ahrsd.daemon.run_stats import write_stats
 
             write_stats(service, args.stats_file)
+
+
+def _os_error_text(exc: Exception, path: str) -> str:
+    """`path: reason` for an OSError (whose str() repeats errno and path), else the exception's own text."""
+    if isinstance(exc, OSError):
+        return f"{exc.filename or path}: {exc.strerror or exc}"
+    return str(exc)

@@ -7,6 +7,7 @@
     [location]   -> LocationConfig   where we are (declination for true heading)
     [mavlink]    -> MavlinkConfig    identity and routing policy
     [[endpoint]] -> EndpointConfig   one pymavlink connection each
+    [[nmea]]     -> NmeaOutputConfig one NMEA 0183 heading output each (serial, UDP, TCP server; docs/marine.md)
     [outputs]    -> OutputsConfig    message rates
     [state]      -> StateConfig      the state directory (calibration, parameters, signing timestamp)
     [signing]    -> SigningConfig    optional MAVLink 2 signing
@@ -31,6 +32,8 @@ from pathlib import Path
 from typing import Any
 
 from ahrsd.daemon.magcal import settings_from_mapping
+from ahrsd.daemon.nmea_sentences import (DEFAULT_RATES_HZ, LOW_SPEED_BELOW_BAUD, LOW_SPEED_RATES_HZ, SENTENCE_IDS,
+                                         worst_case_bytes)
 from ahrsd.daemon.output_profiles import DEFAULT_PROFILE, PROFILES
 from ahrsd.daemon.output_registry import BY_CONFIG_KEY, OUTPUTS
 from ahrsd.estimator import ESTIMATORS
@@ -355,6 +358,108 @@ class EndpointConfig:
         return int(baud) if baud else SERIAL_DEFAULT_BAUD
 
 
+NMEA_PREFIXES = ("udp:", "udpbcast:", "tcpserver:", "serial:")
+NMEA_DEFAULT_BAUD = 4800            # classic NMEA 0183 (IEC 61162-1); 38400 is "high speed" (IEC 61162-2)
+NMEA_MAX_RATE_HZ = 50.0
+NMEA_BUDGET_FRACTION = 1.0          # a serial port whose sentences need more than its byte rate is refused
+
+
+def _nmea_url(key, value) -> str:
+    value = _string(key, value).strip()
+    if value.startswith("serial:"):
+        device, _, baud = value[len("serial:"):].partition(",")
+        if device.startswith("/dev/") and (not baud or (baud.isdigit() and 1200 <= int(baud) <= 12_000_000)):
+            return value
+        raise _fail(key, value, "serial:/dev/DEVICE or serial:/dev/DEVICE,BAUD with BAUD in 1200..12000000")
+    if value.startswith(NMEA_PREFIXES):
+        host_port = value.split(":", 1)[1]
+        if re.fullmatch(r"[^:\s]*:\d{1,5}", host_port) and 0 < int(host_port.rsplit(":", 1)[1]) < 65536:
+            return value
+    raise _fail(key, value, "udp:HOST:PORT (unicast), udpbcast:HOST:PORT (broadcast), tcpserver:HOST:PORT "
+                "(clients connect; 10110 is the usual NMEA port) or serial:/dev/DEVICE[,BAUD]")
+
+
+def _nmea_talker(key, value) -> str:
+    value = _string(key, value)
+    if re.fullmatch(r"[A-Z][A-Z0-9]", value):
+        return value
+    raise _fail(key, value, "a two-character NMEA talker ID such as HC (compass heading sensor) or IN "
+                "(integrated navigation)")
+
+
+def _nmea_sentences(key, value) -> dict[str, float]:
+    if not isinstance(value, dict):
+        raise _fail(key, value, "a table of sentence rates in Hz, e.g. { HDT = 10.0, ROT = 5.0 } (0 = off)")
+    for name in value:
+        if name not in SENTENCE_IDS:
+            raise ConfigError(f"unknown NMEA sentence {key}.{name}: allowed are " + ", ".join(SENTENCE_IDS))
+    return {name: _number(f"{key}.{name}", hz, 0.0, NMEA_MAX_RATE_HZ) for name, hz in value.items()}
+
+
+def _nmea_serial_baud(url: str) -> int | None:
+    if not url.startswith("serial:"):
+        return None
+    _, _, baud = url.partition(",")
+    return int(baud) if baud else NMEA_DEFAULT_BAUD
+
+
+def nmea_default_rates_hz(url: str) -> dict[str, float]:
+    """The sentence rates an output gets unless its table says otherwise (slow serial ports get fewer)."""
+    baud = _nmea_serial_baud(url)
+    return dict(LOW_SPEED_RATES_HZ if baud is not None and baud < LOW_SPEED_BELOW_BAUD else DEFAULT_RATES_HZ)
+
+
+@dataclass(frozen=True)
+class NmeaOutputConfig:
+    """One NMEA 0183 output: where (`url`), as which talker, which sentences at which rates (Hz, 0 = off).
+    A serial output is checked against its baud rate (8N1: baud/10 bytes/s) with each sentence at its
+    longest, and refused when they do not fit."""
+
+    url: str
+    talker: str = "HC"
+    sentences: tuple[tuple[str, float], ...] = ()    # overrides of nmea_default_rates_hz(url)
+
+    @classmethod
+    def parse(cls, d: dict, prefix="nmea") -> "NmeaOutputConfig":
+        if not isinstance(d, dict):
+            raise _fail(prefix, d, "a table with key url")
+        if "url" not in d:
+            raise _fail(f"{prefix}.url", None, "required (e.g. url = \"udp:127.0.0.1:10110\")")
+        parsed = _parse_table(cls, d, prefix, {"url": _nmea_url, "talker": _nmea_talker,
+                                               "sentences": _nmea_sentences})
+        parsed["sentences"] = tuple(parsed.get("sentences", {}).items())
+        cfg = cls(**parsed)
+        cfg.check_budget(prefix)
+        return cfg
+
+    @property
+    def rates_hz(self) -> dict[str, float]:
+        """The sentences that are on, Hz."""
+        rates = {**nmea_default_rates_hz(self.url), **dict(self.sentences)}
+        return {name: hz for name, hz in rates.items() if hz > 0.0}
+
+    @property
+    def serial_baud(self) -> int | None:
+        return _nmea_serial_baud(self.url)
+
+    def bytes_per_s(self) -> float:
+        """What the sentences need at their longest, bytes per second."""
+        return sum(hz * worst_case_bytes(name, self.talker) for name, hz in self.rates_hz.items())
+
+    def check_budget(self, prefix="nmea") -> None:
+        baud = self.serial_baud
+        if baud is None:
+            return
+        capacity = baud / 10.0
+        need = self.bytes_per_s()
+        if need > NMEA_BUDGET_FRACTION * capacity:
+            listing = ", ".join(f"{name} {hz:g} Hz" for name, hz in self.rates_hz.items())
+            raise ConfigError(
+                f"{prefix}: {self.url} carries {capacity:.0f} bytes/s at {baud} baud, but {listing} need up to "
+                f"{need:.0f} bytes/s: lower the rates (sentences = {{ ... }}) or raise the baud rate (38400 is "
+                "NMEA 0183 high speed)")
+
+
 @dataclass(frozen=True)
 class MavlinkConfig:
     system_id: int = 0                  # 0 = latch the first autopilot's system id (1 until then)
@@ -496,6 +601,7 @@ class Config:
     location: LocationConfig = field(default_factory=LocationConfig)
     mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
     endpoints: tuple[EndpointConfig, ...] = (EndpointConfig(DEFAULT_ENDPOINT),)
+    nmea: tuple[NmeaOutputConfig, ...] = ()
     outputs: OutputsConfig = field(default_factory=OutputsConfig)
     state: StateConfig = field(default_factory=StateConfig)
     signing: SigningConfig = field(default_factory=SigningConfig)
@@ -531,7 +637,8 @@ class Config:
                        replay_speed: float | None = None, gnss_replay: str | None = None,
                        gnss_serial: str | None = None, gnss_sim: bool = False,
                        estimator: str | None = None,
-                       log_dir: str | None = None, log_enabled: bool | None = None) -> "Config":
+                       log_dir: str | None = None, log_enabled: bool | None = None,
+                       nmea: list[str] | None = None) -> "Config":
         """Apply command-line flags (they win over the file); values are validated like file values."""
         cfg = self
         if sum(bool(x) for x in (gnss_replay, gnss_serial, gnss_sim)) > 1:
@@ -555,6 +662,11 @@ class Config:
         if mavlink:
             cfg = dataclasses.replace(cfg, endpoints=tuple(
                 EndpointConfig(_endpoint_url("--mavlink", url)) for url in mavlink))
+        if nmea:
+            outputs = tuple(NmeaOutputConfig(_nmea_url("--nmea", url)) for url in nmea)
+            for i, out in enumerate(outputs):
+                out.check_budget(f"--nmea {nmea[i]}")
+            cfg = dataclasses.replace(cfg, nmea=outputs)
         if state_dir is not None:
             cfg = dataclasses.replace(cfg, state=StateConfig(dir=state_dir))
         if replay_speed is not None:
@@ -588,7 +700,7 @@ class Config:
 SECTIONS = {
     "sensor": SensorConfig, "estimator": EstimatorConfig, "gnss": GnssConfig, "location": LocationConfig, "mavlink": MavlinkConfig,
     "endpoint": EndpointConfig, "outputs": OutputsConfig, "state": StateConfig, "signing": SigningConfig,
-    "daemon": DaemonConfig, "log": LogConfig, "magcal": None,
+    "daemon": DaemonConfig, "log": LogConfig, "magcal": None, "nmea": NmeaOutputConfig,
 }
 
 
@@ -615,6 +727,11 @@ def parse_config(doc: dict, source_path: str = "") -> Config:
             continue
         if section == "magcal":
             parts["magcal"] = _parse_magcal(value)
+            continue
+        if section == "nmea":
+            if not isinstance(value, list):
+                raise _fail("nmea", value, "one or more [[nmea]] tables, each with url = \"...\"")
+            parts["nmea"] = tuple(NmeaOutputConfig.parse(t, f"nmea[{i}]") for i, t in enumerate(value))
             continue
         if not isinstance(value, dict):
             raise _fail(section, value, f"a [{section}] table")

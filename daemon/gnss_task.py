@@ -1,37 +1,34 @@
-"""The daemon's GNSS input: one configured source ([gnss] source), one validator, the aided estimator.
+"""The daemon's GNSS input: one backend ([gnss] source), one validator, the aided estimator, the subscribers.
 
-Sources (docs/gnss.md):
-* "serial": a receiver on a UART/USB (drivers.gnss_serial.SerialGnssSource); its fd is registered with the
-  event loop and re-registered when a re-open changes it; `poll_health` once a second;
-* "sim": the simulated receiver of the [sensor] scenario writing UBX into a pseudo-terminal
-  (drivers.gnss_scenario), read by the same serial source: the hardware path, byte for byte;
-* "mavlink": the autopilot's GPS_RAW_INT (GLOBAL_POSITION_INT only as the opt-in fallback), through
-  drivers.gnss_mavlink.MavlinkGnssSelector, fed by daemon.inbound;
-* "replay": a GNSS recording released in step with the IMU replay, on the recording's time base.
+Every backend (drivers.gnss.backend.GnssBackend: serial receiver, autopilot MAVLink, recording, simulated
+receiver) is handled the same way by `poll()`: read the fixes available now, pass each through one
+drivers.gnss.validation.GnssFixValidator (rejections counted and logged by it), log it with its verdict, and
+hand an accepted fix to the estimator's `update_gnss(fix)` when it is aided, then to every subscriber.
+`poll()` runs when the backend's descriptor is readable, from `tick` (housekeeping), right after a MAVLink
+message was offered (`on_mavlink`), and after each batch of replayed samples. Nothing raises out of here: a
+failing backend, estimator call or subscriber is counted and logged.
 
-Every fix goes through one drivers.gnss_validation.GnssFixValidator (rejections counted and logged by it),
-then to `estimator.update_gnss(fix)` when the estimator is aided (has `update_gnss`). The last accepted
-position resolves the declination. Nothing raises out of here: a failing source or estimator call is
-counted and logged.
+`gnss_backend_for(cfg, ...)` builds the configured backend: the one place that looks at `[gnss] source`.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
 
 from ahrsd.core.estimate import EstimateFlags
 from ahrsd.core.gnss import GnssFix, GnssFixType
+from ahrsd.daemon.config import GnssConfig, SensorConfig
 from ahrsd.daemon.local_origin import LocalOrigin
 from ahrsd.daemon.mavlink_io import mavlink
-from ahrsd.drivers.gnss_validation import GnssFixValidator
+from ahrsd.drivers.gnss.backend import GnssBackend, GnssHealth
+from ahrsd.drivers.gnss.validation import GnssFixValidator, GnssRejection
 
 log = logging.getLogger(__name__)
 
-HEALTH_PERIOD_S = 1.0           # SerialGnssSource.poll_health: "call it about once a second"
-REOPEN_PERIOD_S = 2.0           # a port that failed to open is tried again this often (as the source re-opens)
 FIX_STALE_S = 2.0               # no accepted fix for this long: GNSS not healthy (SYS_STATUS), state "no fix"
 STATUSTEXT_MIN_INTERVAL_S = 5.0  # GNSS state changes reach the ground station at most this often
 GATE_WINDOW_S = 30.0            # the estimator's innovation gate is checked over windows this long
@@ -43,8 +40,93 @@ FIX_NAMES = {GnssFixType.NO_GPS: "no GPS", GnssFixType.NO_FIX: "no fix", GnssFix
              GnssFixType.FIX_3D: "3D", GnssFixType.DGPS: "DGPS", GnssFixType.RTK_FLOAT: "RTK float",
              GnssFixType.RTK_FIXED: "RTK fixed"}
 
+FixSubscriber = Callable[[GnssFix], None]
+FixLog = Callable[[GnssFix, "GnssRejection | None"], None]
 
-def _sim_faults(cfg) -> str:
+
+@runtime_checkable
+class GnssAidedEstimator(Protocol):
+    """An estimator that takes GNSS fixes (estimator.ins.Ins): the task offers it every accepted fix and
+    watches its innovation gate through `gnss_counters` (offered, rejected_velocity)."""
+
+    name: str
+    gnss_counters: object
+
+    def update_gnss(self, fix: GnssFix) -> int: ...
+
+
+class EstimatorHook(Protocol):
+    """What the task reads of the per-sample path (daemon.pipeline.Pipeline): the estimator in use now (it
+    may be swapped) and its latest estimate (for the aiding flags)."""
+
+    estimator: object
+
+    @property
+    def last_estimate(self): ...
+
+
+def on_first_fix(fn: Callable[[], None]) -> FixSubscriber:
+    """A subscriber calling `fn()` once, on the first accepted fix (the declination's GNSS position)."""
+    done = False
+
+    def subscriber(fix: GnssFix) -> None:
+        nonlocal done
+        if not done:
+            done = True
+            fn()
+    return subscriber
+
+
+def newest_sample_time(pipeline) -> Callable[[], float]:
+    """The time of the newest sample the pipeline processed (-inf before the first): a recording's clock."""
+    def t_s() -> float:
+        sample = pipeline.last_sample
+        return sample.t_s if sample is not None else -math.inf
+    return t_s
+
+
+def gnss_backend_for(cfg: GnssConfig, *, clock: Callable[[], float], sensor: SensorConfig | None = None,
+                     scenario_clock: Callable[[], float] | None = None,
+                     replay_time_s: Callable[[], float] | None = None) -> GnssBackend:
+    """The backend `cfg.source` names, not started. Each takes its time base explicitly:
+    serial, mavlink and sim stamp fixes on `clock` (the samples' clock); sim also needs the simulated
+    sensor's `sensor` config and its chip clock `scenario_clock` (the scenario's time, so the receiver
+    describes the same motion as the IMU); replay releases a recorded fix once `replay_time_s()` (the newest
+    replayed sample's time, `newest_sample_time`) reaches it."""
+    kind = cfg.source
+    if kind == "serial":
+        from ahrsd.drivers.gnss.serial_port import SerialGnssSource
+
+        return SerialGnssSource(cfg.device, cfg.baud, cfg.protocol, latency_s=cfg.latency_s, clock=clock,
+                                missing_ok=True)
+    if kind == "mavlink":
+        from ahrsd.drivers.gnss.mavlink import MavlinkGnssBackend
+
+        return MavlinkGnssBackend(use_fused=cfg.use_fused, latency_s=cfg.latency_s)
+    if kind == "replay":
+        from ahrsd.drivers.gnss.replay import RecordingGnssBackend
+
+        if replay_time_s is None:
+            raise ValueError("[gnss] source = 'replay' needs the replayed samples' time (replay_time_s)")
+        return RecordingGnssBackend(cfg.file, replay_time_s)
+    if kind == "sim":
+        from ahrsd.drivers.gnss.scenario import ScenarioGnssReceiver
+        from ahrsd.drivers.gnss.sim import SimulatedGnssBackend
+
+        if sensor is None or scenario_clock is None:
+            raise ValueError("[gnss] source = 'sim' needs the simulated sensor's config and chip clock")
+        outages = ([(cfg.sim_outage_start_s, cfg.sim_outage_start_s + cfg.sim_outage_s, cfg.sim_outage_no_fix)]
+                   if cfg.sim_outage_s > 0 else [])
+        receiver = ScenarioGnssReceiver(
+            sensor.scenario, chip_clock=scenario_clock, seed=sensor.seed, lever_arm_m=cfg.lever_arm_m,
+            outages=outages, glitch_every_s=cfg.sim_glitch_every_s, glitch_kind=cfg.sim_glitch_kind,
+            glitch_magnitude=cfg.sim_glitch_magnitude or None)
+        return SimulatedGnssBackend(receiver, clock, description=(
+            f"simulated receiver ({sensor.scenario}, UBX on {receiver.device}{_sim_faults(cfg)})"))
+    raise ValueError(f"no GNSS source {kind!r}")
+
+
+def _sim_faults(cfg: GnssConfig) -> str:
     """The simulated receiver's configured faults, for the log: "; outage 60–90 s; position_jump every 20 s"."""
     out = ""
     if cfg.sim_outage_s > 0:
@@ -57,205 +139,152 @@ def _sim_faults(cfg) -> str:
 
 @dataclass
 class GnssTaskCounters:
-    fixes: int = 0               # fixes the source delivered
+    fixes: int = 0               # fixes the backend delivered
     accepted: int = 0            # passed the validator
     rejected: int = 0            # refused by the validator (by reason: validator.counters)
     offered: int = 0             # handed to estimator.update_gnss
     not_used: int = 0            # accepted, but the estimator is not aided
     estimator_errors: int = 0    # update_gnss raised (a bug: counted, logged, the fix dropped)
-    source_errors: int = 0       # the source failed to deliver (a read or a recording row)
+    source_errors: int = 0       # the backend raised from read() or offer() (its own errors are in its stats)
+    subscriber_errors: int = 0   # a subscriber raised (counted, logged; the others still get the fix)
     gate_warnings: int = 0       # windows in which the estimator's gate rejected most velocities (_watch_gate)
 
 
 class GnssTask:
-    """The GNSS input of one Service (`service.gnss`). `open()` starts the source; the service calls
-    `on_mavlink` (inbound), `advance_to` (replay, after each batch of samples) and `tick` (housekeeping)."""
+    """The GNSS input of the daemon, for any backend.
 
-    def __init__(self, service, cfg, *, clock=time.monotonic):
-        self.service = service
+    backend: the source (`gnss_backend_for`), not started; `open(loop)` starts it.
+    cfg: the [gnss] table (the lever arm, named in the gate warning).
+    clock: the samples' monotonic clock (fix age, STATUSTEXT rate).
+    estimator: the per-sample path's estimator and latest estimate (EstimatorHook), or None.
+    statustext: `statustext(severity, text)` to the ground station.
+    log_fix: `log_fix(fix, rejection)` for every fix with its verdict (the vehicle log), or None.
+    subscribers: `fn(fix)` for every accepted fix, after the estimator.
+    """
+
+    def __init__(self, backend: GnssBackend, cfg: GnssConfig, *, clock: Callable[[], float],
+                 estimator: EstimatorHook | None, statustext: Callable[[int, str], None],
+                 log_fix: FixLog | None = None, subscribers: Sequence[FixSubscriber] = ()):
+        self.backend = backend
         self.cfg = cfg
-        self.kind = cfg.source
         self.clock = clock
+        self.estimator = estimator
+        self.statustext = statustext
+        self.log_fix = log_fix
+        self.subscribers = list(subscribers)
         self.validator = GnssFixValidator(clock=clock, name="gnss")
         self.counters = GnssTaskCounters()
-        self.serial = None            # SerialGnssSource (serial, sim)
-        self.receiver = None          # the simulated receiver (sim)
-        self.selector = None          # MavlinkGnssSelector (mavlink)
-        self._replay = None           # iterator of recorded fixes (replay)
-        self._replay_next: GnssFix | None = None
-        self._serial_args: tuple | None = None
-        self.open_error = ""          # why the serial port could not be opened ("" = open or not serial)
-        self._next_open = math.inf
-        self.replay_finished = False
         self.last_fix: GnssFix | None = None          # last accepted
         self.last_accepted_at: float | None = None    # self.clock() when it was accepted
-        self.description = "none"
         self.origin = LocalOrigin()     # LOCAL_POSITION_NED's origin: the first navigation position
+        self._loop = None
         self._fd = -1
-        self._next_health = -math.inf
         self._opened_at = math.inf
         self._shown_state = ""
         self._pending_text = ""
         self._last_text_at = -math.inf
         self._gate_window = None        # (start time, offered, rejected velocities) of the estimator's counters
 
+    @property
+    def description(self) -> str:
+        return self.backend.description
+
     # ------------------------------------------------------------------------------------------ start / stop
-    def open(self) -> None:
-        """Start the configured source (raises on a configuration the source refuses: missing device or
-        recording), so `ahrsd run` fails at start with the reason."""
-        cfg, kind = self.cfg, self.kind
-        if kind == "mavlink":
-            from ahrsd.drivers.gnss_mavlink import MavlinkGnssSelector
-
-            self.selector = MavlinkGnssSelector(use_fused=cfg.use_fused)
-            self.description = "autopilot GPS_RAW_INT" + (" (GLOBAL_POSITION_INT fallback)" if cfg.use_fused else "")
-        elif kind == "replay":
-            from ahrsd.drivers.gnss_recording import iter_gnss_fixes
-
-            self._replay = iter_gnss_fixes(cfg.file)
-            self._replay_next = next(self._replay, None)     # a bad header fails the start, with its reason
-            self.replay_finished = self._replay_next is None
-            self.description = f"GNSS recording {cfg.file}"
-        elif kind in ("serial", "sim"):
-            device, baud, protocol, latency = cfg.device, cfg.baud, cfg.protocol, cfg.latency_s
-            if kind == "sim":
-                from ahrsd.drivers.gnss_scenario import ScenarioGnssReceiver
-
-                sensor = self.service.config.sensor
-                outages = ([(cfg.sim_outage_start_s, cfg.sim_outage_start_s + cfg.sim_outage_s,
-                             cfg.sim_outage_no_fix)] if cfg.sim_outage_s > 0 else [])
-                self.receiver = ScenarioGnssReceiver(
-                    sensor.scenario, chip_clock=self.service.source.chip.now, seed=sensor.seed,
-                    lever_arm_m=cfg.lever_arm_m, outages=outages, glitch_every_s=cfg.sim_glitch_every_s,
-                    glitch_kind=cfg.sim_glitch_kind, glitch_magnitude=cfg.sim_glitch_magnitude or None).start()
-                device, baud, protocol, latency = (self.receiver.device, self.receiver.baud, "ubx",
-                                                   self.receiver.latency_s)
-            self._serial_args = (device, baud, protocol, latency)
-            self.description = (f"simulated receiver ({self.service.config.sensor.scenario}, UBX on {device}"
-                                f"{_sim_faults(cfg)})"
-                                if kind == "sim" else f"receiver on {device} at {baud} baud ({protocol})")
-            self._open_serial()
+    def open(self, loop=None) -> None:
+        """Start the backend (raises on a configuration it refuses, so `ahrsd run` fails at start with the
+        reason) and watch its descriptor on `loop` when it has one."""
+        self.backend.start()
+        self._loop = loop
+        self._follow_fd()
         self._opened_at = self.clock()
         log.info("GNSS: %s", self.description)
 
     def close(self) -> None:
-        self._unregister_reader()
-        for part in (self.serial, self.receiver):
-            if part is not None:
-                try:
-                    part.close()
-                except Exception:  # noqa: BLE001 - closing must not stop the shutdown
-                    log.exception("closing the GNSS source failed")
-        close = getattr(self._replay, "close", None)
-        if close:
-            close()
-
-    # ------------------------------------------------------------------------------------------ the sources
-    def _open_serial(self) -> None:
-        """Open the port; a receiver missing at start (unplugged, no permission yet) is retried every
-        REOPEN_PERIOD_S by `tick`: the IMU must not wait for the GNSS."""
-        from ahrsd.drivers.gnss_serial import GnssDeviceError, SerialGnssSource
-
-        device, baud, protocol, latency = self._serial_args
+        self._unwatch_fd()
         try:
-            self.serial = SerialGnssSource(device, baud, protocol, latency_s=latency, clock=self.clock)
-        except GnssDeviceError as exc:
-            if self.open_error != str(exc):
-                log.error("GNSS: %s; retrying every %.0f s", exc, REOPEN_PERIOD_S)
-            self.open_error = str(exc)
-            self._next_open = self.clock() + REOPEN_PERIOD_S
+            self.backend.close()
+        except Exception:  # noqa: BLE001 - closing must not stop the shutdown
+            log.exception("closing the GNSS source failed")
+
+    def _follow_fd(self) -> None:
+        """(Re-)register the backend's descriptor when it changed (a receiver re-opened after a loss)."""
+        fd = self.backend.fileno()
+        if fd == self._fd:
             return
-        if self.open_error:
-            log.info("GNSS: %s opened", device)
-        self.open_error = ""
-        self._register_reader()
+        self._unwatch_fd()
+        if fd >= 0 and self._loop is not None:
+            self._loop.add_reader(fd, self.poll)
+            self._fd = fd
 
-    def _register_reader(self) -> None:
-        loop = self.service.loop
-        fd = self.serial.fileno()
-        if fd >= 0 and loop is not None:
-            loop.add_reader(fd, self._on_readable)
-        self._fd = fd
-
-    def _unregister_reader(self) -> None:
-        if self._fd >= 0 and self.service.loop is not None:
+    def _unwatch_fd(self) -> None:
+        if self._fd >= 0 and self._loop is not None:
             try:
-                self.service.loop.remove_reader(self._fd)
+                self._loop.remove_reader(self._fd)
             except (ValueError, OSError):
                 pass
         self._fd = -1
 
-    def _on_readable(self) -> None:
+    # ------------------------------------------------------------------------------------------ the one loop
+    def on_mavlink(self, msg, now: float) -> None:
+        """A GPS_RAW_INT / GLOBAL_POSITION_INT from the autopilot, received at `now`: offered to the backend
+        (only the MAVLink backend takes fixes from it), then polled."""
         try:
-            fixes = self.serial.read_available()
-        except Exception as exc:  # noqa: BLE001 - documented never to raise; a bug must not stop the loop
+            self.backend.offer(msg, now)
+        except Exception as exc:  # noqa: BLE001 - the backend promises not to raise; count it if it does
+            self.counters.source_errors += 1
+            log.error("GNSS backend failed on a MAVLink message: %s", exc)
+        self.poll()
+
+    def poll(self) -> int:
+        """Read the backend and deliver every fix; returns how many it delivered."""
+        try:
+            fixes = self.backend.read()
+        except Exception as exc:  # noqa: BLE001 - read() promises not to raise; a bug must not stop the loop
             self.counters.source_errors += 1
             log.error("GNSS read failed: %s", exc)
-            return
+            fixes = []
         for fix in fixes:
             self.deliver(fix)
-        if self.serial.fileno() != self._fd:      # the device vanished while reading
-            self._unregister_reader()
-            self._register_reader()
+        self._follow_fd()
+        return len(fixes)
 
-    def on_mavlink(self, msg, now: float) -> None:
-        """GPS_RAW_INT / GLOBAL_POSITION_INT from the autopilot, received at monotonic `now`."""
-        if self.selector is None:
-            return
-        try:
-            fix = self.selector.handle(msg, now - self.cfg.latency_s)
-        except Exception as exc:  # noqa: BLE001 - a hostile message must not reach past the edge
-            self.counters.source_errors += 1
-            log.warning("GNSS: %s not usable: %s", msg.get_type(), exc)
-            return
-        if fix is not None:
-            self.deliver(fix)
-
-    def advance_to(self, t_s: float) -> None:
-        """Replay: deliver every recorded fix valid at or before the IMU replay's time `t_s`."""
-        nxt = self._replay_next
-        while nxt is not None and nxt.t_s <= t_s:
-            self.deliver(nxt)
-            try:
-                nxt = next(self._replay, None)
-            except Exception as exc:  # noqa: BLE001 - GnssRecordingFormatError names file, line and column
-                self.counters.source_errors += 1
-                log.error("GNSS recording: %s; no more fixes from it", exc)
-                self.service.statustext(mavlink.MAV_SEVERITY_ERROR, "ahrsd: GNSS recording unreadable")
-                nxt = None
-        self._replay_next = nxt
-        if nxt is None and not self.replay_finished:
-            self.replay_finished = True
-            log.info("GNSS recording finished")
-
-    # ------------------------------------------------------------------------------------------ every fix
     def deliver(self, fix) -> None:
-        """One fix from the source: validate, then hand it to the aided estimator."""
+        """One fix from the backend: validate, log, then the aided estimator and the subscribers."""
         c = self.counters
         c.fixes += 1
         rejection = self.validator.check(fix)
-        self.service.log_gnss_fix(fix, rejection)      # daemon.vehicle_log: every fix, with its verdict
+        if self.log_fix is not None:
+            self.log_fix(fix, rejection)
         if rejection is not None:
             c.rejected += 1
             return
         c.accepted += 1
         first = self.last_fix is None
         self.last_fix, self.last_accepted_at = fix, self.clock()
-        estimator = self.service.pipeline.estimator if self.service.pipeline is not None else None
-        update_gnss = getattr(estimator, "update_gnss", None)
-        if update_gnss is None:
+        estimator = self._aided_estimator()
+        if estimator is None:
             c.not_used += 1
         else:
             c.offered += 1
             try:
-                update_gnss(fix)
+                estimator.update_gnss(fix)
             except Exception:  # noqa: BLE001 - the estimator promises not to raise; count it if it does
                 c.estimator_errors += 1
                 if c.estimator_errors in (1, 100, 10000):
                     log.exception("estimator.update_gnss failed (%d so far)", c.estimator_errors)
         if first:
             log.info("GNSS: first fix %s, %.5f,%.5f", FIX_NAMES.get(fix.fix_type, "?"), fix.lat_deg, fix.lon_deg)
-            self.service.on_gnss_position()
+        for subscriber in self.subscribers:
+            try:
+                subscriber(fix)
+            except Exception:  # noqa: BLE001 - one faulty subscriber must not starve the others
+                c.subscriber_errors += 1
+                if c.subscriber_errors in (1, 100, 10000):
+                    log.exception("a GNSS fix subscriber failed (%d so far)", c.subscriber_errors)
+
+    def _aided_estimator(self) -> GnssAidedEstimator | None:
+        est = self.estimator.estimator if self.estimator is not None else None
+        return est if isinstance(est, GnssAidedEstimator) else None
 
     # ------------------------------------------------------------------------------------------ state
     @property
@@ -269,12 +298,15 @@ class GnssTask:
     def has_fix(self, now: float) -> bool:
         return self.last_accepted_at is not None and now - self.last_accepted_at <= FIX_STALE_S
 
+    def health(self) -> GnssHealth:
+        return self.backend.health()
+
     def aiding(self) -> str:
         """What the estimator does with GNSS: "aided", "outage", "unaided", or "not used (NAME)"."""
-        pipeline = self.service.pipeline
-        if pipeline is None or not hasattr(pipeline.estimator, "update_gnss"):
-            return f"not used ({getattr(pipeline.estimator, 'name', '?') if pipeline else '?'})"
-        est = pipeline.last_estimate
+        if self._aided_estimator() is None:
+            est = self.estimator.estimator if self.estimator is not None else None
+            return f"not used ({est.name if est is not None else '?'})"
+        est = self.estimator.last_estimate
         flags = int(est.flags) if est is not None else 0
         if flags & _GNSS_AIDED:
             return "aided"
@@ -284,16 +316,14 @@ class GnssTask:
 
     def _state_key(self, now: float) -> str:
         """What a change is reported for: the link state, the fix type (not the satellite count), the aiding."""
-        link = self.serial.state.value if self.serial is not None else ("device_error" if self.open_error else "")
         fix = self.last_fix.fix_type if self.has_fix(now) else None
-        return f"{link}/{fix}/{self.aiding()}"
+        return f"{self.health().state.value}/{fix}/{self.aiding()}"
 
     def fix_summary(self, now: float) -> str:
-        """"3D 12 sats", "no fix", or the link state of a serial source that has a problem."""
-        if self.open_error:
-            return "device error"
-        if self.serial is not None and self.serial.state.value not in ("ok", "waiting"):
-            return self.serial.state.value.replace("_", " ")
+        """"3D 12 sats", "no fix", or the link state of a backend that has a problem ("device error")."""
+        link = self.health().state
+        if not link.usable:
+            return link.value.replace("_", " ")
         if not self.has_fix(now):
             return "no fix"
         f = self.last_fix
@@ -306,24 +336,15 @@ class GnssTask:
 
     def sensor_bits(self, now: float) -> tuple[int, int, int]:
         """MAV_SYS_STATUS_SENSOR_GPS as (present, enabled, healthy): present and enabled with a source,
-        healthy while accepted fixes arrive (and a serial link is not in trouble)."""
-        link_ok = not self.open_error and (self.serial is None or self.serial.state.value in ("ok", "waiting"))
-        healthy = SENSOR_GPS if self.has_fix(now) and link_ok else 0
+        healthy while accepted fixes arrive and the link is not in trouble."""
+        healthy = SENSOR_GPS if self.has_fix(now) and self.health().state.usable else 0
         return SENSOR_GPS, SENSOR_GPS, healthy
 
     def tick(self, now: float) -> None:
-        """Housekeeping (10 Hz): link health once a second, reader re-registration, state changes."""
+        """Housekeeping (10 Hz): poll (a backend without a descriptor, a lost device's re-open), report
+        state changes, watch the estimator's gate."""
         try:
-            if self.serial is None and self._serial_args is not None and now >= self._next_open:
-                self._open_serial()
-            if self.serial is not None and now >= self._next_health:
-                self._next_health = now + HEALTH_PERIOD_S
-                self.serial.poll_health()
-                if self.serial.fileno() != self._fd:
-                    if self.serial.fileno() >= 0:
-                        log.info("GNSS device %s re-opened", self.cfg.device or "(sim)")
-                    self._unregister_reader()
-                    self._register_reader()
+            self.poll()
             self._report_state(now)
             self._watch_gate(now)
         except Exception:  # noqa: BLE001 - housekeeping carries on whatever the GNSS source does
@@ -342,7 +363,7 @@ class GnssTask:
         if self._pending_text and now - self._last_text_at >= STATUSTEXT_MIN_INTERVAL_S:
             healthy = self.has_fix(now)
             severity = mavlink.MAV_SEVERITY_INFO if healthy else mavlink.MAV_SEVERITY_WARNING
-            self.service.statustext(severity, self._pending_text)
+            self.statustext(severity, self._pending_text)
             self._pending_text, self._last_text_at = "", now
 
     def _watch_gate(self, now: float) -> None:
@@ -350,10 +371,10 @@ class GnssTask:
         A filter with a sound attitude rejects correct fixes only when they do not fit the IMU's motion: most
         often an antenna that is not where `[gnss] lever_arm_m` says (it moves as the vehicle rolls), or a wrong
         `latency_s`. Logged and sent as a STATUSTEXT warning, counted in gate_warnings."""
-        est = self.service.pipeline.estimator if self.service.pipeline is not None else None
-        c = getattr(est, "gnss_counters", None)
-        if c is None:
+        est = self._aided_estimator()
+        if est is None:
             return
+        c = est.gnss_counters
         if self._gate_window is None:
             self._gate_window = (now, c.offered, c.rejected_velocity)
             return
@@ -367,19 +388,17 @@ class GnssTask:
             log.warning("the aided filter rejected %d of %d GNSS velocities in the last %.0f s: check [gnss] "
                         "lever_arm_m (%s m, body FRD from the IMU) and latency_s", rejected, offered, now - t0,
                         " ".join(f"{v:g}" for v in self.cfg.lever_arm_m))
-            self.service.statustext(mavlink.MAV_SEVERITY_WARNING,
-                                    f"ahrsd: GNSS vel rejected {rejected}/{offered}: lever arm?")
+            self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: GNSS vel rejected {rejected}/{offered}: lever arm?")
 
     def stats(self) -> dict:
-        """Every counter, for `--stats-file` and the tests."""
+        """Every counter, for `--stats-file` and the tests: the task's, the validator's (by reason), the
+        backend's groups ("serial", "mavlink", "recording", "sim_receiver") and the aided estimator's."""
         out = {**vars(self.counters), "validator": dict(self.validator.counters)}
-        if self.serial is not None:
-            out["serial"] = dict(self.serial.counters)
-        if self.receiver is not None:
-            out["sim_receiver"] = self.receiver.counters()
-        if self.selector is not None:
-            out["mavlink"] = dict(self.selector.counters)
-        est = self.service.pipeline.estimator if self.service.pipeline is not None else None
-        if hasattr(est, "gnss_counters"):
+        try:
+            out.update(self.backend.stats())
+        except Exception:  # noqa: BLE001 - the stats file must not fail for one backend's counters
+            log.exception("GNSS backend stats failed")
+        est = self._aided_estimator()
+        if est is not None:
             out["estimator"] = est.gnss_counters.as_dict()
         return out

@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from ahrsd.calibration import GyroModel
-from ahrsd.calibration.gyro_cal import fit_bias_only
+from ahrsd.calibration.inertial.gyro import fit_bias_only
 from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
 from ahrsd.daemon.commands import CommandAck
 from ahrsd.daemon.mavlink_io import mavlink

@@ -56,11 +56,11 @@ import numpy as np
 from ahrsd.calibration.ardupilot_compass import UT_TO_MGAUSS
 from ahrsd.calibration.field import CalStatus, FieldCalConfig, FieldCalibration, VehicleType
 from ahrsd.calibration.fixed_yaw import fixed_yaw_calibration
-from ahrsd.calibration.swing import DEFAULT_MIN_SPEED_M_S
+from ahrsd.calibration.mag.swing import DEFAULT_MIN_SPEED_M_S
 from ahrsd.core.angles import tilt_compensated_heading_rad, wrap_180_deg
 from ahrsd.daemon.command_args import CommandArgs, Refused, position_problem, whole_number
 from ahrsd.daemon.mavlink_io import mavlink
-from ahrsd.drivers.gnss_mavlink import MavlinkGnssSelector
+from ahrsd.drivers.gnss.mavlink import MavlinkGnssSelector
 
 log = logging.getLogger(__name__)
 
@@ -226,7 +226,7 @@ class MagCalProtocol:
 
     def on_gnss_message(self, msg) -> None:
         """The autopilot's GPS_RAW_INT (GLOBAL_POSITION_INT only with `course_from_global_position_int`),
-        converted by drivers/gnss_mavlink.py and stamped with the time of validity on the samples' clock (the
+        converted by drivers/gnss/mavlink.py and stamped with the time of validity on the samples' clock (the
         latest sample time minus `gnss_latency_s`): its course and speed go to a running session. Ignored
         while no session runs; messages without a usable velocity are counted."""
         s = self.session
@@ -529,9 +529,9 @@ class MagCalProtocol:
 
 def _warm_up() -> None:
     """Runs in the fit worker: import what the fits need."""
-    import ahrsd.calibration.backstepping  # noqa: F401
-    import ahrsd.calibration.ellipsoid  # noqa: F401
-    import ahrsd.calibration.magfit  # noqa: F401
+    import ahrsd.calibration.mag.backstepping  # noqa: F401
+    import ahrsd.calibration.mag.ellipsoid  # noqa: F401
+    import ahrsd.calibration.mag.fit  # noqa: F401
 
 
 @dataclass

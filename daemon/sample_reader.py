@@ -107,7 +107,7 @@ class SampleReader:
             if samples:
                 self._process(samples, now)
                 if self.gnss is not None:
-                    self.gnss.advance_to(samples[-1].t_s)   # a GNSS replay, in step with the IMU replay
+                    self.gnss.poll()        # a GNSS recording's fixes are due by the samples' time
             elif getattr(source, "finished", False):
                 log.info("replay finished")
                 self.request_stop(0)

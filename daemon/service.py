@@ -39,12 +39,13 @@ from ahrsd.daemon.commands import CommandRouter
 from ahrsd.daemon.config import MAV_TYPES, Config
 from ahrsd.daemon.declination import DeclinationResolver
 from ahrsd.daemon.endpoint_outputs import EndpointOutputs
-from ahrsd.daemon.gnss_task import GnssTask
+from ahrsd.daemon.gnss_task import GnssTask, gnss_backend_for, newest_sample_time, on_first_fix
 from ahrsd.daemon.health import Health
 from ahrsd.daemon.housekeeping import Housekeeping
 from ahrsd.daemon.inbound import InboundDispatch
 from ahrsd.daemon.magcal import attach as attach_magcal
 from ahrsd.daemon.mavlink_io import Endpoint, mavlink
+from ahrsd.daemon.nmea_output import NmeaOutputs
 from ahrsd.daemon.notify import Notifier
 from ahrsd.daemon.param_protocol import MOUNTING_PARAMS, ParamProtocol, param_specs
 from ahrsd.daemon.params import ParamStore
@@ -101,6 +102,7 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         self.notifier = Notifier(environ)
         self.source = source
         self.gnss: GnssTask | None = None      # [gnss] source (daemon.gnss_task), None without one
+        self.nmea: NmeaOutputs | None = None    # [[nmea]] outputs (daemon.nmea_output), None without any
         self.pipeline: Pipeline | None = None
         self.reset_counter = 0
         # the VISION_POSITION_ESTIMATE yaw after a calibration change (apply_calibration)
@@ -247,11 +249,20 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         self._start_logs()                          # raw samples and MAVLink traffic (daemon.vehicle_log)
         register_builtin_commands(self)
         attach_magcal(self)
+        if cfg.nmea:
+            self.nmea = NmeaOutputs(cfg.nmea)
+            self.nmea.open(self.loop)
+            self.add_sample_listener(lambda _sample, est: self.nmea.on_estimate(est))
         if self.source is None:
             self.source = open_source(cfg.sensor, clock=time.monotonic)
         if cfg.gnss.source != "none":
-            self.gnss = GnssTask(self, cfg.gnss)
-            self.gnss.open()
+            backend = gnss_backend_for(cfg.gnss, clock=time.monotonic, sensor=cfg.sensor,
+                                       scenario_clock=self.source.chip.now if cfg.gnss.source == "sim" else None,
+                                       replay_time_s=newest_sample_time(self.pipeline))
+            self.gnss = GnssTask(backend, cfg.gnss, clock=time.monotonic, estimator=self.pipeline,
+                                 statustext=self.statustext, log_fix=self.log_gnss_fix,
+                                 subscribers=[on_first_fix(self.on_gnss_position)])
+            self.gnss.open(self.loop)
         want_line = cfg.daemon.status_line == "on" or (cfg.daemon.status_line == "auto" and self._stdout.isatty())
         self._status_line = StatusLine(self._stdout) if want_line else None
         if self._status_line is not None:
@@ -323,6 +334,8 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         self._close_logs()                          # after the last frames went out
         for ep in self.endpoints:
             ep.close()
+        if self.nmea is not None:
+            self.nmea.close()
         if self.gnss is not None:
             self.gnss.close()
         if self.source is not None:

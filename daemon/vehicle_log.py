@@ -11,8 +11,8 @@ from __future__ import annotations
 import logging
 
 from ahrsd.calibration.store import checksum
-from ahrsd.drivers.gnss_log import GnssLog
-from ahrsd.drivers.gnss_validation import GnssRejection
+from ahrsd.drivers.gnss.log import GnssLog
+from ahrsd.drivers.gnss.validation import GnssRejection
 from ahrsd.drivers.rotating_log import LogLimits
 from ahrsd.drivers.sample_log import SampleLog
 from ahrsd.drivers.tlog import TlogLog

@@ -65,7 +65,8 @@ _GAP_BEFORE, _ALARM, _NEW_DATA = int(SampleFlags.GAP_BEFORE), int(SampleFlags.AL
 
 @dataclass(frozen=True)
 class ScanType:
-    """One scan element's `*_type`, e.g. "be:s14/16>>0" (sysfs-bus-iio: [be|le]:[s|u]bits/storagebits[Xrepeat]>>shift)."""
+    """One scan element's `*_type`, e.g. "be:s14/16>>0"
+    (sysfs-bus-iio: [be|le]:[s|u]bits/storagebits[Xrepeat]>>shift)."""
 
     big_endian: bool
     signed: bool
@@ -202,7 +203,8 @@ class IioSource:
             for name in CHANNELS:
                 if not (scan / f"{name}_en").exists():
                     raise BusError(f"{d}: no scan element {name} (is this an ADIS16400/5? name {self.name!r})")
-                elements.append((name, int(_read(scan / f"{name}_index")), ScanType.parse(_read(scan / f"{name}_type"))))
+                elements.append((name, int(_read(scan / f"{name}_index")),
+                                 ScanType.parse(_read(scan / f"{name}_type"))))
             self.elements, self.record_bytes = record_layout(elements)
             self._scale = self._scales()
             clock = d / "current_timestamp_clock"

@@ -160,6 +160,19 @@ class Recording:
         return np.column_stack([base] + [self.extra[c] for c in self.columns[len(BASE_COLUMNS):]])
 
 
+def check_recording(path: str | os.PathLike) -> tuple[str, ...]:
+    """Open a recording and validate its header (the columns); raises OSError or RecordingFormatError naming the
+    file. A run that replays it checks this first, so a wrong path fails at once with one line."""
+    if os.path.isdir(path):
+        raise RecordingFormatError(f"{path}: is a directory, not a recording")
+    with open_text(path) as f:
+        try:
+            line = f.readline()
+        except (EOFError, gzip.BadGzipFile, zlib.error, UnicodeDecodeError) as exc:
+            raise RecordingFormatError(f"{path}: cannot read the header: {exc}") from None
+    return read_header(line, path)
+
+
 def read_header(line: str, path: str | os.PathLike = "<recording>") -> tuple[str, ...]:
     """Validate a header line; returns the column names. Raises RecordingFormatError saying what is wrong."""
     names = tuple(c.strip() for c in line.lstrip("\ufeff").rstrip("\r\n").split(","))
@@ -244,18 +257,23 @@ def _iter_tables(path, strict: bool, chunk_rows: int = CHUNK_ROWS) -> Iterator[t
         columns = read_header(header, path)
         ncols = len(columns)
         line_no = 2
+        rows_before = 0
         while True:
             lines = list(itertools.islice(lines_in, chunk_rows))
             if not lines:
                 break
-            at_end = len(lines) < chunk_rows
-            if not strict and at_end and lines and not lines[-1].endswith("\n"):
+            cut_line = None   # only a file's last line can lack its newline
+            if not strict and not lines[-1].endswith("\n"):
                 last = lines[-1].strip()
                 if last and len(last.split(",")) != ncols:
-                    log.warning("%s: dropping the incomplete last line %d", path, line_no + len(lines) - 1)
+                    cut_line = line_no + len(lines) - 1
                     lines = lines[:-1]
             table = _parse_chunk(lines, ncols, line_no, path, columns) if lines else np.empty((0, ncols))
             line_no += len(lines)
+            rows_before += len(table)
+            if cut_line is not None:
+                log.warning("%s: line %d is incomplete (the file ends mid-row): using the %d complete rows before it",
+                            path, cut_line, rows_before)
             yield columns, table
 
 

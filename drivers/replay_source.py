@@ -39,6 +39,7 @@ class ReplaySource:
         self._t0_sample = 0.0
         self._last_counter: int | None = None
         self.finished = False
+        self.error: Exception | None = None   # what ended the replay early (an unreadable row): the run failed
 
     def poll(self) -> list[ImuSample]:
         out: list[ImuSample] = []
@@ -50,6 +51,9 @@ class ReplaySource:
                 except StopIteration:
                     self.finished = True
                     break
+                except Exception as exc:
+                    self.error, self.finished = exc, True
+                    raise
                 if self._t0_clock is None:
                     self._t0_clock, self._t0_sample = now, self._pending.t_s
                     self.monotonic_offset_s = now - self._pending.t_s

@@ -79,7 +79,8 @@ def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
     if kind == "replay":
         from ahrsd.drivers.recording import iter_samples
 
-        return ReplaySource(iter_samples(sensor_cfg.replay_file), f"replay {sensor_cfg.replay_file}",
+        # a recording cut mid-row (a recorder killed) replays its complete rows, with a warning naming the line
+        return ReplaySource(iter_samples(sensor_cfg.replay_file, strict=False), f"replay {sensor_cfg.replay_file}",
                             realtime=sensor_cfg.replay_realtime, clock=clock,
                             speed=getattr(sensor_cfg, "replay_speed", 1.0))
     if kind == "iio":

@@ -23,12 +23,14 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 from scipy.special import chdtri   # χ² inverse survival function (scipy.stats costs 1.4 s to import)
 
-from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, NavState
+from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingIntegrity, HeadingState, NavState
 from ahrsd.core.gnss import DEFAULT_H_ACC_M, DEFAULT_S_ACC_M_S, DEFAULT_V_ACC_M, GnssFix, GnssFixType
 from ahrsd.core.sample import ImuSample
 
 from . import ins_core as core
 from . import mag_heading as mag
+from .gsf_yaw import GsfParams, gsf_fuse_velocity, gsf_output, gsf_reset, new_gsf_state
+from .heading_monitor import HeadingMonitor, IronLearner, wrap_pi
 from .mekf import (
     RELEARN_GATE_OPEN_S,
     after_init_flags,
@@ -131,9 +133,49 @@ class InsParams:
 
     # --- magnetometer heading (mag_heading.py, mekf's check): as MekfParams
     mag_enabled: bool = True
-    mag_moves_tilt: bool = True
-    """While GNSS-aided, the magnetometer update carries its tilt sensitivity and may move the tilt (see
-    ins_core._mag_update). False: heading only, as when unaided."""
+    mag_moves_tilt: bool = False
+    """While GNSS-aided, let the magnetometer update move the tilt too (its row carries the tilt sensitivity
+    either way, see ins_core._mag_update). False (default): a wrong magnetometer never moves the horizon."""
+    mag_calibration_sigma_rad: float = math.nan
+    """1σ heading error the magnetometer calibration predicts (the daemon passes its calibration's figure). NaN:
+    no calibration or its quality unknown — `mag_uncalibrated_sigma_rad`."""
+    mag_uncalibrated_sigma_rad: float = 20.0 * _DEG
+    """1σ heading error assumed of a magnetometer whose calibration is unknown (vehicle iron of tens of µT
+    against a 20–30 µT horizontal field turns the heading by tens of degrees)."""
+    mag_bias_tau_s: float = 1.0
+    """Correlation time of the calibration's heading error, s: each update's noise is inflated by τ/Δt so that
+    repeated updates do not average a bias away (ins_core._mag_update)."""
+    gnss_yaw: bool = True
+    """Run the magnetometer-free Gaussian-sum GNSS yaw (gsf_yaw.py) beside the filter: the heading monitor checks
+    the magnetometer against it and resets the yaw to it."""
+    mag_uncalibrated_tau_s: float = 10.0
+    """... of a magnetometer whose calibration is unknown, or whose iron is being learned, s (the iron's heading
+    error changes only as the vehicle turns)."""
+    heading_monitor: bool = True
+    """Check the magnetometer against the filter's heading innovations and the GNSS yaw, reject it when they
+    disagree, reset the yaw to the GNSS yaw, learn the iron (heading_monitor.py). False: the magnetometer is
+    always fused with its calibration's noise, as before."""
+    iron_learning: bool = True
+    """Learn the hard iron left after the calibration while the GNSS holds the heading (IronLearner)."""
+    iron_prior_sigma_ut: float = 10.0
+    """1σ prior of each axis of the learned hard iron, µT."""
+    iron_unmodelled_ut: float = 2.5
+    """1σ per axis of the field error a hard iron does not explain (residual soft iron, WMM and local
+    anomalies), µT: both the learner's measurement noise and, as heading, the floor of the learned
+    magnetometer's error."""
+    iron_tau_s: float = 5.0
+    """Correlation time of that unexplained error while the vehicle moves, s (the learner's noise is inflated
+    by τ/Δt between fixes)."""
+    heading_observable_sigma_rad: float = 2.0 * _DEG
+    """The GNSS holds the heading (iron learned, magnetometer allowed back) while the yaw 1σ is below this."""
+    heading_unknown_sigma_rad: float = 15.0 * _DEG
+    """Above this yaw 1σ the heading state is UNKNOWN (consumers must not use the heading), rad."""
+    mag_reentry_s: float = 20.0
+    """A rejected magnetometer re-enters after its learned correction was consistent this long, s."""
+    yaw_reset_max: int = 3
+    """At most this many resets of the yaw to the GNSS yaw per run (ArduPilot EK3_GSF_RST_MAX 2)."""
+    yaw_reset_spacing_s: float = 20.0
+    """... at least this far apart, s."""
     mag_noise_ut: float = 0.7
     mag_heading_noise_rad: float = 0.12
     mag_heading_noise_rest_rad: float = 0.03
@@ -156,6 +198,17 @@ class InsParams:
     large_dt_s: float = 0.1
     reinit_dt_s: float = 2.0
 
+    @property
+    def calibration_sigma_rad(self) -> float:
+        """The magnetometer calibration's heading 1σ in force (the uncalibrated figure when it is unknown)."""
+        s = self.mag_calibration_sigma_rad
+        return float(s) if math.isfinite(s) and s >= 0.0 else float(self.mag_uncalibrated_sigma_rad)
+
+    @property
+    def mag_bias_tau(self) -> float:
+        s = self.mag_calibration_sigma_rad
+        return self.mag_bias_tau_s if math.isfinite(s) and s >= 0.0 else self.mag_uncalibrated_tau_s
+
     def to_array(self, declination_rad: float) -> np.ndarray:
         p = np.zeros(core.P_SIZE)
         p[core.P_GYRO_NOISE] = self.gyro_noise_rad_s_sqrt_hz
@@ -174,6 +227,9 @@ class InsParams:
             raise ValueError(f"earth_model must be 'wgs84' or 'sphere', got {self.earth_model!r}")
         p[core.P_SPHERE] = 1.0 if self.earth_model == "sphere" else 0.0
         p[core.P_MAG_TILT] = 1.0 if self.mag_moves_tilt else 0.0
+        p[core.P_MAG_USE] = 1.0
+        p[core.P_MAG_BIAS_VAR] = self.calibration_sigma_rad ** 2
+        p[core.P_MAG_BIAS_TAU] = self.mag_bias_tau
         p[core.P_LEVEL_NOISE] = self.level_noise_m_s2
         p[core.P_LEVEL_REJECT] = self.level_reject_m_s2
         p[core.P_LEVEL_GATE] = self.level_gate_rad
@@ -267,7 +323,37 @@ class Ins:
         self._queue: list[GnssFix] = []
         self._last_fix_t = -math.inf
         self.gnss_counters = GnssCounters()
-        self._step = core.fast_step()
+        self._gsf_par = GsfParams(lever_arm_m=tuple(self.params.lever_arm_m)).to_record()
+        self._gsf = new_gsf_state(GsfParams(), 0.0)
+        self._par[core.P_GSF] = 1.0 if self.params.gnss_yaw else 0.0
+        self._step = core.fast_step(self._step_args_example())
+        self._iron = IronLearner(self.params.iron_prior_sigma_ut)
+        self._iron_last_t = None
+        self._iron_restored = False
+        self._new_heading_checks()
+
+    def _step_args_example(self) -> tuple:
+        """Scratch arguments of the step's types (compiling it must not touch the filter's own arrays)."""
+        gsf = new_gsf_state(GsfParams(), 0.0)
+        x = np.zeros(core.X_SIZE)
+        x[core.X_Q] = 1.0
+        x[core.X_T_LAST] = 0.995
+        return (x, np.eye(core.N_ERR), np.zeros((core.H_LEN, core.H_SIZE)), self._par.copy(),
+                1.0, 0.0, 0.0, 0.0, 0.0, 0.0, -9.8, 20.0, 0.0, 40.0, 0, np.zeros(core.O_SIZE), gsf, self._gsf_par)
+
+    def _new_heading_checks(self) -> None:
+        p = self.params
+        self._monitor = HeadingMonitor(p.calibration_sigma_rad, reentry_s=p.mag_reentry_s,
+                                       max_resets=p.yaw_reset_max, reset_spacing_s=p.yaw_reset_spacing_s)
+        self._heading_state = HeadingState.UNKNOWN
+        self._integrity = None
+        self._field_key = None
+        self._field_ned = None
+        self._mag_var = p.calibration_sigma_rad ** 2
+        self.yaw_resets = 0
+        self._par[core.P_MAG_USE] = 1.0
+        self._par[core.P_MAG_BIAS_VAR] = p.calibration_sigma_rad ** 2
+        self._par[core.P_IRON : core.P_IRON + 3] = self._iron.offset_ut
 
     # ----------------------------------------------------------------------- Estimator protocol
     def reset(self) -> None:
@@ -278,6 +364,29 @@ class Ins:
         self._pending_flags = 0
         self._queue.clear()
         self._last_fix_t = -math.inf
+        self._new_heading_checks()
+
+    # ----------------------------------------------------------------------- learned iron (persisted by the daemon)
+    def learned_iron(self) -> tuple[np.ndarray, np.ndarray]:
+        """The hard iron learned on top of the calibration (body frame, µT) and its covariance (µT²)."""
+        return self._iron.offset_ut.copy(), self._iron.cov_ut2.copy()
+
+    def set_learned_iron(self, offset_ut, cov_ut2) -> None:
+        """Start from a learned iron persisted earlier (same calibration). Raises ValueError when not finite or
+        the covariance is not positive definite."""
+        self._iron.set(offset_ut, cov_ut2)
+        self._iron_restored = True
+        self._par[core.P_IRON : core.P_IRON + 3] = self._iron.offset_ut
+
+    def reset_learned_iron(self) -> None:
+        """Forget the learned iron (a new calibration was accepted, or the operator reset it)."""
+        self._iron.reset()
+        self._iron_restored = False
+        self._par[core.P_IRON : core.P_IRON + 3] = self._iron.offset_ut
+
+    @property
+    def heading_state(self) -> HeadingState:
+        return self._heading_state
 
     def set_declination(self, declination_rad: float) -> None:
         """Magnetic declination (rad): the magnetometer heading is compared with true heading − declination,
@@ -333,7 +442,8 @@ class Ins:
         extra = 0
         if self._initialised:
             f = self._step(self._x, self._P, self._hist, self._par, sample.t_s,
-                           g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], sflags, self._out)
+                           g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], sflags, self._out,
+                           self._gsf, self._gsf_par)
             if not f & NEEDS_INIT:
                 if self._queue:
                     self._fuse_queued()
@@ -413,6 +523,9 @@ class Ins:
         sig_h = _accuracy(h_acc, DEFAULT_H_ACC_M, p.min_h_acc_m)
         sig_v = _accuracy(v_acc, DEFAULT_V_ACC_M, p.min_v_acc_m)
         sig_s = _accuracy(s_acc, DEFAULT_S_ACC_M_S, p.min_s_acc_m_s)
+        if p.gnss_yaw and use_vel:
+            vel = np.array([v[0], v[1], v[2] if use_vd else math.nan])
+            gsf_fuse_velocity(self._gsf, self._gsf_par, float(fix.t_s), vel, sig_s)
         res = core.fuse_gnss(
             self._x, self._P, self._hist, self._par, float(fix.t_s),
             math.radians(lat) if use_pos else 0.0, math.radians(lon) if use_pos else 0.0,
@@ -442,7 +555,108 @@ class Ins:
         if res & core.R_POS_RESET:
             c.reset_position += 1
             log.warning("ins: GNSS position rejected for %.1f s: position reset to the fix", p.reject_reset_s)
+        if p.heading_monitor and p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
+            self._check_heading(float(fix.t_s))
         return res
+
+    # ----------------------------------------------------------------------- heading checks (heading_monitor.py)
+    def _earth_field_ned(self) -> np.ndarray | None:
+        """WMM field at the filter's position (µT, NED), looked up again when the position moves by ~1 km."""
+        lat, lon, h = (math.degrees(self._x[core.X_LAT]), math.degrees(self._x[core.X_LON]), float(self._x[core.X_H]))
+        key = (round(lat, 2), round(lon, 2), round(h, -2))
+        if key != self._field_key:
+            from ahrsd.core.wmm import earth_field
+            try:
+                self._field_ned = earth_field(lat, (lon + 180.0) % 360.0 - 180.0, h).ned_ut
+            except ValueError:
+                self._field_ned = None
+            self._field_key = key
+        return self._field_ned
+
+    def _check_heading(self, t_s: float) -> None:
+        p = self.params
+        x, P = self._x, self._P
+        c_bn = np.asarray(quat_to_dcm(x[core.X_Q : core.X_Q + 4]), dtype=float)
+        yaw = math.atan2(c_bn[1, 0], c_bn[0, 0])
+        yaw_var = float(P[2, 2])
+        m_body = x[core.X_MAG_LAST : core.X_MAG_LAST + 3] - self._iron.offset_ut
+        mag_yaw = math.nan
+        mag_var = math.inf
+        if np.all(np.isfinite(m_body)):
+            m_ned = c_bn @ m_body
+            h = math.hypot(m_ned[0], m_ned[1])
+            if h > 1e-3:
+                alpha = wrap_pi(math.atan2(m_ned[1], m_ned[0]) - self._declination)
+                mag_yaw = wrap_pi(yaw - alpha)
+                noise = (p.mag_noise_ut / h) ** 2
+                mag_var = p.calibration_sigma_rad ** 2 + noise
+                if self._iron.updates > 0 or self._iron_restored:
+                    # learning (or learned): the learned hard iron's uncertainty replaces the calibration's
+                    # hard-iron error; what a hard iron cannot explain stays
+                    mag_var = min(p.calibration_sigma_rad ** 2, (p.iron_unmodelled_ut / h) ** 2) + noise \
+                        + self._iron.heading_variance(c_bn, m_ned)
+        gsf_yaw, gsf_var, gsf_valid = math.nan, math.inf, False
+        if p.gnss_yaw:
+            y, sg, valid, _ = gsf_output(self._gsf)
+            if math.isfinite(y) and math.isfinite(sg):
+                gsf_yaw, gsf_var, gsf_valid = float(y), float(sg) ** 2, bool(valid)
+        observable = yaw_var < p.heading_observable_sigma_rad ** 2
+        d = self._monitor.check(t_s, yaw, yaw_var, mag_yaw, mag_var, gsf_yaw, gsf_var, gsf_valid, observable,
+                                float(x[core.X_NIS_V]))
+        if d.yaw_var_floor_rad2 > P[2, 2]:
+            P[2, 2] = d.yaw_var_floor_rad2
+            log.warning("ins: magnetometer disagrees with the GNSS-held heading by %.1f°: calibration wrong or "
+                        "iron changed; magnetometer rejected", math.degrees(self._monitor.lowpassed_innovation_rad))
+        if d.reset_yaw_to_rad is not None:
+            self._reset_yaw(d.reset_yaw_to_rad - yaw, d.reset_yaw_var_rad2)
+        self._par[core.P_MAG_USE] = 1.0 if d.mag_use else 0.0
+        if math.isfinite(mag_var):
+            self._mag_var = mag_var
+            self._par[core.P_MAG_BIAS_VAR] = mag_var - noise   # the white part is the kernel's own noise
+            learned = self._iron.updates > 0 or self._iron_restored
+            self._par[core.P_MAG_BIAS_TAU] = p.mag_uncalibrated_tau_s if learned else p.mag_bias_tau
+        if p.iron_learning and self._monitor.learning and np.all(np.isfinite(m_body)) and self._x[core.X_NAV_OK] > 0:
+            field = self._earth_field_ned()
+            if field is not None:
+                dt = max(t_s - (self._iron_last_t if self._iron_last_t is not None else t_s - 0.2), 1e-3)
+                self._iron_last_t = t_s
+                self._iron.update(x[core.X_MAG_LAST : core.X_MAG_LAST + 3], c_bn, field, P[0:3, 0:3],
+                                  p.iron_unmodelled_ut, max(1.0, p.iron_tau_s / dt))
+                self._par[core.P_IRON : core.P_IRON + 3] = self._iron.offset_ut
+        sig = math.sqrt(max(P[2, 2], 0.0))
+        self._integrity = HeadingIntegrity(gsf_yaw, math.sqrt(gsf_var) if math.isfinite(gsf_var) else math.nan,
+                                           gsf_valid, self._monitor.disagreement_rad, self._iron.offset_ut.copy(),
+                                           self._iron.sigma_ut)
+        self._heading_state = self._monitor.heading_state(sig, False, True, p.heading_unknown_sigma_rad,
+                                                          self._mag_var)
+
+    def _reset_yaw(self, dyaw_rad: float, var_rad2: float) -> None:
+        """Turn the attitude (and its history) about down by dyaw; yaw variance = var with its cross-covariances
+        cleared; the accelerometer bias and the tilt, which a wrong yaw has been pulling through the GNSS
+        acceleration, get their start-up uncertainty back (uncorrelated)."""
+        p = self.params
+        dyaw = wrap_pi(dyaw_rad)
+        x, P = self._x, self._P
+        dx = np.zeros(core.N_ERR)
+        dx[2] = dyaw
+        core._rotate_attitude(x, core.X_Q, 0.0, 0.0, dyaw)
+        core._correct_history(self._hist, x, -math.inf, dx, 0.0, 0.0, 0.0)
+        c, s = math.cos(dyaw), math.sin(dyaw)
+        an, ae = x[core.X_ACC_LP], x[core.X_ACC_LP + 1]
+        x[core.X_ACC_LP], x[core.X_ACC_LP + 1] = c * an - s * ae, s * an + c * ae
+        for i, var in ((2, var_rad2), (0, max(P[0, 0], p.nav_init_sigma_tilt_rad ** 2 * 0.04)),
+                       (1, max(P[1, 1], p.nav_init_sigma_tilt_rad ** 2 * 0.04))):
+            P[i, :] = 0.0
+            P[:, i] = 0.0
+            P[i, i] = var
+        for i in range(core.E_BA, core.E_BA + 3):
+            var = max(P[i, i], p.init_accel_bias_sigma_m_s2 ** 2)
+            P[i, :] = 0.0
+            P[:, i] = 0.0
+            P[i, i] = var
+        self.yaw_resets += 1
+        self._pending_flags |= int(EstimateFlags.YAW_RESET)
+        log.warning("ins: heading reset to the GNSS yaw by %.1f° (reset %d)", math.degrees(dyaw), self.yaw_resets)
 
     def _reject(self, why: str, fix) -> None:
         self._pending_flags |= int(EstimateFlags.GNSS_REJECTED)
@@ -505,7 +719,7 @@ class Ins:
         P[:] = 0.0
         for i in range(2):
             P[i, i] = p.init_sigma_tilt_rad ** 2
-        P[2, 2] = (p.init_sigma_yaw_rad if use_mag else math.pi) ** 2
+        P[2, 2] = (max(p.init_sigma_yaw_rad, p.calibration_sigma_rad) if use_mag else math.pi) ** 2
         for i in range(3):
             P[core.E_V + i, core.E_V + i] = core.NAV_UNKNOWN_VAR_V
             P[core.E_P + i, core.E_P + i] = core.NAV_UNKNOWN_VAR_P
@@ -515,6 +729,10 @@ class Ins:
         for i in range(6):
             P[core.E_MG + i, core.E_MG + i] = p.init_gyro_misalignment_sigma_rad ** 2
         self._queue.clear()
+        if not self._reinit_pending or not self.params.gnss_yaw:
+            gsf_reset(self._gsf, self._gsf_par, float(t_s), np.full(4, np.nan))
+        else:
+            self._gsf.t_s = float(t_s)     # a short gap: the bank keeps its hypotheses, its clock moves on
         self._initialised = True
         core.fill_outputs(x, P, self._par, g[0] - keep_bg[0], g[1] - keep_bg[1], g[2] - keep_bg[2], self._out)
         return True
@@ -555,7 +773,20 @@ class Ins:
             o[core.O_SIGMA : core.O_SIGMA + 3],
             estimate_flags(f),
             nav,
+            self._published_heading_state(f, o[core.O_SIGMA + 2]),
+            self._integrity,
         )
+
+    def _published_heading_state(self, f: int, yaw_sigma_rad: float) -> HeadingState:
+        p = self.params
+        if f & core.F_INITIALISING or not yaw_sigma_rad <= p.heading_unknown_sigma_rad:
+            return HeadingState.UNKNOWN
+        if not f & core.F_GNSS_AIDED:
+            # unaided the magnetometer is the only heading reference: trusted only when it is in use
+            if not p.mag_enabled or self._par[core.P_MAG_USE] <= 0.0:
+                return HeadingState.UNKNOWN
+            return HeadingState.MAGNETOMETER
+        return self._heading_state if p.heading_monitor else HeadingState.MAGNETOMETER
 
     def _estimate_uninitialised(self, sample: ImuSample, extra: int) -> AttitudeEstimate:
         return uninitialised_estimate(sample.t_s, extra | self._pending_flags)

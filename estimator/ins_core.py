@@ -36,6 +36,7 @@ import numpy as np
 from numba import njit
 
 from . import mag_heading as mag
+from .gsf_yaw import gsf_accumulate_imu
 from .ins_mechanisation import (
     earth_rate_ned,
     normal_gravity_m_s2,
@@ -143,8 +144,13 @@ P_MAG = 32              # mag_heading parameter block (MP_SIZE): 32–43
 P_GYRO_SCALE_WALK = 46  # gyro scale-factor random walk, 1/√s
 P_GYRO_SCALE_CLIP = 47  # |s| and |m| limit per element
 P_GYRO_MIS_WALK = 48    # gyro misalignment random walk, rad/√s
-P_MAG_TILT = 49         # 1.0: while aided the magnetometer row carries its tilt sensitivity and may move the tilt
-P_SIZE = 50
+P_MAG_TILT = 49         # 1.0: while aided the magnetometer update may move the tilt (0: its tilt gain is zero)
+P_MAG_USE = 50          # 1.0: fuse the magnetometer heading; 0.0: the heading monitor rejects it (heading_monitor.py)
+P_MAG_BIAS_VAR = 51     # variance of the slowly varying part of the magnetometer heading error (calibration), rad²
+P_MAG_BIAS_TAU = 52     # its correlation time, s: each update's noise is inflated by τ/Δt (see _mag_update)
+P_IRON = 53             # 3: learned hard iron (body frame) removed from the magnetometer before use, µT
+P_GSF = 56              # 1.0: run the Gaussian-sum GNSS yaw bank beside the filter
+P_SIZE = 57
 assert P_MAG + mag.MP_SIZE <= P_NAV_DROP < P_SIZE
 
 # ----------------------------------------------------------------------------------- outputs
@@ -476,22 +482,25 @@ def _mag_update(x, P, par, dt_epoch, rate):
     mx = x[X_MAG_LAST]
     my = x[X_MAG_LAST + 1]
     mz = x[X_MAG_LAST + 2]
-    if par[P_MAG_ENABLED] > 0.0 and math.isfinite(mx):
+    if par[P_MAG_ENABLED] > 0.0 and par[P_MAG_USE] > 0.0 and math.isfinite(mx):
+        mx -= par[P_IRON]
+        my -= par[P_IRON + 1]
+        mz -= par[P_IRON + 2]
         mn, me, md = mag.rotate_to_ned(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], mx, my, mz)
         mnorm = math.sqrt(mx * mx + my * my + mz * mz)
         # the heading of the horizontal field depends on the tilt too: with m = H u + Z e_D (u the magnetic
         # north), m_est = m − δθ × m gives α = −δθ_D + (Z/H) u·δθ, so a tilt error along magnetic north reads
         # as tan(dip) times as much heading error (3.4× at 60° N). While fixes hold the horizon (GNSS_AIDED)
-        # the row carries that sensitivity and the update may move the tilt (the GNSS outweighs the
-        # magnetometer there, and the heading no longer inherits the tilt error); otherwise — before the first
-        # fix, dead reckoning, levelling — the row is heading only and the tilt gain zero, as in mekf: a
-        # disturbed field must not move a horizon nothing else holds.
+        # the row carries that sensitivity, so the heading correction allows for the known tilt error through
+        # their covariance; the gain on the tilt itself is zero (a wrong magnetometer must never move the
+        # horizon) unless mag_moves_tilt. Otherwise — before the first fix, dead reckoning, levelling — the row
+        # is heading only, as in mekf.
         h = np.zeros(N_ERR)
         h[2] = -1.0
         aided = x[X_NAV_OK] > 0.0 and x[X_T_LAST] - x[X_GNSS_LAST_T] <= par[P_GNSS_TIMEOUT]
-        tilt_row = aided and par[P_MAG_TILT] > 0.0     # mag_moves_tilt=False: heading only even while aided
+        moves_tilt = aided and par[P_MAG_TILT] > 0.0
         mh2 = mn * mn + me * me
-        if tilt_row and mh2 > 0.0:
+        if aided and mh2 > 0.0:
             h[0] = md * mn / mh2
             h[1] = md * me / mh2
         hph = 0.0
@@ -499,23 +508,31 @@ def _mag_update(x, P, par, dt_epoch, rate):
             for j in range(3):
                 hph += h[i] * P[i, j] * h[j]
         res, alpha, r = mag.heading_measurement(x, X_MAG, par, P_MAG, dt_epoch, rate, False, False, mn, me, md,
-                                                mnorm, par[P_DECLINATION], hph)
+                                                mnorm, par[P_DECLINATION], hph + par[P_MAG_BIAS_VAR])
         if res == mag.MAG_USE:
+            # the calibration's error is not white: a heading bias of variance P_MAG_BIAS_VAR that lasts about
+            # P_MAG_BIAS_TAU. Fused every Δt as if white it would shrink the heading σ below it; spread over the
+            # τ/Δt updates of one correlation time it adds at most its own variance's worth of information.
+            r += par[P_MAG_BIAS_VAR] * max(1.0, par[P_MAG_BIAS_TAU] / max(dt_epoch, 1e-6))
             dx = np.zeros(N_ERR)
-            _scalar_update(P, h, alpha, r, 0 if tilt_row else M_TILT, dx)
+            _scalar_update(P, h, alpha, r, 0 if moves_tilt else M_TILT, dx)
             _apply_correction(x, par, dx)
             used = True
         elif res == mag.MAG_REJECTED:
             flags |= F_MAG_REJECTED
+    elif par[P_MAG_ENABLED] > 0.0 and math.isfinite(mx):
+        flags |= F_MAG_REJECTED     # the heading monitor rejects it (disagrees with GNSS or its own innovations)
     if mag.heading_bookkeeping(x, X_MAG, par, P_MAG, dt_epoch, used):
         flags |= F_MAG_UNAVAILABLE
     return flags
 
 
 @njit(cache=True)
-def ins_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, out):
+def ins_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, out, gsf, gsf_par):
     """One IMU sample: mechanise, accumulate the covariance increments, every P_COV_PERIOD propagate the
-    covariance and run the levelling (when unaided) and magnetometer updates; fill `out`. Returns
+    covariance and run the levelling (when unaided) and magnetometer updates; feed the magnetometer-free GNSS
+    yaw bank (`gsf`, gsf_yaw.py: its own tilt and yaw, never this filter's heading) the bias-corrected sample;
+    fill `out`. Returns
     EstimateFlags bits (| NEEDS_INIT when the caller must initialise from this sample first)."""
     valid = input_validity(sample_flags, gx, gy, gz, ax, ay, az, mx, my, mz)
     dt, flags = step_dt(t_s - x[X_T_LAST], par[P_LARGE_DT], par[P_REINIT_DT])
@@ -556,6 +573,8 @@ def ins_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_fl
     fx = 0.5 * (pax + x[X_ACC_LAST]) - x[X_BA]
     fy = 0.5 * (pay + x[X_ACC_LAST + 1]) - x[X_BA + 1]
     fz = 0.5 * (paz + x[X_ACC_LAST + 2]) - x[X_BA + 2]
+    if par[P_GSF] > 0.0:
+        gsf_accumulate_imu(gsf, gsf_par, dt, np.array((mwx, mwy, mwz)), np.array((fx, fy, fz)))
     q0 = x[X_Q]
     q1 = x[X_Q + 1]
     q2 = x[X_Q + 2]
@@ -1010,20 +1029,13 @@ def fuse_gnss(x, P, hist, par, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, ve_fix,
     return res
 
 
-_STEP_SIGNATURE = (
-    "int64(float64[::1], float64[:, ::1], float64[:, ::1], float64[::1], float64, float64, float64, float64, "
-    "float64, float64, float64, float64, float64, float64, int64, float64[::1])"
-)
-
-
-def fast_step():
-    """`ins_step` as the directly callable compiled entry point of its one signature (skips numba's per-call
-    type dispatch, as mekf_core.fast_step does); falls back to the dispatcher."""
+def fast_step(example_args):
+    """`ins_step` compiled for the types of `example_args` (one call) and returned as that overload's directly
+    callable entry point (skips numba's per-call type dispatch, as mekf_core.fast_step does); falls back to the
+    dispatcher."""
+    ins_step(*example_args)
     try:
-        ins_step.compile(_STEP_SIGNATURE)
-        for sig, cres in ins_step.overloads.items():
-            if len(sig) == 16 and str(sig[14]) == "int64":
-                return cres.entry_point
+        return ins_step.overloads[tuple(ins_step.typeof_pyval(a) for a in example_args)].entry_point
     except Exception:  # pragma: no cover - numba internals moved
         pass
     return ins_step  # pragma: no cover

@@ -33,7 +33,7 @@ from ahrsd.core.angles import roll_pitch_from_accel
 from ahrsd.core.sample import ImuSample
 
 from . import mekf_core as core
-from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags
+from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState
 from .mag_heading import relearn_reference
 from .rotations import euler_to_quat, quat_to_dcm, quat_to_euler
 from .wahba import davenport
@@ -178,6 +178,8 @@ class MekfParams:
     """... and until the 1σ tilt is below this, rad."""
     converged_yaw_rad: float = 3.0 * _DEG
     """... and the 1σ heading is below this (ignored without a magnetometer), rad."""
+    heading_unknown_sigma_rad: float = 15.0 * _DEG
+    """Above this yaw 1σ the estimate's heading state is UNKNOWN (a heading consumer cannot use it), rad."""
     large_dt_s: float = 0.1
     """A step longer than this (or not positive) is flagged LARGE_DT, s."""
     reinit_dt_s: float = 2.0
@@ -504,7 +506,17 @@ class Mekf:
             o[core.O_BIAS : core.O_BIAS + 3],
             o[core.O_SIGMA : core.O_SIGMA + 3],
             estimate_flags(f),
+            None,
+            self._heading_state(f, o[core.O_SIGMA + 2]),
         )
+
+    def _heading_state(self, f: int, yaw_sigma_rad: float) -> HeadingState:
+        """MAGNETOMETER while the magnetometer is the heading reference and in use; UNKNOWN while initialising,
+        without a magnetometer update for mag_unavailable_s, or when σ is beyond heading_unknown_sigma_rad."""
+        if (f & _NOT_MAG_HEADING) or not self.params.mag_enabled \
+                or not yaw_sigma_rad <= self.params.heading_unknown_sigma_rad:
+            return HeadingState.UNKNOWN
+        return HeadingState.MAGNETOMETER
 
     def _estimate_uninitialised(self, t_s: float, extra: int) -> AttitudeEstimate:
         return uninitialised_estimate(t_s, extra)
@@ -528,6 +540,9 @@ def after_init_flags(reinitialised: bool, mag_enabled: bool) -> int:
     return f
 
 
+_NOT_MAG_HEADING = int(EstimateFlags.INITIALISING | EstimateFlags.MAG_UNAVAILABLE)
+
+
 def uninitialised_estimate(t_s: float, flag_bits: int) -> AttitudeEstimate:
     """The estimate of a filter that could not initialise yet: NaN angles, INITIALISING | flag_bits."""
     nan3 = np.full(3, np.nan)
@@ -543,6 +558,7 @@ def uninitialised_estimate(t_s: float, flag_bits: int) -> AttitudeEstimate:
         gyro_bias_rad_s=np.zeros(3),
         sigma_rpy_rad=np.full(3, math.pi),
         flags=EstimateFlags.INITIALISING | estimate_flags(flag_bits),
+        heading_state=HeadingState.UNKNOWN,
     )
 
 

@@ -7,7 +7,7 @@ them through its calibration first.
 With GNSS fixes (an aided estimator, one that has `update_gnss`), the fixes are merged with the samples in time
 order — each fix is offered before the first sample later than its time of validity — and the table adds
 NAV_COLUMNS (the estimator's NavState; NaN while it has none). The fixes are used as given: a caller validates
-them first (drivers.gnss_validation), as the daemon does.
+them first (drivers.gnss.validation), as the daemon does.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ Each of the six faces up twice — the second time turned half round about the s
 corners (an axis pair's diagonal up), each held `hold_s` and moved to the next in `move_s` (one smooth rotation).
 The surface is tilted `surface_tilt_deg` towards `tilt_azimuth_deg`, so every placement's up direction is that far
 off its axis, in a direction that turns half round with the unit: the mean of a face's pair is on the axis
-(calibration/accel_alignment.py). After the last position the unit stays there. Not one of the contract's
+(calibration/inertial/accel_alignment.py). After the last position the unit stays there. Not one of the contract's
 SCENARIOS (`make_scenario("accel-positions")`, `--sim accel-positions`).
 """
 

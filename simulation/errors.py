@@ -5,7 +5,7 @@ Integrated Navigation Systems", 2nd ed., §4.4, eqs. 4.16–4.17, with a magneto
 
     gyro  = (I + diag(scale) + misalignment) · ω_true + b_turn_on + b_gm(t) + k_T (T − 25 °C) + n
     accel = (I + diag(scale) + misalignment) · f_true + b_turn_on + b_gm(t) + k_T (T − 25 °C) + n
-    mag   = soft_iron · B_true + hard_iron + n
+    mag   = soft_iron · B_true + hard_iron (+ hard_iron_step from hard_iron_step_t_s on) + n
 
 b_gm is a first-order Gauss–Markov process (bias instability) with standard deviation σ and correlation time τ:
 b[k+1] = φ b[k] + w, φ = exp(−Δt/τ), var(w) = σ²(1 − φ²), started from its stationary distribution.
@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -98,10 +98,14 @@ class SensorErrors:
     temp_ambient_c: float = 25.0                # sensor temperature at power-on, °C
     temp_warmup_c: float = 0.0                  # self-heating rise after power-on, °C
     temp_warmup_tau_s: float = 600.0            # time constant of that rise, s
+    hard_iron_step_ut: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    """(3,) change of the hard iron at `hard_iron_step_t_s` (a battery, winch or load moved), sensor frame, µT."""
+    hard_iron_step_t_s: float = math.inf        # stream time of that change, s (inf: never)
 
     def __post_init__(self):
         for name in ("gyro_bias_rad_s", "gyro_scale", "gyro_bias_temp_rad_s_per_c",
-                     "accel_bias_m_s2", "accel_scale", "accel_bias_temp_m_s2_per_c", "hard_iron_ut"):
+                     "accel_bias_m_s2", "accel_scale", "accel_bias_temp_m_s2_per_c", "hard_iron_ut",
+                     "hard_iron_step_ut"):
             object.__setattr__(self, name, _vec3(getattr(self, name), name))
         for name in ("gyro_misalignment_rad", "accel_misalignment_rad", "soft_iron"):
             object.__setattr__(self, name, _mat3(getattr(self, name), name))
@@ -120,6 +124,10 @@ class SensorErrors:
                 raise ValueError(f"{name} must be a positive finite time, got {v!r}")
             object.__setattr__(self, name, v)
         object.__setattr__(self, "temp_ambient_c", float(self.temp_ambient_c))
+        step_t = float(self.hard_iron_step_t_s)
+        if math.isnan(step_t):
+            raise ValueError("hard_iron_step_t_s must be a time or inf, got nan")
+        object.__setattr__(self, "hard_iron_step_t_s", step_t)
 
     # --- derived ------------------------------------------------------------------------------------------
     @property
@@ -285,6 +293,8 @@ class ErrorProcess:
         gyro = gyro_true @ self._gyro_mat_t + gyro_bias
         accel = accel_true @ self._accel_mat_t + accel_bias
         mag = mag_true @ self._soft_t + e.hard_iron_ut
+        if math.isfinite(e.hard_iron_step_t_s):
+            mag += (np.asarray(t_s)[:, None] >= e.hard_iron_step_t_s) * e.hard_iron_step_ut
         if self._gyro_std:
             gyro += self._rng_gyro.standard_normal((n, 3)) * self._gyro_std
         if self._accel_std:

@@ -61,6 +61,21 @@ class VehicleIron:
         )
 
 
+    @classmethod
+    def held_out(cls) -> "VehicleIron":
+        """Another strong non-symmetric vehicle iron, for figures measured on vehicles the estimators were not
+        tuned on: hard iron −310/240/−180 mgauss, soft iron with −7…+9 % scale and up to 6 % cross-coupling.
+        Chosen values, of the same order as `default`."""
+        return cls(
+            hard_iron_ut=np.array([-31.0, 24.0, -18.0]),
+            soft_iron=np.array([
+                [0.93, -0.06, 0.04],
+                [0.03, 1.09, -0.05],
+                [-0.05, 0.02, 0.96],
+            ]),
+        )
+
+
 def dipole_field_ut(moment_a_m2: np.ndarray, r_m: np.ndarray) -> np.ndarray:
     """Field (µT) of point dipoles with moment `moment_a_m2` (…,3) at offset `r_m` (…,3) from dipole to sensor.
 

@@ -1,4 +1,4 @@
-"""The accelerometer calibration aligned to the housing from the six faces (calibration/accel_alignment.py).
+"""The accelerometer calibration aligned to the housing from the six faces (calibration/inertial/accel_alignment.py).
 
 Truth is the simulator's own sensor model, raw = M·f + b (SensorErrors.accel_matrix, accel_bias_m_s2): the
 exact calibration maps raw back to the housing-frame specific force f, rotation included, which the
@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ahrsd.calibration.accel_alignment import FACE_AXES, align_to_faces
-from ahrsd.calibration.accel_cal import fit_accel
+from ahrsd.calibration.inertial.accel_alignment import FACE_AXES, align_to_faces
+from ahrsd.calibration.inertial.accel import fit_accel
 from ahrsd.simulation import DEFAULT_SITE, SensorErrors
 
 from support.accel_positions import up_vectors

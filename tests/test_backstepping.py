@@ -11,14 +11,15 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from scipy.spatial.transform import Rotation
 
-from ahrsd.calibration import backstepping as bs
+from ahrsd.calibration.mag import backstepping as bs
 from ahrsd.core import angles
-from ahrsd.calibration import backstepping_plot as bsplot
-from ahrsd.calibration import levelling
-from ahrsd.calibration import backstepping_paper as paper
-from ahrsd.calibration import vertical_channel as vc
-from ahrsd.calibration import swing
-from ahrsd.calibration.magfit import MagFitInput, fit_mag
+from ahrsd.cli.plots import backstepping as bsplot
+from ahrsd.calibration.mag import levelling
+from ahrsd.calibration.mag import backstepping_paper as paper
+from ahrsd.calibration.mag import vertical_channel as vc
+from ahrsd.calibration.mag import swing
+from ahrsd.calibration.mag.fit_types import MagFitInput
+from ahrsd.calibration.mag.fit import fit_mag
 from ahrsd.core.wmm import earth_field
 from ahrsd.core.angles import wrap_180_deg
 

@@ -10,8 +10,8 @@ import logging
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ahrsd.calibration.backstepping_aided import fit_backstepping_aided
-from ahrsd.calibration.magfit import MagFitInput
+from ahrsd.calibration.mag.backstepping_aided import fit_backstepping_aided
+from ahrsd.calibration.mag.fit_types import MagFitInput
 from ahrsd.simulation import DEFAULT_SITE, open_stream, simulate_gnss
 
 
@@ -29,7 +29,7 @@ def heading_error_on_other_attitudes_deg(model, stream) -> np.ndarray:
 
 
 def test_the_levelling_takes_its_heading_from_the_magnetometer_where_gnss_alone_never_finds_it(caplog):
-    from ahrsd.calibration.backstepping_aided import aided_roll_pitch
+    from ahrsd.calibration.mag.backstepping_aided import aided_roll_pitch
 
     caplog.set_level(logging.ERROR)
     stream = open_stream("boat", rate_hz=100.0, seed=8, site=DEFAULT_SITE)
@@ -52,7 +52,7 @@ def test_a_calibrated_accelerometer_lets_the_levelling_split_bias_from_tilt(capl
     tilt: with the accelerometer exactly calibrated but the filter's default (uncalibrated) bias prior, the
     smoothed horizon is still off; told the bias is known to ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 it is not
     (truth from the simulator, via scipy)."""
-    from ahrsd.calibration.backstepping_aided import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2, aided_roll_pitch
+    from ahrsd.calibration.mag.backstepping_aided import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2, aided_roll_pitch
     from ahrsd.calibration.models import AccelModel
 
     caplog.set_level(logging.ERROR)
@@ -83,7 +83,7 @@ def test_the_antenna_lever_arm_reaches_the_levelling_filter(caplog):
     puts it there (its own lever-arm kinematics). Levelled without the arm, the filter rejects most fixes'
     velocities; told the arm (`filter_overrides`, what `calibrate mag --lever-arm-m` passes), it fuses them and
     its horizon is closer to the truth (scipy)."""
-    from ahrsd.calibration.backstepping_aided import aided_roll_pitch
+    from ahrsd.calibration.mag.backstepping_aided import aided_roll_pitch
 
     caplog.set_level(logging.ERROR)
     arm = (-1.0, 0.0, -2.0)

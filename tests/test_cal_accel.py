@@ -1,4 +1,4 @@
-"""Multi-position accelerometer calibration (calibration/accel_cal.py).
+"""Multi-position accelerometer calibration (calibration/inertial/accel.py).
 
 Simulated positions: the simulator's static scenario (ADIS16405 noise) held for 10 s at 50 Hz in each
 orientation. The mean of one position then carries white noise VRW/√T = 3.3e-3/√10 = 1.05e-3 m/s² and the
@@ -16,7 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ahrsd.calibration.accel_cal import (
+from ahrsd.calibration.inertial.accel import (
     GuidedSession,
     find_still_segments,
     fit_accel,
@@ -266,7 +266,7 @@ def test_guided_session_prompts_detects_stillness_records_and_fits():
 def test_guided_face_pairs_take_a_second_hold_of_each_face_only_after_the_unit_moved():
     """`--live --align-to-faces`: each face is asked for twice (turned half round between); a hold that
     continues the one just recorded does not count as the second."""
-    from ahrsd.calibration.accel_cal import GUIDED_TARGETS_FACE_PAIRS
+    from ahrsd.calibration.inertial.accel import GUIDED_TARGETS_FACE_PAIRS
 
     rate = 50.0
     op = FakeOperator(rate, np.zeros(3), np.eye(3))

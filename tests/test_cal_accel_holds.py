@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from ahrsd.calibration.accel_cal import DEFAULT_MIN_STILL_S, hold_cost, still_periods, split_by_duration
+from ahrsd.calibration.inertial.accel import DEFAULT_MIN_STILL_S, hold_cost, still_periods, split_by_duration
 from ahrsd.core.sample import make_sample
 from ahrsd.drivers.recording import RecordingWriter
 from ahrsd.simulation import DEFAULT_SITE, SensorErrors, simulate

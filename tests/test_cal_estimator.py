@@ -17,10 +17,11 @@ import numpy as np
 import pytest
 
 
-from ahrsd.calibration.accel_cal import fit_accel  # noqa: E402
-from ahrsd.calibration.gyro_cal import fit_rate_table, reference_rates_from_truth, steady_segments  # noqa: E402
-from ahrsd.calibration.mag_alignment import fit_alignment, segment_level_turns  # noqa: E402
-from ahrsd.calibration.magfit import MagFitInput, fit_mag  # noqa: E402
+from ahrsd.calibration.inertial.accel import fit_accel  # noqa: E402
+from ahrsd.calibration.inertial.gyro import fit_rate_table, reference_rates_from_truth, steady_segments  # noqa: E402
+from ahrsd.calibration.mag.alignment import fit_alignment, segment_level_turns  # noqa: E402
+from ahrsd.calibration.mag.fit_types import MagFitInput
+from ahrsd.calibration.mag.fit import fit_mag  # noqa: E402
 from ahrsd.calibration.models import Calibration  # noqa: E402
 from ahrsd.core.sample import make_sample  # noqa: E402
 from ahrsd.simulation import DEFAULT_SITE, SensorErrors, VehicleIron, simulate  # noqa: E402

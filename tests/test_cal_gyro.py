@@ -1,4 +1,4 @@
-"""Gyro calibration (calibration/gyro_cal.py): rate table (12 parameters) and bias only.
+"""Gyro calibration (calibration/inertial/gyro.py): rate table (12 parameters) and bias only.
 
 Simulated rate table (the simulator's six mountings × ±90 °/s, 2 turns each, 5 s holds) at 50 Hz. Each
 steady segment of T seconds averages the ARW to 5.8e-4/√T rad/s (≈1.3e-4 for the 20 s turns); the in-run
@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from ahrsd.calibration.gyro_cal import (
+from ahrsd.calibration.inertial.gyro import (
     body_rates_from_quaternions,
     fit_bias_only,
     fit_rate_table,

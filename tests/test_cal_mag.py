@@ -16,9 +16,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ahrsd.calibration import mag_threestep, mag_twostep
-from ahrsd.calibration.magfit import METHODS, MagFitInput, MagFitResult, fit_mag
-from ahrsd.calibration.mag_alignment import LevelTurn, fit_alignment, orthogonalise, segment_level_turns
+from ahrsd.calibration.mag import three_step, two_step
+from ahrsd.calibration.mag.fit_types import MagFitInput, MagFitResult
+from ahrsd.calibration.mag.fit import METHODS, fit_mag
+from ahrsd.calibration.mag.alignment import LevelTurn, fit_alignment, orthogonalise, segment_level_turns
 from ahrsd.calibration.models import MagModel, misalignment_matrix
 from ahrsd.simulation import DEFAULT_SITE, SensorErrors, simulate
 
@@ -56,8 +57,8 @@ SMALL = st.floats(-0.08, 0.08)
 @given(BIAS, BIAS, BIAS, POS, POS, POS, st.floats(20.0, 65.0))
 def test_two_step_inverse_mapping(bx, by, bz, kx, ky, kz, h0):
     """S(b, k, H0) of the two-step regression mapped back by inverse_mapping gives b and k."""
-    s = mag_twostep.forward_mapping(np.array([bx, by, bz]), np.array([kx, ky, kz]), h0)
-    b, k = mag_twostep.inverse_mapping(s, h0)
+    s = two_step.forward_mapping(np.array([bx, by, bz]), np.array([kx, ky, kz]), h0)
+    b, k = two_step.inverse_mapping(s, h0)
     np.testing.assert_allclose(b, [bx, by, bz], atol=1e-9 * (1 + abs(bx) + abs(by) + abs(bz)))
     np.testing.assert_allclose(k, [kx, ky, kz], rtol=1e-8)
 
@@ -67,8 +68,8 @@ def test_two_step_regression_rows_are_the_linearised_ellipsoid():
     b, k, h0 = np.array([10.0, -5.0, 3.0]), np.array([1.1, 0.9, 1.05]), 48.0
     u = rng.normal(size=(50, 3))
     raw = b + k * (h0 * u / np.linalg.norm(u, axis=1, keepdims=True))
-    z, h = mag_twostep.regressors(raw)
-    np.testing.assert_allclose(h @ mag_twostep.forward_mapping(b, k, h0), z, rtol=1e-9, atol=1e-7)
+    z, h = two_step.regressors(raw)
+    np.testing.assert_allclose(h @ two_step.forward_mapping(b, k, h0), z, rtol=1e-9, atol=1e-7)
 
 
 @settings(derandomize=True, max_examples=80, deadline=None)
@@ -78,12 +79,12 @@ def test_three_step_chain_x_to_s_gamma_to_b_k_alpha(bx, by, bz, kx, ky, kz, a_yz
     b, k = np.array([bx, by, bz]), np.array([kx, ky, kz])
     g_yz, g_zy, g_zx = kx / ky * a_yz, kx / kz * a_zy, ky / kz * a_zx
     bp = np.array([bx - g_yz * by + g_zy * bz, by - g_zx * bz, bz])
-    s = mag_twostep.forward_mapping(bp, k, h0)  # S has the two-step form with b′
-    x = mag_threestep.x_from_s_gamma(s, g_yz, g_zy, g_zx)
-    s_back, gamma = mag_threestep.s_gamma_from_x(x)
+    s = two_step.forward_mapping(bp, k, h0)  # S has the two-step form with b′
+    x = three_step.x_from_s_gamma(s, g_yz, g_zy, g_zx)
+    s_back, gamma = three_step.s_gamma_from_x(x)
     np.testing.assert_allclose(s_back, s, rtol=1e-9, atol=1e-9 * (1 + np.abs(s).max()))
     assert (gamma["yz"], gamma["zy"], gamma["zx"]) == pytest.approx((g_yz, g_zy, g_zx), abs=1e-10)
-    bp_back, b_back, k_back, alpha = mag_threestep.b_k_alpha_from_s_gamma(s_back, gamma, h0)
+    bp_back, b_back, k_back, alpha = three_step.b_k_alpha_from_s_gamma(s_back, gamma, h0)
     np.testing.assert_allclose(bp_back, bp, atol=1e-7)
     np.testing.assert_allclose(b_back, b, atol=1e-7)
     np.testing.assert_allclose(k_back, k, rtol=1e-8)
@@ -97,7 +98,7 @@ def test_three_step_regression_is_exact_on_its_own_model():
     u = rng.normal(size=(300, 3))
     h = REF.total_ut * u / np.linalg.norm(u, axis=1, keepdims=True)
     raw = b + (np.diag(k) @ np.linalg.inv(misalignment_matrix(alpha)) @ h.T).T
-    p = mag_threestep.solve(raw, REF.total_ut)
+    p = three_step.solve(raw, REF.total_ut)
     np.testing.assert_allclose(p.b, b, atol=1e-6)
     np.testing.assert_allclose(p.k, k, rtol=1e-9)
     for key in alpha:

@@ -1,4 +1,4 @@
-"""The constant heading offset from GNSS course (calibration/course_offset.py) against courses made from the
+"""The constant heading offset from GNSS course (calibration/mag/course_offset.py) against courses made from the
 exact vector sum of the vehicle's velocity through the water and a current (not the linearised model)."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from ahrsd.calibration.course_offset import fit_course_offset
+from ahrsd.calibration.mag.course_offset import fit_course_offset
 
 DEG = math.pi / 180.0
 

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from ahrsd.calibration.ardupilot_compass import from_ardupilot, to_ardupilot
 from ahrsd.calibration.fixed_yaw import fixed_yaw_calibration
-from ahrsd.calibration.geodesic_grid import (
+from ahrsd.calibration.mag.geodesic_grid import (
     GEODESIC_MID_TRIANGLES,
     GEODESIC_TRIANGLES,
     completion_mask_bytes,
@@ -162,7 +162,7 @@ def test_heading_slew_passes_vehicle_rotation_through():
 
 
 def test_max_heading_change_of_a_pure_offset():
-    from ahrsd.calibration.heading_change import blend_models, max_heading_change_deg
+    from ahrsd.calibration.mag.heading_change import blend_models, max_heading_change_deg
 
     old = MagModel(np.zeros(3), np.eye(3))
     new = MagModel(np.array([2.0, 0.0, 0.0]), np.eye(3))  # 2 µT along x on a 25 µT horizontal field

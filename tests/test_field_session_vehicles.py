@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from ahrsd.calibration.field import CalStatus, FieldCalConfig, FieldCalibration
-from ahrsd.calibration.mag_offsets import fit_offsets_keep_soft_iron
-from ahrsd.calibration.magfit import MagFitInput, fit_mag
+from ahrsd.calibration.mag.offsets import fit_offsets_keep_soft_iron
+from ahrsd.calibration.mag.fit_types import MagFitInput
+from ahrsd.calibration.mag.fit import fit_mag
 from ahrsd.calibration.models import Calibration
 
 from support.field_vehicle import (SITE_FIELD, course_fixes, heading_errors_deg, heading_rms_deg, injected_iron, record,

@@ -10,9 +10,9 @@ import sys
 import numpy as np
 import pytest
 
-from ahrsd.calibration.backstepping_paper import BacksteppingError
-from ahrsd.calibration.levelling import roll_pitch_from_estimator
-from ahrsd.calibration.magfit import MagFitInput
+from ahrsd.calibration.mag.backstepping_paper import BacksteppingError
+from ahrsd.calibration.mag.levelling import roll_pitch_from_estimator
+from ahrsd.calibration.mag.fit_types import MagFitInput
 from ahrsd.cli.calibrate_gnss import COURSE_MIN_SPEED_M_S, course_reference_deg
 from ahrsd.core.gnss import make_fix
 
@@ -52,7 +52,7 @@ class Recorder:
 
 
 def test_levelling_offers_the_fixes_in_time_order(monkeypatch):
-    import ahrsd.calibration.levelling as levelling
+    import ahrsd.calibration.mag.levelling as levelling
 
     rec = Recorder()
     monkeypatch.setattr(levelling, "make_estimator", lambda name, **kw: rec)
@@ -89,9 +89,9 @@ def test_aided_levelling_on_a_boat(tmp_path):
     """The aided roll/pitch against the simulator's truth, and the CLI using it."""
     from scipy.spatial.transform import Rotation
 
-    from ahrsd.calibration.backstepping_aided import aided_roll_pitch
+    from ahrsd.calibration.mag.backstepping_aided import aided_roll_pitch
     from ahrsd.core.wmm import earth_field
-    from ahrsd.drivers.gnss_recording import read_gnss_recording
+    from ahrsd.drivers.gnss.recording import read_gnss_recording
     from ahrsd.drivers.recording import read_recording
 
     rec = tmp_path / "boat.csv"
@@ -132,7 +132,7 @@ def test_aided_levelling_on_a_boat(tmp_path):
     # with an accelerometer calibration stored, the fit is told the bias prior (its JSON says what it got)
     import json
 
-    from ahrsd.calibration.backstepping_aided import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
+    from ahrsd.calibration.mag.backstepping_aided import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
     from ahrsd.calibration.models import AccelModel, Calibration
     from ahrsd.calibration.store import CalibrationStore
 
@@ -153,7 +153,7 @@ def test_the_levelling_bias_prior_follows_the_accelerometer_calibration(tmp_path
     given."""
     import argparse
 
-    from ahrsd.calibration.backstepping_aided import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
+    from ahrsd.calibration.mag.backstepping_aided import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
     from ahrsd.calibration.models import AccelModel, Calibration
     from ahrsd.cli.calibrate import _levelling_accel_bias_prior
 

@@ -23,6 +23,17 @@ GPS = mavlink.MAV_SYS_STATUS_SENSOR_GPS
 AP_SYS, AP_COMP = 1, 1
 
 
+@dataclasses.dataclass
+class GateCounters:
+    """The part of an aided filter's GNSS counters the daemon watches (estimator.ins.GnssCounters)."""
+
+    offered: int = 0
+    rejected_velocity: int = 0
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
 class FakeAided:
     """An 'aided' estimator (it has update_gnss): a fixed attitude, records the fixes it is offered, and a
     navigation state once it has one. `flags` is what its estimates carry."""
@@ -32,6 +43,7 @@ class FakeAided:
     def __init__(self):
         self.fixes = []
         self.flags = EstimateFlags.NONE
+        self.gnss_counters = GateCounters()
 
     def update_gnss(self, fix):
         self.fixes.append(fix)
@@ -149,7 +161,7 @@ def test_only_the_autopilot_is_listened_to_and_repeats_are_dropped(rig):
     rig.ap.send(mavlink.MAVLink_global_position_int_message(5000, 473977418, 85455939, 488000, 0, 100, 0, 0, 0))
     pump(rig)
     assert len(rig.fake.fixes) == 1
-    sel = rig.service.gnss.selector.counters
+    sel = rig.service.gnss.stats()["mavlink"]
     assert sel["gps_raw_int_repeated"] == 1 and sel["global_position_int_skipped"] == 1
 
 
@@ -253,7 +265,7 @@ def test_navigation_outputs(tmp_path):
 
 
 def test_the_configured_antenna_lever_arm_reaches_the_aided_estimator(tmp_path):
-    """[gnss] lever_arm_m is the aided filter's (it was once only the simulated receiver's); mekf takes none."""
+    """[gnss] lever_arm_m reaches the aided filter as well as the simulated receiver; mekf takes none."""
     gcs = gcs_socket()
     arm = (0.5, -0.25, -1.5)
     service, loop = start_service(gcs, tmp_path / "state", gnss=GnssConfig(source="mavlink", lever_arm_m=arm))
@@ -282,10 +294,10 @@ def process(service, loop, t_s, counter):
 
 def test_a_receiver_missing_at_start_is_opened_when_it_appears(tmp_path):
     """The IMU does not wait for the GNSS: the daemon starts, reports the device error, and opens the port
-    once it exists (checked every REOPEN_PERIOD_S from housekeeping); its fixes then flow."""
+    once it exists (the serial backend re-tries every REOPEN_INTERVAL_S when housekeeping polls it); its fixes then flow."""
     from ahrsd.core.gnss import make_fix
-    from ahrsd.daemon.gnss_task import REOPEN_PERIOD_S
-    from ahrsd.drivers.gnss_simulated import SimulatedGnssReceiver
+    from ahrsd.drivers.gnss.backend import GnssLinkState
+    from ahrsd.drivers.gnss.simulated import SimulatedGnssReceiver
 
     port = tmp_path / "ttyGNSS"                  # a path that appears later (like a USB receiver plugged in)
     gcs = gcs_socket()
@@ -296,16 +308,19 @@ def test_a_receiver_missing_at_start_is_opened_when_it_appears(tmp_path):
         g = service.gnss
         fake = service.pipeline.estimator = FakeAided()
         now = time.monotonic()
-        assert g.serial is None and g.fix_summary(now) == "device error"
+        assert g.health().state is GnssLinkState.DEVICE_ERROR and g.fix_summary(now) == "device error"
         assert not service.sys_status_message(now).onboard_control_sensors_health & GPS
         port.symlink_to(rx.device)
-        g.tick(now + REOPEN_PERIOD_S + 0.1)
-        assert g.serial is not None and g.open_error == ""
+        deadline = time.monotonic() + 30.0          # the backend re-tries every 2 s when housekeeping polls it
+        while g.health().state is GnssLinkState.DEVICE_ERROR and time.monotonic() < deadline:
+            g.tick(time.monotonic())
+            pump(rig_of(service, loop, gcs), 0.1)
+        assert g.health().state is GnssLinkState.WAITING and g.backend.fileno() >= 0
         for k in range(3):
             rx.write_fix(make_fix(100.0 + k, 47.0, 8.0, 500.0, [1.0, 0.0, 0.0], num_sats=10, h_acc_m=1.0,
                                   v_acc_m=2.0, s_acc_m_s=0.1))
             pump(rig_of(service, loop, gcs), 0.1)
-        assert len(fake.fixes) == 3 and g.fix_summary(time.monotonic()) == "3D 10 sats", (g.stats(), g._fd)
+        assert len(fake.fixes) == 3 and g.fix_summary(time.monotonic()) == "3D 10 sats", g.stats()
         assert service.sys_status_message(time.monotonic()).onboard_control_sensors_health & GPS
     finally:
         rx.close()

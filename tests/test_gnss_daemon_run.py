@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from ahrsd.daemon.mavlink_io import mavlink
-from ahrsd.drivers.gnss_recording import read_gnss_recording
+from ahrsd.drivers.gnss.recording import read_gnss_recording
 from ahrsd.drivers.recording import read_recording
 from support.ahrsd_process import AHRSD, Daemon
 
@@ -147,7 +147,7 @@ def test_sim_receiver_on_a_pty(tmp_path):
     run = json.loads(stats.read_text())
     g = run["gnss"]
     assert g["serial"]["frames_ubx"] >= 5 and g["serial"]["garbage_bytes"] == 0
-    assert g["accepted"] >= 5 and g["rejected"] == 0
+    assert g["accepted"] >= 5 and g["rejected"] == 0, g
     assert g["offered"] == g["accepted"] and g["estimator"]["fused_velocity"] >= 5
 
 
@@ -226,7 +226,7 @@ def test_record_with_a_receiver_on_a_serial_port(tmp_path):
     """`ahrsd record --gnss-serial DEV`: the fixes of a receiver on a (pseudo-)terminal, stamped on the same
     host clock as the paced IMU samples."""
     from ahrsd.core.gnss import make_fix
-    from ahrsd.drivers.gnss_simulated import SimulatedGnssReceiver
+    from ahrsd.drivers.gnss.simulated import SimulatedGnssReceiver
 
     t0 = time.monotonic() + 1.0
     fixes = [make_fix(t0 + 0.2 * k, 47.0 + 1e-6 * k, 8.0, 500.0, [1.0, 0.5, 0.0], num_sats=9) for k in range(40)]

@@ -9,9 +9,9 @@ from pynmeagps import NMEAReader
 
 from ahrsd.core.gnss import DEFAULT_H_ACC_M, DEFAULT_S_ACC_M_S, DEFAULT_V_ACC_M
 from ahrsd.core.sample import SampleFlags, make_sample
-from ahrsd.drivers.gnss_nmea import NmeaEpochAssembler, nmea_epoch_sentences
-from ahrsd.drivers.gnss_recording import GnssRecordingWriter, read_gnss_recording
-from ahrsd.drivers.gnss_validation import GnssFixValidator
+from ahrsd.drivers.gnss.nmea import NmeaEpochAssembler, nmea_epoch_sentences
+from ahrsd.drivers.gnss.recording import GnssRecordingWriter, read_gnss_recording
+from ahrsd.drivers.gnss.validation import GnssFixValidator
 from ahrsd.estimator.ins import Ins
 from ahrsd.simulation import GnssErrors, simulate, simulate_gnss
 

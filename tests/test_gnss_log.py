@@ -1,4 +1,4 @@
-"""The on-vehicle GNSS log (drivers/gnss_log.py, daemon.vehicle_log): the daemon replays an IMU + GNSS recording
+"""The on-vehicle GNSS log (drivers/gnss/log.py, daemon.vehicle_log): the daemon replays an IMU + GNSS recording
 with logging on; every fix it was given is in the `.gnss.csv.gz` log, accepted or rejected with the reason the
 recording was built to trigger (known by construction, not from the validator); `ahrsd log cut` writes
 REC.gnss.csv beside REC.csv; and replaying the cut (`--replay REC.csv --gnss-replay REC.gnss.csv`) gives the
@@ -20,9 +20,9 @@ from ahrsd.core.sample import make_sample
 from ahrsd.daemon.config import Config, EndpointConfig, GnssConfig, LogConfig, SensorConfig, StateConfig
 from ahrsd.daemon.run_stats import collect_stats
 from ahrsd.daemon.service import Service
-from ahrsd.drivers.gnss_log import REJECTION_CODES, GnssLog
-from ahrsd.drivers.gnss_recording import GnssRecordingWriter, read_gnss_recording
-from ahrsd.drivers.gnss_validation import GnssRejection
+from ahrsd.drivers.gnss.log import REJECTION_CODES, GnssLog
+from ahrsd.drivers.gnss.recording import GnssRecordingWriter, read_gnss_recording
+from ahrsd.drivers.gnss.validation import GnssRejection
 from ahrsd.drivers.recording import SAMPLE_COLUMNS, RecordingWriter, read_recording
 
 from service_rig import gcs_socket

@@ -7,7 +7,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from ahrsd.core.gnss import GnssFixType
-from ahrsd.drivers.gnss_mavlink import (MavlinkGnssSelector, fix_from_global_position_int,
+from ahrsd.drivers.gnss.mavlink import (MavlinkGnssSelector, fix_from_global_position_int,
                                         fix_from_gps_raw_int)
 
 

@@ -11,9 +11,9 @@ from pynmeagps import NMEAMessage, NMEAReader
 from pyubx2 import GET, UBXMessage, UBXReader
 
 from ahrsd.core.gnss import GnssFixType
-from ahrsd.drivers.gnss_nmea import NmeaEpochAssembler, fix_from_nmea_epoch
-from ahrsd.drivers.gnss_stream import GnssStreamDecoder
-from ahrsd.drivers.gnss_ubx import fix_from_nav_pvt
+from ahrsd.drivers.gnss.nmea import NmeaEpochAssembler, fix_from_nmea_epoch
+from ahrsd.drivers.gnss.stream import GnssStreamDecoder
+from ahrsd.drivers.gnss.ubx import fix_from_nav_pvt
 
 KNOT = 1852.0 / 3600.0
 

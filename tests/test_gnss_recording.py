@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ahrsd.core.gnss import DEFAULT_H_ACC_M, DEFAULT_S_ACC_M_S, DEFAULT_V_ACC_M, GnssFixType, make_fix
-from ahrsd.drivers.gnss_recording import (GNSS_RECORDING_HEADER, GnssRecordingFormatError, GnssRecordingWriter,
+from ahrsd.drivers.gnss.recording import (GNSS_RECORDING_HEADER, GnssRecordingFormatError, GnssRecordingWriter,
                                           gnss_path_for, read_gnss_recording)
 
 BASE = "t_s,lat_deg,lon_deg,alt_m,vel_n_m_s,vel_e_m_s,vel_d_m_s"

@@ -86,7 +86,7 @@ def test_bad_gnss_input_is_a_clear_error(boat, tmp_path):
 
 
 def test_replay_with_gnss_adds_the_navigation_columns(boat, tmp_path):
-    from ahrsd.drivers.gnss_recording import read_gnss_recording
+    from ahrsd.drivers.gnss.recording import read_gnss_recording
     from ahrsd.simulation import open_stream
 
     rec, gnss = boat

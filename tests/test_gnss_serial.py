@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from ahrsd.core.gnss import GnssFixType, make_fix
-from ahrsd.drivers.gnss_serial import GnssDeviceError, GnssLinkState, SerialGnssSource
-from ahrsd.drivers.gnss_simulated import SimulatedGnssReceiver, uart_resample
+from ahrsd.drivers.gnss.serial_port import GnssDeviceError, GnssLinkState, SerialGnssSource
+from ahrsd.drivers.gnss.simulated import SimulatedGnssReceiver, uart_resample
 
 
 class FakeClock:
@@ -209,7 +209,7 @@ def test_threaded_receiver_writes_at_the_fix_times():
 
 @pytest.mark.parametrize("protocol", ["ubx", "nmea"])
 def test_fix_lost_on_the_wire_is_a_counted_rejection(protocol):
-    from ahrsd.drivers.gnss_validation import GnssFixValidator
+    from ahrsd.drivers.gnss.validation import GnssFixValidator
     fixes = _fixes(4)
     fixes[2] = make_fix(fixes[2].t_s, 0.0, 0.0, 0.0, [0.0, 0.0, 0.0], fix_type=GnssFixType.NO_FIX)
     clock = FakeClock(0.0)

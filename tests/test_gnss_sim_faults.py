@@ -2,7 +2,7 @@
 an outage makes the daemon's GNSS task report "outage" (STATUSTEXT, the estimate's flags), and a glitch is
 rejected and counted (the estimator's innovation gate, or the validator for an invalid position).
 
-The whole daemon path below the event loop runs: config → GnssTask → ScenarioGnssReceiver writing UBX into a
+The whole daemon path below the event loop runs: config → gnss_backend_for → GnssTask → ScenarioGnssReceiver writing UBX into a
 pty → SerialGnssSource → GnssFixValidator → Ins, on a simulated clock stepped here faster than real time (the
 receiver's writer thread replaced by its own `write_due`, called at each step).
 """
@@ -17,8 +17,8 @@ import pytest
 from ahrsd.core.estimate import EstimateFlags
 from ahrsd.core.sample import SampleFlags, make_sample
 from ahrsd.daemon.config import ConfigError, parse_config
-from ahrsd.daemon.gnss_task import GnssTask
-from ahrsd.drivers.gnss_scenario import ScenarioGnssReceiver
+from ahrsd.daemon.gnss_task import GnssTask, gnss_backend_for
+from ahrsd.drivers.gnss.scenario import ScenarioGnssReceiver
 from ahrsd.estimator.ins import Ins
 from ahrsd.simulation import simulate
 
@@ -33,22 +33,11 @@ class Clock:
         return self.t
 
 
-class FakeService:
-    """What GnssTask uses of the daemon's Service: the config, the chip clock, the pipeline, STATUSTEXT."""
+class Pipeline:
+    """The estimator hook of the GnssTask: the aided filter and its latest estimate."""
 
-    def __init__(self, config, clock):
-        self.config, self.loop, self.texts = config, None, []
-        self.source = type("Source", (), {"chip": type("Chip", (), {"now": clock})()})()
-        self.pipeline = type("Pipeline", (), {"estimator": Ins(), "last_estimate": None})()
-
-    def statustext(self, severity, text):
-        self.texts.append((self.config_time(), text))
-
-    def on_gnss_position(self):
-        pass
-
-    def log_gnss_fix(self, fix, rejection):
-        pass
+    def __init__(self):
+        self.estimator, self.last_estimate = Ins(), None
 
 
 def _config(gnss: str):
@@ -57,38 +46,41 @@ def _config(gnss: str):
 
 
 def _run(monkeypatch, gnss: str, seconds: float):
-    """Step the simulated daemon for `seconds`; return the task, the service and the estimate flags per step."""
+    """Step the simulated daemon for `seconds`; return the task, the STATUSTEXTs and the estimate flags per step."""
     monkeypatch.setattr(ScenarioGnssReceiver, "start", lambda self: self)     # no thread: write_due below
     clock = Clock()
-    service = FakeService(_config(gnss), clock)
-    service.config_time = clock
-    task = GnssTask(service, service.config.gnss, clock=clock)
+    config = _config(gnss)
+    pipeline, texts = Pipeline(), []
+    backend = gnss_backend_for(config.gnss, clock=clock, sensor=config.sensor, scenario_clock=clock)
+    task = GnssTask(backend, config.gnss, clock=clock, estimator=pipeline,
+                    statustext=lambda severity, text: texts.append((clock.t, text)))
     task.open()
+    receiver = backend.receiver
     block = simulate(SCENARIO, seconds, rate_hz=RATE_HZ, seed=SEED, errors="ideal")
-    est = service.pipeline.estimator
+    est = pipeline.estimator
     flags, aiding = [], []
     try:
         for k, t in enumerate(block.t_s):
             clock.t = float(t)
-            before = task.receiver.fixes_written
-            task.receiver.write_due()
-            if task.receiver.fixes_written > before:      # the pty delivers in the kernel's own time: wait for it
-                select.select([task.serial.fileno()], [], [], 2.0)
-            task._on_readable()
+            before = receiver.fixes_written
+            receiver.write_due()
+            if receiver.fixes_written > before:      # the pty delivers in the kernel's own time: wait for it
+                select.select([backend.fileno()], [], [], 2.0)
+            task.poll()
             e = est.update(make_sample(t, block.gyro_rad_s[k], block.accel_m_s2[k], block.truth_mag_ut[k],
                                        flags=SampleFlags.NEW_DATA))
-            service.pipeline.last_estimate = e
+            pipeline.last_estimate = e
             if k % 10 == 0:
                 task.tick(float(t))
             flags.append(int(e.flags))
             aiding.append((float(t), task.aiding()))
     finally:
         task.close()
-    return task, service, block.t_s, flags, aiding
+    return task, texts, block.t_s, flags, aiding
 
 
 def test_an_outage_is_reported_and_a_glitch_rejected_and_counted(monkeypatch):
-    task, service, t, flags, aiding = _run(monkeypatch, "sim_outage_start_s = 6.0\nsim_outage_s = 9.0\n"
+    task, texts, t, flags, aiding = _run(monkeypatch, "sim_outage_start_s = 6.0\nsim_outage_s = 9.0\n"
                                                         "sim_glitch_every_s = 4.0\n", 20.0)
     stats = task.stats()
     assert "outage 6–15 s" in task.description and "position_jump every 4 s" in task.description
@@ -104,21 +96,21 @@ def test_an_outage_is_reported_and_a_glitch_rejected_and_counted(monkeypatch):
     assert by_time[19.0] == "aided"                                       # back after the outage
     outage = EstimateFlags.GNSS_OUTAGE
     assert all(f & outage for tt, f in zip(t, flags) if 8.6 <= tt < 15.0)
-    texts = [txt for _, txt in service.texts]
+    shown = [txt for _, txt in texts]
     # what the ground station sees: the receiver went quiet (the link state), and ins dead-reckons
-    assert "ahrsd: GNSS silent, outage" in texts, service.texts
-    assert texts[-1] == "ahrsd: GNSS 3D 12 sats, aided", service.texts
+    assert "ahrsd: GNSS silent, outage" in shown, texts
+    assert shown[-1] == "ahrsd: GNSS 3D 12 sats, aided", texts
 
 
 def test_outage_with_no_fix_solutions_and_invalid_positions(monkeypatch):
-    task, service, t, flags, aiding = _run(monkeypatch, "sim_outage_start_s = 3.0\nsim_outage_s = 9.0\n"
+    task, texts, t, flags, aiding = _run(monkeypatch, "sim_outage_start_s = 3.0\nsim_outage_s = 9.0\n"
                                                         "sim_outage_no_fix = true\nsim_glitch_every_s = 2.0\n"
                                                         'sim_glitch_kind = "nan"\n', 14.0)
     v = task.stats()["validator"]
     assert 44 <= v["no_fix"] <= 46, v                          # the receiver kept sending NO_FIX for 9 s
     assert v["nonfinite_field"] == 2, v                        # the glitches at 2 s and 12 s (invalidLlh)
     assert dict(aiding)[6.0] == "outage"
-    assert "ahrsd: GNSS no fix, outage" in [txt for _, txt in service.texts], service.texts
+    assert "ahrsd: GNSS no fix, outage" in [txt for _, txt in texts], texts
 
 
 @pytest.mark.parametrize("gnss, key", [

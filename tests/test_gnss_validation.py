@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from ahrsd.core.gnss import GnssFixType, make_fix
-from ahrsd.drivers.gnss_validation import GnssFixValidator, GnssRejection
+from ahrsd.drivers.gnss.validation import GnssFixValidator, GnssRejection
 
 
 class FakeClock:
@@ -84,7 +84,7 @@ def test_just_inside_the_limits_is_accepted():
 def test_rejections_are_logged_rate_limited(caplog):
     clock = FakeClock()
     v = GnssFixValidator(clock=clock)
-    caplog.set_level(logging.WARNING, logger="ahrsd.drivers.gnss_validation")
+    caplog.set_level(logging.WARNING, logger="ahrsd.drivers.gnss.validation")
     for k in range(20):
         clock.t = 0.1 * k
         v.check(_fix(1.0 + k, fix_type=GnssFixType.NO_FIX))

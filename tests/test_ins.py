@@ -36,6 +36,9 @@ from ins_truth import (
 AIDED = int(EstimateFlags.GNSS_AIDED)
 OUTAGE = int(EstimateFlags.GNSS_OUTAGE)
 REJECTED = int(EstimateFlags.GNSS_REJECTED)
+# these runs feed the magnetometer calibrated by the simulator's known iron: say so, as the daemon passes its
+# calibration's predicted heading error (a magnetometer of unknown calibration is trusted little)
+CALIBRATED = {"mag_calibration_sigma_rad": math.radians(0.5)}
 
 
 @functools.lru_cache(maxsize=None)
@@ -48,7 +51,7 @@ def _clean(scenario, seconds, latency_s=0.1, seed=1):
     """The reference: the ins with clean 5 Hz fixes (1.5 m, 0.05 m/s)."""
     run = _run(scenario, seconds, seed)
     fixes = gnss_fixes(run.truth, latency_s=latency_s, seed=seed + 10)
-    return run, fixes, run_ins(Ins(declination_rad=DECLINATION), run, fixes)
+    return run, fixes, run_ins(Ins(declination_rad=DECLINATION, **CALIBRATED), run, fixes)
 
 
 def _rms(a):
@@ -81,7 +84,7 @@ def test_coordinated_turn_tilt_stays_small_where_a_levelling_filter_leans_by_the
         tilt_mekf, _ = tilt_heading_errors_deg(q, run.truth.q_wxyz)
         assert tilt_mekf[m].max() > leans_by_deg, (params, tilt_mekf[m].max())
 
-    unaided = run_ins(Ins(declination_rad=DECLINATION), run, [])       # no GNSS at all: levelling
+    unaided = run_ins(Ins(declination_rad=DECLINATION, **CALIBRATED), run, [])       # no GNSS at all: levelling
     tilt_unaided, _ = tilt_heading_errors_deg(unaided.q_mag, run.truth.q_wxyz)
     assert tilt_unaided[m].max() > 20.0
     assert not np.any(unaided.flags & (AIDED | OUTAGE))
@@ -122,7 +125,7 @@ def test_nees_of_attitude_velocity_and_position_within_chi_square_bounds():
             accel_noise_density_m_s2_rthz=p.accel_noise_m_s2_sqrt_hz,
             mag_noise_density_ut_rthz=0.125 / math.sqrt(819.2))
         run = simulated_run("level-turns", 120.0, rate_hz=200.0, seed=seed, errors=err)
-        est = Ins(declination_rad=DECLINATION, mag_heading_noise_rad=p.mag_heading_noise_rest_rad)
+        est = Ins(declination_rad=DECLINATION, mag_calibration_sigma_rad=0.0, mag_heading_noise_rad=p.mag_heading_noise_rest_rad)
         res = run_ins(est, run, gnss_fixes(run.truth, seed=seed + 10), cov_every=2000)
         e = np.column_stack([attitude_error_ned(res.q_true, run.truth.q_wxyz),
                              run.truth.vel_ned_m_s - res.vel, position_error_ned(res, run.truth)])
@@ -151,9 +154,9 @@ def test_gyro_scale_factor_is_learned_in_turns_and_off_gives_the_15_state_filter
     states learn it (to 0.15 %) and horizon and heading are better than without them; init_gyro_scale_sigma=0 freezes
     them (with the misalignment states off too: the classic 15 states, Groves 2nd ed. ch. 14)."""
     run, fixes, m = _banked_turns_with_gyro_error(gyro_scale=[0.0, 0.0, 0.01])
-    with_scale = Ins(declination_rad=DECLINATION)
+    with_scale = Ins(declination_rad=DECLINATION, **CALIBRATED)
     res = run_ins(with_scale, run, fixes)
-    frozen = Ins(declination_rad=DECLINATION, init_gyro_scale_sigma=0.0, init_gyro_misalignment_sigma_rad=0.0)
+    frozen = Ins(declination_rad=DECLINATION, **CALIBRATED, init_gyro_scale_sigma=0.0, init_gyro_misalignment_sigma_rad=0.0)
     res15 = run_ins(frozen, run, fixes)
     assert abs(with_scale.gyro_scale[2] - 0.01) < 0.0015, with_scale.gyro_scale
     assert np.all(frozen.gyro_scale == 0.0) and np.all(frozen.gyro_misalignment_rad == 0.0)
@@ -172,9 +175,9 @@ def test_gyro_misalignment_is_learned_in_turns_and_levels_the_horizon():
     mis = np.zeros((3, 3))
     mis[0, 2], mis[1, 2], mis[1, 0], mis[2, 0] = np.radians([0.3, -0.3, 0.2, 0.2])
     run, fixes, m = _banked_turns_with_gyro_error(gyro_misalignment_rad=mis)
-    learned = Ins(declination_rad=DECLINATION)
+    learned = Ins(declination_rad=DECLINATION, **CALIBRATED)
     res = run_ins(learned, run, fixes)
-    frozen = Ins(declination_rad=DECLINATION, init_gyro_misalignment_sigma_rad=0.0)
+    frozen = Ins(declination_rad=DECLINATION, **CALIBRATED, init_gyro_misalignment_sigma_rad=0.0)
     res_frozen = run_ins(frozen, run, fixes)
     est = learned.gyro_misalignment_rad
     assert abs(est[0, 2] - mis[0, 2]) < math.radians(0.05) and abs(est[1, 2] - mis[1, 2]) < math.radians(0.05), \
@@ -201,7 +204,7 @@ def test_latency_longer_than_the_fix_interval():
     """10 Hz fixes 0.35 s late: three fixes are in flight when one is fused, so each correction (and the
     first fix's reset) must also move the stored history the later ones are compared with."""
     run = _run("coordinated-turn", 120.0)
-    ins = Ins(declination_rad=DECLINATION)
+    ins = Ins(declination_rad=DECLINATION, **CALIBRATED)
     res = run_ins(ins, run, gnss_fixes(run.truth, rate_hz=10.0, latency_s=0.35, seed=4))
     c = ins.gnss_counters
     assert c.rejected_position == c.rejected_velocity == 0, c
@@ -218,8 +221,8 @@ def test_lever_arm_is_applied_to_position_and_velocity():
     arm = (-3.0, 1.0, -1.5)
     fixes = gnss_fixes(run.truth, lever_arm_m=arm, body_rate=run.block.truth_gyro_rad_s, seed=3)
     m = run.truth.t_s > 30.0
-    with_arm = run_ins(Ins(declination_rad=DECLINATION, lever_arm_m=arm), run, fixes)
-    without = run_ins(Ins(declination_rad=DECLINATION), run, fixes)
+    with_arm = run_ins(Ins(declination_rad=DECLINATION, **CALIBRATED, lever_arm_m=arm), run, fixes)
+    without = run_ins(Ins(declination_rad=DECLINATION, **CALIBRATED), run, fixes)
     err_with = np.linalg.norm(position_error_ned(with_arm, run.truth)[m], axis=1)
     err_without = np.linalg.norm(position_error_ned(without, run.truth)[m], axis=1)
     assert _rms(err_with) < 0.35 and _rms(err_without) > 2.5, (_rms(err_with), _rms(err_without))
@@ -236,8 +239,8 @@ def test_position_follows_the_earth_model_the_fixes_are_on(earth):
     fixes = gnss_fixes(run.truth, seed=11, earth=earth)
     m = run.truth.t_s > 30.0
     other = "sphere" if earth == "wgs84" else "wgs84"
-    good = run_ins(Ins(declination_rad=DECLINATION, earth_model=earth), run, fixes)
-    mismatched = run_ins(Ins(declination_rad=DECLINATION, earth_model=other), run, fixes)
+    good = run_ins(Ins(declination_rad=DECLINATION, **CALIBRATED, earth_model=earth), run, fixes)
+    mismatched = run_ins(Ins(declination_rad=DECLINATION, **CALIBRATED, earth_model=other), run, fixes)
     err = position_error_ned(good, run.truth, earth)[m]
     assert np.linalg.norm(np.mean(err, axis=0)) < 0.3 and _rms(np.linalg.norm(err, axis=1)) < 0.5
     tilt_good, _ = tilt_heading_errors_deg(good.q_mag, run.truth.q_wxyz)
@@ -273,7 +276,7 @@ def _spike(dv):
 ])
 def test_each_bad_fix_is_rejected_and_counted_without_an_attitude_step(change, counter):
     run, fixes, clean = _clean("coordinated-turn", 120.0)
-    ins = Ins(declination_rad=DECLINATION)
+    ins = Ins(declination_rad=DECLINATION, **CALIBRATED)
     bad = _with_bad(fixes, 60.0, 61.0, change)                         # 5 bad fixes in a turn
     res = run_ins(ins, run, bad)
     c = ins.gnss_counters
@@ -290,7 +293,7 @@ def test_a_persistent_position_change_is_reacquired_after_a_run_of_rejections():
     """The receiver's position moves 50 m for good (a new datum, an antenna moved): rejected at first, then
     re-acquired after reject_reset_s without an attitude step."""
     run, fixes, clean = _clean("coordinated-turn", 120.0)
-    ins = Ins(declination_rad=DECLINATION)
+    ins = Ins(declination_rad=DECLINATION, **CALIBRATED)
     res = run_ins(ins, run, _with_bad(fixes, 60.0, 1e9, _jump(50.0)))
     c = ins.gnss_counters
     assert c.reset_position == 1 and 20 <= c.rejected_position <= 30, c
@@ -304,7 +307,7 @@ def test_velocities_that_contradict_the_positions_stay_rejected():
     """6 s of fixes whose velocity is 4 m/s off while their positions agree with the filter: every one is
     rejected (no reset: the receiver contradicts itself), with no attitude step."""
     run, fixes, clean = _clean("coordinated-turn", 120.0)
-    ins = Ins(declination_rad=DECLINATION)
+    ins = Ins(declination_rad=DECLINATION, **CALIBRATED)
     res = run_ins(ins, run, _with_bad(fixes, 60.0, 66.0, _spike([4.0, 0.0, 0.0])))
     c = ins.gnss_counters
     assert c.rejected_velocity == 30 and c.reset_velocity == 0 and c.rejected_position == 0, c
@@ -313,7 +316,7 @@ def test_velocities_that_contradict_the_positions_stay_rejected():
 
 def test_stale_fixes_beyond_max_delay_are_counted_too_old():
     run, fixes, clean = _clean("coordinated-turn", 60.0)
-    ins = Ins(declination_rad=DECLINATION)
+    ins = Ins(declination_rad=DECLINATION, **CALIBRATED)
     # the fixes valid in [30, 31) s arrive 1.6 s after their time (the next ones are lost meanwhile)
     late = [(arr + 1.5 if 30.0 <= f.t_s < 31.0 else arr, f) for arr, f in fixes if not 31.0 <= f.t_s < 33.0]
     run_ins(ins, run, late)
@@ -326,7 +329,7 @@ def test_30_s_outage_in_turns_dead_reckons_without_a_step_at_loss_or_return():
     ≤ 2°; GNSS_OUTAGE while out; the attitude changes by < 0.5° within 1 s of the loss and of the return."""
     run, fixes, clean = _clean("coordinated-turn", 150.0)
     t0, t1 = 90.0, 120.0           # the second (left) turn: roll-in at 88 s, banked from 92 s
-    ins = Ins(declination_rad=DECLINATION)
+    ins = Ins(declination_rad=DECLINATION, **CALIBRATED)
     res = run_ins(ins, run, [(a, f) for a, f in fixes if not (t0 <= f.t_s < t1)])
     t = run.truth.t_s
     tilt, heading = tilt_heading_errors_deg(res.q_mag, run.truth.q_wxyz)
@@ -344,7 +347,7 @@ def test_30_s_outage_in_turns_dead_reckons_without_a_step_at_loss_or_return():
 
 def test_a_long_outage_degrades_to_levelling_with_a_flag_and_the_next_fix_resets_navigation():
     run, fixes, clean = _clean("level-turns", 200.0)
-    ins = Ins(declination_rad=DECLINATION, dead_reckon_s=20.0, nav_drop_s=40.0)
+    ins = Ins(declination_rad=DECLINATION, **CALIBRATED, dead_reckon_s=20.0, nav_drop_s=40.0)
     res = run_ins(ins, run, [(a, f) for a, f in fixes if not (60.0 <= f.t_s < 150.0)])
     t = run.truth.t_s
     unaided = (t > 110.0) & (t < 150.0)
@@ -385,7 +388,7 @@ def test_fix_ahead_of_the_imu_is_held_until_the_samples_reach_it():
     run = _run("coordinated-turn", 60.0)
     fixes = gnss_fixes(run.truth, latency_s=0.0)
     early = [(max(a - 0.5, 0.0), f) for a, f in fixes]                 # each fix offered 0.5 s early
-    ins = Ins(declination_rad=DECLINATION)
+    ins = Ins(declination_rad=DECLINATION, **CALIBRATED)
     res = run_ins(ins, run, early)
     assert ins.gnss_counters.queued > 200 and ins.gnss_counters.fused_velocity > 250
     m = run.truth.t_s > 30.0

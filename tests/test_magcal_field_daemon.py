@@ -24,7 +24,7 @@ import pytest
 
 pytest.importorskip("ahrsd.daemon.service")
 
-from ahrsd.calibration.mag_offsets import fit_offsets_keep_soft_iron  # noqa: E402
+from ahrsd.calibration.mag.offsets import fit_offsets_keep_soft_iron  # noqa: E402
 from ahrsd.calibration.models import MagModel  # noqa: E402
 from ahrsd.calibration.store import CalibrationStore  # noqa: E402
 from ahrsd.core.sample import make_sample  # noqa: E402

@@ -224,7 +224,7 @@ def gps_raw_int(t_valid_s, course_rad, speed_m_s, fix_type=3, vel_acc_mm_s=0):
 
 
 def test_gnss_messages_reach_the_session_once_and_only_with_a_velocity(tmp_path):
-    """GPS_RAW_INT through drivers/gnss_mavlink.py: a repeated fix (same time_usec) is fed once, an unknown
+    """GPS_RAW_INT through drivers/gnss/mavlink.py: a repeated fix (same time_usec) is fed once, an unknown
     course is not fed, GLOBAL_POSITION_INT is left alone by default (the autopilot may fuse our heading), and
     the fix is stamped with the latest sample time minus gnss_latency_s."""
     host = FakeHost(tmp_path)

@@ -1,4 +1,4 @@
-"""Coverage, tilt, condition number, undetermined parameters and refusals (calibration/observability.py)."""
+"""Coverage, tilt, condition number, undetermined parameters and refusals (calibration/mag/observability.py)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from scipy.spatial.transform import Rotation
 
-from ahrsd.calibration import observability as ob
+from ahrsd.calibration.mag import observability as ob
 from ahrsd.core import angles
 from ahrsd.estimator.rotations import euler_to_dcm
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from ahrsd.calibration import swing
+from ahrsd.calibration.mag import swing
 from ahrsd.core.angles import wrap_180_deg
 
 EIGHT = ("N", "NE", "E", "SE", "S", "SW", "W", "NW")

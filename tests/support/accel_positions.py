@@ -7,7 +7,7 @@ import math
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ahrsd.calibration.accel_cal import GUIDED_TARGETS
+from ahrsd.calibration.inertial.accel import GUIDED_TARGETS
 
 
 def up_vectors(n_random: int = 0) -> np.ndarray:

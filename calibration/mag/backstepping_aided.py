@@ -1,0 +1,173 @@
+"""Back-stepping levelled by the GNSS-aided estimator (`ahrsd calibrate mag --method backstepping --gnss`).
+
+The vertical-channel fit (vertical_channel.py) takes the levelling as truth: a roll/pitch error δ is read as a
+vertical-field error H·δ and the fit bends the soft iron to explain it, so the heading moves by about
+tan(dip)·δ. With the true attitude the fit leaves hundredths of a degree of heading error on a heaving boat:
+the error is the levelling's (measured in docs/magcal-vehicle.md). What this module does about it:
+
+- **Smoothing** (`smooth`, on by default). The roll/pitch are those of the RTS smoother over the filter's whole
+  run (estimator/ins_smoother.py): each sample levelled with every fix, before and after it, so the bias
+  estimates of the end of the run reach back to its start. It removes most of the time-varying tilt error (on
+  the tuning seeds its spread about the mean drops from 0.06–0.10° to 0.03–0.04° per axis). A constant,
+  body-fixed part remains: a tilt ε with the accelerometer bias g·e_z×ε and the gyro misalignments m_xz = ε_y,
+  m_yz = −ε_x is (nearly) unobservable on a boat that mostly yaws, so what the heading acquisition and the
+  sensor's own errors put there stays (measured in docs/magcal-vehicle.md).
+- **The filter's start.** Until the aided filter has converged (the first 20–30 s) its tilt is off by tenths of
+  a degree; `settled_tilt_sigma_deg` leaves out the samples whose filter tilt 1σ is above it (off by default:
+  measured, it did not help on the whole).
+- **The heading: the magnetometer, heading only.** Levelled without a heading, the filter has to take its yaw
+  from the GNSS velocity during accelerations (Groves, Principles of GNSS, Inertial, and Multisensor Integrated
+  Navigation Systems, 2nd ed., §14.2.1), and on a boat that turns steadily a yaw error looks like an
+  accelerometer bias (the centripetal force, body-fixed in a steady turn, turned by the yaw error): on some runs
+  it never acquires the yaw (it keeps rejecting and resetting the velocity, its tilt degrees off), on others it
+  settles 10° off and the bias it draws to match tilts the horizon. So the run is levelled with the
+  magnetometer in the filter, calibrated by the accelerometer-levelled fit (its heading within a degree or two),
+  as a **heading-only** update (`mag_moves_tilt=False`): its calibration error must not move the tilt, which
+  it would by tan(dip) times the heading error. The fit from that levelling calibrates the magnetometer for the
+  next pass (MAG_HEADING_PASSES). Only when the accelerometer-levelled fit is refused does the filter level
+  without a magnetometer. `quality["aided_levelling"]["passes"]` reports each pass and its GNSS counters, and a
+  warning says when a pass rejected the GNSS velocities (a lever arm or time stamps the filter was not told).
+- **The accelerometer bias.** On a boat that stays near level and mostly yaws, a body-fixed accelerometer bias b
+  and a tilt b/g give nearly the same GNSS velocities, so 180 s of motion splits them only weakly and the
+  levelling's tilt is off by up to the bias the filter's prior allows (its default 10 mg: up to 0.6°). What
+  splits them is a bench calibration: with the accelerometer calibrated (`ahrsd calibrate accel`, applied
+  before the fit), pass `accel_bias_sigma_m_s2` = how well that calibration knows the bias
+  (ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 by default in the CLI), and the filter keeps the bias near zero and takes
+  the tilt from the data (measured in docs/magcal-vehicle.md).
+
+No centripetal compensation is applied: the aided horizon does not lean into turns.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
+
+from .levelling import attitude_from_estimator
+from .fit_types import MagFitInput, MagFitResult
+
+AIDED_ESTIMATOR = "ins"
+SETTLED_TILT_SIGMA_DEG = math.inf   # fit only where the filter's tilt 1σ is below this; on the tuning seeds
+                                    # (bench/backstepping_gnss.py --sweep) no limit did as well as any
+MAG_HEADING_PASSES = 2          # aided levelling passes with the magnetometer (heading only), each calibrated by
+                                # the previous fit; chosen on the tuning seeds (docs/magcal-vehicle.md)
+MAX_REJECTED_VELOCITY_FRACTION = 0.01   # of the offered fixes: more, and the filter did not converge
+MIN_SETTLED_FRACTION = 0.25    # fewer settled samples than this: fit them all (a short run)
+SMOOTH_LEVELLING = True        # level with the RTS smoother over the whole run (estimator/ins_smoother.py)
+ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 = 2e-3 * STANDARD_GRAVITY_M_S2   # residual accelerometer bias 1σ with a bench
+    # calibration in force: the fit's own uncertainty (its quality.sigma_bias_m_s2), the ADIS16405's 0.2 mg
+    # in-run instability, and a margin for the change between the bench power-up and the run's, which the data
+    # sheet does not give
+
+
+def aided_roll_pitch(data: MagFitInput, fixes, declination_rad: float, mag_enabled: bool = False,
+                     smooth: bool = SMOOTH_LEVELLING, accel_bias_sigma_m_s2: float | None = None,
+                     filter_overrides: dict | None = None):
+    """The levelling the fit uses: roll, pitch and tilt 1σ (rad, per sample) of the aided estimator over `data`
+    with the GNSS `fixes`, and the estimator (its GNSS counters). `smooth`: those of the RTS smoother over the
+    filter's run (given every fix, before and after) instead of the filter's own (given the fixes before).
+    `accel_bias_sigma_m_s2`: the filter's accelerometer-bias prior (None: its default, for an uncalibrated
+    accelerometer). `filter_overrides`: other InsParams fields of the filter (e.g. the gyro-misalignment prior of
+    a rate-table-calibrated gyro)."""
+    from ahrsd.estimator import make_estimator
+    from ahrsd.estimator.ins_smoother import SmoothingIns
+
+    prior = dict(filter_overrides or {})
+    if accel_bias_sigma_m_s2 is not None:
+        prior["init_accel_bias_sigma_m_s2"] = float(accel_bias_sigma_m_s2)
+    est = (SmoothingIns(declination_rad=declination_rad, mag_enabled=mag_enabled, **prior) if smooth else
+           make_estimator(AIDED_ESTIMATOR, declination_rad=declination_rad, mag_enabled=mag_enabled, **prior))
+    roll, pitch, tilt_sigma = attitude_from_estimator(data, AIDED_ESTIMATOR, fixes=fixes, estimator=est)
+    if smooth:
+        sr, sp, ss = est.smoothed_roll_pitch()
+        ok = np.isfinite(sr) & np.isfinite(sp)
+        roll, pitch, tilt_sigma = np.where(ok, sr, roll), np.where(ok, sp, pitch), np.where(ok, ss, tilt_sigma)
+    return roll, pitch, tilt_sigma, est
+
+
+def _level(data: MagFitInput, fixes, declination_rad: float, mag_enabled: bool, settled_tilt_sigma_deg: float,
+           smooth: bool, accel_bias_sigma_m_s2: float | None, filter_overrides: dict | None):
+    """Roll, pitch, the settled mask and whether the filter fused the GNSS velocity cleanly."""
+    roll, pitch, tilt_sigma, est = aided_roll_pitch(data, fixes, declination_rad, mag_enabled, smooth,
+                                                    accel_bias_sigma_m_s2, filter_overrides)
+    settled = tilt_sigma <= math.radians(settled_tilt_sigma_deg)
+    if settled.mean() < MIN_SETTLED_FRACTION:
+        settled = np.ones(len(data), dtype=bool)
+    c = est.gnss_counters
+    healthy = c.reset_velocity == 0 and c.rejected_velocity <= MAX_REJECTED_VELOCITY_FRACTION * max(c.offered, 1)
+    return roll, pitch, settled, {"gnss": {"offered": c.offered, "fused_velocity": c.fused_velocity,
+                                           "rejected_velocity": c.rejected_velocity,
+                                           "reset_velocity": c.reset_velocity}, "healthy": healthy}
+
+
+def _fit_settled(data: MagFitInput, roll, pitch, settled, reference, options: dict) -> MagFitResult:
+    from .backstepping import fit_backstepping
+
+    return fit_backstepping(data.select(settled), reference, roll_rad=roll[settled], pitch_rad=pitch[settled],
+                            speed_m_s=None, **options)
+
+
+def _pass_report(data: MagFitInput, settled, res: MagFitResult, health: dict) -> dict:
+    return {"n_settled": int(settled.sum()), "settled_from_s": float(data.t_s[np.argmax(settled)]),
+            "ok": res.ok, "refused": res.refused, **health}
+
+
+def _rejection_warning(passes: list, filter_overrides: dict | None) -> str | None:
+    """When a levelling pass did not fuse the GNSS velocities cleanly: its counts and the likely causes (a filter
+    whose heading is right fuses a correct fix)."""
+    bad = [p for p in passes if not p.get("healthy", True)]
+    if not bad:
+        return None
+    g = bad[-1]["gnss"]
+    arm = tuple(float(v) for v in (filter_overrides or {}).get("lever_arm_m", (0.0, 0.0, 0.0)))
+    return (f"the aided levelling ({bad[-1]['magnetometer']}) rejected {g['rejected_velocity']} of {g['offered']} "
+            f"GNSS velocities and reset its velocity {g['reset_velocity']} times: check the antenna's lever arm "
+            f"(the levelling was told {' '.join(f'{v:g}' for v in arm)} m, body FRD from the IMU) and the fixes' "
+            "time stamps")
+
+
+def fit_backstepping_aided(data: MagFitInput, fixes, reference, declination_rad: float,
+                           settled_tilt_sigma_deg: float = SETTLED_TILT_SIGMA_DEG, smooth: bool = SMOOTH_LEVELLING,
+                           accel_bias_sigma_m_s2: float | None = None, filter_overrides: dict | None = None,
+                           **options) -> MagFitResult:
+    """Back-stepping (`fit_backstepping`, `options` its BacksteppingOptions fields) levelled by the aided
+    estimator over `data` (raw magnetometer; the accelerometer as calibrated, if it is) with the GNSS `fixes`
+    (time of validity on the samples' time base). `accel_bias_sigma_m_s2`: how well the accelerometer bias is
+    known (None: uncalibrated, the filter's default prior); `filter_overrides`: other InsParams fields of the
+    levelling filter. See the module docstring;
+    `quality["aided_levelling"]` reports each pass."""
+    from .backstepping import fit_backstepping
+
+    if accel_bias_sigma_m_s2 is not None and not (math.isfinite(accel_bias_sigma_m_s2) and accel_bias_sigma_m_s2 > 0):
+        raise ValueError(f"accel_bias_sigma_m_s2 must be a positive number, got {accel_bias_sigma_m_s2!r}")
+    seed = fit_backstepping(data, reference, **options)
+    passes = [{"levelling": "accelerometer", "ok": seed.ok, "refused": seed.refused}]
+    result, model = None, (seed.model if seed.ok else None)
+    heading_only = {**(filter_overrides or {}), "mag_moves_tilt": False}
+    for _ in range(MAG_HEADING_PASSES if model is not None else 0):
+        calibrated = dataclasses.replace(data, mag_ut=np.ascontiguousarray(model.apply(data.mag_ut)))
+        roll, pitch, settled, health = _level(calibrated, fixes, declination_rad, True, settled_tilt_sigma_deg,
+                                              smooth, accel_bias_sigma_m_s2, heading_only)
+        res = _fit_settled(data, roll, pitch, settled, reference, options)
+        passes.append({"magnetometer": "heading only, the previous fit's calibration",
+                       **_pass_report(data, settled, res, health)})
+        if not res.ok:
+            break
+        result, model = res, res.model
+    if result is None:   # no calibration to take the heading from: the GNSS velocity alone
+        roll, pitch, settled, health = _level(data, fixes, declination_rad, False, settled_tilt_sigma_deg, smooth,
+                                              accel_bias_sigma_m_s2, filter_overrides)
+        result = _fit_settled(data, roll, pitch, settled, reference, options)
+        passes.append({"magnetometer": "off", **_pass_report(data, settled, result, health)})
+    warning = _rejection_warning(passes, filter_overrides)
+    if warning:
+        result.quality.setdefault("warnings", []).append(warning)
+    result.quality["aided_levelling"] = {"estimator": AIDED_ESTIMATOR, "smoothed": smooth,
+                                         "accel_bias_sigma_m_s2": accel_bias_sigma_m_s2,
+                                         "filter_overrides": dict(filter_overrides or {}),
+                                         "settled_tilt_sigma_deg": settled_tilt_sigma_deg, "passes": passes}
+    return result

@@ -1,0 +1,49 @@
+"""Roll and pitch for levelling magnetometer samples: from an attitude estimator run over the recording, aided
+by GNSS fixes when there are some (the aided estimator's horizon does not lean into turns and accelerations)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ahrsd.core.sample import make_sample
+from ahrsd.estimator import make_estimator
+
+from .backstepping_paper import BacksteppingError
+from .fit_types import MagFitInput
+
+
+def roll_pitch_from_estimator(data: MagFitInput, name: str = "mekf", fixes=None,
+                              **params) -> tuple[np.ndarray, np.ndarray]:
+    """Run `ahrsd.estimator.make_estimator(name, **params)` over the samples (raw magnetometer: the estimator's
+    design keeps magnetometer errors out of roll/pitch) and return its roll and pitch per sample.
+
+    fixes: GNSS fixes (core.gnss.GnssFix, time order, on the samples' time base) for an aided estimator (one
+    with `update_gnss`, e.g. "ins"): each is offered before the first sample not earlier than it, as
+    `ahrsd replay --gnss` does."""
+    roll, pitch, _ = attitude_from_estimator(data, name, fixes, **params)
+    return roll, pitch
+
+
+def attitude_from_estimator(data: MagFitInput, name: str = "mekf", fixes=None, estimator=None,
+                            **params) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """As `roll_pitch_from_estimator`, plus the estimator's own 1σ of the tilt per sample (rad,
+    √(σ_roll² + σ_pitch²)): how far it has converged. `estimator`: run this (fresh) estimator object instead of
+    making one (the caller then reads its counters)."""
+    if data.gyro_rad_s is None or data.accel_m_s2 is None:
+        raise BacksteppingError("the estimator needs gyro and accelerometer samples")
+    est = estimator if estimator is not None else make_estimator(name, **params)
+    if fixes is not None and not hasattr(est, "update_gnss"):
+        raise BacksteppingError(f"estimator {name!r} takes no GNSS fixes: use an aided one (ins)")
+    fixes = list(fixes) if fixes is not None else []
+    n = len(data)
+    roll, pitch, tilt_sigma = np.empty(n), np.empty(n), np.empty(n)
+    j = 0
+    for i in range(n):
+        t = data.t_s[i]
+        while j < len(fixes) and fixes[j].t_s <= t:
+            est.update_gnss(fixes[j])
+            j += 1
+        e = est.update(make_sample(t, data.gyro_rad_s[i], data.accel_m_s2[i], data.mag_ut[i]))
+        roll[i], pitch[i] = e.roll_rad, e.pitch_rad
+        tilt_sigma[i] = float(np.hypot(e.sigma_rpy_rad[0], e.sigma_rpy_rad[1]))
+    return roll, pitch, tilt_sigma

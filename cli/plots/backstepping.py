@@ -1,0 +1,90 @@
+"""The back-stepping report figure (matplotlib, the optional `ahrsd[plot]` extra)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ahrsd.core.angles import down_in_body, roll_pitch_from_accel, wrap_180_deg
+
+from ahrsd.calibration.mag import swing
+from ahrsd.calibration.mag.backstepping_paper import BacksteppingError, magnetic_heading_deg
+from ahrsd.calibration.mag.fit_types import MagFitInput, MagFitResult, finite_rows
+from ahrsd.calibration.mag.observability import level_vectors, lowpass
+from ahrsd.core.plotting import pyplot
+from ahrsd.calibration.mag.vertical_channel import centripetal_direction, corrected_down
+
+def plot_backstepping(result: MagFitResult, data: MagFitInput, path, *, roll_rad=None, pitch_rad=None,
+                      reference=None, swing_table=None) -> None:
+    """Report figure: levelled horizontal field before/after (should be a circle of radius H_h), |H| and H_z
+    over time before/after, and heading error vs heading when data.heading_ref_deg exists or a compass-swing
+    table `swing_table=(reference_deg, compass_deg)` is given (its points and the fitted card). Writes `path`.
+    Raises PlotUnavailableError when matplotlib (the `ahrsd[plot]` extra) is not installed."""
+    plt = pyplot()
+    ok = finite_rows(data.mag_ut)
+    d = data.select(ok)
+    if roll_rad is None:
+        if d.accel_m_s2 is None:
+            raise BacksteppingError("plot needs roll/pitch or accelerometer samples")
+        roll_rad, pitch_rad = roll_pitch_from_accel(lowpass(d.accel_m_s2, d.t_s, 0.2))
+        # level as the fit did: without the accelerometer's lean into turns (the fitted forward speed)
+        speed = result.quality.get("vertical_channel", {}).get("centripetal_speed_m_s")
+        if isinstance(speed, (int, float)) and d.gyro_rad_s is not None:
+            d0 = down_in_body(roll_rad, pitch_rad)
+            dn = corrected_down(d0, centripetal_direction(d.gyro_rad_s, d0), speed)
+            roll_rad, pitch_rad = np.arctan2(dn[:, 1], dn[:, 2]), -np.arcsin(np.clip(dn[:, 0], -1.0, 1.0))
+    else:
+        roll_rad, pitch_rad = np.asarray(roll_rad)[ok], np.asarray(pitch_rad)[ok]
+    raw = d.mag_ut - np.median(d.mag_ut, axis=0)
+    cal = result.model.apply(d.mag_ut)
+    lv_raw, lv_cal = level_vectors(raw, roll_rad, pitch_rad), level_vectors(cal, roll_rad, pitch_rad)
+    has_ref = (d.heading_ref_deg is not None and np.isfinite(d.heading_ref_deg).any()) or swing_table is not None
+    fig, axes = plt.subplots(1, 3 if has_ref else 2, figsize=(15 if has_ref else 10, 4.5))
+    ax = axes[0]
+    ax.plot(lv_raw[:, 1], lv_raw[:, 0], ".", ms=1, label="raw (centred)")
+    ax.plot(lv_cal[:, 1], lv_cal[:, 0], ".", ms=1, label="calibrated")
+    q = result.quality.get("reference", {})
+    if q.get("vertical_ut") is not None:
+        hh = math.sqrt(max(q["total_ut"] ** 2 - q["vertical_ut"] ** 2, 0))
+        th = np.linspace(0, 2 * math.pi, 200)
+        ax.plot(hh * np.sin(th), hh * np.cos(th), "k--", lw=0.8, label=f"WMM H_h {hh:.1f} µT")
+    ax.set_aspect("equal")
+    ax.set_xlabel("east-ish (µT)")
+    ax.set_ylabel("north-ish (µT)")
+    ax.set_title("levelled horizontal field")
+    ax.legend(fontsize=7)
+    ax = axes[1]
+    ax.plot(d.t_s, np.linalg.norm(cal, axis=1), lw=0.6, label="|H| calibrated")
+    ax.plot(d.t_s, lv_cal[:, 2], lw=0.6, label="H_z calibrated")
+    if q.get("total_ut"):
+        ax.axhline(q["total_ut"], color="k", ls="--", lw=0.8)
+    if q.get("vertical_ut") is not None:
+        ax.axhline(q["vertical_ut"], color="k", ls=":", lw=0.8)
+    ax.set_xlabel("t (s)")
+    ax.set_ylabel("µT")
+    ax.set_title(f"{result.method}: residual {result.residual_rms_ut:.3f} µT")
+    ax.legend(fontsize=7)
+    if has_ref:
+        ax = axes[2]
+        if d.heading_ref_deg is not None and np.isfinite(d.heading_ref_deg).any():
+            psi = magnetic_heading_deg(cal, roll_rad, pitch_rad)
+            decl = q.get("declination_deg", 0.0) or 0.0
+            err = wrap_180_deg((d.heading_ref_deg - decl) - psi)
+            ax.plot(psi, err, ".", ms=2, label="recording (heading_ref_deg)")
+        if swing_table is not None:
+            ref_deg, compass_deg = (np.asarray(a, dtype=np.float64) for a in swing_table)
+            ax.plot(compass_deg, wrap_180_deg(ref_deg - compass_deg), "o", label="swing table")
+            card = result.quality.get("heading_reference", {})
+            if "B_deg" in card:
+                grid = np.linspace(0.0, 360.0, 181)
+                coef = swing.DeviationCoefficients(card["A_deg"], card["B_deg"], card["C_deg"], card["D_deg"],
+                                                   card["E_deg"])
+                ax.plot(grid, coef.deviation_deg(grid), "k-", lw=0.8, label="card A..E (before folding A)")
+        ax.legend(fontsize=7)
+        ax.set_xlabel("magnetic heading (deg)")
+        ax.set_ylabel("reference − magnetometer (deg)")
+        ax.set_title("heading error vs heading")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,103 @@
+"""A failed run exits non-zero with one line; a recording cut mid-row (a recorder killed) is used up to its last
+complete row, with a warning naming the line, by `run --replay`, `replay` and `calibrate`."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from ahrsd.cli import main as cli
+from ahrsd.drivers import recording as rec
+from ahrsd.drivers.recording import RECORDING_HEADER, RecordingFormatError, read_recording
+
+ROW = "{t:.6f},0.001,-0.002,0.0005,0.05,-0.03,-9.80665,20.0,1.5,45.0\n"
+
+
+def ahrsd(*args, timeout=180):
+    return subprocess.run([sys.executable, "-m", "ahrsd.cli", *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def write_rows(path, n, rate_hz=819.2, tail=""):
+    path.write_text(RECORDING_HEADER + "\n" + "".join(ROW.format(t=k / rate_hz) for k in range(n)) + tail)
+    return path
+
+
+@pytest.fixture
+def cut_file(tmp_path):
+    """1000 complete rows, then a row cut in its fourth field (line 1002, no newline)."""
+    return write_rows(tmp_path / "cut.csv", 1000, tail="0.25,0.001,-0.0")
+
+
+def test_run_replay_of_a_missing_file_fails_at_once_in_one_line(tmp_path):
+    r = ahrsd("run", "--replay", tmp_path / "missing.csv", "--no-log", "--status-line", "off",
+              "--state-dir", tmp_path / "s", "--mavlink", "udpout:127.0.0.1:9")
+    assert r.returncode == 1
+    assert r.stderr.strip().splitlines() == [f"ahrsd run: error: cannot replay {tmp_path / 'missing.csv'}: "
+                                             "No such file or directory"]
+
+
+def test_run_replay_of_a_bad_header_fails_in_one_line(tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time,gx\n1,2\n")
+    r = ahrsd("run", "--replay", bad, "--no-log", "--status-line", "off", "--state-dir", tmp_path / "s")
+    assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1
+    assert "ahrsd run: error: cannot replay" in r.stderr and "'t_s'" in r.stderr
+
+
+def test_run_replay_that_meets_a_bad_row_exits_non_zero_and_a_cut_one_replays_to_the_end(tmp_path, cut_file):
+    bad = write_rows(tmp_path / "bad_row.csv", 1000, tail="0.3,1,2\n" + ROW.format(t=0.31))
+    common = ("--no-log", "--status-line", "off", "--state-dir", tmp_path / "s", "--mavlink", "udpout:127.0.0.1:9",
+              "--replay-speed", "50")
+    r = ahrsd("run", "--replay", bad, *common)
+    assert r.returncode == 1, r.stderr
+    last = r.stderr.strip().splitlines()[-1]
+    assert last.startswith("ahrsd run: error: the replay stopped early:") and "line 1002" in last
+    r = ahrsd("run", "--replay", cut_file, *common)
+    assert r.returncode == 0, r.stderr
+    assert "line 1002 is incomplete" in r.stderr and "using the 1000 complete rows" in r.stderr
+    assert "replay finished" in r.stderr
+
+
+def test_replay_uses_the_complete_rows_of_a_cut_file(tmp_path, cut_file, caplog):
+    out = tmp_path / "att.csv"
+    assert cli.main(["replay", str(cut_file), "-o", str(out), "-q", "-e", "thesis"]) == 0
+    assert len(out.read_text().splitlines()) == 1 + 1000
+    assert "line 1002 is incomplete" in caplog.text
+
+
+def test_calibrate_uses_the_complete_rows_of_a_cut_file(tmp_path, cut_file, capsys, caplog):
+    import json
+
+    code = cli.main(["calibrate", "gyro", "--bias-only", str(cut_file), "--state-dir", str(tmp_path / "s"), "--json",
+                     "--dry-run"])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "line 1002 is incomplete" in caplog.text
+    payload = json.loads(captured.out)
+    assert payload["quality"]["n_used"] == 1000
+
+
+def test_calibrate_allan_streams_the_complete_rows_of_a_cut_file(tmp_path, cut_file, capsys, caplog):
+    code = cli.main(["calibrate", "allan", str(cut_file), "--state-dir", str(tmp_path / "s"), "--json", "--dry-run"])
+    captured = capsys.readouterr()
+    assert "line 1002 is incomplete" in caplog.text
+    assert "line 1002" not in captured.out       # not refused: the cut row is dropped, not reported as an error
+    assert code in (0, 1)                        # 1000 rows may be too short for the analysis: that is its own message
+
+
+def test_a_cut_last_row_on_a_chunk_boundary_is_dropped_too(tmp_path, monkeypatch):
+    monkeypatch.setattr(rec, "CHUNK_ROWS", 10)
+    path = write_rows(tmp_path / "b.csv", 19, tail="0.9,0,0")     # line 21: the 20th line of the body, a chunk's last
+    assert len(read_recording(path, strict=False)) == 19
+    with pytest.raises(RecordingFormatError, match="line 21"):
+        read_recording(path)
+
+
+def test_a_full_row_without_its_final_newline_is_kept(tmp_path):
+    path = write_rows(tmp_path / "n.csv", 5, tail=ROW.format(t=1.0).rstrip("\n"))
+    r = read_recording(path, strict=False)
+    assert len(r) == 6 and np.isclose(r.t_s[-1], 1.0)

@@ -1,0 +1,37 @@
+"""A real Signal K server (signalk-server from the npm registry) reads ahrsd's NMEA 0183 output: its own
+parser turns our sentences into navigation.headingTrue, headingMagnetic, rateOfTurn and attitude with the
+values, units and signs Signal K defines, at the configured rates (bench/signalk.py runs the same check longer).
+Skips with the reason when Node.js or the server package cannot be had."""
+
+from __future__ import annotations
+
+import pytest
+
+from bench.signalk import PATHS, SignalKUnavailable, ensure_server, run_check
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def reports():
+    try:
+        ensure_server(log=lambda *_: None)
+    except SignalKUnavailable as exc:
+        pytest.skip(f"no Signal K server here: {exc}")
+    return {r.path: r for r in run_check(seconds=8.0, log=lambda *_: None)}
+
+
+def test_signal_k_shows_every_path_with_our_values(reports):
+    assert set(reports) == set(PATHS)
+    for path, r in reports.items():
+        assert r.updates >= 30, (path, r)
+        assert r.matched == r.updates, (path, r)            # every update is one of our sentences
+        assert r.max_difference < 1e-6, (path, r)           # same value, Signal K's units (rad, rad/s)
+
+
+def test_signal_k_updates_at_our_rates(reports):
+    # HDG also gives Signal K a true heading (magnetic + variation): two 10 Hz sources of headingTrue
+    expected_hz = {"navigation.headingTrue": 20.0, "navigation.headingMagnetic": 10.0,
+                   "navigation.rateOfTurn": 5.0, "navigation.attitude": 5.0}
+    for path, hz in expected_hz.items():
+        assert reports[path].rate_hz == pytest.approx(hz, rel=0.2), (path, reports[path])
