@@ -374,7 +374,7 @@ def evaluate(r: dict) -> tuple[list[str], list[str]]:
     ss = r["last_sys_status"]
     if ss is not None:
         lines.append(f"last SYS_STATUS: errors_comm {ss.errors_comm}, count1 (refused unsigned) {ss.errors_count1}, "
-                     f"count2 (lost samples) {ss.errors_count2}, count3 (overruns) {ss.errors_count3}, "
+                     f"count2 (missed samples) {ss.errors_count2}, count3 (late samples) {ss.errors_count3}, "
                      f"count4 (sensor errors) {ss.errors_count4}")
     if "start" in r["cpu"] and "end" in r["cpu"]:
         (c0, w0, b0), (c1, w1, b1) = r["cpu"]["start"], r["cpu"]["end"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.output_registry import BY_MESSAGE_ID
+from ahrsd.daemon.run_stats import sample_accounting
 
 
 class Publishers:
@@ -48,11 +49,10 @@ class Publishers:
                                                                 self.gnss.sensor_bits(now)))
         links = self.endpoints
         errors_comm = sum(e.counters.rx_malformed + e.counters.rx_bad_signature for e in links)
-        pc = self.pipeline.counters
         unsigned = self.commands.counters.unsigned_refused + self.counters.unsigned_refused
-        sensor_errors = self.counters.driver_errors + self.counters.frame_errors
+        acc = sample_accounting(self)             # missed, late, corrupt (+ bus failures) samples
         return msgs.sys_status(present, enabled, healthy, self.load_permille, errors_comm,
-                               (unsigned, pc.lost_samples, self.counters.overruns, sensor_errors))
+                               (unsigned, acc["missed"], acc["late"], acc["corrupt"] + self.counters.driver_errors))
 
     def _send_heartbeat(self, now: float) -> None:
         self.send(msgs.heartbeat(self.mav_type, self.health.system_status(now)))

@@ -15,6 +15,7 @@ from ahrsd.drivers.errors import FrameError
 log = logging.getLogger(__name__)
 
 DRIVER_RETRY_S = 0.2
+LATE_AFTER_S = 0.05               # a sample used this long after it became ready is counted late (run_stats)
 FRAME_ERRORS_FOR_FAILURE = 100                   # consecutive corrupt frames (≈ 0.12 s) = sensor failure
 
 # IntFlag operators go through the enum machinery (µs each); the per-sample path tests bits on plain ints
@@ -101,6 +102,7 @@ class SampleReader:
                 samples = source.poll()
             except Exception as exc:  # noqa: BLE001
                 self._on_driver_error(exc)
+                self._publish(loop.time())      # SYS_STATUS keeps flowing: the GCS sees the health bits cleared
                 await asyncio.sleep(DRIVER_RETRY_S)
                 deadline = loop.time()
                 continue
@@ -126,12 +128,15 @@ class SampleReader:
             health.sensor_error = ""
             self.statustext(mavlink.MAV_SEVERITY_NOTICE, "ahrsd: sensor recovered")
         est = None
+        reinitialised = False
         listeners = self._listeners
         log_put = self._sample_log_put        # daemon.vehicle_log: a queue append, never blocks
         for raw in samples:
             if log_put is not None:
                 log_put(raw)
             est = pipeline.process(raw)
+            if est is not None and _int_and(est.flags, _REINITIALISED):
+                reinitialised = True          # on any sample of a block, not only the last one
             if listeners and est is not None:
                 snapshot = pipeline.last_estimate      # listeners may keep it: the immutable one
                 for fn in tuple(listeners):
@@ -140,11 +145,17 @@ class SampleReader:
                     except Exception:  # noqa: BLE001 - a faulty listener is dropped, the reader carries on
                         log.exception("sample listener %r failed; removed", fn)
                         listeners.remove(fn)
+        if not self.recording_time_base:           # samples are in time order: count from the oldest
+            ready_by = now - LATE_AFTER_S - getattr(self.source, "monotonic_offset_s", 0.0)
+            for raw in samples:
+                if raw.t_s >= ready_by:
+                    break
+                self.counters.late_samples += 1
         health.last_sample_time = now
         health.last_sample_flags = samples[-1].flags
+        if reinitialised:
+            self.signal_heading_reset()           # a genuine re-initialisation: signalled, not slewed
         if est is not None:
-            if _int_and(est.flags, _REINITIALISED):
-                self.signal_heading_reset()       # a genuine re-initialisation: signalled, not slewed
             health.last_estimate_flags = est.flags
             if not self.ready_sent and not _int_and(est.flags, _INITIALISING):
                 self.ready_sent = True

@@ -72,6 +72,7 @@ DEFAULT_SYSTEM_ID = 1                            # until an autopilot heartbeat 
 class ServiceCounters:
     wakes: int = 0
     overruns: int = 0            # reader wakes that started after their deadline by more than one period
+    late_samples: int = 0        # samples the estimator got more than LATE_AFTER_S after the chip produced them
     driver_errors: int = 0       # bus failures (and runs of corrupt frames) that put the sensor in failure
     frame_errors: int = 0        # single corrupt frames rejected by the driver
     unsigned_refused: int = 0    # PARAM_SET refused unsigned (commands are counted by the router)

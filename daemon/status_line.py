@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 from ahrsd.daemon.health import STATE_NAMES
+from ahrsd.daemon.run_stats import sample_accounting
 
 
 def format_status(s, now: float) -> str:
@@ -19,9 +20,9 @@ def format_status(s, now: float) -> str:
         parts.append(f"hdg {math.degrees(est.heading_true_rad) % 360.0:5.1f}T "
                      f"±{math.degrees(float(est.sigma_rpy_rad[2])):4.1f}")
     parts.append(STATE_NAMES.get(s.health.system_status(now), "?"))
-    c = s.pipeline.counters if s.pipeline else None
+    acc = sample_accounting(s)
     link = s.link_totals()
-    parts.append(f"gaps {c.gaps if c else 0} ovr {s.counters.overruns} "
+    parts.append(f"missed {acc['missed']} late {acc['late']} corrupt {acc['corrupt']} "
                  f"tx {link['tx']} rx {link['rx']} bad {link['bad']}")
     if getattr(s, "gnss", None) is not None:
         parts.append(s.gnss.status(now))
