@@ -149,7 +149,8 @@ class SensorConfig:
     data_ready: str = ""                # source = "spi": the GPIO of the chip's DIO1 data-ready, "gpiochip0:25"
                                         # ("": reads paced by the host timer)
     iio_device: str = "iio:device0"     # source = "iio": the IIO device (name under /sys/bus/iio/devices)
-    reader: str = "thread"              # sim/spi: "thread" (read in a dedicated thread) or "event_loop"
+    reader: str = "auto"                # sim/spi: read in a dedicated "thread", a child "process", on the
+                                        # "event_loop"; "auto": process for spi, thread for sim (docs/drivers.md)
     replay_file: str = ""               # source = "replay": a recording written by `ahrsd record`
     replay_realtime: bool = True        # replay at the recorded pace (false: as fast as possible)
     replay_speed: float = 1.0           # realtime replay: this many times faster than recorded (1 = real time)
@@ -161,7 +162,7 @@ class SensorConfig:
     def parse(cls, d: dict, prefix="sensor") -> "SensorConfig":
         cfg = cls(**_parse_table(cls, d, prefix, {
             "source": _choice_of(("sim", "spi", "iio", "replay")), "data_ready": _string, "iio_device": _string,
-            "reader": _choice_of(("thread", "event_loop")), "scenario": _choice_of(SCENARIOS),
+            "reader": _choice_of(("auto", "thread", "process", "event_loop")), "scenario": _choice_of(SCENARIOS),
             "seed": _number_in(0, 2**32 - 1, integer=True), "errors": _choice_of(("adis16405", "ideal")),
             "spi_device": _string, "replay_file": _string, "replay_realtime": _bool,
             "replay_speed": _number_in(MIN_REPLAY_SPEED, MAX_REPLAY_SPEED), "mounting_rpy_deg": _mounting,

@@ -30,6 +30,7 @@ from pathlib import Path
 
 from ahrsd.drivers import registers as R
 from ahrsd.drivers.simulated import SimulatedAdis16405, SimulatedDataReadyLine
+from ahrsd.drivers.threaded_source import set_realtime_priority
 
 log = logging.getLogger(__name__)
 
@@ -134,6 +135,8 @@ class SimulatedIioDevice:
         return [(n, i, t) for n, i, t in SCAN_ELEMENTS if self._read(f"scan_elements/{n}_en") == "1"]
 
     def _run(self) -> None:
+        # the kernel's threaded IRQ handlers run SCHED_FIFO 50: so does this one, where the system allows it
+        set_realtime_priority()
         while not self._stop.is_set():
             if self._read("buffer/enable") != "1":
                 time.sleep(0.01)

@@ -70,12 +70,17 @@ def start_chip_source(bus, description: str, *, clock=time.monotonic, **start) -
 def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
     """The source `sensor_cfg` names (`source` = "sim" | "spi" | "iio" | "replay", with its keys: any object with the
     attributes of daemon.config.SensorConfig): a chip with start-up retries and bus reconnection — read in a
-    dedicated thread unless `reader` = "event_loop" —, the kernel's IIO driver (drivers.iio_source), or a replay.
+    dedicated thread (`reader` = "thread"), in a child process ("process": drivers.process_source) or on the
+    daemon's event loop ("event_loop") —, the kernel's IIO driver (drivers.iio_source), or a replay.
 
     faults: a drivers.faults.FaultPlan for the simulated chip (refused for a real sensor); the simulated chip
     is wrapped in drivers.ground_truth.GroundTruthSource, which accounts its lost samples against the truth.
     """
     kind = sensor_cfg.source
+    if kind in ("sim", "spi") and reader_kind(sensor_cfg) == "process":
+        from ahrsd.drivers.process_source import ProcessSource
+
+        return ProcessSource(sensor_cfg, faults=faults)     # the same source, read in a child process
     if kind == "replay":
         from ahrsd.drivers.recording import iter_samples
 
@@ -132,10 +137,19 @@ def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
     return _off_the_loop(src, sensor_cfg, clock)
 
 
+def reader_kind(sensor_cfg) -> str:
+    """`[sensor] reader`: "auto" is a child process for the real chip (its own GIL: docs/drivers.md, measured)
+    and a thread for the simulated one (which the simulated GNSS receiver and the ground truth share)."""
+    reader = getattr(sensor_cfg, "reader", "auto")
+    if reader == "auto":
+        return "process" if sensor_cfg.source == "spi" else "thread"
+    return reader
+
+
 def _off_the_loop(src, sensor_cfg, clock):
-    """The per-sample chip source read in its own thread (`[sensor] reader = "thread"`, the default:
-    drivers.threaded_source), or left to the daemon's event loop ("event_loop")."""
-    if getattr(sensor_cfg, "reader", "thread") != "thread":
+    """The per-sample chip source read in its own thread (`[sensor] reader = "thread"`: drivers.threaded_source),
+    or left to the daemon's event loop ("event_loop")."""
+    if reader_kind(sensor_cfg) != "thread":
         return src
     from ahrsd.drivers.threaded_source import ThreadedSource
 
