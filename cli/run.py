@@ -95,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
     from ahrsd.daemon.sensor_recovery import report_sensor_alarms
     from ahrsd.daemon.service import Service
     from ahrsd.drivers.replay_source import ReplaySource
+    from ahrsd.drivers.errors import DriverError
     from ahrsd.drivers.source import open_source
 
     if cfg.sensor.source == "replay":
@@ -106,7 +107,11 @@ def run(args: argparse.Namespace) -> int:
             print(f"ahrsd run: error: cannot replay {_os_error_text(exc, cfg.sensor.replay_file)}", file=sys.stderr)
             return 1
     # the chip sources retry a failed start and a lost bus with backoff (daemon.sensor_recovery)
-    source = open_source(cfg.sensor, faults=plan)
+    try:
+        source = open_source(cfg.sensor, faults=plan)
+    except DriverError as exc:   # a missing IIO device or data-ready GPIO: one line, not a traceback
+        print(f"ahrsd run: error: {exc}", file=sys.stderr)
+        return 1
     service = Service(cfg, source=source)
 
     async def main() -> int:

@@ -3,10 +3,11 @@ in a dedicated thread, its samples handed to the daemon in blocks through a boun
 block path a recording uses), so a slow MAVLink peer, a log flush or a GNSS burst on the event loop never
 delays a read.
 
-Why a thread and not a process, and what the GIL does to it: docs/drivers.md ("A reader the event loop cannot
-starve", measured with bench/reader_gil.py). The interpreter's switch interval bounds how long a thread that
-wants the GIL waits while the event loop runs Python code; at 819.2 SPS the chip keeps a sample for 1.22 ms,
-so the source lowers it to SWITCH_INTERVAL_S for the whole process while it runs.
+What the GIL does to it (docs/drivers.md, measured with bench/reader_gil.py): the interpreter's switch
+interval bounds how long this thread waits for the GIL while the event loop runs Python code; at 819.2 SPS the
+chip keeps a sample for 1.22 ms, so the source lowers it to SWITCH_INTERVAL_S for the whole process while it
+runs. Where the CPU is contended a process loses less (its own GIL): drivers.process_source runs this same
+reader in a child process, the default for the real chip.
 
 The thread asks for SCHED_FIFO (`os.sched_setscheduler`) when the system allows it (root, CAP_SYS_NICE or an
 RLIMIT_RTPRIO, e.g. systemd's `LimitRTPRIO=`); when not, it says so once in the log and runs at normal priority.

@@ -151,3 +151,12 @@ def test_the_simulated_iio_device_through_the_daemon(tmp_path):
     assert truth >= 0.25 * 819.2 * 0.9 and device.stats["overflow_dropped"] == 0
     assert st["pipeline"]["lost_samples"] == st["source"]["lost_samples_host"] == truth, (st, truth)
     assert "through the kernel's IIO driver" in out
+
+
+def test_a_missing_iio_device_is_one_line_not_a_traceback(tmp_path, capsys):
+    from ahrsd.cli.main import main
+
+    code = main(["run", "--iio", str(tmp_path / "sys/bus/iio/devices/iio:device3"), "--state-dir",
+                 str(tmp_path / "state"), "--no-log", "--status-line", "off"])
+    err = capsys.readouterr().err
+    assert code == 1 and "iio:device3" in err and "Traceback" not in err
