@@ -35,6 +35,8 @@ class ParamSpec:
     hi: float
     description: str     # with the unit
     integer: bool = False
+    read_only: bool = False   # shown, never set over MAVLink (the daemon updates it: `ParamStore.show`)
+    momentary: bool = False   # a write is a request: applied (on_change), not kept or persisted
 
     def __post_init__(self):
         if not (0 < len(self.name) <= 16 and self.name.isascii()):
@@ -104,7 +106,10 @@ class ParamStore:
             if i is None:
                 warnings.append(f"ignoring stored parameter {name!r}: no longer exists")
                 continue
-            reason = self.specs[i].check(value) if isinstance(value, (int, float)) else "not a number"
+            spec = self.specs[i]
+            if spec.read_only or spec.momentary:
+                continue        # never persisted (a file from elsewhere may hold them): not an error
+            reason = spec.check(value) if isinstance(value, (int, float)) else "not a number"
             if reason:
                 warnings.append(f"ignoring stored parameter {name}: {reason}")
                 continue
@@ -121,7 +126,8 @@ class ParamStore:
             self.rejected_writes += 1
             return False, f"unknown parameter {name!r}"
         value = float(value)
-        reason = self.specs[i].check(value)
+        spec = self.specs[i]
+        reason = f"{name} is read-only" if spec.read_only else spec.check(value)
         if reason is None and self.on_change is not None:
             try:
                 self.on_change(name, value)
@@ -130,10 +136,19 @@ class ParamStore:
         if reason is not None:
             self.rejected_writes += 1
             return False, reason
+        if spec.momentary:
+            return True, ""
         self._values[i] = value
         self._stored[name] = value
         self._save()
         return True, ""
+
+    def show(self, name: str, value: float) -> None:
+        """Set a read-only parameter to the value the daemon has (not persisted, no on_change)."""
+        i = self._index[name]
+        if not self.specs[i].read_only:
+            raise ValueError(f"{name} is not read-only")
+        self._values[i] = float(value)
 
     def _save(self) -> None:
         if self.path is None:

@@ -5,29 +5,28 @@ from __future__ import annotations
 import math
 
 from ahrsd.daemon.health import STATE_NAMES
-from ahrsd.daemon.run_stats import sample_accounting
 
 
-def format_status(s, now: float) -> str:
-    """One line: sample rate, attitude, true heading, state, and the counters a user should watch."""
-    est = s.pipeline.last_estimate if s.pipeline else None
-    rate = s.measured_rate_hz
-    parts = [f"{rate:6.1f} SPS"]
+def format_status(*, estimate, rate_hz: float, state: int, samples: dict, link: dict,
+                  gnss: str | None, autopilot) -> str:
+    """One line: sample rate, attitude, true heading, state, and the counters a user should watch. `samples`
+    is daemon.run_stats.sample_accounting (missed, late, corrupt), `gnss` the GNSS task's status (None without
+    one), `autopilot` the daemon.autopilot.AutopilotState."""
+    est = estimate
+    parts = [f"{rate_hz:6.1f} SPS"]
     if est is None:
         parts.append("attitude --")
     else:
         parts.append(f"roll {math.degrees(est.roll_rad):+6.1f} pitch {math.degrees(est.pitch_rad):+6.1f}")
         parts.append(f"hdg {math.degrees(est.heading_true_rad) % 360.0:5.1f}T "
                      f"±{math.degrees(float(est.sigma_rpy_rad[2])):4.1f}")
-    parts.append(STATE_NAMES.get(s.health.system_status(now), "?"))
-    acc = sample_accounting(s)
-    link = s.link_totals()
-    parts.append(f"missed {acc['missed']} late {acc['late']} corrupt {acc['corrupt']} "
+    parts.append(STATE_NAMES.get(state, "?"))
+    parts.append(f"missed {samples['missed']} late {samples['late']} corrupt {samples['corrupt']} "
                  f"tx {link['tx']} rx {link['rx']} bad {link['bad']}")
-    if getattr(s, "gnss", None) is not None:
-        parts.append(s.gnss.status(now))
-    if s.autopilot.system_id is not None:
-        parts.append(f"AP {s.autopilot.system_id}{' ARMED' if s.autopilot.armed else ''}")
+    if gnss is not None:
+        parts.append(gnss)
+    if autopilot.system_id is not None:
+        parts.append(f"AP {autopilot.system_id}{' ARMED' if autopilot.armed else ''}")
     return " | ".join(parts)
 
 

@@ -62,12 +62,18 @@ def _read_all(src, rx, max_wait_s=10.0):
 def test_fixes_arrive_intact(protocol, source_protocol):
     fixes = _fixes()
     clock = FakeClock(50.0)
-    with _link(fixes, {"protocol": protocol}, protocol=source_protocol, latency_s=0.125, clock=clock) as (rx, src):
-        got = _read_all(src, rx)
+    with _link(fixes, {"protocol": protocol}, protocol=source_protocol, latency_s=0.125, clock=clock,
+               write=False) as (rx, src):
+        got, arrivals = [], []
+        for k, f in enumerate(fixes):                 # each epoch read as it arrives, 0.2 s apart
+            clock.t = 50.0 + 0.2 * k
+            arrivals.append(clock.t)
+            rx.write_fix(f)
+            got += _read_all(src, rx)
         got += src.decoder.flush()      # nothing pending once the epoch's sentence set is learned; be sure
         assert len(got) == len(fixes)
-        for a, b in zip(fixes, got):
-            assert b.t_s == 50.0 - 0.125              # arrival on the caller's clock minus the latency
+        for a, b, arrived in zip(fixes, got, arrivals):
+            assert b.t_s == arrived - 0.125           # arrival on the caller's clock minus the latency
             assert b.lat_deg == pytest.approx(a.lat_deg, abs=1e-7) and b.lon_deg == pytest.approx(a.lon_deg, abs=1e-7)
             assert b.alt_m == pytest.approx(a.alt_m, abs=1e-3)
             np.testing.assert_allclose(b.vel_ned_m_s[:2], a.vel_ned_m_s[:2], atol=2e-3)
@@ -78,6 +84,40 @@ def test_fixes_arrive_intact(protocol, source_protocol):
         assert src.state is GnssLinkState.OK
         c = src.counters
         assert c["garbage_bytes"] == 0 and c["frames_rejected"] == 0 and c["bytes_in"] == rx.bytes_written
+
+
+@pytest.mark.parametrize("protocol", ["ubx", "nmea"])
+def test_epochs_read_in_one_burst_keep_their_own_times(protocol):
+    """A reader held up for a second finds five epochs waiting: each is stamped by the receiver's own epoch
+    times (0.2 s apart) back from the read, so none is refused as a repeated time and none comes late."""
+    from ahrsd.drivers.gnss.validation import GnssFixValidator
+    fixes = _fixes(5)
+    clock = FakeClock(80.0)
+    with _link(fixes, {"protocol": protocol}, protocol=protocol, latency_s=0.1, clock=clock) as (rx, src):
+        for _ in range(500):                          # every byte in the kernel's buffer: one read takes them all
+            if src._serial.in_waiting >= rx.wire_bytes_written:
+                break
+            select.select([], [], [], 0.01)
+        got = src.read_available()
+    validator = GnssFixValidator(clock=clock)
+    assert [validator.check(f) for f in got] == [None] * 5
+    # the last at the read minus the latency; each earlier one 0.2 s (the epochs' spacing) before the next
+    assert [f.t_s for f in got] == pytest.approx([80.0 - 0.1 - 0.2 * (4 - k) for k in range(5)], abs=1e-6)
+
+
+def test_an_epoch_begun_before_a_burst_keeps_its_earlier_time():
+    """An NMEA epoch whose first sentence arrived at an earlier read keeps that read's time: moving it to the
+    burst's time minus the receiver-time gap would make it later than it was seen."""
+    fixes = _fixes(2)
+    clock = FakeClock(10.0)
+    with _link(fixes, {"protocol": "nmea"}, protocol="nmea", latency_s=0.1, clock=clock, write=False) as (rx, src):
+        first, *rest = rx.frames_for(fixes[0])
+        rx.write_bytes(first)                         # the epoch's RMC, seen at 10.0
+        assert _read_until(src, 1, max_wait_s=0.5) == []
+        clock.t = 10.5                                # the reader then stalls; the rest comes in one go
+        rx.write_bytes(b"".join(rest) + b"".join(rx.frames_for(fixes[1])))
+        got = _read_all(src, rx)
+    assert [f.t_s for f in got] == pytest.approx([10.0 - 0.1, 10.5 - 0.1], abs=1e-9)
 
 
 def test_garbage_between_frames_is_counted_and_every_fix_survives():

@@ -16,6 +16,7 @@ byte: a 100-byte NAV-PVT is 1000/baud s). docs/gnss.md has the figures.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -38,6 +39,7 @@ NO_FRAME_TIMEOUT_S = 3.0        # bytes but no valid frame for this long: garbag
 GARBAGE_MIN_BYTES = 64          # ...and at least this many bytes arrived in that time
 REOPEN_INTERVAL_S = 2.0
 READ_CHUNK = 4096
+MAX_BURST_SPAN_S = 10.0         # epochs further apart than this in one read are not a held-up reader's backlog
 MAX_READ_PER_CALL = 65536
 
 
@@ -112,7 +114,7 @@ class SerialGnssSource(GnssBackend):
             total += len(data)
             fixes += self._feed(data)
         self._update_state(self.clock())
-        return fixes
+        return _back_date_burst(fixes)
 
     def poll_health(self) -> GnssLinkState:
         """Re-evaluate the link state (call ~1 Hz); re-opens a lost device every REOPEN_INTERVAL_S."""
@@ -235,3 +237,22 @@ class SerialGnssSource(GnssBackend):
             level = logging.INFO if state in (GnssLinkState.OK, GnssLinkState.WAITING) else logging.WARNING
             log.log(level, "GNSS link %s -> %s: %s", self.state.value, state.value, msg)
         self.state, self.status_message = state, msg
+
+
+def _back_date_burst(fixes: list[GnssFix]) -> list[GnssFix]:
+    """Epochs read together (the reader was held up) carry that read's time stamp, though the receiver sent
+    them apart. Its own epoch times say how far apart, and its output latency is the same for every epoch, so
+    an earlier one is stamped at the last one's stamp minus its receiver-time distance from it (never later
+    than its own stamp). Without a usable receiver time (none, or a day/week wrap between them) a stamp stays."""
+    if len(fixes) < 2:
+        return fixes
+    last = fixes[-1]
+    rx_last = last.extra.get("receiver_time_s", math.nan)
+    out = []
+    for fix in fixes[:-1]:
+        gap_s = rx_last - fix.extra.get("receiver_time_s", math.nan)
+        if 0.0 < gap_s < MAX_BURST_SPAN_S and last.t_s - gap_s < fix.t_s:
+            fix = dataclasses.replace(fix, t_s=last.t_s - gap_s)
+        out.append(fix)
+    out.append(last)
+    return out
