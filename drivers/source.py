@@ -68,8 +68,8 @@ def start_chip_source(bus, description: str, *, clock=time.monotonic, **start) -
 
 
 def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
-    """The source `sensor_cfg` names (`source` = "sim" | "spi" | "iio" | "replay", with its keys: any object with the
-    attributes of daemon.config.SensorConfig): a chip with start-up retries and bus reconnection — read in a
+    """The source `sensor_cfg` names (`source` = "sim" | "spi" | "iio" | "replay", with its keys: any object
+    with the attributes of daemon.config.SensorConfig): a chip with start-up retries and bus reconnection — read in a
     dedicated thread (`reader` = "thread"), in a child process ("process": drivers.process_source) or on the
     daemon's event loop ("event_loop") —, the kernel's IIO driver (drivers.iio_source), or a replay.
 
