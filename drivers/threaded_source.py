@@ -94,7 +94,8 @@ class ThreadedSource:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.stats = {"reads": 0, "corrupt_frames": 0, "read_failures": 0, "handover_dropped": 0,
-                      "handover_max_backlog": 0, "realtime_priority": 0}
+                      "handover_max_backlog": 0, "realtime_priority": 0, "undelivered_at_close": 0}
+        self._last_delivered: int | None = None
 
     def __getattr__(self, name):
         # what else the daemon and the tools ask of a chip source (chip, bus, driver, timer) is the inner one's
@@ -179,6 +180,8 @@ class ThreadedSource:
             error = self._error
         if not out and error is not None:
             raise error
+        if out:
+            self._last_delivered = out[-1].counter
         return out
 
     def counters(self) -> dict:
@@ -191,6 +194,10 @@ class ThreadedSource:
         self._stop.set()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(2.0)
+        with self._lock:     # sample indices read (or lost) after the last hand-over: the chip's truth has them
+            if self._buf:
+                first = self._buf[0].counter if self._last_delivered is None else self._last_delivered + 1
+                self.stats["undelivered_at_close"] = self._buf[-1].counter - first + 1
         if self._saved_switch_interval is not None:
             sys.setswitchinterval(self._saved_switch_interval)
             self._saved_switch_interval = None
