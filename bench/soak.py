@@ -305,7 +305,9 @@ def evaluate(r: dict) -> tuple[list[str], list[str]]:
     st = r["stats"]
     pipe, src, svc = st.get("pipeline", {}), st.get("source", {}), st.get("service", {})
     chip_total = src.get("chip_last_index_read", -1) - src.get("chip_first_index_read", 0) + 1
-    daemon_total = pipe.get("samples", 0) + pipe.get("lost_samples", 0)
+    # + the indices the reader thread had read but not handed over when the daemon stopped (the chip counts them)
+    daemon_total = (pipe.get("samples", 0) + pipe.get("lost_samples", 0)
+                    + src.get("reader_undelivered_at_close", 0))
     unexplained = max(0, chip_total - daemon_total)
     lines.append(f"samples processed           {pipe.get('samples', 0):>10d}   "
                  f"({pipe.get('samples', 0) / max(1, chip_total):.1%} of the {chip_total} the chip produced while read)")
@@ -374,7 +376,7 @@ def evaluate(r: dict) -> tuple[list[str], list[str]]:
     ss = r["last_sys_status"]
     if ss is not None:
         lines.append(f"last SYS_STATUS: errors_comm {ss.errors_comm}, count1 (refused unsigned) {ss.errors_count1}, "
-                     f"count2 (lost samples) {ss.errors_count2}, count3 (overruns) {ss.errors_count3}, "
+                     f"count2 (missed samples) {ss.errors_count2}, count3 (late samples) {ss.errors_count3}, "
                      f"count4 (sensor errors) {ss.errors_count4}")
     if "start" in r["cpu"] and "end" in r["cpu"]:
         (c0, w0, b0), (c1, w1, b1) = r["cpu"]["start"], r["cpu"]["end"]

@@ -17,6 +17,8 @@ def register(subparsers) -> None:
                      "rate-table, level-turns, coordinated-turn, tumble, auv-out-and-back, mag-disturbance, boat, "
                      "car, plane (the last three with a GNSS receiver: --gnss-sim)")
     src.add_argument("--spi", metavar="DEVICE", help="real ADIS16405 on this spidev node, e.g. /dev/spidev0.0")
+    src.add_argument("--iio", metavar="DEVICE", help="the ADIS16405 through the kernel's adis16400 IIO driver: "
+                     "iio:deviceN, its name (adis16405) or its sysfs directory")
     src.add_argument("--replay", metavar="FILE", help="replay a recording made by `ahrsd record`")
     p.add_argument("--replay-speed", metavar="X", type=float,
                    help="with --replay: replay X times faster than real time (default 1)")
@@ -61,8 +63,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         path = args.config or default_config_path()
         cfg = load_config(path) if path else Config()
-        cfg = cfg.with_overrides(sim=args.sim, spi=args.spi, replay=args.replay, mavlink=args.mavlink,
-                                 state_dir=args.state_dir, replay_speed=args.replay_speed,
+        cfg = cfg.with_overrides(sim=args.sim, spi=args.spi, iio=args.iio, replay=args.replay,
+                                 mavlink=args.mavlink, state_dir=args.state_dir, replay_speed=args.replay_speed,
                                  gnss_replay=args.gnss_replay, gnss_serial=args.gnss_serial,
                                  gnss_sim=args.gnss_sim, estimator=args.estimator,
                                  log_dir=args.log_dir, log_enabled=False if args.no_log else None,
@@ -95,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
     from ahrsd.daemon.sensor_recovery import report_sensor_alarms
     from ahrsd.daemon.service import Service
     from ahrsd.drivers.replay_source import ReplaySource
+    from ahrsd.drivers.errors import DriverError
     from ahrsd.drivers.source import open_source
 
     if cfg.sensor.source == "replay":
@@ -113,7 +116,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"ahrsd run: error: estimator {cfg.estimator_name!r}: {exc}", file=sys.stderr)
         return 1
     # the chip sources retry a failed start and a lost bus with backoff (daemon.sensor_recovery)
-    source = open_source(cfg.sensor, faults=plan)
+    try:
+        source = open_source(cfg.sensor, faults=plan)
+    except DriverError as exc:   # a missing IIO device or data-ready GPIO: one line, not a traceback
+        print(f"ahrsd run: error: {exc}", file=sys.stderr)
+        return 1
     service = Service(cfg, source=source)
 
     async def main() -> int:

@@ -149,7 +149,8 @@ class SensorConfig:
     data_ready: str = ""                # source = "spi": the GPIO of the chip's DIO1 data-ready, "gpiochip0:25"
                                         # ("": reads paced by the host timer)
     iio_device: str = "iio:device0"     # source = "iio": the IIO device (name under /sys/bus/iio/devices)
-    reader: str = "thread"              # sim/spi: "thread" (read in a dedicated thread) or "event_loop"
+    reader: str = "auto"                # sim/spi: read in a dedicated "thread", a child "process", on the
+                                        # "event_loop"; "auto": process for spi, thread for sim (docs/drivers.md)
     replay_file: str = ""               # source = "replay": a recording written by `ahrsd record`
     replay_realtime: bool = True        # replay at the recorded pace (false: as fast as possible)
     replay_speed: float = 1.0           # realtime replay: this many times faster than recorded (1 = real time)
@@ -161,13 +162,16 @@ class SensorConfig:
     def parse(cls, d: dict, prefix="sensor") -> "SensorConfig":
         cfg = cls(**_parse_table(cls, d, prefix, {
             "source": _choice_of(("sim", "spi", "iio", "replay")), "data_ready": _string, "iio_device": _string,
-            "reader": _choice_of(("thread", "event_loop")), "scenario": _choice_of(SCENARIOS),
+            "reader": _choice_of(("auto", "thread", "process", "event_loop")), "scenario": _choice_of(SCENARIOS),
             "seed": _number_in(0, 2**32 - 1, integer=True), "errors": _choice_of(("adis16405", "ideal")),
             "spi_device": _string, "replay_file": _string, "replay_realtime": _bool,
             "replay_speed": _number_in(MIN_REPLAY_SPEED, MAX_REPLAY_SPEED), "mounting_rpy_deg": _mounting,
             "poll_hz": _number_in(10.0, 2000.0), "stale_timeout_s": _number_in(0.005, 10.0)}))
         if cfg.source == "replay" and not cfg.replay_file:
             raise _fail(f"{prefix}.replay_file", cfg.replay_file, "a recording path (required when source = 'replay')")
+        if cfg.source == "iio" and not cfg.iio_device:
+            raise _fail(f"{prefix}.iio_device", cfg.iio_device, "an IIO device: iio:device0, its name (adis16405) "
+                        "or its sysfs directory")
         if cfg.source == "spi" and not cfg.spi_device.startswith("/dev/"):
             raise _fail(f"{prefix}.spi_device", cfg.spi_device, "a device path such as /dev/spidev0.0")
         return cfg
@@ -634,6 +638,7 @@ class Config:
                         "needs [sensor] source = 'sim' (--sim SCENARIO)")
 
     def with_overrides(self, *, sim: str | None = None, spi: str | None = None, replay: str | None = None,
+                       iio: str | None = None,
                        mavlink: list[str] | None = None, state_dir: str | None = None,
                        replay_speed: float | None = None, gnss_replay: str | None = None,
                        gnss_serial: str | None = None, gnss_sim: bool = False,
@@ -644,8 +649,12 @@ class Config:
         cfg = self
         if sum(bool(x) for x in (gnss_replay, gnss_serial, gnss_sim)) > 1:
             raise ConfigError("--gnss-replay, --gnss-serial and --gnss-sim are mutually exclusive")
-        if sum(x is not None for x in (sim, spi, replay)) > 1:
-            raise ConfigError("--sim, --spi and --replay are mutually exclusive")
+        if sum(x is not None for x in (sim, spi, replay, iio)) > 1:
+            raise ConfigError("--sim, --spi, --iio and --replay are mutually exclusive")
+        if iio is not None:
+            if not iio:
+                raise _fail("--iio", iio, "an IIO device: iio:device0, its name (adis16405) or its sysfs directory")
+            cfg = dataclasses.replace(cfg, sensor=dataclasses.replace(cfg.sensor, source="iio", iio_device=iio))
         if sim is not None:
             cfg = dataclasses.replace(cfg, sensor=dataclasses.replace(
                 cfg.sensor, source="sim", scenario=_choice("--sim", sim, SCENARIOS)))

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 class ServiceCounters:
     wakes: int = 0               # sample reader
     overruns: int = 0            # sample reader: wakes that started after their deadline by more than one period
+    late_samples: int = 0        # sample reader: samples used more than LATE_AFTER_S after they became ready
     driver_errors: int = 0       # sample reader: bus failures (and runs of corrupt frames) that failed the sensor
     frame_errors: int = 0        # sample reader: single corrupt frames rejected by the driver
     unsigned_refused: int = 0    # parameter protocol: PARAM_SET refused unsigned (commands: the router counts)

@@ -18,12 +18,26 @@ from ahrsd.calibration.atomic_file import write_atomic
 log = logging.getLogger(__name__)
 
 
+def sample_accounting(service) -> dict:
+    """Samples delivered, and the three ways a sample fails to be: `missed` (the chip produced it and it never
+    reached the estimator: not read in time, dropped in a hand-over or a kernel buffer — the index gaps the
+    source flagged), `late` (used more than daemon.sample_reader.LATE_AFTER_S after it became ready) and
+    `corrupt` (frames the driver rejected: garbage, short reads)."""
+    src = service.source
+    c = src.counters() if src is not None and hasattr(src, "counters") else {}
+    pc = service.pipeline.counters if service.pipeline is not None else None
+    return {"delivered": pc.samples if pc else 0, "missed": pc.lost_samples if pc else 0,
+            "late": service.counters.late_samples,
+            "corrupt": int(c.get("garbage_frames", 0)) + int(c.get("short_reads", 0))}
+
+
 def collect_stats(service) -> dict:
     """A JSON-ready snapshot of the service's counters."""
     out: dict = {"exit_code": service.exit_code, "reset_counter": service.reset_counter}
     out["service"] = dataclasses.asdict(service.counters)
     if service.pipeline is not None:
         out["pipeline"] = dataclasses.asdict(service.pipeline.counters)
+    out["samples"] = sample_accounting(service)
     src = service.source
     if src is not None and hasattr(src, "counters"):
         out["source"] = {k: v for k, v in src.counters().items() if isinstance(v, (int, float))}

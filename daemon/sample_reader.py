@@ -24,6 +24,8 @@ from ahrsd.drivers.read_failures import RETRY_AFTER_FAILURE_S as DRIVER_RETRY_S
 
 log = logging.getLogger(__name__)
 
+LATE_AFTER_S = 0.05               # a sample used this long after it became ready is counted late (run_stats)
+
 # IntFlag operators go through the enum machinery (µs each); the per-sample path tests bits on plain ints
 _int_and = int.__and__
 _GAP_BEFORE = int(SampleFlags.GAP_BEFORE)
@@ -157,6 +159,7 @@ class SampleReader:
                 samples = source.poll()
             except Exception as exc:  # noqa: BLE001
                 self.on_driver_error(exc)
+                out.publish(loop.time())      # SYS_STATUS keeps flowing: the GCS sees the health bits cleared
                 await asyncio.sleep(DRIVER_RETRY_S)
                 deadline = loop.time()
                 continue
@@ -181,12 +184,15 @@ class SampleReader:
             health.sensor_error = ""
             out.statustext(mavlink.MAV_SEVERITY_NOTICE, "ahrsd: sensor recovered")
         est = None
+        reinitialised = False
         listeners = self.listeners.fns
         log_put = out.raw_sink                # daemon.vehicle_log: a queue append, never blocks
         for raw in samples:
             if log_put is not None:
                 log_put(raw)
             est = pipeline.process(raw)
+            if est is not None and _int_and(est.flags, _REINITIALISED):
+                reinitialised = True          # on any sample of a block, not only the last one
             if listeners and est is not None:
                 snapshot = pipeline.last_estimate      # listeners may keep it: the immutable one
                 for fn in tuple(listeners):
@@ -195,11 +201,18 @@ class SampleReader:
                     except Exception:  # noqa: BLE001 - a faulty listener is dropped, the reader carries on
                         log.exception("sample listener %r failed; removed", fn)
                         listeners.remove(fn)
+        source = self.source
+        if not getattr(source, "recording_time_base", False):   # samples in time order: count from the oldest
+            ready_by = now - LATE_AFTER_S - getattr(source, "monotonic_offset_s", 0.0)
+            for raw in samples:
+                if raw.t_s >= ready_by:
+                    break
+                self.counters.late_samples += 1
         health.last_sample_time = now
         health.last_sample_flags = samples[-1].flags
+        if reinitialised:
+            out.heading_reset()           # a genuine re-initialisation: signalled, not slewed
         if est is not None:
-            if _int_and(est.flags, _REINITIALISED):
-                out.heading_reset()       # a genuine re-initialisation: signalled, not slewed
             health.last_estimate_flags = est.flags
             if not self.ready_sent and not _int_and(est.flags, _INITIALISING):
                 self.ready_sent = True

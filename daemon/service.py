@@ -58,6 +58,7 @@ from ahrsd.daemon.pipeline import Pipeline
 from ahrsd.daemon.position import PositionResolver
 from ahrsd.daemon.publishers import Publishers
 from ahrsd.daemon.restart_heading import RestartHeading
+from ahrsd.daemon.run_stats import sample_accounting
 from ahrsd.daemon.sample_reader import ReaderOutputs, SampleListeners, SampleReader
 from ahrsd.daemon.signing import initial_timestamp, key_fingerprint, load_key, save_timestamp
 from ahrsd.daemon.source_set_check import SourceSetCheck
@@ -233,12 +234,11 @@ class Service:
         if self.gnss is not None:
             present, enabled, healthy = (a | b for a, b in zip((present, enabled, healthy),
                                                                 self.gnss.sensor_bits(now)))
-        pc = self.pipeline.counters
         unsigned = self.commands.counters.unsigned_refused + self.counters.unsigned_refused
-        sensor_errors = self.counters.driver_errors + self.counters.frame_errors
+        acc = sample_accounting(self)             # missed, late, corrupt (+ bus failures) samples
         load = self.health_report.load_permille if self.health_report is not None else 0
         return msgs.sys_status(present, enabled, healthy, load, self.outbound.comm_errors(),
-                               (unsigned, pc.lost_samples, self.counters.overruns, sensor_errors))
+                               (unsigned, acc["missed"], acc["late"], acc["corrupt"] + self.counters.driver_errors))
 
     def build_output(self, mid: int, now: float):
         return self.publishers.build_output(mid, now)
@@ -425,7 +425,7 @@ class Service:
         p = self.pipeline
         self.status_line.update(format_status(
             estimate=p.last_estimate, rate_hz=self.health_report.measured_rate_hz,
-            state=self.health.system_status(now), gaps=p.counters.gaps, overruns=self.counters.overruns,
+            state=self.health.system_status(now), samples=sample_accounting(self),
             link=self.outbound.link_totals(), gnss=None if self.gnss is None else self.gnss.status(now),
             autopilot=self.autopilot))
 

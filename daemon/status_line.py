@@ -7,10 +7,11 @@ import math
 from ahrsd.daemon.health import STATE_NAMES
 
 
-def format_status(*, estimate, rate_hz: float, state: int, gaps: int, overruns: int, link: dict,
+def format_status(*, estimate, rate_hz: float, state: int, samples: dict, link: dict,
                   gnss: str | None, autopilot) -> str:
-    """One line: sample rate, attitude, true heading, state, and the counters a user should watch. `gnss` is
-    the GNSS task's status (None without one), `autopilot` the daemon.autopilot.AutopilotState."""
+    """One line: sample rate, attitude, true heading, state, and the counters a user should watch. `samples`
+    is daemon.run_stats.sample_accounting (missed, late, corrupt), `gnss` the GNSS task's status (None without
+    one), `autopilot` the daemon.autopilot.AutopilotState."""
     est = estimate
     parts = [f"{rate_hz:6.1f} SPS"]
     if est is None:
@@ -20,7 +21,8 @@ def format_status(*, estimate, rate_hz: float, state: int, gaps: int, overruns: 
         parts.append(f"hdg {math.degrees(est.heading_true_rad) % 360.0:5.1f}T "
                      f"±{math.degrees(float(est.sigma_rpy_rad[2])):4.1f}")
     parts.append(STATE_NAMES.get(state, "?"))
-    parts.append(f"gaps {gaps} ovr {overruns} tx {link['tx']} rx {link['rx']} bad {link['bad']}")
+    parts.append(f"missed {samples['missed']} late {samples['late']} corrupt {samples['corrupt']} "
+                 f"tx {link['tx']} rx {link['rx']} bad {link['bad']}")
     if gnss is not None:
         parts.append(gnss)
     if autopilot.system_id is not None:

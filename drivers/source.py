@@ -86,14 +86,19 @@ def start_chip_source(bus, description: str, *, clock=time.monotonic, **start) -
 
 
 def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
-    """The source `sensor_cfg` names (`source` = "sim" | "spi" | "replay", with its keys: any object with the
-    attributes of daemon.config.SensorConfig): a chip with start-up retries and bus reconnection — read in a
-    dedicated thread unless `reader` = "event_loop" — or a replay.
+    """The source `sensor_cfg` names (`source` = "sim" | "spi" | "iio" | "replay", with its keys: any object
+    with the attributes of daemon.config.SensorConfig): a chip with start-up retries and bus reconnection — read in a
+    dedicated thread (`reader` = "thread"), in a child process ("process": drivers.process_source) or on the
+    daemon's event loop ("event_loop") —, the kernel's IIO driver (drivers.iio_source), or a replay.
 
     faults: a drivers.faults.FaultPlan for the simulated chip (refused for a real sensor); the simulated chip
     is wrapped in drivers.ground_truth.GroundTruthSource, which accounts its lost samples against the truth.
     """
     kind = sensor_cfg.source
+    if kind in ("sim", "spi") and reader_kind(sensor_cfg) == "process":
+        from ahrsd.drivers.process_source import ProcessSource
+
+        return ProcessSource(sensor_cfg, faults=faults)     # the same source, read in a child process
     if kind == "replay":
         from ahrsd.drivers.recording import iter_samples
 
@@ -101,6 +106,14 @@ def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
         return ReplaySource(iter_samples(sensor_cfg.replay_file, strict=False), f"replay {sensor_cfg.replay_file}",
                             realtime=sensor_cfg.replay_realtime, clock=clock,
                             speed=getattr(sensor_cfg, "replay_speed", 1.0))
+    if kind == "iio":
+        if faults is not None:
+            raise ValueError("fault injection (--sim-faults) needs the simulated sensor, not --iio")
+        from ahrsd.drivers.iio_source import IioSource
+
+        src = IioSource(sensor_cfg.iio_device)
+        src.start()
+        return src
     if kind == "spi":
         if faults is not None:
             raise ValueError("fault injection (--sim-faults) needs the simulated sensor, not --spi")
@@ -140,10 +153,19 @@ def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
     return _off_the_loop(src, sensor_cfg, clock)
 
 
+def reader_kind(sensor_cfg) -> str:
+    """`[sensor] reader`: "auto" is a child process for the real chip (its own GIL: docs/drivers.md, measured)
+    and a thread for the simulated one (which the simulated GNSS receiver and the ground truth share)."""
+    reader = getattr(sensor_cfg, "reader", "auto")
+    if reader == "auto":
+        return "process" if sensor_cfg.source == "spi" else "thread"
+    return reader
+
+
 def _off_the_loop(src, sensor_cfg, clock):
-    """The per-sample chip source read in its own thread (`[sensor] reader = "thread"`, the default:
-    drivers.threaded_source), or left to the daemon's event loop ("event_loop")."""
-    if getattr(sensor_cfg, "reader", "thread") != "thread":
+    """The per-sample chip source read in its own thread (`[sensor] reader = "thread"`: drivers.threaded_source),
+    or left to the daemon's event loop ("event_loop")."""
+    if reader_kind(sensor_cfg) != "thread":
         return src
     from ahrsd.drivers.threaded_source import ThreadedSource
 

@@ -3,10 +3,11 @@ in a dedicated thread, its samples handed to the daemon in blocks through a boun
 block path a recording uses), so a slow MAVLink peer, a log flush or a GNSS burst on the event loop never
 delays a read.
 
-Why a thread and not a process, and what the GIL does to it: docs/drivers.md ("A reader the event loop cannot
-starve", measured with bench/reader_gil.py). The interpreter's switch interval bounds how long a thread that
-wants the GIL waits while the event loop runs Python code; at 819.2 SPS the chip keeps a sample for 1.22 ms,
-so the source lowers it to SWITCH_INTERVAL_S for the whole process while it runs.
+What the GIL does to it (docs/drivers.md, measured with bench/reader_gil.py): the interpreter's switch
+interval bounds how long this thread waits for the GIL while the event loop runs Python code; at 819.2 SPS the
+chip keeps a sample for 1.22 ms, so the source lowers it to SWITCH_INTERVAL_S for the whole process while it
+runs. Where the CPU is contended a process loses less (its own GIL): drivers.process_source runs this same
+reader in a child process, the default for the real chip.
 
 The thread asks for SCHED_FIFO (`os.sched_setscheduler`) when the system allows it (root, CAP_SYS_NICE or an
 RLIMIT_RTPRIO, e.g. systemd's `LimitRTPRIO=`); when not, it says so once in the log and runs at normal priority.
@@ -92,7 +93,8 @@ class ThreadedSource:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.stats = {"reads": 0, "corrupt_frames": 0, "read_failures": 0, "handover_dropped": 0,
-                      "handover_max_backlog": 0, "realtime_priority": 0}
+                      "handover_max_backlog": 0, "realtime_priority": 0, "undelivered_at_close": 0}
+        self._last_delivered: int | None = None
 
     def __getattr__(self, name):
         # what else the daemon and the tools ask of a chip source (chip, bus, driver, timer) is the inner one's
@@ -174,6 +176,8 @@ class ThreadedSource:
             error = self._error
         if not out and error is not None:
             raise error
+        if out:
+            self._last_delivered = out[-1].counter
         return out
 
     def counters(self) -> dict:
@@ -186,6 +190,10 @@ class ThreadedSource:
         self._stop.set()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(2.0)
+        with self._lock:     # sample indices read (or lost) after the last hand-over: the chip's truth has them
+            if self._buf:
+                first = self._buf[0].counter if self._last_delivered is None else self._last_delivered + 1
+                self.stats["undelivered_at_close"] = self._buf[-1].counter - first + 1
         if self._saved_switch_interval is not None:
             sys.setswitchinterval(self._saved_switch_interval)
             self._saved_switch_interval = None

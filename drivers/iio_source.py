@@ -1,0 +1,361 @@
+"""The kernel's ADIS16400/5 IIO driver as a sensor source (`[sensor] source = "iio"`, `ahrsd run --iio DEVICE`).
+
+Linux `drivers/iio/imu/adis16400.c` ("support Analog Devices ADIS16400/5") reads the chip in the kernel on its
+data-ready interrupt (one burst per sample), time-stamps each read in the interrupt and queues the scan in a
+buffer; user space enables channels and the buffer through sysfs and reads whole scan records from
+`/dev/iio:deviceN`. The kernel buffers (`buffer/length` scans), so a reader that is late by less than that
+loses nothing: this source needs no thread of its own — `poll()` takes every complete record waiting.
+
+The record, for the ADIS16405 ("adis16405" binds the ADIS16400 variant), from the driver's channel table
+`adis16400_channels[]` and `industrialio-buffer.c`:
+* scan order = ascending scan_index (`enum { ADIS16400_SCAN_SUPPLY, _GYRO_X.. }`): supply 0, gyro x/y/z 1-3,
+  accel x/y/z 4-6, magn x/y/z 7-9, temp 11 (ADIS16350_SCAN_TEMP_X; 10 is the ADIS16448's barometer, absent),
+  aux ADC 16, timestamp 17. sysfs names: in_voltage0_supply, in_anglvel_{x,y,z}, in_accel_{x,y,z},
+  in_magn_{x,y,z}, in_temp0, in_voltage1, in_timestamp.
+* each data channel: 16 storage bits, big-endian (IIO_BE), shift 0; realbits 14 signed for gyro/accel/magn
+  (`be:s14/16>>0`), 14 unsigned for the supply (`be:u14/16>>0`), 12 signed for temp (`be:s12/16>>0`), 12
+  unsigned for aux (`be:u12/16>>0`). The two storage bits above realbits are the chip's raw flag bits (bit 15
+  ND new data, bit 14 EA alarm: the kernel pushes the burst words as read, `adis16400_trigger_handler`), masked
+  off by realbits and read here as flags.
+* the timestamp: IIO_CHAN_SOFT_TIMESTAMP, `le:s64/64>>0` on a little-endian CPU (IIO_CPU), nanoseconds of
+  the device's `current_timestamp_clock` (default "realtime": this source writes "monotonic").
+* layout (`iio_compute_scan_bytes`): each enabled element aligned to its own storage size, the record padded
+  to its largest element: 12 × 2 bytes, the timestamp at byte 24, 32 bytes per record.
+Scales (`adis16400_read_raw`, IIO_VAL_INT_PLUS_MICRO, read from sysfs, not assumed): in_anglvel_scale rad/s per
+LSB (IIO_DEGREE_TO_RAD(50000) µrad/s: 0.000873), in_accel_scale m/s² (IIO_G_TO_M_S_2(3333) µm/s²: 0.032685),
+in_magn_scale gauss (0.000500; × 100 → µT), in_temp0_scale m°C with in_temp0_offset LSB
+(value = (raw + offset) × scale), in_voltage0_supply_scale mV. ABI: Documentation/ABI/testing/sysfs-bus-iio.
+
+Lost samples: the kernel time-stamps every scan in the data-ready interrupt, so a scan dropped anywhere (the
+kernel buffer full: kfifo refuses new scans; a missed interrupt) shows as a time-stamp step of more than one
+period; the next sample carries GAP_BEFORE and its index jumps by the samples missing, exactly as on the
+spidev path (drivers.sample_timer), and `lost_samples_host` counts them. The count is exact while the kernel's
+threaded handler reads the chip within a period of its interrupt: a handler later than that reads the next
+sample under the earlier stamp (then a scan with ND clear, counted `stale`, or one step too many follows).
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ahrsd.core.sample import ImuSample, SampleFlags
+from ahrsd.drivers import registers as R
+from ahrsd.drivers.errors import BusError
+
+log = logging.getLogger(__name__)
+
+IIO_DEVICES = "/sys/bus/iio/devices"
+BUFFER_LENGTH = 8192                 # scans the kernel holds (10 s at 819.2 SPS): the longest reader stall
+MAX_RECORDS_PER_POLL = 4096
+UT_PER_GAUSS = 100.0
+
+# the channels this source enables, in the roles of an ImuSample (sysfs scan element name → role)
+CHANNELS = ("in_voltage0_supply", "in_anglvel_x", "in_anglvel_y", "in_anglvel_z", "in_accel_x", "in_accel_y",
+            "in_accel_z", "in_magn_x", "in_magn_y", "in_magn_z", "in_temp0", "in_voltage1", "in_timestamp")
+_TYPE = re.compile(r"^(be|le):([su])(\d+)/(\d+)(?:X(\d+))?>>(\d+)$")
+_GAP_BEFORE, _ALARM, _NEW_DATA = int(SampleFlags.GAP_BEFORE), int(SampleFlags.ALARM), int(SampleFlags.NEW_DATA)
+
+
+@dataclass(frozen=True)
+class ScanType:
+    """One scan element's `*_type`, e.g. "be:s14/16>>0"
+    (sysfs-bus-iio: [be|le]:[s|u]bits/storagebits[Xrepeat]>>shift)."""
+
+    big_endian: bool
+    signed: bool
+    realbits: int
+    storagebits: int
+    shift: int
+    repeat: int = 1
+
+    @classmethod
+    def parse(cls, text: str) -> "ScanType":
+        m = _TYPE.match(text.strip())
+        if m is None:
+            raise ValueError(f"not an IIO scan element type: {text.strip()!r}")
+        end, sign, real, storage, repeat, shift = m.groups()
+        st = cls(end == "be", sign == "s", int(real), int(storage), int(shift), int(repeat or 1))
+        if st.storagebits not in (8, 16, 32, 64) or not 0 < st.realbits <= st.storagebits:
+            raise ValueError(f"unsupported IIO scan element type {text.strip()!r}")
+        return st
+
+    @property
+    def nbytes(self) -> int:
+        return self.storagebits // 8 * self.repeat
+
+    def dtype(self) -> np.dtype:
+        return np.dtype(f"{'>' if self.big_endian else '<'}u{self.storagebits // 8}")
+
+    def values(self, raw: np.ndarray) -> np.ndarray:
+        """Storage words -> signed/unsigned integers: shift, mask to realbits, sign-extend."""
+        v = raw.astype(np.uint64)
+        if self.shift:
+            v >>= np.uint64(self.shift)
+        if self.realbits < 64:
+            v &= np.uint64((1 << self.realbits) - 1)
+        if not self.signed:
+            return v.astype(np.int64)
+        if self.realbits == 64:
+            return v.view(np.int64)
+        half = 1 << (self.realbits - 1)
+        return (v.astype(np.int64) ^ half) - half
+
+
+@dataclass(frozen=True)
+class Element:
+    name: str
+    index: int
+    type: ScanType
+    offset: int           # byte offset in the record
+
+
+def record_layout(elements: list[tuple[str, int, ScanType]]) -> tuple[list[Element], int]:
+    """Byte offsets and record size of the enabled elements (kernel `iio_compute_scan_bytes`): ascending
+    scan index, each aligned to its own storage size, the record aligned to its largest element."""
+    out, nbytes, largest = [], 0, 1
+    for name, index, st in sorted(elements, key=lambda e: e[1]):
+        length = st.nbytes
+        align = st.storagebits // 8
+        nbytes = (nbytes + align - 1) // align * align
+        out.append(Element(name, index, st, nbytes))
+        nbytes += length
+        largest = max(largest, length)
+    nbytes = (nbytes + largest - 1) // largest * largest
+    return out, nbytes
+
+
+def resolve_device(spec: str) -> tuple[Path, Path]:
+    """(sysfs directory, character device) of `spec`: a sysfs directory path (…/sys/bus/iio/devices/iio:deviceN,
+    the device node then being …/dev/iio:deviceN under the same root — how the simulated device lives in a
+    temporary directory), "iio:deviceN", or the device's name ("adis16405")."""
+    p = Path(spec)
+    if p.is_absolute() and p.name.startswith("iio:device"):
+        parts = str(p).split("/sys/bus/iio/devices/")
+        root = parts[0] if len(parts) == 2 else ""
+        return p, Path(f"{root}/dev/{p.name}")
+    base = Path(IIO_DEVICES)
+    if spec.startswith("iio:device"):
+        return base / spec, Path("/dev") / spec
+    for d in sorted(base.glob("iio:device*")):
+        try:
+            if (d / "name").read_text().strip() == spec:
+                return d, Path("/dev") / d.name
+        except OSError:
+            continue
+    raise BusError(f"no IIO device named {spec!r} under {IIO_DEVICES}: is the adis16400 driver bound "
+                   "(device-tree overlay, `dmesg | grep adis`)?")
+
+
+def _read(path: Path) -> str:
+    return path.read_text().strip()
+
+
+def _write(path: Path, value: str) -> None:
+    path.write_text(value + "\n")
+
+
+class IioSource:
+    """The ADIS16405 through the kernel's IIO buffer: whole scan records in blocks (`poll()`), converted with the
+    kernel's scale/offset to SI, time-stamped by the kernel (CLOCK_MONOTONIC), gaps counted from the stamps."""
+
+    per_sample = False
+    monotonic_offset_s = 0.0            # the kernel's stamps are CLOCK_MONOTONIC (current_timestamp_clock)
+
+    def __init__(self, spec: str, *, buffer_length: int = BUFFER_LENGTH):
+        self.sysfs, self.node = resolve_device(spec)
+        self.buffer_length = buffer_length
+        self.name = ""
+        self.description = ""
+        self.sample_rate_hz = 0.0
+        self._fd: int | None = None
+        self._rest = b""
+        self._k = -1
+        self._last_ns: int | None = None
+        self.stats = {"records": 0, "samples": 0, "lost_samples_host": 0, "gaps": 0, "stale": 0,
+                      "ea_flags": 0, "saturations": 0, "garbage_frames": 0, "timestamp_backwards": 0}
+
+    # -- set-up -------------------------------------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Enable the channels and check the device (BusError with a hint). The buffer is enabled and the
+        character device opened at the first `poll()`: scans the kernel queued while the daemon was still
+        starting would be stale, and a failure there is reported and retried by the daemon's reader."""
+        d = self.sysfs
+        try:
+            self.name = _read(d / "name")
+            rate = _read(d / "sampling_frequency") if (d / "sampling_frequency").exists() else \
+                _read(d / "in_sampling_frequency")
+            self.sample_rate_hz = float(rate)
+            if (d / "buffer" / "enable").exists() and _read(d / "buffer" / "enable") == "1":
+                _write(d / "buffer" / "enable", "0")       # a previous run left it on: reconfigure
+            scan = d / "scan_elements"
+            for name in os.listdir(scan):
+                if name.endswith("_en"):
+                    _write(scan / name, "1" if name[:-3] in CHANNELS else "0")
+            elements = []
+            for name in CHANNELS:
+                if not (scan / f"{name}_en").exists():
+                    raise BusError(f"{d}: no scan element {name} (is this an ADIS16400/5? name {self.name!r})")
+                elements.append((name, int(_read(scan / f"{name}_index")),
+                                 ScanType.parse(_read(scan / f"{name}_type"))))
+            self.elements, self.record_bytes = record_layout(elements)
+            self._scale = self._scales()
+            clock = d / "current_timestamp_clock"
+            if clock.exists():
+                _write(clock, "monotonic")                   # the clock of every other time stamp here
+            trigger = d / "trigger" / "current_trigger"
+            if trigger.exists() and not _read(trigger):
+                _write(trigger, f"{self.name}-dev{d.name.removeprefix('iio:device')}")
+            _write(d / "buffer" / "length", str(self.buffer_length))
+        except BusError:
+            raise
+        except (OSError, ValueError) as exc:
+            raise BusError(f"IIO device {d}: {exc}") from exc
+        self._dtype = np.dtype({"names": [e.name for e in self.elements],
+                                "formats": [e.type.dtype() if e.type.repeat == 1 else (e.type.dtype(), e.type.repeat)
+                                            for e in self.elements],
+                                "offsets": [e.offset for e in self.elements], "itemsize": self.record_bytes})
+        self._period_ns = 1e9 / self.sample_rate_hz
+        self.description = f"{self.name} through the kernel's IIO driver ({d.name}, {self.record_bytes}-byte scans)"
+        log.info("IIO %s: %s at %.3f SPS, %d-byte records, buffer %d scans", d.name, self.name,
+                 self.sample_rate_hz, self.record_bytes, self.buffer_length)
+
+    def _scales(self) -> dict[str, tuple[float, float]]:
+        """(offset LSB, SI per LSB) per channel from sysfs: shared-by-type (in_anglvel_scale) or separate."""
+        d = self.sysfs
+
+        def value(*names: str, default: float | None = None) -> float:
+            for n in names:
+                if (d / n).exists():
+                    return float(_read(d / n))
+            if default is None:
+                raise BusError(f"{d}: none of {', '.join(names)}")
+            return default
+
+        out = {}
+        for axis in "xyz":
+            out[f"in_anglvel_{axis}"] = (0.0, value(f"in_anglvel_{axis}_scale", "in_anglvel_scale"))
+            out[f"in_accel_{axis}"] = (0.0, value(f"in_accel_{axis}_scale", "in_accel_scale"))
+            out[f"in_magn_{axis}"] = (0.0, value(f"in_magn_{axis}_scale", "in_magn_scale") * UT_PER_GAUSS)
+        out["in_temp0"] = (value("in_temp0_offset", "in_temp_offset", default=0.0),
+                           value("in_temp0_scale", "in_temp_scale") / 1000.0)            # m°C -> °C
+        out["in_voltage0_supply"] = (0.0, value("in_voltage0_supply_scale") / 1000.0)     # mV -> V
+        return out
+
+    # -- reading ------------------------------------------------------------------------------------------------
+
+    def _read_available(self) -> bytes:
+        chunks = [self._rest]
+        want = MAX_RECORDS_PER_POLL * self.record_bytes
+        while want > 0:
+            try:
+                data = os.read(self._fd, want)
+            except BlockingIOError:
+                break
+            except OSError as exc:
+                if exc.errno == errno.EAGAIN:
+                    break
+                raise BusError(f"reading {self.node} failed: {exc}") from exc
+            if not data:
+                break
+            chunks.append(data)
+            want -= len(data)
+        buf = b"".join(chunks)
+        whole = len(buf) - len(buf) % self.record_bytes
+        self._rest = buf[whole:]
+        return buf[:whole]
+
+    def decode(self, data: bytes) -> list[ImuSample]:
+        """Whole scan records -> ImuSamples (gaps, flags and counts as the module doc says)."""
+        rec = np.frombuffer(data, dtype=self._dtype)
+        n = len(rec)
+        if n == 0:
+            return []
+        st = {e.name: e.type for e in self.elements}
+        v = {name: st[name].values(rec[name]) for name in CHANNELS}
+        ts_ns = v["in_timestamp"]
+        words = [rec[name].astype(np.int64) for name in CHANNELS[1:10]]
+        nd = np.bitwise_and.reduce([w >> 15 & 1 for w in words]).astype(bool)
+        ea = np.bitwise_or.reduce([w >> 14 & 1 for w in words]).astype(bool)
+        sc = self._scale
+        gyro = np.stack([v[f"in_anglvel_{a}"] * sc[f"in_anglvel_{a}"][1] for a in "xyz"], axis=1)
+        accel = np.stack([v[f"in_accel_{a}"] * sc[f"in_accel_{a}"][1] for a in "xyz"], axis=1)
+        mag = np.stack([v[f"in_magn_{a}"] * sc[f"in_magn_{a}"][1] for a in "xyz"], axis=1)
+        raw9 = np.stack([v[name] for name in CHANNELS[1:10]], axis=1)
+        toff, tscale = sc["in_temp0"]
+        temp_c = (v["in_temp0"] + toff) * tscale
+        supply_v = v["in_voltage0_supply"] * sc["in_voltage0_supply"][1]
+        full = np.array([R.gyro_range_lsb()] * 3 + [R.ACCEL_RANGE_LSB] * 3 + [R.MAG_RANGE_LSB] * 3)
+        absraw = np.abs(raw9)
+        garbage = (absraw > 1.25 * full).any(axis=1)
+        sat = absraw >= full
+        out: list[ImuSample] = []
+        stats = self.stats
+        stats["records"] += n
+        for i in range(n):
+            if garbage[i]:
+                stats["garbage_frames"] += 1
+                continue
+            if not nd[i]:
+                stats["stale"] += 1       # the interrupt came but the chip had no new sample: not a sample
+                continue
+            t_ns = int(ts_ns[i])
+            last = self._last_ns
+            if last is not None and t_ns <= last:
+                stats["timestamp_backwards"] += 1
+                continue
+            step = 1 if last is None else max(1, int(round((t_ns - last) / self._period_ns)))
+            self._last_ns = t_ns
+            flags = _NEW_DATA
+            if step > 1 and self._k >= 0:
+                flags |= _GAP_BEFORE
+                stats["gaps"] += 1
+                stats["lost_samples_host"] += step - 1
+            self._k += step
+            if ea[i]:
+                flags |= _ALARM
+                stats["ea_flags"] += 1
+            s = sat[i]
+            if s[0:3].any():
+                flags |= int(SampleFlags.GYRO_SATURATED | SampleFlags.GYRO_INVALID)
+            if s[3:6].any():
+                flags |= int(SampleFlags.ACCEL_SATURATED | SampleFlags.ACCEL_INVALID)
+            if s[6:9].any():
+                flags |= int(SampleFlags.MAG_SATURATED | SampleFlags.MAG_INVALID)
+            if s.any():
+                stats["saturations"] += 1
+            out.append(ImuSample(t_ns * 1e-9, gyro[i], accel[i], mag[i], float(temp_c[i]), float(supply_v[i]),
+                                 SampleFlags(flags), 0, self._k))
+        stats["samples"] += len(out)
+        return out
+
+    def _open_buffer(self) -> None:
+        try:
+            _write(self.sysfs / "buffer" / "enable", "1")
+            self._fd = os.open(self.node, os.O_RDONLY | os.O_NONBLOCK)
+        except OSError as exc:
+            raise BusError(f"cannot start the IIO buffer of {self.sysfs} ({self.node}): {exc}") from exc
+
+    def poll(self) -> list[ImuSample]:
+        if self._fd is None:
+            self._open_buffer()
+        return self.decode(self._read_available())
+
+    def counters(self) -> dict:
+        return dict(self.stats)
+
+    def close(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+            try:
+                _write(self.sysfs / "buffer" / "enable", "0")
+            except OSError as exc:
+                log.debug("disabling the IIO buffer failed: %s", exc)

@@ -1,0 +1,220 @@
+"""The chip read in a child process (`[sensor] reader = "process"`, the default for the real chip): its own
+interpreter, hence its own GIL.
+
+A reader thread in the daemon's process (drivers.threaded_source) waits for the GIL whenever another thread of
+the daemon holds it, and under CPU contention the holder can be descheduled for milliseconds while the
+real-time reader waits: priority inversion through the GIL. `bench/reader_gil.py` measures it (docs/drivers.md).
+Here the same per-sample source and reader thread run in a child process started with "spawn" (a clean
+interpreter: no event loop, threads or locks inherited); the child hands samples over through a pipe in blocks
+(packed records), with the source's counters every 0.25 s and its errors as they happen. The child starts
+reading at the daemon's first `poll()` (start-up time is not counted as loss) and ends with the pipe.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from types import SimpleNamespace
+
+import numpy as np
+
+from ahrsd.core.sample import ImuSample, SampleFlags
+from ahrsd.drivers import errors as driver_errors
+
+log = logging.getLogger(__name__)
+
+HANDOVER_S = 0.002            # the child's poll tick
+COUNTERS_EVERY_S = 0.25
+START_TIMEOUT_S = 120.0       # the child imports the drivers (and, simulated, the simulator) and starts the chip
+_RECORD = np.dtype([("t_s", "<f8"), ("gyro", "<f8", 3), ("accel", "<f8", 3), ("mag", "<f8", 3), ("temp_c", "<f8"),
+                    ("supply_v", "<f8"), ("flags", "<i8"), ("diag", "<i8"), ("counter", "<i8")])
+
+
+def pack(samples: list[ImuSample]) -> bytes:
+    rec = np.empty(len(samples), dtype=_RECORD)
+    for i, s in enumerate(samples):
+        rec[i] = (s.t_s, s.gyro_rad_s, s.accel_m_s2, s.mag_ut, s.temp_c, s.supply_v, int(s.flags), s.diag_stat,
+                  s.counter)
+    return rec.tobytes()
+
+
+def unpack(data: bytes) -> list[ImuSample]:
+    rec = np.frombuffer(data, dtype=_RECORD)
+    return [ImuSample(float(r["t_s"]), r["gyro"].copy(), r["accel"].copy(), r["mag"].copy(), float(r["temp_c"]),
+                      float(r["supply_v"]), SampleFlags(int(r["flags"])), int(r["diag"]), int(r["counter"]))
+            for r in rec]
+
+
+def _chip_truth(src) -> dict | None:
+    chip = getattr(src, "chip", None)
+    if chip is None:
+        return None
+    return {"stats": dict(chip.stats), "sample_index": chip.sample_index, "injected": dict(chip.faults.injected),
+            "t_origin": chip._t_origin}
+
+
+def _child(sensor_cfg: dict, faults, conn) -> None:
+    import signal
+
+    from ahrsd.drivers.source import open_source
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)     # the daemon ends the reader (Ctrl-C reaches the group)
+
+    cfg = SimpleNamespace(**{**sensor_cfg, "reader": "thread"})
+    try:
+        src = open_source(cfg, faults=faults)
+    except Exception as exc:  # noqa: BLE001 - reported to the daemon, which says why it cannot start
+        conn.send(("error", type(exc).__name__, str(exc)))
+        return
+    conn.send(("hello", src.description, src.sample_rate_hz, _chip_truth(src)))
+    try:
+        if conn.recv() != "go":
+            return
+        next_counters = 0.0
+        last_error, error_sent_at = None, -1.0
+        while True:
+            if conn.poll(0) and conn.recv() == "stop":
+                break
+            try:
+                samples = src.poll()
+            except Exception as exc:  # noqa: BLE001 - the daemon counts and reports it (10 a second at most)
+                error = (type(exc).__name__, str(exc))
+                if error != last_error or time.monotonic() - error_sent_at >= 0.1:
+                    conn.send(("error", *error))
+                    last_error, error_sent_at = error, time.monotonic()
+                samples = []
+            if samples:
+                conn.send(("samples", pack(samples)))
+            now = time.monotonic()
+            if now >= next_counters:
+                next_counters = now + COUNTERS_EVERY_S
+                conn.send(("counters", src.counters(), _chip_truth(src)))
+            time.sleep(HANDOVER_S)
+        src.close()                           # stop reading, then hand over the rest and the final counts
+        rest = src.poll()
+        if rest:
+            conn.send(("samples", pack(rest)))
+        conn.send(("counters", src.counters(), _chip_truth(src)))
+    except (BrokenPipeError, EOFError, OSError):
+        pass                                  # the daemon went away
+    finally:
+        src.close()
+
+
+class _ChipView:
+    """What the daemon asks of a simulated chip (run_stats, the simulated GNSS receiver's clock), from the
+    child's latest report."""
+
+    def __init__(self, truth: dict):
+        self.update(truth)
+        self._t_origin = truth["t_origin"]
+
+    def update(self, truth: dict) -> None:
+        self.stats, self.sample_index = truth["stats"], truth["sample_index"]
+        self.faults = SimpleNamespace(injected=truth["injected"])
+
+    def now(self) -> float:
+        return time.monotonic() - self._t_origin       # the simulated chip runs on CLOCK_MONOTONIC
+
+
+class ProcessSource:
+    """The configured chip source (sim or spi), read by drivers.threaded_source in a child process."""
+
+    per_sample = False
+    monotonic_offset_s = 0.0
+
+    def __init__(self, sensor_cfg, faults=None):
+        import dataclasses
+        import multiprocessing
+
+        fields = (dataclasses.asdict(sensor_cfg) if dataclasses.is_dataclass(sensor_cfg) else dict(vars(sensor_cfg)))
+        ctx = multiprocessing.get_context("spawn")
+        self._conn, child = ctx.Pipe()
+        self._proc = ctx.Process(target=_child, args=(fields, faults, child), name="ahrsd-sensor-reader",
+                                 daemon=True)
+        self._proc.start()
+        child.close()
+        self._counters: dict = {}
+        self.chip = None
+        self._started = False
+        if not self._conn.poll(START_TIMEOUT_S):
+            self.close()
+            raise driver_errors.BusError("the sensor reader process did not start")
+        msg = self._conn.recv()
+        if msg[0] == "error":
+            self.close()
+            raise _error(msg[1], msg[2])
+        _, self.description, self.sample_rate_hz, truth = msg
+        self.description += " (reader process)"
+        if truth is not None:
+            self.chip = _ChipView(truth)
+        self.stats = {"blocks": 0, "samples": 0}
+
+    def poll(self) -> list[ImuSample]:
+        conn = self._conn
+        if not self._started:
+            self._started = True
+            conn.send("go")
+        out: list[ImuSample] = []
+        error = None
+        try:
+            while conn.poll(0):
+                msg = conn.recv()
+                kind = msg[0]
+                if kind == "samples":
+                    out += unpack(msg[1])
+                    self.stats["blocks"] += 1
+                elif kind == "counters":
+                    self._counters = msg[1]
+                    if msg[2] is not None and self.chip is not None:
+                        self.chip.update(msg[2])
+                elif kind == "error":
+                    error = _error(msg[1], msg[2])
+                    if out:
+                        break
+        except (EOFError, OSError) as exc:
+            raise driver_errors.BusError(f"the sensor reader process ended ({exc})") from exc
+        self.stats["samples"] += len(out)
+        if not out and error is not None:
+            raise error
+        return out
+
+    def counters(self) -> dict:
+        c = dict(self._counters)
+        c.update({f"process_{k}": v for k, v in self.stats.items()})
+        return c
+
+    def close(self) -> None:
+        """Stop the child; the samples it had read but not handed over are kept in `undelivered` (with the
+        final counters, they account for every index the child saw)."""
+        self.undelivered: list[ImuSample] = []
+        try:
+            self._conn.send("stop" if self._started else "go")
+            if not self._started:
+                self._conn.send("stop")
+            end = time.monotonic() + 3.0
+            while time.monotonic() < end and self._conn.poll(max(0.0, end - time.monotonic())):
+                msg = self._conn.recv()
+                if msg[0] == "samples":
+                    self.undelivered += unpack(msg[1])
+                elif msg[0] == "counters":
+                    self._counters = msg[1]
+                    if msg[2] is not None and self.chip is not None:
+                        self.chip.update(msg[2])
+        except (OSError, ValueError, EOFError):
+            pass
+        self._proc.join(3.0)
+        if self._proc.is_alive():
+            self._proc.kill()
+            self._proc.join(1.0)
+        self._conn.close()
+
+
+def _error(name: str, message: str) -> Exception:
+    cls = getattr(driver_errors, name, None)
+    if not (isinstance(cls, type) and issubclass(cls, driver_errors.DriverError)):
+        cls = driver_errors.BusError          # SensorUnavailable, OSError, ...: the bus is not usable now
+    try:
+        return cls(message)
+    except TypeError:                         # SelfTestFailed, ProductIdMismatch take their fields
+        return driver_errors.DriverError(message)

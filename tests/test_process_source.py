@@ -1,0 +1,72 @@
+"""drivers.process_source: the simulated chip read by drivers.threaded_source in a child process, samples and
+counters handed over through a pipe (real time: assertions on counts, never on durations)."""
+
+from __future__ import annotations
+
+import time
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from ahrsd.core.sample import ImuSample, SampleFlags
+from ahrsd.drivers.errors import BusError
+from ahrsd.drivers.faults import FaultPlan
+from ahrsd.drivers.process_source import ProcessSource, pack, unpack
+
+
+def sim_cfg(**kw):
+    return SimpleNamespace(source="sim", reader="process", scenario="static", seed=1, errors="adis16405",
+                           data_ready="", **kw)
+
+
+def test_records_cross_the_pipe_unchanged():
+    s = ImuSample(12.5, np.array([0.1, -0.2, 0.3]), np.array([1.0, 2.0, -9.8]), np.array([20.0, -3.0, 41.5]),
+                  24.78, 5.000424, SampleFlags.NEW_DATA | SampleFlags.GAP_BEFORE, 0x10, 123456)
+    (r,) = unpack(pack([s]))
+    assert (r.t_s, r.temp_c, r.supply_v, r.flags, r.diag_stat, r.counter) == \
+        (s.t_s, s.temp_c, s.supply_v, s.flags, s.diag_stat, s.counter)
+    for a, b in ((r.gyro_rad_s, s.gyro_rad_s), (r.accel_m_s2, s.accel_m_s2), (r.mag_ut, s.mag_ut)):
+        np.testing.assert_array_equal(a, b)
+
+
+def collect(src, n: int, timeout_s: float = 60.0) -> list:
+    got, end = [], time.monotonic() + timeout_s
+    while len(got) < n and time.monotonic() < end:
+        got += src.poll()
+        time.sleep(0.01)
+    return got
+
+
+def test_the_child_reads_the_chip_and_accounts_for_every_index():
+    src = ProcessSource(sim_cfg())
+    try:
+        assert "reader process" in src.description and src.sample_rate_hz == pytest.approx(819.2, abs=0.01)
+        got = collect(src, 2000)
+    finally:
+        src.close()
+    got += src.undelivered                                 # read by the child after the last poll
+    c = src.counters()                                     # its final counts
+    assert len(got) >= 2000
+    counters = [s.counter for s in got]
+    assert all(b > a for a, b in zip(counters, counters[1:]))
+    lost = sum(b - a - 1 for a, b in zip(counters, counters[1:]))
+    gaps = [s for s in got[1:] if s.flags & SampleFlags.GAP_BEFORE]
+    assert lost == 0 or gaps                               # every loss is flagged where it happened
+    assert c["lost_samples_host"] == lost                  # the child's own count of the same losses
+    assert c["reader_reads"] >= len(got) and c["process_samples"] == len(got) - len(src.undelivered)
+    assert src.chip is not None and src.chip.stats["samples_produced"] >= len(got)
+
+
+def test_a_vanished_bus_in_the_child_reaches_the_daemon():
+    plan = FaultPlan(seed=3)
+    plan.add("bus_error", start_sample=400)                # from 0.5 s after the first read on
+    src = ProcessSource(sim_cfg(), faults=plan)
+    try:
+        with pytest.raises(BusError, match="gone|failed|unavailable|No such device"):
+            end = time.monotonic() + 60.0
+            while time.monotonic() < end:
+                src.poll()
+                time.sleep(0.01)
+    finally:
+        src.close()
