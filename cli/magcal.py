@@ -66,8 +66,8 @@ def register(subparsers) -> None:
     fy = sub.add_parser("fixed-yaw", help="calibrate offsets from a known TRUE heading (WMM field, soft iron kept)")
     fy.add_argument("yaw_deg", type=_number_arg(), metavar="DEG", help="true heading of the vehicle, degrees")
     fy.add_argument("--lat", type=float, default=None, metavar="DEG",
-                    help="latitude of the vehicle for the WMM field (with --lon; default: the autopilot's position, "
-                    "else the daemon's [location])")
+                    help="latitude of the vehicle for the WMM field (with --lon; default: the daemon's position, as its "
+                    "declination: [location], else its GNSS receiver, else the autopilot's)")
     fy.add_argument("--lon", type=float, default=None, metavar="DEG", help="longitude (with --lat)")
     p.set_defaults(func=run)
 

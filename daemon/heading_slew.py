@@ -28,8 +28,9 @@ class HeadingSlew:
 
     max_rate_deg_s: float = 2.0         # a calibration change
     done_within_deg: float = 0.05
-    # the estimator needs a moment to take the new field (MEKF: 0.5 s undisturbed wait, then ≈ 1 s time
-    # constant): the transition lasts at least this long, so it does not end before the heading moves, s
+    # the estimator needs a moment to take the new field (MEKF: `mag_min_undisturbed_s` of undisturbed field,
+    # then its reference's time constant): the transition lasts at least this long, so it does not end before
+    # the heading moves, s
     min_duration_s: float = 10.0
     active: bool = False
     _published: float | None = None

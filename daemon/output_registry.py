@@ -20,8 +20,8 @@ from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.mavlink_io import mavlink
 
 DEFAULT_MAX_RATE_HZ = 200.0
-VISION_MAX_RATE_HZ = 50.0
-NAV_MAX_RATE_HZ = 50.0          # a display of the track needs a few Hz       # ArduPilot EKF3 extNavIntervalMin_ms = 20 ms (AP_NavEKF3_Measurements.cpp)
+VISION_MAX_RATE_HZ = 50.0       # ArduPilot EKF3 extNavIntervalMin_ms = 20 ms (AP_NavEKF3_Measurements.cpp)
+NAV_MAX_RATE_HZ = 50.0          # a display of the track needs a few Hz
 
 
 class OutputContext(Protocol):

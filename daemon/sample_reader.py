@@ -157,9 +157,9 @@ class SampleReader:
             self.counters.wakes += 1
             try:
                 samples = source.poll()
-            except Exception as exc:  # noqa: BLE001
+            except Exception as exc:  # noqa: BLE001 - a bus failure (a threaded chip source reports it here)
                 self.on_driver_error(exc)
-                out.publish(loop.time())      # SYS_STATUS keeps flowing: the GCS sees the health bits cleared
+                out.publish(now)      # only SYS_STATUS goes out now: the GCS sees the health bits cleared
                 await asyncio.sleep(DRIVER_RETRY_S)
                 deadline = loop.time()
                 continue

@@ -255,3 +255,41 @@ def test_heading_resets_count_and_end_a_slew():
     assert resets.slew.active
     resets.signal()
     assert resets.reset_counter == 4 and not resets.slew.active
+
+
+def test_the_polled_reader_reports_a_bus_failure_and_keeps_sys_status_flowing():
+    """A source read through poll() (a replay, the threaded chip source) that fails once: counted, one
+    CRITICAL STATUSTEXT, and the publishers run (SYS_STATUS shows the cleared health bits) before the retry."""
+    import asyncio
+
+    from ahrsd.drivers.errors import BusError
+
+    class Source:
+        sample_rate_hz = 100.0
+        finished = False
+
+        def __init__(self):
+            self.polls = 0
+
+        def poll(self):
+            self.polls += 1
+            if self.polls == 1:
+                raise BusError("SPI transfer failed")
+            self.finished = True
+            return []
+
+    published, texts, done = [], [], []
+    counters = ServiceCounters()
+    reader = SampleReader(Source(), Pipeline(_StubEstimator(), Calibration.identity()), Health(stale_timeout_s=0.1),
+                          counters, SampleListeners(),
+                          ReaderOutputs(publish=published.append, statustext=lambda sev, t: texts.append((sev, t)),
+                                        heading_reset=lambda: None, ready=lambda: None,
+                                        finished=lambda: done.append(1)),
+                          poll_hz=100.0)
+    async def run():
+        await reader.run(asyncio.get_running_loop())
+
+    asyncio.run(run())
+    assert counters.driver_errors == 1 and done == [1]
+    assert texts == [(mavlink.MAV_SEVERITY_CRITICAL, "ahrsd: sensor failure: SPI transfer failed")]
+    assert len(published) == 1                        # after the failure; none after the last (finished) poll
