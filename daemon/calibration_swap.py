@@ -7,6 +7,7 @@ from __future__ import annotations
 import logging
 
 from ahrsd.calibration.store import CalibrationStore
+from ahrsd.daemon.mag_trust import calibration_heading_sigma_rad
 
 log = logging.getLogger(__name__)
 
@@ -36,11 +37,24 @@ class CalibrationSwap:
         relearn = getattr(self.pipeline.estimator, "relearn_field_reference", None)
         if relearn is not None:
             relearn()
+        self._calibration_trust_changed(cal)
         if self.config.outputs.reset_counter_on_calibration:
             self.signal_heading_reset()
         else:
             self.heading_slew.start_transition()
         log.info("calibration applied%s", f" ({reason})" if reason else "")
+
+    def _calibration_trust_changed(self, cal) -> None:
+        """The new calibration's predicted heading error to ins and the heading status; the iron learned on
+        the old magnetometer calibration is reset (daemon.learned_iron)."""
+        sigma = calibration_heading_sigma_rad(cal)
+        set_sigma = getattr(self.pipeline.estimator, "set_mag_calibration_sigma", None)
+        if set_sigma is not None:
+            set_sigma(sigma)
+        if self.heading_status is not None:
+            self.heading_status.set_calibration_sigma(sigma)
+        if self.learned_iron is not None:
+            self.learned_iron.calibration_changed()
 
     def signal_heading_reset(self) -> None:
         """A heading discontinuity the autopilot is told about (estimator re-initialised, mounting or

@@ -546,10 +546,14 @@ class SigningConfig:
 @dataclass(frozen=True)
 class DaemonConfig:
     status_line: str = "auto"   # "auto" (when stdout is a terminal), "on", "off"
+    # a heading held by GNSS alone is "good" (MAV_STATE ACTIVE, AHRS healthy) while its 1σ is below this, deg
+    # (daemon.heading_status; ArduPilot's compass learning trusts a GSF yaw below 5°)
+    heading_good_sigma_deg: float = 5.0
 
     @classmethod
     def parse(cls, d: dict, prefix="daemon") -> "DaemonConfig":
-        return cls(**_parse_table(cls, d, prefix, {"status_line": _choice_of(("auto", "on", "off"))}))
+        return cls(**_parse_table(cls, d, prefix, {"status_line": _choice_of(("auto", "on", "off")),
+                                                   "heading_good_sigma_deg": _number_in(0.1, 90.0)}))
 
 
 @dataclass(frozen=True)

@@ -39,6 +39,7 @@ class Housekeeping:
                 next_hb = max(next_hb + 1.0, now)
                 self._update_load(now)
                 self._send_heartbeat(now)
+            self._update_heading_status(now)
             state = self.health.system_status(now)
             if state != self._last_state:
                 self._on_state_change(self._last_state, state)
@@ -61,6 +62,16 @@ class Housekeeping:
                 self.heading_slew.active = False    # nobody receives the slewed yaw: nothing to bring in
             await asyncio.sleep(max(0.0, deadline - loop.time()))
 
+    def _update_heading_status(self, now: float) -> None:
+        """The heading state (daemon.heading_status) into the health (MAV_STATE, SYS_STATUS bits); the learned
+        iron's parameters and periodic save (daemon.learned_iron)."""
+        hs = self.heading_status
+        if hs is not None and self.pipeline is not None:
+            hs.on_estimate(self.pipeline.last_estimate, now, getattr(self.pipeline.estimator, "yaw_resets", 0))
+            self.health.heading_good, self.health.heading_unhealthy_bits = hs.heading_good, hs.unhealthy_bits()
+        if self.learned_iron is not None:
+            self.learned_iron.tick(now)
+
     def _update_load(self, now: float) -> None:
         t0, cpu0 = self._cpu_window
         cpu = time.process_time()
@@ -79,11 +90,12 @@ class Housekeeping:
                     mavlink.MAV_STATE_ACTIVE: mavlink.MAV_SEVERITY_NOTICE}.get(new, mavlink.MAV_SEVERITY_INFO)
         detail = {
             mavlink.MAV_STATE_BOOT: "waiting for the sensor",
-            mavlink.MAV_STATE_STANDBY: "initialising, no heading out",
+            mavlink.MAV_STATE_STANDBY: (self.heading_status.standby_detail() if self.heading_status is not None
+                                        else "initialising, no heading out"),
             mavlink.MAV_STATE_ACTIVE: "heading good",
             mavlink.MAV_STATE_CALIBRATING: self.health.calibrating or "calibrating",
             mavlink.MAV_STATE_CRITICAL: self.health.sensor_error or "no samples from the sensor",
         }.get(new, "")
-        self.statustext(severity, f"ahrsd: {name}: {detail}"[:50])
+        self.statustext(severity, f"ahrsd: {name}: {detail}"[:50])   # "heading good": only when heading_status says so
         self.notifier.status(f"{name}: {detail}")
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
+from ahrsd.core.estimate import HeadingState
 from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.mavlink_io import mavlink
 
@@ -53,9 +54,13 @@ def _attitude_quaternion(svc, est, sample, now):
 
 
 def _vision_position_estimate(svc, est, sample, now):
-    if not svc.health.heading_trusted(now):
-        return None   # never feed the autopilot a heading it must not trust
+    if not svc.health.heading_trusted(now) or est.heading_state == HeadingState.UNKNOWN:
+        return None   # never feed the autopilot a heading it must not trust, nor one nobody knows
     from ahrsd.core.angles import yaw_rate_ned_rad_s
+
+    status = getattr(svc, "heading_status", None)   # the estimator reset its yaw (EstimateFlags.YAW_RESET):
+    if status is not None and status.take_yaw_resets(getattr(svc.pipeline.estimator, "yaw_resets", 0)):
+        svc.signal_heading_reset()                  # reset_counter + 1, sent with the reset heading
 
     usec = int(svc.sample_time_monotonic(est.t_s) * 1e6)
     restart = svc.restart_heading          # a restart with another heading: daemon.restart_heading

@@ -9,6 +9,7 @@ import logging
 
 from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.mavlink_io import Endpoint, mavlink
+from ahrsd.daemon.learned_iron import MAX_PARAM_UT, NOT_LEARNING_SD, PARAM_NAMES as LEARNED_IRON_PARAMS
 from ahrsd.daemon.output_registry import BY_PARAM_NAME, OUTPUTS
 from ahrsd.daemon.params import ParamError, ParamSpec, decode_param_id, printable_param_id
 
@@ -37,6 +38,12 @@ def param_specs(cfg) -> list[ParamSpec]:
         ParamSpec("DECL_DEG", cfg.location.declination_deg or 0.0, -180.0, 180.0,
                   "magnetic declination, deg east (used when DECL_MANUAL = 1)"),
     ]
+    # the iron the aided estimator learned on top of the calibration (daemon.learned_iron), read-only
+    out += [ParamSpec(n, 0.0, -MAX_PARAM_UT, MAX_PARAM_UT, f"learned hard iron, body {n[-1]}, uT (read-only)",
+                      read_only=True) for n in LEARNED_IRON_PARAMS[:3]]
+    out.append(ParamSpec(LEARNED_IRON_PARAMS[3], NOT_LEARNING_SD, NOT_LEARNING_SD, MAX_PARAM_UT,
+                         "largest 1-sigma of the learned hard iron, uT (-1: the estimator learns none; read-only)",
+                         read_only=True))
     return out
 
 
@@ -56,6 +63,8 @@ class ParamProtocol:
                 rpy[MOUNTING_PARAMS.index(name)] = value
                 self.pipeline.set_mounting(rpy)
                 self.signal_heading_reset()
+                if self.learned_iron is not None:
+                    self.learned_iron.calibration_changed()   # a body-frame iron belongs to its mounting
         elif name in ("DECL_MANUAL", "DECL_DEG"):
             self.loop.call_soon(self._resolve_declination)
 

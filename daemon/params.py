@@ -35,6 +35,7 @@ class ParamSpec:
     hi: float
     description: str     # with the unit
     integer: bool = False
+    read_only: bool = False   # shown by the daemon (`ParamStore.show`), never written over MAVLink nor stored
 
     def __post_init__(self):
         if not (0 < len(self.name) <= 16 and self.name.isascii()):
@@ -101,8 +102,8 @@ class ParamStore:
             return warnings
         for name, value in values.items():
             i = self._index.get(name)
-            if i is None:
-                warnings.append(f"ignoring stored parameter {name!r}: no longer exists")
+            if i is None or self.specs[i].read_only:
+                warnings.append(f"ignoring stored parameter {name!r}: no longer exists or read-only")
                 continue
             reason = self.specs[i].check(value) if isinstance(value, (int, float)) else "not a number"
             if reason:
@@ -121,7 +122,7 @@ class ParamStore:
             self.rejected_writes += 1
             return False, f"unknown parameter {name!r}"
         value = float(value)
-        reason = self.specs[i].check(value)
+        reason = f"{name} is read-only" if self.specs[i].read_only else self.specs[i].check(value)
         if reason is None and self.on_change is not None:
             try:
                 self.on_change(name, value)
@@ -134,6 +135,13 @@ class ParamStore:
         self._stored[name] = value
         self._save()
         return True, ""
+
+    def show(self, name: str, value: float) -> None:
+        """Set a read-only parameter to what the daemon now knows (not persisted, no on_change)."""
+        i = self._index[name]
+        if not self.specs[i].read_only:
+            raise ValueError(f"{name} is not read-only: set it with set()")
+        self._values[i] = float(value)
 
     def _save(self) -> None:
         if self.path is None:

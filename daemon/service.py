@@ -41,8 +41,11 @@ from ahrsd.daemon.declination import DeclinationResolver
 from ahrsd.daemon.endpoint_outputs import EndpointOutputs
 from ahrsd.daemon.gnss_task import GnssTask, gnss_backend_for, newest_sample_time, on_first_fix
 from ahrsd.daemon.health import Health
+from ahrsd.daemon.heading_status import HeadingStatus, LongStatusText
 from ahrsd.daemon.housekeeping import Housekeeping
 from ahrsd.daemon.inbound import InboundDispatch
+from ahrsd.daemon.learned_iron import CMD_LEARNED_IRON, LearnedIron
+from ahrsd.daemon.mag_trust import calibration_heading_sigma_rad
 from ahrsd.daemon.magcal import attach as attach_magcal
 from ahrsd.daemon.mavlink_io import Endpoint, mavlink
 from ahrsd.daemon.nmea_output import NmeaOutputs
@@ -104,6 +107,8 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         self.gnss: GnssTask | None = None      # [gnss] source (daemon.gnss_task), None without one
         self.nmea: NmeaOutputs | None = None    # [[nmea]] outputs (daemon.nmea_output), None without any
         self.pipeline: Pipeline | None = None
+        self.heading_status: HeadingStatus | None = None   # the heading state reported (daemon.heading_status)
+        self.learned_iron: LearnedIron | None = None       # the iron ins learned, persisted (daemon.learned_iron)
         self.reset_counter = 0
         # the VISION_POSITION_ESTIMATE yaw after a calibration change (apply_calibration)
         self.heading_slew = HeadingSlew(max_rate_deg_s=config.outputs.heading_slew_deg_s)
@@ -233,10 +238,22 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         if time.monotonic() - started > 1.0:
             log.info("compiled the %s estimator in %.1f s (cached for the next start)", cfg.estimator_name,
                      time.monotonic() - started)
-        estimator = make_estimator(cfg.estimator_name, declination_rad=self.declination_rad,
-                                   **cfg.estimator_options)
+        mag_sigma_rad = calibration_heading_sigma_rad(calibration)    # how far ins may trust the calibration
+        options = dict(cfg.estimator_options)
+        if cfg.estimator_name == "ins":
+            options["mag_calibration_sigma_rad"] = mag_sigma_rad
+        estimator = make_estimator(cfg.estimator_name, declination_rad=self.declination_rad, **options)
         self.pipeline = Pipeline(estimator, calibration)
         self.pipeline.set_mounting([self.params.get(n) for n in MOUNTING_PARAMS])
+        self.heading_status = HeadingStatus(LongStatusText(self.send), calibration_sigma_rad=mag_sigma_rad,
+                                            good_sigma_rad=math.radians(cfg.daemon.heading_good_sigma_deg))
+        self.learned_iron = LearnedIron(
+            self.state_dir, self.pipeline, publish=self.params.show, statustext=self.statustext,
+            armed=lambda: bool(self.autopilot.armed), background=self._in_background,
+            apply_calibration=lambda cal: self.apply_calibration(cal, reason="learned iron accepted"),
+            horizontal_field_ut=self._horizontal_field_ut,
+            allow_armed=bool(getattr(cfg.magcal, "allow_armed", False)))
+        self.learned_iron.restore()
         self._setup_signing()
         for ep_cfg in cfg.endpoints:
             ep = self._make_endpoint(ep_cfg)        # its own output schedule (daemon.endpoint_outputs)
@@ -248,6 +265,7 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
             self.check_link_budget(ep)
         self._start_logs()                          # raw samples and MAVLink traffic (daemon.vehicle_log)
         register_builtin_commands(self)
+        self.commands.register(CMD_LEARNED_IRON, self.learned_iron.handle_command)
         attach_magcal(self)
         if cfg.nmea:
             self.nmea = NmeaOutputs(cfg.nmea)
@@ -261,7 +279,8 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
                                        replay_time_s=newest_sample_time(self.pipeline))
             self.gnss = GnssTask(backend, cfg.gnss, clock=time.monotonic, estimator=self.pipeline,
                                  statustext=self.statustext, log_fix=self.log_gnss_fix,
-                                 subscribers=[on_first_fix(self.on_gnss_position)])
+                                 subscribers=[on_first_fix(self.on_gnss_position)],
+                                 rejection_cause=self.heading_status.rejection_cause)
             self.gnss.open(self.loop)
         want_line = cfg.daemon.status_line == "on" or (cfg.daemon.status_line == "auto" and self._stdout.isatty())
         self._status_line = StatusLine(self._stdout) if want_line else None
@@ -299,6 +318,20 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
             make_realign=make_realign, background=self._in_background)
         self.reset_counter = self.restart_heading.initial_reset_counter
 
+    def _horizontal_field_ut(self) -> float:
+        """WMM's horizontal field at the vehicle (GNSS, autopilot or configured position), NaN without one."""
+        from ahrsd.core.wmm import earth_field
+
+        pos = self.gnss.position if self.gnss is not None else None
+        if pos is None and self.autopilot.lat_deg is not None:
+            pos = (self.autopilot.lat_deg, self.autopilot.lon_deg, self.autopilot.alt_m or 0.0)
+        if pos is None and self.config.location.lat_deg is not None:
+            pos = (self.config.location.lat_deg, self.config.location.lon_deg, self.config.location.alt_m or 0.0)
+        try:
+            return earth_field(*pos).horizontal_ut if pos is not None else math.nan
+        except ValueError:
+            return math.nan
+
     def _send_source_set_command(self, source_set: int) -> None:
         """MAV_CMD_SET_EKF_SOURCE_SET to the autopilot (daemon.source_set_realign)."""
         self.send(mavlink.MAVLink_command_long_message(*self._autopilot_target(), MAV_CMD_SET_EKF_SOURCE_SET, 0,
@@ -331,6 +364,8 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
             save_timestamp(self.state_dir, max((e.signing_timestamp() for e in self.endpoints), default=0))
         if self.restart_heading is not None:
             self.restart_heading.save_now(self.reset_counter)
+        if self.learned_iron is not None:
+            self.learned_iron.save_now()
         self._close_logs()                          # after the last frames went out
         for ep in self.endpoints:
             ep.close()

@@ -19,6 +19,8 @@ def format_status(s, now: float) -> str:
         parts.append(f"hdg {math.degrees(est.heading_true_rad) % 360.0:5.1f}T "
                      f"±{math.degrees(float(est.sigma_rpy_rad[2])):4.1f}")
     parts.append(STATE_NAMES.get(s.health.system_status(now), "?"))
+    if getattr(s, "heading_status", None) is not None:
+        parts.append(s.heading_status.status_text())
     c = s.pipeline.counters if s.pipeline else None
     link = s.link_totals()
     parts.append(f"gaps {c.gaps if c else 0} ovr {s.counters.overruns} "
