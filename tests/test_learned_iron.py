@@ -135,3 +135,44 @@ def test_reset_forgets_it_and_both_commands_are_refused_while_armed(tmp_path):
         assert not np.any(svc.pipeline.estimator.learned_iron()[0])
     finally:
         stop_service(svc, loop)
+
+
+class _FakeConn:
+    """Answers PARAM_REQUEST_READ with PARAM_VALUE from `values`, as the daemon (1, 200) would."""
+
+    def __init__(self, values):
+        from types import SimpleNamespace
+
+        self.values, self.queue = values, []
+        self.mav = SimpleNamespace(param_request_read_send=self._read)
+        self._wire = mavlink.MAVLink(None, srcSystem=1, srcComponent=200)
+
+    def _read(self, sys_id, comp_id, name, index):
+        from ahrsd.daemon.messages import param_value
+
+        name = name.decode()
+        if name in self.values:
+            msg = param_value(name, self.values[name], 0, 1)
+            self.queue.append(mavlink.MAVLink(None).parse_char(bytearray(msg.pack(self._wire))))
+
+    def recv_match(self, **kw):
+        return self.queue.pop(0) if self.queue else None
+
+
+def test_magcal_status_shows_the_learned_iron_and_the_cli_has_its_actions():
+    import io
+
+    from ahrsd.cli.magcal_client import MagCalClient
+    from ahrsd.cli.main import build_parser
+
+    client = MagCalClient(_FakeConn({"MAG_LRN_X": 4.0, "MAG_LRN_Y": -6.5, "MAG_LRN_Z": 2.0, "MAG_LRN_SD": 1.76}),
+                          timeout_s=0.5, out=io.StringIO())
+    client.sys, client.comp = 1, 200
+    text = client.learned_iron_text()
+    assert "+4.00 -6.50 +2.00 uT" in text and "1.76 uT" in text and "accept-learned" in text
+    client = MagCalClient(_FakeConn({"MAG_LRN_X": 0.0, "MAG_LRN_Y": 0.0, "MAG_LRN_Z": 0.0, "MAG_LRN_SD": -1.0}),
+                          timeout_s=0.5, out=io.StringIO())
+    client.sys, client.comp = 1, 200
+    assert "learns none" in client.learned_iron_text()
+    for action in ("accept-learned", "reset-learned"):
+        assert build_parser().parse_args(["magcal", action]).action == action
