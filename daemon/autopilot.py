@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
+from typing import Callable
 
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.daemon.rate_limit import TokenBucket
@@ -52,6 +53,20 @@ class AutopilotState:
     rejected_positions: int = 0         # GLOBAL_POSITION_INT / GPS_RAW_INT refused (see the module docstring)
     rejected_courses: int = 0
     _warn_budget: TokenBucket = field(default_factory=lambda: TokenBucket(rate_per_s=0.1, burst=3), repr=False)
+    _gnss_listeners: list = field(default_factory=list, repr=False)
+
+    def add_gnss_listener(self, fn: Callable[[object], None]) -> None:
+        """`fn(msg)` after every GPS_RAW_INT / GLOBAL_POSITION_INT from the autopilot has been taken in
+        (accepted or refused here: the listener judges the message for its own use). A listener that raises
+        is logged; the input handling carries on."""
+        self._gnss_listeners.append(fn)
+
+    def _tell_gnss_listeners(self, msg) -> None:
+        for fn in self._gnss_listeners:
+            try:
+                fn(msg)
+            except Exception:  # noqa: BLE001 - a bad GNSS message must not stop the service's input handling
+                log.exception("GNSS listener: %s not usable", msg.get_type())
 
     @staticmethod
     def is_autopilot_heartbeat(msg) -> bool:
@@ -80,6 +95,14 @@ class AutopilotState:
             log.warning("%s from the autopilot refused: %s", what, reason)
 
     def on_global_position_int(self, msg, now: float) -> None:
+        self._take_global_position_int(msg, now)
+        self._tell_gnss_listeners(msg)
+
+    def on_gps_raw_int(self, msg, now: float) -> None:
+        self._take_gps_raw_int(msg, now)
+        self._tell_gnss_listeners(msg)
+
+    def _take_global_position_int(self, msg, now: float) -> None:
         if msg.lat == 0 and msg.lon == 0:
             return   # "no position" as autopilots send it before a fix
         problem = position_problem_e7(msg.lat, msg.lon, msg.alt)
@@ -94,7 +117,7 @@ class AutopilotState:
         self.course_rad = math.atan2(ve, vn) % (2 * math.pi)
         self.velocity_time = now
 
-    def on_gps_raw_int(self, msg, now: float) -> None:
+    def _take_gps_raw_int(self, msg, now: float) -> None:
         if msg.fix_type < GPS_FIX_3D:
             return
         problem = (f"fix type {msg.fix_type} unknown" if msg.fix_type > GPS_FIX_TYPE_MAX

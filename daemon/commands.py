@@ -48,9 +48,8 @@ class CommandAck:
 
 @dataclass
 class CommandContext:
-    """What a handler may need: who asked, on which link, and the daemon to act on."""
+    """What a handler may need: who asked and on which link (what it acts on, the handler holds itself)."""
 
-    service: Any               # ahrsd.daemon.service.Service: apply_calibration, send, statustext, ...
     endpoint: Any              # the Endpoint the command arrived on
     src_system: int
     src_component: int
@@ -103,9 +102,9 @@ def command_params(msg) -> tuple[float, ...]:
 
 @dataclass
 class CommandRouter:
-    service: Any
     send_ack: Callable[[Any, Any], None]       # (endpoint, COMMAND_ACK message)
     require_signed: Callable[[], bool] = lambda: False
+    send: Callable[[Any], None] | None = None    # to every endpoint: a refusal the operator should see
     accept_broadcast: bool = True
     counters: CommandCounters = field(default_factory=CommandCounters)
     clock: Callable[[], float] = time.monotonic
@@ -161,7 +160,7 @@ class CommandRouter:
             self._log_refusal(cmd, src, "unsigned")
             ack(mavlink.MAV_RESULT_DENIED, remember=False)   # a signed retry must be evaluated afresh
             return
-        ctx = CommandContext(self.service, endpoint, src[0], src[1], broadcast, signed,
+        ctx = CommandContext(endpoint, src[0], src[1], broadcast, signed,
                              msg.get_type() == "COMMAND_INT", lambda r, p: ack(r, p))
         try:
             out = reg.handler(msg, ctx)
@@ -186,7 +185,7 @@ class CommandRouter:
             self.counters.refusal_logs_suppressed += 1
             return
         log.warning("command %d from %d/%d refused: %s", cmd, src[0], src[1], reason)
-        send = getattr(self.service, "send", None)
+        send = self.send
         if tell_operator and send is not None:      # the operator sees why, not only the MAV_RESULT
             send(mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_WARNING,
                                                     f"ahrsd: {reason}".encode("utf-8", "replace")[:50], 0, 0))

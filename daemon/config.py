@@ -13,7 +13,7 @@
     [signing]    -> SigningConfig    optional MAVLink 2 signing
     [daemon]     -> DaemonConfig     process behaviour (status line)
     [log]        -> LogConfig        on-vehicle logs: raw samples and MAVLink traffic (daemon.vehicle_log)
-    [magcal]     -> daemon.magcal.MagCalSettings  field magnetometer calibration (validated by that module)
+    [magcal]     -> daemon.magcal_settings.MagCalSettings  field magnetometer calibration (validated by that module)
 
 Every key is checked; an error names the key, the bad value and what is allowed. Unknown sections and keys
 are rejected by name (a typo must not silently fall back to a default). Command-line flags override the file
@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ahrsd.daemon.magcal import settings_from_mapping
+from ahrsd.daemon.magcal_settings import settings_from_mapping
 from ahrsd.daemon.nmea_sentences import (DEFAULT_RATES_HZ, LOW_SPEED_BELOW_BAUD, LOW_SPEED_RATES_HZ, SENTENCE_IDS,
                                          worst_case_bytes)
 from ahrsd.daemon.output_profiles import DEFAULT_PROFILE, PROFILES
@@ -288,8 +288,9 @@ class GnssConfig:
 class LocationConfig:
     """Where the vehicle is, for the WMM declination (true heading = magnetic heading + declination).
 
-    Priority: declination_deg if set; else lat/lon if set; else the autopilot's GLOBAL_POSITION_INT/GPS_RAW_INT
-    (when use_autopilot_position); else the simulator's site for source = "sim"; else 0 with a warning.
+    Priority: declination_deg if set; else lat/lon if set; else the [gnss] receiver's position; else the
+    autopilot's GLOBAL_POSITION_INT/GPS_RAW_INT (when use_autopilot_position); else the simulator's site for
+    source = "sim"; else 0 with a warning (daemon.position, daemon.declination).
     """
 
     lat_deg: float | None = None
@@ -483,6 +484,7 @@ class _OutputsParse:
         checks["reset_counter_on_calibration"] = _bool
         checks["restart_yaw"] = _choice_of(RESTART_YAW_MODES)
         checks["ardupilot_source_set"] = lambda k, v: _choice(k, _number(k, v, 0, 3, integer=True), (0, 2, 3))
+        checks["heading_good_sigma_deg"] = _number_in(0.1, 90.0)
         out = cls(**_parse_table(cls, d, prefix, checks))
         if out.restart_yaw == "source_set" and out.ardupilot_source_set == 0:
             raise _fail(f"{prefix}.restart_yaw", "source_set", "needs ardupilot_source_set = 2 or 3")
@@ -502,12 +504,16 @@ class _OutputsParse:
 #   HEARTBEAT: PX4 → reset_counter, ArduPilot with ardupilot_source_set → source_set, else slew);
 # * ardupilot_source_set: 0 (off), or the EKF source set (2, 3) ahrsd may switch ArduPilot to and back to
 #   re-align EKF3's yaw (daemon.source_set_realign): identical to set 1 except a yaw source other than ExtNav.
+# * heading_good_sigma_deg: "heading good" (MAV_STATE_ACTIVE, SYS_STATUS AHRS healthy) only while the heading
+#   state is MAGNETOMETER, or GNSS-held (GNSS_ONLY, LEARNING) with a yaw 1σ below this for 2 s
+#   (daemon.heading_status; 5° as ArduPilot's compass learning trusts a GSF yaw, Compass_learn.cpp).
 OutputsConfig = dataclasses.make_dataclass(
     "OutputsConfig",
     [(o.config_key, float, field(default=o.default_hz)) for o in OUTPUTS]
     + [("heading_slew_deg_s", float, field(default=2.0)), ("restart_slew_deg_s", float, field(default=3.0)),
        ("reset_counter_on_calibration", bool, field(default=False)),
-       ("restart_yaw", str, field(default="auto")), ("ardupilot_source_set", int, field(default=0))],
+       ("restart_yaw", str, field(default="auto")), ("ardupilot_source_set", int, field(default=0)),
+       ("heading_good_sigma_deg", float, field(default=5.0))],
     bases=(_OutputsParse,), frozen=True)
 OutputsConfig.__module__ = __name__
 OutputsConfig.__doc__ = "Message rates in Hz (0 = off), one per output of the registry, and the heading slew."
@@ -546,14 +552,10 @@ class SigningConfig:
 @dataclass(frozen=True)
 class DaemonConfig:
     status_line: str = "auto"   # "auto" (when stdout is a terminal), "on", "off"
-    # a heading held by GNSS alone is "good" (MAV_STATE ACTIVE, AHRS healthy) while its 1σ is below this, deg
-    # (daemon.heading_status; ArduPilot's compass learning trusts a GSF yaw below 5°)
-    heading_good_sigma_deg: float = 5.0
 
     @classmethod
     def parse(cls, d: dict, prefix="daemon") -> "DaemonConfig":
-        return cls(**_parse_table(cls, d, prefix, {"status_line": _choice_of(("auto", "on", "off")),
-                                                   "heading_good_sigma_deg": _number_in(0.1, 90.0)}))
+        return cls(**_parse_table(cls, d, prefix, {"status_line": _choice_of(("auto", "on", "off"))}))
 
 
 @dataclass(frozen=True)
@@ -608,7 +610,7 @@ class Config:
     signing: SigningConfig = field(default_factory=SigningConfig)
     daemon: DaemonConfig = field(default_factory=DaemonConfig)
     log: LogConfig = field(default_factory=LogConfig)
-    magcal: Any = None      # daemon.magcal.MagCalSettings, or None for its defaults
+    magcal: Any = None      # daemon.magcal_settings.MagCalSettings, or None for its defaults
     source_path: str = ""   # the file this came from ("" = built-in defaults)
 
     @property

@@ -1,66 +1,85 @@
-"""Declination (true heading = magnetic heading + declination), by priority: DECL_MANUAL/DECL_DEG, the
-configured position, the GNSS receiver's position, the autopilot's position, the simulator's site; a step larger than
-DECLINATION_RESET_STEP_RAD is a heading reset the autopilot is told about."""
+"""Declination (true heading = magnetic heading + declination): DECL_MANUAL/DECL_DEG, else the WMM at the
+position of daemon.position's priority (configured, GNSS receiver, autopilot, simulator site). A step larger
+than DECLINATION_RESET_STEP_RAD is a heading reset the autopilot is told about."""
 
 from __future__ import annotations
 
 import logging
 import math
 import time
+from typing import Callable, Protocol
 
-from ahrsd.core.wmm import earth_field
-from ahrsd.simulation import DEFAULT_SITE
+from ahrsd.daemon.position import PositionResolver
 
 log = logging.getLogger(__name__)
 
 DECLINATION_RESET_STEP_RAD = math.radians(0.5)   # a heading step this large increments reset_counter
+UPDATE_PERIOD_S = 10.0                           # re-resolved this often (a moving vehicle, a late fix)
 
 
-class DeclinationResolver:
-    """Service part: `_resolve_declination` (start, every 10 s, on a position or DECL_* change)."""
+class ParamReader(Protocol):
+    def get(self, name: str) -> float: ...
 
-    def _resolve_declination(self, initial: bool = False) -> None:
-        """Declination by priority: DECL_MANUAL/DECL_DEG, configured position, GNSS position ([gnss] source),
-        autopilot position, sim site."""
-        self._last_decl_update = time.monotonic()
-        loc = self.config.location
+
+def _label(position) -> str:
+    if position.source == "gnss":
+        return "WMM at the GNSS position"   # no coordinates: they change while moving (logged on change)
+    if position.source == "simulator":
+        return "WMM at the simulator's site"
+    return f"WMM at {position.lat_deg:.4f},{position.lon_deg:.4f} ({position.source})"
+
+
+class Declination:
+    """Owns the declination in force (`rad`, `source`). `resolve()` at start, every UPDATE_PERIOD_S
+    (`tick`), on a position or DECL_* change; the estimator gets each change through `set_estimator`
+    (bound once the estimator exists) and a step beyond DECLINATION_RESET_STEP_RAD calls `signal_reset`."""
+
+    def __init__(self, params: ParamReader, positions: PositionResolver, *, signal_reset: Callable[[], None],
+                 clock: Callable[[], float] = time.monotonic):
+        self.params = params
+        self.positions = positions
+        self.signal_reset = signal_reset
+        self.clock = clock
+        self.rad = 0.0
+        self.source = "none"
+        self.set_estimator: Callable[[float], None] | None = None
+        self._last_update = -math.inf
+
+    def resolve(self, initial: bool = False) -> None:
+        self._last_update = self.clock()
         decl, source = None, ""
         if self.params.get("DECL_MANUAL") >= 0.5:
             decl, source = math.radians(self.params.get("DECL_DEG")), "manual"
-        elif loc.lat_deg is not None:
-            decl = earth_field(loc.lat_deg, loc.lon_deg, loc.alt_m).declination_rad
-            source = f"WMM at {loc.lat_deg:.4f},{loc.lon_deg:.4f} (config)"
-        elif self.gnss is not None and self.gnss.position is not None:
-            lat, lon, alt = self.gnss.position
-            decl = earth_field(lat, lon, alt).declination_rad
-            source = "WMM at the GNSS position"   # no coordinates: they change while moving (logged on change)
-        elif loc.use_autopilot_position and self.autopilot.lat_deg is not None:
-            ap = self.autopilot
-            decl = earth_field(ap.lat_deg, ap.lon_deg, ap.alt_m).declination_rad
-            source = f"WMM at {ap.lat_deg:.4f},{ap.lon_deg:.4f} (autopilot)"
-        elif self.config.sensor.source == "sim":
-            site = DEFAULT_SITE
-            decl = earth_field(site.lat_deg, site.lon_deg, site.alt_m, site.date).declination_rad
-            source = "WMM at the simulator's site"
+        else:
+            position = self.positions.position()
+            if position is not None:
+                decl, source = position.earth_field().declination_rad, _label(position)
         if decl is None:
             if initial:
                 log.warning("no position and no declination configured: true heading = magnetic heading until "
                             "the autopilot reports a position")
             decl, source = 0.0, "none (no position yet)"
-        self._set_declination(decl, source)
+        self._set(decl, source)
+
+    @property
+    def waiting_for_position(self) -> bool:
+        return self.source.startswith("none")
 
     def on_gnss_position(self) -> None:
         """The first GNSS fix: it outranks the autopilot's position and the simulator's site."""
-        if not (self.declination_source == "manual" or self.declination_source.endswith("(config)")):
-            self._resolve_declination()
+        if not (self.source == "manual" or self.source.endswith("(config)")):
+            self.resolve()
 
-    def _set_declination(self, decl: float, source: str) -> None:
-        step = abs(math.remainder(decl - self.declination_rad, 2 * math.pi))
-        if source != self.declination_source:
+    def tick(self, now: float) -> None:
+        if now - self._last_update > UPDATE_PERIOD_S:
+            self.resolve()
+
+    def _set(self, decl: float, source: str) -> None:
+        step = abs(math.remainder(decl - self.rad, 2 * math.pi))
+        if source != self.source:
             log.info("declination %.2f° from %s", math.degrees(decl), source)
-        self.declination_rad, self.declination_source = decl, source
-        if self.pipeline is not None and step > 1e-9:
-            self.pipeline.estimator.set_declination(decl)
+        self.rad, self.source = decl, source
+        if self.set_estimator is not None and step > 1e-9:
+            self.set_estimator(decl)
             if step > DECLINATION_RESET_STEP_RAD:
-                self.signal_heading_reset()
-
+                self.signal_reset()

@@ -17,8 +17,13 @@ import numpy as np
 from ahrsd.calibration import GyroModel
 from ahrsd.calibration.inertial.gyro import fit_bias_only
 from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
+from ahrsd.daemon.autopilot import AutopilotState
+from ahrsd.daemon.calibration_swap import CalibrationSwap
 from ahrsd.daemon.commands import CommandAck
+from ahrsd.daemon.health import Health
 from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.daemon.outbound import Outbound
+from ahrsd.daemon.sample_reader import SampleListeners
 
 log = logging.getLogger(__name__)
 
@@ -32,11 +37,18 @@ MAX_ACCEL_STD_M_S2 = 0.3
 
 
 class GyroBiasCalibration:
-    """Collects samples through a service sample listener, then swaps the calibration."""
+    """Collects samples through a sample listener, then swaps the calibration (daemon.calibration_swap).
+    `health.calibrating` says CALIBRATING meanwhile; `loop` schedules the finish and the give-up timer."""
 
-    def __init__(self, service, ctx, sample_rate_hz: float):
-        self.service = service
+    def __init__(self, ctx, sample_rate_hz: float, *, listeners: SampleListeners, loop, health: Health,
+                 outbound: Outbound, autopilot: AutopilotState, swap: CalibrationSwap):
         self.ctx = ctx
+        self.listeners = listeners
+        self.loop = loop
+        self.health = health
+        self.outbound = outbound
+        self.autopilot = autopilot
+        self.swap = swap
         self.needed = max(16, int(DURATION_S * sample_rate_hz))
         self.n = 0
         self.g_sum = np.zeros(3)
@@ -48,11 +60,11 @@ class GyroBiasCalibration:
         self._remove = None
 
     def start(self) -> CommandAck:
-        self._remove = self.service.add_sample_listener(self.on_sample)
+        self._remove = self.listeners.add(self.on_sample)
         # samples can stop (sensor failure): never leave the command IN_PROGRESS for ever
-        self.service.loop.call_later(3 * DURATION_S + 2.0, self.cancel, "no samples from the sensor")
-        self.service.set_calibrating("gyro calibration")
-        self.service.statustext(mavlink.MAV_SEVERITY_INFO, "ahrsd: gyro calibration started, keep still")
+        self.loop.call_later(3 * DURATION_S + 2.0, self.cancel, "no samples from the sensor")
+        self.health.calibrating = "gyro calibration"
+        self.outbound.statustext(mavlink.MAV_SEVERITY_INFO, "ahrsd: gyro calibration started, keep still")
         return CommandAck(mavlink.MAV_RESULT_IN_PROGRESS, 0)
 
     def on_sample(self, sample, _estimate) -> None:
@@ -68,7 +80,7 @@ class GyroBiasCalibration:
         self.n += 1
         if self.n >= self.needed:
             self.done = True
-            self.service.loop.call_soon(self._finish)
+            self.loop.call_soon(self._finish)
 
     def cancel(self, reason: str) -> None:
         if not self.done:
@@ -81,15 +93,15 @@ class GyroBiasCalibration:
         std = np.sqrt(np.maximum(self.g_sq / n - mean * mean, 0.0))
         a_mean = self.a_norm_sum / n
         a_std = math.sqrt(max(self.a_norm_sq / n - a_mean * a_mean, 0.0))
-        if self.service.autopilot.armed:
+        if self.autopilot.armed:
             return self._end(mavlink.MAV_RESULT_FAILED, "ahrsd: gyro calibration failed: vehicle armed")
         if np.any(std > MAX_GYRO_STD_RAD_S) or a_std > MAX_ACCEL_STD_M_S2 or abs(a_mean - STANDARD_GRAVITY_M_S2) > MAX_ACCEL_NORM_ERR_M_S2:
             return self._end(mavlink.MAV_RESULT_FAILED, "ahrsd: gyro calibration failed: vehicle moved")
-        cal = self.service.calibration
+        cal = self.swap.pipeline.calibration
         model = cal.gyro
         # back to raw sensor-frame rates: body = mounting · sensor, calibrated = M·(raw − b)
         body = np.asarray(self.gyro_rad_s)
-        mounting = self.service.pipeline.mounting
+        mounting = self.swap.pipeline.mounting
         sensor = body if mounting is None else body @ mounting     # rows: mountingᵀ · g
         raw = model.bias_rad_s + np.linalg.solve(model.matrix, sensor.T).T
         fit = fit_bias_only(raw, model.matrix)
@@ -99,7 +111,7 @@ class GyroBiasCalibration:
         new_cal = cal.with_sensor("gyro", GyroModel(new_bias, model.matrix), method="preflight-rest",
                                   samples=n, residual_rms=float(np.linalg.norm(std)))
         try:
-            self.service.apply_calibration(new_cal, save=True, reason="gyro bias")
+            self.swap.apply(new_cal, save=True, reason="gyro bias")
         except Exception as exc:  # noqa: BLE001 - report, don't crash
             log.exception("applying the gyro calibration failed")
             return self._end(mavlink.MAV_RESULT_FAILED, f"ahrsd: gyro calibration failed: {exc}")
@@ -110,7 +122,7 @@ class GyroBiasCalibration:
     def _end(self, result: int, text: str) -> None:
         if self._remove:
             self._remove()
-        self.service.set_calibrating("")
+        self.health.calibrating = ""
         severity = mavlink.MAV_SEVERITY_INFO if result == mavlink.MAV_RESULT_ACCEPTED else mavlink.MAV_SEVERITY_WARNING
-        self.service.statustext(severity, text)
+        self.outbound.statustext(severity, text)
         self.ctx.finish(result)

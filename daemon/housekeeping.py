@@ -1,101 +1,122 @@
-"""Housekeeping at 10 Hz: heartbeat and CPU load, MAV_STATE changes (STATUSTEXT + systemd status), the
-systemd watchdog (only while samples flow), the status line, the signing timestamp, declination refresh."""
+"""Housekeeping at 10 Hz: a list of jobs, each `job(now)` deciding itself whether it is due. The daemon's jobs
+(daemon.service, in this order): the health report (heartbeat, CPU load, MAV_STATE changes, systemd watchdog),
+the status line, the signing timestamp, the GNSS task, the declination refresh, the heading slew check.
+Adding a periodic job is one more entry in that list."""
 
 from __future__ import annotations
 
 import asyncio
 import time
+from typing import Callable, Protocol
 
-from ahrsd.daemon.health import STATE_NAMES
+from ahrsd.daemon import messages as msgs
+from ahrsd.daemon.health import STATE_NAMES, Health
 from ahrsd.daemon.mavlink_io import mavlink
-from ahrsd.daemon.notify import watchdog_interval_s
-from ahrsd.daemon.signing import save_timestamp
-from ahrsd.daemon.status_line import format_status
+from ahrsd.daemon.notify import Notifier
+from ahrsd.daemon.outbound import Outbound
 
 HOUSEKEEPING_HZ = 10.0
-STATUS_LINE_PERIOD_S = 0.5
-SIGNING_SAVE_PERIOD_S = 30.0
-DECLINATION_UPDATE_PERIOD_S = 10.0
-VISION_POSITION_ESTIMATE = mavlink.MAVLINK_MSG_ID_VISION_POSITION_ESTIMATE
+HEARTBEAT_PERIOD_S = 1.0
 
 
 class Housekeeping:
-    """Service part: the housekeeping task (`_housekeeping`)."""
+    """Runs every job at HOUSEKEEPING_HZ on absolute deadlines of the event loop's clock."""
 
-    async def _housekeeping(self) -> None:
-        loop = self.loop
+    def __init__(self, jobs: list[Callable[[float], None]]):
+        self.jobs = jobs
+
+    async def run(self, loop: asyncio.AbstractEventLoop) -> None:
         period = 1.0 / HOUSEKEEPING_HZ
-        wd_interval = watchdog_interval_s(self.environ)
-        start = loop.time()
-        next_hb = start + 1.0
-        next_wd = start
-        next_line = start
-        next_sign = start + SIGNING_SAVE_PERIOD_S
-        deadline = start
+        deadline = loop.time()
         while True:
             deadline += period
             now = loop.time()
-            if now >= next_hb:
-                next_hb = max(next_hb + 1.0, now)
-                self._update_load(now)
-                self._send_heartbeat(now)
-            self._update_heading_status(now)
-            state = self.health.system_status(now)
-            if state != self._last_state:
-                self._on_state_change(self._last_state, state)
-                self._last_state = state
-            if wd_interval is not None and now >= next_wd and self.health.samples_flowing(now):
-                self.notifier.watchdog()     # only while samples flow: a stalled reader gets us restarted
-                next_wd = now + wd_interval
-            if self._status_line is not None and now >= next_line:
-                next_line = now + STATUS_LINE_PERIOD_S
-                self._status_line.update(format_status(self, now))
-            if self.signing_key is not None and now >= next_sign:
-                next_sign = now + SIGNING_SAVE_PERIOD_S
-                save_timestamp(self.state_dir, max(e.signing_timestamp() for e in self.endpoints))
-            if self.gnss is not None:
-                self.gnss.tick(now)
-            if now - self._last_decl_update > DECLINATION_UPDATE_PERIOD_S:
-                self._resolve_declination()
-            if self.heading_slew.active and not any(ep.schedule.rate_hz(VISION_POSITION_ESTIMATE) > 0
-                                                    for ep in self.endpoints):
-                self.heading_slew.active = False    # nobody receives the slewed yaw: nothing to bring in
+            for job in self.jobs:
+                job(now)
             await asyncio.sleep(max(0.0, deadline - loop.time()))
 
-    def _update_heading_status(self, now: float) -> None:
-        """The heading state (daemon.heading_status) into the health (MAV_STATE, SYS_STATUS bits); the learned
-        iron's parameters and periodic save (daemon.learned_iron)."""
-        hs = self.heading_status
-        if hs is not None and self.pipeline is not None:
-            hs.on_estimate(self.pipeline.last_estimate, now, getattr(self.pipeline.estimator, "yaw_resets", 0))
-            self.health.heading_good, self.health.heading_unhealthy_bits = hs.heading_good, hs.unhealthy_bits()
-        if self.learned_iron is not None:
-            self.learned_iron.tick(now)
+
+class SampleCount(Protocol):
+    samples: int
+
+
+class Every:
+    """`Every(period_s, fn, first_at)(now)` calls fn(now) when due: a housekeeping job at a slower rate."""
+
+    def __init__(self, period_s: float, fn: Callable[[float], None], first_at: float):
+        self.period_s = period_s
+        self.fn = fn
+        self.next_at = first_at
+
+    def __call__(self, now: float) -> None:
+        if now >= self.next_at:
+            self.next_at = now + self.period_s
+            self.fn(now)
+
+
+class HealthReport:
+    """The heartbeat (1 Hz), CPU load and measured sample rate, a STATUSTEXT + systemd status on every
+    MAV_STATE change, and the systemd watchdog (only while samples flow: a stalled reader gets us restarted).
+    Owns `load_permille` and `measured_rate_hz`."""
+
+    def __init__(self, health: Health, outbound: Outbound, notifier: Notifier, counts: SampleCount, *,
+                 watchdog_interval_s: float | None, start: float,
+                 cpu_clock: Callable[[], float] = time.process_time,
+                 standby_detail: Callable[[], str] = lambda: "initialising, no heading out"):
+        self.health = health
+        self.outbound = outbound
+        self.notifier = notifier
+        self.counts = counts
+        self.watchdog_interval_s = watchdog_interval_s
+        self.cpu_clock = cpu_clock
+        self.standby_detail = standby_detail       # why no heading is good (daemon.heading_status)
+        self.load_permille = 0
+        self.measured_rate_hz = 0.0
+        self._next_heartbeat = start + HEARTBEAT_PERIOD_S
+        self._next_watchdog = start
+        self._last_state: int | None = None
+        self._cpu_window: tuple[float, float] = (time.monotonic(), cpu_clock())
+        self._rate_window: tuple[float, int] = (0.0, 0)
+
+    def __call__(self, now: float) -> None:
+        if now >= self._next_heartbeat:
+            self._next_heartbeat = max(self._next_heartbeat + HEARTBEAT_PERIOD_S, now)
+            self._update_load(now)
+            self.send_heartbeat(now)
+        state = self.health.system_status(now)
+        if state != self._last_state:
+            self._on_state_change(state)
+            self._last_state = state
+        if (self.watchdog_interval_s is not None and now >= self._next_watchdog
+                and self.health.samples_flowing(now)):
+            self.notifier.watchdog()
+            self._next_watchdog = now + self.watchdog_interval_s
+
+    def send_heartbeat(self, now: float) -> None:
+        self.outbound.send(msgs.heartbeat(self.outbound.identity.mav_type, self.health.system_status(now)))
 
     def _update_load(self, now: float) -> None:
         t0, cpu0 = self._cpu_window
-        cpu = time.process_time()
+        cpu = self.cpu_clock()
         if now > t0:
             self.load_permille = int(1000.0 * (cpu - cpu0) / (now - t0))
         self._cpu_window = (now, cpu)
         t_prev, n_prev = self._rate_window
-        n = self.pipeline.counters.samples
+        n = self.counts.samples
         if t_prev:
             self.measured_rate_hz = (n - n_prev) / (now - t_prev)
         self._rate_window = (now, n)
 
-    def _on_state_change(self, old: int | None, new: int) -> None:
+    def _on_state_change(self, new: int) -> None:
         name = STATE_NAMES.get(new, str(new))
         severity = {mavlink.MAV_STATE_CRITICAL: mavlink.MAV_SEVERITY_CRITICAL,
                     mavlink.MAV_STATE_ACTIVE: mavlink.MAV_SEVERITY_NOTICE}.get(new, mavlink.MAV_SEVERITY_INFO)
         detail = {
             mavlink.MAV_STATE_BOOT: "waiting for the sensor",
-            mavlink.MAV_STATE_STANDBY: (self.heading_status.standby_detail() if self.heading_status is not None
-                                        else "initialising, no heading out"),
-            mavlink.MAV_STATE_ACTIVE: "heading good",
+            mavlink.MAV_STATE_STANDBY: self.standby_detail(),
+            mavlink.MAV_STATE_ACTIVE: "heading good",     # Health: only while daemon.heading_status says so
             mavlink.MAV_STATE_CALIBRATING: self.health.calibrating or "calibrating",
             mavlink.MAV_STATE_CRITICAL: self.health.sensor_error or "no samples from the sensor",
         }.get(new, "")
-        self.statustext(severity, f"ahrsd: {name}: {detail}"[:50])   # "heading good": only when heading_status says so
+        self.outbound.statustext(severity, f"ahrsd: {name}: {detail}"[:50])
         self.notifier.status(f"{name}: {detail}")
-

@@ -220,8 +220,10 @@ class LearnedIron:
         iron = math.sqrt(max(float(np.max(np.diag(cov)[:2])), 0.0)) / h
         old = calibration_heading_sigma_rad(current)
         if not math.isfinite(old):
-            unmodelled = getattr(getattr(self.pipeline.estimator, "params", None), "iron_unmodelled_ut", math.nan)
-            old = float(unmodelled) / h if math.isfinite(unmodelled) else math.nan
+            from ahrsd.estimator.ins import DEFAULT_INS_PARAMS, Ins
+
+            est = self.pipeline.estimator
+            old = (est.params if isinstance(est, Ins) else DEFAULT_INS_PARAMS).iron_unmodelled_ut / h
         if not math.isfinite(old):
             return None
         return math.degrees(math.hypot(old, iron))

@@ -17,8 +17,8 @@ Commands (COMMAND_LONG / COMMAND_INT), behaviour mirrored from ArduPilot's AP_Co
   (ArduPilot), FAILED for a FAILED session (stopped) and for a session still running (which carries on:
   ArduPilot would stop it, which only throws the operator's turning away).
 * MAV_CMD_DO_CANCEL_MAG_CAL (42426): stops the session, ACCEPTED.
-* MAV_CMD_FIXED_MAG_CAL_YAW (42006): p1 true yaw deg, p2 mask, p3/p4 lat/lon (0/0 = the autopilot's
-  position, else the configured location; as COMMAND_INT the position may come as x/y in degE7):
+* MAV_CMD_FIXED_MAG_CAL_YAW (42006): p1 true yaw deg, p2 mask, p3/p4 lat/lon (0/0 = the daemon's
+  position, daemon.position's priority; as COMMAND_INT the position may come as x/y in degE7):
   offsets from the WMM field at the given attitude, soft iron KEPT; saved and swapped at once (as ArduPilot
   does). DENIED up front for a yaw or position that is not finite or out of range. Computed from the raw
   (uncalibrated) field, so the same request twice gives the same calibration.
@@ -32,7 +32,7 @@ configured (both done by the CommandRouter, daemon/commands.py).
 While a session runs: MAG_CAL_PROGRESS at ~4 Hz, HEARTBEAT system_status CALIBRATING (`system_status`),
 STATUSTEXT lines a person can act on; when it has finished, MAG_CAL_REPORT (ArduPilot's offsets/diag/offdiag
 convention, fitness in mgauss, autosaved flag) at 1 Hz until accepted or cancelled. Save and swap go
-through the daemon's one calibration path, `Service.apply_calibration`, which also has the estimator
+through the daemon's one calibration path, daemon.calibration_swap, which also has the estimator
 re-learn its field reference and slews the heading sent to the autopilot (docs/daemon.md "Calibration
 changes").
 """
@@ -42,12 +42,11 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import concurrent.futures.process
-import dataclasses
 import logging
 import math
 import time
 from collections import deque
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from types import SimpleNamespace
 from typing import Any, Protocol
 
@@ -56,10 +55,16 @@ import numpy as np
 from ahrsd.calibration.ardupilot_compass import UT_TO_MGAUSS
 from ahrsd.calibration.field import CalStatus, FieldCalConfig, FieldCalibration, VehicleType
 from ahrsd.calibration.fixed_yaw import fixed_yaw_calibration
-from ahrsd.calibration.mag.swing import DEFAULT_MIN_SPEED_M_S
 from ahrsd.core.angles import tilt_compensated_heading_rad, wrap_180_deg
+from ahrsd.core.wmm import earth_field
+from ahrsd.daemon.autopilot import AutopilotState
+from ahrsd.daemon.calibration_swap import CalibrationSwap
 from ahrsd.daemon.command_args import CommandArgs, Refused, position_problem, whole_number
+from ahrsd.daemon.heading_slew import HeadingSlew
+from ahrsd.daemon.magcal_settings import MagCalSettings, settings_from_mapping  # noqa: F401 - re-exported
 from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.daemon.outbound import Outbound
+from ahrsd.daemon.position import PositionResolver
 from ahrsd.drivers.gnss.mavlink import MavlinkGnssSelector
 
 log = logging.getLogger(__name__)
@@ -78,34 +83,14 @@ STATUSTEXT_LEN = 50     # STATUSTEXT.text char[50]
 SEV_ERROR, SEV_WARNING, SEV_NOTICE, SEV_INFO = 3, 4, 5, 6   # MAV_SEVERITY
 
 
-@dataclass(frozen=True)
-class MagCalSettings:
-    """Behaviour of the mag-cal protocol handler (the daemon's `[magcal]` config section)."""
-
-    accept_broadcast: bool = False       # act on target_component 0 (MAVProxy `magcal`): also starts the autopilot's cal
-    allow_armed: bool = False            # calibrate while the autopilot reports armed
-    vehicle_type: str = "auto"           # auto | level | tumble
-    fitness_mgauss: float = 16.0         # ArduPilot COMPASS_CAL_FIT default
-    timeout_s: float = 300.0             # sample time from start to full coverage
-    progress_rate_hz: float = 4.0        # MAG_CAL_PROGRESS while running
-    report_rate_hz: float = 1.0          # MAG_CAL_REPORT while finished and not accepted/cancelled
-    fixed_yaw_average_s: float = 1.0     # raw field averaged for MAV_CMD_FIXED_MAG_CAL_YAW
-    # GNSS course for the heading offset: the fix's time of validity is its arrival minus this latency
-    # (ArduPilot AP_GPS_UBLOX::get_lag: 0.12 s for u-blox M8/F9), used above this ground speed
-    gnss_latency_s: float = 0.12
-    course_min_speed_m_s: float = DEFAULT_MIN_SPEED_M_S
-    # GLOBAL_POSITION_INT (the autopilot's fused velocity) when no GPS_RAW_INT arrives: only when the autopilot
-    # does not fuse our heading (docs/gnss.md "The loop through the autopilot")
-    course_from_global_position_int: bool = False
-
-    def field_config(self, retry: bool, delay_s: float) -> FieldCalConfig:
-        return FieldCalConfig(vehicle_type=VehicleType(self.vehicle_type), fitness_mgauss=self.fitness_mgauss,
-                              timeout_s=self.timeout_s, retry=retry, delay_s=delay_s,
-                              course_min_speed_m_s=self.course_min_speed_m_s)
+def field_config(settings: MagCalSettings, retry: bool, delay_s: float) -> FieldCalConfig:
+    return FieldCalConfig(vehicle_type=VehicleType(settings.vehicle_type), fitness_mgauss=settings.fitness_mgauss,
+                          timeout_s=settings.timeout_s, retry=retry, delay_s=delay_s,
+                          course_min_speed_m_s=settings.course_min_speed_m_s)
 
 
 class MagCalHost(Protocol):
-    """What the handler needs from the daemon (daemon/service.py provides it; tests provide a fake)."""
+    """What the handler needs from the daemon (`DaemonMagCalHost` below; tests provide a fake)."""
 
     def current_calibration(self): ...                 # Calibration in force
     # persist (atomic, previous kept) then hot-swap; raises if the save fails (the old one stays in force)
@@ -363,7 +348,7 @@ class MagCalProtocol:
         if reference is None:
             self._say(SEV_WARNING, "Mag cal: no position for WMM: offsets only on level turns")
         self._stop_session()
-        self.session = FieldCalibration(current, self.settings.field_config(retry, delay_s), reference,
+        self.session = FieldCalibration(current, field_config(self.settings, retry, delay_s), reference,
                                         samples_are_calibrated=True, auto_fit=False)
         self.session.start()
         self._warm_worker()
@@ -548,138 +533,92 @@ class _FakeCommand:
         return "COMMAND_LONG"
 
 
-def settings_from_mapping(d: dict[str, Any] | None) -> MagCalSettings:
-    """`[magcal]` TOML table -> MagCalSettings; raises ValueError naming the bad key."""
-    d = dict(d or {})
-    out: dict[str, Any] = {}
-    fields = {f: type(getattr(MagCalSettings(), f)) for f in MagCalSettings.__dataclass_fields__}
-    for key, value in d.items():
-        if key not in fields:
-            raise ValueError(f"unknown config key magcal.{key}: allowed keys are {', '.join(fields)}")
-        want = fields[key]
-        if want is bool and not isinstance(value, bool):
-            raise ValueError(f"config key magcal.{key} = {value!r} is invalid: true or false")
-        if want is float and (isinstance(value, bool) or not isinstance(value, (int, float))
-                              or not (math.isfinite(value) and value > 0)):
-            # inf would pass "> 0": an infinite progress rate makes the mag-cal ticker spin
-            raise ValueError(f"config key magcal.{key} = {value!r} is invalid: a positive finite number")
-        if key == "vehicle_type" and value not in ("auto", "level", "tumble"):
-            raise ValueError(f"config key magcal.vehicle_type = {value!r} is invalid: one of 'auto', 'level', 'tumble'")
-        out[key] = float(value) if want is float else value
-    return replace(MagCalSettings(), **out)
-
-
 # ============================================================================ the daemon adapter
 
 
-class ServiceHost:
-    """`MagCalHost` on top of the daemon's public hooks (daemon/service.py: pipeline, commands,
-    add_sample_listener, send, set_calibrating, autopilot, state_dir, config)."""
+class DaemonMagCalHost:
+    """`MagCalHost` on the daemon's parts, each given explicitly: the pipeline (calibration in force, sensor-frame
+    sample, mounting), the one calibration path (daemon.calibration_swap), the outbound link, the autopilot
+    (armed), the position resolver (daemon.position: the reference field) and the heading slew (a swap has
+    fully arrived when it ends)."""
 
-    def __init__(self, service):
-        self.service = service
-        self.protocol: MagCalProtocol | None = None
-        self._task: asyncio.Task | None = None
-        self._applying = False            # a swap whose heading slew has not finished yet
-        self._calibrating_shown = False
+    def __init__(self, pipeline, swap: CalibrationSwap, outbound: Outbound, autopilot: AutopilotState,
+                 positions: PositionResolver, slew: HeadingSlew):
+        self.pipeline = pipeline
+        self.swap = swap
+        self.outbound = outbound
+        self.autopilot = autopilot
+        self.positions = positions
+        self.slew = slew
+        self.applying = False            # a swap whose heading slew has not finished yet
 
-    # -- MagCalHost
     def current_calibration(self):
-        return self.service.pipeline.calibration
+        return self.pipeline.calibration
 
     def apply_calibration(self, cal) -> None:
         """Save and swap through the daemon's one calibration path (store, estimator, heading slew)."""
-        self.service.apply_calibration(cal, save=True, reason="magnetometer calibration")
-        self._applying = True
+        self.swap.apply(cal, save=True, reason="magnetometer calibration")
+        self.applying = True
 
     def send(self, msg) -> None:
-        self.service.send(msg)
+        self.outbound.send(msg)
 
     def statustext(self, severity: int, text: str) -> None:
         for msg in statustext_chunks(severity, text, 1):
-            self.service.send(msg)
+            self.outbound.send(msg)
 
     def armed(self) -> bool:
-        return bool(self.service.autopilot.armed)
+        return bool(self.autopilot.armed)
 
     def reference_field(self, lat_deg: float | None = None, lon_deg: float | None = None):
-        from ahrsd.core.wmm import earth_field
-
-        svc = self.service
+        """The WMM field at the position the request gives, else at daemon.position's (the declination's)."""
         if lat_deg or lon_deg:
             return earth_field(float(lat_deg), float(lon_deg))
-        ap = svc.autopilot
-        if ap.lat_deg is not None and ap.lon_deg is not None:
-            return earth_field(ap.lat_deg, ap.lon_deg, ap.alt_m)
-        loc = svc.config.location
-        if loc.lat_deg is not None:
-            return earth_field(loc.lat_deg, loc.lon_deg, loc.alt_m)
-        if svc.config.sensor.source == "sim":
-            from ahrsd.simulation import DEFAULT_SITE as site
+        return self.positions.reference_field()
 
-            return earth_field(site.lat_deg, site.lon_deg, site.alt_m, site.date)
-        return None
 
-    # -- daemon side
+class FieldCalibrationPart:
+    """The field magnetometer calibration in the daemon: the protocol handler (`protocol`, its commands
+    registered in the router), fed every sample (`on_sample`, a sample listener) and the autopilot's GPS
+    messages (an AutopilotState listener), ticked by its own task; it reports CALIBRATING through
+    `set_calibrating(text)`."""
+
+    def __init__(self, host: DaemonMagCalHost, settings: MagCalSettings, *, commands, autopilot: AutopilotState,
+                 set_calibrating):
+        self.host = host
+        self.protocol = MagCalProtocol(host, settings)
+        self.set_calibrating = set_calibrating
+        self._task: asyncio.Task | None = None
+        self._calibrating_shown = False
+        self.protocol.register(commands)
+        autopilot.add_gnss_listener(self.protocol.on_gnss_message)
+
     def on_sample(self, sample, estimate) -> None:
         """The daemon's sample listener (event loop, every sample). The session fits in the sensor frame, so it
         gets the pipeline's calibrated sample before the mounting rotation, and the mounting."""
-        pipeline = self.service.pipeline
+        pipeline = self.host.pipeline
         self.protocol.on_sample(pipeline.last_sensor_sample, estimate, pipeline.mounting)
         if self._task is None:
             self._task = asyncio.get_running_loop().create_task(self._ticker(), name="magcal")
+
+    def tick(self) -> None:
+        self.protocol.tick()
+        if self.host.applying and not self.host.slew.active:
+            self.host.applying = False
+            self.protocol._say(SEV_INFO, "Mag cal: new calibration fully applied")
+        calibrating = self.protocol.calibrating
+        if calibrating != self._calibrating_shown:
+            self._calibrating_shown = calibrating
+            self.set_calibrating("magnetometer calibration" if calibrating else "")
 
     async def _ticker(self) -> None:
         period = 1.0 / max(10.0, 2.5 * self.protocol.settings.progress_rate_hz)
         while True:
             try:
-                self.protocol.tick()
-                if self._applying and not self.service.heading_slew.active:
-                    self._applying = False
-                    self.protocol._say(SEV_INFO, "Mag cal: new calibration fully applied")
-                calibrating = self.protocol.calibrating
-                if calibrating != self._calibrating_shown:
-                    self._calibrating_shown = calibrating
-                    self.service.set_calibrating("magnetometer calibration" if calibrating else "")
+                self.tick()
             except Exception:  # noqa: BLE001 - the calibration must never stop the daemon
                 log.exception("magcal tick failed")
             await asyncio.sleep(period)
 
-
-def _hook_gnss(autopilot, proto: MagCalProtocol) -> None:
-    """Hand the autopilot's GPS_RAW_INT / GLOBAL_POSITION_INT (which the service already routes to its
-    AutopilotState) to the mag-cal protocol as well, without touching the service."""
-    for name in ("on_gps_raw_int", "on_global_position_int"):
-        original = getattr(autopilot, name)
-
-        def hooked(msg, now, _original=original):
-            _original(msg, now)
-            try:
-                proto.on_gnss_message(msg)
-            except Exception:  # noqa: BLE001 - a bad GNSS message must not stop the service's input handling
-                log.exception("magcal: GNSS message %s not usable", msg.get_type())
-
-        setattr(autopilot, name, hooked)
-
-
-def attach(service, settings: MagCalSettings | None = None) -> MagCalProtocol:
-    """Install the field magnetometer calibration in a daemon Service (before or after it starts).
-
-    Settings: `settings`, else the `[magcal]` table of the daemon config when it has one, else defaults.
-    Idempotent: returns the protocol already attached to `service`.
-    """
-    existing = getattr(service, "magcal", None)
-    if isinstance(existing, MagCalProtocol):
-        return existing
-    if settings is None:
-        raw = getattr(service.config, "magcal", None)
-        settings = raw if isinstance(raw, MagCalSettings) else settings_from_mapping(
-            dataclasses.asdict(raw) if dataclasses.is_dataclass(raw) else raw)
-    host = ServiceHost(service)
-    proto = MagCalProtocol(host, settings)
-    host.protocol = proto
-    proto.register(service.commands)
-    service.add_sample_listener(host.on_sample)
-    _hook_gnss(service.autopilot, proto)
-    service.magcal = proto
-    return proto
+    def close(self) -> None:
+        self.protocol.close()

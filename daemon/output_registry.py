@@ -14,7 +14,7 @@ built from the same entries (daemon.endpoint_outputs); `priority` orders outputs
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Protocol
 
 from ahrsd.core.estimate import HeadingState
 from ahrsd.daemon import messages as msgs
@@ -25,11 +25,25 @@ VISION_MAX_RATE_HZ = 50.0
 NAV_MAX_RATE_HZ = 50.0          # a display of the track needs a few Hz       # ArduPilot EKF3 extNavIntervalMin_ms = 20 ms (AP_NavEKF3_Measurements.cpp)
 
 
+class OutputContext(Protocol):
+    """What the builders read besides the estimate and the sample (daemon.service provides it)."""
+
+    @property
+    def declination_rad(self) -> float: ...
+    def time_boot_ms(self, now: float | None = None) -> int: ...
+    def sample_time_monotonic(self, t_s: float) -> float: ...
+    def heading_trusted(self, now: float) -> bool: ...
+    def autopilot_yaw(self, est) -> tuple[float, int]: ...     # (yaw to send, reset_counter): daemon.heading_resets
+    #   (reset_counter + 1 first when the estimator reset its yaw: EstimateFlags.YAW_RESET, daemon.heading_status)
+    def sys_status_message(self, now: float): ...
+    def local_origin(self): ...                                 # daemon.local_origin.LocalOrigin, None without GNSS
+
+
 @dataclass(frozen=True)
 class OutputSpec:
     """One published message.
 
-    build(service, estimate, sample, now) -> message or None (None: nothing trustworthy to send now).
+    build(context: OutputContext, estimate, sample, now) -> message or None (None: nothing trustworthy to send now).
     needs_estimate: only built once the estimator has produced an estimate and samples are fresh.
     priority: 0 = dropped last by a serial link that cannot keep up (daemon.serial_queue), higher numbers
     first: 0 the heading the autopilot fuses, 1 health, 2 attitude for displays, 3 raw sensor data.
@@ -45,61 +59,49 @@ class OutputSpec:
     priority: int = 1
 
 
-def _attitude(svc, est, sample, now):
-    return msgs.attitude(est, svc.time_boot_ms(now), est.heading_true_rad)
+def _attitude(ctx, est, sample, now):
+    return msgs.attitude(est, ctx.time_boot_ms(now), est.heading_true_rad)
 
 
-def _attitude_quaternion(svc, est, sample, now):
-    return msgs.attitude_quaternion(est, svc.time_boot_ms(now), svc.declination_rad)
+def _attitude_quaternion(ctx, est, sample, now):
+    return msgs.attitude_quaternion(est, ctx.time_boot_ms(now), ctx.declination_rad)
 
 
-def _vision_position_estimate(svc, est, sample, now):
-    if not svc.health.heading_trusted(now) or est.heading_state == HeadingState.UNKNOWN:
+def _vision_position_estimate(ctx, est, sample, now):
+    if not ctx.heading_trusted(now) or est.heading_state == HeadingState.UNKNOWN:
         return None   # never feed the autopilot a heading it must not trust, nor one nobody knows
-    from ahrsd.core.angles import yaw_rate_ned_rad_s
-
-    status = getattr(svc, "heading_status", None)   # the estimator reset its yaw (EstimateFlags.YAW_RESET):
-    if status is not None and status.take_yaw_resets(getattr(svc.pipeline.estimator, "yaw_resets", 0)):
-        svc.signal_heading_reset()                  # reset_counter + 1, sent with the reset heading
-
-    usec = int(svc.sample_time_monotonic(est.t_s) * 1e6)
-    restart = svc.restart_heading          # a restart with another heading: daemon.restart_heading
-    if restart is not None:
-        restart.before_publish(est.t_s, est.heading_true_rad)
-    yaw = svc.heading_slew.update(est.t_s, est.heading_true_rad,
-                                  yaw_rate_ned_rad_s(est.rate_body_rad_s, est.roll_rad, est.pitch_rad))
-    if restart is not None:
-        restart.after_publish(yaw, svc.reset_counter)
-    return msgs.vision_position_estimate(est, usec, yaw, svc.reset_counter)
+    usec = int(ctx.sample_time_monotonic(est.t_s) * 1e6)
+    yaw, reset_counter = ctx.autopilot_yaw(est)
+    return msgs.vision_position_estimate(est, usec, yaw, reset_counter)
 
 
-def _highres_imu(svc, est, sample, now):
-    return None if sample is None else msgs.highres_imu(sample, int(svc.sample_time_monotonic(sample.t_s) * 1e6))
+def _highres_imu(ctx, est, sample, now):
+    return None if sample is None else msgs.highres_imu(sample, int(ctx.sample_time_monotonic(sample.t_s) * 1e6))
 
 
-def _scaled_imu(svc, est, sample, now):
-    return None if sample is None else msgs.scaled_imu(sample, svc.time_boot_ms(now))
+def _scaled_imu(ctx, est, sample, now):
+    return None if sample is None else msgs.scaled_imu(sample, ctx.time_boot_ms(now))
 
 
-def _sys_status(svc, est, sample, now):
-    return svc.sys_status_message(now)
+def _sys_status(ctx, est, sample, now):
+    return ctx.sys_status_message(now)
 
 
-def _local_position_ned(svc, est, sample, now):
-    nav = est.nav
-    if nav is None or svc.gnss is None:
+def _local_position_ned(ctx, est, sample, now):
+    nav, origin = est.nav, ctx.local_origin()
+    if nav is None or origin is None:
         return None     # no navigation state: an unaided estimator, or no fix yet
-    return msgs.local_position_ned(svc.time_boot_ms(now), svc.gnss.origin.ned_m(nav.lat_deg, nav.lon_deg, nav.alt_m),
+    return msgs.local_position_ned(ctx.time_boot_ms(now), origin.ned_m(nav.lat_deg, nav.lon_deg, nav.alt_m),
                                    nav.vel_ned_m_s)
 
 
-def _global_position_int(svc, est, sample, now):
-    nav = est.nav
-    if nav is None or svc.gnss is None:
+def _global_position_int(ctx, est, sample, now):
+    nav, origin = est.nav, ctx.local_origin()
+    if nav is None or origin is None:
         return None
     # alt: the ellipsoid height (ahrsd has no geoid model; docs/gnss.md "Altitude"); relative to the origin
-    relative_alt = -svc.gnss.origin.ned_m(nav.lat_deg, nav.lon_deg, nav.alt_m)[2]
-    return msgs.global_position_int(svc.time_boot_ms(now), nav.lat_deg, nav.lon_deg, nav.alt_m, relative_alt,
+    relative_alt = -origin.ned_m(nav.lat_deg, nav.lon_deg, nav.alt_m)[2]
+    return msgs.global_position_int(ctx.time_boot_ms(now), nav.lat_deg, nav.lon_deg, nav.alt_m, relative_alt,
                                     nav.vel_ned_m_s, est.heading_true_rad)
 
 

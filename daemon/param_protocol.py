@@ -1,17 +1,20 @@
 """The MAVLink parameter protocol: the stable parameter set (one SR_ rate per output of the registry, the
 mounting, the declination), PARAM_REQUEST_LIST/READ and PARAM_SET (signed when signing is required; always
-answered with the value in force), and what a change does."""
+answered with the value in force). What a change does is wired in daemon.service (`on_change`)."""
 
 from __future__ import annotations
 
 import asyncio
 import logging
+from typing import Callable, Coroutine
 
-from ahrsd.daemon import messages as msgs
-from ahrsd.daemon.mavlink_io import Endpoint, mavlink
 from ahrsd.daemon.learned_iron import MAX_PARAM_UT, NOT_LEARNING_SD, PARAM_NAMES as LEARNED_IRON_PARAMS
-from ahrsd.daemon.output_registry import BY_PARAM_NAME, OUTPUTS
-from ahrsd.daemon.params import ParamError, ParamSpec, decode_param_id, printable_param_id
+from ahrsd.daemon import messages as msgs
+from ahrsd.daemon.counters import ServiceCounters
+from ahrsd.daemon.outbound import Outbound
+from ahrsd.daemon.mavlink_io import Endpoint, mavlink
+from ahrsd.daemon.output_registry import OUTPUTS
+from ahrsd.daemon.params import ParamSpec, ParamStore, decode_param_id, printable_param_id
 
 log = logging.getLogger(__name__)
 
@@ -49,24 +52,17 @@ def param_specs(cfg) -> list[ParamSpec]:
 
 
 class ParamProtocol:
-    """Service part: PARAM_* messages and parameter changes."""
+    """PARAM_REQUEST_LIST/READ and PARAM_SET on the daemon's ParamStore. What a change does is the store's
+    `on_change` (wired by daemon.service); `signing_required()` says whether an unsigned PARAM_SET is refused;
+    `spawn(coro)` runs the list stream as a task on the event loop."""
 
-    def _on_param_change(self, name: str, value: float) -> None:
-        if name.startswith("SR_"):
-            try:
-                self.set_output_rate_hz(BY_PARAM_NAME[name].message_id, value)   # every endpoint following it
-            except ValueError as exc:
-                raise ParamError(f"{name}: {exc}") from None
-        elif name.startswith("MNT_"):
-            if self.pipeline is not None:
-                rpy = [self.params.get(n) for n in MOUNTING_PARAMS]
-                rpy[MOUNTING_PARAMS.index(name)] = value
-                self.pipeline.set_mounting(rpy)
-                self.signal_heading_reset()
-                if self.learned_iron is not None:
-                    self.learned_iron.calibration_changed()   # a body-frame iron belongs to its mounting
-        elif name in ("DECL_MANUAL", "DECL_DEG"):
-            self.loop.call_soon(self._resolve_declination)
+    def __init__(self, params: ParamStore, outbound: Outbound, counters: ServiceCounters, *,
+                 signing_required: Callable[[], bool], spawn: Callable[[Coroutine], object]):
+        self.params = params
+        self.outbound = outbound
+        self.counters = counters
+        self.signing_required = signing_required
+        self.spawn = spawn
 
     def _param_value(self, index: int):
         name, value = self.params.item(index)
@@ -77,9 +73,9 @@ class ParamProtocol:
             endpoint.send(self._param_value(i))
             await asyncio.sleep(PARAM_STREAM_PAUSE_S)
 
-    def _on_param_message(self, endpoint: Endpoint, msg, mtype: str, broadcast: bool) -> None:
+    def on_message(self, endpoint: Endpoint, msg, mtype: str, broadcast: bool) -> None:
         if mtype == "PARAM_REQUEST_LIST":
-            self.loop.create_task(self._stream_params(endpoint))
+            self.spawn(self._stream_params(endpoint))
             return
         name = decode_param_id(msg.param_id)
         shown = printable_param_id(name)
@@ -92,7 +88,7 @@ class ParamProtocol:
             if index is None:
                 if not broadcast:      # (a broadcast read is for whoever has it: not ours to refuse)
                     self.params.rejected_reads += 1
-                    self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unknown parameter {shown}"[:50])
+                    self.outbound.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unknown parameter {shown}"[:50])
                 return
             endpoint.send(self._param_value(index))
             return
@@ -101,18 +97,18 @@ class ParamProtocol:
         if index is None:
             if not broadcast:
                 self.params.rejected_writes += 1
-                self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unknown parameter {shown}"[:50])
+                self.outbound.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unknown parameter {shown}"[:50])
             return
         # every refusal below: counted, one STATUSTEXT (rate limited by statustext, which also logs it)
-        if self.signing_required and not msg.get_signed():
+        if self.signing_required() and not msg.get_signed():
             self.counters.unsigned_refused += 1
-            self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unsigned write of {name} refused"[:50])
+            self.outbound.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unsigned write of {name} refused"[:50])
         elif msg.param_type not in PARAM_TYPES:
             self.params.rejected_writes += 1
-            self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: {name}: param_type {msg.param_type} unknown"[:50])
+            self.outbound.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: {name}: param_type {msg.param_type} unknown"[:50])
         else:
             ok, reason = self.params.set(name, msg.param_value)
             if not ok:
-                self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: {reason}"[:50])
-        self.send(self._param_value(index))   # always answered, with the value in force
+                self.outbound.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: {reason}"[:50])
+        self.outbound.send(self._param_value(index))   # always answered, with the value in force
 

@@ -35,7 +35,8 @@ class ParamSpec:
     hi: float
     description: str     # with the unit
     integer: bool = False
-    read_only: bool = False   # shown by the daemon (`ParamStore.show`), never written over MAVLink nor stored
+    read_only: bool = False   # shown, never set over MAVLink (the daemon updates it: `ParamStore.show`)
+    momentary: bool = False   # a write is a request: applied (on_change), not kept or persisted
 
     def __post_init__(self):
         if not (0 < len(self.name) <= 16 and self.name.isascii()):
@@ -102,10 +103,13 @@ class ParamStore:
             return warnings
         for name, value in values.items():
             i = self._index.get(name)
-            if i is None or self.specs[i].read_only:
-                warnings.append(f"ignoring stored parameter {name!r}: no longer exists or read-only")
+            if i is None:
+                warnings.append(f"ignoring stored parameter {name!r}: no longer exists")
                 continue
-            reason = self.specs[i].check(value) if isinstance(value, (int, float)) else "not a number"
+            spec = self.specs[i]
+            if spec.read_only or spec.momentary:
+                continue        # never persisted (a file from elsewhere may hold them): not an error
+            reason = spec.check(value) if isinstance(value, (int, float)) else "not a number"
             if reason:
                 warnings.append(f"ignoring stored parameter {name}: {reason}")
                 continue
@@ -122,7 +126,8 @@ class ParamStore:
             self.rejected_writes += 1
             return False, f"unknown parameter {name!r}"
         value = float(value)
-        reason = f"{name} is read-only" if self.specs[i].read_only else self.specs[i].check(value)
+        spec = self.specs[i]
+        reason = f"{name} is read-only" if spec.read_only else spec.check(value)
         if reason is None and self.on_change is not None:
             try:
                 self.on_change(name, value)
@@ -131,16 +136,18 @@ class ParamStore:
         if reason is not None:
             self.rejected_writes += 1
             return False, reason
+        if spec.momentary:
+            return True, ""
         self._values[i] = value
         self._stored[name] = value
         self._save()
         return True, ""
 
     def show(self, name: str, value: float) -> None:
-        """Set a read-only parameter to what the daemon now knows (not persisted, no on_change)."""
+        """Set a read-only parameter to the value the daemon has (not persisted, no on_change)."""
         i = self._index[name]
         if not self.specs[i].read_only:
-            raise ValueError(f"{name} is not read-only: set it with set()")
+            raise ValueError(f"{name} is not read-only")
         self._values[i] = float(value)
 
     def _save(self) -> None:

@@ -1,20 +1,31 @@
 """The publishers: each output of daemon.output_registry that falls due is built from the latest estimate and
-sample and sent to the endpoints whose own schedule (daemon.endpoint_outputs) has it due; SYS_STATUS and HEARTBEAT from the health and the counters."""
+sample and sent to the endpoints whose own schedule (daemon.endpoint_outputs) has it due."""
 
 from __future__ import annotations
 
-from ahrsd.daemon import messages as msgs
-from ahrsd.daemon.output_registry import BY_MESSAGE_ID
+from ahrsd.daemon.counters import ServiceCounters
+from ahrsd.daemon.health import Health
+from ahrsd.daemon.output_registry import BY_MESSAGE_ID, OutputContext
+from ahrsd.daemon.outbound import Outbound
+from ahrsd.daemon.pipeline import Pipeline
 
 
 class Publishers:
-    """Service part: `_publish` (every reader wake), `build_output` (REQUEST_MESSAGE), SYS_STATUS, HEARTBEAT."""
+    """`publish(now)` (every reader wake) and `build_output` (REQUEST_MESSAGE)."""
 
-    def _publish(self, now: float) -> None:
+    def __init__(self, outbound: Outbound, pipeline: Pipeline, health: Health, counters: ServiceCounters,
+                 context: OutputContext):
+        self.outbound = outbound
+        self.pipeline = pipeline
+        self.health = health
+        self.counters = counters
+        self.context = context
+
+    def publish(self, now: float) -> None:
         """Send what fell due on each endpoint's own schedule; a message due on several endpoints at once is
         built once."""
         built = None
-        for ep in self.endpoints:
+        for ep in self.outbound.endpoints:
             due = ep.schedule.due(now)
             if not due:
                 continue
@@ -28,7 +39,7 @@ class Publishers:
                     m = built[mid]
                 else:
                     spec = BY_MESSAGE_ID[mid]
-                    m = None if spec.needs_estimate and not fresh else spec.build(self, est, sample, now)
+                    m = None if spec.needs_estimate and not fresh else spec.build(self.context, est, sample, now)
                     built[mid] = m
                 if m is not None and ep.send(m):
                     self.counters.published += 1
@@ -39,20 +50,4 @@ class Publishers:
         est = self.pipeline.last_estimate
         if spec.needs_estimate and est is None:
             return None
-        return spec.build(self, est, self.pipeline.last_sample, now)
-
-    def sys_status_message(self, now: float):
-        present, enabled, healthy = self.health.sensor_bits(now)
-        if self.gnss is not None:
-            present, enabled, healthy = (a | b for a, b in zip((present, enabled, healthy),
-                                                                self.gnss.sensor_bits(now)))
-        links = self.endpoints
-        errors_comm = sum(e.counters.rx_malformed + e.counters.rx_bad_signature for e in links)
-        pc = self.pipeline.counters
-        unsigned = self.commands.counters.unsigned_refused + self.counters.unsigned_refused
-        sensor_errors = self.counters.driver_errors + self.counters.frame_errors
-        return msgs.sys_status(present, enabled, healthy, self.load_permille, errors_comm,
-                               (unsigned, pc.lost_samples, self.counters.overruns, sensor_errors))
-
-    def _send_heartbeat(self, now: float) -> None:
-        self.send(msgs.heartbeat(self.mav_type, self.health.system_status(now)))
+        return spec.build(self.context, est, self.pipeline.last_sample, now)

@@ -35,10 +35,10 @@ def collect_stats(service) -> dict:
     out["links"] = {ep.url: dataclasses.asdict(ep.counters) for ep in service.endpoints}
     out["commands"] = dataclasses.asdict(service.commands.counters)
     out["params"] = {"rejected_writes": service.params.rejected_writes, "rejected_reads": service.params.rejected_reads}
-    out["logs"] = service.log_counters()
+    out["logs"] = service.logs.counters()
     out["autopilot"] = {"rejected_positions": service.autopilot.rejected_positions,
                         "rejected_courses": service.autopilot.rejected_courses}
-    if getattr(service, "gnss", None) is not None:
+    if service.gnss is not None:
         out["gnss"] = service.gnss.stats()
     return out
 

@@ -1,14 +1,22 @@
 """The sensor reader: the per-sample timerfd loop for the chip, the polled loop for a replay, and the per-sample
-hot path (pipeline, sample listeners, health bookkeeping). A failing read is counted and reported, never raised."""
+hot path (pipeline, sample listeners, health bookkeeping). A failing read is counted and reported, never raised.
+
+Input: a sensor source (drivers.source: `read_one`/`next_read_time` per sample, or `poll` for a replay) and the
+pipeline; output: the callbacks of `ReaderOutputs`. The reader knows nothing else of the daemon."""
 
 from __future__ import annotations
 
 import asyncio
 import logging
+from dataclasses import dataclass
+from typing import Callable
 
 from ahrsd.core.estimate import EstimateFlags
 from ahrsd.core.sample import SampleFlags
+from ahrsd.daemon.counters import ServiceCounters
+from ahrsd.daemon.health import Health
 from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.daemon.pipeline import Pipeline
 from ahrsd.daemon.timerfd import DeadlineTimer
 from ahrsd.drivers.errors import FrameError
 
@@ -24,10 +32,59 @@ _REINITIALISED = int(EstimateFlags.REINITIALISED)
 _INITIALISING = int(EstimateFlags.INITIALISING)
 
 
-class SampleReader:
-    """Service part: the reader task (`_reader`) and the hot path (`_process`)."""
+class SampleListeners:
+    """`fn(calibrated_sample, estimate)` after every sample (keep it cheap); a listener that raises is dropped."""
 
-    async def _reader(self) -> None:
+    def __init__(self):
+        self.fns: list[Callable] = []
+
+    def add(self, fn: Callable) -> Callable[[], None]:
+        """Add `fn`; returns the remover."""
+        self.fns.append(fn)
+
+        def remove() -> None:
+            if fn in self.fns:
+                self.fns.remove(fn)
+        return remove
+
+
+@dataclass
+class ReaderOutputs:
+    """What the reader calls. `publish(now)` after every wake; `statustext(severity, text)`;
+    `heading_reset()` on an estimator re-initialisation; `ready()` on the first good estimate; `batch_done(t_s)`
+    after each replay batch (a GNSS replay in step); `finished()` when a replay has no more samples;
+    `raw_sink(sample)` every raw sample (the vehicle log; None = not logging)."""
+
+    publish: Callable[[float], None]
+    statustext: Callable[[int, str], None]
+    heading_reset: Callable[[], None]
+    ready: Callable[[], None]
+    batch_done: Callable[[float], None] = lambda t_s: None
+    finished: Callable[[], None] = lambda: None
+    raw_sink: Callable | None = None
+
+
+class SampleReader:
+    """The reader task (`run`, on the event loop) and the hot path (`process`)."""
+
+    def __init__(self, source, pipeline: Pipeline, health: Health, counters: ServiceCounters,
+                 listeners: SampleListeners, outputs: ReaderOutputs, *, poll_hz: float):
+        self.source = source
+        self.pipeline = pipeline
+        self.health = health
+        self.counters = counters
+        self.listeners = listeners
+        self.outputs = outputs
+        self.poll_hz = poll_hz
+        self.ready_sent = False
+        self.loop = None
+        self.period_s = 0.0               # one sample period of the source (set when the reader runs)
+        self.timer = None
+        self.done: asyncio.Future | None = None
+        self._consecutive_frame_errors = 0
+
+    async def run(self, loop: asyncio.AbstractEventLoop) -> None:
+        self.loop = loop
         if getattr(self.source, "per_sample", False):
             await self._read_per_sample()
         else:
@@ -37,23 +94,23 @@ class SampleReader:
         """Read the chip once per sample, right after it becomes ready (drivers.sample_timer).
 
         Deadlines are absolute CLOCK_MONOTONIC times served by a timerfd on the event loop
-        (daemon.timerfd; asyncio alone sleeps in whole milliseconds); each expiry runs `_reader_step`.
+        (daemon.timerfd; asyncio alone sleeps in whole milliseconds); each expiry runs `step`.
         A wake later than a whole period loses a sample on the chip: it is counted (GAP_BEFORE, pipeline
         gaps, overruns) and the estimator sees the true time step.
         """
         loop = self.loop
-        self._reader_period = 1.0 / self.source.sample_rate_hz
-        self._reader_done = loop.create_future()
-        self._reader_timer = DeadlineTimer(loop, self._reader_step)
-        self._reader_timer.arm(loop.time())
+        self.period_s = 1.0 / self.source.sample_rate_hz
+        self.done = loop.create_future()
+        self.timer = DeadlineTimer(loop, self.step)
+        self.timer.arm(loop.time())
         try:
-            await self._reader_done
+            await self.done
         finally:
-            self._reader_timer.close()
+            self.timer.close()
 
-    def _reader_step(self) -> None:
+    def step(self) -> None:
         """One wake of the per-sample reader: read, process, publish, arm the next deadline."""
-        loop, source, timer = self.loop, self.source, self._reader_timer
+        loop, source, timer, out = self.loop, self.source, self.timer, self.outputs
         now = loop.time()
         self.counters.wakes += 1
         try:
@@ -64,34 +121,34 @@ class SampleReader:
                 self.counters.frame_errors += 1
                 self._consecutive_frame_errors += 1
                 if self._consecutive_frame_errors >= FRAME_ERRORS_FOR_FAILURE:
-                    self._on_driver_error(exc)
-                self._publish(now)      # SYS_STATUS keeps flowing (health bits) while the sensor misbehaves
-                timer.arm(now + self._reader_period)
+                    self.on_driver_error(exc)
+                out.publish(now)      # SYS_STATUS keeps flowing (health bits) while the sensor misbehaves
+                timer.arm(now + self.period_s)
                 return
             except Exception as exc:  # noqa: BLE001 - BusError or an OSError: count, report, retry
-                self._on_driver_error(exc)
-                self._publish(now)      # only SYS_STATUS goes out now: the GCS sees the health bits cleared
+                self.on_driver_error(exc)
+                out.publish(now)      # only SYS_STATUS goes out now: the GCS sees the health bits cleared
                 timer.arm(now + DRIVER_RETRY_S)
                 return
             self._consecutive_frame_errors = 0
             if sample is not None:
                 if _int_and(sample.flags, _GAP_BEFORE):
                     self.counters.overruns += 1
-                self._process((sample,), now)
+                self.process((sample,), now)
             after = loop.time()
-            self._publish(after)
+            out.publish(after)
             target = source.next_read_time()
             if target <= after:
-                target = after + (0.25 * self._reader_period if sample is None else 0.0)
+                target = after + (0.25 * self.period_s if sample is None else 0.0)
             timer.arm(target)
         except Exception as exc:  # noqa: BLE001 - a bug here ends the reader; run() exits non-zero
-            if not self._reader_done.done():
-                self._reader_done.set_exception(exc)
+            if not self.done.done():
+                self.done.set_exception(exc)
 
     async def _read_batched(self) -> None:
         """Replay: poll on a fixed absolute-deadline tick and process every sample that is due."""
-        loop, source = self.loop, self.source
-        period = 1.0 / self.config.sensor.poll_hz
+        loop, source, out = self.loop, self.source, self.outputs
+        period = 1.0 / self.poll_hz
         deadline = loop.time()
         while True:
             deadline += period
@@ -100,34 +157,33 @@ class SampleReader:
             try:
                 samples = source.poll()
             except Exception as exc:  # noqa: BLE001
-                self._on_driver_error(exc)
+                self.on_driver_error(exc)
                 await asyncio.sleep(DRIVER_RETRY_S)
                 deadline = loop.time()
                 continue
             if samples:
-                self._process(samples, now)
-                if self.gnss is not None:
-                    self.gnss.poll()        # a GNSS recording's fixes are due by the samples' time
+                self.process(samples, now)
+                out.batch_done(samples[-1].t_s)
             elif getattr(source, "finished", False):
                 log.info("replay finished")
-                self.request_stop(0)
+                out.finished()
                 return
-            self._publish(now)
+            out.publish(now)
             after = loop.time()
             if after - deadline > period:
                 self.counters.overruns += 1
                 deadline = after
             await asyncio.sleep(max(0.0, deadline - after))
 
-    def _process(self, samples, now: float) -> None:
+    def process(self, samples, now: float) -> None:
         """The per-sample hot path: pipeline, listeners, health bookkeeping."""
-        health, pipeline = self.health, self.pipeline
+        health, pipeline, out = self.health, self.pipeline, self.outputs
         if health.sensor_error:
             health.sensor_error = ""
-            self.statustext(mavlink.MAV_SEVERITY_NOTICE, "ahrsd: sensor recovered")
+            out.statustext(mavlink.MAV_SEVERITY_NOTICE, "ahrsd: sensor recovered")
         est = None
-        listeners = self._listeners
-        log_put = self._sample_log_put        # daemon.vehicle_log: a queue append, never blocks
+        listeners = self.listeners.fns
+        log_put = out.raw_sink                # daemon.vehicle_log: a queue append, never blocks
         for raw in samples:
             if log_put is not None:
                 log_put(raw)
@@ -144,25 +200,17 @@ class SampleReader:
         health.last_sample_flags = samples[-1].flags
         if est is not None:
             if _int_and(est.flags, _REINITIALISED):
-                self.signal_heading_reset()       # a genuine re-initialisation: signalled, not slewed
+                out.heading_reset()       # a genuine re-initialisation: signalled, not slewed
             health.last_estimate_flags = est.flags
             if not self.ready_sent and not _int_and(est.flags, _INITIALISING):
                 self.ready_sent = True
-                self.notifier.ready("running")
+                out.ready()
                 log.info("first good estimate: READY")
 
-    def sample_time_monotonic(self, t_s: float) -> float:
-        """The time a message carries for a sample stamped t_s: CLOCK_MONOTONIC (the chip source stamps in
-        that clock already); a replay keeps the recording's t_s (Service.recording_time_base)."""
-        if self.recording_time_base:
-            return t_s
-        return t_s + getattr(self.source, "monotonic_offset_s", 0.0)
-
-    def _on_driver_error(self, exc: Exception) -> None:
+    def on_driver_error(self, exc: Exception) -> None:
         self.counters.driver_errors += 1
         first = not self.health.sensor_error
         self.health.sensor_error = str(exc) or type(exc).__name__
         if first:
             log.error("sensor read failed: %s", exc)
-            self.statustext(mavlink.MAV_SEVERITY_CRITICAL, f"ahrsd: sensor failure: {self.health.sensor_error}")
-
+            self.outputs.statustext(mavlink.MAV_SEVERITY_CRITICAL, f"ahrsd: sensor failure: {self.health.sensor_error}")

@@ -1,19 +1,19 @@
 """The daemon: one asyncio event loop running the sensor reader, the estimator, the publishers, the MAVLink
 receivers and the housekeeping (heartbeat, health, watchdog, status line).
 
-`Service` owns the state and the start/stop; each job lives in its own module as one part of the class:
-daemon.sample_reader (reader + per-sample hot path), daemon.publishers (outputs of daemon.output_registry),
-daemon.param_protocol (PARAM_*), daemon.inbound (MAVLink input), daemon.declination, daemon.calibration_swap,
-daemon.housekeeping.
+`Service` is the composition root: it builds the parts (docs/architecture.md), hands each the others it
+needs, starts them and stops them. It holds no behaviour of its own beyond that wiring, the parameter
+changes (which part a parameter belongs to) and the few values the outputs read (`OutputContext`).
 
-Extension hooks (used by the field magnetometer calibration, see docs/daemon.md "Extending"):
-* `service.commands.register(command_id, handler)` — COMMAND_LONG/INT handlers (`ahrsd.daemon.commands`);
-* `service.apply_calibration(cal, save=True)` — persist and swap the calibration between two samples (the
-  one path for every calibration change: the estimator re-learns its field reference and the heading sent
-  to the autopilot is slewed to the new one);
-* `service.add_sample_listener(fn)` — `fn(calibrated_sample, estimate)` after every sample;
-* `service.send(msg)`, `service.statustext(severity, text)`, `service.set_calibrating(text)`;
-* `service.autopilot` (armed, position, course, speed), `service.params`.
+Parts: daemon.outbound (endpoints, send, STATUSTEXT), daemon.endpoint_outputs (per-endpoint schedules),
+daemon.sample_reader (reader + per-sample hot path), daemon.publishers (outputs of daemon.output_registry),
+daemon.inbound (MAVLink input), daemon.param_protocol (PARAM_*), daemon.position + daemon.declination,
+daemon.calibration_swap, daemon.heading_resets, daemon.housekeeping, daemon.vehicle_log, daemon.gnss_task,
+daemon.magcal (field calibration), daemon.builtin_commands.
+
+The hooks other code uses (docs/daemon.md "Extending"): `service.commands.register(command_id, handler)`,
+`service.apply_calibration(cal, save=True)`, `service.add_sample_listener(fn)`, `service.send(msg)`,
+`service.statustext(severity, text)`, `service.set_calibrating(text)`, `service.autopilot`, `service.params`.
 """
 
 from __future__ import annotations
@@ -25,43 +25,48 @@ import os
 import signal
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from ahrsd.daemon.heading_slew import HeadingSlew
 from ahrsd.calibration.store import CalibrationStore
 from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.autopilot import AutopilotState
-from ahrsd.daemon.builtin_commands import register_builtin_commands
+from ahrsd.daemon.builtin_commands import BuiltinCommands
 from ahrsd.daemon.calibration_swap import CalibrationSwap
-from ahrsd.daemon.commands import CommandRouter
+from ahrsd.daemon.commands import CommandAck, CommandRouter
 from ahrsd.daemon.config import MAV_TYPES, Config
-from ahrsd.daemon.declination import DeclinationResolver
+from ahrsd.daemon.counters import ServiceCounters
+from ahrsd.daemon.declination import Declination
 from ahrsd.daemon.endpoint_outputs import EndpointOutputs
 from ahrsd.daemon.gnss_task import GnssTask, gnss_backend_for, newest_sample_time, on_first_fix
+from ahrsd.daemon.gyro_cal import GyroBiasCalibration
+from ahrsd.daemon.heading_resets import HeadingResets
+from ahrsd.daemon.heading_slew import HeadingSlew
 from ahrsd.daemon.health import Health
 from ahrsd.daemon.heading_status import HeadingStatus, LongStatusText
-from ahrsd.daemon.housekeeping import Housekeeping
+from ahrsd.daemon.housekeeping import Every, HealthReport, Housekeeping
 from ahrsd.daemon.inbound import InboundDispatch
 from ahrsd.daemon.learned_iron import CMD_LEARNED_IRON, LearnedIron
 from ahrsd.daemon.mag_trust import calibration_heading_sigma_rad
-from ahrsd.daemon.magcal import attach as attach_magcal
-from ahrsd.daemon.mavlink_io import Endpoint, mavlink
+from ahrsd.daemon.magcal import DaemonMagCalHost, FieldCalibrationPart, MagCalProtocol
+from ahrsd.daemon.magcal_settings import MagCalSettings
+from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.daemon.nmea_output import NmeaOutputs
-from ahrsd.daemon.notify import Notifier
+from ahrsd.daemon.notify import Notifier, watchdog_interval_s
+from ahrsd.daemon.outbound import Identity, Outbound
+from ahrsd.daemon.output_registry import BY_PARAM_NAME, OUTPUTS
 from ahrsd.daemon.param_protocol import MOUNTING_PARAMS, ParamProtocol, param_specs
-from ahrsd.daemon.params import ParamStore
+from ahrsd.daemon.params import ParamError, ParamStore
 from ahrsd.daemon.pipeline import Pipeline
+from ahrsd.daemon.position import PositionResolver
 from ahrsd.daemon.publishers import Publishers
-from ahrsd.daemon.rate_limit import TokenBucket
 from ahrsd.daemon.restart_heading import RestartHeading
+from ahrsd.daemon.sample_reader import ReaderOutputs, SampleListeners, SampleReader
+from ahrsd.daemon.signing import initial_timestamp, key_fingerprint, load_key, save_timestamp
 from ahrsd.daemon.source_set_check import SourceSetCheck
 from ahrsd.daemon.source_set_realign import MAV_CMD_SET_EKF_SOURCE_SET, SourceSetRealign
-from ahrsd.daemon.sample_reader import SampleReader
-from ahrsd.daemon.signing import initial_timestamp, key_fingerprint, load_key, save_timestamp
-from ahrsd.daemon.status_line import StatusLine
-from ahrsd.daemon.vehicle_log import VehicleLogging
+from ahrsd.daemon.status_line import StatusLine, format_status
+from ahrsd.daemon.vehicle_log import VehicleLogs
 from ahrsd.drivers.source import open_source
 from ahrsd.estimator import make_estimator
 from ahrsd.estimator.warm_up import warm_up
@@ -69,68 +74,65 @@ from ahrsd.estimator.warm_up import warm_up
 log = logging.getLogger(__name__)
 
 DEFAULT_SYSTEM_ID = 1                            # until an autopilot heartbeat is latched
+STATUS_LINE_PERIOD_S = 0.5
+SIGNING_SAVE_PERIOD_S = 30.0
+VISION_POSITION_ESTIMATE = mavlink.MAVLINK_MSG_ID_VISION_POSITION_ESTIMATE
 
 
-@dataclass
-class ServiceCounters:
-    wakes: int = 0
-    overruns: int = 0            # reader wakes that started after their deadline by more than one period
-    driver_errors: int = 0       # bus failures (and runs of corrupt frames) that put the sensor in failure
-    frame_errors: int = 0        # single corrupt frames rejected by the driver
-    unsigned_refused: int = 0    # PARAM_SET refused unsigned (commands are counted by the router)
-    published: int = 0
-    statustext_suppressed: int = 0  # non-critical STATUSTEXTs dropped by the rate limit (flooding peer)
-
-
-class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, DeclinationResolver, CalibrationSwap,
-              Housekeeping, EndpointOutputs, VehicleLogging):
+class Service:
     def __init__(self, config: Config, *, source=None, environ=os.environ, stdout=None):
         self.config = config
         self.environ = environ
         self.state_dir: Path = config.state.resolve(environ)
         self.loop: asyncio.AbstractEventLoop | None = None
         self.boot_time = time.monotonic()
+        self.source = source
+        self.exit_code = 0
+        self.signing_key: bytes | None = None
+        self._stdout = stdout if stdout is not None else sys.stdout
+        self._stop: asyncio.Event | None = None
+        self._tasks: list[asyncio.Task] = []
+        # the parts that exist from construction on
         self.health = Health(stale_timeout_s=config.sensor.stale_timeout_s)
         self.autopilot = AutopilotState()
         self.counters = ServiceCounters()
-        # STATUSTEXT budget for non-critical texts: 5/s sustained, bursts of 10 (critical ones always go out)
-        self._statustext_budget = TokenBucket(rate_per_s=5.0, burst=10)
-        self.system_id = config.mavlink.system_id or DEFAULT_SYSTEM_ID
-        self.component_id = config.mavlink.component_id
-        self.mav_type = MAV_TYPES[config.mavlink.mav_type]
-        self.endpoints: list[Endpoint] = []
+        self.outbound = Outbound(Identity(config.mavlink.system_id or DEFAULT_SYSTEM_ID,
+                                          config.mavlink.component_id, MAV_TYPES[config.mavlink.mav_type]),
+                                 self.counters)
         self.params = ParamStore(param_specs(config), self.state_dir, on_change=self._on_param_change)
-        self.commands = CommandRouter(self, self._send_on, require_signed=lambda: self.signing_required,
+        self.commands = CommandRouter(lambda endpoint, msg: endpoint.send(msg),
+                                      require_signed=lambda: self.signing_required, send=self.outbound.send,
                                       accept_broadcast=config.mavlink.accept_broadcast_commands)
         self.notifier = Notifier(environ)
-        self.source = source
+        self.listeners = SampleListeners()
+        # the VISION_POSITION_ESTIMATE yaw after a calibration change, and reset_counter
+        self.heading = HeadingResets(HeadingSlew(max_rate_deg_s=config.outputs.heading_slew_deg_s))
         self.gnss: GnssTask | None = None      # [gnss] source (daemon.gnss_task), None without one
         self.nmea: NmeaOutputs | None = None    # [[nmea]] outputs (daemon.nmea_output), None without any
-        self.pipeline: Pipeline | None = None
-        self.heading_status: HeadingStatus | None = None   # the heading state reported (daemon.heading_status)
-        self.learned_iron: LearnedIron | None = None       # the iron ins learned, persisted (daemon.learned_iron)
-        self.reset_counter = 0
-        # the VISION_POSITION_ESTIMATE yaw after a calibration change (apply_calibration)
-        self.heading_slew = HeadingSlew(max_rate_deg_s=config.outputs.heading_slew_deg_s)
+        self.positions = PositionResolver(config.location, gnss_position=self._gnss_position,
+                                          autopilot=self.autopilot, simulator=config.sensor.source == "sim")
+        self.declination = Declination(self.params, self.positions, signal_reset=self.heading.signal)
+        self.logs = VehicleLogs(config.log, state_dir=self.state_dir, environ=environ,
+                                gnss_source=config.gnss.source)
+        self.endpoint_outputs = EndpointOutputs(
+            self.outbound, base_rates_hz=lambda: {o.message_id: self.params.get(o.param_name) for o in OUTPUTS},
+            signed=lambda: self.signing_key is not None, warn_soon=self._statustext_soon)
+        self.param_protocol = ParamProtocol(self.params, self.outbound, self.counters,
+                                            signing_required=lambda: self.signing_required,
+                                            spawn=lambda coro: self.loop.create_task(coro))
         self.restart_heading: RestartHeading | None = None   # the restart rule (daemon.restart_heading)
         self.source_set_check: SourceSetCheck | None = None  # may ArduPilot's source set be switched (same)
-        self.declination_rad = 0.0
-        self.declination_source = "none"
-        self.signing_key: bytes | None = None
-        self.measured_rate_hz = 0.0
-        self.exit_code = 0
-        self.ready_sent = False
-        self._stdout = stdout if stdout is not None else sys.stdout
-        self._status_line: StatusLine | None = None
-        self._listeners: list[Callable] = []
-        self._stop: asyncio.Event | None = None
-        self._last_state: int | None = None
-        self._last_decl_update = -math.inf
-        self._rate_window: tuple[float, int] = (0.0, 0)
-        self._cpu_window: tuple[float, float] = (time.monotonic(), time.process_time())
-        self.load_permille = 0
-        self._tasks: list[asyncio.Task] = []
-        self._consecutive_frame_errors = 0
+        # the parts built at start (they need the pipeline, the endpoints or the source)
+        self.pipeline: Pipeline | None = None
+        self.swap: CalibrationSwap | None = None
+        self.publishers: Publishers | None = None
+        self.inbound: InboundDispatch | None = None
+        self.field_calibration: FieldCalibrationPart | None = None
+        self.reader: SampleReader | None = None
+        self.health_report: HealthReport | None = None
+        self.status_line: StatusLine | None = None
+        self.heading_status: HeadingStatus | None = None   # the heading state reported (daemon.heading_status)
+        self.learned_iron: LearnedIron | None = None       # the iron ins learned, persisted (daemon.learned_iron)
 
     # ------------------------------------------------------------------------------------------ public hooks
 
@@ -138,33 +140,55 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
     def signing_required(self) -> bool:
         return self.signing_key is not None and self.config.signing.refuse_unsigned_commands
 
-    def send(self, msg, endpoint: Endpoint | None = None) -> None:
-        """Send to one endpoint, or to all of them."""
-        for ep in (endpoint,) if endpoint is not None else self.endpoints:
-            ep.send(msg)
+    @property
+    def endpoints(self):
+        return self.outbound.endpoints
+
+    @property
+    def system_id(self) -> int:
+        return self.outbound.identity.system_id
+
+    @property
+    def component_id(self) -> int:
+        return self.outbound.identity.component_id
+
+    @property
+    def reset_counter(self) -> int:
+        return self.heading.reset_counter
+
+    @property
+    def heading_slew(self) -> HeadingSlew:
+        return self.heading.slew
+
+    @property
+    def calibration(self):
+        return self.pipeline.calibration
+
+    @property
+    def magcal(self) -> MagCalProtocol | None:
+        """The field calibration's protocol handler (None before start)."""
+        return None if self.field_calibration is None else self.field_calibration.protocol
+
+    def send(self, msg, endpoint=None) -> None:
+        self.outbound.send(msg, endpoint)
 
     def statustext(self, severity: int, text: str) -> None:
-        """Send a STATUSTEXT to every endpoint. Texts less severe than CRITICAL are rate limited, so a peer
-        flooding us with refused requests cannot make us flood the radio with answers (counted, logged)."""
-        if severity > mavlink.MAV_SEVERITY_CRITICAL and not self._statustext_budget.take(time.monotonic()):
-            self.counters.statustext_suppressed += 1
-            log.debug("STATUSTEXT suppressed by the rate limit: %s", text)
-            return
-        log.log(logging.WARNING if severity <= mavlink.MAV_SEVERITY_WARNING else logging.INFO, "%s", text)
-        self.send(msgs.statustext(severity, text))
+        self.outbound.statustext(severity, text)
 
     def add_sample_listener(self, fn: Callable) -> Callable[[], None]:
         """Call fn(calibrated_sample, estimate) after every sample (keep it cheap). Returns the remover."""
-        self._listeners.append(fn)
+        return self.listeners.add(fn)
 
-        def remove() -> None:
-            if fn in self._listeners:
-                self._listeners.remove(fn)
-        return remove
+    def apply_calibration(self, cal, *, save: bool = True, reason: str = "") -> None:
+        """The one path for every calibration change (daemon.calibration_swap)."""
+        self.swap.apply(cal, save=save, reason=reason)
 
     def set_calibrating(self, what: str) -> None:
         """Report MAV_STATE_CALIBRATING while `what` is non-empty."""
         self.health.calibrating = what
+
+    def signal_heading_reset(self) -> None:
+        self.heading.signal()
 
     def request_stop(self, code: int = 0) -> None:
         self.exit_code = code
@@ -172,10 +196,13 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
             self._stop.set()
 
     def link_totals(self) -> dict:
-        tx = sum(ep.counters.tx_messages for ep in self.endpoints)
-        rx = sum(ep.counters.rx_messages for ep in self.endpoints)
-        bad = sum(ep.counters.rx_malformed + ep.counters.rx_bad_signature for ep in self.endpoints)
-        return {"tx": tx, "rx": rx, "bad": bad}
+        return self.outbound.link_totals()
+
+    # ------------------------------------------------------------------------------------------ OutputContext
+
+    @property
+    def declination_rad(self) -> float:
+        return self.declination.rad
 
     @property
     def recording_time_base(self) -> bool:
@@ -186,6 +213,71 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         if self.recording_time_base and self.pipeline is not None and self.pipeline.last_sample is not None:
             return int(self.pipeline.last_sample.t_s * 1000.0) & 0xFFFFFFFF
         return int(((time.monotonic() if now is None else now) - self.boot_time) * 1000.0) & 0xFFFFFFFF
+
+    def sample_time_monotonic(self, t_s: float) -> float:
+        """The time a message carries for a sample stamped t_s: CLOCK_MONOTONIC (the chip source stamps in
+        that clock already); a replay keeps the recording's t_s (`recording_time_base`)."""
+        if self.recording_time_base:
+            return t_s
+        return t_s + getattr(self.source, "monotonic_offset_s", 0.0)
+
+    def heading_trusted(self, now: float) -> bool:
+        return self.health.heading_trusted(now)
+
+    def autopilot_yaw(self, est) -> tuple[float, int]:
+        if self.heading_status is not None and self.heading_status.take_yaw_resets(self._yaw_resets()):
+            self.heading.signal()          # ins reset its yaw to the GNSS yaw: reset_counter + 1 with it
+        return self.heading.autopilot_yaw(est)
+
+    def _yaw_resets(self) -> int:
+        return int(getattr(self.pipeline.estimator, "yaw_resets", 0))   # ins counts them; mekf has none
+
+    def local_origin(self):
+        return None if self.gnss is None else self.gnss.origin
+
+    def sys_status_message(self, now: float):
+        present, enabled, healthy = self.health.sensor_bits(now)
+        if self.gnss is not None:
+            present, enabled, healthy = (a | b for a, b in zip((present, enabled, healthy),
+                                                                self.gnss.sensor_bits(now)))
+        pc = self.pipeline.counters
+        unsigned = self.commands.counters.unsigned_refused + self.counters.unsigned_refused
+        sensor_errors = self.counters.driver_errors + self.counters.frame_errors
+        load = self.health_report.load_permille if self.health_report is not None else 0
+        return msgs.sys_status(present, enabled, healthy, load, self.outbound.comm_errors(),
+                               (unsigned, pc.lost_samples, self.counters.overruns, sensor_errors))
+
+    def build_output(self, mid: int, now: float):
+        return self.publishers.build_output(mid, now)
+
+    # ------------------------------------------------------------------------------------------ GNSS
+
+    def _gnss_position(self):
+        return None if self.gnss is None else self.gnss.position
+
+    # ------------------------------------------------------------------------------------------ parameters
+
+    def _on_param_change(self, name: str, value: float) -> None:
+        """What a parameter change does (raises ParamError to refuse it)."""
+        if name.startswith("SR_"):
+            try:    # every endpoint following the daemon-wide rate
+                self.endpoint_outputs.set_output_rate_hz(BY_PARAM_NAME[name].message_id, value)
+            except ValueError as exc:
+                raise ParamError(f"{name}: {exc}") from None
+        elif name.startswith("MNT_"):
+            if self.pipeline is not None:
+                rpy = [self.params.get(n) for n in MOUNTING_PARAMS]
+                rpy[MOUNTING_PARAMS.index(name)] = value
+                self.pipeline.set_mounting(rpy)
+                self.heading.signal()
+                if self.learned_iron is not None:
+                    self.learned_iron.calibration_changed()   # a body-frame iron belongs to its mounting
+        elif name in ("DECL_MANUAL", "DECL_DEG"):
+            self.loop.call_soon(self.declination.resolve)
+
+    def _statustext_soon(self, severity: int, text: str) -> None:
+        if self.loop is not None:
+            self.loop.call_soon(self.outbound.statustext, severity, text)
 
     # ------------------------------------------------------------------------------------------ start / stop
 
@@ -198,13 +290,13 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
             except (NotImplementedError, RuntimeError):  # pragma: no cover - non-main thread
                 pass
         try:
-            self._start()
+            self.start()
         except Exception as exc:
             log.error("ahrsd cannot start: %s", exc)
-            self._shutdown_io(f"start failed: {exc}")
+            self.shutdown_io(f"start failed: {exc}")
             return 1
-        self._tasks = [self.loop.create_task(self._reader(), name="reader"),
-                       self.loop.create_task(self._housekeeping(), name="housekeeping")]
+        self._tasks = [self.loop.create_task(self.reader.run(self.loop), name="reader"),
+                       self.loop.create_task(self._housekeeping().run(self.loop), name="housekeeping")]
         stop_wait = self.loop.create_task(self._stop.wait())
         done, _ = await asyncio.wait([stop_wait, *self._tasks], return_when=asyncio.FIRST_COMPLETED)
         for task in done:
@@ -214,14 +306,15 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         for task in [stop_wait, *self._tasks]:
             task.cancel()
         await asyncio.gather(stop_wait, *self._tasks, return_exceptions=True)
-        self._shutdown_io("stopping")
+        self.shutdown_io("stopping")
         return self.exit_code
 
     def _on_signal(self, sig) -> None:
         log.info("received %s, shutting down", signal.Signals(sig).name)
         self.request_stop(0)
 
-    def _start(self) -> None:
+    def start(self) -> None:
+        """Build the parts that need the pipeline, the endpoints or the source, and open them."""
         cfg = self.config
         try:
             self.state_dir.mkdir(parents=True, exist_ok=True)
@@ -231,7 +324,7 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         for warning in self.params.load():
             log.warning("%s", warning)
         self.start_restart_rule()
-        self._resolve_declination(initial=True)
+        self.declination.resolve(initial=True)
         calibration = CalibrationStore(self.state_dir).load()
         started = time.monotonic()
         warm_up(cfg.estimator_name)                 # compile before the loop, not on its first sample/fix
@@ -242,57 +335,169 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         options = dict(cfg.estimator_options)
         if cfg.estimator_name == "ins":
             options["mag_calibration_sigma_rad"] = mag_sigma_rad
-        estimator = make_estimator(cfg.estimator_name, declination_rad=self.declination_rad, **options)
-        self.pipeline = Pipeline(estimator, calibration)
-        self.pipeline.set_mounting([self.params.get(n) for n in MOUNTING_PARAMS])
-        self.heading_status = HeadingStatus(LongStatusText(self.send), calibration_sigma_rad=mag_sigma_rad,
-                                            good_sigma_rad=math.radians(cfg.daemon.heading_good_sigma_deg))
+        estimator = make_estimator(cfg.estimator_name, declination_rad=self.declination.rad, **options)
+        self.use_pipeline(Pipeline(estimator, calibration))
+        pipeline = self.pipeline
+        pipeline.set_mounting([self.params.get(n) for n in MOUNTING_PARAMS])
+        self.heading_status = HeadingStatus(LongStatusText(self.outbound.send), calibration_sigma_rad=mag_sigma_rad,
+                                            good_sigma_rad=math.radians(cfg.outputs.heading_good_sigma_deg))
         self.learned_iron = LearnedIron(
-            self.state_dir, self.pipeline, publish=self.params.show, statustext=self.statustext,
+            self.state_dir, pipeline, publish=self.params.show, statustext=self.outbound.statustext,
             armed=lambda: bool(self.autopilot.armed), background=self._in_background,
             apply_calibration=lambda cal: self.apply_calibration(cal, reason="learned iron accepted"),
             horizontal_field_ut=self._horizontal_field_ut,
-            allow_armed=bool(getattr(cfg.magcal, "allow_armed", False)))
+            allow_armed=(cfg.magcal or MagCalSettings()).allow_armed)
         self.learned_iron.restore()
+        self.commands.register(CMD_LEARNED_IRON, self.learned_iron.handle_command)
         self._setup_signing()
         for ep_cfg in cfg.endpoints:
-            ep = self._make_endpoint(ep_cfg)        # its own output schedule (daemon.endpoint_outputs)
+            # its own output schedule (daemon.endpoint_outputs)
+            ep = self.endpoint_outputs.make_endpoint(ep_cfg, self._on_message)
             if self.signing_key is not None:
                 ep.enable_signing(self.signing_key, cfg.signing.link_id, initial_timestamp(self.state_dir),
                                   lambda _mav, _msgid: True)   # unsigned input is accepted, then policed
             ep.open(self.loop)
-            self.endpoints.append(ep)
-            self.check_link_budget(ep)
-        self._start_logs()                          # raw samples and MAVLink traffic (daemon.vehicle_log)
-        register_builtin_commands(self)
-        self.commands.register(CMD_LEARNED_IRON, self.learned_iron.handle_command)
-        attach_magcal(self)
+            self.outbound.endpoints.append(ep)
+            self.endpoint_outputs.check_link_budget(ep)
+        self.logs.start(pipeline.calibration, self.outbound.endpoints)   # raw samples and MAVLink traffic
+        host = DaemonMagCalHost(pipeline, self.swap, self.outbound, self.autopilot, self.positions,
+                                self.heading.slew)
+        self.field_calibration = FieldCalibrationPart(host, cfg.magcal or MagCalSettings(), commands=self.commands,
+                                                      autopilot=self.autopilot, set_calibrating=self.set_calibrating)
+        self.listeners.add(self.field_calibration.on_sample)
         if cfg.nmea:
             self.nmea = NmeaOutputs(cfg.nmea)
             self.nmea.open(self.loop)
-            self.add_sample_listener(lambda _sample, est: self.nmea.on_estimate(est))
+            self.listeners.add(lambda _sample, est: self.nmea.on_estimate(est))
         if self.source is None:
             self.source = open_source(cfg.sensor, clock=time.monotonic)
-        if cfg.gnss.source != "none":
+        BuiltinCommands(endpoint_outputs=self.endpoint_outputs, publishers=self.publishers, outbound=self.outbound,
+                        health=self.health, autopilot=self.autopilot,
+                        field_calibration=self.field_calibration.protocol,
+                        start_gyro_calibration=self._start_gyro_calibration,
+                        call_soon=self.loop.call_soon).register(self.commands)
+        if cfg.gnss.source != "none":     # once the sensor source is open: a simulated receiver runs on its clock
             backend = gnss_backend_for(cfg.gnss, clock=time.monotonic, sensor=cfg.sensor,
                                        scenario_clock=self.source.chip.now if cfg.gnss.source == "sim" else None,
-                                       replay_time_s=newest_sample_time(self.pipeline))
-            self.gnss = GnssTask(backend, cfg.gnss, clock=time.monotonic, estimator=self.pipeline,
-                                 statustext=self.statustext, log_fix=self.log_gnss_fix,
-                                 subscribers=[on_first_fix(self.on_gnss_position)],
+                                       replay_time_s=newest_sample_time(pipeline))
+            self.gnss = GnssTask(backend, cfg.gnss, clock=time.monotonic, estimator=pipeline,
+                                 statustext=self.outbound.statustext, log_fix=self.logs.log_gnss_fix,
+                                 subscribers=[on_first_fix(self.declination.on_gnss_position)],
                                  rejection_cause=self.heading_status.rejection_cause)
             self.gnss.open(self.loop)
+        self.inbound = self.build_inbound()
+        self.reader.source = self.source
+        self.reader.outputs.raw_sink = self.logs.put_sample
         want_line = cfg.daemon.status_line == "on" or (cfg.daemon.status_line == "auto" and self._stdout.isatty())
-        self._status_line = StatusLine(self._stdout) if want_line else None
-        if self._status_line is not None:
-            self._status_line.install_log_filter()
+        self.status_line = StatusLine(self._stdout) if want_line else None
+        if self.status_line is not None:
+            self.status_line.install_log_filter()
         log.info("ahrsd started: %s, GNSS %s, estimator %s, declination %.2f° (%s), MAVLink %s as %d/%d, state in %s",
                  self.source.description, self.gnss.description if self.gnss else "none", cfg.estimator_name,
-                 math.degrees(self.declination_rad),
-                 self.declination_source, ", ".join(e.url for e in self.endpoints), self.system_id,
-                 self.component_id, self.state_dir)
+                 math.degrees(self.declination.rad), self.declination.source,
+                 ", ".join(e.url for e in self.endpoints), self.system_id, self.component_id, self.state_dir)
         self.notifier.status(f"starting: {self.source.description}")
-        self._send_heartbeat(time.monotonic())   # routers learn us from our first packet
+        self.health_report = HealthReport(self.health, self.outbound, self.notifier, pipeline.counters,
+                                          watchdog_interval_s=watchdog_interval_s(self.environ),
+                                          start=self.loop.time(), standby_detail=self.heading_status.standby_detail)
+        self.health_report.send_heartbeat(time.monotonic())   # routers learn us from our first packet
+
+    def _on_message(self, endpoint, msg) -> None:
+        """Every endpoint's callback. The endpoints open before the inbound dispatch exists (it routes to the
+        GNSS task, which needs the open sensor source), but no message is read before `start` returns."""
+        self.inbound.on_message(endpoint, msg)
+
+    def build_inbound(self) -> InboundDispatch:
+        """The inbound dispatch over the parts that exist now (`start` builds it after the restart rule and
+        the GNSS task; a test may build it after `start_restart_rule`)."""
+        return InboundDispatch(self.outbound, self.autopilot, self.commands, self.param_protocol, self.declination,
+                               follow_autopilot_id=self.config.mavlink.system_id == 0, gnss=self.gnss,
+                               source_set_check=self.source_set_check, restart_heading=self.restart_heading)
+
+    def use_pipeline(self, pipeline: Pipeline) -> None:
+        """Build the parts that work on the pipeline: the calibration swap, the publishers, the sample reader
+        (its source is the service's; `start` calls this, a test may too with a pipeline of its own)."""
+        self.pipeline = pipeline
+        self.declination.set_estimator = pipeline.estimator.set_declination
+        self.swap = CalibrationSwap(pipeline, self.state_dir, self.heading,
+                                    reset_counter_on_calibration=self.config.outputs.reset_counter_on_calibration,
+                                    on_applied=self._on_calibration_applied)
+        self.publishers = Publishers(self.outbound, pipeline, self.health, self.counters, self)
+        self.reader = SampleReader(self.source, pipeline, self.health, self.counters, self.listeners,
+                                   ReaderOutputs(publish=self.publishers.publish, statustext=self.outbound.statustext,
+                                                 heading_reset=self.heading.signal, ready=self._on_ready,
+                                                 batch_done=self._on_replay_batch,
+                                                 finished=lambda: self.request_stop(0)),
+                                   poll_hz=self.config.sensor.poll_hz)
+
+    def _housekeeping(self) -> Housekeeping:
+        """The periodic jobs, in the order they run at each tick (daemon.housekeeping)."""
+        start = self.loop.time()
+        jobs: list[Callable[[float], None]] = [self._update_heading_status, self.health_report]
+        if self.status_line is not None:
+            jobs.append(Every(STATUS_LINE_PERIOD_S, self._update_status_line, start))
+        if self.signing_key is not None:
+            jobs.append(Every(SIGNING_SAVE_PERIOD_S, lambda now: self._save_signing_timestamp(),
+                              start + SIGNING_SAVE_PERIOD_S))
+        if self.gnss is not None:
+            jobs.append(self.gnss.tick)
+        jobs += [self.declination.tick, self._end_unreceived_slew]
+        return Housekeeping(jobs)
+
+    def _update_heading_status(self, now: float) -> None:
+        """The heading state (daemon.heading_status) into the health (MAV_STATE, SYS_STATUS bits) before the
+        health report reads it; the learned iron's parameters and periodic save (daemon.learned_iron)."""
+        if self.heading_status is not None:
+            self.heading_status.on_estimate(self.pipeline.last_estimate, now, self._yaw_resets())
+            self.health.heading_good = self.heading_status.heading_good
+            self.health.heading_unhealthy_bits = self.heading_status.unhealthy_bits()
+        if self.learned_iron is not None:
+            self.learned_iron.tick(now)
+
+    def _on_calibration_applied(self, cal) -> None:
+        """After every calibration change (daemon.calibration_swap): the vehicle log names it; ins and the
+        heading status get its predicted heading error; the iron learned on the old one is reset."""
+        self.logs.log_calibration(cal)
+        sigma = calibration_heading_sigma_rad(cal)
+        set_sigma = getattr(self.pipeline.estimator, "set_mag_calibration_sigma", None)   # ins (from heading)
+        if set_sigma is not None:
+            set_sigma(sigma)
+        if self.heading_status is not None:
+            self.heading_status.set_calibration_sigma(sigma)
+        if self.learned_iron is not None:
+            self.learned_iron.calibration_changed()
+
+    def _horizontal_field_ut(self) -> float:
+        """WMM's horizontal field at the vehicle (daemon.position's priority), NaN without a position."""
+        field = self.positions.reference_field()
+        return math.nan if field is None else field.horizontal_ut
+
+    def _update_status_line(self, now: float) -> None:
+        p = self.pipeline
+        self.status_line.update(format_status(
+            estimate=p.last_estimate, rate_hz=self.health_report.measured_rate_hz,
+            state=self.health.system_status(now), gaps=p.counters.gaps, overruns=self.counters.overruns,
+            link=self.outbound.link_totals(), gnss=None if self.gnss is None else self.gnss.status(now),
+            autopilot=self.autopilot,
+            heading=None if self.heading_status is None else self.heading_status.status_text()))
+
+    def _end_unreceived_slew(self, now: float) -> None:
+        if self.heading.slew.active and not any(ep.schedule.rate_hz(VISION_POSITION_ESTIMATE) > 0
+                                                for ep in self.endpoints):
+            self.heading.slew.active = False    # nobody receives the slewed yaw: nothing to bring in
+
+    def _on_ready(self) -> None:
+        self.notifier.ready("running")
+
+    def _on_replay_batch(self, t_s: float) -> None:
+        if self.gnss is not None:
+            self.gnss.poll()        # a GNSS recording's fixes are due by the samples' time
+
+    def _start_gyro_calibration(self, ctx) -> CommandAck:
+        cal = GyroBiasCalibration(ctx, self.source.sample_rate_hz, listeners=self.listeners, loop=self.loop,
+                                  health=self.health, outbound=self.outbound, autopilot=self.autopilot,
+                                  swap=self.swap)
+        return cal.start()
 
     def start_restart_rule(self) -> None:
         """Load what the autopilot last got from us (daemon.restart_heading): the reset_counter continues,
@@ -302,7 +507,7 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         mode = "reset_counter" if out.restart_yaw == "auto" and out.reset_counter_on_calibration else out.restart_yaw
         make_realign = None
         if out.ardupilot_source_set:
-            check = self.source_set_check = SourceSetCheck(out.ardupilot_source_set, lambda m: self.send(m),
+            check = self.source_set_check = SourceSetCheck(out.ardupilot_source_set, self.outbound.send,
                                                            self._autopilot_target)
 
             def make_realign() -> SourceSetRealign | None:
@@ -313,24 +518,11 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
                 return SourceSetRealign(out.ardupilot_source_set, send_command=self._send_source_set_command,
                                         warn_operator=lambda text: self.statustext(mavlink.MAV_SEVERITY_CRITICAL, text))
         self.restart_heading = RestartHeading(
-            self.state_dir, self.heading_slew, mode=mode, signal_reset=self.signal_heading_reset,
+            self.state_dir, self.heading.slew, mode=mode, signal_reset=self.heading.signal,
             slew_rate_deg_s=out.restart_slew_deg_s, autopilot_kind=lambda: self.autopilot.autopilot_kind,
             make_realign=make_realign, background=self._in_background)
-        self.reset_counter = self.restart_heading.initial_reset_counter
-
-    def _horizontal_field_ut(self) -> float:
-        """WMM's horizontal field at the vehicle (GNSS, autopilot or configured position), NaN without one."""
-        from ahrsd.core.wmm import earth_field
-
-        pos = self.gnss.position if self.gnss is not None else None
-        if pos is None and self.autopilot.lat_deg is not None:
-            pos = (self.autopilot.lat_deg, self.autopilot.lon_deg, self.autopilot.alt_m or 0.0)
-        if pos is None and self.config.location.lat_deg is not None:
-            pos = (self.config.location.lat_deg, self.config.location.lon_deg, self.config.location.alt_m or 0.0)
-        try:
-            return earth_field(*pos).horizontal_ut if pos is not None else math.nan
-        except ValueError:
-            return math.nan
+        self.heading.reset_counter = self.restart_heading.initial_reset_counter
+        self.heading.restart = self.restart_heading
 
     def _send_source_set_command(self, source_set: int) -> None:
         """MAV_CMD_SET_EKF_SOURCE_SET to the autopilot (daemon.source_set_realign)."""
@@ -353,27 +545,33 @@ class Service(SampleReader, Publishers, ParamProtocol, InboundDispatch, Declinat
         self.signing_key = load_key(self.config.signing.key_file)
         log.info("MAVLink signing on (key fingerprint %s)", key_fingerprint(self.signing_key))
 
-    def _shutdown_io(self, why: str) -> None:
-        if self._status_line:
-            self._status_line.clear()
+    def _save_signing_timestamp(self) -> None:
+        save_timestamp(self.state_dir, max(e.signing_timestamp() for e in self.endpoints))
+
+    def shutdown_io(self, why: str) -> None:
+        if self.status_line:
+            self.status_line.clear()
         self.notifier.stopping(why)
         if self.endpoints:
             self.statustext(mavlink.MAV_SEVERITY_NOTICE, "ahrsd: stopping")
-            self.send(msgs.heartbeat(self.mav_type, mavlink.MAV_STATE_POWEROFF))
+            self.send(msgs.heartbeat(self.outbound.identity.mav_type, mavlink.MAV_STATE_POWEROFF))
         if self.signing_key is not None:
             save_timestamp(self.state_dir, max((e.signing_timestamp() for e in self.endpoints), default=0))
         if self.restart_heading is not None:
-            self.restart_heading.save_now(self.reset_counter)
+            self.restart_heading.save_now(self.heading.reset_counter)
         if self.learned_iron is not None:
             self.learned_iron.save_now()
-        self._close_logs()                          # after the last frames went out
+        if self.reader is not None:
+            self.reader.outputs.raw_sink = None
+        self.logs.close(self.endpoints)             # after the last frames went out
         for ep in self.endpoints:
             ep.close()
         if self.nmea is not None:
             self.nmea.close()
+        if self.field_calibration is not None:
+            self.field_calibration.close()
         if self.gnss is not None:
             self.gnss.close()
         if self.source is not None:
             self.source.close()
         self.notifier.close()
-

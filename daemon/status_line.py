@@ -7,28 +7,26 @@ import math
 from ahrsd.daemon.health import STATE_NAMES
 
 
-def format_status(s, now: float) -> str:
-    """One line: sample rate, attitude, true heading, state, and the counters a user should watch."""
-    est = s.pipeline.last_estimate if s.pipeline else None
-    rate = s.measured_rate_hz
-    parts = [f"{rate:6.1f} SPS"]
+def format_status(*, estimate, rate_hz: float, state: int, gaps: int, overruns: int, link: dict,
+                  gnss: str | None, autopilot, heading: str | None = None) -> str:
+    """One line: sample rate, attitude, true heading, state, and the counters a user should watch. `gnss` is
+    the GNSS task's status (None without one), `autopilot` the daemon.autopilot.AutopilotState."""
+    est = estimate
+    parts = [f"{rate_hz:6.1f} SPS"]
     if est is None:
         parts.append("attitude --")
     else:
         parts.append(f"roll {math.degrees(est.roll_rad):+6.1f} pitch {math.degrees(est.pitch_rad):+6.1f}")
         parts.append(f"hdg {math.degrees(est.heading_true_rad) % 360.0:5.1f}T "
                      f"±{math.degrees(float(est.sigma_rpy_rad[2])):4.1f}")
-    parts.append(STATE_NAMES.get(s.health.system_status(now), "?"))
-    if getattr(s, "heading_status", None) is not None:
-        parts.append(s.heading_status.status_text())
-    c = s.pipeline.counters if s.pipeline else None
-    link = s.link_totals()
-    parts.append(f"gaps {c.gaps if c else 0} ovr {s.counters.overruns} "
-                 f"tx {link['tx']} rx {link['rx']} bad {link['bad']}")
-    if getattr(s, "gnss", None) is not None:
-        parts.append(s.gnss.status(now))
-    if s.autopilot.system_id is not None:
-        parts.append(f"AP {s.autopilot.system_id}{' ARMED' if s.autopilot.armed else ''}")
+    parts.append(STATE_NAMES.get(state, "?"))
+    if heading is not None:
+        parts.append(heading)          # the heading state (daemon.heading_status): "hdg GNSS-only ±1.2°"
+    parts.append(f"gaps {gaps} ovr {overruns} tx {link['tx']} rx {link['rx']} bad {link['bad']}")
+    if gnss is not None:
+        parts.append(gnss)
+    if autopilot.system_id is not None:
+        parts.append(f"AP {autopilot.system_id}{' ARMED' if autopilot.armed else ''}")
     return " | ".join(parts)
 
 

@@ -3,7 +3,7 @@ every GNSS fix the source delivered, accepted or rejected (with the validator's 
 (.gnss.csv.gz, beside the samples whenever they are logged and a GNSS source is configured) and every MAVLink
 frame in and out into a TlogLog (.tlog), all behind the bounded queues of drivers/rotating_log.py, so the
 reader's cost is one deque append per sample and nothing on it ever waits for the disk. A full disk or a read-only directory stops a log with one warning; the daemon keeps running, and
-the counters (written, dropped, failure) go into the stats file (`log_counters`).
+the counters (written, dropped, failure) go into the stats file (`VehicleLogs.counters`).
 """
 
 from __future__ import annotations
@@ -35,18 +35,24 @@ def calibration_summary(cal) -> dict:
             "method": ", ".join(methods) or str(cal.metadata.get("method", "")), "date": dates[-1] if dates else ""}
 
 
-class VehicleLogging:
-    """Service part: `_start_logs` (after the pipeline and the endpoints exist), `_log_calibration` (after a
-    calibration swap), `log_gnss_fix` (every fix, from daemon.gnss_task), `_close_logs` (at shutdown),
-    `log_counters` (for the stats file)."""
+class VehicleLogs:
+    """The on-vehicle logs of one daemon run (`[log]` config). `start(calibration, endpoints)` after the pipeline
+    and the endpoints exist; `log_calibration` after a calibration swap; `log_gnss_fix` every fix (from
+    daemon.gnss_task); `close(endpoints)` at shutdown; `counters()` for the stats file. `put_sample` is the
+    reader's one call per raw sample (None: not logging samples)."""
 
-    sample_log: SampleLog | None = None
-    gnss_log: GnssLog | None = None
-    mavlink_log: TlogLog | None = None
-    _sample_log_put = None       # the reader's one call per raw sample (None: not logging samples)
+    def __init__(self, cfg, *, state_dir, environ, gnss_source: str):
+        self.cfg = cfg
+        self.state_dir = state_dir
+        self.environ = environ
+        self.gnss_source = gnss_source
+        self.sample_log: SampleLog | None = None
+        self.gnss_log: GnssLog | None = None
+        self.mavlink_log: TlogLog | None = None
+        self.put_sample = None
 
-    def _start_logs(self) -> None:
-        cfg = self.config.log
+    def start(self, calibration, endpoints) -> None:
+        cfg = self.cfg
         if not cfg.is_enabled(self.environ) or not (cfg.samples or cfg.tlog):
             return
         directory = cfg.resolve_dir(self.state_dir)
@@ -61,22 +67,22 @@ class VehicleLogging:
             # raw driver samples: replay and calibrate re-apply whatever calibration they are given; the
             # sidecar still names the calibration the daemon had in force
             samples_bytes = total_bytes - tlog_bytes if cfg.tlog else total_bytes
-            gnss_bytes = int(samples_bytes * GNSS_SHARE) if self.config.gnss.source != "none" else 0
+            gnss_bytes = int(samples_bytes * GNSS_SHARE) if self.gnss_source != "none" else 0
             self.sample_log = SampleLog(directory, limits(samples_bytes - gnss_bytes),
                                         metadata={"calibrated": False,
-                                                  "calibration": calibration_summary(self.pipeline.calibration)})
-            self._sample_log_put = self.sample_log.put
+                                                  "calibration": calibration_summary(calibration)})
+            self.put_sample = self.sample_log.put
             if gnss_bytes:
-                self.gnss_log = GnssLog(directory, limits(gnss_bytes), metadata={"gnss_source": self.config.gnss.source})
+                self.gnss_log = GnssLog(directory, limits(gnss_bytes), metadata={"gnss_source": self.gnss_source})
         if cfg.tlog:
             self.mavlink_log = TlogLog(directory, limits(tlog_bytes))
-            for ep in self.endpoints:
+            for ep in endpoints:
                 ep.traffic_log = self.mavlink_log.put
         log.info("logging %s to %s", ", ".join(n for n, on in (("raw samples", cfg.samples),
                                                                  ("GNSS fixes", self.gnss_log is not None),
                                                                  ("MAVLink traffic", cfg.tlog)) if on), directory)
 
-    def _log_calibration(self, cal) -> None:
+    def log_calibration(self, cal) -> None:
         if self.sample_log is not None:
             self.sample_log.set_metadata(calibration=calibration_summary(cal))
 
@@ -86,15 +92,15 @@ class VehicleLogging:
         if self.gnss_log is not None and rejection is not GnssRejection.MALFORMED:
             self.gnss_log.put((fix, rejection))
 
-    def _close_logs(self) -> None:
-        self._sample_log_put = None
-        for ep in self.endpoints:
+    def close(self, endpoints) -> None:
+        self.put_sample = None
+        for ep in endpoints:
             ep.traffic_log = None
         for kind in (self.sample_log, self.gnss_log, self.mavlink_log):
             if kind is not None:
                 kind.close()
 
-    def log_counters(self) -> dict:
+    def counters(self) -> dict:
         """Per log: written, dropped (queue full or stopped), failure (why it stopped, None while OK), files."""
         return {name: kind.counters for name, kind in (("samples", self.sample_log), ("gnss", self.gnss_log),
                                                        ("tlog", self.mavlink_log)) if kind is not None}

@@ -1,17 +1,15 @@
-"""The daemon's real per-sample reader (`Service._reader_step`: source read, error handling, pipeline, publish,
-next deadline) driven on a fake clock, without an event loop or a timerfd: each step runs at the deadline the
-reader armed, plus whatever lateness the test injects. What a test sees of each processed sample is what the
-service's own sample listeners see."""
+"""The daemon's real per-sample reader (`SampleReader.step`: source read, error handling, pipeline, publish,
+next deadline) built alone and driven on a fake clock, without an event loop or a timerfd: each step runs at
+the deadline the reader armed, plus whatever lateness the test injects. What a test sees of each processed
+sample is what the daemon's sample listeners see."""
 
 from __future__ import annotations
 
-import dataclasses
-import tempfile
-
 from ahrsd.calibration.models import Calibration
-from ahrsd.daemon.config import Config, StateConfig
+from ahrsd.daemon.counters import ServiceCounters
+from ahrsd.daemon.health import Health
 from ahrsd.daemon.pipeline import Pipeline
-from ahrsd.daemon.service import Service
+from ahrsd.daemon.sample_reader import ReaderOutputs, SampleListeners, SampleReader
 from ahrsd.estimator import make_estimator
 
 
@@ -54,40 +52,48 @@ class _Done:
         self.exc = exc
 
 
-class ReaderRig(Service):
-    """A Service whose reader is stepped by hand. `errors`: "frame" per rejected frame, the exception type
-    name per driver error, in order; `on_sample(sample)` (optional) runs for every processed sample."""
+class ReaderRig(SampleReader):
+    """The daemon's SampleReader stepped by hand. `errors`: "frame" per rejected frame, the exception type
+    name per driver error, in order; `on_sample(sample)` (optional) runs for every processed sample;
+    `texts`: the STATUSTEXTs it sent."""
 
     def __init__(self, source, clock: FakeClock, on_sample=None):
-        self._state = tempfile.TemporaryDirectory()
-        cfg = dataclasses.replace(Config(), endpoints=(), state=StateConfig(self._state.name))
-        super().__init__(cfg, source=source)
+        listeners = SampleListeners()
+        self.texts: list[tuple[int, str]] = []
+        self.published = 0
+        super().__init__(source, Pipeline(make_estimator("mekf"), Calibration.identity()),
+                         Health(stale_timeout_s=0.1), ServiceCounters(), listeners,
+                         ReaderOutputs(publish=self._publish, statustext=lambda sev, text: self.texts.append((sev, text)),
+                                       heading_reset=lambda: None, ready=lambda: None),
+                         poll_hz=100.0)
         self.clock = clock
+        self.period_s = 1.0 / source.sample_rate_hz
         self.errors: list[str] = []
         self.loop = _Loop(clock)
-        self.pipeline = Pipeline(make_estimator("mekf"), Calibration.identity())
-        self._reader_period = 1.0 / source.sample_rate_hz
-        self._reader_timer = _Timer()
-        self._reader_done = _Done()
+        self.timer = _Timer()
+        self.done = _Done()
         if on_sample is not None:
-            self.add_sample_listener(lambda sample, _est: on_sample(sample))
+            listeners.add(lambda sample, _est: on_sample(sample))
 
-    def _on_driver_error(self, exc: Exception) -> None:
+    def _publish(self, now: float) -> None:
+        self.published += 1
+
+    def on_driver_error(self, exc: Exception) -> None:
         self.errors.append(type(exc).__name__)
-        super()._on_driver_error(exc)
+        super().on_driver_error(exc)
 
     def run_for(self, seconds: float, lateness=None) -> None:
         """Step the reader for `seconds` of fake time; each wake `lateness()` s after its deadline."""
         end = self.clock.t + seconds
-        self._reader_timer.target = self.clock.t
+        self.timer.target = self.clock.t
         while self.clock.t < end:
-            self.clock.t = max(self.clock.t, self._reader_timer.target) + (lateness() if lateness else 0.0)
+            self.clock.t = max(self.clock.t, self.timer.target) + (lateness() if lateness else 0.0)
             frames = self.counters.frame_errors
-            self._reader_step()
-            if self._reader_done.exc is not None:
-                raise self._reader_done.exc
+            self.step()
+            if self.done.exc is not None:
+                raise self.done.exc
             if self.counters.frame_errors > frames:
                 self.errors.append("frame")
 
     def close(self) -> None:
-        self._state.cleanup()
+        pass

@@ -60,7 +60,7 @@ def start_service_on(endpoints, state_dir, **config_changes) -> tuple[Service, a
     async def start():
         service.loop = asyncio.get_running_loop()
         service._stop = asyncio.Event()
-        service._start()
+        service.start()
 
     loop.run_until_complete(start())
     return service, loop
@@ -72,7 +72,7 @@ def stop_service(service: Service, loop: asyncio.AbstractEventLoop) -> None:
         t.cancel()
     loop.run_until_complete(asyncio.sleep(0.01))
     if service.endpoints and service.endpoints[0].conn is not None:
-        service._shutdown_io("test end")
+        service.shutdown_io("test end")
     loop.close()
 
 

@@ -44,7 +44,7 @@ def run_swap(tmp_path, estimator, swap_at_s=60.0, total_s=130.0, reset_on_cal=Fa
     outputs = OutputsConfig.parse({"heading_slew_deg_s": SLEW_DEG_S, "reset_counter_on_calibration": reset_on_cal})
     cfg = dataclasses.replace(Config().with_overrides(state_dir=str(tmp_path)), outputs=outputs)
     svc = Service(cfg)
-    svc.pipeline = Pipeline(estimator, Calibration.identity())
+    svc.use_pipeline(Pipeline(estimator, Calibration.identity()))
     stream = open_stream("level-turns", seed=3)
     e = stream.errors
     corrected = Calibration.identity().with_sensor("mag", MagModel(e.hard_iron_ut, np.linalg.inv(e.soft_iron)))
@@ -64,7 +64,7 @@ def run_swap(tmp_path, estimator, swap_at_s=60.0, total_s=130.0, reset_on_cal=Fa
                 swapped = True
             s = make_sample(t, b.gyro_rad_s[i], b.accel_m_s2[i], b.mag_ut[i], counter=k, flags=SampleFlags.NEW_DATA)
             k += 1
-            svc._process((s,), t)
+            svc.reader.process((s,), t)
             est = svc.pipeline.last_estimate
             if swapped and est is not None:
                 flags_after |= int(est.flags)

@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-import dataclasses as dc
-
-from ahrsd.daemon.config import Config, SensorConfig, StateConfig
+from ahrsd.daemon.counters import ServiceCounters
 from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.daemon.outbound import Identity, Outbound
 from ahrsd.daemon.rate_limit import TokenBucket
-from ahrsd.daemon.service import Service
 
 
 def test_token_bucket_allows_the_burst_then_the_rate():
@@ -18,15 +16,28 @@ def test_token_bucket_allows_the_burst_then_the_rate():
     assert bucket.take(1.25)                                    # 0.25 s refills more than one token
 
 
-def test_service_statustext_flood_is_bounded_and_counted(tmp_path):
-    cfg = dc.replace(Config(), state=StateConfig(str(tmp_path)), sensor=SensorConfig(source="spi"))
-    svc = Service(cfg)
+def test_statustext_flood_is_bounded_and_counted():
+    """The outbound part alone, on a stepped clock: the burst goes out, the rest is counted; one second later
+    the rate refills; a critical text always goes out."""
+    clock = [100.0]
+    counters = ServiceCounters()
+    outbound = Outbound(Identity(1, 191, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), counters, clock=lambda: clock[0])
     sent = []
-    svc.send = lambda msg, endpoint=None: sent.append(msg)     # capture instead of a socket
+
+    class Link:
+        def send(self, msg):
+            sent.append(msg)
+            return True
+
+    outbound.endpoints.append(Link())
     for k in range(1000):                                       # e.g. a flood of refused parameter writes
-        svc.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unknown parameter X{k}")
-    assert 10 <= len(sent) <= 20                                # the burst plus what the clock refilled
-    assert svc.counters.statustext_suppressed == 1000 - len(sent)
-    before = len(sent)
-    svc.statustext(mavlink.MAV_SEVERITY_CRITICAL, "ahrsd: sensor failure: test")
-    assert len(sent) == before + 1                              # critical texts are never dropped
+        outbound.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unknown parameter X{k}")
+    assert len(sent) == 10                                      # the burst
+    assert counters.statustext_suppressed == 990
+    clock[0] += 1.0
+    for k in range(100):
+        outbound.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unknown parameter Y{k}")
+    assert len(sent) == 15 and counters.statustext_suppressed == 1085      # 5/s refilled
+    outbound.statustext(mavlink.MAV_SEVERITY_CRITICAL, "ahrsd: sensor failure: test")
+    assert len(sent) == 16                                      # critical texts are never dropped
+    assert sent[-1].text == "ahrsd: sensor failure: test"

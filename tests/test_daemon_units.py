@@ -42,7 +42,7 @@ def command(cmd, *params, src=(255, 190), signed=False, target=(1, 200), int_for
 def router():
     sent = []
     clock = [100.0]
-    r = CommandRouter(service=None, send_ack=lambda ep, m: sent.append(m), clock=lambda: clock[0])
+    r = CommandRouter(send_ack=lambda ep, m: sent.append(m), clock=lambda: clock[0])
     r.sent, r.now = sent, clock
     return r
 
@@ -436,59 +436,3 @@ def test_autopilot_state_latches_and_reads_position_course_speed():
     assert ap.lat_deg == pytest.approx(51.0)
 
 
-def test_declination_priority(tmp_path):
-    """DECL_MANUAL > configured position > autopilot position > simulator site."""
-    import dataclasses as dc
-
-    from ahrsd.daemon.config import Config, LocationConfig, SensorConfig, StateConfig
-    from ahrsd.daemon.service import Service
-    from ahrsd.core.wmm import earth_field
-
-    cfg = dc.replace(Config(), state=StateConfig(str(tmp_path)), sensor=SensorConfig(source="spi"))
-    svc = Service(cfg)
-    svc._resolve_declination(initial=True)
-    assert svc.declination_rad == 0.0 and svc.declination_source.startswith("none")
-    svc._on_message(None, as_if_from(mavlink.MAVLink_heartbeat_message(
-        mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 0, 0, 4, 3), 1, 1))
-    svc._on_message(None, as_if_from(mavlink.MAVLink_global_position_int_message(
-        0, 640000000, -220000000, 0, 0, 0, 0, 0, 0), 1, 1))                    # Iceland: large declination
-    assert svc.declination_rad == pytest.approx(earth_field(64.0, -22.0, 0.0).declination_rad)
-    assert "autopilot" in svc.declination_source
-    cfg2 = dc.replace(cfg, location=LocationConfig(lat_deg=10.0, lon_deg=10.0))
-    svc2 = Service(cfg2)
-    svc2._resolve_declination(initial=True)
-    assert svc2.declination_rad == pytest.approx(earth_field(10.0, 10.0, 0.0).declination_rad)
-    pending = []
-    svc2.loop = type("L", (), {"call_soon": lambda self, f: pending.append(f)})()   # like the event loop
-    assert svc2.params.set("DECL_DEG", 7.5)[0] and svc2.params.set("DECL_MANUAL", 1)[0]
-    for f in pending:
-        f()
-    assert svc2.declination_rad == pytest.approx(math.radians(7.5)) and svc2.declination_source == "manual"
-
-
-def test_a_failing_sample_listener_is_dropped_not_fatal(tmp_path):
-    import dataclasses as dc
-
-    from ahrsd.calibration import Calibration
-    from ahrsd.daemon.config import Config, StateConfig
-    from ahrsd.daemon.pipeline import Pipeline
-    from ahrsd.daemon.service import Service
-    from ahrsd.core.estimate import EstimateFlags
-
-    class Est:
-        flags = EstimateFlags.NONE
-
-    class StubEstimator:
-        def update(self, sample):
-            return Est()
-
-    svc = Service(dc.replace(Config(), state=StateConfig(str(tmp_path))))
-    svc.pipeline = Pipeline(StubEstimator(), Calibration.identity())
-    good = []
-    svc.add_sample_listener(lambda s, e: 1 / 0)
-    remove = svc.add_sample_listener(lambda s, e: good.append(s.counter))
-    for i in range(3):
-        svc._process([make_sample(i * 0.001, [0, 0, 0], [0, 0, -9.8], [20, 0, 40], counter=i)], float(i))
-    assert good == [0, 1, 2] and len(svc._listeners) == 1
-    remove()
-    assert svc._listeners == []

@@ -1,5 +1,5 @@
 """Structure-aware MAVLink fuzzing of an in-process daemon (tests/service_rig.py) on its real receive path
-(Endpoint._parse → Service._on_message → command router / parameter protocol / autopilot state).
+(Endpoint._parse → InboundDispatch.on_message → command router / parameter protocol / autopilot state).
 
 Frames are CRC-valid MAVLink 2 — unsigned, signed with the daemon's key, with another key, or with a stale
 timestamp — built from pymavlink's definitions (tests/support/mavlink_frames.py) for every message type the

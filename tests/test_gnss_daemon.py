@@ -287,7 +287,7 @@ def test_navigation_outputs_are_off_by_default():
 def process(service, loop, t_s, counter):
     """One sample through the service's hot path, inside its event loop (as the reader runs it)."""
     async def step():
-        service._process([make_sample(t_s, [0, 0, 0], [0, 0, -9.8], [20, 0, 40], counter=counter)],
+        service.reader.process([make_sample(t_s, [0, 0, 0], [0, 0, -9.8], [20, 0, 40], counter=counter)],
                          time.monotonic())
     loop.run_until_complete(step())
 

@@ -212,8 +212,8 @@ def run_daemon_on_boat(tmp_path, hard_iron_error_ut=None, *, seconds=150.0, seed
     svc.endpoints[0].send = lambda m: sent.append((m, svc.pipeline.last_estimate)) or True
     texts = []      # every STATUSTEXT, as Texts: the text with the heading state and yaw 1σ when it was sent
     hs = svc.heading_status
-    hs.statustext = svc.statustext = lambda sev, text: texts.append(Text(text, hs.state, hs.sigma_rad))
-    svc._listeners.clear()                   # (the field calibration needs the running loop; not used here)
+    hs.statustext = svc.outbound.statustext = lambda sev, text: texts.append(Text(text, hs.state, hs.sigma_rad))
+    svc.listeners.fns.clear()                # (the field calibration needs the running loop; not used here)
     if not signal_resets:
         svc.heading_status.take_yaw_resets = lambda n: False
     try:
@@ -227,16 +227,13 @@ def run_daemon_on_boat(tmp_path, hard_iron_error_ut=None, *, seconds=150.0, seed
                 fi += 1
             s = make_sample(t, block.gyro_rad_s[k], block.accel_m_s2[k], mag[k], flags=SampleFlags.NEW_DATA,
                             counter=k)
-            svc._process((s,), t)
-            if t >= next_hk:
+            svc.reader.process((s,), t)
+            if t >= next_hk:                     # housekeeping's first two jobs at 10 Hz
                 next_hk = t + 0.1
                 svc._update_heading_status(t)
-                state = svc.health.system_status(t)
-                if state != svc._last_state:
-                    svc._on_state_change(svc._last_state, state)
-                    svc._last_state = state
+                svc.health_report(t)
             n = len(sent)
-            svc._publish(t)
+            svc.publishers.publish(t)
             for _ in range(len(sent) - n):
                 truth_at[len(truth_at)] = block.truth_q_wxyz[k]
     finally:

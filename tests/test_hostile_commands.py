@@ -281,7 +281,7 @@ def test_hostile_autopilot_positions_are_refused_counted_and_do_not_step_the_hea
         feed(rig, data)
     drain(rig)
     assert s.autopilot.lat_deg is None and s.autopilot.rejected_positions == len(hostile)
-    s._resolve_declination()                                           # what housekeeping runs every 10 s
+    s.declination.resolve()                                           # what housekeeping runs every 10 s
     assert s.declination_rad == decl and s.reset_counter == resets
     feed(rig, gps_raw_int(rig, 35 * 10**7, 51 * 10**7, cog=40000))      # a course beyond 359.99°
     assert s.autopilot.rejected_courses == 1 and s.autopilot.course_rad is None

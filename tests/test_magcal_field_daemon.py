@@ -47,7 +47,7 @@ sys.path.insert(0, a["tests_dir"])
 from support.field_vehicle import RATE_HZ, record, vehicle
 from ahrsd.core.sample import SampleFlags, make_sample
 from ahrsd.daemon.config import Config, OutputsConfig
-from ahrsd.daemon.magcal import attach, settings_from_mapping
+from ahrsd.daemon.magcal_settings import settings_from_mapping
 from ahrsd.drivers.replay_source import ReplaySource
 from ahrsd.daemon.service import Service
 cfg = Config().with_overrides(sim="level-turns", mavlink=[a["url"]], state_dir=a["state_dir"])
@@ -61,9 +61,9 @@ scale = float(a["time_scale"])
 t0 = time.monotonic()
 def clock():
     return t0 + scale * (time.monotonic() - t0)
+cfg = dataclasses.replace(cfg, magcal=settings_from_mapping(a.get("magcal")))
 service = Service(cfg, source=ReplaySource(samples(), "field-calibration vehicle", realtime=True, rate_hz=RATE_HZ,
                                            clock=clock))
-attach(service, settings_from_mapping(a["magcal"]))
 sys.exit(asyncio.run(service.run()))
 """
 

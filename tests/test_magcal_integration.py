@@ -45,7 +45,7 @@ logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)
 from ahrsd.daemon.config import Config, OutputsConfig, SigningConfig
 from ahrsd.drivers.replay_source import ReplaySource
 from ahrsd.daemon.service import Service
-from ahrsd.daemon.magcal import attach, settings_from_mapping
+from ahrsd.daemon.magcal_settings import settings_from_mapping
 from ahrsd.core.sample import make_sample, SampleFlags
 from ahrsd.simulation import open_stream
 import dataclasses
@@ -68,9 +68,9 @@ def samples():
             yield make_sample(b.t_s[i], b.gyro_rad_s[i], b.accel_m_s2[i], b.mag_ut[i], temp_c=float(b.temp_c[i]),
                               counter=k, flags=SampleFlags.NEW_DATA)
             k += 1
+cfg = dataclasses.replace(cfg, magcal=settings_from_mapping(a.get("magcal")))
 service = Service(cfg, source=ReplaySource(samples(), "simulator " + a["sim"], realtime=True, clock=clock,
                                            rate_hz=a["rate_hz"]))
-attach(service, settings_from_mapping(a.get("magcal")))
 sys.exit(asyncio.run(service.run()))
 """
 

@@ -200,12 +200,12 @@ def test_router_ignores_broadcast_unless_configured_and_refuses_unsigned(tmp_pat
     for accept_broadcast in (False, True):
         host = FakeHost(tmp_path)
         proto = MagCalProtocol(host, MagCalSettings(accept_broadcast=accept_broadcast), clock=Clock())
-        router = commands.CommandRouter(service=None, send_ack=lambda ep, m: acks.append(m))
+        router = commands.CommandRouter(send_ack=lambda ep, m: acks.append(m))
         proto.register(router)
         msg = wire(mavlink.MAVLink_command_long_message(1, 0, CMD_START, 0, 0, 0, 1, 0, 0, 0, 0))
         router.handle(msg, None, broadcast=True)
         assert proto.calibrating is accept_broadcast
-    signed_router = commands.CommandRouter(service=None, send_ack=lambda ep, m: acks.append(m),
+    signed_router = commands.CommandRouter(send_ack=lambda ep, m: acks.append(m),
                                            require_signed=lambda: True)
     proto = MagCalProtocol(FakeHost(tmp_path), MagCalSettings(), clock=Clock())
     proto.register(signed_router)

@@ -1,7 +1,7 @@
 """Sample accounting against the simulated chip's ground truth (zero unexplained lost samples).
 
 The daemon has no sample counter to read (the ADIS16405 has none): the per-sample reader indexes each fresh
-read from the host clock (drivers.sample_timer.SampleTimer). Here the reader, Service._reader_step, runs on a fake
+read from the host clock (drivers.sample_timer.SampleTimer). Here the reader, SampleReader.step, runs on a fake
 clock against the byte-level chip, with the two things a loaded machine adds: wakes that come late, and time
 passing between the wake and the SPI transfer (the process preempted before the ioctl). The chip's own index
 at each burst is the ground truth (the daemon never sees it).
@@ -66,7 +66,7 @@ def late_wakes(rng):
 
 def run_reader(seconds, seed, faults="", late=late_wakes, delay=lambda rng: rng.uniform(0.0, 200e-6),
                stream=None):
-    """The daemon's reader (Service._reader_step) on a fake clock against the chip; returns per-class offset
+    """The daemon's reader (SampleReader.step) on a fake clock against the chip; returns per-class offset
     changes and the totals."""
     rng = random.Random(seed)
     clock = FakeClock(1000.0)

@@ -121,6 +121,9 @@ def default_document() -> dict:
         if section == "endpoint":
             doc[section] = [{"url": cfg.endpoints[0].url}]
             continue
+        if section == "nmea":                       # an array of tables, none by default
+            doc[section] = [{"url": "udp:127.0.0.1:10110"}]
+            continue
         value = MagCalSettings() if section == "magcal" else getattr(cfg, section)
         doc[section] = {k: list(v) if isinstance(v, tuple) else v
                         for k, v in dataclasses.asdict(value).items() if v is not None}
@@ -163,7 +166,7 @@ def hostile_documents(draw):
         st.text(st.characters(min_codepoint=97, max_codepoint=122), min_size=1, max_size=12)
         .filter(lambda k: k not in keys[section]))
     value = draw(HOSTILE_TOML_VALUES)
-    table = doc[section][0] if section == "endpoint" else doc[section]
+    table = doc[section][0] if section in ("endpoint", "nmea") else doc[section]
     table[key] = value
     return doc, how, section, key, value
 
@@ -185,15 +188,21 @@ def test_valid_toml_with_a_hostile_value_gives_a_configerror_naming_the_key(tmp_
         if how == "unknown_section":
             assert f"[{section}]" in text, text
         else:
-            prefix = "endpoint[0]" if section == "endpoint" else section
+            prefix = f"{section}[0]" if section in ("endpoint", "nmea") else section
             named = f"{prefix}.{key}" in text or ((section, key) in CROSS_KEY_RULES and f"{prefix}." in text)
             assert named, text
         CONFIG_CASES[(how, "ConfigError")] += 1
         return
     # accepted: then the value was a valid one, and what is in force is that value, finite
     assert how == "value", f"{how} {section}.{key} accepted"
-    got = cfg.endpoints[0].url if section == "endpoint" else getattr(
-        cfg.magcal if section == "magcal" else getattr(cfg, section), key)
+    if section == "endpoint":
+        got = cfg.endpoints[0].url
+    elif section == "nmea":
+        got = getattr(cfg.nmea[0], key)
+        if key == "sentences":                      # kept as (name, Hz) pairs, each rate a float
+            got, value = dict(got), {k: float(v) for k, v in value.items()}
+    else:
+        got = getattr(cfg.magcal if section == "magcal" else getattr(cfg, section), key)
     if isinstance(got, float):
         assert math.isfinite(got), f"{section}.{key} = {got} accepted"
     want = tuple(value) if isinstance(value, list) else value
@@ -279,7 +288,10 @@ def test_gyro_calibration_command_reports_a_failed_save(tmp_path, monkeypatch):
     CalibrationStore(state).save(_cal(0.1))
     service, close = _started_service(state, tmp_path)
     texts = []
-    service.statustext = lambda sev, text: texts.append(text)
+
+    class Operator:      # what the calibration tells the operator
+        def statustext(self, sev, text):
+            texts.append(text)
 
     class Ctx:
         results: list = []
@@ -291,7 +303,8 @@ def test_gyro_calibration_command_reports_a_failed_save(tmp_path, monkeypatch):
             pass
     try:
         ctx = Ctx()
-        cal = GyroBiasCalibration(service, ctx, 819.2)
+        cal = GyroBiasCalibration(ctx, 819.2, listeners=service.listeners, loop=service.loop, health=service.health,
+                                  outbound=Operator(), autopilot=service.autopilot, swap=service.swap)
         cal.start()
         still = make_sample(0.0, np.radians([0.1 + 0.3, 0.0, 0.0]), [0.0, 0.0, -9.80665], [20.0, 0.0, 45.0])
         for _ in range(cal.needed):

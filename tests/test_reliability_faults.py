@@ -51,7 +51,7 @@ def sim_source(plan: FaultPlan, clock: FakeClock) -> GroundTruthSource:
 
 
 def run_reader(src, clock, seconds: float, lateness=None):
-    """The daemon's per-sample reader (Service._reader_step) on the fake clock: each wake at the deadline it
+    """The daemon's per-sample reader (SampleReader.step) on the fake clock: each wake at the deadline it
     armed, plus an optional lateness(samples so far) in s. Returns (samples processed, error names)."""
     samples = []
     rig = ReaderRig(src, clock, samples.append)

@@ -122,7 +122,7 @@ def test_key_never_logged_and_timestamp_persisted(signed_rig):
     r = signed_rig
     feed(r, param_set(sender(OTHER_KEY), b"SR_ATTITUDE", 21.0))
     feed(r, param_set(sender(None), b"SR_ATTITUDE", 21.0))
-    r.service._shutdown_io("test")
+    r.service.shutdown_io("test")
     text = "\n".join(r.logs.text)
     assert "MAVLink signing on" in text
     for secret in (KEY.hex(), KEY.hex().upper(), repr(KEY), KEY.hex()[:16]):

@@ -51,7 +51,7 @@ def run(tmp_path, mounting_yaw_deg, seconds, autopilots, t0, *, reset_mode=False
     svc.start_restart_rule()
     if connect is not None:
         connect(svc)                   # the autopilot's side of the link (its HEARTBEAT, its answers)
-    svc.pipeline = Pipeline(make_estimator("mekf"), Calibration.identity())
+    svc.use_pipeline(Pipeline(make_estimator("mekf"), Calibration.identity()))
     svc.pipeline.set_mounting([0.0, 0.0, mounting_yaw_deg])
     stream = open_stream("static", seed=5, errors="ideal")
     for _ in range(resets):            # heading resets during the run (e.g. re-initialisations)
@@ -62,11 +62,11 @@ def run(tmp_path, mounting_yaw_deg, seconds, autopilots, t0, *, reset_mode=False
         for i in range(len(b.t_s)):
             t = float(b.t_s[i])
             if t >= seconds:
-                svc._shutdown_io("test end")
+                svc.shutdown_io("test end")
                 return np.array(rows), svc
             s = make_sample(t, b.gyro_rad_s[i], b.accel_m_s2[i], b.mag_ut[i], counter=k, flags=SampleFlags.NEW_DATA)
             k += 1
-            svc._process((s,), t)
+            svc.reader.process((s,), t)
             est = svc.pipeline.last_estimate
             if t >= next_vpe:
                 next_vpe = t + 1.0 / VPE_HZ
@@ -201,22 +201,32 @@ def connect_autopilot(autopilot_kind, ekf=None, *, answer_commands=True):
     received = []
 
     def connect(svc):
-        def send(msg, endpoint=None):
+        svc.inbound = svc.build_inbound()
+
+        class AutopilotLink:      # the service's only endpoint
+            def send(self, msg):
+                answer(msg)
+                return True
+
+            def close(self):
+                pass
+
+        def answer(msg):
             if ekf is None:
                 return
             if msg.get_type() == "PARAM_REQUEST_READ":
                 value = ekf.param(msg.param_id)
                 if value is not None:
-                    svc._on_message(None, as_if_from(mavlink.MAVLink_param_value_message(
+                    svc.inbound.on_message(None, as_if_from(mavlink.MAVLink_param_value_message(
                         msg.param_id.encode(), value, mavlink.MAV_PARAM_TYPE_INT8, 900, 0)))
             elif msg.get_type() == "COMMAND_LONG":
                 received.append((msg.target_system, msg.target_component, msg.command, msg.param1))
                 if answer_commands:
                     result = ekf.command_long(msg.command, msg.param1)
-                    svc._on_message(None, as_if_from(mavlink.MAVLink_command_ack_message(
+                    svc.inbound.on_message(None, as_if_from(mavlink.MAVLink_command_ack_message(
                         msg.command, result, 0, 0, svc.system_id, svc.component_id)))
-        svc.send = send
-        svc._on_message(None, as_if_from(mavlink.MAVLink_heartbeat_message(
+        svc.outbound.endpoints.append(AutopilotLink())
+        svc.inbound.on_message(None, as_if_from(mavlink.MAVLink_heartbeat_message(
             mavlink.MAV_TYPE_GROUND_ROVER, autopilot_kind, 0, 0, mavlink.MAV_STATE_ACTIVE, 3)))
     return connect, received
 

@@ -1,0 +1,62 @@
+"""tools/check_structure.py: clean on this tree, and each rule fails on the code it forbids (the shapes the
+daemon had before it was composed of parts: a nine-mixin Service, a monkeypatched AutopilotState, a probed
+optional part)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+TOOL = ROOT / "tools" / "check_structure.py"
+
+
+def run(root: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(TOOL), str(root)], capture_output=True, text=True, timeout=120)
+
+
+def test_this_tree_is_clean():
+    r = run(ROOT)
+    assert r.returncode == 0, r.stdout
+
+
+def _tree(tmp_path: Path, source: str) -> Path:
+    (tmp_path / "daemon").mkdir()
+    (tmp_path / "daemon" / "bad.py").write_text(source)
+    return tmp_path
+
+
+def test_a_class_of_mixins_fails(tmp_path):
+    r = run(_tree(tmp_path, "class A: pass\nclass B: pass\nclass C: pass\nclass Service(A, B, C):\n    pass\n"))
+    assert r.returncode == 1 and "bad.py:4: class Service has 3 bases" in r.stdout
+
+
+def test_two_bases_pass(tmp_path):
+    assert run(_tree(tmp_path, "class A: pass\nclass B: pass\nclass C(A, B):\n    pass\n")).returncode == 0
+
+
+def test_setattr_on_another_object_fails(tmp_path):
+    src = ("def hook(autopilot, fn):\n"
+           "    setattr(autopilot, 'on_gps_raw_int', fn)\n"
+           "class Own:\n"
+           "    def set(self, name, v):\n"
+           "        setattr(self, name, v)\n")
+    r = run(_tree(tmp_path, src))
+    assert r.returncode == 1 and "bad.py:2: setattr on autopilot" in r.stdout and "bad.py:5" not in r.stdout
+
+
+def test_probing_a_part_fails(tmp_path):
+    src = ("def a(service):\n"
+           "    return getattr(service, 'magcal', None)\n"
+           "def b(self):\n"
+           "    return hasattr(self, 'anything')\n"
+           "def c(x):\n"
+           "    return getattr(x.owner, 'gnss', None)\n"
+           "def d(source):\n"
+           "    return getattr(source, 'per_sample', False)\n")    # a driver's optional capability: allowed
+    r = run(_tree(tmp_path, src))
+    assert r.returncode == 1
+    for line in (2, 4, 6):
+        assert f"bad.py:{line}:" in r.stdout
+    assert "bad.py:8:" not in r.stdout

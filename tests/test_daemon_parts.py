@@ -1,0 +1,257 @@
+"""The daemon's parts built alone, with fakes or the real small objects they are given (docs/architecture.md):
+the position priority shared by the declination and the field calibration, inbound routing, the sample
+reader's listeners, the autopilot's GNSS subscription, the health report's heartbeat on a stepped clock."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import pytest
+
+from ahrsd.calibration import Calibration
+from ahrsd.core.estimate import EstimateFlags
+from ahrsd.core.sample import make_sample
+from ahrsd.core.wmm import earth_field
+from ahrsd.daemon.autopilot import AutopilotState
+from ahrsd.daemon.commands import CommandRouter
+from ahrsd.daemon.config import Config, LocationConfig
+from ahrsd.daemon.counters import ServiceCounters
+from ahrsd.daemon.declination import Declination
+from ahrsd.daemon.health import Health
+from ahrsd.daemon.heading_resets import HeadingResets
+from ahrsd.daemon.heading_slew import HeadingSlew
+from ahrsd.daemon.housekeeping import HealthReport
+from ahrsd.daemon.inbound import InboundDispatch
+from ahrsd.daemon.magcal import DaemonMagCalHost
+from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.daemon.outbound import Identity, Outbound
+from ahrsd.daemon.param_protocol import ParamProtocol, param_specs
+from ahrsd.daemon.params import ParamStore
+from ahrsd.daemon.pipeline import Pipeline
+from ahrsd.daemon.position import PositionResolver
+from ahrsd.daemon.sample_reader import ReaderOutputs, SampleListeners, SampleReader
+from ahrsd.simulation import DEFAULT_SITE
+from support.mavlink_feed import as_if_from
+
+# four places with clearly different declinations (each far from the others' by several degrees)
+CONFIG_SITE = (64.0, -22.0, 0.0)        # Iceland
+GNSS_SITE = (61.2, -149.9, 30.0)        # Alaska
+AUTOPILOT_SITE = (-45.0, 170.0, 10.0)   # New Zealand
+SIM_SITE = (DEFAULT_SITE.lat_deg, DEFAULT_SITE.lon_deg, DEFAULT_SITE.alt_m)
+
+
+class Sources:
+    """Every position source at once, each removable."""
+
+    def __init__(self):
+        self.location = LocationConfig(lat_deg=CONFIG_SITE[0], lon_deg=CONFIG_SITE[1], alt_m=CONFIG_SITE[2])
+        self.gnss = GNSS_SITE
+        self.autopilot = AutopilotState()
+        self.autopilot.lat_deg, self.autopilot.lon_deg, self.autopilot.alt_m = AUTOPILOT_SITE
+        self.resolver = PositionResolver(self.location, gnss_position=lambda: self.gnss, autopilot=self.autopilot,
+                                         simulator=True)
+
+    def drop(self, which: str) -> None:
+        if which == "config":
+            self.resolver.location = dataclasses.replace(self.location, lat_deg=None, lon_deg=None)
+        elif which == "gnss":
+            self.gnss = None
+        elif which == "autopilot":
+            self.autopilot.lat_deg = self.autopilot.lon_deg = None
+        elif which == "simulator":
+            self.resolver.simulator = False
+
+
+def _declinations_are_distinct():
+    d = [earth_field(*p).declination_rad for p in (CONFIG_SITE, GNSS_SITE, AUTOPILOT_SITE, SIM_SITE)]
+    return min(abs(a - b) for i, a in enumerate(d) for b in d[i + 1:]) > math.radians(3.0)
+
+
+def test_one_position_priority_for_the_declination_and_the_field_calibration():
+    """Config > GNSS receiver > autopilot > simulator site, for both users of a position; every source set,
+    then removed one by one in that order."""
+    assert _declinations_are_distinct()
+    src = Sources()
+    params = ParamStore(param_specs(Config()))
+    decl = Declination(params, src.resolver, signal_reset=lambda: None)
+    host = DaemonMagCalHost(pipeline=None, swap=None, outbound=None, autopilot=src.autopilot,
+                            positions=src.resolver, slew=HeadingSlew())
+    expected = [("config", CONFIG_SITE), ("gnss", GNSS_SITE), ("autopilot", AUTOPILOT_SITE),
+                ("simulator", SIM_SITE)]
+    for source, site in expected:
+        position = src.resolver.position()
+        assert position.source == source
+        assert (position.lat_deg, position.lon_deg, position.alt_m) == pytest.approx(site)
+        truth = earth_field(*site, DEFAULT_SITE.date if source == "simulator" else None)
+        decl.resolve()
+        assert decl.rad == pytest.approx(truth.declination_rad, abs=1e-12), source
+        field = host.reference_field()
+        assert field.declination_rad == pytest.approx(truth.declination_rad, abs=1e-12), source
+        assert field.ned_ut == pytest.approx(truth.ned_ut), source
+        src.drop(source)
+    assert src.resolver.position() is None and host.reference_field() is None
+    decl.resolve()
+    assert decl.rad == 0.0 and decl.waiting_for_position
+
+
+def test_the_autopilot_position_is_not_used_when_the_config_says_so():
+    src = Sources()
+    src.drop("config")
+    src.drop("gnss")
+    src.resolver.location = dataclasses.replace(src.resolver.location, use_autopilot_position=False)
+    assert src.resolver.position().source == "simulator"
+
+
+def test_a_position_given_with_a_request_outranks_every_source():
+    """MAV_CMD_FIXED_MAG_CAL_YAW's lat/lon is for that request only."""
+    src = Sources()
+    host = DaemonMagCalHost(pipeline=None, swap=None, outbound=None, autopilot=src.autopilot,
+                            positions=src.resolver, slew=HeadingSlew())
+    assert host.reference_field(-33.9, 151.2).declination_rad == pytest.approx(
+        earth_field(-33.9, 151.2).declination_rad)
+
+
+def test_the_manual_declination_outranks_every_position_and_a_big_step_is_a_reset():
+    src = Sources()
+    params = ParamStore(param_specs(Config()))
+    resets = []
+    told = []
+    decl = Declination(params, src.resolver, signal_reset=lambda: resets.append(1))
+    decl.set_estimator = told.append
+    decl.resolve(initial=True)
+    assert decl.source.endswith("(config)") and told == [decl.rad] and resets == [1]   # from 0: a step
+    params.set("DECL_DEG", 7.5)
+    params.set("DECL_MANUAL", 1)
+    decl.resolve()
+    assert decl.source == "manual" and decl.rad == pytest.approx(math.radians(7.5)) and len(resets) == 2
+    decl.resolve()
+    assert len(told) == 2 and len(resets) == 2        # no change, nothing told
+
+
+def _inbound(tmp_path, resolver, autopilot):
+    params = ParamStore(param_specs(Config()), tmp_path)
+    counters = ServiceCounters()
+    outbound = Outbound(Identity(1, 191, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), counters)
+    decl = Declination(params, resolver, signal_reset=lambda: None)
+    proto = ParamProtocol(params, outbound, counters, signing_required=lambda: False, spawn=lambda coro: None)
+    router = CommandRouter(lambda ep, m: None)
+    return InboundDispatch(outbound, autopilot, router, proto, decl, follow_autopilot_id=True), decl, outbound
+
+
+def test_inbound_takes_the_autopilot_position_and_id(tmp_path):
+    autopilot = AutopilotState()
+    resolver = PositionResolver(LocationConfig(), gnss_position=lambda: None, autopilot=autopilot, simulator=False)
+    inbound, decl, outbound = _inbound(tmp_path, resolver, autopilot)
+    decl.resolve(initial=True)
+    assert decl.waiting_for_position
+    inbound.on_message(None, as_if_from(mavlink.MAVLink_heartbeat_message(
+        mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 0, 0, 4, 3), 7, 1))
+    assert outbound.identity.system_id == 7 and autopilot.system_id == 7
+    inbound.on_message(None, as_if_from(mavlink.MAVLink_global_position_int_message(
+        0, 640000000, -220000000, 0, 0, 0, 0, 0, 0), 9, 1))                     # another system: ignored
+    assert decl.waiting_for_position
+    inbound.on_message(None, as_if_from(mavlink.MAVLink_global_position_int_message(
+        0, 640000000, -220000000, 0, 0, 0, 0, 0, 0), 7, 1))
+    assert decl.rad == pytest.approx(earth_field(64.0, -22.0, 0.0).declination_rad) and "autopilot" in decl.source
+
+
+def test_the_autopilot_hands_every_gps_message_to_its_listeners():
+    """The field calibration subscribes; a refused message is still handed on (the listener judges it), and
+    a listener that raises does not stop the input handling."""
+    ap = AutopilotState()
+    seen = []
+    ap.add_gnss_listener(lambda m: 1 / 0)
+    ap.add_gnss_listener(lambda m: seen.append(m.get_type()))
+    ap.on_gps_raw_int(as_if_from(mavlink.MAVLink_gps_raw_int_message(
+        0, 3, 510000000, 10000000, 0, 100, 100, 500, 9000, 10), 3), 1.0)
+    ap.on_gps_raw_int(as_if_from(mavlink.MAVLink_gps_raw_int_message(
+        0, 3, 999999999, 10000000, 0, 100, 100, 500, 9000, 10), 3), 2.0)      # latitude out of range: refused
+    ap.on_global_position_int(as_if_from(mavlink.MAVLink_global_position_int_message(
+        0, 510000000, 10000000, 0, 0, 100, 0, 0, 0), 3), 3.0)
+    assert seen == ["GPS_RAW_INT", "GPS_RAW_INT", "GLOBAL_POSITION_INT"]
+    assert ap.rejected_positions == 1 and ap.lat_deg == pytest.approx(51.0)
+
+
+class _Est:
+    flags = EstimateFlags.NONE
+
+
+class _StubEstimator:
+    def update(self, sample):
+        return _Est()
+
+
+def _reader(listeners, ready=None):
+    class Source:
+        sample_rate_hz = 100.0
+
+    return SampleReader(Source(), Pipeline(_StubEstimator(), Calibration.identity()), Health(stale_timeout_s=0.1),
+                        ServiceCounters(), listeners,
+                        ReaderOutputs(publish=lambda now: None, statustext=lambda sev, text: None,
+                                      heading_reset=lambda: None,
+                                      ready=lambda: (ready if ready is not None else []).append(1)),
+                        poll_hz=100.0)
+
+
+def test_a_failing_sample_listener_is_dropped_not_fatal():
+    listeners = SampleListeners()
+    reader = _reader(listeners)
+    good = []
+    listeners.add(lambda s, e: 1 / 0)
+    remove = listeners.add(lambda s, e: good.append(s.counter))
+    for i in range(3):
+        reader.process([make_sample(i * 0.001, [0, 0, 0], [0, 0, -9.8], [20, 0, 40], counter=i)], float(i))
+    assert good == [0, 1, 2] and len(listeners.fns) == 1
+    remove()
+    assert listeners.fns == []
+
+
+def test_the_reader_says_ready_once_on_the_first_good_estimate():
+    ready = []
+    reader = _reader(SampleListeners(), ready=ready)
+    for i in range(3):
+        reader.process([make_sample(i * 0.01, [0, 0, 0], [0, 0, -9.8], [20, 0, 40], counter=i)], float(i))
+    assert ready == [1]
+
+
+def test_the_health_report_sends_one_heartbeat_a_second_on_a_stepped_clock():
+    sent = []
+
+    class Link:
+        def send(self, msg):
+            sent.append(msg.get_type())
+            return True
+
+    class Counts:
+        samples = 0
+
+    class Notifier:
+        def __init__(self):
+            self.statuses, self.watchdogs = [], 0
+
+        def status(self, text):
+            self.statuses.append(text)
+
+        def watchdog(self):
+            self.watchdogs += 1
+
+    outbound = Outbound(Identity(1, 191, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), ServiceCounters(),
+                        clock=lambda: 0.0)
+    outbound.endpoints.append(Link())
+    notifier = Notifier()
+    report = HealthReport(Health(stale_timeout_s=0.1), outbound, notifier, Counts(), watchdog_interval_s=2.0,
+                          start=100.0)
+    for k in range(101):
+        report(100.0 + 0.1 * k)                       # 10 s of housekeeping at 10 Hz
+    assert sent.count("HEARTBEAT") == 10
+    assert sent.count("STATUSTEXT") == 1 and notifier.statuses == ["BOOT: waiting for the sensor"]
+    assert notifier.watchdogs == 0                    # no samples flow: systemd must be able to restart us
+
+
+def test_heading_resets_count_and_end_a_slew():
+    resets = HeadingResets(HeadingSlew(max_rate_deg_s=5.0), reset_counter=3)
+    resets.slew.start_transition()
+    assert resets.slew.active
+    resets.signal()
+    assert resets.reset_counter == 4 and not resets.slew.active

@@ -1,0 +1,80 @@
+"""Structure rules for the daemon's parts (docs/architecture.md), beside ../shared/hooks/check_layers.py.
+
+Usage: python tools/check_structure.py [CHECKOUT]   (exit 0 when clean; each violation printed as path:line)
+
+Rules, all in daemon/:
+1. no class with more than two bases (the daemon is composed of parts, not assembled from mixins);
+2. no `setattr` on an object other than `self`/`cls` (no part replaces another object's methods or state);
+3. no `getattr`/`hasattr` probing of the daemon's parts: not on the service or a part itself (`self`,
+   `service`, `svc`, `s`, `host`, `self.service`, `self.host`) and not for an attribute named like a part
+   (an optional part is `None` or a null object by type, and is tested with `is None`).
+"""
+
+from __future__ import annotations
+
+import ast
+import sys
+from pathlib import Path
+
+MAX_BASES = 2
+PROBED_OBJECTS = {"self", "service", "svc", "s", "host", "self.service", "self.host", "self.svc"}
+PART_NAMES = {
+    "magcal", "field_calibration", "gnss", "pipeline", "reader", "publishers", "inbound", "param_protocol",
+    "declination", "positions", "housekeeping", "health_report", "swap", "heading", "heading_slew",
+    "restart_heading", "source_set_check", "endpoint_outputs", "outbound", "logs", "status_line", "commands",
+    "params", "autopilot", "notifier", "listeners",
+}
+
+
+def _dotted(node: ast.AST) -> str:
+    if isinstance(node, ast.Name):
+        return node.id
+    if isinstance(node, ast.Attribute):
+        inner = _dotted(node.value)
+        return f"{inner}.{node.attr}" if inner else ""
+    return ""
+
+
+def check_file(path: Path, shown: str) -> list[str]:
+    try:
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+    except SyntaxError as exc:
+        return [f"{shown}:{exc.lineno}: does not parse"]
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ClassDef) and len(node.bases) > MAX_BASES:
+            out.append(f"{shown}:{node.lineno}: class {node.name} has {len(node.bases)} bases (at most "
+                       f"{MAX_BASES}: compose parts instead of mixing them in)")
+        if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.args):
+            continue
+        name, target = node.func.id, _dotted(node.args[0])
+        if name == "setattr" and target not in ("self", "cls"):
+            out.append(f"{shown}:{node.lineno}: setattr on {target or 'an expression'} (a part changes only "
+                       "its own state; subscribe or pass a callback instead)")
+        if name in ("getattr", "hasattr"):
+            attr = node.args[1].value if len(node.args) > 1 and isinstance(node.args[1], ast.Constant) else None
+            if target in PROBED_OBJECTS or attr in PART_NAMES:
+                out.append(f"{shown}:{node.lineno}: {name}({target or 'expression'}, {attr!r}) probes a part "
+                           "(declare it: a constructor argument, None or a null object by type)")
+    return sorted(out, key=lambda line: int(line.split(":")[1]))
+
+
+def check(root: Path) -> list[str]:
+    daemon = root / "daemon"
+    out = []
+    for path in sorted(daemon.rglob("*.py")):
+        out += check_file(path, str(path.relative_to(root)))
+    return out
+
+
+def main(argv: list[str]) -> int:
+    root = Path(argv[1]) if len(argv) > 1 else Path(__file__).resolve().parent.parent
+    problems = check(root)
+    for p in problems:
+        print(p)
+    print(f"check_structure: {len(problems)} problem(s) in {root / 'daemon'}")
+    return 1 if problems else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv))
