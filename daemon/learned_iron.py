@@ -10,7 +10,8 @@ the calibration or reset by the operator.
 * Shown as read-only parameters MAG_LRN_X/Y/Z (µT, body FRD) and MAG_LRN_SD (largest 1σ, µT; −1 with an
   estimator that learns none), refreshed every PUBLISH_PERIOD_S.
 * One command, CMD_LEARNED_IRON (MAV_CMD_USER_1, 31010): param1 = 1 accepts it into the calibration (the hard
-  iron moves by the learned offset, then the learned one is reset), 2 resets it. Refused while the autopilot
+  iron moves by the learned offset, then the learned one is reset), 2 resets it; the same by writing the
+  momentary parameter MAG_LRN_ACT (for a ground station's parameter list). Refused while the autopilot
   reports armed (as the field calibration: TEMPORARILY_REJECTED, "Disarm to …") unless `allow_armed`.
 
 Folding the learned offset b (body) into the calibration m_cal = W·(m_raw − h), m_body = C·m_cal − b
@@ -33,6 +34,7 @@ from ahrsd.calibration.atomic_file import write_atomic
 from ahrsd.calibration.models import MagModel
 from ahrsd.daemon.command_args import CommandArgs, Refused, whole_number
 from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.daemon.params import ParamError
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +46,7 @@ PUBLISH_PERIOD_S = 1.0
 CMD_LEARNED_IRON = 31010        # MAV_CMD_USER_1 (common.xml): param1 ACTION_*
 ACTION_ACCEPT, ACTION_RESET = 1, 2
 PARAM_NAMES = ("MAG_LRN_X", "MAG_LRN_Y", "MAG_LRN_Z", "MAG_LRN_SD")
+ACTION_PARAM = "MAG_LRN_ACT"    # momentary: 1 accept, 2 reset (as CMD_LEARNED_IRON's param1)
 NOT_LEARNING_SD = -1.0          # MAG_LRN_SD of an estimator that learns no iron
 MAX_PARAM_UT = 1000.0
 
@@ -189,23 +192,40 @@ class LearnedIron:
         action = whole_number(CommandArgs.of(msg).p(1), ACTION_ACCEPT, ACTION_RESET)
         if action is None:
             return Refused(mavlink.MAV_RESULT_DENIED, "Learned iron: param1 must be 1 (accept) or 2 (reset)")
+        return self.act(action)[0]
+
+    def on_param(self, value: float) -> None:
+        """MAG_LRN_ACT written (a momentary parameter, for ground stations without a command panel): 1
+        accepts, 2 resets, 0 does nothing. Raises ParamError (the write is refused, with why) when refused."""
+        if value == 0:
+            return
+        result, text = self.act(int(value))
+        if result != mavlink.MAV_RESULT_ACCEPTED:
+            raise ParamError(f"MAG_LRN_ACT {value:g}: {text}")
+
+    def act(self, action: int) -> tuple[int, str]:
+        """ACTION_ACCEPT or ACTION_RESET: (MAV_RESULT, what happened), said in a STATUSTEXT."""
         if not _learns(self.pipeline.estimator):
-            return Refused(mavlink.MAV_RESULT_UNSUPPORTED,
-                           f"Learned iron: estimator {getattr(self.pipeline.estimator, 'name', '?')} learns none")
-        if self.armed() and not self.allow_armed:
-            self.statustext(mavlink.MAV_SEVERITY_NOTICE, "Disarm to change the learned iron")
-            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
-        if action == ACTION_RESET:
-            self.statustext(mavlink.MAV_SEVERITY_NOTICE, self.reset())
-            return mavlink.MAV_RESULT_ACCEPTED
+            result, text = mavlink.MAV_RESULT_UNSUPPORTED, "Learned iron: this estimator learns none"
+        elif self.armed() and not self.allow_armed:
+            result, text = mavlink.MAV_RESULT_TEMPORARILY_REJECTED, "Disarm to change the learned iron"
+        elif action == ACTION_RESET:
+            result, text = mavlink.MAV_RESULT_ACCEPTED, self.reset()
+        else:
+            return self._accept_action()
+        self.statustext(mavlink.MAV_SEVERITY_NOTICE, text)
+        return result, text
+
+    def _accept_action(self) -> tuple[int, str]:
         try:
             done, text = self.accept()
         except Exception as exc:  # noqa: BLE001 - the calibration in force stays (apply_calibration's contract)
             log.exception("accepting the learned iron failed")
-            self.statustext(mavlink.MAV_SEVERITY_ERROR, f"Learned iron: save failed: {exc}")
-            return mavlink.MAV_RESULT_FAILED
+            text = f"Learned iron: save failed: {exc}"
+            self.statustext(mavlink.MAV_SEVERITY_ERROR, text)
+            return mavlink.MAV_RESULT_FAILED, text
         self.statustext(mavlink.MAV_SEVERITY_NOTICE if done else mavlink.MAV_SEVERITY_WARNING, text)
-        return mavlink.MAV_RESULT_ACCEPTED if done else mavlink.MAV_RESULT_FAILED
+        return (mavlink.MAV_RESULT_ACCEPTED if done else mavlink.MAV_RESULT_FAILED), text
 
     # ------------------------------------------------------------------ internals
     def _accepted_heading_std_deg(self, current, cov) -> float | None:

@@ -8,6 +8,7 @@ import asyncio
 import logging
 from typing import Callable, Coroutine
 
+from ahrsd.daemon.learned_iron import ACTION_PARAM as LEARNED_IRON_ACTION
 from ahrsd.daemon.learned_iron import MAX_PARAM_UT, NOT_LEARNING_SD, PARAM_NAMES as LEARNED_IRON_PARAMS
 from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.counters import ServiceCounters
@@ -47,6 +48,8 @@ def param_specs(cfg) -> list[ParamSpec]:
     out.append(ParamSpec(LEARNED_IRON_PARAMS[3], NOT_LEARNING_SD, NOT_LEARNING_SD, MAX_PARAM_UT,
                          "largest 1-sigma of the learned hard iron, uT (-1: the estimator learns none; read-only)",
                          read_only=True))
+    out.append(ParamSpec(LEARNED_IRON_ACTION, 0.0, 0.0, 2.0, "write 1 to accept the learned iron into the "
+                         "calibration, 2 to reset it (momentary; refused while armed)", integer=True, momentary=True))
     return out
 
 

@@ -46,6 +46,7 @@ from ahrsd.daemon.health import Health
 from ahrsd.daemon.heading_status import HeadingStatus, LongStatusText
 from ahrsd.daemon.housekeeping import Every, HealthReport, Housekeeping
 from ahrsd.daemon.inbound import InboundDispatch
+from ahrsd.daemon.learned_iron import ACTION_PARAM as LEARNED_IRON_ACTION
 from ahrsd.daemon.learned_iron import CMD_LEARNED_IRON, LearnedIron
 from ahrsd.daemon.mag_trust import calibration_heading_sigma_rad
 from ahrsd.daemon.magcal import DaemonMagCalHost, FieldCalibrationPart, MagCalProtocol
@@ -274,6 +275,8 @@ class Service:
                     self.learned_iron.calibration_changed()   # a body-frame iron belongs to its mounting
         elif name in ("DECL_MANUAL", "DECL_DEG"):
             self.loop.call_soon(self.declination.resolve)
+        elif name == LEARNED_IRON_ACTION and self.learned_iron is not None:
+            self.learned_iron.on_param(value)          # 1 accept, 2 reset (daemon.learned_iron)
 
     def _statustext_soon(self, severity: int, text: str) -> None:
         if self.loop is not None:

@@ -128,6 +128,14 @@ def test_reset_forgets_it_and_both_commands_are_refused_while_armed(tmp_path):
         assert svc.learned_iron.handle_command(_command(ACTION_RESET)) == mavlink.MAV_RESULT_ACCEPTED
         assert not np.any(ins.learned_iron()[0]) and svc.pipeline.calibration is before
         assert svc.learned_iron.handle_command(_command(7)) != mavlink.MAV_RESULT_ACCEPTED
+        # the same from a ground station's parameter list: MAG_LRN_ACT (momentary)
+        ins.set_learned_iron(OFFSET_UT, COV_UT2)
+        svc.autopilot.armed = True
+        ok, reason = svc.params.set("MAG_LRN_ACT", 2.0)
+        assert not ok and "Disarm" in reason and ins.learned_iron()[0] == pytest.approx(OFFSET_UT)
+        svc.autopilot.armed = False
+        ok, _ = svc.params.set("MAG_LRN_ACT", 2.0)
+        assert ok and not np.any(ins.learned_iron()[0]) and svc.params.get("MAG_LRN_ACT") == 0.0
     finally:
         stop_service(svc, loop)
     svc, loop, _ = _start(tmp_path)                  # the reset persisted too
