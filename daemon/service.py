@@ -9,7 +9,8 @@ Parts: daemon.outbound (endpoints, send, STATUSTEXT), daemon.endpoint_outputs (p
 daemon.sample_reader (reader + per-sample hot path), daemon.publishers (outputs of daemon.output_registry),
 daemon.inbound (MAVLink input), daemon.param_protocol (PARAM_*), daemon.position + daemon.declination,
 daemon.calibration_swap, daemon.heading_resets, daemon.housekeeping, daemon.vehicle_log, daemon.gnss_task,
-daemon.magcal (field calibration), daemon.builtin_commands.
+daemon.magcal (field calibration), daemon.builtin_commands, daemon.heading_status (the heading state reported),
+daemon.learned_iron (the iron ins learned, persisted).
 
 The hooks other code uses (docs/daemon.md "Extending"): `service.commands.register(command_id, handler)`,
 `service.apply_calibration(cal, save=True)`, `service.add_sample_listener(fn)`, `service.send(msg)`,
