@@ -171,8 +171,9 @@ class LearnedIron:
             return False, "Learned iron: nothing learned yet"
         current = p.calibration
         model = folded_hard_iron(current.mag, p.mounting, offset)
-        new = current.with_sensor("mag", model, method="learned-iron",
-                                  heading_std_deg=self._accepted_heading_std_deg(current, cov),
+        heading_std = self._accepted_heading_std_deg(current, cov)     # the old offset's σ is inside it
+        new = current.with_sensor("mag", model, method="learned-iron", heading_std_deg=heading_std,
+                                  offset_std_deg=None if heading_std is None else 0.0,
                                   learned_iron_ut=offset.tolist(),
                                   learned_iron_sigma_ut=np.sqrt(np.diag(cov)).tolist(),
                                   before={"hard_iron_ut": current.mag.hard_iron_ut.tolist(),

@@ -3,10 +3,10 @@
 calibration change.
 
 Where the figure comes from, in order (the calibration's `metadata["mag"]`):
-1. `heading_std_deg` (and `offset_std_deg`) — the field session's own prediction, propagated from its fit's
+1. `heading_std_deg` and `offset_std_deg` — the field session's own prediction, propagated from its fit's
    parameter covariance (calibration/mag/vertical_channel.predicted_heading_std_deg): the heading-dependent
-   part and the constant offset add in quadrature. An undetermined offset (no heading reference) leaves the
-   heading error unknown.
+   part and the constant offset add in quadrature. An undetermined offset (no heading reference: stored as
+   null) leaves the heading error unknown.
 2. `residual_rms_ut` with the fit site (`site.lat_deg/lon_deg`, `ahrsd calibrate mag`): a field residual ε
    perpendicular to the horizontal field H turns the heading by ε/H, so ε/H (WMM's H at the site) is the
    figure. The residual of a fit understates what the fit cannot see (a constant offset), so it is a floor,
@@ -37,13 +37,10 @@ def calibration_heading_sigma_rad(calibration) -> float:
     meta = calibration.metadata.get("mag") if isinstance(calibration.metadata, dict) else None
     if not isinstance(meta, dict):
         return NAN
-    heading = _finite(meta.get("heading_std_deg"))
-    if math.isfinite(heading):
-        offset = meta.get("offset_std_deg")
-        if offset is not None and not math.isfinite(_finite(offset)):
-            return NAN                 # the constant offset is undetermined: the heading is not known
-        offset = 0.0 if offset is None else _finite(offset)
-        return math.radians(math.hypot(heading, offset))
+    if "heading_std_deg" in meta:
+        heading, offset = _finite(meta.get("heading_std_deg")), _finite(meta.get("offset_std_deg"))
+        # the field session stores an undetermined offset (no heading reference) as None: the heading is unknown
+        return math.radians(math.hypot(heading, offset)) if math.isfinite(heading + offset) else NAN
     residual = _finite(meta.get("residual_rms_ut"))
     site = meta.get("site")
     if math.isfinite(residual) and isinstance(site, dict):

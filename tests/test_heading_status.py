@@ -352,3 +352,24 @@ def test_a_yaw_reset_of_the_estimator_bumps_reset_counter_once_in_the_next_vpe(t
         assert after == [(first + 1) & 0xFF] * 3
     finally:
         stop_service(svc, loop)
+
+
+def test_the_calibrations_predicted_heading_error_reaches_ins_as_a_figure_or_unknown():
+    from ahrsd.calibration.models import Calibration, MagModel
+    from ahrsd.daemon.mag_trust import calibration_heading_sigma_rad
+
+    model = MagModel(np.array([3.0, -2.0, 1.0]), np.eye(3))
+    cal = Calibration.identity().with_sensor
+    assert math.degrees(calibration_heading_sigma_rad(cal("mag", model, heading_std_deg=0.3, offset_std_deg=0.4))) \
+        == pytest.approx(0.5)
+    # the field session's undetermined offset (null), no figure at all, no calibration: unknown
+    assert math.isnan(calibration_heading_sigma_rad(cal("mag", model, heading_std_deg=0.3, offset_std_deg=None)))
+    assert math.isnan(calibration_heading_sigma_rad(cal("mag", model, method="fixed-yaw")))
+    assert math.isnan(calibration_heading_sigma_rad(Calibration.identity()))
+    # `ahrsd calibrate mag`: the field residual over WMM's horizontal field at the fit site (Boulder, H ≈ 21 µT)
+    from ahrsd.core.wmm import earth_field
+
+    h = earth_field(40.0, -105.0).horizontal_ut
+    got = calibration_heading_sigma_rad(cal("mag", model, residual_rms_ut=0.5,
+                                            site={"lat_deg": 40.0, "lon_deg": -105.0, "alt_m": 0.0}))
+    assert got == pytest.approx(math.atan2(0.5, h))
