@@ -7,6 +7,8 @@ for operators without a ground station.
     ahrsd magcal start                 # turn the vehicle, watch the bar, accept at the prompt (or --accept)
     ahrsd magcal status                # what is the daemon doing
     ahrsd magcal accept | cancel
+    ahrsd magcal accept-learned        # fold the iron the aided filter learned into the calibration
+    ahrsd magcal reset-learned         # forget the learned iron
     ahrsd magcal fixed-yaw 123.5       # the vehicle points at 123.5° TRUE: offsets from WMM, soft iron kept
 
 --connect is a pymavlink URL; the default listens where the daemon sends by default (udpin:127.0.0.1:14550).
@@ -61,7 +63,9 @@ def register(subparsers) -> None:
     s.add_argument("--max-time", type=_number_arg(0.0, above=True), default=600.0, metavar="S", help="give up following after S seconds")
     sub.add_parser("accept", help="accept (save and apply) a successful result")
     sub.add_parser("cancel", help="cancel the running calibration")
-    st = sub.add_parser("status", help="print progress or the last report")
+    sub.add_parser("accept-learned", help="accept the iron the GNSS-aided filter learned into the calibration")
+    sub.add_parser("reset-learned", help="forget the iron the GNSS-aided filter learned")
+    st = sub.add_parser("status", help="print progress or the last report, and the learned iron")
     st.add_argument("--seconds", type=_number_arg(0.0, above=True), default=3.0, help="how long to listen (default 3)")
     fy = sub.add_parser("fixed-yaw", help="calibrate offsets from a known TRUE heading (WMM field, soft iron kept)")
     fy.add_argument("yaw_deg", type=_number_arg(), metavar="DEG", help="true heading of the vehicle, degrees")
@@ -120,6 +124,11 @@ def run(args) -> int:
             return client.simple(MAV_CMD_DO_CANCEL_MAG_CAL, "cancel")
         if args.action == "status":
             return client.status(args.seconds)
+        if args.action in ("accept-learned", "reset-learned"):
+            from ahrsd.daemon.learned_iron import ACTION_ACCEPT, ACTION_RESET, CMD_LEARNED_IRON
+
+            action = ACTION_ACCEPT if args.action == "accept-learned" else ACTION_RESET
+            return client.simple(CMD_LEARNED_IRON, args.action, action)
         if args.action == "fixed-yaw":
             return client.simple(MAV_CMD_FIXED_MAG_CAL_YAW, f"fixed-yaw {args.yaw_deg:.1f} deg", args.yaw_deg, 0,
                                  *position)

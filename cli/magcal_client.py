@@ -225,6 +225,7 @@ class MagCalClient:
                 return "cancelled"
 
     def status(self, seconds: float) -> int:
+        """The running calibration (progress) or its last report, then the learned iron."""
         end = time.monotonic() + seconds
         seen = False
         while time.monotonic() < end:
@@ -233,15 +234,46 @@ class MagCalClient:
                 continue
             if m.get_type() == "MAG_CAL_REPORT":
                 self._report(m)
-                return 0
+                seen = True
+                break
             if m.get_type() in ("MAG_CAL_PROGRESS", "STATUSTEXT"):
                 seen = True
                 self._show(m)
         if not seen:
             self._print("no calibration running")
-        else:
-            self._print("")
+        self._print(self.learned_iron_text())
         return 0
+
+    def learned_iron(self, timeout_s: float = 2.0) -> dict[str, float]:
+        """The daemon's read-only MAG_LRN_* parameters (daemon.learned_iron), by PARAM_REQUEST_READ."""
+        from ahrsd.daemon.learned_iron import PARAM_NAMES
+
+        for name in PARAM_NAMES:
+            self.conn.mav.param_request_read_send(self.sys, self.comp, name.encode("ascii"), -1)
+        values: dict[str, float] = {}
+        deadline = time.monotonic() + timeout_s
+        while len(values) < len(PARAM_NAMES) and time.monotonic() < deadline:
+            m = self.conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=0.2)
+            if m is None or not self._from_target(m):
+                continue
+            name = m.param_id if isinstance(m.param_id, str) else m.param_id.decode("ascii", "replace")
+            name = name.split("\0", 1)[0]
+            if name in PARAM_NAMES:
+                values[name] = float(m.param_value)
+        return values
+
+    def learned_iron_text(self) -> str:
+        from ahrsd.daemon.learned_iron import NOT_LEARNING_SD, PARAM_NAMES
+
+        v = self.learned_iron()
+        if len(v) < len(PARAM_NAMES):
+            return "learned iron: not reported (an older ahrsd?)"
+        if v[PARAM_NAMES[3]] <= NOT_LEARNING_SD:
+            return "learned iron: none (the estimator learns none: run the GNSS-aided ins)"
+        x, y, z = (v[n] for n in PARAM_NAMES[:3])
+        return (f"learned iron (body FRD, on top of the calibration): {x:+.2f} {y:+.2f} {z:+.2f} uT, "
+                f"1-sigma up to {v[PARAM_NAMES[3]]:.2f} uT\n"
+                "  keep it: ahrsd magcal accept-learned   forget it: ahrsd magcal reset-learned")
 
 
 def _ask(prompt: str) -> bool:

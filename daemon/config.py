@@ -509,14 +509,15 @@ class _OutputsParse:
 # * ardupilot_source_set: 0 (off), or the EKF source set (2, 3) ahrsd may switch ArduPilot to and back to
 #   re-align EKF3's yaw (daemon.source_set_realign): identical to set 1 except a yaw source other than ExtNav.
 # * heading_good_sigma_deg: "heading good" (MAV_STATE_ACTIVE, SYS_STATUS AHRS healthy) only while the heading
-#   state is MAGNETOMETER or GNSS_ONLY and the yaw 1σ is below this (daemon.heading_status).
+#   state is MAGNETOMETER, or GNSS-held (GNSS_ONLY, LEARNING) with a yaw 1σ below this for 2 s
+#   (daemon.heading_status; 5° as ArduPilot's compass learning trusts a GSF yaw, Compass_learn.cpp).
 OutputsConfig = dataclasses.make_dataclass(
     "OutputsConfig",
     [(o.config_key, float, field(default=o.default_hz)) for o in OUTPUTS]
     + [("heading_slew_deg_s", float, field(default=2.0)), ("restart_slew_deg_s", float, field(default=3.0)),
        ("reset_counter_on_calibration", bool, field(default=False)),
        ("restart_yaw", str, field(default="auto")), ("ardupilot_source_set", int, field(default=0)),
-       ("heading_good_sigma_deg", float, field(default=10.0))],
+       ("heading_good_sigma_deg", float, field(default=5.0))],
     bases=(_OutputsParse,), frozen=True)
 OutputsConfig.__module__ = __name__
 OutputsConfig.__doc__ = "Message rates in Hz (0 = off), one per output of the registry, and the heading slew."

@@ -160,11 +160,14 @@ class GnssTask:
     statustext: `statustext(severity, text)` to the ground station.
     log_fix: `log_fix(fix, rejection)` for every fix with its verdict (the vehicle log), or None.
     subscribers: `fn(fix)` for every accepted fix, after the estimator.
+    rejection_cause: `rejection_cause(now)` -> the cause of rejected velocities when it is not the lever arm
+    (daemon.heading_status: a heading the magnetometer made wrong), or None.
     """
 
     def __init__(self, backend: GnssBackend, cfg: GnssConfig, *, clock: Callable[[], float],
                  estimator: EstimatorHook | None, statustext: Callable[[int, str], None],
-                 log_fix: FixLog | None = None, subscribers: Sequence[FixSubscriber] = ()):
+                 log_fix: FixLog | None = None, subscribers: Sequence[FixSubscriber] = (),
+                 rejection_cause: Callable[[float], str | None] | None = None):
         self.backend = backend
         self.cfg = cfg
         self.clock = clock
@@ -172,6 +175,7 @@ class GnssTask:
         self.statustext = statustext
         self.log_fix = log_fix
         self.subscribers = list(subscribers)
+        self.rejection_cause = rejection_cause
         self.validator = GnssFixValidator(clock=clock, name="gnss")
         self.counters = GnssTaskCounters()
         self.last_fix: GnssFix | None = None          # last accepted
@@ -385,6 +389,12 @@ class GnssTask:
         self._gate_window = (now, c.offered, c.rejected_velocity)
         if offered >= GATE_MIN_OFFERED and rejected > GATE_WARN_FRACTION * offered:
             self.counters.gate_warnings += 1
+            cause = self.rejection_cause(now) if self.rejection_cause is not None else None
+            if cause is not None:
+                log.warning("the aided filter rejected %d of %d GNSS velocities in the last %.0f s: %s",
+                            rejected, offered, now - t0, cause)
+                self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: GNSS vel rejected {rejected}/{offered}: {cause}")
+                return
             log.warning("the aided filter rejected %d of %d GNSS velocities in the last %.0f s: check [gnss] "
                         "lever_arm_m (%s m, body FRD from the IMU) and latency_s", rejected, offered, now - t0,
                         " ".join(f"{v:g}" for v in self.cfg.lever_arm_m))

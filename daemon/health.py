@@ -1,7 +1,7 @@
 """Health of the sensor chain as MAVLink sees it: HEARTBEAT.system_status and SYS_STATUS sensor bits.
 
 States (MAV_STATE, minimal.xml): BOOT until the first estimate; STANDBY while the estimator initialises;
-ACTIVE when attitude and heading are good; CALIBRATING while a calibration holds the daemon; CRITICAL when the
+ACTIVE when attitude and heading are good (daemon.heading_status: `heading_good`); CALIBRATING while a calibration holds the daemon; CRITICAL when the
 sensor stopped delivering samples or delivers invalid ones.
 """
 
@@ -35,6 +35,9 @@ class Health:
     last_estimate_flags: EstimateFlags | None = None
     sensor_error: str = ""                    # why the sensor is failed ("" = no bus error)
     calibrating: str = ""                     # what is calibrating ("" = nothing)
+    # from daemon.heading_status: may the heading be called good (else STANDBY), health bits it clears
+    heading_good: bool = True
+    heading_unhealthy_bits: int = 0
     # when each sensor's samples started being flagged bad (None = the last sample was good); an isolated bad
     # sample (one unverified burst-bug gyro word, which the estimator skips) must not flip the daemon to
     # CRITICAL and cut the heading feed: only a condition lasting BAD_PERSIST_S does (docs/reliability.md)
@@ -96,7 +99,7 @@ class Health:
             return mavlink.MAV_STATE_CRITICAL
         if self.calibrating:
             return mavlink.MAV_STATE_CALIBRATING
-        if self.last_estimate_flags & EstimateFlags.INITIALISING:
+        if self.last_estimate_flags & EstimateFlags.INITIALISING or not self.heading_good:
             return mavlink.MAV_STATE_STANDBY
         return mavlink.MAV_STATE_ACTIVE
 
@@ -115,4 +118,4 @@ class Health:
             # variance, but the AHRS is not healthy (docs/reliability.md)
             if self.heading_trusted(now) and not ef & EstimateFlags.MAG_UNAVAILABLE:
                 healthy |= msgs.SENSOR_AHRS
-        return PRESENT, PRESENT, healthy
+        return PRESENT, PRESENT, healthy & ~self.heading_unhealthy_bits

@@ -61,13 +61,15 @@ class HealthReport:
 
     def __init__(self, health: Health, outbound: Outbound, notifier: Notifier, counts: SampleCount, *,
                  watchdog_interval_s: float | None, start: float,
-                 cpu_clock: Callable[[], float] = time.process_time):
+                 cpu_clock: Callable[[], float] = time.process_time,
+                 standby_detail: Callable[[], str] = lambda: "initialising, no heading out"):
         self.health = health
         self.outbound = outbound
         self.notifier = notifier
         self.counts = counts
         self.watchdog_interval_s = watchdog_interval_s
         self.cpu_clock = cpu_clock
+        self.standby_detail = standby_detail       # why no heading is good (daemon.heading_status)
         self.load_permille = 0
         self.measured_rate_hz = 0.0
         self._next_heartbeat = start + HEARTBEAT_PERIOD_S
@@ -111,8 +113,8 @@ class HealthReport:
                     mavlink.MAV_STATE_ACTIVE: mavlink.MAV_SEVERITY_NOTICE}.get(new, mavlink.MAV_SEVERITY_INFO)
         detail = {
             mavlink.MAV_STATE_BOOT: "waiting for the sensor",
-            mavlink.MAV_STATE_STANDBY: "initialising, no heading out",
-            mavlink.MAV_STATE_ACTIVE: "heading good",
+            mavlink.MAV_STATE_STANDBY: self.standby_detail(),
+            mavlink.MAV_STATE_ACTIVE: "heading good",     # Health: only while daemon.heading_status says so
             mavlink.MAV_STATE_CALIBRATING: self.health.calibrating or "calibrating",
             mavlink.MAV_STATE_CRITICAL: self.health.sensor_error or "no samples from the sensor",
         }.get(new, "")

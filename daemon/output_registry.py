@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable, Protocol
 
+from ahrsd.core.estimate import HeadingState
 from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.mavlink_io import mavlink
 
@@ -33,6 +34,7 @@ class OutputContext(Protocol):
     def sample_time_monotonic(self, t_s: float) -> float: ...
     def heading_trusted(self, now: float) -> bool: ...
     def autopilot_yaw(self, est) -> tuple[float, int]: ...     # (yaw to send, reset_counter): daemon.heading_resets
+    #   (reset_counter + 1 first when the estimator reset its yaw: EstimateFlags.YAW_RESET, daemon.heading_status)
     def sys_status_message(self, now: float): ...
     def local_origin(self): ...                                 # daemon.local_origin.LocalOrigin, None without GNSS
 
@@ -66,8 +68,8 @@ def _attitude_quaternion(ctx, est, sample, now):
 
 
 def _vision_position_estimate(ctx, est, sample, now):
-    if not ctx.heading_trusted(now):
-        return None   # never feed the autopilot a heading it must not trust
+    if not ctx.heading_trusted(now) or est.heading_state == HeadingState.UNKNOWN:
+        return None   # never feed the autopilot a heading it must not trust, nor one nobody knows
     usec = int(ctx.sample_time_monotonic(est.t_s) * 1e6)
     yaw, reset_counter = ctx.autopilot_yaw(est)
     return msgs.vision_position_estimate(est, usec, yaw, reset_counter)

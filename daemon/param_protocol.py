@@ -8,6 +8,8 @@ import asyncio
 import logging
 from typing import Callable, Coroutine
 
+from ahrsd.daemon.learned_iron import ACTION_PARAM as LEARNED_IRON_ACTION
+from ahrsd.daemon.learned_iron import MAX_PARAM_UT, NOT_LEARNING_SD, PARAM_NAMES as LEARNED_IRON_PARAMS
 from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.counters import ServiceCounters
 from ahrsd.daemon.outbound import Outbound
@@ -40,6 +42,14 @@ def param_specs(cfg) -> list[ParamSpec]:
         ParamSpec("DECL_DEG", cfg.location.declination_deg or 0.0, -180.0, 180.0,
                   "magnetic declination, deg east (used when DECL_MANUAL = 1)"),
     ]
+    # the iron the aided estimator learned on top of the calibration (daemon.learned_iron), read-only
+    out += [ParamSpec(n, 0.0, -MAX_PARAM_UT, MAX_PARAM_UT, f"learned hard iron, body {n[-1]}, uT (read-only)",
+                      read_only=True) for n in LEARNED_IRON_PARAMS[:3]]
+    out.append(ParamSpec(LEARNED_IRON_PARAMS[3], NOT_LEARNING_SD, NOT_LEARNING_SD, MAX_PARAM_UT,
+                         "largest 1-sigma of the learned hard iron, uT (-1: the estimator learns none; read-only)",
+                         read_only=True))
+    out.append(ParamSpec(LEARNED_IRON_ACTION, 0.0, 0.0, 2.0, "write 1 to accept the learned iron into the "
+                         "calibration, 2 to reset it (momentary; refused while armed)", integer=True, momentary=True))
     return out
 
 

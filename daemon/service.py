@@ -9,7 +9,8 @@ Parts: daemon.outbound (endpoints, send, STATUSTEXT), daemon.endpoint_outputs (p
 daemon.sample_reader (reader + per-sample hot path), daemon.publishers (outputs of daemon.output_registry),
 daemon.inbound (MAVLink input), daemon.param_protocol (PARAM_*), daemon.position + daemon.declination,
 daemon.calibration_swap, daemon.heading_resets, daemon.housekeeping, daemon.vehicle_log, daemon.gnss_task,
-daemon.magcal (field calibration), daemon.builtin_commands.
+daemon.magcal (field calibration), daemon.builtin_commands, daemon.heading_status (the heading state reported),
+daemon.learned_iron (the iron ins learned, persisted).
 
 The hooks other code uses (docs/daemon.md "Extending"): `service.commands.register(command_id, handler)`,
 `service.apply_calibration(cal, save=True)`, `service.add_sample_listener(fn)`, `service.send(msg)`,
@@ -43,8 +44,12 @@ from ahrsd.daemon.gyro_cal import GyroBiasCalibration
 from ahrsd.daemon.heading_resets import HeadingResets
 from ahrsd.daemon.heading_slew import HeadingSlew
 from ahrsd.daemon.health import Health
+from ahrsd.daemon.heading_status import HeadingStatus, LongStatusText
 from ahrsd.daemon.housekeeping import Every, HealthReport, Housekeeping
 from ahrsd.daemon.inbound import InboundDispatch
+from ahrsd.daemon.learned_iron import ACTION_PARAM as LEARNED_IRON_ACTION
+from ahrsd.daemon.learned_iron import CMD_LEARNED_IRON, LearnedIron
+from ahrsd.daemon.mag_trust import calibration_heading_sigma_rad
 from ahrsd.daemon.magcal import DaemonMagCalHost, FieldCalibrationPart, MagCalProtocol
 from ahrsd.daemon.magcal_settings import MagCalSettings
 from ahrsd.daemon.mavlink_io import mavlink
@@ -132,6 +137,8 @@ class Service:
         self.reader: SampleReader | None = None
         self.health_report: HealthReport | None = None
         self.status_line: StatusLine | None = None
+        self.heading_status: HeadingStatus | None = None   # the heading state reported (daemon.heading_status)
+        self.learned_iron: LearnedIron | None = None       # the iron ins learned, persisted (daemon.learned_iron)
 
     # ------------------------------------------------------------------------------------------ public hooks
 
@@ -224,7 +231,12 @@ class Service:
         return self.health.heading_trusted(now)
 
     def autopilot_yaw(self, est) -> tuple[float, int]:
+        if self.heading_status is not None and self.heading_status.take_yaw_resets(self._yaw_resets()):
+            self.heading.signal()          # ins reset its yaw to the GNSS yaw: reset_counter + 1 with it
         return self.heading.autopilot_yaw(est)
+
+    def _yaw_resets(self) -> int:
+        return int(getattr(self.pipeline.estimator, "yaw_resets", 0))   # ins counts them; mekf has none
 
     def local_origin(self):
         return None if self.gnss is None else self.gnss.origin
@@ -263,8 +275,12 @@ class Service:
                 rpy[MOUNTING_PARAMS.index(name)] = value
                 self.pipeline.set_mounting(rpy)
                 self.heading.signal()
+                if self.learned_iron is not None:
+                    self.learned_iron.calibration_changed()   # a body-frame iron belongs to its mounting
         elif name in ("DECL_MANUAL", "DECL_DEG"):
             self.loop.call_soon(self.declination.resolve)
+        elif name == LEARNED_IRON_ACTION and self.learned_iron is not None:
+            self.learned_iron.on_param(value)          # 1 accept, 2 reset (daemon.learned_iron)
 
     def _statustext_soon(self, severity: int, text: str) -> None:
         if self.loop is not None:
@@ -322,11 +338,24 @@ class Service:
         if time.monotonic() - started > 1.0:
             log.info("compiled the %s estimator in %.1f s (cached for the next start)", cfg.estimator_name,
                      time.monotonic() - started)
-        estimator = make_estimator(cfg.estimator_name, declination_rad=self.declination.rad,
-                                   **cfg.estimator_options)
+        mag_sigma_rad = calibration_heading_sigma_rad(calibration)    # how far ins may trust the calibration
+        options = dict(cfg.estimator_options)
+        if cfg.estimator_name == "ins":
+            options["mag_calibration_sigma_rad"] = mag_sigma_rad
+        estimator = make_estimator(cfg.estimator_name, declination_rad=self.declination.rad, **options)
         self.use_pipeline(Pipeline(estimator, calibration))
         pipeline = self.pipeline
         pipeline.set_mounting([self.params.get(n) for n in MOUNTING_PARAMS])
+        self.heading_status = HeadingStatus(LongStatusText(self.outbound.send), calibration_sigma_rad=mag_sigma_rad,
+                                            good_sigma_rad=math.radians(cfg.outputs.heading_good_sigma_deg))
+        self.learned_iron = LearnedIron(
+            self.state_dir, pipeline, publish=self.params.show, statustext=self.outbound.statustext,
+            armed=lambda: bool(self.autopilot.armed), background=self._in_background,
+            apply_calibration=lambda cal: self.apply_calibration(cal, reason="learned iron accepted"),
+            horizontal_field_ut=self._horizontal_field_ut,
+            allow_armed=(cfg.magcal or MagCalSettings()).allow_armed)
+        self.learned_iron.restore()
+        self.commands.register(CMD_LEARNED_IRON, self.learned_iron.handle_command)
         self._setup_signing()
         for ep_cfg in cfg.endpoints:
             # its own output schedule (daemon.endpoint_outputs)
@@ -360,7 +389,8 @@ class Service:
                                        replay_time_s=newest_sample_time(pipeline))
             self.gnss = GnssTask(backend, cfg.gnss, clock=time.monotonic, estimator=pipeline,
                                  statustext=self.outbound.statustext, log_fix=self.logs.log_gnss_fix,
-                                 subscribers=[on_first_fix(self.declination.on_gnss_position)])
+                                 subscribers=[on_first_fix(self.declination.on_gnss_position)],
+                                 rejection_cause=self.heading_status.rejection_cause)
             self.gnss.open(self.loop)
         self.inbound = self.build_inbound()
         self.reader.source = self.source
@@ -376,7 +406,7 @@ class Service:
         self.notifier.status(f"starting: {self.source.description}")
         self.health_report = HealthReport(self.health, self.outbound, self.notifier, pipeline.counters,
                                           watchdog_interval_s=watchdog_interval_s(self.environ),
-                                          start=self.loop.time())
+                                          start=self.loop.time(), standby_detail=self.heading_status.standby_detail)
         self.health_report.send_heartbeat(time.monotonic())   # routers learn us from our first packet
 
     def _on_message(self, endpoint, msg) -> None:
@@ -398,7 +428,7 @@ class Service:
         self.declination.set_estimator = pipeline.estimator.set_declination
         self.swap = CalibrationSwap(pipeline, self.state_dir, self.heading,
                                     reset_counter_on_calibration=self.config.outputs.reset_counter_on_calibration,
-                                    on_applied=self.logs.log_calibration)
+                                    on_applied=self._on_calibration_applied)
         self.publishers = Publishers(self.outbound, pipeline, self.health, self.counters, self)
         self.reader = SampleReader(self.source, pipeline, self.health, self.counters, self.listeners,
                                    ReaderOutputs(publish=self.publishers.publish, statustext=self.outbound.statustext,
@@ -410,7 +440,7 @@ class Service:
     def _housekeeping(self) -> Housekeeping:
         """The periodic jobs, in the order they run at each tick (daemon.housekeeping)."""
         start = self.loop.time()
-        jobs: list[Callable[[float], None]] = [self.health_report]
+        jobs: list[Callable[[float], None]] = [self._update_heading_status, self.health_report]
         if self.status_line is not None:
             jobs.append(Every(STATUS_LINE_PERIOD_S, self._update_status_line, start))
         if self.signing_key is not None:
@@ -421,13 +451,42 @@ class Service:
         jobs += [self.declination.tick, self._end_unreceived_slew]
         return Housekeeping(jobs)
 
+    def _update_heading_status(self, now: float) -> None:
+        """The heading state (daemon.heading_status) into the health (MAV_STATE, SYS_STATUS bits) before the
+        health report reads it; the learned iron's parameters and periodic save (daemon.learned_iron)."""
+        if self.heading_status is not None:
+            self.heading_status.on_estimate(self.pipeline.last_estimate, now, self._yaw_resets())
+            self.health.heading_good = self.heading_status.heading_good
+            self.health.heading_unhealthy_bits = self.heading_status.unhealthy_bits()
+        if self.learned_iron is not None:
+            self.learned_iron.tick(now)
+
+    def _on_calibration_applied(self, cal) -> None:
+        """After every calibration change (daemon.calibration_swap): the vehicle log names it; ins and the
+        heading status get its predicted heading error; the iron learned on the old one is reset."""
+        self.logs.log_calibration(cal)
+        sigma = calibration_heading_sigma_rad(cal)
+        set_sigma = getattr(self.pipeline.estimator, "set_mag_calibration_sigma", None)   # ins (from heading)
+        if set_sigma is not None:
+            set_sigma(sigma)
+        if self.heading_status is not None:
+            self.heading_status.set_calibration_sigma(sigma)
+        if self.learned_iron is not None:
+            self.learned_iron.calibration_changed()
+
+    def _horizontal_field_ut(self) -> float:
+        """WMM's horizontal field at the vehicle (daemon.position's priority), NaN without a position."""
+        field = self.positions.reference_field()
+        return math.nan if field is None else field.horizontal_ut
+
     def _update_status_line(self, now: float) -> None:
         p = self.pipeline
         self.status_line.update(format_status(
             estimate=p.last_estimate, rate_hz=self.health_report.measured_rate_hz,
             state=self.health.system_status(now), samples=sample_accounting(self),
             link=self.outbound.link_totals(), gnss=None if self.gnss is None else self.gnss.status(now),
-            autopilot=self.autopilot))
+            autopilot=self.autopilot,
+            heading=None if self.heading_status is None else self.heading_status.status_text()))
 
     def _end_unreceived_slew(self, now: float) -> None:
         if self.heading.slew.active and not any(ep.schedule.rate_hz(VISION_POSITION_ESTIMATE) > 0
@@ -507,6 +566,8 @@ class Service:
             save_timestamp(self.state_dir, max((e.signing_timestamp() for e in self.endpoints), default=0))
         if self.restart_heading is not None:
             self.restart_heading.save_now(self.heading.reset_counter)
+        if self.learned_iron is not None:
+            self.learned_iron.save_now()
         if self.reader is not None:
             self.reader.outputs.raw_sink = None
         self.logs.close(self.endpoints)             # after the last frames went out

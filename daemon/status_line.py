@@ -8,10 +8,10 @@ from ahrsd.daemon.health import STATE_NAMES
 
 
 def format_status(*, estimate, rate_hz: float, state: int, samples: dict, link: dict,
-                  gnss: str | None, autopilot) -> str:
+                  gnss: str | None, autopilot, heading: str | None = None) -> str:
     """One line: sample rate, attitude, true heading, state, and the counters a user should watch. `samples`
     is daemon.run_stats.sample_accounting (missed, late, corrupt), `gnss` the GNSS task's status (None without
-    one), `autopilot` the daemon.autopilot.AutopilotState."""
+    one), `autopilot` the daemon.autopilot.AutopilotState, `heading` the heading state (daemon.heading_status)."""
     est = estimate
     parts = [f"{rate_hz:6.1f} SPS"]
     if est is None:
@@ -21,6 +21,8 @@ def format_status(*, estimate, rate_hz: float, state: int, samples: dict, link: 
         parts.append(f"hdg {math.degrees(est.heading_true_rad) % 360.0:5.1f}T "
                      f"±{math.degrees(float(est.sigma_rpy_rad[2])):4.1f}")
     parts.append(STATE_NAMES.get(state, "?"))
+    if heading is not None:
+        parts.append(heading)          # the heading state (daemon.heading_status): "hdg GNSS-only ±1.2°"
     parts.append(f"missed {samples['missed']} late {samples['late']} corrupt {samples['corrupt']} "
                  f"tx {link['tx']} rx {link['rx']} bad {link['bad']}")
     if gnss is not None:

@@ -38,7 +38,8 @@ def _truth_yaw_deg(q):
 
 def run_swap(tmp_path, estimator, swap_at_s=60.0, total_s=130.0, reset_on_cal=False):
     """Level turns with the simulator's vehicle iron; uncalibrated until `swap_at_s`, then the true iron
-    model is applied through Service.apply_calibration. Returns per-VPE (t, vpe_yaw_err_deg, est_yaw_err_deg),
+    model is applied through Service.apply_calibration. Returns per-VPE tick (t, vpe_yaw_err_deg or NaN when the
+    VPE was withheld, est_yaw_err_deg, reset_counter),
     the estimate flags seen after the swap, and the service."""
     outputs = OutputsConfig.parse({"heading_slew_deg_s": SLEW_DEG_S, "reset_counter_on_calibration": reset_on_cal})
     cfg = dataclasses.replace(Config().with_overrides(state_dir=str(tmp_path)), outputs=outputs)
@@ -70,10 +71,11 @@ def run_swap(tmp_path, estimator, swap_at_s=60.0, total_s=130.0, reset_on_cal=Fa
             if t >= next_vpe:
                 next_vpe = t + 1.0 / VPE_HZ
                 m = BY_MESSAGE_ID[VPE].build(svc, est, svc.pipeline.last_sample, t)
-                if m is not None:
-                    truth = _truth_yaw_deg(b.truth_q_wxyz[i])
-                    rows.append((t, float(_wrap_deg(math.degrees(m.yaw) - truth)),
-                                 float(_wrap_deg(math.degrees(est.yaw_rad) - truth)), m.reset_counter))
+                truth = _truth_yaw_deg(b.truth_q_wxyz[i])
+                # a VPE withheld (heading UNKNOWN: the uncalibrated field is rejected as a disturbance) is a NaN row
+                rows.append((t, float(_wrap_deg(math.degrees(m.yaw) - truth)) if m is not None else math.nan,
+                             float(_wrap_deg(math.degrees(est.yaw_rad) - truth)),
+                             m.reset_counter if m is not None else svc.reset_counter))
 
 
 def test_mekf_calibration_swap_slews_the_autopilot_heading_without_reinitialising(tmp_path):
@@ -84,12 +86,17 @@ def test_mekf_calibration_swap_slews_the_autopilot_heading_without_reinitialisin
     before = (t > 40.0) & (t < 60.0)
     after = t > 60.0
     tail = t > 115.0
-    ref_tail = np.abs(ref[ref[:, 0] > 115.0, 1]).mean()
-    print(f"\nVPE yaw error: {np.abs(vpe_err[before]).mean():.1f} deg before the swap, "
+    ref_tail = np.nanmean(np.abs(ref[ref[:, 0] > 115.0, 1]))
+    print(f"\nVPE yaw error: {np.nanmean(np.abs(vpe_err[before])):.1f} deg before the swap, "
           f"{np.abs(vpe_err[tail]).mean():.2f} deg at the end (calibrated from the start: {ref_tail:.2f} deg); "
-          f"largest VPE-error step after the swap {np.abs(np.diff(vpe_err[after])).max():.3f} deg per "
+          f"largest VPE-error step after the swap {np.nanmax(np.abs(np.diff(vpe_err[after]))):.3f} deg per "
           f"{1 / VPE_HZ:.3f} s")
-    assert np.abs(vpe_err[before]).mean() > 5.0              # the vehicle iron really misled the heading
+    assert np.abs(est_err[before]).mean() > 5.0              # the vehicle iron really misled the heading
+    assert np.isnan(vpe_err[before]).any()                   # ... which mekf knew: UNKNOWN, VPE withheld then
+    sent = ~np.isnan(vpe_err)
+    t, vpe_err, est_err, counters = t[sent], vpe_err[sent], est_err[sent], counters[sent]
+    after = t > 60.0
+    tail = t > 115.0
     # the error the autopilot sees changes by no more than the slew allows (+ the estimator's own tracking)
     steps = np.abs(np.diff(vpe_err[after]))
     assert steps.max() <= SLEW_DEG_S / VPE_HZ * 1.5 + 0.3, steps.max()

@@ -49,6 +49,19 @@ def boat(tmp_path_factory):
     return tmp, rec, shifted
 
 
+def save_field_calibration(state_dir) -> None:
+    """The boat's magnetometer calibrated (the simulator's own distortion, inverted): mekf's heading is known
+    from the start (uncalibrated, the field is rejected and the heading unknown: no VPE)."""
+    from ahrsd.calibration import Calibration
+    from ahrsd.calibration.models import MagModel
+    from ahrsd.calibration.store import CalibrationStore
+    from ahrsd.simulation import open_stream
+
+    e = open_stream("boat", seed=0).errors
+    CalibrationStore(state_dir).save(Calibration.identity().with_sensor(
+        "mag", MagModel(np.array(e.hard_iron_ut), np.linalg.inv(e.soft_iron)), method="test"))
+
+
 def replay_messages(d) -> dict:
     """Every message of a replaying daemon, which must end by itself with status 0."""
     try:
@@ -102,7 +115,9 @@ def test_replay_carries_the_recording_time_and_replays_gnss_in_step(boat, tmp_pa
     _, _, shifted = boat
     stats = tmp_path / "stats.json"
     gnss = shifted.with_name("shifted.gnss.csv")
+    save_field_calibration(tmp_path / "state")     # mekf: a heading from the start (ins: unknown for 12 s)
     d = Daemon(tmp_path, "--gnss-replay", str(gnss), "--replay-speed", "4", "--stats-file", str(stats),
+               "--estimator", "mekf",
                source=("--replay", str(shifted)))
     got = replay_messages(d)
     t_s = read_recording(shifted).t_s

@@ -1,0 +1,231 @@
+"""What the daemon says about its heading: the estimator's heading state (core.estimate.HeadingState) on the
+status line, a STATUSTEXT naming the cause at every change, the magnetometer and AHRS health bits, whether
+"heading good" may be said, and the yaw resets VISION_POSITION_ESTIMATE.reset_counter must announce.
+
+The estimator decides the state (estimator/heading_monitor.py); this part only reports it, with its cause:
+* UNKNOWN: no heading is published (VISION_POSITION_ESTIMATE withheld by its builder).
+* MAGNETOMETER: the magnetometer holds the heading and agrees with the GNSS yaw where there is one.
+* GNSS_ONLY / LEARNING: the magnetometer is rejected or not trusted and the GNSS velocity holds the heading
+  (LEARNING: while the iron left after the calibration is learned). "Heading good" only while its 1σ is
+  below `good_sigma_rad` ([daemon] heading_good_sigma_deg).
+
+The magnetometer disagreement is named only when it is beyond what both sides' uncertainties explain: the GSF
+yaw's 1σ and the calibration's predicted heading error (`calibration_sigma_rad`, NaN = no calibration), the
+same 3σ test as the estimator's heading monitor.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import Callable
+
+from ahrsd.core.estimate import EstimateFlags, HeadingState
+from ahrsd.daemon import messages as msgs
+from ahrsd.daemon.magcal import statustext_chunks
+from ahrsd.daemon.mavlink_io import mavlink
+
+log = logging.getLogger(__name__)
+
+STATE_LABELS = {HeadingState.UNKNOWN: "hdg unknown", HeadingState.MAGNETOMETER: "hdg mag",
+                HeadingState.GNSS_ONLY: "hdg GNSS-only", HeadingState.LEARNING: "hdg learning"}
+DISAGREEMENT_GATE_SIGMA = 3.0         # as the estimator's heading monitor (HeadingMonitor.gate_sigma)
+UNCALIBRATED_SIGMA_RAD = math.radians(20.0)   # InsParams.mag_uncalibrated_sigma_rad: a magnetometer of unknown calibration
+TRUSTED_CALIBRATION_RAD = math.radians(3.0)   # HeadingMonitor.trusted_sigma_rad: a calibration ins trusts to hold the heading
+ANNOUNCE_AFTER_S = 2.0                # a state must hold this long to be announced (no STATUSTEXT per flicker)
+YAW_RESET_CAUSE_S = 30.0              # a yaw reset this recent explains rejected GNSS velocities
+
+
+class HeadingStatus:
+    """Reports the heading state. Inputs are explicit:
+
+    statustext(severity, text): sends one text to the ground station (may be longer than one STATUSTEXT).
+    good_sigma_rad: largest yaw 1σ of a GNSS-held heading that is still "good".
+    calibration_sigma_rad: the calibration's predicted heading error, 1σ (NaN: none); `set_calibration_sigma`.
+
+    `on_estimate(est, now)` at the housekeeping rate; `take_yaw_resets(count)` by the VISION_POSITION_ESTIMATE
+    builder with the estimator's `yaw_resets` counter; `status_text()`, `unhealthy_bits()`, `heading_good`,
+    `rejection_cause(now)` for the status line, SYS_STATUS, MAV_STATE and the GNSS gate warning.
+    """
+
+    def __init__(self, statustext: Callable[[int, str], None], *, good_sigma_rad: float,
+                 calibration_sigma_rad: float = math.nan):
+        self.statustext = statustext
+        self.good_sigma_rad = float(good_sigma_rad)
+        self.calibration_sigma_rad = float(calibration_sigma_rad)
+        self.state: HeadingState | None = None       # the latest estimate's state (None: no estimate yet)
+        self.sigma_rad = math.nan
+        self.disagreement_rad = math.nan              # magnetometer − GNSS yaw (NaN: no valid GNSS yaw)
+        self.mag_inconsistent = False                 # the magnetometer disagrees with the GNSS(-held) heading
+        self.initialising = True
+        self.announced: HeadingState | None = None
+        self.announcements = 0
+        self._candidate: tuple[HeadingState, float] | None = None
+        self._resets_signalled = 0
+        self._resets_announced = 0
+        self._last_reset_at = -math.inf
+        self._good_since: float | None = None        # when a GNSS-held heading last became good enough
+        self._now = -math.inf
+
+    def set_calibration_sigma(self, sigma_rad: float) -> None:
+        self.calibration_sigma_rad = float(sigma_rad)
+
+    # ------------------------------------------------------------------ inputs
+    def on_estimate(self, est, now: float, yaw_resets: int = 0) -> None:
+        """The latest estimate (and the estimator's yaw reset count) at `now`; announces a state that held
+        ANNOUNCE_AFTER_S and every yaw reset."""
+        if est is None:
+            return
+        state = HeadingState(est.heading_state)
+        self.state = state
+        self.sigma_rad = float(est.sigma_rpy_rad[2])
+        self.initialising = bool(est.flags & EstimateFlags.INITIALISING)
+        self.disagreement_rad, significant = self._disagreement(est.integrity)
+        # a trusted calibration rejected by ins (GNSS-held state) disagreed with the heading GNSS holds
+        self.mag_inconsistent = significant or (state in (HeadingState.GNSS_ONLY, HeadingState.LEARNING)
+                                                and self.calibration_sigma_rad <= TRUSTED_CALIBRATION_RAD)
+        self._now = now
+        if not self._good_now():
+            self._good_since = None
+        elif self._good_since is None:
+            self._good_since = now
+        if yaw_resets < self._resets_announced:       # the estimator was reset: its count starts again
+            self._resets_announced = yaw_resets
+        if yaw_resets > self._resets_announced:
+            self._resets_announced = yaw_resets
+            self._last_reset_at = now
+            self.statustext(mavlink.MAV_SEVERITY_WARNING,
+                            f"ahrsd: heading reset to the GNSS yaw (±{math.degrees(self.sigma_rad):.1f}°)")
+        if state == self.announced:
+            self._candidate = None
+            return
+        if self._candidate is None or self._candidate[0] != state:
+            self._candidate = (state, now)
+        if self.announced is None or now - self._candidate[1] >= ANNOUNCE_AFTER_S:
+            self._announce(state, est)
+
+    def take_yaw_resets(self, yaw_resets: int) -> bool:
+        """True once for each new value of the estimator's yaw reset counter (the VISION_POSITION_ESTIMATE
+        builder then bumps reset_counter before it sends the reset heading)."""
+        new = yaw_resets > self._resets_signalled
+        self._resets_signalled = yaw_resets        # (lower: the estimator was reset, its count starts again)
+        return new
+
+    # ------------------------------------------------------------------ outputs
+    @property
+    def heading_good(self) -> bool:
+        """May the daemon say "heading good"? MAGNETOMETER, or a GNSS-held heading with 1σ ≤ good_sigma_rad
+        for ANNOUNCE_AFTER_S (a σ hovering at the limit does not flip MAV_STATE each second); never UNKNOWN,
+        never before the first estimate. Bad at once, good only once it held."""
+        if not self._good_now():
+            return False
+        return self.state == HeadingState.MAGNETOMETER or self._now - self._good_since >= ANNOUNCE_AFTER_S
+
+    def _good_now(self) -> bool:
+        if self.state is None or self.initialising or self.state == HeadingState.UNKNOWN:
+            return False
+        return self.state == HeadingState.MAGNETOMETER or self.sigma_rad <= self.good_sigma_rad
+
+    def unhealthy_bits(self) -> int:
+        """SYS_STATUS health bits to clear: 3D_MAG while the magnetometer is rejected or being learned (or
+        disagrees with the GNSS yaw), AHRS while the heading is not good."""
+        bits = 0
+        if self.state in (HeadingState.GNSS_ONLY, HeadingState.LEARNING) or self.mag_inconsistent:
+            bits |= msgs.SENSOR_MAG
+        if self.state is not None and not self.heading_good:
+            bits |= msgs.SENSOR_AHRS
+        return bits
+
+    def status_text(self) -> str:
+        """For the status line: "hdg GNSS-only ±1.2°"."""
+        if self.state is None:
+            return "hdg --"
+        return f"{STATE_LABELS[self.state]} ±{math.degrees(self.sigma_rad):.1f}°"
+
+    def standby_detail(self) -> str:
+        """Why the daemon is not ACTIVE although the estimator runs (the MAV_STATE STATUSTEXT)."""
+        if self.initialising or self.state is None:
+            return "initialising, no heading out"
+        if self.state == HeadingState.UNKNOWN:
+            return "heading unknown, no heading out"
+        return f"heading not good ({STATE_LABELS[self.state][4:]} ±{math.degrees(self.sigma_rad):.0f}°)"
+
+    def rejection_cause(self, now: float) -> str | None:
+        """When the aided filter rejects GNSS velocities: the heading as the cause (a short phrase for the
+        STATUSTEXT: "mag vs GNSS 36°") when the magnetometer disagrees with the GNSS yaw or the heading was just
+        reset to it, else None (then the lever arm or latency, as the GNSS task says)."""
+        if self.mag_inconsistent:
+            d = self.disagreement_rad
+            return f"mag vs GNSS {abs(math.degrees(d)):.0f}°" if math.isfinite(d) else "mag rejected"
+        if now - self._last_reset_at <= YAW_RESET_CAUSE_S:
+            return "heading reset"
+        return None
+
+    # ------------------------------------------------------------------ internals
+    def _disagreement(self, integrity) -> tuple[float, bool]:
+        """(magnetometer − GNSS yaw or NaN, whether it is beyond both uncertainties)."""
+        if integrity is None or not integrity.gsf_valid:
+            return math.nan, False
+        d = float(integrity.mag_disagreement_rad)
+        if not math.isfinite(d):
+            return math.nan, False
+        cal = self.calibration_sigma_rad if math.isfinite(self.calibration_sigma_rad) else UNCALIBRATED_SIGMA_RAD
+        gsf = float(integrity.gsf_sigma_rad) if math.isfinite(integrity.gsf_sigma_rad) else math.pi
+        return d, d * d > DISAGREEMENT_GATE_SIGMA ** 2 * (gsf * gsf + cal * cal)
+
+    def _announce(self, state: HeadingState, est) -> None:
+        self.announced = state
+        self._candidate = None
+        self.announcements += 1
+        severity, text = self._text(state, est)
+        self.statustext(severity, text)
+
+    def _text(self, state: HeadingState, est) -> tuple[int, str]:
+        sig = f"±{math.degrees(self.sigma_rad):.1f}°"
+        integrity = est.integrity
+        if state == HeadingState.MAGNETOMETER:
+            return mavlink.MAV_SEVERITY_INFO, f"ahrsd: heading from magnetometer ({sig})"
+        d = self.disagreement_rad
+        by = f" by {abs(math.degrees(d)):.0f}°" if math.isfinite(d) else ""
+        disagrees = self.mag_inconsistent
+        if not math.isfinite(self.calibration_sigma_rad):
+            cause = f"magnetometer disagrees with GNSS{by}: magnetometer not calibrated" if disagrees \
+                else "magnetometer not calibrated"
+        elif disagrees:
+            cause = f"magnetometer disagrees with GNSS{by}: calibration wrong or iron changed"
+        else:
+            cause = f"magnetometer calibration uncertain (±{math.degrees(self.calibration_sigma_rad):.1f}°)"
+        if state == HeadingState.UNKNOWN:
+            if disagrees:
+                why = cause
+            elif self.initialising and self.announced in (None, HeadingState.UNKNOWN):
+                why = "initialising"
+            elif self.initialising:
+                why = f"uncertainty {sig} too large (magnetometer rejected?)"
+            elif est.flags & EstimateFlags.MAG_UNAVAILABLE:
+                why = "no magnetometer and no GNSS yaw"
+            elif integrity is None:
+                why = "magnetometer not trusted, no GNSS yet"
+            elif not integrity.gsf_valid:
+                why = "magnetometer not trusted, GNSS yaw not valid yet (turn or change speed)"
+            else:
+                why = f"uncertainty {sig} too large"
+            return mavlink.MAV_SEVERITY_WARNING, f"ahrsd: heading unknown: {why}; no heading sent"
+        doing = "learning its iron" if state == HeadingState.LEARNING else "heading from GNSS only"
+        good = "" if self.heading_good else ", not good yet"
+        return mavlink.MAV_SEVERITY_WARNING, f"ahrsd: {cause}; {doing} ({sig}{good})"
+
+
+class LongStatusText:
+    """A STATUSTEXT of any length: one message, or MAVLink 2 chunks (id, chunk_seq) as daemon.magcal sends
+    them, to `send(msg)` (every endpoint); logged like Service.statustext."""
+
+    def __init__(self, send: Callable[[object], None]):
+        self.send = send
+        self._chunk_id = 0
+
+    def __call__(self, severity: int, text: str) -> None:
+        log.log(logging.WARNING if severity <= mavlink.MAV_SEVERITY_WARNING else logging.INFO, "%s", text)
+        self._chunk_id = self._chunk_id % 65535 + 1
+        for msg in statustext_chunks(severity, text, self._chunk_id):
+            self.send(msg)

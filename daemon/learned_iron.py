@@ -1,0 +1,303 @@
+"""The hard iron the aided estimator learns in operation (estimator/heading_monitor.py IronLearner, body frame,
+on top of the accepted calibration), kept across restarts apart from the calibration, shown, and accepted into
+the calibration or reset by the operator.
+
+* Persisted in the state directory as `learned_iron.json` (atomic write, calibration/atomic_file.py), tied to
+  the calibration it was learned on: the key is a hash of the magnetometer model and the mounting (the learned
+  offset is a body-frame field, so it only means something with both). Restored into the estimator at start
+  when the key matches; discarded when it does not. Saved every SAVE_PERIOD_S when it changed, and at stop.
+* Reset whenever another magnetometer calibration or mounting comes into force (`calibration_changed`).
+* Shown as read-only parameters MAG_LRN_X/Y/Z (µT, body FRD) and MAG_LRN_SD (largest 1σ, µT; −1 with an
+  estimator that learns none), refreshed every PUBLISH_PERIOD_S.
+* One command, CMD_LEARNED_IRON (MAV_CMD_USER_1, 31010): param1 = 1 accepts it into the calibration (the hard
+  iron moves by the learned offset, then the learned one is reset), 2 resets it; the same by writing the
+  momentary parameter MAG_LRN_ACT (for a ground station's parameter list). Refused while the autopilot
+  reports armed (as the field calibration: TEMPORARILY_REJECTED, "Disarm to …") unless `allow_armed`.
+
+Folding the learned offset b (body) into the calibration m_cal = W·(m_raw − h), m_body = C·m_cal − b
+(C: body←sensor mounting): C·W·(m_raw − h) − b = C·W·(m_raw − (h + W⁻¹·Cᵀ·b)), so h' = h + W⁻¹·Cᵀ·b.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import math
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ahrsd.calibration.atomic_file import write_atomic
+from ahrsd.calibration.models import MagModel
+from ahrsd.daemon.command_args import CommandArgs, Refused, whole_number
+from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.daemon.params import ParamError
+
+log = logging.getLogger(__name__)
+
+FILE_NAME = "learned_iron.json"
+FILE_FORMAT = "ahrsd-learned-iron"
+SCHEMA_VERSION = 1
+SAVE_PERIOD_S = 60.0            # a crash loses at most this much learning
+PUBLISH_PERIOD_S = 1.0
+CMD_LEARNED_IRON = 31010        # MAV_CMD_USER_1 (common.xml): param1 ACTION_*
+ACTION_ACCEPT, ACTION_RESET = 1, 2
+PARAM_NAMES = ("MAG_LRN_X", "MAG_LRN_Y", "MAG_LRN_Z", "MAG_LRN_SD")
+ACTION_PARAM = "MAG_LRN_ACT"    # momentary: 1 accept, 2 reset (as CMD_LEARNED_IRON's param1)
+NOT_LEARNING_SD = -1.0          # MAG_LRN_SD of an estimator that learns no iron
+MAX_PARAM_UT = 1000.0
+
+
+def calibration_key(calibration, mounting) -> str:
+    """What a learned iron is tied to: the magnetometer model and the mounting (body←sensor DCM or None)."""
+    doc = {"mag": calibration.mag.to_dict(),
+           "mounting": None if mounting is None else np.round(np.asarray(mounting, float), 9).tolist()}
+    return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
+
+
+def folded_hard_iron(model: MagModel, mounting, offset_ut) -> MagModel:
+    """The magnetometer model with a body-frame offset learned on top of it folded into its hard iron."""
+    c = np.eye(3) if mounting is None else np.asarray(mounting, float)
+    shift = np.linalg.solve(model.soft_iron, c.T @ np.asarray(offset_ut, float))
+    return MagModel(model.hard_iron_ut + shift, model.soft_iron)
+
+
+def _learns(estimator) -> bool:
+    return callable(getattr(estimator, "learned_iron", None))
+
+
+class LearnedIron:
+    """The daemon's part for the learned iron. Explicit inputs:
+
+    state_dir: where `learned_iron.json` lives.
+    pipeline: the per-sample pipeline (its `estimator`, `calibration`, `mounting`: read when needed, as they
+      are swapped between samples).
+    publish(name, value): shows a read-only parameter (ParamStore.show).
+    statustext(severity, text), armed() -> bool, apply_calibration(cal): the daemon's hooks.
+    horizontal_field_ut() -> float: WMM's horizontal field at the vehicle (NaN unknown), for the heading σ of an
+      accepted iron.
+    background(fn): runs a file write off the event loop (default: at once).
+    """
+
+    def __init__(self, state_dir, pipeline, *, publish: Callable[[str, float], None],
+                 statustext: Callable[[int, str], None], armed: Callable[[], bool],
+                 apply_calibration: Callable[..., None], horizontal_field_ut: Callable[[], float] = lambda: math.nan,
+                 background: Callable[[Callable[[], None]], None] | None = None, allow_armed: bool = False,
+                 save_period_s: float = SAVE_PERIOD_S):
+        self.path = Path(state_dir) / FILE_NAME
+        self.pipeline = pipeline
+        self.publish = publish
+        self.statustext = statustext
+        self.armed = armed
+        self.apply_calibration = apply_calibration
+        self.horizontal_field_ut = horizontal_field_ut
+        self.background = background or (lambda fn: fn())
+        self.allow_armed = allow_armed
+        self.save_period_s = save_period_s
+        self.key: str | None = None          # the calibration the estimator's learned iron belongs to
+        self.restored = False
+        self.saves = 0
+        self._saved: tuple | None = None     # (offset, cov) last written
+        self._next_save = -math.inf
+        self._next_publish = -math.inf
+
+    # ------------------------------------------------------------------ start / stop / periodic
+    def restore(self) -> bool:
+        """At start, after the estimator and calibration are in place: the persisted iron into the estimator
+        when it was learned on this calibration and mounting. Never raises."""
+        p = self.pipeline
+        self.key = calibration_key(p.calibration, p.mounting)
+        self._publish_now()
+        if not _learns(p.estimator):
+            return False
+        doc = self._read()
+        if doc is None:
+            return False
+        if doc.get("calibration_key") != self.key:
+            log.info("learned iron in %s was learned on another calibration or mounting: discarded", self.path)
+            self._write_current()
+            return False
+        try:
+            p.estimator.set_learned_iron(np.asarray(doc["offset_ut"], float), np.asarray(doc["cov_ut2"], float))
+        except (KeyError, TypeError, ValueError) as exc:
+            log.warning("ignoring %s: %s", self.path, exc)
+            return False
+        self.restored = True
+        self._saved = self._current()
+        log.info("learned iron restored: %s µT", np.round(self._saved[0], 2).tolist())
+        self._publish_now()
+        return True
+
+    def tick(self, now: float) -> None:
+        """Housekeeping: refresh the parameters, save when it changed and SAVE_PERIOD_S passed."""
+        if now >= self._next_publish:
+            self._next_publish = now + PUBLISH_PERIOD_S
+            self._publish_now()
+        if now >= self._next_save:
+            self._next_save = now + self.save_period_s
+            if self._changed():
+                payload = self._payload()
+                self.background(lambda: self._write(payload))
+
+    def save_now(self) -> None:
+        """At stop: the iron learned so far (when it changed since the last save)."""
+        if self._changed():
+            self._write(self._payload())
+
+    def calibration_changed(self) -> None:
+        """Another calibration or mounting is in force (Service.apply_calibration, MNT_ parameters): the
+        learned iron belonged to the old one; reset it. A gyro or accelerometer calibration keeps it."""
+        p = self.pipeline
+        key = calibration_key(p.calibration, p.mounting)
+        if key == self.key:
+            return
+        self.key = key
+        if _learns(p.estimator):
+            p.estimator.reset_learned_iron()
+            log.info("new magnetometer calibration or mounting: learned iron reset")
+        self._write_current()
+        self._publish_now()
+
+    # ------------------------------------------------------------------ operator actions
+    def accept(self) -> tuple[bool, str]:
+        """Fold the learned iron into the calibration (saved and swapped through apply_calibration), then
+        reset it. Returns (done, what happened)."""
+        p = self.pipeline
+        offset, cov = p.estimator.learned_iron()
+        if not np.any(np.abs(offset) > 0.0):
+            return False, "Learned iron: nothing learned yet"
+        current = p.calibration
+        model = folded_hard_iron(current.mag, p.mounting, offset)
+        heading_std = self._accepted_heading_std_deg(current, cov)     # the old offset's σ is inside it
+        new = current.with_sensor("mag", model, method="learned-iron", heading_std_deg=heading_std,
+                                  offset_std_deg=None if heading_std is None else 0.0,
+                                  learned_iron_ut=offset.tolist(),
+                                  learned_iron_sigma_ut=np.sqrt(np.diag(cov)).tolist(),
+                                  before={"hard_iron_ut": current.mag.hard_iron_ut.tolist(),
+                                          "soft_iron": current.mag.soft_iron.tolist()})
+        self.apply_calibration(new)          # the daemon's one path: persist, swap, calibration_changed()
+        self.calibration_changed()           # (when the daemon's path did not call it)
+        return True, (f"Learned iron accepted: hard iron +{np.round(offset, 1).tolist()} uT")
+
+    def reset(self) -> str:
+        self.pipeline.estimator.reset_learned_iron()
+        self._write_current()
+        self._publish_now()
+        return "Learned iron reset"
+
+    def handle_command(self, msg, ctx=None):
+        """CMD_LEARNED_IRON: param1 ACTION_ACCEPT or ACTION_RESET."""
+        action = whole_number(CommandArgs.of(msg).p(1), ACTION_ACCEPT, ACTION_RESET)
+        if action is None:
+            return Refused(mavlink.MAV_RESULT_DENIED, "Learned iron: param1 must be 1 (accept) or 2 (reset)")
+        return self.act(action)[0]
+
+    def on_param(self, value: float) -> None:
+        """MAG_LRN_ACT written (a momentary parameter, for ground stations without a command panel): 1
+        accepts, 2 resets, 0 does nothing. Raises ParamError (the write is refused, with why) when refused."""
+        if value == 0:
+            return
+        result, text = self.act(int(value))
+        if result != mavlink.MAV_RESULT_ACCEPTED:
+            raise ParamError(f"MAG_LRN_ACT {value:g}: {text}")
+
+    def act(self, action: int) -> tuple[int, str]:
+        """ACTION_ACCEPT or ACTION_RESET: (MAV_RESULT, what happened), said in a STATUSTEXT."""
+        if not _learns(self.pipeline.estimator):
+            result, text = mavlink.MAV_RESULT_UNSUPPORTED, "Learned iron: this estimator learns none"
+        elif self.armed() and not self.allow_armed:
+            result, text = mavlink.MAV_RESULT_TEMPORARILY_REJECTED, "Disarm to change the learned iron"
+        elif action == ACTION_RESET:
+            result, text = mavlink.MAV_RESULT_ACCEPTED, self.reset()
+        else:
+            return self._accept_action()
+        self.statustext(mavlink.MAV_SEVERITY_NOTICE, text)
+        return result, text
+
+    def _accept_action(self) -> tuple[int, str]:
+        try:
+            done, text = self.accept()
+        except Exception as exc:  # noqa: BLE001 - the calibration in force stays (apply_calibration's contract)
+            log.exception("accepting the learned iron failed")
+            text = f"Learned iron: save failed: {exc}"
+            self.statustext(mavlink.MAV_SEVERITY_ERROR, text)
+            return mavlink.MAV_RESULT_FAILED, text
+        self.statustext(mavlink.MAV_SEVERITY_NOTICE if done else mavlink.MAV_SEVERITY_WARNING, text)
+        return (mavlink.MAV_RESULT_ACCEPTED if done else mavlink.MAV_RESULT_FAILED), text
+
+    # ------------------------------------------------------------------ internals
+    def _accepted_heading_std_deg(self, current, cov) -> float | None:
+        """The heading 1σ of the calibration with the iron folded in: the old calibration's figure and the
+        learned iron's horizontal uncertainty over the horizontal field, in quadrature; without an old
+        figure, the estimator's floor for what a hard iron does not explain takes its place."""
+        from ahrsd.daemon.mag_trust import calibration_heading_sigma_rad
+
+        h = float(self.horizontal_field_ut())
+        if not (math.isfinite(h) and h > 1.0):
+            return None
+        iron = math.sqrt(max(float(np.max(np.diag(cov)[:2])), 0.0)) / h
+        old = calibration_heading_sigma_rad(current)
+        if not math.isfinite(old):
+            from ahrsd.estimator.ins import DEFAULT_INS_PARAMS, Ins
+
+            est = self.pipeline.estimator
+            old = (est.params if isinstance(est, Ins) else DEFAULT_INS_PARAMS).iron_unmodelled_ut / h
+        if not math.isfinite(old):
+            return None
+        return math.degrees(math.hypot(old, iron))
+
+    def _current(self) -> tuple[np.ndarray, np.ndarray] | None:
+        est = self.pipeline.estimator
+        return est.learned_iron() if _learns(est) else None
+
+    def _changed(self) -> bool:
+        cur = self._current()
+        if cur is None:
+            return False
+        return self._saved is None or not (np.array_equal(cur[0], self._saved[0])
+                                           and np.array_equal(cur[1], self._saved[1]))
+
+    def _publish_now(self) -> None:
+        cur = self._current()
+        if cur is None:
+            values = (0.0, 0.0, 0.0, NOT_LEARNING_SD)
+        else:
+            offset, cov = cur
+            values = (*(float(v) for v in offset), math.sqrt(max(float(np.max(np.diag(cov))), 0.0)))
+        for name, v in zip(PARAM_NAMES, values):
+            if math.isfinite(v):
+                self.publish(name, max(-MAX_PARAM_UT, min(MAX_PARAM_UT, v)))
+
+    def _payload(self) -> bytes:
+        offset, cov = self._current()
+        self._saved = (offset.copy(), cov.copy())
+        doc = {"format": FILE_FORMAT, "schema_version": SCHEMA_VERSION, "calibration_key": self.key,
+               "offset_ut": offset.tolist(), "cov_ut2": cov.tolist(), "wall_time_s": time.time()}
+        return (json.dumps(doc, indent=1) + "\n").encode()
+
+    def _write_current(self) -> None:
+        if self._current() is not None:
+            self._write(self._payload())
+
+    def _write(self, data: bytes) -> None:
+        try:
+            write_atomic(self.path, data, mode=0o644)
+            self.saves += 1
+        except OSError as exc:
+            log.warning("cannot save the learned iron: %s", exc)
+
+    def _read(self) -> dict | None:
+        try:
+            doc = json.loads(self.path.read_text())
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError) as exc:
+            log.warning("ignoring %s: %s", self.path, exc)
+            return None
+        if not isinstance(doc, dict) or doc.get("format") != FILE_FORMAT or doc.get("schema_version") != SCHEMA_VERSION:
+            log.warning("ignoring %s: not an ahrsd learned-iron file of schema %d", self.path, SCHEMA_VERSION)
+            return None
+        return doc

@@ -1,0 +1,55 @@
+"""How far the aided estimator may trust the magnetometer calibration in force: its predicted heading error
+(1σ, rad), which the daemon passes to `ins` (InsParams.mag_calibration_sigma_rad) at start and after every
+calibration change.
+
+Where the figure comes from, in order (the calibration's `metadata["mag"]`):
+1. `heading_std_deg` and `offset_std_deg` — the field session's own prediction, propagated from its fit's
+   parameter covariance (calibration/mag/vertical_channel.predicted_heading_std_deg): the heading-dependent
+   part and the constant offset add in quadrature. An undetermined offset (no heading reference: stored as
+   null) leaves the heading error unknown.
+2. `residual_rms_ut` with the fit site (`site.lat_deg/lon_deg`, `ahrsd calibrate mag`): a field residual ε
+   perpendicular to the horizontal field H turns the heading by ε/H, so ε/H (WMM's H at the site) is the
+   figure. The residual of a fit understates what the fit cannot see (a constant offset), so it is a floor,
+   not a bound; it is what the fit reports.
+3. Nothing (identity calibration, fixed-yaw offsets only, older files): NaN — unknown, and the estimator
+   then trusts the magnetometer little.
+"""
+
+from __future__ import annotations
+
+import math
+
+NAN = math.nan
+
+
+def _finite(value) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return NAN
+    return v if math.isfinite(v) and v >= 0.0 else NAN
+
+
+def calibration_heading_sigma_rad(calibration) -> float:
+    """The predicted heading error (1σ, rad) of `calibration`'s magnetometer model, NaN when unknown."""
+    if calibration is None or calibration.is_identity:
+        return NAN
+    meta = calibration.metadata.get("mag") if isinstance(calibration.metadata, dict) else None
+    if not isinstance(meta, dict):
+        return NAN
+    if "heading_std_deg" in meta:
+        heading, offset = _finite(meta.get("heading_std_deg")), _finite(meta.get("offset_std_deg"))
+        # the field session stores an undetermined offset (no heading reference) as None: the heading is unknown
+        return math.radians(math.hypot(heading, offset)) if math.isfinite(heading + offset) else NAN
+    residual = _finite(meta.get("residual_rms_ut"))
+    site = meta.get("site")
+    if math.isfinite(residual) and isinstance(site, dict):
+        try:
+            from ahrsd.core.wmm import earth_field
+
+            h = earth_field(float(site["lat_deg"]), float(site["lon_deg"]), float(site.get("alt_m") or 0.0)).horizontal_ut
+        except (KeyError, TypeError, ValueError):
+            return NAN
+        if h > 1.0:
+            return math.atan2(residual, h)
+    return NAN

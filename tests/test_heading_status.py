@@ -1,0 +1,375 @@
+"""The daemon says what it knows about its heading (issue 28 item 4): daemon.heading_status alone on made-up
+estimates, then a simulated boat with a wrong / no magnetometer calibration through the daemon's own per-sample
+path, housekeeping and VISION_POSITION_ESTIMATE builder on a stepped clock."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingIntegrity, HeadingState
+from ahrsd.daemon import messages as msgs
+from ahrsd.daemon.heading_status import ANNOUNCE_AFTER_S, HeadingStatus
+from ahrsd.daemon.health import Health
+from ahrsd.daemon.mavlink_io import mavlink
+
+DEG = math.radians(1.0)
+
+
+def estimate(state, sigma_deg, *, disagreement_deg=math.nan, gsf_sigma_deg=2.0, gsf_valid=True, flags=0,
+             with_integrity=True):
+    integrity = HeadingIntegrity(0.0, gsf_sigma_deg * DEG, gsf_valid, disagreement_deg * DEG, np.zeros(3),
+                                 np.full(3, 10.0)) if with_integrity else None
+    return AttitudeEstimate(0.0, np.array([1.0, 0, 0, 0]), 0.0, 0.0, 0.0, 0.0, 0.0, np.zeros(3), np.zeros(3),
+                            np.array([0.01, 0.01, sigma_deg * DEG]), EstimateFlags(flags), None,
+                            HeadingState(state), integrity)
+
+
+def status(cal_sigma_deg=0.5, good_deg=5.0):
+    texts = []
+    hs = HeadingStatus(lambda sev, text: texts.append((sev, text)), good_sigma_rad=good_deg * DEG,
+                       calibration_sigma_rad=cal_sigma_deg * DEG)
+    return hs, texts
+
+
+def test_heading_good_only_for_the_magnetometer_or_a_small_gnss_sigma():
+    cases = [(HeadingState.UNKNOWN, 0.5, False), (HeadingState.MAGNETOMETER, 1.0, True),
+             (HeadingState.GNSS_ONLY, 4.9, True), (HeadingState.GNSS_ONLY, 5.1, False),
+             (HeadingState.LEARNING, 12.0, False), (HeadingState.LEARNING, 2.0, True)]
+    for state, sigma, good in cases:
+        hs, _ = status()
+        hs.on_estimate(estimate(state, sigma), 0.0)
+        hs.on_estimate(estimate(state, sigma), ANNOUNCE_AFTER_S)
+        assert hs.heading_good is good, (state, sigma)
+        bits = hs.unhealthy_bits()
+        assert bool(bits & msgs.SENSOR_AHRS) is (not good)
+        assert bool(bits & msgs.SENSOR_MAG) is (state in (HeadingState.GNSS_ONLY, HeadingState.LEARNING))
+    hs, _ = status()
+    hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 1.0, flags=EstimateFlags.INITIALISING), 0.0)
+    assert not hs.heading_good
+
+
+def test_a_gnss_held_heading_is_good_only_once_it_held_and_bad_at_once():
+    hs, _ = status()
+    hs.on_estimate(estimate(HeadingState.GNSS_ONLY, 2.0), 10.0)
+    assert not hs.heading_good
+    hs.on_estimate(estimate(HeadingState.GNSS_ONLY, 2.0), 10.0 + 0.5 * ANNOUNCE_AFTER_S)
+    assert not hs.heading_good
+    hs.on_estimate(estimate(HeadingState.LEARNING, 2.5), 10.0 + ANNOUNCE_AFTER_S)
+    assert hs.heading_good
+    hs.on_estimate(estimate(HeadingState.LEARNING, 5.5), 10.0 + ANNOUNCE_AFTER_S + 0.1)
+    assert not hs.heading_good
+    hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 0.5), 20.0)
+    assert hs.heading_good                         # the magnetometer, consistent: at once
+
+
+def test_health_is_standby_with_ahrs_and_mag_unhealthy_while_the_heading_is_not_good():
+    health = Health(stale_timeout_s=0.1, last_sample_time=0.0, last_estimate_flags=EstimateFlags.NONE)
+    assert health.system_status(0.0) == mavlink.MAV_STATE_ACTIVE
+    hs, texts = status()
+    hs.on_estimate(estimate(HeadingState.LEARNING, 9.0, disagreement_deg=30.0), 0.0)
+    health.heading_good, health.heading_unhealthy_bits = hs.heading_good, hs.unhealthy_bits()
+    assert health.system_status(0.0) == mavlink.MAV_STATE_STANDBY
+    healthy = health.sensor_bits(0.0)[2]
+    assert healthy & msgs.SENSOR_GYRO and not healthy & msgs.SENSOR_AHRS and not healthy & msgs.SENSOR_MAG
+
+
+def test_a_change_is_announced_with_the_disagreement_as_its_cause_once_it_held():
+    hs, texts = status(cal_sigma_deg=0.5)
+    hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 0.6), 0.0)
+    assert len(texts) == 1 and "magnetometer" in texts[0][1]
+    hs.on_estimate(estimate(HeadingState.GNSS_ONLY, 3.0, disagreement_deg=-36.4), 1.0)
+    assert len(texts) == 1                                  # not yet: it must hold ANNOUNCE_AFTER_S
+    hs.on_estimate(estimate(HeadingState.GNSS_ONLY, 3.0, disagreement_deg=-36.4), 1.0 + ANNOUNCE_AFTER_S)
+    assert len(texts) == 2
+    sev, text = texts[1]
+    assert sev == mavlink.MAV_SEVERITY_WARNING
+    assert "magnetometer disagrees with GNSS by 36°: calibration wrong or iron changed" in text
+    assert "lever" not in text
+    assert hs.rejection_cause(2.0) == "mag vs GNSS 36°"
+    # a flicker shorter than ANNOUNCE_AFTER_S is not announced
+    hs.on_estimate(estimate(HeadingState.LEARNING, 3.0, disagreement_deg=-36.4), 10.0)
+    hs.on_estimate(estimate(HeadingState.GNSS_ONLY, 3.0, disagreement_deg=-36.4), 11.0)
+    hs.on_estimate(estimate(HeadingState.GNSS_ONLY, 3.0, disagreement_deg=-36.4), 20.0)
+    assert len(texts) == 2
+
+
+def test_a_disagreement_within_both_uncertainties_is_not_called_one():
+    # while ins still uses the magnetometer: 3σ of hypot(2°, 0.5°) ≈ 6.2°; 5° is within it, 7° is not
+    hs, texts = status(cal_sigma_deg=0.5)
+    hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 1.0, disagreement_deg=5.0), 0.0)
+    assert hs.rejection_cause(0.0) is None and not hs.unhealthy_bits() & msgs.SENSOR_MAG
+    hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 1.0, disagreement_deg=7.0), 0.1)
+    assert hs.rejection_cause(0.1) == "mag vs GNSS 7°" and hs.unhealthy_bits() & msgs.SENSOR_MAG
+    # an invalid GNSS yaw never makes a disagreement
+    hs, texts = status(cal_sigma_deg=0.5)
+    hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 1.0, disagreement_deg=40.0, gsf_valid=False), 0.0)
+    assert hs.rejection_cause(0.0) is None
+
+
+def test_a_trusted_calibration_ins_rejected_is_named_as_the_cause():
+    # ins holds the heading by GNSS although the calibration claims 0.5°: it disagreed with the GNSS-held heading
+    hs, texts = status(cal_sigma_deg=0.5)
+    hs.on_estimate(estimate(HeadingState.GNSS_ONLY, 1.0, disagreement_deg=-10.4, gsf_sigma_deg=7.0), 0.0)
+    assert "magnetometer disagrees with GNSS by 10°: calibration wrong or iron changed" in texts[-1][1]
+    assert hs.rejection_cause(0.0) == "mag vs GNSS 10°"
+    # a calibration that says itself it is uncertain is not "wrong"
+    hs, texts = status(cal_sigma_deg=5.0)
+    hs.on_estimate(estimate(HeadingState.GNSS_ONLY, 1.0, disagreement_deg=-10.4, gsf_sigma_deg=7.0), 0.0)
+    assert "calibration uncertain (±5.0°)" in texts[-1][1] and hs.rejection_cause(0.0) is None
+
+
+def test_without_a_calibration_the_cause_is_the_missing_calibration():
+    hs, texts = status(cal_sigma_deg=math.nan)
+    hs.on_estimate(estimate(HeadingState.LEARNING, 8.0, disagreement_deg=80.0), 0.0)
+    assert "magnetometer disagrees with GNSS by 80°: magnetometer not calibrated" in texts[-1][1]
+    assert "learning its iron" in texts[-1][1] and "not good yet" in texts[-1][1]
+
+
+def test_unknown_names_why_and_says_no_heading_is_sent():
+    hs, texts = status()
+    hs.on_estimate(estimate(HeadingState.UNKNOWN, 30.0, flags=EstimateFlags.INITIALISING), 0.0)
+    assert texts[-1][1] == "ahrsd: heading unknown: initialising; no heading sent"
+    hs, texts = status()
+    hs.on_estimate(estimate(HeadingState.UNKNOWN, 20.0, gsf_valid=False), 0.0)
+    assert "GNSS yaw not valid yet" in texts[-1][1]
+    assert hs.standby_detail() == "heading unknown, no heading out"
+
+
+def test_each_yaw_reset_is_taken_once_and_announced():
+    hs, texts = status()
+    e = estimate(HeadingState.MAGNETOMETER, 2.0)
+    assert not hs.take_yaw_resets(0)
+    assert hs.take_yaw_resets(1) and not hs.take_yaw_resets(1) and hs.take_yaw_resets(2)
+    hs.on_estimate(e, 0.0, yaw_resets=1)
+    assert any("reset to the GNSS yaw" in t for _, t in texts)
+    assert hs.rejection_cause(5.0) == "heading reset"
+    hs.take_yaw_resets(0)                  # the estimator was reset: its count starts again
+    assert hs.take_yaw_resets(1)
+
+
+# ------------------------------------------------------------------------------ the daemon on a simulated boat
+
+RATE_HZ = 200.0
+
+
+def _boat(seconds, seed):
+    """A boat's raw samples (its vehicle iron in the field), the magnetometer model that calibrates them
+    exactly, its GNSS fixes (5 Hz) and the declination."""
+    from ahrsd.calibration.models import MagModel
+    from ahrsd.simulation import GnssErrors, SensorErrors, open_stream, simulate_gnss
+
+    stream = open_stream("boat", rate_hz=RATE_HZ, seed=seed, errors=SensorErrors.adis16405(seed))
+    block = stream.next_block(int(seconds * RATE_HZ))
+    err = stream.errors
+    fixes = simulate_gnss(block, rate_hz=5.0, seed=seed + 1000,
+                          errors=GnssErrors(horizontal_m=1.5, vertical_m=2.5, velocity_m_s=0.05), latency_s=0.1)
+    fixes.sort(key=lambda f: f.extra["t_rx_s"])
+    return block, MagModel(err.hard_iron_ut, np.linalg.inv(err.soft_iron)), fixes, stream.earth_field.declination_rad
+
+
+def _true_heading_errors_deg(q_est_true, q_truth):
+    from scipy.spatial.transform import Rotation
+
+    def yaw(q):
+        return Rotation.from_quat(np.roll(np.asarray(q), -1, axis=-1)).as_euler("ZYX")[..., 0]
+
+    return np.degrees((yaw(q_est_true) - yaw(q_truth) + np.pi) % (2 * np.pi) - np.pi)
+
+
+class Text(str):
+    def __new__(cls, text, state, sigma_rad):
+        out = super().__new__(cls, text)
+        out.state, out.sigma_rad = state, sigma_rad
+        return out
+
+
+def run_daemon_on_boat(tmp_path, hard_iron_error_ut=None, *, seconds=150.0, seed=3, signal_resets=True):
+    """The boat through a started Service (ins): the per-sample path, the GNSS fixes into the estimator,
+    housekeeping's heading status at 10 Hz and the publishers, on a stepped clock (the sample time). Returns
+    the VISION_POSITION_ESTIMATEs (with the estimate each was built from and the truth then) and the texts."""
+    import dataclasses
+
+    from ahrsd.calibration.store import CalibrationStore
+    from ahrsd.core.sample import SampleFlags, make_sample
+    from ahrsd.daemon.config import EndpointConfig, EstimatorConfig, LocationConfig
+    from service_rig import start_service_on, stop_service
+
+    from ahrsd.calibration.models import Calibration, MagModel
+
+    block, true_model, fixes, decl = _boat(seconds, seed)
+    if hard_iron_error_ut is not None:       # a calibration that says 0.5° but misses part of the hard iron
+        wrong = MagModel(true_model.hard_iron_ut + np.asarray(hard_iron_error_ut, float), true_model.soft_iron)
+        CalibrationStore(tmp_path).save(Calibration.identity().with_sensor(
+            "mag", wrong, method="test", heading_std_deg=0.5, offset_std_deg=0.2))
+    mag = block.mag_ut
+    svc, loop = start_service_on((EndpointConfig("udpout:127.0.0.1:9"),), tmp_path,
+                                 estimator=EstimatorConfig("ins"),
+                                 location=LocationConfig(declination_deg=math.degrees(decl)))
+    sent = []
+    svc.endpoints[0].send = lambda m: sent.append((m, svc.pipeline.last_estimate)) or True
+    texts = []      # every STATUSTEXT, as Texts: the text with the heading state and yaw 1σ when it was sent
+    hs = svc.heading_status
+    hs.statustext = svc.outbound.statustext = lambda sev, text: texts.append(Text(text, hs.state, hs.sigma_rad))
+    svc.listeners.fns.clear()                # (the field calibration needs the running loop; not used here)
+    if not signal_resets:
+        svc.heading_status.take_yaw_resets = lambda n: False
+    try:
+        est = svc.pipeline.estimator
+        fi, next_hk = 0, 0.0
+        truth_at = {}
+        for k in range(len(block.t_s)):
+            t = float(block.t_s[k])
+            while fi < len(fixes) and fixes[fi].extra["t_rx_s"] <= t:
+                est.update_gnss(fixes[fi])
+                fi += 1
+            s = make_sample(t, block.gyro_rad_s[k], block.accel_m_s2[k], mag[k], flags=SampleFlags.NEW_DATA,
+                            counter=k)
+            svc.reader.process((s,), t)
+            if t >= next_hk:                     # housekeeping's first two jobs at 10 Hz
+                next_hk = t + 0.1
+                svc._update_heading_status(t)
+                svc.health_report(t)
+            n = len(sent)
+            svc.publishers.publish(t)
+            for _ in range(len(sent) - n):
+                truth_at[len(truth_at)] = block.truth_q_wxyz[k]
+    finally:
+        stop_service(svc, loop)
+    vpe = [(m, e, truth_at[i]) for i, (m, e) in enumerate(sent)
+           if m.get_msgId() == mavlink.MAVLINK_MSG_ID_VISION_POSITION_ESTIMATE]
+    return vpe, texts, svc, decl
+
+
+@pytest.fixture(scope="module")
+def uncalibrated_boat(tmp_path_factory):
+    return run_daemon_on_boat(tmp_path_factory.mktemp("uncal"), None, seconds=120.0)
+
+
+@pytest.fixture(scope="module")
+def wrongly_calibrated_boat(tmp_path_factory):
+    return run_daemon_on_boat(tmp_path_factory.mktemp("wrong"), (12.0, -8.0, 0.0), seconds=100.0)
+
+
+def _vpe_errors(vpe):
+    from scipy.spatial.transform import Rotation
+
+    t = np.array([m.usec * 1e-6 for m, _, _ in vpe])
+    yaw = np.array([m.yaw for m, _, _ in vpe])
+    true_yaw = Rotation.from_quat(np.roll(np.array([q for _, _, q in vpe]), -1, axis=1)).as_euler("ZYX")[:, 0]
+    err = np.degrees((yaw - true_yaw + np.pi) % (2 * np.pi) - np.pi)
+    sigma = np.degrees(np.sqrt([m.covariance[20] for m, _, _ in vpe]))
+    return t, err, sigma
+
+
+def _print_figures(case, t, err, sigma):
+    """The VPE the autopilot got against the simulator's truth (pytest -s shows it; docs/daemon.md)."""
+    print(f"\n{case}: first VPE at {t[0]:.1f} s; {len(t)} VPEs")
+    for start in (0.0, 30.0, 60.0, 90.0):
+        w = t >= start
+        if w.any():
+            print(f"  from {start:3.0f} s: yaw RMS {np.sqrt(np.mean(err[w] ** 2)):.2f} deg, median sigma "
+                  f"{np.median(sigma[w]):.2f} deg, beyond 3 sigma {100 * np.mean(np.abs(err[w]) > 3 * sigma[w]):.1f} %")
+
+
+def test_no_vpe_while_the_heading_is_unknown_and_its_variance_is_the_estimators(uncalibrated_boat):
+    vpe, texts, svc, _ = uncalibrated_boat
+    assert vpe, "no VISION_POSITION_ESTIMATE at all"
+    assert all(e.heading_state != HeadingState.UNKNOWN for _, e, _ in vpe)
+    assert vpe[0][0].usec * 1e-6 > 5.0           # the uncalibrated start is UNKNOWN: nothing sent then
+    for m, e, _ in vpe:                           # the yaw variance is the estimator's, never clamped
+        assert m.covariance[20] == pytest.approx(float(e.sigma_rpy_rad[2]) ** 2, rel=1e-6)
+    t, err, sigma = _vpe_errors(vpe)
+    late = t >= 30.0
+    _print_figures("boat, no calibration", t, err, sigma)
+    assert np.mean(np.abs(err[late]) <= 3.0 * sigma[late]) >= 0.99   # against the simulator's truth
+
+
+def test_an_uncalibrated_magnetometer_is_named_and_heading_good_waits_for_gnss(uncalibrated_boat):
+    vpe, texts, svc, _ = uncalibrated_boat
+    joined = " | ".join(texts)
+    assert "magnetometer not calibrated" in joined and "lever" not in joined
+    good = [t for t in texts if t.endswith("heading good")]
+    # "heading good" only while the GNSS holds the heading within the limit (the magnetometer is never trusted)
+    assert good and all(t.state in (HeadingState.GNSS_ONLY, HeadingState.LEARNING)
+                        and t.sigma_rad <= math.radians(5.0) for t in good)
+    assert all(t.state != HeadingState.MAGNETOMETER for t in texts)
+
+
+def test_a_wrong_calibration_is_rejected_named_and_reported_unhealthy(wrongly_calibrated_boat):
+    vpe, texts, svc, _ = wrongly_calibrated_boat
+    states = [int(e.heading_state) for _, e, _ in vpe]
+    assert HeadingState.GNSS_ONLY in states or HeadingState.LEARNING in states
+    assert any("calibration wrong or iron changed" in t for t in texts)
+    assert all(e.heading_state != HeadingState.UNKNOWN for _, e, _ in vpe)
+    for m, e, _ in vpe:
+        assert m.covariance[20] == pytest.approx(float(e.sigma_rpy_rad[2]) ** 2, rel=1e-6)
+    _print_figures("boat, calibration missing (12, -8, 0) uT of hard iron, claiming 0.5 deg", *_vpe_errors(vpe))
+
+
+def _vpe_builder_service(tmp_path):
+    from ahrsd.daemon.config import EndpointConfig
+    from service_rig import start_service_on
+
+    svc, loop = start_service_on((EndpointConfig("udpout:127.0.0.1:9"),), tmp_path)
+    svc.health.last_sample_time, svc.health.last_estimate_flags = 1.0, EstimateFlags.NONE   # trusted sensor
+    return svc, loop
+
+
+def test_the_vpe_builder_withholds_an_unknown_heading_even_when_the_sensor_is_fine(tmp_path):
+    from ahrsd.daemon.output_registry import BY_MESSAGE_ID
+    from service_rig import stop_service
+
+    svc, loop = _vpe_builder_service(tmp_path)
+    try:
+        build = BY_MESSAGE_ID[mavlink.MAVLINK_MSG_ID_VISION_POSITION_ESTIMATE].build
+        assert svc.health.heading_trusted(1.0)
+        # gyro-only after the magnetometer went (mekf MAG_UNAVAILABLE): no INITIALISING, but nobody knows the heading
+        assert build(svc, estimate(HeadingState.UNKNOWN, 8.0, flags=EstimateFlags.MAG_UNAVAILABLE), None, 1.0) is None
+        m = build(svc, estimate(HeadingState.GNSS_ONLY, 8.0), None, 1.0)
+        assert m is not None and m.covariance[20] == pytest.approx(math.radians(8.0) ** 2, rel=1e-6)
+    finally:
+        stop_service(svc, loop)
+
+
+def test_a_yaw_reset_of_the_estimator_bumps_reset_counter_once_in_the_next_vpe(tmp_path):
+    from ahrsd.daemon.output_registry import BY_MESSAGE_ID
+    from service_rig import stop_service
+
+    svc, loop = _vpe_builder_service(tmp_path)
+    try:
+        build = BY_MESSAGE_ID[mavlink.MAVLINK_MSG_ID_VISION_POSITION_ESTIMATE].build
+        svc.pipeline.estimator.yaw_resets = 0        # the counter ins keeps (Ins.yaw_resets)
+        e = estimate(HeadingState.GNSS_ONLY, 2.0)
+        first = build(svc, e, None, 1.0).reset_counter
+        svc.pipeline.estimator.yaw_resets = 1        # ins reset its yaw to the GNSS yaw (EstimateFlags.YAW_RESET)
+        after = []
+        for k in range(1, 4):
+            svc.health.last_sample_time = now = 1.0 + 0.1 * k
+            after.append(build(svc, e, None, now).reset_counter)
+        assert after == [(first + 1) & 0xFF] * 3
+    finally:
+        stop_service(svc, loop)
+
+
+def test_the_calibrations_predicted_heading_error_reaches_ins_as_a_figure_or_unknown():
+    from ahrsd.calibration.models import Calibration, MagModel
+    from ahrsd.daemon.mag_trust import calibration_heading_sigma_rad
+
+    model = MagModel(np.array([3.0, -2.0, 1.0]), np.eye(3))
+    cal = Calibration.identity().with_sensor
+    assert math.degrees(calibration_heading_sigma_rad(cal("mag", model, heading_std_deg=0.3, offset_std_deg=0.4))) \
+        == pytest.approx(0.5)
+    # the field session's undetermined offset (null), no figure at all, no calibration: unknown
+    assert math.isnan(calibration_heading_sigma_rad(cal("mag", model, heading_std_deg=0.3, offset_std_deg=None)))
+    assert math.isnan(calibration_heading_sigma_rad(cal("mag", model, method="fixed-yaw")))
+    assert math.isnan(calibration_heading_sigma_rad(Calibration.identity()))
+    # `ahrsd calibrate mag`: the field residual over WMM's horizontal field at the fit site (Boulder, H ≈ 21 µT)
+    from ahrsd.core.wmm import earth_field
+
+    h = earth_field(40.0, -105.0).horizontal_ut
+    got = calibration_heading_sigma_rad(cal("mag", model, residual_rms_ut=0.5,
+                                            site={"lat_deg": 40.0, "lon_deg": -105.0, "alt_m": 0.0}))
+    assert got == pytest.approx(math.atan2(0.5, h))

@@ -1,0 +1,188 @@
+"""The learned iron (daemon.learned_iron) with the real `ins` in a started Service: it survives a restart, belongs
+to its calibration and mounting, shows as read-only parameters, and the operator accepts it into the
+calibration (checked against the field computed by hand) or resets it; both refused while armed."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ahrsd.calibration.models import Calibration, MagModel
+from ahrsd.calibration.store import CalibrationStore
+from ahrsd.daemon.config import EndpointConfig, EstimatorConfig
+from ahrsd.daemon.learned_iron import ACTION_ACCEPT, ACTION_RESET, CMD_LEARNED_IRON, FILE_NAME
+from ahrsd.daemon.mavlink_io import mavlink
+from service_rig import start_service_on, stop_service
+
+OFFSET_UT = np.array([4.0, -6.5, 2.0])
+COV_UT2 = np.diag([1.2, 0.8, 3.0]) + 0.1
+SOFT = np.array([[1.05, 0.02, 0.0], [0.02, 0.97, 0.01], [0.0, 0.01, 1.01]])
+HARD_UT = np.array([10.0, -3.0, 5.0])
+
+
+def _calibration(hard_ut=HARD_UT):
+    return Calibration.identity().with_sensor("mag", MagModel(np.asarray(hard_ut, float), SOFT), method="test",
+                                              heading_std_deg=0.8, offset_std_deg=0.3)
+
+
+def _start(state_dir):
+    svc, loop = start_service_on((EndpointConfig("udpout:127.0.0.1:9"),), state_dir,
+                                 estimator=EstimatorConfig("ins"))
+    texts = []
+    svc.statustext = lambda sev, text: texts.append(text)
+    svc.learned_iron.statustext = svc.statustext
+    return svc, loop, texts
+
+
+def _command(action):
+    return mavlink.MAVLink_command_long_message(1, 200, CMD_LEARNED_IRON, 0, float(action), 0, 0, 0, 0, 0, 0)
+
+
+def test_the_learned_iron_survives_a_restart_and_is_shown_read_only(tmp_path):
+    CalibrationStore(tmp_path).save(_calibration())
+    svc, loop, _ = _start(tmp_path)
+    try:
+        assert svc.pipeline.estimator.name == "ins"
+        svc.pipeline.estimator.set_learned_iron(OFFSET_UT, COV_UT2)     # what ins learned in this run
+        svc.learned_iron.tick(1e9)
+        assert [svc.params.get(n) for n in ("MAG_LRN_X", "MAG_LRN_Y", "MAG_LRN_Z")] == pytest.approx(OFFSET_UT)
+        assert svc.params.get("MAG_LRN_SD") == pytest.approx(math.sqrt(3.1))
+        ok, reason = svc.params.set("MAG_LRN_X", 0.0)
+        assert not ok and "read-only" in reason and svc.params.get("MAG_LRN_X") == pytest.approx(OFFSET_UT[0])
+    finally:
+        stop_service(svc, loop)                  # saves at stop
+    assert (tmp_path / FILE_NAME).exists()
+    svc, loop, _ = _start(tmp_path)               # a new daemon, a new ins
+    try:
+        offset, cov = svc.pipeline.estimator.learned_iron()
+        assert offset == pytest.approx(OFFSET_UT) and cov == pytest.approx(COV_UT2)
+        assert svc.params.get("MAG_LRN_Y") == pytest.approx(OFFSET_UT[1])
+    finally:
+        stop_service(svc, loop)
+
+
+def test_a_learned_iron_of_another_calibration_is_discarded_and_a_new_calibration_resets_it(tmp_path):
+    CalibrationStore(tmp_path).save(_calibration())
+    svc, loop, _ = _start(tmp_path)
+    try:
+        svc.pipeline.estimator.set_learned_iron(OFFSET_UT, COV_UT2)
+    finally:
+        stop_service(svc, loop)
+    CalibrationStore(tmp_path).save(_calibration(HARD_UT + 1.0))      # recalibrated while the daemon was off
+    svc, loop, _ = _start(tmp_path)
+    try:
+        assert not np.any(svc.pipeline.estimator.learned_iron()[0])
+        svc.pipeline.estimator.set_learned_iron(OFFSET_UT, COV_UT2)
+        svc.apply_calibration(_calibration(HARD_UT - 1.0), reason="test")   # a new calibration accepted
+        assert not np.any(svc.pipeline.estimator.learned_iron()[0])
+        svc.pipeline.estimator.set_learned_iron(OFFSET_UT, COV_UT2)
+        gyro_only = svc.pipeline.calibration.with_sensor("gyro", svc.pipeline.calibration.gyro, method="x")
+        svc.apply_calibration(gyro_only, reason="test")                    # the magnetometer model unchanged
+        assert svc.pipeline.estimator.learned_iron()[0] == pytest.approx(OFFSET_UT)
+        svc.params.set("MNT_YAW_DEG", 90.0)                                 # the body frame moved
+        assert not np.any(svc.pipeline.estimator.learned_iron()[0])
+    finally:
+        stop_service(svc, loop)
+
+
+def test_accept_folds_the_learned_iron_into_the_hard_iron_and_resets_it(tmp_path):
+    CalibrationStore(tmp_path).save(_calibration())
+    svc, loop, texts = _start(tmp_path)
+    try:
+        svc.params.set("MNT_YAW_DEG", 30.0)           # a mounting, so the body → sensor rotation matters
+        svc.pipeline.estimator.set_learned_iron(OFFSET_UT, COV_UT2)
+        c = svc.pipeline.mounting
+        raw = np.array([[25.0, -4.0, 40.0], [-12.0, 18.0, 35.0], [3.0, 3.0, -20.0]])
+        # what ins used: the body field of the old calibration minus the learned offset (by hand)
+        used = np.array([c @ (SOFT @ (r - HARD_UT)) - OFFSET_UT for r in raw])
+        assert svc.learned_iron.handle_command(_command(ACTION_ACCEPT)) == mavlink.MAV_RESULT_ACCEPTED
+        new = svc.pipeline.calibration.mag
+        assert np.array([c @ new.apply(r) for r in raw]) == pytest.approx(used, abs=1e-9)
+        assert new.soft_iron == pytest.approx(SOFT)
+        assert CalibrationStore(tmp_path).load().mag.hard_iron_ut == pytest.approx(new.hard_iron_ut)
+        assert not np.any(svc.pipeline.estimator.learned_iron()[0])
+        assert any("Learned iron accepted" in t for t in texts)
+        meta = svc.pipeline.calibration.metadata["mag"]
+        assert meta["method"] == "learned-iron" and meta["learned_iron_ut"] == pytest.approx(OFFSET_UT)
+        from ahrsd.daemon.mag_trust import calibration_heading_sigma_rad    # still a figure ins can use
+        assert math.degrees(calibration_heading_sigma_rad(svc.pipeline.calibration)) >= math.hypot(0.8, 0.3)
+        # nothing left to accept
+        assert svc.learned_iron.handle_command(_command(ACTION_ACCEPT)) == mavlink.MAV_RESULT_FAILED
+    finally:
+        stop_service(svc, loop)
+
+
+def test_reset_forgets_it_and_both_commands_are_refused_while_armed(tmp_path):
+    CalibrationStore(tmp_path).save(_calibration())
+    svc, loop, texts = _start(tmp_path)
+    try:
+        ins = svc.pipeline.estimator
+        ins.set_learned_iron(OFFSET_UT, COV_UT2)
+        before = svc.pipeline.calibration
+        svc.autopilot.armed = True
+        for action in (ACTION_ACCEPT, ACTION_RESET):
+            assert svc.learned_iron.handle_command(_command(action)) == mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+        assert ins.learned_iron()[0] == pytest.approx(OFFSET_UT) and svc.pipeline.calibration is before
+        assert "Disarm to change the learned iron" in texts
+        svc.autopilot.armed = False
+        assert svc.learned_iron.handle_command(_command(ACTION_RESET)) == mavlink.MAV_RESULT_ACCEPTED
+        assert not np.any(ins.learned_iron()[0]) and svc.pipeline.calibration is before
+        assert svc.learned_iron.handle_command(_command(7)) != mavlink.MAV_RESULT_ACCEPTED
+        # the same from a ground station's parameter list: MAG_LRN_ACT (momentary)
+        ins.set_learned_iron(OFFSET_UT, COV_UT2)
+        svc.autopilot.armed = True
+        ok, reason = svc.params.set("MAG_LRN_ACT", 2.0)
+        assert not ok and "Disarm" in reason and ins.learned_iron()[0] == pytest.approx(OFFSET_UT)
+        svc.autopilot.armed = False
+        ok, _ = svc.params.set("MAG_LRN_ACT", 2.0)
+        assert ok and not np.any(ins.learned_iron()[0]) and svc.params.get("MAG_LRN_ACT") == 0.0
+    finally:
+        stop_service(svc, loop)
+    svc, loop, _ = _start(tmp_path)                  # the reset persisted too
+    try:
+        assert not np.any(svc.pipeline.estimator.learned_iron()[0])
+    finally:
+        stop_service(svc, loop)
+
+
+class _FakeConn:
+    """Answers PARAM_REQUEST_READ with PARAM_VALUE from `values`, as the daemon (1, 200) would."""
+
+    def __init__(self, values):
+        from types import SimpleNamespace
+
+        self.values, self.queue = values, []
+        self.mav = SimpleNamespace(param_request_read_send=self._read)
+        self._wire = mavlink.MAVLink(None, srcSystem=1, srcComponent=200)
+
+    def _read(self, sys_id, comp_id, name, index):
+        from ahrsd.daemon.messages import param_value
+
+        name = name.decode()
+        if name in self.values:
+            msg = param_value(name, self.values[name], 0, 1)
+            self.queue.append(mavlink.MAVLink(None).parse_char(bytearray(msg.pack(self._wire))))
+
+    def recv_match(self, **kw):
+        return self.queue.pop(0) if self.queue else None
+
+
+def test_magcal_status_shows_the_learned_iron_and_the_cli_has_its_actions():
+    import io
+
+    from ahrsd.cli.magcal_client import MagCalClient
+    from ahrsd.cli.main import build_parser
+
+    client = MagCalClient(_FakeConn({"MAG_LRN_X": 4.0, "MAG_LRN_Y": -6.5, "MAG_LRN_Z": 2.0, "MAG_LRN_SD": 1.76}),
+                          timeout_s=0.5, out=io.StringIO())
+    client.sys, client.comp = 1, 200
+    text = client.learned_iron_text()
+    assert "+4.00 -6.50 +2.00 uT" in text and "1.76 uT" in text and "accept-learned" in text
+    client = MagCalClient(_FakeConn({"MAG_LRN_X": 0.0, "MAG_LRN_Y": 0.0, "MAG_LRN_Z": 0.0, "MAG_LRN_SD": -1.0}),
+                          timeout_s=0.5, out=io.StringIO())
+    client.sys, client.comp = 1, 200
+    assert "learns none" in client.learned_iron_text()
+    for action in ("accept-learned", "reset-learned"):
+        assert build_parser().parse_args(["magcal", action]).action == action
