@@ -16,6 +16,7 @@ from dataclasses import dataclass
 log = logging.getLogger(__name__)
 
 TCP_CLIENT_BUFFER_LIMIT_BYTES = 4096    # a client further behind than this misses sentences (it is too slow)
+TCP_SOCKET_SEND_BUFFER_BYTES = 16384    # and the kernel holds no more than this for it: a live stream, not a queue
 SERIAL_BACKLOG_LIMIT_BYTES = 256        # the serial driver's output queue beyond which sentences are dropped
 
 
@@ -99,12 +100,15 @@ class TcpServerTransport:
         self._server = await asyncio.start_server(self._on_client, sock=sock)
 
     async def _on_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        sock = writer.get_extra_info("socket")
+        if sock is not None:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, TCP_SOCKET_SEND_BUFFER_BYTES)
         self._clients.add(writer)
         self.counters.clients = len(self._clients)
         try:
             while await reader.read(1024):      # clients may talk (e.g. a keep-alive); nothing is expected
                 pass
-        except (ConnectionError, OSError):
+        except (ConnectionError, OSError, asyncio.CancelledError):   # cancelled: the server is closing
             pass
         finally:
             self._clients.discard(writer)

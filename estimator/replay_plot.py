@@ -66,8 +66,9 @@ class ReplayTrace:
         return self.columns is _KEPT_NAV
 
     def add(self, table: np.ndarray) -> None:
-        """One table of replay output: ATTITUDE_COLUMNS, or ATTITUDE_COLUMNS + NAV_COLUMNS (an aided run)."""
-        if self._rows == 0 and self._pending is None and table.shape[1] == len(ATTITUDE_COLUMNS) + len(NAV_COLUMNS):
+        """One table of replay output: ATTITUDE_COLUMNS, or ATTITUDE_COLUMNS + NAV_COLUMNS (+ the heading
+        columns) for an aided run."""
+        if self._rows == 0 and self._pending is None and table.shape[1] >= len(ATTITUDE_COLUMNS) + len(NAV_COLUMNS):
             self.columns = _KEPT_NAV
         kept = table[:, [_COL[c] for c in self.columns]]
         if self._pending is not None:

@@ -179,11 +179,13 @@ def test_end_to_end_boat_replay_is_aided(tmp_path):
     from ahrsd.simulation import open_stream
 
     rec, _ = record(tmp_path, "boat", 60.0)
-    # the magnetometer calibrated as in the field (the simulator's own distortion, inverted), so what is
-    # measured here is the aiding, not a hard-iron heading error
+    # the magnetometer calibrated as in the field (the simulator's own distortion, inverted), with the predicted
+    # heading error a field session stores beside it (daemon.mag_trust), so what is measured here is the aiding
+    # with a trusted magnetometer, not a hard-iron heading error
     e = open_stream("boat", seed=0).errors
     CalibrationStore(tmp_path / "state").save(dataclasses.replace(
-        Calibration.identity(), mag=MagModel(np.array(e.hard_iron_ut), np.linalg.inv(e.soft_iron))))
+        Calibration.identity(), mag=MagModel(np.array(e.hard_iron_ut), np.linalg.inv(e.soft_iron)),
+        metadata={"mag": {"heading_std_deg": 0.3, "offset_std_deg": 0.2}}))
     d = Daemon(tmp_path, "--gnss-replay", str(rec.with_name("boat.gnss.csv")), "--replay-speed", "5",
                source=("--replay", str(rec)))
     got = replay_messages(d)
