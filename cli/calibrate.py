@@ -606,7 +606,8 @@ def _gnss_for_backstepping(args, rec, heading_ref, ref_note):
         fixes, validator = cg.read_validated_fixes(args.gnss)
     except cg.GnssInputError as exc:
         raise _Fail(str(exc)) from None
-    from ahrsd.calibration.mag.backstepping_aided import AIDED_ESTIMATOR, SMOOTH_LEVELLING
+    from ahrsd.calibration.mag.backstepping_aided import SMOOTH_LEVELLING
+    from ahrsd.estimator import AIDED_ESTIMATOR
 
     note = (f"levelling: {AIDED_ESTIMATOR} aided by {len(fixes)} GNSS fixes of {args.gnss} "
             f"({validator.rejected} rejected)" + (", smoothed over the run (RTS)" if SMOOTH_LEVELLING else "")

@@ -36,7 +36,7 @@ from ahrsd.daemon.nmea_sentences import (DEFAULT_RATES_HZ, LOW_SPEED_BELOW_BAUD,
                                          worst_case_bytes)
 from ahrsd.daemon.output_profiles import DEFAULT_PROFILE, PROFILES
 from ahrsd.daemon.output_registry import BY_CONFIG_KEY, OUTPUTS
-from ahrsd.estimator import ESTIMATORS
+from ahrsd.estimator import AIDED_ESTIMATOR, ESTIMATORS, UNAIDED_ESTIMATOR
 from ahrsd.simulation import SCENARIOS
 
 DEFAULT_CONFIG_PATH = Path("/etc/ahrsd/ahrsd.toml")
@@ -195,8 +195,6 @@ def _estimator_name(k, value) -> str:
     return value
 
 
-UNAIDED_ESTIMATOR = "mekf"
-AIDED_ESTIMATOR = "ins"
 GNSS_SOURCES = ("none", "serial", "mavlink", "replay", "sim")
 GNSS_PROTOCOLS = ("auto", "ubx", "nmea")
 GNSS_BAUDS = (4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)

@@ -6,6 +6,8 @@ from __future__ import annotations
 from .base import Estimator
 
 ESTIMATORS = ("mekf", "thesis", "ins")
+UNAIDED_ESTIMATOR = "mekf"     # the daemon's choice without a GNSS source
+AIDED_ESTIMATOR = "ins"        # ... and with one; also the aided levelling of back-stepping --gnss
 DEFAULT_ESTIMATOR = "mekf"
 
 

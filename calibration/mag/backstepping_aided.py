@@ -46,11 +46,11 @@ import math
 import numpy as np
 
 from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
+from ahrsd.estimator import AIDED_ESTIMATOR
 
 from .levelling import attitude_from_estimator
 from .fit_types import MagFitInput, MagFitResult
 
-AIDED_ESTIMATOR = "ins"
 SETTLED_TILT_SIGMA_DEG = math.inf   # fit only where the filter's tilt 1σ is below this; on the tuning seeds
                                     # (bench/backstepping_gnss.py --sweep) no limit did as well as any
 MAG_HEADING_PASSES = 2          # aided levelling passes with the magnetometer (heading only), each calibrated by
