@@ -170,7 +170,7 @@ def test_daemon_session_with_gnss_course_removes_the_offset(tmp_path):
     client = Client(port)
     # HIGHRES_IMU at 200 Hz of wall time is 20 Hz of recording time at 10x: the fixes go out within 50 ms of
     # their arrival time
-    proc, log = start_daemon(tmp_path, port, 2.0, straight_runs=True, time_scale=20.0,
+    proc, log = start_daemon(tmp_path, port, 2.0, straight_runs=True, time_scale=10.0,
                              magcal={"gnss_latency_s": 0.1}, highres_imu_hz=200.0)
     mav = client.conn.mav
     state = {"offset_s": None, "next": 0}
