@@ -238,6 +238,8 @@ class PathReport:
     matched: int
     max_difference: float
     example: tuple[object, object] | None
+    rest: object = None                  # the value the REST API gave at the end of the run
+    rest_difference: float = math.nan    # ... against the closest of ahrsd's sentences just before
 
 
 MATCH_WINDOW_S = 1.0     # an update is ahrsd's sentence of the same kind sent within this long of its arrival
@@ -289,6 +291,8 @@ def run_check(seconds: float = 30.0, scenario: str = "level-turns", log=print) -
                 stream = DeltaStream(server.stream_port)
                 stream.start()
                 time.sleep(seconds)
+                rest_at = time.monotonic()
+                rest = rest_navigation(server.http_port)
                 stream.stop()
             finally:
                 ahrsd.terminate()
@@ -297,7 +301,34 @@ def run_check(seconds: float = 30.0, scenario: str = "level-turns", log=print) -
                 except subprocess.TimeoutExpired:
                     ahrsd.kill()
         tap.stop()
-    return compare(stream.updates, tap.sentences, seconds)
+    reports = compare(stream.updates, tap.sentences, seconds)
+    for r in reports:
+        r.rest = rest_value(rest, r.path)
+        r.rest_difference = rest_difference(r.path, r.rest, tap.sentences, rest_at)
+    return reports
+
+
+def rest_navigation(http_port: int) -> dict:
+    """GET /signalk/v1/api/vessels/self/navigation: what a Signal K client reads (values and their time stamps)."""
+    import urllib.request
+
+    url = f"http://127.0.0.1:{http_port}/signalk/v1/api/vessels/self/navigation"
+    with urllib.request.urlopen(url, timeout=10) as answer:
+        return json.load(answer)
+
+
+def rest_value(navigation: dict, path: str):
+    node = navigation.get(path.split(".", 1)[1], {})
+    return node.get("value") if isinstance(node, dict) else None
+
+
+def rest_difference(path: str, value, sentences, at: float) -> float:
+    """The REST value against ahrsd's sentences of that kind sent within MATCH_WINDOW_S before the request."""
+    if value is None:
+        return math.nan
+    near = [v for t, msg in sentences if at - MATCH_WINDOW_S <= t <= at + 0.2
+            for p, v in signal_k_value_of(msg).items() if p == path]
+    return min((_difference(path, value, v) for v in near), default=math.nan)
 
 
 def main(argv=None) -> int:
@@ -313,11 +344,11 @@ def main(argv=None) -> int:
     print(f"signalk-server {SIGNALK_SERVER_VERSION}, ahrsd --sim {args.scenario}, {args.seconds:g} s, "
           "NMEA 0183 over UDP (default rates HDT/HDG 10 Hz, ROT/XDR 5 Hz)")
     print(f"{'Signal K path':30s} {'updates':>8s} {'rate Hz':>8s} {'matched':>8s} {'max |SK - ahrsd|':>18s}  "
-          "example (Signal K, ahrsd)")
+          "REST value  |REST - ahrsd|")
     for r in reports:
         unit = "rad/s" if r.path.endswith("rateOfTurn") else "rad"
         print(f"{r.path:30s} {r.updates:8d} {r.rate_hz:8.2f} {r.matched:8d} {r.max_difference:14.2e} {unit:5s}"
-              f"  {r.example}")
+              f"  {r.rest}  {r.rest_difference:.1e}")
     return 0
 
 

@@ -27,6 +27,7 @@ def test_signal_k_shows_every_path_with_our_values(reports):
         assert r.updates >= 30, (path, r)
         assert r.matched == r.updates, (path, r)            # every update is one of our sentences
         assert r.max_difference < 1e-6, (path, r)           # same value, Signal K's units (rad, rad/s)
+        assert r.rest_difference < 1e-6, (path, r)          # and what its REST API serves
 
 
 def test_signal_k_updates_at_our_rates(reports):
