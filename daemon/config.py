@@ -86,6 +86,11 @@ def _string(key, value) -> str:
     return value
 
 
+def _is_host_port(host_port: str) -> bool:
+    """HOST:PORT (HOST may be empty) with a port in 1..65535: the network URLs of [[endpoint]] and [[nmea]]."""
+    return bool(re.fullmatch(r"[^:\s]*:\d{1,5}", host_port)) and 0 < int(host_port.rsplit(":", 1)[1]) < 65536
+
+
 def _endpoint_url(key, value) -> str:
     value = _string(key, value).strip()
     if value.startswith(ENDPOINT_PREFIXES):
@@ -93,7 +98,7 @@ def _endpoint_url(key, value) -> str:
         if value.startswith(("uds:", "unix:")):
             if host_port:
                 return value
-        elif re.fullmatch(r"[^:\s]*:\d{1,5}", host_port) and 0 < int(host_port.rsplit(":", 1)[1]) < 65536:
+        elif _is_host_port(host_port):
             return value
         raise _fail(key, value, "a pymavlink URL such as udpout:HOST:PORT, udpin:HOST:PORT, tcp:HOST:PORT, "
                     "tcpin:HOST:PORT with a port in 1..65535")
@@ -373,7 +378,7 @@ def _nmea_url(key, value) -> str:
         raise _fail(key, value, "serial:/dev/DEVICE or serial:/dev/DEVICE,BAUD with BAUD in 1200..12000000")
     if value.startswith(NMEA_PREFIXES):
         host_port = value.split(":", 1)[1]
-        if re.fullmatch(r"[^:\s]*:\d{1,5}", host_port) and 0 < int(host_port.rsplit(":", 1)[1]) < 65536:
+        if _is_host_port(host_port):
             return value
     raise _fail(key, value, "udp:HOST:PORT (unicast), udpbcast:HOST:PORT (broadcast), tcpserver:HOST:PORT "
                 "(clients connect; 10110 is the usual NMEA port) or serial:/dev/DEVICE[,BAUD]")

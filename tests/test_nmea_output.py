@@ -22,7 +22,7 @@ from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState
 from ahrsd.daemon.config import ConfigError, parse_config
 from ahrsd.daemon.nmea_output import NmeaOutput, NmeaOutputs
 from ahrsd.daemon.nmea_sentences import MAX_SENTENCE_CHARS, SENTENCE_IDS, build_sentence
-from ahrsd.daemon.nmea_transport import SerialTransport, TcpServerTransport, UdpTransport
+from ahrsd.daemon.nmea_transport import SerialTransport, TcpServerTransport, TransportCounters, UdpTransport
 from ahrsd.simulation import open_stream
 
 RATE_HZ = 819.2
@@ -53,11 +53,7 @@ class ListTransport:
 
     def __init__(self):
         self.sent: list[bytes] = []
-
-        class Counters:
-            def as_dict(self):
-                return {}
-        self.counters = Counters()
+        self.counters = TransportCounters()
 
     def open(self, loop):
         pass
