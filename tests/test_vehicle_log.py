@@ -223,7 +223,7 @@ def failing_write(err):
 def test_a_full_or_read_only_disk_stops_the_log_and_the_daemon_carries_on(tmp_path, monkeypatch, caplog, err):
     monkeypatch.setattr(SampleLog, "_write_block", failing_write(err))
     with caplog.at_level(logging.WARNING, logger="ahrsd.drivers.rotating_log"):
-        run = run_daemon(tmp_path, 5.0, LogConfig(enabled=True))
+        run = run_daemon(tmp_path, 5.0, LogConfig(enabled=True), min_samples=2600)
     s = run.stats["logs"]["samples"]
     assert s["failure"] == __import__("os").strerror(err) and 500 < s["written"] <= 1000
     assert s["written"] + s["dropped"] == len(run.samples)   # every sample the reader saw is accounted for
