@@ -231,8 +231,8 @@ class Service:
         return self.health.heading_trusted(now)
 
     def autopilot_yaw(self, est) -> tuple[float, int]:
-        if self.heading_status is not None and self.heading_status.take_yaw_resets(self._yaw_resets()):
-            self.heading.signal()          # ins reset its yaw to the GNSS yaw: reset_counter + 1 with it
+        # a reset of ins's yaw to the GNSS yaw is slewed into the yaw it publishes (its σ covering what is left:
+        # estimator/published_heading.py): no step reaches the autopilot, so reset_counter is not incremented
         return self.heading.autopilot_yaw(est)
 
     def _yaw_resets(self) -> int:

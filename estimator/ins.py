@@ -31,6 +31,7 @@ from . import ins_core as core
 from . import mag_heading as mag
 from .gsf_yaw import GsfParams, gsf_fuse_velocity, gsf_output, gsf_reset, new_gsf_state
 from .heading_monitor import HeadingMonitor, IronLearner, wrap_pi
+from .published_heading import PublishedHeading
 from .mekf import (
     RELEARN_GATE_OPEN_S,
     after_init_flags,
@@ -183,6 +184,10 @@ class InsParams:
     """At most this many resets of the yaw to the GNSS yaw per run (ArduPilot EK3_GSF_RST_MAX 2)."""
     yaw_reset_spacing_s: float = 20.0
     """... at least this far apart, s."""
+    published_yaw_slew_rad_s: float = 2.0 * _DEG
+    """The published yaw follows the filter's corrections at no more than this rate beyond the vehicle's own
+    rotation: a yaw reset or a fast correction is slewed in, the published σ covering what is left
+    (published_heading.py), rad/s. The daemon's calibration-change slew uses the same 2 °/s."""
     mag_noise_ut: float = 0.7
     mag_heading_noise_rad: float = 0.12
     mag_heading_noise_rest_rad: float = 0.03
@@ -346,6 +351,8 @@ class Ins:
         self._iron = IronLearner(self.params.iron_prior_sigma_ut)
         self._iron_last_t = None
         self._iron_restored = False
+        self._published = PublishedHeading(self.params.published_yaw_slew_rad_s)
+        self._published_since_init = False
         self._new_heading_checks()
 
     def _step_args_example(self) -> tuple:
@@ -382,6 +389,7 @@ class Ins:
         self._pending_flags = 0
         self._queue.clear()
         self._last_fix_t = -math.inf
+        self._published.reset()
         self._new_heading_checks()
 
     # ----------------------------------------------------------------------- learned iron (persisted by the daemon)
@@ -757,6 +765,8 @@ class Ins:
         for i in range(6):
             P[core.E_MG + i, core.E_MG + i] = p.init_gyro_misalignment_sigma_rad ** 2
         self._queue.clear()
+        self._published.reset()
+        self._published_since_init = False
         if not self._reinit_pending or not self.params.gnss_yaw:
             gsf_reset(self._gsf, self._gsf_par, float(t_s), np.full(4, np.nan))
         else:
@@ -776,6 +786,19 @@ class Ins:
             self._pending_flags = 0
         o = self._out.copy()
         roll, pitch, yaw_true = o[core.O_EULER : core.O_EULER + 3].tolist()
+        sigma_yaw = float(o[core.O_SIGMA + 2])
+        if f & core.F_INITIALISING and not self._published_since_init:
+            self._published.reset()        # nothing published since the filter started: follow it
+        elif self._published.update(t_s, yaw_true, roll, pitch, o[core.O_RATE : core.O_RATE + 3]):
+            # the filter's yaw moved faster than the published one may: publish it turned back by the offset
+            off = self._published.offset_rad
+            yaw_true += off
+            c, s = math.cos(0.5 * off), math.sin(0.5 * off)
+            w, x_, y, z = o[core.O_Q : core.O_Q + 4].tolist()
+            o[core.O_Q : core.O_Q + 4] = (c * w - s * z, c * x_ - s * y, c * y + s * x_, c * z + s * w)
+            o[core.O_SIGMA + 2] = self._published.published_sigma(sigma_yaw)
+        if not f & core.F_INITIALISING:
+            self._published_since_init = True
         yaw = (yaw_true - self._declination + math.pi) % _TWO_PI - math.pi
         nav = None
         if self._x[core.X_NAV_OK] > 0.0:
@@ -801,7 +824,7 @@ class Ins:
             o[core.O_SIGMA : core.O_SIGMA + 3],
             estimate_flags(f),
             nav,
-            self._published_heading_state(f, o[core.O_SIGMA + 2]),
+            self._published_heading_state(f, sigma_yaw),
             self._integrity,
         )
 
