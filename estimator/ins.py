@@ -635,6 +635,11 @@ class Ins:
         observable = yaw_var < p.heading_observable_sigma_rad ** 2
         d = self._monitor.check(t_s, yaw, yaw_var, mag_yaw, mag_var, gsf_yaw, gsf_var, gsf_valid, observable,
                                 float(x[core.X_NIS_V]), mag_var - noise if math.isfinite(mag_var) else math.nan)
+        if gsf_valid and wrap_pi(gsf_yaw - yaw) ** 2 <= self._monitor.gate_sigma ** 2 * (yaw_var + gsf_var) \
+                and self._monitor.lowpassed_velocity_nis < self._monitor.reset_velocity_nis:
+            # the GNSS yaw confirms the filter's heading: its gyro bias was learned with a right heading
+            self._confirmed_gyro_bias = x[core.X_BG : core.X_BG + 3].copy()
+            self._confirmed_accel_bias = x[core.X_BA : core.X_BA + 3].copy()
         if d.yaw_var_floor_rad2 > P[2, 2]:
             P[2, 2] = d.yaw_var_floor_rad2
             self.heading_interventions += 1
@@ -684,6 +689,17 @@ class Ins:
             P[i, :] = 0.0
             P[:, i] = 0.0
             P[i, i] = var
+        # the gyro and accelerometer biases learned since the heading was last confirmed were learned against a
+        # wrong yaw (the magnetometer pulling one way, the GNSS velocity the other, the biases taking up the
+        # difference): back to the last confirmed ones (the start-up values before any), with their start-up
+        # uncertainty
+        x[core.X_BG : core.X_BG + 3] = self._confirmed_gyro_bias
+        x[core.X_BA : core.X_BA + 3] = self._confirmed_accel_bias
+        for i in range(core.E_BG, core.E_BG + 3):
+            var = max(P[i, i], p.init_gyro_bias_sigma_rad_s ** 2)
+            P[i, :] = 0.0
+            P[:, i] = 0.0
+            P[i, i] = var
         for i in range(core.E_BA, core.E_BA + 3):
             var = max(P[i, i], p.init_accel_bias_sigma_m_s2 ** 2)
             P[i, :] = 0.0
@@ -723,6 +739,8 @@ class Ins:
         x[:] = 0.0
         x[core.X_Q : core.X_Q + 4] = q0
         x[core.X_BG : core.X_BG + 3] = keep_bg
+        self._confirmed_gyro_bias = keep_bg.copy()
+        self._confirmed_accel_bias = keep_ba.copy()
         x[core.X_BA : core.X_BA + 3] = keep_ba
         x[core.X_SG : core.X_SG + 3] = keep_sg
         x[core.X_MG : core.X_MG + 6] = keep_mg
