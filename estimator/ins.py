@@ -410,6 +410,22 @@ class Ins:
         self._iron_restored = False
         self._par[core.P_IRON : core.P_IRON + 3] = self._iron.offset_ut
 
+    def set_mag_calibration_sigma(self, sigma_rad: float) -> None:
+        """A new magnetometer calibration is in force (the daemon's calibration swap): its predicted heading
+        error, 1σ rad (NaN: unknown). The heading checks start again with it; the filter's yaw variance is
+        left to them (a changed heading is caught by the monitor and slewed in the published yaw)."""
+        s = float(sigma_rad)
+        self.params = replace(self.params, mag_calibration_sigma_rad=s if math.isfinite(s) and s >= 0.0 else math.nan)
+        p = self.params
+        self._monitor = HeadingMonitor(p.calibration_sigma_rad, reentry_s=p.mag_reentry_s,
+                                       max_resets=p.yaw_reset_max, reset_spacing_s=p.yaw_reset_spacing_s,
+                                       resets=self._monitor.resets, last_reset_t_s=self._monitor.last_reset_t_s)
+        self._mag_var = p.calibration_sigma_rad ** 2
+        self._par[core.P_MAG_USE] = 1.0
+        self._par[core.P_MAG_TILT] = 1.0 if p.mag_moves_tilt else 0.0
+        self._par[core.P_MAG_BIAS_VAR] = p.calibration_sigma_rad ** 2
+        self._par[core.P_MAG_BIAS_TAU] = p.mag_bias_tau
+
     def heading_report(self) -> HeadingReport:
         """What the heading checks did so far (replay's summary, the daemon's warning)."""
         m = self._monitor

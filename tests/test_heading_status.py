@@ -353,7 +353,7 @@ def test_a_yaw_reset_of_the_estimator_leaves_reset_counter_alone(tmp_path):
 
 def test_the_calibrations_predicted_heading_error_reaches_ins_as_a_figure_or_unknown():
     from ahrsd.calibration.models import Calibration, MagModel
-    from ahrsd.daemon.mag_trust import calibration_heading_sigma_rad
+    from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad
 
     model = MagModel(np.array([3.0, -2.0, 1.0]), np.eye(3))
     cal = Calibration.identity().with_sensor
