@@ -353,6 +353,7 @@ class Ins:
         self._iron_restored = False
         self._published = PublishedHeading(self.params.published_yaw_slew_rad_s)
         self._published_since_init = False
+        self._last_fix_velocity = None
         self._new_heading_checks()
 
     def _step_args_example(self) -> tuple:
@@ -570,9 +571,11 @@ class Ins:
         sig_h = _accuracy(h_acc, DEFAULT_H_ACC_M, p.min_h_acc_m)
         sig_v = _accuracy(v_acc, DEFAULT_V_ACC_M, p.min_v_acc_m)
         sig_s = _accuracy(s_acc, DEFAULT_S_ACC_M_S, p.min_s_acc_m_s)
-        if p.gnss_yaw and use_vel:
+        if use_vel:
             vel = np.array([v[0], v[1], v[2] if use_vd else math.nan])
-            gsf_fuse_velocity(self._gsf, self._gsf_par, float(fix.t_s), vel, sig_s)
+            self._last_fix_velocity = (float(fix.t_s), vel, sig_s)    # what a yaw reset sets the velocity to
+            if p.gnss_yaw:
+                gsf_fuse_velocity(self._gsf, self._gsf_par, float(fix.t_s), vel, sig_s)
         res = core.fuse_gnss(
             self._x, self._P, self._hist, self._par, float(fix.t_s),
             math.radians(lat) if use_pos else 0.0, math.radians(lon) if use_pos else 0.0,
@@ -721,10 +724,43 @@ class Ins:
             P[i, :] = 0.0
             P[:, i] = 0.0
             P[i, i] = var
+        self._reset_velocity_to_fix()
         self.yaw_resets += 1
         self.heading_interventions += 1
         self._pending_flags |= int(EstimateFlags.YAW_RESET)
         log.warning("ins: heading reset to the GNSS yaw by %.1f° (reset %d)", math.degrees(dyaw), self.yaw_resets)
+
+    def _reset_velocity_to_fix(self) -> None:
+        """Set the velocity to the last fix's (at its time of validity, through the lever arm with the reset
+        attitude), its variance to the fix's: while the yaw was wrong the GNSS velocities were rejected and the
+        velocity integrated accelerations rotated by the wrong yaw; fusing that error after the reset would turn
+        the new yaw away again (ArduPilot's emergency yaw reset likewise resets velocity and position to GPS)."""
+        if self._last_fix_velocity is None:
+            return
+        t_fix, v_fix, sig_s = self._last_fix_velocity
+        x, hist = self._x, self._hist
+        i0, i1, w = core._history_at(x, hist, t_fix)
+        if i0 < 0:
+            return
+        row = hist[i0] + w * (hist[i1] - hist[i0])
+        q = row[core.H_Q : core.H_Q + 4]
+        c_bn = np.asarray(quat_to_dcm(q / np.linalg.norm(q)), dtype=float)
+        lever = np.asarray(self.params.lever_arm_m, dtype=float)
+        v_ant = row[core.H_V : core.H_V + 3] + c_bn @ np.cross(row[core.H_W : core.H_W + 3], lever)
+        m = 3 if math.isfinite(v_fix[2]) else 2
+        dv = np.zeros(3)
+        dv[:m] = v_fix[:m] - v_ant[:m]
+        x[core.X_V : core.X_V + 3] += dv
+        n = int(x[core.X_HIST_N])
+        for k in range(n):
+            hist[(int(x[core.X_HIST_I]) - k) % core.H_LEN, core.H_V : core.H_V + 3] += dv
+        P = self._P
+        for i in range(m):
+            e = core.E_V + i
+            P[e, :] = 0.0
+            P[:, e] = 0.0
+            P[e, e] = sig_s ** 2
+        x[core.X_VEL_REJ_T0] = math.nan
 
     def _reject(self, why: str, fix) -> None:
         self._pending_flags |= int(EstimateFlags.GNSS_REJECTED)
@@ -801,6 +837,7 @@ class Ins:
         self._queue.clear()
         self._published.reset()
         self._published_since_init = False
+        self._last_fix_velocity = None
         if not self._reinit_pending or not self.params.gnss_yaw:
             gsf_reset(self._gsf, self._gsf_par, float(t_s), np.full(4, np.nan))
         else:
