@@ -184,6 +184,11 @@ class InsParams:
     """At most this many resets of the yaw to the GNSS yaw per run (ArduPilot EK3_GSF_RST_MAX 2)."""
     yaw_reset_spacing_s: float = 20.0
     """... at least this far apart, s."""
+    heading_confirm_gsf_sigma_rad: float = 5.0 * _DEG
+    """Without a trusted magnetometer the filter's yaw σ is kept at least the GNSS yaw's until a GNSS yaw this
+    accurate has confirmed the filter's heading (within their joint 3σ): a linearised filter pulled in from tens of
+    degrees shrinks its σ faster than its error. ArduPilot's compass learning waits for the same 5°
+    (`Compass_learn.cpp`, YAW_ACCURACY_THRESHOLD_DEG)."""
     published_yaw_slew_rad_s: float = 2.0 * _DEG
     """The published yaw follows the filter's corrections at no more than this rate beyond the vehicle's own
     rotation: a yaw reset or a fast correction is slewed in, the published σ covering what is left
@@ -374,6 +379,7 @@ class Ins:
         self._field_key = None
         self._field_ned = None
         self._mag_var = p.calibration_sigma_rad ** 2
+        self._heading_confirmed = False    # by a GNSS yaw within heading_confirm_gsf_sigma_rad
         self.yaw_resets = 0
         self.heading_interventions = 0    # yaw resets and raised yaw variances (not Kalman updates)
         self._par[core.P_MAG_USE] = 1.0
@@ -666,6 +672,12 @@ class Ins:
                         "iron changed; magnetometer rejected", math.degrees(self._monitor.lowpassed_innovation_rad))
         if d.reset_yaw_to_rad is not None:
             self._reset_yaw(d.reset_yaw_to_rad - yaw, d.reset_yaw_var_rad2)
+        elif not self._heading_confirmed and gsf_valid and p.calibration_sigma_rad > self._monitor.trusted_sigma_rad:
+            if gsf_var < p.heading_confirm_gsf_sigma_rad ** 2 \
+                    and wrap_pi(gsf_yaw - yaw) ** 2 <= self._monitor.gate_sigma ** 2 * (P[2, 2] + gsf_var):
+                self._heading_confirmed = True
+            elif gsf_var > P[2, 2]:
+                P[2, 2] = gsf_var
         self._par[core.P_MAG_USE] = 1.0 if d.mag_use else 0.0
         trusted = d.mag_use and self._mag_var < self._monitor.trusted_sigma_rad ** 2
         self._par[core.P_MAG_TILT] = 1.0 if p.mag_moves_tilt or (p.mag_trusted_moves_tilt and trusted) else 0.0
