@@ -31,15 +31,11 @@ from . import ins_core as core
 from . import mag_heading as mag
 from .gsf_yaw import GsfParams, gsf_fuse_velocity, gsf_output, gsf_reset, new_gsf_state
 from .heading_monitor import HeadingMonitor, IronLearner, wrap_pi
-from .mekf import (
-    RELEARN_GATE_OPEN_S,
-    after_init_flags,
-    estimate_flags,
-    initial_attitude,
-    uninitialised_estimate,
-    with_overrides,
-)
-from .mekf_core import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
+from .filter_output import after_init_flags, estimate_flags, uninitialised_estimate
+from .initial_attitude import initial_attitude
+from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
+from .mag_heading import RELEARN_GATE_OPEN_S
+from .params import with_overrides
 from .rotations import quat_to_dcm
 
 log = logging.getLogger(__name__)
@@ -258,19 +254,7 @@ class InsParams:
         p[core.P_CONV_YAW] = self.converged_yaw_rad
         p[core.P_GNSS_TIMEOUT] = self.gnss_timeout_s
         p[core.P_NAV_INIT_TILT] = self.nav_init_sigma_tilt_rad
-        m = core.P_MAG
-        p[m + mag.MP_NOISE] = self.mag_noise_ut
-        p[m + mag.MP_HEADING_NOISE] = self.mag_heading_noise_rad
-        p[m + mag.MP_HEADING_NOISE_REST] = self.mag_heading_noise_rest_rad
-        p[m + mag.MP_NORM_TOL] = self.mag_norm_tol
-        p[m + mag.MP_DIP_TOL] = self.mag_dip_tol_rad
-        p[m + mag.MP_MIN_UNDIST] = self.mag_min_undisturbed_s
-        p[m + mag.MP_NEW_TIME] = self.mag_new_time_s
-        p[m + mag.MP_NEW_MIN_RATE] = self.mag_new_min_rate_rad_s
-        p[m + mag.MP_REF_TAU] = self.mag_ref_tau_s
-        p[m + mag.MP_GATE] = self.mag_gate_sigma
-        p[m + mag.MP_REJECT_MAX] = self.mag_reject_max_s
-        p[m + mag.MP_UNAVAILABLE] = self.mag_unavailable_s
+        p[core.P_MAG : core.P_MAG + core.MAG_PAR_SIZE] = mag.heading_params(self).reshape(1).view(np.float64)
         return p
 
 
@@ -419,7 +403,11 @@ class Ins:
 
     def relearn_field_reference(self) -> None:
         """As Mekf.relearn_field_reference: forget the learned field magnitude/dip, keep everything else."""
-        mag.relearn_reference(self._x, core.X_MAG, RELEARN_GATE_OPEN_S)
+        mag.relearn_reference(self._mag_state(), RELEARN_GATE_OPEN_S)
+
+    def _mag_state(self):
+        """The magnetometer heading check's state in the flat state, as its record (a view)."""
+        return self._x[core.X_MAG : core.X_MAG + core.MAG_STATE_SIZE].view(mag.MAG_HEADING_STATE_DTYPE)[0]
 
     @property
     def covariance(self) -> np.ndarray:
@@ -711,7 +699,7 @@ class Ins:
         keep_ba = x[core.X_BA : core.X_BA + 3].copy() if self._reinit_pending else np.zeros(3)
         keep_sg = x[core.X_SG : core.X_SG + 3].copy() if self._reinit_pending else np.zeros(3)
         keep_mg = x[core.X_MG : core.X_MG + 6].copy() if self._reinit_pending else np.zeros(6)
-        keep_mag = x[core.X_MAG : core.X_MAG + mag.MS_SIZE].copy() if self._reinit_pending else None
+        keep_mag = self._mag_state().copy() if self._reinit_pending else None
         x[:] = 0.0
         x[core.X_Q : core.X_Q + 4] = q0
         x[core.X_BG : core.X_BG + 3] = keep_bg
@@ -737,12 +725,11 @@ class Ins:
         row[core.H_T] = t_s
         row[core.H_Q : core.H_Q + 4] = q0
         row[core.H_W : core.H_W + 3] = np.asarray(g, dtype=float) - keep_bg
+        ms = self._mag_state()
         if keep_mag is not None:
-            x[core.X_MAG + mag.MS_REF_NORM] = keep_mag[mag.MS_REF_NORM]
-            x[core.X_MAG + mag.MS_REF_DIP] = keep_mag[mag.MS_REF_DIP]
-            x[core.X_MAG + mag.MS_CAND_NORM] = keep_mag[mag.MS_REF_NORM]
-            x[core.X_MAG + mag.MS_CAND_DIP] = keep_mag[mag.MS_REF_DIP]
-        x[core.X_MAG + mag.MS_UNDIST_T] = p.mag_min_undisturbed_s  # the Wahba heading is already the best
+            ms["ref_norm_ut"] = ms["cand_norm_ut"] = keep_mag["ref_norm_ut"]
+            ms["ref_dip_rad"] = ms["cand_dip_rad"] = keep_mag["ref_dip_rad"]
+        ms["undisturbed_t_s"] = p.mag_min_undisturbed_s  # the Wahba heading is already the best
         P = self._P
         P[:] = 0.0
         for i in range(2):

@@ -46,16 +46,24 @@ from .ins_mechanisation import (
     transport_rate_ned,
     velocity_rate_ned,
 )
-from .mekf_core import (
+from .constrained_update import residual, scalar_update
+from .kernel_flags import (
+    F_ACCEL_REJECTED,
+    F_GNSS_AIDED,
+    F_GNSS_OUTAGE,
+    F_INITIALISING,
+    F_LARGE_DT,
+    F_MAG_REJECTED,
+    F_MAG_UNAVAILABLE,
     IN_ACC_OK,
     IN_GYRO_OK,
     IN_MAG_OK,
     NEEDS_INIT,
-    euler_and_tilt_sigma,
     initialising,
     input_validity,
     step_dt,
 )
+from .kernel_rotations import dcm, euler_and_tilt_sigma, normalised, quat_mul, rotate_to_ned, rotvec_quat
 
 N_ERR = 24
 E_TH, E_V, E_P, E_BG, E_BA, E_SG, E_MG = 0, 3, 6, 9, 12, 15, 18
@@ -95,8 +103,9 @@ X_NIS_P = 54       # ... position
 X_SG = 56          # 3 gyro scale-factor errors (ω_meas = (I + diag(s) + M) ω + b), fraction
 X_MG = 59          # 6 gyro misalignment M: xy, xz, yx, yz, zx, zy (MIS_ROW, MIS_COL), rad
 X_COV_CWW = 68     # 27: ∫ C_ij ω_k dt since the last covariance propagation (index 9 i + 3 j + k), rad
-X_MAG = 95         # mag_heading state block (MS_SIZE)
-X_SIZE = X_MAG + mag.MS_SIZE
+X_MAG = 95         # the magnetometer heading check's state: a mag_heading.MAG_HEADING_STATE_DTYPE record
+MAG_STATE_SIZE = mag.MAG_HEADING_STATE_DTYPE.itemsize // 8
+X_SIZE = X_MAG + MAG_STATE_SIZE
 
 # ----------------------------------------------------------------------------------- history ring buffer
 H_LEN = 1024       # rows: 1.25 s at 819.2 SPS (fixes older than the oldest row are not fused)
@@ -140,7 +149,7 @@ P_GNSS_TIMEOUT = 30     # no fused fix for this long: GNSS_OUTAGE, s
 P_NAV_INIT_TILT = 31    # 1σ tilt assumed when a fix first sets velocity/position (levelled tilt leans), rad
 P_NAV_DROP = 44         # without a fused fix for this long, velocity and position are dropped, s
 P_SPHERE = 45           # 1.0: spherical Earth (radius R0 = 6 378 137 m) instead of the WGS-84 ellipsoid's radii
-P_MAG = 32              # mag_heading parameter block (MP_SIZE): 32–43
+P_MAG = 32              # 32–43: the magnetometer check's parameters, a mag_heading.MAG_HEADING_PARAMS_DTYPE record
 P_GYRO_SCALE_WALK = 46  # gyro scale-factor random walk, 1/√s
 P_GYRO_SCALE_CLIP = 47  # |s| and |m| limit per element
 P_GYRO_MIS_WALK = 48    # gyro misalignment random walk, rad/√s
@@ -151,7 +160,8 @@ P_MAG_BIAS_TAU = 52     # its correlation time, s: each update's noise is inflat
 P_IRON = 53             # 3: learned hard iron (body frame) removed from the magnetometer before use, µT
 P_GSF = 56              # 1.0: run the Gaussian-sum GNSS yaw bank beside the filter
 P_SIZE = 57
-assert P_MAG + mag.MP_SIZE <= P_NAV_DROP < P_SIZE
+MAG_PAR_SIZE = mag.MAG_HEADING_PARAMS_DTYPE.itemsize // 8
+assert P_MAG + MAG_PAR_SIZE <= P_NAV_DROP < P_SIZE
 
 # ----------------------------------------------------------------------------------- outputs
 O_Q = 0        # 4 body → magnetic NED (the AttitudeEstimate convention)
@@ -166,15 +176,6 @@ O_SIG_P = 25   # 3
 O_BA = 28      # 3
 O_SIZE = 31
 
-# ----------------------------------------------------------------------------------- flags (= EstimateFlags)
-F_INITIALISING = 1
-F_MAG_REJECTED = 2
-F_ACCEL_REJECTED = 4
-F_MAG_UNAVAILABLE = 16
-F_LARGE_DT = 32
-F_GNSS_AIDED = 1 << 7
-F_GNSS_OUTAGE = 1 << 8
-
 # ----------------------------------------------------------------------------------- GNSS fusion results (bits)
 R_VEL_FUSED = 1
 R_POS_FUSED = 2
@@ -186,7 +187,7 @@ R_NAV_INIT = 64        # first fix: velocity and position set from it
 R_TOO_OLD = 128        # older than the history (or than P_MAX_DELAY): not fused
 R_OUTAGE_RESET = 256   # first fix after an outage: velocity and position set from it, attitude untouched
 
-# error-state component masks (bit i = error-state component i) for `_scalar_update`
+# error-state component masks (bit i = error-state component i) for `scalar_update`
 M_TILT = 0b11
 M_HEADING = 0b100
 M_GYRO_BIAS = 0b111 << E_BG
@@ -208,78 +209,11 @@ def _radii(par, lat):
 
 
 @njit(cache=True)
-def _dcm(q0, q1, q2, q3):
-    """C_b^n of a unit quaternion, as 9 scalars row-major."""
-    return (1.0 - 2.0 * (q2 * q2 + q3 * q3), 2.0 * (q1 * q2 - q0 * q3), 2.0 * (q1 * q3 + q0 * q2),
-            2.0 * (q1 * q2 + q0 * q3), 1.0 - 2.0 * (q1 * q1 + q3 * q3), 2.0 * (q2 * q3 - q0 * q1),
-            2.0 * (q1 * q3 - q0 * q2), 2.0 * (q2 * q3 + q0 * q1), 1.0 - 2.0 * (q1 * q1 + q2 * q2))
-
-
-@njit(cache=True)
-def _quat_mul(a0, a1, a2, a3, b0, b1, b2, b3):
-    return (a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3,
-            a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
-            a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1,
-            a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0)
-
-
-@njit(cache=True)
-def _rotvec_quat(rx, ry, rz):
-    """exp of a rotation vector (rad) as a unit quaternion."""
-    ang = math.sqrt(rx * rx + ry * ry + rz * rz)
-    if ang > 1e-9:
-        s = math.sin(0.5 * ang) / ang
-        return math.cos(0.5 * ang), rx * s, ry * s, rz * s
-    return 1.0, 0.5 * rx, 0.5 * ry, 0.5 * rz
-
-
-@njit(cache=True)
-def _normalised(q0, q1, q2, q3):
-    n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
-    return q0 / n, q1 / n, q2 / n, q3 / n
-
-
-@njit(cache=True)
 def _rotate_attitude(x, i0, dth0, dth1, dth2):
     """q ← exp(δθ) ⊗ q (NED-frame attitude correction) for the quaternion stored at x[i0:i0+4]."""
-    h0, h1, h2, h3 = _rotvec_quat(dth0, dth1, dth2)
-    n0, n1, n2, n3 = _quat_mul(h0, h1, h2, h3, x[i0], x[i0 + 1], x[i0 + 2], x[i0 + 3])
-    x[i0], x[i0 + 1], x[i0 + 2], x[i0 + 3] = _normalised(n0, n1, n2, n3)
-
-
-@njit(cache=True)
-def _scalar_update(P, h, nu, r, zero_mask, dx):
-    """Kalman update with one scalar measurement z = h·δx + noise (variance r) and innovation `nu` (already
-    reduced by h·dx of the earlier updates of the same epoch). Gains of the components whose bit is set in
-    `zero_mask` are forced to zero (this measurement cannot move them) and the covariance takes the Joseph
-    form, valid for such a constrained gain: P ← P − K uᵀ − u Kᵀ + s K Kᵀ, u = P hᵀ, s = h u + r.
-    Accumulates K·nu into dx."""
-    u = np.zeros(N_ERR)
-    for j in range(N_ERR):
-        hj = h[j]
-        if hj != 0.0:
-            for i in range(N_ERR):
-                u[i] += P[i, j] * hj
-    s = r
-    for j in range(N_ERR):
-        s += h[j] * u[j]
-    k = np.zeros(N_ERR)
-    for i in range(N_ERR):
-        if not (zero_mask >> i) & 1:
-            k[i] = u[i] / s
-    for i in range(N_ERR):
-        for j in range(N_ERR):
-            P[i, j] += -k[i] * u[j] - u[i] * k[j] + s * k[i] * k[j]
-    for i in range(N_ERR):
-        dx[i] += k[i] * nu
-
-
-@njit(cache=True)
-def _residual(h, nu, dx):
-    """Innovation left after the corrections dx already found in this epoch: ν − h·dx."""
-    for j in range(N_ERR):
-        nu -= h[j] * dx[j]
-    return nu
+    h0, h1, h2, h3 = rotvec_quat(dth0, dth1, dth2)
+    n0, n1, n2, n3 = quat_mul(h0, h1, h2, h3, x[i0], x[i0 + 1], x[i0 + 2], x[i0 + 3])
+    x[i0], x[i0 + 1], x[i0 + 2], x[i0 + 3] = normalised(n0, n1, n2, n3)
 
 
 @njit(cache=True)
@@ -465,10 +399,10 @@ def _level(x, P, par, dt_epoch):
     dx = np.zeros(N_ERR)
     h = np.zeros(N_ERR)
     h[1] = 1.0
-    _scalar_update(P, h, nu_n, r, mask, dx)
+    scalar_update(P, h, nu_n, r, mask, dx)
     h[1] = 0.0
     h[0] = -1.0
-    _scalar_update(P, h, _residual(h, nu_e, dx), r, mask, dx)
+    scalar_update(P, h, residual(h, nu_e, dx), r, mask, dx)
     _apply_correction(x, par, dx)
     x[X_ACC_REJ_T] = 0.0
     return 0
@@ -477,6 +411,8 @@ def _level(x, P, par, dt_epoch):
 @njit(cache=True)
 def _mag_update(x, P, par, dt_epoch, rate):
     """Magnetometer heading update (the shared check of mag_heading.py): returns flag bits."""
+    ms = x[X_MAG : X_MAG + MAG_STATE_SIZE].view(mag.MAG_HEADING_STATE_DTYPE)[0]
+    mp = par[P_MAG : P_MAG + MAG_PAR_SIZE].view(mag.MAG_HEADING_PARAMS_DTYPE)[0]
     flags = 0
     used = False
     mx = x[X_MAG_LAST]
@@ -486,7 +422,7 @@ def _mag_update(x, P, par, dt_epoch, rate):
         mx -= par[P_IRON]
         my -= par[P_IRON + 1]
         mz -= par[P_IRON + 2]
-        mn, me, md = mag.rotate_to_ned(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], mx, my, mz)
+        mn, me, md = rotate_to_ned(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], mx, my, mz)
         mnorm = math.sqrt(mx * mx + my * my + mz * mz)
         # the heading of the horizontal field depends on the tilt too: with m = H u + Z e_D (u the magnetic
         # north), m_est = m − δθ × m gives α = −δθ_D + (Z/H) u·δθ, so a tilt error along magnetic north reads
@@ -507,7 +443,7 @@ def _mag_update(x, P, par, dt_epoch, rate):
         for i in range(3):
             for j in range(3):
                 hph += h[i] * P[i, j] * h[j]
-        res, alpha, r = mag.heading_measurement(x, X_MAG, par, P_MAG, dt_epoch, rate, False, False, mn, me, md,
+        res, alpha, r = mag.heading_measurement(ms, mp, dt_epoch, rate, False, False, mn, me, md,
                                                 mnorm, par[P_DECLINATION], hph + par[P_MAG_BIAS_VAR])
         if res == mag.MAG_USE:
             # the calibration's error is not white: a heading bias of variance P_MAG_BIAS_VAR that lasts about
@@ -515,14 +451,14 @@ def _mag_update(x, P, par, dt_epoch, rate):
             # τ/Δt updates of one correlation time it adds at most its own variance's worth of information.
             r += par[P_MAG_BIAS_VAR] * max(1.0, par[P_MAG_BIAS_TAU] / max(dt_epoch, 1e-6))
             dx = np.zeros(N_ERR)
-            _scalar_update(P, h, alpha, r, 0 if moves_tilt else M_TILT, dx)
+            scalar_update(P, h, alpha, r, 0 if moves_tilt else M_TILT, dx)
             _apply_correction(x, par, dx)
             used = True
         elif res == mag.MAG_REJECTED:
             flags |= F_MAG_REJECTED
     elif par[P_MAG_ENABLED] > 0.0 and math.isfinite(mx):
         flags |= F_MAG_REJECTED     # the heading monitor rejects it (disagrees with GNSS or its own innovations)
-    if mag.heading_bookkeeping(x, X_MAG, par, P_MAG, dt_epoch, used):
+    if mag.heading_bookkeeping(ms, mp, dt_epoch, used):
         flags |= F_MAG_UNAVAILABLE
     return flags
 
@@ -580,7 +516,7 @@ def ins_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_fl
     q1 = x[X_Q + 1]
     q2 = x[X_Q + 2]
     q3 = x[X_Q + 3]
-    c00, c01, c02, c10, c11, c12, c20, c21, c22 = _dcm(q0, q1, q2, q3)
+    c00, c01, c02, c10, c11, c12, c20, c21, c22 = dcm(q0, q1, q2, q3)
     lat = x[X_LAT]
     h_m = x[X_H]
     vn = x[X_V]
@@ -620,9 +556,9 @@ def ins_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_fl
         fe = c10 * mfx + c11 * mfy + c12 * mfz
         fd = c20 * mfx + c21 * mfy + c22 * mfz
         # attitude: C_b^n ← C_b^n exp(ω_nb dt)   (eq. 20)
-        e0, e1, e2, e3 = _rotvec_quat(thx, thy, thz)
-        n0, n1, n2, n3 = _quat_mul(q0, q1, q2, q3, e0, e1, e2, e3)
-        q0, q1, q2, q3 = _normalised(n0, n1, n2, n3)
+        e0, e1, e2, e3 = rotvec_quat(thx, thy, thz)
+        n0, n1, n2, n3 = quat_mul(q0, q1, q2, q3, e0, e1, e2, e3)
+        q0, q1, q2, q3 = normalised(n0, n1, n2, n3)
         x[X_Q] = q0
         x[X_Q + 1] = q1
         x[X_Q + 2] = q2
@@ -713,7 +649,7 @@ def fill_outputs(x, P, par, wx, wy, wz, out):
     q3 = x[X_Q + 3]
     # magnetic-north frame for the estimate: q_mag = q_z(−declination) ⊗ q_true
     hd = -0.5 * par[P_DECLINATION]
-    m0, m1, m2, m3 = _quat_mul(math.cos(hd), 0.0, 0.0, math.sin(hd), q0, q1, q2, q3)
+    m0, m1, m2, m3 = quat_mul(math.cos(hd), 0.0, 0.0, math.sin(hd), q0, q1, q2, q3)
     if m0 < 0.0:
         m0, m1, m2, m3 = -m0, -m1, -m2, -m3
     out[O_Q] = m0
@@ -764,7 +700,7 @@ def _history_at(x, hist, t):
 @njit(cache=True)
 def _lever_terms(q0, q1, q2, q3, wx, wy, wz, lx, ly, lz):
     """The antenna offset C r and its velocity C (ω × r) in NED, and C as 9 scalars."""
-    c = _dcm(q0, q1, q2, q3)
+    c = dcm(q0, q1, q2, q3)
     on = c[0] * lx + c[1] * ly + c[2] * lz
     oe = c[3] * lx + c[4] * ly + c[5] * lz
     od = c[6] * lx + c[7] * ly + c[8] * lz
@@ -866,7 +802,7 @@ def _gated_update(x, P, par, H, nu, var, m, dx, t_fix, i_rej_t0, i_nis, may_rese
     x[i_nis] = nis
     if nis <= par[P_GATE_CHI2 + m - 1]:
         for i in range(m):
-            _scalar_update(P, H[i], _residual(H[i], nu[i], dx), var[i], 0, dx)
+            scalar_update(P, H[i], residual(H[i], nu[i], dx), var[i], 0, dx)
         x[i_rej_t0] = math.nan
         return r_fused
     if math.isnan(x[i_rej_t0]):
@@ -900,7 +836,7 @@ def fuse_gnss(x, P, hist, par, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, ve_fix,
     a1 = hist[j, H_Q + 1] * (1.0 - w) + hist[k, H_Q + 1] * w
     a2 = hist[j, H_Q + 2] * (1.0 - w) + hist[k, H_Q + 2] * w
     a3 = hist[j, H_Q + 3] * (1.0 - w) + hist[k, H_Q + 3] * w
-    a0, a1, a2, a3 = _normalised(a0, a1, a2, a3)
+    a0, a1, a2, a3 = normalised(a0, a1, a2, a3)
     pv = np.zeros(3)
     pw = np.zeros(3)
     for i in range(3):
