@@ -476,25 +476,12 @@ def _mag_update(x, P, par, dt_epoch, rate):
 
 
 @njit(cache=True)
-def ins_step(state, P, hist, params, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, out, gsf, gsf_par):
-    """One IMU sample: mechanise, accumulate the covariance increments, every cov_period_s propagate the
-    covariance and run the levelling (when unaided) and magnetometer updates; feed the magnetometer-free GNSS
-    yaw bank (`gsf`, `gsf_par`: 1-element record arrays of gsf_yaw.py's state and parameters — arrays unbox
-    far cheaper per call than records; its own tilt and yaw, never this filter's heading) the bias-corrected sample;
-    fill `out`. Returns
-    EstimateFlags bits (| NEEDS_INIT when the caller must initialise from this sample first).
-    state, params: 1-element INS_STATE_DTYPE and INS_PARAMS_DTYPE arrays; hist: the INS_HISTORY_DTYPE ring."""
-    x = state[0]
-    par = params[0]
-    valid = input_validity(sample_flags, gx, gy, gz, ax, ay, az, mx, my, mz)
-    dt, flags = step_dt(t_s - x.t_last_s, par.large_dt_s, par.reinit_dt_s)
-    if flags & NEEDS_INIT:
-        return flags
-    if dt > 0.0:
-        x.t_last_s = t_s
-    x.t_run_s += dt
-    # the samples are instantaneous values at their times: over the step use the mean of the previous and
-    # this one (trapezoid; the last sample alone lags by half a step: ½ Δt · Δω of heading per change of rate)
+def _take_sample(x, valid, gx, gy, gz, ax, ay, az, mx, my, mz):
+    """Keep this sample's valid sensors as the last ones; return the bias- (and scale-, misalignment-)
+    corrected rate of this sample (wx, wy, wz), and the rate (mwx, mwy, mwz) and specific force (fx, fy, fz)
+    over the step. The samples are instantaneous values at their times: over the step use the mean of the
+    previous and this one (trapezoid; the last sample alone lags by half a step: ½ Δt · Δω of heading per
+    change of rate)."""
     pgx = x.gyro_last_rad_s[0]
     pgy = x.gyro_last_rad_s[1]
     pgz = x.gyro_last_rad_s[2]
@@ -525,8 +512,26 @@ def ins_step(state, P, hist, params, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sa
     fx = 0.5 * (pax + x.acc_last_m_s2[0]) - x.accel_bias_m_s2[0]
     fy = 0.5 * (pay + x.acc_last_m_s2[1]) - x.accel_bias_m_s2[1]
     fz = 0.5 * (paz + x.acc_last_m_s2[2]) - x.accel_bias_m_s2[2]
-    if par.gnss_yaw > 0.0:
-        gsf_accumulate_imu(gsf[0], gsf_par[0], dt, np.array((mwx, mwy, mwz)), np.array((fx, fy, fz)))
+    return wx, wy, wz, mwx, mwy, mwz, fx, fy, fz
+
+
+@njit(cache=True)
+def _navigation_known(x, par):
+    """Velocity and position set by a fix and not dropped: so long without a fix (nav_drop_s) that they mean
+    nothing, they are no longer integrated (the next fix sets them again, as the first one did)."""
+    if x.nav_ok > 0.0 and x.t_last_s - x.gnss_fused_t_s > par.nav_drop_s:
+        x.nav_ok = 0.0
+        for i in range(3):
+            x.vel_ned_m_s[i] = 0.0
+    return x.nav_ok > 0.0
+
+
+@njit(cache=True)
+def _mechanise(x, par, dt, nav_ok, mwx, mwy, mwz, fx, fy, fz):
+    """NED strapdown over Δt (P. D. Groves, Principles of GNSS, Inertial, and Multisensor Integrated
+    Navigation Systems, 2nd ed., §5.4): attitude, then velocity and position (held before the first fix);
+    accumulates the covariance increments and the NED-frame low-pass of the specific force (levelling).
+    Returns the new attitude and velocity."""
     q0 = x.q[0]
     q1 = x.q[1]
     q2 = x.q[2]
@@ -538,112 +543,143 @@ def ins_step(state, P, hist, params, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sa
     ve = x.vel_ned_m_s[1]
     vd = x.vel_ned_m_s[2]
     r_n, r_e = _radii(par, lat)
-    nav_ok = x.nav_ok > 0.0
-    if nav_ok and x.t_last_s - x.gnss_fused_t_s > par.nav_drop_s:
-        # so long without a fix that velocity and position mean nothing: stop integrating them (the next fix
-        # sets them again, as the first one did)
-        nav_ok = False
-        x.nav_ok = 0.0
-        for i in range(3):
-            x.vel_ned_m_s[i] = 0.0
-        vn = ve = vd = 0.0
     earth = par.earth_rotation > 0.0 and nav_ok   # the Earth rate needs the latitude
-    if dt > 0.0:
-        # body rate relative to NED: ω_nb = ω_ib − C_n^b (ω_ie + ω_en)   (as in Groves 2nd ed. eq. 5.77)
-        rx, ry, rz = mwx, mwy, mwz
-        if earth:
-            en, ee, ed = earth_rate_ned(lat)
-            tn, te, td = transport_rate_ned(lat, h_m, vn, ve, r_n, r_e)
-            sn = en + tn
-            se = ee + te
-            sd = ed + td
-            rx -= c00 * sn + c10 * se + c20 * sd
-            ry -= c01 * sn + c11 * se + c21 * sd
-            rz -= c02 * sn + c12 * se + c22 * sd
-        thx = rx * dt
-        thy = ry * dt
-        thz = rz * dt
-        # specific force at the middle of the step: f + ½ θ × f in the body frame at the start
-        mfx = fx + 0.5 * (thy * fz - thz * fy)
-        mfy = fy + 0.5 * (thz * fx - thx * fz)
-        mfz = fz + 0.5 * (thx * fy - thy * fx)
-        fn = c00 * mfx + c01 * mfy + c02 * mfz
-        fe = c10 * mfx + c11 * mfy + c12 * mfz
-        fd = c20 * mfx + c21 * mfy + c22 * mfz
-        # attitude: C_b^n ← C_b^n exp(ω_nb dt)   (eq. 20)
-        e0, e1, e2, e3 = rotvec_quat(thx, thy, thz)
-        n0, n1, n2, n3 = quat_mul(q0, q1, q2, q3, e0, e1, e2, e3)
-        q0, q1, q2, q3 = normalised(n0, n1, n2, n3)
-        x.q[0] = q0
-        x.q[1] = q1
-        x.q[2] = q2
-        x.q[3] = q3
-        # velocity (eq. 14) and position (eq. 17, trapezoid); before the first fix they are unknown and held
-        nvn, nve, nvd = vn, ve, vd
-        if nav_ok:
-            an, ae, ad = velocity_rate_ned(fn, fe, fd, vn, ve, vd, lat, h_m, r_n, r_e, earth)
-            nvn = vn + an * dt
-            nve = ve + ae * dt
-            nvd = vd + ad * dt
-            ldot, odot, hdot = position_rates(lat, h_m, 0.5 * (vn + nvn), 0.5 * (ve + nve), 0.5 * (vd + nvd),
-                                              r_n, r_e)
-            x.vel_ned_m_s[0] = nvn
-            x.vel_ned_m_s[1] = nve
-            x.vel_ned_m_s[2] = nvd
-            x.lat_rad = lat + ldot * dt
-            x.lon_rad += odot * dt
-            x.h_m = h_m + hdot * dt
-        # covariance increments
-        x.cov_t_s += dt
-        x.cov_c_s[0] += c00 * dt
-        x.cov_c_s[1] += c01 * dt
-        x.cov_c_s[2] += c02 * dt
-        x.cov_c_s[3] += c10 * dt
-        x.cov_c_s[4] += c11 * dt
-        x.cov_c_s[5] += c12 * dt
-        x.cov_c_s[6] += c20 * dt
-        x.cov_c_s[7] += c21 * dt
-        x.cov_c_s[8] += c22 * dt
-        x.cov_dv_m_s[0] += fn * dt
-        x.cov_dv_m_s[1] += fe * dt
-        x.cov_dv_m_s[2] += fd * dt
-        _accumulate_c_omega(x, c00, c01, c02, c10, c11, c12, c20, c21, c22, mwx * dt, mwy * dt, mwz * dt)
-        # NED-frame low-pass of the specific force for the levelling (linear acceleration averages out)
-        tau = par.level_lowpass_tau_s
-        k = 1.0 - math.exp(-dt / tau) if tau > 0.0 else 1.0
-        x.acc_ned_lp_m_s2[0] += k * (fn - x.acc_ned_lp_m_s2[0])
-        x.acc_ned_lp_m_s2[1] += k * (fe - x.acc_ned_lp_m_s2[1])
-        x.acc_ned_lp_m_s2[2] += k * (fd - x.acc_ned_lp_m_s2[2])
-        # history row for fusing late fixes at their time of validity
-        i = (int(x.hist_newest) + 1) % H_LEN
-        x.hist_newest = i
-        x.hist_count = min(x.hist_count + 1.0, float(H_LEN))
-        hist[i].t_s = t_s
-        hist[i].q[0] = q0
-        hist[i].q[1] = q1
-        hist[i].q[2] = q2
-        hist[i].q[3] = q3
-        hist[i].vel_ned_m_s[0] = nvn
-        hist[i].vel_ned_m_s[1] = nve
-        hist[i].vel_ned_m_s[2] = nvd
-        hist[i].lat_rad = x.lat_rad
-        hist[i].lon_rad = x.lon_rad
-        hist[i].h_m = x.h_m
-        hist[i].rate_rad_s[0] = wx
-        hist[i].rate_rad_s[1] = wy
-        hist[i].rate_rad_s[2] = wz
+    # body rate relative to NED: ω_nb = ω_ib − C_n^b (ω_ie + ω_en)   (Groves eq. 5.77)
+    rx, ry, rz = mwx, mwy, mwz
+    if earth:
+        en, ee, ed = earth_rate_ned(lat)
+        tn, te, td = transport_rate_ned(lat, h_m, vn, ve, r_n, r_e)
+        sn = en + tn
+        se = ee + te
+        sd = ed + td
+        rx -= c00 * sn + c10 * se + c20 * sd
+        ry -= c01 * sn + c11 * se + c21 * sd
+        rz -= c02 * sn + c12 * se + c22 * sd
+    thx = rx * dt
+    thy = ry * dt
+    thz = rz * dt
+    # specific force at the middle of the step: f + ½ θ × f in the body frame at the start
+    mfx = fx + 0.5 * (thy * fz - thz * fy)
+    mfy = fy + 0.5 * (thz * fx - thx * fz)
+    mfz = fz + 0.5 * (thx * fy - thy * fx)
+    fn = c00 * mfx + c01 * mfy + c02 * mfz
+    fe = c10 * mfx + c11 * mfy + c12 * mfz
+    fd = c20 * mfx + c21 * mfy + c22 * mfz
+    # attitude: C_b^n ← C_b^n exp(ω_nb dt)   (eq. 20)
+    e0, e1, e2, e3 = rotvec_quat(thx, thy, thz)
+    n0, n1, n2, n3 = quat_mul(q0, q1, q2, q3, e0, e1, e2, e3)
+    q0, q1, q2, q3 = normalised(n0, n1, n2, n3)
+    x.q[0] = q0
+    x.q[1] = q1
+    x.q[2] = q2
+    x.q[3] = q3
+    # velocity (eq. 14) and position (eq. 17, trapezoid); before the first fix they are unknown and held
+    nvn, nve, nvd = vn, ve, vd
+    if nav_ok:
+        an, ae, ad = velocity_rate_ned(fn, fe, fd, vn, ve, vd, lat, h_m, r_n, r_e, earth)
+        nvn = vn + an * dt
+        nve = ve + ae * dt
+        nvd = vd + ad * dt
+        ldot, odot, hdot = position_rates(lat, h_m, 0.5 * (vn + nvn), 0.5 * (ve + nve), 0.5 * (vd + nvd),
+                                          r_n, r_e)
+        x.vel_ned_m_s[0] = nvn
+        x.vel_ned_m_s[1] = nve
+        x.vel_ned_m_s[2] = nvd
+        x.lat_rad = lat + ldot * dt
+        x.lon_rad += odot * dt
+        x.h_m = h_m + hdot * dt
+    # covariance increments
+    x.cov_t_s += dt
+    x.cov_c_s[0] += c00 * dt
+    x.cov_c_s[1] += c01 * dt
+    x.cov_c_s[2] += c02 * dt
+    x.cov_c_s[3] += c10 * dt
+    x.cov_c_s[4] += c11 * dt
+    x.cov_c_s[5] += c12 * dt
+    x.cov_c_s[6] += c20 * dt
+    x.cov_c_s[7] += c21 * dt
+    x.cov_c_s[8] += c22 * dt
+    x.cov_dv_m_s[0] += fn * dt
+    x.cov_dv_m_s[1] += fe * dt
+    x.cov_dv_m_s[2] += fd * dt
+    _accumulate_c_omega(x, c00, c01, c02, c10, c11, c12, c20, c21, c22, mwx * dt, mwy * dt, mwz * dt)
+    # NED-frame low-pass of the specific force for the levelling (linear acceleration averages out)
+    tau = par.level_lowpass_tau_s
+    k = 1.0 - math.exp(-dt / tau) if tau > 0.0 else 1.0
+    x.acc_ned_lp_m_s2[0] += k * (fn - x.acc_ned_lp_m_s2[0])
+    x.acc_ned_lp_m_s2[1] += k * (fe - x.acc_ned_lp_m_s2[1])
+    x.acc_ned_lp_m_s2[2] += k * (fd - x.acc_ned_lp_m_s2[2])
+    return q0, q1, q2, q3, nvn, nve, nvd
 
+
+@njit(cache=True)
+def _record_history(x, hist, t_s, q0, q1, q2, q3, vn, ve, vd, wx, wy, wz):
+    """A history row for fusing late fixes at their time of validity."""
+    i = (int(x.hist_newest) + 1) % H_LEN
+    x.hist_newest = i
+    x.hist_count = min(x.hist_count + 1.0, float(H_LEN))
+    row = hist[i]
+    row.t_s = t_s
+    row.q[0] = q0
+    row.q[1] = q1
+    row.q[2] = q2
+    row.q[3] = q3
+    row.vel_ned_m_s[0] = vn
+    row.vel_ned_m_s[1] = ve
+    row.vel_ned_m_s[2] = vd
+    row.lat_rad = x.lat_rad
+    row.lon_rad = x.lon_rad
+    row.h_m = x.h_m
+    row.rate_rad_s[0] = wx
+    row.rate_rad_s[1] = wy
+    row.rate_rad_s[2] = wz
+
+
+@njit(cache=True)
+def _covariance_epoch(x, P, par, nav_ok, rate):
+    """Every cov_period_s: propagate the covariance, then the levelling (while unaided) and the magnetometer
+    heading update. Returns flag bits."""
+    flags = 0
+    epoch = x.cov_t_s
+    propagate_covariance(x, P, par)
+    if not nav_ok:
+        # unknown velocity/position: keep their block bounded and uncorrelated until a fix sets them
+        _reset_block(P, E_V, np.full(3, NAV_UNKNOWN_VAR_V))
+        _reset_block(P, E_P, np.full(3, NAV_UNKNOWN_VAR_P))
+    if not _aided(x, par):
+        flags |= _level(x, P, par, epoch)
+    flags |= _mag_update(x, P, par, epoch, rate)
+    _symmetrise(P)
+    return flags
+
+
+@njit(cache=True)
+def ins_step(state, P, hist, params, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, out, gsf, gsf_par):
+    """One IMU sample through the stages: take the sample, mechanise (`_mechanise`) and record the history,
+    every cov_period_s the covariance epoch (`_covariance_epoch`: propagation, levelling when unaided,
+    magnetometer heading); feed the magnetometer-free GNSS yaw bank (`gsf`, `gsf_par`: 1-element record
+    arrays of gsf_yaw.py's state and parameters; its own tilt and yaw, never this filter's heading) the
+    corrected sample; fill `out`. state, params: 1-element INS_STATE_DTYPE and INS_PARAMS_DTYPE arrays; hist:
+    the INS_HISTORY_DTYPE ring. Returns EstimateFlags bits (| NEEDS_INIT when the caller must initialise from
+    this sample first)."""
+    x = state[0]
+    par = params[0]
+    valid = input_validity(sample_flags, gx, gy, gz, ax, ay, az, mx, my, mz)
+    dt, flags = step_dt(t_s - x.t_last_s, par.large_dt_s, par.reinit_dt_s)
+    if flags & NEEDS_INIT:
+        return flags
+    if dt > 0.0:
+        x.t_last_s = t_s
+    x.t_run_s += dt
+    wx, wy, wz, mwx, mwy, mwz, fx, fy, fz = _take_sample(x, valid, gx, gy, gz, ax, ay, az, mx, my, mz)
+    if par.gnss_yaw > 0.0:
+        gsf_accumulate_imu(gsf[0], gsf_par[0], dt, np.array((mwx, mwy, mwz)), np.array((fx, fy, fz)))
+    nav_ok = _navigation_known(x, par)
+    if dt > 0.0:
+        q0, q1, q2, q3, vn, ve, vd = _mechanise(x, par, dt, nav_ok, mwx, mwy, mwz, fx, fy, fz)
+        _record_history(x, hist, t_s, q0, q1, q2, q3, vn, ve, vd, wx, wy, wz)
     if x.cov_t_s >= par.cov_period_s:
-        epoch = x.cov_t_s
-        propagate_covariance(x, P, par)
-        if not nav_ok:
-            # unknown velocity/position: keep their block bounded and uncorrelated until a fix sets them
-            _reset_block(P, E_V, np.full(3, NAV_UNKNOWN_VAR_V))
-            _reset_block(P, E_P, np.full(3, NAV_UNKNOWN_VAR_P))
-        if not _aided(x, par):
-            flags |= _level(x, P, par, epoch)
-        flags |= _mag_update(x, P, par, epoch, math.sqrt(wx * wx + wy * wy + wz * wz))
-        _symmetrise(P)
+        flags |= _covariance_epoch(x, P, par, nav_ok, math.sqrt(wx * wx + wy * wy + wz * wz))
     fill_outputs(x, P, par, wx, wy, wz, out)
     if x.was_aided > 0.0:
         if x.t_last_s - x.gnss_fused_t_s <= par.gnss_timeout_s:
