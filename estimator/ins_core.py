@@ -864,100 +864,58 @@ def _gated_update(gate, P, par, H, nu, var, m, dx, t_fix, may_reset, r_fused, r_
 
 
 @njit(cache=True)
-def fuse_gnss(state, P, hist, params, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, ve_fix, vd_fix, sig_h, sig_v, sig_s,
-              use_pos, use_alt, use_vel, use_vd):
-    """Fuse one GNSS fix (angles in rad, σ in m and m/s) at its time of validity t_fix. Returns R_* bits.
-
-    The innovation is formed against the nominal state interpolated from the history at t_fix (latency) and
-    the antenna lever arm: p_ant = p + C r, v_ant = v + C (ω × r). The correction is applied to the current
-    state with the current covariance (the error state changes little over the ≤ 1 s of latency). Velocity
-    and position are gated separately by the χ² of their normalised innovation; a run of rejections lasting
-    reject_reset_s resets that quantity to the fix (a real change, e.g. a receiver that switched to another
-    solution) without touching the attitude."""
-    x = state[0]
-    par = params[0]
-    res = 0
-    if t_fix < x.t_last_s - par.max_delay_s:
-        return R_TOO_OLD
-    j, k, w = _history_at(x, hist, t_fix)
-    if j < 0:
-        return R_TOO_OLD
-    propagate_covariance(x, P, par)
-    x.last_fix_t_s = t_fix
-    # the state at the time of validity
-    a0 = hist[j].q[0] * (1.0 - w) + hist[k].q[0] * w
-    a1 = hist[j].q[1] * (1.0 - w) + hist[k].q[1] * w
-    a2 = hist[j].q[2] * (1.0 - w) + hist[k].q[2] * w
-    a3 = hist[j].q[3] * (1.0 - w) + hist[k].q[3] * w
-    a0, a1, a2, a3 = normalised(a0, a1, a2, a3)
-    pv = np.zeros(3)
-    pw = np.zeros(3)
+def _reset_from_fix(x, P, hist, par, t_fix, first, nu_v, nu_p, var_v, var_p, use_alt, use_vd, r_n, r_e, ph, plat):
+    """The first fix, or the first after an outage longer than outage_reset_s: velocity and position set from
+    it. Returns R_NAV_INIT or R_OUTAGE_RESET."""
+    # velocity and position from the fix (antenna → IMU), attitude untouched; the shift is also applied
+    # to the history so that the next fix compares with the reset trajectory. After an outage the
+    # dead-reckoned velocity is metres per second off: fused, that error would be read as tilt all at
+    # once (a step of tenths of a degree); reset, the tilt is corrected by the fixes that follow.
+    dx = np.zeros(N_ERR)
     for i in range(3):
-        pv[i] = hist[j].vel_ned_m_s[i] * (1.0 - w) + hist[k].vel_ned_m_s[i] * w
-        pw[i] = hist[j].rate_rad_s[i] * (1.0 - w) + hist[k].rate_rad_s[i] * w
-    plat = hist[j].lat_rad * (1.0 - w) + hist[k].lat_rad * w
-    plon = hist[j].lon_rad * (1.0 - w) + hist[k].lon_rad * w
-    ph = hist[j].h_m * (1.0 - w) + hist[k].h_m * w
-    on, oe, od, un, ue, ud, c = _lever_terms(a0, a1, a2, a3, pw[0], pw[1], pw[2],
-                                             par.lever_arm_m[0], par.lever_arm_m[1], par.lever_arm_m[2])
-    r_n, r_e = _radii(par, plat)
-    # innovations (fix − prediction), NED
-    nu_p = np.zeros(3)
-    nu_p[0] = (lat_fix - plat) * (r_n + ph) - on
-    nu_p[1] = (lon_fix - plon) * (r_e + ph) * math.cos(plat) - oe
-    nu_p[2] = (-(alt_fix - ph) - od) if use_alt else 0.0
-    nu_v = np.zeros(3)
-    nu_v[0] = vn_fix - pv[0] - un
-    nu_v[1] = ve_fix - pv[1] - ue
-    nu_v[2] = (vd_fix - pv[2] - ud) if use_vd else 0.0
-    var_p = np.array([sig_h * sig_h, sig_h * sig_h, sig_v * sig_v])
-    var_v = np.array([sig_s * sig_s, sig_s * sig_s, sig_s * sig_s])
-    first = x.nav_ok <= 0.0
-    outage = (not first) and t_fix - x.gnss_fused_t_s > par.outage_reset_s
-    if first or outage:
-        if not (use_pos and use_vel):
-            return res
-        # velocity and position from the fix (antenna → IMU), attitude untouched; the shift is also applied
-        # to the history so that the next fix compares with the reset trajectory. After an outage the
-        # dead-reckoned velocity is metres per second off: fused, that error would be read as tilt all at
-        # once (a step of tenths of a degree); reset, the tilt is corrected by the fixes that follow.
-        dx = np.zeros(N_ERR)
-        for i in range(3):
-            dx[E_V + i] = nu_v[i]
-            dx[E_P + i] = nu_p[i]
-        if not use_vd:
-            dx[E_V + 2] = -x.vel_ned_m_s[2]   # no vertical velocity: assume level motion
-        if not use_alt:
-            dx[E_P + 2] = 0.0           # 2D fix: keep the height
-        for i in range(3):
-            x.vel_ned_m_s[i] += dx[E_V + i]
-        dlat = dx[E_P] / (r_n + ph)
-        dlon = dx[E_P + 1] / ((r_e + ph) * math.cos(plat))
-        x.lat_rad += dlat
-        x.lon_rad += dlon
-        x.h_m -= dx[E_P + 2]
-        _reset_block(P, E_V, var_v if use_vd else np.array([var_v[0], var_v[1], 1.0]))
-        _reset_block(P, E_P, var_p if use_alt else np.array([var_p[0], var_p[1], NAV_UNKNOWN_VAR_P]))
-        # the tilt so far came from levelling, which leans by the unknown acceleration (a turn: a/g); its
-        # small variance would make the GNSS read that lean as accelerometer bias: widen it
-        st2 = par.nav_init_sigma_tilt_rad ** 2 if first or t_fix - x.gnss_fused_t_s > par.dead_reckon_s else 0.0
-        for i in range(2):
-            if P[i, i] < st2:
-                for jj in range(N_ERR):
-                    P[i, jj] = 0.0
-                    P[jj, i] = 0.0
-                P[i, i] = st2
-        dx[0] = 0.0
-        dx[1] = 0.0
-        dx[2] = 0.0
-        _correct_history(hist, x, t_fix - 1e-9, dx, dlat, dlon, -dx[E_P + 2])
-        x.nav_ok = 1.0
-        x.was_aided = 1.0
-        x.gnss_fused_t_s = t_fix
-        x.vel_gate.rejected_since_s = math.nan
-        x.pos_gate.rejected_since_s = math.nan
-        return R_NAV_INIT if first else R_OUTAGE_RESET
+        dx[E_V + i] = nu_v[i]
+        dx[E_P + i] = nu_p[i]
+    if not use_vd:
+        dx[E_V + 2] = -x.vel_ned_m_s[2]   # no vertical velocity: assume level motion
+    if not use_alt:
+        dx[E_P + 2] = 0.0           # 2D fix: keep the height
+    for i in range(3):
+        x.vel_ned_m_s[i] += dx[E_V + i]
+    dlat = dx[E_P] / (r_n + ph)
+    dlon = dx[E_P + 1] / ((r_e + ph) * math.cos(plat))
+    x.lat_rad += dlat
+    x.lon_rad += dlon
+    x.h_m -= dx[E_P + 2]
+    _reset_block(P, E_V, var_v if use_vd else np.array([var_v[0], var_v[1], 1.0]))
+    _reset_block(P, E_P, var_p if use_alt else np.array([var_p[0], var_p[1], NAV_UNKNOWN_VAR_P]))
+    # the tilt so far came from levelling, which leans by the unknown acceleration (a turn: a/g); its
+    # small variance would make the GNSS read that lean as accelerometer bias: widen it
+    st2 = par.nav_init_sigma_tilt_rad ** 2 if first or t_fix - x.gnss_fused_t_s > par.dead_reckon_s else 0.0
+    for i in range(2):
+        if P[i, i] < st2:
+            for jj in range(N_ERR):
+                P[i, jj] = 0.0
+                P[jj, i] = 0.0
+            P[i, i] = st2
+    dx[0] = 0.0
+    dx[1] = 0.0
+    dx[2] = 0.0
+    _correct_history(hist, x, t_fix - 1e-9, dx, dlat, dlon, -dx[E_P + 2])
+    x.nav_ok = 1.0
+    x.was_aided = 1.0
+    x.gnss_fused_t_s = t_fix
+    x.vel_gate.rejected_since_s = math.nan
+    x.pos_gate.rejected_since_s = math.nan
+    return R_NAV_INIT if first else R_OUTAGE_RESET
 
+
+@njit(cache=True)
+def _fuse_fix(x, P, hist, par, t_fix, nu_v, nu_p, var_v, var_p, c, on, oe, od, un, ue, ud, use_pos, use_alt,
+              use_vel, use_vd, r_n, r_e, ph, plat):
+    """The χ²-gated sequential updates of the fix's velocity and position (innovations nu_v, nu_p against the
+    state at its time of validity; lever-arm terms C, C r, C (ω × r)), folded into the state and the history;
+    a run of rejections lasting reject_reset_s resets that quantity to the fix. Returns R_* bits."""
+    res = 0
     lx = par.lever_arm_m[0]
     ly = par.lever_arm_m[1]
     lz = par.lever_arm_m[2]
@@ -1017,6 +975,66 @@ def fuse_gnss(state, P, hist, params, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, 
     if res & (R_VEL_FUSED | R_POS_FUSED | R_VEL_RESET | R_POS_RESET):
         x.gnss_fused_t_s = t_fix
     return res
+
+
+@njit(cache=True)
+def fuse_gnss(state, P, hist, params, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, ve_fix, vd_fix, sig_h, sig_v, sig_s,
+              use_pos, use_alt, use_vel, use_vd):
+    """Fuse one GNSS fix (angles in rad, σ in m and m/s) at its time of validity t_fix. Returns R_* bits.
+
+    The innovation is formed against the nominal state interpolated from the history at t_fix (latency) and
+    the antenna lever arm: p_ant = p + C r, v_ant = v + C (ω × r). The correction is applied to the current
+    state with the current covariance (the error state changes little over the ≤ 1 s of latency). Velocity
+    and position are gated separately by the χ² of their normalised innovation; a run of rejections lasting
+    reject_reset_s resets that quantity to the fix (a real change, e.g. a receiver that switched to another
+    solution) without touching the attitude."""
+    x = state[0]
+    par = params[0]
+    res = 0
+    if t_fix < x.t_last_s - par.max_delay_s:
+        return R_TOO_OLD
+    j, k, w = _history_at(x, hist, t_fix)
+    if j < 0:
+        return R_TOO_OLD
+    propagate_covariance(x, P, par)
+    x.last_fix_t_s = t_fix
+    # the state at the time of validity
+    a0 = hist[j].q[0] * (1.0 - w) + hist[k].q[0] * w
+    a1 = hist[j].q[1] * (1.0 - w) + hist[k].q[1] * w
+    a2 = hist[j].q[2] * (1.0 - w) + hist[k].q[2] * w
+    a3 = hist[j].q[3] * (1.0 - w) + hist[k].q[3] * w
+    a0, a1, a2, a3 = normalised(a0, a1, a2, a3)
+    pv = np.zeros(3)
+    pw = np.zeros(3)
+    for i in range(3):
+        pv[i] = hist[j].vel_ned_m_s[i] * (1.0 - w) + hist[k].vel_ned_m_s[i] * w
+        pw[i] = hist[j].rate_rad_s[i] * (1.0 - w) + hist[k].rate_rad_s[i] * w
+    plat = hist[j].lat_rad * (1.0 - w) + hist[k].lat_rad * w
+    plon = hist[j].lon_rad * (1.0 - w) + hist[k].lon_rad * w
+    ph = hist[j].h_m * (1.0 - w) + hist[k].h_m * w
+    on, oe, od, un, ue, ud, c = _lever_terms(a0, a1, a2, a3, pw[0], pw[1], pw[2],
+                                             par.lever_arm_m[0], par.lever_arm_m[1], par.lever_arm_m[2])
+    r_n, r_e = _radii(par, plat)
+    # innovations (fix − prediction), NED
+    nu_p = np.zeros(3)
+    nu_p[0] = (lat_fix - plat) * (r_n + ph) - on
+    nu_p[1] = (lon_fix - plon) * (r_e + ph) * math.cos(plat) - oe
+    nu_p[2] = (-(alt_fix - ph) - od) if use_alt else 0.0
+    nu_v = np.zeros(3)
+    nu_v[0] = vn_fix - pv[0] - un
+    nu_v[1] = ve_fix - pv[1] - ue
+    nu_v[2] = (vd_fix - pv[2] - ud) if use_vd else 0.0
+    var_p = np.array([sig_h * sig_h, sig_h * sig_h, sig_v * sig_v])
+    var_v = np.array([sig_s * sig_s, sig_s * sig_s, sig_s * sig_s])
+    first = x.nav_ok <= 0.0
+    outage = (not first) and t_fix - x.gnss_fused_t_s > par.outage_reset_s
+    if first or outage:
+        if not (use_pos and use_vel):
+            return res
+        return _reset_from_fix(x, P, hist, par, t_fix, first, nu_v, nu_p, var_v, var_p, use_alt, use_vd, r_n, r_e,
+                               ph, plat)
+    return _fuse_fix(x, P, hist, par, t_fix, nu_v, nu_p, var_v, var_p, c, on, oe, od, un, ue, ud, use_pos, use_alt,
+                     use_vel, use_vd, r_n, r_e, ph, plat)
 
 
 def fast_step(example_args):
