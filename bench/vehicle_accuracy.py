@@ -188,14 +188,20 @@ def honesty_figures(run: VehicleRun, out: dict, from_s: float, to_s: float = np.
                     sigma_from_s: float = SETTLE_S) -> dict:
     """Heading RMS and tilt RMS over [from_s, to_s), the median published yaw σ and the share of samples whose
     |heading error| exceeds 3σ (from `sigma_from_s` on), and the largest change of the published heading error
-    within 0.1 s (from SETTLE_S on), degrees. Truth from the simulator (scipy rotations)."""
+    within 0.1 s (from SETTLE_S on, once the estimator has published a heading: its first estimate not flagged
+    INITIALISING — before it nothing was published a consumer could see step), degrees. Truth from the
+    simulator (scipy rotations)."""
     tilt, hdg = tilt_heading_errors_deg(out["q"], run.truth_q_wxyz, run.declination_rad)
     t = run.t_s
     win = (t >= from_s) & (t < to_s)
     honest = t >= sigma_from_s
     sig_deg = np.degrees(out["sigma_yaw_rad"])
     beyond = np.abs(hdg[honest]) > 3.0 * sig_deg[honest]
-    settled = t >= SETTLE_S
+    from ahrsd.core.estimate import EstimateFlags
+
+    published = (out["flags"] & int(EstimateFlags.INITIALISING)) == 0
+    first = t[np.argmax(published)] if np.any(published) else np.inf
+    settled = t >= max(SETTLE_S, first)
     lag = max(1, int(round(0.1 / (t[1] - t[0]))))
     h = np.unwrap(np.radians(hdg[settled]))
     step = float(np.degrees(np.max(np.abs(h[lag:] - h[:-lag])))) if h.size > lag else 0.0

@@ -326,6 +326,11 @@ def _run(args) -> int:
         except CalibrationFileError as exc:
             raise ReplayError(str(exc)) from None
 
+    if calibration is not None and estimator_name == "ins" and "mag_calibration_sigma_rad" not in params:
+        from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad
+
+        # how far ins may trust this calibration's magnetometer: as the daemon does (NaN: unknown)
+        params = {**params, "mag_calibration_sigma_rad": calibration_heading_sigma_rad(calibration)}
     try:
         estimator = make_estimator(estimator_name, declination_rad=declination, **params)
     except ModuleNotFoundError as exc:

@@ -20,7 +20,7 @@ class EstimateFlags(enum.IntFlag):
     GNSS_AIDED = 1 << 7       # ins: GNSS velocity/position fused recently (horizon and heading aided)
     GNSS_OUTAGE = 1 << 8      # ins: GNSS was fusing and stopped: dead-reckoning, then unaided behaviour
     GNSS_REJECTED = 1 << 9    # ins: a GNSS measurement was gated out on this step (glitch)
-    YAW_RESET = 1 << 10       # ins: the heading was reset on this step (to the GNSS yaw): announce it, bump reset_counter
+    YAW_RESET = 1 << 10       # ins: its filter yaw was reset on this step (to the GNSS yaw); the published yaw slews
 
 
 class HeadingState(enum.IntEnum):

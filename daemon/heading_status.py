@@ -43,8 +43,9 @@ class HeadingStatus:
     good_sigma_rad: largest yaw 1σ of a GNSS-held heading that is still "good".
     calibration_sigma_rad: the calibration's predicted heading error, 1σ (NaN: none); `set_calibration_sigma`.
 
-    `on_estimate(est, now)` at the housekeeping rate; `take_yaw_resets(count)` by the VISION_POSITION_ESTIMATE
-    builder with the estimator's `yaw_resets` counter; `status_text()`, `unhealthy_bits()`, `heading_good`,
+    `on_estimate(est, now, yaw_resets)` at the housekeeping rate (the estimator's `yaw_resets` counter: each
+    new reset is announced; the published yaw does not step, see estimator/published_heading.py, so
+    VISION_POSITION_ESTIMATE.reset_counter is not touched); `status_text()`, `unhealthy_bits()`, `heading_good`,
     `rejection_cause(now)` for the status line, SYS_STATUS, MAV_STATE and the GNSS gate warning.
     """
 
@@ -61,7 +62,6 @@ class HeadingStatus:
         self.announced: HeadingState | None = None
         self.announcements = 0
         self._candidate: tuple[HeadingState, float] | None = None
-        self._resets_signalled = 0
         self._resets_announced = 0
         self._last_reset_at = -math.inf
         self._good_since: float | None = None        # when a GNSS-held heading last became good enough
@@ -103,13 +103,6 @@ class HeadingStatus:
             self._candidate = (state, now)
         if self.announced is None or now - self._candidate[1] >= ANNOUNCE_AFTER_S:
             self._announce(state, est)
-
-    def take_yaw_resets(self, yaw_resets: int) -> bool:
-        """True once for each new value of the estimator's yaw reset counter (the VISION_POSITION_ESTIMATE
-        builder then bumps reset_counter before it sends the reset heading)."""
-        new = yaw_resets > self._resets_signalled
-        self._resets_signalled = yaw_resets        # (lower: the estimator was reset, its count starts again)
-        return new
 
     # ------------------------------------------------------------------ outputs
     @property

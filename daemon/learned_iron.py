@@ -233,7 +233,7 @@ class LearnedIron:
         """The heading 1σ of the calibration with the iron folded in: the old calibration's figure and the
         learned iron's horizontal uncertainty over the horizontal field, in quadrature; without an old
         figure, the estimator's floor for what a hard iron does not explain takes its place."""
-        from ahrsd.daemon.mag_trust import calibration_heading_sigma_rad
+        from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad
 
         h = float(self.horizontal_field_ut())
         if not (math.isfinite(h) and h > 1.0):

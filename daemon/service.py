@@ -49,7 +49,7 @@ from ahrsd.daemon.housekeeping import Every, HealthReport, Housekeeping
 from ahrsd.daemon.inbound import InboundDispatch
 from ahrsd.daemon.learned_iron import ACTION_PARAM as LEARNED_IRON_ACTION
 from ahrsd.daemon.learned_iron import CMD_LEARNED_IRON, LearnedIron
-from ahrsd.daemon.mag_trust import calibration_heading_sigma_rad
+from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad
 from ahrsd.daemon.magcal import DaemonMagCalHost, FieldCalibrationPart, MagCalProtocol
 from ahrsd.daemon.magcal_settings import MagCalSettings
 from ahrsd.daemon.mavlink_io import mavlink
@@ -231,8 +231,8 @@ class Service:
         return self.health.heading_trusted(now)
 
     def autopilot_yaw(self, est) -> tuple[float, int]:
-        if self.heading_status is not None and self.heading_status.take_yaw_resets(self._yaw_resets()):
-            self.heading.signal()          # ins reset its yaw to the GNSS yaw: reset_counter + 1 with it
+        # a reset of ins's yaw to the GNSS yaw is slewed into the yaw it publishes (its σ covering what is left:
+        # estimator/published_heading.py): no step reaches the autopilot, so reset_counter is not incremented
         return self.heading.autopilot_yaw(est)
 
     def _yaw_resets(self) -> int:

@@ -36,6 +36,7 @@ from .initial_attitude import initial_attitude
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .mag_heading import RELEARN_GATE_OPEN_S
 from .params import with_overrides
+from .published_heading import PublishedHeading
 from .rotations import quat_to_dcm
 
 log = logging.getLogger(__name__)
@@ -179,6 +180,10 @@ class InsParams:
     """At most this many resets of the yaw to the GNSS yaw per run (ArduPilot EK3_GSF_RST_MAX 2)."""
     yaw_reset_spacing_s: float = 20.0
     """... at least this far apart, s."""
+    published_yaw_slew_rad_s: float = 2.0 * _DEG
+    """The published yaw follows the filter's corrections at no more than this rate beyond the vehicle's own
+    rotation: a yaw reset or a fast correction is slewed in, the published σ covering what is left
+    (published_heading.py), rad/s. The daemon's calibration-change slew uses the same 2 °/s."""
     mag_noise_ut: float = 0.7
     mag_heading_noise_rad: float = 0.12
     mag_heading_noise_rest_rad: float = 0.03
@@ -338,6 +343,9 @@ class Ins:
         self._iron = IronLearner(self.params.iron_prior_sigma_ut)
         self._iron_last_t = None
         self._iron_restored = False
+        self._published = PublishedHeading(self.params.published_yaw_slew_rad_s)
+        self._published_since_init = False
+        self._last_fix_velocity = None
         self._new_heading_checks()
 
     def _step_args_example(self) -> tuple:
@@ -374,6 +382,7 @@ class Ins:
         self._pending_flags = 0
         self._queue.clear()
         self._last_fix_t = -math.inf
+        self._published.reset()
         self._new_heading_checks()
 
     # ----------------------------------------------------------------------- learned iron (persisted by the daemon)
@@ -393,6 +402,22 @@ class Ins:
         self._iron.reset()
         self._iron_restored = False
         self._par["iron_ut"] = self._iron.offset_ut
+
+    def set_mag_calibration_sigma(self, sigma_rad: float) -> None:
+        """A new magnetometer calibration is in force (the daemon's calibration swap): its predicted heading
+        error, 1σ rad (NaN: unknown). The heading checks start again with it; the filter's yaw variance is
+        left to them (a changed heading is caught by the monitor and slewed in the published yaw)."""
+        s = float(sigma_rad)
+        self.params = replace(self.params, mag_calibration_sigma_rad=s if math.isfinite(s) and s >= 0.0 else math.nan)
+        p = self.params
+        self._monitor = HeadingMonitor(p.calibration_sigma_rad, reentry_s=p.mag_reentry_s,
+                                       max_resets=p.yaw_reset_max, reset_spacing_s=p.yaw_reset_spacing_s,
+                                       resets=self._monitor.resets, last_reset_t_s=self._monitor.last_reset_t_s)
+        self._mag_var = p.calibration_sigma_rad ** 2
+        self._par["mag_use"] = 1.0
+        self._par["mag_moves_tilt"] = 1.0 if p.mag_moves_tilt else 0.0
+        self._par["mag_bias_var_rad2"] = p.calibration_sigma_rad ** 2
+        self._par["mag_bias_tau_s"] = p.mag_bias_tau
 
     def heading_report(self) -> HeadingReport:
         """What the heading checks did so far (replay's summary, the daemon's warning)."""
@@ -542,9 +567,11 @@ class Ins:
         sig_h = _accuracy(h_acc, DEFAULT_H_ACC_M, p.min_h_acc_m)
         sig_v = _accuracy(v_acc, DEFAULT_V_ACC_M, p.min_v_acc_m)
         sig_s = _accuracy(s_acc, DEFAULT_S_ACC_M_S, p.min_s_acc_m_s)
-        if p.gnss_yaw and use_vel:
+        if use_vel:
             vel = np.array([v[0], v[1], v[2] if use_vd else math.nan])
-            gsf_fuse_velocity(self._gsf, self._gsf_par, float(fix.t_s), vel, sig_s)
+            self._last_fix_velocity = (float(fix.t_s), vel, sig_s)    # what a yaw reset sets the velocity to
+            if p.gnss_yaw:
+                gsf_fuse_velocity(self._gsf, self._gsf_par, float(fix.t_s), vel, sig_s)
         res = core.fuse_gnss(
             self._x_arr, self._P, self._hist, self._par_arr, float(fix.t_s),
             math.radians(lat) if use_pos else 0.0, math.radians(lon) if use_pos else 0.0,
@@ -623,6 +650,11 @@ class Ins:
         observable = yaw_var < p.heading_observable_sigma_rad ** 2
         d = self._monitor.check(t_s, yaw, yaw_var, mag_yaw, mag_var, gsf_yaw, gsf_var, gsf_valid, observable,
                                 float(x["vel_gate"]["nis"]), mag_var - noise if math.isfinite(mag_var) else math.nan)
+        if gsf_valid and wrap_pi(gsf_yaw - yaw) ** 2 <= self._monitor.gate_sigma ** 2 * (yaw_var + gsf_var) \
+                and self._monitor.lowpassed_velocity_nis < self._monitor.reset_velocity_nis:
+            # the GNSS yaw confirms the filter's heading: its gyro bias was learned with a right heading
+            self._confirmed_gyro_bias = x["gyro_bias_rad_s"].copy()
+            self._confirmed_accel_bias = x["accel_bias_m_s2"].copy()
         if d.yaw_var_floor_rad2 > P[2, 2]:
             P[2, 2] = d.yaw_var_floor_rad2
             self.heading_interventions += 1
@@ -672,15 +704,59 @@ class Ins:
             P[i, :] = 0.0
             P[:, i] = 0.0
             P[i, i] = var
+        # the gyro and accelerometer biases learned since the heading was last confirmed were learned against a
+        # wrong yaw (the magnetometer pulling one way, the GNSS velocity the other, the biases taking up the
+        # difference): back to the last confirmed ones (the start-up values before any), with their start-up
+        # uncertainty
+        x["gyro_bias_rad_s"] = self._confirmed_gyro_bias
+        x["accel_bias_m_s2"] = self._confirmed_accel_bias
+        for i in range(core.E_BG, core.E_BG + 3):
+            var = max(P[i, i], p.init_gyro_bias_sigma_rad_s ** 2)
+            P[i, :] = 0.0
+            P[:, i] = 0.0
+            P[i, i] = var
         for i in range(core.E_BA, core.E_BA + 3):
             var = max(P[i, i], p.init_accel_bias_sigma_m_s2 ** 2)
             P[i, :] = 0.0
             P[:, i] = 0.0
             P[i, i] = var
+        self._reset_velocity_to_fix()
         self.yaw_resets += 1
         self.heading_interventions += 1
         self._pending_flags |= int(EstimateFlags.YAW_RESET)
         log.warning("ins: heading reset to the GNSS yaw by %.1f° (reset %d)", math.degrees(dyaw), self.yaw_resets)
+
+    def _reset_velocity_to_fix(self) -> None:
+        """Set the velocity to the last fix's (at its time of validity, through the lever arm with the reset
+        attitude), its variance to the fix's: while the yaw was wrong the GNSS velocities were rejected and the
+        velocity integrated accelerations rotated by the wrong yaw; fusing that error after the reset would turn
+        the new yaw away again (ArduPilot's emergency yaw reset likewise resets velocity and position to GPS)."""
+        if self._last_fix_velocity is None:
+            return
+        t_fix, v_fix, sig_s = self._last_fix_velocity
+        x, hist = self._x, self._hist
+        i0, i1, w = core._history_at(x, hist, t_fix)
+        if i0 < 0:
+            return
+        a, b = hist[i0], hist[i1]
+        q, vel, rate = (a[k] + w * (b[k] - a[k]) for k in ("q", "vel_ned_m_s", "rate_rad_s"))
+        c_bn = np.asarray(quat_to_dcm(q / np.linalg.norm(q)), dtype=float)
+        lever = np.asarray(self.params.lever_arm_m, dtype=float)
+        v_ant = vel + c_bn @ np.cross(rate, lever)
+        m = 3 if math.isfinite(v_fix[2]) else 2
+        dv = np.zeros(3)
+        dv[:m] = v_fix[:m] - v_ant[:m]
+        x["vel_ned_m_s"] += dv
+        n = int(x["hist_count"])
+        for k in range(n):
+            hist["vel_ned_m_s"][(int(x["hist_newest"]) - k) % core.H_LEN] += dv
+        P = self._P
+        for i in range(m):
+            e = core.E_V + i
+            P[e, :] = 0.0
+            P[:, e] = 0.0
+            P[e, e] = sig_s ** 2
+        x["vel_gate"]["rejected_since_s"] = math.nan
 
     def _reject(self, why: str, fix) -> None:
         self._pending_flags |= int(EstimateFlags.GNSS_REJECTED)
@@ -711,6 +787,8 @@ class Ins:
         self._x_arr[:] = 0
         x["q"] = q0
         x["gyro_bias_rad_s"] = keep_bg
+        self._confirmed_gyro_bias = keep_bg.copy()
+        self._confirmed_accel_bias = keep_ba.copy()
         x["accel_bias_m_s2"] = keep_ba
         x["gyro_scale"] = keep_sg
         x["gyro_misalignment_rad"] = keep_mg
@@ -752,6 +830,9 @@ class Ins:
         for i in range(6):
             P[core.E_MG + i, core.E_MG + i] = p.init_gyro_misalignment_sigma_rad ** 2
         self._queue.clear()
+        self._published.reset()
+        self._published_since_init = False
+        self._last_fix_velocity = None
         if not self._reinit_pending or not self.params.gnss_yaw:
             gsf_reset(self._gsf, self._gsf_par, float(t_s), np.full(4, np.nan))
         else:
@@ -771,6 +852,19 @@ class Ins:
             self._pending_flags = 0
         o = self._out.copy()
         roll, pitch, yaw_true = o[core.O_EULER : core.O_EULER + 3].tolist()
+        sigma_yaw = float(o[core.O_SIGMA + 2])
+        if f & core.F_INITIALISING and not self._published_since_init:
+            self._published.reset()        # nothing published since the filter started: follow it
+        elif self._published.update(t_s, yaw_true, roll, pitch, o[core.O_RATE : core.O_RATE + 3]):
+            # the filter's yaw moved faster than the published one may: publish it turned back by the offset
+            off = self._published.offset_rad
+            yaw_true += off
+            c, s = math.cos(0.5 * off), math.sin(0.5 * off)
+            w, x_, y, z = o[core.O_Q : core.O_Q + 4].tolist()
+            o[core.O_Q : core.O_Q + 4] = (c * w - s * z, c * x_ - s * y, c * y + s * x_, c * z + s * w)
+            o[core.O_SIGMA + 2] = self._published.published_sigma(sigma_yaw)
+        if not f & core.F_INITIALISING:
+            self._published_since_init = True
         yaw = (yaw_true - self._declination + math.pi) % _TWO_PI - math.pi
         nav = None
         if self._nav_ok[0] > 0.0:
@@ -796,7 +890,7 @@ class Ins:
             o[core.O_SIGMA : core.O_SIGMA + 3],
             estimate_flags(f),
             nav,
-            self._published_heading_state(f, o[core.O_SIGMA + 2]),
+            self._published_heading_state(f, sigma_yaw),
             self._integrity,
         )
 

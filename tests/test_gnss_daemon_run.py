@@ -180,7 +180,7 @@ def test_end_to_end_boat_replay_is_aided(tmp_path):
 
     rec, _ = record(tmp_path, "boat", 60.0)
     # the magnetometer calibrated as in the field (the simulator's own distortion, inverted), with the predicted
-    # heading error a field session stores beside it (daemon.mag_trust), so what is measured here is the aiding
+    # heading error a field session stores beside it (calibration.heading_trust), so what is measured here is the aiding
     # with a trusted magnetometer, not a hard-iron heading error
     e = open_stream("boat", seed=0).errors
     CalibrationStore(tmp_path / "state").save(dataclasses.replace(

@@ -138,16 +138,13 @@ def test_unknown_names_why_and_says_no_heading_is_sent():
     assert hs.standby_detail() == "heading unknown, no heading out"
 
 
-def test_each_yaw_reset_is_taken_once_and_announced():
+def test_each_yaw_reset_is_announced_once():
     hs, texts = status()
     e = estimate(HeadingState.MAGNETOMETER, 2.0)
-    assert not hs.take_yaw_resets(0)
-    assert hs.take_yaw_resets(1) and not hs.take_yaw_resets(1) and hs.take_yaw_resets(2)
     hs.on_estimate(e, 0.0, yaw_resets=1)
-    assert any("reset to the GNSS yaw" in t for _, t in texts)
+    hs.on_estimate(e, 1.0, yaw_resets=1)
+    assert sum("reset to the GNSS yaw" in t for _, t in texts) == 1
     assert hs.rejection_cause(5.0) == "heading reset"
-    hs.take_yaw_resets(0)                  # the estimator was reset: its count starts again
-    assert hs.take_yaw_resets(1)
 
 
 # ------------------------------------------------------------------------------ the daemon on a simulated boat
@@ -186,7 +183,7 @@ class Text(str):
         return out
 
 
-def run_daemon_on_boat(tmp_path, hard_iron_error_ut=None, *, seconds=150.0, seed=3, signal_resets=True):
+def run_daemon_on_boat(tmp_path, hard_iron_error_ut=None, *, seconds=150.0, seed=3):
     """The boat through a started Service (ins): the per-sample path, the GNSS fixes into the estimator,
     housekeeping's heading status at 10 Hz and the publishers, on a stepped clock (the sample time). Returns
     the VISION_POSITION_ESTIMATEs (with the estimate each was built from and the truth then) and the texts."""
@@ -214,8 +211,6 @@ def run_daemon_on_boat(tmp_path, hard_iron_error_ut=None, *, seconds=150.0, seed
     hs = svc.heading_status
     hs.statustext = svc.outbound.statustext = lambda sev, text: texts.append(Text(text, hs.state, hs.sigma_rad))
     svc.listeners.fns.clear()                # (the field calibration needs the running loop; not used here)
-    if not signal_resets:
-        svc.heading_status.take_yaw_resets = lambda n: False
     try:
         est = svc.pipeline.estimator
         fi, next_hk = 0, 0.0
@@ -334,7 +329,9 @@ def test_the_vpe_builder_withholds_an_unknown_heading_even_when_the_sensor_is_fi
         stop_service(svc, loop)
 
 
-def test_a_yaw_reset_of_the_estimator_bumps_reset_counter_once_in_the_next_vpe(tmp_path):
+def test_a_yaw_reset_of_the_estimator_leaves_reset_counter_alone(tmp_path):
+    """ins slews a reset into the yaw it publishes (estimator/published_heading.py): nothing steps, so nothing is
+    announced to the autopilot as a reset (ArduPilot reads reset_counter as a position reset)."""
     from ahrsd.daemon.output_registry import BY_MESSAGE_ID
     from service_rig import stop_service
 
@@ -349,14 +346,14 @@ def test_a_yaw_reset_of_the_estimator_bumps_reset_counter_once_in_the_next_vpe(t
         for k in range(1, 4):
             svc.health.last_sample_time = now = 1.0 + 0.1 * k
             after.append(build(svc, e, None, now).reset_counter)
-        assert after == [(first + 1) & 0xFF] * 3
+        assert after == [first] * 3
     finally:
         stop_service(svc, loop)
 
 
 def test_the_calibrations_predicted_heading_error_reaches_ins_as_a_figure_or_unknown():
     from ahrsd.calibration.models import Calibration, MagModel
-    from ahrsd.daemon.mag_trust import calibration_heading_sigma_rad
+    from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad
 
     model = MagModel(np.array([3.0, -2.0, 1.0]), np.eye(3))
     cal = Calibration.identity().with_sensor

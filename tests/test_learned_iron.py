@@ -106,7 +106,7 @@ def test_accept_folds_the_learned_iron_into_the_hard_iron_and_resets_it(tmp_path
         assert any("Learned iron accepted" in t for t in texts)
         meta = svc.pipeline.calibration.metadata["mag"]
         assert meta["method"] == "learned-iron" and meta["learned_iron_ut"] == pytest.approx(OFFSET_UT)
-        from ahrsd.daemon.mag_trust import calibration_heading_sigma_rad    # still a figure ins can use
+        from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad    # still a figure ins can use
         assert math.degrees(calibration_heading_sigma_rad(svc.pipeline.calibration)) >= math.hypot(0.8, 0.3)
         # nothing left to accept
         assert svc.learned_iron.handle_command(_command(ACTION_ACCEPT)) == mavlink.MAV_RESULT_FAILED

@@ -1,6 +1,6 @@
-"""How far the aided estimator may trust the magnetometer calibration in force: its predicted heading error
-(1σ, rad), which the daemon passes to `ins` (InsParams.mag_calibration_sigma_rad) at start and after every
-calibration change.
+"""How far the aided estimator may trust a magnetometer calibration: its predicted heading error (1σ, rad), which
+the daemon (at start and after every calibration change: `Ins.set_mag_calibration_sigma`) and `ahrsd replay
+--calibration` pass to `ins` (InsParams.mag_calibration_sigma_rad).
 
 Where the figure comes from, in order (the calibration's `metadata["mag"]`):
 1. `heading_std_deg` and `offset_std_deg` — the field session's own prediction, propagated from its fit's

@@ -1,0 +1,82 @@
+"""The heading monitor raises σ before anything moves (issue 28): at the check that rejects the magnetometer, the
+yaw variance floor covers what the magnetometer may already have pulled the heading by (its low-passed innovation)
+and the disagreement with a valid GNSS yaw; `ins` applies that floor to its covariance. Worked numbers."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ahrsd.estimator.heading_monitor import HeadingMonitor
+
+D = math.radians
+
+
+def _checks(monitor, mag_yaws_deg, gsf=(math.nan, math.inf, False), yaw_sigma_deg=0.3, mag_sigma_deg=0.5):
+    out = []
+    for i, m in enumerate(mag_yaws_deg):
+        out.append(monitor.check(0.2 * i, 0.0, D(yaw_sigma_deg) ** 2, D(m), D(mag_sigma_deg) ** 2,
+                                 gsf[0], gsf[1], gsf[2], True))
+    return out
+
+
+def test_the_rejecting_check_raises_the_floor_to_the_lowpassed_innovation():
+    """10 consistent checks, then the magnetometer says 8° (an iron step): nothing happens at the first two
+    failing checks; the third rejects it with floor = lp² + σ_yaw², lp = 8° (1 − (1 − k)³), k = 1 − e^(−0.2/5)."""
+    mon = HeadingMonitor(D(0.5))
+    d = _checks(mon, [0.0] * 10 + [8.0] * 3)
+    assert all(x.yaw_var_floor_rad2 == 0.0 and x.mag_use for x in d[:12])
+    k = 1.0 - math.exp(-0.2 / 5.0)
+    lp = D(8.0) * (1.0 - (1.0 - k) ** 3)
+    assert not d[12].mag_use
+    assert d[12].yaw_var_floor_rad2 == pytest.approx(lp ** 2 + D(0.3) ** 2, rel=1e-9)
+
+
+def test_with_a_valid_gnss_yaw_the_floor_covers_the_disagreement_with_it():
+    """The same, with a valid GNSS yaw 6° ± 1° from the filter's: floor = max(lp² + σ², 6² + 1² deg²)."""
+    mon = HeadingMonitor(D(0.5))
+    d = _checks(mon, [0.0] * 10 + [8.0] * 3, gsf=(D(6.0), D(1.0) ** 2, True))
+    rejecting = [x for x in d if x.yaw_var_floor_rad2 > 0.0]
+    assert len(rejecting) == 1 and not rejecting[0].mag_use
+    assert rejecting[0].yaw_var_floor_rad2 == pytest.approx(D(6.0) ** 2 + D(1.0) ** 2, rel=1e-9)
+
+
+def test_ins_applies_the_floor_before_the_next_step():
+    """On the simulated boat whose hard iron moves by 9 µT: every floor the monitor decides is in ins's yaw
+    variance when the check returns (before the next sample or fix can move the estimate)."""
+    from ahrsd.core.sample import SampleFlags, make_sample
+    from ahrsd.estimator.ins import Ins
+    from bench.vehicle_accuracy import simulate_vehicle
+
+    run = simulate_vehicle("boat", 140.0, 3, None, mag="iron-step")
+    est = Ins(declination_rad=run.declination_rad, mag_calibration_sigma_rad=run.mag_calibration_sigma_rad)
+    floors, applied = [], []
+    check = est._monitor.check
+
+    def spy_check(*args, **kwargs):
+        d = check(*args, **kwargs)
+        floors.append(d.yaw_var_floor_rad2)
+        return d
+
+    est._monitor.check = spy_check
+    heading = est._check_heading
+
+    def spy_heading(t_s):
+        n = len(floors)
+        heading(t_s)
+        if len(floors) > n and floors[-1] > 0.0:
+            applied.append((floors[-1], float(est._P[2, 2])))
+
+    est._check_heading = spy_heading
+    fi = 0
+    for k in range(len(run.t_s)):
+        while fi < len(run.fixes) and run.fixes[fi].extra["t_rx_s"] <= run.t_s[k]:
+            est.update_gnss(run.fixes[fi])
+            fi += 1
+        est.update(make_sample(run.t_s[k], run.gyro_rad_s[k], run.accel_m_s2[k], run.mag_ut[k],
+                               flags=SampleFlags.NEW_DATA))
+    assert applied, "the iron step was never rejected"
+    assert all(p >= f for f, p in applied), applied
+    assert np.sqrt(max(f for f, _ in applied)) > 3.0 * D(0.3)

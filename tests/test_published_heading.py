@@ -1,0 +1,129 @@
+"""The published heading never steps (issue 28): a yaw reset or a correction faster than the slew rate is absorbed
+as an offset slewed out at a bounded rate, the published σ covers it, and the vehicle's own turn is never slowed.
+
+Unit tests on worked numbers; an `ins` run on the simulated boat with two yaw resets against simulator truth."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ahrsd.core.estimate import EstimateFlags
+from ahrsd.estimator.published_heading import PublishedHeading
+
+RATE = math.radians(2.0)
+
+
+def test_a_turn_passes_unchanged():
+    """A 30 °/s turn, rolled 20° and pitched 10° (ψ̇ = (q sinφ + r cosφ)/cosθ): the offset stays zero."""
+    ph = PublishedHeading(RATE)
+    roll, pitch = math.radians(20.0), math.radians(10.0)
+    psi_dot = math.radians(30.0)
+    # body rates whose Euler yaw rate is psi_dot with φ̇ = θ̇ = 0: (p, q, r) = ψ̇ (−sinθ, sinφ cosθ, cosφ cosθ)
+    w = psi_dot * np.array([-math.sin(pitch), math.sin(roll) * math.cos(pitch), math.cos(roll) * math.cos(pitch)])
+    for k in range(2000):
+        t = k / 200.0
+        assert ph.update(t, (psi_dot * t + math.pi) % (2 * math.pi) - math.pi, roll, pitch, w) == 0.0
+    assert ph.absorbed == 0
+
+
+def test_a_jump_is_absorbed_and_slewed_out_at_the_rate():
+    """The filter's yaw jumps by 10° at rest: the published one does not move at the jump, then reaches the
+    filter's at 2 °/s (5 s), and its σ is √(σ² + offset²) meanwhile."""
+    ph = PublishedHeading(RATE)
+    dt = 0.005
+    yaw = 0.0
+    published = []
+    for k in range(2000):
+        if k == 400:
+            yaw = math.radians(10.0)
+        off = ph.update(k * dt, yaw, 0.0, 0.0, (0.0, 0.0, 0.0))
+        published.append(yaw + off)
+        if k == 400:
+            assert off == pytest.approx(-math.radians(10.0) + RATE * dt)
+            assert ph.published_sigma(math.radians(1.0)) == pytest.approx(math.hypot(math.radians(1.0), off))
+    p = np.degrees(np.array(published))
+    assert np.max(np.abs(np.diff(p))) == pytest.approx(2.0 * dt, rel=1e-6)       # never faster than 2 °/s
+    assert p[400 + int(round(4.9 / dt))] < 10.0 and p[400 + int(round(5.1 / dt))] == pytest.approx(10.0)
+    assert ph.absorbed == 1
+
+
+def test_a_jump_during_a_turn_is_absorbed_but_the_turn_is_not():
+    """A 20 °/s turn with a 6° correction in it: the published yaw keeps turning at 20 °/s plus at most 2 °/s."""
+    ph = PublishedHeading(RATE)
+    dt = 0.005
+    r = math.radians(20.0)
+    pub = []
+    for k in range(1200):
+        yaw = r * k * dt + (math.radians(6.0) if k >= 300 else 0.0)
+        pub.append(yaw + ph.update(k * dt, yaw, 0.0, 0.0, (0.0, 0.0, r)))
+    rate = np.degrees(np.diff(pub)) / dt
+    assert np.all(rate <= 22.0 + 1e-6) and np.all(rate >= 20.0 - 1e-6)
+    assert pub[-1] == pytest.approx(r * 1199 * dt + math.radians(6.0))
+
+
+def test_refuses_a_rate_that_is_not_positive():
+    with pytest.raises(ValueError):
+        PublishedHeading(0.0)
+
+
+@pytest.fixture(scope="module")
+def boat():
+    from bench.vehicle_accuracy import simulate_vehicle
+
+    return simulate_vehicle("boat", 150.0, 5, None)
+
+
+def _run_with_resets(run, **params):
+    """ins on the boat; at 60 s its yaw is reset 8° off with σ 10° (a reset to a GNSS yaw that is wrong but says
+    so), and neither a fix nor a magnetometer sample arrives for 6 s (nothing corrects it: the published yaw slews
+    to it); at 66 s the yaw is reset
+    back to the simulator's true yaw with σ 0.5° (a reset to a right one): the published yaw is ~8° off a filter
+    that is right and says ±0.5°."""
+    from scipy.spatial.transform import Rotation
+
+    from ahrsd.core.sample import SampleFlags, make_sample
+    from ahrsd.estimator.ins import Ins
+
+    est = Ins(declination_rad=run.declination_rad, mag_calibration_sigma_rad=run.mag_calibration_sigma_rad,
+              **params)
+    n = len(run.t_s)
+    q = np.empty((n, 4))
+    sigma = np.empty(n)
+    flags = np.zeros(n, dtype=np.int64)
+    fi = 0
+    k_wrong, k_right = np.searchsorted(run.t_s, [60.0, 66.0])
+    fixes = [f for f in run.fixes if not 60.0 <= f.t_s < 66.0]
+
+    def yaw(q_wxyz):
+        return Rotation.from_quat(np.roll(q_wxyz, -1)).as_euler("ZYX")[0]
+
+    for k in range(n):
+        while fi < len(fixes) and fixes[fi].extra["t_rx_s"] <= run.t_s[k]:
+            est.update_gnss(fixes[fi])
+            fi += 1
+        if k == k_wrong:
+            est._reset_yaw(math.radians(8.0), math.radians(10.0) ** 2)
+        if k == k_right:     # the simulator's truth is body → true NED, as the filter's own attitude
+            est._reset_yaw(yaw(run.truth_q_wxyz[k]) - yaw(est.true_attitude_q_wxyz()), math.radians(0.5) ** 2)
+        mag = np.full(3, np.nan) if k_wrong <= k < k_right else run.mag_ut[k]
+        e = est.update(make_sample(run.t_s[k], run.gyro_rad_s[k], run.accel_m_s2[k], mag,
+                                   flags=SampleFlags.NEW_DATA))
+        q[k], sigma[k], flags[k] = e.q_wxyz, e.sigma_rpy_rad[2], int(e.flags)
+    return {"q": q, "sigma_yaw_rad": sigma, "flags": flags, "heading_state": np.zeros(n), "ins": est}
+
+
+def test_yaw_resets_in_ins_reach_the_published_heading_without_a_step_and_within_3_sigma(boat):
+    """Two resets of the filter's yaw (8° off, then back to the truth): the published heading error changes by
+    ≤ 0.5° in any 0.1 s and stays within 3σ of the published σ — for 4 s after the second reset only the offset
+    in the published σ covers it; without the slew (rate 1000 rad/s) each reset is a step."""
+    from bench.vehicle_accuracy import honesty_figures
+
+    out = _run_with_resets(boat)
+    assert np.count_nonzero(out["flags"] & int(EstimateFlags.YAW_RESET)) == 2
+    f = honesty_figures(boat, out, 30.0)
+    assert f["max_step_0_1s"] <= 0.5 and f["beyond_3sigma"] <= 0.01, f
+    unslewed = honesty_figures(boat, _run_with_resets(boat, published_yaw_slew_rad_s=1e3), 30.0)
+    assert unslewed["max_step_0_1s"] > 5.0, unslewed
