@@ -31,16 +31,12 @@ from . import ins_core as core
 from . import mag_heading as mag
 from .gsf_yaw import GsfParams, gsf_fuse_velocity, gsf_output, gsf_reset, new_gsf_state
 from .heading_monitor import HeadingMonitor, IronLearner, wrap_pi
+from .filter_output import after_init_flags, estimate_flags, uninitialised_estimate
+from .initial_attitude import initial_attitude
+from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
+from .mag_heading import RELEARN_GATE_OPEN_S
+from .params import with_overrides
 from .published_heading import PublishedHeading
-from .mekf import (
-    RELEARN_GATE_OPEN_S,
-    after_init_flags,
-    estimate_flags,
-    initial_attitude,
-    uninitialised_estimate,
-    with_overrides,
-)
-from .mekf_core import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .rotations import quat_to_dcm
 
 log = logging.getLogger(__name__)
@@ -227,61 +223,51 @@ class InsParams:
         return self.mag_bias_tau_s if math.isfinite(s) and s >= 0.0 else self.mag_uncalibrated_tau_s
 
     def to_array(self, declination_rad: float) -> np.ndarray:
-        p = np.zeros(core.P_SIZE)
-        p[core.P_GYRO_NOISE] = self.gyro_noise_rad_s_sqrt_hz
-        p[core.P_GYRO_BIAS_WALK] = self.gyro_bias_walk_rad_s_sqrt_s
-        p[core.P_GYRO_SCALE_WALK] = self.gyro_scale_walk_sqrt_s if self.init_gyro_scale_sigma > 0 else 0.0
-        p[core.P_GYRO_SCALE_CLIP] = self.gyro_scale_clip
-        p[core.P_GYRO_MIS_WALK] = (self.gyro_misalignment_walk_rad_sqrt_s
+        """The parameters as a 1-element ins_core.INS_PARAMS_DTYPE array (what the kernels take)."""
+        arr = np.zeros(1, core.INS_PARAMS_DTYPE)
+        p = arr[0]
+        p["gyro_noise_rad_s_sqrt_hz"] = self.gyro_noise_rad_s_sqrt_hz
+        p["gyro_bias_walk_rad_s_sqrt_s"] = self.gyro_bias_walk_rad_s_sqrt_s
+        p["gyro_scale_walk_sqrt_s"] = self.gyro_scale_walk_sqrt_s if self.init_gyro_scale_sigma > 0 else 0.0
+        p["gyro_scale_clip"] = self.gyro_scale_clip
+        p["gyro_misalignment_walk_rad_sqrt_s"] = (self.gyro_misalignment_walk_rad_sqrt_s
                                    if self.init_gyro_misalignment_sigma_rad > 0 else 0.0)
-        p[core.P_ACC_NOISE_DENS] = self.accel_noise_m_s2_sqrt_hz
-        p[core.P_ACC_BIAS_WALK] = self.accel_bias_walk_m_s2_sqrt_s
-        p[core.P_GYRO_BIAS_CLIP] = self.gyro_bias_clip_rad_s
-        p[core.P_ACC_BIAS_CLIP] = self.accel_bias_clip_m_s2
-        p[core.P_COV_PERIOD] = self.cov_period_s
-        p[core.P_EARTH_ROT] = 1.0 if self.earth_rotation else 0.0
+        p["accel_noise_m_s2_sqrt_hz"] = self.accel_noise_m_s2_sqrt_hz
+        p["accel_bias_walk_m_s2_sqrt_s"] = self.accel_bias_walk_m_s2_sqrt_s
+        p["gyro_bias_clip_rad_s"] = self.gyro_bias_clip_rad_s
+        p["accel_bias_clip_m_s2"] = self.accel_bias_clip_m_s2
+        p["cov_period_s"] = self.cov_period_s
+        p["earth_rotation"] = 1.0 if self.earth_rotation else 0.0
         if self.earth_model not in ("wgs84", "sphere"):
             raise ValueError(f"earth_model must be 'wgs84' or 'sphere', got {self.earth_model!r}")
-        p[core.P_SPHERE] = 1.0 if self.earth_model == "sphere" else 0.0
-        p[core.P_MAG_TILT] = 1.0 if self.mag_moves_tilt else 0.0
-        p[core.P_MAG_USE] = 1.0
-        p[core.P_MAG_BIAS_VAR] = self.calibration_sigma_rad ** 2
-        p[core.P_MAG_BIAS_TAU] = self.mag_bias_tau
-        p[core.P_LEVEL_NOISE] = self.level_noise_m_s2
-        p[core.P_LEVEL_REJECT] = self.level_reject_m_s2
-        p[core.P_LEVEL_GATE] = self.level_gate_rad
-        p[core.P_LEVEL_TAU] = self.level_lowpass_tau_s
-        p[core.P_LEVEL_RECOVER] = self.level_recover_s
-        p[core.P_MAG_ENABLED] = 1.0 if self.mag_enabled else 0.0
-        p[core.P_DECLINATION] = declination_rad
-        p[core.P_LEVER : core.P_LEVER + 3] = np.asarray(self.lever_arm_m, dtype=float).reshape(3)
-        p[core.P_GATE_CHI2 : core.P_GATE_CHI2 + 3] = chdtri([1.0, 2.0, 3.0], self.gate_false_alarm)
-        p[core.P_REJECT_RESET] = self.reject_reset_s
-        p[core.P_DEAD_RECKON] = self.dead_reckon_s
-        p[core.P_OUTAGE_RESET] = self.outage_reset_s
-        p[core.P_NAV_DROP] = self.nav_drop_s
-        p[core.P_MAX_DELAY] = self.max_delay_s
-        p[core.P_LARGE_DT] = self.large_dt_s
-        p[core.P_REINIT_DT] = self.reinit_dt_s
-        p[core.P_INIT_TIME] = self.init_min_time_s
-        p[core.P_CONV_TILT] = self.converged_tilt_rad
-        p[core.P_CONV_YAW] = self.converged_yaw_rad
-        p[core.P_GNSS_TIMEOUT] = self.gnss_timeout_s
-        p[core.P_NAV_INIT_TILT] = self.nav_init_sigma_tilt_rad
-        m = core.P_MAG
-        p[m + mag.MP_NOISE] = self.mag_noise_ut
-        p[m + mag.MP_HEADING_NOISE] = self.mag_heading_noise_rad
-        p[m + mag.MP_HEADING_NOISE_REST] = self.mag_heading_noise_rest_rad
-        p[m + mag.MP_NORM_TOL] = self.mag_norm_tol
-        p[m + mag.MP_DIP_TOL] = self.mag_dip_tol_rad
-        p[m + mag.MP_MIN_UNDIST] = self.mag_min_undisturbed_s
-        p[m + mag.MP_NEW_TIME] = self.mag_new_time_s
-        p[m + mag.MP_NEW_MIN_RATE] = self.mag_new_min_rate_rad_s
-        p[m + mag.MP_REF_TAU] = self.mag_ref_tau_s
-        p[m + mag.MP_GATE] = self.mag_gate_sigma
-        p[m + mag.MP_REJECT_MAX] = self.mag_reject_max_s
-        p[m + mag.MP_UNAVAILABLE] = self.mag_unavailable_s
-        return p
+        p["sphere"] = 1.0 if self.earth_model == "sphere" else 0.0
+        p["mag_moves_tilt"] = 1.0 if self.mag_moves_tilt else 0.0
+        p["mag_use"] = 1.0
+        p["mag_bias_var_rad2"] = self.calibration_sigma_rad ** 2
+        p["mag_bias_tau_s"] = self.mag_bias_tau
+        p["level_noise_m_s2"] = self.level_noise_m_s2
+        p["level_reject_m_s2"] = self.level_reject_m_s2
+        p["level_gate_rad"] = self.level_gate_rad
+        p["level_lowpass_tau_s"] = self.level_lowpass_tau_s
+        p["level_recover_s"] = self.level_recover_s
+        p["mag_enabled"] = 1.0 if self.mag_enabled else 0.0
+        p["declination_rad"] = declination_rad
+        p["lever_arm_m"] = np.asarray(self.lever_arm_m, dtype=float).reshape(3)
+        p["gate_chi2"] = chdtri([1.0, 2.0, 3.0], self.gate_false_alarm)
+        p["reject_reset_s"] = self.reject_reset_s
+        p["dead_reckon_s"] = self.dead_reckon_s
+        p["outage_reset_s"] = self.outage_reset_s
+        p["nav_drop_s"] = self.nav_drop_s
+        p["max_delay_s"] = self.max_delay_s
+        p["large_dt_s"] = self.large_dt_s
+        p["reinit_dt_s"] = self.reinit_dt_s
+        p["init_min_time_s"] = self.init_min_time_s
+        p["converged_tilt_rad"] = self.converged_tilt_rad
+        p["converged_yaw_rad"] = self.converged_yaw_rad
+        p["gnss_timeout_s"] = self.gnss_timeout_s
+        p["nav_init_sigma_tilt_rad"] = self.nav_init_sigma_tilt_rad
+        p["mag"] = mag.heading_params(self)
+        return arr
 
 
 DEFAULT_INS_PARAMS = InsParams()
@@ -336,10 +322,16 @@ class Ins:
     def __init__(self, declination_rad: float = 0.0, params: InsParams | None = None, **overrides):
         self.params = with_overrides(params or DEFAULT_INS_PARAMS, overrides, "ins")
         self._declination = float(declination_rad)
-        self._par = self.params.to_array(self._declination)
-        self._x = np.zeros(core.X_SIZE)
+        # state and parameters as 1-element record arrays (what the compiled step takes) and their records
+        self._par_arr = self.params.to_array(self._declination)
+        self._par = self._par_arr[0]
+        self._x_arr = np.zeros(1, core.INS_STATE_DTYPE)
+        self._x = self._x_arr[0]
+        # fields read on every sample, as (1,) array views (indexing an array costs less than a record lookup)
+        self._nav_ok = self._x_arr["nav_ok"]
+        self._mag_use = self._par_arr["mag_use"]
         self._P = np.zeros((core.N_ERR, core.N_ERR))
-        self._hist = np.zeros((core.H_LEN, core.H_SIZE))
+        self._hist = np.zeros(core.H_LEN, core.INS_HISTORY_DTYPE)
         self._out = np.zeros(core.O_SIZE)
         self._initialised = False
         self._reinit_pending = False
@@ -351,7 +343,7 @@ class Ins:
         self._gsf_arr = _one_record_array(new_gsf_state(GsfParams(), 0.0))
         self._gsf_par = self._gsf_par_arr[0]      # record views of the arrays the compiled step takes
         self._gsf = self._gsf_arr[0]
-        self._par[core.P_GSF] = 1.0 if self.params.gnss_yaw else 0.0
+        self._par["gnss_yaw"] = 1.0 if self.params.gnss_yaw else 0.0
         self._step = core.fast_step(self._step_args_example())
         self._iron = IronLearner(self.params.iron_prior_sigma_ut)
         self._iron_last_t = None
@@ -364,10 +356,10 @@ class Ins:
     def _step_args_example(self) -> tuple:
         """Scratch arguments of the step's types (compiling it must not touch the filter's own arrays)."""
         gsf = _one_record_array(new_gsf_state(GsfParams(), 0.0))
-        x = np.zeros(core.X_SIZE)
-        x[core.X_Q] = 1.0
-        x[core.X_T_LAST] = 0.995
-        return (x, np.eye(core.N_ERR), np.zeros((core.H_LEN, core.H_SIZE)), self._par.copy(),
+        x = np.zeros(1, core.INS_STATE_DTYPE)
+        x[0]["q"][0] = 1.0
+        x[0]["t_last_s"] = 0.995
+        return (x, np.eye(core.N_ERR), np.zeros(core.H_LEN, core.INS_HISTORY_DTYPE), self._par_arr.copy(),
                 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, -9.8, 20.0, 0.0, 40.0, 0, np.zeros(core.O_SIZE), gsf, self._gsf_par_arr)
 
     def _new_heading_checks(self) -> None:
@@ -382,14 +374,14 @@ class Ins:
         self._heading_confirmed = False    # by a GNSS yaw within heading_confirm_gsf_sigma_rad
         self.yaw_resets = 0
         self.heading_interventions = 0    # yaw resets and raised yaw variances (not Kalman updates)
-        self._par[core.P_MAG_USE] = 1.0
-        self._par[core.P_MAG_TILT] = 1.0 if p.mag_moves_tilt else 0.0
-        self._par[core.P_MAG_BIAS_VAR] = p.calibration_sigma_rad ** 2
-        self._par[core.P_IRON : core.P_IRON + 3] = self._iron.offset_ut
+        self._par["mag_use"] = 1.0
+        self._par["mag_moves_tilt"] = 1.0 if p.mag_moves_tilt else 0.0
+        self._par["mag_bias_var_rad2"] = p.calibration_sigma_rad ** 2
+        self._par["iron_ut"] = self._iron.offset_ut
 
     # ----------------------------------------------------------------------- Estimator protocol
     def reset(self) -> None:
-        self._x[:] = 0.0
+        self._x_arr[:] = 0
         self._P[:] = 0.0
         self._initialised = False
         self._reinit_pending = False
@@ -409,13 +401,13 @@ class Ins:
         the covariance is not positive definite."""
         self._iron.set(offset_ut, cov_ut2)
         self._iron_restored = True
-        self._par[core.P_IRON : core.P_IRON + 3] = self._iron.offset_ut
+        self._par["iron_ut"] = self._iron.offset_ut
 
     def reset_learned_iron(self) -> None:
         """Forget the learned iron (a new calibration was accepted, or the operator reset it)."""
         self._iron.reset()
         self._iron_restored = False
-        self._par[core.P_IRON : core.P_IRON + 3] = self._iron.offset_ut
+        self._par["iron_ut"] = self._iron.offset_ut
 
     def set_mag_calibration_sigma(self, sigma_rad: float) -> None:
         """A new magnetometer calibration is in force (the daemon's calibration swap): its predicted heading
@@ -428,10 +420,10 @@ class Ins:
                                        max_resets=p.yaw_reset_max, reset_spacing_s=p.yaw_reset_spacing_s,
                                        resets=self._monitor.resets, last_reset_t_s=self._monitor.last_reset_t_s)
         self._mag_var = p.calibration_sigma_rad ** 2
-        self._par[core.P_MAG_USE] = 1.0
-        self._par[core.P_MAG_TILT] = 1.0 if p.mag_moves_tilt else 0.0
-        self._par[core.P_MAG_BIAS_VAR] = p.calibration_sigma_rad ** 2
-        self._par[core.P_MAG_BIAS_TAU] = p.mag_bias_tau
+        self._par["mag_use"] = 1.0
+        self._par["mag_moves_tilt"] = 1.0 if p.mag_moves_tilt else 0.0
+        self._par["mag_bias_var_rad2"] = p.calibration_sigma_rad ** 2
+        self._par["mag_bias_tau_s"] = p.mag_bias_tau
 
     def heading_report(self) -> HeadingReport:
         """What the heading checks did so far (replay's summary, the daemon's warning)."""
@@ -446,11 +438,15 @@ class Ins:
         """Magnetic declination (rad): the magnetometer heading is compared with true heading − declination,
         and the estimate's yaw/q are reported relative to magnetic north (as every estimator)."""
         self._declination = float(declination_rad)
-        self._par[core.P_DECLINATION] = self._declination
+        self._par["declination_rad"] = self._declination
 
     def relearn_field_reference(self) -> None:
         """As Mekf.relearn_field_reference: forget the learned field magnitude/dip, keep everything else."""
-        mag.relearn_reference(self._x, core.X_MAG, RELEARN_GATE_OPEN_S)
+        mag.relearn_reference(self._mag_state(), RELEARN_GATE_OPEN_S)
+
+    def _mag_state(self):
+        """The magnetometer heading check's state (a view)."""
+        return self._x["mag"]
 
     @property
     def covariance(self) -> np.ndarray:
@@ -460,33 +456,33 @@ class Ins:
 
     @property
     def gyro_bias_rad_s(self) -> np.ndarray:
-        return self._x[core.X_BG : core.X_BG + 3].copy()
+        return self._x["gyro_bias_rad_s"].copy()
 
     @property
     def gyro_scale(self) -> np.ndarray:
         """Estimated gyro scale-factor errors per axis (ω_meas = (1 + s) ω + b), fraction."""
-        return self._x[core.X_SG : core.X_SG + 3].copy()
+        return self._x["gyro_scale"].copy()
 
     @property
     def gyro_misalignment_rad(self) -> np.ndarray:
         """Estimated gyro misalignment M (3×3, zero diagonal; ω_meas = (I + diag(s) + M) ω + b), rad."""
         m = np.zeros((3, 3))
         for n in range(6):
-            m[core.MIS_ROW[n], core.MIS_COL[n]] = self._x[core.X_MG + n]
+            m[core.MIS_ROW[n], core.MIS_COL[n]] = self._x["gyro_misalignment_rad"][n]
         return m
 
     @property
     def accel_bias_m_s2(self) -> np.ndarray:
-        return self._x[core.X_BA : core.X_BA + 3].copy()
+        return self._x["accel_bias_m_s2"].copy()
 
     @property
     def last_nis(self) -> tuple[float, float]:
         """Normalised innovation squared of the last velocity and position fusion attempts."""
-        return float(self._x[core.X_NIS_V]), float(self._x[core.X_NIS_P])
+        return float(self._x["vel_gate"]["nis"]), float(self._x["pos_gate"]["nis"])
 
     def true_attitude_q_wxyz(self) -> np.ndarray:
         """The filter's own attitude quaternion, body → true-north NED."""
-        return self._x[core.X_Q : core.X_Q + 4].copy()
+        return self._x["q"].copy()
 
     def update(self, sample: ImuSample) -> AttitudeEstimate:
         g = sample.gyro_rad_s
@@ -495,7 +491,7 @@ class Ins:
         sflags = int(sample.flags)
         extra = 0
         if self._initialised:
-            f = self._step(self._x, self._P, self._hist, self._par, sample.t_s,
+            f = self._step(self._x_arr, self._P, self._hist, self._par_arr, sample.t_s,
                            g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], sflags, self._out,
                            self._gsf_arr, self._gsf_par_arr)
             if not f & NEEDS_INIT:
@@ -531,7 +527,7 @@ class Ins:
         if not self._initialised:
             c.before_init += 1
             return 0
-        if t > self._x[core.X_T_LAST]:
+        if t > self._x["t_last_s"]:
             if len(self._queue) >= _MAX_QUEUED:
                 c.invalid += 1
                 self._reject("too far ahead of the IMU samples", fix)
@@ -544,7 +540,7 @@ class Ins:
         return self._fuse(fix)
 
     def _fuse_queued(self) -> None:
-        now = self._x[core.X_T_LAST]
+        now = self._x["t_last_s"]
         while self._queue and self._queue[0].t_s <= now:
             self._fuse(self._queue.pop(0))
 
@@ -583,7 +579,7 @@ class Ins:
             if p.gnss_yaw:
                 gsf_fuse_velocity(self._gsf, self._gsf_par, float(fix.t_s), vel, sig_s)
         res = core.fuse_gnss(
-            self._x, self._P, self._hist, self._par, float(fix.t_s),
+            self._x_arr, self._P, self._hist, self._par_arr, float(fix.t_s),
             math.radians(lat) if use_pos else 0.0, math.radians(lon) if use_pos else 0.0,
             alt if use_alt else 0.0, v[0] if use_vel else 0.0, v[1] if use_vel else 0.0,
             v[2] if use_vd else 0.0, sig_h, sig_v, sig_s, use_pos, use_alt, use_vel, use_vd,
@@ -601,10 +597,10 @@ class Ins:
         c.fused_position += bool(res & core.R_POS_FUSED)
         if res & core.R_VEL_REJECTED:
             c.rejected_velocity += 1
-            self._reject(f"velocity innovation χ² {self._x[core.X_NIS_V]:.1f}", fix)
+            self._reject(f"velocity innovation χ² {self._x['vel_gate']['nis']:.1f}", fix)
         if res & core.R_POS_REJECTED:
             c.rejected_position += 1
-            self._reject(f"position innovation χ² {self._x[core.X_NIS_P]:.1f}", fix)
+            self._reject(f"position innovation χ² {self._x['pos_gate']['nis']:.1f}", fix)
         if res & core.R_VEL_RESET:
             c.reset_velocity += 1
             log.warning("ins: GNSS velocity rejected for %.1f s: velocity reset to the fix", p.reject_reset_s)
@@ -618,7 +614,7 @@ class Ins:
     # ----------------------------------------------------------------------- heading checks (heading_monitor.py)
     def _earth_field_ned(self) -> np.ndarray | None:
         """WMM field at the filter's position (µT, NED), looked up again when the position moves by ~1 km."""
-        lat, lon, h = (math.degrees(self._x[core.X_LAT]), math.degrees(self._x[core.X_LON]), float(self._x[core.X_H]))
+        lat, lon, h = (math.degrees(self._x["lat_rad"]), math.degrees(self._x["lon_rad"]), float(self._x["h_m"]))
         key = (round(lat, 2), round(lon, 2), round(h, -2))
         if key != self._field_key:
             from ahrsd.core.wmm import earth_field
@@ -632,10 +628,10 @@ class Ins:
     def _check_heading(self, t_s: float) -> None:
         p = self.params
         x, P = self._x, self._P
-        c_bn = np.asarray(quat_to_dcm(x[core.X_Q : core.X_Q + 4]), dtype=float)
+        c_bn = np.asarray(quat_to_dcm(x["q"]), dtype=float)
         yaw = math.atan2(c_bn[1, 0], c_bn[0, 0])
         yaw_var = float(P[2, 2])
-        m_body = x[core.X_MAG_LAST : core.X_MAG_LAST + 3] - self._iron.offset_ut
+        m_body = x["mag_last_ut"] - self._iron.offset_ut
         mag_yaw = math.nan
         mag_var = math.inf
         noise = 0.0
@@ -659,12 +655,12 @@ class Ins:
                 gsf_yaw, gsf_var, gsf_valid = float(y), float(sg) ** 2, bool(valid)
         observable = yaw_var < p.heading_observable_sigma_rad ** 2
         d = self._monitor.check(t_s, yaw, yaw_var, mag_yaw, mag_var, gsf_yaw, gsf_var, gsf_valid, observable,
-                                float(x[core.X_NIS_V]), mag_var - noise if math.isfinite(mag_var) else math.nan)
+                                float(x["vel_gate"]["nis"]), mag_var - noise if math.isfinite(mag_var) else math.nan)
         if gsf_valid and wrap_pi(gsf_yaw - yaw) ** 2 <= self._monitor.gate_sigma ** 2 * (yaw_var + gsf_var) \
                 and self._monitor.lowpassed_velocity_nis < self._monitor.reset_velocity_nis:
             # the GNSS yaw confirms the filter's heading: its gyro bias was learned with a right heading
-            self._confirmed_gyro_bias = x[core.X_BG : core.X_BG + 3].copy()
-            self._confirmed_accel_bias = x[core.X_BA : core.X_BA + 3].copy()
+            self._confirmed_gyro_bias = x["gyro_bias_rad_s"].copy()
+            self._confirmed_accel_bias = x["accel_bias_m_s2"].copy()
         if d.yaw_var_floor_rad2 > P[2, 2]:
             P[2, 2] = d.yaw_var_floor_rad2
             self.heading_interventions += 1
@@ -678,22 +674,22 @@ class Ins:
                 self._heading_confirmed = True
             elif gsf_var > P[2, 2]:
                 P[2, 2] = gsf_var
-        self._par[core.P_MAG_USE] = 1.0 if d.mag_use else 0.0
+        self._par["mag_use"] = 1.0 if d.mag_use else 0.0
         trusted = d.mag_use and self._mag_var < self._monitor.trusted_sigma_rad ** 2
-        self._par[core.P_MAG_TILT] = 1.0 if p.mag_moves_tilt or (p.mag_trusted_moves_tilt and trusted) else 0.0
+        self._par["mag_moves_tilt"] = 1.0 if p.mag_moves_tilt or (p.mag_trusted_moves_tilt and trusted) else 0.0
         if math.isfinite(mag_var):
             self._mag_var = mag_var - noise      # the slowly varying part: what trust and the heading state use
-            self._par[core.P_MAG_BIAS_VAR] = mag_var - noise   # the white part is the kernel's own noise
+            self._par["mag_bias_var_rad2"] = mag_var - noise   # the white part is the kernel's own noise
             learned = self._iron.updates > 0 or self._iron_restored
-            self._par[core.P_MAG_BIAS_TAU] = p.mag_uncalibrated_tau_s if learned else p.mag_bias_tau
-        if p.iron_learning and self._monitor.learning and np.all(np.isfinite(m_body)) and self._x[core.X_NAV_OK] > 0:
+            self._par["mag_bias_tau_s"] = p.mag_uncalibrated_tau_s if learned else p.mag_bias_tau
+        if p.iron_learning and self._monitor.learning and np.all(np.isfinite(m_body)) and self._x["nav_ok"] > 0:
             field = self._earth_field_ned()
             if field is not None:
                 dt = max(t_s - (self._iron_last_t if self._iron_last_t is not None else t_s - 0.2), 1e-3)
                 self._iron_last_t = t_s
-                self._iron.update(x[core.X_MAG_LAST : core.X_MAG_LAST + 3], c_bn, field, P[0:3, 0:3],
+                self._iron.update(x["mag_last_ut"], c_bn, field, P[0:3, 0:3],
                                   p.iron_unmodelled_ut, max(1.0, p.iron_tau_s / dt))
-                self._par[core.P_IRON : core.P_IRON + 3] = self._iron.offset_ut
+                self._par["iron_ut"] = self._iron.offset_ut
         sig = math.sqrt(max(P[2, 2], 0.0))
         self._integrity = HeadingIntegrity(gsf_yaw, math.sqrt(gsf_var) if math.isfinite(gsf_var) else math.nan,
                                            gsf_valid, self._monitor.disagreement_rad, self._iron.offset_ut.copy(),
@@ -710,11 +706,11 @@ class Ins:
         x, P = self._x, self._P
         dx = np.zeros(core.N_ERR)
         dx[2] = dyaw
-        core._rotate_attitude(x, core.X_Q, 0.0, 0.0, dyaw)
+        core._rotate_attitude(x["q"], 0.0, 0.0, dyaw)
         core._correct_history(self._hist, x, -math.inf, dx, 0.0, 0.0, 0.0)
         c, s = math.cos(dyaw), math.sin(dyaw)
-        an, ae = x[core.X_ACC_LP], x[core.X_ACC_LP + 1]
-        x[core.X_ACC_LP], x[core.X_ACC_LP + 1] = c * an - s * ae, s * an + c * ae
+        an, ae = x["acc_ned_lp_m_s2"][0], x["acc_ned_lp_m_s2"][1]
+        x["acc_ned_lp_m_s2"][0], x["acc_ned_lp_m_s2"][1] = c * an - s * ae, s * an + c * ae
         for i, var in ((2, var_rad2), (0, max(P[0, 0], p.nav_init_sigma_tilt_rad ** 2 * 0.04)),
                        (1, max(P[1, 1], p.nav_init_sigma_tilt_rad ** 2 * 0.04))):
             P[i, :] = 0.0
@@ -724,8 +720,8 @@ class Ins:
         # wrong yaw (the magnetometer pulling one way, the GNSS velocity the other, the biases taking up the
         # difference): back to the last confirmed ones (the start-up values before any), with their start-up
         # uncertainty
-        x[core.X_BG : core.X_BG + 3] = self._confirmed_gyro_bias
-        x[core.X_BA : core.X_BA + 3] = self._confirmed_accel_bias
+        x["gyro_bias_rad_s"] = self._confirmed_gyro_bias
+        x["accel_bias_m_s2"] = self._confirmed_accel_bias
         for i in range(core.E_BG, core.E_BG + 3):
             var = max(P[i, i], p.init_gyro_bias_sigma_rad_s ** 2)
             P[i, :] = 0.0
@@ -754,25 +750,25 @@ class Ins:
         i0, i1, w = core._history_at(x, hist, t_fix)
         if i0 < 0:
             return
-        row = hist[i0] + w * (hist[i1] - hist[i0])
-        q = row[core.H_Q : core.H_Q + 4]
+        a, b = hist[i0], hist[i1]
+        q, vel, rate = (a[k] + w * (b[k] - a[k]) for k in ("q", "vel_ned_m_s", "rate_rad_s"))
         c_bn = np.asarray(quat_to_dcm(q / np.linalg.norm(q)), dtype=float)
         lever = np.asarray(self.params.lever_arm_m, dtype=float)
-        v_ant = row[core.H_V : core.H_V + 3] + c_bn @ np.cross(row[core.H_W : core.H_W + 3], lever)
+        v_ant = vel + c_bn @ np.cross(rate, lever)
         m = 3 if math.isfinite(v_fix[2]) else 2
         dv = np.zeros(3)
         dv[:m] = v_fix[:m] - v_ant[:m]
-        x[core.X_V : core.X_V + 3] += dv
-        n = int(x[core.X_HIST_N])
+        x["vel_ned_m_s"] += dv
+        n = int(x["hist_count"])
         for k in range(n):
-            hist[(int(x[core.X_HIST_I]) - k) % core.H_LEN, core.H_V : core.H_V + 3] += dv
+            hist["vel_ned_m_s"][(int(x["hist_newest"]) - k) % core.H_LEN] += dv
         P = self._P
         for i in range(m):
             e = core.E_V + i
             P[e, :] = 0.0
             P[:, e] = 0.0
             P[e, e] = sig_s ** 2
-        x[core.X_VEL_REJ_T0] = math.nan
+        x["vel_gate"]["rejected_since_s"] = math.nan
 
     def _reject(self, why: str, fix) -> None:
         self._pending_flags |= int(EstimateFlags.GNSS_REJECTED)
@@ -795,44 +791,43 @@ class Ins:
         c, s = math.cos(hd), math.sin(hd)
         q0 = np.array([c * w - s * z, c * x_ - s * y, c * y + s * x_, c * z + s * w])
         x = self._x
-        keep_bg = x[core.X_BG : core.X_BG + 3].copy() if self._reinit_pending else np.zeros(3)
-        keep_ba = x[core.X_BA : core.X_BA + 3].copy() if self._reinit_pending else np.zeros(3)
-        keep_sg = x[core.X_SG : core.X_SG + 3].copy() if self._reinit_pending else np.zeros(3)
-        keep_mg = x[core.X_MG : core.X_MG + 6].copy() if self._reinit_pending else np.zeros(6)
-        keep_mag = x[core.X_MAG : core.X_MAG + mag.MS_SIZE].copy() if self._reinit_pending else None
-        x[:] = 0.0
-        x[core.X_Q : core.X_Q + 4] = q0
-        x[core.X_BG : core.X_BG + 3] = keep_bg
+        keep_bg = x["gyro_bias_rad_s"].copy() if self._reinit_pending else np.zeros(3)
+        keep_ba = x["accel_bias_m_s2"].copy() if self._reinit_pending else np.zeros(3)
+        keep_sg = x["gyro_scale"].copy() if self._reinit_pending else np.zeros(3)
+        keep_mg = x["gyro_misalignment_rad"].copy() if self._reinit_pending else np.zeros(6)
+        keep_mag = self._mag_state().copy() if self._reinit_pending else None
+        self._x_arr[:] = 0
+        x["q"] = q0
+        x["gyro_bias_rad_s"] = keep_bg
         self._confirmed_gyro_bias = keep_bg.copy()
         self._confirmed_accel_bias = keep_ba.copy()
-        x[core.X_BA : core.X_BA + 3] = keep_ba
-        x[core.X_SG : core.X_SG + 3] = keep_sg
-        x[core.X_MG : core.X_MG + 6] = keep_mg
-        x[core.X_T_LAST] = t_s
-        x[core.X_GYR_LAST : core.X_GYR_LAST + 3] = g
-        x[core.X_ACC_LAST : core.X_ACC_LAST + 3] = a
-        x[core.X_MAG_LAST : core.X_MAG_LAST + 3] = m if valid & IN_MAG_OK else np.nan
-        x[core.X_ACC_LP : core.X_ACC_LP + 3] = np.asarray(quat_to_dcm(q0), dtype=float) @ a
-        x[core.X_GNSS_LAST_T] = -math.inf
-        x[core.X_LAST_FIX_T] = -math.inf
-        x[core.X_VEL_REJ_T0] = math.nan
-        x[core.X_POS_REJ_T0] = math.nan
-        x[core.X_NIS_V] = math.nan
-        x[core.X_NIS_P] = math.nan
+        x["accel_bias_m_s2"] = keep_ba
+        x["gyro_scale"] = keep_sg
+        x["gyro_misalignment_rad"] = keep_mg
+        x["t_last_s"] = t_s
+        x["gyro_last_rad_s"] = g
+        x["acc_last_m_s2"] = a
+        x["mag_last_ut"] = m if valid & IN_MAG_OK else np.nan
+        x["acc_ned_lp_m_s2"] = np.asarray(quat_to_dcm(q0), dtype=float) @ a
+        x["gnss_fused_t_s"] = -math.inf
+        x["last_fix_t_s"] = -math.inf
+        x["vel_gate"]["rejected_since_s"] = math.nan
+        x["pos_gate"]["rejected_since_s"] = math.nan
+        x["vel_gate"]["nis"] = math.nan
+        x["pos_gate"]["nis"] = math.nan
         # the first history row: a fix valid at this very sample can be fused
-        x[core.X_HIST_I] = 0
-        x[core.X_HIST_N] = 1
+        x["hist_newest"] = 0
+        x["hist_count"] = 1
+        self._hist[0] = 0
         row = self._hist[0]
-        row[:] = 0.0
-        row[core.H_T] = t_s
-        row[core.H_Q : core.H_Q + 4] = q0
-        row[core.H_W : core.H_W + 3] = np.asarray(g, dtype=float) - keep_bg
+        row["t_s"] = t_s
+        row["q"] = q0
+        row["rate_rad_s"] = np.asarray(g, dtype=float) - keep_bg
+        ms = self._mag_state()
         if keep_mag is not None:
-            x[core.X_MAG + mag.MS_REF_NORM] = keep_mag[mag.MS_REF_NORM]
-            x[core.X_MAG + mag.MS_REF_DIP] = keep_mag[mag.MS_REF_DIP]
-            x[core.X_MAG + mag.MS_CAND_NORM] = keep_mag[mag.MS_REF_NORM]
-            x[core.X_MAG + mag.MS_CAND_DIP] = keep_mag[mag.MS_REF_DIP]
-        x[core.X_MAG + mag.MS_UNDIST_T] = p.mag_min_undisturbed_s  # the Wahba heading is already the best
+            ms["ref_norm_ut"] = ms["cand_norm_ut"] = keep_mag["ref_norm_ut"]
+            ms["ref_dip_rad"] = ms["cand_dip_rad"] = keep_mag["ref_dip_rad"]
+        ms["undisturbed_t_s"] = p.mag_min_undisturbed_s  # the Wahba heading is already the best
         P = self._P
         P[:] = 0.0
         for i in range(2):
@@ -884,7 +879,7 @@ class Ins:
             self._published_since_init = True
         yaw = (yaw_true - self._declination + math.pi) % _TWO_PI - math.pi
         nav = None
-        if self._x[core.X_NAV_OK] > 0.0:
+        if self._nav_ok[0] > 0.0:
             nav = NavState(
                 o[core.O_VEL : core.O_VEL + 3],
                 math.degrees(o[core.O_POS]),
@@ -917,7 +912,7 @@ class Ins:
             return HeadingState.UNKNOWN
         if not f & core.F_GNSS_AIDED:
             # unaided the magnetometer is the only heading reference: trusted only when it is in use
-            if not p.mag_enabled or self._par[core.P_MAG_USE] <= 0.0:
+            if not p.mag_enabled or self._mag_use[0] <= 0.0:
                 return HeadingState.UNKNOWN
             return HeadingState.MAGNETOMETER
         return self._heading_state if p.heading_monitor else HeadingState.MAGNETOMETER

@@ -2,9 +2,11 @@
 accelerometer levelling while unaided, magnetometer heading, and the delayed GNSS velocity/position fusion.
 
 `ins.py` owns the parameters, initialisation, input checks and the Estimator interface; this module is the
-arithmetic. Arrays: `x` (nominal state and bookkeeping, layout `X_*`), `P` (24×24 error covariance), `hist`
-(ring buffer of past nominal states for fusing a fix at its time of validity, layout `H_*`), `par`
-(parameters, layout `P_*`), `out` (per-step outputs, layout `O_*`).
+arithmetic. The nominal state and its bookkeeping `x` is an INS_STATE_DTYPE record, the parameters `par` an
+INS_PARAMS_DTYPE record (numpy structured types: named fields that numba compiles to fixed offsets), `hist`
+a ring of INS_HISTORY_DTYPE records (past nominal states for fusing a fix at its time of validity), `P` the
+24×24 error covariance, `out` the per-step outputs (layout `O_*`). The entry points (`ins_step`,
+`fuse_gnss`) take the state and parameters as 1-element arrays (an array unboxes cheaper than a record).
 
 Nominal state: attitude q (body FRD → true-north NED, Hamilton scalar first), NED velocity v, WGS-84 geodetic
 position (L, λ, h), gyro bias b_g, accelerometer bias b_a (body frame), gyro scale factors and misalignment.
@@ -46,16 +48,24 @@ from .ins_mechanisation import (
     transport_rate_ned,
     velocity_rate_ned,
 )
-from .mekf_core import (
+from .constrained_update import residual, scalar_update
+from .kernel_flags import (
+    F_ACCEL_REJECTED,
+    F_GNSS_AIDED,
+    F_GNSS_OUTAGE,
+    F_INITIALISING,
+    F_LARGE_DT,
+    F_MAG_REJECTED,
+    F_MAG_UNAVAILABLE,
     IN_ACC_OK,
     IN_GYRO_OK,
     IN_MAG_OK,
     NEEDS_INIT,
-    euler_and_tilt_sigma,
     initialising,
     input_validity,
     step_dt,
 )
+from .kernel_rotations import dcm, euler_and_tilt_sigma, normalised, quat_mul, rotate_to_ned, rotvec_quat
 
 N_ERR = 24
 E_TH, E_V, E_P, E_BG, E_BA, E_SG, E_MG = 0, 3, 6, 9, 12, 15, 18
@@ -63,95 +73,106 @@ E_TH, E_V, E_P, E_BG, E_BA, E_SG, E_MG = 0, 3, 6, 9, 12, 15, 18
 MIS_ROW = (0, 0, 1, 1, 2, 2)
 MIS_COL = (1, 2, 0, 2, 0, 1)
 
-# ----------------------------------------------------------------------------------- nominal state x
-X_Q = 0            # 4 attitude body → true NED
-X_V = 4            # 3 velocity NED, m/s
-X_LAT = 7          # rad
-X_LON = 8          # rad
-X_H = 9            # height above the ellipsoid, m
-X_BG = 10          # 3 gyro bias, rad/s
-X_BA = 13          # 3 accelerometer bias, m/s² (body)
-X_T_LAST = 16      # time of the previous sample, s
-X_T_RUN = 17       # time since initialisation, s
-X_COV_T = 18       # time accumulated since the last covariance propagation, s
-X_COV_C = 19       # 9: ∫ C_b^n dt over that time (row-major), s
-X_COV_DV = 28      # 3: ∫ f^n dt over that time, m/s
-X_ACC_LP = 31      # 3: specific force low-passed in the estimated NED frame (levelling), m/s²
-X_ACC_HOLD_T = 34  # levelling stays off this much longer after a sustained push, s
-X_ACC_REJ_T = 35   # time since the last accepted levelling update, s
-X_GYR_LAST = 36    # 3: last valid gyro, rad/s
-X_ACC_LAST = 39    # 3: last valid accelerometer, m/s²
-X_MAG_LAST = 42    # 3: last valid magnetometer, µT (NaN: none yet)
-X_NAV_OK = 45      # 1.0 once velocity/position have been set from a fix
-X_GNSS_LAST_T = 46  # time of validity of the last fused fix, s (−inf: none)
-X_VEL_REJ_T0 = 47  # time of validity of the first of the current run of rejected velocities (NaN: none)
-X_POS_REJ_T0 = 48  # ... positions
-X_HIST_I = 49      # index of the newest history row
-X_HIST_N = 50      # rows of history filled
-X_WAS_AIDED = 51   # 1.0 once a fix has been fused (GNSS_OUTAGE only after that)
-X_LAST_FIX_T = 52  # time of validity of the last fix offered (accepted or not), s
-X_NIS_V = 53       # normalised innovation squared of the last velocity fusion (diagnostic)
-X_NIS_P = 54       # ... position
-X_SG = 56          # 3 gyro scale-factor errors (ω_meas = (I + diag(s) + M) ω + b), fraction
-X_MG = 59          # 6 gyro misalignment M: xy, xz, yx, yz, zx, zy (MIS_ROW, MIS_COL), rad
-X_COV_CWW = 68     # 27: ∫ C_ij ω_k dt since the last covariance propagation (index 9 i + 3 j + k), rad
-X_MAG = 95         # mag_heading state block (MS_SIZE)
-X_SIZE = X_MAG + mag.MS_SIZE
+# ----------------------------------------------------------------------------------- nominal state
+# the GNSS gate's bookkeeping for one quantity (velocity, position)
+GNSS_GATE_DTYPE = np.dtype([
+    ("rejected_since_s", np.float64),   # time of validity of the first of the current run of rejections (NaN: none)
+    ("nis", np.float64),                # normalised innovation squared of the last fusion attempt (diagnostic)
+])
+
+INS_STATE_DTYPE = np.dtype([
+    ("q", np.float64, (4,)),                     # attitude body → true NED
+    ("vel_ned_m_s", np.float64, (3,)),
+    ("lat_rad", np.float64),
+    ("lon_rad", np.float64),
+    ("h_m", np.float64),                         # height above the ellipsoid
+    ("gyro_bias_rad_s", np.float64, (3,)),
+    ("accel_bias_m_s2", np.float64, (3,)),       # body frame
+    ("gyro_scale", np.float64, (3,)),            # scale-factor errors (ω_meas = (I + diag(s) + M) ω + b), fraction
+    ("gyro_misalignment_rad", np.float64, (6,)),  # M: xy, xz, yx, yz, zx, zy (MIS_ROW, MIS_COL)
+    ("t_last_s", np.float64),                    # time of the previous sample
+    ("t_run_s", np.float64),                     # time since initialisation
+    # sums since the last covariance propagation
+    ("cov_t_s", np.float64),                     # time accumulated
+    ("cov_c_s", np.float64, (9,)),               # ∫ C_b^n dt (row-major)
+    ("cov_dv_m_s", np.float64, (3,)),            # ∫ f^n dt
+    ("cov_c_omega_rad", np.float64, (27,)),      # ∫ C_ij ω_k dt (index 9 i + 3 j + k)
+    # levelling
+    ("acc_ned_lp_m_s2", np.float64, (3,)),       # specific force low-passed in the estimated NED frame
+    ("acc_hold_s", np.float64),                  # levelling stays off this much longer after a sustained push
+    ("acc_since_accept_s", np.float64),          # time since the last accepted levelling update
+    # last valid samples
+    ("gyro_last_rad_s", np.float64, (3,)),
+    ("acc_last_m_s2", np.float64, (3,)),
+    ("mag_last_ut", np.float64, (3,)),           # NaN: none yet
+    # GNSS
+    ("nav_ok", np.float64),                      # 1.0 once velocity/position have been set from a fix
+    ("was_aided", np.float64),                   # 1.0 once a fix has been fused (GNSS_OUTAGE only after that)
+    ("gnss_fused_t_s", np.float64),              # time of validity of the last fused fix (−inf: none)
+    ("last_fix_t_s", np.float64),                # time of validity of the last fix offered (accepted or not)
+    ("vel_gate", GNSS_GATE_DTYPE),
+    ("pos_gate", GNSS_GATE_DTYPE),
+    ("hist_newest", np.float64),                 # index of the newest history row
+    ("hist_count", np.float64),                  # rows of history filled
+    ("mag", mag.MAG_HEADING_STATE_DTYPE),        # the magnetometer heading check
+])
 
 # ----------------------------------------------------------------------------------- history ring buffer
 H_LEN = 1024       # rows: 1.25 s at 819.2 SPS (fixes older than the oldest row are not fused)
-H_T = 0
-H_Q = 1            # 4
-H_V = 5            # 3
-H_LAT = 8
-H_LON = 9
-H_H = 10
-H_W = 11           # 3 bias-corrected body rate (lever arm), rad/s
-H_SIZE = 14
+INS_HISTORY_DTYPE = np.dtype([
+    ("t_s", np.float64),
+    ("q", np.float64, (4,)),
+    ("vel_ned_m_s", np.float64, (3,)),
+    ("lat_rad", np.float64),
+    ("lon_rad", np.float64),
+    ("h_m", np.float64),
+    ("rate_rad_s", np.float64, (3,)),            # bias-corrected body rate (lever arm)
+])
 
 # ----------------------------------------------------------------------------------- parameters
-P_GYRO_NOISE = 0        # gyro angle random walk, rad/s/√Hz
-P_GYRO_BIAS_WALK = 1    # gyro bias random walk, rad/s/√s
-P_ACC_NOISE_DENS = 2    # accelerometer velocity random walk, m/s²/√Hz
-P_ACC_BIAS_WALK = 3     # accelerometer bias random walk, m/s²/√s
-P_GYRO_BIAS_CLIP = 4    # |b_g| limit per axis, rad/s
-P_ACC_BIAS_CLIP = 5     # |b_a| limit per axis, m/s²
-P_COV_PERIOD = 6        # covariance propagation period, s
-P_EARTH_ROT = 7         # 1.0: rotating Earth (Earth rate, transport rate, Coriolis)
-P_LEVEL_NOISE = 8       # levelling: noise of the low-passed specific force as a gravity measurement, m/s²
-P_LEVEL_REJECT = 9      # levelling off while | |f_lp| − g | exceeds this, m/s²
-P_LEVEL_GATE = 10       # levelling tilt gate, rad
-P_LEVEL_TAU = 11        # low-pass time constant, s
-P_LEVEL_RECOVER = 12    # after this long without a levelling update, the rejection is overridden, s
-P_MAG_ENABLED = 13      # 1.0: magnetometer heading updates
-P_DECLINATION = 14      # magnetic declination, rad (true = magnetic + declination)
-P_LEVER = 15            # 3: antenna position in the body frame relative to the IMU, m
-P_GATE_CHI2 = 18        # 3: innovation gate (χ² threshold) for 1, 2, 3 degrees of freedom
-P_REJECT_RESET = 21     # a run of rejections this long resets that quantity to the fix, s
-P_DEAD_RECKON = 22      # without a fused fix for this long, levelling resumes (unaided), s
-P_OUTAGE_RESET = 23     # the first fix after an outage longer than this resets velocity and position, s
-P_MAX_DELAY = 24        # fixes older than this (behind the newest sample) are not fused, s
-P_LARGE_DT = 25         # Δt above this (or ≤ 0) is flagged LARGE_DT, s
-P_REINIT_DT = 26        # Δt above this re-initialises, s
-P_INIT_TIME = 27        # INITIALISING held at least this long, s
-P_CONV_TILT = 28        # ... and until 1σ tilt is below this, rad
-P_CONV_YAW = 29         # ... and 1σ heading is below this, rad
-P_GNSS_TIMEOUT = 30     # no fused fix for this long: GNSS_OUTAGE, s
-P_NAV_INIT_TILT = 31    # 1σ tilt assumed when a fix first sets velocity/position (levelled tilt leans), rad
-P_NAV_DROP = 44         # without a fused fix for this long, velocity and position are dropped, s
-P_SPHERE = 45           # 1.0: spherical Earth (radius R0 = 6 378 137 m) instead of the WGS-84 ellipsoid's radii
-P_MAG = 32              # mag_heading parameter block (MP_SIZE): 32–43
-P_GYRO_SCALE_WALK = 46  # gyro scale-factor random walk, 1/√s
-P_GYRO_SCALE_CLIP = 47  # |s| and |m| limit per element
-P_GYRO_MIS_WALK = 48    # gyro misalignment random walk, rad/√s
-P_MAG_TILT = 49         # 1.0: while aided the magnetometer update may move the tilt (0: its tilt gain is zero)
-P_MAG_USE = 50          # 1.0: fuse the magnetometer heading; 0.0: the heading monitor rejects it (heading_monitor.py)
-P_MAG_BIAS_VAR = 51     # variance of the slowly varying part of the magnetometer heading error (calibration), rad²
-P_MAG_BIAS_TAU = 52     # its correlation time, s: each update's noise is inflated by τ/Δt (see _mag_update)
-P_IRON = 53             # 3: learned hard iron (body frame) removed from the magnetometer before use, µT
-P_GSF = 56              # 1.0: run the Gaussian-sum GNSS yaw bank beside the filter
-P_SIZE = 57
-assert P_MAG + mag.MP_SIZE <= P_NAV_DROP < P_SIZE
+# InsParams' fields of the same names where there is one (ins.py documents each), as the kernel reads them
+INS_PARAMS_DTYPE = np.dtype([
+    ("gyro_noise_rad_s_sqrt_hz", np.float64),
+    ("gyro_bias_walk_rad_s_sqrt_s", np.float64),
+    ("accel_noise_m_s2_sqrt_hz", np.float64),
+    ("accel_bias_walk_m_s2_sqrt_s", np.float64),
+    ("gyro_bias_clip_rad_s", np.float64),
+    ("accel_bias_clip_m_s2", np.float64),
+    ("gyro_scale_walk_sqrt_s", np.float64),      # 0 while the scale factors are not estimated
+    ("gyro_scale_clip", np.float64),             # |s| and |m| limit per element
+    ("gyro_misalignment_walk_rad_sqrt_s", np.float64),
+    ("cov_period_s", np.float64),                # covariance propagation period
+    ("earth_rotation", np.float64),              # 1.0: rotating Earth (Earth rate, transport rate, Coriolis)
+    ("sphere", np.float64),                      # 1.0: spherical Earth (R0 = 6 378 137 m), else WGS-84 radii
+    ("level_noise_m_s2", np.float64),
+    ("level_reject_m_s2", np.float64),
+    ("level_gate_rad", np.float64),
+    ("level_lowpass_tau_s", np.float64),
+    ("level_recover_s", np.float64),
+    ("mag_enabled", np.float64),                 # 1.0: magnetometer heading updates
+    ("mag_use", np.float64),                     # 1.0: fuse the heading; 0.0: the heading monitor rejects it
+    ("mag_moves_tilt", np.float64),              # 1.0: while aided the heading update may move the tilt
+    ("mag_bias_var_rad2", np.float64),           # slowly varying part of the heading error (calibration)
+    ("mag_bias_tau_s", np.float64),              # its correlation time: noise inflated by τ/Δt (_mag_update)
+    ("iron_ut", np.float64, (3,)),               # learned hard iron removed before use (body frame)
+    ("mag", mag.MAG_HEADING_PARAMS_DTYPE),       # the magnetometer heading check
+    ("declination_rad", np.float64),             # true = magnetic + declination
+    ("lever_arm_m", np.float64, (3,)),           # antenna position in the body frame relative to the IMU
+    ("gate_chi2", np.float64, (3,)),             # innovation gate (χ² threshold) for 1, 2, 3 degrees of freedom
+    ("reject_reset_s", np.float64),
+    ("dead_reckon_s", np.float64),
+    ("outage_reset_s", np.float64),
+    ("nav_drop_s", np.float64),
+    ("max_delay_s", np.float64),
+    ("gnss_timeout_s", np.float64),
+    ("nav_init_sigma_tilt_rad", np.float64),
+    ("gnss_yaw", np.float64),                    # 1.0: run the Gaussian-sum GNSS yaw bank beside the filter
+    ("large_dt_s", np.float64),
+    ("reinit_dt_s", np.float64),
+    ("init_min_time_s", np.float64),
+    ("converged_tilt_rad", np.float64),
+    ("converged_yaw_rad", np.float64),
+])
 
 # ----------------------------------------------------------------------------------- outputs
 O_Q = 0        # 4 body → magnetic NED (the AttitudeEstimate convention)
@@ -166,15 +187,6 @@ O_SIG_P = 25   # 3
 O_BA = 28      # 3
 O_SIZE = 31
 
-# ----------------------------------------------------------------------------------- flags (= EstimateFlags)
-F_INITIALISING = 1
-F_MAG_REJECTED = 2
-F_ACCEL_REJECTED = 4
-F_MAG_UNAVAILABLE = 16
-F_LARGE_DT = 32
-F_GNSS_AIDED = 1 << 7
-F_GNSS_OUTAGE = 1 << 8
-
 # ----------------------------------------------------------------------------------- GNSS fusion results (bits)
 R_VEL_FUSED = 1
 R_POS_FUSED = 2
@@ -183,10 +195,10 @@ R_POS_REJECTED = 8
 R_VEL_RESET = 16       # a persistent change: velocity reset to the fix after a run of rejections
 R_POS_RESET = 32
 R_NAV_INIT = 64        # first fix: velocity and position set from it
-R_TOO_OLD = 128        # older than the history (or than P_MAX_DELAY): not fused
+R_TOO_OLD = 128        # older than the history (or than max_delay_s): not fused
 R_OUTAGE_RESET = 256   # first fix after an outage: velocity and position set from it, attitude untouched
 
-# error-state component masks (bit i = error-state component i) for `_scalar_update`
+# error-state component masks (bit i = error-state component i) for `scalar_update`
 M_TILT = 0b11
 M_HEADING = 0b100
 M_GYRO_BIAS = 0b111 << E_BG
@@ -202,84 +214,17 @@ NAV_UNKNOWN_VAR_P = 1e6      # (1 km)², position variance before a fix sets it
 @njit(cache=True)
 def _radii(par, lat):
     """(R_N, R_E) of the configured Earth model, m."""
-    if par[P_SPHERE] > 0.0:
+    if par.sphere > 0.0:
         return SPHERE_RADIUS_M, SPHERE_RADIUS_M
     return radii_of_curvature_m(lat)
 
 
 @njit(cache=True)
-def _dcm(q0, q1, q2, q3):
-    """C_b^n of a unit quaternion, as 9 scalars row-major."""
-    return (1.0 - 2.0 * (q2 * q2 + q3 * q3), 2.0 * (q1 * q2 - q0 * q3), 2.0 * (q1 * q3 + q0 * q2),
-            2.0 * (q1 * q2 + q0 * q3), 1.0 - 2.0 * (q1 * q1 + q3 * q3), 2.0 * (q2 * q3 - q0 * q1),
-            2.0 * (q1 * q3 - q0 * q2), 2.0 * (q2 * q3 + q0 * q1), 1.0 - 2.0 * (q1 * q1 + q2 * q2))
-
-
-@njit(cache=True)
-def _quat_mul(a0, a1, a2, a3, b0, b1, b2, b3):
-    return (a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3,
-            a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
-            a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1,
-            a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0)
-
-
-@njit(cache=True)
-def _rotvec_quat(rx, ry, rz):
-    """exp of a rotation vector (rad) as a unit quaternion."""
-    ang = math.sqrt(rx * rx + ry * ry + rz * rz)
-    if ang > 1e-9:
-        s = math.sin(0.5 * ang) / ang
-        return math.cos(0.5 * ang), rx * s, ry * s, rz * s
-    return 1.0, 0.5 * rx, 0.5 * ry, 0.5 * rz
-
-
-@njit(cache=True)
-def _normalised(q0, q1, q2, q3):
-    n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
-    return q0 / n, q1 / n, q2 / n, q3 / n
-
-
-@njit(cache=True)
-def _rotate_attitude(x, i0, dth0, dth1, dth2):
-    """q ← exp(δθ) ⊗ q (NED-frame attitude correction) for the quaternion stored at x[i0:i0+4]."""
-    h0, h1, h2, h3 = _rotvec_quat(dth0, dth1, dth2)
-    n0, n1, n2, n3 = _quat_mul(h0, h1, h2, h3, x[i0], x[i0 + 1], x[i0 + 2], x[i0 + 3])
-    x[i0], x[i0 + 1], x[i0 + 2], x[i0 + 3] = _normalised(n0, n1, n2, n3)
-
-
-@njit(cache=True)
-def _scalar_update(P, h, nu, r, zero_mask, dx):
-    """Kalman update with one scalar measurement z = h·δx + noise (variance r) and innovation `nu` (already
-    reduced by h·dx of the earlier updates of the same epoch). Gains of the components whose bit is set in
-    `zero_mask` are forced to zero (this measurement cannot move them) and the covariance takes the Joseph
-    form, valid for such a constrained gain: P ← P − K uᵀ − u Kᵀ + s K Kᵀ, u = P hᵀ, s = h u + r.
-    Accumulates K·nu into dx."""
-    u = np.zeros(N_ERR)
-    for j in range(N_ERR):
-        hj = h[j]
-        if hj != 0.0:
-            for i in range(N_ERR):
-                u[i] += P[i, j] * hj
-    s = r
-    for j in range(N_ERR):
-        s += h[j] * u[j]
-    k = np.zeros(N_ERR)
-    for i in range(N_ERR):
-        if not (zero_mask >> i) & 1:
-            k[i] = u[i] / s
-    for i in range(N_ERR):
-        for j in range(N_ERR):
-            P[i, j] += -k[i] * u[j] - u[i] * k[j] + s * k[i] * k[j]
-    for i in range(N_ERR):
-        dx[i] += k[i] * nu
-
-
-@njit(cache=True)
-def _residual(h, nu, dx):
-    """Innovation left after the corrections dx already found in this epoch: ν − h·dx."""
-    for j in range(N_ERR):
-        nu -= h[j] * dx[j]
-    return nu
+def _rotate_attitude(q, dth0, dth1, dth2):
+    """q ← exp(δθ) ⊗ q (NED-frame attitude correction) for the quaternion array q (4,)."""
+    h0, h1, h2, h3 = rotvec_quat(dth0, dth1, dth2)
+    n0, n1, n2, n3 = quat_mul(h0, h1, h2, h3, q[0], q[1], q[2], q[3])
+    q[0], q[1], q[2], q[3] = normalised(n0, n1, n2, n3)
 
 
 @njit(cache=True)
@@ -294,75 +239,76 @@ def _symmetrise(P):
 @njit(cache=True)
 def _apply_correction(x, par, dx):
     """Fold the error state into the nominal state (closed-loop feedback); the caller zeroes dx."""
-    _rotate_attitude(x, X_Q, dx[0], dx[1], dx[2])
+    _rotate_attitude(x.q, dx[0], dx[1], dx[2])
     for i in range(3):
-        x[X_V + i] += dx[E_V + i]
-    lat = x[X_LAT]
+        x.vel_ned_m_s[i] += dx[E_V + i]
+    lat = x.lat_rad
     r_n, r_e = _radii(par, lat)
-    x[X_LAT] = lat + dx[E_P] / (r_n + x[X_H])
-    x[X_LON] += dx[E_P + 1] / ((r_e + x[X_H]) * math.cos(lat))
-    x[X_H] -= dx[E_P + 2]
-    gc = par[P_GYRO_BIAS_CLIP]
-    ac = par[P_ACC_BIAS_CLIP]
-    sc = par[P_GYRO_SCALE_CLIP]
+    x.lat_rad = lat + dx[E_P] / (r_n + x.h_m)
+    x.lon_rad += dx[E_P + 1] / ((r_e + x.h_m) * math.cos(lat))
+    x.h_m -= dx[E_P + 2]
+    gc = par.gyro_bias_clip_rad_s
+    ac = par.accel_bias_clip_m_s2
+    sc = par.gyro_scale_clip
     for i in range(3):
-        x[X_BG + i] = min(max(x[X_BG + i] + dx[E_BG + i], -gc), gc)
-        x[X_BA + i] = min(max(x[X_BA + i] + dx[E_BA + i], -ac), ac)
-        x[X_SG + i] = min(max(x[X_SG + i] + dx[E_SG + i], -sc), sc)
+        x.gyro_bias_rad_s[i] = min(max(x.gyro_bias_rad_s[i] + dx[E_BG + i], -gc), gc)
+        x.accel_bias_m_s2[i] = min(max(x.accel_bias_m_s2[i] + dx[E_BA + i], -ac), ac)
+        x.gyro_scale[i] = min(max(x.gyro_scale[i] + dx[E_SG + i], -sc), sc)
     for i in range(6):
-        x[X_MG + i] = min(max(x[X_MG + i] + dx[E_MG + i], -sc), sc)
+        x.gyro_misalignment_rad[i] = min(max(x.gyro_misalignment_rad[i] + dx[E_MG + i], -sc), sc)
     # the NED-frame low-passed specific force lives in the estimated NED frame: keep it there
-    an = x[X_ACC_LP]
-    ae = x[X_ACC_LP + 1]
-    ad = x[X_ACC_LP + 2]
-    x[X_ACC_LP] = an + dx[1] * ad - dx[2] * ae
-    x[X_ACC_LP + 1] = ae + dx[2] * an - dx[0] * ad
-    x[X_ACC_LP + 2] = ad + dx[0] * ae - dx[1] * an
+    an = x.acc_ned_lp_m_s2[0]
+    ae = x.acc_ned_lp_m_s2[1]
+    ad = x.acc_ned_lp_m_s2[2]
+    x.acc_ned_lp_m_s2[0] = an + dx[1] * ad - dx[2] * ae
+    x.acc_ned_lp_m_s2[1] = ae + dx[2] * an - dx[0] * ad
+    x.acc_ned_lp_m_s2[2] = ad + dx[0] * ae - dx[1] * an
 
 
 @njit(cache=True)
 def _gyro_matrix_corrected(x, ux, uy, uz):
     """(I − diag(s) − M) u: the bias-corrected rate u with the scale-factor and misalignment estimates removed
     (first order of (I + diag(s) + M)⁻¹, exact to < 1e-5 relative for |s|, |m| < 0.3 %)."""
-    return (ux - x[X_SG] * ux - x[X_MG] * uy - x[X_MG + 1] * uz,
-            uy - x[X_SG + 1] * uy - x[X_MG + 2] * ux - x[X_MG + 3] * uz,
-            uz - x[X_SG + 2] * uz - x[X_MG + 4] * ux - x[X_MG + 5] * uy)
+    return (ux - x.gyro_scale[0] * ux - x.gyro_misalignment_rad[0] * uy - x.gyro_misalignment_rad[1] * uz,
+            uy - x.gyro_scale[1] * uy - x.gyro_misalignment_rad[2] * ux - x.gyro_misalignment_rad[3] * uz,
+            uz - x.gyro_scale[2] * uz - x.gyro_misalignment_rad[4] * ux - x.gyro_misalignment_rad[5] * uy)
 
 
 @njit(cache=True)
 def _accumulate_c_omega(x, c00, c01, c02, c10, c11, c12, c20, c21, c22, tx, ty, tz):
     """∫ C_ij ω_k dt += C_ij θ_k for the step's rotation increment θ = ω dt (Φ's scale/misalignment blocks)."""
     c = (c00, c01, c02, c10, c11, c12, c20, c21, c22)
+    s = x.cov_c_omega_rad
     for ij in range(9):
-        b = X_COV_CWW + 3 * ij
-        x[b] += c[ij] * tx
-        x[b + 1] += c[ij] * ty
-        x[b + 2] += c[ij] * tz
+        b = 3 * ij
+        s[b] += c[ij] * tx
+        s[b + 1] += c[ij] * ty
+        s[b + 2] += c[ij] * tz
 
 
 # ----------------------------------------------------------------------------------- covariance propagation
 @njit(cache=True)
 def transition_matrix(x, par):
-    """Φ (N_ERR × N_ERR) of the interval accumulated since the last propagation (X_COV_T, the sums ∫C dt,
+    """Φ (N_ERR × N_ERR) of the interval accumulated since the last propagation (cov_t_s, the sums ∫C dt,
     ∫C ω dt, ΔV^n), as `propagate_covariance` applies it (3×3 blocks, order δθ, δv, δp, δb_g, δb_a, then δs_g,
     δm_g), with A = −∫C dt and B = −[ΔV^n×]:
         δθ: [I, 0, 0, A, 0, −∫C diag(ω) dt, −∫C W(ω) dt];  δv: [B, I, 0, 0, A, 0, 0];
         δp: [½T B, T I, I, 0, ½T A, 0, 0];  biases, scale factors, misalignments: identity.
     The offline smoother (ins_smoother.py) reads it too."""
-    T = x[X_COV_T]
+    T = x.cov_t_s
     phi = np.eye(N_ERR)
     for i in range(3):
         for j in range(3):
-            phi[E_TH + i, E_SG + j] = -x[X_COV_CWW + 9 * i + 4 * j]   # δθ̇ = −C diag(ω) δs: ∫ C_ij ω_j
-            a = -x[X_COV_C + 3 * i + j]
+            phi[E_TH + i, E_SG + j] = -x.cov_c_omega_rad[9 * i + 4 * j]   # δθ̇ = −C diag(ω) δs: ∫ C_ij ω_j
+            a = -x.cov_c_s[3 * i + j]
             phi[E_TH + i, E_BG + j] = a
             phi[E_V + i, E_BA + j] = a
             phi[E_P + i, E_BA + j] = 0.5 * T * a
         for n in range(6):   # δθ̇ = −C W(ω) δm: δm_jk moves ω_j by δm_jk ω_k
-            phi[E_TH + i, E_MG + n] = -x[X_COV_CWW + 9 * i + 3 * MIS_ROW[n] + MIS_COL[n]]
-    dvn = x[X_COV_DV]
-    dve = x[X_COV_DV + 1]
-    dvd = x[X_COV_DV + 2]
+            phi[E_TH + i, E_MG + n] = -x.cov_c_omega_rad[9 * i + 3 * MIS_ROW[n] + MIS_COL[n]]
+    dvn = x.cov_dv_m_s[0]
+    dve = x.cov_dv_m_s[1]
+    dvd = x.cov_dv_m_s[2]
     # B = −[ΔV×]
     b = ((0.0, dvd, -dve), (-dvd, 0.0, dvn), (dve, -dvn, 0.0))
     for i in range(3):
@@ -375,11 +321,11 @@ def transition_matrix(x, par):
 
 @njit(cache=True)
 def propagate_covariance(x, P, par):
-    """P ← Φ P Φᵀ + Q over the time accumulated since the last call (X_COV_T), then clear the sums.
+    """P ← Φ P Φᵀ + Q over the time accumulated since the last call (cov_t_s), then clear the sums.
 
     Φ: `transition_matrix`. Q: white gyro and accelerometer noise and bias random walks, density² · T on the
     diagonal (isotropic, so rotating it by C changes nothing)."""
-    T = x[X_COV_T]
+    T = x.cov_t_s
     if T <= 0.0:
         return
     phi = transition_matrix(x, par)
@@ -400,10 +346,10 @@ def propagate_covariance(x, P, par):
             if a != 0.0:
                 for i in range(N_ERR):
                     P[i, j] += m[i, k] * a
-    qg = par[P_GYRO_NOISE] ** 2 * T
-    qa = par[P_ACC_NOISE_DENS] ** 2 * T
-    qbg = par[P_GYRO_BIAS_WALK] ** 2 * T
-    qba = par[P_ACC_BIAS_WALK] ** 2 * T
+    qg = par.gyro_noise_rad_s_sqrt_hz ** 2 * T
+    qa = par.accel_noise_m_s2_sqrt_hz ** 2 * T
+    qbg = par.gyro_bias_walk_rad_s_sqrt_s ** 2 * T
+    qba = par.accel_bias_walk_m_s2_sqrt_s ** 2 * T
     for i in range(3):
         P[E_TH + i, E_TH + i] += qg
         P[E_V + i, E_V + i] += qa
@@ -412,81 +358,83 @@ def propagate_covariance(x, P, par):
         P[E_V + i, E_P + i] += 0.5 * qa * T
         P[E_BG + i, E_BG + i] += qbg
         P[E_BA + i, E_BA + i] += qba
-        P[E_SG + i, E_SG + i] += par[P_GYRO_SCALE_WALK] ** 2 * T
-        P[E_MG + i, E_MG + i] += par[P_GYRO_MIS_WALK] ** 2 * T
-        P[E_MG + 3 + i, E_MG + 3 + i] += par[P_GYRO_MIS_WALK] ** 2 * T
+        P[E_SG + i, E_SG + i] += par.gyro_scale_walk_sqrt_s ** 2 * T
+        P[E_MG + i, E_MG + i] += par.gyro_misalignment_walk_rad_sqrt_s ** 2 * T
+        P[E_MG + 3 + i, E_MG + 3 + i] += par.gyro_misalignment_walk_rad_sqrt_s ** 2 * T
     _symmetrise(P)
-    x[X_COV_T] = 0.0
+    x.cov_t_s = 0.0
     for i in range(9):
-        x[X_COV_C + i] = 0.0
+        x.cov_c_s[i] = 0.0
     for i in range(27):
-        x[X_COV_CWW + i] = 0.0
+        x.cov_c_omega_rad[i] = 0.0
     for i in range(3):
-        x[X_COV_DV + i] = 0.0
+        x.cov_dv_m_s[i] = 0.0
 
 
 # ----------------------------------------------------------------------------------- the per-sample step
 @njit(cache=True)
 def _aided(x, par):
-    """Velocity/position known and a fix fused less than P_DEAD_RECKON ago: the accelerometer is left to the
+    """Velocity/position known and a fix fused less than dead_reckon_s ago: the accelerometer is left to the
     mechanisation (no levelling)."""
-    return x[X_NAV_OK] > 0.0 and x[X_T_LAST] - x[X_GNSS_LAST_T] < par[P_DEAD_RECKON]
+    return x.nav_ok > 0.0 and x.t_last_s - x.gnss_fused_t_s < par.dead_reckon_s
 
 
 @njit(cache=True)
 def _level(x, P, par, dt_epoch):
     """Accelerometer levelling (tilt only) from the NED-frame low-passed specific force, with mekf's gating:
-    off while | |f_lp| − g | > P_LEVEL_REJECT or the low-passed vertical is more than P_LEVEL_GATE from the
+    off while | |f_lp| − g | > level_reject_m_s2 or the low-passed vertical is more than level_gate_rad from the
     estimate, then held off for 4 τ (until the low-pass has forgotten the push), unless nothing was accepted
-    for P_LEVEL_RECOVER. Tilt only: heading, gyro and accelerometer biases get no gain — the levelled vertical
+    for level_recover_s. Tilt only: heading, gyro and accelerometer biases get no gain — the levelled vertical
     leans into any sustained acceleration (a boat's turn, a/g), an error that is not white noise, and learnt
     into the biases it would survive the return of GNSS (which then reads the lean as a bias). Returns
     F_ACCEL_REJECTED or 0."""
-    un = x[X_ACC_LP]
-    ue = x[X_ACC_LP + 1]
-    ud = x[X_ACC_LP + 2]
+    un = x.acc_ned_lp_m_s2[0]
+    ue = x.acc_ned_lp_m_s2[1]
+    ud = x.acc_ned_lp_m_s2[2]
     unorm = math.sqrt(un * un + ue * ue + ud * ud)
-    g = normal_gravity_m_s2(x[X_LAT], x[X_H]) if x[X_NAV_OK] > 0.0 else 9.80665
+    g = normal_gravity_m_s2(x.lat_rad, x.h_m) if x.nav_ok > 0.0 else 9.80665
     if unorm <= 0.5 * g:
-        x[X_ACC_REJ_T] += dt_epoch
+        x.acc_since_accept_s += dt_epoch
         return F_ACCEL_REJECTED
     nu_n = un / unorm     # = δθ_E (+ noise): the measured "up" is [δθ_E, −δθ_N, −1]
     nu_e = ue / unorm     # = −δθ_N
-    tau = par[P_LEVEL_TAU]
-    if abs(unorm - g) > par[P_LEVEL_REJECT] or nu_n * nu_n + nu_e * nu_e > par[P_LEVEL_GATE] ** 2:
-        x[X_ACC_HOLD_T] = 4.0 * tau
-    elif x[X_ACC_HOLD_T] > 0.0:
-        x[X_ACC_HOLD_T] -= dt_epoch
-    if x[X_ACC_HOLD_T] > 0.0 and x[X_ACC_REJ_T] <= par[P_LEVEL_RECOVER]:
-        x[X_ACC_REJ_T] += dt_epoch
+    tau = par.level_lowpass_tau_s
+    if abs(unorm - g) > par.level_reject_m_s2 or nu_n * nu_n + nu_e * nu_e > par.level_gate_rad ** 2:
+        x.acc_hold_s = 4.0 * tau
+    elif x.acc_hold_s > 0.0:
+        x.acc_hold_s -= dt_epoch
+    if x.acc_hold_s > 0.0 and x.acc_since_accept_s <= par.level_recover_s:
+        x.acc_since_accept_s += dt_epoch
         return F_ACCEL_REJECTED
-    r = (par[P_LEVEL_NOISE] / g) ** 2
+    r = (par.level_noise_m_s2 / g) ** 2
     mask = M_HEADING | M_ACC_BIAS | M_GYRO_BIAS | M_GYRO_SCALE | M_GYRO_MIS   # tilt only (see the docstring)
     dx = np.zeros(N_ERR)
     h = np.zeros(N_ERR)
     h[1] = 1.0
-    _scalar_update(P, h, nu_n, r, mask, dx)
+    scalar_update(P, h, nu_n, r, mask, dx)
     h[1] = 0.0
     h[0] = -1.0
-    _scalar_update(P, h, _residual(h, nu_e, dx), r, mask, dx)
+    scalar_update(P, h, residual(h, nu_e, dx), r, mask, dx)
     _apply_correction(x, par, dx)
-    x[X_ACC_REJ_T] = 0.0
+    x.acc_since_accept_s = 0.0
     return 0
 
 
 @njit(cache=True)
 def _mag_update(x, P, par, dt_epoch, rate):
     """Magnetometer heading update (the shared check of mag_heading.py): returns flag bits."""
+    ms = x.mag
+    mp = par.mag
     flags = 0
     used = False
-    mx = x[X_MAG_LAST]
-    my = x[X_MAG_LAST + 1]
-    mz = x[X_MAG_LAST + 2]
-    if par[P_MAG_ENABLED] > 0.0 and par[P_MAG_USE] > 0.0 and math.isfinite(mx):
-        mx -= par[P_IRON]
-        my -= par[P_IRON + 1]
-        mz -= par[P_IRON + 2]
-        mn, me, md = mag.rotate_to_ned(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], mx, my, mz)
+    mx = x.mag_last_ut[0]
+    my = x.mag_last_ut[1]
+    mz = x.mag_last_ut[2]
+    if par.mag_enabled > 0.0 and par.mag_use > 0.0 and math.isfinite(mx):
+        mx -= par.iron_ut[0]
+        my -= par.iron_ut[1]
+        mz -= par.iron_ut[2]
+        mn, me, md = rotate_to_ned(x.q[0], x.q[1], x.q[2], x.q[3], mx, my, mz)
         mnorm = math.sqrt(mx * mx + my * my + mz * mz)
         # the heading of the horizontal field depends on the tilt too: with m = H u + Z e_D (u the magnetic
         # north), m_est = m − δθ × m gives α = −δθ_D + (Z/H) u·δθ, so a tilt error along magnetic north reads
@@ -497,8 +445,8 @@ def _mag_update(x, P, par, dt_epoch, rate):
         # is heading only, as in mekf.
         h = np.zeros(N_ERR)
         h[2] = -1.0
-        aided = x[X_NAV_OK] > 0.0 and x[X_T_LAST] - x[X_GNSS_LAST_T] <= par[P_GNSS_TIMEOUT]
-        moves_tilt = aided and par[P_MAG_TILT] > 0.0
+        aided = x.nav_ok > 0.0 and x.t_last_s - x.gnss_fused_t_s <= par.gnss_timeout_s
+        moves_tilt = aided and par.mag_moves_tilt > 0.0
         mh2 = mn * mn + me * me
         if aided and mh2 > 0.0:
             h[0] = md * mn / mh2
@@ -507,213 +455,252 @@ def _mag_update(x, P, par, dt_epoch, rate):
         for i in range(3):
             for j in range(3):
                 hph += h[i] * P[i, j] * h[j]
-        res, alpha, r = mag.heading_measurement(x, X_MAG, par, P_MAG, dt_epoch, rate, False, False, mn, me, md,
-                                                mnorm, par[P_DECLINATION], hph + par[P_MAG_BIAS_VAR])
+        res, alpha, r = mag.heading_measurement(ms, mp, dt_epoch, rate, False, False, mn, me, md,
+                                                mnorm, par.declination_rad, hph + par.mag_bias_var_rad2)
         if res == mag.MAG_USE:
-            # the calibration's error is not white: a heading bias of variance P_MAG_BIAS_VAR that lasts about
-            # P_MAG_BIAS_TAU. Fused every Δt as if white it would shrink the heading σ below it; spread over the
+            # the calibration's error is not white: a heading bias of variance mag_bias_var_rad2 that lasts about
+            # mag_bias_tau_s. Fused every Δt as if white it would shrink the heading σ below it; spread over the
             # τ/Δt updates of one correlation time it adds at most its own variance's worth of information.
-            r += par[P_MAG_BIAS_VAR] * max(1.0, par[P_MAG_BIAS_TAU] / max(dt_epoch, 1e-6))
+            r += par.mag_bias_var_rad2 * max(1.0, par.mag_bias_tau_s / max(dt_epoch, 1e-6))
             dx = np.zeros(N_ERR)
-            _scalar_update(P, h, alpha, r, 0 if moves_tilt else M_TILT, dx)
+            scalar_update(P, h, alpha, r, 0 if moves_tilt else M_TILT, dx)
             _apply_correction(x, par, dx)
             used = True
         elif res == mag.MAG_REJECTED:
             flags |= F_MAG_REJECTED
-    elif par[P_MAG_ENABLED] > 0.0 and math.isfinite(mx):
+    elif par.mag_enabled > 0.0 and math.isfinite(mx):
         flags |= F_MAG_REJECTED     # the heading monitor rejects it (disagrees with GNSS or its own innovations)
-    if mag.heading_bookkeeping(x, X_MAG, par, P_MAG, dt_epoch, used):
+    if mag.heading_bookkeeping(ms, mp, dt_epoch, used):
         flags |= F_MAG_UNAVAILABLE
     return flags
 
 
 @njit(cache=True)
-def ins_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, out, gsf, gsf_par):
-    """One IMU sample: mechanise, accumulate the covariance increments, every P_COV_PERIOD propagate the
-    covariance and run the levelling (when unaided) and magnetometer updates; feed the magnetometer-free GNSS
-    yaw bank (`gsf`, `gsf_par`: 1-element record arrays of gsf_yaw.py's state and parameters — arrays unbox
-    far cheaper per call than records; its own tilt and yaw, never this filter's heading) the bias-corrected sample;
-    fill `out`. Returns
-    EstimateFlags bits (| NEEDS_INIT when the caller must initialise from this sample first)."""
-    valid = input_validity(sample_flags, gx, gy, gz, ax, ay, az, mx, my, mz)
-    dt, flags = step_dt(t_s - x[X_T_LAST], par[P_LARGE_DT], par[P_REINIT_DT])
-    if flags & NEEDS_INIT:
-        return flags
-    if dt > 0.0:
-        x[X_T_LAST] = t_s
-    x[X_T_RUN] += dt
-    # the samples are instantaneous values at their times: over the step use the mean of the previous and
-    # this one (trapezoid; the last sample alone lags by half a step: ½ Δt · Δω of heading per change of rate)
-    pgx = x[X_GYR_LAST]
-    pgy = x[X_GYR_LAST + 1]
-    pgz = x[X_GYR_LAST + 2]
-    pax = x[X_ACC_LAST]
-    pay = x[X_ACC_LAST + 1]
-    paz = x[X_ACC_LAST + 2]
+def _take_sample(x, valid, gx, gy, gz, ax, ay, az, mx, my, mz):
+    """Keep this sample's valid sensors as the last ones; return the bias- (and scale-, misalignment-)
+    corrected rate of this sample (wx, wy, wz), and the rate (mwx, mwy, mwz) and specific force (fx, fy, fz)
+    over the step. The samples are instantaneous values at their times: over the step use the mean of the
+    previous and this one (trapezoid; the last sample alone lags by half a step: ½ Δt · Δω of heading per
+    change of rate)."""
+    pgx = x.gyro_last_rad_s[0]
+    pgy = x.gyro_last_rad_s[1]
+    pgz = x.gyro_last_rad_s[2]
+    pax = x.acc_last_m_s2[0]
+    pay = x.acc_last_m_s2[1]
+    paz = x.acc_last_m_s2[2]
     if valid & IN_GYRO_OK:
-        x[X_GYR_LAST] = gx
-        x[X_GYR_LAST + 1] = gy
-        x[X_GYR_LAST + 2] = gz
+        x.gyro_last_rad_s[0] = gx
+        x.gyro_last_rad_s[1] = gy
+        x.gyro_last_rad_s[2] = gz
     if valid & IN_ACC_OK:
-        x[X_ACC_LAST] = ax
-        x[X_ACC_LAST + 1] = ay
-        x[X_ACC_LAST + 2] = az
+        x.acc_last_m_s2[0] = ax
+        x.acc_last_m_s2[1] = ay
+        x.acc_last_m_s2[2] = az
     if valid & IN_MAG_OK:
-        x[X_MAG_LAST] = mx
-        x[X_MAG_LAST + 1] = my
-        x[X_MAG_LAST + 2] = mz
-    wx = x[X_GYR_LAST] - x[X_BG]
-    wy = x[X_GYR_LAST + 1] - x[X_BG + 1]
-    wz = x[X_GYR_LAST + 2] - x[X_BG + 2]
-    mwx = 0.5 * (pgx + x[X_GYR_LAST]) - x[X_BG]
-    mwy = 0.5 * (pgy + x[X_GYR_LAST + 1]) - x[X_BG + 1]
-    mwz = 0.5 * (pgz + x[X_GYR_LAST + 2]) - x[X_BG + 2]
+        x.mag_last_ut[0] = mx
+        x.mag_last_ut[1] = my
+        x.mag_last_ut[2] = mz
+    wx = x.gyro_last_rad_s[0] - x.gyro_bias_rad_s[0]
+    wy = x.gyro_last_rad_s[1] - x.gyro_bias_rad_s[1]
+    wz = x.gyro_last_rad_s[2] - x.gyro_bias_rad_s[2]
+    mwx = 0.5 * (pgx + x.gyro_last_rad_s[0]) - x.gyro_bias_rad_s[0]
+    mwy = 0.5 * (pgy + x.gyro_last_rad_s[1]) - x.gyro_bias_rad_s[1]
+    mwz = 0.5 * (pgz + x.gyro_last_rad_s[2]) - x.gyro_bias_rad_s[2]
     # scale factor and misalignment: ω = (I + diag(s) + M)⁻¹ (ω_meas − b) ≈ (I − diag(s) − M)(ω_meas − b)
     wx, wy, wz = _gyro_matrix_corrected(x, wx, wy, wz)
     mwx, mwy, mwz = _gyro_matrix_corrected(x, mwx, mwy, mwz)
-    fx = 0.5 * (pax + x[X_ACC_LAST]) - x[X_BA]
-    fy = 0.5 * (pay + x[X_ACC_LAST + 1]) - x[X_BA + 1]
-    fz = 0.5 * (paz + x[X_ACC_LAST + 2]) - x[X_BA + 2]
-    if par[P_GSF] > 0.0:
-        gsf_accumulate_imu(gsf[0], gsf_par[0], dt, np.array((mwx, mwy, mwz)), np.array((fx, fy, fz)))
-    q0 = x[X_Q]
-    q1 = x[X_Q + 1]
-    q2 = x[X_Q + 2]
-    q3 = x[X_Q + 3]
-    c00, c01, c02, c10, c11, c12, c20, c21, c22 = _dcm(q0, q1, q2, q3)
-    lat = x[X_LAT]
-    h_m = x[X_H]
-    vn = x[X_V]
-    ve = x[X_V + 1]
-    vd = x[X_V + 2]
-    r_n, r_e = _radii(par, lat)
-    nav_ok = x[X_NAV_OK] > 0.0
-    if nav_ok and x[X_T_LAST] - x[X_GNSS_LAST_T] > par[P_NAV_DROP]:
-        # so long without a fix that velocity and position mean nothing: stop integrating them (the next fix
-        # sets them again, as the first one did)
-        nav_ok = False
-        x[X_NAV_OK] = 0.0
-        for i in range(3):
-            x[X_V + i] = 0.0
-        vn = ve = vd = 0.0
-    earth = par[P_EARTH_ROT] > 0.0 and nav_ok   # the Earth rate needs the latitude
-    if dt > 0.0:
-        # body rate relative to NED: ω_nb = ω_ib − C_n^b (ω_ie + ω_en)   (as in Groves 2nd ed. eq. 5.77)
-        rx, ry, rz = mwx, mwy, mwz
-        if earth:
-            en, ee, ed = earth_rate_ned(lat)
-            tn, te, td = transport_rate_ned(lat, h_m, vn, ve, r_n, r_e)
-            sn = en + tn
-            se = ee + te
-            sd = ed + td
-            rx -= c00 * sn + c10 * se + c20 * sd
-            ry -= c01 * sn + c11 * se + c21 * sd
-            rz -= c02 * sn + c12 * se + c22 * sd
-        thx = rx * dt
-        thy = ry * dt
-        thz = rz * dt
-        # specific force at the middle of the step: f + ½ θ × f in the body frame at the start
-        mfx = fx + 0.5 * (thy * fz - thz * fy)
-        mfy = fy + 0.5 * (thz * fx - thx * fz)
-        mfz = fz + 0.5 * (thx * fy - thy * fx)
-        fn = c00 * mfx + c01 * mfy + c02 * mfz
-        fe = c10 * mfx + c11 * mfy + c12 * mfz
-        fd = c20 * mfx + c21 * mfy + c22 * mfz
-        # attitude: C_b^n ← C_b^n exp(ω_nb dt)   (eq. 20)
-        e0, e1, e2, e3 = _rotvec_quat(thx, thy, thz)
-        n0, n1, n2, n3 = _quat_mul(q0, q1, q2, q3, e0, e1, e2, e3)
-        q0, q1, q2, q3 = _normalised(n0, n1, n2, n3)
-        x[X_Q] = q0
-        x[X_Q + 1] = q1
-        x[X_Q + 2] = q2
-        x[X_Q + 3] = q3
-        # velocity (eq. 14) and position (eq. 17, trapezoid); before the first fix they are unknown and held
-        nvn, nve, nvd = vn, ve, vd
-        if nav_ok:
-            an, ae, ad = velocity_rate_ned(fn, fe, fd, vn, ve, vd, lat, h_m, r_n, r_e, earth)
-            nvn = vn + an * dt
-            nve = ve + ae * dt
-            nvd = vd + ad * dt
-            ldot, odot, hdot = position_rates(lat, h_m, 0.5 * (vn + nvn), 0.5 * (ve + nve), 0.5 * (vd + nvd),
-                                              r_n, r_e)
-            x[X_V] = nvn
-            x[X_V + 1] = nve
-            x[X_V + 2] = nvd
-            x[X_LAT] = lat + ldot * dt
-            x[X_LON] += odot * dt
-            x[X_H] = h_m + hdot * dt
-        # covariance increments
-        x[X_COV_T] += dt
-        x[X_COV_C] += c00 * dt
-        x[X_COV_C + 1] += c01 * dt
-        x[X_COV_C + 2] += c02 * dt
-        x[X_COV_C + 3] += c10 * dt
-        x[X_COV_C + 4] += c11 * dt
-        x[X_COV_C + 5] += c12 * dt
-        x[X_COV_C + 6] += c20 * dt
-        x[X_COV_C + 7] += c21 * dt
-        x[X_COV_C + 8] += c22 * dt
-        x[X_COV_DV] += fn * dt
-        x[X_COV_DV + 1] += fe * dt
-        x[X_COV_DV + 2] += fd * dt
-        _accumulate_c_omega(x, c00, c01, c02, c10, c11, c12, c20, c21, c22, mwx * dt, mwy * dt, mwz * dt)
-        # NED-frame low-pass of the specific force for the levelling (linear acceleration averages out)
-        tau = par[P_LEVEL_TAU]
-        k = 1.0 - math.exp(-dt / tau) if tau > 0.0 else 1.0
-        x[X_ACC_LP] += k * (fn - x[X_ACC_LP])
-        x[X_ACC_LP + 1] += k * (fe - x[X_ACC_LP + 1])
-        x[X_ACC_LP + 2] += k * (fd - x[X_ACC_LP + 2])
-        # history row for fusing late fixes at their time of validity
-        i = (int(x[X_HIST_I]) + 1) % H_LEN
-        x[X_HIST_I] = i
-        x[X_HIST_N] = min(x[X_HIST_N] + 1.0, float(H_LEN))
-        hist[i, H_T] = t_s
-        hist[i, H_Q] = q0
-        hist[i, H_Q + 1] = q1
-        hist[i, H_Q + 2] = q2
-        hist[i, H_Q + 3] = q3
-        hist[i, H_V] = nvn
-        hist[i, H_V + 1] = nve
-        hist[i, H_V + 2] = nvd
-        hist[i, H_LAT] = x[X_LAT]
-        hist[i, H_LON] = x[X_LON]
-        hist[i, H_H] = x[X_H]
-        hist[i, H_W] = wx
-        hist[i, H_W + 1] = wy
-        hist[i, H_W + 2] = wz
+    fx = 0.5 * (pax + x.acc_last_m_s2[0]) - x.accel_bias_m_s2[0]
+    fy = 0.5 * (pay + x.acc_last_m_s2[1]) - x.accel_bias_m_s2[1]
+    fz = 0.5 * (paz + x.acc_last_m_s2[2]) - x.accel_bias_m_s2[2]
+    return wx, wy, wz, mwx, mwy, mwz, fx, fy, fz
 
-    if x[X_COV_T] >= par[P_COV_PERIOD]:
-        epoch = x[X_COV_T]
-        propagate_covariance(x, P, par)
-        if not nav_ok:
-            # unknown velocity/position: keep their block bounded and uncorrelated until a fix sets them
-            _reset_block(P, E_V, np.full(3, NAV_UNKNOWN_VAR_V))
-            _reset_block(P, E_P, np.full(3, NAV_UNKNOWN_VAR_P))
-        if not _aided(x, par):
-            flags |= _level(x, P, par, epoch)
-        flags |= _mag_update(x, P, par, epoch, math.sqrt(wx * wx + wy * wy + wz * wz))
-        _symmetrise(P)
+
+@njit(cache=True)
+def _navigation_known(x, par):
+    """Velocity and position set by a fix and not dropped: so long without a fix (nav_drop_s) that they mean
+    nothing, they are no longer integrated (the next fix sets them again, as the first one did)."""
+    if x.nav_ok > 0.0 and x.t_last_s - x.gnss_fused_t_s > par.nav_drop_s:
+        x.nav_ok = 0.0
+        for i in range(3):
+            x.vel_ned_m_s[i] = 0.0
+    return x.nav_ok > 0.0
+
+
+@njit(cache=True)
+def _mechanise(x, par, dt, nav_ok, mwx, mwy, mwz, fx, fy, fz):
+    """NED strapdown over Δt (P. D. Groves, Principles of GNSS, Inertial, and Multisensor Integrated
+    Navigation Systems, 2nd ed., §5.4): attitude, then velocity and position (held before the first fix);
+    accumulates the covariance increments and the NED-frame low-pass of the specific force (levelling).
+    Returns the new attitude and velocity."""
+    q0 = x.q[0]
+    q1 = x.q[1]
+    q2 = x.q[2]
+    q3 = x.q[3]
+    c00, c01, c02, c10, c11, c12, c20, c21, c22 = dcm(q0, q1, q2, q3)
+    lat = x.lat_rad
+    h_m = x.h_m
+    vn = x.vel_ned_m_s[0]
+    ve = x.vel_ned_m_s[1]
+    vd = x.vel_ned_m_s[2]
+    r_n, r_e = _radii(par, lat)
+    earth = par.earth_rotation > 0.0 and nav_ok   # the Earth rate needs the latitude
+    # body rate relative to NED: ω_nb = ω_ib − C_n^b (ω_ie + ω_en)   (Groves eq. 5.77)
+    rx, ry, rz = mwx, mwy, mwz
+    if earth:
+        en, ee, ed = earth_rate_ned(lat)
+        tn, te, td = transport_rate_ned(lat, h_m, vn, ve, r_n, r_e)
+        sn = en + tn
+        se = ee + te
+        sd = ed + td
+        rx -= c00 * sn + c10 * se + c20 * sd
+        ry -= c01 * sn + c11 * se + c21 * sd
+        rz -= c02 * sn + c12 * se + c22 * sd
+    thx = rx * dt
+    thy = ry * dt
+    thz = rz * dt
+    # specific force at the middle of the step: f + ½ θ × f in the body frame at the start
+    mfx = fx + 0.5 * (thy * fz - thz * fy)
+    mfy = fy + 0.5 * (thz * fx - thx * fz)
+    mfz = fz + 0.5 * (thx * fy - thy * fx)
+    fn = c00 * mfx + c01 * mfy + c02 * mfz
+    fe = c10 * mfx + c11 * mfy + c12 * mfz
+    fd = c20 * mfx + c21 * mfy + c22 * mfz
+    # attitude: C_b^n ← C_b^n exp(ω_nb dt)   (eq. 20)
+    e0, e1, e2, e3 = rotvec_quat(thx, thy, thz)
+    n0, n1, n2, n3 = quat_mul(q0, q1, q2, q3, e0, e1, e2, e3)
+    q0, q1, q2, q3 = normalised(n0, n1, n2, n3)
+    x.q[0] = q0
+    x.q[1] = q1
+    x.q[2] = q2
+    x.q[3] = q3
+    # velocity (eq. 14) and position (eq. 17, trapezoid); before the first fix they are unknown and held
+    nvn, nve, nvd = vn, ve, vd
+    if nav_ok:
+        an, ae, ad = velocity_rate_ned(fn, fe, fd, vn, ve, vd, lat, h_m, r_n, r_e, earth)
+        nvn = vn + an * dt
+        nve = ve + ae * dt
+        nvd = vd + ad * dt
+        ldot, odot, hdot = position_rates(lat, h_m, 0.5 * (vn + nvn), 0.5 * (ve + nve), 0.5 * (vd + nvd),
+                                          r_n, r_e)
+        x.vel_ned_m_s[0] = nvn
+        x.vel_ned_m_s[1] = nve
+        x.vel_ned_m_s[2] = nvd
+        x.lat_rad = lat + ldot * dt
+        x.lon_rad += odot * dt
+        x.h_m = h_m + hdot * dt
+    # covariance increments
+    x.cov_t_s += dt
+    x.cov_c_s[0] += c00 * dt
+    x.cov_c_s[1] += c01 * dt
+    x.cov_c_s[2] += c02 * dt
+    x.cov_c_s[3] += c10 * dt
+    x.cov_c_s[4] += c11 * dt
+    x.cov_c_s[5] += c12 * dt
+    x.cov_c_s[6] += c20 * dt
+    x.cov_c_s[7] += c21 * dt
+    x.cov_c_s[8] += c22 * dt
+    x.cov_dv_m_s[0] += fn * dt
+    x.cov_dv_m_s[1] += fe * dt
+    x.cov_dv_m_s[2] += fd * dt
+    _accumulate_c_omega(x, c00, c01, c02, c10, c11, c12, c20, c21, c22, mwx * dt, mwy * dt, mwz * dt)
+    # NED-frame low-pass of the specific force for the levelling (linear acceleration averages out)
+    tau = par.level_lowpass_tau_s
+    k = 1.0 - math.exp(-dt / tau) if tau > 0.0 else 1.0
+    x.acc_ned_lp_m_s2[0] += k * (fn - x.acc_ned_lp_m_s2[0])
+    x.acc_ned_lp_m_s2[1] += k * (fe - x.acc_ned_lp_m_s2[1])
+    x.acc_ned_lp_m_s2[2] += k * (fd - x.acc_ned_lp_m_s2[2])
+    return q0, q1, q2, q3, nvn, nve, nvd
+
+
+@njit(cache=True)
+def _record_history(x, hist, t_s, q0, q1, q2, q3, vn, ve, vd, wx, wy, wz):
+    """A history row for fusing late fixes at their time of validity."""
+    i = (int(x.hist_newest) + 1) % H_LEN
+    x.hist_newest = i
+    x.hist_count = min(x.hist_count + 1.0, float(H_LEN))
+    row = hist[i]
+    row.t_s = t_s
+    row.q[0] = q0
+    row.q[1] = q1
+    row.q[2] = q2
+    row.q[3] = q3
+    row.vel_ned_m_s[0] = vn
+    row.vel_ned_m_s[1] = ve
+    row.vel_ned_m_s[2] = vd
+    row.lat_rad = x.lat_rad
+    row.lon_rad = x.lon_rad
+    row.h_m = x.h_m
+    row.rate_rad_s[0] = wx
+    row.rate_rad_s[1] = wy
+    row.rate_rad_s[2] = wz
+
+
+@njit(cache=True)
+def _covariance_epoch(x, P, par, nav_ok, rate):
+    """Every cov_period_s: propagate the covariance, then the levelling (while unaided) and the magnetometer
+    heading update. Returns flag bits."""
+    flags = 0
+    epoch = x.cov_t_s
+    propagate_covariance(x, P, par)
+    if not nav_ok:
+        # unknown velocity/position: keep their block bounded and uncorrelated until a fix sets them
+        _reset_block(P, E_V, np.full(3, NAV_UNKNOWN_VAR_V))
+        _reset_block(P, E_P, np.full(3, NAV_UNKNOWN_VAR_P))
+    if not _aided(x, par):
+        flags |= _level(x, P, par, epoch)
+    flags |= _mag_update(x, P, par, epoch, rate)
+    _symmetrise(P)
+    return flags
+
+
+@njit(cache=True)
+def ins_step(state, P, hist, params, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, out, gsf, gsf_par):
+    """One IMU sample through the stages: take the sample, mechanise (`_mechanise`) and record the history,
+    every cov_period_s the covariance epoch (`_covariance_epoch`: propagation, levelling when unaided,
+    magnetometer heading); feed the magnetometer-free GNSS yaw bank (`gsf`, `gsf_par`: 1-element record
+    arrays of gsf_yaw.py's state and parameters; its own tilt and yaw, never this filter's heading) the
+    corrected sample; fill `out`. state, params: 1-element INS_STATE_DTYPE and INS_PARAMS_DTYPE arrays; hist:
+    the INS_HISTORY_DTYPE ring. Returns EstimateFlags bits (| NEEDS_INIT when the caller must initialise from
+    this sample first)."""
+    x = state[0]
+    par = params[0]
+    valid = input_validity(sample_flags, gx, gy, gz, ax, ay, az, mx, my, mz)
+    dt, flags = step_dt(t_s - x.t_last_s, par.large_dt_s, par.reinit_dt_s)
+    if flags & NEEDS_INIT:
+        return flags
+    if dt > 0.0:
+        x.t_last_s = t_s
+    x.t_run_s += dt
+    wx, wy, wz, mwx, mwy, mwz, fx, fy, fz = _take_sample(x, valid, gx, gy, gz, ax, ay, az, mx, my, mz)
+    if par.gnss_yaw > 0.0:
+        gsf_accumulate_imu(gsf[0], gsf_par[0], dt, np.array((mwx, mwy, mwz)), np.array((fx, fy, fz)))
+    nav_ok = _navigation_known(x, par)
+    if dt > 0.0:
+        q0, q1, q2, q3, vn, ve, vd = _mechanise(x, par, dt, nav_ok, mwx, mwy, mwz, fx, fy, fz)
+        _record_history(x, hist, t_s, q0, q1, q2, q3, vn, ve, vd, wx, wy, wz)
+    if x.cov_t_s >= par.cov_period_s:
+        flags |= _covariance_epoch(x, P, par, nav_ok, math.sqrt(wx * wx + wy * wy + wz * wz))
     fill_outputs(x, P, par, wx, wy, wz, out)
-    if x[X_WAS_AIDED] > 0.0:
-        if x[X_T_LAST] - x[X_GNSS_LAST_T] <= par[P_GNSS_TIMEOUT]:
+    if x.was_aided > 0.0:
+        if x.t_last_s - x.gnss_fused_t_s <= par.gnss_timeout_s:
             flags |= F_GNSS_AIDED
         else:
             flags |= F_GNSS_OUTAGE
-    if initialising(x[X_T_RUN], out[O_SIGMA], out[O_SIGMA + 1], out[O_SIGMA + 2], par[P_INIT_TIME],
-                    par[P_CONV_TILT], par[P_MAG_ENABLED] > 0.0, par[P_CONV_YAW]):
+    if initialising(x.t_run_s, out[O_SIGMA], out[O_SIGMA + 1], out[O_SIGMA + 2], par.init_min_time_s,
+                    par.converged_tilt_rad, par.mag_enabled > 0.0, par.converged_yaw_rad):
         flags |= F_INITIALISING
     return flags
 
 
 @njit(cache=True)
 def fill_outputs(x, P, par, wx, wy, wz, out):
-    q0 = x[X_Q]
-    q1 = x[X_Q + 1]
-    q2 = x[X_Q + 2]
-    q3 = x[X_Q + 3]
+    q0 = x.q[0]
+    q1 = x.q[1]
+    q2 = x.q[2]
+    q3 = x.q[3]
     # magnetic-north frame for the estimate: q_mag = q_z(−declination) ⊗ q_true
-    hd = -0.5 * par[P_DECLINATION]
-    m0, m1, m2, m3 = _quat_mul(math.cos(hd), 0.0, 0.0, math.sin(hd), q0, q1, q2, q3)
+    hd = -0.5 * par.declination_rad
+    m0, m1, m2, m3 = quat_mul(math.cos(hd), 0.0, 0.0, math.sin(hd), q0, q1, q2, q3)
     if m0 < 0.0:
         m0, m1, m2, m3 = -m0, -m1, -m2, -m3
     out[O_Q] = m0
@@ -731,14 +718,14 @@ def fill_outputs(x, P, par, wx, wy, wz, out):
     out[O_EULER + 1] = pitch
     out[O_EULER + 2] = yaw
     for i in range(3):
-        out[O_BG + i] = x[X_BG + i]
-        out[O_BA + i] = x[X_BA + i]
-        out[O_VEL + i] = x[X_V + i]
+        out[O_BG + i] = x.gyro_bias_rad_s[i]
+        out[O_BA + i] = x.accel_bias_m_s2[i]
+        out[O_VEL + i] = x.vel_ned_m_s[i]
         out[O_SIG_V + i] = math.sqrt(max(P[E_V + i, E_V + i], 0.0))
         out[O_SIG_P + i] = math.sqrt(max(P[E_P + i, E_P + i], 0.0))
-    out[O_POS] = x[X_LAT]
-    out[O_POS + 1] = x[X_LON]
-    out[O_POS + 2] = x[X_H]
+    out[O_POS] = x.lat_rad
+    out[O_POS + 1] = x.lon_rad
+    out[O_POS + 2] = x.h_m
 
 
 # ----------------------------------------------------------------------------------- GNSS fusion
@@ -746,17 +733,17 @@ def fill_outputs(x, P, par, wx, wy, wz, out):
 def _history_at(x, hist, t):
     """Row index pair (older, newer) and weight w of the newer one bracketing time t; (−1, −1, 0) when t is
     older than the history. A t at or after the newest row returns that row."""
-    n = int(x[X_HIST_N])
-    i = int(x[X_HIST_I])
+    n = int(x.hist_count)
+    i = int(x.hist_newest)
     if n == 0:
         return -1, -1, 0.0
-    if t >= hist[i, H_T]:
+    if t >= hist[i].t_s:
         return i, i, 1.0
     for _ in range(n - 1):
         j = (i - 1) % H_LEN
-        tj = hist[j, H_T]
+        tj = hist[j].t_s
         if tj <= t:
-            return j, i, (t - tj) / (hist[i, H_T] - tj)
+            return j, i, (t - tj) / (hist[i].t_s - tj)
         i = j
     return -1, -1, 0.0
 
@@ -764,7 +751,7 @@ def _history_at(x, hist, t):
 @njit(cache=True)
 def _lever_terms(q0, q1, q2, q3, wx, wy, wz, lx, ly, lz):
     """The antenna offset C r and its velocity C (ω × r) in NED, and C as 9 scalars."""
-    c = _dcm(q0, q1, q2, q3)
+    c = dcm(q0, q1, q2, q3)
     on = c[0] * lx + c[1] * ly + c[2] * lz
     oe = c[3] * lx + c[4] * ly + c[5] * lz
     od = c[6] * lx + c[7] * ly + c[8] * lz
@@ -843,135 +830,95 @@ def _reset_block(P, e0, var):
 def _correct_history(hist, x, t_from, dx, dpos_lat, dpos_lon, dpos_h):
     """Apply an attitude/velocity/position correction to the history rows after t_from (a later fix with a
     longer latency than the fix interval must not see the uncorrected past)."""
-    n = int(x[X_HIST_N])
-    i = int(x[X_HIST_I])
+    n = int(x.hist_count)
+    i = int(x.hist_newest)
     for _ in range(n):
-        if hist[i, H_T] <= t_from:
+        if hist[i].t_s <= t_from:
             break
-        _rotate_attitude(hist[i], H_Q, dx[0], dx[1], dx[2])
+        _rotate_attitude(hist[i].q, dx[0], dx[1], dx[2])
         for k in range(3):
-            hist[i, H_V + k] += dx[E_V + k]
-        hist[i, H_LAT] += dpos_lat
-        hist[i, H_LON] += dpos_lon
-        hist[i, H_H] += dpos_h
+            hist[i].vel_ned_m_s[k] += dx[E_V + k]
+        hist[i].lat_rad += dpos_lat
+        hist[i].lon_rad += dpos_lon
+        hist[i].h_m += dpos_h
         i = (i - 1) % H_LEN
 
 
 @njit(cache=True)
-def _gated_update(x, P, par, H, nu, var, m, dx, t_fix, i_rej_t0, i_nis, may_reset, r_fused, r_rejected, r_reset):
+def _gated_update(gate, P, par, H, nu, var, m, dx, t_fix, may_reset, r_fused, r_rejected, r_reset):
     """The χ² gate on m rows of one GNSS quantity, then its sequential scalar updates (into dx); on
-    rejection, the start of the run of rejections is kept at x[i_rej_t0], and a run spanning P_REJECT_RESET
-    asks for a reset (r_reset) when `may_reset`. Returns the R_* bits."""
+    rejection, the start of the run of rejections is kept in `gate` (GNSS_GATE_DTYPE), and a run spanning
+    reject_reset_s asks for a reset (r_reset) when `may_reset`. Returns the R_* bits."""
     nis = _nis(P, H, nu, var, m)
-    x[i_nis] = nis
-    if nis <= par[P_GATE_CHI2 + m - 1]:
+    gate.nis = nis
+    if nis <= par.gate_chi2[m - 1]:
         for i in range(m):
-            _scalar_update(P, H[i], _residual(H[i], nu[i], dx), var[i], 0, dx)
-        x[i_rej_t0] = math.nan
+            scalar_update(P, H[i], residual(H[i], nu[i], dx), var[i], 0, dx)
+        gate.rejected_since_s = math.nan
         return r_fused
-    if math.isnan(x[i_rej_t0]):
-        x[i_rej_t0] = t_fix
-    elif t_fix - x[i_rej_t0] >= par[P_REJECT_RESET] and may_reset:
+    if math.isnan(gate.rejected_since_s):
+        gate.rejected_since_s = t_fix
+    elif t_fix - gate.rejected_since_s >= par.reject_reset_s and may_reset:
         return r_rejected | r_reset
     return r_rejected
 
 
 @njit(cache=True)
-def fuse_gnss(x, P, hist, par, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, ve_fix, vd_fix, sig_h, sig_v, sig_s,
-              use_pos, use_alt, use_vel, use_vd):
-    """Fuse one GNSS fix (angles in rad, σ in m and m/s) at its time of validity t_fix. Returns R_* bits.
-
-    The innovation is formed against the nominal state interpolated from the history at t_fix (latency) and
-    the antenna lever arm: p_ant = p + C r, v_ant = v + C (ω × r). The correction is applied to the current
-    state with the current covariance (the error state changes little over the ≤ 1 s of latency). Velocity
-    and position are gated separately by the χ² of their normalised innovation; a run of rejections lasting
-    P_REJECT_RESET resets that quantity to the fix (a real change, e.g. a receiver that switched to another
-    solution) without touching the attitude."""
-    res = 0
-    if t_fix < x[X_T_LAST] - par[P_MAX_DELAY]:
-        return R_TOO_OLD
-    j, k, w = _history_at(x, hist, t_fix)
-    if j < 0:
-        return R_TOO_OLD
-    propagate_covariance(x, P, par)
-    x[X_LAST_FIX_T] = t_fix
-    # the state at the time of validity
-    a0 = hist[j, H_Q] * (1.0 - w) + hist[k, H_Q] * w
-    a1 = hist[j, H_Q + 1] * (1.0 - w) + hist[k, H_Q + 1] * w
-    a2 = hist[j, H_Q + 2] * (1.0 - w) + hist[k, H_Q + 2] * w
-    a3 = hist[j, H_Q + 3] * (1.0 - w) + hist[k, H_Q + 3] * w
-    a0, a1, a2, a3 = _normalised(a0, a1, a2, a3)
-    pv = np.zeros(3)
-    pw = np.zeros(3)
+def _reset_from_fix(x, P, hist, par, t_fix, first, nu_v, nu_p, var_v, var_p, use_alt, use_vd, r_n, r_e, ph, plat):
+    """The first fix, or the first after an outage longer than outage_reset_s: velocity and position set from
+    it. Returns R_NAV_INIT or R_OUTAGE_RESET."""
+    # velocity and position from the fix (antenna → IMU), attitude untouched; the shift is also applied
+    # to the history so that the next fix compares with the reset trajectory. After an outage the
+    # dead-reckoned velocity is metres per second off: fused, that error would be read as tilt all at
+    # once (a step of tenths of a degree); reset, the tilt is corrected by the fixes that follow.
+    dx = np.zeros(N_ERR)
     for i in range(3):
-        pv[i] = hist[j, H_V + i] * (1.0 - w) + hist[k, H_V + i] * w
-        pw[i] = hist[j, H_W + i] * (1.0 - w) + hist[k, H_W + i] * w
-    plat = hist[j, H_LAT] * (1.0 - w) + hist[k, H_LAT] * w
-    plon = hist[j, H_LON] * (1.0 - w) + hist[k, H_LON] * w
-    ph = hist[j, H_H] * (1.0 - w) + hist[k, H_H] * w
-    on, oe, od, un, ue, ud, c = _lever_terms(a0, a1, a2, a3, pw[0], pw[1], pw[2],
-                                             par[P_LEVER], par[P_LEVER + 1], par[P_LEVER + 2])
-    r_n, r_e = _radii(par, plat)
-    # innovations (fix − prediction), NED
-    nu_p = np.zeros(3)
-    nu_p[0] = (lat_fix - plat) * (r_n + ph) - on
-    nu_p[1] = (lon_fix - plon) * (r_e + ph) * math.cos(plat) - oe
-    nu_p[2] = (-(alt_fix - ph) - od) if use_alt else 0.0
-    nu_v = np.zeros(3)
-    nu_v[0] = vn_fix - pv[0] - un
-    nu_v[1] = ve_fix - pv[1] - ue
-    nu_v[2] = (vd_fix - pv[2] - ud) if use_vd else 0.0
-    var_p = np.array([sig_h * sig_h, sig_h * sig_h, sig_v * sig_v])
-    var_v = np.array([sig_s * sig_s, sig_s * sig_s, sig_s * sig_s])
-    first = x[X_NAV_OK] <= 0.0
-    outage = (not first) and t_fix - x[X_GNSS_LAST_T] > par[P_OUTAGE_RESET]
-    if first or outage:
-        if not (use_pos and use_vel):
-            return res
-        # velocity and position from the fix (antenna → IMU), attitude untouched; the shift is also applied
-        # to the history so that the next fix compares with the reset trajectory. After an outage the
-        # dead-reckoned velocity is metres per second off: fused, that error would be read as tilt all at
-        # once (a step of tenths of a degree); reset, the tilt is corrected by the fixes that follow.
-        dx = np.zeros(N_ERR)
-        for i in range(3):
-            dx[E_V + i] = nu_v[i]
-            dx[E_P + i] = nu_p[i]
-        if not use_vd:
-            dx[E_V + 2] = -x[X_V + 2]   # no vertical velocity: assume level motion
-        if not use_alt:
-            dx[E_P + 2] = 0.0           # 2D fix: keep the height
-        for i in range(3):
-            x[X_V + i] += dx[E_V + i]
-        dlat = dx[E_P] / (r_n + ph)
-        dlon = dx[E_P + 1] / ((r_e + ph) * math.cos(plat))
-        x[X_LAT] += dlat
-        x[X_LON] += dlon
-        x[X_H] -= dx[E_P + 2]
-        _reset_block(P, E_V, var_v if use_vd else np.array([var_v[0], var_v[1], 1.0]))
-        _reset_block(P, E_P, var_p if use_alt else np.array([var_p[0], var_p[1], NAV_UNKNOWN_VAR_P]))
-        # the tilt so far came from levelling, which leans by the unknown acceleration (a turn: a/g); its
-        # small variance would make the GNSS read that lean as accelerometer bias: widen it
-        st2 = par[P_NAV_INIT_TILT] ** 2 if first or t_fix - x[X_GNSS_LAST_T] > par[P_DEAD_RECKON] else 0.0
-        for i in range(2):
-            if P[i, i] < st2:
-                for jj in range(N_ERR):
-                    P[i, jj] = 0.0
-                    P[jj, i] = 0.0
-                P[i, i] = st2
-        dx[0] = 0.0
-        dx[1] = 0.0
-        dx[2] = 0.0
-        _correct_history(hist, x, t_fix - 1e-9, dx, dlat, dlon, -dx[E_P + 2])
-        x[X_NAV_OK] = 1.0
-        x[X_WAS_AIDED] = 1.0
-        x[X_GNSS_LAST_T] = t_fix
-        x[X_VEL_REJ_T0] = math.nan
-        x[X_POS_REJ_T0] = math.nan
-        return R_NAV_INIT if first else R_OUTAGE_RESET
+        dx[E_V + i] = nu_v[i]
+        dx[E_P + i] = nu_p[i]
+    if not use_vd:
+        dx[E_V + 2] = -x.vel_ned_m_s[2]   # no vertical velocity: assume level motion
+    if not use_alt:
+        dx[E_P + 2] = 0.0           # 2D fix: keep the height
+    for i in range(3):
+        x.vel_ned_m_s[i] += dx[E_V + i]
+    dlat = dx[E_P] / (r_n + ph)
+    dlon = dx[E_P + 1] / ((r_e + ph) * math.cos(plat))
+    x.lat_rad += dlat
+    x.lon_rad += dlon
+    x.h_m -= dx[E_P + 2]
+    _reset_block(P, E_V, var_v if use_vd else np.array([var_v[0], var_v[1], 1.0]))
+    _reset_block(P, E_P, var_p if use_alt else np.array([var_p[0], var_p[1], NAV_UNKNOWN_VAR_P]))
+    # the tilt so far came from levelling, which leans by the unknown acceleration (a turn: a/g); its
+    # small variance would make the GNSS read that lean as accelerometer bias: widen it
+    st2 = par.nav_init_sigma_tilt_rad ** 2 if first or t_fix - x.gnss_fused_t_s > par.dead_reckon_s else 0.0
+    for i in range(2):
+        if P[i, i] < st2:
+            for jj in range(N_ERR):
+                P[i, jj] = 0.0
+                P[jj, i] = 0.0
+            P[i, i] = st2
+    dx[0] = 0.0
+    dx[1] = 0.0
+    dx[2] = 0.0
+    _correct_history(hist, x, t_fix - 1e-9, dx, dlat, dlon, -dx[E_P + 2])
+    x.nav_ok = 1.0
+    x.was_aided = 1.0
+    x.gnss_fused_t_s = t_fix
+    x.vel_gate.rejected_since_s = math.nan
+    x.pos_gate.rejected_since_s = math.nan
+    return R_NAV_INIT if first else R_OUTAGE_RESET
 
-    lx = par[P_LEVER]
-    ly = par[P_LEVER + 1]
-    lz = par[P_LEVER + 2]
+
+@njit(cache=True)
+def _fuse_fix(x, P, hist, par, t_fix, nu_v, nu_p, var_v, var_p, c, on, oe, od, un, ue, ud, use_pos, use_alt,
+              use_vel, use_vd, r_n, r_e, ph, plat):
+    """The χ²-gated sequential updates of the fix's velocity and position (innovations nu_v, nu_p against the
+    state at its time of validity; lever-arm terms C, C r, C (ω × r)), folded into the state and the history;
+    a run of rejections lasting reject_reset_s resets that quantity to the fix. Returns R_* bits."""
+    res = 0
+    lx = par.lever_arm_m[0]
+    ly = par.lever_arm_m[1]
+    lz = par.lever_arm_m[2]
     dx = np.zeros(N_ERR)
     hv = np.zeros((3, N_ERR))
     hp = np.zeros((3, N_ERR))
@@ -990,44 +937,104 @@ def fuse_gnss(x, P, hist, par, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, ve_fix,
     if use_vel:
         # a velocity reset needs the positions to disagree too (or none): a receiver whose velocity
         # contradicts its own positions is wrong, not the filter
-        may_reset = not use_pos or not math.isnan(x[X_POS_REJ_T0])
-        res |= _gated_update(x, P, par, hv, nu_v, var_v, m_v, dx, t_fix, X_VEL_REJ_T0, X_NIS_V, may_reset,
+        may_reset = not use_pos or not math.isnan(x.pos_gate.rejected_since_s)
+        res |= _gated_update(x.vel_gate, P, par, hv, nu_v, var_v, m_v, dx, t_fix, may_reset,
                              R_VEL_FUSED, R_VEL_REJECTED, R_VEL_RESET)
     m_p = 3 if use_alt else 2
     if use_pos:
-        res |= _gated_update(x, P, par, hp, nu_p, var_p, m_p, dx, t_fix, X_POS_REJ_T0, X_NIS_P, True,
+        res |= _gated_update(x.pos_gate, P, par, hp, nu_p, var_p, m_p, dx, t_fix, True,
                              R_POS_FUSED, R_POS_REJECTED, R_POS_RESET)
     _symmetrise(P)
-    lat_before = x[X_LAT]
-    lon_before = x[X_LON]
-    h_before = x[X_H]
+    lat_before = x.lat_rad
+    lon_before = x.lon_rad
+    h_before = x.h_m
     _apply_correction(x, par, dx)
-    dlat = x[X_LAT] - lat_before
-    dlon = x[X_LON] - lon_before
-    dh = x[X_H] - h_before
+    dlat = x.lat_rad - lat_before
+    dlon = x.lon_rad - lon_before
+    dh = x.h_m - h_before
     # resets after a persistent change: the quantity jumps to the fix, attitude untouched
     if res & R_VEL_RESET:
         for i in range(m_v):
-            x[X_V + i] += nu_v[i] - dx[E_V + i]
+            x.vel_ned_m_s[i] += nu_v[i] - dx[E_V + i]
             dx[E_V + i] = nu_v[i]
         _reset_block(P, E_V, var_v)
-        x[X_VEL_REJ_T0] = math.nan
+        x.vel_gate.rejected_since_s = math.nan
     if res & R_POS_RESET:
         extra_lat = (nu_p[0] - dx[E_P]) / (r_n + ph)
         extra_lon = (nu_p[1] - dx[E_P + 1]) / ((r_e + ph) * math.cos(plat))
         extra_h = -(nu_p[2] - dx[E_P + 2]) if use_alt else 0.0
-        x[X_LAT] += extra_lat
-        x[X_LON] += extra_lon
-        x[X_H] += extra_h
+        x.lat_rad += extra_lat
+        x.lon_rad += extra_lon
+        x.h_m += extra_h
         dlat += extra_lat
         dlon += extra_lon
         dh += extra_h
         _reset_block(P, E_P, var_p)
-        x[X_POS_REJ_T0] = math.nan
+        x.pos_gate.rejected_since_s = math.nan
     _correct_history(hist, x, t_fix, dx, dlat, dlon, dh)
     if res & (R_VEL_FUSED | R_POS_FUSED | R_VEL_RESET | R_POS_RESET):
-        x[X_GNSS_LAST_T] = t_fix
+        x.gnss_fused_t_s = t_fix
     return res
+
+
+@njit(cache=True)
+def fuse_gnss(state, P, hist, params, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, ve_fix, vd_fix, sig_h, sig_v, sig_s,
+              use_pos, use_alt, use_vel, use_vd):
+    """Fuse one GNSS fix (angles in rad, σ in m and m/s) at its time of validity t_fix. Returns R_* bits.
+
+    The innovation is formed against the nominal state interpolated from the history at t_fix (latency) and
+    the antenna lever arm: p_ant = p + C r, v_ant = v + C (ω × r). The correction is applied to the current
+    state with the current covariance (the error state changes little over the ≤ 1 s of latency). Velocity
+    and position are gated separately by the χ² of their normalised innovation; a run of rejections lasting
+    reject_reset_s resets that quantity to the fix (a real change, e.g. a receiver that switched to another
+    solution) without touching the attitude."""
+    x = state[0]
+    par = params[0]
+    res = 0
+    if t_fix < x.t_last_s - par.max_delay_s:
+        return R_TOO_OLD
+    j, k, w = _history_at(x, hist, t_fix)
+    if j < 0:
+        return R_TOO_OLD
+    propagate_covariance(x, P, par)
+    x.last_fix_t_s = t_fix
+    # the state at the time of validity
+    a0 = hist[j].q[0] * (1.0 - w) + hist[k].q[0] * w
+    a1 = hist[j].q[1] * (1.0 - w) + hist[k].q[1] * w
+    a2 = hist[j].q[2] * (1.0 - w) + hist[k].q[2] * w
+    a3 = hist[j].q[3] * (1.0 - w) + hist[k].q[3] * w
+    a0, a1, a2, a3 = normalised(a0, a1, a2, a3)
+    pv = np.zeros(3)
+    pw = np.zeros(3)
+    for i in range(3):
+        pv[i] = hist[j].vel_ned_m_s[i] * (1.0 - w) + hist[k].vel_ned_m_s[i] * w
+        pw[i] = hist[j].rate_rad_s[i] * (1.0 - w) + hist[k].rate_rad_s[i] * w
+    plat = hist[j].lat_rad * (1.0 - w) + hist[k].lat_rad * w
+    plon = hist[j].lon_rad * (1.0 - w) + hist[k].lon_rad * w
+    ph = hist[j].h_m * (1.0 - w) + hist[k].h_m * w
+    on, oe, od, un, ue, ud, c = _lever_terms(a0, a1, a2, a3, pw[0], pw[1], pw[2],
+                                             par.lever_arm_m[0], par.lever_arm_m[1], par.lever_arm_m[2])
+    r_n, r_e = _radii(par, plat)
+    # innovations (fix − prediction), NED
+    nu_p = np.zeros(3)
+    nu_p[0] = (lat_fix - plat) * (r_n + ph) - on
+    nu_p[1] = (lon_fix - plon) * (r_e + ph) * math.cos(plat) - oe
+    nu_p[2] = (-(alt_fix - ph) - od) if use_alt else 0.0
+    nu_v = np.zeros(3)
+    nu_v[0] = vn_fix - pv[0] - un
+    nu_v[1] = ve_fix - pv[1] - ue
+    nu_v[2] = (vd_fix - pv[2] - ud) if use_vd else 0.0
+    var_p = np.array([sig_h * sig_h, sig_h * sig_h, sig_v * sig_v])
+    var_v = np.array([sig_s * sig_s, sig_s * sig_s, sig_s * sig_s])
+    first = x.nav_ok <= 0.0
+    outage = (not first) and t_fix - x.gnss_fused_t_s > par.outage_reset_s
+    if first or outage:
+        if not (use_pos and use_vel):
+            return res
+        return _reset_from_fix(x, P, hist, par, t_fix, first, nu_v, nu_p, var_v, var_p, use_alt, use_vd, r_n, r_e,
+                               ph, plat)
+    return _fuse_fix(x, P, hist, par, t_fix, nu_v, nu_p, var_v, var_p, c, on, oe, od, un, ue, ud, use_pos, use_alt,
+                     use_vel, use_vd, r_n, r_e, ph, plat)
 
 
 def fast_step(example_args):

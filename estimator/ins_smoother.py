@@ -142,13 +142,13 @@ def _compose_link(a, b, d, phi, p_post_prev, p_prior, dx, cut):
 
 
 @njit(cache=True)
-def nominal_difference(x_before: np.ndarray, x_after: np.ndarray, par: np.ndarray) -> np.ndarray:
+def nominal_difference(x_before, x_after, par) -> np.ndarray:
     """The error-state correction (core's 24 components) that takes the nominal state x_before to x_after:
     δθ with C_after = exp([δθ×]) C_before (NED), δv, δp (NED, m), and the sensor-error states' differences.
     Scalar arithmetic (numba): it runs at every epoch of the recorded filter."""
     dx = np.zeros(core.N_ERR)
-    a0, a1, a2, a3 = x_after[core.X_Q], x_after[core.X_Q + 1], x_after[core.X_Q + 2], x_after[core.X_Q + 3]
-    b0, b1, b2, b3 = x_before[core.X_Q], -x_before[core.X_Q + 1], -x_before[core.X_Q + 2], -x_before[core.X_Q + 3]
+    a0, a1, a2, a3 = x_after["q"][0], x_after["q"][1], x_after["q"][2], x_after["q"][3]
+    b0, b1, b2, b3 = x_before["q"][0], -x_before["q"][1], -x_before["q"][2], -x_before["q"][3]
     # q_after ⊗ q_before* (Hamilton), then its rotation vector with w ≥ 0 (rotations.quat_log)
     w = a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3
     u0 = a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2
@@ -163,18 +163,18 @@ def nominal_difference(x_before: np.ndarray, x_after: np.ndarray, par: np.ndarra
         factor = 2.0 * math.atan2(s, w) / s
     dx[0], dx[1], dx[2] = factor * u0, factor * u1, factor * u2
     for i in range(3):
-        dx[3 + i] = x_after[core.X_V + i] - x_before[core.X_V + i]
-    lat, h = x_before[core.X_LAT], x_before[core.X_H]
+        dx[3 + i] = x_after["vel_ned_m_s"][i] - x_before["vel_ned_m_s"][i]
+    lat, h = x_before["lat_rad"], x_before["h_m"]
     r_n, r_e = core._radii(par, lat)
-    dx[6] = (x_after[core.X_LAT] - lat) * (r_n + h)
-    dx[7] = (x_after[core.X_LON] - x_before[core.X_LON]) * (r_e + h) * math.cos(lat)
-    dx[8] = -(x_after[core.X_H] - h)
+    dx[6] = (x_after["lat_rad"] - lat) * (r_n + h)
+    dx[7] = (x_after["lon_rad"] - x_before["lon_rad"]) * (r_e + h) * math.cos(lat)
+    dx[8] = -(x_after["h_m"] - h)
     for i in range(3):
-        dx[9 + i] = x_after[core.X_BG + i] - x_before[core.X_BG + i]
-        dx[12 + i] = x_after[core.X_BA + i] - x_before[core.X_BA + i]
-        dx[15 + i] = x_after[core.X_SG + i] - x_before[core.X_SG + i]
+        dx[9 + i] = x_after["gyro_bias_rad_s"][i] - x_before["gyro_bias_rad_s"][i]
+        dx[12 + i] = x_after["accel_bias_m_s2"][i] - x_before["accel_bias_m_s2"][i]
+        dx[15 + i] = x_after["gyro_scale"][i] - x_before["gyro_scale"][i]
     for i in range(6):
-        dx[18 + i] = x_after[core.X_MG + i] - x_before[core.X_MG + i]
+        dx[18 + i] = x_after["gyro_misalignment_rad"][i] - x_before["gyro_misalignment_rad"][i]
     return dx
 
 
@@ -197,12 +197,12 @@ class SmoothingIns(Ins):
     # ------------------------------------------------------------------ recording
     def _cut_here(self, x) -> bool:
         """The filter is not a Kalman filter at this epoch (see the module docstring)."""
-        return not (x[core.X_NAV_OK] > 0.0 and core._aided(x, self._par))
+        return not (x["nav_ok"] > 0.0 and core._aided(x, self._par))
 
     def _epoch(self, x_pre, p_before, t, cut: bool, block_end: bool) -> None:
         """After a call that may have propagated the covariance (with the sums in x_pre) and then updated the
         state: a propagation, and a node when a measurement (or a reset: `cut`) changed the state."""
-        propagated = x_pre[core.X_COV_T] > 0.0 and self._x[core.X_COV_T] < x_pre[core.X_COV_T]
+        propagated = x_pre["cov_t_s"] > 0.0 and self._x["cov_t_s"] < x_pre["cov_t_s"]
         p_prior = p_before
         if propagated:
             self.smoother.propagate(core.transition_matrix(x_pre, self._par))
@@ -220,8 +220,8 @@ class SmoothingIns(Ins):
         # the mechanisation alone (no covariance epoch, no GNSS-yaw bank) on a copy: its sums are those the
         # epoch will use
         shadow_par = par.copy()
-        shadow_par[core.P_COV_PERIOD] = math.inf
-        shadow_par[core.P_GSF] = 0.0
+        shadow_par["cov_period_s"] = math.inf
+        shadow_par["gnss_yaw"] = 0.0
         xs = x.copy()
         self._live_step(xs, P, self._shadow_hist, shadow_par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sflags,
                         self._shadow_out, gsf, gsf_par)
@@ -229,7 +229,8 @@ class SmoothingIns(Ins):
         f = self._live_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sflags, out, gsf, gsf_par)
         if f & core.NEEDS_INIT:
             return f
-        self._epoch(xs, self._p_before, float(x[core.X_T_LAST]), self._cut_here(x), False)
+        # x, xs: 1-element state arrays (the step's arguments); the epoch reads their records
+        self._epoch(xs[0], self._p_before, float(x[0]["t_last_s"]), self._cut_here(x[0]), False)
         return f
 
     def _fuse(self, fix) -> int:
@@ -238,7 +239,7 @@ class SmoothingIns(Ins):
         res = super()._fuse(fix)
         # a yaw reset or a raised yaw variance (heading monitor) is not a Kalman update: cut there too
         cut = bool(res & _CUT_RESULTS) or self._cut_here(self._x) or self.heading_interventions != interventions
-        self._epoch(x_pre, p_before, float(self._x[core.X_T_LAST]), cut, True)
+        self._epoch(x_pre, p_before, float(self._x["t_last_s"]), cut, True)
         return res
 
     def _initialise(self, t_s, g, a, m, sample_flags: int) -> bool:
@@ -254,7 +255,7 @@ class SmoothingIns(Ins):
             self._rec = np.concatenate([self._rec, np.empty_like(self._rec)])
         row = self._rec[self._n_rec]
         row[0] = sample.t_s
-        row[1:5] = self._x[core.X_Q : core.X_Q + 4] if self._initialised else np.nan
+        row[1:5] = self._x["q"] if self._initialised else np.nan
         row[5] = math.hypot(e.sigma_rpy_rad[0], e.sigma_rpy_rad[1])
         self._n_rec += 1
         return e

@@ -9,43 +9,64 @@ estimation with bias estimation and magnetic disturbance rejection", Information
 after too long a rejection the field is used again with 100× the noise; an innovation gate in σ guards the
 rest.
 
-The state it keeps lives in a block of the caller's flat state array starting at `s0` (layout `MS_*`), its
-parameters in a block of the caller's parameter array starting at `p0` (layout `MP_*`), so both filters run
-the same code on their own arrays.
+The state it keeps is a MAG_HEADING_STATE_DTYPE record inside each filter's state record, its parameters a
+MAG_HEADING_PARAMS_DTYPE record inside each filter's parameter record, so both filters run the same code on
+their own state.
 """
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
-# state block (offsets from s0)
-MS_REF_NORM = 0     # reference field magnitude, µT (0 = learn from the next sample)
-MS_REF_DIP = 1      # reference dip (inclination, positive down), rad
-MS_CAND_NORM = 2    # candidate new field magnitude, µT
-MS_CAND_DIP = 3     # candidate new field dip, rad
-MS_CAND_T = 4       # time the candidate has been consistent while rotating, s
-MS_UNDIST_T = 5     # time the field has matched the reference, s
-MS_LAST_T = 6       # time since the last accepted heading update, s
-MS_DIST_T = 7       # time the field has been continuously disturbed, s
-MS_GATE_OPEN_T = 8  # the innovation gate stays open this much longer (new calibration), s
-MS_SIZE = 9
+MAG_HEADING_STATE_DTYPE = np.dtype([
+    ("ref_norm_ut", np.float64),        # reference field magnitude (0 = learn from the next sample)
+    ("ref_dip_rad", np.float64),        # reference dip (inclination, positive down)
+    ("cand_norm_ut", np.float64),       # candidate new field magnitude
+    ("cand_dip_rad", np.float64),       # candidate new field dip
+    ("cand_t_s", np.float64),           # time the candidate has been consistent while rotating
+    ("undisturbed_t_s", np.float64),    # time the field has matched the reference
+    ("since_update_s", np.float64),     # time since the last accepted heading update
+    ("disturbed_t_s", np.float64),      # time the field has been continuously disturbed
+    ("gate_open_s", np.float64),        # the innovation gate stays open this much longer (new calibration)
+])
 
-# parameter block (offsets from p0)
-MP_NOISE = 0               # magnetometer noise per axis, µT
-MP_HEADING_NOISE = 1       # heading noise floor in motion, rad
-MP_NORM_TOL = 2            # relative field-magnitude tolerance against the reference
-MP_DIP_TOL = 3             # dip tolerance against the reference, rad
-MP_MIN_UNDIST = 4          # the field must match this long before it is used, s
-MP_NEW_TIME = 5            # a consistent new field is adopted after this much rotation time, s
-MP_NEW_MIN_RATE = 6        # rotation counts towards MP_NEW_TIME only above this rate, rad/s
-MP_REF_TAU = 7             # time constant of the reference's tracking, s
-MP_GATE = 8                # innovation gate, σ
-MP_UNAVAILABLE = 9         # no heading update for this long → MAG_UNAVAILABLE, s
-MP_REJECT_MAX = 10         # after this long continuously disturbed, use the field with 100× the noise, s
-MP_HEADING_NOISE_REST = 11  # heading noise floor at rest, rad
-MP_SIZE = 12
+MAG_HEADING_PARAMS_DTYPE = np.dtype([
+    ("noise_ut", np.float64),                 # magnetometer noise per axis
+    ("heading_noise_rad", np.float64),        # heading noise floor in motion
+    ("heading_noise_rest_rad", np.float64),   # heading noise floor at rest
+    ("norm_tol", np.float64),                 # relative field-magnitude tolerance against the reference
+    ("dip_tol_rad", np.float64),              # dip tolerance against the reference
+    ("min_undisturbed_s", np.float64),        # the field must match this long before it is used
+    ("new_time_s", np.float64),               # a consistent new field is adopted after this much rotation time
+    ("new_min_rate_rad_s", np.float64),       # rotation counts towards new_time_s only above this rate
+    ("ref_tau_s", np.float64),                # time constant of the reference's tracking
+    ("gate_sigma", np.float64),               # innovation gate, σ
+    ("unavailable_s", np.float64),            # no heading update for this long → MAG_UNAVAILABLE
+    ("reject_max_s", np.float64),             # after this long continuously disturbed: the field with 100× the noise
+])
+
+
+def heading_params(params) -> np.ndarray:
+    """A MAG_HEADING_PARAMS_DTYPE record (0-d array) from a filter's parameters (`MekfParams`, `InsParams`:
+    the fields mag_noise_ut, mag_heading_noise_rad, … of the same names)."""
+    rec = np.zeros((), MAG_HEADING_PARAMS_DTYPE)
+    rec["noise_ut"] = params.mag_noise_ut
+    rec["heading_noise_rad"] = params.mag_heading_noise_rad
+    rec["heading_noise_rest_rad"] = params.mag_heading_noise_rest_rad
+    rec["norm_tol"] = params.mag_norm_tol
+    rec["dip_tol_rad"] = params.mag_dip_tol_rad
+    rec["min_undisturbed_s"] = params.mag_min_undisturbed_s
+    rec["new_time_s"] = params.mag_new_time_s
+    rec["new_min_rate_rad_s"] = params.mag_new_min_rate_rad_s
+    rec["ref_tau_s"] = params.mag_ref_tau_s
+    rec["gate_sigma"] = params.mag_gate_sigma
+    rec["unavailable_s"] = params.mag_unavailable_s
+    rec["reject_max_s"] = params.mag_reject_max_s
+    return rec
+
 
 # result of heading_measurement
 MAG_NONE = 0       # no usable field (zero magnitude): nothing to do, no flag
@@ -54,18 +75,13 @@ MAG_USE = 2        # apply the update with the returned innovation and variance
 
 _TWO_PI = 2.0 * math.pi
 
-
-@njit(cache=True)
-def rotate_to_ned(q0, q1, q2, q3, x, y, z):
-    """C_b^n(q) · [x, y, z] for the body→NED quaternion q (Hamilton, scalar first)."""
-    n = (1.0 - 2.0 * (q2 * q2 + q3 * q3)) * x + 2.0 * (q1 * q2 - q0 * q3) * y + 2.0 * (q1 * q3 + q0 * q2) * z
-    e = 2.0 * (q1 * q2 + q0 * q3) * x + (1.0 - 2.0 * (q1 * q1 + q3 * q3)) * y + 2.0 * (q2 * q3 - q0 * q1) * z
-    d = 2.0 * (q1 * q3 - q0 * q2) * x + 2.0 * (q2 * q3 + q0 * q1) * y + (1.0 - 2.0 * (q1 * q1 + q2 * q2)) * z
-    return n, e, d
+# after a calibration change the heading gate stays open this long: the undisturbed wait (0.5 s) plus the
+# filter's heading convergence (time constant ≈ 1 s at the default tuning) with a wide margin
+RELEARN_GATE_OPEN_S = 10.0
 
 
 @njit(cache=True)
-def heading_measurement(state, s0, par, p0, dt, rate, at_rest, moved_at_rest, mn, me, md, mnorm,
+def heading_measurement(ms, mp, dt, rate, at_rest, moved_at_rest, mn, me, md, mnorm,
                         declination, heading_var):
     """Check one field sample (mn, me, md: the field in the estimated NED frame, µT; mnorm its magnitude) and
     form the heading measurement. Returns (MAG_*, innovation rad, variance rad²).
@@ -79,84 +95,86 @@ def heading_measurement(state, s0, par, p0, dt, rate, at_rest, moved_at_rest, mn
         return MAG_NONE, 0.0, 0.0
     mh = math.sqrt(mn * mn + me * me)
     dip = math.atan2(md, mh)
-    ref_norm = state[s0 + MS_REF_NORM]
+    ref_norm = ms.ref_norm_ut
     if ref_norm <= 0.0:
-        state[s0 + MS_REF_NORM] = mnorm
-        state[s0 + MS_REF_DIP] = dip
-        state[s0 + MS_CAND_NORM] = mnorm
-        state[s0 + MS_CAND_DIP] = dip
+        ms.ref_norm_ut = mnorm
+        ms.ref_dip_rad = dip
+        ms.cand_norm_ut = mnorm
+        ms.cand_dip_rad = dip
         ref_norm = mnorm
-    tol = par[p0 + MP_NORM_TOL]
-    dtol = par[p0 + MP_DIP_TOL]
-    matches = abs(mnorm - ref_norm) < tol * ref_norm and abs(dip - state[s0 + MS_REF_DIP]) < dtol
+    tol = mp.norm_tol
+    dtol = mp.dip_tol_rad
+    matches = abs(mnorm - ref_norm) < tol * ref_norm and abs(dip - ms.ref_dip_rad) < dtol
     if matches:
-        state[s0 + MS_UNDIST_T] += dt
-        state[s0 + MS_DIST_T] = 0.0
+        ms.undisturbed_t_s += dt
+        ms.disturbed_t_s = 0.0
     else:
-        state[s0 + MS_UNDIST_T] = 0.0
-        state[s0 + MS_DIST_T] += dt
+        ms.undisturbed_t_s = 0.0
+        ms.disturbed_t_s += dt
     # candidate for a new (permanently changed) field: must stay consistent while the body rotates
-    cn = state[s0 + MS_CAND_NORM]
-    if abs(mnorm - cn) < tol * cn and abs(dip - state[s0 + MS_CAND_DIP]) < dtol:
-        kc = 1.0 - math.exp(-dt / par[p0 + MP_REF_TAU]) if dt > 0.0 else 0.0
-        state[s0 + MS_CAND_NORM] += kc * (mnorm - cn)
-        state[s0 + MS_CAND_DIP] += kc * (dip - state[s0 + MS_CAND_DIP])
-        if rate > par[p0 + MP_NEW_MIN_RATE]:
-            state[s0 + MS_CAND_T] += dt
+    cn = ms.cand_norm_ut
+    if abs(mnorm - cn) < tol * cn and abs(dip - ms.cand_dip_rad) < dtol:
+        kc = 1.0 - math.exp(-dt / mp.ref_tau_s) if dt > 0.0 else 0.0
+        ms.cand_norm_ut += kc * (mnorm - cn)
+        ms.cand_dip_rad += kc * (dip - ms.cand_dip_rad)
+        if rate > mp.new_min_rate_rad_s:
+            ms.cand_t_s += dt
     else:
-        state[s0 + MS_CAND_NORM] = mnorm
-        state[s0 + MS_CAND_DIP] = dip
-        state[s0 + MS_CAND_T] = 0.0
-    if (not matches) and state[s0 + MS_CAND_T] >= par[p0 + MP_NEW_TIME]:
+        ms.cand_norm_ut = mnorm
+        ms.cand_dip_rad = dip
+        ms.cand_t_s = 0.0
+    if (not matches) and ms.cand_t_s >= mp.new_time_s:
         # the field has changed for good (new place, new iron): adopt it
-        state[s0 + MS_REF_NORM] = state[s0 + MS_CAND_NORM]
-        state[s0 + MS_REF_DIP] = state[s0 + MS_CAND_DIP]
-        state[s0 + MS_UNDIST_T] = par[p0 + MP_MIN_UNDIST]
-        state[s0 + MS_DIST_T] = 0.0
+        ms.ref_norm_ut = ms.cand_norm_ut
+        ms.ref_dip_rad = ms.cand_dip_rad
+        ms.undisturbed_t_s = mp.min_undisturbed_s
+        ms.disturbed_t_s = 0.0
         matches = True
-    undisturbed = matches and state[s0 + MS_UNDIST_T] >= par[p0 + MP_MIN_UNDIST] and not moved_at_rest
+    undisturbed = matches and ms.undisturbed_t_s >= mp.min_undisturbed_s and not moved_at_rest
     inflate = 1.0
-    if not undisturbed and state[s0 + MS_DIST_T] > par[p0 + MP_REJECT_MAX]:
+    if not undisturbed and ms.disturbed_t_s > mp.reject_max_s:
         undisturbed = True  # disturbed for too long: use it, but trust it little
         inflate = 100.0
     if not (undisturbed and mh > 1e-3 * mnorm):
         return MAG_REJECTED, 0.0, 0.0
     if matches and dt > 0.0:
-        kr = 1.0 - math.exp(-dt / par[p0 + MP_REF_TAU])
-        state[s0 + MS_REF_NORM] += kr * (mnorm - state[s0 + MS_REF_NORM])
-        state[s0 + MS_REF_DIP] += kr * (dip - state[s0 + MS_REF_DIP])
+        kr = 1.0 - math.exp(-dt / mp.ref_tau_s)
+        ms.ref_norm_ut += kr * (mnorm - ms.ref_norm_ut)
+        ms.ref_dip_rad += kr * (dip - ms.ref_dip_rad)
     # heading measurement: angle of the horizontal field in the estimated NED frame, α = −δθ_D
     alpha = math.atan2(me, mn) - declination
     if alpha > math.pi:
         alpha -= _TWO_PI
     elif alpha < -math.pi:
         alpha += _TWO_PI
-    sig_a = par[p0 + MP_NOISE] / mh
-    floor = par[p0 + MP_HEADING_NOISE_REST] if at_rest else par[p0 + MP_HEADING_NOISE]
+    sig_a = mp.noise_ut / mh
+    floor = mp.heading_noise_rest_rad if at_rest else mp.heading_noise_rad
     r = (sig_a * sig_a + floor * floor) * inflate
     s = heading_var + r
-    gate_open = state[s0 + MS_GATE_OPEN_T] > 0.0   # after a calibration change (relearn_reference)
-    if alpha * alpha > par[p0 + MP_GATE] ** 2 * s and inflate == 1.0 and not gate_open:
+    gate_open = ms.gate_open_s > 0.0   # after a calibration change (relearn_reference)
+    if alpha * alpha > mp.gate_sigma ** 2 * s and inflate == 1.0 and not gate_open:
         return MAG_REJECTED, 0.0, 0.0
     return MAG_USE, alpha, r
 
 
 @njit(cache=True)
-def heading_bookkeeping(state, s0, par, p0, dt, used):
+def heading_bookkeeping(ms, mp, dt, used):
     """After the step: count down the open gate, time since the last heading update. Returns True when the
-    heading has gone without an update for longer than MP_UNAVAILABLE (flag MAG_UNAVAILABLE)."""
-    if state[s0 + MS_GATE_OPEN_T] > 0.0:
-        state[s0 + MS_GATE_OPEN_T] = max(0.0, state[s0 + MS_GATE_OPEN_T] - dt)
+    heading has gone without an update for longer than mp.unavailable_s (flag MAG_UNAVAILABLE)."""
+    if ms.gate_open_s > 0.0:
+        ms.gate_open_s = max(0.0, ms.gate_open_s - dt)
     if used:
-        state[s0 + MS_LAST_T] = 0.0
+        ms.since_update_s = 0.0
         return False
-    state[s0 + MS_LAST_T] += dt
-    return state[s0 + MS_LAST_T] > par[p0 + MP_UNAVAILABLE]
+    ms.since_update_s += dt
+    return ms.since_update_s > mp.unavailable_s
 
 
-def relearn_reference(state, s0, gate_open_s: float) -> None:
-    """Forget the learned field reference (the next sample sets it again) and open the innovation gate for
-    `gate_open_s` (a new magnetometer calibration may move the heading by more than the gate)."""
-    for k in (MS_REF_NORM, MS_REF_DIP, MS_CAND_NORM, MS_CAND_DIP, MS_CAND_T, MS_UNDIST_T, MS_DIST_T):
-        state[s0 + k] = 0.0
-    state[s0 + MS_GATE_OPEN_T] = gate_open_s
+def relearn_reference(ms, gate_open_s: float) -> None:
+    """Forget the learned field reference of the MAG_HEADING_STATE_DTYPE record `ms` (the next sample sets it
+    again) and open the innovation gate for `gate_open_s` (a new magnetometer calibration may move the heading
+    by more than the gate)."""
+    for name in ("ref_norm_ut", "ref_dip_rad", "cand_norm_ut", "cand_dip_rad", "cand_t_s", "undisturbed_t_s",
+                 "disturbed_t_s"):
+        ms[name] = 0.0
+    ms["gate_open_s"] = gate_open_s

@@ -25,18 +25,19 @@ See docs/estimator.md for the design, tuning and the figures measured on BROAD.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ahrsd.core.angles import roll_pitch_from_accel
 from ahrsd.core.sample import ImuSample
 
 from . import mekf_core as core
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState
-from .mag_heading import relearn_reference
-from .rotations import euler_to_quat, quat_to_dcm, quat_to_euler
-from .wahba import davenport
+from .filter_output import after_init_flags, estimate_flags, uninitialised_estimate
+from .initial_attitude import initial_attitude
+from .mag_heading import RELEARN_GATE_OPEN_S, heading_params, relearn_reference
+from .params import with_overrides
+from .rotations import quat_to_dcm, quat_to_euler
 
 _DEG = math.pi / 180.0
 
@@ -185,52 +186,17 @@ class MekfParams:
     reinit_dt_s: float = 2.0
     """A gap longer than this re-initialises the filter from the next sample, s."""
 
-    def to_array(self) -> np.ndarray:
-        p = np.zeros(core.P_SIZE)
-        p[core.P_GYRO_NOISE] = self.gyro_noise_rad_s_sqrt_hz
-        p[core.P_BIAS_WALK] = self.gyro_bias_walk_rad_s_sqrt_s
-        p[core.P_BIAS_CLIP] = self.gyro_bias_clip_rad_s
-        p[core.P_ACC_NOISE] = self.acc_noise_m_s2
-        p[core.P_ACC_NOISE_REST] = self.acc_noise_rest_m_s2
-        p[core.P_ACC_TURN_GAIN] = self.acc_turn_noise_gain
-        p[core.P_ACC_REJECT] = self.acc_reject_m_s2
-        p[core.P_ACC_TURN_DEAD] = self.acc_turn_dead_zone_rad
-        p[core.P_ACC_GATE] = self.acc_gate_rad
-        p[core.P_ACC_TAU] = self.acc_lowpass_tau_s
-        p[core.P_ACC_GATE_RECOVER] = self.acc_gate_recover_s
-        p[core.P_MAG_NOISE] = self.mag_noise_ut
-        p[core.P_MAG_HEADING_NOISE] = self.mag_heading_noise_rad
-        p[core.P_MAG_NORM_TOL] = self.mag_norm_tol
-        p[core.P_MAG_DIP_TOL] = self.mag_dip_tol_rad
-        p[core.P_MAG_MIN_UNDIST] = self.mag_min_undisturbed_s
-        p[core.P_MAG_NEW_TIME] = self.mag_new_time_s
-        p[core.P_MAG_NEW_MIN_RATE] = self.mag_new_min_rate_rad_s
-        p[core.P_MAG_REF_TAU] = self.mag_ref_tau_s
-        p[core.P_MAG_GATE] = self.mag_gate_sigma
-        p[core.P_MAG_UNAVAILABLE] = self.mag_unavailable_s
-        p[core.P_REST_GYRO_TH] = self.rest_gyro_th_rad_s
-        p[core.P_REST_ACC_TH] = self.rest_acc_th_m_s2
-        p[core.P_REST_MIN_T] = self.rest_min_time_s
-        p[core.P_REST_TAU] = self.rest_filter_tau_s
-        p[core.P_REST_BIAS_NOISE] = self.rest_gyro_noise_floor_rad_s_sqrt_hz
-        p[core.P_LARGE_DT] = self.large_dt_s
-        p[core.P_REINIT_DT] = self.reinit_dt_s
-        p[core.P_INIT_TIME] = self.init_min_time_s
-        p[core.P_CONV_TILT] = self.converged_tilt_rad
-        p[core.P_CONV_YAW] = self.converged_yaw_rad
-        p[core.P_MAG_ENABLED] = 1.0 if self.mag_enabled else 0.0
-        p[core.P_MAG_REJECT_MAX] = self.mag_reject_max_s
-        p[core.P_MAG_HEADING_NOISE_REST] = self.mag_heading_noise_rest_rad
-        p[core.P_MAG_REST_CHANGE] = self.mag_rest_change_ut
-        p[core.P_ACC_ADAPT_GAIN] = self.acc_adaptive_gain
-        p[core.P_ACC_ADAPT_TAU] = self.acc_adaptive_tau_s
-        p[core.P_GYRO_RATE_NOISE] = self.gyro_rate_noise_sqrt_s
-        p[core.P_MOFF_TAU] = self.mag_offset_tau_s
-        p[core.P_MOFF_MIN_COS] = math.cos(self.mag_offset_min_angle_rad)
-        p[core.P_MOFF_USE_SIGMA] = self.mag_offset_use_sigma_ut
-        p[core.P_MOFF_LAG] = self.mag_offset_lag_s
-        p[core.P_MOFF_AGREE_TAU] = self.mag_offset_agree_tau_s
-        p[core.P_MOFF_EXPLAIN] = self.mag_offset_explain_ratio
+    def to_record(self) -> np.ndarray:
+        """The parameters as a mekf_core.MEKF_PARAMS_DTYPE record (0-d array; what the kernel takes): the
+        fields of the same names, the magnetometer check's as a mag_heading record."""
+        p = np.zeros((), core.MEKF_PARAMS_DTYPE)
+        for name in core.MEKF_PARAMS_DTYPE.names:
+            if name == "mag":
+                p[name] = heading_params(self)
+            elif name == "mag_offset_min_cos":
+                p[name] = math.cos(self.mag_offset_min_angle_rad)
+            else:
+                p[name] = getattr(self, name)
         return p
 
 
@@ -241,57 +207,26 @@ FIXED_WING_MEKF_PARAMS = replace(DEFAULT_MEKF_PARAMS, acc_turn_noise_gain=1.0)
 """For aircraft (sustained coordinated turns): tilt measurement de-weighted by the turn angle acos(g/|f|)."""
 
 
-# Weighted Wahba initialisation: weights are 1/σ² of the unit directions. Gravity from one accelerometer
-# sample: σ ≈ 0.005 rad (0.05 m/s² / g); field direction: σ ≈ 0.05 rad (0.7 µT / 16 µT horizontal, BROAD-class
-# magnetometer). The 100:1 ratio lets the field set heading while the tilt comes from gravity.
-_INIT_WEIGHT_GRAVITY = 1.0 / 0.005**2
-_INIT_WEIGHT_FIELD = 1.0 / 0.05**2
-
-
-def initial_attitude(accel_m_s2: np.ndarray, mag_ut: np.ndarray | None) -> np.ndarray:
-    """Body→NED quaternion from one specific-force and one field sample: Davenport's q-method (weighted
-    Wahba) with reference vectors "up" [0, 0, −1] and magnetic north at the measured dip. Without a usable
-    field (None, or parallel to gravity) the heading is set to 0 and only the tilt is determined."""
-    f = np.asarray(accel_m_s2, dtype=float)
-    up_b = f / np.linalg.norm(f)
-    if mag_ut is not None:
-        m = np.asarray(mag_ut, dtype=float)
-        mn = np.linalg.norm(m)
-        if mn > 0.0 and np.linalg.norm(np.cross(up_b, m / mn)) > 1e-3:
-            sin_dip = float(np.clip(-np.dot(up_b, m / mn), -1.0, 1.0))   # dip: positive down
-            cos_dip = math.sqrt(1.0 - sin_dip * sin_dip)
-            sol = davenport(
-                np.array([up_b, m / mn]),
-                np.array([[0.0, 0.0, -1.0], [cos_dip, 0.0, sin_dip]]),
-                np.array([_INIT_WEIGHT_GRAVITY, _INIT_WEIGHT_FIELD]),
-            )
-            return np.asarray(sol.q_wxyz, dtype=float)
-    # tilt only (ZYX Euler from the gravity direction; specific force f = C_n^b [0, 0, −g])
-    roll, pitch = roll_pitch_from_accel(up_b)
-    return np.asarray(euler_to_quat(roll, pitch, 0.0), dtype=float)
-
-
 _TWO_PI = 2.0 * math.pi
-_FLAG_CACHE: dict[int, EstimateFlags] = {}
+_NOT_MAG_HEADING = int(EstimateFlags.INITIALISING | EstimateFlags.MAG_UNAVAILABLE)
 _F64 = np.dtype(np.float64)
 _NEEDS_INIT_OR_BAD = core.NEEDS_INIT | core.BAD_SHAPE
 
 
+def _float_slice(dtype: np.dtype, name: str) -> slice:
+    """Where the float64 field `name` of the all-float64 record type `dtype` lies in its float64 view (a
+    slice of a flat array costs less than a field lookup on a record)."""
+    sub, offset = dtype.fields[name][:2]
+    return slice(offset // 8, offset // 8 + sub.itemsize // 8)
+
+
+assert all(f[0].base == np.float64 for f in core.MEKF_OUT_DTYPE.fields.values())
+_OUT_Q, _OUT_RATE, _OUT_SIGMA, _OUT_BIAS, _OUT_EULER = (
+    _float_slice(core.MEKF_OUT_DTYPE, n) for n in ("q", "rate_rad_s", "sigma_rpy_rad", "gyro_bias_rad_s", "euler_rad"))
+
+
 def _as_f64(v) -> np.ndarray:
     return np.asarray(v, dtype=np.float64)
-
-
-def estimate_flags(bits: int) -> EstimateFlags:
-    """EstimateFlags of an int, cached (building an IntFlag costs more than the whole filter step)."""
-    f = _FLAG_CACHE.get(bits)
-    if f is None:
-        f = _FLAG_CACHE[bits] = EstimateFlags(bits & 0xFFFF)
-    return f
-
-
-# after a calibration change the heading gate stays open this long: the undisturbed wait (0.5 s) plus the
-# filter's heading convergence (time constant ≈ 1 s at the default tuning) with a wide margin
-RELEARN_GATE_OPEN_S = 10.0
 
 
 class Mekf:
@@ -305,18 +240,22 @@ class Mekf:
 
     def __init__(self, declination_rad: float = 0.0, params: MekfParams | None = None, **overrides):
         self.params = with_overrides(params or DEFAULT_MEKF_PARAMS, overrides, "mekf")
-        # one buffer [state | parameters | outputs] for the one-sample kernel (one array to pass per call);
+        # one record {state, parameters, outputs} for the one-sample kernel (one array to pass per call);
         # the three are views of it
-        self._buf = np.zeros(core.B_SIZE)
-        self._state = self._buf[: core.B_PAR]
-        self._par = self._buf[core.B_PAR : core.B_OUT]
-        self._par[:] = self.params.to_array()
-        self._out = self._buf[core.B_OUT :]
-        # the outputs the view hands out, as fixed views (slicing per read costs more than the filter step)
-        self._q_out = self._out[core.O_Q : core.O_Q + 4]
-        self._rate_out = self._out[core.O_RATE : core.O_RATE + 3]
-        self._bias_out = self._out[core.O_BIAS : core.O_BIAS + 3]
-        self._sigma_out = self._out[core.O_SIGMA : core.O_SIGMA + 3]
+        self._buf = np.zeros(1, core.MEKF_BUFFER_DTYPE)
+        self._state = self._buf[0]["state"]
+        self._buf[0]["par"] = self.params.to_record()
+        self._out = self._buf[0]["out"]
+        # the outputs as one flat float64 array over the same memory: copied whole for an estimate (copying
+        # a structured array goes field by field)
+        self._out_flat = np.ndarray(core.MEKF_OUT_DTYPE.itemsize // 8, np.float64, buffer=self._buf,
+                                    offset=core.MEKF_BUFFER_DTYPE.fields["out"][1])
+        # the outputs the view hands out, as fixed views (a field lookup per read costs more than the step)
+        self._q_out = self._out["q"]
+        self._rate_out = self._out["rate_rad_s"]
+        self._bias_out = self._out["gyro_bias_rad_s"]
+        self._sigma_out = self._out["sigma_rpy_rad"]
+        self._euler_out = self._out["euler_rad"]
         self._declination = float(declination_rad)
         self._initialised = False
         self._reinit_pending = False
@@ -327,7 +266,7 @@ class Mekf:
 
     # ----------------------------------------------------------------------- Estimator protocol
     def reset(self) -> None:
-        self._state[:] = 0.0
+        self._buf["state"] = 0
         self._initialised = False
         self._reinit_pending = False
 
@@ -347,24 +286,24 @@ class Mekf:
         stays open for RELEARN_GATE_OPEN_S so a larger change (first calibration of strong iron) is taken
         too; the magnitude/dip check still rejects disturbances meanwhile. The daemon bounds the rate at
         which the autopilot sees the change (docs/daemon.md "Calibration changes")."""
-        relearn_reference(self._state, core.S_MAG, RELEARN_GATE_OPEN_S)
         s = self._state
-        s[core.S_MAG_REST_SET] = 0.0   # the at-rest field is the old calibration's: take it again
-        s[core.S_MOFF_B : core.S_MOFF_READY + 1] = 0.0   # a body-fixed offset learned against the old calibration
+        relearn_reference(s["mag"], RELEARN_GATE_OPEN_S)
+        s["mag_rest_set"] = False   # the at-rest field is the old calibration's: take it again
+        s["offset"] = np.zeros((), core.FIELD_OFFSET_DTYPE)   # a body-fixed offset learned against the old calibration
 
     @property
     def gyro_bias_rad_s(self) -> np.ndarray:
-        return self._state[core.S_B : core.S_B + 3].copy()
+        return self._state["gyro_bias_rad_s"].copy()
 
     @property
     def field_offset_ut(self) -> np.ndarray:
         """Estimated body-fixed field offset (an attached magnet), µT; zeros while mag_offset_tau_s is 0."""
-        return self._state[core.S_MOFF_B : core.S_MOFF_B + 3].copy()
+        return self._state["offset"]["b_ut"].copy()
 
     @property
     def covariance(self) -> np.ndarray:
         """Error covariance 6×6 [δθ NED (rad), δb (rad/s)]."""
-        return self._state[core.S_P : core.S_P + 36].reshape(6, 6).copy()
+        return self._state["P"].copy()
 
     def update(self, sample: ImuSample) -> AttitudeEstimate:
         self.step(sample)
@@ -417,15 +356,16 @@ class Mekf:
               else np.ascontiguousarray(sample_flags, dtype=np.int64))
         q = np.full((n, 4), np.nan)
         fl = np.zeros(n, dtype=np.int64)
+        scratch_out = np.zeros(1, core.MEKF_OUT_DTYPE)
         i = 0
         while i < n:
             if not self._initialised:
                 if self._initialise(t[i], g[i], a[i], m[i], int(sf[i])):
-                    q[i] = self._out[core.O_Q : core.O_Q + 4]
+                    q[i] = self._q_out
                     fl[i] = self._after_init_flags()
                 i += 1
                 continue
-            j = core.mekf_run(self._state, self._par, t, g, a, m, sf, i, q, fl)
+            j = core.mekf_run(self._buf, scratch_out, t, g, a, m, sf, i, q, fl)
             if j < n:  # gap: re-initialise from sample j
                 self._initialised = False
                 self._reinit_pending = True
@@ -445,46 +385,44 @@ class Mekf:
         use_mag = bool(valid & core.IN_MAG_OK) and p.mag_enabled
         q0 = initial_attitude(a, m if use_mag else None)
         s = self._state
-        keep_bias = s[core.S_B : core.S_B + 3].copy() if self._reinit_pending else np.zeros(3)
-        keep_gref = s[core.S_G_REF] if self._reinit_pending and s[core.S_G_REF] > 0 else 0.0
-        keep_ref = s[core.S_MAG_REF_NORM : core.S_MAG_REF_DIP + 1].copy() if self._reinit_pending else None
-        s[:] = 0.0
-        s[core.S_Q : core.S_Q + 4] = q0
-        s[core.S_B : core.S_B + 3] = keep_bias
-        P = np.zeros((6, 6))
+        keep_bias = s["gyro_bias_rad_s"].copy() if self._reinit_pending else np.zeros(3)
+        keep_gref = s["g_ref_m_s2"] if self._reinit_pending and s["g_ref_m_s2"] > 0 else 0.0
+        ms = s["mag"]
+        keep_ref = (float(ms["ref_norm_ut"]), float(ms["ref_dip_rad"])) if self._reinit_pending else None
+        self._buf["state"] = 0
+        s["q"] = q0
+        s["gyro_bias_rad_s"] = keep_bias
+        P = s["P"]
         yaw_sigma = p.init_sigma_yaw_rad if use_mag else math.pi
         P[0, 0] = P[1, 1] = p.init_sigma_tilt_rad**2
         P[2, 2] = yaw_sigma**2
         P[3, 3] = P[4, 4] = P[5, 5] = p.init_bias_sigma_rad_s**2
-        s[core.S_P : core.S_P + 36] = P.ravel()
-        s[core.S_T_LAST] = t_s
-        s[core.S_GYR_LP : core.S_GYR_LP + 3] = g
-        s[core.S_ACC_LP : core.S_ACC_LP + 3] = a
+        s["t_last_s"] = t_s
+        s["gyro_lp_rad_s"] = g
+        s["acc_lp_m_s2"] = a
         if valid & core.IN_MAG_OK:
-            s[core.S_MAG_LP : core.S_MAG_LP + 3] = m
-        s[core.S_G_REF] = keep_gref or an
-        s[core.S_ACC_I : core.S_ACC_I + 3] = np.asarray(quat_to_dcm(q0), dtype=float) @ a
-        s[core.S_GYR_LAST : core.S_GYR_LAST + 3] = g
+            s["mag_lp_ut"] = m
+        s["g_ref_m_s2"] = keep_gref or an
+        s["acc_ned_lp_m_s2"] = np.asarray(quat_to_dcm(q0), dtype=float) @ a
+        s["gyro_last_rad_s"] = g
         if keep_ref is not None and keep_ref[0] > 0:
-            s[core.S_MAG_REF_NORM] = keep_ref[0]
-            s[core.S_MAG_REF_DIP] = keep_ref[1]
-            s[core.S_MAG_CAND_NORM] = keep_ref[0]
-            s[core.S_MAG_CAND_DIP] = keep_ref[1]
+            ms["ref_norm_ut"] = ms["cand_norm_ut"] = keep_ref[0]
+            ms["ref_dip_rad"] = ms["cand_dip_rad"] = keep_ref[1]
         # the Wahba output is already the best heading: count the field as matching from the start
-        s[core.S_MAG_UNDIST_T] = p.mag_min_undisturbed_s
+        ms["undisturbed_t_s"] = p.mag_min_undisturbed_s
         self._initialised = True
         self._fill_out_after_init()
         return True
 
     def _fill_out_after_init(self) -> None:
         s, o = self._state, self._out
-        q = s[core.S_Q : core.S_Q + 4] * (1.0 if s[core.S_Q] >= 0 else -1.0)
-        o[core.O_Q : core.O_Q + 4] = q
-        o[core.O_RATE : core.O_RATE + 3] = s[core.S_GYR_LAST : core.S_GYR_LAST + 3] - s[core.S_B : core.S_B + 3]
-        P = s[core.S_P : core.S_P + 36]
-        o[core.O_SIGMA : core.O_SIGMA + 3] = np.sqrt([P[0], P[7], P[14]])
-        o[core.O_BIAS : core.O_BIAS + 3] = s[core.S_B : core.S_B + 3]
-        o[core.O_EULER : core.O_EULER + 3] = quat_to_euler(q)
+        q = s["q"] * (1.0 if s["q"][0] >= 0 else -1.0)
+        o["q"] = q
+        o["rate_rad_s"] = s["gyro_last_rad_s"] - s["gyro_bias_rad_s"]
+        P = s["P"]
+        o["sigma_rpy_rad"] = np.sqrt([P[0, 0], P[1, 1], P[2, 2]])
+        o["gyro_bias_rad_s"] = s["gyro_bias_rad_s"]
+        o["euler_rad"] = quat_to_euler(q)
 
     def _after_init_flags(self) -> int:
         f = after_init_flags(self._reinit_pending, self.params.mag_enabled)
@@ -492,22 +430,22 @@ class Mekf:
         return f
 
     def _estimate(self, t_s: float, f: int) -> AttitudeEstimate:
-        o = self._out.copy()  # one fresh buffer; the estimate's arrays are views of it
-        roll, pitch, yaw = o[core.O_EULER : core.O_EULER + 3].tolist()  # Python floats: cheap arithmetic
+        o = self._out_flat.copy()  # one fresh buffer; the estimate's arrays are views of it
+        roll, pitch, yaw = o[_OUT_EULER].tolist()  # Python floats: cheap arithmetic
         return AttitudeEstimate(
             t_s,
-            o[core.O_Q : core.O_Q + 4],
+            o[_OUT_Q],
             roll,
             pitch,
             yaw,
             yaw % _TWO_PI,
             (yaw + self._declination) % _TWO_PI,
-            o[core.O_RATE : core.O_RATE + 3],
-            o[core.O_BIAS : core.O_BIAS + 3],
-            o[core.O_SIGMA : core.O_SIGMA + 3],
+            o[_OUT_RATE],
+            o[_OUT_BIAS],
+            o[_OUT_SIGMA],
             estimate_flags(f),
             None,
-            self._heading_state(f, o[core.O_SIGMA + 2]),
+            self._heading_state(f, o[_OUT_SIGMA.start + 2]),
         )
 
     def _heading_state(self, f: int, yaw_sigma_rad: float) -> HeadingState:
@@ -520,46 +458,6 @@ class Mekf:
 
     def _estimate_uninitialised(self, t_s: float, extra: int) -> AttitudeEstimate:
         return uninitialised_estimate(t_s, extra)
-
-
-def with_overrides(base, overrides: dict, estimator: str):
-    """The parameters dataclass `base` with some fields replaced; ValueError naming any unknown field."""
-    unknown = set(overrides) - {f.name for f in fields(base)}
-    if unknown:
-        raise ValueError(f"unknown {estimator} parameter(s): {', '.join(sorted(unknown))}")
-    return replace(base, **overrides)
-
-
-def after_init_flags(reinitialised: bool, mag_enabled: bool) -> int:
-    """Flags of the first estimate after an initialisation (REINITIALISED | LARGE_DT after a time gap)."""
-    f = int(EstimateFlags.INITIALISING)
-    if reinitialised:
-        f |= int(EstimateFlags.REINITIALISED | EstimateFlags.LARGE_DT)
-    if not mag_enabled:
-        f |= int(EstimateFlags.MAG_UNAVAILABLE)
-    return f
-
-
-_NOT_MAG_HEADING = int(EstimateFlags.INITIALISING | EstimateFlags.MAG_UNAVAILABLE)
-
-
-def uninitialised_estimate(t_s: float, flag_bits: int) -> AttitudeEstimate:
-    """The estimate of a filter that could not initialise yet: NaN angles, INITIALISING | flag_bits."""
-    nan3 = np.full(3, np.nan)
-    return AttitudeEstimate(
-        t_s=t_s,
-        q_wxyz=np.array([1.0, 0.0, 0.0, 0.0]),
-        roll_rad=math.nan,
-        pitch_rad=math.nan,
-        yaw_rad=math.nan,
-        heading_mag_rad=math.nan,
-        heading_true_rad=math.nan,
-        rate_body_rad_s=nan3,
-        gyro_bias_rad_s=np.zeros(3),
-        sigma_rpy_rad=np.full(3, math.pi),
-        flags=EstimateFlags.INITIALISING | estimate_flags(flag_bits),
-        heading_state=HeadingState.UNKNOWN,
-    )
 
 
 class MekfView:
@@ -600,7 +498,7 @@ class MekfView:
 
     def _angle(self, i: int) -> float:
         m = self._mekf
-        return float(m._out[core.O_EULER + i]) if m._bits >= 0 else math.nan
+        return float(m._euler_out[i]) if m._bits >= 0 else math.nan
 
     @property
     def roll_rad(self) -> float:

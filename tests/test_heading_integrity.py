@@ -127,14 +127,14 @@ def test_an_aided_magnetometer_update_never_moves_the_horizon():
 
     def tilt_of_one_update(moves_tilt: bool) -> float:
         x, P1, par = ins._x.copy(), ins._P.copy(), ins._par.copy()
-        par[core.P_MAG_TILT] = 1.0 if moves_tilt else 0.0
-        par[core.P_MAG_USE] = 1.0
-        m = x[core.X_MAG_LAST : core.X_MAG_LAST + 3]
-        x[core.X_MAG_LAST : core.X_MAG_LAST + 3] = Rotation.from_euler("z", 10.0, degrees=True).apply(m)
-        q0 = x[core.X_Q : core.X_Q + 4].copy()
-        x[core.X_MAG + 8] = 1.0   # the gate open (as after a new calibration): the update is applied
+        par["mag_moves_tilt"] = 1.0 if moves_tilt else 0.0
+        par["mag_use"] = 1.0
+        m = x["mag_last_ut"]
+        x["mag_last_ut"] = Rotation.from_euler("z", 10.0, degrees=True).apply(m)
+        q0 = x["q"].copy()
+        x["mag"]["gate_open_s"] = 1.0   # the gate open (as after a new calibration): the update is applied
         core._mag_update(x, P1, par, 0.01, 0.0)
-        d = (Rotation.from_quat(np.roll(x[core.X_Q : core.X_Q + 4], -1))
+        d = (Rotation.from_quat(np.roll(x["q"], -1))
              * Rotation.from_quat(np.roll(q0, -1)).inv()).as_rotvec()
         assert abs(d[2]) > 1e-6      # the heading moved
         return float(np.hypot(d[0], d[1]))

@@ -95,7 +95,7 @@ def _dead_reckon(scenario, seconds, rate_hz, earth_rotation=True):
 
     # attitude from the truth (the Wahba start is the levelling's business, not the mechanisation's)
     ins.update(make_sample(tr.t_s[0], run.gyro[0], run.accel[0], run.mag[0]))
-    ins._x[0:4] = tr.q_wxyz[0]
+    ins._x["q"] = tr.q_wxyz[0]
     fix = make_fix(tr.t_s[0], math.degrees(tr.lat_rad[0]), math.degrees(tr.lon_rad[0]), tr.h_m[0],
                    tr.vel_ned_m_s[0], h_acc_m=0.01, v_acc_m=0.01, s_acc_m_s=0.001)
     ins.update_gnss(fix)

@@ -96,10 +96,10 @@ def test_nominal_difference_inverts_the_closed_loop_correction():
     rng = np.random.default_rng(3)
     ins = Ins()
     par = ins._par
-    x = np.zeros(core.X_SIZE)
-    x[core.X_Q : core.X_Q + 4] = np.array([0.9, 0.1, -0.3, 0.2]) / np.linalg.norm([0.9, 0.1, -0.3, 0.2])
-    x[core.X_V : core.X_V + 3] = [3.0, -1.0, 0.2]
-    x[core.X_LAT], x[core.X_LON], x[core.X_H] = 0.9, 0.4, 35.0
+    x = np.zeros(1, core.INS_STATE_DTYPE)[0]
+    x["q"] = np.array([0.9, 0.1, -0.3, 0.2]) / np.linalg.norm([0.9, 0.1, -0.3, 0.2])
+    x["vel_ned_m_s"] = [3.0, -1.0, 0.2]
+    x["lat_rad"], x["lon_rad"], x["h_m"] = 0.9, 0.4, 35.0
     dx = rng.standard_normal(core.N_ERR) * np.r_[[1e-3] * 3, [0.1] * 3, [2.0] * 3, [1e-4] * 3, [1e-2] * 3,
                                                  [1e-3] * 9]
     after = x.copy()

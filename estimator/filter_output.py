@@ -1,0 +1,50 @@
+"""What every filter hands out besides its attitude: EstimateFlags from the kernels' int bits, the flags of
+the first estimate after an initialisation, and the estimate of a filter that could not initialise yet.
+Shared by mekf and ins."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState
+
+_FLAG_CACHE: dict[int, EstimateFlags] = {}
+
+
+def estimate_flags(bits: int) -> EstimateFlags:
+    """EstimateFlags of an int, cached (building an IntFlag costs more than the whole filter step)."""
+    f = _FLAG_CACHE.get(bits)
+    if f is None:
+        f = _FLAG_CACHE[bits] = EstimateFlags(bits & 0xFFFF)
+    return f
+
+
+def after_init_flags(reinitialised: bool, mag_enabled: bool) -> int:
+    """Flags of the first estimate after an initialisation (REINITIALISED | LARGE_DT after a time gap)."""
+    f = int(EstimateFlags.INITIALISING)
+    if reinitialised:
+        f |= int(EstimateFlags.REINITIALISED | EstimateFlags.LARGE_DT)
+    if not mag_enabled:
+        f |= int(EstimateFlags.MAG_UNAVAILABLE)
+    return f
+
+
+def uninitialised_estimate(t_s: float, flag_bits: int) -> AttitudeEstimate:
+    """The estimate of a filter that could not initialise yet: NaN angles, INITIALISING | flag_bits."""
+    nan3 = np.full(3, np.nan)
+    return AttitudeEstimate(
+        t_s=t_s,
+        q_wxyz=np.array([1.0, 0.0, 0.0, 0.0]),
+        roll_rad=math.nan,
+        pitch_rad=math.nan,
+        yaw_rad=math.nan,
+        heading_mag_rad=math.nan,
+        heading_true_rad=math.nan,
+        rate_body_rad_s=nan3,
+        gyro_bias_rad_s=np.zeros(3),
+        sigma_rpy_rad=np.full(3, math.pi),
+        flags=EstimateFlags.INITIALISING | estimate_flags(flag_bits),
+        heading_state=HeadingState.UNKNOWN,
+    )
