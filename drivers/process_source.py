@@ -13,6 +13,7 @@ reading at the daemon's first `poll()` (start-up time is not counted as loss) an
 from __future__ import annotations
 
 import logging
+import select
 import time
 from types import SimpleNamespace
 
@@ -70,28 +71,17 @@ def _child(sensor_cfg: dict, faults, conn) -> None:
     try:
         if conn.recv() != "go":
             return
-        next_counters = 0.0
-        last_error, error_sent_at = None, -1.0
-        while True:
-            if conn.poll(0) and conn.recv() == "stop":
-                break
-            try:
-                samples = src.poll()
-            except Exception as exc:  # noqa: BLE001 - the daemon counts and reports it (10 a second at most)
-                error = (type(exc).__name__, str(exc))
-                if error != last_error or time.monotonic() - error_sent_at >= 0.1:
-                    conn.send(("error", *error))
-                    last_error, error_sent_at = error, time.monotonic()
-                samples = []
-            if samples:
-                conn.send(("samples", pack(samples)))
-            now = time.monotonic()
-            if now >= next_counters:
-                next_counters = now + COUNTERS_EVERY_S
-                conn.send(("counters", src.counters(), _chip_truth(src)))
-            time.sleep(HANDOVER_S)
+        # The hand-over runs in the reader thread, between reads: the main thread only waits for "stop",
+        # blocked in recv() without the GIL. A second Python thread here would hold the reader's GIL at
+        # times, and when the machine is short of CPU be descheduled while holding it (a priority inversion
+        # that the reader's SCHED_FIFO cannot break: docs/drivers.md).
+        handover = _Handover(conn, src)
+        src.after_read = handover.maybe_send
+        src.start()
+        while conn.recv() != "stop":
+            pass
         src.close()                           # stop reading, then hand over the rest and the final counts
-        rest = src.poll()
+        rest = handover.pending + src.poll()
         if rest:
             conn.send(("samples", pack(rest)))
         conn.send(("counters", src.counters(), _chip_truth(src)))
@@ -99,6 +89,45 @@ def _child(sensor_cfg: dict, faults, conn) -> None:
         pass                                  # the daemon went away
     finally:
         src.close()
+
+
+class _Handover:
+    """Every HANDOVER_S, from the reader thread: the samples read, the errors, and every COUNTERS_EVERY_S the
+    source's counters, through the pipe to the daemon. Never blocks the reader: it sends only while the pipe
+    has room (a stalled daemon leaves the samples in the reader's bounded buffer, which counts what it drops)
+    and at most CHUNK_SAMPLES a message."""
+
+    CHUNK_SAMPLES = 256
+
+    def __init__(self, conn, src):
+        self.conn, self.src = conn, src
+        self.next_send = self.next_counters = 0.0
+        self.last_error, self.error_sent_at = None, -1.0
+        self.pending: list[ImuSample] = []
+
+    def _room(self) -> bool:
+        return bool(select.select([], [self.conn], [], 0)[1])
+
+    def maybe_send(self) -> None:
+        now = time.monotonic()
+        if now < self.next_send:
+            return
+        self.next_send = now + HANDOVER_S
+        conn, src = self.conn, self.src
+        if not self.pending:
+            try:
+                self.pending = src.poll()
+            except Exception as exc:  # noqa: BLE001 - the daemon counts and reports it (10 a second at most)
+                error = (type(exc).__name__, str(exc))
+                if (error != self.last_error or now - self.error_sent_at >= 0.1) and self._room():
+                    conn.send(("error", *error))
+                    self.last_error, self.error_sent_at = error, now
+        while self.pending and self._room():
+            chunk, self.pending = self.pending[:self.CHUNK_SAMPLES], self.pending[self.CHUNK_SAMPLES:]
+            conn.send(("samples", pack(chunk)))
+        if now >= self.next_counters and self._room():
+            self.next_counters = now + COUNTERS_EVERY_S
+            conn.send(("counters", src.counters(), _chip_truth(src)))
 
 
 class _ChipView:

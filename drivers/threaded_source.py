@@ -74,8 +74,9 @@ class ThreadedSource:
     def __init__(self, inner, *, clock=time.monotonic, sleep_until=None,
                  capacity_samples: int = CAPACITY_SAMPLES, realtime: bool = True,
                  switch_interval_s: float | None = SWITCH_INTERVAL_S):
-        if getattr(inner, "per_sample", False) is not True:
-            raise TypeError("ThreadedSource reads a per-sample source (read_one / next_read_time)")
+        if getattr(inner, "per_sample", False) is not True and not callable(getattr(inner, "wait", None)):
+            raise TypeError("ThreadedSource reads a per-sample source (read_one / next_read_time) or a block "
+                            "source that can wait for data (wait(timeout_s) / poll())")
         self.inner = inner
         self.description = f"{inner.description}, read in a dedicated thread"
         self.sample_rate_hz = inner.sample_rate_hz
@@ -93,8 +94,10 @@ class ThreadedSource:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.stats = {"reads": 0, "corrupt_frames": 0, "read_failures": 0, "handover_dropped": 0,
-                      "handover_max_backlog": 0, "realtime_priority": 0, "undelivered_at_close": 0}
+                      "handover_max_backlog": 0, "realtime_priority": 0, "undelivered_at_close": 0,
+                      "wakes_late": 0, "wake_late_max_us": 0}
         self._last_delivered: int | None = None
+        self.after_read = None     # called by the reader thread between reads (drivers.process_source's hand-over)
 
     def __getattr__(self, name):
         # what else the daemon and the tools ask of a chip source (chip, bus, driver, timer) is the inner one's
@@ -118,9 +121,43 @@ class ThreadedSource:
     def _run(self) -> None:
         if self._realtime:
             self.stats["realtime_priority"] = int(set_realtime_priority())
-        failures = ReadFailures()    # when a failed read is a sensor failure (drivers.read_failures)
-        inner, clock, stop = self.inner, self._clock, self._stop
+        if self.inner.per_sample:
+            self._read_per_sample()
+        else:
+            self._read_blocks()
+
+    def _read_blocks(self) -> None:
+        """A source that buffers on its own (the kernel's IIO buffer): wait for data, take every record."""
+        failures = ReadFailures()
+        inner, clock, stop, after_read = self.inner, self._clock, self._stop, self.after_read
         while not stop.is_set():
+            if after_read is not None:
+                after_read()
+            try:
+                if not inner.wait(0.1):
+                    continue
+                with self._inner_lock:
+                    samples = inner.poll()
+            except Exception as exc:  # noqa: BLE001 - BusError / OSError: the source re-opens on its own
+                self.stats["corrupt_frames" if isinstance(exc, FrameError) else "read_failures"] += 1
+                verdict = failures.read_failed(exc)
+                if verdict.failed:
+                    self._set_error(exc)
+                if verdict.retry_after_s is not None:
+                    self._sleep_until(clock() + verdict.retry_after_s)
+                continue
+            self.stats["reads"] += 1
+            failures.read_ok()
+            for sample in samples:
+                self._hand_over(sample)
+
+    def _read_per_sample(self) -> None:
+        failures = ReadFailures()    # when a failed read is a sensor failure (drivers.read_failures)
+        inner, clock, stop, after_read = self.inner, self._clock, self._stop, self.after_read
+        period_s = 1.0 / self.sample_rate_hz
+        while not stop.is_set():
+            if after_read is not None:
+                after_read()
             wait_edge = getattr(getattr(inner, "timer", None), "wait", None)
             if wait_edge is not None:
                 if not wait_edge(0.1):
@@ -129,6 +166,11 @@ class ThreadedSource:
                 target = inner.next_read_time()
                 if target > 0.0:
                     self._sleep_until(target)
+                    late_s = clock() - target
+                    if late_s > period_s:            # woke (and got the GIL) after the chip's next sample
+                        self.stats["wakes_late"] += 1
+                    if late_s * 1e6 > self.stats["wake_late_max_us"]:
+                        self.stats["wake_late_max_us"] = int(late_s * 1e6)
             if stop.is_set():
                 break
             try:
