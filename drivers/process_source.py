@@ -77,6 +77,7 @@ def _child(sensor_cfg: dict, faults, conn) -> None:
         # that the reader's SCHED_FIFO cannot break: docs/drivers.md).
         handover = _Handover(conn, src)
         src.after_read = handover.maybe_send
+        src.log_realtime = False              # the child's log goes nowhere: the daemon logs what it is told
         src.start()
         while conn.recv() != "stop":
             pass
@@ -108,12 +109,17 @@ class _Handover:
     def _room(self) -> bool:
         return bool(select.select([], [self.conn], [], 0)[1])
 
+    realtime_sent = False
+
     def maybe_send(self) -> None:
         now = time.monotonic()
         if now < self.next_send:
             return
         self.next_send = now + HANDOVER_S
         conn, src = self.conn, self.src
+        if not self.realtime_sent and src.realtime_refused is not None:
+            self.realtime_sent = True
+            conn.send(("realtime", src.realtime_refused))
         if not self.pending:
             try:
                 self.pending = src.poll()
@@ -201,6 +207,10 @@ class ProcessSource:
                     error = _error(msg[1], msg[2])
                     if out:
                         break
+                elif kind == "realtime":
+                    from ahrsd.drivers.threaded_source import log_realtime_priority
+
+                    log_realtime_priority("sensor reader process", msg[1])
         except (EOFError, OSError) as exc:
             raise driver_errors.BusError(f"the sensor reader process ended ({exc})") from exc
         self.stats["samples"] += len(out)

@@ -221,10 +221,10 @@ def _kernel(sysfs: str, node: str, scenario, seed: int, errors: str, shared, sto
     import signal
 
     from ahrsd.drivers.simulated import SimulatedAdis16405
-    from ahrsd.drivers.threaded_source import set_realtime_priority
+    from ahrsd.drivers.threaded_source import request_realtime_priority
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)          # the test or bench ends it (Ctrl-C reaches the group)
-    set_realtime_priority()                                # as the kernel's threaded IRQ handlers run
+    request_realtime_priority()                            # as the kernel's threaded IRQ handlers run
     clock = _HandlerClock()
     chip = SimulatedAdis16405(scenario, seed=seed, errors=errors, clock=clock)
     kernel = _Kernel(Path(sysfs), node, chip, clock, shared, stop)

@@ -10,7 +10,8 @@ runs. Where the CPU is contended a process loses less (its own GIL): drivers.pro
 reader in a child process, the default for the real chip.
 
 The thread asks for SCHED_FIFO (`os.sched_setscheduler`) when the system allows it (root, CAP_SYS_NICE or an
-RLIMIT_RTPRIO, e.g. systemd's `LimitRTPRIO=`); when not, it says so once in the log and runs at normal priority.
+RLIMIT_RTPRIO, e.g. systemd's `LimitRTPRIO=`); one log line says whether it got it (a warning when not: it then
+runs at normal priority).
 
 Loss accounting stays where it was: the inner source's SampleTimer (or the data-ready pacing, drivers.data_ready)
 flags GAP_BEFORE on the first sample after lost ones. A sample the chip produced and the reader read but the
@@ -46,16 +47,24 @@ def _sleep_until(clock, t: float) -> None:
         time.sleep(dt)
 
 
-def set_realtime_priority(priority: int = FIFO_PRIORITY) -> bool:
-    """SCHED_FIFO for the calling thread (Linux: pid 0 is the calling thread). False (logged) when not allowed."""
+def request_realtime_priority(priority: int = FIFO_PRIORITY) -> str:
+    """SCHED_FIFO for the calling thread (Linux: pid 0 is the calling thread): "" when granted, else why not."""
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
     except (PermissionError, OSError, AttributeError) as exc:
-        log.info("sensor reader: no real-time priority (%s); running at normal priority. Allow it with "
-                 "systemd LimitRTPRIO=%d or CAP_SYS_NICE", exc, priority)
-        return False
-    log.info("sensor reader: SCHED_FIFO priority %d", priority)
-    return True
+        return str(exc) or type(exc).__name__
+    return ""
+
+
+def log_realtime_priority(who: str, refused: str, priority: int = FIFO_PRIORITY) -> None:
+    """The one log line that says whether the sensor reader runs at real-time priority."""
+    if refused:
+        log.warning("%s: NO real-time priority (%s): running at normal priority, samples are lost whenever the "
+                    "reader is not scheduled within a sample period. Allow SCHED_FIFO with root, CAP_SYS_NICE or "
+                    "RLIMIT_RTPRIO (systemd: RestrictRealtime=no, LimitRTPRIO=%d; docs/drivers.md)",
+                    who, refused, priority)
+    else:
+        log.info("%s: real-time priority SCHED_FIFO %d", who, priority)
 
 
 class ThreadedSource:
@@ -98,6 +107,8 @@ class ThreadedSource:
                       "wakes_late": 0, "wake_late_max_us": 0}
         self._last_delivered: int | None = None
         self.after_read = None     # called by the reader thread between reads (drivers.process_source's hand-over)
+        self.log_realtime = True   # log whether SCHED_FIFO was granted (a reader process reports it instead)
+        self.realtime_refused: str | None = None   # "" granted, else why not (None: not asked)
 
     def __getattr__(self, name):
         # what else the daemon and the tools ask of a chip source (chip, bus, driver, timer) is the inner one's
@@ -120,7 +131,10 @@ class ThreadedSource:
 
     def _run(self) -> None:
         if self._realtime:
-            self.stats["realtime_priority"] = int(set_realtime_priority())
+            self.realtime_refused = request_realtime_priority()
+            self.stats["realtime_priority"] = int(not self.realtime_refused)
+            if self.log_realtime:
+                log_realtime_priority("sensor reader thread", self.realtime_refused)
         if self.inner.per_sample:
             self._read_per_sample()
         else:

@@ -70,3 +70,22 @@ def test_a_vanished_bus_in_the_child_reaches_the_daemon():
                 time.sleep(0.01)
     finally:
         src.close()
+
+
+def test_the_daemon_logs_once_whether_the_reader_process_got_realtime_priority(caplog):
+    """The child's own log goes nowhere: it tells the daemon, which logs one line, consistent with the
+    child's counter (granted or refused, whatever this machine allows)."""
+    import logging
+
+    caplog.set_level(logging.INFO, logger="ahrsd.drivers.threaded_source")
+    src = ProcessSource(sim_cfg())
+    try:
+        collect(src, 1000)
+        time.sleep(0.5)
+        collect(src, 1)
+    finally:
+        src.close()
+    lines = [r.getMessage() for r in caplog.records if "real-time priority" in r.getMessage()]
+    assert len(lines) == 1 and lines[0].startswith("sensor reader process: ")
+    granted = src.counters()["reader_realtime_priority"] == 1
+    assert ("SCHED_FIFO 50" in lines[0]) == granted and ("NO real-time" in lines[0]) == (not granted)

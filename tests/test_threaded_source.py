@@ -134,3 +134,31 @@ def test_a_bus_failure_reaches_the_daemon_from_poll():
     finally:
         clock.close()
         src.close()
+
+
+@pytest.mark.parametrize("refused", ["", "Operation not permitted"])
+def test_one_log_line_says_whether_the_reader_got_realtime_priority(monkeypatch, caplog, refused):
+    import logging
+
+    import ahrsd.drivers.threaded_source as ts
+
+    monkeypatch.setattr(ts, "request_realtime_priority", lambda priority=ts.FIFO_PRIORITY: refused)
+    clock = SteppedClock()
+    chip, inner = chip_and_source(clock)
+    src = ThreadedSource(inner, clock=clock, sleep_until=clock.sleep_until)
+    caplog.set_level(logging.INFO, logger="ahrsd.drivers.threaded_source")
+    src.start()
+    try:
+        got: list = []
+        asyncio.run(starved_loop(clock, src.poll, stalls=1, got=got))
+    finally:
+        clock.close()
+        src.close()
+    lines = [r for r in caplog.records if "real-time priority" in r.getMessage()]
+    assert len(lines) == 1
+    if refused:
+        assert lines[0].levelname == "WARNING" and "NO real-time priority" in lines[0].getMessage()
+        assert refused in lines[0].getMessage() and "LimitRTPRIO" in lines[0].getMessage()
+    else:
+        assert lines[0].levelname == "INFO" and "SCHED_FIFO 50" in lines[0].getMessage()
+    assert src.counters()["reader_realtime_priority"] == (0 if refused else 1)
