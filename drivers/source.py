@@ -157,12 +157,12 @@ def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
 
 
 def reader_kind(sensor_cfg) -> str:
-    """`[sensor] reader`: "auto" is a child process for the real chip (its own GIL: docs/drivers.md, measured)
-    and a thread for the simulated one (which the simulated GNSS receiver and the ground truth share) and for
-    the kernel's IIO buffer (the kernel reads the chip; the thread only drains the buffer)."""
+    """`[sensor] reader`: "auto" is a child process for a chip without a FIFO, real or simulated (its own GIL:
+    docs/drivers.md, measured), so the simulated chip is read the way the real one is; a thread for the
+    kernel's IIO buffer (the kernel reads the chip; the thread only drains the buffer)."""
     reader = getattr(sensor_cfg, "reader", "auto")
     if reader == "auto":
-        return "process" if sensor_cfg.source == "spi" else "thread"
+        return "process" if sensor_cfg.source in ("spi", "sim") else "thread"
     return reader
 
 
