@@ -162,3 +162,29 @@ def test_one_log_line_says_whether_the_reader_got_realtime_priority(monkeypatch,
     else:
         assert lines[0].levelname == "INFO" and "SCHED_FIFO 50" in lines[0].getMessage()
     assert src.counters()["reader_realtime_priority"] == (0 if refused else 1)
+
+
+def test_a_wake_later_than_a_period_is_counted_with_its_lateness():
+    """`reader_wakes_late` / `reader_wake_late_max_us` (run_stats): how often the reader woke (and had the
+    GIL) after the chip's next sample was due, and by how much at worst; here one wake 3 periods late."""
+    clock = SteppedClock()
+    chip, inner = chip_and_source(clock)
+    calls = [0]
+
+    def sleep_until(t):
+        calls[0] += 1
+        clock.sleep_until(t + (3 * PERIOD_S if calls[0] == 50 else 0.0))
+
+    src = ThreadedSource(inner, clock=clock, sleep_until=sleep_until, realtime=False)
+    src.start()
+    got: list = []
+    try:
+        asyncio.run(starved_loop(clock, src.poll, stalls=1, got=got))
+    finally:
+        clock.close()
+        src.close()
+    c = src.counters()
+    assert calls[0] > 50
+    assert c["reader_wakes_late"] == 1
+    assert 3 * PERIOD_S * 1e6 - 60 <= c["reader_wake_late_max_us"] <= 3 * PERIOD_S * 1e6 + 1
+    assert gap_samples(got) == c["lost_samples_host"] >= 2         # the late wake lost the samples it slept past
