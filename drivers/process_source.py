@@ -12,6 +12,7 @@ reading at the daemon's first `poll()` (start-up time is not counted as loss) an
 
 from __future__ import annotations
 
+import gc
 import logging
 import select
 import time
@@ -71,6 +72,10 @@ def _child(sensor_cfg: dict, faults, conn) -> None:
         conn.send(("error", type(exc).__name__, str(exc)))
         return
     conn.send(("hello", src.description, src.sample_rate_hz, _chip_truth(src)))
+    # what start-up imported stays for good: out of the collector's sight, so that a full collection during
+    # the reads (the reader thread pays for it, holding the GIL) does not walk every module's objects
+    gc.collect()
+    gc.freeze()
     try:
         if conn.recv() != "go":
             return
