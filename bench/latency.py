@@ -382,6 +382,12 @@ def main() -> None:
         if lg:
             print(f"   log directory growth: {r['log_mb_per_h']:.1f} MB/h")
         print(f"   samples: {samples_summary(r)}")
+        src = r["stats"].get("source", {})
+        if "reader_wakes_late" in src:
+            print(f"   reader: real-time priority {'yes' if src.get('reader_realtime_priority') else 'NO'}, "
+                  f"{src['reader_wakes_late']} wakes later than a period (worst "
+                  f"{src.get('reader_wake_late_max_us', 0) / 1e3:.1f} ms), hand-over dropped "
+                  f"{src.get('reader_handover_dropped', 0)}")
         if ld:
             print(f"   load: {os.cpu_count()} busy processes, {r['flooded']} MAVLink messages flooded in")
     if len(full) >= 2 or len(sensors) > 1 or len(loads) > 1:

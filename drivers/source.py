@@ -6,8 +6,9 @@ sample after lost ones: gaps are found once, here. Two ways to be read:
 * `per_sample = True` (a chip): `read_one(now)` once per sample at `next_read_time()`; returns the new sample
   or None (not ready yet). drivers.chip_source.ChipSource, drivers.reconnecting.ReconnectingSource.
 * `per_sample = False` (a recording, or a reader off the event loop): `poll()` on a fixed tick returns every
-  sample that is due. drivers.replay_source.ReplaySource, drivers.threaded_source.ThreadedSource (a chip read
-  in its own thread).
+  sample that is due. drivers.replay_source.ReplaySource, drivers.threaded_source.ThreadedSource (a chip read,
+  or the IIO buffer drained, in its own thread), drivers.process_source.ProcessSource (a chip read in a child
+  process), drivers.iio_source.IioSource (which can also `wait(timeout_s)` for records: a reader thread's).
 Both raise DriverError subclasses on failure (FrameError: one corrupt frame; BusError: the bus failed).
 A GNSS receiver is a sibling source with its own sample type (ahrsd.core.GnssFix), not an IMU source.
 """

@@ -1,13 +1,13 @@
-"""A chip read off the event loop: a per-sample source (drivers.chip_source / reconnecting / ground_truth) read
-in a dedicated thread, its samples handed to the daemon in blocks through a bounded buffer (`poll()`, the
-block path a recording uses), so a slow MAVLink peer, a log flush or a GNSS burst on the event loop never
-delays a read.
+"""A sensor read off the event loop: a per-sample source (drivers.chip_source / reconnecting / ground_truth) read
+in a dedicated thread, or a block source that buffers on its own (drivers.iio_source: the kernel's buffer)
+drained by one, the samples handed to the daemon in blocks through a bounded buffer (`poll()`, the block path a
+recording uses), so a slow MAVLink peer, a log flush or a GNSS burst on the event loop never delays a read.
 
 What the GIL does to it (docs/drivers.md, measured with bench/reader_gil.py): the interpreter's switch
 interval bounds how long this thread waits for the GIL while the event loop runs Python code; at 819.2 SPS the
 chip keeps a sample for 1.22 ms, so the source lowers it to SWITCH_INTERVAL_S for the whole process while it
 runs. Where the CPU is contended a process loses less (its own GIL): drivers.process_source runs this same
-reader in a child process, the default for the real chip.
+reader in a child process, the default for the real and the simulated chip.
 
 The thread asks for SCHED_FIFO (`os.sched_setscheduler`) when the system allows it (root, CAP_SYS_NICE or an
 RLIMIT_RTPRIO, e.g. systemd's `LimitRTPRIO=`); one log line says whether it got it (a warning when not: it then
