@@ -387,7 +387,8 @@ def main() -> None:
             print(f"   reader: real-time priority {'yes' if src.get('reader_realtime_priority') else 'NO'}, "
                   f"{src['reader_wakes_late']} wakes later than a period (worst "
                   f"{src.get('reader_wake_late_max_us', 0) / 1e3:.1f} ms), hand-over dropped "
-                  f"{src.get('reader_handover_dropped', 0)}")
+                  f"{src.get('reader_handover_dropped', 0)}; reads that waited for the simulated chip's producer "
+                  f"{src.get('sensor_producer_waits', 0)} (worst {src.get('sensor_producer_wait_max_us', 0) / 1e3:.1f} ms)")
         if ld:
             print(f"   load: {os.cpu_count()} busy processes, {r['flooded']} MAVLink messages flooded in")
     if len(full) >= 2 or len(sensors) > 1 or len(loads) > 1:

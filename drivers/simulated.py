@@ -515,8 +515,18 @@ class SimulatedAdis16405:
         """The stream's next block. On a real-time clock the block after it is computed meanwhile in a helper
         thread: the simulator takes milliseconds per block, and computed inside a read it would make that read
         late and lose chip samples the real part would not lose (the real chip's work is in silicon)."""
-        if self._clock is None or getattr(self._stream, "computed_elsewhere", False):   # free-running, or ahead
+        if self._clock is None:
             return self._stream.next_block(BLOCK_SAMPLES)
+        if getattr(self._stream, "computed_elsewhere", False):
+            # computed ahead in a producer process: a wait here is the producer short of CPU (counted: the
+            # read waits with it and samples are lost that the real chip, computing in silicon, would keep)
+            t0 = time.monotonic()
+            blk = self._stream.next_block(BLOCK_SAMPLES)
+            wait_us = int((time.monotonic() - t0) * 1e6)
+            if wait_us > 1e6 / self._rate:
+                self.stats["producer_waits"] = self.stats.get("producer_waits", 0) + 1
+            self.stats["producer_wait_max_us"] = max(self.stats.get("producer_wait_max_us", 0), wait_us)
+            return blk
         stream = self._stream
         ahead = self._prefetched
         if ahead is not None and ahead[0] is stream:       # (a rate change opened a new stream: not this one's)
