@@ -48,17 +48,23 @@ async def starved_loop(clock, poll, stalls: int, got: list) -> None:
     got.extend(poll())
 
 
+def read_through_a_starved_loop(src, clock, stalls: int) -> list:
+    """Start the reader, run `starved_loop` with it, stop both; the samples the loop took."""
+    src.start()
+    got: list = []
+    try:
+        asyncio.run(starved_loop(clock, src.poll, stalls=stalls, got=got))
+    finally:
+        clock.close()
+        src.close()
+    return got
+
+
 def test_a_starved_event_loop_loses_no_sample():
     clock = SteppedClock()
     chip, inner = chip_and_source(clock)
     src = ThreadedSource(inner, clock=clock, sleep_until=clock.sleep_until, realtime=False)
-    src.start()
-    got: list = []
-    try:
-        asyncio.run(starved_loop(clock, src.poll, stalls=8, got=got))
-    finally:
-        clock.close()
-        src.close()
+    got = read_through_a_starved_loop(src, clock, stalls=8)
     produced_while_read = got[-1].counter - got[0].counter + 1
     assert produced_while_read > 8 * 0.1 / PERIOD_S * 0.95           # 8 × 100 ms of chip time went by
     assert len(got) == produced_while_read
@@ -147,13 +153,7 @@ def test_one_log_line_says_whether_the_reader_got_realtime_priority(monkeypatch,
     chip, inner = chip_and_source(clock)
     src = ThreadedSource(inner, clock=clock, sleep_until=clock.sleep_until)
     caplog.set_level(logging.INFO, logger="ahrsd.drivers.threaded_source")
-    src.start()
-    try:
-        got: list = []
-        asyncio.run(starved_loop(clock, src.poll, stalls=1, got=got))
-    finally:
-        clock.close()
-        src.close()
+    read_through_a_starved_loop(src, clock, stalls=1)
     lines = [r for r in caplog.records if "real-time priority" in r.getMessage()]
     assert len(lines) == 1
     if refused:
@@ -176,13 +176,7 @@ def test_a_wake_later_than_a_period_is_counted_with_its_lateness():
         clock.sleep_until(t + (3 * PERIOD_S if calls[0] == 50 else 0.0))
 
     src = ThreadedSource(inner, clock=clock, sleep_until=sleep_until, realtime=False)
-    src.start()
-    got: list = []
-    try:
-        asyncio.run(starved_loop(clock, src.poll, stalls=1, got=got))
-    finally:
-        clock.close()
-        src.close()
+    got = read_through_a_starved_loop(src, clock, stalls=1)
     c = src.counters()
     assert calls[0] > 50
     assert c["reader_wakes_late"] == 1
