@@ -15,20 +15,22 @@ Part B — the daemon's reader in-process for a few seconds: how far those time 
                                       [--gnss off|on|both] [--scenario boat] [--sensor sim,sim-process,iio|all]
                                       [--load off|on|both]
 
---sensor: `sim` is the simulated spidev path (the byte-level chip read by the daemon's reader thread; the
-simulated chip itself runs in the daemon process and is part of its CPU figure); `sim-process` the same read by
-a child process (drivers.process_source, the real chip's default; the child's CPU is added to the daemon's, and
-there it includes the simulated chip); `iio` is the simulated IIO
-path (drivers.simulated_iio: a sysfs tree and a FIFO fed by a thread of this bench process that plays the kernel
-driver, so the daemon's figure holds only what it costs with the real kernel driver: decoding records).
+--sensor: `sim-process` is the simulated spidev path as the daemon runs it by default (the byte-level chip read
+by a reader process, drivers.process_source, the real chip's path; its CPU is added to the daemon's); `sim` the
+same chip read by a reader thread in the daemon's process (`[sensor] reader = "thread"`, for comparison); `iio`
+the simulated IIO path (drivers.simulated_iio: a sysfs tree and a FIFO fed by a simulated kernel in a process
+of its own, started by this bench, so the daemon's figure holds only what it costs with the real kernel driver:
+draining the buffer and decoding records). The simulated chip's samples are computed in a producer process
+(drivers.sim_block_producer: the chip's silicon), reported apart, not in the daemon's CPU.
 --load on: while measuring, one busy process per CPU (`while True: pass`, at this bench's nice level) and a
 MAVLink flood into the daemon's endpoint (HEARTBEAT, ATTITUDE and TIMESYNC requests at --flood-hz).
 Every run reports the samples the chip produced and the daemon missed (`--stats-file` `samples`: missed, late,
 corrupt; whole run, start-up included) beside the ground truth (simulated chip's own loss accounting, or the
-simulated kernel's records). Targets (issue 31): 0 missed in 10 min idle, ≤ 0.1 % under load:
+simulated kernel's records) and the load average. Targets (issue 31): 0 missed in 10 min idle, ≤ 0.1 % under
+load, for the simulated spidev path and the simulated IIO path:
 
-    nice -n 10 .venv/bin/python bench/latency.py --gnss off --profile autopilot --sensor all --load both \
-        --seconds 600 --skip-b
+    nice -n 10 .venv/bin/python bench/latency.py --gnss off --profile autopilot --sensor sim-process,iio \
+        --load both --seconds 600 --skip-b
 
 --gnss on: `--gnss-sim`, the scenario's simulated receiver (UBX NAV-PVT at 5 Hz over a pty, read by the serial
 source as on hardware), so the default estimator is `ins` fed 5 fixes a second; off: no GNSS, `mekf`. Both run
@@ -82,20 +84,29 @@ def cpu_seconds(pid: int, tid: int | None = None) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")   # utime + stime
 
 
-def tree_cpu_seconds(pid: int) -> float:
-    """utime + stime of the process and its child processes (the sensor reader process of `sim-process`)."""
-    total = cpu_seconds(pid)
-    for task in Path(f"/proc/{pid}/task").glob("*"):
+def tree_cpu_seconds(pid: int) -> tuple[float, float]:
+    """utime + stime of the process and its descendants (the sensor reader process of `sim-process`): (the
+    daemon's, the simulated chip's block producer's — drivers.sim_block_producer, the chip's silicon, which a
+    real chip does not take from the host)."""
+    daemon = producer = 0.0
+    todo = [pid]
+    while todo:
+        p = todo.pop()
         try:
-            children = (task / "children").read_text().split()
-        except OSError:
+            cpu = cpu_seconds(p)
+            is_producer = b"sim_block_producer" in Path(f"/proc/{p}/cmdline").read_bytes()
+        except (OSError, ValueError):
             continue
-        for child in children:
+        if is_producer:
+            producer += cpu
+        else:
+            daemon += cpu
+        for task in Path(f"/proc/{p}/task").glob("*"):
             try:
-                total += cpu_seconds(int(child))
+                todo += [int(c) for c in (task / "children").read_text().split()]
             except (OSError, ValueError):
-                pass
-    return total
+                continue
+    return daemon, producer
 
 
 def dir_bytes(path: Path) -> int:
@@ -144,7 +155,7 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
     port = sock.getsockname()[1]
     with tempfile.TemporaryDirectory() as tmp:
         config = Path(tmp) / "ahrsd.toml"
-        reader = {"sim": "thread", "sim-process": "process"}.get(sensor, "auto")
+        reader = {"sim": "thread", "sim-process": "process"}.get(sensor, "auto")   # iio: auto, a thread
         config.write_text(f'[sensor]\nreader = "{reader}"\n\n'
                           f'[[endpoint]]\nurl = "udpout:127.0.0.1:{port}"\nprofile = "{profile}"\n')
         stats_path = Path(tmp) / "stats.json"
@@ -198,7 +209,7 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
                     if t_start is None or now < t_start:
                         continue
                     if cpu0 == 0.0:
-                        cpu0, wall0 = tree_cpu_seconds(proc.pid), time.monotonic()
+                        (cpu0, chip0), wall0 = tree_cpu_seconds(proc.pid), time.monotonic()
                         main0 = cpu_seconds(proc.pid, proc.pid)
                         log0 = dir_bytes(Path(tmp) / "logs")
                     counts[mtype] = counts.get(mtype, 0) + 1
@@ -209,7 +220,7 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
                         nbytes += len(m.get_msgbuf())
                     elif mtype == "HIGHRES_IMU":
                         lat[mtype].append(now - m.time_usec * 1e-6)
-            cpu1, wall1 = tree_cpu_seconds(proc.pid), time.monotonic()
+            (cpu1, chip1), wall1 = tree_cpu_seconds(proc.pid), time.monotonic()
             main1 = cpu_seconds(proc.pid, proc.pid)
             log1 = dir_bytes(Path(tmp) / "logs")
         finally:
@@ -228,6 +239,7 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
     if not active or cpu0 == 0.0:
         raise SystemExit("the daemon never became ACTIVE")
     return {"latency_s": lat, "cpu_share": (cpu1 - cpu0) / (wall1 - wall0), "window_s": wall1 - wall0,
+            "chip_share": (chip1 - chip0) / (wall1 - wall0), "load_avg": os.getloadavg(),
             "main_thread_share": (main1 - main0) / (wall1 - wall0),
             "counts": counts, "bytes_per_s": nbytes / (wall1 - wall0),
             "log_mb_per_h": (log1 - log0) / (wall1 - wall0) * 3600 / 1e6, "stats": stats,
@@ -244,7 +256,7 @@ def part_b(seconds: float) -> np.ndarray:
     with tempfile.TemporaryDirectory() as tmp:
         cfg = dataclasses.replace(Config(), endpoints=(EndpointConfig(f"udpout:127.0.0.1:{sink.getsockname()[1]}"),),
                                   state=StateConfig(tmp))
-        source = open_source(cfg.sensor)
+        source = open_source(dataclasses.replace(cfg.sensor, reader="thread"))   # the chip in this process
         bus = source.bus
         errors: list[float] = []
         chip_source = getattr(source, "inner", source)       # under drivers.threaded_source's reader thread
@@ -333,9 +345,9 @@ def main() -> None:
                     help="--gnss-sim (ins with 5 Hz fixes) or no GNSS (mekf) (both: one run each, side by side)")
     ap.add_argument("--scenario", default=None,
                     help="the simulated scenario (default: boat, a moving one for GNSS; static with --gnss off)")
-    ap.add_argument("--sensor", default="sim",
-                    help="comma-separated: sim (simulated spidev chip, reader thread: the simulated default), "
-                    "sim-process (the same chip read by a child process: the real chip's default reader), iio "
+    ap.add_argument("--sensor", default="sim-process",
+                    help="comma-separated: sim-process (simulated spidev chip read by a reader process: the "
+                    "default reader, real or simulated), sim (the same chip read by a thread in the daemon), iio "
                     "(simulated IIO device; no GNSS), or all")
     ap.add_argument("--load", choices=("off", "on", "both"), default="off",
                     help="busy processes on every CPU and a MAVLink flood while measuring (both: one run each)")
@@ -364,16 +376,25 @@ def main() -> None:
         rates = ", ".join(f"{k} {v / r['window_s']:.1f}/s" for k, v in sorted(r["counts"].items()))
         print(f"   received: {rates}; {r['bytes_per_s']:.0f} B/s on the wire")
         print(f"   daemon CPU: {100 * r['cpu_share']:.1f} % of one core (utime+stime / wall), of which the event loop's "
-              f"thread {100 * r['main_thread_share']:.1f} %")
+              f"thread {100 * r['main_thread_share']:.1f} %; the simulated chip's block producer (not the daemon's) "
+              f"{100 * r['chip_share']:.1f} %")
+        print(f"   load average at the end: {r['load_avg'][0]:.2f} (1 min), {r['load_avg'][1]:.2f} (5 min)")
         if lg:
             print(f"   log directory growth: {r['log_mb_per_h']:.1f} MB/h")
         print(f"   samples: {samples_summary(r)}")
+        src = r["stats"].get("source", {})
+        if "reader_wakes_late" in src:
+            print(f"   reader: real-time priority {'yes' if src.get('reader_realtime_priority') else 'NO'}, "
+                  f"{src['reader_wakes_late']} wakes later than a period (worst "
+                  f"{src.get('reader_wake_late_max_us', 0) / 1e3:.1f} ms), hand-over dropped "
+                  f"{src.get('reader_handover_dropped', 0)}; reads that waited for the simulated chip's producer "
+                  f"{src.get('sensor_producer_waits', 0)} (worst {src.get('sensor_producer_wait_max_us', 0) / 1e3:.1f} ms)")
         if ld:
             print(f"   load: {os.cpu_count()} busy processes, {r['flooded']} MAVLink messages flooded in")
     if len(full) >= 2 or len(sensors) > 1 or len(loads) > 1:
         print(f"\n   per path, scenario {scenario}, {args.seconds:g} s windows; load average {os.getloadavg()[0]:.2f}")
         print("   sensor       load  GNSS  profile    CPU % (loop thread)   delivered   missed   lost %   late  corrupt"
-              "  truth")
+              "  truth  load avg")
         for (p, lg, gn, se, ld), r in full.items():
             acc = r["stats"].get("samples", {})
             produced = acc.get("delivered", 0) + acc.get("missed", 0)
@@ -381,7 +402,8 @@ def main() -> None:
                   f"{100 * r['cpu_share']:6.1f} ({100 * r['main_thread_share']:4.1f})       "
                   f"{acc.get('delivered', 0):8d}"
                   f"  {acc.get('missed', 0):7d}  {100 * acc.get('missed', 0) / max(1, produced):6.3f}  "
-                  f"{acc.get('late', 0):5d}  {acc.get('corrupt', 0):7d}  {r['lost_truth']}")
+                  f"{acc.get('late', 0):5d}  {acc.get('corrupt', 0):7d}  {r['lost_truth']!s:5s}  "
+                  f"{r['load_avg'][0]:.2f}")
     rx_share = part_c(scenario) if True in gnss_runs else 0.0
     if len(runs) >= 2:
         print(f"\n   scenario {scenario}; load average {os.getloadavg()[0]:.2f}")

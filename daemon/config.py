@@ -154,8 +154,9 @@ class SensorConfig:
     data_ready: str = ""                # source = "spi": the GPIO of the chip's DIO1 data-ready, "gpiochip0:25"
                                         # ("": reads paced by the host timer)
     iio_device: str = "iio:device0"     # source = "iio": the IIO device (name under /sys/bus/iio/devices)
-    reader: str = "auto"                # sim/spi: read in a dedicated "thread", a child "process", on the
-                                        # "event_loop"; "auto": process for spi, thread for sim (docs/drivers.md)
+    reader: str = "auto"                # sim/spi/iio: read in a dedicated "thread", a child "process", on the
+                                        # "event_loop"; "auto": process for spi and sim, thread for iio
+                                        # (docs/drivers.md)
     replay_file: str = ""               # source = "replay": a recording written by `ahrsd record`
     replay_realtime: bool = True        # replay at the recorded pace (false: as fast as possible)
     replay_speed: float = 1.0           # realtime replay: this many times faster than recorded (1 = real time)

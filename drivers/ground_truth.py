@@ -132,6 +132,9 @@ class GroundTruthSource:
     def counters(self) -> dict:
         c = self.inner.counters()
         c.update({f"sensor_{k}": v for k, v in self.truth_stats.items()})
+        for k in ("producer_waits", "producer_wait_max_us"):      # the simulator's own delays (drivers.simulated)
+            if k in self.chip.stats:
+                c[f"sensor_{k}"] = self.chip.stats[k]
         if self.first_chip_index is not None:
             c["chip_first_index_read"] = self.first_chip_index
             c["chip_last_index_read"] = self.last_chip_index

@@ -32,6 +32,17 @@ period; the next sample carries GAP_BEFORE and its index jumps by the samples mi
 spidev path (drivers.sample_timer), and `lost_samples_host` counts them. The count is exact while the kernel's
 threaded handler reads the chip within a period of its interrupt: a handler later than that reads the next
 sample under the earlier stamp (then a scan with ND clear, counted `stale`, or one step too many follows).
+
+Read off the event loop: `wait(timeout_s)` blocks (in select, without the GIL) until records are waiting, so
+drivers.threaded_source's reader thread drains the kernel's buffer in blocks as they come; the kernel buffer
+(`buffer/length` scans) is what a stalled reader has before a scan is lost, the thread's hand-over buffer what
+a stalled event loop has.
+
+A vanished device (the chip or its driver unbound: reads fail with ENODEV, or the stream ends) is closed,
+counted (`device_lost`) and logged once; `poll()` then raises BusError (the daemon reports the sensor failed)
+and re-opens it with backoff (0.2 s doubling to 5 s): found again by the same spec (a name may come back as
+another iio:deviceN), reconfigured from scratch as after a fresh probe, counted (`reopens`) and logged. The
+last time stamp is kept, so the samples of the outage are counted lost (GAP_BEFORE), as on the spidev path.
 """
 
 from __future__ import annotations
@@ -40,6 +51,8 @@ import errno
 import logging
 import os
 import re
+import select
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -55,6 +68,11 @@ IIO_DEVICES = "/sys/bus/iio/devices"
 BUFFER_LENGTH = 8192                 # scans the kernel holds (10 s at 819.2 SPS): the longest reader stall
 MAX_RECORDS_PER_POLL = 4096
 UT_PER_GAUSS = 100.0
+BACKOFF_FIRST_S = 0.2                # re-open attempts after the device vanished (as drivers.reconnecting)
+BACKOFF_MAX_S = 5.0
+NO_WRITER_POLL_S = 0.01              # the FIFO stand-in before its writer opened: select() would not block
+READ_EVERY_S = 0.004                 # blocks: the reader drains the buffer at most this often (the event loop
+                                     # takes samples every 5 ms; a wake per scan costs a decode per scan)
 
 # the channels this source enables, in the roles of an ImuSample (sysfs scan element name → role)
 CHANNELS = ("in_voltage0_supply", "in_anglvel_x", "in_anglvel_y", "in_anglvel_z", "in_accel_x", "in_accel_y",
@@ -168,9 +186,16 @@ class IioSource:
     per_sample = False
     monotonic_offset_s = 0.0            # the kernel's stamps are CLOCK_MONOTONIC (current_timestamp_clock)
 
-    def __init__(self, spec: str, *, buffer_length: int = BUFFER_LENGTH):
+    def __init__(self, spec: str, *, buffer_length: int = BUFFER_LENGTH, clock=time.monotonic):
+        self.spec = spec
         self.sysfs, self.node = resolve_device(spec)
         self.buffer_length = buffer_length
+        self._clock = clock
+        self._streaming = False         # records came since the buffer was opened
+        self._lost_reason = ""          # the device vanished: why (empty while it is up)
+        self._next_attempt = 0.0
+        self._backoff_s = BACKOFF_FIRST_S
+        self._read_at = -1.0
         self.name = ""
         self.description = ""
         self.sample_rate_hz = 0.0
@@ -179,7 +204,8 @@ class IioSource:
         self._k = -1
         self._last_ns: int | None = None
         self.stats = {"records": 0, "samples": 0, "lost_samples_host": 0, "gaps": 0, "stale": 0,
-                      "ea_flags": 0, "saturations": 0, "garbage_frames": 0, "timestamp_backwards": 0}
+                      "ea_flags": 0, "saturations": 0, "garbage_frames": 0, "timestamp_backwards": 0,
+                      "device_lost": 0, "reopens": 0, "reopen_failures": 0}
 
     # -- set-up -------------------------------------------------------------------------------------------------
 
@@ -223,6 +249,7 @@ class IioSource:
                                             for e in self.elements],
                                 "offsets": [e.offset for e in self.elements], "itemsize": self.record_bytes})
         self._period_ns = 1e9 / self.sample_rate_hz
+        self._prepare_words()
         self.description = f"{self.name} through the kernel's IIO driver ({d.name}, {self.record_bytes}-byte scans)"
         log.info("IIO %s: %s at %.3f SPS, %d-byte records, buffer %d scans", d.name, self.name,
                  self.sample_rate_hz, self.record_bytes, self.buffer_length)
@@ -260,11 +287,17 @@ class IioSource:
             except BlockingIOError:
                 break
             except OSError as exc:
-                if exc.errno == errno.EAGAIN:
+                if exc.errno == errno.EAGAIN or len(chunks) > 1:   # records read before a failure go first
                     break
                 raise BusError(f"reading {self.node} failed: {exc}") from exc
             if not data:
+                # end of stream: a character device never ends while its device exists; the FIFO stand-in
+                # ends when its writer (the simulated kernel) goes, and has none yet before it first wrote.
+                # Records read before the end are handed over first; the next call reports it.
+                if self._streaming and len(chunks) == 1:
+                    raise BusError(f"{self.node}: the device ended the stream")
                 break
+            self._streaming = True
             chunks.append(data)
             want -= len(data)
         buf = b"".join(chunks)
@@ -272,27 +305,47 @@ class IioSource:
         self._rest = buf[whole:]
         return buf[:whole]
 
+    def _prepare_words(self) -> None:
+        """The 12 data channels decoded as one (n, 12) array: per-column shift, realbits mask, sign and the
+        kernel's offset and scale (a block costs a few numpy calls, not a dozen per channel)."""
+        types = {e.name: e.type for e in self.elements}
+        offsets = {e.name: e.offset for e in self.elements}
+        words = CHANNELS[:12]
+        first = types[words[0]]
+        self._word_view = None          # (byte offset, dtype): the words lie side by side in the record
+        if all(types[w].dtype() == first.dtype() and types[w].repeat == 1 and
+               offsets[w] == offsets[words[0]] + i * first.storagebits // 8 for i, w in enumerate(words)):
+            self._word_view = (offsets[words[0]], first.dtype())
+        self._shift = np.array([types[w].shift for w in words], dtype=np.int64)
+        self._mask = np.array([(1 << types[w].realbits) - 1 for w in words], dtype=np.int64)
+        self._half = np.array([1 << (types[w].realbits - 1) if types[w].signed else 0 for w in words], dtype=np.int64)
+        sc = self._scale
+        self._lsb_offset = np.array([sc[w][0] if w in sc else 0.0 for w in words])
+        self._si_per_lsb = np.array([sc[w][1] if w in sc else 0.0 for w in words])   # aux ADC: not used
+        self._full9 = np.array([R.gyro_range_lsb()] * 3 + [R.ACCEL_RANGE_LSB] * 3 + [R.MAG_RANGE_LSB] * 3)
+
     def decode(self, data: bytes) -> list[ImuSample]:
         """Whole scan records -> ImuSamples (gaps, flags and counts as the module doc says)."""
         rec = np.frombuffer(data, dtype=self._dtype)
         n = len(rec)
         if n == 0:
             return []
-        st = {e.name: e.type for e in self.elements}
-        v = {name: st[name].values(rec[name]) for name in CHANNELS}
-        ts_ns = v["in_timestamp"]
-        words = [rec[name].astype(np.int64) for name in CHANNELS[1:10]]
-        nd = np.bitwise_and.reduce([w >> 15 & 1 for w in words]).astype(bool)
-        ea = np.bitwise_or.reduce([w >> 14 & 1 for w in words]).astype(bool)
-        sc = self._scale
-        gyro = np.stack([v[f"in_anglvel_{a}"] * sc[f"in_anglvel_{a}"][1] for a in "xyz"], axis=1)
-        accel = np.stack([v[f"in_accel_{a}"] * sc[f"in_accel_{a}"][1] for a in "xyz"], axis=1)
-        mag = np.stack([v[f"in_magn_{a}"] * sc[f"in_magn_{a}"][1] for a in "xyz"], axis=1)
-        raw9 = np.stack([v[name] for name in CHANNELS[1:10]], axis=1)
-        toff, tscale = sc["in_temp0"]
-        temp_c = (v["in_temp0"] + toff) * tscale
-        supply_v = v["in_voltage0_supply"] * sc["in_voltage0_supply"][1]
-        full = np.array([R.gyro_range_lsb()] * 3 + [R.ACCEL_RANGE_LSB] * 3 + [R.MAG_RANGE_LSB] * 3)
+        ts_ns = {e.name: e.type for e in self.elements}["in_timestamp"].values(rec["in_timestamp"])
+        if self._word_view is not None:
+            off, dt = self._word_view
+            storage = np.ndarray((n, 12), dtype=dt, buffer=data, offset=off, strides=(self.record_bytes, dt.itemsize))
+            storage = storage.astype(np.int64)
+        else:
+            storage = np.stack([rec[name].astype(np.int64) for name in CHANNELS[:12]], axis=1)
+        lsb = (storage >> self._shift) & self._mask
+        lsb = (lsb ^ self._half) - self._half               # sign-extend the signed channels
+        nd = ((storage[:, 1:10] >> 15) & 1).all(axis=1)      # the chip's flag bits above realbits
+        ea = ((storage[:, 1:10] >> 14) & 1).any(axis=1)
+        si = (lsb + self._lsb_offset) * self._si_per_lsb
+        gyro, accel, mag = si[:, 1:4], si[:, 4:7], si[:, 7:10]
+        temp_c, supply_v = si[:, 10], si[:, 0]
+        raw9 = lsb[:, 1:10]
+        full = self._full9
         absraw = np.abs(raw9)
         garbage = (absraw > 1.25 * full).any(axis=1)
         sat = absraw >= full
@@ -342,19 +395,82 @@ class IioSource:
             self._fd = os.open(self.node, os.O_RDONLY | os.O_NONBLOCK)
         except OSError as exc:
             raise BusError(f"cannot start the IIO buffer of {self.sysfs} ({self.node}): {exc}") from exc
+        self._streaming = False
+        self._rest = b""
 
     def poll(self) -> list[ImuSample]:
+        """Every whole record waiting, decoded. BusError while the device is gone (re-opened with backoff)."""
         if self._fd is None:
+            if self._lost_reason:
+                self._reopen()
+            else:
+                self._open_buffer()
+        self._read_at = self._clock()
+        try:
+            data = self._read_available()
+        except BusError as exc:
+            self._vanished(exc)
+            raise
+        return self.decode(data)
+
+    def wait(self, timeout_s: float) -> bool:
+        """Block until records are waiting (True) or `timeout_s` passed (False); True also when `poll()` has
+        something else to do (open the buffer, or a re-open attempt is due)."""
+        if self._fd is None:
+            dt = self._next_attempt - self._clock() if self._lost_reason else 0.0
+            if dt > 0:
+                time.sleep(min(timeout_s, dt))
+            return dt <= timeout_s
+        if not self._streaming:
+            time.sleep(min(timeout_s, NO_WRITER_POLL_S))
+            return True
+        early = self._read_at + READ_EVERY_S - self._clock()
+        if early > 0:
+            time.sleep(early)                 # the kernel buffers meanwhile: read a block, not a scan
+        return bool(select.select([self._fd], [], [], timeout_s)[0])
+
+    def _vanished(self, exc: Exception) -> None:
+        self._close_fd()
+        self.stats["device_lost"] += 1
+        self._lost_reason = str(exc)
+        self._backoff_s = BACKOFF_FIRST_S
+        self._next_attempt = self._clock() + self._backoff_s
+        log.warning("IIO device %s lost (%s); re-opening every %.1f-%.0f s", self.spec, exc, BACKOFF_FIRST_S,
+                    BACKOFF_MAX_S)
+
+    def _reopen(self) -> None:
+        now = self._clock()
+        if now < self._next_attempt:
+            raise BusError(f"IIO device {self.spec} lost ({self._lost_reason}); re-opening")
+        try:
+            self.sysfs, self.node = resolve_device(self.spec)
+            if not self.sysfs.is_dir():
+                raise BusError(f"{self.sysfs} is not there")
+            self.start()
             self._open_buffer()
-        return self.decode(self._read_available())
+        except BusError as exc:
+            self.stats["reopen_failures"] += 1
+            self._backoff_s = min(BACKOFF_MAX_S, 2.0 * self._backoff_s)
+            self._next_attempt = now + self._backoff_s
+            raise BusError(f"IIO device {self.spec} lost ({self._lost_reason}); re-opening") from exc
+        self.stats["reopens"] += 1
+        log.warning("IIO device %s back (%s) after %s", self.spec, self.sysfs.name, self._lost_reason)
+        self._lost_reason = ""
 
     def counters(self) -> dict:
         return dict(self.stats)
 
+    def _close_fd(self) -> None:
+        if self._fd is not None:
+            try:
+                os.close(self._fd)
+            except OSError:
+                pass
+            self._fd = None
+
     def close(self) -> None:
         if self._fd is not None:
-            os.close(self._fd)
-            self._fd = None
+            self._close_fd()
             try:
                 _write(self.sysfs / "buffer" / "enable", "0")
             except OSError as exc:

@@ -1,5 +1,5 @@
-"""The chip read in a child process (`[sensor] reader = "process"`, the default for the real chip): its own
-interpreter, hence its own GIL.
+"""The chip read in a child process (`[sensor] reader = "process"`, the default for the real and the simulated
+chip): its own interpreter, hence its own GIL.
 
 A reader thread in the daemon's process (drivers.threaded_source) waits for the GIL whenever another thread of
 the daemon holds it, and under CPU contention the holder can be descheduled for milliseconds while the
@@ -12,7 +12,9 @@ reading at the daemon's first `poll()` (start-up time is not counted as loss) an
 
 from __future__ import annotations
 
+import gc
 import logging
+import select
 import time
 from types import SimpleNamespace
 
@@ -40,9 +42,12 @@ def pack(samples: list[ImuSample]) -> bytes:
 
 def unpack(data: bytes) -> list[ImuSample]:
     rec = np.frombuffer(data, dtype=_RECORD)
-    return [ImuSample(float(r["t_s"]), r["gyro"].copy(), r["accel"].copy(), r["mag"].copy(), float(r["temp_c"]),
-                      float(r["supply_v"]), SampleFlags(int(r["flags"])), int(r["diag"]), int(r["counter"]))
-            for r in rec]
+    # column by column (a field access per record and row costs more than the estimator's step)
+    t, temp, supply = rec["t_s"].tolist(), rec["temp_c"].tolist(), rec["supply_v"].tolist()
+    flags, diag, counter = rec["flags"].tolist(), rec["diag"].tolist(), rec["counter"].tolist()
+    gyro, accel, mag = rec["gyro"].copy(), rec["accel"].copy(), rec["mag"].copy()
+    return [ImuSample(t[i], gyro[i], accel[i], mag[i], temp[i], supply[i], SampleFlags(flags[i]), diag[i],
+                      counter[i]) for i in range(len(rec))]
 
 
 def _chip_truth(src) -> dict | None:
@@ -67,31 +72,25 @@ def _child(sensor_cfg: dict, faults, conn) -> None:
         conn.send(("error", type(exc).__name__, str(exc)))
         return
     conn.send(("hello", src.description, src.sample_rate_hz, _chip_truth(src)))
+    # what start-up imported stays for good: out of the collector's sight, so that a full collection during
+    # the reads (the reader thread pays for it, holding the GIL) does not walk every module's objects
+    gc.collect()
+    gc.freeze()
     try:
         if conn.recv() != "go":
             return
-        next_counters = 0.0
-        last_error, error_sent_at = None, -1.0
-        while True:
-            if conn.poll(0) and conn.recv() == "stop":
-                break
-            try:
-                samples = src.poll()
-            except Exception as exc:  # noqa: BLE001 - the daemon counts and reports it (10 a second at most)
-                error = (type(exc).__name__, str(exc))
-                if error != last_error or time.monotonic() - error_sent_at >= 0.1:
-                    conn.send(("error", *error))
-                    last_error, error_sent_at = error, time.monotonic()
-                samples = []
-            if samples:
-                conn.send(("samples", pack(samples)))
-            now = time.monotonic()
-            if now >= next_counters:
-                next_counters = now + COUNTERS_EVERY_S
-                conn.send(("counters", src.counters(), _chip_truth(src)))
-            time.sleep(HANDOVER_S)
+        # The hand-over runs in the reader thread, between reads: the main thread only waits for "stop",
+        # blocked in recv() without the GIL. A second Python thread here would hold the reader's GIL at
+        # times, and when the machine is short of CPU be descheduled while holding it (a priority inversion
+        # that the reader's SCHED_FIFO cannot break: docs/drivers.md).
+        handover = _Handover(conn, src)
+        src.after_read = handover.maybe_send
+        src.log_realtime = False              # the child's log goes nowhere: the daemon logs what it is told
+        src.start()
+        while conn.recv() != "stop":
+            pass
         src.close()                           # stop reading, then hand over the rest and the final counts
-        rest = src.poll()
+        rest = handover.pending + src.poll()
         if rest:
             conn.send(("samples", pack(rest)))
         conn.send(("counters", src.counters(), _chip_truth(src)))
@@ -99,6 +98,50 @@ def _child(sensor_cfg: dict, faults, conn) -> None:
         pass                                  # the daemon went away
     finally:
         src.close()
+
+
+class _Handover:
+    """Every HANDOVER_S, from the reader thread: the samples read, the errors, and every COUNTERS_EVERY_S the
+    source's counters, through the pipe to the daemon. Never blocks the reader: it sends only while the pipe
+    has room (a stalled daemon leaves the samples in the reader's bounded buffer, which counts what it drops)
+    and at most CHUNK_SAMPLES a message."""
+
+    CHUNK_SAMPLES = 256
+
+    def __init__(self, conn, src):
+        self.conn, self.src = conn, src
+        self.next_send = self.next_counters = 0.0
+        self.last_error, self.error_sent_at = None, -1.0
+        self.pending: list[ImuSample] = []
+
+    def _room(self) -> bool:
+        return bool(select.select([], [self.conn], [], 0)[1])
+
+    realtime_sent = False
+
+    def maybe_send(self) -> None:
+        now = time.monotonic()
+        if now < self.next_send:
+            return
+        self.next_send = now + HANDOVER_S
+        conn, src = self.conn, self.src
+        if not self.realtime_sent and src.realtime_refused is not None:
+            self.realtime_sent = True
+            conn.send(("realtime", src.realtime_refused))
+        if not self.pending:
+            try:
+                self.pending = src.poll()
+            except Exception as exc:  # noqa: BLE001 - the daemon counts and reports it (10 a second at most)
+                error = (type(exc).__name__, str(exc))
+                if (error != self.last_error or now - self.error_sent_at >= 0.1) and self._room():
+                    conn.send(("error", *error))
+                    self.last_error, self.error_sent_at = error, now
+        while self.pending and self._room():
+            chunk, self.pending = self.pending[:self.CHUNK_SAMPLES], self.pending[self.CHUNK_SAMPLES:]
+            conn.send(("samples", pack(chunk)))
+        if now >= self.next_counters and self._room():
+            self.next_counters = now + COUNTERS_EVERY_S
+            conn.send(("counters", src.counters(), _chip_truth(src)))
 
 
 class _ChipView:
@@ -149,6 +192,7 @@ class ProcessSource:
         if truth is not None:
             self.chip = _ChipView(truth)
         self.stats = {"blocks": 0, "samples": 0}
+        self._last_polled: int | None = None
 
     def poll(self) -> list[ImuSample]:
         conn = self._conn
@@ -172,11 +216,17 @@ class ProcessSource:
                     error = _error(msg[1], msg[2])
                     if out:
                         break
+                elif kind == "realtime":
+                    from ahrsd.drivers.threaded_source import log_realtime_priority
+
+                    log_realtime_priority("sensor reader process", msg[1])
         except (EOFError, OSError) as exc:
             raise driver_errors.BusError(f"the sensor reader process ended ({exc})") from exc
         self.stats["samples"] += len(out)
         if not out and error is not None:
             raise error
+        if out:
+            self._last_polled = out[-1].counter
         return out
 
     def counters(self) -> dict:
@@ -203,6 +253,10 @@ class ProcessSource:
                         self.chip.update(msg[2])
         except (OSError, ValueError, EOFError):
             pass
+        if self.undelivered:
+            # indices the child read (or lost) after the last sample the daemon took: the chip's truth has them
+            last = self._last_polled if self._last_polled is not None else self.undelivered[0].counter - 1
+            self._counters["reader_undelivered_at_close"] = self.undelivered[-1].counter - last
         self._proc.join(3.0)
         if self._proc.is_alive():
             self._proc.kill()

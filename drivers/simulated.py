@@ -65,11 +65,16 @@ class SimulatedAdis16405:
         `sleep(s)` method (a test's fake clock), `sleep()` uses it instead of time.sleep.
     faults: a FaultPlan to inject faults (an empty one is created otherwise: `chip.faults.add(...)`).
     product_id: what PRODUCT_ID reads (0x4015; 0x4010 simulates an ADIS16400).
+    producer: where a named scenario's samples are computed on a clock: "thread" (a helper thread of this
+        process) or "process" (drivers.sim_block_producer: out of the reader's GIL, as the real chip's work
+        is in silicon).
     """
 
     def __init__(self, scenario="static", seed: int = 0, errors="adis16405",
                  clock: Callable[[], float] | None = None, faults: FaultPlan | None = None,
-                 product_id: int = R.PRODUCT_ID_ADIS16405):
+                 product_id: int = R.PRODUCT_ID_ADIS16405, producer: str = "thread"):
+        if producer not in ("thread", "process"):
+            raise ValueError(f"producer must be 'thread' or 'process', not {producer!r}")
         self.faults = faults if faults is not None else FaultPlan(seed=seed)
         self.stats = {"transfers": 0, "bursts": 0, "samples_produced": 0, "samples_lost": 0,
                       "clock_violations": 0, "spi_failures": 0}
@@ -77,7 +82,13 @@ class SimulatedAdis16405:
         self._t_origin = clock() if clock is not None else 0.0
         self._vt = 0.0
         self._closed = False
-        if isinstance(scenario, str):
+        if isinstance(scenario, str) and producer == "process" and clock is not None and isinstance(errors, str):
+            def factory(rate_hz, start_s, _name=scenario):
+                from ahrsd.drivers.sim_block_producer import ProducedStream
+
+                return ProducedStream(_name, rate_hz, seed, errors, start_s, BLOCK_SAMPLES)
+            self._factory = factory
+        elif isinstance(scenario, str):
             def factory(rate_hz, start_s, _name=scenario):
                 from ahrsd.simulation import open_stream   # imported here: simulation is heavy
                 return open_stream(_name, rate_hz=rate_hz, seed=seed, errors=errors, start_s=start_s)
@@ -168,6 +179,7 @@ class SimulatedAdis16405:
 
     def close(self) -> None:
         self._closed = True
+        self._close_stream()
         if self._prefetcher is not None:
             self._prefetcher.shutdown(wait=False, cancel_futures=True)
             self._prefetcher = None
@@ -461,6 +473,7 @@ class SimulatedAdis16405:
             self._seg_index0 = first_index
             self._seg_rate = self._rate
             if self._factory is not None:
+                self._close_stream()
                 self._stream = self._factory(self._rate, start_s)
             else:
                 self._stream = self._fixed_stream
@@ -504,6 +517,16 @@ class SimulatedAdis16405:
         late and lose chip samples the real part would not lose (the real chip's work is in silicon)."""
         if self._clock is None:
             return self._stream.next_block(BLOCK_SAMPLES)
+        if getattr(self._stream, "computed_elsewhere", False):
+            # computed ahead in a producer process: a wait here is the producer short of CPU (counted: the
+            # read waits with it and samples are lost that the real chip, computing in silicon, would keep)
+            t0 = time.monotonic()
+            blk = self._stream.next_block(BLOCK_SAMPLES)
+            wait_us = int((time.monotonic() - t0) * 1e6)
+            if wait_us > 1e6 / self._rate:
+                self.stats["producer_waits"] = self.stats.get("producer_waits", 0) + 1
+            self.stats["producer_wait_max_us"] = max(self.stats.get("producer_wait_max_us", 0), wait_us)
+            return blk
         stream = self._stream
         ahead = self._prefetched
         if ahead is not None and ahead[0] is stream:       # (a rate change opened a new stream: not this one's)
@@ -519,6 +542,11 @@ class SimulatedAdis16405:
 
     _prefetcher = None
     _prefetched = None
+    _stream = None
+
+    def _close_stream(self) -> None:
+        if getattr(self._stream, "computed_elsewhere", False):    # a producer process (sim_block_producer)
+            self._stream.close()
 
     def _encode(self) -> None:
         """Bartlett filter, offsets, quantisation, saturation and word encoding for the whole block."""

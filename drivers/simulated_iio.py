@@ -6,13 +6,26 @@ hardware (sysfs files written and read, whole scan records read from a character
   (`*_en`, `*_index`, `*_type` as the driver's channel table gives them), buffer/{enable,length},
   current_timestamp_clock, trigger/current_trigger — the values the driver's `adis16400_read_raw` formats
   (IIO_VAL_INT_PLUS_MICRO "%d.%06u"), listed in SYSFS below with their derivation.
-* `<root>/dev/iio:device0`: a FIFO. While `buffer/enable` reads 1, a thread plays the kernel: on each of the
-  simulated chip's data-ready edges (drivers.simulated.SimulatedDataReadyLine) it burst-reads the chip over its
-  SPI bytes (0x3E00 + 24 bytes at 1 MHz, as `adis16400_trigger_handler` does), and writes one scan record:
-  the enabled channels' raw big-endian words in scan-index order, each aligned to its size, the s64 time stamp
-  (little-endian, ns, of `current_timestamp_clock`: CLOCK_REALTIME unless "monotonic" was written) and the
-  padding of `iio_compute_scan_bytes`. A full FIFO drops the record, as the kernel's kfifo refuses a scan
-  when full (`overflow_dropped`).
+* `<root>/dev/iio:device0`: a FIFO, its pipe sized to `buffer/length` records (F_SETPIPE_SZ).
+
+The kernel runs where the kernel would: in a process of its own (spawned), never in the reader's process or
+under its GIL. While `buffer/enable` reads 1 it plays `adis16400_trigger_handler`: for each of the chip's
+samples it burst-reads the chip over its SPI bytes (0x3E00 + 24 bytes at 1 MHz) and writes one scan record —
+the enabled channels' raw big-endian words in scan-index order, each aligned to its size, the s64 time stamp
+(little-endian, ns, of `current_timestamp_clock`: CLOCK_REALTIME unless "monotonic" was written) and the
+padding of `iio_compute_scan_bytes`. The kernel's handler is a SCHED_FIFO interrupt thread that reads each
+sample within microseconds of its data-ready edge and stamps it in the hard interrupt
+(`iio_pollfunc_store_time`); a simulator process is scheduled like any other and can wake late. So the
+simulated handler reads sample k on the chip's clock at its edge + HANDLER_LATENCY_S, whenever the process
+gets to it (a late wake writes the records it owes in one go), and stamps it with the edge time: the records
+and their times are the kernel's, only their delivery into the pipe can come later. A record is lost only as the
+kernel loses one: the buffer full (a non-blocking write that does not fit is dropped, as kfifo refuses a scan
+when full: `overflow_dropped`), or an interrupt outage injected with `stall(seconds)`.
+
+`remove()` unbinds the device as the kernel does when the chip or its driver goes away (the stream ends — the
+reader's next read sees the end — and the sysfs directory and the node disappear); `recreate()` brings it back
+with the buffer and channels disabled, like a fresh probe. The chip keeps running meanwhile (it stays powered):
+its samples of the outage are never read.
 
     device = SimulatedIioDevice(tmpdir, scenario="static")    # then IioSource(str(device.sysfs))
 """
@@ -22,15 +35,14 @@ from __future__ import annotations
 import errno
 import fcntl
 import logging
+import multiprocessing
 import os
+import shutil
 import struct
-import threading
 import time
 from pathlib import Path
 
 from ahrsd.drivers import registers as R
-from ahrsd.drivers.simulated import SimulatedAdis16405, SimulatedDataReadyLine
-from ahrsd.drivers.threaded_source import set_realtime_priority
 
 log = logging.getLogger(__name__)
 
@@ -65,6 +77,12 @@ SYSFS = {
     "current_timestamp_clock": "realtime",    # the IIO core's default
 }
 _BURST_TX = R.BURST_COMMAND + bytes(R.BURST_DATA_BYTES)
+HANDLER_LATENCY_S = 20e-6        # edge → burst read of the kernel's threaded handler (SCHED_FIFO 50)
+F_SETPIPE_SZ = 1031              # fcntl.F_SETPIPE_SZ (Python ≥ 3.10 names it; Linux's value)
+# the shared counters of the kernel process (an int64 array): their slots
+_STATS = ("records", "stale_records", "overflow_dropped", "sessions", "first_index", "last_index")
+_STALL_US, _UNPLUGGED, _UNPLUG_ACK, _READY = len(_STATS), len(_STATS) + 1, len(_STATS) + 2, len(_STATS) + 3
+_SLOTS = len(_STATS) + 4
 
 
 def layout(enabled: list[tuple[str, int, str]]) -> tuple[list[tuple[str, int, int]], int]:
@@ -92,23 +110,44 @@ def scan_record(words: list[int], timestamp_ns: int, enabled: list[tuple[str, in
 
 
 class SimulatedIioDevice:
-    """The sysfs tree and the FIFO in `root`, fed from a SimulatedAdis16405 on the real-time clock."""
+    """The sysfs tree and the FIFO in `root`, fed by a simulated kernel in its own process (module doc)."""
 
-    def __init__(self, root, scenario="static", seed: int = 0, errors: str = "adis16405",
-                 clock=time.monotonic, chip: SimulatedAdis16405 | None = None):
+    def __init__(self, root, scenario="static", seed: int = 0, errors: str = "adis16405"):
         self.root = Path(root)
         self.sysfs = self.root / "sys/bus/iio/devices/iio:device0"
         self.node = self.root / "dev/iio:device0"
-        self._clock = clock
-        self.chip = chip or SimulatedAdis16405(scenario, seed=seed, errors=errors, clock=clock)
-        self.stats = {"records": 0, "stale_records": 0, "overflow_dropped": 0}
         self._build_tree()
-        self._stop = threading.Event()
-        self._stall_s = 0.0
-        self.first_index_written: int | None = None   # chip sample indices of the first and last record written:
-        self.last_index_written: int | None = None    # the truth of the samples a reader should count as lost
-        self._thread = threading.Thread(target=self._run, name="sim-iio-kernel", daemon=True)
-        self._thread.start()
+        ctx = multiprocessing.get_context("spawn")          # a clean interpreter: the kernel shares nothing
+        self._shared = ctx.Array("q", _SLOTS, lock=False)
+        self._shared[_STATS.index("first_index")] = self._shared[_STATS.index("last_index")] = -1
+        self._stop = ctx.Event()
+        self._proc = ctx.Process(target=_kernel, name="sim-iio-kernel", daemon=True,
+                                 args=(str(self.sysfs), str(self.node), scenario, seed, errors, self._shared,
+                                       self._stop))
+        self._proc.start()
+
+    @property
+    def stats(self) -> dict:
+        """records written, stale_records (ND clear), overflow_dropped (buffer full), sessions (buffer enables)."""
+        return {k: int(self._shared[i]) for i, k in enumerate(_STATS[:4])}
+
+    @property
+    def first_index_written(self) -> int | None:
+        v = int(self._shared[_STATS.index("first_index")])
+        return None if v < 0 else v
+
+    @property
+    def last_index_written(self) -> int | None:
+        v = int(self._shared[_STATS.index("last_index")])
+        return None if v < 0 else v
+
+    def wait_ready(self, timeout_s: float = 120.0) -> None:
+        """Until the kernel process has its chip up (the spawn imports the simulator)."""
+        end = time.monotonic() + timeout_s
+        while not self._shared[_READY]:
+            if time.monotonic() > end or not self._proc.is_alive():
+                raise RuntimeError("the simulated IIO kernel process did not start")
+            time.sleep(0.01)
 
     def _build_tree(self) -> None:
         d = self.sysfs
@@ -128,104 +167,167 @@ class SimulatedIioDevice:
         if not self.node.exists():
             os.mkfifo(self.node)
 
-    def _read(self, rel: str) -> str:
-        return (self.sysfs / rel).read_text().strip()
-
-    def _enabled(self) -> list[tuple[str, int, str]]:
-        return [(n, i, t) for n, i, t in SCAN_ELEMENTS if self._read(f"scan_elements/{n}_en") == "1"]
-
-    def _run(self) -> None:
-        # the kernel's threaded IRQ handlers run SCHED_FIFO 50: so does this one, where the system allows it
-        set_realtime_priority()
-        while not self._stop.is_set():
-            if self._read("buffer/enable") != "1":
-                time.sleep(0.01)
-                continue
-            try:
-                self._stream()
-            except Exception:  # noqa: BLE001 - a simulator failure ends the stream, loudly
-                log.exception("simulated IIO device failed")
-                return
-
-    def _stream(self) -> None:
-        """One buffer session: the driver's start-up, then a record per data-ready edge until disabled."""
-        enabled = self._enabled()
-        length = int(self._read("buffer/length"))
-        elems, size = layout(enabled)
-        fd = os.open(self.node, os.O_WRONLY)                 # blocks until the reader opens the node
-        try:
-            try:
-                fcntl.fcntl(fd, 1031, max(4096, length * size))      # F_SETPIPE_SZ: the kfifo's length
-            except OSError:
-                pass
-            fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) | os.O_NONBLOCK)
-            chip = self.chip
-            chip.power_cycle()
-            line = SimulatedDataReadyLine(chip, host_clock=self._clock)
-            checks = 0
-            while not self._stop.is_set():
-                if not line.wait_edge_events(0.05):
-                    if self._read("buffer/enable") != "1":
-                        return
-                    continue
-                line.read_edge_events()
-                if self._stall_s:                                          # an injected interrupt outage
-                    stall, self._stall_s = self._stall_s, 0.0
-                    time.sleep(stall)
-                    continue
-                rx = chip.transfer(_BURST_TX, R.SPI_BURST_HZ, 0)           # adis16400_trigger_handler
-                words = list(struct.unpack(">12H", rx[2:26]))
-                # the stamp of the sample read (a handler that reads within a period of its interrupt):
-                # when this thread runs late, the chip already holds a newer sample than the last edge's
-                stamp_ns = int(round(line._to_host(chip.ready_clock_time(chip.sample_index)) * 1e9))
-                if self._read_clock() != "monotonic":
-                    stamp_ns += time.time_ns() - time.monotonic_ns()
-                rec = scan_record(words, stamp_ns, enabled)
-                try:
-                    os.write(fd, rec)
-                    self.stats["records"] += 1
-                    if not words[1] & R.ND:
-                        self.stats["stale_records"] += 1      # the chip had no new sample (read late before)
-                    if self.first_index_written is None:
-                        self.first_index_written = chip.sample_index
-                    self.last_index_written = chip.sample_index
-                except BlockingIOError:
-                    self.stats["overflow_dropped"] += 1
-                except OSError as exc:
-                    if exc.errno == errno.EPIPE:                  # the reader closed the node
-                        return
-                    raise
-                checks += 1
-                if checks % 256 == 0 and self._read("buffer/enable") != "1":
-                    return
-        finally:
-            os.close(fd)
-
     def lost_truth(self) -> int:
         """Chip samples between the first and the last record written that no record carries."""
         if self.first_index_written is None:
             return 0
-        fresh = self.stats["records"] - self.stats["stale_records"]
+        st = self.stats
+        fresh = st["records"] - st["stale_records"]
         return self.last_index_written - self.first_index_written + 1 - fresh
 
     def stall(self, seconds: float) -> None:
         """The "kernel" reads nothing for `seconds` (a lost interrupt, a stalled SPI controller): the chip's
         samples of that time are never read, the next record's time stamp jumps."""
-        self._stall_s = seconds
+        self._shared[_STALL_US] = int(seconds * 1e6)
 
-    def _read_clock(self) -> str:
-        # sysfs reads are cheap for the kernel; here a file read per record: cache for 0.1 s
-        now = time.monotonic()
-        if now - getattr(self, "_clock_read_at", -1.0) > 0.1:
-            self._clock_read_at = now
-            self._clock_name = self._read("current_timestamp_clock")
-        return self._clock_name
+    def remove(self, timeout_s: float = 10.0) -> None:
+        """The device goes away (unbind): the stream ends, the sysfs directory and the node disappear."""
+        self._shared[_UNPLUG_ACK] = 0
+        self._shared[_UNPLUGGED] = 1
+        end = time.monotonic() + timeout_s
+        while not self._shared[_UNPLUG_ACK] and time.monotonic() < end and self._proc.is_alive():
+            time.sleep(0.005)
+        shutil.rmtree(self.sysfs, ignore_errors=True)
+        try:
+            self.node.unlink()
+        except FileNotFoundError:
+            pass
+
+    def recreate(self) -> None:
+        """The device is back (a fresh probe): buffer and channels disabled until a reader enables them."""
+        self._build_tree()
+        self._shared[_UNPLUGGED] = 0
 
     def close(self) -> None:
         self._stop.set()
-        try:                                  # a writer still waiting in open() for its reader
-            os.close(os.open(self.node, os.O_RDONLY | os.O_NONBLOCK))
+        self._proc.join(5.0)
+        if self._proc.is_alive():
+            self._proc.kill()
+            self._proc.join(1.0)
+
+
+class _HandlerClock:
+    """The chip's clock as the kernel's handler sees it: the time of the read it is doing (set per sample)."""
+
+    def __init__(self):
+        self.t = time.monotonic()
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def _kernel(sysfs: str, node: str, scenario, seed: int, errors: str, shared, stop) -> None:
+    """The simulated kernel (a spawned process): buffer sessions while the device is present and enabled."""
+    import signal
+
+    from ahrsd.drivers.simulated import SimulatedAdis16405
+    from ahrsd.drivers.threaded_source import request_realtime_priority
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)          # the test or bench ends it (Ctrl-C reaches the group)
+    request_realtime_priority()                            # as the kernel's threaded IRQ handlers run
+    clock = _HandlerClock()
+    chip = SimulatedAdis16405(scenario, seed=seed, errors=errors, clock=clock)
+    kernel = _Kernel(Path(sysfs), node, chip, clock, shared, stop)
+    shared[_READY] = 1
+    try:
+        while not stop.is_set():
+            if shared[_UNPLUGGED]:
+                shared[_UNPLUG_ACK] = 1
+                time.sleep(0.01)
+                continue
+            if kernel.read("buffer/enable") != "1":
+                time.sleep(0.01)
+                continue
+            kernel.session()
+    finally:
+        chip.close()
+
+
+class _Kernel:
+    def __init__(self, sysfs: Path, node: str, chip, clock: _HandlerClock, shared, stop):
+        self.sysfs, self.node, self.chip, self.clock, self.shared, self.stop = sysfs, node, chip, clock, shared, stop
+        self._clock_name, self._clock_read_at = "realtime", -1.0
+
+    def read(self, rel: str) -> str:
+        try:
+            return (self.sysfs / rel).read_text().strip()
         except OSError:
-            pass
-        self._thread.join(2.0)
-        self.chip.close()
+            return ""                                     # the device is being removed
+
+    def _gone(self) -> bool:
+        return bool(self.stop.is_set() or self.shared[_UNPLUGGED])
+
+    def _stamp_offset_ns(self) -> int:
+        # sysfs reads cost the kernel nothing; here a file read: cached for 0.1 s
+        now = time.monotonic()
+        if now - self._clock_read_at > 0.1:
+            self._clock_read_at = now
+            self._clock_name = self.read("current_timestamp_clock") or self._clock_name
+        return 0 if self._clock_name == "monotonic" else time.time_ns() - time.monotonic_ns()
+
+    def _open_writer(self) -> int | None:
+        """The write end once a reader has the node open (ENXIO until then)."""
+        while not self._gone() and self.read("buffer/enable") == "1":
+            try:
+                return os.open(self.node, os.O_WRONLY | os.O_NONBLOCK)
+            except OSError as exc:
+                if exc.errno not in (errno.ENXIO, errno.ENOENT):
+                    raise
+            time.sleep(0.005)
+        return None
+
+    def session(self) -> None:
+        """One buffer session: the driver's start-up, then a record per chip sample until disabled or gone."""
+        enabled = [(n, i, t) for n, i, t in SCAN_ELEMENTS if self.read(f"scan_elements/{n}_en") == "1"]
+        length = int(self.read("buffer/length") or 128)
+        _, size = layout(enabled)
+        fd = self._open_writer()
+        if fd is None:
+            return
+        shared, chip, clock = self.shared, self.chip, self.clock
+        records, stale, dropped = (_STATS.index(k) for k in ("records", "stale_records", "overflow_dropped"))
+        first, last = _STATS.index("first_index"), _STATS.index("last_index")
+        shared[_STATS.index("sessions")] += 1
+        try:
+            try:
+                fcntl.fcntl(fd, F_SETPIPE_SZ, max(4096, length * size))     # the kfifo's length
+            except OSError:
+                pass
+            clock.t = time.monotonic()
+            chip.power_cycle()
+            k = chip.first_index_after(clock.t)              # the first data-ready edge after the enable
+            checked = time.monotonic()
+            while not self._gone():
+                now = time.monotonic()
+                if now - checked > 0.1:
+                    checked = now
+                    if self.read("buffer/enable") != "1":
+                        return
+                stall_us = shared[_STALL_US]
+                if stall_us:                                  # an injected interrupt outage from now on
+                    shared[_STALL_US] = 0
+                    k = max(k, chip.first_index_after(now + stall_us * 1e-6))
+                newest = chip.first_index_after(now) - 1
+                offset_ns = self._stamp_offset_ns() if k <= newest else 0
+                while k <= newest:
+                    edge = chip.ready_clock_time(k)
+                    clock.t = edge + HANDLER_LATENCY_S
+                    rx = chip.transfer(_BURST_TX, R.SPI_BURST_HZ, 0)           # adis16400_trigger_handler
+                    words = struct.unpack(">12H", rx[2:26])
+                    rec = scan_record(list(words), int(round(edge * 1e9)) + offset_ns, enabled)
+                    try:
+                        os.write(fd, rec)
+                        shared[records] += 1
+                        if not words[1] & R.ND:
+                            shared[stale] += 1              # the chip had no new sample
+                        if shared[first] < 0:
+                            shared[first] = chip.sample_index
+                        shared[last] = chip.sample_index
+                    except BlockingIOError:
+                        shared[dropped] += 1                # the buffer is full: kfifo refuses the scan
+                    except BrokenPipeError:
+                        return                              # the reader closed the node
+                    k += 1
+                time.sleep(max(0.0, chip.ready_clock_time(k) + HANDLER_LATENCY_S - time.monotonic()))
+        finally:
+            os.close(fd)

@@ -6,8 +6,9 @@ sample after lost ones: gaps are found once, here. Two ways to be read:
 * `per_sample = True` (a chip): `read_one(now)` once per sample at `next_read_time()`; returns the new sample
   or None (not ready yet). drivers.chip_source.ChipSource, drivers.reconnecting.ReconnectingSource.
 * `per_sample = False` (a recording, or a reader off the event loop): `poll()` on a fixed tick returns every
-  sample that is due. drivers.replay_source.ReplaySource, drivers.threaded_source.ThreadedSource (a chip read
-  in its own thread).
+  sample that is due. drivers.replay_source.ReplaySource, drivers.threaded_source.ThreadedSource (a chip read,
+  or the IIO buffer drained, in its own thread), drivers.process_source.ProcessSource (a chip read in a child
+  process), drivers.iio_source.IioSource (which can also `wait(timeout_s)` for records: a reader thread's).
 Both raise DriverError subclasses on failure (FrameError: one corrupt frame; BusError: the bus failed).
 A GNSS receiver is a sibling source with its own sample type (ahrsd.core.GnssFix), not an IMU source.
 """
@@ -45,10 +46,11 @@ class SensorSource(Protocol):
 
 
 def open_chip_bus(kind: str, *, spi_device: str = "", scenario: str = "static", seed: int = 0,
-                  errors: str = "adis16405", clock=time.monotonic, faults=None):
+                  errors: str = "adis16405", clock=time.monotonic, faults=None, producer: str = "thread"):
     """The SPI bus the chip answers on (the one place a chip is built): kind "spi", the spidev node `spi_device`;
     kind "sim", the byte-level simulated ADIS16405 flying `scenario` (clock None: it runs free, one sample
-    period per read, as fast as it is read; faults: a drivers.faults.FaultPlan)."""
+    period per read, as fast as it is read; faults: a drivers.faults.FaultPlan; producer: where its samples
+    are computed, drivers.simulated)."""
     if kind == "spi":
         if faults is not None:
             raise ValueError("faults are injected into the simulated chip only")
@@ -58,7 +60,8 @@ def open_chip_bus(kind: str, *, spi_device: str = "", scenario: str = "static", 
     if kind == "sim":
         from ahrsd.drivers.simulated import SimulatedAdis16405
 
-        return SimulatedAdis16405(scenario=scenario, seed=seed, errors=errors, clock=clock, faults=faults)
+        return SimulatedAdis16405(scenario=scenario, seed=seed, errors=errors, clock=clock, faults=faults,
+                                  producer=producer)
     raise ValueError(f"no chip bus {kind!r}: choose sim or spi")
 
 
@@ -95,7 +98,7 @@ def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
     is wrapped in drivers.ground_truth.GroundTruthSource, which accounts its lost samples against the truth.
     """
     kind = sensor_cfg.source
-    if kind in ("sim", "spi") and reader_kind(sensor_cfg) == "process":
+    if kind in ("sim", "spi", "iio") and reader_kind(sensor_cfg) == "process":
         from ahrsd.drivers.process_source import ProcessSource
 
         return ProcessSource(sensor_cfg, faults=faults)     # the same source, read in a child process
@@ -111,9 +114,9 @@ def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
             raise ValueError("fault injection (--sim-faults) needs the simulated sensor, not --iio")
         from ahrsd.drivers.iio_source import IioSource
 
-        src = IioSource(sensor_cfg.iio_device)
+        src = IioSource(sensor_cfg.iio_device, clock=clock)
         src.start()
-        return src
+        return _off_the_loop(src, sensor_cfg, clock)
     if kind == "spi":
         if faults is not None:
             raise ValueError("fault injection (--sim-faults) needs the simulated sensor, not --spi")
@@ -135,8 +138,9 @@ def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
         raise ValueError(f"no sensor source {kind!r}: choose sim, spi, iio or replay")
     from ahrsd.drivers.ground_truth import BurstIndexTap, GroundTruthSource
 
+    # the simulator's work in a process of its own, out of the reader's GIL (drivers.sim_block_producer)
     chip = open_chip_bus("sim", scenario=sensor_cfg.scenario, seed=sensor_cfg.seed, errors=sensor_cfg.errors,
-                         clock=clock, faults=faults)
+                         clock=clock, faults=faults, producer="process")
     what = f"simulated ADIS16405 ({sensor_cfg.scenario}{', faults injected' if faults is not None else ''})"
     tap = BurstIndexTap(chip)
     timing = {}
@@ -154,11 +158,12 @@ def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
 
 
 def reader_kind(sensor_cfg) -> str:
-    """`[sensor] reader`: "auto" is a child process for the real chip (its own GIL: docs/drivers.md, measured)
-    and a thread for the simulated one (which the simulated GNSS receiver and the ground truth share)."""
+    """`[sensor] reader`: "auto" is a child process for a chip without a FIFO, real or simulated (its own GIL:
+    docs/drivers.md, measured), so the simulated chip is read the way the real one is; a thread for the
+    kernel's IIO buffer (the kernel reads the chip; the thread only drains the buffer)."""
     reader = getattr(sensor_cfg, "reader", "auto")
     if reader == "auto":
-        return "process" if sensor_cfg.source == "spi" else "thread"
+        return "process" if sensor_cfg.source in ("spi", "sim") else "thread"
     return reader
 
 
@@ -169,4 +174,8 @@ def _off_the_loop(src, sensor_cfg, clock):
         return src
     from ahrsd.drivers.threaded_source import ThreadedSource
 
+    if not src.per_sample:
+        # the kernel's IIO buffer holds 10 s of scans: the thread only drains it, at normal priority and
+        # without the shorter GIL switch interval a chip without a FIFO needs
+        return ThreadedSource(src, clock=clock, realtime=False, switch_interval_s=None)
     return ThreadedSource(src, clock=clock)     # the reader thread starts at the daemon's first poll

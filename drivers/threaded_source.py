@@ -1,16 +1,17 @@
-"""A chip read off the event loop: a per-sample source (drivers.chip_source / reconnecting / ground_truth) read
-in a dedicated thread, its samples handed to the daemon in blocks through a bounded buffer (`poll()`, the
-block path a recording uses), so a slow MAVLink peer, a log flush or a GNSS burst on the event loop never
-delays a read.
+"""A sensor read off the event loop: a per-sample source (drivers.chip_source / reconnecting / ground_truth) read
+in a dedicated thread, or a block source that buffers on its own (drivers.iio_source: the kernel's buffer)
+drained by one, the samples handed to the daemon in blocks through a bounded buffer (`poll()`, the block path a
+recording uses), so a slow MAVLink peer, a log flush or a GNSS burst on the event loop never delays a read.
 
 What the GIL does to it (docs/drivers.md, measured with bench/reader_gil.py): the interpreter's switch
 interval bounds how long this thread waits for the GIL while the event loop runs Python code; at 819.2 SPS the
 chip keeps a sample for 1.22 ms, so the source lowers it to SWITCH_INTERVAL_S for the whole process while it
 runs. Where the CPU is contended a process loses less (its own GIL): drivers.process_source runs this same
-reader in a child process, the default for the real chip.
+reader in a child process, the default for the real and the simulated chip.
 
 The thread asks for SCHED_FIFO (`os.sched_setscheduler`) when the system allows it (root, CAP_SYS_NICE or an
-RLIMIT_RTPRIO, e.g. systemd's `LimitRTPRIO=`); when not, it says so once in the log and runs at normal priority.
+RLIMIT_RTPRIO, e.g. systemd's `LimitRTPRIO=`); one log line says whether it got it (a warning when not: it then
+runs at normal priority).
 
 Loss accounting stays where it was: the inner source's SampleTimer (or the data-ready pacing, drivers.data_ready)
 flags GAP_BEFORE on the first sample after lost ones. A sample the chip produced and the reader read but the
@@ -46,16 +47,24 @@ def _sleep_until(clock, t: float) -> None:
         time.sleep(dt)
 
 
-def set_realtime_priority(priority: int = FIFO_PRIORITY) -> bool:
-    """SCHED_FIFO for the calling thread (Linux: pid 0 is the calling thread). False (logged) when not allowed."""
+def request_realtime_priority(priority: int = FIFO_PRIORITY) -> str:
+    """SCHED_FIFO for the calling thread (Linux: pid 0 is the calling thread): "" when granted, else why not."""
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
     except (PermissionError, OSError, AttributeError) as exc:
-        log.info("sensor reader: no real-time priority (%s); running at normal priority. Allow it with "
-                 "systemd LimitRTPRIO=%d or CAP_SYS_NICE", exc, priority)
-        return False
-    log.info("sensor reader: SCHED_FIFO priority %d", priority)
-    return True
+        return str(exc) or type(exc).__name__
+    return ""
+
+
+def log_realtime_priority(who: str, refused: str, priority: int = FIFO_PRIORITY) -> None:
+    """The one log line that says whether the sensor reader runs at real-time priority."""
+    if refused:
+        log.warning("%s: NO real-time priority (%s): running at normal priority, samples are lost whenever the "
+                    "reader is not scheduled within a sample period. Allow SCHED_FIFO with root, CAP_SYS_NICE or "
+                    "RLIMIT_RTPRIO (systemd: RestrictRealtime=no, LimitRTPRIO=%d; docs/drivers.md)",
+                    who, refused, priority)
+    else:
+        log.info("%s: real-time priority SCHED_FIFO %d", who, priority)
 
 
 class ThreadedSource:
@@ -74,8 +83,9 @@ class ThreadedSource:
     def __init__(self, inner, *, clock=time.monotonic, sleep_until=None,
                  capacity_samples: int = CAPACITY_SAMPLES, realtime: bool = True,
                  switch_interval_s: float | None = SWITCH_INTERVAL_S):
-        if getattr(inner, "per_sample", False) is not True:
-            raise TypeError("ThreadedSource reads a per-sample source (read_one / next_read_time)")
+        if getattr(inner, "per_sample", False) is not True and not callable(getattr(inner, "wait", None)):
+            raise TypeError("ThreadedSource reads a per-sample source (read_one / next_read_time) or a block "
+                            "source that can wait for data (wait(timeout_s) / poll())")
         self.inner = inner
         self.description = f"{inner.description}, read in a dedicated thread"
         self.sample_rate_hz = inner.sample_rate_hz
@@ -93,8 +103,12 @@ class ThreadedSource:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.stats = {"reads": 0, "corrupt_frames": 0, "read_failures": 0, "handover_dropped": 0,
-                      "handover_max_backlog": 0, "realtime_priority": 0, "undelivered_at_close": 0}
+                      "handover_max_backlog": 0, "realtime_priority": 0, "undelivered_at_close": 0,
+                      "wakes_late": 0, "wake_late_max_us": 0}
         self._last_delivered: int | None = None
+        self.after_read = None     # called by the reader thread between reads (drivers.process_source's hand-over)
+        self.log_realtime = True   # log whether SCHED_FIFO was granted (a reader process reports it instead)
+        self.realtime_refused: str | None = None   # "" granted, else why not (None: not asked)
 
     def __getattr__(self, name):
         # what else the daemon and the tools ask of a chip source (chip, bus, driver, timer) is the inner one's
@@ -117,10 +131,47 @@ class ThreadedSource:
 
     def _run(self) -> None:
         if self._realtime:
-            self.stats["realtime_priority"] = int(set_realtime_priority())
-        failures = ReadFailures()    # when a failed read is a sensor failure (drivers.read_failures)
-        inner, clock, stop = self.inner, self._clock, self._stop
+            self.realtime_refused = request_realtime_priority()
+            self.stats["realtime_priority"] = int(not self.realtime_refused)
+            if self.log_realtime:
+                log_realtime_priority("sensor reader thread", self.realtime_refused)
+        if self.inner.per_sample:
+            self._read_per_sample()
+        else:
+            self._read_blocks()
+
+    def _read_blocks(self) -> None:
+        """A source that buffers on its own (the kernel's IIO buffer): wait for data, take every record."""
+        failures = ReadFailures()
+        inner, clock, stop, after_read = self.inner, self._clock, self._stop, self.after_read
         while not stop.is_set():
+            if after_read is not None:
+                after_read()
+            try:
+                if not inner.wait(0.1):
+                    continue
+                with self._inner_lock:
+                    samples = inner.poll()
+            except Exception as exc:  # noqa: BLE001 - BusError / OSError: the source re-opens on its own
+                self.stats["corrupt_frames" if isinstance(exc, FrameError) else "read_failures"] += 1
+                verdict = failures.read_failed(exc)
+                if verdict.failed:
+                    self._set_error(exc)
+                if verdict.retry_after_s is not None:
+                    self._sleep_until(clock() + verdict.retry_after_s)
+                continue
+            self.stats["reads"] += 1
+            failures.read_ok()
+            for sample in samples:
+                self._hand_over(sample)
+
+    def _read_per_sample(self) -> None:
+        failures = ReadFailures()    # when a failed read is a sensor failure (drivers.read_failures)
+        inner, clock, stop, after_read = self.inner, self._clock, self._stop, self.after_read
+        period_s = 1.0 / self.sample_rate_hz
+        while not stop.is_set():
+            if after_read is not None:
+                after_read()
             wait_edge = getattr(getattr(inner, "timer", None), "wait", None)
             if wait_edge is not None:
                 if not wait_edge(0.1):
@@ -129,6 +180,11 @@ class ThreadedSource:
                 target = inner.next_read_time()
                 if target > 0.0:
                     self._sleep_until(target)
+                    late_s = clock() - target
+                    if late_s > period_s:            # woke (and got the GIL) after the chip's next sample
+                        self.stats["wakes_late"] += 1
+                    if late_s * 1e6 > self.stats["wake_late_max_us"]:
+                        self.stats["wake_late_max_us"] = int(late_s * 1e6)
             if stop.is_set():
                 break
             try:

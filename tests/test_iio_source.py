@@ -160,3 +160,105 @@ def test_a_missing_iio_device_is_one_line_not_a_traceback(tmp_path, capsys):
                  str(tmp_path / "state"), "--no-log", "--status-line", "off"])
     err = capsys.readouterr().err
     assert code == 1 and "iio:device3" in err and "Traceback" not in err
+
+
+def _iio_cfg(device, reader="auto"):
+    from types import SimpleNamespace
+
+    return SimpleNamespace(source="iio", iio_device=str(device.sysfs), reader=reader)
+
+
+def _take(src, want: int, t_end: float, got: list, errors: list) -> None:
+    while len(got) < want and time.monotonic() < t_end:
+        try:
+            got += src.poll()
+        except Exception as exc:  # noqa: BLE001 - the test looks at what the daemon would be told
+            errors.append(exc)
+        time.sleep(0.02)
+
+
+def test_the_reader_loses_nothing_while_the_kernel_buffer_holds_and_counts_an_overflow(tmp_path):
+    """The kernel buffer is the only place a scan can be lost: a reader that stops for longer than the buffer
+    loses exactly the scans that did not fit (counted from the time stamps, equal to the kernel's drops); one
+    that stops for less loses none, however late the simulated kernel's own process runs."""
+    from ahrsd.drivers.source import open_source
+
+    device = SimulatedIioDevice(tmp_path / "iio", scenario="static", seed=4)
+    try:
+        device.wait_ready()
+        src = open_source(_iio_cfg(device))
+        src.inner.buffer_length = 128                          # 0.16 s of scans (the kernel's default length)
+        src.inner.start()
+        got, errors = [], []
+        t_end = time.monotonic() + 60.0
+        _take(src, 400, t_end, got, errors)
+        src._inner_lock.acquire()                               # the reader stops reading (holds the source)
+        time.sleep(0.6)                                         # ≈ 490 scans: 128 fit, the rest are dropped
+        src._inner_lock.release()
+        _take(src, len(got) + 800, t_end, got, errors)
+        dropped_by_kernel = device.stats["overflow_dropped"]
+        src.close()
+    finally:
+        device.close()
+    lost = src.counters()["lost_samples_host"]
+    assert dropped_by_kernel > 0.6 * 819.2 - 128 - 100 and not errors
+    assert lost == device.lost_truth() == dropped_by_kernel
+    assert got[-1].counter - got[0].counter + 1 == len(got) + lost
+
+    device = SimulatedIioDevice(tmp_path / "iio2", scenario="static", seed=4)
+    try:
+        device.wait_ready()
+        src = open_source(_iio_cfg(device))                     # the default buffer: 8192 scans, 10 s
+        got, errors = [], []
+        t_end = time.monotonic() + 60.0
+        _take(src, 400, t_end, got, errors)
+        src._inner_lock.acquire()
+        time.sleep(1.0)
+        src._inner_lock.release()
+        _take(src, len(got) + 1600, t_end, got, errors)
+        src.close()
+        truth, dropped = device.lost_truth(), device.stats["overflow_dropped"]
+    finally:
+        device.close()
+    assert len(got) >= 2000 and not errors
+    assert src.counters()["lost_samples_host"] == truth == dropped == 0
+    assert got[-1].counter - got[0].counter + 1 == len(got)
+
+
+def test_a_vanished_iio_device_is_reopened_counted_and_logged(tmp_path, caplog):
+    from ahrsd.drivers.errors import BusError
+    from ahrsd.drivers.source import open_source
+
+    device = SimulatedIioDevice(tmp_path / "iio", scenario="static", seed=6)
+    try:
+        device.wait_ready()
+        src = open_source(_iio_cfg(device))
+        got, errors = [], []
+        t_end = time.monotonic() + 90.0
+        _take(src, 400, t_end, got, errors)
+        assert not errors
+        device.remove()                                        # unbound: the stream ends, sysfs and node go
+        n_before = len(got)
+        while not errors and time.monotonic() < t_end:
+            _take(src, len(got) + 1, min(t_end, time.monotonic() + 0.2), got, errors)
+        assert errors and all(isinstance(e, BusError) for e in errors)     # the daemon is told: sensor failed
+        time.sleep(0.5)
+        device.recreate()                                      # probed again: channels and buffer disabled
+        _take(src, len(got) + 800, t_end, got, errors)
+        counters = src.counters()
+        truth = device.lost_truth()
+        src.close()
+    finally:
+        device.close()
+    assert len(got) >= n_before + 800
+    assert counters["device_lost"] == 1 and counters["reopens"] == 1
+    assert (device.sysfs / "scan_elements" / "in_anglvel_x_en").read_text().strip() == "1"
+    assert (device.sysfs / "current_timestamp_clock").read_text().strip() == "monotonic"
+    # the outage's samples are counted lost, against the chip samples no record carried
+    lost = counters["lost_samples_host"]
+    assert lost == truth >= 0.5 * 819.2 * 0.9
+    assert got[-1].counter - got[0].counter + 1 == len(got) + lost
+    assert np.all(np.diff([s.t_s for s in got]) > 0)
+    messages = [r.getMessage() for r in caplog.records]
+    assert any("lost" in m and "re-opening" in m for m in messages)
+    assert any(" back " in m for m in messages)

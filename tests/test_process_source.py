@@ -70,3 +70,102 @@ def test_a_vanished_bus_in_the_child_reaches_the_daemon():
                 time.sleep(0.01)
     finally:
         src.close()
+
+
+def test_the_daemon_logs_once_whether_the_reader_process_got_realtime_priority(caplog):
+    """The child's own log goes nowhere: it tells the daemon, which logs one line, consistent with the
+    child's counter (granted or refused, whatever this machine allows)."""
+    import logging
+
+    caplog.set_level(logging.INFO, logger="ahrsd.drivers.threaded_source")
+    src = ProcessSource(sim_cfg())
+    try:
+        collect(src, 1000)
+        time.sleep(0.5)
+        collect(src, 1)
+    finally:
+        src.close()
+    lines = [r.getMessage() for r in caplog.records if "real-time priority" in r.getMessage()]
+    assert len(lines) == 1 and lines[0].startswith("sensor reader process: ")
+    granted = src.counters()["reader_realtime_priority"] == 1
+    assert ("SCHED_FIFO 50" in lines[0]) == granted and ("NO real-time" in lines[0]) == (not granted)
+
+
+class _SettableClock:
+    def __init__(self):
+        self.t = 100.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_the_chip_computes_the_same_samples_in_its_producer_process():
+    """drivers.sim_block_producer moves the simulator out of the reader's process, not what it computes: burst
+    for burst across three 256-sample blocks, the same bytes as the producer thread's."""
+    from ahrsd.drivers import registers as R
+    from ahrsd.drivers.simulated import SimulatedAdis16405
+
+    out = {}
+    for producer in ("thread", "process"):
+        clock = _SettableClock()
+        chip = SimulatedAdis16405("level-turns", seed=5, clock=clock, producer=producer)
+        try:
+            rx = []
+            for k in range(700):
+                clock.t = 100.0 + (k + 0.5) / chip.sample_rate_hz
+                rx.append(chip.transfer(R.BURST_COMMAND + bytes(R.BURST_DATA_BYTES), R.SPI_BURST_HZ, 0))
+        finally:
+            chip.close()
+        out[producer] = rx
+    assert len(set(out["thread"])) > 600                    # a moving scenario: the samples differ
+    assert out["process"] == out["thread"]
+
+
+def test_the_hand_over_never_blocks_the_reader_on_a_full_pipe(monkeypatch):
+    """While the daemon does not read (its pipe full) the child's hand-over sends nothing and keeps what it
+    took; once there is room everything goes, in order, once."""
+    import multiprocessing
+
+    from ahrsd.drivers import process_source
+
+    def sample(k):
+        return ImuSample(k * 0.001, np.zeros(3), np.zeros(3), np.zeros(3), 25.0, 5.0, SampleFlags.NEW_DATA, 0, k)
+
+    class Source:                                            # the reader's bounded buffer
+        realtime_refused = None
+
+        def __init__(self):
+            self.buf, self.k = [], 0
+
+        def read(self, n):
+            self.buf += [sample(self.k + i) for i in range(n)]
+            self.k += n
+
+        def poll(self):
+            out, self.buf = self.buf, []
+            return out
+
+        def counters(self):
+            return {}
+
+    daemon_end, child_end = multiprocessing.Pipe()
+    src = Source()
+    h = process_source._Handover(child_end, src)
+    room = [False]
+    monkeypatch.setattr(process_source._Handover, "_room", lambda self: room[0])
+    for _ in range(5):
+        src.read(3)
+        h.next_send = 0.0
+        h.maybe_send()
+    assert not daemon_end.poll(0)                            # nothing sent while the pipe had no room
+    room[0] = True
+    h.next_send = 0.0
+    h.maybe_send()
+    h.next_send = 0.0
+    h.maybe_send()
+    got = []
+    while daemon_end.poll(0.2):
+        msg = daemon_end.recv()
+        if msg[0] == "samples":
+            got += [s.counter for s in unpack(msg[1])]
+    assert got == list(range(15))

@@ -1,5 +1,6 @@
 """End to end against the `ahrsd run` subprocess (simulated chip with --sim-faults): what the autopilot and the
-ground station see under sensor faults, CPU starvation (SIGSTOP/SIGCONT) and a MAVLink flood.
+ground station see under sensor faults, CPU starvation (SIGSTOP/SIGCONT of the daemon alone, whose reader process
+reads on, and of the daemon with its reader) and a MAVLink flood.
 
 One daemon for the module: its fault schedule makes the start-up self-test fail for 6 s, the device vanish
 for 1 s and data-ready stall for 0.5 s; then the test freezes the process (0.3 s and 2.5 s) and floods it.
@@ -12,6 +13,7 @@ import math
 import os
 import signal
 import time
+from pathlib import Path
 
 import pytest
 
@@ -104,6 +106,28 @@ def test_stall_is_reported_and_counted_as_lost_samples(faulty):
     assert last.errors_count2 - before[-1].errors_count2 >= 0.5 * 819 - 5
 
 
+def process_tree(pid: int) -> list[int]:
+    """The daemon and its descendants (the sensor reader process, the simulated chip's block producer)."""
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        out.append(p)
+        for task in Path(f"/proc/{p}/task").glob("*"):
+            try:
+                todo += [int(c) for c in (task / "children").read_text().split()]
+            except (OSError, ValueError):
+                pass
+    return out
+
+
+def freeze(pids: list[int], seconds: float) -> None:
+    for p in pids:
+        os.kill(p, signal.SIGSTOP)
+    time.sleep(seconds)
+    for p in reversed(pids):
+        os.kill(p, signal.SIGCONT)
+
+
 def _lost(d) -> int:
     pump(d, 1.3, lambda m: m.get_type() == "SYS_STATUS")
     return of_type(d, "SYS_STATUS")[-1][1].errors_count2
@@ -113,12 +137,16 @@ def test_cpu_starvation_short_freeze_counts_the_gap_and_keeps_running(faulty):
     d = faulty
     pump(d, 2.0)
     before = _lost(d)
-    os.kill(d.proc.pid, signal.SIGSTOP)
-    time.sleep(0.3)
-    os.kill(d.proc.pid, signal.SIGCONT)
+    tree = process_tree(d.proc.pid)
+    assert len(tree) >= 2                                               # the reader is a process of its own
+    freeze(tree[:1], 0.3)                                               # the daemon alone: its reader reads on
+    pump(d, 2.5)
+    after_daemon = _lost(d)
+    assert after_daemon - before < 0.3 * 819 * 0.5                      # the 245 samples were not lost
+    freeze(tree, 0.3)                                                   # daemon and reader: the machine starves
     pump(d, 2.5)
     after = _lost(d)
-    assert after - before >= 0.3 * 819 * 0.8                           # ≈ 245 samples lost and counted
+    assert after - after_daemon >= 0.3 * 819 * 0.8                     # ≈ 245 samples lost and counted
     assert of_type(d, "HEARTBEAT")[-1][1].system_status == mavlink.MAV_STATE_ACTIVE
 
 
@@ -126,17 +154,18 @@ def test_cpu_starvation_long_freeze_reinitialises_and_says_so(faulty):
     d = faulty
     pump(d, 1.0)
     resets_before = of_type(d, "VISION_POSITION_ESTIMATE")[-1][1].reset_counter
-    os.kill(d.proc.pid, signal.SIGSTOP)
-    time.sleep(2.5)                                                      # > the MEKF's 2 s re-init gap
+    freeze(process_tree(d.proc.pid), 2.5)                                # > the MEKF's 2 s re-init gap
     t_cont = time.monotonic()
-    os.kill(d.proc.pid, signal.SIGCONT)
     pump(d, 20, lambda m: m.get_type() == "HEARTBEAT" and m.system_status == mavlink.MAV_STATE_ACTIVE
          and time.monotonic() > t_cont + 1.0)
     pump(d, 1.0)
     vpe = of_type(d, "VISION_POSITION_ESTIMATE", t_cont)
     assert vpe and vpe[-1][1].reset_counter > resets_before              # PX4 re-aligns instead of fighting a step
+    # re-initialising: no heading out — in a heartbeat (1 Hz) or in the state change's STATUSTEXT (a
+    # re-initialisation shorter than the heartbeat period may fall between two heartbeats)
     states = [m.system_status for _, m in of_type(d, "HEARTBEAT", t_cont)]
-    assert mavlink.MAV_STATE_STANDBY in states                            # re-initialising: no heading out
+    announced = [m.text for _, m in of_type(d, "STATUSTEXT", t_cont) if m.text.startswith("ahrsd: STANDBY")]
+    assert mavlink.MAV_STATE_STANDBY in states or announced, (states, announced)
 
 
 def test_flood_keeps_output_rates_answers_valid_traffic_and_counts_junk(faulty):

@@ -48,17 +48,23 @@ async def starved_loop(clock, poll, stalls: int, got: list) -> None:
     got.extend(poll())
 
 
+def read_through_a_starved_loop(src, clock, stalls: int) -> list:
+    """Start the reader, run `starved_loop` with it, stop both; the samples the loop took."""
+    src.start()
+    got: list = []
+    try:
+        asyncio.run(starved_loop(clock, src.poll, stalls=stalls, got=got))
+    finally:
+        clock.close()
+        src.close()
+    return got
+
+
 def test_a_starved_event_loop_loses_no_sample():
     clock = SteppedClock()
     chip, inner = chip_and_source(clock)
     src = ThreadedSource(inner, clock=clock, sleep_until=clock.sleep_until, realtime=False)
-    src.start()
-    got: list = []
-    try:
-        asyncio.run(starved_loop(clock, src.poll, stalls=8, got=got))
-    finally:
-        clock.close()
-        src.close()
+    got = read_through_a_starved_loop(src, clock, stalls=8)
     produced_while_read = got[-1].counter - got[0].counter + 1
     assert produced_while_read > 8 * 0.1 / PERIOD_S * 0.95           # 8 × 100 ms of chip time went by
     assert len(got) == produced_while_read
@@ -134,3 +140,45 @@ def test_a_bus_failure_reaches_the_daemon_from_poll():
     finally:
         clock.close()
         src.close()
+
+
+@pytest.mark.parametrize("refused", ["", "Operation not permitted"])
+def test_one_log_line_says_whether_the_reader_got_realtime_priority(monkeypatch, caplog, refused):
+    import logging
+
+    import ahrsd.drivers.threaded_source as ts
+
+    monkeypatch.setattr(ts, "request_realtime_priority", lambda priority=ts.FIFO_PRIORITY: refused)
+    clock = SteppedClock()
+    chip, inner = chip_and_source(clock)
+    src = ThreadedSource(inner, clock=clock, sleep_until=clock.sleep_until)
+    caplog.set_level(logging.INFO, logger="ahrsd.drivers.threaded_source")
+    read_through_a_starved_loop(src, clock, stalls=1)
+    lines = [r for r in caplog.records if "real-time priority" in r.getMessage()]
+    assert len(lines) == 1
+    if refused:
+        assert lines[0].levelname == "WARNING" and "NO real-time priority" in lines[0].getMessage()
+        assert refused in lines[0].getMessage() and "LimitRTPRIO" in lines[0].getMessage()
+    else:
+        assert lines[0].levelname == "INFO" and "SCHED_FIFO 50" in lines[0].getMessage()
+    assert src.counters()["reader_realtime_priority"] == (0 if refused else 1)
+
+
+def test_a_wake_later_than_a_period_is_counted_with_its_lateness():
+    """`reader_wakes_late` / `reader_wake_late_max_us` (run_stats): how often the reader woke (and had the
+    GIL) after the chip's next sample was due, and by how much at worst; here one wake 3 periods late."""
+    clock = SteppedClock()
+    chip, inner = chip_and_source(clock)
+    calls = [0]
+
+    def sleep_until(t):
+        calls[0] += 1
+        clock.sleep_until(t + (3 * PERIOD_S if calls[0] == 50 else 0.0))
+
+    src = ThreadedSource(inner, clock=clock, sleep_until=sleep_until, realtime=False)
+    got = read_through_a_starved_loop(src, clock, stalls=1)
+    c = src.counters()
+    assert calls[0] > 50
+    assert c["reader_wakes_late"] == 1
+    assert 3 * PERIOD_S * 1e6 - 60 <= c["reader_wake_late_max_us"] <= 3 * PERIOD_S * 1e6 + 1
+    assert gap_samples(got) == c["lost_samples_host"] >= 2         # the late wake lost the samples it slept past
