@@ -108,19 +108,23 @@ def run(args) -> int:
         print(f"ahrsd record: {exc}", file=sys.stderr)
         return 1
 
+    # the GNSS source first: when it cannot start, the run ends before any file is created (a header-only
+    # recording would look like a recording that caught nothing)
+    try:
+        gnss = _open_gnss(args, bus, source, paced)
+    except (OSError, ValueError, DriverError) as exc:
+        print(f"ahrsd record: GNSS: {exc}", file=sys.stderr)
+        imu.close()
+        return 1
     extra = ("temp_c", "supply_v", "flags", "counter") + (TRUTH_COLUMNS if simulated else ())
     try:
         writer = RecordingWriter(args.output, extra_columns=extra)
     except OSError as exc:
         print(f"ahrsd record: cannot write {args.output}: {exc}", file=sys.stderr)
         imu.close()
-        return 1
-    try:
-        gnss = _open_gnss(args, bus, source, paced)
-    except (OSError, ValueError, DriverError) as exc:
-        print(f"ahrsd record: GNSS: {exc}", file=sys.stderr)
-        writer.close()
-        imu.close()
+        if gnss is not None:
+            gnss.close()
+            gnss.path.unlink(missing_ok=True)     # its header only: nothing was recorded
         return 1
 
     def _stop(signum, frame):
@@ -183,16 +187,43 @@ def run(args) -> int:
     if status is not None:
         status.write("\n")
     elapsed = time.monotonic() - wall0
-    problems = {k: v for k, v in imu.counters.items() if v and k not in ("samples", "new_samples")}
+    counters = source.counters()        # the driver's counters and the source's lost samples
     span = 0.0 if first is None else last.t_s - first.t_s
+    problems = problems_in_words(counters)
     print(f"ahrsd record: wrote {written} samples ({span:.2f} s of data at {imu.sample_rate_hz:.1f} SPS) to "
-          f"{args.output} in {elapsed:.2f} s" + (f"; counters: {problems}" if problems else ""), file=sys.stderr)
+          f"{args.output} in {elapsed:.2f} s" + (f"; {', '.join(problems)}" if problems else ""), file=sys.stderr)
     if gnss_summary:
         print(f"ahrsd record: {gnss_summary}", file=sys.stderr)
-    log.debug("counters: %s", imu.counters)
+    log.debug("counters: %s", counters)
     if simulated:
         log.debug("simulated chip: %s", bus.stats)
     return rc
+
+
+# What the end-of-run line reports, in the driver's and the source's counter names (drivers/adis16405.py
+# COUNTER_NAMES, drivers/chip_source.py), as the words a user reads. Reads that found no new sample yet
+# ("stale") are how a paced reader meets the chip's data-ready, not a problem, and are not reported.
+PROBLEMS = (
+    (("lost_samples_host",), "{} samples lost (gaps in the recording)"),
+    (("garbage_frames",), "{} corrupt frames rejected"),
+    (("short_reads", "bus_errors"), "{} failed bus transfers"),
+    (("ea_flags",), "{} samples with the chip's alarm flag set"),
+    (("saturations",), "{} samples with an axis at full scale"),
+    (("stuck_axis",), "{} axes seen stuck"),
+    (("burst_bug_recovered",), "{} X-gyro burst errors corrected"),
+    (("burst_bug_unverified",), "{} gyro samples marked invalid (burst error not confirmed)"),
+    (("self_test_failures",), "{} failed self-test attempts"),
+)
+
+
+def problems_in_words(counters: dict) -> list[str]:
+    """The counters a user acts on, as phrases ("3 corrupt frames rejected"); nothing for a clean run."""
+    out = []
+    for names, text in PROBLEMS:
+        n = sum(int(counters.get(name, 0) or 0) for name in names)
+        if n:
+            out.append(text.format(n))
+    return out
 
 
 def _open_gnss(args, bus, source, paced: bool):

@@ -20,6 +20,20 @@ if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
 
+def pytest_configure(config):
+    """With pytest-xdist workers (the README's `-n 3`), compile the numba kernels once in the controller before
+    the workers start (tests/support/numba_warm_up.py says why); the groups run side by side. Skipped in a
+    worker, without -n, and with AHRSD_TEST_NO_WARM_UP=1."""
+    workers = getattr(config.option, "numprocesses", None)
+    if hasattr(config, "workerinput") or not workers or os.environ.get("AHRSD_TEST_NO_WARM_UP") == "1":
+        return
+    script = Path(__file__).parent / "support" / "numba_warm_up.py"
+    procs = [subprocess.Popen([sys.executable, str(script), group], stdout=subprocess.DEVNULL)
+             for group in ("ins", "mekf")]
+    for proc in procs:
+        proc.wait()
+
+
 @pytest.fixture
 def broad_dir() -> Path:
     if not BROAD_DIR.is_dir() or not any(BROAD_DIR.glob("*.npz")):

@@ -32,15 +32,17 @@ from ahrsd.daemon.mavlink_io import mavlink  # noqa: E402
 from ahrsd.drivers.recording import RecordingWriter  # noqa: E402
 from ahrsd.simulation import DEFAULT_SITE  # noqa: E402
 
+from support.field_vehicle import RATE_HZ as FIELD_RATE_HZ  # noqa: E402
 from support.field_vehicle import (SITE_FIELD, course_fixes, heading_rms_deg, injected_iron, record, truth_euler,  # noqa: E402
                           vehicle)
 from service_rig import free_udp_port, stop_process  # noqa: E402
 from test_magcal_integration import Client  # noqa: E402
 
 RECORDING_S = 300.0
+GATE_STALL_S = 10.0        # wall seconds the replay waits for the daemon to take a fix before it moves on
 
 LAUNCH = r"""
-import asyncio, dataclasses, json, logging, sys, time
+import asyncio, dataclasses, json, logging, os, sys, time
 logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
 a = json.loads(sys.argv[1])
 sys.path.insert(0, a["tests_dir"])
@@ -50,7 +52,8 @@ from ahrsd.daemon.config import Config, OutputsConfig
 from ahrsd.daemon.magcal_settings import settings_from_mapping
 from ahrsd.drivers.replay_source import ReplaySource
 from ahrsd.daemon.service import Service
-cfg = Config().with_overrides(sim="level-turns", mavlink=[a["url"]], state_dir=a["state_dir"])
+links = [a["url"]] + ([f"udpin:127.0.0.1:{a['autopilot']['port']}"] if a.get("autopilot") else [])
+cfg = Config().with_overrides(sim="level-turns", mavlink=links, state_dir=a["state_dir"])
 cfg = dataclasses.replace(cfg, outputs=OutputsConfig.parse({"highres_imu_hz": a["highres_imu_hz"]}))
 block = record(vehicle(a["tilt_deg"], a["straight_runs"]), a["seconds"])
 def samples():
@@ -59,20 +62,79 @@ def samples():
                           flags=SampleFlags.NEW_DATA)
 scale = float(a["time_scale"])
 t0 = time.monotonic()
+ap = a.get("autopilot")     # an autopilot sending GPS_RAW_INT over its own MAVLink link, or None
+log = logging.getLogger("test.autopilot")
+ap_state = {"k": 0, "waiting": False, "count": 0, "sent_at": 0.0, "sent": 0, "taken": 0, "late_s": 0.0,
+            "timeouts": 0, "last": -float("inf")}
+def send_fix(k):
+    link.mav.gps_raw_int_send(ap["valid_usec"][k], 3, ap["lat_e7"], ap["lon_e7"], ap["alt_mm"], 80, 120,
+                              ap["speed_cm_s"][k], ap["course_cdeg"][k], 12)
+    ap_state["sent"] += 1
+def save_stats():
+    with open(ap["stats_file"] + ".tmp", "w") as f:
+        json.dump(ap_state, f)
+    os.replace(ap["stats_file"] + ".tmp", ap["stats_file"])
+def autopilot_gate(now):
+    # Fix k is sent when the replayed samples reach its arrival time; while a session runs, the recording then
+    # waits there until the daemon has taken the fix (course_fed + course_unusable counts every GPS_RAW_INT of
+    # a session), so it is stamped with the sample of its arrival whatever the machine's load. Before a
+    # session the daemon ignores the fixes, as it would a live autopilot's.
+    last = service.pipeline.last_sample if service.pipeline is not None else None
+    if last is None:
+        return now
+    arrival = ap["arrival_s"]
+    hold = lambda t_s: min(now, t_s + 1e-6 + replay.monotonic_offset_s)
+    m = service.magcal
+    running = m is not None and m.calibrating
+    n = m.course_fed + m.course_unusable if m is not None else 0
+    if ap_state["waiting"]:
+        k = ap_state["k"] - 1
+        if n > ap_state["count"]:
+            ap_state["waiting"], ap_state["taken"] = False, ap_state["taken"] + 1
+            ap_state["late_s"] = max(ap_state["late_s"], last.t_s - arrival[k])
+            save_stats()
+        elif running and time.monotonic() - ap_state["sent_at"] > a["gate_stall_s"]:
+            log.warning("fix %d at t=%.3f not taken in %.0f s: moving on", k, arrival[k], a["gate_stall_s"])
+            ap_state["waiting"], ap_state["timeouts"] = False, ap_state["timeouts"] + 1
+            save_stats()
+        elif running:
+            return hold(arrival[k])
+        else:
+            ap_state["waiting"] = False
+    k = ap_state["k"]
+    while k < len(arrival) and arrival[k] <= last.t_s + 1e-6:
+        send_fix(k)
+        k += 1
+        ap_state["k"] = k
+        if running:
+            ap_state["waiting"], ap_state["count"], ap_state["sent_at"] = True, n, time.monotonic()
+            return hold(arrival[k - 1])
+    return hold(arrival[k]) if k < len(arrival) else now
 def clock():
-    return t0 + scale * (time.monotonic() - t0)
+    now = t0 + scale * (time.monotonic() - t0)
+    if ap is not None:
+        now = autopilot_gate(now)
+    ap_state["last"] = max(ap_state["last"], now)      # a clock never runs backwards
+    return ap_state["last"]
 cfg = dataclasses.replace(cfg, magcal=settings_from_mapping(a.get("magcal")))
-service = Service(cfg, source=ReplaySource(samples(), "field-calibration vehicle", realtime=True, rate_hz=RATE_HZ,
-                                           clock=clock))
+if ap is not None:
+    from pymavlink import mavutil
+    link = mavutil.mavlink_connection(f"udpout:127.0.0.1:{ap['port']}", source_system=1, source_component=1)
+replay = ReplaySource(samples(), "field-calibration vehicle", realtime=True, rate_hz=RATE_HZ, clock=clock)
+service = Service(cfg, source=replay)
 sys.exit(asyncio.run(service.run()))
 """
 
 
 def start_daemon(tmp_path: Path, port: int, tilt_deg: float, straight_runs: bool, time_scale: float,
-                 magcal: dict | None = None, highres_imu_hz: float = 50.0):
+                 magcal: dict | None = None, highres_imu_hz: float = 50.0, autopilot: dict | None = None):
+    """The daemon replaying the vehicle TIME_SCALE times faster than real time, its MAVLink to `port`; with
+    `autopilot` (autopilot_gps_raw_int), an autopilot on a second link sends GPS_RAW_INT from inside the
+    daemon's process, each fix when the replay reaches its arrival time."""
     args = {"url": f"udpout:127.0.0.1:{port}", "state_dir": str(tmp_path / "state"), "tilt_deg": tilt_deg,
             "straight_runs": straight_runs, "seconds": RECORDING_S, "time_scale": time_scale,
-            "magcal": magcal or {}, "highres_imu_hz": highres_imu_hz, "tests_dir": str(Path(__file__).parent)}
+            "magcal": magcal or {}, "highres_imu_hz": highres_imu_hz, "tests_dir": str(Path(__file__).parent),
+            "autopilot": autopilot, "gate_stall_s": GATE_STALL_S}
     log = open(tmp_path / "daemon.log", "w")
     proc = subprocess.Popen([sys.executable, "-c", LAUNCH, json.dumps(args)], stderr=log, stdout=subprocess.DEVNULL)
     return proc, log
@@ -160,40 +222,37 @@ def test_daemon_session_beats_offsets_only_and_matches_the_offline_fit(tmp_path,
     assert abs(field_total - heading_rms_deg(offline, iron)) < tolerance
 
 
+def autopilot_gps_raw_int(tmp_path: Path, arrival, valid, course_rad, speed_m_s) -> dict:
+    """start_daemon's `autopilot`: fix k (valid at valid[k], course and ground speed) sent as GPS_RAW_INT when
+    the replay reaches arrival[k], from system 1 component 1 on its own UDP link; its counters (sent, taken by
+    the session, the latest sample time after its arrival at which one was taken, time-outs) in a JSON file."""
+    return {"port": free_udp_port(), "arrival_s": [float(t) for t in arrival],
+            "valid_usec": [int(round(t * 1e6)) for t in valid],
+            "course_cdeg": [int(round(math.degrees(c) * 100)) % 36000 for c in course_rad],
+            "speed_cm_s": [int(round(v * 100)) for v in speed_m_s],
+            "lat_e7": int(DEFAULT_SITE.lat_deg * 1e7), "lon_e7": int(DEFAULT_SITE.lon_deg * 1e7),
+            "alt_mm": int(DEFAULT_SITE.alt_m * 1e3), "stats_file": str(tmp_path / "autopilot.json")}
+
+
 def test_daemon_session_with_gnss_course_removes_the_offset(tmp_path):
-    """The ground-station link also carries the autopilot's GPS_RAW_INT, 5 Hz, course from the truth at the
-    fix's time of validity (0.5° noise), sent 0.1 s later (the daemon is configured with that latency), a
-    0.18 m/s current: heading RMS on other attitudes, offset included, ≤ 0.4°."""
+    """The autopilot's GPS_RAW_INT, 5 Hz, course from the truth at the fix's time of validity (0.5° noise),
+    arriving 0.1 s later (the daemon is configured with that latency), a 0.18 m/s current: heading RMS on other
+    attitudes, offset included, ≤ 0.4°.
+
+    The daemon stamps a fix with the newest sample when it arrives, as it must for a live link. Replayed 10×
+    faster than real time, a fix sent by the wall clock would land 10 ms of recording late for every ms of
+    load; so the autopilot sends each fix when the replay reaches its arrival time, and while the session runs
+    the recording waits there until the daemon has taken it (start_daemon's `autopilot`): each fix reaches the
+    daemon at its own arrival in recording time, at any load."""
     sc = vehicle(2.0, straight_runs=True)
     arrival, valid, course, speed = course_fixes(sc, RECORDING_S, current_ne_m_s=(0.1, -0.15))
     port = free_udp_port()
     client = Client(port)
-    # HIGHRES_IMU at 200 Hz of wall time is 20 Hz of recording time at 10x: the fixes go out within 50 ms of
-    # their arrival time
+    autopilot = autopilot_gps_raw_int(tmp_path, arrival, valid, course, speed)
     proc, log = start_daemon(tmp_path, port, 2.0, straight_runs=True, time_scale=10.0,
-                             magcal={"gnss_latency_s": 0.1}, highres_imu_hz=200.0)
-    mav = client.conn.mav
-    state = {"offset_s": None, "next": 0}
-
-    def send_due_fixes(imu):
-        # HIGHRES_IMU.time_usec is the sample time shifted by the replay's start; the first one seen is the
-        # recording's first sample (the client is listening before the daemon starts)
-        t_usec = imu.time_usec * 1e-6
-        if state["offset_s"] is None:
-            state["offset_s"] = t_usec
-        t_sample = t_usec - state["offset_s"]
-        k = state["next"]
-        while k < arrival.size and arrival[k] <= t_sample:
-            mav.srcSystem, mav.srcComponent = 1, 1
-            mav.gps_raw_int_send(int(valid[k] * 1e6), 3, int(DEFAULT_SITE.lat_deg * 1e7),
-                                 int(DEFAULT_SITE.lon_deg * 1e7), int(DEFAULT_SITE.alt_m * 1e3), 80, 120,
-                                 int(round(speed[k] * 100)), int(round(math.degrees(course[k]) * 100)) % 36000, 12)
-            mav.srcSystem, mav.srcComponent = 255, 190
-            k += 1
-        state["next"] = k
-
+                             magcal={"gnss_latency_s": 0.1}, autopilot=autopilot)
     try:
-        report, texts = run_session(client, on_imu=send_due_fixes, timeout_s=180.0)
+        report, texts = run_session(client, timeout_s=180.0)
     finally:
         stop_process(proc)
         log.close()
@@ -202,8 +261,12 @@ def test_daemon_session_with_gnss_course_removes_the_offset(tmp_path):
     saved = CalibrationStore(tmp_path / "state").load()
     meta = saved.metadata["mag"]
     total = heading_rms_deg(saved.mag, injected_iron())
+    fed = json.loads(Path(autopilot["stats_file"]).read_text())
     print(f"\ndaemon with GPS_RAW_INT course: offset from {meta['offset_source']} ±{meta['offset_std_deg']:.2f}°; "
-          f"heading RMS on other attitudes incl. the offset {total:.2f}°")
+          f"heading RMS on other attitudes incl. the offset {total:.2f}°; {fed['taken']} fixes taken by the "
+          f"session, latest {fed['late_s'] * 1e3:.1f} ms of recording after its arrival, {fed['timeouts']} time-outs")
+    # every fix of the session was taken at its arrival (within a sample), none after a time-out
+    assert fed["taken"] > 100 and fed["timeouts"] == 0 and fed["late_s"] <= 1.0 / FIELD_RATE_HZ, fed
     assert meta["offset_source"] == "GNSS course", texts
     assert any("GNSS course" in t for t in texts) or meta["offset_source"] == "GNSS course"
     assert total <= 0.4

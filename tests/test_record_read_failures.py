@@ -56,6 +56,46 @@ def test_fewer_corrupt_frames_than_the_limit_are_skipped(monkeypatch, tmp_path, 
     assert len(read_recording(out)) == round(SECONDS * RATE_HZ)
 
 
+def test_the_end_of_run_line_says_what_went_wrong_in_words(monkeypatch, tmp_path, capsys):
+    """The corrupt frames the byte-level chip was made to send, counted by the fault plan (not by the code
+    under test), come back as a phrase on the last line; no counter dict, no reads-before-data-ready."""
+    rc = main(["record", "--sim", "static", "--seconds", str(SECONDS), "-o", str(tmp_path / "clean.csv"), "-q"])
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert rc == 0 and last.endswith(" s"), last                    # a clean run: nothing after the time
+    rc, out, err, plan = _record_with_fault(monkeypatch, tmp_path, capsys, FaultKind.GARBAGE,
+                                            FRAME_ERRORS_FOR_FAILURE // 2)
+    last = err.strip().splitlines()[-1]
+    assert rc == 0 and last.startswith("ahrsd record: wrote "), err
+    n = plan.injected[FaultKind.GARBAGE]
+    # each corrupt frame carried a sample: it is a gap in the recording too
+    assert f"; {n} samples lost (gaps in the recording), {n} corrupt frames rejected" in last, last
+    assert "{" not in last and "stale" not in last and "_" not in last.split(" to ")[0], last
+
+
+def test_a_gnss_receiver_that_cannot_be_opened_leaves_no_file(tmp_path, capsys):
+    """`record --gnss-serial` on a device that does not exist: the reason, exit 1, and neither the IMU nor
+    the GNSS recording created (a header-only file looks like a recording that caught nothing)."""
+    out = tmp_path / "rec.csv"
+    missing = tmp_path / "no-such-tty"
+    rc = main(["record", "--sim", "static", "--realtime", "--seconds", "1", "-o", str(out), "-q",
+               "--gnss-serial", str(missing)])
+    err = capsys.readouterr().err
+    assert rc == 1 and "ahrsd record: GNSS: cannot open GNSS receiver" in err and str(missing) in err, err
+    assert not out.exists() and not (tmp_path / "rec.gnss.csv").exists()
+    # refused before it starts (a simulated chip not on the host clock): the same
+    rc = main(["record", "--sim", "static", "--seconds", "1", "-o", str(out), "-q", "--gnss-serial", str(missing)])
+    err = capsys.readouterr().err
+    assert rc == 1 and "needs the IMU on the host clock" in err and not out.exists(), err
+    # the IMU recording cannot be written (its name is a directory) after the simulated boat's receiver
+    # started: the GNSS file it began is removed too
+    taken = tmp_path / "taken"
+    taken.mkdir()
+    rc = main(["record", "--sim", "boat", "--seconds", "1", "-o", str(taken), "-q"])
+    err = capsys.readouterr().err
+    assert rc == 1 and f"cannot write {taken}" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["taken"]
+
+
 def test_the_limit_of_corrupt_frames_in_a_row_stops_the_recording(monkeypatch, tmp_path, capsys):
     rc, out, err, plan = _record_with_fault(monkeypatch, tmp_path, capsys, FaultKind.GARBAGE,
                                             2 * FRAME_ERRORS_FOR_FAILURE)
