@@ -379,14 +379,7 @@ def coefficient_sigma(fit: ModelFit, pts: _Points) -> np.ndarray:
     bw = basis * weight[:, None]
     a = np.linalg.pinv(basis.T @ bw)
     cov = a @ bw.T @ cov_avar @ bw @ a
-    if SIGMA_INFLATION:
-        resid = pts.avar - model
-        chi2 = float(resid @ np.linalg.pinv(cov_avar) @ resid)
-        cov = cov * max(1.0, chi2 / max(len(pts.taus) - len(fit.terms), 1))
     return np.sqrt(np.maximum(np.diag(cov), 0.0))
-
-
-SIGMA_INFLATION = False
 
 
 def term_estimates(fit: ModelFit, pts: _Points) -> dict[str, TermEstimate]:
