@@ -114,11 +114,11 @@ class _Points:
 
 @dataclass(frozen=True)
 class ModelFit:
-    """A fitted set of terms: coefficients (variance units), their 1σ, the GM correlation time, χ²."""
+    """A fitted set of terms: coefficients (variance units), the GM correlation time, the deviance χ²
+    (the coefficients' 1σ: coefficient_sigma)."""
 
     terms: tuple[str, ...]
     coef: np.ndarray
-    coef_sigma: np.ndarray
     corr_time_s: float | None
     chi2: float
     white_deficit_s: float = 0.0   # as _Points.white_deficit_s
@@ -198,22 +198,13 @@ def _fit_fixed(pts: _Points, terms: tuple[str, ...], tc: float | None, fixed: tu
         coef_all[:len(terms)] = coef
         model, edf = model_and_edf(stacked, coef_all, pts.edf_table)
     ref = np.maximum(model, floor)
-    sigma = ref * np.sqrt(2.0 / edf)
     # Deviance of the χ²(edf) likelihood of each point, σ̂²·edf/σ² ~ χ²(edf): the likelihood-ratio statistic
     # (≈ the Gaussian χ² near the model, but a high point of few degrees of freedom costs what it should).
     # The estimate at 2τ is built from the same data as at τ (its clusters are pairs of τ's), so neighbouring
     # octave points are correlated: they are counted as one independent point per two (OCTAVE_CORRELATION).
     ratio = pts.avar / ref
     chi2 = OCTAVE_CORRELATION * float(np.sum(edf * (ratio - 1.0 - np.log(ratio))))
-    # 1σ of the coefficients from the weighted normal equations, inflated when χ² per dof exceeds 1
-    a = basis / sigma[:, None]
-    dof = max(len(pts.taus) - len(terms), 1)
-    try:
-        cov = np.linalg.pinv(a.T @ a) / OCTAVE_CORRELATION * max(1.0, chi2 / dof)
-        coef_sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    except np.linalg.LinAlgError:
-        coef_sigma = np.full(len(terms), math.inf)
-    return ModelFit(terms, coef, coef_sigma, tc, chi2, pts.white_deficit_s)
+    return ModelFit(terms, coef, tc, chi2, pts.white_deficit_s)
 
 
 def profile_upper_bound(pts: _Points, fit: ModelFit, name: str, delta: float) -> float:
@@ -410,7 +401,7 @@ def not_seen_report(fit: ModelFit, pts: _Points, name: str, rate_hz: float) -> d
                         f"≥ {2 * MIN_CLUSTERS * 1.89:.0f}·Tc would show one with a longer Tc"}
     bound_coef = profile_upper_bound(pts, fit, name, UPPER_BOUND_SIGMAS**2)
     bound = coefficient_to_value(name, bound_coef)
-    probe = ModelFit(fit.terms + (name,), np.append(fit.coef, bound_coef), np.append(fit.coef_sigma, 0.0),
+    probe = ModelFit(fit.terms + (name,), np.append(fit.coef, bound_coef),
                      fit.corr_time_s, fit.chi2, fit.white_deficit_s)
     out: dict = {"upper_bound": bound, "recording_needed_s": None}
     if bound_coef <= 0:
@@ -443,7 +434,7 @@ def detection_limit(fit: ModelFit, pts: _Points, name: str) -> float | None:
     per_unit = pts.avar / term_basis(name, pts.taus, None, pts.white_deficit_s)   # coefficient alone explaining each point
 
     def shows(coef: float) -> bool:
-        probe = ModelFit(fit.terms + (name,), np.append(fit.coef, coef), np.append(fit.coef_sigma, 0.0),
+        probe = ModelFit(fit.terms + (name,), np.append(fit.coef, coef),
                          fit.corr_time_s, fit.chi2, fit.white_deficit_s)
         span = dominant_range(probe, name, pts.taus[0], pts.taus[-1])
         return span is not None and span[1] >= 2.0 * span[0] and pts.record_s / span[0] >= MIN_CLUSTERS

@@ -18,7 +18,7 @@ from ahrsd.calibration.allan_terms import ModelFit, fit_terms, gauss_markov_avar
 
 
 def _unit_fit(name: str, corr_time_s: float | None = None) -> ModelFit:
-    return ModelFit((name,), np.array([1.0]), np.zeros(1), corr_time_s, 0.0)
+    return ModelFit((name,), np.array([1.0]), corr_time_s, 0.0)
 
 
 def test_each_terms_phase_covariance_gives_its_allan_variance():
@@ -62,7 +62,7 @@ def test_neighbouring_points_correlate_as_predicted():
         curve = allan_deviation(_white_plus_random_walk(n, rate, white, k, rng, 4), rate)
         rows += [octave_points(curve, axis).avar for axis in range(4)]
     pts = octave_points(curve, 0)
-    fit = ModelFit(("white", "rate_random_walk"), np.array([white**2, k * k / 3.0]), np.zeros(2), None, 0.0)
+    fit = ModelFit(("white", "rate_random_walk"), np.array([white**2, k * k / 3.0]), None, 0.0)
     predicted = avar_covariance(fit, pts.taus, pts.level_n, pts.level_m, pts.record_s)
     sample = np.cov(np.array(rows).T)
     sd_p, sd_s = np.sqrt(np.diag(predicted)), np.sqrt(np.diag(sample))
