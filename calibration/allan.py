@@ -77,15 +77,18 @@ class NoiseParameters:
         return d
 
 
-def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float, correlation_samples: int = 1) -> NoiseParameters:
+def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float, correlation_samples: int = 1,
+              white_deficit_s: float = 0.0) -> NoiseParameters:
     """Decide the terms of one axis' curve and read their values. correlation_samples: how many samples apart
-    the samples stop being correlated (allan_correlation): the fit uses only the τ beyond a few of those."""
+    the samples stop being correlated (allan_correlation): the fit uses only the τ beyond a few of those, where
+    the filter lowers white noise to N²·(1/τ − D/τ²), D = white_deficit_s."""
     pts = octave_points(curve, axis)
     min_tau_s = shortest_fit_tau_s(correlation_samples, rate_hz)
     short_note = []
     if min_tau_s > 0 and np.count_nonzero(pts.taus >= min_tau_s) >= 3:
         keep = pts.taus >= min_tau_s
-        pts = type(pts)(pts.taus[keep], pts.avar[keep], pts.level_n[keep], pts.level_m[keep], pts.record_s)
+        pts = type(pts)(pts.taus[keep], pts.avar[keep], pts.level_n[keep], pts.level_m[keep], pts.record_s,
+                        white_deficit_s)
         short_note = [f"τ < {min_tau_s:.3g} s not fitted: the samples are correlated over {correlation_samples} "
                       "samples (the sensor's filter), which bends the curve there"]
     if len(pts.taus) < 3 or not np.all(pts.avar > 0):
@@ -238,7 +241,9 @@ class StaticAllanAnalysis:
             n = acc.n_samples
             std = np.sqrt(np.maximum(self._sum_sq[sensor] / n - (self._sum[sensor] / n) ** 2, 0.0))
             lengths = self._correlation[sensor].lengths()
-            axes = {ax: read_axis(curve, i, std[i], self._rate_hz, int(lengths[i])) for i, ax in enumerate(AXES)}
+            deficits = self._correlation[sensor].deficits_s(self._rate_hz)
+            axes = {ax: read_axis(curve, i, std[i], self._rate_hz, int(lengths[i]), float(deficits[i]))
+                    for i, ax in enumerate(AXES)}
             lo, hi = np.empty_like(curve.adev), np.empty_like(curve.adev)
             for i, ax in enumerate(AXES):
                 fit = axes[ax].fit

@@ -10,16 +10,24 @@ about 1/FIT_LENGTHS of it; uncorrelated samples (length 1) keep every τ.
 The length is read from the data, not from a chip model: the autocorrelation of the first CORR_SAMPLES samples of
 each axis (mean removed; on a static record white noise dominates the sample-to-sample variance). The length is
 the first lag where it falls below CORR_THRESHOLD, if that is within MAX_LAG/4 and the correlation then vanishes:
-every lag from twice the length to MAX_LAG below TAIL_THRESHOLD (about 7σ of the estimate's noise for CORR_SAMPLES
-samples). A correlation that lingers is a slow process (a Gauss–Markov bias, a random walk) that the term fit
+every lag from twice the length to MAX_LAG below TAIL_THRESHOLD (many times the estimate's noise, 1/√CORR_SAMPLES;
+CORR_SAMPLES is large for D below, whose error moves N directly). A correlation that lingers is a slow process (a Gauss–Markov bias, a random walk) that the term fit
 models itself: those samples keep every τ.
+
+Beyond its span the filter still lowers the white noise's Allan variance, by a share that falls as 1/τ: a filter
+with unit gain at zero frequency turns the phase's covariance G(h) = −|h|/2 (a Brownian motion) into its average
+over the lag distribution a(s) of the filter's autocorrelation, which is G again for |h| beyond the span and
+−E|s|/2 at h = 0, so the second difference loses 3·E|s| of its variance and
+    σ²(τ) = N²·(1/τ − D/τ²),   D = (3/2)·E|s| = (3/2)·Σ|s|·ρ(s) / Σρ(s)   (s over the filter's span, both signs).
+The term fit takes white noise in that form (`deficits_s`), so the few percent the filter takes off at the
+shortest fitted τ do not bias N.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-CORR_SAMPLES = 16384
+CORR_SAMPLES = 1 << 18
 MAX_LAG = 64
 CORR_THRESHOLD = 0.1
 TAIL_THRESHOLD = 0.06
@@ -44,9 +52,18 @@ class SampleCorrelation:
     def lengths(self) -> np.ndarray:
         """Per axis: the filter's correlation length in samples (see the module doc); 1 for independent samples,
         for a slow process and with too few samples to tell."""
-        out = np.ones(self._n_axes, dtype=int)
+        return self._filter()[0]
+
+    def deficits_s(self, rate_hz: float) -> np.ndarray:
+        """Per axis: D (s) of the filter's share of the white noise's Allan variance, N²·D/τ² (module doc);
+        0 where lengths() finds no filter."""
+        return self._filter()[1] / rate_hz
+
+    def _filter(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lengths, deficits in samples) per axis."""
+        lengths, deficits = np.ones(self._n_axes, dtype=int), np.zeros(self._n_axes)
         if self._n < 4 * MAX_LAG:
-            return out
+            return lengths, deficits
         x = np.concatenate(self._rows)
         x = x - x.mean(axis=0)
         n = len(x)
@@ -62,8 +79,13 @@ class SampleCorrelation:
                 continue                          # independent, or correlated too long for a filter
             length = int(below[0]) + 1
             if np.all(np.abs(rho[2 * length - 1:]) < TAIL_THRESHOLD):   # and then it vanishes: a filter's
-                out[axis] = length
-        return out
+                lengths[axis] = length
+                # D sums the filter's span: the lags up to where the correlation is lost in the estimate's noise
+                # (2/√n) from the length on, at most 2·length (each noisy lag adds its lag times its noise)
+                lost = np.flatnonzero(rho[length - 1:2 * length] < 2.0 / np.sqrt(n))
+                span = rho[:length - 1 + int(lost[0])] if len(lost) else rho[:2 * length]
+                deficits[axis] = 1.5 * 2.0 * float(np.dot(lags[:len(span)], span)) / (1.0 + 2.0 * float(np.sum(span)))
+        return lengths, deficits
 
 
 def shortest_fit_tau_s(length_samples: int, rate_hz: float) -> float:

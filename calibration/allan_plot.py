@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .allan_terms import FLICKER_FACTOR, term_basis
+from .allan_terms import FLICKER_FACTOR
 from ahrsd.core.plotting import pyplot
 
 TERM_STYLE = {"quantization": ("Q", "tab:purple"), "white": ("N", "tab:blue"), "flicker": ("B", "tab:green"),
@@ -46,7 +46,7 @@ def plot_allan(result, path) -> None:
                 ax.annotate(f"B = min σ / 0.664 = {p.bias_instability:.3g}", (p.tau_bias_instability_s, level), textcoords="offset points",
                             xytext=(6, -14), color=TERM_STYLE["flicker"][1])
             if p.fit is not None:
-                model = sum(p.fit.coef[j] * term_basis(n, taus, p.fit.corr_time_s) for j, n in enumerate(p.fit.terms))
+                model = p.fit.avar(taus)
                 ax.loglog(taus, np.sqrt(model), "--", color="0.4", lw=1, label="model")
             ax.set_title(f"{sensor} {axis}")
             ax.set_xlabel("τ (s)")

@@ -36,6 +36,7 @@ from functools import cached_property, lru_cache
 import numpy as np
 
 from .allan_adev import AllanCurve, edf_by_alpha
+from .allan_covariance import avar_covariance
 from .allan_irls import SLOPE_STEP, model_and_edf, weighted_system
 
 FLICKER_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)  # 0.6643, IEEE Std 952-1997 Table B.1
@@ -62,13 +63,14 @@ def gauss_markov_avar(taus: np.ndarray, corr_time_s: float) -> np.ndarray:
     return out
 
 
-def term_basis(name: str, taus: np.ndarray, corr_time_s: float | None = None) -> np.ndarray:
-    """Allan variance of the term per unit coefficient (the coefficient is 3Q², N², (0.664B)², K²/3, R²/2, σ²)."""
+def term_basis(name: str, taus: np.ndarray, corr_time_s: float | None = None, white_deficit_s: float = 0.0) -> np.ndarray:
+    """Allan variance of the term per unit coefficient (the coefficient is 3Q², N², (0.664B)², K²/3, R²/2, σ²).
+    white_deficit_s: D of a sensor filter, which makes white noise 1/τ − D/τ² (allan_correlation)."""
     t = np.asarray(taus, dtype=np.float64)
     if name == "quantization":
         return t**-2.0
     if name == "white":
-        return 1.0 / t
+        return np.maximum(1.0 / t - white_deficit_s / t**2, 0.0)
     if name == "flicker":
         return np.ones_like(t)
     if name == "rate_random_walk":
@@ -100,6 +102,7 @@ class _Points:
     level_n: np.ndarray
     level_m: np.ndarray
     record_s: float
+    white_deficit_s: float = 0.0   # a sensor filter's D (allan_correlation): white noise is 1/τ − D/τ²
     fits: dict = field(default_factory=dict, compare=False, repr=False)   # fit_terms' results by term set
     bases: dict = field(default_factory=dict, compare=False, repr=False)   # _stacked_basis' columns by (term, Tc)
 
@@ -111,18 +114,19 @@ class _Points:
 
 @dataclass(frozen=True)
 class ModelFit:
-    """A fitted set of terms: coefficients (variance units), their 1σ, the GM correlation time, χ²."""
+    """A fitted set of terms: coefficients (variance units), the GM correlation time, the deviance χ²
+    (the coefficients' 1σ: coefficient_sigma)."""
 
     terms: tuple[str, ...]
     coef: np.ndarray
-    coef_sigma: np.ndarray
     corr_time_s: float | None
     chi2: float
+    white_deficit_s: float = 0.0   # as _Points.white_deficit_s
 
     def contribution(self, name: str, taus: np.ndarray) -> np.ndarray:
         if name not in self.terms:
             return np.zeros_like(np.asarray(taus, dtype=np.float64))
-        return self.coef[self.terms.index(name)] * term_basis(name, taus, self.corr_time_s)
+        return self.coef[self.terms.index(name)] * term_basis(name, taus, self.corr_time_s, self.white_deficit_s)
 
     def avar(self, taus: np.ndarray) -> np.ndarray:
         t = np.asarray(taus, dtype=np.float64)
@@ -134,7 +138,7 @@ class ModelFit:
     def edf(self, taus: np.ndarray, level_n: np.ndarray, level_m: np.ndarray) -> np.ndarray:
         """Equivalent degrees of freedom per point for the noise type the model says dominates there."""
         t = np.asarray(taus, dtype=np.float64)
-        stacked = np.column_stack([term_basis(name, _with_slope_taus(t), self.corr_time_s) for name in self.terms])
+        stacked = np.column_stack([term_basis(name, _with_slope_taus(t), self.corr_time_s, self.white_deficit_s) for name in self.terms])
         return model_and_edf(stacked, self.coef, edf_by_alpha(level_n, level_m))[1]
 
 
@@ -166,7 +170,7 @@ def _stacked_basis(pts: _Points, terms: tuple[str, ...], tc: float | None) -> np
     keys = [(name, tc if name == "gauss_markov" else None) for name in terms]   # only GM depends on Tc
     for name, key in zip(terms, keys):
         if key not in pts.bases:
-            pts.bases[key] = term_basis(name, _with_slope_taus(pts.taus), tc)
+            pts.bases[key] = term_basis(name, _with_slope_taus(pts.taus), tc, pts.white_deficit_s)
     return np.column_stack([pts.bases[key] for key in keys])
 
 
@@ -194,22 +198,13 @@ def _fit_fixed(pts: _Points, terms: tuple[str, ...], tc: float | None, fixed: tu
         coef_all[:len(terms)] = coef
         model, edf = model_and_edf(stacked, coef_all, pts.edf_table)
     ref = np.maximum(model, floor)
-    sigma = ref * np.sqrt(2.0 / edf)
     # Deviance of the χ²(edf) likelihood of each point, σ̂²·edf/σ² ~ χ²(edf): the likelihood-ratio statistic
     # (≈ the Gaussian χ² near the model, but a high point of few degrees of freedom costs what it should).
     # The estimate at 2τ is built from the same data as at τ (its clusters are pairs of τ's), so neighbouring
     # octave points are correlated: they are counted as one independent point per two (OCTAVE_CORRELATION).
     ratio = pts.avar / ref
     chi2 = OCTAVE_CORRELATION * float(np.sum(edf * (ratio - 1.0 - np.log(ratio))))
-    # 1σ of the coefficients from the weighted normal equations, inflated when χ² per dof exceeds 1
-    a = basis / sigma[:, None]
-    dof = max(len(pts.taus) - len(terms), 1)
-    try:
-        cov = np.linalg.pinv(a.T @ a) / OCTAVE_CORRELATION * max(1.0, chi2 / dof)
-        coef_sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    except np.linalg.LinAlgError:
-        coef_sigma = np.full(len(terms), math.inf)
-    return ModelFit(terms, coef, coef_sigma, tc, chi2)
+    return ModelFit(terms, coef, tc, chi2, pts.white_deficit_s)
 
 
 def profile_upper_bound(pts: _Points, fit: ModelFit, name: str, delta: float) -> float:
@@ -219,7 +214,7 @@ def profile_upper_bound(pts: _Points, fit: ModelFit, name: str, delta: float) ->
     free = fit_terms(pts, fit.terms + (name,))
     best = free.chi2
     c_hat = float(free.coef[free.terms.index(name)])
-    per_unit = pts.avar / term_basis(name, pts.taus, fit.corr_time_s)
+    per_unit = pts.avar / term_basis(name, pts.taus, fit.corr_time_s, pts.white_deficit_s)
     hi = float(np.max(per_unit))
     excess = lambda c: _fit_fixed(pts, fit.terms, fit.corr_time_s, (name, c)).chi2 - best - delta  # noqa: E731
     if excess(hi) < 0:
@@ -361,14 +356,32 @@ class TermEstimate:
                 "corr_time_s": self.corr_time_s}
 
 
+def coefficient_sigma(fit: ModelFit, pts: _Points) -> np.ndarray:
+    """1σ of the fitted coefficients from the covariance of the points' Allan variances (allan_covariance:
+    the correlation of neighbouring τ and each point's variance for the fitted noise), propagated through the
+    fit's own weighted least squares (the sandwich A Bᵀ W V W B A, A = (Bᵀ W B)⁻¹, W the fit's last weights)."""
+    basis = np.column_stack([term_basis(name, pts.taus, fit.corr_time_s, fit.white_deficit_s) for name in fit.terms])
+    model = fit.avar(pts.taus)
+    edf = fit.edf(pts.taus, pts.level_n, pts.level_m)
+    weight = edf / (2.0 * np.maximum(model, 1e-3 * pts.avar) ** 2)
+    cov_avar = avar_covariance(fit, pts.taus, pts.level_n, pts.level_m, pts.record_s)
+    if not np.all(np.isfinite(cov_avar)):
+        return np.full(len(fit.terms), math.inf)
+    bw = basis * weight[:, None]
+    a = np.linalg.pinv(basis.T @ bw)
+    cov = a @ bw.T @ cov_avar @ bw @ a
+    return np.sqrt(np.maximum(np.diag(cov), 0.0))
+
+
 def term_estimates(fit: ModelFit, pts: _Points) -> dict[str, TermEstimate]:
-    """Value (from the fitted coefficient), 1σ and τ range of every kept term."""
+    """Value (from the fitted coefficient), 1σ (coefficient_sigma) and τ range of every kept term."""
     out = {}
+    sigma = coefficient_sigma(fit, pts)
     for i, name in enumerate(fit.terms):
         span = is_seen(fit, name, pts) or dominant_range(fit, name, pts.taus[0], pts.taus[-1])
         if span is None:
             continue
-        c, sc = float(fit.coef[i]), float(fit.coef_sigma[i])
+        c, sc = float(fit.coef[i]), float(sigma[i])
         value = coefficient_to_value(name, c)
         rel = 0.5 * sc / c if c > 0 else math.inf       # p ∝ √c
         without = fit_terms(pts, tuple(t for t in fit.terms if t != name)) if len(fit.terms) > 1 else None
@@ -388,8 +401,8 @@ def not_seen_report(fit: ModelFit, pts: _Points, name: str, rate_hz: float) -> d
                         f"≥ {2 * MIN_CLUSTERS * 1.89:.0f}·Tc would show one with a longer Tc"}
     bound_coef = profile_upper_bound(pts, fit, name, UPPER_BOUND_SIGMAS**2)
     bound = coefficient_to_value(name, bound_coef)
-    probe = ModelFit(fit.terms + (name,), np.append(fit.coef, bound_coef), np.append(fit.coef_sigma, 0.0),
-                     fit.corr_time_s, fit.chi2)
+    probe = ModelFit(fit.terms + (name,), np.append(fit.coef, bound_coef),
+                     fit.corr_time_s, fit.chi2, fit.white_deficit_s)
     out: dict = {"upper_bound": bound, "recording_needed_s": None}
     if bound_coef <= 0:
         out["note"] = "not constrained by this curve"
@@ -418,11 +431,11 @@ def not_seen_report(fit: ModelFit, pts: _Points, name: str, rate_hz: float) -> d
 def detection_limit(fit: ModelFit, pts: _Points, name: str) -> float | None:
     """The smallest value of a term (not in `fit`) that this curve would show beside the terms found: the
     largest term over an octave from a τ with ≥ MIN_CLUSTERS clusters (bisection on its coefficient)."""
-    per_unit = pts.avar / term_basis(name, pts.taus)   # coefficient that alone explains each point
+    per_unit = pts.avar / term_basis(name, pts.taus, None, pts.white_deficit_s)   # coefficient alone explaining each point
 
     def shows(coef: float) -> bool:
-        probe = ModelFit(fit.terms + (name,), np.append(fit.coef, coef), np.append(fit.coef_sigma, 0.0),
-                         fit.corr_time_s, fit.chi2)
+        probe = ModelFit(fit.terms + (name,), np.append(fit.coef, coef),
+                         fit.corr_time_s, fit.chi2, fit.white_deficit_s)
         span = dominant_range(probe, name, pts.taus[0], pts.taus[-1])
         return span is not None and span[1] >= 2.0 * span[0] and pts.record_s / span[0] >= MIN_CLUSTERS
 

@@ -374,7 +374,7 @@ def test_a_term_must_dominate_from_enough_clusters():
     for start_clusters, seen in ((2 * MIN_CLUSTERS, True), (MIN_CLUSTERS / 2, False)):
         tau_cross = record_s / start_clusters                 # RRW = white at τ_c: K²τ_c/3 = N²/τ_c
         k2_3 = ARW**2 / tau_cross**2
-        fit = ModelFit(("white", "rate_random_walk"), np.array([ARW**2, k2_3]), np.zeros(2), None, 0.0)
+        fit = ModelFit(("white", "rate_random_walk"), np.array([ARW**2, k2_3]), None, 0.0)
         span = is_seen(fit, "rate_random_walk", _points_from_model(fit, record_s, 0.01))
         assert (span is not None) == seen
         if seen:
@@ -385,7 +385,7 @@ def test_bias_instability_is_never_read_at_the_shortest_tau():
     """Flicker dominating from the first τ, then a random walk: the model's minimum would be the first point."""
     from ahrsd.calibration.allan_terms import ModelFit, flicker_reading
 
-    fit = ModelFit(("flicker", "rate_random_walk"), np.array([1e-8, 1e-12]), np.zeros(2), None, 0.0)
+    fit = ModelFit(("flicker", "rate_random_walk"), np.array([1e-8, 1e-12]), None, 0.0)
     pts = _points_from_model(fit, 100_000.0, 1.0)
     b, tau = flicker_reading(fit, pts)
     assert tau >= pts.taus[1]

@@ -206,6 +206,18 @@ def test_level_turns_only_are_refused_with_a_reason(method):
     assert any(w in res.refused for w in ("coverage", "poorly determined", "ill-conditioned", "converge"))
 
 
+@pytest.mark.parametrize("method", ["two-step", "three-step"])
+def test_a_regression_the_turns_cannot_determine_is_refused_as_ill_conditioned(method):
+    """Turns about one axis that leave x and y reading the same: the B_x and B_y columns of the thesis's
+    regression are collinear, so both regressions refuse on their condition number (before solving)."""
+    t = np.linspace(0.0, 2 * math.pi, 400)
+    in_plane = np.outer(np.cos(t), [1.0, 1.0, 0.0]) / math.sqrt(2) + np.outer(np.sin(t), [0.0, 0.0, 1.0])
+    mag = [5.0, 5.0, -3.0] + 50.0 * in_plane + 1e-9 * np.random.default_rng(0).standard_normal((len(t), 3))
+    res = fit_mag(method, MagFitInput(t, mag), REF)
+    assert not res.ok and "ill-conditioned" in res.refused
+    assert res.quality["condition_number"] > 1e7
+
+
 def test_too_few_and_non_finite_samples():
     block = tumble(errors_with([1, 2, 3], np.eye(3)), seconds=60)
     res = fit_mag("ellipsoid", MagFitInput(block.t_s[:10], block.mag_ut[:10]), REF)

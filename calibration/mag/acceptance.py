@@ -85,6 +85,26 @@ def prepare(data: MagFitInput, reference, field_ut: float | None, min_samples: i
     return mag, h0, quality
 
 
+def centred(mag: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """(centre, scale, (mag − centre)/scale): the thesis's regressions are solved in these coordinates. The
+    algebra is invariant to a shift of origin and a common scale (b and k map back exactly, the angles do not
+    change), and the normal equations stay well conditioned (raw µT² terms reach 10⁴)."""
+    centre = mag.mean(axis=0)
+    scale = float(np.mean(np.linalg.norm(mag - centre, axis=1))) or 1.0
+    return centre, scale, (mag - centre) / scale
+
+
+def conditioning_refusal(method: str, regressors: np.ndarray, max_condition: float, quality: dict) -> MagFitResult | None:
+    """Records the condition number of the column-normalised regressors in `quality`; a refusal when it is
+    above max_condition (an axis the turns never moved through the field), else None."""
+    cond = float(np.linalg.cond(regressors / np.linalg.norm(regressors, axis=0)))
+    quality["condition_number"] = cond
+    if np.isfinite(cond) and cond <= max_condition:
+        return None
+    return refuse(method, f"the regression is ill-conditioned (condition number {cond:.3g} > {max_condition:.3g}): "
+                  "the turns do not move every axis through the field; rotate about all three axes", **quality)
+
+
 def parameter_sigmas(model: MagModel, mag_ut: np.ndarray, field_ut: float, params: str) -> tuple[np.ndarray, np.ndarray]:
     """1σ of the hard iron (µT) and of the free soft-iron entries from the magnitude residual's Jacobian
     at the solution (Gauss–Newton covariance, σ² = residual variance). `params`: 'diag' (two-step),

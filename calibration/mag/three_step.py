@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .acceptance import assess, prepare
+from .acceptance import assess, centred, conditioning_refusal, prepare
 from .fit_types import MagFitInput, MagFitResult, refuse
 from ..models import MagModel
 
@@ -112,17 +112,10 @@ def fit_three_step(data: MagFitInput, reference=None, *, field_ut: float | None 
     if isinstance(prep, MagFitResult):
         return prep
     mag, h0, quality = prep
-    # Solve in centred, scaled coordinates u = (B − c)/σ for conditioning; b and k map back exactly
-    # (the non-orthogonality angles are invariant to a shift and a common scale).
-    centre = mag.mean(axis=0)
-    scale = float(np.mean(np.linalg.norm(mag - centre, axis=1))) or 1.0
-    u = (mag - centre) / scale
-    _, h = regressors(u)
-    cond = float(np.linalg.cond(h / np.linalg.norm(h, axis=0)))
-    quality["condition_number"] = cond
-    if not np.isfinite(cond) or cond > max_condition:
-        return refuse(METHOD, f"the regression is ill-conditioned (condition number {cond:.3g} > {max_condition:.3g}): "
-                      "rotate the sensor about all three axes", **quality)
+    centre, scale, u = centred(mag)
+    refusal = conditioning_refusal(METHOD, regressors(u)[1], max_condition, quality)
+    if refusal is not None:
+        return refusal
     try:
         p = solve(u, 1.0)
     except ValueError as exc:

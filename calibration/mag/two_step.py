@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .acceptance import assess, prepare
+from .acceptance import assess, centred, conditioning_refusal, prepare
 from .fit_types import MagFitInput, MagFitResult, refuse
 from ..models import MagModel
 
@@ -49,17 +49,9 @@ def inverse_mapping(s: np.ndarray, field_ut: float) -> tuple[np.ndarray, np.ndar
     return np.array([bx, by, bz]), np.array([kx, np.sqrt(kx2 / s2), np.sqrt(kx2 / s4)])
 
 
-def _centred(mag: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
-    """Centre and scale the data before the regression: the algebra is invariant to a shift of origin and a
-    common scale, and the normal equations stay well conditioned (raw µT² terms reach 10⁴)."""
-    centre = mag.mean(axis=0)
-    scale = float(np.mean(np.linalg.norm(mag - centre, axis=1))) or 1.0
-    return centre, scale, (mag - centre) / scale
-
-
 def solve_model(mag: np.ndarray, field_ut: float) -> MagModel:
     """Steps 1 and 2 on `mag` (n, 3) → MagModel. Raises ValueError when the data are not an ellipsoid."""
-    centre, scale, u = _centred(mag)
+    centre, scale, u = centred(mag)
     z, h = regressors(u)
     s, *_ = np.linalg.lstsq(h, z, rcond=None)
     b_u, k_u = inverse_mapping(s, 1.0)
@@ -74,13 +66,9 @@ def fit_two_step(data: MagFitInput, reference=None, *, field_ut: float | None = 
     if isinstance(prep, MagFitResult):
         return prep
     mag, h0, quality = prep
-    _, _, u = _centred(mag)
-    _, h = regressors(u)
-    cond = float(np.linalg.cond(h / np.linalg.norm(h, axis=0)))
-    quality["condition_number"] = cond
-    if not np.isfinite(cond) or cond > max_condition:
-        return refuse(METHOD, f"the regression is ill-conditioned (condition number {cond:.3g} > {max_condition:.3g}): "
-                      "the turns do not move every axis through the field; rotate about all three axes", **quality)
+    refusal = conditioning_refusal(METHOD, regressors(centred(mag)[2])[1], max_condition, quality)
+    if refusal is not None:
+        return refusal
     try:
         model = solve_model(mag, h0)
     except ValueError as exc:
