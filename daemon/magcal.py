@@ -66,6 +66,7 @@ from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.daemon.outbound import Outbound
 from ahrsd.daemon.position import PositionResolver
 from ahrsd.drivers.gnss.mavlink import MavlinkGnssSelector
+from ahrsd.estimator.rotations import euler_to_dcm
 
 log = logging.getLogger(__name__)
 
@@ -101,22 +102,13 @@ class MagCalHost(Protocol):
     def reference_field(self, lat_deg: float | None = None, lon_deg: float | None = None): ...  # EarthField | None
 
 
-def _dcm_zyx(roll_rad: float, pitch_rad: float, yaw_rad: float) -> np.ndarray:
-    """C = Rz(yaw) · Ry(pitch) · Rx(roll) (ZYX Euler: body → NED for the body's Euler angles)."""
-    cr, sr, cp, sp = math.cos(roll_rad), math.sin(roll_rad), math.cos(pitch_rad), math.sin(pitch_rad)
-    cy, sy = math.cos(yaw_rad), math.sin(yaw_rad)
-    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                     [-sp, cp * sr, cp * cr]])
-
-
 def sensor_attitude(estimate, mounting: np.ndarray | None):
     """The estimator's body attitude re-expressed for the sensor axes (C_sn = C_bn · M, M = body←sensor):
     roll/pitch/yaw of the sensor frame and the angular rate in sensor axes — what a session fitting
     sensor-frame data levels its magnetometer with. The estimate itself when the mounting is the identity."""
     if mounting is None or estimate is None:
         return estimate
-    c = _dcm_zyx(float(estimate.roll_rad), float(estimate.pitch_rad), float(estimate.yaw_rad)) @ mounting
+    c = euler_to_dcm(float(estimate.roll_rad), float(estimate.pitch_rad), float(estimate.yaw_rad)) @ mounting
     rate = getattr(estimate, "rate_body_rad_s", None)
     return SimpleNamespace(roll_rad=math.atan2(c[2, 1], c[2, 2]),
                            pitch_rad=-math.asin(max(-1.0, min(1.0, float(c[2, 0])))),

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ahrsd.core.sample import ImuSample, SampleFlags
+from ahrsd.estimator.rotations import euler_to_dcm
 
 log = logging.getLogger(__name__)
 
@@ -33,13 +34,7 @@ def mounting_matrix(rpy_deg) -> np.ndarray | None:
     r, p, y = (math.radians(float(a)) for a in rpy_deg)
     if r == p == y == 0.0:
         return None
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    # C = Rz(yaw) · Ry(pitch) · Rx(roll), the same ZYX convention as C_b^n
-    return np.array([
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ])
+    return euler_to_dcm(r, p, y)    # C = Rz(yaw) · Ry(pitch) · Rx(roll), the same ZYX convention as C_b^n
 
 
 @dataclass

@@ -68,6 +68,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 from numba import njit
 
+from .kernel_rotations import set_dcm_from_euler
+
 MODEL_STATE_NAMES = ("vel_n", "vel_e", "yaw", "bias_front", "bias_right")
 _VN, _VE, _YAW, _BF, _BR = (MODEL_STATE_NAMES.index(n) for n in MODEL_STATE_NAMES)
 N_MODEL_STATES = len(MODEL_STATE_NAMES)
@@ -245,23 +247,6 @@ def _wrap(a):
 
 
 @njit(cache=True)
-def _set_dcm_from_euler(c, yaw, pitch, roll):
-    """c ← Rz(yaw) Ry(pitch) Rx(roll) (body → NED)."""
-    cy, sy = math.cos(yaw), math.sin(yaw)
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    cr, sr = math.cos(roll), math.sin(roll)
-    c[0, 0] = cy * cp
-    c[0, 1] = cy * sp * sr - sy * cr
-    c[0, 2] = cy * sp * cr + sy * sr
-    c[1, 0] = sy * cp
-    c[1, 1] = sy * sp * sr + cy * cr
-    c[1, 2] = sy * sp * cr - cy * sr
-    c[2, 0] = -sp
-    c[2, 1] = cp * sr
-    c[2, 2] = cp * cr
-
-
-@njit(cache=True)
 def _rotate_dcm_body(c, rx, ry, rz):
     """c ← c · exp([r×]) (Rodrigues), then re-orthonormalised."""
     ang2 = rx * rx + ry * ry + rz * rz
@@ -353,7 +338,7 @@ def gsf_reset(state, params, t_s, tilt_q_wxyz):
         state.innov_m_s[i, 1] = 0.0
         state.test_ratio[i] = 0.0
         state.clipped[i] = 0
-        _set_dcm_from_euler(state.dcm[i], state.yaw_rad[i], pitch, roll)
+        set_dcm_from_euler(state.dcm[i], state.yaw_rad[i], pitch, roll)
     state.ring_next = 0
     state.ring_count = 0
     state.t_s = t_s
@@ -425,7 +410,7 @@ def _predict(state, params):
             roll = math.atan2(-fy, -fz)
             pitch = math.atan2(fx, math.sqrt(fy * fy + fz * fz))
             for i in range(n):
-                _set_dcm_from_euler(state.dcm[i], state.yaw_rad[i], pitch, roll)
+                set_dcm_from_euler(state.dcm[i], state.yaw_rad[i], pitch, roll)
             state.tilt_aligned = True
         _clear_accumulators(state)
         return

@@ -77,3 +77,20 @@ def euler_and_tilt_sigma(q0, q1, q2, q3, pnn, pne, pee):
     roll, pitch, yaw = euler_zyx(q0, q1, q2, q3)
     sig_roll, sig_pitch = tilt_sigma(math.cos(yaw), math.sin(yaw), pnn, pne, pee)
     return roll, pitch, yaw, sig_roll, sig_pitch
+
+
+@njit(cache=True)
+def set_dcm_from_euler(c, yaw, pitch, roll):
+    """c ← Rz(yaw) Ry(pitch) Rx(roll) (body → NED)."""
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cr, sr = math.cos(roll), math.sin(roll)
+    c[0, 0] = cy * cp
+    c[0, 1] = cy * sp * sr - sy * cr
+    c[0, 2] = cy * sp * cr + sy * sr
+    c[1, 0] = sy * cp
+    c[1, 1] = sy * sp * sr + cy * cr
+    c[1, 2] = sy * sp * cr - cy * sr
+    c[2, 0] = -sp
+    c[2, 1] = cp * sr
+    c[2, 2] = cp * cr
