@@ -62,6 +62,7 @@ def compile_estimator(name: str, clock=time.monotonic, announce_after_s: float =
                       count_compiles: Callable[[], int] = numba_compiles) -> float:
     """Run the estimator's warm-up (estimator.warm_up), saying so while it compiles (a kernel missed the cache and
     `announce_after_s` has passed) and, at the end, that it compiled. Returns the seconds it took."""
+    from ahrsd.daemon.estimator_news import estimator_news_muted
     from ahrsd.estimator.warm_up import warm_up
 
     started = clock()
@@ -81,18 +82,13 @@ def compile_estimator(name: str, clock=time.monotonic, announce_after_s: float =
             done.wait(POLL_S)
 
     watcher = threading.Thread(target=announce_when_compiling, name="warm-up announcement", daemon=True)
-    # the throwaway estimator's own news ("velocity and position set from the GNSS fix at t=0.000 s") is not the
-    # daemon's: below WARNING it is kept out of the log while it runs
-    estimator_log = logging.getLogger("ahrsd.estimator")
-    level = estimator_log.level
-    estimator_log.setLevel(max(level, logging.WARNING))
     watcher.start()
     try:
-        warm_up(name)
+        with estimator_news_muted():
+            warm_up(name)
     finally:
         done.set()
         watcher.join()
-        estimator_log.setLevel(level)
     took = clock() - started
     if announced.is_set() or (took >= announce_after_s and count_compiles() > compiles_before):
         log.info("compiled the %s estimator in %.1f s", name, took)
