@@ -70,15 +70,15 @@ COUNT = '''
 import sys
 sys.path.insert(0, sys.argv[1])
 from ahrsd.cli.warm_up import numba_compiles
-import nu3_cached_kernel as k
-before = numba_compiles("nu3_")
+import warm_up_probe_kernel as k
+before = numba_compiles("warm_up_probe_")
 k.twice(1.0); k.thrice(1.0)
-print(before, numba_compiles("nu3_"))
+print(before, numba_compiles("warm_up_probe_"))
 '''
 
 
 def test_numba_compiles_counts_cache_misses_of_cached_kernels_only(tmp_path):
-    (tmp_path / "nu3_cached_kernel.py").write_text(textwrap.dedent(KERNEL))
+    (tmp_path / "warm_up_probe_kernel.py").write_text(textwrap.dedent(KERNEL))
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
     runs = [subprocess.run([sys.executable, "-c", COUNT, str(tmp_path)], capture_output=True, text=True, env=env,
                            timeout=300) for _ in range(2)]
