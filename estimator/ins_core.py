@@ -203,8 +203,8 @@ R_TOO_OLD = 128        # older than the history (or than max_delay_s): not fused
 R_OUTAGE_RESET = 256   # first fix after an outage: velocity and position set from it, attitude untouched
 
 # error-state component masks (bit i = error-state component i) for `scalar_update`
-M_TILT = 0b11
-M_HEADING = 0b100
+M_TILT = 0b11 << E_TH           # δθ_N, δθ_E
+M_HEADING = 0b100 << E_TH       # δθ_D
 M_GYRO_BIAS = 0b111 << E_BG
 M_ACC_BIAS = 0b111 << E_BA
 M_GYRO_SCALE = 0b111 << E_SG
@@ -718,10 +718,11 @@ def fill_outputs(x, P, par, wx, wy, wz, out):
     out.rate_rad_s[0] = wx
     out.rate_rad_s[1] = wy
     out.rate_rad_s[2] = wz
-    roll, pitch, yaw, sig_roll, sig_pitch = euler_and_tilt_sigma(q0, q1, q2, q3, P[0, 0], P[0, 1], P[1, 1])
+    roll, pitch, yaw, sig_roll, sig_pitch = euler_and_tilt_sigma(q0, q1, q2, q3, P[E_TH, E_TH], P[E_TH, E_TH + 1],
+                                                                  P[E_TH + 1, E_TH + 1])
     out.sigma_rpy_rad[0] = sig_roll
     out.sigma_rpy_rad[1] = sig_pitch
-    out.sigma_rpy_rad[2] = math.sqrt(max(P[2, 2], 0.0))
+    out.sigma_rpy_rad[2] = math.sqrt(max(P[E_TH + 2, E_TH + 2], 0.0))
     out.euler_rad[0] = roll
     out.euler_rad[1] = pitch
     out.euler_rad[2] = yaw

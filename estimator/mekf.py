@@ -386,9 +386,10 @@ class Mekf:
         s["gyro_bias_rad_s"] = keep_bias
         P = s["P"]
         yaw_sigma = p.init_sigma_yaw_rad if use_mag else math.pi
-        P[0, 0] = P[1, 1] = p.init_sigma_tilt_rad**2
-        P[2, 2] = yaw_sigma**2
-        P[3, 3] = P[4, 4] = P[5, 5] = p.init_bias_sigma_rad_s**2
+        P[core.E_TILT_N, core.E_TILT_N] = P[core.E_TILT_E, core.E_TILT_E] = p.init_sigma_tilt_rad**2
+        P[core.E_HEADING, core.E_HEADING] = yaw_sigma**2
+        for i in range(3):
+            P[core.E_BIAS + i, core.E_BIAS + i] = p.init_bias_sigma_rad_s**2
         s["t_last_s"] = t_s
         s["gyro_lp_rad_s"] = g
         s["acc_lp_m_s2"] = a
@@ -412,7 +413,7 @@ class Mekf:
         o["q"] = q
         o["rate_rad_s"] = s["gyro_last_rad_s"] - s["gyro_bias_rad_s"]
         P = s["P"]
-        o["sigma_rpy_rad"] = np.sqrt([P[0, 0], P[1, 1], P[2, 2]])
+        o["sigma_rpy_rad"] = np.sqrt(np.diag(P)[[core.E_TILT_N, core.E_TILT_E, core.E_HEADING]])
         o["gyro_bias_rad_s"] = s["gyro_bias_rad_s"]
         o["euler_rad"] = quat_to_euler(q)
 

@@ -57,7 +57,7 @@ __all__ = [
     "MEKF_STATE_DTYPE", "MEKF_PARAMS_DTYPE", "MEKF_OUT_DTYPE", "MEKF_BUFFER_DTYPE", "mekf_step", "mekf_step_full",
     "mekf_run", "fast_step", "input_validity", "BAD_SHAPE", "NEEDS_INIT", "IN_ACC_OK", "IN_GYRO_OK", "IN_MAG_OK",
     "F_INITIALISING", "F_MAG_REJECTED", "F_ACCEL_REJECTED", "F_AT_REST", "F_MAG_UNAVAILABLE", "F_LARGE_DT",
-    "F_REINITIALISED",
+    "F_REINITIALISED", "E_TILT_N", "E_TILT_E", "E_HEADING", "E_BIAS",
 ]
 
 # ----------------------------------------------------------------------------------- state
@@ -165,10 +165,12 @@ MEKF_OUT_DTYPE = np.dtype([
 # the one-sample path's buffer: state, parameters and outputs in one record, so a call unboxes one array
 MEKF_BUFFER_DTYPE = np.dtype([("state", MEKF_STATE_DTYPE), ("par", MEKF_PARAMS_DTYPE), ("out", MEKF_OUT_DTYPE)])
 
-# error-state component masks for scalar_update_6's zero_mask
-M_TILT = 1 | 2
-M_HEADING = 4
-M_BIAS = 8 | 16 | 32
+# error-state components (module docstring): tilt δθ_N, δθ_E; heading δθ_D; gyro bias δb (3)
+E_TILT_N, E_TILT_E, E_HEADING, E_BIAS = 0, 1, 2, 3
+# error-state component masks for scalar_update_6's zero_mask (bit i = component i)
+M_TILT = (1 << E_TILT_N) | (1 << E_TILT_E)
+M_HEADING = 1 << E_HEADING
+M_BIAS = 0b111 << E_BIAS
 
 
 @intrinsic
@@ -428,7 +430,7 @@ def _learn_bias_at_rest(st, par, dt, gx, gy, gz):
         gi = gx if i == 0 else (gy if i == 1 else gz)
         bi = a3 if i == 0 else (a4 if i == 1 else a5)
         nu = gi - b[i] - bi
-        d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, 3 + i, 1.0, nu, r, 0)
+        d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, E_BIAS + i, 1.0, nu, r, 0)
         a0 += d0
         a1 += d1
         a2 += d2
@@ -510,11 +512,11 @@ def _tilt_update(st, par, dt, at_rest, ax, ay, az):
         r = (par.acc_noise_m_s2 / g_ref) ** 2 + phi * phi + r_motion
     # never heading; and no bias learning while |f| is off g (a push would be read as bias)
     mask = M_HEADING if abs(fnorm - g_ref) < par.rest_acc_th_m_s2 else (M_HEADING | M_BIAS)
-    a0, a1, a2, a3, a4, a5 = scalar_update_6(st.P, 1, 1.0, nu_n, r, mask)
+    a0, a1, a2, a3, a4, a5 = scalar_update_6(st.P, E_TILT_E, 1.0, nu_n, r, mask)
     # second component: innovation re-evaluated after the first correction (sequential update); the two
     # corrections are applied together
     nu_e2 = nu_e + a0
-    d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, 0, -1.0, nu_e2, r, mask)
+    d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, E_TILT_N, -1.0, nu_e2, r, mask)
     _apply_correction(st, par, a0 + d0, a1 + d1, a2 + d2, a3 + d3, a4 + d4, a5 + d5)
     st.acc_since_accept_s = 0.0
     return 0
@@ -684,9 +686,9 @@ def _heading_update(st, par, dt, rate, valid, at_rest, moved_at_rest, mx, my, mz
             mn, me, md = rotate_to_ned(st.q[0], st.q[1], st.q[2], st.q[3], mx, my, mz)
         mnorm = math.sqrt(mx * mx + my * my + mz * mz)
         res, alpha, r = mag.heading_measurement(st.mag, par.mag, dt, rate, at_rest, moved_at_rest,
-                                                mn, me, md, mnorm, 0.0, st.P[2, 2])
+                                                mn, me, md, mnorm, 0.0, st.P[E_HEADING, E_HEADING])
         if res == mag.MAG_USE:
-            d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, 2, -1.0, alpha, r, M_TILT)
+            d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, E_HEADING, -1.0, alpha, r, M_TILT)
             _apply_correction(st, par, d0, d1, d2, d3, d4, d5)
             used = True
         elif res == mag.MAG_REJECTED:
@@ -730,8 +732,8 @@ def _fill_outputs(st, par, gx, gy, gz, out):
         sy = 0.0
     P = st.P
     sig = out.sigma_rpy_rad
-    sig[0], sig[1] = tilt_sigma(cy, sy, P[0, 0], P[0, 1], P[1, 1])
-    sig[2] = math.sqrt(max(P[2, 2], 0.0))
+    sig[0], sig[1] = tilt_sigma(cy, sy, P[E_TILT_N, E_TILT_N], P[E_TILT_N, E_TILT_E], P[E_TILT_E, E_TILT_E])
+    sig[2] = math.sqrt(max(P[E_HEADING, E_HEADING], 0.0))
     out.gyro_bias_rad_s[0] = b[0]
     out.gyro_bias_rad_s[1] = b[1]
     out.gyro_bias_rad_s[2] = b[2]
