@@ -318,7 +318,8 @@ class Mekf:
             # any 8-byte dtype as float64 unchecked), else as float64 copies
             if not (g.dtype is _F64 and a.dtype is _F64 and m.dtype is _F64):
                 g, a, m = _as_f64(g), _as_f64(a), _as_f64(m)
-            f = self._step(self._buf, t_s, g, a, m, int(sample.flags))
+            # the flags as they are: the entry point reads an int (SampleFlags is one) as int64
+            f = self._step(self._buf, t_s, g, a, m, sample.flags)
             if not f & _NEEDS_INIT_OR_BAD:
                 self._bits = f
                 return self._view
@@ -330,6 +331,7 @@ class Mekf:
         sflags = int(sample.flags)
         if not self._initialise(t_s, g, a, m, sflags):
             self._bits = -1 - extra       # < 0: no estimate yet (snapshot() is the uninitialised estimate)
+            self._view.q_wxyz = np.array([1.0, 0.0, 0.0, 0.0])
             return self._view
         self._bits = self._after_init_flags() | extra
         return self._view
@@ -405,6 +407,7 @@ class Mekf:
         ms["undisturbed_t_s"] = p.mag_min_undisturbed_s
         self._initialised = True
         self._fill_out_after_init()
+        self._view.q_wxyz = self._q_out   # valid from here until an initialisation fails
         return True
 
     def _fill_out_after_init(self) -> None:
@@ -458,12 +461,16 @@ class MekfView:
 
     Attributes read the estimator's output buffer when accessed, so they change at the next step; arrays are
     views of that buffer (copy what you keep). `snapshot()` returns the immutable AttitudeEstimate.
-    Before the first usable sample (`valid` False) the angles are NaN, as in `update`'s estimate."""
+    Before the first usable sample (`valid` False) the angles are NaN, as in `update`'s estimate.
 
-    __slots__ = ("_mekf",)
+    `q_wxyz` is a plain attribute (a property call would cost a sixth of the step): the estimator sets it to
+    its quaternion output when it initialises and to the identity when it cannot."""
+
+    __slots__ = ("_mekf", "q_wxyz")
 
     def __init__(self, mekf: Mekf):
         self._mekf = mekf
+        self.q_wxyz = np.array([1.0, 0.0, 0.0, 0.0])
 
     def snapshot(self) -> AttitudeEstimate:
         m = self._mekf
@@ -483,11 +490,6 @@ class MekfView:
     def flags(self) -> EstimateFlags:
         b = self._mekf._bits
         return estimate_flags(b) if b >= 0 else EstimateFlags.INITIALISING | estimate_flags(-1 - b)
-
-    @property
-    def q_wxyz(self) -> np.ndarray:
-        m = self._mekf
-        return m._q_out if m._bits >= 0 else np.array([1.0, 0.0, 0.0, 0.0])
 
     def _angle(self, i: int) -> float:
         m = self._mekf

@@ -143,6 +143,21 @@ def test_step_view_reads_the_same_estimate_as_update_and_snapshots_are_frozen():
         _assert_same_estimate(snap, want)
 
 
+def test_the_view_follows_a_batch_that_initialised_the_filter():
+    """`run_batch` may initialise the filter; `step` then continues it, and its view reads the estimate (not the
+    identity of a filter that has not initialised)."""
+    t, g, a, m, _ = _static_samples(1.0, 100.0, seed=14)
+    ref, hot = make_estimator("mekf"), make_estimator("mekf")
+    hot.run_batch(t[:50], g[:50], a[:50], m[:50])
+    for i in range(50):
+        ref.update(make_sample(t[i], g[i], a[i], m[i]))
+    for i in range(50, 60):
+        s = make_sample(t[i], g[i], a[i], m[i])
+        want = ref.update(s)
+        _assert_same_estimate(hot.step(s), want)
+    assert not np.array_equal(want.q_wxyz, [1.0, 0.0, 0.0, 0.0])
+
+
 def test_gyro_bias_is_learned_at_rest():
     bias_dps = (0.5, -0.3, 0.8)
     t, g, a, m, truth = _static_samples(20.0, 200.0, bias_dps=bias_dps, seed=1)
