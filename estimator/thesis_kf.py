@@ -470,7 +470,8 @@ class ThesisKf:
         given the filtered vectors' direction variances (from P), reference mⁿ = [cos δ, 0, sin δ], gⁿ = [0, 0, 1]."""
         mx, my, mz, gx, gy, gz = self._x[_VECTORS].tolist()
         (p00, p01, p02, _, _, _), (_, p11, p12, _, _, _), (_, _, p22, _, _, _), \
-            (_, _, _, p33, p34, p35), (_, _, _, _, p44, p45), (_, _, _, _, _, p55) = self._p[_VECTORS, _VECTORS].tolist()
+            (_, _, _, p33, p34, p35), (_, _, _, _, p44, p45), (_, _, _, _, _, p55) = \
+            self._p[_VECTORS, _VECTORS].tolist()
         mm = mx * mx + my * my + mz * mz
         gg = gx * gx + gy * gy + gz * gz
         # Direction variance per perpendicular axis: (tr P − radial part vᵀPv/|v|²) / 2 / |v|².
