@@ -252,6 +252,8 @@ class Mekf:
         self._initialised = False
         self._reinit_pending = False
         self._step = core.fast_step()
+        self._fill_euler = core.fast_fill_euler()
+        self._euler_stale = False      # the step leaves the Euler outputs; they are filled when read
         self._t_s = math.nan
         self._bits = -1
         self._view = MekfView(self)
@@ -322,6 +324,7 @@ class Mekf:
             f = self._step(self._buf, t_s, g, a, m, sample.flags)
             if not f & _NEEDS_INIT_OR_BAD:
                 self._bits = f
+                self._euler_stale = True
                 return self._view
             if f & core.BAD_SHAPE:
                 raise ValueError("ImuSample vectors must have 3 elements")
@@ -419,6 +422,13 @@ class Mekf:
         o["sigma_rpy_rad"] = np.sqrt(np.diag(P)[[core.E_TILT_N, core.E_TILT_E, core.E_HEADING]])
         o["gyro_bias_rad_s"] = s["gyro_bias_rad_s"]
         o["euler_rad"] = quat_to_euler(q)
+        self._euler_stale = False
+
+    def _read_euler(self) -> None:
+        """Fill the Euler outputs of the last step if it left them (`mekf_core.fill_euler`)."""
+        if self._euler_stale:
+            self._fill_euler(self._buf)
+            self._euler_stale = False
 
     def _after_init_flags(self) -> int:
         f = after_init_flags(self._reinit_pending, self.params.mag_enabled)
@@ -426,6 +436,7 @@ class Mekf:
         return f
 
     def _estimate(self, t_s: float, f: int) -> AttitudeEstimate:
+        self._read_euler()
         o = self._out_flat.copy()  # one fresh buffer; the estimate's arrays are views of it
         roll, pitch, yaw = o[_OUT_EULER].tolist()  # Python floats: cheap arithmetic
         return AttitudeEstimate(
@@ -493,7 +504,10 @@ class MekfView:
 
     def _angle(self, i: int) -> float:
         m = self._mekf
-        return float(m._euler_out[i]) if m._bits >= 0 else math.nan
+        if m._bits < 0:
+            return math.nan
+        m._read_euler()
+        return float(m._euler_out[i])
 
     @property
     def roll_rad(self) -> float:

@@ -55,7 +55,8 @@ from .kernel_rotations import dcm, euler_zyx, normalised, quat_mul, rotate_to_ne
 
 __all__ = [
     "MEKF_STATE_DTYPE", "MEKF_PARAMS_DTYPE", "MEKF_OUT_DTYPE", "MEKF_BUFFER_DTYPE", "mekf_step", "mekf_step_full",
-    "mekf_run", "fast_step", "input_validity", "BAD_SHAPE", "NEEDS_INIT", "IN_ACC_OK", "IN_GYRO_OK", "IN_MAG_OK",
+    "mekf_run", "fast_step", "fill_euler", "fast_fill_euler", "input_validity", "BAD_SHAPE", "NEEDS_INIT",
+    "IN_ACC_OK", "IN_GYRO_OK", "IN_MAG_OK",
     "F_INITIALISING", "F_MAG_REJECTED", "F_ACCEL_REJECTED", "F_AT_REST", "F_MAG_UNAVAILABLE", "F_LARGE_DT",
     "F_REINITIALISED", "E_TILT_N", "E_TILT_E", "E_HEADING", "E_BIAS",
 ]
@@ -784,21 +785,25 @@ def mekf_step(st, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, ou
 
 @njit(cache=True)
 def mekf_step_full(buf, t_s, gyro, acc, mag_ut, sample_flags):
-    """`mekf_step` on the 1-element MEKF_BUFFER_DTYPE array `buf` for one sample's (3,) vectors, plus the ZYX
-    Euler angles in its out.euler_rad (the one-sample path; batch runs skip them). Returns BAD_SHAPE if a
-    vector does not have 3 elements (nothing changed)."""
+    """`mekf_step` on the 1-element MEKF_BUFFER_DTYPE array `buf` for one sample's (3,) vectors (the one-sample
+    path). Leaves out.euler_rad: `fill_euler` fills it when someone reads the angles (publishers do, at their
+    rates, not at the sample rate). Returns BAD_SHAPE if a vector does not have 3 elements (nothing changed)."""
     if gyro.shape[0] != 3 or acc.shape[0] != 3 or mag_ut.shape[0] != 3:
         return BAD_SHAPE
     b = borrowed(buf)[0]   # the caller holds buf for the call: no reference counting in the step
-    out = b.out
-    f = mekf_step(b.state, b.par, t_s, gyro[0], gyro[1], gyro[2], acc[0], acc[1], acc[2],
-                  mag_ut[0], mag_ut[1], mag_ut[2], sample_flags, out)
-    if not f & NEEDS_INIT:
-        roll, pitch, yaw = euler_zyx(out.q[0], out.q[1], out.q[2], out.q[3])
-        out.euler_rad[0] = roll
-        out.euler_rad[1] = pitch
-        out.euler_rad[2] = yaw
-    return f
+    return mekf_step(b.state, b.par, t_s, gyro[0], gyro[1], gyro[2], acc[0], acc[1], acc[2],
+                     mag_ut[0], mag_ut[1], mag_ut[2], sample_flags, b.out)
+
+
+@njit(cache=True)
+def fill_euler(buf):
+    """The ZYX Euler angles (roll, pitch, yaw magnetic) of the output quaternion of the 1-element
+    MEKF_BUFFER_DTYPE array `buf` into its out.euler_rad."""
+    out = borrowed(buf)[0].out
+    roll, pitch, yaw = euler_zyx(out.q[0], out.q[1], out.q[2], out.q[3])
+    out.euler_rad[0] = roll
+    out.euler_rad[1] = pitch
+    out.euler_rad[2] = yaw
 
 
 @njit(cache=True)
@@ -829,7 +834,7 @@ def mekf_run(buf, scratch_out, t_s, gyro, acc, mag_ut, sample_flags, start, q_ou
     return n
 
 
-_FAST_STEP = []   # the entry point, once looked up (each Mekf() asks for it)
+_FAST = {}   # the entry points, once looked up (each Mekf() asks for them)
 
 
 def fast_step():
@@ -842,18 +847,29 @@ def fast_step():
     is the caller's own, and the caller passes only float64 vectors (dtype checked; their length is checked
     here). Falls back to the dispatcher if this numba version does not expose entry points (same code,
     slower call)."""
-    if not _FAST_STEP:
-        _FAST_STEP.append(_entry_point())
-    return _FAST_STEP[0]
-
-
-def _entry_point():
-    try:
+    if "step" not in _FAST:
         # the vectors in any layout (float64[:]): a sample's vectors may be strided views of a larger array
         vector = types.float64[:]
-        sig = (typeof(np.zeros(1, MEKF_BUFFER_DTYPE)), types.float64, vector, vector, vector, types.int64)
-        mekf_step_full.compile(sig)
-        return mekf_step_full.overloads[sig].entry_point
+        _FAST["step"] = _entry_point(mekf_step_full, (_buffer_type(), types.float64, vector, vector, vector,
+                                                      types.int64))
+    return _FAST["step"]
+
+
+def fast_fill_euler():
+    """`fill_euler` as a directly callable compiled entry point (as `fast_step`)."""
+    if "euler" not in _FAST:
+        _FAST["euler"] = _entry_point(fill_euler, (_buffer_type(),))
+    return _FAST["euler"]
+
+
+def _buffer_type():
+    return typeof(np.zeros(1, MEKF_BUFFER_DTYPE))
+
+
+def _entry_point(kernel, sig):
+    try:
+        kernel.compile(sig)
+        return kernel.overloads[sig].entry_point
     except Exception:  # pragma: no cover - numba internals moved
         pass
-    return mekf_step_full  # pragma: no cover
+    return kernel  # pragma: no cover
