@@ -50,6 +50,7 @@ from .ins_mechanisation import (
     velocity_rate_ned,
 )
 from .constrained_update import residual, scalar_update
+from .kernel_entry import entry_point
 from .kernel_flags import (
     F_ACCEL_REJECTED,
     F_GNSS_AIDED,
@@ -1047,12 +1048,6 @@ def fuse_gnss(state, P, hist, params, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, 
 
 
 def fast_step(example_args):
-    """`ins_step` compiled for the types of `example_args` (one call) and returned as that overload's directly
-    callable entry point (skips numba's per-call type dispatch, as mekf_core.fast_step does); falls back to the
-    dispatcher."""
-    ins_step(*example_args)
-    try:
-        return ins_step.overloads[tuple(ins_step.typeof_pyval(a) for a in example_args)].entry_point
-    except Exception:  # pragma: no cover - numba internals moved
-        pass
-    return ins_step  # pragma: no cover
+    """`ins_step` compiled for the types of `example_args` and returned as that overload's directly callable
+    entry point (kernel_entry.py)."""
+    return entry_point(ins_step, tuple(ins_step.typeof_pyval(a) for a in example_args))

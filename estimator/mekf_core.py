@@ -34,6 +34,7 @@ from numba.extending import intrinsic
 
 from . import mag_heading as mag
 from .constrained_update import scalar_update_6
+from .kernel_entry import entry_point
 from .kernel_flags import (
     BAD_SHAPE,
     F_ACCEL_REJECTED,
@@ -838,38 +839,23 @@ _FAST = {}   # the entry points, once looked up (each Mekf() asks for them)
 
 
 def fast_step():
-    """`mekf_step_full` as a directly callable compiled entry point for one-sample calls (looked up once per
-    process).
-
-    Numba's dispatcher resolves argument types on every call (several times the filter's own arithmetic);
-    the entry point of the one compiled signature skips that. Arguments must then have exactly that
-    signature, which the entry point does not check (an int64 array would be read as float64): the buffer
-    is the caller's own, and the caller passes only float64 vectors (dtype checked; their length is checked
-    here). Falls back to the dispatcher if this numba version does not expose entry points (same code,
-    slower call)."""
+    """`mekf_step_full` as a directly callable compiled entry point for one-sample calls (kernel_entry.py;
+    looked up once per process). The buffer is the caller's own, and the caller passes only float64 vectors
+    (dtype checked; their length is checked in the kernel)."""
     if "step" not in _FAST:
         # the vectors in any layout (float64[:]): a sample's vectors may be strided views of a larger array
         vector = types.float64[:]
-        _FAST["step"] = _entry_point(mekf_step_full, (_buffer_type(), types.float64, vector, vector, vector,
-                                                      types.int64))
+        _FAST["step"] = entry_point(mekf_step_full, (_buffer_type(), types.float64, vector, vector, vector,
+                                                     types.int64))
     return _FAST["step"]
 
 
 def fast_fill_euler():
     """`fill_euler` as a directly callable compiled entry point (as `fast_step`)."""
     if "euler" not in _FAST:
-        _FAST["euler"] = _entry_point(fill_euler, (_buffer_type(),))
+        _FAST["euler"] = entry_point(fill_euler, (_buffer_type(),))
     return _FAST["euler"]
 
 
 def _buffer_type():
     return typeof(np.zeros(1, MEKF_BUFFER_DTYPE))
-
-
-def _entry_point(kernel, sig):
-    try:
-        kernel.compile(sig)
-        return kernel.overloads[sig].entry_point
-    except Exception:  # pragma: no cover - numba internals moved
-        pass
-    return kernel  # pragma: no cover
