@@ -96,8 +96,6 @@ def compile_estimator(name: str, clock=time.monotonic, announce_after_s: float =
 
 
 def run(args: argparse.Namespace) -> int:
-    import os
-
     from ahrsd.daemon.config import Config, ConfigError, default_config_path, load_config
 
     try:
@@ -114,6 +112,7 @@ def run(args: argparse.Namespace) -> int:
     except (ValueError, ModuleNotFoundError) as exc:
         print(f"ahrsd warm-up: error: estimator {cfg.estimator_name!r}: {exc}", file=sys.stderr)
         return 1
-    cache = os.environ.get("NUMBA_CACHE_DIR") or "beside the installed package (__pycache__)"
-    print(f"ahrsd warm-up: the {cfg.estimator_name} estimator is ready in {took:.1f} s (cache: {cache})")
+    from ahrsd.estimator import KERNEL_CACHE_DIR
+
+    print(f"ahrsd warm-up: the {cfg.estimator_name} estimator is ready in {took:.1f} s (cache: {KERNEL_CACHE_DIR})")
     return 0

@@ -3,7 +3,11 @@ INS."""
 
 from __future__ import annotations
 
-from .base import Estimator
+from .kernel_cache import use_source_keyed_cache
+
+KERNEL_CACHE_DIR = use_source_keyed_cache()   # before any kernel is compiled or loaded (kernel_cache.py)
+
+from .base import Estimator  # noqa: E402
 
 ESTIMATORS = ("mekf", "thesis", "ins")
 UNAIDED_ESTIMATOR = "mekf"     # the daemon's choice without a GNSS source

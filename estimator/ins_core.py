@@ -50,6 +50,7 @@ from .ins_mechanisation import (
     velocity_rate_ned,
 )
 from .constrained_update import residual, scalar_update
+from .kernel_entry import entry_point
 from .kernel_flags import (
     F_ACCEL_REJECTED,
     F_GNSS_AIDED,
@@ -203,8 +204,8 @@ R_TOO_OLD = 128        # older than the history (or than max_delay_s): not fused
 R_OUTAGE_RESET = 256   # first fix after an outage: velocity and position set from it, attitude untouched
 
 # error-state component masks (bit i = error-state component i) for `scalar_update`
-M_TILT = 0b11
-M_HEADING = 0b100
+M_TILT = 0b11 << E_TH           # δθ_N, δθ_E
+M_HEADING = 0b100 << E_TH       # δθ_D
 M_GYRO_BIAS = 0b111 << E_BG
 M_ACC_BIAS = 0b111 << E_BA
 M_GYRO_SCALE = 0b111 << E_SG
@@ -718,10 +719,11 @@ def fill_outputs(x, P, par, wx, wy, wz, out):
     out.rate_rad_s[0] = wx
     out.rate_rad_s[1] = wy
     out.rate_rad_s[2] = wz
-    roll, pitch, yaw, sig_roll, sig_pitch = euler_and_tilt_sigma(q0, q1, q2, q3, P[0, 0], P[0, 1], P[1, 1])
+    roll, pitch, yaw, sig_roll, sig_pitch = euler_and_tilt_sigma(q0, q1, q2, q3, P[E_TH, E_TH], P[E_TH, E_TH + 1],
+                                                                  P[E_TH + 1, E_TH + 1])
     out.sigma_rpy_rad[0] = sig_roll
     out.sigma_rpy_rad[1] = sig_pitch
-    out.sigma_rpy_rad[2] = math.sqrt(max(P[2, 2], 0.0))
+    out.sigma_rpy_rad[2] = math.sqrt(max(P[E_TH + 2, E_TH + 2], 0.0))
     out.euler_rad[0] = roll
     out.euler_rad[1] = pitch
     out.euler_rad[2] = yaw
@@ -1046,12 +1048,6 @@ def fuse_gnss(state, P, hist, params, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, 
 
 
 def fast_step(example_args):
-    """`ins_step` compiled for the types of `example_args` (one call) and returned as that overload's directly
-    callable entry point (skips numba's per-call type dispatch, as mekf_core.fast_step does); falls back to the
-    dispatcher."""
-    ins_step(*example_args)
-    try:
-        return ins_step.overloads[tuple(ins_step.typeof_pyval(a) for a in example_args)].entry_point
-    except Exception:  # pragma: no cover - numba internals moved
-        pass
-    return ins_step  # pragma: no cover
+    """`ins_step` compiled for the types of `example_args` and returned as that overload's directly callable
+    entry point (kernel_entry.py)."""
+    return entry_point(ins_step, tuple(ins_step.typeof_pyval(a) for a in example_args))

@@ -42,6 +42,9 @@ from .rotations import _SMALL_ANGLE_RAD, quat_exp, quat_multiply, quat_to_euler
 
 MAX_BLOCK_S = 0.5   # a block also ends after this long without a fix (magnetometer updates in an outage)
 _CUT_RESULTS = core.R_NAV_INIT | core.R_OUTAGE_RESET | core.R_VEL_RESET | core.R_POS_RESET
+# SmoothingIns records per sample: its time, the filter's own attitude (body → true NED; NaN before the filter
+# initialised) and its tilt 1σ
+_RECORD_DTYPE = np.dtype([("t_s", np.float64), ("q", np.float64, (4,)), ("tilt_sigma_rad", np.float64)])
 
 
 class RtsSmoother:
@@ -190,7 +193,7 @@ class SmoothingIns(Ins):
         self._shadow_hist = np.zeros_like(self._hist)
         self._shadow_out = np.zeros(1, core.INS_OUT_DTYPE)
         self._p_before = np.zeros_like(self._P)
-        self._rec = np.empty((4096, 6))   # per sample: t, q (4; NaN before initialisation), tilt 1σ
+        self._rec = np.empty(4096, _RECORD_DTYPE)   # one row per sample
         self._n_rec = 0
         self._block_t = -math.inf
 
@@ -254,9 +257,9 @@ class SmoothingIns(Ins):
         if self._n_rec == len(self._rec):
             self._rec = np.concatenate([self._rec, np.empty_like(self._rec)])
         row = self._rec[self._n_rec]
-        row[0] = sample.t_s
-        row[1:5] = self._x["q"] if self._initialised else np.nan
-        row[5] = math.hypot(e.sigma_rpy_rad[0], e.sigma_rpy_rad[1])
+        row["t_s"] = sample.t_s
+        row["q"] = self._x["q"] if self._initialised else np.nan
+        row["tilt_sigma_rad"] = math.hypot(e.sigma_rpy_rad[0], e.sigma_rpy_rad[1])
         self._n_rec += 1
         return e
 
@@ -265,9 +268,10 @@ class SmoothingIns(Ins):
         """Per recorded sample: the smoothed error-state correction (N_ERR) relative to the filter's state after
         that sample, and the smoothed tilt 1σ (rad; the filter's own where nothing was smoothed)."""
         t_node, s_post, s_pre, p_s = self.smoother.smooth()
-        t = self._rec[: self._n_rec, 0]
+        rec = self._rec[: self._n_rec]
+        t = rec["t_s"]
         corr = np.zeros((len(t), core.N_ERR))
-        sigma = self._rec[: self._n_rec, 5].copy()
+        sigma = rec["tilt_sigma_rad"].copy()
         if len(t_node) < 2:
             return corr, sigma
         # sample i follows block end k = the last one at or before it (a node happens within a sample's update)
@@ -278,7 +282,7 @@ class SmoothingIns(Ins):
         corr[inside] = s_post[ki] + w[:, None] * (s_pre[ki + 1] - s_post[ki])
         last = k == len(t_node) - 1
         corr[last] = s_post[-1]
-        tilt_var = p_s[:, 0, 0] + p_s[:, 1, 1]
+        tilt_var = p_s[:, core.E_TH, core.E_TH] + p_s[:, core.E_TH + 1, core.E_TH + 1]   # δθ_N, δθ_E
         smoothed = inside | last
         sigma[smoothed] = np.sqrt(np.maximum(tilt_var[k[smoothed]], 0.0))
         return corr, sigma
@@ -287,8 +291,8 @@ class SmoothingIns(Ins):
         """Roll, pitch (rad) and tilt 1σ per recorded sample, smoothed over the whole run (NaN before the
         filter initialised)."""
         corr, sigma = self.smoothed_corrections()
-        q = self._rec[: self._n_rec, 1:5]
-        qs = quat_multiply(quat_exp(corr[:, 0:3]), q)
+        q = self._rec[: self._n_rec]["q"]
+        qs = quat_multiply(quat_exp(corr[:, core.E_TH:core.E_TH + 3]), q)
         rpy = quat_to_euler(qs)
         return rpy[:, 0], rpy[:, 1], sigma
 

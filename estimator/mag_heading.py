@@ -31,6 +31,9 @@ MAG_HEADING_STATE_DTYPE = np.dtype([
     ("since_update_s", np.float64),     # time since the last accepted heading update
     ("disturbed_t_s", np.float64),      # time the field has been continuously disturbed
     ("gate_open_s", np.float64),        # the innovation gate stays open this much longer (new calibration)
+    ("ref_weight", np.float64),         # 1 − exp(−Δt/ref_tau_s) for the Δt and τ below (_reference_weight)
+    ("ref_weight_dt_s", np.float64),
+    ("ref_weight_tau_s", np.float64),
 ])
 
 MAG_HEADING_PARAMS_DTYPE = np.dtype([
@@ -81,6 +84,17 @@ RELEARN_GATE_OPEN_S = 10.0
 
 
 @njit(cache=True)
+def _reference_weight(ms, mp, dt):
+    """The reference's and the candidate's low-pass weight 1 − exp(−Δt/ref_tau_s), kept for the last Δt and τ
+    (a filter's Δt rarely changes: no exp per sample)."""
+    if ms.ref_weight_dt_s != dt or ms.ref_weight_tau_s != mp.ref_tau_s:
+        ms.ref_weight_dt_s = dt
+        ms.ref_weight_tau_s = mp.ref_tau_s
+        ms.ref_weight = 1.0 - math.exp(-dt / mp.ref_tau_s)
+    return ms.ref_weight
+
+
+@njit(cache=True)
 def heading_measurement(ms, mp, dt, rate, at_rest, moved_at_rest, mn, me, md, mnorm,
                         declination, heading_var):
     """Check one field sample (mn, me, md: the field in the estimated NED frame, µT; mnorm its magnitude) and
@@ -114,7 +128,7 @@ def heading_measurement(ms, mp, dt, rate, at_rest, moved_at_rest, mn, me, md, mn
     # candidate for a new (permanently changed) field: must stay consistent while the body rotates
     cn = ms.cand_norm_ut
     if abs(mnorm - cn) < tol * cn and abs(dip - ms.cand_dip_rad) < dtol:
-        kc = 1.0 - math.exp(-dt / mp.ref_tau_s) if dt > 0.0 else 0.0
+        kc = _reference_weight(ms, mp, dt) if dt > 0.0 else 0.0
         ms.cand_norm_ut += kc * (mnorm - cn)
         ms.cand_dip_rad += kc * (dip - ms.cand_dip_rad)
         if rate > mp.new_min_rate_rad_s:
@@ -138,7 +152,7 @@ def heading_measurement(ms, mp, dt, rate, at_rest, moved_at_rest, mn, me, md, mn
     if not (undisturbed and mh > 1e-3 * mnorm):
         return MAG_REJECTED, 0.0, 0.0
     if matches and dt > 0.0:
-        kr = 1.0 - math.exp(-dt / mp.ref_tau_s)
+        kr = _reference_weight(ms, mp, dt)
         ms.ref_norm_ut += kr * (mnorm - ms.ref_norm_ut)
         ms.ref_dip_rad += kr * (dip - ms.ref_dip_rad)
     # heading measurement: angle of the horizontal field in the estimated NED frame, α = −δθ_D

@@ -252,6 +252,8 @@ class Mekf:
         self._initialised = False
         self._reinit_pending = False
         self._step = core.fast_step()
+        self._fill_euler = core.fast_fill_euler()
+        self._euler_stale = False      # the step leaves the Euler outputs; they are filled when read
         self._t_s = math.nan
         self._bits = -1
         self._view = MekfView(self)
@@ -318,9 +320,11 @@ class Mekf:
             # any 8-byte dtype as float64 unchecked), else as float64 copies
             if not (g.dtype is _F64 and a.dtype is _F64 and m.dtype is _F64):
                 g, a, m = _as_f64(g), _as_f64(a), _as_f64(m)
-            f = self._step(self._buf, t_s, g, a, m, int(sample.flags))
+            # the flags as they are: the entry point reads an int (SampleFlags is one) as int64
+            f = self._step(self._buf, t_s, g, a, m, sample.flags)
             if not f & _NEEDS_INIT_OR_BAD:
                 self._bits = f
+                self._euler_stale = True
                 return self._view
             if f & core.BAD_SHAPE:
                 raise ValueError("ImuSample vectors must have 3 elements")
@@ -330,6 +334,7 @@ class Mekf:
         sflags = int(sample.flags)
         if not self._initialise(t_s, g, a, m, sflags):
             self._bits = -1 - extra       # < 0: no estimate yet (snapshot() is the uninitialised estimate)
+            self._view.q_wxyz = np.array([1.0, 0.0, 0.0, 0.0])
             return self._view
         self._bits = self._after_init_flags() | extra
         return self._view
@@ -386,9 +391,10 @@ class Mekf:
         s["gyro_bias_rad_s"] = keep_bias
         P = s["P"]
         yaw_sigma = p.init_sigma_yaw_rad if use_mag else math.pi
-        P[0, 0] = P[1, 1] = p.init_sigma_tilt_rad**2
-        P[2, 2] = yaw_sigma**2
-        P[3, 3] = P[4, 4] = P[5, 5] = p.init_bias_sigma_rad_s**2
+        P[core.E_TILT_N, core.E_TILT_N] = P[core.E_TILT_E, core.E_TILT_E] = p.init_sigma_tilt_rad**2
+        P[core.E_HEADING, core.E_HEADING] = yaw_sigma**2
+        for i in range(3):
+            P[core.E_BIAS + i, core.E_BIAS + i] = p.init_bias_sigma_rad_s**2
         s["t_last_s"] = t_s
         s["gyro_lp_rad_s"] = g
         s["acc_lp_m_s2"] = a
@@ -404,6 +410,7 @@ class Mekf:
         ms["undisturbed_t_s"] = p.mag_min_undisturbed_s
         self._initialised = True
         self._fill_out_after_init()
+        self._view.q_wxyz = self._q_out   # valid from here until an initialisation fails
         return True
 
     def _fill_out_after_init(self) -> None:
@@ -412,9 +419,16 @@ class Mekf:
         o["q"] = q
         o["rate_rad_s"] = s["gyro_last_rad_s"] - s["gyro_bias_rad_s"]
         P = s["P"]
-        o["sigma_rpy_rad"] = np.sqrt([P[0, 0], P[1, 1], P[2, 2]])
+        o["sigma_rpy_rad"] = np.sqrt(np.diag(P)[[core.E_TILT_N, core.E_TILT_E, core.E_HEADING]])
         o["gyro_bias_rad_s"] = s["gyro_bias_rad_s"]
         o["euler_rad"] = quat_to_euler(q)
+        self._euler_stale = False
+
+    def _read_euler(self) -> None:
+        """Fill the Euler outputs of the last step if it left them (`mekf_core.fill_euler`)."""
+        if self._euler_stale:
+            self._fill_euler(self._buf)
+            self._euler_stale = False
 
     def _after_init_flags(self) -> int:
         f = after_init_flags(self._reinit_pending, self.params.mag_enabled)
@@ -422,6 +436,7 @@ class Mekf:
         return f
 
     def _estimate(self, t_s: float, f: int) -> AttitudeEstimate:
+        self._read_euler()
         o = self._out_flat.copy()  # one fresh buffer; the estimate's arrays are views of it
         roll, pitch, yaw = o[_OUT_EULER].tolist()  # Python floats: cheap arithmetic
         return AttitudeEstimate(
@@ -457,12 +472,16 @@ class MekfView:
 
     Attributes read the estimator's output buffer when accessed, so they change at the next step; arrays are
     views of that buffer (copy what you keep). `snapshot()` returns the immutable AttitudeEstimate.
-    Before the first usable sample (`valid` False) the angles are NaN, as in `update`'s estimate."""
+    Before the first usable sample (`valid` False) the angles are NaN, as in `update`'s estimate.
 
-    __slots__ = ("_mekf",)
+    `q_wxyz` is a plain attribute (a property call would cost a sixth of the step): the estimator sets it to
+    its quaternion output when it initialises and to the identity when it cannot."""
+
+    __slots__ = ("_mekf", "q_wxyz")
 
     def __init__(self, mekf: Mekf):
         self._mekf = mekf
+        self.q_wxyz = np.array([1.0, 0.0, 0.0, 0.0])
 
     def snapshot(self) -> AttitudeEstimate:
         m = self._mekf
@@ -483,14 +502,12 @@ class MekfView:
         b = self._mekf._bits
         return estimate_flags(b) if b >= 0 else EstimateFlags.INITIALISING | estimate_flags(-1 - b)
 
-    @property
-    def q_wxyz(self) -> np.ndarray:
-        m = self._mekf
-        return m._q_out if m._bits >= 0 else np.array([1.0, 0.0, 0.0, 0.0])
-
     def _angle(self, i: int) -> float:
         m = self._mekf
-        return float(m._euler_out[i]) if m._bits >= 0 else math.nan
+        if m._bits < 0:
+            return math.nan
+        m._read_euler()
+        return float(m._euler_out[i])
 
     @property
     def roll_rad(self) -> float:

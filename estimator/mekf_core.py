@@ -34,6 +34,7 @@ from numba.extending import intrinsic
 
 from . import mag_heading as mag
 from .constrained_update import scalar_update_6
+from .kernel_entry import entry_point
 from .kernel_flags import (
     BAD_SHAPE,
     F_ACCEL_REJECTED,
@@ -55,9 +56,10 @@ from .kernel_rotations import dcm, euler_zyx, normalised, quat_mul, rotate_to_ne
 
 __all__ = [
     "MEKF_STATE_DTYPE", "MEKF_PARAMS_DTYPE", "MEKF_OUT_DTYPE", "MEKF_BUFFER_DTYPE", "mekf_step", "mekf_step_full",
-    "mekf_run", "fast_step", "input_validity", "BAD_SHAPE", "NEEDS_INIT", "IN_ACC_OK", "IN_GYRO_OK", "IN_MAG_OK",
+    "mekf_run", "fast_step", "fill_euler", "fast_fill_euler", "input_validity", "BAD_SHAPE", "NEEDS_INIT",
+    "IN_ACC_OK", "IN_GYRO_OK", "IN_MAG_OK",
     "F_INITIALISING", "F_MAG_REJECTED", "F_ACCEL_REJECTED", "F_AT_REST", "F_MAG_UNAVAILABLE", "F_LARGE_DT",
-    "F_REINITIALISED",
+    "F_REINITIALISED", "E_TILT_N", "E_TILT_E", "E_HEADING", "E_BIAS",
 ]
 
 # ----------------------------------------------------------------------------------- state
@@ -165,10 +167,12 @@ MEKF_OUT_DTYPE = np.dtype([
 # the one-sample path's buffer: state, parameters and outputs in one record, so a call unboxes one array
 MEKF_BUFFER_DTYPE = np.dtype([("state", MEKF_STATE_DTYPE), ("par", MEKF_PARAMS_DTYPE), ("out", MEKF_OUT_DTYPE)])
 
-# error-state component masks for scalar_update_6's zero_mask
-M_TILT = 1 | 2
-M_HEADING = 4
-M_BIAS = 8 | 16 | 32
+# error-state components (module docstring): tilt δθ_N, δθ_E; heading δθ_D; gyro bias δb (3)
+E_TILT_N, E_TILT_E, E_HEADING, E_BIAS = 0, 1, 2, 3
+# error-state component masks for scalar_update_6's zero_mask (bit i = component i)
+M_TILT = (1 << E_TILT_N) | (1 << E_TILT_E)
+M_HEADING = 1 << E_HEADING
+M_BIAS = 0b111 << E_BIAS
 
 
 @intrinsic
@@ -428,7 +432,7 @@ def _learn_bias_at_rest(st, par, dt, gx, gy, gz):
         gi = gx if i == 0 else (gy if i == 1 else gz)
         bi = a3 if i == 0 else (a4 if i == 1 else a5)
         nu = gi - b[i] - bi
-        d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, 3 + i, 1.0, nu, r, 0)
+        d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, E_BIAS + i, 1.0, nu, r, 0)
         a0 += d0
         a1 += d1
         a2 += d2
@@ -510,11 +514,11 @@ def _tilt_update(st, par, dt, at_rest, ax, ay, az):
         r = (par.acc_noise_m_s2 / g_ref) ** 2 + phi * phi + r_motion
     # never heading; and no bias learning while |f| is off g (a push would be read as bias)
     mask = M_HEADING if abs(fnorm - g_ref) < par.rest_acc_th_m_s2 else (M_HEADING | M_BIAS)
-    a0, a1, a2, a3, a4, a5 = scalar_update_6(st.P, 1, 1.0, nu_n, r, mask)
+    a0, a1, a2, a3, a4, a5 = scalar_update_6(st.P, E_TILT_E, 1.0, nu_n, r, mask)
     # second component: innovation re-evaluated after the first correction (sequential update); the two
     # corrections are applied together
     nu_e2 = nu_e + a0
-    d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, 0, -1.0, nu_e2, r, mask)
+    d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, E_TILT_N, -1.0, nu_e2, r, mask)
     _apply_correction(st, par, a0 + d0, a1 + d1, a2 + d2, a3 + d3, a4 + d4, a5 + d5)
     st.acc_since_accept_s = 0.0
     return 0
@@ -684,9 +688,9 @@ def _heading_update(st, par, dt, rate, valid, at_rest, moved_at_rest, mx, my, mz
             mn, me, md = rotate_to_ned(st.q[0], st.q[1], st.q[2], st.q[3], mx, my, mz)
         mnorm = math.sqrt(mx * mx + my * my + mz * mz)
         res, alpha, r = mag.heading_measurement(st.mag, par.mag, dt, rate, at_rest, moved_at_rest,
-                                                mn, me, md, mnorm, 0.0, st.P[2, 2])
+                                                mn, me, md, mnorm, 0.0, st.P[E_HEADING, E_HEADING])
         if res == mag.MAG_USE:
-            d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, 2, -1.0, alpha, r, M_TILT)
+            d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, E_HEADING, -1.0, alpha, r, M_TILT)
             _apply_correction(st, par, d0, d1, d2, d3, d4, d5)
             used = True
         elif res == mag.MAG_REJECTED:
@@ -730,8 +734,8 @@ def _fill_outputs(st, par, gx, gy, gz, out):
         sy = 0.0
     P = st.P
     sig = out.sigma_rpy_rad
-    sig[0], sig[1] = tilt_sigma(cy, sy, P[0, 0], P[0, 1], P[1, 1])
-    sig[2] = math.sqrt(max(P[2, 2], 0.0))
+    sig[0], sig[1] = tilt_sigma(cy, sy, P[E_TILT_N, E_TILT_N], P[E_TILT_N, E_TILT_E], P[E_TILT_E, E_TILT_E])
+    sig[2] = math.sqrt(max(P[E_HEADING, E_HEADING], 0.0))
     out.gyro_bias_rad_s[0] = b[0]
     out.gyro_bias_rad_s[1] = b[1]
     out.gyro_bias_rad_s[2] = b[2]
@@ -782,21 +786,25 @@ def mekf_step(st, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, ou
 
 @njit(cache=True)
 def mekf_step_full(buf, t_s, gyro, acc, mag_ut, sample_flags):
-    """`mekf_step` on the 1-element MEKF_BUFFER_DTYPE array `buf` for one sample's (3,) vectors, plus the ZYX
-    Euler angles in its out.euler_rad (the one-sample path; batch runs skip them). Returns BAD_SHAPE if a
-    vector does not have 3 elements (nothing changed)."""
+    """`mekf_step` on the 1-element MEKF_BUFFER_DTYPE array `buf` for one sample's (3,) vectors (the one-sample
+    path). Leaves out.euler_rad: `fill_euler` fills it when someone reads the angles (publishers do, at their
+    rates, not at the sample rate). Returns BAD_SHAPE if a vector does not have 3 elements (nothing changed)."""
     if gyro.shape[0] != 3 or acc.shape[0] != 3 or mag_ut.shape[0] != 3:
         return BAD_SHAPE
     b = borrowed(buf)[0]   # the caller holds buf for the call: no reference counting in the step
-    out = b.out
-    f = mekf_step(b.state, b.par, t_s, gyro[0], gyro[1], gyro[2], acc[0], acc[1], acc[2],
-                  mag_ut[0], mag_ut[1], mag_ut[2], sample_flags, out)
-    if not f & NEEDS_INIT:
-        roll, pitch, yaw = euler_zyx(out.q[0], out.q[1], out.q[2], out.q[3])
-        out.euler_rad[0] = roll
-        out.euler_rad[1] = pitch
-        out.euler_rad[2] = yaw
-    return f
+    return mekf_step(b.state, b.par, t_s, gyro[0], gyro[1], gyro[2], acc[0], acc[1], acc[2],
+                     mag_ut[0], mag_ut[1], mag_ut[2], sample_flags, b.out)
+
+
+@njit(cache=True)
+def fill_euler(buf):
+    """The ZYX Euler angles (roll, pitch, yaw magnetic) of the output quaternion of the 1-element
+    MEKF_BUFFER_DTYPE array `buf` into its out.euler_rad."""
+    out = borrowed(buf)[0].out
+    roll, pitch, yaw = euler_zyx(out.q[0], out.q[1], out.q[2], out.q[3])
+    out.euler_rad[0] = roll
+    out.euler_rad[1] = pitch
+    out.euler_rad[2] = yaw
 
 
 @njit(cache=True)
@@ -827,31 +835,27 @@ def mekf_run(buf, scratch_out, t_s, gyro, acc, mag_ut, sample_flags, start, q_ou
     return n
 
 
-_FAST_STEP = []   # the entry point, once looked up (each Mekf() asks for it)
+_FAST = {}   # the entry points, once looked up (each Mekf() asks for them)
 
 
 def fast_step():
-    """`mekf_step_full` as a directly callable compiled entry point for one-sample calls (looked up once per
-    process).
-
-    Numba's dispatcher resolves argument types on every call (several times the filter's own arithmetic);
-    the entry point of the one compiled signature skips that. Arguments must then have exactly that
-    signature, which the entry point does not check (an int64 array would be read as float64): the buffer
-    is the caller's own, and the caller passes only float64 vectors (dtype checked; their length is checked
-    here). Falls back to the dispatcher if this numba version does not expose entry points (same code,
-    slower call)."""
-    if not _FAST_STEP:
-        _FAST_STEP.append(_entry_point())
-    return _FAST_STEP[0]
-
-
-def _entry_point():
-    try:
+    """`mekf_step_full` as a directly callable compiled entry point for one-sample calls (kernel_entry.py;
+    looked up once per process). The buffer is the caller's own, and the caller passes only float64 vectors
+    (dtype checked; their length is checked in the kernel)."""
+    if "step" not in _FAST:
         # the vectors in any layout (float64[:]): a sample's vectors may be strided views of a larger array
         vector = types.float64[:]
-        sig = (typeof(np.zeros(1, MEKF_BUFFER_DTYPE)), types.float64, vector, vector, vector, types.int64)
-        mekf_step_full.compile(sig)
-        return mekf_step_full.overloads[sig].entry_point
-    except Exception:  # pragma: no cover - numba internals moved
-        pass
-    return mekf_step_full  # pragma: no cover
+        _FAST["step"] = entry_point(mekf_step_full, (_buffer_type(), types.float64, vector, vector, vector,
+                                                     types.int64))
+    return _FAST["step"]
+
+
+def fast_fill_euler():
+    """`fill_euler` as a directly callable compiled entry point (as `fast_step`)."""
+    if "euler" not in _FAST:
+        _FAST["euler"] = entry_point(fill_euler, (_buffer_type(),))
+    return _FAST["euler"]
+
+
+def _buffer_type():
+    return typeof(np.zeros(1, MEKF_BUFFER_DTYPE))

@@ -157,16 +157,31 @@ class ThesisKfParams:
 
 DEFAULT_THESIS_KF_PARAMS = ThesisKfParams()
 
-# Flat indices into the 9×9 A of the entries `_predict` writes: −[ω×] twice, then −[m×], −[g×] (bias columns).
-_A_INDEX = np.array([9 * r + c for r, c in (
-    (0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1), (3, 4), (3, 5), (4, 3), (4, 5), (5, 3), (5, 4),
-    (0, 7), (0, 8), (1, 6), (1, 8), (2, 6), (2, 7), (3, 7), (3, 8), (4, 6), (4, 8), (5, 6), (5, 7))])
-# ... and into the 9×6 B: its −[m×], −[g×] blocks (rows 0–5, columns 0–2), in the same order as A's coupling.
-_B_INDEX = np.array([6 * r + c for r, c in (
-    (0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1), (3, 1), (3, 2), (4, 0), (4, 2), (5, 0), (5, 1))])
-_MAG = np.arange(0, 3)
-_ACC = np.arange(3, 6)
-_BOTH = np.arange(0, 6)
+# the state x = [mᵇ, gᵇ, b]: where each 3-vector starts; the noise input w = [δω, w_b]: where each starts
+X_MAG, X_GRAV, X_BIAS, N_STATE = 0, 3, 6, 9
+W_GYRO_NOISE, W_BIAS_DRIVE, N_NOISE = 0, 3, 6
+_M = slice(X_MAG, X_MAG + 3)
+_G = slice(X_GRAV, X_GRAV + 3)
+_B = slice(X_BIAS, X_BIAS + 3)
+_VECTORS = slice(X_MAG, X_GRAV + 3)     # the measured part: z = [m̃, −f̃], H = [I₆ 0]
+
+
+def _skew_entries(row: int, col: int) -> list[tuple[int, int]]:
+    """The six off-diagonal (row, column) entries of a 3×3 cross-product block whose corner is (row, col), in
+    the order (0,1) (0,2) (1,0) (1,2) (2,0) (2,1): −[v×] there is (v_z, −v_y, −v_z, v_x, v_y, −v_x)."""
+    return [(row + r, col + c) for r in range(3) for c in range(3) if r != c]
+
+
+# Flat indices into the 9×9 A of the entries `_predict` writes: −[ω×] on both vectors, then their coupling to
+# the bias −[m×], −[g×]; and into the 9×6 B: its −[m×], −[g×] blocks, in the same order as A's coupling.
+_A_INDEX = np.array([N_STATE * r + c for r, c in (
+    _skew_entries(X_MAG, X_MAG) + _skew_entries(X_GRAV, X_GRAV)
+    + _skew_entries(X_MAG, X_BIAS) + _skew_entries(X_GRAV, X_BIAS))])
+_B_INDEX = np.array([N_NOISE * r + c for r, c in (
+    _skew_entries(X_MAG, W_GYRO_NOISE) + _skew_entries(X_GRAV, W_GYRO_NOISE))])
+_MAG = np.arange(X_MAG, X_MAG + 3)
+_ACC = np.arange(X_GRAV, X_GRAV + 3)
+_BOTH = np.arange(X_MAG, X_GRAV + 3)
 
 
 # after a calibration change the reference dip follows the filtered field this long: the field state
@@ -189,18 +204,19 @@ class ThesisKf:
         self._declination = float(declination_rad)
         self._r = np.diag(p.r_diag)
         self._inv_tau = 1.0 / p.bias_time_constant_s
-        self._x = np.zeros(9)
-        self._p = np.zeros((9, 9))
-        self._a = np.zeros((9, 9))      # preallocated continuous-time A
-        self._a[6, 6] = self._a[7, 7] = self._a[8, 8] = -self._inv_tau  # Gauss–Markov bias
-        self._b = np.zeros((9, 6))      # preallocated noise input matrix B
-        self._b[6, 3] = self._b[7, 4] = self._b[8, 5] = self._inv_tau
+        self._x = np.zeros(N_STATE)
+        self._p = np.zeros((N_STATE, N_STATE))
+        self._a = np.zeros((N_STATE, N_STATE))      # preallocated continuous-time A
+        self._b = np.zeros((N_STATE, N_NOISE))      # preallocated noise input matrix B
+        for i in range(3):                          # Gauss–Markov bias: −b/τ_w + w_b/τ_w
+            self._a[X_BIAS + i, X_BIAS + i] = -self._inv_tau
+            self._b[X_BIAS + i, W_BIAS_DRIVE + i] = self._inv_tau
         self._q_diag = p.q_diag
         self._qdt_dt, self._qdt = math.nan, self._q_diag
         self._n_updates = 0
         self._cov_ned = (math.nan,) * 4
         self._n_sigma = 0
-        self._eye9 = np.eye(9)
+        self._eye9 = np.eye(N_STATE)
         self._fixed_dip = None
         if p.mag_reference_ned_ut is not None:
             n, e, d = p.mag_reference_ned_ut
@@ -218,7 +234,7 @@ class ThesisKf:
         self._relearn_t0 = math.nan
         self._rate_list = [0.0, 0.0, 0.0]
         self._x[:] = 0.0
-        self._x[6:9] = self.params.initial_bias_rad_s
+        self._x[_B] = self.params.initial_bias_rad_s
         self._p[:] = 0.0
         self._set_dip(self._fixed_dip if self._fixed_dip is not None else 0.0)
 
@@ -302,14 +318,14 @@ class ThesisKf:
         if not (gn > 0.1 * STANDARD_GRAVITY_M_S2 and mn > 0.0) or np.linalg.norm(np.cross(g, m)) < 1e-3 * gn * mn:
             return False  # no usable gravity, or field parallel to gravity: attitude undefined
         p = self.params
-        self._x[0:3] = m
-        self._x[3:6] = g
+        self._x[_M] = m
+        self._x[_G] = g
         if not keep_bias:
-            self._x[6:9] = p.initial_bias_rad_s
-        bias_var = self._p[6:9, 6:9].copy() if keep_bias else np.eye(3) * p.initial_bias_sigma_rad_s**2
+            self._x[_B] = p.initial_bias_rad_s
+        bias_var = self._p[_B, _B].copy() if keep_bias else np.eye(3) * p.initial_bias_sigma_rad_s**2
         self._p[:] = 0.0
-        self._p[0:6, 0:6] = self._r   # P₀ = R for the vectors (they come straight from one measurement)
-        self._p[6:9, 6:9] = bias_var
+        self._p[_VECTORS, _VECTORS] = self._r   # P₀ = R for the vectors (they come straight from one measurement)
+        self._p[_B, _B] = bias_var
         self._t_last = t
         self._t_init = t
         self._settled = False
@@ -325,7 +341,7 @@ class ThesisKf:
         """
         x, a = self._x, self._a
         wx, wy, wz = self._rate_list
-        mx, my, mz, gx, gy, gz = x[0:6].tolist()
+        mx, my, mz, gx, gy, gz = x[_VECTORS].tolist()
         # A: −[ω×] on both vector blocks, −[v×] coupling each vector to the bias (one `put`).
         coupling = (mz, -my, -mz, mx, my, -mx, gz, -gy, -gz, gx, gy, -gx)
         a.put(_A_INDEX, (wz, -wy, -wz, wx, wy, -wx, wz, -wy, -wz, wx, wy, -wx) + coupling)
@@ -348,11 +364,11 @@ class ThesisKf:
         if len(idx) == 6:
             m0, m1, m2 = mag
             a0, a1, a2 = accel
-            y = np.array((m0, m1, m2, -a0, -a1, -a2)) - x[0:6]
-            pht = p[0:6]                                            # H P (6×9)
-            s = p[0:6, 0:6] + self._r
+            y = np.array((m0, m1, m2, -a0, -a1, -a2)) - x[_VECTORS]
+            pht = p[_VECTORS]                                       # H P (6×9)
+            s = p[_VECTORS, _VECTORS] + self._r
         else:
-            y = np.array(mag if idx[0] == 0 else [-v for v in accel]) - x[idx]
+            y = np.array(mag if idx[0] == X_MAG else [-v for v in accel]) - x[idx]
             pht = p[idx]
             s = p[np.ix_(idx, idx)] + self._r[np.ix_(idx, idx)]
         _, k_t, info = _dposv(s, pht)                               # Kᵀ = S⁻¹ H P (S symmetric positive definite)
@@ -373,7 +389,7 @@ class ThesisKf:
         self._n_inv_t = np.linalg.inv(thesis_matrix(ref_mag, ref_f, self.params.wahba_version)).T.tolist()
 
     def _learn_dip(self) -> None:
-        m, g = self._x[0:3], self._x[3:6]
+        m, g = self._x[_M], self._x[_G]
         s = float(m @ g) / (math.sqrt(float(m @ m) * float(g @ g)))
         self._set_dip(math.asin(max(-1.0, min(1.0, s))))
 
@@ -384,7 +400,7 @@ class ThesisKf:
 
     def _attitude_rows(self):
         """`attitude_dcm` as three row tuples (scalar maths: a 3×3 is cheaper in floats than in numpy)."""
-        mx, my, mz, gx, gy, gz = self._x[0:6].tolist()
+        mx, my, mz, gx, gy, gz = self._x[_VECTORS].tolist()
         mn = 1.0 / math.sqrt(mx * mx + my * my + mz * mz)
         gn = -1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)          # f = −g
         c = thesis_dcm_from_floats(mx * mn, my * mn, mz * mn, gx * gn, gy * gn, gz * gn, self._n_inv_t,
@@ -413,7 +429,7 @@ class ThesisKf:
                 self._settled = True
             else:
                 flags |= _F_INITIALISING
-        b0, b1, b2 = self._x[6:9].tolist()
+        b0, b1, b2 = self._x[_B].tolist()
         r0, r1, r2 = self._rate_list
         flags_enum = _FLAGS.get(flags)
         if flags_enum is None:
@@ -452,9 +468,10 @@ class ThesisKf:
     def _attitude_cov_ned(self) -> tuple[float, float, float, float]:
         """Covariance (pxx, pxz, pzz, pyy; rad²) of the NED rotation error of the optimal two-vector solution
         given the filtered vectors' direction variances (from P), reference mⁿ = [cos δ, 0, sin δ], gⁿ = [0, 0, 1]."""
-        mx, my, mz, gx, gy, gz = self._x[0:6].tolist()
+        mx, my, mz, gx, gy, gz = self._x[_VECTORS].tolist()
         (p00, p01, p02, _, _, _), (_, p11, p12, _, _, _), (_, _, p22, _, _, _), \
-            (_, _, _, p33, p34, p35), (_, _, _, _, p44, p45), (_, _, _, _, _, p55) = self._p[0:6, 0:6].tolist()
+            (_, _, _, p33, p34, p35), (_, _, _, _, p44, p45), (_, _, _, _, _, p55) = \
+            self._p[_VECTORS, _VECTORS].tolist()
         mm = mx * mx + my * my + mz * mz
         gg = gx * gx + gy * gy + gz * gz
         # Direction variance per perpendicular axis: (tr P − radial part vᵀPv/|v|²) / 2 / |v|².
@@ -475,7 +492,7 @@ class ThesisKf:
         return AttitudeEstimate(
             t_s=t, q_wxyz=np.array([1.0, 0.0, 0.0, 0.0]), roll_rad=math.nan, pitch_rad=math.nan,
             yaw_rad=math.nan, heading_mag_rad=math.nan, heading_true_rad=math.nan, rate_body_rad_s=nan3,
-            gyro_bias_rad_s=self._x[6:9].copy(), sigma_rpy_rad=np.full(3, math.pi),
+            gyro_bias_rad_s=self._x[_B].copy(), sigma_rpy_rad=np.full(3, math.pi),
             flags=EstimateFlags.INITIALISING | EstimateFlags(extra),
         )
 

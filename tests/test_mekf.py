@@ -143,6 +143,39 @@ def test_step_view_reads_the_same_estimate_as_update_and_snapshots_are_frozen():
         _assert_same_estimate(snap, want)
 
 
+def test_the_view_follows_a_batch_that_initialised_the_filter():
+    """`run_batch` may initialise the filter; `step` then continues it, and its view reads the estimate (not the
+    identity of a filter that has not initialised)."""
+    t, g, a, m, _ = _static_samples(1.0, 100.0, seed=14)
+    ref, hot = make_estimator("mekf"), make_estimator("mekf")
+    hot.run_batch(t[:50], g[:50], a[:50], m[:50])
+    for i in range(50):
+        ref.update(make_sample(t[i], g[i], a[i], m[i]))
+    for i in range(50, 60):
+        s = make_sample(t[i], g[i], a[i], m[i])
+        want = ref.update(s)
+        _assert_same_estimate(hot.step(s), want)
+    assert not np.array_equal(want.q_wxyz, [1.0, 0.0, 0.0, 0.0])
+
+
+def test_the_angles_read_from_the_view_are_those_of_its_latest_quaternion():
+    """The one-sample step leaves the Euler angles to be filled when read: every read, from the view or a
+    snapshot, is the ZYX angles of the latest quaternion (scipy), never those of an earlier step."""
+    t, g, a, m, _ = _static_samples(1.0, 100.0, seed=15)
+    g = g + 0.3 * np.sin(np.arange(len(t)) / 10.0)[:, None]    # turning: the angles change every step
+    est = make_estimator("mekf", declination_rad=0.2)
+    for i in range(len(t)):
+        view = est.step(make_sample(t[i], g[i], a[i], m[i]))
+        if i % 7:
+            continue
+        yaw, pitch, roll = Rotation.from_quat(np.roll(view.q_wxyz, -1)).as_euler("ZYX")
+        snap = view.snapshot() if i % 2 else None
+        assert math.isclose(view.roll_rad, roll, abs_tol=1e-12) and math.isclose(view.pitch_rad, pitch, abs_tol=1e-12)
+        assert math.isclose(view.yaw_rad, yaw, abs_tol=1e-12)
+        if snap is not None:
+            assert (snap.roll_rad, snap.pitch_rad, snap.yaw_rad) == (view.roll_rad, view.pitch_rad, view.yaw_rad)
+
+
 def test_gyro_bias_is_learned_at_rest():
     bias_dps = (0.5, -0.3, 0.8)
     t, g, a, m, truth = _static_samples(20.0, 200.0, bias_dps=bias_dps, seed=1)
