@@ -189,8 +189,9 @@ class InsParams:
     yaw_reset_spacing_s: float = 20.0
     """... at least this far apart, s."""
     heading_confirm_gsf_sigma_rad: float = 5.0 * _DEG
-    """Without a trusted magnetometer the filter's yaw σ is kept at least the GNSS yaw's until a GNSS yaw this
-    accurate has confirmed the filter's heading (within their joint 3σ): a linearised filter pulled in from tens of
+    """Without a trusted magnetometer (calibration unknown or worse than 3°, or rejected since the heading was last
+    confirmed) the filter's yaw σ is kept at least the GNSS yaw's until a GNSS yaw this accurate has confirmed the
+    filter's heading (within their joint 3σ): a linearised filter pulled in from tens of
     degrees shrinks its σ faster than its error. ArduPilot's compass learning waits for the same 5°
     (`Compass_learn.cpp`, YAW_ACCURACY_THRESHOLD_DEG)."""
     published_yaw_slew_rad_s: float = 2.0 * _DEG
@@ -701,6 +702,9 @@ class Ins:
             # the GNSS yaw confirms the filter's heading: its gyro bias was learned with a right heading
             self._confirmed_gyro_bias = x["gyro_bias_rad_s"].copy()
             self._confirmed_accel_bias = x["accel_bias_m_s2"].copy()
+        if d.yaw_var_floor_rad2 > 0.0:
+            # the magnetometer was just rejected: the heading it held is unconfirmed again (the hold below)
+            self._heading_confirmed = False
         if d.yaw_var_floor_rad2 > P[2, 2]:
             P[2, 2] = d.yaw_var_floor_rad2
             self.heading_interventions += 1
@@ -708,7 +712,8 @@ class Ins:
                         "iron changed; magnetometer rejected", math.degrees(self._monitor.lowpassed_innovation_rad))
         if d.reset_yaw_to_rad is not None:
             self._reset_yaw(d.reset_yaw_to_rad - yaw, d.reset_yaw_var_rad2)
-        elif not self._heading_confirmed and gsf_valid and p.calibration_sigma_rad > self._monitor.trusted_sigma_rad:
+        elif not self._heading_confirmed and gsf_valid and (p.calibration_sigma_rad > self._monitor.trusted_sigma_rad
+                                                            or self._monitor.mag_rejected):
             if gsf_var < p.heading_confirm_gsf_sigma_rad ** 2 \
                     and wrap_pi(gsf_yaw - yaw) ** 2 <= self._monitor.gate_sigma ** 2 * (P[2, 2] + gsf_var):
                 self._heading_confirmed = True
