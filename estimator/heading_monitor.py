@@ -52,11 +52,12 @@ def _finite(value, shape) -> np.ndarray:
     return a
 
 
-def _positive_definite(value, n: int) -> np.ndarray:
+def _positive_definite(value, n: int, semi: bool = False) -> np.ndarray:
     a = _finite(value, (n, n))
     a = 0.5 * (a + a.T)
-    if np.any(np.linalg.eigvalsh(a) <= 0.0):
-        raise ValueError("learned iron covariance must be positive definite")
+    low = np.linalg.eigvalsh(a)
+    if np.any(low < -1e-12 * max(1.0, float(np.max(np.abs(a))))) if semi else np.any(low <= 0.0):
+        raise ValueError("learned iron covariance must be positive " + ("semi-definite" if semi else "definite"))
     return a
 
 
@@ -90,7 +91,7 @@ class IronLearner:
         off = _finite(offset_ut, (3,))
         cov = _positive_definite(cov_ut2, 3)
         soft = None if soft_iron is None else _finite(soft_iron, (3, 3))
-        s_cov = None if soft_cov is None else _positive_definite(soft_cov, 9)
+        s_cov = None if soft_cov is None else _positive_definite(soft_cov, 9, semi=True)   # 0: soft iron not learned
         if soft is not None and abs(np.linalg.det(soft)) < 1e-3:
             raise ValueError("learned soft iron is singular")
         self.reset()
