@@ -254,7 +254,12 @@ class LearnedIron:
         h = float(self.horizontal_field_ut())
         if not (math.isfinite(h) and h > 1.0):
             return None
-        iron = math.sqrt(max(float(np.max(np.diag(cov)[:2])), 0.0)) / h
+        # the learned iron's heading σ from its whole covariance when the estimator knows the field (with the soft
+        # iron learned, the hard iron alone is poorly known on a level vehicle while their combination is not)
+        fn = getattr(self.pipeline.estimator, "learned_iron_heading_sigma_rad", None)
+        iron = float(fn()) if callable(fn) else math.nan
+        if not math.isfinite(iron):
+            iron = math.sqrt(max(float(np.max(np.diag(cov)[:2])), 0.0)) / h
         old = calibration_heading_sigma_rad(current)
         if not math.isfinite(old):
             from ahrsd.estimator.ins import DEFAULT_INS_PARAMS, Ins

@@ -181,6 +181,18 @@ class IronLearner:
         return float(a @ self.cov @ a)
 
 
+    def level_heading_sigma_rad(self, field_ned_ut) -> float:
+        """The largest heading 1σ the learned iron's uncertainty leaves on a level vehicle, over every heading
+        (rad): what a calibration with this iron folded in can claim where it was learned."""
+        b = np.asarray(field_ned_ut, dtype=float)
+        worst = 0.0
+        for psi in np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False):
+            c, s = math.cos(psi), math.sin(psi)
+            c_bn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+            worst = max(worst, self.heading_variance(c_bn, b))
+        return math.sqrt(worst)
+
+
 @dataclass
 class MonitorDecision:
     mag_use: bool

@@ -435,6 +435,12 @@ class Ins:
         covariance of D's elements row by row (9×9; its prior where the motion has not observed it)."""
         return self._iron.soft_iron, self._iron.cov[3:, 3:].copy()
 
+    def learned_iron_heading_sigma_rad(self) -> float:
+        """The largest heading 1σ the learned iron leaves on a level vehicle at the filter's position (WMM), rad;
+        NaN before a position is known."""
+        field = self._earth_field_ned() if self._initialised and self._x["nav_ok"] > 0 else None
+        return math.nan if field is None else self._iron.level_heading_sigma_rad(field)
+
     def set_learned_iron(self, offset_ut, cov_ut2, soft_iron=None, soft_cov=None) -> None:
         """Start from a learned iron persisted earlier (same calibration): the hard iron and its covariance, and
         optionally the soft iron I + D and the 9×9 covariance of D (else D starts at its prior). Raises

@@ -63,6 +63,9 @@ def test_a_level_turning_vehicle_learns_the_horizontal_soft_iron():
     err, sig = _heading_errors_deg(learner, iron)
     assert np.max(np.abs(err)) < 0.3
     assert np.max(sig) < 0.3
+    # what an accepted calibration may claim: the same worst level σ, though the hard iron alone is known to µT only
+    assert math.degrees(learner.level_heading_sigma_rad(FIELD_NED_UT)) == pytest.approx(np.max(sig), rel=0.05)
+    assert np.max(learner.sigma_ut[0:2]) / math.hypot(*FIELD_NED_UT[0:2]) > math.radians(2.0)
     np.testing.assert_allclose(learner.soft_iron[:, 0:2], iron.soft_iron[:, 0:2], atol=0.01)
 
 
