@@ -14,8 +14,10 @@ the calibration or reset by the operator.
   momentary parameter MAG_LRN_ACT (for a ground station's parameter list). Refused while the autopilot
   reports armed (as the field calibration: TEMPORARILY_REJECTED, "Disarm to …") unless `allow_armed`.
 
-Folding the learned offset b (body) into the calibration m_cal = W·(m_raw − h), m_body = C·m_cal − b
-(C: body←sensor mounting): C·W·(m_raw − h) − b = C·W·(m_raw − (h + W⁻¹·Cᵀ·b)), so h' = h + W⁻¹·Cᵀ·b.
+Folding the learned offset b and soft iron I + D (body) into the calibration m_cal = W·(m_raw − h), m_body =
+(I + D)⁻¹·(C·m_cal − b) (C: body←sensor mounting): C·W·(m_raw − h) − b = C·W·(m_raw − (h + W⁻¹·Cᵀ·b)), so
+h' = h + W⁻¹·Cᵀ·b and W' = Cᵀ·(I + D)⁻¹·C·W. The soft iron is persisted beside the hard iron (optional keys
+`soft_iron`, `soft_cov`: a file without them restores the hard iron alone).
 """
 
 from __future__ import annotations
@@ -58,15 +60,23 @@ def calibration_key(calibration, mounting) -> str:
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
 
 
-def folded_hard_iron(model: MagModel, mounting, offset_ut) -> MagModel:
-    """The magnetometer model with a body-frame offset learned on top of it folded into its hard iron."""
+def folded_iron(model: MagModel, mounting, offset_ut, soft_iron=None) -> MagModel:
+    """The magnetometer model with the iron learned on top of it (body frame: hard iron b, soft iron I + D, the
+    estimator using (I + D)⁻¹·(C·W·(m − h) − b)) folded in: W' = Cᵀ·(I + D)⁻¹·C·W, h' = h + W⁻¹·Cᵀ·b."""
     c = np.eye(3) if mounting is None else np.asarray(mounting, float)
     shift = np.linalg.solve(model.soft_iron, c.T @ np.asarray(offset_ut, float))
-    return MagModel(model.hard_iron_ut + shift, model.soft_iron)
+    a = np.eye(3) if soft_iron is None else np.asarray(soft_iron, float)
+    return MagModel(model.hard_iron_ut + shift, c.T @ np.linalg.solve(a, c @ model.soft_iron))
 
 
 def _learns(estimator) -> bool:
     return callable(getattr(estimator, "learned_iron", None))
+
+
+def _soft(estimator) -> tuple[np.ndarray, np.ndarray]:
+    """The estimator's learned soft iron I + D and the 9×9 covariance of D (identity and zeros without one)."""
+    fn = getattr(estimator, "learned_soft_iron", None)
+    return fn() if callable(fn) else (np.eye(3), np.zeros((9, 9)))
 
 
 class LearnedIron:
@@ -121,7 +131,11 @@ class LearnedIron:
             self._write_current()
             return False
         try:
-            p.estimator.set_learned_iron(np.asarray(doc["offset_ut"], float), np.asarray(doc["cov_ut2"], float))
+            soft = doc.get("soft_iron")
+            soft_cov = doc.get("soft_cov")
+            p.estimator.set_learned_iron(np.asarray(doc["offset_ut"], float), np.asarray(doc["cov_ut2"], float),
+                                         None if soft is None else np.asarray(soft, float),
+                                         None if soft_cov is None else np.asarray(soft_cov, float))
         except (KeyError, TypeError, ValueError) as exc:
             log.warning("ignoring %s: %s", self.path, exc)
             return False
@@ -167,15 +181,17 @@ class LearnedIron:
         reset it. Returns (done, what happened)."""
         p = self.pipeline
         offset, cov = p.estimator.learned_iron()
-        if not np.any(np.abs(offset) > 0.0):
+        soft = _soft(p.estimator)[0]
+        if not (np.any(np.abs(offset) > 0.0) or np.any(soft != np.eye(3))):
             return False, "Learned iron: nothing learned yet"
         current = p.calibration
-        model = folded_hard_iron(current.mag, p.mounting, offset)
+        model = folded_iron(current.mag, p.mounting, offset, soft)
         heading_std = self._accepted_heading_std_deg(current, cov)     # the old offset's σ is inside it
         new = current.with_sensor("mag", model, method="learned-iron", heading_std_deg=heading_std,
                                   offset_std_deg=None if heading_std is None else 0.0,
                                   learned_iron_ut=offset.tolist(),
                                   learned_iron_sigma_ut=np.sqrt(np.diag(cov)).tolist(),
+                                  learned_soft_iron=soft.tolist(),
                                   before={"hard_iron_ut": current.mag.hard_iron_ut.tolist(),
                                           "soft_iron": current.mag.soft_iron.tolist()})
         self.apply_calibration(new)          # the daemon's one path: persist, swap, calibration_changed()
@@ -238,7 +254,12 @@ class LearnedIron:
         h = float(self.horizontal_field_ut())
         if not (math.isfinite(h) and h > 1.0):
             return None
-        iron = math.sqrt(max(float(np.max(np.diag(cov)[:2])), 0.0)) / h
+        # the learned iron's heading σ from its whole covariance when the estimator knows the field (with the soft
+        # iron learned, the hard iron alone is poorly known on a level vehicle while their combination is not)
+        fn = getattr(self.pipeline.estimator, "learned_iron_heading_sigma_rad", None)
+        iron = float(fn()) if callable(fn) else math.nan
+        if not math.isfinite(iron):
+            iron = math.sqrt(max(float(np.max(np.diag(cov)[:2])), 0.0)) / h
         old = calibration_heading_sigma_rad(current)
         if not math.isfinite(old):
             from ahrsd.estimator.ins import DEFAULT_INS_PARAMS, Ins
@@ -249,33 +270,35 @@ class LearnedIron:
             return None
         return math.degrees(math.hypot(old, iron))
 
-    def _current(self) -> tuple[np.ndarray, np.ndarray] | None:
+    def _current(self) -> tuple[np.ndarray, ...] | None:
+        """(hard iron, its covariance, soft iron I + D, the covariance of D) of the estimator, None without."""
         est = self.pipeline.estimator
-        return est.learned_iron() if _learns(est) else None
+        return (*est.learned_iron(), *_soft(est)) if _learns(est) else None
 
     def _changed(self) -> bool:
         cur = self._current()
         if cur is None:
             return False
-        return self._saved is None or not (np.array_equal(cur[0], self._saved[0])
-                                           and np.array_equal(cur[1], self._saved[1]))
+        return self._saved is None or not all(np.array_equal(a, b) for a, b in zip(cur, self._saved))
 
     def _publish_now(self) -> None:
         cur = self._current()
         if cur is None:
             values = (0.0, 0.0, 0.0, NOT_LEARNING_SD)
         else:
-            offset, cov = cur
+            offset, cov = cur[0], cur[1]
             values = (*(float(v) for v in offset), math.sqrt(max(float(np.max(np.diag(cov))), 0.0)))
         for name, v in zip(PARAM_NAMES, values):
             if math.isfinite(v):
                 self.publish(name, max(-MAX_PARAM_UT, min(MAX_PARAM_UT, v)))
 
     def _payload(self) -> bytes:
-        offset, cov = self._current()
-        self._saved = (offset.copy(), cov.copy())
+        cur = self._current()
+        self._saved = tuple(a.copy() for a in cur)
+        offset, cov, soft, soft_cov = cur
         doc = {"format": FILE_FORMAT, "schema_version": SCHEMA_VERSION, "calibration_key": self.key,
-               "offset_ut": offset.tolist(), "cov_ut2": cov.tolist(), "wall_time_s": time.time()}
+               "offset_ut": offset.tolist(), "cov_ut2": cov.tolist(), "soft_iron": soft.tolist(),
+               "soft_cov": soft_cov.tolist(), "wall_time_s": time.time()}
         return (json.dumps(doc, indent=1) + "\n").encode()
 
     def _write_current(self) -> None:

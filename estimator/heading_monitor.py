@@ -3,14 +3,18 @@ and what is its remaining (iron) error — run at the GNSS rate beside `ins`'s c
 
 Two small parts, each with a named state:
 
-`IronLearner`: a 3-state Kalman filter for the hard iron left after the calibration (body frame, µT), learned
-while the GNSS holds the heading: m_body = C_bnᵀ B_wmm + b + v, with C_bn the filter's attitude and B_wmm the
-World Magnetic Model at the filter's position. Every axis is observed, the vertical one through the WMM
-vertical intensity (what the back-stepping fit's vertical channel uses): a level vehicle learns the z offset
-from the known vertical field, the horizontal ones from the known heading. The noise carries the attitude
-uncertainty (J P_θθ Jᵀ, J = C_bnᵀ [B×]) and an allowance for what a hard iron cannot explain (unmodelled soft
-iron, local anomalies), inflated for its correlation time — compare ArduPilot's `COMPASS_LEARN=3`
-(`mag_cal_fixed_yaw`, one sample, no residual check) and EKF3/EKF2's body-field states.
+`IronLearner`: a 12-state linear Kalman filter for the iron left after the calibration, learned while the GNSS
+holds the heading: m_body = (I + D)·C_bnᵀ·B_wmm + b + v, with b the hard iron (body frame, µT), D the soft iron
+(3×3), C_bn the filter's attitude and B_wmm the World Magnetic Model at the filter's position — linear in (b, D)
+for a known attitude. The Earth field is known in magnitude and direction, so every combination the motion
+rotates is observed (the vertical one through the WMM vertical intensity, what the back-stepping fit's
+vertical channel uses): a level vehicle that turns learns b's horizontal part, the horizontal 2×2 block of D
+and D_zx, D_zy; D's third column multiplies the constant vertical field and is seen only together with b, so
+that split stays at its prior (and costs no heading while the vehicle stays level: the covariance carries their
+correlation); banking and pitching separate them. The noise carries the attitude uncertainty (J P_θθ Jᵀ,
+J = (I + D) C_bnᵀ [B×]) and an allowance for what the iron model does not explain (WMM and local anomalies),
+inflated for its correlation time — compare ArduPilot's `COMPASS_LEARN=3` (`mag_cal_fixed_yaw`: offsets only,
+one sample, no residual check) and EKF3/EKF2's body-field states (offsets only).
 
 `HeadingMonitor`: the magnetometer heading against the filter's heading (innovation, NIS) and against the
 Gaussian-sum GNSS yaw when it is valid (PX4 `mag_heading_consistent`, EKF3 yaw test ratio, EKF-GSF
@@ -29,6 +33,9 @@ import numpy as np
 
 from ahrsd.core.estimate import HeadingState
 
+N_IRON = 12
+"""IronLearner's states: the hard iron b (3, µT) then the soft iron D row by row (9)."""
+
 
 def wrap_pi(a: float) -> float:
     return (a + math.pi) % (2.0 * math.pi) - math.pi
@@ -38,68 +45,152 @@ def skew(v) -> np.ndarray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
+def _finite(value, shape) -> np.ndarray:
+    a = np.asarray(value, dtype=float).reshape(shape)
+    if not np.all(np.isfinite(a)):
+        raise ValueError("learned iron must be finite")
+    return a
+
+
+def _positive_definite(value, n: int, semi: bool = False) -> np.ndarray:
+    a = _finite(value, (n, n))
+    a = 0.5 * (a + a.T)
+    low = np.linalg.eigvalsh(a)
+    if np.any(low < -1e-12 * max(1.0, float(np.max(np.abs(a))))) if semi else np.any(low <= 0.0):
+        raise ValueError("learned iron covariance must be positive " + ("semi-definite" if semi else "definite"))
+    return a
+
+
 @dataclass
 class IronLearner:
-    """Learned hard iron on top of the calibration (body frame, µT) and its covariance (µT²)."""
+    """Learned iron on top of the calibration: the hard iron b (body frame, µT) and the soft iron D
+    (dimensionless, m = (I + D)·C_bnᵀ·B + b), with their joint covariance. `soft_prior_sigma` 0 learns the hard
+    iron alone (the soft-iron states stay pinned at zero)."""
 
     prior_sigma_ut: float
-    offset_ut: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    cov_ut2: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    soft_prior_sigma: float = 0.0
+    state: np.ndarray = field(default_factory=lambda: np.zeros(N_IRON))
+    cov: np.ndarray = field(default_factory=lambda: np.zeros((N_IRON, N_IRON)))
     updates: int = 0
 
     def __post_init__(self):
-        if not np.any(self.cov_ut2):
-            self.cov_ut2 = np.eye(3) * self.prior_sigma_ut ** 2
+        if not np.any(self.cov):
+            self.cov = self._prior_cov()
+
+    def _prior_cov(self) -> np.ndarray:
+        return np.diag(np.r_[np.full(3, self.prior_sigma_ut ** 2), np.full(9, self.soft_prior_sigma ** 2)])
 
     def reset(self) -> None:
-        self.offset_ut = np.zeros(3)
-        self.cov_ut2 = np.eye(3) * self.prior_sigma_ut ** 2
+        self.state = np.zeros(N_IRON)
+        self.cov = self._prior_cov()
         self.updates = 0
 
-    def set(self, offset_ut, cov_ut2) -> None:
-        off = np.asarray(offset_ut, dtype=float).reshape(3)
-        cov = np.asarray(cov_ut2, dtype=float).reshape(3, 3)
-        if not (np.all(np.isfinite(off)) and np.all(np.isfinite(cov))):
-            raise ValueError("learned iron must be finite")
-        cov = 0.5 * (cov + cov.T)
-        if np.any(np.linalg.eigvalsh(cov) <= 0.0):
-            raise ValueError("learned iron covariance must be positive definite")
-        self.offset_ut = off
-        self.cov_ut2 = cov
-        self.updates = 0
+    def set(self, offset_ut, cov_ut2, soft_iron=None, soft_cov=None) -> None:
+        """Start from a persisted hard iron and its covariance, and optionally the soft iron I + D and the 9×9
+        covariance of D row by row (without them the soft iron goes back to its prior)."""
+        off = _finite(offset_ut, (3,))
+        cov = _positive_definite(cov_ut2, 3)
+        soft = None if soft_iron is None else _finite(soft_iron, (3, 3))
+        s_cov = None if soft_cov is None else _positive_definite(soft_cov, 9, semi=True)   # 0: soft iron not learned
+        if soft is not None and abs(np.linalg.det(soft)) < 1e-3:
+            raise ValueError("learned soft iron is singular")
+        self.reset()
+        self.state[0:3] = off
+        self.cov[0:3, 0:3] = cov
+        if soft is not None:
+            self.state[3:] = (soft - np.eye(3)).reshape(9)
+            if s_cov is not None:
+                self.cov[3:, 3:] = s_cov
+
+    @property
+    def offset_ut(self) -> np.ndarray:
+        return self.state[0:3].copy()
+
+    @property
+    def cov_ut2(self) -> np.ndarray:
+        return self.cov[0:3, 0:3].copy()
 
     @property
     def sigma_ut(self) -> np.ndarray:
-        return np.sqrt(np.maximum(np.diag(self.cov_ut2), 0.0))
+        return np.sqrt(np.maximum(np.diag(self.cov[0:3, 0:3]), 0.0))
+
+    @property
+    def soft_iron(self) -> np.ndarray:
+        """I + D: what the body field is multiplied by before the hard iron adds."""
+        return np.eye(3) + self.state[3:].reshape(3, 3)
+
+    @property
+    def soft_iron_sigma(self) -> np.ndarray:
+        return np.sqrt(np.maximum(np.diag(self.cov[3:, 3:]), 0.0)).reshape(3, 3)
+
+    @property
+    def soft_iron_inverse(self) -> np.ndarray:
+        return np.linalg.inv(self.soft_iron)
+
+    def corrected(self, mag_ut) -> np.ndarray:
+        """The body field the learned iron leaves: (I + D)⁻¹·(m − b)."""
+        return self.soft_iron_inverse @ (np.asarray(mag_ut, dtype=float) - self.state[0:3])
+
+    @staticmethod
+    def _jacobian(field_body_ut) -> np.ndarray:
+        """∂m/∂(b, D): I for the hard iron; m_i = Σ_j D_ij B_j for the soft iron (row-major D)."""
+        h = np.zeros((3, N_IRON))
+        h[:, 0:3] = np.eye(3)
+        for i in range(3):
+            h[i, 3 + 3 * i:6 + 3 * i] = field_body_ut
+        return h
 
     def update(self, mag_body_ut, c_bn, field_ned_ut, p_att_rad2, noise_ut: float, inflate: float) -> float:
-        """One measurement m = C_bnᵀ B + b; returns its NIS (3 dof). `noise_ut`: 1σ per axis of what the hard iron
-        does not explain; `inflate`: the correlation-time factor applied to the whole measurement noise."""
+        """One measurement m = (I + D)·C_bnᵀ·B + b + v (linear in b and D for a known attitude); returns its NIS
+        (3 dof). `noise_ut`: 1σ per axis of what the iron does not explain; `inflate`: the correlation-time
+        factor applied to the whole measurement noise. A level vehicle turning sees the horizontal field rotate
+        in the body frame (the 2×2 horizontal block and D_zx, D_zy observed) but a constant vertical field, so D's
+        third column is seen only together with b: those combinations stay at their prior split."""
         c = np.asarray(c_bn, dtype=float)
         b_ned = np.asarray(field_ned_ut, dtype=float)
-        predicted = c.T @ b_ned + self.offset_ut
+        field_body = c.T @ b_ned
+        a = self.soft_iron
+        predicted = a @ field_body + self.state[0:3]
         nu = np.asarray(mag_body_ut, dtype=float) - predicted
-        j = c.T @ skew(b_ned)                      # ∂(C_trueᵀ B)/∂δθ with C_true = (I + [δθ×]) C
+        j = a @ c.T @ skew(b_ned)                  # ∂(A C_trueᵀ B)/∂δθ with C_true = (I + [δθ×]) C
         r = (j @ p_att_rad2 @ j.T + np.eye(3) * noise_ut ** 2) * inflate
-        s = self.cov_ut2 + r
+        h = self._jacobian(field_body)
+        ph = self.cov @ h.T
+        s = h @ ph + r
         s_inv = np.linalg.inv(s)
-        k = self.cov_ut2 @ s_inv
-        self.offset_ut = self.offset_ut + k @ nu
-        ikh = np.eye(3) - k
-        self.cov_ut2 = ikh @ self.cov_ut2 @ ikh.T + k @ r @ k.T
+        k = ph @ s_inv
+        self.state = self.state + k @ nu
+        ikh = np.eye(N_IRON) - k @ h
+        self.cov = ikh @ self.cov @ ikh.T + k @ r @ k.T
+        self.cov = 0.5 * (self.cov + self.cov.T)
         self.updates += 1
         return float(nu @ s_inv @ nu)
 
-    def heading_variance(self, c_bn, field_horizontal_ned) -> float:
-        """Variance of the magnetometer heading that the learned offset's uncertainty causes (rad²): the heading
-        of the horizontal field moves by g·δm_n, g = (−m_e, m_n, 0)/H², δm_n = −C_bn δb."""
-        mn, me = float(field_horizontal_ned[0]), float(field_horizontal_ned[1])
+    def heading_variance(self, c_bn, field_corrected_ned) -> float:
+        """Variance of the magnetometer heading that the learned iron's uncertainty causes (rad²): the heading of
+        the horizontal field moves by g·δm_n, g = (−m_e, m_n, 0)/H², δm_n = −C_bn (I + D)⁻¹ H δx with H the
+        measurement Jacobian at the corrected body field."""
+        m_ned = np.asarray(field_corrected_ned, dtype=float)
+        mn, me = float(m_ned[0]), float(m_ned[1])
         h2 = mn * mn + me * me
         if h2 <= 0.0:
             return math.inf
         g = np.array([-me, mn, 0.0]) / h2
-        a = g @ np.asarray(c_bn, dtype=float)
-        return float(a @ self.cov_ut2 @ a)
+        c = np.asarray(c_bn, dtype=float)
+        a = g @ c @ self.soft_iron_inverse @ self._jacobian(c.T @ m_ned)
+        return float(a @ self.cov @ a)
+
+
+    def level_heading_sigma_rad(self, field_ned_ut) -> float:
+        """The largest heading 1σ the learned iron's uncertainty leaves on a level vehicle, over every heading
+        (rad): what a calibration with this iron folded in can claim where it was learned."""
+        b = np.asarray(field_ned_ut, dtype=float)
+        worst = 0.0
+        for psi in np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False):
+            c, s = math.cos(psi), math.sin(psi)
+            c_bn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+            worst = max(worst, self.heading_variance(c_bn, b))
+        return math.sqrt(worst)
 
 
 @dataclass

@@ -153,20 +153,28 @@ class InsParams:
     """Run the magnetometer-free Gaussian-sum GNSS yaw (gsf_yaw.py) beside the filter: the heading monitor checks
     the magnetometer against it and resets the yaw to it."""
     mag_uncalibrated_tau_s: float = 10.0
-    """... of a magnetometer whose calibration is unknown, or whose iron is being learned, s (the iron's heading
-    error changes only as the vehicle turns)."""
+    """... of a magnetometer whose calibration is unknown and nothing learned yet, s (the iron's heading error
+    changes only as the vehicle turns)."""
     heading_monitor: bool = True
     """Check the magnetometer against the filter's heading innovations and the GNSS yaw, reject it when they
     disagree, reset the yaw to the GNSS yaw, learn the iron (heading_monitor.py). False: the magnetometer is
     always fused with its calibration's noise, as before."""
     iron_learning: bool = True
-    """Learn the hard iron left after the calibration while the GNSS holds the heading (IronLearner)."""
+    """Learn the hard and soft iron left after the calibration while the GNSS holds the heading (IronLearner)."""
     iron_prior_sigma_ut: float = 10.0
     """1σ prior of each axis of the learned hard iron, µT."""
-    iron_unmodelled_ut: float = 2.5
-    """1σ per axis of the field error a hard iron does not explain (residual soft iron, WMM and local
-    anomalies), µT: both the learner's measurement noise and, as heading, the floor of the learned
-    magnetometer's error."""
+    iron_soft_prior_sigma: float = 0.1
+    """1σ prior of each element of the learned soft iron D (m = (I + D)·B + b), dimensionless: vehicle iron
+    scales and couples the field by up to ~10 % (simulation/magnetic.py VehicleIron). 0: learn the hard iron
+    alone."""
+    iron_unmodelled_ut: float = 1.0
+    """1σ per axis of the field error the learned hard and soft iron do not explain (WMM and local anomalies,
+    the soft iron's third column while the vehicle stays level), µT: both the learner's measurement noise and,
+    as heading, the floor of the learned magnetometer's error. Learning the hard iron alone needed 2.5 µT (the
+    unlearned soft iron of a strong vehicle iron is a few µT)."""
+    iron_learned_tau_s: float = 3.0
+    """Correlation time of the heading error the learned iron leaves, s (the magnetometer update's noise is
+    inflated by τ/Δt, ins_core._mag_update)."""
     iron_tau_s: float = 5.0
     """Correlation time of that unexplained error while the vehicle moves, s (the learner's noise is inflated
     by τ/Δt between fixes)."""
@@ -181,8 +189,9 @@ class InsParams:
     yaw_reset_spacing_s: float = 20.0
     """... at least this far apart, s."""
     heading_confirm_gsf_sigma_rad: float = 5.0 * _DEG
-    """Without a trusted magnetometer the filter's yaw σ is kept at least the GNSS yaw's until a GNSS yaw this
-    accurate has confirmed the filter's heading (within their joint 3σ): a linearised filter pulled in from tens of
+    """Without a trusted magnetometer (calibration unknown or worse than 3°, or rejected since the heading was last
+    confirmed) the filter's yaw σ is kept at least the GNSS yaw's until a GNSS yaw this accurate has confirmed the
+    filter's heading (within their joint 3σ): a linearised filter pulled in from tens of
     degrees shrinks its σ faster than its error. ArduPilot's compass learning waits for the same 5°
     (`Compass_learn.cpp`, YAW_ACCURACY_THRESHOLD_DEG)."""
     published_yaw_slew_rad_s: float = 2.0 * _DEG
@@ -218,6 +227,12 @@ class InsParams:
         return float(s) if math.isfinite(s) and s >= 0.0 else float(self.mag_uncalibrated_sigma_rad)
 
     @property
+    def iron_soft_prior(self) -> float:
+        """1σ prior of the learned soft iron on top of the calibration in force: a calibration whose heading 1σ is
+        σ leaves soft iron of about σ (a scale or coupling error δ turns the heading by up to δ rad)."""
+        return min(float(self.iron_soft_prior_sigma), self.calibration_sigma_rad)
+
+    @property
     def mag_bias_tau(self) -> float:
         s = self.mag_calibration_sigma_rad
         return self.mag_bias_tau_s if math.isfinite(s) and s >= 0.0 else self.mag_uncalibrated_tau_s
@@ -243,6 +258,7 @@ class InsParams:
         p["sphere"] = 1.0 if self.earth_model == "sphere" else 0.0
         p["mag_moves_tilt"] = 1.0 if self.mag_moves_tilt else 0.0
         p["mag_use"] = 1.0
+        p["iron_soft_inv"] = np.eye(3)
         p["mag_bias_var_rad2"] = self.calibration_sigma_rad ** 2
         p["mag_bias_tau_s"] = self.mag_bias_tau
         p["level_noise_m_s2"] = self.level_noise_m_s2
@@ -357,7 +373,7 @@ class Ins:
         self._gsf = self._gsf_arr[0]
         self._par["gnss_yaw"] = 1.0 if self.params.gnss_yaw else 0.0
         self._step = core.fast_step(self._step_args_example())
-        self._iron = IronLearner(self.params.iron_prior_sigma_ut)
+        self._iron = IronLearner(self.params.iron_prior_sigma_ut, self.params.iron_soft_prior)
         self._iron_last_t = None
         self._iron_restored = False
         self._published = PublishedHeading(self.params.published_yaw_slew_rad_s)
@@ -390,7 +406,7 @@ class Ins:
         self._par["mag_use"] = 1.0
         self._par["mag_moves_tilt"] = 1.0 if p.mag_moves_tilt else 0.0
         self._par["mag_bias_var_rad2"] = p.calibration_sigma_rad ** 2
-        self._par["iron_ut"] = self._iron.offset_ut
+        self._apply_learned_iron()
 
     # ----------------------------------------------------------------------- Estimator protocol
     def reset(self) -> None:
@@ -405,22 +421,39 @@ class Ins:
         self._new_heading_checks()
 
     # ----------------------------------------------------------------------- learned iron (persisted by the daemon)
+    def _apply_learned_iron(self) -> None:
+        """The kernel removes the learned iron before its heading update: (I + D)⁻¹·(m − b)."""
+        self._par["iron_ut"] = self._iron.offset_ut
+        self._par["iron_soft_inv"] = self._iron.soft_iron_inverse
+
     def learned_iron(self) -> tuple[np.ndarray, np.ndarray]:
         """The hard iron learned on top of the calibration (body frame, µT) and its covariance (µT²)."""
         return self._iron.offset_ut.copy(), self._iron.cov_ut2.copy()
 
-    def set_learned_iron(self, offset_ut, cov_ut2) -> None:
-        """Start from a learned iron persisted earlier (same calibration). Raises ValueError when not finite or
-        the covariance is not positive definite."""
-        self._iron.set(offset_ut, cov_ut2)
+    def learned_soft_iron(self) -> tuple[np.ndarray, np.ndarray]:
+        """The soft iron learned on top of the calibration, I + D (m = (I + D)·B + b, body frame), and the
+        covariance of D's elements row by row (9×9; its prior where the motion has not observed it)."""
+        return self._iron.soft_iron, self._iron.cov[3:, 3:].copy()
+
+    def learned_iron_heading_sigma_rad(self) -> float:
+        """The largest heading 1σ the learned iron leaves on a level vehicle at the filter's position (WMM), rad;
+        NaN before a position is known."""
+        field = self._earth_field_ned() if self._initialised and self._x["nav_ok"] > 0 else None
+        return math.nan if field is None else self._iron.level_heading_sigma_rad(field)
+
+    def set_learned_iron(self, offset_ut, cov_ut2, soft_iron=None, soft_cov=None) -> None:
+        """Start from a learned iron persisted earlier (same calibration): the hard iron and its covariance, and
+        optionally the soft iron I + D and the 9×9 covariance of D (else D starts at its prior). Raises
+        ValueError when not finite or a covariance is not positive definite."""
+        self._iron.set(offset_ut, cov_ut2, soft_iron, soft_cov)
         self._iron_restored = True
-        self._par["iron_ut"] = self._iron.offset_ut
+        self._apply_learned_iron()
 
     def reset_learned_iron(self) -> None:
         """Forget the learned iron (a new calibration was accepted, or the operator reset it)."""
         self._iron.reset()
         self._iron_restored = False
-        self._par["iron_ut"] = self._iron.offset_ut
+        self._apply_learned_iron()
 
     def set_mag_calibration_sigma(self, sigma_rad: float) -> None:
         """A new magnetometer calibration is in force (the daemon's calibration swap): its predicted heading
@@ -429,6 +462,7 @@ class Ins:
         s = float(sigma_rad)
         self.params = replace(self.params, mag_calibration_sigma_rad=s if math.isfinite(s) and s >= 0.0 else math.nan)
         p = self.params
+        self._iron.soft_prior_sigma = p.iron_soft_prior     # takes effect at the learned iron's reset
         self._monitor = HeadingMonitor(p.calibration_sigma_rad, reentry_s=p.mag_reentry_s,
                                        max_resets=p.yaw_reset_max, reset_spacing_s=p.yaw_reset_spacing_s,
                                        resets=self._monitor.resets, last_reset_t_s=self._monitor.last_reset_t_s)
@@ -644,7 +678,7 @@ class Ins:
         c_bn = np.asarray(quat_to_dcm(x["q"]), dtype=float)
         yaw = math.atan2(c_bn[1, 0], c_bn[0, 0])
         yaw_var = float(P[2, 2])
-        m_body = x["mag_last_ut"] - self._iron.offset_ut
+        m_body = self._iron.corrected(x["mag_last_ut"])
         mag_yaw = math.nan
         mag_var = math.inf
         noise = 0.0
@@ -674,6 +708,9 @@ class Ins:
             # the GNSS yaw confirms the filter's heading: its gyro bias was learned with a right heading
             self._confirmed_gyro_bias = x["gyro_bias_rad_s"].copy()
             self._confirmed_accel_bias = x["accel_bias_m_s2"].copy()
+        if d.yaw_var_floor_rad2 > 0.0:
+            # the magnetometer was just rejected: the heading it held is unconfirmed again (the hold below)
+            self._heading_confirmed = False
         if d.yaw_var_floor_rad2 > P[2, 2]:
             P[2, 2] = d.yaw_var_floor_rad2
             self.heading_interventions += 1
@@ -681,7 +718,8 @@ class Ins:
                         "iron changed; magnetometer rejected", math.degrees(self._monitor.lowpassed_innovation_rad))
         if d.reset_yaw_to_rad is not None:
             self._reset_yaw(d.reset_yaw_to_rad - yaw, d.reset_yaw_var_rad2)
-        elif not self._heading_confirmed and gsf_valid and p.calibration_sigma_rad > self._monitor.trusted_sigma_rad:
+        elif not self._heading_confirmed and gsf_valid and (p.calibration_sigma_rad > self._monitor.trusted_sigma_rad
+                                                            or self._monitor.mag_rejected):
             if gsf_var < p.heading_confirm_gsf_sigma_rad ** 2 \
                     and wrap_pi(gsf_yaw - yaw) ** 2 <= self._monitor.gate_sigma ** 2 * (P[2, 2] + gsf_var):
                 self._heading_confirmed = True
@@ -694,7 +732,7 @@ class Ins:
             self._mag_var = mag_var - noise      # the slowly varying part: what trust and the heading state use
             self._par["mag_bias_var_rad2"] = mag_var - noise   # the white part is the kernel's own noise
             learned = self._iron.updates > 0 or self._iron_restored
-            self._par["mag_bias_tau_s"] = p.mag_uncalibrated_tau_s if learned else p.mag_bias_tau
+            self._par["mag_bias_tau_s"] = p.iron_learned_tau_s if learned else p.mag_bias_tau
         if p.iron_learning and self._monitor.learning and np.all(np.isfinite(m_body)) and self._x["nav_ok"] > 0:
             field = self._earth_field_ned()
             if field is not None:
@@ -702,7 +740,7 @@ class Ins:
                 self._iron_last_t = t_s
                 self._iron.update(x["mag_last_ut"], c_bn, field, P[0:3, 0:3],
                                   p.iron_unmodelled_ut, max(1.0, p.iron_tau_s / dt))
-                self._par["iron_ut"] = self._iron.offset_ut
+                self._apply_learned_iron()
         sig = math.sqrt(max(P[2, 2], 0.0))
         self._integrity = HeadingIntegrity(gsf_yaw, math.sqrt(gsf_var) if math.isfinite(gsf_var) else math.nan,
                                            gsf_valid, self._monitor.disagreement_rad, self._iron.offset_ut.copy(),

@@ -157,6 +157,7 @@ INS_PARAMS_DTYPE = np.dtype([
     ("mag_bias_var_rad2", np.float64),           # slowly varying part of the heading error (calibration)
     ("mag_bias_tau_s", np.float64),              # its correlation time: noise inflated by τ/Δt (_mag_update)
     ("iron_ut", np.float64, (3,)),               # learned hard iron removed before use (body frame)
+    ("iron_soft_inv", np.float64, (3, 3)),       # (I + D)⁻¹ of the learned soft iron, applied after the hard iron
     ("mag", mag.MAG_HEADING_PARAMS_DTYPE),       # the magnetometer heading check
     ("declination_rad", np.float64),             # true = magnetic + declination
     ("lever_arm_m", np.float64, (3,)),           # antenna position in the body frame relative to the IMU
@@ -436,9 +437,13 @@ def _mag_update(x, P, par, dt_epoch, rate):
     my = x.mag_last_ut[1]
     mz = x.mag_last_ut[2]
     if par.mag_enabled > 0.0 and par.mag_use > 0.0 and math.isfinite(mx):
-        mx -= par.iron_ut[0]
-        my -= par.iron_ut[1]
-        mz -= par.iron_ut[2]
+        hx = mx - par.iron_ut[0]
+        hy = my - par.iron_ut[1]
+        hz = mz - par.iron_ut[2]
+        a = par.iron_soft_inv
+        mx = a[0, 0] * hx + a[0, 1] * hy + a[0, 2] * hz
+        my = a[1, 0] * hx + a[1, 1] * hy + a[1, 2] * hz
+        mz = a[2, 0] * hx + a[2, 1] * hy + a[2, 2] * hz
         mn, me, md = rotate_to_ned(x.q[0], x.q[1], x.q[2], x.q[3], mx, my, mz)
         mnorm = math.sqrt(mx * mx + my * my + mz * mz)
         # the heading of the horizontal field depends on the tilt too: with m = H u + Z e_D (u the magnetic

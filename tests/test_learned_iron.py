@@ -20,6 +20,8 @@ OFFSET_UT = np.array([4.0, -6.5, 2.0])
 COV_UT2 = np.diag([1.2, 0.8, 3.0]) + 0.1
 SOFT = np.array([[1.05, 0.02, 0.0], [0.02, 0.97, 0.01], [0.0, 0.01, 1.01]])
 HARD_UT = np.array([10.0, -3.0, 5.0])
+LEARNED_SOFT = np.array([[1.04, -0.03, 0.01], [0.02, 0.95, 0.0], [-0.01, 0.02, 1.0]])   # I + D, body frame
+LEARNED_SOFT_COV = np.diag(np.linspace(1e-4, 9e-4, 9))
 
 
 def _calibration(hard_ut=HARD_UT):
@@ -63,6 +65,22 @@ def test_the_learned_iron_survives_a_restart_and_is_shown_read_only(tmp_path):
         stop_service(svc, loop)
 
 
+def test_the_learned_soft_iron_survives_a_restart_too(tmp_path):
+    CalibrationStore(tmp_path).save(_calibration())
+    svc, loop, _ = _start(tmp_path)
+    try:
+        svc.pipeline.estimator.set_learned_iron(OFFSET_UT, COV_UT2, LEARNED_SOFT, LEARNED_SOFT_COV)
+    finally:
+        stop_service(svc, loop)
+    svc, loop, _ = _start(tmp_path)
+    try:
+        soft, soft_cov = svc.pipeline.estimator.learned_soft_iron()
+        assert soft == pytest.approx(LEARNED_SOFT) and soft_cov == pytest.approx(LEARNED_SOFT_COV)
+        assert svc.pipeline.estimator.learned_iron()[0] == pytest.approx(OFFSET_UT)
+    finally:
+        stop_service(svc, loop)
+
+
 def test_a_learned_iron_of_another_calibration_is_discarded_and_a_new_calibration_resets_it(tmp_path):
     CalibrationStore(tmp_path).save(_calibration())
     svc, loop, _ = _start(tmp_path)
@@ -92,15 +110,17 @@ def test_accept_folds_the_learned_iron_into_the_hard_iron_and_resets_it(tmp_path
     svc, loop, texts = _start(tmp_path)
     try:
         svc.params.set("MNT_YAW_DEG", 30.0)           # a mounting, so the body → sensor rotation matters
-        svc.pipeline.estimator.set_learned_iron(OFFSET_UT, COV_UT2)
+        svc.pipeline.estimator.set_learned_iron(OFFSET_UT, COV_UT2, LEARNED_SOFT, LEARNED_SOFT_COV)
         c = svc.pipeline.mounting
         raw = np.array([[25.0, -4.0, 40.0], [-12.0, 18.0, 35.0], [3.0, 3.0, -20.0]])
-        # what ins used: the body field of the old calibration minus the learned offset (by hand)
-        used = np.array([c @ (SOFT @ (r - HARD_UT)) - OFFSET_UT for r in raw])
+        # what ins used: the body field of the old calibration less the learned hard iron, through the inverse of
+        # the learned soft iron (by hand)
+        used = np.array([np.linalg.inv(LEARNED_SOFT) @ (c @ (SOFT @ (r - HARD_UT)) - OFFSET_UT) for r in raw])
         assert svc.learned_iron.handle_command(_command(ACTION_ACCEPT)) == mavlink.MAV_RESULT_ACCEPTED
         new = svc.pipeline.calibration.mag
         assert np.array([c @ new.apply(r) for r in raw]) == pytest.approx(used, abs=1e-9)
-        assert new.soft_iron == pytest.approx(SOFT)
+        assert not np.allclose(new.soft_iron, SOFT)
+        assert svc.pipeline.estimator.learned_soft_iron()[0] == pytest.approx(np.eye(3))
         assert CalibrationStore(tmp_path).load().mag.hard_iron_ut == pytest.approx(new.hard_iron_ut)
         assert not np.any(svc.pipeline.estimator.learned_iron()[0])
         assert any("Learned iron accepted" in t for t in texts)

@@ -1,0 +1,80 @@
+"""The daemon's heading without a magnetometer calibration, as issue 28 measures it: `ahrsd record --sim boat`
+(its vehicle iron, no calibration stored), then `ahrsd run --replay REC --gnss-replay REC.gnss.csv
+--replay-speed 5`; every VISION_POSITION_ESTIMATE against the recording's truth: the share whose yaw is within 3σ
+of the VPE's own yaw variance after 30 s, and the yaw RMS from 180 s (targets ≥ 99 %, ≤ 1°).
+
+    python bench/daemon_heading.py --seconds 600 --seed 11
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from support.ahrsd_process import AHRSD, Daemon  # noqa: E402
+
+from ahrsd.drivers.recording import read_recording  # noqa: E402
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=600.0)
+    ap.add_argument("--seed", type=int, default=11)
+    ap.add_argument("--speed", type=float, default=5.0)
+    args = ap.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp_name:
+        tmp = Path(tmp_name)
+        rec = tmp / "boat.csv"
+        subprocess.run([str(AHRSD), "record", "--sim", "boat", "--seconds", str(args.seconds), "--seed",
+                        str(args.seed), "-o", str(rec), "--quiet"], check=True, capture_output=True)
+        d = Daemon(tmp, "--gnss-replay", str(rec.with_name("boat.gnss.csv")), "--replay-speed", str(args.speed),
+                   source=("--replay", str(rec)))
+        got: dict = {}
+        t0 = time.monotonic()
+        try:
+            while d.proc.poll() is None and time.monotonic() - t0 < args.seconds / args.speed * 4 + 300:
+                for k, v in d.collect(1.0).items():
+                    got.setdefault(k, []).extend(v)
+            for k, v in d.collect(0.5).items():
+                got.setdefault(k, []).extend(v)
+        finally:
+            d.stop()
+        texts = [m.text for _, m in got.get("STATUSTEXT", [])]
+        r = read_recording(rec)
+    truth = Rotation.from_quat(np.column_stack([r.extra[c] for c in ("truth_qx", "truth_qy", "truth_qz", "truth_qw")]))
+    index_us = {int(t * 1e6): i for i, t in enumerate(r.t_s)}
+    all_vpe = [m for _, m in got.get("VISION_POSITION_ESTIMATE", [])]
+    vpe = [m for m in all_vpe if int(m.usec) in index_us]      # stamped with the recording's t_s
+    if not vpe:
+        print("no VISION_POSITION_ESTIMATE received")
+        return 1
+    t = np.array([m.usec * 1e-6 for m in vpe]) - r.t_s[0]
+    rows = np.array([index_us[int(m.usec)] for m in vpe])
+    err = np.degrees(np.angle(np.exp(1j * (np.array([m.yaw for m in vpe]) - truth[rows].as_euler("ZYX")[:, 0]))))
+    sigma = np.degrees(np.sqrt([m.covariance[20] for m in vpe]))
+    after30, from180 = t >= 30.0, t >= 180.0
+    print(f"boat seed {args.seed}, {args.seconds:.0f} s at {args.speed:g}x, no magnetometer calibration: "
+          f"{len(vpe)} VPE, first at {t[0]:.1f} s")
+    print(f"  within 3σ of the VPE's yaw variance after 30 s: {np.mean(np.abs(err[after30]) <= 3 * sigma[after30]):.2%}")
+    if from180.any():
+        print(f"  yaw RMS from 180 s: {np.sqrt(np.mean(err[from180] ** 2)):.2f}° (median σ "
+              f"{np.median(sigma[from180]):.2f}°)")
+    for start in range(0, int(args.seconds), 60):
+        w = (t >= start) & (t < start + 60)
+        if w.any():
+            print(f"  {start:4d}–{start + 60:4d} s: RMS {np.sqrt(np.mean(err[w] ** 2)):5.2f}°, median σ "
+                  f"{np.median(sigma[w]):5.2f}°, beyond 3σ {np.mean(np.abs(err[w]) > 3 * sigma[w]):6.2%}")
+    print("  STATUSTEXT:", " | ".join(dict.fromkeys(texts)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
