@@ -16,8 +16,8 @@ from ahrsd.drivers.process_source import ProcessSource, pack, unpack
 
 
 def sim_cfg(**kw):
-    return SimpleNamespace(source="sim", reader="process", scenario="static", seed=1, errors="adis16405",
-                           data_ready="", **kw)
+    return SimpleNamespace(**{"source": "sim", "reader": "process", "scenario": "static", "seed": 1,
+                              "errors": "adis16405", "data_ready": "", **kw})
 
 
 def test_records_cross_the_pipe_unchanged():
@@ -169,3 +169,97 @@ def test_the_hand_over_never_blocks_the_reader_on_a_full_pipe(monkeypatch):
         if msg[0] == "samples":
             got += [s.counter for s in unpack(msg[1])]
     assert got == list(range(15))
+
+
+def test_the_simulated_chip_powers_on_when_its_stream_is_open():
+    """Sample 0 becomes ready when the chip can make it: a stream that takes a second to open (a producer
+    process importing the simulator) costs no sample; the first read a half period later gets sample 0."""
+    from ahrsd.drivers import registers as R
+    from ahrsd.drivers.simulated import SimulatedAdis16405
+    from ahrsd.simulation import open_stream
+
+    clock = _SettableClock()
+
+    def slow_to_open(rate_hz, start_s):
+        clock.t += 1.0
+        return open_stream("static", rate_hz=rate_hz, seed=2, errors="adis16405", start_s=start_s)
+
+    chip = SimulatedAdis16405(slow_to_open, clock=clock)
+    try:
+        clock.t += 0.5 / chip.sample_rate_hz
+        chip.transfer(R.BURST_COMMAND + bytes(R.BURST_DATA_BYTES), R.SPI_BURST_HZ, 0)
+        assert chip.sample_index == 0 and chip.stats["samples_lost"] == 0
+    finally:
+        chip.close()
+
+
+def _wait_ahead(stream, n: int, timeout_s: float = 120.0) -> None:
+    end = time.monotonic() + timeout_s
+    while stream.blocks_ahead() < n and time.monotonic() < end:
+        time.sleep(0.05)
+    assert stream.blocks_ahead() == n
+
+
+def test_a_starved_producer_costs_no_block_while_its_ring_lasts():
+    """The producer computes ahead into shared memory: stopped (a producer starved of CPU), the chip still
+    takes every block it had made without waiting — 24 blocks, 7.5 s of samples at 819.2 SPS — and its
+    blocks are the stream's own."""
+    import os
+    import signal
+    import threading
+
+    from ahrsd.drivers.sim_block_producer import SLOTS, ProducedStream
+    from ahrsd.simulation import open_stream
+
+    assert SLOTS >= 24
+    stream = ProducedStream("level-turns", 819.2, 4, "adis16405", 0.0, 256)
+    resumed = threading.Event()
+
+    def resume():
+        resumed.set()
+        os.kill(stream.pid, signal.SIGCONT)
+
+    safety = threading.Timer(30.0, resume)                 # a producer the chip waits on would hang the test
+    try:
+        _wait_ahead(stream, SLOTS)
+        os.kill(stream.pid, signal.SIGSTOP)
+        safety.start()
+        blocks = []
+        for _ in range(24):
+            blocks.append(stream.next_block(256))
+            if resumed.is_set():
+                break
+        assert not resumed.is_set() and len(blocks) == 24
+    finally:
+        safety.cancel()
+        os.kill(stream.pid, signal.SIGCONT)
+        stream.close()
+    here = open_stream("level-turns", rate_hz=819.2, seed=4, errors="adis16405", start_s=0.0)
+    for blk in blocks:
+        want = here.next_block(256)
+        np.testing.assert_array_equal(blk.t_s, want.t_s)
+        np.testing.assert_array_equal(blk.gyro_rad_s, want.gyro_rad_s)
+        np.testing.assert_array_equal(blk.mag_ut, want.mag_ut)
+        np.testing.assert_array_equal(blk.truth_q_wxyz, want.truth_q_wxyz)
+
+
+def test_a_realtime_reader_gives_its_chips_producer_its_own_priority():
+    """Nothing a SCHED_FIFO reader waits on may run below it: the reader thread that got real-time priority
+    gives the simulated chip's block producer the same (skipped where this machine refuses SCHED_FIFO)."""
+    import os
+
+    from ahrsd.drivers.source import open_source
+    from ahrsd.drivers.threaded_source import FIFO_PRIORITY
+
+    src = open_source(sim_cfg(reader="thread"))
+    try:
+        collect(src, 200)
+        c = src.counters()
+        if not c["reader_realtime_priority"]:
+            pytest.skip("SCHED_FIFO refused here: the reader runs at normal priority, like its producer")
+        (pid,) = src.chip.helper_pids()
+        assert c["reader_helpers_realtime"] == 1
+        assert os.sched_getscheduler(pid) == os.SCHED_FIFO
+        assert os.sched_getparam(pid).sched_priority == FIFO_PRIORITY
+    finally:
+        src.close()
