@@ -213,27 +213,23 @@ def test_a_starved_producer_costs_no_block_while_its_ring_lasts():
 
     assert SLOTS >= 24
     stream = ProducedStream("level-turns", 819.2, 4, "adis16405", 0.0, 256)
-    resumed = threading.Event()
+    blocks: list = []
 
-    def resume():
-        resumed.set()
-        os.kill(stream.pid, signal.SIGCONT)
+    def take():
+        for _ in range(24):
+            blocks.append(stream.next_block(256))
 
-    safety = threading.Timer(30.0, resume)                 # a producer the chip waits on would hang the test
     try:
         _wait_ahead(stream, SLOTS)
         os.kill(stream.pid, signal.SIGSTOP)
-        safety.start()
-        blocks = []
-        for _ in range(24):
-            blocks.append(stream.next_block(256))
-            if resumed.is_set():
-                break
-        assert not resumed.is_set() and len(blocks) == 24
+        taker = threading.Thread(target=take, daemon=True)
+        taker.start()
+        taker.join(30.0)                                   # a chip that waits on its producer waits for good
+        taken_while_stopped = len(blocks)
     finally:
-        safety.cancel()
         os.kill(stream.pid, signal.SIGCONT)
-        stream.close()
+        stream.close()                                     # (ends a taker still waiting: the producer is gone)
+    assert taken_while_stopped == 24
     here = open_stream("level-turns", rate_hz=819.2, seed=4, errors="adis16405", start_s=0.0)
     for blk in blocks:
         want = here.next_block(256)
