@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import gc
 import logging
+import os
 import select
 import time
 from types import SimpleNamespace
@@ -102,9 +103,14 @@ def _child(sensor_cfg: dict, faults, conn) -> None:
 
 class _Handover:
     """Every HANDOVER_S, from the reader thread: the samples read, the errors, and every COUNTERS_EVERY_S the
-    source's counters, through the pipe to the daemon. Never blocks the reader: it sends only while the pipe
-    has room (a stalled daemon leaves the samples in the reader's bounded buffer, which counts what it drops)
-    and at most CHUNK_SAMPLES a message."""
+    source's counters, through the pipe to the daemon. Never blocks the reader, and does a bounded amount of
+    work a tick: a stalled daemon leaves the samples queued (what the reader took in `pending`, the rest in the
+    reader's bounded buffer, drivers.threaded_source, which counts what it must drop), and once the daemon reads
+    again they go one message a tick, in order.
+
+    Why a send cannot block: the pipe is a Unix stream socket, which select() calls writable only while at most
+    a quarter of its send buffer is in use (Linux unix_writable), and no message is larger than another eighth
+    of it (`chunk_samples`), so a send made when select() says writable always fits."""
 
     CHUNK_SAMPLES = 256
 
@@ -113,6 +119,15 @@ class _Handover:
         self.next_send = self.next_counters = 0.0
         self.last_error, self.error_sent_at = None, -1.0
         self.pending: list[ImuSample] = []
+        self.chunk_samples = self.CHUNK_SAMPLES
+        try:
+            import socket
+
+            with socket.socket(fileno=os.dup(conn.fileno())) as sock:
+                sndbuf = sock.getsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF)
+            self.chunk_samples = max(1, min(self.CHUNK_SAMPLES, sndbuf // 8 // _RECORD.itemsize - 1))
+        except (OSError, AttributeError, ValueError):
+            pass
 
     def _room(self) -> bool:
         return bool(select.select([], [self.conn], [], 0)[1])
@@ -125,7 +140,7 @@ class _Handover:
             return
         self.next_send = now + HANDOVER_S
         conn, src = self.conn, self.src
-        if not self.realtime_sent and src.realtime_refused is not None:
+        if not self.realtime_sent and src.realtime_refused is not None and self._room():
             self.realtime_sent = True
             conn.send(("realtime", src.realtime_refused))
         if not self.pending:
@@ -136,8 +151,8 @@ class _Handover:
                 if (error != self.last_error or now - self.error_sent_at >= 0.1) and self._room():
                     conn.send(("error", *error))
                     self.last_error, self.error_sent_at = error, now
-        while self.pending and self._room():
-            chunk, self.pending = self.pending[:self.CHUNK_SAMPLES], self.pending[self.CHUNK_SAMPLES:]
+        if self.pending and self._room():       # one message a tick: a backlog costs the reader no read
+            chunk, self.pending = self.pending[:self.chunk_samples], self.pending[self.chunk_samples:]
             conn.send(("samples", pack(chunk)))
         if now >= self.next_counters and self._room():
             self.next_counters = now + COUNTERS_EVERY_S

@@ -259,3 +259,67 @@ def test_a_realtime_reader_gives_its_chips_producer_its_own_priority():
         assert os.sched_getparam(pid).sched_priority == FIFO_PRIORITY
     finally:
         src.close()
+
+
+def test_the_hand_over_sends_one_bounded_message_a_tick_and_never_blocks_a_real_pipe():
+    """A daemon that does not read: on a real socket pair the hand-over fills the pipe and then waits with
+    its backlog (every tick returns: the reader reads on), one samples message a tick at most; once the daemon
+    reads, all 20 000 samples arrive, in order, once."""
+    import multiprocessing
+    import threading
+
+    from ahrsd.drivers import process_source
+
+    class Reader:                                            # the reader's buffer, 20 000 samples read
+        realtime_refused = None
+
+        def __init__(self):
+            self.buf = [ImuSample(k * 0.001, np.zeros(3), np.zeros(3), np.zeros(3), 25.0, 5.0,
+                                  SampleFlags.NEW_DATA, 0, k) for k in range(20000)]
+
+        def poll(self):
+            out, self.buf = self.buf, []
+            return out
+
+        def counters(self):
+            return {}
+
+    class CountingEnd:                                       # the child's end, counting messages per tick
+        def __init__(self, conn):
+            self.conn, self.samples_messages = conn, 0
+
+        def fileno(self):
+            return self.conn.fileno()
+
+        def send(self, msg):
+            self.samples_messages += msg[0] == "samples"
+            self.conn.send(msg)
+
+    daemon_end, child_end = multiprocessing.Pipe()
+    end = CountingEnd(child_end)
+    h = process_source._Handover(end, Reader())
+    per_tick: list[int] = []
+
+    def ticks(n):
+        for _ in range(n):
+            before = end.samples_messages
+            h.next_send = 0.0
+            h.maybe_send()
+            per_tick.append(end.samples_messages - before)
+
+    ticker = threading.Thread(target=ticks, args=(300,), daemon=True)
+    ticker.start()
+    ticker.join(60.0)
+    assert not ticker.is_alive(), "the hand-over blocked on a full pipe"
+    assert max(per_tick) == 1
+    assert 0 < sum(per_tick) < 20000 / h.chunk_samples and h.pending     # the pipe filled: the rest waits
+    got: list[int] = []
+    for _ in range(10000):
+        while daemon_end.poll(0):
+            msg = daemon_end.recv()
+            if msg[0] == "samples":
+                got += [s.counter for s in unpack(msg[1])]
+        if len(got) == 20000:
+            break
+        ticks(1)
+    assert got == list(range(20000))
