@@ -146,16 +146,19 @@ def test_cpu_starvation_short_freeze_counts_the_gap_and_keeps_running(faulty):
     assert of_type(d, "HEARTBEAT")[-1][1].system_status == mavlink.MAV_STATE_ACTIVE
 
 
-@pytest.mark.xfail(strict=False, reason="issue #31, open: intermittent (4 of 5 runs here lost 480-620 samples "
-                   "for a 0.3 s stop of the daemon alone); suspected: the reader process's hand-over blocks in "
-                   "Connection.send once the socket's send buffer is full, so the reader stops reading")
 def test_a_stalled_daemon_loses_no_sample_its_reader_process_read(faulty):
+    """The daemon alone stopped for 0.3 s and for 2 s (its reader process reads on, the hand-over queues):
+    the 245 and 1638 samples the reader read while the daemon was stopped all arrive. What may be missed is
+    what the reader itself comes too late for on a loaded machine: a few samples, not the stop's."""
     d = faulty
     pump(d, 2.0)
-    before = _lost(d)
-    freeze(process_tree(d.proc.pid)[:1], 0.3)                            # the daemon alone: its reader reads on
-    pump(d, 2.5)
-    assert _lost(d) - before < 0.3 * 819 * 0.5                          # the 245 samples were not lost
+    for stop_s in (0.3, 2.0):
+        before = _lost(d)
+        freeze(process_tree(d.proc.pid)[:1], stop_s)                     # the daemon alone: its reader reads on
+        pump(d, 2.5)
+        # not the stop's 245 or 1638 samples (a reader that stops with the daemon loses them all); on a loaded
+        # machine the reader's own late wakes miss a few in the window (up to 67 seen at load 8)
+        assert _lost(d) - before < 0.5 * stop_s * 819, stop_s
 
 
 def test_cpu_starvation_long_freeze_reinitialises_and_says_so(faulty):
