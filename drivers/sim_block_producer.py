@@ -29,6 +29,7 @@ import mmap
 import os
 import subprocess
 import sys
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,6 +76,7 @@ class ProducedStream:
     """A simulation stream computed ahead in a child process (module doc); `next_block(n)` like the stream's."""
 
     computed_elsewhere = True          # the chip's reads never compute: the blocks are made ahead
+    waited_s = 0.0                     # how long the last next_block waited for the producer (ring empty)
 
     def __init__(self, scenario: str, rate_hz: float, seed: int, errors: str, start_s: float, block: int,
                  slots: int = SLOTS):
@@ -124,8 +126,11 @@ class ProducedStream:
     def next_block(self, n: int) -> ChipBlock:
         if n != self._block:
             raise ValueError(f"the producer computes {self._block}-sample blocks, {n} were asked")
-        if self._made == self._taken:
-            self._wait_for_blocks(None)        # the producer is behind: the caller counts the wait
+        self.waited_s = 0.0
+        if self._made == self._taken:          # the producer is behind: the chip counts the wait
+            t0 = time.monotonic()
+            self._wait_for_blocks(None)
+            self.waited_s = time.monotonic() - t0
         rows = self._ring[self._taken % self._slots]
         cols = {name: np.array(rows[:, s]) for name, s in _COL.items()}
         self._taken += 1

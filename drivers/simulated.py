@@ -530,11 +530,11 @@ class SimulatedAdis16405:
         if self._clock is None:
             return self._stream.next_block(BLOCK_SAMPLES)
         if getattr(self._stream, "computed_elsewhere", False):
-            # computed ahead in a producer process: a wait here is the producer short of CPU (counted: the
-            # read waits with it and samples are lost that the real chip, computing in silicon, would keep)
-            t0 = time.monotonic()
+            # computed ahead in a producer process: a wait (its ring empty) is the producer short of CPU,
+            # counted: the read waits with it and samples are lost that the real chip, computing in silicon,
+            # would keep
             blk = self._stream.next_block(BLOCK_SAMPLES)
-            wait_us = int((time.monotonic() - t0) * 1e6)
+            wait_us = int(self._stream.waited_s * 1e6)
             if wait_us > 1e6 / self._rate:
                 self.stats["producer_waits"] = self.stats.get("producer_waits", 0) + 1
             self.stats["producer_wait_max_us"] = max(self.stats.get("producer_wait_max_us", 0), wait_us)
