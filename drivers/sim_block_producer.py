@@ -200,6 +200,9 @@ def main(argv: list[str]) -> int:
             os.write(out, b"\x01")                         # after the rows: the pipe orders the two
         except BrokenPipeError:                            # the chip closed, or its process ended
             return 0
+        # a short sleep between blocks: at the reader's SCHED_FIFO priority, filling the ring in one go would
+        # run without blocking for longer than a unit's LimitRTTIME= allows (RLIMIT_RTTIME, systemd/ahrsd.service)
+        time.sleep(0.0001)
 
 
 if __name__ == "__main__":
