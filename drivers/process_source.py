@@ -72,7 +72,8 @@ def _child(sensor_cfg: dict, faults, conn) -> None:
     except Exception as exc:  # noqa: BLE001 - reported to the daemon, which says why it cannot start
         conn.send(("error", type(exc).__name__, str(exc)))
         return
-    conn.send(("hello", src.description, src.sample_rate_hz, _chip_truth(src)))
+    # the chip source's own description: its reader thread's ("read in a dedicated thread") is not the daemon's
+    conn.send(("hello", getattr(src, "inner", src).description, src.sample_rate_hz, _chip_truth(src)))
     # what start-up imported stays for good: out of the collector's sight, so that a full collection during
     # the reads (the reader thread pays for it, holding the GIL) does not walk every module's objects
     gc.collect()
@@ -94,7 +95,8 @@ def _child(sensor_cfg: dict, faults, conn) -> None:
         rest = handover.pending + src.poll()
         if rest:
             conn.send(("samples", pack(rest)))
-        conn.send(("counters", src.counters(), _chip_truth(src)))
+            handover.sent += len(rest)
+        conn.send(("counters", handover.counters(), _chip_truth(src)))
     except (BrokenPipeError, EOFError, OSError):
         pass                                  # the daemon went away
     finally:
@@ -119,6 +121,7 @@ class _Handover:
         self.next_send = self.next_counters = 0.0
         self.last_error, self.error_sent_at = None, -1.0
         self.pending: list[ImuSample] = []
+        self.sent = 0                 # samples sent to the daemon: all the reader handed over, at the end
         self.chunk_samples = self.CHUNK_SAMPLES
         try:
             import socket
@@ -154,9 +157,13 @@ class _Handover:
         if self.pending and self._room():       # one message a tick: a backlog costs the reader no read
             chunk, self.pending = self.pending[:self.chunk_samples], self.pending[self.chunk_samples:]
             conn.send(("samples", pack(chunk)))
+            self.sent += len(chunk)
         if now >= self.next_counters and self._room():
             self.next_counters = now + COUNTERS_EVERY_S
-            conn.send(("counters", src.counters(), _chip_truth(src)))
+            conn.send(("counters", self.counters(), _chip_truth(src)))
+
+    def counters(self) -> dict:
+        return {**self.src.counters(), "handover_sent": self.sent}
 
 
 class _ChipView:
@@ -203,7 +210,7 @@ class ProcessSource:
             self.close()
             raise _error(msg[1], msg[2])
         _, self.description, self.sample_rate_hz, truth = msg
-        self.description += " (reader process)"
+        self.description += ", read in a reader process"
         if truth is not None:
             self.chip = _ChipView(truth)
         self.stats = {"blocks": 0, "samples": 0}
@@ -268,6 +275,7 @@ class ProcessSource:
                         self.chip.update(msg[2])
         except (OSError, ValueError, EOFError):
             pass
+        self.stats["undelivered"] = len(self.undelivered)
         if self.undelivered:
             # indices the child read (or lost) after the last sample the daemon took: the chip's truth has them
             last = self._last_polled if self._last_polled is not None else self.undelivered[0].counter - 1

@@ -130,7 +130,7 @@ class ThreadedSource:
         self._thread: threading.Thread | None = None
         self.stats = {"reads": 0, "corrupt_frames": 0, "read_failures": 0, "handover_dropped": 0,
                       "handover_max_backlog": 0, "realtime_priority": 0, "undelivered_at_close": 0,
-                      "wakes_late": 0, "wake_late_max_us": 0, "helpers_realtime": 0}
+                      "wakes_late": 0, "wake_late_max_us": 0, "helpers_realtime": 0, "handed_over": 0}
         self._last_delivered: int | None = None
         self.after_read = None     # called by the reader thread between reads (drivers.process_source's hand-over)
         self.log_realtime = True   # log whether SCHED_FIFO was granted (a reader process reports it instead)
@@ -253,6 +253,7 @@ class ThreadedSource:
                 self._gap_pending = False
                 sample = dataclasses.replace(sample, flags=sample.flags | SampleFlags.GAP_BEFORE)
             buf.append(sample)
+            self.stats["handed_over"] += 1
             if len(buf) > self.stats["handover_max_backlog"]:
                 self.stats["handover_max_backlog"] = len(buf)
 
