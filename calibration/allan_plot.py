@@ -45,9 +45,12 @@ def plot_allan(result, path) -> None:
                 ax.plot([p.tau_bias_instability_s], [level], "s", color=TERM_STYLE["flicker"][1], mec="k", ms=8)
                 ax.annotate(f"B = min σ / 0.664 = {p.bias_instability:.3g}", (p.tau_bias_instability_s, level), textcoords="offset points",
                             xytext=(6, -14), color=TERM_STYLE["flicker"][1])
-            if p.fit is not None:
-                model = p.fit.avar(taus)
-                ax.loglog(taus, np.sqrt(model), "--", color="0.4", lw=1, label="model")
+            if p.fit is not None and p.terms:
+                # the model over the τ it was fitted on: below that (the sensor filter's correlated samples) the
+                # white term N²(1/τ − D/τ²) is not the curve and turns negative
+                fitted = taus >= min(est.tau_range_s[0] for est in p.terms.values())
+                ax.loglog(taus[fitted], np.sqrt(p.fit.avar(taus[fitted])), "--", color="0.4", lw=1,
+                          label="model (fitted τ)")
             ax.set_title(f"{sensor} {axis}")
             ax.set_xlabel("τ (s)")
             ax.set_ylabel(f"σ(τ) ({UNITS[sensor]})")

@@ -17,6 +17,18 @@ def _num(value) -> float:
     return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan
 
 
+def levelling_source(quality: dict) -> str | None:
+    """What levelled the field the fit used, in words: the fit records an attitude handed to it as "given", which
+    with --gnss is the aided estimator's smoothed attitude."""
+    source = quality.get("attitude_source")
+    if source != "given":
+        return source
+    aided = quality.get("aided_levelling")
+    if isinstance(aided, dict):
+        return f"the GNSS-aided attitude ({aided.get('estimator', 'ins')}{', smoothed' if aided.get('smoothed') else ''})"
+    return "the attitude given to the fit"
+
+
 def mag_decision_lines(result, outcome: str) -> list[str]:
     """The lead of the magnetometer report: verdict (`outcome`: saved where / not saved / refused why), the
     predicted heading error, the coverage and the residuals."""
@@ -44,7 +56,8 @@ def mag_decision_lines(result, outcome: str) -> list[str]:
     vertical = _num((q.get("vertical_channel") or {}).get("vertical_rms_ut"))
     if math.isfinite(vertical):
         residual += f", vertical field {vertical:.3f} µT"
-    lines.append(residual + f" (levelled by {q['attitude_source']})" if q.get("attitude_source") else residual)
+    levelled_by = levelling_source(q)
+    lines.append(residual + f" (levelled by {levelled_by})" if levelled_by else residual)
     for warning in q.get("warnings", ()):
         lines.append(f"  WARNING: {warning}")
     return lines

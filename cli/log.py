@@ -68,7 +68,11 @@ def _log_files(directory: str, kind: str = "samples") -> list[tuple]:
 
     d = Path(directory)
     if not d.is_dir():
-        raise LogError(f"{directory}: no such log directory (the service's is {DEFAULT_LOG_DIR}; give --dir)")
+        by_hand = ("`ahrsd run` started by hand keeps logs only with --log-dir DIR or [log] enabled = true (then in "
+                   "<state dir>/logs): give that as --dir")
+        where = (f"the service keeps its logs there once it has run; {by_hand}" if str(d) == str(DEFAULT_LOG_DIR)
+                 else f"the service's is {DEFAULT_LOG_DIR}; {by_hand}")
+        raise LogError(f"{directory}: no such log directory ({where})")
     prefix, suffix = {"samples": (SAMPLE_LOG_PREFIX, SAMPLE_LOG_SUFFIX), "gnss": (GNSS_LOG_PREFIX, GNSS_LOG_SUFFIX)}[kind]
     out = []
     for path in sorted(d.glob(f"{prefix}-*{suffix}")):

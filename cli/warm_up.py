@@ -4,18 +4,23 @@ when a compile is under way.
 
 numba compiles a kernel on its first call and caches it (`NUMBA_CACHE_DIR`; the unit points it at the service's
 cache directory). A compile takes 15–40 s on a desktop and several times that on a Raspberry Pi, during which
-nothing else is printed: the announcement goes out when the warm-up has not finished after ANNOUNCE_AFTER_S, so a
-cached start (under a second) stays silent.
+nothing else is printed. Loading the cached kernels also takes seconds on a slow or busy computer, so time alone
+cannot tell a compile from a cache load: the announcement goes out once a kernel has missed the cache (numba
+counts the misses per dispatcher before it compiles) and the warm-up has run for ANNOUNCE_AFTER_S, so a cached
+start stays silent however long its loading takes.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import sys
 import threading
 import time
+from typing import Callable
 
 ANNOUNCE_AFTER_S = 1.0
+POLL_S = 0.25
 
 log = logging.getLogger("ahrsd")
 
@@ -31,40 +36,67 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def compile_estimator(name: str, clock=time.monotonic, announce_after_s: float = ANNOUNCE_AFTER_S) -> float:
-    """Run the estimator's warm-up (estimator.warm_up), saying so first when it takes longer than
-    `announce_after_s` (a compile, not a cache load). Returns the seconds it took."""
+def numba_compiles(prefix: str = "ahrsd.") -> int:
+    """How many times numba has compiled a disk-cached kernel of the modules under `prefix` in this process
+    (its per-dispatcher cache misses: a miss is counted before the compile starts). Kernels without a cache are
+    not counted: they compile on every start and are not what the cache saves."""
+    if "numba" not in sys.modules:
+        return 0
+    from numba.core.registry import CPUDispatcher
+
+    seen: set[int] = set()
+    total = 0
+    for name, module in list(sys.modules.items()):
+        if not name.startswith(prefix) or module is None:
+            continue
+        for value in list(vars(module).values()):
+            if isinstance(value, CPUDispatcher) and id(value) not in seen:
+                seen.add(id(value))
+                stats = value.stats
+                if stats.cache_path is not None:
+                    total += sum(stats.cache_misses.values())
+    return total
+
+
+def compile_estimator(name: str, clock=time.monotonic, announce_after_s: float = ANNOUNCE_AFTER_S,
+                      count_compiles: Callable[[], int] = numba_compiles) -> float:
+    """Run the estimator's warm-up (estimator.warm_up), saying so while it compiles (a kernel missed the cache and
+    `announce_after_s` has passed) and, at the end, that it compiled. Returns the seconds it took."""
+    from ahrsd.daemon.estimator_news import estimator_news_muted
     from ahrsd.estimator.warm_up import warm_up
 
     started = clock()
+    compiles_before = count_compiles()
+    done = threading.Event()
     announced = threading.Event()
 
-    def announce() -> None:
-        announced.set()
-        log.info("compiling the %s estimator (first start only, cached afterwards) …", name)
+    def announce_when_compiling() -> None:
+        if done.wait(announce_after_s):
+            return
+        while not done.is_set():
+            if count_compiles() > compiles_before:
+                announced.set()
+                log.info("compiling the %s estimator (first start after an install or upgrade, cached "
+                         "afterwards) …", name)
+                return
+            done.wait(POLL_S)
 
-    timer = threading.Timer(announce_after_s, announce)
-    timer.daemon = True
-    # the throwaway estimator's own news ("velocity and position set from the GNSS fix at t=0.000 s") is not the
-    # daemon's: below WARNING it is kept out of the log while it runs
-    estimator_log = logging.getLogger("ahrsd.estimator")
-    level = estimator_log.level
-    estimator_log.setLevel(max(level, logging.WARNING))
-    timer.start()
+    watcher = threading.Thread(target=announce_when_compiling, name="warm-up announcement", daemon=True)
+    watcher.start()
     try:
-        warm_up(name)
+        with estimator_news_muted():
+            warm_up(name)
     finally:
-        timer.cancel()
-        estimator_log.setLevel(level)
+        done.set()
+        watcher.join()
     took = clock() - started
-    if announced.is_set():
+    if announced.is_set() or (took >= announce_after_s and count_compiles() > compiles_before):
         log.info("compiled the %s estimator in %.1f s", name, took)
     return took
 
 
 def run(args: argparse.Namespace) -> int:
     import os
-    import sys
 
     from ahrsd.daemon.config import Config, ConfigError, default_config_path, load_config
 

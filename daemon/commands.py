@@ -33,6 +33,7 @@ from typing import Any, Callable
 from ahrsd.daemon.command_args import CommandArgs, Refused
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.daemon.rate_limit import TokenBucket
+from ahrsd.daemon.statustext_ascii import statustext_ascii
 
 log = logging.getLogger(__name__)
 
@@ -191,7 +192,7 @@ class CommandRouter:
         send = self.send
         if tell_operator and send is not None:      # the operator sees why, not only the MAV_RESULT
             send(mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_WARNING,
-                                                    f"ahrsd: {reason}".encode("utf-8", "replace")[:50], 0, 0))
+                                                    statustext_ascii(f"ahrsd: {reason}")[:50], 0, 0))
 
     def _expire(self, now: float) -> None:
         if len(self._recent) > 64 or self._recent:

@@ -71,7 +71,7 @@ class HealthReport:
         self.cpu_clock = cpu_clock
         self.standby_detail = standby_detail       # why no heading is good (daemon.heading_status)
         self.load_permille = 0
-        self.measured_rate_hz = 0.0
+        self.measured_rate_hz: float | None = None     # None until one rate window has passed
         self._next_heartbeat = start + HEARTBEAT_PERIOD_S
         self._next_watchdog = start
         self._last_state: int | None = None

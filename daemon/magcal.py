@@ -65,6 +65,7 @@ from ahrsd.daemon.magcal_settings import MagCalSettings, settings_from_mapping  
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.daemon.outbound import Outbound
 from ahrsd.daemon.position import PositionResolver
+from ahrsd.daemon.statustext_ascii import statustext_ascii
 from ahrsd.drivers.gnss.mavlink import MavlinkGnssSelector
 from ahrsd.estimator.rotations import euler_to_dcm
 
@@ -119,8 +120,8 @@ def sensor_attitude(estimate, mounting: np.ndarray | None):
 
 def statustext_chunks(severity: int, text: str, chunk_id: int) -> list:
     """STATUSTEXT messages for `text`: one message when it fits 50 bytes, else MAVLink 2 chunks sharing
-    `chunk_id` (1..65535) with chunk_seq 0, 1, ... (the last one shorter than 50 bytes or NUL-terminated)."""
-    data = text.encode("utf-8", "replace")
+    `chunk_id` (1..65535) with chunk_seq 0, 1, ... (the last one shorter than 50 bytes or NUL-terminated). ASCII."""
+    data = statustext_ascii(text)
     if len(data) <= STATUSTEXT_LEN:
         return [mavlink.MAVLink_statustext_message(severity, data, 0, 0)]
     parts = [data[i:i + STATUSTEXT_LEN] for i in range(0, len(data), STATUSTEXT_LEN)]

@@ -14,6 +14,7 @@ import numpy as np
 
 from ahrsd.core.angles import STANDARD_GRAVITY_M_S2, wrap_pi
 from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.daemon.statustext_ascii import statustext_ascii
 
 UT_PER_GAUSS = 100.0               # 1 gauss = 100 µT
 HIGHRES_IMU_FIELDS_ADIS = 0x11FF   # acc, gyro, mag xyz + temperature (common.xml HIGHRES_IMU_UPDATED_FLAGS)
@@ -122,8 +123,8 @@ def sys_status(present: int, enabled: int, health: int, load_permille: int, erro
 
 
 def statustext(severity: int, text: str):
-    """One STATUSTEXT chunk (≤ 50 bytes; longer text is cut at 50, the receiver shows the start)."""
-    data = text.encode("utf-8", "replace")[:50]
+    """One STATUSTEXT chunk (≤ 50 bytes, ASCII; longer text is cut at 50, the receiver shows the start)."""
+    data = statustext_ascii(text)[:50]
     return mavlink.MAVLink_statustext_message(severity, data, 0, 0)
 
 

@@ -73,6 +73,7 @@ from ahrsd.daemon.vehicle_log import VehicleLogs
 from ahrsd.drivers.source import open_source
 from ahrsd.daemon.broadcast_notice import BroadcastNotice
 from ahrsd.estimator import make_estimator
+from ahrsd.daemon.estimator_news import estimator_news_muted
 from ahrsd.estimator.warm_up import warm_up
 
 log = logging.getLogger(__name__)
@@ -334,7 +335,8 @@ class Service:
         self.declination.resolve(initial=True)
         calibration = CalibrationStore(self.state_dir).load()
         started = time.monotonic()
-        warm_up(cfg.estimator_name)                 # compile before the loop, not on its first sample/fix
+        with estimator_news_muted():
+            warm_up(cfg.estimator_name)             # compile before the loop, not on its first sample/fix
         if time.monotonic() - started > 1.0:
             log.info("compiled the %s estimator in %.1f s (cached for the next start)", cfg.estimator_name,
                      time.monotonic() - started)

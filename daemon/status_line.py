@@ -7,13 +7,13 @@ import math
 from ahrsd.daemon.health import STATE_NAMES
 
 
-def format_status(*, estimate, rate_hz: float, state: int, samples: dict, link: dict,
+def format_status(*, estimate, rate_hz: float | None, state: int, samples: dict, link: dict,
                   gnss: str | None, autopilot, heading: str | None = None) -> str:
     """One line: sample rate, attitude, true heading, state, and the counters a user should watch. `samples`
     is daemon.run_stats.sample_accounting (missed, late, corrupt), `gnss` the GNSS task's status (None without
     one), `autopilot` the daemon.autopilot.AutopilotState, `heading` the heading state (daemon.heading_status)."""
     est = estimate
-    parts = [f"{rate_hz:6.1f} SPS"]
+    parts = [f"{rate_hz:6.1f} SPS" if rate_hz is not None else f"{'--':>6} SPS"]   # None: not measured yet
     if est is None:
         parts.append("attitude --")
     else:

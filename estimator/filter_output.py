@@ -1,6 +1,6 @@
 """What every filter hands out besides its attitude: EstimateFlags from the kernels' int bits, the flags of
-the first estimate after an initialisation, and the estimate of a filter that could not initialise yet.
-Shared by mekf and ins."""
+the first estimate after an initialisation, the estimate of a filter that could not initialise yet, and where
+a field of an output record lies in its flat view. Shared by mekf and ins."""
 
 from __future__ import annotations
 
@@ -11,6 +11,15 @@ import numpy as np
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState
 
 _FLAG_CACHE: dict[int, EstimateFlags] = {}
+
+
+def float_field_slice(dtype: np.dtype, name: str) -> slice:
+    """Where the float64 field `name` of the all-float64 record type `dtype` lies in its flat float64 view (a
+    slice of a flat array costs less than a field lookup on a record)."""
+    if any(f[0].base != np.float64 for f in dtype.fields.values()):
+        raise TypeError(f"{dtype}: a flat float64 view needs every field float64")
+    sub, offset = dtype.fields[name][:2]
+    return slice(offset // 8, offset // 8 + sub.itemsize // 8)
 
 
 def estimate_flags(bits: int) -> EstimateFlags:

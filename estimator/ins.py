@@ -31,7 +31,7 @@ from . import ins_core as core
 from . import mag_heading as mag
 from .gsf_yaw import GsfParams, gsf_fuse_velocity, gsf_output, gsf_reset, new_gsf_state
 from .heading_monitor import HeadingMonitor, IronLearner, wrap_pi
-from .filter_output import after_init_flags, estimate_flags, uninitialised_estimate
+from .filter_output import after_init_flags, estimate_flags, float_field_slice, uninitialised_estimate
 from .initial_attitude import initial_attitude
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .mag_heading import RELEARN_GATE_OPEN_S
@@ -306,6 +306,14 @@ class GnssCounters:
 _TWO_PI = 2.0 * math.pi
 _MAX_QUEUED = 16
 
+# where each output lies in the flat float64 view of an INS_OUT_DTYPE record
+(_OUT_Q, _OUT_RATE, _OUT_SIGMA, _OUT_BIAS, _OUT_EULER, _OUT_VEL, _OUT_SIGMA_VEL, _OUT_SIGMA_POS,
+ _OUT_ACCEL_BIAS) = (float_field_slice(core.INS_OUT_DTYPE, n) for n in (
+    "q", "rate_rad_s", "sigma_rpy_rad", "gyro_bias_rad_s", "euler_rad", "vel_ned_m_s", "sigma_vel_m_s",
+    "sigma_pos_m", "accel_bias_m_s2"))
+_OUT_LAT, _OUT_LON, _OUT_H = (
+    float_field_slice(core.INS_OUT_DTYPE, n).start for n in ("lat_rad", "lon_rad", "h_m"))
+
 
 class Ins:
     """The aided estimator (Estimator protocol plus `update_gnss(fix)`).
@@ -332,7 +340,11 @@ class Ins:
         self._mag_use = self._par_arr["mag_use"]
         self._P = np.zeros((core.N_ERR, core.N_ERR))
         self._hist = np.zeros(core.H_LEN, core.INS_HISTORY_DTYPE)
-        self._out = np.zeros(core.O_SIZE)
+        self._out_arr = np.zeros(1, core.INS_OUT_DTYPE)   # the step's outputs (what the compiled step takes)
+        self._out = self._out_arr[0]
+        # the same outputs as one flat float64 array: copied whole for an estimate (copying a record goes field
+        # by field)
+        self._out_flat = self._out_arr.view(np.float64)
         self._initialised = False
         self._reinit_pending = False
         self._pending_flags = 0
@@ -360,7 +372,8 @@ class Ins:
         x[0]["q"][0] = 1.0
         x[0]["t_last_s"] = 0.995
         return (x, np.eye(core.N_ERR), np.zeros(core.H_LEN, core.INS_HISTORY_DTYPE), self._par_arr.copy(),
-                1.0, 0.0, 0.0, 0.0, 0.0, 0.0, -9.8, 20.0, 0.0, 40.0, 0, np.zeros(core.O_SIZE), gsf, self._gsf_par_arr)
+                1.0, 0.0, 0.0, 0.0, 0.0, 0.0, -9.8, 20.0, 0.0, 40.0, 0, np.zeros(1, core.INS_OUT_DTYPE), gsf,
+                self._gsf_par_arr)
 
     def _new_heading_checks(self) -> None:
         p = self.params
@@ -492,7 +505,7 @@ class Ins:
         extra = 0
         if self._initialised:
             f = self._step(self._x_arr, self._P, self._hist, self._par_arr, sample.t_s,
-                           g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], sflags, self._out,
+                           g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], sflags, self._out_arr,
                            self._gsf_arr, self._gsf_par_arr)
             if not f & NEEDS_INIT:
                 if self._queue:
@@ -862,44 +875,44 @@ class Ins:
         if self._pending_flags:
             f |= self._pending_flags
             self._pending_flags = 0
-        o = self._out.copy()
-        roll, pitch, yaw_true = o[core.O_EULER : core.O_EULER + 3].tolist()
-        sigma_yaw = float(o[core.O_SIGMA + 2])
+        o = self._out_flat.copy()  # one fresh buffer; the estimate's arrays are views of it
+        roll, pitch, yaw_true = o[_OUT_EULER].tolist()
+        sigma_yaw = float(o[_OUT_SIGMA.start + 2])
         if f & core.F_INITIALISING and not self._published_since_init:
             self._published.reset()        # nothing published since the filter started: follow it
-        elif self._published.update(t_s, yaw_true, roll, pitch, o[core.O_RATE : core.O_RATE + 3]):
+        elif self._published.update(t_s, yaw_true, roll, pitch, o[_OUT_RATE]):
             # the filter's yaw moved faster than the published one may: publish it turned back by the offset
             off = self._published.offset_rad
             yaw_true += off
             c, s = math.cos(0.5 * off), math.sin(0.5 * off)
-            w, x_, y, z = o[core.O_Q : core.O_Q + 4].tolist()
-            o[core.O_Q : core.O_Q + 4] = (c * w - s * z, c * x_ - s * y, c * y + s * x_, c * z + s * w)
-            o[core.O_SIGMA + 2] = self._published.published_sigma(sigma_yaw)
+            w, x_, y, z = o[_OUT_Q].tolist()
+            o[_OUT_Q] = (c * w - s * z, c * x_ - s * y, c * y + s * x_, c * z + s * w)
+            o[_OUT_SIGMA.start + 2] = self._published.published_sigma(sigma_yaw)
         if not f & core.F_INITIALISING:
             self._published_since_init = True
         yaw = (yaw_true - self._declination + math.pi) % _TWO_PI - math.pi
         nav = None
         if self._nav_ok[0] > 0.0:
             nav = NavState(
-                o[core.O_VEL : core.O_VEL + 3],
-                math.degrees(o[core.O_POS]),
-                (math.degrees(o[core.O_POS + 1]) + 180.0) % 360.0 - 180.0,
-                float(o[core.O_POS + 2]),
-                o[core.O_SIG_V : core.O_SIG_V + 3],
-                o[core.O_SIG_P : core.O_SIG_P + 3],
-                o[core.O_BA : core.O_BA + 3],
+                o[_OUT_VEL],
+                math.degrees(o[_OUT_LAT]),
+                (math.degrees(o[_OUT_LON]) + 180.0) % 360.0 - 180.0,
+                float(o[_OUT_H]),
+                o[_OUT_SIGMA_VEL],
+                o[_OUT_SIGMA_POS],
+                o[_OUT_ACCEL_BIAS],
             )
         return AttitudeEstimate(
             t_s,
-            o[core.O_Q : core.O_Q + 4],
+            o[_OUT_Q],
             roll,
             pitch,
             yaw,
             yaw % _TWO_PI,
             yaw_true % _TWO_PI,
-            o[core.O_RATE : core.O_RATE + 3],
-            o[core.O_BG : core.O_BG + 3],
-            o[core.O_SIGMA : core.O_SIGMA + 3],
+            o[_OUT_RATE],
+            o[_OUT_BIAS],
+            o[_OUT_SIGMA],
             estimate_flags(f),
             nav,
             self._published_heading_state(f, sigma_yaw),

@@ -5,8 +5,9 @@ accelerometer levelling while unaided, magnetometer heading, and the delayed GNS
 arithmetic. The nominal state and its bookkeeping `x` is an INS_STATE_DTYPE record, the parameters `par` an
 INS_PARAMS_DTYPE record (numpy structured types: named fields that numba compiles to fixed offsets), `hist`
 a ring of INS_HISTORY_DTYPE records (past nominal states for fusing a fix at its time of validity), `P` the
-24×24 error covariance, `out` the per-step outputs (layout `O_*`). The entry points (`ins_step`,
-`fuse_gnss`) take the state and parameters as 1-element arrays (an array unboxes cheaper than a record).
+24×24 error covariance, `out` the per-step outputs (an INS_OUT_DTYPE record). The entry points (`ins_step`,
+`fuse_gnss`) take the state and parameters (and `ins_step` the outputs) as 1-element arrays (an array unboxes
+cheaper than a record).
 
 Nominal state: attitude q (body FRD → true-north NED, Hamilton scalar first), NED velocity v, WGS-84 geodetic
 position (L, λ, h), gyro bias b_g, accelerometer bias b_a (body frame), gyro scale factors and misalignment.
@@ -174,18 +175,21 @@ INS_PARAMS_DTYPE = np.dtype([
     ("converged_yaw_rad", np.float64),
 ])
 
-# ----------------------------------------------------------------------------------- outputs
-O_Q = 0        # 4 body → magnetic NED (the AttitudeEstimate convention)
-O_RATE = 4     # 3
-O_SIGMA = 7    # 3 roll, pitch, yaw 1σ
-O_BG = 10      # 3
-O_EULER = 13   # 3 roll, pitch, yaw (true)
-O_VEL = 16     # 3
-O_POS = 19     # 3 lat rad, lon rad, h m
-O_SIG_V = 22   # 3
-O_SIG_P = 25   # 3
-O_BA = 28      # 3
-O_SIZE = 31
+# ----------------------------------------------------------------------------------- outputs (per step)
+INS_OUT_DTYPE = np.dtype([
+    ("q", np.float64, (4,)),                 # body → magnetic NED (the AttitudeEstimate convention), scalar ≥ 0
+    ("rate_rad_s", np.float64, (3,)),        # bias-corrected rate, body
+    ("sigma_rpy_rad", np.float64, (3,)),     # roll, pitch, yaw 1σ
+    ("gyro_bias_rad_s", np.float64, (3,)),
+    ("euler_rad", np.float64, (3,)),         # roll, pitch, yaw (ZYX, yaw true)
+    ("vel_ned_m_s", np.float64, (3,)),
+    ("lat_rad", np.float64),
+    ("lon_rad", np.float64),
+    ("h_m", np.float64),                     # height above the WGS-84 ellipsoid
+    ("sigma_vel_m_s", np.float64, (3,)),     # 1σ north, east, down
+    ("sigma_pos_m", np.float64, (3,)),       # 1σ north, east, down
+    ("accel_bias_m_s2", np.float64, (3,)),   # body frame
+])
 
 # ----------------------------------------------------------------------------------- GNSS fusion results (bits)
 R_VEL_FUSED = 1
@@ -659,11 +663,12 @@ def ins_step(state, P, hist, params, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sa
     every cov_period_s the covariance epoch (`_covariance_epoch`: propagation, levelling when unaided,
     magnetometer heading); feed the magnetometer-free GNSS yaw bank (`gsf`, `gsf_par`: 1-element record
     arrays of gsf_yaw.py's state and parameters; its own tilt and yaw, never this filter's heading) the
-    corrected sample; fill `out`. state, params: 1-element INS_STATE_DTYPE and INS_PARAMS_DTYPE arrays; hist:
-    the INS_HISTORY_DTYPE ring. Returns EstimateFlags bits (| NEEDS_INIT when the caller must initialise from
-    this sample first)."""
+    corrected sample; fill `out`. state, params, out: 1-element INS_STATE_DTYPE, INS_PARAMS_DTYPE and
+    INS_OUT_DTYPE arrays; hist: the INS_HISTORY_DTYPE ring. Returns EstimateFlags bits (| NEEDS_INIT when the
+    caller must initialise from this sample first)."""
     x = state[0]
     par = params[0]
+    o = out[0]
     valid = input_validity(sample_flags, gx, gy, gz, ax, ay, az, mx, my, mz)
     dt, flags = step_dt(t_s - x.t_last_s, par.large_dt_s, par.reinit_dt_s)
     if flags & NEEDS_INIT:
@@ -680,13 +685,14 @@ def ins_step(state, P, hist, params, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sa
         _record_history(x, hist, t_s, q0, q1, q2, q3, vn, ve, vd, wx, wy, wz)
     if x.cov_t_s >= par.cov_period_s:
         flags |= _covariance_epoch(x, P, par, nav_ok, math.sqrt(wx * wx + wy * wy + wz * wz))
-    fill_outputs(x, P, par, wx, wy, wz, out)
+    fill_outputs(x, P, par, wx, wy, wz, o)
     if x.was_aided > 0.0:
         if x.t_last_s - x.gnss_fused_t_s <= par.gnss_timeout_s:
             flags |= F_GNSS_AIDED
         else:
             flags |= F_GNSS_OUTAGE
-    if initialising(x.t_run_s, out[O_SIGMA], out[O_SIGMA + 1], out[O_SIGMA + 2], par.init_min_time_s,
+    sig = o.sigma_rpy_rad
+    if initialising(x.t_run_s, sig[0], sig[1], sig[2], par.init_min_time_s,
                     par.converged_tilt_rad, par.mag_enabled > 0.0, par.converged_yaw_rad):
         flags |= F_INITIALISING
     return flags
@@ -694,6 +700,8 @@ def ins_step(state, P, hist, params, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sa
 
 @njit(cache=True)
 def fill_outputs(x, P, par, wx, wy, wz, out):
+    """The step's outputs from the state `x` and covariance `P` into `out`, an INS_OUT_DTYPE record (wx, wy,
+    wz: the bias-corrected rate)."""
     q0 = x.q[0]
     q1 = x.q[1]
     q2 = x.q[2]
@@ -703,29 +711,29 @@ def fill_outputs(x, P, par, wx, wy, wz, out):
     m0, m1, m2, m3 = quat_mul(math.cos(hd), 0.0, 0.0, math.sin(hd), q0, q1, q2, q3)
     if m0 < 0.0:
         m0, m1, m2, m3 = -m0, -m1, -m2, -m3
-    out[O_Q] = m0
-    out[O_Q + 1] = m1
-    out[O_Q + 2] = m2
-    out[O_Q + 3] = m3
-    out[O_RATE] = wx
-    out[O_RATE + 1] = wy
-    out[O_RATE + 2] = wz
+    out.q[0] = m0
+    out.q[1] = m1
+    out.q[2] = m2
+    out.q[3] = m3
+    out.rate_rad_s[0] = wx
+    out.rate_rad_s[1] = wy
+    out.rate_rad_s[2] = wz
     roll, pitch, yaw, sig_roll, sig_pitch = euler_and_tilt_sigma(q0, q1, q2, q3, P[0, 0], P[0, 1], P[1, 1])
-    out[O_SIGMA] = sig_roll
-    out[O_SIGMA + 1] = sig_pitch
-    out[O_SIGMA + 2] = math.sqrt(max(P[2, 2], 0.0))
-    out[O_EULER] = roll
-    out[O_EULER + 1] = pitch
-    out[O_EULER + 2] = yaw
+    out.sigma_rpy_rad[0] = sig_roll
+    out.sigma_rpy_rad[1] = sig_pitch
+    out.sigma_rpy_rad[2] = math.sqrt(max(P[2, 2], 0.0))
+    out.euler_rad[0] = roll
+    out.euler_rad[1] = pitch
+    out.euler_rad[2] = yaw
     for i in range(3):
-        out[O_BG + i] = x.gyro_bias_rad_s[i]
-        out[O_BA + i] = x.accel_bias_m_s2[i]
-        out[O_VEL + i] = x.vel_ned_m_s[i]
-        out[O_SIG_V + i] = math.sqrt(max(P[E_V + i, E_V + i], 0.0))
-        out[O_SIG_P + i] = math.sqrt(max(P[E_P + i, E_P + i], 0.0))
-    out[O_POS] = x.lat_rad
-    out[O_POS + 1] = x.lon_rad
-    out[O_POS + 2] = x.h_m
+        out.gyro_bias_rad_s[i] = x.gyro_bias_rad_s[i]
+        out.accel_bias_m_s2[i] = x.accel_bias_m_s2[i]
+        out.vel_ned_m_s[i] = x.vel_ned_m_s[i]
+        out.sigma_vel_m_s[i] = math.sqrt(max(P[E_V + i, E_V + i], 0.0))
+        out.sigma_pos_m[i] = math.sqrt(max(P[E_P + i, E_P + i], 0.0))
+    out.lat_rad = x.lat_rad
+    out.lon_rad = x.lon_rad
+    out.h_m = x.h_m
 
 
 # ----------------------------------------------------------------------------------- GNSS fusion

@@ -188,7 +188,7 @@ class SmoothingIns(Ins):
         self._live_step = self._step
         self._step = self._recorded_step
         self._shadow_hist = np.zeros_like(self._hist)
-        self._shadow_out = np.zeros(core.O_SIZE)
+        self._shadow_out = np.zeros(1, core.INS_OUT_DTYPE)
         self._p_before = np.zeros_like(self._P)
         self._rec = np.empty((4096, 6))   # per sample: t, q (4; NaN before initialisation), tilt 1σ
         self._n_rec = 0

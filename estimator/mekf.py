@@ -33,7 +33,7 @@ from ahrsd.core.sample import ImuSample
 
 from . import mekf_core as core
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState
-from .filter_output import after_init_flags, estimate_flags, uninitialised_estimate
+from .filter_output import after_init_flags, estimate_flags, float_field_slice, uninitialised_estimate
 from .initial_attitude import initial_attitude
 from .mag_heading import RELEARN_GATE_OPEN_S, heading_params, relearn_reference
 from .params import with_overrides
@@ -213,16 +213,8 @@ _F64 = np.dtype(np.float64)
 _NEEDS_INIT_OR_BAD = core.NEEDS_INIT | core.BAD_SHAPE
 
 
-def _float_slice(dtype: np.dtype, name: str) -> slice:
-    """Where the float64 field `name` of the all-float64 record type `dtype` lies in its float64 view (a
-    slice of a flat array costs less than a field lookup on a record)."""
-    sub, offset = dtype.fields[name][:2]
-    return slice(offset // 8, offset // 8 + sub.itemsize // 8)
-
-
-assert all(f[0].base == np.float64 for f in core.MEKF_OUT_DTYPE.fields.values())
-_OUT_Q, _OUT_RATE, _OUT_SIGMA, _OUT_BIAS, _OUT_EULER = (
-    _float_slice(core.MEKF_OUT_DTYPE, n) for n in ("q", "rate_rad_s", "sigma_rpy_rad", "gyro_bias_rad_s", "euler_rad"))
+_OUT_Q, _OUT_RATE, _OUT_SIGMA, _OUT_BIAS, _OUT_EULER = (float_field_slice(core.MEKF_OUT_DTYPE, n) for n in (
+    "q", "rate_rad_s", "sigma_rpy_rad", "gyro_bias_rad_s", "euler_rad"))
 
 
 def _as_f64(v) -> np.ndarray:

@@ -178,6 +178,8 @@ def test_reset_mode_holds_until_ekf2_fuses_again_then_resets_which_ekf3_sees_as_
     assert len(jump) == 1
     t_reset = second[jump[0] + 1, 0] - second[0, 0]
     assert 1.5 <= t_reset <= 2.5                                          # after the hold, not at once
+    print(f"EKF2 (reset_counter): 30° restart step: reset after {t_reset:.1f} s, then "
+          f"{abs(wrap_deg(math.degrees(ekf2.yaw) - new_heading)):.2f}° from ours (no slew, no overshoot)")
     # ArduPilot ignores reset_counter for yaw: after the hold it gets the 30° as a step, beyond its gate
     assert ekf3.rejected > 0
     assert abs(wrap_deg(math.degrees(ekf3.yaw) - first[-1, 1])) < 1.0
@@ -248,7 +250,7 @@ def test_ardupilot_with_a_source_set_takes_a_30_degree_restart_as_a_yaw_alignmen
     assert np.all(second[:, 3] == second[0, 3])          # reset_counter untouched (ArduPilot: position reset)
     t_restart = t0 + second[0, 0]
     overshoot, settled = settle(rec, new_heading, t_restart, t_restart + 60.0)
-    print(f"EKF3 with EK3_SRC2_YAW=0: 30° restart step: overshoot {overshoot:.2f}°, within 1° after {settled:.1f} s")
+    print(f"EKF3 with ardupilot_source_set (fake EKF3: set 2 has no yaw source): 30° restart step: overshoot {overshoot:.2f}°, within 1° after {settled:.1f} s")
     assert overshoot <= 0.2 and settled <= 3.5            # hold 2 s + switch back 0.5 s: aligned, not pulled
     assert abs(wrap_deg(math.degrees(ekf3.yaw) - new_heading)) < 0.1
 

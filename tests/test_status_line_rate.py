@@ -1,0 +1,33 @@
+"""The status line shows no rate until one has been measured: the first start read "0.0 SPS | … | ACTIVE" for the
+first second, a rate of zero the sensor never had; a sensor that stops still reads 0.0."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+from ahrsd.daemon.autopilot import AutopilotState
+from ahrsd.daemon.housekeeping import HealthReport
+from ahrsd.daemon.status_line import format_status
+
+LINE = dict(estimate=None, state=0, samples={"missed": 0, "late": 0, "corrupt": 0},
+            link={"tx": 0, "rx": 0, "bad": 0}, gnss=None, autopilot=AutopilotState())
+
+
+def test_no_rate_yet_reads_dashes_and_a_stopped_sensor_reads_zero():
+    assert format_status(rate_hz=None, **LINE).startswith("    -- SPS | ")
+    assert format_status(rate_hz=0.0, **LINE).startswith("   0.0 SPS | ")
+    assert format_status(rate_hz=819.24, **LINE).startswith(" 819.2 SPS | ")
+
+
+def test_the_rate_is_unmeasured_until_one_window_has_passed():
+    counts = SimpleNamespace(samples=0)
+    report = HealthReport(SimpleNamespace(), SimpleNamespace(), SimpleNamespace(), counts,
+                          watchdog_interval_s=None, start=100.0, cpu_clock=lambda: 0.0)
+    assert report.measured_rate_hz is None
+    report._update_load(101.0)                  # the first tick opens the window
+    assert report.measured_rate_hz is None
+    counts.samples = 819
+    report._update_load(102.0)
+    assert report.measured_rate_hz == 819.0
+    report._update_load(103.0)                  # no sample in the second window: the sensor stopped
+    assert report.measured_rate_hz == 0.0
