@@ -384,7 +384,9 @@ def main() -> None:
         print(f"   samples: {samples_summary(r)}")
         src = r["stats"].get("source", {})
         if "reader_wakes_late" in src:
-            print(f"   reader: real-time priority {'yes' if src.get('reader_realtime_priority') else 'NO'}, "
+            chip = "sensor_producer_wait_max_us" in src            # the simulated chip, with its block producer
+            print(f"   reader: real-time priority {'yes' if src.get('reader_realtime_priority') else 'NO'}"
+                  f"{(' (its producer ' + ('too)' if src.get('reader_helpers_realtime') else 'not)')) if chip else ''}, "
                   f"{src['reader_wakes_late']} wakes later than a period (worst "
                   f"{src.get('reader_wake_late_max_us', 0) / 1e3:.1f} ms), hand-over dropped "
                   f"{src.get('reader_handover_dropped', 0)}; reads that waited for the simulated chip's producer "

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import gc
 import logging
+import os
 import select
 import time
 from types import SimpleNamespace
@@ -71,7 +72,8 @@ def _child(sensor_cfg: dict, faults, conn) -> None:
     except Exception as exc:  # noqa: BLE001 - reported to the daemon, which says why it cannot start
         conn.send(("error", type(exc).__name__, str(exc)))
         return
-    conn.send(("hello", src.description, src.sample_rate_hz, _chip_truth(src)))
+    # the chip source's own description: its reader thread's ("read in a dedicated thread") is not the daemon's
+    conn.send(("hello", getattr(src, "inner", src).description, src.sample_rate_hz, _chip_truth(src)))
     # what start-up imported stays for good: out of the collector's sight, so that a full collection during
     # the reads (the reader thread pays for it, holding the GIL) does not walk every module's objects
     gc.collect()
@@ -93,7 +95,8 @@ def _child(sensor_cfg: dict, faults, conn) -> None:
         rest = handover.pending + src.poll()
         if rest:
             conn.send(("samples", pack(rest)))
-        conn.send(("counters", src.counters(), _chip_truth(src)))
+            handover.sent += len(rest)
+        conn.send(("counters", handover.counters(), _chip_truth(src)))
     except (BrokenPipeError, EOFError, OSError):
         pass                                  # the daemon went away
     finally:
@@ -102,9 +105,14 @@ def _child(sensor_cfg: dict, faults, conn) -> None:
 
 class _Handover:
     """Every HANDOVER_S, from the reader thread: the samples read, the errors, and every COUNTERS_EVERY_S the
-    source's counters, through the pipe to the daemon. Never blocks the reader: it sends only while the pipe
-    has room (a stalled daemon leaves the samples in the reader's bounded buffer, which counts what it drops)
-    and at most CHUNK_SAMPLES a message."""
+    source's counters, through the pipe to the daemon. Never blocks the reader, and does a bounded amount of
+    work a tick: a stalled daemon leaves the samples queued (what the reader took in `pending`, the rest in the
+    reader's bounded buffer, drivers.threaded_source, which counts what it must drop), and once the daemon reads
+    again they go one message a tick, in order.
+
+    Why a send cannot block: the pipe is a Unix stream socket, which select() calls writable only while at most
+    a quarter of its send buffer is in use (Linux unix_writable), and no message is larger than another eighth
+    of it (`chunk_samples`), so a send made when select() says writable always fits."""
 
     CHUNK_SAMPLES = 256
 
@@ -113,6 +121,16 @@ class _Handover:
         self.next_send = self.next_counters = 0.0
         self.last_error, self.error_sent_at = None, -1.0
         self.pending: list[ImuSample] = []
+        self.sent = 0                 # samples sent to the daemon: all the reader handed over, at the end
+        self.chunk_samples = self.CHUNK_SAMPLES
+        try:
+            import socket
+
+            with socket.socket(fileno=os.dup(conn.fileno())) as sock:
+                sndbuf = sock.getsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF)
+            self.chunk_samples = max(1, min(self.CHUNK_SAMPLES, sndbuf // 8 // _RECORD.itemsize - 1))
+        except (OSError, AttributeError, ValueError):
+            pass
 
     def _room(self) -> bool:
         return bool(select.select([], [self.conn], [], 0)[1])
@@ -125,7 +143,7 @@ class _Handover:
             return
         self.next_send = now + HANDOVER_S
         conn, src = self.conn, self.src
-        if not self.realtime_sent and src.realtime_refused is not None:
+        if not self.realtime_sent and src.realtime_refused is not None and self._room():
             self.realtime_sent = True
             conn.send(("realtime", src.realtime_refused))
         if not self.pending:
@@ -136,12 +154,16 @@ class _Handover:
                 if (error != self.last_error or now - self.error_sent_at >= 0.1) and self._room():
                     conn.send(("error", *error))
                     self.last_error, self.error_sent_at = error, now
-        while self.pending and self._room():
-            chunk, self.pending = self.pending[:self.CHUNK_SAMPLES], self.pending[self.CHUNK_SAMPLES:]
+        if self.pending and self._room():       # one message a tick: a backlog costs the reader no read
+            chunk, self.pending = self.pending[:self.chunk_samples], self.pending[self.chunk_samples:]
             conn.send(("samples", pack(chunk)))
+            self.sent += len(chunk)
         if now >= self.next_counters and self._room():
             self.next_counters = now + COUNTERS_EVERY_S
-            conn.send(("counters", src.counters(), _chip_truth(src)))
+            conn.send(("counters", self.counters(), _chip_truth(src)))
+
+    def counters(self) -> dict:
+        return {**self.src.counters(), "handover_sent": self.sent}
 
 
 class _ChipView:
@@ -188,7 +210,7 @@ class ProcessSource:
             self.close()
             raise _error(msg[1], msg[2])
         _, self.description, self.sample_rate_hz, truth = msg
-        self.description += " (reader process)"
+        self.description += ", read in a reader process"
         if truth is not None:
             self.chip = _ChipView(truth)
         self.stats = {"blocks": 0, "samples": 0}
@@ -253,6 +275,7 @@ class ProcessSource:
                         self.chip.update(msg[2])
         except (OSError, ValueError, EOFError):
             pass
+        self.stats["undelivered"] = len(self.undelivered)
         if self.undelivered:
             # indices the child read (or lost) after the last sample the daemon took: the chip's truth has them
             last = self._last_polled if self._last_polled is not None else self.undelivered[0].counter - 1

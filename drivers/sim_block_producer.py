@@ -1,35 +1,58 @@
 """The simulated chip's silicon in a process of its own: the simulation stream (truth trajectory, sensor
-errors: `ahrsd.simulation.open_stream`) computed in a child process, blocks handed back through a pipe.
+errors: `ahrsd.simulation.open_stream`) computed ahead in a child process, into shared memory.
 
-The real ADIS16405 computes its samples in silicon, beside the reader; the simulated one computes them in
-Python and numpy, milliseconds per block of 256 samples. In the reader's process that work holds the reader's
-GIL at the moments it must read (bench/reader_lateness.py measures it: a reader with the producer beside it is
-late by up to 17 sample periods, without it by under 4), and the simulated chip then loses samples the real one
-would not. `ProducedStream` has the stream's `next_block(n)` interface; it keeps AHEAD blocks requested, so a
-block is ready (only unpickled in the reader's process) when the chip needs it.
+The real ADIS16405 computes its samples in silicon, beside the reader, with no host CPU; the simulated one
+computes them in Python and numpy, milliseconds per block of 256 samples. That work must not compete with the
+reader in real time: in the reader's process it holds the reader's GIL at the moments it must read
+(bench/reader_lateness.py), and a producer that computes a block only when the chip needs it makes every read
+wait whenever the producer is short of CPU. So the producer runs ahead: it fills a ring of SLOTS blocks (about
+10 s of samples at 819.2 SPS) in a shared memory file (memfd) and tells the chip through a pipe, one byte a
+block, when a block is whole; the chip copies a block out when its clock reaches it and hands the slot back
+with one byte on the producer's stdin. The chip's clock decides when a sample is readable (its data-ready time,
+drivers.simulated): a sample is lost only when the reader comes late, as on the real chip, which has no FIFO.
+The chip waits for the producer only at power-on (the chip's clock starts once the first block is ready) or
+when the producer has fallen more than the whole ring behind — counted (`producer_waits`) and, where the reader
+runs at real-time priority, prevented: the reader gives the producer its own priority (drivers.threaded_source),
+so nothing the reader waits on runs below it.
 
-Run as `python -m ahrsd.drivers.sim_block_producer SCENARIO RATE_HZ SEED ERRORS START_S`: reads 4-byte block
-sizes on stdin, writes pickled blocks on stdout, ends at the end of stdin (the chip closed, or its process
-ended). A subprocess rather than multiprocessing: the chip may itself live in a daemonic reader process
-(drivers.process_source), which multiprocessing does not let have children.
+Run as `python -m ahrsd.drivers.sim_block_producer SCENARIO RATE_HZ SEED ERRORS START_S BLOCK SLOTS FD`: FD is
+the shared memory file (HEADER bytes, then SLOTS blocks of BLOCK rows of COLUMNS float64s); it writes one byte
+on stdout per block made, reads one byte on stdin per slot handed back, and ends at the end of stdin or when
+stdout is closed (the chip closed, or its process ended). A subprocess rather than multiprocessing: the chip
+may itself live in a daemonic reader process (drivers.process_source), which multiprocessing does not let have
+children.
 """
 
 from __future__ import annotations
 
-import fcntl
+import mmap
 import os
-import pickle
-import struct
 import subprocess
 import sys
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
-F_SETPIPE_SZ = 1031      # fcntl.F_SETPIPE_SZ (Linux)
-AHEAD = 8                # blocks computed ahead: 2.5 s of samples at 819.2 SPS (a producer short of CPU)
-PIPE_BYTES = 1 << 19     # F_SETPIPE_SZ of the blocks' pipe: AHEAD blocks fit whole, read without waiting
-_SIZE = struct.Struct("<I")
+SLOTS = 32               # blocks computed ahead: 10 s of samples at 819.2 SPS
+POWER_ON_TIMEOUT_S = 120.0   # the producer imports the simulator (numba kernels compile on a first run)
+HEADER_BYTES = 64        # int64 at 0: which truth columns the stream has (bit 0 attitude, bit 1 gyro)
+# (name, width) of a block row, in order; the truth columns are zero when the stream has none
+COLUMNS = (("t_s", 1), ("gyro_rad_s", 3), ("accel_m_s2", 3), ("mag_ut", 3), ("temp_c", 1), ("truth_q_wxyz", 4),
+           ("truth_gyro_rad_s", 3))
+ROW = sum(w for _, w in COLUMNS)
+_TRUTH_Q, _TRUTH_GYRO = 1, 2
+
+
+def _columns() -> dict[str, slice]:
+    out, i = {}, 0
+    for name, width in COLUMNS:
+        out[name] = slice(i, i + width)
+        i += width
+    return out
+
+
+_COL = _columns()
 
 
 @dataclass
@@ -44,78 +67,142 @@ class ChipBlock:
     truth_q_wxyz: np.ndarray | None
     truth_gyro_rad_s: np.ndarray | None
 
-    @classmethod
-    def of(cls, blk) -> "ChipBlock":
-        return cls(blk.t_s, blk.gyro_rad_s, blk.accel_m_s2, blk.mag_ut, blk.temp_c,
-                   getattr(blk, "truth_q_wxyz", None), getattr(blk, "truth_gyro_rad_s", None))
+
+def _ring(buf, block: int, slots: int) -> np.ndarray:
+    return np.ndarray((slots, block, ROW), dtype=np.float64, buffer=buf, offset=HEADER_BYTES)
 
 
 class ProducedStream:
-    """A simulation stream computed in a child process (module doc)."""
+    """A simulation stream computed ahead in a child process (module doc); `next_block(n)` like the stream's."""
 
-    computed_elsewhere = True          # the chip asks for blocks as it needs them: they are computed ahead
+    computed_elsewhere = True          # the chip's reads never compute: the blocks are made ahead
+    waited_s = 0.0                     # how long the last next_block waited for the producer (ring empty)
 
-    def __init__(self, scenario: str, rate_hz: float, seed: int, errors: str, start_s: float, block: int):
-        self._proc = subprocess.Popen(
-            [sys.executable, "-m", "ahrsd.drivers.sim_block_producer", scenario, repr(float(rate_hz)), str(int(seed)),
-             errors, repr(float(start_s))], stdin=subprocess.PIPE, stdout=subprocess.PIPE, close_fds=True)
-        try:        # a block bigger than the pipe would be read while the producer still writes it: waiting
-            fcntl.fcntl(self._proc.stdout.fileno(), F_SETPIPE_SZ, PIPE_BYTES)
-        except OSError:
-            pass
-        self._block = block
-        for _ in range(AHEAD):
-            self._request(block)
-
-    def _request(self, n: int) -> None:
-        self._proc.stdin.write(_SIZE.pack(n))
-        self._proc.stdin.flush()
-
-    def next_block(self, n: int):
+    def __init__(self, scenario: str, rate_hz: float, seed: int, errors: str, start_s: float, block: int,
+                 slots: int = SLOTS):
+        self._block, self._slots = block, slots
+        size = HEADER_BYTES + slots * block * ROW * 8
+        fd = os.memfd_create("ahrsd-sim-chip-blocks")
         try:
-            blk = pickle.load(self._proc.stdout)
-        except EOFError as exc:
+            os.ftruncate(fd, size)
+            self._mem = mmap.mmap(fd, size)
+            self._proc = subprocess.Popen(
+                [sys.executable, "-m", "ahrsd.drivers.sim_block_producer", scenario, repr(float(rate_hz)),
+                 str(int(seed)), errors, repr(float(start_s)), str(block), str(slots), str(fd)],
+                stdin=subprocess.PIPE, stdout=subprocess.PIPE, pass_fds=(fd,), close_fds=True, bufsize=0)
+        finally:
+            os.close(fd)
+        self._ring = _ring(self._mem, block, slots)
+        self._made = 0          # blocks the producer said are whole
+        self._taken = 0         # blocks copied out (and their slots handed back)
+        self.pid = self._proc.pid
+        # power-on: the chip's clock starts once the first block is there (drivers.simulated)
+        self._wait_for_blocks(POWER_ON_TIMEOUT_S)
+        self._truth = int(np.frombuffer(self._mem, dtype=np.int64, count=1)[0])
+
+    def _wait_for_blocks(self, timeout_s: float | None) -> None:
+        import select
+
+        out = self._proc.stdout.fileno()
+        if timeout_s is not None and not select.select([out], [], [], timeout_s)[0]:
+            self.close()
+            raise RuntimeError(f"the simulated chip's block producer made no block in {timeout_s:g} s")
+        got = os.read(out, 4 * self._slots)
+        if not got:
+            raise RuntimeError(f"the simulated chip's block producer ended (exit code {self._proc.poll()})")
+        self._made += len(got)
+
+    def blocks_ahead(self) -> int:
+        """Blocks made and not yet taken (non-blocking)."""
+        import select
+
+        while select.select([self._proc.stdout], [], [], 0)[0]:
+            got = os.read(self._proc.stdout.fileno(), 4 * self._slots)
+            if not got:
+                break
+            self._made += len(got)
+        return self._made - self._taken
+
+    def next_block(self, n: int) -> ChipBlock:
+        if n != self._block:
+            raise ValueError(f"the producer computes {self._block}-sample blocks, {n} were asked")
+        self.waited_s = 0.0
+        if self._made == self._taken:          # the producer is behind: the chip counts the wait
+            t0 = time.monotonic()
+            self._wait_for_blocks(None)
+            self.waited_s = time.monotonic() - t0
+        rows = self._ring[self._taken % self._slots]
+        cols = {name: np.array(rows[:, s]) for name, s in _COL.items()}
+        self._taken += 1
+        try:
+            self._proc.stdin.write(b"\x01")    # the slot is free again
+        except BrokenPipeError as exc:
             raise RuntimeError(f"the simulated chip's block producer ended (exit code {self._proc.poll()})") from exc
-        if len(blk.t_s) != n:
-            raise ValueError(f"the producer computes {len(blk.t_s)}-sample blocks, {n} were asked")
-        self._request(n)
-        return blk
+        return ChipBlock(cols["t_s"][:, 0], cols["gyro_rad_s"], cols["accel_m_s2"], cols["mag_ut"],
+                         cols["temp_c"][:, 0], cols["truth_q_wxyz"] if self._truth & _TRUTH_Q else None,
+                         cols["truth_gyro_rad_s"] if self._truth & _TRUTH_GYRO else None)
 
     def close(self) -> None:
-        try:
-            self._proc.stdin.close()
-        except OSError:
-            pass
+        for pipe in (self._proc.stdout, self._proc.stdin):    # either ends the producer
+            try:
+                pipe.close()
+            except OSError:
+                pass
         try:
             self._proc.wait(2.0)
         except subprocess.TimeoutExpired:
             self._proc.kill()
             self._proc.wait(1.0)
-        self._proc.stdout.close()
+        self._ring = None
+        try:
+            self._mem.close()
+        except BufferError:                    # a view still exported: the mapping goes with the last one
+            pass
 
 
 def main(argv: list[str]) -> int:
     import signal
 
-    from ahrsd.drivers.sim_block_producer import ChipBlock as Block     # not __main__'s: the chip unpickles it
     from ahrsd.simulation import open_stream
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)          # its chip's owner ends it (Ctrl-C reaches the group)
-    out = os.fdopen(os.dup(1), "wb")
+    out = os.dup(1)
     os.dup2(2, 1)                                          # stray prints go to stderr, not into the pipe
-    scenario, rate_hz, seed, errors, start_s = argv
+    scenario, rate_hz, seed, errors, start_s, block, slots, fd = argv
+    block, slots = int(block), int(slots)
+    mem = mmap.mmap(int(fd), HEADER_BYTES + slots * block * ROW * 8)
+    ring = _ring(mem, block, slots)
     stream = open_stream(scenario, rate_hz=float(rate_hz), seed=int(seed), errors=errors, start_s=float(start_s))
-    inp = sys.stdin.buffer
+    inp = sys.stdin.buffer.raw
+    made = freed = 0
     while True:
-        head = inp.read(_SIZE.size)
-        if len(head) < _SIZE.size:
-            return 0
+        while made - freed >= slots:                       # the ring is full: wait for the chip to take one
+            got = inp.read(slots)
+            if not got:
+                return 0
+            freed += len(got)
+        blk = stream.next_block(block)
+        if len(blk.t_s) != block:
+            raise ValueError(f"the stream made {len(blk.t_s)} samples, {block} were asked")
+        rows = ring[made % slots]
+        truth = 0
+        for name, s in _COL.items():
+            value = getattr(blk, name, None)
+            if value is None:
+                rows[:, s] = 0.0
+                continue
+            rows[:, s] = np.asarray(value, dtype=np.float64).reshape(block, -1)
+            truth |= {"truth_q_wxyz": _TRUTH_Q, "truth_gyro_rad_s": _TRUTH_GYRO}.get(name, 0)
+        if made == 0:
+            np.frombuffer(mem, dtype=np.int64, count=1)[0] = truth
+        made += 1
         try:
-            blk = Block.of(stream.next_block(_SIZE.unpack(head)[0]))
-            out.write(pickle.dumps(blk, protocol=pickle.HIGHEST_PROTOCOL))      # one write: whole in the pipe
-            out.flush()
-        except BrokenPipeError:                            # the chip's process ended without closing
+            os.write(out, b"\x01")                         # after the rows: the pipe orders the two
+        except BrokenPipeError:                            # the chip closed, or its process ended
             return 0
+        # a short sleep between blocks: at the reader's SCHED_FIFO priority, filling the ring in one go would
+        # run without blocking for longer than a unit's LimitRTTIME= allows (RLIMIT_RTTIME, systemd/ahrsd.service)
+        time.sleep(0.0001)
 
 
 if __name__ == "__main__":

@@ -117,6 +117,11 @@ class SimulatedAdis16405:
         self._out_row = -1
         self._blk = None
         self._apply_config(reopen=True, start_s=0.0, first_index=0)
+        if clock is not None:
+            # power-on: chip time 0 (sample 0's data-ready) is when the chip can make samples, i.e. once its
+            # stream is open — a producer process may take seconds to import the simulator, samples that the
+            # simulated chip could not have made are not lost samples
+            self._t_origin, self._seg_t0 = clock(), 0.0
 
     # --------------------------------------------------------------------------------- public helpers
     @property
@@ -176,6 +181,12 @@ class SimulatedAdis16405:
                 self._run_events(self._vt)
         else:
             getattr(self._clock, "sleep", time.sleep)(max(0.0, seconds))
+
+    def helper_pids(self) -> list[int]:
+        """The processes the chip's reads may wait on (its block producer, drivers.sim_block_producer): a
+        real-time reader gives them its own priority (drivers.threaded_source)."""
+        pid = getattr(self._stream, "pid", None)
+        return [pid] if pid is not None else []
 
     def close(self) -> None:
         self._closed = True
@@ -469,9 +480,6 @@ class SimulatedAdis16405:
                 first_index = self._index + 1
                 start_s = self._seg_t0 + (first_index - self._seg_index0) / self._seg_rate
                 self._materialise_output()
-            self._seg_t0 = self.now() if self._clock is not None else start_s
-            self._seg_index0 = first_index
-            self._seg_rate = self._rate
             if self._factory is not None:
                 self._close_stream()
                 self._stream = self._factory(self._rate, start_s)
@@ -480,6 +488,10 @@ class SimulatedAdis16405:
                 if first_index > 0:
                     log.warning("fixed stream: rate change to %.3f SPS keeps the stream's own sample spacing",
                                 self._rate)
+            # the new sample grid starts once its stream is open (a producer process has its first block)
+            self._seg_t0 = self.now() if self._clock is not None else start_s
+            self._seg_index0 = first_index
+            self._seg_rate = self._rate
             self._blk = None
             self._tail = None
             self._blk_first = first_index
@@ -518,11 +530,11 @@ class SimulatedAdis16405:
         if self._clock is None:
             return self._stream.next_block(BLOCK_SAMPLES)
         if getattr(self._stream, "computed_elsewhere", False):
-            # computed ahead in a producer process: a wait here is the producer short of CPU (counted: the
-            # read waits with it and samples are lost that the real chip, computing in silicon, would keep)
-            t0 = time.monotonic()
+            # computed ahead in a producer process: a wait (its ring empty) is the producer short of CPU,
+            # counted: the read waits with it and samples are lost that the real chip, computing in silicon,
+            # would keep
             blk = self._stream.next_block(BLOCK_SAMPLES)
-            wait_us = int((time.monotonic() - t0) * 1e6)
+            wait_us = int(self._stream.waited_s * 1e6)
             if wait_us > 1e6 / self._rate:
                 self.stats["producer_waits"] = self.stats.get("producer_waits", 0) + 1
             self.stats["producer_wait_max_us"] = max(self.stats.get("producer_wait_max_us", 0), wait_us)

@@ -56,6 +56,32 @@ def request_realtime_priority(priority: int = FIFO_PRIORITY) -> str:
     return ""
 
 
+def share_realtime_priority(pids: list[int], priority: int = FIFO_PRIORITY) -> str:
+    """SCHED_FIFO `priority` for every thread of the processes `pids` (what the reader waits on: the simulated
+    chip's block producer). A real-time reader that waits on a normal-priority process waits for whatever
+    the scheduler runs before it: a priority inversion. "" when done, else why not."""
+    for pid in pids:
+        try:
+            tids = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
+        except OSError:
+            tids = [pid]
+        for tid in tids:
+            try:
+                os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+            except ProcessLookupError:
+                pass
+            except (PermissionError, OSError, AttributeError) as exc:
+                return str(exc) or type(exc).__name__
+    return ""
+
+
+def _helper_pids(inner) -> list[int]:
+    """The processes the inner source's reads may wait on (a simulated chip's block producer)."""
+    chip = getattr(inner, "chip", None)
+    helpers = getattr(chip, "helper_pids", None)
+    return list(helpers()) if callable(helpers) else []
+
+
 def log_realtime_priority(who: str, refused: str, priority: int = FIFO_PRIORITY) -> None:
     """The one log line that says whether the sensor reader runs at real-time priority."""
     if refused:
@@ -104,7 +130,7 @@ class ThreadedSource:
         self._thread: threading.Thread | None = None
         self.stats = {"reads": 0, "corrupt_frames": 0, "read_failures": 0, "handover_dropped": 0,
                       "handover_max_backlog": 0, "realtime_priority": 0, "undelivered_at_close": 0,
-                      "wakes_late": 0, "wake_late_max_us": 0}
+                      "wakes_late": 0, "wake_late_max_us": 0, "helpers_realtime": 0, "handed_over": 0}
         self._last_delivered: int | None = None
         self.after_read = None     # called by the reader thread between reads (drivers.process_source's hand-over)
         self.log_realtime = True   # log whether SCHED_FIFO was granted (a reader process reports it instead)
@@ -133,6 +159,14 @@ class ThreadedSource:
         if self._realtime:
             self.realtime_refused = request_realtime_priority()
             self.stats["realtime_priority"] = int(not self.realtime_refused)
+            if not self.realtime_refused:
+                # the producer started before the reader asked; one started later (a rate change) is forked
+                # by this thread and inherits its policy
+                refused = share_realtime_priority(_helper_pids(self.inner))
+                if refused:
+                    log.warning("the simulated chip's block producer keeps normal priority (%s): the real-time "
+                                "reader may wait on it", refused)
+                self.stats["helpers_realtime"] = int(not refused)
             if self.log_realtime:
                 log_realtime_priority("sensor reader thread", self.realtime_refused)
         if self.inner.per_sample:
@@ -219,6 +253,7 @@ class ThreadedSource:
                 self._gap_pending = False
                 sample = dataclasses.replace(sample, flags=sample.flags | SampleFlags.GAP_BEFORE)
             buf.append(sample)
+            self.stats["handed_over"] += 1
             if len(buf) > self.stats["handover_max_backlog"]:
                 self.stats["handover_max_backlog"] = len(buf)
 

@@ -16,8 +16,8 @@ from ahrsd.drivers.process_source import ProcessSource, pack, unpack
 
 
 def sim_cfg(**kw):
-    return SimpleNamespace(source="sim", reader="process", scenario="static", seed=1, errors="adis16405",
-                           data_ready="", **kw)
+    return SimpleNamespace(**{"source": "sim", "reader": "process", "scenario": "static", "seed": 1,
+                              "errors": "adis16405", "data_ready": "", **kw})
 
 
 def test_records_cross_the_pipe_unchanged():
@@ -169,3 +169,157 @@ def test_the_hand_over_never_blocks_the_reader_on_a_full_pipe(monkeypatch):
         if msg[0] == "samples":
             got += [s.counter for s in unpack(msg[1])]
     assert got == list(range(15))
+
+
+def test_the_simulated_chip_powers_on_when_its_stream_is_open():
+    """Sample 0 becomes ready when the chip can make it: a stream that takes a second to open (a producer
+    process importing the simulator) costs no sample; the first read a half period later gets sample 0."""
+    from ahrsd.drivers import registers as R
+    from ahrsd.drivers.simulated import SimulatedAdis16405
+    from ahrsd.simulation import open_stream
+
+    clock = _SettableClock()
+
+    def slow_to_open(rate_hz, start_s):
+        clock.t += 1.0
+        return open_stream("static", rate_hz=rate_hz, seed=2, errors="adis16405", start_s=start_s)
+
+    chip = SimulatedAdis16405(slow_to_open, clock=clock)
+    try:
+        clock.t += 0.5 / chip.sample_rate_hz
+        chip.transfer(R.BURST_COMMAND + bytes(R.BURST_DATA_BYTES), R.SPI_BURST_HZ, 0)
+        assert chip.sample_index == 0 and chip.stats["samples_lost"] == 0
+    finally:
+        chip.close()
+
+
+def _wait_ahead(stream, n: int, timeout_s: float = 120.0) -> None:
+    end = time.monotonic() + timeout_s
+    while stream.blocks_ahead() < n and time.monotonic() < end:
+        time.sleep(0.05)
+    assert stream.blocks_ahead() == n
+
+
+def test_a_starved_producer_costs_no_block_while_its_ring_lasts():
+    """The producer computes ahead into shared memory: stopped (a producer starved of CPU), the chip still
+    takes every block it had made without waiting — 24 blocks, 7.5 s of samples at 819.2 SPS — and its
+    blocks are the stream's own."""
+    import os
+    import signal
+    import threading
+
+    from ahrsd.drivers.sim_block_producer import SLOTS, ProducedStream
+    from ahrsd.simulation import open_stream
+
+    assert SLOTS >= 24
+    stream = ProducedStream("level-turns", 819.2, 4, "adis16405", 0.0, 256)
+    blocks: list = []
+
+    def take():
+        for _ in range(24):
+            blocks.append(stream.next_block(256))
+
+    try:
+        _wait_ahead(stream, SLOTS)
+        os.kill(stream.pid, signal.SIGSTOP)
+        taker = threading.Thread(target=take, daemon=True)
+        taker.start()
+        taker.join(30.0)                                   # a chip that waits on its producer waits for good
+        taken_while_stopped = len(blocks)
+    finally:
+        os.kill(stream.pid, signal.SIGCONT)
+        stream.close()                                     # (ends a taker still waiting: the producer is gone)
+    assert taken_while_stopped == 24
+    here = open_stream("level-turns", rate_hz=819.2, seed=4, errors="adis16405", start_s=0.0)
+    for blk in blocks:
+        want = here.next_block(256)
+        np.testing.assert_array_equal(blk.t_s, want.t_s)
+        np.testing.assert_array_equal(blk.gyro_rad_s, want.gyro_rad_s)
+        np.testing.assert_array_equal(blk.mag_ut, want.mag_ut)
+        np.testing.assert_array_equal(blk.truth_q_wxyz, want.truth_q_wxyz)
+
+
+def test_a_realtime_reader_gives_its_chips_producer_its_own_priority():
+    """Nothing a SCHED_FIFO reader waits on may run below it: the reader thread that got real-time priority
+    gives the simulated chip's block producer the same (skipped where this machine refuses SCHED_FIFO)."""
+    import os
+
+    from ahrsd.drivers.source import open_source
+    from ahrsd.drivers.threaded_source import FIFO_PRIORITY
+
+    src = open_source(sim_cfg(reader="thread"))
+    try:
+        collect(src, 200)
+        c = src.counters()
+        if not c["reader_realtime_priority"]:
+            pytest.skip("SCHED_FIFO refused here: the reader runs at normal priority, like its producer")
+        (pid,) = src.chip.helper_pids()
+        assert c["reader_helpers_realtime"] == 1
+        assert os.sched_getscheduler(pid) == os.SCHED_FIFO
+        assert os.sched_getparam(pid).sched_priority == FIFO_PRIORITY
+    finally:
+        src.close()
+
+
+def test_the_hand_over_sends_one_bounded_message_a_tick_and_never_blocks_a_real_pipe():
+    """A daemon that does not read: on a real socket pair the hand-over fills the pipe and then waits with
+    its backlog (every tick returns: the reader reads on), one samples message a tick at most; once the daemon
+    reads, all 20 000 samples arrive, in order, once."""
+    import multiprocessing
+    import threading
+
+    from ahrsd.drivers import process_source
+
+    class Reader:                                            # the reader's buffer, 20 000 samples read
+        realtime_refused = None
+
+        def __init__(self):
+            self.buf = [ImuSample(k * 0.001, np.zeros(3), np.zeros(3), np.zeros(3), 25.0, 5.0,
+                                  SampleFlags.NEW_DATA, 0, k) for k in range(20000)]
+
+        def poll(self):
+            out, self.buf = self.buf, []
+            return out
+
+        def counters(self):
+            return {}
+
+    class CountingEnd:                                       # the child's end, counting messages per tick
+        def __init__(self, conn):
+            self.conn, self.samples_messages = conn, 0
+
+        def fileno(self):
+            return self.conn.fileno()
+
+        def send(self, msg):
+            self.samples_messages += msg[0] == "samples"
+            self.conn.send(msg)
+
+    daemon_end, child_end = multiprocessing.Pipe()
+    end = CountingEnd(child_end)
+    h = process_source._Handover(end, Reader())
+    per_tick: list[int] = []
+
+    def ticks(n):
+        for _ in range(n):
+            before = end.samples_messages
+            h.next_send = 0.0
+            h.maybe_send()
+            per_tick.append(end.samples_messages - before)
+
+    ticker = threading.Thread(target=ticks, args=(300,), daemon=True)
+    ticker.start()
+    ticker.join(60.0)
+    assert not ticker.is_alive(), "the hand-over blocked on a full pipe"
+    assert max(per_tick) == 1
+    assert 0 < sum(per_tick) < 20000 / h.chunk_samples and h.pending     # the pipe filled: the rest waits
+    got: list[int] = []
+    for _ in range(10000):
+        while daemon_end.poll(0):
+            msg = daemon_end.recv()
+            if msg[0] == "samples":
+                got += [s.counter for s in unpack(msg[1])]
+        if len(got) == 20000:
+            break
+        ticks(1)
+    assert got == list(range(20000))

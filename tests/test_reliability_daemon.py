@@ -146,16 +146,19 @@ def test_cpu_starvation_short_freeze_counts_the_gap_and_keeps_running(faulty):
     assert of_type(d, "HEARTBEAT")[-1][1].system_status == mavlink.MAV_STATE_ACTIVE
 
 
-@pytest.mark.xfail(strict=False, reason="issue #31, open: intermittent (4 of 5 runs here lost 480-620 samples "
-                   "for a 0.3 s stop of the daemon alone); suspected: the reader process's hand-over blocks in "
-                   "Connection.send once the socket's send buffer is full, so the reader stops reading")
 def test_a_stalled_daemon_loses_no_sample_its_reader_process_read(faulty):
+    """The daemon alone stopped for 0.3 s and for 2 s (its reader process reads on, the hand-over queues):
+    the 245 and 1638 samples the reader read while the daemon was stopped all arrive. What may be missed is
+    what the reader itself comes too late for on a loaded machine: a few samples, not the stop's."""
     d = faulty
     pump(d, 2.0)
-    before = _lost(d)
-    freeze(process_tree(d.proc.pid)[:1], 0.3)                            # the daemon alone: its reader reads on
-    pump(d, 2.5)
-    assert _lost(d) - before < 0.3 * 819 * 0.5                          # the 245 samples were not lost
+    for stop_s in (0.3, 2.0):
+        before = _lost(d)
+        freeze(process_tree(d.proc.pid)[:1], stop_s)                     # the daemon alone: its reader reads on
+        pump(d, 2.5)
+        # not the stop's 245 or 1638 samples (a reader that stops with the daemon loses them all); on a loaded
+        # machine the reader's own late wakes miss a few in the window (up to 67 seen at load 8)
+        assert _lost(d) - before < 0.5 * stop_s * 819, stop_s
 
 
 def test_cpu_starvation_long_freeze_reinitialises_and_says_so(faulty):
@@ -230,3 +233,15 @@ def test_stats_file_and_clean_exit(faulty):
     assert stats["source"]["sensor_reopens"] >= 1 and stats["faults_injected"]["bus_error"] >= 1
     assert stats["commands"]["handler_errors"] == 0
     assert "Traceback" not in d.log_path.read_text()
+
+
+def test_every_sample_the_reader_process_read_reached_the_daemon(faulty):
+    """Load-independent, over the whole run with its faults and stops: every sample the reader handed over
+    crossed to the daemon (none dropped, none left behind); what the reader itself came too late for is its
+    own count, apart (`lost_samples_host`)."""
+    d = faulty
+    d.stop()
+    src = json.loads(d.stats_path.read_text())["source"]
+    assert src["reader_handover_dropped"] == 0
+    assert src["reader_handed_over"] > 20 * 819                         # the whole run's samples
+    assert src["reader_handed_over"] == src["handover_sent"] == src["process_samples"] + src["process_undelivered"]
