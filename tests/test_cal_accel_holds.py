@@ -16,6 +16,7 @@ from ahrsd.drivers.recording import RecordingWriter
 from ahrsd.simulation import DEFAULT_SITE, SensorErrors, simulate
 
 from support.accel_positions import position_holds
+from support.recordings import write_block
 
 RATE_HZ = 100.0
 MG = 9.80665e-3
@@ -83,9 +84,7 @@ def test_holds_shorter_than_min_still_are_refused_naming_what_was_found(tmp_path
 
 def test_a_recording_with_no_still_period_is_refused_saying_so(tmp_path, capsys):
     block = simulate("tumble", 30, rate_hz=RATE_HZ, seed=1)
-    with RecordingWriter(tmp_path / "tumble.csv") as w:
-        for i in range(len(block)):
-            w.write(make_sample(block.t_s[i], block.gyro_rad_s[i], block.accel_m_s2[i], block.mag_ut[i]))
+    write_block(tmp_path / "tumble.csv", block)
     rc = calibrate(tmp_path, tmp_path / "tumble.csv")
     out = json.loads(capsys.readouterr().out)
     assert rc == 1 and out["refused"].startswith("no still period found")

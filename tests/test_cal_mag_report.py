@@ -6,19 +6,16 @@ from __future__ import annotations
 import pytest
 
 from ahrsd.cli import main as cli
-from ahrsd.core.sample import make_sample
-from ahrsd.drivers.recording import RecordingWriter
 from ahrsd.simulation import simulate
+
+from support.recordings import write_block
 
 
 @pytest.fixture(scope="module")
 def turning_boat(tmp_path_factory):
     path = tmp_path_factory.mktemp("magreport") / "turns.csv"
     block = simulate("level-turns", 120, rate_hz=50.0, seed=5)
-    with RecordingWriter(path) as w:
-        for i in range(len(block)):
-            w.write(make_sample(block.t_s[i], block.gyro_rad_s[i], block.accel_m_s2[i], block.mag_ut[i]))
-    return path
+    return write_block(path, block)
 
 
 def test_the_report_leads_with_the_decision_and_hides_internals(turning_boat, tmp_path, capsys):

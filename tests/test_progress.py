@@ -15,8 +15,9 @@ import uuid
 import pytest
 
 from ahrsd.core.sample import make_sample
-from ahrsd.drivers.recording import RecordingWriter
 from ahrsd.simulation import simulate
+
+from support.recordings import write_block
 
 BAR_RATE = "sample/s"    # tqdm's rate field for unit="sample"
 
@@ -25,10 +26,7 @@ BAR_RATE = "sample/s"    # tqdm's rate field for unit="sample"
 def recording(tmp_path_factory):
     path = tmp_path_factory.mktemp("progress") / "tumble.csv"
     block = simulate("tumble", 120, rate_hz=100.0, seed=1)
-    with RecordingWriter(path) as w:
-        for i in range(len(block)):
-            w.write(make_sample(block.t_s[i], block.gyro_rad_s[i], block.accel_m_s2[i], block.mag_ut[i]))
-    return path
+    return write_block(path, block)
 
 
 def in_tmux(command: list[str], timeout_s: float = 120.0) -> str:

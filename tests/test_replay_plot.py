@@ -11,11 +11,11 @@ from scipy.spatial.transform import Rotation
 
 from ahrsd.cli.main import main
 from ahrsd.core.estimate import EstimateFlags
-from ahrsd.core.sample import make_sample
-from ahrsd.drivers.recording import TRUTH_COLUMNS, RecordingWriter
 from ahrsd.estimator.replay import ATTITUDE_COLUMNS
 from ahrsd.estimator.replay_plot import ReplayTrace, truth_errors_deg
 from ahrsd.simulation import simulate
+
+from support.recordings import write_block
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -49,11 +49,7 @@ def test_decimation_keeps_a_flag_raised_for_one_sample():
 def truth_recording(tmp_path_factory):
     path = tmp_path_factory.mktemp("plot") / "md.csv"
     block = simulate("mag-disturbance", 40, rate_hz=50.0, seed=2)
-    with RecordingWriter(path, extra_columns=TRUTH_COLUMNS) as w:
-        for i in range(len(block)):
-            w.write(make_sample(block.t_s[i], block.gyro_rad_s[i], block.accel_m_s2[i], block.mag_ut[i]),
-                    truth_q_wxyz=block.truth_q_wxyz[i])
-    return path
+    return write_block(path, block, with_truth=True)
 
 
 @pytest.fixture
@@ -117,9 +113,7 @@ def test_replay_plot_draws_the_truth_error_panel_that_scipy_computes(truth_recor
 def test_without_truth_columns_there_is_no_error_panel(tmp_path, figures):
     rec = tmp_path / "plain.csv"
     block = simulate("static", 10, rate_hz=50.0, seed=3)
-    with RecordingWriter(rec) as w:
-        for i in range(len(block)):
-            w.write(make_sample(block.t_s[i], block.gyro_rad_s[i], block.accel_m_s2[i], block.mag_ut[i]))
+    write_block(rec, block)
     assert main(["replay", str(rec), "--output", str(tmp_path / "o.csv"), "--plot", str(tmp_path / "p.png"),
                  "--quiet"]) == 0
     (fig,) = figures
