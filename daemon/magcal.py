@@ -145,6 +145,7 @@ class MagCalProtocol:
         self._fit_future: concurrent.futures.Future | None = None
         self._next_progress = 0.0
         self._next_report = 0.0
+        self._final_progress_sent = True     # no session yet
         self._chunk_id = 0
         self._recent_raw: deque = deque()
         self._last_estimate = None
@@ -239,6 +240,11 @@ class MagCalProtocol:
             self._next_progress = now + 1.0 / self.settings.progress_rate_hz
             self.host.send(self.progress_message())
         elif s.status.finished and now >= self._next_report:
+            if not self._final_progress_sent:
+                # progress goes out at a fixed rate, so the last one seen may be well short of the end: one more as
+                # the session ends lets a ground station's bar finish (100 % on success) before the report
+                self._final_progress_sent = True
+                self.host.send(self.progress_message())
             self._next_report = now + 1.0 / self.settings.report_rate_hz
             self.host.send(self.report_message())
 
@@ -348,6 +354,7 @@ class MagCalProtocol:
         self.autosave, self.saved = autosave, False
         self._mask_requested = mask or OUR_MASK
         self._next_progress = 0.0
+        self._final_progress_sent = False
         if autoreboot:
             log.info("magcal: autoreboot requested: not needed, the new calibration is applied without a reboot")
         self._say(SEV_INFO, "Mag cal started" + (f", waiting {delay_s:.0f} s" if delay_s > 0 else ""))

@@ -45,6 +45,8 @@ class OutputSpec:
 
     build(context: OutputContext, estimate, sample, now) -> message or None (None: nothing trustworthy to send now).
     needs_estimate: only built once the estimator has produced an estimate and samples are fresh.
+    once_per_estimate: sent to an endpoint at most once for each estimate (its time stamp): a measurement the
+    autopilot fuses must not arrive twice with the same time when no new sample came between two due times.
     priority: 0 = dropped last by a serial link that cannot keep up (daemon.serial_queue), higher numbers
     first: 0 the heading the autopilot fuses, 1 health, 2 attitude for displays, 3 raw sensor data.
     """
@@ -57,6 +59,7 @@ class OutputSpec:
     build: Callable
     needs_estimate: bool = True
     priority: int = 1
+    once_per_estimate: bool = False
 
 
 def _attitude(ctx, est, sample, now):
@@ -112,7 +115,7 @@ OUTPUTS: tuple[OutputSpec, ...] = (
                DEFAULT_MAX_RATE_HZ, _attitude_quaternion, priority=2),
     # ArduPilot needs > 3.3 Hz, PX4 > 5 Hz
     OutputSpec(mavlink.MAVLINK_MSG_ID_VISION_POSITION_ESTIMATE, "vision_position_estimate_hz", "SR_VISION_POS",
-               30.0, VISION_MAX_RATE_HZ, _vision_position_estimate, priority=0),
+               30.0, VISION_MAX_RATE_HZ, _vision_position_estimate, priority=0, once_per_estimate=True),
     OutputSpec(mavlink.MAVLINK_MSG_ID_HIGHRES_IMU, "highres_imu_hz", "SR_HIGHRES_IMU", 10.0, DEFAULT_MAX_RATE_HZ,
                _highres_imu, priority=3),
     OutputSpec(mavlink.MAVLINK_MSG_ID_SCALED_IMU, "scaled_imu_hz", "SR_SCALED_IMU", 0.0, DEFAULT_MAX_RATE_HZ,

@@ -20,6 +20,7 @@ class Publishers:
         self.health = health
         self.counters = counters
         self.context = context
+        self._sent_estimate_t_s: dict[tuple[int, int], float] = {}   # (endpoint, message id) → estimate time sent
 
     def publish(self, now: float) -> None:
         """Send what fell due on each endpoint's own schedule; a message due on several endpoints at once is
@@ -41,7 +42,14 @@ class Publishers:
                     spec = BY_MESSAGE_ID[mid]
                     m = None if spec.needs_estimate and not fresh else spec.build(self.context, est, sample, now)
                     built[mid] = m
-                if m is not None and ep.send(m):
+                if m is None:
+                    continue
+                if BY_MESSAGE_ID[mid].once_per_estimate:
+                    key = (id(ep), mid)
+                    if self._sent_estimate_t_s.get(key) == est.t_s:
+                        continue
+                    self._sent_estimate_t_s[key] = est.t_s
+                if ep.send(m):
                     self.counters.published += 1
 
     def build_output(self, mid: int, now: float):

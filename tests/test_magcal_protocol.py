@@ -47,6 +47,10 @@ def test_full_session_accept_saves_and_swaps(setup, tmp_path):
     pcts = [m.completion_pct for m in prog]
     assert pcts == sorted(pcts) and pcts[-1] >= 90 and len(prog[-1].completion_mask) == 10
     assert {m.cal_status for m in prog} >= {CalStatus.RUNNING_STEP_ONE, CalStatus.RUNNING_STEP_TWO}
+    # the session's end is announced as progress too, before the first report: a ground station's bar finishes
+    first_report = next(i for i, m in enumerate(host.sent) if m.get_type() == "MAG_CAL_REPORT")
+    last_progress = [m for m in host.sent[:first_report] if m.get_type() == "MAG_CAL_PROGRESS"][-1]
+    assert (last_progress.cal_status, last_progress.completion_pct) == (CalStatus.SUCCESS, 100)
     rep = host.of_type("MAG_CAL_REPORT")[-1]
     assert rep.cal_status == CalStatus.SUCCESS and rep.autosaved == 0 and rep.fitness < 16
     # the report carries ArduPilot's convention: ofs = −hard iron in mgauss

@@ -1,0 +1,79 @@
+"""A VISION_POSITION_ESTIMATE is a measurement the autopilot fuses: each endpoint gets it at most once per
+estimate. When no new sample arrives between two due times (a loaded machine, a stalled reader), the second due
+time sends nothing instead of the same measurement again with the same time stamp; ATTITUDE (for displays) is
+sent as before."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+
+from ahrsd.core.estimate import AttitudeEstimate
+from ahrsd.daemon.counters import ServiceCounters
+from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.daemon.publishers import Publishers
+
+VPE = mavlink.MAVLINK_MSG_ID_VISION_POSITION_ESTIMATE
+ATT = mavlink.MAVLINK_MSG_ID_ATTITUDE
+
+
+class _Endpoint:
+    """Every output is due at every publish; what was sent is kept."""
+
+    def __init__(self):
+        self.sent = []
+        self.schedule = SimpleNamespace(due=lambda now: [ATT, VPE])
+
+    def send(self, msg) -> bool:
+        self.sent.append(msg)
+        return True
+
+
+class _Context:
+    declination_rad = 0.0
+
+    def time_boot_ms(self, now=None):
+        return int((now or 0.0) * 1000.0)
+
+    def sample_time_monotonic(self, t_s):
+        return 1000.0 + t_s
+
+    def heading_trusted(self, now):
+        return True
+
+    def autopilot_yaw(self, est):
+        return est.heading_true_rad, 0
+
+
+def _estimate(t_s: float) -> AttitudeEstimate:
+    z = np.zeros(3)
+    return AttitudeEstimate(t_s=t_s, q_wxyz=np.array([1.0, 0.0, 0.0, 0.0]), roll_rad=0.0, pitch_rad=0.0,
+                            yaw_rad=0.3, heading_mag_rad=0.3, heading_true_rad=0.3, rate_body_rad_s=z,
+                            gyro_bias_rad_s=z, sigma_rpy_rad=np.full(3, math.radians(1.0)))
+
+
+def _rig(n_endpoints: int = 2):
+    endpoints = [_Endpoint() for _ in range(n_endpoints)]
+    pipeline = SimpleNamespace(last_estimate=None, last_sample=None)
+    health = SimpleNamespace(samples_flowing=lambda now: True, sensor_error=False)
+    pubs = Publishers(SimpleNamespace(endpoints=endpoints), pipeline, health, ServiceCounters(), _Context())
+    return pubs, pipeline, endpoints
+
+
+def _of(ep, mid):
+    return [m for m in ep.sent if m.get_msgId() == mid]
+
+
+def test_the_same_estimate_is_never_sent_twice_as_a_vision_estimate_but_each_new_one_is():
+    pubs, pipeline, endpoints = _rig()
+    pipeline.last_estimate = _estimate(1.0)
+    for now in (10.0, 10.033, 10.066):          # three due times, no new sample between them
+        pubs.publish(now)
+    pipeline.last_estimate = _estimate(1.040)
+    pubs.publish(10.1)
+    for ep in endpoints:                        # each endpoint gets each estimate once
+        usecs = [m.usec for m in _of(ep, VPE)]
+        assert usecs == [int((1000.0 + 1.0) * 1e6), int((1000.0 + 1.040) * 1e6)]
+        assert len(_of(ep, ATT)) == 4           # a display output is not limited
