@@ -1,0 +1,65 @@
+"""The floor the operating system sets for any user-space reader of a chip without a FIFO: a bare loop that
+sleeps to each sample time (1/819.2 s steps) at SCHED_FIFO 50 where allowed, alone in its process, and counts the
+wakes that come more than one sample period late (each such wake would have lost at least one ADIS16405 sample,
+which the chip holds for one period only). No ahrsd code runs: compare with bench/latency.py's spidev path.
+
+    .venv/bin/python bench/wake_floor.py [--seconds 20] [--busy N]   # N busy processes beside it
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing
+import os
+import time
+
+PERIOD_S = 1.0 / 819.2
+
+
+def _spin() -> None:
+    while True:
+        pass
+
+
+def wake_lateness(seconds: float) -> tuple[bool, int, int, float]:
+    """(real-time granted, wakes, wakes later than a period, worst lateness s)."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))
+        realtime = True
+    except (PermissionError, OSError):
+        realtime = False
+    n = int(seconds / PERIOD_S)
+    t_next = time.monotonic() + PERIOD_S
+    late = 0
+    worst = 0.0
+    for _ in range(n):
+        wait = t_next - time.monotonic()
+        if wait > 0.0:
+            time.sleep(wait)
+        lag = time.monotonic() - t_next
+        late += lag > PERIOD_S
+        worst = max(worst, lag)
+        t_next += PERIOD_S
+    return realtime, n, late, worst
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument("--busy", type=int, default=0, help="busy-looping processes beside the loop")
+    args = ap.parse_args()
+    busy = [multiprocessing.Process(target=_spin, daemon=True) for _ in range(args.busy)]
+    for p in busy:
+        p.start()
+    try:
+        realtime, n, late, worst = wake_lateness(args.seconds)
+    finally:
+        for p in busy:
+            p.terminate()
+    load1, load5, _ = os.getloadavg()
+    print(f"real-time {'yes' if realtime else 'NO'}, busy {args.busy}: {n} wakes, {late} later than a period "
+          f"({late / args.seconds:.1f}/s), worst {worst * 1e3:.1f} ms; load average {load1:.2f} / {load5:.2f}")
+
+
+if __name__ == "__main__":
+    main()
