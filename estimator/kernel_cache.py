@@ -7,21 +7,40 @@ requests #8396 and #9563 to extend the check to other files were not merged). A 
 to a helper, would then run the old code. So the cache lives in `<base>/ahrsd-kernels-<digest>`, the digest
 over the sources of this package and of `core` (whose flag values the kernels freeze in): any change starts
 an empty cache (one compile), never a stale one. `<base>` is NUMBA_CACHE_DIR when set (the systemd unit sets
-it), else this package's `__pycache__`. Directories of older sources are left behind (a few MB each).
+it), else this package's `__pycache__`.
+
+Each upgrade (and each edit in a checkout) leaves the directory of the older sources behind, so the sibling
+directories of other digests are pruned, and only when no process can be using them:
+* a process that uses a cache directory holds a shared `flock` on its `in-use.lock` for its whole life (the
+  kernel drops it when the process ends, however it ends), so a daemon of another version that runs on the
+  same machine keeps its cache: a sibling is removed only by whoever gets the lock exclusively;
+* and only when nothing in it was touched for `STALE_AFTER_S` (the lock file's time is renewed at every
+  start): a process that has made the directory but not yet locked it, or a version older than this lock,
+  is not raced. Were such a directory removed under a running process anyway, numba makes it again on its
+  next save (`ensure_cache_path`); the loaded kernels live in memory.
+A sibling is renamed before it is removed, so a process starting on it at that moment makes a fresh one.
 
 `use_source_keyed_cache()` runs in `estimator/__init__.py`, before any kernel module is imported (numba
 reads the cache directory when a kernel is decorated)."""
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import os
+import shutil
 import sys
+import time
 from pathlib import Path
 
 _PACKAGE = Path(__file__).resolve().parent
 _SOURCES = (_PACKAGE, _PACKAGE.parent / "core")
 PREFIX = "ahrsd-kernels-"
+LOCK_NAME = "in-use.lock"
+# a sibling untouched this long is no one's cache being set up; a cache that is in use holds its lock anyway
+STALE_AFTER_S = 14 * 86400.0
+
+_held_locks: dict[str, int] = {}    # cache directory → the open lock file this process holds shared
 
 
 def source_digest() -> str:
@@ -35,7 +54,9 @@ def source_digest() -> str:
 
 
 def use_source_keyed_cache() -> str:
-    """Point numba's cache at the directory of the current sources; returns it."""
+    """Point numba's cache at the directory of the current sources, claim it for this process and prune the
+    stale caches of other sources beside it; returns it. A cache base this process cannot write (a read-only
+    install) is used as it is: claiming and pruning are skipped."""
     numba = sys.modules.get("numba")
     base = (numba.config.CACHE_DIR if numba is not None else os.environ.get("NUMBA_CACHE_DIR")) or \
         str(_PACKAGE / "__pycache__")
@@ -46,4 +67,84 @@ def use_source_keyed_cache() -> str:
         numba.config.CACHE_DIR = path
     else:
         os.environ["NUMBA_CACHE_DIR"] = path   # numba reads it when it is first imported
+    try:
+        claim_cache_dir(path)
+        prune_stale_caches(base, keep=os.path.basename(path), now_s=time.time())
+    except OSError:
+        pass
     return path
+
+
+def claim_cache_dir(path: str) -> None:
+    """Make `path` and hold a shared lock on its lock file until this process ends (once per process);
+    renews the lock file's time (the directory's last use)."""
+    if path in _held_locks:
+        return
+    lock = os.path.join(path, LOCK_NAME)
+    while True:
+        os.makedirs(path, exist_ok=True)
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH)
+            try:
+                same = os.path.samestat(os.fstat(fd), os.stat(lock))
+            except FileNotFoundError:
+                same = False
+            if same:       # not renamed away by a pruner between the open and the lock
+                os.utime(fd)
+                _held_locks[path] = fd
+                return
+        except BaseException:
+            os.close(fd)
+            raise
+        os.close(fd)
+
+
+def last_used_s(path: str) -> float:
+    """The latest modification time of the directory `path` and of anything in it (seconds since the epoch)."""
+    latest = os.stat(path).st_mtime
+    for root, dirs, files in os.walk(path):
+        for name in dirs + files:
+            try:
+                latest = max(latest, os.stat(os.path.join(root, name), follow_symlinks=False).st_mtime)
+            except FileNotFoundError:
+                pass
+    return latest
+
+
+def prune_stale_caches(base: str, *, keep: str, now_s: float, stale_after_s: float = STALE_AFTER_S) -> list[str]:
+    """Remove the `PREFIX*` directories in `base` other than `keep` that no process holds (their lock file
+    can be taken exclusively) and in which nothing changed for `stale_after_s` before `now_s`. Returns the
+    names removed. Anything that cannot be checked or removed is left as it is."""
+    removed = []
+    for name in sorted(os.listdir(base)):
+        path = os.path.join(base, name)
+        if name == keep or not name.startswith(PREFIX) or os.path.islink(path) or not os.path.isdir(path):
+            continue
+        lock = os.path.join(path, LOCK_NAME)
+        try:
+            if now_s - last_used_s(path) < stale_after_s:
+                continue
+            try:
+                fd, made_lock = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o644), True
+            except FileExistsError:
+                fd, made_lock = os.open(lock, os.O_RDWR | os.O_CLOEXEC), False
+        except OSError:
+            continue
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                continue        # a process is using it
+            # a process that claimed it since the first look (and has ended) renewed the lock file's time
+            if not made_lock and now_s - os.fstat(fd).st_mtime < stale_after_s:
+                continue
+            doomed = f"{path}.removing-{os.getpid()}"
+            os.rename(path, doomed)
+        except OSError:
+            continue
+        finally:
+            os.close(fd)
+        shutil.rmtree(doomed, ignore_errors=True)
+        removed.append(name)
+    return removed

@@ -1,7 +1,7 @@
 """The compiled kernels' on-disk cache follows their whole source (estimator/kernel_cache.py): a change to a
 helper in another module than the kernel's (numba alone checks only the kernel's own file) is compiled into
 the kernel, not served stale from the cache. Counted by numba's cache hits and misses, in a copy of the
-package with its own cache directory."""
+package with its own cache directory. The caches of other sources are pruned when stale and not held."""
 
 from __future__ import annotations
 
@@ -9,7 +9,10 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
+
+from ahrsd.estimator import kernel_cache
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -46,3 +49,74 @@ def test_a_changed_helper_in_another_module_is_recompiled_into_the_kernel(tmp_pa
     helper.write_text(text.replace("    return roll, pitch, yaw\n", "    return -roll, pitch, yaw\n"))
     hits, misses, roll_changed = _probe(tmp_path)
     assert misses >= 1 and roll_changed == -roll
+
+
+DAY_S = 86400.0
+
+
+def _cache(base: Path, digest: str, age_days: float, now_s: float, *, lock_file: bool = True) -> Path:
+    """A cache directory as numba leaves it (an index in a subfolder), everything in it last changed
+    `age_days` before `now_s`."""
+    d = base / (kernel_cache.PREFIX + digest)
+    (d / "estimator").mkdir(parents=True)
+    (d / "estimator" / "mekf_core.fill_euler-1.py312.nbi").write_bytes(b"index")
+    if lock_file:
+        (d / kernel_cache.LOCK_NAME).touch()
+    t = now_s - age_days * DAY_S
+    for p in sorted(d.rglob("*"), reverse=True) + [d]:
+        os.utime(p, (t, t))
+    return d
+
+
+def test_stale_caches_of_other_sources_are_pruned_and_nothing_else(tmp_path):
+    now_s = 2_000_000_000.0
+    stale = kernel_cache.STALE_AFTER_S / DAY_S + 1.0
+    current = _cache(tmp_path, "c0ffee", stale, now_s)                       # ours, however old
+    old = _cache(tmp_path, "0ld0ld", stale, now_s)
+    older = _cache(tmp_path, "01d3r0", 10 * stale, now_s, lock_file=False)   # left by a version without locks
+    recent = _cache(tmp_path, "fe5h00", stale - 2.0, now_s)                  # used within the stale time
+    touched = _cache(tmp_path, "70ched", stale, now_s)
+    os.utime(touched / "estimator" / "mekf_core.fill_euler-1.py312.nbi", (now_s, now_s))  # numba saved lately
+    foreign = tmp_path / "numba-something-else"
+    foreign.mkdir()
+    os.utime(foreign, (0.0, 0.0))
+    a_file = tmp_path / (kernel_cache.PREFIX + "notadir")
+    a_file.write_bytes(b"")
+    os.utime(a_file, (0.0, 0.0))
+
+    removed = kernel_cache.prune_stale_caches(str(tmp_path), keep=current.name, now_s=now_s)
+
+    assert sorted(removed) == sorted([old.name, older.name])
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        [current.name, recent.name, touched.name, foreign.name, a_file.name])
+
+
+def test_a_cache_another_process_holds_is_kept_however_old(tmp_path):
+    """A daemon of another version on the same machine holds its cache's lock for its whole life."""
+    now_s = 2_000_000_000.0
+    theirs = _cache(tmp_path, "07he45", 100.0, now_s)
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import fcntl, os, sys; fd = os.open(sys.argv[1], os.O_RDWR); "
+         "fcntl.flock(fd, fcntl.LOCK_SH); print('held', flush=True); sys.stdin.read()",
+         str(theirs / kernel_cache.LOCK_NAME)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        assert kernel_cache.prune_stale_caches(str(tmp_path), keep="ours", now_s=now_s) == []
+        assert theirs.is_dir()
+    finally:
+        holder.stdin.close()
+        holder.wait(timeout=60)
+    assert kernel_cache.prune_stale_caches(str(tmp_path), keep="ours", now_s=now_s) == [theirs.name]
+    assert not theirs.exists()
+
+
+def test_claiming_a_cache_renews_it_and_blocks_its_pruning(tmp_path):
+    now_s = time.time()
+    mine = _cache(tmp_path, "m1ne00", 100.0, now_s)
+    kernel_cache.claim_cache_dir(str(mine))
+    try:
+        assert now_s - (mine / kernel_cache.LOCK_NAME).stat().st_mtime < DAY_S     # renewed at the claim
+        assert kernel_cache.prune_stale_caches(str(tmp_path), keep="other", now_s=now_s + 100 * DAY_S) == []
+    finally:
+        os.close(kernel_cache._held_locks.pop(str(mine)))
+    assert kernel_cache.prune_stale_caches(str(tmp_path), keep="other", now_s=now_s + 100 * DAY_S) == [mine.name]
