@@ -40,9 +40,7 @@ class CalibrationSwap:
             CalibrationStore(self.state_dir).save(cal)
         self.pipeline.calibration = cal
         self.on_applied(cal)
-        relearn = getattr(self.pipeline.estimator, "relearn_field_reference", None)
-        if relearn is not None:
-            relearn()
+        self.pipeline.estimator.relearn_field_reference()
         if self.reset_counter_on_calibration:
             self.heading.signal()
         else:

@@ -57,7 +57,7 @@ class CommandArgs:
             return cls(int(msg.command), True,
                        (msg.param1, msg.param2, msg.param3, msg.param4, float(msg.x), float(msg.y), msg.z),
                        int(msg.x), int(msg.y), int(msg.frame))
-        return cls(int(getattr(msg, "command", 0)), False,
+        return cls(int(msg.command), False,
                    (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7))
 
     def p(self, n: int) -> float:

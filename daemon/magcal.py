@@ -110,11 +110,10 @@ def sensor_attitude(estimate, mounting: np.ndarray | None):
     if mounting is None or estimate is None:
         return estimate
     c = euler_to_dcm(float(estimate.roll_rad), float(estimate.pitch_rad), float(estimate.yaw_rad)) @ mounting
-    rate = getattr(estimate, "rate_body_rad_s", None)
     return SimpleNamespace(roll_rad=math.atan2(c[2, 1], c[2, 2]),
                            pitch_rad=-math.asin(max(-1.0, min(1.0, float(c[2, 0])))),
                            yaw_rad=math.atan2(c[1, 0], c[0, 0]),
-                           rate_body_rad_s=None if rate is None else mounting.T @ np.asarray(rate, dtype=float),
+                           rate_body_rad_s=mounting.T @ np.asarray(estimate.rate_body_rad_s, dtype=float),
                            body_yaw_rad=float(estimate.yaw_rad))
 
 

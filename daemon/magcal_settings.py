@@ -4,7 +4,7 @@ the protocol handler, so loading the config does not import the field session.""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 from ahrsd.calibration.mag.swing import DEFAULT_MIN_SPEED_M_S
@@ -35,7 +35,7 @@ def settings_from_mapping(d: dict[str, Any] | None) -> MagCalSettings:
     """`[magcal]` TOML table -> MagCalSettings; raises ValueError naming the bad key."""
     d = dict(d or {})
     out: dict[str, Any] = {}
-    fields = {f: type(getattr(MagCalSettings(), f)) for f in MagCalSettings.__dataclass_fields__}
+    fields = {f: type(v) for f, v in asdict(MagCalSettings()).items()}   # each key's type, by its default
     for key, value in d.items():
         if key not in fields:
             raise ValueError(f"unknown config key magcal.{key}: allowed keys are {', '.join(fields)}")

@@ -157,13 +157,13 @@ class Endpoint:
                 self._rx_timestamps = True
             except (OSError, AttributeError):
                 pass
-        if self.kind == "serial" and self.line_bytes_per_s and getattr(conn, "fd", None) is not None:
+        if self.kind == "serial" and self.line_bytes_per_s and conn.fd is not None:
             self.out_queue = SerialOutQueue(conn.fd, self.line_bytes_per_s, self._loop, self.counters)
             conn.mav.file = self.out_queue
         self._register_fd()
 
     def _register_fd(self) -> None:
-        fd = getattr(self.conn, "fd", None)
+        fd = self.conn.fd if self.conn is not None else None   # every pymavlink connection (mavfile) has one
         if fd == self._fd:
             return
         if self._fd is not None:
@@ -348,7 +348,7 @@ class Endpoint:
         bad_prefix_seen = False
         for msg in msgs:
             if msg.get_type() == "BAD_DATA":
-                reason = str(getattr(msg, "reason", ""))
+                reason = str(msg.reason)
                 if "ignature" in reason:
                     self.counters.rx_bad_signature += 1
                 elif "prefix" in reason:
@@ -400,6 +400,7 @@ def is_for_us(msg, system_id: int, component_id: int) -> tuple[bool, bool]:
 
     Process when target_system is absent/0, or equals ours and target_component is absent/0 or ours.
     """
+    # the target fields exist on the targeted message types only: pymavlink's messages declare no common set
     ts = getattr(msg, "target_system", 0)
     tc = getattr(msg, "target_component", 0)
     if ts not in (0, system_id):

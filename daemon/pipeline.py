@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from ahrsd.core.sample import ImuSample, SampleFlags
+from ahrsd.estimator.base import SteppingEstimator
 from ahrsd.estimator.rotations import euler_to_dcm
 
 log = logging.getLogger(__name__)
@@ -46,20 +47,30 @@ class PipelineCounters:
     estimator_errors: int = 0
 
 
-@dataclass
 class Pipeline:
     """Sensor sample in, calibrated body-frame sample and attitude estimate out."""
 
-    estimator: object
-    calibration: object
-    mounting: np.ndarray | None = None
-    counters: PipelineCounters = field(default_factory=PipelineCounters)
-    last_sample: ImuSample | None = None       # calibrated, body frame
-    _view: object | None = None                # the estimator's in-place view of its latest estimate (step())
-    _snapshot: object | None = None            # the immutable AttitudeEstimate of _view, built on demand
-    _last_counter: int | None = None
-    _sensor: tuple | None = None               # (sample, gyro, accel, mag) calibrated in the sensor frame
-    _sensor_sample: ImuSample | None = None
+    def __init__(self, estimator, calibration, mounting: np.ndarray | None = None):
+        self.estimator = estimator
+        self.calibration = calibration
+        self.mounting = mounting
+        self.counters = PipelineCounters()
+        self.last_sample: ImuSample | None = None    # calibrated, body frame
+        self._view = None                  # the estimator's in-place view of its latest estimate (step())
+        self._snapshot = None              # the immutable AttitudeEstimate of _view, built on demand
+        self._last_counter: int | None = None
+        self._sensor: tuple | None = None  # (sample, gyro, accel, mag) calibrated in the sensor frame
+        self._sensor_sample: ImuSample | None = None
+
+    @property
+    def estimator(self):
+        return self._estimator
+
+    @estimator.setter
+    def estimator(self, estimator) -> None:
+        self._estimator = estimator
+        # the cheap hot path where the estimator has one (estimator.base.SteppingEstimator)
+        self._step = estimator.step if isinstance(estimator, SteppingEstimator) else None
 
     def set_mounting(self, rpy_deg) -> None:
         self.mounting = mounting_matrix(rpy_deg)
@@ -113,15 +124,14 @@ class Pipeline:
                 g, a, mag = m @ g, m @ a, m @ mag
             sample = ImuSample(raw.t_s, g, a, mag, raw.temp_c, raw.supply_v, flags, raw.diag_stat, raw.counter)
         self.last_sample = sample
-        estimator = self.estimator
-        step = getattr(estimator, "step", None)    # the cheap hot path where the estimator has one
+        step = self._step
         try:
-            est = step(sample) if step is not None else estimator.update(sample)
+            est = step(sample) if step is not None else self._estimator.update(sample)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
             c.estimator_errors += 1
             if c.estimator_errors in (1, 100, 10000):
                 log.error("estimator rejected sample %d: %s; resetting it", raw.counter, exc)
-            self.estimator.reset()
+            self._estimator.reset()
             return None
         if step is not None:
             self._view, self._snapshot = est, None

@@ -24,7 +24,7 @@ def sample_accounting(service) -> dict:
     source flagged), `late` (used more than daemon.sample_reader.LATE_AFTER_S after it became ready) and
     `corrupt` (frames the driver rejected: garbage, short reads)."""
     src = service.source
-    c = src.counters() if src is not None and hasattr(src, "counters") else {}
+    c = src.counters() if src is not None else {}
     pc = service.pipeline.counters if service.pipeline is not None else None
     return {"delivered": pc.samples if pc else 0, "missed": pc.lost_samples if pc else 0,
             "late": service.counters.late_samples,
@@ -39,9 +39,9 @@ def collect_stats(service) -> dict:
         out["pipeline"] = dataclasses.asdict(service.pipeline.counters)
     out["samples"] = sample_accounting(service)
     src = service.source
-    if src is not None and hasattr(src, "counters"):
+    if src is not None:
         out["source"] = {k: v for k, v in src.counters().items() if isinstance(v, (int, float))}
-    chip = getattr(src, "chip", None)
+    chip = src.chip if src is not None else None
     if chip is not None:
         out["chip"] = dict(chip.stats)
         out["chip"]["sample_index"] = chip.sample_index

@@ -21,6 +21,7 @@ from ahrsd.daemon.timerfd import DeadlineTimer
 from ahrsd.drivers.errors import FrameError
 from ahrsd.drivers.read_failures import FRAME_ERRORS_FOR_FAILURE
 from ahrsd.drivers.read_failures import RETRY_AFTER_FAILURE_S as DRIVER_RETRY_S
+from ahrsd.drivers.source_interface import SensorSource
 
 log = logging.getLogger(__name__)
 
@@ -66,9 +67,10 @@ class ReaderOutputs:
 
 
 class SampleReader:
-    """The reader task (`run`, on the event loop) and the hot path (`process`)."""
+    """The reader task (`run`, on the event loop) and the hot path (`process`). source None: no reader task;
+    the caller feeds `process` itself (a test, through Service.use_pipeline without a source)."""
 
-    def __init__(self, source, pipeline: Pipeline, health: Health, counters: ServiceCounters,
+    def __init__(self, source: SensorSource | None, pipeline: Pipeline, health: Health, counters: ServiceCounters,
                  listeners: SampleListeners, outputs: ReaderOutputs, *, poll_hz: float):
         self.source = source
         self.pipeline = pipeline
@@ -86,7 +88,7 @@ class SampleReader:
 
     async def run(self, loop: asyncio.AbstractEventLoop) -> None:
         self.loop = loop
-        if getattr(self.source, "per_sample", False):
+        if self.source.per_sample:
             await self._read_per_sample()
         else:
             await self._read_batched()
@@ -166,7 +168,7 @@ class SampleReader:
             if samples:
                 self.process(samples, now)
                 out.batch_done(samples[-1].t_s)
-            elif getattr(source, "finished", False):
+            elif source.finished:
                 log.info("replay finished")
                 out.finished()
                 return
@@ -202,8 +204,8 @@ class SampleReader:
                         log.exception("sample listener %r failed; removed", fn)
                         listeners.remove(fn)
         source = self.source
-        if not getattr(source, "recording_time_base", False):   # samples in time order: count from the oldest
-            ready_by = now - LATE_AFTER_S - getattr(source, "monotonic_offset_s", 0.0)
+        if source is None or not source.recording_time_base:   # samples in time order: count from the oldest
+            ready_by = now - LATE_AFTER_S - (source.monotonic_offset_s if source is not None else 0.0)
             for raw in samples:
                 if raw.t_s >= ready_by:
                     break

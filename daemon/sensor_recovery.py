@@ -20,7 +20,7 @@ async def report_sensor_alarms(service, period_s: float = ALARM_CHECK_PERIOD_S) 
     while True:
         await asyncio.sleep(period_s)
         source = service.source
-        counters = source.counters() if source is not None and hasattr(source, "counters") else {}
+        counters = source.counters() if source is not None else {}
         now = time.monotonic()
         for key, value in counters.items():
             if not key.startswith("diag_") or value <= seen.get(key, 0):

@@ -70,10 +70,11 @@ from ahrsd.daemon.source_set_check import SourceSetCheck
 from ahrsd.daemon.source_set_realign import MAV_CMD_SET_EKF_SOURCE_SET, SourceSetRealign
 from ahrsd.daemon.status_line import StatusLine, format_status
 from ahrsd.daemon.vehicle_log import VehicleLogs
-from ahrsd.drivers.source import open_source
+from ahrsd.drivers.source import SensorSource, open_source
 from ahrsd.daemon.broadcast_notice import BroadcastNotice
 from ahrsd.estimator import make_estimator
 from ahrsd.daemon.estimator_news import estimator_news_muted
+from ahrsd.estimator.base import HeadingCheckedEstimator
 from ahrsd.estimator.warm_up import warm_up
 
 log = logging.getLogger(__name__)
@@ -85,7 +86,7 @@ VISION_POSITION_ESTIMATE = mavlink.MAVLINK_MSG_ID_VISION_POSITION_ESTIMATE
 
 
 class Service:
-    def __init__(self, config: Config, *, source=None, environ=os.environ, stdout=None):
+    def __init__(self, config: Config, *, source: SensorSource | None = None, environ=os.environ, stdout=None):
         self.config = config
         self.environ = environ
         self.state_dir: Path = config.state.resolve(environ)
@@ -214,7 +215,7 @@ class Service:
     @property
     def recording_time_base(self) -> bool:
         """A replay: outgoing time fields carry the recording's t_s, so a ground station's plot lines up with it."""
-        return bool(getattr(self.source, "recording_time_base", False))
+        return self.source is not None and self.source.recording_time_base
 
     def time_boot_ms(self, now: float | None = None) -> int:
         if self.recording_time_base and self.pipeline is not None and self.pipeline.last_sample is not None:
@@ -226,7 +227,7 @@ class Service:
         that clock already); a replay keeps the recording's t_s (`recording_time_base`)."""
         if self.recording_time_base:
             return t_s
-        return t_s + getattr(self.source, "monotonic_offset_s", 0.0)
+        return t_s + (self.source.monotonic_offset_s if self.source is not None else 0.0)
 
     def heading_trusted(self, now: float) -> bool:
         return self.health.heading_trusted(now)
@@ -237,7 +238,8 @@ class Service:
         return self.heading.autopilot_yaw(est)
 
     def _yaw_resets(self) -> int:
-        return int(getattr(self.pipeline.estimator, "yaw_resets", 0))   # ins counts them; mekf has none
+        est = self.pipeline.estimator       # ins counts them; mekf has none
+        return int(est.yaw_resets) if isinstance(est, HeadingCheckedEstimator) else 0
 
     def local_origin(self):
         return None if self.gnss is None else self.gnss.origin
@@ -468,9 +470,9 @@ class Service:
         heading status get its predicted heading error; the iron learned on the old one is reset."""
         self.logs.log_calibration(cal)
         sigma = calibration_heading_sigma_rad(cal)
-        set_sigma = getattr(self.pipeline.estimator, "set_mag_calibration_sigma", None)   # ins (from heading)
-        if set_sigma is not None:
-            set_sigma(sigma)
+        est = self.pipeline.estimator
+        if isinstance(est, HeadingCheckedEstimator):      # ins
+            est.set_mag_calibration_sigma(sigma)
         if self.heading_status is not None:
             self.heading_status.set_calibration_sigma(sigma)
         if self.learned_iron is not None:

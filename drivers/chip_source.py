@@ -14,6 +14,7 @@ import time
 from ahrsd.core.sample import ImuSample, SampleFlags
 from ahrsd.drivers.errors import FrameError
 from ahrsd.drivers.sample_timer import SampleTimer
+from ahrsd.drivers.source_interface import LiveSource
 
 log = logging.getLogger(__name__)
 
@@ -26,7 +27,7 @@ _STALE, _GAP_BEFORE = int(SampleFlags.STALE), int(SampleFlags.GAP_BEFORE)
 _MORE_READS = int(SampleFlags.BURST_BUG_RECOVERED | SampleFlags.GYRO_INVALID | SampleFlags.ALARM)
 
 
-class ChipSource:
+class ChipSource(LiveSource):
     """The ADIS16405 driver read once per sample (`read_one`) at the time the timer asks for (`next_read_time`).
 
     clock: the host clock of the reads (CLOCK_MONOTONIC, the same clock as the reader's `now`). The read is
@@ -35,6 +36,8 @@ class ChipSource:
         only the `now` given to `read_one` is used.
     """
 
+    description: str
+    sample_rate_hz: float
     per_sample = True          # read once per chip sample on the phase lock (see SampleTimer)
     monotonic_offset_s = 0.0   # the SampleTimer stamps samples in CLOCK_MONOTONIC already
 

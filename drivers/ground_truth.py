@@ -9,6 +9,7 @@ from __future__ import annotations
 import logging
 
 from ahrsd.drivers.registers import GLOB_CMD
+from ahrsd.drivers.source_interface import LiveSource
 
 log = logging.getLogger(__name__)
 
@@ -35,7 +36,7 @@ class BurstIndexTap:
         return getattr(self.chip, name)
 
 
-class GroundTruthSource:
+class GroundTruthSource(LiveSource):
     """A per-sample source over `BurstIndexTap(chip)` plus the chip's truth (`truth_stats`, in `counters()`
     as sensor_*; chip_first/last_index_read). Fault windows of the chip's FaultPlan are rebased to count chip
     samples from the start (start-up faults) and from the first read (run-time faults): the chip ran while

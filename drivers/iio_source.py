@@ -61,6 +61,7 @@ import numpy as np
 from ahrsd.core.sample import ImuSample, SampleFlags
 from ahrsd.drivers import registers as R
 from ahrsd.drivers.errors import BusError
+from ahrsd.drivers.source_interface import LiveSource
 
 log = logging.getLogger(__name__)
 
@@ -179,10 +180,12 @@ def _write(path: Path, value: str) -> None:
     path.write_text(value + "\n")
 
 
-class IioSource:
+class IioSource(LiveSource):
     """The ADIS16405 through the kernel's IIO buffer: whole scan records in blocks (`poll()`), converted with the
     kernel's scale/offset to SI, time-stamped by the kernel (CLOCK_MONOTONIC), gaps counted from the stamps."""
 
+    description: str
+    sample_rate_hz: float
     per_sample = False
     monotonic_offset_s = 0.0            # the kernel's stamps are CLOCK_MONOTONIC (current_timestamp_clock)
 

@@ -23,6 +23,7 @@ import numpy as np
 
 from ahrsd.core.sample import ImuSample, SampleFlags
 from ahrsd.drivers import errors as driver_errors
+from ahrsd.drivers.source_interface import LiveSource
 
 log = logging.getLogger(__name__)
 
@@ -182,9 +183,11 @@ class _ChipView:
         return time.monotonic() - self._t_origin       # the simulated chip runs on CLOCK_MONOTONIC
 
 
-class ProcessSource:
+class ProcessSource(LiveSource):
     """The configured chip source (sim or spi), read by drivers.threaded_source in a child process."""
 
+    description: str
+    sample_rate_hz: float
     per_sample = False
     monotonic_offset_s = 0.0
 

@@ -20,6 +20,7 @@ import time
 from ahrsd.drivers.chip_source import ADIS16405_RATE_HZ, ChipSource
 from ahrsd.drivers.errors import BusError, DriverError, SelfTestFailed
 from ahrsd.drivers.sample_timer import StallAwareSampleTimer
+from ahrsd.drivers.source_interface import LiveSource
 
 log = logging.getLogger(__name__)
 
@@ -31,7 +32,7 @@ class SensorUnavailable(BusError):
     """The sensor is down and waiting for its next re-open attempt."""
 
 
-class ReconnectingSource:
+class ReconnectingSource(LiveSource):
     """A ChipSource that (re)opens the bus and (re)starts the driver with backoff.
 
     open_bus: () -> SpiBus, called for every (re)open (a real spidev node is re-opened; the simulated chip
@@ -39,6 +40,8 @@ class ReconnectingSource:
     make_driver: (bus) -> driver with start() and read_sample(stamp) (drivers.source.open_chip_driver).
     """
 
+    description: str
+    sample_rate_hz: float
     per_sample = True
     monotonic_offset_s = 0.0
 

@@ -23,6 +23,10 @@ class ReplaySource:
     per_sample = False   # polled on a fixed tick; each poll returns every sample that is due
     monotonic_offset_s = 0.0   # CLOCK_MONOTONIC − recording time (set at the first sample; at speed 1)
     recording_time_base = True   # outgoing messages carry the recording's t_s (what a plot lines up with)
+    chip = None                  # a recording: no simulated chip behind it
+    description: str
+    sample_rate_hz: float
+    finished: bool
 
     def __init__(self, samples: Iterator[ImuSample], description: str, realtime: bool = True,
                  rate_hz: float = ADIS16405_RATE_HZ, clock=time.monotonic, speed: float = 1.0):

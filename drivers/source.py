@@ -10,39 +10,22 @@ sample after lost ones: gaps are found once, here. Two ways to be read:
   or the IIO buffer drained, in its own thread), drivers.process_source.ProcessSource (a chip read in a child
   process), drivers.iio_source.IioSource (which can also `wait(timeout_s)` for records: a reader thread's).
 Both raise DriverError subclasses on failure (FrameError: one corrupt frame; BusError: the bus failed).
+What the daemon reads of a source is declared in drivers.source_interface (SensorSource, PerSampleSource).
 A GNSS receiver is a sibling source with its own sample type (ahrsd.core.GnssFix), not an IMU source.
 """
 
 from __future__ import annotations
 
 import time
-from typing import Protocol
 
-from ahrsd.core.sample import ImuSample
 from ahrsd.drivers.adis16405 import Adis16405
 from ahrsd.drivers.chip_source import ChipSource
 from ahrsd.drivers.reconnecting import ReconnectingSource
 from ahrsd.drivers.replay_source import ReplaySource
+from ahrsd.drivers.source_interface import PerSampleSource, SensorSource
 
-
-class SensorSource(Protocol):
-    description: str
-    sample_rate_hz: float
-    per_sample: bool
-    monotonic_offset_s: float    # CLOCK_MONOTONIC − sample time stamps
-
-    def read_one(self, now: float) -> ImuSample | None:
-        """per_sample sources: one read at host time `now`; the new sample or None."""
-
-    def next_read_time(self) -> float:
-        """per_sample sources: CLOCK_MONOTONIC time of the next read (0: now)."""
-
-    def poll(self) -> list[ImuSample]:
-        """Every new sample since the last call (possibly none)."""
-
-    def counters(self) -> dict: ...
-
-    def close(self) -> None: ...
+__all__ = ["SensorSource", "PerSampleSource", "open_source", "open_chip_bus", "open_chip_driver", "start_chip_source",
+           "reader_kind"]
 
 
 def open_chip_bus(kind: str, *, spi_device: str = "", scenario: str = "static", seed: int = 0,

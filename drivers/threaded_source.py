@@ -32,6 +32,7 @@ import time
 from ahrsd.core.sample import ImuSample, SampleFlags
 from ahrsd.drivers.errors import FrameError
 from ahrsd.drivers.read_failures import ReadFailures
+from ahrsd.drivers.source_interface import LiveSource
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +94,7 @@ def log_realtime_priority(who: str, refused: str, priority: int = FIFO_PRIORITY)
         log.info("%s: real-time priority SCHED_FIFO %d", who, priority)
 
 
-class ThreadedSource:
+class ThreadedSource(LiveSource):
     """`inner` (a started per-sample source) read in its own thread; `poll()` returns every sample read since the
     last call. Sensor failures reach the daemon as exceptions from `poll()` once the buffer is drained.
 
@@ -103,8 +104,11 @@ class ThreadedSource:
         SampleTimer's next read time.
     """
 
+    description: str
+    sample_rate_hz: float
     per_sample = False
     monotonic_offset_s = 0.0
+    chip = property(lambda self: self.inner.chip)
 
     def __init__(self, inner, *, clock=time.monotonic, sleep_until=None,
                  capacity_samples: int = CAPACITY_SAMPLES, realtime: bool = True,

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 from ahrsd.core.estimate import AttitudeEstimate
 from ahrsd.core.sample import ImuSample
@@ -21,7 +21,22 @@ class Estimator(Protocol):
         """The magnetometer calibration changed: re-learn whatever reference of the field the estimator
         keeps (magnitude, dip) from the next samples, keeping attitude and gyro bias (no heading step)."""
 
-    # Optional hot path (mekf): `step(sample)` updates like `update` but returns a reused, in-place view of
-    # the estimate (the AttitudeEstimate's fields, valid until the next step) with `snapshot() ->
-    # AttitudeEstimate`, so a caller that publishes at a lower rate builds the immutable result only then.
-    # The daemon's pipeline uses it where it exists (daemon/pipeline.py).
+
+@runtime_checkable
+class SteppingEstimator(Estimator, Protocol):
+    """An estimator with a cheap hot path (mekf): `step(sample)` updates like `update` but returns a reused,
+    in-place view of the estimate (the AttitudeEstimate's fields, valid until the next step) with
+    `snapshot() -> AttitudeEstimate`, so a caller that publishes at a lower rate builds the immutable result
+    only then. The daemon's pipeline uses it where an estimator has it (daemon/pipeline.py)."""
+
+    def step(self, sample: ImuSample): ...
+
+
+@runtime_checkable
+class HeadingCheckedEstimator(Protocol):
+    """An estimator that checks its heading against GNSS (ins): it counts the resets of its yaw to the GNSS
+    yaw and takes the heading error a magnetometer calibration predicts (1σ, rad) into its checks."""
+
+    yaw_resets: int
+
+    def set_mag_calibration_sigma(self, sigma_rad: float) -> None: ...

@@ -14,14 +14,27 @@ import subprocess
 
 from ahrsd.daemon.config import Config, EndpointConfig, StateConfig
 from ahrsd.daemon.service import Service
+from ahrsd.drivers.source_interface import LiveSource
 
 
-class DummySource:
+class DummySource(LiveSource):
     """A sensor source that never delivers: the tests drive the MAVLink side only."""
 
     description = "no sensor (test harness)"
     sample_rate_hz = 819.2
     per_sample = True
+
+    def read_one(self, now):
+        return None
+
+    def next_read_time(self):
+        return 0.0
+
+    def poll(self):
+        return []
+
+    def counters(self):
+        return {}
 
     def close(self):
         pass

@@ -54,9 +54,11 @@ def test_probing_a_part_fails(tmp_path):
            "def c(x):\n"
            "    return getattr(x.owner, 'gnss', None)\n"
            "def d(source):\n"
-           "    return getattr(source, 'per_sample', False)\n")    # a driver's optional capability: allowed
+           "    return getattr(source, 'per_sample', False)\n"    # the source interface declares it
+           "def e(msg):\n"
+           "    return getattr(msg, 'target_system', 0)\n")        # a field of some message types: allowed
     r = run(_tree(tmp_path, src))
     assert r.returncode == 1
-    for line in (2, 4, 6):
+    for line in (2, 4, 6, 8):
         assert f"bad.py:{line}:" in r.stdout
-    assert "bad.py:8:" not in r.stdout
+    assert "bad.py:10:" not in r.stdout

@@ -31,6 +31,7 @@ from ahrsd.daemon.params import ParamStore
 from ahrsd.daemon.pipeline import Pipeline
 from ahrsd.daemon.position import PositionResolver
 from ahrsd.daemon.sample_reader import ReaderOutputs, SampleListeners, SampleReader
+from ahrsd.drivers.source_interface import LiveSource
 from ahrsd.simulation import DEFAULT_SITE
 from support.mavlink_feed import as_if_from
 
@@ -183,8 +184,9 @@ class _StubEstimator:
 
 
 def _reader(listeners, ready=None):
-    class Source:
+    class Source(LiveSource):
         sample_rate_hz = 100.0
+        per_sample = False
 
     return SampleReader(Source(), Pipeline(_StubEstimator(), Calibration.identity()), Health(stale_timeout_s=0.1),
                         ServiceCounters(), listeners,
@@ -264,8 +266,9 @@ def test_the_polled_reader_reports_a_bus_failure_and_keeps_sys_status_flowing():
 
     from ahrsd.drivers.errors import BusError
 
-    class Source:
+    class Source(LiveSource):
         sample_rate_hz = 100.0
+        per_sample = False
         finished = False
 
         def __init__(self):

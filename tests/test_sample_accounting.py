@@ -12,13 +12,14 @@ from ahrsd.daemon.run_stats import collect_stats, sample_accounting
 from ahrsd.daemon.sample_reader import LATE_AFTER_S
 from ahrsd.daemon.status_line import format_status
 from ahrsd.daemon.autopilot import AutopilotState
+from ahrsd.drivers.source_interface import LiveSource
 
 from service_rig import gcs_socket, start_service, stop_service
 
 PERIOD_S = 1 / 819.2
 
 
-class CountingSource:
+class CountingSource(LiveSource):
     description = "test source"
     sample_rate_hz = 819.2
     per_sample = False

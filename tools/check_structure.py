@@ -6,8 +6,9 @@ Rules, all in daemon/:
 1. no class with more than two bases (the daemon is composed of parts, not assembled from mixins);
 2. no `setattr` on an object other than `self`/`cls` (no part replaces another object's methods or state);
 3. no `getattr`/`hasattr` probing of the daemon's parts: not on the service or a part itself (`self`,
-   `service`, `svc`, `s`, `host`, `self.service`, `self.host`) and not for an attribute named like a part
-   (an optional part is `None` or a null object by type, and is tested with `is None`).
+   `service`, `svc`, `s`, `host`, `self.service`, `self.host`), not on a sensor source (`source`, `src`,
+   `self.source`: drivers/source_interface.py declares what a source has) and not for an attribute named like
+   a part (an optional part is `None` or a null object by type, and is tested with `is None`).
 """
 
 from __future__ import annotations
@@ -17,7 +18,8 @@ import sys
 from pathlib import Path
 
 MAX_BASES = 2
-PROBED_OBJECTS = {"self", "service", "svc", "s", "host", "self.service", "self.host", "self.svc"}
+PROBED_OBJECTS = {"self", "service", "svc", "s", "host", "self.service", "self.host", "self.svc",
+                  "source", "src", "self.source", "service.source"}   # a sensor source: drivers.source_interface
 PART_NAMES = {
     "magcal", "field_calibration", "gnss", "pipeline", "reader", "publishers", "inbound", "param_protocol",
     "declination", "positions", "housekeeping", "health_report", "swap", "heading", "heading_slew",

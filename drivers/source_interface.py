@@ -1,0 +1,63 @@
+"""What the daemon asks of an IMU sensor source (drivers/source.py explains the two ways to read one), and the
+defaults every live source shares.
+
+Every member the daemon uses is declared here; a source implements each one (tests/test_source_interface.py
+checks every source class), so no part of the daemon probes a source for what it may have.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+from ahrsd.core.sample import ImuSample
+
+
+class SimulatedChipView(Protocol):
+    """What the daemon reads of the simulated ADIS16405 behind a source (drivers.simulated.SimulatedAdis16405,
+    or a reader process's view of it): its truth counters, its sample index, the faults it injected, and its
+    clock (the simulated GNSS receiver flies the same scenario on it)."""
+
+    stats: dict
+    sample_index: int
+    faults: object          # .injected: {fault kind: count}
+
+    def now(self) -> float: ...
+
+
+@runtime_checkable
+class SensorSource(Protocol):
+    description: str
+    sample_rate_hz: float
+    per_sample: bool             # True: read with read_one/next_read_time (PerSampleSource); False: poll()
+    monotonic_offset_s: float    # CLOCK_MONOTONIC − sample time stamps
+    recording_time_base: bool    # the time stamps are a recording's (a replay): outgoing messages keep them
+    finished: bool               # no sample will come any more (a replay at its end)
+    chip: SimulatedChipView | None   # the simulated chip read, None for a real sensor or a recording
+
+    def poll(self) -> list[ImuSample]:
+        """Every new sample since the last call (possibly none)."""
+
+    def counters(self) -> dict: ...
+
+    def close(self) -> None: ...
+
+
+@runtime_checkable
+class PerSampleSource(SensorSource, Protocol):
+    """A chip read once per sample on the daemon's event loop (`per_sample` True)."""
+
+    def read_one(self, now: float) -> ImuSample | None:
+        """One read at host time `now`; the new sample or None."""
+
+    def next_read_time(self) -> float:
+        """CLOCK_MONOTONIC time of the next read (0: now)."""
+
+
+class LiveSource:
+    """The defaults of a sensor read live: stamped in CLOCK_MONOTONIC, never finished, not a recording, no
+    simulated chip behind it (a source that has one says so)."""
+
+    monotonic_offset_s = 0.0
+    recording_time_base = False
+    finished = False
+    chip: SimulatedChipView | None = None
