@@ -1,6 +1,6 @@
-"""What every filter hands out besides its attitude: EstimateFlags from the kernels' int bits, the flags of
-the first estimate after an initialisation, the estimate of a filter that could not initialise yet, and where
-a field of an output record lies in its flat view. Shared by mekf and ins."""
+"""What every filter hands out: the AttitudeEstimate of its output record, EstimateFlags from the kernels' int
+bits, the flags of the first estimate after an initialisation, the estimate of a filter that could not
+initialise yet, and where a field of an output record lies in its flat view. Shared by mekf and ins."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import numpy as np
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState
 
 _FLAG_CACHE: dict[int, EstimateFlags] = {}
+_TWO_PI = 2.0 * math.pi
 
 
 def float_field_slice(dtype: np.dtype, name: str) -> slice:
@@ -57,3 +58,25 @@ def uninitialised_estimate(t_s: float, flag_bits: int) -> AttitudeEstimate:
         flags=EstimateFlags.INITIALISING | estimate_flags(flag_bits),
         heading_state=HeadingState.UNKNOWN,
     )
+
+
+class AttitudeFields:
+    """Where the attitude outputs lie in the flat float64 view of a filter's output record type: the fields
+    every filter's output record has (`q`, `rate_rad_s`, `gyro_bias_rad_s`, `sigma_rpy_rad`, `euler_rad`)."""
+
+    __slots__ = ("q", "rate", "bias", "sigma", "euler")
+
+    def __init__(self, dtype: np.dtype):
+        self.q, self.rate, self.bias, self.sigma, self.euler = (float_field_slice(dtype, name) for name in (
+            "q", "rate_rad_s", "gyro_bias_rad_s", "sigma_rpy_rad", "euler_rad"))
+
+
+def attitude_estimate(t_s: float, out: np.ndarray, fields: AttitudeFields, roll_rad: float, pitch_rad: float,
+                      yaw_rad: float, heading_true_rad: float, flag_bits: int, heading_state: HeadingState,
+                      nav=None, integrity=None) -> AttitudeEstimate:
+    """The estimate of a filter's outputs. out: a fresh copy of the flat view of its output record (the
+    estimate's quaternion, rate, bias and σ are views of it, so the caller must not reuse it); yaw_rad
+    magnetic, heading_true_rad = yaw + declination (both wrapped here to [0, 2π) for the headings)."""
+    return AttitudeEstimate(t_s, out[fields.q], roll_rad, pitch_rad, yaw_rad, yaw_rad % _TWO_PI,
+                            heading_true_rad % _TWO_PI, out[fields.rate], out[fields.bias], out[fields.sigma],
+                            estimate_flags(flag_bits), nav, heading_state, integrity)
