@@ -84,29 +84,31 @@ def cpu_seconds(pid: int, tid: int | None = None) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")   # utime + stime
 
 
-def tree_cpu_seconds(pid: int) -> tuple[float, float]:
+def tree_cpu_seconds(pid: int) -> tuple[float, float, float]:
     """utime + stime of the process and its descendants (the sensor reader process of `sim-process`): (the
-    daemon's, the simulated chip's block producer's — drivers.sim_block_producer, the chip's silicon, which a
-    real chip does not take from the host)."""
-    daemon = producer = 0.0
+    daemon's, its reader process's alone — part of the daemon's —, the simulated chip's block producer's —
+    drivers.sim_block_producer, the chip's silicon, which a real chip does not take from the host)."""
+    daemon = reader = producer = 0.0
     todo = [pid]
     while todo:
         p = todo.pop()
         try:
             cpu = cpu_seconds(p)
-            is_producer = b"sim_block_producer" in Path(f"/proc/{p}/cmdline").read_bytes()
+            cmdline = Path(f"/proc/{p}/cmdline").read_bytes()
         except (OSError, ValueError):
             continue
-        if is_producer:
+        if b"sim_block_producer" in cmdline:
             producer += cpu
         else:
             daemon += cpu
+            if b"multiprocessing" in cmdline:        # the spawned reader process (drivers.process_source)
+                reader += cpu
         for task in Path(f"/proc/{p}/task").glob("*"):
             try:
                 todo += [int(c) for c in (task / "children").read_text().split()]
             except (OSError, ValueError):
                 continue
-    return daemon, producer
+    return daemon, reader, producer
 
 
 def dir_bytes(path: Path) -> int:
@@ -150,7 +152,8 @@ class Load:
 
 
 def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = False, gnss: bool = False,
-           scenario: str = "static", sensor: str = "sim", load: bool = False, flood_hz: float = 1000.0) -> dict:
+           scenario: str = "static", sensor: str = "sim", load: bool = False, flood_hz: float = 1000.0,
+           floor: bool = False) -> dict:
     sock = free_udp_socket()
     port = sock.getsockname()[1]
     with tempfile.TemporaryDirectory() as tmp:
@@ -182,6 +185,7 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
         nbytes = 0
         cpu0 = 0.0
         loader = None
+        floor_proc, floor_out = None, None
         try:
             deadline = time.monotonic() + 60.0
             active = aided = False
@@ -209,7 +213,11 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
                     if t_start is None or now < t_start:
                         continue
                     if cpu0 == 0.0:
-                        (cpu0, chip0), wall0 = tree_cpu_seconds(proc.pid), time.monotonic()
+                        if floor:               # the bare real-time loop beside the daemon, for the window
+                            floor_proc = subprocess.Popen(
+                                [sys.executable, str(REPO / "bench" / "wake_floor.py"), "--seconds",
+                                 str(deadline - now), "--json"], stdout=subprocess.PIPE, text=True)
+                        (cpu0, reader0, chip0), wall0 = tree_cpu_seconds(proc.pid), time.monotonic()
                         main0 = cpu_seconds(proc.pid, proc.pid)
                         log0 = dir_bytes(Path(tmp) / "logs")
                     counts[mtype] = counts.get(mtype, 0) + 1
@@ -220,10 +228,14 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
                         nbytes += len(m.get_msgbuf())
                     elif mtype == "HIGHRES_IMU":
                         lat[mtype].append(now - m.time_usec * 1e-6)
-            (cpu1, chip1), wall1 = tree_cpu_seconds(proc.pid), time.monotonic()
+            (cpu1, reader1, chip1), wall1 = tree_cpu_seconds(proc.pid), time.monotonic()
             main1 = cpu_seconds(proc.pid, proc.pid)
             log1 = dir_bytes(Path(tmp) / "logs")
+            if floor_proc is not None:
+                floor_out = json.loads(floor_proc.communicate(timeout=60)[0])
         finally:
+            if floor_proc is not None and floor_proc.poll() is None:
+                floor_proc.kill()
             flooded = loader.sent if loader is not None else 0
             if loader is not None:
                 loader.close()
@@ -240,6 +252,7 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
         raise SystemExit("the daemon never became ACTIVE")
     return {"latency_s": lat, "cpu_share": (cpu1 - cpu0) / (wall1 - wall0), "window_s": wall1 - wall0,
             "chip_share": (chip1 - chip0) / (wall1 - wall0), "load_avg": os.getloadavg(),
+            "reader_share": (reader1 - reader0) / (wall1 - wall0), "floor": floor_out,
             "main_thread_share": (main1 - main0) / (wall1 - wall0),
             "counts": counts, "bytes_per_s": nbytes / (wall1 - wall0),
             "log_mb_per_h": (log1 - log0) / (wall1 - wall0) * 3600 / 1e6, "stats": stats,
@@ -352,6 +365,9 @@ def main() -> None:
     ap.add_argument("--load", choices=("off", "on", "both"), default="off",
                     help="busy processes on every CPU and a MAVLink flood while measuring (both: one run each)")
     ap.add_argument("--flood-hz", type=float, default=1000.0, help="MAVLink messages per second in the flood")
+    ap.add_argument("--floor", action="store_true",
+                    help="run bench/wake_floor.py's bare real-time loop beside each window: the periods it "
+                    "misses per second are the machine's floor for any user-space reader, in the same run")
     ap.add_argument("--skip-b", action="store_true", help="skip part B (the in-process time-stamp check)")
     args = ap.parse_args()
     scenario = args.scenario or ("static" if args.gnss == "off" else "boat")
@@ -361,7 +377,8 @@ def main() -> None:
     gnss_runs = {"off": (False,), "on": (True,), "both": (False, True)}[args.gnss]
     sensors = ("sim", "sim-process", "iio") if args.sensor == "all" else tuple(args.sensor.split(","))
     loads = {"off": (False,), "on": (True,), "both": (False, True)}[args.load]
-    full = {(p, lg, gn, se, ld): part_a(args.seconds, args.warmup, p, lg, gn, scenario, se, ld, args.flood_hz)
+    full = {(p, lg, gn, se, ld): part_a(args.seconds, args.warmup, p, lg, gn, scenario, se, ld, args.flood_hz,
+                                        args.floor)
             for se in sensors for ld in loads for gn in gnss_runs for p in profiles for lg in logs
             if not (gn and se == "iio")}
     runs = {k[:3]: r for k, r in full.items() if k[3] == sensors[0] and k[4] == loads[0]}
@@ -377,7 +394,12 @@ def main() -> None:
         print(f"   received: {rates}; {r['bytes_per_s']:.0f} B/s on the wire")
         print(f"   daemon CPU: {100 * r['cpu_share']:.1f} % of one core (utime+stime / wall), of which the event loop's "
               f"thread {100 * r['main_thread_share']:.1f} %; the simulated chip's block producer (not the daemon's) "
-              f"{100 * r['chip_share']:.1f} %")
+              f"{100 * r['chip_share']:.1f} %; the reader process alone {100 * r['reader_share']:.1f} %")
+        if r["floor"]:
+            fl = r["floor"]
+            print(f"   floor beside it (bench/wake_floor.py, real-time {'yes' if fl['realtime'] else 'NO'}): "
+                  f"{fl['late']} periods missed of {fl['wakes']} ({100 * fl['late'] / max(1, fl['wakes']):.3f} %), "
+                  f"worst wake {fl['worst_s'] * 1e3:.1f} ms")
         print(f"   load average at the end: {r['load_avg'][0]:.2f} (1 min), {r['load_avg'][1]:.2f} (5 min)")
         if lg:
             print(f"   log directory growth: {r['log_mb_per_h']:.1f} MB/h")
@@ -395,15 +417,18 @@ def main() -> None:
             print(f"   load: {os.cpu_count()} busy processes, {r['flooded']} MAVLink messages flooded in")
     if len(full) >= 2 or len(sensors) > 1 or len(loads) > 1:
         print(f"\n   per path, scenario {scenario}, {args.seconds:g} s windows; load average {os.getloadavg()[0]:.2f}")
-        print("   sensor       load  GNSS  profile    CPU % (loop thread)   delivered   missed   lost %   late  corrupt"
-              "  truth  load avg")
+        print("   sensor       load  GNSS  profile    CPU % (loop thread) reader   delivered   missed   lost %  "
+              "missed/s  floor/s   late  corrupt  truth  load avg")
         for (p, lg, gn, se, ld), r in full.items():
             acc = r["stats"].get("samples", {})
             produced = acc.get("delivered", 0) + acc.get("missed", 0)
+            fl = r["floor"]
+            floor_s = f"{fl['late'] / (fl['wakes'] / 819.2):8.2f}" if fl else "       -"
             print(f"   {se:11s}  {'on' if ld else 'off':4s}  {'on' if gn else 'off':4s}  {p:9s} "
-                  f"{100 * r['cpu_share']:6.1f} ({100 * r['main_thread_share']:4.1f})       "
+                  f"{100 * r['cpu_share']:6.1f} ({100 * r['main_thread_share']:4.1f}) {100 * r['reader_share']:6.1f}   "
                   f"{acc.get('delivered', 0):8d}"
                   f"  {acc.get('missed', 0):7d}  {100 * acc.get('missed', 0) / max(1, produced):6.3f}  "
+                  f"{acc.get('missed', 0) / max(1.0, produced / 819.2):8.2f} {floor_s}  "
                   f"{acc.get('late', 0):5d}  {acc.get('corrupt', 0):7d}  {r['lost_truth']!s:5s}  "
                   f"{r['load_avg'][0]:.2f}")
     rx_share = part_c(scenario) if True in gnss_runs else 0.0

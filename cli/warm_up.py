@@ -40,9 +40,12 @@ def numba_compiles(prefix: str = "ahrsd.") -> int:
     """How many times numba has compiled a disk-cached kernel of the modules under `prefix` in this process
     (its per-dispatcher cache misses: a miss is counted before the compile starts). Kernels without a cache are
     not counted: they compile on every start and are not what the cache saves."""
-    if "numba" not in sys.modules:
+    # never import here: this runs in a watcher thread while the main thread may be importing numba, and a
+    # second thread importing a partly initialised numba fails both imports ("cannot import name ... from
+    # partially initialized module"), which ended `ahrsd run` at start-up on a loaded machine
+    CPUDispatcher = getattr(sys.modules.get("numba.core.registry"), "CPUDispatcher", None)
+    if CPUDispatcher is None:
         return 0
-    from numba.core.registry import CPUDispatcher
 
     seen: set[int] = set()
     total = 0

@@ -79,6 +79,7 @@ def _child(sensor_cfg: dict, faults, conn) -> None:
     # the reads (the reader thread pays for it, holding the GIL) does not walk every module's objects
     gc.collect()
     gc.freeze()
+    gc.callbacks.append(_GC_PAUSES)
     try:
         if conn.recv() != "go":
             return
@@ -113,9 +114,14 @@ class _Handover:
 
     Why a send cannot block: the pipe is a Unix stream socket, which select() calls writable only while at most
     a quarter of its send buffer is in use (Linux unix_writable), and no message is larger than another eighth
-    of it (`chunk_samples`), so a send made when select() says writable always fits."""
+    of it (`chunk_samples`), so a send made when select() says writable always fits.
 
-    CHUNK_SAMPLES = 256
+    Why 32 samples a message: packing costs about 2 µs a sample here (several times that on a Raspberry Pi),
+    and the tick runs between two reads, so after a stalled daemon a 256-sample message held the reader for a
+    millisecond or more per tick, most of a sample period (bench/reader_floor.py: `hand-over tick`). 32 a tick
+    drains 16 000 samples a second, twenty times the chip's rate: 10 s of backlog in half a second."""
+
+    CHUNK_SAMPLES = 32
 
     def __init__(self, conn, src):
         self.conn, self.src = conn, src
@@ -138,11 +144,19 @@ class _Handover:
 
     realtime_sent = False
 
+    work_us_max = 0
+
     def maybe_send(self) -> None:
         now = time.monotonic()
         if now < self.next_send:
             return
         self.next_send = now + HANDOVER_S
+        self._send(now)
+        work_us = (time.monotonic() - now) * 1e6
+        if work_us > self.work_us_max:
+            self.work_us_max = int(work_us)
+
+    def _send(self, now: float) -> None:
         conn, src = self.conn, self.src
         if not self.realtime_sent and src.realtime_refused is not None and self._room():
             self.realtime_sent = True
@@ -164,7 +178,29 @@ class _Handover:
             conn.send(("counters", self.counters(), _chip_truth(src)))
 
     def counters(self) -> dict:
-        return {**self.src.counters(), "handover_sent": self.sent}
+        return {**self.src.counters(), "handover_sent": self.sent, "handover_work_us_max": self.work_us_max,
+                **_GC_PAUSES.counters()}
+
+
+class _GcPauses:
+    """The garbage collector's pauses in the reader process (each runs in the thread that allocates: the
+    reader): how many, and the longest."""
+
+    def __init__(self):
+        self.count, self.max_us, self._t0 = 0, 0, 0.0
+
+    def __call__(self, phase: str, info: dict) -> None:
+        if phase == "start":
+            self._t0 = time.perf_counter()
+        else:
+            self.count += 1
+            self.max_us = max(self.max_us, int((time.perf_counter() - self._t0) * 1e6))
+
+    def counters(self) -> dict:
+        return {"reader_gc_collections": self.count, "reader_gc_pause_max_us": self.max_us}
+
+
+_GC_PAUSES = _GcPauses()
 
 
 class _ChipView:

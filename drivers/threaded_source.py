@@ -38,6 +38,7 @@ log = logging.getLogger(__name__)
 
 CAPACITY_SAMPLES = 8192            # about 10 s at 819.2 SPS: the longest event-loop stall without a loss
 SWITCH_INTERVAL_S = 0.0002         # the GIL hand-over bound while a reader thread runs (default 0.005)
+STALE_REREAD_PERIODS = 0.5        # after a stale read whose next read time is past, re-read this much later
 FIFO_PRIORITY = 50                 # SCHED_FIFO priority of the reader (1..99; below the kernel's IRQ threads)
 _GAP_BEFORE = int(SampleFlags.GAP_BEFORE)
 
@@ -134,7 +135,8 @@ class ThreadedSource(LiveSource):
         self._thread: threading.Thread | None = None
         self.stats = {"reads": 0, "corrupt_frames": 0, "read_failures": 0, "handover_dropped": 0,
                       "handover_max_backlog": 0, "realtime_priority": 0, "undelivered_at_close": 0,
-                      "wakes_late": 0, "wake_late_max_us": 0, "helpers_realtime": 0, "handed_over": 0}
+                      "wakes_late": 0, "wake_late_max_us": 0, "helpers_realtime": 0, "handed_over": 0,
+                      "wakes_late_quarter": 0, "read_us_max": 0, "stale_rereads_spaced": 0}
         self._last_delivered: int | None = None
         self.after_read = None     # called by the reader thread between reads (drivers.process_source's hand-over)
         self.log_realtime = True   # log whether SCHED_FIFO was granted (a reader process reports it instead)
@@ -207,6 +209,8 @@ class ThreadedSource(LiveSource):
         failures = ReadFailures()    # when a failed read is a sensor failure (drivers.read_failures)
         inner, clock, stop, after_read = self.inner, self._clock, self._stop, self.after_read
         period_s = 1.0 / self.sample_rate_hz
+        stale_gap_s = STALE_REREAD_PERIODS * period_s
+        last_read, last_stale = 0.0, False
         while not stop.is_set():
             if after_read is not None:
                 after_read()
@@ -216,18 +220,32 @@ class ThreadedSource(LiveSource):
                     continue
             else:
                 target = inner.next_read_time()
+                if last_stale and target < last_read + stale_gap_s:
+                    # no new sample, and the timer's next read time is already past: the chip's data-ready
+                    # stalled (the timer keeps its phase through a stall). Re-reading at once would busy-loop at
+                    # real-time priority for the whole stall, starving the daemon on that core (and a unit's
+                    # LimitRTTIME kills a real-time task that runs that long without sleeping)
+                    target = last_read + stale_gap_s
+                    self.stats["stale_rereads_spaced"] += 1
                 if target > 0.0:
                     self._sleep_until(target)
-                    late_s = clock() - target
-                    if late_s > period_s:            # woke (and got the GIL) after the chip's next sample
-                        self.stats["wakes_late"] += 1
+                    woke = clock()
+                    late_s = woke - target
+                    if late_s > 0.25 * period_s:     # the distribution's tail, beside bench/wake_floor.py's
+                        self.stats["wakes_late_quarter"] += 1
+                        if late_s > period_s:        # woke (and got the GIL) after the chip's next sample
+                            self.stats["wakes_late"] += 1
                     if late_s * 1e6 > self.stats["wake_late_max_us"]:
                         self.stats["wake_late_max_us"] = int(late_s * 1e6)
             if stop.is_set():
                 break
             try:
                 with self._inner_lock:
-                    sample = inner.read_one(clock())
+                    woke = last_read = clock()
+                    sample = inner.read_one(woke)
+                    read_us = (clock() - woke) * 1e6
+                    if read_us > self.stats["read_us_max"]:
+                        self.stats["read_us_max"] = int(read_us)
             except Exception as exc:  # noqa: BLE001 - FrameError / BusError / SensorUnavailable / OSError
                 self.stats["corrupt_frames" if isinstance(exc, FrameError) else "read_failures"] += 1
                 verdict = failures.read_failed(exc)
@@ -238,6 +256,7 @@ class ThreadedSource(LiveSource):
                 continue
             self.stats["reads"] += 1
             failures.read_ok()
+            last_stale = sample is None
             if sample is not None:
                 self._hand_over(sample)
 

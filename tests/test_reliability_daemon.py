@@ -12,6 +12,8 @@ import json
 import math
 import os
 import signal
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -19,7 +21,7 @@ import pytest
 
 from ahrsd.daemon.messages import SENSOR_AHRS, SENSOR_GYRO
 from ahrsd.daemon.mavlink_io import mavlink
-from support.ahrsd_process import OUR_COMP, Daemon
+from support.ahrsd_process import OUR_COMP, REPO, Daemon
 
 SCHEDULE = "self_test_fail@0-6;bus_error@10-11;stall@15-15.5;alarm@17-17.3:bits=SUPPLY_HIGH"
 
@@ -146,22 +148,31 @@ def test_cpu_starvation_short_freeze_counts_the_gap_and_keeps_running(faulty):
     assert of_type(d, "HEARTBEAT")[-1][1].system_status == mavlink.MAV_STATE_ACTIVE
 
 
-@pytest.mark.xfail(strict=False, reason="issue #31: intermittent, 1 of 3 fresh-clone CI runs on an idle machine lost 559 "
-                   "samples in the 0.3 s stop's window (bound 122) while the hand-over dropped none (the exact "
-                   "accounting test holds): the reader process itself misses reads around a daemon stop; not isolated")
+def floor_beside(seconds: float) -> subprocess.Popen:
+    """bench/wake_floor.py's bare SCHED_FIFO loop for `seconds`, in a process of its own: the periods it misses
+    are what this machine lets any user-space reader of a FIFO-less chip miss meanwhile (docs/drivers.md)."""
+    return subprocess.Popen([sys.executable, str(REPO / "bench" / "wake_floor.py"), "--seconds", f"{seconds:.2f}",
+                             "--json"], stdout=subprocess.PIPE, text=True)
+
+
 def test_a_stalled_daemon_loses_no_sample_its_reader_process_read(faulty):
     """The daemon alone stopped for 0.3 s and for 2 s (its reader process reads on, the hand-over queues):
-    the 245 and 1638 samples the reader read while the daemon was stopped all arrive. What may be missed is
-    what the reader itself comes too late for on a loaded machine: a few samples, not the stop's."""
+    the 245 and 1638 samples the reader read while the daemon was stopped all arrive. What may be missed in
+    the window is what the machine makes any real-time reader miss: bounded by the periods a bare real-time
+    loop running beside it (the floor) missed in the same window."""
     d = faulty
     pump(d, 2.0)
     for stop_s in (0.3, 2.0):
         before = _lost(d)
+        floor = floor_beside(stop_s + 2.5 + 1.3)                         # the window: stop, pump, next SYS_STATUS
         freeze(process_tree(d.proc.pid)[:1], stop_s)                     # the daemon alone: its reader reads on
         pump(d, 2.5)
-        # not the stop's 245 or 1638 samples (a reader that stops with the daemon loses them all); on a loaded
-        # machine the reader's own late wakes miss a few in the window (up to 67 seen at load 8)
-        assert _lost(d) - before < 0.5 * stop_s * 819, stop_s
+        lost = _lost(d) - before
+        floor_missed = json.loads(floor.communicate(timeout=30)[0])["late"]
+        # a reader that stops with the daemon (or a hand-over that blocks) loses the stop's 245 or 1638 samples;
+        # one at the floor loses about what the bare loop does (1.1-1.6x in bench/reader_floor.py and
+        # bench/latency.py --floor runs): 3x that plus 20 for the two sharing the machine but not each stall
+        assert lost < 0.5 * stop_s * 819 + 3 * floor_missed + 20, (stop_s, lost, floor_missed)
 
 
 def test_cpu_starvation_long_freeze_reinitialises_and_says_so(faulty):

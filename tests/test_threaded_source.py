@@ -182,3 +182,25 @@ def test_a_wake_later_than_a_period_is_counted_with_its_lateness():
     assert c["reader_wakes_late"] == 1
     assert 3 * PERIOD_S * 1e6 - 60 <= c["reader_wake_late_max_us"] <= 3 * PERIOD_S * 1e6 + 1
     assert gap_samples(got) == c["lost_samples_host"] >= 2         # the late wake lost the samples it slept past
+
+
+def test_a_data_ready_stall_is_waited_out_in_half_periods_not_spun():
+    """The chip's data-ready stalls for 100 samples (0.12 s): the timer keeps its phase, so its next read time
+    stays in the past through the stall. The reader then re-reads every half period, sleeping in between; one
+    that re-read at once would busy-loop at real-time priority for the whole stall (on this stepped clock it
+    never sleeps again and the clock cannot advance: the run fails). After the stall every sample is read."""
+    from ahrsd.drivers.faults import FaultKind, FaultPlan
+    from ahrsd.drivers.sample_timer import StallAwareSampleTimer
+
+    clock = SteppedClock(patience_s=3.0)
+    plan = FaultPlan(seed=1)
+    chip = SimulatedAdis16405("static", seed=3, clock=clock, faults=plan)
+    inner = start_chip_source(chip, "test chip", clock=clock, self_test=False)
+    inner.timer = StallAwareSampleTimer(inner.timer.period_s)     # the daemon's (drivers.reconnecting)
+    first = chip.sample_index + 60
+    plan.add(FaultKind.STALL, start_sample=first, stop_sample=first + 100)
+    src = ThreadedSource(inner, clock=clock, sleep_until=clock.sleep_until, realtime=False)
+    got = read_through_a_starved_loop(src, clock, stalls=4)                # 0.4 s of chip time
+    stall_s = 100 * PERIOD_S
+    assert 0.8 * stall_s / (0.5 * PERIOD_S) <= src.stats["stale_rereads_spaced"] <= 1.1 * stall_s / (0.5 * PERIOD_S)
+    assert len(got) > 100 and gap_samples(got[-100:]) == 0                    # the reads after it are whole
