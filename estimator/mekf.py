@@ -82,6 +82,10 @@ class MekfParams:
     RMS 21° → 0.3°)."""
     acc_turn_dead_zone_rad: float = 0.0
     """Turn angles φ below this add no noise, rad."""
+    turn_speed_m_s: float = 2.0
+    """A plausible speed of the vehicle while it turns, m/s, for the published 1σ only (the estimate does not
+    depend on it): a turn at ω about the vertical leans the apparent vertical by atan(ω·v/g), which the
+    accelerometer's norm cannot show and the filter cannot tell from a tilt (mekf_core `_track_tilt_push`)."""
     acc_reject_m_s2: float = 2.0
     """The accelerometer is not used while the low-passed | |f| − g | exceeds this (sustained linear
     acceleration), m/s²."""
