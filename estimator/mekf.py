@@ -82,6 +82,11 @@ class MekfParams:
     RMS 21° → 0.3°)."""
     acc_turn_dead_zone_rad: float = 0.0
     """Turn angles φ below this add no noise, rad."""
+    turn_speed_m_s: float = 2.0
+    """A plausible speed of the vehicle while it turns, m/s (a boat's or a walker's; 25 in
+    `FIXED_WING_MEKF_PARAMS`), for the published 1σ only (the estimate does not depend on it): a turn at ω
+    about the vertical leans the apparent vertical by atan(ω·v/g), which the accelerometer's norm cannot show
+    and the filter cannot tell from a tilt (mekf_core `_track_tilt_push`)."""
     acc_reject_m_s2: float = 2.0
     """The accelerometer is not used while the low-passed | |f| − g | exceeds this (sustained linear
     acceleration), m/s²."""
@@ -203,8 +208,9 @@ class MekfParams:
 DEFAULT_MEKF_PARAMS = MekfParams()
 """The defaults: chosen on BROAD (handheld, all 15 trials, one set) and the simulated ADIS16405 scenarios."""
 
-FIXED_WING_MEKF_PARAMS = replace(DEFAULT_MEKF_PARAMS, acc_turn_noise_gain=1.0)
-"""For aircraft (sustained coordinated turns): tilt measurement de-weighted by the turn angle acos(g/|f|)."""
+FIXED_WING_MEKF_PARAMS = replace(DEFAULT_MEKF_PARAMS, acc_turn_noise_gain=1.0, turn_speed_m_s=25.0)
+"""For aircraft (sustained coordinated turns): tilt measurement de-weighted by the turn angle acos(g/|f|); the
+published σ counts a turn's lean at a small aircraft's cruise speed."""
 
 
 _TWO_PI = 2.0 * math.pi

@@ -83,6 +83,12 @@ FIELD_OFFSET_DTYPE = np.dtype([           # the body-fixed field offset estimate
     ("ready", np.bool_),                  # known well enough, significant and consistent: subtracted
 ])
 
+UNMODELLED_DTYPE = np.dtype([             # attitude errors the filter's covariance does not carry (`_fill_outputs`)
+    ("rate_down_lp_rad_s", np.float64),   # rate about the vertical, low-passed as the specific force is
+    ("tilt_push_rad", np.float64),        # tilt error a sustained push has left in the estimate
+    ("heading_push_rad", np.float64),     # heading error that tilt error leaves through the dip
+])
+
 MEKF_STATE_DTYPE = np.dtype([
     ("q", np.float64, (4,)),                  # attitude quaternion body→NED, scalar first
     ("gyro_bias_rad_s", np.float64, (3,)),
@@ -109,6 +115,7 @@ MEKF_STATE_DTYPE = np.dtype([
     # heading
     ("mag", mag.MAG_HEADING_STATE_DTYPE),     # the magnetometer heading check
     ("offset", FIELD_OFFSET_DTYPE),
+    ("unmodelled", UNMODELLED_DTYPE),
     # cached low-pass weights
     ("lp_rest", LOWPASS_WEIGHT_DTYPE),
     ("lp_acc_ned", LOWPASS_WEIGHT_DTYPE),
@@ -128,6 +135,7 @@ MEKF_PARAMS_DTYPE = np.dtype([
     ("acc_noise_rest_m_s2", np.float64),
     ("acc_turn_noise_gain", np.float64),
     ("acc_turn_dead_zone_rad", np.float64),
+    ("turn_speed_m_s", np.float64),
     ("acc_reject_m_s2", np.float64),
     ("acc_gate_rad", np.float64),
     ("acc_gate_recover_s", np.float64),
@@ -444,11 +452,26 @@ def _learn_bias_at_rest(st, par, dt, gx, gy, gz):
 
 # ----------------------------------------------------------------------------------- accelerometer: tilt only
 @njit(cache=True)
-def _tilt_update(st, par, dt, at_rest, ax, ay, az):
+def _track_tilt_push(u, par, g_ref, p_tilt, r):
+    """The tilt error a turn leaves in the estimate, which the filter's covariance does not carry. A vehicle
+    turning at ω_D about the vertical with speed v feels the centripetal acceleration ω_D·v, horizontal: the
+    apparent vertical leans by φ = atan(ω_D v / g) while |f| stays within (ω_D v)²/(2g) of g (0.005 m/s² for
+    a boat at 9 °/s and 2 m/s), below what the norm checks can see. Without a velocity v is unknown:
+    turn_speed_m_s stands for it. The accelerometer low-pass sees the rate about the vertical low-passed
+    (`rate_down_lp_rad_s`), and each accepted tilt update moves the estimate toward that lean with its own
+    gain k = P/(P + R), so the lean carried into the estimate follows ε ← ε + k (φ − ε): it builds up over a
+    turn and is corrected away after it at the rate the filter corrects any tilt error."""
+    phi = math.atan(par.turn_speed_m_s * abs(u.rate_down_lp_rad_s) / g_ref)
+    u.tilt_push_rad += p_tilt / (p_tilt + r) * (phi - u.tilt_push_rad)
+
+
+@njit(cache=True)
+def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz):
     """The vertical of the specific force, low-passed in the estimated NED frame (linear acceleration averages
     out, gravity stays: VQF §IV-B), corrects δθ_N, δθ_E with the gain on heading forced to zero. Rejected
     while the low-passed |f| is far from g or its vertical is more than acc_gate_rad from the estimate, then
-    held off until the low-pass has forgotten the push. Returns F_ACCEL_REJECTED or 0."""
+    held off until the low-pass has forgotten the push. (wx, wy, wz): the bias-corrected rate, for the lean a
+    turn leaves (`_track_tilt_push`). Returns F_ACCEL_REJECTED or 0."""
     e00, e01, e02, e10, e11, e12, e20, e21, e22 = dcm(st.q[0], st.q[1], st.q[2], st.q[3])
     fn = e00 * ax + e01 * ay + e02 * az
     fe = e10 * ax + e11 * ay + e12 * az
@@ -469,9 +492,12 @@ def _tilt_update(st, par, dt, at_rest, ax, ay, az):
         ue = f[1]
         ud = f[2]
     else:
+        ka = 1.0
         un = fn
         ue = fe
         ud = fd
+    u = st.unmodelled
+    u.rate_down_lp_rad_s += ka * ((e20 * wx + e21 * wy + e22 * wz) - u.rate_down_lp_rad_s)
     unorm = math.sqrt(un * un + ue * ue + ud * ud)
     dev = abs(unorm - g_ref)  # sustained linear acceleration left after the low-pass
     # unit measured "up" in NED: u = [δθ_E, −δθ_N, −1] (+ noise)
@@ -512,6 +538,7 @@ def _tilt_update(st, par, dt, at_rest, ax, ay, az):
             ratio = min(unorm, g_ref) / max(unorm, g_ref)
             phi = par.acc_turn_noise_gain * max(math.acos(ratio) - par.acc_turn_dead_zone_rad, 0.0)
         r = (par.acc_noise_m_s2 / g_ref) ** 2 + phi * phi + r_motion
+    _track_tilt_push(u, par, g_ref, st.P[E_TILT_E, E_TILT_E], r)
     # never heading; and no bias learning while |f| is off g (a push would be read as bias)
     mask = M_HEADING if abs(fnorm - g_ref) < par.rest_acc_th_m_s2 else (M_HEADING | M_BIAS)
     a0, a1, a2, a3, a4, a5 = scalar_update_6(st.P, E_TILT_E, 1.0, nu_n, r, mask)
@@ -673,6 +700,16 @@ def _field_offset(st, par, dt, rate, mx, my, mz):
 
 # ----------------------------------------------------------------------------------- magnetometer: heading only
 @njit(cache=True)
+def _track_heading_push(u, dip_rad, p_heading, r):
+    """The heading error the tilt push (`_track_tilt_push`) leaves through the field's dip. The heading is the
+    direction of the horizontal field in the estimated NED frame; a tilt error ε about the north axis turns
+    the vertical field B sin I into the east component, ε B sin I, against a horizontal field B cos I: a
+    heading error ε tan I. Each heading update moves the estimate toward that with its own gain P/(P + R)."""
+    target = abs(math.tan(dip_rad)) * u.tilt_push_rad
+    u.heading_push_rad += p_heading / (p_heading + r) * (target - u.heading_push_rad)
+
+
+@njit(cache=True)
 def _heading_update(st, par, dt, rate, valid, at_rest, moved_at_rest, mx, my, mz):
     """The body-fixed offset stage, then the magnetometer heading (mag_heading.py's check and measurement)
     corrects δθ_D with the gain on tilt forced to zero (row h = −e_D: α = −δθ_D). Returns flag bits."""
@@ -690,6 +727,7 @@ def _heading_update(st, par, dt, rate, valid, at_rest, moved_at_rest, mx, my, mz
         res, alpha, r = mag.heading_measurement(st.mag, par.mag, dt, rate, at_rest, moved_at_rest,
                                                 mn, me, md, mnorm, 0.0, st.P[E_HEADING, E_HEADING])
         if res == mag.MAG_USE:
+            _track_heading_push(st.unmodelled, st.mag.ref_dip_rad, st.P[E_HEADING, E_HEADING], r)
             d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, E_HEADING, -1.0, alpha, r, M_TILT)
             _apply_correction(st, par, d0, d1, d2, d3, d4, d5)
             used = True
@@ -733,16 +771,31 @@ def _fill_outputs(st, par, gx, gy, gz, out):
         cy = 1.0
         sy = 0.0
     P = st.P
-    sig = out.sigma_rpy_rad
-    sig[0], sig[1] = tilt_sigma(cy, sy, P[E_TILT_N, E_TILT_N], P[E_TILT_N, E_TILT_E], P[E_TILT_E, E_TILT_E])
-    sig[2] = math.sqrt(max(P[E_HEADING, E_HEADING], 0.0))
+    pnn = P[E_TILT_N, E_TILT_N]
+    pne = P[E_TILT_N, E_TILT_E]
+    pee = P[E_TILT_E, E_TILT_E]
+    pdd = max(P[E_HEADING, E_HEADING], 0.0)
     out.gyro_bias_rad_s[0] = b[0]
     out.gyro_bias_rad_s[1] = b[1]
     out.gyro_bias_rad_s[2] = b[2]
-    if initialising(st.t_run_s, sig[0], sig[1], sig[2], par.init_min_time_s, par.converged_tilt_rad,
-                    par.mag_enabled, par.converged_yaw_rad):
-        return F_INITIALISING
-    return 0
+    # converged: the filter's own covariance (the unmodelled terms below are not something it converges on)
+    sig_roll, sig_pitch = tilt_sigma(cy, sy, pnn, pne, pee)
+    init = initialising(st.t_run_s, sig_roll, sig_pitch, math.sqrt(pdd), par.init_min_time_s,
+                        par.converged_tilt_rad, par.mag_enabled, par.converged_yaw_rad)
+    # the published 1σ adds what the covariance does not carry (Schmidt's "consider" terms):
+    # (a) the low-passed vertical is on average acc_lowpass_tau_s old, so it has not seen the attitude random
+    #     walk of the last τ: the tilt process noise rate (as `_propagate_covariance`) times τ;
+    # (b) the lean a turn has left in the tilt and, through the dip, in the heading (`_track_tilt_push`)
+    wx = gx - b[0]
+    wy = gy - b[1]
+    wz = gz - b[2]
+    u = st.unmodelled
+    extra = ((par.gyro_noise_rad_s_sqrt_hz ** 2 + par.gyro_rate_noise_sqrt_s ** 2 * (wx * wx + wy * wy + wz * wz))
+             * par.acc_lowpass_tau_s + u.tilt_push_rad * u.tilt_push_rad)
+    sig = out.sigma_rpy_rad
+    sig[0], sig[1] = tilt_sigma(cy, sy, pnn + extra, pne, pee + extra)
+    sig[2] = math.sqrt(pdd + u.heading_push_rad * u.heading_push_rad)
+    return F_INITIALISING if init else 0
 
 
 @njit(cache=True)
@@ -779,7 +832,7 @@ def mekf_step(st, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, ou
         flags |= F_AT_REST
         _learn_bias_at_rest(st, par, dt, gx, gy, gz)
     if valid & IN_ACC_OK:
-        flags |= _tilt_update(st, par, dt, at_rest, ax, ay, az)
+        flags |= _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz)
     flags |= _heading_update(st, par, dt, rate, valid, at_rest, mag_moved_at_rest, mx, my, mz)
     return flags | _fill_outputs(st, par, gx, gy, gz, out)
 
