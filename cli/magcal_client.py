@@ -245,35 +245,45 @@ class MagCalClient:
         return 0
 
     def learned_iron(self, timeout_s: float = 2.0) -> dict[str, float]:
-        """The daemon's read-only MAG_LRN_* parameters (daemon.learned_iron), by PARAM_REQUEST_READ."""
-        from ahrsd.daemon.learned_iron import PARAM_NAMES
+        """The daemon's read-only MAG_LRN_* parameters (daemon.learned_iron: hard iron and soft iron), by
+        PARAM_REQUEST_READ; a daemon that does not know a name leaves it out."""
+        from ahrsd.daemon.learned_iron import PARAM_NAMES, SOFT_PARAM_NAMES, SOFT_SD_PARAM
 
-        for name in PARAM_NAMES:
+        names = (*PARAM_NAMES, *SOFT_PARAM_NAMES, SOFT_SD_PARAM)
+        for name in names:
             self.conn.mav.param_request_read_send(self.sys, self.comp, name.encode("ascii"), -1)
         values: dict[str, float] = {}
         deadline = time.monotonic() + timeout_s
-        while len(values) < len(PARAM_NAMES) and time.monotonic() < deadline:
+        while len(values) < len(names) and time.monotonic() < deadline:
             m = self.conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=0.2)
             if m is None or not self._from_target(m):
                 continue
             name = m.param_id if isinstance(m.param_id, str) else m.param_id.decode("ascii", "replace")
             name = name.split("\0", 1)[0]
-            if name in PARAM_NAMES:
+            if name in names:
                 values[name] = float(m.param_value)
         return values
 
     def learned_iron_text(self) -> str:
-        from ahrsd.daemon.learned_iron import NOT_LEARNING_SD, PARAM_NAMES
+        from ahrsd.daemon.learned_iron import NOT_LEARNING_SD, PARAM_NAMES, SOFT_PARAM_NAMES, SOFT_SD_PARAM
 
-        v = self.learned_iron()
-        if len(v) < len(PARAM_NAMES):
+        v = self.learned_iron(min(2.0, self.timeout_s))
+        if not all(n in v for n in PARAM_NAMES):
             return "learned iron: not reported (an older ahrsd?)"
         if v[PARAM_NAMES[3]] <= NOT_LEARNING_SD:
             return "learned iron: none (the estimator learns none: run the GNSS-aided ins)"
         x, y, z = (v[n] for n in PARAM_NAMES[:3])
-        return (f"learned iron (body FRD, on top of the calibration): {x:+.2f} {y:+.2f} {z:+.2f} uT, "
-                f"1-sigma up to {v[PARAM_NAMES[3]]:.2f} uT\n"
-                "  keep it: ahrsd magcal accept-learned   forget it: ahrsd magcal reset-learned")
+        lines = [f"learned iron (body FRD, on top of the calibration): hard {x:+.2f} {y:+.2f} {z:+.2f} uT, "
+                 f"1-sigma up to {v[PARAM_NAMES[3]]:.2f} uT"]
+        if all(n in v for n in (*SOFT_PARAM_NAMES, SOFT_SD_PARAM)):
+            rows = ["[" + " ".join(f"{v[n]:+.4f}" for n in SOFT_PARAM_NAMES[3 * r:3 * r + 3]) + "]" for r in range(3)]
+            sd = v[SOFT_SD_PARAM]
+            lines.append(f"  soft iron I + D: {' '.join(rows)}"
+                         + (f", 1-sigma up to {sd:.4f}" if sd > NOT_LEARNING_SD else ", none learned"))
+        else:
+            lines.append("  soft iron: not reported (an older ahrsd?)")
+        lines.append("  keep it: ahrsd magcal accept-learned   forget it: ahrsd magcal reset-learned")
+        return "\n".join(lines)
 
 
 def _ask(prompt: str) -> bool:

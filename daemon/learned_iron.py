@@ -8,7 +8,8 @@ the calibration or reset by the operator.
   when the key matches; discarded when it does not. Saved every SAVE_PERIOD_S when it changed, and at stop.
 * Reset whenever another magnetometer calibration or mounting comes into force (`calibration_changed`).
 * Shown as read-only parameters MAG_LRN_X/Y/Z (µT, body FRD) and MAG_LRN_SD (largest 1σ, µT; −1 with an
-  estimator that learns none), refreshed every PUBLISH_PERIOD_S.
+  estimator that learns none), and the learned soft iron I + D as MAG_LRN_S11 … MAG_LRN_S33 (row-major, body
+  FRD, dimensionless) with MAG_LRN_SSD (the largest 1σ of an element of D), refreshed every PUBLISH_PERIOD_S.
 * One command, CMD_LEARNED_IRON (MAV_CMD_USER_1, 31010): param1 = 1 accepts it into the calibration (the hard
   iron moves by the learned offset, then the learned one is reset), 2 resets it; the same by writing the
   momentary parameter MAG_LRN_ACT (for a ground station's parameter list). Refused while the autopilot
@@ -48,6 +49,9 @@ PUBLISH_PERIOD_S = 1.0
 CMD_LEARNED_IRON = 31010        # MAV_CMD_USER_1 (common.xml): param1 ACTION_*
 ACTION_ACCEPT, ACTION_RESET = 1, 2
 PARAM_NAMES = ("MAG_LRN_X", "MAG_LRN_Y", "MAG_LRN_Z", "MAG_LRN_SD")
+SOFT_PARAM_NAMES = tuple(f"MAG_LRN_S{r}{c}" for r in (1, 2, 3) for c in (1, 2, 3))   # I + D, row-major
+SOFT_SD_PARAM = "MAG_LRN_SSD"   # the largest 1σ of an element of D (dimensionless; −1 with none learned)
+MAX_PARAM_SOFT = 10.0
 ACTION_PARAM = "MAG_LRN_ACT"    # momentary: 1 accept, 2 reset (as CMD_LEARNED_IRON's param1)
 NOT_LEARNING_SD = -1.0          # MAG_LRN_SD of an estimator that learns no iron
 MAX_PARAM_UT = 1000.0
@@ -291,6 +295,14 @@ class LearnedIron:
         for name, v in zip(PARAM_NAMES, values):
             if math.isfinite(v):
                 self.publish(name, max(-MAX_PARAM_UT, min(MAX_PARAM_UT, v)))
+        if cur is None:
+            soft, soft_sd = np.eye(3), NOT_LEARNING_SD
+        else:
+            soft, soft_cov = cur[2], cur[3]
+            soft_sd = math.sqrt(max(float(np.max(np.diag(soft_cov))), 0.0))
+        for name, v in zip((*SOFT_PARAM_NAMES, SOFT_SD_PARAM), (*np.asarray(soft, float).ravel(), soft_sd)):
+            if math.isfinite(v):
+                self.publish(name, max(-MAX_PARAM_SOFT, min(MAX_PARAM_SOFT, float(v))))
 
     def _payload(self) -> bytes:
         cur = self._current()

@@ -182,6 +182,12 @@ class InsParams:
     """The GNSS holds the heading (iron learned, magnetometer allowed back) while the yaw 1σ is below this."""
     heading_unknown_sigma_rad: float = 15.0 * _DEG
     """Above this yaw 1σ the heading state is UNKNOWN (consumers must not use the heading), rad."""
+    accel_bias_needs_heading: bool = False
+    """True: the horizontal (body x, y) accelerometer bias learns from GNSS only while the heading is known (a
+    trusted magnetometer, or a GNSS yaw confirmed it), so a wrong yaw's mis-projected GNSS acceleration cannot be
+    taken up by the bias and hold a tilt error (ins_core._gated_update). Off by default: on the held-out boat it
+    brings the tilt within 0.3° but delays the heading and its σ (docs/estimator.md "A wrong heading must not
+    teach the accelerometer bias")."""
     mag_reentry_s: float = 20.0
     """A rejected magnetometer re-enters after its learned correction was consistent this long, s."""
     yaw_reset_max: int = 3
@@ -282,6 +288,7 @@ class InsParams:
         p["converged_yaw_rad"] = self.converged_yaw_rad
         p["gnss_timeout_s"] = self.gnss_timeout_s
         p["nav_init_sigma_tilt_rad"] = self.nav_init_sigma_tilt_rad
+        p["accel_bias_learn"] = 1.0
         p["mag"] = mag.heading_params(self)
         return arr
 
@@ -406,6 +413,7 @@ class Ins:
         self._par["mag_use"] = 1.0
         self._par["mag_moves_tilt"] = 1.0 if p.mag_moves_tilt else 0.0
         self._par["mag_bias_var_rad2"] = p.calibration_sigma_rad ** 2
+        self._set_accel_bias_learning()
         self._apply_learned_iron()
 
     # ----------------------------------------------------------------------- Estimator protocol
@@ -471,6 +479,7 @@ class Ins:
         self._par["mag_moves_tilt"] = 1.0 if p.mag_moves_tilt else 0.0
         self._par["mag_bias_var_rad2"] = p.calibration_sigma_rad ** 2
         self._par["mag_bias_tau_s"] = p.mag_bias_tau
+        self._set_accel_bias_learning()
 
     def heading_report(self) -> HeadingReport:
         """What the heading checks did so far (replay's summary, the daemon's warning)."""
@@ -677,7 +686,7 @@ class Ins:
         x, P = self._x, self._P
         c_bn = np.asarray(quat_to_dcm(x["q"]), dtype=float)
         yaw = math.atan2(c_bn[1, 0], c_bn[0, 0])
-        yaw_var = float(P[2, 2])
+        yaw_var = float(P[core.E_YAW, core.E_YAW])
         m_body = self._iron.corrected(x["mag_last_ut"])
         mag_yaw = math.nan
         mag_var = math.inf
@@ -711,8 +720,8 @@ class Ins:
         if d.yaw_var_floor_rad2 > 0.0:
             # the magnetometer was just rejected: the heading it held is unconfirmed again (the hold below)
             self._heading_confirmed = False
-        if d.yaw_var_floor_rad2 > P[2, 2]:
-            P[2, 2] = d.yaw_var_floor_rad2
+        if d.yaw_var_floor_rad2 > P[core.E_YAW, core.E_YAW]:
+            P[core.E_YAW, core.E_YAW] = d.yaw_var_floor_rad2
             self.heading_interventions += 1
             log.warning("ins: magnetometer disagrees with the GNSS-held heading by %.1f°: calibration wrong or "
                         "iron changed; magnetometer rejected", math.degrees(self._monitor.lowpassed_innovation_rad))
@@ -720,11 +729,13 @@ class Ins:
             self._reset_yaw(d.reset_yaw_to_rad - yaw, d.reset_yaw_var_rad2)
         elif not self._heading_confirmed and gsf_valid and (p.calibration_sigma_rad > self._monitor.trusted_sigma_rad
                                                             or self._monitor.mag_rejected):
+            yaw_var_now = P[core.E_YAW, core.E_YAW]
             if gsf_var < p.heading_confirm_gsf_sigma_rad ** 2 \
-                    and wrap_pi(gsf_yaw - yaw) ** 2 <= self._monitor.gate_sigma ** 2 * (P[2, 2] + gsf_var):
+                    and wrap_pi(gsf_yaw - yaw) ** 2 <= self._monitor.gate_sigma ** 2 * (yaw_var_now + gsf_var):
                 self._heading_confirmed = True
-            elif gsf_var > P[2, 2]:
-                P[2, 2] = gsf_var
+            elif gsf_var > P[core.E_YAW, core.E_YAW]:
+                P[core.E_YAW, core.E_YAW] = gsf_var
+        self._set_accel_bias_learning()
         self._par["mag_use"] = 1.0 if d.mag_use else 0.0
         trusted = d.mag_use and self._mag_var < self._monitor.trusted_sigma_rad ** 2
         self._par["mag_moves_tilt"] = 1.0 if p.mag_moves_tilt or (p.mag_trusted_moves_tilt and trusted) else 0.0
@@ -738,15 +749,26 @@ class Ins:
             if field is not None:
                 dt = max(t_s - (self._iron_last_t if self._iron_last_t is not None else t_s - 0.2), 1e-3)
                 self._iron_last_t = t_s
-                self._iron.update(x["mag_last_ut"], c_bn, field, P[0:3, 0:3],
+                att = slice(core.E_TH, core.E_TH + 3)
+                self._iron.update(x["mag_last_ut"], c_bn, field, P[att, att],
                                   p.iron_unmodelled_ut, max(1.0, p.iron_tau_s / dt))
                 self._apply_learned_iron()
-        sig = math.sqrt(max(P[2, 2], 0.0))
+        sig = math.sqrt(max(P[core.E_YAW, core.E_YAW], 0.0))
         self._integrity = HeadingIntegrity(gsf_yaw, math.sqrt(gsf_var) if math.isfinite(gsf_var) else math.nan,
                                            gsf_valid, self._monitor.disagreement_rad, self._iron.offset_ut.copy(),
                                            self._iron.sigma_ut)
         self._heading_state = self._monitor.heading_state(sig, False, True, p.heading_unknown_sigma_rad,
                                                           self._mag_var)
+
+    def _set_accel_bias_learning(self) -> None:
+        """With accel_bias_needs_heading, the horizontal accelerometer bias learns from GNSS only while the heading
+        is known: a trusted magnetometer, or a GNSS yaw has confirmed the heading since the magnetometer was last
+        rejected (ins_core._gated_update says why). Without the GNSS yaw there is nothing to confirm with: it
+        always learns."""
+        p = self.params
+        held = p.accel_bias_needs_heading and p.gnss_yaw and not self._heading_confirmed and (
+            p.calibration_sigma_rad > self._monitor.trusted_sigma_rad or self._monitor.mag_rejected)
+        self._par["accel_bias_learn"] = 0.0 if held else 1.0
 
     def _reset_yaw(self, dyaw_rad: float, var_rad2: float) -> None:
         """Turn the attitude (and its history) about down by dyaw; yaw variance = var with its cross-covariances
@@ -756,14 +778,15 @@ class Ins:
         dyaw = wrap_pi(dyaw_rad)
         x, P = self._x, self._P
         dx = np.zeros(core.N_ERR)
-        dx[2] = dyaw
+        dx[core.E_YAW] = dyaw
         core._rotate_attitude(x["q"], 0.0, 0.0, dyaw)
         core._correct_history(self._hist, x, -math.inf, dx, 0.0, 0.0, 0.0)
         c, s = math.cos(dyaw), math.sin(dyaw)
         an, ae = x["acc_ned_lp_m_s2"][0], x["acc_ned_lp_m_s2"][1]
         x["acc_ned_lp_m_s2"][0], x["acc_ned_lp_m_s2"][1] = c * an - s * ae, s * an + c * ae
-        for i, var in ((2, var_rad2), (0, max(P[0, 0], p.nav_init_sigma_tilt_rad ** 2 * 0.04)),
-                       (1, max(P[1, 1], p.nav_init_sigma_tilt_rad ** 2 * 0.04))):
+        tilt_floor = p.nav_init_sigma_tilt_rad ** 2 * 0.04
+        for i, var in ((core.E_YAW, var_rad2), (core.E_TILT_N, max(P[core.E_TILT_N, core.E_TILT_N], tilt_floor)),
+                       (core.E_TILT_E, max(P[core.E_TILT_E, core.E_TILT_E], tilt_floor))):
             P[i, :] = 0.0
             P[:, i] = 0.0
             P[i, i] = var
@@ -881,9 +904,9 @@ class Ins:
         ms["undisturbed_t_s"] = p.mag_min_undisturbed_s  # the Wahba heading is already the best
         P = self._P
         P[:] = 0.0
-        for i in range(2):
+        for i in (core.E_TILT_N, core.E_TILT_E):
             P[i, i] = p.init_sigma_tilt_rad ** 2
-        P[2, 2] = (max(p.init_sigma_yaw_rad, p.calibration_sigma_rad) if use_mag else math.pi) ** 2
+        P[core.E_YAW, core.E_YAW] = (max(p.init_sigma_yaw_rad, p.calibration_sigma_rad) if use_mag else math.pi) ** 2
         for i in range(3):
             P[core.E_V + i, core.E_V + i] = core.NAV_UNKNOWN_VAR_V
             P[core.E_P + i, core.E_P + i] = core.NAV_UNKNOWN_VAR_P

@@ -71,6 +71,7 @@ from .kernel_rotations import dcm, euler_and_tilt_sigma, normalised, quat_mul, r
 
 N_ERR = 24
 E_TH, E_V, E_P, E_BG, E_BA, E_SG, E_MG = 0, 3, 6, 9, 12, 15, 18
+E_TILT_N, E_TILT_E, E_YAW = E_TH, E_TH + 1, E_TH + 2     # δθ_N, δθ_E, δθ_D (the yaw error about down)
 # (row j, column k) of each misalignment error component E_MG + n: δω_j = δm_jk ω_k
 MIS_ROW = (0, 0, 1, 1, 2, 2)
 MIS_COL = (1, 2, 0, 2, 0, 1)
@@ -175,6 +176,7 @@ INS_PARAMS_DTYPE = np.dtype([
     ("init_min_time_s", np.float64),
     ("converged_tilt_rad", np.float64),
     ("converged_yaw_rad", np.float64),
+    ("accel_bias_learn", np.float64),            # 1.0: GNSS updates move the accelerometer bias (the heading is known)
 ])
 
 # ----------------------------------------------------------------------------------- outputs (per step)
@@ -209,6 +211,7 @@ M_TILT = 0b11 << E_TH           # δθ_N, δθ_E
 M_HEADING = 0b100 << E_TH       # δθ_D
 M_GYRO_BIAS = 0b111 << E_BG
 M_ACC_BIAS = 0b111 << E_BA
+M_ACC_BIAS_XY = 0b011 << E_BA   # body x, y: the axes a near-level vehicle's yaw error trades with
 M_GYRO_SCALE = 0b111 << E_SG
 M_GYRO_MIS = 0b111111 << E_MG
 M_NAV = 0b111111 << E_V
@@ -867,8 +870,14 @@ def _gated_update(gate, P, par, H, nu, var, m, dx, t_fix, may_reset, r_fused, r_
     nis = _nis(P, H, nu, var, m)
     gate.nis = nis
     if nis <= par.gate_chi2[m - 1]:
+        # while the heading is not known (ins.py decides), the horizontal GNSS acceleration projected through a
+        # wrong yaw would be taken up by the horizontal accelerometer bias, which then holds a matching tilt error
+        # that a steady turn cannot separate (pitch error, forward bias and gyro misalignment move together): the
+        # x and y bias wait for a known heading; z (vertical on a near-level vehicle) learns on (docs/estimator.md
+        # "A wrong heading must not teach the accelerometer bias")
+        zero = 0 if par.accel_bias_learn > 0.5 else M_ACC_BIAS_XY
         for i in range(m):
-            scalar_update(P, H[i], residual(H[i], nu[i], dx), var[i], 0, dx)
+            scalar_update(P, H[i], residual(H[i], nu[i], dx), var[i], zero, dx)
         gate.rejected_since_s = math.nan
         return r_fused
     if math.isnan(gate.rejected_since_s):

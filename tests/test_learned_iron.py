@@ -77,6 +77,13 @@ def test_the_learned_soft_iron_survives_a_restart_too(tmp_path):
         soft, soft_cov = svc.pipeline.estimator.learned_soft_iron()
         assert soft == pytest.approx(LEARNED_SOFT) and soft_cov == pytest.approx(LEARNED_SOFT_COV)
         assert svc.pipeline.estimator.learned_iron()[0] == pytest.approx(OFFSET_UT)
+        # the operator sees it: MAG_LRN_S<row><column> = I + D, MAG_LRN_SSD its largest 1σ (read-only)
+        svc.learned_iron.tick(1e9)
+        shown = [[svc.params.get(f"MAG_LRN_S{r}{c}") for c in (1, 2, 3)] for r in (1, 2, 3)]
+        assert shown == pytest.approx(LEARNED_SOFT, abs=1e-6)
+        assert svc.params.get("MAG_LRN_SSD") == pytest.approx(math.sqrt(9e-4), rel=1e-5)
+        ok, reason = svc.params.set("MAG_LRN_S12", 0.0)
+        assert not ok and "read-only" in reason
     finally:
         stop_service(svc, loop)
 
@@ -195,13 +202,17 @@ def test_magcal_status_shows_the_learned_iron_and_the_cli_has_its_actions():
     from ahrsd.cli.magcal_client import MagCalClient
     from ahrsd.cli.main import build_parser
 
-    client = MagCalClient(_FakeConn({"MAG_LRN_X": 4.0, "MAG_LRN_Y": -6.5, "MAG_LRN_Z": 2.0, "MAG_LRN_SD": 1.76}),
-                          timeout_s=0.5, out=io.StringIO())
+    soft = {f"MAG_LRN_S{r + 1}{c + 1}": float(LEARNED_SOFT[r, c]) for r in range(3) for c in range(3)}
+    client = MagCalClient(_FakeConn({"MAG_LRN_X": 4.0, "MAG_LRN_Y": -6.5, "MAG_LRN_Z": 2.0, "MAG_LRN_SD": 1.76,
+                                     **soft, "MAG_LRN_SSD": 0.03}), timeout_s=0.5, out=io.StringIO())
     client.sys, client.comp = 1, 200
     text = client.learned_iron_text()
     assert "+4.00 -6.50 +2.00 uT" in text and "1.76 uT" in text and "accept-learned" in text
-    client = MagCalClient(_FakeConn({"MAG_LRN_X": 0.0, "MAG_LRN_Y": 0.0, "MAG_LRN_Z": 0.0, "MAG_LRN_SD": -1.0}),
-                          timeout_s=0.5, out=io.StringIO())
+    # the soft iron, row by row (LEARNED_SOFT written out by hand), and its σ
+    assert "[+1.0400 -0.0300 +0.0100] [+0.0200 +0.9500 +0.0000] [-0.0100 +0.0200 +1.0000]" in text
+    assert "1-sigma up to 0.0300" in text
+    none = {n: 0.0 for n in ("MAG_LRN_X", "MAG_LRN_Y", "MAG_LRN_Z", *soft)} | {"MAG_LRN_SD": -1.0, "MAG_LRN_SSD": -1.0}
+    client = MagCalClient(_FakeConn(none), timeout_s=0.5, out=io.StringIO())
     client.sys, client.comp = 1, 200
     assert "learns none" in client.learned_iron_text()
     for action in ("accept-learned", "reset-learned"):

@@ -1,0 +1,103 @@
+"""Per-seed error time series of `ins` against the simulator's truth, for diagnosing the honest-heading figures:
+heading / tilt RMS from 180 s, σ median and share beyond 3σ from 30 s (every 8th sample), then per 30 s the tilt
+RMS, mean roll and pitch error, heading RMS, median yaw σ, heading state and the accelerometer bias error
+(estimate − the simulator's turn-on bias, m/s²).
+
+    python bench/heading_timeline.py --scenario boat --case uncalibrated --seeds 12 13 15 16
+    python bench/heading_timeline.py --seeds 15 --params '{"accel_bias_needs_heading": true}' --timeline
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from multiprocessing import Pool
+from pathlib import Path
+
+import numpy as np
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.vehicle_accuracy import HONESTY_SITES, simulate_vehicle, tilt_heading_errors_deg  # noqa: E402
+
+EVERY = 8          # keep every 8th sample (≈ 100 Hz)
+
+
+def one_run(job) -> tuple:
+    from scipy.spatial.transform import Rotation
+
+    from ahrsd.core.sample import SampleFlags, make_sample
+    from ahrsd.estimator.ins import Ins
+    from ahrsd.simulation import SensorErrors
+
+    scen, case, seed, site_label, seconds, params = job
+    logging.disable(logging.WARNING)
+    site, iron = HONESTY_SITES[site_label]
+    run = simulate_vehicle(scen, seconds, seed, site, mag=case, iron=iron)
+    est = Ins(declination_rad=run.declination_rad, lever_arm_m=run.lever_arm_m,
+              mag_calibration_sigma_rad=run.mag_calibration_sigma_rad, **params)
+    t, g, a, m = run.t_s, run.gyro_rad_s, run.accel_m_s2, run.mag_ut
+    keep = np.arange(0, len(t), EVERY)
+    q = np.empty((len(keep), 4))
+    sig = np.empty(len(keep))
+    state = np.zeros(len(keep), dtype=np.int8)
+    ba = np.empty((len(keep), 3))
+    fi = j = 0
+    for k in range(len(t)):
+        while fi < len(run.fixes) and run.fixes[fi].extra["t_rx_s"] <= t[k]:
+            est.update_gnss(run.fixes[fi])
+            fi += 1
+        e = est.update(make_sample(t[k], g[k], a[k], m[k], flags=SampleFlags.NEW_DATA))
+        if k % EVERY == 0:
+            q[j], sig[j], state[j], ba[j] = e.q_wxyz, e.sigma_rpy_rad[2], int(e.heading_state), est.accel_bias_m_s2
+            j += 1
+    tk = t[keep]
+    tilt, hdg = tilt_heading_errors_deg(q, run.truth_q_wxyz[keep], run.declination_rad)
+    eul = lambda qq: Rotation.from_quat(qq[:, [1, 2, 3, 0]]).as_euler("ZYX", degrees=True)  # noqa: E731
+    rp = (eul(q) - eul(run.truth_q_wxyz[keep]) + 180.0) % 360.0 - 180.0
+    ba_err = ba - SensorErrors.adis16405(seed).accel_bias_m_s2
+    late, honest = tk >= 180.0, tk >= 30.0
+    summary = (float(np.sqrt(np.mean(hdg[late] ** 2))), float(np.sqrt(np.mean(tilt[late] ** 2))),
+               float(np.degrees(np.median(sig[honest]))),
+               float(np.mean(np.abs(hdg[honest]) > 3.0 * np.degrees(sig[honest]))), est.yaw_resets)
+    rows = []
+    for t0 in range(0, int(tk[-1]), 30):
+        w = (tk >= t0) & (tk < t0 + 30)
+        rows.append((t0, float(np.sqrt(np.mean(tilt[w] ** 2))), float(rp[w, 2].mean()), float(rp[w, 1].mean()),
+                     float(np.sqrt(np.mean(hdg[w] ** 2))), float(np.degrees(np.median(sig[w]))),
+                     int(np.bincount(state[w]).argmax()), ba_err[w].mean(axis=0)))
+    return job, summary, rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", default="boat")
+    ap.add_argument("--case", default="uncalibrated", choices=["uncalibrated", "calibrated", "iron-step"])
+    ap.add_argument("--site", choices=sorted(HONESTY_SITES), default="held-out")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[12, 13, 15, 16])
+    ap.add_argument("--seconds", type=float, default=600.0)
+    ap.add_argument("--params", default="{}", help="InsParams overrides as JSON")
+    ap.add_argument("--timeline", action="store_true", help="also print the per-30 s rows")
+    ap.add_argument("--processes", type=int, default=2)
+    args = ap.parse_args(argv)
+    params = json.loads(args.params)
+    jobs = [(args.scenario, args.case, s, args.site, args.seconds, params) for s in args.seeds]
+    print(f"ins {params or 'defaults'}, {args.scenario} {args.case}, site {args.site}, {args.seconds:.0f} s "
+          f"(every {EVERY}th sample): heading / tilt RMS from 180 s, σ median and beyond 3σ from 30 s", flush=True)
+    with Pool(args.processes) as pool:
+        for job, (hdg, tilt, sig, beyond, resets), rows in pool.imap(one_run, jobs):
+            print(f"seed {job[2]:3d}: heading {hdg:5.2f}°  tilt {tilt:5.2f}°  σ median {sig:5.2f}°  "
+                  f"beyond 3σ {beyond:6.2%}  yaw resets {resets}", flush=True)
+            if args.timeline:
+                print("     t  tilt  roll err  pitch err  heading  σ yaw  state  accel bias error x y z (m/s²)")
+                for t0, tl, re, pe, hd, sg, st, b in rows:
+                    print(f"  {t0:4d}  {tl:4.2f}  {re:8.2f}  {pe:9.2f}  {hd:7.2f}  {sg:5.2f}  {st:5d}  "
+                          f"{b[0]:+.3f} {b[1]:+.3f} {b[2]:+.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,70 @@
+"""A wrong heading must not teach the accelerometer bias (estimator/ins_core._gated_update,
+Ins._set_accel_bias_learning):
+while the heading is not known, a GNSS velocity update leaves the horizontal (body x, y) accelerometer bias alone and
+moves every other error state by the ordinary Kalman gain; the `ins` holds the bias back until a GNSS yaw confirms
+the heading (with `accel_bias_needs_heading`; off by default), never with a trusted magnetometer or without the
+GNSS yaw. Truth: the Kalman gain P·hᵀ/(h·P·hᵀ + r)
+computed here with numpy."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ahrsd.estimator import ins_core as core
+from ahrsd.estimator.ins import InsParams, Ins
+
+
+def _gated(learn: float):
+    rng = np.random.default_rng(5)
+    a = rng.normal(size=(core.N_ERR, core.N_ERR)) * 0.1
+    P = a @ a.T + np.eye(core.N_ERR) * 0.01           # a full covariance: every state correlated with the velocity
+    par = InsParams().to_array(0.0)
+    par[0]["accel_bias_learn"] = learn
+    gate = np.zeros(1, core.GNSS_GATE_DTYPE)
+    gate[0]["rejected_since_s"] = math.nan
+    h = np.zeros((3, core.N_ERR))
+    h[0, core.E_V] = 1.0                              # one velocity row (north)
+    nu = np.array([0.05, 0.0, 0.0])
+    var = np.array([0.04, 0.04, 0.04])
+    dx = np.zeros(core.N_ERR)
+    P_before = P.copy()
+    res = core._gated_update(gate[0], P, par[0], h, nu, var, 1, dx, 1.0, False, core.R_VEL_FUSED,
+                             core.R_VEL_REJECTED, core.R_VEL_RESET)
+    assert res == core.R_VEL_FUSED
+    k = P_before[:, core.E_V] / (P_before[core.E_V, core.E_V] + var[0])   # the ordinary gain (numpy)
+    return dx, k * nu[0]
+
+
+def test_an_unknown_heading_leaves_the_horizontal_accel_bias_alone():
+    dx, kalman = _gated(0.0)
+    xy = [core.E_BA, core.E_BA + 1]
+    assert dx[xy] == pytest.approx([0.0, 0.0], abs=0.0)
+    others = np.setdiff1d(np.arange(core.N_ERR), xy)
+    assert dx[others] == pytest.approx(kalman[others], rel=1e-9, abs=1e-15)
+    assert abs(dx[core.E_BA + 2]) > 0.0                # the vertical bias learns on
+
+
+def test_a_known_heading_updates_every_state_by_the_kalman_gain():
+    dx, kalman = _gated(1.0)
+    assert dx == pytest.approx(kalman, rel=1e-9, abs=1e-15)
+    assert np.all(np.abs(dx[core.E_BA:core.E_BA + 2]) > 0.0)
+
+
+@pytest.mark.parametrize("calibration_sigma_deg, gnss_yaw, held", [
+    (math.nan, True, True),      # no calibration: the heading is not known until a GNSS yaw confirms it
+    (10.0, True, True),          # a calibration worse than the trusted 3°
+    (0.5, True, False),          # a trusted calibration: the heading is known
+    (math.nan, False, False),    # no GNSS yaw to confirm with: the filter before this
+])
+def test_the_ins_holds_the_bias_back_only_while_the_heading_is_unknown(calibration_sigma_deg, gnss_yaw, held):
+    est = Ins(mag_calibration_sigma_rad=math.radians(calibration_sigma_deg), gnss_yaw=gnss_yaw,
+              accel_bias_needs_heading=True)
+    assert est._par["accel_bias_learn"] == (0.0 if held else 1.0)
+    est._heading_confirmed = True                     # what a GNSS yaw within 5° does (Ins._check_heading)
+    est._set_accel_bias_learning()
+    assert est._par["accel_bias_learn"] == 1.0
+    off = Ins(mag_calibration_sigma_rad=math.radians(calibration_sigma_deg), gnss_yaw=gnss_yaw)   # the default
+    assert off._par["accel_bias_learn"] == 1.0
