@@ -31,7 +31,8 @@ from . import ins_core as core
 from . import mag_heading as mag
 from .gsf_yaw import GsfParams, gsf_fuse_velocity, gsf_output, gsf_reset, new_gsf_state
 from .heading_monitor import HeadingMonitor, IronLearner, wrap_pi
-from .filter_output import after_init_flags, estimate_flags, float_field_slice, uninitialised_estimate
+from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
+                            float_field_slice, uninitialised_estimate)
 from .initial_attitude import initial_attitude
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .mag_heading import RELEARN_GATE_OPEN_S
@@ -330,10 +331,10 @@ _TWO_PI = 2.0 * math.pi
 _MAX_QUEUED = 16
 
 # where each output lies in the flat float64 view of an INS_OUT_DTYPE record
-(_OUT_Q, _OUT_RATE, _OUT_SIGMA, _OUT_BIAS, _OUT_EULER, _OUT_VEL, _OUT_SIGMA_VEL, _OUT_SIGMA_POS,
- _OUT_ACCEL_BIAS) = (float_field_slice(core.INS_OUT_DTYPE, n) for n in (
-    "q", "rate_rad_s", "sigma_rpy_rad", "gyro_bias_rad_s", "euler_rad", "vel_ned_m_s", "sigma_vel_m_s",
-    "sigma_pos_m", "accel_bias_m_s2"))
+_OUT = AttitudeFields(core.INS_OUT_DTYPE)
+_OUT_Q, _OUT_RATE, _OUT_SIGMA, _OUT_BIAS, _OUT_EULER = _OUT.q, _OUT.rate, _OUT.sigma, _OUT.bias, _OUT.euler
+_OUT_VEL, _OUT_SIGMA_VEL, _OUT_SIGMA_POS, _OUT_ACCEL_BIAS = (float_field_slice(core.INS_OUT_DTYPE, n) for n in (
+    "vel_ned_m_s", "sigma_vel_m_s", "sigma_pos_m", "accel_bias_m_s2"))
 _OUT_LAT, _OUT_LON, _OUT_H = (
     float_field_slice(core.INS_OUT_DTYPE, n).start for n in ("lat_rad", "lon_rad", "h_m"))
 
@@ -963,22 +964,8 @@ class Ins:
                 o[_OUT_SIGMA_POS],
                 o[_OUT_ACCEL_BIAS],
             )
-        return AttitudeEstimate(
-            t_s,
-            o[_OUT_Q],
-            roll,
-            pitch,
-            yaw,
-            yaw % _TWO_PI,
-            yaw_true % _TWO_PI,
-            o[_OUT_RATE],
-            o[_OUT_BIAS],
-            o[_OUT_SIGMA],
-            estimate_flags(f),
-            nav,
-            self._published_heading_state(f, sigma_yaw),
-            self._integrity,
-        )
+        return attitude_estimate(t_s, o, _OUT, roll, pitch, yaw, yaw_true, f,
+                                 self._published_heading_state(f, sigma_yaw), nav, self._integrity)
 
     def _published_heading_state(self, f: int, yaw_sigma_rad: float) -> HeadingState:
         p = self.params

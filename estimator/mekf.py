@@ -33,7 +33,8 @@ from ahrsd.core.sample import ImuSample
 
 from . import mekf_core as core
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState
-from .filter_output import after_init_flags, estimate_flags, float_field_slice, uninitialised_estimate
+from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
+                            float_field_slice, uninitialised_estimate)
 from .initial_attitude import initial_attitude
 from .mag_heading import RELEARN_GATE_OPEN_S, heading_params, relearn_reference
 from .params import with_overrides
@@ -219,8 +220,8 @@ _F64 = np.dtype(np.float64)
 _NEEDS_INIT_OR_BAD = core.NEEDS_INIT | core.BAD_SHAPE
 
 
-_OUT_Q, _OUT_RATE, _OUT_SIGMA, _OUT_BIAS, _OUT_EULER = (float_field_slice(core.MEKF_OUT_DTYPE, n) for n in (
-    "q", "rate_rad_s", "sigma_rpy_rad", "gyro_bias_rad_s", "euler_rad"))
+_OUT = AttitudeFields(core.MEKF_OUT_DTYPE)
+_OUT_Q, _OUT_RATE, _OUT_SIGMA, _OUT_BIAS, _OUT_EULER = _OUT.q, _OUT.rate, _OUT.sigma, _OUT.bias, _OUT.euler
 
 
 def _as_f64(v) -> np.ndarray:
@@ -445,21 +446,8 @@ class Mekf:
         self._read_euler()
         o = self._out_flat.copy()  # one fresh buffer; the estimate's arrays are views of it
         roll, pitch, yaw = o[_OUT_EULER].tolist()  # Python floats: cheap arithmetic
-        return AttitudeEstimate(
-            t_s,
-            o[_OUT_Q],
-            roll,
-            pitch,
-            yaw,
-            yaw % _TWO_PI,
-            (yaw + self._declination) % _TWO_PI,
-            o[_OUT_RATE],
-            o[_OUT_BIAS],
-            o[_OUT_SIGMA],
-            estimate_flags(f),
-            None,
-            self._heading_state(f, o[_OUT_SIGMA.start + 2]),
-        )
+        return attitude_estimate(t_s, o, _OUT, roll, pitch, yaw, yaw + self._declination, f,
+                                 self._heading_state(f, o[_OUT_SIGMA.start + 2]))
 
     def _heading_state(self, f: int, yaw_sigma_rad: float) -> HeadingState:
         """MAGNETOMETER while the magnetometer is the heading reference and in use; UNKNOWN while initialising,
