@@ -732,7 +732,7 @@ def run(args) -> int:
         import json
 
         print(json.dumps({"sensor": args.sensor, "error": str(failure)}))
-    print(f"ahrsd calibrate {args.sensor}: {failure}", file=sys.stderr)
+    print(f"ahrsd calibrate {args.sensor}: error: {failure}", file=sys.stderr)
     return 2 if isinstance(failure, _Usage) else 1
 
 
