@@ -22,7 +22,9 @@ and judged four ways, true heading error RMS in degrees, the mean offset NOT rem
 - `rec`: on the recording after 30 s, tilt-compensated with the true roll/pitch (the per-sample magnetometer
   noise adds to this one: docs/magcal-vehicle.md);
 - `ins`: what a user sees: the daemon's aided estimator (ins, GNSS, magnetometer on) run over the recording with
-  the calibration applied, its true heading against the truth after 30 s.
+  the calibration applied and trusted as the daemon trusts a saved `calibrate mag` result (its field residual over
+  the horizontal field, calibration/heading_trust.py), its true heading against the truth after 30 s; after the
+  last `/`, σ honesty: the share of those heading errors beyond 3 of the estimator's own σ.
 
 - `op`: the heading the daemon reports at the grid's attitudes, at rest: the same calibrated
   field, tilt-compensated with the tilt of the sensor's own accelerometer (its scale, misalignment and turn-on
@@ -167,28 +169,39 @@ def recording_error_deg(run: BoatRun, model) -> np.ndarray:
     return np.degrees(_wrap_rad(psi - run.yaw))[run.late]
 
 
-def ins_error_deg(run: BoatRun, model, data=None):
-    """The daemon's aided estimator over the recording (`data`: default run.data) with the calibration applied:
-    its true-heading error after SETTLE_S (deg), and the estimator at the end."""
+def ins_error_deg(run: BoatRun, res, data=None):
+    """The daemon's aided estimator over the recording (`data`: default run.data) with the calibration `res`
+    applied and trusted as the daemon trusts a saved `calibrate mag` result (calibration/heading_trust.py rule 2:
+    the fit's field residual over the site's horizontal field): its true-heading error after SETTLE_S (deg), its
+    heading σ there (deg), and the estimator at the end."""
     cal = dataclasses.replace(run.data if data is None else data,
-                              mag_ut=np.ascontiguousarray(model.apply(run.block.mag_ut)))
-    yaw, est = _yaw_from_ins(cal, run)
-    return np.degrees(_wrap_rad(yaw + run.field.declination_rad - run.yaw))[run.late], est
+                              mag_ut=np.ascontiguousarray(res.model.apply(run.block.mag_ut)))
+    trust_rad = math.atan2(res.residual_rms_ut, run.field.horizontal_ut)
+    yaw, sigma, est = _yaw_from_ins(cal, run, trust_rad)
+    err = np.degrees(_wrap_rad(yaw + run.field.declination_rad - run.yaw))[run.late]
+    return err, np.degrees(sigma)[run.late], est
 
 
-def _yaw_from_ins(data, run: BoatRun):
+def _yaw_from_ins(data, run: BoatRun, mag_calibration_sigma_rad: float):
     from ahrsd.core.sample import make_sample
     from ahrsd.estimator.ins import Ins
 
-    est = Ins(declination_rad=run.field.declination_rad)
-    yaw = np.empty(len(data))
+    est = Ins(declination_rad=run.field.declination_rad, mag_calibration_sigma_rad=mag_calibration_sigma_rad)
+    yaw, sigma = np.empty(len(data)), np.empty(len(data))
     j = 0
     for i in range(len(data)):
         while j < len(run.fixes) and run.fixes[j].t_s <= data.t_s[i]:
             est.update_gnss(run.fixes[j])
             j += 1
-        yaw[i] = est.update(make_sample(data.t_s[i], data.gyro_rad_s[i], data.accel_m_s2[i], data.mag_ut[i])).yaw_rad
-    return yaw, est
+        out = est.update(make_sample(data.t_s[i], data.gyro_rad_s[i], data.accel_m_s2[i], data.mag_ut[i]))
+        yaw[i], sigma[i] = out.yaw_rad, out.sigma_rpy_rad[2]
+    return yaw, sigma, est
+
+
+def beyond_3_sigma_pct(err_deg, sigma_deg) -> float:
+    """σ honesty: the share (%) of heading errors beyond 3 of the estimator's own σ (≈ 0.3 % if honest)."""
+    err_deg, sigma_deg = np.asarray(err_deg), np.asarray(sigma_deg)
+    return 100.0 * float(np.mean(np.abs(err_deg) > 3.0 * sigma_deg)) if err_deg.size else math.nan
 
 
 def operational_grid_error_deg(run: BoatRun, model, accel_bias_estimate_m_s2, tilt_deg: float = 8.0,
@@ -288,8 +301,9 @@ def main(argv=None) -> int:
                                                             else "mixed")
     names = ("plain", "gnss-1pass", "oracle", "frame", "fix", "rts", "acal", "afix")
     print(f"# back-stepping on the boat, {SECONDS:.0f} s, {kind} seeds {list(seeds)}: true-heading RMS (deg, mean "
-          f"offset kept; target ≤ {TARGET_DEG}), grid / rec / ins / op (see the docstring)")
-    hdr = f"{'site':8s} {'seed':>4s} " + "".join(f"{n:>28s}" for n in names) + f"{'tilt fwd/rts':>14s}"
+          f"offset kept; target ≤ {TARGET_DEG}), grid / rec / ins / op (see the docstring) / ins heading errors "
+          f"beyond 3σ")
+    hdr = f"{'site':8s} {'seed':>4s} " + "".join(f"{n:>34s}" for n in names) + f"{'tilt fwd/rts':>14s}"
     print(hdr)
     print("-" * len(hdr))
     t0 = time.perf_counter()
@@ -302,18 +316,19 @@ def main(argv=None) -> int:
             line = f"{label:8s} {seed:4d} "
             for name, res in calibrations(run, acal_sigma_m_s2=acal_sigma).items():
                 if not res.ok:
-                    line += f"{'refused':>28s}"
-                    table[name].append((math.nan,) * 4)
+                    line += f"{'refused':>34s}"
+                    table[name].append((math.nan,) * 5)
                     continue
                 g = _rms(grid_error_deg(run, res.model))
                 r = _rms(recording_error_deg(run, res.model))
                 data, accel_model = {"acal": (run.data_acal, run.accel_model),
                                      "afix": (run.data_afix, run.accel_model_afix)}.get(name, (None, None))
-                i, est = (math.nan, None) if args.no_ins else ins_error_deg(run, res.model, data)
+                i, h, est = (math.nan, math.nan, None) if args.no_ins else ins_error_deg(run, res, data)
+                h = math.nan if est is None else beyond_3_sigma_pct(i, h)
                 o = math.nan if est is None else _rms(operational_grid_error_deg(
                     run, res.model, est.accel_bias_m_s2, accel_model=accel_model))
-                table[name].append((g, r, _rms(i), o))
-                line += f"{g:8.2f}/{r:5.2f}/{_rms(i):5.2f}/{o:5.2f}  "
+                table[name].append((g, r, _rms(i), o, h))
+                line += f"{g:8.2f}/{r:5.2f}/{_rms(i):5.2f}/{o:5.2f}/{h:4.1f}%"
             tilts.append(levelling_tilt_error_deg(run))
             line += f"{tilts[-1][0]:7.3f}/{tilts[-1][1]:5.3f}"
             print(line, flush=True)
@@ -321,8 +336,8 @@ def main(argv=None) -> int:
     for agg, fn in (("mean", np.nanmean), ("worst", np.nanmax)):
         line = f"{agg:13s} "
         for name in names:
-            g, r, i, o = fn(np.array(table[name]), axis=0)
-            line += f"{g:8.2f}/{r:5.2f}/{i:5.2f}/{o:5.2f}  "
+            g, r, i, o, h = fn(np.array(table[name]), axis=0)
+            line += f"{g:8.2f}/{r:5.2f}/{i:5.2f}/{o:5.2f}/{h:4.1f}%"
         tf, ts = fn(np.array(tilts), axis=0)
         print(line + f"{tf:7.3f}/{ts:5.3f}")
     print(f"({time.perf_counter() - t0:.0f} s)")

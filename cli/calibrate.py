@@ -579,14 +579,14 @@ def _mag(args) -> int:
             from ahrsd.cli.plots.backstepping import plot_backstepping
 
             try:
-                plot_backstepping(res, data, args.plot, swing_table=swing_table)
+                _write_plot(args, lambda path: plot_backstepping(res, data, path, swing_table=swing_table))
             except BacksteppingError as exc:
                 raise _Fail(f"cannot plot: {exc}") from None
         else:
             model = res.model if res.ok else None
             from ahrsd.cli.plots.mag import plot_mag
 
-            plot_mag(rec.mag_ut, model, ref.total_ut, args.plot)
+            _write_plot(args, plot_mag, rec.mag_ut, model, ref.total_ut)
     return rc
 
 
@@ -732,7 +732,7 @@ def run(args) -> int:
         import json
 
         print(json.dumps({"sensor": args.sensor, "error": str(failure)}))
-    print(f"ahrsd calibrate {args.sensor}: {failure}", file=sys.stderr)
+    print(f"ahrsd calibrate {args.sensor}: error: {failure}", file=sys.stderr)
     return 2 if isinstance(failure, _Usage) else 1
 
 

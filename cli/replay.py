@@ -427,4 +427,6 @@ def _run(args) -> int:
               f"estimate and write): {speed:.1f}× real time ({cpu_speed:.1f}× per CPU second)", file=sys.stderr)
         if aided:
             print(f"ahrsd replay: heading state {_history_text(history, last_t)}", file=sys.stderr)
+        if trace is not None:
+            print(f"ahrsd replay: figure written to {args.plot}", file=sys.stderr)
     return 0

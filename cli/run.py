@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
         if args.status_line:
             cfg = dataclasses.replace(cfg, daemon=DaemonConfig(status_line=args.status_line))
     except ConfigError as exc:
-        print(f"ahrsd: {exc}", file=sys.stderr)
+        print(f"ahrsd run: error: {exc}", file=sys.stderr)
         return 2
     plan = None
     if args.sim_faults:

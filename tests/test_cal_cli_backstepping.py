@@ -111,6 +111,7 @@ def test_heading_ref_column_removes_the_offset_json_and_plot(boat, tmp_path, ahr
     assert rc == 0, stdout + stderr
     out = json.loads(stdout)
     assert out["method"] == "backstepping" and out["refused"] is None
+    assert f"figure written to {png}" in stderr                 # the figure's place, beside the JSON on stdout
     assert len(out["hard_iron_ut"]) == 3 and np.asarray(out["soft_iron"]).shape == (3, 3)
     assert 0 < out["residual_rms_ut"] < 0.2 and out["saved_to"] == str(state / "calibration.json")
     card = out["quality"]["heading_reference"]

@@ -101,3 +101,14 @@ def test_a_full_row_without_its_final_newline_is_kept(tmp_path):
     path = write_rows(tmp_path / "n.csv", 5, tail=ROW.format(t=1.0).rstrip("\n"))
     r = read_recording(path, strict=False)
     assert len(r) == 6 and np.isclose(r.t_s[-1], 1.0)
+
+
+def test_a_broken_config_and_a_missing_recording_fail_with_the_commands_error_prefix(tmp_path, capsys):
+    """Every command's failure line reads `ahrsd COMMAND: error: …` (a new user met `ahrsd: config file …` from
+    run and `ahrsd calibrate gyro: missing.csv: …` from calibrate beside `ahrsd run: error: …`)."""
+    broken = tmp_path / "broken.toml"
+    broken.write_text("[sensor\nsource=")
+    assert cli.main(["run", "--config", str(broken)]) == 2
+    assert capsys.readouterr().err.startswith(f"ahrsd run: error: config file {broken} is not valid TOML")
+    assert cli.main(["calibrate", "gyro", str(tmp_path / "missing.csv"), "--state-dir", str(tmp_path / "s")]) == 1
+    assert capsys.readouterr().err.startswith("ahrsd calibrate gyro: error: ")

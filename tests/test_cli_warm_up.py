@@ -1,5 +1,6 @@
-"""The first start says it is compiling before it compiles (not after), a cached start says nothing, and
-`ahrsd warm-up` (the unit's ExecStartPre) compiles the configured estimator into the cache."""
+"""The first start says it is compiling before it compiles (not after), a cached start says nothing,
+`ahrsd warm-up` (the unit's ExecStartPre) compiles the configured estimator into the cache, and the announcement's
+watcher never looks at numba while numba is still being imported."""
 
 from __future__ import annotations
 
@@ -74,3 +75,29 @@ def test_warm_up_command_compiles_the_configured_estimator(tmp_path):
     r = subprocess.run([sys.executable, "-m", "ahrsd.cli", "warm-up", "--estimator", "nonesuch"], capture_output=True,
                        text=True, timeout=120)
     assert r.returncode != 0 and "nonesuch" in r.stderr and "Traceback" not in r.stderr
+
+
+NUMBA_STATE_PROBE = """
+import sys
+from ahrsd.cli import warm_up
+assert "numba" not in sys.modules, "the probe needs a process that has not imported numba yet"
+complete = []
+
+def count_compiles():
+    registry = sys.modules.get("numba.core.registry")
+    complete.append(registry is not None and hasattr(registry, "CPUDispatcher"))
+    return 0
+
+warm_up.compile_estimator("mekf", announce_after_s=0.0, count_compiles=count_compiles)
+print(len(complete), all(complete))
+"""
+
+
+def test_the_watcher_never_sees_numba_half_imported():
+    """numba imported from two threads at once fails with a circular ImportError (`ahrsd run` died so at load
+    17): every look the watcher (and the count before it) takes must find numba's registry complete. Run after
+    the warm-up command above, so the mekf kernels load from the cache."""
+    r = subprocess.run([sys.executable, "-c", NUMBA_STATE_PROBE], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    looks, all_complete = r.stdout.split()
+    assert int(looks) >= 2 and all_complete == "True", r.stdout

@@ -61,3 +61,23 @@ def test_the_figure_draws_the_vertical_field_the_fit_saw(boat):
     finally:
         plt.close(fig)
     assert accel_spread > 3.0 * spread, (accel_spread, spread)
+
+
+def test_the_accelerometer_levelled_figure_draws_the_vertical_field_the_fit_saw(boat):
+    """Without --gnss the fit levels with the low-passed accelerometer and low-passes the magnetometer alike
+    (the wave tilt shrinks on both sides): the figure must filter both too, or the filter's lag on one side
+    only shows as a wave-period wobble of H_z that the fit's residual never had."""
+    import matplotlib.pyplot as plt
+
+    data, _, _, field = boat
+    res = fit_backstepping(data, field)
+    assert res.ok, res.refused
+    assert "magnetometer and gyro alike" in res.quality["attitude_source"]
+    fit_vertical_ut = res.quality["vertical_channel"]["vertical_rms_ut"]
+    noise_ut = 0.02                          # the low-passed per-sample magnetometer noise
+    fig = backstepping_figure(res, data)
+    try:
+        spread = vertical_spread_ut(fig, res.quality["reference"]["vertical_ut"])
+    finally:
+        plt.close(fig)
+    assert spread <= 1.5 * math.hypot(fit_vertical_ut, noise_ut), (spread, fit_vertical_ut)

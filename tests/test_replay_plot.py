@@ -110,12 +110,13 @@ def test_replay_plot_draws_the_truth_error_panel_that_scipy_computes(truth_recor
         assert [ln for ln in axis_labelled(fig, ylabel).get_lines() if ln.get_label() == "truth"]
 
 
-def test_without_truth_columns_there_is_no_error_panel(tmp_path, figures):
+def test_without_truth_columns_there_is_no_error_panel(tmp_path, figures, capsys):
     rec = tmp_path / "plain.csv"
     block = simulate("static", 10, rate_hz=50.0, seed=3)
     write_block(rec, block)
-    assert main(["replay", str(rec), "--output", str(tmp_path / "o.csv"), "--plot", str(tmp_path / "p.png"),
-                 "--quiet"]) == 0
+    png = tmp_path / "p.png"
+    assert main(["replay", str(rec), "--output", str(tmp_path / "o.csv"), "--plot", str(png)]) == 0
+    assert f"ahrsd replay: figure written to {png}" in capsys.readouterr().err     # says where the figure went
     (fig,) = figures
     labels = [a.get_ylabel() for a in fig.axes]
     assert "error vs truth (°)" not in labels and "magnetic heading (°)" in labels

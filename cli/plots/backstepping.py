@@ -13,6 +13,7 @@ import numpy as np
 from ahrsd.core.angles import down_in_body, roll_pitch_from_accel, wrap_180_deg
 
 from ahrsd.calibration.mag import swing
+from ahrsd.calibration.mag.backstepping import BacksteppingOptions
 from ahrsd.calibration.mag.backstepping_paper import BacksteppingError, magnetic_heading_deg
 from ahrsd.calibration.mag.fit_types import MagFitInput, MagFitResult, finite_rows
 from ahrsd.calibration.mag.observability import level_vectors, lowpass
@@ -47,20 +48,28 @@ def backstepping_figure(result: MagFitResult, data: MagFitInput, *, roll_rad=Non
         levelled_by = "the given attitude"
     ok = finite_rows(data.mag_ut)
     d = data.select(ok)
+    cal = result.model.apply(d.mag_ut)
+    gyro_rad_s = d.gyro_rad_s
     if roll_rad is None:
         if d.accel_m_s2 is None:
             raise BacksteppingError("plot needs roll/pitch or accelerometer samples")
-        roll_rad, pitch_rad = roll_pitch_from_accel(lowpass(d.accel_m_s2, d.t_s, 0.2))
+        tau_s = BacksteppingOptions.accel_tau_s
+        roll_rad, pitch_rad = roll_pitch_from_accel(lowpass(d.accel_m_s2, d.t_s, tau_s))
+        if "magnetometer and gyro alike" in str(result.quality.get("attitude_source", "")):
+            # the fit low-passed the magnetometer and gyro with the accelerometer (backstepping._levelling_attitude:
+            # the wave tilt then shrinks on both sides); levelling the raw field with the filtered tilt would draw
+            # the filter's lag as a wave-period wobble of the vertical field that the fit never had
+            cal = lowpass(cal, d.t_s, tau_s)
+            gyro_rad_s = None if gyro_rad_s is None else lowpass(gyro_rad_s, d.t_s, tau_s)
         # level as the fit did: without the accelerometer's lean into turns (the fitted forward speed)
         speed = result.quality.get("vertical_channel", {}).get("centripetal_speed_m_s")
-        if isinstance(speed, (int, float)) and d.gyro_rad_s is not None:
+        if isinstance(speed, (int, float)) and gyro_rad_s is not None:
             d0 = down_in_body(roll_rad, pitch_rad)
-            dn = corrected_down(d0, centripetal_direction(d.gyro_rad_s, d0), speed)
+            dn = corrected_down(d0, centripetal_direction(gyro_rad_s, d0), speed)
             roll_rad, pitch_rad = np.arctan2(dn[:, 1], dn[:, 2]), -np.arcsin(np.clip(dn[:, 0], -1.0, 1.0))
     else:
         roll_rad, pitch_rad = np.asarray(roll_rad)[ok], np.asarray(pitch_rad)[ok]
     raw = d.mag_ut - np.median(d.mag_ut, axis=0)
-    cal = result.model.apply(d.mag_ut)
     lv_raw, lv_cal = level_vectors(raw, roll_rad, pitch_rad), level_vectors(cal, roll_rad, pitch_rad)
     has_ref = (d.heading_ref_deg is not None and np.isfinite(d.heading_ref_deg).any()) or swing_table is not None
     fig, axes = plt.subplots(1, 3 if has_ref else 2, figsize=(15 if has_ref else 10, 4.5))
