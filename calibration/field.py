@@ -461,7 +461,7 @@ class FieldCalibration:
             return np.array([math.cos(d), math.sin(d), 0.0])
 
     def pop_messages(self) -> list[tuple[int, str]]:
-        """(MAV_SEVERITY, text) lines for a person, since the last call."""
+        """(MAV_SEVERITY, text) lines for a person, since the last call (not logged here: the caller logs them)."""
         with self._lock:
             out, self._messages = self._messages, []
             return out
@@ -505,8 +505,8 @@ class FieldCalibration:
             self._say(5, f"Mag cal: attempt {self.attempt}")
 
     def _say(self, severity: int, text: str) -> None:
+        # queued only: whoever runs the session says the line and logs it, once (daemon.magcal)
         self._messages.append((severity, text))
-        log.info("%s", text)
 
     def _store(self, t, raw, acc, gyro, roll, pitch, yaw, body_yaw_offset=0.0) -> None:
         if self._n >= self._t.shape[0]:  # full: keep every other sample, halve the keep rate

@@ -8,7 +8,9 @@ reassembled) shown. It needs only a pymavlink connection to a running ahrsd, nev
 from __future__ import annotations
 
 import sys
+import threading
 import time
+from typing import Callable
 
 CLIENT_SYSTEM, CLIENT_COMPONENT = 255, 190   # a ground station (MAV_COMP_ID_MISSIONPLANNER)
 MAV_TYPE_IMU = 40
@@ -30,10 +32,11 @@ class MagCalClient:
     """One session with one daemon: `find_target`, then an action (`start`, `simple`, `status`) whose exit
     status it returns; progress and results are written to `out` for a person."""
 
-    def __init__(self, conn, timeout_s: float, out=sys.stdout):
+    def __init__(self, conn, timeout_s: float, out=sys.stdout, ask: Callable[[str], bool] | None = None):
         self.conn = conn
         self.timeout_s = timeout_s
         self.out = out
+        self.ask = ask or _ask          # the operator's yes/no at a prompt (the terminal's by default)
         self.sys = self.comp = None
         self._bar_shown = False
         self._chunks: dict[int, dict[int, str]] = {}
@@ -185,8 +188,9 @@ class MagCalClient:
                     return 1
                 if m.autosaved:
                     return 0
-                answer = accept or _ask("accept and save this calibration? [y/N] ")
-                elsewhere = self._settled_elsewhere()   # while we waited at the prompt
+                answer, elsewhere = (True, None) if accept else \
+                    self._ask_listening("accept and save this calibration? [y/N] ")
+                elsewhere = elsewhere or self._settled_elsewhere()
                 if elsewhere == "saved":
                     self._print("accepted from another ground station or terminal: calibration saved")
                     return 0
@@ -205,9 +209,43 @@ class MagCalClient:
         self._print("gave up waiting (--max-time); the calibration is still running on the daemon")
         return 1
 
+    def _ask_listening(self, prompt: str) -> tuple[bool, str | None]:
+        """Ask on the terminal while a thread keeps reading the link: (the operator's answer, "saved" or
+        "cancelled" when the daemon said the session was settled elsewhere while the prompt waited). Unread, the
+        link's receive buffer fills with the daemon's streams within seconds and the kernel drops what comes
+        after, the one STATUSTEXT that says another ground station accepted included."""
+        stop = threading.Event()
+        settled: list[str] = []
+
+        def listen() -> None:
+            while not stop.is_set():
+                what = self._settle_news(self.conn.recv_match(blocking=True, timeout=0.1))
+                if what is not None:
+                    settled.append(what)
+
+        reader = threading.Thread(target=listen, name="magcal-listen", daemon=True)
+        reader.start()
+        try:
+            answer = self.ask(prompt)
+        finally:
+            stop.set()
+            reader.join()
+        return answer, (settled[-1] if settled else None)
+
+    def _settle_news(self, m) -> str | None:
+        """"saved" or "cancelled" when `m` is the daemon's STATUSTEXT saying so (its last chunk), else None."""
+        if m is None or not self._from_target(m) or m.get_type() != "STATUSTEXT":
+            return None
+        text = self._statustext(m) or ""
+        if text.startswith("Mag cal saved"):
+            return "saved"
+        if text.startswith("Mag cal cancelled"):
+            return "cancelled"
+        return None
+
     def _settled_elsewhere(self, listen_s: float = 0.5) -> str | None:
-        """"saved" or "cancelled" when the daemon said so (STATUSTEXT) in the messages that arrived while we
-        waited, or within `listen_s` more; None when the session is still waiting for an answer."""
+        """"saved" or "cancelled" when the daemon said so (STATUSTEXT) in the messages still queued, or within
+        `listen_s` more; None when the session is still waiting for an answer."""
         end = time.monotonic() + listen_s
         while True:
             m = self.conn.recv_match(blocking=False)
@@ -216,13 +254,9 @@ class MagCalClient:
                     return None
                 time.sleep(0.02)
                 continue
-            if not self._from_target(m) or m.get_type() != "STATUSTEXT":
-                continue
-            text = self._statustext(m) or ""
-            if text.startswith("Mag cal saved"):
-                return "saved"
-            if text.startswith("Mag cal cancelled"):
-                return "cancelled"
+            what = self._settle_news(m)
+            if what is not None:
+                return what
 
     def status(self, seconds: float) -> int:
         """The running calibration (progress) or its last report, then the learned iron."""

@@ -29,15 +29,16 @@ import logging
 import math
 import time
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Protocol
 
 import numpy as np
 
 from ahrsd.calibration.atomic_file import write_atomic
-from ahrsd.calibration.models import MagModel
+from ahrsd.calibration.models import Calibration, MagModel
 from ahrsd.daemon.command_args import CommandArgs, Refused, whole_number
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.daemon.params import ParamError
+from ahrsd.estimator.base import Estimator, IronLearningEstimator
 
 log = logging.getLogger(__name__)
 
@@ -73,14 +74,13 @@ def folded_iron(model: MagModel, mounting, offset_ut, soft_iron=None) -> MagMode
     return MagModel(model.hard_iron_ut + shift, c.T @ np.linalg.solve(a, c @ model.soft_iron))
 
 
-def _learns(estimator) -> bool:
-    return callable(getattr(estimator, "learned_iron", None))
+class IronPipeline(Protocol):
+    """What the part reads of the per-sample path (daemon.pipeline.Pipeline), when it needs them: they are
+    swapped between samples. An estimator that learns no iron (mekf) is not an IronLearningEstimator."""
 
-
-def _soft(estimator) -> tuple[np.ndarray, np.ndarray]:
-    """The estimator's learned soft iron I + D and the 9×9 covariance of D (identity and zeros without one)."""
-    fn = getattr(estimator, "learned_soft_iron", None)
-    return fn() if callable(fn) else (np.eye(3), np.zeros((9, 9)))
+    estimator: Estimator
+    calibration: Calibration
+    mounting: np.ndarray | None
 
 
 class LearnedIron:
@@ -96,7 +96,7 @@ class LearnedIron:
     background(fn): runs a file write off the event loop (default: at once).
     """
 
-    def __init__(self, state_dir, pipeline, *, publish: Callable[[str, float], None],
+    def __init__(self, state_dir, pipeline: IronPipeline, *, publish: Callable[[str, float], None],
                  statustext: Callable[[int, str], None], armed: Callable[[], bool],
                  apply_calibration: Callable[..., None], horizontal_field_ut: Callable[[], float] = lambda: math.nan,
                  background: Callable[[Callable[[], None]], None] | None = None, allow_armed: bool = False,
@@ -125,7 +125,7 @@ class LearnedIron:
         p = self.pipeline
         self.key = calibration_key(p.calibration, p.mounting)
         self._publish_now()
-        if not _learns(p.estimator):
+        if not isinstance(p.estimator, IronLearningEstimator):
             return False
         doc = self._read()
         if doc is None:
@@ -173,7 +173,7 @@ class LearnedIron:
         if key == self.key:
             return
         self.key = key
-        if _learns(p.estimator):
+        if isinstance(p.estimator, IronLearningEstimator):
             p.estimator.reset_learned_iron()
             log.info("new magnetometer calibration or mounting: learned iron reset")
         self._write_current()
@@ -184,13 +184,17 @@ class LearnedIron:
         """Fold the learned iron into the calibration (saved and swapped through apply_calibration), then
         reset it. Returns (done, what happened)."""
         p = self.pipeline
-        offset, cov = p.estimator.learned_iron()
-        soft = _soft(p.estimator)[0]
+        est = p.estimator
+        if not isinstance(est, IronLearningEstimator):
+            return False, "Learned iron: this estimator learns none"
+        offset, cov = est.learned_iron()
+        soft = est.learned_soft_iron()[0]
+        heading_sigma_rad = est.learned_iron_heading_sigma_rad()
         if not (np.any(np.abs(offset) > 0.0) or np.any(soft != np.eye(3))):
             return False, "Learned iron: nothing learned yet"
         current = p.calibration
         model = folded_iron(current.mag, p.mounting, offset, soft)
-        heading_std = self._accepted_heading_std_deg(current, cov)     # the old offset's σ is inside it
+        heading_std = self._accepted_heading_std_deg(current, cov, heading_sigma_rad)   # the old offset's σ is inside it
         new = current.with_sensor("mag", model, method="learned-iron", heading_std_deg=heading_std,
                                   offset_std_deg=None if heading_std is None else 0.0,
                                   learned_iron_ut=offset.tolist(),
@@ -203,7 +207,9 @@ class LearnedIron:
         return True, (f"Learned iron accepted: hard iron +{np.round(offset, 1).tolist()} uT")
 
     def reset(self) -> str:
-        self.pipeline.estimator.reset_learned_iron()
+        est = self.pipeline.estimator
+        if isinstance(est, IronLearningEstimator):
+            est.reset_learned_iron()
         self._write_current()
         self._publish_now()
         return "Learned iron reset"
@@ -226,7 +232,7 @@ class LearnedIron:
 
     def act(self, action: int) -> tuple[int, str]:
         """ACTION_ACCEPT or ACTION_RESET: (MAV_RESULT, what happened), said in a STATUSTEXT."""
-        if not _learns(self.pipeline.estimator):
+        if not isinstance(self.pipeline.estimator, IronLearningEstimator):
             result, text = mavlink.MAV_RESULT_UNSUPPORTED, "Learned iron: this estimator learns none"
         elif self.armed() and not self.allow_armed:
             result, text = mavlink.MAV_RESULT_TEMPORARILY_REJECTED, "Disarm to change the learned iron"
@@ -249,19 +255,19 @@ class LearnedIron:
         return (mavlink.MAV_RESULT_ACCEPTED if done else mavlink.MAV_RESULT_FAILED), text
 
     # ------------------------------------------------------------------ internals
-    def _accepted_heading_std_deg(self, current, cov) -> float | None:
+    def _accepted_heading_std_deg(self, current, cov, iron_sigma_rad: float) -> float | None:
         """The heading 1σ of the calibration with the iron folded in: the old calibration's figure and the
-        learned iron's horizontal uncertainty over the horizontal field, in quadrature; without an old
-        figure, the estimator's floor for what a hard iron does not explain takes its place."""
+        learned iron's (iron_sigma_rad: the estimator's, NaN unknown) in quadrature; without an old figure,
+        the estimator's floor for what a hard iron does not explain takes its place."""
         from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad
 
         h = float(self.horizontal_field_ut())
         if not (math.isfinite(h) and h > 1.0):
             return None
         # the learned iron's heading σ from its whole covariance when the estimator knows the field (with the soft
-        # iron learned, the hard iron alone is poorly known on a level vehicle while their combination is not)
-        fn = getattr(self.pipeline.estimator, "learned_iron_heading_sigma_rad", None)
-        iron = float(fn()) if callable(fn) else math.nan
+        # iron learned, the hard iron alone is poorly known on a level vehicle while their combination is not);
+        # else the hard iron's horizontal σ over the horizontal field
+        iron = float(iron_sigma_rad)
         if not math.isfinite(iron):
             iron = math.sqrt(max(float(np.max(np.diag(cov)[:2])), 0.0)) / h
         old = calibration_heading_sigma_rad(current)
@@ -277,7 +283,7 @@ class LearnedIron:
     def _current(self) -> tuple[np.ndarray, ...] | None:
         """(hard iron, its covariance, soft iron I + D, the covariance of D) of the estimator, None without."""
         est = self.pipeline.estimator
-        return (*est.learned_iron(), *_soft(est)) if _learns(est) else None
+        return (*est.learned_iron(), *est.learned_soft_iron()) if isinstance(est, IronLearningEstimator) else None
 
     def _changed(self) -> bool:
         cur = self._current()

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import Protocol, runtime_checkable
 
+import numpy as np
+
 from ahrsd.core.estimate import AttitudeEstimate
 from ahrsd.core.sample import ImuSample
 
@@ -40,3 +42,23 @@ class HeadingCheckedEstimator(Protocol):
     yaw_resets: int
 
     def set_mag_calibration_sigma(self, sigma_rad: float) -> None: ...
+
+
+@runtime_checkable
+class IronLearningEstimator(Protocol):
+    """An estimator that learns the vehicle's iron on top of the calibration in operation (ins: estimator/heading_
+    monitor.py IronLearner), body frame. The daemon persists, shows and folds it (daemon/learned_iron.py)."""
+
+    def learned_iron(self) -> tuple[np.ndarray, np.ndarray]:
+        """The hard iron (µT) and its 3×3 covariance (µT²)."""
+
+    def learned_soft_iron(self) -> tuple[np.ndarray, np.ndarray]:
+        """The soft iron I + D and the 9×9 covariance of D's elements, row by row."""
+
+    def learned_iron_heading_sigma_rad(self) -> float:
+        """The largest heading 1σ the learned iron leaves on a level vehicle, rad; NaN while unknown."""
+
+    def set_learned_iron(self, offset_ut, cov_ut2, soft_iron=None, soft_cov=None) -> None:
+        """Start from an iron persisted earlier; ValueError when it is not finite or not positive definite."""
+
+    def reset_learned_iron(self) -> None: ...

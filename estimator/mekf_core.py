@@ -274,6 +274,16 @@ def _propagate_attitude(q, dt, wx, wy, wz, rate):
 
 
 @njit(cache=True)
+def _tilt_process_noise_rad2(par, rate_rad_s, span_s):
+    """The tilt error variance the gyro adds over span_s while turning at rate_rad_s: its angle random walk plus
+    its rate-proportional scale/alignment errors, (σ_g² + (σ_s·|ω|)²)·Δt. The one definition of the tilt process
+    noise: the covariance propagation adds it per step, and the published σ adds it over the low-passed vertical's
+    age (`_fill_outputs`). The heading gets the random walk only (qa in `_propagate_covariance`)."""
+    arw_rad2 = par.gyro_noise_rad_s_sqrt_hz * par.gyro_noise_rad_s_sqrt_hz * span_s
+    return arw_rad2 + (par.gyro_rate_noise_sqrt_s * rate_rad_s) ** 2 * span_s
+
+
+@njit(cache=True)
 def _propagate_covariance(P, par, dt, rate, c00, c01, c02, c10, c11, c12, c20, c21, c22):
     """P ← Φ P Φᵀ + Q over Δt with Φ = [[I, −C Δt], [0, I]] (δθ̇ = −C δb − C n_g), C = C_b^n, written
     out in 3×3 blocks: A = P[δθ, δθ], B = P[δθ, δb], D = P[δb, δb], M = C Δt:
@@ -328,7 +338,7 @@ def _propagate_covariance(P, par, dt, rate, c00, c01, c02, c10, c11, c12, c20, c
     b21 = ob21 - md21
     b22 = ob22 - md22
     qa = par.gyro_noise_rad_s_sqrt_hz * par.gyro_noise_rad_s_sqrt_hz * dt
-    qt = qa + (par.gyro_rate_noise_sqrt_s * rate) ** 2 * dt
+    qt = _tilt_process_noise_rad2(par, rate, dt)
     qb = par.gyro_bias_walk_rad_s_sqrt_s * par.gyro_bias_walk_rad_s_sqrt_s * dt
     # rows i of A': A[i][j] − Σk ob[i][k] m[j][k] − Σk m[i][k] b[j][k]
     P[0, 0] += qt - (ob00 * m00 + ob01 * m01 + ob02 * m02) - (m00 * b00 + m01 * b01 + m02 * b02)
@@ -784,14 +794,14 @@ def _fill_outputs(st, par, gx, gy, gz, out):
                         par.converged_tilt_rad, par.mag_enabled, par.converged_yaw_rad)
     # the published 1σ adds what the covariance does not carry (Schmidt's "consider" terms):
     # (a) the low-passed vertical is on average acc_lowpass_tau_s old, so it has not seen the attitude random
-    #     walk of the last τ: the tilt process noise rate (as `_propagate_covariance`) times τ;
+    #     walk of the last τ: the tilt process noise over τ;
     # (b) the lean a turn has left in the tilt and, through the dip, in the heading (`_track_tilt_push`)
     wx = gx - b[0]
     wy = gy - b[1]
     wz = gz - b[2]
     u = st.unmodelled
-    extra = ((par.gyro_noise_rad_s_sqrt_hz ** 2 + par.gyro_rate_noise_sqrt_s ** 2 * (wx * wx + wy * wy + wz * wz))
-             * par.acc_lowpass_tau_s + u.tilt_push_rad * u.tilt_push_rad)
+    extra = (_tilt_process_noise_rad2(par, math.sqrt(wx * wx + wy * wy + wz * wz), par.acc_lowpass_tau_s)
+             + u.tilt_push_rad * u.tilt_push_rad)
     sig = out.sigma_rpy_rad
     sig[0], sig[1] = tilt_sigma(cy, sy, pnn + extra, pne, pee + extra)
     sig[2] = math.sqrt(pdd + u.heading_push_rad * u.heading_push_rad)

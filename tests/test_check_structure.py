@@ -56,9 +56,11 @@ def test_probing_a_part_fails(tmp_path):
            "def d(source):\n"
            "    return getattr(source, 'per_sample', False)\n"    # the source interface declares it
            "def e(msg):\n"
-           "    return getattr(msg, 'target_system', 0)\n")        # a field of some message types: allowed
+           "    return getattr(msg, 'target_system', 0)\n"        # a field of some message types: allowed
+           "def f(self):\n"
+           "    return getattr(self.pipeline.estimator, 'learned_iron', None)\n")   # estimator/base.py declares it
     r = run(_tree(tmp_path, src))
     assert r.returncode == 1
-    for line in (2, 4, 6, 8):
+    for line in (2, 4, 6, 8, 12):
         assert f"bad.py:{line}:" in r.stdout
     assert "bad.py:10:" not in r.stdout

@@ -174,6 +174,64 @@ def test_reset_forgets_it_and_both_commands_are_refused_while_armed(tmp_path):
         stop_service(svc, loop)
 
 
+def _aided_ins():
+    """A real ins that knows its position (a fix after a second at rest), so it can say the heading σ its learned
+    iron leaves."""
+    from ahrsd.core.gnss import make_fix
+    from ahrsd.core.sample import make_sample
+    from ahrsd.estimator.ins import Ins
+
+    ins = Ins()
+    acc, mag = np.array([0.0, 0.0, -9.81]), np.array([18.0, 0.0, 45.0])
+    for i in range(120):
+        ins.update(make_sample(0.01 * i, np.zeros(3), acc, mag))
+        if i == 100:
+            ins.update_gnss(make_fix(0.5, 52.0, 4.0, 10.0, np.zeros(3)))
+    return ins
+
+
+def test_the_part_alone_knows_a_learning_estimator_by_its_declared_interface(tmp_path):
+    """LearnedIron built alone on a real Pipeline: with ins (an IronLearningEstimator) the accepted calibration's
+    heading σ is the old one and the estimator's own σ for its learned iron in quadrature, worked out here;
+    with mekf (which learns none) the part shows −1 and refuses. (Broken by renaming
+    learned_iron_heading_sigma_rad in the Protocol: ins is no longer recognised, 6 of 7 tests here fail; by
+    ignoring the estimator's σ for the hard iron's diagonal: 3.73° instead of 4.84°.)"""
+    from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad
+    from ahrsd.daemon.learned_iron import LearnedIron
+    from ahrsd.daemon.pipeline import Pipeline
+    from ahrsd.estimator.base import IronLearningEstimator
+    from ahrsd.estimator.mekf import Mekf
+
+    ins = _aided_ins()
+    assert isinstance(ins, IronLearningEstimator) and not isinstance(Mekf(), IronLearningEstimator)
+    ins.set_learned_iron(OFFSET_UT, COV_UT2, LEARNED_SOFT, LEARNED_SOFT_COV)
+    iron_sigma = ins.learned_iron_heading_sigma_rad()
+    assert math.isfinite(iron_sigma)
+    horizontal_ut = 18.0
+    assert abs(iron_sigma - math.sqrt(max(COV_UT2[0, 0], COV_UT2[1, 1])) / horizontal_ut) > 1e-3   # tells them apart
+    pipeline = Pipeline(ins, _calibration())
+    shown, texts = {}, []
+
+    def apply_calibration(cal):
+        pipeline.calibration = cal
+
+    part = LearnedIron(tmp_path, pipeline, publish=shown.__setitem__, statustext=lambda sev, t: texts.append(t),
+                       armed=lambda: False, apply_calibration=apply_calibration,
+                       horizontal_field_ut=lambda: horizontal_ut)
+    part.restore()
+    assert shown["MAG_LRN_X"] == pytest.approx(OFFSET_UT[0])
+    old_sigma = calibration_heading_sigma_rad(pipeline.calibration)
+    assert part.act(ACTION_ACCEPT)[0] == mavlink.MAV_RESULT_ACCEPTED, texts
+    assert pipeline.calibration.metadata["mag"]["heading_std_deg"] == pytest.approx(
+        math.degrees(math.hypot(old_sigma, iron_sigma)), rel=1e-12)
+
+    pipeline.estimator = Mekf()
+    mekf_part = LearnedIron(tmp_path / "m", pipeline, publish=shown.__setitem__, statustext=lambda sev, t: None,
+                            armed=lambda: False, apply_calibration=apply_calibration)
+    assert mekf_part.restore() is False and shown["MAG_LRN_SD"] == -1.0
+    assert mekf_part.act(ACTION_ACCEPT)[0] == mavlink.MAV_RESULT_UNSUPPORTED
+
+
 class _FakeConn:
     """Answers PARAM_REQUEST_READ with PARAM_VALUE from `values`, as the daemon (1, 200) would."""
 

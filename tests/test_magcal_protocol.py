@@ -345,3 +345,22 @@ def test_without_gnss_the_report_says_the_offset_is_undetermined_and_a_known_hea
         assert np.allclose(host.cal.mag.soft_iron, after.model.soft_iron)
     finally:
         proto.close()
+
+
+def test_each_session_message_is_logged_once(tmp_path, caplog):
+    """The session queues its lines for a person (calibration.field); the daemon's handler sends each as a
+    STATUSTEXT and is the one that logs it. (Broken by logging in the session's _say again: every session line
+    is logged twice.)"""
+    import logging
+
+    caplog.set_level(logging.DEBUG)
+    host = FakeHost(tmp_path)
+    clock = Clock()
+    proto = MagCalProtocol(host, MagCalSettings(timeout_s=5.0), clock=clock)
+    proto.handle_start(cmd(CMD_START))
+    drive(proto, clock, level_turns(duration_s=8.0, turn_period_s=1e9), host)
+    texts = host.texts()
+    assert any("turn slowly" in t for t in texts) and any("timed out" in t for t in texts)   # the session's own
+    logged = [r.getMessage() for r in caplog.records]
+    for text in texts:
+        assert sum(text in line for line in logged) == 1, (text, [line for line in logged if text in line])

@@ -7,7 +7,9 @@ Rules, all in daemon/:
 2. no `setattr` on an object other than `self`/`cls` (no part replaces another object's methods or state);
 3. no `getattr`/`hasattr` probing of the daemon's parts: not on the service or a part itself (`self`,
    `service`, `svc`, `s`, `host`, `self.service`, `self.host`), not on a sensor source (`source`, `src`,
-   `self.source`: drivers/source_interface.py declares what a source has) and not for an attribute named like
+   `self.source`: drivers/source_interface.py declares what a source has), not on an estimator (`estimator`,
+   `est`, `self.pipeline.estimator`, …: estimator/base.py declares its capabilities as Protocols, tested with
+   isinstance) and not for an attribute named like
    a part (an optional part is `None` or a null object by type, and is tested with `is None`).
 """
 
@@ -19,7 +21,9 @@ from pathlib import Path
 
 MAX_BASES = 2
 PROBED_OBJECTS = {"self", "service", "svc", "s", "host", "self.service", "self.host", "self.svc",
-                  "source", "src", "self.source", "service.source"}   # a sensor source: drivers.source_interface
+                  "source", "src", "self.source", "service.source",    # a sensor source: drivers.source_interface
+                  "estimator", "est", "self.estimator", "pipeline.estimator", "p.estimator",
+                  "self.pipeline.estimator"}                           # an estimator: estimator/base.py
 PART_NAMES = {
     "magcal", "field_calibration", "gnss", "pipeline", "reader", "publishers", "inbound", "param_protocol",
     "declination", "positions", "housekeeping", "health_report", "swap", "heading", "heading_slew",
