@@ -26,6 +26,10 @@ MAG_BAD = SampleFlags.MAG_INVALID | SampleFlags.MAG_SATURATED
 _GYRO_BAD, _ACCEL_BAD, _MAG_BAD = int(GYRO_BAD), int(ACCEL_BAD), int(MAG_BAD)
 _ANY_BAD = _GYRO_BAD | _ACCEL_BAD | _MAG_BAD
 BAD_PERSIST_S = 0.05    # a sensor is unhealthy once its samples were flagged bad this long (≈ 41 samples)
+# housekeeping ticks (10 Hz) without a single look of the reader after which an overdue sample counts as missing
+# even without an empty read: the reader itself is stuck. Once a busy event loop frees up, the ticks it owes
+# run back to back, the reader's wake among them, so one or two can pass without it.
+READER_SILENT_TICKS = 5
 
 
 @dataclass
@@ -33,6 +37,10 @@ class Health:
     stale_timeout_s: float
     last_sample_time: float | None = None     # monotonic time of the last processed sample
     last_estimate_flags: EstimateFlags | None = None
+    # the reader's evidence (`empty_read`, `sample_read`): samples are missing only when the reader looked while
+    # one was overdue and found none, not merely because the clock moved on while the event loop was busy
+    last_empty_read_time: float | None = None  # when the reader last looked and found no sample
+    ticks_without_read: int = 0               # housekeeping ticks since the reader last looked
     sensor_error: str = ""                    # why the sensor is failed ("" = no bus error)
     calibrating: str = ""                     # what is calibrating ("" = nothing)
     # from daemon.heading_status: may the heading be called good (else STANDBY), health bits it clears
@@ -78,8 +86,32 @@ class Health:
         return since is not None and self.last_sample_time is not None and \
             self.last_sample_time - since >= BAD_PERSIST_S
 
+    def sample_read(self, now: float) -> None:
+        """The reader looked at `now` and processed samples."""
+        self.last_sample_time = now
+        self.ticks_without_read = 0
+
+    def empty_read(self, now: float) -> None:
+        """The reader looked at `now` and found no sample (or only a corrupt frame)."""
+        self.last_empty_read_time = now
+        self.ticks_without_read = 0
+
+    def housekeeping_tick(self) -> None:
+        """One housekeeping tick passed (the health report's job)."""
+        self.ticks_without_read += 1
+
     def samples_flowing(self, now: float) -> bool:
-        return self.last_sample_time is not None and now - self.last_sample_time <= self.stale_timeout_s
+        """A sample within stale_timeout_s of `now`; or, when the last is older, the reader has not seen that
+        one is missing: it has not looked since one became overdue (an event loop that was busy, e.g. with
+        the first batch of a replay under load, delays the look, not the sensor) and it is not stuck."""
+        last = self.last_sample_time
+        if last is None:
+            return False
+        if now - last <= self.stale_timeout_s:
+            return True
+        looked_overdue = self.last_empty_read_time is not None and \
+            self.last_empty_read_time - last >= self.stale_timeout_s
+        return not looked_overdue and self.ticks_without_read < READER_SILENT_TICKS
 
     def sensor_ok(self, now: float) -> bool:
         """Samples flow, no bus error, and gyro and accel have not been invalid (or saturated) for

@@ -79,6 +79,7 @@ class HealthReport:
         self._rate_window: tuple[float, int] = (0.0, 0)
 
     def __call__(self, now: float) -> None:
+        self.health.housekeeping_tick()
         if now >= self._next_heartbeat:
             self._next_heartbeat = max(self._next_heartbeat + HEARTBEAT_PERIOD_S, now)
             self._update_load(now)

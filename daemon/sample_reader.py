@@ -121,6 +121,7 @@ class SampleReader:
                 sample = source.read_one(now)
             except FrameError as exc:
                 # one corrupt frame: the driver counted it; the next sample comes one period later
+                self.health.empty_read(now)
                 self.counters.frame_errors += 1
                 self._consecutive_frame_errors += 1
                 if self._consecutive_frame_errors >= FRAME_ERRORS_FOR_FAILURE:
@@ -138,6 +139,8 @@ class SampleReader:
                 if _int_and(sample.flags, _GAP_BEFORE):
                     self.counters.overruns += 1
                 self.process((sample,), now)
+            else:
+                self.health.empty_read(now)
             after = loop.time()
             out.publish(after)
             target = source.next_read_time()
@@ -172,6 +175,8 @@ class SampleReader:
                 log.info("replay finished")
                 out.finished()
                 return
+            else:
+                self.health.empty_read(now)
             out.publish(now)
             after = loop.time()
             if after - deadline > period:
@@ -210,7 +215,7 @@ class SampleReader:
                 if raw.t_s >= ready_by:
                     break
                 self.counters.late_samples += 1
-        health.last_sample_time = now
+        health.sample_read(now)
         health.last_sample_flags = samples[-1].flags
         if reinitialised:
             out.heading_reset()           # a genuine re-initialisation: signalled, not slewed

@@ -56,6 +56,7 @@ COUNTER_NAMES = (
     "ea_flags",              # frames with EA set (DIAG_STAT read and decoded)
     "burst_bug_recovered",   # X-gyro bit-13 burst bug fixed from a register read
     "burst_bug_unverified",  # suspected burst bug the register read could not confirm (gyro flagged invalid)
+    "nd_taken_by_check",     # ... the register read found a newer sample and took its ND (read at the next burst)
     "garbage_frames",        # frames rejected: inconsistent ND/EA, implausible supply or values
     "short_reads",           # the bus returned fewer bytes than clocked
     "bus_errors",            # the bus raised (device gone, ioctl failure)
@@ -134,6 +135,7 @@ class Adis16405:
         self._runs = [0] * 9
         self._stuck = [False] * 9
         self._any_stuck = False
+        self._nd_taken = False             # a register read after the last burst took a new sample's ND
 
     # ---------------------------------------------------------------------------------- bus primitives
     def _xfer(self, tx: bytes, speed_hz: int, delay_us: int = R.STALL_US) -> bytes:
@@ -344,14 +346,22 @@ class Adis16405:
             raise self._reject(f"implausible supply {supply * R.SUPPLY_V_PER_LSB:.2f} V", rx)
         raw9 = [((x & 0x3FFF) ^ 0x2000) - 0x2000 for x in (w1, w2, w3, w4, w5, w6, w7, w8, w9)]
         flags = 0
-        new_data = bool(both & R.ND)
+        # ND clear but the previous read's XGYRO_OUT check took the ND of the sample that became ready after
+        # its burst: these registers hold that sample, new to us
+        new_data = bool(both & R.ND) or self._nd_taken
+        self._nd_taken = False
 
         # X-gyro burst bug (EZ 81805): a negative X rate comes back with bit 13 cleared, i.e. +8192 LSB.
         gx = raw9[0]
         prev_gx = self._prev_gx
         if (not (w1 & 0x2000)) and (gx > self._gyro_range_lsb or
                                     (gx - prev_gx > self._jump_lsb if prev_gx is not None else gx > self._jump_lsb)):
-            gx, flags = self._check_burst_bug(w1, gx, flags)
+            if new_data or prev_gx is None:
+                gx, flags = self._check_burst_bug(w1, gx, flags)
+            else:
+                # a repeat of the sample checked when it was new: no register read, which would only take the
+                # ND of a sample that became ready since (and lose it)
+                gx = prev_gx
             raw9[0] = gx
 
         plausible = self._plausible9
@@ -414,6 +424,12 @@ class Adis16405:
         self._last = sample
         return sample
 
+    @property
+    def newer_sample_taken(self) -> bool:
+        """The register reads after the last burst took the ND of a newer sample (`_check_burst_bug`): the sample
+        just returned was not the newest when the read ended, and the next burst returns the newer one as new."""
+        return self._nd_taken
+
     def _advance_counter(self) -> int:
         """Index the fresh sample without a host clock: one period after the previous one (no gaps can be seen;
         drivers.chip_source times and indexes samples from the host clock)."""
@@ -421,8 +437,13 @@ class Adis16405:
         return 0
 
     def _check_burst_bug(self, w1: int, gx: int, flags: int) -> tuple[int, int]:
-        """Confirm a suspicious burst X-gyro value with a register read of XGYRO_OUT."""
+        """Confirm a suspicious burst X-gyro value with a register read of XGYRO_OUT. Reading an output
+        register clears ND: when the word comes back with ND set, a new sample became ready after the burst and
+        this read took its ND, so the next burst is new data although its ND is clear (`_nd_taken`)."""
         reg = self.read_register(R.XGYRO_OUT)
+        if reg & R.ND:
+            self._nd_taken = True
+            self.counters["nd_taken_by_check"] += 1
         reg_lsb = R.decode_signed14(reg)
         if reg_lsb == gx:
             return gx, flags                                  # genuine

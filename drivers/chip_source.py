@@ -78,7 +78,7 @@ class ChipSource(LiveSource):
                 timer.may_have_consumed(end)
             timer.stale(now)          # not ready at `now` or later: `now` is the safe bound
             return math.nan, timer.k, 0
-        t_s, k, lost = timer.fresh(now, end)
+        t_s, k, lost = timer.fresh(now, end, self.driver.newer_sample_taken)
         if _int_and(flags, _MORE_READS):
             timer.may_have_consumed(end)
         if lost:

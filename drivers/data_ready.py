@@ -62,9 +62,14 @@ class DataReadyTimer:
             events = self.line.read_edge_events()     # read without waiting (the event-loop reader)
         return events
 
-    def fresh(self, read_time: float, read_end: float | None = None) -> tuple[float, int, int]:
+    def fresh(self, read_time: float, read_end: float | None = None,
+              newer_ready: bool = False) -> tuple[float, int, int]:
+        """newer_ready: the read saw a newer sample ready by its end (register reads after the burst): its edge,
+        if already taken from the line, is kept for the next read, which returns that sample."""
         events = self._take()
         self._need_new_edge = False
+        if newer_ready and len(events) > 1:
+            events, self._pending = events[:-1], events[-1:]
         if not events:
             # ND said new but no edge was seen: one sample after the last (the line missed it, or the
             # read raced the edge); timed by the read

@@ -54,11 +54,15 @@ class SampleTimer:
     ambiguous_reads = 0     # fresh reads whose index was not unique (the largest allowed was taken)
     ambiguous_samples = 0   # lost samples counted at those reads that may be phantoms (upper bound)
 
-    def fresh(self, read_time: float, read_end: float | None = None) -> tuple[float, int, int]:
+    def fresh(self, read_time: float, read_end: float | None = None,
+              newer_ready: bool = False) -> tuple[float, int, int]:
         """A new sample was read by a transfer between `read_time` and `read_end` (default: the same):
-        its (t_s, index, samples lost before it)."""
+        its (t_s, index, samples lost before it). newer_ready: the read saw that a newer sample was ready by
+        `read_end` (register reads after the burst), so the one read became ready at least a period earlier."""
         P = self.period_s
         end = read_time if read_end is None else read_end
+        if newer_ready:
+            end -= P
         if self.hi is None:
             # Sample 0 is the newest at the latch, so φ lies in (read_time − P, end]. A bracket wider than one
             # period would be cut at hi − P by the next leak, i.e. at the later phase, which indexes every
@@ -132,8 +136,9 @@ class StallAwareSampleTimer(SampleTimer):
     stalled_reads = 0
     _hi_fresh: float | None = None      # the phase upper bound after the last fresh read (never dragged)
 
-    def fresh(self, read_time: float, read_end: float | None = None) -> tuple[float, int, int]:
-        out = super().fresh(read_time, read_end)
+    def fresh(self, read_time: float, read_end: float | None = None,
+              newer_ready: bool = False) -> tuple[float, int, int]:
+        out = super().fresh(read_time, read_end, newer_ready)
         self._hi_fresh, self._lo_fresh = self.hi, self.lo
         return out
 

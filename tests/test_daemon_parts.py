@@ -296,3 +296,84 @@ def test_the_polled_reader_reports_a_bus_failure_and_keeps_sys_status_flowing():
     assert counters.driver_errors == 1 and done == [1]
     assert texts == [(mavlink.MAV_SEVERITY_CRITICAL, "ahrsd: sensor failure: SPI transfer failed")]
     assert len(published) == 1                        # after the failure; none after the last (finished) poll
+
+
+def test_critical_needs_the_reader_to_find_no_sample_not_only_a_busy_event_loop():
+    """`ahrsd run --replay` at load 16 said "CRITICAL: no samples from the sensor" once at the start: the first
+    batch kept the event loop busy past stale_timeout_s, and the housekeeping tick that ran first found the last
+    sample "old". Stepped clock through the real reader (SampleReader.step) and health report: a busy loop is
+    not a missing sample; a look that finds none when one is overdue is (CRITICAL within two ticks), and so is
+    a reader that stopped looking (READER_SILENT_TICKS). (Broken by judging by the clock alone, as before: the
+    busy start sends CRITICAL.)"""
+    from ahrsd.daemon.health import READER_SILENT_TICKS
+
+    class Clock:
+        t = 0.0
+
+        def time(self):
+            return self.t
+
+    class Timer:
+        def arm(self, t):
+            pass
+
+    class Source(LiveSource):
+        sample_rate_hz = 100.0
+        per_sample = True
+        stalled = False
+
+        def read_one(self, now):
+            return None if self.stalled else make_sample(now, [0, 0, 0], [0, 0, -9.8], [20, 0, 40])
+
+        def next_read_time(self):
+            return 0.0
+
+    class Link:
+        def send(self, msg):
+            if msg.get_type() == "STATUSTEXT":
+                texts.append((clock.t, msg.text))
+            return True
+
+    class Notifier:
+        def status(self, text):
+            pass
+
+        def watchdog(self):
+            pass
+
+    texts = []
+    clock, source, health = Clock(), Source(), Health(stale_timeout_s=0.1)
+    reader = SampleReader(source, Pipeline(_StubEstimator(), Calibration.identity()), health, ServiceCounters(),
+                          SampleListeners(), ReaderOutputs(publish=lambda now: None, statustext=lambda sev, t: None,
+                                                           heading_reset=lambda: None, ready=lambda: None),
+                          poll_hz=100.0)
+    reader.loop, reader.timer, reader.period_s = clock, Timer(), 0.01
+    outbound = Outbound(Identity(1, 191, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), ServiceCounters(), clock=clock.time)
+    outbound.endpoints.append(Link())
+    report = HealthReport(health, outbound, Notifier(), reader.pipeline.counters, watchdog_interval_s=None, start=0.0)
+
+    def run_until(end, reader_looks=True):
+        while clock.t < end - 1e-9:
+            clock.t = round(clock.t + 0.01, 6)
+            if reader_looks:
+                reader.step()
+            if round(clock.t * 100) % 10 == 0:
+                report(clock.t)
+
+    report(0.0)
+    reader.step()                                   # the first sample, then the loop is busy for 0.5 s
+    clock.t = 0.5
+    for _ in range(3):                              # the housekeeping ticks it owes run before the reader
+        report(clock.t)
+    run_until(2.0)
+    assert not any("CRITICAL" in t for _, t in texts), texts
+    source.stalled = True                           # the sensor stops at 2.0
+    run_until(3.0)
+    critical = [t for t, text in texts if "CRITICAL" in text]
+    assert critical and 2.1 <= critical[0] <= 2.2 + 1e-9, texts
+    source.stalled = False
+    run_until(4.0)
+    assert "ACTIVE" in texts[-1][1]
+    run_until(5.0, reader_looks=False)              # the reader stops looking at 4.0
+    critical = [t for t, text in texts if "CRITICAL" in text and t > 4.0]
+    assert critical and critical[0] <= 4.0 + 0.1 * (READER_SILENT_TICKS + 1) + 1e-9, texts

@@ -28,7 +28,7 @@ from ahrsd.drivers.ground_truth import GroundTruthSource
 from ahrsd.drivers.reconnecting import ReconnectingSource
 from ahrsd.drivers.sample_timer import SampleTimer
 from ahrsd.drivers.simulated import SimulatedAdis16405
-from ahrsd.drivers.source import open_chip_driver
+from ahrsd.drivers.source import open_chip_driver, start_chip_source
 from reader_rig import FakeClock, ReaderRig
 from sim_streams import FixedStream
 
@@ -192,3 +192,64 @@ def test_stale_read_after_a_consumed_sample_is_evidence_only_for_the_one_after()
     assert t2.lo > 10.0 + 0.4 * P
     _, k, _ = t.fresh(10.0 + 3.02 * P)
     assert k == 3 and t._consumed_upto == -1
+
+
+@pytest.mark.parametrize("pacing", ["host timer", "data-ready edges", "data-ready edges, waited for"])
+def test_a_sample_ready_during_the_burst_bug_check_read_is_not_lost(pacing):
+    """#31 (bench/soak.py: 209 losses in a 20 s burst_bug window): every burst carries the X-gyro burst bug, so the
+    driver reads XGYRO_OUT after it. Every fourth read comes late, 0.1 ms before the next sample is ready, so that
+    sample becomes ready between the burst and the register read; the read takes its ND. Stepped clock (the
+    wire time of each transfer), ground truth = the chip's index at each burst: every sample the chip produced
+    must come out once, indexed without doubt. Paced by the host timer (SampleTimer) or by data-ready edges
+    (DataReadyTimer: read at its next_read_time as the event-loop reader does, or after waiting on the line).
+    (Broken by forgetting that the register read took ND: 50 of 200 samples lost with each pacing; by not
+    telling the timer that a newer sample was ready: 50 lost with the edges (25 waited for), and with the host
+    timer 1 lost and every later index one high; by still reading XGYRO_OUT after a stale burst: a phantom loss
+    counted with the host timer.)"""
+    from ahrsd.drivers.adis16405 import Adis16405
+    from ahrsd.drivers.chip_source import ChipSource
+    from ahrsd.drivers.data_ready import DataReadyTimer
+    from ahrsd.drivers.simulated import SimulatedDataReadyLine
+
+    period = 1.0 / ADIS16405_RATE_HZ
+    clock = FakeClock(1000.0)
+    stream = FixedStream(gyro_rad_s=(-0.2, 0.0, 0.0), noise_std=(1e-3, 1e-2, 0.1), seed=7)
+    chip = SimulatedAdis16405(stream, clock=clock, faults=build_plan(parse_schedule("burst_bug@0-100"),
+                                                                     ADIS16405_RATE_HZ))
+    bus = PreemptedBus(chip, clock, random.Random(0), lambda rng: 0.0)
+    edges = pacing.startswith("data-ready")
+    driver = Adis16405(bus, data_ready=edges)
+    driver.start(self_test=False)
+    timer = None
+    if edges:
+        timer = DataReadyTimer(SimulatedDataReadyLine(chip, host_clock=clock,
+                                                      sleep_until=lambda t: setattr(clock, "t", max(clock.t, t))),
+                               period)
+    src = ChipSource(driver, bus, "test chip", clock=clock, timer=timer)
+
+    def read(due):
+        if pacing.endswith("waited for"):
+            timer.wait(1.0)
+        clock.t = max(clock.t, due)
+        s = src.read_one(clock.t)
+        return None if s is None else (bus.burst_index, s.counter)
+
+    for _ in range(50):                                  # lock the reader's phase on the chip
+        read(src.next_read_time())
+    got = []
+    ambiguous_at_lock = src.timer.ambiguous_reads if not edges else 0
+    for i in range(201):                                 # ends on an on-time read
+        due = src.next_read_time()
+        if i % 4 == 3:                                   # late: 0.1 ms before the next sample is ready
+            due = chip.ready_clock_time(chip.first_index_after(due)) - 100e-6
+        r = read(due)
+        if r is not None:
+            got.append(r)
+    indices = [g[0] for g in got]
+    produced = range(indices[0], chip.sample_index + 1)
+    assert chip.faults.injected["burst_bug"] > 150
+    assert driver.counters["nd_taken_by_check"] >= 45            # (nearly) every late read's check read took a new ND
+    outcome = {"lost": len(set(produced) - set(indices)), "delivered twice": len(indices) - len(set(indices)),
+               "index offsets": len({chip_i - k for chip_i, k in got}), "counted lost": src.lost_samples,
+               "ambiguous reads": 0 if edges else src.timer.ambiguous_reads - ambiguous_at_lock}
+    assert outcome == {"lost": 0, "delivered twice": 0, "index offsets": 1, "counted lost": 0, "ambiguous reads": 0}
