@@ -183,14 +183,19 @@ class InsParams:
     """The GNSS holds the heading (iron learned, magnetometer allowed back) while the yaw 1σ is below this."""
     heading_unknown_sigma_rad: float = 15.0 * _DEG
     """Above this yaw 1σ the heading state is UNKNOWN (consumers must not use the heading), rad."""
-    accel_bias_needs_heading: bool = False
+    accel_bias_needs_heading: bool = True
     """True: the horizontal (body x, y) accelerometer bias learns from GNSS only while the heading is known (a
     trusted magnetometer, or a GNSS yaw confirmed it), so a wrong yaw's mis-projected GNSS acceleration cannot be
-    taken up by the bias and hold a tilt error (ins_core._gated_update). Off by default: on the held-out boat it
-    brings the tilt within 0.3° but delays the heading and its σ (docs/estimator.md "A wrong heading must not
-    teach the accelerometer bias")."""
+    taken up by the bias and hold a tilt error that a steady turn cannot separate from it (ins_core._gated_update;
+    docs/estimator.md "A wrong heading must not teach the accelerometer bias")."""
     mag_reentry_s: float = 20.0
     """A rejected magnetometer re-enters after its learned correction was consistent this long, s."""
+    yaw_align_to_gnss_yaw: bool = True
+    """Without a trusted magnetometer calibration (unknown, or worse than 3°) the filter's yaw is set to the GNSS
+    yaw the first time that yaw is valid, before the filter has learned its biases against the magnetometer's
+    heading (PX4 EKF2 aligns the yaw to its EKF-GSF when it has no magnetometer heading; ArduPilot EKF3 aligns
+    to it once 5 valid fixes are seen when the GSF is its yaw source). Not counted against `yaw_reset_max`:
+    that cap is for the emergency resets of a heading that was held."""
     yaw_reset_max: int = 3
     """At most this many resets of the yaw to the GNSS yaw per run (ArduPilot EK3_GSF_RST_MAX 2)."""
     yaw_reset_spacing_s: float = 20.0
@@ -200,7 +205,14 @@ class InsParams:
     confirmed) the filter's yaw σ is kept at least the GNSS yaw's until a GNSS yaw this accurate has confirmed the
     filter's heading (within their joint 3σ): a linearised filter pulled in from tens of
     degrees shrinks its σ faster than its error. ArduPilot's compass learning waits for the same 5°
-    (`Compass_learn.cpp`, YAW_ACCURACY_THRESHOLD_DEG)."""
+    (`Compass_learn.cpp`, YAW_ACCURACY_THRESHOLD_DEG). A yaw that was set to the GNSS yaw (`yaw_align_to_gnss_yaw`)
+    was not pulled in: `accel_bias_gsf_sigma_rad` confirms it."""
+    accel_bias_gsf_sigma_rad: float = 10.0 * _DEG
+    """With `accel_bias_needs_heading`, the horizontal accelerometer bias learns again once a GNSS yaw this accurate
+    agrees with the filter's heading (within their joint 3σ), or a trusted magnetometer holds it. Looser than
+    `heading_confirm_gsf_sigma_rad`: a boat's GNSS yaw seldom gets below 5° (its accelerations are small), and held
+    that long the bias is learned too late for the heading; chosen on held-out boat seeds (docs/estimator.md "A
+    wrong heading must not teach the accelerometer bias")."""
     published_yaw_slew_rad_s: float = 2.0 * _DEG
     """The published yaw follows the filter's corrections at no more than this rate beyond the vehicle's own
     rotation: a yaw reset or a fast correction is slewed in, the published σ covering what is left
@@ -409,6 +421,10 @@ class Ins:
         self._field_ned = None
         self._mag_var = p.calibration_sigma_rad ** 2
         self._heading_confirmed = False    # by a GNSS yaw within heading_confirm_gsf_sigma_rad
+        self._bias_heading_confirmed = False   # by a GNSS yaw within accel_bias_gsf_sigma_rad
+        self._gnss_yaw_aligned = False     # the yaw was set to the first valid GNSS yaw (yaw_align_to_gnss_yaw)
+        # the published yaw σ's floor until a GNSS yaw confirms the heading (aided only; updated at every check)
+        self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(0.0, math.nan, math.nan)
         self.yaw_resets = 0
         self.heading_interventions = 0    # yaw resets and raised yaw variances (not Kalman updates)
         self._par["mag_use"] = 1.0
@@ -721,6 +737,7 @@ class Ins:
         if d.yaw_var_floor_rad2 > 0.0:
             # the magnetometer was just rejected: the heading it held is unconfirmed again (the hold below)
             self._heading_confirmed = False
+            self._bias_heading_confirmed = False
         if d.yaw_var_floor_rad2 > P[core.E_YAW, core.E_YAW]:
             P[core.E_YAW, core.E_YAW] = d.yaw_var_floor_rad2
             self.heading_interventions += 1
@@ -728,12 +745,21 @@ class Ins:
                         "iron changed; magnetometer rejected", math.degrees(self._monitor.lowpassed_innovation_rad))
         if d.reset_yaw_to_rad is not None:
             self._reset_yaw(d.reset_yaw_to_rad - yaw, d.reset_yaw_var_rad2)
+        elif self._gnss_yaw_alignment_due(gsf_valid):
+            self._gnss_yaw_aligned = True
+            self._monitor.last_reset_t_s = t_s       # an emergency reset keeps its spacing from this one
+            self._reset_yaw(gsf_yaw - yaw, gsf_var, alignment=True)
         elif not self._heading_confirmed and gsf_valid and (p.calibration_sigma_rad > self._monitor.trusted_sigma_rad
                                                             or self._monitor.mag_rejected):
             yaw_var_now = P[core.E_YAW, core.E_YAW]
-            if gsf_var < p.heading_confirm_gsf_sigma_rad ** 2 \
-                    and wrap_pi(gsf_yaw - yaw) ** 2 <= self._monitor.gate_sigma ** 2 * (yaw_var_now + gsf_var):
+            agrees = wrap_pi(gsf_yaw - yaw) ** 2 <= self._monitor.gate_sigma ** 2 * (yaw_var_now + gsf_var)
+            if agrees and gsf_var < p.accel_bias_gsf_sigma_rad ** 2:
+                self._bias_heading_confirmed = True
+            # a yaw set to the GNSS yaw (not pulled in from tens of degrees) is confirmed by the looser GNSS yaw
+            confirm_rad = p.accel_bias_gsf_sigma_rad if self._gnss_yaw_aligned else p.heading_confirm_gsf_sigma_rad
+            if agrees and gsf_var < confirm_rad ** 2:
                 self._heading_confirmed = True
+                self._bias_heading_confirmed = True
             elif gsf_var > P[core.E_YAW, core.E_YAW]:
                 P[core.E_YAW, core.E_YAW] = gsf_var
         self._set_accel_bias_learning()
@@ -754,24 +780,61 @@ class Ins:
                 self._iron.update(x["mag_last_ut"], c_bn, field, P[att, att],
                                   p.iron_unmodelled_ut, max(1.0, p.iron_tau_s / dt))
                 self._apply_learned_iron()
+        self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(yaw, gsf_yaw, gsf_var)
         sig = math.sqrt(max(P[core.E_YAW, core.E_YAW], 0.0))
+        if self._unconfirmed_sigma_rad > sig:
+            sig = self._unconfirmed_sigma_rad
         self._integrity = HeadingIntegrity(gsf_yaw, math.sqrt(gsf_var) if math.isfinite(gsf_var) else math.nan,
                                            gsf_valid, self._monitor.disagreement_rad, self._iron.offset_ut.copy(),
                                            self._iron.sigma_ut)
         self._heading_state = self._monitor.heading_state(sig, False, True, p.heading_unknown_sigma_rad,
                                                           self._mag_var)
 
+    def _gnss_yaw_alignment_due(self, gsf_valid: bool) -> bool:
+        """The first valid GNSS yaw, no trusted magnetometer calibration, the heading not yet confirmed: the
+        filter's yaw came from the magnetometer (tens of degrees off with a strong iron) and was pulled in by the
+        GNSS velocity through a linearised update, whose biases take up what the yaw error projects (docs/
+        estimator.md "A wrong heading must not teach the accelerometer bias"). `_reset_yaw` sets the yaw to the
+        GNSS yaw with its variance and gives the biases their start-up values back. An emergency reset at the same
+        fix (HeadingMonitor.check) does not count: the alignment follows at the next check, which resets the
+        velocity and the biases once more after the first update with the new yaw (measured, docs/estimator.md)."""
+        p = self.params
+        return (p.yaw_align_to_gnss_yaw and gsf_valid and not self._gnss_yaw_aligned
+                and not self._heading_confirmed and p.calibration_sigma_rad > self._monitor.trusted_sigma_rad)
+
+    def _unconfirmed_yaw_sigma(self, yaw_rad: float, gsf_yaw: float, gsf_var: float) -> float:
+        """Without a trusted magnetometer calibration, until a GNSS yaw has confirmed the heading: the filter's yaw
+        came from a magnetometer that may be off by anything (or was just set to a GNSS yaw the next fixes may
+        pull away), and the GNSS velocity pulling it through a linearised update shrinks its variance faster than
+        its error. The honest 1σ is then at least the GNSS yaw bank's, which carries the spread of its
+        hypotheses, plus the distance to it (π before the bank has a yaw; NaN: no floor). Published only: the
+        filter keeps its own variance (raising it would make the linearised update pull harder)."""
+        p = self.params
+        if not (p.yaw_align_to_gnss_yaw and self._heading_checks_run) or self._heading_confirmed \
+                or not p.calibration_sigma_rad > self._monitor.trusted_sigma_rad:
+            return math.nan
+        if not (math.isfinite(gsf_yaw) and math.isfinite(gsf_var)):
+            return math.pi
+        return math.sqrt(gsf_var + wrap_pi(gsf_yaw - yaw_rad) ** 2)
+
+    @property
+    def _heading_checks_run(self) -> bool:
+        """The heading checks (`_check_heading`) run at the fused fixes and can confirm a heading: the GNSS yaw,
+        the monitor and the magnetometer are on."""
+        p = self.params
+        return p.gnss_yaw and p.heading_monitor and p.mag_enabled
+
     def _set_accel_bias_learning(self) -> None:
         """With accel_bias_needs_heading, the horizontal accelerometer bias learns from GNSS only while the heading
-        is known: a trusted magnetometer, or a GNSS yaw has confirmed the heading since the magnetometer was last
-        rejected (ins_core._gated_update says why). Without the GNSS yaw there is nothing to confirm with: it
-        always learns."""
+        is known: a trusted magnetometer, or a GNSS yaw within `accel_bias_gsf_sigma_rad` has agreed with the
+        heading since the magnetometer was last rejected (ins_core._gated_update says why). Without the heading
+        checks (no GNSS yaw, monitor or magnetometer) there is nothing to confirm with: it always learns."""
         p = self.params
-        held = p.accel_bias_needs_heading and p.gnss_yaw and not self._heading_confirmed and (
+        held = p.accel_bias_needs_heading and self._heading_checks_run and not self._bias_heading_confirmed and (
             p.calibration_sigma_rad > self._monitor.trusted_sigma_rad or self._monitor.mag_rejected)
         self._par["accel_bias_learn"] = 0.0 if held else 1.0
 
-    def _reset_yaw(self, dyaw_rad: float, var_rad2: float) -> None:
+    def _reset_yaw(self, dyaw_rad: float, var_rad2: float, alignment: bool = False) -> None:
         """Turn the attitude (and its history) about down by dyaw; yaw variance = var with its cross-covariances
         cleared; the accelerometer bias and the tilt, which a wrong yaw has been pulling through the GNSS
         acceleration, get their start-up uncertainty back (uncorrelated)."""
@@ -811,7 +874,11 @@ class Ins:
         self.yaw_resets += 1
         self.heading_interventions += 1
         self._pending_flags |= int(EstimateFlags.YAW_RESET)
-        log.warning("ins: heading reset to the GNSS yaw by %.1f° (reset %d)", math.degrees(dyaw), self.yaw_resets)
+        if alignment:     # the planned first alignment (yaw_align_to_gnss_yaw), not a heading found wrong
+            log.info("ins: heading aligned to the GNSS yaw by %.1f° (reset %d)", math.degrees(dyaw), self.yaw_resets)
+        else:
+            log.warning("ins: heading reset to the GNSS yaw by %.1f° (reset %d)", math.degrees(dyaw),
+                        self.yaw_resets)
 
     def _reset_velocity_to_fix(self) -> None:
         """Set the velocity to the last fix's (at its time of validity, through the lever arm with the reset
@@ -940,6 +1007,9 @@ class Ins:
         o = self._out_flat.copy()  # one fresh buffer; the estimate's arrays are views of it
         roll, pitch, yaw_true = o[_OUT_EULER].tolist()
         sigma_yaw = float(o[_OUT_SIGMA.start + 2])
+        if self._unconfirmed_sigma_rad > sigma_yaw and self._nav_ok[0] > 0.0:
+            sigma_yaw = self._unconfirmed_sigma_rad        # _unconfirmed_yaw_sigma says why
+            o[_OUT_SIGMA.start + 2] = sigma_yaw
         if f & core.F_INITIALISING and not self._published_since_init:
             self._published.reset()        # nothing published since the filter started: follow it
         elif self._published.update(t_s, yaw_true, roll, pitch, o[_OUT_RATE]):
