@@ -4,7 +4,8 @@ RMS, mean roll and pitch error, heading RMS, median yaw σ, heading state and th
 (estimate − the simulator's turn-on bias, m/s²).
 
     python bench/heading_timeline.py --scenario boat --case uncalibrated --seeds 12 13 15 16
-    python bench/heading_timeline.py --seeds 15 --params '{"accel_bias_needs_heading": true}' --timeline
+    python bench/heading_timeline.py --seeds 15 --timeline --params \
+        '{"yaw_align_to_gnss_yaw": false, "accel_bias_needs_heading": false}'     # the filter before heading5
 """
 
 from __future__ import annotations

@@ -780,7 +780,9 @@ class Ins:
                 self._iron.update(x["mag_last_ut"], c_bn, field, P[att, att],
                                   p.iron_unmodelled_ut, max(1.0, p.iron_tau_s / dt))
                 self._apply_learned_iron()
-        self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(yaw, gsf_yaw, gsf_var)
+        c_now = quat_to_dcm(x["q"])          # after a reset this check may have made
+        self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(math.atan2(c_now[1, 0], c_now[0, 0]), gsf_yaw,
+                                                                  gsf_var)
         sig = math.sqrt(max(P[core.E_YAW, core.E_YAW], 0.0))
         if self._unconfirmed_sigma_rad > sig:
             sig = self._unconfirmed_sigma_rad
@@ -1039,8 +1041,17 @@ class Ins:
 
     def _published_heading_state(self, f: int, yaw_sigma_rad: float) -> HeadingState:
         p = self.params
-        if f & core.F_INITIALISING or not yaw_sigma_rad <= p.heading_unknown_sigma_rad:
+        if not yaw_sigma_rad <= p.heading_unknown_sigma_rad:
             return HeadingState.UNKNOWN
+        if f & core.F_INITIALISING:
+            # INITIALISING also stands for a yaw σ above `converged_yaw_rad` (3°) or a tilt σ above 1°. Aided, a
+            # GNSS-held heading with σ up to `heading_unknown_sigma_rad` is what GNSS_ONLY and LEARNING say (the
+            # boat's GNSS yaw is 5–6° for minutes; the published σ covers its error): only the start-up time or a
+            # heading the magnetometer alone would claim keep it UNKNOWN (the flag itself stays: no VPE yet)
+            aided = f & core.F_GNSS_AIDED and self._x["t_run_s"] >= p.init_min_time_s
+            if not (aided and p.heading_monitor
+                    and self._heading_state in (HeadingState.GNSS_ONLY, HeadingState.LEARNING)):
+                return HeadingState.UNKNOWN
         if not f & core.F_GNSS_AIDED:
             # unaided the magnetometer is the only heading reference: trusted only when it is in use
             if not p.mag_enabled or self._mag_use[0] <= 0.0:
