@@ -69,7 +69,7 @@ class SampleCorrelation:
         n = len(x)
         lags = np.arange(1, MAX_LAG + 1)
         for axis in range(self._n_axes):
-            col = x[:, axis]
+            col = np.ascontiguousarray(x[:, axis])    # contiguous: dot products over a strided column do not vectorise
             var = float(np.dot(col, col)) / n
             if not var > 0:
                 continue

@@ -19,6 +19,11 @@ BROAD_DIR = SHARED / "data" / "broad"
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
+# One BLAS thread per process (the workers, and the daemons and CLI runs they start, inherit it; numpy is not
+# imported yet). The suite already runs more processes than the machine has cores: OpenBLAS's own threads,
+# one per core in each process, then wait for a core by spinning, which costs CPU and changes no result.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 
 def pytest_configure(config):
     """With pytest-xdist workers (the README's `-n 3`), compile the numba kernels once in the controller before

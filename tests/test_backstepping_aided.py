@@ -48,7 +48,7 @@ def test_the_levelling_takes_its_heading_from_the_magnetometer_where_gnss_alone_
 
 
 def test_a_calibrated_accelerometer_lets_the_levelling_split_bias_from_tilt(caplog):
-    """On a boat that stays near level, 180 s of GNSS-aided motion barely tells an accelerometer bias from a
+    """On a boat that stays near level, 120 s of GNSS-aided motion barely tells an accelerometer bias from a
     tilt: with the accelerometer exactly calibrated but the filter's default (uncalibrated) bias prior, the
     smoothed horizon is still off; told the bias is known to ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 it is not
     (truth from the simulator, via scipy)."""
@@ -58,7 +58,7 @@ def test_a_calibrated_accelerometer_lets_the_levelling_split_bias_from_tilt(capl
     caplog.set_level(logging.ERROR)
     for seed in (12, 19):
         stream = open_stream("boat", rate_hz=100.0, seed=seed, site=DEFAULT_SITE)
-        b = stream.next_block(18000)
+        b = stream.next_block(12000)
         fixes = simulate_gnss(b, rate_hz=5.0, seed=1000 + seed)
         e = stream.errors
         exact = AccelModel(bias_m_s2=e.accel_bias_m_s2, matrix=np.linalg.inv(e.accel_matrix))

@@ -3,6 +3,8 @@ after the existing ones, the recording's fixes through the validator, clear erro
 
 from __future__ import annotations
 
+import contextlib
+import io
 import subprocess
 import sys
 
@@ -59,6 +61,20 @@ def ahrsd(*args):
     return subprocess.run([sys.executable, "-m", "ahrsd.cli", *args], capture_output=True, text=True, timeout=120)
 
 
+def replay(*args):
+    """`ahrsd replay ARGS` run in this process (its output and exit status as the console script gives them,
+    without an interpreter start-up and a numba cache load per run)."""
+    from ahrsd.cli.main import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            rc = main(["replay", *map(str, args)])
+        except SystemExit as exc:   # argparse usage errors
+            rc = exc.code
+    return subprocess.CompletedProcess(["ahrsd", "replay", *map(str, args)], rc, out.getvalue(), err.getvalue())
+
+
 @pytest.fixture(scope="module")
 def boat(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("replay")
@@ -70,17 +86,17 @@ def boat(tmp_path_factory):
 
 def test_bad_gnss_input_is_a_clear_error(boat, tmp_path):
     rec, gnss = boat
-    res = ahrsd("replay", str(rec), "--gnss", str(gnss), "--estimator", "mekf", "-o", str(tmp_path / "o.csv"))
+    res = replay(str(rec), "--gnss", str(gnss), "--estimator", "mekf", "-o", str(tmp_path / "o.csv"))
     assert res.returncode == 1 and "--gnss needs the aided estimator" in res.stderr
-    res = ahrsd("replay", str(rec), "--gnss", str(tmp_path / "none.csv"), "-o", str(tmp_path / "o.csv"))
+    res = replay(str(rec), "--gnss", str(tmp_path / "none.csv"), "-o", str(tmp_path / "o.csv"))
     assert res.returncode == 1 and "No such file" in res.stderr
     bad = tmp_path / "bad.gnss.csv"
     bad.write_text("t_s,lat,lon_deg,alt_m,vel_n_m_s,vel_e_m_s,vel_d_m_s\n1,2,3,4,5,6,7\n")
-    res = ahrsd("replay", str(rec), "--gnss", str(bad), "-o", str(tmp_path / "o.csv"))
+    res = replay(str(rec), "--gnss", str(bad), "-o", str(tmp_path / "o.csv"))
     assert res.returncode == 1 and "lat_deg" in res.stderr
     nofix = tmp_path / "nofix.gnss.csv"
     nofix.write_text("t_s,lat_deg,lon_deg,alt_m,vel_n_m_s,vel_e_m_s,vel_d_m_s,fix_type\n1,2,3,4,5,6,7,1\n")
-    res = ahrsd("replay", str(rec), "--gnss", str(nofix), "-o", str(tmp_path / "o.csv"))
+    res = replay(str(rec), "--gnss", str(nofix), "-o", str(tmp_path / "o.csv"))
     assert res.returncode == 1 and "no usable fix" in res.stderr and "1 rejected" in res.stderr
     assert not (tmp_path / "o.csv").exists()
 
@@ -91,7 +107,7 @@ def aided_replay(boat):
     the run and its output, for the tests that read its columns and its summary."""
     rec, gnss = boat
     out = rec.with_name("aided.csv")
-    return ahrsd("replay", str(rec), "--gnss", str(gnss), "-o", str(out)), out
+    return replay(str(rec), "--gnss", str(gnss), "-o", str(out)), out
 
 
 def test_replay_with_gnss_adds_the_navigation_columns(boat, aided_replay):
@@ -124,7 +140,7 @@ def test_replay_reports_the_gate_and_hints_at_a_wrong_lever_arm(boat, aided_repl
     res, _ = aided_replay
     assert res.returncode == 0 and "its gate rejected 0 and 0" in res.stderr, res.stderr
     assert "WARNING" not in res.stderr
-    res = ahrsd("replay", str(rec), "--gnss", str(gnss), "--set", "lever_arm_m=(0, 0, -4)",
+    res = replay(str(rec), "--gnss", str(gnss), "--set", "lever_arm_m=(0, 0, -4)",
                 "-o", str(tmp_path / "b.csv"))
     assert res.returncode == 0 and "WARNING: that many rejected velocities" in res.stderr, res.stderr
     assert "(0 0 -4 m, body FRD" in res.stderr
@@ -139,9 +155,9 @@ def test_a_recorded_antenna_lever_arm_replays_clean_only_when_given(tmp_path):
     res = ahrsd("record", "--sim", "boat", "--seconds", "20", "--gnss-lever-arm-m", "-1", "0", "-2", "-o", str(rec))
     assert res.returncode == 0, res.stderr
     gnss = tmp_path / "mast.gnss.csv"
-    res = ahrsd("replay", str(rec), "--gnss", str(gnss), "-o", str(tmp_path / "a.csv"))
+    res = replay(str(rec), "--gnss", str(gnss), "-o", str(tmp_path / "a.csv"))
     assert res.returncode == 0 and "WARNING: that many rejected velocities" in res.stderr, res.stderr
-    res = ahrsd("replay", str(rec), "--gnss", str(gnss), "--set", "lever_arm_m=(-1, 0, -2)",
+    res = replay(str(rec), "--gnss", str(gnss), "--set", "lever_arm_m=(-1, 0, -2)",
                 "-o", str(tmp_path / "b.csv"))
     assert res.returncode == 0 and "WARNING" not in res.stderr, res.stderr
     bad = ahrsd("record", "--sim", "static", "--seconds", "1", "--gnss-lever-arm-m", "0", "0", "-200",

@@ -1,0 +1,79 @@
+"""pytest plugin: CPU seconds (user + sys, this process and its waited-for children) spent by each test file.
+
+Off by default; load it with `python -m pytest -p tools.pytest_cpu_time ...` from the repository root. It prints
+the files by CPU at the end of the run. With pytest-xdist each worker appends its tests to
+`$AHRSD_CPU_TIME_OUT-<worker>.jsonl` when that variable is set (the controller sees no test run), and
+`python tools/pytest_cpu_time.py FILE...` sums such files per test file.
+
+Why CPU and not wall: the suite runs on a shared 2-core machine where wall time follows the load; the CPU a test
+spends is what it takes from the other workers. Children are counted when they have been waited for, so a daemon
+subprocess a test starts and ends counts towards that test."""
+
+from __future__ import annotations
+
+import collections
+import json
+import os
+import resource
+import sys
+
+import pytest
+
+
+def _cpu_s() -> float:
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
+_per_test: dict[str, float] = {}
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """Runs where the test runs (an xdist worker, or this process without -n): setup, call and teardown."""
+    started_s = _cpu_s()
+    yield
+    _per_test[item.nodeid] = _cpu_s() - started_s
+    out = os.environ.get("AHRSD_CPU_TIME_OUT")
+    if out:
+        worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+        with open(f"{out}-{worker}.jsonl", "a") as fh:
+            fh.write(json.dumps({"test": item.nodeid, "cpu_s": _per_test[item.nodeid]}) + "\n")
+
+
+def per_file(per_test: dict[str, float]) -> list[tuple[str, float, int]]:
+    totals: dict[str, list] = collections.defaultdict(lambda: [0.0, 0])
+    for nodeid, cpu_s in per_test.items():
+        entry = totals[nodeid.split("::")[0]]
+        entry[0] += cpu_s
+        entry[1] += 1
+    return sorted(((f, s, n) for f, (s, n) in totals.items()), key=lambda row: -row[1])
+
+
+def _print(rows, write) -> None:
+    write(f"{'CPU-s':>8} {'tests':>5}  file")
+    for name, cpu_s, n in rows:
+        write(f"{cpu_s:8.1f} {n:5d}  {name}")
+    write(f"{sum(r[1] for r in rows):8.1f} {sum(r[2] for r in rows):5d}  total")
+
+
+def pytest_terminal_summary(terminalreporter):
+    if not _per_test:
+        return
+    terminalreporter.section("CPU seconds per test file")
+    _print(per_file(_per_test), terminalreporter.write_line)
+    slow = sorted(_per_test.items(), key=lambda kv: -kv[1])[:15]
+    terminalreporter.write_line("slowest tests (CPU-s):")
+    for nodeid, cpu_s in slow:
+        terminalreporter.write_line(f"{cpu_s:8.1f}  {nodeid}")
+
+
+if __name__ == "__main__":
+    merged: dict[str, float] = {}
+    for path in sys.argv[1:]:
+        with open(path) as fh:
+            for line in fh:
+                row = json.loads(line)
+                merged[row["test"]] = row["cpu_s"]
+    _print(per_file(merged), print)
