@@ -11,9 +11,10 @@ stages in order:
   `_tilt_update`                                 the accelerometer's vertical corrects tilt only
   `_field_offset`                                a body-fixed field offset learned and removed (attached magnet)
   `_heading_update`                              the magnetometer corrects heading only (mag_heading.py's check)
-  `_fill_outputs`                                quaternion, rate, 1σ, bias
+  `_fill_outputs`                                quaternion, rate, 1σ, bias (the one-sample path publishes them)
+  `_fill_estimate`                               quaternion only (the batch returns nothing else)
 
-`mekf_run` loops the same `mekf_step` over arrays for replay and benchmarks.
+`mekf_run` loops the same `mekf_step` over arrays for replay and benchmarks; it fills only what it returns.
 
 Error state (6): δθ, the attitude error in the NED frame (C_true = (I + [δθ×]) C_est), and δb, the gyro bias
 error (b_true = b_est + δb). Tilt is δθ_N, δθ_E; heading is δθ_D. The accelerometer observes only
@@ -750,8 +751,8 @@ def _heading_update(st, par, dt, rate, valid, at_rest, moved_at_rest, mx, my, mz
 
 # ----------------------------------------------------------------------------------- the step
 @njit(cache=True)
-def _fill_outputs(st, par, gx, gy, gz, out):
-    """Quaternion (scalar ≥ 0), bias-corrected rate, 1σ roll/pitch/yaw, bias. Returns F_INITIALISING or 0."""
+def _output_quaternion(st, out):
+    """out.q ← the attitude quaternion with its scalar ≥ 0; returns it."""
     q0 = st.q[0]
     q1 = st.q[1]
     q2 = st.q[2]
@@ -765,33 +766,45 @@ def _fill_outputs(st, par, gx, gy, gz, out):
     out.q[1] = q1
     out.q[2] = q2
     out.q[3] = q3
-    b = st.gyro_bias_rad_s
-    out.rate_rad_s[0] = gx - b[0]
-    out.rate_rad_s[1] = gy - b[1]
-    out.rate_rad_s[2] = gz - b[2]
-    # 1σ roll/pitch: NED tilt covariance rotated into the heading frame (cos, sin of yaw = C00, C10 over
-    # their norm: no atan2, cos, sin on the hot path); yaw: δθ_D
+    return q0, q1, q2, q3
+
+
+@njit(cache=True)
+def _yaw_cos_sin(q0, q1, q2, q3):
+    """cos and sin of the yaw of q: C00, C10 over their norm (no atan2, cos, sin on the hot path)."""
     cy = 1.0 - 2.0 * (q2 * q2 + q3 * q3)
     sy = 2.0 * (q1 * q2 + q0 * q3)
     hy = math.sqrt(cy * cy + sy * sy)
     if hy > 1e-12:
-        cy /= hy
-        sy /= hy
-    else:
-        cy = 1.0
-        sy = 0.0
+        return cy / hy, sy / hy
+    return 1.0, 0.0
+
+
+@njit(cache=True)
+def _converging(st, par, cy, sy):
+    """INITIALISING by the filter's own covariance (the unmodelled terms of the published 1σ are not something
+    it converges on): 1σ roll/pitch from the NED tilt covariance rotated into the heading frame (cy, sy: cos,
+    sin of yaw), 1σ yaw from δθ_D."""
     P = st.P
-    pnn = P[E_TILT_N, E_TILT_N]
-    pne = P[E_TILT_N, E_TILT_E]
-    pee = P[E_TILT_E, E_TILT_E]
-    pdd = max(P[E_HEADING, E_HEADING], 0.0)
+    sig_roll, sig_pitch = tilt_sigma(cy, sy, P[E_TILT_N, E_TILT_N], P[E_TILT_N, E_TILT_E], P[E_TILT_E, E_TILT_E])
+    return initialising(st.t_run_s, sig_roll, sig_pitch, math.sqrt(max(P[E_HEADING, E_HEADING], 0.0)),
+                        par.init_min_time_s, par.converged_tilt_rad, par.mag_enabled, par.converged_yaw_rad)
+
+
+@njit(cache=True)
+def _fill_outputs(st, par, gx, gy, gz, out):
+    """Everything the one-sample path publishes: quaternion (scalar ≥ 0), bias-corrected rate, 1σ roll/pitch/yaw,
+    bias. Returns F_INITIALISING or 0."""
+    q0, q1, q2, q3 = _output_quaternion(st, out)
+    b = st.gyro_bias_rad_s
+    out.rate_rad_s[0] = gx - b[0]
+    out.rate_rad_s[1] = gy - b[1]
+    out.rate_rad_s[2] = gz - b[2]
     out.gyro_bias_rad_s[0] = b[0]
     out.gyro_bias_rad_s[1] = b[1]
     out.gyro_bias_rad_s[2] = b[2]
-    # converged: the filter's own covariance (the unmodelled terms below are not something it converges on)
-    sig_roll, sig_pitch = tilt_sigma(cy, sy, pnn, pne, pee)
-    init = initialising(st.t_run_s, sig_roll, sig_pitch, math.sqrt(pdd), par.init_min_time_s,
-                        par.converged_tilt_rad, par.mag_enabled, par.converged_yaw_rad)
+    cy, sy = _yaw_cos_sin(q0, q1, q2, q3)
+    init = _converging(st, par, cy, sy)
     # the published 1σ adds what the covariance does not carry (Schmidt's "consider" terms):
     # (a) the low-passed vertical is on average acc_lowpass_tau_s old, so it has not seen the attitude random
     #     walk of the last τ: the tilt process noise over τ;
@@ -802,17 +815,32 @@ def _fill_outputs(st, par, gx, gy, gz, out):
     u = st.unmodelled
     extra = (_tilt_process_noise_rad2(par, math.sqrt(wx * wx + wy * wy + wz * wz), par.acc_lowpass_tau_s)
              + u.tilt_push_rad * u.tilt_push_rad)
+    P = st.P
     sig = out.sigma_rpy_rad
-    sig[0], sig[1] = tilt_sigma(cy, sy, pnn + extra, pne, pee + extra)
-    sig[2] = math.sqrt(pdd + u.heading_push_rad * u.heading_push_rad)
+    sig[0], sig[1] = tilt_sigma(cy, sy, P[E_TILT_N, E_TILT_N] + extra, P[E_TILT_N, E_TILT_E],
+                                P[E_TILT_E, E_TILT_E] + extra)
+    sig[2] = math.sqrt(max(P[E_HEADING, E_HEADING], 0.0) + u.heading_push_rad * u.heading_push_rad)
     return F_INITIALISING if init else 0
 
 
 @njit(cache=True)
-def mekf_step(st, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, out):
+def _fill_estimate(st, par, out):
+    """What the batch returns, nothing more: the quaternion (scalar ≥ 0) into out.q, and F_INITIALISING or 0
+    exactly as `_fill_outputs` decides it."""
+    q0, q1, q2, q3 = _output_quaternion(st, out)
+    if st.t_run_s < par.init_min_time_s:   # `initialising` holds whatever the 1σ: do not compute them
+        return F_INITIALISING
+    cy, sy = _yaw_cos_sin(q0, q1, q2, q3)
+    return F_INITIALISING if _converging(st, par, cy, sy) else 0
+
+
+@njit(cache=True)
+def mekf_step(st, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, out, publish):
     """One sample through the stages (module docstring). st, par, out: MEKF_STATE_DTYPE, MEKF_PARAMS_DTYPE,
     MEKF_OUT_DTYPE records. sample_flags: the sample's SampleFlags as an int (invalid or saturated sensors are
-    not used). Returns EstimateFlags bits (| NEEDS_INIT when the caller must initialise first)."""
+    not used). publish: fill every output (`_fill_outputs`, the one-sample path) or only the quaternion
+    (`_fill_estimate`, the batch: it returns nothing else); the state and the flags are the same either way.
+    Returns EstimateFlags bits (| NEEDS_INIT when the caller must initialise first)."""
     valid = input_validity(sample_flags, gx, gy, gz, ax, ay, az, mx, my, mz)
     dt, flags = step_dt(t_s - st.t_last_s, par.large_dt_s, par.reinit_dt_s)
     if flags & NEEDS_INIT:
@@ -844,7 +872,9 @@ def mekf_step(st, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, ou
     if valid & IN_ACC_OK:
         flags |= _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz)
     flags |= _heading_update(st, par, dt, rate, valid, at_rest, mag_moved_at_rest, mx, my, mz)
-    return flags | _fill_outputs(st, par, gx, gy, gz, out)
+    if publish:
+        return flags | _fill_outputs(st, par, gx, gy, gz, out)
+    return flags | _fill_estimate(st, par, out)
 
 
 @njit(cache=True)
@@ -856,7 +886,7 @@ def mekf_step_full(buf, t_s, gyro, acc, mag_ut, sample_flags):
         return BAD_SHAPE
     b = borrowed(buf)[0]   # the caller holds buf for the call: no reference counting in the step
     return mekf_step(b.state, b.par, t_s, gyro[0], gyro[1], gyro[2], acc[0], acc[1], acc[2],
-                     mag_ut[0], mag_ut[1], mag_ut[2], sample_flags, b.out)
+                     mag_ut[0], mag_ut[1], mag_ut[2], sample_flags, b.out, True)
 
 
 @njit(cache=True)
@@ -873,7 +903,8 @@ def fill_euler(buf):
 @njit(cache=True)
 def mekf_run(buf, scratch_out, t_s, gyro, acc, mag_ut, sample_flags, start, q_out, flags_out):
     """Run `mekf_step` over samples start… on the state and parameters of the 1-element MEKF_BUFFER_DTYPE
-    array `buf` (its outputs untouched: each step's go to the 1-element MEKF_OUT_DTYPE array `scratch_out`).
+    array `buf` (its outputs untouched: each step's quaternion goes to the 1-element MEKF_OUT_DTYPE array
+    `scratch_out`, and no other output is computed).
     Returns the index of the first sample that needs (re-)initialisation, or len(t_s) when all were processed.
     sample_flags (N,) int64 SampleFlags; q_out (N, 4), flags_out (N,)."""
     # views without reference counting (`borrowed`): the arrays are the caller's, held for the whole call
@@ -888,7 +919,7 @@ def mekf_run(buf, scratch_out, t_s, gyro, acc, mag_ut, sample_flags, start, q_ou
             gyro[i, 0], gyro[i, 1], gyro[i, 2],
             acc[i, 0], acc[i, 1], acc[i, 2],
             mag_ut[i, 0], mag_ut[i, 1], mag_ut[i, 2],
-            sample_flags[i], out,
+            sample_flags[i], out, False,
         )
         if f & NEEDS_INIT:
             return i
