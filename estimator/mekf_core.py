@@ -234,9 +234,9 @@ def _running_spread(mean, var, x, k):
 def _apply_correction(st, par, dx0, dx1, dx2, dx3, dx4, dx5):
     """q ← exp(δθ) ⊗ q (NED-frame error, first-order exponential, normalised), b ← b + δb (clipped); rotates
     the NED low-pass with the frame."""
-    hw, hx, hy, hz = normalised(1.0, 0.5 * dx0, 0.5 * dx1, 0.5 * dx2)
+    # |h ⊗ q| = |h| |q|: normalising the product normalises the first-order exponential h = [1, δθ/2] as well
     q = st.q
-    q[0], q[1], q[2], q[3] = normalised(*quat_mul(hw, hx, hy, hz, q[0], q[1], q[2], q[3]))
+    q[0], q[1], q[2], q[3] = normalised(*quat_mul(1.0, 0.5 * dx0, 0.5 * dx1, 0.5 * dx2, q[0], q[1], q[2], q[3]))
     clip = par.gyro_bias_clip_rad_s
     b = st.gyro_bias_rad_s
     b[0] = min(max(b[0] + dx3, -clip), clip)
@@ -477,13 +477,14 @@ def _track_tilt_push(u, par, g_ref, p_tilt, r):
 
 
 @njit(cache=True)
-def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz):
+def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c):
     """The vertical of the specific force, low-passed in the estimated NED frame (linear acceleration averages
     out, gravity stays: VQF §IV-B), corrects δθ_N, δθ_E with the gain on heading forced to zero. Rejected
     while the low-passed |f| is far from g or its vertical is more than acc_gate_rad from the estimate, then
     held off until the low-pass has forgotten the push. (wx, wy, wz): the bias-corrected rate, for the lean a
-    turn leaves (`_track_tilt_push`). Returns F_ACCEL_REJECTED or 0."""
-    e00, e01, e02, e10, e11, e12, e20, e21, e22 = dcm(st.q[0], st.q[1], st.q[2], st.q[3])
+    turn leaves (`_track_tilt_push`); c: C_b^n of the current attitude (`dcm`, 9 scalars). Returns
+    F_ACCEL_REJECTED or 0."""
+    e00, e01, e02, e10, e11, e12, e20, e21, e22 = c
     fn = e00 * ax + e01 * ay + e02 * az
     fe = e10 * ax + e11 * ay + e12 * az
     fd = e20 * ax + e21 * ay + e22 * az
@@ -512,8 +513,9 @@ def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz):
     unorm = math.sqrt(un * un + ue * ue + ud * ud)
     dev = abs(unorm - g_ref)  # sustained linear acceleration left after the low-pass
     # unit measured "up" in NED: u = [δθ_E, −δθ_N, −1] (+ noise)
-    nu_n = un / unorm if unorm > 0.0 else 0.0
-    nu_e = ue / unorm if unorm > 0.0 else 0.0
+    inv_unorm = 1.0 / unorm if unorm > 0.0 else 0.0
+    nu_n = un * inv_unorm
+    nu_e = ue * inv_unorm
     # Acceleration-adaptive tilt noise. The low-passed linear acceleration is exactly (v − LP_τ(v)) / τ:
     # the sensor's velocity minus its recent mean, over τ. A hand shaking or moving the sensor about leaves
     # a residual that swings with the motion, not white noise; a real tilt error is a slow drift. So the
@@ -863,14 +865,19 @@ def mekf_step(st, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, ou
     rate = math.sqrt(wx * wx + wy * wy + wz * wz)
     if dt > 0.0:
         _propagate_attitude(st.q, dt, wx, wy, wz, rate)
-        c00, c01, c02, c10, c11, c12, c20, c21, c22 = dcm(st.q[0], st.q[1], st.q[2], st.q[3])
+    # C_b^n of the propagated attitude: the covariance's Φ and, unless the bias update at rest turns the
+    # attitude, the frame of the tilt update (computed once for both)
+    c = dcm(st.q[0], st.q[1], st.q[2], st.q[3])
+    if dt > 0.0:
+        c00, c01, c02, c10, c11, c12, c20, c21, c22 = c
         _propagate_covariance(st.P, par, dt, rate, c00, c01, c02, c10, c11, c12, c20, c21, c22)
     at_rest, mag_moved_at_rest = _detect_rest(st, par, dt, valid, gx, gy, gz, ax, ay, az, mx, my, mz)
     if at_rest:
         flags |= F_AT_REST
         _learn_bias_at_rest(st, par, dt, gx, gy, gz)
+        c = dcm(st.q[0], st.q[1], st.q[2], st.q[3])
     if valid & IN_ACC_OK:
-        flags |= _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz)
+        flags |= _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c)
     flags |= _heading_update(st, par, dt, rate, valid, at_rest, mag_moved_at_rest, mx, my, mz)
     if publish:
         return flags | _fill_outputs(st, par, gx, gy, gz, out)
