@@ -477,13 +477,13 @@ def _track_tilt_push(u, par, g_ref, p_tilt, r):
 
 
 @njit(cache=True)
-def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c):
+def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish):
     """The vertical of the specific force, low-passed in the estimated NED frame (linear acceleration averages
     out, gravity stays: VQF §IV-B), corrects δθ_N, δθ_E with the gain on heading forced to zero. Rejected
     while the low-passed |f| is far from g or its vertical is more than acc_gate_rad from the estimate, then
     held off until the low-pass has forgotten the push. (wx, wy, wz): the bias-corrected rate, for the lean a
-    turn leaves (`_track_tilt_push`); c: C_b^n of the current attitude (`dcm`, 9 scalars). Returns
-    F_ACCEL_REJECTED or 0."""
+    turn leaves (`_track_tilt_push`, only when `publish`: it feeds the published 1σ only); c: C_b^n of the
+    current attitude (`dcm`, 9 scalars). Returns F_ACCEL_REJECTED or 0."""
     e00, e01, e02, e10, e11, e12, e20, e21, e22 = c
     fn = e00 * ax + e01 * ay + e02 * az
     fe = e10 * ax + e11 * ay + e12 * az
@@ -551,7 +551,8 @@ def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c):
             ratio = min(unorm, g_ref) / max(unorm, g_ref)
             phi = par.acc_turn_noise_gain * max(math.acos(ratio) - par.acc_turn_dead_zone_rad, 0.0)
         r = (par.acc_noise_m_s2 / g_ref) ** 2 + phi * phi + r_motion
-    _track_tilt_push(u, par, g_ref, st.P[E_TILT_E, E_TILT_E], r)
+    if publish:
+        _track_tilt_push(u, par, g_ref, st.P[E_TILT_E, E_TILT_E], r)
     # never heading; and no bias learning while |f| is off g (a push would be read as bias)
     mask = M_HEADING if abs(fnorm - g_ref) < par.rest_acc_th_m_s2 else (M_HEADING | M_BIAS)
     a0, a1, a2, a3, a4, a5 = scalar_update_6(st.P, E_TILT_E, 1.0, nu_n, r, mask)
@@ -723,7 +724,7 @@ def _track_heading_push(u, dip_rad, p_heading, r):
 
 
 @njit(cache=True)
-def _heading_update(st, par, dt, rate, valid, at_rest, moved_at_rest, mx, my, mz):
+def _heading_update(st, par, dt, rate, valid, at_rest, moved_at_rest, mx, my, mz, publish):
     """The body-fixed offset stage, then the magnetometer heading (mag_heading.py's check and measurement)
     corrects δθ_D with the gain on tilt forced to zero (row h = −e_D: α = −δθ_D). Returns flag bits."""
     flags = 0
@@ -740,7 +741,8 @@ def _heading_update(st, par, dt, rate, valid, at_rest, moved_at_rest, mx, my, mz
         res, alpha, r = mag.heading_measurement(st.mag, par.mag, dt, rate, at_rest, moved_at_rest,
                                                 mn, me, md, mnorm, 0.0, st.P[E_HEADING, E_HEADING])
         if res == mag.MAG_USE:
-            _track_heading_push(st.unmodelled, st.mag.ref_dip_rad, st.P[E_HEADING, E_HEADING], r)
+            if publish:
+                _track_heading_push(st.unmodelled, st.mag.ref_dip_rad, st.P[E_HEADING, E_HEADING], r)
             d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, E_HEADING, -1.0, alpha, r, M_TILT)
             _apply_correction(st, par, d0, d1, d2, d3, d4, d5)
             used = True
@@ -840,8 +842,10 @@ def _fill_estimate(st, par, out):
 def mekf_step(st, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, out, publish):
     """One sample through the stages (module docstring). st, par, out: MEKF_STATE_DTYPE, MEKF_PARAMS_DTYPE,
     MEKF_OUT_DTYPE records. sample_flags: the sample's SampleFlags as an int (invalid or saturated sensors are
-    not used). publish: fill every output (`_fill_outputs`, the one-sample path) or only the quaternion
-    (`_fill_estimate`, the batch: it returns nothing else); the state and the flags are the same either way.
+    not used). publish: track the published 1σ's unmodelled terms (`_track_tilt_push`, `_track_heading_push`)
+    and fill every output (`_fill_outputs`: the one-sample path), or neither (the batch returns only the
+    quaternion, `_fill_estimate`, and bounds those terms at its end: `_bound_unmodelled`); the quaternion,
+    the flags and the rest of the state are the same either way.
     Returns EstimateFlags bits (| NEEDS_INIT when the caller must initialise first)."""
     valid = input_validity(sample_flags, gx, gy, gz, ax, ay, az, mx, my, mz)
     dt, flags = step_dt(t_s - st.t_last_s, par.large_dt_s, par.reinit_dt_s)
@@ -877,8 +881,8 @@ def mekf_step(st, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, ou
         _learn_bias_at_rest(st, par, dt, gx, gy, gz)
         c = dcm(st.q[0], st.q[1], st.q[2], st.q[3])
     if valid & IN_ACC_OK:
-        flags |= _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c)
-    flags |= _heading_update(st, par, dt, rate, valid, at_rest, mag_moved_at_rest, mx, my, mz)
+        flags |= _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish)
+    flags |= _heading_update(st, par, dt, rate, valid, at_rest, mag_moved_at_rest, mx, my, mz, publish)
     if publish:
         return flags | _fill_outputs(st, par, gx, gy, gz, out)
     return flags | _fill_estimate(st, par, out)
@@ -908,10 +912,25 @@ def fill_euler(buf):
 
 
 @njit(cache=True)
+def _bound_unmodelled(u, par, rate_down_max_rad_s, g_ref_min_m_s2, dip_max_rad):
+    """After a batch that did not track the published 1σ's unmodelled terms: set them to an upper bound of what
+    tracking would have left. Each tracked term moves toward its target with a gain in [0, 1] (a convex
+    combination), so it never exceeds the larger of its value before the batch and its largest target: the
+    tilt lean atan(v·|ω_D|/g) (`_track_tilt_push`) at the largest low-passed rate about the vertical and the
+    smallest g, and the heading lean |tan I|·(that tilt bound) (`_track_heading_push`) at the steepest dip.
+    The one-sample path then publishes a 1σ no smaller than had it run every sample; the terms return to their
+    tracked values at the rate the filter corrects tilt and heading."""
+    tilt = max(u.tilt_push_rad, math.atan(par.turn_speed_m_s * rate_down_max_rad_s / g_ref_min_m_s2))
+    u.tilt_push_rad = tilt
+    u.heading_push_rad = max(u.heading_push_rad, abs(math.tan(dip_max_rad)) * tilt)
+
+
+@njit(cache=True)
 def mekf_run(buf, scratch_out, t_s, gyro, acc, mag_ut, sample_flags, start, q_out, flags_out):
     """Run `mekf_step` over samples start… on the state and parameters of the 1-element MEKF_BUFFER_DTYPE
     array `buf` (its outputs untouched: each step's quaternion goes to the 1-element MEKF_OUT_DTYPE array
-    `scratch_out`, and no other output is computed).
+    `scratch_out`), computing only what it returns: no output but the quaternion, and the published 1σ's
+    unmodelled terms bounded at the end (`_bound_unmodelled`) instead of tracked per sample.
     Returns the index of the first sample that needs (re-)initialisation, or len(t_s) when all were processed.
     sample_flags (N,) int64 SampleFlags; q_out (N, 4), flags_out (N,)."""
     # views without reference counting (`borrowed`): the arrays are the caller's, held for the whole call
@@ -919,6 +938,11 @@ def mekf_run(buf, scratch_out, t_s, gyro, acc, mag_ut, sample_flags, start, q_ou
     st = b.state
     par = b.par
     out = borrowed(scratch_out)[0]
+    u = st.unmodelled
+    # the extremes of what the unmodelled terms' targets are made of, over the states the batch passes through
+    rate_max = abs(u.rate_down_lp_rad_s)
+    g_min = st.g_ref_m_s2
+    dip_max = abs(st.mag.ref_dip_rad)
     n = t_s.shape[0]
     for i in range(start, n):
         f = mekf_step(
@@ -929,10 +953,15 @@ def mekf_run(buf, scratch_out, t_s, gyro, acc, mag_ut, sample_flags, start, q_ou
             sample_flags[i], out, False,
         )
         if f & NEEDS_INIT:
+            _bound_unmodelled(u, par, rate_max, g_min, dip_max)
             return i
+        rate_max = max(rate_max, abs(u.rate_down_lp_rad_s))
+        g_min = min(g_min, st.g_ref_m_s2)
+        dip_max = max(dip_max, abs(st.mag.ref_dip_rad))
         for j in range(4):
             q_out[i, j] = out.q[j]
         flags_out[i] = f
+    _bound_unmodelled(u, par, rate_max, g_min, dip_max)
     return n
 
 
