@@ -834,6 +834,14 @@ def _fill_estimate(st, par, out):
     q0, q1, q2, q3 = _output_quaternion(st, out)
     if st.t_run_s < par.init_min_time_s:   # `initialising` holds whatever the 1σ: do not compute them
         return F_INITIALISING
+    # converged beyond doubt without the 1σ: the roll and pitch variances (the tilt block in a unit-vector
+    # direction, cos² + sin² = 1) are at most max(P_NN, P_EE) + |P_NE|; with a 1 % margin over every rounding
+    # of `_converging` this decides only where it would decide the same
+    P = st.P
+    tilt_bound = max(P[E_TILT_N, E_TILT_N], P[E_TILT_E, E_TILT_E]) + abs(P[E_TILT_N, E_TILT_E])
+    if tilt_bound < 0.99 * par.converged_tilt_rad ** 2 and (
+            not par.mag_enabled or P[E_HEADING, E_HEADING] < 0.99 * par.converged_yaw_rad ** 2):
+        return 0
     cy, sy = _yaw_cos_sin(q0, q1, q2, q3)
     return F_INITIALISING if _converging(st, par, cy, sy) else 0
 
