@@ -10,8 +10,8 @@
 path `Mekf.step(ImuSample)` (the reused view, its quaternion read, no AttitudeEstimate built:
 `view.snapshot()` builds one when publishing); VQF through `VQF.update(gyr, acc, mag)` + `getQuat9D()`, Fusion
 through `Ahrs.update(gyr, acc, mag)` + `get_quaternion()`. "batch": the whole array in one call
-(`Mekf.run_batch`, `VQF.updateBatch`). Times are the best of `--repeat` runs (the machine is shared: the
-minimum is the least disturbed). Ratios are against VQF measured in the same process, so they hold on any
+(`Mekf.run_batch`, `VQF.updateBatch`). Times are the best of `--repeat` runs, interleaved across the
+estimators (the machine is shared: the minimum is the least disturbed). Ratios are against VQF measured in the same process, so they hold on any
 machine. The mekf's numba JIT warm-up (import + first update) is measured in fresh processes, with the
 on-disk cache cold (empty cache directory) and warm.
 """
@@ -198,16 +198,19 @@ def main(argv: list[str] | None = None) -> int:
             print(f"note: {name} skipped ({exc})")
     print(f"# estimator speed: {n} samples of simulated level-turns at {RATE_HZ} SPS, best of {args.repeat}"
           + (" (thread CPU time)" if args.cpu_time else ""))
-    rows = {}
-    for name in avail:
-        per = best_of(args.repeat, one_at_a_time(name, samples, g, a, m, fixes), clock) / n
-        b = batch(name, t, g, a, m)
+    # the runs are interleaved (round r times every estimator once) so a burst of load on a shared machine falls
+    # on all of them alike, not on whichever was being timed while it lasted
+    runs = {name: (one_at_a_time(name, samples, g, a, m, fixes), batch(name, t, g, a, m)) for name in avail}
+    for _, b in runs.values():
         if b is not None:
             b()
-            bat = best_of(args.repeat, b, clock) / n
-        else:
-            bat = None
-        rows[name] = (per, bat)
+    best = {name: [float("inf"), float("inf")] for name in avail}
+    for _ in range(args.repeat):
+        for name, fns in runs.items():
+            for k, fn in enumerate(fns):
+                if fn is not None:
+                    best[name][k] = min(best[name][k], best_of(1, fn, clock))
+    rows = {name: (per / n, bat / n if runs[name][1] is not None else None) for name, (per, bat) in best.items()}
     vqf_per = rows.get("vqf", (None, None))[0]
     vqf_bat = rows.get("vqf", (None, None))[1]
     hdr = (f"{'estimator':10s} {'one-at-a-time':>14s} {'µs/sample':>10s} {'× VQF':>7s}   "

@@ -22,18 +22,19 @@ def scalar_update_6(P, j, sign, nu, r, zero_mask):
     """The constrained update of the 6×6 covariance P for the row h = sign·e_j and innovation nu, variance r.
     Returns the error-state correction K·ν as six scalars."""
     s = P[j, j] + r
+    inv_s = 1.0 / s   # one division for the six gains
     u0 = sign * P[0, j]
     u1 = sign * P[1, j]
     u2 = sign * P[2, j]
     u3 = sign * P[3, j]
     u4 = sign * P[4, j]
     u5 = sign * P[5, j]
-    k0 = 0.0 if zero_mask & 1 else u0 / s
-    k1 = 0.0 if zero_mask & 2 else u1 / s
-    k2 = 0.0 if zero_mask & 4 else u2 / s
-    k3 = 0.0 if zero_mask & 8 else u3 / s
-    k4 = 0.0 if zero_mask & 16 else u4 / s
-    k5 = 0.0 if zero_mask & 32 else u5 / s
+    k0 = 0.0 if zero_mask & 1 else u0 * inv_s
+    k1 = 0.0 if zero_mask & 2 else u1 * inv_s
+    k2 = 0.0 if zero_mask & 4 else u2 * inv_s
+    k3 = 0.0 if zero_mask & 8 else u3 * inv_s
+    k4 = 0.0 if zero_mask & 16 else u4 * inv_s
+    k5 = 0.0 if zero_mask & 32 else u5 * inv_s
     # the 21 entries of the upper triangle, mirrored (the update is symmetric by construction), written out:
     # numba keeps the gains in registers this way, not in a tuple indexed in a loop
     P[0, 0] += s * k0 * k0 - 2.0 * k0 * u0

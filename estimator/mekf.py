@@ -349,8 +349,11 @@ class Mekf:
     # ----------------------------------------------------------------------- batch (replay, benchmarks)
     def run_batch(self, t_s, gyro_rad_s, accel_m_s2, mag_ut, sample_flags=None):
         """Process arrays of samples (N,), (N,3)… with the same step as `update`, continuing from the current
-        state; returns (q_wxyz (N,4), EstimateFlags bits (N,) int). Samples before the filter could
-        initialise have NaN quaternions. sample_flags: optional (N,) SampleFlags ints."""
+        state; returns (q_wxyz (N,4), EstimateFlags bits (N,) int), bit for bit `update`'s. Samples before
+        the filter could initialise have NaN quaternions. sample_flags: optional (N,) SampleFlags ints.
+        Computes only what it returns: the published 1σ's unmodelled turn-lean terms are not tracked through
+        the batch but set to an upper bound at its end (mekf_core `_bound_unmodelled`), so an `update` after
+        a batch publishes a 1σ no smaller than had every sample gone through `update`."""
         t = np.ascontiguousarray(t_s, dtype=np.float64)
         g = np.ascontiguousarray(gyro_rad_s, dtype=np.float64)
         a = np.ascontiguousarray(accel_m_s2, dtype=np.float64)

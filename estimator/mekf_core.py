@@ -11,9 +11,10 @@ stages in order:
   `_tilt_update`                                 the accelerometer's vertical corrects tilt only
   `_field_offset`                                a body-fixed field offset learned and removed (attached magnet)
   `_heading_update`                              the magnetometer corrects heading only (mag_heading.py's check)
-  `_fill_outputs`                                quaternion, rate, 1σ, bias
+  `_fill_outputs`                                quaternion, rate, 1σ, bias (the one-sample path publishes them)
+  `_fill_estimate`                               quaternion only (the batch returns nothing else)
 
-`mekf_run` loops the same `mekf_step` over arrays for replay and benchmarks.
+`mekf_run` loops the same `mekf_step` over arrays for replay and benchmarks; it fills only what it returns.
 
 Error state (6): δθ, the attitude error in the NED frame (C_true = (I + [δθ×]) C_est), and δb, the gyro bias
 error (b_true = b_est + δb). Tilt is δθ_N, δθ_E; heading is δθ_D. The accelerometer observes only
@@ -233,9 +234,9 @@ def _running_spread(mean, var, x, k):
 def _apply_correction(st, par, dx0, dx1, dx2, dx3, dx4, dx5):
     """q ← exp(δθ) ⊗ q (NED-frame error, first-order exponential, normalised), b ← b + δb (clipped); rotates
     the NED low-pass with the frame."""
-    hw, hx, hy, hz = normalised(1.0, 0.5 * dx0, 0.5 * dx1, 0.5 * dx2)
+    # |h ⊗ q| = |h| |q|: normalising the product normalises the first-order exponential h = [1, δθ/2] as well
     q = st.q
-    q[0], q[1], q[2], q[3] = normalised(*quat_mul(hw, hx, hy, hz, q[0], q[1], q[2], q[3]))
+    q[0], q[1], q[2], q[3] = normalised(*quat_mul(1.0, 0.5 * dx0, 0.5 * dx1, 0.5 * dx2, q[0], q[1], q[2], q[3]))
     clip = par.gyro_bias_clip_rad_s
     b = st.gyro_bias_rad_s
     b[0] = min(max(b[0] + dx3, -clip), clip)
@@ -476,13 +477,14 @@ def _track_tilt_push(u, par, g_ref, p_tilt, r):
 
 
 @njit(cache=True)
-def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz):
+def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish):
     """The vertical of the specific force, low-passed in the estimated NED frame (linear acceleration averages
     out, gravity stays: VQF §IV-B), corrects δθ_N, δθ_E with the gain on heading forced to zero. Rejected
     while the low-passed |f| is far from g or its vertical is more than acc_gate_rad from the estimate, then
     held off until the low-pass has forgotten the push. (wx, wy, wz): the bias-corrected rate, for the lean a
-    turn leaves (`_track_tilt_push`). Returns F_ACCEL_REJECTED or 0."""
-    e00, e01, e02, e10, e11, e12, e20, e21, e22 = dcm(st.q[0], st.q[1], st.q[2], st.q[3])
+    turn leaves (`_track_tilt_push`, only when `publish`: it feeds the published 1σ only); c: C_b^n of the
+    current attitude (`dcm`, 9 scalars). Returns F_ACCEL_REJECTED or 0."""
+    e00, e01, e02, e10, e11, e12, e20, e21, e22 = c
     fn = e00 * ax + e01 * ay + e02 * az
     fe = e10 * ax + e11 * ay + e12 * az
     fd = e20 * ax + e21 * ay + e22 * az
@@ -511,8 +513,9 @@ def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz):
     unorm = math.sqrt(un * un + ue * ue + ud * ud)
     dev = abs(unorm - g_ref)  # sustained linear acceleration left after the low-pass
     # unit measured "up" in NED: u = [δθ_E, −δθ_N, −1] (+ noise)
-    nu_n = un / unorm if unorm > 0.0 else 0.0
-    nu_e = ue / unorm if unorm > 0.0 else 0.0
+    inv_unorm = 1.0 / unorm if unorm > 0.0 else 0.0
+    nu_n = un * inv_unorm
+    nu_e = ue * inv_unorm
     # Acceleration-adaptive tilt noise. The low-passed linear acceleration is exactly (v − LP_τ(v)) / τ:
     # the sensor's velocity minus its recent mean, over τ. A hand shaking or moving the sensor about leaves
     # a residual that swings with the motion, not white noise; a real tilt error is a slow drift. So the
@@ -548,7 +551,8 @@ def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz):
             ratio = min(unorm, g_ref) / max(unorm, g_ref)
             phi = par.acc_turn_noise_gain * max(math.acos(ratio) - par.acc_turn_dead_zone_rad, 0.0)
         r = (par.acc_noise_m_s2 / g_ref) ** 2 + phi * phi + r_motion
-    _track_tilt_push(u, par, g_ref, st.P[E_TILT_E, E_TILT_E], r)
+    if publish:
+        _track_tilt_push(u, par, g_ref, st.P[E_TILT_E, E_TILT_E], r)
     # never heading; and no bias learning while |f| is off g (a push would be read as bias)
     mask = M_HEADING if abs(fnorm - g_ref) < par.rest_acc_th_m_s2 else (M_HEADING | M_BIAS)
     a0, a1, a2, a3, a4, a5 = scalar_update_6(st.P, E_TILT_E, 1.0, nu_n, r, mask)
@@ -720,7 +724,7 @@ def _track_heading_push(u, dip_rad, p_heading, r):
 
 
 @njit(cache=True)
-def _heading_update(st, par, dt, rate, valid, at_rest, moved_at_rest, mx, my, mz):
+def _heading_update(st, par, dt, rate, valid, at_rest, moved_at_rest, mx, my, mz, publish):
     """The body-fixed offset stage, then the magnetometer heading (mag_heading.py's check and measurement)
     corrects δθ_D with the gain on tilt forced to zero (row h = −e_D: α = −δθ_D). Returns flag bits."""
     flags = 0
@@ -737,7 +741,8 @@ def _heading_update(st, par, dt, rate, valid, at_rest, moved_at_rest, mx, my, mz
         res, alpha, r = mag.heading_measurement(st.mag, par.mag, dt, rate, at_rest, moved_at_rest,
                                                 mn, me, md, mnorm, 0.0, st.P[E_HEADING, E_HEADING])
         if res == mag.MAG_USE:
-            _track_heading_push(st.unmodelled, st.mag.ref_dip_rad, st.P[E_HEADING, E_HEADING], r)
+            if publish:
+                _track_heading_push(st.unmodelled, st.mag.ref_dip_rad, st.P[E_HEADING, E_HEADING], r)
             d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, E_HEADING, -1.0, alpha, r, M_TILT)
             _apply_correction(st, par, d0, d1, d2, d3, d4, d5)
             used = True
@@ -750,8 +755,8 @@ def _heading_update(st, par, dt, rate, valid, at_rest, moved_at_rest, mx, my, mz
 
 # ----------------------------------------------------------------------------------- the step
 @njit(cache=True)
-def _fill_outputs(st, par, gx, gy, gz, out):
-    """Quaternion (scalar ≥ 0), bias-corrected rate, 1σ roll/pitch/yaw, bias. Returns F_INITIALISING or 0."""
+def _output_quaternion(st, out):
+    """out.q ← the attitude quaternion with its scalar ≥ 0; returns it."""
     q0 = st.q[0]
     q1 = st.q[1]
     q2 = st.q[2]
@@ -765,33 +770,45 @@ def _fill_outputs(st, par, gx, gy, gz, out):
     out.q[1] = q1
     out.q[2] = q2
     out.q[3] = q3
-    b = st.gyro_bias_rad_s
-    out.rate_rad_s[0] = gx - b[0]
-    out.rate_rad_s[1] = gy - b[1]
-    out.rate_rad_s[2] = gz - b[2]
-    # 1σ roll/pitch: NED tilt covariance rotated into the heading frame (cos, sin of yaw = C00, C10 over
-    # their norm: no atan2, cos, sin on the hot path); yaw: δθ_D
+    return q0, q1, q2, q3
+
+
+@njit(cache=True)
+def _yaw_cos_sin(q0, q1, q2, q3):
+    """cos and sin of the yaw of q: C00, C10 over their norm (no atan2, cos, sin on the hot path)."""
     cy = 1.0 - 2.0 * (q2 * q2 + q3 * q3)
     sy = 2.0 * (q1 * q2 + q0 * q3)
     hy = math.sqrt(cy * cy + sy * sy)
     if hy > 1e-12:
-        cy /= hy
-        sy /= hy
-    else:
-        cy = 1.0
-        sy = 0.0
+        return cy / hy, sy / hy
+    return 1.0, 0.0
+
+
+@njit(cache=True)
+def _converging(st, par, cy, sy):
+    """INITIALISING by the filter's own covariance (the unmodelled terms of the published 1σ are not something
+    it converges on): 1σ roll/pitch from the NED tilt covariance rotated into the heading frame (cy, sy: cos,
+    sin of yaw), 1σ yaw from δθ_D."""
     P = st.P
-    pnn = P[E_TILT_N, E_TILT_N]
-    pne = P[E_TILT_N, E_TILT_E]
-    pee = P[E_TILT_E, E_TILT_E]
-    pdd = max(P[E_HEADING, E_HEADING], 0.0)
+    sig_roll, sig_pitch = tilt_sigma(cy, sy, P[E_TILT_N, E_TILT_N], P[E_TILT_N, E_TILT_E], P[E_TILT_E, E_TILT_E])
+    return initialising(st.t_run_s, sig_roll, sig_pitch, math.sqrt(max(P[E_HEADING, E_HEADING], 0.0)),
+                        par.init_min_time_s, par.converged_tilt_rad, par.mag_enabled, par.converged_yaw_rad)
+
+
+@njit(cache=True)
+def _fill_outputs(st, par, gx, gy, gz, out):
+    """Everything the one-sample path publishes: quaternion (scalar ≥ 0), bias-corrected rate, 1σ roll/pitch/yaw,
+    bias. Returns F_INITIALISING or 0."""
+    q0, q1, q2, q3 = _output_quaternion(st, out)
+    b = st.gyro_bias_rad_s
+    out.rate_rad_s[0] = gx - b[0]
+    out.rate_rad_s[1] = gy - b[1]
+    out.rate_rad_s[2] = gz - b[2]
     out.gyro_bias_rad_s[0] = b[0]
     out.gyro_bias_rad_s[1] = b[1]
     out.gyro_bias_rad_s[2] = b[2]
-    # converged: the filter's own covariance (the unmodelled terms below are not something it converges on)
-    sig_roll, sig_pitch = tilt_sigma(cy, sy, pnn, pne, pee)
-    init = initialising(st.t_run_s, sig_roll, sig_pitch, math.sqrt(pdd), par.init_min_time_s,
-                        par.converged_tilt_rad, par.mag_enabled, par.converged_yaw_rad)
+    cy, sy = _yaw_cos_sin(q0, q1, q2, q3)
+    init = _converging(st, par, cy, sy)
     # the published 1σ adds what the covariance does not carry (Schmidt's "consider" terms):
     # (a) the low-passed vertical is on average acc_lowpass_tau_s old, so it has not seen the attitude random
     #     walk of the last τ: the tilt process noise over τ;
@@ -802,17 +819,42 @@ def _fill_outputs(st, par, gx, gy, gz, out):
     u = st.unmodelled
     extra = (_tilt_process_noise_rad2(par, math.sqrt(wx * wx + wy * wy + wz * wz), par.acc_lowpass_tau_s)
              + u.tilt_push_rad * u.tilt_push_rad)
+    P = st.P
     sig = out.sigma_rpy_rad
-    sig[0], sig[1] = tilt_sigma(cy, sy, pnn + extra, pne, pee + extra)
-    sig[2] = math.sqrt(pdd + u.heading_push_rad * u.heading_push_rad)
+    sig[0], sig[1] = tilt_sigma(cy, sy, P[E_TILT_N, E_TILT_N] + extra, P[E_TILT_N, E_TILT_E],
+                                P[E_TILT_E, E_TILT_E] + extra)
+    sig[2] = math.sqrt(max(P[E_HEADING, E_HEADING], 0.0) + u.heading_push_rad * u.heading_push_rad)
     return F_INITIALISING if init else 0
 
 
 @njit(cache=True)
-def mekf_step(st, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, out):
+def _fill_estimate(st, par, out):
+    """What the batch returns, nothing more: the quaternion (scalar ≥ 0) into out.q, and F_INITIALISING or 0
+    exactly as `_fill_outputs` decides it."""
+    q0, q1, q2, q3 = _output_quaternion(st, out)
+    if st.t_run_s < par.init_min_time_s:   # `initialising` holds whatever the 1σ: do not compute them
+        return F_INITIALISING
+    # converged beyond doubt without the 1σ: the roll and pitch variances (the tilt block in a unit-vector
+    # direction, cos² + sin² = 1) are at most max(P_NN, P_EE) + |P_NE|; with a 1 % margin over every rounding
+    # of `_converging` this decides only where it would decide the same
+    P = st.P
+    tilt_bound = max(P[E_TILT_N, E_TILT_N], P[E_TILT_E, E_TILT_E]) + abs(P[E_TILT_N, E_TILT_E])
+    if tilt_bound < 0.99 * par.converged_tilt_rad ** 2 and (
+            not par.mag_enabled or P[E_HEADING, E_HEADING] < 0.99 * par.converged_yaw_rad ** 2):
+        return 0
+    cy, sy = _yaw_cos_sin(q0, q1, q2, q3)
+    return F_INITIALISING if _converging(st, par, cy, sy) else 0
+
+
+@njit(cache=True)
+def mekf_step(st, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, out, publish):
     """One sample through the stages (module docstring). st, par, out: MEKF_STATE_DTYPE, MEKF_PARAMS_DTYPE,
     MEKF_OUT_DTYPE records. sample_flags: the sample's SampleFlags as an int (invalid or saturated sensors are
-    not used). Returns EstimateFlags bits (| NEEDS_INIT when the caller must initialise first)."""
+    not used). publish: track the published 1σ's unmodelled terms (`_track_tilt_push`, `_track_heading_push`)
+    and fill every output (`_fill_outputs`: the one-sample path), or neither (the batch returns only the
+    quaternion, `_fill_estimate`, and bounds those terms at its end: `_bound_unmodelled`); the quaternion,
+    the flags and the rest of the state are the same either way.
+    Returns EstimateFlags bits (| NEEDS_INIT when the caller must initialise first)."""
     valid = input_validity(sample_flags, gx, gy, gz, ax, ay, az, mx, my, mz)
     dt, flags = step_dt(t_s - st.t_last_s, par.large_dt_s, par.reinit_dt_s)
     if flags & NEEDS_INIT:
@@ -835,16 +877,23 @@ def mekf_step(st, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, ou
     rate = math.sqrt(wx * wx + wy * wy + wz * wz)
     if dt > 0.0:
         _propagate_attitude(st.q, dt, wx, wy, wz, rate)
-        c00, c01, c02, c10, c11, c12, c20, c21, c22 = dcm(st.q[0], st.q[1], st.q[2], st.q[3])
+    # C_b^n of the propagated attitude: the covariance's Φ and, unless the bias update at rest turns the
+    # attitude, the frame of the tilt update (computed once for both)
+    c = dcm(st.q[0], st.q[1], st.q[2], st.q[3])
+    if dt > 0.0:
+        c00, c01, c02, c10, c11, c12, c20, c21, c22 = c
         _propagate_covariance(st.P, par, dt, rate, c00, c01, c02, c10, c11, c12, c20, c21, c22)
     at_rest, mag_moved_at_rest = _detect_rest(st, par, dt, valid, gx, gy, gz, ax, ay, az, mx, my, mz)
     if at_rest:
         flags |= F_AT_REST
         _learn_bias_at_rest(st, par, dt, gx, gy, gz)
+        c = dcm(st.q[0], st.q[1], st.q[2], st.q[3])
     if valid & IN_ACC_OK:
-        flags |= _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz)
-    flags |= _heading_update(st, par, dt, rate, valid, at_rest, mag_moved_at_rest, mx, my, mz)
-    return flags | _fill_outputs(st, par, gx, gy, gz, out)
+        flags |= _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish)
+    flags |= _heading_update(st, par, dt, rate, valid, at_rest, mag_moved_at_rest, mx, my, mz, publish)
+    if publish:
+        return flags | _fill_outputs(st, par, gx, gy, gz, out)
+    return flags | _fill_estimate(st, par, out)
 
 
 @njit(cache=True)
@@ -856,7 +905,7 @@ def mekf_step_full(buf, t_s, gyro, acc, mag_ut, sample_flags):
         return BAD_SHAPE
     b = borrowed(buf)[0]   # the caller holds buf for the call: no reference counting in the step
     return mekf_step(b.state, b.par, t_s, gyro[0], gyro[1], gyro[2], acc[0], acc[1], acc[2],
-                     mag_ut[0], mag_ut[1], mag_ut[2], sample_flags, b.out)
+                     mag_ut[0], mag_ut[1], mag_ut[2], sample_flags, b.out, True)
 
 
 @njit(cache=True)
@@ -871,9 +920,25 @@ def fill_euler(buf):
 
 
 @njit(cache=True)
+def _bound_unmodelled(u, par, rate_down_max_rad_s, g_ref_min_m_s2, dip_max_rad):
+    """After a batch that did not track the published 1σ's unmodelled terms: set them to an upper bound of what
+    tracking would have left. Each tracked term moves toward its target with a gain in [0, 1] (a convex
+    combination), so it never exceeds the larger of its value before the batch and its largest target: the
+    tilt lean atan(v·|ω_D|/g) (`_track_tilt_push`) at the largest low-passed rate about the vertical and the
+    smallest g, and the heading lean |tan I|·(that tilt bound) (`_track_heading_push`) at the steepest dip.
+    The one-sample path then publishes a 1σ no smaller than had it run every sample; the terms return to their
+    tracked values at the rate the filter corrects tilt and heading."""
+    tilt = max(u.tilt_push_rad, math.atan(par.turn_speed_m_s * rate_down_max_rad_s / g_ref_min_m_s2))
+    u.tilt_push_rad = tilt
+    u.heading_push_rad = max(u.heading_push_rad, abs(math.tan(dip_max_rad)) * tilt)
+
+
+@njit(cache=True)
 def mekf_run(buf, scratch_out, t_s, gyro, acc, mag_ut, sample_flags, start, q_out, flags_out):
     """Run `mekf_step` over samples start… on the state and parameters of the 1-element MEKF_BUFFER_DTYPE
-    array `buf` (its outputs untouched: each step's go to the 1-element MEKF_OUT_DTYPE array `scratch_out`).
+    array `buf` (its outputs untouched: each step's quaternion goes to the 1-element MEKF_OUT_DTYPE array
+    `scratch_out`), computing only what it returns: no output but the quaternion, and the published 1σ's
+    unmodelled terms bounded at the end (`_bound_unmodelled`) instead of tracked per sample.
     Returns the index of the first sample that needs (re-)initialisation, or len(t_s) when all were processed.
     sample_flags (N,) int64 SampleFlags; q_out (N, 4), flags_out (N,)."""
     # views without reference counting (`borrowed`): the arrays are the caller's, held for the whole call
@@ -881,6 +946,11 @@ def mekf_run(buf, scratch_out, t_s, gyro, acc, mag_ut, sample_flags, start, q_ou
     st = b.state
     par = b.par
     out = borrowed(scratch_out)[0]
+    u = st.unmodelled
+    # the extremes of what the unmodelled terms' targets are made of, over the states the batch passes through
+    rate_max = abs(u.rate_down_lp_rad_s)
+    g_min = st.g_ref_m_s2
+    dip_max = abs(st.mag.ref_dip_rad)
     n = t_s.shape[0]
     for i in range(start, n):
         f = mekf_step(
@@ -888,13 +958,18 @@ def mekf_run(buf, scratch_out, t_s, gyro, acc, mag_ut, sample_flags, start, q_ou
             gyro[i, 0], gyro[i, 1], gyro[i, 2],
             acc[i, 0], acc[i, 1], acc[i, 2],
             mag_ut[i, 0], mag_ut[i, 1], mag_ut[i, 2],
-            sample_flags[i], out,
+            sample_flags[i], out, False,
         )
         if f & NEEDS_INIT:
+            _bound_unmodelled(u, par, rate_max, g_min, dip_max)
             return i
+        rate_max = max(rate_max, abs(u.rate_down_lp_rad_s))
+        g_min = min(g_min, st.g_ref_m_s2)
+        dip_max = max(dip_max, abs(st.mag.ref_dip_rad))
         for j in range(4):
             q_out[i, j] = out.q[j]
         flags_out[i] = f
+    _bound_unmodelled(u, par, rate_max, g_min, dip_max)
     return n
 
 
