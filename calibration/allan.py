@@ -85,7 +85,19 @@ def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float, correlat
     pts = octave_points(curve, axis)
     min_tau_s = shortest_fit_tau_s(correlation_samples, rate_hz)
     short_note = []
-    if min_tau_s > 0 and np.count_nonzero(pts.taus >= min_tau_s) >= 3:
+    if min_tau_s > 0 and np.count_nonzero(pts.taus >= min_tau_s) < 3:
+        # Below min_tau_s the sensor's filter bends the curve (a fit there reads the filter as a Gauss–Markov
+        # term and calls white noise "not seen"), and three cluster sizes are the fewest a term can be read from.
+        # The longest cluster grows with the record, so a record this many times longer reaches 4·min_tau_s.
+        longer = 4.0 * min_tau_s / pts.taus[-1]
+        j = int(np.argmin(curve.adev[:, axis]))
+        return NoiseParameters(None, None, None, None, None, float(curve.adev[j, axis]), float(curve.taus_s[j]),
+                               float(std), flags=(
+                                   f"recording too short: the samples are correlated over {correlation_samples} "
+                                   f"samples (the sensor's filter), so only τ ≥ {min_tau_s:.3g} s can be fitted, and "
+                                   f"it has fewer than 3 cluster sizes there; record about {longer:.0f}× longer "
+                                   f"(≥ {longer * pts.record_s:.0f} s): no noise terms read",))
+    if min_tau_s > 0:
         keep = pts.taus >= min_tau_s
         pts = type(pts)(pts.taus[keep], pts.avar[keep], pts.level_n[keep], pts.level_m[keep], pts.record_s,
                         white_deficit_s)

@@ -243,7 +243,12 @@ def _fit_searching_tc(pts: _Points, terms: tuple[str, ...]) -> ModelFit:
         return _fit_fixed(pts, terms, None)
     lo, hi = GM_TC_RANGE[0] * pts.taus[0], GM_TC_RANGE[1] * pts.taus[-1]
     if hi <= lo:
-        return _fit_fixed(pts, tuple(t for t in terms if t != "gauss_markov"), None)
+        # the curve is too short to hold a Gauss–Markov bump: the fit is the other terms' alone, and a
+        # Gauss–Markov term on its own explains nothing (infinite χ², so the selection never takes it)
+        others = tuple(t for t in terms if t != "gauss_markov")
+        if not others:
+            return ModelFit(terms=(), coef=np.zeros(0), corr_time_s=None, chi2=math.inf)
+        return _fit_fixed(pts, others, None)
     grid = np.geomspace(lo, hi, max(2, int(4 * math.log2(hi / lo)) + 1))
     fits = [_fit_fixed(pts, terms, tc) for tc in grid]
     best = min(range(len(fits)), key=lambda i: fits[i].chi2)
