@@ -87,7 +87,9 @@ def test_mekf_calibration_swap_slews_the_autopilot_heading_without_reinitialisin
     after = t > 60.0
     tail = t > 115.0
     ref_tail = np.nanmean(np.abs(ref[ref[:, 0] > 115.0, 1]))
-    print(f"\nVPE yaw error: {np.nanmean(np.abs(vpe_err[before])):.1f} deg before the swap, "
+    sent_before = vpe_err[before][~np.isnan(vpe_err[before])]
+    before_text = f"{np.abs(sent_before).mean():.1f} deg" if len(sent_before) else "every VPE withheld (UNKNOWN)"
+    print(f"\nVPE yaw error: {before_text} before the swap, "
           f"{np.abs(vpe_err[tail]).mean():.2f} deg at the end (calibrated from the start: {ref_tail:.2f} deg); "
           f"largest VPE-error step after the swap {np.nanmax(np.abs(np.diff(vpe_err[after]))):.3f} deg per "
           f"{1 / VPE_HZ:.3f} s")
