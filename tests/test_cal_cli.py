@@ -135,7 +135,7 @@ def test_allan_json_and_noise_file(recordings, tmp_path, ahrsd_inproc):
 
 def test_refused_fit_exits_1_and_saves_nothing(recordings, tmp_path, ahrsd_inproc):
     state = tmp_path / "state"
-    proc = ahrsd("mag", recordings["level"], *SITE_ARGS, "--method", "ellipsoid", "--state-dir", state, "--json")
+    proc = ahrsd_inproc("mag", recordings["level"], *SITE_ARGS, "--method", "ellipsoid", "--state-dir", state, "--json")
     assert proc.returncode == 1
     out = json.loads(proc.stdout)
     assert out["refused"] and out["saved_to"] is None
