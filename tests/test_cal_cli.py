@@ -135,7 +135,7 @@ def test_allan_json_and_noise_file(recordings, tmp_path, ahrsd_inproc):
 
 def test_refused_fit_exits_1_and_saves_nothing(recordings, tmp_path, ahrsd_inproc):
     state = tmp_path / "state"
-    proc = ahrsd("mag", recordings["level"], *SITE_ARGS, "--method", "ellipsoid", "--state-dir", state, "--json")
+    proc = ahrsd_inproc("mag", recordings["level"], *SITE_ARGS, "--method", "ellipsoid", "--state-dir", state, "--json")
     assert proc.returncode == 1
     out = json.loads(proc.stdout)
     assert out["refused"] and out["saved_to"] is None
@@ -248,15 +248,15 @@ def test_accel_align_to_faces_stores_the_housing_frame_and_refuses_without_all_f
     assert "missing: Z down" in refused and not (state2 / "calibration.json").exists()
 
 
-def test_live_align_to_faces_asks_for_each_face_twice(tmp_path):
+def test_live_align_to_faces_asks_for_each_face_twice(tmp_path, ahrsd_inproc):
     """The wiring of `--live --align-to-faces` to the face pairs: the simulated chip, held still on one face,
     is recorded once and then asked for that face again, turned half round; then it times out and refuses."""
-    proc = ahrsd("accel", "--live", "--sim", "static", "--align-to-faces", "--timeout-s", "6", "--dry-run",
-                 "--state-dir", tmp_path / "st", check_rc=1)
+    proc = ahrsd_inproc("accel", "--live", "--sim", "static", "--align-to-faces", "--timeout-s", "6", "--dry-run",
+                        "--state-dir", tmp_path / "st", check_rc=1)
     assert "position 1/20" in proc.stderr
     assert "next: position 2/20" in proc.stderr and "again, turned half round on the surface" in proc.stderr
-    plain = ahrsd("accel", "--live", "--sim", "static", "--timeout-s", "6", "--dry-run",
-                  "--state-dir", tmp_path / "st", check_rc=1)
+    plain = ahrsd_inproc("accel", "--live", "--sim", "static", "--timeout-s", "6", "--dry-run",
+                         "--state-dir", tmp_path / "st", check_rc=1)
     assert "position 1/14" in plain.stderr and "half round" not in plain.stderr
 
 
