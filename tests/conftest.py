@@ -24,6 +24,13 @@ if str(REPO) not in sys.path:
 # one per core in each process, then wait for a core by spinning, which costs CPU and changes no result.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
+# Bytecode on, whatever the environment says: the suite starts many Python processes (the numba warm-up, daemons,
+# CLI runs), and with PYTHONDONTWRITEBYTECODE set each one compiles ahrsd's sources again (about 0.3 CPU-s a
+# start). The first process to import a module writes its .pyc (into the checkout's __pycache__, which git
+# ignores); the others load it.
+os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+sys.dont_write_bytecode = False
+
 
 def pytest_configure(config):
     """With pytest-xdist workers (the README's `-n 3`), compile the numba kernels once in the controller before
