@@ -25,9 +25,8 @@ if str(REPO) not in sys.path:
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 # Bytecode on, whatever the environment says: the suite starts many Python processes (the numba warm-up, daemons,
-# CLI runs), and with PYTHONDONTWRITEBYTECODE set each one compiles ahrsd's sources again (about 0.3 CPU-s a
-# start). The first process to import a module writes its .pyc (into the checkout's __pycache__, which git
-# ignores); the others load it.
+# CLI runs), and with PYTHONDONTWRITEBYTECODE set each one compiles ahrsd's sources again. The first process to
+# import a module writes its .pyc (into the checkout's __pycache__, which git ignores); the others load it.
 os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 sys.dont_write_bytecode = False
 
