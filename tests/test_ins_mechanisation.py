@@ -129,3 +129,20 @@ def test_coordinated_turn_integrates_back_into_its_trajectory():
     reckoned from the first sample: errors are integration error only."""
     att, vel, pos = _dead_reckon("coordinated-turn", 60.0, 200.0)
     assert att.max() < 2e-5 and vel.max() < 0.02 and pos.max() < 0.5, (att.max(), vel.max(), pos.max())
+
+
+@pytest.mark.parametrize("earth_model", ["wgs84", "sphere"])
+def test_the_earth_model_setting_reaches_the_kernels_radii(earth_model):
+    """`Ins(earth_model=…)` picks the radii the kernel integrates latitude and longitude with. (The position
+    tests cannot tell: with fixes every 0.2 s the position updates absorb the 0.3 % north scale of the wrong
+    model within their bounds.) Truth: the WGS-84 radii from the ellipsoid's defining constants (Groves 2nd ed.
+    eqs. 2.105–2.106), or the sphere of the equatorial radius."""
+    from ahrsd.estimator import ins_core
+
+    a_m, f = 6378137.0, 1.0 / 298.257223563
+    e2 = f * (2.0 - f)
+    lat = math.radians(36.0)
+    w = 1.0 - e2 * math.sin(lat) ** 2
+    expected = (a_m, a_m) if earth_model == "sphere" else (a_m * (1.0 - e2) / w ** 1.5, a_m / math.sqrt(w))
+    r_n, r_e = ins_core._radii(Ins(earth_model=earth_model)._par, lat)
+    assert (r_n, r_e) == pytest.approx(expected, rel=1e-9)
