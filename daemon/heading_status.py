@@ -63,6 +63,7 @@ class HeadingStatus:
         self.announcements = 0
         self._candidate: tuple[HeadingState, float] | None = None
         self._resets_announced = 0
+        self._alignments_announced = 0
         self._last_reset_at = -math.inf
         self._good_since: float | None = None        # when a GNSS-held heading last became good enough
         self._now = -math.inf
@@ -71,9 +72,10 @@ class HeadingStatus:
         self.calibration_sigma_rad = float(sigma_rad)
 
     # ------------------------------------------------------------------ inputs
-    def on_estimate(self, est, now: float, yaw_resets: int = 0) -> None:
-        """The latest estimate (and the estimator's yaw reset count) at `now`; announces a state that held
-        ANNOUNCE_AFTER_S and every yaw reset."""
+    def on_estimate(self, est, now: float, yaw_resets: int = 0, gnss_yaw_alignments: int = 0) -> None:
+        """The latest estimate (and the estimator's yaw reset count, and how many of those were the planned
+        alignment to the GNSS yaw) at `now`; announces a state that held ANNOUNCE_AFTER_S and every yaw reset: an
+        alignment as news (INFO), a reset of a heading found wrong as a WARNING."""
         if est is None:
             return
         state = HeadingState(est.heading_state)
@@ -91,11 +93,19 @@ class HeadingStatus:
             self._good_since = now
         if yaw_resets < self._resets_announced:       # the estimator was reset: its count starts again
             self._resets_announced = yaw_resets
+            self._alignments_announced = gnss_yaw_alignments
         if yaw_resets > self._resets_announced:
+            wrong_headings = (yaw_resets - self._resets_announced) - (gnss_yaw_alignments - self._alignments_announced)
             self._resets_announced = yaw_resets
+            self._alignments_announced = gnss_yaw_alignments
             self._last_reset_at = now
-            self.statustext(mavlink.MAV_SEVERITY_WARNING,
-                            f"ahrsd: heading reset to the GNSS yaw (±{math.degrees(self.sigma_rad):.1f}°)")
+            if wrong_headings > 0:
+                self.statustext(mavlink.MAV_SEVERITY_WARNING,
+                                f"ahrsd: heading reset to the GNSS yaw (±{math.degrees(self.sigma_rad):.1f}°)")
+            else:
+                self.statustext(mavlink.MAV_SEVERITY_INFO,
+                                f"ahrsd: heading aligned to the GNSS yaw (±{math.degrees(self.sigma_rad):.1f}°): "
+                                "no trusted magnetometer calibration")
         if state == self.announced:
             self._candidate = None
             return

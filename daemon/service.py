@@ -237,9 +237,12 @@ class Service:
         # estimator/published_heading.py): no step reaches the autopilot, so reset_counter is not incremented
         return self.heading.autopilot_yaw(est)
 
-    def _yaw_resets(self) -> int:
-        est = self.pipeline.estimator       # ins counts them; mekf has none
-        return int(est.yaw_resets) if isinstance(est, HeadingCheckedEstimator) else 0
+    def _yaw_resets(self) -> tuple[int, int]:
+        """(yaw resets, of which planned GNSS-yaw alignments): ins counts them; mekf has none."""
+        est = self.pipeline.estimator
+        if not isinstance(est, HeadingCheckedEstimator):
+            return 0, 0
+        return int(est.yaw_resets), int(est.gnss_yaw_alignments)
 
     def local_origin(self):
         return None if self.gnss is None else self.gnss.origin
@@ -459,7 +462,7 @@ class Service:
         """The heading state (daemon.heading_status) into the health (MAV_STATE, SYS_STATUS bits) before the
         health report reads it; the learned iron's parameters and periodic save (daemon.learned_iron)."""
         if self.heading_status is not None:
-            self.heading_status.on_estimate(self.pipeline.last_estimate, now, self._yaw_resets())
+            self.heading_status.on_estimate(self.pipeline.last_estimate, now, *self._yaw_resets())
             self.health.heading_good = self.heading_status.heading_good
             self.health.heading_unhealthy_bits = self.heading_status.unhealthy_bits()
         if self.learned_iron is not None:

@@ -40,6 +40,7 @@ class HeadingCheckedEstimator(Protocol):
     yaw and takes the heading error a magnetometer calibration predicts (1σ, rad) into its checks."""
 
     yaw_resets: int
+    gnss_yaw_alignments: int    # those of the resets that were the planned first alignment (no trusted calibration)
 
     def set_mag_calibration_sigma(self, sigma_rad: float) -> None: ...
 

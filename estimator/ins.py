@@ -426,6 +426,7 @@ class Ins:
         # the published yaw σ's floor until a GNSS yaw confirms the heading (aided only; updated at every check)
         self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(0.0, math.nan, math.nan)
         self.yaw_resets = 0
+        self.gnss_yaw_alignments = 0
         self.heading_interventions = 0    # yaw resets and raised yaw variances (not Kalman updates)
         self._par["mag_use"] = 1.0
         self._par["mag_moves_tilt"] = 1.0 if p.mag_moves_tilt else 0.0
@@ -877,6 +878,7 @@ class Ins:
         self.heading_interventions += 1
         self._pending_flags |= int(EstimateFlags.YAW_RESET)
         if alignment:     # the planned first alignment (yaw_align_to_gnss_yaw), not a heading found wrong
+            self.gnss_yaw_alignments += 1
             log.info("ins: heading aligned to the GNSS yaw by %.1f° (reset %d)", math.degrees(dyaw), self.yaw_resets)
         else:
             log.warning("ins: heading reset to the GNSS yaw by %.1f° (reset %d)", math.degrees(dyaw),

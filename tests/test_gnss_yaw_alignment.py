@@ -43,7 +43,7 @@ def _run(mag: str, **params) -> dict:
         bias_learns[k] = est._par["accel_bias_learn"] > 0.5
     _, hdg = tilt_heading_errors_deg(q, run.truth_q_wxyz, run.declination_rad)
     return {"t": run.t_s, "err": hdg, "sigma": sig, "state": state, "gsf_valid": valid, "flags": flags,
-            "resets": resets, "bias_learns": bias_learns}
+            "resets": resets, "bias_learns": bias_learns, "alignments": est.gnss_yaw_alignments}
 
 
 @pytest.fixture(scope="module")
@@ -62,6 +62,7 @@ def test_the_yaw_is_set_to_the_first_valid_gnss_yaw(uncalibrated):
     assert abs(o["err"][first - 1]) > 20.0                 # the magnetometer's heading, pulled part way in
     after = slice(first, None)
     assert o["resets"][first] >= 1 and np.any(o["flags"][first:first + 5] & int(EstimateFlags.YAW_RESET))
+    assert o["alignments"] == 1            # counted as the planned alignment (the daemon says INFO, not WARNING)
     assert np.all(np.abs(o["err"][after]) < 8.0), np.abs(o["err"][after]).max()
     assert np.all(np.abs(o["err"][after]) <= 3.0 * o["sigma"][after])
     assert np.all(aided[after])
@@ -85,6 +86,7 @@ def test_a_trusted_calibration_is_not_replaced_by_the_gnss_yaw():
     o = _run("calibrated")
     assert CALIBRATED_SIGMA_RAD < math.radians(3.0)
     assert o["resets"][-1] == 0
+    assert o["alignments"] == 0
     assert np.all(o["sigma"][o["t"] > 5.0] < 3.0)
 
 

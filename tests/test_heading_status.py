@@ -147,6 +147,19 @@ def test_each_yaw_reset_is_announced_once():
     assert hs.rejection_cause(5.0) == "heading reset"
 
 
+def test_the_planned_alignment_is_news_and_a_reset_of_a_wrong_heading_a_warning():
+    """Without a trusted calibration ins aligns its yaw to the first valid GNSS yaw (a plan, as PX4 EKF2 does):
+    INFO, not the WARNING of a heading that was found wrong and reset."""
+    hs, texts = status(cal_sigma_deg=math.nan)
+    e = estimate(HeadingState.GNSS_ONLY, 3.0)
+    hs.on_estimate(e, 0.0, yaw_resets=1, gnss_yaw_alignments=1)
+    hs.on_estimate(e, 1.0, yaw_resets=1, gnss_yaw_alignments=1)
+    assert [(sev, "aligned" in t) for sev, t in texts if "GNSS yaw (" in t] == [(mavlink.MAV_SEVERITY_INFO, True)]
+    hs.on_estimate(e, 2.0, yaw_resets=2, gnss_yaw_alignments=1)      # then a reset of a heading found wrong
+    resets = [(sev, t) for sev, t in texts if "GNSS yaw (" in t]
+    assert len(resets) == 2 and resets[1][0] == mavlink.MAV_SEVERITY_WARNING and "reset to the GNSS yaw" in resets[1][1]
+
+
 # ------------------------------------------------------------------------------ the daemon on a simulated boat
 
 RATE_HZ = 200.0
