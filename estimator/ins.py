@@ -750,8 +750,7 @@ class Ins:
             self._gnss_yaw_aligned = True
             self._monitor.last_reset_t_s = t_s       # an emergency reset keeps its spacing from this one
             self._reset_yaw(gsf_yaw - yaw, gsf_var, alignment=True)
-        elif not self._heading_confirmed and gsf_valid and (p.calibration_sigma_rad > self._monitor.trusted_sigma_rad
-                                                            or self._monitor.mag_rejected):
+        elif not self._heading_confirmed and gsf_valid and (self._calibration_untrusted or self._monitor.mag_rejected):
             yaw_var_now = P[core.E_YAW, core.E_YAW]
             agrees = wrap_pi(gsf_yaw - yaw) ** 2 <= self._monitor.gate_sigma ** 2 * (yaw_var_now + gsf_var)
             if agrees and gsf_var < p.accel_bias_gsf_sigma_rad ** 2:
@@ -803,7 +802,7 @@ class Ins:
         velocity and the biases once more after the first update with the new yaw (measured, docs/estimator.md)."""
         p = self.params
         return (p.yaw_align_to_gnss_yaw and gsf_valid and not self._gnss_yaw_aligned
-                and not self._heading_confirmed and p.calibration_sigma_rad > self._monitor.trusted_sigma_rad)
+                and not self._heading_confirmed and self._calibration_untrusted)
 
     def _unconfirmed_yaw_sigma(self, yaw_rad: float, gsf_yaw: float, gsf_var: float) -> float:
         """Without a trusted magnetometer calibration, until a GNSS yaw has confirmed the heading: the filter's yaw
@@ -814,11 +813,17 @@ class Ins:
         filter keeps its own variance (raising it would make the linearised update pull harder)."""
         p = self.params
         if not (p.yaw_align_to_gnss_yaw and self._heading_checks_run) or self._heading_confirmed \
-                or not p.calibration_sigma_rad > self._monitor.trusted_sigma_rad:
+                or not self._calibration_untrusted:
             return math.nan
         if not (math.isfinite(gsf_yaw) and math.isfinite(gsf_var)):
             return math.pi
         return math.sqrt(gsf_var + wrap_pi(gsf_yaw - yaw_rad) ** 2)
+
+    @property
+    def _calibration_untrusted(self) -> bool:
+        """The magnetometer calibration in force predicts a heading error above what the heading monitor trusts
+        (an unknown calibration counts as the uncalibrated figure, `InsParams.calibration_sigma_rad`)."""
+        return self.params.calibration_sigma_rad > self._monitor.trusted_sigma_rad
 
     @property
     def _heading_checks_run(self) -> bool:
@@ -834,7 +839,7 @@ class Ins:
         checks (no GNSS yaw, monitor or magnetometer) there is nothing to confirm with: it always learns."""
         p = self.params
         held = p.accel_bias_needs_heading and self._heading_checks_run and not self._bias_heading_confirmed and (
-            p.calibration_sigma_rad > self._monitor.trusted_sigma_rad or self._monitor.mag_rejected)
+            self._calibration_untrusted or self._monitor.mag_rejected)
         self._par["accel_bias_learn"] = 0.0 if held else 1.0
 
     def _reset_yaw(self, dyaw_rad: float, var_rad2: float, alignment: bool = False) -> None:

@@ -801,9 +801,12 @@ def _fill_outputs(st, par, gx, gy, gz, out):
     bias. Returns F_INITIALISING or 0."""
     q0, q1, q2, q3 = _output_quaternion(st, out)
     b = st.gyro_bias_rad_s
-    out.rate_rad_s[0] = gx - b[0]
-    out.rate_rad_s[1] = gy - b[1]
-    out.rate_rad_s[2] = gz - b[2]
+    wx = gx - b[0]
+    wy = gy - b[1]
+    wz = gz - b[2]
+    out.rate_rad_s[0] = wx
+    out.rate_rad_s[1] = wy
+    out.rate_rad_s[2] = wz
     out.gyro_bias_rad_s[0] = b[0]
     out.gyro_bias_rad_s[1] = b[1]
     out.gyro_bias_rad_s[2] = b[2]
@@ -813,9 +816,6 @@ def _fill_outputs(st, par, gx, gy, gz, out):
     # (a) the low-passed vertical is on average acc_lowpass_tau_s old, so it has not seen the attitude random
     #     walk of the last τ: the tilt process noise over τ;
     # (b) the lean a turn has left in the tilt and, through the dip, in the heading (`_track_tilt_push`)
-    wx = gx - b[0]
-    wy = gy - b[1]
-    wz = gz - b[2]
     u = st.unmodelled
     extra = (_tilt_process_noise_rad2(par, math.sqrt(wx * wx + wy * wy + wz * wz), par.acc_lowpass_tau_s)
              + u.tilt_push_rad * u.tilt_push_rad)
