@@ -63,6 +63,7 @@ class NoiseParameters:
     terms: dict = field(default_factory=dict)       # name -> TermEstimate, the terms the curve shows
     not_seen: dict = field(default_factory=dict)    # name -> {"upper_bound", "recording_needed_s", "note"}
     fit: ModelFit | None = None                     # the fitted model (for plots; not serialised)
+    too_short_need_s: float | None = None           # recording too short to read any term: the length that would
 
     def to_dict(self) -> dict:
         d = {name: getattr(self, name) for name in (
@@ -78,11 +79,23 @@ class NoiseParameters:
 
 
 def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float, correlation_samples: int = 1,
-              white_deficit_s: float = 0.0) -> NoiseParameters:
+              white_deficit_s: float = 0.0, samples_to_tell: int = 0) -> NoiseParameters:
     """Decide the terms of one axis' curve and read their values. correlation_samples: how many samples apart
     the samples stop being correlated (allan_correlation): the fit uses only the τ beyond a few of those, where
-    the filter lowers white noise to N²·(1/τ − D/τ²), D = white_deficit_s."""
+    the filter lowers white noise to N²·(1/τ − D/τ²), D = white_deficit_s. samples_to_tell > 0: the samples are
+    correlated but the record is too short to tell over how many (allan_correlation): no term is read."""
     pts = octave_points(curve, axis)
+    if samples_to_tell > 0:
+        # Every τ may lie within the filter's correlation, where a fit reads the filter as a Gauss–Markov term
+        # and calls white noise "not seen" whatever the recording length, which a longer record would refute.
+        need_s = samples_to_tell / rate_hz
+        j = int(np.argmin(curve.adev[:, axis]))
+        return NoiseParameters(None, None, None, None, None, float(curve.adev[j, axis]), float(curve.taus_s[j]),
+                               float(std), flags=(
+                                   f"recording too short: neighbouring samples are correlated (the sensor's filter), "
+                                   f"and {curve.record_s:.3g} s of samples cannot tell over how many; record about "
+                                   f"{math.ceil(need_s / curve.record_s):.0f}× longer (≥ {need_s:.0f} s): "
+                                   f"no noise terms read",), too_short_need_s=need_s)
     min_tau_s = shortest_fit_tau_s(correlation_samples, rate_hz)
     short_note = []
     if min_tau_s > 0 and np.count_nonzero(pts.taus >= min_tau_s) < 3:
@@ -96,7 +109,8 @@ def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float, correlat
                                    f"recording too short: the samples are correlated over {correlation_samples} "
                                    f"samples (the sensor's filter), so only τ ≥ {min_tau_s:.3g} s can be fitted, and "
                                    f"it has fewer than 3 cluster sizes there; record about {longer:.0f}× longer "
-                                   f"(≥ {longer * pts.record_s:.0f} s): no noise terms read",))
+                                   f"(≥ {longer * pts.record_s:.0f} s): no noise terms read",),
+                               too_short_need_s=longer * pts.record_s)
     if min_tau_s > 0:
         keep = pts.taus >= min_tau_s
         pts = type(pts)(pts.taus[keep], pts.avar[keep], pts.level_n[keep], pts.level_m[keep], pts.record_s,
@@ -252,9 +266,10 @@ class StaticAllanAnalysis:
             curve = acc.curve()
             n = acc.n_samples
             std = np.sqrt(np.maximum(self._sum_sq[sensor] / n - (self._sum[sensor] / n) ** 2, 0.0))
-            lengths = self._correlation[sensor].lengths()
-            deficits = self._correlation[sensor].deficits_s(self._rate_hz)
-            axes = {ax: read_axis(curve, i, std[i], self._rate_hz, int(lengths[i]), float(deficits[i]))
+            correlation = self._correlation[sensor]
+            lengths, deficits = correlation.lengths(), correlation.deficits_s(self._rate_hz)
+            to_tell = correlation.samples_to_tell()
+            axes = {ax: read_axis(curve, i, std[i], self._rate_hz, int(lengths[i]), float(deficits[i]), int(to_tell[i]))
                     for i, ax in enumerate(AXES)}
             lo, hi = np.empty_like(curve.adev), np.empty_like(curve.adev)
             for i, ax in enumerate(AXES):
@@ -305,15 +320,24 @@ def summary(result: AllanResult) -> list[str]:
     for sensor, axes in result.parameters.items():
         name, unit, scale = _SUMMARY_UNITS[sensor]
         bias_unit, bias_scale = _BIAS_UNITS[sensor]
-        white = "  ".join(f"{ax} " + ("not seen" if p.white_noise is None else f"{p.white_noise * scale:.3g}")
+        white = "  ".join(f"{ax} " + (_unread(p) if p.white_noise is None else f"{p.white_noise * scale:.3g}")
                           for ax, p in axes.items())
-        bias = "  ".join(f"{ax} " + ("not seen" if p.bias_instability is None
+        bias = "  ".join(f"{ax} " + (_unread(p) if p.bias_instability is None
                                      else f"{p.bias_instability * bias_scale:.3g}") for ax, p in axes.items())
         lines.append(f"  {sensor:<5} {name} ({unit}): {white};  bias instability ({bias_unit}): {bias}")
+    needs = [p.too_short_need_s for axes in result.parameters.values() for p in axes.values()
+             if p.too_short_need_s is not None]
+    if needs:
+        lines.append(f"  recording too short for {len(needs)} axes: record ≥ {max(needs):.0f} s of the sensor at "
+                     f"rest (details below)")
     if assumed:
         keys = sorted({key.rsplit(".", 1)[0] for key in assumed})
         lines.append(f"  not seen in this recording, the filter assumes instead: {', '.join(keys)} (details below)")
     return lines
+
+
+def _unread(p: NoiseParameters) -> str:
+    return "too short" if p.too_short_need_s is not None else "not seen"
 
 
 def describe(result: AllanResult) -> list[str]:

@@ -14,6 +14,14 @@ every lag from twice the length to MAX_LAG below TAIL_THRESHOLD (many times the 
 CORR_SAMPLES is large for D below, whose error moves N directly). A correlation that lingers is a slow process (a Gauss–Markov bias, a random walk) that the term fit
 models itself: those samples keep every τ.
 
+A short record cannot always tell the two apart. Beyond a filter's span the estimated autocorrelation scatters
+with variance (1 + 2·Σρ(j)²)/n over the lags j of the span (Bartlett's formula, Box & Jenkins, Time Series
+Analysis, §6.2.2), which for a long filter is many times 1/n; the tail then only says "slow process" when
+TAIL_THRESHOLD is TELL_SIGMAS of that scatter. A record with correlated neighbours (lag-1 correlation above
+CORR_THRESHOLD) whose tail is above the threshold but within that scatter, or that has fewer than 4·MAX_LAG
+samples, has a correlation length nobody can tell: `samples_to_tell` says how many samples would, and the Allan
+fit reads no term from it (a fit over every τ would read the filter as a Gauss–Markov bump).
+
 Beyond its span the filter still lowers the white noise's Allan variance, by a share that falls as 1/τ: a filter
 with unit gain at zero frequency turns the phase's covariance G(h) = −|h|/2 (a Brownian motion) into its average
 over the lag distribution a(s) of the filter's autocorrelation, which is G again for |h| beyond the span and
@@ -32,6 +40,7 @@ MAX_LAG = 64
 CORR_THRESHOLD = 0.1
 TAIL_THRESHOLD = 0.06
 FIT_LENGTHS = 8
+TELL_SIGMAS = 4.0     # a filter's tail passes TAIL_THRESHOLD over ~60 lags but in 1 record of ~300 (normal tails)
 
 
 class SampleCorrelation:
@@ -51,7 +60,7 @@ class SampleCorrelation:
 
     def lengths(self) -> np.ndarray:
         """Per axis: the filter's correlation length in samples (see the module doc); 1 for independent samples,
-        for a slow process and with too few samples to tell."""
+        for a slow process and where the record is too short to tell (samples_to_tell)."""
         return self._filter()[0]
 
     def deficits_s(self, rate_hz: float) -> np.ndarray:
@@ -59,15 +68,21 @@ class SampleCorrelation:
         0 where lengths() finds no filter."""
         return self._filter()[1] / rate_hz
 
-    def _filter(self) -> tuple[np.ndarray, np.ndarray]:
-        """(lengths, deficits in samples) per axis."""
+    def samples_to_tell(self) -> np.ndarray:
+        """Per axis: 0 when the samples tell their correlation (a filter's length, independent samples or a slow
+        process), else about how many samples would tell it (module doc)."""
+        return self._filter()[2]
+
+    def _filter(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(lengths, deficits in samples, samples needed to tell) per axis."""
         lengths, deficits = np.ones(self._n_axes, dtype=int), np.zeros(self._n_axes)
-        if self._n < 4 * MAX_LAG:
-            return lengths, deficits
+        needed = np.zeros(self._n_axes, dtype=int)
+        if self._n < 8:
+            return lengths, deficits, needed      # nothing to read; the Allan fit has too few cluster sizes anyway
         x = np.concatenate(self._rows)
         x = x - x.mean(axis=0)
         n = len(x)
-        lags = np.arange(1, MAX_LAG + 1)
+        lags = np.arange(1, min(MAX_LAG, n // 4) + 1)    # every lag to MAX_LAG once there are 4·MAX_LAG samples
         for axis in range(self._n_axes):
             col = np.ascontiguousarray(x[:, axis])    # contiguous: dot products over a strided column do not vectorise
             var = float(np.dot(col, col)) / n
@@ -75,17 +90,25 @@ class SampleCorrelation:
                 continue
             rho = np.array([np.dot(col[:-lag], col[lag:]) / (n - lag) for lag in lags]) / var
             below = np.flatnonzero(rho < CORR_THRESHOLD)
-            if not len(below) or below[0] == 0 or below[0] > MAX_LAG // 4:
-                continue                          # independent, or correlated too long for a filter
+            if rho[0] < CORR_THRESHOLD:
+                continue                          # independent neighbours
+            if not len(below) or below[0] > MAX_LAG // 4:
+                continue                          # correlated too long for a filter: a slow process
             length = int(below[0]) + 1
-            if np.all(np.abs(rho[2 * length - 1:]) < TAIL_THRESHOLD):   # and then it vanishes: a filter's
+            # The filter's lags (to twice its length) set the scatter of the tail (Bartlett's formula), and with
+            # it the record that tells a filter from a slow process.
+            tell = max(4 * MAX_LAG, int(np.ceil((TELL_SIGMAS / TAIL_THRESHOLD) ** 2
+                                                * (1.0 + 2.0 * float(np.sum(rho[:2 * length] ** 2))))))
+            if n >= 4 * MAX_LAG and np.all(np.abs(rho[2 * length - 1:]) < TAIL_THRESHOLD):   # then it vanishes: a filter's
                 lengths[axis] = length
                 # D sums the filter's span: the lags up to where the correlation is lost in the estimate's noise
                 # (2/√n) from the length on, at most 2·length (each noisy lag adds its lag times its noise)
                 lost = np.flatnonzero(rho[length - 1:2 * length] < 2.0 / np.sqrt(n))
                 span = rho[:length - 1 + int(lost[0])] if len(lost) else rho[:2 * length]
                 deficits[axis] = 1.5 * 2.0 * float(np.dot(lags[:len(span)], span)) / (1.0 + 2.0 * float(np.sum(span)))
-        return lengths, deficits
+            elif n < tell:
+                needed[axis] = tell               # the tail is within the estimate's scatter: filter or slow process?
+        return lengths, deficits, needed
 
 
 def shortest_fit_tau_s(length_samples: int, rate_hz: float) -> float:

@@ -234,7 +234,8 @@ def _allan(args) -> int:
         _write_plot(args, plot_allan, res)
     from ahrsd.calibration.allan import summary
 
-    lines = [f"Allan analysis of {args.recording}: {res.duration_s / 3600:.2f} h at {res.rate_hz:.1f} Hz; noise "
+    length = f"{res.duration_s / 3600:.2f} h" if res.duration_s >= 360 else f"{res.duration_s:.1f} s"
+    lines = [f"Allan analysis of {args.recording}: {length} at {res.rate_hz:.1f} Hz; noise "
              f"parameters {note}"]
     lines += summary(res) + ["  details:"] + ["  " + line for line in describe(res)]
     _emit(args, payload, "\n".join(lines))

@@ -1,11 +1,12 @@
-"""A record too short for the Allan fit gets a reason, not a crash (calibration/allan.py read_axis,
-calibration/allan_terms.py select_terms)."""
+"""A record too short for the Allan fit gets a reason, not a crash or a wrong reading (calibration/allan.py
+read_axis, calibration/allan_terms.py select_terms, calibration/allan_correlation.py samples_to_tell)."""
 
 import numpy as np
 import pytest
 
-from ahrsd.calibration.allan import analyse_static, read_axis
+from ahrsd.calibration.allan import analyse_static, read_axis, summary
 from ahrsd.calibration.allan_adev import StreamingAllan
+from ahrsd.calibration.allan_correlation import SampleCorrelation
 from ahrsd.calibration.allan_terms import octave_points
 
 RATE_HZ = 819.2
@@ -45,3 +46,63 @@ def test_too_few_cluster_sizes_beyond_the_filter_reads_no_term_and_says_how_long
     p = read_axis(curve, 0, SIGMA, RATE_HZ, correlation_samples=40)
     assert p.white_noise is None and p.gauss_markov_sigma is None
     assert len(p.flags) == 1 and p.flags[0].startswith("recording too short") and "no noise terms read" in p.flags[0]
+
+
+def _bartlett_length(length: int) -> int:
+    """The window's own correlation length: the first lag where its autocorrelation is below 0.1."""
+    w = np.bartlett(length + 2)[1:-1]
+    acf = np.correlate(w, w, "full")[length - 1:]
+    return int(np.flatnonzero(acf / acf[0] < 0.1)[0])
+
+
+def test_a_record_too_short_to_tell_the_filter_length_reads_no_term_and_the_advised_length_reads_white_noise():
+    # 2000 samples through a 16-tap window: the autocorrelation's tail scatters by ~0.07 (Bartlett's formula), so
+    # the record cannot tell the window from a slow process. A fit over every τ read the window as a Gauss–Markov
+    # term and said white noise was "not seen … whatever the recording length".
+    n = 2000
+    result = analyse_static(np.arange(n) / RATE_HZ, gyro_rad_s=_bartlett_filtered(n, 16, seed=1))
+    needs = []
+    for axis, p in result.parameters["gyro"].items():
+        assert p.white_noise is None and p.gauss_markov_sigma is None and not p.terms, (axis, p.flags)
+        assert len(p.flags) == 1 and p.flags[0].startswith("recording too short"), (axis, p.flags)
+        assert "no noise terms read" in p.flags[0]
+        needs.append(p.too_short_need_s)
+    assert min(needs) * RATE_HZ > n
+    lead = summary(result)
+    assert "x too short  y too short  z too short" in lead[0] and "not seen" not in lead[0]
+    assert lead[1] == f"  recording too short for 3 axes: record ≥ {max(needs):.0f} s of the sensor at rest (details below)"
+    # the length it advises reads the white noise the samples have, on every axis
+    longer = int(max(needs) * RATE_HZ)
+    result = analyse_static(np.arange(longer) / RATE_HZ, gyro_rad_s=_bartlett_filtered(longer, 16, seed=2))
+    for axis, p in result.parameters["gyro"].items():
+        assert p.white_noise == pytest.approx(DENSITY, rel=0.1), (axis, p.flags)
+        assert p.gauss_markov_sigma is None, axis
+
+
+def test_the_samples_it_asks_for_tell_the_filter_length():
+    true_length = _bartlett_length(16)
+    asked = []
+    for seed in range(8):
+        c = SampleCorrelation()
+        c.add(_bartlett_filtered(2000, 16, seed=100 + seed))
+        asked.append(int(np.max(c.samples_to_tell())))
+    assert min(asked) > 2000
+    for seed in range(8):
+        c = SampleCorrelation()
+        c.add(_bartlett_filtered(max(asked), 16, seed=200 + seed))
+        assert list(c.samples_to_tell()) == [0, 0, 0], seed
+        assert np.all(np.abs(c.lengths() - true_length) <= 1), (seed, c.lengths(), true_length)
+
+
+def test_short_independent_samples_and_a_short_slow_process_are_not_called_too_short():
+    rng = np.random.default_rng(7)
+    n = 1500
+    white = rng.normal(0.0, SIGMA, (n, 3))
+    result = analyse_static(np.arange(n) / RATE_HZ, gyro_rad_s=white)
+    for axis, p in result.parameters["gyro"].items():
+        assert p.white_noise == pytest.approx(DENSITY, rel=0.2), (axis, p.flags)
+    # a random walk is correlated far beyond any filter: the term fit models it from every τ, whatever the length
+    walk = np.cumsum(rng.normal(size=(n, 3)), axis=0) + 0.1 * rng.normal(size=(n, 3))
+    c = SampleCorrelation()
+    c.add(walk)
+    assert list(c.samples_to_tell()) == [0, 0, 0] and list(c.lengths()) == [1, 1, 1]
