@@ -62,121 +62,55 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
-    import logging
-    import math
+class RecordError(Exception):
+    """A recording that cannot start: one line on stderr, and the exit status (1 failed, 2 bad usage)."""
+
+    def __init__(self, message: str, status: int = 1):
+        super().__init__(message)
+        self.status = status
+
+
+def run(args, open_bus=None) -> int:
+    """open_bus(kind, **options): the chip's bus (default drivers.source.open_chip_bus; a test passes a faulty one)."""
+    import sys
+
+    from ahrsd.drivers.source import open_chip_bus
+
+    try:
+        return _record(args, open_bus or open_chip_bus)
+    except RecordError as exc:
+        print(f"ahrsd record: {exc}", file=sys.stderr)
+        return exc.status
+
+
+def _record(args, open_bus) -> int:
+    """Check the options, open the chip and the files, record, and say what was written."""
     import signal
     import sys
     import time
 
-    from ahrsd.drivers.errors import DriverError, FrameError
-    from ahrsd.drivers.read_failures import ReadFailures
-    from ahrsd.drivers.recording import TRUTH_COLUMNS, RecordingWriter
-    from ahrsd.drivers.source import open_chip_bus, start_chip_source
+    from ahrsd.drivers.source_recorder import SourceRecorder
 
-    log = logging.getLogger("ahrsd.record")
-    if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):   # nan/inf: traceback
-        print("ahrsd record: --seconds must be a positive, finite number of seconds", file=sys.stderr)
-        return 2
-
+    _check_options(args)
     simulated = args.sim is not None
-    sim_only = [f"--{name}" for name in SIM_ONLY_OPTIONS if getattr(args, name) is not None]
-    if not simulated and sim_only:
-        print(f"ahrsd record: {', '.join(sim_only)} only apply to the simulated chip (--sim), not to --spi",
-              file=sys.stderr)
-        return 2
     # a simulated run without an end is a live demo: pace it, or it would fill the disk as fast as the CPU goes
     paced = (not simulated) or args.realtime or args.seconds is None
-    clock = time.monotonic if paced else None
-    try:
-        if simulated:
-            from ahrsd.simulation import SCENARIOS
-
-            if args.sim not in SCENARIOS:
-                print(f"ahrsd record: unknown scenario {args.sim!r}; choose one of: {', '.join(SCENARIOS)}",
-                      file=sys.stderr)
-                return 2
-            bus = open_chip_bus("sim", scenario=args.sim, seed=SIM_SEED if args.seed is None else args.seed,
-                                errors=SIM_ERRORS if args.errors is None else args.errors, clock=clock)
-        else:
-            bus = open_chip_bus("spi", spi_device=args.spi)
-        # one timing path (drivers.sample_timer): the host clock, or the free-running chip's own
-        source = start_chip_source(bus, "ADIS16405", clock=clock or bus.now, self_test=not args.no_self_test,
-                                   sample_rate_hz=args.rate_hz, filter_n=args.filter_taps)
-        imu = source.driver
-    except DriverError as exc:
-        print(f"ahrsd record: {exc}", file=sys.stderr)
-        return 1
-
-    # the GNSS source first: when it cannot start, the run ends before any file is created (a header-only
-    # recording would look like a recording that caught nothing)
-    try:
-        gnss = _open_gnss(args, bus, source, paced)
-    except (OSError, ValueError, DriverError) as exc:
-        print(f"ahrsd record: GNSS: {exc}", file=sys.stderr)
-        imu.close()
-        return 1
-    extra = ("temp_c", "supply_v", "flags", "counter") + (TRUTH_COLUMNS if simulated else ())
-    try:
-        writer = RecordingWriter(args.output, extra_columns=extra)
-    except OSError as exc:
-        print(f"ahrsd record: cannot write {args.output}: {exc}", file=sys.stderr)
-        imu.close()
-        if gnss is not None:
-            gnss.close()
-            gnss.path.unlink(missing_ok=True)     # its header only: nothing was recorded
-        return 1
+    bus, source = _open_chip(args, paced, open_bus)
+    imu = source.driver
+    gnss, writer = _open_files(args, bus, source, paced)
+    status = _LiveStatus.wanted(args, imu)
+    recorder = SourceRecorder(source, writer, paced=paced,
+                              truth_q_wxyz=(lambda: bus.output_truth_q_wxyz) if simulated else None,
+                              on_sample=lambda sample: _after_sample(recorder, sample, gnss, status))
+    n_target = None if args.seconds is None else max(1, int(round(args.seconds * imu.sample_rate_hz)))
 
     def _stop(signum, frame):
         raise KeyboardInterrupt        # SIGTERM ends the recording like Ctrl-C: the file is flushed and closed
 
     previous_sigterm = signal.signal(signal.SIGTERM, _stop)
-    status = None if args.quiet or not sys.stderr.isatty() else sys.stderr
-    period = imu.sample_period_s
-    n_target = None if args.seconds is None else max(1, int(round(args.seconds * imu.sample_rate_hz)))
-    written = 0
-    failures = ReadFailures()     # the daemon's failure policy (drivers.read_failures)
-    rc = 0
-    wall0 = time.monotonic()
-    next_poll = wall0
-    next_status = wall0
-    first = last = None
     try:
-        while n_target is None or written < n_target:
-            if paced:
-                delay = next_poll - time.monotonic()
-                if delay > 0:
-                    time.sleep(delay)
-            try:
-                sample = source.read_one(source.clock())
-            except (DriverError, OSError) as exc:
-                if failures.read_failed(exc).failed:
-                    why = (f" ({failures.consecutive_frame_errors} corrupt frames in a row)"
-                           if isinstance(exc, FrameError) else "")
-                    print(f"\nahrsd record: sensor failure{why}: {exc}", file=sys.stderr)
-                    rc = 1
-                    break
-                next_poll = time.monotonic() + period   # a corrupt frame: read the next sample
-                continue
-            failures.read_ok()
-            if paced:
-                # no data-ready line: read when the sample timer expects the next sample
-                next_poll = max(source.next_read_time(),
-                                time.monotonic() + (0.25 * period if sample is None else 0.0))
-            if sample is None:
-                continue
-            truth = getattr(bus, "output_truth_q_wxyz", None) if simulated else None
-            writer.write(sample, truth_q_wxyz=truth)
-            written += 1
-            if gnss is not None:
-                gnss.poll(sample.t_s, time.monotonic())
-            first = sample if first is None else first
-            last = sample
-            if status is not None:
-                now = time.monotonic()
-                if now >= next_status:
-                    next_status = now + 0.25
-                    _print_status(status, written, now - wall0, last, imu.counters)
+        if not recorder.run(n_target):
+            print(f"\nahrsd record: {recorder.failure}", file=sys.stderr)
     except KeyboardInterrupt:
         pass
     finally:
@@ -184,20 +118,97 @@ def run(args) -> int:
         writer.close()
         imu.close()
         gnss_summary = gnss.close() if gnss is not None else ""
-    if status is not None:
-        status.write("\n")
-    elapsed = time.monotonic() - wall0
+    status.end()
+    _print_summary(args, recorder, source, time.monotonic() - status.wall0, gnss_summary)
+    if simulated:
+        import logging
+
+        logging.getLogger("ahrsd.record").debug("simulated chip: %s", bus.stats)
+    return 0 if recorder.failure is None else 1
+
+
+def _check_options(args) -> None:
+    """Refuse what cannot be recorded as asked (exit 2)."""
+    import math
+
+    if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):   # nan/inf: traceback
+        raise RecordError("--seconds must be a positive, finite number of seconds", 2)
+    sim_only = [f"--{name}" for name in SIM_ONLY_OPTIONS if getattr(args, name) is not None]
+    if args.sim is None and sim_only:
+        raise RecordError(f"{', '.join(sim_only)} only apply to the simulated chip (--sim), not to --spi", 2)
+    if args.sim is not None:
+        from ahrsd.simulation import SCENARIOS
+
+        if args.sim not in SCENARIOS:
+            raise RecordError(f"unknown scenario {args.sim!r}; choose one of: {', '.join(SCENARIOS)}", 2)
+
+
+def _open_chip(args, paced: bool, open_chip_bus):
+    """The chip's bus and its started source, read through drivers.source."""
+    import time
+
+    from ahrsd.drivers.errors import DriverError
+    from ahrsd.drivers.source import start_chip_source
+
+    clock = time.monotonic if paced else None
+    try:
+        if args.sim is not None:
+            bus = open_chip_bus("sim", scenario=args.sim, seed=SIM_SEED if args.seed is None else args.seed,
+                                errors=SIM_ERRORS if args.errors is None else args.errors, clock=clock)
+        else:
+            bus = open_chip_bus("spi", spi_device=args.spi)
+        # one timing path (drivers.sample_timer): the host clock, or the free-running chip's own
+        source = start_chip_source(bus, "ADIS16405", clock=clock or bus.now, self_test=not args.no_self_test,
+                                   sample_rate_hz=args.rate_hz, filter_n=args.filter_taps)
+    except DriverError as exc:
+        raise RecordError(str(exc)) from None
+    return bus, source
+
+
+def _open_files(args, bus, source, paced: bool):
+    """The GNSS recorder (or None) and the IMU recording's writer. The GNSS source first: when it cannot start,
+    the run ends before any file is created (a header-only recording would look like one that caught nothing)."""
+    from ahrsd.drivers.errors import DriverError
+    from ahrsd.drivers.recording import TRUTH_COLUMNS, RecordingWriter
+
+    try:
+        gnss = _open_gnss(args, bus, source, paced)
+    except (OSError, ValueError, DriverError) as exc:
+        source.driver.close()
+        raise RecordError(f"GNSS: {exc}") from None
+    extra = ("temp_c", "supply_v", "flags", "counter") + (TRUTH_COLUMNS if args.sim is not None else ())
+    try:
+        return gnss, RecordingWriter(args.output, extra_columns=extra)
+    except OSError as exc:
+        source.driver.close()
+        if gnss is not None:
+            gnss.close()
+            gnss.path.unlink(missing_ok=True)     # its header only: nothing was recorded
+        raise RecordError(f"cannot write {args.output}: {exc}") from None
+
+
+def _after_sample(recorder, sample, gnss, status) -> None:
+    import time
+
+    now = time.monotonic()
+    if gnss is not None:
+        gnss.poll(sample.t_s, now)
+    status.show(recorder.written, sample, now)
+
+
+def _print_summary(args, recorder, source, elapsed_s: float, gnss_summary: str) -> None:
+    """What was written, and what went wrong on the way, in words."""
+    import logging
+    import sys
+
     counters = source.counters()        # the driver's counters and the source's lost samples
-    span = 0.0 if first is None else last.t_s - first.t_s
     problems = problems_in_words(counters)
-    print(f"ahrsd record: wrote {written} samples ({span:.2f} s of data at {imu.sample_rate_hz:.1f} SPS) to "
-          f"{args.output} in {elapsed:.2f} s" + (f"; {', '.join(problems)}" if problems else ""), file=sys.stderr)
+    print(f"ahrsd record: wrote {recorder.written} samples ({recorder.span_s:.2f} s of data at "
+          f"{source.driver.sample_rate_hz:.1f} SPS) to {args.output} in {elapsed_s:.2f} s"
+          + (f"; {', '.join(problems)}" if problems else ""), file=sys.stderr)
     if gnss_summary:
         print(f"ahrsd record: {gnss_summary}", file=sys.stderr)
-    log.debug("counters: %s", counters)
-    if simulated:
-        log.debug("simulated chip: %s", bus.stats)
-    return rc
+    logging.getLogger("ahrsd.record").debug("counters: %s", counters)
 
 
 # What the end-of-run line reports, in the driver's and the source's counter names (drivers/adis16405.py
@@ -259,16 +270,44 @@ def _open_gnss(args, bus, source, paced: bool):
     return GnssRecorder.for_scenario(path, args.sim, seed, bus.now, source.clock, lever_arm_m=arm)
 
 
-def _print_status(out, written: int, elapsed: float, s, counters: dict) -> None:
-    import math
+class _LiveStatus:
+    """The one-line live status on a terminal (none with --quiet or in a pipe), four times a second."""
 
-    g = [math.degrees(v) for v in s.gyro_rad_s]
-    a, m = s.accel_m_s2, s.mag_ut
-    rejected = counters["garbage_frames"] + counters["short_reads"] + counters["bus_errors"]
-    line = (f"\r{written:8d} samples {written / max(elapsed, 1e-9):7.1f}/s  "
-            f"gyro {g[0]:+7.2f} {g[1]:+7.2f} {g[2]:+7.2f} °/s  "
-            f"accel {a[0]:+6.2f} {a[1]:+6.2f} {a[2]:+6.2f} m/s²  "
-            f"mag {m[0]:+6.1f} {m[1]:+6.1f} {m[2]:+6.1f} µT  "
-            f"T {s.temp_c:4.1f}°C  flags {s.flags.value:#05x}  rejected {rejected}")
-    out.write(line)
-    out.flush()
+    PERIOD_S = 0.25
+
+    def __init__(self, imu, out=None):
+        import time
+
+        self.imu = imu
+        self.out = out
+        self.wall0 = time.monotonic()
+        self._next = self.wall0
+
+    @classmethod
+    def wanted(cls, args, imu) -> "_LiveStatus":
+        import sys
+
+        return cls(imu, None if args.quiet or not sys.stderr.isatty() else sys.stderr)
+
+    def show(self, written: int, s, now: float) -> None:
+        import math
+
+        if self.out is None or now < self._next:
+            return
+        self._next = now + self.PERIOD_S
+        counters = self.imu.counters
+        g = [math.degrees(v) for v in s.gyro_rad_s]
+        a, m = s.accel_m_s2, s.mag_ut
+        rejected = counters["garbage_frames"] + counters["short_reads"] + counters["bus_errors"]
+        elapsed = now - self.wall0
+        line = (f"\r{written:8d} samples {written / max(elapsed, 1e-9):7.1f}/s  "
+                f"gyro {g[0]:+7.2f} {g[1]:+7.2f} {g[2]:+7.2f} °/s  "
+                f"accel {a[0]:+6.2f} {a[1]:+6.2f} {a[2]:+6.2f} m/s²  "
+                f"mag {m[0]:+6.1f} {m[1]:+6.1f} {m[2]:+6.1f} µT  "
+                f"T {s.temp_c:4.1f}°C  flags {s.flags.value:#05x}  rejected {rejected}")
+        self.out.write(line)
+        self.out.flush()
+
+    def end(self) -> None:
+        if self.out is not None:
+            self.out.write("\n")
