@@ -13,6 +13,8 @@ Exit status: 0 done, 1 bad input (recording, calibration, parameters, output pat
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from ahrsd.estimator import ESTIMATORS
 
 # The CSV columns, picked by name from the replay table (ahrsd.estimator.replay.ATTITUDE_COLUMNS, which
@@ -283,97 +285,161 @@ def _plot(args, trace, title: str, fixes) -> None:
 
 
 def _run(args) -> int:
-    import math
+    """Read the inputs, build the estimator, replay the recording into the output, draw, and summarise."""
     import os
-    import sys
     import time
 
-    from ahrsd.drivers.recording import RecordingFormatError, iter_samples
-    from ahrsd.estimator import make_estimator
-    from ahrsd.estimator.replay import ATTITUDE_COLUMNS, HEADING_COLUMNS, NAV_COLUMNS, replay_attitude
-
-    from .progress import expected_rows, progress_bar
-
-    t_start = time.perf_counter()
-    cpu_start = time.process_time()
-    trace = None
-    if args.plot:
-        from ahrsd.core.plotting import PlotUnavailableError, pyplot
-        from ahrsd.estimator.replay_plot import ReplayTrace
-
-        try:
-            pyplot()
-        except PlotUnavailableError as exc:
-            raise ReplayUsageError(str(exc)) from None
-        trace = ReplayTrace()
-        trace.true_north = args.lat is not None or args.gnss is not None
+    t_start, cpu_start = time.perf_counter(), time.process_time()
+    trace = _plot_trace(args)
     params = _parse_params(args.params)
     estimator_name = args.estimator or ("ins" if args.gnss else "mekf")
-    fixes, validator, first_position = None, None, None
-    if args.gnss:
-        from ahrsd.drivers.gnss.validation import GnssFixValidator
-
-        validator = GnssFixValidator(name=f"replay {args.gnss}")
-        fixes, first_position = _gnss_fixes(args.gnss, validator)
+    fixes, validator, first_position = _gnss_input(args)
     declination = _declination_rad(args, first_position)
+    calibration = _load_calibration(args)
+    estimator = _make_estimator(estimator_name, declination, calibration, params, aided=fixes is not None)
+    if os.path.isdir(args.recording):
+        raise ReplayError(f"{args.recording}: is a directory, not a recording")
+    done = _replay(args, estimator, calibration, fixes, trace)
+    if trace is not None:
+        from ahrsd.estimator.replay_plot import replay_title
 
-    calibration = None
-    if args.calibration:
-        from ahrsd.calibration.store import CalibrationFileError, load_calibration_file
+        position = (args.lat, args.lon) if args.lat is not None else first_position
+        _plot(args, trace, replay_title(os.path.basename(args.recording), estimator_name, aided=done.aided,
+                                        declination_rad=declination, position_deg=position,
+                                        position_from_gnss=args.lat is None), fixes)
+    if not args.quiet:
+        _print_summary(args, done, estimator_name, estimator, declination, validator,
+                       time.perf_counter() - t_start, time.process_time() - cpu_start)
+    return 0
 
-        try:
-            calibration = load_calibration_file(args.calibration)
-        except CalibrationFileError as exc:
-            raise ReplayError(str(exc)) from None
 
-    if calibration is not None and estimator_name == "ins" and "mag_calibration_sigma_rad" not in params:
+def _plot_trace(args):
+    """With --plot: the trace the figure is drawn from (matplotlib checked before the replay runs), else None."""
+    if not args.plot:
+        return None
+    from ahrsd.core.plotting import PlotUnavailableError, pyplot
+    from ahrsd.estimator.replay_plot import ReplayTrace
+
+    try:
+        pyplot()
+    except PlotUnavailableError as exc:
+        raise ReplayUsageError(str(exc)) from None
+    trace = ReplayTrace()
+    trace.true_north = args.lat is not None or args.gnss is not None
+    return trace
+
+
+def _gnss_input(args):
+    """With --gnss: (the usable fixes, their validator, the first fix's position), else (None, None, None)."""
+    if not args.gnss:
+        return None, None, None
+    from ahrsd.drivers.gnss.validation import GnssFixValidator
+
+    validator = GnssFixValidator(name=f"replay {args.gnss}")
+    fixes, first_position = _gnss_fixes(args.gnss, validator)
+    return fixes, validator, first_position
+
+
+def _load_calibration(args):
+    """The --calibration file's calibration, or None."""
+    if not args.calibration:
+        return None
+    from ahrsd.calibration.store import CalibrationFileError, load_calibration_file
+
+    try:
+        return load_calibration_file(args.calibration)
+    except CalibrationFileError as exc:
+        raise ReplayError(str(exc)) from None
+
+
+def _make_estimator(name: str, declination_rad: float, calibration, params: dict, aided: bool):
+    """The estimator, told (as the daemon does) how far ins may trust the calibration's magnetometer."""
+    from ahrsd.estimator import make_estimator
+
+    if calibration is not None and name == "ins" and "mag_calibration_sigma_rad" not in params:
         from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad
 
         # how far ins may trust this calibration's magnetometer: as the daemon does (NaN: unknown)
         params = {**params, "mag_calibration_sigma_rad": calibration_heading_sigma_rad(calibration)}
     try:
-        estimator = make_estimator(estimator_name, declination_rad=declination, **params)
+        estimator = make_estimator(name, declination_rad=declination_rad, **params)
     except ModuleNotFoundError as exc:
-        raise ReplayError(f"estimator {estimator_name!r} is not available ({exc})") from None
+        raise ReplayError(f"estimator {name!r} is not available ({exc})") from None
     except (TypeError, ValueError) as exc:
-        raise ReplayError(f"estimator {estimator_name!r}: {exc}") from None
-    aided = fixes is not None
+        raise ReplayError(f"estimator {name!r}: {exc}") from None
     if aided and not hasattr(estimator, "update_gnss"):
-        raise ReplayError(f"--gnss needs the aided estimator (ins); {estimator_name} takes no GNSS fixes")
+        raise ReplayError(f"--gnss needs the aided estimator (ins); {name} takes no GNSS fixes")
+    return estimator
 
-    if os.path.isdir(args.recording):
-        raise ReplayError(f"{args.recording}: is a directory, not a recording")
-    first_t, last_t, count = math.nan, math.nan, 0
 
-    def checked(samples):
-        # The recording is streamed (constant memory); t_s must be finite for the estimator's Δt.
-        nonlocal first_t, last_t, count
-        for sample in samples:
+class _CheckedSamples:
+    """The recording's samples, streamed (constant memory), with their count and first and last times; t_s must
+    be finite for the estimator's Δt."""
+
+    def __init__(self, path: str, samples):
+        import math
+
+        self.path, self._samples = path, samples
+        self.first_t = self.last_t = math.nan
+        self.count = 0
+
+    def __iter__(self):
+        import math
+
+        for sample in self._samples:
             t = sample.t_s
             if not math.isfinite(t):
-                raise ReplayError(f"{args.recording}: sample {count + 1}: t_s is not a finite number")
-            if count == 0:
-                first_t = t
-            last_t = t
-            count += 1
+                raise ReplayError(f"{self.path}: sample {self.count + 1}: t_s is not a finite number")
+            if self.count == 0:
+                self.first_t = t
+            self.last_t = t
+            self.count += 1
             yield sample
 
+
+@dataclass
+class _ReplayDone:
+    """What the replay loop did: the samples it read, whether GNSS aided it, the heading-state changes (t, state)
+    and the CPU time of the loop (read, estimate, write)."""
+
+    samples: _CheckedSamples
+    aided: bool
+    history: list
+    loop_cpu_s: float
+
+
+def _output_order(aided: bool) -> tuple[list[int], int]:
+    """The replay table's columns in the output CSV's order, and the heading-state column of the table."""
+    from ahrsd.estimator.replay import ATTITUDE_COLUMNS, HEADING_COLUMNS, NAV_COLUMNS
+
+    order = [ATTITUDE_COLUMNS.index(name) for name in OUTPUT_COLUMNS]
+    if aided:
+        order += [len(ATTITUDE_COLUMNS) + NAV_COLUMNS.index(name) for name in NAV_OUTPUT_COLUMNS]
+        order += [len(ATTITUDE_COLUMNS) + len(NAV_COLUMNS) + HEADING_COLUMNS.index(name)
+                  for name in HEADING_OUTPUT_COLUMNS]
+    return order, len(ATTITUDE_COLUMNS) + len(NAV_COLUMNS) + HEADING_COLUMNS.index("heading_state")
+
+
+def _replay(args, estimator, calibration, fixes, trace) -> _ReplayDone:
+    """Stream the recording (calibrated) through the estimator into the output file, a table at a time."""
+    import time
+
+    from ahrsd.drivers.recording import RecordingFormatError, iter_samples
+    from ahrsd.estimator.replay import replay_attitude
+
+    from .progress import expected_rows, progress_bar
+
+    aided = fixes is not None
     try:
         out = _Output(args.output, AIDED_OUTPUT_HEADER, _FORMAT + "," + _NAV_FORMAT) if aided else _Output(args.output)
     except OSError as exc:
         raise ReplayError(f"{args.output}: cannot write: {exc.strerror or exc}") from None
-    samples = checked(iter_samples(args.recording, strict=False))   # a file cut mid-row: its complete rows
-    if calibration is not None and not calibration.is_identity:
-        samples = map(calibration.apply, samples)
+    checked = _CheckedSamples(args.recording, iter_samples(args.recording, strict=False))   # a file cut mid-row: its complete rows
+    samples = map(calibration.apply, checked) if calibration is not None and not calibration.is_identity else checked
     t_run = time.process_time()
+    history: list[tuple[float, int]] = []
     try:
-        order = [ATTITUDE_COLUMNS.index(name) for name in OUTPUT_COLUMNS]
-        if aided:
-            order += [len(ATTITUDE_COLUMNS) + NAV_COLUMNS.index(name) for name in NAV_OUTPUT_COLUMNS]
-            order += [len(ATTITUDE_COLUMNS) + len(NAV_COLUMNS) + HEADING_COLUMNS.index(name)
-                      for name in HEADING_OUTPUT_COLUMNS]
-        state_col = len(ATTITUDE_COLUMNS) + len(NAV_COLUMNS) + HEADING_COLUMNS.index("heading_state")
-        history: list[tuple[float, int]] = []
+        order, state_col = _output_order(aided)
         true_north = args.lat is not None or aided
         with progress_bar(args, expected_rows(args.recording), "replay") as bar:
             for table in replay_attitude(estimator, samples, true_north=true_north, fixes=fixes):
@@ -383,7 +449,7 @@ def _run(args) -> int:
                 bar.update(len(table))
                 if trace is not None:
                     trace.add(table)
-        if count == 0:
+        if checked.count == 0:
             raise ReplayError(f"{args.recording}: the recording has a header but no samples")
         out.commit()
     except FileNotFoundError:
@@ -396,37 +462,34 @@ def _run(args) -> int:
         raise ReplayError(f"{exc.filename or args.output}: {exc.strerror or exc}") from None
     finally:
         out.discard()
-    t_loop = time.process_time() - t_run
-    if trace is not None:
-        from ahrsd.estimator.replay_plot import replay_title
+    return _ReplayDone(checked, aided, history, time.process_time() - t_run)
 
-        position = (args.lat, args.lon) if args.lat is not None else first_position
-        _plot(args, trace, replay_title(os.path.basename(args.recording), estimator_name, aided=aided,
-                                        declination_rad=declination, position_deg=position,
-                                        position_from_gnss=args.lat is None), fixes)
-    wall = time.perf_counter() - t_start
-    cpu = time.process_time() - cpu_start
 
-    if not args.quiet:
-        duration = last_t - first_t
-        rate = (count - 1) / duration if count > 1 and duration > 0 else math.nan
-        if math.isfinite(rate):
-            duration += 1.0 / rate
-        speed = duration / wall if wall > 0 else math.inf
-        cpu_speed = duration / cpu if cpu > 0 else math.inf
-        where = ("magnetic north (no position)" if args.lat is None and not aided
-                 else f"true north, declination {math.degrees(declination):+.2f}°"
-                 + (" at the first fix" if args.lat is None else ""))
-        gnss = ""
-        if aided:
-            reasons = ", ".join(f"{k} {v}" for k, v in validator.counters.items() if k != "accepted" and v)
-            gnss = (f"and {validator.counters['accepted']} GNSS fixes ({validator.rejected} rejected"
-                    f"{': ' + reasons if reasons else ''}; {_gate_summary(estimator)}) ")
-        print(f"ahrsd replay: {count} samples ({duration:.1f} s at {rate:.1f} Hz) {gnss}through {estimator_name}, "
-              f"heading to {where}; {wall:.2f} s wall ({t_loop * 1e6 / count:.1f} CPU µs/sample to read, "
-              f"estimate and write): {speed:.1f}× real time ({cpu_speed:.1f}× per CPU second)", file=sys.stderr)
-        if aided:
-            print(f"ahrsd replay: heading state {_history_text(history, last_t)}", file=sys.stderr)
-        if trace is not None:
-            print(f"ahrsd replay: figure written to {args.plot}", file=sys.stderr)
-    return 0
+def _print_summary(args, done: _ReplayDone, estimator_name: str, estimator, declination: float, validator,
+                   wall_s: float, cpu_s: float) -> None:
+    """The end-of-run lines on stderr: what was replayed, through what, referenced to which north, how fast."""
+    import math
+    import sys
+
+    count, aided = done.samples.count, done.aided
+    duration = done.samples.last_t - done.samples.first_t
+    rate = (count - 1) / duration if count > 1 and duration > 0 else math.nan
+    if math.isfinite(rate):
+        duration += 1.0 / rate
+    speed = duration / wall_s if wall_s > 0 else math.inf
+    cpu_speed = duration / cpu_s if cpu_s > 0 else math.inf
+    where = ("magnetic north (no position)" if args.lat is None and not aided
+             else f"true north, declination {math.degrees(declination):+.2f}°"
+             + (" at the first fix" if args.lat is None else ""))
+    gnss = ""
+    if aided:
+        reasons = ", ".join(f"{k} {v}" for k, v in validator.counters.items() if k != "accepted" and v)
+        gnss = (f"and {validator.counters['accepted']} GNSS fixes ({validator.rejected} rejected"
+                f"{': ' + reasons if reasons else ''}; {_gate_summary(estimator)}) ")
+    print(f"ahrsd replay: {count} samples ({duration:.1f} s at {rate:.1f} Hz) {gnss}through {estimator_name}, "
+          f"heading to {where}; {wall_s:.2f} s wall ({done.loop_cpu_s * 1e6 / count:.1f} CPU µs/sample to read, "
+          f"estimate and write): {speed:.1f}× real time ({cpu_speed:.1f}× per CPU second)", file=sys.stderr)
+    if aided:
+        print(f"ahrsd replay: heading state {_history_text(done.history, done.samples.last_t)}", file=sys.stderr)
+    if args.plot:
+        print(f"ahrsd replay: figure written to {args.plot}", file=sys.stderr)
