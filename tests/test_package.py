@@ -41,9 +41,10 @@ def test_each_subcommand_answers_help(command):
 
 
 def test_make_sample_coerces_vectors():
-    s = make_sample(1.5, [1, 2, 3], (0, 0, -9.81), np.array([20.0, 0, 45]))
-    assert isinstance(s, ImuSample)
-    assert s.gyro_rad_s.dtype == np.float64 and s.gyro_rad_s.shape == (3,)
+    s = make_sample(1.5, [1, 2, 3], (0, 0, -9.81), np.array([[20.0], [0], [45]]))
+    assert isinstance(s, ImuSample) and s.t_s == 1.5
+    for got, given in ((s.gyro_rad_s, [1.0, 2.0, 3.0]), (s.accel_m_s2, [0.0, 0.0, -9.81]), (s.mag_ut, [20.0, 0.0, 45.0])):
+        assert got.dtype == np.float64 and got.shape == (3,) and got.tolist() == given
     assert s.flags == SampleFlags.NONE
 
 
