@@ -70,8 +70,12 @@ def test_replay_shows_a_bar_with_rate_and_time_left_in_a_terminal(recording, tmp
 
 
 def test_replay_in_a_terminal_with_quiet_has_no_bar(recording, tmp_path):
-    shown = in_tmux(ahrsd("replay", recording, "--output", tmp_path / "out.csv", "--quiet"))
+    out = tmp_path / "out.csv"
+    shown = in_tmux(ahrsd("replay", recording, "--output", out, "--quiet"))
     assert BAR_RATE not in shown
+    # the replay ran (a failed one shows no bar either) and printed nothing: no bar, no summary
+    assert shown.strip().splitlines() == ["__DONE__"], shown
+    assert len(out.read_text().splitlines()) == 1 + 12000
 
 
 def test_calibrate_mag_shows_a_bar_while_reading_and_none_with_json(recording, tmp_path):
