@@ -134,8 +134,9 @@ def test_aided_levelling_on_a_boat(tmp_path, ahrsd_inproc):
     res = ahrsd_inproc("mag", rec, "--lat", "36.42", "--lon", "54.98", "--method", "backstepping", "--gnss",
                        gnss, "--dry-run", "--state-dir", tmp_path)
     # 30 s of this boat cover far less than a circle of heading: the fit refuses (a full circle needs longer),
-    # after levelling
-    assert res.returncode in (0, 1) and "levelling: ins aided by" in res.stdout, res.stdout + res.stderr
+    # after levelling, and says why
+    assert res.returncode == 1 and "levelling: ins aided by" in res.stdout, res.stdout + res.stderr
+    assert "REFUSED: the data cover " in res.stdout and "turn the vehicle through a full circle" in res.stdout
     assert "0 rejected" in res.stdout
     assert "WARNING: no accelerometer calibration" in res.stdout    # the state directory holds none
     # with an accelerometer calibration stored, the fit is told the bias prior (its JSON says what it got)
