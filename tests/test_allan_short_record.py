@@ -106,3 +106,20 @@ def test_short_independent_samples_and_a_short_slow_process_are_not_called_too_s
     c = SampleCorrelation()
     c.add(walk)
     assert list(c.samples_to_tell()) == [0, 0, 0] and list(c.lengths()) == [1, 1, 1]
+
+
+def test_the_command_gives_a_short_record_in_seconds_and_leads_with_how_long_to_record(tmp_path, capsys):
+    from ahrsd.cli.main import main
+    from ahrsd.drivers.recording import RECORDING_HEADER
+
+    n = 2000
+    rng = np.random.default_rng(5)
+    table = np.column_stack([np.arange(n) / RATE_HZ, _bartlett_filtered(n, 16, seed=4),
+                             rng.normal(0, 0.03, (n, 3)) + [0, 0, -9.81], rng.normal(0, 0.05, (n, 3)) + 30])
+    rec = tmp_path / "short.csv"
+    np.savetxt(rec, table, delimiter=",", fmt="%.9g", header=RECORDING_HEADER, comments="")
+    assert main(["calibrate", "allan", str(rec), "--dry-run", "--state-dir", str(tmp_path / "s")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == f"Allan analysis of {rec}: {n / RATE_HZ:.1f} s at {RATE_HZ:.1f} Hz; noise parameters not saved (--dry-run)"
+    assert lines[1].startswith("  gyro  ARW (°/√h): x too short  y too short  z too short;"), lines[1]
+    assert any(line.startswith("  recording too short for ") for line in lines[:6]), lines[:6]
