@@ -749,6 +749,12 @@ class Ins:
         elif self._gnss_yaw_alignment_due(gsf_valid):
             self._gnss_yaw_aligned = True
             self._monitor.last_reset_t_s = t_s       # an emergency reset keeps its spacing from this one
+            # nothing confirmed the heading before the alignment, so the biases go back to their start-up values:
+            # learned against an uncalibrated magnetometer, whose heading error changes as the vehicle turns (vehicle
+            # iron), the vertical gyro bias has taken up that error's rate, and the agreement check above, with the
+            # bank's σ near its validity limit, would keep them as "confirmed" (docs/estimator.md, "Alignment")
+            self._confirmed_gyro_bias = self._startup_gyro_bias.copy()
+            self._confirmed_accel_bias = self._startup_accel_bias.copy()
             self._reset_yaw(gsf_yaw - yaw, gsf_var, alignment=True)
         elif not self._heading_confirmed and gsf_valid and (self._calibration_untrusted or self._monitor.mag_rejected):
             yaw_var_now = P[core.E_YAW, core.E_YAW]
@@ -952,6 +958,8 @@ class Ins:
         x["gyro_bias_rad_s"] = keep_bg
         self._confirmed_gyro_bias = keep_bg.copy()
         self._confirmed_accel_bias = keep_ba.copy()
+        self._startup_gyro_bias = keep_bg.copy()     # what the GNSS-yaw alignment goes back to
+        self._startup_accel_bias = keep_ba.copy()
         x["accel_bias_m_s2"] = keep_ba
         x["gyro_scale"] = keep_sg
         x["gyro_misalignment_rad"] = keep_mg
