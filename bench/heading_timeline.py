@@ -27,6 +27,7 @@ from bench.vehicle_accuracy import (HONESTY_SITES, IRON_STEP_AT, simulate_vehicl
                                     tilt_heading_errors_deg)
 
 EVERY = 8          # keep every 8th sample (≈ 100 Hz)
+TURN_DEG_S = 5.0   # --consistency: the vehicle is turning while its true heading rate is above this
 
 
 def one_run(job) -> tuple:
@@ -68,13 +69,23 @@ def one_run(job) -> tuple:
                float(np.degrees(np.median(sig[honest]))),
                float(np.mean(np.abs(hdg[honest]) > 3.0 * np.degrees(sig[honest]))), est.yaw_resets,
                float(np.sqrt(np.mean(hdg[after] ** 2))), float(np.sqrt(np.mean(tilt[after] ** 2))))
+    # heading error / published σ from 30 s by turn phase (truth heading rate above TURN_DEG_S, within 30 s after
+    # one, later): (sum of squares, samples, samples beyond 3σ) per phase, pooled over seeds by --consistency
+    z = hdg / np.degrees(sig)
+    yaw_truth = np.unwrap(eul(run.truth_q_wxyz[keep])[:, 0] * np.pi / 180.0)
+    turning = np.abs(np.degrees(np.gradient(yaw_truth, tk))) > TURN_DEG_S
+    last_turn = np.maximum.accumulate(np.where(turning, tk, -np.inf))
+    phases = {"turning": turning, "0-30 s after a turn": ~turning & (tk - last_turn < 30.0),
+              "later": ~turning & (tk - last_turn >= 30.0)}
+    consistency = {name: (float(np.sum(z[w & honest] ** 2)), int(np.sum(w & honest)),
+                          int(np.sum(np.abs(z[w & honest]) > 3.0))) for name, w in phases.items()}
     rows = []
     for t0 in range(0, int(tk[-1]), 30):
         w = (tk >= t0) & (tk < t0 + 30)
         rows.append((t0, float(np.sqrt(np.mean(tilt[w] ** 2))), float(rp[w, 2].mean()), float(rp[w, 1].mean()),
                      float(np.sqrt(np.mean(hdg[w] ** 2))), float(np.degrees(np.median(sig[w]))),
                      int(np.bincount(state[w]).argmax()), ba_err[w].mean(axis=0)))
-    return job, summary, rows
+    return job, summary, rows, consistency
 
 
 def main(argv=None) -> int:
@@ -87,13 +98,21 @@ def main(argv=None) -> int:
     ap.add_argument("--params", default="{}", help="InsParams overrides as JSON")
     ap.add_argument("--timeline", action="store_true", help="also print the per-30 s rows")
     ap.add_argument("--processes", type=int, default=2)
+    ap.add_argument("--consistency", action="store_true",
+                    help="also print, pooled over the seeds, the RMS of heading error / σ and the share beyond 3σ "
+                         "while turning, within 30 s after a turn and later (from 30 s)")
     args = ap.parse_args(argv)
     params = json.loads(args.params)
     jobs = [(args.scenario, args.case, s, args.site, args.seconds, params) for s in args.seeds]
     print(f"ins {params or 'defaults'}, {args.scenario} {args.case}, site {args.site}, {args.seconds:.0f} s "
           f"(every {EVERY}th sample): heading / tilt RMS from 180 s, σ median and beyond 3σ from 30 s", flush=True)
     with Pool(args.processes) as pool:
-        for job, (hdg, tilt, sig, beyond, resets, hdg_after, tilt_after), rows in pool.imap(one_run, jobs):
+        pooled = {}
+        for job, (hdg, tilt, sig, beyond, resets, hdg_after, tilt_after), rows, consistency in pool.imap(one_run,
+                                                                                                     jobs):
+            for name, (ss, n, out) in consistency.items():
+                p_ss, p_n, p_out = pooled.get(name, (0.0, 0, 0))
+                pooled[name] = (p_ss + ss, p_n + n, p_out + out)
             after = (f"  from 120 s after the step: heading {hdg_after:5.2f}°  tilt {tilt_after:5.2f}°"
                      if args.case == "iron-step" else "")
             print(f"seed {job[2]:3d}: heading {hdg:5.2f}°  tilt {tilt:5.2f}°  σ median {sig:5.2f}°  "
@@ -103,6 +122,12 @@ def main(argv=None) -> int:
                 for t0, tl, re, pe, hd, sg, st, b in rows:
                     print(f"  {t0:4d}  {tl:4.2f}  {re:8.2f}  {pe:9.2f}  {hd:7.2f}  {sg:5.2f}  {st:5d}  "
                           f"{b[0]:+.3f} {b[1]:+.3f} {b[2]:+.3f}")
+    if args.consistency:
+        print(f"pooled over seeds {' '.join(map(str, args.seeds))}, from 30 s (Gaussian: RMS 1, 0.27 % beyond 3σ):")
+        for name, (ss, n, out) in pooled.items():
+            if n:
+                print(f"  {name:20s} share {n / sum(v[1] for v in pooled.values()):4.0%}  RMS of error/σ "
+                      f"{np.sqrt(ss / n):4.2f}  beyond 3σ {out / n:6.2%}")
     return 0
 
 
