@@ -1,7 +1,8 @@
 """Per-seed error time series of `ins` against the simulator's truth, for diagnosing the honest-heading figures:
 heading / tilt RMS from 180 s, σ median and share beyond 3σ from 30 s (every 8th sample), then per 30 s the tilt
 RMS, mean roll and pitch error, heading RMS, median yaw σ, heading state and the accelerometer bias error
-(estimate − the simulator's turn-on bias, m/s²).
+(estimate − the simulator's turn-on bias, m/s²). With `--case iron-step` also the heading / tilt RMS from 120 s
+after the iron step (the issue's target).
 
     python bench/heading_timeline.py --scenario boat --case uncalibrated --seeds 12 13 15 16
     python bench/heading_timeline.py --seeds 15 --timeline --params \
@@ -22,9 +23,11 @@ import numpy as np
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.vehicle_accuracy import HONESTY_SITES, simulate_vehicle, tilt_heading_errors_deg  # noqa: E402
+from bench.vehicle_accuracy import (HONESTY_SITES, IRON_STEP_AT, simulate_vehicle,  # noqa: E402
+                                    tilt_heading_errors_deg)
 
 EVERY = 8          # keep every 8th sample (≈ 100 Hz)
+TURN_DEG_S = 5.0   # --consistency: the vehicle is turning while its true heading rate is above this
 
 
 def one_run(job) -> tuple:
@@ -61,16 +64,28 @@ def one_run(job) -> tuple:
     rp = (eul(q) - eul(run.truth_q_wxyz[keep]) + 180.0) % 360.0 - 180.0
     ba_err = ba - SensorErrors.adis16405(seed).accel_bias_m_s2
     late, honest = tk >= 180.0, tk >= 30.0
+    after = tk >= IRON_STEP_AT * seconds + 120.0      # the iron-step case: from 120 s after the step
     summary = (float(np.sqrt(np.mean(hdg[late] ** 2))), float(np.sqrt(np.mean(tilt[late] ** 2))),
                float(np.degrees(np.median(sig[honest]))),
-               float(np.mean(np.abs(hdg[honest]) > 3.0 * np.degrees(sig[honest]))), est.yaw_resets)
+               float(np.mean(np.abs(hdg[honest]) > 3.0 * np.degrees(sig[honest]))), est.yaw_resets,
+               float(np.sqrt(np.mean(hdg[after] ** 2))), float(np.sqrt(np.mean(tilt[after] ** 2))))
+    # heading error / published σ from 30 s by turn phase (truth heading rate above TURN_DEG_S, within 30 s after
+    # one, later): (sum of squares, samples, samples beyond 3σ) per phase, pooled over seeds by --consistency
+    z = hdg / np.degrees(sig)
+    yaw_truth = np.unwrap(eul(run.truth_q_wxyz[keep])[:, 0] * np.pi / 180.0)
+    turning = np.abs(np.degrees(np.gradient(yaw_truth, tk))) > TURN_DEG_S
+    last_turn = np.maximum.accumulate(np.where(turning, tk, -np.inf))
+    phases = {"turning": turning, "0-30 s after a turn": ~turning & (tk - last_turn < 30.0),
+              "later": ~turning & (tk - last_turn >= 30.0)}
+    consistency = {name: (float(np.sum(z[w & honest] ** 2)), int(np.sum(w & honest)),
+                          int(np.sum(np.abs(z[w & honest]) > 3.0))) for name, w in phases.items()}
     rows = []
     for t0 in range(0, int(tk[-1]), 30):
         w = (tk >= t0) & (tk < t0 + 30)
         rows.append((t0, float(np.sqrt(np.mean(tilt[w] ** 2))), float(rp[w, 2].mean()), float(rp[w, 1].mean()),
                      float(np.sqrt(np.mean(hdg[w] ** 2))), float(np.degrees(np.median(sig[w]))),
                      int(np.bincount(state[w]).argmax()), ba_err[w].mean(axis=0)))
-    return job, summary, rows
+    return job, summary, rows, consistency
 
 
 def main(argv=None) -> int:
@@ -83,20 +98,36 @@ def main(argv=None) -> int:
     ap.add_argument("--params", default="{}", help="InsParams overrides as JSON")
     ap.add_argument("--timeline", action="store_true", help="also print the per-30 s rows")
     ap.add_argument("--processes", type=int, default=2)
+    ap.add_argument("--consistency", action="store_true",
+                    help="also print, pooled over the seeds, the RMS of heading error / σ and the share beyond 3σ "
+                         "while turning, within 30 s after a turn and later (from 30 s)")
     args = ap.parse_args(argv)
     params = json.loads(args.params)
     jobs = [(args.scenario, args.case, s, args.site, args.seconds, params) for s in args.seeds]
     print(f"ins {params or 'defaults'}, {args.scenario} {args.case}, site {args.site}, {args.seconds:.0f} s "
           f"(every {EVERY}th sample): heading / tilt RMS from 180 s, σ median and beyond 3σ from 30 s", flush=True)
     with Pool(args.processes) as pool:
-        for job, (hdg, tilt, sig, beyond, resets), rows in pool.imap(one_run, jobs):
+        pooled = {}
+        for job, (hdg, tilt, sig, beyond, resets, hdg_after, tilt_after), rows, consistency in pool.imap(one_run,
+                                                                                                     jobs):
+            for name, (ss, n, out) in consistency.items():
+                p_ss, p_n, p_out = pooled.get(name, (0.0, 0, 0))
+                pooled[name] = (p_ss + ss, p_n + n, p_out + out)
+            after = (f"  from 120 s after the step: heading {hdg_after:5.2f}°  tilt {tilt_after:5.2f}°"
+                     if args.case == "iron-step" else "")
             print(f"seed {job[2]:3d}: heading {hdg:5.2f}°  tilt {tilt:5.2f}°  σ median {sig:5.2f}°  "
-                  f"beyond 3σ {beyond:6.2%}  yaw resets {resets}", flush=True)
+                  f"beyond 3σ {beyond:6.2%}  yaw resets {resets}{after}", flush=True)
             if args.timeline:
                 print("     t  tilt  roll err  pitch err  heading  σ yaw  state  accel bias error x y z (m/s²)")
                 for t0, tl, re, pe, hd, sg, st, b in rows:
                     print(f"  {t0:4d}  {tl:4.2f}  {re:8.2f}  {pe:9.2f}  {hd:7.2f}  {sg:5.2f}  {st:5d}  "
                           f"{b[0]:+.3f} {b[1]:+.3f} {b[2]:+.3f}")
+    if args.consistency:
+        print(f"pooled over seeds {' '.join(map(str, args.seeds))}, from 30 s (Gaussian: RMS 1, 0.27 % beyond 3σ):")
+        for name, (ss, n, out) in pooled.items():
+            if n:
+                print(f"  {name:20s} share {n / sum(v[1] for v in pooled.values()):4.0%}  RMS of error/σ "
+                      f"{np.sqrt(ss / n):4.2f}  beyond 3σ {out / n:6.2%}")
     return 0
 
 

@@ -238,7 +238,8 @@ class HeadingMonitor:
         """One check at a fused GNSS fix. yaw: the filter's (true); mag_yaw: the heading the magnetometer (with
         the learned iron removed) gives at the filter's tilt, NaN when it has none; mag_var: its variance
         (calibration + learned iron + noise); gsf_*: the Gaussian-sum yaw; heading_observable: the filter's yaw
-        σ is small enough that the GNSS holds the heading (iron learning and magnetometer re-entry need it);
+        σ is small enough that the GNSS holds the heading (iron learning needs it; re-entry needs `reentry_s` of
+        agreement while it holds);
         velocity_nis: the filter's last GNSS velocity NIS (2–3 dof) — a reset to the GNSS yaw also needs the
         filter's own velocity fusion to show the heading is wrong (low-passed NIS above `reset_velocity_nis`),
         as EKF3's realignYawGPS needs a failing velocity test; mag_bias_var: the slowly varying part of mag_var
@@ -270,7 +271,11 @@ class HeadingMonitor:
             self.consistent_s = 0.0
         else:
             self.failures = 0
-            self.consistent_s += dt
+            if heading_observable:
+                # agreement with a heading the GNSS does not hold shows nothing (after an iron step the raised
+                # yaw σ stays above heading_observable for seconds; counted, they let the magnetometer back
+                # after a few seconds of learning, its iron half learned)
+                self.consistent_s += dt
         if not self.mag_rejected and have_mag and self.failures >= self.reject_checks:
             # σ first: cover what the magnetometer may already have pulled the heading by (its low-passed
             # innovation: a step just seen has not moved the filter yet) and the disagreement with the GNSS yaw

@@ -80,3 +80,24 @@ def test_ins_applies_the_floor_before_the_next_step():
     assert applied, "the iron step was never rejected"
     assert all(p >= f for f, p in applied), applied
     assert np.sqrt(max(f for f, _ in applied)) > 3.0 * D(0.3)
+
+
+
+def test_reentry_counts_consistency_only_while_the_gnss_holds_the_heading():
+    """After an iron step the magnetometer is rejected and the yaw σ raised past what the GNSS holds (2°): for
+    30 s its learned correction agrees with a filter heading that is itself unknown, which shows nothing. It
+    re-enters after `reentry_s` = 20 s of agreement once the heading is observable again (at 50 s), not at the
+    first observable check (30 s) after 30 s of checks against an unheld heading."""
+    mon = HeadingMonitor(D(0.5))
+    _checks(mon, [0.0] * 10 + [8.0] * 3)
+    assert mon.mag_rejected
+    t0 = 0.2 * 13
+    uses = []
+    for i in range(300):                       # 60 s of checks at 5 Hz, the magnetometer agreeing with the filter
+        t = t0 + 0.2 * i
+        d = mon.check(t, 0.0, D(0.3) ** 2, 0.0, D(2.0) ** 2, math.nan, math.inf, False,
+                      heading_observable=t >= t0 + 30.0 - 1e-9, mag_bias_var_rad2=D(2.0) ** 2)
+        uses.append((t - t0, d.mag_use))
+    back = [t for t, use in uses if use]
+    assert back, "the magnetometer never re-entered"
+    assert back[0] == pytest.approx(30.0 + 20.0, abs=0.21), back[0]
