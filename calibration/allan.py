@@ -78,6 +78,14 @@ class NoiseParameters:
         return d
 
 
+def _no_terms_read(curve: AllanCurve, axis: int, std: float, reason: str,
+                   too_short_need_s: float | None = None) -> NoiseParameters:
+    """An axis of which no term can be read: the curve's minimum, the standard deviation and the reason."""
+    j = int(np.argmin(curve.adev[:, axis]))
+    return NoiseParameters(None, None, None, None, None, float(curve.adev[j, axis]), float(curve.taus_s[j]),
+                           float(std), flags=(reason,), too_short_need_s=too_short_need_s)
+
+
 def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float, correlation_samples: int = 1,
               white_deficit_s: float = 0.0, samples_to_tell: int = 0) -> NoiseParameters:
     """Decide the terms of one axis' curve and read their values. correlation_samples: how many samples apart
@@ -89,13 +97,10 @@ def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float, correlat
         # Every τ may lie within the filter's correlation, where a fit reads the filter as a Gauss–Markov term
         # and calls white noise "not seen" whatever the recording length, which a longer record would refute.
         need_s = samples_to_tell / rate_hz
-        j = int(np.argmin(curve.adev[:, axis]))
-        return NoiseParameters(None, None, None, None, None, float(curve.adev[j, axis]), float(curve.taus_s[j]),
-                               float(std), flags=(
-                                   f"recording too short: neighbouring samples are correlated (the sensor's filter), "
-                                   f"and {curve.record_s:.3g} s of samples cannot tell over how many; record about "
-                                   f"{math.ceil(need_s / curve.record_s):.0f}× longer (≥ {need_s:.0f} s): "
-                                   f"no noise terms read",), too_short_need_s=need_s)
+        return _no_terms_read(curve, axis, std, (
+            f"recording too short: neighbouring samples are correlated (the sensor's filter), and "
+            f"{curve.record_s:.3g} s of samples cannot tell over how many; record about "
+            f"{math.ceil(need_s / curve.record_s):.0f}× longer (≥ {need_s:.0f} s): no noise terms read"), need_s)
     min_tau_s = shortest_fit_tau_s(correlation_samples, rate_hz)
     short_note = []
     if min_tau_s > 0 and np.count_nonzero(pts.taus >= min_tau_s) < 3:
@@ -103,14 +108,11 @@ def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float, correlat
         # term and calls white noise "not seen"), and three cluster sizes are the fewest a term can be read from.
         # The longest cluster grows with the record, so a record this many times longer reaches 4·min_tau_s.
         longer = 4.0 * min_tau_s / pts.taus[-1]
-        j = int(np.argmin(curve.adev[:, axis]))
-        return NoiseParameters(None, None, None, None, None, float(curve.adev[j, axis]), float(curve.taus_s[j]),
-                               float(std), flags=(
-                                   f"recording too short: the samples are correlated over {correlation_samples} "
-                                   f"samples (the sensor's filter), so only τ ≥ {min_tau_s:.3g} s can be fitted, and "
-                                   f"it has fewer than 3 cluster sizes there; record about {longer:.0f}× longer "
-                                   f"(≥ {longer * pts.record_s:.0f} s): no noise terms read",),
-                               too_short_need_s=longer * pts.record_s)
+        return _no_terms_read(curve, axis, std, (
+            f"recording too short: the samples are correlated over {correlation_samples} samples (the sensor's "
+            f"filter), so only τ ≥ {min_tau_s:.3g} s can be fitted, and it has fewer than 3 cluster sizes there; "
+            f"record about {longer:.0f}× longer (≥ {longer * pts.record_s:.0f} s): no noise terms read"),
+            longer * pts.record_s)
     if min_tau_s > 0:
         keep = pts.taus >= min_tau_s
         pts = type(pts)(pts.taus[keep], pts.avar[keep], pts.level_n[keep], pts.level_m[keep], pts.record_s,
@@ -118,9 +120,7 @@ def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float, correlat
         short_note = [f"τ < {min_tau_s:.3g} s not fitted: the samples are correlated over {correlation_samples} "
                       "samples (the sensor's filter), which bends the curve there"]
     if len(pts.taus) < 3 or not np.all(pts.avar > 0):
-        j = int(np.argmin(curve.adev[:, axis]))
-        return NoiseParameters(None, None, None, None, None, float(curve.adev[j, axis]), float(curve.taus_s[j]),
-                               float(std), flags=("constant signal or too few cluster sizes: no noise terms read",))
+        return _no_terms_read(curve, axis, std, "constant signal or too few cluster sizes: no noise terms read")
     fit = select_terms(pts)
     terms: dict[str, TermEstimate] = term_estimates(fit, pts)
     flags, not_seen = [], {}

@@ -100,13 +100,14 @@ GATE_HINT_FRACTION = 0.1   # of the fixes offered: more velocities rejected than
 def _gate_summary(estimator) -> str:
     """What the aided filter's innovation gate did with the fixes, and a hint when it rejected many velocities:
     a filter whose attitude is right rejects a correct fix only if the antenna is not where it was told."""
-    c = getattr(estimator, "gnss_counters", None)
-    if c is None:
+    from ahrsd.estimator.base import GnssAidedEstimator, HeadingCheckedEstimator
+
+    if not isinstance(estimator, GnssAidedEstimator):
         return "not offered"
+    c = estimator.gnss_counters
     text = (f"the filter fused {c.fused_velocity} velocities and {c.fused_position} positions, its gate rejected "
             f"{c.rejected_velocity} and {c.rejected_position}")
-    heading = getattr(estimator, "heading_report", None)
-    report = heading() if heading is not None else None
+    report = estimator.heading_report() if isinstance(estimator, HeadingCheckedEstimator) else None
     if report is not None and report.mag_rejections:
         # the magnetometer, not the antenna: a filter pulled by a wrong magnetometer rejects correct fixes
         text += (f"; WARNING: magnetometer disagrees with GNSS by {report.max_disagreement_deg:.0f}°: calibration "
@@ -355,6 +356,7 @@ def _load_calibration(args):
 def _make_estimator(name: str, declination_rad: float, calibration, params: dict, aided: bool):
     """The estimator, told (as the daemon does) how far ins may trust the calibration's magnetometer."""
     from ahrsd.estimator import make_estimator
+    from ahrsd.estimator.base import GnssAidedEstimator
 
     if calibration is not None and name == "ins" and "mag_calibration_sigma_rad" not in params:
         from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad
@@ -367,7 +369,7 @@ def _make_estimator(name: str, declination_rad: float, calibration, params: dict
         raise ReplayError(f"estimator {name!r} is not available ({exc})") from None
     except (TypeError, ValueError) as exc:
         raise ReplayError(f"estimator {name!r}: {exc}") from None
-    if aided and not hasattr(estimator, "update_gnss"):
+    if aided and not isinstance(estimator, GnssAidedEstimator):
         raise ReplayError(f"--gnss needs the aided estimator (ins); {name} takes no GNSS fixes")
     return estimator
 

@@ -69,9 +69,8 @@ def compile_estimator(name: str, clock=time.monotonic, announce_after_s: float =
     from ahrsd.estimator.warm_up import warm_up
 
     # numba is imported here, in this thread, before the watcher thread looks at it: numba's first import run
-    # from two threads at once fails with a circular ImportError in both (`ahrsd run` at load 17 died so when the
-    # watcher's poll began while warm_up was still importing numba; on a slow board the import alone outlasts
-    # ANNOUNCE_AFTER_S)
+    # from two threads at once fails with a circular ImportError in both (the watcher's poll can begin while
+    # warm_up is still importing numba: on a slow or loaded board the import alone outlasts ANNOUNCE_AFTER_S)
     import numba.core.registry  # noqa: F401
 
     started = clock()

@@ -102,16 +102,22 @@ class AutopilotState:
         self._take_gps_raw_int(msg, now)
         self._tell_gnss_listeners(msg)
 
+    def _take_position_e7(self, what: str, msg, problem: str | None, now: float) -> bool:
+        """Take the message's lat, lon (degE7) and alt (mm) as the position, unless `problem` says why it cannot
+        be true: then refuse it (counted, warned) and return False."""
+        if problem:
+            self.rejected_positions += 1
+            self._refuse(what, problem, now)
+            return False
+        self.lat_deg, self.lon_deg, self.alt_m = msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3
+        self.position_time = now
+        return True
+
     def _take_global_position_int(self, msg, now: float) -> None:
         if msg.lat == 0 and msg.lon == 0:
             return   # "no position" as autopilots send it before a fix
-        problem = position_problem_e7(msg.lat, msg.lon, msg.alt)
-        if problem:
-            self.rejected_positions += 1
-            self._refuse("GLOBAL_POSITION_INT", problem, now)
+        if not self._take_position_e7("GLOBAL_POSITION_INT", msg, position_problem_e7(msg.lat, msg.lon, msg.alt), now):
             return
-        self.lat_deg, self.lon_deg, self.alt_m = msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3
-        self.position_time = now
         vn, ve = msg.vx * 0.01, msg.vy * 0.01      # cm/s → m/s, NED
         self.ground_speed_m_s = math.hypot(vn, ve)
         self.course_rad = math.atan2(ve, vn) % (2 * math.pi)
@@ -122,12 +128,8 @@ class AutopilotState:
             return
         problem = (f"fix type {msg.fix_type} unknown" if msg.fix_type > GPS_FIX_TYPE_MAX
                    else position_problem_e7(msg.lat, msg.lon, msg.alt))
-        if problem:
-            self.rejected_positions += 1
-            self._refuse("GPS_RAW_INT", problem, now)
+        if not self._take_position_e7("GPS_RAW_INT", msg, problem, now):
             return
-        self.lat_deg, self.lon_deg, self.alt_m = msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3
-        self.position_time = now
         if msg.vel != UINT16_MAX:
             self.ground_speed_m_s = msg.vel * 0.01
         if COG_CDEG_MAX < msg.cog < UINT16_MAX:

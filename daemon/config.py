@@ -141,6 +141,15 @@ def _parse_table(cls, d: dict, prefix: str, checks: dict) -> dict:
     return out
 
 
+def _parse_output_table(cls, d: Any, prefix: str, example_url: str, checks: dict) -> dict:
+    """An output's table ([[endpoint]], [[nmea]]): a table, and one that names where the output goes (url)."""
+    if not isinstance(d, dict):
+        raise _fail(prefix, d, "a table with key url")
+    if "url" not in d:
+        raise _fail(f"{prefix}.url", None, f"required (e.g. url = \"{example_url}\")")
+    return _parse_table(cls, d, prefix, checks)
+
+
 @dataclass(frozen=True)
 class SensorConfig:
     """Where samples come from and how the sensor sits in the vehicle."""
@@ -343,12 +352,8 @@ class EndpointConfig:
 
     @classmethod
     def parse(cls, d: dict, prefix="endpoint") -> "EndpointConfig":
-        if not isinstance(d, dict):
-            raise _fail(prefix, d, "a table with key url")
-        if "url" not in d:
-            raise _fail(f"{prefix}.url", None, "required (e.g. url = \"udpout:127.0.0.1:14550\")")
-        return cls(**_parse_table(cls, d, prefix, {"url": _endpoint_url, "profile": _choice_of(tuple(PROFILES)),
-                                                   "outputs": _endpoint_outputs}))
+        return cls(**_parse_output_table(cls, d, prefix, "udpout:127.0.0.1:14550", {
+            "url": _endpoint_url, "profile": _choice_of(tuple(PROFILES)), "outputs": _endpoint_outputs}))
 
     @property
     def overrides_hz(self) -> dict[int, float]:
@@ -427,12 +432,8 @@ class NmeaOutputConfig:
 
     @classmethod
     def parse(cls, d: dict, prefix="nmea") -> "NmeaOutputConfig":
-        if not isinstance(d, dict):
-            raise _fail(prefix, d, "a table with key url")
-        if "url" not in d:
-            raise _fail(f"{prefix}.url", None, "required (e.g. url = \"udp:127.0.0.1:10110\")")
-        parsed = _parse_table(cls, d, prefix, {"url": _nmea_url, "talker": _nmea_talker,
-                                               "sentences": _nmea_sentences})
+        parsed = _parse_output_table(cls, d, prefix, "udp:127.0.0.1:10110", {
+            "url": _nmea_url, "talker": _nmea_talker, "sentences": _nmea_sentences})
         parsed["sentences"] = tuple(parsed.get("sentences", {}).items())
         cfg = cls(**parsed)
         cfg.check_budget(prefix)

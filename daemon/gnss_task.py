@@ -17,7 +17,7 @@ import logging
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Protocol
 
 from ahrsd.core.estimate import EstimateFlags
 from ahrsd.core.gnss import GnssFix, GnssFixType
@@ -26,6 +26,7 @@ from ahrsd.daemon.local_origin import LocalOrigin
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.drivers.gnss.backend import GnssBackend, GnssHealth
 from ahrsd.drivers.gnss.validation import GnssFixValidator, GnssRejection
+from ahrsd.estimator.base import GnssAidedEstimator
 
 log = logging.getLogger(__name__)
 
@@ -42,17 +43,6 @@ FIX_NAMES = {GnssFixType.NO_GPS: "no GPS", GnssFixType.NO_FIX: "no fix", GnssFix
 
 FixSubscriber = Callable[[GnssFix], None]
 FixLog = Callable[[GnssFix, "GnssRejection | None"], None]
-
-
-@runtime_checkable
-class GnssAidedEstimator(Protocol):
-    """An estimator that takes GNSS fixes (estimator.ins.Ins): the task offers it every accepted fix and
-    watches its innovation gate through `gnss_counters` (offered, rejected_velocity)."""
-
-    name: str
-    gnss_counters: object
-
-    def update_gnss(self, fix: GnssFix) -> int: ...
 
 
 class EstimatorHook(Protocol):

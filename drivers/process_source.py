@@ -116,9 +116,9 @@ class _Handover:
     a quarter of its send buffer is in use (Linux unix_writable), and no message is larger than another eighth
     of it (`chunk_samples`), so a send made when select() says writable always fits.
 
-    Why 32 samples a message: packing costs about 2 µs a sample here (several times that on a Raspberry Pi),
-    and the tick runs between two reads, so after a stalled daemon a 256-sample message held the reader for a
-    millisecond or more per tick, most of a sample period (bench/reader_floor.py: `hand-over tick`). 32 a tick
+    Why 32 samples a message: packing costs time per sample (several times more on a Raspberry Pi) and the tick
+    runs between two reads, so after a stalled daemon a message of a few hundred samples holds the reader for
+    most of a sample period (docs/drivers.md, the hand-over; bench/reader_floor.py: `hand-over tick`). 32 a tick
     drains 16 000 samples a second, twenty times the chip's rate: 10 s of backlog in half a second."""
 
     CHUNK_SAMPLES = 32

@@ -48,8 +48,8 @@ class LogLimits:
     queue_entries: int = 65536                 # entries waiting for the writer; more are dropped and counted
     flush_interval_s: float = 1.0              # flushed this often: a crash loses at most this + batch_interval_s
     flush_entries: int = 8192                  # ... and flush (and check the size) this often too
-    # the writer takes what is queued this often. Each wake starts on cold caches: at 819.2 entries/s the
-    # writer's CPU per sample falls by ~40 % from 0.1 s to 0.5 s and no further beyond (bench/log_size.py --paced)
+    # the writer takes what is queued this often. Each wake starts on cold caches, so fewer wakes cost less CPU
+    # per sample, up to this interval and no further beyond (docs/logging.md, bench/log_size.py --paced)
     batch_interval_s: float = 0.5
 
     def __post_init__(self):

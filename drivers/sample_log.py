@@ -25,8 +25,8 @@ from .rotating_log import LogLimits, RotatingLog
 SAMPLE_LOG_PREFIX = "imu"
 SAMPLE_LOG_SUFFIX = ".csv.gz"
 SAMPLE_LOG_FORMAT = "ahrsd-recording"
-# zlib level 4, the knee for these rows (bench/log_size.py, figures in docs/logging.md): the default (6) costs
-# the writer ~20 % more CPU for ~9 % fewer bytes, level 1 saves ~15 % of its CPU for ~20 % more bytes
+# zlib level 4, the knee between the writer's CPU and the bytes for these rows: the default (6) costs more CPU
+# for few bytes less, level 1 saves CPU for many more bytes (bench/log_size.py, figures in docs/logging.md)
 GZIP_LEVEL = 4
 SAMPLE_LOG_COLUMNS = BASE_COLUMNS + SAMPLE_COLUMNS
 

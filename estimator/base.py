@@ -7,6 +7,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from ahrsd.core.estimate import AttitudeEstimate
+from ahrsd.core.gnss import GnssFix
 from ahrsd.core.sample import ImuSample
 
 
@@ -35,14 +36,31 @@ class SteppingEstimator(Estimator, Protocol):
 
 
 @runtime_checkable
+class GnssAidedEstimator(Protocol):
+    """An estimator that takes GNSS fixes (ins): `update_gnss(fix)` returns the core.R_* bits of what became of
+    the fix and never raises on bad input; `gnss_counters` counts what became of the fixes offered (offered,
+    fused_velocity, fused_position, rejected_velocity, rejected_position, …, `as_dict()`: estimator/ins.py
+    GnssCounters). The daemon's GNSS task offers it every accepted fix and watches its innovation gate; replay
+    merges a GNSS recording's fixes with the samples."""
+
+    name: str
+    gnss_counters: object
+
+    def update_gnss(self, fix: GnssFix) -> int: ...
+
+
+@runtime_checkable
 class HeadingCheckedEstimator(Protocol):
     """An estimator that checks its heading against GNSS (ins): it counts the resets of its yaw to the GNSS
-    yaw and takes the heading error a magnetometer calibration predicts (1σ, rad) into its checks."""
+    yaw, takes the heading error a magnetometer calibration predicts (1σ, rad) into its checks, and reports
+    what the checks did (`heading_report()`: mag_rejections, max_disagreement_deg, yaw_resets)."""
 
     yaw_resets: int
     gnss_yaw_alignments: int    # those of the resets that were the planned first alignment (no trusted calibration)
 
     def set_mag_calibration_sigma(self, sigma_rad: float) -> None: ...
+
+    def heading_report(self): ...
 
 
 @runtime_checkable

@@ -182,7 +182,7 @@ def nominal_difference(x_before, x_after, par) -> np.ndarray:
 
 
 class SmoothingIns(Ins):
-    """`Ins` that records its epochs for `RtsSmoother` (same estimates, same counters, ~2× the run time). Run it
+    """`Ins` that records its epochs for `RtsSmoother` (same estimates, same counters; recording costs run time). Run it
     over a recording (`update`, `update_gnss` as for Ins), then `smoothed_roll_pitch()`."""
 
     def __init__(self, declination_rad: float = 0.0, params=None, **overrides):

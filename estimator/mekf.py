@@ -55,7 +55,7 @@ class MekfParams:
     gyro_bias_walk_rad_s_sqrt_s: float = 1e-5
     """Bias random walk density, rad/s/√s: reaches the ADIS16405 in-run bias stability (0.007°/s, datasheet)
     in about 100 s. Larger values let linear acceleration and field errors leak into the bias in motion
-    (measured on BROAD: 1e-4 → mean 2.73° instead of 2.24°)."""
+    (docs/estimator.md, how the defaults were chosen on BROAD)."""
     gyro_rate_noise_sqrt_s: float = 1e-3
     """Tilt process noise that grows with the rotation rate: (this · |ω|)² per second is added to the tilt
     variance rate, for the gyro's scale-factor and axis-misalignment errors (an error of a fraction e of the
@@ -77,10 +77,9 @@ class MekfParams:
     acc_turn_noise_gain: float = 0.0
     """Adaptive tilt noise for sustained acceleration: a centripetal acceleration ⟂ g tilts the apparent
     vertical by φ = acos(g/|f|) (|f| of the low-passed specific force), so the tilt measurement gets
-    (gain·(φ − dead zone))² of extra variance. 0 by default (handheld motion, BROAD: gain 1 → mean 3.25°
-    instead of 2.24°, because shaking also changes |f|); 1 in `FIXED_WING_MEKF_PARAMS`, where a
-    coordinated 30° turn otherwise drags the horizon by the bank angle (simulated, bench/accuracy.py: roll
-    RMS 21° → 0.3°)."""
+    (gain·(φ − dead zone))² of extra variance. 0 by default (handheld motion: shaking also changes |f|, so
+    the gain costs accuracy on BROAD); 1 in `FIXED_WING_MEKF_PARAMS`, where a coordinated 30° turn otherwise
+    drags the horizon by the bank angle (figures of both in docs/estimator.md)."""
     acc_turn_dead_zone_rad: float = 0.0
     """Turn angles φ below this add no noise, rad."""
     turn_speed_m_s: float = 2.0

@@ -4,7 +4,7 @@ The table has one row per input sample and the columns of ATTITUDE_COLUMNS (degr
 gyro bias, EstimateFlags as a number). The samples are used as given: a caller that wants them calibrated maps
 them through its calibration first.
 
-With GNSS fixes (an aided estimator, one that has `update_gnss`), the fixes are merged with the samples in time
+With GNSS fixes (an aided estimator: base.GnssAidedEstimator), the fixes are merged with the samples in time
 order — each fix is offered before the first sample later than its time of validity — and the table adds
 NAV_COLUMNS (the estimator's NavState; NaN while it has none). The fixes are used as given: a caller validates
 them first (drivers.gnss.validation), as the daemon does.
@@ -21,7 +21,7 @@ from ahrsd.core.angles import wrap_pi
 from ahrsd.core.gnss import GnssFix
 from ahrsd.core.sample import ImuSample
 
-from .base import Estimator
+from .base import Estimator, GnssAidedEstimator
 from .rotations import quat_multiply
 
 ATTITUDE_COLUMNS = (
@@ -53,11 +53,11 @@ def replay_attitude(estimator: Estimator, samples: Iterable[ImuSample], true_nor
     true_north: rotate the quaternion and yaw about down by the estimator's declination (heading_true −
     heading_mag) so they are relative to true north; otherwise they stay relative to magnetic north, as
     estimated. Rows before the estimator initialised have NaN quaternion and angles.
-    fixes: GNSS fixes in time order, for an aided estimator (`update_gnss`), offered in time order with the
-    samples; the table then ends with NAV_COLUMNS and HEADING_COLUMNS.
+    fixes: GNSS fixes in time order, for an aided estimator (base.GnssAidedEstimator), offered in time order
+    with the samples; the table then ends with NAV_COLUMNS and HEADING_COLUMNS.
     """
-    if fixes is not None and not hasattr(estimator, "update_gnss"):
-        raise ValueError(f"estimator {getattr(estimator, 'name', estimator)!r} takes no GNSS fixes (not aided)")
+    if fixes is not None and not isinstance(estimator, GnssAidedEstimator):
+        raise ValueError(f"estimator {estimator.name!r} takes no GNSS fixes (not aided)")
     nan = math.nan
     deg = _DEG
     update = estimator.update

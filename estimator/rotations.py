@@ -123,8 +123,8 @@ def _dcm_to_quat_one(c: np.ndarray) -> np.ndarray:
 
 
 def dcm_rows_to_quat(c) -> tuple[float, float, float, float]:
-    """Shepperd's method on one DCM given as three rows of floats, scalar maths (for per-sample hot paths,
-    ~10× faster than numpy on one matrix); returns (w, x, y, z) normalised, w ≥ 0. Same as `dcm_to_quat`."""
+    """Shepperd's method on one DCM given as three rows of floats, scalar maths (for per-sample hot paths: numpy's
+    per-call overhead dominates on one 3×3 matrix); returns (w, x, y, z) normalised, w ≥ 0. Same as `dcm_to_quat`."""
     (c11, c12, c13), (c21, c22, c23), (c31, c32, c33) = c
     tr = c11 + c22 + c33
     if tr >= c11 and tr >= c22 and tr >= c33:

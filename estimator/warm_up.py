@@ -14,6 +14,7 @@ from ahrsd.core.gnss import GnssFix
 from ahrsd.core.sample import make_sample
 
 from . import make_estimator
+from .base import GnssAidedEstimator
 
 SAMPLE_PERIOD_S = 1.0 / 100.0
 N_SAMPLES = 300                 # past initialisation, the first fix's delay and its fusion
@@ -25,7 +26,7 @@ def warm_up(name: str) -> None:
     accel_m_s2 = np.array([0.0, 0.0, -9.81])
     mag_ut = np.array([20.0, 0.0, 45.0])
     gyro_rad_s = np.zeros(3)
-    has_gnss = hasattr(est, "update_gnss")
+    has_gnss = isinstance(est, GnssAidedEstimator)
     for i in range(N_SAMPLES):
         t_s = i * SAMPLE_PERIOD_S
         est.update(make_sample(t_s, gyro_rad_s, accel_m_s2, mag_ut))

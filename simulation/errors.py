@@ -221,7 +221,7 @@ def first_order_recursion(phi: float, w: np.ndarray, state: np.ndarray):
     """y[k] = φ·y[k−1] + w[k] for the rows of w (n, 3), with y[−1] = state; returns y and its last row.
 
     Closed form, y[j] = φʲ·(φ·y[−1] + Σ_{i≤j} φ⁻ⁱ·w[i]), over chunks short enough that φ⁻ⁱ stays below 1e3
-    (numpy only: scipy.signal.lfilter computes the same, but importing scipy.signal was the slowest step of the
+    (numpy only: scipy.signal.lfilter computes the same, but importing scipy.signal would weigh on the
     simulated daemon's start)."""
     w = np.asarray(w, dtype=float)
     n = len(w)

@@ -64,3 +64,25 @@ def test_probing_a_part_fails(tmp_path):
     for line in (2, 4, 6, 8, 12):
         assert f"bad.py:{line}:" in r.stdout
     assert "bad.py:10:" not in r.stdout
+
+
+def test_probing_an_estimator_outside_the_daemon_fails(tmp_path):
+    """Outside daemon/ only rule 4 holds: an estimator's capabilities are Protocols of estimator/base.py, in the
+    CLI and the calibration as in the daemon; other getattr, setattr and bases are the package's own business."""
+    (tmp_path / "cli").mkdir()
+    (tmp_path / "cli" / "bad.py").write_text(
+        "def a(estimator):\n"
+        "    return getattr(estimator, 'gnss_counters', None)\n"
+        "def b(args):\n"
+        "    return getattr(args, 'gnss', None)\n"          # a part's name, but an argparse namespace: allowed here
+        "def c(x):\n"
+        "    setattr(x, 'y', 1)\n")
+    (tmp_path / "calibration").mkdir()
+    (tmp_path / "calibration" / "bad.py").write_text(
+        "def d(est):\n"
+        "    return hasattr(est, 'update_gnss')\n")
+    r = run(tmp_path)
+    assert r.returncode == 1
+    assert "cli/bad.py:2: getattr(estimator, 'gnss_counters') probes an estimator" in r.stdout
+    assert "calibration/bad.py:2: hasattr(est, 'update_gnss') probes an estimator" in r.stdout
+    assert "bad.py:4:" not in r.stdout and "bad.py:6:" not in r.stdout

@@ -43,7 +43,10 @@ def test_annotated_example_parses():
     ({"endpoint": [{"url": "udp-out:1.2.3.4:5"}]}, "endpoint[0].url", "pymavlink URL"),
     ({"endpoint": [{"url": "udpout:127.0.0.1:99999"}]}, "endpoint[0].url", "1..65535"),
     ({"endpoint": [{"url": "/dev/ttyAMA0,fast"}]}, "endpoint[0].url", "BAUD"),
-    ({"endpoint": [{}]}, "endpoint[0].url", "required"),
+    ({"endpoint": [{}]}, "endpoint[0].url", 'required (e.g. url = "udpout:127.0.0.1:14550")'),
+    ({"endpoint": ["udpout:127.0.0.1:14550"]}, "endpoint[0]", "a table with key url"),
+    ({"nmea": [{}]}, "nmea[0].url", 'required (e.g. url = "udp:127.0.0.1:10110")'),
+    ({"nmea": ["udp:127.0.0.1:10110"]}, "nmea[0]", "a table with key url"),
     ({"signing": {"link_id": 300}}, "signing.link_id", "[0, 255]"),
     ({"daemon": {"status_line": "yes"}}, "daemon.status_line", "'auto'"),
 ])

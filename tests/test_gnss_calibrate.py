@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from ahrsd.calibration.mag.backstepping_paper import BacksteppingError
-from ahrsd.calibration.mag.levelling import roll_pitch_from_estimator
+from ahrsd.calibration.mag.levelling import attitude_from_estimator, roll_pitch_from_estimator
 from ahrsd.calibration.mag.fit_types import MagFitInput
 from ahrsd.cli.calibrate_gnss import COURSE_MIN_SPEED_M_S, course_reference_deg
 from ahrsd.core.gnss import make_fix
@@ -38,10 +38,13 @@ def test_course_reference_only_on_fast_straight_tracks():
 
 
 class Recorder:
+    """An aided estimator (estimator.base.GnssAidedEstimator) that records what it is offered, in order."""
+
     name = "recorder"
 
     def __init__(self):
         self.events = []
+        self.gnss_counters = None
 
     def update_gnss(self, fix):
         self.events.append(("fix", fix.t_s))
@@ -51,15 +54,12 @@ class Recorder:
         return type("E", (), {"roll_rad": 0.1, "pitch_rad": -0.2, "sigma_rpy_rad": np.zeros(3)})()
 
 
-def test_levelling_offers_the_fixes_in_time_order(monkeypatch):
-    import ahrsd.calibration.mag.levelling as levelling
-
+def test_levelling_offers_the_fixes_in_time_order():
     rec = Recorder()
-    monkeypatch.setattr(levelling, "make_estimator", lambda name, **kw: rec)
     t = np.arange(10) * 0.1
     data = MagFitInput(t, np.ones((10, 3)), np.ones((10, 3)), np.zeros((10, 3)))
     fixes = fixes_of([0.05, 0.25, 0.85], [0, 0, 0], [1, 1, 1])
-    roll, pitch = roll_pitch_from_estimator(data, "x", fixes=fixes)
+    roll, pitch, _ = attitude_from_estimator(data, "x", fixes=fixes, estimator=rec)
     want = sorted([("sample", x) for x in t] + [("fix", f.t_s) for f in fixes], key=lambda e: e[1])
     assert rec.events == want and np.all(roll == 0.1) and np.all(pitch == -0.2)
 

@@ -57,6 +57,44 @@ def test_an_unaided_estimator_takes_no_fixes():
         list(replay_attitude(make_estimator("mekf"), [], fixes=[]))
 
 
+class MagnetometerRejected(FakeAided):
+    """An aided estimator with heading checks (estimator.base.HeadingCheckedEstimator) whose checks rejected
+    the magnetometer: 3 rejections at up to 36.4°, 2 resets of its yaw to the GNSS yaw."""
+
+    yaw_resets = 2
+    gnss_yaw_alignments = 0
+
+    def __init__(self):
+        from ahrsd.estimator.ins import GnssCounters
+
+        super().__init__()
+        self.gnss_counters = GnssCounters(offered=20, fused_velocity=19, fused_position=18, rejected_velocity=1,
+                                          rejected_position=2)
+
+    def set_mag_calibration_sigma(self, sigma_rad):
+        pass
+
+    def heading_report(self):
+        from ahrsd.estimator.ins import HeadingReport
+
+        return HeadingReport(mag_rejections=3, max_disagreement_deg=36.4, yaw_resets=self.yaw_resets)
+
+
+def test_the_summary_reads_the_gate_and_the_heading_checks_an_estimator_declares():
+    """replay's summary of the GNSS fixes: 'not offered' for an estimator that takes none, the gate's counts for
+    an aided one, and the magnetometer warning when it also declares heading checks that rejected it."""
+    from ahrsd.cli.replay import _gate_summary
+
+    assert _gate_summary(make_estimator("mekf")) == "not offered"
+    gate = "the filter fused 19 velocities and 18 positions, its gate rejected 1 and 2"
+    plain = FakeAided()
+    plain.gnss_counters = MagnetometerRejected().gnss_counters
+    assert _gate_summary(plain) == gate
+    assert _gate_summary(MagnetometerRejected()) == (
+        gate + "; WARNING: magnetometer disagrees with GNSS by 36°: calibration wrong or iron changed "
+        "(rejected 3×, heading reset to the GNSS yaw 2×)")
+
+
 def ahrsd(*args):
     return subprocess.run([sys.executable, "-m", "ahrsd.cli", *args], capture_output=True, text=True, timeout=120)
 

@@ -2,7 +2,7 @@
 
 Usage: python tools/check_structure.py [CHECKOUT]   (exit 0 when clean; each violation printed as path:line)
 
-Rules, all in daemon/:
+Rules in daemon/:
 1. no class with more than two bases (the daemon is composed of parts, not assembled from mixins);
 2. no `setattr` on an object other than `self`/`cls` (no part replaces another object's methods or state);
 3. no `getattr`/`hasattr` probing of the daemon's parts: not on the service or a part itself (`self`,
@@ -11,6 +11,9 @@ Rules, all in daemon/:
    `est`, `self.pipeline.estimator`, …: estimator/base.py declares its capabilities as Protocols, tested with
    isinstance) and not for an attribute named like
    a part (an optional part is `None` or a null object by type, and is tested with `is None`).
+Rule in every other package (cli/, calibration/, estimator/, drivers/, core/, simulation/):
+4. no `getattr`/`hasattr` probing of an estimator (the names of rule 3): what an estimator can do is declared
+   in estimator/base.py, whoever asks.
 """
 
 from __future__ import annotations
@@ -20,10 +23,13 @@ import sys
 from pathlib import Path
 
 MAX_BASES = 2
+ESTIMATOR_OBJECTS = {"estimator", "est", "self.estimator", "pipeline.estimator", "p.estimator",
+                     "self.pipeline.estimator"}                           # an estimator: estimator/base.py
 PROBED_OBJECTS = {"self", "service", "svc", "s", "host", "self.service", "self.host", "self.svc",
                   "source", "src", "self.source", "service.source",    # a sensor source: drivers.source_interface
-                  "estimator", "est", "self.estimator", "pipeline.estimator", "p.estimator",
-                  "self.pipeline.estimator"}                           # an estimator: estimator/base.py
+                  *ESTIMATOR_OBJECTS}
+DAEMON = "daemon"
+ESTIMATOR_RULE_PACKAGES = ("cli", "calibration", "estimator", "drivers", "core", "simulation")
 PART_NAMES = {
     "magcal", "field_calibration", "gnss", "pipeline", "reader", "publishers", "inbound", "param_protocol",
     "declination", "positions", "housekeeping", "health_report", "swap", "heading", "heading_slew",
@@ -41,35 +47,39 @@ def _dotted(node: ast.AST) -> str:
     return ""
 
 
-def check_file(path: Path, shown: str) -> list[str]:
+def check_file(path: Path, shown: str, daemon_rules: bool = True) -> list[str]:
+    """The problems in one file: every rule (daemon_rules), or only rule 4 (an estimator probed)."""
     try:
         tree = ast.parse(path.read_text(encoding="utf-8"))
     except SyntaxError as exc:
         return [f"{shown}:{exc.lineno}: does not parse"]
     out = []
     for node in ast.walk(tree):
-        if isinstance(node, ast.ClassDef) and len(node.bases) > MAX_BASES:
+        if daemon_rules and isinstance(node, ast.ClassDef) and len(node.bases) > MAX_BASES:
             out.append(f"{shown}:{node.lineno}: class {node.name} has {len(node.bases)} bases (at most "
                        f"{MAX_BASES}: compose parts instead of mixing them in)")
         if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.args):
             continue
         name, target = node.func.id, _dotted(node.args[0])
-        if name == "setattr" and target not in ("self", "cls"):
+        if daemon_rules and name == "setattr" and target not in ("self", "cls"):
             out.append(f"{shown}:{node.lineno}: setattr on {target or 'an expression'} (a part changes only "
                        "its own state; subscribe or pass a callback instead)")
         if name in ("getattr", "hasattr"):
             attr = node.args[1].value if len(node.args) > 1 and isinstance(node.args[1], ast.Constant) else None
-            if target in PROBED_OBJECTS or attr in PART_NAMES:
+            if daemon_rules and (target in PROBED_OBJECTS or attr in PART_NAMES):
                 out.append(f"{shown}:{node.lineno}: {name}({target or 'expression'}, {attr!r}) probes a part "
                            "(declare it: a constructor argument, None or a null object by type)")
+            elif not daemon_rules and target in ESTIMATOR_OBJECTS:
+                out.append(f"{shown}:{node.lineno}: {name}({target}, {attr!r}) probes an estimator (declare the "
+                           "capability as a Protocol in estimator/base.py and test it with isinstance)")
     return sorted(out, key=lambda line: int(line.split(":")[1]))
 
 
 def check(root: Path) -> list[str]:
-    daemon = root / "daemon"
     out = []
-    for path in sorted(daemon.rglob("*.py")):
-        out += check_file(path, str(path.relative_to(root)))
+    for package in (DAEMON, *ESTIMATOR_RULE_PACKAGES):
+        for path in sorted((root / package).rglob("*.py")):
+            out += check_file(path, str(path.relative_to(root)), daemon_rules=package == DAEMON)
     return out
 
 
@@ -78,7 +88,7 @@ def main(argv: list[str]) -> int:
     problems = check(root)
     for p in problems:
         print(p)
-    print(f"check_structure: {len(problems)} problem(s) in {root / 'daemon'}")
+    print(f"check_structure: {len(problems)} problem(s) in {root}")
     return 1 if problems else 0
 
 

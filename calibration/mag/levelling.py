@@ -7,6 +7,7 @@ import numpy as np
 
 from ahrsd.core.sample import make_sample
 from ahrsd.estimator import make_estimator
+from ahrsd.estimator.base import GnssAidedEstimator
 
 from .backstepping_paper import BacksteppingError
 from .fit_types import MagFitInput
@@ -17,9 +18,9 @@ def roll_pitch_from_estimator(data: MagFitInput, name: str = "mekf", fixes=None,
     """Run `ahrsd.estimator.make_estimator(name, **params)` over the samples (raw magnetometer: the estimator's
     design keeps magnetometer errors out of roll/pitch) and return its roll and pitch per sample.
 
-    fixes: GNSS fixes (core.gnss.GnssFix, time order, on the samples' time base) for an aided estimator (one
-    with `update_gnss`, e.g. "ins"): each is offered before the first sample not earlier than it, as
-    `ahrsd replay --gnss` does."""
+    fixes: GNSS fixes (core.gnss.GnssFix, time order, on the samples' time base) for an aided estimator
+    (estimator.base.GnssAidedEstimator, e.g. "ins"): each is offered before the first sample not earlier than
+    it, as `ahrsd replay --gnss` does."""
     roll, pitch, _ = attitude_from_estimator(data, name, fixes, **params)
     return roll, pitch
 
@@ -32,7 +33,7 @@ def attitude_from_estimator(data: MagFitInput, name: str = "mekf", fixes=None, e
     if data.gyro_rad_s is None or data.accel_m_s2 is None:
         raise BacksteppingError("the estimator needs gyro and accelerometer samples")
     est = estimator if estimator is not None else make_estimator(name, **params)
-    if fixes is not None and not hasattr(est, "update_gnss"):
+    if fixes is not None and not isinstance(est, GnssAidedEstimator):
         raise BacksteppingError(f"estimator {name!r} takes no GNSS fixes: use an aided one (ins)")
     fixes = list(fixes) if fixes is not None else []
     n = len(data)
