@@ -187,7 +187,9 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
         loader = None
         floor_proc, floor_out = None, None
         try:
-            deadline = time.monotonic() + 60.0
+            # with GNSS and no magnetometer calibration the daemon is ACTIVE only once its heading is good
+            # (the GNSS yaw aligned and converged: ~85 s on the simulated boat), not within 60 s
+            deadline = time.monotonic() + (180.0 if gnss else 60.0)
             active = aided = False
             while time.monotonic() < deadline:
                 try:
