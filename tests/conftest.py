@@ -34,15 +34,23 @@ sys.dont_write_bytecode = False
 def pytest_configure(config):
     """With pytest-xdist workers (the README's `-n 3`), compile the numba kernels once in the controller before
     the workers start (tests/support/numba_warm_up.py says why); the groups run side by side. Skipped in a
-    worker, without -n, and with AHRSD_TEST_NO_WARM_UP=1."""
+    worker, without -n, and with AHRSD_TEST_NO_WARM_UP=1.
+
+    The mekf group ends long before the ins group, and on the core it leaves idle one collection of the tests
+    runs meanwhile: it writes the test modules' assertion-rewritten bytecode, which each worker would otherwise
+    make again on a fresh checkout (the workers collect at the same time, so none finds another's)."""
     workers = getattr(config.option, "numprocesses", None)
     if hasattr(config, "workerinput") or not workers or os.environ.get("AHRSD_TEST_NO_WARM_UP") == "1":
         return
     script = Path(__file__).parent / "support" / "numba_warm_up.py"
-    procs = [subprocess.Popen([sys.executable, str(script), group], stdout=subprocess.DEVNULL)
-             for group in ("ins", "mekf")]
-    for proc in procs:
-        proc.wait()
+    ins, mekf = (subprocess.Popen([sys.executable, str(script), group], stdout=subprocess.DEVNULL)
+                 for group in ("ins", "mekf"))
+    mekf.wait()
+    collect = subprocess.Popen([sys.executable, "-m", "pytest", "--collect-only", "-q", "-p", "no:cacheprovider",
+                                *config.args], cwd=config.invocation_params.dir, stdout=subprocess.DEVNULL,
+                               stderr=subprocess.DEVNULL, env=dict(os.environ, AHRSD_TEST_NO_WARM_UP="1"))
+    ins.wait()
+    collect.wait()
 
 
 @pytest.fixture

@@ -5,14 +5,12 @@ is read from the data."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
 from ahrsd.calibration.allan import analyse_static
 from ahrsd.calibration.allan_correlation import SampleCorrelation, shortest_fit_tau_s
+from ahrsd.cli.main import main
 from ahrsd.drivers.recording import read_recording
 from ahrsd.simulation.errors import SensorErrors
 
@@ -23,9 +21,8 @@ pytestmark = pytest.mark.slow
 @pytest.fixture(scope="module")
 def chip_record(tmp_path_factory):
     path = tmp_path_factory.mktemp("allan_chip") / "static.csv"
-    r = subprocess.run([sys.executable, "-m", "ahrsd.cli", "record", "--sim", "static", "--seconds", str(SECONDS),
-                        "--output", str(path), "--quiet"], capture_output=True, text=True, timeout=900)
-    assert r.returncode == 0, r.stderr
+    # in this process: no interpreter start and ahrsd import (the console script is test_recording's)
+    assert main(["record", "--sim", "static", "--seconds", str(SECONDS), "--output", str(path), "--quiet"]) == 0
     return read_recording(path)
 
 

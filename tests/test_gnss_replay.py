@@ -6,7 +6,6 @@ from __future__ import annotations
 import contextlib
 import io
 import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -96,21 +95,23 @@ def test_the_summary_reads_the_gate_and_the_heading_checks_an_estimator_declares
 
 
 def ahrsd(*args):
-    return subprocess.run([sys.executable, "-m", "ahrsd.cli", *args], capture_output=True, text=True, timeout=120)
-
-
-def replay(*args):
-    """`ahrsd replay ARGS` run in this process (its output and exit status as the console script gives them,
-    without an interpreter start-up and a numba cache load per run)."""
+    """`ahrsd ARGS` run in this process (its output and exit status as the console script gives them, without
+    an interpreter start-up and a numba cache load per run; the console script itself is test_recording's and
+    test_replay's)."""
     from ahrsd.cli.main import main
 
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         try:
-            rc = main(["replay", *map(str, args)])
+            rc = main([*map(str, args)])
         except SystemExit as exc:   # argparse usage errors
             rc = exc.code
-    return subprocess.CompletedProcess(["ahrsd", "replay", *map(str, args)], rc, out.getvalue(), err.getvalue())
+    return subprocess.CompletedProcess(["ahrsd", *map(str, args)], rc, out.getvalue(), err.getvalue())
+
+
+def replay(*args):
+    """`ahrsd replay ARGS` run in this process."""
+    return ahrsd("replay", *args)
 
 
 @pytest.fixture(scope="module")

@@ -3,30 +3,27 @@ the output carries the GNSS yaw, its σ and the heading state, and the summary n
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ahrsd.cli.main import main
 from ahrsd.cli.replay import AIDED_OUTPUT_HEADER, HEADING_OUTPUT_COLUMNS
 from ahrsd.core.estimate import HeadingState
 
 
-def ahrsd(*args):
-    return subprocess.run([sys.executable, "-m", "ahrsd.cli", *args], capture_output=True, text=True, timeout=600)
-
-
-def test_an_uncalibrated_boat_replays_with_an_honest_heading(tmp_path):
+def test_an_uncalibrated_boat_replays_with_an_honest_heading(tmp_path, capsys):
+    """`record` and `replay` run in this process (the worker has usually loaded the ins kernels already; the
+    console scripts in subprocesses are test_recording's and test_replay's)."""
     from ahrsd.simulation import open_stream
 
     rec = tmp_path / "boat.csv"
-    res = ahrsd("record", "--sim", "boat", "--seconds", "90", "-o", str(rec))
-    assert res.returncode == 0, res.stderr
+    assert main(["record", "--sim", "boat", "--seconds", "90", "-o", str(rec)]) == 0, capsys.readouterr().err
+    capsys.readouterr()
     out = tmp_path / "out.csv"
-    res = ahrsd("replay", str(rec), "--gnss", str(tmp_path / "boat.gnss.csv"), "-o", str(out))
-    assert res.returncode == 0, res.stderr
-    assert "heading state" in res.stderr and "unknown" in res.stderr, res.stderr
+    code = main(["replay", str(rec), "--gnss", str(tmp_path / "boat.gnss.csv"), "-o", str(out)])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "heading state" in err and "unknown" in err, err
     lines = out.read_text().splitlines()
     assert lines[0] == AIDED_OUTPUT_HEADER and lines[0].endswith(",".join(HEADING_OUTPUT_COLUMNS))
     cols = lines[0].split(",")

@@ -134,12 +134,10 @@ def test_replay_plot_without_matplotlib_is_a_usage_error_before_any_work(truth_r
 
 @pytest.fixture(scope="module")
 def boat_with_gnss(tmp_path_factory):
-    import subprocess
-
     path = tmp_path_factory.mktemp("aided") / "boat.csv"
-    r = subprocess.run([sys.executable, "-m", "ahrsd.cli", "record", "--sim", "boat", "--seconds", "30", "--rate-hz",
-                        "100", "--output", str(path), "--quiet"], capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
+    # in this process: no interpreter start and ahrsd import (the console script is test_recording's)
+    assert main(["record", "--sim", "boat", "--seconds", "30", "--rate-hz", "100", "--output", str(path),
+                 "--quiet"]) == 0
     return path, path.with_name("boat.gnss.csv")
 
 
