@@ -59,6 +59,7 @@ class HeadingStatus:
         self.disagreement_rad = math.nan              # magnetometer − GNSS yaw (NaN: no valid GNSS yaw)
         self.mag_inconsistent = False                 # the magnetometer disagrees with the GNSS(-held) heading
         self.initialising = True
+        self.gnss_checked = False                     # the estimator checks its heading against GNSS (ins, fixes)
         self.announced: HeadingState | None = None
         self.announcements = 0
         self._candidate: tuple[HeadingState, float] | None = None
@@ -82,6 +83,7 @@ class HeadingStatus:
         self.state = state
         self.sigma_rad = float(est.sigma_rpy_rad[2])
         self.initialising = bool(est.flags & EstimateFlags.INITIALISING)
+        self.gnss_checked = est.integrity is not None
         self.disagreement_rad, significant = self._disagreement(est.integrity)
         # a trusted calibration rejected by ins (GNSS-held state) disagreed with the heading GNSS holds
         self.mag_inconsistent = significant or (state in (HeadingState.GNSS_ONLY, HeadingState.LEARNING)
@@ -140,10 +142,33 @@ class HeadingStatus:
         return bits
 
     def status_text(self) -> str:
-        """For the status line: "hdg GNSS-only ±1.2°"."""
+        """For the status line: "hdg GNSS-only ±1.2°"; "hdg mag uncal ±0.3°" for a magnetometer heading whose
+        calibration is untrusted (`calibration_caveat`)."""
         if self.state is None:
             return "hdg --"
-        return f"{STATE_LABELS[self.state]} ±{math.degrees(self.sigma_rad):.1f}°"
+        label = STATE_LABELS[self.state] + (" uncal" if self.calibration_caveat() else "")
+        return f"{label} ±{math.degrees(self.sigma_rad):.1f}°"
+
+    def calibration_caveat(self) -> str | None:
+        """What the heading's σ cannot include: a MAGNETOMETER heading with no GNSS to check it rests on the
+        calibration alone, and the filter's σ covers the sensor's noise, not an iron the calibration did not remove.
+        With no calibration (or one of unknown quality) that error is unknown; ArduPilot refuses to arm then
+        ("Compass not calibrated"). A short phrase, or None when the calibration is trusted or GNSS checks the
+        heading (ins learns the iron and its σ includes the calibration's)."""
+        if self.state != HeadingState.MAGNETOMETER or self.gnss_checked:
+            return None
+        cal = self.calibration_sigma_rad
+        if not math.isfinite(cal):
+            return "mag not calibrated"
+        if cal > TRUSTED_CALIBRATION_RAD:
+            return f"mag cal ±{math.degrees(cal):.0f}°"
+        return None
+
+    def active_detail(self) -> str:
+        """The MAV_STATE ACTIVE STATUSTEXT's detail: "heading good", or what the heading rests on when the
+        calibration is untrusted (`calibration_caveat`)."""
+        caveat = self.calibration_caveat()
+        return "heading good" if caveat is None else f"heading: {caveat}"
 
     def standby_detail(self) -> str:
         """Why the daemon is not ACTIVE although the estimator runs (the MAV_STATE STATUSTEXT)."""
@@ -187,7 +212,12 @@ class HeadingStatus:
         sig = f"±{math.degrees(self.sigma_rad):.1f}°"
         integrity = est.integrity
         if state == HeadingState.MAGNETOMETER:
-            return mavlink.MAV_SEVERITY_INFO, f"ahrsd: heading from magnetometer ({sig})"
+            caveat = self.calibration_caveat()
+            if caveat is None:
+                return mavlink.MAV_SEVERITY_INFO, f"ahrsd: heading from magnetometer ({sig})"
+            return mavlink.MAV_SEVERITY_WARNING, (
+                f"ahrsd: heading from magnetometer ({sig} noise only), {caveat}: the vehicle's iron may turn it "
+                "by tens of degrees; calibrate it (magcal)")
         d = self.disagreement_rad
         by = f" by {abs(math.degrees(d)):.0f}°" if math.isfinite(d) else ""
         disagrees = self.mag_inconsistent

@@ -62,7 +62,8 @@ class HealthReport:
     def __init__(self, health: Health, outbound: Outbound, notifier: Notifier, counts: SampleCount, *,
                  watchdog_interval_s: float | None, start: float,
                  cpu_clock: Callable[[], float] = time.process_time,
-                 standby_detail: Callable[[], str] = lambda: "initialising, no heading out"):
+                 standby_detail: Callable[[], str] = lambda: "initialising, no heading out",
+                 active_detail: Callable[[], str] = lambda: "heading good"):
         self.health = health
         self.outbound = outbound
         self.notifier = notifier
@@ -70,6 +71,7 @@ class HealthReport:
         self.watchdog_interval_s = watchdog_interval_s
         self.cpu_clock = cpu_clock
         self.standby_detail = standby_detail       # why no heading is good (daemon.heading_status)
+        self.active_detail = active_detail         # "heading good", or what it rests on (daemon.heading_status)
         self.load_permille = 0
         self.measured_rate_hz: float | None = None     # None until one rate window has passed
         self._next_heartbeat = start + HEARTBEAT_PERIOD_S
@@ -115,7 +117,7 @@ class HealthReport:
         detail = {
             mavlink.MAV_STATE_BOOT: "waiting for the sensor",
             mavlink.MAV_STATE_STANDBY: self.standby_detail(),
-            mavlink.MAV_STATE_ACTIVE: "heading good",     # Health: only while daemon.heading_status says so
+            mavlink.MAV_STATE_ACTIVE: self.active_detail(),   # Health: only while daemon.heading_status says so
             mavlink.MAV_STATE_CALIBRATING: self.health.calibrating or "calibrating",
             mavlink.MAV_STATE_CRITICAL: self.health.sensor_error or "no samples from the sensor",
         }.get(new, "")

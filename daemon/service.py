@@ -413,7 +413,8 @@ class Service:
         self.notifier.status(f"starting: {self.source.description}")
         self.health_report = HealthReport(self.health, self.outbound, self.notifier, pipeline.counters,
                                           watchdog_interval_s=watchdog_interval_s(self.environ),
-                                          start=self.loop.time(), standby_detail=self.heading_status.standby_detail)
+                                          start=self.loop.time(), standby_detail=self.heading_status.standby_detail,
+                                          active_detail=self.heading_status.active_detail)
         self.health_report.send_heartbeat(time.monotonic())   # routers learn us from our first packet
 
     def _on_message(self, endpoint, msg) -> None:

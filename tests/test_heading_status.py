@@ -128,6 +128,27 @@ def test_without_a_calibration_the_cause_is_the_missing_calibration():
     assert "learning its iron" in texts[-1][1] and "not good yet" in texts[-1][1]
 
 
+def test_a_magnetometer_heading_without_gnss_names_an_untrusted_calibration():
+    """Without GNSS (mekf: no integrity) the calibration is the only heading reference and the filter's σ is the
+    sensor noise only: with no calibration, or one predicting more than 3°, the announcement is a WARNING that
+    says so, the status line marks it and MAV_STATE ACTIVE does not say "heading good"."""
+    for cal_deg, caveat in ((math.nan, "mag not calibrated"), (5.0, "mag cal ±5°")):
+        hs, texts = status(cal_sigma_deg=cal_deg)
+        for t in (0.0, ANNOUNCE_AFTER_S):
+            hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 0.3, with_integrity=False), t)
+        (sev, text), = texts
+        assert sev == mavlink.MAV_SEVERITY_WARNING and caveat in text and "calibrate" in text, text
+        assert hs.status_text() == "hdg mag uncal ±0.3°"
+        assert hs.active_detail() == f"heading: {caveat}"
+    # a trusted calibration, or GNSS checking the heading (ins learns the iron): the plain announcement
+    for cal_deg, integrity in ((0.5, False), (math.nan, True)):
+        hs, texts = status(cal_sigma_deg=cal_deg)
+        for t in (0.0, ANNOUNCE_AFTER_S):
+            hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 0.3, with_integrity=integrity), t)
+        assert texts == [(mavlink.MAV_SEVERITY_INFO, "ahrsd: heading from magnetometer (±0.3°)")]
+        assert hs.status_text() == "hdg mag ±0.3°" and hs.active_detail() == "heading good"
+
+
 def test_unknown_names_why_and_says_no_heading_is_sent():
     hs, texts = status()
     hs.on_estimate(estimate(HeadingState.UNKNOWN, 30.0, flags=EstimateFlags.INITIALISING), 0.0)
