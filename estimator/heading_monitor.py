@@ -300,9 +300,17 @@ class HeadingMonitor:
                 reset_var = gsf_var_rad2
                 self.resets += 1
                 self.last_reset_t_s = t_s
-        self.learning = heading_observable and (self.mag_rejected or bias_var > self.trusted_sigma_rad ** 2)
+        # a reset here moves the yaw its σ was judged on: nothing is learned until the next check
+        self.learning = heading_observable and reset_to is None and (
+            self.mag_rejected or bias_var > self.trusted_sigma_rad ** 2)
         return MonitorDecision(not self.mag_rejected, mag_var_rad2 if not self.mag_rejected else 0.0, floor,
                                reset_to, reset_var)
+
+    def yaw_was_reset(self, t_s: float) -> None:
+        """The filter's yaw was reset outside `check` (the GNSS-yaw alignment at this check): an emergency reset
+        keeps its spacing from it, and nothing is learned on the σ `check` judged before it."""
+        self.last_reset_t_s = t_s
+        self.learning = False
 
     def heading_state(self, yaw_sigma_rad: float, initialising: bool, aided: bool, unknown_sigma_rad: float,
                       mag_var_rad2: float) -> HeadingState:

@@ -744,11 +744,13 @@ class Ins:
             self.heading_interventions += 1
             log.warning("ins: magnetometer disagrees with the GNSS-held heading by %.1f°: calibration wrong or "
                         "iron changed; magnetometer rejected", math.degrees(self._monitor.lowpassed_innovation_rad))
+        yaw_reset_to = None          # the yaw a reset below turns the attitude (about down) to
         if d.reset_yaw_to_rad is not None:
             self._reset_yaw(d.reset_yaw_to_rad - yaw, d.reset_yaw_var_rad2)
+            yaw_reset_to = d.reset_yaw_to_rad
         elif self._gnss_yaw_alignment_due(gsf_valid):
             self._gnss_yaw_aligned = True
-            self._monitor.last_reset_t_s = t_s       # an emergency reset keeps its spacing from this one
+            self._monitor.yaw_was_reset(t_s)     # an emergency reset keeps its spacing from this one
             # nothing confirmed the heading before the alignment, so the biases go back to their start-up values:
             # learned against an uncalibrated magnetometer, whose heading error changes as the vehicle turns (vehicle
             # iron), the vertical gyro bias has taken up that error's rate, and the agreement check above, with the
@@ -756,6 +758,7 @@ class Ins:
             self._confirmed_gyro_bias = self._startup_gyro_bias.copy()
             self._confirmed_accel_bias = self._startup_accel_bias.copy()
             self._reset_yaw(gsf_yaw - yaw, gsf_var, alignment=True)
+            yaw_reset_to = gsf_yaw
         elif not self._heading_confirmed and gsf_valid and (self._calibration_untrusted or self._monitor.mag_rejected):
             yaw_var_now = P[core.E_YAW, core.E_YAW]
             agrees = wrap_pi(gsf_yaw - yaw) ** 2 <= self._monitor.gate_sigma ** 2 * (yaw_var_now + gsf_var)
@@ -777,6 +780,8 @@ class Ins:
             self._par["mag_bias_var_rad2"] = mag_var - noise   # the white part is the kernel's own noise
             learned = self._iron.updates > 0 or self._iron_restored
             self._par["mag_bias_tau_s"] = p.iron_learned_tau_s if learned else p.mag_bias_tau
+        # the monitor says no learning on a check that reset the yaw (c_bn is the attitude before the reset, P its
+        # covariance after it): the next check learns with the new yaw
         if p.iron_learning and self._monitor.learning and np.all(np.isfinite(m_body)) and self._x["nav_ok"] > 0:
             field = self._earth_field_ned()
             if field is not None:
@@ -786,9 +791,8 @@ class Ins:
                 self._iron.update(x["mag_last_ut"], c_bn, field, P[att, att],
                                   p.iron_unmodelled_ut, max(1.0, p.iron_tau_s / dt))
                 self._apply_learned_iron()
-        c_now = quat_to_dcm(x["q"])          # after a reset this check may have made
-        self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(math.atan2(c_now[1, 0], c_now[0, 0]), gsf_yaw,
-                                                                  gsf_var)
+        yaw_now = yaw if yaw_reset_to is None else wrap_pi(yaw_reset_to)
+        self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(yaw_now, gsf_yaw, gsf_var)
         sig = math.sqrt(max(P[core.E_YAW, core.E_YAW], 0.0))
         if self._unconfirmed_sigma_rad > sig:
             sig = self._unconfirmed_sigma_rad

@@ -101,3 +101,59 @@ def test_reentry_counts_consistency_only_while_the_gnss_holds_the_heading():
     back = [t for t, use in uses if use]
     assert back, "the magnetometer never re-entered"
     assert back[0] == pytest.approx(30.0 + 20.0, abs=0.21), back[0]
+
+
+def test_a_reset_check_decides_no_learning():
+    """A check that resets the yaw to the GNSS yaw (valid, 40° ± 2° off a filter yaw of σ 0.3°, the magnetometer
+    rejected, the filter's velocity fusion failing) says nothing is learned at it: the heading σ the learning was
+    judged on is the one from before the reset. The next check, the yaw now where the reset put it and agreeing,
+    learns again. The same for a reset made by the caller (`yaw_was_reset`, the GNSS-yaw alignment)."""
+    mon = HeadingMonitor(D(0.5))
+    _checks(mon, [0.0] * 10 + [20.0] * 3)
+    assert mon.mag_rejected
+    mon.lowpassed_velocity_nis = 50.0
+    d = mon.check(3.0, 0.0, D(0.3) ** 2, D(20.0), D(0.5) ** 2, D(40.0), D(2.0) ** 2, True, True, 50.0)
+    assert d.reset_yaw_to_rad == pytest.approx(D(40.0))
+    assert not mon.learning
+    d = mon.check(3.2, D(40.0), D(0.3) ** 2, D(20.0), D(0.5) ** 2, D(40.0), D(2.0) ** 2, True, True, 50.0)
+    assert d.reset_yaw_to_rad is None and mon.learning
+    mon.yaw_was_reset(3.2)
+    assert not mon.learning and mon.last_reset_t_s == 3.2
+
+
+def test_ins_learns_no_iron_on_a_check_that_resets_the_yaw():
+    """The held-out car without calibration, its magnetometer rejected and its iron being learned (26–57 s): at
+    40 s its yaw is turned 30° away without its covariance knowing (injected into the state). The car then drives
+    without turning, so nothing shows it until ~50 s, when the GNSS velocity fails and the yaw is reset to the
+    GNSS yaw. The iron learner must not update at that check: its attitude would be the one from before the reset
+    (30° off) and its covariance the one after it. It learns again at the following checks. Broken (the iron
+    update on every learning check, as before): one update at the reset check."""
+    from ahrsd.core.sample import SampleFlags, make_sample
+    from ahrsd.estimator import ins_core as core
+    from ahrsd.estimator.ins import Ins
+    from bench.vehicle_accuracy import HONESTY_SITES, simulate_vehicle
+
+    site, iron = HONESTY_SITES["held-out"]
+    run = simulate_vehicle("car", 52.0, 14, site, mag="uncalibrated", iron=iron)
+    est = Ins(declination_rad=run.declination_rad, lever_arm_m=run.lever_arm_m,
+              mag_calibration_sigma_rad=run.mag_calibration_sigma_rad)
+    turned = False
+    reset_checks, learned_after = [], 0
+    fi = 0
+    for k, t in enumerate(run.t_s):
+        if not turned and t >= 40.0:
+            assert est._monitor.mag_rejected and est._monitor.learning, "the scenario: learning when turned"
+            core._rotate_attitude(est._x["q"], 0.0, 0.0, D(30.0))
+            turned = True
+        while fi < len(run.fixes) and run.fixes[fi].extra["t_rx_s"] <= t:
+            resets, updates, offset = est.yaw_resets, est._iron.updates, est._iron.offset_ut
+            est.update_gnss(run.fixes[fi])
+            fi += 1
+            if turned and est.yaw_resets > resets:
+                reset_checks.append((t, est._iron.updates - updates, float(np.abs(est._iron.offset_ut - offset).max())))
+            elif reset_checks:
+                learned_after += est._iron.updates - updates
+        est.update(make_sample(t, run.gyro_rad_s[k], run.accel_m_s2[k], run.mag_ut[k], flags=SampleFlags.NEW_DATA))
+    assert reset_checks, "the turned yaw was never reset"
+    assert all(n == 0 and moved == 0.0 for _, n, moved in reset_checks), reset_checks
+    assert learned_after > 0
