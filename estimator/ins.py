@@ -514,6 +514,11 @@ class Ins:
         return self._x["mag"]
 
     @property
+    def lever_arm_m(self) -> tuple[float, float, float]:
+        """The antenna's position from the IMU the filter was told (InsParams.lever_arm_m), body FRD, m."""
+        return tuple(float(v) for v in self.params.lever_arm_m)
+
+    @property
     def covariance(self) -> np.ndarray:
         """Error covariance 24×24 [δθ NED (rad), δv NED (m/s), δp NED (m), δb_g (rad/s), δb_a (m/s²), δs_g,
         δm_g (xy, xz, yx, yz, zx, zy, rad)]."""

@@ -40,6 +40,7 @@ class Recorder:
     """An aided estimator (estimator.base.GnssAidedEstimator) that records what it is offered, in order."""
 
     name = "recorder"
+    lever_arm_m = (0.0, 0.0, 0.0)
 
     def __init__(self):
         self.events = []
