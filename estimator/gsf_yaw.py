@@ -629,41 +629,67 @@ def gsf_fuse_velocity(state, params, t_s, vel_ne_m_s, vel_sigma_m_s):
     if state.t_s - t_s > params.max_fix_delay_s:
         state.n_rejected += 1
         return REJECTED_TOO_OLD
-    n = state.weight.shape[0]
     if not state.tilt_aligned or state.ring_count == 0:
         _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down)
         return WAITING_FOR_TILT
+    r = max(vel_sigma_m_s, params.vel_sigma_floor_m_s) ** 2
     gap = math.isnan(state.last_fused_t_s) or t_s - state.last_fused_t_s > params.max_fix_gap_s
     if not state.vel_seeded or gap:
-        # (re)seed: each model's velocity moved by its innovation against its prediction at t_s (the stored
-        # predictions too), variance from the fix's accuracy; yaw and weights kept, no weight update
-        r = max(vel_sigma_m_s, params.vel_sigma_floor_m_s) ** 2
-        for i in range(n):
-            ok, pn, pe = _predicted_at(state, t_s, i)
-            if not ok:
-                newest = (state.ring_next - 1) % RING_LEN
-                pn, pe = state.ring_vel_ne_m_s[newest, i, 0], state.ring_vel_ne_m_s[newest, i, 1]
-            _shift_velocity(state, i, vn - pn, ve - pe)
-            for j in range(N_MODEL_STATES):
-                state.P[i, _VN, j] = 0.0
-                state.P[i, j, _VN] = 0.0
-                state.P[i, _VE, j] = 0.0
-                state.P[i, j, _VE] = 0.0
-            state.P[i, _VN, _VN] = r
-            state.P[i, _VE, _VE] = r
-        state.vel_seeded = True
-        state.last_fused_t_s = t_s
-        state.n_passing_fixes = 0
+        _seed_velocities(state, t_s, vn, ve, r)
         _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down)
         return SEEDED
-    r = max(vel_sigma_m_s, params.vel_sigma_floor_m_s) ** 2
     clip2 = params.innov_clip_sigma ** 2
+    n_clipped = _innovations(state, t_s, vn, ve, r, clip2)
+    if n_clipped < 0:
+        state.n_rejected += 1
+        return REJECTED_TOO_OLD
+    if n_clipped == state.weight.shape[0]:
+        _reject_unexplained(state, params, t_s, vn, ve, vd, has_down)
+        return REJECTED_CLIPPED
+    state.n_rejected_in_row = 0
+    # the speed and manoeuvre bookkeeping take only fixes some hypothesis explains (not a glitch)
+    _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down)
+    vel_innov_m_s = _weighted_innovation_m_s(state)
+    _update_models(state, params, r, clip2)
+    _count_fused(state, params, t_s, n_clipped, vel_innov_m_s)
+    _update_validity(state, params)
+    return FUSED
+
+
+@njit(cache=True)
+def _seed_velocities(state, t_s, vn, ve, r):
+    """(Re)seed: each model's velocity moved by its innovation against its prediction at t_s (the stored
+    predictions too), variance `r` from the fix's accuracy; yaw and weights kept, no weight update."""
+    n = state.weight.shape[0]
+    for i in range(n):
+        ok, pn, pe = _predicted_at(state, t_s, i)
+        if not ok:
+            newest = (state.ring_next - 1) % RING_LEN
+            pn, pe = state.ring_vel_ne_m_s[newest, i, 0], state.ring_vel_ne_m_s[newest, i, 1]
+        _shift_velocity(state, i, vn - pn, ve - pe)
+        for j in range(N_MODEL_STATES):
+            state.P[i, _VN, j] = 0.0
+            state.P[i, j, _VN] = 0.0
+            state.P[i, _VE, j] = 0.0
+            state.P[i, j, _VE] = 0.0
+        state.P[i, _VN, _VN] = r
+        state.P[i, _VE, _VE] = r
+    state.vel_seeded = True
+    state.last_fused_t_s = t_s
+    state.n_passing_fixes = 0
+
+
+@njit(cache=True)
+def _innovations(state, t_s, vn, ve, r, clip2):
+    """Each model's innovation against its prediction at t_s and its normalised square νᵀS⁻¹ν, stored in the
+    state (innov_m_s, test_ratio, clipped: beyond `clip2`). Returns how many models are clipped, or −1 when
+    t_s is older than the stored predictions."""
+    n = state.weight.shape[0]
     n_clipped = 0
     for i in range(n):
         ok, pn, pe = _predicted_at(state, t_s, i)
         if not ok:
-            state.n_rejected += 1
-            return REJECTED_TOO_OLD
+            return -1
         nu_n, nu_e = vn - pn, ve - pe
         p = state.P[i]
         s00, s01, s11 = p[_VN, _VN] + r, p[_VN, _VE], p[_VE, _VE] + r
@@ -675,64 +701,94 @@ def gsf_fuse_velocity(state, params, t_s, vel_ne_m_s, vel_sigma_m_s):
         state.clipped[i] = 1 if ratio > clip2 else 0
         if state.clipped[i] == 1:
             n_clipped += 1
-    if n_clipped == n:
-        state.n_rejected += 1
-        state.n_rejected_in_row += 1
-        state.n_passing_fixes = 0
-        if state.n_rejected_in_row >= params.reset_after_rejected_fixes:
-            q = np.full(4, np.nan)
-            gsf_reset(state, params, state.t_s, q)
-            _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down)
-        return REJECTED_CLIPPED
-    state.n_rejected_in_row = 0
-    # the speed and manoeuvre bookkeeping take only fixes some hypothesis explains (not a glitch)
-    _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down)
-    # EKF updates (innovation at t_s, correction now) and log-likelihoods
-    log_w = np.empty(n)
-    best = -np.inf
+    return n_clipped
+
+
+@njit(cache=True)
+def _reject_unexplained(state, params, t_s, vn, ve, vd, has_down):
+    """No model explains the fix (every innovation clipped): counted and not fused; `reset_after_rejected_fixes`
+    of these in a row restart the bank (a diverged bank rather than a glitch)."""
+    state.n_rejected += 1
+    state.n_rejected_in_row += 1
+    state.n_passing_fixes = 0
+    if state.n_rejected_in_row >= params.reset_after_rejected_fixes:
+        q = np.full(4, np.nan)
+        gsf_reset(state, params, state.t_s, q)
+        _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down)
+
+
+@njit(cache=True)
+def _weighted_innovation_m_s(state):
+    """Length of the weight-averaged innovation (unclipped) of the models (validity's max_vel_innov_m_s)."""
     inn_n = inn_e = 0.0
+    for i in range(state.weight.shape[0]):
+        inn_n += state.weight[i] * state.innov_m_s[i, 0]
+        inn_e += state.weight[i] * state.innov_m_s[i, 1]
+    return math.hypot(inn_n, inn_e)
+
+
+@njit(cache=True)
+def _update_models(state, params, r, clip2):
+    """Every model's EKF update with its stored innovation (innovation at the fix's time, correction now),
+    then the Gaussian-sum weights from the innovations' likelihoods."""
+    n = state.weight.shape[0]
+    log_w = np.empty(n)
     for i in range(n):
-        nu_n, nu_e = state.innov_m_s[i, 0], state.innov_m_s[i, 1]
-        inn_n += state.weight[i] * nu_n
-        inn_e += state.weight[i] * nu_e
-        ratio = state.test_ratio[i]
-        if ratio > clip2:
-            scale = math.sqrt(clip2 / ratio)
-            nu_n *= scale
-            nu_e *= scale
-            ratio = clip2
-        p = state.P[i]
-        s00, s01, s11 = p[_VN, _VN] + r, p[_VN, _VE], p[_VE, _VE] + r
-        det = s00 * s11 - s01 * s01
-        i00, i01, i11 = s11 / det, -s01 / det, s00 / det
-        # K = P Hᵀ S⁻¹ (H picks vel_n, vel_e); x += K ν; P −= K H P
-        kx = np.empty((N_MODEL_STATES, 2))
-        for j in range(N_MODEL_STATES):
-            kx[j, 0] = p[j, _VN] * i00 + p[j, _VE] * i01
-            kx[j, 1] = p[j, _VN] * i01 + p[j, _VE] * i11
-        hp_n = p[_VN].copy()
-        hp_e = p[_VE].copy()
-        for j in range(N_MODEL_STATES):
-            for k in range(N_MODEL_STATES):
-                p[j, k] -= kx[j, 0] * hp_n[k] + kx[j, 1] * hp_e[k]
-        for j in range(N_MODEL_STATES):
-            for k in range(j + 1, N_MODEL_STATES):
-                m = 0.5 * (p[j, k] + p[k, j])
-                p[j, k] = m
-                p[k, j] = m
-            p[j, j] = max(p[j, j], 1e-9)
-        dvn = kx[_VN, 0] * nu_n + kx[_VN, 1] * nu_e
-        dve = kx[_VE, 0] * nu_n + kx[_VE, 1] * nu_e
-        dpsi = kx[_YAW, 0] * nu_n + kx[_YAW, 1] * nu_e
-        _shift_velocity(state, i, dvn, dve)
-        state.accel_bias_m_s2[i, 0] += kx[_BF, 0] * nu_n + kx[_BF, 1] * nu_e
-        state.accel_bias_m_s2[i, 1] += kx[_BR, 0] * nu_n + kx[_BR, 1] * nu_e
-        state.yaw_rad[i] = _wrap(state.yaw_rad[i] + dpsi)
-        _rotate_dcm_yaw(state.dcm[i], dpsi)
-        lw = math.log(max(state.weight[i], 1e-300)) - 0.5 * ratio - 0.5 * math.log(det)
-        log_w[i] = lw
-        if lw > best:
-            best = lw
+        log_w[i] = _update_model(state, i, r, clip2)
+    _reweight(state, params, log_w)
+
+
+@njit(cache=True)
+def _update_model(state, i, r, clip2):
+    """Model i's EKF update with its innovation (clipped to `clip2` in νᵀS⁻¹ν); returns its log weight times
+    the innovation's likelihood, log w_i − ½ νᵀS⁻¹ν − ½ log det S (2π is common to all)."""
+    nu_n, nu_e = state.innov_m_s[i, 0], state.innov_m_s[i, 1]
+    ratio = state.test_ratio[i]
+    if ratio > clip2:
+        scale = math.sqrt(clip2 / ratio)
+        nu_n *= scale
+        nu_e *= scale
+        ratio = clip2
+    p = state.P[i]
+    s00, s01, s11 = p[_VN, _VN] + r, p[_VN, _VE], p[_VE, _VE] + r
+    det = s00 * s11 - s01 * s01
+    i00, i01, i11 = s11 / det, -s01 / det, s00 / det
+    # K = P Hᵀ S⁻¹ (H picks vel_n, vel_e); x += K ν; P −= K H P
+    kx = np.empty((N_MODEL_STATES, 2))
+    for j in range(N_MODEL_STATES):
+        kx[j, 0] = p[j, _VN] * i00 + p[j, _VE] * i01
+        kx[j, 1] = p[j, _VN] * i01 + p[j, _VE] * i11
+    hp_n = p[_VN].copy()
+    hp_e = p[_VE].copy()
+    for j in range(N_MODEL_STATES):
+        for k in range(N_MODEL_STATES):
+            p[j, k] -= kx[j, 0] * hp_n[k] + kx[j, 1] * hp_e[k]
+    for j in range(N_MODEL_STATES):
+        for k in range(j + 1, N_MODEL_STATES):
+            m = 0.5 * (p[j, k] + p[k, j])
+            p[j, k] = m
+            p[k, j] = m
+        p[j, j] = max(p[j, j], 1e-9)
+    dvn = kx[_VN, 0] * nu_n + kx[_VN, 1] * nu_e
+    dve = kx[_VE, 0] * nu_n + kx[_VE, 1] * nu_e
+    dpsi = kx[_YAW, 0] * nu_n + kx[_YAW, 1] * nu_e
+    _shift_velocity(state, i, dvn, dve)
+    state.accel_bias_m_s2[i, 0] += kx[_BF, 0] * nu_n + kx[_BF, 1] * nu_e
+    state.accel_bias_m_s2[i, 1] += kx[_BR, 0] * nu_n + kx[_BR, 1] * nu_e
+    state.yaw_rad[i] = _wrap(state.yaw_rad[i] + dpsi)
+    _rotate_dcm_yaw(state.dcm[i], dpsi)
+    return math.log(max(state.weight[i], 1e-300)) - 0.5 * ratio - 0.5 * math.log(det)
+
+
+@njit(cache=True)
+def _reweight(state, params, log_w):
+    """w_i ← exp(log_w_i) normalised (in the log domain: the largest subtracted first), floored at
+    `weight_floor` and normalised again."""
+    n = state.weight.shape[0]
+    best = -np.inf
+    for i in range(n):
+        if log_w[i] > best:
+            best = log_w[i]
     total = 0.0
     for i in range(n):
         log_w[i] = math.exp(log_w[i] - best)
@@ -744,17 +800,21 @@ def gsf_fuse_velocity(state, params, t_s, vel_ne_m_s, vel_sigma_m_s):
         total2 += w
     for i in range(n):
         state.weight[i] /= total2
+
+
+@njit(cache=True)
+def _count_fused(state, params, t_s, n_clipped, vel_innov_m_s):
+    """The bookkeeping of a fused fix: counts, and the run of passing fixes validity needs (composite σ and
+    weighted innovation below their limits)."""
     state.n_clipped = n_clipped
     state.n_fused += 1
     state.last_fused_t_s = t_s
-    state.vel_innov_m_s = math.hypot(inn_n, inn_e)
+    state.vel_innov_m_s = vel_innov_m_s
     _, sigma = _composite(state)
     if sigma < params.sigma_valid_max_rad and state.vel_innov_m_s < params.max_vel_innov_m_s:
         state.n_passing_fixes += 1
     else:
         state.n_passing_fixes = 0
-    _update_validity(state, params)
-    return FUSED
 
 
 # ----------------------------------------------------------------------------------------- Python wrapper
