@@ -454,7 +454,7 @@ def _align_tilt(state, fx, fy, fz):
         state.tilt_aligned = True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _kinematic_acceleration(state):
     """The body's kinematic acceleration with the velocity along body x (no sideslip), speed V from the GNSS:
     a = d/dt (V x̂) + ω × V x̂ = (V̇, ω_z V, −ω_y V). It does not depend on any model's yaw, so no model can
@@ -464,7 +464,7 @@ def _kinematic_acceleration(state):
     return state.speed_rate_m_s2, state.rate_rad_s[2] * speed, -state.rate_rad_s[1] * speed
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _tilt_ahrs_step(c, th, ux, uy, uz, gain, dt):
     """Rotate one model's body → NED matrix `c` by the gyro increment `th` plus the tilt correction towards the
     measured vertical (u = f − a, the specific force less the kinematic acceleration)."""
@@ -482,7 +482,7 @@ def _tilt_ahrs_step(c, th, ux, uy, uz, gain, dt):
     _rotate_dcm_body(c, th[0] + cx, th[1] + cy, th[2] + cz)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _ekf_predict(state, params, i, dvn, dve, yaw_before, dpsi, dt, acc_y):
     """Model i's EKF prediction: v ← v + Δv_h − Rz(ψ) b Δt (ψ follows the AHRS: dpsi), P ← F P Fᵀ + Q, with
     the bias variance floored at what the no-sideslip assumption can get wrong (`acc_y` = ω_z V, the forward
