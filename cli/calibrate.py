@@ -486,14 +486,11 @@ def _fold_estimator_bias(rec, stored, res, source):
 
 
 def _mag(args) -> int:
+    """`calibrate mag`: the options, the inputs, one call of the calibration procedure
+    (calibration/mag/procedure.py: fit, alignment, swing, GNSS levelling), the report and the figure."""
     import datetime as dt
-    import math
 
-    import numpy as np
-
-    from ahrsd.calibration import report
     from ahrsd.calibration.mag import procedure
-    from ahrsd.calibration.mag.fit_types import MagFitInput
     from ahrsd.core.wmm import earth_field
 
     from .progress import activity
@@ -503,6 +500,31 @@ def _mag(args) -> int:
         ref = earth_field(args.lat, args.lon, args.alt_m, date)
     except ValueError as exc:     # a bad --date or a position out of range: stderr (and the --json error object)
         raise _Usage(str(exc)) from None
+    _check_mag_options(args)
+    swing_table = _read_swing_table(args.swing_table) if args.swing_table else None  # bad file: fail before fitting
+    rec, data, ref_note, gnss, alignment = _mag_inputs(args)
+    options = {}
+    if args.method == "backstepping" and args.heading_ref_delay_s:
+        options["heading_ref_delay_s"] = args.heading_ref_delay_s
+    try:
+        calibrated = procedure.calibrate_mag(
+            args.method, data, ref, alignment=alignment, gnss=gnss, fit_options=options,
+            swing_table=None if swing_table is None else procedure.SwingTable(*swing_table, args.swing_table),
+            step=lambda description: activity(args, description))
+    except NotImplementedError as exc:
+        raise _Fail(str(exc)) from None
+    except procedure.MagCalibrationError as exc:
+        raise _Fail(("--gnss: " if exc.step == "gnss" else "") + str(exc)) from None
+    rc = _report_mag(args, calibrated, data, ref, ref_note)
+    if args.plot:
+        _plot_mag(args, calibrated.result, data, rec, ref, swing_table)
+    return rc
+
+
+def _check_mag_options(args) -> None:
+    """The options of `calibrate mag` that go only with others, and their ranges (a usage error otherwise)."""
+    import math
+
     if args.heading_ref_delay_s and args.method != "backstepping":
         raise _Usage("--heading-ref-delay-s goes with --method backstepping")
     if not (math.isfinite(args.heading_ref_delay_s) and 0.0 <= args.heading_ref_delay_s <= 60.0):
@@ -527,7 +549,15 @@ def _mag(args) -> int:
     if args.accel_bias_sigma_mg is not None and not (math.isfinite(args.accel_bias_sigma_mg)
                                                      and 0.0 < args.accel_bias_sigma_mg <= 1000.0):
         raise _Usage(f"--accel-bias-sigma-mg {args.accel_bias_sigma_mg}: expected 0 < MG ≤ 1000")
-    swing_table = _read_swing_table(args.swing_table) if args.swing_table else None  # bad file: fail before fitting
+
+
+def _mag_inputs(args):
+    """What the fit takes: (the recording, its MagFitInput with the stored gyro and accelerometer calibration
+    applied and the heading reference, the reference's note, the GNSS levelling or None, the alignment
+    recording or None)."""
+    from ahrsd.calibration.mag import procedure
+    from ahrsd.calibration.mag.fit_types import MagFitInput
+
     rec = _read(args.recording, args)
     stored = _stored(args)
     gyro, accel, _ = stored.apply_arrays(rec.gyro_rad_s, rec.accel_m_s2, None)
@@ -546,19 +576,15 @@ def _mag(args) -> int:
         arec = _read(args.align_recording, args)
         alignment = procedure.AlignmentRecording(arec.gyro_rad_s, stored.accel.apply(arec.accel_m_s2), arec.mag_ut,
                                                  arec.sample_rate_hz)
-    data = MagFitInput(rec.t_s, rec.mag_ut, accel, gyro, heading_ref)
-    options = {}
-    if args.method == "backstepping" and args.heading_ref_delay_s:
-        options["heading_ref_delay_s"] = args.heading_ref_delay_s
-    try:
-        calibrated = procedure.calibrate_mag(
-            args.method, data, ref, alignment=alignment, gnss=gnss, fit_options=options,
-            swing_table=None if swing_table is None else procedure.SwingTable(*swing_table, args.swing_table),
-            step=lambda description: activity(args, description))
-    except NotImplementedError as exc:
-        raise _Fail(str(exc)) from None
-    except procedure.MagCalibrationError as exc:
-        raise _Fail(("--gnss: " if exc.step == "gnss" else "") + str(exc)) from None
+    return rec, MagFitInput(rec.t_s, rec.mag_ut, accel, gyro, heading_ref), ref_note, gnss, alignment
+
+
+def _report_mag(args, calibrated, data, ref, ref_note) -> int:
+    """The fit's report (text or --json) and, unless --dry-run, the stored calibration (_report_fit)."""
+    import numpy as np
+
+    from ahrsd.calibration import report
+
     res = calibrated.result
     payload = {"sensor": "mag", **res.to_json_dict(), "field_ut": ref.total_ut,
                "inclination_deg": float(np.degrees(ref.inclination_rad))}
@@ -573,22 +599,24 @@ def _mag(args) -> int:
             "site": {"lat_deg": args.lat, "lon_deg": args.lon, "alt_m": args.alt_m, "date": args.date}}
     if "heading_reference" in q:
         meta["heading_reference"] = q["heading_reference"]
-    rc = _report_fit(args, res, payload, lines, "mag", report.mag_model_lines, meta)
-    if args.plot:
-        if args.method == "backstepping" and res.ok:
-            from ahrsd.calibration.mag.backstepping_paper import BacksteppingError
-            from ahrsd.cli.plots.backstepping import plot_backstepping
+    return _report_fit(args, res, payload, lines, "mag", report.mag_model_lines, meta)
 
-            try:
-                _write_plot(args, lambda path: plot_backstepping(res, data, path, swing_table=swing_table))
-            except BacksteppingError as exc:
-                raise _Fail(f"cannot plot: {exc}") from None
-        else:
-            model = res.model if res.ok else None
-            from ahrsd.cli.plots.mag import plot_mag
 
-            _write_plot(args, plot_mag, rec.mag_ut, model, ref.total_ut)
-    return rc
+def _plot_mag(args, res, data, rec, ref, swing_table) -> None:
+    """--plot: the back-stepping figure of a fit that succeeded, else the field before and after the model."""
+    if args.method == "backstepping" and res.ok:
+        from ahrsd.calibration.mag.backstepping_paper import BacksteppingError
+        from ahrsd.cli.plots.backstepping import plot_backstepping
+
+        try:
+            _write_plot(args, lambda path: plot_backstepping(res, data, path, swing_table=swing_table))
+        except BacksteppingError as exc:
+            raise _Fail(f"cannot plot: {exc}") from None
+    else:
+        model = res.model if res.ok else None
+        from ahrsd.cli.plots.mag import plot_mag
+
+        _write_plot(args, plot_mag, rec.mag_ut, model, ref.total_ut)
 
 
 def _gnss_for_backstepping(args, rec, heading_ref, ref_note):

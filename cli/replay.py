@@ -114,7 +114,7 @@ def _gate_summary(estimator) -> str:
                  f"wrong or iron changed (rejected {report.mag_rejections}×, heading reset to the GNSS yaw "
                  f"{report.yaw_resets}×)")
     if c.rejected_velocity > GATE_HINT_FRACTION * max(c.offered, 1):
-        arm = " ".join(f"{v:g}" for v in estimator.params.lever_arm_m)
+        arm = " ".join(f"{v:g}" for v in estimator.lever_arm_m)
         text += (f"; WARNING: that many rejected velocities usually mean the antenna is not where the filter was "
                  f"told ({arm} m, body FRD: --set \"lever_arm_m=(x, y, z)\") or the fixes' time stamps are off")
     return text

@@ -40,11 +40,13 @@ class GnssAidedEstimator(Protocol):
     """An estimator that takes GNSS fixes (ins): `update_gnss(fix)` returns the core.R_* bits of what became of
     the fix and never raises on bad input; `gnss_counters` counts what became of the fixes offered (offered,
     fused_velocity, fused_position, rejected_velocity, rejected_position, …, `as_dict()`: estimator/ins.py
-    GnssCounters). The daemon's GNSS task offers it every accepted fix and watches its innovation gate; replay
-    merges a GNSS recording's fixes with the samples."""
+    GnssCounters); `lever_arm_m` is where it was told the antenna is (x, y, z from the IMU, body FRD, m), which a
+    report of rejected velocities names. The daemon's GNSS task offers it every accepted fix and watches its
+    innovation gate; replay merges a GNSS recording's fixes with the samples."""
 
     name: str
     gnss_counters: object
+    lever_arm_m: tuple[float, float, float]
 
     def update_gnss(self, fix: GnssFix) -> int: ...
 

@@ -396,6 +396,7 @@ def gsf_accumulate_imu_xyz(state, params, dt_s, gx_rad_s, gy_rad_s, gz_rad_s, ax
 
 @njit(cache=True)
 def _predict(state, params):
+    """One prediction of every model over the accumulated interval: tilt AHRS, EKF, and the ring entry."""
     dt = state.acc_dt_s
     th = state.acc_dtheta_rad
     dvb = state.acc_dvel_m_s
@@ -404,34 +405,19 @@ def _predict(state, params):
     state.rate_rad_s[1] = th[1] / dt
     state.rate_rad_s[2] = th[2] / dt
     fx, fy, fz = dvb[0] / dt, dvb[1] / dt, dvb[2] / dt
-    f_norm = math.sqrt(fx * fx + fy * fy + fz * fz)
     if not state.tilt_aligned:
-        if abs(f_norm - STANDARD_GRAVITY_M_S2) < 0.1 * STANDARD_GRAVITY_M_S2:
-            roll = math.atan2(-fy, -fz)
-            pitch = math.atan2(fx, math.sqrt(fy * fy + fz * fz))
-            for i in range(n):
-                set_dcm_from_euler(state.dcm[i], state.yaw_rad[i], pitch, roll)
-            state.tilt_aligned = True
+        _align_tilt(state, fx, fy, fz)
         _clear_accumulators(state)
         return
     gain = params.tilt_align_gain_per_s if state.t_s - state.reset_t_s < params.tilt_align_s \
         else params.tilt_gain_per_s
-    q_vel = params.accel_noise_m_s2_rthz ** 2 * dt
-    q_bias = params.accel_bias_walk_m_s2_rts ** 2 * dt
-    q_yaw_white = params.yaw_rate_noise_rad_s_rthz ** 2 * dt
+    acc_x, acc_y, acc_z = _kinematic_acceleration(state)
+    # the measured vertical less the kinematic acceleration, the same for every model
+    ux, uy, uz = fx - acc_x, fy - acc_y, fz - acc_z
     lx, ly, lz = params.lever_arm_m[0], params.lever_arm_m[1], params.lever_arm_m[2]
     wx, wy, wz = state.rate_rad_s[0], state.rate_rad_s[1], state.rate_rad_s[2]
     # ω × r: the antenna's velocity relative to the IMU, body frame
     arm_x, arm_y, arm_z = wy * lz - wz * ly, wz * lx - wx * lz, wx * ly - wy * lx
-    # the body's kinematic acceleration with the velocity along body x (no sideslip), speed V from the GNSS:
-    # a = d/dt (V x̂) + ω × V x̂ = (V̇, ω_z V, −ω_y V). It does not depend on any model's yaw, so no model can
-    # explain its yaw error away by tilting (ArduPilot's TAS term, plus V̇, with the GNSS speed for TAS)
-    speed = max(0.0, state.speed_m_s + state.speed_rate_m_s2 * (state.t_s - state.prev_fix_t_s)) \
-        if state.have_prev_fix else 0.0
-    acc_x, acc_y, acc_z = state.speed_rate_m_s2, wz * speed, -wy * speed
-    # what the no-sideslip assumption can get wrong (ω V β forward, V̇ β sideways) stays in the bias variance
-    bias_floor_f = (wz * speed * params.sideslip_sigma_rad) ** 2
-    bias_floor_r = (state.speed_rate_m_s2 * params.sideslip_sigma_rad) ** 2
     slot = state.ring_next
     state.ring_t_s[slot] = state.t_s
     for i in range(n):
@@ -439,48 +425,11 @@ def _predict(state, params):
         # horizontal velocity increment from this model's attitude at the start of the interval
         dvn = c[0, 0] * dvb[0] + c[0, 1] * dvb[1] + c[0, 2] * dvb[2]
         dve = c[1, 0] * dvb[0] + c[1, 1] * dvb[1] + c[1, 2] * dvb[2]
-        # tilt AHRS: measured down = −(f − a)/|·|, estimated down = Cᵀ ẑ (row 2 of C);
-        # δθ = k Δt (down_meas × down_est) turns the estimate towards the measurement (tilt only: ⟂ down)
-        ux, uy, uz = fx - acc_x, fy - acc_y, fz - acc_z
-        un = math.sqrt(ux * ux + uy * uy + uz * uz)
-        cx = cy = cz = 0.0
-        if un > 0.0:
-            # gain fades to zero where |f − Cᵀa| is 0.5 g or 1.5 g (AP/PX4 fade the uncorrected |f| the same way)
-            fade = max(0.0, 1.0 - 2.0 * abs(un / STANDARD_GRAVITY_M_S2 - 1.0))
-            k = gain * dt * fade / un
-            mx, my, mz = -ux * k, -uy * k, -uz * k
-            ex, ey, ez = c[2, 0], c[2, 1], c[2, 2]
-            cx, cy, cz = my * ez - mz * ey, mz * ex - mx * ez, mx * ey - my * ex
         yaw_before = _dcm_yaw(c)
-        _rotate_dcm_body(c, th[0] + cx, th[1] + cy, th[2] + cz)
+        _tilt_ahrs_step(c, th, ux, uy, uz, gain, dt)
         yaw_after = _dcm_yaw(c)
-        dpsi = _wrap(yaw_after - yaw_before)
         state.yaw_rad[i] = yaw_after
-        # EKF prediction: v ← v + Δv_h − Rz(ψ) b Δt; ψ follows the AHRS
-        cs, sn = math.cos(yaw_before), math.sin(yaw_before)
-        bf, br = state.accel_bias_m_s2[i, 0], state.accel_bias_m_s2[i, 1]
-        net_n = dvn - (cs * bf - sn * br) * dt
-        net_e = dve - (sn * bf + cs * br) * dt
-        state.vel_ne_m_s[i, 0] += net_n
-        state.vel_ne_m_s[i, 1] += net_e
-        # F = I + ∂/∂ψ (column yaw) + ∂/∂b (columns bias)
-        f_vn_yaw, f_ve_yaw = -net_e, net_n
-        f_vn_bf, f_ve_bf = -cs * dt, -sn * dt
-        f_vn_br, f_ve_br = sn * dt, -cs * dt
-        p = state.P[i]
-        # rows: FP (only rows vel_n, vel_e change)
-        for j in range(N_MODEL_STATES):
-            p[_VN, j] += f_vn_yaw * p[_YAW, j] + f_vn_bf * p[_BF, j] + f_vn_br * p[_BR, j]
-            p[_VE, j] += f_ve_yaw * p[_YAW, j] + f_ve_bf * p[_BF, j] + f_ve_br * p[_BR, j]
-        # columns: (FP)Fᵀ
-        for j in range(N_MODEL_STATES):
-            p[j, _VN] += f_vn_yaw * p[j, _YAW] + f_vn_bf * p[j, _BF] + f_vn_br * p[j, _BR]
-            p[j, _VE] += f_ve_yaw * p[j, _YAW] + f_ve_bf * p[j, _BF] + f_ve_br * p[j, _BR]
-        p[_VN, _VN] += q_vel
-        p[_VE, _VE] += q_vel
-        p[_YAW, _YAW] += q_yaw_white + (params.yaw_rate_scale_sqrt_s * dpsi) ** 2 / dt
-        p[_BF, _BF] = max(p[_BF, _BF] + q_bias, bias_floor_f)
-        p[_BR, _BR] = max(p[_BR, _BR] + q_bias, bias_floor_r)
+        _ekf_predict(state, params, i, dvn, dve, yaw_before, _wrap(yaw_after - yaw_before), dt, acc_y)
         # the ring holds the antenna's predicted velocity
         state.ring_vel_ne_m_s[slot, i, 0] = state.vel_ne_m_s[i, 0] + \
             c[0, 0] * arm_x + c[0, 1] * arm_y + c[0, 2] * arm_z
@@ -491,6 +440,82 @@ def _predict(state, params):
         state.ring_count += 1
     _clear_accumulators(state)
     _update_validity(state, params)
+
+
+@njit(cache=True)
+def _align_tilt(state, fx, fy, fz):
+    """Level every model's attitude from the specific force (roll, pitch; yaws kept) once it is within 10 % of g."""
+    f_norm = math.sqrt(fx * fx + fy * fy + fz * fz)
+    if abs(f_norm - STANDARD_GRAVITY_M_S2) < 0.1 * STANDARD_GRAVITY_M_S2:
+        roll = math.atan2(-fy, -fz)
+        pitch = math.atan2(fx, math.sqrt(fy * fy + fz * fz))
+        for i in range(state.weight.shape[0]):
+            set_dcm_from_euler(state.dcm[i], state.yaw_rad[i], pitch, roll)
+        state.tilt_aligned = True
+
+
+@njit(cache=True, inline="always")
+def _kinematic_acceleration(state):
+    """The body's kinematic acceleration with the velocity along body x (no sideslip), speed V from the GNSS:
+    a = d/dt (V x̂) + ω × V x̂ = (V̇, ω_z V, −ω_y V). It does not depend on any model's yaw, so no model can
+    explain its yaw error away by tilting (ArduPilot's TAS term, plus V̇, with the GNSS speed for TAS)."""
+    speed = max(0.0, state.speed_m_s + state.speed_rate_m_s2 * (state.t_s - state.prev_fix_t_s)) \
+        if state.have_prev_fix else 0.0
+    return state.speed_rate_m_s2, state.rate_rad_s[2] * speed, -state.rate_rad_s[1] * speed
+
+
+@njit(cache=True, inline="always")
+def _tilt_ahrs_step(c, th, ux, uy, uz, gain, dt):
+    """Rotate one model's body → NED matrix `c` by the gyro increment `th` plus the tilt correction towards the
+    measured vertical (u = f − a, the specific force less the kinematic acceleration)."""
+    # measured down = −u/|u|, estimated down = Cᵀ ẑ (row 2 of C);
+    # δθ = k Δt (down_meas × down_est) turns the estimate towards the measurement (tilt only: ⟂ down)
+    un = math.sqrt(ux * ux + uy * uy + uz * uz)
+    cx = cy = cz = 0.0
+    if un > 0.0:
+        # gain fades to zero where |f − Cᵀa| is 0.5 g or 1.5 g (AP/PX4 fade the uncorrected |f| the same way)
+        fade = max(0.0, 1.0 - 2.0 * abs(un / STANDARD_GRAVITY_M_S2 - 1.0))
+        k = gain * dt * fade / un
+        mx, my, mz = -ux * k, -uy * k, -uz * k
+        ex, ey, ez = c[2, 0], c[2, 1], c[2, 2]
+        cx, cy, cz = my * ez - mz * ey, mz * ex - mx * ez, mx * ey - my * ex
+    _rotate_dcm_body(c, th[0] + cx, th[1] + cy, th[2] + cz)
+
+
+@njit(cache=True, inline="always")
+def _ekf_predict(state, params, i, dvn, dve, yaw_before, dpsi, dt, acc_y):
+    """Model i's EKF prediction: v ← v + Δv_h − Rz(ψ) b Δt (ψ follows the AHRS: dpsi), P ← F P Fᵀ + Q, with
+    the bias variance floored at what the no-sideslip assumption can get wrong (`acc_y` = ω_z V, the forward
+    error ω V β; V̇ β sideways)."""
+    q_vel = params.accel_noise_m_s2_rthz ** 2 * dt
+    q_bias = params.accel_bias_walk_m_s2_rts ** 2 * dt
+    q_yaw_white = params.yaw_rate_noise_rad_s_rthz ** 2 * dt
+    bias_floor_f = (acc_y * params.sideslip_sigma_rad) ** 2
+    bias_floor_r = (state.speed_rate_m_s2 * params.sideslip_sigma_rad) ** 2
+    cs, sn = math.cos(yaw_before), math.sin(yaw_before)
+    bf, br = state.accel_bias_m_s2[i, 0], state.accel_bias_m_s2[i, 1]
+    net_n = dvn - (cs * bf - sn * br) * dt
+    net_e = dve - (sn * bf + cs * br) * dt
+    state.vel_ne_m_s[i, 0] += net_n
+    state.vel_ne_m_s[i, 1] += net_e
+    # F = I + ∂/∂ψ (column yaw) + ∂/∂b (columns bias)
+    f_vn_yaw, f_ve_yaw = -net_e, net_n
+    f_vn_bf, f_ve_bf = -cs * dt, -sn * dt
+    f_vn_br, f_ve_br = sn * dt, -cs * dt
+    p = state.P[i]
+    # rows: FP (only rows vel_n, vel_e change)
+    for j in range(N_MODEL_STATES):
+        p[_VN, j] += f_vn_yaw * p[_YAW, j] + f_vn_bf * p[_BF, j] + f_vn_br * p[_BR, j]
+        p[_VE, j] += f_ve_yaw * p[_YAW, j] + f_ve_bf * p[_BF, j] + f_ve_br * p[_BR, j]
+    # columns: (FP)Fᵀ
+    for j in range(N_MODEL_STATES):
+        p[j, _VN] += f_vn_yaw * p[j, _YAW] + f_vn_bf * p[j, _BF] + f_vn_br * p[j, _BR]
+        p[j, _VE] += f_ve_yaw * p[j, _YAW] + f_ve_bf * p[j, _BF] + f_ve_br * p[j, _BR]
+    p[_VN, _VN] += q_vel
+    p[_VE, _VE] += q_vel
+    p[_YAW, _YAW] += q_yaw_white + (params.yaw_rate_scale_sqrt_s * dpsi) ** 2 / dt
+    p[_BF, _BF] = max(p[_BF, _BF] + q_bias, bias_floor_f)
+    p[_BR, _BR] = max(p[_BR, _BR] + q_bias, bias_floor_r)
 
 
 @njit(cache=True)
@@ -629,41 +654,67 @@ def gsf_fuse_velocity(state, params, t_s, vel_ne_m_s, vel_sigma_m_s):
     if state.t_s - t_s > params.max_fix_delay_s:
         state.n_rejected += 1
         return REJECTED_TOO_OLD
-    n = state.weight.shape[0]
     if not state.tilt_aligned or state.ring_count == 0:
         _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down)
         return WAITING_FOR_TILT
+    r = max(vel_sigma_m_s, params.vel_sigma_floor_m_s) ** 2
     gap = math.isnan(state.last_fused_t_s) or t_s - state.last_fused_t_s > params.max_fix_gap_s
     if not state.vel_seeded or gap:
-        # (re)seed: each model's velocity moved by its innovation against its prediction at t_s (the stored
-        # predictions too), variance from the fix's accuracy; yaw and weights kept, no weight update
-        r = max(vel_sigma_m_s, params.vel_sigma_floor_m_s) ** 2
-        for i in range(n):
-            ok, pn, pe = _predicted_at(state, t_s, i)
-            if not ok:
-                newest = (state.ring_next - 1) % RING_LEN
-                pn, pe = state.ring_vel_ne_m_s[newest, i, 0], state.ring_vel_ne_m_s[newest, i, 1]
-            _shift_velocity(state, i, vn - pn, ve - pe)
-            for j in range(N_MODEL_STATES):
-                state.P[i, _VN, j] = 0.0
-                state.P[i, j, _VN] = 0.0
-                state.P[i, _VE, j] = 0.0
-                state.P[i, j, _VE] = 0.0
-            state.P[i, _VN, _VN] = r
-            state.P[i, _VE, _VE] = r
-        state.vel_seeded = True
-        state.last_fused_t_s = t_s
-        state.n_passing_fixes = 0
+        _seed_velocities(state, t_s, vn, ve, r)
         _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down)
         return SEEDED
-    r = max(vel_sigma_m_s, params.vel_sigma_floor_m_s) ** 2
     clip2 = params.innov_clip_sigma ** 2
+    n_clipped = _innovations(state, t_s, vn, ve, r, clip2)
+    if n_clipped < 0:
+        state.n_rejected += 1
+        return REJECTED_TOO_OLD
+    if n_clipped == state.weight.shape[0]:
+        _reject_unexplained(state, params, t_s, vn, ve, vd, has_down)
+        return REJECTED_CLIPPED
+    state.n_rejected_in_row = 0
+    # the speed and manoeuvre bookkeeping take only fixes some hypothesis explains (not a glitch)
+    _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down)
+    vel_innov_m_s = _weighted_innovation_m_s(state)
+    _update_models(state, params, r, clip2)
+    _count_fused(state, params, t_s, n_clipped, vel_innov_m_s)
+    _update_validity(state, params)
+    return FUSED
+
+
+@njit(cache=True)
+def _seed_velocities(state, t_s, vn, ve, r):
+    """(Re)seed: each model's velocity moved by its innovation against its prediction at t_s (the stored
+    predictions too), variance `r` from the fix's accuracy; yaw and weights kept, no weight update."""
+    n = state.weight.shape[0]
+    for i in range(n):
+        ok, pn, pe = _predicted_at(state, t_s, i)
+        if not ok:
+            newest = (state.ring_next - 1) % RING_LEN
+            pn, pe = state.ring_vel_ne_m_s[newest, i, 0], state.ring_vel_ne_m_s[newest, i, 1]
+        _shift_velocity(state, i, vn - pn, ve - pe)
+        for j in range(N_MODEL_STATES):
+            state.P[i, _VN, j] = 0.0
+            state.P[i, j, _VN] = 0.0
+            state.P[i, _VE, j] = 0.0
+            state.P[i, j, _VE] = 0.0
+        state.P[i, _VN, _VN] = r
+        state.P[i, _VE, _VE] = r
+    state.vel_seeded = True
+    state.last_fused_t_s = t_s
+    state.n_passing_fixes = 0
+
+
+@njit(cache=True)
+def _innovations(state, t_s, vn, ve, r, clip2):
+    """Each model's innovation against its prediction at t_s and its normalised square νᵀS⁻¹ν, stored in the
+    state (innov_m_s, test_ratio, clipped: beyond `clip2`). Returns how many models are clipped, or −1 when
+    t_s is older than the stored predictions."""
+    n = state.weight.shape[0]
     n_clipped = 0
     for i in range(n):
         ok, pn, pe = _predicted_at(state, t_s, i)
         if not ok:
-            state.n_rejected += 1
-            return REJECTED_TOO_OLD
+            return -1
         nu_n, nu_e = vn - pn, ve - pe
         p = state.P[i]
         s00, s01, s11 = p[_VN, _VN] + r, p[_VN, _VE], p[_VE, _VE] + r
@@ -675,64 +726,94 @@ def gsf_fuse_velocity(state, params, t_s, vel_ne_m_s, vel_sigma_m_s):
         state.clipped[i] = 1 if ratio > clip2 else 0
         if state.clipped[i] == 1:
             n_clipped += 1
-    if n_clipped == n:
-        state.n_rejected += 1
-        state.n_rejected_in_row += 1
-        state.n_passing_fixes = 0
-        if state.n_rejected_in_row >= params.reset_after_rejected_fixes:
-            q = np.full(4, np.nan)
-            gsf_reset(state, params, state.t_s, q)
-            _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down)
-        return REJECTED_CLIPPED
-    state.n_rejected_in_row = 0
-    # the speed and manoeuvre bookkeeping take only fixes some hypothesis explains (not a glitch)
-    _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down)
-    # EKF updates (innovation at t_s, correction now) and log-likelihoods
-    log_w = np.empty(n)
-    best = -np.inf
+    return n_clipped
+
+
+@njit(cache=True)
+def _reject_unexplained(state, params, t_s, vn, ve, vd, has_down):
+    """No model explains the fix (every innovation clipped): counted and not fused; `reset_after_rejected_fixes`
+    of these in a row restart the bank (a diverged bank rather than a glitch)."""
+    state.n_rejected += 1
+    state.n_rejected_in_row += 1
+    state.n_passing_fixes = 0
+    if state.n_rejected_in_row >= params.reset_after_rejected_fixes:
+        q = np.full(4, np.nan)
+        gsf_reset(state, params, state.t_s, q)
+        _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down)
+
+
+@njit(cache=True)
+def _weighted_innovation_m_s(state):
+    """Length of the weight-averaged innovation (unclipped) of the models (validity's max_vel_innov_m_s)."""
     inn_n = inn_e = 0.0
+    for i in range(state.weight.shape[0]):
+        inn_n += state.weight[i] * state.innov_m_s[i, 0]
+        inn_e += state.weight[i] * state.innov_m_s[i, 1]
+    return math.hypot(inn_n, inn_e)
+
+
+@njit(cache=True)
+def _update_models(state, params, r, clip2):
+    """Every model's EKF update with its stored innovation (innovation at the fix's time, correction now),
+    then the Gaussian-sum weights from the innovations' likelihoods."""
+    n = state.weight.shape[0]
+    log_w = np.empty(n)
     for i in range(n):
-        nu_n, nu_e = state.innov_m_s[i, 0], state.innov_m_s[i, 1]
-        inn_n += state.weight[i] * nu_n
-        inn_e += state.weight[i] * nu_e
-        ratio = state.test_ratio[i]
-        if ratio > clip2:
-            scale = math.sqrt(clip2 / ratio)
-            nu_n *= scale
-            nu_e *= scale
-            ratio = clip2
-        p = state.P[i]
-        s00, s01, s11 = p[_VN, _VN] + r, p[_VN, _VE], p[_VE, _VE] + r
-        det = s00 * s11 - s01 * s01
-        i00, i01, i11 = s11 / det, -s01 / det, s00 / det
-        # K = P Hᵀ S⁻¹ (H picks vel_n, vel_e); x += K ν; P −= K H P
-        kx = np.empty((N_MODEL_STATES, 2))
-        for j in range(N_MODEL_STATES):
-            kx[j, 0] = p[j, _VN] * i00 + p[j, _VE] * i01
-            kx[j, 1] = p[j, _VN] * i01 + p[j, _VE] * i11
-        hp_n = p[_VN].copy()
-        hp_e = p[_VE].copy()
-        for j in range(N_MODEL_STATES):
-            for k in range(N_MODEL_STATES):
-                p[j, k] -= kx[j, 0] * hp_n[k] + kx[j, 1] * hp_e[k]
-        for j in range(N_MODEL_STATES):
-            for k in range(j + 1, N_MODEL_STATES):
-                m = 0.5 * (p[j, k] + p[k, j])
-                p[j, k] = m
-                p[k, j] = m
-            p[j, j] = max(p[j, j], 1e-9)
-        dvn = kx[_VN, 0] * nu_n + kx[_VN, 1] * nu_e
-        dve = kx[_VE, 0] * nu_n + kx[_VE, 1] * nu_e
-        dpsi = kx[_YAW, 0] * nu_n + kx[_YAW, 1] * nu_e
-        _shift_velocity(state, i, dvn, dve)
-        state.accel_bias_m_s2[i, 0] += kx[_BF, 0] * nu_n + kx[_BF, 1] * nu_e
-        state.accel_bias_m_s2[i, 1] += kx[_BR, 0] * nu_n + kx[_BR, 1] * nu_e
-        state.yaw_rad[i] = _wrap(state.yaw_rad[i] + dpsi)
-        _rotate_dcm_yaw(state.dcm[i], dpsi)
-        lw = math.log(max(state.weight[i], 1e-300)) - 0.5 * ratio - 0.5 * math.log(det)
-        log_w[i] = lw
-        if lw > best:
-            best = lw
+        log_w[i] = _update_model(state, i, r, clip2)
+    _reweight(state, params, log_w)
+
+
+@njit(cache=True)
+def _update_model(state, i, r, clip2):
+    """Model i's EKF update with its innovation (clipped to `clip2` in νᵀS⁻¹ν); returns its log weight times
+    the innovation's likelihood, log w_i − ½ νᵀS⁻¹ν − ½ log det S (2π is common to all)."""
+    nu_n, nu_e = state.innov_m_s[i, 0], state.innov_m_s[i, 1]
+    ratio = state.test_ratio[i]
+    if ratio > clip2:
+        scale = math.sqrt(clip2 / ratio)
+        nu_n *= scale
+        nu_e *= scale
+        ratio = clip2
+    p = state.P[i]
+    s00, s01, s11 = p[_VN, _VN] + r, p[_VN, _VE], p[_VE, _VE] + r
+    det = s00 * s11 - s01 * s01
+    i00, i01, i11 = s11 / det, -s01 / det, s00 / det
+    # K = P Hᵀ S⁻¹ (H picks vel_n, vel_e); x += K ν; P −= K H P
+    kx = np.empty((N_MODEL_STATES, 2))
+    for j in range(N_MODEL_STATES):
+        kx[j, 0] = p[j, _VN] * i00 + p[j, _VE] * i01
+        kx[j, 1] = p[j, _VN] * i01 + p[j, _VE] * i11
+    hp_n = p[_VN].copy()
+    hp_e = p[_VE].copy()
+    for j in range(N_MODEL_STATES):
+        for k in range(N_MODEL_STATES):
+            p[j, k] -= kx[j, 0] * hp_n[k] + kx[j, 1] * hp_e[k]
+    for j in range(N_MODEL_STATES):
+        for k in range(j + 1, N_MODEL_STATES):
+            m = 0.5 * (p[j, k] + p[k, j])
+            p[j, k] = m
+            p[k, j] = m
+        p[j, j] = max(p[j, j], 1e-9)
+    dvn = kx[_VN, 0] * nu_n + kx[_VN, 1] * nu_e
+    dve = kx[_VE, 0] * nu_n + kx[_VE, 1] * nu_e
+    dpsi = kx[_YAW, 0] * nu_n + kx[_YAW, 1] * nu_e
+    _shift_velocity(state, i, dvn, dve)
+    state.accel_bias_m_s2[i, 0] += kx[_BF, 0] * nu_n + kx[_BF, 1] * nu_e
+    state.accel_bias_m_s2[i, 1] += kx[_BR, 0] * nu_n + kx[_BR, 1] * nu_e
+    state.yaw_rad[i] = _wrap(state.yaw_rad[i] + dpsi)
+    _rotate_dcm_yaw(state.dcm[i], dpsi)
+    return math.log(max(state.weight[i], 1e-300)) - 0.5 * ratio - 0.5 * math.log(det)
+
+
+@njit(cache=True)
+def _reweight(state, params, log_w):
+    """w_i ← exp(log_w_i) normalised (in the log domain: the largest subtracted first), floored at
+    `weight_floor` and normalised again."""
+    n = state.weight.shape[0]
+    best = -np.inf
+    for i in range(n):
+        if log_w[i] > best:
+            best = log_w[i]
     total = 0.0
     for i in range(n):
         log_w[i] = math.exp(log_w[i] - best)
@@ -744,17 +825,21 @@ def gsf_fuse_velocity(state, params, t_s, vel_ne_m_s, vel_sigma_m_s):
         total2 += w
     for i in range(n):
         state.weight[i] /= total2
+
+
+@njit(cache=True)
+def _count_fused(state, params, t_s, n_clipped, vel_innov_m_s):
+    """The bookkeeping of a fused fix: counts, and the run of passing fixes validity needs (composite σ and
+    weighted innovation below their limits)."""
     state.n_clipped = n_clipped
     state.n_fused += 1
     state.last_fused_t_s = t_s
-    state.vel_innov_m_s = math.hypot(inn_n, inn_e)
+    state.vel_innov_m_s = vel_innov_m_s
     _, sigma = _composite(state)
     if sigma < params.sigma_valid_max_rad and state.vel_innov_m_s < params.max_vel_innov_m_s:
         state.n_passing_fixes += 1
     else:
         state.n_passing_fixes = 0
-    _update_validity(state, params)
-    return FUSED
 
 
 # ----------------------------------------------------------------------------------------- Python wrapper

@@ -36,6 +36,7 @@ from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate,
 from .initial_attitude import initial_attitude
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .mag_heading import RELEARN_GATE_OPEN_S
+from .mag_heading_params import MagHeadingParams
 from .params import with_overrides
 from .published_heading import PublishedHeading
 from .rotations import quat_to_dcm
@@ -45,7 +46,7 @@ _DEG = math.pi / 180.0
 
 
 @dataclass(frozen=True)
-class InsParams:
+class InsParams(MagHeadingParams):
     """Tuning of the ins. SI units, angles in rad. Defaults for an ADIS16405-class IMU and a consumer GNSS
     receiver on a boat, car or aircraft."""
 
@@ -217,18 +218,8 @@ class InsParams:
     """The published yaw follows the filter's corrections at no more than this rate beyond the vehicle's own
     rotation: a yaw reset or a fast correction is slewed in, the published σ covering what is left
     (published_heading.py), rad/s. The daemon's calibration-change slew uses the same 2 °/s."""
-    mag_noise_ut: float = 0.7
-    mag_heading_noise_rad: float = 0.12
-    mag_heading_noise_rest_rad: float = 0.03
-    mag_norm_tol: float = 0.1
-    mag_dip_tol_rad: float = 15.0 * _DEG
-    mag_min_undisturbed_s: float = 0.5
-    mag_new_time_s: float = 20.0
-    mag_new_min_rate_rad_s: float = 20.0 * _DEG
-    mag_ref_tau_s: float = 20.0
-    mag_gate_sigma: float = 6.0
-    mag_reject_max_s: float = 60.0
-    mag_unavailable_s: float = 10.0
+    # the heading measurement's noise and disturbance rejection (mag_noise_ut … mag_unavailable_s): inherited
+    # from MagHeadingParams, shared with mekf
 
     # --- start-up and time gaps
     init_sigma_tilt_rad: float = 5.0 * _DEG
@@ -521,6 +512,11 @@ class Ins:
     def _mag_state(self):
         """The magnetometer heading check's state (a view)."""
         return self._x["mag"]
+
+    @property
+    def lever_arm_m(self) -> tuple[float, float, float]:
+        """The antenna's position from the IMU the filter was told (InsParams.lever_arm_m), body FRD, m."""
+        return tuple(float(v) for v in self.params.lever_arm_m)
 
     @property
     def covariance(self) -> np.ndarray:

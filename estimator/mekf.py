@@ -37,6 +37,7 @@ from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate,
                             float_field_slice, uninitialised_estimate)
 from .initial_attitude import initial_attitude
 from .mag_heading import RELEARN_GATE_OPEN_S, heading_params, relearn_reference
+from .mag_heading_params import MagHeadingParams
 from .params import with_overrides
 from .rotations import quat_to_dcm, quat_to_euler
 
@@ -44,7 +45,7 @@ _DEG = math.pi / 180.0
 
 
 @dataclass(frozen=True)
-class MekfParams:
+class MekfParams(MagHeadingParams):
     """Tuning of the MEKF. SI units; angles in rad. `DEFAULT_MEKF_PARAMS` (ground vehicles, boats, handheld;
     one set for all of BROAD) and `FIXED_WING_MEKF_PARAMS` (sustained coordinated turns)."""
 
@@ -110,31 +111,8 @@ class MekfParams:
     # --- magnetometer (heading)
     mag_enabled: bool = True
     """False: 6-axis mode, heading from the gyro only (flag MAG_UNAVAILABLE)."""
-    mag_noise_ut: float = 0.7
-    """Magnetometer noise per axis, µT (BROAD rest data: 0.7 µT; ADIS16405 datasheet 1.25 mgauss = 0.125 µT)."""
-    mag_heading_noise_rad: float = 0.12
-    """Heading noise floor in motion (residual hard/soft iron, field gradients over the work space, dynamic
-    errors: BROAD's field direction varies by ±4–8° in fast rotation even with the true attitude), rad."""
-    mag_norm_tol: float = 0.1
-    """Field magnitude must be within this fraction of the reference (VQF magNormTh)."""
-    mag_dip_tol_rad: float = 15.0 * _DEG
-    """Dip angle must be within this of the reference. VQF uses 10°; the dip seen in fast rotation varies by
-    ±10° even with the true attitude (BROAD trial 06), so 15°."""
-    mag_min_undisturbed_s: float = 0.5
-    """The field must match the reference this long before it is used again (VQF magMinUndisturbedTime)."""
-    mag_new_time_s: float = 20.0
-    """A consistent new field is adopted after this much rotation time (VQF magNewTime)."""
-    mag_new_min_rate_rad_s: float = 20.0 * _DEG
-    """Only rotation faster than this counts towards mag_new_time_s (VQF magNewMinGyr)."""
-    mag_ref_tau_s: float = 20.0
-    """Time constant with which the reference magnitude/dip follow an accepted field, s."""
-    mag_gate_sigma: float = 6.0
-    """Innovation gate for the heading update, in σ (the gate widens as the heading uncertainty grows)."""
-    mag_reject_max_s: float = 60.0
-    """After this long continuously disturbed the field is used again with 100× the noise (VQF
-    magMaxRejectionTime)."""
-    mag_heading_noise_rest_rad: float = 0.03
-    """Heading noise floor at rest, rad: no dynamic errors (sensor timing skew, lag) while nothing moves."""
+    # the heading measurement's noise and disturbance rejection (mag_noise_ut … mag_unavailable_s): inherited
+    # from MagHeadingParams, shared with ins
     mag_rest_change_ut: float = 0.5
     """At rest the body does not turn: if the low-passed body-frame field moves more than this from where it
     was when the rest began, something magnetic moved nearby and the field is not used until motion, µT
@@ -156,8 +134,6 @@ class MekfParams:
     mag_offset_explain_ratio: float = 0.5
     """The offset is subtracted while the corrected field's running disagreement with the reference is below
     this fraction of the raw field's: a body-fixed offset must explain why the field disagrees."""
-    mag_unavailable_s: float = 10.0
-    """No heading update for this long sets MAG_UNAVAILABLE, s."""
 
     # --- rest detection (bias learning)
     rest_gyro_th_rad_s: float = 2.0 * _DEG

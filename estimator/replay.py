@@ -5,9 +5,9 @@ gyro bias, EstimateFlags as a number). The samples are used as given: a caller t
 them through its calibration first.
 
 With GNSS fixes (an aided estimator: base.GnssAidedEstimator), the fixes are merged with the samples in time
-order — each fix is offered before the first sample later than its time of validity — and the table adds
-NAV_COLUMNS (the estimator's NavState; NaN while it has none). The fixes are used as given: a caller validates
-them first (drivers.gnss.validation), as the daemon does.
+order — each fix is offered before the first sample not earlier than its time of validity (fix_feed.py) — and
+the table adds NAV_COLUMNS (the estimator's NavState; NaN while it has none). The fixes are used as given: a
+caller validates them first (drivers.gnss.validation), as the daemon does.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from ahrsd.core.gnss import GnssFix
 from ahrsd.core.sample import ImuSample
 
 from .base import Estimator, GnssAidedEstimator
+from .fix_feed import GnssFixFeed
 from .rotations import quat_multiply
 
 ATTITUDE_COLUMNS = (
@@ -63,14 +64,12 @@ def replay_attitude(estimator: Estimator, samples: Iterable[ImuSample], true_nor
     update = estimator.update
     rows: list[tuple] = []
     append = rows.append
-    fix_iter = iter(fixes) if fixes is not None else None
-    next_fix = next(fix_iter, None) if fix_iter is not None else None
+    feed = GnssFixFeed(estimator, fixes) if fixes is not None else None
     no_nav = (nan,) * len(NAV_COLUMNS)
     no_gsf = (nan, nan)
     for sample in samples:
-        while next_fix is not None and next_fix.t_s <= sample.t_s:
-            estimator.update_gnss(next_fix)
-            next_fix = next(fix_iter, None)
+        if feed is not None:
+            feed.offer_until(sample.t_s)
         est = update(sample)
         if est.roll_rad == est.roll_rad:   # initialised (not NaN)
             q0, q1, q2, q3 = est.q_wxyz.tolist()
@@ -81,7 +80,7 @@ def replay_attitude(estimator: Estimator, samples: Iterable[ImuSample], true_nor
         row = (sample.t_s, q0, q1, q2, q3, est.roll_rad * deg, est.pitch_rad * deg, est.yaw_rad * deg,
                est.heading_mag_rad * deg, est.heading_true_rad * deg, s0 * deg, s1 * deg, s2 * deg,
                b0, b1, b2, int(est.flags))
-        if fix_iter is not None:
+        if feed is not None:
             nav = est.nav
             row += no_nav if nav is None else (*nav.vel_ned_m_s.tolist(), nav.lat_deg, nav.lon_deg, nav.alt_m)
             hi = est.integrity

@@ -193,107 +193,136 @@ def replay_figure(trace: ReplayTrace, truth_q_wxyz: np.ndarray | None = None, tr
 
     Panels, each found by its label: roll, pitch, heading; "error vs truth (°)" with truth; "velocity (m/s)" and
     the track ("north (m)" against "east (m)") for an aided run; the flags."""
-    plt = pyplot()
     tab = trace.table()
     col = {name: i for i, name in enumerate(trace.columns)}
     t = tab[:, 0] - (tab[0, 0] if len(tab) else 0.0)
     roll, pitch, heading = tab[:, col["roll_deg"]], tab[:, col["pitch_deg"]], tab[:, col["heading_true_deg"]]
     s_roll, s_pitch, s_yaw = tab[:, col["sigma_roll_deg"]], tab[:, col["sigma_pitch_deg"]], tab[:, col["sigma_yaw_deg"]]
-    quat = tab[:, [col["qw"], col["qx"], col["qy"], col["qz"]]]
     flags = tab[:, -1].astype(np.int64)
-    truth_err = truth_euler = None
-    if truth_q_wxyz is not None and len(tab):
-        idx = np.clip(np.searchsorted(truth_t_s, tab[:, 0]), 0, len(truth_t_s) - 1)
-        q_truth = truth_q_wxyz[idx]
-        ok = np.isfinite(quat[:, 0]) & np.all(np.isfinite(q_truth), axis=1)
-        truth_err = np.full((len(tab), 3), np.nan)
-        truth_err[ok] = truth_errors_deg(quat[ok], q_truth[ok])
-        truth_euler = np.full((len(tab), 3), np.nan)
-        truth_euler[ok] = np.degrees(quat_to_euler(q_truth[ok]))
+    truth_err, truth_euler = _truth_series(tab, col, truth_q_wxyz, truth_t_s)
     gnss_rows = bool(flags.any() and (flags & int(_GNSS_FLAGS)).any()) or bool(trace.gnss)
     panels = ["roll", "pitch", "heading"] + (["error"] if truth_err is not None else []) + \
              (["velocity"] if trace.aided else []) + ["flags"] + (["gnss"] if trace.gnss else [])
+    fig, axes, track_ax = _layout(trace, panels, _flag_row_count(flags, gnss_rows))
+    settled = (flags & int(EstimateFlags.INITIALISING)) == 0
+    ax = dict(zip(panels, axes))
+    north = "true north" if trace.true_north else "magnetic north (no --lat/--lon)"
+    truth = (None, None, None) if truth_euler is None else (truth_euler[:, 0], truth_euler[:, 1], truth_euler[:, 2])
+    _angle_panel(ax["roll"], t, flags, settled, roll, s_roll, "roll (°)", truth[0], name_shading=True)
+    _angle_panel(ax["pitch"], t, flags, settled, pitch, s_pitch, "pitch (°)", truth[1])
+    if trace.true_north:
+        _angle_panel(ax["heading"], t, flags, settled, heading, s_yaw, "true heading (°)", truth[2], wrap=True)
+    else:
+        _angle_panel(ax["heading"], t, flags, settled, tab[:, col["yaw_deg"]] % 360.0, s_yaw,
+                     "magnetic heading (°)", truth[2], wrap=True)
+    if truth_err is not None:
+        _error_panel(ax["error"], t, truth_err, (s_roll, s_pitch, s_yaw), trace.true_north)
+    _flags_panel(ax["flags"], t, _flag_rows(flags, gnss_rows), flags)
+    if trace.gnss:
+        _gnss_panel(ax["gnss"], t, trace.gnss)
+    if trace.aided:
+        _navigation_panels(ax["velocity"], track_ax, tab, col, t, fixes)
+    for a in axes[:-1]:
+        a.tick_params(labelbottom=False)
+    axes[-1].set_xlabel("time since the first sample (s)")
+    fig.suptitle(title or f"replay (heading to {north})", fontsize=11)
+    fig.tight_layout(rect=(0, 0, 1, 0.98))
+    return fig
+
+
+def _truth_series(tab: np.ndarray, col: dict, truth_q_wxyz, truth_t_s):
+    """(error against truth, truth's ZYX Euler angles), degrees, (n, 3) each with NaN where either attitude is
+    missing; (None, None) without truth."""
+    if truth_q_wxyz is None or not len(tab):
+        return None, None
+    quat = tab[:, [col["qw"], col["qx"], col["qy"], col["qz"]]]
+    idx = np.clip(np.searchsorted(truth_t_s, tab[:, 0]), 0, len(truth_t_s) - 1)
+    q_truth = truth_q_wxyz[idx]
+    ok = np.isfinite(quat[:, 0]) & np.all(np.isfinite(q_truth), axis=1)
+    truth_err = np.full((len(tab), 3), np.nan)
+    truth_err[ok] = truth_errors_deg(quat[ok], q_truth[ok])
+    truth_euler = np.full((len(tab), 3), np.nan)
+    truth_euler[ok] = np.degrees(quat_to_euler(q_truth[ok]))
+    return truth_err, truth_euler
+
+
+def _layout(trace: ReplayTrace, panels: list[str], n_flag_rows: int):
+    """(figure, the time panels' axes top to bottom, the track's axes or None): the time panels share the time
+    axis; an aided run has the track beside them."""
+    plt = pyplot()
     heights = {"roll": 2, "pitch": 2, "heading": 2, "error": 2.2, "velocity": 2,
-               "flags": 0.35 + 0.3 * _flag_row_count(flags, gnss_rows), "gnss": 1.2}
+               "flags": 0.35 + 0.3 * n_flag_rows, "gnss": 1.2}
     height_in = 1.15 * sum(heights[p] for p in panels) + 0.8
     if trace.aided:   # the track beside the time panels
         fig = plt.figure(figsize=(18, height_in))
         grid = fig.add_gridspec(len(panels), 2, width_ratios=(3.2, 1.4), height_ratios=[heights[p] for p in panels])
         axes = [fig.add_subplot(grid[0, 0])]
         axes += [fig.add_subplot(grid[k, 0], sharex=axes[0]) for k in range(1, len(panels))]
-        track_ax = fig.add_subplot(grid[:, 1])
-    else:
-        fig, axes = plt.subplots(len(panels), 1, figsize=(13, height_in), sharex=True,
-                                 gridspec_kw={"height_ratios": [heights[p] for p in panels]})
-        axes, track_ax = list(np.atleast_1d(axes)), None
-    settled = (flags & int(EstimateFlags.INITIALISING)) == 0
-    ax = dict(zip(panels, axes))
-    north = "true north" if trace.true_north else "magnetic north (no --lat/--lon)"
+        return fig, axes, fig.add_subplot(grid[:, 1])
+    fig, axes = plt.subplots(len(panels), 1, figsize=(13, height_in), sharex=True,
+                             gridspec_kw={"height_ratios": [heights[p] for p in panels]})
+    return fig, list(np.atleast_1d(axes)), None
 
-    def angle_panel(name, value, sigma, label, truth_col=None, wrap=False):
-        a = ax[name]
-        for flag, colour in _SHADED:
-            for start, width in _spans(t, (flags & int(flag)) != 0):
-                a.axvspan(start, start + width, color=colour, alpha=0.12, lw=0)
-        finite = value[np.isfinite(value) & settled]
-        # a heading that stays within a half turn is drawn on its own scale (continuous across north)
-        local = wrap and finite.size and np.ptp(np.unwrap(np.radians(finite))) < math.pi
-        if local:
-            centre = math.degrees(math.atan2(np.mean(np.sin(np.radians(finite))), np.mean(np.cos(np.radians(finite)))))
-            value = centre + (value - centre + 180.0) % 360.0 - 180.0
-            if truth_col is not None:
-                truth_col = centre + (truth_col - centre + 180.0) % 360.0 - 180.0
-            wrap = False
-        if wrap:
-            tb, vb, lo, hi = _break_wraps(t, value, value - sigma, value + sigma)
-            a.fill_between(tb, lo, hi, color="tab:blue", alpha=0.25, lw=0, label="±1σ")
-            a.plot(tb, vb, color="tab:blue", lw=1.0, label="estimate")
-            a.set_ylim(0, 360)
-            a.set_yticks([0, 90, 180, 270, 360])
-        else:
-            a.fill_between(t, value - sigma, value + sigma, color="tab:blue", alpha=0.25, lw=0, label="±1σ")
-            a.plot(t, value, color="tab:blue", lw=1.0, label="estimate")
-            shown = [value - sigma, value + sigma] + ([truth_col] if truth_col is not None else [])
-            a.set_ylim(*_robust_limits(shown, settled))
+
+def _angle_panel(a, t, flags, settled, value, sigma, label, truth_col=None, wrap=False, name_shading=False):
+    """One angle with its ±1σ band and the truth (dashed), the distrusted stretches shaded; `wrap`: a heading
+    (0–360°, or on its own scale while it stays within a half turn); `name_shading`: the shading's legend."""
+    for flag, colour in _SHADED:
+        for start, width in _spans(t, (flags & int(flag)) != 0):
+            a.axvspan(start, start + width, color=colour, alpha=0.12, lw=0)
+    finite = value[np.isfinite(value) & settled]
+    # a heading that stays within a half turn is drawn on its own scale (continuous across north)
+    local = wrap and finite.size and np.ptp(np.unwrap(np.radians(finite))) < math.pi
+    if local:
+        centre = math.degrees(math.atan2(np.mean(np.sin(np.radians(finite))), np.mean(np.cos(np.radians(finite)))))
+        value = centre + (value - centre + 180.0) % 360.0 - 180.0
         if truth_col is not None:
-            tv = truth_col % 360.0 if wrap else truth_col
-            a.plot(*(_break_wraps(t, tv) if wrap else (t, tv)), color="black", lw=0.8, ls="--", label="truth")
-        for flag, colour in _SHADED:   # name the shading once, in the first panel
-            if name == "roll" and (flags & int(flag)).any():
-                a.axvspan(np.nan, np.nan, color=colour, alpha=0.25, lw=0, label=_FLAG_NAMES[flag])
-        a.set_ylabel(label)
-        a.grid(alpha=0.3)
-        a.legend(loc="upper right", fontsize=8, ncol=7)
-
-    angle_panel("roll", roll, s_roll, "roll (°)", None if truth_euler is None else truth_euler[:, 0])
-    angle_panel("pitch", pitch, s_pitch, "pitch (°)", None if truth_euler is None else truth_euler[:, 1])
-    if trace.true_north:
-        angle_panel("heading", heading, s_yaw, "true heading (°)",
-                    None if truth_euler is None else truth_euler[:, 2], wrap=True)
+            truth_col = centre + (truth_col - centre + 180.0) % 360.0 - 180.0
+        wrap = False
+    if wrap:
+        tb, vb, lo, hi = _break_wraps(t, value, value - sigma, value + sigma)
+        a.fill_between(tb, lo, hi, color="tab:blue", alpha=0.25, lw=0, label="±1σ")
+        a.plot(tb, vb, color="tab:blue", lw=1.0, label="estimate")
+        a.set_ylim(0, 360)
+        a.set_yticks([0, 90, 180, 270, 360])
     else:
-        angle_panel("heading", tab[:, col["yaw_deg"]] % 360.0, s_yaw, "magnetic heading (°)",
-                    None if truth_euler is None else truth_euler[:, 2], wrap=True)
-    if truth_err is not None:
-        a = ax["error"]
-        for k, (name, colour, sigma) in enumerate((("roll", "tab:blue", s_roll), ("pitch", "tab:green", s_pitch),
-                                                    ("heading", "tab:red", s_yaw))):
-            e = truth_err[:, k]
-            rms = math.sqrt(np.nanmean(e * e)) if np.isfinite(e).any() else math.nan
-            a.plot(t, e, color=colour, lw=0.9, label=f"{name} (RMS {rms:.2f}°)")
-            a.fill_between(t, -sigma, sigma, color=colour, alpha=0.10, lw=0)
-        finite = truth_err[np.isfinite(truth_err)]
-        if finite.size:   # the bulk, not a start-up transient, sets the scale
-            span = max(float(np.percentile(np.abs(finite), 99)) * 1.3, 0.5)
-            a.set_ylim(-span, span)
-        a.axhline(0, color="black", lw=0.5)
-        a.set_ylabel("error vs truth (°)")
-        a.grid(alpha=0.3)
-        a.legend(loc="upper right", fontsize=8, ncol=3)
-        if not trace.true_north:
-            a.set_title("heading error includes the declination: give --lat/--lon for true north", fontsize=8,
-                        loc="left")
-    a = ax["flags"]
-    rows = _flag_rows(flags, gnss_rows)
+        a.fill_between(t, value - sigma, value + sigma, color="tab:blue", alpha=0.25, lw=0, label="±1σ")
+        a.plot(t, value, color="tab:blue", lw=1.0, label="estimate")
+        shown = [value - sigma, value + sigma] + ([truth_col] if truth_col is not None else [])
+        a.set_ylim(*_robust_limits(shown, settled))
+    if truth_col is not None:
+        tv = truth_col % 360.0 if wrap else truth_col
+        a.plot(*(_break_wraps(t, tv) if wrap else (t, tv)), color="black", lw=0.8, ls="--", label="truth")
+    for flag, colour in _SHADED:   # name the shading once, in the first panel
+        if name_shading and (flags & int(flag)).any():
+            a.axvspan(np.nan, np.nan, color=colour, alpha=0.25, lw=0, label=_FLAG_NAMES[flag])
+    a.set_ylabel(label)
+    a.grid(alpha=0.3)
+    a.legend(loc="upper right", fontsize=8, ncol=7)
+
+
+def _error_panel(a, t, truth_err, sigmas, true_north: bool) -> None:
+    """Roll, pitch and heading error against truth with their RMS, over the ±1σ bands."""
+    for k, (name, colour) in enumerate((("roll", "tab:blue"), ("pitch", "tab:green"), ("heading", "tab:red"))):
+        e = truth_err[:, k]
+        rms = math.sqrt(np.nanmean(e * e)) if np.isfinite(e).any() else math.nan
+        a.plot(t, e, color=colour, lw=0.9, label=f"{name} (RMS {rms:.2f}°)")
+        a.fill_between(t, -sigmas[k], sigmas[k], color=colour, alpha=0.10, lw=0)
+    finite = truth_err[np.isfinite(truth_err)]
+    if finite.size:   # the bulk, not a start-up transient, sets the scale
+        span = max(float(np.percentile(np.abs(finite), 99)) * 1.3, 0.5)
+        a.set_ylim(-span, span)
+    a.axhline(0, color="black", lw=0.5)
+    a.set_ylabel("error vs truth (°)")
+    a.grid(alpha=0.3)
+    a.legend(loc="upper right", fontsize=8, ncol=3)
+    if not true_north:
+        a.set_title("heading error includes the declination: give --lat/--lon for true north", fontsize=8,
+                    loc="left")
+
+
+def _flags_panel(a, t, rows: list[tuple], flags) -> None:
+    """The flags as a timeline, one row per flag raised."""
     for k, (flag, name, colour) in enumerate(rows):
         a.broken_barh(_spans(t, (flags & int(flag)) != 0), (k - 0.4, 0.8), color=colour)
     a.set_yticks(range(len(rows)), [name for _, name, _ in rows], fontsize=8)
@@ -304,21 +333,15 @@ def replay_figure(trace: ReplayTrace, truth_q_wxyz: np.ndarray | None = None, tr
         a.text(0.5, 0.5, "no flags raised", transform=a.transAxes, ha="center", va="center", fontsize=9)
         a.set_yticks([])
     a.set_ylabel("flags")
-    if trace.gnss:
-        a = ax["gnss"]
-        for name, values in trace.gnss.items():
-            a.plot(t[: len(values)], values[: len(t)], lw=0.9, label=name)
-        a.set_ylabel("GNSS")
-        a.grid(alpha=0.3)
-        a.legend(loc="upper right", fontsize=8)
-    if trace.aided:
-        _navigation_panels(ax["velocity"], track_ax, tab, col, t, fixes)
-    for a in axes[:-1]:
-        a.tick_params(labelbottom=False)
-    axes[-1].set_xlabel("time since the first sample (s)")
-    fig.suptitle(title or f"replay (heading to {north})", fontsize=11)
-    fig.tight_layout(rect=(0, 0, 1, 0.98))
-    return fig
+
+
+def _gnss_panel(a, t, gnss: dict) -> None:
+    """The trace's gnss_* columns (ReplayTrace.gnss), one line each."""
+    for name, values in gnss.items():
+        a.plot(t[: len(values)], values[: len(t)], lw=0.9, label=name)
+    a.set_ylabel("GNSS")
+    a.grid(alpha=0.3)
+    a.legend(loc="upper right", fontsize=8)
 
 
 def _navigation_panels(vel_ax, track_ax, tab: np.ndarray, col: dict, t: np.ndarray, fixes) -> None:

@@ -60,6 +60,7 @@ class AidedEstimator:
     """Records what it is offered (the GnssAidedEstimator protocol of the task)."""
 
     name = "recorder"
+    lever_arm_m = (0.0, 0.0, 0.0)
 
     def __init__(self):
         self.fixes: list[GnssFix] = []

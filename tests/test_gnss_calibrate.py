@@ -40,6 +40,7 @@ class Recorder:
     """An aided estimator (estimator.base.GnssAidedEstimator) that records what it is offered, in order."""
 
     name = "recorder"
+    lever_arm_m = (0.0, 0.0, 0.0)
 
     def __init__(self):
         self.events = []
@@ -57,9 +58,11 @@ def test_levelling_offers_the_fixes_in_time_order():
     rec = Recorder()
     t = np.arange(10) * 0.1
     data = MagFitInput(t, np.ones((10, 3)), np.ones((10, 3)), np.zeros((10, 3)))
-    fixes = fixes_of([0.05, 0.25, 0.85], [0, 0, 0], [1, 1, 1])
+    # on a sample's time (0.0, t[3]) the fix goes first; one after the last sample (0.95) is never offered
+    fixes = fixes_of([0.0, 0.05, 0.25, t[3], 0.85, 0.95], [0] * 6, [1] * 6)
     roll, pitch, _ = attitude_from_estimator(data, "x", fixes=fixes, estimator=rec)
-    want = sorted([("sample", x) for x in t] + [("fix", f.t_s) for f in fixes], key=lambda e: e[1])
+    want = sorted([("sample", x) for x in t] + [("fix", f.t_s) for f in fixes if f.t_s <= t[-1]],
+                  key=lambda e: (e[1], e[0] != "fix"))
     assert rec.events == want and np.all(roll == 0.1) and np.all(pitch == -0.2)
 
 

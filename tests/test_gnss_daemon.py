@@ -39,6 +39,7 @@ class FakeAided:
     navigation state once it has one. `flags` is what its estimates carry."""
 
     name = "fake-aided"
+    lever_arm_m = (0.0, 0.0, 0.0)
 
     def __init__(self):
         self.fixes = []

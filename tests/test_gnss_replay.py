@@ -94,6 +94,25 @@ def test_the_summary_reads_the_gate_and_the_heading_checks_an_estimator_declares
         "(rejected 3×, heading reset to the GNSS yaw 2×)")
 
 
+def test_many_rejected_velocities_name_the_lever_arm_the_estimator_declares():
+    """More than a tenth of the velocities rejected: the summary names where the filter was told the antenna is
+    (GnssAidedEstimator.lever_arm_m, which ins takes from its parameters)."""
+    from ahrsd.cli.replay import _gate_summary
+    from ahrsd.estimator.base import GnssAidedEstimator
+    from ahrsd.estimator.ins import GnssCounters
+
+    arm = (0.5, -0.25, -1.5)
+    ins = make_estimator("ins", lever_arm_m=arm)
+    assert isinstance(ins, GnssAidedEstimator) and ins.lever_arm_m == arm
+    told = FakeAided()
+    told.lever_arm_m = arm
+    told.gnss_counters = GnssCounters(offered=20, fused_velocity=15, fused_position=20, rejected_velocity=5)
+    assert _gate_summary(told) == (
+        "the filter fused 15 velocities and 20 positions, its gate rejected 5 and 0; WARNING: that many rejected "
+        "velocities usually mean the antenna is not where the filter was told (0.5 -0.25 -1.5 m, body FRD: "
+        "--set \"lever_arm_m=(x, y, z)\") or the fixes' time stamps are off")
+
+
 def ahrsd(*args):
     """`ahrsd ARGS` run in this process (its output and exit status as the console script gives them, without
     an interpreter start-up and a numba cache load per run; the console script itself is test_recording's and

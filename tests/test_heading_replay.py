@@ -10,6 +10,8 @@ from ahrsd.cli.main import main
 from ahrsd.cli.replay import AIDED_OUTPUT_HEADER, HEADING_OUTPUT_COLUMNS
 from ahrsd.core.estimate import HeadingState
 
+SEED = 2
+
 
 def test_an_uncalibrated_boat_replays_with_an_honest_heading(tmp_path, capsys):
     """`record` and `replay` run in this process (the worker has usually loaded the ins kernels already; the
@@ -17,7 +19,10 @@ def test_an_uncalibrated_boat_replays_with_an_honest_heading(tmp_path, capsys):
     from ahrsd.simulation import open_stream
 
     rec = tmp_path / "boat.csv"
-    assert main(["record", "--sim", "boat", "--seconds", "90", "-o", str(rec)]) == 0, capsys.readouterr().err
+    # seed 2: its heading errors reach well into the σ the filter publishes, so the σ check below fails on a σ
+    # half as large (on seed 0 the errors happen to be small enough that it passed with σ halved too)
+    assert main(["record", "--sim", "boat", "--seconds", "90", "--seed", str(SEED), "-o", str(rec)]) == 0, \
+        capsys.readouterr().err
     capsys.readouterr()
     out = tmp_path / "out.csv"
     code = main(["replay", str(rec), "--gnss", str(tmp_path / "boat.gnss.csv"), "-o", str(out)])
@@ -33,11 +38,15 @@ def test_an_uncalibrated_boat_replays_with_an_honest_heading(tmp_path, capsys):
     state = data[late, cols.index("heading_state")].astype(int)
     # the recording's magnetometer is raw (vehicle iron, no calibration): never "magnetometer" as the reference
     assert not np.any(state == int(HeadingState.MAGNETOMETER)), np.unique(state)
-    truth = open_stream("boat", errors="ideal").truth_at(t[late])
+    truth = open_stream("boat", seed=SEED, errors="ideal").truth_at(t[late])    # the simulator's, not the filter's
     q = truth.q_wxyz
     truth_yaw = Rotation.from_quat(np.column_stack([q[:, 1:], q[:, :1]])).as_euler("ZYX", degrees=True)[:, 0]
     err = (data[late, cols.index("yaw_deg")] - truth_yaw + 180.0) % 360.0 - 180.0
     sigma = data[late, cols.index("sigma_yaw_deg")]
-    assert np.mean(np.abs(err) <= 3.0 * sigma) >= 0.99, (np.sqrt(np.mean(err ** 2)), np.median(sigma))
+    z = np.abs(err) / sigma
+    # honest: at most 1 % of the errors beyond 3σ (not overconfident) …
+    assert np.mean(z <= 3.0) >= 0.99, (np.sqrt(np.mean(err ** 2)), np.median(sigma), np.quantile(z, 0.99))
+    # … and informative: the errors use the σ (a σ four times too large would claim less than the filter knows)
+    assert np.sqrt(np.mean(z ** 2)) >= 0.3, (np.sqrt(np.mean(err ** 2)), np.median(sigma))
     gsf_sigma = data[late, cols.index("gsf_sigma_deg")]
     assert np.any(np.isfinite(gsf_sigma))

@@ -8,6 +8,7 @@ import numpy as np
 from ahrsd.core.sample import make_sample
 from ahrsd.estimator import make_estimator
 from ahrsd.estimator.base import GnssAidedEstimator
+from ahrsd.estimator.fix_feed import GnssFixFeed
 
 from .backstepping_paper import BacksteppingError
 from .fit_types import MagFitInput
@@ -20,7 +21,7 @@ def roll_pitch_from_estimator(data: MagFitInput, name: str = "mekf", fixes=None,
 
     fixes: GNSS fixes (core.gnss.GnssFix, time order, on the samples' time base) for an aided estimator
     (estimator.base.GnssAidedEstimator, e.g. "ins"): each is offered before the first sample not earlier than
-    it, as `ahrsd replay --gnss` does."""
+    it (estimator/fix_feed.py), as `ahrsd replay --gnss` does."""
     roll, pitch, _ = attitude_from_estimator(data, name, fixes, **params)
     return roll, pitch
 
@@ -35,15 +36,13 @@ def attitude_from_estimator(data: MagFitInput, name: str = "mekf", fixes=None, e
     est = estimator if estimator is not None else make_estimator(name, **params)
     if fixes is not None and not isinstance(est, GnssAidedEstimator):
         raise BacksteppingError(f"estimator {name!r} takes no GNSS fixes: use an aided one (ins)")
-    fixes = list(fixes) if fixes is not None else []
+    feed = GnssFixFeed(est, fixes) if fixes is not None else None
     n = len(data)
     roll, pitch, tilt_sigma = np.empty(n), np.empty(n), np.empty(n)
-    j = 0
     for i in range(n):
         t = data.t_s[i]
-        while j < len(fixes) and fixes[j].t_s <= t:
-            est.update_gnss(fixes[j])
-            j += 1
+        if feed is not None:
+            feed.offer_until(t)
         e = est.update(make_sample(t, data.gyro_rad_s[i], data.accel_m_s2[i], data.mag_ut[i]))
         roll[i], pitch[i] = e.roll_rad, e.pitch_rad
         tilt_sigma[i] = float(np.hypot(e.sigma_rpy_rad[0], e.sigma_rpy_rad[1]))
