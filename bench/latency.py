@@ -68,6 +68,9 @@ os.environ["MAVLINK_DIALECT"] = "ardupilotmega"
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:
+    sys.path.insert(0, str(REPO))
+from bench.sim_calibration import save_mag_calibration, sim_chip_mag_model  # noqa: E402
 
 
 def free_udp_socket() -> socket.socket:
@@ -170,6 +173,7 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
             source_args = ["--iio", str(device.sysfs)]
         else:
             source_args = ["--sim", scenario]
+        save_mag_calibration(tmp, sim_chip_mag_model())    # without it (and GNSS) no heading, no VPE, is sent
         proc = subprocess.Popen(
             [sys.executable, "-m", "ahrsd.cli", "run", *source_args, *(("--gnss-sim",) if gnss else ()),
              "--config", str(config),

@@ -29,6 +29,9 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
 SIGNALK_SERVER_VERSION = "2.23.0"   # the newest release whose engines field accepts Node.js 20
 PLUGIN_DIR = Path(__file__).resolve().parent / "signalk_plugin"
 PATHS = ("navigation.headingTrue", "navigation.headingMagnetic", "navigation.rateOfTurn",
@@ -277,6 +280,9 @@ def run_check(seconds: float = 30.0, scenario: str = "level-turns", log=print) -
         tap = SentTap()
         tap.start()
         with tempfile.TemporaryDirectory(prefix="ahrsd-signalk-state-") as state:
+            from bench.sim_calibration import save_mag_calibration, sim_chip_mag_model
+
+            save_mag_calibration(state, sim_chip_mag_model(scenario))   # without it (and GNSS) no heading is sent
             ahrsd = subprocess.Popen(
                 [sys.executable, "-m", "ahrsd.cli", "run", "--sim", scenario, "--no-log", "--status-line", "off",
                  "--state-dir", state, "--mavlink", f"udpout:127.0.0.1:{free_port(socket.SOCK_DGRAM)}",

@@ -48,6 +48,10 @@ os.environ["MAVLINK20"] = "1"
 os.environ["MAVLINK_DIALECT"] = "ardupilotmega"
 from ahrsd.daemon.mavlink_io import mavlink  # noqa: E402  (MAVLink 2, ardupilotmega)
 
+if str(Path(__file__).resolve().parents[1]) not in sys.path:
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from bench.sim_calibration import save_mag_calibration, sim_chip_mag_model  # noqa: E402
+
 OUR_COMP = 200
 CONFIGURED_HZ = {"ATTITUDE": 50.0, "ATTITUDE_QUATERNION": 10.0, "VISION_POSITION_ESTIMATE": 30.0,
                  "HIGHRES_IMU": 10.0, "SYS_STATUS": 1.0, "HEARTBEAT": 1.0}   # docs/daemon.md defaults
@@ -171,6 +175,7 @@ def soak(seconds: float, faults: str, flood_rate: float, seed: int, workdir: Pat
     port = port_sock.getsockname()[1]
     stats_path = workdir / "stats.json"
     log_path = workdir / "ahrsd.log"
+    save_mag_calibration(workdir / "state", sim_chip_mag_model())    # without it no heading, no VPE, is sent
     cmd = [sys.executable, "-m", "ahrsd.cli", "run", "--sim", "static", "--mavlink",
            f"udpout:127.0.0.1:{port}", "--state-dir", str(workdir / "state"), "--status-line", "off",
            "--stats-file", str(stats_path)]

@@ -11,8 +11,10 @@ Where the figure comes from, in order (the calibration's `metadata["mag"]`):
    perpendicular to the horizontal field H turns the heading by ε/H, so ε/H (WMM's H at the site) is the
    figure. The residual of a fit understates what the fit cannot see (a constant offset), so it is a floor,
    not a bound; it is what the fit reports.
-3. Nothing (identity calibration, fixed-yaw offsets only, older files): NaN — unknown, and the estimator
-   then trusts the magnetometer little.
+3. Nothing (identity calibration, fixed-yaw offsets only, older files): NaN — unknown: ins then trusts the
+   magnetometer little, and without GNSS the heading is unknown (estimator/calibration_heading.py).
+A magnetometer model that is the identity is a calibration like any other when it states its figure (a sensor
+whose fit found nothing to correct).
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ def _finite(value) -> float:
 
 def calibration_heading_sigma_rad(calibration) -> float:
     """The predicted heading error (1σ, rad) of `calibration`'s magnetometer model, NaN when unknown."""
-    if calibration is None or calibration.is_identity:
+    if calibration is None:
         return NAN
     meta = calibration.metadata.get("mag") if isinstance(calibration.metadata, dict) else None
     if not isinstance(meta, dict):

@@ -354,14 +354,15 @@ def _load_calibration(args):
 
 
 def _make_estimator(name: str, declination_rad: float, calibration, params: dict, aided: bool):
-    """The estimator, told (as the daemon does) how far ins may trust the calibration's magnetometer."""
+    """The estimator, told (as the daemon does) the heading error the calibration predicts (ins, mekf)."""
     from ahrsd.estimator import make_estimator
     from ahrsd.estimator.base import GnssAidedEstimator
 
-    if calibration is not None and name == "ins" and "mag_calibration_sigma_rad" not in params:
+    if calibration is not None and name in ("ins", "mekf") and "mag_calibration_sigma_rad" not in params:
         from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad
 
-        # how far ins may trust this calibration's magnetometer: as the daemon does (NaN: unknown)
+        # how far ins may trust this calibration's magnetometer, and the heading error a magnetometer-held heading's
+        # published σ carries without GNSS (estimator/calibration_heading.py): as the daemon does (NaN: unknown)
         params = {**params, "mag_calibration_sigma_rad": calibration_heading_sigma_rad(calibration)}
     try:
         estimator = make_estimator(name, declination_rad=declination_rad, **params)

@@ -3,8 +3,11 @@ status line, a STATUSTEXT naming the cause at every change, the magnetometer and
 "heading good" may be said, and the yaw resets VISION_POSITION_ESTIMATE.reset_counter must announce.
 
 The estimator decides the state (estimator/heading_monitor.py); this part only reports it, with its cause:
-* UNKNOWN: no heading is published (VISION_POSITION_ESTIMATE withheld by its builder).
-* MAGNETOMETER: the magnetometer holds the heading and agrees with the GNSS yaw where there is one.
+* UNKNOWN: no heading is published (VISION_POSITION_ESTIMATE withheld by its builder). Without GNSS this is
+  also the state of a magnetometer with no calibration (or one of unknown quality): the estimator's σ then
+  carries an unknown calibration error (estimator/calibration_heading.py).
+* MAGNETOMETER: the magnetometer holds the heading and agrees with the GNSS yaw where there is one; without GNSS
+  its σ includes the calibration's predicted heading error.
 * GNSS_ONLY / LEARNING: the magnetometer is rejected or not trusted and the GNSS velocity holds the heading
   (LEARNING: while the iron left after the calibration is learned). "Heading good" only while its 1σ is
   below `good_sigma_rad` ([daemon] heading_good_sigma_deg).
@@ -30,7 +33,7 @@ log = logging.getLogger(__name__)
 STATE_LABELS = {HeadingState.UNKNOWN: "hdg unknown", HeadingState.MAGNETOMETER: "hdg mag",
                 HeadingState.GNSS_ONLY: "hdg GNSS-only", HeadingState.LEARNING: "hdg learning"}
 DISAGREEMENT_GATE_SIGMA = 3.0         # as the estimator's heading monitor (HeadingMonitor.gate_sigma)
-UNCALIBRATED_SIGMA_RAD = math.radians(20.0)   # InsParams.mag_uncalibrated_sigma_rad: a magnetometer of unknown calibration
+UNCALIBRATED_SIGMA_RAD = math.radians(20.0)   # InsParams.mag_uncalibrated_sigma_rad: how far ins weighs an unknown calibration
 TRUSTED_CALIBRATION_RAD = math.radians(3.0)   # HeadingMonitor.trusted_sigma_rad: a calibration ins trusts to hold the heading
 ANNOUNCE_AFTER_S = 2.0                # a state must hold this long to be announced (no STATUSTEXT per flicker)
 YAW_RESET_CAUSE_S = 30.0              # a yaw reset this recent explains rejected GNSS velocities
@@ -61,6 +64,7 @@ class HeadingStatus:
         self.initialising = True
         self.gnss_checked = False                     # the estimator checks its heading against GNSS (ins, fixes)
         self.announced: HeadingState | None = None
+        self.announced_key: tuple | None = None      # (state, why it is UNKNOWN): a new cause is news too
         self.announcements = 0
         self._candidate: tuple[HeadingState, float] | None = None
         self._resets_announced = 0
@@ -108,13 +112,14 @@ class HeadingStatus:
                 self.statustext(mavlink.MAV_SEVERITY_INFO,
                                 f"ahrsd: heading aligned to the GNSS yaw (±{math.degrees(self.sigma_rad):.1f}°): "
                                 "no trusted magnetometer calibration")
-        if state == self.announced:
+        key = (state, self._unknown_cause(est)[0] if state == HeadingState.UNKNOWN else "")
+        if key == self.announced_key:
             self._candidate = None
             return
-        if self._candidate is None or self._candidate[0] != state:
-            self._candidate = (state, now)
+        if self._candidate is None or self._candidate[0] != key:
+            self._candidate = (key, now)
         if self.announced is None or now - self._candidate[1] >= ANNOUNCE_AFTER_S:
-            self._announce(state, est)
+            self._announce(key, est)
 
     # ------------------------------------------------------------------ outputs
     @property
@@ -133,29 +138,33 @@ class HeadingStatus:
 
     def unhealthy_bits(self) -> int:
         """SYS_STATUS health bits to clear: 3D_MAG while the magnetometer is rejected or being learned (or
-        disagrees with the GNSS yaw), AHRS while the heading is not good."""
+        disagrees with the GNSS yaw), or holds the heading alone on an untrusted calibration
+        (`calibration_caveat`: an autopilot's own "compass not calibrated"), AHRS while the heading is not good."""
         bits = 0
-        if self.state in (HeadingState.GNSS_ONLY, HeadingState.LEARNING) or self.mag_inconsistent:
+        if self.state in (HeadingState.GNSS_ONLY, HeadingState.LEARNING) or self.mag_inconsistent \
+                or self.calibration_caveat() is not None:
             bits |= msgs.SENSOR_MAG
         if self.state is not None and not self.heading_good:
             bits |= msgs.SENSOR_AHRS
         return bits
 
     def status_text(self) -> str:
-        """For the status line: "hdg GNSS-only ±1.2°"; "hdg mag uncal ±0.3°" for a magnetometer heading whose
-        calibration is untrusted (`calibration_caveat`)."""
+        """For the status line: "hdg GNSS-only ±1.2°"; "hdg mag uncal ±6.1°" / "hdg unknown uncal ±180.0°" for a
+        heading that rests on an untrusted calibration alone (`calibration_caveat`)."""
         if self.state is None:
             return "hdg --"
         label = STATE_LABELS[self.state] + (" uncal" if self.calibration_caveat() else "")
         return f"{label} ±{math.degrees(self.sigma_rad):.1f}°"
 
     def calibration_caveat(self) -> str | None:
-        """What the heading's σ cannot include: a MAGNETOMETER heading with no GNSS to check it rests on the
-        calibration alone, and the filter's σ covers the sensor's noise, not an iron the calibration did not remove.
-        With no calibration (or one of unknown quality) that error is unknown; ArduPilot refuses to arm then
-        ("Compass not calibrated"). A short phrase, or None when the calibration is trusted or GNSS checks the
-        heading (ins learns the iron and its σ includes the calibration's)."""
-        if self.state != HeadingState.MAGNETOMETER or self.gnss_checked:
+        """Why the heading is no better: a magnetometer heading with no GNSS to check it rests on the calibration
+        alone, and the estimator's σ includes the calibration's predicted heading error (estimator/
+        calibration_heading.py). With no calibration (or one of unknown quality) that error is unknown and the
+        state UNKNOWN (ArduPilot refuses to arm then: "Compass not calibrated"); a calibration predicting more
+        than 3° leaves a MAGNETOMETER heading with a σ that says so. A short phrase, or None when the calibration
+        is trusted or GNSS checks the heading (ins learns the iron and its σ includes the calibration's)."""
+        if self.state not in (HeadingState.MAGNETOMETER, HeadingState.UNKNOWN) or self.gnss_checked \
+                or self.state is None or self.initialising:
             return None
         cal = self.calibration_sigma_rad
         if not math.isfinite(cal):
@@ -175,7 +184,8 @@ class HeadingStatus:
         if self.initialising or self.state is None:
             return "initialising, no heading out"
         if self.state == HeadingState.UNKNOWN:
-            return "heading unknown, no heading out"
+            caveat = self.calibration_caveat()
+            return "heading unknown, no heading out" if caveat is None else f"heading unknown ({caveat}), no heading out"
         return f"heading not good ({STATE_LABELS[self.state][4:]} ±{math.degrees(self.sigma_rad):.0f}°)"
 
     def rejection_cause(self, now: float) -> str | None:
@@ -201,8 +211,31 @@ class HeadingStatus:
         gsf = float(integrity.gsf_sigma_rad) if math.isfinite(integrity.gsf_sigma_rad) else math.pi
         return d, d * d > DISAGREEMENT_GATE_SIGMA ** 2 * (gsf * gsf + cal * cal)
 
-    def _announce(self, state: HeadingState, est) -> None:
-        self.announced = state
+    def _unknown_cause(self, est) -> tuple[str, str]:
+        """Why the heading is UNKNOWN: (a stable key, the phrase for the STATUSTEXT)."""
+        sig = f"±{math.degrees(self.sigma_rad):.1f}°"
+        integrity = est.integrity
+        caveat = self.calibration_caveat()
+        if self.mag_inconsistent:
+            return "disagrees", ""
+        if self.initialising and self.announced in (None, HeadingState.UNKNOWN):
+            return "initialising", "initialising"
+        if self.initialising:
+            return "sigma", f"uncertainty {sig} too large (magnetometer rejected?)"
+        if est.flags & EstimateFlags.MAG_UNAVAILABLE:
+            return "no mag", "no magnetometer and no GNSS yaw"
+        if caveat is not None:
+            return "uncal", (f"{'magnetometer not calibrated' if caveat == 'mag not calibrated' else caveat} and no "
+                             "GNSS to check it, the vehicle's iron may turn it by any angle; calibrate it (magcal)")
+        if integrity is None:
+            return "no gnss", "magnetometer not trusted, no GNSS yet"
+        if not integrity.gsf_valid:
+            return "gsf", "magnetometer not trusted, GNSS yaw not valid yet (turn or change speed)"
+        return "sigma", f"uncertainty {sig} too large"
+
+    def _announce(self, key: tuple, est) -> None:
+        state = key[0]
+        self.announced, self.announced_key = state, key
         self._candidate = None
         self.announcements += 1
         severity, text = self._text(state, est)
@@ -215,9 +248,13 @@ class HeadingStatus:
             caveat = self.calibration_caveat()
             if caveat is None:
                 return mavlink.MAV_SEVERITY_INFO, f"ahrsd: heading from magnetometer ({sig})"
+            if not math.isfinite(self.calibration_sigma_rad):     # an estimator whose σ cannot carry it
+                return mavlink.MAV_SEVERITY_WARNING, (
+                    f"ahrsd: heading from magnetometer ({sig}), mag not calibrated and no GNSS to check it: the "
+                    "vehicle's iron may turn it by any angle; calibrate it (magcal)")
             return mavlink.MAV_SEVERITY_WARNING, (
-                f"ahrsd: heading from magnetometer ({sig} noise only), {caveat}: the vehicle's iron may turn it "
-                "by tens of degrees; calibrate it (magcal)")
+                f"ahrsd: heading from magnetometer ({sig}, of it {caveat}), no GNSS to check it; a better "
+                "calibration gives a better heading (magcal)")
         d = self.disagreement_rad
         by = f" by {abs(math.degrees(d)):.0f}°" if math.isfinite(d) else ""
         disagrees = self.mag_inconsistent
@@ -229,20 +266,7 @@ class HeadingStatus:
         else:
             cause = f"magnetometer calibration uncertain (±{math.degrees(self.calibration_sigma_rad):.1f}°)"
         if state == HeadingState.UNKNOWN:
-            if disagrees:
-                why = cause
-            elif self.initialising and self.announced in (None, HeadingState.UNKNOWN):
-                why = "initialising"
-            elif self.initialising:
-                why = f"uncertainty {sig} too large (magnetometer rejected?)"
-            elif est.flags & EstimateFlags.MAG_UNAVAILABLE:
-                why = "no magnetometer and no GNSS yaw"
-            elif integrity is None:
-                why = "magnetometer not trusted, no GNSS yet"
-            elif not integrity.gsf_valid:
-                why = "magnetometer not trusted, GNSS yaw not valid yet (turn or change speed)"
-            else:
-                why = f"uncertainty {sig} too large"
+            why = cause if disagrees else self._unknown_cause(est)[1]
             return mavlink.MAV_SEVERITY_WARNING, f"ahrsd: heading unknown: {why}; no heading sent"
         doing = "learning its iron" if state == HeadingState.LEARNING else "heading from GNSS only"
         good = "" if self.heading_good else ", not good yet"

@@ -74,7 +74,7 @@ from ahrsd.drivers.source import SensorSource, open_source
 from ahrsd.daemon.broadcast_notice import BroadcastNotice
 from ahrsd.estimator import make_estimator
 from ahrsd.daemon.estimator_news import estimator_news_muted
-from ahrsd.estimator.base import HeadingCheckedEstimator
+from ahrsd.estimator.base import HeadingCheckedEstimator, MagCalibrationAwareEstimator
 from ahrsd.estimator.warm_up import warm_up
 
 log = logging.getLogger(__name__)
@@ -345,11 +345,14 @@ class Service:
         if time.monotonic() - started > 1.0:
             log.info("compiled the %s estimator in %.1f s (cached for the next start)", cfg.estimator_name,
                      time.monotonic() - started)
-        mag_sigma_rad = calibration_heading_sigma_rad(calibration)    # how far ins may trust the calibration
+        mag_sigma_rad = calibration_heading_sigma_rad(calibration)    # the calibration's heading error (NaN: unknown)
         options = dict(cfg.estimator_options)
         if cfg.estimator_name == "ins":
             options["mag_calibration_sigma_rad"] = mag_sigma_rad
         estimator = make_estimator(cfg.estimator_name, declination_rad=self.declination.rad, **options)
+        if "mag_calibration_sigma_rad" not in options and isinstance(estimator, MagCalibrationAwareEstimator):
+            # mekf: without GNSS its published yaw σ carries the calibration's error (estimator/calibration_heading.py)
+            estimator.set_mag_calibration_sigma(mag_sigma_rad)
         self.use_pipeline(Pipeline(estimator, calibration))
         pipeline = self.pipeline
         pipeline.set_mounting([self.params.get(n) for n in MOUNTING_PARAMS])
@@ -475,7 +478,7 @@ class Service:
         self.logs.log_calibration(cal)
         sigma = calibration_heading_sigma_rad(cal)
         est = self.pipeline.estimator
-        if isinstance(est, HeadingCheckedEstimator):      # ins
+        if isinstance(est, MagCalibrationAwareEstimator):      # mekf, ins
             est.set_mag_calibration_sigma(sigma)
         if self.heading_status is not None:
             self.heading_status.set_calibration_sigma(sigma)

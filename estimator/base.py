@@ -52,6 +52,15 @@ class GnssAidedEstimator(Protocol):
 
 
 @runtime_checkable
+class MagCalibrationAwareEstimator(Protocol):
+    """An estimator told the heading error its magnetometer calibration predicts (1σ rad, NaN: no calibration or
+    its quality unknown; calibration/heading_trust.py), at start and after every calibration change. Without GNSS
+    its published yaw 1σ includes it (estimator/calibration_heading.py); ins also weighs its checks with it."""
+
+    def set_mag_calibration_sigma(self, sigma_rad: float) -> None: ...
+
+
+@runtime_checkable
 class HeadingCheckedEstimator(Protocol):
     """An estimator that checks its heading against GNSS (ins): it counts the resets of its yaw to the GNSS
     yaw, takes the heading error a magnetometer calibration predicts (1σ, rad) into its checks, and reports

@@ -29,6 +29,7 @@ from ahrsd.core.sample import ImuSample
 
 from . import ins_core as core
 from . import mag_heading as mag
+from .calibration_heading import calibration_heading_variance_rad2
 from .gsf_yaw import GsfParams, gsf_fuse_velocity, gsf_output, gsf_reset, new_gsf_state
 from .heading_monitor import HeadingMonitor, IronLearner, wrap_pi
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
@@ -377,6 +378,7 @@ class Ins:
         self._pending_flags = 0
         self._queue: list[GnssFix] = []
         self._last_fix_t = -math.inf
+        self._ever_aided = False     # a fix has aided the filter since it started (calibration_heading.py until then)
         self.gnss_counters = GnssCounters()
         self._gsf_par_arr = _one_record_array(GsfParams(lever_arm_m=tuple(self.params.lever_arm_m)).to_record())
         self._gsf_arr = _one_record_array(new_gsf_state(GsfParams(), 0.0))
@@ -434,6 +436,7 @@ class Ins:
         self._pending_flags = 0
         self._queue.clear()
         self._last_fix_t = -math.inf
+        self._ever_aided = False
         self._published.reset()
         self._new_heading_checks()
 
@@ -1027,6 +1030,15 @@ class Ins:
         if self._unconfirmed_sigma_rad > sigma_yaw and self._nav_ok[0] > 0.0:
             sigma_yaw = self._unconfirmed_sigma_rad        # _unconfirmed_yaw_sigma says why
             o[_OUT_SIGMA.start + 2] = sigma_yaw
+        if not self._ever_aided:
+            if f & core.F_GNSS_AIDED:
+                self._ever_aided = True
+            elif self.params.mag_enabled:
+                # no GNSS yet: the magnetometer calibration is the only heading reference and its error is not in
+                # the filter's σ (the checks that would show it need GNSS): calibration_heading.py
+                sigma_yaw = math.sqrt(sigma_yaw ** 2
+                                      + calibration_heading_variance_rad2(self.params.mag_calibration_sigma_rad))
+                o[_OUT_SIGMA.start + 2] = sigma_yaw
         if f & core.F_INITIALISING and not self._published_since_init:
             self._published.reset()        # nothing published since the filter started: follow it
         elif self._published.update(t_s, yaw_true, roll, pitch, o[_OUT_RATE]):

@@ -35,6 +35,7 @@ from . import mekf_core as core
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
                             float_field_slice, uninitialised_estimate)
+from .calibration_heading import calibration_heading_variance_rad2
 from .initial_attitude import initial_attitude
 from .mag_heading import RELEARN_GATE_OPEN_S, heading_params, relearn_reference
 from .mag_heading_params import MagHeadingParams
@@ -162,6 +163,11 @@ class MekfParams(MagHeadingParams):
     """... and the 1σ heading is below this (ignored without a magnetometer), rad."""
     heading_unknown_sigma_rad: float = 15.0 * _DEG
     """Above this yaw 1σ the estimate's heading state is UNKNOWN (a heading consumer cannot use it), rad."""
+    mag_calibration_sigma_rad: float = 0.0
+    """The heading error the magnetometer calibration leaves, 1σ rad, added to the published yaw 1σ
+    (calibration_heading.py): 0 = the input is calibrated (the library default); NaN = no calibration or its
+    quality unknown, the heading is then UNKNOWN. The daemon passes its calibration's figure
+    (`set_mag_calibration_sigma`)."""
     large_dt_s: float = 0.1
     """A step longer than this (or not positive) is flagged LARGE_DT, s."""
     reinit_dt_s: float = 2.0
@@ -176,6 +182,8 @@ class MekfParams(MagHeadingParams):
                 p[name] = heading_params(self)
             elif name == "mag_offset_min_cos":
                 p[name] = math.cos(self.mag_offset_min_angle_rad)
+            elif name == "heading_calibration_var_rad2":
+                p[name] = calibration_heading_variance_rad2(self.mag_calibration_sigma_rad)
             else:
                 p[name] = getattr(self, name)
         return p
@@ -266,6 +274,12 @@ class Mekf:
         relearn_reference(s["mag"], RELEARN_GATE_OPEN_S)
         s["mag_rest_set"] = False   # the at-rest field is the old calibration's: take it again
         s["offset"] = np.zeros((), core.FIELD_OFFSET_DTYPE)   # a body-fixed offset learned against the old calibration
+
+    def set_mag_calibration_sigma(self, sigma_rad: float) -> None:
+        """A magnetometer calibration is in force whose predicted heading error is `sigma_rad` (1σ; NaN: none, or
+        its quality unknown): from the next estimate the published yaw 1σ includes it (calibration_heading.py)."""
+        self.params = replace(self.params, mag_calibration_sigma_rad=float(sigma_rad))
+        self._buf[0]["par"]["heading_calibration_var_rad2"] = calibration_heading_variance_rad2(float(sigma_rad))
 
     @property
     def gyro_bias_rad_s(self) -> np.ndarray:
@@ -405,6 +419,9 @@ class Mekf:
         o["rate_rad_s"] = s["gyro_last_rad_s"] - s["gyro_bias_rad_s"]
         P = s["P"]
         o["sigma_rpy_rad"] = np.sqrt(np.diag(P)[[core.E_TILT_N, core.E_TILT_E, core.E_HEADING]])
+        if self.params.mag_enabled:       # as mekf_core._fill_outputs
+            o["sigma_rpy_rad"][2] = math.sqrt(o["sigma_rpy_rad"][2] ** 2
+                                              + float(self._buf[0]["par"]["heading_calibration_var_rad2"]))
         o["gyro_bias_rad_s"] = s["gyro_bias_rad_s"]
         o["euler_rad"] = quat_to_euler(q)
         self._euler_stale = False

@@ -160,6 +160,7 @@ MEKF_PARAMS_DTYPE = np.dtype([
     ("init_min_time_s", np.float64),
     ("converged_tilt_rad", np.float64),
     ("converged_yaw_rad", np.float64),
+    ("heading_calibration_var_rad2", np.float64),   # calibration_heading.py: the calibration's heading error, 1σ²
     ("large_dt_s", np.float64),
     ("reinit_dt_s", np.float64),
 ])
@@ -823,7 +824,10 @@ def _fill_outputs(st, par, gx, gy, gz, out):
     sig = out.sigma_rpy_rad
     sig[0], sig[1] = tilt_sigma(cy, sy, P[E_TILT_N, E_TILT_N] + extra, P[E_TILT_N, E_TILT_E],
                                 P[E_TILT_E, E_TILT_E] + extra)
-    sig[2] = math.sqrt(max(P[E_HEADING, E_HEADING], 0.0) + u.heading_push_rad * u.heading_push_rad)
+    # (c) the heading error the magnetometer calibration left, which no magnetometer update can show
+    #     (calibration_heading.py)
+    cal = par.heading_calibration_var_rad2 if par.mag_enabled else 0.0
+    sig[2] = math.sqrt(max(P[E_HEADING, E_HEADING], 0.0) + u.heading_push_rad * u.heading_push_rad + cal)
     return F_INITIALISING if init else 0
 
 

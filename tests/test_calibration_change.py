@@ -10,6 +10,7 @@ import math
 import numpy as np
 
 
+from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad  # noqa: E402
 from ahrsd.calibration.models import Calibration, MagModel  # noqa: E402
 from ahrsd.daemon.config import Config, OutputsConfig  # noqa: E402
 from ahrsd.daemon.mavlink_io import mavlink  # noqa: E402
@@ -37,17 +38,23 @@ def _truth_yaw_deg(q):
 
 
 def run_swap(tmp_path, estimator, swap_at_s=60.0, total_s=130.0, reset_on_cal=False):
-    """Level turns with the simulator's vehicle iron; uncalibrated until `swap_at_s`, then the true iron
-    model is applied through Service.apply_calibration. Returns per-VPE tick (t, vpe_yaw_err_deg or NaN when the
+    """Level turns with the simulator's vehicle iron; until `swap_at_s` a calibration that states 0.5° but does
+    not have the iron (as after the iron moved; with no calibration at all the heading is unknown and nothing is
+    sent: estimator/calibration_heading.py), then the true iron model, stating the same, is applied through
+    Service.apply_calibration. Returns per-VPE tick (t, vpe_yaw_err_deg or NaN when the
     VPE was withheld, est_yaw_err_deg, reset_counter),
     the estimate flags seen after the swap, and the service."""
     outputs = OutputsConfig.parse({"heading_slew_deg_s": SLEW_DEG_S, "reset_counter_on_calibration": reset_on_cal})
     cfg = dataclasses.replace(Config().with_overrides(state_dir=str(tmp_path)), outputs=outputs)
     svc = Service(cfg)
-    svc.use_pipeline(Pipeline(estimator, Calibration.identity()))
+    stated = {"method": "test", "heading_std_deg": 0.5, "offset_std_deg": 0.2}
+    wrong = Calibration.identity().with_sensor("mag", MagModel.identity(), **stated)
+    svc.use_pipeline(Pipeline(estimator, wrong))
+    estimator.set_mag_calibration_sigma(calibration_heading_sigma_rad(wrong))    # as Service.start does
     stream = open_stream("level-turns", seed=3)
     e = stream.errors
-    corrected = Calibration.identity().with_sensor("mag", MagModel(e.hard_iron_ut, np.linalg.inv(e.soft_iron)))
+    corrected = Calibration.identity().with_sensor("mag", MagModel(e.hard_iron_ut, np.linalg.inv(e.soft_iron)),
+                                                   **stated)
     rows, flags_after = [], 0
     counter0 = svc.reset_counter
     swapped = False

@@ -18,6 +18,7 @@ from ahrsd.daemon.service import Service
 from ahrsd.drivers.adis16405 import Adis16405
 from ahrsd.drivers.faults import FaultKind, FaultPlan
 from ahrsd.drivers.simulated import SimulatedAdis16405
+from bench.sim_calibration import save_mag_calibration, sim_chip_mag_model
 
 
 def test_corrupt_frames_and_a_vanished_device(tmp_path):
@@ -27,6 +28,7 @@ def test_corrupt_frames_and_a_vanished_device(tmp_path):
     port = rx.getsockname()[1]
     cfg = dataclasses.replace(Config(), endpoints=(EndpointConfig(f"udpout:127.0.0.1:{port}"),),
                               state=StateConfig(str(tmp_path)))
+    save_mag_calibration(tmp_path, sim_chip_mag_model())      # no heading is sent on an uncalibrated one
     plan = FaultPlan(seed=3)
     bus = SimulatedAdis16405("static", seed=0, clock=time.monotonic, faults=plan)
     driver = Adis16405(bus)
@@ -123,6 +125,7 @@ def test_replay_of_a_recording_runs_and_ends(tmp_path):
     rx.bind(("127.0.0.1", 0))
     rx.settimeout(0.5)
     port = rx.getsockname()[1]
+    save_mag_calibration(tmp_path / "s", sim_chip_mag_model())      # no heading is sent on an uncalibrated one
     proc = subprocess.Popen([sys.executable, "-m", "ahrsd.cli", "run", "--replay", str(rec), "--mavlink",
                              f"udpout:127.0.0.1:{port}", "--state-dir", str(tmp_path / "s"), "--status-line", "off"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

@@ -38,6 +38,7 @@ from ahrsd.calibration.models import Calibration, MagModel
 from ahrsd.core.sample import make_sample
 from ahrsd.daemon.config import Config, SigningConfig
 from ahrsd.daemon.mavlink_io import mavlink
+from bench.sim_calibration import save_mag_calibration, sim_chip_mag_model
 from service_rig import gcs_socket, start_service, stop_service
 from support.mavlink_feed import drain, feed
 from support.mavlink_frames import (
@@ -391,6 +392,7 @@ def test_outputs_keep_flowing_under_hostile_frames(tmp_path):
     cfg = dataclasses.replace(Config(), endpoints=(EndpointConfig(f"udpout:127.0.0.1:{gcs.getsockname()[1]}"),),
                               state=StateConfig(str(tmp_path / "state")),
                               mavlink=dataclasses.replace(Config().mavlink, system_id=OUR_SYS))
+    save_mag_calibration(tmp_path / "state", sim_chip_mag_model())      # no heading is sent on an uncalibrated one
     service = Service(cfg)
     records = _Records()
     logging.getLogger().addHandler(records)

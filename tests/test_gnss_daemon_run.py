@@ -50,16 +50,12 @@ def boat(tmp_path_factory):
 
 
 def save_field_calibration(state_dir) -> None:
-    """The boat's magnetometer calibrated (the simulator's own distortion, inverted): mekf's heading is known
-    from the start (uncalibrated, the field is rejected and the heading unknown: no VPE)."""
-    from ahrsd.calibration import Calibration
-    from ahrsd.calibration.models import MagModel
-    from ahrsd.calibration.store import CalibrationStore
-    from ahrsd.simulation import open_stream
+    """The boat's magnetometer calibrated (the simulator's own distortion, inverted), stating its predicted heading
+    error: mekf's heading is known from the start (uncalibrated, or on a calibration that states no figure, the
+    heading is unknown without GNSS: no VPE; estimator/calibration_heading.py)."""
+    from bench.sim_calibration import save_mag_calibration, sim_chip_mag_model
 
-    e = open_stream("boat", seed=0).errors
-    CalibrationStore(state_dir).save(Calibration.identity().with_sensor(
-        "mag", MagModel(np.array(e.hard_iron_ut), np.linalg.inv(e.soft_iron)), method="test"))
+    save_mag_calibration(state_dir, sim_chip_mag_model("boat"))
 
 
 def replay_messages(d) -> dict:

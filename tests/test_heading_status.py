@@ -129,17 +129,19 @@ def test_without_a_calibration_the_cause_is_the_missing_calibration():
 
 
 def test_a_magnetometer_heading_without_gnss_names_an_untrusted_calibration():
-    """Without GNSS (mekf: no integrity) the calibration is the only heading reference and the filter's σ is the
-    sensor noise only: with no calibration, or one predicting more than 3°, the announcement is a WARNING that
-    says so, the status line marks it and MAV_STATE ACTIVE does not say "heading good"."""
+    """Without GNSS (mekf: no integrity) the calibration is the only heading reference; the estimator's σ includes
+    the calibration's predicted error (estimator/calibration_heading.py). A calibration predicting more than 3°:
+    the announcement is a WARNING naming it, the status line marks it, 3D_MAG is unhealthy and MAV_STATE ACTIVE
+    does not say "heading good". An estimator whose σ cannot carry it (no calibration, MAGNETOMETER): the same."""
     for cal_deg, caveat in ((math.nan, "mag not calibrated"), (5.0, "mag cal ±5°")):
         hs, texts = status(cal_sigma_deg=cal_deg)
         for t in (0.0, ANNOUNCE_AFTER_S):
-            hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 0.3, with_integrity=False), t)
+            hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 6.1, with_integrity=False), t)
         (sev, text), = texts
-        assert sev == mavlink.MAV_SEVERITY_WARNING and caveat in text and "calibrate" in text, text
-        assert hs.status_text() == "hdg mag uncal ±0.3°"
+        assert sev == mavlink.MAV_SEVERITY_WARNING and caveat in text and "magcal" in text, text
+        assert hs.status_text() == "hdg mag uncal ±6.1°"
         assert hs.active_detail() == f"heading: {caveat}"
+        assert hs.unhealthy_bits() == msgs.SENSOR_MAG
     # a trusted calibration, or GNSS checking the heading (ins learns the iron): the plain announcement
     for cal_deg, integrity in ((0.5, False), (math.nan, True)):
         hs, texts = status(cal_sigma_deg=cal_deg)
@@ -147,6 +149,25 @@ def test_a_magnetometer_heading_without_gnss_names_an_untrusted_calibration():
             hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 0.3, with_integrity=integrity), t)
         assert texts == [(mavlink.MAV_SEVERITY_INFO, "ahrsd: heading from magnetometer (±0.3°)")]
         assert hs.status_text() == "hdg mag ±0.3°" and hs.active_detail() == "heading good"
+        assert hs.unhealthy_bits() == 0
+
+
+def test_without_gnss_and_calibration_the_heading_is_unknown_and_says_why():
+    """mekf with no calibration publishes σ = π (UNKNOWN): after "initialising" the cause is announced (a new cause
+    of the same state is news), the status line and MAV_STATE's detail say it, 3D_MAG and AHRS are unhealthy."""
+    hs, texts = status(cal_sigma_deg=math.nan)
+    hs.on_estimate(estimate(HeadingState.UNKNOWN, 180.0, flags=EstimateFlags.INITIALISING, with_integrity=False), 0.0)
+    assert texts[-1][1] == "ahrsd: heading unknown: initialising; no heading sent"
+    for t in (1.0, 1.0 + ANNOUNCE_AFTER_S, 2.0 + ANNOUNCE_AFTER_S):
+        hs.on_estimate(estimate(HeadingState.UNKNOWN, 180.0, with_integrity=False), t)
+    assert len(texts) == 2, texts
+    sev, text = texts[-1]
+    assert sev == mavlink.MAV_SEVERITY_WARNING and text.startswith(
+        "ahrsd: heading unknown: magnetometer not calibrated and no GNSS to check it") and "magcal" in text, text
+    assert text.endswith("no heading sent")
+    assert hs.status_text() == "hdg unknown uncal ±180.0°"
+    assert hs.standby_detail() == "heading unknown (mag not calibrated), no heading out"
+    assert not hs.heading_good and hs.unhealthy_bits() == msgs.SENSOR_MAG | msgs.SENSOR_AHRS
 
 
 def test_unknown_names_why_and_says_no_heading_is_sent():
@@ -217,8 +238,9 @@ class Text(str):
         return out
 
 
-def run_daemon_on_boat(tmp_path, hard_iron_error_ut=None, *, seconds=150.0, seed=3):
-    """The boat through a started Service (ins): the per-sample path, the GNSS fixes into the estimator,
+def run_daemon_on_boat(tmp_path, hard_iron_error_ut=None, *, seconds=150.0, seed=3, estimator="ins", gnss=True):
+    """The boat through a started Service (ins, or `estimator`): the per-sample path, the GNSS fixes (unless
+    `gnss` is False) into the estimator,
     housekeeping's heading status at 10 Hz and the publishers, on a stepped clock (the sample time). Returns
     the VISION_POSITION_ESTIMATEs (with the estimate each was built from and the truth then) and the texts."""
     import dataclasses
@@ -231,13 +253,14 @@ def run_daemon_on_boat(tmp_path, hard_iron_error_ut=None, *, seconds=150.0, seed
     from ahrsd.calibration.models import Calibration, MagModel
 
     block, true_model, fixes, decl = _boat(seconds, seed)
+    fixes = fixes if gnss else []
     if hard_iron_error_ut is not None:       # a calibration that says 0.5° but misses part of the hard iron
         wrong = MagModel(true_model.hard_iron_ut + np.asarray(hard_iron_error_ut, float), true_model.soft_iron)
         CalibrationStore(tmp_path).save(Calibration.identity().with_sensor(
             "mag", wrong, method="test", heading_std_deg=0.5, offset_std_deg=0.2))
     mag = block.mag_ut
     svc, loop = start_service_on((EndpointConfig("udpout:127.0.0.1:9"),), tmp_path,
-                                 estimator=EstimatorConfig("ins"),
+                                 estimator=EstimatorConfig(estimator),
                                  location=LocationConfig(declination_deg=math.degrees(decl)))
     sent = []
     svc.endpoints[0].send = lambda m: sent.append((m, svc.pipeline.last_estimate)) or True
@@ -280,6 +303,30 @@ def uncalibrated_boat(tmp_path_factory):
 @pytest.fixture(scope="module")
 def wrongly_calibrated_boat(tmp_path_factory):
     return run_daemon_on_boat(tmp_path_factory.mktemp("wrong"), (12.0, -8.0, 0.0), seconds=100.0)
+
+
+def test_without_gnss_no_calibration_sends_no_heading_and_a_good_one_a_small_honest_variance(tmp_path):
+    """mekf, no GNSS, the boat's iron in the field (its uncalibrated heading is tens of degrees off): with no
+    calibration the heading is unknown, no VISION_POSITION_ESTIMATE is sent and the daemon says why; with the
+    calibration that removes the iron exactly, stating 0.5°, the VPE's yaw variance is the estimator's σ², at least
+    (0.5°)², and covers the error against the simulator's truth."""
+    vpe, texts, svc, _ = run_daemon_on_boat(tmp_path / "none", None, seconds=40.0, estimator="mekf", gnss=False)
+    assert vpe == []
+    assert any("magnetometer not calibrated and no GNSS to check it" in t for t in texts), texts
+    assert svc.heading_status.unhealthy_bits() & msgs.SENSOR_MAG
+    assert svc.heading_status.status_text().startswith("hdg unknown uncal")
+    vpe, texts, svc, _ = run_daemon_on_boat(tmp_path / "good", (0.0, 0.0, 0.0), seconds=40.0, estimator="mekf",
+                                            gnss=False)
+    assert vpe and all(e.heading_state == HeadingState.MAGNETOMETER for _, e, _ in vpe)
+    for m, e, _ in vpe:
+        assert m.covariance[20] == pytest.approx(float(e.sigma_rpy_rad[2]) ** 2, rel=1e-6)
+        assert m.covariance[20] >= math.radians(0.5) ** 2 * (1 - 1e-9)
+    t, err, sigma = _vpe_errors(vpe)
+    _print_figures("boat, mekf, no GNSS, exact calibration stating 0.5 deg", t, err, sigma)
+    late = t >= 20.0
+    assert np.mean(np.abs(err[late]) <= 3.0 * sigma[late]) >= 0.99
+    assert np.median(sigma[late]) < 5.0
+    assert svc.heading_status.unhealthy_bits() == 0
 
 
 def _vpe_errors(vpe):

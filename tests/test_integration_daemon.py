@@ -24,6 +24,7 @@ from ahrsd.calibration.models import Calibration  # noqa: E402
 from ahrsd.calibration.store import CalibrationStore
 from ahrsd.daemon import gyro_cal  # noqa: E402
 from ahrsd.simulation import open_stream  # noqa: E402
+from bench.sim_calibration import sim_chip_mag_model  # noqa: E402
 
 def assert_sent_at(stamps: list[tuple[float, object]], hz: float) -> None:
     """The rate the daemon sent at, from its own time stamps (time_boot_ms / time_usec: no delivery jitter),
@@ -38,7 +39,7 @@ def assert_sent_at(stamps: list[tuple[float, object]], hz: float) -> None:
 
 @pytest.fixture(scope="module")
 def daemon(tmp_path_factory):
-    d = Daemon(tmp_path_factory.mktemp("ahrsd"))
+    d = Daemon(tmp_path_factory.mktemp("ahrsd"), mag_calibrated=True)
     try:
         d.wait_active()
         yield d
@@ -198,7 +199,8 @@ def test_gyro_calibration_and_duplicate_command(daemon):
     np.testing.assert_allclose(saved.gyro.bias_rad_s, sim_errors.gyro_bias_rad_s, atol=atol)
     np.testing.assert_array_equal(saved.gyro.matrix, np.eye(3))  # bias only: scale and misalignment kept
     identity = Calibration.identity()
-    assert saved.mag.to_dict() == identity.mag.to_dict() and saved.accel.to_dict() == identity.accel.to_dict()
+    # the magnetometer calibration the daemon started with (Daemon(mag_calibrated=True)) is kept
+    assert saved.mag.to_dict() == sim_chip_mag_model().to_dict() and saved.accel.to_dict() == identity.accel.to_dict()
 
 
 def test_parameter_protocol(daemon):
@@ -264,7 +266,7 @@ def test_malformed_input_is_counted_not_fatal(daemon):
 
 
 def test_system_id_latches_to_the_autopilot_then_sigterm_shuts_down(tmp_path):
-    d = Daemon(tmp_path)
+    d = Daemon(tmp_path, mag_calibrated=True)
     try:
         d.wait_active()
         # play the autopilot (system 7) on the same link: an armed ArduPilot heartbeat

@@ -24,6 +24,7 @@ from ahrsd.daemon.nmea_output import NmeaOutput, NmeaOutputs
 from ahrsd.daemon.nmea_sentences import MAX_SENTENCE_CHARS, SENTENCE_IDS, build_sentence
 from ahrsd.daemon.nmea_transport import SerialTransport, TcpServerTransport, TransportCounters, UdpTransport
 from ahrsd.simulation import open_stream
+from bench.sim_calibration import save_mag_calibration, sim_chip_mag_model
 
 RATE_HZ = 819.2
 DECLINATION_DEG = -7.3          # a westerly variation, so the sign of HDG's variation field is exercised
@@ -307,7 +308,9 @@ def test_nmea_outputs_part_opens_every_configured_output(tmp_path):
 @pytest.mark.slow
 def test_the_daemon_sends_nmea_from_the_simulated_chip(tmp_path):
     """`ahrsd run --sim level-turns --nmea udp:…`: sentences on a UDP socket; heading sentences only once the
-    daemon publishes a heading; no sentence ever fails its checksum."""
+    daemon publishes a heading (on the calibration of the simulated boat's iron: without it and GNSS the heading
+    is unknown and only ROT and XDR flow); no sentence ever fails its checksum."""
+    save_mag_calibration(tmp_path, sim_chip_mag_model("level-turns"))
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))
     rx.settimeout(180.0)

@@ -29,7 +29,7 @@ SCHEDULE = "self_test_fail@0-6;bus_error@10-11;stall@15-15.5;alarm@17-17.3:bits=
 @pytest.fixture(scope="module")
 def faulty(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("faulty")
-    d = Daemon(tmp, "--sim-faults", SCHEDULE, "--stats-file", str(tmp / "stats.json"))
+    d = Daemon(tmp, "--sim-faults", SCHEDULE, "--stats-file", str(tmp / "stats.json"), mag_calibrated=True)
     d.stats_path = tmp / "stats.json"
     d.events = []                       # (t, message) of everything our component sent, in order
     try:

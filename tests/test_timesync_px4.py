@@ -26,6 +26,7 @@ import numpy as np
 
 from ahrsd.daemon.mavlink_io import SO_TIMESTAMPNS, TIMESPEC, Endpoint, mavlink
 from service_rig import stop_process
+from bench.sim_calibration import save_mag_calibration, sim_chip_mag_model
 
 AHRSD = Path(sys.executable).with_name("ahrsd")
 OFFSET_US = 987_654_321.0
@@ -85,6 +86,7 @@ def test_px4_stamps_our_samples_within_2_ms(tmp_path):
     sock.bind(("127.0.0.1", 0))
     sock.setblocking(False)
     sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+    save_mag_calibration(tmp_path / "st", sim_chip_mag_model())      # no heading is sent on an uncalibrated one
     proc = subprocess.Popen([str(AHRSD), "run", "--sim", "static", "--mavlink",
                              f"udpout:127.0.0.1:{sock.getsockname()[1]}", "--state-dir", str(tmp_path / "st"),
                              "--status-line", "off"], stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)

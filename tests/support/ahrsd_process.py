@@ -22,12 +22,19 @@ GCS_SYS, GCS_COMP = 255, 190
 
 
 class Daemon:
-    """An `ahrsd run` subprocess plus a pymavlink ground station listening on its udpout port."""
+    """An `ahrsd run` subprocess plus a pymavlink ground station listening on its udpout port.
+
+    mag_calibrated: start with the simulated chip's magnetometer calibration in the state directory
+    (bench/sim_calibration.py); without it and without GNSS the heading is unknown and no VPE is sent."""
 
     def __init__(self, tmp: Path, *extra: str, env: dict | None = None, scenario: str = "static",
-                 source: tuple[str, ...] | None = None):
+                 source: tuple[str, ...] | None = None, mag_calibrated: bool = False):
         self.port = free_udp_port()
         self.state_dir = tmp / "state"
+        if mag_calibrated:
+            from bench.sim_calibration import save_mag_calibration, sim_chip_mag_model
+
+            save_mag_calibration(self.state_dir, sim_chip_mag_model())
         self.log_path = tmp / "ahrsd.log"
         self.gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{self.port}", source_system=GCS_SYS,
                                               source_component=GCS_COMP, dialect="ardupilotmega")
