@@ -187,17 +187,41 @@ def _window_in_t(kind_value, side: dict) -> float | None:
 
 def _cut(args) -> int:
     import json
-    import math
-    import os
     import sys
-
-    from ahrsd.drivers.recording import SAMPLE_COLUMNS, RecordingFormatError, RecordingWriter, iter_samples
-
-    from .progress import progress_bar
 
     t_from, t_to = parse_time(args.t_from), parse_time(args.t_to)
     if t_from[0] == t_to[0] and t_to[1] <= t_from[1]:
         raise LogError(f"--to {args.t_to} is not after --from {args.t_from}")
+    chosen = _logs_in_window(args, t_from, t_to)
+    _check_one_calibration(chosen)
+    side0 = chosen[0][1]
+    count, first_t, last_t = _write_cut(args, chosen, side0)
+    meta = {"source": "ahrsd log cut", "from": args.t_from, "to": args.t_to, "files": [p.name for p, _, _, _ in chosen],
+            "samples": count, "t_first_s": first_t, "t_last_s": last_t, "calibrated": bool(side0.get("calibrated")),
+            "calibration": side0.get("calibration")}
+    if "unix_minus_t_s" in side0:
+        meta["unix_minus_t_s"] = side0["unix_minus_t_s"]
+    gnss = _cut_gnss(args.dir, args.output, first_t, last_t)
+    if gnss is not None:
+        meta["gnss"] = gnss
+    with open(f"{args.output}.json", "w", encoding="utf-8") as f:
+        json.dump(meta, f, indent=1, sort_keys=True)
+        f.write("\n")
+    if not args.quiet:
+        print(f"ahrsd log cut: {count} samples, t_s {first_t:.3f}…{last_t:.3f} ({last_t - first_t:.1f} s) from "
+              f"{len(chosen)} file(s) into {args.output}; samples {_calibration_label(side0)}", file=sys.stderr)
+        if gnss is not None:
+            print(f"ahrsd log cut: {gnss['fixes']} GNSS fixes ({gnss['rejected']} rejected live) into "
+                  f"{gnss['file']}", file=sys.stderr)
+    return 0
+
+
+def _logs_in_window(args, t_from, t_to) -> list[tuple]:
+    """The sample logs of args.dir that overlap the window: (path, sidecar, window start and end in their
+    t_s); a log whose sidecar cannot map an ISO-8601 window is skipped with a note. LogError when none."""
+    import math
+    import sys
+
     chosen = []
     for path, side in _log_files(args.dir):
         lo, hi = _window_in_t(t_from, side), _window_in_t(t_to, side)
@@ -211,14 +235,32 @@ def _cut(args) -> int:
     if not chosen:
         raise LogError(f"no logged samples between {args.t_from} and {args.t_to} in {args.dir} "
                        "(`ahrsd log list` shows what is there)")
-    # raw samples do not depend on the calibration the daemon had in force: only calibrated ones must agree
+    return chosen
+
+
+def _check_one_calibration(chosen: list[tuple]) -> None:
+    """One recording holds samples of one calibration: LogError when the chosen logs' calibrated samples
+    disagree (raw samples do not depend on the calibration the daemon had in force)."""
+    import json
+
     calibrations = {json.dumps([bool(s.get("calibrated")), s.get("calibration") if s.get("calibrated") else None],
                                sort_keys=True) for _, s, _, _ in chosen}
     if len(calibrations) > 1:
         changes = "; ".join(f"{p.name}: {_calibration_label(s)}" for p, s, _, _ in chosen)
         raise LogError(f"the window spans more than one calibration ({changes}): cut it where the calibration "
                        "changed, one recording per calibration")
-    side0 = chosen[0][1]
+
+
+def _write_cut(args, chosen: list[tuple], side0: dict) -> tuple[int, float, float]:
+    """The window's samples into args.output (written under a temporary name, renamed when complete):
+    (samples, first and last t_s). LogError when there are none or the files fail."""
+    import math
+    import os
+
+    from ahrsd.drivers.recording import SAMPLE_COLUMNS, RecordingFormatError, RecordingWriter, iter_samples
+
+    from .progress import progress_bar
+
     expected = sum(s.get("entries", 0) for _, s, _, _ in chosen) or None
     count, first_t, last_t = 0, math.nan, math.nan
     head, base = os.path.split(args.output)
@@ -249,24 +291,7 @@ def _cut(args) -> int:
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
-    meta = {"source": "ahrsd log cut", "from": args.t_from, "to": args.t_to, "files": [p.name for p, _, _, _ in chosen],
-            "samples": count, "t_first_s": first_t, "t_last_s": last_t, "calibrated": bool(side0.get("calibrated")),
-            "calibration": side0.get("calibration")}
-    if "unix_minus_t_s" in side0:
-        meta["unix_minus_t_s"] = side0["unix_minus_t_s"]
-    gnss = _cut_gnss(args.dir, args.output, first_t, last_t)
-    if gnss is not None:
-        meta["gnss"] = gnss
-    with open(f"{args.output}.json", "w", encoding="utf-8") as f:
-        json.dump(meta, f, indent=1, sort_keys=True)
-        f.write("\n")
-    if not args.quiet:
-        print(f"ahrsd log cut: {count} samples, t_s {first_t:.3f}…{last_t:.3f} ({last_t - first_t:.1f} s) from "
-              f"{len(chosen)} file(s) into {args.output}; samples {_calibration_label(side0)}", file=sys.stderr)
-        if gnss is not None:
-            print(f"ahrsd log cut: {gnss['fixes']} GNSS fixes ({gnss['rejected']} rejected live) into "
-                  f"{gnss['file']}", file=sys.stderr)
-    return 0
+    return count, first_t, last_t
 
 
 def _cut_gnss(directory: str, output: str, first_t: float, last_t: float) -> dict | None:

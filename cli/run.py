@@ -52,40 +52,21 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import asyncio
     import dataclasses
     import logging
     import sys
 
-    from ahrsd.daemon.config import Config, ConfigError, DaemonConfig, default_config_path, load_config
+    from ahrsd.daemon.config import ConfigError
 
-    log = logging.getLogger("ahrsd")
     try:
-        path = args.config or default_config_path()
-        cfg = load_config(path) if path else Config()
-        cfg = cfg.with_overrides(sim=args.sim, spi=args.spi, iio=args.iio, replay=args.replay,
-                                 mavlink=args.mavlink, state_dir=args.state_dir, replay_speed=args.replay_speed,
-                                 gnss_replay=args.gnss_replay, gnss_serial=args.gnss_serial,
-                                 gnss_sim=args.gnss_sim, estimator=args.estimator,
-                                 log_dir=args.log_dir, log_enabled=False if args.no_log else None,
-                                 nmea=args.nmea)
-        if args.status_line:
-            cfg = dataclasses.replace(cfg, daemon=DaemonConfig(status_line=args.status_line))
+        cfg = _config(args)
     except ConfigError as exc:
         print(f"ahrsd run: error: {exc}", file=sys.stderr)
         return 2
     plan = None
     if args.sim_faults:
-        from ahrsd.cli.fault_schedule import FaultScheduleError, build_plan, parse_schedule
-        from ahrsd.drivers.chip_source import ADIS16405_RATE_HZ
-
-        if cfg.sensor.source != "sim":
-            print("ahrsd: --sim-faults needs the simulated sensor (--sim), not a real one", file=sys.stderr)
-            return 2
-        try:
-            plan = build_plan(parse_schedule(args.sim_faults), ADIS16405_RATE_HZ, seed=cfg.sensor.seed)
-        except FaultScheduleError as exc:
-            print(f"ahrsd: --sim-faults: {exc}", file=sys.stderr)
+        plan = _fault_plan(args.sim_faults, cfg)
+        if plan is None:
             return 2
     if args.check_config:
         import json
@@ -94,9 +75,55 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if logging.getLogger().level > logging.INFO:
         logging.getLogger("ahrsd").setLevel(logging.INFO)   # the daemon reports its life cycle by default
-    from ahrsd.daemon.sensor_recovery import report_sensor_alarms
+    source = _open_checked_source(cfg, plan)
+    if source is None:
+        return 1
     from ahrsd.daemon.service import Service
-    from ahrsd.drivers.replay_source import ReplaySource
+
+    return _serve(Service(cfg, source=source), source, cfg, args.stats_file)
+
+
+def _config(args):
+    """The config file (or the defaults) with the command line's overrides; ConfigError when invalid."""
+    import dataclasses
+
+    from ahrsd.daemon.config import Config, DaemonConfig, default_config_path, load_config
+
+    path = args.config or default_config_path()
+    cfg = load_config(path) if path else Config()
+    cfg = cfg.with_overrides(sim=args.sim, spi=args.spi, iio=args.iio, replay=args.replay,
+                             mavlink=args.mavlink, state_dir=args.state_dir, replay_speed=args.replay_speed,
+                             gnss_replay=args.gnss_replay, gnss_serial=args.gnss_serial,
+                             gnss_sim=args.gnss_sim, estimator=args.estimator,
+                             log_dir=args.log_dir, log_enabled=False if args.no_log else None,
+                             nmea=args.nmea)
+    if args.status_line:
+        cfg = dataclasses.replace(cfg, daemon=DaemonConfig(status_line=args.status_line))
+    return cfg
+
+
+def _fault_plan(schedule: str, cfg):
+    """--sim-faults: the simulated chip's fault plan; None (the reason on stderr) when it cannot be had."""
+    import sys
+
+    from ahrsd.cli.fault_schedule import FaultScheduleError, build_plan, parse_schedule
+    from ahrsd.drivers.chip_source import ADIS16405_RATE_HZ
+
+    if cfg.sensor.source != "sim":
+        print("ahrsd: --sim-faults needs the simulated sensor (--sim), not a real one", file=sys.stderr)
+        return None
+    try:
+        return build_plan(parse_schedule(schedule), ADIS16405_RATE_HZ, seed=cfg.sensor.seed)
+    except FaultScheduleError as exc:
+        print(f"ahrsd: --sim-faults: {exc}", file=sys.stderr)
+        return None
+
+
+def _open_checked_source(cfg, plan):
+    """The sensor source, after what can fail at once has been checked (a replay's file, the estimator's
+    compile); None (one error line on stderr) when something failed."""
+    import sys
+
     from ahrsd.drivers.errors import DriverError
     from ahrsd.drivers.source import open_source
 
@@ -107,21 +134,31 @@ def run(args: argparse.Namespace) -> int:
             check_recording(cfg.sensor.replay_file)
         except (OSError, ValueError) as exc:
             print(f"ahrsd run: error: cannot replay {_os_error_text(exc, cfg.sensor.replay_file)}", file=sys.stderr)
-            return 1
+            return None
     from ahrsd.cli.warm_up import compile_estimator
 
     try:   # said before a compile (first start only), not after it
         compile_estimator(cfg.estimator_name)
     except (ValueError, ModuleNotFoundError) as exc:
         print(f"ahrsd run: error: estimator {cfg.estimator_name!r}: {exc}", file=sys.stderr)
-        return 1
+        return None
     # the chip sources retry a failed start and a lost bus with backoff (daemon.sensor_recovery)
     try:
-        source = open_source(cfg.sensor, faults=plan)
+        return open_source(cfg.sensor, faults=plan)
     except DriverError as exc:   # a missing IIO device or data-ready GPIO: one line, not a traceback
         print(f"ahrsd run: error: {exc}", file=sys.stderr)
-        return 1
-    service = Service(cfg, source=source)
+        return None
+
+
+def _serve(service, source, cfg, stats_file) -> int:
+    """Run the daemon until it stops; its exit code (1 for a replay that could not be read to its end, 130 on
+    Ctrl-C), and --stats-file written whatever happened."""
+    import asyncio
+    import logging
+    import sys
+
+    from ahrsd.daemon.sensor_recovery import report_sensor_alarms
+    from ahrsd.drivers.replay_source import ReplaySource
 
     async def main() -> int:
         alarms = asyncio.get_running_loop().create_task(report_sensor_alarms(service))
@@ -140,13 +177,13 @@ def run(args: argparse.Namespace) -> int:
             return 1
         return code
     except KeyboardInterrupt:
-        log.info("interrupted")
+        logging.getLogger("ahrsd").info("interrupted")
         return 130
     finally:
-        if args.stats_file:
+        if stats_file:
             from ahrsd.daemon.run_stats import write_stats
 
-            write_stats(service, args.stats_file)
+            write_stats(service, stats_file)
 
 
 def _os_error_text(exc: Exception, path: str) -> str:

@@ -162,11 +162,8 @@ def fit_vertical_channel(raw: np.ndarray, roll_rad, pitch_rad, total_ut: float, 
     by atan(V·ω_z/g). With `gyro_rad_s`, `speed_m_s` removes it: a number or per-sample array (e.g. GNSS
     speed), or "fit" to estimate a constant forward speed as one more parameter (needs turns at varying rates
     or in both directions: a constant lean is indistinguishable from a sensor roll misalignment)."""
-    from scipy.optimize import least_squares
-
     m = np.asarray(raw, dtype=np.float64)
     d0 = down_in_body(roll_rad, pitch_rad)
-    n = m.shape[0]
     k = centripetal_direction(gyro_rad_s, d0) if (gyro_rad_s is not None and speed_m_s is not None) else None
     fit_speed = k is not None and isinstance(speed_m_s, str)
     if isinstance(speed_m_s, str) and speed_m_s != "fit":
@@ -179,18 +176,66 @@ def fit_vertical_channel(raw: np.ndarray, roll_rad, pitch_rad, total_ut: float, 
     hh_ref = math.sqrt(max(total**2 - hz_guesses[0] ** 2, 0.0)) if not free_dip else 0.6 * total
     sig_f = float(sigma_mag_ut)
     sig_v = math.sqrt(sig_f**2 + (hh_ref * sigma_tilt_rad) ** 2)
-    i_dip = 12 if free_dip else None
-    i_speed = (12 + (1 if free_dip else 0)) if fit_speed else None
-    npar = 12 + (1 if free_dip else 0) + (1 if fit_speed else 0)
+    problem = _VerticalChannelProblem(m, d0, k, d_fixed, total, vertical_ut, fit_speed, sig_f, sig_v, prior_sigma)
+    starts = _start_values(m, d_fixed, total, hz_guesses, free_dip, init)
+    n = problem.n
+    # stage 1: a few iterations from every start; stage 2: the best one to convergence
+    best = None
+    for start in starts:
+        name, w0, h0 = start[0], start[1], start[2]
+        hz0 = start[3] if len(start) > 3 else hz_guesses[0]
+        p0 = np.concatenate((w0.ravel(), h0, [hz0 / total] if free_dip else [], [0.0] if fit_speed else []))
+        got = problem.solve(p0, 8 if len(starts) > 1 else 200, robust)
+        if got is not None and (best is None or got[0] < best[0]):
+            best = (got[0], got[1], name, p0)
+    if best is None:
+        raise BacksteppingError("the vertical-channel least squares did not converge from any start value")
+    _, sol1, name, p0 = best
+    # the prior is re-centred on the stage-1 result; it is weak, so this only matters for directions the data
+    # do not determine at all
+    got = problem.solve(sol1.x, 200, robust) if len(starts) > 1 else (best[0], sol1, problem.make_fun(p0)[1])
+    if got is None:
+        raise BacksteppingError("the vertical-channel least squares did not converge")
+    cost, sol, jac = got
+    w, h, hz, _ = problem.unpack(sol.x)
+    r = sol.fun[:2 * n]
+    jd = jac(sol.x)[:2 * n]
+    names = list(_PARAM_NAMES) + (["sin_dip"] if free_dip else []) + (["speed_m_s"] if fit_speed else [])
+    speed = float(sol.x[problem.i_speed]) if fit_speed else None
+    return VerticalChannelFit(w, h, total, hz, free_dip, float(np.sqrt(np.mean((r[:n] * sig_f) ** 2))),
+                              float(np.sqrt(np.mean((r[n:] * sig_v) ** 2))), float(np.sqrt(np.mean(r**2))),
+                              jd, names, name, int(sol.nfev), bool(sol.success), str(sol.message), speed)
 
-    def unpack(p):
-        hz = p[i_dip] * total if free_dip else float(vertical_ut)
-        d = corrected_down(d0, k, p[i_speed]) if fit_speed else d_fixed
+
+class _VerticalChannelProblem:
+    """The least squares of `fit_vertical_channel` for one data set: the parameters p = (W row by row, h,
+    [sin δ if the dip is free], [the forward speed if fitted]), the whitened residuals with the prior and their
+    Jacobian, and a solve from a start value."""
+
+    def __init__(self, m, d0, k, d_fixed, total, vertical_ut, fit_speed, sig_f, sig_v, prior_sigma):
+        self.m, self.d0, self.k, self.d_fixed = m, d0, k, d_fixed
+        self.n = m.shape[0]
+        self.total, self.vertical_ut = total, vertical_ut
+        self.free_dip = vertical_ut is None
+        self.fit_speed = fit_speed
+        self.sig_f, self.sig_v, self.prior_sigma = sig_f, sig_v, prior_sigma
+        self.i_dip = 12 if self.free_dip else None
+        self.i_speed = (12 + (1 if self.free_dip else 0)) if fit_speed else None
+        self.npar = 12 + (1 if self.free_dip else 0) + (1 if fit_speed else 0)
+
+    def unpack(self, p):
+        """(W, h, H_z, the down vector per sample) of the parameters p."""
+        hz = p[self.i_dip] * self.total if self.free_dip else float(self.vertical_ut)
+        d = corrected_down(self.d0, self.k, p[self.i_speed]) if self.fit_speed else self.d_fixed
         return p[:9].reshape(3, 3), p[9:12], hz, d
 
-    def make_fun(p0):
+    def make_fun(self, p0):
+        """The residual function (with the prior centred on p0) and its Jacobian, for least_squares."""
+        m, n, npar, total = self.m, self.n, self.npar, self.total
+        sig_f, sig_v, free_dip, fit_speed = self.sig_f, self.sig_v, self.free_dip, self.fit_speed
+        i_dip, i_speed, d0, k, unpack = self.i_dip, self.i_speed, self.d0, self.k, self.unpack
         prior_w = np.zeros(npar)
-        prior_w[:9] = 1.0 / prior_sigma
+        prior_w[:9] = 1.0 / self.prior_sigma
         if free_dip:
             prior_w[i_dip] = 1.0 / 2.0          # sin δ in [−1, 1]: essentially free
         if fit_speed:
@@ -226,6 +271,26 @@ def fit_vertical_channel(raw: np.ndarray, roll_rad, pitch_rad, total_ut: float, 
 
         return fun, jac
 
+    def solve(self, p0, max_nfev, robust):
+        """(data cost, least_squares solution, Jacobian) from p0, or None when it failed."""
+        from scipy.optimize import least_squares
+
+        fun, jac = self.make_fun(p0)
+        try:
+            if robust:
+                sol = least_squares(fun, p0, jac=jac, method="trf", x_scale="jac", max_nfev=max_nfev,
+                                    loss="soft_l1", f_scale=3.0)
+            else:   # MINPACK LM (QR): much cheaper per iteration than TRF's SVD
+                sol = least_squares(fun, p0, jac=jac, method="lm", x_scale="jac", max_nfev=max_nfev)
+        except (ValueError, np.linalg.LinAlgError):
+            return None
+        cost = float(np.sum(sol.fun[:2 * self.n] ** 2))
+        return (cost, sol, jac) if np.isfinite(cost) else None
+
+
+def _start_values(m, d_fixed, total, hz_guesses, free_dip, init) -> list[tuple]:
+    """The start values (name, W, h[, H_z]): the given one, the levelled conic for each dip guess, and the
+    ellipsoid fit (with each dip guess when the dip is free)."""
     starts = []
     if init is not None:
         starts.append(("given", np.asarray(init[0], dtype=np.float64), np.asarray(init[1], dtype=np.float64)))
@@ -240,46 +305,7 @@ def fit_vertical_channel(raw: np.ndarray, roll_rad, pitch_rad, total_ut: float, 
     if not starts:
         raise BacksteppingError("no start value: the horizontal components do not trace an ellipse "
                                 "(turn the vehicle through a full circle)")
-
-    def solve(p0, max_nfev):
-        fun, jac = make_fun(p0)
-        try:
-            if robust:
-                sol = least_squares(fun, p0, jac=jac, method="trf", x_scale="jac", max_nfev=max_nfev,
-                                    loss="soft_l1", f_scale=3.0)
-            else:   # MINPACK LM (QR): much cheaper per iteration than TRF's SVD
-                sol = least_squares(fun, p0, jac=jac, method="lm", x_scale="jac", max_nfev=max_nfev)
-        except (ValueError, np.linalg.LinAlgError):
-            return None
-        cost = float(np.sum(sol.fun[:2 * n] ** 2))
-        return (cost, sol, jac) if np.isfinite(cost) else None
-
-    # stage 1: a few iterations from every start; stage 2: the best one to convergence
-    best = None
-    for start in starts:
-        name, w0, h0 = start[0], start[1], start[2]
-        hz0 = start[3] if len(start) > 3 else hz_guesses[0]
-        p0 = np.concatenate((w0.ravel(), h0, [hz0 / total] if free_dip else [], [0.0] if fit_speed else []))
-        got = solve(p0, 8 if len(starts) > 1 else 200)
-        if got is not None and (best is None or got[0] < best[0]):
-            best = (got[0], got[1], name, p0)
-    if best is None:
-        raise BacksteppingError("the vertical-channel least squares did not converge from any start value")
-    _, sol1, name, p0 = best
-    # the prior is re-centred on the stage-1 result; it is weak, so this only matters for directions the data
-    # do not determine at all
-    got = solve(sol1.x, 200) if len(starts) > 1 else (best[0], sol1, make_fun(p0)[1])
-    if got is None:
-        raise BacksteppingError("the vertical-channel least squares did not converge")
-    cost, sol, jac = got
-    w, h, hz, _ = unpack(sol.x)
-    r = sol.fun[:2 * n]
-    jd = jac(sol.x)[:2 * n]
-    names = list(_PARAM_NAMES) + (["sin_dip"] if free_dip else []) + (["speed_m_s"] if fit_speed else [])
-    speed = float(sol.x[i_speed]) if fit_speed else None
-    return VerticalChannelFit(w, h, total, hz, free_dip, float(np.sqrt(np.mean((r[:n] * sig_f) ** 2))),
-                              float(np.sqrt(np.mean((r[n:] * sig_v) ** 2))), float(np.sqrt(np.mean(r**2))),
-                              jd, names, name, int(sol.nfev), bool(sol.success), str(sol.message), speed)
+    return starts
 
 
 def predicted_heading_std_deg(fit: VerticalChannelFit, tilt_envelope_deg: float, *,

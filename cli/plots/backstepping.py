@@ -38,6 +38,23 @@ def backstepping_figure(result: MagFitResult, data: MagFitInput, *, roll_rad=Non
     points and the fitted card). roll_rad/pitch_rad: the levelling, per row of `data` (default: the fit's own,
     `result.levelling`, then the accelerometer). Raises PlotUnavailableError when matplotlib is not installed."""
     plt = pyplot()
+    d, cal, roll_rad, pitch_rad, levelled_by = _levelled(result, data, roll_rad, pitch_rad)
+    raw = d.mag_ut - np.median(d.mag_ut, axis=0)
+    lv_raw, lv_cal = level_vectors(raw, roll_rad, pitch_rad), level_vectors(cal, roll_rad, pitch_rad)
+    has_ref = (d.heading_ref_deg is not None and np.isfinite(d.heading_ref_deg).any()) or swing_table is not None
+    fig, axes = plt.subplots(1, 3 if has_ref else 2, figsize=(15 if has_ref else 10, 4.5))
+    q = result.quality.get("reference", {})
+    _horizontal_panel(axes[0], lv_raw, lv_cal, q)
+    _field_panel(axes[1], result, d, cal, lv_cal, q, levelled_by)
+    if has_ref:
+        _heading_error_panel(axes[2], result, d, cal, roll_rad, pitch_rad, q, swing_table)
+    fig.tight_layout()
+    return fig
+
+
+def _levelled(result: MagFitResult, data: MagFitInput, roll_rad, pitch_rad):
+    """(the rows with a finite field, their calibrated field, roll and pitch, what levelled them): the given
+    attitude, else the fit's aided levelling, else the accelerometer as the fit took it."""
     levelled_by = "the accelerometer"
     if roll_rad is None and result.levelling is not None:
         roll_rad, pitch_rad, used = result.levelling
@@ -69,14 +86,13 @@ def backstepping_figure(result: MagFitResult, data: MagFitInput, *, roll_rad=Non
             roll_rad, pitch_rad = np.arctan2(dn[:, 1], dn[:, 2]), -np.arcsin(np.clip(dn[:, 0], -1.0, 1.0))
     else:
         roll_rad, pitch_rad = np.asarray(roll_rad)[ok], np.asarray(pitch_rad)[ok]
-    raw = d.mag_ut - np.median(d.mag_ut, axis=0)
-    lv_raw, lv_cal = level_vectors(raw, roll_rad, pitch_rad), level_vectors(cal, roll_rad, pitch_rad)
-    has_ref = (d.heading_ref_deg is not None and np.isfinite(d.heading_ref_deg).any()) or swing_table is not None
-    fig, axes = plt.subplots(1, 3 if has_ref else 2, figsize=(15 if has_ref else 10, 4.5))
-    ax = axes[0]
+    return d, cal, roll_rad, pitch_rad, levelled_by
+
+
+def _horizontal_panel(ax, lv_raw, lv_cal, q: dict) -> None:
+    """The levelled horizontal field, raw (centred) and calibrated, against the WMM's horizontal intensity."""
     ax.plot(lv_raw[:, 1], lv_raw[:, 0], ".", ms=1, label="raw (centred)")
     ax.plot(lv_cal[:, 1], lv_cal[:, 0], ".", ms=1, label="calibrated")
-    q = result.quality.get("reference", {})
     if q.get("vertical_ut") is not None:
         hh = math.sqrt(max(q["total_ut"] ** 2 - q["vertical_ut"] ** 2, 0))
         th = np.linspace(0, 2 * math.pi, 200)
@@ -86,7 +102,10 @@ def backstepping_figure(result: MagFitResult, data: MagFitInput, *, roll_rad=Non
     ax.set_ylabel("north-ish (µT)")
     ax.set_title("levelled horizontal field")
     ax.legend(fontsize=7)
-    ax = axes[1]
+
+
+def _field_panel(ax, result: MagFitResult, d: MagFitInput, cal, lv_cal, q: dict, levelled_by: str) -> None:
+    """|H| and the levelled H_z of the calibrated field over time, against the reference's."""
     ax.plot(d.t_s, np.linalg.norm(cal, axis=1), lw=0.6, label="|H| calibrated")
     ax.plot(d.t_s, lv_cal[:, 2], lw=0.6, label="H_z calibrated")
     if q.get("total_ut"):
@@ -100,25 +119,27 @@ def backstepping_figure(result: MagFitResult, data: MagFitInput, *, roll_rad=Non
                  + (f", H_z {vertical:.3f} µT" if isinstance(vertical, (int, float)) else "")
                  + f"\nlevelled by {levelled_by}", fontsize=9)
     ax.legend(fontsize=7)
-    if has_ref:
-        ax = axes[2]
-        if d.heading_ref_deg is not None and np.isfinite(d.heading_ref_deg).any():
-            psi = magnetic_heading_deg(cal, roll_rad, pitch_rad)
-            decl = q.get("declination_deg", 0.0) or 0.0
-            err = wrap_180_deg((d.heading_ref_deg - decl) - psi)
-            ax.plot(psi, err, ".", ms=2, label="recording (heading_ref_deg)")
-        if swing_table is not None:
-            ref_deg, compass_deg = (np.asarray(a, dtype=np.float64) for a in swing_table)
-            ax.plot(compass_deg, wrap_180_deg(ref_deg - compass_deg), "o", label="swing table")
-            card = result.quality.get("heading_reference", {})
-            if "B_deg" in card:
-                grid = np.linspace(0.0, 360.0, 181)
-                coef = swing.DeviationCoefficients(card["A_deg"], card["B_deg"], card["C_deg"], card["D_deg"],
-                                                   card["E_deg"])
-                ax.plot(grid, coef.deviation_deg(grid), "k-", lw=0.8, label="card A..E (before folding A)")
-        ax.legend(fontsize=7)
-        ax.set_xlabel("magnetic heading (deg)")
-        ax.set_ylabel("reference − magnetometer (deg)")
-        ax.set_title("heading error vs heading")
-    fig.tight_layout()
-    return fig
+
+
+def _heading_error_panel(ax, result: MagFitResult, d: MagFitInput, cal, roll_rad, pitch_rad, q: dict,
+                         swing_table) -> None:
+    """Reference minus calibrated magnetometer heading against heading: the recording's heading_ref_deg, the
+    swing table's points and the fitted card."""
+    if d.heading_ref_deg is not None and np.isfinite(d.heading_ref_deg).any():
+        psi = magnetic_heading_deg(cal, roll_rad, pitch_rad)
+        decl = q.get("declination_deg", 0.0) or 0.0
+        err = wrap_180_deg((d.heading_ref_deg - decl) - psi)
+        ax.plot(psi, err, ".", ms=2, label="recording (heading_ref_deg)")
+    if swing_table is not None:
+        ref_deg, compass_deg = (np.asarray(a, dtype=np.float64) for a in swing_table)
+        ax.plot(compass_deg, wrap_180_deg(ref_deg - compass_deg), "o", label="swing table")
+        card = result.quality.get("heading_reference", {})
+        if "B_deg" in card:
+            grid = np.linspace(0.0, 360.0, 181)
+            coef = swing.DeviationCoefficients(card["A_deg"], card["B_deg"], card["C_deg"], card["D_deg"],
+                                               card["E_deg"])
+            ax.plot(grid, coef.deviation_deg(grid), "k-", lw=0.8, label="card A..E (before folding A)")
+    ax.legend(fontsize=7)
+    ax.set_xlabel("magnetic heading (deg)")
+    ax.set_ylabel("reference − magnetometer (deg)")
+    ax.set_title("heading error vs heading")
