@@ -1,0 +1,90 @@
+"""Allan analysis of samples through the ADIS16405's longer SENS_AVG windows (two 2^N-tap averages; the chip allows
+N = 0…7, up to a 255-tap Bartlett window): the white noise is read at the density put in, with no Gauss–Markov or
+other term made of the window's correlation, and the window is read from the steps between samples, so a slow
+process beside it does not hide it (calibration/allan_correlation.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import allan_noise as gen
+from ahrsd.calibration.allan import analyse_static
+from ahrsd.calibration.allan_correlation import SampleCorrelation
+
+RATE_HZ = 819.2
+DENSITY = 5.8e-4     # rad/s/√Hz, the ADIS16405's 2 °/√h
+
+
+def _window(n: int) -> np.ndarray:
+    """SENS_AVG setting N: two cascaded 2^N-tap averages (unit gain at 0 Hz, so the density stays DENSITY)."""
+    box = np.ones(1 << n) / (1 << n)
+    return np.convolve(box, box)
+
+
+def _window_truth(taps: np.ndarray) -> tuple[int, float]:
+    """The window's own correlation length (first lag where its autocorrelation is below 0.1) and D, its share
+    of white noise's Allan variance N²·D/τ² in samples, D = 1.5·Σ|s|a(s)/Σa(s) over its autocorrelation a."""
+    a = np.correlate(taps, taps, "full")
+    lags = np.arange(len(a)) - (len(taps) - 1)
+    rho = a[len(taps) - 1:] / a[len(taps) - 1]
+    return int(np.flatnonzero(rho < 0.1)[0]), 1.5 * float(np.sum(np.abs(lags) * a) / np.sum(a))
+
+
+def _filtered_white(samples: int, taps: np.ndarray, rng) -> np.ndarray:
+    return np.column_stack([np.convolve(gen.white(samples + len(taps), RATE_HZ, DENSITY, rng), taps, "valid")[:samples]
+                            for _ in range(3)])
+
+
+@pytest.mark.parametrize("n, seconds", [(5, 120), (7, 150)])
+def test_white_noise_through_a_long_window_is_its_density_and_no_other_term(n, seconds):
+    # These windows correlate samples over 41 and 162 lags; read as "slow processes", their bend was fitted as
+    # other terms and white noise was "not seen" on every axis.
+    taps = _window(n)
+    samples = int(seconds * RATE_HZ)
+    x = _filtered_white(samples, taps, np.random.default_rng(40 + n))
+    result = analyse_static(np.arange(samples) / RATE_HZ, gyro_rad_s=x)
+    for axis, p in result.parameters["gyro"].items():
+        white = p.terms.get("white")
+        assert white is not None and set(p.terms) == {"white"}, (axis, p.flags)
+        print(f"N={n} {axis}: white {white.value / DENSITY - 1:+.1%} ± {white.uncertainty / DENSITY:.1%}")
+        assert white.uncertainty < 0.1 * DENSITY, axis
+        assert abs(white.value - DENSITY) < 4 * white.uncertainty, axis
+    correlation = SampleCorrelation()
+    correlation.add(x)
+    length, deficit = _window_truth(taps)
+    assert np.all(np.abs(correlation.lengths() / length - 1) < 0.2), (correlation.lengths(), length)
+    assert correlation.deficits_s(1.0) == pytest.approx(np.full(3, deficit), rel=0.15)
+
+
+@pytest.mark.parametrize("n", [2, 5])
+def test_the_window_is_read_through_a_slow_process_that_dominates_the_samples(n):
+    # A Gauss–Markov bias with 10 times the filtered white noise's variance and a correlation time of 200 window
+    # spans: the samples' autocorrelation lingers, the steps' ends with the window.
+    taps = _window(n)
+    samples = 1 << 17
+    rng = np.random.default_rng(50 + n)
+    white_sd = DENSITY * np.sqrt(RATE_HZ) * np.sqrt(np.sum(taps**2))
+    slow = np.column_stack([gen.gauss_markov(samples, RATE_HZ, np.sqrt(10.0) * white_sd, 200 * len(taps) / RATE_HZ, rng)
+                            for _ in range(3)])
+    correlation = SampleCorrelation()
+    correlation.add(_filtered_white(samples, taps, rng) + slow)
+    length, deficit = _window_truth(taps)
+    assert list(correlation.samples_to_tell()) == [0, 0, 0]
+    assert np.all(np.abs(correlation.lengths() - length) <= max(1, 0.2 * length)), (correlation.lengths(), length)
+    assert correlation.deficits_s(1.0) == pytest.approx(np.full(3, deficit), rel=0.2)
+
+
+def test_a_gauss_markov_beside_the_chips_default_window_does_not_turn_the_window_into_a_term():
+    # The chip's default 7-tap window and a Gauss–Markov bias of Tc 0.5 s (82 correlation lengths) holding a fifth
+    # of the samples' variance: read over every τ, the window became a 10 ms Gauss–Markov term.
+    taps = _window(2)
+    samples = int(320 * RATE_HZ)
+    rng = np.random.default_rng(60)
+    x = _filtered_white(samples, taps, rng) + np.column_stack(
+        [gen.gauss_markov(samples, RATE_HZ, 3e-3, 0.5, rng) for _ in range(3)])
+    result = analyse_static(np.arange(samples) / RATE_HZ, gyro_rad_s=x)
+    length, _ = _window_truth(taps)
+    for axis, p in result.parameters["gyro"].items():
+        assert any(f"correlated over {length} samples" in flag for flag in p.flags), (axis, p.flags)
+        assert p.gauss_markov_tau_s is None or p.gauss_markov_tau_s > 8 * length / RATE_HZ, (axis, p.gauss_markov_tau_s)
