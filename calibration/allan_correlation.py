@@ -24,6 +24,13 @@ says how many samples would (twice that many: a short record reads the span shor
 correlated at lag 1 only (span 1), whatever slow process lies beside them. Steps correlated beyond a quarter of the
 lags the record has (at most MAX_LAG) are no filter: every τ is kept.
 
+An ADC's rounding is white noise added after the filter (LSB²/12 per sample). Beside a long window it dominates the
+sample-to-sample steps (the ADIS16405's gyro at N = 7: 500 to 1), whose lag-1 autocorrelation then reads −0.5 as for
+independent samples. When the samples lie on a grid whose rounding is half the steps' variance or more, the steps
+x(t) − x(t − d) over d = 2, 4, … STEP_LAGS[-1] are read instead: their autocovariance 2C(k) − C(k − d) − C(k + d)
+holds the window's correlation at full strength from lag d to d + span, the rounding's only at lags 0 and d, and a
+slow process's only as far as it bends over d. The first d that shows a span of at least d beyond itself gives it.
+
 Beyond its span the filter still lowers the white noise's Allan variance, by a share that falls as 1/τ: a filter
 with unit gain at zero frequency turns the phase's covariance G(h) = −|h|/2 (a Brownian motion) into its average
 over the lag distribution a(s) of the filter's autocorrelation, which is G again for |h| beyond the span and
@@ -38,7 +45,8 @@ from __future__ import annotations
 import numpy as np
 
 CORR_SAMPLES = 1 << 18
-MAX_LAG = 2048        # the chip's longest window (N = 7: 255 taps) needs a quiet tail to lag 4·256 + 16
+MAX_LAG = 4096        # the chip's longest window (N = 7: 255 taps) seen through steps of 256 needs lags to 4·512 + 16
+STEP_LAGS = tuple(1 << j for j in range(9))   # 1 … 256: steps long enough to see a 255-tap window beside 14-bit LSBs
 CORR_THRESHOLD = 0.1
 FIT_LENGTHS = 8
 TELL_SIGMAS = 4.0     # a tail lag beyond 4σ by chance: ~6e-5 per lag (normal tails)
@@ -88,30 +96,64 @@ class SampleCorrelation:
         if self._n < 8:
             return lengths, deficits, needed      # nothing to read; the Allan fit has too few cluster sizes anyway
         x = np.concatenate(self._rows)
-        steps = np.diff(x, axis=0)
-        n = len(steps)
+        n = len(x)
         max_lag = min(MAX_LAG, n // 4)
         for axis in range(self._n_axes):
-            steps_cov = _autocovariance(steps[:, axis], max_lag)
-            if not steps_cov[0] > 0:
-                continue
-            span = _span(steps_cov / steps_cov[0], n)
+            col = np.ascontiguousarray(x[:, axis])
+            span = _filter_span(col, max_lag)
             if span is None:
-                if max_lag < MAX_LAG:
-                    needed[axis] = 4 * n          # no quiet tail within a quarter of the lags this record has
-                continue                          # correlated beyond any filter: the fit models it from every τ
-            if span == 1:
-                continue                          # independent neighbours: their steps correlate at lag 1 only
+                continue                          # independent samples, or correlated beyond any filter
             if n < TELL_SPANS * span:
                 needed[axis] = 2 * TELL_SPANS * span   # a short record reads the span short
                 continue
-            white = _white_autocovariance(_autocovariance(x[:, axis], max_lag), span)
+            white = _white_autocovariance(_autocovariance(col, max_lag), span)
             if not white[0] > 0 or white[1] < CORR_THRESHOLD * white[0]:
                 continue                          # independent neighbours
             lengths[axis] = int(np.flatnonzero(white >= CORR_THRESHOLD * white[0])[-1]) + 1
             lags = np.arange(len(white))
             deficits[axis] = 1.5 * 2.0 * float(np.dot(lags, white)) / (white[0] + 2.0 * float(np.sum(white[1:])))
         return lengths, deficits, needed
+
+
+def _filter_span(x: np.ndarray, max_lag: int) -> int | None:
+    """The first lag where the filter's correlation of x has ended, read from its steps (module doc); None when
+    no step shows a filter at least as long as the step."""
+    end = _step_span(x, 1, max_lag)
+    if end is None or end >= 2:
+        return end
+    if not _rounding_dominates_the_steps(x):
+        return None                               # independent samples (beside any slow process)
+    for d in STEP_LAGS[1:]:
+        if 4 * (2 * d) + 16 > max_lag:
+            return None                           # too few lags for this step
+        end = _step_span(x, d, max_lag)
+        if end is None:
+            return None                           # correlated beyond any filter: a slow process shows through
+        if end - d >= d:
+            return end - d + 1
+    return None
+
+
+def _rounding_dominates_the_steps(x: np.ndarray) -> bool:
+    """Whether x is on a grid (an ADC's LSB) whose rounding, white noise of LSB²/12 added after the filter, is
+    at least half the variance of the sample-to-sample steps (their lag-1 autocorrelation then reads −0.5 as
+    for independent samples, whatever the filter)."""
+    steps = np.diff(x)
+    moved = np.abs(steps[steps != 0])
+    if len(moved) < 2:
+        return False
+    lsb = float(np.min(moved))
+    on_grid = np.abs(moved / lsb - np.round(moved / lsb)) < 1e-3
+    return bool(np.mean(on_grid) > 0.99) and 2.0 * lsb * lsb / 12.0 >= 0.5 * float(np.var(steps))
+
+
+def _step_span(x: np.ndarray, d: int, max_lag: int) -> int | None:
+    """The span of the autocorrelation of the steps x(t) − x(t − d), searched from lag d (_span)."""
+    steps = x[d:] - x[:-d]
+    cov = _autocovariance(steps, max_lag)
+    if not cov[0] > 0:
+        return None
+    return _span(cov / cov[0], len(steps), first=d)
 
 
 def _autocovariance(x: np.ndarray, max_lag: int) -> np.ndarray:
@@ -122,13 +164,13 @@ def _autocovariance(x: np.ndarray, max_lag: int) -> np.ndarray:
     return np.fft.irfft(f * np.conj(f), size)[:max_lag + 1] / len(x)
 
 
-def _span(rho: np.ndarray, n: int) -> int | None:
-    """The shortest lag k beyond which the autocorrelation rho of the steps is zero within TELL_SIGMAS of its
+def _span(rho: np.ndarray, n: int, first: int = 1) -> int | None:
+    """The shortest lag k ≥ first beyond which the autocorrelation rho of the steps is zero within TELL_SIGMAS of its
     scatter, √((1 + 2·Σ_{j≤k} ρ(j)²)/n) (Bartlett's formula for a moving average of order k), over the next
     3k + 16 lags (tail_lags); None when no k up to a quarter of the lags has such a tail."""
     max_lag = len(rho) - 1
     scatter = np.sqrt((2.0 * np.cumsum(rho**2) - 1.0) / n)
-    for k in range(1, max_lag // 4 + 1):
+    for k in range(first, max_lag // 4 + 1):
         if np.all(np.abs(rho[tail_lags(k, max_lag)]) < TELL_SIGMAS * scatter[k]):
             return k
     return None

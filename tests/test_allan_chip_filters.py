@@ -88,3 +88,35 @@ def test_a_gauss_markov_beside_the_chips_default_window_does_not_turn_the_window
     for axis, p in result.parameters["gyro"].items():
         assert any(f"correlated over {length} samples" in flag for flag in p.flags), (axis, p.flags)
         assert p.gauss_markov_tau_s is None or p.gauss_markov_tau_s > 8 * length / RATE_HZ, (axis, p.gauss_markov_tau_s)
+
+
+def test_the_longest_window_is_read_through_the_chips_14_bit_steps():
+    # The chip rounds the window's output to its LSB: at N = 7 the gyro's filtered noise is 1.4 LSB, and the
+    # rounding's white noise (LSB²/12, after the window) dominates the sample-to-sample steps 500 to 1, hiding the
+    # window there; steps over more samples show it.
+    taps = _window(7)
+    samples = int(150 * RATE_HZ)
+    x = _filtered_white(samples, taps, np.random.default_rng(70))
+    lsb = DENSITY * np.sqrt(RATE_HZ) * np.sqrt(np.sum(taps**2)) / 1.4
+    x = np.round(x / lsb) * lsb
+    result = analyse_static(np.arange(samples) / RATE_HZ, gyro_rad_s=x)
+    for axis, p in result.parameters["gyro"].items():
+        white = p.terms.get("white")
+        assert white is not None and set(p.terms) == {"white"}, (axis, p.flags)
+        print(f"14-bit N=7 {axis}: white {white.value / DENSITY - 1:+.1%} ± {white.uncertainty / DENSITY:.1%}")
+        assert white.uncertainty < 0.1 * DENSITY, axis
+        assert abs(white.value - DENSITY) < 4 * white.uncertainty, axis
+
+
+def test_a_strong_short_gauss_markov_is_not_taken_for_a_window():
+    # Independent samples under a Gauss–Markov bias of 16 times their variance (lag-1 correlation 0.94) and Tc of
+    # 100 samples: through steps of tens of samples it shows a correlation that ends, as a window's does, but one
+    # that moves out with the step; the fit models it from every τ.
+    samples = 1 << 17
+    rng = np.random.default_rng(80)
+    x = rng.standard_normal((samples, 3)) + np.column_stack(
+        [gen.gauss_markov(samples, 1.0, 4.0, 100.0, rng) for _ in range(3)])
+    correlation = SampleCorrelation()
+    correlation.add(x)
+    assert list(correlation.lengths()) == [1, 1, 1]
+    assert list(correlation.samples_to_tell()) == [0, 0, 0]
