@@ -44,6 +44,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .allan_resolution import noise_in_lsb, output_lsb
+
 CORR_SAMPLES = 1 << 18
 MAX_LAG = 4096        # the chip's longest window (N = 7: 255 taps) seen through steps of 256 needs lags to 4·512 + 16
 STEP_LAGS = tuple(1 << j for j in range(9))   # 1 … 256: steps long enough to see a 255-tap window beside 14-bit LSBs
@@ -84,22 +86,29 @@ class SampleCorrelation:
         correlated beyond any filter), else about how many samples would tell it (module doc)."""
         return self._filter()[2]
 
-    def _filter(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(lengths, deficits in samples, samples needed to tell) per axis (module doc), read once per length."""
+    def noise_lsb(self) -> np.ndarray:
+        """Per axis: the output's σ per sample in its LSB (allan_resolution); inf for an output not on a grid."""
+        return self._filter()[3]
+
+    def _filter(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(lengths, deficits in samples, samples needed to tell, noise in LSB) per axis (module doc), read once
+        per length."""
         if self._read is None or self._read[0] != self._n:
             self._read = (self._n, self._read_filter())
         return self._read[1]
 
-    def _read_filter(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _read_filter(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         lengths, deficits = np.ones(self._n_axes, dtype=int), np.zeros(self._n_axes)
         needed = np.zeros(self._n_axes, dtype=int)
+        noise_lsb = np.full(self._n_axes, np.inf)
         if self._n < 8:
-            return lengths, deficits, needed      # nothing to read; the Allan fit has too few cluster sizes anyway
+            return lengths, deficits, needed, noise_lsb   # nothing to read; the Allan fit has too few cluster sizes
         x = np.concatenate(self._rows)
         n = len(x)
         max_lag = min(MAX_LAG, n // 4)
         for axis in range(self._n_axes):
             col = np.ascontiguousarray(x[:, axis])
+            noise_lsb[axis] = noise_in_lsb(float(np.var(col)), output_lsb(col))
             span = _filter_span(col, max_lag)
             if span is None:
                 continue                          # independent samples, or correlated beyond any filter
@@ -112,7 +121,7 @@ class SampleCorrelation:
             lengths[axis] = int(np.flatnonzero(white >= CORR_THRESHOLD * white[0])[-1]) + 1
             lags = np.arange(len(white))
             deficits[axis] = 1.5 * 2.0 * float(np.dot(lags, white)) / (white[0] + 2.0 * float(np.sum(white[1:])))
-        return lengths, deficits, needed
+        return lengths, deficits, needed, noise_lsb
 
 
 def _filter_span(x: np.ndarray, max_lag: int) -> int | None:
@@ -138,13 +147,8 @@ def _rounding_dominates_the_steps(x: np.ndarray) -> bool:
     """Whether x is on a grid (an ADC's LSB) whose rounding, white noise of LSB²/12 added after the filter, is
     at least half the variance of the sample-to-sample steps (their lag-1 autocorrelation then reads −0.5 as
     for independent samples, whatever the filter)."""
-    steps = np.diff(x)
-    moved = np.abs(steps[steps != 0])
-    if len(moved) < 2:
-        return False
-    lsb = float(np.min(moved))
-    on_grid = np.abs(moved / lsb - np.round(moved / lsb)) < 1e-3
-    return bool(np.mean(on_grid) > 0.99) and 2.0 * lsb * lsb / 12.0 >= 0.5 * float(np.var(steps))
+    lsb = output_lsb(x)
+    return lsb is not None and 2.0 * lsb * lsb / 12.0 >= 0.5 * float(np.var(np.diff(x)))
 
 
 def _step_span(x: np.ndarray, d: int, max_lag: int) -> int | None:

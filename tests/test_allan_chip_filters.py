@@ -1,7 +1,8 @@
 """Allan analysis of samples through the ADIS16405's longer SENS_AVG windows (two 2^N-tap averages; the chip allows
 N = 0…7, up to a 255-tap Bartlett window): the white noise is read at the density put in, with no Gauss–Markov or
 other term made of the window's correlation, and the window is read from the steps between samples, so a slow
-process beside it does not hide it (calibration/allan_correlation.py)."""
+process beside it does not hide it (calibration/allan_correlation.py); an output too coarse for its noise says so
+(calibration/allan_resolution.py)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import numpy as np
 import pytest
 
 import allan_noise as gen
-from ahrsd.calibration.allan import analyse_static
+from ahrsd.calibration.allan import analyse_static, summary
 from ahrsd.calibration.allan_correlation import SampleCorrelation
 
 RATE_HZ = 819.2
@@ -120,3 +121,22 @@ def test_a_strong_short_gauss_markov_is_not_taken_for_a_window():
     correlation.add(x)
     assert list(correlation.lengths()) == [1, 1, 1]
     assert list(correlation.samples_to_tell()) == [0, 0, 0]
+
+
+@pytest.mark.parametrize("noise_lsb", [0.2, 0.35])
+def test_noise_far_below_the_output_step_reads_no_term_and_says_so(noise_lsb):
+    # The simulated chip's accelerometer and magnetometer at N = 7 (0.21 and 0.18 LSB) and N = 5-6 (0.3-0.4 LSB):
+    # the rounded output holds a few values, and their white noise was read 72-146 % and 9-27 % high.
+    taps = _window(7)
+    samples = int(150 * RATE_HZ)
+    x = _filtered_white(samples, taps, np.random.default_rng(90))
+    lsb = DENSITY * np.sqrt(RATE_HZ) * np.sqrt(np.sum(taps**2)) / noise_lsb
+    x = np.round(x / lsb) * lsb + 7 * lsb          # off zero, as a sensor's offset
+    result = analyse_static(np.arange(samples) / RATE_HZ, gyro_rad_s=x)
+    for axis, p in result.parameters["gyro"].items():
+        assert not p.terms and p.white_noise is None, (axis, p.flags)
+        assert p.noise_lsb < 0.6, (axis, p.noise_lsb)
+        assert len(p.flags) == 1 and p.flags[0].startswith("output resolution too coarse"), p.flags
+    lead = summary(result)
+    assert "x below LSB  y below LSB  z below LSB" in lead[0], lead[0]
+    assert any(line.startswith("  output resolution too coarse for 3 axes") for line in lead), lead
