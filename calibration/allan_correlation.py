@@ -161,11 +161,15 @@ def _step_span(x: np.ndarray, d: int, max_lag: int) -> int | None:
 
 
 def _autocovariance(x: np.ndarray, max_lag: int) -> np.ndarray:
-    """Autocovariance of x (mean removed) at lags 0…max_lag, through the FFT (zero-padded: no wrap-around)."""
-    x = x - x.mean()
-    size = 1 << int(np.ceil(np.log2(len(x) + max_lag + 1)))
-    f = np.fft.rfft(x, size)
-    return np.fft.irfft(f * np.conj(f), size)[:max_lag + 1] / len(x)
+    """Autocovariance of x (mean removed) at lags 0…max_lag, through the FFT (zero-padded: no wrap-around; a
+    fast length just above n + max_lag, not the next power of two, keeps the buffers near the samples' size)."""
+    from scipy import fft
+
+    size = fft.next_fast_len(len(x) + max_lag + 1, real=True)
+    f = np.fft.rfft(x - x.mean(), size)
+    power = f.real**2 + f.imag**2
+    del f
+    return np.fft.irfft(power, size)[:max_lag + 1] / len(x)
 
 
 def _span(rho: np.ndarray, n: int, first: int = 1) -> int | None:
