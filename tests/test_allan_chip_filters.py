@@ -140,3 +140,24 @@ def test_noise_far_below_the_output_step_reads_no_term_and_says_so(noise_lsb):
     lead = summary(result)
     assert "x below LSB  y below LSB  z below LSB" in lead[0], lead[0]
     assert any(line.startswith("  output resolution too coarse for 3 axes") for line in lead), lead
+
+
+def test_a_real_gauss_markov_far_beyond_the_default_window_is_read_beside_white_noise():
+    # Tc 2 s (330 correlation lengths of the window) and σ 3 mrad/s: the fit starts at 8 lengths (0.05 s), where
+    # white noise dominates two octaves and the bump the rest. The greedy selection from the best single term
+    # stopped at a flicker floor (neither white noise nor the bump is seen beside it); from white noise it reads both.
+    taps = _window(2)
+    samples = int(320 * RATE_HZ)
+    rng = np.random.default_rng(6)
+    sigma, tc = 3e-3, 2.0
+    x = _filtered_white(samples, taps, rng) + np.column_stack(
+        [gen.gauss_markov(samples, RATE_HZ, sigma, tc, rng) for _ in range(3)])
+    result = analyse_static(np.arange(samples) / RATE_HZ, gyro_rad_s=x)
+    for axis, p in result.parameters["gyro"].items():
+        assert set(p.terms) == {"white", "gauss_markov"}, (axis, sorted(p.terms))
+        white, gm = p.terms["white"], p.terms["gauss_markov"]
+        print(f"{axis}: white {white.value / DENSITY - 1:+.1%} ± {white.uncertainty / DENSITY:.1%}, "
+              f"GM σ {gm.value / sigma - 1:+.1%} ± {gm.uncertainty / sigma:.1%}, Tc {gm.corr_time_s:.2f} s")
+        assert abs(white.value - DENSITY) < 4 * white.uncertainty, axis
+        assert abs(gm.value - sigma) < 4 * gm.uncertainty, axis
+        assert tc / 2 < gm.corr_time_s < tc * 2, axis
