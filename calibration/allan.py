@@ -26,6 +26,7 @@ import numpy as np
 from .allan_adev import ONE_SIGMA, AllanCurve, StreamingAllan, confidence_interval, edf_overlapping
 from .allan_correlation import SampleCorrelation, shortest_fit_tau_s
 from .allan_kalman import kalman_tuning
+from .allan_resolution import MIN_NOISE_LSB
 from .allan_terms import (
     TERMS,
     ModelFit,
@@ -64,6 +65,7 @@ class NoiseParameters:
     not_seen: dict = field(default_factory=dict)    # name -> {"upper_bound", "recording_needed_s", "note"}
     fit: ModelFit | None = None                     # the fitted model (for plots; not serialised)
     too_short_need_s: float | None = None           # recording too short to read any term: the length that would
+    noise_lsb: float | None = None                  # noise below MIN_NOISE_LSB of the output's step: no term read
 
     def to_dict(self) -> dict:
         d = {name: getattr(self, name) for name in (
@@ -71,6 +73,7 @@ class NoiseParameters:
             "curve_minimum", "tau_curve_minimum_s", "std", "gauss_markov_sigma", "gauss_markov_tau_s",
             "rate_ramp")}
         d["flags"] = list(self.flags)
+        d["noise_lsb"] = self.noise_lsb
         d["terms"] = {name: (self.terms[name].to_dict() if name in self.terms else None) for name in TERMS}
         d["not_seen"] = dict(self.not_seen)
         for name, est in self.terms.items():
@@ -79,20 +82,28 @@ class NoiseParameters:
 
 
 def _no_terms_read(curve: AllanCurve, axis: int, std: float, reason: str,
-                   too_short_need_s: float | None = None) -> NoiseParameters:
+                   too_short_need_s: float | None = None, noise_lsb: float | None = None) -> NoiseParameters:
     """An axis of which no term can be read: the curve's minimum, the standard deviation and the reason."""
     j = int(np.argmin(curve.adev[:, axis]))
     return NoiseParameters(None, None, None, None, None, float(curve.adev[j, axis]), float(curve.taus_s[j]),
-                           float(std), flags=(reason,), too_short_need_s=too_short_need_s)
+                           float(std), flags=(reason,), too_short_need_s=too_short_need_s, noise_lsb=noise_lsb)
 
 
 def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float, correlation_samples: int = 1,
-              white_deficit_s: float = 0.0, samples_to_tell: int = 0) -> NoiseParameters:
+              white_deficit_s: float = 0.0, samples_to_tell: int = 0, noise_lsb: float = math.inf) -> NoiseParameters:
     """Decide the terms of one axis' curve and read their values. correlation_samples: how many samples apart
     the samples stop being correlated (allan_correlation): the fit uses only the τ beyond a few of those, where
     the filter lowers white noise to N²·(1/τ − D/τ²), D = white_deficit_s. samples_to_tell > 0: the samples are
-    correlated but the record is too short to tell over how many (allan_correlation): no term is read."""
+    correlated but the record is too short to tell over how many (allan_correlation): no term is read.
+    noise_lsb: the output's σ per sample in its LSB; below MIN_NOISE_LSB no term is read
+    (allan_resolution)."""
     pts = octave_points(curve, axis)
+    if noise_lsb < MIN_NOISE_LSB:
+        # The output holds a handful of values: its Allan deviation is that of a staircase, not the sensor's noise.
+        return _no_terms_read(curve, axis, std, (
+            f"output resolution too coarse: the output's noise is {noise_lsb:.2f} LSB per sample (below "
+            f"{MIN_NOISE_LSB} LSB it is a staircase of a few values and its noise is the rounding's); "
+            f"record with a shorter filter (a smaller SENS_AVG N): no noise terms read"), noise_lsb=noise_lsb)
     if samples_to_tell > 0:
         # Every τ may lie within the filter's correlation, where a fit reads the filter as a Gauss–Markov term
         # and calls white noise "not seen" whatever the recording length, which a longer record would refute.
@@ -268,8 +279,9 @@ class StaticAllanAnalysis:
             std = np.sqrt(np.maximum(self._sum_sq[sensor] / n - (self._sum[sensor] / n) ** 2, 0.0))
             correlation = self._correlation[sensor]
             lengths, deficits = correlation.lengths(), correlation.deficits_s(self._rate_hz)
-            to_tell = correlation.samples_to_tell()
-            axes = {ax: read_axis(curve, i, std[i], self._rate_hz, int(lengths[i]), float(deficits[i]), int(to_tell[i]))
+            to_tell, noise_lsb = correlation.samples_to_tell(), correlation.noise_lsb()
+            axes = {ax: read_axis(curve, i, std[i], self._rate_hz, int(lengths[i]), float(deficits[i]), int(to_tell[i]),
+                                  float(noise_lsb[i]))
                     for i, ax in enumerate(AXES)}
             lo, hi = np.empty_like(curve.adev), np.empty_like(curve.adev)
             for i, ax in enumerate(AXES):
@@ -330,6 +342,10 @@ def summary(result: AllanResult) -> list[str]:
     if needs:
         lines.append(f"  recording too short for {len(needs)} axes: record ≥ {max(needs):.0f} s of the sensor at "
                      f"rest (details below)")
+    coarse = [p for axes in result.parameters.values() for p in axes.values() if p.noise_lsb is not None]
+    if coarse:
+        lines.append(f"  output resolution too coarse for {len(coarse)} axes: their noise is below "
+                     f"{MIN_NOISE_LSB} LSB; record with a smaller SENS_AVG N (details below)")
     if assumed:
         keys = sorted({key.rsplit(".", 1)[0] for key in assumed})
         lines.append(f"  not seen in this recording, the filter assumes instead: {', '.join(keys)} (details below)")
@@ -337,6 +353,8 @@ def summary(result: AllanResult) -> list[str]:
 
 
 def _unread(p: NoiseParameters) -> str:
+    if p.noise_lsb is not None:
+        return "below LSB"
     return "too short" if p.too_short_need_s is not None else "not seen"
 
 

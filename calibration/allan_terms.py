@@ -308,9 +308,22 @@ TESTED_BESIDE = {"flicker": "rate_random_walk", "rate_ramp": "rate_random_walk",
 
 
 def select_terms(pts: _Points) -> ModelFit:
-    """Forward selection by the largest significant χ² drop, then backward elimination (see module doc)."""
+    """Forward selection by the largest significant χ² drop, then backward elimination (see module doc), from the
+    single term that fits best and from white noise; the better of the two. A greedy path can end where no single
+    added term is seen: beside a sensor filter the fit starts a few octaves up, where white noise dominates only
+    its first octaves and a strong Gauss–Markov bump the rest; a flicker floor fits that better than either alone,
+    and then neither white noise nor the bump is seen beside it."""
     singles = [fit_terms(pts, (t,)) for t in TERMS]
-    current = min(singles, key=lambda f: f.chi2)
+    best_single = min(singles, key=lambda f: f.chi2)
+    found = _select_from(pts, best_single)
+    if best_single.terms != ("white",):
+        from_white = _select_from(pts, fit_terms(pts, ("white",)))
+        if from_white.chi2 < found.chi2:
+            found = from_white
+    return found
+
+
+def _select_from(pts: _Points, current: ModelFit) -> ModelFit:
     changed, rounds = True, 0
     while changed and rounds < 4 * len(TERMS):   # a term dropped and re-added forever cannot hang it
         changed, rounds = False, rounds + 1

@@ -1,0 +1,163 @@
+"""Allan analysis of samples through the ADIS16405's longer SENS_AVG windows (two 2^N-tap averages; the chip allows
+N = 0…7, up to a 255-tap Bartlett window): the white noise is read at the density put in, with no Gauss–Markov or
+other term made of the window's correlation, and the window is read from the steps between samples, so a slow
+process beside it does not hide it (calibration/allan_correlation.py); an output too coarse for its noise says so
+(calibration/allan_resolution.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import allan_noise as gen
+from ahrsd.calibration.allan import analyse_static, summary
+from ahrsd.calibration.allan_correlation import SampleCorrelation
+
+RATE_HZ = 819.2
+DENSITY = 5.8e-4     # rad/s/√Hz, the ADIS16405's 2 °/√h
+
+
+def _window(n: int) -> np.ndarray:
+    """SENS_AVG setting N: two cascaded 2^N-tap averages (unit gain at 0 Hz, so the density stays DENSITY)."""
+    box = np.ones(1 << n) / (1 << n)
+    return np.convolve(box, box)
+
+
+def _window_truth(taps: np.ndarray) -> tuple[int, float]:
+    """The window's own correlation length (first lag where its autocorrelation is below 0.1) and D, its share
+    of white noise's Allan variance N²·D/τ² in samples, D = 1.5·Σ|s|a(s)/Σa(s) over its autocorrelation a."""
+    a = np.correlate(taps, taps, "full")
+    lags = np.arange(len(a)) - (len(taps) - 1)
+    rho = a[len(taps) - 1:] / a[len(taps) - 1]
+    return int(np.flatnonzero(rho < 0.1)[0]), 1.5 * float(np.sum(np.abs(lags) * a) / np.sum(a))
+
+
+def _filtered_white(samples: int, taps: np.ndarray, rng) -> np.ndarray:
+    return np.column_stack([np.convolve(gen.white(samples + len(taps), RATE_HZ, DENSITY, rng), taps, "valid")[:samples]
+                            for _ in range(3)])
+
+
+@pytest.mark.parametrize("n, seconds", [(5, 120), (7, 150)])
+def test_white_noise_through_a_long_window_is_its_density_and_no_other_term(n, seconds):
+    # These windows correlate samples over 41 and 162 lags; read as "slow processes", their bend was fitted as
+    # other terms and white noise was "not seen" on every axis.
+    taps = _window(n)
+    samples = int(seconds * RATE_HZ)
+    x = _filtered_white(samples, taps, np.random.default_rng(40 + n))
+    result = analyse_static(np.arange(samples) / RATE_HZ, gyro_rad_s=x)
+    for axis, p in result.parameters["gyro"].items():
+        white = p.terms.get("white")
+        assert white is not None and set(p.terms) == {"white"}, (axis, p.flags)
+        print(f"N={n} {axis}: white {white.value / DENSITY - 1:+.1%} ± {white.uncertainty / DENSITY:.1%}")
+        assert white.uncertainty < 0.1 * DENSITY, axis
+        assert abs(white.value - DENSITY) < 4 * white.uncertainty, axis
+    correlation = SampleCorrelation()
+    correlation.add(x)
+    length, deficit = _window_truth(taps)
+    assert np.all(np.abs(correlation.lengths() / length - 1) < 0.2), (correlation.lengths(), length)
+    assert correlation.deficits_s(1.0) == pytest.approx(np.full(3, deficit), rel=0.15)
+
+
+@pytest.mark.parametrize("n", [2, 5])
+def test_the_window_is_read_through_a_slow_process_that_dominates_the_samples(n):
+    # A Gauss–Markov bias with 10 times the filtered white noise's variance and a correlation time of 200 window
+    # spans: the samples' autocorrelation lingers, the steps' ends with the window.
+    taps = _window(n)
+    samples = 1 << 17
+    rng = np.random.default_rng(50 + n)
+    white_sd = DENSITY * np.sqrt(RATE_HZ) * np.sqrt(np.sum(taps**2))
+    slow = np.column_stack([gen.gauss_markov(samples, RATE_HZ, np.sqrt(10.0) * white_sd, 200 * len(taps) / RATE_HZ, rng)
+                            for _ in range(3)])
+    correlation = SampleCorrelation()
+    correlation.add(_filtered_white(samples, taps, rng) + slow)
+    length, deficit = _window_truth(taps)
+    assert list(correlation.samples_to_tell()) == [0, 0, 0]
+    assert np.all(np.abs(correlation.lengths() - length) <= max(1, 0.2 * length)), (correlation.lengths(), length)
+    assert correlation.deficits_s(1.0) == pytest.approx(np.full(3, deficit), rel=0.2)
+
+
+def test_a_gauss_markov_beside_the_chips_default_window_does_not_turn_the_window_into_a_term():
+    # The chip's default 7-tap window and a Gauss–Markov bias of Tc 0.5 s (82 correlation lengths) holding a fifth
+    # of the samples' variance: read over every τ, the window became a 10 ms Gauss–Markov term.
+    taps = _window(2)
+    samples = int(320 * RATE_HZ)
+    rng = np.random.default_rng(60)
+    x = _filtered_white(samples, taps, rng) + np.column_stack(
+        [gen.gauss_markov(samples, RATE_HZ, 3e-3, 0.5, rng) for _ in range(3)])
+    result = analyse_static(np.arange(samples) / RATE_HZ, gyro_rad_s=x)
+    length, _ = _window_truth(taps)
+    for axis, p in result.parameters["gyro"].items():
+        assert any(f"correlated over {length} samples" in flag for flag in p.flags), (axis, p.flags)
+        assert p.gauss_markov_tau_s is None or p.gauss_markov_tau_s > 8 * length / RATE_HZ, (axis, p.gauss_markov_tau_s)
+
+
+def test_the_longest_window_is_read_through_the_chips_14_bit_steps():
+    # The chip rounds the window's output to its LSB: at N = 7 the gyro's filtered noise is 1.4 LSB, and the
+    # rounding's white noise (LSB²/12, after the window) dominates the sample-to-sample steps 500 to 1, hiding the
+    # window there; steps over more samples show it.
+    taps = _window(7)
+    samples = int(150 * RATE_HZ)
+    x = _filtered_white(samples, taps, np.random.default_rng(70))
+    lsb = DENSITY * np.sqrt(RATE_HZ) * np.sqrt(np.sum(taps**2)) / 1.4
+    x = np.round(x / lsb) * lsb
+    result = analyse_static(np.arange(samples) / RATE_HZ, gyro_rad_s=x)
+    for axis, p in result.parameters["gyro"].items():
+        white = p.terms.get("white")
+        assert white is not None and set(p.terms) == {"white"}, (axis, p.flags)
+        print(f"14-bit N=7 {axis}: white {white.value / DENSITY - 1:+.1%} ± {white.uncertainty / DENSITY:.1%}")
+        assert white.uncertainty < 0.1 * DENSITY, axis
+        assert abs(white.value - DENSITY) < 4 * white.uncertainty, axis
+
+
+def test_a_strong_short_gauss_markov_is_not_taken_for_a_window():
+    # Independent samples under a Gauss–Markov bias of 16 times their variance (lag-1 correlation 0.94) and Tc of
+    # 100 samples: through steps of tens of samples it shows a correlation that ends, as a window's does, but one
+    # that moves out with the step; the fit models it from every τ.
+    samples = 1 << 17
+    rng = np.random.default_rng(80)
+    x = rng.standard_normal((samples, 3)) + np.column_stack(
+        [gen.gauss_markov(samples, 1.0, 4.0, 100.0, rng) for _ in range(3)])
+    correlation = SampleCorrelation()
+    correlation.add(x)
+    assert list(correlation.lengths()) == [1, 1, 1]
+    assert list(correlation.samples_to_tell()) == [0, 0, 0]
+
+
+@pytest.mark.parametrize("noise_lsb", [0.2, 0.35])
+def test_noise_far_below_the_output_step_reads_no_term_and_says_so(noise_lsb):
+    # The simulated chip's accelerometer and magnetometer at N = 7 (0.21 and 0.18 LSB) and N = 5-6 (0.3-0.4 LSB):
+    # the rounded output holds a few values, and their white noise was read 72-146 % and 9-27 % high.
+    taps = _window(7)
+    samples = int(150 * RATE_HZ)
+    x = _filtered_white(samples, taps, np.random.default_rng(90))
+    lsb = DENSITY * np.sqrt(RATE_HZ) * np.sqrt(np.sum(taps**2)) / noise_lsb
+    x = np.round(x / lsb) * lsb + 7 * lsb          # off zero, as a sensor's offset
+    result = analyse_static(np.arange(samples) / RATE_HZ, gyro_rad_s=x)
+    for axis, p in result.parameters["gyro"].items():
+        assert not p.terms and p.white_noise is None, (axis, p.flags)
+        assert p.noise_lsb < 0.6, (axis, p.noise_lsb)
+        assert len(p.flags) == 1 and p.flags[0].startswith("output resolution too coarse"), p.flags
+    lead = summary(result)
+    assert "x below LSB  y below LSB  z below LSB" in lead[0], lead[0]
+    assert any(line.startswith("  output resolution too coarse for 3 axes") for line in lead), lead
+
+
+def test_a_real_gauss_markov_far_beyond_the_default_window_is_read_beside_white_noise():
+    # Tc 2 s (330 correlation lengths of the window) and σ 3 mrad/s: the fit starts at 8 lengths (0.05 s), where
+    # white noise dominates two octaves and the bump the rest. The greedy selection from the best single term
+    # stopped at a flicker floor (neither white noise nor the bump is seen beside it); from white noise it reads both.
+    taps = _window(2)
+    samples = int(320 * RATE_HZ)
+    rng = np.random.default_rng(6)
+    sigma, tc = 3e-3, 2.0
+    x = _filtered_white(samples, taps, rng) + np.column_stack(
+        [gen.gauss_markov(samples, RATE_HZ, sigma, tc, rng) for _ in range(3)])
+    result = analyse_static(np.arange(samples) / RATE_HZ, gyro_rad_s=x)
+    for axis, p in result.parameters["gyro"].items():
+        assert set(p.terms) == {"white", "gauss_markov"}, (axis, sorted(p.terms))
+        white, gm = p.terms["white"], p.terms["gauss_markov"]
+        print(f"{axis}: white {white.value / DENSITY - 1:+.1%} ± {white.uncertainty / DENSITY:.1%}, "
+              f"GM σ {gm.value / sigma - 1:+.1%} ± {gm.uncertainty / sigma:.1%}, Tc {gm.corr_time_s:.2f} s")
+        assert abs(white.value - DENSITY) < 4 * white.uncertainty, axis
+        assert abs(gm.value - sigma) < 4 * gm.uncertainty, axis
+        assert tc / 2 < gm.corr_time_s < tc * 2, axis
