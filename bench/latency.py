@@ -42,7 +42,12 @@ GNSS the window opens `--warmup` s after the first "aided" STATUSTEXT (ACTIVE al
 --log on: the daemon keeps its on-vehicle logs (raw samples .csv.gz + MAVLink .tlog, `--log-dir`); the disk
 rate is the growth of the log directory over the window (the writer flushes every second).
 
-Targets (docs/daemon.md, docs/gnss.md): p99 ≤ 2 ms, CPU ≤ 10 % of one core; with GNSS ≤ 12 %.
+Targets (docs/daemon.md "Performance", issue 28): p99 ≤ 2 ms, CPU ≤ 10 % of one core, with GNSS too (docs/gnss.md
+kept an older ≤ 12 % with GNSS). The CPU figure is the daemon's processes (event loop and reader process), so it
+holds the simulated parts that run inside them: the simulated chip's register model (the SPI bus) in the reader
+and, with --gnss-sim, the simulated receiver's writer thread; the 9.9 % of docs/daemon.md was measured that way.
+Part D (the chip's register model, µs per read, in-process) and part C (the receiver) estimate them; every run
+prints the daemon's own figure without them beside the measured one ("own").
 """
 
 from __future__ import annotations
@@ -328,6 +333,59 @@ def part_c(scenario: str, seconds: float = 60.0) -> float:
     return cpu / seconds
 
 
+def part_d(reads: int = 20000, repeat: int = 3) -> float:
+    """CPU seconds per read of the simulated chip's register model (drivers.simulated.SimulatedAdis16405: the
+    SPI bus of `sim` and `sim-process`, in the daemon's reader; on hardware a spidev ioctl): thread CPU per
+    `read_sample` through the simulated chip minus through a canned burst frame (the driver alone), as
+    bench/driver_read.py does; an ideal static stream (its generation runs in the block producer in the daemon,
+    reported apart). Best of `repeat`."""
+    from ahrsd.drivers import registers as R
+    from ahrsd.drivers.adis16405 import Adis16405
+    from ahrsd.drivers.simulated import SimulatedAdis16405
+    from ahrsd.simulation import open_stream
+
+    def stream():
+        return open_stream("static", rate_hz=R.sample_rate_hz(R.SMPL_PRD_DEFAULT), seed=0, errors="ideal")
+
+    frame = SimulatedAdis16405(stream()).transfer(R.BURST_COMMAND + bytes(24), R.SPI_BURST_HZ)
+
+    class CannedBus:
+        def transfer(self, tx, speed_hz, delay_us=0):
+            return frame
+
+        def close(self):
+            pass
+
+    def per_read(imu) -> float:
+        for _ in range(2000):
+            imu.read_sample()
+        best = float("inf")
+        for _ in range(repeat):
+            c0 = time.thread_time()
+            for _ in range(reads):
+                imu.read_sample()
+            best = min(best, (time.thread_time() - c0) / reads)
+        return best
+
+    chip = Adis16405(SimulatedAdis16405(stream()))
+    chip.start()
+    return max(0.0, per_read(chip) - per_read(Adis16405(CannedBus())))
+
+
+def simulated_in_daemon(r: dict, sensor: str, gnss: bool, chip_s_per_read: float, rx_share: float) -> float:
+    """Share of a core that the simulated parts running inside the daemon's processes took in run `r`: the
+    simulated chip's register model in the reader (part D × the reads a second of the run: `sim`,
+    `sim-process`) and the simulated receiver's writer thread (part C, with GNSS). The simulated kernel (iio)
+    and the chip's block producer run in processes of their own, not counted in the daemon's figure."""
+    share = rx_share if gnss else 0.0
+    if sensor in ("sim", "sim-process"):
+        src, acc = r["stats"].get("source", {}), r["stats"].get("samples", {})
+        produced = acc.get("delivered", 0) + acc.get("missed", 0)
+        reads_per_sample = src.get("reader_reads", 0) / produced if produced else 1.0
+        share += chip_s_per_read * reads_per_sample * 819.2
+    return share
+
+
 def gnss_summary(stats: dict) -> str:
     g = stats.get("gnss") or {}
     if not g:
@@ -388,6 +446,10 @@ def main() -> None:
             for se in sensors for ld in loads for gn in gnss_runs for p in profiles for lg in logs
             if not (gn and se == "iio")}
     runs = {k[:3]: r for k, r in full.items() if k[3] == sensors[0] and k[4] == loads[0]}
+    rx_share = part_c(scenario) if True in gnss_runs else 0.0
+    chip_s_per_read = part_d() if {"sim", "sim-process"} & set(sensors) else 0.0
+    for r_key, r in full.items():
+        r["sim_share"] = simulated_in_daemon(r, r_key[3], r_key[2], chip_s_per_read, rx_share)
     for (p, lg, gn, se, ld), r in full.items():
         print(f"\nA. ahrsd run {'--iio (simulated IIO device)' if se == 'iio' else '--sim'} {scenario} ({se})"
               f"{' --gnss-sim' if gn else ''}, profile \"{p}\", logging {'on' if lg else 'off'}, "
@@ -401,6 +463,8 @@ def main() -> None:
         print(f"   daemon CPU: {100 * r['cpu_share']:.1f} % of one core (utime+stime / wall), of which the event loop's "
               f"thread {100 * r['main_thread_share']:.1f} %; the simulated chip's block producer (not the daemon's) "
               f"{100 * r['chip_share']:.1f} %; the reader process alone {100 * r['reader_share']:.1f} %")
+        print(f"   of the daemon's figure, simulated parts inside its processes (parts C, D; not there on hardware): "
+              f"{100 * r['sim_share']:.1f} %; the daemon's own code {100 * (r['cpu_share'] - r['sim_share']):.1f} %")
         if r["floor"]:
             fl = r["floor"]
             print(f"   floor beside it (bench/wake_floor.py, real-time {'yes' if fl['realtime'] else 'NO'}): "
@@ -423,7 +487,9 @@ def main() -> None:
             print(f"   load: {os.cpu_count()} busy processes, {r['flooded']} MAVLink messages flooded in")
     if len(full) >= 2 or len(sensors) > 1 or len(loads) > 1:
         print(f"\n   per path, scenario {scenario}, {args.seconds:g} s windows; load average {os.getloadavg()[0]:.2f}")
-        print("   sensor       load  GNSS  profile    CPU % (loop thread) reader   delivered   missed   lost %  "
+        print("   CPU %: the daemon's processes (the issue's ≤ 10 % target: docs/daemon.md \"Performance\"); own: "
+              "without the simulated chip's bus and receiver that run inside them (parts C, D)")
+        print("   sensor       load  GNSS  profile    CPU % (loop thread) reader   own   delivered   missed   lost %  "
               "missed/s  floor/s   late  corrupt  truth  load avg")
         for (p, lg, gn, se, ld), r in full.items():
             acc = r["stats"].get("samples", {})
@@ -431,13 +497,12 @@ def main() -> None:
             fl = r["floor"]
             floor_s = f"{fl['late'] / (fl['wakes'] / 819.2):8.2f}" if fl else "       -"
             print(f"   {se:11s}  {'on' if ld else 'off':4s}  {'on' if gn else 'off':4s}  {p:9s} "
-                  f"{100 * r['cpu_share']:6.1f} ({100 * r['main_thread_share']:4.1f}) {100 * r['reader_share']:6.1f}   "
-                  f"{acc.get('delivered', 0):8d}"
+                  f"{100 * r['cpu_share']:6.1f} ({100 * r['main_thread_share']:4.1f}) {100 * r['reader_share']:6.1f} "
+                  f"{100 * (r['cpu_share'] - r['sim_share']):5.1f}   {acc.get('delivered', 0):8d}"
                   f"  {acc.get('missed', 0):7d}  {100 * acc.get('missed', 0) / max(1, produced):6.3f}  "
                   f"{acc.get('missed', 0) / max(1.0, produced / 819.2):8.2f} {floor_s}  "
                   f"{acc.get('late', 0):5d}  {acc.get('corrupt', 0):7d}  {r['lost_truth']!s:5s}  "
                   f"{r['load_avg'][0]:.2f}")
-    rx_share = part_c(scenario) if True in gnss_runs else 0.0
     if len(runs) >= 2:
         print(f"\n   scenario {scenario}; load average {os.getloadavg()[0]:.2f}")
         print("   GNSS  profile    log   CPU % of one core (event loop thread)   B/s   log MB/h")
@@ -447,6 +512,10 @@ def main() -> None:
     if rx_share:
         print(f"\nC. the simulated receiver's writer thread (in the daemon process with --gnss-sim; not there with a "
               f"real receiver): {100 * rx_share:.2f} % of one core")
+    if chip_s_per_read:
+        print(f"D. the simulated chip's register model (the SPI bus of sim / sim-process, in the daemon's reader; a "
+              f"spidev ioctl on hardware): {chip_s_per_read * 1e6:.1f} µs of CPU a read, "
+              f"{100 * chip_s_per_read * 819.2:.2f} % of one core at one read a sample")
     a = next(iter(runs.values()))
     if args.skip_b:
         return
@@ -458,11 +527,11 @@ def main() -> None:
     all_lat = np.concatenate([np.array(v) for v in a["latency_s"].values() if v])
     p99_true = np.percentile(all_lat, 99) + np.percentile(b, 99)
     print(f"\nTrue sample-ready → datagram p99 ≤ {p99_true * 1e3:.3f} ms (A p99 + B p99; target ≤ 2 ms); "
-          f"CPU {100 * a['cpu_share']:.1f} % (target ≤ 10 %)")
+          f"CPU {100 * a['cpu_share']:.1f} % (target ≤ 10 %; own {100 * (a['cpu_share'] - a['sim_share']):.1f} %)")
     for (p, lg, gn), r in runs.items():
         if gn:
             print(f"With GNSS ({p}, logging {'on' if lg else 'off'}): CPU {100 * r['cpu_share']:.1f} % of one core "
-                  f"(target ≤ 12 %), of which the simulated receiver about {100 * rx_share:.1f} %")
+                  f"(target ≤ 10 %), of which the simulated parts about {100 * r['sim_share']:.1f} %")
 
 
 if __name__ == "__main__":

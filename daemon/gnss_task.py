@@ -200,6 +200,12 @@ class GnssTask:
         except Exception:  # noqa: BLE001 - closing must not stop the shutdown
             log.exception("closing the GNSS source failed")
 
+    @property
+    def polled_when_readable(self) -> bool:
+        """The event loop polls this source whenever its descriptor is readable (a receiver on a serial port or
+        pty): nothing else needs to poll it to get its fixes in time."""
+        return self._fd >= 0
+
     def _follow_fd(self) -> None:
         """(Re-)register the backend's descriptor when it changed (a receiver re-opened after a loss)."""
         fd = self.backend.fileno()

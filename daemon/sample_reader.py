@@ -152,12 +152,30 @@ class SampleReader:
                 self.done.set_exception(exc)
 
     async def _read_batched(self) -> None:
-        """Replay: poll on a fixed absolute-deadline tick and process every sample that is due."""
-        loop, source, out = self.loop, self.source, self.outputs
-        period = 1.0 / self.poll_hz
-        deadline = loop.time()
-        while True:
-            deadline += period
+        """Replay and block sources (a reader thread or process, drivers.threaded_source / process_source): poll
+        on a fixed absolute-deadline tick and process every sample that is due.
+
+        Each tick is a loop callback at its deadline (`loop.call_at`, the clock and rounding of `asyncio.sleep`),
+        not a task resumed by a sleep: no future, no extra loop iteration to resume the task, 200 times a second.
+        """
+        loop = self.loop
+        self._tick_period_s = 1.0 / self.poll_hz
+        self._deadline = loop.time()
+        self._tick_handle: asyncio.TimerHandle | None = None
+        self.done = loop.create_future()
+        self._batch_step()
+        try:
+            await self.done
+        finally:
+            if self._tick_handle is not None:
+                self._tick_handle.cancel()
+
+    def _batch_step(self) -> None:
+        """One tick of the polled reader: poll, process, publish, schedule the next tick."""
+        loop, source, out, done = self.loop, self.source, self.outputs, self.done
+        period = self._tick_period_s
+        try:
+            self._deadline += period
             now = loop.time()
             self.counters.wakes += 1
             try:
@@ -165,24 +183,33 @@ class SampleReader:
             except Exception as exc:  # noqa: BLE001 - a bus failure (a threaded chip source reports it here)
                 self.on_driver_error(exc)
                 out.publish(now)      # only SYS_STATUS goes out now: the GCS sees the health bits cleared
-                await asyncio.sleep(DRIVER_RETRY_S)
-                deadline = loop.time()
-                continue
+                self._tick_handle = loop.call_later(DRIVER_RETRY_S, self._batch_retry)
+                return
             if samples:
                 self.process(samples, now)
                 out.batch_done(samples[-1].t_s)
             elif source.finished:
                 log.info("replay finished")
                 out.finished()
+                if not done.done():
+                    done.set_result(None)
                 return
             else:
                 self.health.empty_read(now)
             out.publish(now)
             after = loop.time()
-            if after - deadline > period:
+            if after - self._deadline > period:
                 self.counters.overruns += 1
-                deadline = after
-            await asyncio.sleep(max(0.0, deadline - after))
+                self._deadline = after
+            self._tick_handle = loop.call_at(max(after, self._deadline), self._batch_step)
+        except Exception as exc:  # noqa: BLE001 - a bug here ends the reader; run() exits non-zero
+            if not done.done():
+                done.set_exception(exc)
+
+    def _batch_retry(self) -> None:
+        """After a failed poll and DRIVER_RETRY_S: the tick restarts from now."""
+        self._deadline = self.loop.time()
+        self._batch_step()
 
     def process(self, samples, now: float) -> None:
         """The per-sample hot path: pipeline, listeners, health bookkeeping."""

@@ -16,6 +16,7 @@ import gc
 import logging
 import os
 import select
+import struct
 import time
 from types import SimpleNamespace
 
@@ -32,24 +33,42 @@ COUNTERS_EVERY_S = 0.25
 START_TIMEOUT_S = 120.0       # the child imports the drivers (and, simulated, the simulator) and starts the chip
 _RECORD = np.dtype([("t_s", "<f8"), ("gyro", "<f8", 3), ("accel", "<f8", 3), ("mag", "<f8", 3), ("temp_c", "<f8"),
                     ("supply_v", "<f8"), ("flags", "<i8"), ("diag", "<i8"), ("counter", "<i8")])
+_WRITABLE = select.POLLOUT | select.POLLERR
+
+
+_PACK_RECORD = struct.Struct("<12d3q").pack    # one _RECORD (packed, little-endian) from its 15 numbers
+assert struct.calcsize("<12d3q") == _RECORD.itemsize
 
 
 def pack(samples: list[ImuSample]) -> bytes:
-    rec = np.empty(len(samples), dtype=_RECORD)
-    for i, s in enumerate(samples):
-        rec[i] = (s.t_s, s.gyro_rad_s, s.accel_m_s2, s.mag_ut, s.temp_c, s.supply_v, int(s.flags), s.diag_stat,
-                  s.counter)
-    return rec.tobytes()
+    """Samples as _RECORD bytes (struct: a numpy record assignment per sample costs several times more)."""
+    p = _PACK_RECORD
+    return b"".join([p(s.t_s, *s.gyro_rad_s.tolist(), *s.accel_m_s2.tolist(), *s.mag_ut.tolist(), s.temp_c,
+                       s.supply_v, int(s.flags), s.diag_stat, s.counter) for s in samples])
+
+
+_FLAGS_BY_VALUE: dict[int, SampleFlags] = {}     # SampleFlags(v) goes through the enum machinery (µs a call)
+
+
+def _sample_flags(value: int) -> SampleFlags:
+    flags = _FLAGS_BY_VALUE.get(value)
+    if flags is None:
+        flags = SampleFlags(value)
+        if len(_FLAGS_BY_VALUE) < 4096:           # the flag combinations seen are few; bound it anyway
+            _FLAGS_BY_VALUE[value] = flags
+    return flags
 
 
 def unpack(data: bytes) -> list[ImuSample]:
+    """The samples of one or more packed blocks (`pack`), concatenated."""
     rec = np.frombuffer(data, dtype=_RECORD)
     # column by column (a field access per record and row costs more than the estimator's step)
     t, temp, supply = rec["t_s"].tolist(), rec["temp_c"].tolist(), rec["supply_v"].tolist()
     flags, diag, counter = rec["flags"].tolist(), rec["diag"].tolist(), rec["counter"].tolist()
     gyro, accel, mag = rec["gyro"].copy(), rec["accel"].copy(), rec["mag"].copy()
-    return [ImuSample(t[i], gyro[i], accel[i], mag[i], temp[i], supply[i], SampleFlags(flags[i]), diag[i],
-                      counter[i]) for i in range(len(rec))]
+    cached, as_flags = _FLAGS_BY_VALUE.get, _sample_flags
+    return [ImuSample(t[i], gyro[i], accel[i], mag[i], temp[i], supply[i], cached(flags[i]) or as_flags(flags[i]),
+                      diag[i], counter[i]) for i in range(len(t))]
 
 
 def _chip_truth(src) -> dict | None:
@@ -130,6 +149,9 @@ class _Handover:
         self.pending: list[ImuSample] = []
         self.sent = 0                 # samples sent to the daemon: all the reader handed over, at the end
         self.chunk_samples = self.CHUNK_SAMPLES
+        poller = select.poll()
+        poller.register(conn.fileno(), select.POLLOUT)
+        self._poll_out = poller.poll
         try:
             import socket
 
@@ -140,7 +162,8 @@ class _Handover:
             pass
 
     def _room(self) -> bool:
-        return bool(select.select([], [self.conn], [], 0)[1])
+        # what select() calls writable (POLLOUT or an error), from a poll object made once
+        return any(events & _WRITABLE for _fd, events in self._poll_out(0))
 
     realtime_sent = False
 
@@ -254,28 +277,35 @@ class ProcessSource(LiveSource):
             self.chip = _ChipView(truth)
         self.stats = {"blocks": 0, "samples": 0}
         self._last_polled: int | None = None
+        poller = select.poll()
+        poller.register(self._conn.fileno(), select.POLLIN)
+        self._ready = poller.poll
 
     def poll(self) -> list[ImuSample]:
+        """Every sample block the child sent since the last call, unpacked in one go (the child sends a block
+        every HANDOVER_S, the daemon polls less often: the per-block costs are paid once a poll)."""
         conn = self._conn
         if not self._started:
             self._started = True
             conn.send("go")
-        out: list[ImuSample] = []
+        blocks: list[bytes] = []
         error = None
+        # a poll object made once: Connection.poll(0) builds and registers a selector at every call (10 µs);
+        # HUP and errors are reported as ready too, and recv() then raises EOFError / OSError as before
+        ready = self._ready
         try:
-            while conn.poll(0):
+            while ready(0):
                 msg = conn.recv()
                 kind = msg[0]
                 if kind == "samples":
-                    out += unpack(msg[1])
-                    self.stats["blocks"] += 1
+                    blocks.append(msg[1])
                 elif kind == "counters":
                     self._counters = msg[1]
                     if msg[2] is not None and self.chip is not None:
                         self.chip.update(msg[2])
                 elif kind == "error":
                     error = _error(msg[1], msg[2])
-                    if out:
+                    if blocks:
                         break
                 elif kind == "realtime":
                     from ahrsd.drivers.threaded_source import log_realtime_priority
@@ -283,6 +313,8 @@ class ProcessSource(LiveSource):
                     log_realtime_priority("sensor reader process", msg[1])
         except (EOFError, OSError) as exc:
             raise driver_errors.BusError(f"the sensor reader process ended ({exc})") from exc
+        out = unpack(b"".join(blocks)) if blocks else []
+        self.stats["blocks"] += len(blocks)
         self.stats["samples"] += len(out)
         if not out and error is not None:
             raise error

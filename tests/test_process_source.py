@@ -323,3 +323,20 @@ def test_the_hand_over_sends_one_bounded_message_a_tick_and_never_blocks_a_real_
             break
         ticks(1)
     assert got == list(range(20000))
+
+
+def test_blocks_unpacked_together_keep_every_sample_its_own_flags_and_order():
+    """The daemon unpacks every block of a poll in one go, flags through a cache: each sample keeps its values."""
+    flags = [SampleFlags.NEW_DATA, SampleFlags.NONE, SampleFlags.NEW_DATA | SampleFlags.GAP_BEFORE,
+             SampleFlags.NEW_DATA | SampleFlags.ALARM | SampleFlags.GYRO_INVALID, SampleFlags.NEW_DATA,
+             SampleFlags.NEW_DATA | SampleFlags.GAP_BEFORE]
+    samples = [ImuSample(100.0 + k / 819.2, np.array([k, -k, 0.5 * k]), np.array([0.1, -9.8, k]),
+                         np.array([20.0 + k, -3.0, 41.5]), 24.0 + k, 5.0, f, 0x10 * k, 1000 + 2 * k)
+               for k, f in enumerate(flags)]
+    got = unpack(pack(samples[:2]) + pack(samples[2:5]) + pack(samples[5:]))
+    assert [(r.t_s, r.temp_c, r.supply_v, r.flags, r.diag_stat, r.counter) for r in got] == \
+        [(s.t_s, s.temp_c, s.supply_v, s.flags, s.diag_stat, s.counter) for s in samples]
+    assert all(type(r.flags) is SampleFlags for r in got)
+    for r, s in zip(got, samples):
+        for a, b in ((r.gyro_rad_s, s.gyro_rad_s), (r.accel_m_s2, s.accel_m_s2), (r.mag_ut, s.mag_ut)):
+            np.testing.assert_array_equal(a, b)
