@@ -280,11 +280,11 @@ def run_daemon_on_boat(tmp_path, hard_iron_error_ut=None, *, seconds=150.0, seed
             s = make_sample(t, block.gyro_rad_s[k], block.accel_m_s2[k], mag[k], flags=SampleFlags.NEW_DATA,
                             counter=k)
             svc.reader.process((s,), t)
+            n = len(sent)                        # every message sent at this sample gets its truth
             if t >= next_hk:                     # housekeeping's first two jobs at 10 Hz
                 next_hk = t + 0.1
                 svc._update_heading_status(t)
                 svc.health_report(t)
-            n = len(sent)
             svc.publishers.publish(t)
             for _ in range(len(sent) - n):
                 truth_at[len(truth_at)] = block.truth_q_wxyz[k]
