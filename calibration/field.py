@@ -56,6 +56,7 @@ from .mag.course_offset import (DEFAULT_MAX_TURN_RATE_DEG_S, DEFAULT_STRAIGHT_WI
 from .mag.offsets import fit_offsets_keep_soft_iron
 from .mag.fit import fit_mag
 from .mag.fit_types import MagFitInput
+from .heading_trust import calibration_heading_sigma_rad
 from .models import Calibration, MagModel
 from .mag.observability import algebraic_sphere_centre, compare_with_offsets
 from .mag.swing import DEFAULT_MIN_SPEED_M_S
@@ -392,6 +393,7 @@ class FieldCalibration:
             n = self._n
             return FitJob(
                 stage=self._fit_request, config=self.config, reference=self.reference, current=self.current.mag,
+                current_heading_std_deg=math.degrees(calibration_heading_sigma_rad(self.current)),
                 t=self._t[:n].copy(), raw=self._raw[:n].copy(), acc=self._acc[:n].copy(),
                 gyro=self._gyro[:n].copy(), rpy=self._rpy[:n].copy(), body_yaw=self._body_yaw[:n].copy(),
                 course=self._course[: self._n_course].copy(),
@@ -669,6 +671,7 @@ class FitJob:
     fit_function: FitFunction | None = None
     body_yaw: np.ndarray | None = None     # body yaw − sensor yaw per sample (rad)
     course: np.ndarray | None = None       # (k, 4): t_s, course_rad, ground speed m/s, speed accuracy m/s
+    current_heading_std_deg: float = math.nan   # the calibration in force's predicted heading 1σ (NaN: unknown)
 
     def __call__(self):
         try:
@@ -735,7 +738,8 @@ class FitJob:
             change = quality.get("full_vs_offsets", {}).get("offsets_heading_change_deg", math.nan)
             chosen = (offsets, "offsets", change, math.inf, ("soft iron (kept from the calibration in force)",))
         model, method, heading_std, offset_std, undetermined = chosen
-        model, offset_std, offset_source = self._heading_offset(model, offset_std, notes, quality)
+        model, offset_std, offset_source = self._heading_offset(model, offset_std, notes, quality,
+                                                                kept_soft_iron=method == "offsets")
         res = self._judge(model, method, quality, notes, partial=method == "offsets")
         return dataclasses.replace(res, heading_std_deg=float(heading_std), offset_std_deg=float(offset_std),
                                    offset_source=offset_source, undetermined=tuple(undetermined))
@@ -749,11 +753,18 @@ class FitJob:
             if fit_quality and k in fit_quality:
                 quality[f"{method}_{k}"] = fit_quality[k]
 
-    def _heading_offset(self, model: MagModel, offset_std: float, notes: list, quality: dict):
+    def _heading_offset(self, model: MagModel, offset_std: float, notes: list, quality: dict,
+                        kept_soft_iron: bool = False):
         """The constant heading offset from GNSS course (course_offset.py), folded into the soft iron when it
         is better known than the field fit's own; else what the offset rests on."""
         cfg = self.config
         source = "tilt" if offset_std <= cfg.max_offset_std_deg else "undetermined"
+        if kept_soft_iron and math.isfinite(self.current_heading_std_deg):
+            # an offsets-only refit keeps the soft iron in force, and with it the constant heading offset folded
+            # into it (fold_heading_offset): the offset is the in-force calibration's, known as well as that
+            # calibration said. Its whole predicted error is counted as this offset (its heading-dependent part
+            # is refitted here), so the figure errs on the large side.
+            offset_std, source = self.current_heading_std_deg, "calibration in force"
         if self.course is not None and len(self.course) and self.reference is not None:
             roll, pitch = self.rpy[:, 0], self.rpy[:, 1]
             psi = (np.radians(magnetic_heading_deg(model.apply(self.raw), roll, pitch))

@@ -204,3 +204,30 @@ def test_calibrated_input_is_unwrapped_to_raw():
     # and both are the iron the data were made with (not merely the same answer twice)
     for res in (a.result, b.result):
         assert np.linalg.norm(res.model.hard_iron_ut - HARD_IRON_UT) < 1.0, res.model.hard_iron_ut
+
+
+def test_an_offsets_only_refit_keeps_the_offset_of_a_calibration_that_stated_its_error():
+    """The same flat turns, but the calibration in force states its predicted heading error (as a field session
+    or `calibrate mag` records it). The refit keeps that calibration's soft iron, and with it its constant
+    heading offset, so the result is no longer "undetermined": its offset is the in-force one, with the in-force
+    figure, and the predicted heading error it then states covers the refitted heading's true error (scipy
+    truth). Without a GNSS course this is what keeps a recalibrated vehicle's heading known (docs/daemon.md)."""
+    from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad
+
+    traj = level_turns(tilt_deg=0.5)
+    current = Calibration.identity().with_sensor(
+        "mag", MagModel(HARD_IRON_UT + np.array([6.0, -5.0, 4.0]), np.linalg.inv(SOFT_DISTORTION)),
+        heading_std_deg=0.3, offset_std_deg=0.4)
+    session = FieldCalibration(current, FieldCalConfig(vehicle_type=VehicleType.LEVEL), SITE,
+                               samples_are_calibrated=False)
+    session.start()
+    feed(session, traj)
+    msgs = [text for _sev, text in session.pop_messages()]
+    res = session.result
+    assert res is not None and res.status == CalStatus.SUCCESS and res.method == "offsets"
+    assert res.offset_source == "calibration in force"
+    assert abs(res.offset_std_deg - 0.5) < 1e-9                      # hypot(0.3, 0.4): the in-force figure
+    assert any("offset +-0.5 deg (calibration in force)" in m for m in msgs), msgs
+    sigma_deg = np.degrees(calibration_heading_sigma_rad(res.proposed_calibration(current)))
+    assert np.isfinite(sigma_deg) and sigma_deg >= 0.5
+    assert heading_rms_deg(res.model, traj) <= 3 * sigma_deg
