@@ -157,7 +157,7 @@ class HeadingStatus:
         return f"{label} ±{math.degrees(self.sigma_rad):.1f}°"
 
     def calibration_caveat(self) -> str | None:
-        """Why the heading is no better: a magnetometer heading with no GNSS to check it rests on the calibration
+        """Why the heading is no better: a magnetometer heading with no GNSS fix to check it rests on the calibration
         alone, and the estimator's σ includes the calibration's predicted heading error (estimator/
         calibration_heading.py). With no calibration (or one of unknown quality) that error is unknown and the
         state UNKNOWN (ArduPilot refuses to arm then: "Compass not calibrated"); a calibration predicting more
@@ -223,10 +223,16 @@ class HeadingStatus:
         if self.initialising:
             return "sigma", f"uncertainty {sig} too large (magnetometer rejected?)"
         if est.flags & EstimateFlags.MAG_UNAVAILABLE:
+            if caveat == "mag not calibrated":
+                # the estimator's norm/dip check rejects an uncalibrated field whose iron makes it disagree with
+                # the Earth's: the magnetometer is there, its calibration is what is missing
+                return "no mag uncal", ("magnetometer not calibrated, its field rejected against the Earth's, and "
+                                        "no GNSS yaw; calibrate it (magcal)")
             return "no mag", "no magnetometer and no GNSS yaw"
         if caveat is not None:
             return "uncal", (f"{'magnetometer not calibrated' if caveat == 'mag not calibrated' else caveat} and no "
-                             "GNSS to check it, the vehicle's iron may turn it by any angle; calibrate it (magcal)")
+                             "GNSS fix to check it, the vehicle's iron may turn it by any angle; calibrate it "
+                             "(magcal)")
         if integrity is None:
             return "no gnss", "magnetometer not trusted, no GNSS yet"
         if not integrity.gsf_valid:
@@ -250,10 +256,10 @@ class HeadingStatus:
                 return mavlink.MAV_SEVERITY_INFO, f"ahrsd: heading from magnetometer ({sig})"
             if not math.isfinite(self.calibration_sigma_rad):     # an estimator whose σ cannot carry it
                 return mavlink.MAV_SEVERITY_WARNING, (
-                    f"ahrsd: heading from magnetometer ({sig}), mag not calibrated and no GNSS to check it: the "
+                    f"ahrsd: heading from magnetometer ({sig}), mag not calibrated and no GNSS fix to check it: the "
                     "vehicle's iron may turn it by any angle; calibrate it (magcal)")
             return mavlink.MAV_SEVERITY_WARNING, (
-                f"ahrsd: heading from magnetometer ({sig}, of it {caveat}), no GNSS to check it; a better "
+                f"ahrsd: heading from magnetometer ({sig}, of it {caveat}), no GNSS fix to check it; a better "
                 "calibration gives a better heading (magcal)")
         d = self.disagreement_rad
         by = f" by {abs(math.degrees(d)):.0f}°" if math.isfinite(d) else ""

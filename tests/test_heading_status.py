@@ -163,11 +163,25 @@ def test_without_gnss_and_calibration_the_heading_is_unknown_and_says_why():
     assert len(texts) == 2, texts
     sev, text = texts[-1]
     assert sev == mavlink.MAV_SEVERITY_WARNING and text.startswith(
-        "ahrsd: heading unknown: magnetometer not calibrated and no GNSS to check it") and "magcal" in text, text
+        "ahrsd: heading unknown: magnetometer not calibrated and no GNSS fix to check it") and "magcal" in text, text
     assert text.endswith("no heading sent")
     assert hs.status_text() == "hdg unknown uncal ±180.0°"
     assert hs.standby_detail() == "heading unknown (mag not calibrated), no heading out"
     assert not hs.heading_good and hs.unhealthy_bits() == msgs.SENSOR_MAG | msgs.SENSOR_AHRS
+
+
+def test_an_uncalibrated_magnetometer_the_estimator_rejects_is_named_as_not_calibrated_not_missing():
+    """The README tour's turning boat with no calibration: the estimator's norm/dip check rejects the iron-laden
+    field (MAG_UNAVAILABLE). The cause announced is the missing calibration, not "no magnetometer" (a user reads
+    that as a broken sensor); a calibrated magnetometer that is unavailable is still "no magnetometer"."""
+    for cal_deg, expected, unexpected in ((math.nan, "magnetometer not calibrated, its field rejected", "no magnetometer"),
+                                          (0.5, "no magnetometer and no GNSS yaw", "not calibrated")):
+        hs, texts = status(cal_sigma_deg=cal_deg)
+        for t in (1.0, 1.0 + ANNOUNCE_AFTER_S):
+            hs.on_estimate(estimate(HeadingState.UNKNOWN, 180.0, flags=EstimateFlags.MAG_UNAVAILABLE,
+                                    with_integrity=False), t)
+        text = texts[-1][1]
+        assert expected in text and unexpected not in text and text.endswith("no heading sent"), text
 
 
 def test_unknown_names_why_and_says_no_heading_is_sent():
@@ -312,7 +326,7 @@ def test_without_gnss_no_calibration_sends_no_heading_and_a_good_one_a_small_hon
     (0.5°)², and covers the error against the simulator's truth."""
     vpe, texts, svc, _ = run_daemon_on_boat(tmp_path / "none", None, seconds=40.0, estimator="mekf", gnss=False)
     assert vpe == []
-    assert any("magnetometer not calibrated and no GNSS to check it" in t for t in texts), texts
+    assert any("magnetometer not calibrated and no GNSS fix to check it" in t for t in texts), texts
     assert svc.heading_status.unhealthy_bits() & msgs.SENSOR_MAG
     assert svc.heading_status.status_text().startswith("hdg unknown uncal")
     vpe, texts, svc, _ = run_daemon_on_boat(tmp_path / "good", (0.0, 0.0, 0.0), seconds=40.0, estimator="mekf",
