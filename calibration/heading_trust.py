@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 NAN = math.nan
 
 
@@ -55,3 +57,17 @@ def calibration_heading_sigma_rad(calibration) -> float:
         if h > 1.0:
             return math.atan2(residual, h)
     return NAN
+
+
+def has_mag_calibration(calibration) -> bool:
+    """Whether `calibration` holds a magnetometer calibration at all (a fitted or stated model), as opposed to
+    none (no file, the identity, a gyro or accelerometer calibration alone). One that states no heading error
+    (`calibration_heading_sigma_rad` NaN: an older file, fixed-yaw offsets only) is in force but of unknown
+    quality: the daemon says so rather than "not calibrated"."""
+    if calibration is None:
+        return False
+    meta = calibration.metadata.get("mag") if isinstance(calibration.metadata, dict) else None
+    if isinstance(meta, dict):
+        return True
+    mag = calibration.mag
+    return not (np.array_equal(mag.hard_iron_ut, np.zeros(3)) and np.array_equal(mag.soft_iron, np.eye(3)))

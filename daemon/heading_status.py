@@ -45,6 +45,8 @@ class HeadingStatus:
     statustext(severity, text): sends one text to the ground station (may be longer than one STATUSTEXT).
     good_sigma_rad: largest yaw 1σ of a GNSS-held heading that is still "good".
     calibration_sigma_rad: the calibration's predicted heading error, 1σ (NaN: none); `set_calibration_sigma`.
+    calibration_in_force: a magnetometer calibration is in force (with a NaN σ: one that states no heading error,
+    said as such rather than "not calibrated").
 
     `on_estimate(est, now, yaw_resets)` at the housekeeping rate (the estimator's `yaw_resets` counter: each
     new reset is announced; the published yaw does not step, see estimator/published_heading.py, so
@@ -53,10 +55,11 @@ class HeadingStatus:
     """
 
     def __init__(self, statustext: Callable[[int, str], None], *, good_sigma_rad: float,
-                 calibration_sigma_rad: float = math.nan):
+                 calibration_sigma_rad: float = math.nan, calibration_in_force: bool = False):
         self.statustext = statustext
         self.good_sigma_rad = float(good_sigma_rad)
         self.calibration_sigma_rad = float(calibration_sigma_rad)
+        self.calibration_in_force = bool(calibration_in_force)
         self.state: HeadingState | None = None       # the latest estimate's state (None: no estimate yet)
         self.sigma_rad = math.nan
         self.disagreement_rad = math.nan              # magnetometer − GNSS yaw (NaN: no valid GNSS yaw)
@@ -73,8 +76,16 @@ class HeadingStatus:
         self._good_since: float | None = None        # when a GNSS-held heading last became good enough
         self._now = -math.inf
 
-    def set_calibration_sigma(self, sigma_rad: float) -> None:
+    def set_calibration_sigma(self, sigma_rad: float, in_force: bool | None = None) -> None:
         self.calibration_sigma_rad = float(sigma_rad)
+        if in_force is not None:
+            self.calibration_in_force = bool(in_force)
+
+    def _no_figure(self, short: bool) -> str:
+        """A calibration's heading error unknown (NaN σ): none in force, or one that states no figure."""
+        if self.calibration_in_force:
+            return "mag cal states no error" if short else "magnetometer calibration states no heading error"
+        return "mag not calibrated" if short else "magnetometer not calibrated"
 
     # ------------------------------------------------------------------ inputs
     def on_estimate(self, est, now: float, yaw_resets: int = 0, gnss_yaw_alignments: int = 0) -> None:
@@ -168,7 +179,7 @@ class HeadingStatus:
             return None
         cal = self.calibration_sigma_rad
         if not math.isfinite(cal):
-            return "mag not calibrated"
+            return self._no_figure(short=True)
         if cal > TRUSTED_CALIBRATION_RAD:
             return f"mag cal ±{math.degrees(cal):.0f}°"
         return None
@@ -223,14 +234,14 @@ class HeadingStatus:
         if self.initialising:
             return "sigma", f"uncertainty {sig} too large (magnetometer rejected?)"
         if est.flags & EstimateFlags.MAG_UNAVAILABLE:
-            if caveat == "mag not calibrated":
+            if caveat is not None and not self.calibration_in_force and not math.isfinite(self.calibration_sigma_rad):
                 # the estimator's norm/dip check rejects an uncalibrated field whose iron makes it disagree with
                 # the Earth's: the magnetometer is there, its calibration is what is missing
                 return "no mag uncal", ("magnetometer not calibrated, its field rejected against the Earth's, and "
                                         "no GNSS yaw; calibrate it (magcal)")
             return "no mag", "no magnetometer and no GNSS yaw"
         if caveat is not None:
-            return "uncal", (f"{'magnetometer not calibrated' if caveat == 'mag not calibrated' else caveat} and no "
+            return "uncal", (f"{self._no_figure(short=False) if not math.isfinite(self.calibration_sigma_rad) else caveat} and no "
                              "GNSS fix to check it, the vehicle's iron may turn it by any angle; calibrate it "
                              "(magcal)")
         if integrity is None:
@@ -256,7 +267,7 @@ class HeadingStatus:
                 return mavlink.MAV_SEVERITY_INFO, f"ahrsd: heading from magnetometer ({sig})"
             if not math.isfinite(self.calibration_sigma_rad):     # an estimator whose σ cannot carry it
                 return mavlink.MAV_SEVERITY_WARNING, (
-                    f"ahrsd: heading from magnetometer ({sig}), mag not calibrated and no GNSS fix to check it: the "
+                    f"ahrsd: heading from magnetometer ({sig}), {self._no_figure(short=True)} and no GNSS fix to check it: the "
                     "vehicle's iron may turn it by any angle; calibrate it (magcal)")
             return mavlink.MAV_SEVERITY_WARNING, (
                 f"ahrsd: heading from magnetometer ({sig}, of it {caveat}), no GNSS fix to check it; a better "
@@ -265,8 +276,8 @@ class HeadingStatus:
         by = f" by {abs(math.degrees(d)):.0f}°" if math.isfinite(d) else ""
         disagrees = self.mag_inconsistent
         if not math.isfinite(self.calibration_sigma_rad):
-            cause = f"magnetometer disagrees with GNSS{by}: magnetometer not calibrated" if disagrees \
-                else "magnetometer not calibrated"
+            cause = f"magnetometer disagrees with GNSS{by}: {self._no_figure(short=False)}" if disagrees \
+                else self._no_figure(short=False)
         elif disagrees:
             cause = f"magnetometer disagrees with GNSS{by}: calibration wrong or iron changed"
         else:

@@ -49,7 +49,7 @@ from ahrsd.daemon.housekeeping import Every, HealthReport, Housekeeping
 from ahrsd.daemon.inbound import InboundDispatch
 from ahrsd.daemon.learned_iron import ACTION_PARAM as LEARNED_IRON_ACTION
 from ahrsd.daemon.learned_iron import CMD_LEARNED_IRON, LearnedIron
-from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad
+from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad, has_mag_calibration
 from ahrsd.daemon.magcal import DaemonMagCalHost, FieldCalibrationPart, MagCalProtocol
 from ahrsd.daemon.magcal_settings import MagCalSettings
 from ahrsd.daemon.mavlink_io import mavlink
@@ -357,6 +357,7 @@ class Service:
         pipeline = self.pipeline
         pipeline.set_mounting([self.params.get(n) for n in MOUNTING_PARAMS])
         self.heading_status = HeadingStatus(LongStatusText(self.outbound.send), calibration_sigma_rad=mag_sigma_rad,
+                                            calibration_in_force=has_mag_calibration(calibration),
                                             good_sigma_rad=math.radians(cfg.outputs.heading_good_sigma_deg))
         self.learned_iron = LearnedIron(
             self.state_dir, pipeline, publish=self.params.show, statustext=self.outbound.statustext,
@@ -481,7 +482,7 @@ class Service:
         if isinstance(est, MagCalibrationAwareEstimator):      # mekf, ins
             est.set_mag_calibration_sigma(sigma)
         if self.heading_status is not None:
-            self.heading_status.set_calibration_sigma(sigma)
+            self.heading_status.set_calibration_sigma(sigma, in_force=has_mag_calibration(cal))
         if self.learned_iron is not None:
             self.learned_iron.calibration_changed()
 

@@ -184,6 +184,57 @@ def test_an_uncalibrated_magnetometer_the_estimator_rejects_is_named_as_not_cali
         assert expected in text and unexpected not in text and text.endswith("no heading sent"), text
 
 
+def test_a_calibration_that_states_no_error_is_named_as_such_not_as_missing():
+    """A magnetometer calibration in force that states no heading error (an older file, fixed-yaw offsets only)
+    leaves the heading as unknown as none does, but the operator is told what is true: the calibration states
+    no error, not that the magnetometer is not calibrated."""
+    for in_force, expected, unexpected in ((True, "magnetometer calibration states no heading error", "not calibrated"),
+                                           (False, "magnetometer not calibrated", "states no")):
+        texts = []
+        hs = HeadingStatus(lambda sev, text: texts.append((sev, text)), good_sigma_rad=5.0 * DEG,
+                           calibration_sigma_rad=math.nan, calibration_in_force=in_force)
+        for t in (1.0, 1.0 + ANNOUNCE_AFTER_S):
+            hs.on_estimate(estimate(HeadingState.UNKNOWN, 180.0, with_integrity=False), t)
+        text = texts[-1][1]
+        assert expected in text and unexpected not in text, text
+        assert (hs.standby_detail() == "heading unknown (mag cal states no error), no heading out") == in_force
+
+
+def test_has_mag_calibration_tells_none_from_one_without_a_figure():
+    from ahrsd.calibration.heading_trust import has_mag_calibration
+    from ahrsd.calibration.models import Calibration, GyroModel, MagModel
+
+    assert not has_mag_calibration(None)
+    assert not has_mag_calibration(Calibration.identity())
+    assert not has_mag_calibration(Calibration.identity().with_sensor("gyro", GyroModel.identity(), method="x"))
+    assert has_mag_calibration(Calibration.identity().with_sensor("mag", MagModel.identity(), method="fixed-yaw"))
+    no_meta = Calibration(mag=MagModel(np.array([1.0, 0.0, 0.0]), np.eye(3)))
+    assert has_mag_calibration(no_meta)
+
+
+def test_the_service_tells_the_heading_status_whether_a_calibration_is_in_force(tmp_path):
+    """Started on a state directory with a magnetometer calibration that states no figure, and on an empty one;
+    then a calibration change to the identity (the service's calibration path)."""
+    from ahrsd.calibration.models import Calibration, MagModel
+    from ahrsd.calibration.store import CalibrationStore
+    from ahrsd.daemon.config import EndpointConfig, EstimatorConfig
+    from service_rig import start_service_on, stop_service
+
+    CalibrationStore(tmp_path / "old").save(Calibration.identity().with_sensor(
+        "mag", MagModel(np.array([3.0, -2.0, 1.0]), np.eye(3)), method="older file"))
+    (tmp_path / "empty").mkdir()
+    for sub, in_force in (("old", True), ("empty", False)):
+        svc, loop = start_service_on((EndpointConfig("udpout:127.0.0.1:9"),), tmp_path / sub,
+                                     estimator=EstimatorConfig("mekf"))
+        try:
+            assert svc.heading_status.calibration_in_force is in_force
+            assert math.isnan(svc.heading_status.calibration_sigma_rad)
+            svc._on_calibration_applied(Calibration.identity())
+            assert svc.heading_status.calibration_in_force is False
+        finally:
+            stop_service(svc, loop)
+
+
 def test_unknown_names_why_and_says_no_heading_is_sent():
     hs, texts = status()
     hs.on_estimate(estimate(HeadingState.UNKNOWN, 30.0, flags=EstimateFlags.INITIALISING), 0.0)
