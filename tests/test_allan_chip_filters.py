@@ -37,6 +37,17 @@ def _filtered_white(samples: int, taps: np.ndarray, rng) -> np.ndarray:
                             for _ in range(3)])
 
 
+def assert_white_only_at_the_density(x, label):
+    """Every gyro axis of `x` (at RATE_HZ) reads white noise only, at DENSITY within 4 of its own σ (< 10 %)."""
+    result = analyse_static(np.arange(len(x)) / RATE_HZ, gyro_rad_s=x)
+    for axis, p in result.parameters["gyro"].items():
+        white = p.terms.get("white")
+        assert white is not None and set(p.terms) == {"white"}, (axis, p.flags)
+        print(f"{label} {axis}: white {white.value / DENSITY - 1:+.1%} ± {white.uncertainty / DENSITY:.1%}")
+        assert white.uncertainty < 0.1 * DENSITY, axis
+        assert abs(white.value - DENSITY) < 4 * white.uncertainty, axis
+
+
 @pytest.mark.parametrize("n, seconds", [(5, 120), (7, 150)])
 def test_white_noise_through_a_long_window_is_its_density_and_no_other_term(n, seconds):
     # These windows correlate samples over 41 and 162 lags; read as "slow processes", their bend was fitted as
@@ -44,13 +55,7 @@ def test_white_noise_through_a_long_window_is_its_density_and_no_other_term(n, s
     taps = _window(n)
     samples = int(seconds * RATE_HZ)
     x = _filtered_white(samples, taps, np.random.default_rng(40 + n))
-    result = analyse_static(np.arange(samples) / RATE_HZ, gyro_rad_s=x)
-    for axis, p in result.parameters["gyro"].items():
-        white = p.terms.get("white")
-        assert white is not None and set(p.terms) == {"white"}, (axis, p.flags)
-        print(f"N={n} {axis}: white {white.value / DENSITY - 1:+.1%} ± {white.uncertainty / DENSITY:.1%}")
-        assert white.uncertainty < 0.1 * DENSITY, axis
-        assert abs(white.value - DENSITY) < 4 * white.uncertainty, axis
+    assert_white_only_at_the_density(x, f"N={n}")
     correlation = SampleCorrelation()
     correlation.add(x)
     length, deficit = _window_truth(taps)
@@ -100,13 +105,7 @@ def test_the_longest_window_is_read_through_the_chips_14_bit_steps():
     x = _filtered_white(samples, taps, np.random.default_rng(70))
     lsb = DENSITY * np.sqrt(RATE_HZ) * np.sqrt(np.sum(taps**2)) / 1.4
     x = np.round(x / lsb) * lsb
-    result = analyse_static(np.arange(samples) / RATE_HZ, gyro_rad_s=x)
-    for axis, p in result.parameters["gyro"].items():
-        white = p.terms.get("white")
-        assert white is not None and set(p.terms) == {"white"}, (axis, p.flags)
-        print(f"14-bit N=7 {axis}: white {white.value / DENSITY - 1:+.1%} ± {white.uncertainty / DENSITY:.1%}")
-        assert white.uncertainty < 0.1 * DENSITY, axis
-        assert abs(white.value - DENSITY) < 4 * white.uncertainty, axis
+    assert_white_only_at_the_density(x, "14-bit N=7")
 
 
 def test_a_strong_short_gauss_markov_is_not_taken_for_a_window():

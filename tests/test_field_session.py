@@ -108,18 +108,24 @@ def test_tumble_with_position_uses_the_vertical_channel_and_strong_hard_iron_sti
     assert np.allclose(res.model.soft_iron @ SOFT_DISTORTION, np.eye(3), atol=0.01)
 
 
-def test_flat_turns_keep_a_good_soft_iron_and_fit_offsets_only_with_clear_message():
-    """±0.5° of tilt, the soft iron in force already right, the hard iron off by ~10 µT: the full fit's own
-    predicted heading error is larger than the change it would make, so only the offsets are refitted."""
+def flat_turns_on_a_right_soft_iron(**stated):
+    """±0.5° of tilt, the calibration in force with the right soft iron and the hard iron ~10 µT off (its
+    metadata: `stated`); a field session run to its result. Returns (calibration in force, result, messages,
+    trajectory)."""
     traj = level_turns(tilt_deg=0.5)
     current = Calibration.identity().with_sensor(
-        "mag", MagModel(HARD_IRON_UT + np.array([6.0, -5.0, 4.0]), np.linalg.inv(SOFT_DISTORTION)))
+        "mag", MagModel(HARD_IRON_UT + np.array([6.0, -5.0, 4.0]), np.linalg.inv(SOFT_DISTORTION)), **stated)
     session = FieldCalibration(current, FieldCalConfig(vehicle_type=VehicleType.LEVEL), SITE,
                                samples_are_calibrated=False)
     session.start()
     feed(session, traj)
-    msgs = [text for _sev, text in session.pop_messages()]
-    res = session.result
+    return current, session.result, [text for _sev, text in session.pop_messages()], traj
+
+
+def test_flat_turns_keep_a_good_soft_iron_and_fit_offsets_only_with_clear_message():
+    """±0.5° of tilt, the soft iron in force already right, the hard iron off by ~10 µT: the full fit's own
+    predicted heading error is larger than the change it would make, so only the offsets are refitted."""
+    current, res, msgs, _traj = flat_turns_on_a_right_soft_iron()
     assert res is not None and res.status == CalStatus.SUCCESS
     cmp = res.quality["full_vs_offsets"]
     assert not cmp["use_full"] and cmp["full_heading_std_deg"] > cmp["offsets_heading_change_deg"]
@@ -214,16 +220,7 @@ def test_an_offsets_only_refit_keeps_the_offset_of_a_calibration_that_stated_its
     truth). Without a GNSS course this is what keeps a recalibrated vehicle's heading known (docs/daemon.md)."""
     from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad
 
-    traj = level_turns(tilt_deg=0.5)
-    current = Calibration.identity().with_sensor(
-        "mag", MagModel(HARD_IRON_UT + np.array([6.0, -5.0, 4.0]), np.linalg.inv(SOFT_DISTORTION)),
-        heading_std_deg=0.3, offset_std_deg=0.4)
-    session = FieldCalibration(current, FieldCalConfig(vehicle_type=VehicleType.LEVEL), SITE,
-                               samples_are_calibrated=False)
-    session.start()
-    feed(session, traj)
-    msgs = [text for _sev, text in session.pop_messages()]
-    res = session.result
+    current, res, msgs, traj = flat_turns_on_a_right_soft_iron(heading_std_deg=0.3, offset_std_deg=0.4)
     assert res is not None and res.status == CalStatus.SUCCESS and res.method == "offsets"
     assert res.offset_source == "calibration in force"
     assert abs(res.offset_std_deg - 0.5) < 1e-9                      # hypot(0.3, 0.4): the in-force figure
