@@ -771,7 +771,7 @@ class Ins:
             self._confirmed_gyro_bias = self._x["gyro_bias_rad_s"].copy()
             self._confirmed_accel_bias = self._x["accel_bias_m_s2"].copy()
         if d.yaw_var_floor_rad2 > 0.0:
-            # the magnetometer was just rejected: the heading it held is unconfirmed again (the hold below)
+            # the magnetometer was just rejected: the heading it held is unconfirmed again (`_confirm_heading`)
             self._heading_confirmed = False
             self._bias_heading_confirmed = False
         if d.yaw_var_floor_rad2 > P[core.E_YAW, core.E_YAW]:
