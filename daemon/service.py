@@ -74,7 +74,7 @@ from ahrsd.drivers.source import SensorSource, open_source
 from ahrsd.daemon.broadcast_notice import BroadcastNotice
 from ahrsd.estimator import make_estimator
 from ahrsd.daemon.estimator_news import estimator_news_muted
-from ahrsd.estimator.base import HeadingCheckedEstimator, MagCalibrationAwareEstimator
+from ahrsd.estimator.base import Estimator, HeadingCheckedEstimator, MagCalibrationAwareEstimator
 from ahrsd.estimator.warm_up import warm_up
 
 log = logging.getLogger(__name__)
@@ -327,8 +327,36 @@ class Service:
         self.request_stop(0)
 
     def start(self) -> None:
-        """Build the parts that need the pipeline, the endpoints or the source, and open them."""
-        cfg = self.config
+        """Build the parts that need the pipeline, the endpoints or the source, and open them, in this order:
+        the state (directory, parameters, restart rule, declination), the pipeline with its estimator, the
+        heading parts, the MAVLink endpoints and the logs, the field calibration and the NMEA outputs, the
+        sensor source, the commands, the GNSS task, the inbound dispatch and the reader's outputs, and last
+        the status line, the start-up log line and the first heartbeat."""
+        self._load_state()
+        calibration = CalibrationStore(self.state_dir).load()
+        self._compile_estimator()
+        mag_sigma_rad = calibration_heading_sigma_rad(calibration)    # the calibration's heading error (NaN: unknown)
+        self.use_pipeline(Pipeline(self._make_estimator(mag_sigma_rad), calibration))
+        self.pipeline.set_mounting([self.params.get(n) for n in MOUNTING_PARAMS])
+        self._start_heading_parts(mag_sigma_rad)
+        self._setup_signing()
+        self._open_endpoints()
+        self.logs.start(self.pipeline.calibration, self.outbound.endpoints)   # raw samples and MAVLink traffic
+        self._start_field_calibration()
+        self._open_nmea()
+        if self.source is None:
+            self.source = open_source(self.config.sensor, clock=time.monotonic)
+        self._register_builtin_commands()
+        self._open_gnss()
+        self.inbound = self.build_inbound()
+        self.reader.source = self.source
+        self.reader.outputs.raw_sink = self.logs.put_sample
+        self._start_status_line()
+        self._announce_start()
+
+    def _load_state(self) -> None:
+        """The state directory (a warning when unusable: nothing persists), the parameters saved in it, the
+        restart rule and the declination at start."""
         try:
             self.state_dir.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -338,14 +366,20 @@ class Service:
             log.warning("%s", warning)
         self.start_restart_rule()
         self.declination.resolve(initial=True)
-        calibration = CalibrationStore(self.state_dir).load()
+
+    def _compile_estimator(self) -> None:
+        """Compile the estimator before the loop, not on its first sample/fix."""
+        name = self.config.estimator_name
         started = time.monotonic()
         with estimator_news_muted():
-            warm_up(cfg.estimator_name)             # compile before the loop, not on its first sample/fix
+            warm_up(name)
         if time.monotonic() - started > 1.0:
-            log.info("compiled the %s estimator in %.1f s (cached for the next start)", cfg.estimator_name,
+            log.info("compiled the %s estimator in %.1f s (cached for the next start)", name,
                      time.monotonic() - started)
-        mag_sigma_rad = calibration_heading_sigma_rad(calibration)    # the calibration's heading error (NaN: unknown)
+
+    def _make_estimator(self, mag_sigma_rad: float) -> Estimator:
+        """The configured estimator at the declination, told the calibration's heading error (NaN: unknown)."""
+        cfg = self.config
         options = dict(cfg.estimator_options)
         if cfg.estimator_name == "ins":
             options["mag_calibration_sigma_rad"] = mag_sigma_rad
@@ -353,23 +387,29 @@ class Service:
         if "mag_calibration_sigma_rad" not in options and isinstance(estimator, MagCalibrationAwareEstimator):
             # mekf: without GNSS its published yaw σ carries the calibration's error (estimator/calibration_heading.py)
             estimator.set_mag_calibration_sigma(mag_sigma_rad)
-        self.use_pipeline(Pipeline(estimator, calibration))
-        pipeline = self.pipeline
-        pipeline.set_mounting([self.params.get(n) for n in MOUNTING_PARAMS])
+        return estimator
+
+    def _start_heading_parts(self, mag_sigma_rad: float) -> None:
+        """The heading status reported (daemon.heading_status) and the learned iron restored and its command
+        registered (daemon.learned_iron)."""
+        cfg = self.config
         self.heading_status = HeadingStatus(LongStatusText(self.outbound.send), calibration_sigma_rad=mag_sigma_rad,
                                             calibration_in_force=has_mag_calibration(calibration),
                                             good_sigma_rad=math.radians(cfg.outputs.heading_good_sigma_deg))
         self.learned_iron = LearnedIron(
-            self.state_dir, pipeline, publish=self.params.show, statustext=self.outbound.statustext,
+            self.state_dir, self.pipeline, publish=self.params.show, statustext=self.outbound.statustext,
             armed=lambda: bool(self.autopilot.armed), background=self._in_background,
             apply_calibration=lambda cal: self.apply_calibration(cal, reason="learned iron accepted"),
             horizontal_field_ut=self._horizontal_field_ut,
             allow_armed=(cfg.magcal or MagCalSettings()).allow_armed)
         self.learned_iron.restore()
         self.commands.register(CMD_LEARNED_IRON, self.learned_iron.handle_command)
-        self._setup_signing()
+
+    def _open_endpoints(self) -> None:
+        """Every configured MAVLink endpoint, with its own output schedule (daemon.endpoint_outputs), signed
+        when there is a key, opened and its link budget checked."""
+        cfg = self.config
         for ep_cfg in cfg.endpoints:
-            # its own output schedule (daemon.endpoint_outputs)
             ep = self.endpoint_outputs.make_endpoint(ep_cfg, self._on_message)
             if self.signing_key is not None:
                 ep.enable_signing(self.signing_key, cfg.signing.link_id, initial_timestamp(self.state_dir),
@@ -377,45 +417,63 @@ class Service:
             ep.open(self.loop)
             self.outbound.endpoints.append(ep)
             self.endpoint_outputs.check_link_budget(ep)
-        self.logs.start(pipeline.calibration, self.outbound.endpoints)   # raw samples and MAVLink traffic
-        host = DaemonMagCalHost(pipeline, self.swap, self.outbound, self.autopilot, self.positions,
+
+    def _start_field_calibration(self) -> None:
+        """The field magnetometer calibration (daemon.magcal), fed every sample."""
+        host = DaemonMagCalHost(self.pipeline, self.swap, self.outbound, self.autopilot, self.positions,
                                 self.heading.slew)
-        self.field_calibration = FieldCalibrationPart(host, cfg.magcal or MagCalSettings(), commands=self.commands,
-                                                      autopilot=self.autopilot, set_calibrating=self.set_calibrating)
+        self.field_calibration = FieldCalibrationPart(host, self.config.magcal or MagCalSettings(),
+                                                      commands=self.commands, autopilot=self.autopilot,
+                                                      set_calibrating=self.set_calibrating)
         self.listeners.add(self.field_calibration.on_sample)
-        if cfg.nmea:
-            self.nmea = NmeaOutputs(cfg.nmea)
+
+    def _open_nmea(self) -> None:
+        """The [[nmea]] heading outputs, fed every estimate (none without any)."""
+        if self.config.nmea:
+            self.nmea = NmeaOutputs(self.config.nmea)
             self.nmea.open(self.loop)
             self.listeners.add(lambda _sample, est: self.nmea.on_estimate(est))
-        if self.source is None:
-            self.source = open_source(cfg.sensor, clock=time.monotonic)
+
+    def _register_builtin_commands(self) -> None:
+        """The daemon's own MAVLink commands (daemon.builtin_commands)."""
         BuiltinCommands(endpoint_outputs=self.endpoint_outputs, publishers=self.publishers, outbound=self.outbound,
                         health=self.health, autopilot=self.autopilot,
                         field_calibration=self.field_calibration.protocol,
                         start_gyro_calibration=self._start_gyro_calibration,
                         call_soon=self.loop.call_soon).register(self.commands)
-        if cfg.gnss.source != "none":     # once the sensor source is open: a simulated receiver runs on its clock
-            backend = gnss_backend_for(cfg.gnss, clock=time.monotonic, sensor=cfg.sensor,
-                                       scenario_clock=self.source.chip.now if cfg.gnss.source == "sim" else None,
-                                       replay_time_s=newest_sample_time(pipeline))
-            self.gnss = GnssTask(backend, cfg.gnss, clock=time.monotonic, estimator=pipeline,
-                                 statustext=self.outbound.statustext, log_fix=self.logs.log_gnss_fix,
-                                 subscribers=[on_first_fix(self.declination.on_gnss_position)],
-                                 rejection_cause=self.heading_status.rejection_cause)
-            self.gnss.open(self.loop)
-        self.inbound = self.build_inbound()
-        self.reader.source = self.source
-        self.reader.outputs.raw_sink = self.logs.put_sample
-        want_line = cfg.daemon.status_line == "on" or (cfg.daemon.status_line == "auto" and self._stdout.isatty())
+
+    def _open_gnss(self) -> None:
+        """The GNSS task over the configured backend (none without a [gnss] source). It opens after the sensor
+        source: a simulated receiver runs on the simulated chip's clock."""
+        cfg = self.config
+        if cfg.gnss.source == "none":
+            return
+        backend = gnss_backend_for(cfg.gnss, clock=time.monotonic, sensor=cfg.sensor,
+                                   scenario_clock=self.source.chip.now if cfg.gnss.source == "sim" else None,
+                                   replay_time_s=newest_sample_time(self.pipeline))
+        self.gnss = GnssTask(backend, cfg.gnss, clock=time.monotonic, estimator=self.pipeline,
+                             statustext=self.outbound.statustext, log_fix=self.logs.log_gnss_fix,
+                             subscribers=[on_first_fix(self.declination.on_gnss_position)],
+                             rejection_cause=self.heading_status.rejection_cause)
+        self.gnss.open(self.loop)
+
+    def _start_status_line(self) -> None:
+        """The live status line: `[daemon] status_line` on, or auto on a TTY."""
+        mode = self.config.daemon.status_line
+        want_line = mode == "on" or (mode == "auto" and self._stdout.isatty())
         self.status_line = StatusLine(self._stdout) if want_line else None
         if self.status_line is not None:
             self.status_line.install_log_filter()
+
+    def _announce_start(self) -> None:
+        """The start-up log line and systemd status, the health report, and the first heartbeat (routers learn
+        us from our first packet)."""
         log.info("ahrsd started: %s, GNSS %s, estimator %s, declination %.2f° (%s), MAVLink %s as %d/%d, state in %s",
-                 self.source.description, self.gnss.description if self.gnss else "none", cfg.estimator_name,
+                 self.source.description, self.gnss.description if self.gnss else "none", self.config.estimator_name,
                  math.degrees(self.declination.rad), self.declination.source,
                  ", ".join(e.url for e in self.endpoints), self.system_id, self.component_id, self.state_dir)
         self.notifier.status(f"starting: {self.source.description}")
-        self.health_report = HealthReport(self.health, self.outbound, self.notifier, pipeline.counters,
+        self.health_report = HealthReport(self.health, self.outbound, self.notifier, self.pipeline.counters,
                                           watchdog_interval_s=watchdog_interval_s(self.environ),
                                           start=self.loop.time(), standby_detail=self.heading_status.standby_detail,
                                           active_detail=self.heading_status.active_detail)

@@ -31,7 +31,7 @@ from . import ins_core as core
 from . import mag_heading as mag
 from .calibration_heading import calibration_heading_variance_rad2
 from .gsf_yaw import GsfParams, gsf_fuse_velocity, gsf_output, gsf_reset, new_gsf_state
-from .heading_monitor import HeadingMonitor, IronLearner, wrap_pi
+from .heading_monitor import HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
                             float_field_slice, uninitialised_estimate)
 from .initial_attitude import initial_attitude
@@ -699,12 +699,33 @@ class Ins:
         return self._field_ned
 
     def _check_heading(self, t_s: float) -> None:
-        p = self.params
-        x, P = self._x, self._P
+        """The heading checks at a fused fix, in order: the magnetometer's and the GNSS yaw bank's headings, the
+        monitor's decision on them, what it does to the yaw (a floor, a reset or the alignment to the GNSS yaw, or
+        a confirmation), the magnetometer's use in the kernel, the iron learning, then what is published."""
+        x = self._x
         c_bn = np.asarray(quat_to_dcm(x["q"]), dtype=float)
         yaw = math.atan2(c_bn[1, 0], c_bn[0, 0])
-        yaw_var = float(P[core.E_YAW, core.E_YAW])
+        yaw_var = float(self._P[core.E_YAW, core.E_YAW])
         m_body = self._iron.corrected(x["mag_last_ut"])
+        mag_yaw, mag_var, noise = self._magnetometer_heading(c_bn, yaw, m_body)
+        gsf_yaw, gsf_var, gsf_valid = self._gnss_yaw()
+        d = self._monitor_decision(t_s, yaw, yaw_var, mag_yaw, mag_var, noise, gsf_yaw, gsf_var, gsf_valid)
+        yaw_reset_to = self._reset_or_confirm_yaw(t_s, d, yaw, gsf_yaw, gsf_var, gsf_valid)
+        self._set_accel_bias_learning()
+        self._set_magnetometer_use(d, mag_var, noise)
+        # the monitor says no learning on a check that reset the yaw (c_bn is the attitude before the reset, P its
+        # covariance after it): the next check learns with the new yaw
+        if self.params.iron_learning and self._monitor.learning and np.all(np.isfinite(m_body)) \
+                and self._x["nav_ok"] > 0:
+            self._learn_iron(t_s, c_bn)
+        yaw_now = yaw if yaw_reset_to is None else wrap_pi(yaw_reset_to)
+        self._publish_heading_checks(yaw_now, gsf_yaw, gsf_var, gsf_valid)
+
+    def _magnetometer_heading(self, c_bn: np.ndarray, yaw: float, m_body: np.ndarray) -> tuple[float, float, float]:
+        """The yaw the magnetometer (iron-corrected, body frame µT) gives with the attitude c_bn, its variance and
+        the white (noise) part of that variance, rad²: (NaN, inf, 0) when the field is not finite or has no
+        horizontal component."""
+        p = self.params
         mag_yaw = math.nan
         mag_var = math.inf
         noise = 0.0
@@ -721,21 +742,36 @@ class Ins:
                     # hard-iron error; what a hard iron cannot explain stays
                     mag_var = min(p.calibration_sigma_rad ** 2, (p.iron_unmodelled_ut / h) ** 2) + noise \
                         + self._iron.heading_variance(c_bn, m_ned)
-        gsf_yaw, gsf_var, gsf_valid = math.nan, math.inf, False
-        if p.gnss_yaw:
+        return mag_yaw, mag_var, noise
+
+    def _gnss_yaw(self) -> tuple[float, float, bool]:
+        """The GNSS yaw bank's yaw, its variance (rad²) and whether it is valid: (NaN, inf, False) without the
+        bank (gnss_yaw off) or before it has a finite yaw."""
+        if self.params.gnss_yaw:
             y, sg, valid, _ = gsf_output(self._gsf)
             if math.isfinite(y) and math.isfinite(sg):
-                gsf_yaw, gsf_var, gsf_valid = float(y), float(sg) ** 2, bool(valid)
+                return float(y), float(sg) ** 2, bool(valid)
+        return math.nan, math.inf, False
+
+    def _monitor_decision(self, t_s: float, yaw: float, yaw_var: float, mag_yaw: float, mag_var: float,
+                          noise: float, gsf_yaw: float, gsf_var: float, gsf_valid: bool) -> MonitorDecision:
+        """The heading monitor's check of the filter's yaw against the magnetometer's and the GNSS yaw's
+        (HeadingMonitor.check), and what follows from it before any yaw reset: the biases a GNSS yaw agreeing
+        with the heading confirms are kept (a reset goes back to them), a magnetometer just rejected makes the
+        heading unconfirmed again, and its yaw variance floor is applied (with the warning)."""
+        p = self.params
+        P = self._P
         observable = yaw_var < p.heading_observable_sigma_rad ** 2
         d = self._monitor.check(t_s, yaw, yaw_var, mag_yaw, mag_var, gsf_yaw, gsf_var, gsf_valid, observable,
-                                float(x["vel_gate"]["nis"]), mag_var - noise if math.isfinite(mag_var) else math.nan)
+                                float(self._x["vel_gate"]["nis"]),
+                                mag_var - noise if math.isfinite(mag_var) else math.nan)
         if gsf_valid and wrap_pi(gsf_yaw - yaw) ** 2 <= self._monitor.gate_sigma ** 2 * (yaw_var + gsf_var) \
                 and self._monitor.lowpassed_velocity_nis < self._monitor.reset_velocity_nis:
             # the GNSS yaw confirms the filter's heading: its gyro bias was learned with a right heading
-            self._confirmed_gyro_bias = x["gyro_bias_rad_s"].copy()
-            self._confirmed_accel_bias = x["accel_bias_m_s2"].copy()
+            self._confirmed_gyro_bias = self._x["gyro_bias_rad_s"].copy()
+            self._confirmed_accel_bias = self._x["accel_bias_m_s2"].copy()
         if d.yaw_var_floor_rad2 > 0.0:
-            # the magnetometer was just rejected: the heading it held is unconfirmed again (the hold below)
+            # the magnetometer was just rejected: the heading it held is unconfirmed again (`_confirm_heading`)
             self._heading_confirmed = False
             self._bias_heading_confirmed = False
         if d.yaw_var_floor_rad2 > P[core.E_YAW, core.E_YAW]:
@@ -743,34 +779,59 @@ class Ins:
             self.heading_interventions += 1
             log.warning("ins: magnetometer disagrees with the GNSS-held heading by %.1f°: calibration wrong or "
                         "iron changed; magnetometer rejected", math.degrees(self._monitor.lowpassed_innovation_rad))
-        yaw_reset_to = None          # the yaw a reset below turns the attitude (about down) to
+        return d
+
+    def _reset_or_confirm_yaw(self, t_s: float, d: MonitorDecision, yaw: float, gsf_yaw: float, gsf_var: float,
+                              gsf_valid: bool) -> float | None:
+        """At most one of: the monitor's emergency yaw reset, the alignment to the first valid GNSS yaw
+        (`_gnss_yaw_alignment_due`), or, while the heading is held unconfirmed, its confirmation by a GNSS yaw
+        that agrees with it. Returns the yaw a reset turned the attitude (about down) to, None without one."""
         if d.reset_yaw_to_rad is not None:
             self._reset_yaw(d.reset_yaw_to_rad - yaw, d.reset_yaw_var_rad2)
-            yaw_reset_to = d.reset_yaw_to_rad
-        elif self._gnss_yaw_alignment_due(gsf_valid):
-            self._gnss_yaw_aligned = True
-            self._monitor.yaw_was_reset(t_s)     # an emergency reset keeps its spacing from this one
-            # nothing confirmed the heading before the alignment, so the biases go back to their start-up values:
-            # learned against an uncalibrated magnetometer, whose heading error changes as the vehicle turns (vehicle
-            # iron), the vertical gyro bias has taken up that error's rate, and the agreement check above, with the
-            # bank's σ near its validity limit, would keep them as "confirmed" (docs/estimator.md, "Alignment")
-            self._confirmed_gyro_bias = self._startup_gyro_bias.copy()
-            self._confirmed_accel_bias = self._startup_accel_bias.copy()
-            self._reset_yaw(gsf_yaw - yaw, gsf_var, alignment=True)
-            yaw_reset_to = gsf_yaw
-        elif not self._heading_confirmed and gsf_valid and (self._calibration_untrusted or self._monitor.mag_rejected):
-            yaw_var_now = P[core.E_YAW, core.E_YAW]
-            agrees = wrap_pi(gsf_yaw - yaw) ** 2 <= self._monitor.gate_sigma ** 2 * (yaw_var_now + gsf_var)
-            if agrees and gsf_var < p.accel_bias_gsf_sigma_rad ** 2:
-                self._bias_heading_confirmed = True
-            # a yaw set to the GNSS yaw (not pulled in from tens of degrees) is confirmed by the looser GNSS yaw
-            confirm_rad = p.accel_bias_gsf_sigma_rad if self._gnss_yaw_aligned else p.heading_confirm_gsf_sigma_rad
-            if agrees and gsf_var < confirm_rad ** 2:
-                self._heading_confirmed = True
-                self._bias_heading_confirmed = True
-            elif gsf_var > P[core.E_YAW, core.E_YAW]:
-                P[core.E_YAW, core.E_YAW] = gsf_var
-        self._set_accel_bias_learning()
+            return d.reset_yaw_to_rad
+        if self._gnss_yaw_alignment_due(gsf_valid):
+            self._align_yaw_to_gnss(t_s, gsf_yaw - yaw, gsf_var)
+            return gsf_yaw
+        if not self._heading_confirmed and gsf_valid and (self._calibration_untrusted or self._monitor.mag_rejected):
+            self._confirm_heading(yaw, gsf_yaw, gsf_var)
+        return None
+
+    def _align_yaw_to_gnss(self, t_s: float, dyaw_rad: float, gsf_var: float) -> None:
+        """The planned first alignment of the yaw to the GNSS yaw (yaw_align_to_gnss_yaw)."""
+        self._gnss_yaw_aligned = True
+        self._monitor.yaw_was_reset(t_s)     # an emergency reset keeps its spacing from this one
+        # nothing confirmed the heading before the alignment, so the biases go back to their start-up values:
+        # learned against an uncalibrated magnetometer, whose heading error changes as the vehicle turns (vehicle
+        # iron), the vertical gyro bias has taken up that error's rate, and the agreement check in
+        # `_monitor_decision`, with the bank's σ near its validity limit, would keep them as "confirmed"
+        # (docs/estimator.md, "Alignment")
+        self._confirmed_gyro_bias = self._startup_gyro_bias.copy()
+        self._confirmed_accel_bias = self._startup_accel_bias.copy()
+        self._reset_yaw(dyaw_rad, gsf_var, alignment=True)
+
+    def _confirm_heading(self, yaw: float, gsf_yaw: float, gsf_var: float) -> None:
+        """A GNSS yaw that agrees with the held heading confirms it for the accelerometer bias (within
+        `accel_bias_gsf_sigma_rad`) and for the heading (within `heading_confirm_gsf_sigma_rad`, or the looser
+        bias figure after the alignment); otherwise the yaw variance is raised to at least the GNSS yaw's."""
+        p = self.params
+        P = self._P
+        yaw_var_now = P[core.E_YAW, core.E_YAW]
+        agrees = wrap_pi(gsf_yaw - yaw) ** 2 <= self._monitor.gate_sigma ** 2 * (yaw_var_now + gsf_var)
+        if agrees and gsf_var < p.accel_bias_gsf_sigma_rad ** 2:
+            self._bias_heading_confirmed = True
+        # a yaw set to the GNSS yaw (not pulled in from tens of degrees) is confirmed by the looser GNSS yaw
+        confirm_rad = p.accel_bias_gsf_sigma_rad if self._gnss_yaw_aligned else p.heading_confirm_gsf_sigma_rad
+        if agrees and gsf_var < confirm_rad ** 2:
+            self._heading_confirmed = True
+            self._bias_heading_confirmed = True
+        elif gsf_var > P[core.E_YAW, core.E_YAW]:
+            P[core.E_YAW, core.E_YAW] = gsf_var
+
+    def _set_magnetometer_use(self, d: MonitorDecision, mag_var: float, noise: float) -> None:
+        """What the kernel does with the magnetometer after the check: whether it uses it (the monitor's
+        decision), whether its update may move the horizon (a trusted one may, with `mag_trusted_moves_tilt`),
+        and its heading bias's variance and time constant (the learned iron's once there is one)."""
+        p = self.params
         self._par["mag_use"] = 1.0 if d.mag_use else 0.0
         trusted = d.mag_use and self._mag_var < self._monitor.trusted_sigma_rad ** 2
         self._par["mag_moves_tilt"] = 1.0 if p.mag_moves_tilt or (p.mag_trusted_moves_tilt and trusted) else 0.0
@@ -779,20 +840,27 @@ class Ins:
             self._par["mag_bias_var_rad2"] = mag_var - noise   # the white part is the kernel's own noise
             learned = self._iron.updates > 0 or self._iron_restored
             self._par["mag_bias_tau_s"] = p.iron_learned_tau_s if learned else p.mag_bias_tau
-        # the monitor says no learning on a check that reset the yaw (c_bn is the attitude before the reset, P its
-        # covariance after it): the next check learns with the new yaw
-        if p.iron_learning and self._monitor.learning and np.all(np.isfinite(m_body)) and self._x["nav_ok"] > 0:
-            field = self._earth_field_ned()
-            if field is not None:
-                dt = max(t_s - (self._iron_last_t if self._iron_last_t is not None else t_s - 0.2), 1e-3)
-                self._iron_last_t = t_s
-                att = slice(core.E_TH, core.E_TH + 3)
-                self._iron.update(x["mag_last_ut"], c_bn, field, P[att, att],
-                                  p.iron_unmodelled_ut, max(1.0, p.iron_tau_s / dt))
-                self._apply_learned_iron()
-        yaw_now = yaw if yaw_reset_to is None else wrap_pi(yaw_reset_to)
-        self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(yaw_now, gsf_yaw, gsf_var)
-        sig = math.sqrt(max(P[core.E_YAW, core.E_YAW], 0.0))
+
+    def _learn_iron(self, t_s: float, c_bn: np.ndarray) -> None:
+        """One step of the iron learning (IronLearner) against the WMM field at the filter's position, with the
+        attitude c_bn and its covariance; the kernel then removes the learned iron."""
+        p = self.params
+        field = self._earth_field_ned()
+        if field is None:
+            return
+        dt = max(t_s - (self._iron_last_t if self._iron_last_t is not None else t_s - 0.2), 1e-3)
+        self._iron_last_t = t_s
+        att = slice(core.E_TH, core.E_TH + 3)
+        self._iron.update(self._x["mag_last_ut"], c_bn, field, self._P[att, att],
+                          p.iron_unmodelled_ut, max(1.0, p.iron_tau_s / dt))
+        self._apply_learned_iron()
+
+    def _publish_heading_checks(self, yaw_rad: float, gsf_yaw: float, gsf_var: float, gsf_valid: bool) -> None:
+        """What the checks publish: the yaw σ's floor while the heading is unconfirmed (`_unconfirmed_yaw_sigma`
+        at the yaw after any reset), the integrity figures and the heading state."""
+        p = self.params
+        self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(yaw_rad, gsf_yaw, gsf_var)
+        sig = math.sqrt(max(self._P[core.E_YAW, core.E_YAW], 0.0))
         if self._unconfirmed_sigma_rad > sig:
             sig = self._unconfirmed_sigma_rad
         self._integrity = HeadingIntegrity(gsf_yaw, math.sqrt(gsf_var) if math.isfinite(gsf_var) else math.nan,
