@@ -394,7 +394,7 @@ class Service:
         registered (daemon.learned_iron)."""
         cfg = self.config
         self.heading_status = HeadingStatus(LongStatusText(self.outbound.send), calibration_sigma_rad=mag_sigma_rad,
-                                            calibration_in_force=has_mag_calibration(calibration),
+                                            calibration_in_force=has_mag_calibration(self.pipeline.calibration),
                                             good_sigma_rad=math.radians(cfg.outputs.heading_good_sigma_deg))
         self.learned_iron = LearnedIron(
             self.state_dir, self.pipeline, publish=self.params.show, statustext=self.outbound.statustext,
