@@ -28,13 +28,9 @@ UNKNOWN_CALIBRATION_SIGMA_RAD = math.pi
 """The heading 1σ of a magnetometer of unknown calibration: the heading is unknown (module docstring)."""
 
 
-def calibration_heading_sigma_rad(mag_calibration_sigma_rad: float) -> float:
-    """The calibration's heading 1σ (rad) to add to a magnetometer-held heading's σ: the figure given when it is
-    finite and ≥ 0, else (NaN: no calibration, or its quality unknown) UNKNOWN_CALIBRATION_SIGMA_RAD."""
-    s = float(mag_calibration_sigma_rad)
-    return s if math.isfinite(s) and s >= 0.0 else UNKNOWN_CALIBRATION_SIGMA_RAD
-
-
 def calibration_heading_variance_rad2(mag_calibration_sigma_rad: float) -> float:
-    """calibration_heading_sigma_rad squared."""
-    return calibration_heading_sigma_rad(mag_calibration_sigma_rad) ** 2
+    """The calibration's heading variance (rad²) to add to a magnetometer-held heading's: the 1σ given squared
+    when it is finite and ≥ 0, else (NaN: no calibration, or its quality unknown) UNKNOWN_CALIBRATION_SIGMA_RAD².
+    (The calibration's own figure is calibration/heading_trust.calibration_heading_sigma_rad.)"""
+    s = float(mag_calibration_sigma_rad)
+    return (s if math.isfinite(s) and s >= 0.0 else UNKNOWN_CALIBRATION_SIGMA_RAD) ** 2

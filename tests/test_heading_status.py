@@ -310,19 +310,18 @@ def run_daemon_on_boat(tmp_path, hard_iron_error_ut=None, *, seconds=150.0, seed
     the VISION_POSITION_ESTIMATEs (with the estimate each was built from and the truth then) and the texts."""
     import dataclasses
 
-    from ahrsd.calibration.store import CalibrationStore
     from ahrsd.core.sample import SampleFlags, make_sample
     from ahrsd.daemon.config import EndpointConfig, EstimatorConfig, LocationConfig
+    from bench.sim_calibration import save_mag_calibration
     from service_rig import start_service_on, stop_service
 
-    from ahrsd.calibration.models import Calibration, MagModel
+    from ahrsd.calibration.models import MagModel
 
     block, true_model, fixes, decl = _boat(seconds, seed)
     fixes = fixes if gnss else []
     if hard_iron_error_ut is not None:       # a calibration that says 0.5° but misses part of the hard iron
         wrong = MagModel(true_model.hard_iron_ut + np.asarray(hard_iron_error_ut, float), true_model.soft_iron)
-        CalibrationStore(tmp_path).save(Calibration.identity().with_sensor(
-            "mag", wrong, method="test", heading_std_deg=0.5, offset_std_deg=0.2))
+        save_mag_calibration(tmp_path, wrong)
     mag = block.mag_ut
     svc, loop = start_service_on((EndpointConfig("udpout:127.0.0.1:9"),), tmp_path,
                                  estimator=EstimatorConfig(estimator),
