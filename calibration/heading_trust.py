@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
+from .models import MagModel
 
 NAN = math.nan
 
@@ -69,5 +69,4 @@ def has_mag_calibration(calibration) -> bool:
     meta = calibration.metadata.get("mag") if isinstance(calibration.metadata, dict) else None
     if isinstance(meta, dict):
         return True
-    mag = calibration.mag
-    return not (np.array_equal(mag.hard_iron_ut, np.zeros(3)) and np.array_equal(mag.soft_iron, np.eye(3)))
+    return calibration.mag != MagModel.identity()
