@@ -59,7 +59,7 @@ class GyroBiasCalibration:
         self._remove = None
 
     def start(self) -> CommandAck:
-        self._remove = self.listeners.add(self.on_sample)
+        self._remove = self.listeners.add(self.on_sample, in_place=True)    # the estimate is not used
         # samples can stop (sensor failure): never leave the command IN_PROGRESS for ever
         self.loop.call_later(3 * DURATION_S + 2.0, self.cancel, "no samples from the sensor")
         self.health.calibrating = "gyro calibration"

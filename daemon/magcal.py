@@ -593,9 +593,14 @@ class FieldCalibrationPart:
         autopilot.add_gnss_listener(self.protocol.on_gnss_message)
 
     def on_sample(self, sample, estimate) -> None:
-        """The daemon's sample listener (event loop, every sample). The session fits in the sensor frame, so it
-        gets the pipeline's calibrated sample before the mounting rotation, and the mounting."""
+        """The daemon's sample listener (event loop, every sample; added in place: `estimate` is read in place,
+        daemon.sample_reader.SampleListeners). The session fits in the sensor frame, so it gets the pipeline's
+        calibrated sample before the mounting rotation, and the mounting. A running session gets every sample's
+        immutable estimate; otherwise the protocol keeps the in-place one (a fixed-yaw calibration reads the
+        latest attitude from it) and no estimate is built."""
         pipeline = self.host.pipeline
+        if self.protocol.calibrating:
+            estimate = pipeline.last_estimate
         self.protocol.on_sample(pipeline.last_sensor_sample, estimate, pipeline.mounting)
         if self._task is None:
             self._task = asyncio.get_running_loop().create_task(self._ticker(), name="magcal")

@@ -35,19 +35,32 @@ _INITIALISING = int(EstimateFlags.INITIALISING)
 
 
 class SampleListeners:
-    """`fn(calibrated_sample, estimate)` after every sample (keep it cheap); a listener that raises is dropped."""
+    """`fn(calibrated_sample, estimate)` after every sample (keep it cheap); a listener that raises is dropped.
+
+    `estimate` is the immutable AttitudeEstimate of the sample (the listener may keep it), built for the sample
+    because a listener asked for it. A listener added with `in_place=True` gets the estimator's latest estimate
+    read in place instead (the pipeline's step result: valid until the next sample, `snapshot()` where the
+    estimator has a view) and costs no estimate: at 819.2 SPS building one for every sample would cost more than
+    the filter step (estimator/estimate_view.py)."""
 
     def __init__(self):
         self.fns: list[Callable] = []
+        self.in_place: set[Callable] = set()
 
-    def add(self, fn: Callable) -> Callable[[], None]:
+    def add(self, fn: Callable, *, in_place: bool = False) -> Callable[[], None]:
         """Add `fn`; returns the remover."""
         self.fns.append(fn)
+        if in_place:
+            self.in_place.add(fn)
 
         def remove() -> None:
-            if fn in self.fns:
-                self.fns.remove(fn)
+            self.drop(fn)
         return remove
+
+    def drop(self, fn: Callable) -> None:
+        if fn in self.fns:
+            self.fns.remove(fn)
+        self.in_place.discard(fn)
 
 
 @dataclass
@@ -220,6 +233,7 @@ class SampleReader:
         est = None
         reinitialised = False
         listeners = self.listeners.fns
+        in_place = self.listeners.in_place
         log_put = out.raw_sink                # daemon.vehicle_log: a queue append, never blocks
         for raw in samples:
             if log_put is not None:
@@ -228,13 +242,19 @@ class SampleReader:
             if est is not None and _int_and(est.flags, _REINITIALISED):
                 reinitialised = True          # on any sample of a block, not only the last one
             if listeners and est is not None:
-                snapshot = pipeline.last_estimate      # listeners may keep it: the immutable one
+                snapshot = None                        # built only for a listener that keeps it
                 for fn in tuple(listeners):
+                    if fn in in_place:
+                        given = est
+                    else:
+                        if snapshot is None:
+                            snapshot = pipeline.last_estimate
+                        given = snapshot
                     try:
-                        fn(pipeline.last_sample, snapshot)
+                        fn(pipeline.last_sample, given)
                     except Exception:  # noqa: BLE001 - a faulty listener is dropped, the reader carries on
                         log.exception("sample listener %r failed; removed", fn)
-                        listeners.remove(fn)
+                        self.listeners.drop(fn)
         source = self.source
         if source is None or not source.recording_time_base:   # samples in time order: count from the oldest
             ready_by = now - LATE_AFTER_S - (source.monotonic_offset_s if source is not None else 0.0)

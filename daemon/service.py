@@ -183,9 +183,10 @@ class Service:
     def statustext(self, severity: int, text: str) -> None:
         self.outbound.statustext(severity, text)
 
-    def add_sample_listener(self, fn: Callable) -> Callable[[], None]:
-        """Call fn(calibrated_sample, estimate) after every sample (keep it cheap). Returns the remover."""
-        return self.listeners.add(fn)
+    def add_sample_listener(self, fn: Callable, *, in_place: bool = False) -> Callable[[], None]:
+        """Call fn(calibrated_sample, estimate) after every sample (keep it cheap; daemon.sample_reader.
+        SampleListeners says what `in_place` gives). Returns the remover."""
+        return self.listeners.add(fn, in_place=in_place)
 
     def apply_calibration(self, cal, *, save: bool = True, reason: str = "") -> None:
         """The one path for every calibration change (daemon.calibration_swap)."""
@@ -425,7 +426,7 @@ class Service:
         self.field_calibration = FieldCalibrationPart(host, self.config.magcal or MagCalSettings(),
                                                       commands=self.commands, autopilot=self.autopilot,
                                                       set_calibrating=self.set_calibrating)
-        self.listeners.add(self.field_calibration.on_sample)
+        self.listeners.add(self.field_calibration.on_sample, in_place=True)
 
     def _open_nmea(self) -> None:
         """The [[nmea]] heading outputs, fed every estimate (none without any)."""

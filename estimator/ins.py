@@ -39,6 +39,7 @@ from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_va
 from .mag_heading import RELEARN_GATE_OPEN_S
 from .mag_heading_params import MagHeadingParams
 from .params import with_overrides
+from .estimate_view import EstimateView
 from .published_heading import PublishedHeading
 from .rotations import quat_to_dcm
 
@@ -392,6 +393,7 @@ class Ins:
         self._published = PublishedHeading(self.params.published_yaw_slew_rad_s)
         self._published_since_init = False
         self._last_fix_velocity = None
+        self._view = EstimateView(self._build_estimate)   # step()'s result: the estimate built on demand
         self._new_heading_checks()
 
     def _step_args_example(self) -> tuple:
@@ -429,6 +431,7 @@ class Ins:
 
     # ----------------------------------------------------------------------- Estimator protocol
     def reset(self) -> None:
+        self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
         self._x_arr[:] = 0
         self._P[:] = 0.0
         self._initialised = False
@@ -465,12 +468,14 @@ class Ins:
         """Start from a learned iron persisted earlier (same calibration): the hard iron and its covariance, and
         optionally the soft iron I + D and the 9×9 covariance of D (else D starts at its prior). Raises
         ValueError when not finite or a covariance is not positive definite."""
+        self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
         self._iron.set(offset_ut, cov_ut2, soft_iron, soft_cov)
         self._iron_restored = True
         self._apply_learned_iron()
 
     def reset_learned_iron(self) -> None:
         """Forget the learned iron (a new calibration was accepted, or the operator reset it)."""
+        self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
         self._iron.reset()
         self._iron_restored = False
         self._apply_learned_iron()
@@ -479,6 +484,7 @@ class Ins:
         """A new magnetometer calibration is in force (the daemon's calibration swap): its predicted heading
         error, 1σ rad (NaN: unknown). The heading checks start again with it; the filter's yaw variance is
         left to them (a changed heading is caught by the monitor and slewed in the published yaw)."""
+        self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
         s = float(sigma_rad)
         self.params = replace(self.params, mag_calibration_sigma_rad=s if math.isfinite(s) and s >= 0.0 else math.nan)
         p = self.params
@@ -505,11 +511,13 @@ class Ins:
     def set_declination(self, declination_rad: float) -> None:
         """Magnetic declination (rad): the magnetometer heading is compared with true heading − declination,
         and the estimate's yaw/q are reported relative to magnetic north (as every estimator)."""
+        self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
         self._declination = float(declination_rad)
         self._par["declination_rad"] = self._declination
 
     def relearn_field_reference(self) -> None:
         """As Mekf.relearn_field_reference: forget the learned field magnitude/dip, keep everything else."""
+        self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
         mag.relearn_reference(self._mag_state(), RELEARN_GATE_OPEN_S)
 
     def _mag_state(self):
@@ -558,6 +566,11 @@ class Ins:
         return self._x["q"].copy()
 
     def update(self, sample: ImuSample) -> AttitudeEstimate:
+        return self.step(sample).snapshot()
+
+    def step(self, sample: ImuSample) -> EstimateView:
+        """The hot path: process one sample like `update` and return the estimator's reused EstimateView; its
+        `snapshot()` is the AttitudeEstimate `update` returns, built only when asked (estimate_view.py)."""
         g = sample.gyro_rad_s
         a = sample.accel_m_s2
         m = sample.mag_ut
@@ -569,20 +582,22 @@ class Ins:
                            self._gsf_arr, self._gsf_par_arr)
             if not f & NEEDS_INIT:
                 if self._queue:
-                    self._fuse_queued()
-                return self._estimate(sample.t_s, f)
+                    self._fuse_queued()       # before the estimate of this sample, as every fix before it
+                return self._stepped(sample.t_s, f)
             self._initialised = False
             self._reinit_pending = True
             extra = f & ~NEEDS_INIT
         if not self._initialise(sample.t_s, g, a, m, sflags):
-            return self._estimate_uninitialised(sample, extra)
-        return self._estimate(sample.t_s, self._after_init_flags() | extra)
+            self._view.set(sample.t_s, extra | self._pending_flags, False)
+            return self._view
+        return self._stepped(sample.t_s, self._after_init_flags() | extra)
 
     # ----------------------------------------------------------------------- GNSS
     def update_gnss(self, fix: GnssFix) -> int:
         """Offer one fix. Returns core.R_* bits (0 when it was not fused or was held for later). Bad fixes
         (no fix, NaN fields, time not increasing, older than max_delay_s, χ² outliers) are counted in
         `gnss_counters`, logged, and flag GNSS_REJECTED on the next estimate; never raises."""
+        self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
         c = self.gnss_counters
         c.offered += 1
         try:
@@ -1088,28 +1103,43 @@ class Ins:
         self._reinit_pending = False
         return f
 
-    def _estimate(self, t_s: float, f: int) -> AttitudeEstimate:
+    def _stepped(self, t_s: float, f: int) -> EstimateView:
+        """What moves with every sample (the published-heading slew integrates over sample time, so what is
+        published does not depend on how often an estimate is built); the estimate itself is built on demand
+        (`_build_estimate`)."""
         if self._pending_flags:
             f |= self._pending_flags
             self._pending_flags = 0
+        if not self._ever_aided and f & core.F_GNSS_AIDED:
+            self._ever_aided = True
+        o = self._out_flat
+        if f & core.F_INITIALISING and not self._published_since_init:
+            self._published.reset()        # nothing published since the filter started: follow it
+        else:
+            roll, pitch, yaw_true = o[_OUT_EULER].tolist()
+            self._published.update(t_s, yaw_true, roll, pitch, o[_OUT_RATE])
+        if not f & core.F_INITIALISING:
+            self._published_since_init = True
+        self._view.set(t_s, f, True)
+        return self._view
+
+    def _build_estimate(self, t_s: float, f: int, initialised: bool) -> AttitudeEstimate:
+        """The AttitudeEstimate of the sample stepped last (EstimateView.snapshot)."""
+        if not initialised:
+            return uninitialised_estimate(t_s, f)
         o = self._out_flat.copy()  # one fresh buffer; the estimate's arrays are views of it
         roll, pitch, yaw_true = o[_OUT_EULER].tolist()
         sigma_yaw = float(o[_OUT_SIGMA.start + 2])
         if self._unconfirmed_sigma_rad > sigma_yaw and self._nav_ok[0] > 0.0:
             sigma_yaw = self._unconfirmed_sigma_rad        # _unconfirmed_yaw_sigma says why
             o[_OUT_SIGMA.start + 2] = sigma_yaw
-        if not self._ever_aided:
-            if f & core.F_GNSS_AIDED:
-                self._ever_aided = True
-            elif self.params.mag_enabled:
-                # no GNSS yet: the magnetometer calibration is the only heading reference and its error is not in
-                # the filter's σ (the checks that would show it need GNSS): calibration_heading.py
-                sigma_yaw = math.sqrt(sigma_yaw ** 2
-                                      + calibration_heading_variance_rad2(self.params.mag_calibration_sigma_rad))
-                o[_OUT_SIGMA.start + 2] = sigma_yaw
-        if f & core.F_INITIALISING and not self._published_since_init:
-            self._published.reset()        # nothing published since the filter started: follow it
-        elif self._published.update(t_s, yaw_true, roll, pitch, o[_OUT_RATE]):
+        if not self._ever_aided and self.params.mag_enabled:
+            # no GNSS yet: the magnetometer calibration is the only heading reference and its error is not in
+            # the filter's σ (the checks that would show it need GNSS): calibration_heading.py
+            sigma_yaw = math.sqrt(sigma_yaw ** 2
+                                  + calibration_heading_variance_rad2(self.params.mag_calibration_sigma_rad))
+            o[_OUT_SIGMA.start + 2] = sigma_yaw
+        if self._published.offset_rad:
             # the filter's yaw moved faster than the published one may: publish it turned back by the offset
             off = self._published.offset_rad
             yaw_true += off
@@ -1117,8 +1147,6 @@ class Ins:
             w, x_, y, z = o[_OUT_Q].tolist()
             o[_OUT_Q] = (c * w - s * z, c * x_ - s * y, c * y + s * x_, c * z + s * w)
             o[_OUT_SIGMA.start + 2] = self._published.published_sigma(sigma_yaw)
-        if not f & core.F_INITIALISING:
-            self._published_since_init = True
         yaw = (yaw_true - self._declination + math.pi) % _TWO_PI - math.pi
         nav = None
         if self._nav_ok[0] > 0.0:
@@ -1153,9 +1181,6 @@ class Ins:
                 return HeadingState.UNKNOWN
             return HeadingState.MAGNETOMETER
         return self._heading_state if p.heading_monitor else HeadingState.MAGNETOMETER
-
-    def _estimate_uninitialised(self, sample: ImuSample, extra: int) -> AttitudeEstimate:
-        return uninitialised_estimate(sample.t_s, extra | self._pending_flags)
 
 
 def _one_record_array(record) -> np.recarray:
