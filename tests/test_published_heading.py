@@ -76,12 +76,13 @@ def boat():
     return simulate_vehicle("boat", 150.0, 5, None)
 
 
-def _run_with_resets(run, **params):
+def _run_with_resets(run, build_every: int = 1, **params):
     """ins on the boat; at 60 s its yaw is reset 8° off with σ 10° (a reset to a GNSS yaw that is wrong but says
     so), and neither a fix nor a magnetometer sample arrives for 6 s (nothing corrects it: the published yaw slews
     to it); at 66 s the yaw is reset
     back to the simulator's true yaw with σ 0.5° (a reset to a right one): the published yaw is ~8° off a filter
-    that is right and says ±0.5°."""
+    that is right and says ±0.5°. build_every > 1: the samples go through `step` and an estimate is built at
+    every build_every-th (as the daemon builds them for its outputs), the others are NaN."""
     from scipy.spatial.transform import Rotation
 
     from ahrsd.core.sample import SampleFlags, make_sample
@@ -90,8 +91,8 @@ def _run_with_resets(run, **params):
     est = Ins(declination_rad=run.declination_rad, mag_calibration_sigma_rad=run.mag_calibration_sigma_rad,
               **params)
     n = len(run.t_s)
-    q = np.empty((n, 4))
-    sigma = np.empty(n)
+    q = np.full((n, 4), np.nan)
+    sigma = np.full(n, np.nan)
     flags = np.zeros(n, dtype=np.int64)
     fi = 0
     k_wrong, k_right = np.searchsorted(run.t_s, [60.0, 66.0])
@@ -109,8 +110,14 @@ def _run_with_resets(run, **params):
         if k == k_right:     # the simulator's truth is body → true NED, as the filter's own attitude
             est._reset_yaw(yaw(run.truth_q_wxyz[k]) - yaw(est.true_attitude_q_wxyz()), math.radians(0.5) ** 2)
         mag = np.full(3, np.nan) if k_wrong <= k < k_right else run.mag_ut[k]
-        e = est.update(make_sample(run.t_s[k], run.gyro_rad_s[k], run.accel_m_s2[k], mag,
-                                   flags=SampleFlags.NEW_DATA))
+        sample = make_sample(run.t_s[k], run.gyro_rad_s[k], run.accel_m_s2[k], mag, flags=SampleFlags.NEW_DATA)
+        if build_every == 1:
+            e = est.update(sample)
+        else:
+            view = est.step(sample)
+            if k % build_every:
+                continue
+            e = view.snapshot()
         q[k], sigma[k], flags[k] = e.q_wxyz, e.sigma_rpy_rad[2], int(e.flags)
     return {"q": q, "sigma_yaw_rad": sigma, "flags": flags, "heading_state": np.zeros(n), "ins": est}
 
@@ -127,3 +134,17 @@ def test_yaw_resets_in_ins_reach_the_published_heading_without_a_step_and_within
     assert f["max_step_0_1s"] <= 0.5 and f["beyond_3sigma"] <= 0.01, f
     unslewed = honesty_figures(boat, _run_with_resets(boat, published_yaw_slew_rad_s=1e3), 30.0)
     assert unslewed["max_step_0_1s"] > 5.0, unslewed
+
+
+def test_the_published_heading_does_not_depend_on_how_often_estimates_are_built(boat):
+    """The slew moves with every sample (ins.step), so an estimate built at every 30th sample (the daemon builds
+    one for its outputs, 30–50 Hz) is the estimate of that sample had every sample's been built — through both
+    resets and the slews after them, σ (the offset in it) and flags included — bit for bit."""
+    every = _run_with_resets(boat)
+    sparse = _run_with_resets(boat, build_every=30)
+    built = np.arange(0, len(boat.t_s), 30)
+    assert np.all(np.isnan(sparse["sigma_yaw_rad"][1:30]))
+    assert np.count_nonzero(every["flags"] & int(EstimateFlags.YAW_RESET)) == 2
+    np.testing.assert_array_equal(sparse["q"][built], every["q"][built])
+    np.testing.assert_array_equal(sparse["sigma_yaw_rad"][built], every["sigma_yaw_rad"][built])
+    np.testing.assert_array_equal(sparse["flags"][built], every["flags"][built])
