@@ -54,12 +54,16 @@ def attitude_quaternion(est, time_boot_ms: int, declination_rad: float):
     return mavlink.MAVLink_attitude_quaternion_message(time_boot_ms, w, x, y, z, p, q, r, [0.0, 0.0, 0.0, 0.0])
 
 
-def vision_position_estimate(est, usec: int, yaw_true_rad: float, reset_counter: int):
-    """Zero position, true-north attitude, covariance with the filter's roll/pitch/yaw variances."""
+def vision_position_estimate(est, usec: int, yaw_true_rad: float, reset_counter: int,
+                             yaw_sigma_rad: float | None = None):
+    """Zero position, true-north attitude, covariance with the filter's roll/pitch variances and the yaw's
+    (`yaw_sigma_rad`, default the filter's: a yaw that is not the filter's carries its own)."""
     cov = [0.0] * 21
     for i in UPPER_TRIANGLE_DIAG[:3]:
         cov[i] = VPE_POSITION_VARIANCE_M2
     sr, sp, sy = (float(v) for v in est.sigma_rpy_rad)
+    if yaw_sigma_rad is not None:
+        sy = float(yaw_sigma_rad)
     cov[15], cov[18], cov[20] = sr * sr, sp * sp, sy * sy
     if not all(math.isfinite(c) for c in cov[15:]):
         cov[15] = cov[18] = cov[20] = (math.pi / 2) ** 2   # finite "very uncertain" (ArduPilot clamps at 1.5 rad)

@@ -114,7 +114,8 @@ class Service:
         self.notifier = Notifier(environ)
         self.listeners = SampleListeners()
         # the VISION_POSITION_ESTIMATE yaw after a calibration change, and reset_counter
-        self.heading = HeadingResets(HeadingSlew(max_rate_deg_s=config.outputs.heading_slew_deg_s))
+        self.heading = HeadingResets(HeadingSlew(max_rate_deg_s=config.outputs.heading_slew_deg_s),
+                                     statustext=self.outbound.statustext)
         self.gnss: GnssTask | None = None      # [gnss] source (daemon.gnss_task), None without one
         self.nmea: NmeaOutputs | None = None    # [[nmea]] outputs (daemon.nmea_output), None without any
         self.positions = PositionResolver(config.location, gnss_position=self._gnss_position,
@@ -232,7 +233,7 @@ class Service:
     def heading_trusted(self, now: float) -> bool:
         return self.health.heading_trusted(now)
 
-    def autopilot_yaw(self, est) -> tuple[float, int]:
+    def autopilot_yaw(self, est) -> tuple[float, int, float]:
         # a reset of ins's yaw to the GNSS yaw is slewed into the yaw it publishes (its σ covering what is left:
         # estimator/published_heading.py): no step reaches the autopilot, so reset_counter is not incremented
         return self.heading.autopilot_yaw(est)
@@ -556,12 +557,13 @@ class Service:
             state=self.health.system_status(now), samples=sample_accounting(self),
             link=self.outbound.link_totals(), gnss=None if self.gnss is None else self.gnss.status(now),
             autopilot=self.autopilot,
-            heading=None if self.heading_status is None else self.heading_status.status_text()))
+            heading=None if self.heading_status is None
+            else " ".join(filter(None, (self.heading_status.status_text(), self.heading.status_text())))))
 
     def _end_unreceived_slew(self, now: float) -> None:
         if self.heading.slew.active and not any(ep.schedule.rate_hz(VISION_POSITION_ESTIMATE) > 0
                                                 for ep in self.endpoints):
-            self.heading.slew.active = False    # nobody receives the slewed yaw: nothing to bring in
+            self.heading.slew.stop("no VPE sent")   # nobody receives the slewed yaw: nothing to bring in
 
     def _on_ready(self) -> None:
         self.notifier.ready("running")
