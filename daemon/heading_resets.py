@@ -35,12 +35,13 @@ class HeadingResets:
         restart = self.restart          # a restart with another heading: daemon.restart_heading
         if restart is not None:
             restart.before_publish(est.t_s, est.heading_true_rad)
+        sigma_rad = float(est.sigma_rpy_rad[2])
         yaw = self.slew.update(est.t_s, est.heading_true_rad,
-                               yaw_rate_ned_rad_s(est.rate_body_rad_s, est.roll_rad, est.pitch_rad))
+                               yaw_rate_ned_rad_s(est.rate_body_rad_s, est.roll_rad, est.pitch_rad), sigma_rad)
         if restart is not None:
             restart.after_publish(yaw, self.reset_counter)
         self.news.after_update(self.slew)
-        return yaw, self.reset_counter, self.slew.published_sigma_rad(float(est.sigma_rpy_rad[2]))
+        return yaw, self.reset_counter, self.slew.published_sigma_rad(sigma_rad)
 
     def status_text(self) -> str:
         """For the status line: "slew +12.3°" while a transition runs (daemon.slew_news), else ""."""

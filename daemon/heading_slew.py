@@ -8,6 +8,14 @@ from dataclasses import dataclass
 
 from ahrsd.core.angles import wrap_pi
 
+# EKF3 fuses our yaw with R = max(angErr, VISO_YAW_M_NSE, 5°)² (AP_NavEKF3_Measurements.cpp writeExtNavData): the
+# slew rates (heading_slew_deg_s, restart_slew_deg_s) were chosen for R at that floor. While the σ sent to cover a
+# large offset is above it, EKF3's yaw follows more slowly and the slew is held to LARGE_OFFSET_MAX_RATE_DEG_S,
+# the fastest rate at which the fake EKF3s (tests/support/fake_autopilot_yaw.py: the sources' R, floors and gate)
+# fuse every VPE of any change with that σ (bench/slew_variance.py; docs/daemon.md "Restarts").
+EKF3_YAW_FLOOR_RAD = math.radians(5.0)
+LARGE_OFFSET_MAX_RATE_DEG_S = 2.0
+
 
 @dataclass
 class HeadingSlew:
@@ -17,8 +25,9 @@ class HeadingSlew:
     (libraries/AP_NavEKF3/AP_NavEKF3_MagFusion.cpp, fuseEulerYaw, gate EK3_YAW_I_GATE), so after
     `start_transition()` the published heading follows the vehicle's own rotation (yaw rate from the
     estimator) and moves towards the estimator's new heading at no more than `max_rate_deg_s` (a restart
-    with another heading uses its own rate: daemon.restart_heading). Outside a transition it passes the
-    heading through unchanged.
+    with another heading uses its own rate: daemon.restart_heading), and no more than
+    LARGE_OFFSET_MAX_RATE_DEG_S while the offset is large. Outside a transition it passes the heading through
+    unchanged.
 
     While a transition runs the published heading is off the estimator's by `remaining_rad`, a known error the
     VPE's yaw variance must cover (`published_sigma_rad`).
@@ -100,8 +109,9 @@ class HeadingSlew:
     def current_rate_deg_s(self) -> float:
         return self.max_rate_deg_s if self.rate_deg_s is None else self.rate_deg_s
 
-    def update(self, t_s: float, heading_rad: float, yaw_rate_rad_s: float = 0.0) -> float:
-        """Heading to publish (rad, [0, 2π)) for the estimator's heading at t_s and the vehicle's yaw rate."""
+    def update(self, t_s: float, heading_rad: float, yaw_rate_rad_s: float = 0.0, sigma_rad: float = 0.0) -> float:
+        """Heading to publish (rad, [0, 2π)) for the estimator's heading at t_s, the vehicle's yaw rate and the
+        estimator's yaw 1σ (the σ sent with the slewed heading sets its rate: EKF3_YAW_FLOOR_RAD)."""
         if self._published is None or not self.active:
             self._published = heading_rad % (2 * math.pi)
             self._t_last = t_s
@@ -120,7 +130,10 @@ class HeadingSlew:
                 return self._published
             self.hold_until_s = None
         err = float(wrap_pi(heading_rad - predicted))
-        step = math.radians(self.current_rate_deg_s) * dt
+        rate_deg_s = self.current_rate_deg_s
+        if sigma_rad + abs(err) / 3.0 > EKF3_YAW_FLOOR_RAD:          # published_sigma_rad for this offset
+            rate_deg_s = min(rate_deg_s, LARGE_OFFSET_MAX_RATE_DEG_S)
+        step = math.radians(rate_deg_s) * dt
         if abs(err) <= max(step, math.radians(self.done_within_deg)):
             self._published = heading_rad % (2 * math.pi)
             if abs(err) <= math.radians(self.done_within_deg) and t_s - self._t_start >= self.min_duration_s:

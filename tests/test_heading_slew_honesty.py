@@ -86,3 +86,45 @@ def test_a_transition_that_moves_nothing_says_nothing_and_a_reset_ending_one_say
     news.after_update(slew)
     assert texts == ["ahrsd: restart hdg -100°, yaw held to realign", "ahrsd: yaw change 100.0° sent as a yaw reset"]
     assert all(len(statustext(6, x).text) <= 50 for x in texts)
+
+
+def test_the_slew_is_held_to_2_degrees_per_second_while_the_sigma_it_needs_is_above_ekf3s_5_degree_floor():
+    """Worked numbers: σ 0.5°, a 30° change at 3 °/s: 2 °/s while 0.5° + offset/3 > 5° (offset > 13.5°), then
+    3 °/s: (30 − 13.5)/2 + 13.5/3 = 12.75 s (at a constant 3 °/s, 10 s)."""
+    slew = HeadingSlew(max_rate_deg_s=3.0, min_duration_s=0.0)
+    slew.start_from(0.0)
+    t, steps = 0.0, []
+    while slew.active and t < 60.0:
+        t += 0.01
+        before = slew.remaining_rad
+        slew.update(t, math.radians(30.0), 0.0, 0.5 * DEG)
+        steps.append((math.degrees(before), math.degrees(before - slew.remaining_rad) / 0.01))
+    assert abs(t - 12.75) < 0.05
+    assert all(abs(rate - 2.0) < 1e-6 for left, rate in steps[1:] if left > 13.6)
+    assert all(abs(rate - 3.0) < 1e-6 for left, rate in steps[1:] if 0.1 < left < 13.4)
+
+
+def test_a_large_change_slewed_with_its_honest_sigma_is_fused_by_the_fake_autopilots():
+    """What the daemon sends for a 90° change at 3 °/s (HeadingSlew and its σ), fed to the fake autopilots that
+    have fused our heading for 2 min with no gap before the change (a calibration change): none rejects a VPE,
+    and each ends within 1° of the new heading. The σ that covers the offset makes EKF3's R large and its yaw
+    follow slowly; at a constant 3 °/s EKF3 is left beyond its gate when the offset shrinks (bench/slew_variance.py)."""
+    from support.fake_autopilot_yaw import FakeEkf2, FakeEkf3, warm_up
+
+    sigma = 0.5 * DEG
+    fakes = {"EKF3 0.05": FakeEkf3(0.05), "EKF3 0.05 4.6 angErr": FakeEkf3(0.05, ang_err_rule="cbrt"),
+             "EKF3 0.2": FakeEkf3(0.2), "EKF2 0.05": FakeEkf2(0.05)}
+    for ap in fakes.values():
+        warm_up(ap, 0.0, 120.0, -120.0, angle_vars=(sigma * sigma,) * 3)
+    slew = HeadingSlew(max_rate_deg_s=3.0)
+    slew.update(-1.0 / 30.0, 0.0)
+    slew.start_transition(reason="test")
+    for k in range(int(150 * 30)):                 # the slew, then the new heading held
+        t = k / 30.0
+        yaw = slew.update(t, 90.0 * DEG, 0.0, sigma)
+        var = slew.published_sigma_rad(sigma) ** 2
+        for ap in fakes.values():
+            ap.feed(t, yaw, 0, (sigma * sigma, sigma * sigma, var))
+    for name, ap in fakes.items():
+        assert ap.rejected == 0, name
+        assert abs(math.degrees(math.remainder(ap.yaw - 90.0 * DEG, 2 * math.pi))) < 1.0, name

@@ -151,7 +151,7 @@ def test_a_30_degree_restart_step_is_slewed_in_and_no_autopilot_gate_rejects_it(
     first, svc1 = run(tmp_path, 0.0, 4.0, recorders, 0.0, warm=True, outputs=slew)
     counter1 = svc1.reset_counter
     t0 = 4.0 + GAP_S
-    second, svc2 = run(tmp_path, STEP_DEG, 2.0 + STEP_DEG / rate + 2.0, recorders, t0, outputs=slew)
+    second, svc2 = run(tmp_path, STEP_DEG, 2.0 + STEP_DEG / 2.0 + 2.0, recorders, t0, outputs=slew)
     assert svc2.restart_heading.how == "slew"
     new_heading = second[-1, 2]
     step = wrap_deg(new_heading - first[-1, 2])
@@ -162,7 +162,10 @@ def test_a_30_degree_restart_step_is_slewed_in_and_no_autopilot_gate_rejects_it(
     assert np.max(np.abs(wrap_deg(np.diff(second[:, 1])))) <= rate / VPE_HZ * 1.05
     on_ours = np.flatnonzero(np.abs(wrap_deg(second[:, 1] - second[:, 2])) < 0.05)
     assert len(on_ours), "the published heading never reached the estimator's"
-    assert abs(second[on_ours[0], 0] - second[0, 0] - STEP_DEG / rate) < 0.5   # 30° / rate, not slower
+    # at 2 °/s while the σ it needs (σ + offset/3) is above EKF3's 5° floor, i.e. while the offset exceeds
+    # 15° − 3σ (σ 0.05..0.33° here), then at the restart rate: (30 − 14.5)/2 + 14.5/3 s, not slower
+    assert abs(second[on_ours[0], 0] - second[0, 0] - ((STEP_DEG - 14.5) / 2.0 + 14.5 / rate)) < 0.5
+    print(f"the published yaw reached the estimator's {second[on_ours[0], 0] - second[0, 0]:.1f} s after the restart")
     assert np.all(second[:, 3] == counter1)                               # reset_counter continues, unchanged
     vpe_beyond_3_sigma(second, f"30 deg restart slewed at {rate:g} deg/s")
     t_restart = t0 + second[0, 0]
@@ -170,6 +173,28 @@ def test_a_30_degree_restart_step_is_slewed_in_and_no_autopilot_gate_rejects_it(
         assert ap.rejected == 0, name                                     # every VPE was fused
         overshoot, settled = settle(rec, new_heading, t_restart, t_restart + 150.0)
         print(f"{name}: 30° restart step at {rate:g} °/s: overshoot {overshoot:.1f}°, within 1° after {settled:.0f} s")
+        assert abs(wrap_deg(math.degrees(ap.yaw) - new_heading)) < 1.0, name
+
+
+def test_a_90_degree_restart_step_is_slewed_in_with_its_honest_variance_and_no_ekf3_rejects_it(tmp_path):
+    """A large step: the σ that covers it makes EKF3's R large, so its yaw follows slowly; the slew holds its
+    rate to 2 °/s while that σ is above EKF3's 5° floor (without a gap before it, at a constant 3 °/s, the fake
+    EKF3 rejects: tests/test_heading_slew_honesty.py, bench/slew_variance.py)."""
+    fakes = {"EKF3 VISO_YAW_M_NSE=0.05": FakeEkf3(0.05), "EKF3 0.05, ArduPilot 4.6 angErr": FakeEkf3(0.05, ang_err_rule="cbrt"),
+             "EKF3 VISO_YAW_M_NSE=0.2": FakeEkf3(0.2), "EKF2 EKF2_EVA_NOISE=0.05": FakeEkf2(0.05)}
+    recorders = [Recorder(ap) for ap in fakes.values()]
+    slew = {"restart_yaw": "slew"}
+    run(tmp_path, 0.0, 4.0, recorders, 0.0, warm=True, outputs=slew)
+    t0 = 4.0 + GAP_S
+    second, svc2 = run(tmp_path, 90.0, 2.0 + 90.0 / 2.0 + 2.0, recorders, t0, outputs=slew)
+    assert svc2.restart_heading.how == "slew" and not svc2.heading_slew.active
+    vpe_beyond_3_sigma(second, "90 deg restart slewed in")
+    new_heading = second[-1, 2]
+    t_restart = t0 + second[0, 0]
+    for (name, ap), rec in zip(fakes.items(), recorders):
+        assert ap.rejected == 0, name
+        overshoot, settled = settle(rec, new_heading, t_restart, t_restart + 150.0)
+        print(f"{name}: 90° restart step: overshoot {overshoot:.1f}°, within 1° after {settled:.0f} s")
         assert abs(wrap_deg(math.degrees(ap.yaw) - new_heading)) < 1.0, name
 
 
@@ -295,7 +320,7 @@ def test_a_source_set_switch_the_autopilot_refuses_falls_back_to_the_slew(tmp_pa
     connect, received = connect_autopilot(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, ekf3, answer_commands=False)
     run(tmp_path, 0.0, 4.0, (rec,), 0.0, warm=True, outputs=outputs, connect=connect)
     rate = OutputsConfig().restart_slew_deg_s
-    second, svc2 = run(tmp_path, STEP_DEG, 2.0 + 1.0 + STEP_DEG / rate + 2.0, (rec,), 4.0 + GAP_S,
+    second, svc2 = run(tmp_path, STEP_DEG, 2.0 + 1.0 + STEP_DEG / 2.0 + 2.0, (rec,), 4.0 + GAP_S,
                        outputs=outputs, connect=connect)
     assert received == [(1, 1, 42007, 3.0)]               # never told to switch: never switched back
     assert svc2.restart_heading.how == "slew"
@@ -317,8 +342,8 @@ def test_auto_mode_resets_px4_and_slews_for_an_ardupilot_without_a_source_set(tm
     run(tmp_path / "ap", 0.0, 4.0, (ekf3,), 0.0, warm=True, connect=connect)
     second, svc2 = run(tmp_path / "ap", STEP_DEG, 3.0, (ekf3,), 4.0 + GAP_S, connect=connect)
     assert svc2.restart_heading.how == "slew" and received == []
-    rate = OutputsConfig().restart_slew_deg_s
-    assert abs(wrap_deg(second[-1, 1] - second[0, 1])) > 0.8 * rate * (second[-1, 0] - second[0, 0])  # no hold
+    # no hold: it moved at once, at 2 °/s while the offset is large (the restart rate below 15° − 3σ)
+    assert abs(wrap_deg(second[-1, 1] - second[0, 1])) > 0.8 * 2.0 * (second[-1, 0] - second[0, 0])
 
 
 def test_a_source_set_that_differs_from_set_1_in_more_than_the_yaw_is_never_switched_to(tmp_path, caplog):
