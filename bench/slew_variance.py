@@ -41,7 +41,7 @@ AUTOPILOTS = {
     "EKF3 VISO_YAW_M_NSE 0.2": lambda: FakeEkf3(0.2),
     "EKF2 EKF2_EVA_NOISE 0.05": lambda: FakeEkf2(0.05),
 }
-CASES = ((10.0, 3.0), (30.0, 3.0), (60.0, 3.0), (90.0, 3.0), (170.0, 3.0),     # restarts (restart_slew_deg_s)
+CASES = ((10.0, 3.0), (30.0, 3.0), (40.0, 3.0), (60.0, 3.0), (90.0, 3.0), (170.0, 3.0),     # restarts (restart_slew_deg_s)
          (30.0, 2.0), (90.0, 2.0), (170.0, 2.0))                                # calibration changes, (D deg, r deg/s)
 
 
