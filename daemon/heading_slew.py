@@ -10,9 +10,9 @@ from ahrsd.core.angles import wrap_pi
 
 # EKF3 fuses our yaw with R = max(angErr, VISO_YAW_M_NSE, 5°)² (AP_NavEKF3_Measurements.cpp writeExtNavData): the
 # slew rates (heading_slew_deg_s, restart_slew_deg_s) were chosen for R at that floor. While the σ sent to cover a
-# large offset is above it, EKF3's yaw follows more slowly and the slew is held to LARGE_OFFSET_MAX_RATE_DEG_S,
-# the fastest rate at which the fake EKF3s (tests/support/fake_autopilot_yaw.py: the sources' R, floors and gate)
-# fuse every VPE of any change with that σ (bench/slew_variance.py; docs/daemon.md "Restarts").
+# large offset is above it, EKF3's yaw follows more slowly and the slew is held to LARGE_OFFSET_MAX_RATE_DEG_S, a
+# rate at which the fake EKF3s (tests/support/fake_autopilot_yaw.py: the sources' R, floors and gate) fuse every
+# VPE of any change with that σ (bench/slew_variance.py; docs/daemon.md "Restarts").
 EKF3_YAW_FLOOR_RAD = math.radians(5.0)
 LARGE_OFFSET_MAX_RATE_DEG_S = 2.0
 
