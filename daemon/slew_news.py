@@ -32,7 +32,7 @@ class SlewNews:
             if not self.announced and self.largest_rad >= ANNOUNCE_OFFSET_RAD:
                 self.announced = True
                 how = "yaw held to realign" if slew.hold_until_s is not None \
-                    else f"slewing yaw {slew.current_rate_deg_s:g}°/s"
+                    else f"slewing ≤{slew.current_rate_deg_s:g}°/s"
                 self.statustext(mavlink.MAV_SEVERITY_INFO, f"ahrsd: {slew.reason}, {how}")
             return
         if self.announced:

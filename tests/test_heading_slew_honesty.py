@@ -63,7 +63,7 @@ def test_a_slew_is_announced_when_it_starts_and_ends_in_one_statustext_each():
         if k == 30:
             assert resets.status_text().startswith("slew +")        # the status line says what is left
     # the largest offset: 30° less the first 1/30 s at 3 °/s
-    assert texts == ["ahrsd: calibration changed, slewing yaw 3°/s", "ahrsd: yaw change 29.9° slewed in"]
+    assert texts == ["ahrsd: calibration changed, slewing ≤3°/s", "ahrsd: yaw change 29.9° slewed in"]
     assert resets.status_text() == ""
     assert all(len(statustext(6, x).text) <= 50 for x in texts)
 
@@ -86,6 +86,13 @@ def test_a_transition_that_moves_nothing_says_nothing_and_a_reset_ending_one_say
     news.after_update(slew)
     assert texts == ["ahrsd: restart hdg -100°, yaw held to realign", "ahrsd: yaw change 100.0° sent as a yaw reset"]
     assert all(len(statustext(6, x).text) <= 50 for x in texts)
+    # the longest a start can be: a restart of -180° slewed at a fractional rate
+    slew = HeadingSlew(max_rate_deg_s=2.5)
+    slew.update(20.0, 0.0)
+    slew.start_from(math.radians(180.0), reason="restart hdg -180°")
+    slew.update(20.1, 0.0)
+    news.after_update(slew)
+    assert texts[-1] == "ahrsd: restart hdg -180°, slewing ≤2.5°/s" and len(statustext(6, texts[-1]).text) <= 50
 
 
 def test_the_slew_is_held_to_2_degrees_per_second_while_the_sigma_it_needs_is_above_ekf3s_5_degree_floor():
