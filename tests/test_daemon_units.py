@@ -233,13 +233,6 @@ def test_imu_messages_units_and_clipping():
     assert nan_t.fields_updated == 0x11FF & ~0x1000
 
 
-def test_statustext_is_cut_to_its_first_50_bytes():
-    text = "".join(chr(ord("A") + k % 26) for k in range(80))     # every position tells which byte it was
-    frame = msgs.statustext(6, text).pack(mavlink.MAVLink(None, srcSystem=1, srcComponent=200))
-    (received,) = mavlink.MAVLink(None).parse_buffer(frame)       # as a ground station decodes it
-    assert received.severity == 6 and received.text == text[:50]
-
-
 def test_mounting_matrix():
     assert mounting_matrix([0, 0, 0]) is None
     m = mounting_matrix([0, 0, 90])
