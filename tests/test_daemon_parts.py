@@ -130,6 +130,44 @@ def test_the_manual_declination_outranks_every_position_and_a_big_step_is_a_rese
     assert len(told) == 2 and len(resets) == 2        # no change, nothing told
 
 
+def test_a_small_declination_step_is_told_but_is_no_reset_also_across_180_degrees():
+    """A step up to DECLINATION_RESET_STEP_RAD (0.5°) changes the estimator's declination without telling the
+    autopilot of a heading reset (reset_counter); a bigger one does both. 179.8° → −179.8° is a 0.4° step."""
+    params = ParamStore(param_specs(Config()))
+    resolver = PositionResolver(LocationConfig(), gnss_position=lambda: None, autopilot=AutopilotState(),
+                                simulator=False)
+    resets, told = [], []
+    decl = Declination(params, resolver, signal_reset=lambda: resets.append(1))
+    decl.set_estimator = told.append
+    params.set("DECL_MANUAL", 1)
+    for deg, resets_after in ((179.8, 1), (-179.8, 1), (-179.4, 1), (-178.8, 2)):
+        params.set("DECL_DEG", deg)
+        decl.resolve()
+        assert decl.rad == pytest.approx(math.radians(deg)) and told[-1] == decl.rad
+        assert len(resets) == resets_after, deg
+
+
+def test_the_declination_follows_a_moving_position_every_update_period():
+    """Re-resolved by `tick` once UPDATE_PERIOD_S has passed since the last resolution (a stepped clock), not
+    before: a vehicle that moved (or a position that arrived late) gets the declination of where it is."""
+    from ahrsd.daemon.declination import UPDATE_PERIOD_S
+
+    t = [100.0]
+    src = Sources()
+    src.drop("config")
+    decl = Declination(ParamStore(param_specs(Config())), src.resolver, signal_reset=lambda: None,
+                       clock=lambda: t[0])
+    decl.resolve(initial=True)
+    assert decl.rad == pytest.approx(earth_field(*GNSS_SITE).declination_rad, abs=1e-12)
+    src.gnss = AUTOPILOT_SITE                        # the receiver now reports another place
+    t[0] += 0.5 * UPDATE_PERIOD_S
+    decl.tick(t[0])
+    assert decl.rad == pytest.approx(earth_field(*GNSS_SITE).declination_rad, abs=1e-12)
+    t[0] += 0.6 * UPDATE_PERIOD_S
+    decl.tick(t[0])
+    assert decl.rad == pytest.approx(earth_field(*AUTOPILOT_SITE).declination_rad, abs=1e-12)
+
+
 def _inbound(tmp_path, resolver, autopilot):
     params = ParamStore(param_specs(Config()), tmp_path)
     counters = ServiceCounters()

@@ -148,6 +148,15 @@ def test_param_store_validates_persists_and_reloads(tmp_path):
     assert ParamStore(specs, tmp_path).load()[0].startswith("ignoring parameter file")
 
 
+def test_a_parameter_range_includes_both_ends():
+    """[lo, hi] is closed, as the range the refusal names: DECL_MANUAL's 1 and 0 are the values it has."""
+    p = ParamStore([ParamSpec("SR_A", 10, 0, 50, "Hz"), ParamSpec("FLAG", 0, 0, 1, "0/1", integer=True)])
+    assert p.set("SR_A", 0.0) == (True, "") and p.set("SR_A", 50.0) == (True, "")
+    assert p.set("FLAG", 1.0) == (True, "") and p.set("FLAG", 0.0) == (True, "")
+    assert p.set("SR_A", -1e-9)[0] is False and p.set("SR_A", 50.000001)[0] is False
+    assert p.get("SR_A") == 50.0
+
+
 def test_param_names_and_defaults_are_checked():
     with pytest.raises(ValueError):
         ParamSpec("THIS_NAME_IS_TOO_LONG", 0, 0, 1, "")
