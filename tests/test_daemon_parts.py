@@ -168,6 +168,36 @@ def test_the_declination_follows_a_moving_position_every_update_period():
     assert decl.rad == pytest.approx(earth_field(*AUTOPILOT_SITE).declination_rad, abs=1e-12)
 
 
+def test_a_broadcast_parameter_request_for_a_name_we_lack_is_not_ours_to_refuse():
+    """A ground station asks every component (target_component 0) for the autopilot's parameters: a name we do
+    not have is someone else's, so no STATUSTEXT and no refusal counted; addressed to us, it is refused, counted
+    and said once."""
+    class Link:
+        def __init__(self):
+            self.sent = []
+
+        def send(self, msg):
+            self.sent.append(msg)
+            return True
+
+    params = ParamStore(param_specs(Config()))
+    counters = ServiceCounters()
+    outbound = Outbound(Identity(1, 191, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), counters, clock=lambda: 0.0)
+    link = Link()
+    outbound.endpoints.append(link)
+    proto = ParamProtocol(params, outbound, counters, signing_required=lambda: False, spawn=lambda coro: None)
+    read = as_if_from(mavlink.MAVLink_param_request_read_message(1, 0, b"SYSID_THISMAV", -1), 255, 190)
+    write = as_if_from(mavlink.MAVLink_param_set_message(1, 0, b"SYSID_THISMAV", 3.0,
+                                                         mavlink.MAV_PARAM_TYPE_REAL32), 255, 190)
+    proto.on_message(link, read, "PARAM_REQUEST_READ", broadcast=True)
+    proto.on_message(link, write, "PARAM_SET", broadcast=True)
+    assert link.sent == [] and params.rejected_reads == 0 and params.rejected_writes == 0
+    proto.on_message(link, read, "PARAM_REQUEST_READ", broadcast=False)
+    proto.on_message(link, write, "PARAM_SET", broadcast=False)
+    assert [m.get_type() for m in link.sent] == ["STATUSTEXT", "STATUSTEXT"]
+    assert params.rejected_reads == 1 and params.rejected_writes == 1
+
+
 def _inbound(tmp_path, resolver, autopilot):
     params = ParamStore(param_specs(Config()), tmp_path)
     counters = ServiceCounters()
