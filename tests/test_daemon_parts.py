@@ -168,18 +168,21 @@ def test_the_declination_follows_a_moving_position_every_update_period():
     assert decl.rad == pytest.approx(earth_field(*AUTOPILOT_SITE).declination_rad, abs=1e-12)
 
 
+class Link:
+    """An endpoint that keeps what it is sent."""
+
+    def __init__(self):
+        self.sent = []
+
+    def send(self, msg):
+        self.sent.append(msg)
+        return True
+
+
 def test_a_broadcast_parameter_request_for_a_name_we_lack_is_not_ours_to_refuse():
     """A ground station asks every component (target_component 0) for the autopilot's parameters: a name we do
     not have is someone else's, so no STATUSTEXT and no refusal counted; addressed to us, it is refused, counted
     and said once."""
-    class Link:
-        def __init__(self):
-            self.sent = []
-
-        def send(self, msg):
-            self.sent.append(msg)
-            return True
-
     params = ParamStore(param_specs(Config()))
     counters = ServiceCounters()
     outbound = Outbound(Identity(1, 191, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), counters, clock=lambda: 0.0)
@@ -196,6 +199,33 @@ def test_a_broadcast_parameter_request_for_a_name_we_lack_is_not_ours_to_refuse(
     proto.on_message(link, write, "PARAM_SET", broadcast=False)
     assert [m.get_type() for m in link.sent] == ["STATUSTEXT", "STATUSTEXT"]
     assert params.rejected_reads == 1 and params.rejected_writes == 1
+
+
+def test_a_refused_parameter_write_says_its_whole_reason_and_answers_the_value_in_force():
+    """The reason a change is refused (the part's ParamError) reaches the operator whole, however long: it used to
+    be cut at 50 bytes ("ahrsd: MAG_LRN_ACT 1: Disarm to change the learn")."""
+    from ahrsd.daemon.params import ParamError, ParamSpec
+
+    reason = "MAG_LRN_ACT 1: Disarm to change the learned iron"
+
+    def refuse(name, value):
+        raise ParamError(reason)
+
+    params = ParamStore([ParamSpec("MAG_LRN_ACT", 0, 0, 2, "action", integer=True, momentary=True)],
+                        on_change=refuse)
+    counters = ServiceCounters()
+    outbound = Outbound(Identity(1, 191, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), counters, clock=lambda: 0.0)
+    link = Link()
+    outbound.endpoints.append(link)
+    proto = ParamProtocol(params, outbound, counters, signing_required=lambda: False, spawn=lambda coro: None)
+    write = as_if_from(mavlink.MAVLink_param_set_message(1, 191, b"MAG_LRN_ACT", 1.0,
+                                                         mavlink.MAV_PARAM_TYPE_REAL32), 255, 190)
+    proto.on_message(link, write, "PARAM_SET", broadcast=False)
+    texts = [m for m in link.sent if m.get_type() == "STATUSTEXT"]
+    assert "".join(m.text.decode() if isinstance(m.text, bytes) else m.text for m in texts) == f"ahrsd: {reason}"
+    assert len({m.id for m in texts}) == 1 and texts[0].id != 0
+    (value,) = [m for m in link.sent if m.get_type() == "PARAM_VALUE"]
+    assert value.param_value == 0.0
 
 
 def _inbound(tmp_path, resolver, autopilot):
