@@ -475,3 +475,40 @@ def test_critical_needs_the_reader_to_find_no_sample_not_only_a_busy_event_loop(
     run_until(5.0, reader_looks=False)              # the reader stops looking at 4.0
     critical = [t for t, text in texts if "CRITICAL" in text and t > 4.0]
     assert critical and critical[0] <= 4.0 + 0.1 * (READER_SILENT_TICKS + 1) + 1e-9, texts
+
+
+def test_a_late_housekeeping_tick_does_not_slow_the_heartbeat():
+    """Housekeeping runs on absolute 10 Hz deadlines, but a busy event loop runs each tick late (here 0 to 90 ms,
+    seeded): the heartbeat stays on its 1 s grid, 100 in 100 s, not one second after each late tick (~95)."""
+    import random
+
+    class Counts:
+        samples = 0
+
+    class Notifier:
+        def status(self, text):
+            pass
+
+        def watchdog(self):
+            pass
+
+    link = Link()
+    outbound = Outbound(Identity(1, 191, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), ServiceCounters(),
+                        clock=lambda: 0.0)
+    outbound.endpoints.append(link)
+    report = HealthReport(Health(stale_timeout_s=0.1), outbound, Notifier(), Counts(), watchdog_interval_s=None,
+                          start=100.0)
+    rng = random.Random(3)
+    for k in range(1000):
+        report(100.0 + 0.1 * k + 0.09 * rng.random())
+    assert [m.get_type() for m in link.sent].count("HEARTBEAT") in (99, 100)
+
+
+def test_a_sensor_failure_during_a_calibration_is_critical_not_calibrating():
+    health = Health(stale_timeout_s=1.0)
+    health.sample_read(0.0)
+    health.last_estimate_flags = EstimateFlags.NONE
+    health.calibrating = "gyro calibration"
+    assert health.system_status(0.5) == mavlink.MAV_STATE_CALIBRATING
+    health.sensor_error = "bus failure"
+    assert health.system_status(0.5) == mavlink.MAV_STATE_CRITICAL
