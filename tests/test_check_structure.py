@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import textwrap
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -92,15 +93,16 @@ def test_a_spy_on_an_estimator_in_a_test_fails(tmp_path):
     """Rule 5, the shape test_heading_monitor had: the estimator's methods replaced by spies; assigning data to
     an attribute, or a spy to something that is not an estimator, is not this rule's business."""
     (tmp_path / "tests").mkdir()
-    (tmp_path / "tests" / "test_bad.py").write_text(
-        "def test_a(est):\n"
-        "    check = est._monitor.check\n"
-        "    def spy(*a):\n"
-        "        return check(*a)\n"
-        "    est._monitor.check = spy\n"
-        "    est._check_heading = lambda t: None\n"
-        "    est.params = None\n"
-        "    router.clock = lambda: 0.0\n")
+    (tmp_path / "tests" / "test_bad.py").write_text(textwrap.dedent("""\
+        def test_a(est):
+            check = est._monitor.check
+            def spy(*a):
+                return check(*a)
+            est._monitor.check = spy
+            est._check_heading = lambda t: None
+            est.params = None
+            router.clock = lambda: 0.0
+        """))
     r = run(tmp_path)
     assert r.returncode == 1
     assert "tests/test_bad.py:5: est._monitor.check replaced by a spy" in r.stdout

@@ -33,6 +33,7 @@ from ahrsd.daemon.position import PositionResolver
 from ahrsd.daemon.sample_reader import ReaderOutputs, SampleListeners, SampleReader
 from ahrsd.drivers.source_interface import LiveSource
 from ahrsd.simulation import DEFAULT_SITE
+from support.kept_link import KeptLink
 from support.mavlink_feed import as_if_from
 
 # four places with clearly different declinations (each far from the others' by several degrees)
@@ -168,17 +169,6 @@ def test_the_declination_follows_a_moving_position_every_update_period():
     assert decl.rad == pytest.approx(earth_field(*AUTOPILOT_SITE).declination_rad, abs=1e-12)
 
 
-class Link:
-    """An endpoint that keeps what it is sent."""
-
-    def __init__(self):
-        self.sent = []
-
-    def send(self, msg):
-        self.sent.append(msg)
-        return True
-
-
 def test_a_broadcast_parameter_request_for_a_name_we_lack_is_not_ours_to_refuse():
     """A ground station asks every component (target_component 0) for the autopilot's parameters: a name we do
     not have is someone else's, so no STATUSTEXT and no refusal counted; addressed to us, it is refused, counted
@@ -186,7 +176,7 @@ def test_a_broadcast_parameter_request_for_a_name_we_lack_is_not_ours_to_refuse(
     params = ParamStore(param_specs(Config()))
     counters = ServiceCounters()
     outbound = Outbound(Identity(1, 191, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), counters, clock=lambda: 0.0)
-    link = Link()
+    link = KeptLink()
     outbound.endpoints.append(link)
     proto = ParamProtocol(params, outbound, counters, signing_required=lambda: False, spawn=lambda coro: None)
     read = as_if_from(mavlink.MAVLink_param_request_read_message(1, 0, b"SYSID_THISMAV", -1), 255, 190)
@@ -215,7 +205,7 @@ def test_a_refused_parameter_write_says_its_whole_reason_and_answers_the_value_i
                         on_change=refuse)
     counters = ServiceCounters()
     outbound = Outbound(Identity(1, 191, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), counters, clock=lambda: 0.0)
-    link = Link()
+    link = KeptLink()
     outbound.endpoints.append(link)
     proto = ParamProtocol(params, outbound, counters, signing_required=lambda: False, spawn=lambda coro: None)
     write = as_if_from(mavlink.MAVLink_param_set_message(1, 191, b"MAG_LRN_ACT", 1.0,
@@ -316,13 +306,6 @@ def test_the_reader_says_ready_once_on_the_first_good_estimate():
 
 
 def test_the_health_report_sends_one_heartbeat_a_second_on_a_stepped_clock():
-    sent = []
-
-    class Link:
-        def send(self, msg):
-            sent.append(msg.get_type())
-            return True
-
     class Counts:
         samples = 0
 
@@ -338,12 +321,14 @@ def test_the_health_report_sends_one_heartbeat_a_second_on_a_stepped_clock():
 
     outbound = Outbound(Identity(1, 191, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), ServiceCounters(),
                         clock=lambda: 0.0)
-    outbound.endpoints.append(Link())
+    link = KeptLink()
+    outbound.endpoints.append(link)
     notifier = Notifier()
     report = HealthReport(Health(stale_timeout_s=0.1), outbound, notifier, Counts(), watchdog_interval_s=2.0,
                           start=100.0)
     for k in range(101):
         report(100.0 + 0.1 * k)                       # 10 s of housekeeping at 10 Hz
+    sent = [m.get_type() for m in link.sent]
     assert sent.count("HEARTBEAT") == 10
     assert sent.count("STATUSTEXT") == 1 and notifier.statuses == ["BOOT: waiting for the sensor"]
     assert notifier.watchdogs == 0                    # no samples flow: systemd must be able to restart us
@@ -492,7 +477,7 @@ def test_a_late_housekeeping_tick_does_not_slow_the_heartbeat():
         def watchdog(self):
             pass
 
-    link = Link()
+    link = KeptLink()
     outbound = Outbound(Identity(1, 191, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), ServiceCounters(),
                         clock=lambda: 0.0)
     outbound.endpoints.append(link)

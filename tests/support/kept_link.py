@@ -1,0 +1,13 @@
+"""An endpoint that keeps what it is sent: what daemon.outbound.Outbound needs of an endpoint (`send`), for the
+parts built alone."""
+
+from __future__ import annotations
+
+
+class KeptLink:
+    def __init__(self):
+        self.sent = []
+
+    def send(self, msg) -> bool:
+        self.sent.append(msg)
+        return True
