@@ -12,14 +12,15 @@ one token per chunk would let a flood of short refusals keep the bucket below th
 forever, so the daemon's own long texts (heading state, MAV_STATE, mag-cal results) would never go out; the bytes
 per token stay bounded because every text is written by the daemon and is a few chunks long (a peer's input
 appears in it only as a short field: a parameter name, a number). All chunks of one text are sent in one call, so no other
-STATUSTEXT of ours comes between them."""
+STATUSTEXT of ours comes between them, and an endpoint takes them all or none (`Endpoint.send_together`: a serial
+link too full for every chunk sends none of them)."""
 
 from __future__ import annotations
 
 import logging
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Protocol
 
 from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.counters import ServiceCounters
@@ -27,6 +28,13 @@ from ahrsd.daemon.mavlink_io import Endpoint, mavlink
 from ahrsd.daemon.rate_limit import TokenBucket
 
 log = logging.getLogger(__name__)
+
+
+class OutboundEndpoint(Protocol):
+    """What Outbound needs of an endpoint (daemon.mavlink_io.Endpoint; a test's stand-in)."""
+
+    def send(self, msg) -> bool: ...
+    def send_together(self, msgs) -> bool: ...     # all of them or none (the chunks of one STATUSTEXT)
 
 
 @dataclass
@@ -44,7 +52,7 @@ class Outbound:
     def __init__(self, identity: Identity, counters: ServiceCounters, *, clock: Callable[[], float] = time.monotonic):
         self.identity = identity
         self.counters = counters
-        self.endpoints: list[Endpoint] = []
+        self.endpoints: list[OutboundEndpoint] = []
         self.clock = clock
         # STATUSTEXT budget for non-critical texts: 5 texts/s sustained, bursts of 10 (critical ones always go out)
         self._statustext_budget = TokenBucket(rate_per_s=5.0, burst=10)
@@ -67,8 +75,8 @@ class Outbound:
         chunks = msgs.statustext_chunks(severity, text, self._chunk_id % 65535 + 1)
         if len(chunks) > 1:
             self._chunk_id = chunks[0].id
-        for msg in chunks:
-            self.send(msg)
+        for ep in self.endpoints:
+            ep.send_together(chunks)
 
     def set_system_id(self, system_id: int) -> None:
         """Adopt the autopilot's system id on every endpoint (daemon.inbound)."""

@@ -417,6 +417,9 @@ def test_critical_needs_the_reader_to_find_no_sample_not_only_a_busy_event_loop(
                 texts.append((clock.t, msg.text))
             return True
 
+        def send_together(self, msgs):
+            return all([self.send(m) for m in msgs])
+
     class Notifier:
         def status(self, text):
             pass

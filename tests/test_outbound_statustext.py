@@ -29,6 +29,9 @@ class WireLink:
         self.stream += msg.pack(self.mav)
         return True
 
+    def send_together(self, msgs):
+        return all([self.send(m) for m in msgs])
+
 
 class GroundStation:
     """Joins STATUSTEXT chunks as MAVProxy and QGroundControl do; `texts` whole, `incomplete` cut ones."""

@@ -9,10 +9,14 @@ from __future__ import annotations
 
 import asyncio
 import os
+from types import SimpleNamespace
 
 import pytest
 
-from ahrsd.daemon.mavlink_io import LinkCounters
+from ahrsd.daemon.counters import ServiceCounters
+from ahrsd.daemon.mavlink_io import Endpoint, LinkCounters, mavlink
+from ahrsd.daemon.messages import statustext_chunks
+from ahrsd.daemon.outbound import Identity, Outbound
 from ahrsd.daemon.serial_queue import SerialOutQueue
 
 LINE_B_S = 20_000.0
@@ -66,5 +70,42 @@ def test_an_empty_queue_takes_a_frame_larger_than_its_share(full_pipe):
         queue.priority = 3
         assert queue.write(b"\xfd" * 800) == 800 and queue.waiting_bytes() == 800
         assert queue.write(FRAME) == 0                                              # now it is over its share
+    finally:
+        queue.close()
+
+
+def test_a_chunked_statustext_goes_whole_or_not_at_all_on_a_full_serial_link(full_pipe):
+    """A serial endpoint at 5760 B/s (pymavlink writing into the queue, the line a full pipe): a 576-byte bound, 432
+    for STATUSTEXT's priority 1. With 5 single texts (63-byte frames, 315 B) waiting, a 3-chunk text (frames of
+    at most 66 B) would not fit whole: none of its chunks is sent, all 3 counted; sent one by one, the first chunk
+    would have gone and the rest been refused: a cut text."""
+    w, loop = full_pipe
+    counters = LinkCounters()
+    queue = SerialOutQueue(w, 5760.0, loop, counters)
+    conn = SimpleNamespace(mav=mavlink.MAVLink(queue, srcSystem=1, srcComponent=200), fd=None)
+    priority = [1]                                   # STATUSTEXT's (daemon.link_budget.EVENT_PRIORITY)
+    ep = Endpoint("/dev/ttyAMA0,57600", 1, 200, lambda e, m: None, counters=counters, conn=conn,
+                  priority_of=lambda message_id: priority[0], out_queue=queue)
+    try:
+        assert queue.capacity_bytes == 576
+        for k in range(5):
+            (single,) = statustext_chunks(mavlink.MAV_SEVERITY_INFO, f"ahrsd: {k}" + "x" * 42, 0)
+            assert ep.send(single)
+        assert queue.waiting_bytes() == 5 * 63
+        chunks = statustext_chunks(mavlink.MAV_SEVERITY_INFO, "ahrsd: " + "y" * 120, 7)
+        assert len(chunks) == 3
+        assert not ep.send_together(chunks)
+        assert queue.waiting_bytes() == 5 * 63 and counters.tx_dropped == 3
+        assert counters.tx_dropped_by_priority == {1: 3}
+        # the same through the one place texts are sent
+        outbound = Outbound(Identity(1, 200, mavlink.MAV_TYPE_IMU), ServiceCounters(), clock=lambda: 0.0)
+        outbound.endpoints.append(ep)
+        outbound.statustext(mavlink.MAV_SEVERITY_INFO, "ahrsd: " + "y" * 120)
+        assert queue.waiting_bytes() == 5 * 63 and counters.tx_dropped == 6
+        # where the whole text fits (a priority-0 share, 576 B: 315 + 2 x 66), every chunk goes
+        priority[0] = 0
+        short = statustext_chunks(mavlink.MAV_SEVERITY_INFO, "ahrsd: " + "z" * 60, 8)
+        assert len(short) == 2 and ep.send_together(short)
+        assert queue.waiting_bytes() > 5 * 63 and counters.tx_messages == 5 + 2 and counters.tx_dropped == 6
     finally:
         queue.close()

@@ -3,13 +3,12 @@
 
 from __future__ import annotations
 
-from types import SimpleNamespace
-
 from ahrsd.daemon.counters import ServiceCounters
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.daemon.messages import statustext_chunks
 from ahrsd.daemon.outbound import Identity, Outbound
 from ahrsd.daemon.statustext_ascii import statustext_ascii
+from support.kept_link import KeptLink
 
 MAV = mavlink.MAVLink(None, srcSystem=1, srcComponent=200)
 
@@ -37,9 +36,10 @@ def test_single_statustext_is_ascii_on_the_wire():
 
 
 def test_long_statustext_chunks_are_ascii_and_reassemble():
-    sent = []
+    link = KeptLink()
     outbound = Outbound(Identity(1, 200, mavlink.MAV_TYPE_IMU), ServiceCounters(), clock=lambda: 0.0)
-    outbound.endpoints.append(SimpleNamespace(send=sent.append))
+    outbound.endpoints.append(link)
+    sent = link.sent
     outbound.statustext(mavlink.MAV_SEVERITY_WARNING,
                         "ahrsd: heading reset to the GNSS yaw (±1.5°) after the magnetometer disagreed by 36°")
     text = b"".join(on_the_wire(m) for m in sent)

@@ -52,6 +52,11 @@ class FakeHost:
     def send(self, msg):
         self.sent.append(wire(msg))
 
+    def send_together(self, msgs):
+        for msg in msgs:
+            self.send(msg)
+        return True
+
     def statustext(self, severity, text):
         self.outbound.statustext(severity, text)
 
