@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import Callable, Protocol
 
@@ -28,6 +29,8 @@ from ahrsd.daemon.mavlink_io import Endpoint, mavlink
 from ahrsd.daemon.rate_limit import TokenBucket
 
 log = logging.getLogger(__name__)
+
+SENT_TEXTS_KEPT = 64     # the latest texts sent, for a reader (a test, a diagnosis): `Outbound.sent_texts`
 
 
 class OutboundEndpoint(Protocol):
@@ -47,7 +50,8 @@ class Identity:
 
 
 class Outbound:
-    """The endpoints and the one way to send: `send` (one endpoint or all), `statustext` (rate limited)."""
+    """The endpoints and the one way to send: `send` (one endpoint or all), `statustext` (rate limited; the latest
+    texts sent kept in `sent_texts`)."""
 
     def __init__(self, identity: Identity, counters: ServiceCounters, *, clock: Callable[[], float] = time.monotonic):
         self.identity = identity
@@ -57,6 +61,7 @@ class Outbound:
         # STATUSTEXT budget for non-critical texts: 5 texts/s sustained, bursts of 10 (critical ones always go out)
         self._statustext_budget = TokenBucket(rate_per_s=5.0, burst=10)
         self._chunk_id = 0       # the id of the latest chunked text (1..65535; 0 means "not chunked")
+        self.sent_texts: deque[tuple[int, str]] = deque(maxlen=SENT_TEXTS_KEPT)   # (severity, text), latest last
 
     def send(self, msg, endpoint: Endpoint | None = None) -> None:
         """Send to one endpoint, or to all of them."""
@@ -72,6 +77,7 @@ class Outbound:
             log.debug("STATUSTEXT suppressed by the rate limit: %s", text)
             return
         log.log(logging.WARNING if severity <= mavlink.MAV_SEVERITY_WARNING else logging.INFO, "%s", text)
+        self.sent_texts.append((severity, text))
         chunks = msgs.statustext_chunks(severity, text, self._chunk_id % 65535 + 1)
         if len(chunks) > 1:
             self._chunk_id = chunks[0].id

@@ -108,6 +108,7 @@ def test_the_rate_limit_never_sends_part_of_a_text():
     gcs.receive(link.stream)
     assert gcs.texts == [LONG_ASCII] * 10 and gcs.incomplete == [] and gcs._pending == {}   # the burst: 10 texts
     assert counters.statustext_suppressed == 30
+    assert list(outbound.sent_texts) == [(mavlink.MAV_SEVERITY_WARNING, LONG)] * 10        # what went, as written
 
 
 def test_a_flood_of_short_texts_does_not_starve_the_long_ones():
