@@ -4,6 +4,7 @@ builders, routing rule, sample timing, sd_notify, and the MAVLink endpoint's han
 from __future__ import annotations
 
 import asyncio
+import logging
 import math
 import socket
 
@@ -80,6 +81,52 @@ def test_duplicates_are_not_re_executed(router):
     router.handle(command(9, 1), "ep", False)
     assert len(calls) == 3
     assert router.counters.duplicates == 2
+
+
+def test_a_temporarily_rejected_command_retried_is_evaluated_afresh(router):
+    """TEMPORARILY_REJECTED ("disarm first") is not what a retry within the duplicate window gets: the operator
+    disarms and re-sends, and the command runs."""
+    armed = [True]
+    calls = []
+
+    def handler(m, c):
+        calls.append(1)
+        return mavlink.MAV_RESULT_TEMPORARILY_REJECTED if armed[0] else mavlink.MAV_RESULT_ACCEPTED
+
+    router.register(13, handler)
+    router.handle(command(13, 1), "ep", False)
+    armed[0] = False
+    router.now[0] += 1.0
+    router.handle(command(13, 1), "ep", False)
+    assert len(calls) == 2 and [a.result for a in router.sent] == [mavlink.MAV_RESULT_TEMPORARILY_REJECTED,
+                                                                   mavlink.MAV_RESULT_ACCEPTED]
+
+
+def test_a_command_resent_every_second_runs_once(router):
+    """A ground station that keeps re-sending (every 1 s, longer than the 3 s window): each re-send is a duplicate
+    of the one before, so the command runs once (the window restarts at every duplicate)."""
+    calls = []
+    router.register(14, lambda m, c: calls.append(1) or mavlink.MAV_RESULT_ACCEPTED)
+    for k in range(8):
+        router.now[0] = 100.0 + k
+        router.handle(command(14, 1), "ep", False)
+    assert len(calls) == 1 and router.counters.duplicates == 7
+
+
+def test_a_flood_of_refusals_is_logged_and_said_a_bounded_number_of_times(caplog):
+    """100 refused commands at one instant: REFUSAL_LOG_BURST warnings and STATUSTEXTs, the rest counted."""
+    from ahrsd.daemon.commands import REFUSAL_LOG_BURST, Refused
+
+    said = []
+    router = CommandRouter(send_ack=lambda ep, m: None, statustext=lambda severity, text: said.append(text),
+                           clock=lambda: 100.0)
+    router.register(15, lambda m, c: Refused(mavlink.MAV_RESULT_DENIED, "no"))
+    caplog.set_level(logging.WARNING, logger="ahrsd.daemon.commands")
+    for k in range(100):
+        router.handle(command(15, k), "ep", False)
+    assert router.counters.refused == 100 and len(said) == REFUSAL_LOG_BURST
+    assert router.counters.refusal_logs_suppressed == 100 - REFUSAL_LOG_BURST
+    assert sum("refused" in r.getMessage() for r in caplog.records) == REFUSAL_LOG_BURST
 
 
 def test_read_only_commands_are_answered_again(router):
