@@ -44,7 +44,7 @@ from ahrsd.daemon.gyro_cal import GyroBiasCalibration
 from ahrsd.daemon.heading_resets import HeadingResets
 from ahrsd.daemon.heading_slew import HeadingSlew
 from ahrsd.daemon.health import Health
-from ahrsd.daemon.heading_status import HeadingStatus, LongStatusText
+from ahrsd.daemon.heading_status import HeadingStatus
 from ahrsd.daemon.housekeeping import Every, HealthReport, Housekeeping
 from ahrsd.daemon.inbound import InboundDispatch
 from ahrsd.daemon.learned_iron import ACTION_PARAM as LEARNED_IRON_ACTION
@@ -107,7 +107,8 @@ class Service:
                                  self.counters)
         self.params = ParamStore(param_specs(config), self.state_dir, on_change=self._on_param_change)
         self.commands = CommandRouter(lambda endpoint, msg: endpoint.send(msg),
-                                      require_signed=lambda: self.signing_required, send=self.outbound.send,
+                                      require_signed=lambda: self.signing_required,
+                                      statustext=self.outbound.statustext,
                                       accept_broadcast=config.mavlink.accept_broadcast_commands,
                                       broadcast_notice=BroadcastNotice(self.outbound.statustext,
                                                                        config.mavlink.component_id))
@@ -394,7 +395,7 @@ class Service:
         """The heading status reported (daemon.heading_status) and the learned iron restored and its command
         registered (daemon.learned_iron)."""
         cfg = self.config
-        self.heading_status = HeadingStatus(LongStatusText(self.outbound.send), calibration_sigma_rad=mag_sigma_rad,
+        self.heading_status = HeadingStatus(self.outbound.statustext, calibration_sigma_rad=mag_sigma_rad,
                                             calibration_in_force=has_mag_calibration(self.pipeline.calibration),
                                             good_sigma_rad=math.radians(cfg.outputs.heading_good_sigma_deg))
         self.learned_iron = LearnedIron(

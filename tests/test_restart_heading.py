@@ -267,6 +267,9 @@ def connect_autopilot(autopilot_kind, ekf=None, *, answer_commands=True):
                 answer(msg)
                 return True
 
+            def send_together(self, msgs):
+                return all([self.send(m) for m in msgs])
+
             def close(self):
                 pass
 
