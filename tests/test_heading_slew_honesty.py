@@ -12,7 +12,7 @@ import numpy as np
 from ahrsd.core.estimate import HeadingState
 from ahrsd.daemon.heading_resets import HeadingResets
 from ahrsd.daemon.heading_slew import HeadingSlew
-from ahrsd.daemon.messages import statustext
+from ahrsd.daemon.messages import statustext_chunks
 from ahrsd.daemon.slew_news import SlewNews
 
 DEG = math.radians(1.0)
@@ -65,7 +65,7 @@ def test_a_slew_is_announced_when_it_starts_and_ends_in_one_statustext_each():
     # the largest offset: 30° less the first 1/30 s at 3 °/s
     assert texts == ["ahrsd: calibration changed, slewing ≤3°/s", "ahrsd: yaw change 29.9° slewed in"]
     assert resets.status_text() == ""
-    assert all(len(statustext(6, x).text) <= 50 for x in texts)
+    assert all(len(statustext_chunks(6, x, 1)) == 1 for x in texts)
 
 
 def test_a_transition_that_moves_nothing_says_nothing_and_a_reset_ending_one_says_so():
@@ -85,14 +85,14 @@ def test_a_transition_that_moves_nothing_says_nothing_and_a_reset_ending_one_say
     slew.update(12.1, 0.0)
     news.after_update(slew)
     assert texts == ["ahrsd: restart hdg -100°, yaw held to realign", "ahrsd: yaw change 100.0° sent as a yaw reset"]
-    assert all(len(statustext(6, x).text) <= 50 for x in texts)
+    assert all(len(statustext_chunks(6, x, 1)) == 1 for x in texts)
     # the longest a start can be: a restart of -180° slewed at a fractional rate
     slew = HeadingSlew(max_rate_deg_s=2.5)
     slew.update(20.0, 0.0)
     slew.start_from(math.radians(180.0), reason="restart hdg -180°")
     slew.update(20.1, 0.0)
     news.after_update(slew)
-    assert texts[-1] == "ahrsd: restart hdg -180°, slewing ≤2.5°/s" and len(statustext(6, texts[-1]).text) <= 50
+    assert texts[-1] == "ahrsd: restart hdg -180°, slewing ≤2.5°/s" and len(statustext_chunks(6, texts[-1], 1)) == 1
 
 
 def test_the_slew_is_held_to_2_degrees_per_second_while_the_sigma_it_needs_is_above_ekf3s_5_degree_floor():
