@@ -64,7 +64,7 @@ from .kernel_rotations import dcm, euler_zyx, normalised, quat_mul, rotate_to_ne
 
 __all__ = [
     "MEKF_STATE_DTYPE", "MEKF_PARAMS_DTYPE", "MEKF_OUT_DTYPE", "MEKF_BUFFER_DTYPE", "mekf_step", "mekf_step_full",
-    "mekf_run", "fast_step", "fill_euler", "fast_fill_euler", "input_validity", "BAD_SHAPE", "NEEDS_INIT",
+    "mekf_run", "fast_step", "fill_euler", "fast_fill_euler", "fill_outputs_after_init", "fast_fill_after_init", "input_validity", "BAD_SHAPE", "NEEDS_INIT",
     "IN_ACC_OK", "IN_GYRO_OK", "IN_MAG_OK",
     "F_INITIALISING", "F_MAG_REJECTED", "F_ACCEL_REJECTED", "F_AT_REST", "F_MAG_UNAVAILABLE", "F_LARGE_DT",
     "F_REINITIALISED", "E_TILT_N", "E_TILT_E", "E_HEADING", "E_BIAS",
@@ -977,15 +977,32 @@ def mekf_step_full(buf, t_s, gyro, acc, mag_ut, sample_flags):
                      mag_ut[0], mag_ut[1], mag_ut[2], sample_flags, b.out, True)
 
 
-@njit(cache=True)
-def fill_euler(buf):
-    """The ZYX Euler angles (roll, pitch, yaw magnetic) of the output quaternion of the 1-element
-    MEKF_BUFFER_DTYPE array `buf` into its out.euler_rad."""
-    out = borrowed(buf)[0].out
+@njit(cache=True, inline="always")
+def _fill_euler(out):
+    """out.euler_rad ← the ZYX Euler angles (roll, pitch, yaw magnetic) of out.q."""
     roll, pitch, yaw = euler_zyx(out.q[0], out.q[1], out.q[2], out.q[3])
     out.euler_rad[0] = roll
     out.euler_rad[1] = pitch
     out.euler_rad[2] = yaw
+
+
+@njit(cache=True)
+def fill_euler(buf):
+    """The ZYX Euler angles (roll, pitch, yaw magnetic) of the output quaternion of the 1-element
+    MEKF_BUFFER_DTYPE array `buf` into its out.euler_rad."""
+    _fill_euler(borrowed(buf)[0].out)
+
+
+@njit(cache=True)
+def fill_outputs_after_init(buf):
+    """Every output of the 1-element MEKF_BUFFER_DTYPE array `buf` from its state, as a one-sample step fills
+    them (`_fill_outputs`, the Euler angles too), the rate from the last gyro sample: an initialisation sets the
+    state without a step."""
+    b = borrowed(buf)[0]
+    st = b.state
+    g = st.gyro_last_rad_s
+    _fill_outputs(st, b.par, g[0], g[1], g[2], b.out)
+    _fill_euler(b.out)
 
 
 @njit(cache=True)
@@ -1062,6 +1079,13 @@ def fast_fill_euler():
     if "euler" not in _FAST:
         _FAST["euler"] = entry_point(fill_euler, (_buffer_type(),))
     return _FAST["euler"]
+
+
+def fast_fill_after_init():
+    """`fill_outputs_after_init` as a directly callable compiled entry point (as `fast_step`)."""
+    if "after_init" not in _FAST:
+        _FAST["after_init"] = entry_point(fill_outputs_after_init, (_buffer_type(),))
+    return _FAST["after_init"]
 
 
 def _buffer_type():
