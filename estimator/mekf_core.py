@@ -8,7 +8,8 @@ stages in order:
 
   `_propagate_attitude`, `_propagate_covariance`  strapdown q ← q ⊗ exp(ω Δt); P ← Φ P Φᵀ + Q in 3×3 blocks
                                                  (`_bias_block_product` M D, `_propagate_attitude_block` A')
-  `_detect_rest`, `_learn_bias_at_rest`          rest detection; at rest each gyro sample measures the bias
+  `_detect_rest`, `_learn_bias_at_rest`          rest detection (`_rest_lowpasses`, `_steady`,
+                                                 `_field_moved_at_rest`); at rest each gyro sample measures the bias
   `_tilt_update`                                 the accelerometer's vertical corrects tilt only:
                                                  `_vertical_lowpass` (f in NED, low-passed), `_motion_noise_rad2`,
                                                  `_vertical_accepted` (the gate), `_vertical_noise_rad2`,
@@ -377,70 +378,91 @@ def _propagate_covariance(P, par, dt, rate, c):
 
 
 # ----------------------------------------------------------------------------------- rest
+@njit(cache=True, inline="always")
+def _rest_lowpasses(st, k, valid, gx, gy, gz, ax, ay, az, mx, my, mz):
+    """The gyro, specific force and body-frame field low-passed with weight k (each sensor while valid)."""
+    glp = st.gyro_lp_rad_s
+    alp = st.acc_lp_m_s2
+    mlp = st.mag_lp_ut
+    for i in range(3):
+        g = gx if i == 0 else (gy if i == 1 else gz)
+        glp[i] += k * (g - glp[i])
+    if valid & IN_ACC_OK:
+        alp[0] += k * (ax - alp[0])
+        alp[1] += k * (ay - alp[1])
+        alp[2] += k * (az - alp[2])
+    if (valid & IN_MAG_OK) != 0:
+        mlp[0] += k * (mx - mlp[0])
+        mlp[1] += k * (my - mlp[1])
+        mlp[2] += k * (mz - mlp[2])
+
+
+@njit(cache=True, inline="always")
+def _steady(st, par, dt, k, valid, gx, gy, gz, ax, ay, az):
+    """Gyro and specific force close to their low-passes (`_rest_lowpasses`), the low-passed gyro within the bias
+    clip and the specific force's magnitude that of gravity. The squared deviations are low-passed too (weight
+    k) and the sensors' own white noise (3 axes × σ² per sample) is subtracted: a noisy gyro at rest is still at
+    rest, while a real motion raises the mean deviation at once."""
+    glp = st.gyro_lp_rad_s
+    alp = st.acc_lp_m_s2
+    dg = (gx - glp[0]) ** 2 + (gy - glp[1]) ** 2 + (gz - glp[2]) ** 2
+    da = (ax - alp[0]) ** 2 + (ay - alp[1]) ** 2 + (az - alp[2]) ** 2
+    st.rest_dev_gyro += k * (dg - st.rest_dev_gyro)
+    st.rest_dev_acc += k * (da - st.rest_dev_acc)
+    dg = st.rest_dev_gyro - 3.0 * par.gyro_noise_rad_s_sqrt_hz ** 2 / dt
+    da = st.rest_dev_acc - 3.0 * par.acc_noise_rest_m_s2 ** 2
+    clip = par.gyro_bias_clip_rad_s
+    lp_small = (abs(glp[0]) < clip) and (abs(glp[1]) < clip) and (abs(glp[2]) < clip)
+    return bool(
+        (valid & IN_GYRO_OK)
+        and (valid & IN_ACC_OK) != 0
+        and lp_small
+        and dg < par.rest_gyro_th_rad_s ** 2
+        and da < par.rest_acc_th_m_s2 ** 2
+        and abs(math.sqrt(alp[0] ** 2 + alp[1] ** 2 + alp[2] ** 2)
+                - st.g_ref_m_s2) < par.rest_acc_th_m_s2  # at rest the specific force is gravity
+    )
+
+
+@njit(cache=True, inline="always")
+def _field_moved_at_rest(st, par, valid, at_rest):
+    """At rest the body does not turn, so neither may the field it sees: the low-passed field is remembered when
+    rest begins; True when it has since moved by more than mag_rest_change_ut (something magnetic moved)."""
+    if not at_rest:
+        st.mag_rest_set = False
+        return False
+    if not valid & IN_MAG_OK:
+        return False
+    mlp = st.mag_lp_ut
+    mrest = st.mag_rest_ut
+    if not st.mag_rest_set:
+        mrest[0] = mlp[0]
+        mrest[1] = mlp[1]
+        mrest[2] = mlp[2]
+        st.mag_rest_set = True
+        return False
+    dmx = mlp[0] - mrest[0]
+    dmy = mlp[1] - mrest[1]
+    dmz = mlp[2] - mrest[2]
+    return dmx * dmx + dmy * dmy + dmz * dmz > par.mag_rest_change_ut ** 2
+
+
 @njit(cache=True)
 def _detect_rest(st, par, dt, valid, gx, gy, gz, ax, ay, az, mx, my, mz):
     """VQF-style rest detection (D. Laidig, T. Seel, Information Fusion 91, 2023, §IV-C): gyro and specific
-    force stay close to their low-passes, with the sensors' own white noise subtracted, for rest_min_time_s.
-    Returns (at rest, the body-frame field moved since the rest began: something magnetic moved nearby)."""
+    force stay close to their low-passes, with the sensors' own white noise subtracted (`_steady`), for
+    rest_min_time_s. Returns (at rest, the body-frame field moved since the rest began: something magnetic
+    moved nearby, `_field_moved_at_rest`)."""
     at_rest = False
     if dt > 0.0:
         k = _lowpass_weight(st.lp_rest, dt, par.rest_filter_tau_s)
-        glp = st.gyro_lp_rad_s
-        alp = st.acc_lp_m_s2
-        mlp = st.mag_lp_ut
-        for i in range(3):
-            g = gx if i == 0 else (gy if i == 1 else gz)
-            glp[i] += k * (g - glp[i])
-        if valid & IN_ACC_OK:
-            alp[0] += k * (ax - alp[0])
-            alp[1] += k * (ay - alp[1])
-            alp[2] += k * (az - alp[2])
-        if (valid & IN_MAG_OK) != 0:
-            mlp[0] += k * (mx - mlp[0])
-            mlp[1] += k * (my - mlp[1])
-            mlp[2] += k * (mz - mlp[2])
-        dg = (gx - glp[0]) ** 2 + (gy - glp[1]) ** 2 + (gz - glp[2]) ** 2
-        da = (ax - alp[0]) ** 2 + (ay - alp[1]) ** 2 + (az - alp[2]) ** 2
-        # the squared deviations are low-passed too and the sensors' own white noise (3 axes × σ² per
-        # sample) is subtracted: a noisy gyro at rest is still at rest, while a real motion raises the mean
-        # deviation at once
-        st.rest_dev_gyro += k * (dg - st.rest_dev_gyro)
-        st.rest_dev_acc += k * (da - st.rest_dev_acc)
-        dg = st.rest_dev_gyro - 3.0 * par.gyro_noise_rad_s_sqrt_hz ** 2 / dt
-        da = st.rest_dev_acc - 3.0 * par.acc_noise_rest_m_s2 ** 2
-        clip = par.gyro_bias_clip_rad_s
-        lp_small = (abs(glp[0]) < clip) and (abs(glp[1]) < clip) and (abs(glp[2]) < clip)
-        if (
-            (valid & IN_GYRO_OK)
-            and (valid & IN_ACC_OK) != 0
-            and lp_small
-            and dg < par.rest_gyro_th_rad_s ** 2
-            and da < par.rest_acc_th_m_s2 ** 2
-            and abs(math.sqrt(alp[0] ** 2 + alp[1] ** 2 + alp[2] ** 2)
-                    - st.g_ref_m_s2) < par.rest_acc_th_m_s2  # at rest the specific force is gravity
-        ):
+        _rest_lowpasses(st, k, valid, gx, gy, gz, ax, ay, az, mx, my, mz)
+        if _steady(st, par, dt, k, valid, gx, gy, gz, ax, ay, az):
             st.rest_t_s += dt
         else:
             st.rest_t_s = 0.0
         at_rest = st.rest_t_s >= par.rest_min_time_s
-    # at rest the body does not turn, so neither may the field it sees: remember it when rest begins
-    moved = False
-    if not at_rest:
-        st.mag_rest_set = False
-    elif valid & IN_MAG_OK:
-        mlp = st.mag_lp_ut
-        mrest = st.mag_rest_ut
-        if not st.mag_rest_set:
-            mrest[0] = mlp[0]
-            mrest[1] = mlp[1]
-            mrest[2] = mlp[2]
-            st.mag_rest_set = True
-        else:
-            dmx = mlp[0] - mrest[0]
-            dmy = mlp[1] - mrest[1]
-            dmz = mlp[2] - mrest[2]
-            moved = dmx * dmx + dmy * dmy + dmz * dmz > par.mag_rest_change_ut ** 2
-    return at_rest, moved
+    return at_rest, _field_moved_at_rest(st, par, valid, at_rest)
 
 
 @njit(cache=True)
