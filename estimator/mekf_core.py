@@ -17,7 +17,8 @@ stages in order:
   `_field_offset`                                a body-fixed field offset learned and removed (attached magnet):
                                                  `_turned_since_snapshot`, `_refit_offset` (least squares),
                                                  `_take_snapshot`, `_offset_explained_field` (the field to use)
-  `_heading_update`                              the magnetometer corrects heading only (mag_heading.py's check)
+  `_heading_update`                              the magnetometer corrects heading only (mag_heading.py's check:
+                                                 `_track_field` against the reference, `_heading_innovation`)
   `_fill_outputs`                                quaternion, rate, 1σ, bias (the one-sample path publishes them)
   `_fill_estimate`                               quaternion only (the batch returns nothing else)
 
