@@ -98,6 +98,26 @@ def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float, correlat
     noise_lsb: the output's σ per sample in its LSB; below MIN_NOISE_LSB no term is read
     (allan_resolution)."""
     pts = octave_points(curve, axis)
+    min_tau_s = shortest_fit_tau_s(correlation_samples, rate_hz)
+    unreadable = _unreadable(curve, axis, std, rate_hz, pts, min_tau_s, correlation_samples, samples_to_tell,
+                             noise_lsb)
+    if unreadable is not None:
+        return unreadable
+    short_note = []
+    if min_tau_s > 0:
+        keep = pts.taus >= min_tau_s
+        pts = type(pts)(pts.taus[keep], pts.avar[keep], pts.level_n[keep], pts.level_m[keep], pts.record_s,
+                        white_deficit_s)
+        short_note = [f"τ < {min_tau_s:.3g} s not fitted: the samples are correlated over {correlation_samples} "
+                      "samples (the sensor's filter), which bends the curve there"]
+    if len(pts.taus) < 3 or not np.all(pts.avar > 0):
+        return _no_terms_read(curve, axis, std, "constant signal or too few cluster sizes: no noise terms read")
+    return _terms_read(curve, axis, std, rate_hz, pts, short_note)
+
+
+def _unreadable(curve: AllanCurve, axis: int, std: float, rate_hz: float, pts, min_tau_s: float,
+                correlation_samples: int, samples_to_tell: int, noise_lsb: float) -> NoiseParameters | None:
+    """The axis' result when the record cannot support any term (and says why), else None."""
     if noise_lsb < MIN_NOISE_LSB:
         # The output holds a handful of values: its Allan deviation is that of a staircase, not the sensor's noise.
         return _no_terms_read(curve, axis, std, (
@@ -112,8 +132,6 @@ def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float, correlat
             f"recording too short: neighbouring samples are correlated (the sensor's filter), and "
             f"{curve.record_s:.3g} s of samples cannot tell over how many; record about "
             f"{math.ceil(need_s / curve.record_s):.0f}× longer (≥ {need_s:.0f} s): no noise terms read"), need_s)
-    min_tau_s = shortest_fit_tau_s(correlation_samples, rate_hz)
-    short_note = []
     if min_tau_s > 0 and np.count_nonzero(pts.taus >= min_tau_s) < 3:
         # Below min_tau_s the sensor's filter bends the curve (a fit there reads the filter as a Gauss–Markov
         # term and calls white noise "not seen"), and three cluster sizes are the fewest a term can be read from.
@@ -124,14 +142,13 @@ def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float, correlat
             f"filter), so only τ ≥ {min_tau_s:.3g} s can be fitted, and it has fewer than 3 cluster sizes there; "
             f"record about {longer:.0f}× longer (≥ {longer * pts.record_s:.0f} s): no noise terms read"),
             longer * pts.record_s)
-    if min_tau_s > 0:
-        keep = pts.taus >= min_tau_s
-        pts = type(pts)(pts.taus[keep], pts.avar[keep], pts.level_n[keep], pts.level_m[keep], pts.record_s,
-                        white_deficit_s)
-        short_note = [f"τ < {min_tau_s:.3g} s not fitted: the samples are correlated over {correlation_samples} "
-                      "samples (the sensor's filter), which bends the curve there"]
-    if len(pts.taus) < 3 or not np.all(pts.avar > 0):
-        return _no_terms_read(curve, axis, std, "constant signal or too few cluster sizes: no noise terms read")
+    return None
+
+
+def _terms_read(curve: AllanCurve, axis: int, std: float, rate_hz: float, pts, short_note: list[str]
+                ) -> NoiseParameters:
+    """Fit the terms the points support (select_terms) and read their values; each term not seen is flagged
+    with its upper bound and why."""
     fit = select_terms(pts)
     terms: dict[str, TermEstimate] = term_estimates(fit, pts)
     flags, not_seen = [], {}

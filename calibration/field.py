@@ -278,19 +278,7 @@ class FieldCalibration:
         if now_s is not None:
             self._last_sample_wall = now_s
         with self._lock:
-            if self._t_start is None:
-                self._t_start = t
-            if self.status == CalStatus.WAITING_TO_START:
-                if t - self._t_start < (self.config.delay_s if self.attempt == 1 else 0.0):
-                    return
-                self.status = CalStatus.RUNNING_STEP_ONE
-                self._t_running = t
-                self._say(6, "Mag cal: turn slowly through 360 deg" if self.config.vehicle_type != VehicleType.TUMBLE
-                          else "Mag cal: rotate the vehicle through every orientation")
-            if not self.status.running or self._fit_busy:
-                return
-            if t - self._t_running > self.config.timeout_s:
-                self._fail(CalStatus.FAILED, f"timed out at {self.completion_pct}%: {self._hint_text()}")
+            if not self._taking_samples_at(t):
                 return
             mag = np.asarray(sample.mag_ut, dtype=np.float64)
             acc = np.asarray(sample.accel_m_s2, dtype=np.float64)
@@ -298,47 +286,79 @@ class FieldCalibration:
             if not (np.all(np.isfinite(mag)) and np.all(np.isfinite(acc)) and np.all(np.isfinite(gyro))):
                 self.rejected += 1
                 return
-            # every sample between two kept ones is averaged into the kept one (a block mean, as the offline
-            # fit's block averaging does): the noise drops by √k and nothing is aliased
             raw = self._w_inv @ mag + self.current.mag.hard_iron_ut if self.samples_are_calibrated else mag
-            # bins of keep_period from the start of the run (aligned with the fit's own block averaging)
-            bin_index = math.floor((t - self._t_running) / self._keep_period)
-            if self._block_n == 0 or bin_index == self._block_bin:
-                self._block_bin = bin_index
-                self._block_sum += np.concatenate(([t], raw, acc, gyro))
-                self._block_n += 1
+            block = self._block_mean(t, raw, acc, gyro)
+            if block is None:
                 return
-            block = self._block_sum / self._block_n
-            self._block_sum = np.concatenate(([t], raw, acc, gyro))
-            self._block_n = 1
-            self._block_bin = bin_index
             t = float(block[0])
             dt_kept = t - self._t_last_kept
             self._t_last_kept = t
-            t_mean, raw, acc, gyro = float(block[0]), block[1:4], block[4:7], block[7:10]
-            body_yaw_offset = 0.0
-            if estimate is not None:
-                roll, pitch = float(estimate.roll_rad), float(estimate.pitch_rad)
-                yaw = float(estimate.yaw_rad)
-                rate = getattr(estimate, "rate_body_rad_s", None)
-                if rate is not None:
-                    # Heading coverage counts how far the vehicle has turned, from the gyro: the magnetic
-                    # heading of an uncalibrated compass need not go round once per turn (hard iron larger
-                    # than the horizontal field).
-                    if self._turn_yaw is None or not math.isfinite(dt_kept) or dt_kept > 1.0:
-                        self._turn_yaw = yaw if self._turn_yaw is None else self._turn_yaw
-                    else:
-                        self._turn_yaw += yaw_rate_ned_rad_s(rate, roll, pitch) * dt_kept
-                    body_yaw = getattr(estimate, "body_yaw_rad", None)
-                    if body_yaw is not None:
-                        body_yaw_offset = float(wrap_pi(float(body_yaw) - float(estimate.yaw_rad)))
-                    yaw = self._turn_yaw
-            else:  # tilt from the accelerometer, heading from the field with the calibration in force
-                roll, pitch = (float(x) for x in roll_pitch_from_accel(acc))
-                yaw = float(tilt_compensated_heading_rad(self.current.mag.apply(raw), roll, pitch)[0])
-            self._store(t_mean, raw, acc, gyro, roll, pitch, yaw, body_yaw_offset)
+            raw, acc, gyro = block[1:4], block[4:7], block[7:10]
+            roll, pitch, yaw, body_yaw_offset = self._kept_attitude(estimate, raw, acc, dt_kept)
+            self._store(t, raw, acc, gyro, roll, pitch, yaw, body_yaw_offset)
             self._update_coverage(raw, roll, pitch, yaw)
             self._advance(t)
+
+    def _taking_samples_at(self, t: float) -> bool:
+        """Whether the session takes a sample at t: the run starts once the start delay is over (with its
+        instruction to the person), no fit is running, and past timeout_s the session fails instead."""
+        if self._t_start is None:
+            self._t_start = t
+        if self.status == CalStatus.WAITING_TO_START:
+            if t - self._t_start < (self.config.delay_s if self.attempt == 1 else 0.0):
+                return False
+            self.status = CalStatus.RUNNING_STEP_ONE
+            self._t_running = t
+            self._say(6, "Mag cal: turn slowly through 360 deg" if self.config.vehicle_type != VehicleType.TUMBLE
+                      else "Mag cal: rotate the vehicle through every orientation")
+        if not self.status.running or self._fit_busy:
+            return False
+        if t - self._t_running > self.config.timeout_s:
+            self._fail(CalStatus.FAILED, f"timed out at {self.completion_pct}%: {self._hint_text()}")
+            return False
+        return True
+
+    def _block_mean(self, t: float, raw: np.ndarray, acc: np.ndarray, gyro: np.ndarray) -> np.ndarray | None:
+        """Every sample between two kept ones is averaged into the kept one (a block mean, as the offline fit's
+        block averaging does): the noise drops by √k and nothing is aliased. Bins of keep_period from the start
+        of the run (aligned with the fit's own block averaging). Returns the finished block's mean
+        [t, raw (3), acc (3), gyro (3)] when this sample opens the next bin, else None."""
+        bin_index = math.floor((t - self._t_running) / self._keep_period)
+        if self._block_n == 0 or bin_index == self._block_bin:
+            self._block_bin = bin_index
+            self._block_sum += np.concatenate(([t], raw, acc, gyro))
+            self._block_n += 1
+            return None
+        block = self._block_sum / self._block_n
+        self._block_sum = np.concatenate(([t], raw, acc, gyro))
+        self._block_n = 1
+        self._block_bin = bin_index
+        return block
+
+    def _kept_attitude(self, estimate: "AttitudeEstimate | None", raw: np.ndarray, acc: np.ndarray,
+                       dt_kept: float) -> tuple[float, float, float, float]:
+        """(roll, pitch, yaw, body-yaw offset) of a kept sample: the estimator's, with the yaw integrated from its
+        body rate when it gives one; without an estimate, tilt from the accelerometer and heading from the field
+        with the calibration in force."""
+        if estimate is None:
+            roll, pitch = (float(x) for x in roll_pitch_from_accel(acc))
+            return roll, pitch, float(tilt_compensated_heading_rad(self.current.mag.apply(raw), roll, pitch)[0]), 0.0
+        body_yaw_offset = 0.0
+        roll, pitch = float(estimate.roll_rad), float(estimate.pitch_rad)
+        yaw = float(estimate.yaw_rad)
+        rate = getattr(estimate, "rate_body_rad_s", None)
+        if rate is not None:
+            # Heading coverage counts how far the vehicle has turned, from the gyro: the magnetic heading of an
+            # uncalibrated compass need not go round once per turn (hard iron larger than the horizontal field).
+            if self._turn_yaw is None or not math.isfinite(dt_kept) or dt_kept > 1.0:
+                self._turn_yaw = yaw if self._turn_yaw is None else self._turn_yaw
+            else:
+                self._turn_yaw += yaw_rate_ned_rad_s(rate, roll, pitch) * dt_kept
+            body_yaw = getattr(estimate, "body_yaw_rad", None)
+            if body_yaw is not None:
+                body_yaw_offset = float(wrap_pi(float(body_yaw) - float(estimate.yaw_rad)))
+            yaw = self._turn_yaw
+        return roll, pitch, yaw, body_yaw_offset
 
     def add_course(self, t_s: float, course_rad: float, ground_speed_m_s: float,
                    speed_acc_m_s: float = math.nan) -> bool:

@@ -26,28 +26,34 @@ def register(subparsers) -> None:
         "directory (atomic, checksummed, previous version kept).",
     )
     sub = p.add_subparsers(dest="sensor", metavar="SENSOR", required=True)
-
-    def common(sp, recording_required=True):
-        if recording_required:
-            sp.add_argument("recording", metavar="RECORDING", help="CSV recording (ahrsd record)")
-        sp.add_argument("--state-dir", metavar="DIR", default=DEFAULT_STATE_DIR,
-                        help=f"where the calibration is stored (default: {DEFAULT_STATE_DIR}, the service's; "
-                        "`ahrsd run` started by hand reads ~/.local/state/ahrsd unless given --state-dir)")
-        sp.add_argument("--json", action="store_true", help="print one JSON object instead of a report")
-        sp.add_argument("--plot", metavar="FILE.png", help="write a plot (needs matplotlib: pip install matplotlib, or install "
-                        "ahrsd with -e '.[plot]')")
-        sp.add_argument("--dry-run", action="store_true", help="fit and report, but do not save")
-        sp.add_argument("--sensor-id", default=None, help="sensor serial or id to record in the metadata")
-        sp.set_defaults(func=run)
-
     a = sub.add_parser("allan", help="Allan-variance noise analysis of a static recording (ARW/VRW, bias "
                        "instability, Kalman Q/R); writes noise.json to the state directory")
-    common(a)
+    _common_options(a)
+    _register_accel(sub)
+    _register_gyro(sub)
+    _register_mag(sub)
 
+
+def _common_options(sp, recording_required=True) -> None:
+    """The options every sensor's calibration takes (and the recording, unless it may be live)."""
+    if recording_required:
+        sp.add_argument("recording", metavar="RECORDING", help="CSV recording (ahrsd record)")
+    sp.add_argument("--state-dir", metavar="DIR", default=DEFAULT_STATE_DIR,
+                    help=f"where the calibration is stored (default: {DEFAULT_STATE_DIR}, the service's; "
+                    "`ahrsd run` started by hand reads ~/.local/state/ahrsd unless given --state-dir)")
+    sp.add_argument("--json", action="store_true", help="print one JSON object instead of a report")
+    sp.add_argument("--plot", metavar="FILE.png", help="write a plot (needs matplotlib: pip install matplotlib, or install "
+                    "ahrsd with -e '.[plot]')")
+    sp.add_argument("--dry-run", action="store_true", help="fit and report, but do not save")
+    sp.add_argument("--sensor-id", default=None, help="sensor serial or id to record in the metadata")
+    sp.set_defaults(func=run)
+
+
+def _register_accel(sub) -> None:
     c = sub.add_parser("accel", help="multi-position accelerometer calibration (12 parameters) from the still "
                        "periods of a recording, or live (--live) with operator guidance")
     c.add_argument("recording", metavar="RECORDING", nargs="?", help="CSV recording (omit with --live)")
-    common(c, recording_required=False)
+    _common_options(c, recording_required=False)
     c.add_argument("--lat", type=float, default=None, help="latitude (deg) for local gravity (default: none, standard gravity 9.80665 m/s²)")
     c.add_argument("--alt-m", type=float, default=0.0, help="height above the ellipsoid (m) for local gravity")
     c.add_argument("--terms", default="auto", choices=("auto", "6", "9", "12"),
@@ -63,8 +69,10 @@ def register(subparsers) -> None:
     c.add_argument("--spi", metavar="DEV", help="with --live: the real ADIS16405 on this spidev node")
     c.add_argument("--timeout-s", type=float, default=900.0, help="with --live: give up after this long")
 
+
+def _register_gyro(sub) -> None:
     g = sub.add_parser("gyro", help="rate-table gyro calibration (12 parameters) or bias only")
-    common(g)
+    _common_options(g)
     g.add_argument("--bias-only", action="store_true", help="bias from the still periods (no rate table)")
     g.add_argument("--estimator-bias", action="store_true",
                    help="with --bias-only: run the estimator over the recording and add its converged gyro bias "
@@ -72,8 +80,10 @@ def register(subparsers) -> None:
     g.add_argument("--table-rate-deg-s", type=float, default=None,
                    help="the rate table's rate (table axis vertical); default: the recording's truth columns")
 
+
+def _register_mag(sub) -> None:
     m = sub.add_parser("mag", help="magnetometer calibration (ellipsoid, two-step, three-step, backstepping)")
-    common(m)
+    _common_options(m)
     m.add_argument("--lat", type=float, required=True, help="latitude (deg) of the calibration site (WMM2025)")
     m.add_argument("--lon", type=float, required=True, help="longitude (deg)")
     m.add_argument("--alt-m", type=float, default=0.0, help="height above the ellipsoid (m)")

@@ -33,7 +33,6 @@ from typing import Any, Callable
 from ahrsd.daemon.command_args import CommandArgs, Refused
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.daemon.rate_limit import TokenBucket
-from ahrsd.daemon.statustext_ascii import statustext_ascii
 
 log = logging.getLogger(__name__)
 
@@ -105,7 +104,7 @@ def command_params(msg) -> tuple[float, ...]:
 class CommandRouter:
     send_ack: Callable[[Any, Any], None]       # (endpoint, COMMAND_ACK message)
     require_signed: Callable[[], bool] = lambda: False
-    send: Callable[[Any], None] | None = None    # to every endpoint: a refusal the operator should see
+    statustext: Callable[[int, str], None] | None = None    # daemon.outbound: a refusal the operator should see
     accept_broadcast: bool = True
     counters: CommandCounters = field(default_factory=CommandCounters)
     clock: Callable[[], float] = time.monotonic
@@ -189,10 +188,8 @@ class CommandRouter:
             self.counters.refusal_logs_suppressed += 1
             return
         log.warning("command %d from %d/%d refused: %s", cmd, src[0], src[1], reason)
-        send = self.send
-        if tell_operator and send is not None:      # the operator sees why, not only the MAV_RESULT
-            send(mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_WARNING,
-                                                    statustext_ascii(f"ahrsd: {reason}")[:50], 0, 0))
+        if tell_operator and self.statustext is not None:      # the operator sees why, not only the MAV_RESULT
+            self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: {reason}")
 
     def _expire(self, now: float) -> None:
         if len(self._recent) > 64 or self._recent:

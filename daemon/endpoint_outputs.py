@@ -76,4 +76,4 @@ class EndpointOutputs:
         text = budget.check(self.endpoint_rates_hz(endpoint), signed=self.signed())
         if text is not None:
             log.warning("%s", text)
-            self.warn_soon(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: link {100 * budget.fraction:.0f}% full, see log"[:50])
+            self.warn_soon(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: link {100 * budget.fraction:.0f}% full, see log")

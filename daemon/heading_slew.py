@@ -8,6 +8,14 @@ from dataclasses import dataclass
 
 from ahrsd.core.angles import wrap_pi
 
+# EKF3 fuses our yaw with R = max(angErr, VISO_YAW_M_NSE, 5°)² (AP_NavEKF3_Measurements.cpp writeExtNavData): the
+# slew rates (heading_slew_deg_s, restart_slew_deg_s) were chosen for R at that floor. While the σ sent to cover a
+# large offset is above it, EKF3's yaw follows more slowly and the slew is held to LARGE_OFFSET_MAX_RATE_DEG_S, a
+# rate at which the fake EKF3s (tests/support/fake_autopilot_yaw.py: the sources' R, floors and gate) fuse every
+# VPE of any change with that σ (bench/slew_variance.py; docs/daemon.md "Restarts").
+EKF3_YAW_FLOOR_RAD = math.radians(5.0)
+LARGE_OFFSET_MAX_RATE_DEG_S = 2.0
+
 
 @dataclass
 class HeadingSlew:
@@ -17,8 +25,12 @@ class HeadingSlew:
     (libraries/AP_NavEKF3/AP_NavEKF3_MagFusion.cpp, fuseEulerYaw, gate EK3_YAW_I_GATE), so after
     `start_transition()` the published heading follows the vehicle's own rotation (yaw rate from the
     estimator) and moves towards the estimator's new heading at no more than `max_rate_deg_s` (a restart
-    with another heading uses its own rate: daemon.restart_heading). Outside a transition it passes the
-    heading through unchanged.
+    with another heading uses its own rate: daemon.restart_heading), and no more than
+    LARGE_OFFSET_MAX_RATE_DEG_S while the offset is large. Outside a transition it passes the heading through
+    unchanged.
+
+    While a transition runs the published heading is off the estimator's by `remaining_rad`, a known error the
+    VPE's yaw variance must cover (`published_sigma_rad`).
 
     VISION_POSITION_ESTIMATE.reset_counter is NOT touched by a calibration change: in ArduPilot a new
     reset_counter value makes AP_VisualOdom stamp a new reset time, which EKF3 (writeExtNavData) treats as a
@@ -38,23 +50,55 @@ class HeadingSlew:
     _t_start: float | None = None
     hold_until_s: float | None = None   # until this sample time, follow the vehicle's rotation only
     rate_deg_s: float | None = None     # the running transition's rate (None: max_rate_deg_s)
+    # the estimator's heading minus the published one at the last update (0 outside a transition), rad
+    remaining_rad: float = 0.0
+    reason: str = ""                    # why the running (or last) transition started, for the operator
+    ended_why: str | None = None        # how the last transition ended (None: running, or none yet)
 
-    def start_transition(self, rate_deg_s: float | None = None) -> None:
+    def start_transition(self, rate_deg_s: float | None = None, reason: str = "calibration changed") -> None:
         """A calibration change (at `max_rate_deg_s`), or another transition at `rate_deg_s`."""
         self.active = True
         self._t_start = None      # set by the next update (sample time)
         self.hold_until_s = None
         self.rate_deg_s = rate_deg_s
+        self.reason = reason
+        self.ended_why = None
 
     def start_from(self, published_rad: float, hold_until_s: float | None = None,
-                   rate_deg_s: float | None = None) -> None:
+                   rate_deg_s: float | None = None, reason: str = "restart") -> None:
         """A transition from a heading the autopilot already has (the one published before a restart):
         the published heading starts there, follows the vehicle's rotation, and — after `hold_until_s` if
         given — moves to the estimator's heading at `rate_deg_s` (default `max_rate_deg_s`)."""
         self._published = published_rad % (2 * math.pi)
         self._t_last = None
-        self.start_transition(rate_deg_s)
+        self.start_transition(rate_deg_s, reason)
         self.hold_until_s = hold_until_s
+
+    def stop(self, why: str) -> None:
+        """End a transition before the published heading reached the estimator's (a yaw reset replaces it,
+        the autopilot re-aligned by other means, nobody receives it): from the next update the estimator's
+        heading passes through."""
+        if self.active:
+            self.ended_why = why
+        self.active = False
+        self.remaining_rad = 0.0
+
+    def published_sigma_rad(self, sigma_rad: float) -> float:
+        """The 1σ of the published yaw for the estimator's yaw 1σ: σ + |remaining|/3.
+
+        The published yaw's error is the remaining offset d plus the estimator's own error e, and
+        |d + e| ≤ |d| + |e| ≤ 3·(σ + |d|/3) whenever |e| ≤ 3σ: the VPE is beyond its 3σ no more often than the
+        estimator is. It is the smallest σ with that guarantee for every e within 3σ; more would slow the
+        autopilot to no purpose. Counting d as a 1σ error (σ² + d²) claims 3·|d|, and the autopilots weigh our
+        variance: ArduPilot EKF3 fuses our yaw with R = max(angErr, VISO_YAW_M_NSE, 5°)² (AP_VisualOdom_MAV.cpp
+        handle_pose_estimate, AP_NavEKF3_Measurements.cpp writeExtNavData, AP_NavEKF3_MagFusion.cpp
+        fuseEulerYaw), angErr = sqrt(roll + pitch + yaw variance) since ArduPilot PR #32084 (GCS_Common.cpp;
+        before it the cube root of their squares); with R that large its yaw hardly follows the slew while d
+        is large and lags beyond its gate, 3·sqrt(P + R), once d and R are small again (docs/daemon.md
+        "Calibration changes"). With d/3 the gate is at least 3σ + |d| while d exceeds 15° − 3σ and R is
+        EKF3's 5° floor below that, where the slew rate was chosen. PX4 EKF2 floors our variance at
+        EKF2_EVA_NOISE (ev_yaw_control.cpp), so only a large d changes anything there."""
+        return sigma_rad + abs(self.remaining_rad) / 3.0
 
     def release(self, rate_deg_s: float) -> None:
         """End a hold now: move from the held heading to the estimator's at `rate_deg_s`."""
@@ -65,11 +109,13 @@ class HeadingSlew:
     def current_rate_deg_s(self) -> float:
         return self.max_rate_deg_s if self.rate_deg_s is None else self.rate_deg_s
 
-    def update(self, t_s: float, heading_rad: float, yaw_rate_rad_s: float = 0.0) -> float:
-        """Heading to publish (rad, [0, 2π)) for the estimator's heading at t_s and the vehicle's yaw rate."""
+    def update(self, t_s: float, heading_rad: float, yaw_rate_rad_s: float = 0.0, sigma_rad: float = 0.0) -> float:
+        """Heading to publish (rad, [0, 2π)) for the estimator's heading at t_s, the vehicle's yaw rate and the
+        estimator's yaw 1σ (the σ sent with the slewed heading sets its rate: EKF3_YAW_FLOOR_RAD)."""
         if self._published is None or not self.active:
             self._published = heading_rad % (2 * math.pi)
             self._t_last = t_s
+            self.remaining_rad = 0.0
             return self._published
         dt = 0.0 if self._t_last is None else max(0.0, t_s - self._t_last)
         self._t_last = t_s
@@ -80,14 +126,20 @@ class HeadingSlew:
             if t_s < self.hold_until_s:
                 self._published = predicted % (2 * math.pi)
                 self._t_start = t_s
+                self.remaining_rad = float(wrap_pi(heading_rad - self._published))
                 return self._published
             self.hold_until_s = None
         err = float(wrap_pi(heading_rad - predicted))
-        step = math.radians(self.current_rate_deg_s) * dt
+        rate_deg_s = self.current_rate_deg_s
+        if sigma_rad + abs(err) / 3.0 > EKF3_YAW_FLOOR_RAD:          # published_sigma_rad for this offset
+            rate_deg_s = min(rate_deg_s, LARGE_OFFSET_MAX_RATE_DEG_S)
+        step = math.radians(rate_deg_s) * dt
         if abs(err) <= max(step, math.radians(self.done_within_deg)):
             self._published = heading_rad % (2 * math.pi)
             if abs(err) <= math.radians(self.done_within_deg) and t_s - self._t_start >= self.min_duration_s:
                 self.active = False
+                self.ended_why = "slewed in"
         else:
             self._published = (predicted + math.copysign(step, err)) % (2 * math.pi)
+        self.remaining_rad = float(wrap_pi(heading_rad - self._published))
         return self._published

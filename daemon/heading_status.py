@@ -19,16 +19,12 @@ same 3σ test as the estimator's heading monitor.
 
 from __future__ import annotations
 
-import logging
 import math
 from typing import Callable
 
 from ahrsd.core.estimate import EstimateFlags, HeadingState
 from ahrsd.daemon import messages as msgs
-from ahrsd.daemon.magcal import statustext_chunks
 from ahrsd.daemon.mavlink_io import mavlink
-
-log = logging.getLogger(__name__)
 
 STATE_LABELS = {HeadingState.UNKNOWN: "hdg unknown", HeadingState.MAGNETOMETER: "hdg mag",
                 HeadingState.GNSS_ONLY: "hdg GNSS-only", HeadingState.LEARNING: "hdg learning"}
@@ -42,7 +38,8 @@ YAW_RESET_CAUSE_S = 30.0              # a yaw reset this recent explains rejecte
 class HeadingStatus:
     """Reports the heading state. Inputs are explicit:
 
-    statustext(severity, text): sends one text to the ground station (may be longer than one STATUSTEXT).
+    statustext(severity, text): sends one text to the ground station (daemon.outbound: chunked when longer than one
+    STATUSTEXT, rate limited).
     good_sigma_rad: largest yaw 1σ of a GNSS-held heading that is still "good".
     calibration_sigma_rad: the calibration's predicted heading error, 1σ (NaN: none); `set_calibration_sigma`.
     calibration_in_force: a magnetometer calibration is in force (with a NaN σ: one that states no heading error,
@@ -288,18 +285,3 @@ class HeadingStatus:
         doing = "learning its iron" if state == HeadingState.LEARNING else "heading from GNSS only"
         good = "" if self.heading_good else ", not good yet"
         return mavlink.MAV_SEVERITY_WARNING, f"ahrsd: {cause}; {doing} ({sig}{good})"
-
-
-class LongStatusText:
-    """A STATUSTEXT of any length: one message, or MAVLink 2 chunks (id, chunk_seq) as daemon.magcal sends
-    them, to `send(msg)` (every endpoint); logged like Service.statustext."""
-
-    def __init__(self, send: Callable[[object], None]):
-        self.send = send
-        self._chunk_id = 0
-
-    def __call__(self, severity: int, text: str) -> None:
-        log.log(logging.WARNING if severity <= mavlink.MAV_SEVERITY_WARNING else logging.INFO, "%s", text)
-        self._chunk_id = self._chunk_id % 65535 + 1
-        for msg in statustext_chunks(severity, text, self._chunk_id):
-            self.send(msg)

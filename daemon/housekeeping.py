@@ -11,12 +11,9 @@ from typing import Callable, Protocol
 
 from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.health import STATE_NAMES, Health
-from ahrsd.daemon.heading_status import LongStatusText
-from ahrsd.daemon.magcal import STATUSTEXT_LEN
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.daemon.notify import Notifier
 from ahrsd.daemon.outbound import Outbound
-from ahrsd.daemon.statustext_ascii import statustext_ascii
 
 HOUSEKEEPING_HZ = 10.0
 HEARTBEAT_PERIOD_S = 1.0
@@ -75,9 +72,6 @@ class HealthReport:
         self.cpu_clock = cpu_clock
         self.standby_detail = standby_detail       # why no heading is good (daemon.heading_status)
         self.active_detail = active_detail         # "heading good", or what it rests on (daemon.heading_status)
-        # a state change longer than one STATUSTEXT (50 bytes: "ahrsd: STANDBY: heading unknown (mag not
-        # calibrated), no heading out") goes out as MAVLink 2 chunks, as the heading announcements do
-        self._long_statustext = LongStatusText(lambda msg: self.outbound.send(msg))
         self.load_permille = 0
         self.measured_rate_hz: float | None = None     # None until one rate window has passed
         self._next_heartbeat = start + HEARTBEAT_PERIOD_S
@@ -127,9 +121,7 @@ class HealthReport:
             mavlink.MAV_STATE_CALIBRATING: self.health.calibrating or "calibrating",
             mavlink.MAV_STATE_CRITICAL: self.health.sensor_error or "no samples from the sensor",
         }.get(new, "")
-        text = f"ahrsd: {name}: {detail}"
-        if len(statustext_ascii(text)) <= STATUSTEXT_LEN:   # as sent: "±" becomes "+-"
-            self.outbound.statustext(severity, text)
-        else:
-            self._long_statustext(severity, text)
+        # a detail longer than one STATUSTEXT ("ahrsd: STANDBY: heading unknown (mag not calibrated), no heading
+        # out") goes out whole, in chunks (daemon.outbound)
+        self.outbound.statustext(severity, f"ahrsd: {name}: {detail}")
         self.notifier.status(f"{name}: {detail}")

@@ -15,22 +15,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.daemon.mavlink_io import mavlink, max_frame_bytes
 from ahrsd.daemon.output_registry import BY_MESSAGE_ID
 
 BITS_PER_BYTE_8N1 = 10
-MAVLINK2_OVERHEAD_BYTES = 12        # 10 header + 2 CRC
-SIGNATURE_BYTES = 13
 WARN_FRACTION = 0.8                 # warn above 80 % of the line's byte rate
 HEARTBEAT_HZ = 1.0
 HEARTBEAT_PRIORITY = 0
 EVENT_PRIORITY = 1                  # answers and session traffic: COMMAND_ACK, PARAM_VALUE, STATUSTEXT, MAG_CAL_*
-
-
-def frame_bytes(message_id: int, signed: bool = False) -> int:
-    """The largest MAVLink 2 frame of this message id, in bytes."""
-    payload = mavlink.mavlink_map[message_id].unpacker.size
-    return MAVLINK2_OVERHEAD_BYTES + payload + (SIGNATURE_BYTES if signed else 0)
 
 
 def priority_of(message_id: int) -> int:
@@ -58,8 +50,8 @@ class StreamLoad:
 def stream_loads(rates_hz: dict[int, float], signed: bool = False) -> list[StreamLoad]:
     """Bytes per second of each stream that is on (HEARTBEAT included), largest first."""
     loads = [StreamLoad(mavlink.MAVLINK_MSG_ID_HEARTBEAT, HEARTBEAT_HZ,
-                        HEARTBEAT_HZ * frame_bytes(mavlink.MAVLINK_MSG_ID_HEARTBEAT, signed))]
-    loads += [StreamLoad(mid, hz, hz * frame_bytes(mid, signed)) for mid, hz in rates_hz.items() if hz > 0.0]
+                        HEARTBEAT_HZ * max_frame_bytes(mavlink.MAVLINK_MSG_ID_HEARTBEAT, signed))]
+    loads += [StreamLoad(mid, hz, hz * max_frame_bytes(mid, signed)) for mid, hz in rates_hz.items() if hz > 0.0]
     return sorted(loads, key=lambda s: -s.bytes_per_s)
 
 

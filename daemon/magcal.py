@@ -65,7 +65,6 @@ from ahrsd.daemon.magcal_settings import MagCalSettings, settings_from_mapping  
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.daemon.outbound import Outbound
 from ahrsd.daemon.position import PositionResolver
-from ahrsd.daemon.statustext_ascii import statustext_ascii
 from ahrsd.drivers.gnss.mavlink import MavlinkGnssSelector
 from ahrsd.estimator.rotations import euler_to_dcm
 
@@ -80,7 +79,6 @@ PREFLIGHT_MAG_START = 1       # PREFLIGHT_CALIBRATION_MAGNETOMETER
 PREFLIGHT_MAG_FORCE_SAVE = 76
 COMPASS_ID = 0          # our single magnetometer
 OUR_MASK = 1 << COMPASS_ID
-STATUSTEXT_LEN = 50     # STATUSTEXT.text char[50]
 
 SEV_ERROR, SEV_WARNING, SEV_NOTICE, SEV_INFO = 3, 4, 5, 6   # MAV_SEVERITY
 
@@ -98,7 +96,7 @@ class MagCalHost(Protocol):
     # persist (atomic, previous kept) then hot-swap; raises if the save fails (the old one stays in force)
     def apply_calibration(self, cal) -> None: ...
     def send(self, msg) -> None: ...                    # to every endpoint
-    def statustext(self, severity: int, text: str) -> None: ...
+    def statustext(self, severity: int, text: str) -> None: ...    # any length, logged (daemon.outbound)
     def armed(self) -> bool: ...
     def reference_field(self, lat_deg: float | None = None, lon_deg: float | None = None): ...  # EarthField | None
 
@@ -117,18 +115,6 @@ def sensor_attitude(estimate, mounting: np.ndarray | None):
                            body_yaw_rad=float(estimate.yaw_rad))
 
 
-def statustext_chunks(severity: int, text: str, chunk_id: int) -> list:
-    """STATUSTEXT messages for `text`: one message when it fits 50 bytes, else MAVLink 2 chunks sharing
-    `chunk_id` (1..65535) with chunk_seq 0, 1, ... (the last one shorter than 50 bytes or NUL-terminated). ASCII."""
-    data = statustext_ascii(text)
-    if len(data) <= STATUSTEXT_LEN:
-        return [mavlink.MAVLink_statustext_message(severity, data, 0, 0)]
-    parts = [data[i:i + STATUSTEXT_LEN] for i in range(0, len(data), STATUSTEXT_LEN)]
-    if len(parts[-1]) == STATUSTEXT_LEN:
-        parts.append(b"")
-    return [mavlink.MAVLink_statustext_message(severity, p, chunk_id, seq) for seq, p in enumerate(parts)]
-
-
 class MagCalProtocol:
     """Handlers for the mag-cal commands plus the periodic outputs. Call from the event loop only;
     fits run in a worker thread and are collected in `tick`."""
@@ -145,7 +131,6 @@ class MagCalProtocol:
         self._next_progress = 0.0
         self._next_report = 0.0
         self._final_progress_sent = True     # no session yet
-        self._chunk_id = 0
         self._recent_raw: deque = deque()
         self._last_estimate = None
         self._mounting: np.ndarray | None = None
@@ -227,12 +212,12 @@ class MagCalProtocol:
             return
         if s.status.running and self.host.armed() and not self.settings.allow_armed:
             self._stop_session()
-            self._say(SEV_WARNING, "Mag cal cancelled: vehicle armed")
+            self.host.statustext(SEV_WARNING, "Mag cal cancelled: vehicle armed")
             return
         s.tick(now)
         self._run_pending_fit(s)
         for sev, text in s.pop_messages():
-            self._say(sev, text)
+            self.host.statustext(sev, text)
         if s.status == CalStatus.SUCCESS and self.autosave and not self.saved:
             self._accept_result()
         if s.status.running and now >= self._next_progress:
@@ -310,12 +295,6 @@ class MagCalProtocol:
             *(float(v) for v in ap.ofs_mgauss), *(float(v) for v in ap.diag), *(float(v) for v in ap.offdiag),
             0.0, 0, 0, float(ap.scale_factor))
 
-    def _say(self, severity: int, text: str) -> None:
-        self._chunk_id = self._chunk_id % 65535 + 1
-        for msg in statustext_chunks(severity, text, self._chunk_id):
-            self.host.send(msg)
-        log.log(logging.WARNING if severity <= SEV_WARNING else logging.INFO, "magcal: %s", text)
-
     # ------------------------------------------------------------------ command handlers: (msg, ctx) -> MAV_RESULT
     def handle_start(self, msg, ctx=None) -> int:
         mask_f, retry_f, autosave_f, delay_s, autoreboot_f = CommandArgs.of(msg).params[:5]
@@ -331,20 +310,20 @@ class MagCalProtocol:
         if mask != 0 and not mask & OUR_MASK:
             return Refused(mavlink.MAV_RESULT_FAILED, f"Mag cal: no compass in mask {mask} (ours: compass 0)")
         if self.host.armed() and not self.settings.allow_armed:
-            self._say(SEV_NOTICE, "Disarm to allow compass calibration")
+            self.host.statustext(SEV_NOTICE, "Disarm to allow compass calibration")
             return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
         if self.calibrating:
-            self._say(SEV_INFO, f"Mag cal already running ({self.session.completion_pct}%)")
+            self.host.statustext(SEV_INFO, f"Mag cal already running ({self.session.completion_pct}%)")
             return mavlink.MAV_RESULT_ACCEPTED
         try:
             current = self.host.current_calibration()
             reference = self.host.reference_field()
         except Exception as exc:  # noqa: BLE001
             log.exception("cannot start magnetometer calibration")
-            self._say(SEV_ERROR, f"Mag cal cannot start: {exc}")
+            self.host.statustext(SEV_ERROR, f"Mag cal cannot start: {exc}")
             return mavlink.MAV_RESULT_FAILED
         if reference is None:
-            self._say(SEV_WARNING, "Mag cal: no position for WMM: offsets only on level turns")
+            self.host.statustext(SEV_WARNING, "Mag cal: no position for WMM: offsets only on level turns")
         self._stop_session()
         self.session = FieldCalibration(current, field_config(self.settings, retry, delay_s), reference,
                                         samples_are_calibrated=True, auto_fit=False)
@@ -356,7 +335,7 @@ class MagCalProtocol:
         self._final_progress_sent = False
         if autoreboot:
             log.info("magcal: autoreboot requested: not needed, the new calibration is applied without a reboot")
-        self._say(SEV_INFO, "Mag cal started" + (f", waiting {delay_s:.0f} s" if delay_s > 0 else ""))
+        self.host.statustext(SEV_INFO, "Mag cal started" + (f", waiting {delay_s:.0f} s" if delay_s > 0 else ""))
         return mavlink.MAV_RESULT_ACCEPTED
 
     def handle_accept(self, msg, ctx=None) -> int:
@@ -368,7 +347,7 @@ class MagCalProtocol:
         if not mask & OUR_MASK or s is None or s.status == CalStatus.NOT_STARTED:
             return mavlink.MAV_RESULT_ACCEPTED
         if s.status.running:
-            self._say(SEV_NOTICE, f"Mag cal not finished ({s.completion_pct}%): keep turning")
+            self.host.statustext(SEV_NOTICE, f"Mag cal not finished ({s.completion_pct}%): keep turning")
             return mavlink.MAV_RESULT_FAILED
         if s.status != CalStatus.SUCCESS:
             self._stop_session()
@@ -386,7 +365,7 @@ class MagCalProtocol:
             was_running = self.calibrating
             self._stop_session()
             if was_running:
-                self._say(SEV_INFO, "Mag cal cancelled")
+                self.host.statustext(SEV_INFO, "Mag cal cancelled")
         return mavlink.MAV_RESULT_ACCEPTED
 
     def handle_preflight_mag(self, msg, ctx=None) -> int:
@@ -417,18 +396,18 @@ class MagCalProtocol:
         if problem:
             return Refused(mavlink.MAV_RESULT_DENIED, f"FIXED_MAG_CAL_YAW: {problem}")
         if self.host.armed() and not self.settings.allow_armed:
-            self._say(SEV_NOTICE, "Disarm to allow compass calibration")
+            self.host.statustext(SEV_NOTICE, "Disarm to allow compass calibration")
             return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
         if self.calibrating:
-            self._say(SEV_NOTICE, "Mag cal running: cancel it before a fixed-yaw cal")
+            self.host.statustext(SEV_NOTICE, "Mag cal running: cancel it before a fixed-yaw cal")
             return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
         est = self._last_estimate
         if est is None or not self._recent_raw:
-            self._say(SEV_ERROR, "Mag: no attitude yet for fixed-yaw cal")
+            self.host.statustext(SEV_ERROR, "Mag: no attitude yet for fixed-yaw cal")
             return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
         reference = self.host.reference_field(lat, lon) if (lat or lon) else self.host.reference_field()
         if reference is None:
-            self._say(SEV_ERROR, "Mag: no position available")
+            self.host.statustext(SEV_ERROR, "Mag: no position available")
             return mavlink.MAV_RESULT_FAILED
         current = self.host.current_calibration()
         raw_mean = self._raw_mag_mean_ut()
@@ -447,7 +426,7 @@ class MagCalProtocol:
         if not self._save_and_swap(new, current, res.message):
             return mavlink.MAV_RESULT_FAILED
         if res.field_mismatch_ut * UT_TO_MGAUSS > 50:
-            self._say(SEV_WARNING, f"Mag field {res.field_mismatch_ut * UT_TO_MGAUSS:.0f} mG off WMM: "
+            self.host.statustext(SEV_WARNING, f"Mag field {res.field_mismatch_ut * UT_TO_MGAUSS:.0f} mG off WMM: "
                                    "soft iron may be stale, run a full cal")
         return mavlink.MAV_RESULT_ACCEPTED
 
@@ -458,7 +437,8 @@ class MagCalProtocol:
         offset = float(wrap_180_deg(math.degrees(sensor.yaw_rad - float(measured[0]) - reference.declination_rad)))
         if not s.set_heading_offset(offset, "known heading"):
             return mavlink.MAV_RESULT_FAILED
-        self._say(SEV_NOTICE, f"Mag cal: heading offset {offset:+.1f} deg from the known heading. Accept to save")
+        self.host.statustext(SEV_NOTICE,
+                             f"Mag cal: heading offset {offset:+.1f} deg from the known heading. Accept to save")
         return mavlink.MAV_RESULT_ACCEPTED
     def _raw_mag_mean_ut(self) -> np.ndarray:
         """Mean raw (uncalibrated) field of the recent samples: each sample's own calibration undone
@@ -490,14 +470,14 @@ class MagCalProtocol:
             self.host.apply_calibration(new)
         except Exception as exc:  # noqa: BLE001 - the previous calibration stays in force and on disk
             log.exception("saving the new magnetometer calibration failed")
-            self._say(SEV_ERROR, f"Mag cal save failed: {exc}")
+            self.host.statustext(SEV_ERROR, f"Mag cal save failed: {exc}")
             return False
         log.warning("magnetometer calibration changed: %s", log_line or text)
         log.warning("  before: hard_iron_ut=%s soft_iron=%s", np.round(current.mag.hard_iron_ut, 3).tolist(),
                     np.round(current.mag.soft_iron, 5).tolist())
         log.warning("  after:  hard_iron_ut=%s soft_iron=%s", np.round(new.mag.hard_iron_ut, 3).tolist(),
                     np.round(new.mag.soft_iron, 5).tolist())
-        self._say(SEV_NOTICE, text)
+        self.host.statustext(SEV_NOTICE, text)
         return True
 
     def _stop_session(self) -> None:
@@ -563,8 +543,7 @@ class DaemonMagCalHost:
         self.outbound.send(msg)
 
     def statustext(self, severity: int, text: str) -> None:
-        for msg in statustext_chunks(severity, text, 1):
-            self.outbound.send(msg)
+        self.outbound.statustext(severity, text)
 
     def armed(self) -> bool:
         return bool(self.autopilot.armed)
@@ -609,7 +588,7 @@ class FieldCalibrationPart:
         self.protocol.tick()
         if self.host.applying and not self.host.slew.active:
             self.host.applying = False
-            self.protocol._say(SEV_INFO, "Mag cal: new calibration fully applied")
+            self.host.statustext(SEV_INFO, "Mag cal: new calibration fully applied")
         calibrating = self.protocol.calibrating
         if calibrating != self._calibrating_shown:
             self._calibrating_shown = calibrating

@@ -48,6 +48,13 @@ MAX_READS_PER_WAKE = 64    # bound the work done per readiness callback (datagra
 TCP_RETRY_S = 2.0
 
 
+def max_frame_bytes(message_id: int, signed: bool = False) -> int:
+    """The largest MAVLink 2 frame of this message id, in bytes: 10 header + the full payload + 2 CRC, + 13 when
+    signed (link id, 48-bit timestamp, 48-bit signature; MAVLink 2 trims trailing zero bytes of the payload, so a
+    frame is never larger)."""
+    return 12 + mavlink.mavlink_map[message_id].unpacker.size + (13 if signed else 0)
+
+
 @dataclass
 class LinkCounters:
     rx_messages: int = 0
@@ -218,6 +225,19 @@ class Endpoint:
         return int(self.conn.mav.signing.timestamp)
 
     # -- I/O --------------------------------------------------------------------------------------------------
+
+    def send_together(self, msgs) -> bool:
+        """Send every one of `msgs` or none (the chunks of one STATUSTEXT: a receiver shows a text only whole): a
+        serial link whose queue would refuse one of them sends none and counts them all as dropped. Each frame is
+        taken at its largest (full payload, signature) for the check."""
+        queue = self.out_queue
+        if queue is not None:
+            queue.priority = self.priority_of(msgs[0].get_msgId())
+            signed = self._signing is not None
+            if not queue.admits([max_frame_bytes(m.get_msgId(), signed) for m in msgs]):
+                queue.refuse(len(msgs))
+                return False
+        return all([self.send(m) for m in msgs])
 
     def send(self, msg) -> bool:
         """Pack and send one message on this link; errors are counted, never raised."""

@@ -24,6 +24,8 @@ INT16_MAX = 32767
 # a sample with NaN position (AP_NavEKF3 writeExtNavData), so the covariance is kept fully finite.
 VPE_POSITION_VARIANCE_M2 = 1.0e4   # (100 m)², ArduPilot clamps posErr to 100 m
 UPPER_TRIANGLE_DIAG = (0, 6, 11, 15, 18, 20)  # indices of x,y,z,roll,pitch,yaw variances in the 21-vector
+STATUSTEXT_LEN = 50                # STATUSTEXT.text char[50]
+STATUSTEXT_MAX_CHUNKS = 256        # STATUSTEXT.chunk_seq uint8
 
 # MAV_SYS_STATUS_SENSOR bits (common.xml)
 SENSOR_GYRO = mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO
@@ -54,12 +56,16 @@ def attitude_quaternion(est, time_boot_ms: int, declination_rad: float):
     return mavlink.MAVLink_attitude_quaternion_message(time_boot_ms, w, x, y, z, p, q, r, [0.0, 0.0, 0.0, 0.0])
 
 
-def vision_position_estimate(est, usec: int, yaw_true_rad: float, reset_counter: int):
-    """Zero position, true-north attitude, covariance with the filter's roll/pitch/yaw variances."""
+def vision_position_estimate(est, usec: int, yaw_true_rad: float, reset_counter: int,
+                             yaw_sigma_rad: float | None = None):
+    """Zero position, true-north attitude, covariance with the filter's roll/pitch variances and the yaw's
+    (`yaw_sigma_rad`, default the filter's: a yaw that is not the filter's carries its own)."""
     cov = [0.0] * 21
     for i in UPPER_TRIANGLE_DIAG[:3]:
         cov[i] = VPE_POSITION_VARIANCE_M2
     sr, sp, sy = (float(v) for v in est.sigma_rpy_rad)
+    if yaw_sigma_rad is not None:
+        sy = float(yaw_sigma_rad)
     cov[15], cov[18], cov[20] = sr * sr, sp * sp, sy * sy
     if not all(math.isfinite(c) for c in cov[15:]):
         cov[15] = cov[18] = cov[20] = (math.pi / 2) ** 2   # finite "very uncertain" (ArduPilot clamps at 1.5 rad)
@@ -122,10 +128,19 @@ def sys_status(present: int, enabled: int, health: int, load_permille: int, erro
         *(u16(v) for v in errors_count), 0, 0, 0)
 
 
-def statustext(severity: int, text: str):
-    """One STATUSTEXT chunk (≤ 50 bytes, ASCII; longer text is cut at 50, the receiver shows the start)."""
-    data = statustext_ascii(text)[:50]
-    return mavlink.MAVLink_statustext_message(severity, data, 0, 0)
+def statustext_chunks(severity: int, text: str, chunk_id: int) -> list:
+    """The STATUSTEXT messages of `text` (ASCII, daemon.statustext_ascii): one message with id 0 when it fits
+    STATUSTEXT_LEN bytes, else MAVLink 2 chunks sharing `chunk_id` (1..65535) with chunk_seq 0, 1, ... (common.xml
+    STATUSTEXT: "a value of zero indicates this is the only chunk"; "any null character in the text field is taken
+    to mean this was the last chunk"). A text of a whole number of chunks gets an empty last chunk (all NUL), so
+    the receiver still sees where it ends."""
+    data = statustext_ascii(text)[:STATUSTEXT_MAX_CHUNKS * STATUSTEXT_LEN - 1]   # chunk_seq is a uint8
+    if len(data) <= STATUSTEXT_LEN:
+        return [mavlink.MAVLink_statustext_message(severity, data, 0, 0)]
+    parts = [data[i:i + STATUSTEXT_LEN] for i in range(0, len(data), STATUSTEXT_LEN)]
+    if len(parts[-1]) == STATUSTEXT_LEN:
+        parts.append(b"")
+    return [mavlink.MAVLink_statustext_message(severity, p, chunk_id, seq) for seq, p in enumerate(parts)]
 
 
 def command_ack(command: int, result: int, target_system: int, target_component: int,

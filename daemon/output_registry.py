@@ -33,7 +33,7 @@ class OutputContext(Protocol):
     def time_boot_ms(self, now: float | None = None) -> int: ...
     def sample_time_monotonic(self, t_s: float) -> float: ...
     def heading_trusted(self, now: float) -> bool: ...
-    def autopilot_yaw(self, est) -> tuple[float, int]: ...     # (yaw to send, reset_counter): daemon.heading_resets
+    def autopilot_yaw(self, est) -> tuple[float, int, float]: ...   # (yaw to send, reset_counter, its 1σ): daemon.heading_resets
     #   (reset_counter + 1 first when the estimator reset its yaw: EstimateFlags.YAW_RESET, daemon.heading_status)
     def sys_status_message(self, now: float): ...
     def local_origin(self): ...                                 # daemon.local_origin.LocalOrigin, None without GNSS
@@ -74,8 +74,8 @@ def _vision_position_estimate(ctx, est, sample, now):
     if not ctx.heading_trusted(now) or est.heading_state == HeadingState.UNKNOWN:
         return None   # never feed the autopilot a heading it must not trust, nor one nobody knows
     usec = int(ctx.sample_time_monotonic(est.t_s) * 1e6)
-    yaw, reset_counter = ctx.autopilot_yaw(est)
-    return msgs.vision_position_estimate(est, usec, yaw, reset_counter)
+    yaw, reset_counter, yaw_sigma_rad = ctx.autopilot_yaw(est)
+    return msgs.vision_position_estimate(est, usec, yaw, reset_counter, yaw_sigma_rad)
 
 
 def _highres_imu(ctx, est, sample, now):

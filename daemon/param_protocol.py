@@ -98,7 +98,7 @@ class ParamProtocol:
             if index is None:
                 if not broadcast:      # (a broadcast read is for whoever has it: not ours to refuse)
                     self.params.rejected_reads += 1
-                    self.outbound.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unknown parameter {shown}"[:50])
+                    self.outbound.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unknown parameter {shown}")
                 return
             endpoint.send(self._param_value(index))
             return
@@ -107,18 +107,18 @@ class ParamProtocol:
         if index is None:
             if not broadcast:
                 self.params.rejected_writes += 1
-                self.outbound.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unknown parameter {shown}"[:50])
+                self.outbound.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unknown parameter {shown}")
             return
         # every refusal below: counted, one STATUSTEXT (rate limited by statustext, which also logs it)
         if self.signing_required() and not msg.get_signed():
             self.counters.unsigned_refused += 1
-            self.outbound.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unsigned write of {name} refused"[:50])
+            self.outbound.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unsigned write of {name} refused")
         elif msg.param_type not in PARAM_TYPES:
             self.params.rejected_writes += 1
-            self.outbound.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: {name}: param_type {msg.param_type} unknown"[:50])
+            self.outbound.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: {name}: param_type {msg.param_type} unknown")
         else:
             ok, reason = self.params.set(name, msg.param_value)
             if not ok:
-                self.outbound.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: {reason}"[:50])
+                self.outbound.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: {reason}")
         self.outbound.send(self._param_value(index))   # always answered, with the value in force
 

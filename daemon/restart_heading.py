@@ -142,7 +142,7 @@ class RestartHeading:
                 self.realign = None
                 self._start_slew()
             elif self.realign.publish_new_heading and self.slew.active:
-                self.slew.active = False             # EKF3 ignores ExtNav yaw now; it aligns on set 1
+                self.slew.stop("via source-set switch")   # EKF3 ignores ExtNav yaw now; it aligns on set 1
 
     def on_command_ack(self, msg) -> None:
         if self.realign is not None:
@@ -158,11 +158,12 @@ class RestartHeading:
         if abs(step) <= RESTART_STEP_DEG or not 0.0 <= age <= MAX_AGE_S:
             return
         log.info("heading after restart differs by %+.1f° from the one last sent %.0f s ago", step, age)
+        reason = f"restart hdg {step:+.0f}°"
         if self._resolve(final=False) != "slew":
-            self.slew.start_from(mem.heading_rad, hold_until_s=math.inf)
+            self.slew.start_from(mem.heading_rad, hold_until_s=math.inf, reason=reason)
             self._hold_end_s = t_s + HOLD_S
         else:
-            self.slew.start_from(mem.heading_rad)
+            self.slew.start_from(mem.heading_rad, reason=reason)
             self._start_slew()                       # at the restart rate
 
     def _after_hold(self, t_s: float) -> None:

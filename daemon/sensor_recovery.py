@@ -28,4 +28,4 @@ async def report_sensor_alarms(service, period_s: float = ALARM_CHECK_PERIOD_S) 
             seen[key] = value
             if now - last_sent.get(key, -1e9) >= ALARM_REPORT_PERIOD_S:
                 last_sent[key] = now
-                service.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: sensor alarm {key[5:].upper()}"[:50])
+                service.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: sensor alarm {key[5:].upper()}")

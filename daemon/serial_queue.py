@@ -61,14 +61,27 @@ class SerialOutQueue:
     def waiting_bytes(self) -> int:
         return len(self._buf) + kernel_output_queue_bytes(self.fd)
 
-    def write(self, data) -> int:
+    def admits(self, frame_sizes) -> bool:
+        """Would frames of these sizes (bytes, at `priority`) all be admitted, written one after the other now? The
+        port drains meanwhile, which only makes room, so a yes holds for writes that follow at once."""
         fill = self.waiting_bytes()
         limit = self.capacity_bytes * admit_fraction(self.priority)
-        if fill > 0 and fill + len(data) > limit:
-            self.accepted_last = False
-            self.counters.tx_dropped += 1
-            by_prio = self.counters.tx_dropped_by_priority
-            by_prio[self.priority] = by_prio.get(self.priority, 0) + 1
+        for size in frame_sizes:
+            if fill > 0 and fill + size > limit:
+                return False
+            fill += size
+        return True
+
+    def refuse(self, frames: int = 1) -> None:
+        """Count `frames` frames of `priority` as dropped."""
+        self.accepted_last = False
+        self.counters.tx_dropped += frames
+        by_prio = self.counters.tx_dropped_by_priority
+        by_prio[self.priority] = by_prio.get(self.priority, 0) + frames
+
+    def write(self, data) -> int:
+        if not self.admits((len(data),)):
+            self.refuse()
             return 0
         self.accepted_last = True
         self._buf += data

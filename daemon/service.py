@@ -44,7 +44,7 @@ from ahrsd.daemon.gyro_cal import GyroBiasCalibration
 from ahrsd.daemon.heading_resets import HeadingResets
 from ahrsd.daemon.heading_slew import HeadingSlew
 from ahrsd.daemon.health import Health
-from ahrsd.daemon.heading_status import HeadingStatus, LongStatusText
+from ahrsd.daemon.heading_status import HeadingStatus
 from ahrsd.daemon.housekeeping import Every, HealthReport, Housekeeping
 from ahrsd.daemon.inbound import InboundDispatch
 from ahrsd.daemon.learned_iron import ACTION_PARAM as LEARNED_IRON_ACTION
@@ -107,14 +107,16 @@ class Service:
                                  self.counters)
         self.params = ParamStore(param_specs(config), self.state_dir, on_change=self._on_param_change)
         self.commands = CommandRouter(lambda endpoint, msg: endpoint.send(msg),
-                                      require_signed=lambda: self.signing_required, send=self.outbound.send,
+                                      require_signed=lambda: self.signing_required,
+                                      statustext=self.outbound.statustext,
                                       accept_broadcast=config.mavlink.accept_broadcast_commands,
                                       broadcast_notice=BroadcastNotice(self.outbound.statustext,
                                                                        config.mavlink.component_id))
         self.notifier = Notifier(environ)
         self.listeners = SampleListeners()
         # the VISION_POSITION_ESTIMATE yaw after a calibration change, and reset_counter
-        self.heading = HeadingResets(HeadingSlew(max_rate_deg_s=config.outputs.heading_slew_deg_s))
+        self.heading = HeadingResets(HeadingSlew(max_rate_deg_s=config.outputs.heading_slew_deg_s),
+                                     statustext=self.outbound.statustext)
         self.gnss: GnssTask | None = None      # [gnss] source (daemon.gnss_task), None without one
         self.nmea: NmeaOutputs | None = None    # [[nmea]] outputs (daemon.nmea_output), None without any
         self.positions = PositionResolver(config.location, gnss_position=self._gnss_position,
@@ -233,7 +235,7 @@ class Service:
     def heading_trusted(self, now: float) -> bool:
         return self.health.heading_trusted(now)
 
-    def autopilot_yaw(self, est) -> tuple[float, int]:
+    def autopilot_yaw(self, est) -> tuple[float, int, float]:
         # a reset of ins's yaw to the GNSS yaw is slewed into the yaw it publishes (its σ covering what is left:
         # estimator/published_heading.py): no step reaches the autopilot, so reset_counter is not incremented
         return self.heading.autopilot_yaw(est)
@@ -394,7 +396,7 @@ class Service:
         """The heading status reported (daemon.heading_status) and the learned iron restored and its command
         registered (daemon.learned_iron)."""
         cfg = self.config
-        self.heading_status = HeadingStatus(LongStatusText(self.outbound.send), calibration_sigma_rad=mag_sigma_rad,
+        self.heading_status = HeadingStatus(self.outbound.statustext, calibration_sigma_rad=mag_sigma_rad,
                                             calibration_in_force=has_mag_calibration(self.pipeline.calibration),
                                             good_sigma_rad=math.radians(cfg.outputs.heading_good_sigma_deg))
         self.learned_iron = LearnedIron(
@@ -557,12 +559,13 @@ class Service:
             state=self.health.system_status(now), samples=sample_accounting(self),
             link=self.outbound.link_totals(), gnss=None if self.gnss is None else self.gnss.status(now),
             autopilot=self.autopilot,
-            heading=None if self.heading_status is None else self.heading_status.status_text()))
+            heading=None if self.heading_status is None
+            else " ".join(filter(None, (self.heading_status.status_text(), self.heading.status_text())))))
 
     def _end_unreceived_slew(self, now: float) -> None:
         if self.heading.slew.active and not any(ep.schedule.rate_hz(VISION_POSITION_ESTIMATE) > 0
                                                 for ep in self.endpoints):
-            self.heading.slew.active = False    # nobody receives the slewed yaw: nothing to bring in
+            self.heading.slew.stop("no VPE sent")   # nobody receives the slewed yaw: nothing to bring in
 
     def _on_ready(self) -> None:
         self.notifier.ready("running")

@@ -334,8 +334,7 @@ class Adis16405:
         Raises FrameError (counted) for frames that cannot be trusted, BusError when the bus fails.
         """
         rx = self._xfer(_BURST_TX, R.SPI_BURST_HZ, 0)
-        w = _UNPACK_BURST(rx, 2)
-        w0, w1, w2, w3, w4, w5, w6, w7, w8, w9, w10, w11 = w
+        w0, w1, w2, w3, w4, w5, w6, w7, w8, w9, w10, _ = _UNPACK_BURST(rx, 2)
         # ND/EA must agree across SUPPLY_OUT and the nine sensor words (TEMP_OUT/AUX_ADC are not checked:
         # their flag bits are not relied on, so a hardware difference there cannot reject every frame)
         both = w0 & w1 & w2 & w3 & w4 & w5 & w6 & w7 & w8 & w9 & _FLAG_BITS
@@ -345,43 +344,58 @@ class Adis16405:
         if not _SUPPLY_MIN_LSB <= supply <= _SUPPLY_MAX_LSB:
             raise self._reject(f"implausible supply {supply * R.SUPPLY_V_PER_LSB:.2f} V", rx)
         raw9 = [((x & 0x3FFF) ^ 0x2000) - 0x2000 for x in (w1, w2, w3, w4, w5, w6, w7, w8, w9)]
-        flags = 0
         # ND clear but the previous read's XGYRO_OUT check took the ND of the sample that became ready after
         # its burst: these registers hold that sample, new to us
         new_data = bool(both & R.ND) or self._nd_taken
         self._nd_taken = False
-
-        # X-gyro burst bug (EZ 81805): a negative X rate comes back with bit 13 cleared, i.e. +8192 LSB.
-        gx = raw9[0]
-        prev_gx = self._prev_gx
+        flags = 0
+        # X-gyro burst bug (EZ 81805): a negative X rate comes back with bit 13 cleared, i.e. +8192 LSB
+        gx, prev_gx = raw9[0], self._prev_gx
         if (not (w1 & 0x2000)) and (gx > self._gyro_range_lsb or
                                     (gx - prev_gx > self._jump_lsb if prev_gx is not None else gx > self._jump_lsb)):
-            if new_data or prev_gx is None:
-                gx, flags = self._check_burst_bug(w1, gx, flags)
-            else:
-                # a repeat of the sample checked when it was new: no register read, which would only take the
-                # ND of a sample that became ready since (and lose it)
-                gx = prev_gx
-            raw9[0] = gx
-
+            raw9[0], flags = self._burst_bug_fixed(w1, gx, new_data)
         plausible = self._plausible9
         for i in range(9):
             if abs(raw9[i]) > plausible[i]:
                 raise self._reject(f"axis {i} value {raw9[i]} LSB beyond any plausible reading", rx)
-
         diag = 0
         if both & R.EA:
-            self.counters["ea_flags"] += 1
-            flags |= _ALARM
-            diag, faults = self.read_diag_stat()
-            for name in faults:
-                key = "diag_" + name.lower()
-                self.counters[key] = self.counters.get(key, 0) + 1
-            if diag & R.DIAG_GYRO_SELF_TEST:
-                flags |= _GYRO_INVALID
-            if diag & R.DIAG_ACCEL_SELF_TEST:
-                flags |= _ACCEL_INVALID
+            diag, flags = self._alarm_flags(flags)
+        flags |= self._saturation_flags(raw9)
+        flags |= self._fresh_flags(raw9, stamp is None) if new_data else self._stale_flags()
+        if stamp is None:
+            t_s, counter = self._counter * self._period_s, self._counter
+        else:
+            t_s, counter, extra = stamp(flags)
+            flags |= extra
+        return self._sample(t_s, counter, raw9, w10, supply, flags, diag)
 
+    def _burst_bug_fixed(self, w1: int, gx: int, new_data: bool) -> tuple[int, int]:
+        """The X-gyro value of a frame that looks hit by the burst bug, and its flags: a new sample is checked with
+        a register read (`_check_burst_bug`); a repeat of the sample checked when it was new takes that value
+        without a register read, which would only take the ND of a sample that became ready since (and lose it)."""
+        if new_data or self._prev_gx is None:
+            return self._check_burst_bug(w1, gx, 0)
+        return self._prev_gx, 0
+
+    def _alarm_flags(self, flags: int) -> tuple[int, int]:
+        """EA set: read and decode DIAG_STAT (each fault counted); a failed self-test invalidates its sensor.
+        Returns (DIAG_STAT, flags with ALARM and those)."""
+        self.counters["ea_flags"] += 1
+        flags |= _ALARM
+        diag, faults = self.read_diag_stat()
+        for name in faults:
+            key = "diag_" + name.lower()
+            self.counters[key] = self.counters.get(key, 0) + 1
+        if diag & R.DIAG_GYRO_SELF_TEST:
+            flags |= _GYRO_INVALID
+        if diag & R.DIAG_ACCEL_SELF_TEST:
+            flags |= _ACCEL_INVALID
+        return diag, flags
+
+    def _saturation_flags(self, raw9: list[int]) -> int:
+        """A sensor with an axis at full scale is saturated (its values are invalid); counted per sample."""
+        flags = 0
         full = self._full_scale9
         if (abs(raw9[0]) >= full[0] or abs(raw9[1]) >= full[1] or abs(raw9[2]) >= full[2]):
             flags |= _GYRO_SAT
@@ -389,34 +403,36 @@ class Adis16405:
             flags |= _ACCEL_SAT
         if (abs(raw9[6]) >= full[6] or abs(raw9[7]) >= full[7] or abs(raw9[8]) >= full[8]):
             flags |= _MAG_SAT
-        if flags & _ANY_SAT:
+        if flags:
             self.counters["saturations"] += 1
+        return flags
 
-        if new_data:
-            flags |= _NEW_DATA
-            self.counters["new_samples"] += 1
-            if stamp is None:
-                flags |= self._advance_counter()
-            self._prev_gx = gx
-            flags |= self._check_stuck(raw9)
-        else:
-            flags |= _STALE
-            self.counters["stale"] += 1
-            if self._counter < 0:
-                self._counter = 0
-            flags |= self._stuck_flags()
+    def _fresh_flags(self, raw9: list[int], own_counter: bool) -> int:
+        """A new sample (ND): counted, indexed by the driver's own counter when no `stamp` does it, its X-gyro
+        kept for the next burst-bug check, its axes checked for a stuck one."""
+        flags = _NEW_DATA
+        self.counters["new_samples"] += 1
+        if own_counter:
+            flags |= self._advance_counter()
+        self._prev_gx = raw9[0]
+        return flags | self._check_stuck(raw9)
 
-        if stamp is None:
-            t_s, counter = self._counter * self._period_s, self._counter
-        else:
-            t_s, counter, extra = stamp(flags)
-            flags |= extra
+    def _stale_flags(self) -> int:
+        """No new data since the last read: the sample repeated, flagged STALE (and stuck as the last one was)."""
+        self.counters["stale"] += 1
+        if self._counter < 0:
+            self._counter = 0
+        return _STALE | self._stuck_flags()
+
+    def _sample(self, t_s: float, counter: int, raw9: list[int], w_temp: int, supply: int, flags: int,
+                diag: int) -> ImuSample:
+        """The ImuSample of a checked frame, in SI units; counted and kept as the last one."""
         values = np.array(raw9, dtype=np.float64)
         values *= self._scale9
         sample = ImuSample(
             t_s,
             values[0:3], values[3:6], values[6:9],
-            R.TEMP_C_AT_ZERO + R.TEMP_C_PER_LSB * (((w10 & 0x0FFF) ^ 0x0800) - 0x0800),
+            R.TEMP_C_AT_ZERO + R.TEMP_C_PER_LSB * (((w_temp & 0x0FFF) ^ 0x0800) - 0x0800),
             supply * R.SUPPLY_V_PER_LSB,
             SampleFlags(flags), diag, counter,
         )

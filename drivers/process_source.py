@@ -66,8 +66,10 @@ def unpack(data: bytes) -> list[ImuSample]:
     t, temp, supply = rec["t_s"].tolist(), rec["temp_c"].tolist(), rec["supply_v"].tolist()
     flags, diag, counter = rec["flags"].tolist(), rec["diag"].tolist(), rec["counter"].tolist()
     gyro, accel, mag = rec["gyro"].copy(), rec["accel"].copy(), rec["mag"].copy()
-    cached, as_flags = _FLAGS_BY_VALUE.get, _sample_flags
-    return [ImuSample(t[i], gyro[i], accel[i], mag[i], temp[i], supply[i], cached(flags[i]) or as_flags(flags[i]),
+    cached = _FLAGS_BY_VALUE.get
+    # `is not None`, not `or`: SampleFlags(0) is falsy and would be looked up twice
+    return [ImuSample(t[i], gyro[i], accel[i], mag[i], temp[i], supply[i],
+                      f if (f := cached(flags[i])) is not None else _sample_flags(flags[i]),
                       diag[i], counter[i]) for i in range(len(t))]
 
 

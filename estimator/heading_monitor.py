@@ -202,6 +202,19 @@ class MonitorDecision:
     reset_yaw_var_rad2: float
 
 
+@dataclass(frozen=True)
+class HeadingCheckRecord:
+    """What one heading check decided and left, as its estimator keeps it (`Ins.heading_checks`): a reader (a test,
+    a diagnosis) sees each decision without reaching into the check."""
+
+    t_s: float
+    mag_use: bool                     # the magnetometer agrees (or has not failed long enough) and is used
+    yaw_var_floor_rad2: float         # the yaw variance floor the monitor decided (0: none)
+    yaw_var_rad2: float               # the filter's yaw variance when the check returned
+    reset_yaw_to_rad: float | None    # the yaw a reset or the alignment to the GNSS yaw turned the attitude to
+    iron_learned: bool                # the iron learner updated at this check
+
+
 @dataclass
 class HeadingMonitor:
     """State of the consistency checks (see the module docstring)."""

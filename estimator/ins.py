@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections import deque
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
@@ -31,7 +32,7 @@ from . import ins_core as core
 from . import mag_heading as mag
 from .calibration_heading import calibration_heading_variance_rad2
 from .gsf_yaw import GsfParams, gsf_fuse_velocity, gsf_output, gsf_reset, new_gsf_state
-from .heading_monitor import HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
+from .heading_monitor import HeadingCheckRecord, HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
                             float_field_slice, uninitialised_estimate)
 from .initial_attitude import initial_attitude
@@ -334,6 +335,7 @@ class GnssCounters:
 
 _TWO_PI = 2.0 * math.pi
 _MAX_QUEUED = 16
+HEADING_CHECKS_KEPT = 128   # the latest heading checks a reader can look at (`Ins.heading_checks`)
 
 # where each output lies in the flat float64 view of an INS_OUT_DTYPE record
 _OUT = AttitudeFields(core.INS_OUT_DTYPE)
@@ -353,7 +355,7 @@ class Ins:
     `update_gnss(fix) -> int` (core.R_* bits of what happened; never raises on bad input, counts it in
     `gnss_counters`); `reset()`, `set_declination(rad)`, `relearn_field_reference()`; read-only `covariance`
     (24×24), `gyro_bias_rad_s`, `gyro_scale`, `gyro_misalignment_rad`, `accel_bias_m_s2`, `last_nis` (velocity,
-    position).
+    position); `heading_checks`, the latest heading checks' decisions (heading_monitor.HeadingCheckRecord).
     """
 
     name = "ins"
@@ -413,6 +415,7 @@ class Ins:
         self._monitor = HeadingMonitor(p.calibration_sigma_rad, reentry_s=p.mag_reentry_s,
                                        max_resets=p.yaw_reset_max, reset_spacing_s=p.yaw_reset_spacing_s)
         self._heading_state = HeadingState.UNKNOWN
+        self.heading_checks: deque[HeadingCheckRecord] = deque(maxlen=HEADING_CHECKS_KEPT)
         self._integrity = None
         self._field_key = None
         self._field_ned = None
@@ -732,11 +735,15 @@ class Ins:
         self._set_magnetometer_use(d, mag_var, noise)
         # the monitor says no learning on a check that reset the yaw (c_bn is the attitude before the reset, P its
         # covariance after it): the next check learns with the new yaw
+        iron_updates = self._iron.updates
         if self.params.iron_learning and self._monitor.learning and np.all(np.isfinite(m_body)) \
                 and self._x["nav_ok"] > 0:
             self._learn_iron(t_s, c_bn)
         yaw_now = yaw if yaw_reset_to is None else wrap_pi(yaw_reset_to)
         self._publish_heading_checks(yaw_now, gsf_yaw, gsf_var, gsf_valid)
+        self.heading_checks.append(HeadingCheckRecord(t_s, d.mag_use, d.yaw_var_floor_rad2,
+                                                      float(self._P[core.E_YAW, core.E_YAW]), yaw_reset_to,
+                                                      self._iron.updates > iron_updates))
 
     def _magnetometer_heading(self, c_bn: np.ndarray, yaw: float, m_body: np.ndarray) -> tuple[float, float, float]:
         """The yaw the magnetometer (iron-corrected, body frame µT) gives with the attitude c_bn, its variance and

@@ -539,69 +539,80 @@ def _navigation_known(x, par):
     return x.nav_ok > 0.0
 
 
-@njit(cache=True)
-def _mechanise(x, par, dt, nav_ok, mwx, mwy, mwz, fx, fy, fz):
-    """NED strapdown over Δt (P. D. Groves, Principles of GNSS, Inertial, and Multisensor Integrated
-    Navigation Systems, 2nd ed., §5.4): attitude, then velocity and position (held before the first fix);
-    accumulates the covariance increments and the NED-frame low-pass of the specific force (levelling).
-    Returns the new attitude and velocity."""
-    q0 = x.q[0]
-    q1 = x.q[1]
-    q2 = x.q[2]
-    q3 = x.q[3]
-    c00, c01, c02, c10, c11, c12, c20, c21, c22 = dcm(q0, q1, q2, q3)
-    lat = x.lat_rad
-    h_m = x.h_m
-    vn = x.vel_ned_m_s[0]
-    ve = x.vel_ned_m_s[1]
-    vd = x.vel_ned_m_s[2]
-    r_n, r_e = _radii(par, lat)
-    earth = par.earth_rotation > 0.0 and nav_ok   # the Earth rate needs the latitude
-    # body rate relative to NED: ω_nb = ω_ib − C_n^b (ω_ie + ω_en)   (Groves eq. 5.77)
+@njit(cache=True, inline="always")
+def _rate_relative_to_ned(x, c, earth, r_n, r_e, mwx, mwy, mwz):
+    """The body rate relative to NED, ω_nb = ω_ib − C_n^b (ω_ie + ω_en) (Groves eq. 5.77; `c`: C_b^n as `dcm`'s
+    9-tuple): the Earth rate and the transport rate only when `earth` (they need the latitude)."""
     rx, ry, rz = mwx, mwy, mwz
     if earth:
+        c00, c01, c02, c10, c11, c12, c20, c21, c22 = c
+        lat = x.lat_rad
         en, ee, ed = earth_rate_ned(lat)
-        tn, te, td = transport_rate_ned(lat, h_m, vn, ve, r_n, r_e)
+        tn, te, td = transport_rate_ned(lat, x.h_m, x.vel_ned_m_s[0], x.vel_ned_m_s[1], r_n, r_e)
         sn = en + tn
         se = ee + te
         sd = ed + td
         rx -= c00 * sn + c10 * se + c20 * sd
         ry -= c01 * sn + c11 * se + c21 * sd
         rz -= c02 * sn + c12 * se + c22 * sd
-    thx = rx * dt
-    thy = ry * dt
-    thz = rz * dt
-    # specific force at the middle of the step: f + ½ θ × f in the body frame at the start
+    return rx, ry, rz
+
+
+@njit(cache=True, inline="always")
+def _mid_step_specific_force_ned(c, thx, thy, thz, fx, fy, fz):
+    """The specific force at the middle of the step in NED: f + ½ θ × f in the body frame at the start (θ: the
+    step's rotation), rotated by C_b^n at the start (`c`)."""
+    c00, c01, c02, c10, c11, c12, c20, c21, c22 = c
     mfx = fx + 0.5 * (thy * fz - thz * fy)
     mfy = fy + 0.5 * (thz * fx - thx * fz)
     mfz = fz + 0.5 * (thx * fy - thy * fx)
-    fn = c00 * mfx + c01 * mfy + c02 * mfz
-    fe = c10 * mfx + c11 * mfy + c12 * mfz
-    fd = c20 * mfx + c21 * mfy + c22 * mfz
-    # attitude: C_b^n ← C_b^n exp(ω_nb dt)   (eq. 20)
+    return (c00 * mfx + c01 * mfy + c02 * mfz,
+            c10 * mfx + c11 * mfy + c12 * mfz,
+            c20 * mfx + c21 * mfy + c22 * mfz)
+
+
+@njit(cache=True, inline="always")
+def _strapdown_attitude(x, thx, thy, thz):
+    """C_b^n ← C_b^n exp(ω_nb dt) (eq. 20) as q ← q ⊗ q(θ), normalised; returns the new q."""
     e0, e1, e2, e3 = rotvec_quat(thx, thy, thz)
-    n0, n1, n2, n3 = quat_mul(q0, q1, q2, q3, e0, e1, e2, e3)
+    n0, n1, n2, n3 = quat_mul(x.q[0], x.q[1], x.q[2], x.q[3], e0, e1, e2, e3)
     q0, q1, q2, q3 = normalised(n0, n1, n2, n3)
     x.q[0] = q0
     x.q[1] = q1
     x.q[2] = q2
     x.q[3] = q3
-    # velocity (eq. 14) and position (eq. 17, trapezoid); before the first fix they are unknown and held
-    nvn, nve, nvd = vn, ve, vd
-    if nav_ok:
-        an, ae, ad = velocity_rate_ned(fn, fe, fd, vn, ve, vd, lat, h_m, r_n, r_e, earth)
-        nvn = vn + an * dt
-        nve = ve + ae * dt
-        nvd = vd + ad * dt
-        ldot, odot, hdot = position_rates(lat, h_m, 0.5 * (vn + nvn), 0.5 * (ve + nve), 0.5 * (vd + nvd),
-                                          r_n, r_e)
-        x.vel_ned_m_s[0] = nvn
-        x.vel_ned_m_s[1] = nve
-        x.vel_ned_m_s[2] = nvd
-        x.lat_rad = lat + ldot * dt
-        x.lon_rad += odot * dt
-        x.h_m = h_m + hdot * dt
-    # covariance increments
+    return q0, q1, q2, q3
+
+
+@njit(cache=True, inline="always")
+def _integrate_navigation(x, dt, fn, fe, fd, r_n, r_e, earth):
+    """Velocity (eq. 14, from the mid-step specific force in NED) and position (eq. 17, trapezoid in the
+    velocity) over Δt; returns the new velocity."""
+    lat = x.lat_rad
+    h_m = x.h_m
+    vn = x.vel_ned_m_s[0]
+    ve = x.vel_ned_m_s[1]
+    vd = x.vel_ned_m_s[2]
+    an, ae, ad = velocity_rate_ned(fn, fe, fd, vn, ve, vd, lat, h_m, r_n, r_e, earth)
+    nvn = vn + an * dt
+    nve = ve + ae * dt
+    nvd = vd + ad * dt
+    ldot, odot, hdot = position_rates(lat, h_m, 0.5 * (vn + nvn), 0.5 * (ve + nve), 0.5 * (vd + nvd), r_n, r_e)
+    x.vel_ned_m_s[0] = nvn
+    x.vel_ned_m_s[1] = nve
+    x.vel_ned_m_s[2] = nvd
+    x.lat_rad = lat + ldot * dt
+    x.lon_rad += odot * dt
+    x.h_m = h_m + hdot * dt
+    return nvn, nve, nvd
+
+
+@njit(cache=True, inline="always")
+def _accumulate_increments(x, par, dt, c, fn, fe, fd, mwx, mwy, mwz):
+    """What the covariance epoch and the levelling take from each step: the interval, ∫C dt, ΔV^n = ∫f^n dt and
+    ∫C_ij ω_k dt (`propagate_covariance`'s transition matrix), and the NED-frame low-pass of the specific force
+    (levelling: linear acceleration averages out, gravity stays)."""
+    c00, c01, c02, c10, c11, c12, c20, c21, c22 = c
     x.cov_t_s += dt
     x.cov_c_s[0] += c00 * dt
     x.cov_c_s[1] += c01 * dt
@@ -616,13 +627,37 @@ def _mechanise(x, par, dt, nav_ok, mwx, mwy, mwz, fx, fy, fz):
     x.cov_dv_m_s[1] += fe * dt
     x.cov_dv_m_s[2] += fd * dt
     _accumulate_c_omega(x, c00, c01, c02, c10, c11, c12, c20, c21, c22, mwx * dt, mwy * dt, mwz * dt)
-    # NED-frame low-pass of the specific force for the levelling (linear acceleration averages out)
     tau = par.level_lowpass_tau_s
     k = 1.0 - math.exp(-dt / tau) if tau > 0.0 else 1.0
     x.acc_ned_lp_m_s2[0] += k * (fn - x.acc_ned_lp_m_s2[0])
     x.acc_ned_lp_m_s2[1] += k * (fe - x.acc_ned_lp_m_s2[1])
     x.acc_ned_lp_m_s2[2] += k * (fd - x.acc_ned_lp_m_s2[2])
-    return q0, q1, q2, q3, nvn, nve, nvd
+
+
+@njit(cache=True)
+def _mechanise(x, par, dt, nav_ok, mwx, mwy, mwz, fx, fy, fz):
+    """NED strapdown over Δt (P. D. Groves, Principles of GNSS, Inertial, and Multisensor Integrated
+    Navigation Systems, 2nd ed., §5.4): attitude (`_rate_relative_to_ned`, `_strapdown_attitude`), then velocity
+    and position (`_integrate_navigation`; held before the first fix) from the mid-step specific force
+    (`_mid_step_specific_force_ned`); accumulates the covariance increments and the NED-frame low-pass of the
+    specific force (`_accumulate_increments`). Returns the new attitude and velocity."""
+    c = dcm(x.q[0], x.q[1], x.q[2], x.q[3])
+    r_n, r_e = _radii(par, x.lat_rad)
+    earth = par.earth_rotation > 0.0 and nav_ok   # the Earth rate needs the latitude
+    rx, ry, rz = _rate_relative_to_ned(x, c, earth, r_n, r_e, mwx, mwy, mwz)
+    thx = rx * dt
+    thy = ry * dt
+    thz = rz * dt
+    fn, fe, fd = _mid_step_specific_force_ned(c, thx, thy, thz, fx, fy, fz)
+    q0, q1, q2, q3 = _strapdown_attitude(x, thx, thy, thz)
+    # before the first fix velocity and position are unknown and held
+    vn = x.vel_ned_m_s[0]
+    ve = x.vel_ned_m_s[1]
+    vd = x.vel_ned_m_s[2]
+    if nav_ok:
+        vn, ve, vd = _integrate_navigation(x, dt, fn, fe, fd, r_n, r_e, earth)
+    _accumulate_increments(x, par, dt, c, fn, fe, fd, mwx, mwy, mwz)
+    return q0, q1, q2, q3, vn, ve, vd
 
 
 @njit(cache=True)

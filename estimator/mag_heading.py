@@ -94,28 +94,18 @@ def _reference_weight(ms, mp, dt):
     return ms.ref_weight
 
 
-@njit(cache=True)
-def heading_measurement(ms, mp, dt, rate, at_rest, moved_at_rest, mn, me, md, mnorm,
-                        declination, heading_var):
-    """Check one field sample (mn, me, md: the field in the estimated NED frame, µT; mnorm its magnitude) and
-    form the heading measurement. Returns (MAG_*, innovation rad, variance rad²).
-
-    The innovation is the angle of the horizontal field in the estimated frame minus `declination` (0 for a
-    filter whose frame is magnetic north), i.e. −δθ_D: the caller applies it with the row h = −e_D.
-    rate: bias-corrected angular rate magnitude (rad/s); at_rest / moved_at_rest: from the caller's rest
-    detector (a field that moves at rest is a disturbance); heading_var: the filter's heading variance (rad²)
-    for the innovation gate."""
-    if mnorm <= 1e-6:
-        return MAG_NONE, 0.0, 0.0
-    mh = math.sqrt(mn * mn + me * me)
-    dip = math.atan2(md, mh)
-    ref_norm = ms.ref_norm_ut
-    if ref_norm <= 0.0:
+@njit(cache=True, inline="always")
+def _track_field(ms, mp, dt, rate, mnorm, dip):
+    """Compare the field (magnitude mnorm, dip) with the learned reference and keep the undisturbed and
+    disturbed times; the first field sets the reference. A field that differs but stays consistent while the
+    body rotates (the candidate) for new_time_s has changed for good (a new place, new iron) and is adopted.
+    Returns whether the field matches the reference (after an adoption it does)."""
+    if ms.ref_norm_ut <= 0.0:
         ms.ref_norm_ut = mnorm
         ms.ref_dip_rad = dip
         ms.cand_norm_ut = mnorm
         ms.cand_dip_rad = dip
-        ref_norm = mnorm
+    ref_norm = ms.ref_norm_ut
     tol = mp.norm_tol
     dtol = mp.dip_tol_rad
     matches = abs(mnorm - ref_norm) < tol * ref_norm and abs(dip - ms.ref_dip_rad) < dtol
@@ -125,7 +115,6 @@ def heading_measurement(ms, mp, dt, rate, at_rest, moved_at_rest, mn, me, md, mn
     else:
         ms.undisturbed_t_s = 0.0
         ms.disturbed_t_s += dt
-    # candidate for a new (permanently changed) field: must stay consistent while the body rotates
     cn = ms.cand_norm_ut
     if abs(mnorm - cn) < tol * cn and abs(dip - ms.cand_dip_rad) < dtol:
         kc = _reference_weight(ms, mp, dt) if dt > 0.0 else 0.0
@@ -138,12 +127,53 @@ def heading_measurement(ms, mp, dt, rate, at_rest, moved_at_rest, mn, me, md, mn
         ms.cand_dip_rad = dip
         ms.cand_t_s = 0.0
     if (not matches) and ms.cand_t_s >= mp.new_time_s:
-        # the field has changed for good (new place, new iron): adopt it
         ms.ref_norm_ut = ms.cand_norm_ut
         ms.ref_dip_rad = ms.cand_dip_rad
         ms.undisturbed_t_s = mp.min_undisturbed_s
         ms.disturbed_t_s = 0.0
         matches = True
+    return matches
+
+
+@njit(cache=True, inline="always")
+def _heading_innovation(ms, mp, at_rest, mn, me, mh, declination, heading_var, inflate):
+    """The heading measurement α = −δθ_D, the angle of the horizontal field (mn, me; magnitude mh) in the
+    estimated NED frame minus `declination`, wrapped to ±π, and its variance (the field noise over mh plus the
+    heading noise floor, times `inflate`); rejected beyond the innovation gate unless inflated or the gate is
+    held open after a calibration change (relearn_reference). Returns (MAG_*, α, variance)."""
+    alpha = math.atan2(me, mn) - declination
+    if alpha > math.pi:
+        alpha -= _TWO_PI
+    elif alpha < -math.pi:
+        alpha += _TWO_PI
+    sig_a = mp.noise_ut / mh
+    floor = mp.heading_noise_rest_rad if at_rest else mp.heading_noise_rad
+    r = (sig_a * sig_a + floor * floor) * inflate
+    s = heading_var + r
+    gate_open = ms.gate_open_s > 0.0
+    if alpha * alpha > mp.gate_sigma ** 2 * s and inflate == 1.0 and not gate_open:
+        return MAG_REJECTED, 0.0, 0.0
+    return MAG_USE, alpha, r
+
+
+@njit(cache=True)
+def heading_measurement(ms, mp, dt, rate, at_rest, moved_at_rest, mn, me, md, mnorm,
+                        declination, heading_var):
+    """Check one field sample (mn, me, md: the field in the estimated NED frame, µT; mnorm its magnitude) and
+    form the heading measurement. Returns (MAG_*, innovation rad, variance rad²).
+
+    The innovation is the angle of the horizontal field in the estimated frame minus `declination` (0 for a
+    filter whose frame is magnetic north), i.e. −δθ_D: the caller applies it with the row h = −e_D.
+    rate: bias-corrected angular rate magnitude (rad/s); at_rest / moved_at_rest: from the caller's rest
+    detector (a field that moves at rest is a disturbance); heading_var: the filter's heading variance (rad²)
+    for the innovation gate. The field is checked against the learned reference (`_track_field`), used once
+    it has matched for min_undisturbed_s (or, disturbed for longer than reject_max_s, with its variance
+    inflated a hundredfold), and then measures the heading (`_heading_innovation`)."""
+    if mnorm <= 1e-6:
+        return MAG_NONE, 0.0, 0.0
+    mh = math.sqrt(mn * mn + me * me)
+    dip = math.atan2(md, mh)
+    matches = _track_field(ms, mp, dt, rate, mnorm, dip)
     undisturbed = matches and ms.undisturbed_t_s >= mp.min_undisturbed_s and not moved_at_rest
     inflate = 1.0
     if not undisturbed and ms.disturbed_t_s > mp.reject_max_s:
@@ -155,20 +185,7 @@ def heading_measurement(ms, mp, dt, rate, at_rest, moved_at_rest, mn, me, md, mn
         kr = _reference_weight(ms, mp, dt)
         ms.ref_norm_ut += kr * (mnorm - ms.ref_norm_ut)
         ms.ref_dip_rad += kr * (dip - ms.ref_dip_rad)
-    # heading measurement: angle of the horizontal field in the estimated NED frame, α = −δθ_D
-    alpha = math.atan2(me, mn) - declination
-    if alpha > math.pi:
-        alpha -= _TWO_PI
-    elif alpha < -math.pi:
-        alpha += _TWO_PI
-    sig_a = mp.noise_ut / mh
-    floor = mp.heading_noise_rest_rad if at_rest else mp.heading_noise_rad
-    r = (sig_a * sig_a + floor * floor) * inflate
-    s = heading_var + r
-    gate_open = ms.gate_open_s > 0.0   # after a calibration change (relearn_reference)
-    if alpha * alpha > mp.gate_sigma ** 2 * s and inflate == 1.0 and not gate_open:
-        return MAG_REJECTED, 0.0, 0.0
-    return MAG_USE, alpha, r
+    return _heading_innovation(ms, mp, at_rest, mn, me, mh, declination, heading_var, inflate)
 
 
 @njit(cache=True)

@@ -40,7 +40,7 @@ from .initial_attitude import initial_attitude
 from .mag_heading import RELEARN_GATE_OPEN_S, heading_params, relearn_reference
 from .mag_heading_params import MagHeadingParams
 from .params import with_overrides
-from .rotations import quat_to_dcm, quat_to_euler
+from .rotations import quat_to_dcm
 
 _DEG = math.pi / 180.0
 
@@ -243,6 +243,7 @@ class Mekf:
         self._reinit_pending = False
         self._step = core.fast_step()
         self._fill_euler = core.fast_fill_euler()
+        self._fill_after_init = core.fast_fill_after_init()
         self._euler_stale = False      # the step leaves the Euler outputs; they are filled when read
         self._t_s = math.nan
         self._bits = -1
@@ -413,17 +414,8 @@ class Mekf:
         return True
 
     def _fill_out_after_init(self) -> None:
-        s, o = self._state, self._out
-        q = s["q"] * (1.0 if s["q"][0] >= 0 else -1.0)
-        o["q"] = q
-        o["rate_rad_s"] = s["gyro_last_rad_s"] - s["gyro_bias_rad_s"]
-        P = s["P"]
-        o["sigma_rpy_rad"] = np.sqrt(np.diag(P)[[core.E_TILT_N, core.E_TILT_E, core.E_HEADING]])
-        if self.params.mag_enabled:       # as mekf_core._fill_outputs
-            o["sigma_rpy_rad"][2] = math.sqrt(o["sigma_rpy_rad"][2] ** 2
-                                              + float(self._buf[0]["par"]["heading_calibration_var_rad2"]))
-        o["gyro_bias_rad_s"] = s["gyro_bias_rad_s"]
-        o["euler_rad"] = quat_to_euler(q)
+        """The outputs of the state the initialisation set, filled as a step fills them (one output fill)."""
+        self._fill_after_init(self._buf)
         self._euler_stale = False
 
     def _read_euler(self) -> None:

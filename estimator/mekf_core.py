@@ -6,15 +6,24 @@ and a step's outputs one MEKF_OUT_DTYPE record (numpy structured types that numb
 stores at fixed offsets), so a step allocates nothing and one numba call serves a sample. `mekf_step` runs the
 stages in order:
 
-  `_propagate_attitude`, `_propagate_covariance`  strapdown q ← q ⊗ exp(ω Δt); P ← Φ P Φᵀ + Q
-  `_detect_rest`, `_learn_bias_at_rest`          rest detection; at rest each gyro sample measures the bias
-  `_tilt_update`                                 the accelerometer's vertical corrects tilt only
-  `_field_offset`                                a body-fixed field offset learned and removed (attached magnet)
-  `_heading_update`                              the magnetometer corrects heading only (mag_heading.py's check)
+  `_propagate_attitude`, `_propagate_covariance`  strapdown q ← q ⊗ exp(ω Δt); P ← Φ P Φᵀ + Q in 3×3 blocks
+                                                 (`_bias_block_product` M D, `_propagate_attitude_block` A')
+  `_detect_rest`, `_learn_bias_at_rest`          rest detection (`_rest_lowpasses`, `_steady`,
+                                                 `_field_moved_at_rest`); at rest each gyro sample measures the bias
+  `_tilt_update`                                 the accelerometer's vertical corrects tilt only:
+                                                 `_vertical_lowpass` (f in NED, low-passed), `_motion_noise_rad2`,
+                                                 `_vertical_accepted` (the gate), `_vertical_noise_rad2`,
+                                                 `_correct_tilt` (two constrained scalar updates)
+  `_field_offset`                                a body-fixed field offset learned and removed (attached magnet):
+                                                 `_turned_since_snapshot`, `_refit_offset` (least squares),
+                                                 `_take_snapshot`, `_offset_explained_field` (the field to use)
+  `_heading_update`                              the magnetometer corrects heading only (mag_heading.py's check:
+                                                 `_track_field` against the reference, `_heading_innovation`)
   `_fill_outputs`                                quaternion, rate, 1σ, bias (the one-sample path publishes them)
   `_fill_estimate`                               quaternion only (the batch returns nothing else)
 
 `mekf_run` loops the same `mekf_step` over arrays for replay and benchmarks; it fills only what it returns.
+The sub-stages of a stage are compiled into it (numba `inline="always"`), so splitting a stage adds no call.
 
 Error state (6): δθ, the attitude error in the NED frame (C_true = (I + [δθ×]) C_est), and δb, the gyro bias
 error (b_true = b_est + δb). Tilt is δθ_N, δθ_E; heading is δθ_D. The accelerometer observes only
@@ -57,7 +66,7 @@ from .kernel_rotations import dcm, euler_zyx, normalised, quat_mul, rotate_to_ne
 
 __all__ = [
     "MEKF_STATE_DTYPE", "MEKF_PARAMS_DTYPE", "MEKF_OUT_DTYPE", "MEKF_BUFFER_DTYPE", "mekf_step", "mekf_step_full",
-    "mekf_run", "fast_step", "fill_euler", "fast_fill_euler", "input_validity", "BAD_SHAPE", "NEEDS_INIT",
+    "mekf_run", "fast_step", "fill_euler", "fast_fill_euler", "fill_outputs_after_init", "fast_fill_after_init", "input_validity", "BAD_SHAPE", "NEEDS_INIT",
     "IN_ACC_OK", "IN_GYRO_OK", "IN_MAG_OK",
     "F_INITIALISING", "F_MAG_REJECTED", "F_ACCEL_REJECTED", "F_AT_REST", "F_MAG_UNAVAILABLE", "F_LARGE_DT",
     "F_REINITIALISED", "E_TILT_N", "E_TILT_E", "E_HEADING", "E_BIAS",
@@ -285,23 +294,10 @@ def _tilt_process_noise_rad2(par, rate_rad_s, span_s):
     return arw_rad2 + (par.gyro_rate_noise_sqrt_s * rate_rad_s) ** 2 * span_s
 
 
-@njit(cache=True)
-def _propagate_covariance(P, par, dt, rate, c00, c01, c02, c10, c11, c12, c20, c21, c22):
-    """P ← Φ P Φᵀ + Q over Δt with Φ = [[I, −C Δt], [0, I]] (δθ̇ = −C δb − C n_g), C = C_b^n, written
-    out in 3×3 blocks: A = P[δθ, δθ], B = P[δθ, δb], D = P[δb, δb], M = C Δt:
-    B' = B − M D,  A' = A − B Mᵀ − M B'ᵀ (= A − M Bᵀ − B Mᵀ + M D Mᵀ),  D' = D.
-    Q: angle random walk and the gyro's rate-proportional scale/alignment errors on δθ (tilt; heading the
-    random walk only), bias random walk on δb."""
-    m00 = c00 * dt
-    m01 = c01 * dt
-    m02 = c02 * dt
-    m10 = c10 * dt
-    m11 = c11 * dt
-    m12 = c12 * dt
-    m20 = c20 * dt
-    m21 = c21 * dt
-    m22 = c22 * dt
-    # MD = M D
+@njit(cache=True, inline="always")
+def _bias_block_product(P, m):
+    """M D for M = C Δt (the 9-tuple `m`, row-major) and D = P[δb, δb]; returns M D as a row-major 9-tuple."""
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = m
     d00 = P[3, 3]
     d01 = P[3, 4]
     d02 = P[3, 5]
@@ -311,25 +307,50 @@ def _propagate_covariance(P, par, dt, rate, c00, c01, c02, c10, c11, c12, c20, c
     d20 = P[5, 3]
     d21 = P[5, 4]
     d22 = P[5, 5]
-    md00 = m00 * d00 + m01 * d10 + m02 * d20
-    md01 = m00 * d01 + m01 * d11 + m02 * d21
-    md02 = m00 * d02 + m01 * d12 + m02 * d22
-    md10 = m10 * d00 + m11 * d10 + m12 * d20
-    md11 = m10 * d01 + m11 * d11 + m12 * d21
-    md12 = m10 * d02 + m11 * d12 + m12 * d22
-    md20 = m20 * d00 + m21 * d10 + m22 * d20
-    md21 = m20 * d01 + m21 * d11 + m22 * d21
-    md22 = m20 * d02 + m21 * d12 + m22 * d22
-    # ob = B (before), b = B' = B − M D
-    ob00 = P[0, 3]
-    ob01 = P[0, 4]
-    ob02 = P[0, 5]
-    ob10 = P[1, 3]
-    ob11 = P[1, 4]
-    ob12 = P[1, 5]
-    ob20 = P[2, 3]
-    ob21 = P[2, 4]
-    ob22 = P[2, 5]
+    return (m00 * d00 + m01 * d10 + m02 * d20, m00 * d01 + m01 * d11 + m02 * d21, m00 * d02 + m01 * d12 + m02 * d22,
+            m10 * d00 + m11 * d10 + m12 * d20, m10 * d01 + m11 * d11 + m12 * d21, m10 * d02 + m11 * d12 + m12 * d22,
+            m20 * d00 + m21 * d10 + m22 * d20, m20 * d01 + m21 * d11 + m22 * d21, m20 * d02 + m21 * d12 + m22 * d22)
+
+
+@njit(cache=True, inline="always")
+def _cross_block(P):
+    """B = P[δθ, δb] as a row-major 9-tuple."""
+    return (P[0, 3], P[0, 4], P[0, 5], P[1, 3], P[1, 4], P[1, 5], P[2, 3], P[2, 4], P[2, 5])
+
+
+@njit(cache=True, inline="always")
+def _propagate_attitude_block(P, m, ob, b, qt, qa):
+    """A' = A − B Mᵀ − M B'ᵀ + Q_θ (B = `ob` before, B' = `b` after; row-major 9-tuples), tilt noise `qt` on
+    δθ_N, δθ_E, heading noise `qa` on δθ_D: the upper triangle, mirrored. A' is symmetric (A and D are, and
+    M B'ᵀ + B Mᵀ = M Bᵀ + B Mᵀ − M D Mᵀ is): mirroring keeps P exactly symmetric, as the scalar updates do,
+    without a symmetrising pass."""
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = m
+    ob00, ob01, ob02, ob10, ob11, ob12, ob20, ob21, ob22 = ob
+    b00, b01, b02, b10, b11, b12, b20, b21, b22 = b
+    # row i, column j: A[i][j] − Σk ob[i][k] m[j][k] − Σk m[i][k] b[j][k]
+    P[0, 0] += qt - (ob00 * m00 + ob01 * m01 + ob02 * m02) - (m00 * b00 + m01 * b01 + m02 * b02)
+    P[0, 1] += -(ob00 * m10 + ob01 * m11 + ob02 * m12) - (m00 * b10 + m01 * b11 + m02 * b12)
+    P[0, 2] += -(ob00 * m20 + ob01 * m21 + ob02 * m22) - (m00 * b20 + m01 * b21 + m02 * b22)
+    P[1, 1] += qt - (ob10 * m10 + ob11 * m11 + ob12 * m12) - (m10 * b10 + m11 * b11 + m12 * b12)
+    P[1, 2] += -(ob10 * m20 + ob11 * m21 + ob12 * m22) - (m10 * b20 + m11 * b21 + m12 * b22)
+    P[2, 2] += qa - (ob20 * m20 + ob21 * m21 + ob22 * m22) - (m20 * b20 + m21 * b21 + m22 * b22)
+    P[1, 0] = P[0, 1]
+    P[2, 0] = P[0, 2]
+    P[2, 1] = P[1, 2]
+
+
+@njit(cache=True)
+def _propagate_covariance(P, par, dt, rate, c):
+    """P ← Φ P Φᵀ + Q over Δt with Φ = [[I, −C Δt], [0, I]] (δθ̇ = −C δb − C n_g), C = C_b^n (`c`: `dcm`'s
+    9-tuple), written out in 3×3 blocks: A = P[δθ, δθ], B = P[δθ, δb], D = P[δb, δb], M = C Δt:
+    B' = B − M D,  A' = A − B Mᵀ − M B'ᵀ (= A − M Bᵀ − B Mᵀ + M D Mᵀ),  D' = D.
+    Q: angle random walk and the gyro's rate-proportional scale/alignment errors on δθ (tilt; heading the
+    random walk only), bias random walk on δb."""
+    c00, c01, c02, c10, c11, c12, c20, c21, c22 = c
+    m = (c00 * dt, c01 * dt, c02 * dt, c10 * dt, c11 * dt, c12 * dt, c20 * dt, c21 * dt, c22 * dt)
+    md00, md01, md02, md10, md11, md12, md20, md21, md22 = _bias_block_product(P, m)
+    ob = _cross_block(P)
+    ob00, ob01, ob02, ob10, ob11, ob12, ob20, ob21, ob22 = ob
     b00 = ob00 - md00
     b01 = ob01 - md01
     b02 = ob02 - md02
@@ -341,19 +362,7 @@ def _propagate_covariance(P, par, dt, rate, c00, c01, c02, c10, c11, c12, c20, c
     b22 = ob22 - md22
     qa = par.gyro_noise_rad_s_sqrt_hz * par.gyro_noise_rad_s_sqrt_hz * dt
     qt = _tilt_process_noise_rad2(par, rate, dt)
-    qb = par.gyro_bias_walk_rad_s_sqrt_s * par.gyro_bias_walk_rad_s_sqrt_s * dt
-    # rows i of A': A[i][j] − Σk ob[i][k] m[j][k] − Σk m[i][k] b[j][k]
-    P[0, 0] += qt - (ob00 * m00 + ob01 * m01 + ob02 * m02) - (m00 * b00 + m01 * b01 + m02 * b02)
-    P[0, 1] += -(ob00 * m10 + ob01 * m11 + ob02 * m12) - (m00 * b10 + m01 * b11 + m02 * b12)
-    P[0, 2] += -(ob00 * m20 + ob01 * m21 + ob02 * m22) - (m00 * b20 + m01 * b21 + m02 * b22)
-    P[1, 1] += qt - (ob10 * m10 + ob11 * m11 + ob12 * m12) - (m10 * b10 + m11 * b11 + m12 * b12)
-    P[1, 2] += -(ob10 * m20 + ob11 * m21 + ob12 * m22) - (m10 * b20 + m11 * b21 + m12 * b22)
-    P[2, 2] += qa - (ob20 * m20 + ob21 * m21 + ob22 * m22) - (m20 * b20 + m21 * b21 + m22 * b22)
-    # A' is symmetric (A and D are, and M B'ᵀ + B Mᵀ = M Bᵀ + B Mᵀ − M D Mᵀ is): mirror the upper triangle,
-    # as the scalar updates do, so P stays exactly symmetric without a symmetrising pass
-    P[1, 0] = P[0, 1]
-    P[2, 0] = P[0, 2]
-    P[2, 1] = P[1, 2]
+    _propagate_attitude_block(P, m, ob, (b00, b01, b02, b10, b11, b12, b20, b21, b22), qt, qa)
     P[0, 3] = P[3, 0] = b00
     P[0, 4] = P[4, 0] = b01
     P[0, 5] = P[5, 0] = b02
@@ -363,76 +372,98 @@ def _propagate_covariance(P, par, dt, rate, c00, c01, c02, c10, c11, c12, c20, c
     P[2, 3] = P[3, 2] = b20
     P[2, 4] = P[4, 2] = b21
     P[2, 5] = P[5, 2] = b22
+    qb = par.gyro_bias_walk_rad_s_sqrt_s * par.gyro_bias_walk_rad_s_sqrt_s * dt
     P[3, 3] += qb
     P[4, 4] += qb
     P[5, 5] += qb
 
 
 # ----------------------------------------------------------------------------------- rest
+@njit(cache=True, inline="always")
+def _rest_lowpasses(st, k, valid, gx, gy, gz, ax, ay, az, mx, my, mz):
+    """The gyro, specific force and body-frame field low-passed with weight k (each sensor while valid)."""
+    glp = st.gyro_lp_rad_s
+    alp = st.acc_lp_m_s2
+    mlp = st.mag_lp_ut
+    for i in range(3):
+        g = gx if i == 0 else (gy if i == 1 else gz)
+        glp[i] += k * (g - glp[i])
+    if valid & IN_ACC_OK:
+        alp[0] += k * (ax - alp[0])
+        alp[1] += k * (ay - alp[1])
+        alp[2] += k * (az - alp[2])
+    if (valid & IN_MAG_OK) != 0:
+        mlp[0] += k * (mx - mlp[0])
+        mlp[1] += k * (my - mlp[1])
+        mlp[2] += k * (mz - mlp[2])
+
+
+@njit(cache=True, inline="always")
+def _steady(st, par, dt, k, valid, gx, gy, gz, ax, ay, az):
+    """Gyro and specific force close to their low-passes (`_rest_lowpasses`), the low-passed gyro within the bias
+    clip and the specific force's magnitude that of gravity. The squared deviations are low-passed too (weight
+    k) and the sensors' own white noise (3 axes × σ² per sample) is subtracted: a noisy gyro at rest is still at
+    rest, while a real motion raises the mean deviation at once."""
+    glp = st.gyro_lp_rad_s
+    alp = st.acc_lp_m_s2
+    dg = (gx - glp[0]) ** 2 + (gy - glp[1]) ** 2 + (gz - glp[2]) ** 2
+    da = (ax - alp[0]) ** 2 + (ay - alp[1]) ** 2 + (az - alp[2]) ** 2
+    st.rest_dev_gyro += k * (dg - st.rest_dev_gyro)
+    st.rest_dev_acc += k * (da - st.rest_dev_acc)
+    dg = st.rest_dev_gyro - 3.0 * par.gyro_noise_rad_s_sqrt_hz ** 2 / dt
+    da = st.rest_dev_acc - 3.0 * par.acc_noise_rest_m_s2 ** 2
+    clip = par.gyro_bias_clip_rad_s
+    lp_small = (abs(glp[0]) < clip) and (abs(glp[1]) < clip) and (abs(glp[2]) < clip)
+    return bool(
+        (valid & IN_GYRO_OK)
+        and (valid & IN_ACC_OK) != 0
+        and lp_small
+        and dg < par.rest_gyro_th_rad_s ** 2
+        and da < par.rest_acc_th_m_s2 ** 2
+        and abs(math.sqrt(alp[0] ** 2 + alp[1] ** 2 + alp[2] ** 2)
+                - st.g_ref_m_s2) < par.rest_acc_th_m_s2  # at rest the specific force is gravity
+    )
+
+
+@njit(cache=True, inline="always")
+def _field_moved_at_rest(st, par, valid, at_rest):
+    """At rest the body does not turn, so neither may the field it sees: the low-passed field is remembered when
+    rest begins; True when it has since moved by more than mag_rest_change_ut (something magnetic moved)."""
+    if not at_rest:
+        st.mag_rest_set = False
+        return False
+    if not valid & IN_MAG_OK:
+        return False
+    mlp = st.mag_lp_ut
+    mrest = st.mag_rest_ut
+    if not st.mag_rest_set:
+        mrest[0] = mlp[0]
+        mrest[1] = mlp[1]
+        mrest[2] = mlp[2]
+        st.mag_rest_set = True
+        return False
+    dmx = mlp[0] - mrest[0]
+    dmy = mlp[1] - mrest[1]
+    dmz = mlp[2] - mrest[2]
+    return dmx * dmx + dmy * dmy + dmz * dmz > par.mag_rest_change_ut ** 2
+
+
 @njit(cache=True)
 def _detect_rest(st, par, dt, valid, gx, gy, gz, ax, ay, az, mx, my, mz):
     """VQF-style rest detection (D. Laidig, T. Seel, Information Fusion 91, 2023, §IV-C): gyro and specific
-    force stay close to their low-passes, with the sensors' own white noise subtracted, for rest_min_time_s.
-    Returns (at rest, the body-frame field moved since the rest began: something magnetic moved nearby)."""
+    force stay close to their low-passes, with the sensors' own white noise subtracted (`_steady`), for
+    rest_min_time_s. Returns (at rest, the body-frame field moved since the rest began: something magnetic
+    moved nearby, `_field_moved_at_rest`)."""
     at_rest = False
     if dt > 0.0:
         k = _lowpass_weight(st.lp_rest, dt, par.rest_filter_tau_s)
-        glp = st.gyro_lp_rad_s
-        alp = st.acc_lp_m_s2
-        mlp = st.mag_lp_ut
-        for i in range(3):
-            g = gx if i == 0 else (gy if i == 1 else gz)
-            glp[i] += k * (g - glp[i])
-        if valid & IN_ACC_OK:
-            alp[0] += k * (ax - alp[0])
-            alp[1] += k * (ay - alp[1])
-            alp[2] += k * (az - alp[2])
-        if (valid & IN_MAG_OK) != 0:
-            mlp[0] += k * (mx - mlp[0])
-            mlp[1] += k * (my - mlp[1])
-            mlp[2] += k * (mz - mlp[2])
-        dg = (gx - glp[0]) ** 2 + (gy - glp[1]) ** 2 + (gz - glp[2]) ** 2
-        da = (ax - alp[0]) ** 2 + (ay - alp[1]) ** 2 + (az - alp[2]) ** 2
-        # the squared deviations are low-passed too and the sensors' own white noise (3 axes × σ² per
-        # sample) is subtracted: a noisy gyro at rest is still at rest, while a real motion raises the mean
-        # deviation at once
-        st.rest_dev_gyro += k * (dg - st.rest_dev_gyro)
-        st.rest_dev_acc += k * (da - st.rest_dev_acc)
-        dg = st.rest_dev_gyro - 3.0 * par.gyro_noise_rad_s_sqrt_hz ** 2 / dt
-        da = st.rest_dev_acc - 3.0 * par.acc_noise_rest_m_s2 ** 2
-        clip = par.gyro_bias_clip_rad_s
-        lp_small = (abs(glp[0]) < clip) and (abs(glp[1]) < clip) and (abs(glp[2]) < clip)
-        if (
-            (valid & IN_GYRO_OK)
-            and (valid & IN_ACC_OK) != 0
-            and lp_small
-            and dg < par.rest_gyro_th_rad_s ** 2
-            and da < par.rest_acc_th_m_s2 ** 2
-            and abs(math.sqrt(alp[0] ** 2 + alp[1] ** 2 + alp[2] ** 2)
-                    - st.g_ref_m_s2) < par.rest_acc_th_m_s2  # at rest the specific force is gravity
-        ):
+        _rest_lowpasses(st, k, valid, gx, gy, gz, ax, ay, az, mx, my, mz)
+        if _steady(st, par, dt, k, valid, gx, gy, gz, ax, ay, az):
             st.rest_t_s += dt
         else:
             st.rest_t_s = 0.0
         at_rest = st.rest_t_s >= par.rest_min_time_s
-    # at rest the body does not turn, so neither may the field it sees: remember it when rest begins
-    moved = False
-    if not at_rest:
-        st.mag_rest_set = False
-    elif valid & IN_MAG_OK:
-        mlp = st.mag_lp_ut
-        mrest = st.mag_rest_ut
-        if not st.mag_rest_set:
-            mrest[0] = mlp[0]
-            mrest[1] = mlp[1]
-            mrest[2] = mlp[2]
-            st.mag_rest_set = True
-        else:
-            dmx = mlp[0] - mrest[0]
-            dmy = mlp[1] - mrest[1]
-            dmz = mlp[2] - mrest[2]
-            moved = dmx * dmx + dmy * dmy + dmz * dmz > par.mag_rest_change_ut ** 2
-    return at_rest, moved
+    return at_rest, _field_moved_at_rest(st, par, valid, at_rest)
 
 
 @njit(cache=True)
@@ -477,23 +508,20 @@ def _track_tilt_push(u, par, g_ref, p_tilt, r):
     u.tilt_push_rad += p_tilt / (p_tilt + r) * (phi - u.tilt_push_rad)
 
 
-@njit(cache=True)
-def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish):
-    """The vertical of the specific force, low-passed in the estimated NED frame (linear acceleration averages
-    out, gravity stays: VQF §IV-B), corrects δθ_N, δθ_E with the gain on heading forced to zero. Rejected
-    while the low-passed |f| is far from g or its vertical is more than acc_gate_rad from the estimate, then
-    held off until the low-pass has forgotten the push. (wx, wy, wz): the bias-corrected rate, for the lean a
-    turn leaves (`_track_tilt_push`, only when `publish`: it feeds the published 1σ only); c: C_b^n of the
-    current attitude (`dcm`, 9 scalars). Returns F_ACCEL_REJECTED or 0."""
+@njit(cache=True, inline="always")
+def _vertical_lowpass(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c):
+    """The specific force f rotated into the estimated NED frame (f^n = C f, `c`: `dcm`'s 9-tuple) and
+    low-passed there with τ = acc_lowpass_tau_s (VQF §IV-B: linear acceleration averages out, gravity stays);
+    the rate about the vertical (the third row of C times the bias-corrected rate) low-passed with the same
+    weight, for the lean a turn leaves (`_track_tilt_push`); at rest |g| learned as this accelerometer sees it
+    (its scale error, τ = 10 s). Returns (|f|, the low-passed f^n)."""
     e00, e01, e02, e10, e11, e12, e20, e21, e22 = c
     fn = e00 * ax + e01 * ay + e02 * az
     fe = e10 * ax + e11 * ay + e12 * az
     fd = e20 * ax + e21 * ay + e22 * az
     fnorm = math.sqrt(ax * ax + ay * ay + az * az)
-    g_ref = st.g_ref_m_s2
     if at_rest and dt > 0.0:
-        # learn |g| as this accelerometer sees it (scale error) while nothing moves (τ = 10 s)
-        st.g_ref_m_s2 += _lowpass_weight(st.lp_g_ref, dt, 10.0) * (fnorm - g_ref)
+        st.g_ref_m_s2 += _lowpass_weight(st.lp_g_ref, dt, 10.0) * (fnorm - st.g_ref_m_s2)
     tau = par.acc_lowpass_tau_s
     if tau > 0.0 and dt > 0.0:
         ka = _lowpass_weight(st.lp_acc_ned, dt, tau)
@@ -511,70 +539,109 @@ def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish):
         ud = fd
     u = st.unmodelled
     u.rate_down_lp_rad_s += ka * ((e20 * wx + e21 * wy + e22 * wz) - u.rate_down_lp_rad_s)
-    unorm = math.sqrt(un * un + ue * ue + ud * ud)
-    dev = abs(unorm - g_ref)  # sustained linear acceleration left after the low-pass
-    # unit measured "up" in NED: u = [δθ_E, −δθ_N, −1] (+ noise)
-    inv_unorm = 1.0 / unorm if unorm > 0.0 else 0.0
-    nu_n = un * inv_unorm
-    nu_e = ue * inv_unorm
-    # Acceleration-adaptive tilt noise. The low-passed linear acceleration is exactly (v − LP_τ(v)) / τ:
-    # the sensor's velocity minus its recent mean, over τ. A hand shaking or moving the sensor about leaves
-    # a residual that swings with the motion, not white noise; a real tilt error is a slow drift. So the
-    # spread of the innovation around its own running mean measures the residual and is added to the
-    # measurement variance (covariance matching: R. K. Mehra, IEEE TAC 15(2), 1970; A. H. Mohamed,
-    # K. P. Schwarz, J. Geodesy 73, 1999). A persistent tilt error moves the mean, not the spread, so it is
-    # still corrected.
+    return fnorm, un, ue, ud
+
+
+@njit(cache=True, inline="always")
+def _motion_noise_rad2(st, par, dt, nu_n, nu_e):
+    """Acceleration-adaptive tilt noise: the spread of the tilt innovation (nu_n, nu_e) around its running mean,
+    times acc_adaptive_gain, rad². The low-passed linear acceleration is exactly (v − LP_τ(v)) / τ: the sensor's
+    velocity minus its recent mean, over τ. A hand shaking or moving the sensor about leaves a residual that
+    swings with the motion, not white noise; a real tilt error is a slow drift. So the spread measures the
+    residual and is added to the measurement variance (covariance matching: R. K. Mehra, IEEE TAC 15(2), 1970;
+    A. H. Mohamed, K. P. Schwarz, J. Geodesy 73, 1999). A persistent tilt error moves the mean, not the
+    spread, so it is still corrected."""
     mean = st.acc_nu_mean_rad
     var = st.acc_nu_var_rad2
     if par.acc_adaptive_tau_s > 0.0 and dt > 0.0:
         kw = _lowpass_weight(st.lp_spread, dt, par.acc_adaptive_tau_s)
         mean[0], var[0] = _running_spread(mean[0], var[0], nu_n, kw)
         mean[1], var[1] = _running_spread(mean[1], var[1], nu_e, kw)
-    r_motion = par.acc_adaptive_gain * 0.5 * (var[0] + var[1])
-    # reject (a) a sustained push: |f| of the low-pass far from g, (b) a vertical more than the gate angle
-    # from the estimate (the covariance of a low-passed, correlated measurement is no honest yardstick;
-    # an angle is). Either way the low-pass holds the push: stay off until it has forgotten it (4 τ → 2 %
-    # left), unless nothing has been accepted for acc_gate_recover_s (a wrong tilt must recover).
+    return par.acc_adaptive_gain * 0.5 * (var[0] + var[1])
+
+
+@njit(cache=True, inline="always")
+def _vertical_accepted(st, par, dt, unorm, g_ref, nu_n, nu_e):
+    """Whether the low-passed vertical (norm `unorm`, innovation nu_n, nu_e) may correct the tilt. Rejected:
+    (a) a sustained push, |f| of the low-pass far from g; (b) a vertical more than the gate angle from the
+    estimate (the covariance of a low-passed, correlated measurement is no honest yardstick; an angle is).
+    Either way the low-pass holds the push: stay off until it has forgotten it (4 τ → 2 % left), unless
+    nothing has been accepted for acc_gate_recover_s (a wrong tilt must recover)."""
+    dev = abs(unorm - g_ref)  # sustained linear acceleration left after the low-pass
     if dev > par.acc_reject_m_s2 or unorm < 0.5 * g_ref or nu_n * nu_n + nu_e * nu_e > par.acc_gate_rad ** 2:
-        st.acc_hold_s = 4.0 * tau
+        st.acc_hold_s = 4.0 * par.acc_lowpass_tau_s
     elif st.acc_hold_s > 0.0:
         st.acc_hold_s -= dt
     if not (unorm > 0.5 * g_ref and (st.acc_hold_s <= 0.0 or st.acc_since_accept_s > par.acc_gate_recover_s)):
         st.acc_since_accept_s += dt
-        return F_ACCEL_REJECTED
+        return False
+    return True
+
+
+@njit(cache=True, inline="always")
+def _vertical_noise_rad2(par, at_rest, unorm, g_ref, r_motion):
+    """The tilt measurement's variance per axis, rad²: the accelerometer's noise over g (its at-rest noise at
+    rest), plus the motion spread `r_motion` (`_motion_noise_rad2`), plus in motion the turn angle: a sustained
+    acceleration a ⟂ g (a turn) tilts the apparent vertical by φ with cos φ = g/|f|, the size of the error the
+    measurement can carry (scaled by acc_turn_noise_gain beyond acc_turn_dead_zone_rad)."""
     if at_rest:
-        r = (par.acc_noise_rest_m_s2 / g_ref) ** 2 + r_motion
-    else:
-        # a sustained acceleration a ⟂ g (a turn) tilts the apparent vertical by φ with cos φ = g/|f|: that
-        # angle is the size of the error the measurement can carry
-        phi = 0.0
-        if par.acc_turn_noise_gain > 0.0:
-            ratio = min(unorm, g_ref) / max(unorm, g_ref)
-            phi = par.acc_turn_noise_gain * max(math.acos(ratio) - par.acc_turn_dead_zone_rad, 0.0)
-        r = (par.acc_noise_m_s2 / g_ref) ** 2 + phi * phi + r_motion
-    if publish:
-        _track_tilt_push(u, par, g_ref, st.P[E_TILT_E, E_TILT_E], r)
-    # never heading; and no bias learning while |f| is off g (a push would be read as bias)
+        return (par.acc_noise_rest_m_s2 / g_ref) ** 2 + r_motion
+    phi = 0.0
+    if par.acc_turn_noise_gain > 0.0:
+        ratio = min(unorm, g_ref) / max(unorm, g_ref)
+        phi = par.acc_turn_noise_gain * max(math.acos(ratio) - par.acc_turn_dead_zone_rad, 0.0)
+    return (par.acc_noise_m_s2 / g_ref) ** 2 + phi * phi + r_motion
+
+
+@njit(cache=True, inline="always")
+def _correct_tilt(st, par, fnorm, g_ref, nu_n, nu_e, r):
+    """The vertical's two scalar updates, innovation nu_n on δθ_E (row +1) and nu_e on δθ_N (row −1), variance
+    r each, with the gain on heading forced to zero; and no bias learning while |f| is off g (a push would be
+    read as bias). Sequential: the second innovation is re-evaluated after the first correction; the two
+    corrections are applied together."""
     mask = M_HEADING if abs(fnorm - g_ref) < par.rest_acc_th_m_s2 else (M_HEADING | M_BIAS)
     a0, a1, a2, a3, a4, a5 = scalar_update_6(st.P, E_TILT_E, 1.0, nu_n, r, mask)
-    # second component: innovation re-evaluated after the first correction (sequential update); the two
-    # corrections are applied together
     nu_e2 = nu_e + a0
     d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, E_TILT_N, -1.0, nu_e2, r, mask)
     _apply_correction(st, par, a0 + d0, a1 + d1, a2 + d2, a3 + d3, a4 + d4, a5 + d5)
     st.acc_since_accept_s = 0.0
+
+
+@njit(cache=True)
+def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish):
+    """The vertical of the specific force, low-passed in the estimated NED frame (`_vertical_lowpass`), corrects
+    δθ_N, δθ_E with the gain on heading forced to zero (`_correct_tilt`), with a variance that grows with the
+    motion (`_motion_noise_rad2`, `_vertical_noise_rad2`). Rejected while the low-passed |f| is far from g or
+    its vertical is more than acc_gate_rad from the estimate, then held off until the low-pass has forgotten
+    the push (`_vertical_accepted`). (wx, wy, wz): the bias-corrected rate, for the lean a turn leaves
+    (`_track_tilt_push`, only when `publish`: it feeds the published 1σ only); c: C_b^n of the current
+    attitude (`dcm`, 9 scalars). Returns F_ACCEL_REJECTED or 0."""
+    g_ref = st.g_ref_m_s2   # what `_vertical_lowpass` learns at rest applies from the next sample
+    fnorm, un, ue, ud = _vertical_lowpass(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c)
+    unorm = math.sqrt(un * un + ue * ue + ud * ud)
+    # unit measured "up" in NED: u = [δθ_E, −δθ_N, −1] (+ noise)
+    inv_unorm = 1.0 / unorm if unorm > 0.0 else 0.0
+    nu_n = un * inv_unorm
+    nu_e = ue * inv_unorm
+    r_motion = _motion_noise_rad2(st, par, dt, nu_n, nu_e)
+    if not _vertical_accepted(st, par, dt, unorm, g_ref, nu_n, nu_e):
+        return F_ACCEL_REJECTED
+    r = _vertical_noise_rad2(par, at_rest, unorm, g_ref, r_motion)
+    if publish:
+        _track_tilt_push(st.unmodelled, par, g_ref, st.P[E_TILT_E, E_TILT_E], r)
+    _correct_tilt(st, par, fnorm, g_ref, nu_n, nu_e, r)
     return 0
 
 
 # ----------------------------------------------------------------------------------- body-fixed field offset
 @njit(cache=True)
-def _offset_update(o, c00, c01, c02, c10, c11, c12, c20, c21, c22, cmx, cmy, cmz, r):
+def _offset_update(o, cn, cmx, cmy, cmz, r):
     """Recursive least squares for a body-fixed field offset b from two snapshots of the field: the earth
     field is constant in NED, m = C_nᵇ h + b, so C₂m₂ − C₁m₁ = (C₂ − C₁) b (the attitude's heading error
     cancels as long as it is the same at both). Three scalar rows, noise variance r (µT²) each.
-    Returns the mean normalised squared innovation of the rows (≈ 1 when the model fits)."""
+    cn: C₂ = C_b^n now (`dcm`'s 9-tuple); cmx, cmy, cmz: C₂m₂. Returns the mean normalised squared innovation of
+    the rows (≈ 1 when the model fits)."""
     nis = 0.0
-    cn = (c00, c01, c02, c10, c11, c12, c20, c21, c22)
     y = (cmx - o.cm_ut[0], cmy - o.cm_ut[1], cmz - o.cm_ut[2])
     b = o.b_ut
     p = o.P_ut2
@@ -626,81 +693,66 @@ def _disagreement(o, ms, mp, fn, fe, fd):
     return dn * dn + dd * dd
 
 
-@njit(cache=True)
-def _field_offset(st, par, dt, rate, mx, my, mz):
-    """Learn and, where it explains the field, remove a body-fixed field offset b (a magnet or iron attached
-    after calibration: uncalibrated hard iron). Returns the field to use in the body frame (mx, my, mz) and in
-    the estimated NED frame (mn, me, md), µT.
+@njit(cache=True, inline="always")
+def _turned_since_snapshot(o, par, c):
+    """The attitude C₂ (`c`, `dcm`'s 9-tuple) has turned by more than mag_offset_min_angle_rad from the previous
+    snapshot's C₁: cos θ = (trace(C₁ᵀ C₂) − 1) / 2 below mag_offset_min_cos (two snapshots that close tell
+    nothing about b)."""
+    c00, c01, c02, c10, c11, c12, c20, c21, c22 = c
+    c1 = o.c
+    tr = (c00 * c1[0, 0] + c01 * c1[0, 1] + c02 * c1[0, 2]
+          + c10 * c1[1, 0] + c11 * c1[1, 1] + c12 * c1[1, 2]
+          + c20 * c1[2, 0] + c21 * c1[2, 1] + c22 * c1[2, 2])
+    return 0.5 * (tr - 1.0) < par.mag_offset_min_cos
 
-    m = C_nᵇ h + b: the norm and dip of m change with orientation, so the field disagrees with the
-    reference learned before the magnet came. b is observable from rotation alone (_offset_update: the heading error
-    cancels between two snapshots), learned by recursive least squares forgetting with time constant
-    mag_offset_tau_s. A fit also reads the residual calibration errors and the field gradients of an
-    undisturbed work space as an offset of a few µT, so b is used only while it explains why the field
-    disagrees with the reference: the corrected field's running disagreement (_disagreement, time constant
-    mag_offset_agree_tau_s) is below mag_offset_explain_ratio times the raw field's. An offset that leaves
-    the field's norm and dip as they were is not used; nor is one fitted to a magnet in the surroundings (its
-    field depends on position, not on orientation, and the fit is inconsistent); when the magnet is removed
-    the raw field agrees again and b is no longer used."""
-    o = st.offset
-    c00, c01, c02, c10, c11, c12, c20, c21, c22 = dcm(st.q[0], st.q[1], st.q[2], st.q[3])
-    cmx = c00 * mx + c01 * my + c02 * mz
-    cmy = c10 * mx + c11 * my + c12 * mz
-    cmz = c20 * mx + c21 * my + c22 * mz
-    if st.mag.ref_norm_ut <= 0.0:
-        return mx, my, mz, cmx, cmy, cmz
-    kd = _lowpass_weight(st.lp_disagree, dt, par.mag_offset_agree_tau_s) if dt > 0.0 else 0.0
-    o.disagree_raw += kd * (_disagreement(o, st.mag, par.mag, cmx, cmy, cmz) - o.disagree_raw)
-    o.since_snapshot_s += dt
-    take = (not o.snapshot_set) or o.since_snapshot_s > 2.0
+
+@njit(cache=True, inline="always")
+def _refit_offset(o, par, rate, mx, my, mz, c, cmx, cmy, cmz):
+    """One recursive least squares step between the previous snapshot and now (`_offset_update`), forgetting
+    with time constant mag_offset_tau_s; then whether b is usable: known well enough, significantly non-zero
+    (Σ b²/σ² > 16: not calibration residue within the noise), and the data fit a body-fixed offset (a field
+    that changes with position leaves innovations far above their predicted variance)."""
     p = o.P_ut2
-    if o.snapshot_set:
-        c1 = o.c
-        # rotation between the snapshots: cos θ = (trace(C₁ᵀ C₂) − 1) / 2
-        tr = (c00 * c1[0, 0] + c01 * c1[0, 1] + c02 * c1[0, 2]
-              + c10 * c1[1, 0] + c11 * c1[1, 1] + c12 * c1[1, 2]
-              + c20 * c1[2, 0] + c21 * c1[2, 1] + c22 * c1[2, 2])
-        if 0.5 * (tr - 1.0) < par.mag_offset_min_cos:
-            if p[0, 0] == 0.0:
-                for i in range(3):
-                    p[i, i] = 1e4   # (100 µT)²: nothing known
-            lam = math.exp(-o.since_snapshot_s / par.mag_offset_tau_s)
-            for i in range(3):
-                for j in range(3):
-                    p[i, j] = min(p[i, j] / lam, 1e4)
-            # a magnetometer sampled δt apart from the gyro sees the field turned by |ω|·δt
-            lag_ut = rate * par.mag_offset_lag_s * math.sqrt(mx * mx + my * my + mz * mz)
-            nis = _offset_update(o, c00, c01, c02, c10, c11, c12, c20, c21, c22, cmx, cmy, cmz,
-                                 2.0 * (par.mag.noise_ut ** 2 + lag_ut * lag_ut))
-            o.nis += (1.0 - lam) * (nis - o.nis)
-            take = True
-            # usable: known well enough, significantly non-zero (Σ b²/σ² > 16: not calibration residue within
-            # the noise), and the data fit a body-fixed offset (a field that changes with position leaves
-            # innovations far above their predicted variance). P and the fit change only here.
-            pmax = max(p[0, 0], max(p[1, 1], p[2, 2]))
-            signif = 0.0
-            for i in range(3):
-                signif += o.b_ut[i] ** 2 / p[i, i]
-            o.ready = pmax < par.mag_offset_use_sigma_ut ** 2 and signif > 16.0 and o.nis < 4.0
-    if take:
-        o.cm_ut[0] = cmx
-        o.cm_ut[1] = cmy
-        o.cm_ut[2] = cmz
-        c1 = o.c
-        c1[0, 0] = c00
-        c1[0, 1] = c01
-        c1[0, 2] = c02
-        c1[1, 0] = c10
-        c1[1, 1] = c11
-        c1[1, 2] = c12
-        c1[2, 0] = c20
-        c1[2, 1] = c21
-        c1[2, 2] = c22
-        o.snapshot_set = True
-        o.since_snapshot_s = 0.0
+    if p[0, 0] == 0.0:
+        for i in range(3):
+            p[i, i] = 1e4   # (100 µT)²: nothing known
+    lam = math.exp(-o.since_snapshot_s / par.mag_offset_tau_s)
+    for i in range(3):
+        for j in range(3):
+            p[i, j] = min(p[i, j] / lam, 1e4)
+    # a magnetometer sampled δt apart from the gyro sees the field turned by |ω|·δt
+    lag_ut = rate * par.mag_offset_lag_s * math.sqrt(mx * mx + my * my + mz * mz)
+    nis = _offset_update(o, c, cmx, cmy, cmz, 2.0 * (par.mag.noise_ut ** 2 + lag_ut * lag_ut))
+    o.nis += (1.0 - lam) * (nis - o.nis)
+    pmax = max(p[0, 0], max(p[1, 1], p[2, 2]))
+    signif = 0.0
+    for i in range(3):
+        signif += o.b_ut[i] ** 2 / p[i, i]
+    o.ready = pmax < par.mag_offset_use_sigma_ut ** 2 and signif > 16.0 and o.nis < 4.0
+
+
+@njit(cache=True, inline="always")
+def _take_snapshot(o, c, cmx, cmy, cmz):
+    """Keep C₁ = C (`c`, `dcm`'s 9-tuple) and C₁m₁ for the next fit step."""
+    o.cm_ut[0] = cmx
+    o.cm_ut[1] = cmy
+    o.cm_ut[2] = cmz
+    c1 = o.c
+    c1[0, 0], c1[0, 1], c1[0, 2], c1[1, 0], c1[1, 1], c1[1, 2], c1[2, 0], c1[2, 1], c1[2, 2] = c
+    o.snapshot_set = True
+    o.since_snapshot_s = 0.0
+
+
+@njit(cache=True, inline="always")
+def _offset_explained_field(st, par, kd, mx, my, mz, c, cmx, cmy, cmz):
+    """The field to use, body and NED (µT): with the offset subtracted (m − b, C m − C b) while b is ready and
+    the corrected field's running disagreement with the reference (weight kd) is below mag_offset_explain_ratio
+    times the raw field's; else the raw field."""
+    o = st.offset
     if not o.ready:
         o.disagree_corrected = o.disagree_raw
         return mx, my, mz, cmx, cmy, cmz
+    c00, c01, c02, c10, c11, c12, c20, c21, c22 = c
     bx = o.b_ut[0]
     by = o.b_ut[1]
     bz = o.b_ut[2]
@@ -711,6 +763,43 @@ def _field_offset(st, par, dt, rate, mx, my, mz):
     if o.disagree_corrected < par.mag_offset_explain_ratio * o.disagree_raw:
         return mx - bx, my - by, mz - bz, cbx, cby, cbz
     return mx, my, mz, cmx, cmy, cmz
+
+
+@njit(cache=True)
+def _field_offset(st, par, dt, rate, mx, my, mz):
+    """Learn and, where it explains the field, remove a body-fixed field offset b (a magnet or iron attached
+    after calibration: uncalibrated hard iron). Returns the field to use in the body frame (mx, my, mz) and in
+    the estimated NED frame (mn, me, md), µT.
+
+    m = C_nᵇ h + b: the norm and dip of m change with orientation, so the field disagrees with the
+    reference learned before the magnet came. b is observable from rotation alone (`_offset_update`: the
+    heading error cancels between two snapshots at least mag_offset_min_angle_rad apart, `_turned_since_snapshot`),
+    learned by recursive least squares forgetting with time constant mag_offset_tau_s (`_refit_offset`). A fit
+    also reads the residual calibration errors and the field gradients of an undisturbed work space as an
+    offset of a few µT, so b is used only while it explains why the field disagrees with the reference: the
+    corrected field's running disagreement (`_disagreement`, time constant mag_offset_agree_tau_s) is below
+    mag_offset_explain_ratio times the raw field's (`_offset_explained_field`). An offset that leaves the
+    field's norm and dip as they were is not used; nor is one fitted to a magnet in the surroundings (its
+    field depends on position, not on orientation, and the fit is inconsistent); when the magnet is removed
+    the raw field agrees again and b is no longer used."""
+    o = st.offset
+    c = dcm(st.q[0], st.q[1], st.q[2], st.q[3])
+    c00, c01, c02, c10, c11, c12, c20, c21, c22 = c
+    cmx = c00 * mx + c01 * my + c02 * mz
+    cmy = c10 * mx + c11 * my + c12 * mz
+    cmz = c20 * mx + c21 * my + c22 * mz
+    if st.mag.ref_norm_ut <= 0.0:
+        return mx, my, mz, cmx, cmy, cmz
+    kd = _lowpass_weight(st.lp_disagree, dt, par.mag_offset_agree_tau_s) if dt > 0.0 else 0.0
+    o.disagree_raw += kd * (_disagreement(o, st.mag, par.mag, cmx, cmy, cmz) - o.disagree_raw)
+    o.since_snapshot_s += dt
+    take = (not o.snapshot_set) or o.since_snapshot_s > 2.0
+    if o.snapshot_set and _turned_since_snapshot(o, par, c):
+        _refit_offset(o, par, rate, mx, my, mz, c, cmx, cmy, cmz)
+        take = True
+    if take:
+        _take_snapshot(o, c, cmx, cmy, cmz)
+    return _offset_explained_field(st, par, kd, mx, my, mz, c, cmx, cmy, cmz)
 
 
 # ----------------------------------------------------------------------------------- magnetometer: heading only
@@ -885,8 +974,7 @@ def mekf_step(st, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, ou
     # attitude, the frame of the tilt update (computed once for both)
     c = dcm(st.q[0], st.q[1], st.q[2], st.q[3])
     if dt > 0.0:
-        c00, c01, c02, c10, c11, c12, c20, c21, c22 = c
-        _propagate_covariance(st.P, par, dt, rate, c00, c01, c02, c10, c11, c12, c20, c21, c22)
+        _propagate_covariance(st.P, par, dt, rate, c)
     at_rest, mag_moved_at_rest = _detect_rest(st, par, dt, valid, gx, gy, gz, ax, ay, az, mx, my, mz)
     if at_rest:
         flags |= F_AT_REST
@@ -912,15 +1000,32 @@ def mekf_step_full(buf, t_s, gyro, acc, mag_ut, sample_flags):
                      mag_ut[0], mag_ut[1], mag_ut[2], sample_flags, b.out, True)
 
 
-@njit(cache=True)
-def fill_euler(buf):
-    """The ZYX Euler angles (roll, pitch, yaw magnetic) of the output quaternion of the 1-element
-    MEKF_BUFFER_DTYPE array `buf` into its out.euler_rad."""
-    out = borrowed(buf)[0].out
+@njit(cache=True, inline="always")
+def _fill_euler(out):
+    """out.euler_rad ← the ZYX Euler angles (roll, pitch, yaw magnetic) of out.q."""
     roll, pitch, yaw = euler_zyx(out.q[0], out.q[1], out.q[2], out.q[3])
     out.euler_rad[0] = roll
     out.euler_rad[1] = pitch
     out.euler_rad[2] = yaw
+
+
+@njit(cache=True)
+def fill_euler(buf):
+    """The ZYX Euler angles (roll, pitch, yaw magnetic) of the output quaternion of the 1-element
+    MEKF_BUFFER_DTYPE array `buf` into its out.euler_rad."""
+    _fill_euler(borrowed(buf)[0].out)
+
+
+@njit(cache=True)
+def fill_outputs_after_init(buf):
+    """Every output of the 1-element MEKF_BUFFER_DTYPE array `buf` from its state, as a one-sample step fills
+    them (`_fill_outputs`, the Euler angles too), the rate from the last gyro sample: an initialisation sets the
+    state without a step."""
+    b = borrowed(buf)[0]
+    st = b.state
+    g = st.gyro_last_rad_s
+    _fill_outputs(st, b.par, g[0], g[1], g[2], b.out)
+    _fill_euler(b.out)
 
 
 @njit(cache=True)
@@ -997,6 +1102,13 @@ def fast_fill_euler():
     if "euler" not in _FAST:
         _FAST["euler"] = entry_point(fill_euler, (_buffer_type(),))
     return _FAST["euler"]
+
+
+def fast_fill_after_init():
+    """`fill_outputs_after_init` as a directly callable compiled entry point (as `fast_step`)."""
+    if "after_init" not in _FAST:
+        _FAST["after_init"] = entry_point(fill_outputs_after_init, (_buffer_type(),))
+    return _FAST["after_init"]
 
 
 def _buffer_type():

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import textwrap
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -86,3 +87,24 @@ def test_probing_an_estimator_outside_the_daemon_fails(tmp_path):
     assert "cli/bad.py:2: getattr(estimator, 'gnss_counters') probes an estimator" in r.stdout
     assert "calibration/bad.py:2: hasattr(est, 'update_gnss') probes an estimator" in r.stdout
     assert "bad.py:4:" not in r.stdout and "bad.py:6:" not in r.stdout
+
+
+def test_a_spy_on_an_estimator_in_a_test_fails(tmp_path):
+    """Rule 5, the shape test_heading_monitor had: the estimator's methods replaced by spies; assigning data to
+    an attribute, or a spy to something that is not an estimator, is not this rule's business."""
+    (tmp_path / "tests").mkdir()
+    (tmp_path / "tests" / "test_bad.py").write_text(textwrap.dedent("""\
+        def test_a(est):
+            check = est._monitor.check
+            def spy(*a):
+                return check(*a)
+            est._monitor.check = spy
+            est._check_heading = lambda t: None
+            est.params = None
+            router.clock = lambda: 0.0
+        """))
+    r = run(tmp_path)
+    assert r.returncode == 1
+    assert "tests/test_bad.py:5: est._monitor.check replaced by a spy" in r.stdout
+    assert "tests/test_bad.py:6: est._check_heading replaced by a spy" in r.stdout
+    assert "test_bad.py:7:" not in r.stdout and "test_bad.py:8:" not in r.stdout

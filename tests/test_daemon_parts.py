@@ -33,6 +33,7 @@ from ahrsd.daemon.position import PositionResolver
 from ahrsd.daemon.sample_reader import ReaderOutputs, SampleListeners, SampleReader
 from ahrsd.drivers.source_interface import LiveSource
 from ahrsd.simulation import DEFAULT_SITE
+from support.kept_link import KeptLink
 from support.mavlink_feed import as_if_from
 
 # four places with clearly different declinations (each far from the others' by several degrees)
@@ -130,6 +131,93 @@ def test_the_manual_declination_outranks_every_position_and_a_big_step_is_a_rese
     assert len(told) == 2 and len(resets) == 2        # no change, nothing told
 
 
+def test_a_small_declination_step_is_told_but_is_no_reset_also_across_180_degrees():
+    """A step up to DECLINATION_RESET_STEP_RAD (0.5°) changes the estimator's declination without telling the
+    autopilot of a heading reset (reset_counter); a bigger one does both. 179.8° → −179.8° is a 0.4° step."""
+    params = ParamStore(param_specs(Config()))
+    resolver = PositionResolver(LocationConfig(), gnss_position=lambda: None, autopilot=AutopilotState(),
+                                simulator=False)
+    resets, told = [], []
+    decl = Declination(params, resolver, signal_reset=lambda: resets.append(1))
+    decl.set_estimator = told.append
+    params.set("DECL_MANUAL", 1)
+    for deg, resets_after in ((179.8, 1), (-179.8, 1), (-179.4, 1), (-178.8, 2)):
+        params.set("DECL_DEG", deg)
+        decl.resolve()
+        assert decl.rad == pytest.approx(math.radians(deg)) and told[-1] == decl.rad
+        assert len(resets) == resets_after, deg
+
+
+def test_the_declination_follows_a_moving_position_every_update_period():
+    """Re-resolved by `tick` once UPDATE_PERIOD_S has passed since the last resolution (a stepped clock), not
+    before: a vehicle that moved (or a position that arrived late) gets the declination of where it is."""
+    from ahrsd.daemon.declination import UPDATE_PERIOD_S
+
+    t = [100.0]
+    src = Sources()
+    src.drop("config")
+    decl = Declination(ParamStore(param_specs(Config())), src.resolver, signal_reset=lambda: None,
+                       clock=lambda: t[0])
+    decl.resolve(initial=True)
+    assert decl.rad == pytest.approx(earth_field(*GNSS_SITE).declination_rad, abs=1e-12)
+    src.gnss = AUTOPILOT_SITE                        # the receiver now reports another place
+    t[0] += 0.5 * UPDATE_PERIOD_S
+    decl.tick(t[0])
+    assert decl.rad == pytest.approx(earth_field(*GNSS_SITE).declination_rad, abs=1e-12)
+    t[0] += 0.6 * UPDATE_PERIOD_S
+    decl.tick(t[0])
+    assert decl.rad == pytest.approx(earth_field(*AUTOPILOT_SITE).declination_rad, abs=1e-12)
+
+
+def test_a_broadcast_parameter_request_for_a_name_we_lack_is_not_ours_to_refuse():
+    """A ground station asks every component (target_component 0) for the autopilot's parameters: a name we do
+    not have is someone else's, so no STATUSTEXT and no refusal counted; addressed to us, it is refused, counted
+    and said once."""
+    params = ParamStore(param_specs(Config()))
+    counters = ServiceCounters()
+    outbound = Outbound(Identity(1, 191, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), counters, clock=lambda: 0.0)
+    link = KeptLink()
+    outbound.endpoints.append(link)
+    proto = ParamProtocol(params, outbound, counters, signing_required=lambda: False, spawn=lambda coro: None)
+    read = as_if_from(mavlink.MAVLink_param_request_read_message(1, 0, b"SYSID_THISMAV", -1), 255, 190)
+    write = as_if_from(mavlink.MAVLink_param_set_message(1, 0, b"SYSID_THISMAV", 3.0,
+                                                         mavlink.MAV_PARAM_TYPE_REAL32), 255, 190)
+    proto.on_message(link, read, "PARAM_REQUEST_READ", broadcast=True)
+    proto.on_message(link, write, "PARAM_SET", broadcast=True)
+    assert link.sent == [] and params.rejected_reads == 0 and params.rejected_writes == 0
+    proto.on_message(link, read, "PARAM_REQUEST_READ", broadcast=False)
+    proto.on_message(link, write, "PARAM_SET", broadcast=False)
+    assert [m.get_type() for m in link.sent] == ["STATUSTEXT", "STATUSTEXT"]
+    assert params.rejected_reads == 1 and params.rejected_writes == 1
+
+
+def test_a_refused_parameter_write_says_its_whole_reason_and_answers_the_value_in_force():
+    """The reason a change is refused (the part's ParamError) reaches the operator whole, however long: it used to
+    be cut at 50 bytes ("ahrsd: MAG_LRN_ACT 1: Disarm to change the learn")."""
+    from ahrsd.daemon.params import ParamError, ParamSpec
+
+    reason = "MAG_LRN_ACT 1: Disarm to change the learned iron"
+
+    def refuse(name, value):
+        raise ParamError(reason)
+
+    params = ParamStore([ParamSpec("MAG_LRN_ACT", 0, 0, 2, "action", integer=True, momentary=True)],
+                        on_change=refuse)
+    counters = ServiceCounters()
+    outbound = Outbound(Identity(1, 191, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), counters, clock=lambda: 0.0)
+    link = KeptLink()
+    outbound.endpoints.append(link)
+    proto = ParamProtocol(params, outbound, counters, signing_required=lambda: False, spawn=lambda coro: None)
+    write = as_if_from(mavlink.MAVLink_param_set_message(1, 191, b"MAG_LRN_ACT", 1.0,
+                                                         mavlink.MAV_PARAM_TYPE_REAL32), 255, 190)
+    proto.on_message(link, write, "PARAM_SET", broadcast=False)
+    texts = [m for m in link.sent if m.get_type() == "STATUSTEXT"]
+    assert "".join(m.text.decode() if isinstance(m.text, bytes) else m.text for m in texts) == f"ahrsd: {reason}"
+    assert len({m.id for m in texts}) == 1 and texts[0].id != 0
+    (value,) = [m for m in link.sent if m.get_type() == "PARAM_VALUE"]
+    assert value.param_value == 0.0
+
+
 def _inbound(tmp_path, resolver, autopilot):
     params = ParamStore(param_specs(Config()), tmp_path)
     counters = ServiceCounters()
@@ -218,13 +306,6 @@ def test_the_reader_says_ready_once_on_the_first_good_estimate():
 
 
 def test_the_health_report_sends_one_heartbeat_a_second_on_a_stepped_clock():
-    sent = []
-
-    class Link:
-        def send(self, msg):
-            sent.append(msg.get_type())
-            return True
-
     class Counts:
         samples = 0
 
@@ -240,12 +321,14 @@ def test_the_health_report_sends_one_heartbeat_a_second_on_a_stepped_clock():
 
     outbound = Outbound(Identity(1, 191, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), ServiceCounters(),
                         clock=lambda: 0.0)
-    outbound.endpoints.append(Link())
+    link = KeptLink()
+    outbound.endpoints.append(link)
     notifier = Notifier()
     report = HealthReport(Health(stale_timeout_s=0.1), outbound, notifier, Counts(), watchdog_interval_s=2.0,
                           start=100.0)
     for k in range(101):
         report(100.0 + 0.1 * k)                       # 10 s of housekeeping at 10 Hz
+    sent = [m.get_type() for m in link.sent]
     assert sent.count("HEARTBEAT") == 10
     assert sent.count("STATUSTEXT") == 1 and notifier.statuses == ["BOOT: waiting for the sensor"]
     assert notifier.watchdogs == 0                    # no samples flow: systemd must be able to restart us
@@ -334,6 +417,9 @@ def test_critical_needs_the_reader_to_find_no_sample_not_only_a_busy_event_loop(
                 texts.append((clock.t, msg.text))
             return True
 
+        def send_together(self, msgs):
+            return all([self.send(m) for m in msgs])
+
     class Notifier:
         def status(self, text):
             pass
@@ -377,3 +463,40 @@ def test_critical_needs_the_reader_to_find_no_sample_not_only_a_busy_event_loop(
     run_until(5.0, reader_looks=False)              # the reader stops looking at 4.0
     critical = [t for t, text in texts if "CRITICAL" in text and t > 4.0]
     assert critical and critical[0] <= 4.0 + 0.1 * (READER_SILENT_TICKS + 1) + 1e-9, texts
+
+
+def test_a_late_housekeeping_tick_does_not_slow_the_heartbeat():
+    """Housekeeping runs on absolute 10 Hz deadlines, but a busy event loop runs each tick late (here 0 to 90 ms,
+    seeded): the heartbeat stays on its 1 s grid, 100 in 100 s, not one second after each late tick (~95)."""
+    import random
+
+    class Counts:
+        samples = 0
+
+    class Notifier:
+        def status(self, text):
+            pass
+
+        def watchdog(self):
+            pass
+
+    link = KeptLink()
+    outbound = Outbound(Identity(1, 191, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), ServiceCounters(),
+                        clock=lambda: 0.0)
+    outbound.endpoints.append(link)
+    report = HealthReport(Health(stale_timeout_s=0.1), outbound, Notifier(), Counts(), watchdog_interval_s=None,
+                          start=100.0)
+    rng = random.Random(3)
+    for k in range(1000):
+        report(100.0 + 0.1 * k + 0.09 * rng.random())
+    assert [m.get_type() for m in link.sent].count("HEARTBEAT") in (99, 100)
+
+
+def test_a_sensor_failure_during_a_calibration_is_critical_not_calibrating():
+    health = Health(stale_timeout_s=1.0)
+    health.sample_read(0.0)
+    health.last_estimate_flags = EstimateFlags.NONE
+    health.calibrating = "gyro calibration"
+    assert health.system_status(0.5) == mavlink.MAV_STATE_CALIBRATING
+    health.sensor_error = "bus failure"
+    assert health.system_status(0.5) == mavlink.MAV_STATE_CRITICAL

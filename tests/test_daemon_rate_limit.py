@@ -6,6 +6,7 @@ from ahrsd.daemon.counters import ServiceCounters
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.daemon.outbound import Identity, Outbound
 from ahrsd.daemon.rate_limit import TokenBucket
+from support.kept_link import KeptLink
 
 
 def test_token_bucket_allows_the_burst_then_the_rate():
@@ -22,14 +23,9 @@ def test_statustext_flood_is_bounded_and_counted():
     clock = [100.0]
     counters = ServiceCounters()
     outbound = Outbound(Identity(1, 191, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), counters, clock=lambda: clock[0])
-    sent = []
-
-    class Link:
-        def send(self, msg):
-            sent.append(msg)
-            return True
-
-    outbound.endpoints.append(Link())
+    link = KeptLink()
+    sent = link.sent
+    outbound.endpoints.append(link)
     for k in range(1000):                                       # e.g. a flood of refused parameter writes
         outbound.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: unknown parameter X{k}")
     assert len(sent) == 10                                      # the burst

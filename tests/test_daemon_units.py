@@ -4,6 +4,7 @@ builders, routing rule, sample timing, sd_notify, and the MAVLink endpoint's han
 from __future__ import annotations
 
 import asyncio
+import logging
 import math
 import socket
 
@@ -82,6 +83,52 @@ def test_duplicates_are_not_re_executed(router):
     assert router.counters.duplicates == 2
 
 
+def test_a_temporarily_rejected_command_retried_is_evaluated_afresh(router):
+    """TEMPORARILY_REJECTED ("disarm first") is not what a retry within the duplicate window gets: the operator
+    disarms and re-sends, and the command runs."""
+    armed = [True]
+    calls = []
+
+    def handler(m, c):
+        calls.append(1)
+        return mavlink.MAV_RESULT_TEMPORARILY_REJECTED if armed[0] else mavlink.MAV_RESULT_ACCEPTED
+
+    router.register(13, handler)
+    router.handle(command(13, 1), "ep", False)
+    armed[0] = False
+    router.now[0] += 1.0
+    router.handle(command(13, 1), "ep", False)
+    assert len(calls) == 2 and [a.result for a in router.sent] == [mavlink.MAV_RESULT_TEMPORARILY_REJECTED,
+                                                                   mavlink.MAV_RESULT_ACCEPTED]
+
+
+def test_a_command_resent_every_second_runs_once(router):
+    """A ground station that keeps re-sending (every 1 s, longer than the 3 s window): each re-send is a duplicate
+    of the one before, so the command runs once (the window restarts at every duplicate)."""
+    calls = []
+    router.register(14, lambda m, c: calls.append(1) or mavlink.MAV_RESULT_ACCEPTED)
+    for k in range(8):
+        router.now[0] = 100.0 + k
+        router.handle(command(14, 1), "ep", False)
+    assert len(calls) == 1 and router.counters.duplicates == 7
+
+
+def test_a_flood_of_refusals_is_logged_and_said_a_bounded_number_of_times(caplog):
+    """100 refused commands at one instant: REFUSAL_LOG_BURST warnings and STATUSTEXTs, the rest counted."""
+    from ahrsd.daemon.commands import REFUSAL_LOG_BURST, Refused
+
+    said = []
+    router = CommandRouter(send_ack=lambda ep, m: None, statustext=lambda severity, text: said.append(text),
+                           clock=lambda: 100.0)
+    router.register(15, lambda m, c: Refused(mavlink.MAV_RESULT_DENIED, "no"))
+    caplog.set_level(logging.WARNING, logger="ahrsd.daemon.commands")
+    for k in range(100):
+        router.handle(command(15, k), "ep", False)
+    assert router.counters.refused == 100 and len(said) == REFUSAL_LOG_BURST
+    assert router.counters.refusal_logs_suppressed == 100 - REFUSAL_LOG_BURST
+    assert sum("refused" in r.getMessage() for r in caplog.records) == REFUSAL_LOG_BURST
+
+
 def test_read_only_commands_are_answered_again(router):
     calls = []
     router.register(10, lambda m, c: calls.append(1) or mavlink.MAV_RESULT_ACCEPTED, state_changing=False)
@@ -146,6 +193,15 @@ def test_param_store_validates_persists_and_reloads(tmp_path):
     assert len(warnings) == 2 and r.get("SR_A") == 10
     (tmp_path / "params.json").write_text("{broken")
     assert ParamStore(specs, tmp_path).load()[0].startswith("ignoring parameter file")
+
+
+def test_a_parameter_range_includes_both_ends():
+    """[lo, hi] is closed, as the range the refusal names: DECL_MANUAL's 1 and 0 are the values it has."""
+    p = ParamStore([ParamSpec("SR_A", 10, 0, 50, "Hz"), ParamSpec("FLAG", 0, 0, 1, "0/1", integer=True)])
+    assert p.set("SR_A", 0.0) == (True, "") and p.set("SR_A", 50.0) == (True, "")
+    assert p.set("FLAG", 1.0) == (True, "") and p.set("FLAG", 0.0) == (True, "")
+    assert p.set("SR_A", -1e-9)[0] is False and p.set("SR_A", 50.000001)[0] is False
+    assert p.get("SR_A") == 50.0
 
 
 def test_param_names_and_defaults_are_checked():
@@ -231,13 +287,6 @@ def test_imu_messages_units_and_clipping():
     assert (si.xmag, si.ymag, si.zmag) == (200, -50, 450) and si.temperature == 1   # "at 0 °C send 1"
     nan_t = msgs.highres_imu(make_sample(0, [0] * 3, [0] * 3, [0] * 3), 1)
     assert nan_t.fields_updated == 0x11FF & ~0x1000
-
-
-def test_statustext_is_cut_to_its_first_50_bytes():
-    text = "".join(chr(ord("A") + k % 26) for k in range(80))     # every position tells which byte it was
-    frame = msgs.statustext(6, text).pack(mavlink.MAVLink(None, srcSystem=1, srcComponent=200))
-    (received,) = mavlink.MAVLink(None).parse_buffer(frame)       # as a ground station decodes it
-    assert received.severity == 6 and received.text == text[:50]
 
 
 def test_mounting_matrix():

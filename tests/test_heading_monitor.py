@@ -45,42 +45,29 @@ def test_with_a_valid_gnss_yaw_the_floor_covers_the_disagreement_with_it():
 
 def test_ins_applies_the_floor_before_the_next_step():
     """On the simulated boat whose hard iron moves by 9 µT: every floor the monitor decides is in ins's yaw
-    variance when the check returns (before the next sample or fix can move the estimate)."""
+    variance when the check returns (before the next sample or fix can move the estimate), as its record of each
+    check (`Ins.heading_checks`) shows. (Broken by dropping the floor's `P[yaw, yaw] = floor`: fails.)"""
     from ahrsd.core.sample import SampleFlags, make_sample
     from ahrsd.estimator.ins import Ins
     from bench.vehicle_accuracy import simulate_vehicle
 
     run = simulate_vehicle("boat", 140.0, 3, None, mag="iron-step")
     est = Ins(declination_rad=run.declination_rad, mag_calibration_sigma_rad=run.mag_calibration_sigma_rad)
-    floors, applied = [], []
-    check = est._monitor.check
-
-    def spy_check(*args, **kwargs):
-        d = check(*args, **kwargs)
-        floors.append(d.yaw_var_floor_rad2)
-        return d
-
-    est._monitor.check = spy_check
-    heading = est._check_heading
-
-    def spy_heading(t_s):
-        n = len(floors)
-        heading(t_s)
-        if len(floors) > n and floors[-1] > 0.0:
-            applied.append((floors[-1], float(est._P[2, 2])))
-
-    est._check_heading = spy_heading
+    checks = []
     fi = 0
     for k in range(len(run.t_s)):
         while fi < len(run.fixes) and run.fixes[fi].extra["t_rx_s"] <= run.t_s[k]:
             est.update_gnss(run.fixes[fi])
             fi += 1
+            checks += [c for c in est.heading_checks if not checks or c.t_s > checks[-1].t_s]
         est.update(make_sample(run.t_s[k], run.gyro_rad_s[k], run.accel_m_s2[k], run.mag_ut[k],
                                flags=SampleFlags.NEW_DATA))
+    assert len(checks) > 500                    # a check at (nearly) every fix of 140 s at 5 Hz
+    applied = [(c.yaw_var_floor_rad2, c.yaw_var_rad2) for c in checks if c.yaw_var_floor_rad2 > 0.0]
     assert applied, "the iron step was never rejected"
     assert all(p >= f for f, p in applied), applied
     assert np.sqrt(max(f for f, _ in applied)) > 3.0 * D(0.3)
-
+    assert not any(c.mag_use for c in checks if c.yaw_var_floor_rad2 > 0.0)   # a floor comes with the rejection
 
 
 def test_reentry_counts_consistency_only_while_the_gnss_holds_the_heading():

@@ -109,6 +109,18 @@ def test_a_disagreement_within_both_uncertainties_is_not_called_one():
     assert hs.rejection_cause(0.0) is None
 
 
+def test_the_calibrations_predicted_error_widens_what_counts_as_a_disagreement():
+    """The same 15° against a GNSS yaw of 2°: beyond 3σ for a calibration predicting 0.5° (3·hypot(2, 0.5) ≈ 6.2°),
+    within it for one predicting 10° (3·hypot(2, 10) ≈ 30.6°): the magnetometer is then as good as its
+    calibration says, not wrong."""
+    hs, _ = status(cal_sigma_deg=0.5)
+    hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 1.0, disagreement_deg=15.0), 0.0)
+    assert hs.rejection_cause(0.0) == "mag vs GNSS 15°"
+    hs, _ = status(cal_sigma_deg=10.0)
+    hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 1.0, disagreement_deg=15.0), 0.0)
+    assert hs.rejection_cause(0.0) is None and not hs.mag_inconsistent
+
+
 def test_a_trusted_calibration_ins_rejected_is_named_as_the_cause():
     # ins holds the heading by GNSS although the calibration claims 0.5°: it disagreed with the GNSS-held heading
     hs, texts = status(cal_sigma_deg=0.5)
@@ -252,6 +264,17 @@ def test_each_yaw_reset_is_announced_once():
     hs.on_estimate(e, 1.0, yaw_resets=1)
     assert sum("reset to the GNSS yaw" in t for _, t in texts) == 1
     assert hs.rejection_cause(5.0) == "heading reset"
+
+
+def test_after_the_estimator_restarts_its_first_yaw_reset_is_announced():
+    """The estimator's yaw reset count starts again at 0 when it is re-initialised: its next reset (count 1) is
+    news, although 1 is below the 3 already announced."""
+    hs, texts = status()
+    e = estimate(HeadingState.MAGNETOMETER, 2.0)
+    hs.on_estimate(e, 0.0, yaw_resets=3)
+    hs.on_estimate(e, 1.0, yaw_resets=0)          # re-initialised
+    hs.on_estimate(e, 2.0, yaw_resets=1)
+    assert sum("reset to the GNSS yaw" in t for _, t in texts) == 2
 
 
 def test_the_planned_alignment_is_news_and_a_reset_of_a_wrong_heading_a_warning():
@@ -470,6 +493,14 @@ def test_the_vpe_builder_withholds_an_unknown_heading_even_when_the_sensor_is_fi
         assert build(svc, estimate(HeadingState.UNKNOWN, 8.0, flags=EstimateFlags.MAG_UNAVAILABLE), None, 1.0) is None
         m = build(svc, estimate(HeadingState.GNSS_ONLY, 8.0), None, 1.0)
         assert m is not None and m.covariance[20] == pytest.approx(math.radians(8.0) ** 2, rel=1e-6)
+        # a known heading, but the estimator initialising, or the sensor failed: not for the autopilot either
+        svc.health.last_estimate_flags = EstimateFlags.INITIALISING
+        assert build(svc, estimate(HeadingState.MAGNETOMETER, 1.0, flags=EstimateFlags.INITIALISING), None, 1.0) is None
+        svc.health.last_estimate_flags = EstimateFlags.NONE
+        svc.health.sensor_error = "bus failure"
+        assert build(svc, estimate(HeadingState.MAGNETOMETER, 1.0), None, 1.0) is None
+        svc.health.sensor_error = ""
+        assert build(svc, estimate(HeadingState.MAGNETOMETER, 1.0), None, 1.0) is not None
     finally:
         stop_service(svc, loop)
 

@@ -32,10 +32,12 @@ def _calibration(hard_ut=HARD_UT):
 def _start(state_dir):
     svc, loop = start_service_on((EndpointConfig("udpout:127.0.0.1:9"),), state_dir,
                                  estimator=EstimatorConfig("ins"))
-    texts = []
-    svc.statustext = lambda sev, text: texts.append(text)
-    svc.learned_iron.statustext = svc.statustext
-    return svc, loop, texts
+    return svc, loop
+
+
+def _said(svc) -> list[str]:
+    """The texts the daemon sent to the ground station (daemon.outbound keeps the latest)."""
+    return [text for _, text in svc.outbound.sent_texts]
 
 
 def _command(action):
@@ -44,7 +46,7 @@ def _command(action):
 
 def test_the_learned_iron_survives_a_restart_and_is_shown_read_only(tmp_path):
     CalibrationStore(tmp_path).save(_calibration())
-    svc, loop, _ = _start(tmp_path)
+    svc, loop = _start(tmp_path)
     try:
         assert svc.pipeline.estimator.name == "ins"
         svc.pipeline.estimator.set_learned_iron(OFFSET_UT, COV_UT2)     # what ins learned in this run
@@ -56,7 +58,7 @@ def test_the_learned_iron_survives_a_restart_and_is_shown_read_only(tmp_path):
     finally:
         stop_service(svc, loop)                  # saves at stop
     assert (tmp_path / FILE_NAME).exists()
-    svc, loop, _ = _start(tmp_path)               # a new daemon, a new ins
+    svc, loop = _start(tmp_path)               # a new daemon, a new ins
     try:
         offset, cov = svc.pipeline.estimator.learned_iron()
         assert offset == pytest.approx(OFFSET_UT) and cov == pytest.approx(COV_UT2)
@@ -67,12 +69,12 @@ def test_the_learned_iron_survives_a_restart_and_is_shown_read_only(tmp_path):
 
 def test_the_learned_soft_iron_survives_a_restart_too(tmp_path):
     CalibrationStore(tmp_path).save(_calibration())
-    svc, loop, _ = _start(tmp_path)
+    svc, loop = _start(tmp_path)
     try:
         svc.pipeline.estimator.set_learned_iron(OFFSET_UT, COV_UT2, LEARNED_SOFT, LEARNED_SOFT_COV)
     finally:
         stop_service(svc, loop)
-    svc, loop, _ = _start(tmp_path)
+    svc, loop = _start(tmp_path)
     try:
         soft, soft_cov = svc.pipeline.estimator.learned_soft_iron()
         assert soft == pytest.approx(LEARNED_SOFT) and soft_cov == pytest.approx(LEARNED_SOFT_COV)
@@ -90,13 +92,13 @@ def test_the_learned_soft_iron_survives_a_restart_too(tmp_path):
 
 def test_a_learned_iron_of_another_calibration_is_discarded_and_a_new_calibration_resets_it(tmp_path):
     CalibrationStore(tmp_path).save(_calibration())
-    svc, loop, _ = _start(tmp_path)
+    svc, loop = _start(tmp_path)
     try:
         svc.pipeline.estimator.set_learned_iron(OFFSET_UT, COV_UT2)
     finally:
         stop_service(svc, loop)
     CalibrationStore(tmp_path).save(_calibration(HARD_UT + 1.0))      # recalibrated while the daemon was off
-    svc, loop, _ = _start(tmp_path)
+    svc, loop = _start(tmp_path)
     try:
         assert not np.any(svc.pipeline.estimator.learned_iron()[0])
         svc.pipeline.estimator.set_learned_iron(OFFSET_UT, COV_UT2)
@@ -114,7 +116,7 @@ def test_a_learned_iron_of_another_calibration_is_discarded_and_a_new_calibratio
 
 def test_accept_folds_the_learned_iron_into_the_hard_iron_and_resets_it(tmp_path):
     CalibrationStore(tmp_path).save(_calibration())
-    svc, loop, texts = _start(tmp_path)
+    svc, loop = _start(tmp_path)
     try:
         svc.params.set("MNT_YAW_DEG", 30.0)           # a mounting, so the body → sensor rotation matters
         svc.pipeline.estimator.set_learned_iron(OFFSET_UT, COV_UT2, LEARNED_SOFT, LEARNED_SOFT_COV)
@@ -130,7 +132,7 @@ def test_accept_folds_the_learned_iron_into_the_hard_iron_and_resets_it(tmp_path
         assert svc.pipeline.estimator.learned_soft_iron()[0] == pytest.approx(np.eye(3))
         assert CalibrationStore(tmp_path).load().mag.hard_iron_ut == pytest.approx(new.hard_iron_ut)
         assert not np.any(svc.pipeline.estimator.learned_iron()[0])
-        assert any("Learned iron accepted" in t for t in texts)
+        assert any("Learned iron accepted" in t for t in _said(svc))
         meta = svc.pipeline.calibration.metadata["mag"]
         assert meta["method"] == "learned-iron" and meta["learned_iron_ut"] == pytest.approx(OFFSET_UT)
         from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad    # still a figure ins can use
@@ -143,7 +145,7 @@ def test_accept_folds_the_learned_iron_into_the_hard_iron_and_resets_it(tmp_path
 
 def test_reset_forgets_it_and_both_commands_are_refused_while_armed(tmp_path):
     CalibrationStore(tmp_path).save(_calibration())
-    svc, loop, texts = _start(tmp_path)
+    svc, loop = _start(tmp_path)
     try:
         ins = svc.pipeline.estimator
         ins.set_learned_iron(OFFSET_UT, COV_UT2)
@@ -152,7 +154,7 @@ def test_reset_forgets_it_and_both_commands_are_refused_while_armed(tmp_path):
         for action in (ACTION_ACCEPT, ACTION_RESET):
             assert svc.learned_iron.handle_command(_command(action)) == mavlink.MAV_RESULT_TEMPORARILY_REJECTED
         assert ins.learned_iron()[0] == pytest.approx(OFFSET_UT) and svc.pipeline.calibration is before
-        assert "Disarm to change the learned iron" in texts
+        assert "Disarm to change the learned iron" in _said(svc)
         svc.autopilot.armed = False
         assert svc.learned_iron.handle_command(_command(ACTION_RESET)) == mavlink.MAV_RESULT_ACCEPTED
         assert not np.any(ins.learned_iron()[0]) and svc.pipeline.calibration is before
@@ -167,7 +169,7 @@ def test_reset_forgets_it_and_both_commands_are_refused_while_armed(tmp_path):
         assert ok and not np.any(ins.learned_iron()[0]) and svc.params.get("MAG_LRN_ACT") == 0.0
     finally:
         stop_service(svc, loop)
-    svc, loop, _ = _start(tmp_path)                  # the reset persisted too
+    svc, loop = _start(tmp_path)                  # the reset persisted too
     try:
         assert not np.any(svc.pipeline.estimator.learned_iron()[0])
     finally:

@@ -9,7 +9,7 @@ from types import SimpleNamespace
 
 from ahrsd.cli.main import build_parser
 from ahrsd.cli.magcal_client import MagCalClient
-from ahrsd.daemon.magcal import statustext_chunks
+from ahrsd.daemon.messages import statustext_chunks
 from ahrsd.daemon.mavlink_io import mavlink
 
 MAV = mavlink.MAVLink(None, srcSystem=1, srcComponent=200)

@@ -20,7 +20,6 @@ from ahrsd.daemon.magcal import (
     MagCalProtocol,
     MagCalSettings,
     settings_from_mapping,
-    statustext_chunks,
 )
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.core.sample import make_sample
@@ -179,14 +178,6 @@ def test_fixed_yaw_keeps_soft_iron_and_finds_the_true_hard_iron(tmp_path):
     np.testing.assert_allclose(host.cal.mag.hard_iron_ut, HARD_IRON_UT, atol=tolerance_ut)
     saved = CalibrationStore(tmp_path).load().mag
     assert np.allclose(saved.soft_iron, soft) and np.allclose(saved.hard_iron_ut, host.cal.mag.hard_iron_ut)
-
-
-def test_statustext_chunks_long_lines():
-    text = "tilt range too small for full model: fitted offsets only"
-    msgs = [wire(m) for m in statustext_chunks(4, text, 7)]
-    assert len(msgs) == 2 and all(m.id == 7 for m in msgs) and [m.chunk_seq for m in msgs] == [0, 1]
-    assert "".join(m.text for m in msgs) == text
-    assert len(statustext_chunks(6, "short", 1)) == 1
 
 
 def test_settings_from_mapping_validates():

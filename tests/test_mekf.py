@@ -87,6 +87,25 @@ def test_initial_attitude_without_field_sets_tilt_and_zero_heading():
     assert (roll, pitch, yaw) == pytest.approx((-20.0, 10.0, 0.0), abs=1e-9)
 
 
+def test_the_initialising_sample_publishes_the_1sigma_of_a_step():
+    """The estimate of the sample that initialises carries the terms every step's 1σ carries (docs/estimator.md,
+    "consider" terms): roll and pitch 1σ² = init_sigma_tilt² + the tilt process noise over the low-passed
+    vertical's age, (σ_g² + (σ_s |ω|)²)·τ; yaw 1σ² = init_sigma_yaw² + the calibration's stated heading
+    variance. Worked from the parameters; a turning sample so that the rate term counts."""
+    p = DEFAULT_MEKF_PARAMS
+    est = Mekf()
+    est.set_mag_calibration_sigma(math.radians(2.0))
+    rate = np.radians([3.0, -4.0, 12.0])           # the bias starts at zero
+    out = est.update(make_sample(0.0, rate, np.array([0.0, 0.0, -G]), FIELD_NED))
+    w2 = float(rate @ rate)
+    tilt_var = p.init_sigma_tilt_rad ** 2 + (p.gyro_noise_rad_s_sqrt_hz ** 2
+                                             + p.gyro_rate_noise_sqrt_s ** 2 * w2) * p.acc_lowpass_tau_s
+    yaw_var = p.init_sigma_yaw_rad ** 2 + math.radians(2.0) ** 2
+    assert out.sigma_rpy_rad == pytest.approx([math.sqrt(tilt_var), math.sqrt(tilt_var), math.sqrt(yaw_var)],
+                                              rel=1e-12)
+    assert out.rate_body_rad_s == pytest.approx(rate, rel=1e-15)
+
+
 # ------------------------------------------------------------------------------------ accuracy
 def test_static_simulated_adis16405_meets_thesis_targets():
     t, g, a, m, truth = _simulated("static", 30.0, 819.2)

@@ -12,6 +12,7 @@ import pytest
 from ahrsd.core.sample import ImuSample, SampleFlags
 from ahrsd.drivers.errors import BusError
 from ahrsd.drivers.faults import FaultPlan
+from ahrsd.drivers import process_source
 from ahrsd.drivers.process_source import ProcessSource, pack, unpack
 
 
@@ -323,6 +324,24 @@ def test_the_hand_over_sends_one_bounded_message_a_tick_and_never_blocks_a_real_
             break
         ticks(1)
     assert got == list(range(20000))
+
+
+def test_a_cached_flags_value_is_not_made_again_not_even_none(monkeypatch):
+    """unpack takes each flags value it has seen from its cache, SampleFlags.NONE (falsy) too."""
+    made = []
+
+    def counted(value):
+        made.append(value)
+        return SampleFlags(value)
+
+    monkeypatch.setattr(process_source, "_FLAGS_BY_VALUE", {0: SampleFlags.NONE, 1: SampleFlags.NEW_DATA})
+    monkeypatch.setattr(process_source, "_sample_flags", counted)
+    flags = [SampleFlags.NONE, SampleFlags.NEW_DATA] * 5 + [SampleFlags.NEW_DATA | SampleFlags.STALE]
+    samples = [ImuSample(k / 819.2, np.zeros(3), np.zeros(3), np.zeros(3), 24.0, 5.0, f, 0, k)
+               for k, f in enumerate(flags)]
+    got = unpack(pack(samples))
+    assert [r.flags for r in got] == flags
+    assert made == [int(SampleFlags.NEW_DATA | SampleFlags.STALE)]     # only the value not cached
 
 
 def test_blocks_unpacked_together_keep_every_sample_its_own_flags_and_order():

@@ -44,7 +44,7 @@ class _Context:
         return True
 
     def autopilot_yaw(self, est):
-        return est.heading_true_rad, 0
+        return est.heading_true_rad, 0, float(est.sigma_rpy_rad[2])
 
 
 def _estimate(t_s: float) -> AttitudeEstimate:

@@ -9,17 +9,9 @@ from ahrsd.daemon.health import Health
 from ahrsd.daemon.housekeeping import HealthReport
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.daemon.outbound import Identity, Outbound
+from support.kept_link import KeptLink
 
 STANDBY_DETAIL = "heading unknown (mag not calibrated), no heading out"   # daemon.heading_status's words
-
-
-class Link:
-    def __init__(self):
-        self.sent = []
-
-    def send(self, msg):
-        self.sent.append(msg)
-        return True
 
 
 class Counts:
@@ -43,7 +35,7 @@ def _text(msg) -> str:
 
 
 def test_the_standby_statustext_with_a_long_cause_arrives_whole_in_chunks():
-    link = Link()
+    link = KeptLink()
     outbound = Outbound(Identity(1, 200, mavlink.MAV_TYPE_IMU), ServiceCounters(), clock=lambda: 0.0)
     outbound.endpoints.append(link)
     health = Health(stale_timeout_s=1.0)
@@ -65,7 +57,7 @@ def test_the_standby_statustext_with_a_long_cause_arrives_whole_in_chunks():
 
 
 def test_a_short_state_change_is_still_one_plain_statustext():
-    link = Link()
+    link = KeptLink()
     outbound = Outbound(Identity(1, 200, mavlink.MAV_TYPE_IMU), ServiceCounters(), clock=lambda: 0.0)
     outbound.endpoints.append(link)
     report = HealthReport(Health(stale_timeout_s=1.0), outbound, Notifier(), Counts(), watchdog_interval_s=None,
@@ -73,3 +65,22 @@ def test_a_short_state_change_is_still_one_plain_statustext():
     report(0.0)                                          # no estimate yet: BOOT
     texts = [m for m in link.sent if m.get_type() == "STATUSTEXT"]
     assert [(_text(m), m.id) for m in texts] == [("ahrsd: BOOT: waiting for the sensor", 0)]
+
+
+def test_the_critical_state_is_said_at_critical_severity_even_through_a_flood():
+    """MAV_STATE CRITICAL (the sensor failed) is announced at MAV_SEVERITY_CRITICAL, which the STATUSTEXT rate
+    limit never holds back (daemon.outbound) and ground stations speak aloud: it reaches the operator even while a
+    peer's refused requests have used up the budget."""
+    link = KeptLink()
+    counters = ServiceCounters()
+    outbound = Outbound(Identity(1, 200, mavlink.MAV_TYPE_IMU), counters, clock=lambda: 0.0)
+    outbound.endpoints.append(link)
+    health = Health(stale_timeout_s=1.0)
+    report = HealthReport(health, outbound, Notifier(), Counts(), watchdog_interval_s=None, start=0.0)
+    for _ in range(20):
+        outbound.statustext(mavlink.MAV_SEVERITY_WARNING, "ahrsd: unknown parameter X")
+    assert counters.statustext_suppressed == 10
+    health.sensor_error = "bus failure"
+    report(0.0)
+    (critical,) = [m for m in link.sent if m.get_type() == "STATUSTEXT" and "CRITICAL" in _text(m)]
+    assert critical.severity == mavlink.MAV_SEVERITY_CRITICAL and _text(critical) == "ahrsd: CRITICAL: bus failure"

@@ -3,11 +3,12 @@
 
 from __future__ import annotations
 
-from ahrsd.daemon.heading_status import LongStatusText
-from ahrsd.daemon.magcal import statustext_chunks
+from ahrsd.daemon.counters import ServiceCounters
 from ahrsd.daemon.mavlink_io import mavlink
-from ahrsd.daemon.messages import statustext
+from ahrsd.daemon.messages import statustext_chunks
+from ahrsd.daemon.outbound import Identity, Outbound
 from ahrsd.daemon.statustext_ascii import statustext_ascii
+from support.kept_link import KeptLink
 
 MAV = mavlink.MAVLink(None, srcSystem=1, srcComponent=200)
 
@@ -28,15 +29,19 @@ def test_symbols_are_spelled_out_in_ascii():
 
 
 def test_single_statustext_is_ascii_on_the_wire():
-    data = on_the_wire(statustext(mavlink.MAV_SEVERITY_INFO, "ahrsd: heading from magnetometer (±0.3°)"))
+    (msg,) = statustext_chunks(mavlink.MAV_SEVERITY_INFO, "ahrsd: heading from magnetometer (±0.3°)", 1)
+    data = on_the_wire(msg)
     assert data == b"ahrsd: heading from magnetometer (+-0.3 deg)"
     data.decode("ascii")
 
 
 def test_long_statustext_chunks_are_ascii_and_reassemble():
-    sent = []
-    LongStatusText(sent.append)(mavlink.MAV_SEVERITY_WARNING,
-                                "ahrsd: heading reset to the GNSS yaw (±1.5°) after the magnetometer disagreed by 36°")
+    link = KeptLink()
+    outbound = Outbound(Identity(1, 200, mavlink.MAV_TYPE_IMU), ServiceCounters(), clock=lambda: 0.0)
+    outbound.endpoints.append(link)
+    sent = link.sent
+    outbound.statustext(mavlink.MAV_SEVERITY_WARNING,
+                        "ahrsd: heading reset to the GNSS yaw (±1.5°) after the magnetometer disagreed by 36°")
     text = b"".join(on_the_wire(m) for m in sent)
     assert text == b"ahrsd: heading reset to the GNSS yaw (+-1.5 deg) after the magnetometer disagreed by 36 deg"
     assert len(sent) == 2

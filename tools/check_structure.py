@@ -14,6 +14,10 @@ Rules in daemon/:
 Rule in every other package (cli/, calibration/, estimator/, drivers/, core/, simulation/):
 4. no `getattr`/`hasattr` probing of an estimator (the names of rule 3): what an estimator can do is declared
    in estimator/base.py, whoever asks.
+Rule in tests/:
+5. no spy on an estimator: no function or lambda assigned to an attribute of an estimator object (the names of
+   rule 3, and what hangs below them: `est._monitor.check = spy`). A test reads what the estimator decided
+   from its records (`Ins.heading_checks`), so it keeps testing the code that runs.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ PROBED_OBJECTS = {"self", "service", "svc", "s", "host", "self.service", "self.h
                   *ESTIMATOR_OBJECTS}
 DAEMON = "daemon"
 ESTIMATOR_RULE_PACKAGES = ("cli", "calibration", "estimator", "drivers", "core", "simulation")
+TESTS = "tests"
 PART_NAMES = {
     "magcal", "field_calibration", "gnss", "pipeline", "reader", "publishers", "inbound", "param_protocol",
     "declination", "positions", "housekeeping", "health_report", "swap", "heading", "heading_slew",
@@ -75,11 +80,38 @@ def check_file(path: Path, shown: str, daemon_rules: bool = True) -> list[str]:
     return sorted(out, key=lambda line: int(line.split(":")[1]))
 
 
+def _is_estimator(dotted: str) -> bool:
+    return any(dotted == name or dotted.startswith(name + ".") for name in ESTIMATOR_OBJECTS)
+
+
+def check_test_file(path: Path, shown: str) -> list[str]:
+    """Rule 5: a function or lambda assigned to an attribute of an estimator (a spy replacing its method)."""
+    try:
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+    except SyntaxError as exc:
+        return [f"{shown}:{exc.lineno}: does not parse"]
+    functions = {n.name for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))}
+    out = []
+    for node in ast.walk(tree):
+        if not isinstance(node, ast.Assign):
+            continue
+        value = node.value
+        if not (isinstance(value, ast.Lambda) or (isinstance(value, ast.Name) and value.id in functions)):
+            continue
+        for target in node.targets:
+            if isinstance(target, ast.Attribute) and _is_estimator(_dotted(target.value)):
+                out.append(f"{shown}:{node.lineno}: {_dotted(target)} replaced by a spy (read the estimator's "
+                           "records of what it decided instead)")
+    return out
+
+
 def check(root: Path) -> list[str]:
     out = []
     for package in (DAEMON, *ESTIMATOR_RULE_PACKAGES):
         for path in sorted((root / package).rglob("*.py")):
             out += check_file(path, str(path.relative_to(root)), daemon_rules=package == DAEMON)
+    for path in sorted((root / TESTS).rglob("*.py")):
+        out += check_test_file(path, str(path.relative_to(root)))
     return out
 
 

@@ -151,8 +151,6 @@ def fit_accel(position_means_m_s2: np.ndarray, g_m_s2: float = STANDARD_GRAVITY_
     model: too few distinct orientations, an ill-conditioned regression, or residuals above
     `max_residual_m_s2` (default 2 mg RMS, ~10× what the ADIS16405's noise and in-run bias leave on a
     10 s position mean: someone moved the unit during a 'still' period, or the wrong local gravity)."""
-    from scipy.optimize import least_squares
-
     s_o = np.asarray(position_means_m_s2, dtype=np.float64)
     s_o = s_o[np.all(np.isfinite(s_o), axis=1)]
     n_pos = s_o.shape[0]
@@ -163,30 +161,47 @@ def fit_accel(position_means_m_s2: np.ndarray, g_m_s2: float = STANDARD_GRAVITY_
         terms = 12 if distinct >= 12 else 9 if distinct >= 9 else 6
     if terms not in (6, 9, 12):
         raise ValueError(f"terms must be 6, 9, 12 or 'auto', got {terms!r}")
-    identity = AccelModel.identity()
     if distinct < terms:
-        return AccelFitResult(identity, math.nan, terms, quality,
+        return AccelFitResult(AccelModel.identity(), math.nan, terms, quality,
                               f"{distinct} distinct orientations cannot determine {terms} parameters: "
                               f"record at least {terms} (turn the unit onto each face and the corners between); "
                               f"found {n_pos} still position{'s' if n_pos != 1 else ''}"
                               + (", faces up: " + (", ".join(k for k, v in quality["faces"].items() if v) or "none")
                                  if n_pos else ""))
-    # Step 1: the thesis's linear LS (12 parameters; with fewer, drop the columns).
+    linear = _linear_step(s_o, g_m_s2, terms, quality, max_condition)
+    if linear is None:
+        return AccelFitResult(AccelModel.identity(), math.nan, terms, quality,
+                              f"the positions do not separate the parameters (condition number "
+                              f"{quality['condition_number']:.3g}): add orientations between the faces (corners)")
+    return _nonlinear_step(s_o, g_m_s2, terms, quality, linear, max_residual_m_s2)
+
+
+def _linear_step(s_o: np.ndarray, g_m_s2: float, terms: int, quality: dict, max_condition: float
+                 ) -> AccelModel | None:
+    """Step 1, the thesis's linear LS (12 parameters; with fewer, the columns dropped): the model, or None when
+    the regression is ill-conditioned (condition number in `quality`)."""
     z, h = regressors(s_o, g_m_s2)
     cols = list(range(12)) if terms == 12 else list(range(9)) if terms == 9 else [3, 4, 5, 6, 7, 8]
     hs = h[:, cols]
     cond = float(np.linalg.cond(hs / np.linalg.norm(hs, axis=0)))
     quality["condition_number"] = cond
     if not np.isfinite(cond) or cond > max_condition:
-        return AccelFitResult(identity, math.nan, terms, quality,
-                              f"the positions do not separate the parameters (condition number {cond:.3g}): "
-                              "add orientations between the faces (corners)")
+        return None
     sol, *_ = np.linalg.lstsq(hs, z, rcond=None)
     x_a = np.zeros(12)
     x_a[cols] = sol
     linear = model_from_linear(x_a)
     quality["linear_residual_rms_m_s2"] = float(np.sqrt(np.mean(_residual(_pack(linear, 12), s_o, g_m_s2, 12) ** 2)))
-    # Step 2: exact nonlinear LS on |f| = g.
+    return linear
+
+
+def _nonlinear_step(s_o: np.ndarray, g_m_s2: float, terms: int, quality: dict, linear: AccelModel,
+                    max_residual_m_s2: float) -> AccelFitResult:
+    """Step 2, the exact nonlinear LS on |f| = g from the linear model; its bias 1σ and residuals in `quality`;
+    refused when the residual RMS is above `max_residual_m_s2`."""
+    from scipy.optimize import least_squares
+
+    n_pos = s_o.shape[0]
     if terms == 6:
         p0 = np.concatenate([np.diag(linear.matrix), linear.bias_m_s2])
     else:
@@ -208,7 +223,7 @@ def fit_accel(position_means_m_s2: np.ndarray, g_m_s2: float = STANDARD_GRAVITY_
     if rms > max_residual_m_s2:
         worst = int(np.argmax(np.abs(r)))
         mg = 1e3 / STANDARD_GRAVITY_M_S2
-        return AccelFitResult(identity, rms, terms, {**quality, "rejected_model": model.to_dict()},
+        return AccelFitResult(AccelModel.identity(), rms, terms, {**quality, "rejected_model": model.to_dict()},
                               f"residual {rms * mg:.1f} mg RMS is too large (limit {max_residual_m_s2 * mg:.1f} mg; "
                               f"the worst, position {worst + 1} of {n_pos}, is {r[worst] * mg:+.1f} mg off |f| = g): "
                               "a position was not still (hold each still; re-record that one), or the local "

@@ -91,43 +91,11 @@ def fit_alignment(turns: list[LevelTurn], magnitude_model: MagModel, down_ut: fl
         if turn.axis not in AXES:
             raise ValueError(f"turn axis must be one of x, y, z, got {turn.axis!r}")
         i = AXES.index(turn.axis)
-        mag = np.asarray(turn.mag_ut, dtype=np.float64)
-        good = np.all(np.isfinite(mag), axis=1)
-        mag = mag[good]
-        info = {"axis": turn.axis, "n": int(mag.shape[0])}
+        info = {"axis": turn.axis}
         quality["turns"].append(info)
-        if mag.shape[0] < MIN_SAMPLES:
-            problems.append(f"{turn.axis} turn: only {mag.shape[0]} samples (need {MIN_SAMPLES})")
-            continue
-        pointing = turn.pointing
-        if turn.accel_m_s2 is not None:
-            f = np.asarray(turn.accel_m_s2, dtype=np.float64)[good].mean(axis=0)
-            # At rest the specific force points up: an axis pointing down reads −g.
-            tilt = math.degrees(math.acos(min(1.0, abs(f[i]) / np.linalg.norm(f))))
-            info["tilt_deg"] = tilt
-            if pointing is None:
-                pointing = "down" if f[i] < 0 else "up"
-            if tilt > max_tilt_deg:
-                problems.append(f"{turn.axis} turn not level: axis {tilt:.1f}° from vertical (max {max_tilt_deg}°)")
-                continue
-        if pointing not in ("down", "up"):
-            problems.append(f"{turn.axis} turn: say whether the axis points down or up (no accelerometer data)")
-            continue
-        info["pointing"] = pointing
-        h = magnitude_model.apply(mag)
-        target = down_ut * (1.0 if pointing == "down" else -1.0)
-        row, *_ = np.linalg.lstsq(h, np.full(h.shape[0], target), rcond=None)
-        span = _turn_span_deg(h, row)
-        info["turn_span_deg"] = span
-        info["vertical_residual_rms_ut"] = float(np.sqrt(np.mean((h @ row - target) ** 2)))
-        info["row_norm"] = float(np.linalg.norm(row))
-        if abs(info["row_norm"] - 1.0) > 0.1:
-            problems.append(f"{turn.axis} turn: the calibrated field does not match the reference (row norm "
-                            f"{info['row_norm']:.2f}, not 1): were the turns recorded with the same vehicle iron "
-                            "as the magnitude calibration, and at the same site?")
-            continue
-        if span < min_turn_deg:
-            problems.append(f"{turn.axis} turn swept only {span:.0f}° (need ≥ {min_turn_deg:.0f}°)")
+        row, problem = _turn_row(turn, magnitude_model, down_ut, max_tilt_deg, min_turn_deg, info)
+        if problem is not None:
+            problems.append(problem)
             continue
         rows[i] = row if i not in rows else 0.5 * (rows[i] + row)
     if len(rows) < 2:
@@ -135,6 +103,55 @@ def fit_alignment(turns: list[LevelTurn], magnitude_model: MagModel, down_ut: fl
         if problems:
             reason += ": " + "; ".join(problems)
         return AlignmentResult(None, None, quality, reason)
+    return _rotation_from_rows(rows, quality, problems, orthogonalisation)
+
+
+def _turn_row(turn: LevelTurn, magnitude_model: MagModel, down_ut: float, max_tilt_deg: float,
+              min_turn_deg: float, info: dict) -> tuple[np.ndarray | None, str | None]:
+    """One row of C_m'^p from a levelled turn: the row r with r·h = ±(the reference's down component) over the
+    magnitude-calibrated field h of the turn (least squares), or the reason the turn cannot give it (too few
+    samples, not level, pointing unknown, a field that does not match the reference, too small a sweep). What
+    the turn showed goes into `info`."""
+    i = AXES.index(turn.axis)
+    mag = np.asarray(turn.mag_ut, dtype=np.float64)
+    good = np.all(np.isfinite(mag), axis=1)
+    mag = mag[good]
+    info["n"] = int(mag.shape[0])
+    if mag.shape[0] < MIN_SAMPLES:
+        return None, f"{turn.axis} turn: only {mag.shape[0]} samples (need {MIN_SAMPLES})"
+    pointing = turn.pointing
+    if turn.accel_m_s2 is not None:
+        f = np.asarray(turn.accel_m_s2, dtype=np.float64)[good].mean(axis=0)
+        # At rest the specific force points up: an axis pointing down reads −g.
+        tilt = math.degrees(math.acos(min(1.0, abs(f[i]) / np.linalg.norm(f))))
+        info["tilt_deg"] = tilt
+        if pointing is None:
+            pointing = "down" if f[i] < 0 else "up"
+        if tilt > max_tilt_deg:
+            return None, f"{turn.axis} turn not level: axis {tilt:.1f}° from vertical (max {max_tilt_deg}°)"
+    if pointing not in ("down", "up"):
+        return None, f"{turn.axis} turn: say whether the axis points down or up (no accelerometer data)"
+    info["pointing"] = pointing
+    h = magnitude_model.apply(mag)
+    target = down_ut * (1.0 if pointing == "down" else -1.0)
+    row, *_ = np.linalg.lstsq(h, np.full(h.shape[0], target), rcond=None)
+    span = _turn_span_deg(h, row)
+    info["turn_span_deg"] = span
+    info["vertical_residual_rms_ut"] = float(np.sqrt(np.mean((h @ row - target) ** 2)))
+    info["row_norm"] = float(np.linalg.norm(row))
+    if abs(info["row_norm"] - 1.0) > 0.1:
+        return None, (f"{turn.axis} turn: the calibrated field does not match the reference (row norm "
+                      f"{info['row_norm']:.2f}, not 1): were the turns recorded with the same vehicle iron "
+                      "as the magnitude calibration, and at the same site?")
+    if span < min_turn_deg:
+        return None, f"{turn.axis} turn swept only {span:.0f}° (need ≥ {min_turn_deg:.0f}°)"
+    return row, None
+
+
+def _rotation_from_rows(rows: dict[int, np.ndarray], quality: dict, problems: list[str],
+                        orthogonalisation: str) -> AlignmentResult:
+    """Ĉ from the rows found (with two, the third is their cross product: the rows of a rotation), refused when
+    it is far from a rotation, else orthogonalised (`orthogonalise`)."""
     c_hat = np.zeros((3, 3))
     for i, r in rows.items():
         c_hat[i] = r

@@ -398,43 +398,19 @@ def _finish(model: MagModel, blocks: _Blocks, ref: _ReferenceField, quality: dic
 
 def _fit_general(t_s, mag, roll, pitch, total, vertical, legs_b, quality, sigma_mag_ut, sigma_tilt_deg,
                  max_heading_std_deg, robust, support, centripetal=None, levelling=None):
+    """The generalised vertical-channel fit (vertical_channel.py) and its checks: the MagModel, or the refusal
+    (a MagFitResult). What it found goes into `quality`; the forward speed the levelling was compensated with
+    into `levelling`."""
     # the paper's sphere fit, for comparison (it often fails or is wrong on level data: that is the point)
     sph = sphere_fit_paper(mag, total)
     quality["sphere_fit_paper"] = ({"b_ut": sph.model.bias.tolist(), "s": sph.model.scale.tolist(),
                                     "condition_number": sph.condition_number} if sph.model is not None
                                    else {"refused": sph.reason, "condition_number": sph.condition_number})
-    cen = centripetal   # None once the fit runs without centripetal compensation
     try:
-        fit = fit_vertical_channel(mag, roll, pitch, total, vertical, sigma_mag_ut=sigma_mag_ut,
-                                   sigma_tilt_rad=math.radians(sigma_tilt_deg), robust=robust is True,
-                                   gyro_rad_s=None if centripetal is None else centripetal[0],
-                                   speed_m_s=None if centripetal is None else centripetal[1])
-        if fit.speed_m_s is not None:
-            lean = np.max(np.abs(fit.speed_m_s * centripetal[0][:, 2])) / STANDARD_GRAVITY_M_S2
-            if not (abs(fit.speed_m_s) <= MAX_FITTED_SPEED_M_S and lean <= MAX_CENTRIPETAL_LEAN_RAD):
-                quality.setdefault("warnings", []).append(
-                    f"the fitted centripetal speed {fit.speed_m_s:.1f} m/s (lean up to {math.degrees(lean):.1f}°) is "
-                    "not plausible: refitted without centripetal compensation")
-                cen = None
-                fit = fit_vertical_channel(mag, roll, pitch, total, vertical, sigma_mag_ut=sigma_mag_ut,
-                                           sigma_tilt_rad=math.radians(sigma_tilt_deg), robust=robust is True)
-        # magnetic disturbances (a passing vehicle, a steel pier) show as magnitude outliers: count them and,
-        # when more than 1 % of the samples are disturbed, refit with a robust (soft-L1) loss
-        mres = np.linalg.norm((mag - fit.hard_iron_ut) @ fit.soft_iron.T, axis=1) - total
-        scale = max(1.4826 * float(np.median(np.abs(mres - np.median(mres)))), sigma_mag_ut)
-        disturbed = int(np.sum(np.abs(mres) > DISTURBANCE_SIGMAS * scale))
-        quality["disturbed_samples"] = disturbed
-        if robust == "auto" and disturbed > DISTURBED_FRACTION_FOR_ROBUST * mag.shape[0]:
-            fit = fit_vertical_channel(mag, roll, pitch, total, vertical, sigma_mag_ut=sigma_mag_ut,
-                                       sigma_tilt_rad=math.radians(sigma_tilt_deg), robust=True,
-                                       gyro_rad_s=None if cen is None else cen[0],
-                                       speed_m_s=None if cen is None else cen[1])
-            quality.setdefault("warnings", []).append(
-                f"{disturbed} of {mag.shape[0]} samples look magnetically disturbed (|H| off by more than "
-                f"{DISTURBANCE_SIGMAS:g}σ): refitted with a robust loss")
+        fit, cen = _vertical_channel_fit(mag, roll, pitch, total, vertical, quality, sigma_mag_ut, sigma_tilt_deg,
+                                         robust, centripetal)
     except BacksteppingError as exc:
         return refuse(METHOD, str(exc), **quality)
-    w, h = fit.soft_iron, fit.hard_iron_ut
     if levelling is not None:   # the forward speed the levelling was compensated with (None: not compensated)
         levelling["speed_m_s"] = (fit.speed_m_s if fit.speed_m_s is not None else
                                   (cen[1] if cen is not None else None))
@@ -447,6 +423,54 @@ def _fit_general(t_s, mag, roll, pitch, total, vertical, legs_b, quality, sigma_
     }
     if fit.free_dip:
         quality["vertical_channel"]["dip_deg"] = math.degrees(math.asin(max(-1.0, min(1.0, fit.vertical_ut / total))))
+    refused = _general_fit_refusal(fit, quality, support, max_heading_std_deg)
+    if refused is not None:
+        return refused
+    model = MagModel(fit.hard_iron_ut, fit.soft_iron)
+    _leg_report(t_s, model, mag, roll, pitch, legs_b, quality, sph.model.to_mag_model() if sph.model else None)
+    return model
+
+
+def _vertical_channel_fit(mag, roll, pitch, total, vertical, quality, sigma_mag_ut, sigma_tilt_deg, robust,
+                          centripetal):
+    """fit_vertical_channel, refitted without centripetal compensation when the fitted speed (or the lean it
+    implies) is not plausible, and with a robust loss when magnetic disturbances show. Returns (the fit, the
+    centripetal compensation it kept: (gyro, speed) or None); raises BacksteppingError."""
+    cen = centripetal   # None once the fit runs without centripetal compensation
+    fit = fit_vertical_channel(mag, roll, pitch, total, vertical, sigma_mag_ut=sigma_mag_ut,
+                               sigma_tilt_rad=math.radians(sigma_tilt_deg), robust=robust is True,
+                               gyro_rad_s=None if centripetal is None else centripetal[0],
+                               speed_m_s=None if centripetal is None else centripetal[1])
+    if fit.speed_m_s is not None:
+        lean = np.max(np.abs(fit.speed_m_s * centripetal[0][:, 2])) / STANDARD_GRAVITY_M_S2
+        if not (abs(fit.speed_m_s) <= MAX_FITTED_SPEED_M_S and lean <= MAX_CENTRIPETAL_LEAN_RAD):
+            quality.setdefault("warnings", []).append(
+                f"the fitted centripetal speed {fit.speed_m_s:.1f} m/s (lean up to {math.degrees(lean):.1f}°) is "
+                "not plausible: refitted without centripetal compensation")
+            cen = None
+            fit = fit_vertical_channel(mag, roll, pitch, total, vertical, sigma_mag_ut=sigma_mag_ut,
+                                       sigma_tilt_rad=math.radians(sigma_tilt_deg), robust=robust is True)
+    # magnetic disturbances (a passing vehicle, a steel pier) show as magnitude outliers: count them and,
+    # when more than 1 % of the samples are disturbed, refit with a robust (soft-L1) loss
+    mres = np.linalg.norm((mag - fit.hard_iron_ut) @ fit.soft_iron.T, axis=1) - total
+    scale = max(1.4826 * float(np.median(np.abs(mres - np.median(mres)))), sigma_mag_ut)
+    disturbed = int(np.sum(np.abs(mres) > DISTURBANCE_SIGMAS * scale))
+    quality["disturbed_samples"] = disturbed
+    if robust == "auto" and disturbed > DISTURBED_FRACTION_FOR_ROBUST * mag.shape[0]:
+        fit = fit_vertical_channel(mag, roll, pitch, total, vertical, sigma_mag_ut=sigma_mag_ut,
+                                   sigma_tilt_rad=math.radians(sigma_tilt_deg), robust=True,
+                                   gyro_rad_s=None if cen is None else cen[0],
+                                   speed_m_s=None if cen is None else cen[1])
+        quality.setdefault("warnings", []).append(
+            f"{disturbed} of {mag.shape[0]} samples look magnetically disturbed (|H| off by more than "
+            f"{DISTURBANCE_SIGMAS:g}σ): refitted with a robust loss")
+    return fit, cen
+
+
+def _general_fit_refusal(fit, quality, support, max_heading_std_deg):
+    """The fit's parameter uncertainty and predicted heading error (into `quality`), and its refusal when the
+    soft iron is a reflection, the fit did not converge, or the data leave the heading more uncertain than
+    max_heading_std_deg; None when it is usable (with a warning when the constant offset is poorly known)."""
     limits = {n: 0.02 for n in fit.names[:9]}
     limits.update({n: 1.0 for n in fit.names[9:12]})
     unc = parameter_uncertainty(fit.jacobian, fit.names, limits, residual_scale=max(fit.whitened_rms, 1.0))
@@ -456,7 +480,7 @@ def _fit_general(t_s, mag, roll, pitch, total, vertical, legs_b, quality, sigma_
     envelope = max(10.0, support.tilt["tilt_max_deg"]) if support.tilt else 10.0
     pred = predicted_heading_std_deg(fit, envelope)
     quality["predicted_heading"] = pred
-    if np.linalg.det(w) <= 0:
+    if np.linalg.det(fit.soft_iron) <= 0:
         return refuse(METHOD, "the fitted soft iron is a reflection (det ≤ 0): heading would be mirrored", **quality)
     if not fit.success and fit.whitened_rms > 10:
         return refuse(METHOD, f"the fit did not converge ({fit.message})", **quality)
@@ -468,9 +492,7 @@ def _fit_general(t_s, mag, roll, pitch, total, vertical, legs_b, quality, sigma_
         quality.setdefault("warnings", []).append(
             f"the constant heading offset (yaw misalignment, coefficient A) is determined only to "
             f"{pred['offset_std_deg']:.1f}° (1σ); give a heading reference (GNSS course or known headings)")
-    model = MagModel(h, w)
-    _leg_report(t_s, model, mag, roll, pitch, legs_b, quality, sph.model.to_mag_model() if sph.model else None)
-    return model
+    return None
 
 
 def _leg_report(t_s, model: MagModel, mag, roll, pitch, legs_b, quality, before: MagModel | None):

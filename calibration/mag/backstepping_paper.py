@@ -304,40 +304,10 @@ def backstep_correct(raw: np.ndarray, roll_rad, pitch_rad, legs: np.ndarray, ini
         sx, sy = scale_horizontal(model.scale[0], model.scale[1], float(hh.mean()), hh_ref_ut)
         model = model.replace(sx=sx, sy=sy)
         # steps 2+3: vertical scale and bias per leg
-        hh, _ = horizontal_vertical(level_vectors(model.apply(raw), roll, pitch))
-        k, gz, g = _levelled_vertical_terms(raw, model, roll, pitch)
-        rows, rhs = [], []
-        for lab in labels:
-            sel = legs == lab
-            v_l = math.copysign(math.sqrt(max(total_ref**2 - float(hh[sel].mean()) ** 2, 0.0)), sign)
-            rows.append([gz[sel].mean(), -g[sel].mean()])
-            rhs.append(v_l - k[sel].mean())
-        a, b = np.array(rows), np.array(rhs)
-        source = "closed-form"
-        spread_z = np.ptp(a[:, 0]) * abs(1.0 / model.scale[2]) if len(labels) > 1 else 0.0
-        spread_v = float(np.ptp(b)) if len(labels) > 1 else 0.0
-        uv = None
-        if len(labels) > 1 and spread_z > 0.05 and spread_v > 0.05:   # µT: legs differ measurably
-            uv, *_ = np.linalg.lstsq(a, b, rcond=None)
-            if not (uv[0] > 0 and 0.1 < (1 / uv[0]) / model.scale[2] < 10):
-                uv = None
-        if uv is None:
-            source = "kept (legs do not determine s_z)"
-            u = 1.0 / model.scale[2]
-            v = float(np.sum(a[:, 1] * (b - a[:, 0] * u)) / np.sum(a[:, 1] ** 2))   # b_z alone (paper step 3)
-            uv = np.array([u, v])
-        sz = 1.0 / uv[0]
-        model = model.replace(sz=sz, bz=uv[1] * sz)
-        stats = leg_statistics(model.apply(raw), roll, pitch, legs)
-        step = inter_leg_step_ut(stats)
-        cal = model.apply(raw)
-        lv = level_vectors(cal, roll, pitch)
-        hh_all, hz_all = horizontal_vertical(lv)
-        tot = float(np.linalg.norm(cal, axis=1).mean())
-        passes.append(BackstepPass(it, tuple(map(float, model.bias)), tuple(map(float, model.scale)),
-                                   float(hh_all.mean()), float(hz_all.mean()), tot,
-                                   step, source))
-        field_err = abs(math.hypot(hh_all.mean(), hz_all.mean()) - total_ref)
+        model, source = _vertical_scale_and_bias(model, raw, roll, pitch, legs, labels, total_ref, sign)
+        record, field_err = _pass_record(it, model, raw, roll, pitch, legs, source, total_ref)
+        passes.append(record)
+        step = record.step_ut
         if (not math.isfinite(step) or step <= step_tol_ut) and field_err <= field_tol_ut:
             converged, reason = True, f"step {0.0 if not math.isfinite(step) else step * 1000:.1f} nT ≤ " \
                                       f"{step_tol_ut * 1000:.0f} nT and field within {field_tol_ut * 1000:.0f} nT"
@@ -348,3 +318,50 @@ def backstep_correct(raw: np.ndarray, roll_rad, pitch_rad, legs: np.ndarray, ini
             break
     step_after = passes[-1].step_ut if passes else step_before
     return BackstepResult(model, passes, converged, reason, step_before, step_after)
+
+
+def _vertical_scale_and_bias(model: DiagonalModel, raw, roll, pitch, legs, labels, total_ref: float, sign: float
+                             ) -> tuple[DiagonalModel, str]:
+    """The paper's steps 2+3: s_z and b_z in closed form so that the mean levelled vertical component of each leg
+    equals V_L = ±√(H² − H_h,L²) (linear least squares in u = 1/s_z, v = b_z/s_z over the legs); when the legs
+    cannot determine s_z (their vertical readings or targets do not differ measurably, or the solution is not
+    plausible) s_z is kept and only b_z is solved (step 3). Returns the model and how s_z was found."""
+    hh, _ = horizontal_vertical(level_vectors(model.apply(raw), roll, pitch))
+    k, gz, g = _levelled_vertical_terms(raw, model, roll, pitch)
+    rows, rhs = [], []
+    for lab in labels:
+        sel = legs == lab
+        v_l = math.copysign(math.sqrt(max(total_ref**2 - float(hh[sel].mean()) ** 2, 0.0)), sign)
+        rows.append([gz[sel].mean(), -g[sel].mean()])
+        rhs.append(v_l - k[sel].mean())
+    a, b = np.array(rows), np.array(rhs)
+    source = "closed-form"
+    spread_z = np.ptp(a[:, 0]) * abs(1.0 / model.scale[2]) if len(labels) > 1 else 0.0
+    spread_v = float(np.ptp(b)) if len(labels) > 1 else 0.0
+    uv = None
+    if len(labels) > 1 and spread_z > 0.05 and spread_v > 0.05:   # µT: legs differ measurably
+        uv, *_ = np.linalg.lstsq(a, b, rcond=None)
+        if not (uv[0] > 0 and 0.1 < (1 / uv[0]) / model.scale[2] < 10):
+            uv = None
+    if uv is None:
+        source = "kept (legs do not determine s_z)"
+        u = 1.0 / model.scale[2]
+        v = float(np.sum(a[:, 1] * (b - a[:, 0] * u)) / np.sum(a[:, 1] ** 2))   # b_z alone (paper step 3)
+        uv = np.array([u, v])
+    sz = 1.0 / uv[0]
+    return model.replace(sz=sz, bz=uv[1] * sz), source
+
+
+def _pass_record(it: int, model: DiagonalModel, raw, roll, pitch, legs, source: str, total_ref: float
+                 ) -> tuple["BackstepPass", float]:
+    """What a pass left: the model, the mean levelled horizontal and vertical field, the mean |H|, the inter-leg
+    step; and |H of the mean levelled field − H_ref| (µT)."""
+    stats = leg_statistics(model.apply(raw), roll, pitch, legs)
+    step = inter_leg_step_ut(stats)
+    cal = model.apply(raw)
+    lv = level_vectors(cal, roll, pitch)
+    hh_all, hz_all = horizontal_vertical(lv)
+    tot = float(np.linalg.norm(cal, axis=1).mean())
+    record = BackstepPass(it, tuple(map(float, model.bias)), tuple(map(float, model.scale)),
+                          float(hh_all.mean()), float(hz_all.mean()), tot, step, source)
+    return record, abs(math.hypot(hh_all.mean(), hz_all.mean()) - total_ref)

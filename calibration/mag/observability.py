@@ -283,37 +283,45 @@ def assess_support(mag_ut: np.ndarray, accel_m_s2: np.ndarray | None = None, mod
     tilt_max = tilt["tilt_max_deg"] if tilt else None
     warnings: list[str] = []
     undetermined: list[str] = []
-    refused = None
-    turn_hint = (f"the data cover {hcov * 360:.0f}° of heading; turn the vehicle through a full circle "
-                 f"(at least {MIN_HEADING_COVERAGE * 360:.0f}°)")
-    if model in ("vertical", "vertical-free-dip", "sphere", "diagonal") and hcov < MIN_HEADING_COVERAGE \
-            and cov < MIN_SPHERE_COVERAGE_ELLIPSOID:
-        refused = turn_hint
-    elif model in ("vertical", "vertical-free-dip") and tilt is None:
-        refused = "this model needs roll and pitch (accelerometer or estimator) for every sample"
-    elif model == "vertical-free-dip" and tilt_max < MIN_TILT_FREE_DIP_DEG:
-        refused = (f"largest tilt is {tilt_max:.1f}°: with no known inclination the vertical hard iron, the "
-                   f"vertical scale and the dip angle cannot be separated below ±{MIN_TILT_FREE_DIP_DEG:.0f}°; "
-                   "give the position (--lat/--lon) so the WMM inclination pins them, or tilt further")
-    elif model == "ellipsoid" and (cov < MIN_SPHERE_COVERAGE_ELLIPSOID or
-                                   (tilt_max is not None and tilt_max < MIN_TILT_ELLIPSOID_DEG)):
-        what = f"sphere coverage {cov * 100:.0f} %" + (f", largest tilt {tilt_max:.1f}°" if tilt_max is not None else "")
-        refused = (f"{what}: an attitude-independent ellipsoid cannot determine the vertical hard iron and "
-                   "vertical scale from such data (it would show a small residual and be wrong by degrees); "
-                   "tumble the sensor, or use --method backstepping with the position for the WMM field")
-    elif model == "diagonal" and tilt_max is not None and tilt_max < MIN_TILT_ELLIPSOID_DEG:
-        warnings.append(f"largest tilt {tilt_max:.1f}°: the sphere fit's z terms are weakly determined "
-                        "(the back-stepping paper's §5, test 1: data without rotation about all axes give unrealistic coefficients)")
-    elif model == "sphere" and not reference_known and (tilt_max is not None and tilt_max < 10.0) \
-            and cov < MIN_SPHERE_COVERAGE_ELLIPSOID:
-        refused = ("the data are a level circle: the vertical hard iron and the radius trade off; give the "
-                   "field magnitude (position) or tilt the vehicle")
+    refused = _model_refusal(model, cov, hcov, tilt is not None, tilt_max, reference_known, warnings)
     if refused is None and model == "vertical" and tilt_max is not None and tilt_max < MIN_TILT_VERTICAL_COLUMN_DEG:
         undetermined += ["soft_iron vertical column (held at prior)", "yaw misalignment (coefficient A)"]
         warnings.append(f"largest tilt {tilt_max:.2f}°: how horizontal axes respond to the vertical field and "
                         "the yaw misalignment cannot be seen; the result is valid near level only, and a "
                         "heading reference is needed for the constant heading offset")
     return DataSupport(model, n, cov, hcov, tilt, refused, warnings, undetermined)
+
+
+def _model_refusal(model: str, cov: float, hcov: float, has_tilt: bool, tilt_max: float | None,
+                   reference_known: bool, warnings: list[str]) -> str | None:
+    """Why data of this sphere coverage `cov`, heading coverage `hcov` and largest tilt cannot support `model`,
+    or None (the diagonal fit's weak z terms are a warning, appended to `warnings`)."""
+    turn_hint = (f"the data cover {hcov * 360:.0f}° of heading; turn the vehicle through a full circle "
+                 f"(at least {MIN_HEADING_COVERAGE * 360:.0f}°)")
+    if model in ("vertical", "vertical-free-dip", "sphere", "diagonal") and hcov < MIN_HEADING_COVERAGE \
+            and cov < MIN_SPHERE_COVERAGE_ELLIPSOID:
+        return turn_hint
+    if model in ("vertical", "vertical-free-dip") and not has_tilt:
+        return "this model needs roll and pitch (accelerometer or estimator) for every sample"
+    if model == "vertical-free-dip" and tilt_max < MIN_TILT_FREE_DIP_DEG:
+        return (f"largest tilt is {tilt_max:.1f}°: with no known inclination the vertical hard iron, the "
+                f"vertical scale and the dip angle cannot be separated below ±{MIN_TILT_FREE_DIP_DEG:.0f}°; "
+                "give the position (--lat/--lon) so the WMM inclination pins them, or tilt further")
+    if model == "ellipsoid" and (cov < MIN_SPHERE_COVERAGE_ELLIPSOID or
+                                 (tilt_max is not None and tilt_max < MIN_TILT_ELLIPSOID_DEG)):
+        what = f"sphere coverage {cov * 100:.0f} %" + (f", largest tilt {tilt_max:.1f}°" if tilt_max is not None else "")
+        return (f"{what}: an attitude-independent ellipsoid cannot determine the vertical hard iron and "
+                "vertical scale from such data (it would show a small residual and be wrong by degrees); "
+                "tumble the sensor, or use --method backstepping with the position for the WMM field")
+    if model == "diagonal" and tilt_max is not None and tilt_max < MIN_TILT_ELLIPSOID_DEG:
+        warnings.append(f"largest tilt {tilt_max:.1f}°: the sphere fit's z terms are weakly determined "
+                        "(the back-stepping paper's §5, test 1: data without rotation about all axes give unrealistic coefficients)")
+        return None
+    if model == "sphere" and not reference_known and (tilt_max is not None and tilt_max < 10.0) \
+            and cov < MIN_SPHERE_COVERAGE_ELLIPSOID:
+        return ("the data are a level circle: the vertical hard iron and the radius trade off; give the "
+                "field magnitude (position) or tilt the vehicle")
+    return None
 
 
 # ----------------------------------------------------------------------------- full model vs offsets only

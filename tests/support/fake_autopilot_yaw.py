@@ -5,8 +5,12 @@ the observation noise, the innovation gate and the process noise of the real sou
 
 ArduPilot (libraries/AP_VisualOdom/AP_VisualOdom_MAV.cpp, AP_NavEKF3/AP_NavEKF3_Measurements.cpp,
 AP_NavEKF3_MagFusion.cpp, AP_NavEKF3_core.cpp, AP_NavEKF3.cpp):
-* angErr = sqrt(roll var + pitch var + yaw var) of the VPE covariance, clamped to [VISO_YAW_M_NSE, 1.5 rad]
-  (handle_pose_estimate); yawAngErr = max(angErr, 5°) (writeExtNavData); R_YAW = max(yawAngErr, 0.05)²;
+* angErr = sqrt(roll var + pitch var + yaw var) of the VPE covariance (GCS_Common.cpp
+  handle_common_vision_position_estimate_data since ArduPilot PR #32084, merged 2026-02; before it, in 4.6 and
+  earlier, cbrt(roll var² + pitch var² + yaw var²): `ang_err_rule="cbrt"`), clamped to [VISO_YAW_M_NSE, 1.5 rad]
+  (AP_VisualOdom_MAV.cpp handle_pose_estimate); yawAngErr = max(angErr, 5°) (AP_NavEKF3_Measurements.cpp
+  writeExtNavData); R_YAW = max(yawAngErr, 0.05)² (AP_NavEKF3_MagFusion.cpp fuseEulerYaw). Nothing refuses a
+  large variance: it only lowers the gain and widens the gate;
 * the first sample aligns the yaw (alignYawAngle, variance max(yawAngErr, 0.01)²);
 * fuseEulerYaw: innovation = EKF yaw − ours, varInnov = H·P·Hᵀ + R_YAW, yawTestRatio = innov² /
   (max(0.01·EK3_YAW_I_GATE, 1)² · varInnov); in flight a ratio > 1 is not fused; the state correction uses
@@ -98,7 +102,10 @@ MAV_RESULT_ACCEPTED, MAV_RESULT_DENIED = 0, 2
 
 class FakeEkf3:
     def __init__(self, viso_yaw_m_nse: float = 0.05, yaw_i_gate: float = 300.0,
-                 src_yaw=(EXTNAV_YAW_SOURCE, 0, 0), src_posvel=((3, 3, 1, 3),) * 3):
+                 src_yaw=(EXTNAV_YAW_SOURCE, 0, 0), src_posvel=((3, 3, 1, 3),) * 3, ang_err_rule: str = "sqrt"):
+        if ang_err_rule not in ("sqrt", "cbrt"):
+            raise ValueError(ang_err_rule)
+        self.ang_err_rule = ang_err_rule
         self.src_yaw = src_yaw                  # EK3_SRC1_YAW, EK3_SRC2_YAW, EK3_SRC3_YAW
         self.src_posvel = src_posvel            # per set: EK3_SRCn_POSXY, _VELXY, _POSZ, _VELZ
         self.active_set = 0
@@ -115,7 +122,11 @@ class FakeEkf3:
 
     def r_yaw_rad2(self, roll_var: float, pitch_var: float, yaw_var: float) -> tuple[float, float]:
         """(R_YAW, yawAngErr) for a VPE with these variances."""
-        ang_err = min(max(math.sqrt(roll_var + pitch_var + yaw_var), self.viso_yaw_m_nse), 1.5)
+        if self.ang_err_rule == "sqrt":
+            ang_err = math.sqrt(roll_var + pitch_var + yaw_var)
+        else:
+            ang_err = (roll_var ** 2 + pitch_var ** 2 + yaw_var ** 2) ** (1.0 / 3.0)
+        ang_err = min(max(ang_err, self.viso_yaw_m_nse), 1.5)
         yaw_ang_err = max(ang_err, math.radians(5.0))
         return max(yaw_ang_err, 0.05) ** 2, yaw_ang_err
 

@@ -5,14 +5,16 @@ Messages are packed and parsed by pymavlink so a wrong field order or type fails
 
 from __future__ import annotations
 
+import itertools
 from types import SimpleNamespace
 
 import numpy as np
 
 from ahrsd.calibration.store import CalibrationStore
 from ahrsd.core.sample import make_sample
-from ahrsd.daemon.magcal import statustext_chunks
+from ahrsd.daemon.counters import ServiceCounters
 from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.daemon.outbound import Identity, Outbound
 
 from support.field_data import SITE
 
@@ -32,6 +34,12 @@ class FakeHost:
         self.sent = []
         self.is_armed = armed
         self.applied = []
+        # texts go out as the daemon sends them (daemon.outbound: chunked, logged), to `send` below; its clock
+        # steps a second per text, so the rate limit never drops one here (tests/test_outbound_statustext.py
+        # tests the limit)
+        self.outbound = Outbound(Identity(1, 200, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), ServiceCounters(),
+                                 clock=itertools.count().__next__)
+        self.outbound.endpoints.append(self)
 
     def current_calibration(self):
         return self.cal
@@ -44,8 +52,13 @@ class FakeHost:
     def send(self, msg):
         self.sent.append(wire(msg))
 
+    def send_together(self, msgs):
+        for msg in msgs:
+            self.send(msg)
+        return True
+
     def statustext(self, severity, text):
-        self.send(statustext_chunks(severity, text, 1)[0])
+        self.outbound.statustext(severity, text)
 
     def armed(self):
         return self.is_armed
