@@ -23,6 +23,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 from scipy.special import chdtri   # χ² inverse survival function (scipy.stats costs 1.4 s to import)
 
+from ahrsd.core.angles import down_in_body
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingIntegrity, HeadingState, NavState
 from ahrsd.core.gnss import DEFAULT_H_ACC_M, DEFAULT_S_ACC_M_S, DEFAULT_V_ACC_M, GnssFix, GnssFixType
 from ahrsd.core.sample import ImuSample
@@ -40,7 +41,7 @@ from .mag_heading import RELEARN_GATE_OPEN_S
 from .mag_heading_params import MagHeadingParams
 from .params import with_overrides
 from .published_heading import PublishedHeading
-from .rotations import quat_to_dcm
+from .rotations import quat_to_dcm, quat_to_euler
 
 log = logging.getLogger(__name__)
 _DEG = math.pi / 180.0
@@ -508,9 +509,14 @@ class Ins:
         self._declination = float(declination_rad)
         self._par["declination_rad"] = self._declination
 
-    def relearn_field_reference(self) -> None:
-        """As Mekf.relearn_field_reference: forget the learned field magnitude/dip, keep everything else."""
+    def relearn_field_reference(self, heading_change_rad: float = math.nan) -> None:
+        """As Mekf.relearn_field_reference: forget the learned field magnitude/dip and raise the heading
+        variance to cover `heading_change_rad` (NaN: not known) and the vertical gyro bias's to its initial
+        uncertainty (mag_heading.widen_after_calibration_change), keep everything else."""
         mag.relearn_reference(self._mag_state(), RELEARN_GATE_OPEN_S)
+        roll, pitch, _yaw = quat_to_euler(self._x["q"])
+        mag.widen_after_calibration_change(self._P, core.E_YAW, core.E_BG, down_in_body(roll, pitch),
+                                           heading_change_rad, self.params.init_gyro_bias_sigma_rad_s)
 
     def _mag_state(self):
         """The magnetometer heading check's state (a view)."""
