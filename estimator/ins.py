@@ -510,11 +510,18 @@ class Ins:
         self._par["declination_rad"] = self._declination
 
     def relearn_field_reference(self, heading_change_rad: float = math.nan) -> None:
-        """As Mekf.relearn_field_reference: forget the learned field magnitude/dip and raise the heading
-        variance to cover `heading_change_rad` (NaN: not known) and the vertical gyro bias's to its initial
-        uncertainty (mag_heading.widen_after_calibration_change), keep everything else."""
+        """As Mekf.relearn_field_reference: forget the learned field magnitude/dip; unaided, where the
+        magnetometer calibration is the only heading reference, also raise the heading variance to cover
+        `heading_change_rad` (NaN: not known) and the vertical gyro bias's to its initial uncertainty
+        (mag_heading.widen_after_calibration_change). GNSS-aided the heading is not the old calibration's alone:
+        the heading checks weigh the new calibration against the GNSS yaw (heading_monitor.py), and a filter
+        heading moved at once to the new calibration's was rejected by them against a GNSS yaw that had not
+        converged (docs/daemon.md "Calibration changes")."""
         mag.relearn_reference(self._mag_state(), RELEARN_GATE_OPEN_S)
-        roll, pitch, _yaw = quat_to_euler(self._x["q"])
+        x = self._x
+        if x["nav_ok"] > 0.0 and x["t_last_s"] - x["gnss_fused_t_s"] <= self.params.gnss_timeout_s:
+            return
+        roll, pitch, _yaw = quat_to_euler(x["q"])
         mag.widen_after_calibration_change(self._P, core.E_YAW, core.E_BG, down_in_body(roll, pitch),
                                            heading_change_rad, self.params.init_gyro_bias_sigma_rad_s)
 

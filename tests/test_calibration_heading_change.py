@@ -16,6 +16,7 @@ from ahrsd.daemon.calibration_heading_change import calibration_heading_change_r
 from ahrsd.estimator import make_estimator
 from ahrsd.estimator.mag_heading import widen_after_calibration_change
 from ahrsd.core.sample import make_sample
+from ins_truth import gnss_fixes, run_ins, simulated_run
 
 FIELD_NED_UT = np.array([20.0, -3.0, 45.0])    # a magnetic field with a declination (the heading is magnetic)
 
@@ -114,3 +115,15 @@ def test_relearn_field_reference_widens_the_estimators_heading_and_vertical_bias
     assert after[bias + 2, bias + 2] == pytest.approx(math.radians(0.5) ** 2, rel=1e-6)   # level: down = body z
     est.relearn_field_reference()                   # unknown: nothing more
     np.testing.assert_array_equal(est.covariance, after)
+
+
+def test_gnss_aided_ins_leaves_its_heading_to_the_gnss_checks():
+    """Aided, ins's heading is not the old calibration's alone (its checks weigh the new one against the GNSS
+    yaw): relearn_field_reference widens nothing then (on the level turns, widening moved the filter's heading to
+    the new calibration's at once, which the checks then rejected against an unconverged GNSS yaw)."""
+    run = simulated_run("coordinated-turn", 20.0)
+    est = make_estimator("ins")
+    run_ins(est, run, gnss_fixes(run.truth))
+    before = est.covariance
+    est.relearn_field_reference(math.radians(60.0))
+    np.testing.assert_array_equal(est.covariance, before)
