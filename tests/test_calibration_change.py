@@ -37,7 +37,7 @@ def _truth_yaw_deg(q):
     return math.degrees(math.atan2(2.0 * (x * y + w * z), 1.0 - 2.0 * (y * y + z * z)))
 
 
-def run_swap(tmp_path, estimator, swap_at_s=60.0, total_s=130.0, reset_on_cal=False):
+def run_swap(tmp_path, estimator, swap_at_s=60.0, total_s=130.0, reset_on_cal=False, seed=3):
     """Level turns with the simulator's vehicle iron; until `swap_at_s` a calibration that states 0.5° but does
     not have the iron (as after the iron moved; with no calibration at all the heading is unknown and nothing is
     sent: estimator/calibration_heading.py), then the true iron model, stating the same, is applied through
@@ -52,7 +52,7 @@ def run_swap(tmp_path, estimator, swap_at_s=60.0, total_s=130.0, reset_on_cal=Fa
     wrong = Calibration.identity().with_sensor("mag", MagModel.identity(), **stated)
     svc.use_pipeline(Pipeline(estimator, wrong))
     estimator.set_mag_calibration_sigma(calibration_heading_sigma_rad(wrong))    # as Service.start does
-    stream = open_stream("level-turns", seed=3)
+    stream = open_stream("level-turns", seed=seed)
     # the simulated site's declination: the heading is then true north, comparable with the simulator's truth
     estimator.set_declination(stream.earth_field.declination_rad)
     e = stream.errors
