@@ -33,9 +33,9 @@ class CalibrationSwap:
 
         The estimator re-learns its field reference (`relearn_field_reference`: it would otherwise reject
         the corrected field as a disturbance and jump later) and widens its yaw variance to how far the new
-        calibration's heading of the latest sample is from its own (it may be off by that much now), and the yaw in VISION_POSITION_ESTIMATE moves to
-        the new heading at no more than `[outputs] heading_slew_deg_s` (EKF3 rejects a yaw step beyond its
-        3σ gate in flight). reset_counter is left alone unless `reset_counter_on_calibration`: ArduPilot
+        calibration's heading of the latest sample is from its own (it may be off by that much now), and the
+        yaw in VISION_POSITION_ESTIMATE moves to the new heading at no more than `[outputs] heading_slew_deg_s`
+        (EKF3 rejects a yaw step beyond its 3σ gate in flight). reset_counter is left alone unless `reset_counter_on_calibration`: ArduPilot
         reads a new value as a position reset, PX4 EKF2 as a yaw reset (docs/daemon.md "reset_counter").
         """
         if save:

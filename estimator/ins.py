@@ -23,7 +23,6 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 from scipy.special import chdtri   # χ² inverse survival function (scipy.stats costs 1.4 s to import)
 
-from ahrsd.core.angles import down_in_body
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingIntegrity, HeadingState, NavState
 from ahrsd.core.gnss import DEFAULT_H_ACC_M, DEFAULT_S_ACC_M_S, DEFAULT_V_ACC_M, GnssFix, GnssFixType
 from ahrsd.core.sample import ImuSample
@@ -41,7 +40,7 @@ from .mag_heading import RELEARN_GATE_OPEN_S
 from .mag_heading_params import MagHeadingParams
 from .params import with_overrides
 from .published_heading import PublishedHeading
-from .rotations import quat_to_dcm, quat_to_euler
+from .rotations import quat_to_dcm
 
 log = logging.getLogger(__name__)
 _DEG = math.pi / 180.0
@@ -521,8 +520,8 @@ class Ins:
         x = self._x
         if x["nav_ok"] > 0.0 and x["t_last_s"] - x["gnss_fused_t_s"] <= self.params.gnss_timeout_s:
             return
-        roll, pitch, _yaw = quat_to_euler(x["q"])
-        mag.widen_after_calibration_change(self._P, core.E_YAW, core.E_BG, down_in_body(roll, pitch),
+        down_body = quat_to_dcm(x["q"])[2]          # C_b^n's last row: NED down in the body frame
+        mag.widen_after_calibration_change(self._P, core.E_YAW, core.E_BG, down_body,
                                            heading_change_rad, self.params.init_gyro_bias_sigma_rad_s)
 
     def _mag_state(self):

@@ -29,7 +29,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ahrsd.core.angles import down_in_body
 from ahrsd.core.sample import ImuSample
 
 from . import mekf_core as core
@@ -262,8 +261,9 @@ class Mekf:
         """Forget the learned field reference (magnitude, dip, the at-rest body-frame field) after a
         magnetometer calibration change; attitude and gyro bias are kept, so nothing steps. The heading
         variance is raised to cover `heading_change_rad`, how far the new calibration moves the heading on the
-        current sample, and the gyro bias about the vertical, which was learned from the old heading, to its initial
-        uncertainty (mag_heading.widen_after_calibration_change; NaN: not known, the covariance is kept).
+        current sample, and, when that is beyond the heading's 3σ, the variance of the gyro bias about the
+        vertical (learned from the old heading) to its initial value (mag_heading.widen_after_calibration_change;
+        NaN: not known, the covariance is kept).
 
         The reference gates magnetic disturbances. Learned on the uncalibrated field of a vehicle with strong
         iron it does not match the now-correct field, which would be rejected as a disturbance until the
@@ -278,8 +278,8 @@ class Mekf:
         relearn_reference(s["mag"], RELEARN_GATE_OPEN_S)
         s["mag_rest_set"] = False   # the at-rest field is the old calibration's: take it again
         s["offset"] = np.zeros((), core.FIELD_OFFSET_DTYPE)   # a body-fixed offset learned against the old calibration
-        roll, pitch, _yaw = quat_to_euler(s["q"])
-        widen_after_calibration_change(s["P"], core.E_HEADING, core.E_BIAS, down_in_body(roll, pitch),
+        down_body = quat_to_dcm(s["q"])[2]          # C_b^n's last row: NED down in the body frame
+        widen_after_calibration_change(s["P"], core.E_HEADING, core.E_BIAS, down_body,
                                        heading_change_rad, self.params.init_bias_sigma_rad_s)
 
     def set_mag_calibration_sigma(self, sigma_rad: float) -> None:
