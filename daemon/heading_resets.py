@@ -43,6 +43,12 @@ class HeadingResets:
         self.news.after_update(self.slew)
         return yaw, self.reset_counter, self.slew.published_sigma_rad(sigma_rad)
 
+    def withheld(self, est) -> None:
+        """No VISION_POSITION_ESTIMATE is sent for `est` (heading UNKNOWN or not trusted): a running slew follows
+        the vehicle's rotation only, so it resumes from the last yaw sent (HeadingSlew.follow)."""
+        self.slew.follow(est.t_s, est.heading_true_rad,
+                         yaw_rate_ned_rad_s(est.rate_body_rad_s, est.roll_rad, est.pitch_rad))
+
     def status_text(self) -> str:
         """For the status line: "slew +12.3°" while a transition runs (daemon.slew_news), else ""."""
         return self.news.status_text(self.slew)

@@ -15,6 +15,10 @@ from ahrsd.core.angles import wrap_pi
 # VPE of any change with that σ (bench/slew_variance.py; docs/daemon.md "Restarts").
 EKF3_YAW_FLOOR_RAD = math.radians(5.0)
 LARGE_OFFSET_MAX_RATE_DEG_S = 2.0
+# the longest interval between two published headings the slew moves across in one step: ArduPilot needs external
+# navigation data at > 3.3 Hz (docs/daemon.md); a longer interval is a gap in what the autopilot received, and the
+# first heading after it must not jump by rate × gap
+MAX_STEP_INTERVAL_S = 0.3
 
 
 @dataclass
@@ -31,6 +35,12 @@ class HeadingSlew:
 
     While a transition runs the published heading is off the estimator's by `remaining_rad`, a known error the
     VPE's yaw variance must cover (`published_sigma_rad`).
+
+    While no heading is sent during a transition (the heading UNKNOWN, not trusted: VPE withheld), `follow()`
+    turns the published heading with the vehicle's rotation only, integrated at each withheld tick: the autopilot's
+    own yaw followed its gyros meanwhile, so the first heading after the gap continues from the last one sent
+    (rotated as the vehicle turned) and the slew resumes from there — no step of rate × gap, no rotation
+    extrapolated over the gap from one yaw rate.
 
     VISION_POSITION_ESTIMATE.reset_counter is NOT touched by a calibration change: in ArduPilot a new
     reset_counter value makes AP_VisualOdom stamp a new reset time, which EKF3 (writeExtNavData) treats as a
@@ -100,6 +110,16 @@ class HeadingSlew:
         EKF2_EVA_NOISE (ev_yaw_control.cpp), so only a large d changes anything there."""
         return sigma_rad + abs(self.remaining_rad) / 3.0
 
+    def follow(self, t_s: float, heading_rad: float, yaw_rate_rad_s: float) -> None:
+        """No heading is published at t_s (VPE withheld): during a transition the published heading turns with
+        the vehicle's yaw rate over the time since the last call, without moving towards the estimator's."""
+        if not self.active or self._published is None:
+            return
+        dt = 0.0 if self._t_last is None else max(0.0, t_s - self._t_last)
+        self._t_last = t_s
+        self._published = (self._published + yaw_rate_rad_s * dt) % (2 * math.pi)
+        self.remaining_rad = float(wrap_pi(heading_rad - self._published))
+
     def release(self, rate_deg_s: float) -> None:
         """End a hold now: move from the held heading to the estimator's at `rate_deg_s`."""
         self.hold_until_s = None
@@ -133,7 +153,7 @@ class HeadingSlew:
         rate_deg_s = self.current_rate_deg_s
         if sigma_rad + abs(err) / 3.0 > EKF3_YAW_FLOOR_RAD:          # published_sigma_rad for this offset
             rate_deg_s = min(rate_deg_s, LARGE_OFFSET_MAX_RATE_DEG_S)
-        step = math.radians(rate_deg_s) * dt
+        step = math.radians(rate_deg_s) * min(dt, MAX_STEP_INTERVAL_S)
         if abs(err) <= max(step, math.radians(self.done_within_deg)):
             self._published = heading_rad % (2 * math.pi)
             if abs(err) <= math.radians(self.done_within_deg) and t_s - self._t_start >= self.min_duration_s:

@@ -35,6 +35,7 @@ class OutputContext(Protocol):
     def heading_trusted(self, now: float) -> bool: ...
     def autopilot_yaw(self, est) -> tuple[float, int, float]: ...   # (yaw to send, reset_counter, its 1σ): daemon.heading_resets
     #   (reset_counter + 1 first when the estimator reset its yaw: EstimateFlags.YAW_RESET, daemon.heading_status)
+    def autopilot_yaw_withheld(self, est) -> None: ...          # no yaw sent for est: daemon.heading_resets.withheld
     def sys_status_message(self, now: float): ...
     def local_origin(self): ...                                 # daemon.local_origin.LocalOrigin, None without GNSS
 
@@ -72,6 +73,7 @@ def _attitude_quaternion(ctx, est, sample, now):
 
 def _vision_position_estimate(ctx, est, sample, now):
     if not ctx.heading_trusted(now) or est.heading_state == HeadingState.UNKNOWN:
+        ctx.autopilot_yaw_withheld(est)   # a running slew turns with the vehicle meanwhile
         return None   # never feed the autopilot a heading it must not trust, nor one nobody knows
     usec = int(ctx.sample_time_monotonic(est.t_s) * 1e6)
     yaw, reset_counter, yaw_sigma_rad = ctx.autopilot_yaw(est)

@@ -240,6 +240,9 @@ class Service:
         # estimator/published_heading.py): no step reaches the autopilot, so reset_counter is not incremented
         return self.heading.autopilot_yaw(est)
 
+    def autopilot_yaw_withheld(self, est) -> None:
+        self.heading.withheld(est)
+
     def _yaw_resets(self) -> tuple[int, int]:
         """(yaw resets, of which planned GNSS-yaw alignments): ins counts them; mekf has none."""
         est = self.pipeline.estimator

@@ -20,9 +20,11 @@ class Estimator(Protocol):
 
     def set_declination(self, declination_rad: float) -> None: ...
 
-    def relearn_field_reference(self) -> None:
+    def relearn_field_reference(self, heading_change_rad: float = float("nan")) -> None:
         """The magnetometer calibration changed: re-learn whatever reference of the field the estimator
-        keeps (magnitude, dip) from the next samples, keeping attitude and gyro bias (no heading step)."""
+        keeps (magnitude, dip) from the next samples, keeping attitude and gyro bias (no heading step).
+        heading_change_rad: how far the new calibration moves the heading on the current sample (NaN: not
+        known); a filter with a heading variance raises it to cover that much (mag_heading.widen_heading_variance)."""
 
 
 @runtime_checkable

@@ -520,10 +520,22 @@ class Ins:
         self._declination = float(declination_rad)
         self._par["declination_rad"] = self._declination
 
-    def relearn_field_reference(self) -> None:
-        """As Mekf.relearn_field_reference: forget the learned field magnitude/dip, keep everything else."""
+    def relearn_field_reference(self, heading_change_rad: float = math.nan) -> None:
+        """As Mekf.relearn_field_reference: forget the learned field magnitude/dip; unaided, where the
+        magnetometer calibration is the only heading reference, also raise the heading variance to cover
+        `heading_change_rad` (NaN: not known) and the vertical gyro bias's to its initial uncertainty
+        (mag_heading.widen_after_calibration_change). GNSS-aided the heading is not the old calibration's alone:
+        the heading checks weigh the new calibration against the GNSS yaw (heading_monitor.py), and a filter
+        heading moved at once to the new calibration's was rejected by them against a GNSS yaw that had not
+        converged (docs/daemon.md "Calibration changes")."""
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
         mag.relearn_reference(self._mag_state(), RELEARN_GATE_OPEN_S)
+        x = self._x
+        if x["nav_ok"] > 0.0 and x["t_last_s"] - x["gnss_fused_t_s"] <= self.params.gnss_timeout_s:
+            return
+        down_body = quat_to_dcm(x["q"])[2]          # C_b^n's last row: NED down in the body frame
+        mag.widen_after_calibration_change(self._P, core.E_YAW, core.E_BG, down_body,
+                                           heading_change_rad, self.params.init_gyro_bias_sigma_rad_s)
 
     def _mag_state(self):
         """The magnetometer heading check's state (a view)."""

@@ -209,3 +209,37 @@ def relearn_reference(ms, gate_open_s: float) -> None:
                  "disturbed_t_s"):
         ms[name] = 0.0
     ms["gate_open_s"] = gate_open_s
+
+
+def widen_after_calibration_change(P, heading_index: int, bias_index: int, down_body, heading_change_rad: float,
+                                   bias_sigma_rad_s: float) -> None:
+    """After a magnetometer calibration change that moves the heading by `heading_change_rad` (the new
+    calibration's heading minus the old one's on the current sample; NaN: not known, 0: the magnetometer model
+    did not change — then nothing is done), widen in place what the filter learned from the old calibration's
+    heading, in its error covariance `P`:
+
+    * the heading (row/column `heading_index`): it may now be off by the change, an error independent of every
+      other state's, so its variance is raised to at least the change squared. The σ then covers the heading
+      error while it converges, and the Kalman gain takes the new heading at once instead of over seconds.
+    * the gyro bias about the vertical (body-frame block at `bias_index`, `down_body` the unit down vector in the
+      body frame), when the change is beyond the heading's 3σ (the old heading was wrong by more than the filter
+      knew): only the heading observes that bias, so a calibration that made the heading wrong as the vehicle
+      turned taught it a wrong bias too (a heading error that changes with the heading looks like a rate bias
+      while turning). Its variance along down is raised to at least `bias_sigma_rad_s`² (the filter's initial
+      bias uncertainty: what it knew before any heading), so the new heading re-learns it.
+
+    Both add a positive semi-definite term (a raised diagonal element, a rank-one u·uᵀ), so P stays positive
+    semi-definite; the cross-covariances are kept."""
+    change = float(heading_change_rad)
+    if not math.isfinite(change) or change == 0.0:
+        return
+    heading_var = float(P[heading_index, heading_index])
+    P[heading_index, heading_index] = max(heading_var, change * change)
+    if change * change <= 9.0 * heading_var:
+        return
+    u = np.asarray(down_body, dtype=np.float64)
+    b = slice(bias_index, bias_index + 3)
+    var_down = float(u @ P[b, b] @ u)
+    missing = bias_sigma_rad_s * bias_sigma_rad_s - var_down
+    if missing > 0.0:
+        P[b, b] += missing * np.outer(u, u)

@@ -37,7 +37,7 @@ from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate,
                             float_field_slice, uninitialised_estimate)
 from .calibration_heading import calibration_heading_variance_rad2
 from .initial_attitude import initial_attitude
-from .mag_heading import RELEARN_GATE_OPEN_S, heading_params, relearn_reference
+from .mag_heading import RELEARN_GATE_OPEN_S, heading_params, relearn_reference, widen_after_calibration_change
 from .mag_heading_params import MagHeadingParams
 from .params import with_overrides
 from .rotations import quat_to_dcm
@@ -258,9 +258,13 @@ class Mekf:
     def set_declination(self, declination_rad: float) -> None:
         self._declination = float(declination_rad)
 
-    def relearn_field_reference(self) -> None:
+    def relearn_field_reference(self, heading_change_rad: float = math.nan) -> None:
         """Forget the learned field reference (magnitude, dip, the at-rest body-frame field) after a
-        magnetometer calibration change; attitude, gyro bias and covariance are kept, so nothing steps.
+        magnetometer calibration change; attitude and gyro bias are kept, so nothing steps. The heading
+        variance is raised to cover `heading_change_rad`, how far the new calibration moves the heading on the
+        current sample, and, when that is beyond the heading's 3σ, the variance of the gyro bias about the
+        vertical (learned from the old heading) to its initial value (mag_heading.widen_after_calibration_change;
+        NaN: not known, the covariance is kept).
 
         The reference gates magnetic disturbances. Learned on the uncalibrated field of a vehicle with strong
         iron it does not match the now-correct field, which would be rejected as a disturbance until the
@@ -275,6 +279,9 @@ class Mekf:
         relearn_reference(s["mag"], RELEARN_GATE_OPEN_S)
         s["mag_rest_set"] = False   # the at-rest field is the old calibration's: take it again
         s["offset"] = np.zeros((), core.FIELD_OFFSET_DTYPE)   # a body-fixed offset learned against the old calibration
+        down_body = quat_to_dcm(s["q"])[2]          # C_b^n's last row: NED down in the body frame
+        widen_after_calibration_change(s["P"], core.E_HEADING, core.E_BIAS, down_body,
+                                       heading_change_rad, self.params.init_bias_sigma_rad_s)
 
     def set_mag_calibration_sigma(self, sigma_rad: float) -> None:
         """A magnetometer calibration is in force whose predicted heading error is `sigma_rad` (1σ; NaN: none, or

@@ -241,8 +241,10 @@ class ThesisKf:
     def set_declination(self, declination_rad: float) -> None:
         self._declination = float(declination_rad)
 
-    def relearn_field_reference(self) -> None:
-        """After a magnetometer calibration change: the filtered field state follows the new field by itself
+    def relearn_field_reference(self, heading_change_rad: float = math.nan) -> None:
+        """After a magnetometer calibration change (`heading_change_rad`: how far it moves the heading; this
+        filter's heading comes from its filtered field state, which has no heading variance to widen, so it is
+        not used): the filtered field state follows the new field by itself
         (it has no disturbance gate), but the dip of the Wahba reference was learned from the old field, so
         it is re-learned from the filtered field for the next RELEARN_DIP_S (as after initialisation, without
         flagging INITIALISING). Attitude state and gyro bias are kept. No-op with a fixed reference field."""

@@ -65,7 +65,7 @@ class FakeAided:
     def set_declination(self, rad):
         pass
 
-    def relearn_field_reference(self):
+    def relearn_field_reference(self, heading_change_rad=float("nan")):
         pass
 
 

@@ -46,6 +46,9 @@ class _Context:
     def autopilot_yaw(self, est):
         return est.heading_true_rad, 0, float(est.sigma_rpy_rad[2])
 
+    def autopilot_yaw_withheld(self, est):
+        pass
+
 
 def _estimate(t_s: float) -> AttitudeEstimate:
     z = np.zeros(3)
