@@ -22,6 +22,10 @@ counting one independent point per two octaves. Each term is kept only if
   2. it is seen: it is the largest term of the fitted model over at least an octave of τ, starting at a τ with
      at least MIN_CLUSTERS independent clusters (IEEE Std 952 C.2: relative error 1/√(2(K−1)) ≈ 32 % for
      K = 6 clusters), so a term is never carried by the last, scattered points or hidden under others.
+  3. where a kept term has a non-nested alternative (ALTERNATIVES: a Gauss–Markov bump for a flicker floor or a
+     rate random walk, and back), the model reached by the swap is fitted too, and kept if its terms pass 1 and 2
+     and its Akaike criterion (deviance + 2 per fitted parameter) is the lower: the nested tests cannot separate
+     two models that differ by a swap.
 A term that fails is reported as not seen, with the 2σ upper bound from the deviance profile, the smallest
 value this recording would show, and the recording length (or, for quantization, the sample rate) at which
 one as large as the bound would dominate.
@@ -320,7 +324,51 @@ def select_terms(pts: _Points) -> ModelFit:
         from_white = _select_from(pts, fit_terms(pts, ("white",)))
         if from_white.chi2 < found.chi2:
             found = from_white
-    return found
+    return _better_alternative(pts, found)
+
+
+# Terms that can stand in for each other over a short τ range and are not nested: a Gauss–Markov bump whose Tc is
+# a few times the shortest fitted τ looks, over the τ the fit sees, like a flicker floor (and is tested beside one,
+# TESTED_BESIDE), so where the nested test cannot tell them apart the floor was kept, and its Kalman Q.
+ALTERNATIVES = (("flicker", "gauss_markov"), ("rate_random_walk", "gauss_markov"))
+
+
+def _parameter_count(fit: ModelFit) -> int:
+    return len(fit.terms) + (1 if "gauss_markov" in fit.terms else 0)   # Tc is fitted too
+
+
+def _aic(fit: ModelFit) -> float:
+    """Akaike's criterion on the fit's (halved) deviance: the comparison of non-nested models by their likelihood,
+    each fitted parameter costing 2 (Akaike 1974; Burnham & Anderson, Model Selection, 2002, ch. 2)."""
+    return fit.chi2 + 2.0 * _parameter_count(fit)
+
+
+def _all_seen_and_significant(fit: ModelFit, pts: _Points) -> bool:
+    """Every term of `fit` is seen and significant given the others (what _select_from's backward step asks)."""
+    for name in fit.terms:
+        if not is_seen(fit, name, pts):
+            return False
+        if len(fit.terms) > 1:
+            without = fit_terms(pts, tuple(t for t in fit.terms if t != name))
+            if without.chi2 - fit.chi2 <= _threshold(name):
+                return False
+    return True
+
+
+def _better_alternative(pts: _Points, found: ModelFit) -> ModelFit:
+    """The selected model, or the one reached by replacing a kept term with its non-nested alternative
+    (ALTERNATIVES) and selecting again from there (_select_from: the other terms may change with it), where that
+    model is as acceptable (every term seen and significant, the replaced term not back) and has the lower Akaike
+    criterion. The nested tests cannot separate two models that differ by a swap, so their likelihoods decide."""
+    best = found
+    for a, b in ALTERNATIVES:
+        for old, new in ((a, b), (b, a)):
+            if old not in found.terms or new in found.terms:
+                continue
+            swapped = _select_from(pts, fit_terms(pts, tuple(t for t in found.terms if t != old) + (new,)))
+            if old not in swapped.terms and _all_seen_and_significant(swapped, pts) and _aic(swapped) < _aic(best):
+                best = swapped
+    return best
 
 
 def _select_from(pts: _Points, current: ModelFit) -> ModelFit:
