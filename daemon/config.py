@@ -506,7 +506,7 @@ class _OutputsParse:
 #   this rate (EKF3 rejects an external-yaw step beyond its innovation gate in flight);
 # * restart_slew_deg_s: the same after a restart with another heading (daemon.restart_heading: the lag of
 #   EKF3's yaw behind a ramp must stay inside its smallest gate; docs/daemon.md "Restarts"); both are held to
-#   2 °/s while the offset left is large (daemon.heading_slew.LARGE_OFFSET_MAX_RATE_DEG_S);
+#   2 °/s while the offset left is large (estimator.slewed_yaw.LARGE_OFFSET_MAX_RATE_RAD_S);
 # * reset_counter_on_calibration: also increment VISION_POSITION_ESTIMATE.reset_counter on a calibration change
 #   (PX4 EKF2 then resets its yaw; ArduPilot reads it as a position reset): docs/daemon.md "reset_counter".
 # * restart_yaw: how a restart with another heading reaches the autopilot (daemon.restart_heading): "slew",

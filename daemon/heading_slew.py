@@ -7,14 +7,8 @@ import math
 from dataclasses import dataclass
 
 from ahrsd.core.angles import wrap_pi
+from ahrsd.estimator.slewed_yaw import slew_rate_rad_s, slewed_yaw_sigma_rad
 
-# EKF3 fuses our yaw with R = max(angErr, VISO_YAW_M_NSE, 5°)² (AP_NavEKF3_Measurements.cpp writeExtNavData): the
-# slew rates (heading_slew_deg_s, restart_slew_deg_s) were chosen for R at that floor. While the σ sent to cover a
-# large offset is above it, EKF3's yaw follows more slowly and the slew is held to LARGE_OFFSET_MAX_RATE_DEG_S, a
-# rate at which the fake EKF3s (tests/support/fake_autopilot_yaw.py: the sources' R, floors and gate) fuse every
-# VPE of any change with that σ (bench/slew_variance.py; docs/daemon.md "Restarts").
-EKF3_YAW_FLOOR_RAD = math.radians(5.0)
-LARGE_OFFSET_MAX_RATE_DEG_S = 2.0
 # the longest interval between two published headings the slew moves across in one step: ArduPilot needs external
 # navigation data at > 3.3 Hz (docs/daemon.md); a longer interval is a gap in what the autopilot received, and the
 # first heading after it must not jump by rate × gap
@@ -30,8 +24,8 @@ class HeadingSlew:
     `start_transition()` the published heading follows the vehicle's own rotation (yaw rate from the
     estimator) and moves towards the estimator's new heading at no more than `max_rate_deg_s` (a restart
     with another heading uses its own rate: daemon.restart_heading), and no more than
-    LARGE_OFFSET_MAX_RATE_DEG_S while the offset is large. Outside a transition it passes the heading through
-    unchanged.
+    estimator.slewed_yaw.LARGE_OFFSET_MAX_RATE_RAD_S while the offset is large (the rule ins's published heading
+    follows too). Outside a transition it passes the heading through unchanged.
 
     While a transition runs the published heading is off the estimator's by `remaining_rad`, a known error the
     VPE's yaw variance must cover (`published_sigma_rad`).
@@ -94,21 +88,9 @@ class HeadingSlew:
         self.remaining_rad = 0.0
 
     def published_sigma_rad(self, sigma_rad: float) -> float:
-        """The 1σ of the published yaw for the estimator's yaw 1σ: σ + |remaining|/3.
-
-        The published yaw's error is the remaining offset d plus the estimator's own error e, and
-        |d + e| ≤ |d| + |e| ≤ 3·(σ + |d|/3) whenever |e| ≤ 3σ: the VPE is beyond its 3σ no more often than the
-        estimator is. It is the smallest σ with that guarantee for every e within 3σ; more would slow the
-        autopilot to no purpose. Counting d as a 1σ error (σ² + d²) claims 3·|d|, and the autopilots weigh our
-        variance: ArduPilot EKF3 fuses our yaw with R = max(angErr, VISO_YAW_M_NSE, 5°)² (AP_VisualOdom_MAV.cpp
-        handle_pose_estimate, AP_NavEKF3_Measurements.cpp writeExtNavData, AP_NavEKF3_MagFusion.cpp
-        fuseEulerYaw), angErr = sqrt(roll + pitch + yaw variance) since ArduPilot PR #32084 (GCS_Common.cpp;
-        before it the cube root of their squares); with R that large its yaw hardly follows the slew while d
-        is large and lags beyond its gate, 3·sqrt(P + R), once d and R are small again (docs/daemon.md
-        "Calibration changes"). With d/3 the gate is at least 3σ + |d| while d exceeds 15° − 3σ and R is
-        EKF3's 5° floor below that, where the slew rate was chosen. PX4 EKF2 floors our variance at
-        EKF2_EVA_NOISE (ev_yaw_control.cpp), so only a large d changes anything there."""
-        return sigma_rad + abs(self.remaining_rad) / 3.0
+        """The 1σ of the published yaw for the estimator's yaw 1σ: σ + |remaining|/3 (estimator/slewed_yaw.py
+        says why; docs/daemon.md "Calibration changes")."""
+        return slewed_yaw_sigma_rad(sigma_rad, self.remaining_rad)
 
     def follow(self, t_s: float, heading_rad: float, yaw_rate_rad_s: float) -> None:
         """No heading is published at t_s (VPE withheld): during a transition the published heading turns with
@@ -131,7 +113,7 @@ class HeadingSlew:
 
     def update(self, t_s: float, heading_rad: float, yaw_rate_rad_s: float = 0.0, sigma_rad: float = 0.0) -> float:
         """Heading to publish (rad, [0, 2π)) for the estimator's heading at t_s, the vehicle's yaw rate and the
-        estimator's yaw 1σ (the σ sent with the slewed heading sets its rate: EKF3_YAW_FLOOR_RAD)."""
+        estimator's yaw 1σ (the σ sent with the slewed heading sets its rate: estimator/slewed_yaw.py)."""
         if self._published is None or not self.active:
             self._published = heading_rad % (2 * math.pi)
             self._t_last = t_s
@@ -150,10 +132,7 @@ class HeadingSlew:
                 return self._published
             self.hold_until_s = None
         err = float(wrap_pi(heading_rad - predicted))
-        rate_deg_s = self.current_rate_deg_s
-        if sigma_rad + abs(err) / 3.0 > EKF3_YAW_FLOOR_RAD:          # published_sigma_rad for this offset
-            rate_deg_s = min(rate_deg_s, LARGE_OFFSET_MAX_RATE_DEG_S)
-        step = math.radians(rate_deg_s) * min(dt, MAX_STEP_INTERVAL_S)
+        step = slew_rate_rad_s(math.radians(self.current_rate_deg_s), sigma_rad, err) * min(dt, MAX_STEP_INTERVAL_S)
         if abs(err) <= max(step, math.radians(self.done_within_deg)):
             self._published = heading_rad % (2 * math.pi)
             if abs(err) <= math.radians(self.done_within_deg) and t_s - self._t_start >= self.min_duration_s:

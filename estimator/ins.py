@@ -341,7 +341,8 @@ HEADING_CHECKS_KEPT = 128   # the latest heading checks a reader can look at (`I
 _OUT = AttitudeFields(core.INS_OUT_DTYPE)
 _OUT_Q, _OUT_RATE, _OUT_SIGMA, _OUT_BIAS, _OUT_EULER = _OUT.q, _OUT.rate, _OUT.sigma, _OUT.bias, _OUT.euler
 _OUT_RATE_TO_EULER = slice(_OUT_RATE.start, _OUT_EULER.stop)     # the step reads both (Ins._stepped)
-assert _OUT_RATE.start < _OUT_EULER.start
+assert _OUT_RATE.start < _OUT_SIGMA.start < _OUT_EULER.start
+_STEP_SIGMA_YAW = _OUT_SIGMA.start + 2 - _OUT_RATE.start    # the filter's yaw σ in what the step reads
 _OUT_VEL, _OUT_SIGMA_VEL, _OUT_SIGMA_POS, _OUT_ACCEL_BIAS = (float_field_slice(core.INS_OUT_DTYPE, n) for n in (
     "vel_ned_m_s", "sigma_vel_m_s", "sigma_pos_m", "accel_bias_m_s2"))
 _OUT_LAT, _OUT_LON, _OUT_H = (
@@ -1137,8 +1138,8 @@ class Ins:
         if f & core.F_INITIALISING and not self._published_since_init:
             self._published.reset()        # nothing published since the filter started: follow it
         else:
-            r = o[_OUT_RATE_TO_EULER].tolist()     # one call for both: rate first, Euler angles last
-            self._published.update(t_s, r[-1], r[-3], r[-2], r)
+            r = o[_OUT_RATE_TO_EULER].tolist()     # one call: rate first, then σ, …, Euler angles last
+            self._published.update(t_s, r[-1], r[-3], r[-2], r, r[_STEP_SIGMA_YAW])
         if not f & core.F_INITIALISING:
             self._published_since_init = True
         self._view.set(t_s, f, True)

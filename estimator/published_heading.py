@@ -13,12 +13,15 @@ rate explains (the ZYX Euler kinematics ψ̇ = (q sinφ + r cosφ)/cosθ, trapez
 vehicle's own rotation is never slowed; a correction up to `max_rate_rad_s`·Δt passes at once (the filter's
 routine updates), only the excess enters the offset.
 
-The published 1σ covers the offset: σ_pub² = σ² + offset² (the offset is a known error of the published yaw
-against the filter's; the filter's own error is independent of it)."""
+The published 1σ covers the offset, and the slew rate is held down while that σ is large, by the rule the
+daemon's slews follow too (estimator/slewed_yaw.py: σ_pub = σ + |offset|/3, so 3σ_pub covers the offset and the
+filter's own 3σ; no more than 2 °/s while σ_pub is above EKF3's 5° floor, so an autopilot fusing it follows)."""
 
 from __future__ import annotations
 
 import math
+
+from .slewed_yaw import slew_rate_rad_s, slewed_yaw_sigma_rad
 
 _TWO_PI = 2.0 * math.pi
 _MIN_COS_PITCH = 1e-3    # at ±90° pitch yaw is undefined: every change there counts as motion
@@ -45,11 +48,13 @@ class PublishedHeading:
         self._yaw = math.nan
         self._yaw_rate = math.nan
 
-    def update(self, t_s: float, yaw_rad: float, roll_rad: float, pitch_rad: float, rate_body_rad_s) -> float:
-        """The offset for the filter's yaw (any north: only differences are used) at t_s, its roll, pitch and
-        bias-corrected body rate (rad/s)."""
+    def update(self, t_s: float, yaw_rad: float, roll_rad: float, pitch_rad: float, rate_body_rad_s,
+               sigma_rad: float = 0.0) -> float:
+        """The offset for the filter's yaw (any north: only differences are used) at t_s, its roll, pitch,
+        bias-corrected body rate (rad/s) and yaw 1σ (with the offset it sets the slew rate: slewed_yaw.py)."""
         # once per sample at 819.2 SPS, so written out without helper calls (a call costs more than its
-        # arithmetic): ψ̇ of the ZYX kinematics, and angles wrapped to ±π as (a + π) mod 2π − π
+        # arithmetic) but the slew rate's rule, shared with the daemon: ψ̇ of the ZYX kinematics, and angles
+        # wrapped to ±π as (a + π) mod 2π − π
         cp = math.cos(pitch_rad)
         if abs(cp) < _MIN_COS_PITCH:
             rate = math.nan
@@ -68,8 +73,8 @@ class PublishedHeading:
         else:
             correction = 0.0
         self._t_s, self._yaw, self._yaw_rate = t_s, yaw_rad, rate
-        allowed = self.max_rate_rad_s * dt
         o = (self.offset_rad - correction + math.pi) % _TWO_PI - math.pi
+        allowed = slew_rate_rad_s(self.max_rate_rad_s, sigma_rad, o) * dt
         if abs(o) <= allowed:
             o = 0.0
         else:
@@ -80,5 +85,5 @@ class PublishedHeading:
         return o
 
     def published_sigma(self, sigma_rad: float) -> float:
-        """The published yaw 1σ for the filter's 1σ."""
-        return math.hypot(sigma_rad, self.offset_rad) if self.offset_rad else sigma_rad
+        """The published yaw 1σ for the filter's 1σ: σ + |offset|/3 (slewed_yaw.py)."""
+        return slewed_yaw_sigma_rad(sigma_rad, self.offset_rad) if self.offset_rad else sigma_rad

@@ -1,0 +1,43 @@
+"""The 1σ and the rate of a yaw that is slewed towards the estimator's: what an output sends while a heading change
+is moved in at a bounded rate (ins's published heading after a yaw reset, estimator/published_heading.py; the
+daemon's slew of a calibration change or a restart, daemon/heading_slew.py).
+
+σ: the slewed yaw is off the estimator's by the offset d still to come, a known error, and the estimator's own
+error e is on top of it: |d + e| ≤ |d| + |e| ≤ 3·(σ + |d|/3) whenever |e| ≤ 3σ. So with σ_sent = σ + |d|/3 the
+slewed yaw is beyond its 3σ no more often than the estimator's is, and no smaller σ has that guarantee for every e
+within 3σ; more would slow the autopilot to no purpose. Counting d as a 1σ error (√(σ² + d²)) claims 3·|d|, and
+the autopilots weigh our variance: ArduPilot EKF3 fuses our yaw with R = max(angErr, VISO_YAW_M_NSE, 5°)²
+(AP_VisualOdom_MAV.cpp handle_pose_estimate, AP_NavEKF3_Measurements.cpp writeExtNavData, AP_NavEKF3_MagFusion.cpp
+fuseEulerYaw; angErr = sqrt(roll + pitch + yaw variance) since ArduPilot PR #32084, GCS_Common.cpp, before it the
+cube root of their squares). With R that large EKF3's yaw hardly follows the slew while d is large, and lags
+beyond its gate, 3·sqrt(P + R), once d and R are small again. With d/3 the gate is at least 3σ + |d| while d
+exceeds 15° − 3σ, and R is EKF3's 5° floor below that. PX4 EKF2 floors our variance at EKF2_EVA_NOISE
+(ev_yaw_control.cpp), so only a large d changes anything there.
+
+Rate: the slew rates (ins's 2 °/s, the daemon's heading_slew_deg_s and restart_slew_deg_s) were chosen for R at
+EKF3's floor. While σ_sent is above it EKF3's yaw follows more slowly even with the honest σ, and a faster slew
+leaves it beyond its gate (docs/daemon.md "Restarts"), so the rate is held to LARGE_OFFSET_MAX_RATE_RAD_S then:
+at that rate the fake EKF3s of tests/support/fake_autopilot_yaw.py (the sources' R, floors and gate) fuse every
+VPE of any change with that σ (bench/slew_variance.py)."""
+
+from __future__ import annotations
+
+import math
+
+EKF3_YAW_FLOOR_RAD = math.radians(5.0)
+"""ArduPilot EKF3's floor on the external-yaw observation 1σ (AP_NavEKF3_Measurements.cpp writeExtNavData)."""
+LARGE_OFFSET_MAX_RATE_RAD_S = math.radians(2.0)
+"""The slew rate while the σ sent is above EKF3_YAW_FLOOR_RAD (module docstring)."""
+
+
+def slewed_yaw_sigma_rad(sigma_rad: float, offset_rad: float) -> float:
+    """The 1σ of a yaw that is `offset_rad` off the estimator's, whose own 1σ is `sigma_rad`: σ + |d|/3."""
+    return sigma_rad + abs(offset_rad) / 3.0
+
+
+def slew_rate_rad_s(rate_rad_s: float, sigma_rad: float, offset_rad: float) -> float:
+    """The rate to slew at, for a configured `rate_rad_s`, the estimator's 1σ and the offset still to come:
+    no more than LARGE_OFFSET_MAX_RATE_RAD_S while the σ sent for that offset is above EKF3's floor."""
+    if rate_rad_s > LARGE_OFFSET_MAX_RATE_RAD_S and slewed_yaw_sigma_rad(sigma_rad, offset_rad) > EKF3_YAW_FLOOR_RAD:
+        return LARGE_OFFSET_MAX_RATE_RAD_S
+    return rate_rad_s
