@@ -426,7 +426,7 @@ class Ins:
         self._bias_heading_confirmed = False   # by a GNSS yaw within accel_bias_gsf_sigma_rad
         self._mag_rotation = MagRotationBias(gyro_noise_rad_s_rthz=p.gyro_noise_rad_s_sqrt_hz)
         self._mag_rotation_on = p.mag_rotation_gyro_bias and p.heading_monitor and p.mag_enabled
-        self._gyro_rotation = np.zeros(3)  # the gyro's rotation vector since the last heading check (raw rates)
+        self._gyro_rotation = [0.0, 0.0, 0.0]   # the gyro's rotation vector since the last heading check (raw rates)
         self._gyro_rotation_s = 0.0
         self._gyro_last_t = math.nan
         self._gnss_yaw_aligned = False     # the yaw was set to the first valid GNSS yaw (yaw_align_to_gnss_yaw)
@@ -743,10 +743,10 @@ class Ins:
         """The gyro's rotation since the last heading check, for `_mag_rotation_check` (raw rates: the bias is
         taken out there, at the estimate of the check)."""
         dt = t_s - self._gyro_last_t
-        if 0.0 < dt < 0.1:
-            rotation_vector_step(self._gyro_rotation, rate_rad_s, dt)
-            self._gyro_rotation_s += dt
         self._gyro_last_t = t_s
+        if 0.0 < dt < 0.1:
+            rotation_vector_step(self._gyro_rotation, rate_rad_s.tolist(), dt)
+            self._gyro_rotation_s += dt
 
     def _mag_rotation_check(self, t_s: float, c_bn: np.ndarray) -> None:
         """The vertical gyro bias from the magnetometer's turning (MagRotationBias, mag_rotation.py): the gyro's
@@ -759,8 +759,8 @@ class Ins:
         dt = self._gyro_rotation_s
         lat = float(x["lat_rad"])
         earth_rate = EARTH_RATE_RAD_S * np.array([math.cos(lat), 0.0, -math.sin(lat)])
-        step = rotation_matrix(self._gyro_rotation - (x["gyro_bias_rad_s"] + c_bn.T @ earth_rate) * dt)
-        self._gyro_rotation = np.zeros(3)
+        step = rotation_matrix(np.array(self._gyro_rotation) - (x["gyro_bias_rad_s"] + c_bn.T @ earth_rate) * dt)
+        self._gyro_rotation = [0.0, 0.0, 0.0]
         self._gyro_rotation_s = 0.0
         field = self._earth_field_ned()
         m = x["mag_last_ut"]

@@ -40,11 +40,13 @@ def _turn(rot: np.ndarray) -> float:
     return math.atan2(rot[1, 0], rot[0, 0])
 
 
-def rotation_vector_step(theta: np.ndarray, rate_rad_s, dt_s: float) -> None:
-    """Add one gyro sample to the rotation vector θ of an interval, in place, with the coning term ½ θ × Δθ
-    (Bortz; Savage, Strapdown Analytics §7.1): a vehicle rolling and pitching out of phase turns about z."""
-    ax, ay, az = float(rate_rad_s[0]) * dt_s, float(rate_rad_s[1]) * dt_s, float(rate_rad_s[2]) * dt_s
-    tx, ty, tz = float(theta[0]), float(theta[1]), float(theta[2])
+def rotation_vector_step(theta, rate_rad_s, dt_s: float) -> None:
+    """Add one gyro sample to the rotation vector θ of an interval (a list of 3 floats, per sample: kept out of
+    numpy for speed), in place, with the coning term ½ θ × Δθ (Bortz; Savage, Strapdown Analytics §7.1): a vehicle
+    rolling and pitching out of phase turns about z."""
+    gx, gy, gz = rate_rad_s
+    ax, ay, az = gx * dt_s, gy * dt_s, gz * dt_s
+    tx, ty, tz = theta
     theta[0] = tx + ax + 0.5 * (ty * az - tz * ay)
     theta[1] = ty + ay + 0.5 * (tz * ax - tx * az)
     theta[2] = tz + az + 0.5 * (tx * ay - ty * ax)
