@@ -25,6 +25,7 @@ import numpy as np
 from scipy.special import chdtri   # χ² inverse survival function (scipy.stats costs 1.4 s to import)
 
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingIntegrity, HeadingState, NavState
+from ahrsd.core.gravity import EARTH_RATE_RAD_S
 from ahrsd.core.gnss import DEFAULT_H_ACC_M, DEFAULT_S_ACC_M_S, DEFAULT_V_ACC_M, GnssFix, GnssFixType
 from ahrsd.core.sample import ImuSample
 
@@ -39,6 +40,8 @@ from .initial_attitude import initial_attitude
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .mag_heading import RELEARN_GATE_OPEN_S
 from .mag_heading_params import MagHeadingParams
+from .mag_rotation import MagRotationBias, rotation_matrix, rotation_vector_step
+from .constrained_update import scalar_update
 from .params import with_overrides
 from .estimate_view import EstimateView
 from .published_heading import PublishedHeading
@@ -217,6 +220,10 @@ class InsParams(MagHeadingParams):
     `heading_confirm_gsf_sigma_rad`: a boat's GNSS yaw seldom gets below 5° (its accelerations are small), and held
     that long the bias is learned too late for the heading; chosen on held-out boat seeds (docs/estimator.md "A
     wrong heading must not teach the accelerometer bias")."""
+    mag_rotation_gyro_bias: bool = True
+    """Learn the vertical gyro bias from how the magnetometer's field turns in the body against the gyro's heading
+    (mag_rotation.py): the hard iron cancels in the field's change, so an uncalibrated or learning magnetometer
+    still sees the bias on straight legs, where the GNSS says nothing of the yaw."""
     published_yaw_slew_rad_s: float = 2.0 * _DEG
     """The published yaw follows the filter's corrections at no more than this rate beyond the vehicle's own
     rotation: a yaw reset or a fast correction is slewed in, the published σ covering what is left
@@ -336,6 +343,8 @@ class GnssCounters:
 _TWO_PI = 2.0 * math.pi
 _MAX_QUEUED = 16
 HEADING_CHECKS_KEPT = 128   # the latest heading checks a reader can look at (`Ins.heading_checks`)
+_MAG_ROTATION_GATE = 9.0    # NIS above which a magnetometer-rotation bias measurement is not fused (3σ)
+_NAV_MASK = sum(1 << j for j in range(core.E_V, core.E_P + 3))   # velocity and position: no gain
 
 # where each output lies in the flat float64 view of an INS_OUT_DTYPE record
 _OUT = AttitudeFields(core.INS_OUT_DTYPE)
@@ -423,6 +432,11 @@ class Ins:
         self._mag_var = p.calibration_sigma_rad ** 2
         self._heading_confirmed = False    # by a GNSS yaw within heading_confirm_gsf_sigma_rad
         self._bias_heading_confirmed = False   # by a GNSS yaw within accel_bias_gsf_sigma_rad
+        self._mag_rotation = MagRotationBias(gyro_noise_rad_s_rthz=p.gyro_noise_rad_s_sqrt_hz)
+        self._mag_rotation_on = p.mag_rotation_gyro_bias and p.heading_monitor and p.mag_enabled
+        self._gyro_rotation = [0.0, 0.0, 0.0]   # the gyro's rotation vector since the last heading check (raw rates)
+        self._gyro_rotation_s = 0.0
+        self._gyro_last_t = math.nan
         self._gnss_yaw_aligned = False     # the yaw was set to the first valid GNSS yaw (yaw_align_to_gnss_yaw)
         # the published yaw σ's floor until a GNSS yaw confirms the heading (aided only; updated at every check)
         self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(0.0, math.nan, math.nan)
@@ -599,6 +613,8 @@ class Ins:
                            g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], sflags, self._out_arr,
                            self._gsf_arr, self._gsf_par_arr)
             if not f & NEEDS_INIT:
+                if self._mag_rotation_on:
+                    self._accumulate_gyro(sample.t_s, g)
                 if self._queue:
                     self._fuse_queued()       # before the estimate of this sample, as every fix before it
                 return self._stepped(sample.t_s, f)
@@ -740,6 +756,8 @@ class Ins:
         yaw = math.atan2(c_bn[1, 0], c_bn[0, 0])
         yaw_var = float(self._P[core.E_YAW, core.E_YAW])
         m_body = self._iron.corrected(x["mag_last_ut"])
+        if self._mag_rotation_on:
+            self._mag_rotation_check(t_s, c_bn)
         mag_yaw, mag_var, noise = self._magnetometer_heading(c_bn, yaw, m_body)
         gsf_yaw, gsf_var, gsf_valid = self._gnss_yaw()
         d = self._monitor_decision(t_s, yaw, yaw_var, mag_yaw, mag_var, noise, gsf_yaw, gsf_var, gsf_valid)
@@ -757,6 +775,63 @@ class Ins:
         self.heading_checks.append(HeadingCheckRecord(t_s, d.mag_use, d.yaw_var_floor_rad2,
                                                       float(self._P[core.E_YAW, core.E_YAW]), yaw_reset_to,
                                                       self._iron.updates > iron_updates))
+
+    def _accumulate_gyro(self, t_s: float, rate_rad_s) -> None:
+        """The gyro's rotation since the last heading check, for `_mag_rotation_check` (raw rates: the bias is
+        taken out there, at the estimate of the check)."""
+        dt = t_s - self._gyro_last_t
+        self._gyro_last_t = t_s
+        if 0.0 < dt < 0.1:
+            rotation_vector_step(self._gyro_rotation, rate_rad_s.tolist(), dt)
+            self._gyro_rotation_s += dt
+
+    def _mag_rotation_check(self, t_s: float, c_bn: np.ndarray) -> None:
+        """The vertical gyro bias from the magnetometer's turning (MagRotationBias, mag_rotation.py): the gyro's
+        rotation since the last check (less the bias estimate and the Earth's rotation, which turns the field with
+        it) goes into the window; a completed window's b_z − b̂_z is fused as a measurement of the bias, less what
+        the kernel's own magnetometer update already took from the same samples."""
+        p = self.params
+        x = self._x
+        P = self._P
+        dt = self._gyro_rotation_s
+        lat = float(x["lat_rad"])
+        earth_rate = EARTH_RATE_RAD_S * np.array([math.cos(lat), 0.0, -math.sin(lat)])
+        step = rotation_matrix(np.array(self._gyro_rotation) - (x["gyro_bias_rad_s"] + c_bn.T @ earth_rate) * dt)
+        self._gyro_rotation = [0.0, 0.0, 0.0]
+        self._gyro_rotation_s = 0.0
+        field = self._earth_field_ned()
+        m = x["mag_last_ut"]
+        if field is None or not np.all(np.isfinite(m)) or x["nav_ok"] <= 0 or dt <= 0.0:
+            self._mag_rotation.restart()
+            return
+        att = slice(core.E_TH, core.E_TH + 3)
+        att_sigma = math.sqrt(max(float(np.max(np.diag(P[att, att]))), 0.0))
+        tilt_sigma = math.sqrt(max(float(max(P[core.E_TILT_N, core.E_TILT_N], P[core.E_TILT_E, core.E_TILT_E])), 0.0))
+        out = self._mag_rotation.add(t_s, m, c_bn, field, step, float(x["gyro_bias_rad_s"][2]), dt,
+                                     self._iron.soft_iron, float(np.max(self._iron.soft_iron_sigma)), att_sigma,
+                                     tilt_sigma)
+        if out is None:
+            return
+        innovation, var = out
+        span = self._mag_rotation.span_s
+        if self._par["mag_use"] > 0.5 and span > 0.0:
+            # the kernel fuses these samples as a heading with a slowly varying error of variance mag_bias_var:
+            # over the window they told it the bias to about √2 σ / T; count only what is beyond that
+            kernel_var = 2.0 * float(self._par["mag_bias_var_rad2"]) / span ** 2
+            if var >= kernel_var:
+                return
+            var = 1.0 / (1.0 / var - 1.0 / kernel_var)
+        i = core.E_BG + 2
+        if innovation * innovation > _MAG_ROTATION_GATE * (P[i, i] + var):
+            return
+        # a measurement of the bias now: the attitude and the other biases follow through their covariance with
+        # it; the velocity and position are left to the GNSS (their history is not kept for a correction)
+        h = np.zeros(core.N_ERR)
+        h[i] = 1.0
+        dx = np.zeros(core.N_ERR)
+        scalar_update(P, h, innovation, var, _NAV_MASK, dx)
+        core._apply_correction(x, self._par, dx)
+        core._correct_history(self._hist, x, -math.inf, dx, 0.0, 0.0, 0.0)
 
     def _magnetometer_heading(self, c_bn: np.ndarray, yaw: float, m_body: np.ndarray) -> tuple[float, float, float]:
         """The yaw the magnetometer (iron-corrected, body frame µT) gives with the attitude c_bn, its variance and
@@ -993,6 +1068,7 @@ class Ins:
             P[:, i] = 0.0
             P[i, i] = var
         self._reset_velocity_to_fix()
+        self._mag_rotation.restart()      # its window started from the old heading
         self.yaw_resets += 1
         self.heading_interventions += 1
         self._pending_flags |= int(EstimateFlags.YAW_RESET)

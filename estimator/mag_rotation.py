@@ -1,0 +1,189 @@
+"""The vertical gyro bias from how the magnetometer's field turns in the body, which no vehicle iron changes.
+
+The magnetometer measures m = A·v + b: v = C_bnᵀ·B the Earth field in the body frame, A = I + D the soft iron and
+b the hard iron, both fixed to the body. Between two instants m₁ − m₀ = A·(v₁ − v₀): the hard iron cancels in the
+difference and the soft iron (a few % of scale and coupling, `IronLearner`'s D) only scales it. So the *turning*
+of the field is a measurement of how the body turned, good to a few % of the angle turned, whether or not the
+magnetometer's heading is calibrated: on a straight leg, where the GNSS says nothing of the yaw, it sees the
+vertical gyro bias that would otherwise turn the heading unseen (docs/estimator.md, "heading9").
+
+A window of heading checks (GNSS rate) is compared with the heading the gyro gives from the window's start:
+v_k = C_kᵀ·B with C_k the filter's attitude at check k — its tilt, which the GNSS holds — turned about down to the
+heading of C₀·ΔC_k, ΔC_k the gyro's body rotation since the start (made with the bias estimate b̂_z of each
+interval). What the measured change does not explain, projected on the direction a turn about down moves the
+field, w = A·C_kᵀ·(B × e_z), is the heading the gyro got wrong since the start: φ_k = −(b_z·t_k − Σ b̂_j Δt_j).
+With the bias changes within the window moved to the newest estimate b̂_end, its least-squares slope against time
+(free intercept: the first sample's noise) is b_z − b̂_end. Its variance: the scatter about the line (inflated
+for its correlation from check to check), the gyro's white noise (the heading is a random walk), and what the
+known-to-δ soft iron, gyro scale, attitude of the start and the change of the filter's tilt over the window (at
+the dip's tangent) make of the window's motion. A window ends after `window_s`, or when the vehicle has turned
+by `max_turn_rad` (the soft-iron and scale terms grow with the turn), and is used only while the filter's
+attitude is known to `max_att_sigma_rad` (the direction of B in the body at its start).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+_DOWN = np.array([0.0, 0.0, 1.0])
+
+
+def _heading(c_bn: np.ndarray) -> float:
+    return math.atan2(c_bn[1, 0], c_bn[0, 0])
+
+
+def _turn(rot: np.ndarray) -> float:
+    """The turn about body z of the rotation body now → body then (small tilts), rad."""
+    return math.atan2(rot[1, 0], rot[0, 0])
+
+
+def rotation_vector_step(theta, rate_rad_s, dt_s: float) -> None:
+    """Add one gyro sample to the rotation vector θ of an interval (a list of 3 floats, per sample: kept out of
+    numpy for speed), in place, with the coning term ½ θ × Δθ (Bortz; Savage, Strapdown Analytics §7.1): a vehicle
+    rolling and pitching out of phase turns about z."""
+    gx, gy, gz = rate_rad_s
+    ax, ay, az = gx * dt_s, gy * dt_s, gz * dt_s
+    tx, ty, tz = theta
+    theta[0] = tx + ax + 0.5 * (ty * az - tz * ay)
+    theta[1] = ty + ay + 0.5 * (tz * ax - tx * az)
+    theta[2] = tz + az + 0.5 * (tx * ay - ty * ax)
+
+
+def rotation_matrix(theta: np.ndarray) -> np.ndarray:
+    """exp([θ×]) (Rodrigues): body at the interval's end → body at its start."""
+    ang = float(np.linalg.norm(theta))
+    if ang <= 0.0:
+        return np.eye(3)
+    k = theta / ang
+    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + math.sin(ang) * kx + (1.0 - math.cos(ang)) * kx @ kx
+
+
+@dataclass
+class MagRotationBias:
+    """One window of magnetometer samples against the gyro's heading; `add` returns the vertical gyro bias
+    correction b_z − b̂_z (rad/s) and its variance when a window completes."""
+
+    gyro_noise_rad_s_rthz: float = 0.0  # the gyro's white noise (the filter's own figure)
+    window_s: float = 30.0
+    max_turn_rad: float = math.radians(5.0)
+    min_samples: int = 30
+    min_span_s: float = 8.0
+    max_att_sigma_rad: float = math.radians(5.0)
+    scale_sigma: float = 0.003          # gyro scale-factor uncertainty, dimensionless
+    span_s: float = 0.0                 # the last fitted window's length, s
+    t0_s: float = math.nan
+    m0_ut: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    v0_ut: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    c0: np.ndarray = field(default_factory=lambda: np.eye(3))
+    b_ned_ut: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    rot: np.ndarray = field(default_factory=lambda: np.eye(3))    # ΔC: body now → body at the start
+    bias_dt: float = 0.0                # Σ b̂_j Δt_j since the start, rad
+    att_sigma_rad: float = 0.0          # the largest attitude 1σ seen in the window
+    tilt_sigma_rad: float = 0.0         # the filter's tilt 1σ now
+    samples: list = field(default_factory=list)   # (t, φ, Σ b̂Δt, turn, soft-iron and attitude sensitivities)
+
+    def restart(self) -> None:
+        self.t0_s = math.nan
+
+    def add(self, t_s: float, mag_ut, c_bn, b_ned_ut, step_rot, bias_z_rad_s: float, dt_s: float,
+            soft_iron: np.ndarray, soft_sigma: float, att_sigma_rad: float,
+            tilt_sigma_rad: float) -> tuple[float, float] | None:
+        """One heading check: the magnetometer (body, µT, calibration in force), the filter's attitude c_bn and
+        the Earth field (NED, µT), the gyro's body rotation since the last check (body now → body then) made with
+        the bias estimate b̂_z over dt_s, the learned soft iron A and the 1σ of its elements, the filter's
+        attitude and tilt 1σ. Returns (b_z − b̂_z, its variance, rad/s) when a window completes, else None."""
+        m = np.asarray(mag_ut, dtype=float)
+        c_bn = np.asarray(c_bn, dtype=float)
+        if not math.isfinite(self.t0_s):
+            self._start(t_s, m, c_bn, b_ned_ut, att_sigma_rad, tilt_sigma_rad)
+            return None
+        self.att_sigma_rad = max(self.att_sigma_rad, att_sigma_rad)
+        self.tilt_sigma_rad = tilt_sigma_rad
+        rot = self.rot @ np.asarray(step_rot, dtype=float)
+        if abs(_turn(rot)) > self.max_turn_rad:
+            # the vehicle turned: fit the window up to the last check, start a new one here
+            result = self._fit(bias_z_rad_s, soft_sigma)
+            self._start(t_s, m, c_bn, b_ned_ut, att_sigma_rad, tilt_sigma_rad)
+            return result
+        self.rot = rot
+        self.bias_dt += bias_z_rad_s * dt_s
+        # the filter's tilt now, the gyro's heading: its attitude turned about down to C₀·ΔC's heading
+        dpsi = _heading(self.c0 @ rot) - _heading(c_bn)
+        cz, sz = math.cos(dpsi), math.sin(dpsi)
+        c_k = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]]) @ c_bn
+        v = c_k.T @ self.b_ned_ut
+        w = soft_iron @ (c_k.T @ np.cross(self.b_ned_ut, _DOWN))     # ∂m/∂(a turn about down)
+        ww = float(w @ w)
+        if ww < 1.0:            # no horizontal field to turn (µT²)
+            self.restart()
+            return None
+        d = v - self.v0_ut
+        rho = (m - self.m0_ut) - soft_iron @ d
+        # how φ moves with an error δA of the soft iron (∂φ/∂δA_ij = w_i d_j / |w|²) and with an error ε of the
+        # attitude v₀ was taken at (v₀ → v₀ + ε × v₀)
+        rt_i = rot.T - np.eye(3)
+        att = np.array([-(soft_iron @ (rt_i @ np.cross(e, self.v0_ut))) @ w / ww for e in np.eye(3)])
+        self.samples.append((t_s, float(rho @ w) / ww, self.bias_dt, _turn(rot),
+                             np.outer(w, d).reshape(9) / ww, att))
+        if t_s - self.t0_s < self.window_s:
+            return None
+        result = self._fit(bias_z_rad_s, soft_sigma)
+        self.restart()
+        return result
+
+    def _start(self, t_s, m, c_bn, b_ned_ut, att_sigma_rad, tilt_sigma_rad) -> None:
+        self.t0_s = t_s
+        self.m0_ut = m.copy()
+        self.c0 = c_bn.copy()
+        self.b_ned_ut = np.asarray(b_ned_ut, dtype=float).copy()
+        self.v0_ut = c_bn.T @ self.b_ned_ut
+        self.rot = np.eye(3)
+        self.bias_dt = 0.0
+        self.att_sigma_rad = att_sigma_rad
+        self.tilt_sigma_rad = tilt_sigma_rad
+        self.samples = []
+
+    def _fit(self, bias_end_rad_s: float, soft_sigma: float) -> tuple[float, float] | None:
+        n = len(self.samples)
+        if n < self.min_samples or self.samples[-1][0] - self.t0_s < self.min_span_s \
+                or self.att_sigma_rad > self.max_att_sigma_rad:
+            return None
+        t = np.array([s[0] for s in self.samples]) - self.t0_s
+        phi = np.array([s[1] for s in self.samples])
+        bias_dt = np.array([s[2] for s in self.samples])
+        turn = np.array([s[3] for s in self.samples])
+        soft = np.array([s[4] for s in self.samples])
+        att = np.array([s[5] for s in self.samples])
+        self.span_s = float(t[-1])
+        # −φ_k + Σ b̂_j Δt_j − b̂_end·t_k = (b_z − b̂_end)·t_k: each interval turned with its own b̂_j
+        y = -phi + bias_dt - bias_end_rad_s * t
+        tc = t - t.mean()
+        stt = float(tc @ tc)
+        if stt <= 0.0:
+            return None
+        slope = float(tc @ (y - y.mean())) / stt
+        res = y - y.mean() - slope * tc
+        var = float(res @ res) / (n - 2) / stt
+        # the scatter is not white (the vehicle rolls and pitches for seconds): the slope's variance grows by
+        # (1 + r₁)/(1 − r₁) for residuals correlated r₁ from one check to the next (AR(1))
+        r1 = min(max(float(res[1:] @ res[:-1]) / max(float(res @ res), 1e-30), 0.0), 0.95)
+        var *= (1.0 + r1) / (1.0 - r1)
+        # a gyro scale and a soft iron known to δ, and the start attitude, through the window's motion
+        turn_slope = float(tc @ (turn - turn.mean())) / stt
+        soft_slopes = tc @ (soft - soft.mean(axis=0)) / stt
+        att_slopes = tc @ (att - att.mean(axis=0)) / stt
+        var += (self.scale_sigma * turn_slope) ** 2 + soft_sigma ** 2 * float(soft_slopes @ soft_slopes) \
+            + self.att_sigma_rad ** 2 * float(att_slopes @ att_slopes)
+        # the gyro's white noise makes the heading a random walk, which the scatter does not show: the
+        # least-squares slope of a random walk of density q over T has variance 6 q² / (5 T)
+        var += 1.2 * self.gyro_noise_rad_s_rthz ** 2 / t[-1]
+        # the filter's tilt, which gives v its dip, may have moved by up to √2 σ between the window's ends: at the
+        # dip's tangent (vertical over horizontal field) it turns the magnetometer's heading
+        b = self.b_ned_ut
+        tan_dip = abs(float(b[2])) / max(math.hypot(float(b[0]), float(b[1])), 1e-6)
+        var += (math.sqrt(2.0) * tan_dip * self.tilt_sigma_rad / t[-1]) ** 2
+        return slope, var
