@@ -219,6 +219,11 @@ class _Output:
         else:
             directory = os.path.dirname(os.path.abspath(path))
             fd, self._tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".part", dir=directory)
+            # mkstemp makes it 0600; the output gets the mode open() would give it (0666 less the umask),
+            # like the recording it came from and the figure beside it
+            umask = os.umask(0)
+            os.umask(umask)
+            os.fchmod(fd, 0o666 & ~umask)
             self._file = os.fdopen(fd, "w", encoding="utf-8", newline="\n")
         self._header_written = False
 
