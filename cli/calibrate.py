@@ -182,7 +182,15 @@ def _save(args, sensor, model, meta):
         base = f"the other sensors of {last_load.path}"
     kept = (f"the previous file is kept as {store.previous_path.name}" if store.previous_path.exists()
             else "there was no previous file")
-    return path, f"saved to {path} (merged with {base}; {kept})"
+    return path, f"saved to {path} (merged with {base}; {kept}){_by_hand_hint(args)}"
+
+
+def _by_hand_hint(args) -> str:
+    """Saved in the service's directory (the default): `ahrsd run` started by hand reads ~/.local/state/ahrsd
+    (daemon.config), so without this a fresh clone's calibrate-then-run never used the calibration."""
+    if str(args.state_dir) != DEFAULT_STATE_DIR:
+        return ""
+    return f"; the service reads it, `ahrsd run` by hand only with --state-dir {DEFAULT_STATE_DIR}"
 
 
 def _emit(args, payload: dict, text: str) -> None:
@@ -236,7 +244,7 @@ def _allan(args) -> int:
             path = save_noise_parameters(res, Path(args.state_dir) / NOISE_FILE_NAME)
         except OSError as exc:
             raise _Fail(f"cannot save to {args.state_dir}: {exc.strerror or exc}") from None
-        note = f"saved to {path}"
+        note = f"saved to {path}{_by_hand_hint(args)}"
         payload["saved_to"] = str(path)
     if args.plot:
         from ahrsd.calibration.allan_plot import plot_allan

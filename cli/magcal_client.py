@@ -116,7 +116,9 @@ class MagCalClient:
         if kind == "STATUSTEXT":
             text = self._statustext(m)
             if text is not None:
-                self._print(f"[ahrsd] {text}")
+                # the daemon's own texts start "ahrsd: " (for a ground station's mixed log); here every line
+                # is the daemon's, already marked
+                self._print(f"[ahrsd] {text.removeprefix('ahrsd: ')}")
         elif kind == "MAG_CAL_PROGRESS":
             self._bar(m)
 

@@ -219,6 +219,11 @@ class _Output:
         else:
             directory = os.path.dirname(os.path.abspath(path))
             fd, self._tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".part", dir=directory)
+            # mkstemp makes it 0600; the output gets the mode open() would give it (0666 less the umask),
+            # like the recording it came from and the figure beside it
+            umask = os.umask(0)
+            os.umask(umask)
+            os.fchmod(fd, 0o666 & ~umask)
             self._file = os.fdopen(fd, "w", encoding="utf-8", newline="\n")
         self._header_written = False
 
@@ -297,9 +302,11 @@ def _run(args) -> int:
     fixes, validator, first_position = _gnss_input(args)
     declination = _declination_rad(args, first_position)
     calibration = _load_calibration(args)
-    estimator = _make_estimator(estimator_name, declination, calibration, params, aided=fixes is not None)
     if os.path.isdir(args.recording):
         raise ReplayError(f"{args.recording}: is a directory, not a recording")
+    if os.path.isfile(args.recording):   # a missing one fails at once, without a compile
+        _compile_announced(estimator_name)
+    estimator = _make_estimator(estimator_name, declination, calibration, params, aided=fixes is not None)
     done = _replay(args, estimator, calibration, fixes, trace)
     if trace is not None:
         from ahrsd.estimator.replay_plot import replay_title
@@ -312,6 +319,24 @@ def _run(args) -> int:
         _print_summary(args, done, estimator_name, estimator, declination, validator,
                        time.perf_counter() - t_start, time.process_time() - cpu_start)
     return 0
+
+
+def _compile_announced(estimator_name: str) -> None:
+    """Compile the estimator first, as `ahrsd run` does, so the first replay after an install says "compiling the
+    … estimator" instead of sitting silent for 15-40 s (cli.warm_up; a cached start says nothing). The "ahrsd"
+    logger is raised to INFO for that only: the replay's own log stays at the command line's level."""
+    import logging
+
+    from ahrsd.cli.warm_up import compile_estimator
+
+    logger = logging.getLogger("ahrsd")
+    level = logger.level
+    if not logger.isEnabledFor(logging.INFO):
+        logger.setLevel(logging.INFO)
+    try:
+        compile_estimator(estimator_name)
+    finally:
+        logger.setLevel(level)
 
 
 def _plot_trace(args):

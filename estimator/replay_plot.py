@@ -117,13 +117,23 @@ def _flag_row_count(flags: np.ndarray, gnss_rows: bool) -> int:
     return max(len(_flag_rows(flags, gnss_rows)), 1)
 
 
+# runs of a flag closer than this share of the time axis are drawn as one span: about a pixel of the figure, so
+# a flag raised at every magnetometer update (one sample in 8-9) shows as the stretch it covers, not as
+# thousands of sub-pixel slivers that antialiasing draws faint and sparse (and that cost memory to draw)
+_SPAN_JOIN_FRACTION = 1e-3
+
+
 def _spans(t: np.ndarray, on: np.ndarray) -> list[tuple[float, float]]:
-    """(start, width) of each run of `on`."""
+    """(start, width) of each run of `on`, runs less than `_SPAN_JOIN_FRACTION` of the time axis apart joined."""
     if not on.any():
         return []
     edges = np.flatnonzero(np.diff(np.r_[0, on.astype(np.int8), 0]))
     step = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
-    return [(float(t[a]), float(t[min(b, len(t)) - 1] - t[a] + step)) for a, b in zip(edges[::2], edges[1::2])]
+    starts, ends = edges[::2], edges[1::2] - 1          # first and last sample of each run
+    join_s = _SPAN_JOIN_FRACTION * float(t[-1] - t[0]) if len(t) > 1 else 0.0
+    keep = np.r_[True, t[starts[1:]] - t[ends[:-1]] - step >= join_s]   # a run that starts a new span
+    first, last = starts[keep], np.r_[ends[np.flatnonzero(keep)[1:] - 1], ends[-1]]
+    return [(float(t[a]), float(t[b] - t[a] + step)) for a, b in zip(first, last)]
 
 
 def _break_wraps(t: np.ndarray, deg: np.ndarray, *more: np.ndarray, jump_deg: float = 180.0) -> list[np.ndarray]:

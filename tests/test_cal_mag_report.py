@@ -50,3 +50,20 @@ def test_a_refused_fit_says_so_first(tmp_path, capsys):
     out = capsys.readouterr().out
     assert code == 1
     assert out.splitlines()[1].startswith("  verdict: REFUSED: ")
+
+
+def test_saving_in_the_services_directory_says_how_run_by_hand_reads_it(turning_boat, tmp_path, capsys,
+                                                                        monkeypatch):
+    """The default --state-dir is the service's (/var/lib/ahrsd) while `ahrsd run` by hand reads
+    ~/.local/state/ahrsd: the report says so (a fresh clone's calibrate-then-run silently ran uncalibrated).
+    The default is pointed at a temporary directory here; an explicit other --state-dir gets no hint."""
+    import ahrsd.cli.calibrate as calibrate_cli
+
+    service_dir = str(tmp_path / "service")
+    monkeypatch.setattr(calibrate_cli, "DEFAULT_STATE_DIR", service_dir)
+    args = ["calibrate", "mag", "--method", "backstepping", str(turning_boat), "--lat", "36.42", "--lon", "54.98"]
+    assert cli.main(args) == 0
+    verdict = capsys.readouterr().out.splitlines()[1]
+    assert verdict.endswith(f"`ahrsd run` by hand only with --state-dir {service_dir}"), verdict
+    assert cli.main(args + ["--state-dir", str(tmp_path / "mine")]) == 0
+    assert "by hand" not in capsys.readouterr().out

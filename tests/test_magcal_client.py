@@ -42,6 +42,17 @@ def test_client_reassembles_chunked_statustext_and_draws_bar():
     assert "55%" in out.getvalue() and "cells 10/80" in out.getvalue()
 
 
+def test_client_marks_the_daemons_texts_once():
+    """The daemon's own texts carry "ahrsd: " for a ground station; the client's "[ahrsd]" replaces it
+    (a fresh clone's tour printed "[ahrsd] ahrsd: ACTIVE: heading good")."""
+    out = io.StringIO()
+    client = MagCalClient(conn=None, timeout_s=1.0, out=out)
+    for text in ("ahrsd: ACTIVE: heading good", "Mag cal: heading +-0.1 deg"):
+        for m in statustext_chunks(6, text, 0):
+            client._show(wire(m))
+    assert out.getvalue() == "[ahrsd] ACTIVE: heading good\n[ahrsd] Mag cal: heading +-0.1 deg\n"
+
+
 def test_find_target_rejects_bad_target_text():
     client = MagCalClient(conn=SimpleNamespace(), timeout_s=0.1, out=io.StringIO())
     assert client.find_target("nonsense") is False

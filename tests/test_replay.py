@@ -4,6 +4,8 @@ on a simulated recording, calibration, declination) and clear errors on bad inpu
 from __future__ import annotations
 
 import math
+import os
+import stat
 import subprocess
 import sys
 from pathlib import Path
@@ -83,6 +85,43 @@ def test_replay_output_interface(recording, tmp_path, estimator, capsys):
     assert settled[-1] and np.sqrt(np.mean(err[settled] ** 2)) < (1.0 if estimator == "thesis" else 5.0)
     assert np.all(table[:, 9] == table[:, 8])                        # no declination without --lat/--lon
     assert np.all((table[:, 8] >= 0) & (table[:, 8] < 360))
+
+
+def test_replay_output_mode_follows_the_umask(recording, tmp_path):
+    """The output is written to a temporary file and renamed: it must still get the mode open() gives a new
+    file (0666 less the umask), not mkstemp's 0600 (a fresh clone's tour wrote att.csv as -rw-------)."""
+    rec, _ = recording
+    out = tmp_path / "out.csv"
+    old = os.umask(0o022)
+    try:
+        assert cli.main(["replay", str(rec), "--estimator", "thesis", "--output", str(out)]) == 0
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(out.stat().st_mode) == 0o644
+
+
+def test_replay_announces_a_compile_before_it_replays(recording, tmp_path, monkeypatch, capsys):
+    """The first replay after an install compiles the estimator: it goes through cli.warm_up's announcement (at
+    INFO, whatever the replay's own level) before any row is written, as `ahrsd run` does; not for a recording
+    that is not there (that fails at once)."""
+    import logging
+
+    import ahrsd.cli.warm_up as warm_up
+
+    calls = []
+
+    def fake_compile(name, **_kw):
+        calls.append((name, logging.getLogger("ahrsd").isEnabledFor(logging.INFO), (tmp_path / "o.csv").exists()))
+        return 0.0
+
+    monkeypatch.setattr(warm_up, "compile_estimator", fake_compile)
+    rec, _ = recording
+    assert cli.main(["replay", str(rec), "--estimator", "thesis", "--output", str(tmp_path / "o.csv")]) == 0
+    assert calls == [("thesis", True, False)]
+    assert not logging.getLogger("ahrsd").isEnabledFor(logging.INFO) or logging.getLogger().level <= logging.INFO
+    assert cli.main(["replay", str(tmp_path / "nope.csv"), "--output", str(tmp_path / "p.csv")]) != 0
+    assert len(calls) == 1
+    capsys.readouterr()
 
 
 def test_replay_with_position_references_true_north(recording, tmp_path):

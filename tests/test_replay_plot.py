@@ -45,6 +45,37 @@ def test_decimation_keeps_a_flag_raised_for_one_sample():
     assert len(flagged) == 1 and abs(flagged[0] - 77.77) <= trace.stride * 0.01
 
 
+def test_a_flag_raised_at_every_mag_update_is_drawn_as_the_stretch_it_covers():
+    """ins flags the magnetometer rejected on each of its updates (one sample in 9 at 819.2 SPS): the angle
+    panels shaded thousands of sub-pixel slivers (faint, sparse) while the flags panel looked solid. At the
+    figure's resolution it is one span per stretch; a gap of seconds still splits it."""
+    from matplotlib.colors import to_rgba
+
+    from ahrsd.estimator.replay_plot import replay_figure
+
+    n = int(200 * 819.2)
+    table = np.zeros((n, len(ATTITUDE_COLUMNS)))
+    t = np.arange(n) / 819.2
+    table[:, 0] = t
+    table[:, ATTITUDE_COLUMNS.index("qw")] = 1.0
+    every_update = (np.arange(n) % 9 == 0) & (((t >= 74) & (t < 188)) | ((t >= 190) & (t < 195)))
+    table[every_update, ATTITUDE_COLUMNS.index("flags")] = int(EstimateFlags.MAG_REJECTED)
+    trace = ReplayTrace()
+    trace.add(table)
+    fig = replay_figure(trace)
+    try:
+        roll = next(a for a in fig.axes if a.get_ylabel() == "roll (°)")
+        red = to_rgba("tab:red")[:3]
+        spans = sorted((p.get_x(), p.get_x() + p.get_width()) for p in roll.patches
+                       if tuple(p.get_facecolor()[:3]) == red and np.isfinite(p.get_x()))
+        assert len(spans) == 2, len(spans)
+        np.testing.assert_allclose(spans, [(74.0, 188.0), (190.0, 195.0)], atol=0.05)
+    finally:
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)
+
+
 @pytest.fixture(scope="module")
 def truth_recording(tmp_path_factory):
     path = tmp_path_factory.mktemp("plot") / "md.csv"
