@@ -34,6 +34,7 @@ from . import mag_heading as mag
 from .calibration_heading import calibration_heading_variance_rad2
 from .gsf_yaw import GsfParams, gsf_fuse_velocity, gsf_output, gsf_reset, new_gsf_state
 from .heading_monitor import HeadingCheckRecord, HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
+from .heading_state_hold import HeadingStateHold
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
                             float_field_slice, uninitialised_estimate)
 from .initial_attitude import initial_attitude
@@ -190,6 +191,11 @@ class InsParams(MagHeadingParams):
     """The GNSS holds the heading (iron learned, magnetometer allowed back) while the yaw 1σ is below this."""
     heading_unknown_sigma_rad: float = 15.0 * _DEG
     """Above this yaw 1σ the heading state is UNKNOWN (consumers must not use the heading), rad."""
+    heading_known_sigma_rad: float = 12.0 * _DEG
+    """UNKNOWN is left only once the yaw 1σ is at most this (below heading_unknown_sigma_rad: a σ hovering at
+    that limit does not flip the state; heading_state_hold.py), rad."""
+    heading_state_hold_s: float = 5.0
+    """A better heading state is published only after it has held this long (a worse one at once), s."""
     accel_bias_needs_heading: bool = True
     """True: the horizontal (body x, y) accelerometer bias learns from GNSS only while the heading is known (a
     trusted magnetometer, or a GNSS yaw confirmed it), so a wrong yaw's mis-projected GNSS acceleration cannot be
@@ -425,6 +431,7 @@ class Ins:
         self._monitor = HeadingMonitor(p.calibration_sigma_rad, reentry_s=p.mag_reentry_s,
                                        max_resets=p.yaw_reset_max, reset_spacing_s=p.yaw_reset_spacing_s)
         self._heading_state = HeadingState.UNKNOWN
+        self._state_hold = HeadingStateHold(p.heading_state_hold_s, p.heading_known_sigma_rad)
         self.heading_checks: deque[HeadingCheckRecord] = deque(maxlen=HEADING_CHECKS_KEPT)
         self._integrity = None
         self._field_key = None
@@ -890,7 +897,7 @@ class Ins:
             P[core.E_YAW, core.E_YAW] = d.yaw_var_floor_rad2
             self.heading_interventions += 1
             log.warning("ins: magnetometer disagrees with the GNSS-held heading by %.1f°: calibration wrong or "
-                        "iron changed; magnetometer rejected", math.degrees(self._monitor.lowpassed_innovation_rad))
+                        "iron changed; magnetometer rejected", math.degrees(self._monitor.rejection_disagreement_rad))
         return d
 
     def _reset_or_confirm_yaw(self, t_s: float, d: MonitorDecision, yaw: float, gsf_yaw: float, gsf_var: float,
@@ -1258,7 +1265,8 @@ class Ins:
                 o[_OUT_ACCEL_BIAS],
             )
         return attitude_estimate(t_s, o, _OUT, roll, pitch, yaw, yaw_true, f,
-                                 self._published_heading_state(f, sigma_yaw), nav, self._integrity)
+                                 self._state_hold.update(t_s, self._published_heading_state(f, sigma_yaw),
+                                                         sigma_yaw), nav, self._integrity)
 
     def _published_heading_state(self, f: int, yaw_sigma_rad: float) -> HeadingState:
         p = self.params
