@@ -15,6 +15,10 @@ Honesty first, so the hysteresis only ever delays a *better* state, never a wors
 * a better or an equally good other state is published only after it has held `hold_s` without a break;
 * UNKNOWN is left only when the yaw σ is at most `enter_sigma_rad` (below the `heading_unknown_sigma_rad` that
   makes it UNKNOWN), so a σ hovering at the limit does not re-enter it each time it dips.
+
+ins updates it at each heading check (the GNSS rate), not when an estimate is built, so the state does not depend
+on how often estimates are built; between checks a σ beyond `heading_unknown_sigma_rad` still makes the published
+state UNKNOWN at once (ins._published_heading_state).
 """
 
 from __future__ import annotations

@@ -778,7 +778,7 @@ class Ins:
                 and self._x["nav_ok"] > 0:
             self._learn_iron(t_s, c_bn)
         yaw_now = yaw if yaw_reset_to is None else wrap_pi(yaw_reset_to)
-        self._publish_heading_checks(yaw_now, gsf_yaw, gsf_var, gsf_valid)
+        self._publish_heading_checks(t_s, yaw_now, gsf_yaw, gsf_var, gsf_valid)
         self.heading_checks.append(HeadingCheckRecord(t_s, d.mag_use, d.yaw_var_floor_rad2,
                                                       float(self._P[core.E_YAW, core.E_YAW]), yaw_reset_to,
                                                       self._iron.updates > iron_updates))
@@ -974,7 +974,8 @@ class Ins:
                           p.iron_unmodelled_ut, max(1.0, p.iron_tau_s / dt))
         self._apply_learned_iron()
 
-    def _publish_heading_checks(self, yaw_rad: float, gsf_yaw: float, gsf_var: float, gsf_valid: bool) -> None:
+    def _publish_heading_checks(self, t_s: float, yaw_rad: float, gsf_yaw: float, gsf_var: float,
+                                gsf_valid: bool) -> None:
         """What the checks publish: the yaw σ's floor while the heading is unconfirmed (`_unconfirmed_yaw_sigma`
         at the yaw after any reset), the integrity figures and the heading state."""
         p = self.params
@@ -985,8 +986,9 @@ class Ins:
         self._integrity = HeadingIntegrity(gsf_yaw, math.sqrt(gsf_var) if math.isfinite(gsf_var) else math.nan,
                                            gsf_valid, self._monitor.disagreement_rad, self._iron.offset_ut.copy(),
                                            self._iron.sigma_ut)
-        self._heading_state = self._monitor.heading_state(sig, False, True, p.heading_unknown_sigma_rad,
-                                                          self._mag_var)
+        # held at the check rate, so the state does not depend on how often estimates are built
+        self._heading_state = self._state_hold.update(
+            t_s, self._monitor.heading_state(sig, False, True, p.heading_unknown_sigma_rad, self._mag_var), sig)
 
     def _gnss_yaw_alignment_due(self, gsf_valid: bool) -> bool:
         """The first valid GNSS yaw, no trusted magnetometer calibration, the heading not yet confirmed: the
@@ -1265,8 +1267,7 @@ class Ins:
                 o[_OUT_ACCEL_BIAS],
             )
         return attitude_estimate(t_s, o, _OUT, roll, pitch, yaw, yaw_true, f,
-                                 self._state_hold.update(t_s, self._published_heading_state(f, sigma_yaw),
-                                                         sigma_yaw), nav, self._integrity)
+                                 self._published_heading_state(f, sigma_yaw), nav, self._integrity)
 
     def _published_heading_state(self, f: int, yaw_sigma_rad: float) -> HeadingState:
         p = self.params
