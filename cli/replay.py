@@ -110,9 +110,10 @@ def _gate_summary(estimator) -> str:
     report = estimator.heading_report() if isinstance(estimator, HeadingCheckedEstimator) else None
     if report is not None and report.mag_rejections:
         # the magnetometer, not the antenna: a filter pulled by a wrong magnetometer rejects correct fixes
-        text += (f"; WARNING: magnetometer disagrees with GNSS by {report.max_disagreement_deg:.0f}°: calibration "
-                 f"wrong or iron changed (rejected {report.mag_rejections}×, heading reset to the GNSS yaw "
-                 f"{report.yaw_resets}×)")
+        by = (f"by {report.max_disagreement_deg:.1f}° when rejected" if report.mag_rejections == 1 else
+              f"by up to {report.max_disagreement_deg:.1f}° (the largest at its {report.mag_rejections} rejections)")
+        text += (f"; WARNING: magnetometer disagreed with GNSS {by}: calibration wrong or iron changed (heading "
+                 f"reset to the GNSS yaw {report.yaw_resets}×)")
     if c.rejected_velocity > GATE_HINT_FRACTION * max(c.offered, 1):
         arm = " ".join(f"{v:g}" for v in estimator.lever_arm_m)
         text += (f"; WARNING: that many rejected velocities usually mean the antenna is not where the filter was "

@@ -13,6 +13,10 @@ from ahrsd.estimator.slewed_yaw import slew_rate_rad_s, slewed_yaw_sigma_rad
 # navigation data at > 3.3 Hz (docs/daemon.md); a longer interval is a gap in what the autopilot received, and the
 # first heading after it must not jump by rate × gap
 MAX_STEP_INTERVAL_S = 0.3
+# a heading last sent longer ago than this is not what the autopilot has: it has long been on its own yaw (its
+# gyros, its own yaw sources), so a transition does not slew from it (daemon.restart_heading uses the same age
+# for a remembered heading)
+MAX_SLEW_FROM_AGE_S = 600.0
 
 
 @dataclass
@@ -26,6 +30,11 @@ class HeadingSlew:
     with another heading uses its own rate: daemon.restart_heading), and no more than
     estimator.slewed_yaw.LARGE_OFFSET_MAX_RATE_RAD_S while the offset is large (the rule ins's published heading
     follows too). Outside a transition it passes the heading through unchanged.
+
+    A transition needs a heading the autopilot has: when none was ever sent (a first calibration of a vehicle
+    whose heading was unknown: the VPE was withheld) or the last was sent more than MAX_SLEW_FROM_AGE_S ago,
+    there is nothing to slew from, and the first heading sent is the estimator's; the transition ends at once
+    ("nothing sent before", no STATUSTEXT: daemon.slew_news announces only a transition that moved an offset).
 
     While a transition runs the published heading is off the estimator's by `remaining_rad`, a known error the
     VPE's yaw variance must cover (`published_sigma_rad`).
@@ -52,6 +61,7 @@ class HeadingSlew:
     _published: float | None = None
     _t_last: float | None = None
     _t_start: float | None = None
+    _t_sent: float | None = None        # sample time of the last heading sent (None: none, or a remembered one)
     hold_until_s: float | None = None   # until this sample time, follow the vehicle's rotation only
     rate_deg_s: float | None = None     # the running transition's rate (None: max_rate_deg_s)
     # the estimator's heading minus the published one at the last update (0 outside a transition), rad
@@ -75,6 +85,7 @@ class HeadingSlew:
         given — moves to the estimator's heading at `rate_deg_s` (default `max_rate_deg_s`)."""
         self._published = published_rad % (2 * math.pi)
         self._t_last = None
+        self._t_sent = None           # the restart rule checked the remembered heading's age
         self.start_transition(rate_deg_s, reason)
         self.hold_until_s = hold_until_s
 
@@ -114,6 +125,11 @@ class HeadingSlew:
     def update(self, t_s: float, heading_rad: float, yaw_rate_rad_s: float = 0.0, sigma_rad: float = 0.0) -> float:
         """Heading to publish (rad, [0, 2π)) for the estimator's heading at t_s, the vehicle's yaw rate and the
         estimator's yaw 1σ (the σ sent with the slewed heading sets its rate: estimator/slewed_yaw.py)."""
+        if self.active and (self._published is None
+                            or (self._t_sent is not None and t_s - self._t_sent > MAX_SLEW_FROM_AGE_S)):
+            self.active = False       # the autopilot has no heading of ours to be brought from
+            self.ended_why = "nothing sent before"
+        self._t_sent = t_s
         if self._published is None or not self.active:
             self._published = heading_rad % (2 * math.pi)
             self._t_last = t_s

@@ -48,6 +48,7 @@ from typing import Callable
 
 from ahrsd.calibration.atomic_file import write_atomic
 from ahrsd.core.angles import wrap_pi
+from ahrsd.daemon.heading_slew import MAX_SLEW_FROM_AGE_S
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.daemon.source_set_realign import SourceSetRealign
 
@@ -55,7 +56,7 @@ log = logging.getLogger(__name__)
 
 MEMORY_FILE = "published_heading.json"
 SAVE_PERIOD_S = 5.0          # a crash loses at most this much of the vehicle's rotation
-MAX_AGE_S = 600.0            # older memory: the autopilot has long been on its own yaw; no slew from it
+MAX_AGE_S = MAX_SLEW_FROM_AGE_S   # older memory: the autopilot has long been on its own yaw; no slew from it
 RESTART_STEP_DEG = 1.0       # smaller restart differences are sent as they are
 # PX4 restarts EV yaw fusion once samples arrive < 200 ms apart and > 1 s after its last fusion
 # (ev_control.cpp, ev_yaw_control.cpp); hold the old heading long enough for that, then reset. An autopilot

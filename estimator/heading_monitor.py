@@ -239,7 +239,9 @@ class HeadingMonitor:
     learning: bool = False
     reset_velocity_nis: float = 6.0
     rejections: int = 0
-    max_disagreement_rad: float = 0.0   # largest low-passed disagreement seen when the magnetometer was rejected
+    rejection_disagreement_rad: float = 0.0   # at the latest rejection: the largest of the magnetometer's
+    # low-passed and latest innovation against the filter's heading and its disagreement with the GNSS yaw
+    max_disagreement_rad: float = 0.0   # the largest rejection_disagreement_rad so far
     lowpassed_velocity_nis: float = 0.0
 
     def mag_sigma_rad2(self, iron_var_rad2: float, noise_var_rad2: float) -> float:
@@ -295,8 +297,8 @@ class HeadingMonitor:
             self.mag_rejected = True
             self.rejections += 1
             seen = abs(self.disagreement_rad) if math.isfinite(self.disagreement_rad) else 0.0
-            self.max_disagreement_rad = max(self.max_disagreement_rad, abs(self.lowpassed_innovation_rad),
-                                            abs(innovation), seen)
+            self.rejection_disagreement_rad = max(abs(self.lowpassed_innovation_rad), abs(innovation), seen)
+            self.max_disagreement_rad = max(self.max_disagreement_rad, self.rejection_disagreement_rad)
             floor = self.lowpassed_innovation_rad ** 2 + yaw_var_rad2
             if gsf_valid:
                 floor = max(floor, wrap_pi(yaw_rad - gsf_yaw_rad) ** 2 + gsf_var_rad2)

@@ -34,6 +34,7 @@ from . import mag_heading as mag
 from .calibration_heading import calibration_heading_variance_rad2
 from .gsf_yaw import GsfParams, gsf_fuse_velocity, gsf_output, gsf_reset, new_gsf_state
 from .heading_monitor import HeadingCheckRecord, HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
+from .heading_state_hold import HeadingStateHold
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
                             float_field_slice, uninitialised_estimate)
 from .initial_attitude import initial_attitude
@@ -190,6 +191,11 @@ class InsParams(MagHeadingParams):
     """The GNSS holds the heading (iron learned, magnetometer allowed back) while the yaw 1σ is below this."""
     heading_unknown_sigma_rad: float = 15.0 * _DEG
     """Above this yaw 1σ the heading state is UNKNOWN (consumers must not use the heading), rad."""
+    heading_known_sigma_rad: float = 12.0 * _DEG
+    """UNKNOWN is left only once the yaw 1σ is at most this (below heading_unknown_sigma_rad: a σ hovering at
+    that limit does not flip the state; heading_state_hold.py), rad."""
+    heading_state_hold_s: float = 5.0
+    """A better heading state is published only after it has held this long (a worse one at once), s."""
     accel_bias_needs_heading: bool = True
     """True: the horizontal (body x, y) accelerometer bias learns from GNSS only while the heading is known (a
     trusted magnetometer, or a GNSS yaw confirmed it), so a wrong yaw's mis-projected GNSS acceleration cannot be
@@ -425,6 +431,7 @@ class Ins:
         self._monitor = HeadingMonitor(p.calibration_sigma_rad, reentry_s=p.mag_reentry_s,
                                        max_resets=p.yaw_reset_max, reset_spacing_s=p.yaw_reset_spacing_s)
         self._heading_state = HeadingState.UNKNOWN
+        self._state_hold = HeadingStateHold(p.heading_state_hold_s, p.heading_known_sigma_rad)
         self.heading_checks: deque[HeadingCheckRecord] = deque(maxlen=HEADING_CHECKS_KEPT)
         self._integrity = None
         self._field_key = None
@@ -771,7 +778,7 @@ class Ins:
                 and self._x["nav_ok"] > 0:
             self._learn_iron(t_s, c_bn)
         yaw_now = yaw if yaw_reset_to is None else wrap_pi(yaw_reset_to)
-        self._publish_heading_checks(yaw_now, gsf_yaw, gsf_var, gsf_valid)
+        self._publish_heading_checks(t_s, yaw_now, gsf_yaw, gsf_var, gsf_valid)
         self.heading_checks.append(HeadingCheckRecord(t_s, d.mag_use, d.yaw_var_floor_rad2,
                                                       float(self._P[core.E_YAW, core.E_YAW]), yaw_reset_to,
                                                       self._iron.updates > iron_updates))
@@ -890,7 +897,7 @@ class Ins:
             P[core.E_YAW, core.E_YAW] = d.yaw_var_floor_rad2
             self.heading_interventions += 1
             log.warning("ins: magnetometer disagrees with the GNSS-held heading by %.1f°: calibration wrong or "
-                        "iron changed; magnetometer rejected", math.degrees(self._monitor.lowpassed_innovation_rad))
+                        "iron changed; magnetometer rejected", math.degrees(self._monitor.rejection_disagreement_rad))
         return d
 
     def _reset_or_confirm_yaw(self, t_s: float, d: MonitorDecision, yaw: float, gsf_yaw: float, gsf_var: float,
@@ -967,7 +974,8 @@ class Ins:
                           p.iron_unmodelled_ut, max(1.0, p.iron_tau_s / dt))
         self._apply_learned_iron()
 
-    def _publish_heading_checks(self, yaw_rad: float, gsf_yaw: float, gsf_var: float, gsf_valid: bool) -> None:
+    def _publish_heading_checks(self, t_s: float, yaw_rad: float, gsf_yaw: float, gsf_var: float,
+                                gsf_valid: bool) -> None:
         """What the checks publish: the yaw σ's floor while the heading is unconfirmed (`_unconfirmed_yaw_sigma`
         at the yaw after any reset), the integrity figures and the heading state."""
         p = self.params
@@ -978,8 +986,9 @@ class Ins:
         self._integrity = HeadingIntegrity(gsf_yaw, math.sqrt(gsf_var) if math.isfinite(gsf_var) else math.nan,
                                            gsf_valid, self._monitor.disagreement_rad, self._iron.offset_ut.copy(),
                                            self._iron.sigma_ut)
-        self._heading_state = self._monitor.heading_state(sig, False, True, p.heading_unknown_sigma_rad,
-                                                          self._mag_var)
+        # held at the check rate, so the state does not depend on how often estimates are built
+        self._heading_state = self._state_hold.update(
+            t_s, self._monitor.heading_state(sig, False, True, p.heading_unknown_sigma_rad, self._mag_var), sig)
 
     def _gnss_yaw_alignment_due(self, gsf_valid: bool) -> bool:
         """The first valid GNSS yaw, no trusted magnetometer calibration, the heading not yet confirmed: the

@@ -5,6 +5,7 @@ VISION_POSITION_ESTIMATE moves to the new heading at the bounded slew rate (no s
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 
 import numpy as np
@@ -37,19 +38,19 @@ def _truth_yaw_deg(q):
     return math.degrees(math.atan2(2.0 * (x * y + w * z), 1.0 - 2.0 * (y * y + z * z)))
 
 
-def run_swap(tmp_path, estimator, swap_at_s=60.0, total_s=130.0, reset_on_cal=False, seed=3):
+def run_swap(tmp_path, estimator, swap_at_s=60.0, total_s=130.0, reset_on_cal=False, seed=3, before=None):
     """Level turns with the simulator's vehicle iron; until `swap_at_s` a calibration that states 0.5° but does
     not have the iron (as after the iron moved; with no calibration at all the heading is unknown and nothing is
     sent: estimator/calibration_heading.py), then the true iron model, stating the same, is applied through
-    Service.apply_calibration. Returns per-VPE tick (t, vpe_yaw_err_deg or NaN when the
-    VPE was withheld, est_yaw_err_deg, reset_counter, the VPE's own yaw 1σ in deg or NaN, the estimator's yaw 1σ
-    in deg),
+    Service.apply_calibration (`before`: another calibration before the swap). Returns per-VPE tick
+    (t, vpe_yaw_err_deg or NaN when the VPE was withheld, est_yaw_err_deg, reset_counter, the VPE's own yaw 1σ in
+    deg or NaN, the estimator's yaw 1σ in deg),
     the estimate flags seen after the swap, and the service."""
     outputs = OutputsConfig.parse({"heading_slew_deg_s": SLEW_DEG_S, "reset_counter_on_calibration": reset_on_cal})
     cfg = dataclasses.replace(Config().with_overrides(state_dir=str(tmp_path)), outputs=outputs)
     svc = Service(cfg)
     stated = {"method": "test", "heading_std_deg": 0.5, "offset_std_deg": 0.2}
-    wrong = Calibration.identity().with_sensor("mag", MagModel.identity(), **stated)
+    wrong = Calibration.identity().with_sensor("mag", MagModel.identity(), **stated) if before is None else before
     svc.use_pipeline(Pipeline(estimator, wrong))
     estimator.set_mag_calibration_sigma(calibration_heading_sigma_rad(wrong))    # as Service.start does
     stream = open_stream("level-turns", seed=seed)
@@ -175,3 +176,23 @@ def test_the_vpe_yaw_variance_covers_the_error_while_a_calibration_change_is_sle
     # the issue's target, through the change: without the widened covariance mekf's heading converges over ~4 s
     # while its σ says 2-3° (5.1 % of the VPEs beyond 3σ, 60 % in the first 5 s)
     assert est_beyond.mean() <= 0.01 and beyond.mean() <= 0.01
+
+
+def test_a_first_calibration_from_unknown_sends_the_estimators_heading_without_a_slew(tmp_path, caplog):
+    """No calibration at all until 30 s (the tour's `st2` before `ahrsd magcal start` + accept): the heading is
+    unknown and no VPE is ever sent, so the autopilot has no heading of ours to be brought from: the first VPE
+    after the calibration is the estimator's heading, every VPE after it too, and no slew is announced (before:
+    the slew started from the first VPE and dragged the estimator's settling after it, "yaw change … slewed in")."""
+    caplog.set_level(logging.INFO, logger="ahrsd.daemon.outbound")
+    swap_s = 30.0
+    rows, _flags, svc, _c = run_swap(tmp_path, Mekf(), swap_at_s=swap_s, total_s=50.0, before=Calibration.identity())
+    t, vpe_err, est_err, _counters, sigma, _est_sigma = rows.T
+    sent = ~np.isnan(vpe_err)
+    assert not sent[t < swap_s].any()                       # unknown: nothing sent before
+    assert sent[t > swap_s + 5.0].all()
+    # each VPE's yaw is the estimator's heading (both against the same truth), its σ the estimator's
+    assert np.allclose(vpe_err[sent], est_err[sent], atol=1e-6), np.abs(vpe_err[sent] - est_err[sent]).max()
+    assert np.allclose(sigma[sent], _est_sigma[sent], atol=1e-6)
+    texts = [r.getMessage() for r in caplog.records]
+    assert not any("slew" in x for x in texts), texts
+    assert not svc.heading_slew.active and svc.heading_slew.ended_why == "nothing sent before"

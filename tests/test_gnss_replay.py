@@ -90,8 +90,8 @@ def test_the_summary_reads_the_gate_and_the_heading_checks_an_estimator_declares
     plain.gnss_counters = MagnetometerRejected().gnss_counters
     assert _gate_summary(plain) == gate
     assert _gate_summary(MagnetometerRejected()) == (
-        gate + "; WARNING: magnetometer disagrees with GNSS by 36°: calibration wrong or iron changed "
-        "(rejected 3×, heading reset to the GNSS yaw 2×)")
+        gate + "; WARNING: magnetometer disagreed with GNSS by up to 36.4° (the largest at its 3 rejections): "
+        "calibration wrong or iron changed (heading reset to the GNSS yaw 2×)")
 
 
 def test_many_rejected_velocities_name_the_lever_arm_the_estimator_declares():

@@ -3,6 +3,8 @@ the output carries the GNSS yaw, its σ and the heading state, and the summary n
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -13,7 +15,7 @@ from ahrsd.core.estimate import HeadingState
 SEED = 2
 
 
-def test_an_uncalibrated_boat_replays_with_an_honest_heading(tmp_path, capsys):
+def test_an_uncalibrated_boat_replays_with_an_honest_heading(tmp_path, capsys, caplog):
     """`record` and `replay` run in this process (the worker has usually loaded the ins kernels already; the
     console scripts in subprocesses are test_recording's and test_replay's)."""
     from ahrsd.simulation import open_stream
@@ -29,6 +31,10 @@ def test_an_uncalibrated_boat_replays_with_an_honest_heading(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 0, err
     assert "heading state" in err and "unknown" in err, err
+    # the summary's disagreement is the one the log line gave at the (one) rejection, and says which it is
+    logged = re.findall(r"disagrees with the GNSS-held heading by ([0-9.]+)°", caplog.text)
+    summary = re.findall(r"disagreed with GNSS by ([0-9.]+)° when rejected", err)
+    assert len(logged) == 1 and summary == logged, (logged, err)
     lines = out.read_text().splitlines()
     assert lines[0] == AIDED_OUTPUT_HEADER and lines[0].endswith(",".join(HEADING_OUTPUT_COLUMNS))
     cols = lines[0].split(",")
@@ -50,3 +56,11 @@ def test_an_uncalibrated_boat_replays_with_an_honest_heading(tmp_path, capsys):
     assert np.sqrt(np.mean(z ** 2)) >= 0.3, (np.sqrt(np.mean(err ** 2)), np.median(sigma))
     gsf_sigma = data[late, cols.index("gsf_sigma_deg")]
     assert np.any(np.isfinite(gsf_sigma))
+    # the state does not flap while the GNSS-held σ hovers at the 15° UNKNOWN limit (heading_state_hold.py):
+    # 3 changes on this run, 11 without the hysteresis (--set heading_state_hold_s=0 heading_known_sigma_rad=15°)
+    all_states = data[:, cols.index("heading_state")].astype(int)
+    at = np.flatnonzero(np.diff(all_states)) + 1
+    assert len(at) <= 4, (len(at), t[at], all_states[at])
+    # … and never claims a known heading with a σ beyond that limit (a worse state is published at once)
+    beyond = data[:, cols.index("sigma_yaw_deg")] > 15.0
+    assert np.all(all_states[beyond] == int(HeadingState.UNKNOWN))

@@ -135,3 +135,41 @@ def test_a_large_change_slewed_with_its_honest_sigma_is_fused_by_the_fake_autopi
     for name, ap in fakes.items():
         assert ap.rejected == 0, name
         assert abs(math.degrees(math.remainder(ap.yaw - 90.0 * DEG, 2 * math.pi))) < 1.0, name
+
+
+def _heading_deg(k):
+    """The estimator's heading at the k-th VPE after the change: 40°, still settling by 10° over the first 1 s."""
+    return 40.0 + 10.0 * min(k / 30.0, 1.0)
+
+
+def _first_vpes_after_a_change(sent_before_s):
+    """VPEs at 30 Hz from t = 1000 s after a calibration change, the estimator's heading `_heading_deg`; the
+    last VPE before it at 0° `sent_before_s` earlier (None: none ever sent, the heading was unknown). Returns the
+    yaws sent (deg), the texts and the slew."""
+    texts = []
+    resets = HeadingResets(HeadingSlew(max_rate_deg_s=2.0), statustext=lambda sev, text: texts.append(text))
+    if sent_before_s is not None:
+        resets.autopilot_yaw(_est(1000.0 - sent_before_s, 0.0))
+    resets.withheld(_est(999.9, 40.0))            # the heading unknown meanwhile: nothing sent
+    resets.slew.start_transition()
+    yaws = [math.degrees(resets.autopilot_yaw(_est(1000.0 + k / 30.0, _heading_deg(k)))[0]) for k in range(30 * 30)]
+    return np.array(yaws), texts, resets.slew
+
+
+def test_with_no_heading_ever_sent_the_first_vpe_is_the_estimators_heading_without_a_slew():
+    """A first calibration of a vehicle whose heading was unknown (tour: `st2`, `ahrsd magcal start`, accept):
+    the autopilot never had a heading of ours, so there is nothing to slew from and nothing to announce."""
+    expected = [_heading_deg(k) for k in range(30 * 30)]
+    yaws, texts, slew = _first_vpes_after_a_change(None)
+    assert np.allclose(yaws, expected) and texts == [] and not slew.active
+    assert slew.ended_why == "nothing sent before"
+    # the same after a heading last sent longer ago than the autopilot keeps it (as a restart's memory)
+    yaws, texts, slew = _first_vpes_after_a_change(601.0)
+    assert np.allclose(yaws, expected) and texts == [] and not slew.active
+
+
+def test_a_heading_sent_before_the_gap_is_still_slewed_from():
+    yaws, texts, slew = _first_vpes_after_a_change(60.0)
+    assert yaws[0] < 1.0 and abs(yaws[-1] - 50.0) < 0.1        # from where the autopilot was, to the new one
+    assert np.all(np.diff(yaws) <= 2.0 / 30.0 + 1e-9)          # at ≤ 2 °/s
+    assert texts[0] == "ahrsd: calibration changed, slewing ≤2°/s" and texts[1].endswith("° slewed in")
