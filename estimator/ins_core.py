@@ -90,6 +90,9 @@ INS_STATE_DTYPE = np.dtype([
     ("lon_rad", np.float64),
     ("h_m", np.float64),                         # height above the ellipsoid
     ("gyro_bias_rad_s", np.float64, (3,)),
+    # the gyro bias the GNSS yaw bank is corrected with: the last one a GNSS yaw confirmed (the start-up one
+    # before), never what the magnetometer alone taught the filter (`Ins._bank_gyro_bias`)
+    ("bank_gyro_bias_rad_s", np.float64, (3,)),
     ("accel_bias_m_s2", np.float64, (3,)),       # body frame
     ("gyro_scale", np.float64, (3,)),            # scale-factor errors (ω_meas = (I + diag(s) + M) ω + b), fraction
     ("gyro_misalignment_rad", np.float64, (6,)),  # M: xy, xz, yx, yz, zx, zy (MIS_ROW, MIS_COL)
@@ -722,7 +725,13 @@ def ins_step(state, P, hist, params, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sa
     x.t_run_s += dt
     wx, wy, wz, mwx, mwy, mwz, fx, fy, fz = _take_sample(x, valid, gx, gy, gz, ax, ay, az, mx, my, mz)
     if par.gnss_yaw > 0.0:
-        gsf_accumulate_imu(gsf[0], gsf_par[0], dt, np.array((mwx, mwy, mwz)), np.array((fx, fy, fz)))
+        # the bank's gyro: this filter's corrected rate with the bank's bias in place of the filter's (to first
+        # order: the scale and misalignment terms of the bias difference are second order)
+        bgx = x.gyro_bias_rad_s[0] - x.bank_gyro_bias_rad_s[0]
+        bgy = x.gyro_bias_rad_s[1] - x.bank_gyro_bias_rad_s[1]
+        bgz = x.gyro_bias_rad_s[2] - x.bank_gyro_bias_rad_s[2]
+        gsf_accumulate_imu(gsf[0], gsf_par[0], dt, np.array((mwx + bgx, mwy + bgy, mwz + bgz)),
+                           np.array((fx, fy, fz)))
     nav_ok = _navigation_known(x, par)
     if dt > 0.0:
         q0, q1, q2, q3, vn, ve, vd = _mechanise(x, par, dt, nav_ok, mwx, mwy, mwz, fx, fy, fz)
