@@ -56,7 +56,7 @@ count restarts.
 
 Units: SI, angles rad, body FRD, NED; the gyro and accelerometer given to it are bias-corrected (the `ins`
 supplies its estimates: for the gyro, the last bias this bank's yaw confirmed, never one a magnetometer alone
-taught, `Ins._bank_gyro_bias`); the bank does not learn a gyro bias itself. It assumes forward motion (a reversing
+taught, `Ins._monitor_decision`); the bank does not learn a gyro bias itself. It assumes forward motion (a reversing
 vehicle turns the no-sideslip term's sign). The state and the parameters are numpy structured records (numba
 Records): named fields, no index tables; `P[i]` is model i's 5×5 covariance in the order `MODEL_STATE_NAMES`.
 """

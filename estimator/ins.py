@@ -769,7 +769,6 @@ class Ins:
         gsf_yaw, gsf_var, gsf_valid = self._gnss_yaw()
         d = self._monitor_decision(t_s, yaw, yaw_var, mag_yaw, mag_var, noise, gsf_yaw, gsf_var, gsf_valid)
         yaw_reset_to = self._reset_or_confirm_yaw(t_s, d, yaw, gsf_yaw, gsf_var, gsf_valid)
-        self._bank_gyro_bias()
         self._set_accel_bias_learning()
         self._set_magnetometer_use(d, mag_var, noise)
         # the monitor says no learning on a check that reset the yaw (c_bn is the attitude before the reset, P its
@@ -891,8 +890,14 @@ class Ins:
             self._confirmed_gyro_bias = self._x["gyro_bias_rad_s"].copy()
             self._confirmed_accel_bias = self._x["accel_bias_m_s2"].copy()
             if gsf_var < p.accel_bias_gsf_sigma_rad ** 2:
-                # and the bank is sure enough that its agreement is not just its width (`_bank_gyro_bias`)
-                self._bank_confirmed_gyro_bias = self._x["gyro_bias_rad_s"].copy()
+                # and the bank is sure enough that its agreement is not just its width: from now on the bank's gyro
+                # is corrected with this bias, not the filter's. A wrong magnetometer trusted before the first check
+                # teaches the vertical gyro bias its heading error's rate, and a bank that learns no bias itself
+                # would drift at that rate and hold the wrong magnetometer's heading against the right one later.
+                # Tighter than `_confirmed_gyro_bias` (any agreement within the gate): a bank near its validity
+                # limit agrees with headings tens of degrees off, and a bias confirmed by that would drag the bank
+                # after the filter again (docs/estimator.md, "Magnetometer-free GNSS yaw", Limits)
+                self._x["bank_gyro_bias_rad_s"] = self._x["gyro_bias_rad_s"]
         if d.yaw_var_floor_rad2 > 0.0:
             # the magnetometer was just rejected: the heading it held is unconfirmed again (`_confirm_heading`)
             self._heading_confirmed = False
@@ -923,16 +928,6 @@ class Ins:
         if not self._heading_confirmed and gsf_valid and (self._calibration_untrusted or self._monitor.mag_rejected):
             self._confirm_heading(yaw, gsf_yaw, gsf_var)
         return None
-
-    def _bank_gyro_bias(self) -> None:
-        """The GNSS yaw bank is corrected with the last gyro bias its own yaw confirmed within
-        `accel_bias_gsf_sigma_rad` (the start-up one before), not with the filter's: a wrong magnetometer trusted
-        before the first check teaches the vertical gyro bias its heading error's rate, and a bank that learns no
-        bias itself would drift at that rate and hold the wrong magnetometer's heading against the right one
-        later. The confirmation is tighter than the filter's own (`_confirmed_gyro_bias`, any agreement within
-        the gate): a bank near its validity limit agrees with headings tens of degrees off, and a bias confirmed
-        by that would drag the bank after the filter again (docs/estimator.md, "Magnetometer-free GNSS yaw", Limits)."""
-        self._x["bank_gyro_bias_rad_s"] = self._bank_confirmed_gyro_bias
 
     def _align_yaw_to_gnss(self, t_s: float, dyaw_rad: float, gsf_var: float) -> None:
         """The planned first alignment of the yaw to the GNSS yaw (yaw_align_to_gnss_yaw)."""
@@ -1171,8 +1166,7 @@ class Ins:
         self._confirmed_gyro_bias = keep_bg.copy()
         self._confirmed_accel_bias = keep_ba.copy()
         self._startup_gyro_bias = keep_bg.copy()     # what the GNSS-yaw alignment goes back to
-        self._bank_confirmed_gyro_bias = keep_bg.copy()
-        x["bank_gyro_bias_rad_s"] = keep_bg
+        x["bank_gyro_bias_rad_s"] = keep_bg       # the GNSS yaw bank's, until its own yaw confirms one
         self._startup_accel_bias = keep_ba.copy()
         x["accel_bias_m_s2"] = keep_ba
         x["gyro_scale"] = keep_sg

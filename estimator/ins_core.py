@@ -91,7 +91,7 @@ INS_STATE_DTYPE = np.dtype([
     ("h_m", np.float64),                         # height above the ellipsoid
     ("gyro_bias_rad_s", np.float64, (3,)),
     # the gyro bias the GNSS yaw bank is corrected with: the last one a GNSS yaw confirmed (the start-up one
-    # before), never what the magnetometer alone taught the filter (`Ins._bank_gyro_bias`)
+    # before), never what the magnetometer alone taught the filter (`Ins._monitor_decision`)
     ("bank_gyro_bias_rad_s", np.float64, (3,)),
     ("accel_bias_m_s2", np.float64, (3,)),       # body frame
     ("gyro_scale", np.float64, (3,)),            # scale-factor errors (ω_meas = (I + diag(s) + M) ω + b), fraction
