@@ -41,12 +41,12 @@ from .initial_attitude import initial_attitude
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .mag_heading import RELEARN_GATE_OPEN_S
 from .mag_heading_params import MagHeadingParams
-from .mag_rotation import MagRotationBias, rotation_matrix, rotation_vector_step
+from .mag_rotation import MagRotationBias, rotation_vector_step
 from .constrained_update import scalar_update
 from .params import with_overrides
 from .estimate_view import EstimateView
 from .published_heading import PublishedHeading
-from .rotations import quat_to_dcm
+from .rotations import quat_to_dcm, rotvec_to_dcm
 
 log = logging.getLogger(__name__)
 _DEG = math.pi / 180.0
@@ -803,7 +803,7 @@ class Ins:
         dt = self._gyro_rotation_s
         lat = float(x["lat_rad"])
         earth_rate = EARTH_RATE_RAD_S * np.array([math.cos(lat), 0.0, -math.sin(lat)])
-        step = rotation_matrix(np.array(self._gyro_rotation) - (x["gyro_bias_rad_s"] + c_bn.T @ earth_rate) * dt)
+        step = rotvec_to_dcm(np.array(self._gyro_rotation) - (x["gyro_bias_rad_s"] + c_bn.T @ earth_rate) * dt)
         self._gyro_rotation = [0.0, 0.0, 0.0]
         self._gyro_rotation_s = 0.0
         field = self._earth_field_ned()

@@ -52,16 +52,6 @@ def rotation_vector_step(theta, rate_rad_s, dt_s: float) -> None:
     theta[2] = tz + az + 0.5 * (tx * ay - ty * ax)
 
 
-def rotation_matrix(theta: np.ndarray) -> np.ndarray:
-    """exp([θ×]) (Rodrigues): body at the interval's end → body at its start."""
-    ang = float(np.linalg.norm(theta))
-    if ang <= 0.0:
-        return np.eye(3)
-    k = theta / ang
-    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + math.sin(ang) * kx + (1.0 - math.cos(ang)) * kx @ kx
-
-
 @dataclass
 class MagRotationBias:
     """One window of magnetometer samples against the gyro's heading; `add` returns the vertical gyro bias
