@@ -6,7 +6,7 @@ the σ rule behind docs/daemon.md "Calibration changes" / "Restarts" (daemon/hea
 The published yaw starts on the heading the autopilot holds (it fused it for 2 min, in flight: gated) and moves
 to a heading D away at r °/s; the offset still to come is d. The yaw's 1σ sent with it is, per rule:
   estimator's σ      — the estimator's own (0.5° here): not honest, the VPE is d off;
-  hypot(σ, d)        — d counted as a 1σ error (ins's published heading today, estimator/published_heading.py);
+  hypot(σ, d)        — d counted as a 1σ error (ins's published heading before estimator/slewed_yaw.py);
   σ + d/3            — 3σ covers d and the estimator's own 3σ;
   sent               — σ + d/3 with the daemon's own slew (daemon.heading_slew.HeadingSlew at r °/s, which holds
                        the rate to 2 °/s while that σ is above EKF3's 5° floor);
