@@ -10,6 +10,8 @@ from ahrsd.core.estimate import AttitudeEstimate
 from ahrsd.core.gnss import GnssFix
 from ahrsd.core.sample import ImuSample
 
+from .estimate_view import EstimateView
+
 
 class Estimator(Protocol):
     name: str
@@ -29,12 +31,12 @@ class Estimator(Protocol):
 
 @runtime_checkable
 class SteppingEstimator(Estimator, Protocol):
-    """An estimator with a cheap hot path (mekf): `step(sample)` updates like `update` but returns a reused,
-    in-place view of the estimate (the AttitudeEstimate's fields, valid until the next step) with
-    `snapshot() -> AttitudeEstimate`, so a caller that publishes at a lower rate builds the immutable result
+    """An estimator with a cheap hot path (mekf, ins): `step(sample)` updates like `update` but returns a reused,
+    view of the estimate (estimate_view.EstimateView: the AttitudeEstimate's fields, valid until the next step)
+    with `snapshot() -> AttitudeEstimate`, so a caller that publishes at a lower rate builds the immutable result
     only then. The daemon's pipeline uses it where an estimator has it (daemon/pipeline.py)."""
 
-    def step(self, sample: ImuSample): ...
+    def step(self, sample: ImuSample) -> EstimateView: ...
 
 
 @runtime_checkable

@@ -1,15 +1,24 @@
-"""The latest estimate of an estimator whose AttitudeEstimate is built only when someone asks for it.
+"""The latest estimate of a stepping estimator: what `step(sample)` returns (estimator.base.SteppingEstimator).
 
 At 819.2 SPS the daemon's publishers want an estimate 30–50 times a second, not after every sample; building the
 immutable AttitudeEstimate (a fresh output buffer, NavState, the heading state) costs several times the filter
-step's own Python around the compiled kernel. An estimator with a `step(sample)` (estimator.base.
-SteppingEstimator) returns this view: its `flags` are read per sample, `snapshot()` builds the AttitudeEstimate
-of the sample stepped last — the same object `update` returns — once, on first request.
+step's own Python around the compiled kernel. So `step` returns a view, one per estimator, reused: `t_s`,
+`valid` and `flags` are read per sample, `snapshot()` is the AttitudeEstimate `update` returns for the sample
+stepped last, and any other attribute of the AttitudeEstimate (`roll_rad`, `nav`, …) reads through the view.
 
-Everything that moves in `step` (the filter, the published-heading slew) is done there for every sample, so
-what a snapshot holds does not depend on how often snapshots are taken. An estimator whose other methods change
-what a snapshot reads (a GNSS fix fused, a declination or calibration set, a reset) calls `freeze()` before the
-change, so the estimate of the sample already stepped is the one that sample had."""
+`EstimateView` is that one concept; an estimator gives it in one of two ways, and the difference is what a
+change between a step and a read does:
+
+- **read in place** (`mekf.MekfView`): the attributes read the estimator's output buffer when accessed (arrays
+  are views of it: copy what you keep) and `snapshot()` copies it. For an estimator whose published estimate
+  is its filter's output as it stands, nothing outside `step` changes that buffer; a setting changed after a
+  step shows at the next read (mekf: the declination, in `heading_true_rad`).
+- **built on demand** (`BuiltEstimateView`, ins): the estimator's builder makes the AttitudeEstimate at the
+  first request after a step and the view keeps it; other attributes read that snapshot. Everything that moves
+  with each sample (the filter, the published-heading slew) is done in `step`, so what a snapshot holds does
+  not depend on how often snapshots are taken. An estimator whose other methods change what the builder reads
+  (a GNSS fix fused, a declination or calibration set, a reset) calls `freeze()` before the change, so the
+  estimate of the sample already stepped is the one that sample had."""
 
 from __future__ import annotations
 
@@ -24,17 +33,44 @@ _INITIALISING = EstimateFlags.INITIALISING
 
 
 class EstimateView:
-    """`build(t_s, flag_bits, initialised) -> AttitudeEstimate` is the estimator's builder; `set` after each step.
-    Any attribute of the AttitudeEstimate (`roll_rad`, `nav`, …) reads the snapshot."""
+    """The latest estimate of a stepping estimator (module docstring). A subclass gives `t_s`, `valid`,
+    `flags` and `snapshot()`, and may read any other field in place; the rest read the snapshot."""
 
-    __slots__ = ("_build", "t_s", "bits", "valid", "_estimate")
+    __slots__ = ()
+
+    t_s: float                  # the time of the sample stepped last (NaN: none yet)
+    valid: bool                 # the filter is initialised (else the snapshot is the uninitialised estimate)
+    flags: EstimateFlags
+
+    def snapshot(self) -> AttitudeEstimate:
+        """The immutable AttitudeEstimate of the sample stepped last, the one `update` returns."""
+        raise NotImplementedError
+
+    def freeze(self) -> None:
+        """The estimator is about to change something a read after the step would see (a view read in place
+        shows such a change: nothing to do)."""
+
+    def __getattr__(self, name: str):
+        # only called for what the view does not read itself
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return getattr(self.snapshot(), name)
+
+
+class BuiltEstimateView(EstimateView):
+    """The view built on demand: `build(t_s, flag_bits, initialised) -> AttitudeEstimate` is the estimator's
+    builder; the estimator calls `set` after each step and `freeze` before a change its builder reads.
+    `snapshots_built` counts the builds (what the daemon's on-demand rule saves is counted on it)."""
+
+    __slots__ = ("_build", "t_s", "bits", "valid", "_estimate", "snapshots_built")
 
     def __init__(self, build: Callable[[float, int, bool], AttitudeEstimate]):
         self._build = build
         self.t_s = math.nan
         self.bits = 0
-        self.valid = False          # the filter is initialised (else the snapshot is the uninitialised estimate)
+        self.valid = False
         self._estimate: AttitudeEstimate | None = None
+        self.snapshots_built = 0
 
     def set(self, t_s: float, flag_bits: int, valid: bool) -> None:
         """A sample was stepped: its time, its estimate's flag bits, whether the filter is initialised."""
@@ -42,10 +78,6 @@ class EstimateView:
         self.bits = flag_bits
         self.valid = valid
         self._estimate = None
-
-    @property
-    def stepped(self) -> bool:
-        return self.t_s == self.t_s      # not NaN: a sample was stepped
 
     @property
     def flags(self) -> EstimateFlags:
@@ -57,6 +89,7 @@ class EstimateView:
         e = self._estimate
         if e is None:
             e = self._estimate = self._build(self.t_s, self.bits, self.valid)
+            self.snapshots_built += 1
         return e
 
     def freeze(self) -> None:
@@ -64,8 +97,3 @@ class EstimateView:
         change something the builder reads."""
         if self._estimate is None and self.t_s == self.t_s:
             self.snapshot()
-
-    def __getattr__(self, name: str):
-        if name.startswith("_"):
-            raise AttributeError(name)
-        return getattr(self.snapshot(), name)

@@ -44,7 +44,7 @@ from .mag_heading_params import MagHeadingParams
 from .mag_rotation import MagRotationBias, rotation_vector_step
 from .constrained_update import scalar_update
 from .params import with_overrides
-from .estimate_view import EstimateView
+from .estimate_view import BuiltEstimateView, EstimateView
 from .published_heading import PublishedHeading
 from .rotations import quat_to_dcm, rotvec_to_dcm
 
@@ -413,7 +413,7 @@ class Ins:
         self._published = PublishedHeading(self.params.published_yaw_slew_rad_s)
         self._published_since_init = False
         self._last_fix_velocity = None
-        self._view = EstimateView(self._build_estimate)   # step()'s result: the estimate built on demand
+        self._view = BuiltEstimateView(self._build_estimate)   # step()'s result: the estimate built on demand
         self._new_heading_checks()
 
     def _step_args_example(self) -> tuple:

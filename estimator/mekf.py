@@ -36,6 +36,7 @@ from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
                             float_field_slice, uninitialised_estimate)
 from .calibration_heading import calibration_heading_variance_rad2
+from .estimate_view import EstimateView
 from .initial_attitude import initial_attitude
 from .mag_heading import RELEARN_GATE_OPEN_S, heading_params, relearn_reference, widen_after_calibration_change
 from .mag_heading_params import MagHeadingParams
@@ -455,12 +456,14 @@ class Mekf:
         return uninitialised_estimate(t_s, extra)
 
 
-class MekfView:
-    """The latest estimate of a `Mekf`, read in place (returned by `Mekf.step`; one per estimator, reused).
+class MekfView(EstimateView):
+    """The latest estimate of a `Mekf`, read in place (estimate_view.py: returned by `Mekf.step`; one per
+    estimator, reused).
 
     Attributes read the estimator's output buffer when accessed, so they change at the next step; arrays are
-    views of that buffer (copy what you keep). `snapshot()` returns the immutable AttitudeEstimate.
-    Before the first usable sample (`valid` False) the angles are NaN, as in `update`'s estimate.
+    views of that buffer (copy what you keep). `snapshot()` returns the immutable AttitudeEstimate; the fields
+    not read here (`nav`, `heading_state`, …) read it. Before the first usable sample (`valid` False) the
+    angles are NaN, as in `update`'s estimate.
 
     `q_wxyz` is a plain attribute (a property call would cost a sixth of the step): the estimator sets it to
     its quaternion output when it initialises and to the identity when it cannot."""
