@@ -55,6 +55,15 @@ def max_frame_bytes(message_id: int, signed: bool = False) -> int:
     return 12 + mavlink.mavlink_map[message_id].unpacker.size + (13 if signed else 0)
 
 
+_SIZER = mavlink.MAVLink(None)   # packs a message only to learn its length: no file, no signing, its seq never moves
+
+
+def frame_bytes(msg, signed: bool = False) -> int:
+    """The MAVLink 2 frame `msg` packs to, in bytes: what a link's write hands its serial queue (the payload's
+    trailing zero bytes trimmed), + 13 when signed. Packing again at `send` sets the same fields of `msg` anew."""
+    return len(msg.pack(_SIZER)) + (13 if signed else 0)
+
+
 @dataclass
 class LinkCounters:
     rx_messages: int = 0
@@ -229,12 +238,12 @@ class Endpoint:
     def send_together(self, msgs) -> bool:
         """Send every one of `msgs` or none (the chunks of one STATUSTEXT: a receiver shows a text only whole): a
         serial link whose queue would refuse one of them sends none and counts them all as dropped. Each frame is
-        taken at its largest (full payload, signature) for the check."""
+        taken at the size it packs to, as `send` hands it to the queue."""
         queue = self.out_queue
         if queue is not None:
             queue.priority = self.priority_of(msgs[0].get_msgId())
             signed = self._signing is not None
-            if not queue.admits([max_frame_bytes(m.get_msgId(), signed) for m in msgs]):
+            if not queue.admits([frame_bytes(m, signed) for m in msgs]):
                 queue.refuse(len(msgs))
                 return False
         return all([self.send(m) for m in msgs])

@@ -109,3 +109,29 @@ def test_a_chunked_statustext_goes_whole_or_not_at_all_on_a_full_serial_link(ful
         assert queue.waiting_bytes() > 5 * 63 and counters.tx_messages == 5 + 2 and counters.tx_dropped == 6
     finally:
         queue.close()
+
+
+def test_a_short_text_is_admitted_at_its_real_size_on_a_nearly_full_serial_link(full_pipe):
+    """The same 5760 B/s link (432 B for priority 1) with 6 single texts waiting (6 x 63 = 378 B): 54 B are left.
+    "ahrsd: ok" packs to 10 header + 10 payload (severity, 9 characters; the zero id and chunk_seq and the rest of
+    the text are trailing zeros MAVLink 2 trims) + 2 CRC = 22 B, so it fits, through `send` and through
+    `send_together` alike; taken at STATUSTEXT's largest frame (66 B) it would not."""
+    w, loop = full_pipe
+    counters = LinkCounters()
+    queue = SerialOutQueue(w, 5760.0, loop, counters)
+    conn = SimpleNamespace(mav=mavlink.MAVLink(queue, srcSystem=1, srcComponent=200), fd=None)
+    ep = Endpoint("/dev/ttyAMA0,57600", 1, 200, lambda e, m: None, counters=counters, conn=conn,
+                  priority_of=lambda message_id: 1, out_queue=queue)
+    try:
+        for k in range(6):
+            (single,) = statustext_chunks(mavlink.MAV_SEVERITY_INFO, f"ahrsd: {k}" + "x" * 42, 0)
+            assert ep.send(single)
+        assert queue.waiting_bytes() == 378
+        (short,) = statustext_chunks(mavlink.MAV_SEVERITY_INFO, "ahrsd: ok", 0)
+        assert ep.send_together([short])
+        assert queue.waiting_bytes() == 378 + 22 and counters.tx_dropped == 0
+        (short,) = statustext_chunks(mavlink.MAV_SEVERITY_INFO, "ahrsd: ok", 0)
+        assert ep.send(short)                                                   # 422 B: send agrees
+        assert queue.waiting_bytes() == 378 + 2 * 22 and counters.tx_dropped == 0
+    finally:
+        queue.close()
