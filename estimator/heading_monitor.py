@@ -260,27 +260,58 @@ class HeadingMonitor:
         as EKF3's realignYawGPS needs a failing velocity test; mag_bias_var: the slowly varying part of mag_var
         (without the white noise of one sample), which decides whether the magnetometer is trusted."""
         bias_var = mag_var_rad2 if math.isnan(mag_bias_var_rad2) else mag_bias_var_rad2
+        have_mag = math.isfinite(mag_yaw_rad)
+        dt, k = self._advance(t_s)
+        innovation = self._track_innovation(k, yaw_rad, mag_yaw_rad, gsf_yaw_rad, have_mag, gsf_valid)
+        bad = have_mag and self._disagrees(innovation, yaw_var_rad2, mag_var_rad2, gsf_var_rad2, gsf_valid)
+        self._count_agreement(bad, heading_observable, dt)
+        floor = 0.0
+        if not self.mag_rejected and have_mag and self.failures >= self.reject_checks:
+            floor = self._reject(innovation, yaw_rad, yaw_var_rad2, gsf_yaw_rad, gsf_var_rad2, gsf_valid)
+        elif self.mag_rejected and have_mag and heading_observable and self.consistent_s >= self.reentry_s \
+                and bias_var < self.trusted_sigma_rad ** 2:
+            self.mag_rejected = False
+        reset_to, reset_var = self._emergency_reset(t_s, k, velocity_nis, yaw_rad, yaw_var_rad2, gsf_yaw_rad,
+                                                    gsf_var_rad2, gsf_valid, have_mag, bias_var)
+        # a reset here moves the yaw its σ was judged on: nothing is learned until the next check
+        self.learning = heading_observable and reset_to is None and (
+            self.mag_rejected or bias_var > self.trusted_sigma_rad ** 2)
+        return MonitorDecision(not self.mag_rejected, mag_var_rad2 if not self.mag_rejected else 0.0, floor,
+                               reset_to, reset_var)
+
+    def _advance(self, t_s: float) -> tuple[float, float]:
+        """The time since the last check and the low-pass gain over it (1 at the first check: no history)."""
         dt = 0.0 if math.isnan(self.last_t_s) else max(0.0, t_s - self.last_t_s)
         self.last_t_s = t_s
-        floor = 0.0
-        reset_to = None
-        reset_var = 0.0
-        have_mag = math.isfinite(mag_yaw_rad)
-        innovation = wrap_pi(mag_yaw_rad - yaw_rad) if have_mag else 0.0
         k = 1.0 - math.exp(-dt / self.lowpass_tau_s) if dt > 0.0 else 1.0
+        return dt, k
+
+    def _track_innovation(self, k: float, yaw_rad: float, mag_yaw_rad: float, gsf_yaw_rad: float, have_mag: bool,
+                          gsf_valid: bool) -> float:
+        """The magnetometer's innovation against the filter's yaw (0 without a magnetometer heading), low-passed
+        into `lowpassed_innovation_rad`; its disagreement with the GNSS yaw into `disagreement_rad`."""
+        innovation = wrap_pi(mag_yaw_rad - yaw_rad) if have_mag else 0.0
         self.lowpassed_innovation_rad += k * (innovation - self.lowpassed_innovation_rad)
         self.disagreement_rad = wrap_pi(mag_yaw_rad - gsf_yaw_rad) if (have_mag and gsf_valid) else math.nan
-        if have_mag:
-            s_ins = yaw_var_rad2 + mag_var_rad2
-            bad = innovation ** 2 > self.gate_sigma ** 2 * s_ins or \
-                self.lowpassed_innovation_rad ** 2 > self.gate_sigma ** 2 * s_ins
-            if gsf_valid:
-                # the GNSS yaw alone does not reject the magnetometer (a bank whose tilt is wrong in a coordinated
-                # turn is confidently wrong): it must agree with the filter's own innovation being beyond 1σ
-                bad = bad or (self.disagreement_rad ** 2 > self.gate_sigma ** 2 * (gsf_var_rad2 + mag_var_rad2)
-                              and innovation ** 2 > s_ins)
-        else:
-            bad = False
+        return innovation
+
+    def _disagrees(self, innovation: float, yaw_var_rad2: float, mag_var_rad2: float, gsf_var_rad2: float,
+                   gsf_valid: bool) -> bool:
+        """The magnetometer heading fails this check: its innovation (latest or low-passed) beyond the gate, or
+        the GNSS yaw beyond the gate from it while the innovation is beyond 1σ."""
+        s_ins = yaw_var_rad2 + mag_var_rad2
+        bad = innovation ** 2 > self.gate_sigma ** 2 * s_ins or \
+            self.lowpassed_innovation_rad ** 2 > self.gate_sigma ** 2 * s_ins
+        if gsf_valid:
+            # the GNSS yaw alone does not reject the magnetometer (a bank whose tilt is wrong in a coordinated
+            # turn is confidently wrong): it must agree with the filter's own innovation being beyond 1σ
+            bad = bad or (self.disagreement_rad ** 2 > self.gate_sigma ** 2 * (gsf_var_rad2 + mag_var_rad2)
+                          and innovation ** 2 > s_ins)
+        return bad
+
+    def _count_agreement(self, bad: bool, heading_observable: bool, dt: float) -> None:
+        """Failures in a row (rejection needs `reject_checks`), and the time of agreement while the GNSS holds
+        the heading (re-entry needs `reentry_s`)."""
         if bad:
             self.failures += 1
             self.consistent_s = 0.0
@@ -291,35 +322,39 @@ class HeadingMonitor:
                 # yaw σ stays above heading_observable for seconds; counted, they let the magnetometer back
                 # after a few seconds of learning, its iron half learned)
                 self.consistent_s += dt
-        if not self.mag_rejected and have_mag and self.failures >= self.reject_checks:
-            # σ first: cover what the magnetometer may already have pulled the heading by (its low-passed
-            # innovation: a step just seen has not moved the filter yet) and the disagreement with the GNSS yaw
-            self.mag_rejected = True
-            self.rejections += 1
-            seen = abs(self.disagreement_rad) if math.isfinite(self.disagreement_rad) else 0.0
-            self.rejection_disagreement_rad = max(abs(self.lowpassed_innovation_rad), abs(innovation), seen)
-            self.max_disagreement_rad = max(self.max_disagreement_rad, self.rejection_disagreement_rad)
-            floor = self.lowpassed_innovation_rad ** 2 + yaw_var_rad2
-            if gsf_valid:
-                floor = max(floor, wrap_pi(yaw_rad - gsf_yaw_rad) ** 2 + gsf_var_rad2)
-        elif self.mag_rejected and have_mag and heading_observable and self.consistent_s >= self.reentry_s \
-                and bias_var < self.trusted_sigma_rad ** 2:
-            self.mag_rejected = False
+
+    def _reject(self, innovation: float, yaw_rad: float, yaw_var_rad2: float, gsf_yaw_rad: float,
+                gsf_var_rad2: float, gsf_valid: bool) -> float:
+        """Reject the magnetometer; returns the yaw variance floor the filter must take."""
+        # σ first: cover what the magnetometer may already have pulled the heading by (its low-passed
+        # innovation: a step just seen has not moved the filter yet) and the disagreement with the GNSS yaw
+        self.mag_rejected = True
+        self.rejections += 1
+        seen = abs(self.disagreement_rad) if math.isfinite(self.disagreement_rad) else 0.0
+        self.rejection_disagreement_rad = max(abs(self.lowpassed_innovation_rad), abs(innovation), seen)
+        self.max_disagreement_rad = max(self.max_disagreement_rad, self.rejection_disagreement_rad)
+        floor = self.lowpassed_innovation_rad ** 2 + yaw_var_rad2
+        if gsf_valid:
+            floor = max(floor, wrap_pi(yaw_rad - gsf_yaw_rad) ** 2 + gsf_var_rad2)
+        return floor
+
+    def _emergency_reset(self, t_s: float, k: float, velocity_nis: float, yaw_rad: float, yaw_var_rad2: float,
+                         gsf_yaw_rad: float, gsf_var_rad2: float, gsf_valid: bool, have_mag: bool,
+                         bias_var: float) -> tuple[float | None, float]:
+        """(yaw to reset to or None, its variance): the GNSS yaw, when the magnetometer cannot hold the heading,
+        the filter's own velocity fusion fails (low-passed NIS) and the GNSS yaw is beyond the gate from the
+        filter's — at most `max_resets`, `reset_spacing_s` apart."""
         if math.isfinite(velocity_nis):
             self.lowpassed_velocity_nis += k * (min(velocity_nis, 100.0) - self.lowpassed_velocity_nis)
-        if gsf_valid and self.lowpassed_velocity_nis > self.reset_velocity_nis and (self.mag_rejected or not have_mag or bias_var > self.trusted_sigma_rad ** 2):
+        if gsf_valid and self.lowpassed_velocity_nis > self.reset_velocity_nis \
+                and (self.mag_rejected or not have_mag or bias_var > self.trusted_sigma_rad ** 2):
             d = wrap_pi(gsf_yaw_rad - yaw_rad)
             if d * d > self.gate_sigma ** 2 * (yaw_var_rad2 + gsf_var_rad2) and self.resets < self.max_resets \
                     and t_s - self.last_reset_t_s >= self.reset_spacing_s:
-                reset_to = gsf_yaw_rad
-                reset_var = gsf_var_rad2
                 self.resets += 1
                 self.last_reset_t_s = t_s
-        # a reset here moves the yaw its σ was judged on: nothing is learned until the next check
-        self.learning = heading_observable and reset_to is None and (
-            self.mag_rejected or bias_var > self.trusted_sigma_rad ** 2)
-        return MonitorDecision(not self.mag_rejected, mag_var_rad2 if not self.mag_rejected else 0.0, floor,
-                               reset_to, reset_var)
+                return gsf_yaw_rad, gsf_var_rad2
+        return None, 0.0
 
     def yaw_was_reset(self, t_s: float) -> None:
         """The filter's yaw was reset outside `check` (the GNSS-yaw alignment at this check): an emergency reset
