@@ -15,23 +15,20 @@ import numpy as np
 from ahrsd.core.angles import tilt_compensated_heading_rad, wrap_pi
 
 
-def calibration_heading_change_rad(old_cal, new_cal, sensor_mag_ut, mounting, roll_rad: float, pitch_rad: float,
+def calibration_heading_change_rad(old_cal, new_cal, raw_mag_ut, mounting, roll_rad: float, pitch_rad: float,
                                    yaw_rad: float) -> float:
     """The magnetic heading (rad) of the latest field under `new_cal` minus the estimator's yaw, wrapped to
     (−π, π].
 
-    sensor_mag_ut: the latest field as the old calibration `old_cal` made it, sensor frame
-    (Pipeline.last_sensor_sample); mounting: the sensor → body rotation (3×3) or None; roll/pitch/yaw: the
-    estimator's, yaw from magnetic north, rad. 0 when the magnetometer model did not change (a gyro or
-    accelerometer calibration moves no heading reference), NaN when it cannot be told (no sample, no field)."""
-    old_mag, new_mag = old_cal.mag, new_cal.mag
-    if old_mag == new_mag:
+    raw_mag_ut: the latest field as the source gave it, sensor frame (Pipeline.last_raw_sample); mounting: the
+    sensor → body rotation (3×3) or None; roll/pitch/yaw: the estimator's, yaw from magnetic north, rad. 0 when
+    the magnetometer model did not change from `old_cal`'s (a gyro or accelerometer calibration moves no heading
+    reference), NaN when it cannot be told (no sample, no field)."""
+    if old_cal.mag == new_cal.mag:
         return 0.0
-    if sensor_mag_ut is None or not all(math.isfinite(a) for a in (roll_rad, pitch_rad, yaw_rad)):
+    if raw_mag_ut is None or not all(math.isfinite(a) for a in (roll_rad, pitch_rad, yaw_rad)):
         return math.nan
-    # the raw field back from the old calibration (m = S (raw − h): calibration.models.MagModel)
-    raw = np.linalg.solve(old_mag.soft_iron, np.asarray(sensor_mag_ut, dtype=np.float64)) + old_mag.hard_iron_ut
-    field = new_mag.apply(raw)
+    field = new_cal.mag.apply(np.asarray(raw_mag_ut, dtype=np.float64))
     if mounting is not None:
         field = np.asarray(mounting, dtype=np.float64) @ field
     if not np.all(np.isfinite(field)) or np.linalg.norm(field) <= 0.0:

@@ -54,7 +54,7 @@ class CalibrationSwap:
         """How far `cal` moves the estimator's heading: its heading of the latest sample minus the estimator's
         (daemon.calibration_heading_change); NaN before the first estimate."""
         p = self.pipeline
-        est, sample = p.last_estimate, p.last_sensor_sample
+        est, sample = p.last_estimate, p.last_raw_sample
         if est is None or sample is None:
             return float("nan")
         return calibration_heading_change_rad(p.calibration, cal, sample.mag_ut, p.mounting, est.roll_rad,

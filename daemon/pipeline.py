@@ -56,6 +56,7 @@ class Pipeline:
         self.mounting = mounting
         self.counters = PipelineCounters()
         self.last_sample: ImuSample | None = None    # calibrated, body frame
+        self.last_raw_sample: ImuSample | None = None    # as the source gave it: what a new calibration would take
         self._view = None                  # the estimator's in-place view of its latest estimate (step())
         self._snapshot = None              # the immutable AttitudeEstimate of _view, built on demand
         self._last_counter: int | None = None
@@ -124,6 +125,7 @@ class Pipeline:
                 g, a, mag = m @ g, m @ a, m @ mag
             sample = ImuSample(raw.t_s, g, a, mag, raw.temp_c, raw.supply_v, flags, raw.diag_stat, raw.counter)
         self.last_sample = sample
+        self.last_raw_sample = raw
         step = self._step
         try:
             est = step(sample) if step is not None else self._estimator.update(sample)

@@ -6,13 +6,17 @@ widen_after_calibration_change: worked numbers; mekf and ins through relearn_fie
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from ahrsd.calibration.models import Calibration, MagModel
+from ahrsd.core.sample import ImuSample, SampleFlags
 from ahrsd.daemon.calibration_heading_change import calibration_heading_change_rad
+from ahrsd.daemon.calibration_swap import CalibrationSwap
+from ahrsd.daemon.pipeline import Pipeline
 from ahrsd.estimator import make_estimator
 from ahrsd.estimator.mag_heading import widen_after_calibration_change
 from ahrsd.core.sample import make_sample
@@ -47,11 +51,49 @@ def test_the_heading_change_is_the_new_calibrations_heading_minus_the_estimators
     got = calibration_heading_change_rad(old, new, raw_sensor, mount, math.radians(roll_deg),
                                          math.radians(pitch_deg), math.radians(est_yaw_deg))
     assert math.degrees(got) == pytest.approx(expected, abs=1e-9)
-    # the old calibration is undone first: from the calibrated sample of a calibration with another iron
+    # the raw field goes through the new calibration alone, whatever the old one was
     other = Calibration.identity().with_sensor("mag", MagModel(np.array([3.0, 1.0, -2.0]), np.eye(3) * 1.1))
-    got = calibration_heading_change_rad(other, new, other.mag.apply(raw), None, math.radians(roll_deg),
+    got = calibration_heading_change_rad(other, new, raw, None, math.radians(roll_deg),
                                          math.radians(pitch_deg), math.radians(est_yaw_deg))
     assert math.degrees(got) == pytest.approx(expected, abs=1e-9)
+
+
+class _Still:
+    """An estimator holding one attitude (roll, pitch, yaw from magnetic north), telling what it is asked to widen
+    its heading by."""
+
+    def __init__(self, roll_deg, pitch_deg, yaw_deg):
+        self.estimate = SimpleNamespace(roll_rad=math.radians(roll_deg), pitch_rad=math.radians(pitch_deg),
+                                        yaw_rad=math.radians(yaw_deg))
+        self.widened_by = []
+
+    def update(self, sample):
+        return self.estimate
+
+    def relearn_field_reference(self, heading_change_rad=math.nan):
+        self.widened_by.append(heading_change_rad)
+
+
+@pytest.mark.parametrize("mount_deg", [None, 90.0])
+def test_a_calibration_swap_widens_by_the_new_calibrations_heading_of_the_raw_field(tmp_path, mount_deg):
+    """In the daemon, with another calibration in force (and with or without a mounting), the change is taken on the
+    field as the sensor gave it: the pipeline keeps the raw sample, the new calibration alone makes the field."""
+    hard_iron = np.array([25.0, -30.0, 12.0])
+    soft = np.array([[1.08, 0.05, 0.0], [0.05, 0.95, 0.02], [0.0, 0.02, 1.01]])
+    mount = None if mount_deg is None else Rotation.from_euler("z", mount_deg, degrees=True).as_matrix()
+    body = _body_field(12.0, -7.0, -150.0)
+    raw = np.linalg.solve(soft, body if mount is None else mount.T @ body) + hard_iron
+    in_force = Calibration.identity().with_sensor("mag", MagModel(np.array([3.0, 1.0, -2.0]), np.eye(3) * 1.1))
+    new = Calibration.identity().with_sensor("mag", MagModel(hard_iron, soft))
+    est = _Still(12.0, -7.0, 170.0)
+    pipeline = Pipeline(est, in_force, mount)
+    pipeline.process(ImuSample(0.0, np.zeros(3), np.array([0.0, 0.0, -9.81]), raw, 25.0, 5.0, SampleFlags.NEW_DATA,
+                               0, 0))
+    heading = SimpleNamespace(signal=lambda: None)
+    CalibrationSwap(pipeline, tmp_path, heading, reset_counter_on_calibration=True).apply(new, save=False)
+    magnetic_heading = -150.0 - math.degrees(math.atan2(FIELD_NED_UT[1], FIELD_NED_UT[0]))
+    expected = (magnetic_heading - 170.0 + 180.0) % 360.0 - 180.0
+    assert len(est.widened_by) == 1 and math.degrees(est.widened_by[0]) == pytest.approx(expected, abs=1e-9)
 
 
 def test_no_heading_change_without_a_new_magnetometer_model():
