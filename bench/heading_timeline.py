@@ -23,8 +23,8 @@ import numpy as np
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.vehicle_accuracy import (HONESTY_SITES, IRON_STEP_AT, simulate_vehicle,  # noqa: E402
-                                    tilt_heading_errors_deg)
+from bench.vehicle_accuracy import (HONESTY_SITES, IRON_STEP_AT, estimates_in_arrival_order,  # noqa: E402
+                                    simulate_vehicle, tilt_heading_errors_deg)
 
 EVERY = 8          # keep every 8th sample (≈ 100 Hz)
 TURN_DEG_S = 5.0   # --consistency: the vehicle is turning while its true heading rate is above this
@@ -33,7 +33,6 @@ TURN_DEG_S = 5.0   # --consistency: the vehicle is turning while its true headin
 def one_run(job) -> tuple:
     from scipy.spatial.transform import Rotation
 
-    from ahrsd.core.sample import SampleFlags, make_sample
     from ahrsd.estimator.ins import Ins
     from ahrsd.simulation import SensorErrors
 
@@ -43,18 +42,14 @@ def one_run(job) -> tuple:
     run = simulate_vehicle(scen, seconds, seed, site, mag=case, iron=iron)
     est = Ins(declination_rad=run.declination_rad, lever_arm_m=run.lever_arm_m,
               mag_calibration_sigma_rad=run.mag_calibration_sigma_rad, **params)
-    t, g, a, m = run.t_s, run.gyro_rad_s, run.accel_m_s2, run.mag_ut
+    t = run.t_s
     keep = np.arange(0, len(t), EVERY)
     q = np.empty((len(keep), 4))
     sig = np.empty(len(keep))
     state = np.zeros(len(keep), dtype=np.int8)
     ba = np.empty((len(keep), 3))
-    fi = j = 0
-    for k in range(len(t)):
-        while fi < len(run.fixes) and run.fixes[fi].extra["t_rx_s"] <= t[k]:
-            est.update_gnss(run.fixes[fi])
-            fi += 1
-        e = est.update(make_sample(t[k], g[k], a[k], m[k], flags=SampleFlags.NEW_DATA))
+    j = 0
+    for k, e in estimates_in_arrival_order(est, run, run.fixes):
         if k % EVERY == 0:
             q[j], sig[j], state[j], ba[j] = e.q_wxyz, e.sigma_rpy_rad[2], int(e.heading_state), est.accel_bias_m_s2
             j += 1

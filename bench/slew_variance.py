@@ -104,8 +104,10 @@ def ins_reset_slew_out(run, rate_deg_s: float, wrong_deg: float = 100.0):
     10 s without fixes too, so it can be wrong then: the published yaw then follows a wrong filter)."""
     from scipy.spatial.transform import Rotation
 
+    from ahrsd.core.gnss import GnssFix
     from ahrsd.core.sample import SampleFlags, make_sample
     from ahrsd.estimator.ins import Ins
+    from ahrsd.simulation import in_arrival_order
 
     def yaw(q_wxyz):
         return Rotation.from_quat(np.roll(q_wxyz, -1)).as_euler("ZYX")[0]
@@ -115,20 +117,25 @@ def ins_reset_slew_out(run, rate_deg_s: float, wrong_deg: float = 100.0):
     k_wrong, k_right = np.searchsorted(run.t_s, [40.0, 50.0])
     fixes = [f for f in run.fixes if not 40.0 <= f.t_s < 50.0]
     ekf3 = FakeEkf3(0.05)
-    fi, t_next, beyond, sent = 0, 0.0, 0, 0
-    for k in range(len(run.t_s)):
-        while fi < len(fixes) and fixes[fi].extra["t_rx_s"] <= run.t_s[k]:
-            est.update_gnss(fixes[fi])
-            fi += 1
+    n = len(run.t_s)
+    samples = (make_sample(run.t_s[k], run.gyro_rad_s[k], run.accel_m_s2[k],
+                           np.full(3, np.nan) if k_wrong <= k < k_right else run.mag_ut[k],
+                           flags=SampleFlags.NEW_DATA) for k in range(n))
+    k, t_next, beyond, sent = -1, 0.0, 0, 0
+    for item in in_arrival_order(samples, fixes):
+        if isinstance(item, GnssFix):
+            if k == n - 1:
+                break           # it arrived after the last sample: not offered
+            est.update_gnss(item)
+            continue
+        k += 1
         truth = yaw(run.truth_q_wxyz[k])
         if k == k_wrong:
             est._reset_yaw(truth + math.radians(wrong_deg) - yaw(est.true_attitude_q_wxyz()), math.radians(0.5) ** 2)
             est._published.reset()      # the wrong yaw is what was published all along
         if k == k_right:
             est._reset_yaw(truth - yaw(est.true_attitude_q_wxyz()), math.radians(0.5) ** 2)
-        mag = np.full(3, np.nan) if k_wrong <= k < k_right else run.mag_ut[k]
-        e = est.update(make_sample(run.t_s[k], run.gyro_rad_s[k], run.accel_m_s2[k], mag,
-                                   flags=SampleFlags.NEW_DATA))
+        e = est.update(item)
         if k < k_wrong or run.t_s[k] < t_next:
             continue
         t_next = run.t_s[k] + 1.0 / 30.0

@@ -136,47 +136,54 @@ def simulate_vehicle(name: str, seconds: float, seed: int, site_text: str | None
 
 
 def run_ins(run: VehicleRun, use_gnss: bool = True, **params) -> np.ndarray:
-    """The `ins` fed sample by sample, each fix once the IMU clock passes its arrival time; q body → magnetic.
+    """The `ins` fed sample by sample, each fix where it arrives among them; q body → magnetic.
     Told the run's antenna lever arm unless `params` say otherwise."""
-    from ahrsd.core.sample import SampleFlags, make_sample
     from ahrsd.estimator.ins import Ins
 
     est = Ins(declination_rad=run.declination_rad, **{"lever_arm_m": run.lever_arm_m,
                                                       "mag_calibration_sigma_rad": run.mag_calibration_sigma_rad,
                                                       **params})
-    t, g, a, m = run.t_s, run.gyro_rad_s, run.accel_m_s2, run.mag_ut
-    fixes = run.fixes if use_gnss else []
-    q = np.empty((len(t), 4))
-    fi = 0
-    for k in range(len(t)):
-        while fi < len(fixes) and fixes[fi].extra["t_rx_s"] <= t[k]:
-            est.update_gnss(fixes[fi])
-            fi += 1
-        q[k] = est.update(make_sample(t[k], g[k], a[k], m[k], flags=SampleFlags.NEW_DATA)).q_wxyz
+    q = np.empty((len(run.t_s), 4))
+    for k, e in estimates_in_arrival_order(est, run, run.fixes if use_gnss else []):
+        q[k] = e.q_wxyz
     return q
+
+
+def estimates_in_arrival_order(est, run: VehicleRun, fixes):
+    """(k, the estimate of sample k) for the run's samples, each fix offered to `est` where it arrives among them
+    (simulation.in_arrival_order); a fix arriving after the last sample is not offered."""
+    from ahrsd.core.gnss import GnssFix
+    from ahrsd.core.sample import SampleFlags, make_sample
+    from ahrsd.simulation import in_arrival_order
+
+    t, g, a, m = run.t_s, run.gyro_rad_s, run.accel_m_s2, run.mag_ut
+    n = len(t)
+    samples = (make_sample(t[k], g[k], a[k], m[k], flags=SampleFlags.NEW_DATA) for k in range(n))
+    k = 0
+    for item in in_arrival_order(samples, fixes):
+        if isinstance(item, GnssFix):
+            est.update_gnss(item)
+            continue
+        yield k, est.update(item)
+        k += 1
+        if k == n:
+            return
 
 
 def run_ins_detailed(run: VehicleRun, **params) -> dict:
     """As run_ins, keeping what the honesty figures need: q (body → magnetic), the published yaw 1σ (rad), the
     heading state and the flags of every sample."""
-    from ahrsd.core.sample import SampleFlags, make_sample
     from ahrsd.estimator.ins import Ins
 
     est = Ins(declination_rad=run.declination_rad, **{"lever_arm_m": run.lever_arm_m,
                                                       "mag_calibration_sigma_rad": run.mag_calibration_sigma_rad,
                                                       **params})
-    t, g, a, m = run.t_s, run.gyro_rad_s, run.accel_m_s2, run.mag_ut
-    n = len(t)
+    n = len(run.t_s)
     q = np.empty((n, 4))
     sigma = np.empty(n)
     state = np.zeros(n, dtype=np.int8)
     flags = np.zeros(n, dtype=np.int64)
-    fi = 0
-    for k in range(n):
-        while fi < len(run.fixes) and run.fixes[fi].extra["t_rx_s"] <= t[k]:
-            est.update_gnss(run.fixes[fi])
-            fi += 1
-        e = est.update(make_sample(t[k], g[k], a[k], m[k], flags=SampleFlags.NEW_DATA))
+    for k, e in estimates_in_arrival_order(est, run, run.fixes):
         q[k] = e.q_wxyz
         sigma[k] = e.sigma_rpy_rad[2]
         state[k] = int(e.heading_state)

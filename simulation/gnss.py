@@ -323,11 +323,13 @@ def simulate_gnss(source: SensorBlock | SensorStream, rate_hz: float = 5.0, seed
 
 def in_arrival_order(samples, fixes) -> Iterator[ImuSample | GnssFix]:
     """IMU samples (a SensorBlock or an iterable of ImuSample) and fixes merged in the order they arrive: a
-    sample at its t_s, a fix at extra["t_rx_s"] (its t_s when absent); at equal times the sample comes first."""
+    sample at its t_s, a fix at extra["t_rx_s"] (its t_s when absent); at equal times the fix comes first (a fix
+    that has arrived by a sample's time is there for it, as estimator.fix_feed offers one by its time of
+    validity)."""
     imu = samples.samples() if isinstance(samples, SensorBlock) else samples
     arrival = sorted(((f.extra.get("t_rx_s", f.t_s), i) for i, f in enumerate(fixes)))
     fixes = list(fixes)
-    keyed_imu = ((s.t_s, 0, i, s) for i, s in enumerate(imu))
-    keyed_fix = ((t, 1, i, fixes[i]) for t, i in arrival)
+    keyed_imu = ((s.t_s, 1, i, s) for i, s in enumerate(imu))
+    keyed_fix = ((t, 0, i, fixes[i]) for t, i in arrival)
     for *_, item in heapq.merge(keyed_imu, keyed_fix):
         yield item

@@ -223,7 +223,10 @@ def test_imu_samples_and_fixes_merge_in_arrival_order(boat):
     assert all(a <= b for a, b in zip(arrival, arrival[1:]))
     assert sum(isinstance(x, ImuSample) for x in items) == len(boat)
     first_fix = next(i for i, x in enumerate(items) if isinstance(x, GnssFix))
-    assert items[first_fix - 1].t_s <= 0.1 < items[first_fix + 1].t_s     # after the samples up to t_rx
+    # the first fix arrives at 0.1 s, the time of the 6th sample (50 Hz): it comes before that sample (a fix that has
+    # arrived by a sample's time is there for it) and after the one at 0.08 s
+    assert fixes[0].extra["t_rx_s"] == 0.1 and first_fix == 5
+    assert items[first_fix - 1].t_s == 0.08 and items[first_fix + 1].t_s == 0.1
 
 
 @pytest.mark.parametrize("kwargs, match", [
