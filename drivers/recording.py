@@ -277,16 +277,17 @@ def _iter_tables(path, strict: bool, chunk_rows: int = CHUNK_ROWS) -> Iterator[t
             yield columns, table
 
 
-def read_recording(path: str | os.PathLike, strict: bool = True, on_rows=None) -> Recording:
-    """Load a whole recording (numpy, chunked). Any file whose header starts with the 10 base columns works;
-    `.csv.gz` is read transparently.
+def read_recording(path: str | os.PathLike, strict: bool = True, on_rows=None,
+                   chunk_rows: int = CHUNK_ROWS) -> Recording:
+    """Load a whole recording (numpy, `chunk_rows` rows at a time). Any file whose header starts with the 10 base
+    columns works; `.csv.gz` is read transparently.
 
     strict=False drops an incomplete final line (a recorder killed mid-write) with a warning instead of failing.
     on_rows(n): called after each chunk of n rows (a progress bar).
     """
     columns: tuple[str, ...] = ()
     tables = []
-    for columns, table in _iter_tables(path, strict):
+    for columns, table in _iter_tables(path, strict, chunk_rows):
         tables.append(table)
         if on_rows is not None:
             on_rows(len(table))
@@ -312,15 +313,15 @@ def _recording(path, columns: tuple[str, ...], data: np.ndarray) -> Recording:
                      np.ascontiguousarray(data[:, 4:7]), np.ascontiguousarray(data[:, 7:10]), extra)
 
 
-def iter_samples(path: str | os.PathLike, strict: bool = True) -> Iterator[ImuSample]:
-    """Replay a recording as ImuSamples, a chunk at a time (constant memory for long files).
+def iter_samples(path: str | os.PathLike, strict: bool = True, chunk_rows: int = CHUNK_ROWS) -> Iterator[ImuSample]:
+    """Replay a recording as ImuSamples, `chunk_rows` rows at a time (constant memory for long files).
 
     Columns the file lacks take ImuSample's defaults (temp/supply NaN, flags NONE, diag_stat 0); without a
     counter column the counter is the row index.
     """
     first_index = 0
     flag_cache: dict[int, SampleFlags] = {}
-    for columns, table in _iter_tables(path, strict):
+    for columns, table in _iter_tables(path, strict, chunk_rows):
         yield from _samples_from_table(columns, table, first_index, flag_cache)
         first_index += len(table)
 

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from ahrsd.cli import main as cli
-from ahrsd.drivers import recording as rec
 from ahrsd.drivers.recording import RECORDING_HEADER, RecordingFormatError, read_recording
 
 ROW = "{t:.6f},0.001,-0.002,0.0005,0.05,-0.03,-9.80665,20.0,1.5,45.0\n"
@@ -97,12 +96,11 @@ def test_calibrate_allan_streams_the_complete_rows_of_a_cut_file(tmp_path, cut_f
             assert payload[sensor][axis]["flags"] == ["constant signal or too few cluster sizes: no noise terms read"]
 
 
-def test_a_cut_last_row_on_a_chunk_boundary_is_dropped_too(tmp_path, monkeypatch):
-    monkeypatch.setattr(rec, "CHUNK_ROWS", 10)
+def test_a_cut_last_row_on_a_chunk_boundary_is_dropped_too(tmp_path):
     path = write_rows(tmp_path / "b.csv", 19, tail="0.9,0,0")     # line 21: the 20th line of the body, a chunk's last
-    assert len(read_recording(path, strict=False)) == 19
+    assert len(read_recording(path, strict=False, chunk_rows=10)) == 19
     with pytest.raises(RecordingFormatError, match="line 21"):
-        read_recording(path)
+        read_recording(path, chunk_rows=10)
 
 
 def test_a_full_row_without_its_final_newline_is_kept(tmp_path):

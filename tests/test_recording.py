@@ -6,7 +6,6 @@ import sys
 import numpy as np
 import pytest
 
-from ahrsd.drivers import recording as rec
 from ahrsd.drivers.recording import (RECORDING_HEADER, TRUTH_COLUMNS, RecordingFormatError, RecordingWriter,
                                      iter_samples, read_recording)
 from ahrsd.core.sample import SampleFlags, make_sample
@@ -99,24 +98,24 @@ def test_killed_recorder_last_line(tmp_path):
     assert len(read_recording(path, strict=False)) == 2
 
 
-def test_chunked_reading_keeps_line_numbers(tmp_path, monkeypatch):
-    monkeypatch.setattr(rec, "CHUNK_ROWS", 7)
+def test_chunked_reading_keeps_line_numbers(tmp_path):
     path = tmp_path / "c.csv"
     rows = [f"{k / 100},0,0,0,0,0,-9.81,20,0,45\n" for k in range(30)]
     rows[20] = "0.2,0,0,x,0,0,-9.81,20,0,45\n"
     path.write_text(HEADER + "\n" + "".join(rows))
+    with pytest.raises(RecordingFormatError, match="line 22"):      # in the 3rd chunk of 7 rows
+        read_recording(path, chunk_rows=7)
     with pytest.raises(RecordingFormatError, match="line 22"):
-        read_recording(path)
+        list(iter_samples(path, chunk_rows=7))
     rows[20] = "0.2,0,0,0,0,0,-9.81,20,0,45\n"
     path.write_text(HEADER + "\n" + "".join(rows))
-    assert len(read_recording(path)) == 30 == len(list(iter_samples(path)))
+    assert len(read_recording(path, chunk_rows=7)) == 30 == len(list(iter_samples(path, chunk_rows=7)))
 
 
-def test_samples_without_a_counter_column_count_rows_across_chunks(tmp_path, monkeypatch):
-    monkeypatch.setattr(rec, "CHUNK_ROWS", 7)
+def test_samples_without_a_counter_column_count_rows_across_chunks(tmp_path):
     path = tmp_path / "n.csv"
     path.write_text(HEADER + ",flags\n" + "".join(f"{k / 100},0,0,0,0,0,-9.81,20,0,45,{k % 3}\n" for k in range(30)))
-    samples = list(iter_samples(path))
+    samples = list(iter_samples(path, chunk_rows=7))
     assert [s.counter for s in samples] == list(range(30))
     assert [int(s.flags) for s in samples] == [k % 3 for k in range(30)]
     assert all(s.gyro_rad_s.shape == (3,) and s.mag_ut[2] == 45.0 for s in samples)
