@@ -77,12 +77,14 @@ def newest_sample_time(pipeline) -> Callable[[], float]:
 
 def gnss_backend_for(cfg: GnssConfig, *, clock: Callable[[], float], sensor: SensorConfig | None = None,
                      scenario_clock: Callable[[], float] | None = None,
-                     replay_time_s: Callable[[], float] | None = None) -> GnssBackend:
+                     replay_time_s: Callable[[], float] | None = None,
+                     sim_writer_thread: bool = True) -> GnssBackend:
     """The backend `cfg.source` names, not started. Each takes its time base explicitly:
     serial, mavlink and sim stamp fixes on `clock` (the samples' clock); sim also needs the simulated
     sensor's `sensor` config and its chip clock `scenario_clock` (the scenario's time, so the receiver
     describes the same motion as the IMU); replay releases a recorded fix once `replay_time_s()` (the newest
-    replayed sample's time, `newest_sample_time`) reaches it."""
+    replayed sample's time, `newest_sample_time`) reaches it. sim_writer_thread=False: the simulated receiver
+    writes only when stepped (drivers/gnss/sim.py)."""
     kind = cfg.source
     if kind == "serial":
         from ahrsd.drivers.gnss.serial_port import SerialGnssSource
@@ -112,7 +114,8 @@ def gnss_backend_for(cfg: GnssConfig, *, clock: Callable[[], float], sensor: Sen
             outages=outages, glitch_every_s=cfg.sim_glitch_every_s, glitch_kind=cfg.sim_glitch_kind,
             glitch_magnitude=cfg.sim_glitch_magnitude or None)
         return SimulatedGnssBackend(receiver, clock, description=(
-            f"simulated receiver ({sensor.scenario}, UBX on {receiver.device}{_sim_faults(cfg)})"))
+            f"simulated receiver ({sensor.scenario}, UBX on {receiver.device}{_sim_faults(cfg)})"),
+            writer_thread=sim_writer_thread)
     raise ValueError(f"no GNSS source {kind!r}")
 
 

@@ -26,7 +26,6 @@ from ahrsd.drivers.gnss.backend import GnssBackend, GnssHealth, GnssLinkState
 from ahrsd.drivers.gnss.mavlink import MavlinkGnssBackend
 from ahrsd.drivers.gnss.recording import GnssRecordingWriter
 from ahrsd.drivers.gnss.replay import RecordingGnssBackend
-from ahrsd.drivers.gnss.scenario import ScenarioGnssReceiver
 from ahrsd.drivers.gnss.serial_port import SerialGnssSource
 from ahrsd.drivers.gnss.simulated import SimulatedGnssReceiver
 
@@ -216,15 +215,15 @@ def test_every_backend_goes_through_the_same_validation_and_hand_over(source, tm
     assert rig.health.state is GnssLinkState.OK, rig.health
 
 
-def test_the_simulated_receiver_takes_the_serial_path(monkeypatch):
+def test_the_simulated_receiver_takes_the_serial_path():
     """[gnss] source = "sim": the scenario's receiver writes UBX into a pty and the serial backend reads it;
     its invalid-position glitches are refused by the same validator, the rest reach the estimator."""
-    monkeypatch.setattr(ScenarioGnssReceiver, "start", lambda self: self)     # stepped here: write_due
     config = parse_config(tomllib.loads('[sensor]\nsource = "sim"\nscenario = "car"\nseed = 3\n'
                                         '[gnss]\nsource = "sim"\nsim_glitch_every_s = 1.0\n'
                                         'sim_glitch_kind = "nan"\n'))
     clock = Clock()
-    backend = gnss_backend_for(config.gnss, clock=clock, sensor=config.sensor, scenario_clock=clock)
+    backend = gnss_backend_for(config.gnss, clock=clock, sensor=config.sensor, scenario_clock=clock,
+                              sim_writer_thread=False)     # stepped here: write_due
     assert isinstance(backend.port, SerialGnssSource)
     rig = rig_for(backend, clock)
     rig.task.open()

@@ -18,7 +18,6 @@ from ahrsd.core.estimate import EstimateFlags
 from ahrsd.core.sample import SampleFlags, make_sample
 from ahrsd.daemon.config import ConfigError, parse_config
 from ahrsd.daemon.gnss_task import GnssTask, gnss_backend_for
-from ahrsd.drivers.gnss.scenario import ScenarioGnssReceiver
 from ahrsd.estimator.ins import Ins
 from ahrsd.simulation import simulate
 
@@ -45,13 +44,13 @@ def _config(gnss: str):
                                       f'[gnss]\nsource = "sim"\n{gnss}'))
 
 
-def _run(monkeypatch, gnss: str, seconds: float):
+def _run(gnss: str, seconds: float):
     """Step the simulated daemon for `seconds`; return the task, the STATUSTEXTs and the estimate flags per step."""
-    monkeypatch.setattr(ScenarioGnssReceiver, "start", lambda self: self)     # no thread: write_due below
     clock = Clock()
     config = _config(gnss)
     pipeline, texts = Pipeline(), []
-    backend = gnss_backend_for(config.gnss, clock=clock, sensor=config.sensor, scenario_clock=clock)
+    backend = gnss_backend_for(config.gnss, clock=clock, sensor=config.sensor, scenario_clock=clock,
+                              sim_writer_thread=False)     # stepped here: write_due
     task = GnssTask(backend, config.gnss, clock=clock, estimator=pipeline,
                     statustext=lambda severity, text: texts.append((clock.t, text)))
     task.open()
@@ -79,8 +78,8 @@ def _run(monkeypatch, gnss: str, seconds: float):
     return task, texts, block.t_s, flags, aiding
 
 
-def test_an_outage_is_reported_and_a_glitch_rejected_and_counted(monkeypatch):
-    task, texts, t, flags, aiding = _run(monkeypatch, "sim_outage_start_s = 6.0\nsim_outage_s = 9.0\n"
+def test_an_outage_is_reported_and_a_glitch_rejected_and_counted():
+    task, texts, t, flags, aiding = _run("sim_outage_start_s = 6.0\nsim_outage_s = 9.0\n"
                                                         "sim_glitch_every_s = 4.0\n", 20.0)
     stats = task.stats()
     assert "outage 6–15 s" in task.description and "position_jump every 4 s" in task.description
@@ -102,8 +101,8 @@ def test_an_outage_is_reported_and_a_glitch_rejected_and_counted(monkeypatch):
     assert shown[-1] == "ahrsd: GNSS 3D 12 sats, aided", texts
 
 
-def test_outage_with_no_fix_solutions_and_invalid_positions(monkeypatch):
-    task, texts, t, flags, aiding = _run(monkeypatch, "sim_outage_start_s = 3.0\nsim_outage_s = 9.0\n"
+def test_outage_with_no_fix_solutions_and_invalid_positions():
+    task, texts, t, flags, aiding = _run("sim_outage_start_s = 3.0\nsim_outage_s = 9.0\n"
                                                         "sim_outage_no_fix = true\nsim_glitch_every_s = 2.0\n"
                                                         'sim_glitch_kind = "nan"\n', 14.0)
     v = task.stats()["validator"]

@@ -13,16 +13,21 @@ from ahrsd.core.gnss import GnssFix
 
 
 class SimulatedGnssBackend(GnssBackend):
-    """`receiver` (not started) and the serial backend on its pty, stamped on `clock` (the samples' clock)."""
+    """`receiver` (not started) and the serial backend on its pty, stamped on `clock` (the samples' clock).
+    writer_thread=False: `start` starts no writer; whoever steps the clock calls `receiver.write_due()` (a test
+    on simulated time)."""
 
-    def __init__(self, receiver: ScenarioGnssReceiver, clock: Callable[[], float], description: str = ""):
+    def __init__(self, receiver: ScenarioGnssReceiver, clock: Callable[[], float], description: str = "", *,
+                 writer_thread: bool = True):
         self.receiver = receiver
+        self.writer_thread = writer_thread
         self.port = SerialGnssSource(receiver.device, receiver.baud, "ubx", latency_s=receiver.latency_s,
                                      clock=clock)
         self.description = description or f"simulated receiver (UBX on {receiver.device})"
 
     def start(self) -> None:
-        self.receiver.start()
+        if self.writer_thread:
+            self.receiver.start()
 
     def read(self) -> list[GnssFix]:
         return self.port.read()
