@@ -61,12 +61,19 @@ def numba_compiles(prefix: str = "ahrsd.") -> int:
     return total
 
 
+def estimator_warm_up(name: str) -> None:
+    """estimator.warm_up.warm_up, imported when called (numba loads only when something is compiled)."""
+    from ahrsd.estimator.warm_up import warm_up
+
+    warm_up(name)
+
+
 def compile_estimator(name: str, clock=time.monotonic, announce_after_s: float = ANNOUNCE_AFTER_S,
-                      count_compiles: Callable[[], int] = numba_compiles) -> float:
-    """Run the estimator's warm-up (estimator.warm_up), saying so while it compiles (a kernel missed the cache and
+                      count_compiles: Callable[[], int] = numba_compiles,
+                      warm_up: Callable[[str], None] = estimator_warm_up) -> float:
+    """Run the estimator's warm-up (`warm_up(name)`), saying so while it compiles (a kernel missed the cache and
     `announce_after_s` has passed) and, at the end, that it compiled. Returns the seconds it took."""
     from ahrsd.daemon.estimator_news import estimator_news_muted
-    from ahrsd.estimator.warm_up import warm_up
 
     # numba is imported here, in this thread, before the watcher thread looks at it: numba's first import run
     # from two threads at once fails with a circular ImportError in both (the watcher's poll can begin while

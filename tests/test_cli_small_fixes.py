@@ -12,7 +12,6 @@ from ahrsd.cli import main as cli
 from ahrsd.cli import warm_up as cli_warm_up
 from ahrsd.cli.progress import _EstimatedTotalBar
 from ahrsd.drivers.recording import RECORDING_HEADER
-from ahrsd.estimator import warm_up as estimator_warm_up
 
 
 def test_version(capsys):
@@ -69,14 +68,13 @@ def test_a_bar_stopped_part_way_does_not_jump_to_100_percent():
     assert fake.total == fake.n == 980 and fake.postfix == ""
 
 
-def test_the_warm_up_estimators_news_stays_out_of_the_log(monkeypatch, caplog):
+def test_the_warm_up_estimators_news_stays_out_of_the_log(caplog):
     def chatty(name):
         logging.getLogger("ahrsd.estimator.ins").info("ins: velocity and position set from the GNSS fix at t=0.000 s")
         logging.getLogger("ahrsd.estimator.ins").warning("a real problem")
 
-    monkeypatch.setattr(estimator_warm_up, "warm_up", chatty)
     caplog.set_level(logging.INFO)
-    cli_warm_up.compile_estimator("ins", announce_after_s=600.0)
+    cli_warm_up.compile_estimator("ins", announce_after_s=600.0, warm_up=chatty)
     assert "a real problem" in caplog.text and "set from the GNSS fix" not in caplog.text
     logging.getLogger("ahrsd.estimator.ins").info("after the warm-up")
     assert "after the warm-up" in caplog.text            # the level is restored

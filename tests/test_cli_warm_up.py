@@ -10,7 +10,6 @@ import sys
 import threading
 
 from ahrsd.cli import warm_up as cli_warm_up
-from ahrsd.estimator import warm_up as estimator_warm_up
 
 
 class _Announced(logging.Handler):
@@ -34,7 +33,7 @@ def _handler():
     return handler, lambda: (logger.removeHandler(handler), logger.setLevel(old))
 
 
-def test_a_compile_is_announced_while_it_runs(monkeypatch):
+def test_a_compile_is_announced_while_it_runs():
     handler, restore = _handler()
     seen_during = []
 
@@ -44,9 +43,9 @@ def test_a_compile_is_announced_while_it_runs(monkeypatch):
         misses[0] += 1
         seen_during.append(handler.compiling.wait(timeout=30))
 
-    monkeypatch.setattr(estimator_warm_up, "warm_up", slow_compile)
     try:
-        cli_warm_up.compile_estimator("mekf", announce_after_s=0.01, count_compiles=lambda: misses[0])
+        cli_warm_up.compile_estimator("mekf", announce_after_s=0.01, count_compiles=lambda: misses[0],
+                                      warm_up=slow_compile)
     finally:
         restore()
     assert seen_during == [True]
@@ -55,11 +54,10 @@ def test_a_compile_is_announced_while_it_runs(monkeypatch):
     assert handler.messages[1].startswith("compiled the mekf estimator in ")
 
 
-def test_a_cached_start_is_silent(monkeypatch):
+def test_a_cached_start_is_silent():
     handler, restore = _handler()
-    monkeypatch.setattr(estimator_warm_up, "warm_up", lambda name: None)
     try:
-        cli_warm_up.compile_estimator("mekf", announce_after_s=600.0)
+        cli_warm_up.compile_estimator("mekf", announce_after_s=600.0, warm_up=lambda name: None)
     finally:
         restore()
     assert handler.messages == []
