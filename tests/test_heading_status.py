@@ -230,7 +230,7 @@ def test_the_service_tells_the_heading_status_whether_a_calibration_is_in_force(
     from ahrsd.calibration.models import Calibration, MagModel
     from ahrsd.calibration.store import CalibrationStore
     from ahrsd.daemon.config import EndpointConfig, EstimatorConfig
-    from service_rig import start_service_on, stop_service
+    from service_rig import gcs_socket, start_service_on, stop_service
 
     CalibrationStore(tmp_path / "old").save(Calibration.identity().with_sensor(
         "mag", MagModel(np.array([3.0, -2.0, 1.0]), np.eye(3)), method="older file"))
@@ -336,7 +336,7 @@ def run_daemon_on_boat(tmp_path, hard_iron_error_ut=None, *, seconds=150.0, seed
     from ahrsd.core.sample import SampleFlags, make_sample
     from ahrsd.daemon.config import EndpointConfig, EstimatorConfig, LocationConfig
     from bench.sim_calibration import save_mag_calibration
-    from service_rig import start_service_on, stop_service
+    from service_rig import gcs_socket, start_service_on, stop_service
 
     from ahrsd.calibration.models import MagModel
 
@@ -346,13 +346,16 @@ def run_daemon_on_boat(tmp_path, hard_iron_error_ut=None, *, seconds=150.0, seed
         wrong = MagModel(true_model.hard_iron_ut + np.asarray(hard_iron_error_ut, float), true_model.soft_iron)
         save_mag_calibration(tmp_path, wrong)
     mag = block.mag_ut
-    svc, loop = start_service_on((EndpointConfig("udpout:127.0.0.1:9"),), tmp_path,
+    gcs = gcs_socket()
+    svc, loop = start_service_on((EndpointConfig(f"udpout:127.0.0.1:{gcs.getsockname()[1]}"),), tmp_path,
                                  estimator=EstimatorConfig(estimator),
                                  location=LocationConfig(declination_deg=math.degrees(decl)))
-    sent = []
-    svc.endpoints[0].send = lambda m: sent.append((m, svc.pipeline.last_estimate)) or True
+    sent = []       # every message the endpoint sent (its traffic-log hook: the frames as packed) with the estimate
+    parser = mavlink.MAVLink(None)
+    svc.endpoints[0].traffic_log = lambda frame: sent.append((*parser.parse_buffer(frame), svc.pipeline.last_estimate))
     texts = []      # every STATUSTEXT, as Texts: the text with the heading state and yaw 1σ when it was sent
     hs = svc.heading_status
+    # (taken where the parts say them: through the endpoint they would meet Outbound's rate limit, on the wall clock)
     hs.statustext = svc.outbound.statustext = lambda sev, text: texts.append(Text(text, hs.state, hs.sigma_rad))
     svc.listeners.fns.clear()                # (the field calibration needs the running loop; not used here)
     try:
@@ -377,6 +380,7 @@ def run_daemon_on_boat(tmp_path, hard_iron_error_ut=None, *, seconds=150.0, seed
                 truth_at[len(truth_at)] = block.truth_q_wxyz[k]
     finally:
         stop_service(svc, loop)
+        gcs.close()
     vpe = [(m, e, truth_at[i]) for i, (m, e) in enumerate(sent)
            if m.get_msgId() == mavlink.MAVLINK_MSG_ID_VISION_POSITION_ESTIMATE]
     return vpe, texts, svc, decl
