@@ -172,3 +172,78 @@ def test_an_accept_elsewhere_long_after_the_prompt_appeared_is_not_lost():
     assert "accepted from another ground station or terminal: calibration saved" in out.getvalue()
     assert "not accepted" not in out.getvalue()
     assert client_module.MAV_CMD_DO_CANCEL_MAG_CAL not in conn.sent
+
+
+class _EndedTerminal(io.StringIO):
+    """A terminal whose input has ended (Ctrl-D), as `ahrsd magcal start` met it with its prompt reading /dev/null."""
+
+    def isatty(self):
+        return True
+
+
+def test_no_terminal_answer_is_no_decision(monkeypatch):
+    import ahrsd.cli.magcal_client as client_module
+
+    monkeypatch.setattr("sys.stdin", _EndedTerminal(""))
+    assert client_module._ask("accept? ") is None
+    monkeypatch.setattr("sys.stdin", io.StringIO("y\n"))          # a pipe, not a terminal: nobody at a prompt
+    assert client_module._ask("accept? ") is None
+    monkeypatch.setattr("sys.stdin", _EndedTerminal("n\n"))
+    assert client_module._ask("accept? ") is False
+    monkeypatch.setattr("sys.stdin", _EndedTerminal("yes\n"))
+    assert client_module._ask("accept? ") is True
+
+
+def test_a_client_at_eof_leaves_the_result_to_another_terminal():
+    """#30, left from session 16: `ahrsd magcal start </dev/null` printed "not accepted: calibration unchanged" and
+    cancelled the finished session, so the `ahrsd magcal accept` typed in another terminal later saved nothing.
+    Nobody answered here, so nothing is cancelled: the client follows the session until it is settled elsewhere.
+    (Broken by treating EOF as "no": the client sends DO_CANCEL_MAG_CAL and exits 1.)"""
+    import ahrsd.cli.magcal_client as client_module
+
+    attitude = wire(mavlink.MAVLink_attitude_message(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+    saved = [wire(m) for m in statustext_chunks(5, "Mag cal saved: ofs [1, 2, 3] mG, fitness 0.4 mG, backstepping", 3)]
+
+    def nobody_answers(prompt):
+        return None
+
+    conn = _ScriptedConn([_report()])
+    out = io.StringIO()
+    client = MagCalClient(conn=conn, timeout_s=1.0, out=out, ask=nobody_answers)
+    client.sys, client.comp = 1, 200
+    real_recv = conn.recv_match
+    later = [attitude, _report(), attitude, *saved, attitude]     # the other terminal accepts a while later
+
+    def recv_match(blocking=True, timeout=None, type=None):
+        m = real_recv()
+        if m is None and later and "no answer possible" in out.getvalue():
+            m = later.pop(0)
+        return m
+
+    conn.recv_match = recv_match
+    assert client.start(max_time_s=5.0) == 0, out.getvalue()
+    assert client_module.MAV_CMD_DO_CANCEL_MAG_CAL not in conn.sent
+    assert client_module.MAV_CMD_DO_ACCEPT_MAG_CAL not in conn.sent
+    assert "not accepted" not in out.getvalue()
+    assert "accept it with `ahrsd magcal accept`" in out.getvalue()
+    assert "accepted from another ground station or terminal: calibration saved" in out.getvalue()
+
+
+def test_a_client_at_eof_reports_a_cancel_from_elsewhere():
+    import ahrsd.cli.magcal_client as client_module
+
+    dropped = [wire(m) for m in statustext_chunks(6, "Mag cal cancelled: result dropped, calibration unchanged", 4)]
+    conn = _ScriptedConn([_report()])
+    out = io.StringIO()
+    client = MagCalClient(conn=conn, timeout_s=1.0, out=out, ask=lambda prompt: None)
+    client.sys, client.comp = 1, 200
+    real_recv = conn.recv_match
+
+    def recv_match(blocking=True, timeout=None, type=None):
+        m = real_recv()
+        return dropped.pop(0) if m is None and dropped and "no answer possible" in out.getvalue() else m
+
+    conn.recv_match = recv_match
+    assert client.start(max_time_s=5.0) == 1
+    assert client_module.MAV_CMD_DO_CANCEL_MAG_CAL not in conn.sent
+    assert "cancelled from another ground station or terminal: calibration unchanged" in out.getvalue()

@@ -85,6 +85,39 @@ def test_autosave_reports_autosaved_and_accept_is_idempotent(setup):
     assert len(host.applied) == 1
 
 
+def test_accept_after_the_result_was_cancelled_is_not_reported_saved(setup, tmp_path):
+    """#30 defect left from session 16: `ahrsd magcal start` at EOF on its prompt cancelled the finished session,
+    and a later `ahrsd magcal accept` from another terminal was answered ACCEPTED while nothing was saved
+    (ArduPilot's rule: ACCEPTED when there is nothing to accept). ACCEPTED must mean saved."""
+    host, clock, proto = setup
+    proto.handle_start(cmd(CMD_START))
+    drive(proto, clock, level_turns(), host, until=lambda: bool(host.of_type("MAG_CAL_REPORT")))
+    assert proto.session.status == CalStatus.SUCCESS
+    assert proto.handle_cancel(cmd(CMD_CANCEL)) == mavlink.MAV_RESULT_ACCEPTED
+    assert any(t.startswith("Mag cal cancelled") for t in host.texts())    # a following terminal learns it
+    assert proto.handle_accept(cmd(CMD_ACCEPT)) == mavlink.MAV_RESULT_FAILED
+    assert not host.applied and not (tmp_path / "calibration.json").exists()
+    assert any("nothing to accept" in t for t in host.texts())
+    assert proto.handle_accept(cmd(CMD_ACCEPT, 2)) == mavlink.MAV_RESULT_FAILED    # compass 1: not ours
+    # never started at all: the same
+    fresh = MagCalProtocol(host, MagCalSettings(vehicle_type="level"), clock=clock)
+    assert fresh.handle_accept(cmd(CMD_ACCEPT)) == mavlink.MAV_RESULT_FAILED
+
+
+def test_an_accept_sent_again_after_the_save_is_accepted(setup):
+    """A client re-sends a command whose ACK it missed: the second accept finds the session stopped, but the
+    result it names is saved."""
+    host, clock, proto = setup
+    proto.handle_start(cmd(CMD_START))
+    drive(proto, clock, level_turns(), host, until=lambda: bool(host.of_type("MAG_CAL_REPORT")))
+    assert proto.handle_accept(cmd(CMD_ACCEPT)) == mavlink.MAV_RESULT_ACCEPTED
+    assert proto.handle_accept(cmd(CMD_ACCEPT)) == mavlink.MAV_RESULT_ACCEPTED
+    assert len(host.applied) == 1
+    proto.handle_start(cmd(CMD_START))          # a new session: the old save no longer answers for it
+    proto.handle_cancel(cmd(CMD_CANCEL))
+    assert proto.handle_accept(cmd(CMD_ACCEPT)) == mavlink.MAV_RESULT_FAILED
+
+
 def test_second_start_while_running_changes_nothing(setup):
     host, clock, proto = setup
     proto.handle_start(cmd(CMD_START))
