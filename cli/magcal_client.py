@@ -26,6 +26,7 @@ MAV_CMD_DO_ACCEPT_MAG_CAL = 42425
 MAV_CMD_DO_CANCEL_MAG_CAL = 42426
 MAV_CMD_FIXED_MAG_CAL_YAW = 42006
 MAG_CAL_SUCCESS = 4
+REPORT_GONE_S = 5.0     # a finished session's MAG_CAL_REPORT comes at 1 Hz (daemon.magcal) until it is settled
 
 
 class MagCalClient:
@@ -216,10 +217,21 @@ class MagCalClient:
         or cancels it (#30: a client at EOF cancelled it, and the accept that came later saved nothing)."""
         self._print("no answer possible here (stdin is not a terminal or at its end): the result waits on the "
                     "daemon; accept it with `ahrsd magcal accept` or drop it with `ahrsd magcal cancel`")
+        last_report = time.monotonic()
         while time.monotonic() < deadline:
             m = self.conn.recv_match(blocking=True, timeout=0.5)
-            if m is None or not self._from_target(m) or m.get_type() == "MAG_CAL_REPORT":
+            if m is None or not self._from_target(m):
+                continue
+            if m.get_type() == "MAG_CAL_REPORT":
+                last_report = time.monotonic()
                 continue                    # the report repeats at 1 Hz until the session is settled
+            if time.monotonic() - last_report > REPORT_GONE_S:
+                # settled while this terminal heard nothing: a second `ahrsd magcal` on this computer binds the
+                # same UDP port, and while it runs the kernel hands the daemon's datagrams to it alone
+                self._print("the daemon no longer reports this result: it was accepted or cancelled elsewhere "
+                            "while this terminal heard nothing (the other `ahrsd magcal` or ground station got "
+                            "the daemon's answer)")
+                return 1
             if m.get_type() != "STATUSTEXT":
                 self._show(m)
                 continue

@@ -247,3 +247,32 @@ def test_a_client_at_eof_reports_a_cancel_from_elsewhere():
     assert client.start(max_time_s=5.0) == 1
     assert client_module.MAV_CMD_DO_CANCEL_MAG_CAL not in conn.sent
     assert "cancelled from another ground station or terminal: calibration unchanged" in out.getvalue()
+
+
+def test_a_client_at_eof_that_missed_the_settling_text_stops_when_the_report_stops(monkeypatch):
+    """The live walk of the fix: `magcal start </dev/null` waited, `magcal accept` in another terminal saved, but
+    the waiting client never heard "Mag cal saved": the second client bound the same UDP port (udpin:14550) and
+    the kernel gave it the daemon's datagrams while it ran. The report stream stopping tells the waiting client
+    the session is settled, instead of waiting out --max-time (600 s). (Seen failing without the check: it
+    waited to max_time and said "gave up waiting".)"""
+    import ahrsd.cli.magcal_client as client_module
+
+    monkeypatch.setattr(client_module, "REPORT_GONE_S", 0.3)
+    attitude = wire(mavlink.MAVLink_attitude_message(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+    conn = _ScriptedConn([_report()])
+    out = io.StringIO()
+    client = MagCalClient(conn=conn, timeout_s=1.0, out=out, ask=lambda prompt: None)
+    client.sys, client.comp = 1, 200
+    real_recv = conn.recv_match
+
+    def recv_match(blocking=True, timeout=None, type=None):
+        m = real_recv()
+        if m is None and "no answer possible" in out.getvalue():
+            time.sleep(0.05)
+            return attitude                        # the daemon's streams go on; its reports have stopped
+        return m
+
+    conn.recv_match = recv_match
+    assert client.start(max_time_s=10.0) == 1
+    assert "no longer reports this result" in out.getvalue() and "gave up" not in out.getvalue()
+    assert client_module.MAV_CMD_DO_CANCEL_MAG_CAL not in conn.sent
