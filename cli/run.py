@@ -110,12 +110,12 @@ def _fault_plan(schedule: str, cfg):
     from ahrsd.drivers.chip_source import ADIS16405_RATE_HZ
 
     if cfg.sensor.source != "sim":
-        print("ahrsd: --sim-faults needs the simulated sensor (--sim), not a real one", file=sys.stderr)
+        print("ahrsd run: error: --sim-faults needs the simulated sensor (--sim), not a real one", file=sys.stderr)
         return None
     try:
         return build_plan(parse_schedule(schedule), ADIS16405_RATE_HZ, seed=cfg.sensor.seed)
     except FaultScheduleError as exc:
-        print(f"ahrsd: --sim-faults: {exc}", file=sys.stderr)
+        print(f"ahrsd run: error: --sim-faults: {exc}", file=sys.stderr)
         return None
 
 
