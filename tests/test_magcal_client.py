@@ -194,6 +194,24 @@ def test_no_terminal_answer_is_no_decision(monkeypatch):
     assert client_module._ask("accept? ") is True
 
 
+def _client_at_eof(after_no_answer):
+    """A client whose prompt nobody can answer (stdin at EOF), after one successful report; once it has said
+    "no answer possible", its link hands out `after_no_answer()` (a message, or None) whenever nothing else is
+    queued. Returns (client, conn, out)."""
+    conn = _ScriptedConn([_report()])
+    out = io.StringIO()
+    client = MagCalClient(conn=conn, timeout_s=1.0, out=out, ask=lambda prompt: None)
+    client.sys, client.comp = 1, 200
+    scripted = conn.recv_match
+
+    def recv_match(blocking=True, timeout=None, type=None):
+        m = scripted()
+        return after_no_answer() if m is None and "no answer possible" in out.getvalue() else m
+
+    conn.recv_match = recv_match
+    return client, conn, out
+
+
 def test_a_client_at_eof_leaves_the_result_to_another_terminal():
     """#30, left from session 16: `ahrsd magcal start </dev/null` printed "not accepted: calibration unchanged" and
     cancelled the finished session, so the `ahrsd magcal accept` typed in another terminal later saved nothing.
@@ -203,24 +221,8 @@ def test_a_client_at_eof_leaves_the_result_to_another_terminal():
 
     attitude = wire(mavlink.MAVLink_attitude_message(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
     saved = [wire(m) for m in statustext_chunks(5, "Mag cal saved: ofs [1, 2, 3] mG, fitness 0.4 mG, backstepping", 3)]
-
-    def nobody_answers(prompt):
-        return None
-
-    conn = _ScriptedConn([_report()])
-    out = io.StringIO()
-    client = MagCalClient(conn=conn, timeout_s=1.0, out=out, ask=nobody_answers)
-    client.sys, client.comp = 1, 200
-    real_recv = conn.recv_match
     later = [attitude, _report(), attitude, *saved, attitude]     # the other terminal accepts a while later
-
-    def recv_match(blocking=True, timeout=None, type=None):
-        m = real_recv()
-        if m is None and later and "no answer possible" in out.getvalue():
-            m = later.pop(0)
-        return m
-
-    conn.recv_match = recv_match
+    client, conn, out = _client_at_eof(lambda: later.pop(0) if later else None)
     assert client.start(max_time_s=5.0) == 0, out.getvalue()
     assert client_module.MAV_CMD_DO_CANCEL_MAG_CAL not in conn.sent
     assert client_module.MAV_CMD_DO_ACCEPT_MAG_CAL not in conn.sent
@@ -233,17 +235,7 @@ def test_a_client_at_eof_reports_a_cancel_from_elsewhere():
     import ahrsd.cli.magcal_client as client_module
 
     dropped = [wire(m) for m in statustext_chunks(6, "Mag cal cancelled: result dropped, calibration unchanged", 4)]
-    conn = _ScriptedConn([_report()])
-    out = io.StringIO()
-    client = MagCalClient(conn=conn, timeout_s=1.0, out=out, ask=lambda prompt: None)
-    client.sys, client.comp = 1, 200
-    real_recv = conn.recv_match
-
-    def recv_match(blocking=True, timeout=None, type=None):
-        m = real_recv()
-        return dropped.pop(0) if m is None and dropped and "no answer possible" in out.getvalue() else m
-
-    conn.recv_match = recv_match
+    client, conn, out = _client_at_eof(lambda: dropped.pop(0) if dropped else None)
     assert client.start(max_time_s=5.0) == 1
     assert client_module.MAV_CMD_DO_CANCEL_MAG_CAL not in conn.sent
     assert "cancelled from another ground station or terminal: calibration unchanged" in out.getvalue()
@@ -259,20 +251,12 @@ def test_a_client_at_eof_that_missed_the_settling_text_stops_when_the_report_sto
 
     monkeypatch.setattr(client_module, "REPORT_GONE_S", 0.3)
     attitude = wire(mavlink.MAVLink_attitude_message(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
-    conn = _ScriptedConn([_report()])
-    out = io.StringIO()
-    client = MagCalClient(conn=conn, timeout_s=1.0, out=out, ask=lambda prompt: None)
-    client.sys, client.comp = 1, 200
-    real_recv = conn.recv_match
 
-    def recv_match(blocking=True, timeout=None, type=None):
-        m = real_recv()
-        if m is None and "no answer possible" in out.getvalue():
-            time.sleep(0.05)
-            return attitude                        # the daemon's streams go on; its reports have stopped
-        return m
+    def streams_go_on():                       # the daemon's streams go on; its reports have stopped
+        time.sleep(0.05)
+        return attitude
 
-    conn.recv_match = recv_match
+    client, conn, out = _client_at_eof(streams_go_on)
     assert client.start(max_time_s=10.0) == 1
     assert "no longer reports this result" in out.getvalue() and "gave up" not in out.getvalue()
     assert client_module.MAV_CMD_DO_CANCEL_MAG_CAL not in conn.sent
