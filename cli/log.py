@@ -75,8 +75,8 @@ def _log_files(directory: str, kind: str = "samples") -> list[tuple]:
 
     d = Path(directory)
     if not d.is_dir():
-        by_hand = ("`ahrsd run` started by hand keeps logs only with --log-dir DIR or [log] enabled = true (then in "
-                   "<state dir>/logs): give that as --dir")
+        by_hand = ("`ahrsd run` started by hand keeps logs only with [log] enabled = true (then in <state dir>/logs, "
+                   "where this looks by default) or --log-dir DIR (give that as --dir)")
         service_logs = SERVICE_STATE_DIR / "logs"
         where = (f"the service keeps its logs there once it has run; {by_hand}" if d == service_logs
                  else f"the service's is {service_logs}; {by_hand}")
