@@ -41,3 +41,16 @@ def test_a_failure_is_one_line_with_the_commands_error_prefix(argv, start, tmp_p
         rc = exc.code
     err = capsys.readouterr().err.strip().splitlines()
     assert rc != 0 and err and err[-1].startswith(start), err
+
+
+def test_ctrl_c_is_said_and_exits_130(monkeypatch, tmp_path, capsys):
+    """A replay stopped by Ctrl-C exited 130 without a word on the fresh clone (its output file discarded): the
+    user could not tell it from a run that ended. (Seen failing on the old main: stderr empty.)"""
+    import ahrsd.cli.replay as replay_cli
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(replay_cli, "run", interrupted)
+    assert main(["replay", str(tmp_path / "r.csv"), "-o", str(tmp_path / "o.csv")]) == 130
+    assert capsys.readouterr().err.strip().splitlines()[-1] == "ahrsd replay: interrupted"
