@@ -37,8 +37,9 @@ def register(subparsers) -> None:
     p.add_argument("--nmea", metavar="URL", action="append",
                    help="NMEA 0183 heading output (repeatable; replaces the config's [[nmea]]): udp:HOST:PORT, "
                    "udpbcast:HOST:PORT, tcpserver:HOST:PORT, serial:/dev/ttyUSB0[,BAUD] (docs/marine.md)")
-    p.add_argument("--state-dir", metavar="DIR", help="calibration/parameter directory (default: $STATE_DIRECTORY "
-                   "under systemd, else ~/.local/state/ahrsd)")
+    p.add_argument("--state-dir", metavar="DIR", help="calibration/parameter directory (default, as `ahrsd calibrate`: "
+                   "$STATE_DIRECTORY under systemd, else /var/lib/ahrsd, the service's, when it exists and is writable, "
+                   "else ~/.local/state/ahrsd)")
     p.add_argument("--status-line", choices=("auto", "on", "off"), help="live status line (default auto: on a TTY)")
     p.add_argument("--check-config", action="store_true", help="validate the configuration, print it and exit")
     p.add_argument("--sim-faults", metavar="SCHEDULE", help="inject faults into the simulated chip, e.g. "

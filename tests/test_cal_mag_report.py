@@ -74,6 +74,7 @@ def test_a_calibration_made_without_state_dir_is_the_one_run_loads(turning_boat,
     if service_installed:
         service.mkdir()
     monkeypatch.setattr(state_dir, "SERVICE_STATE_DIR", service)
+    monkeypatch.delenv("STATE_DIRECTORY")                   # conftest's; not under systemd here
     monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "xdg"))
     args = ["calibrate", "mag", "--method", "backstepping", str(turning_boat), "--lat", "36.42", "--lon", "54.98"]
     assert cli.main(args) == 0
