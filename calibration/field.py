@@ -472,15 +472,31 @@ class FieldCalibration:
                 centres = section_centres()[empty]
                 last = self._last_corrected / max(np.linalg.norm(self._last_corrected), 1e-9)
                 return centres[int(np.argmax(centres @ last))]
-            gaps = np.flatnonzero(self._sector_count < self.config.samples_per_sector)
-            if gaps.size == 0:
-                return np.zeros(3)
-            width = 2 * math.pi / self.config.heading_sectors
-            centres = (gaps + 0.5) * width
-            yaw = self._last_yaw
-            diff = wrap_pi(centres - yaw)
-            d = float(diff[int(np.argmin(np.abs(diff)))])
-            return np.array([math.cos(d), math.sin(d), 0.0])
+            return self._level_turn_hint()
+
+    def _level_turn_hint(self) -> np.ndarray:
+        """A level vehicle: which way to turn, as the horizontal direction of the nearest heading sector still
+        missing (in the step running), not counting the one the vehicle is in (it is filling that one: a 10° sector fills within a few
+        kept samples, and pointing at it — almost straight ahead, |y| below a client's threshold — made the
+        hint blink off at every sector). A gap the way the vehicle turns wins unless one behind is more than a
+        sector nearer, so a steady turn keeps one hint; at least one sector off the bow, so it reads as a turn."""
+        n = self.config.heading_sectors
+        counts = self._sector_count_two if self.status == CalStatus.RUNNING_STEP_TWO else self._sector_count
+        gaps = np.flatnonzero(counts < self.config.samples_per_sector)   # step two verifies on headings of its own
+        if gaps.size == 0:
+            return np.zeros(3)
+        width = 2 * math.pi / n
+        yaw = self._last_yaw
+        others = gaps[gaps != int((yaw % (2 * math.pi)) / width) % n]
+        if others.size == 0:
+            return np.array([1.0, 0.0, 0.0])       # the last gap is the sector it is in: straight on
+        diff = wrap_pi((others + 0.5) * width - yaw)
+        d = float(diff[int(np.argmin(np.abs(diff)))])
+        ahead = diff[np.sign(diff) == self._turn_sign] if self._turn_sign else diff[:0]
+        if ahead.size and float(np.min(np.abs(ahead))) <= abs(d) + width:
+            d = float(ahead[int(np.argmin(np.abs(ahead)))])
+        d = math.copysign(max(abs(d), width), d)
+        return np.array([math.cos(d), math.sin(d), 0.0])
 
     def pop_messages(self) -> list[tuple[int, str]]:
         """(MAV_SEVERITY, text) lines for a person, since the last call (not logged here: the caller logs them)."""
@@ -508,6 +524,7 @@ class FieldCalibration:
         self._step_two_from = 0
         self._last_corrected = np.zeros(3)
         self._last_yaw = 0.0
+        self._turn_sign = 0
         self._turn_yaw: float | None = None
         self._last_sample_wall: float | None = None
         self._last_hint_pct = -100
@@ -553,6 +570,9 @@ class FieldCalibration:
             self._recentre_sphere()
         corrected = self._prelim.apply(raw) - self._sphere_centre
         self._last_corrected = corrected
+        # which way it turns (+1 right, -1 left, 0 below 1 °/s): the turn hint keeps to it
+        step = float(wrap_pi(yaw - self._last_yaw)) if self._n > 1 else 0.0
+        self._turn_sign = int(np.sign(step)) if abs(step) > math.radians(1.0) * self._keep_period else 0
         self._last_yaw = yaw
         s = int(geodesic_sections(corrected)[0])
         sector = int((yaw % (2 * math.pi)) / (2 * math.pi) * self.config.heading_sectors) % self.config.heading_sectors

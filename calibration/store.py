@@ -1,6 +1,7 @@
 """The calibration store: one human-readable JSON file in the state directory, written atomically.
 
-Layout of `state_dir` (default `/var/lib/ahrsd`, systemd `StateDirectory=ahrsd`):
+Layout of `state_dir` (the service's `/var/lib/ahrsd`, systemd `StateDirectory=ahrsd`; the default when none is
+given: core.state_dir):
 
     calibration.json        the calibration in force
     calibration.prev.json   the previous good calibration (rotated in by every save)
@@ -38,7 +39,6 @@ log = logging.getLogger(__name__)
 FILE_FORMAT = "ahrsd-calibration"
 CURRENT_NAME = "calibration.json"
 PREVIOUS_NAME = "calibration.prev.json"
-DEFAULT_STATE_DIR = Path("/var/lib/ahrsd")
 MAX_FILE_BYTES = 1_000_000  # a calibration is ~2 kB; anything this big is not one
 
 
@@ -151,7 +151,7 @@ class LoadReport:
 class CalibrationStore:
     """Load and save the calibration in `state_dir` (see the module docstring)."""
 
-    def __init__(self, state_dir: os.PathLike | str = DEFAULT_STATE_DIR):
+    def __init__(self, state_dir: os.PathLike | str):
         self.state_dir = Path(state_dir)
         self.current_path = self.state_dir / CURRENT_NAME
         self.previous_path = self.state_dir / PREVIOUS_NAME

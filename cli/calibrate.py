@@ -15,7 +15,6 @@ matplotlib, the optional `plot` extra: checked before anything is fitted or save
 
 from __future__ import annotations
 
-DEFAULT_STATE_DIR = "/var/lib/ahrsd"
 
 
 def register(subparsers) -> None:
@@ -38,9 +37,9 @@ def _common_options(sp, recording_required=True) -> None:
     """The options every sensor's calibration takes (and the recording, unless it may be live)."""
     if recording_required:
         sp.add_argument("recording", metavar="RECORDING", help="CSV recording (ahrsd record)")
-    sp.add_argument("--state-dir", metavar="DIR", default=DEFAULT_STATE_DIR,
-                    help=f"where the calibration is stored (default: {DEFAULT_STATE_DIR}, the service's; "
-                    "`ahrsd run` started by hand reads ~/.local/state/ahrsd unless given --state-dir)")
+    sp.add_argument("--state-dir", metavar="DIR", default=None,
+                    help="where the calibration is stored (default, as `ahrsd run`: $STATE_DIRECTORY, else "
+                    "/var/lib/ahrsd, the service's, when it exists and is writable, else ~/.local/state/ahrsd)")
     sp.add_argument("--json", action="store_true", help="print one JSON object instead of a report")
     sp.add_argument("--plot", metavar="FILE.png", help="write a plot (needs matplotlib: pip install matplotlib, or install "
                     "ahrsd with -e '.[plot]')")
@@ -182,15 +181,7 @@ def _save(args, sensor, model, meta):
         base = f"the other sensors of {last_load.path}"
     kept = (f"the previous file is kept as {store.previous_path.name}" if store.previous_path.exists()
             else "there was no previous file")
-    return path, f"saved to {path} (merged with {base}; {kept}){_by_hand_hint(args)}"
-
-
-def _by_hand_hint(args) -> str:
-    """Saved in the service's directory (the default): `ahrsd run` started by hand reads ~/.local/state/ahrsd
-    (daemon.config), so without this a fresh clone's calibrate-then-run never used the calibration."""
-    if str(args.state_dir) != DEFAULT_STATE_DIR:
-        return ""
-    return f"; the service reads it, `ahrsd run` by hand only with --state-dir {DEFAULT_STATE_DIR}"
+    return path, f"saved to {path} (merged with {base}; {kept})"
 
 
 def _emit(args, payload: dict, text: str) -> None:
@@ -244,7 +235,7 @@ def _allan(args) -> int:
             path = save_noise_parameters(res, Path(args.state_dir) / NOISE_FILE_NAME)
         except OSError as exc:
             raise _Fail(f"cannot save to {args.state_dir}: {exc.strerror or exc}") from None
-        note = f"saved to {path}{_by_hand_hint(args)}"
+        note = f"saved to {path}"
         payload["saved_to"] = str(path)
     if args.plot:
         from ahrsd.calibration.allan_plot import plot_allan
@@ -763,6 +754,10 @@ def run(args) -> int:
 
     handlers = {"allan": _allan, "accel": _accel, "gyro": _gyro, "mag": _mag}
     _RECORDING_META.clear()
+    if args.state_dir is None:          # the directory `ahrsd run` reads when it is given none
+        from ahrsd.core.state_dir import default_state_dir
+
+        args.state_dir = str(default_state_dir())
     try:
         if getattr(args, "plot", None):
             _check_matplotlib()   # before fitting and saving: a missing optional extra is a usage error

@@ -16,7 +16,9 @@ Exit status: 0 done, 1 nothing to cut or bad input, 2 bad usage.
 
 from __future__ import annotations
 
-DEFAULT_LOG_DIR = "/var/lib/ahrsd/logs"
+LOG_DIR_HELP = ("log directory (default: logs/ in the state directory `ahrsd run` uses when given none: "
+                "$STATE_DIRECTORY, else /var/lib/ahrsd, the service's, when it exists and is writable, else "
+                "~/.local/state/ahrsd)")
 _SMALLEST_LOG_BYTES = 30   # a gzip header and a flushed CSV header take more than this
 
 
@@ -26,11 +28,11 @@ def register(subparsers) -> None:
                               "JSON sidecars) and cut a time window of them into one plain recording.")
     sub = p.add_subparsers(dest="log_command", metavar="ACTION", required=True)
     ls = sub.add_parser("list", help="the logged files: time span, samples, size, calibration in force")
-    ls.add_argument("--dir", default=DEFAULT_LOG_DIR, metavar="DIR", help=f"log directory (default {DEFAULT_LOG_DIR})")
+    ls.add_argument("--dir", default=None, metavar="DIR", help=LOG_DIR_HELP)
     ls.add_argument("--json", action="store_true", help="one JSON object per file, one per line")
     ls.set_defaults(func=run)
     cut = sub.add_parser("cut", help="cut [--from, --to] of the logs into one recording (CSV)")
-    cut.add_argument("--dir", default=DEFAULT_LOG_DIR, metavar="DIR", help=f"log directory (default {DEFAULT_LOG_DIR})")
+    cut.add_argument("--dir", default=None, metavar="DIR", help=LOG_DIR_HELP)
     cut.add_argument("--from", dest="t_from", required=True, metavar="TIME",
                      help="start: ISO-8601 (UTC unless an offset is given) or seconds of sample time (t_s)")
     cut.add_argument("--to", dest="t_to", required=True, metavar="TIME", help="end (same forms as --from)")
@@ -46,6 +48,10 @@ class LogError(Exception):
 def run(args) -> int:
     import sys
 
+    if args.dir is None:                # as [log] dir = "": <state dir>/logs (daemon.config)
+        from ahrsd.core.state_dir import default_state_dir
+
+        args.dir = str(default_state_dir() / "logs")
     try:
         return _list(args) if args.log_command == "list" else _cut(args)
     except LogError as exc:
@@ -62,16 +68,18 @@ def _log_files(directory: str, kind: str = "samples") -> list[tuple]:
     import json
     from pathlib import Path
 
+    from ahrsd.core.state_dir import SERVICE_STATE_DIR
     from ahrsd.drivers.gnss.log import GNSS_LOG_PREFIX, GNSS_LOG_SUFFIX
     from ahrsd.drivers.rotating_log import SIDECAR_SUFFIX
     from ahrsd.drivers.sample_log import SAMPLE_LOG_PREFIX, SAMPLE_LOG_SUFFIX
 
     d = Path(directory)
     if not d.is_dir():
-        by_hand = ("`ahrsd run` started by hand keeps logs only with --log-dir DIR or [log] enabled = true (then in "
-                   "<state dir>/logs): give that as --dir")
-        where = (f"the service keeps its logs there once it has run; {by_hand}" if str(d) == str(DEFAULT_LOG_DIR)
-                 else f"the service's is {DEFAULT_LOG_DIR}; {by_hand}")
+        by_hand = ("`ahrsd run` started by hand keeps logs only with [log] enabled = true (then in <state dir>/logs, "
+                   "where this looks by default) or --log-dir DIR (give that as --dir)")
+        service_logs = SERVICE_STATE_DIR / "logs"
+        where = (f"the service keeps its logs there once it has run; {by_hand}" if d == service_logs
+                 else f"the service's is {service_logs}; {by_hand}")
         raise LogError(f"{directory}: no such log directory ({where})")
     prefix, suffix = {"samples": (SAMPLE_LOG_PREFIX, SAMPLE_LOG_SUFFIX), "gnss": (GNSS_LOG_PREFIX, GNSS_LOG_SUFFIX)}[kind]
     out = []

@@ -100,19 +100,19 @@ def run(args) -> int:
         try:
             position = _fixed_yaw_position(args)
         except ValueError as exc:
-            print(f"ahrsd magcal fixed-yaw: {exc}", file=sys.stderr)
+            print(f"ahrsd magcal fixed-yaw: error: {exc}", file=sys.stderr)
             return 2
 
     try:
         conn = mavutil.mavlink_connection(args.connect, source_system=CLIENT_SYSTEM,
                                           source_component=CLIENT_COMPONENT, autoreconnect=True)
     except Exception as exc:  # noqa: BLE001 - a bad URL or port is the operator's to fix
-        print(f"cannot open {args.connect}: {exc}", file=sys.stderr)
+        print(f"ahrsd magcal: error: cannot open {args.connect}: {exc}", file=sys.stderr)
         return 2
     client = MagCalClient(conn, args.timeout)
     try:
         if not client.find_target(args.target):
-            print(f"no ahrsd heard on {args.connect} within {args.timeout:.0f} s "
+            print(f"ahrsd magcal: error: no ahrsd heard on {args.connect} within {args.timeout:.0f} s "
                   "(check --connect, or give --target SYS:COMP)", file=sys.stderr)
             return 2
         if args.action == "start":

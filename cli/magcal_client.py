@@ -26,6 +26,7 @@ MAV_CMD_DO_ACCEPT_MAG_CAL = 42425
 MAV_CMD_DO_CANCEL_MAG_CAL = 42426
 MAV_CMD_FIXED_MAG_CAL_YAW = 42006
 MAG_CAL_SUCCESS = 4
+REPORT_GONE_S = 5.0     # a finished session's MAG_CAL_REPORT comes at 1 Hz (daemon.magcal) until it is settled
 
 
 class MagCalClient:
@@ -36,7 +37,8 @@ class MagCalClient:
         self.conn = conn
         self.timeout_s = timeout_s
         self.out = out
-        self.ask = ask or _ask          # the operator's yes/no at a prompt (the terminal's by default)
+        # the operator's yes/no at a prompt (the terminal's by default); None when nobody can answer there
+        self.ask = ask or _ask
         self.sys = self.comp = None
         self._bar_shown = False
         self._chunks: dict[int, dict[int, str]] = {}
@@ -193,12 +195,10 @@ class MagCalClient:
                 answer, elsewhere = (True, None) if accept else \
                     self._ask_listening("accept and save this calibration? [y/N] ")
                 elsewhere = elsewhere or self._settled_elsewhere()
-                if elsewhere == "saved":
-                    self._print("accepted from another ground station or terminal: calibration saved")
-                    return 0
-                if elsewhere == "cancelled":
-                    self._print("cancelled from another ground station or terminal: calibration unchanged")
-                    return 1
+                if elsewhere is not None:
+                    return self._settled(elsewhere)
+                if answer is None:
+                    return self._await_decision_elsewhere(deadline)
                 if not answer:
                     self.command(MAV_CMD_DO_CANCEL_MAG_CAL, 0)
                     self._print("not accepted: calibration unchanged")
@@ -211,7 +211,49 @@ class MagCalClient:
         self._print("gave up waiting (--max-time); the calibration is still running on the daemon")
         return 1
 
-    def _ask_listening(self, prompt: str) -> tuple[bool, str | None]:
+    def _await_decision_elsewhere(self, deadline: float) -> int:
+        """Nobody can answer the prompt (stdin is not a terminal, or at its end): the decision is not ours, so
+        the session is left waiting on the daemon and followed until another terminal or ground station accepts
+        or cancels it (#30: a client at EOF cancelled it, and the accept that came later saved nothing)."""
+        self._print("no answer possible here (stdin is not a terminal or at its end): the result waits on the "
+                    "daemon; accept it with `ahrsd magcal accept` or drop it with `ahrsd magcal cancel`")
+        last_report = time.monotonic()
+        while time.monotonic() < deadline:
+            m = self.conn.recv_match(blocking=True, timeout=0.5)
+            if m is None or not self._from_target(m):
+                continue
+            if m.get_type() == "MAG_CAL_REPORT":
+                last_report = time.monotonic()
+                continue                    # the report repeats at 1 Hz until the session is settled
+            if time.monotonic() - last_report > REPORT_GONE_S:
+                # settled while this terminal heard nothing: a second `ahrsd magcal` on this computer binds the
+                # same UDP port, and while it runs the kernel hands the daemon's datagrams to it alone
+                self._print("the daemon no longer reports this result: it was accepted or cancelled elsewhere "
+                            "while this terminal heard nothing (the other `ahrsd magcal` or ground station got "
+                            "the daemon's answer)")
+                return 1
+            if m.get_type() != "STATUSTEXT":
+                self._show(m)
+                continue
+            text = self._statustext(m)
+            if text is None:
+                continue                    # a chunk of a longer text
+            self._print(f"[ahrsd] {text.removeprefix('ahrsd: ')}")
+            if _settled_by(text) is not None:
+                return self._settled(_settled_by(text))
+        self._print("gave up waiting (--max-time); the result still waits on the daemon")
+        return 1
+
+    def _settled(self, how: str) -> int:
+        """Say how another ground station or terminal settled the session ("saved" or "cancelled"): exit 0 when
+        the calibration was saved."""
+        if how == "saved":
+            self._print("accepted from another ground station or terminal: calibration saved")
+            return 0
+        self._print("cancelled from another ground station or terminal: calibration unchanged")
+        return 1
+
+    def _ask_listening(self, prompt: str) -> tuple[bool | None, str | None]:
         """Ask on the terminal while a thread keeps reading the link: (the operator's answer, "saved" or
         "cancelled" when the daemon said the session was settled elsewhere while the prompt waited). Unread, the
         link's receive buffer fills with the daemon's streams within seconds and the kernel drops what comes
@@ -238,12 +280,7 @@ class MagCalClient:
         """"saved" or "cancelled" when `m` is the daemon's STATUSTEXT saying so (its last chunk), else None."""
         if m is None or not self._from_target(m) or m.get_type() != "STATUSTEXT":
             return None
-        text = self._statustext(m) or ""
-        if text.startswith("Mag cal saved"):
-            return "saved"
-        if text.startswith("Mag cal cancelled"):
-            return "cancelled"
-        return None
+        return _settled_by(self._statustext(m) or "")
 
     def _settled_elsewhere(self, listen_s: float = 0.5) -> str | None:
         """"saved" or "cancelled" when the daemon said so (STATUSTEXT) in the messages still queued, or within
@@ -322,10 +359,21 @@ class MagCalClient:
         return "\n".join(lines)
 
 
-def _ask(prompt: str) -> bool:
+def _settled_by(text: str) -> str | None:
+    """"saved" or "cancelled" when the daemon's STATUSTEXT says the session was settled (daemon.magcal)."""
+    if text.startswith("Mag cal saved"):
+        return "saved"
+    if text.startswith("Mag cal cancelled"):
+        return "cancelled"
+    return None
+
+
+def _ask(prompt: str) -> bool | None:
+    """The terminal's yes (True) or no (False, the default on an empty line); None when there is nobody to
+    ask: stdin is not a terminal, or it ended (Ctrl-D, /dev/null)."""
     if not sys.stdin.isatty():
-        return False
+        return None
     try:
         return input("\n" + prompt).strip().lower() in ("y", "yes")
     except EOFError:
-        return False
+        return None

@@ -36,6 +36,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return _main(argv)
     except KeyboardInterrupt:
+        # said, so a replay or calibration stopped by Ctrl-C is not taken for one that ended (its output is not
+        # written); 130 = 128 + SIGINT, what a shell reports
+        command = next((a for a in (argv if argv is not None else sys.argv[1:]) if not a.startswith("-")), None)
+        print(f"\n{' '.join(filter(None, ('ahrsd', command)))}: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:
         # `ahrsd calibrate ... | head`: the reader went away. Exit quietly like other Unix tools (no traceback);

@@ -79,7 +79,7 @@ def run(args, open_bus=None) -> int:
     try:
         return _record(args, open_bus or open_chip_bus)
     except RecordError as exc:
-        print(f"ahrsd record: {exc}", file=sys.stderr)
+        print(f"ahrsd record: error: {exc}", file=sys.stderr)
         return exc.status
 
 
@@ -110,7 +110,7 @@ def _record(args, open_bus) -> int:
     previous_sigterm = signal.signal(signal.SIGTERM, _stop)
     try:
         if not recorder.run(n_target):
-            print(f"\nahrsd record: {recorder.failure}", file=sys.stderr)
+            print(f"\nahrsd record: error: {recorder.failure}", file=sys.stderr)
     except KeyboardInterrupt:
         pass
     finally:

@@ -37,8 +37,9 @@ def register(subparsers) -> None:
     p.add_argument("--nmea", metavar="URL", action="append",
                    help="NMEA 0183 heading output (repeatable; replaces the config's [[nmea]]): udp:HOST:PORT, "
                    "udpbcast:HOST:PORT, tcpserver:HOST:PORT, serial:/dev/ttyUSB0[,BAUD] (docs/marine.md)")
-    p.add_argument("--state-dir", metavar="DIR", help="calibration/parameter directory (default: $STATE_DIRECTORY "
-                   "under systemd, else ~/.local/state/ahrsd)")
+    p.add_argument("--state-dir", metavar="DIR", help="calibration/parameter directory (default, as `ahrsd calibrate`: "
+                   "$STATE_DIRECTORY under systemd, else /var/lib/ahrsd, the service's, when it exists and is writable, "
+                   "else ~/.local/state/ahrsd)")
     p.add_argument("--status-line", choices=("auto", "on", "off"), help="live status line (default auto: on a TTY)")
     p.add_argument("--check-config", action="store_true", help="validate the configuration, print it and exit")
     p.add_argument("--sim-faults", metavar="SCHEDULE", help="inject faults into the simulated chip, e.g. "
@@ -110,12 +111,12 @@ def _fault_plan(schedule: str, cfg):
     from ahrsd.drivers.chip_source import ADIS16405_RATE_HZ
 
     if cfg.sensor.source != "sim":
-        print("ahrsd: --sim-faults needs the simulated sensor (--sim), not a real one", file=sys.stderr)
+        print("ahrsd run: error: --sim-faults needs the simulated sensor (--sim), not a real one", file=sys.stderr)
         return None
     try:
         return build_plan(parse_schedule(schedule), ADIS16405_RATE_HZ, seed=cfg.sensor.seed)
     except FaultScheduleError as exc:
-        print(f"ahrsd: --sim-faults: {exc}", file=sys.stderr)
+        print(f"ahrsd run: error: --sim-faults: {exc}", file=sys.stderr)
         return None
 
 

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ahrsd.core.state_dir import default_state_dir
 from ahrsd.daemon.magcal_settings import settings_from_mapping
 from ahrsd.daemon.nmea_sentences import (DEFAULT_RATES_HZ, LOW_SPEED_BELOW_BAUD, LOW_SPEED_RATES_HZ, SENTENCE_IDS,
                                          worst_case_bytes)
@@ -531,18 +532,14 @@ OutputsConfig.__doc__ = "Message rates in Hz (0 = off), one per output of the re
 
 @dataclass(frozen=True)
 class StateConfig:
-    dir: str = ""   # "" = $STATE_DIRECTORY (systemd StateDirectory=) else ~/.local/state/ahrsd
+    dir: str = ""   # "" = core.state_dir.default_state_dir: $STATE_DIRECTORY, /var/lib/ahrsd, ~/.local/state/ahrsd
 
     @classmethod
     def parse(cls, d: dict, prefix="state") -> "StateConfig":
         return cls(**_parse_table(cls, d, prefix, {"dir": _string}))
 
     def resolve(self, environ=os.environ) -> Path:
-        if self.dir:
-            return Path(self.dir).expanduser()
-        if environ.get("STATE_DIRECTORY"):
-            return Path(environ["STATE_DIRECTORY"].split(":")[0])
-        return Path(environ.get("XDG_STATE_HOME") or Path.home() / ".local" / "state") / "ahrsd"
+        return Path(self.dir).expanduser() if self.dir else default_state_dir(environ)
 
 
 @dataclass(frozen=True)

@@ -13,10 +13,14 @@ Commands (COMMAND_LONG / COMMAND_INT), behaviour mirrored from ArduPilot's AP_Co
   while a session runs is ACCEPTED and changes nothing (ArduPilot's CompassCalibrator::start returns when
   running); a start after a finished session starts a new one.
 * MAV_CMD_DO_ACCEPT_MAG_CAL (42425): saves a SUCCESS result (atomic store, previous kept), hot-swaps it,
-  logs before/after and stops the session; ACCEPTED when there is nothing to accept or it was already saved
-  (ArduPilot), FAILED for a FAILED session (stopped) and for a session still running (which carries on:
-  ArduPilot would stop it, which only throws the operator's turning away).
-* MAV_CMD_DO_CANCEL_MAG_CAL (42426): stops the session, ACCEPTED.
+  logs before/after and stops the session, then answers; ACCEPTED only when the result is saved (also for an
+  accept repeated after it was saved: a re-sent command whose first ACK was lost), FAILED for a FAILED session
+  (stopped), for a session still running (which carries on: ArduPilot would stop it, which only throws the
+  operator's turning away) and when there is nothing to accept (no session, or it was cancelled), with a
+  STATUSTEXT saying so. ArduPilot answers ACCEPTED there; a client would then report a calibration saved that
+  was not (#30: `ahrsd magcal accept` after the session had been cancelled said ACCEPTED).
+* MAV_CMD_DO_CANCEL_MAG_CAL (42426): stops the session, ACCEPTED; "Mag cal cancelled" when a session running
+  or waiting for its accept is dropped (a terminal still following it learns it was settled elsewhere).
 * MAV_CMD_FIXED_MAG_CAL_YAW (42006): p1 true yaw deg, p2 mask, p3/p4 lat/lon (0/0 = the daemon's
   position, daemon.position's priority; as COMMAND_INT the position may come as x/y in degE7):
   offsets from the WMM field at the given attitude, soft iron KEPT; saved and swapped at once (as ArduPilot
@@ -126,6 +130,7 @@ class MagCalProtocol:
         self.session: FieldCalibration | None = None
         self.autosave = False
         self.saved = False
+        self.last_result_saved = False   # the last session ended with its result saved, and none started since
         self._executor: concurrent.futures.ThreadPoolExecutor | None = None
         self._fit_future: concurrent.futures.Future | None = None
         self._next_progress = 0.0
@@ -329,7 +334,7 @@ class MagCalProtocol:
                                         samples_are_calibrated=True, auto_fit=False)
         self.session.start()
         self._warm_worker()
-        self.autosave, self.saved = autosave, False
+        self.autosave, self.saved, self.last_result_saved = autosave, False, False
         self._mask_requested = mask or OUR_MASK
         self._next_progress = 0.0
         self._final_progress_sent = False
@@ -343,9 +348,14 @@ class MagCalProtocol:
         if whole_number(mask_f, 0, 255) is None:
             return Refused(mavlink.MAV_RESULT_FAILED, f"DO_ACCEPT_MAG_CAL: mask {mask_f} not in 0..255")
         mask = int(mask_f) or 0xFF
+        if not mask & OUR_MASK:
+            return Refused(mavlink.MAV_RESULT_FAILED, f"Mag cal: no compass in mask {mask} (ours: compass 0)")
         s = self.session
-        if not mask & OUR_MASK or s is None or s.status == CalStatus.NOT_STARTED:
-            return mavlink.MAV_RESULT_ACCEPTED
+        if s is None or s.status == CalStatus.NOT_STARTED:
+            if self.last_result_saved:
+                return mavlink.MAV_RESULT_ACCEPTED       # saved already: the accept was sent again
+            self.host.statustext(SEV_NOTICE, "Mag cal: nothing to accept (no finished calibration): unchanged")
+            return mavlink.MAV_RESULT_FAILED
         if s.status.running:
             self.host.statustext(SEV_NOTICE, f"Mag cal not finished ({s.completion_pct}%): keep turning")
             return mavlink.MAV_RESULT_FAILED
@@ -354,6 +364,7 @@ class MagCalProtocol:
             return mavlink.MAV_RESULT_FAILED
         ok = self.saved or self._accept_result()
         self._stop_session()
+        self.last_result_saved = ok
         return mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_FAILED
 
     def handle_cancel(self, msg, ctx=None) -> int:
@@ -362,10 +373,14 @@ class MagCalProtocol:
             return Refused(mavlink.MAV_RESULT_FAILED, f"DO_CANCEL_MAG_CAL: mask {mask_f} not in 0..255")
         mask = int(mask_f) or 0xFF
         if mask & OUR_MASK and self.session is not None:
+            s = self.session
+            unsaved_result = s.status == CalStatus.SUCCESS and not self.saved
             was_running = self.calibrating
             self._stop_session()
             if was_running:
                 self.host.statustext(SEV_INFO, "Mag cal cancelled")
+            elif unsaved_result:
+                self.host.statustext(SEV_INFO, "Mag cal cancelled: result dropped, calibration unchanged")
         return mavlink.MAV_RESULT_ACCEPTED
 
     def handle_preflight_mag(self, msg, ctx=None) -> int:

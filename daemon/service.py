@@ -329,6 +329,10 @@ class Service:
         return self.exit_code
 
     def _on_signal(self, sig) -> None:
+        """SIGINT/SIGTERM: stop, said once. A terminal's Ctrl-C and `timeout`'s group signal reach the daemon
+        twice under `script` or a shell; the second changes nothing and is not logged again."""
+        if self._stop is not None and self._stop.is_set():
+            return
         log.info("received %s, shutting down", signal.Signals(sig).name)
         self.request_stop(0)
 

@@ -62,12 +62,16 @@ def broad_dir() -> Path:
 
 @pytest.fixture(autouse=True)
 def _no_system_state_dir(tmp_path_factory, monkeypatch):
-    """`ahrsd calibrate` run in-process without --state-dir reads (and, without --dry-run, writes) its default,
-    /var/lib/ahrsd: point that at an empty directory, so no test depends on, or changes, the machine's own
-    calibration."""
-    import ahrsd.cli.calibrate as calibrate_cli
+    """`ahrsd calibrate`, `run` and `log` without a state directory use core.state_dir's default ($STATE_DIRECTORY,
+    /var/lib/ahrsd, ~/.local/state/ahrsd): point it at an empty directory, through $STATE_DIRECTORY so that the
+    daemons and commands a test starts as subprocesses get it too (a machine with the service installed has a
+    /var/lib/ahrsd they would otherwise use), so no test depends on, or changes, the machine's own calibration.
+    A test of the rule itself removes $STATE_DIRECTORY."""
+    import ahrsd.core.state_dir as state_dir
 
-    monkeypatch.setattr(calibrate_cli, "DEFAULT_STATE_DIR", str(tmp_path_factory.mktemp("default-state")))
+    monkeypatch.setattr(state_dir, "SERVICE_STATE_DIR", tmp_path_factory.mktemp("no-service") / "ahrsd")
+    monkeypatch.setenv("STATE_DIRECTORY", str(tmp_path_factory.mktemp("default-state")))
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path_factory.mktemp("default-xdg")))
 
 
 @pytest.fixture

@@ -52,18 +52,37 @@ def test_a_refused_fit_says_so_first(tmp_path, capsys):
     assert out.splitlines()[1].startswith("  verdict: REFUSED: ")
 
 
-def test_saving_in_the_services_directory_says_how_run_by_hand_reads_it(turning_boat, tmp_path, capsys,
-                                                                        monkeypatch):
-    """The default --state-dir is the service's (/var/lib/ahrsd) while `ahrsd run` by hand reads
-    ~/.local/state/ahrsd: the report says so (a fresh clone's calibrate-then-run silently ran uncalibrated).
-    The default is pointed at a temporary directory here; an explicit other --state-dir gets no hint."""
-    import ahrsd.cli.calibrate as calibrate_cli
+def _run_state_dir():
+    """The state directory `ahrsd run --sim static` (no --state-dir, no config file) uses: the run's own config path."""
+    from ahrsd.cli.main import build_parser
+    from ahrsd.cli.run import _config
 
-    service_dir = str(tmp_path / "service")
-    monkeypatch.setattr(calibrate_cli, "DEFAULT_STATE_DIR", service_dir)
+    return _config(build_parser().parse_args(["run", "--sim", "static"])).state.resolve()
+
+
+@pytest.mark.parametrize("service_installed", [False, True])
+def test_a_calibration_made_without_state_dir_is_the_one_run_loads(turning_boat, tmp_path, capsys, monkeypatch,
+                                                                     service_installed):
+    """#30: `ahrsd calibrate` defaulted to the service's /var/lib/ahrsd and a hand-started `ahrsd run` to
+    ~/.local/state/ahrsd, so calibrate-then-run (no --state-dir) ran uncalibrated. One default now
+    (core.state_dir): the service's directory where it exists and is writable, else the user's. (Seen failing
+    on the old defaults: the calibration went to the service's directory, the run read the user's.)"""
+    import ahrsd.core.state_dir as state_dir
+    from ahrsd.calibration.store import CalibrationStore
+
+    service = tmp_path / "var-lib-ahrsd"
+    if service_installed:
+        service.mkdir()
+    monkeypatch.setattr(state_dir, "SERVICE_STATE_DIR", service)
+    monkeypatch.delenv("STATE_DIRECTORY")                   # conftest's; not under systemd here
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "xdg"))
     args = ["calibrate", "mag", "--method", "backstepping", str(turning_boat), "--lat", "36.42", "--lon", "54.98"]
     assert cli.main(args) == 0
     verdict = capsys.readouterr().out.splitlines()[1]
-    assert verdict.endswith(f"`ahrsd run` by hand only with --state-dir {service_dir}"), verdict
-    assert cli.main(args + ["--state-dir", str(tmp_path / "mine")]) == 0
-    assert "by hand" not in capsys.readouterr().out
+    expected = service if service_installed else tmp_path / "xdg" / "ahrsd"
+    assert f"saved to {expected / 'calibration.json'} " in verdict, verdict
+    assert _run_state_dir() == expected
+    loaded = CalibrationStore(_run_state_dir()).load()
+    assert loaded.mag.hard_iron_ut.any()                         # the fit, not the identity
+    monkeypatch.setenv("STATE_DIRECTORY", str(tmp_path / "unit"))   # under systemd: its StateDirectory
+    assert _run_state_dir() == tmp_path / "unit"

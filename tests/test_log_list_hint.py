@@ -11,4 +11,6 @@ def test_missing_log_directory_says_how_to_get_logs(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "no such log directory" in err
     assert "--log-dir DIR" in err and "[log] enabled = true" in err
-    assert err.count("/var/lib/ahrsd/logs") == 1
+    import ahrsd.core.state_dir as state_dir
+
+    assert err.count(str(state_dir.SERVICE_STATE_DIR / "logs")) == 1     # the service's (conftest moves it)

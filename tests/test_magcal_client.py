@@ -172,3 +172,91 @@ def test_an_accept_elsewhere_long_after_the_prompt_appeared_is_not_lost():
     assert "accepted from another ground station or terminal: calibration saved" in out.getvalue()
     assert "not accepted" not in out.getvalue()
     assert client_module.MAV_CMD_DO_CANCEL_MAG_CAL not in conn.sent
+
+
+class _EndedTerminal(io.StringIO):
+    """A terminal whose input has ended (Ctrl-D), as `ahrsd magcal start` met it with its prompt reading /dev/null."""
+
+    def isatty(self):
+        return True
+
+
+def test_no_terminal_answer_is_no_decision(monkeypatch):
+    import ahrsd.cli.magcal_client as client_module
+
+    monkeypatch.setattr("sys.stdin", _EndedTerminal(""))
+    assert client_module._ask("accept? ") is None
+    monkeypatch.setattr("sys.stdin", io.StringIO("y\n"))          # a pipe, not a terminal: nobody at a prompt
+    assert client_module._ask("accept? ") is None
+    monkeypatch.setattr("sys.stdin", _EndedTerminal("n\n"))
+    assert client_module._ask("accept? ") is False
+    monkeypatch.setattr("sys.stdin", _EndedTerminal("yes\n"))
+    assert client_module._ask("accept? ") is True
+
+
+def _client_at_eof(after_no_answer):
+    """A client whose prompt nobody can answer (stdin at EOF), after one successful report; once it has said
+    "no answer possible", its link hands out `after_no_answer()` (a message, or None) whenever nothing else is
+    queued. Returns (client, conn, out)."""
+    conn = _ScriptedConn([_report()])
+    out = io.StringIO()
+    client = MagCalClient(conn=conn, timeout_s=1.0, out=out, ask=lambda prompt: None)
+    client.sys, client.comp = 1, 200
+    scripted = conn.recv_match
+
+    def recv_match(blocking=True, timeout=None, type=None):
+        m = scripted()
+        return after_no_answer() if m is None and "no answer possible" in out.getvalue() else m
+
+    conn.recv_match = recv_match
+    return client, conn, out
+
+
+def test_a_client_at_eof_leaves_the_result_to_another_terminal():
+    """#30, left from session 16: `ahrsd magcal start </dev/null` printed "not accepted: calibration unchanged" and
+    cancelled the finished session, so the `ahrsd magcal accept` typed in another terminal later saved nothing.
+    Nobody answered here, so nothing is cancelled: the client follows the session until it is settled elsewhere.
+    (Broken by treating EOF as "no": the client sends DO_CANCEL_MAG_CAL and exits 1.)"""
+    import ahrsd.cli.magcal_client as client_module
+
+    attitude = wire(mavlink.MAVLink_attitude_message(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+    saved = [wire(m) for m in statustext_chunks(5, "Mag cal saved: ofs [1, 2, 3] mG, fitness 0.4 mG, backstepping", 3)]
+    later = [attitude, _report(), attitude, *saved, attitude]     # the other terminal accepts a while later
+    client, conn, out = _client_at_eof(lambda: later.pop(0) if later else None)
+    assert client.start(max_time_s=5.0) == 0, out.getvalue()
+    assert client_module.MAV_CMD_DO_CANCEL_MAG_CAL not in conn.sent
+    assert client_module.MAV_CMD_DO_ACCEPT_MAG_CAL not in conn.sent
+    assert "not accepted" not in out.getvalue()
+    assert "accept it with `ahrsd magcal accept`" in out.getvalue()
+    assert "accepted from another ground station or terminal: calibration saved" in out.getvalue()
+
+
+def test_a_client_at_eof_reports_a_cancel_from_elsewhere():
+    import ahrsd.cli.magcal_client as client_module
+
+    dropped = [wire(m) for m in statustext_chunks(6, "Mag cal cancelled: result dropped, calibration unchanged", 4)]
+    client, conn, out = _client_at_eof(lambda: dropped.pop(0) if dropped else None)
+    assert client.start(max_time_s=5.0) == 1
+    assert client_module.MAV_CMD_DO_CANCEL_MAG_CAL not in conn.sent
+    assert "cancelled from another ground station or terminal: calibration unchanged" in out.getvalue()
+
+
+def test_a_client_at_eof_that_missed_the_settling_text_stops_when_the_report_stops(monkeypatch):
+    """The live walk of the fix: `magcal start </dev/null` waited, `magcal accept` in another terminal saved, but
+    the waiting client never heard "Mag cal saved": the second client bound the same UDP port (udpin:14550) and
+    the kernel gave it the daemon's datagrams while it ran. The report stream stopping tells the waiting client
+    the session is settled, instead of waiting out --max-time (600 s). (Seen failing without the check: it
+    waited to max_time and said "gave up waiting".)"""
+    import ahrsd.cli.magcal_client as client_module
+
+    monkeypatch.setattr(client_module, "REPORT_GONE_S", 0.3)
+    attitude = wire(mavlink.MAVLink_attitude_message(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+
+    def streams_go_on():                       # the daemon's streams go on; its reports have stopped
+        time.sleep(0.05)
+        return attitude
+
+    client, conn, out = _client_at_eof(streams_go_on)
+    assert client.start(max_time_s=10.0) == 1
+    assert "no longer reports this result" in out.getvalue() and "gave up" not in out.getvalue()
+    assert client_module.MAV_CMD_DO_CANCEL_MAG_CAL not in conn.sent

@@ -85,6 +85,80 @@ def test_autosave_reports_autosaved_and_accept_is_idempotent(setup):
     assert len(host.applied) == 1
 
 
+def test_accept_after_the_result_was_cancelled_is_not_reported_saved(setup, tmp_path):
+    """#30 defect left from session 16: `ahrsd magcal start` at EOF on its prompt cancelled the finished session,
+    and a later `ahrsd magcal accept` from another terminal was answered ACCEPTED while nothing was saved
+    (ArduPilot's rule: ACCEPTED when there is nothing to accept). ACCEPTED must mean saved."""
+    host, clock, proto = setup
+    proto.handle_start(cmd(CMD_START))
+    drive(proto, clock, level_turns(), host, until=lambda: bool(host.of_type("MAG_CAL_REPORT")))
+    assert proto.session.status == CalStatus.SUCCESS
+    assert proto.handle_cancel(cmd(CMD_CANCEL)) == mavlink.MAV_RESULT_ACCEPTED
+    assert any(t.startswith("Mag cal cancelled") for t in host.texts())    # a following terminal learns it
+    assert proto.handle_accept(cmd(CMD_ACCEPT)) == mavlink.MAV_RESULT_FAILED
+    assert not host.applied and not (tmp_path / "calibration.json").exists()
+    assert any("nothing to accept" in t for t in host.texts())
+    assert proto.handle_accept(cmd(CMD_ACCEPT, 2)) == mavlink.MAV_RESULT_FAILED    # compass 1: not ours
+    # never started at all: the same
+    fresh = MagCalProtocol(host, MagCalSettings(vehicle_type="level"), clock=clock)
+    assert fresh.handle_accept(cmd(CMD_ACCEPT)) == mavlink.MAV_RESULT_FAILED
+
+
+def test_an_accept_sent_again_after_the_save_is_accepted(setup):
+    """A client re-sends a command whose ACK it missed: the second accept finds the session stopped, but the
+    result it names is saved."""
+    host, clock, proto = setup
+    proto.handle_start(cmd(CMD_START))
+    drive(proto, clock, level_turns(), host, until=lambda: bool(host.of_type("MAG_CAL_REPORT")))
+    assert proto.handle_accept(cmd(CMD_ACCEPT)) == mavlink.MAV_RESULT_ACCEPTED
+    assert proto.handle_accept(cmd(CMD_ACCEPT)) == mavlink.MAV_RESULT_ACCEPTED
+    assert len(host.applied) == 1
+    proto.handle_start(cmd(CMD_START))          # a new session: the old save no longer answers for it
+    proto.handle_cancel(cmd(CMD_CANCEL))
+    assert proto.handle_accept(cmd(CMD_ACCEPT)) == mavlink.MAV_RESULT_FAILED
+
+
+def _client_hints(progress) -> list[str]:
+    """The turn hint `ahrsd magcal start` shows for each MAG_CAL_PROGRESS (cli.magcal_client's bar)."""
+    import io
+
+    from ahrsd.cli.magcal_client import MagCalClient
+
+    hints = []
+    for m in progress:
+        out = io.StringIO()
+        MagCalClient(conn=None, timeout_s=1.0, out=out)._bar(m)
+        line = out.getvalue()
+        hints.append("turn right" if "turn right" in line else "turn left" if "turn left" in line else "")
+    return hints
+
+
+@pytest.mark.parametrize("turn", [+1, -1])
+def test_the_turn_hint_holds_while_the_vehicle_turns_one_way(setup, turn):
+    """Session 16's walk: the client's hint flickered "turn right" / blank at every progress update of a steady
+    turn. Why: the nearest heading sector still missing was, most of the time, the one the vehicle was in (a 10°
+    sector fills within a few kept samples), so the hint pointed almost straight ahead (|direction_y| < 0.1: no
+    hint) until that sector filled and the next one became the nearest. A steady turn either way now keeps one
+    hint, the way it turns, from its first progress to its last (seen failing on the old hint: turning right 47
+    changes, 62 of 162 updates blank, and "turn left" at the start)."""
+    host, clock, proto = setup
+    proto.handle_start(cmd(CMD_START))
+    traj = level_turns()
+    if turn < 0:
+        traj.yaw, traj.roll = -traj.yaw, -traj.roll      # the same turns the other way (mirror image)
+        traj = trajectory(traj.t, traj.roll, traj.pitch, traj.yaw, seed=1)
+    drive(proto, clock, traj, host, until=lambda: bool(host.of_type("MAG_CAL_REPORT")))
+    running = [m for m in host.of_type("MAG_CAL_PROGRESS") if m.cal_status in (CalStatus.RUNNING_STEP_ONE,
+                                                                                 CalStatus.RUNNING_STEP_TWO)]
+    hints = _client_hints(running)
+    shown = [h for h in hints if h]
+    assert shown, hints
+    expected = "turn right" if turn > 0 else "turn left"
+    assert set(shown) == {expected}, hints
+    first = hints.index(expected)
+    assert first <= 2 and all(hints[first:]), hints     # from its first second on, never blank
+
+
 def test_second_start_while_running_changes_nothing(setup):
     host, clock, proto = setup
     proto.handle_start(cmd(CMD_START))

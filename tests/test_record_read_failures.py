@@ -94,7 +94,7 @@ def test_a_gnss_receiver_that_cannot_be_opened_leaves_no_file(tmp_path, capsys):
     rc = main(["record", "--sim", "static", "--realtime", "--seconds", "1", "-o", str(out), "-q",
                "--gnss-serial", str(missing)])
     err = capsys.readouterr().err
-    assert rc == 1 and "ahrsd record: GNSS: cannot open GNSS receiver" in err and str(missing) in err, err
+    assert rc == 1 and "ahrsd record: error: GNSS: cannot open GNSS receiver" in err and str(missing) in err, err
     assert not out.exists() and not (tmp_path / "rec.gnss.csv").exists()
     # refused before it starts (a simulated chip not on the host clock): the same
     rc = main(["record", "--sim", "static", "--seconds", "1", "-o", str(out), "-q", "--gnss-serial", str(missing)])
@@ -150,5 +150,5 @@ def test_the_command_says_the_sensor_failed_and_exits_1(tmp_path, capsys):
     rc = record_cli.run(args, open_bus=lambda kind, **kw: _BusFailingForAWhile(open_chip_bus(kind, **kw), 400, 10))
     err = capsys.readouterr().err.strip().splitlines()
     rows = len(read_recording(out))
-    assert rc == 1 and err[0].startswith("ahrsd record: sensor failure: "), err
+    assert rc == 1 and err[0].startswith("ahrsd record: error: sensor failure: "), err
     assert err[-1].startswith(f"ahrsd record: wrote {rows} samples ") and 0 < rows < 400, err
