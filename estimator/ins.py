@@ -136,6 +136,11 @@ class InsParams(MagHeadingParams):
     level_lowpass_tau_s: float = 1.5
     level_recover_s: float = 10.0
     """As mekf's acc_noise_m_s2, acc_reject_m_s2, acc_gate_rad, acc_lowpass_tau_s, acc_gate_recover_s."""
+    turn_speed_m_s: float = 2.0
+    """As mekf's: a plausible speed of the vehicle while it turns, m/s, for the published 1σ only while levelling
+    (before the first fix and after dead_reckon_s without one; the estimate does not depend on it): a turn at ω
+    about the vertical leans the levelled vertical by atan(ω·v/g), and through the dip the magnetometer heading
+    by tan(I) times that (turn_lean.py). With GNSS the velocity observes the lean and the terms are off."""
 
     # --- magnetometer heading (mag_heading.py, mekf's check): as MekfParams
     mag_enabled: bool = True
@@ -292,6 +297,7 @@ class InsParams(MagHeadingParams):
         p["level_gate_rad"] = self.level_gate_rad
         p["level_lowpass_tau_s"] = self.level_lowpass_tau_s
         p["level_recover_s"] = self.level_recover_s
+        p["turn_speed_m_s"] = self.turn_speed_m_s
         p["mag_enabled"] = 1.0 if self.mag_enabled else 0.0
         p["declination_rad"] = declination_rad
         p["lever_arm_m"] = np.asarray(self.lever_arm_m, dtype=float).reshape(3)

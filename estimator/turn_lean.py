@@ -82,3 +82,18 @@ def clear(u):
     """No lean left: the attitude is held by something that observes it (ins with GNSS velocity)."""
     u.tilt_push_rad = 0.0
     u.heading_push_rad = 0.0
+
+
+@njit(cache=True, inline="always")
+def add_pushes_to_sigma(u, sigma_rpy_rad):
+    """Roll, pitch and yaw 1σ (rad, in place) with the pushes added in quadrature. The tilt push is the same
+    about every horizontal axis, so adding it to the roll and pitch variances is adding it to the north and
+    east tilt variances before they are rotated into the heading frame. Nothing to do (and nothing done) while
+    both are zero."""
+    e = u.tilt_push_rad
+    h = u.heading_push_rad
+    if e != 0.0:
+        sigma_rpy_rad[0] = math.sqrt(sigma_rpy_rad[0] * sigma_rpy_rad[0] + e * e)
+        sigma_rpy_rad[1] = math.sqrt(sigma_rpy_rad[1] * sigma_rpy_rad[1] + e * e)
+    if h != 0.0:
+        sigma_rpy_rad[2] = math.sqrt(sigma_rpy_rad[2] * sigma_rpy_rad[2] + h * h)
