@@ -136,6 +136,11 @@ class InsParams(MagHeadingParams):
     level_lowpass_tau_s: float = 1.5
     level_recover_s: float = 10.0
     """As mekf's acc_noise_m_s2, acc_reject_m_s2, acc_gate_rad, acc_lowpass_tau_s, acc_gate_recover_s."""
+    turn_speed_m_s: float = 2.0
+    """As mekf's: a plausible speed of the vehicle while it turns, m/s, for the published 1σ only while levelling
+    (before the first fix and after dead_reckon_s without one; the estimate does not depend on it): a turn at ω
+    about the vertical leans the levelled vertical by atan(ω·v/g), and through the dip the magnetometer heading
+    by tan(I) times that (turn_lean.py). With GNSS the velocity observes the lean and the terms are off."""
 
     # --- magnetometer heading (mag_heading.py, mekf's check): as MekfParams
     mag_enabled: bool = True
@@ -292,6 +297,7 @@ class InsParams(MagHeadingParams):
         p["level_gate_rad"] = self.level_gate_rad
         p["level_lowpass_tau_s"] = self.level_lowpass_tau_s
         p["level_recover_s"] = self.level_recover_s
+        p["turn_speed_m_s"] = self.turn_speed_m_s
         p["mag_enabled"] = 1.0 if self.mag_enabled else 0.0
         p["declination_rad"] = declination_rad
         p["lever_arm_m"] = np.asarray(self.lever_arm_m, dtype=float).reshape(3)
@@ -738,6 +744,8 @@ class Ins:
             log.warning("ins: GNSS position rejected for %.1f s: position reset to the fix", p.reject_reset_s)
         if p.heading_monitor and p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
             self._check_heading(float(fix.t_s))
+        elif not p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
+            self._floor_yaw_sigma_without_magnetometer()
         return res
 
     # ----------------------------------------------------------------------- heading checks (heading_monitor.py)
@@ -1027,9 +1035,21 @@ class Ins:
         if not (p.yaw_align_to_gnss_yaw and self._heading_checks_run) or self._heading_confirmed \
                 or not self._calibration_untrusted:
             return math.nan
-        if not (math.isfinite(gsf_yaw) and math.isfinite(gsf_var)):
-            return math.pi
-        return math.sqrt(gsf_var + wrap_pi(gsf_yaw - yaw_rad) ** 2)
+        return _gnss_yaw_floor(yaw_rad, gsf_yaw, gsf_var)
+
+    def _floor_yaw_sigma_without_magnetometer(self) -> None:
+        """No magnetometer (mag_enabled off): the yaw comes from the GNSS velocity alone, pulled in from an unknown
+        start (1σ π) through linearised updates, whose variance shrinks faster than the error on a boat's weak
+        accelerations (docs/estimator.md "Known limits: ins on level turns"). The heading checks do not run (they weigh a
+        magnetometer), so nothing ever confirms this yaw: its published 1σ is at least the GNSS yaw bank's
+        plus the distance to it, as an unconfirmed heading's (`_unconfirmed_yaw_sigma`), at every fused fix."""
+        if not (self.params.gnss_yaw and self.params.heading_monitor):
+            return
+        q = self._x["q"]
+        # yaw of C_b^n: atan2(C10, C00) of the quaternion
+        yaw = math.atan2(2.0 * (q[1] * q[2] + q[0] * q[3]), 1.0 - 2.0 * (q[2] * q[2] + q[3] * q[3]))
+        gsf_yaw, gsf_var, _ = self._gnss_yaw()
+        self._unconfirmed_sigma_rad = _gnss_yaw_floor(yaw, gsf_yaw, gsf_var)
 
     @property
     def _calibration_untrusted(self) -> bool:
@@ -1303,6 +1323,14 @@ class Ins:
                 return HeadingState.UNKNOWN
             return HeadingState.MAGNETOMETER
         return self._heading_state if p.heading_monitor else HeadingState.MAGNETOMETER
+
+
+def _gnss_yaw_floor(yaw_rad: float, gsf_yaw: float, gsf_var: float) -> float:
+    """The smallest honest 1σ of a yaw the GNSS yaw bank has not confirmed: the bank's own (the spread of its
+    hypotheses) plus the distance to it; π before the bank has a yaw."""
+    if not (math.isfinite(gsf_yaw) and math.isfinite(gsf_var)):
+        return math.pi
+    return math.sqrt(gsf_var + wrap_pi(gsf_yaw - yaw_rad) ** 2)
 
 
 def _one_record_array(record) -> np.recarray:

@@ -68,6 +68,14 @@ from .kernel_flags import (
     step_dt,
 )
 from .kernel_rotations import dcm, euler_and_tilt_sigma, normalised, quat_mul, rotate_to_ned, rotvec_quat
+from .turn_lean import (
+    TURN_LEAN_DTYPE,
+    add_pushes_to_sigma,
+    clear,
+    lowpass_rate_down,
+    track_heading_push,
+    track_tilt_push,
+)
 
 N_ERR = 24
 E_TH, E_V, E_P, E_BG, E_BA, E_SG, E_MG = 0, 3, 6, 9, 12, 15, 18
@@ -107,6 +115,7 @@ INS_STATE_DTYPE = np.dtype([
     ("acc_ned_lp_m_s2", np.float64, (3,)),       # specific force low-passed in the estimated NED frame
     ("acc_hold_s", np.float64),                  # levelling stays off this much longer after a sustained push
     ("acc_since_accept_s", np.float64),          # time since the last accepted levelling update
+    ("turn_lean", TURN_LEAN_DTYPE),              # the lean levelling leaves in a turn (published 1σ only)
     # last valid samples
     ("gyro_last_rad_s", np.float64, (3,)),
     ("acc_last_m_s2", np.float64, (3,)),
@@ -155,6 +164,7 @@ INS_PARAMS_DTYPE = np.dtype([
     ("level_gate_rad", np.float64),
     ("level_lowpass_tau_s", np.float64),
     ("level_recover_s", np.float64),
+    ("turn_speed_m_s", np.float64),              # the speed a turn's lean is reckoned at while levelling
     ("mag_enabled", np.float64),                 # 1.0: magnetometer heading updates
     ("mag_use", np.float64),                     # 1.0: fuse the heading; 0.0: the heading monitor rejects it
     ("mag_moves_tilt", np.float64),              # 1.0: while aided the heading update may move the tilt
@@ -419,6 +429,8 @@ def _level(x, P, par, dt_epoch):
         x.acc_since_accept_s += dt_epoch
         return F_ACCEL_REJECTED
     r = (par.level_noise_m_s2 / g) ** 2
+    # the lean this update carries into the tilt in a turn, for the published 1σ (turn_lean.py)
+    track_tilt_push(x.turn_lean, par.turn_speed_m_s, g, P[E_TILT_E, E_TILT_E], r)
     mask = M_HEADING | M_ACC_BIAS | M_GYRO_BIAS | M_GYRO_SCALE | M_GYRO_MIS   # tilt only (see the docstring)
     dx = np.zeros(N_ERR)
     h = np.zeros(N_ERR)
@@ -478,6 +490,9 @@ def _mag_update(x, P, par, dt_epoch, rate):
             # mag_bias_tau_s. Fused every Δt as if white it would shrink the heading σ below it; spread over the
             # τ/Δt updates of one correlation time it adds at most its own variance's worth of information.
             r += par.mag_bias_var_rad2 * max(1.0, par.mag_bias_tau_s / max(dt_epoch, 1e-6))
+            if not _aided(x, par):
+                # levelled: the tilt's turn lean becomes heading error through the dip (turn_lean.py)
+                track_heading_push(x.turn_lean, ms.ref_dip_rad, P[E_YAW, E_YAW], r)
             dx = np.zeros(N_ERR)
             scalar_update(P, h, alpha, r, 0 if moves_tilt else M_TILT, dx)
             _apply_correction(x, par, dx)
@@ -687,18 +702,36 @@ def _record_history(x, hist, t_s, q0, q1, q2, q3, vn, ve, vd, wx, wy, wz):
 
 
 @njit(cache=True)
+def _lowpass_rate_down(x, par, epoch_s):
+    """The rate about the vertical over the epoch, low-passed as the levelling's specific force is (τ =
+    level_lowpass_tau_s), for the lean a turn leaves (turn_lean.py). The epoch's mean ω_D = Σ_j ∫C_Dj ω_j dt /
+    Δt is already summed for the covariance (`_accumulate_c_omega`: index 9 i + 3 j + k, i = D = 2, k = j)."""
+    if epoch_s <= 0.0:
+        return
+    s = x.cov_c_omega_rad
+    tau = par.level_lowpass_tau_s
+    k = 1.0 - math.exp(-epoch_s / tau) if tau > 0.0 else 1.0
+    lowpass_rate_down(x.turn_lean, k, (s[18] + s[22] + s[26]) / epoch_s)
+
+
+@njit(cache=True)
 def _covariance_epoch(x, P, par, nav_ok, rate):
     """Every cov_period_s: propagate the covariance, then the levelling (while unaided) and the magnetometer
     heading update. Returns flag bits."""
     flags = 0
     epoch = x.cov_t_s
+    levelling = not _aided(x, par)
+    if levelling:
+        _lowpass_rate_down(x, par, epoch)    # reads the epoch's sums: before the propagation clears them
     propagate_covariance(x, P, par)
     if not nav_ok:
         # unknown velocity/position: keep their block bounded and uncorrelated until a fix sets them
         _reset_block(P, E_V, np.full(3, NAV_UNKNOWN_VAR_V))
         _reset_block(P, E_P, np.full(3, NAV_UNKNOWN_VAR_P))
-    if not _aided(x, par):
+    if levelling:
         flags |= _level(x, P, par, epoch)
+    else:
+        clear(x.turn_lean)    # the GNSS velocity observes the lean: no turn-lean terms while aided
     flags |= _mag_update(x, P, par, epoch, rate)
     _symmetrise(P)
     return flags
@@ -748,6 +781,9 @@ def ins_step(state, P, hist, params, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sa
     if initialising(x.t_run_s, sig[0], sig[1], sig[2], par.init_min_time_s,
                     par.converged_tilt_rad, par.mag_enabled > 0.0, par.converged_yaw_rad):
         flags |= F_INITIALISING
+    # after the convergence test (the filter converges on its covariance, not on a turn's lean, as mekf):
+    # the published 1σ adds the lean levelling has left in a turn (turn_lean.py; zero while aided)
+    add_pushes_to_sigma(x.turn_lean, sig)
     return flags
 
 

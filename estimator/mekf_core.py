@@ -63,6 +63,7 @@ from .kernel_flags import (
     step_dt,
 )
 from .kernel_rotations import dcm, euler_zyx, normalised, quat_mul, rotate_to_ned, tilt_sigma
+from .turn_lean import TURN_LEAN_DTYPE, bound_pushes, lowpass_rate_down, track_heading_push, track_tilt_push
 
 __all__ = [
     "MEKF_STATE_DTYPE", "MEKF_PARAMS_DTYPE", "MEKF_OUT_DTYPE", "MEKF_BUFFER_DTYPE", "mekf_step", "mekf_step_full",
@@ -93,12 +94,6 @@ FIELD_OFFSET_DTYPE = np.dtype([           # the body-fixed field offset estimate
     ("ready", np.bool_),                  # known well enough, significant and consistent: subtracted
 ])
 
-UNMODELLED_DTYPE = np.dtype([             # attitude errors the filter's covariance does not carry (`_fill_outputs`)
-    ("rate_down_lp_rad_s", np.float64),   # rate about the vertical, low-passed as the specific force is
-    ("tilt_push_rad", np.float64),        # tilt error a sustained push has left in the estimate
-    ("heading_push_rad", np.float64),     # heading error that tilt error leaves through the dip
-])
-
 MEKF_STATE_DTYPE = np.dtype([
     ("q", np.float64, (4,)),                  # attitude quaternion body→NED, scalar first
     ("gyro_bias_rad_s", np.float64, (3,)),
@@ -125,7 +120,7 @@ MEKF_STATE_DTYPE = np.dtype([
     # heading
     ("mag", mag.MAG_HEADING_STATE_DTYPE),     # the magnetometer heading check
     ("offset", FIELD_OFFSET_DTYPE),
-    ("unmodelled", UNMODELLED_DTYPE),
+    ("unmodelled", TURN_LEAN_DTYPE),          # attitude errors the covariance does not carry (turn_lean.py)
     # cached low-pass weights
     ("lp_rest", LOWPASS_WEIGHT_DTYPE),
     ("lp_acc_ned", LOWPASS_WEIGHT_DTYPE),
@@ -494,27 +489,13 @@ def _learn_bias_at_rest(st, par, dt, gx, gy, gz):
 
 
 # ----------------------------------------------------------------------------------- accelerometer: tilt only
-@njit(cache=True)
-def _track_tilt_push(u, par, g_ref, p_tilt, r):
-    """The tilt error a turn leaves in the estimate, which the filter's covariance does not carry. A vehicle
-    turning at ω_D about the vertical with speed v feels the centripetal acceleration ω_D·v, horizontal: the
-    apparent vertical leans by φ = atan(ω_D v / g) while |f| stays within (ω_D v)²/(2g) of g (0.005 m/s² for
-    a boat at 9 °/s and 2 m/s), below what the norm checks can see. Without a velocity v is unknown:
-    turn_speed_m_s stands for it. The accelerometer low-pass sees the rate about the vertical low-passed
-    (`rate_down_lp_rad_s`), and each accepted tilt update moves the estimate toward that lean with its own
-    gain k = P/(P + R), so the lean carried into the estimate follows ε ← ε + k (φ − ε): it builds up over a
-    turn and is corrected away after it at the rate the filter corrects any tilt error."""
-    phi = math.atan(par.turn_speed_m_s * abs(u.rate_down_lp_rad_s) / g_ref)
-    u.tilt_push_rad += p_tilt / (p_tilt + r) * (phi - u.tilt_push_rad)
-
-
 @njit(cache=True, inline="always")
 def _vertical_lowpass(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c):
     """The specific force f rotated into the estimated NED frame (f^n = C f, `c`: `dcm`'s 9-tuple) and
     low-passed there with τ = acc_lowpass_tau_s (VQF §IV-B: linear acceleration averages out, gravity stays);
     the rate about the vertical (the third row of C times the bias-corrected rate) low-passed with the same
-    weight, for the lean a turn leaves (`_track_tilt_push`); at rest |g| learned as this accelerometer sees it
-    (its scale error, τ = 10 s). Returns (|f|, the low-passed f^n)."""
+    weight, for the lean a turn leaves (turn_lean.py); at rest |g| learned as this accelerometer sees it (its
+    scale error, τ = 10 s). Returns (|f|, the low-passed f^n)."""
     e00, e01, e02, e10, e11, e12, e20, e21, e22 = c
     fn = e00 * ax + e01 * ay + e02 * az
     fe = e10 * ax + e11 * ay + e12 * az
@@ -537,8 +518,7 @@ def _vertical_lowpass(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c):
         un = fn
         ue = fe
         ud = fd
-    u = st.unmodelled
-    u.rate_down_lp_rad_s += ka * ((e20 * wx + e21 * wy + e22 * wz) - u.rate_down_lp_rad_s)
+    lowpass_rate_down(st.unmodelled, ka, e20 * wx + e21 * wy + e22 * wz)
     return fnorm, un, ue, ud
 
 
@@ -614,7 +594,7 @@ def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish):
     motion (`_motion_noise_rad2`, `_vertical_noise_rad2`). Rejected while the low-passed |f| is far from g or
     its vertical is more than acc_gate_rad from the estimate, then held off until the low-pass has forgotten
     the push (`_vertical_accepted`). (wx, wy, wz): the bias-corrected rate, for the lean a turn leaves
-    (`_track_tilt_push`, only when `publish`: it feeds the published 1σ only); c: C_b^n of the current
+    (`turn_lean.track_tilt_push`, only when `publish`: it feeds the published 1σ only); c: C_b^n of the current
     attitude (`dcm`, 9 scalars). Returns F_ACCEL_REJECTED or 0."""
     g_ref = st.g_ref_m_s2   # what `_vertical_lowpass` learns at rest applies from the next sample
     fnorm, un, ue, ud = _vertical_lowpass(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c)
@@ -628,7 +608,7 @@ def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish):
         return F_ACCEL_REJECTED
     r = _vertical_noise_rad2(par, at_rest, unorm, g_ref, r_motion)
     if publish:
-        _track_tilt_push(st.unmodelled, par, g_ref, st.P[E_TILT_E, E_TILT_E], r)
+        track_tilt_push(st.unmodelled, par.turn_speed_m_s, g_ref, st.P[E_TILT_E, E_TILT_E], r)
     _correct_tilt(st, par, fnorm, g_ref, nu_n, nu_e, r)
     return 0
 
@@ -804,16 +784,6 @@ def _field_offset(st, par, dt, rate, mx, my, mz):
 
 # ----------------------------------------------------------------------------------- magnetometer: heading only
 @njit(cache=True)
-def _track_heading_push(u, dip_rad, p_heading, r):
-    """The heading error the tilt push (`_track_tilt_push`) leaves through the field's dip. The heading is the
-    direction of the horizontal field in the estimated NED frame; a tilt error ε about the north axis turns
-    the vertical field B sin I into the east component, ε B sin I, against a horizontal field B cos I: a
-    heading error ε tan I. Each heading update moves the estimate toward that with its own gain P/(P + R)."""
-    target = abs(math.tan(dip_rad)) * u.tilt_push_rad
-    u.heading_push_rad += p_heading / (p_heading + r) * (target - u.heading_push_rad)
-
-
-@njit(cache=True)
 def _heading_update(st, par, dt, rate, valid, at_rest, moved_at_rest, mx, my, mz, publish):
     """The body-fixed offset stage, then the magnetometer heading (mag_heading.py's check and measurement)
     corrects δθ_D with the gain on tilt forced to zero (row h = −e_D: α = −δθ_D). Returns flag bits."""
@@ -832,7 +802,7 @@ def _heading_update(st, par, dt, rate, valid, at_rest, moved_at_rest, mx, my, mz
                                                 mn, me, md, mnorm, 0.0, st.P[E_HEADING, E_HEADING])
         if res == mag.MAG_USE:
             if publish:
-                _track_heading_push(st.unmodelled, st.mag.ref_dip_rad, st.P[E_HEADING, E_HEADING], r)
+                track_heading_push(st.unmodelled, st.mag.ref_dip_rad, st.P[E_HEADING, E_HEADING], r)
             d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, E_HEADING, -1.0, alpha, r, M_TILT)
             _apply_correction(st, par, d0, d1, d2, d3, d4, d5)
             used = True
@@ -905,7 +875,7 @@ def _fill_outputs(st, par, gx, gy, gz, out):
     # the published 1σ adds what the covariance does not carry (Schmidt's "consider" terms):
     # (a) the low-passed vertical is on average acc_lowpass_tau_s old, so it has not seen the attitude random
     #     walk of the last τ: the tilt process noise over τ;
-    # (b) the lean a turn has left in the tilt and, through the dip, in the heading (`_track_tilt_push`)
+    # (b) the lean a turn has left in the tilt and, through the dip, in the heading (`turn_lean.track_tilt_push`)
     u = st.unmodelled
     extra = (_tilt_process_noise_rad2(par, math.sqrt(wx * wx + wy * wy + wz * wz), par.acc_lowpass_tau_s)
              + u.tilt_push_rad * u.tilt_push_rad)
@@ -943,9 +913,9 @@ def _fill_estimate(st, par, out):
 def mekf_step(st, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, out, publish):
     """One sample through the stages (module docstring). st, par, out: MEKF_STATE_DTYPE, MEKF_PARAMS_DTYPE,
     MEKF_OUT_DTYPE records. sample_flags: the sample's SampleFlags as an int (invalid or saturated sensors are
-    not used). publish: track the published 1σ's unmodelled terms (`_track_tilt_push`, `_track_heading_push`)
-    and fill every output (`_fill_outputs`: the one-sample path), or neither (the batch returns only the
-    quaternion, `_fill_estimate`, and bounds those terms at its end: `_bound_unmodelled`); the quaternion,
+    not used). publish: track the published 1σ's unmodelled terms (turn_lean.py: the lean a turn leaves) and
+    fill every output (`_fill_outputs`: the one-sample path), or neither (the batch returns only the
+    quaternion, `_fill_estimate`, and bounds those terms at its end: `turn_lean.bound_pushes`); the quaternion,
     the flags and the rest of the state are the same either way.
     Returns EstimateFlags bits (| NEEDS_INIT when the caller must initialise first)."""
     valid = input_validity(sample_flags, gx, gy, gz, ax, ay, az, mx, my, mz)
@@ -1029,25 +999,11 @@ def fill_outputs_after_init(buf):
 
 
 @njit(cache=True)
-def _bound_unmodelled(u, par, rate_down_max_rad_s, g_ref_min_m_s2, dip_max_rad):
-    """After a batch that did not track the published 1σ's unmodelled terms: set them to an upper bound of what
-    tracking would have left. Each tracked term moves toward its target with a gain in [0, 1] (a convex
-    combination), so it never exceeds the larger of its value before the batch and its largest target: the
-    tilt lean atan(v·|ω_D|/g) (`_track_tilt_push`) at the largest low-passed rate about the vertical and the
-    smallest g, and the heading lean |tan I|·(that tilt bound) (`_track_heading_push`) at the steepest dip.
-    The one-sample path then publishes a 1σ no smaller than had it run every sample; the terms return to their
-    tracked values at the rate the filter corrects tilt and heading."""
-    tilt = max(u.tilt_push_rad, math.atan(par.turn_speed_m_s * rate_down_max_rad_s / g_ref_min_m_s2))
-    u.tilt_push_rad = tilt
-    u.heading_push_rad = max(u.heading_push_rad, abs(math.tan(dip_max_rad)) * tilt)
-
-
-@njit(cache=True)
 def mekf_run(buf, scratch_out, t_s, gyro, acc, mag_ut, sample_flags, start, q_out, flags_out):
     """Run `mekf_step` over samples start… on the state and parameters of the 1-element MEKF_BUFFER_DTYPE
     array `buf` (its outputs untouched: each step's quaternion goes to the 1-element MEKF_OUT_DTYPE array
     `scratch_out`), computing only what it returns: no output but the quaternion, and the published 1σ's
-    unmodelled terms bounded at the end (`_bound_unmodelled`) instead of tracked per sample.
+    unmodelled terms bounded at the end (`turn_lean.bound_pushes`) instead of tracked per sample.
     Returns the index of the first sample that needs (re-)initialisation, or len(t_s) when all were processed.
     sample_flags (N,) int64 SampleFlags; q_out (N, 4), flags_out (N,)."""
     # views without reference counting (`borrowed`): the arrays are the caller's, held for the whole call
@@ -1070,7 +1026,7 @@ def mekf_run(buf, scratch_out, t_s, gyro, acc, mag_ut, sample_flags, start, q_ou
             sample_flags[i], out, False,
         )
         if f & NEEDS_INIT:
-            _bound_unmodelled(u, par, rate_max, g_min, dip_max)
+            bound_pushes(u, par.turn_speed_m_s, rate_max, g_min, dip_max)
             return i
         rate_max = max(rate_max, abs(u.rate_down_lp_rad_s))
         g_min = min(g_min, st.g_ref_m_s2)
@@ -1078,7 +1034,7 @@ def mekf_run(buf, scratch_out, t_s, gyro, acc, mag_ut, sample_flags, start, q_ou
         for j in range(4):
             q_out[i, j] = out.q[j]
         flags_out[i] = f
-    _bound_unmodelled(u, par, rate_max, g_min, dip_max)
+    bound_pushes(u, par.turn_speed_m_s, rate_max, g_min, dip_max)
     return n
 
 

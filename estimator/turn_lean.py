@@ -1,0 +1,99 @@
+"""The lean a turn leaves in an accelerometer-levelled attitude: the published 1σ's terms for it (compiled).
+
+A vehicle turning at ω_D about the vertical with speed v feels the centripetal acceleration ω_D·v, horizontal:
+the apparent vertical leans by φ = atan(ω_D v / g) while |f| stays within (ω_D v)²/(2g) of g (0.005 m/s² for a
+boat at 9 °/s and 2 m/s), below what any norm check can see, and a filter that levels with the accelerometer
+cannot tell it from a tilt. Without a velocity v is unknown: a plausible turning speed stands for it (the
+filters' `turn_speed_m_s`). Through the field's dip I that tilt error becomes a heading error of the
+magnetometer (`track_heading_push`). Neither error is white noise, so neither is in the filter's covariance:
+both are tracked here beside it and added to the published 1σ in quadrature (Schmidt's "consider" terms).
+
+One rule for both filters that level with the accelerometer: mekf (always) and ins (while no GNSS velocity
+aids it: with GNSS the lean is observed and corrected). Each filter keeps a TURN_LEAN_DTYPE record in its state
+and calls, in its own stages:
+  `lowpass_rate_down`    the rate about the vertical, low-passed as the levelling's specific force is
+  `track_tilt_push`      at each accepted levelling update
+  `track_heading_push`   at each magnetometer heading update
+  `bound_pushes`         after a stretch that did not track (mekf's batch): an upper bound of what tracking
+                         would have left
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+TURN_LEAN_DTYPE = np.dtype([
+    ("rate_down_lp_rad_s", np.float64),   # rate about the vertical, low-passed as the specific force is
+    ("tilt_push_rad", np.float64),        # tilt error a sustained push has left in the estimate
+    ("heading_push_rad", np.float64),     # heading error that tilt error leaves through the dip
+])
+
+
+@njit(cache=True, inline="always")
+def lowpass_rate_down(u, k, rate_down_rad_s):
+    """The rate about the vertical (the third row of C_b^n times the bias-corrected rate) low-passed with the
+    weight `k` of the levelling's specific-force low-pass: the levelled vertical sees the turn through it."""
+    u.rate_down_lp_rad_s += k * (rate_down_rad_s - u.rate_down_lp_rad_s)
+
+
+@njit(cache=True, inline="always")
+def lean_rad(turn_speed_m_s, rate_down_rad_s, g_m_s2):
+    """φ = atan(v·|ω_D|/g): how far the apparent vertical leans in a turn at ω_D and speed v."""
+    return math.atan(turn_speed_m_s * abs(rate_down_rad_s) / g_m_s2)
+
+
+@njit(cache=True)
+def track_tilt_push(u, turn_speed_m_s, g_m_s2, p_tilt, r):
+    """Each accepted levelling update moves the estimate toward the lean (`lean_rad` at the low-passed rate)
+    with its own gain k = P/(P + R) (p_tilt: the tilt variance before the update, r: the update's noise
+    variance), so the lean carried into the estimate follows ε ← ε + k (φ − ε): it builds up over a turn and is
+    corrected away after it at the rate the filter corrects any tilt error."""
+    phi = lean_rad(turn_speed_m_s, u.rate_down_lp_rad_s, g_m_s2)
+    u.tilt_push_rad += p_tilt / (p_tilt + r) * (phi - u.tilt_push_rad)
+
+
+@njit(cache=True)
+def track_heading_push(u, dip_rad, p_heading, r):
+    """The heading error the tilt push leaves through the field's dip. The heading is the direction of the
+    horizontal field in the estimated NED frame; a tilt error ε about the north axis turns the vertical field
+    B sin I into the east component, ε B sin I, against a horizontal field B cos I: a heading error ε tan I.
+    Each heading update moves the estimate toward that with its own gain P/(P + R)."""
+    target = abs(math.tan(dip_rad)) * u.tilt_push_rad
+    u.heading_push_rad += p_heading / (p_heading + r) * (target - u.heading_push_rad)
+
+
+@njit(cache=True)
+def bound_pushes(u, turn_speed_m_s, rate_down_max_rad_s, g_min_m_s2, dip_max_rad):
+    """After a stretch that did not track the pushes: set them to an upper bound of what tracking would have
+    left. Each tracked term moves toward its target with a gain in [0, 1] (a convex combination), so it never
+    exceeds the larger of its value before and its largest target: the tilt lean (`lean_rad`) at the largest
+    low-passed rate about the vertical and the smallest g, and the heading lean |tan I|·(that tilt bound) at
+    the steepest dip."""
+    tilt = max(u.tilt_push_rad, lean_rad(turn_speed_m_s, rate_down_max_rad_s, g_min_m_s2))
+    u.tilt_push_rad = tilt
+    u.heading_push_rad = max(u.heading_push_rad, abs(math.tan(dip_max_rad)) * tilt)
+
+
+@njit(cache=True, inline="always")
+def clear(u):
+    """No lean left: the attitude is held by something that observes it (ins with GNSS velocity)."""
+    u.tilt_push_rad = 0.0
+    u.heading_push_rad = 0.0
+
+
+@njit(cache=True, inline="always")
+def add_pushes_to_sigma(u, sigma_rpy_rad):
+    """Roll, pitch and yaw 1σ (rad, in place) with the pushes added in quadrature. The tilt push is the same
+    about every horizontal axis, so adding it to the roll and pitch variances is adding it to the north and
+    east tilt variances before they are rotated into the heading frame. Nothing to do (and nothing done) while
+    both are zero."""
+    e = u.tilt_push_rad
+    h = u.heading_push_rad
+    if e != 0.0:
+        sigma_rpy_rad[0] = math.sqrt(sigma_rpy_rad[0] * sigma_rpy_rad[0] + e * e)
+        sigma_rpy_rad[1] = math.sqrt(sigma_rpy_rad[1] * sigma_rpy_rad[1] + e * e)
+    if h != 0.0:
+        sigma_rpy_rad[2] = math.sqrt(sigma_rpy_rad[2] * sigma_rpy_rad[2] + h * h)
