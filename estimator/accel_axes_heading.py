@@ -22,7 +22,8 @@ from __future__ import annotations
 import math
 
 
-def with_accel_axes_heading_sigma(yaw_sigma_rad: float, accel_axes_sigma_rad: float) -> float:
-    """The published yaw 1σ of a GNSS-aided heading: the filter's `yaw_sigma_rad` with the accelerometer's x–y
-    misalignment 1σ `accel_axes_sigma_rad` added in quadrature (module docstring); rad."""
-    return math.hypot(yaw_sigma_rad, accel_axes_sigma_rad)
+def accel_axes_heading_variance_rad2(accel_axes_sigma_rad: float) -> float:
+    """The heading variance (rad²) a GNSS-aided heading's published σ adds in quadrature for the accelerometer's
+    x–y misalignment 1σ `accel_axes_sigma_rad` (module docstring); 0 for a σ that is not finite and > 0."""
+    s = float(accel_axes_sigma_rad)
+    return s * s if math.isfinite(s) and s > 0.0 else 0.0

@@ -31,7 +31,7 @@ from ahrsd.core.sample import ImuSample
 
 from . import ins_core as core
 from . import mag_heading as mag
-from .accel_axes_heading import with_accel_axes_heading_sigma
+from .accel_axes_heading import accel_axes_heading_variance_rad2
 from .calibration_heading import calibration_heading_variance_rad2
 from .gsf_yaw import GsfParams, gsf_fuse_velocity, gsf_output, gsf_reset, new_gsf_state
 from .heading_monitor import HeadingCheckRecord, HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
@@ -405,6 +405,8 @@ class Ins:
         self._queue: list[GnssFix] = []
         self._last_fix_t = -math.inf
         self._ever_aided = False     # a fix has aided the filter since it started (calibration_heading.py until then)
+        # what the accelerometer's axes add to an aided heading's published variance (accel_axes_heading.py)
+        self._accel_axes_var_rad2 = accel_axes_heading_variance_rad2(self.params.accel_axes_heading_sigma_rad)
         self.gnss_counters = GnssCounters()
         self._gsf_par_arr = _one_record_array(GsfParams(lever_arm_m=tuple(self.params.lever_arm_m)).to_record())
         self._gsf_arr = _one_record_array(new_gsf_state(GsfParams(), 0.0))
@@ -1266,9 +1268,9 @@ class Ins:
             sigma_yaw = math.sqrt(sigma_yaw ** 2
                                   + calibration_heading_variance_rad2(self.params.mag_calibration_sigma_rad))
             o[_OUT_SIGMA.start + 2] = sigma_yaw
-        if self._ever_aided:
+        if self._ever_aided and self._accel_axes_var_rad2 > 0.0:
             # a heading the GNSS has observed is the accelerometer axes' heading: their misalignment is in it
-            sigma_yaw = with_accel_axes_heading_sigma(sigma_yaw, self.params.accel_axes_heading_sigma_rad)
+            sigma_yaw = math.sqrt(sigma_yaw * sigma_yaw + self._accel_axes_var_rad2)
             o[_OUT_SIGMA.start + 2] = sigma_yaw
         if self._published.offset_rad:
             # the filter's yaw moved faster than the published one may: publish it turned back by the offset

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from ahrsd.core.sample import SampleFlags, make_sample
-from ahrsd.estimator.accel_axes_heading import with_accel_axes_heading_sigma
+from ahrsd.estimator.accel_axes_heading import accel_axes_heading_variance_rad2
 from ahrsd.estimator.ins import Ins
 from ahrsd.simulation import SensorErrors
 
@@ -81,5 +81,6 @@ def test_without_the_term_the_filter_sigma_does_not_cover_it():
 
 
 def test_worked_numbers():
-    assert with_accel_axes_heading_sigma(0.003, 0.004) == pytest.approx(0.005, abs=1e-15)
-    assert with_accel_axes_heading_sigma(0.2, 0.0) == 0.2
+    assert accel_axes_heading_variance_rad2(0.004) == pytest.approx(1.6e-5, rel=1e-12)
+    assert accel_axes_heading_variance_rad2(0.0) == 0.0
+    assert accel_axes_heading_variance_rad2(math.nan) == 0.0
