@@ -96,7 +96,7 @@ def longest_turn_after(t_s, q_wxyz, t_from_s: float, t_last_start_s: float, min_
 
 def simulate_vehicle(name: str, seconds: float, seed: int, site_text: str | None, outage: bool = False,
                      rate_hz: float = RATE_HZ, lever_arm: bool = False, mag: str = "calibrated",
-                     iron: str | None = None) -> VehicleRun:
+                     iron: str | None = None, errors=None) -> VehicleRun:
     """`seconds` of vehicle `name` at the site ("LAT,LON[,ALT[,DATE]]", None: DEFAULT_SITE) with its GNSS fixes
     (in arrival order), with a 30 s outage from the start of the longest turn after 60 s when `outage`, the
     antenna at LEVER_ARMS_M[name] when `lever_arm`.
@@ -104,13 +104,14 @@ def simulate_vehicle(name: str, seconds: float, seed: int, site_text: str | None
     mag: "calibrated" (the iron in force removed, a perfect calibration), "uncalibrated" (the raw field with the
     vehicle's strong non-symmetric iron, what a new user feeds), "iron-step" (calibrated for the iron at the
     start; the hard iron moves by IRON_STEP_UT at IRON_STEP_AT of the run). iron: None (the scenario's own
-    vehicle iron), "default" (VehicleIron.default) or "held-out" (VehicleIron.held_out), on every vehicle."""
+    vehicle iron), "default" (VehicleIron.default) or "held-out" (VehicleIron.held_out), on every vehicle.
+    errors: the sensor's SensorErrors (None: SensorErrors.adis16405(seed))."""
     from ahrsd.simulation import DEFAULT_SITE, GnssErrors, SensorErrors, Site, VehicleIron, open_stream, simulate_gnss
 
     if mag not in MAG_CASES:
         raise ValueError(f"mag must be one of {MAG_CASES}, got {mag!r}")
     site = Site.parse(site_text) if site_text else DEFAULT_SITE
-    errors = SensorErrors.adis16405(seed)
+    errors = SensorErrors.adis16405(seed) if errors is None else errors
     if mag == "iron-step":
         errors = errors.replace(hard_iron_step_ut=IRON_STEP_UT, hard_iron_step_t_s=IRON_STEP_AT * seconds)
     irons = {None: "scenario", "default": VehicleIron.default(), "held-out": VehicleIron.held_out()}

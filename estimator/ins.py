@@ -31,6 +31,7 @@ from ahrsd.core.sample import ImuSample
 
 from . import ins_core as core
 from . import mag_heading as mag
+from .accel_axes_heading import accel_axes_heading_variance_rad2
 from .calibration_heading import calibration_heading_variance_rad2
 from .gsf_yaw import GsfParams, gsf_fuse_velocity, gsf_output, gsf_reset, new_gsf_state
 from .heading_monitor import HeadingCheckRecord, HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
@@ -235,6 +236,10 @@ class InsParams(MagHeadingParams):
     """Learn the vertical gyro bias from how the magnetometer's field turns in the body against the gyro's heading
     (mag_rotation.py): the hard iron cancels in the field's change, so an uncalibrated or learning magnetometer
     still sees the bias on straight legs, where the GNSS says nothing of the yaw."""
+    accel_axes_heading_sigma_rad: float = 0.1 * _DEG
+    """1σ of the accelerometer's x–y cross-axis misalignment, rad: a GNSS-aided heading is the accelerometer's
+    axes' heading, off by that much (accel_axes_heading.py), and once GNSS has aided the published yaw σ carries
+    it (ADIS16405-class factory alignment; the simulated sensor's 0.1°). 0: not carried."""
     published_yaw_slew_rad_s: float = 2.0 * _DEG
     """The published yaw follows the filter's corrections at no more than this rate beyond the vehicle's own
     rotation: a yaw reset or a fast correction is slewed in, the published σ covering what is left
@@ -406,6 +411,8 @@ class Ins:
         self._queue: list[GnssFix] = []
         self._last_fix_t = -math.inf
         self._ever_aided = False     # a fix has aided the filter since it started (calibration_heading.py until then)
+        # what the accelerometer's axes add to an aided heading's published variance (accel_axes_heading.py)
+        self._accel_axes_var_rad2 = accel_axes_heading_variance_rad2(self.params.accel_axes_heading_sigma_rad)
         self.gnss_counters = GnssCounters()
         self._gsf_par_arr = _one_record_array(GsfParams(lever_arm_m=tuple(self.params.lever_arm_m)).to_record())
         self._gsf_arr = _one_record_array(new_gsf_state(GsfParams(), 0.0))
@@ -1280,6 +1287,10 @@ class Ins:
             # the filter's σ (the checks that would show it need GNSS): calibration_heading.py
             sigma_yaw = math.sqrt(sigma_yaw ** 2
                                   + calibration_heading_variance_rad2(self.params.mag_calibration_sigma_rad))
+            o[_OUT_SIGMA.start + 2] = sigma_yaw
+        if self._ever_aided and self._accel_axes_var_rad2 > 0.0:
+            # a heading the GNSS has observed is the accelerometer axes' heading: their misalignment is in it
+            sigma_yaw = math.sqrt(sigma_yaw * sigma_yaw + self._accel_axes_var_rad2)
             o[_OUT_SIGMA.start + 2] = sigma_yaw
         if self._published.offset_rad:
             # the filter's yaw moved faster than the published one may: publish it turned back by the offset
