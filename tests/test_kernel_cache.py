@@ -1,7 +1,7 @@
 """The compiled kernels' on-disk cache follows their whole source (estimator/kernel_cache.py): a change to a
 helper in another module than the kernel's (numba alone checks only the kernel's own file) is compiled into
-the kernel, not served stale from the cache; an edit that compiles into no kernel keeps the cache. Counted by numba's cache hits and misses, in a copy of the
-package with its own cache directory. The caches of other sources are pruned when stale and not held."""
+the kernel, not served stale from the cache; an edit that compiles into no kernel keeps the cache. Counted by
+numba's cache hits and misses, in a copy of the package with its own cache directory. The caches of other sources are pruned when stale and not held."""
 
 from __future__ import annotations
 
