@@ -5,7 +5,7 @@ it was refused or `--dry-run` is given. Output is for a person, or with `--json`
 are a public interface (docs/calibration.md):
   mag:   hard_iron_ut [3], soft_iron [3][3], residual_rms_ut      calibrated = soft_iron · (raw − hard_iron)
          (+ quality.heading_reference: the deviation card A..E when a heading reference was given; A is folded
-         into soft_iron, B..E are reported only)
+         into soft_iron, B..E are reported only; reference_site: where the reference field was taken, and why)
   accel: bias_m_s2 [3], matrix [3][3]                             calibrated = matrix · (raw − bias) (+ quadratic)
   gyro:  bias_rad_s [3], matrix [3][3]                            calibrated = matrix · (raw − bias)
   allan: <sensor>.<axis>.white_noise, .bias_instability (+ kalman Q/R)
@@ -15,6 +15,7 @@ matplotlib, the optional `plot` extra: checked before anything is fitted or save
 
 from __future__ import annotations
 
+import dataclasses
 
 
 def register(subparsers) -> None:
@@ -83,9 +84,12 @@ def _register_gyro(sub) -> None:
 def _register_mag(sub) -> None:
     m = sub.add_parser("mag", help="magnetometer calibration (ellipsoid, two-step, three-step, backstepping)")
     _common_options(m)
-    m.add_argument("--lat", type=float, required=True, help="latitude (deg) of the calibration site (WMM2025)")
-    m.add_argument("--lon", type=float, required=True, help="longitude (deg)")
-    m.add_argument("--alt-m", type=float, default=0.0, help="height above the ellipsoid (m)")
+    m.add_argument("--lat", type=float, default=None,
+                   help="latitude (deg) of the calibration site, for the reference field (WMM2025); with --gnss "
+                   "the default is the median position of the recording's fixes")
+    m.add_argument("--lon", type=float, default=None, help="longitude (deg), given with --lat")
+    m.add_argument("--alt-m", type=float, default=None,
+                   help="height above the ellipsoid (m); default 0, with --gnss and no --lat/--lon the fixes' median")
     m.add_argument("--date", default=None, help="YYYY-MM-DD (default today)")
     m.add_argument("--method", default="ellipsoid", choices=("ellipsoid", "two-step", "three-step", "backstepping"),
                    help="fit (default: ellipsoid, needs a tumble; backstepping for a vehicle that cannot be "
@@ -332,7 +336,6 @@ def _still_positions(args):
 
 def _with_holds(res, used, skipped, rate_hz, min_still_s):
     """The fit result with what the holds cost in its quality, and a refusal that names the short holds."""
-    import dataclasses
 
     from ahrsd.calibration.inertial.accel import hold_cost
 
@@ -401,7 +404,6 @@ def _accel_live(args):
 
 
 def _gyro(args) -> int:
-    import dataclasses
     import math
 
     import numpy as np
@@ -474,7 +476,6 @@ def _write_plot(args, save, *what) -> None:
 def _fold_estimator_bias(rec, stored, res, source):
     """Run the default estimator over the recording calibrated with the new bias and add the gyro bias it
     converged to (in the calibrated frame: b_new = b + M⁻¹·b_est)."""
-    import dataclasses
 
     import numpy as np
 
@@ -504,14 +505,28 @@ def _mag(args) -> int:
 
     from .progress import activity
 
+    def reference_field(site: MagSite):
+        try:
+            return earth_field(site.lat_deg, site.lon_deg, site.alt_m, date)
+        except ValueError as exc:     # a position out of range: stderr (and the --json error object)
+            raise _Usage(str(exc)) from None
+
     try:
         date = dt.date.fromisoformat(args.date) if args.date else None
-        ref = earth_field(args.lat, args.lon, args.alt_m, date)
-    except ValueError as exc:     # a bad --date or a position out of range: stderr (and the --json error object)
+    except ValueError as exc:
         raise _Usage(str(exc)) from None
+    site = _given_mag_site(args)
+    ref = reference_field(site) if site else None     # a bad --lat/--lon fails before the files are read
     _check_mag_options(args)
     swing_table = _read_swing_table(args.swing_table) if args.swing_table else None  # bad file: fail before fitting
     rec, data, ref_note, gnss, alignment = _mag_inputs(args)
+    if site is None:
+        from ahrsd.cli.calibrate_gnss import median_position
+
+        lat_deg, lon_deg, alt_m = median_position(gnss.fixes)
+        site = MagSite(lat_deg, lon_deg, alt_m if args.alt_m is None else args.alt_m,
+                       f"the median of the {len(gnss.fixes)} GNSS fixes of {args.gnss}")
+        ref = reference_field(site)
     options = {}
     if args.method == "backstepping" and args.heading_ref_delay_s:
         options["heading_ref_delay_s"] = args.heading_ref_delay_s
@@ -524,10 +539,33 @@ def _mag(args) -> int:
         raise _Fail(str(exc)) from None
     except procedure.MagCalibrationError as exc:
         raise _Fail(("--gnss: " if exc.step == "gnss" else "") + str(exc)) from None
-    rc = _report_mag(args, calibrated, data, ref, ref_note)
+    rc = _report_mag(args, calibrated, data, ref, ref_note, site)
     if args.plot:
         _plot_mag(args, calibrated.result, data, rec, ref, swing_table)
     return rc
+
+
+@dataclasses.dataclass(frozen=True)
+class MagSite:
+    """Where the reference field is taken (WMM2025) and where that position came from."""
+
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+    source: str
+
+
+def _given_mag_site(args) -> MagSite | None:
+    """The site --lat/--lon give; None when neither is given and --gnss will give it (a usage error when
+    nothing gives it, or only one of the two is given)."""
+    if args.lat is None and args.lon is None:
+        if not args.gnss:
+            raise _Usage("the reference field needs the calibration site: give --lat and --lon, or --gnss "
+                         "GNSS.csv (with --method backstepping) whose fixes give it")
+        return None
+    if args.lat is None or args.lon is None:
+        raise _Usage("give --lat and --lon together")
+    return MagSite(args.lat, args.lon, 0.0 if args.alt_m is None else args.alt_m, "given with --lat/--lon")
 
 
 def _check_mag_options(args) -> None:
@@ -588,24 +626,25 @@ def _mag_inputs(args):
     return rec, MagFitInput(rec.t_s, rec.mag_ut, accel, gyro, heading_ref), ref_note, gnss, alignment
 
 
-def _report_mag(args, calibrated, data, ref, ref_note) -> int:
+def _report_mag(args, calibrated, data, ref, ref_note, site: MagSite) -> int:
     """The fit's report (text or --json) and, unless --dry-run, the stored calibration (_report_fit)."""
     import numpy as np
 
     from ahrsd.calibration import report
 
     res = calibrated.result
+    site_json = {"lat_deg": site.lat_deg, "lon_deg": site.lon_deg, "alt_m": site.alt_m, "source": site.source}
     payload = {"sensor": "mag", **res.to_json_dict(), "field_ut": ref.total_ut,
-               "inclination_deg": float(np.degrees(ref.inclination_rad))}
+               "inclination_deg": float(np.degrees(ref.inclination_rad)), "reference_site": site_json}
     lines = [f"Magnetometer calibration ({res.method}) from {len(data)} samples of {args.recording}",
-             f"  reference field (WMM2025 at {args.lat:.4f}, {args.lon:.4f}): |F| = {ref.total_ut:.2f} µT, "
-             f"dip {np.degrees(ref.inclination_rad):.2f}°"]
+             f"  reference field (WMM2025 at {site.lat_deg:.4f}, {site.lon_deg:.4f}, {site.alt_m:.0f} m: "
+             f"{site.source}): |F| = {ref.total_ut:.2f} µT, dip {np.degrees(ref.inclination_rad):.2f}°"]
     lines += ["  " + note for note in calibrated.notes]
     if ref_note:
         lines.append("  " + ref_note)
     q = res.quality
     meta = {"method": res.method, "residual_rms_ut": res.residual_rms_ut, "field_ut": ref.total_ut,
-            "site": {"lat_deg": args.lat, "lon_deg": args.lon, "alt_m": args.alt_m, "date": args.date}}
+            "site": {**site_json, "date": args.date}}
     if "heading_reference" in q:
         meta["heading_reference"] = q["heading_reference"]
     return _report_fit(args, res, payload, lines, "mag", report.mag_model_lines, meta)

@@ -42,6 +42,22 @@ def read_validated_fixes(path):
     return good, validator
 
 
+
+def median_position(fixes) -> tuple[float, float, float]:
+    """The median latitude, longitude (deg) and height (m) of `fixes` (validated; heights that are NaN left
+    out, 0 when none has one): where the run was, for the reference field of a calibration made without
+    --lat/--lon. Longitudes are taken relative to the first fix, so a run across ±180° has no false median."""
+    import numpy as np
+
+    lat = np.array([f.lat_deg for f in fixes], dtype=float)
+    lon = np.array([f.lon_deg for f in fixes], dtype=float)
+    alt = np.array([f.alt_m for f in fixes], dtype=float)
+    lon_rel = (lon - lon[0] + 180.0) % 360.0 - 180.0
+    lon_deg = (lon[0] + float(np.median(lon_rel)) + 180.0) % 360.0 - 180.0
+    alt = alt[np.isfinite(alt)]
+    return float(np.median(lat)), lon_deg, float(np.median(alt)) if alt.size else 0.0
+
+
 def course_reference_deg(fixes, t_s):
     """GNSS course as a true-heading reference at the sample times `t_s` (NaN where slow or turning)."""
     import numpy as np

@@ -5,9 +5,13 @@ Numba's cache (`cache=True`) checks only the file of the decorated function: a c
 constrained_update, gsf_yaw, …) after that helper's body changes, until its own file changes (numba's pull
 requests #8396 and #9563 to extend the check to other files were not merged). A partial update, or an edit
 to a helper, would then run the old code. So the cache lives in `<base>/ahrsd-kernels-<digest>`, the digest
-over the sources of this package and of `core` (whose flag values the kernels freeze in): any change starts
-an empty cache (one compile), never a stale one. `<base>` is NUMBA_CACHE_DIR when set (the systemd unit sets
-it), else this package's `__pycache__`.
+over the sources of the kernels (and of what they freeze in, e.g. core's flag values): any change starts
+an empty cache (one compile), never a stale one. Only what the kernels are compiled from is digested: the modules
+that import numba and, transitively, the ahrsd modules they import names from (core's flags and gravity, the
+rotations' constants); a name used only as a Python base class (`SmoothingIns(Ins)`) is not followed, since no
+kernel can compile a class. An edit of the Python around the kernels (`mekf.py`, `ins.py`, core's config, the
+CLI) keeps the cache. `<base>` is NUMBA_CACHE_DIR when set (the systemd unit sets it), else this package's
+`__pycache__`.
 
 Each upgrade (and each edit in a checkout) leaves the directory of the older sources behind, so the sibling
 directories of other digests are pruned, and only when no process can be using them:
@@ -25,6 +29,7 @@ reads the cache directory when a kernel is decorated)."""
 
 from __future__ import annotations
 
+import ast
 import fcntl
 import hashlib
 import os
@@ -34,7 +39,7 @@ import time
 from pathlib import Path
 
 _PACKAGE = Path(__file__).resolve().parent
-_SOURCES = (_PACKAGE, _PACKAGE.parent / "core")
+_ROOT = _PACKAGE.parent    # the ahrsd namespace: its top-level folders are ahrsd.core, ahrsd.estimator, ...
 PREFIX = "ahrsd-kernels-"
 LOCK_NAME = "in-use.lock"
 # a sibling untouched this long is no one's cache being set up; a cache that is in use holds its lock anyway
@@ -43,13 +48,52 @@ STALE_AFTER_S = 14 * 86400.0
 _held_locks: dict[str, int] = {}    # cache directory → the open lock file this process holds shared
 
 
+def _imports_numba(tree: ast.Module) -> bool:
+    return any(isinstance(n, ast.Import) and any(a.name.split(".")[0] == "numba" for a in n.names)
+               or isinstance(n, ast.ImportFrom) and n.level == 0 and (n.module or "").split(".")[0] == "numba"
+               for n in ast.walk(tree))
+
+
+def _imported_sources(path: Path, tree: ast.Module) -> set[Path]:
+    """The ahrsd source files `path` imports names from (relative imports and `ahrsd.…`), at any depth of the
+    module, leaving out imports whose names are used only as the bases of Python classes."""
+    bases = {id(b) for n in ast.walk(tree) if isinstance(n, ast.ClassDef) for b in n.bases}
+    used = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name) and id(n) not in bases}
+    found: set[Path] = set()
+    for n in ast.walk(tree):
+        if not isinstance(n, ast.ImportFrom) or not (n.level or (n.module or "").startswith("ahrsd.")):
+            continue
+        names = [a.asname or a.name for a in n.names]
+        if not any(name in used for name in names):
+            continue
+        parts = (n.module or "").split(".")[1:] if n.level == 0 else [m for m in (n.module or "").split(".") if m]
+        folder = (_ROOT if n.level == 0 else path.parents[n.level - 1]).joinpath(*parts)
+        candidates = [folder.with_suffix(".py")] if parts else []
+        candidates += [folder / f"{a.name}.py" for a in n.names]   # `from . import mag_heading`
+        found |= {c for c in candidates if c.is_file()}
+    return found
+
+
+def kernel_sources() -> list[Path]:
+    """The source files the compiled kernels are made from: this package's modules that import numba, and
+    what they import names from, transitively."""
+    trees = {p: ast.parse(p.read_bytes()) for p in _PACKAGE.glob("*.py")}
+    todo = [p for p, tree in trees.items() if _imports_numba(tree)]
+    seen: set[Path] = set()
+    while todo:
+        path = todo.pop()
+        if path not in seen:
+            seen.add(path)
+            todo += _imported_sources(path, trees.get(path) or ast.parse(path.read_bytes()))
+    return sorted(seen)
+
+
 def source_digest() -> str:
-    """A digest of every .py file of this package and of core (names and contents)."""
+    """A digest of the kernels' source files (names and contents)."""
     h = hashlib.sha256()
-    for folder in _SOURCES:
-        for path in sorted(folder.glob("*.py")):
-            h.update(f"{folder.name}/{path.name}\0".encode())
-            h.update(path.read_bytes())
+    for path in kernel_sources():
+        h.update(f"{path.parent.name}/{path.name}\0".encode())
+        h.update(path.read_bytes())
     return h.hexdigest()[:16]
 
 

@@ -201,3 +201,61 @@ def test_lever_arm_usage(tmp_path, extra, message, ahrsd_inproc):
     res = ahrsd_inproc("mag", tmp_path / "x.csv", "--lat", "50", "--lon", "5", "--method", "backstepping",
                        "--dry-run", *extra)
     assert res.returncode == 2 and message in res.stderr, res.stderr
+
+
+def test_the_reference_field_is_taken_at_the_recordings_position_without_lat_lon(tmp_path, ahrsd_inproc):
+    """Without --lat/--lon, `--gnss` gives the site: the median of the recording's valid fixes (rows without a
+    fix, placed a degree away, must not count), and the reference field is WMM2025's there (pygeomag called
+    here, on the position computed here from the CSV's rows); --lat/--lon still override it."""
+    import csv
+    import json
+
+    from pygeomag import GeoMag
+
+    rec = tmp_path / "boat.csv"
+    assert main(["record", "--sim", "boat", "--seconds", "20", "--rate-hz", "204.8", "-o", str(rec), "--quiet"]) == 0
+    gnss = tmp_path / "boat.gnss.csv"
+    with gnss.open() as f:
+        rows = list(csv.DictReader(f))
+    for row in rows[::5]:        # a receiver's no-fix rows: the last position it had, a degree off (and no height)
+        lost = dict(row, t_s=f"{float(row['t_s']) + 0.1:.3f}", lat_deg=str(float(row["lat_deg"]) + 1.0),
+                    lon_deg=str(float(row["lon_deg"]) - 1.0), alt_m="nan", fix_type="1")
+        rows.append(lost)
+    rows.sort(key=lambda r: float(r["t_s"]))
+    with gnss.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    valid = [r for r in rows if int(r["fix_type"]) >= 2]
+    lat, lon, alt = (float(np.median([float(r[k]) for r in valid])) for k in ("lat_deg", "lon_deg", "alt_m"))
+    assert np.ptp([float(r["lat_deg"]) for r in valid]) > 2e-4      # the boat moves: first fix ≠ median
+    truth = GeoMag(coefficients_file="wmm/WMM_2025.COF").calculate(glat=lat, glon=lon, alt=alt / 1000.0,
+                                                                   time=2026.0 + 151 / 365)   # 2026-06-01
+
+    res = ahrsd_inproc("mag", rec, "--method", "backstepping", "--gnss", gnss, "--date", "2026-06-01", "--dry-run",
+                       "--state-dir", tmp_path / "state", "--json")
+    out = json.loads(res.stdout)
+    site = out["reference_site"]
+    assert site["lat_deg"] == pytest.approx(lat, abs=1e-9) and site["lon_deg"] == pytest.approx(lon, abs=1e-9)
+    assert site["alt_m"] == pytest.approx(alt, abs=1e-6) and "median" in site["source"]
+    assert out["field_ut"] == pytest.approx(truth.f / 1000.0, abs=2e-3)      # WMM at the rounded 1e-4°, 1 m
+    assert out["inclination_deg"] == pytest.approx(truth.i, abs=1e-3)
+    text = ahrsd_inproc("mag", rec, "--method", "backstepping", "--gnss", gnss, "--date", "2026-06-01",
+                        "--dry-run", "--state-dir", tmp_path / "state").stdout
+    assert f"the median of the {len(valid)} GNSS fixes of {gnss}" in text, text
+
+    res = ahrsd_inproc("mag", rec, "--method", "backstepping", "--gnss", gnss, "--date", "2026-06-01", "--dry-run",
+                       "--state-dir", tmp_path / "state", "--json", "--lat", "-40", "--lon", "170")
+    given = GeoMag(coefficients_file="wmm/WMM_2025.COF").calculate(glat=-40.0, glon=170.0, alt=0.0,
+                                                                   time=2026.0 + 151 / 365)
+    assert json.loads(res.stdout)["field_ut"] == pytest.approx(given.f / 1000.0, abs=2e-3)
+
+
+@pytest.mark.parametrize("extra, message", [
+    ((), "give --lat and --lon, or --gnss"),
+    (("--lat", "50"), "give --lat and --lon together"),
+    (("--lon", "5", "--method", "backstepping", "--gnss", "x.gnss.csv"), "give --lat and --lon together"),
+])
+def test_a_reference_field_needs_a_site(tmp_path, extra, message, ahrsd_inproc):
+    res = ahrsd_inproc("mag", tmp_path / "x.csv", *extra, "--dry-run")
+    assert res.returncode == 2 and message in res.stderr, res.stderr

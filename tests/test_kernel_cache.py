@@ -1,7 +1,7 @@
 """The compiled kernels' on-disk cache follows their whole source (estimator/kernel_cache.py): a change to a
 helper in another module than the kernel's (numba alone checks only the kernel's own file) is compiled into
-the kernel, not served stale from the cache. Counted by numba's cache hits and misses, in a copy of the
-package with its own cache directory. The caches of other sources are pruned when stale and not held."""
+the kernel, not served stale from the cache; an edit that compiles into no kernel keeps the cache. Counted by
+numba's cache hits and misses, in a copy of the package with its own cache directory. The caches of other sources are pruned when stale and not held."""
 
 from __future__ import annotations
 
@@ -49,6 +49,46 @@ def test_a_changed_helper_in_another_module_is_recompiled_into_the_kernel(tmp_pa
     helper.write_text(text.replace("    return roll, pitch, yaw\n", "    return -roll, pitch, yaw\n"))
     hits, misses, roll_changed = _probe(tmp_path)
     assert misses >= 1 and roll_changed == -roll
+
+
+def _copy_package(root: Path) -> Path:
+    for part in ("core", "estimator"):
+        shutil.copytree(REPO / part, root / "ahrsd" / part, ignore=shutil.ignore_patterns("__pycache__"))
+    return root / "ahrsd"
+
+
+def _append_comment(path: Path) -> None:
+    path.write_text(path.read_text() + "# an edit that compiles into no kernel\n")
+
+
+def test_an_edit_of_the_python_around_the_kernels_keeps_the_cache(tmp_path):
+    """Before, the cache directory's digest covered every file of estimator/ and core/, so an edit of the state
+    directory rule or of the filters' Python wrappers compiled every kernel again."""
+    package = _copy_package(tmp_path)
+    assert _probe(tmp_path)[1] >= 1                     # compiled into the empty cache
+    for name in ("core/state_dir.py", "core/wmm.py", "estimator/mekf.py", "estimator/ins.py",
+                 "estimator/heading_monitor.py"):
+        _append_comment(package / name)
+    hits, misses, _ = _probe(tmp_path)
+    assert hits >= 1 and misses == 0
+    assert len(list((tmp_path / "cache").glob(kernel_cache.PREFIX + "*"))) == 1
+
+
+def test_the_digest_follows_every_source_a_kernel_is_compiled_from(tmp_path, monkeypatch):
+    """Helpers and frozen values in other modules than the kernel's own: core's flags (kernel_flags), core's
+    gravity constants (ins_mechanisation), a rotations constant (ins_smoother), a helper module (mag_heading)."""
+    package = _copy_package(tmp_path)
+    monkeypatch.setattr(kernel_cache, "_PACKAGE", package / "estimator")
+    monkeypatch.setattr(kernel_cache, "_ROOT", package)
+    digest = kernel_cache.source_digest()
+    for name in ("core/estimate.py", "core/sample.py", "core/gravity.py", "estimator/rotations.py",
+                 "estimator/mag_heading.py", "estimator/mekf_core.py"):
+        _append_comment(package / name)
+        assert kernel_cache.source_digest() != digest, name
+        digest = kernel_cache.source_digest()
+    for name in ("core/state_dir.py", "estimator/ins.py", "estimator/mekf.py", "estimator/kernel_cache.py"):
+        _append_comment(package / name)
+        assert kernel_cache.source_digest() == digest, name
 
 
 DAY_S = 86400.0
