@@ -33,7 +33,7 @@ if mavutil.mavlink.WIRE_PROTOCOL_VERSION != "2.0" or mavutil.current_dialect != 
 
 mavlink = mavutil.mavlink   # the ardupilotmega MAVLink 2 module: message classes and enums
 
-from ahrsd.daemon.serial_queue import SerialOutQueue  # noqa: E402
+from ahrsd.daemon.serial_queue import QUEUE_SECONDS, SerialOutQueue  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -103,6 +103,7 @@ class Endpoint:
     # priority queue (daemon.serial_queue); None = pymavlink writes directly
     line_bytes_per_s: float | None = None
     priority_of: Callable[[int], int] | None = None
+    serial_queue_s: float = QUEUE_SECONDS     # the line time the queue may hold (daemon.serial_queue)
     out_queue: SerialOutQueue | None = None
     budget: object | None = None       # daemon.link_budget.LinkBudget of a serial endpoint
     # CLOCK_MONOTONIC ns at which the input being parsed arrived: the kernel's time stamp of a UDP datagram
@@ -174,7 +175,8 @@ class Endpoint:
             except (OSError, AttributeError):
                 pass
         if self.kind == "serial" and self.line_bytes_per_s and conn.fd is not None:
-            self.out_queue = SerialOutQueue(conn.fd, self.line_bytes_per_s, self._loop, self.counters)
+            self.out_queue = SerialOutQueue(conn.fd, self.line_bytes_per_s, self._loop, self.counters,
+                                            queue_s=self.serial_queue_s)
             conn.mav.file = self.out_queue
         self._register_fd()
 
