@@ -87,11 +87,12 @@ VISION_POSITION_ESTIMATE = mavlink.MAVLINK_MSG_ID_VISION_POSITION_ESTIMATE
 
 class Service:
     def __init__(self, config: Config, *, source: SensorSource | None = None, environ=os.environ, stdout=None,
-                 clock: Callable[[], float] = time.monotonic):
+                 clock: Callable[[], float] = time.monotonic, warm_fit_worker: bool = True):
         self.config = config
         # the daemon's one clock (CLOCK_MONOTONIC, the event loop's and the sensor source's): every rate limit and
         # timeout of the parts reads it; a test steps it
         self.clock = clock
+        self._warm_fit_worker = warm_fit_worker    # the field calibration's (daemon.magcal.MagCalProtocol)
         self.environ = environ
         self.state_dir: Path = config.state.resolve(environ)
         self.loop: asyncio.AbstractEventLoop | None = None
@@ -435,7 +436,8 @@ class Service:
                                 self.heading.slew)
         self.field_calibration = FieldCalibrationPart(host, self.config.magcal or MagCalSettings(),
                                                       commands=self.commands, autopilot=self.autopilot,
-                                                      set_calibrating=self.set_calibrating)
+                                                      set_calibrating=self.set_calibrating, clock=self.clock,
+                                                      warm_fit_worker=self._warm_fit_worker)
         self.listeners.add(self.field_calibration.on_sample, in_place=True)
 
     def _open_nmea(self) -> None:
