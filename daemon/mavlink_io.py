@@ -310,14 +310,15 @@ class Endpoint:
             raise
         if conn.udp_server:                     # as mavudp.recv: remember the client to answer it
             conn.clients.add(addr)
-            conn.clients_last_alive[addr] = time.time()
+            conn.clients_last_alive[addr] = time.time()    # host clock: pymavlink's own bookkeeping (mavudp)
         elif conn.broadcast:
             conn.last_address = addr
         for level, kind, payload in ancillary:
             if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(payload) >= TIMESPEC.size:
                 sec, nsec = TIMESPEC.unpack_from(payload)
                 # CLOCK_REALTIME -> CLOCK_MONOTONIC with the offset between the two clocks now
-                self.rx_monotonic_ns = sec * 1_000_000_000 + nsec - (time.time_ns() - time.monotonic_ns())
+                realtime_minus_monotonic_ns = time.time_ns() - time.monotonic_ns()   # host clock: the kernel's
+                self.rx_monotonic_ns = sec * 1_000_000_000 + nsec - realtime_minus_monotonic_ns
         return data
 
     def timesync_stamp_ns(self) -> int:
@@ -328,7 +329,7 @@ class Endpoint:
         to the answer's departure, and includes the time the request waited for the event loop; stamping
         the midpoint of arrival and now takes that wait out (stamping `now` alone would shift the offset
         by half of it, ms under load)."""
-        now = time.monotonic_ns()
+        now = time.monotonic_ns()       # host clock: TIMESYNC answers in the host's CLOCK_MONOTONIC
         arrival = self.rx_monotonic_ns
         if arrival is None or not 0 <= now - arrival < 1_000_000_000:
             return now
@@ -339,7 +340,7 @@ class Endpoint:
         if conn is None:
             return
         for _ in range(MAX_READS_PER_WAKE):
-            self.rx_monotonic_ns = time.monotonic_ns()    # replaced by the kernel's time of a datagram
+            self.rx_monotonic_ns = time.monotonic_ns()    # host clock: replaced by the kernel's time of a datagram
             try:
                 data = self._read_chunk()
             except OSError as exc:

@@ -382,12 +382,12 @@ class Service:
     def _compile_estimator(self) -> None:
         """Compile the estimator before the loop, not on its first sample/fix."""
         name = self.config.estimator_name
-        started = time.monotonic()
+        started = time.monotonic()      # host clock: how long the compile took, for the log
         with estimator_news_muted():
             warm_up(name)
-        if time.monotonic() - started > 1.0:
-            log.info("compiled the %s estimator in %.1f s (cached for the next start)", name,
-                     time.monotonic() - started)
+        took_s = time.monotonic() - started     # host clock: (same)
+        if took_s > 1.0:
+            log.info("compiled the %s estimator in %.1f s (cached for the next start)", name, took_s)
 
     def _make_estimator(self, mag_sigma_rad: float) -> Estimator:
         """The configured estimator at the declination, told the calibration's heading error (NaN: unknown)."""
