@@ -77,7 +77,7 @@ class HealthReport:
         self._next_heartbeat = start + HEARTBEAT_PERIOD_S
         self._next_watchdog = start
         self._last_state: int | None = None
-        self._cpu_window: tuple[float, float] = (time.monotonic(), cpu_clock())
+        self._cpu_window: tuple[float, float] = (start, cpu_clock())     # on the clock of `now`
         self._rate_window: tuple[float, int] = (0.0, 0)
 
     def __call__(self, now: float) -> None:

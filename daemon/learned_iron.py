@@ -316,7 +316,8 @@ class LearnedIron:
         offset, cov, soft, soft_cov = cur
         doc = {"format": FILE_FORMAT, "schema_version": SCHEMA_VERSION, "calibration_key": self.key,
                "offset_ut": offset.tolist(), "cov_ut2": cov.tolist(), "soft_iron": soft.tolist(),
-               "soft_cov": soft_cov.tolist(), "wall_time_s": time.time()}
+               "soft_cov": soft_cov.tolist(),
+               "wall_time_s": time.time()}    # host clock: when it was saved, read across reboots
         return (json.dumps(doc, indent=1) + "\n").encode()
 
     def _write_current(self) -> None:

@@ -123,10 +123,14 @@ class MagCalProtocol:
     """Handlers for the mag-cal commands plus the periodic outputs. Call from the event loop only;
     fits run in a worker thread and are collected in `tick`."""
 
-    def __init__(self, host: MagCalHost, settings: MagCalSettings | None = None, clock=time.monotonic):
+    def __init__(self, host: MagCalHost, settings: MagCalSettings | None = None, clock=time.monotonic, *,
+                 warm_fit_worker: bool = True):
         self.host = host
         self.settings = settings or MagCalSettings()
         self.clock = clock
+        # start the fit worker (and its imports) when a session starts, not at its first fit (False: a test whose
+        # sessions never fit)
+        self.warm_fit_worker = warm_fit_worker
         self.session: FieldCalibration | None = None
         self.autosave = False
         self.saved = False
@@ -333,7 +337,8 @@ class MagCalProtocol:
         self.session = FieldCalibration(current, field_config(self.settings, retry, delay_s), reference,
                                         samples_are_calibrated=True, auto_fit=False)
         self.session.start()
-        self._warm_worker()
+        if self.warm_fit_worker:
+            self._warm_worker()
         self.autosave, self.saved, self.last_result_saved = autosave, False, False
         self._mask_requested = mask or OUR_MASK
         self._next_progress = 0.0
@@ -577,9 +582,9 @@ class FieldCalibrationPart:
     `set_calibrating(text)`."""
 
     def __init__(self, host: DaemonMagCalHost, settings: MagCalSettings, *, commands, autopilot: AutopilotState,
-                 set_calibrating):
+                 set_calibrating, clock=time.monotonic, warm_fit_worker: bool = True):
         self.host = host
-        self.protocol = MagCalProtocol(host, settings)
+        self.protocol = MagCalProtocol(host, settings, clock, warm_fit_worker=warm_fit_worker)
         self.set_calibrating = set_calibrating
         self._task: asyncio.Task | None = None
         self._calibrating_shown = False

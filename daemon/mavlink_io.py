@@ -33,7 +33,7 @@ if mavutil.mavlink.WIRE_PROTOCOL_VERSION != "2.0" or mavutil.current_dialect != 
 
 mavlink = mavutil.mavlink   # the ardupilotmega MAVLink 2 module: message classes and enums
 
-from ahrsd.daemon.serial_queue import SerialOutQueue  # noqa: E402
+from ahrsd.daemon.serial_queue import QUEUE_SECONDS, SerialOutQueue  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -103,6 +103,7 @@ class Endpoint:
     # priority queue (daemon.serial_queue); None = pymavlink writes directly
     line_bytes_per_s: float | None = None
     priority_of: Callable[[int], int] | None = None
+    serial_queue_s: float = QUEUE_SECONDS     # the line time the queue may hold (daemon.serial_queue)
     out_queue: SerialOutQueue | None = None
     budget: object | None = None       # daemon.link_budget.LinkBudget of a serial endpoint
     # CLOCK_MONOTONIC ns at which the input being parsed arrived: the kernel's time stamp of a UDP datagram
@@ -174,7 +175,8 @@ class Endpoint:
             except (OSError, AttributeError):
                 pass
         if self.kind == "serial" and self.line_bytes_per_s and conn.fd is not None:
-            self.out_queue = SerialOutQueue(conn.fd, self.line_bytes_per_s, self._loop, self.counters)
+            self.out_queue = SerialOutQueue(conn.fd, self.line_bytes_per_s, self._loop, self.counters,
+                                            queue_s=self.serial_queue_s)
             conn.mav.file = self.out_queue
         self._register_fd()
 
@@ -308,14 +310,15 @@ class Endpoint:
             raise
         if conn.udp_server:                     # as mavudp.recv: remember the client to answer it
             conn.clients.add(addr)
-            conn.clients_last_alive[addr] = time.time()
+            conn.clients_last_alive[addr] = time.time()    # host clock: pymavlink's own bookkeeping (mavudp)
         elif conn.broadcast:
             conn.last_address = addr
         for level, kind, payload in ancillary:
             if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(payload) >= TIMESPEC.size:
                 sec, nsec = TIMESPEC.unpack_from(payload)
                 # CLOCK_REALTIME -> CLOCK_MONOTONIC with the offset between the two clocks now
-                self.rx_monotonic_ns = sec * 1_000_000_000 + nsec - (time.time_ns() - time.monotonic_ns())
+                realtime_minus_monotonic_ns = time.time_ns() - time.monotonic_ns()   # host clock: the kernel's
+                self.rx_monotonic_ns = sec * 1_000_000_000 + nsec - realtime_minus_monotonic_ns
         return data
 
     def timesync_stamp_ns(self) -> int:
@@ -326,7 +329,7 @@ class Endpoint:
         to the answer's departure, and includes the time the request waited for the event loop; stamping
         the midpoint of arrival and now takes that wait out (stamping `now` alone would shift the offset
         by half of it, ms under load)."""
-        now = time.monotonic_ns()
+        now = time.monotonic_ns()       # host clock: TIMESYNC answers in the host's CLOCK_MONOTONIC
         arrival = self.rx_monotonic_ns
         if arrival is None or not 0 <= now - arrival < 1_000_000_000:
             return now
@@ -337,7 +340,7 @@ class Endpoint:
         if conn is None:
             return
         for _ in range(MAX_READS_PER_WAKE):
-            self.rx_monotonic_ns = time.monotonic_ns()    # replaced by the kernel's time of a datagram
+            self.rx_monotonic_ns = time.monotonic_ns()    # host clock: replaced by the kernel's time of a datagram
             try:
                 data = self._read_chunk()
             except OSError as exc:

@@ -57,7 +57,7 @@ class Outbound:
         self.identity = identity
         self.counters = counters
         self.endpoints: list[OutboundEndpoint] = []
-        self.clock = clock
+        self.clock = clock       # the daemon's clock (Service.clock): the rate limit runs on it
         # STATUSTEXT budget for non-critical texts: 5 texts/s sustained, bursts of 10 (critical ones always go out)
         self._statustext_budget = TokenBucket(rate_per_s=5.0, burst=10)
         self._chunk_id = 0       # the id of the latest chunked text (1..65535; 0 means "not chunked")

@@ -5,7 +5,6 @@ flagged. (Start-up retries and bus reconnection: drivers.reconnecting.)"""
 from __future__ import annotations
 
 import asyncio
-import time
 
 from ahrsd.daemon.mavlink_io import mavlink
 
@@ -21,7 +20,7 @@ async def report_sensor_alarms(service, period_s: float = ALARM_CHECK_PERIOD_S) 
         await asyncio.sleep(period_s)
         source = service.source
         counters = source.counters() if source is not None else {}
-        now = time.monotonic()
+        now = service.clock()
         for key, value in counters.items():
             if not key.startswith("diag_") or value <= seen.get(key, 0):
                 continue

@@ -8,7 +8,7 @@ rest is written when the descriptor is writable again (`loop.add_writer`), so a 
 nothing ever blocks.
 
 Admission: the bytes waiting (in this queue and, on a real UART, in the kernel's output buffer, TIOCOUTQ) are
-bounded to `capacity_bytes` (QUEUE_SECONDS of line time). A message of priority p is admitted only while the
+bounded to `capacity_bytes` (`queue_s` of line time, QUEUE_SECONDS by default). A message of priority p is admitted only while the
 fill stays under ADMIT_FRACTION[p] of that bound, so as the line falls behind, the highest priority numbers
 (diagnostics: IMU data, ATTITUDE) are refused first and priority 0 (VISION_POSITION_ESTIMATE, HEARTBEAT)
 last. Refusals are counted per priority.
@@ -46,11 +46,11 @@ def kernel_output_queue_bytes(fd: int) -> int:
 class SerialOutQueue:
     """`write(buf)` for pymavlink (`conn.mav.file = queue`); set `priority` before each message."""
 
-    def __init__(self, fd: int, line_bytes_per_s: float, loop, counters):
+    def __init__(self, fd: int, line_bytes_per_s: float, loop, counters, *, queue_s: float = QUEUE_SECONDS):
         self.fd = fd
         self.loop = loop
         self.counters = counters            # mavlink_io.LinkCounters: tx_dropped, tx_dropped_by_priority
-        self.capacity_bytes = max(MIN_QUEUE_BYTES, int(line_bytes_per_s * QUEUE_SECONDS))
+        self.capacity_bytes = max(MIN_QUEUE_BYTES, int(line_bytes_per_s * queue_s))
         self.priority = 0
         self.accepted_last = True
         self._buf = bytearray()

@@ -86,12 +86,17 @@ VISION_POSITION_ESTIMATE = mavlink.MAVLINK_MSG_ID_VISION_POSITION_ESTIMATE
 
 
 class Service:
-    def __init__(self, config: Config, *, source: SensorSource | None = None, environ=os.environ, stdout=None):
+    def __init__(self, config: Config, *, source: SensorSource | None = None, environ=os.environ, stdout=None,
+                 clock: Callable[[], float] = time.monotonic, warm_fit_worker: bool = True):
         self.config = config
+        # the daemon's one clock (CLOCK_MONOTONIC, the event loop's and the sensor source's): every rate limit and
+        # timeout of the parts reads it; a test steps it
+        self.clock = clock
+        self._warm_fit_worker = warm_fit_worker    # the field calibration's (daemon.magcal.MagCalProtocol)
         self.environ = environ
         self.state_dir: Path = config.state.resolve(environ)
         self.loop: asyncio.AbstractEventLoop | None = None
-        self.boot_time = time.monotonic()
+        self.boot_time = clock()
         self.source = source
         self.exit_code = 0
         self.signing_key: bytes | None = None
@@ -104,14 +109,15 @@ class Service:
         self.counters = ServiceCounters()
         self.outbound = Outbound(Identity(config.mavlink.system_id or DEFAULT_SYSTEM_ID,
                                           config.mavlink.component_id, MAV_TYPES[config.mavlink.mav_type]),
-                                 self.counters)
+                                 self.counters, clock=clock)
         self.params = ParamStore(param_specs(config), self.state_dir, on_change=self._on_param_change)
         self.commands = CommandRouter(lambda endpoint, msg: endpoint.send(msg),
                                       require_signed=lambda: self.signing_required,
                                       statustext=self.outbound.statustext,
                                       accept_broadcast=config.mavlink.accept_broadcast_commands,
                                       broadcast_notice=BroadcastNotice(self.outbound.statustext,
-                                                                       config.mavlink.component_id))
+                                                                       config.mavlink.component_id),
+                                      clock=clock)
         self.notifier = Notifier(environ)
         self.listeners = SampleListeners()
         # the VISION_POSITION_ESTIMATE yaw after a calibration change, and reset_counter
@@ -121,7 +127,7 @@ class Service:
         self.nmea: NmeaOutputs | None = None    # [[nmea]] outputs (daemon.nmea_output), None without any
         self.positions = PositionResolver(config.location, gnss_position=self._gnss_position,
                                           autopilot=self.autopilot, simulator=config.sensor.source == "sim")
-        self.declination = Declination(self.params, self.positions, signal_reset=self.heading.signal)
+        self.declination = Declination(self.params, self.positions, signal_reset=self.heading.signal, clock=clock)
         self.logs = VehicleLogs(config.log, state_dir=self.state_dir, environ=environ,
                                 gnss_source=config.gnss.source, recording_time_base=config.sensor.source == "replay")
         self.endpoint_outputs = EndpointOutputs(
@@ -223,7 +229,7 @@ class Service:
     def time_boot_ms(self, now: float | None = None) -> int:
         if self.recording_time_base and self.pipeline is not None and self.pipeline.last_sample is not None:
             return int(self.pipeline.last_sample.t_s * 1000.0) & 0xFFFFFFFF
-        return int(((time.monotonic() if now is None else now) - self.boot_time) * 1000.0) & 0xFFFFFFFF
+        return int(((self.clock() if now is None else now) - self.boot_time) * 1000.0) & 0xFFFFFFFF
 
     def sample_time_monotonic(self, t_s: float) -> float:
         """The time a message carries for a sample stamped t_s: CLOCK_MONOTONIC (the chip source stamps in
@@ -355,7 +361,7 @@ class Service:
         self._start_field_calibration()
         self._open_nmea()
         if self.source is None:
-            self.source = open_source(self.config.sensor, clock=time.monotonic)
+            self.source = open_source(self.config.sensor, clock=self.clock)
         self._register_builtin_commands()
         self._open_gnss()
         self.inbound = self.build_inbound()
@@ -380,12 +386,12 @@ class Service:
     def _compile_estimator(self) -> None:
         """Compile the estimator before the loop, not on its first sample/fix."""
         name = self.config.estimator_name
-        started = time.monotonic()
+        started = time.monotonic()      # host clock: how long the compile took, for the log
         with estimator_news_muted():
             warm_up(name)
-        if time.monotonic() - started > 1.0:
-            log.info("compiled the %s estimator in %.1f s (cached for the next start)", name,
-                     time.monotonic() - started)
+        took_s = time.monotonic() - started     # host clock: (same)
+        if took_s > 1.0:
+            log.info("compiled the %s estimator in %.1f s (cached for the next start)", name, took_s)
 
     def _make_estimator(self, mag_sigma_rad: float) -> Estimator:
         """The configured estimator at the declination, told the calibration's heading error (NaN: unknown)."""
@@ -434,7 +440,8 @@ class Service:
                                 self.heading.slew)
         self.field_calibration = FieldCalibrationPart(host, self.config.magcal or MagCalSettings(),
                                                       commands=self.commands, autopilot=self.autopilot,
-                                                      set_calibrating=self.set_calibrating)
+                                                      set_calibrating=self.set_calibrating, clock=self.clock,
+                                                      warm_fit_worker=self._warm_fit_worker)
         self.listeners.add(self.field_calibration.on_sample, in_place=True)
 
     def _open_nmea(self) -> None:
@@ -450,7 +457,7 @@ class Service:
                         health=self.health, autopilot=self.autopilot,
                         field_calibration=self.field_calibration.protocol,
                         start_gyro_calibration=self._start_gyro_calibration,
-                        call_soon=self.loop.call_soon).register(self.commands)
+                        call_soon=self.loop.call_soon, clock=self.clock).register(self.commands)
 
     def _open_gnss(self) -> None:
         """The GNSS task over the configured backend (none without a [gnss] source). It opens after the sensor
@@ -458,10 +465,10 @@ class Service:
         cfg = self.config
         if cfg.gnss.source == "none":
             return
-        backend = gnss_backend_for(cfg.gnss, clock=time.monotonic, sensor=cfg.sensor,
+        backend = gnss_backend_for(cfg.gnss, clock=self.clock, sensor=cfg.sensor,
                                    scenario_clock=self.source.chip.now if cfg.gnss.source == "sim" else None,
                                    replay_time_s=newest_sample_time(self.pipeline))
-        self.gnss = GnssTask(backend, cfg.gnss, clock=time.monotonic, estimator=self.pipeline,
+        self.gnss = GnssTask(backend, cfg.gnss, clock=self.clock, estimator=self.pipeline,
                              statustext=self.outbound.statustext, log_fix=self.logs.log_gnss_fix,
                              subscribers=[on_first_fix(self.declination.on_gnss_position)],
                              rejection_cause=self.heading_status.rejection_cause)
@@ -487,7 +494,7 @@ class Service:
                                           watchdog_interval_s=watchdog_interval_s(self.environ),
                                           start=self.loop.time(), standby_detail=self.heading_status.standby_detail,
                                           active_detail=self.heading_status.active_detail)
-        self.health_report.send_heartbeat(time.monotonic())   # routers learn us from our first packet
+        self.health_report.send_heartbeat(self.clock())   # routers learn us from our first packet
 
     def _on_message(self, endpoint, msg) -> None:
         """Every endpoint's callback. The endpoints open before the inbound dispatch exists (it routes to the
@@ -499,7 +506,8 @@ class Service:
         the GNSS task; a test may build it after `start_restart_rule`)."""
         return InboundDispatch(self.outbound, self.autopilot, self.commands, self.param_protocol, self.declination,
                                follow_autopilot_id=self.config.mavlink.system_id == 0, gnss=self.gnss,
-                               source_set_check=self.source_set_check, restart_heading=self.restart_heading)
+                               source_set_check=self.source_set_check, restart_heading=self.restart_heading,
+                               clock=self.clock)
 
     def use_pipeline(self, pipeline: Pipeline) -> None:
         """Build the parts that work on the pipeline: the calibration swap, the publishers, the sample reader

@@ -77,7 +77,7 @@ def key_fingerprint(key: bytes) -> str:
 
 
 def clock_timestamp(now_unix_s: float | None = None) -> int:
-    now = time.time() if now_unix_s is None else now_unix_s
+    now = time.time() if now_unix_s is None else now_unix_s    # host clock: the MAVLink signing epoch is UTC
     return max(0, int((now - SIGNING_EPOCH_UNIX_S) * 100_000))
 
 

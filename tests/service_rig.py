@@ -11,6 +11,7 @@ import dataclasses
 import signal
 import socket
 import subprocess
+import time
 
 from ahrsd.daemon.config import Config, EndpointConfig, StateConfig
 from ahrsd.daemon.service import Service
@@ -63,11 +64,13 @@ def start_service(gcs: socket.socket, state_dir, **config_changes) -> tuple[Serv
                             **config_changes)
 
 
-def start_service_on(endpoints, state_dir, **config_changes) -> tuple[Service, asyncio.AbstractEventLoop]:
-    """A Service with these endpoints, started (endpoints open, no reader task) on a new loop."""
+def start_service_on(endpoints, state_dir, *, clock=time.monotonic, warm_fit_worker=True,
+                     **config_changes) -> tuple[Service, asyncio.AbstractEventLoop]:
+    """A Service with these endpoints, started (endpoints open, no reader task) on a new loop; `clock`: the
+    daemon's clock (a test steps it); `warm_fit_worker`: the field calibration's (Service)."""
     cfg = dataclasses.replace(Config(), endpoints=tuple(endpoints), state=StateConfig(str(state_dir)),
                               **config_changes)
-    service = Service(cfg, source=DummySource())
+    service = Service(cfg, source=DummySource(), clock=clock, warm_fit_worker=warm_fit_worker)
     loop = asyncio.new_event_loop()
 
     async def start():

@@ -108,3 +108,17 @@ def test_a_spy_on_an_estimator_in_a_test_fails(tmp_path):
     assert "tests/test_bad.py:5: est._monitor.check replaced by a spy" in r.stdout
     assert "tests/test_bad.py:6: est._check_heading replaced by a spy" in r.stdout
     assert "test_bad.py:7:" not in r.stdout and "test_bad.py:8:" not in r.stdout
+
+
+def test_a_part_reading_the_host_clock_fails_unless_the_line_says_why(tmp_path):
+    src = ("import time\n"
+           "class Limiter:\n"
+           "    def __init__(self, clock=time.monotonic):\n"          # a clock it is given: allowed
+           "        self.clock = clock\n"
+           "    def due(self):\n"
+           "        return time.monotonic() > 5.0\n"                   # reads the host's clock itself
+           "def stamp():\n"
+           "    return time.time_ns()    # host clock: a protocol's time stamp\n")
+    r = run(_tree(tmp_path, src))
+    assert r.returncode == 1 and "bad.py:6: time.monotonic() read by a part" in r.stdout
+    assert "bad.py:3" not in r.stdout and "bad.py:8" not in r.stdout

@@ -25,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import multiprocessing
 import os
 import time
 from types import SimpleNamespace
@@ -73,6 +74,7 @@ def fuzz_settings(examples: int = EXAMPLES):
 
 
 FRAMES = FrameLog()
+RIGS_FUZZED: set[bool] = set()     # signing of the rigs fuzzed in this process (pytest-xdist splits the tests)
 
 # ------------------------------------------------------------------------------------------ strategies
 
@@ -193,13 +195,12 @@ def _make_rig(tmp, signing: bool):
         key_file = tmp / "signing.key"
         key_file.write_text(KEY.hex() + "\n")
         changes["signing"] = SigningConfig(key_file=str(key_file))
-    service, loop = start_service(gcs, tmp / "state", **changes)
+    # the fit worker process is not what is under test here (a session never gets samples in this rig)
+    service, loop = start_service(gcs, tmp / "state", warm_fit_worker=False, **changes)
     records = _Records()
     logging.getLogger().addHandler(records)
     rig = SimpleNamespace(service=service, loop=loop, gcs=gcs, ep=service.endpoints[0], records=records,
                           signing=signing)
-    # the fit worker process is not what is under test here (a session never gets samples in this rig)
-    service.magcal._warm_worker = lambda: None
     _give_fixed_yaw_samples(service)
     return rig
 
@@ -312,6 +313,7 @@ def check_frame(rig, name: str, data: bytes, sign_kind: str) -> None:
 
 def fuzz_one(rig, generated) -> None:
     name, data, sign_kind, cut = generated
+    RIGS_FUZZED.add(rig.signing)
     FRAMES.by_type[name] += 1
     FRAMES.signed[sign_kind] += 1
     FRAMES.truncated += cut
@@ -338,8 +340,8 @@ def test_fuzz_summary_every_handled_type_and_signing_case_was_generated(rig, sig
           f"{rig.service.params.rejected_writes} + {signed_rig.service.params.rejected_writes}, "
           f"autopilot positions refused {rig.service.autopilot.rejected_positions} + "
           f"{signed_rig.service.autopilot.rejected_positions}")
-    if not FRAMES.by_type:
-        pytest.skip("run together with the fuzz tests")
+    if RIGS_FUZZED != {False, True}:
+        pytest.skip("run together with both fuzz tests")
     assert all(FRAMES.by_type[n] >= 10 for n in HANDLED), FRAMES.by_type
     assert len(set(FRAMES.by_type) - set(HANDLED)) >= 20
     assert set(FRAMES.signed) == {"unsigned", "key", "other_key", "stale"}
@@ -548,3 +550,49 @@ def test_flood_of_commands_and_parameter_requests_is_answered(rig):
     values += sum(1 for m in got if m.get_type() == "PARAM_VALUE")
     assert acks == 2000 and values == 2000
     check_ranges(rig)
+
+
+def _start_mag_cal(rig) -> None:
+    s = mavlink.MAVLink(None, srcSystem=GCS_SYS, srcComponent=GCS_COMP)
+    feed(rig, s.command_long_encode(OUR_SYS, OUR_COMP, 42424, 0, 0, 0, 0, 0, 0, 0, 0).pack(s))   # DO_START_MAG_CAL
+    drain(rig)
+
+
+def _cancel_mag_cal(rig) -> None:
+    s = mavlink.MAVLink(None, srcSystem=GCS_SYS, srcComponent=GCS_COMP)
+    feed(rig, s.command_long_encode(OUR_SYS, OUR_COMP, 42426, 0, 0, 0, 0, 0, 0, 0, 0).pack(s))   # DO_CANCEL_MAG_CAL
+    drain(rig)
+
+
+def test_the_rig_runs_a_mag_cal_session_without_starting_a_fit_worker(tmp_path):
+    """The fuzz rig's service is built with warm_fit_worker=False: a session starts (the fuzz reaches its
+    handlers) and no worker process is spawned for fits it never gets samples for. (A rig of its own: the
+    fuzz's rig may have seen the same command within the duplicate window.)"""
+    rig = _make_rig(tmp_path, signing=False)
+    before = set(multiprocessing.active_children())
+    try:
+        _start_mag_cal(rig)
+        assert rig.service.magcal.calibrating
+        assert set(multiprocessing.active_children()) == before
+        _cancel_mag_cal(rig)
+        assert not rig.service.magcal.calibrating
+    finally:
+        _close_rig(rig)
+
+
+def test_by_default_a_mag_cal_start_warms_the_fit_worker(tmp_path):
+    """The daemon's default: the fit worker process starts with the session (its imports done while the operator
+    turns), before any fit."""
+    gcs = gcs_socket(rcvbuf=1 << 22)
+    service, loop = start_service(gcs, tmp_path / "state", mavlink=dataclasses.replace(Config().mavlink,
+                                                                                          system_id=OUR_SYS))
+    rig = SimpleNamespace(service=service, loop=loop, gcs=gcs, ep=service.endpoints[0], signing=False)
+    before = set(multiprocessing.active_children())
+    try:
+        _start_mag_cal(rig)
+        assert service.magcal.calibrating
+        assert len(set(multiprocessing.active_children()) - before) == 1
+    finally:
+        _cancel_mag_cal(rig)
+        stop_service(service, loop)
+        gcs.close()

@@ -347,23 +347,24 @@ def run_daemon_on_boat(tmp_path, hard_iron_error_ut=None, *, seconds=150.0, seed
         save_mag_calibration(tmp_path, wrong)
     mag = block.mag_ut
     gcs = gcs_socket()
+    now_s = [0.0]   # the daemon's clock, stepped to each sample's time (Outbound's STATUSTEXT rate limit runs on it)
     svc, loop = start_service_on((EndpointConfig(f"udpout:127.0.0.1:{gcs.getsockname()[1]}"),), tmp_path,
-                                 estimator=EstimatorConfig(estimator),
+                                 clock=lambda: now_s[0], estimator=EstimatorConfig(estimator),
                                  location=LocationConfig(declination_deg=math.degrees(decl)))
-    sent = []       # every message the endpoint sent (its traffic-log hook: the frames as packed) with the estimate
-    parser = mavlink.MAVLink(None)
-    svc.endpoints[0].traffic_log = lambda frame: sent.append((*parser.parse_buffer(frame), svc.pipeline.last_estimate))
-    texts = []      # every STATUSTEXT, as Texts: the text with the heading state and yaw 1σ when it was sent
     hs = svc.heading_status
-    # (taken where the parts say them: through the endpoint they would meet Outbound's rate limit, on the wall clock)
-    hs.statustext = svc.outbound.statustext = lambda sev, text: texts.append(Text(text, hs.state, hs.sigma_rad))
+    # every message the endpoint sent (its traffic-log hook: the frames as packed) with the estimate, and the
+    # heading state and yaw 1σ, when it was sent
+    sent = []
+    parser = mavlink.MAVLink(None)
+    svc.endpoints[0].traffic_log = lambda frame: sent.extend(
+        (m, svc.pipeline.last_estimate, hs.state, hs.sigma_rad) for m in parser.parse_buffer(frame) or ())
     svc.listeners.fns.clear()                # (the field calibration needs the running loop; not used here)
     try:
         est = svc.pipeline.estimator
         fi, next_hk = 0, 0.0
         truth_at = {}
         for k in range(len(block.t_s)):
-            t = float(block.t_s[k])
+            t = now_s[0] = float(block.t_s[k])
             while fi < len(fixes) and fixes[fi].extra["t_rx_s"] <= t:
                 est.update_gnss(fixes[fi])
                 fi += 1
@@ -381,9 +382,25 @@ def run_daemon_on_boat(tmp_path, hard_iron_error_ut=None, *, seconds=150.0, seed
     finally:
         stop_service(svc, loop)
         gcs.close()
-    vpe = [(m, e, truth_at[i]) for i, (m, e) in enumerate(sent)
+    vpe = [(m, e, truth_at[i]) for i, (m, e, _, _) in enumerate(sent)
            if m.get_msgId() == mavlink.MAVLINK_MSG_ID_VISION_POSITION_ESTIMATE]
-    return vpe, texts, svc, decl
+    return vpe, _statustexts(sent), svc, decl
+
+
+def _statustexts(sent) -> list[Text]:
+    """The STATUSTEXTs among the messages sent, as Texts (the chunks of one text, which go out together, joined)."""
+    texts, chunked = [], {}
+    for m, _, state, sigma_rad in sent:
+        if m.get_msgId() != mavlink.MAVLINK_MSG_ID_STATUSTEXT:
+            continue
+        if m.id == 0:
+            texts.append(Text(m.text, state, sigma_rad))
+        elif m.id in chunked:
+            chunked[m.id].append(m.text)
+        else:
+            chunked[m.id] = parts = [m.text]
+            texts.append((parts, state, sigma_rad))      # joined below, in the order they were sent
+    return [t if isinstance(t, Text) else Text("".join(t[0]), t[1], t[2]) for t in texts]
 
 
 @pytest.fixture(scope="module")

@@ -43,13 +43,12 @@ class _Records(logging.Handler):
 @pytest.fixture
 def rig(tmp_path):
     gcs = gcs_socket(rcvbuf=1 << 22)
-    service, loop = start_service(gcs, tmp_path / "state")
+    clock = [1000.0]        # the daemon's clock (the commands' duplicate window among them), moved by the test
+    service, loop = start_service(gcs, tmp_path / "state", clock=lambda: clock[0])
     logs = _Records()
     logging.getLogger("ahrsd").addHandler(logs)
     rig = SimpleNamespace(service=service, loop=loop, gcs=gcs, ep=service.endpoints[0], logs=logs,
                           sender=mavlink.MAVLink(None, srcSystem=255, srcComponent=190))
-    clock = [1000.0]
-    service.commands.clock = lambda: clock[0]      # the duplicate window on a clock the test moves
     rig.clock = clock
     yield rig
     logging.getLogger("ahrsd").removeHandler(logs)

@@ -113,18 +113,24 @@ def _heartbeat():
     return mavlink.MAVLink_heartbeat_message(40, 8, 0, 0, 4, 3)
 
 
-def test_slow_reader_drops_lowest_priority_first_and_never_cuts_a_frame(tmp_path, pty_pair, monkeypatch):
+def test_slow_reader_drops_lowest_priority_first_and_never_cuts_a_frame(pty_pair):
     """The reader takes 3000 B/s; we offer VPE 20 Hz + HEARTBEAT 1 Hz (2.6 kB/s, fits), ATTITUDE 50 Hz and
-    HIGHRES_IMU 20 Hz (3.5 kB/s more). Simulated time in 10 ms steps, the event loop run once per step.
+    HIGHRES_IMU 20 Hz (3.5 kB/s more) through a 57600-baud serial endpoint with the daemon's priorities, built
+    alone. Simulated time in 10 ms steps, the event loop run once per step.
 
     A pty is not a UART: it hides its ~20 kB buffer from TIOCOUTQ and takes writes again only in ~4 kB chunks
     once its reader has taken that much (1.4 s at this reader's rate), where a UART drains byte by byte. The
-    queue is given 2 s of line time here so that granularity is not mistaken for the line falling behind."""
-    from ahrsd.daemon import serial_queue
-    monkeypatch.setattr(serial_queue, "QUEUE_SECONDS", 2.0)
+    queue is given 2 s of line time here (`serial_queue_s`) so that granularity is not mistaken for the line
+    falling behind."""
+    from ahrsd.daemon.link_budget import line_bytes_per_s, priority_of
+    from ahrsd.daemon.mavlink_io import Endpoint
+
     master, dev = pty_pair
-    service, loop = start_service_on((EndpointConfig(f"{dev},57600", profile="autopilot"),), tmp_path / "state")
-    ep = service.endpoints[0]
+    ep = Endpoint(f"{dev},57600", 1, 200, lambda _ep, _msg: None, line_bytes_per_s=line_bytes_per_s(57600),
+                  priority_of=priority_of, serial_queue_s=2.0)
+    loop = asyncio.new_event_loop()
+    ep.open(loop)
+    assert ep.out_queue is not None and ep.out_queue.capacity_bytes == 2 * 5760
     parser = mavlink.MAVLink(None)
     parser.robust_parsing = True
     received: dict[str, int] = {}
@@ -132,7 +138,7 @@ def test_slow_reader_drops_lowest_priority_first_and_never_cuts_a_frame(tmp_path
     offered: dict[str, int] = {}
     os.set_blocking(master, False)
     step_s, reader_b_s = 0.01, 3000.0
-    tx0 = ep.counters.tx_messages                     # the start-up heartbeat
+    tx0 = ep.counters.tx_messages                     # (0: nothing sent before)
     credit = 0.0                                      # bytes the reader may still take
     try:
         for k in range(6000):                         # 60 s of line time
@@ -180,7 +186,8 @@ def test_slow_reader_drops_lowest_priority_first_and_never_cuts_a_frame(tmp_path
                 else:
                     received[m.get_type()] = received.get(m.get_type(), 0) + 1
     finally:
-        stop_service(service, loop)
+        ep.close()
+        loop.close()
     assert bad == 0                                        # no frame cut by a partial write
     assert dropped > 0                                     # the link was over-subscribed
     assert by_prio.get(0, 0) == 0                          # the heading and the heartbeat always got through
@@ -189,7 +196,7 @@ def test_slow_reader_drops_lowest_priority_first_and_never_cuts_a_frame(tmp_path
     # what was dropped never reached the wire; what was accepted did (minus what is still queued)
     assert sent + dropped == sum(offered.values())
     assert received["VISION_POSITION_ESTIMATE"] == offered["VISION_POSITION_ESTIMATE"]
-    assert received["HEARTBEAT"] == offered["HEARTBEAT"] + 1          # + the start-up heartbeat
-    assert sum(received.values()) == sent + 1
+    assert received["HEARTBEAT"] == offered["HEARTBEAT"]
+    assert sum(received.values()) == sent
     frac = {t: received.get(t, 0) / offered[t] for t in offered}
     assert frac["VISION_POSITION_ESTIMATE"] > frac["ATTITUDE"] > frac["HIGHRES_IMU"]

@@ -141,3 +141,33 @@ def test_critical_texts_pass_the_limit_whole():
     gcs = GroundStation()
     gcs.receive(link.stream)
     assert gcs.texts[-1] == LONG_ASCII and len(gcs.texts) == 11 and counters.statustext_suppressed == 10
+
+
+def test_the_service_runs_the_statustext_rate_limit_and_its_boot_time_on_the_clock_it_is_given(tmp_path):
+    """Service hands its one clock to Outbound (and keeps its boot time on it): on a clock that only the test
+    moves, texts are refused once the burst is spent and exactly one more goes out after a step of 1.25 tokens'
+    time (5 texts/s), however long the machine took to get there."""
+    from service_rig import gcs_socket, start_service, stop_service
+
+    now_s = [100.0]
+    gcs = gcs_socket()
+    svc, loop = start_service(gcs, tmp_path, clock=lambda: now_s[0])
+    out = []
+    parser = mavlink.MAVLink(None)
+    svc.endpoints[0].traffic_log = lambda frame: out.extend(
+        m.text for m in parser.parse_buffer(frame) or () if m.get_type() == "STATUSTEXT")
+    try:
+        assert svc.time_boot_ms() == 0
+        for i in range(20):                                  # the burst (10) spent, start-up texts included
+            svc.statustext(mavlink.MAV_SEVERITY_INFO, f"ahrsd: text {i}")
+        suppressed = svc.counters.statustext_suppressed
+        assert 0 < suppressed and "ahrsd: text 19" not in out
+        now_s[0] += 0.25
+        svc.statustext(mavlink.MAV_SEVERITY_INFO, "ahrsd: after the step")
+        svc.statustext(mavlink.MAV_SEVERITY_INFO, "ahrsd: refused again")
+        assert out[-1] == "ahrsd: after the step"
+        assert svc.counters.statustext_suppressed == suppressed + 1
+        assert svc.time_boot_ms() == 250
+    finally:
+        stop_service(svc, loop)
+        gcs.close()

@@ -31,3 +31,17 @@ def test_the_rate_is_unmeasured_until_one_window_has_passed():
     assert report.measured_rate_hz == 819.0
     report._update_load(103.0)                  # no sample in the second window: the sensor stopped
     assert report.measured_rate_hz == 0.0
+
+
+def test_the_first_cpu_load_is_measured_from_the_start_on_the_clock_the_report_is_given():
+    """The first load window opens at `start` (the housekeeping clock's time), not at a clock read inside: 0.25 s
+    of CPU over the first second on a stepped clock is 250 ‰."""
+    cpu_s = [0.0]
+    report = HealthReport(SimpleNamespace(), SimpleNamespace(), SimpleNamespace(), SimpleNamespace(samples=0),
+                          watchdog_interval_s=None, start=100.0, cpu_clock=lambda: cpu_s[0])
+    cpu_s[0] = 0.25
+    report._update_load(101.0)
+    assert report.load_permille == 250
+    cpu_s[0] = 1.25
+    report._update_load(103.0)
+    assert report.load_permille == 500

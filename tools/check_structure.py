@@ -11,6 +11,10 @@ Rules in daemon/:
    `est`, `self.pipeline.estimator`, …: estimator/base.py declares its capabilities as Protocols, tested with
    isinstance) and not for an attribute named like
    a part (an optional part is `None` or a null object by type, and is tested with `is None`).
+6. no part reads the host's clock itself (`time.monotonic()`, `time.time()`, their `_ns` forms): a rate limit or
+   a timeout runs on the clock the part is given (`Service.clock`, which a test steps). A line that must read the
+   host's clock (a protocol's time stamp, a wall time persisted across reboots) says why in a `# host clock:`
+   comment on that line.
 Rule in every other package (cli/, calibration/, estimator/, drivers/, core/, simulation/):
 4. no `getattr`/`hasattr` probing of an estimator (the names of rule 3): what an estimator can do is declared
    in estimator/base.py, whoever asks.
@@ -43,6 +47,10 @@ PART_NAMES = {
 }
 
 
+HOST_CLOCKS = {"time.monotonic", "time.time", "time.monotonic_ns", "time.time_ns"}
+HOST_CLOCK_MARK = "# host clock:"
+
+
 def _dotted(node: ast.AST) -> str:
     if isinstance(node, ast.Name):
         return node.id
@@ -59,7 +67,12 @@ def check_file(path: Path, shown: str, daemon_rules: bool = True) -> list[str]:
     except SyntaxError as exc:
         return [f"{shown}:{exc.lineno}: does not parse"]
     out = []
+    lines = path.read_text(encoding="utf-8").splitlines()
     for node in ast.walk(tree):
+        if (daemon_rules and isinstance(node, ast.Call) and _dotted(node.func) in HOST_CLOCKS
+                and HOST_CLOCK_MARK not in lines[node.lineno - 1]):
+            out.append(f"{shown}:{node.lineno}: {_dotted(node.func)}() read by a part (take a clock argument, "
+                       f"Service.clock; or say why on the line: '{HOST_CLOCK_MARK} ...')")
         if daemon_rules and isinstance(node, ast.ClassDef) and len(node.bases) > MAX_BASES:
             out.append(f"{shown}:{node.lineno}: class {node.name} has {len(node.bases)} bases (at most "
                        f"{MAX_BASES}: compose parts instead of mixing them in)")
