@@ -516,7 +516,8 @@ class _OutputsParse:
 # * ardupilot_source_set: 0 (off), or the EKF source set (2, 3) ahrsd may switch ArduPilot to and back to
 #   re-align EKF3's yaw (daemon.source_set_realign): identical to set 1 except a yaw source other than ExtNav.
 # * heading_good_sigma_deg: "heading good" (MAV_STATE_ACTIVE, SYS_STATUS AHRS healthy) only while the heading
-#   state is MAGNETOMETER, or GNSS-held (GNSS_ONLY, LEARNING) with a yaw 1σ below this for 2 s
+#   state is known (MAGNETOMETER, GNSS_ONLY, LEARNING) with a yaw 1σ below this: not good at once above it, good
+#   again once below it for 2 s
 #   (daemon.heading_status; 5° as ArduPilot's compass learning trusts a GSF yaw, Compass_learn.cpp).
 OutputsConfig = dataclasses.make_dataclass(
     "OutputsConfig",

@@ -7,10 +7,13 @@ The estimator decides the state (estimator/heading_monitor.py); this part only r
   also the state of a magnetometer with no calibration (or one of unknown quality): the estimator's σ then
   carries an unknown calibration error (estimator/calibration_heading.py).
 * MAGNETOMETER: the magnetometer holds the heading and agrees with the GNSS yaw where there is one; without GNSS
-  its σ includes the calibration's predicted heading error.
+  its σ includes the calibration's predicted heading error (and, unaided, the lean of a turn: it widens in turns).
 * GNSS_ONLY / LEARNING: the magnetometer is rejected or not trusted and the GNSS velocity holds the heading
-  (LEARNING: while the iron left after the calibration is learned). "Heading good" only while its 1σ is
-  below `good_sigma_rad` ([daemon] heading_good_sigma_deg).
+  (LEARNING: while the iron left after the calibration is learned).
+"Heading good" (MAV_STATE ACTIVE, SYS_STATUS AHRS healthy) in any known state only while its 1σ is below
+`good_sigma_rad` ([outputs] heading_good_sigma_deg): bad at once, good again only once the σ held below it
+ANNOUNCE_AFTER_S, so a σ that swings with each turn does not flip MAV_STATE each time. A magnetometer heading
+that becomes good by its state (the estimator holds a state change itself) is good at once, as before.
 
 The magnetometer disagreement is named only when it is beyond what both sides' uncertainties explain: the GSF
 yaw's 1σ and the calibration's predicted heading error (`calibration_sigma_rad`, NaN = no calibration), the
@@ -40,7 +43,7 @@ class HeadingStatus:
 
     statustext(severity, text): sends one text to the ground station (daemon.outbound: chunked when longer than one
     STATUSTEXT, rate limited).
-    good_sigma_rad: largest yaw 1σ of a GNSS-held heading that is still "good".
+    good_sigma_rad: largest yaw 1σ of a heading that is still "good" (magnetometer or GNSS-held).
     calibration_sigma_rad: the calibration's predicted heading error, 1σ (NaN: none); `set_calibration_sigma`.
     calibration_in_force: a magnetometer calibration is in force (with a NaN σ: one that states no heading error,
     said as such rather than "not calibrated").
@@ -70,7 +73,8 @@ class HeadingStatus:
         self._resets_announced = 0
         self._alignments_announced = 0
         self._last_reset_at = -math.inf
-        self._good_since: float | None = None        # when a GNSS-held heading last became good enough
+        self._good_since: float | None = None        # when the heading last became good enough
+        self._wide_magnetometer = False               # it last stopped being good by a magnetometer heading's σ
         self._now = -math.inf
 
     def set_calibration_sigma(self, sigma_rad: float, in_force: bool | None = None) -> None:
@@ -103,6 +107,7 @@ class HeadingStatus:
         self._now = now
         if not self._good_now():
             self._good_since = None
+            self._wide_magnetometer = state == HeadingState.MAGNETOMETER and not self.initialising
         elif self._good_since is None:
             self._good_since = now
         if yaw_resets < self._resets_announced:       # the estimator was reset: its count starts again
@@ -132,17 +137,19 @@ class HeadingStatus:
     # ------------------------------------------------------------------ outputs
     @property
     def heading_good(self) -> bool:
-        """May the daemon say "heading good"? MAGNETOMETER, or a GNSS-held heading with 1σ ≤ good_sigma_rad
-        for ANNOUNCE_AFTER_S (a σ hovering at the limit does not flip MAV_STATE each second); never UNKNOWN,
-        never before the first estimate. Bad at once, good only once it held."""
+        """May the daemon say "heading good"? A heading with 1σ ≤ good_sigma_rad for ANNOUNCE_AFTER_S (a σ
+        hovering at the limit, or swinging with each turn, does not flip MAV_STATE each second); a MAGNETOMETER
+        heading at once unless its own σ was what made it not good; never UNKNOWN, never before the first
+        estimate. Bad at once, good only once it held."""
         if not self._good_now():
             return False
-        return self.state == HeadingState.MAGNETOMETER or self._now - self._good_since >= ANNOUNCE_AFTER_S
+        at_once = self.state == HeadingState.MAGNETOMETER and not self._wide_magnetometer
+        return at_once or self._now - self._good_since >= ANNOUNCE_AFTER_S
 
     def _good_now(self) -> bool:
         if self.state is None or self.initialising or self.state == HeadingState.UNKNOWN:
             return False
-        return self.state == HeadingState.MAGNETOMETER or self.sigma_rad <= self.good_sigma_rad
+        return self.sigma_rad <= self.good_sigma_rad
 
     def unhealthy_bits(self) -> int:
         """SYS_STATUS health bits to clear: 3D_MAG while the magnetometer is rejected or being learned (or
@@ -191,10 +198,11 @@ class HeadingStatus:
         """Why the daemon is not ACTIVE although the estimator runs (the MAV_STATE STATUSTEXT)."""
         if self.initialising or self.state is None:
             return "initialising, no heading out"
+        caveat = self.calibration_caveat()
         if self.state == HeadingState.UNKNOWN:
-            caveat = self.calibration_caveat()
             return "heading unknown, no heading out" if caveat is None else f"heading unknown ({caveat}), no heading out"
-        return f"heading not good ({STATE_LABELS[self.state][4:]} ±{math.degrees(self.sigma_rad):.0f}°)"
+        because = "" if caveat is None else f", {caveat}"
+        return f"heading not good ({STATE_LABELS[self.state][4:]} ±{math.degrees(self.sigma_rad):.0f}°{because})"
 
     def rejection_cause(self, now: float) -> str | None:
         """When the aided filter rejects GNSS velocities: the heading as the cause (a short phrase for the
@@ -261,7 +269,8 @@ class HeadingStatus:
         if state == HeadingState.MAGNETOMETER:
             caveat = self.calibration_caveat()
             if caveat is None:
-                return mavlink.MAV_SEVERITY_INFO, f"ahrsd: heading from magnetometer ({sig})"
+                wide = ", not good" if not self.sigma_rad <= self.good_sigma_rad else ""
+                return mavlink.MAV_SEVERITY_INFO, f"ahrsd: heading from magnetometer ({sig}{wide})"
             if not math.isfinite(self.calibration_sigma_rad):     # an estimator whose σ cannot carry it
                 return mavlink.MAV_SEVERITY_WARNING, (
                     f"ahrsd: heading from magnetometer ({sig}), {self._no_figure(short=True)} and no GNSS fix to check it: the "

@@ -36,6 +36,7 @@ def status(cal_sigma_deg=0.5, good_deg=5.0):
 
 def test_heading_good_only_for_the_magnetometer_or_a_small_gnss_sigma():
     cases = [(HeadingState.UNKNOWN, 0.5, False), (HeadingState.MAGNETOMETER, 1.0, True),
+             (HeadingState.MAGNETOMETER, 5.1, False),
              (HeadingState.GNSS_ONLY, 4.9, True), (HeadingState.GNSS_ONLY, 5.1, False),
              (HeadingState.LEARNING, 12.0, False), (HeadingState.LEARNING, 2.0, True)]
     for state, sigma, good in cases:
@@ -49,6 +50,42 @@ def test_heading_good_only_for_the_magnetometer_or_a_small_gnss_sigma():
     hs, _ = status()
     hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 1.0, flags=EstimateFlags.INITIALISING), 0.0)
     assert not hs.heading_good
+
+
+def test_a_magnetometer_heading_whose_sigma_widens_is_not_good_at_once_and_good_again_only_once_it_held():
+    """An unaided magnetometer heading whose σ widens beyond the 5° limit for 10 s (a turn harder than the
+    simulated boat's: 20 °/s at 2 m/s leans 4.1°, σ ≈ 6°), through the health report as the daemon runs it at
+    10 Hz: good at once at the start (σ 1.5°), not good from the first wide estimate (MAV_STATE STANDBY, SYS_STATUS
+    AHRS unhealthy, its STATUSTEXT saying why), good again only once σ held below the limit ANNOUNCE_AFTER_S."""
+    from ahrsd.core.estimate import EstimateFlags as Flags
+    from ahrsd.daemon.counters import ServiceCounters
+    from ahrsd.daemon.housekeeping import HealthReport
+    from ahrsd.daemon.outbound import Identity, Outbound
+    from test_state_change_statustext import Counts, Notifier
+
+    hs, texts = status(cal_sigma_deg=0.5)
+    health = Health(stale_timeout_s=1.0)
+    notifier = Notifier()
+    report = HealthReport(health, Outbound(Identity(1, 200, mavlink.MAV_TYPE_IMU), ServiceCounters(),
+                                           clock=lambda: 0.0), notifier, Counts(), watchdog_interval_s=None,
+                          start=0.0, standby_detail=hs.standby_detail, active_detail=hs.active_detail)
+    wide_from, wide_to, hold_steps = 100, 200, round(ANNOUNCE_AFTER_S / 0.1)     # in 0.1 s steps
+    got = []
+    for k in range(300):
+        t = 0.1 * k
+        health.sample_read(t)
+        health.last_estimate_flags = Flags.NONE
+        hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 6.0 if wide_from <= k < wide_to else 1.5,
+                                with_integrity=False), t)
+        health.heading_good, health.heading_unhealthy_bits = hs.heading_good, hs.unhealthy_bits()
+        report(t)
+        ahrs_healthy = bool(health.sensor_bits(t)[2] & msgs.SENSOR_AHRS)
+        got.append((hs.heading_good, ahrs_healthy, health.system_status(t) == mavlink.MAV_STATE_ACTIVE))
+    expected = [(good, good, good) for good in (k < wide_from or k >= wide_to + hold_steps for k in range(300))]
+    assert got == expected
+    assert notifier.statuses == ["ACTIVE: heading good", "STANDBY: heading not good (mag ±6°)",
+                                 "ACTIVE: heading good"]
+    assert texts == [(mavlink.MAV_SEVERITY_INFO, "ahrsd: heading from magnetometer (±1.5°)")]   # one state
 
 
 def test_a_gnss_held_heading_is_good_only_once_it_held_and_bad_at_once():
@@ -144,16 +181,21 @@ def test_a_magnetometer_heading_without_gnss_names_an_untrusted_calibration():
     """Without GNSS (mekf: no integrity) the calibration is the only heading reference; the estimator's σ includes
     the calibration's predicted error (estimator/calibration_heading.py). A calibration predicting more than 3°:
     the announcement is a WARNING naming it, the status line marks it, 3D_MAG is unhealthy and MAV_STATE ACTIVE
-    does not say "heading good". An estimator whose σ cannot carry it (no calibration, MAGNETOMETER): the same."""
-    for cal_deg, caveat in ((math.nan, "mag not calibrated"), (5.0, "mag cal ±5°")):
+    does not say "heading good". An estimator whose σ cannot carry it (no calibration, MAGNETOMETER): the same.
+    A σ beyond the 5° limit (the estimator's σ ≥ the calibration's): not good, AHRS unhealthy too, and STANDBY's
+    detail names the calibration."""
+    for cal_deg, caveat in ((math.nan, "mag not calibrated"), (4.0, "mag cal ±4°")):
         hs, texts = status(cal_sigma_deg=cal_deg)
         for t in (0.0, ANNOUNCE_AFTER_S):
-            hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 6.1, with_integrity=False), t)
+            hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 4.5, with_integrity=False), t)
         (sev, text), = texts
         assert sev == mavlink.MAV_SEVERITY_WARNING and caveat in text and "magcal" in text, text
-        assert hs.status_text() == "hdg mag uncal ±6.1°"
+        assert hs.status_text() == "hdg mag uncal ±4.5°"
         assert hs.active_detail() == f"heading: {caveat}"
         assert hs.unhealthy_bits() == msgs.SENSOR_MAG
+        hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 6.1, with_integrity=False), 2 * ANNOUNCE_AFTER_S)
+        assert not hs.heading_good and hs.unhealthy_bits() == msgs.SENSOR_MAG | msgs.SENSOR_AHRS
+        assert hs.standby_detail() == f"heading not good (mag ±6°, {caveat})"
     # a trusted calibration, or GNSS checking the heading (ins learns the iron): the plain announcement
     for cal_deg, integrity in ((0.5, False), (math.nan, True)):
         hs, texts = status(cal_sigma_deg=cal_deg)
