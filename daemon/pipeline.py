@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ahrsd.core.sample import ImuSample, SampleFlags
+from ahrsd.core.sample_block import SampleBlock, sample_flags
 from ahrsd.estimator.base import SteppingEstimator
 from ahrsd.estimator.rotations import euler_to_dcm
 
@@ -59,7 +60,8 @@ class Pipeline:
         self._view = None                  # the estimator's in-place view of its latest estimate (step())
         self._snapshot = None              # the immutable AttitudeEstimate of _view, built on demand
         self._last_counter: int | None = None
-        self._sensor: tuple | None = None  # (sample, gyro, accel, mag) calibrated in the sensor frame
+        # the last sample calibrated in the sensor frame: ImuSample's arguments, or (block, row, calibration)
+        self._sensor: tuple | None = None
         self._sensor_sample: ImuSample | None = None
 
     @property
@@ -82,8 +84,17 @@ class Pipeline:
         if self.mounting is None:
             return self.last_sample
         if self._sensor_sample is None and self._sensor is not None:
-            s, g, a, m = self._sensor
-            self._sensor_sample = ImuSample(s.t_s, g, a, m, s.temp_c, s.supply_v, s.flags, s.diag_stat, s.counter)
+            if len(self._sensor) == 3:                 # row i of a block, with the calibration it was given
+                block, i, cal = self._sensor
+                raw = block[i]
+                if cal.is_identity:
+                    self._sensor_sample = raw
+                else:
+                    g, a, m = cal.apply_vectors(raw.gyro_rad_s, raw.accel_m_s2, raw.mag_ut)
+                    self._sensor_sample = ImuSample(raw.t_s, g, a, m, raw.temp_c, raw.supply_v, raw.flags,
+                                                   raw.diag_stat, raw.counter)
+            else:
+                self._sensor_sample = ImuSample(*self._sensor)
         return self._sensor_sample
 
     @property
@@ -98,17 +109,8 @@ class Pipeline:
         """One sample through calibration (sensor frame), mounting (sensor → body) and the estimator;
         returns the estimate: the estimator's in-place view when it has `step` (read it now, or take
         `last_estimate` to keep it), else its AttitudeEstimate."""
-        c = self.counters
-        c.samples += 1
         flags = raw.flags
-        if _int_and(flags, _GAP_BEFORE):           # the source found the gap; its size is in the counter
-            c.gaps += 1
-            last = self._last_counter
-            if last is not None and raw.counter > last + 1:
-                c.lost_samples += raw.counter - last - 1
-        self._last_counter = raw.counter
-        if _int_and(flags, _INVALID):
-            c.invalid_samples += 1
+        self._count(flags, raw.counter)
         cal, m = self.calibration, self.mounting
         if cal.is_identity:
             if m is None:
@@ -120,17 +122,69 @@ class Pipeline:
         else:
             g, a, mag = cal.apply_vectors(raw.gyro_rad_s, raw.accel_m_s2, raw.mag_ut)
             if m is not None:
-                self._sensor, self._sensor_sample = (raw, g, a, mag), None
+                self._sensor = (raw.t_s, g, a, mag, raw.temp_c, raw.supply_v, flags, raw.diag_stat, raw.counter)
+                self._sensor_sample = None
                 g, a, mag = m @ g, m @ a, m @ mag
             sample = ImuSample(raw.t_s, g, a, mag, raw.temp_c, raw.supply_v, flags, raw.diag_stat, raw.counter)
+        return self._estimate(sample)
+
+    def process_block(self, block: SampleBlock):
+        """`process` of every sample of `block`, in order, as a generator: yields each sample's estimate (read it
+        before the next one). The block's vectors are calibrated and rotated at once ((n, 3) arrays; the same
+        affine maps as `process`, equal within rounding) and only the calibrated ImuSample of each row is built.
+        A calibration or mounting swapped between two samples (a listener's) takes effect from the next one."""
+        t_s, temp_c, supply_v, diag, counter = block.t_s, block.temp_c, block.supply_v, block.diag_stat, block.counter
+        raw_flags = block.flags
+        cal = m = None
+        for i in range(len(t_s)):
+            if self.calibration is not cal or self.mounting is not m:
+                cal, m = self.calibration, self.mounting
+                g, a, mag = self._calibrated_rows(block, i, cal, m)     # row k of them is sample i + k
+                first = i
+            k = i - first
+            flags = raw_flags[i]
+            self._count(flags, counter[i])
+            flags = sample_flags(flags)
+            if m is not None:
+                self._sensor, self._sensor_sample = (block, i, cal), None
+            yield self._estimate(ImuSample(t_s[i], g[k], a[k], mag[k], temp_c[i], supply_v[i], flags, diag[i],
+                                           counter[i]))
+
+    @staticmethod
+    def _calibrated_rows(block: SampleBlock, i: int, cal, m):
+        """The calibrated, body-frame (gyro, accel, mag) rows of block[i:]."""
+        g, a, mag = block.gyro_rad_s[i:], block.accel_m_s2[i:], block.mag_ut[i:]
+        if not cal.is_identity:
+            g, a, mag = cal.apply_arrays(g, a, mag)
+        if m is not None:
+            mt = m.T                                   # row · Cᵀ = (C · column)ᵀ
+            g, a, mag = g @ mt, a @ mt, mag @ mt
+        return g, a, mag
+
+    def _count(self, flags: int, counter: int) -> None:
+        """The sample's share of the counters: a gap the source found (its size from the counter), invalid."""
+        c = self.counters
+        c.samples += 1
+        if _int_and(flags, _GAP_BEFORE):           # the source found the gap; its size is in the counter
+            c.gaps += 1
+            last = self._last_counter
+            if last is not None and counter > last + 1:
+                c.lost_samples += counter - last - 1
+        self._last_counter = counter
+        if _int_and(flags, _INVALID):
+            c.invalid_samples += 1
+
+    def _estimate(self, sample: ImuSample):
+        """The calibrated body-frame sample through the estimator (reset when it rejects the sample)."""
         self.last_sample = sample
         step = self._step
         try:
             est = step(sample) if step is not None else self._estimator.update(sample)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
+            c = self.counters
             c.estimator_errors += 1
             if c.estimator_errors in (1, 100, 10000):
-                log.error("estimator rejected sample %d: %s; resetting it", raw.counter, exc)
+                log.error("estimator rejected sample %d: %s; resetting it", sample.counter, exc)
             self._estimator.reset()
             return None
         if step is not None:

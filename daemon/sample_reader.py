@@ -13,6 +13,7 @@ from typing import Callable
 
 from ahrsd.core.estimate import EstimateFlags
 from ahrsd.core.sample import SampleFlags
+from ahrsd.core.sample_block import SampleBlock
 from ahrsd.daemon.counters import ServiceCounters
 from ahrsd.daemon.health import Health
 from ahrsd.daemon.mavlink_io import mavlink
@@ -260,10 +261,12 @@ class SampleReader:
         listeners = self.listeners.fns
         in_place = self.listeners.in_place
         log_put = out.raw_sink                # daemon.vehicle_log: a queue append, never blocks
-        for raw in samples:
-            if log_put is not None:
+        if log_put is not None:
+            for raw in samples:
                 log_put(raw)
-            est = pipeline.process(raw)
+        # a reader process's block stays columns: calibrated at once, only the calibrated samples built
+        block = type(samples) is SampleBlock
+        for est in (pipeline.process_block(samples) if block else map(pipeline.process, samples)):
             if est is not None and _int_and(est.flags, _REINITIALISED):
                 reinitialised = True          # on any sample of a block, not only the last one
             if listeners and est is not None:
@@ -283,8 +286,8 @@ class SampleReader:
         source = self.source
         if source is None or not source.recording_time_base:   # samples in time order: count from the oldest
             ready_by = now - LATE_AFTER_S - (source.monotonic_offset_s if source is not None else 0.0)
-            for raw in samples:
-                if raw.t_s >= ready_by:
+            for t_s in (samples.t_s if block else (raw.t_s for raw in samples)):
+                if t_s >= ready_by:
                     break
                 self.counters.late_samples += 1
         health.sample_read(now)

@@ -22,7 +22,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ahrsd.core.sample import ImuSample, SampleFlags
+from ahrsd.core.sample import ImuSample
+from ahrsd.core.sample_block import SampleBlock
 from ahrsd.drivers import errors as driver_errors
 from ahrsd.drivers.source_interface import LiveSource
 
@@ -49,30 +50,19 @@ def pack(samples: list[ImuSample]) -> bytes:
                        s.supply_v, int(s.flags), s.diag_stat, s.counter) for s in samples])
 
 
-_FLAGS_BY_VALUE: dict[int, SampleFlags] = {}     # SampleFlags(v) goes through the enum machinery (µs a call)
-
-
-def _sample_flags(value: int) -> SampleFlags:
-    flags = _FLAGS_BY_VALUE.get(value)
-    if flags is None:
-        flags = SampleFlags(value)
-        if len(_FLAGS_BY_VALUE) < 4096:           # the flag combinations seen are few; bound it anyway
-            _FLAGS_BY_VALUE[value] = flags
-    return flags
+def unpack_block(data: bytes) -> SampleBlock:
+    """The samples of one or more packed blocks (`pack`), concatenated, as columns: no ImuSample is built until
+    one is asked for (the daemon calibrates the block's arrays at once: daemon.pipeline)."""
+    rec = np.frombuffer(data, dtype=_RECORD)
+    # column by column (a field access per record and row costs more than the estimator's step)
+    return SampleBlock(rec["t_s"].tolist(), rec["gyro"].copy(), rec["accel"].copy(), rec["mag"].copy(),
+                       rec["temp_c"].tolist(), rec["supply_v"].tolist(), rec["flags"].tolist(),
+                       rec["diag"].tolist(), rec["counter"].tolist())
 
 
 def unpack(data: bytes) -> list[ImuSample]:
     """The samples of one or more packed blocks (`pack`), concatenated."""
-    rec = np.frombuffer(data, dtype=_RECORD)
-    # column by column (a field access per record and row costs more than the estimator's step)
-    t, temp, supply = rec["t_s"].tolist(), rec["temp_c"].tolist(), rec["supply_v"].tolist()
-    flags, diag, counter = rec["flags"].tolist(), rec["diag"].tolist(), rec["counter"].tolist()
-    gyro, accel, mag = rec["gyro"].copy(), rec["accel"].copy(), rec["mag"].copy()
-    cached = _FLAGS_BY_VALUE.get
-    # `is not None`, not `or`: SampleFlags(0) is falsy and would be looked up twice
-    return [ImuSample(t[i], gyro[i], accel[i], mag[i], temp[i], supply[i],
-                      f if (f := cached(flags[i])) is not None else _sample_flags(flags[i]),
-                      diag[i], counter[i]) for i in range(len(t))]
+    return list(unpack_block(data))
 
 
 def _chip_truth(src) -> dict | None:
@@ -286,9 +276,9 @@ class ProcessSource(LiveSource):
         self._ready = poller.poll
         self.ready_fd = self._conn.fileno()       # readable when the child sent something: poll() then
 
-    def poll(self) -> list[ImuSample]:
-        """Every sample block the child sent since the last call, unpacked in one go (the child sends a block
-        every HANDOVER_S; the daemon polls when one arrives, `ready_fd`, or on its tick)."""
+    def poll(self) -> list[ImuSample] | SampleBlock:
+        """Every sample block the child sent since the last call, unpacked in one go into one SampleBlock (the
+        child sends a block every HANDOVER_S; the daemon polls when one arrives, `ready_fd`, or on its tick)."""
         conn = self._conn
         if not self._started:
             self._started = True
@@ -318,7 +308,7 @@ class ProcessSource(LiveSource):
                     log_realtime_priority("sensor reader process", msg[1])
         except (EOFError, OSError) as exc:
             raise driver_errors.BusError(f"the sensor reader process ended ({exc})") from exc
-        out = unpack(b"".join(blocks)) if blocks else []
+        out = unpack_block(b"".join(blocks)) if blocks else []
         self.stats["blocks"] += len(blocks)
         self.stats["samples"] += len(out)
         if not out and error is not None:

@@ -79,104 +79,85 @@ def _reader(source, poll_hz, published):
                         poll_hz=poll_hz)
 
 
-def _run(coro):
-    return asyncio.run(asyncio.wait_for(coro, 3.0))
-
-
-def test_each_block_is_taken_when_it_arrives_not_at_the_next_tick():
+def _rig(poll_hz: float):
+    """(source, reader, counters its listener saw, publish times)."""
     source = PipeSource()
     published: list[float] = []
-    reader = _reader(source, poll_hz=1.0, published=published)
+    reader = _reader(source, poll_hz=poll_hz, published=published)
     seen: list[int] = []
     reader.listeners.add(lambda s, e: seen.append(s.counter))
+    return source, reader, seen, published
 
+
+def _drive(reader, source, body) -> None:
+    """Run `reader` on a fresh event loop while `body()` (a coroutine function) hands blocks over; at most 3 s."""
     async def main():
         loop = asyncio.get_running_loop()
         task = loop.create_task(reader.run(loop))
-        for k in range(10):                       # the next block only once the reader took this one
-            source.hand_over(3)
-            while len(seen) < 3 * (k + 1):
-                await asyncio.sleep(0)
+        await body()
         task.cancel()
 
     try:
-        _run(main())
+        asyncio.run(asyncio.wait_for(main(), 3.0))
     finally:
         source.close()
+
+
+async def _hand_over_and_wait(source, seen, n: int) -> None:
+    """n samples handed over; back once the reader's listener has seen them."""
+    want = len(seen) + n
+    source.hand_over(n)
+    while len(seen) < want:
+        await asyncio.sleep(0)
+
+
+def test_each_block_is_taken_when_it_arrives_not_at_the_next_tick():
+    source, reader, seen, published = _rig(poll_hz=1.0)
+
+    async def body():
+        for _ in range(10):                       # the next block only once the reader took this one
+            await _hand_over_and_wait(source, seen, 3)
+
+    _drive(reader, source, body)
     assert seen == list(range(30))
     assert source.polls_with_samples == [3] * 10          # one wake a block
     assert len(published) >= 10                           # the outputs go out after every block
 
 
 def test_the_tick_stands_in_while_the_source_sends_nothing():
-    source = PipeSource()
-    published: list[float] = []
-    reader = _reader(source, poll_hz=100.0, published=published)
+    source, reader, _, published = _rig(poll_hz=100.0)
 
-    async def main():
-        loop = asyncio.get_running_loop()
-        task = loop.create_task(reader.run(loop))
+    async def body():
         await asyncio.sleep(0.3)                  # 15 stand-in ticks at two periods each; a loaded machine fewer
-        task.cancel()
 
-    try:
-        _run(main())
-    finally:
-        source.close()
+    _drive(reader, source, body)
     assert len(published) >= 3                    # SYS_STATUS and the health checks go on without samples
     assert reader.health.last_empty_read_time > 0
 
 
 def test_after_a_failed_poll_blocks_are_taken_on_arrival_again():
-    source = PipeSource()
-    published: list[float] = []
-    reader = _reader(source, poll_hz=1.0, published=published)
-    seen: list[int] = []
-    reader.listeners.add(lambda s, e: seen.append(s.counter))
+    source, reader, seen, published = _rig(poll_hz=1.0)
 
-    async def main():
-        loop = asyncio.get_running_loop()
-        task = loop.create_task(reader.run(loop))
+    async def body():
         await asyncio.sleep(0)
-        source.fail_next = 1
-        source.hand_over(2)                       # this wake fails: retried after RETRY_AFTER_FAILURE_S (0.2 s)
-        while len(seen) < 2:
-            await asyncio.sleep(0)
-        for k in range(10):
-            source.hand_over(1)
-            while len(seen) < 3 + k:
-                await asyncio.sleep(0)
-        task.cancel()
+        source.fail_next = 1                      # this wake fails: retried after RETRY_AFTER_FAILURE_S (0.2 s)
+        await _hand_over_and_wait(source, seen, 2)
+        for _ in range(10):
+            await _hand_over_and_wait(source, seen, 1)
 
-    try:
-        _run(main())
-    finally:
-        source.close()
+    _drive(reader, source, body)
     assert seen == list(range(12))
     assert reader.counters.driver_errors == 1
     assert source.polls_with_samples == [2] + [1] * 10
 
 
 def test_a_source_without_a_descriptor_is_polled_on_the_tick():
-    source = PipeSource()
-    fd = source.ready_fd
-    source.ready_fd = None                        # the same pipe, but the reader is not told of it
-    published: list[float] = []
-    reader = _reader(source, poll_hz=50.0, published=published)
-    seen: list[int] = []
-    reader.listeners.add(lambda s, e: seen.append(s.counter))
+    source, reader, seen, _ = _rig(poll_hz=50.0)
+    fd, source.ready_fd = source.ready_fd, None   # the same pipe, but the reader is not told of it
 
-    async def main():
-        loop = asyncio.get_running_loop()
-        task = loop.create_task(reader.run(loop))
-        os.write(source._w, b"xx")
+    async def body():
         source.ready_fd = fd                      # poll() reads it; the reader registered nothing
-        while len(seen) < 2:
-            await asyncio.sleep(0.001)
-        task.cancel()
+        await _hand_over_and_wait(source, seen, 2)
 
-    try:
-        _run(main())
-    finally:
-        source.close()
+    _drive(reader, source, body)
     assert seen == [0, 1]
