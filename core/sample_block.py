@@ -28,14 +28,17 @@ def sample_flags(value: int) -> SampleFlags:
 
 class SampleBlock(Sequence):
     """n raw samples as columns: t_s, temp_c, supply_v, flags (plain ints), diag_stat, counter (lists) and
-    gyro_rad_s, accel_m_s2, mag_ut ((n, 3) float64 arrays, rows in sample order). Indexing builds the
-    ImuSample of a row (its vectors are views of the row)."""
+    `vectors`, an (n, 9) float64 array of gyro (rad/s), accel (m/s²) and mag (µT) side by side, rows in sample
+    order (gyro_rad_s, accel_m_s2, mag_ut are (n, 3) views of it). Indexing builds the ImuSample of a row (its
+    vectors are views of the row)."""
 
-    __slots__ = ("t_s", "gyro_rad_s", "accel_m_s2", "mag_ut", "temp_c", "supply_v", "flags", "diag_stat", "counter")
+    __slots__ = ("t_s", "vectors", "gyro_rad_s", "accel_m_s2", "mag_ut", "temp_c", "supply_v", "flags", "diag_stat",
+                 "counter")
 
-    def __init__(self, t_s: list, gyro_rad_s: np.ndarray, accel_m_s2: np.ndarray, mag_ut: np.ndarray,
-                 temp_c: list, supply_v: list, flags: list, diag_stat: list, counter: list):
-        self.t_s, self.gyro_rad_s, self.accel_m_s2, self.mag_ut = t_s, gyro_rad_s, accel_m_s2, mag_ut
+    def __init__(self, t_s: list, vectors: np.ndarray, temp_c: list, supply_v: list, flags: list, diag_stat: list,
+                 counter: list):
+        self.t_s, self.vectors = t_s, vectors
+        self.gyro_rad_s, self.accel_m_s2, self.mag_ut = vectors[:, 0:3], vectors[:, 3:6], vectors[:, 6:9]
         self.temp_c, self.supply_v, self.flags, self.diag_stat, self.counter = temp_c, supply_v, flags, diag_stat, counter
 
     def __len__(self) -> int:

@@ -130,36 +130,25 @@ class Pipeline:
 
     def process_block(self, block: SampleBlock):
         """`process` of every sample of `block`, in order, as a generator: yields each sample's estimate (read it
-        before the next one). The block's vectors are calibrated and rotated at once ((n, 3) arrays; the same
-        affine maps as `process`, equal within rounding) and only the calibrated ImuSample of each row is built.
-        A calibration or mounting swapped between two samples (a listener's) takes effect from the next one."""
+        before the next one). The block's vectors are calibrated and rotated at once, one (n, 9) · (9, 9) product
+        (`block_map`; the same affine maps as `process`, equal within rounding), and only the calibrated
+        ImuSample of each row is built. A calibration or mounting swapped between two samples (a listener's)
+        takes effect from the next one."""
         t_s, temp_c, supply_v, diag, counter = block.t_s, block.temp_c, block.supply_v, block.diag_stat, block.counter
         raw_flags = block.flags
         cal = m = None
         for i in range(len(t_s)):
             if self.calibration is not cal or self.mounting is not m:
                 cal, m = self.calibration, self.mounting
-                g, a, mag = self._calibrated_rows(block, i, cal, m)     # row k of them is sample i + k
+                rows = _calibrated_rows(block.vectors[i:], cal, m)     # row k is sample i + k
                 first = i
-            k = i - first
+            r = rows[i - first]
             flags = raw_flags[i]
             self._count(flags, counter[i])
-            flags = sample_flags(flags)
             if m is not None:
                 self._sensor, self._sensor_sample = (block, i, cal), None
-            yield self._estimate(ImuSample(t_s[i], g[k], a[k], mag[k], temp_c[i], supply_v[i], flags, diag[i],
-                                           counter[i]))
-
-    @staticmethod
-    def _calibrated_rows(block: SampleBlock, i: int, cal, m):
-        """The calibrated, body-frame (gyro, accel, mag) rows of block[i:]."""
-        g, a, mag = block.gyro_rad_s[i:], block.accel_m_s2[i:], block.mag_ut[i:]
-        if not cal.is_identity:
-            g, a, mag = cal.apply_arrays(g, a, mag)
-        if m is not None:
-            mt = m.T                                   # row · Cᵀ = (C · column)ᵀ
-            g, a, mag = g @ mt, a @ mt, mag @ mt
-        return g, a, mag
+            yield self._estimate(ImuSample(t_s[i], r[0:3], r[3:6], r[6:9], temp_c[i], supply_v[i], sample_flags(flags),
+                                           diag[i], counter[i]))
 
     def _count(self, flags: int, counter: int) -> None:
         """The sample's share of the counters: a gap the source found (its size from the counter), invalid."""
@@ -192,3 +181,43 @@ class Pipeline:
         else:
             self._view, self._snapshot = None, est
         return est
+
+
+def block_map(cal, m: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """(K, o) with body-frame [gyro, accel, mag] = K · raw9 − o for a raw9 of [gyro, accel, mag] (the accel's
+    quadratic term taken off first): the calibration's three affine maps (calibration/models.py: M · (raw − b))
+    side by side in one 9 × 9 block-diagonal K, each followed by the mounting rotation C."""
+    c = np.eye(3) if m is None else m
+    k = np.zeros((9, 9))
+    o = np.empty(9)
+    for j, (matrix, bias) in enumerate(((cal.gyro.matrix, cal.gyro.bias_rad_s), (cal.accel.matrix, cal.accel.bias_m_s2),
+                                        (cal.mag.soft_iron, cal.mag.hard_iron_ut))):
+        cm = c @ matrix
+        k[3 * j:3 * j + 3, 3 * j:3 * j + 3] = cm
+        o[3 * j:3 * j + 3] = cm @ bias
+    return k, o
+
+
+_BLOCK_MAPS: dict = {}          # (calibration, mounting) ids → their (Kᵀ, o): swaps are rare, blocks 200 a second
+
+
+def _calibrated_rows(raw9: np.ndarray, cal, m: np.ndarray | None) -> np.ndarray:
+    """The calibrated, body-frame (n, 9) rows of raw (n, 9) rows."""
+    if cal.is_identity and m is None:
+        return raw9
+    key = (id(cal), id(m))
+    entry = _BLOCK_MAPS.get(key)
+    if entry is None or entry[0] is not cal or entry[1] is not m:
+        if len(_BLOCK_MAPS) > 16:
+            _BLOCK_MAPS.clear()
+        k, o = block_map(cal, m)
+        q = cal.accel.quadratic
+        entry = _BLOCK_MAPS[key] = (cal, m, np.ascontiguousarray(k.T), o, q if np.any(q) else None)
+    q = entry[4]
+    if q is not None:
+        raw9 = raw9.copy()
+        a = raw9[:, 3:6]
+        a -= q * a * a                                   # f − q∘f² (AccelModel), before the matrix
+    out = raw9 @ entry[2]                                # rows: (K · raw9)ᵀ = raw9ᵀ · Kᵀ
+    out -= entry[3]
+    return out
