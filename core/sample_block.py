@@ -27,19 +27,21 @@ def sample_flags(value: int) -> SampleFlags:
 
 
 class SampleBlock(Sequence):
-    """n raw samples as columns: t_s, temp_c, supply_v, flags (plain ints), diag_stat, counter (lists) and
+    """n raw samples as columns: t_s, temp_c, supply_v, flags (plain ints), diag_stat, counter (sequences) and
     `vectors`, an (n, 9) float64 array of gyro (rad/s), accel (m/s²) and mag (µT) side by side, rows in sample
     order (gyro_rad_s, accel_m_s2, mag_ut are (n, 3) views of it). Indexing builds the ImuSample of a row (its
     vectors are views of the row)."""
 
-    __slots__ = ("t_s", "vectors", "gyro_rad_s", "accel_m_s2", "mag_ut", "temp_c", "supply_v", "flags", "diag_stat",
-                 "counter")
+    __slots__ = ("t_s", "vectors", "temp_c", "supply_v", "flags", "diag_stat", "counter")
 
-    def __init__(self, t_s: list, vectors: np.ndarray, temp_c: list, supply_v: list, flags: list, diag_stat: list,
-                 counter: list):
+    def __init__(self, t_s: Sequence, vectors: np.ndarray, temp_c: Sequence, supply_v: Sequence, flags: Sequence,
+                 diag_stat: Sequence, counter: Sequence):
         self.t_s, self.vectors = t_s, vectors
-        self.gyro_rad_s, self.accel_m_s2, self.mag_ut = vectors[:, 0:3], vectors[:, 3:6], vectors[:, 6:9]
         self.temp_c, self.supply_v, self.flags, self.diag_stat, self.counter = temp_c, supply_v, flags, diag_stat, counter
+
+    gyro_rad_s = property(lambda self: self.vectors[:, 0:3])     # views made when asked (a slice costs ~0.3 µs)
+    accel_m_s2 = property(lambda self: self.vectors[:, 3:6])
+    mag_ut = property(lambda self: self.vectors[:, 6:9])
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -47,8 +49,9 @@ class SampleBlock(Sequence):
     def __getitem__(self, i):
         if isinstance(i, slice):
             return [self[k] for k in range(*i.indices(len(self)))]
-        return ImuSample(self.t_s[i], self.gyro_rad_s[i], self.accel_m_s2[i], self.mag_ut[i], self.temp_c[i],
-                         self.supply_v[i], sample_flags(self.flags[i]), self.diag_stat[i], self.counter[i])
+        r = self.vectors[i]
+        return ImuSample(self.t_s[i], r[0:3], r[3:6], r[6:9], self.temp_c[i], self.supply_v[i],
+                         sample_flags(self.flags[i]), self.diag_stat[i], self.counter[i])
 
     def __iter__(self):
         return (self[i] for i in range(len(self)))

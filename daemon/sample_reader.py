@@ -173,7 +173,7 @@ class SampleReader:
         not a task resumed by a sleep: no future, no extra loop iteration to resume the task, 200 times a second.
 
         A source with a `ready_fd` (the reader process's pipe) is polled when that descriptor becomes readable,
-        i.e. when the reader hands a block over, and the tick only stands in when nothing came for two tick
+        i.e. when the reader hands a block over, and the tick only stands in when nothing came for two to four tick
         periods (a stalled or failed sensor: SYS_STATUS and the health checks go on). The reader then hands over
         once a tick period instead of twice as often to meet the tick, and the newest sample of a block reaches
         the outputs as soon as it is handed over rather than at the next tick.
@@ -197,20 +197,18 @@ class SampleReader:
                 self._tick_handle.cancel()
 
     def _data_step(self) -> None:
-        """The source's descriptor is readable: a look now, the stand-in tick moved to two periods after it."""
-        if self._tick_handle is not None:
-            self._tick_handle.cancel()        # a cancelled timer at the heap's head never wakes the loop
-            self._tick_handle = None
-        # the stand-in tick two periods on: the reader hands over once a period, so the next block is due first
-        self._deadline = self.loop.time() + self._tick_period_s
-        self._batch_step()
+        """The source's descriptor is readable: a look now; the stand-in tick is kept two to four periods ahead
+        (moved only when it came within two: a timer re-armed at every block costs more than the look's poll)."""
+        self._batch_step(on_data=True)
 
-    def _batch_step(self) -> None:
-        """One tick of the polled reader: poll, process, publish, schedule the next tick."""
+    def _batch_step(self, on_data: bool = False) -> None:
+        """One tick of the polled reader (or a look when the source's descriptor became readable): poll,
+        process, publish, schedule the next tick."""
         loop, source, out, done = self.loop, self.source, self.outputs, self.done
         period = self._tick_period_s
         try:
-            self._deadline += period
+            if not on_data:
+                self._deadline += period
             now = loop.time()
             self.counters.wakes += 1
             try:
@@ -224,7 +222,7 @@ class SampleReader:
                 return
             if samples:
                 self.process(samples, now)
-                out.batch_done(samples[-1].t_s)
+                out.batch_done(samples.t_s[-1] if type(samples) is SampleBlock else samples[-1].t_s)
             elif source.finished:
                 log.info("replay finished")
                 out.finished()
@@ -235,6 +233,15 @@ class SampleReader:
                 self.health.empty_read(now)
             out.publish(now)
             after = loop.time()
+            if on_data:
+                handle = self._tick_handle
+                if handle is not None and not handle.cancelled() and handle.when() - after >= 2 * period:
+                    return
+                if handle is not None:
+                    handle.cancel()           # a cancelled timer at the heap's head never wakes the loop
+                self._deadline = after + 3 * period     # the stand-in tick's own deadline is one period on
+                self._tick_handle = loop.call_at(after + 4 * period, self._batch_step)
+                return
             if after - self._deadline > period:
                 self.counters.overruns += 1
                 self._deadline = after
@@ -291,7 +298,7 @@ class SampleReader:
                     break
                 self.counters.late_samples += 1
         health.sample_read(now)
-        health.last_sample_flags = samples[-1].flags
+        health.last_sample_flags = samples.flags[-1] if block else samples[-1].flags
         if reinitialised:
             out.heading_reset()           # a genuine re-initialisation: signalled, not slewed
         if est is not None:

@@ -315,7 +315,7 @@ class ProcessSource(LiveSource):
         if not out and error is not None:
             raise error
         if out:
-            self._last_polled = out[-1].counter
+            self._last_polled = out.counter[-1]
         return out
 
     def counters(self) -> dict:

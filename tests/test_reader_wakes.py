@@ -161,3 +161,17 @@ def test_a_source_without_a_descriptor_is_polled_on_the_tick():
 
     _drive(reader, source, body)
     assert seen == [0, 1]
+
+
+def test_after_the_last_block_the_tick_stands_in():
+    source, reader, seen, published = _rig(poll_hz=100.0)
+
+    async def body():
+        await asyncio.sleep(0.05)                 # the reader's first look (a tick) done: the block comes as data
+        await _hand_over_and_wait(source, seen, 2)
+        taken = len(published)
+        await asyncio.sleep(0.3)                  # 7 stand-in ticks at four periods, then two; a loaded machine fewer
+        published.append(len(published) - taken)
+
+    _drive(reader, source, body)
+    assert published[-1] >= 3                     # outputs after the block went on without samples
