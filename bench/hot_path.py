@@ -4,7 +4,11 @@ sample of `SampleReader.process` on blocks of 4 samples (what a poll tick takes 
 calibration in force (as bench/latency.py runs the daemon). A hot loop: the daemon pays more per sample (its
 caches are cold after every wake); use it to compare two versions of the code, bench/latency.py for the daemon.
 
-    nice -n 10 .venv/bin/python bench/hot_path.py [--samples 8192] [--estimator mekf,ins]
+    nice -n 10 .venv/bin/python bench/hot_path.py [--samples 8192] [--estimator mekf,ins] [--packed]
+
+--packed: each block arrives packed, as from the reader process's pipe, and is unpacked inside the timed loop
+(drivers.process_source: `unpack_block` where the code has it, else `unpack`), so the hand-over's unpacking is
+counted too.
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ RATE_HZ = 819.2
 BLOCK = 4
 
 
-def per_sample_us(estimator: str, n: int) -> float:
+def per_sample_us(estimator: str, n: int, packed: bool = False) -> float:
     """CPU µs a sample over n samples, after n samples of warm-up (initialisation, compilation)."""
     from service_rig import gcs_socket, start_service_on, stop_service
 
@@ -39,6 +43,15 @@ def per_sample_us(estimator: str, n: int) -> float:
     samples = [ImuSample(k / RATE_HZ, rng.normal(0.0, 0.01, 3), np.array([0.1, 0.2, -9.81]) + rng.normal(0.0, 0.05, 3),
                          np.array([20.0, 3.0, 40.0]) + rng.normal(0.0, 0.3, 3), 25.0, 5.0, SampleFlags.NEW_DATA, 0, k)
                for k in range(2 * n)]
+    blocks = [samples[k0:k0 + BLOCK] for k0 in range(0, 2 * n, BLOCK)]
+    if packed:
+        from ahrsd.drivers import process_source
+
+        unpack = getattr(process_source, "unpack_block", process_source.unpack)
+        data = [process_source.pack(b) for b in blocks]
+        take = lambda i: unpack(data[i])                  # noqa: E731
+    else:
+        take = blocks.__getitem__
     with tempfile.TemporaryDirectory() as tmp:
         save_mag_calibration(tmp, sim_chip_mag_model())
         service, loop = start_service_on((EndpointConfig(f"udpout:127.0.0.1:{gcs.getsockname()[1]}"),), tmp,
@@ -46,7 +59,7 @@ def per_sample_us(estimator: str, n: int) -> float:
 
         async def feed(lo: int, hi: int):
             for k0 in range(lo, hi, BLOCK):
-                block = samples[k0:k0 + BLOCK]
+                block = take(k0 // BLOCK)
                 service.reader.process(block, block[-1].t_s)
                 service.publishers.publish(block[-1].t_s)
                 if k0 % 64 == 0:
@@ -70,10 +83,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=int, default=8192)
     ap.add_argument("--estimator", default="mekf,ins")
+    ap.add_argument("--packed", action="store_true", help="blocks unpacked from the reader process's records")
     args = ap.parse_args()
     n = args.samples // BLOCK * BLOCK
     for name in args.estimator.split(","):
-        us = per_sample_us(name, n)
+        us = per_sample_us(name, n, args.packed)
         print(f"{name}: {us:.1f} µs of CPU a sample (reader.process + a publish every {BLOCK} samples), "
               f"{us * RATE_HZ / 1e4:.2f} % of a core at {RATE_HZ} SPS")
 

@@ -22,13 +22,16 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ahrsd.core.sample import ImuSample, SampleFlags
+from ahrsd.core.sample import ImuSample
+from ahrsd.core.sample_block import SampleBlock
 from ahrsd.drivers import errors as driver_errors
 from ahrsd.drivers.source_interface import LiveSource
 
 log = logging.getLogger(__name__)
 
-HANDOVER_S = 0.002            # the child's poll tick
+# the child's hand-over tick: the daemon's poll period (200 Hz), since the daemon takes a block as soon as it
+# arrives (SampleReader: `ready_fd`); a shorter tick only costs sends and wakes (bench/reader_floor.py)
+HANDOVER_S = 0.005
 COUNTERS_EVERY_S = 0.25
 START_TIMEOUT_S = 120.0       # the child imports the drivers (and, simulated, the simulator) and starts the chip
 _RECORD = np.dtype([("t_s", "<f8"), ("gyro", "<f8", 3), ("accel", "<f8", 3), ("mag", "<f8", 3), ("temp_c", "<f8"),
@@ -47,30 +50,20 @@ def pack(samples: list[ImuSample]) -> bytes:
                        s.supply_v, int(s.flags), s.diag_stat, s.counter) for s in samples])
 
 
-_FLAGS_BY_VALUE: dict[int, SampleFlags] = {}     # SampleFlags(v) goes through the enum machinery (µs a call)
-
-
-def _sample_flags(value: int) -> SampleFlags:
-    flags = _FLAGS_BY_VALUE.get(value)
-    if flags is None:
-        flags = SampleFlags(value)
-        if len(_FLAGS_BY_VALUE) < 4096:           # the flag combinations seen are few; bound it anyway
-            _FLAGS_BY_VALUE[value] = flags
-    return flags
+def unpack_block(data: bytes) -> SampleBlock:
+    """The samples of one or more packed blocks (`pack`), concatenated, as columns: no ImuSample is built until
+    one is asked for (the daemon calibrates the block's arrays at once: daemon.pipeline)."""
+    rec = np.frombuffer(data, dtype=_RECORD)
+    # column by column (a field access per record and row costs more than the estimator's step); gyro, accel
+    # and mag lie side by side in a record: one (n, 9) copy
+    floats = rec.view("<f8").reshape(len(rec), _RECORD.itemsize // 8)
+    return SampleBlock(rec["t_s"].tolist(), floats[:, 1:10].copy(), rec["temp_c"].tolist(), rec["supply_v"].tolist(),
+                       rec["flags"].tolist(), rec["diag"].tolist(), rec["counter"].tolist())
 
 
 def unpack(data: bytes) -> list[ImuSample]:
     """The samples of one or more packed blocks (`pack`), concatenated."""
-    rec = np.frombuffer(data, dtype=_RECORD)
-    # column by column (a field access per record and row costs more than the estimator's step)
-    t, temp, supply = rec["t_s"].tolist(), rec["temp_c"].tolist(), rec["supply_v"].tolist()
-    flags, diag, counter = rec["flags"].tolist(), rec["diag"].tolist(), rec["counter"].tolist()
-    gyro, accel, mag = rec["gyro"].copy(), rec["accel"].copy(), rec["mag"].copy()
-    cached = _FLAGS_BY_VALUE.get
-    # `is not None`, not `or`: SampleFlags(0) is falsy and would be looked up twice
-    return [ImuSample(t[i], gyro[i], accel[i], mag[i], temp[i], supply[i],
-                      f if (f := cached(flags[i])) is not None else _sample_flags(flags[i]),
-                      diag[i], counter[i]) for i in range(len(t))]
+    return list(unpack_block(data))
 
 
 def _chip_truth(src) -> dict | None:
@@ -282,10 +275,11 @@ class ProcessSource(LiveSource):
         poller = select.poll()
         poller.register(self._conn.fileno(), select.POLLIN)
         self._ready = poller.poll
+        self.ready_fd = self._conn.fileno()       # readable when the child sent something: poll() then
 
-    def poll(self) -> list[ImuSample]:
-        """Every sample block the child sent since the last call, unpacked in one go (the child sends a block
-        every HANDOVER_S, the daemon polls less often: the per-block costs are paid once a poll)."""
+    def poll(self) -> list[ImuSample] | SampleBlock:
+        """Every sample block the child sent since the last call, unpacked in one go into one SampleBlock (the
+        child sends a block every HANDOVER_S; the daemon polls when one arrives, `ready_fd`, or on its tick)."""
         conn = self._conn
         if not self._started:
             self._started = True
@@ -315,13 +309,13 @@ class ProcessSource(LiveSource):
                     log_realtime_priority("sensor reader process", msg[1])
         except (EOFError, OSError) as exc:
             raise driver_errors.BusError(f"the sensor reader process ended ({exc})") from exc
-        out = unpack(b"".join(blocks)) if blocks else []
+        out = unpack_block(b"".join(blocks)) if blocks else []
         self.stats["blocks"] += len(blocks)
         self.stats["samples"] += len(out)
         if not out and error is not None:
             raise error
         if out:
-            self._last_polled = out[-1].counter
+            self._last_polled = out.counter[-1]
         return out
 
     def counters(self) -> dict:

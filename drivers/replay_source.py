@@ -24,6 +24,7 @@ class ReplaySource:
     monotonic_offset_s = 0.0   # CLOCK_MONOTONIC − recording time (set at the first sample; at speed 1)
     recording_time_base = True   # outgoing messages carry the recording's t_s (what a plot lines up with)
     chip = None                  # a recording: no simulated chip behind it
+    ready_fd = None              # polled on the tick
     description: str
     sample_rate_hz: float
     finished: bool

@@ -33,6 +33,7 @@ class SensorSource(Protocol):
     recording_time_base: bool    # the time stamps are a recording's (a replay): outgoing messages keep them
     finished: bool               # no sample will come any more (a replay at its end)
     chip: SimulatedChipView | None   # the simulated chip read, None for a real sensor or a recording
+    ready_fd: int | None         # readable when poll() has something new (a reader process); None: poll on a tick
 
     def poll(self) -> list[ImuSample]:
         """Every new sample since the last call (possibly none)."""
@@ -61,3 +62,6 @@ class LiveSource:
     recording_time_base = False
     finished = False
     chip: SimulatedChipView | None = None
+    # a descriptor that becomes readable when poll() has something new (a reader process's pipe): the daemon
+    # then polls when it does instead of on a fixed tick; None: poll on the tick
+    ready_fd: int | None = None

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from ahrsd.core.sample import ImuSample, SampleFlags
+from ahrsd.core import sample_block
 from ahrsd.drivers.errors import BusError
 from ahrsd.drivers.faults import FaultPlan
 from ahrsd.drivers import process_source
@@ -334,8 +335,8 @@ def test_a_cached_flags_value_is_not_made_again_not_even_none(monkeypatch):
         made.append(value)
         return SampleFlags(value)
 
-    monkeypatch.setattr(process_source, "_FLAGS_BY_VALUE", {0: SampleFlags.NONE, 1: SampleFlags.NEW_DATA})
-    monkeypatch.setattr(process_source, "_sample_flags", counted)
+    monkeypatch.setattr(sample_block, "_FLAGS_BY_VALUE", {0: SampleFlags.NONE, 1: SampleFlags.NEW_DATA})
+    monkeypatch.setattr(sample_block, "SampleFlags", counted)
     flags = [SampleFlags.NONE, SampleFlags.NEW_DATA] * 5 + [SampleFlags.NEW_DATA | SampleFlags.STALE]
     samples = [ImuSample(k / 819.2, np.zeros(3), np.zeros(3), np.zeros(3), 24.0, 5.0, f, 0, k)
                for k, f in enumerate(flags)]

@@ -1,0 +1,145 @@
+"""The reader process's blocks kept as columns (core.sample_block, Pipeline.process_block): the block is
+calibrated and rotated at once, yet every sample is counted, calibrated, estimated and shown to the listeners as
+the per-sample path does. Truth is worked independently: the calibration's affine maps written out per vector."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ahrsd.calibration.models import AccelModel, Calibration, GyroModel, MagModel
+from ahrsd.core.estimate import EstimateFlags
+from ahrsd.core.sample import ImuSample, SampleFlags
+from ahrsd.core.sample_block import SampleBlock
+from ahrsd.daemon.counters import ServiceCounters
+from ahrsd.daemon.health import Health
+from ahrsd.daemon.pipeline import Pipeline
+from ahrsd.daemon.sample_reader import ReaderOutputs, SampleListeners, SampleReader
+from ahrsd.drivers.process_source import pack, unpack_block
+
+RATE_HZ = 819.2
+
+
+class _Est:
+    flags = EstimateFlags.NONE
+
+
+class _StubEstimator:
+    def __init__(self):
+        self.seen: list[ImuSample] = []
+
+    def update(self, sample):
+        self.seen.append(sample)
+        return _Est()
+
+
+def _cal(seed=1) -> Calibration:
+    rng = np.random.default_rng(seed)
+    return Calibration(GyroModel(rng.normal(0, 0.01, 3), np.eye(3) + rng.normal(0, 0.02, (3, 3))),
+                       AccelModel(rng.normal(0, 0.1, 3), np.eye(3) + rng.normal(0, 0.02, (3, 3)),
+                                  rng.normal(0, 1e-3, 3)),
+                       MagModel(rng.normal(0, 5, 3), np.eye(3) + rng.normal(0, 0.05, (3, 3))))
+
+
+def _by_hand(cal: Calibration, raw: ImuSample, mounting=None):
+    """The models' formulas (calibration/models.py docstrings), one vector at a time, then C · v."""
+    g, a, m = cal.gyro, cal.accel, cal.mag
+    out = (g.matrix @ (raw.gyro_rad_s - g.bias_rad_s),
+           a.matrix @ (raw.accel_m_s2 - a.bias_m_s2 - a.quadratic * raw.accel_m_s2 ** 2),
+           m.soft_iron @ (raw.mag_ut - m.hard_iron_ut))
+    return out if mounting is None else tuple(mounting @ v for v in out)
+
+
+def _raw(counters, flags=None, seed=2):
+    rng = np.random.default_rng(seed)
+    flags = flags or [SampleFlags.NEW_DATA] * len(counters)
+    return [ImuSample(100.0 + k / RATE_HZ, rng.normal(0, 0.5, 3), rng.normal([0, 0, -9.8], 1.0),
+                      rng.normal([20, 0, 40], 3.0), 25.0 + 0.01 * k, 5.0, f, 0, k) for k, f in zip(counters, flags)]
+
+
+def _reader(pipeline, raw_sink=None):
+    return SampleReader(None, pipeline, Health(stale_timeout_s=0.1), ServiceCounters(), SampleListeners(),
+                        ReaderOutputs(publish=lambda now: None, statustext=lambda sev, text: None,
+                                      heading_reset=lambda: None, ready=lambda: None, raw_sink=raw_sink),
+                        poll_hz=200.0)
+
+
+def test_a_block_is_the_packed_samples_column_by_column():
+    raw = _raw(range(6), [SampleFlags.NEW_DATA, SampleFlags.NONE, SampleFlags.NEW_DATA | SampleFlags.GAP_BEFORE,
+                          SampleFlags.NEW_DATA | SampleFlags.ALARM, SampleFlags.NEW_DATA, SampleFlags.STALE])
+    block = unpack_block(pack(raw[:4]) + pack(raw[4:]))
+    assert type(block) is SampleBlock and len(block) == 6
+    for got, want in zip(block, raw):
+        assert (got.t_s, got.temp_c, got.flags, got.counter) == (want.t_s, want.temp_c, want.flags, want.counter)
+        assert type(got.flags) is SampleFlags
+        assert np.array_equal(got.gyro_rad_s, want.gyro_rad_s) and np.array_equal(got.mag_ut, want.mag_ut)
+    assert [s.counter for s in block[-2:]] == [4, 5] and block[-1].counter == 5
+
+
+def test_a_gap_in_the_middle_of_a_block_counts_exactly_that_gap():
+    counters = [10, 11, 12, 16, 17, 18, 19]                   # 13, 14, 15 lost before 16
+    flags = [SampleFlags.NEW_DATA] * 7
+    flags[3] = SampleFlags.NEW_DATA | SampleFlags.GAP_BEFORE
+    flags[5] = SampleFlags.NEW_DATA | SampleFlags.GYRO_INVALID
+    pipeline = Pipeline(_StubEstimator(), Calibration.identity())
+    _reader(pipeline).process(unpack_block(pack(_raw(counters, flags))), 100.0)
+    c = pipeline.counters
+    assert (c.samples, c.gaps, c.lost_samples, c.invalid_samples) == (7, 1, 3, 1)
+
+
+def test_every_sample_of_a_block_reaches_the_estimator_and_the_listeners_calibrated_and_mounted():
+    cal = _cal()
+    est = _StubEstimator()
+    pipeline = Pipeline(est, cal)
+    pipeline.set_mounting([0.0, 0.0, 90.0])
+    c_mount = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])    # Rz(90°): body ← sensor
+    reader = _reader(pipeline)
+    seen, sensor_frame = [], []
+    reader.listeners.add(lambda s, e: (seen.append(s), sensor_frame.append(pipeline.last_sensor_sample)),
+                         in_place=True)
+    raw = _raw(range(40, 52))
+    for k in range(0, 12, 4):
+        reader.process(unpack_block(pack(raw[k:k + 4])), 100.0)
+    assert [s.counter for s in seen] == list(range(40, 52)) and est.seen == seen
+    for s, sensor, r in zip(seen, sensor_frame, raw):
+        for got, want in zip((s.gyro_rad_s, s.accel_m_s2, s.mag_ut), _by_hand(cal, r, c_mount)):
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+        for got, want in zip((sensor.gyro_rad_s, sensor.accel_m_s2, sensor.mag_ut), _by_hand(cal, r)):
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+        assert (s.t_s, s.temp_c, s.flags, s.counter) == (r.t_s, r.temp_c, r.flags, r.counter)
+
+
+def test_a_calibration_swapped_by_a_listener_mid_block_applies_from_the_next_sample():
+    old, new = _cal(1), _cal(7)
+    pipeline = Pipeline(_StubEstimator(), old)
+    reader = _reader(pipeline)
+    seen = []
+
+    def listener(s, e):
+        seen.append(s)
+        if s.counter == 2:
+            pipeline.calibration = new                        # what Service.apply_calibration does, between samples
+
+    reader.listeners.add(listener, in_place=True)
+    raw = _raw(range(6))
+    reader.process(unpack_block(pack(raw)), 100.0)
+    for s, r in zip(seen, raw):
+        want = _by_hand(old if r.counter <= 2 else new, r)
+        np.testing.assert_allclose(s.mag_ut, want[2], rtol=0, atol=1e-12)
+
+
+def test_the_vehicle_log_gets_every_raw_sample_of_a_block():
+    logged = []
+    pipeline = Pipeline(_StubEstimator(), _cal())
+    raw = _raw(range(5))
+    _reader(pipeline, raw_sink=logged.append).process(unpack_block(pack(raw)), 100.0)
+    assert [s.counter for s in logged] == list(range(5))
+    assert all(np.array_equal(a.mag_ut, b.mag_ut) for a, b in zip(logged, raw))    # raw, not calibrated
+
+
+def test_late_samples_of_a_block_are_counted_from_their_time_stamps():
+    pipeline = Pipeline(_StubEstimator(), Calibration.identity())
+    reader = _reader(pipeline)
+    raw = _raw(range(8))                                      # t_s 100.0 .. 100.0 + 7 periods
+    now = raw[3].t_s + 0.05 + 1e-6                            # samples 0..3 used more than LATE_AFTER_S late
+    reader.process(unpack_block(pack(raw)), now)
+    assert reader.counters.late_samples == 4
