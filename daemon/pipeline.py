@@ -57,7 +57,9 @@ class Pipeline:
         self.mounting = mounting
         self.counters = PipelineCounters()
         self.last_sample: ImuSample | None = None    # calibrated, body frame
-        self.last_raw_sample: ImuSample | None = None    # as the source gave it: what a new calibration would take
+        # the last sample as the source gave it (what a new calibration would take): the ImuSample, or
+        # (block, row) for a block's row, built only when asked for (last_raw_sample)
+        self._raw: ImuSample | tuple | None = None
         self._view = None                  # the estimator's in-place view of its latest estimate (step())
         self._snapshot = None              # the immutable AttitudeEstimate of _view, built on demand
         self._last_counter: int | None = None
@@ -99,6 +101,15 @@ class Pipeline:
         return self._sensor_sample
 
     @property
+    def last_raw_sample(self) -> ImuSample | None:
+        """The last sample as the source gave it (sensor frame, uncalibrated): what a new calibration is applied
+        to (calibration_heading_change.py)."""
+        if isinstance(self._raw, tuple):
+            block, i = self._raw
+            self._raw = block[i]
+        return self._raw
+
+    @property
     def last_estimate(self):
         """The latest AttitudeEstimate (immutable), built only when someone asks: the publishers at their
         rates, not the reader at 819.2 SPS (the estimator's `step` view is read in place meanwhile)."""
@@ -112,6 +123,7 @@ class Pipeline:
         `last_estimate` to keep it), else its AttitudeEstimate."""
         flags = raw.flags
         self._count(flags, raw.counter)
+        self._raw = raw
         cal, m = self.calibration, self.mounting
         if cal.is_identity:
             if m is None:
@@ -146,6 +158,7 @@ class Pipeline:
             r = rows[i - first]
             flags = raw_flags[i]
             self._count(flags, counter[i])
+            self._raw = (block, i)
             if m is not None:
                 self._sensor, self._sensor_sample = (block, i, cal), None
             yield self._estimate(ImuSample(t_s[i], r[0:3], r[3:6], r[6:9], temp_c[i], supply_v[i], sample_flags(flags),
@@ -167,7 +180,6 @@ class Pipeline:
     def _estimate(self, sample: ImuSample):
         """The calibrated body-frame sample through the estimator (reset when it rejects the sample)."""
         self.last_sample = sample
-        self.last_raw_sample = raw
         step = self._step
         try:
             est = step(sample) if step is not None else self._estimator.update(sample)

@@ -14,6 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from ahrsd.calibration.models import Calibration, MagModel
 from ahrsd.core.sample import ImuSample, SampleFlags
+from ahrsd.core.sample_block import SampleBlock
 from ahrsd.daemon.calibration_heading_change import calibration_heading_change_rad
 from ahrsd.daemon.calibration_swap import CalibrationSwap
 from ahrsd.daemon.pipeline import Pipeline
@@ -75,9 +76,11 @@ class _Still:
 
 
 @pytest.mark.parametrize("mount_deg", [None, 90.0])
-def test_a_calibration_swap_widens_by_the_new_calibrations_heading_of_the_raw_field(tmp_path, mount_deg):
+@pytest.mark.parametrize("path", ["sample", "block"])
+def test_a_calibration_swap_widens_by_the_new_calibrations_heading_of_the_raw_field(tmp_path, mount_deg, path):
     """In the daemon, with another calibration in force (and with or without a mounting), the change is taken on the
-    field as the sensor gave it: the pipeline keeps the raw sample, the new calibration alone makes the field."""
+    field as the sensor gave it: the pipeline keeps the raw sample, the new calibration alone makes the field.
+    The same when the sample is the last row of a block from the reader process (Pipeline.process_block)."""
     hard_iron = np.array([25.0, -30.0, 12.0])
     soft = np.array([[1.08, 0.05, 0.0], [0.05, 0.95, 0.02], [0.0, 0.02, 1.01]])
     mount = None if mount_deg is None else Rotation.from_euler("z", mount_deg, degrees=True).as_matrix()
@@ -87,8 +90,15 @@ def test_a_calibration_swap_widens_by_the_new_calibrations_heading_of_the_raw_fi
     new = Calibration.identity().with_sensor("mag", MagModel(hard_iron, soft))
     est = _Still(12.0, -7.0, 170.0)
     pipeline = Pipeline(est, in_force, mount)
-    pipeline.process(ImuSample(0.0, np.zeros(3), np.array([0.0, 0.0, -9.81]), raw, 25.0, 5.0, SampleFlags.NEW_DATA,
-                               0, 0))
+    if path == "sample":
+        pipeline.process(ImuSample(0.0, np.zeros(3), np.array([0.0, 0.0, -9.81]), raw, 25.0, 5.0,
+                                   SampleFlags.NEW_DATA, 0, 0))
+    else:       # an earlier row with another field, then the one the change is taken on
+        vectors = np.array([[0.0, 0.0, 0.0, 0.0, 0.0, -9.81, *(raw + 7.0)], [0.0, 0.0, 0.0, 0.0, 0.0, -9.81, *raw]])
+        flags = int(SampleFlags.NEW_DATA)
+        for _ in pipeline.process_block(SampleBlock([0.0, 0.001], vectors, [25.0] * 2, [5.0] * 2, [flags] * 2,
+                                                    [0, 0], [0, 1])):
+            pass
     heading = SimpleNamespace(signal=lambda: None)
     CalibrationSwap(pipeline, tmp_path, heading, reset_counter_on_calibration=True).apply(new, save=False)
     magnetic_heading = -150.0 - math.degrees(math.atan2(FIELD_NED_UT[1], FIELD_NED_UT[0]))
