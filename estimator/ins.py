@@ -42,7 +42,7 @@ from .initial_attitude import initial_attitude
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .mag_heading import RELEARN_GATE_OPEN_S
 from .mag_heading_params import MagHeadingParams
-from .mag_rotation import MagRotationBias, rotation_vector_step
+from .mag_rotation import MagRotationBias
 from .constrained_update import scalar_update
 from .params import with_overrides
 from .estimate_view import BuiltEstimateView, EstimateView
@@ -454,9 +454,7 @@ class Ins:
         self._bias_heading_confirmed = False   # by a GNSS yaw within accel_bias_gsf_sigma_rad
         self._mag_rotation = MagRotationBias(gyro_noise_rad_s_rthz=p.gyro_noise_rad_s_sqrt_hz)
         self._mag_rotation_on = p.mag_rotation_gyro_bias and p.heading_monitor and p.mag_enabled
-        self._gyro_rotation = [0.0, 0.0, 0.0]   # the gyro's rotation vector since the last heading check (raw rates)
-        self._gyro_rotation_s = 0.0
-        self._gyro_last_t = math.nan
+        self._x["gyro_rotation_last_t_s"] = math.nan   # the kernel sums the gyro's rotation (ins_core.py)
         self._gnss_yaw_aligned = False     # the yaw was set to the first valid GNSS yaw (yaw_align_to_gnss_yaw)
         # the published yaw σ's floor until a GNSS yaw confirms the heading (aided only; updated at every check)
         self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(0.0, math.nan, math.nan)
@@ -473,6 +471,7 @@ class Ins:
     def reset(self) -> None:
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
         self._x_arr[:] = 0
+        self._x["gyro_rotation_last_t_s"] = math.nan
         self._P[:] = 0.0
         self._initialised = False
         self._reinit_pending = False
@@ -633,8 +632,6 @@ class Ins:
                            g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], sflags, self._out_arr,
                            self._gsf_arr, self._gsf_par_arr)
             if not f & NEEDS_INIT:
-                if self._mag_rotation_on:
-                    self._accumulate_gyro(sample.t_s, g)
                 if self._queue:
                     self._fuse_queued()       # before the estimate of this sample, as every fix before it
                 return self._stepped(sample.t_s, f)
@@ -798,15 +795,6 @@ class Ins:
                                                       float(self._P[core.E_YAW, core.E_YAW]), yaw_reset_to,
                                                       self._iron.updates > iron_updates))
 
-    def _accumulate_gyro(self, t_s: float, rate_rad_s) -> None:
-        """The gyro's rotation since the last heading check, for `_mag_rotation_check` (raw rates: the bias is
-        taken out there, at the estimate of the check)."""
-        dt = t_s - self._gyro_last_t
-        self._gyro_last_t = t_s
-        if 0.0 < dt < 0.1:
-            rotation_vector_step(self._gyro_rotation, rate_rad_s.tolist(), dt)
-            self._gyro_rotation_s += dt
-
     def _mag_rotation_check(self, t_s: float, c_bn: np.ndarray) -> None:
         """The vertical gyro bias from the magnetometer's turning (MagRotationBias, mag_rotation.py): the gyro's
         rotation since the last check (less the bias estimate and the Earth's rotation, which turns the field with
@@ -815,12 +803,12 @@ class Ins:
         p = self.params
         x = self._x
         P = self._P
-        dt = self._gyro_rotation_s
+        dt = float(x["gyro_rotation_s"])      # the kernel's sum of raw rates: the bias is taken out here
         lat = float(x["lat_rad"])
         earth_rate = EARTH_RATE_RAD_S * np.array([math.cos(lat), 0.0, -math.sin(lat)])
-        step = rotvec_to_dcm(np.array(self._gyro_rotation) - (x["gyro_bias_rad_s"] + c_bn.T @ earth_rate) * dt)
-        self._gyro_rotation = [0.0, 0.0, 0.0]
-        self._gyro_rotation_s = 0.0
+        step = rotvec_to_dcm(x["gyro_rotation_rad"] - (x["gyro_bias_rad_s"] + c_bn.T @ earth_rate) * dt)
+        x["gyro_rotation_rad"] = 0.0
+        x["gyro_rotation_s"] = 0.0
         field = self._earth_field_ned()
         m = x["mag_last_ut"]
         if field is None or not np.all(np.isfinite(m)) or x["nav_ok"] <= 0 or dt <= 0.0:
@@ -1187,7 +1175,11 @@ class Ins:
         keep_sg = x["gyro_scale"].copy() if self._reinit_pending else np.zeros(3)
         keep_mg = x["gyro_misalignment_rad"].copy() if self._reinit_pending else np.zeros(6)
         keep_mag = self._mag_state().copy() if self._reinit_pending else None
+        rotation = ("gyro_rotation_rad", "gyro_rotation_s", "gyro_rotation_last_t_s")   # the next check's
+        keep_rotation = [x[k].copy() for k in rotation]
         self._x_arr[:] = 0
+        for k, v in zip(rotation, keep_rotation):
+            x[k] = v
         x["q"] = q0
         x["gyro_bias_rad_s"] = keep_bg
         self._confirmed_gyro_bias = keep_bg.copy()

@@ -67,6 +67,7 @@ from .kernel_flags import (
     input_validity,
     step_dt,
 )
+from .mag_rotation import rotation_vector_step
 from .kernel_rotations import dcm, euler_and_tilt_sigma, normalised, quat_mul, rotate_to_ned, rotvec_quat
 from .turn_lean import (
     TURN_LEAN_DTYPE,
@@ -120,6 +121,10 @@ INS_STATE_DTYPE = np.dtype([
     ("gyro_last_rad_s", np.float64, (3,)),
     ("acc_last_m_s2", np.float64, (3,)),
     ("mag_last_ut", np.float64, (3,)),           # NaN: none yet
+    # the gyro's rotation since the last heading check (raw rates; Ins._mag_rotation_check reads and clears it)
+    ("gyro_rotation_rad", np.float64, (3,)),
+    ("gyro_rotation_s", np.float64),
+    ("gyro_rotation_last_t_s", np.float64),      # NaN: none yet
     # GNSS
     ("nav_ok", np.float64),                      # 1.0 once velocity/position have been set from a fix
     ("was_aided", np.float64),                   # 1.0 once a fix has been fused (GNSS_OUTAGE only after that)
@@ -784,6 +789,13 @@ def ins_step(state, P, hist, params, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sa
     # after the convergence test (the filter converges on its covariance, not on a turn's lean, as mekf):
     # the published 1σ adds the lean levelling has left in a turn (turn_lean.py; zero while aided)
     add_pushes_to_sigma(x.turn_lean, sig)
+    # the gyro's raw rotation since the last heading check, for Ins._mag_rotation_check (mag_rotation.py): here
+    # rather than in Python per sample for speed; a gap of 0.1 s or more is not summed
+    dt_rotation = t_s - x.gyro_rotation_last_t_s
+    x.gyro_rotation_last_t_s = t_s
+    if 0.0 < dt_rotation < 0.1:
+        rotation_vector_step(x.gyro_rotation_rad, gx, gy, gz, dt_rotation)
+        x.gyro_rotation_s += dt_rotation
     return flags
 
 

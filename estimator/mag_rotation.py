@@ -27,6 +27,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 _DOWN = np.array([0.0, 0.0, 1.0])
 
@@ -40,11 +41,11 @@ def _turn(rot: np.ndarray) -> float:
     return math.atan2(rot[1, 0], rot[0, 0])
 
 
-def rotation_vector_step(theta, rate_rad_s, dt_s: float) -> None:
-    """Add one gyro sample to the rotation vector θ of an interval (a list of 3 floats, per sample: kept out of
-    numpy for speed), in place, with the coning term ½ θ × Δθ (Bortz; Savage, Strapdown Analytics §7.1): a vehicle
-    rolling and pitching out of phase turns about z."""
-    gx, gy, gz = rate_rad_s
+@njit(cache=True, inline="always")
+def rotation_vector_step(theta, gx, gy, gz, dt_s):
+    """Add one gyro sample (rad/s) to the rotation vector θ of an interval (a float64 array of 3, in the compiled
+    step: per sample), in place, with the coning term ½ θ × Δθ (Bortz; Savage, Strapdown Analytics §7.1): a
+    vehicle rolling and pitching out of phase turns about z."""
     ax, ay, az = gx * dt_s, gy * dt_s, gz * dt_s
     tx, ty, tz = theta
     theta[0] = tx + ax + 0.5 * (ty * az - tz * ay)

@@ -67,17 +67,17 @@ def test_the_rotation_vector_carries_the_coning_term():
     vector, turned into a matrix, matches the product of the per-sample rotations (scipy) to 1e-5 rad, where the
     plain sum of the rates misses it (8e-4 rad)."""
     dt = 0.001
-    theta = [0.0, 0.0, 0.0]
+    theta = np.zeros(3)
     plain = np.zeros(3)
     c = np.eye(3)
     for k in range(200):
         t = k * dt
         w = np.array([0.5 * math.cos(2 * math.pi * t / 0.2), 0.5 * math.sin(2 * math.pi * t / 0.2), 0.0])
-        rotation_vector_step(theta, w.tolist(), dt)
+        rotation_vector_step(theta, w[0], w[1], w[2], dt)
         plain += w * dt
         c = c @ Rotation.from_rotvec(w * dt).as_matrix()
     truth = Rotation.from_matrix(c)
-    assert (Rotation.from_matrix(rotvec_to_dcm(np.array(theta))) * truth.inv()).magnitude() < 1e-5
+    assert (Rotation.from_matrix(rotvec_to_dcm(theta)) * truth.inv()).magnitude() < 1e-5
     assert (Rotation.from_rotvec(plain) * truth.inv()).magnitude() > 1e-4
 
 
