@@ -326,11 +326,11 @@ def _run(args) -> int:
 
 def _compile_announced(estimator_name: str) -> tuple[float, float]:
     """Compile the estimator first, as `ahrsd run` does, so the first replay after an install says "compiling the
-    … estimator" instead of sitting silent for 15-40 s (cli.warm_up; a cached start says nothing). The "ahrsd"
+    … estimator" instead of sitting silent while it compiles (cli.warm_up; a cached start says nothing). The "ahrsd"
     logger is raised to INFO for that only: the replay's own log stays at the command line's level.
 
     Returns the compile's (wall s, CPU s) when it compiled, (0, 0) when it loaded the cache: the summary's speed
-    is the replay's, a one-off compile reported beside it (#30: the first run's "3.2× real time" was mostly it)."""
+    is the replay's, a one-off compile reported beside it (counted in, it would make the first run look slow)."""
     import logging
     import time
 

@@ -39,7 +39,7 @@ class SampleBlock(Sequence):
         self.t_s, self.vectors = t_s, vectors
         self.temp_c, self.supply_v, self.flags, self.diag_stat, self.counter = temp_c, supply_v, flags, diag_stat, counter
 
-    gyro_rad_s = property(lambda self: self.vectors[:, 0:3])     # views made when asked (a slice costs ~0.3 µs)
+    gyro_rad_s = property(lambda self: self.vectors[:, 0:3])     # views made when asked (a slice is not free)
     accel_m_s2 = property(lambda self: self.vectors[:, 3:6])
     mag_ut = property(lambda self: self.vectors[:, 6:9])
 

@@ -1,8 +1,6 @@
 """The state directory when none is given (calibration, parameters, heading memory, logs): one rule for
-`ahrsd run`, `ahrsd calibrate` and `ahrsd log`, so a calibration written by hand is the one a run loads.
-
-Until 2026-12-05 `calibrate` defaulted to the service's /var/lib/ahrsd and a hand-started `run` to
-~/.local/state/ahrsd: on a fresh clone calibrate-then-run ran uncalibrated (#30).
+`ahrsd run`, `ahrsd calibrate` and `ahrsd log`, so a calibration written by hand is the one a run loads
+(two defaults would let calibrate-then-run run uncalibrated).
 """
 
 from __future__ import annotations
