@@ -47,7 +47,7 @@ from .constrained_update import scalar_update
 from .params import with_overrides
 from .estimate_view import BuiltEstimateView, EstimateView
 from .published_heading import PublishedHeading
-from .rotations import quat_to_dcm, rotvec_to_dcm
+from .rotations import quat_to_dcm, quat_to_euler, rotvec_to_dcm
 
 log = logging.getLogger(__name__)
 _DEG = math.pi / 180.0
@@ -1040,9 +1040,7 @@ class Ins:
         plus the distance to it, as an unconfirmed heading's (`_unconfirmed_yaw_sigma`), at every fused fix."""
         if not (self.params.gnss_yaw and self.params.heading_monitor):
             return
-        q = self._x["q"]
-        # yaw of C_b^n: atan2(C10, C00) of the quaternion
-        yaw = math.atan2(2.0 * (q[1] * q[2] + q[0] * q[3]), 1.0 - 2.0 * (q[2] * q[2] + q[3] * q[3]))
+        yaw = float(quat_to_euler(self._x["q"])[2])
         gsf_yaw, gsf_var, _ = self._gnss_yaw()
         self._unconfirmed_sigma_rad = _gnss_yaw_floor(yaw, gsf_yaw, gsf_var)
 
