@@ -57,12 +57,19 @@ def _imports_numba(tree: ast.Module) -> bool:
 def _imported_sources(path: Path, tree: ast.Module) -> set[Path]:
     """The ahrsd source files `path` imports names from (relative imports and `ahrsd.…`), at any depth of the
     module, leaving out imports whose names are used only as the bases of Python classes."""
-    bases = {id(b) for n in ast.walk(tree) if isinstance(n, ast.ClassDef) for b in n.bases}
-    used = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name) and id(n) not in bases}
+    bases: set[int] = set()
+    names_seen: list[ast.Name] = []
+    imports: list[ast.ImportFrom] = []
+    for n in ast.walk(tree):          # one walk (every process start computes this)
+        if isinstance(n, ast.Name):
+            names_seen.append(n)
+        elif isinstance(n, ast.ClassDef):
+            bases.update(id(b) for b in n.bases)
+        elif isinstance(n, ast.ImportFrom) and (n.level or (n.module or "").startswith("ahrsd.")):
+            imports.append(n)
+    used = {n.id for n in names_seen if id(n) not in bases}
     found: set[Path] = set()
-    for n in ast.walk(tree):
-        if not isinstance(n, ast.ImportFrom) or not (n.level or (n.module or "").startswith("ahrsd.")):
-            continue
+    for n in imports:
         names = [a.asname or a.name for a in n.names]
         if not any(name in used for name in names):
             continue
@@ -77,7 +84,8 @@ def _imported_sources(path: Path, tree: ast.Module) -> set[Path]:
 def kernel_sources() -> list[Path]:
     """The source files the compiled kernels are made from: this package's modules that import numba, and
     what they import names from, transitively."""
-    trees = {p: ast.parse(p.read_bytes()) for p in _PACKAGE.glob("*.py")}
+    # parsing is what costs (every process start computes this): only a file that names numba can import it
+    trees = {p: ast.parse(src) for p in _PACKAGE.glob("*.py") if b"numba" in (src := p.read_bytes())}
     todo = [p for p, tree in trees.items() if _imports_numba(tree)]
     seen: set[Path] = set()
     while todo:
