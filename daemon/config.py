@@ -650,26 +650,49 @@ class Config:
                        estimator: str | None = None,
                        log_dir: str | None = None, log_enabled: bool | None = None,
                        nmea: list[str] | None = None) -> "Config":
-        """Apply command-line flags (they win over the file); values are validated like file values."""
-        cfg = self
+        """Apply command-line flags (they win over the file); values are validated like file values, in the order
+        of the steps below (the first bad flag is the one reported)."""
         if sum(bool(x) for x in (gnss_replay, gnss_serial, gnss_sim)) > 1:
             raise ConfigError("--gnss-replay, --gnss-serial and --gnss-sim are mutually exclusive")
         if sum(x is not None for x in (sim, spi, replay, iio)) > 1:
             raise ConfigError("--sim, --spi, --iio and --replay are mutually exclusive")
+        cfg = self._with_sensor_flag(sim=sim, spi=spi, replay=replay, iio=iio)
+        cfg = cfg._with_output_flags(mavlink, nmea)
+        if state_dir is not None:
+            cfg = dataclasses.replace(cfg, state=StateConfig(dir=state_dir))
+        if replay_speed is not None:
+            cfg = dataclasses.replace(cfg, sensor=dataclasses.replace(
+                cfg.sensor, replay_speed=_number("--replay-speed", replay_speed, MIN_REPLAY_SPEED, MAX_REPLAY_SPEED)))
+        cfg = cfg._with_gnss_flag(gnss_replay=gnss_replay, gnss_serial=gnss_serial, gnss_sim=gnss_sim)
+        if estimator is not None:
+            cfg = dataclasses.replace(cfg, estimator=EstimatorConfig(_choice("--estimator", estimator, ESTIMATORS)))
+        cfg = cfg._with_log_flags(log_dir, log_enabled)
+        cfg.gnss.check("gnss")
+        cfg.check()
+        return cfg
+
+    def _with_sensor_flag(self, *, sim: str | None, spi: str | None, replay: str | None,
+                          iio: str | None) -> "Config":
+        """The sensor source one of --sim, --spi, --iio, --replay names (at most one is given)."""
+        sensor = self.sensor
         if iio is not None:
             if not iio:
                 raise _fail("--iio", iio, "an IIO device: iio:device0, its name (adis16405) or its sysfs directory")
-            cfg = dataclasses.replace(cfg, sensor=dataclasses.replace(cfg.sensor, source="iio", iio_device=iio))
+            sensor = dataclasses.replace(sensor, source="iio", iio_device=iio)
         if sim is not None:
-            cfg = dataclasses.replace(cfg, sensor=dataclasses.replace(
-                cfg.sensor, source="sim", scenario=_choice("--sim", sim, SCENARIOS)))
+            sensor = dataclasses.replace(sensor, source="sim", scenario=_choice("--sim", sim, SCENARIOS))
         if spi is not None:
             if not spi.startswith("/dev/"):
                 raise _fail("--spi", spi, "a device path such as /dev/spidev0.0")
-            cfg = dataclasses.replace(cfg, sensor=dataclasses.replace(cfg.sensor, source="spi", spi_device=spi))
+            sensor = dataclasses.replace(sensor, source="spi", spi_device=spi)
         if replay is not None:
-            cfg = dataclasses.replace(cfg, sensor=dataclasses.replace(cfg.sensor, source="replay",
-                                                                      replay_file=replay))
+            sensor = dataclasses.replace(sensor, source="replay", replay_file=replay)
+        return self if sensor is self.sensor else dataclasses.replace(self, sensor=sensor)
+
+    def _with_output_flags(self, mavlink: list[str] | None, nmea: list[str] | None) -> "Config":
+        """--mavlink URLs replace the configured endpoints, --nmea URLs the NMEA outputs (each within its line's
+        budget)."""
+        cfg = self
         if mavlink:
             cfg = dataclasses.replace(cfg, endpoints=tuple(
                 EndpointConfig(_endpoint_url("--mavlink", url)) for url in mavlink))
@@ -678,34 +701,33 @@ class Config:
             for i, out in enumerate(outputs):
                 out.check_budget(f"--nmea {nmea[i]}")
             cfg = dataclasses.replace(cfg, nmea=outputs)
-        if state_dir is not None:
-            cfg = dataclasses.replace(cfg, state=StateConfig(dir=state_dir))
-        if replay_speed is not None:
-            cfg = dataclasses.replace(cfg, sensor=dataclasses.replace(
-                cfg.sensor, replay_speed=_number("--replay-speed", replay_speed, MIN_REPLAY_SPEED, MAX_REPLAY_SPEED)))
+        return cfg
+
+    def _with_gnss_flag(self, *, gnss_replay: str | None, gnss_serial: str | None, gnss_sim: bool) -> "Config":
+        """The GNSS source one of --gnss-replay, --gnss-serial DEVICE[,BAUD], --gnss-sim names (at most one)."""
+        gnss = self.gnss
         if gnss_replay is not None:
-            cfg = dataclasses.replace(cfg, gnss=dataclasses.replace(cfg.gnss, source="replay", file=gnss_replay))
+            gnss = dataclasses.replace(gnss, source="replay", file=gnss_replay)
         if gnss_serial is not None:
             device, _, baud = gnss_serial.partition(",")
-            gnss = dataclasses.replace(cfg.gnss, source="serial", device=_gnss_device("--gnss-serial", device))
+            gnss = dataclasses.replace(gnss, source="serial", device=_gnss_device("--gnss-serial", device))
             if baud:
                 if not baud.isdigit() or int(baud) not in GNSS_BAUDS:
                     raise _fail("--gnss-serial", gnss_serial, "DEVICE or DEVICE,BAUD with BAUD one of "
                                 + ", ".join(map(str, GNSS_BAUDS)))
                 gnss = dataclasses.replace(gnss, baud=int(baud))
-            cfg = dataclasses.replace(cfg, gnss=gnss)
         if gnss_sim:
-            cfg = dataclasses.replace(cfg, gnss=dataclasses.replace(cfg.gnss, source="sim"))
-        if estimator is not None:
-            cfg = dataclasses.replace(cfg, estimator=EstimatorConfig(_choice("--estimator", estimator, ESTIMATORS)))
-        if log_dir is not None:   # --log-dir turns logging on unless --no-log says otherwise
-            cfg = dataclasses.replace(cfg, log=dataclasses.replace(cfg.log, dir=_string("--log-dir", log_dir),
-                                                                   enabled=True))
+            gnss = dataclasses.replace(gnss, source="sim")
+        return self if gnss is self.gnss else dataclasses.replace(self, gnss=gnss)
+
+    def _with_log_flags(self, log_dir: str | None, log_enabled: bool | None) -> "Config":
+        """--log-dir turns logging on unless --no-log (log_enabled False) says otherwise."""
+        log = self.log
+        if log_dir is not None:
+            log = dataclasses.replace(log, dir=_string("--log-dir", log_dir), enabled=True)
         if log_enabled is not None:
-            cfg = dataclasses.replace(cfg, log=dataclasses.replace(cfg.log, enabled=log_enabled))
-        cfg.gnss.check("gnss")
-        cfg.check()
-        return cfg
+            log = dataclasses.replace(log, enabled=log_enabled)
+        return self if log is self.log else dataclasses.replace(self, log=log)
 
 
 SECTIONS = {

@@ -54,6 +54,7 @@ import re
 import select
 import time
 from dataclasses import dataclass
+from typing import NamedTuple
 from pathlib import Path
 
 import numpy as np
@@ -80,6 +81,19 @@ CHANNELS = ("in_voltage0_supply", "in_anglvel_x", "in_anglvel_y", "in_anglvel_z"
             "in_accel_z", "in_magn_x", "in_magn_y", "in_magn_z", "in_temp0", "in_voltage1", "in_timestamp")
 _TYPE = re.compile(r"^(be|le):([su])(\d+)/(\d+)(?:X(\d+))?>>(\d+)$")
 _GAP_BEFORE, _ALARM, _NEW_DATA = int(SampleFlags.GAP_BEFORE), int(SampleFlags.ALARM), int(SampleFlags.NEW_DATA)
+
+
+class _Block(NamedTuple):
+    """A block of records decoded at once (IioSource._convert): rows are records."""
+    gyro: np.ndarray         # rad/s, (n, 3)
+    accel: np.ndarray        # m/s², (n, 3)
+    mag: np.ndarray          # µT, (n, 3)
+    temp_c: np.ndarray       # (n,)
+    supply_v: np.ndarray     # (n,)
+    new_data: np.ndarray     # the chip's ND bit set on every sensor word, (n,) bool
+    alarm: np.ndarray        # the chip's EA bit on any sensor word, (n,) bool
+    garbage: np.ndarray      # a sensor word beyond 1.25 × its range: not a frame the chip sent, (n,) bool
+    saturated: np.ndarray    # each sensor word at or beyond its range, (n, 9) bool
 
 
 @dataclass(frozen=True)
@@ -334,63 +348,87 @@ class IioSource(LiveSource):
         if n == 0:
             return []
         ts_ns = {e.name: e.type for e in self.elements}["in_timestamp"].values(rec["in_timestamp"])
+        block = self._convert(self._storage_words(data, rec))
+        out: list[ImuSample] = []
+        self.stats["records"] += n
+        for i in range(n):
+            if not self._is_a_sample(block, i):
+                continue
+            flags = self._sequence_flags(int(ts_ns[i]))
+            if flags is None:
+                continue
+            flags |= self._status_flags(block, i)
+            out.append(ImuSample(self._last_ns * 1e-9, block.gyro[i], block.accel[i], block.mag[i],
+                                 float(block.temp_c[i]), float(block.supply_v[i]), SampleFlags(flags), 0, self._k))
+        self.stats["samples"] += len(out)
+        return out
+
+    def _storage_words(self, data: bytes, rec: np.ndarray) -> np.ndarray:
+        """The 12 data channels' storage words of each record, (n, 12) int64: a strided view when they lie side by
+        side (_prepare_words), else gathered by name."""
         if self._word_view is not None:
             off, dt = self._word_view
-            storage = np.ndarray((n, 12), dtype=dt, buffer=data, offset=off, strides=(self.record_bytes, dt.itemsize))
-            storage = storage.astype(np.int64)
-        else:
-            storage = np.stack([rec[name].astype(np.int64) for name in CHANNELS[:12]], axis=1)
+            storage = np.ndarray((len(rec), 12), dtype=dt, buffer=data, offset=off,
+                                 strides=(self.record_bytes, dt.itemsize))
+            return storage.astype(np.int64)
+        return np.stack([rec[name].astype(np.int64) for name in CHANNELS[:12]], axis=1)
+
+    def _convert(self, storage: np.ndarray) -> _Block:
+        """Storage words -> SI values, the chip's flag bits and the range checks, for a whole block at once."""
         lsb = (storage >> self._shift) & self._mask
         lsb = (lsb ^ self._half) - self._half               # sign-extend the signed channels
-        nd = ((storage[:, 1:10] >> 15) & 1).all(axis=1)      # the chip's flag bits above realbits
-        ea = ((storage[:, 1:10] >> 14) & 1).any(axis=1)
         si = (lsb + self._lsb_offset) * self._si_per_lsb
-        gyro, accel, mag = si[:, 1:4], si[:, 4:7], si[:, 7:10]
-        temp_c, supply_v = si[:, 10], si[:, 0]
-        raw9 = lsb[:, 1:10]
-        full = self._full9
-        absraw = np.abs(raw9)
-        garbage = (absraw > 1.25 * full).any(axis=1)
-        sat = absraw >= full
-        out: list[ImuSample] = []
+        absraw = np.abs(lsb[:, 1:10])
+        return _Block(gyro=si[:, 1:4], accel=si[:, 4:7], mag=si[:, 7:10], temp_c=si[:, 10], supply_v=si[:, 0],
+                      new_data=((storage[:, 1:10] >> 15) & 1).all(axis=1),    # the chip's flag bits above realbits
+                      alarm=((storage[:, 1:10] >> 14) & 1).any(axis=1),
+                      garbage=(absraw > 1.25 * self._full9).any(axis=1), saturated=absraw >= self._full9)
+
+    def _is_a_sample(self, block: _Block, i: int) -> bool:
+        """Record i is a sample: not garbage (beyond any range the chip reports), the chip's new-data bit set."""
+        if block.garbage[i]:
+            self.stats["garbage_frames"] += 1
+            return False
+        if not block.new_data[i]:
+            self.stats["stale"] += 1       # the interrupt came but the chip had no new sample: not a sample
+            return False
+        return True
+
+    def _sequence_flags(self, t_ns: int) -> int | None:
+        """The sample stamped t_ns placed in the sequence: NEW_DATA, GAP_BEFORE after lost samples (the index
+        advanced by the periods elapsed); None for a stamp not after the last one."""
         stats = self.stats
-        stats["records"] += n
-        for i in range(n):
-            if garbage[i]:
-                stats["garbage_frames"] += 1
-                continue
-            if not nd[i]:
-                stats["stale"] += 1       # the interrupt came but the chip had no new sample: not a sample
-                continue
-            t_ns = int(ts_ns[i])
-            last = self._last_ns
-            if last is not None and t_ns <= last:
-                stats["timestamp_backwards"] += 1
-                continue
-            step = 1 if last is None else max(1, int(round((t_ns - last) / self._period_ns)))
-            self._last_ns = t_ns
-            flags = _NEW_DATA
-            if step > 1 and self._k >= 0:
-                flags |= _GAP_BEFORE
-                stats["gaps"] += 1
-                stats["lost_samples_host"] += step - 1
-            self._k += step
-            if ea[i]:
-                flags |= _ALARM
-                stats["ea_flags"] += 1
-            s = sat[i]
-            if s[0:3].any():
-                flags |= int(SampleFlags.GYRO_SATURATED | SampleFlags.GYRO_INVALID)
-            if s[3:6].any():
-                flags |= int(SampleFlags.ACCEL_SATURATED | SampleFlags.ACCEL_INVALID)
-            if s[6:9].any():
-                flags |= int(SampleFlags.MAG_SATURATED | SampleFlags.MAG_INVALID)
-            if s.any():
-                stats["saturations"] += 1
-            out.append(ImuSample(t_ns * 1e-9, gyro[i], accel[i], mag[i], float(temp_c[i]), float(supply_v[i]),
-                                 SampleFlags(flags), 0, self._k))
-        stats["samples"] += len(out)
-        return out
+        last = self._last_ns
+        if last is not None and t_ns <= last:
+            stats["timestamp_backwards"] += 1
+            return None
+        step = 1 if last is None else max(1, int(round((t_ns - last) / self._period_ns)))
+        self._last_ns = t_ns
+        flags = _NEW_DATA
+        if step > 1 and self._k >= 0:
+            flags |= _GAP_BEFORE
+            stats["gaps"] += 1
+            stats["lost_samples_host"] += step - 1
+        self._k += step
+        return flags
+
+    def _status_flags(self, block: _Block, i: int) -> int:
+        """The chip's alarm bit and the saturated (hence invalid) sensors of sample i."""
+        flags = 0
+        stats = self.stats
+        if block.alarm[i]:
+            flags |= _ALARM
+            stats["ea_flags"] += 1
+        s = block.saturated[i]
+        if s[0:3].any():
+            flags |= int(SampleFlags.GYRO_SATURATED | SampleFlags.GYRO_INVALID)
+        if s[3:6].any():
+            flags |= int(SampleFlags.ACCEL_SATURATED | SampleFlags.ACCEL_INVALID)
+        if s[6:9].any():
+            flags |= int(SampleFlags.MAG_SATURATED | SampleFlags.MAG_INVALID)
+        if s.any():
+            stats["saturations"] += 1
+        return flags
 
     def _open_buffer(self) -> None:
         try:

@@ -86,39 +86,61 @@ def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
 
         return ProcessSource(sensor_cfg, faults=faults)     # the same source, read in a child process
     if kind == "replay":
-        from ahrsd.drivers.recording import iter_samples
-
-        # a recording cut mid-row (a recorder killed) replays its complete rows, with a warning naming the line
-        return ReplaySource(iter_samples(sensor_cfg.replay_file, strict=False), f"replay {sensor_cfg.replay_file}",
-                            realtime=sensor_cfg.replay_realtime, clock=clock,
-                            speed=getattr(sensor_cfg, "replay_speed", 1.0))
-    if kind == "iio":
-        if faults is not None:
-            raise ValueError("fault injection (--sim-faults) needs the simulated sensor, not --iio")
-        from ahrsd.drivers.iio_source import IioSource
-
-        src = IioSource(sensor_cfg.iio_device, clock=clock)
-        src.start()
-        return _off_the_loop(src, sensor_cfg, clock)
-    if kind == "spi":
-        if faults is not None:
-            raise ValueError("fault injection (--sim-faults) needs the simulated sensor, not --spi")
-        path = sensor_cfg.spi_device
-        spec = getattr(sensor_cfg, "data_ready", "")
-        if spec:
-            from ahrsd.drivers.data_ready import DataReadyTimer, open_gpio_line
-
-            line = open_gpio_line(spec)
-            src = ReconnectingSource(lambda: open_chip_bus("spi", spi_device=path), _data_ready_driver,
-                                     f"ADIS16405 on {path}, paced by data-ready on {spec}", clock=clock,
-                                     make_timer=lambda period_s: DataReadyTimer(line, period_s))
-        else:
-            src = ReconnectingSource(lambda: open_chip_bus("spi", spi_device=path), open_chip_driver,
-                                     f"ADIS16405 on {path}", clock=clock)
-        src.start()
-        return _off_the_loop(src, sensor_cfg, clock)
-    if kind != "sim":
+        return _replay_source(sensor_cfg, clock)
+    build = {"iio": _iio_source, "spi": _spi_chip_source, "sim": _simulated_chip_source}.get(kind)
+    if build is None:
         raise ValueError(f"no sensor source {kind!r}: choose sim, spi, iio or replay")
+    src = build(sensor_cfg, clock, faults)
+    src.start()
+    return _off_the_loop(src, sensor_cfg, clock)
+
+
+def _replay_source(sensor_cfg, clock) -> ReplaySource:
+    """A recording (`replay_file`), at its recorded pace × `replay_speed` or as fast as it is read."""
+    from ahrsd.drivers.recording import iter_samples
+
+    # a recording cut mid-row (a recorder killed) replays its complete rows, with a warning naming the line
+    return ReplaySource(iter_samples(sensor_cfg.replay_file, strict=False), f"replay {sensor_cfg.replay_file}",
+                        realtime=sensor_cfg.replay_realtime, clock=clock,
+                        speed=getattr(sensor_cfg, "replay_speed", 1.0))
+
+
+def _iio_source(sensor_cfg, clock, faults):
+    """The kernel's IIO driver (`iio_device`), not started."""
+    if faults is not None:
+        raise ValueError("fault injection (--sim-faults) needs the simulated sensor, not --iio")
+    from ahrsd.drivers.iio_source import IioSource
+
+    return IioSource(sensor_cfg.iio_device, clock=clock)
+
+
+def _paced_by(line) -> dict:
+    """The ReconnectingSource timing for reads paced by a data-ready `line` (drivers.data_ready)."""
+    from ahrsd.drivers.data_ready import DataReadyTimer
+
+    return {"make_timer": lambda period_s: DataReadyTimer(line, period_s)}
+
+
+def _spi_chip_source(sensor_cfg, clock, faults) -> ReconnectingSource:
+    """The real chip on `spi_device`, re-opened when the bus fails, paced by the host timer or, when `data_ready`
+    names its GPIO line, by the chip's data-ready edges; not started."""
+    if faults is not None:
+        raise ValueError("fault injection (--sim-faults) needs the simulated sensor, not --spi")
+    path = sensor_cfg.spi_device
+    spec = getattr(sensor_cfg, "data_ready", "")
+    if not spec:
+        return ReconnectingSource(lambda: open_chip_bus("spi", spi_device=path), open_chip_driver,
+                                  f"ADIS16405 on {path}", clock=clock)
+    from ahrsd.drivers.data_ready import open_gpio_line
+
+    return ReconnectingSource(lambda: open_chip_bus("spi", spi_device=path), _data_ready_driver,
+                              f"ADIS16405 on {path}, paced by data-ready on {spec}", clock=clock,
+                              **_paced_by(open_gpio_line(spec)))
+
+
+def _simulated_chip_source(sensor_cfg, clock, faults):
+    """The simulated chip flying `scenario` (faults injected as planned), read as the real one is and accounted
+    against its truth (drivers.ground_truth); not started."""
     from ahrsd.drivers.ground_truth import BurstIndexTap, GroundTruthSource
 
     # the simulator's work in a process of its own, out of the reader's GIL (drivers.sim_block_producer)
@@ -128,16 +150,12 @@ def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
     tap = BurstIndexTap(chip)
     timing = {}
     if getattr(sensor_cfg, "data_ready", ""):       # the simulated chip's own DIO1 (drivers.simulated)
-        from ahrsd.drivers.data_ready import DataReadyTimer
         from ahrsd.drivers.simulated import SimulatedDataReadyLine
 
-        line = SimulatedDataReadyLine(chip, host_clock=clock)
-        timing = {"make_timer": lambda period_s: DataReadyTimer(line, period_s)}
+        timing = _paced_by(SimulatedDataReadyLine(chip, host_clock=clock))
         what += ", paced by its data-ready line"
-    src = GroundTruthSource(ReconnectingSource(lambda: tap, _data_ready_driver if timing else open_chip_driver,
-                                               what, clock=clock, reopen_same_bus=True, **timing), chip, tap)
-    src.start()
-    return _off_the_loop(src, sensor_cfg, clock)
+    return GroundTruthSource(ReconnectingSource(lambda: tap, _data_ready_driver if timing else open_chip_driver,
+                                                what, clock=clock, reopen_same_bus=True, **timing), chip, tap)
 
 
 def reader_kind(sensor_cfg) -> str:
