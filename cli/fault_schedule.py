@@ -89,61 +89,79 @@ def parse_schedule(text: str) -> list[FaultWindow]:
     """Parse a schedule string into windows (raises FaultScheduleError naming the bad item)."""
     windows: list[FaultWindow] = []
     for item in (s.strip() for s in text.split(";")):
-        if not item:
-            continue
-        head, _, opts = item.partition(":")
-        kind_text, at, span = head.partition("@")
-        try:
-            kind = FaultKind(kind_text.strip().lower())
-        except ValueError:
-            raise FaultScheduleError(f"fault {item!r}: kind {kind_text!r} unknown; one of "
-                                     f"{', '.join(k.value for k in FaultKind)}") from None
-        if not at:
-            raise FaultScheduleError(f"fault {item!r}: expected KIND@START[-STOP]")
-        start_text, dash, stop_text = span.partition("-")
-        start = _float(item, "start", start_text)
-        stop = _float(item, "stop", stop_text) if dash else None
-        if stop is not None and stop <= start:
-            raise FaultScheduleError(f"fault {item!r}: stop {stop:g} s must be after start {start:g} s")
-        options: dict = {}
-        every, until = None, DEFAULT_REPEAT_UNTIL_S
-        for opt in filter(None, (o.strip() for o in opts.split(","))):
-            key, eq, value = opt.partition("=")
-            if not eq:
-                raise FaultScheduleError(f"fault {item!r}: option {opt!r} is not KEY=VALUE")
-            if key == "p":
-                p = _float(item, "p", value)
-                if p > 1.0:
-                    raise FaultScheduleError(f"fault {item!r}: p must be in [0, 1]")
-                options["probability"] = p
-            elif key == "axis":
-                options["axis"] = _axis(item, value)
-            elif key == "sign":
-                if value not in ("1", "+1", "-1"):
-                    raise FaultScheduleError(f"fault {item!r}: sign must be +1 or -1")
-                options["sign"] = int(value)
-            elif key == "bits":
-                options["diag_bits"] = _bits(item, value)
-            elif key == "every":
-                every = _float(item, "every", value)
-            elif key == "until":
-                until = _float(item, "until", value)
-            else:
-                raise FaultScheduleError(f"fault {item!r}: option {key!r} unknown (p, axis, sign, bits, every, until)")
-        if every is None:
-            windows.append(FaultWindow(kind, start, stop, options))
-            continue
-        if stop is None or every <= stop - start:
-            raise FaultScheduleError(f"fault {item!r}: every= needs a STOP and a period longer than the window")
-        t, n = start, 0
-        while t < until:
-            windows.append(FaultWindow(kind, t, t + (stop - start), options))
-            t, n = start + (n + 1) * every, n + 1
-            if n > MAX_WINDOWS:
-                raise FaultScheduleError(f"fault {item!r}: more than {MAX_WINDOWS} windows; raise every= or lower until=")
+        if item:
+            windows += _parse_item(item)
     if not windows:
         raise FaultScheduleError("empty fault schedule")
     return windows
+
+
+def _parse_item(item: str) -> list[FaultWindow]:
+    """One KIND@START[-STOP][:OPTIONS] item: its window, or its windows repeated `every` seconds `until`."""
+    head, _, opts = item.partition(":")
+    kind, start, stop = _parse_head(item, head)
+    options, every, until = _parse_options(item, opts)
+    if every is None:
+        return [FaultWindow(kind, start, stop, options)]
+    if stop is None or every <= stop - start:
+        raise FaultScheduleError(f"fault {item!r}: every= needs a STOP and a period longer than the window")
+    windows = []
+    t, n = start, 0
+    while t < until:
+        windows.append(FaultWindow(kind, t, t + (stop - start), options))
+        t, n = start + (n + 1) * every, n + 1
+        if n > MAX_WINDOWS:
+            raise FaultScheduleError(f"fault {item!r}: more than {MAX_WINDOWS} windows; raise every= or lower until=")
+    return windows
+
+
+def _parse_head(item: str, head: str) -> tuple[FaultKind, float, float | None]:
+    """KIND@START[-STOP]: the kind, the start and the stop (None: to the end of the run), s."""
+    kind_text, at, span = head.partition("@")
+    try:
+        kind = FaultKind(kind_text.strip().lower())
+    except ValueError:
+        raise FaultScheduleError(f"fault {item!r}: kind {kind_text!r} unknown; one of "
+                                 f"{', '.join(k.value for k in FaultKind)}") from None
+    if not at:
+        raise FaultScheduleError(f"fault {item!r}: expected KIND@START[-STOP]")
+    start_text, dash, stop_text = span.partition("-")
+    start = _float(item, "start", start_text)
+    stop = _float(item, "stop", stop_text) if dash else None
+    if stop is not None and stop <= start:
+        raise FaultScheduleError(f"fault {item!r}: stop {stop:g} s must be after start {start:g} s")
+    return kind, start, stop
+
+
+def _parse_options(item: str, opts: str) -> tuple[dict, float | None, float]:
+    """KEY=VALUE,...: the fault's options (p, axis, sign, bits), its repeat period `every` (None: once) and the
+    time repeats stop at, `until`."""
+    options: dict = {}
+    every, until = None, DEFAULT_REPEAT_UNTIL_S
+    for opt in filter(None, (o.strip() for o in opts.split(","))):
+        key, eq, value = opt.partition("=")
+        if not eq:
+            raise FaultScheduleError(f"fault {item!r}: option {opt!r} is not KEY=VALUE")
+        if key == "p":
+            p = _float(item, "p", value)
+            if p > 1.0:
+                raise FaultScheduleError(f"fault {item!r}: p must be in [0, 1]")
+            options["probability"] = p
+        elif key == "axis":
+            options["axis"] = _axis(item, value)
+        elif key == "sign":
+            if value not in ("1", "+1", "-1"):
+                raise FaultScheduleError(f"fault {item!r}: sign must be +1 or -1")
+            options["sign"] = int(value)
+        elif key == "bits":
+            options["diag_bits"] = _bits(item, value)
+        elif key == "every":
+            every = _float(item, "every", value)
+        elif key == "until":
+            until = _float(item, "until", value)
+        else:
+            raise FaultScheduleError(f"fault {item!r}: option {key!r} unknown (p, axis, sign, bits, every, until)")
+    return options, every, until
 
 
 def build_plan(windows: list[FaultWindow], rate_hz: float, seed: int = 0) -> FaultPlan:

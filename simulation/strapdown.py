@@ -75,17 +75,7 @@ def mechanise_ned(t_s, gyro_rad_s, accel_m_s2, q0_wxyz, v0_ned_m_s, lat0_deg: fl
     quats = np.empty((n, 4))
     vel = np.empty((n, 3))
     pos = np.empty((n, 3))
-
-    def vdot(c_rot, f_body, v_, lat_, h_):
-        w_ie, w_en = _rates_ned(lat_, h_, v_, earth_rate)
-        g = np.array([0.0, 0.0, g_of(np.degrees(lat_), h_)])
-        return c_rot.apply(f_body) - np.cross(2.0 * w_ie + w_en, v_) + g
-
-    def posdot(v_, lat_, h_):
-        r = EARTH_RADIUS_M + h_
-        return np.array([v_[0] / r, v_[1] / (r * np.cos(lat_)), -v_[2]])
-
-    a_k = vdot(c, f_b[0], v, lat, h)
+    a_k = _v_dot(c, f_b[0], v, lat, h, earth_rate, g_of)
     for k in range(n):
         q = c.as_quat()
         quats[k] = (q[3], q[0], q[1], q[2])
@@ -93,20 +83,38 @@ def mechanise_ned(t_s, gyro_rad_s, accel_m_s2, q0_wxyz, v0_ned_m_s, lat0_deg: fl
         pos[k] = (lat, lon, h)
         if k == n - 1:
             break
-        dt = t[k + 1] - t[k]
-        w_ie, w_en = _rates_ned(lat, h, v, earth_rate)
-        w_nb = 0.5 * (w_b[k] + w_b[k + 1]) - c.inv().apply(w_ie + w_en)
-        c_next = c * Rotation.from_rotvec(w_nb * dt)
-        v_pred = v + dt * a_k
-        p_dot_k = posdot(v, lat, h)
-        lat_p, lon_p, h_p = np.array([lat, lon, h]) + dt * p_dot_k
-        a_next = vdot(c_next, f_b[k + 1], v_pred, lat_p, h_p)
-        v_next = v + 0.5 * dt * (a_k + a_next)
-        lat, lon, h = np.array([lat, lon, h]) + 0.5 * dt * (p_dot_k + posdot(v_next, lat_p, h_p))
-        a_k = vdot(c_next, f_b[k + 1], v_next, lat, h)
-        c, v = c_next, v_next
+        c, v, (lat, lon, h), a_k = _heun_step(t[k + 1] - t[k], c, v, lat, lon, h, a_k, w_b[k], w_b[k + 1],
+                                             f_b[k + 1], earth_rate, g_of)
     quats *= np.where(quats[:, :1] < 0, -1.0, 1.0)
     return NavSolution(t, quats, vel, np.degrees(pos[:, 0]), np.degrees(pos[:, 1]), pos[:, 2])
+
+
+def _v_dot(c_rot, f_body, v, lat, h, earth_rate: bool, g_of):
+    """Step 4's V̇ = C_b^n f^b − (2ω_ie + ω_en) × V + g at attitude c_rot, NED velocity v, latitude lat (rad), h."""
+    w_ie, w_en = _rates_ned(lat, h, v, earth_rate)
+    g = np.array([0.0, 0.0, g_of(np.degrees(lat), h)])
+    return c_rot.apply(f_body) - np.cross(2.0 * w_ie + w_en, v) + g
+
+
+def _pos_dot(v, lat, h):
+    """Step 5's (L̇, λ̇, ḣ) for NED velocity v at latitude lat (rad) and height h."""
+    r = EARTH_RADIUS_M + h
+    return np.array([v[0] / r, v[1] / (r * np.cos(lat)), -v[2]])
+
+
+def _heun_step(dt, c, v, lat, lon, h, a_k, w_k, w_next, f_next, earth_rate: bool, g_of):
+    """Steps 1–5 from sample k to k+1: (C_b^n, V, (L, λ, h), V̇) at k+1 from their values at k (a_k = V̇ at k),
+    the gyro samples at k and k+1 and the accelerometer sample at k+1."""
+    w_ie, w_en = _rates_ned(lat, h, v, earth_rate)
+    w_nb = 0.5 * (w_k + w_next) - c.inv().apply(w_ie + w_en)
+    c_next = c * Rotation.from_rotvec(w_nb * dt)
+    v_pred = v + dt * a_k
+    p_dot_k = _pos_dot(v, lat, h)
+    lat_p, lon_p, h_p = np.array([lat, lon, h]) + dt * p_dot_k
+    a_next = _v_dot(c_next, f_next, v_pred, lat_p, h_p, earth_rate, g_of)
+    v_next = v + 0.5 * dt * (a_k + a_next)
+    position = np.array([lat, lon, h]) + 0.5 * dt * (p_dot_k + _pos_dot(v_next, lat_p, h_p))
+    return c_next, v_next, position, _v_dot(c_next, f_next, v_next, position[0], position[2], earth_rate, g_of)
 
 
 @dataclass(frozen=True, eq=False)
