@@ -40,6 +40,7 @@ from support.fake_autopilot_yaw import FakeEkf2, FakeEkf3, warm_up  # noqa: E402
 
 from ahrsd.daemon.heading_slew import HeadingSlew  # noqa: E402
 from ahrsd.estimator.published_heading import PublishedHeading  # noqa: E402
+from ahrsd.estimator.slewed_yaw import YawSlew  # noqa: E402
 
 VPE_HZ = 30.0
 SIGMA_DEG = 0.5
@@ -92,7 +93,15 @@ def slew(make, step_deg: float, rate_deg_s: float, rule) -> tuple[int, float, fl
     return ap.rejected, getattr(ap, "max_test_ratio", math.nan), overshoot, off[-1] if off else 0.0, t_end
 
 
-def ins_reset_slew_out(run, rate_deg_s: float, wrong_deg: float = 100.0):
+class HypotYawSlew(YawSlew):
+    """The slew with the σ ins published before estimator/slewed_yaw.py: the offset counted as a 1σ error."""
+
+    @staticmethod
+    def sigma_rad(sigma_rad: float, offset_rad: float) -> float:
+        return math.hypot(sigma_rad, offset_rad)
+
+
+def ins_reset_slew_out(run, rate_deg_s: float, wrong_deg: float = 100.0, slew=YawSlew):
     """ins on the boat, its yaw `wrong_deg` off the truth from 40 s with σ 0.5° (a wrong calibration that claimed
     to be good: no fix or magnetometer sample for 10 s, so nothing pulls it back), and that wrong yaw published
     (the published heading restarted on it) to a fake ArduPilot EKF3 that has fused it for 2 min; at 50 s the yaw
@@ -101,7 +110,8 @@ def ins_reset_slew_out(run, rate_deg_s: float, wrong_deg: float = 100.0):
     rotation is common to both EKFs: tests/support/fake_autopilot_yaw.py is a vehicle at rest) with the published
     σ at 30 Hz. Returns the share of 30 Hz messages beyond the published 3σ from 50 s, the fake, and how often
     ins's own heading checks reset its yaw after that (beyond the planted two; their GNSS yaw bank went through the
-    10 s without fixes too, so it can be wrong then: the published yaw then follows a wrong filter)."""
+    10 s without fixes too, so it can be wrong then: the published yaw then follows a wrong filter). slew: the
+    YawSlew class ins's published heading slews with (HypotYawSlew: the σ rule before)."""
     from scipy.spatial.transform import Rotation
 
     from ahrsd.core.gnss import GnssFix
@@ -114,6 +124,7 @@ def ins_reset_slew_out(run, rate_deg_s: float, wrong_deg: float = 100.0):
 
     est = Ins(declination_rad=run.declination_rad, mag_calibration_sigma_rad=run.mag_calibration_sigma_rad,
               published_yaw_slew_rad_s=math.radians(rate_deg_s))
+    est._published._slew = slew(est._published.max_rate_rad_s)       # the rule compared
     k_wrong, k_right = np.searchsorted(run.t_s, [40.0, 50.0])
     fixes = [f for f in run.fixes if not 40.0 <= f.t_s < 50.0]
     ekf3 = FakeEkf3(0.05)
@@ -151,25 +162,20 @@ def ins_reset_slew_out(run, rate_deg_s: float, wrong_deg: float = 100.0):
 
 
 def ins_on_the_boat(seeds: list[int]) -> None:
-    import ahrsd.estimator.published_heading as published_heading
     from bench.vehicle_accuracy import simulate_vehicle
 
-    rules = {"σ + |offset|/3": published_heading.slewed_yaw_sigma_rad, "hypot (before)": math.hypot}
+    rules = {"σ + |offset|/3": YawSlew, "hypot (before)": HypotYawSlew}
     print("ins on the boat, yaw reset to the truth at 50 s after 10 s published D off it, slewed out at 2 °/s; "
           "fake EKF3 VISO_YAW_M_NSE 0.05")
-    try:
-        for seed in seeds:
-            run = simulate_vehicle("boat", 150.0, seed, None)
-            for wrong_deg in (30.0, 60.0, 90.0, 120.0, 170.0):
-                for name, rule in rules.items():
-                    published_heading.slewed_yaw_sigma_rad = rule      # the σ ins publishes, swapped to compare
-                    beyond, ekf3, own_resets = ins_reset_slew_out(run, 2.0, wrong_deg)
-                    print(f"  seed {seed:3d}  D {wrong_deg:5.0f}°  {name:15s} beyond 3σ {100 * beyond:5.2f} %  "
-                          f"rejected {ekf3.rejected:5d}  test ratio {ekf3.max_test_ratio:6.2f}  "
-                          f"EKF3 yaw error at 150 s {math.degrees(ekf3.yaw):7.2f}°  ins's own resets after "
-                          f"{own_resets}", flush=True)
-    finally:
-        published_heading.slewed_yaw_sigma_rad = rules["σ + |offset|/3"]
+    for seed in seeds:
+        run = simulate_vehicle("boat", 150.0, seed, None)
+        for wrong_deg in (30.0, 60.0, 90.0, 120.0, 170.0):
+            for name, slew in rules.items():
+                beyond, ekf3, own_resets = ins_reset_slew_out(run, 2.0, wrong_deg, slew)
+                print(f"  seed {seed:3d}  D {wrong_deg:5.0f}°  {name:15s} beyond 3σ {100 * beyond:5.2f} %  "
+                      f"rejected {ekf3.rejected:5d}  test ratio {ekf3.max_test_ratio:6.2f}  "
+                      f"EKF3 yaw error at 150 s {math.degrees(ekf3.yaw):7.2f}°  ins's own resets after "
+                      f"{own_resets}", flush=True)
 
 
 def main() -> None:

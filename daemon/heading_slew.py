@@ -7,7 +7,7 @@ import math
 from dataclasses import dataclass
 
 from ahrsd.core.angles import wrap_pi
-from ahrsd.estimator.slewed_yaw import slew_rate_rad_s, slewed_yaw_sigma_rad
+from ahrsd.estimator.slewed_yaw import YawSlew
 
 # the longest interval between two published headings the slew moves across in one step: ArduPilot needs external
 # navigation data at > 3.3 Hz (docs/daemon.md); a longer interval is a gap in what the autopilot received, and the
@@ -27,9 +27,10 @@ class HeadingSlew:
     (libraries/AP_NavEKF3/AP_NavEKF3_MagFusion.cpp, fuseEulerYaw, gate EK3_YAW_I_GATE), so after
     `start_transition()` the published heading follows the vehicle's own rotation (yaw rate from the
     estimator) and moves towards the estimator's new heading at no more than `max_rate_deg_s` (a restart
-    with another heading uses its own rate: daemon.restart_heading), and no more than
-    estimator.slewed_yaw.LARGE_OFFSET_MAX_RATE_RAD_S while the offset is large (the rule ins's published heading
-    follows too). Outside a transition it passes the heading through unchanged.
+    with another heading uses its own rate: daemon.restart_heading), by the slew ins's published heading takes
+    too (estimator.slewed_yaw.YawSlew: slower while the offset is large, its σ). What is particular here: the
+    heading sent is kept (not an offset), the vehicle's rotation comes as a yaw rate, a transition has a start, a
+    hold and an end. Outside a transition it passes the heading through unchanged.
 
     A transition needs a heading the autopilot has: when none was ever sent (a first calibration of a vehicle
     whose heading was unknown: the VPE was withheld) or the last was sent more than MAX_SLEW_FROM_AGE_S ago,
@@ -101,7 +102,7 @@ class HeadingSlew:
     def published_sigma_rad(self, sigma_rad: float) -> float:
         """The 1σ of the published yaw for the estimator's yaw 1σ: σ + |remaining|/3 (estimator/slewed_yaw.py
         says why; docs/daemon.md "Calibration changes")."""
-        return slewed_yaw_sigma_rad(sigma_rad, self.remaining_rad)
+        return YawSlew.sigma_rad(sigma_rad, self.remaining_rad)
 
     def follow(self, t_s: float, heading_rad: float, yaw_rate_rad_s: float) -> None:
         """No heading is published at t_s (VPE withheld): during a transition the published heading turns with
@@ -147,14 +148,15 @@ class HeadingSlew:
                 self.remaining_rad = float(wrap_pi(heading_rad - self._published))
                 return self._published
             self.hold_until_s = None
-        err = float(wrap_pi(heading_rad - predicted))
-        step = slew_rate_rad_s(math.radians(self.current_rate_deg_s), sigma_rad, err) * min(dt, MAX_STEP_INTERVAL_S)
-        if abs(err) <= max(step, math.radians(self.done_within_deg)):
+        to_go = float(wrap_pi(heading_rad - predicted))     # the estimator's heading minus the predicted one sent
+        slew = YawSlew(math.radians(self.current_rate_deg_s), arrive_within_rad=math.radians(self.done_within_deg))
+        move, arrived = slew.step(-to_go, sigma_rad, min(dt, MAX_STEP_INTERVAL_S))
+        if arrived:
             self._published = heading_rad % (2 * math.pi)
-            if abs(err) <= math.radians(self.done_within_deg) and t_s - self._t_start >= self.min_duration_s:
+            if abs(to_go) <= slew.arrive_within_rad and t_s - self._t_start >= self.min_duration_s:
                 self.active = False
                 self.ended_why = "slewed in"
         else:
-            self._published = (predicted + math.copysign(step, err)) % (2 * math.pi)
+            self._published = (predicted + move) % (2 * math.pi)
         self.remaining_rad = float(wrap_pi(heading_rad - self._published))
         return self._published

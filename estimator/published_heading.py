@@ -13,15 +13,16 @@ rate explains (the ZYX Euler kinematics ψ̇ = (q sinφ + r cosφ)/cosθ, trapez
 vehicle's own rotation is never slowed; a correction up to `max_rate_rad_s`·Δt passes at once (the filter's
 routine updates), only the excess enters the offset.
 
-The published 1σ covers the offset, and the slew rate is held down while that σ is large, by the rule the
-daemon's slews follow too (estimator/slewed_yaw.py: σ_pub = σ + |offset|/3, so 3σ_pub covers the offset and the
-filter's own 3σ; no more than 2 °/s while σ_pub is above EKF3's 5° floor, so an autopilot fusing it follows)."""
+The slew is estimator/slewed_yaw.YawSlew, the one the daemon's slews build on too: the published 1σ covers the
+offset and the rate is held down while that σ is large (σ_pub = σ + |offset|/3, so 3σ_pub covers the offset and the
+filter's own 3σ; no more than 2 °/s while σ_pub is above EKF3's 5° floor, so an autopilot fusing it follows). What
+is particular here is which change is a correction (above) and that the offset is kept, not the published yaw."""
 
 from __future__ import annotations
 
 import math
 
-from .slewed_yaw import slew_rate_rad_s, slewed_yaw_sigma_rad
+from .slewed_yaw import YawSlew
 
 _TWO_PI = 2.0 * math.pi
 _MIN_COS_PITCH = 1e-3    # at ±90° pitch yaw is undefined: every change there counts as motion
@@ -36,6 +37,7 @@ class PublishedHeading:
         if not (max_rate_rad_s > 0.0):
             raise ValueError(f"max_rate_rad_s must be > 0, got {max_rate_rad_s!r}")
         self.max_rate_rad_s = float(max_rate_rad_s)
+        self._slew = YawSlew(self.max_rate_rad_s)
         self.offset_rad = 0.0
         self.absorbed = 0            # samples at which a correction faster than the rate was absorbed
         self._t_s = math.nan
@@ -53,7 +55,7 @@ class PublishedHeading:
         """The offset for the filter's yaw (any north: only differences are used) at t_s, its roll, pitch,
         bias-corrected body rate (rad/s) and yaw 1σ (with the offset it sets the slew rate: slewed_yaw.py)."""
         # once per sample at 819.2 SPS, so written out without helper calls (a call costs more than its
-        # arithmetic) but the slew rate's rule, shared with the daemon: ψ̇ of the ZYX kinematics, and angles
+        # arithmetic) but the slew's step, shared with the daemon: ψ̇ of the ZYX kinematics, and angles
         # wrapped to ±π as (a + π) mod 2π − π
         cp = math.cos(pitch_rad)
         if abs(cp) < _MIN_COS_PITCH:
@@ -74,16 +76,12 @@ class PublishedHeading:
             correction = 0.0
         self._t_s, self._yaw, self._yaw_rate = t_s, yaw_rad, rate
         o = (self.offset_rad - correction + math.pi) % _TWO_PI - math.pi
-        allowed = slew_rate_rad_s(self.max_rate_rad_s, sigma_rad, o) * dt
-        if abs(o) <= allowed:
-            o = 0.0
-        else:
-            if abs(correction) > allowed:
-                self.absorbed += 1
-            o -= math.copysign(allowed, o)
-        self.offset_rad = o
-        return o
+        move, arrived = self._slew.step(o, sigma_rad, dt)
+        if not arrived and abs(correction) > abs(move):      # more came in than one step takes out
+            self.absorbed += 1
+        self.offset_rad = o + move
+        return self.offset_rad
 
     def published_sigma(self, sigma_rad: float) -> float:
         """The published yaw 1σ for the filter's 1σ: σ + |offset|/3 (slewed_yaw.py)."""
-        return slewed_yaw_sigma_rad(sigma_rad, self.offset_rad) if self.offset_rad else sigma_rad
+        return self._slew.sigma_rad(sigma_rad, self.offset_rad) if self.offset_rad else sigma_rad

@@ -1,6 +1,9 @@
-"""The 1σ and the rate of a yaw that is slewed towards the estimator's: what an output sends while a heading change
-is moved in at a bounded rate (ins's published heading after a yaw reset, estimator/published_heading.py; the
-daemon's slew of a calibration change or a restart, daemon/heading_slew.py).
+"""A yaw slewed towards the estimator's (`YawSlew`): what an output sends while a heading change is moved in at a
+bounded rate — its step and its 1σ. Two outputs build on it: ins's published heading, which absorbs the filter's
+corrections (a yaw reset, fast GNSS updates) into an offset and slews it out (estimator/published_heading.py), and
+the daemon's slew of a calibration change or a restart to the autopilot (daemon/heading_slew.py). Each keeps its
+own published yaw (an offset from the filter's yaw, or the heading sent) and separates the vehicle's own rotation,
+which is never slowed, from what is slewed; the step and the σ are this module's.
 
 σ: the slewed yaw is off the estimator's by the offset d still to come, a known error, and the estimator's own
 error e is on top of it: |d + e| ≤ |d| + |e| ≤ 3·(σ + |d|/3) whenever |e| ≤ 3σ. So with σ_sent = σ + |d|/3 the
@@ -41,3 +44,30 @@ def slew_rate_rad_s(rate_rad_s: float, sigma_rad: float, offset_rad: float) -> f
     if rate_rad_s > LARGE_OFFSET_MAX_RATE_RAD_S and slewed_yaw_sigma_rad(sigma_rad, offset_rad) > EKF3_YAW_FLOOR_RAD:
         return LARGE_OFFSET_MAX_RATE_RAD_S
     return rate_rad_s
+
+
+class YawSlew:
+    """One rule for every slewed yaw: the published yaw moves towards the estimator's at no more than `rate_rad_s`
+    (slew_rate_rad_s: slower while the σ sent is above EKF3's floor), all the way once it is within that step or
+    within `arrive_within_rad`; the σ sent with it is sigma_rad (σ + |offset|/3)."""
+
+    __slots__ = ("rate_rad_s", "arrive_within_rad")
+
+    def __init__(self, rate_rad_s: float, arrive_within_rad: float = 0.0):
+        self.rate_rad_s = rate_rad_s
+        self.arrive_within_rad = arrive_within_rad
+
+    def step(self, offset_rad: float, sigma_rad: float, dt_s: float) -> tuple[float, bool]:
+        """(move, arrived) for a published yaw `offset_rad` off the estimator's (published − estimator's, within
+        ±π) whose own 1σ is `sigma_rad`, over dt_s: the move to add to the published yaw, −offset_rad when it
+        arrives, else the step against the offset."""
+        allowed = slew_rate_rad_s(self.rate_rad_s, sigma_rad, offset_rad) * dt_s
+        size = abs(offset_rad)
+        if size <= allowed or size <= self.arrive_within_rad:
+            return -offset_rad, True
+        return -math.copysign(allowed, offset_rad), False
+
+    @staticmethod
+    def sigma_rad(sigma_rad: float, offset_rad: float) -> float:
+        """The 1σ of the published yaw `offset_rad` off the estimator's, whose 1σ is `sigma_rad`: σ + |offset|/3."""
+        return slewed_yaw_sigma_rad(sigma_rad, offset_rad)
