@@ -14,6 +14,7 @@ Exit status: 0 done, 1 bad input (recording, calibration, parameters, output pat
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 from ahrsd.estimator import ESTIMATORS
 
@@ -261,10 +262,20 @@ class ReplayUsageError(ReplayError):
 
 
 def run(args) -> int:
+    """`ahrsd replay`: the estimator compiled (and announced) through cli.warm_up, as `ahrsd run` does."""
+    from ahrsd.cli import warm_up
+
+    return replay_command(args, compile_estimator=warm_up.compile_estimator, count_compiles=warm_up.numba_compiles)
+
+
+def replay_command(args, *, compile_estimator: Callable[[str], object], count_compiles: Callable[[], int]) -> int:
+    """The replay `args` (the parsed command line) asks for; the exit status. Its estimator is compiled first by
+    `compile_estimator(name)`, and `count_compiles()` (numba's compiles so far) tells a compile from a cache load.
+    Bad input is one line on stderr: status 1, or 2 for an option that cannot work as given."""
     import sys
 
     try:
-        return _run(args)
+        return _run(args, compile_estimator, count_compiles)
     except ReplayError as exc:
         print(f"ahrsd replay: error: {exc}", file=sys.stderr)
         return 2 if isinstance(exc, ReplayUsageError) else 1
@@ -291,7 +302,7 @@ def _plot(args, trace, title: str, fixes) -> None:
         raise ReplayError(f"{args.plot}: cannot write the plot: {exc.strerror or exc}") from None
 
 
-def _run(args) -> int:
+def _run(args, compile_estimator: Callable[[str], object], count_compiles: Callable[[], int]) -> int:
     """Read the inputs, build the estimator, replay the recording into the output, draw, and summarise."""
     import os
     import time
@@ -307,7 +318,7 @@ def _run(args) -> int:
         raise ReplayError(f"{args.recording}: is a directory, not a recording")
     compile_wall_s = compile_cpu_s = 0.0
     if os.path.isfile(args.recording):   # a missing one fails at once, without a compile
-        compile_wall_s, compile_cpu_s = _compile_announced(estimator_name)
+        compile_wall_s, compile_cpu_s = _compile_announced(estimator_name, compile_estimator, count_compiles)
     estimator = _make_estimator(estimator_name, declination, calibration, params, aided=fixes is not None)
     done = _replay(args, estimator, calibration, fixes, trace)
     if trace is not None:
@@ -324,7 +335,8 @@ def _run(args) -> int:
     return 0
 
 
-def _compile_announced(estimator_name: str) -> tuple[float, float]:
+def _compile_announced(estimator_name: str, compile_estimator: Callable[[str], object],
+                       count_compiles: Callable[[], int]) -> tuple[float, float]:
     """Compile the estimator first, as `ahrsd run` does, so the first replay after an install says "compiling the
     … estimator" instead of sitting silent while it compiles (cli.warm_up; a cached start says nothing). The "ahrsd"
     logger is raised to INFO for that only: the replay's own log stays at the command line's level.
@@ -334,19 +346,17 @@ def _compile_announced(estimator_name: str) -> tuple[float, float]:
     import logging
     import time
 
-    from ahrsd.cli import warm_up
-
     logger = logging.getLogger("ahrsd")
     level = logger.level
     if not logger.isEnabledFor(logging.INFO):
         logger.setLevel(logging.INFO)
-    compiles_before = warm_up.numba_compiles()
+    compiles_before = count_compiles()
     wall_start, cpu_start = time.perf_counter(), time.process_time()
     try:
-        warm_up.compile_estimator(estimator_name)
+        compile_estimator(estimator_name)
     finally:
         logger.setLevel(level)
-    if warm_up.numba_compiles() == compiles_before:
+    if count_compiles() == compiles_before:
         return 0.0, 0.0
     return time.perf_counter() - wall_start, time.process_time() - cpu_start
 

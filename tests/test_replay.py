@@ -100,31 +100,37 @@ def test_replay_output_mode_follows_the_umask(recording, tmp_path):
     assert stat.S_IMODE(out.stat().st_mode) == 0o644
 
 
-def test_replay_announces_a_compile_before_it_replays(recording, tmp_path, monkeypatch, capsys):
+def _replay_with(argv: list[str], compile_estimator, count_compiles) -> int:
+    """`ahrsd replay ARGV` with the estimator compiled by `compile_estimator` (what the CLI's run passes in)."""
+    from ahrsd.cli import replay as replay_cli
+
+    return replay_cli.replay_command(cli.build_parser().parse_args(["replay", *argv]),
+                                     compile_estimator=compile_estimator, count_compiles=count_compiles)
+
+
+def test_replay_announces_a_compile_before_it_replays(recording, tmp_path, capsys):
     """The first replay after an install compiles the estimator: it goes through cli.warm_up's announcement (at
     INFO, whatever the replay's own level) before any row is written, as `ahrsd run` does; not for a recording
     that is not there (that fails at once)."""
     import logging
 
-    import ahrsd.cli.warm_up as warm_up
-
     calls = []
 
-    def fake_compile(name, **_kw):
+    def fake_compile(name):
         calls.append((name, logging.getLogger("ahrsd").isEnabledFor(logging.INFO), (tmp_path / "o.csv").exists()))
-        return 0.0
 
-    monkeypatch.setattr(warm_up, "compile_estimator", fake_compile)
     rec, _ = recording
-    assert cli.main(["replay", str(rec), "--estimator", "thesis", "--output", str(tmp_path / "o.csv")]) == 0
+    level = logging.getLogger("ahrsd").level
+    assert _replay_with([str(rec), "--estimator", "thesis", "--output", str(tmp_path / "o.csv")],
+                        fake_compile, lambda: 0) == 0
     assert calls == [("thesis", True, False)]
-    assert not logging.getLogger("ahrsd").isEnabledFor(logging.INFO) or logging.getLogger().level <= logging.INFO
-    assert cli.main(["replay", str(tmp_path / "nope.csv"), "--output", str(tmp_path / "p.csv")]) != 0
+    assert logging.getLogger("ahrsd").level == level          # raised for the compile only
+    assert _replay_with([str(tmp_path / "nope.csv"), "--output", str(tmp_path / "p.csv")], fake_compile, lambda: 0) != 0
     assert len(calls) == 1
     capsys.readouterr()
 
 
-def test_the_summary_speed_leaves_the_compile_out(recording, tmp_path, monkeypatch, capsys):
+def test_the_summary_speed_leaves_the_compile_out(recording, tmp_path, capsys):
     """#30: the first replay after an install printed a real-time factor that included the numba compile (the
     tour's GNSS replay: 62.8 s wall, 3.2× real time, of which 27.9 s compiling). A compile (here a fake one that
     sleeps 2 s, which is wall time at any load, and counts as a numba cache miss) is reported apart and left out
@@ -133,28 +139,24 @@ def test_the_summary_speed_leaves_the_compile_out(recording, tmp_path, monkeypat
     import re
     import time
 
-    import ahrsd.cli.warm_up as warm_up
-
     misses = [0]
 
-    def fake_compile(name, **_kw):
+    def fake_compile(name):
         time.sleep(2.0)
         misses[0] += 1
-        return 2.0
 
-    monkeypatch.setattr(warm_up, "compile_estimator", fake_compile)
-    monkeypatch.setattr(warm_up, "numba_compiles", lambda prefix="ahrsd.": misses[0])
     rec, _ = recording
     capsys.readouterr()
     started = time.perf_counter()
-    assert cli.main(["replay", str(rec), "--estimator", "thesis", "--output", str(tmp_path / "o.csv")]) == 0
+    assert _replay_with([str(rec), "--estimator", "thesis", "--output", str(tmp_path / "o.csv")],
+                        fake_compile, lambda: misses[0]) == 0
     whole_s = time.perf_counter() - started
     err = capsys.readouterr().err
     wall_s = float(re.search(r"; ([0-9.]+) s wall \(", err).group(1))
     compile_s = float(re.search(r"after compiling thesis for ([0-9.]+) s wall", err).group(1))
     assert compile_s >= 2.0 and wall_s <= whole_s - 2.0 + 0.01, err
-    monkeypatch.setattr(warm_up, "compile_estimator", lambda name, **_kw: 0.1)      # cached: no miss
-    assert cli.main(["replay", str(rec), "--estimator", "thesis", "--output", str(tmp_path / "p.csv")]) == 0
+    assert _replay_with([str(rec), "--estimator", "thesis", "--output", str(tmp_path / "p.csv")],
+                        lambda name: None, lambda: misses[0]) == 0                  # cached: no miss
     assert "compiling" not in capsys.readouterr().err
 
 
