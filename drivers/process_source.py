@@ -19,6 +19,7 @@ import select
 import struct
 import time
 from types import SimpleNamespace
+from typing import Callable
 
 import numpy as np
 
@@ -137,7 +138,9 @@ class _Handover:
 
     CHUNK_SAMPLES = 32
 
-    def __init__(self, conn, src):
+    def __init__(self, conn, src, room: Callable[[], bool] | None = None):
+        """room(): whether a message may be sent now without blocking (default: select() calls the pipe
+        writable, as the class doc says)."""
         self.conn, self.src = conn, src
         self.next_send = self.next_counters = 0.0
         self.last_error, self.error_sent_at = None, -1.0
@@ -147,6 +150,7 @@ class _Handover:
         poller = select.poll()
         poller.register(conn.fileno(), select.POLLOUT)
         self._poll_out = poller.poll
+        self._room = room or self._pipe_writable
         try:
             import socket
 
@@ -156,7 +160,7 @@ class _Handover:
         except (OSError, AttributeError, ValueError):
             pass
 
-    def _room(self) -> bool:
+    def _pipe_writable(self) -> bool:
         # what select() calls writable (POLLOUT or an error), from a poll object made once
         return any(events & _WRITABLE for _fd, events in self._poll_out(0))
 

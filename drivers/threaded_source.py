@@ -28,6 +28,7 @@ import os
 import sys
 import threading
 import time
+from typing import Callable
 
 from ahrsd.core.sample import ImuSample, SampleFlags
 from ahrsd.drivers.errors import FrameError
@@ -102,7 +103,8 @@ class ThreadedSource(LiveSource):
     clock: the host clock of the reads (the inner source's); sleep_until(t): wait until clock() ≥ t (a test's
         stepped clock). Pacing: when the inner source's timer can `wait(timeout_s)` for the chip's data-ready
         (drivers.data_ready.DataReadyTimer) each read follows an edge; otherwise the thread sleeps until the
-        SampleTimer's next read time.
+        SampleTimer's next read time. realtime: the reader thread asks for SCHED_FIFO with `request_priority()`
+        ("" granted, else why not; request_realtime_priority asks the kernel).
     """
 
     description: str
@@ -113,7 +115,8 @@ class ThreadedSource(LiveSource):
 
     def __init__(self, inner, *, clock=time.monotonic, sleep_until=None,
                  capacity_samples: int = CAPACITY_SAMPLES, realtime: bool = True,
-                 switch_interval_s: float | None = SWITCH_INTERVAL_S):
+                 switch_interval_s: float | None = SWITCH_INTERVAL_S,
+                 request_priority: Callable[[], str] = request_realtime_priority):
         if getattr(inner, "per_sample", False) is not True and not callable(getattr(inner, "wait", None)):
             raise TypeError("ThreadedSource reads a per-sample source (read_one / next_read_time) or a block "
                             "source that can wait for data (wait(timeout_s) / poll())")
@@ -124,6 +127,7 @@ class ThreadedSource(LiveSource):
         self._sleep_until = sleep_until or (lambda t: _sleep_until(clock, t))
         self._capacity = int(capacity_samples)
         self._realtime = realtime
+        self._request_priority = request_priority     # asks for SCHED_FIFO: "" granted, else why not
         self._switch_interval_s = switch_interval_s
         self._saved_switch_interval: float | None = None
         self._lock = threading.Lock()          # the hand-over buffer and the error
@@ -163,7 +167,7 @@ class ThreadedSource(LiveSource):
 
     def _run(self) -> None:
         if self._realtime:
-            self.realtime_refused = request_realtime_priority()
+            self.realtime_refused = self._request_priority()
             self.stats["realtime_priority"] = int(not self.realtime_refused)
             if not self.realtime_refused:
                 # the producer started before the reader asked; one started later (a rate change) is forked

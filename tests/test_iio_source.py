@@ -264,31 +264,29 @@ def test_a_vanished_iio_device_is_reopened_counted_and_logged(tmp_path, caplog):
     assert any(" back " in m for m in messages)
 
 
-def test_the_udev_rule_opens_every_sysfs_file_the_source_writes(device, monkeypatch):
+def test_the_udev_rule_opens_every_sysfs_file_the_source_writes(device):
     """Under systemd the daemon is not root: systemd/99-ahrsd-iio.rules must give its group every sysfs file
-    the source writes — channels, buffer length and enable, time stamp clock, trigger (an empty one too)."""
+    the source writes — channels, buffer length and enable, time stamp clock, trigger (an empty one too). What it
+    writes is read off the simulated sysfs tree: every file's modification time is set back first, and the files
+    written are those whose time moved."""
     import fnmatch
+    import os
     import re
-
-    from ahrsd.drivers import iio_source
 
     rule = (Path(__file__).resolve().parents[1] / "systemd" / "99-ahrsd-iio.rules").read_text()
     (loop,) = re.findall(r"for f in ([^;]+);", rule)
     opened = loop.split()
-    written: list[str] = []
-    real_write = iio_source._write
-
-    def recording_write(path, value):
-        written.append(Path(path).relative_to(device.sysfs).as_posix())
-        real_write(path, value)
-
-    monkeypatch.setattr(iio_source, "_write", recording_write)
     (device.sysfs / "trigger" / "current_trigger").write_text("\n")     # a kernel with no trigger set yet
+    long_ago_s = 1_000_000_000
+    files = [p for p in device.sysfs.rglob("*") if p.is_file()]
+    for p in files:
+        os.utime(p, (long_ago_s, long_ago_s))
     src = started(device)
     try:
         src._open_buffer()
     finally:
         src.close()
+    written = [p.relative_to(device.sysfs).as_posix() for p in files if p.stat().st_mtime != long_ago_s]
     assert {"buffer/enable", "buffer/length", "current_timestamp_clock", "trigger/current_trigger"} <= set(written)
     assert any(w.startswith("scan_elements/") for w in written)
     assert [w for w in written if not any(fnmatch.fnmatch(w, p) for p in opened)] == []

@@ -123,7 +123,7 @@ def test_the_chip_computes_the_same_samples_in_its_producer_process():
     assert out["process"] == out["thread"]
 
 
-def test_the_hand_over_never_blocks_the_reader_on_a_full_pipe(monkeypatch):
+def test_the_hand_over_never_blocks_the_reader_on_a_full_pipe():
     """While the daemon does not read (its pipe full) the child's hand-over sends nothing and keeps what it
     took; once there is room everything goes, in order, once."""
     import multiprocessing
@@ -152,9 +152,8 @@ def test_the_hand_over_never_blocks_the_reader_on_a_full_pipe(monkeypatch):
 
     daemon_end, child_end = multiprocessing.Pipe()
     src = Source()
-    h = process_source._Handover(child_end, src)
     room = [False]
-    monkeypatch.setattr(process_source._Handover, "_room", lambda self: room[0])
+    h = process_source._Handover(child_end, src, room=lambda: room[0])
     for _ in range(5):
         src.read(3)
         h.next_send = 0.0

@@ -143,15 +143,12 @@ def test_a_bus_failure_reaches_the_daemon_from_poll():
 
 
 @pytest.mark.parametrize("refused", ["", "Operation not permitted"])
-def test_one_log_line_says_whether_the_reader_got_realtime_priority(monkeypatch, caplog, refused):
+def test_one_log_line_says_whether_the_reader_got_realtime_priority(caplog, refused):
     import logging
 
-    import ahrsd.drivers.threaded_source as ts
-
-    monkeypatch.setattr(ts, "request_realtime_priority", lambda priority=ts.FIFO_PRIORITY: refused)
     clock = SteppedClock()
     chip, inner = chip_and_source(clock)
-    src = ThreadedSource(inner, clock=clock, sleep_until=clock.sleep_until)
+    src = ThreadedSource(inner, clock=clock, sleep_until=clock.sleep_until, request_priority=lambda: refused)
     caplog.set_level(logging.INFO, logger="ahrsd.drivers.threaded_source")
     read_through_a_starved_loop(src, clock, stalls=1)
     lines = [r for r in caplog.records if "real-time priority" in r.getMessage()]
