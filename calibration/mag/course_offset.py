@@ -104,31 +104,52 @@ def fit_course_offset(fix_t_s, course_rad, ground_speed_m_s, speed_acc_m_s, head
     th = np.asarray(heading_t_s, dtype=np.float64).reshape(-1)
     psi = np.asarray(heading_rad, dtype=np.float64).reshape(-1)
     n_offered = int(tc.size)
-    if n_offered == 0:
-        return _refused("no GNSS course received", 0)
-    if th.size < 2:
-        return _refused("no heading samples", n_offered)
-    ok = np.isfinite(tc) & np.isfinite(chi) & np.isfinite(v) & (tc >= th[0]) & (tc <= th[-1])
-    if not np.any(ok & (v >= min_speed_m_s)):
-        return _refused(f"GNSS speed never reached {min_speed_m_s:.1f} m/s (course is noise when slow)", n_offered)
-    ok &= v >= min_speed_m_s
-    ok &= straight_mask(tc, th, heading_rate_rad_s, max_turn_rate_deg_s, window_s)
+    ok = _fixes_on_straight_runs(tc, chi, v, th, heading_rate_rad_s, min_speed_m_s, max_turn_rate_deg_s, window_s)
+    if isinstance(ok, str):
+        return _refused(ok, n_offered)
     if ok.sum() < MIN_FIXES:
         return _refused(f"only {int(ok.sum())} course fixes on straight runs above {min_speed_m_s:.1f} m/s "
                         f"(need {MIN_FIXES}): hold a few straight courses for some seconds", n_offered, int(ok.sum()))
-    psi_u = np.unwrap(psi)
-    psi_at = np.interp(tc[ok], th, psi_u)
-    delta = wrap_pi(chi[ok] - psi_at)
-    speed = v[ok]
-    sig = np.where(np.isfinite(sacc[ok]) & (sacc[ok] > 0), sacc[ok] / speed, math.radians(DEFAULT_COURSE_SIGMA_DEG))
-    sig = np.maximum(sig, math.radians(MIN_COURSE_SIGMA_DEG))
-    # outliers (a manoeuvre the straight gate missed, a course glitch): far from the circular median
-    med = math.atan2(float(np.median(np.sin(delta))), float(np.median(np.cos(delta))))
-    keep = np.abs(wrap_pi(delta - med)) <= math.radians(OUTLIER_DEG)
-    delta, speed, sig, psi_k = wrap_pi(delta[keep] - med) + med, speed[keep], sig[keep], psi_at[keep]
+    delta, speed, sig, psi_k = _consistent_course_offsets(tc[ok], chi[ok], v[ok], sacc[ok], th, psi)
     n = int(delta.size)
     if n < MIN_FIXES:
         return _refused(f"only {n} consistent course fixes", n_offered, n)
+    return _fit_offset_and_current(delta, speed, sig, psi_k, n_offered)
+
+
+def _fixes_on_straight_runs(tc, chi, v, th, heading_rate_rad_s, min_speed_m_s, max_turn_rate_deg_s,
+                            window_s) -> np.ndarray | str:
+    """The fixes the fit may use (finite, within the heading's time span, fast enough, on a straight run), or why
+    none can be."""
+    if tc.size == 0:
+        return "no GNSS course received"
+    if th.size < 2:
+        return "no heading samples"
+    ok = np.isfinite(tc) & np.isfinite(chi) & np.isfinite(v) & (tc >= th[0]) & (tc <= th[-1])
+    if not np.any(ok & (v >= min_speed_m_s)):
+        return f"GNSS speed never reached {min_speed_m_s:.1f} m/s (course is noise when slow)"
+    ok &= v >= min_speed_m_s
+    ok &= straight_mask(tc, th, heading_rate_rad_s, max_turn_rate_deg_s, window_s)
+    return ok
+
+
+def _consistent_course_offsets(tc, chi, speed, sacc, th, psi):
+    """Course minus the interpolated heading at each fix, with its speed, its 1σ (rad: the speed accuracy over
+    the speed, else DEFAULT_COURSE_SIGMA_DEG, at least MIN_COURSE_SIGMA_DEG) and the heading there, without the
+    outliers (a manoeuvre the straight gate missed, a course glitch: far from the circular median)."""
+    psi_at = np.interp(tc, th, np.unwrap(psi))
+    delta = wrap_pi(chi - psi_at)
+    sig = np.where(np.isfinite(sacc) & (sacc > 0), sacc / speed, math.radians(DEFAULT_COURSE_SIGMA_DEG))
+    sig = np.maximum(sig, math.radians(MIN_COURSE_SIGMA_DEG))
+    med = math.atan2(float(np.median(np.sin(delta))), float(np.median(np.cos(delta))))
+    keep = np.abs(wrap_pi(delta - med)) <= math.radians(OUTLIER_DEG)
+    return wrap_pi(delta[keep] - med) + med, speed[keep], sig[keep], psi_at[keep]
+
+
+def _fit_offset_and_current(delta, speed, sig, psi_k, n_offered: int) -> CourseOffsetFit:
+    """The weighted least-squares fit of the module docstring's model: the offset A, and the current when the
+    straight courses span enough headings to tell it from A."""
+    n = int(delta.size)
     notes: list[str] = []
     span = heading_span_deg(np.degrees(psi_k))
     with_current = span >= MIN_SPAN_FOR_CURRENT_DEG
