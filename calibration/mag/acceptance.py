@@ -165,6 +165,27 @@ def assess(method: str, model: MagModel, mag_ut: np.ndarray, field_ut: float, qu
         sigma_soft_iron=sig_s.tolist(),
         soft_iron_singular_values=gains.tolist(),
     )
+    reasons = _check_limits(rms, coverage, sig_h, sig_s, gains, min_coverage, max_residual_ut, max_sigma_hard_ut,
+                            max_sigma_soft)
+    if refit is not None and not reasons:
+        split = _split_halves(model, mag_ut, cal, refit, min_coverage)
+        quality["split_halves"] = split
+        if split.get("hard_iron_diff_ut", 0.0) > max_split_hard_ut or split.get("soft_iron_diff", 0.0) > max_split_soft:
+            reasons.append(
+                f"the first and second halves of the recording give different calibrations (hard iron "
+                f"{split['hard_iron_diff_ut']:.2f} µT apart, soft iron {split['soft_iron_diff']:.3f}): the magnetic "
+                "environment changed during the recording (a magnet or a ferrous object moved, a current switched)")
+    if reasons:
+        quality["rejected_model"] = model.to_dict()
+        return MagFitResult(MagModel.identity(), rms, method, quality, "; ".join(reasons))
+    return MagFitResult(model, rms, method, quality, None)
+
+
+def _check_limits(rms: float, coverage: float, sig_h: np.ndarray, sig_s: np.ndarray, gains: np.ndarray,
+                  min_coverage: float, max_residual_ut: float, max_sigma_hard_ut: float,
+                  max_sigma_soft: float) -> list[str]:
+    """Why a fit is refused (ArduPilot-style limits: coverage, residual, parameter 1σ, physical soft-iron gains),
+    each with what to do about it; empty when it passes."""
     reasons = []
     if coverage < min_coverage:
         reasons.append(f"orientation coverage {coverage:.0%} < {min_coverage:.0%}: turn the sensor through more "
@@ -183,18 +204,7 @@ def assess(method: str, model: MagModel, mag_ut: np.ndarray, field_ut: float, qu
     if gains.min() < lo or gains.max() > hi:
         reasons.append(f"soft-iron gains {gains.min():.2f}…{gains.max():.2f} outside {lo}…{hi}: not physical; a "
                        "magnet or steel right at the sensor, or a wrong reference field (--lat/--lon)?")
-    if refit is not None and not reasons:
-        split = _split_halves(model, mag_ut, cal, refit, min_coverage)
-        quality["split_halves"] = split
-        if split.get("hard_iron_diff_ut", 0.0) > max_split_hard_ut or split.get("soft_iron_diff", 0.0) > max_split_soft:
-            reasons.append(
-                f"the first and second halves of the recording give different calibrations (hard iron "
-                f"{split['hard_iron_diff_ut']:.2f} µT apart, soft iron {split['soft_iron_diff']:.3f}): the magnetic "
-                "environment changed during the recording (a magnet or a ferrous object moved, a current switched)")
-    if reasons:
-        quality["rejected_model"] = model.to_dict()
-        return MagFitResult(MagModel.identity(), rms, method, quality, "; ".join(reasons))
-    return MagFitResult(model, rms, method, quality, None)
+    return reasons
 
 
 def _split_halves(model: MagModel, mag_ut: np.ndarray, cal: np.ndarray, refit, min_coverage: float) -> dict:
