@@ -163,12 +163,7 @@ def fit_vertical_channel(raw: np.ndarray, roll_rad, pitch_rad, total_ut: float, 
     speed), or "fit" to estimate a constant forward speed as one more parameter (needs turns at varying rates
     or in both directions: a constant lean is indistinguishable from a sensor roll misalignment)."""
     m = np.asarray(raw, dtype=np.float64)
-    d0 = down_in_body(roll_rad, pitch_rad)
-    k = centripetal_direction(gyro_rad_s, d0) if (gyro_rad_s is not None and speed_m_s is not None) else None
-    fit_speed = k is not None and isinstance(speed_m_s, str)
-    if isinstance(speed_m_s, str) and speed_m_s != "fit":
-        raise ValueError(f"speed_m_s must be a number, an array or 'fit', not {speed_m_s!r}")
-    d_fixed = corrected_down(d0, k, speed_m_s) if (k is not None and not fit_speed) else d0
+    d0, k, fit_speed, d_fixed = _levelling(roll_rad, pitch_rad, gyro_rad_s, speed_m_s)
     free_dip = vertical_ut is None
     total = float(total_ut)
     hz_guesses = [float(vertical_ut)] if not free_dip else [total * math.sin(math.radians(a))
@@ -178,25 +173,51 @@ def fit_vertical_channel(raw: np.ndarray, roll_rad, pitch_rad, total_ut: float, 
     sig_v = math.sqrt(sig_f**2 + (hh_ref * sigma_tilt_rad) ** 2)
     problem = _VerticalChannelProblem(m, d0, k, d_fixed, total, vertical_ut, fit_speed, sig_f, sig_v, prior_sigma)
     starts = _start_values(m, d_fixed, total, hz_guesses, free_dip, init)
-    n = problem.n
-    # stage 1: a few iterations from every start; stage 2: the best one to convergence
+    best = _best_start(problem, starts, hz_guesses[0], total, free_dip, fit_speed, robust)
+    _, sol1, name, p0 = best
+    # stage 2: the best start to convergence. The prior is re-centred on the stage-1 result; it is weak, so this
+    # only matters for directions the data do not determine at all
+    got = problem.solve(sol1.x, 200, robust) if len(starts) > 1 else (best[0], sol1, problem.make_fun(p0)[1])
+    if got is None:
+        raise BacksteppingError("the vertical-channel least squares did not converge")
+    _cost, sol, jac = got
+    return _fit_result(problem, sol, jac, name, total, free_dip, fit_speed, sig_f, sig_v)
+
+
+def _levelling(roll_rad, pitch_rad, gyro_rad_s, speed_m_s):
+    """(d0, k, fit_speed, d_fixed): down in the body frame from roll/pitch; the centripetal direction when the
+    lean into turns is removed (gyro and speed given, else None); whether the speed is fitted; and the down
+    direction the start values level with (the lean removed at a given speed)."""
+    d0 = down_in_body(roll_rad, pitch_rad)
+    k = centripetal_direction(gyro_rad_s, d0) if (gyro_rad_s is not None and speed_m_s is not None) else None
+    fit_speed = k is not None and isinstance(speed_m_s, str)
+    if isinstance(speed_m_s, str) and speed_m_s != "fit":
+        raise ValueError(f"speed_m_s must be a number, an array or 'fit', not {speed_m_s!r}")
+    d_fixed = corrected_down(d0, k, speed_m_s) if (k is not None and not fit_speed) else d0
+    return d0, k, fit_speed, d_fixed
+
+
+def _best_start(problem, starts, hz_default: float, total: float, free_dip: bool, fit_speed: bool, robust: bool):
+    """Stage 1: a few iterations from every start value (to convergence when there is one): (cost, solution,
+    start name, start parameters) of the best."""
     best = None
     for start in starts:
         name, w0, h0 = start[0], start[1], start[2]
-        hz0 = start[3] if len(start) > 3 else hz_guesses[0]
+        hz0 = start[3] if len(start) > 3 else hz_default
         p0 = np.concatenate((w0.ravel(), h0, [hz0 / total] if free_dip else [], [0.0] if fit_speed else []))
         got = problem.solve(p0, 8 if len(starts) > 1 else 200, robust)
         if got is not None and (best is None or got[0] < best[0]):
             best = (got[0], got[1], name, p0)
     if best is None:
         raise BacksteppingError("the vertical-channel least squares did not converge from any start value")
-    _, sol1, name, p0 = best
-    # the prior is re-centred on the stage-1 result; it is weak, so this only matters for directions the data
-    # do not determine at all
-    got = problem.solve(sol1.x, 200, robust) if len(starts) > 1 else (best[0], sol1, problem.make_fun(p0)[1])
-    if got is None:
-        raise BacksteppingError("the vertical-channel least squares did not converge")
-    cost, sol, jac = got
+    return best
+
+
+def _fit_result(problem, sol, jac, start_name: str, total: float, free_dip: bool, fit_speed: bool, sig_f: float,
+                sig_v: float) -> VerticalChannelFit:
+    """The fit at the solution: W, h, H_z, the residuals' RMS in µT (magnitude, vertical) and whitened, and the
+    data residuals' Jacobian with its column names."""
+    n = problem.n
     w, h, hz, _ = problem.unpack(sol.x)
     r = sol.fun[:2 * n]
     jd = jac(sol.x)[:2 * n]
@@ -204,7 +225,7 @@ def fit_vertical_channel(raw: np.ndarray, roll_rad, pitch_rad, total_ut: float, 
     speed = float(sol.x[problem.i_speed]) if fit_speed else None
     return VerticalChannelFit(w, h, total, hz, free_dip, float(np.sqrt(np.mean((r[:n] * sig_f) ** 2))),
                               float(np.sqrt(np.mean((r[n:] * sig_v) ** 2))), float(np.sqrt(np.mean(r**2))),
-                              jd, names, name, int(sol.nfev), bool(sol.success), str(sol.message), speed)
+                              jd, names, start_name, int(sol.nfev), bool(sol.success), str(sol.message), speed)
 
 
 class _VerticalChannelProblem:
