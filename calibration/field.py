@@ -726,54 +726,15 @@ class FitJob:
             return self.stage, exc
 
     def _final_fit(self) -> FieldCalResult:
+        """The offsets with the soft iron in force, the full fit the data and the reference allow (chosen only if
+        it is better), the heading offset from GNSS course, and the verdict."""
         rpy, raw = self.rpy, self.raw
-        fit = self.fit_function or fit_mag
-        tilt = np.degrees(np.arccos(np.clip(np.cos(rpy[:, 0]) * np.cos(rpy[:, 1]), -1, 1)))
-        tilt_range = float(np.percentile(tilt, 98) - np.percentile(tilt, 2)) if len(tilt) else 0.0
         notes: list[str] = []
-        quality: dict = {"tilt_range_deg": tilt_range, "sphere_coverage": self.sphere_coverage,
-                         "heading_coverage": self.heading_coverage, "n_samples": int(len(self.t)),
-                         "t_span_s": [float(self.t[0]), float(self.t[-1])] if len(self.t) else None}
+        quality = self._coverage_quality()
         offsets, q_off = fit_offsets_keep_soft_iron(
             raw, self.current.soft_iron, self.current.hard_iron_ut, rpy[:, 0], rpy[:, 1], self.reference)
         quality.update({f"offsets_{k}": v for k, v in q_off.items()})
-        # the same data and the same call as `ahrsd calibrate mag --method backstepping`: roll/pitch from the
-        # low-passed accelerometer with the centripetal lean fitted out (an estimator's roll/pitch lean into
-        # turns and cannot be corrected after its filtering: docs/magcal-vehicle.md)
-        data = MagFitInput(self.t, raw, self.acc, self.gyro)
-        chosen: tuple | None = None          # (model, method, heading std, offset std, undetermined)
-        if self.full_sphere and self.reference is None:
-            # without the WMM field the vertical channel has no reference: the attitude-independent ellipsoid
-            fr = fit("ellipsoid", data, self.reference)
-            if fr.refused is None and self._acceptable_shape(fr.model)[0]:
-                chosen = (fr.model, fr.method, math.nan, math.inf, ())
-                self._add_quality(quality, "ellipsoid", fr.quality)
-            else:
-                notes.append(f"ellipsoid {fr.refused or 'rejected (' + self._acceptable_shape(fr.model)[1] + ')'}: "
-                             "fitted offsets only")
-        elif self.reference is None:
-            notes.append("no WMM reference: fitted offsets only")
-        else:
-            fr = fit("backstepping", data, self.reference)
-            if fr.refused is not None:
-                log.info("backstepping refused: %s", fr.refused)
-                notes.append(f"full fit refused ({fr.refused}): fitted offsets only")
-            else:
-                ok, why = self._acceptable_shape(fr.model)
-                self._add_quality(quality, "backstepping", fr.quality)
-                if not ok:
-                    notes.append(f"backstepping rejected ({why}): fitted offsets only")
-                else:
-                    cmp = compare_with_offsets(fr.model, offsets, fr.quality, self.reference.total_ut,
-                                               self.reference.total_ut * math.sin(self.reference.inclination_rad))
-                    quality["full_vs_offsets"] = cmp
-                    if cmp["use_full"]:
-                        chosen = (fr.model, fr.method, cmp["full_heading_std_deg"], cmp["full_offset_std_deg"],
-                                  tuple(fr.quality.get("undetermined") or ()))
-                    else:
-                        notes.append(f"full fit ({cmp['full_heading_std_deg']:.2f} deg 1-sigma) no better than "
-                                     f"the soft iron in force ({cmp['offsets_heading_change_deg']:.2f} deg "
-                                     "apart): fitted offsets only")
+        chosen = self._full_fit(offsets, quality, notes)
         if chosen is None:
             change = quality.get("full_vs_offsets", {}).get("offsets_heading_change_deg", math.nan)
             chosen = (offsets, "offsets", change, math.inf, ("soft iron (kept from the calibration in force)",))
@@ -783,6 +744,56 @@ class FitJob:
         res = self._judge(model, method, quality, notes, partial=method == "offsets")
         return dataclasses.replace(res, heading_std_deg=float(heading_std), offset_std_deg=float(offset_std),
                                    offset_source=offset_source, undetermined=tuple(undetermined))
+
+    def _coverage_quality(self) -> dict:
+        """What the session's data covered: tilt range, sphere and heading coverage, samples and time span."""
+        rpy = self.rpy
+        tilt = np.degrees(np.arccos(np.clip(np.cos(rpy[:, 0]) * np.cos(rpy[:, 1]), -1, 1)))
+        tilt_range = float(np.percentile(tilt, 98) - np.percentile(tilt, 2)) if len(tilt) else 0.0
+        return {"tilt_range_deg": tilt_range, "sphere_coverage": self.sphere_coverage,
+                "heading_coverage": self.heading_coverage, "n_samples": int(len(self.t)),
+                "t_span_s": [float(self.t[0]), float(self.t[-1])] if len(self.t) else None}
+
+    def _full_fit(self, offsets: MagModel, quality: dict, notes: list) -> tuple | None:
+        """(model, method, heading std, offset std, undetermined) of the full fit when it is usable and better than
+        `offsets`: the ellipsoid for a full sphere without a reference, else the back-stepping vertical channel
+        against the WMM reference; None (with a note why) when only the offsets are."""
+        fit = self.fit_function or fit_mag
+        # the same data and the same call as `ahrsd calibrate mag --method backstepping`: roll/pitch from the
+        # low-passed accelerometer with the centripetal lean fitted out (an estimator's roll/pitch lean into
+        # turns and cannot be corrected after its filtering: docs/magcal-vehicle.md)
+        data = MagFitInput(self.t, self.raw, self.acc, self.gyro)
+        if self.full_sphere and self.reference is None:
+            # without the WMM field the vertical channel has no reference: the attitude-independent ellipsoid
+            fr = fit("ellipsoid", data, self.reference)
+            if fr.refused is None and self._acceptable_shape(fr.model)[0]:
+                self._add_quality(quality, "ellipsoid", fr.quality)
+                return (fr.model, fr.method, math.nan, math.inf, ())
+            notes.append(f"ellipsoid {fr.refused or 'rejected (' + self._acceptable_shape(fr.model)[1] + ')'}: "
+                         "fitted offsets only")
+            return None
+        if self.reference is None:
+            notes.append("no WMM reference: fitted offsets only")
+            return None
+        fr = fit("backstepping", data, self.reference)
+        if fr.refused is not None:
+            log.info("backstepping refused: %s", fr.refused)
+            notes.append(f"full fit refused ({fr.refused}): fitted offsets only")
+            return None
+        ok, why = self._acceptable_shape(fr.model)
+        self._add_quality(quality, "backstepping", fr.quality)
+        if not ok:
+            notes.append(f"backstepping rejected ({why}): fitted offsets only")
+            return None
+        cmp = compare_with_offsets(fr.model, offsets, fr.quality, self.reference.total_ut,
+                                   self.reference.total_ut * math.sin(self.reference.inclination_rad))
+        quality["full_vs_offsets"] = cmp
+        if cmp["use_full"]:
+            return (fr.model, fr.method, cmp["full_heading_std_deg"], cmp["full_offset_std_deg"],
+                    tuple(fr.quality.get("undetermined") or ()))
+        notes.append(f"full fit ({cmp['full_heading_std_deg']:.2f} deg 1-sigma) no better than "
+                     f"the soft iron in force ({cmp['offsets_heading_change_deg']:.2f} deg apart): fitted offsets only")
+        return None
 
     @staticmethod
     def _add_quality(quality: dict, method: str, fit_quality: dict | None) -> None:
