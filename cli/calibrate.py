@@ -256,14 +256,43 @@ def _allan(args) -> int:
 
 
 def _accel(args) -> int:
-    import math
-
     import numpy as np
 
     from ahrsd.calibration import report
-    from ahrsd.calibration.inertial.accel import fit_accel, local_gravity_m_s2
+    from ahrsd.calibration.inertial.accel import local_gravity_m_s2
 
     g = local_gravity_m_s2(args.lat, args.alt_m)
+    res, source = _accel_fit(args, g)
+    payload = {"sensor": "accel", **res.to_json_dict(), "positions_source": source}
+    lines = [f"Accelerometer calibration ({res.terms} parameters) from {source}; g = {g:.5f} m/s²"
+             + ("" if args.lat is not None else " (standard gravity: give --lat for local gravity)")]
+    q = res.quality
+    lines.append(f"  distinct orientations: {q.get('distinct_orientations')}; faces up: "
+                 + ", ".join(k for k, v in q.get("faces", {}).items() if v))
+    if "holds" in q:
+        lines.append(report.accel_holds_line(q["holds"], args.min_still_s))
+    if "face_alignment" in q:
+        lines.append(report.accel_alignment_line(q["face_alignment"]))
+    rc = _report_fit(args, res, payload, lines, "accel", report.accel_model_lines,
+                     {"method": f"multi-position {res.terms}-parameter", "residual_rms_m_s2": res.residual_rms_m_s2,
+                      "positions": q.get("positions"), "g_m_s2": g,
+                      **({"face_alignment": q["face_alignment"]} if "face_alignment" in q else {})})
+    if args.plot and res.ok:
+        from ahrsd.cli.plots.mag import plot_residuals
+
+        _write_plot(args, plot_residuals, np.array(q["position_residuals_m_s2"]) * 1e3, "position", "|f| − g (mm/s²)",
+                    "accelerometer residual per position")
+    return rc
+
+
+def _accel_fit(args, g: float):
+    """(fit, where the positions came from) for gravity g: the positions held live or the still periods of the
+    recording, the multi-position fit (refused naming short holds when none was long enough), what the holds
+    cost, and the alignment to the faces if asked."""
+    import math
+
+    from ahrsd.calibration.inertial.accel import fit_accel
+
     if not (math.isfinite(args.min_still_s) and args.min_still_s > 0):
         raise _Usage(f"--min-still-s {args.min_still_s}: expected a positive number of seconds")
     terms = args.terms if args.terms == "auto" else int(args.terms)
@@ -291,26 +320,7 @@ def _accel(args) -> int:
         from ahrsd.calibration.inertial.accel_alignment import align_to_faces
 
         res = align_to_faces(res, means)
-    payload = {"sensor": "accel", **res.to_json_dict(), "positions_source": source}
-    lines = [f"Accelerometer calibration ({res.terms} parameters) from {source}; g = {g:.5f} m/s²"
-             + ("" if args.lat is not None else " (standard gravity: give --lat for local gravity)")]
-    q = res.quality
-    lines.append(f"  distinct orientations: {q.get('distinct_orientations')}; faces up: "
-                 + ", ".join(k for k, v in q.get("faces", {}).items() if v))
-    if "holds" in q:
-        lines.append(report.accel_holds_line(q["holds"], args.min_still_s))
-    if "face_alignment" in q:
-        lines.append(report.accel_alignment_line(q["face_alignment"]))
-    rc = _report_fit(args, res, payload, lines, "accel", report.accel_model_lines,
-                     {"method": f"multi-position {res.terms}-parameter", "residual_rms_m_s2": res.residual_rms_m_s2,
-                      "positions": q.get("positions"), "g_m_s2": g,
-                      **({"face_alignment": q["face_alignment"]} if "face_alignment" in q else {})})
-    if args.plot and res.ok:
-        from ahrsd.cli.plots.mag import plot_residuals
-
-        _write_plot(args, plot_residuals, np.array(q["position_residuals_m_s2"]) * 1e3, "position", "|f| − g (mm/s²)",
-                    "accelerometer residual per position")
-    return rc
+    return res, source
 
 
 def _still_positions(args):
@@ -404,44 +414,14 @@ def _accel_live(args):
 
 
 def _gyro(args) -> int:
-    import math
-
-    import numpy as np
-
     from ahrsd.calibration import report
-    from ahrsd.calibration.inertial import gyro as gyro_cal
-    from ahrsd.calibration.inertial.accel import find_still_segments
 
     rec = _read(args.recording)
     stored = _stored(args)
-    rate = rec.sample_rate_hz
     if args.bias_only:
-        segs = find_still_segments(rec.accel_m_s2, None, rate, min_still_s=3.0)
-        idx = np.concatenate([np.arange(s.start, s.stop) for s in segs]) if segs else np.arange(len(rec))
-        res = gyro_cal.fit_bias_only(rec.gyro_rad_s[idx], stored.gyro.matrix)
-        source = (f"{len(idx)} still samples of {args.recording}" if segs else
-                  f"all {len(idx)} samples of {args.recording} (no still period of 3 s or more found)")
-        if not res.ok and not segs:
-            res = dataclasses.replace(res, refused=f"{res.refused} (the accelerometer showed no still period of 3 s "
-                                      "or more either)")
-        if args.estimator_bias and res.ok:
-            res, source = _fold_estimator_bias(rec, stored, res, source)
+        res, source, segs = _gyro_bias_only(args, rec, stored)
     else:
-        accel = stored.accel.apply(rec.accel_m_s2)  # the accelerometer defines the vertical: use it calibrated
-        segs = gyro_cal.steady_segments(rec.gyro_rad_s, accel, rate)
-        if args.table_rate_deg_s is not None:
-            ref = gyro_cal.reference_rates_from_accel(segs, math.radians(args.table_rate_deg_s))
-            source = f"{len(segs)} steady segments, table rate {args.table_rate_deg_s} °/s"
-        elif rec.truth_q_wxyz is not None:
-            truth = gyro_cal.body_rates_from_quaternions(rec.t_s, rec.truth_q_wxyz)
-            ref = gyro_cal.reference_rates_from_truth(segs, truth)
-            source = f"{len(segs)} steady segments, reference from the recording's truth attitude"
-        else:
-            raise _Fail(f"{len(segs)} steady segments found but nothing to compare them with: give "
-                        "--table-rate-deg-s (the table's rate; the recording has no truth columns), or use "
-                        "--bias-only for a still recording")
-        raw = np.array([s.mean_gyro_rad_s for s in segs]).reshape(-1, 3)
-        res = gyro_cal.fit_rate_table(raw, ref, weights=[s.stop - s.start for s in segs])
+        res, source, ref, raw = _gyro_rate_table(args, rec, stored)
     payload = {"sensor": "gyro", **res.to_json_dict(), "source": source}
     lines = [f"Gyro calibration ({res.method}) from {source}"]
     rc = _report_fit(args, res, payload, lines, "gyro", report.gyro_model_lines,
@@ -460,6 +440,53 @@ def _gyro(args) -> int:
                                               "calibrated" if res.ok else "raw")
         _write_plot(args, gyro_plot.save, fig)
     return rc
+
+
+def _gyro_bias_only(args, rec, stored):
+    """(fit, where it came from, the still segments) of `--bias-only`: the bias from the still periods of 3 s or
+    more (all samples when there is none), then with the estimator's learned bias folded in if asked."""
+    import numpy as np
+
+    from ahrsd.calibration.inertial import gyro as gyro_cal
+    from ahrsd.calibration.inertial.accel import find_still_segments
+
+    segs = find_still_segments(rec.accel_m_s2, None, rec.sample_rate_hz, min_still_s=3.0)
+    idx = np.concatenate([np.arange(s.start, s.stop) for s in segs]) if segs else np.arange(len(rec))
+    res = gyro_cal.fit_bias_only(rec.gyro_rad_s[idx], stored.gyro.matrix)
+    source = (f"{len(idx)} still samples of {args.recording}" if segs else
+              f"all {len(idx)} samples of {args.recording} (no still period of 3 s or more found)")
+    if not res.ok and not segs:
+        res = dataclasses.replace(res, refused=f"{res.refused} (the accelerometer showed no still period of 3 s "
+                                  "or more either)")
+    if args.estimator_bias and res.ok:
+        res, source = _fold_estimator_bias(rec, stored, res, source)
+    return res, source, segs
+
+
+def _gyro_rate_table(args, rec, stored):
+    """(fit, where it came from, the reference rates, the segments' raw mean rates) of the rate-table fit: the
+    steady segments against the table's rate (`--table-rate-deg-s`) or the recording's truth attitude."""
+    import math
+
+    import numpy as np
+
+    from ahrsd.calibration.inertial import gyro as gyro_cal
+
+    accel = stored.accel.apply(rec.accel_m_s2)  # the accelerometer defines the vertical: use it calibrated
+    segs = gyro_cal.steady_segments(rec.gyro_rad_s, accel, rec.sample_rate_hz)
+    if args.table_rate_deg_s is not None:
+        ref = gyro_cal.reference_rates_from_accel(segs, math.radians(args.table_rate_deg_s))
+        source = f"{len(segs)} steady segments, table rate {args.table_rate_deg_s} °/s"
+    elif rec.truth_q_wxyz is not None:
+        truth = gyro_cal.body_rates_from_quaternions(rec.t_s, rec.truth_q_wxyz)
+        ref = gyro_cal.reference_rates_from_truth(segs, truth)
+        source = f"{len(segs)} steady segments, reference from the recording's truth attitude"
+    else:
+        raise _Fail(f"{len(segs)} steady segments found but nothing to compare them with: give "
+                    "--table-rate-deg-s (the table's rate; the recording has no truth columns), or use "
+                    "--bias-only for a still recording")
+    raw = np.array([s.mean_gyro_rad_s for s in segs]).reshape(-1, 3)
+    return gyro_cal.fit_rate_table(raw, ref, weights=[s.stop - s.start for s in segs]), source, ref, raw
 
 
 def _write_plot(args, save, *what) -> None:
