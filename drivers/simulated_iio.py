@@ -284,18 +284,10 @@ class _Kernel:
         fd = self._open_writer()
         if fd is None:
             return
-        shared, chip, clock = self.shared, self.chip, self.clock
-        records, stale, dropped = (_STATS.index(k) for k in ("records", "stale_records", "overflow_dropped"))
-        first, last = _STATS.index("first_index"), _STATS.index("last_index")
+        shared, chip = self.shared, self.chip
         shared[_STATS.index("sessions")] += 1
         try:
-            try:
-                fcntl.fcntl(fd, F_SETPIPE_SZ, max(4096, length * size))     # the kfifo's length
-            except OSError:
-                pass
-            clock.t = time.monotonic()
-            chip.power_cycle()
-            k = chip.first_index_after(clock.t)              # the first data-ready edge after the enable
+            k = self._start_up(fd, length * size)
             checked = time.monotonic()
             while not self._gone():
                 now = time.monotonic()
@@ -307,27 +299,49 @@ class _Kernel:
                 if stall_us:                                  # an injected interrupt outage from now on
                     shared[_STALL_US] = 0
                     k = max(k, chip.first_index_after(now + stall_us * 1e-6))
-                newest = chip.first_index_after(now) - 1
-                offset_ns = self._stamp_offset_ns() if k <= newest else 0
-                while k <= newest:
-                    edge = chip.ready_clock_time(k)
-                    clock.t = edge + HANDLER_LATENCY_S
-                    rx = chip.transfer(_BURST_TX, R.SPI_BURST_HZ, 0)           # adis16400_trigger_handler
-                    words = struct.unpack(">12H", rx[2:26])
-                    rec = scan_record(list(words), int(round(edge * 1e9)) + offset_ns, enabled)
-                    try:
-                        os.write(fd, rec)
-                        shared[records] += 1
-                        if not words[1] & R.ND:
-                            shared[stale] += 1              # the chip had no new sample
-                        if shared[first] < 0:
-                            shared[first] = chip.sample_index
-                        shared[last] = chip.sample_index
-                    except BlockingIOError:
-                        shared[dropped] += 1                # the buffer is full: kfifo refuses the scan
-                    except BrokenPipeError:
-                        return                              # the reader closed the node
-                    k += 1
+                k = self._handle_interrupts(fd, k, chip.first_index_after(now) - 1, enabled)
+                if k is None:
+                    return                                  # the reader closed the node
                 time.sleep(max(0.0, chip.ready_clock_time(k) + HANDLER_LATENCY_S - time.monotonic()))
         finally:
             os.close(fd)
+
+    def _start_up(self, fd: int, buffer_bytes: int) -> int:
+        """The driver's buffer enable: the pipe sized as the kfifo, the chip powered up; the index of the first
+        data-ready edge after it."""
+        try:
+            fcntl.fcntl(fd, F_SETPIPE_SZ, max(4096, buffer_bytes))     # the kfifo's length
+        except OSError:
+            pass
+        self.clock.t = time.monotonic()
+        self.chip.power_cycle()
+        return self.chip.first_index_after(self.clock.t)
+
+    def _handle_interrupts(self, fd: int, k: int, newest: int, enabled) -> int | None:
+        """adis16400_trigger_handler for each edge k..newest: burst-read the chip at the edge's handler time and
+        write the scan record stamped with the edge (dropped when the buffer is full, counted). The next edge to
+        handle; None when the reader closed the node."""
+        shared, chip, clock = self.shared, self.chip, self.clock
+        records, stale, dropped = (_STATS.index(n) for n in ("records", "stale_records", "overflow_dropped"))
+        first, last = _STATS.index("first_index"), _STATS.index("last_index")
+        offset_ns = self._stamp_offset_ns() if k <= newest else 0
+        while k <= newest:
+            edge = chip.ready_clock_time(k)
+            clock.t = edge + HANDLER_LATENCY_S
+            rx = chip.transfer(_BURST_TX, R.SPI_BURST_HZ, 0)           # adis16400_trigger_handler
+            words = struct.unpack(">12H", rx[2:26])
+            rec = scan_record(list(words), int(round(edge * 1e9)) + offset_ns, enabled)
+            try:
+                os.write(fd, rec)
+                shared[records] += 1
+                if not words[1] & R.ND:
+                    shared[stale] += 1              # the chip had no new sample
+                if shared[first] < 0:
+                    shared[first] = chip.sample_index
+                shared[last] = chip.sample_index
+            except BlockingIOError:
+                shared[dropped] += 1                # the buffer is full: kfifo refuses the scan
+            except BrokenPipeError:
+                return None
+            k += 1
+        return k
