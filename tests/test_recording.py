@@ -185,13 +185,15 @@ def test_rows_all_one_field_short_are_refused_not_recut(tmp_path):
 
 
 @pytest.mark.parametrize("sim_option", [["--seed", "0"], ["--errors", "ideal"], ["--realtime"]])
-def test_record_spi_refuses_simulation_options(tmp_path, capsys, monkeypatch, sim_option):
-    from ahrsd.cli.main import main
+def test_record_spi_refuses_simulation_options(tmp_path, capsys, sim_option):
+    from ahrsd.cli import record
+    from ahrsd.cli.main import build_parser
 
     opened = []
-    monkeypatch.setattr("ahrsd.drivers.spi.SpidevBus", lambda *a, **k: opened.append(a) or 1 / 0)
     out = tmp_path / "spi.csv"
-    assert main(["record", "--spi", "/dev/spidev0.0", *sim_option, "--output", str(out), "--seconds", "1"]) == 2
+    args = build_parser().parse_args(["record", "--spi", "/dev/spidev0.0", *sim_option, "--output", str(out),
+                                      "--seconds", "1"])
+    assert record.run(args, open_bus=lambda kind, **options: opened.append(kind) or 1 / 0) == 2
     err = capsys.readouterr().err
     assert sim_option[0] in err and "--sim" in err
     assert not opened and not out.exists()           # refused before the bus is opened or the file created
