@@ -58,9 +58,9 @@ class YawSlew:
         self.arrive_within_rad = arrive_within_rad
 
     def step(self, offset_rad: float, sigma_rad: float, dt_s: float) -> tuple[float, bool]:
-        """(move, arrived) for a published yaw `offset_rad` off the estimator's (published − estimator's, within
-        ±π) whose own 1σ is `sigma_rad`, over dt_s: the move to add to the published yaw, −offset_rad when it
-        arrives, else the step against the offset."""
+        """(move, arrived) over dt_s for a published yaw `offset_rad` off the estimator's (published − estimator's,
+        within ±π), the estimator's yaw 1σ being `sigma_rad`: the move to add to the published yaw, −offset_rad
+        when it arrives, else the step against the offset."""
         allowed = slew_rate_rad_s(self.rate_rad_s, sigma_rad, offset_rad) * dt_s
         size = abs(offset_rad)
         if size <= allowed or size <= self.arrive_within_rad:
