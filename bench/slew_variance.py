@@ -115,7 +115,6 @@ def ins_reset_slew_out(run, rate_deg_s: float, wrong_deg: float = 100.0, slew=Ya
     from scipy.spatial.transform import Rotation
 
     from ahrsd.core.gnss import GnssFix
-    from ahrsd.core.sample import SampleFlags, make_sample
     from ahrsd.estimator.ins import Ins
     from ahrsd.simulation import in_arrival_order
 
@@ -129,11 +128,8 @@ def ins_reset_slew_out(run, rate_deg_s: float, wrong_deg: float = 100.0, slew=Ya
     fixes = [f for f in run.fixes if not 40.0 <= f.t_s < 50.0]
     ekf3 = FakeEkf3(0.05)
     n = len(run.t_s)
-    samples = (make_sample(run.t_s[k], run.gyro_rad_s[k], run.accel_m_s2[k],
-                           np.full(3, np.nan) if k_wrong <= k < k_right else run.mag_ut[k],
-                           flags=SampleFlags.NEW_DATA) for k in range(n))
     k, t_next, beyond, sent = -1, 0.0, 0, 0
-    for item in in_arrival_order(samples, fixes):
+    for item in in_arrival_order(_samples_without_mag(run, k_wrong, k_right), fixes):
         if isinstance(item, GnssFix):
             if k == n - 1:
                 break           # it arrived after the last sample: not offered
@@ -159,6 +155,15 @@ def ins_reset_slew_out(run, rate_deg_s: float, wrong_deg: float = 100.0, slew=Ya
             sent += 1
             beyond += abs(err) > 3.0 * s[2]
     return beyond / sent, ekf3, est.yaw_resets - 2
+
+
+def _samples_without_mag(run, k_from: int, k_to: int):
+    """The run's samples, the magnetometer's left out (NaN) from sample k_from to before k_to."""
+    from ahrsd.core.sample import SampleFlags, make_sample
+
+    return (make_sample(run.t_s[k], run.gyro_rad_s[k], run.accel_m_s2[k],
+                        np.full(3, np.nan) if k_from <= k < k_to else run.mag_ut[k],
+                        flags=SampleFlags.NEW_DATA) for k in range(len(run.t_s)))
 
 
 def ins_on_the_boat(seeds: list[int]) -> None:
