@@ -4,10 +4,11 @@ Calibrations are made in the sensor frame (bench calibrations, `ahrsd calibrate`
 so the calibration sees the driver's sensor-frame values; the mounting rotation (sensor → body) comes after
 it. Samples come from a drivers.source.SensorSource.
 
-`Pipeline.process(raw)` is the hot path (once per sample): it must stay cheap, so calibration and mounting
-are applied to the vectors and ONE calibrated body-frame ImuSample is built (none when both are the
-identity), gaps are counted from the source's GAP_BEFORE (the source detects them), and calibration/estimator
-swaps are single attribute assignments, which the single-threaded event loop makes atomic between two samples.
+`Pipeline.process_block(block)` is the hot path (every sample goes through it, one sample as a block of one:
+`process`): it must stay cheap, so calibration and mounting are applied to the block's (n, 9) vectors in one
+product and ONE calibrated body-frame ImuSample is built per sample, gaps are counted from the source's
+GAP_BEFORE (the source detects them), and calibration/estimator swaps are single attribute assignments, which the
+single-threaded event loop makes atomic between two samples.
 """
 
 from __future__ import annotations
@@ -57,13 +58,13 @@ class Pipeline:
         self.mounting = mounting
         self.counters = PipelineCounters()
         self.last_sample: ImuSample | None = None    # calibrated, body frame
-        # the last sample as the source gave it (what a new calibration would take): the ImuSample, or
-        # (block, row) for a block's row, built only when asked for (last_raw_sample)
-        self._raw: ImuSample | tuple | None = None
+        # the last sample as the source gave it (what a new calibration would take): (block, row), its
+        # ImuSample built only when asked for (last_raw_sample)
+        self._raw: tuple | None = None
         self._view = None                  # the estimator's in-place view of its latest estimate (step())
         self._snapshot = None              # the immutable AttitudeEstimate of _view, built on demand
         self._last_counter: int | None = None
-        # the last sample calibrated in the sensor frame: ImuSample's arguments, or (block, row, calibration)
+        # the last sample calibrated in the sensor frame: (block, row, calibration), built when asked for
         self._sensor: tuple | None = None
         self._sensor_sample: ImuSample | None = None
 
@@ -87,27 +88,24 @@ class Pipeline:
         if self.mounting is None:
             return self.last_sample
         if self._sensor_sample is None and self._sensor is not None:
-            if len(self._sensor) == 3:                 # row i of a block, with the calibration it was given
-                block, i, cal = self._sensor
-                raw = block[i]
-                if cal.is_identity:
-                    self._sensor_sample = raw
-                else:
-                    g, a, m = cal.apply_vectors(raw.gyro_rad_s, raw.accel_m_s2, raw.mag_ut)
-                    self._sensor_sample = ImuSample(raw.t_s, g, a, m, raw.temp_c, raw.supply_v, raw.flags,
-                                                   raw.diag_stat, raw.counter)
+            block, i, cal = self._sensor               # row i of a block, with the calibration it was given
+            raw = block[i]
+            if cal.is_identity:
+                self._sensor_sample = raw
             else:
-                self._sensor_sample = ImuSample(*self._sensor)
+                r = _calibrated_rows(block.vectors[i:i + 1], cal, None)[0]     # the block map without the mounting
+                self._sensor_sample = ImuSample(raw.t_s, r[0:3], r[3:6], r[6:9], raw.temp_c, raw.supply_v, raw.flags,
+                                               raw.diag_stat, raw.counter)
         return self._sensor_sample
 
     @property
     def last_raw_sample(self) -> ImuSample | None:
         """The last sample as the source gave it (sensor frame, uncalibrated): what a new calibration is applied
         to (calibration_heading_change.py)."""
-        if isinstance(self._raw, tuple):
-            block, i = self._raw
-            self._raw = block[i]
-        return self._raw
+        if self._raw is None:
+            return None
+        block, i = self._raw
+        return block[i]
 
     @property
     def last_estimate(self):
@@ -118,35 +116,17 @@ class Pipeline:
         return self._snapshot
 
     def process(self, raw: ImuSample):
-        """One sample through calibration (sensor frame), mounting (sensor → body) and the estimator;
-        returns the estimate: the estimator's in-place view when it has `step` (read it now, or take
-        `last_estimate` to keep it), else its AttitudeEstimate."""
-        flags = raw.flags
-        self._count(flags, raw.counter)
-        self._raw = raw
-        cal, m = self.calibration, self.mounting
-        if cal.is_identity:
-            if m is None:
-                sample = raw
-            else:
-                sample = ImuSample(raw.t_s, m @ raw.gyro_rad_s, m @ raw.accel_m_s2, m @ raw.mag_ut, raw.temp_c,
-                                   raw.supply_v, flags, raw.diag_stat, raw.counter)
-                self._sensor, self._sensor_sample = None, raw
-        else:
-            g, a, mag = cal.apply_vectors(raw.gyro_rad_s, raw.accel_m_s2, raw.mag_ut)
-            if m is not None:
-                self._sensor = (raw.t_s, g, a, mag, raw.temp_c, raw.supply_v, flags, raw.diag_stat, raw.counter)
-                self._sensor_sample = None
-                g, a, mag = m @ g, m @ a, m @ mag
-            sample = ImuSample(raw.t_s, g, a, mag, raw.temp_c, raw.supply_v, flags, raw.diag_stat, raw.counter)
-        return self._estimate(sample)
+        """One sample through calibration (sensor frame), mounting (sensor → body) and the estimator (`process_block`
+        of a block of it); returns the estimate: the estimator's in-place view when it has `step` (read it now, or
+        take `last_estimate` to keep it), else its AttitudeEstimate."""
+        return next(self.process_block(SampleBlock.of((raw,))))
 
     def process_block(self, block: SampleBlock):
-        """`process` of every sample of `block`, in order, as a generator: yields each sample's estimate (read it
-        before the next one). The block's vectors are calibrated and rotated at once, one (n, 9) · (9, 9) product
-        (`block_map`; the same affine maps as `process`, equal within rounding), and only the calibrated
-        ImuSample of each row is built. A calibration or mounting swapped between two samples (a listener's)
-        takes effect from the next one."""
+        """Every sample of `block` through calibration, mounting and the estimator, in order, as a generator:
+        yields each sample's estimate (read it before the next one). The block's vectors are calibrated and
+        rotated at once, one (n, 9) · (9, 9) product (`block_map`: the calibration's affine maps followed by the
+        mounting), and only the calibrated ImuSample of each row is built. A calibration or mounting swapped
+        between two samples (a listener's) takes effect from the next one."""
         t_s, temp_c, supply_v, diag, counter = block.t_s, block.temp_c, block.supply_v, block.diag_stat, block.counter
         raw_flags = block.flags
         cal = m = None

@@ -9,10 +9,10 @@ from __future__ import annotations
 import asyncio
 import logging
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Sequence
 
 from ahrsd.core.estimate import EstimateFlags
-from ahrsd.core.sample import SampleFlags
+from ahrsd.core.sample import ImuSample, SampleFlags
 from ahrsd.core.sample_block import SampleBlock
 from ahrsd.daemon.counters import ServiceCounters
 from ahrsd.daemon.health import Health
@@ -221,8 +221,7 @@ class SampleReader:
                 self._tick_handle = loop.call_later(DRIVER_RETRY_S, self._batch_retry)
                 return
             if samples:
-                self.process(samples, now)
-                out.batch_done(samples.t_s[-1] if type(samples) is SampleBlock else samples[-1].t_s)
+                out.batch_done(self.process(samples, now))
             elif source.finished:
                 log.info("replay finished")
                 out.finished()
@@ -257,8 +256,11 @@ class SampleReader:
             self.loop.add_reader(self.source.ready_fd, self._data_step)
         self._batch_step()
 
-    def process(self, samples, now: float) -> None:
-        """The per-sample hot path: pipeline, listeners, health bookkeeping."""
+    def process(self, block: SampleBlock | Sequence[ImuSample], now: float) -> float:
+        """The per-sample hot path: pipeline, listeners, health bookkeeping, for a block of samples (a reader
+        process's) or a sequence of ImuSamples (made a block: `SampleBlock.of`). Returns the last sample's time."""
+        if type(block) is not SampleBlock:
+            block = SampleBlock.of(block)
         health, pipeline, out = self.health, self.pipeline, self.outputs
         if health.sensor_error:
             health.sensor_error = ""
@@ -269,11 +271,10 @@ class SampleReader:
         in_place = self.listeners.in_place
         log_put = out.raw_sink                # daemon.vehicle_log: a queue append, never blocks
         if log_put is not None:
-            for raw in samples:
+            for raw in block:
                 log_put(raw)
-        # a reader process's block stays columns: calibrated at once, only the calibrated samples built
-        block = type(samples) is SampleBlock
-        for est in (pipeline.process_block(samples) if block else map(pipeline.process, samples)):
+        # the block stays columns: calibrated at once, only the calibrated samples built
+        for est in pipeline.process_block(block):
             if est is not None and _int_and(est.flags, _REINITIALISED):
                 reinitialised = True          # on any sample of a block, not only the last one
             if listeners and est is not None:
@@ -293,12 +294,12 @@ class SampleReader:
         source = self.source
         if source is None or not source.recording_time_base:   # samples in time order: count from the oldest
             ready_by = now - LATE_AFTER_S - (source.monotonic_offset_s if source is not None else 0.0)
-            for t_s in (samples.t_s if block else (raw.t_s for raw in samples)):
+            for t_s in block.t_s:
                 if t_s >= ready_by:
                     break
                 self.counters.late_samples += 1
         health.sample_read(now)
-        health.last_sample_flags = samples.flags[-1] if block else samples[-1].flags
+        health.last_sample_flags = block.flags[-1]
         if reinitialised:
             out.heading_reset()           # a genuine re-initialisation: signalled, not slewed
         if est is not None:
@@ -307,6 +308,7 @@ class SampleReader:
                 self.ready_sent = True
                 out.ready()
                 log.info("first good estimate: READY")
+        return block.t_s[-1]
 
     def on_driver_error(self, exc: Exception) -> None:
         self.counters.driver_errors += 1

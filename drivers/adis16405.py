@@ -14,6 +14,7 @@ import logging
 import math
 import struct
 import time
+from operator import mul as _mul
 from collections.abc import Callable, Iterable
 
 import numpy as np
@@ -21,6 +22,8 @@ import numpy as np
 from . import registers as R
 from .errors import BusError, ConfigError, DriverError, FrameError, ProductIdMismatch, SelfTestFailed, ShortRead
 from ahrsd.core.sample import ImuSample, SampleFlags
+from ahrsd.core.sample_block import sample_flags
+from .sample_record import SampleRecord
 from .spi import SpiBus
 
 log = logging.getLogger(__name__)
@@ -76,6 +79,11 @@ class Adis16405:
         simulated chip runs on virtual time), else `time.sleep`.
     """
 
+    # read_sample returns a drivers.sample_record.SampleRecord instead of an ImuSample: set for its whole process
+    # by the reader process (drivers.process_source), which only packs the samples for the pipe; every driver it
+    # opens (a reconnection opens a new one) then hands over records
+    samples_as_records = False
+
     def __init__(self, bus: SpiBus, *, sleep: Callable[[float], None] | None = None,
                  stuck_window_s: float = STUCK_WINDOW_S, data_ready: bool = False):
         self.bus = bus
@@ -121,6 +129,7 @@ class Adis16405:
         range_dps, _ = R.decode_sens_avg(sens_avg)
         gyro_rad_per_lsb = math.radians(R.GYRO_DPS_PER_LSB[range_dps])
         self._scale9 = np.array([gyro_rad_per_lsb] * 3 + [R.ACCEL_M_S2_PER_LSB] * 3 + [R.MAG_UT_PER_LSB] * 3)
+        self._scale9_list = self._scale9.tolist()
         self._gyro_range_lsb = R.gyro_range_lsb(range_dps)
         self._full_scale9 = (self._gyro_range_lsb,) * 3 + (R.ACCEL_RANGE_LSB,) * 3 + (R.MAG_RANGE_LSB,) * 3
         self._plausible9 = tuple(int(PLAUSIBLE_RANGE_FACTOR * fs) for fs in self._full_scale9)
@@ -129,7 +138,7 @@ class Adis16405:
 
     def _reset_stream_state(self) -> None:
         self._counter = -1                 # index of the last fresh sample
-        self._last: ImuSample | None = None
+        self._last: ImuSample | SampleRecord | None = None
         self._prev_gx: int | None = None
         self._prev_raw9 = [None] * 9
         self._runs = [0] * 9
@@ -325,8 +334,8 @@ class Adis16405:
         self.counters["garbage_frames"] += 1
         return FrameError(f"burst frame rejected: {reason}", raw)
 
-    def read_sample(self, stamp: Callable[[int], tuple[float, int, int]] | None = None) -> ImuSample:
-        """One burst read -> ImuSample (SI, sensor frame).
+    def read_sample(self, stamp: Callable[[int], tuple[float, int, int]] | None = None) -> ImuSample | SampleRecord:
+        """One burst read -> ImuSample (SI, sensor frame; a SampleRecord with `samples_as_records`).
 
         stamp: `stamp(flags) -> (t_s, counter, extra_flags)`, called once the frame's flags are known, gives
             the sample its time stamp and index (drivers.chip_source: the host-clock SampleTimer). Without it
@@ -425,17 +434,18 @@ class Adis16405:
         return _STALE | self._stuck_flags()
 
     def _sample(self, t_s: float, counter: int, raw9: list[int], w_temp: int, supply: int, flags: int,
-                diag: int) -> ImuSample:
-        """The ImuSample of a checked frame, in SI units; counted and kept as the last one."""
-        values = np.array(raw9, dtype=np.float64)
-        values *= self._scale9
-        sample = ImuSample(
-            t_s,
-            values[0:3], values[3:6], values[6:9],
-            R.TEMP_C_AT_ZERO + R.TEMP_C_PER_LSB * (((w_temp & 0x0FFF) ^ 0x0800) - 0x0800),
-            supply * R.SUPPLY_V_PER_LSB,
-            SampleFlags(flags), diag, counter,
-        )
+                diag: int) -> ImuSample | SampleRecord:
+        """The ImuSample (or SampleRecord) of a checked frame, in SI units; counted and kept as the last one."""
+        temp_c = R.TEMP_C_AT_ZERO + R.TEMP_C_PER_LSB * (((w_temp & 0x0FFF) ^ 0x0800) - 0x0800)
+        if self.samples_as_records:
+            # the same products as the array's below (an int times a float64, rounded once)
+            sample = SampleRecord((t_s, *map(_mul, raw9, self._scale9_list), temp_c, supply * R.SUPPLY_V_PER_LSB,
+                                   flags, diag, counter))
+        else:
+            values = np.array(raw9, dtype=np.float64)
+            values *= self._scale9
+            sample = ImuSample(t_s, values[0:3], values[3:6], values[6:9], temp_c, supply * R.SUPPLY_V_PER_LSB,
+                               sample_flags(flags), diag, counter)
         self.counters["samples"] += 1
         self._last = sample
         return sample

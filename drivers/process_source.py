@@ -26,6 +26,8 @@ import numpy as np
 from ahrsd.core.sample import ImuSample
 from ahrsd.core.sample_block import SampleBlock
 from ahrsd.drivers import errors as driver_errors
+from ahrsd.drivers.adis16405 import Adis16405
+from ahrsd.drivers.sample_record import SampleRecord
 from ahrsd.drivers.source_interface import LiveSource
 
 log = logging.getLogger(__name__)
@@ -44,10 +46,12 @@ _PACK_RECORD = struct.Struct("<12d3q").pack    # one _RECORD (packed, little-end
 assert struct.calcsize("<12d3q") == _RECORD.itemsize
 
 
-def pack(samples: list[ImuSample]) -> bytes:
-    """Samples as _RECORD bytes (struct: a numpy record assignment per sample costs several times more)."""
+def pack(samples: list[ImuSample | SampleRecord]) -> bytes:
+    """Samples as _RECORD bytes (struct: a numpy record assignment per sample costs several times more); a
+    SampleRecord (the chip driver's, in this process) is those numbers already."""
     p = _PACK_RECORD
-    return b"".join([p(s.t_s, *s.gyro_rad_s.tolist(), *s.accel_m_s2.tolist(), *s.mag_ut.tolist(), s.temp_c,
+    return b"".join([p(*s) if type(s) is SampleRecord else
+                     p(s.t_s, *s.gyro_rad_s.tolist(), *s.accel_m_s2.tolist(), *s.mag_ut.tolist(), s.temp_c,
                        s.supply_v, int(s.flags), s.diag_stat, s.counter) for s in samples])
 
 
@@ -81,6 +85,7 @@ def _child(sensor_cfg: dict, faults, conn) -> None:
     from ahrsd.drivers.source import open_source
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)     # the daemon ends the reader (Ctrl-C reaches the group)
+    Adis16405.samples_as_records = True              # this process only packs the chip's samples (pack)
 
     cfg = SimpleNamespace(**{**sensor_cfg, "reader": "thread"})
     try:

@@ -22,7 +22,6 @@ sample indices like any other loss.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import os
 import sys
@@ -278,7 +277,7 @@ class ThreadedSource(LiveSource):
                 return
             if self._gap_pending:
                 self._gap_pending = False
-                sample = dataclasses.replace(sample, flags=sample.flags | SampleFlags.GAP_BEFORE)
+                sample = sample.with_values(flags=sample.flags | SampleFlags.GAP_BEFORE)   # an ImuSample or a SampleRecord
             buf.append(sample)
             self.stats["handed_over"] += 1
             if len(buf) > self.stats["handover_max_backlog"]:

@@ -143,3 +143,34 @@ def test_late_samples_of_a_block_are_counted_from_their_time_stamps():
     now = raw[3].t_s + 0.05 + 1e-6                            # samples 0..3 used more than LATE_AFTER_S late
     reader.process(unpack_block(pack(raw)), now)
     assert reader.counters.late_samples == 4
+
+
+def test_samples_already_built_take_the_same_one_path():
+    """A per-sample read or a replay's list (SampleBlock.of): calibrated and mounted as the formulas by hand say,
+    the sensor-frame sample too, and the raw samples the vehicle log and a new calibration see are the source's
+    own objects (not copies)."""
+    cal = _cal(5)
+    est = _StubEstimator()
+    pipeline = Pipeline(est, cal)
+    pipeline.set_mounting([0.0, 0.0, 90.0])
+    c_mount = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])    # Rz(90°): body ← sensor
+    logged, sensor_frame, raw_seen = [], [], []
+    reader = _reader(pipeline, raw_sink=logged.append)
+    reader.listeners.add(lambda s, e: (sensor_frame.append(pipeline.last_sensor_sample),
+                                       raw_seen.append(pipeline.last_raw_sample)), in_place=True)
+    raw = _raw(range(20, 27), seed=9)
+    reader.process((raw[0],), 100.0)                          # the per-sample reader's call
+    reader.process(raw[1:5], 100.0)                           # a replay's or a reader thread's list
+    pipeline.process(raw[5])                                  # one sample straight into the pipeline
+    pipeline.process(raw[6])
+    assert [s.counter for s in est.seen] == list(range(20, 27))
+    assert all(a is b for a, b in zip(logged, raw[:5])) and len(logged) == 5
+    assert all(a is b for a, b in zip(raw_seen, raw[:5])) and pipeline.last_raw_sample is raw[6]
+    for s, r in zip(est.seen, raw):
+        for got, want in zip((s.gyro_rad_s, s.accel_m_s2, s.mag_ut), _by_hand(cal, r, c_mount)):
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+        assert (s.t_s, s.temp_c, s.supply_v, s.flags, s.counter) == (r.t_s, r.temp_c, r.supply_v, r.flags, r.counter)
+    for sensor, r in zip(sensor_frame + [pipeline.last_sensor_sample], raw[:5] + [raw[6]]):
+        for got, want in zip((sensor.gyro_rad_s, sensor.accel_m_s2, sensor.mag_ut), _by_hand(cal, r)):
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    assert reader.health.last_sample_flags == raw[4].flags
