@@ -35,6 +35,8 @@ from ahrsd.core.estimate import HeadingState
 
 N_IRON = 12
 """IronLearner's states: the hard iron b (3, µT) then the soft iron D row by row (9)."""
+_LEVEL_HEADINGS = np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False)
+"""The headings IronLearner.level_heading_variance looks at (rad)."""
 
 
 def wrap_pi(a: float) -> float:
@@ -184,13 +186,25 @@ class IronLearner:
     def level_heading_sigma_rad(self, field_ned_ut) -> float:
         """The largest heading 1σ the learned iron's uncertainty leaves on a level vehicle, over every heading
         (rad): what a calibration with this iron folded in can claim where it was learned."""
+        return math.sqrt(self.level_heading_variance(field_ned_ut))
+
+    def level_heading_variance(self, field_ned_ut) -> float:
+        """`heading_variance` on a level vehicle at 16 headings, the largest (rad²). A property of what has been
+        learned (the covariance) and of the Earth field, not of the heading the vehicle points at now: the
+        covariance only shrinks while learning, so this never grows again until the iron is reset."""
         b = np.asarray(field_ned_ut, dtype=float)
-        worst = 0.0
-        for psi in np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False):
-            c, s = math.cos(psi), math.sin(psi)
-            c_bn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-            worst = max(worst, self.heading_variance(c_bn, b))
-        return math.sqrt(worst)
+        h2 = b[0] * b[0] + b[1] * b[1]
+        if h2 <= 0.0:
+            return math.inf
+        g = np.array([-b[1], b[0], 0.0]) / h2
+        c, s = np.cos(_LEVEL_HEADINGS), np.sin(_LEVEL_HEADINGS)
+        zero, one = np.zeros_like(c), np.ones_like(c)
+        c_bn = np.stack([np.stack([c, -s, zero], -1), np.stack([s, c, zero], -1), np.stack([zero, zero, one], -1)], 1)
+        # heading_variance for each c_bn at once: a = [w, w_i·(C_bnᵀ B)_j] with w = g C_bn (I + D)⁻¹
+        w = np.einsum("j,kji->ki", g, c_bn) @ self.soft_iron_inverse
+        field_body = np.einsum("kji,j->ki", c_bn, b)
+        a = np.concatenate([w, (w[:, :, None] * field_body[:, None, :]).reshape(len(c), 9)], axis=1)
+        return float(np.max(np.einsum("ki,ij,kj->k", a, self.cov, a)))
 
 
 @dataclass
