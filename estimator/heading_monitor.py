@@ -263,7 +263,8 @@ class HeadingMonitor:
 
     def check(self, t_s: float, yaw_rad: float, yaw_var_rad2: float, mag_yaw_rad: float, mag_var_rad2: float,
               gsf_yaw_rad: float, gsf_var_rad2: float, gsf_valid: bool, heading_observable: bool,
-              velocity_nis: float = math.nan, mag_bias_var_rad2: float = math.nan) -> MonitorDecision:
+              velocity_nis: float = math.nan, mag_bias_var_rad2: float = math.nan,
+              iron_trust_var_rad2: float = math.nan) -> MonitorDecision:
         """One check at a fused GNSS fix. yaw: the filter's (true); mag_yaw: the heading the magnetometer (with
         the learned iron removed) gives at the filter's tilt, NaN when it has none; mag_var: its variance
         (calibration + learned iron + noise); gsf_*: the Gaussian-sum yaw; heading_observable: the filter's yaw
@@ -272,7 +273,9 @@ class HeadingMonitor:
         velocity_nis: the filter's last GNSS velocity NIS (2–3 dof) — a reset to the GNSS yaw also needs the
         filter's own velocity fusion to show the heading is wrong (low-passed NIS above `reset_velocity_nis`),
         as EKF3's realignYawGPS needs a failing velocity test; mag_bias_var: the slowly varying part of mag_var
-        (without the white noise of one sample), which decides whether the magnetometer is trusted."""
+        (without the white noise of one sample), which decides whether the magnetometer is trusted;
+        iron_trust_var: the learned iron's heading variance at its worst heading (Ins._magnetometer_trust_var),
+        which decides whether the iron is still learned (NaN: mag_bias_var)."""
         bias_var = mag_var_rad2 if math.isnan(mag_bias_var_rad2) else mag_bias_var_rad2
         have_mag = math.isfinite(mag_yaw_rad)
         dt, k = self._advance(t_s)
@@ -288,8 +291,9 @@ class HeadingMonitor:
         reset_to, reset_var = self._emergency_reset(t_s, k, velocity_nis, yaw_rad, yaw_var_rad2, gsf_yaw_rad,
                                                     gsf_var_rad2, gsf_valid, have_mag, bias_var)
         # a reset here moves the yaw its σ was judged on: nothing is learned until the next check
+        learn_var = bias_var if math.isnan(iron_trust_var_rad2) else iron_trust_var_rad2
         self.learning = heading_observable and reset_to is None and (
-            self.mag_rejected or bias_var > self.trusted_sigma_rad ** 2)
+            self.mag_rejected or learn_var > self.trusted_sigma_rad ** 2)
         return MonitorDecision(not self.mag_rejected, mag_var_rad2 if not self.mag_rejected else 0.0, floor,
                                reset_to, reset_var)
 
