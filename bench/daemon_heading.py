@@ -73,6 +73,13 @@ def main(argv=None) -> int:
             print(f"  {start:4d}–{start + 60:4d} s: RMS {np.sqrt(np.mean(err[w] ** 2)):5.2f}°, median σ "
                   f"{np.median(sigma[w]):5.2f}°, beyond 3σ {np.mean(np.abs(err[w]) > 3 * sigma[w]):6.2%}")
     print("  STATUSTEXT:", " | ".join(dict.fromkeys(texts)))
+    # every STATUSTEXT in order, at the recording time of the last VPE received before it (a heading state that
+    # flips shows here as the same announcements repeated)
+    vpe_wall = np.array([w for w, m in got.get("VISION_POSITION_ESTIMATE", []) if int(m.usec) in index_us])
+    print(f"  STATUSTEXT in order ({len(texts)}):")
+    for wall, m in got.get("STATUSTEXT", []):
+        i = int(np.searchsorted(vpe_wall, wall)) - 1
+        print(f"    {'≈%6.1f s' % t[i] if i >= 0 else '  before VPE'}  {m.text}")
     return 0
 
 

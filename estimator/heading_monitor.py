@@ -35,6 +35,8 @@ from ahrsd.core.estimate import HeadingState
 
 N_IRON = 12
 """IronLearner's states: the hard iron b (3, µT) then the soft iron D row by row (9)."""
+_LEVEL_HEADINGS = np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False)
+"""The headings IronLearner.level_heading_variance looks at (rad)."""
 
 
 def wrap_pi(a: float) -> float:
@@ -184,13 +186,25 @@ class IronLearner:
     def level_heading_sigma_rad(self, field_ned_ut) -> float:
         """The largest heading 1σ the learned iron's uncertainty leaves on a level vehicle, over every heading
         (rad): what a calibration with this iron folded in can claim where it was learned."""
+        return math.sqrt(self.level_heading_variance(field_ned_ut))
+
+    def level_heading_variance(self, field_ned_ut) -> float:
+        """`heading_variance` on a level vehicle at 16 headings, the largest (rad²). A property of what has been
+        learned (the covariance) and of the Earth field, not of the heading the vehicle points at now: the
+        covariance only shrinks while learning, so this never grows again until the iron is reset."""
         b = np.asarray(field_ned_ut, dtype=float)
-        worst = 0.0
-        for psi in np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False):
-            c, s = math.cos(psi), math.sin(psi)
-            c_bn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-            worst = max(worst, self.heading_variance(c_bn, b))
-        return math.sqrt(worst)
+        h2 = b[0] * b[0] + b[1] * b[1]
+        if h2 <= 0.0:
+            return math.inf
+        g = np.array([-b[1], b[0], 0.0]) / h2
+        c, s = np.cos(_LEVEL_HEADINGS), np.sin(_LEVEL_HEADINGS)
+        zero, one = np.zeros_like(c), np.ones_like(c)
+        c_bn = np.stack([np.stack([c, -s, zero], -1), np.stack([s, c, zero], -1), np.stack([zero, zero, one], -1)], 1)
+        # heading_variance for each c_bn at once: a = [w, w_i·(C_bnᵀ B)_j] with w = g C_bn (I + D)⁻¹
+        w = np.einsum("j,kji->ki", g, c_bn) @ self.soft_iron_inverse
+        field_body = np.einsum("kji,j->ki", c_bn, b)
+        a = np.concatenate([w, (w[:, :, None] * field_body[:, None, :]).reshape(len(c), 9)], axis=1)
+        return float(np.max(np.einsum("ki,ij,kj->k", a, self.cov, a)))
 
 
 @dataclass
@@ -249,7 +263,8 @@ class HeadingMonitor:
 
     def check(self, t_s: float, yaw_rad: float, yaw_var_rad2: float, mag_yaw_rad: float, mag_var_rad2: float,
               gsf_yaw_rad: float, gsf_var_rad2: float, gsf_valid: bool, heading_observable: bool,
-              velocity_nis: float = math.nan, mag_bias_var_rad2: float = math.nan) -> MonitorDecision:
+              velocity_nis: float = math.nan, mag_bias_var_rad2: float = math.nan,
+              iron_trust_var_rad2: float = math.nan) -> MonitorDecision:
         """One check at a fused GNSS fix. yaw: the filter's (true); mag_yaw: the heading the magnetometer (with
         the learned iron removed) gives at the filter's tilt, NaN when it has none; mag_var: its variance
         (calibration + learned iron + noise); gsf_*: the Gaussian-sum yaw; heading_observable: the filter's yaw
@@ -258,7 +273,9 @@ class HeadingMonitor:
         velocity_nis: the filter's last GNSS velocity NIS (2–3 dof) — a reset to the GNSS yaw also needs the
         filter's own velocity fusion to show the heading is wrong (low-passed NIS above `reset_velocity_nis`),
         as EKF3's realignYawGPS needs a failing velocity test; mag_bias_var: the slowly varying part of mag_var
-        (without the white noise of one sample), which decides whether the magnetometer is trusted."""
+        (without the white noise of one sample), which decides whether the magnetometer is trusted;
+        iron_trust_var: the learned iron's heading variance at its worst heading (Ins._magnetometer_trust_var),
+        which decides whether the iron is still learned (NaN: mag_bias_var)."""
         bias_var = mag_var_rad2 if math.isnan(mag_bias_var_rad2) else mag_bias_var_rad2
         have_mag = math.isfinite(mag_yaw_rad)
         dt, k = self._advance(t_s)
@@ -274,8 +291,9 @@ class HeadingMonitor:
         reset_to, reset_var = self._emergency_reset(t_s, k, velocity_nis, yaw_rad, yaw_var_rad2, gsf_yaw_rad,
                                                     gsf_var_rad2, gsf_valid, have_mag, bias_var)
         # a reset here moves the yaw its σ was judged on: nothing is learned until the next check
+        learn_var = bias_var if math.isnan(iron_trust_var_rad2) else iron_trust_var_rad2
         self.learning = heading_observable and reset_to is None and (
-            self.mag_rejected or bias_var > self.trusted_sigma_rad ** 2)
+            self.mag_rejected or learn_var > self.trusted_sigma_rad ** 2)
         return MonitorDecision(not self.mag_rejected, mag_var_rad2 if not self.mag_rejected else 0.0, floor,
                                reset_to, reset_var)
 

@@ -450,6 +450,7 @@ class Ins:
         self._field_key = None
         self._field_ned = None
         self._mag_var = p.calibration_sigma_rad ** 2
+        self._mag_trust_var = p.calibration_sigma_rad ** 2
         self._heading_confirmed = False    # by a GNSS yaw within heading_confirm_gsf_sigma_rad
         self._bias_heading_confirmed = False   # by a GNSS yaw within accel_bias_gsf_sigma_rad
         self._mag_rotation = MagRotationBias(gyro_noise_rad_s_rthz=p.gyro_noise_rad_s_sqrt_hz)
@@ -532,6 +533,7 @@ class Ins:
                                        max_resets=p.yaw_reset_max, reset_spacing_s=p.yaw_reset_spacing_s,
                                        resets=self._monitor.resets, last_reset_t_s=self._monitor.last_reset_t_s)
         self._mag_var = p.calibration_sigma_rad ** 2
+        self._mag_trust_var = p.calibration_sigma_rad ** 2
         self._par["mag_use"] = 1.0
         self._par["mag_moves_tilt"] = 1.0 if p.mag_moves_tilt else 0.0
         self._par["mag_bias_var_rad2"] = p.calibration_sigma_rad ** 2
@@ -778,11 +780,13 @@ class Ins:
         if self._mag_rotation_on:
             self._mag_rotation_check(t_s, c_bn)
         mag_yaw, mag_var, noise = self._magnetometer_heading(c_bn, yaw, m_body)
+        trust_var = self._magnetometer_trust_var(mag_var, noise)
         gsf_yaw, gsf_var, gsf_valid = self._gnss_yaw()
-        d = self._monitor_decision(t_s, yaw, yaw_var, mag_yaw, mag_var, noise, gsf_yaw, gsf_var, gsf_valid)
+        d = self._monitor_decision(t_s, yaw, yaw_var, mag_yaw, mag_var, noise, trust_var, gsf_yaw, gsf_var,
+                                   gsf_valid)
         yaw_reset_to = self._reset_or_confirm_yaw(t_s, d, yaw, gsf_yaw, gsf_var, gsf_valid)
         self._set_accel_bias_learning()
-        self._set_magnetometer_use(d, mag_var, noise)
+        self._set_magnetometer_use(d, mag_var, noise, trust_var)
         # the monitor says no learning on a check that reset the yaw (c_bn is the attitude before the reset, P its
         # covariance after it): the next check learns with the new yaw
         iron_updates = self._iron.updates
@@ -866,6 +870,22 @@ class Ins:
                         + self._iron.heading_variance(c_bn, m_ned)
         return mag_yaw, mag_var, noise
 
+    def _magnetometer_trust_var(self, mag_var: float, noise: float) -> float:
+        """The magnetometer heading's slowly varying error variance that the heading state and the end of the iron
+        learning are judged on, rad²: the calibration's; with a learned iron, what the iron leaves at the worst
+        heading of a level vehicle (IronLearner.level_heading_variance) plus the floor of what a learned iron
+        cannot explain, at the WMM horizontal field. Not `mag_var` less its noise (what the kernel fuses, and what
+        the magnetometer's re-entry and tilt trust read, at this attitude): that projects the iron's covariance on
+        the heading the vehicle points at, so a half-learned iron read as learned on one leg and not on the next,
+        stopping and restarting the learning and flipping the published state MAGNETOMETER ↔ LEARNING each time
+        the boat turned (docs/gnss.md "Heading state"). This one only falls while learning."""
+        p = self.params
+        field = self._earth_field_ned()
+        if not (self._iron.updates > 0 or self._iron_restored) or field is None or not math.isfinite(mag_var):
+            return mag_var - noise if math.isfinite(mag_var) else math.nan
+        h2 = float(field[0] ** 2 + field[1] ** 2)
+        return min(p.calibration_sigma_rad ** 2, p.iron_unmodelled_ut ** 2 / h2) + self._iron.level_heading_variance(field)
+
     def _gnss_yaw(self) -> tuple[float, float, bool]:
         """The GNSS yaw bank's yaw, its variance (rad²) and whether it is valid: (NaN, inf, False) without the
         bank (gnss_yaw off) or before it has a finite yaw."""
@@ -876,7 +896,8 @@ class Ins:
         return math.nan, math.inf, False
 
     def _monitor_decision(self, t_s: float, yaw: float, yaw_var: float, mag_yaw: float, mag_var: float,
-                          noise: float, gsf_yaw: float, gsf_var: float, gsf_valid: bool) -> MonitorDecision:
+                          noise: float, trust_var: float, gsf_yaw: float, gsf_var: float,
+                          gsf_valid: bool) -> MonitorDecision:
         """The heading monitor's check of the filter's yaw against the magnetometer's and the GNSS yaw's
         (HeadingMonitor.check), and what follows from it before any yaw reset: the biases a GNSS yaw agreeing
         with the heading confirms are kept (a reset goes back to them), a magnetometer just rejected makes the
@@ -886,7 +907,7 @@ class Ins:
         observable = yaw_var < p.heading_observable_sigma_rad ** 2
         d = self._monitor.check(t_s, yaw, yaw_var, mag_yaw, mag_var, gsf_yaw, gsf_var, gsf_valid, observable,
                                 float(self._x["vel_gate"]["nis"]),
-                                mag_var - noise if math.isfinite(mag_var) else math.nan)
+                                mag_var - noise if math.isfinite(mag_var) else math.nan, trust_var)
         if gsf_valid and wrap_pi(gsf_yaw - yaw) ** 2 <= self._monitor.gate_sigma ** 2 * (yaw_var + gsf_var) \
                 and self._monitor.lowpassed_velocity_nis < self._monitor.reset_velocity_nis:
             # the GNSS yaw confirms the filter's heading: its gyro bias was learned with a right heading
@@ -963,7 +984,7 @@ class Ins:
         elif gsf_var > P[core.E_YAW, core.E_YAW]:
             P[core.E_YAW, core.E_YAW] = gsf_var
 
-    def _set_magnetometer_use(self, d: MonitorDecision, mag_var: float, noise: float) -> None:
+    def _set_magnetometer_use(self, d: MonitorDecision, mag_var: float, noise: float, trust_var: float) -> None:
         """What the kernel does with the magnetometer after the check: whether it uses it (the monitor's
         decision), whether its update may move the horizon (a trusted one may, with `mag_trusted_moves_tilt`),
         and its heading bias's variance and time constant (the learned iron's once there is one)."""
@@ -972,8 +993,9 @@ class Ins:
         trusted = d.mag_use and self._mag_var < self._monitor.trusted_sigma_rad ** 2
         self._par["mag_moves_tilt"] = 1.0 if p.mag_moves_tilt or (p.mag_trusted_moves_tilt and trusted) else 0.0
         if math.isfinite(mag_var):
-            self._mag_var = mag_var - noise      # the slowly varying part: what trust and the heading state use
-            self._par["mag_bias_var_rad2"] = mag_var - noise   # the white part is the kernel's own noise
+            self._mag_var = mag_var - noise      # the slowly varying part at this attitude: what trust uses
+            self._mag_trust_var = trust_var      # what the heading state uses (_magnetometer_trust_var)
+            self._par["mag_bias_var_rad2"] = mag_var - noise   # at this attitude; the white part is the kernel's own noise
             learned = self._iron.updates > 0 or self._iron_restored
             self._par["mag_bias_tau_s"] = p.iron_learned_tau_s if learned else p.mag_bias_tau
 
@@ -1005,7 +1027,7 @@ class Ins:
                                            self._iron.sigma_ut)
         # held at the check rate, so the state does not depend on how often estimates are built
         self._heading_state = self._state_hold.update(
-            t_s, self._monitor.heading_state(sig, False, True, p.heading_unknown_sigma_rad, self._mag_var), sig)
+            t_s, self._monitor.heading_state(sig, False, True, p.heading_unknown_sigma_rad, self._mag_trust_var), sig)
 
     def _gnss_yaw_alignment_due(self, gsf_valid: bool) -> bool:
         """The first valid GNSS yaw, no trusted magnetometer calibration, the heading not yet confirmed: the

@@ -63,7 +63,15 @@ from .kernel_flags import (
     step_dt,
 )
 from .kernel_rotations import dcm, euler_zyx, normalised, quat_mul, rotate_to_ned, tilt_sigma
-from .turn_lean import TURN_LEAN_DTYPE, bound_pushes, lowpass_rate_down, track_heading_push, track_tilt_push
+from .turn_lean import (
+    TURN_LEAN_DTYPE,
+    bound_pushes,
+    lowpass_rate_down,
+    tilt_pushes_rad,
+    track_accel_push,
+    track_heading_push,
+    track_tilt_push,
+)
 
 __all__ = [
     "MEKF_STATE_DTYPE", "MEKF_PARAMS_DTYPE", "MEKF_OUT_DTYPE", "MEKF_BUFFER_DTYPE", "mekf_step", "mekf_step_full",
@@ -609,6 +617,9 @@ def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish):
     r = _vertical_noise_rad2(par, at_rest, unorm, g_ref, r_motion)
     if publish:
         track_tilt_push(st.unmodelled, par.turn_speed_m_s, g_ref, st.P[E_TILT_E, E_TILT_E], r)
+    # on both paths (a sum: no bound after a batch could stand for it), so a batch leaves the state a step leaves
+    track_accel_push(st.unmodelled, nu_n, nu_e, st.P[E_TILT_N, E_TILT_N], st.P[E_TILT_E, E_TILT_E], r, dt,
+                     at_rest)
     _correct_tilt(st, par, fnorm, g_ref, nu_n, nu_e, r)
     return 0
 
@@ -875,10 +886,11 @@ def _fill_outputs(st, par, gx, gy, gz, out):
     # the published 1σ adds what the covariance does not carry (Schmidt's "consider" terms):
     # (a) the low-passed vertical is on average acc_lowpass_tau_s old, so it has not seen the attitude random
     #     walk of the last τ: the tilt process noise over τ;
-    # (b) the lean a turn has left in the tilt and, through the dip, in the heading (`turn_lean.track_tilt_push`)
+    # (b) the lean a turn or a speed change has left in the tilt and, through the dip, in the heading
+    #     (`turn_lean.track_tilt_push`, `turn_lean.track_accel_push`)
     u = st.unmodelled
     extra = (_tilt_process_noise_rad2(par, math.sqrt(wx * wx + wy * wy + wz * wz), par.acc_lowpass_tau_s)
-             + u.tilt_push_rad * u.tilt_push_rad)
+             + tilt_pushes_rad(u) ** 2)
     P = st.P
     sig = out.sigma_rpy_rad
     sig[0], sig[1] = tilt_sigma(cy, sy, P[E_TILT_N, E_TILT_N] + extra, P[E_TILT_N, E_TILT_E],

@@ -8,14 +8,24 @@ filters' `turn_speed_m_s`). Through the field's dip I that tilt error becomes a 
 magnetometer (`track_heading_push`). Neither error is white noise, so neither is in the filter's covariance:
 both are tracked here beside it and added to the published 1σ in quadrature (Schmidt's "consider" terms).
 
+A vehicle that speeds up or brakes leans the apparent vertical along its track the same way, by a/g, and no
+gyro shows it: `track_accel_push` sums the levelling's own corrections, which add up to the lean it has taken
+whatever the acceleration was (its docstring), and the sum enters the tilt (and, through the dip, the heading)
+push in quadrature. mekf only: it learns its gyro bias from the levelling, so its corrections average to
+nothing once the lean is gone; ins levels tilt only (its biases get no gain from the accelerometer), and on a
+turning vehicle its levelling holds off the horizontal gyro bias at a rate that turns with the heading, and the
+sum would count that as lean (docs/estimator.md "Known limits").
+
 One rule for both filters that level with the accelerometer: mekf (always) and ins (while no GNSS velocity
 aids it: with GNSS the lean is observed and corrected). Each filter keeps a TURN_LEAN_DTYPE record in its state
 and calls, in its own stages:
   `lowpass_rate_down`    the rate about the vertical, low-passed as the levelling's specific force is
   `track_tilt_push`      at each accepted levelling update
+  `track_accel_push`     at each accepted levelling update (mekf)
   `track_heading_push`   at each magnetometer heading update
   `bound_pushes`         after a stretch that did not track (mekf's batch): an upper bound of what tracking
-                         would have left
+                         would have left (the speed change's sum is tracked on mekf's batch too: it has
+                         no target to bound)
 """
 
 from __future__ import annotations
@@ -29,7 +39,12 @@ TURN_LEAN_DTYPE = np.dtype([
     ("rate_down_lp_rad_s", np.float64),   # rate about the vertical, low-passed as the specific force is
     ("tilt_push_rad", np.float64),        # tilt error a sustained push has left in the estimate
     ("heading_push_rad", np.float64),     # heading error that tilt error leaves through the dip
+    ("accel_push_n_rad", np.float64),     # tilt (about north, east) the levelling took from the specific force's
+    ("accel_push_e_rad", np.float64),     # horizontal part, forgotten over ACCEL_PUSH_MEMORY_S (`track_accel_push`)
 ])
+ACCEL_PUSH_MEMORY_S = 30.0
+"""How long `track_accel_push` remembers the levelling's corrections, s: the longest sustained speed change whose
+lean it covers, and the span over which the gyro errors the levelling corrects add up as if they were lean."""
 
 
 @njit(cache=True, inline="always")
@@ -56,12 +71,42 @@ def track_tilt_push(u, turn_speed_m_s, g_m_s2, p_tilt, r):
 
 
 @njit(cache=True)
+def track_accel_push(u, nu_n, nu_e, p_tilt_n, p_tilt_e, r, dt, at_rest):
+    """The tilt the levelling takes from a speed change. Speeding up or braking at a leans the apparent vertical
+    by a/g along the track; nothing but the velocity shows a, so the levelling reads the lean as tilt error and
+    corrects toward it. Its innovation ν (the low-passed vertical's horizontal part in the estimated frame) is
+    then the lean φ less the error e the filter already carries, and each update moves the estimate by k·ν
+    (k = P/(P + R)): e ← e + k(φ − e). The sum of those corrections is e itself, whatever φ was (the measurement
+    noise in ν telescopes away: Σ k(n − e) = e_N − e_0), so summing k·ν reconstructs the lean the filter
+    carries with no speed known. It also sums the corrections of the gyro's own drift, which are not lean: the
+    sum forgets at ACCEL_PUSH_MEMORY_S, which bounds that part by the drift over the memory (so only a filter
+    whose levelling also learns the gyro bias may use it: the module docstring), and nothing is summed while the
+    vehicle is at rest (`at_rest`: nothing leans the vertical then; the corrections are the gyro bias being
+    learned and its noise). nu_n: the innovation on δθ_E, nu_e: on −δθ_N (mekf_core._tilt_update); p_tilt_n,
+    p_tilt_e: the tilt variances before the update; r: its noise variance; dt: the time since the previous
+    update, s."""
+    keep = math.exp(-dt / ACCEL_PUSH_MEMORY_S)
+    u.accel_push_e_rad *= keep
+    u.accel_push_n_rad *= keep
+    if not at_rest:
+        u.accel_push_e_rad += p_tilt_e / (p_tilt_e + r) * nu_n
+        u.accel_push_n_rad -= p_tilt_n / (p_tilt_n + r) * nu_e
+
+
+@njit(cache=True, inline="always")
+def tilt_pushes_rad(u):
+    """Both tilt terms together (1σ, rad): the turn's lean and the speed change's, in quadrature."""
+    return math.sqrt(u.tilt_push_rad * u.tilt_push_rad + u.accel_push_n_rad * u.accel_push_n_rad
+                     + u.accel_push_e_rad * u.accel_push_e_rad)
+
+
+@njit(cache=True)
 def track_heading_push(u, dip_rad, p_heading, r):
     """The heading error the tilt push leaves through the field's dip. The heading is the direction of the
     horizontal field in the estimated NED frame; a tilt error ε about the north axis turns the vertical field
     B sin I into the east component, ε B sin I, against a horizontal field B cos I: a heading error ε tan I.
     Each heading update moves the estimate toward that with its own gain P/(P + R)."""
-    target = abs(math.tan(dip_rad)) * u.tilt_push_rad
+    target = abs(math.tan(dip_rad)) * tilt_pushes_rad(u)
     u.heading_push_rad += p_heading / (p_heading + r) * (target - u.heading_push_rad)
 
 
@@ -74,7 +119,7 @@ def bound_pushes(u, turn_speed_m_s, rate_down_max_rad_s, g_min_m_s2, dip_max_rad
     the steepest dip."""
     tilt = max(u.tilt_push_rad, lean_rad(turn_speed_m_s, rate_down_max_rad_s, g_min_m_s2))
     u.tilt_push_rad = tilt
-    u.heading_push_rad = max(u.heading_push_rad, abs(math.tan(dip_max_rad)) * tilt)
+    u.heading_push_rad = max(u.heading_push_rad, abs(math.tan(dip_max_rad)) * tilt_pushes_rad(u))
 
 
 @njit(cache=True, inline="always")
@@ -82,6 +127,8 @@ def clear(u):
     """No lean left: the attitude is held by something that observes it (ins with GNSS velocity)."""
     u.tilt_push_rad = 0.0
     u.heading_push_rad = 0.0
+    u.accel_push_n_rad = 0.0
+    u.accel_push_e_rad = 0.0
 
 
 @njit(cache=True, inline="always")
@@ -90,7 +137,7 @@ def add_pushes_to_sigma(u, sigma_rpy_rad):
     about every horizontal axis, so adding it to the roll and pitch variances is adding it to the north and
     east tilt variances before they are rotated into the heading frame. Nothing to do (and nothing done) while
     both are zero."""
-    e = u.tilt_push_rad
+    e = tilt_pushes_rad(u)
     h = u.heading_push_rad
     if e != 0.0:
         sigma_rpy_rad[0] = math.sqrt(sigma_rpy_rad[0] * sigma_rpy_rad[0] + e * e)
