@@ -1,8 +1,9 @@
 """Does a short-Tc Gauss–Markov bias beside the chip's filtered white noise read as Gauss–Markov (issue 30 item 9)?
 
 White noise through the ADIS16405's default SENS_AVG window (7-tap Bartlett, 819.2 SPS) plus a first-order
-Gauss–Markov bias of correlation time Tc = f × the shortest fitted τ (8 of the window's correlation lengths),
-σ_GM set so the bump's Allan variance at its peak is `--ratio` × the white noise's there. Per case: which terms
+Gauss–Markov bias of correlation time Tc = f × τ_min, τ_min = 8 of the window's correlation lengths as read from
+the data (the fit's start in allan_correlation, kept as the unit whatever that start is), σ_GM set so the bump's
+Allan variance at its peak is `--ratio` × the white noise's there. Per case: which terms
 are read, σ_GM and Tc against the generator's, and the bias-driving density w_b that allan_kalman proposes against
 the truth σ_GM·√(2/Tc). `--seeds`, `--factors` and `--ratio` choose the cases (in-sample: seeds 1-3, Tc factors
 5 10 20 50 100, ratio 10; held out: seeds 4-6, other factors and ratios). `--without-alternatives`: the selection
@@ -23,11 +24,13 @@ import allan_noise as gen  # noqa: E402
 
 from ahrsd.calibration.allan import analyse_static  # noqa: E402
 from ahrsd.calibration.allan_kalman import bias_drive  # noqa: E402
+from ahrsd.calibration.allan_correlation import SampleCorrelation  # noqa: E402
 from ahrsd.calibration import allan_terms  # noqa: E402
 from ahrsd.calibration.allan_terms import gauss_markov_avar  # noqa: E402
 
 RATE_HZ = 819.2
 DENSITY = 5.8e-4
+TC_UNIT_LENGTHS = 8
 
 
 def window(n: int) -> np.ndarray:
@@ -66,13 +69,11 @@ def main(argv=None) -> int:
     for ratio in args.ratio:
         for f in args.factors:
             for seed in args.seeds:
-                x0, _ = record(seed, 1.0, ratio, 4.0, taps)   # to learn τ_min from the analysis itself
-                tau_min = None
-                res = analyse_static(np.arange(len(x0)) / RATE_HZ, gyro_rad_s=x0)
-                for p in res.parameters["gyro"].values():
-                    for flag in p.flags:
-                        if flag.startswith("τ < "):
-                            tau_min = float(flag.split()[2])
+                x0, _ = record(seed, 1.0, ratio, 4.0, taps)   # to learn the window's length from the data
+                correlation = SampleCorrelation()
+                correlation.add(x0)
+                # the unit of Tc: 8 of the window's correlation lengths, read as the analysis reads them (module doc)
+                tau_min = TC_UNIT_LENGTHS * int(correlation.lengths().max()) / RATE_HZ
                 tc = f * tau_min
                 seconds = max(args.min_seconds, 30.0 * tc)
                 x, sigma = record(1000 * seed + int(f), tc, ratio, seconds, taps)

@@ -37,6 +37,23 @@ def _filtered_white(samples: int, taps: np.ndarray, rng) -> np.ndarray:
                             for _ in range(3)])
 
 
+def _gyro_beside_gauss_markov(rng, sigma: float, tc: float) -> dict:
+    """The gyro axes' terms read from 320 s of white noise through the default window plus a Gauss–Markov bias."""
+    samples = int(320 * RATE_HZ)
+    x = _filtered_white(samples, _window(2), rng) + np.column_stack(
+        [gen.gauss_markov(samples, RATE_HZ, sigma, tc, rng) for _ in range(3)])
+    return analyse_static(np.arange(samples) / RATE_HZ, gyro_rad_s=x).parameters["gyro"]
+
+
+def _white_and_gauss_markov(axis: str, p, sigma: float, tc: float):
+    """An axis that reads white noise and a Gauss–Markov term and nothing else: the two terms (printed)."""
+    assert set(p.terms) == {"white", "gauss_markov"}, (axis, sorted(p.terms))
+    white, gm = p.terms["white"], p.terms["gauss_markov"]
+    print(f"{axis}: white {white.value / DENSITY - 1:+.1%} ± {white.uncertainty / DENSITY:.1%}, "
+          f"GM σ {gm.value / sigma - 1:+.1%} ± {gm.uncertainty / sigma:.1%}, Tc {gm.corr_time_s / tc:.2f} of the truth")
+    return white, gm
+
+
 def assert_white_only_at_the_density(x, label):
     """Every gyro axis of `x` (at RATE_HZ) reads white noise only, at DENSITY within 4 of its own σ (< 10 %)."""
     result = analyse_static(np.arange(len(x)) / RATE_HZ, gyro_rad_s=x)
@@ -145,18 +162,9 @@ def test_a_real_gauss_markov_far_beyond_the_default_window_is_read_beside_white_
     # Tc 2 s (330 correlation lengths of the window) and σ 3 mrad/s: the fit starts at 8 lengths (0.05 s), where
     # white noise dominates two octaves and the bump the rest. The greedy selection from the best single term
     # stopped at a flicker floor (neither white noise nor the bump is seen beside it); from white noise it reads both.
-    taps = _window(2)
-    samples = int(320 * RATE_HZ)
-    rng = np.random.default_rng(6)
     sigma, tc = 3e-3, 2.0
-    x = _filtered_white(samples, taps, rng) + np.column_stack(
-        [gen.gauss_markov(samples, RATE_HZ, sigma, tc, rng) for _ in range(3)])
-    result = analyse_static(np.arange(samples) / RATE_HZ, gyro_rad_s=x)
-    for axis, p in result.parameters["gyro"].items():
-        assert set(p.terms) == {"white", "gauss_markov"}, (axis, sorted(p.terms))
-        white, gm = p.terms["white"], p.terms["gauss_markov"]
-        print(f"{axis}: white {white.value / DENSITY - 1:+.1%} ± {white.uncertainty / DENSITY:.1%}, "
-              f"GM σ {gm.value / sigma - 1:+.1%} ± {gm.uncertainty / sigma:.1%}, Tc {gm.corr_time_s:.2f} s")
+    for axis, p in _gyro_beside_gauss_markov(np.random.default_rng(6), sigma, tc).items():
+        white, gm = _white_and_gauss_markov(axis, p, sigma, tc)
         assert abs(white.value - DENSITY) < 4 * white.uncertainty, axis
         assert abs(gm.value - sigma) < 4 * gm.uncertainty, axis
         assert tc / 2 < gm.corr_time_s < tc * 2, axis
@@ -169,14 +177,8 @@ def test_a_short_gauss_markov_beside_the_default_window_is_read_as_gauss_markov_
     # (one term) fits worse than white noise and the bump but is not nested in them; tested only as "a bump beyond
     # a floor", the floor was kept on every axis, and with it a Kalman Q from a bias instability
     # (allan_terms.ALTERNATIVES: both models fitted, the better Akaike criterion kept).
-    taps = _window(2)
-    samples = int(320 * RATE_HZ)
-    rng = np.random.default_rng(seed)
     sigma, tc = 3e-3, 0.5
-    x = _filtered_white(samples, taps, rng) + np.column_stack(
-        [gen.gauss_markov(samples, RATE_HZ, sigma, tc, rng) for _ in range(3)])
-    result = analyse_static(np.arange(samples) / RATE_HZ, gyro_rad_s=x)
-    for axis, p in result.parameters["gyro"].items():
+    for axis, p in _gyro_beside_gauss_markov(np.random.default_rng(seed), sigma, tc).items():
         assert "flicker" not in p.terms and p.bias_instability is None, (axis, sorted(p.terms))
         gm = p.terms.get("gauss_markov")
         assert gm is not None, (axis, sorted(p.terms))
@@ -184,3 +186,27 @@ def test_a_short_gauss_markov_beside_the_default_window_is_read_as_gauss_markov_
               f"Tc {gm.corr_time_s:.3f} s")
         assert abs(gm.value - sigma) < 4 * gm.uncertainty, axis   # as the test above: its 1σ leaves out Tc's
         assert tc / 1.5 < gm.corr_time_s < tc * 1.5, axis     # Tc is taken as known: no 1σ of its own
+
+
+@pytest.mark.xfail(strict=True, reason="open (issue 30 item 9): the fit starts at 8 correlation lengths, where "
+                   "white noise leads for less than an octave; docs/calibration.md 'A short correlation time'")
+@pytest.mark.parametrize("seed", [31, 32])
+def test_a_strong_short_gauss_markov_beside_the_default_window_is_read_with_the_white_noise_in_front(seed):
+    # Issue 30 item 9's last case: Tc 0.27 s (7 × 8 of the window's correlation lengths) and σ so the bump's Allan
+    # variance at its peak (τ = 1.89·Tc) is 30 times the white noise's there. Fitted only from 8 lengths (0.05 s)
+    # white noise leads for less than an octave: it is not seen, and the bump's 1/τ tail stands in for it (σ_GM
+    # 10–20 % high, its 1σ far too small) or a flicker floor is read. White noise through the window is
+    # N²·(1/τ − D/τ²) exactly from the window's span on (allan_correlation), so a fit that starts nearer the span
+    # sees it for more octaves, if D's own uncertainty is carried there (docs/calibration.md).
+    from ahrsd.calibration.allan_terms import gauss_markov_avar
+
+    tc = 7 * 8 * 5 / RATE_HZ
+    peak_tau = 1.89 * tc
+    sigma = float(np.sqrt(30 * DENSITY**2 / peak_tau / gauss_markov_avar(np.array([peak_tau]), tc)[0]))
+    for axis, p in _gyro_beside_gauss_markov(np.random.default_rng(seed), sigma, tc).items():
+        white, gm = _white_and_gauss_markov(f"seed {seed} {axis}", p, sigma, tc)
+        assert abs(white.value - DENSITY) < 4 * white.uncertainty, axis
+        # σ_GM within 10 % (the misreading was 10–20 % high), not within 4 of its 1σ: that 1σ leaves out the
+        # uncertainty of Tc, with which σ_GM trades (docs/calibration.md "A short correlation time")
+        assert abs(gm.value / sigma - 1) < 0.10, axis
+        assert tc / 1.5 < gm.corr_time_s < tc * 1.5, axis
