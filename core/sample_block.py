@@ -15,17 +15,30 @@ import numpy as np
 
 from ahrsd.core.sample import ImuSample, SampleFlags
 
-_FLAGS_BY_VALUE: dict[int, SampleFlags] = {}     # SampleFlags(v) goes through the enum machinery (µs a call)
 
+class SampleFlagsCache(dict):
+    """SampleFlags by flags value, each value made once (SampleFlags(v) goes through the enum machinery on every
+    call; the flag combinations seen are few, bounded anyway by `capacity`). A dict whose `__missing__` makes the
+    value: a value seen before is a plain dict lookup in C, no Python frame on the per-sample path. `made` counts
+    the values made rather than found: what a caller (a test) reads to see the cache at work."""
 
-def sample_flags(value: int) -> SampleFlags:
-    """SampleFlags(value), from a cache (the flag combinations seen are few; bounded anyway)."""
-    flags = _FLAGS_BY_VALUE.get(value)
-    if flags is None:
+    __slots__ = ("capacity", "made")
+
+    def __init__(self, capacity: int = 4096):
+        super().__init__()
+        self.capacity = capacity
+        self.made = 0
+
+    def __missing__(self, value: int) -> SampleFlags:
         flags = SampleFlags(value)
-        if len(_FLAGS_BY_VALUE) < 4096:
-            _FLAGS_BY_VALUE[value] = flags
-    return flags
+        self.made += 1
+        if len(self) < self.capacity:
+            self[value] = flags
+        return flags
+
+
+SAMPLE_FLAGS = SampleFlagsCache()          # the process's one cache: the readers and the pipeline share it
+sample_flags = SAMPLE_FLAGS.__getitem__    # SampleFlags(value), from the cache
 
 
 class SampleBlock(Sequence):

@@ -11,6 +11,7 @@ import pytest
 
 from ahrsd.core.sample import ImuSample, SampleFlags
 from ahrsd.core import sample_block
+from ahrsd.core.sample_block import SampleFlagsCache
 from ahrsd.drivers.errors import BusError
 from ahrsd.drivers.faults import FaultPlan
 from ahrsd.drivers import process_source
@@ -326,22 +327,24 @@ def test_the_hand_over_sends_one_bounded_message_a_tick_and_never_blocks_a_real_
     assert got == list(range(20000))
 
 
-def test_a_cached_flags_value_is_not_made_again_not_even_none(monkeypatch):
-    """unpack takes each flags value it has seen from its cache, SampleFlags.NONE (falsy) too."""
-    made = []
+def test_a_cached_flags_value_is_not_made_again_not_even_none():
+    """A flags value seen once is taken from the cache after, SampleFlags.NONE (falsy) too; unpack goes through
+    the process's cache (its `made` count moves once per value it has not seen)."""
+    cache = SampleFlagsCache()
+    values = [int(SampleFlags.NONE), int(SampleFlags.NEW_DATA)] * 5 + [int(SampleFlags.NEW_DATA | SampleFlags.STALE)]
+    got = [cache[v] for v in values]
+    assert got == [SampleFlags(v) for v in values] and all(type(f) is SampleFlags for f in got)
+    assert cache.made == 3                                       # NONE, NEW_DATA, NEW_DATA|STALE: once each
 
-    def counted(value):
-        made.append(value)
-        return SampleFlags(value)
-
-    monkeypatch.setattr(sample_block, "_FLAGS_BY_VALUE", {0: SampleFlags.NONE, 1: SampleFlags.NEW_DATA})
-    monkeypatch.setattr(sample_block, "SampleFlags", counted)
     flags = [SampleFlags.NONE, SampleFlags.NEW_DATA] * 5 + [SampleFlags.NEW_DATA | SampleFlags.STALE]
     samples = [ImuSample(k / 819.2, np.zeros(3), np.zeros(3), np.zeros(3), 24.0, 5.0, f, 0, k)
                for k, f in enumerate(flags)]
-    got = unpack(pack(samples))
-    assert [r.flags for r in got] == flags
-    assert made == [int(SampleFlags.NEW_DATA | SampleFlags.STALE)]     # only the value not cached
+    made_before = sample_block.SAMPLE_FLAGS.made
+    for f in set(flags):
+        sample_block.SAMPLE_FLAGS.pop(int(f), None)              # as if not seen yet in this process
+    got = unpack(pack(samples)) + unpack(pack(samples))
+    assert [r.flags for r in got] == flags + flags
+    assert sample_block.SAMPLE_FLAGS.made == made_before + 3     # each value made once, then found
 
 
 def test_blocks_unpacked_together_keep_every_sample_its_own_flags_and_order():

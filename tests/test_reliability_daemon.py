@@ -4,6 +4,10 @@ reads on, and of the daemon with its reader) and a MAVLink flood.
 
 One daemon for the module: its fault schedule makes the start-up self-test fail for 6 s, the device vanish
 for 1 s and data-ready stall for 0.5 s; then the test freezes the process (0.3 s and 2.5 s) and floods it.
+Each test stands on its own whichever tests ran on its daemon before (pytest-xdist's `--dist load` gives each
+worker its own daemon and a share of the tests): everything our component sent is kept from the daemon's start
+(`d.events`), a test of a scheduled fault finds it there or waits for it, and a test that disturbs the daemon
+(freeze, flood, stop) first waits until the schedule is over (`after_the_faults`).
 """
 
 from __future__ import annotations
@@ -29,9 +33,11 @@ SCHEDULE = "self_test_fail@0-6;bus_error@10-11;stall@15-15.5;alarm@17-17.3:bits=
 @pytest.fixture(scope="module")
 def faulty(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("faulty")
+    t_started = time.monotonic()
     d = Daemon(tmp, "--sim-faults", SCHEDULE, "--stats-file", str(tmp / "stats.json"), mag_calibrated=True)
     d.stats_path = tmp / "stats.json"
     d.events = []                       # (t, message) of everything our component sent, in order
+    d.t_started = t_started
     try:
         yield d
     finally:
@@ -56,34 +62,61 @@ def pump(d, seconds: float, until=None):
     return None
 
 
-def of_type(d, mtype, since=0.0):
-    return [(t, m) for t, m in d.events if m.get_type() == mtype and t >= since]
+def of_type(d, mtype, since=0.0, until=math.inf):
+    return [(t, m) for t, m in d.events if m.get_type() == mtype and since <= t <= until]
+
+
+def seen(d, pred, seconds: float, since=0.0):
+    """The time of the first event since `since` for which pred(m) holds: from what was kept, or waited for."""
+    def first():
+        return next((t for t, m in d.events if t >= since and pred(m)), None)
+
+    if first() is None:
+        pump(d, seconds, lambda m: pred(m) and time.monotonic() >= since)
+    t = first()
+    assert t is not None, f"not seen within {seconds} s"
+    return t
+
+
+def pump_until(d, t_end: float) -> None:
+    """Collect until the monotonic time t_end (at once if past)."""
+    pump(d, max(0.0, t_end - time.monotonic()))
+
+
+def is_text(part):
+    return lambda m: m.get_type() == "STATUSTEXT" and part in m.text
+
+
+def after_the_faults(d) -> None:
+    """Wait until the schedule's last fault (the alarm at 17 s) was reported and 1.5 s more: what a test that
+    freezes, floods or stops the daemon needs, so that it neither hides a scheduled fault nor meets one."""
+    pump_until(d, seen(d, is_text("SUPPLY_HIGH"), 90) + 1.5)
 
 
 def test_self_test_failure_at_start_is_critical_not_a_crash_loop(faulty):
     d = faulty
-    pump(d, 90, lambda m: m.get_type() == "HEARTBEAT" and m.system_status == mavlink.MAV_STATE_ACTIVE)
-    states = [m.system_status for _, m in of_type(d, "HEARTBEAT")]
+    t_active = seen(d, lambda m: m.get_type() == "HEARTBEAT" and m.system_status == mavlink.MAV_STATE_ACTIVE, 90)
+    states = [m.system_status for _, m in of_type(d, "HEARTBEAT", until=t_active)]
     assert states[-1] == mavlink.MAV_STATE_ACTIVE, states
     assert mavlink.MAV_STATE_CRITICAL in states                      # up and saying why, not exiting
-    texts = [m.text for _, m in of_type(d, "STATUSTEXT")]
+    texts = [m.text for _, m in of_type(d, "STATUSTEXT", until=t_active)]
     assert any("self-test failed" in t for t in texts), texts
-    t_active = of_type(d, "HEARTBEAT")[-1][0]
     assert not [1 for t, _ in of_type(d, "VISION_POSITION_ESTIMATE") if t < t_active - 1.2]  # no heading while down
     assert d.proc.poll() is None
 
 
 def test_vanished_device_stops_the_heading_then_reconnects(faulty):
     d = faulty
-    t0 = time.monotonic()
-    pump(d, 40, lambda m: m.get_type() == "STATUSTEXT" and "recovered" in m.text)
-    pump(d, 2.0)
-    texts = [m.text for _, m in of_type(d, "STATUSTEXT", t0)]
+    # from the end of the start-up self-test failure to 2 s after the sensor's recovery from the bus outage
+    t0 = seen(d, lambda m: m.get_type() == "HEARTBEAT" and m.system_status == mavlink.MAV_STATE_ACTIVE, 90)
+    t_end = seen(d, is_text("recovered"), 40, since=t0) + 2.0
+    pump_until(d, t_end)
+    texts = [m.text for _, m in of_type(d, "STATUSTEXT", t0, t_end)]
     assert any("sensor failure: SPI transfer failed" in t for t in texts), texts
     assert any("recovered" in t for t in texts)
-    vpe = [t for t, _ in of_type(d, "VISION_POSITION_ESTIMATE", t0)]
+    vpe = [t for t, _ in of_type(d, "VISION_POSITION_ESTIMATE", t0, t_end)]
     assert max(b - a for a, b in zip(vpe, vpe[1:])) > 0.8               # the feed stopped during the outage
-    sys_status = [m for _, m in of_type(d, "SYS_STATUS", t0)]
+    sys_status = [m for _, m in of_type(d, "SYS_STATUS", t0, t_end)]
     assert any(not m.onboard_control_sensors_health & SENSOR_AHRS for m in sys_status)
     assert sys_status[-1].onboard_control_sensors_health & SENSOR_AHRS
     assert sys_status[-1].errors_count4 > 0                             # sensor errors counted
@@ -91,9 +124,7 @@ def test_vanished_device_stops_the_heading_then_reconnects(faulty):
 
 def test_stall_is_reported_and_counted_as_lost_samples(faulty):
     d = faulty
-    alarm = pump(d, 25, lambda m: m.get_type() == "STATUSTEXT" and "SUPPLY_HIGH" in m.text)   # comes after
-    assert alarm is not None
-    t_alarm = of_type(d, "STATUSTEXT")[-1][0]
+    t_alarm = seen(d, is_text("SUPPLY_HIGH"), 90)                       # the alarm comes after the stall
     # the stall starts after the sensor recovered from the bus outage and shows as "no samples" (CRITICAL)
     t_recovered = max(t for t, m in of_type(d, "STATUSTEXT") if "recovered" in m.text and t < t_alarm)
     marks = [t for t, m in d.events if t_recovered < t < t_alarm and (
@@ -102,8 +133,8 @@ def test_stall_is_reported_and_counted_as_lost_samples(faulty):
     assert marks, "the stall was not reported"
     before = [m for t, m in of_type(d, "SYS_STATUS", t_recovered) if t < marks[0]]
     assert before, "no SYS_STATUS between the reconnect and the stall"
-    pump(d, 1.5)
-    last = of_type(d, "SYS_STATUS")[-1][1]
+    pump_until(d, t_alarm + 1.5)
+    last = of_type(d, "SYS_STATUS", until=t_alarm + 1.5)[-1][1]
     # the stalled samples, counted as lost by this stall alone (the bus outage before it lost more)
     assert last.errors_count2 - before[-1].errors_count2 >= 0.5 * 819 - 5
 
@@ -137,6 +168,7 @@ def _lost(d) -> int:
 
 def test_cpu_starvation_short_freeze_counts_the_gap_and_keeps_running(faulty):
     d = faulty
+    after_the_faults(d)
     pump(d, 2.0)
     before = _lost(d)
     tree = process_tree(d.proc.pid)
@@ -161,6 +193,7 @@ def test_a_stalled_daemon_loses_no_sample_its_reader_process_read(faulty):
     the window is what the machine makes any real-time reader miss: bounded by the periods a bare real-time
     loop running beside it (the floor) missed in the same window."""
     d = faulty
+    after_the_faults(d)
     pump(d, 2.0)
     for stop_s in (0.3, 2.0):
         before = _lost(d)
@@ -177,6 +210,7 @@ def test_a_stalled_daemon_loses_no_sample_its_reader_process_read(faulty):
 
 def test_cpu_starvation_long_freeze_reinitialises_and_says_so(faulty):
     d = faulty
+    after_the_faults(d)
     pump(d, 1.0)
     resets_before = of_type(d, "VISION_POSITION_ESTIMATE")[-1][1].reset_counter
     freeze(process_tree(d.proc.pid), 2.5)                                # > the MEKF's 2 s re-init gap
@@ -195,6 +229,7 @@ def test_cpu_starvation_long_freeze_reinitialises_and_says_so(faulty):
 
 def test_flood_keeps_output_rates_answers_valid_traffic_and_counts_junk(faulty):
     d = faulty
+    after_the_faults(d)
     import random
 
     rng = random.Random(4)
@@ -241,6 +276,7 @@ def _last_sys_status(d):
 
 def test_stats_file_and_clean_exit(faulty):
     d = faulty
+    after_the_faults(d)
     assert d.stop() == 0
     stats = json.loads(d.stats_path.read_text())
     assert stats["source"]["sensor_self_test_failures_at_start"] >= 1
@@ -254,7 +290,10 @@ def test_every_sample_the_reader_process_read_reached_the_daemon(faulty):
     crossed to the daemon (none dropped, none left behind); what the reader itself came too late for is its
     own count, apart (`lost_samples_host`)."""
     d = faulty
-    d.stop()
+    if d.proc.poll() is None:
+        after_the_faults(d)
+        pump_until(d, d.t_started + 35.0)                              # ≥ 20 s of samples after the self-test's 6 s
+        d.stop()
     src = json.loads(d.stats_path.read_text())["source"]
     assert src["reader_handover_dropped"] == 0
     assert src["reader_handed_over"] > 20 * 819                         # the whole run's samples
