@@ -684,8 +684,40 @@ class Ins:
             self._fuse(self._queue.pop(0))
 
     def _fuse(self, fix: GnssFix) -> int:
-        c = self.gnss_counters
+        """Fuse one fix whose time the IMU samples have reached: its usable parts (position, height, velocity,
+        vertical velocity), each weighted by the fix's own 1σ; then count what the kernel did and run the heading
+        checks that a fused or rejected velocity allows. Returns core.R_* bits (0 when nothing was usable)."""
         p = self.params
+        read = self._read_fix(fix)
+        if read is None:
+            return 0
+        fix_type, lat, lon, alt, v, h_acc, v_acc, s_acc = read
+        use_pos, use_alt, use_vel, use_vd = self._usable_parts(fix_type, lat, lon, alt, v, p.use_vertical_velocity)
+        if not (use_pos or use_vel):
+            self.gnss_counters.invalid += 1
+            self._reject("neither position nor velocity is finite", fix)
+            return 0
+        sig_h = _accuracy(h_acc, DEFAULT_H_ACC_M, p.min_h_acc_m)
+        sig_v = _accuracy(v_acc, DEFAULT_V_ACC_M, p.min_v_acc_m)
+        sig_s = _accuracy(s_acc, DEFAULT_S_ACC_M_S, p.min_s_acc_m_s)
+        if use_vel:
+            self._keep_fix_velocity(float(fix.t_s), v, use_vd, sig_s)
+        res = core.fuse_gnss(
+            self._x_arr, self._P, self._hist, self._par_arr, float(fix.t_s),
+            math.radians(lat) if use_pos else 0.0, math.radians(lon) if use_pos else 0.0,
+            alt if use_alt else 0.0, v[0] if use_vel else 0.0, v[1] if use_vel else 0.0,
+            v[2] if use_vd else 0.0, sig_h, sig_v, sig_s, use_pos, use_alt, use_vel, use_vd,
+        )
+        self._count_fuse_result(res, fix)
+        if p.heading_monitor and p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
+            self._check_heading(float(fix.t_s))
+        elif not p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
+            self._floor_yaw_sigma_without_magnetometer()
+        return res
+
+    def _read_fix(self, fix: GnssFix) -> tuple | None:
+        """The fix's fields as numbers: (fix type, lat °, lon °, alt m, NED velocity m/s, h/v/speed accuracy).
+        None, counted invalid and rejected, when a field is malformed or there is no fix (below 2D)."""
         try:
             fix_type = int(fix.fix_type)
             lat = float(fix.lat_deg)
@@ -694,35 +726,39 @@ class Ins:
             v = np.asarray(fix.vel_ned_m_s, dtype=float).reshape(3)
             h_acc, v_acc, s_acc = float(fix.h_acc_m), float(fix.v_acc_m), float(fix.s_acc_m_s)
         except (TypeError, ValueError, AttributeError):
-            c.invalid += 1
+            self.gnss_counters.invalid += 1
             self._reject("malformed fix", fix)
-            return 0
+            return None
         if fix_type < GnssFixType.FIX_2D:
-            c.invalid += 1
+            self.gnss_counters.invalid += 1
             self._reject(f"no fix (type {fix_type})", fix)
-            return 0
+            return None
+        return fix_type, lat, lon, alt, v, h_acc, v_acc, s_acc
+
+    @staticmethod
+    def _usable_parts(fix_type: int, lat: float, lon: float, alt: float, v: np.ndarray,
+                      use_vertical_velocity: bool) -> tuple[bool, bool, bool, bool]:
+        """Which parts of a fix are fused: (position, height, horizontal velocity, vertical velocity). Height
+        needs a 3D fix and a position; the vertical velocity a horizontal one and `use_vertical_velocity`; each a
+        finite value in range (a receiver's 'no value' is NaN or a huge number)."""
         use_pos = math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90.0 and abs(lon) <= 360.0
         use_alt = use_pos and fix_type >= GnssFixType.FIX_3D and math.isfinite(alt) and abs(alt) < 1e5
         use_vel = bool(np.all(np.isfinite(v[:2]))) and float(np.max(np.abs(v[:2]))) < 600.0
-        use_vd = use_vel and p.use_vertical_velocity and math.isfinite(v[2]) and abs(v[2]) < 600.0
-        if not (use_pos or use_vel):
-            c.invalid += 1
-            self._reject("neither position nor velocity is finite", fix)
-            return 0
-        sig_h = _accuracy(h_acc, DEFAULT_H_ACC_M, p.min_h_acc_m)
-        sig_v = _accuracy(v_acc, DEFAULT_V_ACC_M, p.min_v_acc_m)
-        sig_s = _accuracy(s_acc, DEFAULT_S_ACC_M_S, p.min_s_acc_m_s)
-        if use_vel:
-            vel = np.array([v[0], v[1], v[2] if use_vd else math.nan])
-            self._last_fix_velocity = (float(fix.t_s), vel, sig_s)    # what a yaw reset sets the velocity to
-            if p.gnss_yaw:
-                gsf_fuse_velocity(self._gsf, self._gsf_par, float(fix.t_s), vel, sig_s)
-        res = core.fuse_gnss(
-            self._x_arr, self._P, self._hist, self._par_arr, float(fix.t_s),
-            math.radians(lat) if use_pos else 0.0, math.radians(lon) if use_pos else 0.0,
-            alt if use_alt else 0.0, v[0] if use_vel else 0.0, v[1] if use_vel else 0.0,
-            v[2] if use_vd else 0.0, sig_h, sig_v, sig_s, use_pos, use_alt, use_vel, use_vd,
-        )
+        use_vd = use_vel and use_vertical_velocity and math.isfinite(v[2]) and abs(v[2]) < 600.0
+        return use_pos, use_alt, use_vel, use_vd
+
+    def _keep_fix_velocity(self, t_s: float, v: np.ndarray, use_vd: bool, sig_s: float) -> None:
+        """Keep the fix's velocity (vertical NaN when not used) for a yaw reset, which sets the velocity to it, and
+        give it to the GNSS yaw bank."""
+        vel = np.array([v[0], v[1], v[2] if use_vd else math.nan])
+        self._last_fix_velocity = (t_s, vel, sig_s)
+        if self.params.gnss_yaw:
+            gsf_fuse_velocity(self._gsf, self._gsf_par, t_s, vel, sig_s)
+
+    def _count_fuse_result(self, res: int, fix: GnssFix) -> None:
+        """Count and log what fuse_gnss did with the fix (its R_* bits) in gnss_counters; rejections flag
+        GNSS_REJECTED on the next estimate."""
+        c = self.gnss_counters
         if res & core.R_TOO_OLD:
             c.too_old += 1
             self._reject("older than the state history", fix)
@@ -742,15 +778,10 @@ class Ins:
             self._reject(f"position innovation χ² {self._x['pos_gate']['nis']:.1f}", fix)
         if res & core.R_VEL_RESET:
             c.reset_velocity += 1
-            log.warning("ins: GNSS velocity rejected for %.1f s: velocity reset to the fix", p.reject_reset_s)
+            log.warning("ins: GNSS velocity rejected for %.1f s: velocity reset to the fix", self.params.reject_reset_s)
         if res & core.R_POS_RESET:
             c.reset_position += 1
-            log.warning("ins: GNSS position rejected for %.1f s: position reset to the fix", p.reject_reset_s)
-        if p.heading_monitor and p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
-            self._check_heading(float(fix.t_s))
-        elif not p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
-            self._floor_yaw_sigma_without_magnetometer()
-        return res
+            log.warning("ins: GNSS position rejected for %.1f s: position reset to the fix", self.params.reject_reset_s)
 
     # ----------------------------------------------------------------------- heading checks (heading_monitor.py)
     def _earth_field_ned(self) -> np.ndarray | None:
