@@ -1184,45 +1184,62 @@ class Ins:
 
     # ----------------------------------------------------------------------- internals
     def _initialise(self, t_s, g, a, m, sample_flags: int) -> bool:
+        """Start the filter from one sample (levelled on the accelerometer, heading from the magnetometer when it
+        is used), or restart it after a gap keeping what it had learned. False, nothing changed, when the sample
+        cannot level it (no valid gyro or accelerometer, or a specific force far from gravity)."""
         valid = input_validity(sample_flags, g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2])
         if not (valid & IN_ACC_OK) or not (valid & IN_GYRO_OK):
             return False
         an = float(np.linalg.norm(a))
         if an < 2.0 or an > 30.0:
             return False
-        p = self.params
-        use_mag = bool(valid & IN_MAG_OK) and p.mag_enabled
-        q_mag = initial_attitude(a, m if use_mag else None)
-        # the filter's frame is true north: q_true = q_z(declination) ⊗ q_mag
+        use_mag = bool(valid & IN_MAG_OK) and self.params.mag_enabled
+        q0 = self._initial_true_attitude(a, m if use_mag else None)
+        keep_bg, keep_ba, keep_sg, keep_mg, keep_mag = self._learned_to_keep()
+        self._fresh_state(t_s, q0, g, a, m if valid & IN_MAG_OK else np.nan)
+        self._start_biases(keep_bg, keep_ba, keep_sg, keep_mg)
+        self._first_history_row(t_s, q0, g, keep_bg)
+        self._start_mag_reference(keep_mag)
+        self._initial_covariance(use_mag)
+        self._restart_companions(t_s)
+        self._initialised = True
+        core.fill_outputs(self._x, self._P, self._par, g[0] - keep_bg[0], g[1] - keep_bg[1], g[2] - keep_bg[2],
+                          self._out)
+        return True
+
+    def _initial_true_attitude(self, a, m) -> np.ndarray:
+        """The levelled attitude (heading from m, or 0 without it: initial_attitude.py) turned from magnetic to
+        the filter's frame, true north: q_true = q_z(declination) ⊗ q_mag."""
+        q_mag = initial_attitude(a, m)
         hd = 0.5 * self._declination
         w, x_, y, z = q_mag
         c, s = math.cos(hd), math.sin(hd)
-        q0 = np.array([c * w - s * z, c * x_ - s * y, c * y + s * x_, c * z + s * w])
+        return np.array([c * w - s * z, c * x_ - s * y, c * y + s * x_, c * z + s * w])
+
+    def _learned_to_keep(self) -> tuple:
+        """What a restart after a gap keeps (the sensor errors learned: gyro bias, accelerometer bias, gyro scale
+        and misalignment; the magnetometer's reference field) as copies, before the state is cleared; zeros and
+        None at the first start."""
         x = self._x
-        keep_bg = x["gyro_bias_rad_s"].copy() if self._reinit_pending else np.zeros(3)
-        keep_ba = x["accel_bias_m_s2"].copy() if self._reinit_pending else np.zeros(3)
-        keep_sg = x["gyro_scale"].copy() if self._reinit_pending else np.zeros(3)
-        keep_mg = x["gyro_misalignment_rad"].copy() if self._reinit_pending else np.zeros(6)
-        keep_mag = self._mag_state().copy() if self._reinit_pending else None
+        if not self._reinit_pending:
+            return np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(6), None
+        return (x["gyro_bias_rad_s"].copy(), x["accel_bias_m_s2"].copy(), x["gyro_scale"].copy(),
+                x["gyro_misalignment_rad"].copy(), self._mag_state().copy())
+
+    def _fresh_state(self, t_s, q0, g, a, mag_ut) -> None:
+        """Clear the state (but the gyro rotation check's window: the next check's) and set the attitude and the
+        last sample; no fix yet, no gate rejections."""
+        x = self._x
         rotation = ("gyro_rotation_rad", "gyro_rotation_s", "gyro_rotation_last_t_s")   # the next check's
         keep_rotation = [x[k].copy() for k in rotation]
         self._x_arr[:] = 0
         for k, v in zip(rotation, keep_rotation):
             x[k] = v
         x["q"] = q0
-        x["gyro_bias_rad_s"] = keep_bg
-        self._confirmed_gyro_bias = keep_bg.copy()
-        self._confirmed_accel_bias = keep_ba.copy()
-        self._startup_gyro_bias = keep_bg.copy()     # what the GNSS-yaw alignment goes back to
-        x["bank_gyro_bias_rad_s"] = keep_bg       # the GNSS yaw bank's, until its own yaw confirms one
-        self._startup_accel_bias = keep_ba.copy()
-        x["accel_bias_m_s2"] = keep_ba
-        x["gyro_scale"] = keep_sg
-        x["gyro_misalignment_rad"] = keep_mg
         x["t_last_s"] = t_s
         x["gyro_last_rad_s"] = g
         x["acc_last_m_s2"] = a
-        x["mag_last_ut"] = m if valid & IN_MAG_OK else np.nan
+        x["mag_last_ut"] = mag_ut
         x["acc_ned_lp_m_s2"] = np.asarray(quat_to_dcm(q0), dtype=float) @ a
         x["gnss_fused_t_s"] = -math.inf
         x["last_fix_t_s"] = -math.inf
@@ -1230,19 +1247,46 @@ class Ins:
         x["pos_gate"]["rejected_since_s"] = math.nan
         x["vel_gate"]["nis"] = math.nan
         x["pos_gate"]["nis"] = math.nan
-        # the first history row: a fix valid at this very sample can be fused
+
+    def _start_biases(self, gyro_bias, accel_bias, gyro_scale, gyro_misalignment) -> None:
+        """The sensor errors the filter starts from; the biases are also the last confirmed ones (what a yaw reset
+        goes back to) and the start-up ones."""
+        x = self._x
+        x["gyro_bias_rad_s"] = gyro_bias
+        self._confirmed_gyro_bias = gyro_bias.copy()
+        self._confirmed_accel_bias = accel_bias.copy()
+        self._startup_gyro_bias = gyro_bias.copy()     # what the GNSS-yaw alignment goes back to
+        x["bank_gyro_bias_rad_s"] = gyro_bias       # the GNSS yaw bank's, until its own yaw confirms one
+        self._startup_accel_bias = accel_bias.copy()
+        x["accel_bias_m_s2"] = accel_bias
+        x["gyro_scale"] = gyro_scale
+        x["gyro_misalignment_rad"] = gyro_misalignment
+
+    def _first_history_row(self, t_s, q0, g, gyro_bias) -> None:
+        """The history's first row: a fix valid at this very sample can be fused."""
+        x = self._x
         x["hist_newest"] = 0
         x["hist_count"] = 1
         self._hist[0] = 0
         row = self._hist[0]
         row["t_s"] = t_s
         row["q"] = q0
-        row["rate_rad_s"] = np.asarray(g, dtype=float) - keep_bg
+        row["rate_rad_s"] = np.asarray(g, dtype=float) - gyro_bias
+
+    def _start_mag_reference(self, kept) -> None:
+        """The magnetometer check's reference field: kept over a restart (`kept`, the old check state), else
+        learned anew; counted undisturbed from the start (the Wahba heading is already the best)."""
         ms = self._mag_state()
-        if keep_mag is not None:
-            ms["ref_norm_ut"] = ms["cand_norm_ut"] = keep_mag["ref_norm_ut"]
-            ms["ref_dip_rad"] = ms["cand_dip_rad"] = keep_mag["ref_dip_rad"]
-        ms["undisturbed_t_s"] = p.mag_min_undisturbed_s  # the Wahba heading is already the best
+        if kept is not None:
+            ms["ref_norm_ut"] = ms["cand_norm_ut"] = kept["ref_norm_ut"]
+            ms["ref_dip_rad"] = ms["cand_dip_rad"] = kept["ref_dip_rad"]
+        ms["undisturbed_t_s"] = self.params.mag_min_undisturbed_s
+
+    def _initial_covariance(self, use_mag: bool) -> None:
+        """The start-up uncertainty, uncorrelated: tilt from levelling, yaw from the magnetometer and its
+        calibration (π, unknown, without it), velocity and position unknown until the first fix, the sensor
+        errors their prior σ."""
+        p = self.params
         P = self._P
         P[:] = 0.0
         for i in (core.E_TILT_N, core.E_TILT_E):
@@ -1256,6 +1300,11 @@ class Ins:
             P[core.E_SG + i, core.E_SG + i] = p.init_gyro_scale_sigma ** 2
         for i in range(6):
             P[core.E_MG + i, core.E_MG + i] = p.init_gyro_misalignment_sigma_rad ** 2
+
+    def _restart_companions(self, t_s) -> None:
+        """What runs beside the filter starts again with it: no queued fixes, the published heading follows the
+        filter, no fix velocity for a yaw reset; the GNSS yaw bank restarts, or after a short gap keeps its
+        hypotheses and only moves its clock on."""
         self._queue.clear()
         self._published.reset()
         self._published_since_init = False
@@ -1264,9 +1313,6 @@ class Ins:
             gsf_reset(self._gsf, self._gsf_par, float(t_s), np.full(4, np.nan))
         else:
             self._gsf.t_s = float(t_s)     # a short gap: the bank keeps its hypotheses, its clock moves on
-        self._initialised = True
-        core.fill_outputs(x, P, self._par, g[0] - keep_bg[0], g[1] - keep_bg[1], g[2] - keep_bg[2], self._out)
-        return True
 
     def _after_init_flags(self) -> int:
         f = after_init_flags(self._reinit_pending, self.params.mag_enabled)
