@@ -686,8 +686,40 @@ class Ins:
             self._fuse(self._queue.pop(0))
 
     def _fuse(self, fix: GnssFix) -> int:
-        c = self.gnss_counters
+        """Fuse one fix whose time the IMU samples have reached: its usable parts (position, height, velocity,
+        vertical velocity), each weighted by the fix's own 1σ; then count what the kernel did and run the heading
+        checks that a fused or rejected velocity allows. Returns core.R_* bits (0 when nothing was usable)."""
         p = self.params
+        read = self._read_fix(fix)
+        if read is None:
+            return 0
+        fix_type, lat, lon, alt, v, h_acc, v_acc, s_acc = read
+        use_pos, use_alt, use_vel, use_vd = self._usable_parts(fix_type, lat, lon, alt, v, p.use_vertical_velocity)
+        if not (use_pos or use_vel):
+            self.gnss_counters.invalid += 1
+            self._reject("neither position nor velocity is finite", fix)
+            return 0
+        sig_h = _accuracy(h_acc, DEFAULT_H_ACC_M, p.min_h_acc_m)
+        sig_v = _accuracy(v_acc, DEFAULT_V_ACC_M, p.min_v_acc_m)
+        sig_s = _accuracy(s_acc, DEFAULT_S_ACC_M_S, p.min_s_acc_m_s)
+        if use_vel:
+            self._keep_fix_velocity(float(fix.t_s), v, use_vd, sig_s)
+        res = core.fuse_gnss(
+            self._x_arr, self._P, self._hist, self._par_arr, float(fix.t_s),
+            math.radians(lat) if use_pos else 0.0, math.radians(lon) if use_pos else 0.0,
+            alt if use_alt else 0.0, v[0] if use_vel else 0.0, v[1] if use_vel else 0.0,
+            v[2] if use_vd else 0.0, sig_h, sig_v, sig_s, use_pos, use_alt, use_vel, use_vd,
+        )
+        self._count_fuse_result(res, fix)
+        if p.heading_monitor and p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
+            self._check_heading(float(fix.t_s))
+        elif not p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
+            self._floor_yaw_sigma_without_magnetometer()
+        return res
+
+    def _read_fix(self, fix: GnssFix) -> tuple | None:
+        """The fix's fields as numbers: (fix type, lat °, lon °, alt m, NED velocity m/s, h/v/speed accuracy).
+        None, counted invalid and rejected, when a field is malformed or there is no fix (below 2D)."""
         try:
             fix_type = int(fix.fix_type)
             lat = float(fix.lat_deg)
@@ -696,35 +728,39 @@ class Ins:
             v = np.asarray(fix.vel_ned_m_s, dtype=float).reshape(3)
             h_acc, v_acc, s_acc = float(fix.h_acc_m), float(fix.v_acc_m), float(fix.s_acc_m_s)
         except (TypeError, ValueError, AttributeError):
-            c.invalid += 1
+            self.gnss_counters.invalid += 1
             self._reject("malformed fix", fix)
-            return 0
+            return None
         if fix_type < GnssFixType.FIX_2D:
-            c.invalid += 1
+            self.gnss_counters.invalid += 1
             self._reject(f"no fix (type {fix_type})", fix)
-            return 0
+            return None
+        return fix_type, lat, lon, alt, v, h_acc, v_acc, s_acc
+
+    @staticmethod
+    def _usable_parts(fix_type: int, lat: float, lon: float, alt: float, v: np.ndarray,
+                      use_vertical_velocity: bool) -> tuple[bool, bool, bool, bool]:
+        """Which parts of a fix are fused: (position, height, horizontal velocity, vertical velocity). Height
+        needs a 3D fix and a position; the vertical velocity a horizontal one and `use_vertical_velocity`; each a
+        finite value in range (a receiver's 'no value' is NaN or a huge number)."""
         use_pos = math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90.0 and abs(lon) <= 360.0
         use_alt = use_pos and fix_type >= GnssFixType.FIX_3D and math.isfinite(alt) and abs(alt) < 1e5
         use_vel = bool(np.all(np.isfinite(v[:2]))) and float(np.max(np.abs(v[:2]))) < 600.0
-        use_vd = use_vel and p.use_vertical_velocity and math.isfinite(v[2]) and abs(v[2]) < 600.0
-        if not (use_pos or use_vel):
-            c.invalid += 1
-            self._reject("neither position nor velocity is finite", fix)
-            return 0
-        sig_h = _accuracy(h_acc, DEFAULT_H_ACC_M, p.min_h_acc_m)
-        sig_v = _accuracy(v_acc, DEFAULT_V_ACC_M, p.min_v_acc_m)
-        sig_s = _accuracy(s_acc, DEFAULT_S_ACC_M_S, p.min_s_acc_m_s)
-        if use_vel:
-            vel = np.array([v[0], v[1], v[2] if use_vd else math.nan])
-            self._last_fix_velocity = (float(fix.t_s), vel, sig_s)    # what a yaw reset sets the velocity to
-            if p.gnss_yaw:
-                gsf_fuse_velocity(self._gsf, self._gsf_par, float(fix.t_s), vel, sig_s)
-        res = core.fuse_gnss(
-            self._x_arr, self._P, self._hist, self._par_arr, float(fix.t_s),
-            math.radians(lat) if use_pos else 0.0, math.radians(lon) if use_pos else 0.0,
-            alt if use_alt else 0.0, v[0] if use_vel else 0.0, v[1] if use_vel else 0.0,
-            v[2] if use_vd else 0.0, sig_h, sig_v, sig_s, use_pos, use_alt, use_vel, use_vd,
-        )
+        use_vd = use_vel and use_vertical_velocity and math.isfinite(v[2]) and abs(v[2]) < 600.0
+        return use_pos, use_alt, use_vel, use_vd
+
+    def _keep_fix_velocity(self, t_s: float, v: np.ndarray, use_vd: bool, sig_s: float) -> None:
+        """Keep the fix's velocity (vertical NaN when not used) for a yaw reset, which sets the velocity to it, and
+        give it to the GNSS yaw bank."""
+        vel = np.array([v[0], v[1], v[2] if use_vd else math.nan])
+        self._last_fix_velocity = (t_s, vel, sig_s)
+        if self.params.gnss_yaw:
+            gsf_fuse_velocity(self._gsf, self._gsf_par, t_s, vel, sig_s)
+
+    def _count_fuse_result(self, res: int, fix: GnssFix) -> None:
+        """Count and log what fuse_gnss did with the fix (its R_* bits) in gnss_counters; rejections flag
+        GNSS_REJECTED on the next estimate."""
+        c = self.gnss_counters
         if res & core.R_TOO_OLD:
             c.too_old += 1
             self._reject("older than the state history", fix)
@@ -744,15 +780,10 @@ class Ins:
             self._reject(f"position innovation χ² {self._x['pos_gate']['nis']:.1f}", fix)
         if res & core.R_VEL_RESET:
             c.reset_velocity += 1
-            log.warning("ins: GNSS velocity rejected for %.1f s: velocity reset to the fix", p.reject_reset_s)
+            log.warning("ins: GNSS velocity rejected for %.1f s: velocity reset to the fix", self.params.reject_reset_s)
         if res & core.R_POS_RESET:
             c.reset_position += 1
-            log.warning("ins: GNSS position rejected for %.1f s: position reset to the fix", p.reject_reset_s)
-        if p.heading_monitor and p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
-            self._check_heading(float(fix.t_s))
-        elif not p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
-            self._floor_yaw_sigma_without_magnetometer()
-        return res
+            log.warning("ins: GNSS position rejected for %.1f s: position reset to the fix", self.params.reject_reset_s)
 
     # ----------------------------------------------------------------------- heading checks (heading_monitor.py)
     def _earth_field_ned(self) -> np.ndarray | None:
@@ -1175,45 +1206,62 @@ class Ins:
 
     # ----------------------------------------------------------------------- internals
     def _initialise(self, t_s, g, a, m, sample_flags: int) -> bool:
+        """Start the filter from one sample (levelled on the accelerometer, heading from the magnetometer when it
+        is used), or restart it after a gap keeping what it had learned. False, nothing changed, when the sample
+        cannot level it (no valid gyro or accelerometer, or a specific force far from gravity)."""
         valid = input_validity(sample_flags, g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2])
         if not (valid & IN_ACC_OK) or not (valid & IN_GYRO_OK):
             return False
         an = float(np.linalg.norm(a))
         if an < 2.0 or an > 30.0:
             return False
-        p = self.params
-        use_mag = bool(valid & IN_MAG_OK) and p.mag_enabled
-        q_mag = initial_attitude(a, m if use_mag else None)
-        # the filter's frame is true north: q_true = q_z(declination) ⊗ q_mag
+        use_mag = bool(valid & IN_MAG_OK) and self.params.mag_enabled
+        q0 = self._initial_true_attitude(a, m if use_mag else None)
+        keep_bg, keep_ba, keep_sg, keep_mg, keep_mag = self._learned_to_keep()
+        self._fresh_state(t_s, q0, g, a, m if valid & IN_MAG_OK else np.nan)
+        self._start_biases(keep_bg, keep_ba, keep_sg, keep_mg)
+        self._first_history_row(t_s, q0, g, keep_bg)
+        self._start_mag_reference(keep_mag)
+        self._initial_covariance(use_mag)
+        self._restart_companions(t_s)
+        self._initialised = True
+        core.fill_outputs(self._x, self._P, self._par, g[0] - keep_bg[0], g[1] - keep_bg[1], g[2] - keep_bg[2],
+                          self._out)
+        return True
+
+    def _initial_true_attitude(self, a, m) -> np.ndarray:
+        """The levelled attitude (heading from m, or 0 without it: initial_attitude.py) turned from magnetic to
+        the filter's frame, true north: q_true = q_z(declination) ⊗ q_mag."""
+        q_mag = initial_attitude(a, m)
         hd = 0.5 * self._declination
         w, x_, y, z = q_mag
         c, s = math.cos(hd), math.sin(hd)
-        q0 = np.array([c * w - s * z, c * x_ - s * y, c * y + s * x_, c * z + s * w])
+        return np.array([c * w - s * z, c * x_ - s * y, c * y + s * x_, c * z + s * w])
+
+    def _learned_to_keep(self) -> tuple:
+        """What a restart after a gap keeps (the sensor errors learned: gyro bias, accelerometer bias, gyro scale
+        and misalignment; the magnetometer's reference field) as copies, before the state is cleared; zeros and
+        None at the first start."""
         x = self._x
-        keep_bg = x["gyro_bias_rad_s"].copy() if self._reinit_pending else np.zeros(3)
-        keep_ba = x["accel_bias_m_s2"].copy() if self._reinit_pending else np.zeros(3)
-        keep_sg = x["gyro_scale"].copy() if self._reinit_pending else np.zeros(3)
-        keep_mg = x["gyro_misalignment_rad"].copy() if self._reinit_pending else np.zeros(6)
-        keep_mag = self._mag_state().copy() if self._reinit_pending else None
+        if not self._reinit_pending:
+            return np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(6), None
+        return (x["gyro_bias_rad_s"].copy(), x["accel_bias_m_s2"].copy(), x["gyro_scale"].copy(),
+                x["gyro_misalignment_rad"].copy(), self._mag_state().copy())
+
+    def _fresh_state(self, t_s, q0, g, a, mag_ut) -> None:
+        """Clear the state (but the gyro rotation check's window: the next check's) and set the attitude and the
+        last sample; no fix yet, no gate rejections."""
+        x = self._x
         rotation = ("gyro_rotation_rad", "gyro_rotation_s", "gyro_rotation_last_t_s")   # the next check's
         keep_rotation = [x[k].copy() for k in rotation]
         self._x_arr[:] = 0
         for k, v in zip(rotation, keep_rotation):
             x[k] = v
         x["q"] = q0
-        x["gyro_bias_rad_s"] = keep_bg
-        self._confirmed_gyro_bias = keep_bg.copy()
-        self._confirmed_accel_bias = keep_ba.copy()
-        self._startup_gyro_bias = keep_bg.copy()     # what the GNSS-yaw alignment goes back to
-        x["bank_gyro_bias_rad_s"] = keep_bg       # the GNSS yaw bank's, until its own yaw confirms one
-        self._startup_accel_bias = keep_ba.copy()
-        x["accel_bias_m_s2"] = keep_ba
-        x["gyro_scale"] = keep_sg
-        x["gyro_misalignment_rad"] = keep_mg
         x["t_last_s"] = t_s
         x["gyro_last_rad_s"] = g
         x["acc_last_m_s2"] = a
-        x["mag_last_ut"] = m if valid & IN_MAG_OK else np.nan
+        x["mag_last_ut"] = mag_ut
         x["acc_ned_lp_m_s2"] = np.asarray(quat_to_dcm(q0), dtype=float) @ a
         x["gnss_fused_t_s"] = -math.inf
         x["last_fix_t_s"] = -math.inf
@@ -1221,19 +1269,46 @@ class Ins:
         x["pos_gate"]["rejected_since_s"] = math.nan
         x["vel_gate"]["nis"] = math.nan
         x["pos_gate"]["nis"] = math.nan
-        # the first history row: a fix valid at this very sample can be fused
+
+    def _start_biases(self, gyro_bias, accel_bias, gyro_scale, gyro_misalignment) -> None:
+        """The sensor errors the filter starts from; the biases are also the last confirmed ones (what a yaw reset
+        goes back to) and the start-up ones."""
+        x = self._x
+        x["gyro_bias_rad_s"] = gyro_bias
+        self._confirmed_gyro_bias = gyro_bias.copy()
+        self._confirmed_accel_bias = accel_bias.copy()
+        self._startup_gyro_bias = gyro_bias.copy()     # what the GNSS-yaw alignment goes back to
+        x["bank_gyro_bias_rad_s"] = gyro_bias       # the GNSS yaw bank's, until its own yaw confirms one
+        self._startup_accel_bias = accel_bias.copy()
+        x["accel_bias_m_s2"] = accel_bias
+        x["gyro_scale"] = gyro_scale
+        x["gyro_misalignment_rad"] = gyro_misalignment
+
+    def _first_history_row(self, t_s, q0, g, gyro_bias) -> None:
+        """The history's first row: a fix valid at this very sample can be fused."""
+        x = self._x
         x["hist_newest"] = 0
         x["hist_count"] = 1
         self._hist[0] = 0
         row = self._hist[0]
         row["t_s"] = t_s
         row["q"] = q0
-        row["rate_rad_s"] = np.asarray(g, dtype=float) - keep_bg
+        row["rate_rad_s"] = np.asarray(g, dtype=float) - gyro_bias
+
+    def _start_mag_reference(self, kept) -> None:
+        """The magnetometer check's reference field: kept over a restart (`kept`, the old check state), else
+        learned anew; counted undisturbed from the start (the Wahba heading is already the best)."""
         ms = self._mag_state()
-        if keep_mag is not None:
-            ms["ref_norm_ut"] = ms["cand_norm_ut"] = keep_mag["ref_norm_ut"]
-            ms["ref_dip_rad"] = ms["cand_dip_rad"] = keep_mag["ref_dip_rad"]
-        ms["undisturbed_t_s"] = p.mag_min_undisturbed_s  # the Wahba heading is already the best
+        if kept is not None:
+            ms["ref_norm_ut"] = ms["cand_norm_ut"] = kept["ref_norm_ut"]
+            ms["ref_dip_rad"] = ms["cand_dip_rad"] = kept["ref_dip_rad"]
+        ms["undisturbed_t_s"] = self.params.mag_min_undisturbed_s
+
+    def _initial_covariance(self, use_mag: bool) -> None:
+        """The start-up uncertainty, uncorrelated: tilt from levelling, yaw from the magnetometer and its
+        calibration (π, unknown, without it), velocity and position unknown until the first fix, the sensor
+        errors their prior σ."""
+        p = self.params
         P = self._P
         P[:] = 0.0
         for i in (core.E_TILT_N, core.E_TILT_E):
@@ -1247,6 +1322,11 @@ class Ins:
             P[core.E_SG + i, core.E_SG + i] = p.init_gyro_scale_sigma ** 2
         for i in range(6):
             P[core.E_MG + i, core.E_MG + i] = p.init_gyro_misalignment_sigma_rad ** 2
+
+    def _restart_companions(self, t_s) -> None:
+        """What runs beside the filter starts again with it: no queued fixes, the published heading follows the
+        filter, no fix velocity for a yaw reset; the GNSS yaw bank restarts, or after a short gap keeps its
+        hypotheses and only moves its clock on."""
         self._queue.clear()
         self._published.reset()
         self._published_since_init = False
@@ -1255,9 +1335,6 @@ class Ins:
             gsf_reset(self._gsf, self._gsf_par, float(t_s), np.full(4, np.nan))
         else:
             self._gsf.t_s = float(t_s)     # a short gap: the bank keeps its hypotheses, its clock moves on
-        self._initialised = True
-        core.fill_outputs(x, P, self._par, g[0] - keep_bg[0], g[1] - keep_bg[1], g[2] - keep_bg[2], self._out)
-        return True
 
     def _after_init_flags(self) -> int:
         f = after_init_flags(self._reinit_pending, self.params.mag_enabled)

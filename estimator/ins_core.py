@@ -1026,16 +1026,13 @@ def _reset_from_fix(x, P, hist, par, t_fix, first, nu_v, nu_p, var_v, var_p, use
 
 
 @njit(cache=True)
-def _fuse_fix(x, P, hist, par, t_fix, nu_v, nu_p, var_v, var_p, c, on, oe, od, un, ue, ud, use_pos, use_alt,
-              use_vel, use_vd, r_n, r_e, ph, plat):
-    """The χ²-gated sequential updates of the fix's velocity and position (innovations nu_v, nu_p against the
-    state at its time of validity; lever-arm terms C, C r, C (ω × r)), folded into the state and the history;
-    a run of rejections lasting reject_reset_s resets that quantity to the fix. Returns R_* bits."""
-    res = 0
+def _antenna_rows(par, c, on, oe, od, un, ue, ud):
+    """The measurement rows H of the antenna's velocity (hv) and position (hp), 3 × N_ERR each: linearising
+    v_ant = v + C (ω × r) and p_ant = p + C r (docs/estimator.md, "Lever arm") in the attitude error δθ, the
+    velocity/position errors and the gyro bias δb_g (ω = gyro − b_g)."""
     lx = par.lever_arm_m[0]
     ly = par.lever_arm_m[1]
     lz = par.lever_arm_m[2]
-    dx = np.zeros(N_ERR)
     hv = np.zeros((3, N_ERR))
     hp = np.zeros((3, N_ERR))
     # v_ant rows: δv − [C(ω×r)×] δθ + C [r×] δb_g
@@ -1049,17 +1046,64 @@ def _fuse_fix(x, P, hist, par, t_fix, nu_v, nu_p, var_v, var_p, c, on, oe, od, u
         # p_ant rows: δp − [C r×] δθ
         hp[i, E_P + i] = 1.0
         _skew_rows(hp[i], i, on, oe, od, 1.0)
-    m_v = 3 if use_vd else 2
+    return hv, hp
+
+
+@njit(cache=True)
+def _gate_velocity_and_position(x, P, par, hv, hp, nu_v, nu_p, var_v, var_p, dx, t_fix, use_pos, use_alt, use_vel,
+                                use_vd):
+    """The χ²-gated updates of the fix's velocity (m_v rows: 2 without a vertical velocity), then its position
+    (2 rows on a 2D fix), into dx. Returns the R_* bits of both."""
+    res = 0
     if use_vel:
         # a velocity reset needs the positions to disagree too (or none): a receiver whose velocity
         # contradicts its own positions is wrong, not the filter
         may_reset = not use_pos or not math.isnan(x.pos_gate.rejected_since_s)
-        res |= _gated_update(x.vel_gate, P, par, hv, nu_v, var_v, m_v, dx, t_fix, may_reset,
+        res |= _gated_update(x.vel_gate, P, par, hv, nu_v, var_v, 3 if use_vd else 2, dx, t_fix, may_reset,
                              R_VEL_FUSED, R_VEL_REJECTED, R_VEL_RESET)
-    m_p = 3 if use_alt else 2
     if use_pos:
-        res |= _gated_update(x.pos_gate, P, par, hp, nu_p, var_p, m_p, dx, t_fix, True,
+        res |= _gated_update(x.pos_gate, P, par, hp, nu_p, var_p, 3 if use_alt else 2, dx, t_fix, True,
                              R_POS_FUSED, R_POS_REJECTED, R_POS_RESET)
+    return res
+
+
+@njit(cache=True)
+def _velocity_reset_to_fix(x, P, nu_v, var_v, m_v, dx):
+    """After a persistent change the velocity jumps to the fix (attitude untouched): the part of the innovation
+    the update did not take (nu_v − dx) is added, and dx holds the whole step for the history."""
+    for i in range(m_v):
+        x.vel_ned_m_s[i] += nu_v[i] - dx[E_V + i]
+        dx[E_V + i] = nu_v[i]
+    _reset_block(P, E_V, var_v)
+    x.vel_gate.rejected_since_s = math.nan
+
+
+@njit(cache=True)
+def _position_reset_to_fix(x, P, nu_p, var_p, dx, use_alt, r_n, r_e, ph, plat):
+    """After a persistent change the position jumps to the fix (attitude untouched) by the part of the innovation
+    the update did not take, δN, δE, δD metres → Δlat = δN / (R_N + h), Δlon = δE / ((R_E + h) cos lat),
+    Δh = −δD (radii at the fix). Returns that extra (Δlat, Δlon, Δh) for the history."""
+    extra_lat = (nu_p[0] - dx[E_P]) / (r_n + ph)
+    extra_lon = (nu_p[1] - dx[E_P + 1]) / ((r_e + ph) * math.cos(plat))
+    extra_h = -(nu_p[2] - dx[E_P + 2]) if use_alt else 0.0
+    x.lat_rad += extra_lat
+    x.lon_rad += extra_lon
+    x.h_m += extra_h
+    _reset_block(P, E_P, var_p)
+    x.pos_gate.rejected_since_s = math.nan
+    return extra_lat, extra_lon, extra_h
+
+
+@njit(cache=True)
+def _fuse_fix(x, P, hist, par, t_fix, nu_v, nu_p, var_v, var_p, c, on, oe, od, un, ue, ud, use_pos, use_alt,
+              use_vel, use_vd, r_n, r_e, ph, plat):
+    """The χ²-gated sequential updates of the fix's velocity and position (innovations nu_v, nu_p against the
+    state at its time of validity; lever-arm terms C, C r, C (ω × r)), folded into the state and the history;
+    a run of rejections lasting reject_reset_s resets that quantity to the fix. Returns R_* bits."""
+    dx = np.zeros(N_ERR)
+    hv, hp = _antenna_rows(par, c, on, oe, od, un, ue, ud)
+    res = _gate_velocity_and_position(x, P, par, hv, hp, nu_v, nu_p, var_v, var_p, dx, t_fix, use_pos, use_alt,
+                                      use_vel, use_vd)
     _symmetrise(P)
     lat_before = x.lat_rad
     lon_before = x.lon_rad
@@ -1068,25 +1112,13 @@ def _fuse_fix(x, P, hist, par, t_fix, nu_v, nu_p, var_v, var_p, c, on, oe, od, u
     dlat = x.lat_rad - lat_before
     dlon = x.lon_rad - lon_before
     dh = x.h_m - h_before
-    # resets after a persistent change: the quantity jumps to the fix, attitude untouched
     if res & R_VEL_RESET:
-        for i in range(m_v):
-            x.vel_ned_m_s[i] += nu_v[i] - dx[E_V + i]
-            dx[E_V + i] = nu_v[i]
-        _reset_block(P, E_V, var_v)
-        x.vel_gate.rejected_since_s = math.nan
+        _velocity_reset_to_fix(x, P, nu_v, var_v, 3 if use_vd else 2, dx)
     if res & R_POS_RESET:
-        extra_lat = (nu_p[0] - dx[E_P]) / (r_n + ph)
-        extra_lon = (nu_p[1] - dx[E_P + 1]) / ((r_e + ph) * math.cos(plat))
-        extra_h = -(nu_p[2] - dx[E_P + 2]) if use_alt else 0.0
-        x.lat_rad += extra_lat
-        x.lon_rad += extra_lon
-        x.h_m += extra_h
+        extra_lat, extra_lon, extra_h = _position_reset_to_fix(x, P, nu_p, var_p, dx, use_alt, r_n, r_e, ph, plat)
         dlat += extra_lat
         dlon += extra_lon
         dh += extra_h
-        _reset_block(P, E_P, var_p)
-        x.pos_gate.rejected_since_s = math.nan
     _correct_history(hist, x, t_fix, dx, dlat, dlon, dh)
     if res & (R_VEL_FUSED | R_POS_FUSED | R_VEL_RESET | R_POS_RESET):
         x.gnss_fused_t_s = t_fix
