@@ -121,16 +121,19 @@ def sensor_attitude(estimate, mounting: np.ndarray | None):
 
 class MagCalProtocol:
     """Handlers for the mag-cal commands plus the periodic outputs. Call from the event loop only;
-    fits run in a worker thread and are collected in `tick`."""
+    fits run in a worker process (a thread where processes are not available) and are collected in `tick`."""
 
     def __init__(self, host: MagCalHost, settings: MagCalSettings | None = None, clock=time.monotonic, *,
-                 warm_fit_worker: bool = True):
+                 warm_fit_worker: bool = True, fit_in_process: bool = True):
         self.host = host
         self.settings = settings or MagCalSettings()
         self.clock = clock
         # start the fit worker (and its imports) when a session starts, not at its first fit (False: a test whose
         # sessions never fit)
         self.warm_fit_worker = warm_fit_worker
+        # False: fits in a thread, for a test of the handler on a fake host, where no sensor reader competes for
+        # the GIL and a worker process (an interpreter start and the fits' imports) per session is what costs
+        self.fit_in_process = fit_in_process
         self.session: FieldCalibration | None = None
         self.autosave = False
         self.saved = False
@@ -267,6 +270,8 @@ class MagCalProtocol:
     def _submit(self, job) -> concurrent.futures.Future:
         """Run a fit in a worker process (a long fit in a thread would hold the GIL and starve the sensor
         reader); fall back to a thread where processes are not available."""
+        if self._executor is None and not self.fit_in_process:
+            self._executor = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="magcal-fit")
         if self._executor is None:
             try:
                 import multiprocessing

@@ -32,9 +32,11 @@ from __future__ import annotations
 import ast
 import fcntl
 import hashlib
+import json
 import os
 import shutil
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -42,6 +44,7 @@ _PACKAGE = Path(__file__).resolve().parent
 _ROOT = _PACKAGE.parent    # the ahrsd namespace: its top-level folders are ahrsd.core, ahrsd.estimator, ...
 PREFIX = "ahrsd-kernels-"
 LOCK_NAME = "in-use.lock"
+MEMO_NAME = "kernel-sources.json"   # kernel_sources' parse results, in this package's __pycache__
 # a sibling untouched this long is no one's cache being set up; a cache that is in use holds its lock anyway
 STALE_AFTER_S = 14 * 86400.0
 
@@ -54,13 +57,14 @@ def _imports_numba(tree: ast.Module) -> bool:
                for n in ast.walk(tree))
 
 
-def _imported_sources(path: Path, tree: ast.Module) -> set[Path]:
-    """The ahrsd source files `path` imports names from (relative imports and `ahrsd.…`), at any depth of the
-    module, leaving out imports whose names are used only as the bases of Python classes."""
+def _import_candidates(path: Path, tree: ast.Module) -> list[Path]:
+    """The ahrsd source files `path` may import names from (relative imports and `ahrsd.…`; the ones that exist
+    are the imported sources), at any depth of the module, leaving out imports whose names are used only as the
+    bases of Python classes."""
     bases: set[int] = set()
     names_seen: list[ast.Name] = []
     imports: list[ast.ImportFrom] = []
-    for n in ast.walk(tree):          # one walk (every process start computes this)
+    for n in ast.walk(tree):          # one walk
         if isinstance(n, ast.Name):
             names_seen.append(n)
         elif isinstance(n, ast.ClassDef):
@@ -68,31 +72,71 @@ def _imported_sources(path: Path, tree: ast.Module) -> set[Path]:
         elif isinstance(n, ast.ImportFrom) and (n.level or (n.module or "").startswith("ahrsd.")):
             imports.append(n)
     used = {n.id for n in names_seen if id(n) not in bases}
-    found: set[Path] = set()
+    found: list[Path] = []
     for n in imports:
         names = [a.asname or a.name for a in n.names]
         if not any(name in used for name in names):
             continue
         parts = (n.module or "").split(".")[1:] if n.level == 0 else [m for m in (n.module or "").split(".") if m]
         folder = (_ROOT if n.level == 0 else path.parents[n.level - 1]).joinpath(*parts)
-        candidates = [folder.with_suffix(".py")] if parts else []
-        candidates += [folder / f"{a.name}.py" for a in n.names]   # `from . import mag_heading`
-        found |= {c for c in candidates if c.is_file()}
+        found += [folder.with_suffix(".py")] if parts else []
+        found += [folder / f"{a.name}.py" for a in n.names]   # `from . import mag_heading`
     return found
+
+
+def _read_memo() -> dict:
+    try:
+        memo = json.loads((_PACKAGE / "__pycache__" / MEMO_NAME).read_bytes())
+    except (OSError, ValueError):
+        return {}
+    return memo if isinstance(memo, dict) else {}
+
+
+def _write_memo(memo: dict) -> None:
+    """Atomically (processes start side by side); a package directory this process cannot write keeps none."""
+    folder = _PACKAGE / "__pycache__"
+    try:
+        folder.mkdir(exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=MEMO_NAME, dir=folder)
+        with os.fdopen(fd, "w") as fh:
+            json.dump(memo, fh)
+        os.replace(tmp, folder / MEMO_NAME)
+    except OSError:
+        pass
 
 
 def kernel_sources() -> list[Path]:
     """The source files the compiled kernels are made from: this package's modules that import numba, and
-    what they import names from, transitively."""
-    # parsing is what costs (every process start computes this): only a file that names numba can import it
-    trees = {p: ast.parse(src) for p in _PACKAGE.glob("*.py") if b"numba" in (src := p.read_bytes())}
-    todo = [p for p, tree in trees.items() if _imports_numba(tree)]
+    what they import names from, transitively.
+
+    Parsing is what costs, and every process start computes this (the daemon, its reader process, each CLI
+    run): what a file's parse gave (does it import numba, which files may it import from) is kept in
+    `__pycache__/MEMO_NAME` under the file's path and the SHA-256 of its contents, so only a file whose
+    contents changed is parsed again. Whether an imported file exists is looked up every time."""
+    memo, used = _read_memo(), {}
+
+    def parsed(path: Path, src: bytes) -> list:
+        key = os.path.relpath(path, _ROOT)
+        sha = hashlib.sha256(src).hexdigest()
+        entry = memo.get(key)
+        if not (isinstance(entry, list) and len(entry) == 3 and entry[0] == sha):
+            tree = ast.parse(src)
+            entry = [sha, _imports_numba(tree), [os.path.relpath(c, _ROOT) for c in _import_candidates(path, tree)]]
+        used[key] = entry
+        return entry
+
+    # only a file that names numba can import it
+    sources = {p: src for p in _PACKAGE.glob("*.py") if b"numba" in (src := p.read_bytes())}
+    todo = [p for p, src in sources.items() if parsed(p, src)[1]]
     seen: set[Path] = set()
     while todo:
         path = todo.pop()
         if path not in seen:
             seen.add(path)
-            todo += _imported_sources(path, trees.get(path) or ast.parse(path.read_bytes()))
+            candidates = parsed(path, sources[path] if path in sources else path.read_bytes())[2]
+            todo += [c for c in (_ROOT / name for name in candidates) if c.is_file()]
+    if used != memo:
+        _write_memo(used)
     return sorted(seen)
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -69,9 +70,14 @@ def _no_system_state_dir(tmp_path_factory, monkeypatch):
     A test of the rule itself removes $STATE_DIRECTORY."""
     import ahrsd.core.state_dir as state_dir
 
-    monkeypatch.setattr(state_dir, "SERVICE_STATE_DIR", tmp_path_factory.mktemp("no-service") / "ahrsd")
-    monkeypatch.setenv("STATE_DIRECTORY", str(tmp_path_factory.mktemp("default-state")))
-    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path_factory.mktemp("default-xdg")))
+    # one mkdtemp per test, not three tmp_path_factory.mktemp: mktemp lists the whole base temp directory to
+    # number the new one, so with every test adding to it the listings grow with the square of the test count
+    root = Path(tempfile.mkdtemp(prefix="state-dirs-", dir=tmp_path_factory.getbasetemp()))
+    for name in ("no-service", "default-state", "default-xdg"):
+        (root / name).mkdir()
+    monkeypatch.setattr(state_dir, "SERVICE_STATE_DIR", root / "no-service" / "ahrsd")
+    monkeypatch.setenv("STATE_DIRECTORY", str(root / "default-state"))
+    monkeypatch.setenv("XDG_STATE_HOME", str(root / "default-xdg"))
 
 
 @pytest.fixture

@@ -265,10 +265,12 @@ def test_malformed_input_is_counted_not_fatal(daemon):
     daemon.wait_active(5.0)
 
 
-def test_system_id_latches_to_the_autopilot_then_sigterm_shuts_down(tmp_path):
-    d = Daemon(tmp_path, mag_calibrated=True)
+def test_system_id_latches_to_the_autopilot_then_sigterm_shuts_down(daemon):
+    """The module's daemon (no daemon start of its own): the last test, since it latches the system id and
+    stops the daemon."""
+    d = daemon
     try:
-        d.wait_active()
+        d.wait_active(30.0)
         # play the autopilot (system 7) on the same link: an armed ArduPilot heartbeat
         d.gcs.mav.srcSystem, d.gcs.mav.srcComponent = 7, 1
         d.gcs.mav.heartbeat_send(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,

@@ -84,11 +84,35 @@ def test_the_digest_follows_every_source_a_kernel_is_compiled_from(tmp_path, mon
     for name in ("core/estimate.py", "core/sample.py", "core/gravity.py", "estimator/rotations.py",
                  "estimator/mag_heading.py", "estimator/mekf_core.py"):
         _append_comment(package / name)
-        assert kernel_cache.source_digest() != digest, name
-        digest = kernel_cache.source_digest()
+        changed = kernel_cache.source_digest()
+        assert changed != digest, name
+        digest = changed
     for name in ("core/state_dir.py", "estimator/ins.py", "estimator/mekf.py", "estimator/kernel_cache.py"):
         _append_comment(package / name)
         assert kernel_cache.source_digest() == digest, name
+
+
+
+def test_the_parse_memo_follows_the_contents(tmp_path, monkeypatch):
+    """kernel_sources keeps each file's parse under the SHA-256 of its contents (every process start would
+    parse them again): an edit that adds an import is followed at once, and a memo that is not JSON, or whose
+    entries are not the memo's, is parsed around."""
+    package = _copy_package(tmp_path)
+    monkeypatch.setattr(kernel_cache, "_PACKAGE", package / "estimator")
+    monkeypatch.setattr(kernel_cache, "_ROOT", package)
+    memo = package / "estimator" / "__pycache__" / kernel_cache.MEMO_NAME
+    fresh = kernel_cache.kernel_sources()
+    assert memo.is_file() and kernel_cache.kernel_sources() == fresh
+    state_dir = package / "core" / "state_dir.py"
+    assert state_dir not in fresh
+    helper = package / "estimator" / "kernel_rotations.py"       # a kernel module, in the memo by now
+    helper.write_text("from ahrsd.core.state_dir import SERVICE_STATE_DIR\n" + helper.read_text()
+                      + "\n_ = SERVICE_STATE_DIR\n")
+    edited = kernel_cache.kernel_sources()
+    assert edited == sorted(fresh + [state_dir])
+    for garbage in ("{not json", "[1, 2]", '{"estimator/kernel_rotations.py": "x"}'):
+        memo.write_text(garbage)
+        assert kernel_cache.kernel_sources() == edited, garbage
 
 
 DAY_S = 86400.0

@@ -1,5 +1,9 @@
 """The mag-cal MAVLink handler against a fake daemon host: commands, ACK results, streamed messages, save/swap,
-refusals. Messages are packed and parsed by pymavlink so a wrong field order or type fails here."""
+refusals. Messages are packed and parsed by pymavlink so a wrong field order or type fails here.
+
+The handlers fit in a thread (`fit_in_process=False`): the worker process is the daemon's (test_magcal_integration
+and test_magcal_field_daemon run whole sessions through it, test_fuzz_mavlink checks it starts with a session),
+and one per session here cost most of this file's CPU."""
 
 from __future__ import annotations
 
@@ -31,7 +35,7 @@ from support.magcal_host import Clock, FakeHost, cmd, drive, tick_settled, wire
 def setup(tmp_path):
     host = FakeHost(tmp_path)
     clock = Clock()
-    proto = MagCalProtocol(host, MagCalSettings(vehicle_type="level"), clock=clock)
+    proto = MagCalProtocol(host, MagCalSettings(vehicle_type="level"), clock=clock, fit_in_process=False)
     yield host, clock, proto
     proto.close()
 
@@ -100,7 +104,7 @@ def test_accept_after_the_result_was_cancelled_is_not_reported_saved(setup, tmp_
     assert any("nothing to accept" in t for t in host.texts())
     assert proto.handle_accept(cmd(CMD_ACCEPT, 2)) == mavlink.MAV_RESULT_FAILED    # compass 1: not ours
     # never started at all: the same
-    fresh = MagCalProtocol(host, MagCalSettings(vehicle_type="level"), clock=clock)
+    fresh = MagCalProtocol(host, MagCalSettings(vehicle_type="level"), clock=clock, fit_in_process=False)
     assert fresh.handle_accept(cmd(CMD_ACCEPT)) == mavlink.MAV_RESULT_FAILED
 
 
@@ -205,7 +209,7 @@ def test_armed_refused_and_arming_cancels(setup):
 
 def test_armed_allowed_when_configured(tmp_path):
     host = FakeHost(tmp_path, armed=True)
-    proto = MagCalProtocol(host, MagCalSettings(allow_armed=True), clock=Clock())
+    proto = MagCalProtocol(host, MagCalSettings(allow_armed=True), clock=Clock(), fit_in_process=False)
     assert proto.handle_start(cmd(CMD_START)) == mavlink.MAV_RESULT_ACCEPTED
 
 
@@ -220,7 +224,7 @@ def test_bad_parameters_fail(setup):
 def test_timeout_reports_failed_with_reason(tmp_path):
     host = FakeHost(tmp_path)
     clock = Clock()
-    proto = MagCalProtocol(host, MagCalSettings(timeout_s=20.0), clock=clock)
+    proto = MagCalProtocol(host, MagCalSettings(timeout_s=20.0), clock=clock, fit_in_process=False)
     proto.handle_start(cmd(CMD_START))
     drive(proto, clock, level_turns(duration_s=30.0, turn_period_s=1e9), host)
     rep = host.of_type("MAG_CAL_REPORT")
@@ -237,7 +241,7 @@ def test_fixed_yaw_keeps_soft_iron_and_finds_the_true_hard_iron(tmp_path):
     soft = np.linalg.inv(SOFT_DISTORTION)
     host.cal = Calibration.identity().with_sensor("mag", MagModel(np.zeros(3), soft))
     settings = MagCalSettings()
-    proto = MagCalProtocol(host, settings, clock=Clock())
+    proto = MagCalProtocol(host, settings, clock=Clock(), fit_in_process=False)
     t = np.arange(0.0, 2.0, 1.0 / 50.0)
     traj = trajectory(t, np.full_like(t, np.radians(4.0)), np.full_like(t, np.radians(-3.0)),
                       np.full_like(t, np.radians(30.0)))
@@ -268,7 +272,8 @@ def test_router_ignores_broadcast_unless_configured_and_refuses_unsigned(tmp_pat
     acks = []
     for accept_broadcast in (False, True):
         host = FakeHost(tmp_path)
-        proto = MagCalProtocol(host, MagCalSettings(accept_broadcast=accept_broadcast), clock=Clock())
+        proto = MagCalProtocol(host, MagCalSettings(accept_broadcast=accept_broadcast), clock=Clock(),
+                               fit_in_process=False)
         router = commands.CommandRouter(send_ack=lambda ep, m: acks.append(m))
         proto.register(router)
         msg = wire(mavlink.MAVLink_command_long_message(1, 0, CMD_START, 0, 0, 0, 1, 0, 0, 0, 0))
@@ -276,7 +281,7 @@ def test_router_ignores_broadcast_unless_configured_and_refuses_unsigned(tmp_pat
         assert proto.calibrating is accept_broadcast
     signed_router = commands.CommandRouter(send_ack=lambda ep, m: acks.append(m),
                                            require_signed=lambda: True)
-    proto = MagCalProtocol(FakeHost(tmp_path), MagCalSettings(), clock=Clock())
+    proto = MagCalProtocol(FakeHost(tmp_path), MagCalSettings(), clock=Clock(), fit_in_process=False)
     proto.register(signed_router)
     signed_router.handle(cmd(CMD_START), None, broadcast=False)
     assert not proto.calibrating and acks[-1].result == mavlink.MAV_RESULT_DENIED
@@ -297,7 +302,7 @@ def test_gnss_messages_reach_the_session_once_and_only_with_a_velocity(tmp_path)
     course is not fed, GLOBAL_POSITION_INT is left alone by default (the autopilot may fuse our heading), and
     the fix is stamped with the latest sample time minus gnss_latency_s."""
     host = FakeHost(tmp_path)
-    proto = MagCalProtocol(host, MagCalSettings(gnss_latency_s=0.25), clock=Clock())
+    proto = MagCalProtocol(host, MagCalSettings(gnss_latency_s=0.25), clock=Clock(), fit_in_process=False)
     proto.handle_start(cmd(CMD_START))
     proto.on_sample(make_sample(10.0, np.zeros(3), np.array([0, 0, -9.8]), np.array([20.0, 0, 40.0])),
                     SimpleNamespace(roll_rad=0.0, pitch_rad=0.0, yaw_rad=0.0, rate_body_rad_s=np.zeros(3)))
@@ -349,7 +354,8 @@ def test_gnss_course_over_mavlink_sets_the_heading_offset(tmp_path):
     host = FakeHost(tmp_path)
     host.reference_field = lambda lat_deg=None, lon_deg=None: SITE_FIELD
     clock = Clock()
-    proto = MagCalProtocol(host, MagCalSettings(vehicle_type="level", gnss_latency_s=0.1), clock=clock)
+    proto = MagCalProtocol(host, MagCalSettings(vehicle_type="level", gnss_latency_s=0.1), clock=clock,
+                           fit_in_process=False)
     try:
         assert proto.handle_start(cmd(CMD_START)) == mavlink.MAV_RESULT_ACCEPTED
         _drive_vehicle(proto, clock, block, host, course_fixes(sc, 300.0, current_ne_m_s=(0.1, -0.15)),
@@ -374,7 +380,7 @@ def test_without_gnss_the_report_says_the_offset_is_undetermined_and_a_known_hea
     host = FakeHost(tmp_path)
     host.reference_field = lambda lat_deg=None, lon_deg=None: SITE_FIELD
     clock = Clock()
-    proto = MagCalProtocol(host, MagCalSettings(vehicle_type="level"), clock=clock)
+    proto = MagCalProtocol(host, MagCalSettings(vehicle_type="level"), clock=clock, fit_in_process=False)
     try:
         proto.handle_start(cmd(CMD_START))
         _drive_vehicle(proto, clock, block, host, until=lambda: bool(host.of_type("MAG_CAL_REPORT")))
@@ -421,7 +427,7 @@ def test_each_session_message_is_logged_once(tmp_path, caplog):
     caplog.set_level(logging.DEBUG)
     host = FakeHost(tmp_path)
     clock = Clock()
-    proto = MagCalProtocol(host, MagCalSettings(timeout_s=5.0), clock=clock)
+    proto = MagCalProtocol(host, MagCalSettings(timeout_s=5.0), clock=clock, fit_in_process=False)
     proto.handle_start(cmd(CMD_START))
     drive(proto, clock, level_turns(duration_s=8.0, turn_period_s=1e9), host)
     texts = host.texts()

@@ -93,7 +93,7 @@ def _run_session(tmp_path, traj, mounting, as_identity=False):
     unit mounted with the identity — its body IS the sensor (attitude C_sn = C_bn·M). Returns the MagModel."""
     host = FakeHost(tmp_path)
     clock = Clock()
-    proto = MagCalProtocol(host, MagCalSettings(vehicle_type="level"), clock=clock)
+    proto = MagCalProtocol(host, MagCalSettings(vehicle_type="level"), clock=clock, fit_in_process=False)
     try:
         assert proto.handle_start(cmd(CMD_START, 0, 0, 0, 0, 0)) == mavlink.MAV_RESULT_ACCEPTED
         m = mounting

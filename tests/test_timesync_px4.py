@@ -16,6 +16,7 @@ process gets round to reading it.
 from __future__ import annotations
 
 import math
+import select
 import socket
 import subprocess
 import sys
@@ -108,7 +109,10 @@ def test_px4_stamps_our_samples_within_2_ms(tmp_path):
                 now = peer_us_of_ours(arrival_ns / 1000)
             except BlockingIOError:
                 data = b""
-                time.sleep(0.0002)
+                # sleep until a datagram arrives or the next request is due, instead of polling: arrival times are
+                # the kernel's stamps, so how soon this loop wakes does not change them
+                wait_s = 0.01 if addr is None else next_request - time.monotonic()
+                select.select([sock], [], [], min(max(wait_s, 0.0), 0.01))
             for m in parser.parse_buffer(data) or ():
                 if m.get_type() == "TIMESYNC" and m.tc1 > 0:
                     sync.update(int(now), m.tc1, m.ts1)
