@@ -11,6 +11,8 @@ from __future__ import annotations
 import asyncio
 import logging
 import os
+import select
+import time
 import tty
 
 import pytest
@@ -113,6 +115,22 @@ def _heartbeat():
     return mavlink.MAVLink_heartbeat_message(40, 8, 0, 0, 4, 3)
 
 
+def _take(master: int, n: int, wait_s: float = 5.0) -> bytes:
+    """`n` bytes the writer has already handed to the pty. The pty passes written bytes to its reader in deferred
+    kernel work, late on a loaded machine, while this loop runs simulated time ~60 × faster than real time: a few
+    ms of that lag would be seconds of line time. So wait for bytes known to be in the pty (real time, bounded)
+    instead of letting the simulated line fall behind."""
+    data = b""
+    deadline = time.monotonic() + wait_s
+    while len(data) < n and time.monotonic() < deadline:
+        select.select([master], [], [], 0.05)
+        try:
+            data += os.read(master, n - len(data))
+        except BlockingIOError:
+            pass
+    return data
+
+
 def test_slow_reader_drops_lowest_priority_first_and_never_cuts_a_frame(pty_pair):
     """The reader takes 3000 B/s; we offer VPE 20 Hz + HEARTBEAT 1 Hz (2.6 kB/s, fits), ATTITUDE 50 Hz and
     HIGHRES_IMU 20 Hz (3.5 kB/s more) through a 57600-baud serial endpoint with the daemon's priorities, built
@@ -140,6 +158,7 @@ def test_slow_reader_drops_lowest_priority_first_and_never_cuts_a_frame(pty_pair
     step_s, reader_b_s = 0.01, 3000.0
     tx0 = ep.counters.tx_messages                     # (0: nothing sent before)
     credit = 0.0                                      # bytes the reader may still take
+    accepted_bytes = read_bytes = 0                   # what the queue took in; what the reader took out
     try:
         for k in range(6000):                         # 60 s of line time
             due = []
@@ -153,15 +172,15 @@ def test_slow_reader_drops_lowest_priority_first_and_never_cuts_a_frame(pty_pair
                 due.append(_highres())                # 20 Hz
             for m in due:
                 offered[m.get_type()] = offered.get(m.get_type(), 0) + 1
-                ep.send(m)
+                if ep.send(m):
+                    accepted_bytes += len(m.get_msgbuf())
             # the line takes reader_b_s of simulated time: what the pty could not hand over in a step (the
             # kernel passes written bytes to the reader side in deferred work, late on a loaded machine) is
             # taken in a later step, not lost
             credit += reader_b_s * step_s
-            try:
-                data = os.read(master, int(credit)) if credit >= 1 else b""
-            except BlockingIOError:
-                data = b""
+            in_pty = accepted_bytes - ep.out_queue.waiting_bytes() - read_bytes
+            data = _take(master, min(int(credit), in_pty))
+            read_bytes += len(data)
             credit -= len(data)
             for m in parser.parse_buffer(data) or ():
                 if m.get_type() == "BAD_DATA":
