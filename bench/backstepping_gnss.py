@@ -10,6 +10,8 @@ aligned to the housing (`afix`), side by side.
     .venv/bin/python bench/backstepping_gnss.py --seeds 1 2 3   # the tuning seeds
     .venv/bin/python bench/backstepping_gnss.py --sweep         # SETTLED_TILT_SIGMA_DEG on the tuning seeds
     .venv/bin/python bench/backstepping_gnss.py --acal-sigma-mg 1 --seeds 1 2 3 9 10 11   # another acal/afix prior
+    .venv/bin/python bench/backstepping_gnss.py --levelling-params '{"yaw_align_to_gnss_yaw": false}'  # the levelling
+        # filter with other InsParams (fix, rts, acal, afix)
 
 Data: the simulator's `boat` (waves, heave, turns, 0.7 m/s current, the default vehicle iron) with ADIS16405
 errors, 180 s at 200 SPS, GNSS from `simulate_gnss` (5 Hz, 1.5 m / 0.05 m/s), at DEFAULT_SITE (dip 53°) and at
@@ -58,6 +60,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import logging
 import math
 import time
@@ -221,8 +224,9 @@ def operational_grid_error_deg(run: BoatRun, model, accel_bias_estimate_m_s2, ti
 
 
 def calibrations(run: BoatRun, settled_tilt_sigma_deg: float | None = None,
-                 acal_sigma_m_s2: float | None = None) -> dict:
-    """name -> MagFitResult. `acal_sigma_m_s2`: the `acal` bias prior (default ACCEL_BIAS_SIGMA_CALIBRATED_M_S2)."""
+                 acal_sigma_m_s2: float | None = None, levelling_params: dict | None = None) -> dict:
+    """name -> MagFitResult. `acal_sigma_m_s2`: the `acal` bias prior (default ACCEL_BIAS_SIGMA_CALIBRATED_M_S2);
+    `levelling_params`: InsParams overrides of the aided levelling filter (`filter_overrides`)."""
     from ahrsd.calibration.mag.backstepping_aided import (ACCEL_BIAS_SIGMA_CALIBRATED_M_S2, SETTLED_TILT_SIGMA_DEG,
                                                       fit_backstepping_aided)
     from ahrsd.calibration.mag.levelling import roll_pitch_from_estimator
@@ -240,13 +244,15 @@ def calibrations(run: BoatRun, settled_tilt_sigma_deg: float | None = None,
         "frame": fit_mag("backstepping", run.data, run.field, roll_rad=run.accel_roll, pitch_rad=run.accel_pitch,
                          speed_m_s=None),
         "fix": fit_backstepping_aided(run.data, run.fixes, run.field, decl, settled_tilt_sigma_deg=thr,
-                                      smooth=False),
+                                      smooth=False, filter_overrides=levelling_params),
         "rts": fit_backstepping_aided(run.data, run.fixes, run.field, decl, settled_tilt_sigma_deg=thr,
-                                      smooth=True),
+                                      smooth=True, filter_overrides=levelling_params),
         "acal": fit_backstepping_aided(run.data_acal, run.fixes, run.field, decl, settled_tilt_sigma_deg=thr,
-                                       accel_bias_sigma_m_s2=acal_sigma_m_s2 or ACCEL_BIAS_SIGMA_CALIBRATED_M_S2),
+                                       accel_bias_sigma_m_s2=acal_sigma_m_s2 or ACCEL_BIAS_SIGMA_CALIBRATED_M_S2,
+                                       filter_overrides=levelling_params),
         "afix": fit_backstepping_aided(run.data_afix, run.fixes, run.field, decl, settled_tilt_sigma_deg=thr,
-                                       accel_bias_sigma_m_s2=acal_sigma_m_s2 or ACCEL_BIAS_SIGMA_CALIBRATED_M_S2),
+                                       accel_bias_sigma_m_s2=acal_sigma_m_s2 or ACCEL_BIAS_SIGMA_CALIBRATED_M_S2,
+                                       filter_overrides=levelling_params),
     }
 
 
@@ -290,6 +296,8 @@ def main(argv=None) -> int:
     ap.add_argument("--no-ins", action="store_true", help="skip the daemon-estimator column (faster)")
     ap.add_argument("--acal-sigma-mg", type=float, default=None,
                     help="the acal and afix columns' accelerometer-bias prior, mg (default: the CLI's, 2)")
+    ap.add_argument("--levelling-params", type=json.loads, default=None,
+                    help="InsParams overrides of the aided levelling filter (fix, rts, acal, afix) as JSON")
     args = ap.parse_args(argv)
     logging.getLogger("ahrsd.estimator.ins").setLevel(logging.ERROR)   # the failing runs' resets: counted instead
     sites = {k: SITES[k] for k in args.sites}
@@ -303,6 +311,8 @@ def main(argv=None) -> int:
     print(f"# back-stepping on the boat, {SECONDS:.0f} s, {kind} seeds {list(seeds)}: true-heading RMS (deg, mean "
           f"offset kept; target ≤ {TARGET_DEG}), grid / rec / ins / op (see the docstring) / ins heading errors "
           f"beyond 3σ")
+    if args.levelling_params:
+        print(f"# the aided levelling filter with {json.dumps(args.levelling_params)}")
     hdr = f"{'site':8s} {'seed':>4s} " + "".join(f"{n:>34s}" for n in names) + f"{'tilt fwd/rts':>14s}"
     print(hdr)
     print("-" * len(hdr))
@@ -314,7 +324,8 @@ def main(argv=None) -> int:
         for seed in seeds:
             run = BoatRun(seed, text)
             line = f"{label:8s} {seed:4d} "
-            for name, res in calibrations(run, acal_sigma_m_s2=acal_sigma).items():
+            for name, res in calibrations(run, acal_sigma_m_s2=acal_sigma,
+                                          levelling_params=args.levelling_params).items():
                 if not res.ok:
                     line += f"{'refused':>34s}"
                     table[name].append((math.nan,) * 5)
