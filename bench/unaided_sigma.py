@@ -43,7 +43,6 @@ def one_run(job) -> tuple:
     from ahrsd.estimator.mekf import Mekf
 
     scenario, seed, seconds, from_s, estimator = job
-    logging.disable(logging.WARNING)
     run = simulate_vehicle(scenario, seconds, seed, None)
     n = len(run.t_s)
     q = np.full((n, 4), np.nan)
@@ -76,6 +75,9 @@ def main(argv=None) -> int:
     ap.add_argument("--from-s", type=float, default=30.0)
     ap.add_argument("--processes", type=int, default=1)
     args = ap.parse_args(argv)
+    # the simulated sensors' and estimators' warnings would bury the table; here, in main, not in one_run:
+    # the pool's workers inherit it, and a test that calls one_run keeps its logging
+    logging.disable(logging.WARNING)
     jobs = [(sc, seed, args.seconds, args.from_s, e) for e in args.estimators for sc in args.scenarios
             for seed in args.seeds]
     print(f"without GNSS, {args.seconds:.0f} s, from {args.from_s:.0f} s: RMS roll/pitch/heading (°), "
