@@ -61,6 +61,7 @@ from ahrsd.daemon.param_protocol import MOUNTING_PARAMS, ParamProtocol, param_sp
 from ahrsd.daemon.params import ParamError, ParamStore
 from ahrsd.daemon.pipeline import Pipeline
 from ahrsd.daemon.position import PositionResolver
+from ahrsd.daemon.position_memory import PositionMemory
 from ahrsd.daemon.publishers import Publishers
 from ahrsd.daemon.restart_heading import RestartHeading
 from ahrsd.daemon.run_stats import sample_accounting
@@ -125,8 +126,12 @@ class Service:
                                      statustext=self.outbound.statustext)
         self.gnss: GnssTask | None = None      # [gnss] source (daemon.gnss_task), None without one
         self.nmea: NmeaOutputs | None = None    # [[nmea]] outputs (daemon.nmea_output), None without any
+        # the last real position, kept across restarts; a simulated or replayed run's positions are not the vehicle's
+        memory = PositionMemory(self.state_dir, record=config.sensor.source in ("spi", "iio"),
+                                background=self._in_background)
         self.positions = PositionResolver(config.location, gnss_position=self._gnss_position,
-                                          autopilot=self.autopilot, simulator=config.sensor.source == "sim")
+                                          autopilot=self.autopilot, simulator=config.sensor.source == "sim",
+                                          memory=memory)
         self.declination = Declination(self.params, self.positions, signal_reset=self.heading.signal, clock=clock)
         self.logs = VehicleLogs(config.log, state_dir=self.state_dir, environ=environ,
                                 gnss_source=config.gnss.source, recording_time_base=config.sensor.source == "replay")
@@ -659,6 +664,7 @@ class Service:
             self.restart_heading.save_now(self.heading.reset_counter)
         if self.learned_iron is not None:
             self.learned_iron.save_now()
+        self.positions.memory.save_now()
         if self.reader is not None:
             self.reader.outputs.raw_sink = None
         self.logs.close(self.endpoints)             # after the last frames went out
