@@ -73,6 +73,7 @@ from .turn_lean import (
     TURN_LEAN_DTYPE,
     add_pushes_to_sigma,
     clear,
+    levelling_gain,
     lowpass_rate_down,
     track_heading_push,
     track_tilt_push,
@@ -452,7 +453,7 @@ def _level(x, P, par, dt_epoch):
         return F_ACCEL_REJECTED
     r = (par.level_noise_m_s2 / g) ** 2
     # the lean this update carries into the tilt in a turn, for the published 1σ (turn_lean.py)
-    track_tilt_push(x.turn_lean, par.turn_speed_m_s, g, P[E_TILT_E, E_TILT_E], r)
+    track_tilt_push(x.turn_lean, par.turn_speed_m_s, g, levelling_gain(P[E_TILT_E, E_TILT_E], r))
     mask = M_HEADING | M_ACC_BIAS | M_GYRO_BIAS | M_GYRO_SCALE | M_GYRO_MIS   # tilt only (see the docstring)
     dx = np.zeros(N_ERR)
     h = np.zeros(N_ERR)
