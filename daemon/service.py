@@ -89,6 +89,10 @@ VISION_POSITION_ESTIMATE = mavlink.MAVLINK_MSG_ID_VISION_POSITION_ESTIMATE
 class Service:
     def __init__(self, config: Config, *, source: SensorSource | None = None, environ=os.environ, stdout=None,
                  clock: Callable[[], float] = time.monotonic, warm_fit_worker: bool = True):
+        """The parts that exist from construction on, in named steps and this order: the service's own state, the
+        MAVLink core (`_build_mavlink_core`), the heading and position parts (`_build_heading_and_position`),
+        the outputs' parts (`_build_output_parts`); the parts built at start are declared None
+        (`_declare_parts_built_at_start`, built by `start`)."""
         self.config = config
         # the daemon's one clock (CLOCK_MONOTONIC, the event loop's and the sensor source's): every rate limit and
         # timeout of the parts reads it; a test steps it
@@ -104,7 +108,14 @@ class Service:
         self._stdout = stdout if stdout is not None else sys.stdout
         self._stop: asyncio.Event | None = None
         self._tasks: list[asyncio.Task] = []
-        # the parts that exist from construction on
+        self._build_mavlink_core(config, environ, clock)
+        self._build_heading_and_position(config, environ, clock)
+        self._build_output_parts()
+        self._declare_parts_built_at_start()
+
+    def _build_mavlink_core(self, config: Config, environ, clock: Callable[[], float]) -> None:
+        """Health, the autopilot's state, the counters, the outbound side (identity, endpoints, STATUSTEXT), the
+        parameters, the command router, the service manager's notifier and the sample listeners."""
         self.health = Health(stale_timeout_s=config.sensor.stale_timeout_s)
         self.autopilot = AutopilotState()
         self.counters = ServiceCounters()
@@ -121,7 +132,10 @@ class Service:
                                       clock=clock)
         self.notifier = Notifier(environ)
         self.listeners = SampleListeners()
-        # the VISION_POSITION_ESTIMATE yaw after a calibration change, and reset_counter
+
+    def _build_heading_and_position(self, config: Config, environ, clock: Callable[[], float]) -> None:
+        """The VISION_POSITION_ESTIMATE yaw after a calibration change and its reset_counter, the GNSS and NMEA
+        slots (filled at start when configured), the position resolver, the declination and the vehicle logs."""
         self.heading = HeadingResets(HeadingSlew(max_rate_deg_s=config.outputs.heading_slew_deg_s),
                                      statustext=self.outbound.statustext)
         self.gnss: GnssTask | None = None      # [gnss] source (daemon.gnss_task), None without one
@@ -135,15 +149,21 @@ class Service:
         self.declination = Declination(self.params, self.positions, signal_reset=self.heading.signal, clock=clock)
         self.logs = VehicleLogs(config.log, state_dir=self.state_dir, environ=environ,
                                 gnss_source=config.gnss.source, recording_time_base=config.sensor.source == "replay")
+
+    def _build_output_parts(self) -> None:
+        """The per-endpoint output schedules (SR_* base rates, signing) and the parameter protocol."""
         self.endpoint_outputs = EndpointOutputs(
             self.outbound, base_rates_hz=lambda: {o.message_id: self.params.get(o.param_name) for o in OUTPUTS},
             signed=lambda: self.signing_key is not None, warn_soon=self._statustext_soon)
         self.param_protocol = ParamProtocol(self.params, self.outbound, self.counters,
                                             signing_required=lambda: self.signing_required,
                                             spawn=lambda coro: self.loop.create_task(coro))
+
+    def _declare_parts_built_at_start(self) -> None:
+        """The parts `start` builds (they need the state directory's contents, the pipeline, the endpoints or the
+        source), None until then."""
         self.restart_heading: RestartHeading | None = None   # the restart rule (daemon.restart_heading)
         self.source_set_check: SourceSetCheck | None = None  # may ArduPilot's source set be switched (same)
-        # the parts built at start (they need the pipeline, the endpoints or the source)
         self.pipeline: Pipeline | None = None
         self.swap: CalibrationSwap | None = None
         self.publishers: Publishers | None = None

@@ -30,7 +30,7 @@ def test_the_summed_corrections_are_the_lean_the_levelling_took():
     e_now = 0.0
     for i in range(len(t)):
         nu = phi[i] - e_now + rng.normal(0.0, 0.01)
-        track_accel_push(u, nu, 0.0, p, p, r, dt, False)    # the innovation on δθ_E (nu_n)
+        track_accel_push(u, nu, 0.0, k, k, dt, False)       # the innovation on δθ_E (nu_n), its gain k
         e_now += k * nu
         e[i], push[i] = e_now, u["accel_push_e_rad"]
     assert np.max(np.abs(e)) > math.radians(9.0)     # the lean was taken
