@@ -1087,9 +1087,14 @@ class Ins:
         self._integrity = HeadingIntegrity(gsf_yaw, math.sqrt(gsf_var) if math.isfinite(gsf_var) else math.nan,
                                            gsf_valid, self._monitor.disagreement_rad, self._iron.offset_ut.copy(),
                                            self._iron.sigma_ut)
+        raw = self._monitor.heading_state(sig, False, True, p.heading_unknown_sigma_rad, self._mag_trust_var)
+        if raw == HeadingState.MAGNETOMETER and self._mag_state()["since_update_s"] > p.mag_unavailable_s:
+            # the monitor lets the magnetometer back, but the kernel's field check still rejects every field (its
+            # norm/dip reference was learned on the field before the iron was learned, and is re-learned only
+            # after mag_new_time_s of rotation): the GNSS still holds the heading, as the flags say
+            raw = HeadingState.LEARNING if self._monitor.learning else HeadingState.GNSS_ONLY
         # held at the check rate, so the state does not depend on how often estimates are built
-        self._heading_state = self._state_hold.update(
-            t_s, self._monitor.heading_state(sig, False, True, p.heading_unknown_sigma_rad, self._mag_trust_var), sig)
+        self._heading_state = self._state_hold.update(t_s, raw, sig)
 
     def _gnss_yaw_alignment_due(self, gsf_valid: bool) -> bool:
         """The first valid GNSS yaw, no trusted magnetometer calibration, the heading not yet confirmed: the
