@@ -142,6 +142,9 @@ def test_a_wrong_hard_iron_is_found_in_turns_and_sigma_covers_it(estimator):
     hs, texts, good = _status(ests)
     assert not good[int(REVEALED_S * 10):].any()                # "heading good" is not said
     assert hs.active_detail() != "heading good"
+    from ahrsd.daemon import messages as msgs
+
+    assert hs.unhealthy_bits() & msgs.SENSOR_MAG                # SYS_STATUS: the magnetometer is not healthy
     assert any("off-centre" in x and "calibration wrong or iron changed" in x for x in texts)
 
 
