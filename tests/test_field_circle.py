@@ -165,3 +165,17 @@ def test_the_check_stops_at_the_first_fix_for_ins():
     assert f.field_circle() is not None
     f._ever_aided = True                    # what the first fused fix sets (Ins._stepped)
     assert f.field_circle() is None
+
+
+def test_the_daemon_asks_its_estimator_for_the_check():
+    from types import SimpleNamespace
+
+    from ahrsd.daemon.service import Service
+    from ahrsd.estimator.base import FieldCircleCheckedEstimator
+
+    for est in (Mekf(mag_calibration_sigma_rad=CLAIMED_SIGMA_RAD), Ins(mag_calibration_sigma_rad=CLAIMED_SIGMA_RAD)):
+        assert isinstance(est, FieldCircleCheckedEstimator)
+        daemon = SimpleNamespace(pipeline=SimpleNamespace(estimator=est))
+        assert Service._field_circle(daemon) is est.field_circle()
+    # no calibration figure: the heading is unknown anyway, nothing to check
+    assert Mekf(mag_calibration_sigma_rad=math.nan).field_circle() is None
