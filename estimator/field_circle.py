@@ -27,6 +27,10 @@ RMS, √((A_h² + A_s²)/2), so 3σ covers their sum A_h + A_s) replaces the cal
 variance's consider term (calibration_heading.py) where it is the larger: a calibration that stated the error it
 leaves is not wrong, one that claims less than the circle shows is (`finds_wrong`).
 
+An iron that moves within the window mixes two circles: where the vehicle has kept to a few headings since, the
+fit may take the moved one for an ellipse and stay within its gate, but its residual grows far beyond its floor
+(`scatter_gate`); that is flagged too, with the heading error such a mixture implies.
+
 Sources: W. Premerlani, "Automatic nulling of magnetometer offsets" (DIY Drones, 2010) and "Magnetometer offsets
 revisited" (2011): offsets rotate with the body while the Earth field does not, so rotation separates them;
 ArduPilot's `CompassLearn` (libraries/AP_Compass/Compass_learn.cpp) learns offsets in flight against the EKF-GSF
@@ -75,6 +79,9 @@ class FieldCircleParams:
     gate_chi2: float = 18.4
     """The centre (2 dof) or the ellipse (2 dof) is significant beyond this χ² (a false alarm of 1e-4 for
     independent errors)."""
+    scatter_gate: float = 3.0
+    """The fields are not on one circle when the fit's residual variance exceeds this many times its floor (the
+    noise's and the tilt σ's): the iron moved within the window (the old and the new circle mixed)."""
     mag_noise_ut: float = 0.7
     """Magnetometer noise per axis, µT (the floor of the residual's spread with the tilt's)."""
 
@@ -88,7 +95,8 @@ class FieldCircleResult:
     radius_ut: float = math.nan               # the fitted horizontal field
     anisotropy: float = math.nan              # the soft-iron heading error's amplitude, rad
     covered: bool = False                     # the field has swept min_sectors sectors within the window
-    significant: bool = False                 # the centre or the ellipse is beyond its χ² gate
+    significant: bool = False                 # the centre or the ellipse is beyond its χ² gate, or the fields
+                                              # are not on one circle (scatter beyond scatter_gate)
     heading_var_rad2: float = 0.0             # the heading variance to add to the published σ (0: nothing)
 
     @property
@@ -195,7 +203,8 @@ class FieldCircleCheck:
         radius = math.sqrt(r2)
         # the residual's variance per independent field: the fit's own, never below the noise's and tilt's
         resid = max(self._tt - float(self._b @ theta), 0.0) / max(self._w - 5.0, 1.0)
-        s2 = max(resid, self._floor / self._w)
+        floor = self._floor / self._w
+        s2 = max(resid, floor)
         cov = s2 * n_inv
         # c = −½ M⁻¹ d: ∂c/∂β = −M⁻¹ diag(1, −1) c, ∂c/∂γ = −M⁻¹ [[0, 1], [1, 0]] c, ∂c/∂d = −½ M⁻¹
         jac = np.zeros((2, 5))
@@ -211,7 +220,16 @@ class FieldCircleCheck:
             return FieldCircleResult(covered=False)
         a_hard = math.asin(min(1.0, float(np.hypot(*c)) / radius))
         a_soft = 0.5 * math.hypot(beta, gamma)          # β = −2e₁, γ = −2e₂ to first order
-        significant = chi2_c > p.gate_chi2 or chi2_e > p.gate_chi2
-        var = 0.5 * (a_hard ** 2 + a_soft ** 2) if significant else 0.0
+        fitted = chi2_c > p.gate_chi2 or chi2_e > p.gate_chi2
+        var = 0.5 * (a_hard ** 2 + a_soft ** 2) if fitted else 0.0
+        # not one circle: a field scattered by δm (RMS, beyond the floor) about the fitted one. Two circles mixed
+        # (an iron that moved within the window) scatter by at most half their distance Δ (less where the fit's
+        # centre and ellipse take some of it up), and the newer one's heading error is a sinusoid of amplitude Δ/r
+        # whose phase the vehicle's few recent headings do not show: its amplitude 2δm/r as the 1σ, with
+        # δm = √(resid − floor)/(2r)
+        scattered = resid > p.scatter_gate * floor
+        if scattered:
+            var = max(var, (resid - floor) / radius ** 4)
+        significant = fitted or scattered
         return FieldCircleResult((float(c[0]), float(c[1])), math.sqrt(float(np.max(np.linalg.eigvalsh(cov_c)))),
                                  radius, a_soft, covered, significant, var)

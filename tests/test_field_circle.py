@@ -78,6 +78,29 @@ def test_a_round_centred_circle_is_not_flagged():
         assert r.covered and not r.significant and r.heading_var_rad2 == 0.0
 
 
+def test_an_iron_that_moves_mid_window_scatters_the_circle():
+    # 200 s of full turns with a right calibration, then the iron moves by (−5.2, −3.0) µT and the vehicle keeps to
+    # a 120° arc: no new circle to fit there, but the fields are no longer on one circle
+    check = FieldCircleCheck()
+    _levelled_fields(check, _turning(200.0), (0.0, 0.0), noise_ut=0.1)
+    assert not check.result.significant
+    arc = 0.3 + math.radians(120.0) * (0.5 + 0.5 * np.sin(np.linspace(0.0, 6.0 * math.pi, 600)))
+    rng = np.random.default_rng(4)
+    for k, psi in enumerate(arc):
+        m = np.array([H_UT * math.cos(-psi) - 5.2, H_UT * math.sin(-psi) - 3.0, 40.0])
+        m[:2] += 0.1 * rng.standard_normal(2)
+        check.add(200.0 + k / 10.0, 0.0, 0.0, m, math.radians(0.1))
+    r = check.result
+    assert r.significant
+    # the heading error the moved iron leaves along the arc (the field's direction against the Earth field's, seen
+    # from the body), within 3σ
+    h = np.stack([np.cos(-arc), np.sin(-arc)], axis=1) * H_UT
+    m = h + np.array([-5.2, -3.0])
+    err = np.angle(np.exp(1j * (np.arctan2(m[:, 1], m[:, 0]) - np.arctan2(h[:, 1], h[:, 0]))))
+    assert np.max(np.abs(err)) > math.radians(10.0)
+    assert np.mean(np.abs(err) <= 3.0 * math.sqrt(r.heading_var_rad2)) >= 0.99
+
+
 def test_a_partial_arc_says_nothing():
     # a right calibration on a 180° arc through a local anomaly (the horizontal field grows by 6 µT on the way): on
     # a partial arc a changing magnitude looks like an off-centre circle (judged anyway, this one would be flagged
