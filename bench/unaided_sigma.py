@@ -90,7 +90,7 @@ def one_run(job) -> tuple:
         sig[k] = e.sigma_rpy_rad
         state[k] = int(e.heading_state)
         init[k] = bool(e.flags & EstimateFlags.INITIALISING)
-        fc = est.field_circle()
+        fc = est.field_circle() if estimator == "mekf" else est.field_circle_check()
         off_centre[k] = fc is not None and fc.finds_wrong(run.mag_calibration_sigma_rad ** 2)
     ok = (run.t_s >= from_s) & np.all(np.isfinite(q), axis=1)
     err = errors_rph(q[ok], run.truth_q_wxyz[ok], run.declination_rad)

@@ -67,8 +67,9 @@ class MagCalibrationAwareEstimator(Protocol):
 @runtime_checkable
 class FieldCircleCheckedEstimator(Protocol):
     """An estimator that checks its magnetometer calibration without GNSS by the circle the levelled field sweeps in
-    turns (mekf; ins before its first fix: estimator/field_circle.py) and adds the heading error a wrong one implies
-    to its published σ. `field_circle()`: the latest FieldCircleResult while the check governs the σ, else None."""
+    turns (mekf: estimator/field_circle.py) and adds the heading error a wrong one implies to its published σ.
+    `field_circle()`: the latest FieldCircleResult while the check governs the σ, else None. (ins runs the check
+    before its first fix for its σ only: Ins.field_circle_check.)"""
 
     def field_circle(self): ...
 

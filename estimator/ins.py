@@ -490,9 +490,12 @@ class Ins:
         self._field_circle.add(t_s, float(o[_OUT_EULER.start]), float(o[_OUT_EULER.start + 1]), m_used,
                                max(float(o[_OUT_SIGMA.start]), float(o[_OUT_SIGMA.start + 1])))
 
-    def field_circle(self) -> FieldCircleResult | None:
-        """What the circle check found of the calibration in force (field_circle.py) while it governs the published
-        σ (before the first fix); None otherwise."""
+    def field_circle_check(self) -> FieldCircleResult | None:
+        """What the circle check found (field_circle.py) while it widens the published σ (before the first fix); None
+        otherwise. Not the daemon's `field_circle()` (base.FieldCircleCheckedEstimator): ins levels its attitude
+        without GNSS less well than mekf (docs/estimator.md "Known limits": 5–15° of tilt on the simulated car and
+        plane), and a wrongly levelled field is no circle either, so a flag here widens σ — the heading is off — but
+        does not show that the calibration is what is wrong, and the daemon does not say so."""
         return self._field_circle.result if self._field_circle_on and not self._ever_aided else None
 
     # ----------------------------------------------------------------------- Estimator protocol
