@@ -75,7 +75,8 @@ from ahrsd.drivers.source import SensorSource, open_source
 from ahrsd.daemon.broadcast_notice import BroadcastNotice
 from ahrsd.estimator import make_estimator
 from ahrsd.daemon.estimator_news import estimator_news_muted
-from ahrsd.estimator.base import Estimator, HeadingCheckedEstimator, MagCalibrationAwareEstimator
+from ahrsd.estimator.base import (Estimator, FieldCircleCheckedEstimator, HeadingCheckedEstimator,
+                                  MagCalibrationAwareEstimator)
 from ahrsd.estimator.warm_up import warm_up
 
 log = logging.getLogger(__name__)
@@ -280,6 +281,12 @@ class Service:
         if not isinstance(est, HeadingCheckedEstimator):
             return 0, 0
         return int(est.yaw_resets), int(est.gnss_yaw_alignments)
+
+    def _field_circle(self):
+        """The estimator's check of the calibration by the field's circle in turns (mekf, ins before its first fix;
+        estimator/field_circle.py), None where there is none."""
+        est = self.pipeline.estimator
+        return est.field_circle() if isinstance(est, FieldCircleCheckedEstimator) else None
 
     def local_origin(self):
         return None if self.gnss is None else self.gnss.origin
@@ -568,7 +575,8 @@ class Service:
         """The heading state (daemon.heading_status) into the health (MAV_STATE, SYS_STATUS bits) before the
         health report reads it; the learned iron's parameters and periodic save (daemon.learned_iron)."""
         if self.heading_status is not None:
-            self.heading_status.on_estimate(self.pipeline.last_estimate, now, *self._yaw_resets())
+            self.heading_status.on_estimate(self.pipeline.last_estimate, now, *self._yaw_resets(),
+                                            field_circle=self._field_circle())
             self.health.heading_good = self.heading_status.heading_good
             self.health.heading_unhealthy_bits = self.heading_status.unhealthy_bits()
         if self.learned_iron is not None:
