@@ -2,16 +2,24 @@
 why the others were lost (in a fault window, right after a reconnect, or for no injected reason). The soak
 (bench/soak.py) and the reliability tests judge the daemon's own loss accounting against it. Only ever
 wrapped around a source reading `SimulatedAdis16405`; the real sensor's path has none of it.
+
+It also measures what the simulator costs the process that reads it (`simulated_cpu_s`: the thread CPU time
+spent inside the simulated chip's transfers — its register model, on hardware the kernel's spidev — and in
+this truth bookkeeping, from the first read on), so that a benchmark can report the daemon's own CPU apart
+from the simulated hardware's (bench/latency.py, docs/daemon.md "Performance").
 """
 
 from __future__ import annotations
 
 import logging
+import time
 
 from ahrsd.drivers.registers import GLOB_CMD
 from ahrsd.drivers.source_interface import LiveSource
 
 log = logging.getLogger(__name__)
+
+_thread_time = time.thread_time     # CLOCK_THREAD_CPUTIME_ID: the reading thread's CPU, not the wall time
 
 # faults during which the sample flow stops or frames are rejected: samples lost there are explained
 FLOW_STOPPING_FAULTS = ("bus_error", "stall", "garbage", "short_read", "self_test_fail")
@@ -25,12 +33,17 @@ class BurstIndexTap:
     def __init__(self, chip):
         self.chip = chip
         self.burst_index = -1
+        self.cpu_s = 0.0              # thread CPU time inside the simulated chip's transfers
 
     def transfer(self, tx: bytes, speed_hz: int, delay_us: int = 0) -> bytes:
-        rx = self.chip.transfer(tx, speed_hz, delay_us)
-        if tx[0] == GLOB_CMD and tx[1] == 0:          # 0x3E00 starts a burst read
-            self.burst_index = self.chip.sample_index
-        return rx
+        t0 = _thread_time()
+        try:
+            rx = self.chip.transfer(tx, speed_hz, delay_us)
+            if tx[0] == GLOB_CMD and tx[1] == 0:          # 0x3E00 starts a burst read
+                self.burst_index = self.chip.sample_index
+            return rx
+        finally:
+            self.cpu_s += _thread_time() - t0
 
     def __getattr__(self, name):
         return getattr(self.chip, name)
@@ -56,6 +69,8 @@ class GroundTruthSource(LiveSource):
         self._last_counter = -1
         self._opens_accounted = 0
         self._reads_started = False
+        self._bookkeeping_cpu_s = 0.0     # thread CPU time of this truth bookkeeping (`_account`)
+        self._reads_since = 0.0          # CLOCK_MONOTONIC of the first read
 
     # what the inner source says
     description = property(lambda self: self.inner.description)
@@ -92,9 +107,13 @@ class GroundTruthSource(LiveSource):
         if not self._reads_started:
             self._reads_started = True
             self._rebase_faults(kinds_excluded=("self_test_fail",))   # run-time faults: from the first read
+            self.tap.cpu_s = 0.0                                      # the start-up's transfers are not reads
+            self._reads_since = time.monotonic()
         s = self.inner.read_one(now)
         if s is not None:
+            t0 = _thread_time()
             self._account(s)
+            self._bookkeeping_cpu_s += _thread_time() - t0
         return s
 
     def _account(self, s) -> None:
@@ -139,6 +158,11 @@ class GroundTruthSource(LiveSource):
         if self.first_chip_index is not None:
             c["chip_first_index_read"] = self.first_chip_index
             c["chip_last_index_read"] = self.last_chip_index
+        if self._reads_started:
+            # what the simulator cost the reading thread since the first read, and over how long: a share of a
+            # core that is the simulated hardware's, not the daemon's
+            c["sensor_simulated_cpu_s"] = self.tap.cpu_s + self._bookkeeping_cpu_s
+            c["sensor_simulated_wall_s"] = time.monotonic() - self._reads_since
         return c
 
     def close(self) -> None:
