@@ -66,7 +66,18 @@ class BusyDriver:
         return {}
 
 
-def test_the_simulated_chip_counts_its_transfers_from_the_first_read_and_not_the_drivers_work():
+def test_the_simulated_chip_counts_its_transfers_from_the_first_read_and_not_the_drivers_work(monkeypatch):
+    """Every read's transfer counts (the measured reads' CPU scaled to all), neither the start-up's transfers nor
+    the driver's own work; the thread CPU clock (a system call) is read on one read in MEASURE_EVERY only."""
+    from ahrsd.drivers import ground_truth
+
+    clock_reads = [0]
+
+    def counted_thread_time() -> float:
+        clock_reads[0] += 1
+        return time.thread_time()
+
+    monkeypatch.setattr(ground_truth, "_thread_time", counted_thread_time)
     chip = BusyChip()
     tap = BurstIndexTap(chip)
     src = GroundTruthSource(BusyDriver(tap), chip, tap)
@@ -81,6 +92,8 @@ def test_the_simulated_chip_counts_its_transfers_from_the_first_read_and_not_the
     # bookkeeping and the timer calls themselves cost microseconds a read
     assert READS * CHIP_S <= c["sensor_simulated_cpu_s"] < READS * CHIP_S + 0.005
     assert 0.0 < c["sensor_simulated_wall_s"] <= elapsed + 0.05
+    measured = -(-READS // ground_truth.MEASURE_EVERY)             # reads 1, 1 + MEASURE_EVERY, ...
+    assert clock_reads[0] == 4 * measured                           # two around the transfer, two the bookkeeping
 
 
 def test_the_simulated_receivers_writer_counts_its_cpu_not_its_waits():
