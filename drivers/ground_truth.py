@@ -2,16 +2,30 @@
 why the others were lost (in a fault window, right after a reconnect, or for no injected reason). The soak
 (bench/soak.py) and the reliability tests judge the daemon's own loss accounting against it. Only ever
 wrapped around a source reading `SimulatedAdis16405`; the real sensor's path has none of it.
+
+It also measures what the simulator costs the process that reads it (`sensor_simulated_cpu_s`: the thread CPU
+time spent inside the simulated chip's transfers — its register model, on hardware the kernel's spidev — and
+in this truth bookkeeping, from the first read on), so that a benchmark can report the daemon's own CPU apart
+from the simulated hardware's (bench/latency.py, docs/daemon.md "Performance"). Reading a thread's CPU clock is
+a system call (0.6–3.4 µs on the development VM, against 0.05–0.23 µs for CLOCK_MONOTONIC), so one read in
+MEASURE_EVERY is measured and the sum scaled to every read: timing every read would cost 0.2–1 % of a core,
+charged to the reader.
 """
 
 from __future__ import annotations
 
 import logging
+import time
 
 from ahrsd.drivers.registers import GLOB_CMD
 from ahrsd.drivers.source_interface import LiveSource
 
 log = logging.getLogger(__name__)
+
+_thread_time = time.thread_time     # CLOCK_THREAD_CPUTIME_ID: the reading thread's CPU, not the wall time
+MEASURE_EVERY = 17                  # reads between two measured ones (prime: the chip's 256-sample blocks
+                                    # are computed every 256 reads, and a stride dividing it would always
+                                    # or never catch one)
 
 # faults during which the sample flow stops or frames are rejected: samples lost there are explained
 FLOW_STOPPING_FAULTS = ("bus_error", "stall", "garbage", "short_read", "self_test_fail")
@@ -25,8 +39,19 @@ class BurstIndexTap:
     def __init__(self, chip):
         self.chip = chip
         self.burst_index = -1
+        self.measuring = False        # time the transfers (GroundTruthSource's measured reads)
+        self.cpu_s = 0.0              # thread CPU time inside the simulated chip's transfers, while measuring
 
     def transfer(self, tx: bytes, speed_hz: int, delay_us: int = 0) -> bytes:
+        if self.measuring:
+            t0 = _thread_time()
+            try:
+                return self._transfer(tx, speed_hz, delay_us)
+            finally:
+                self.cpu_s += _thread_time() - t0
+        return self._transfer(tx, speed_hz, delay_us)
+
+    def _transfer(self, tx: bytes, speed_hz: int, delay_us: int) -> bytes:
         rx = self.chip.transfer(tx, speed_hz, delay_us)
         if tx[0] == GLOB_CMD and tx[1] == 0:          # 0x3E00 starts a burst read
             self.burst_index = self.chip.sample_index
@@ -56,6 +81,12 @@ class GroundTruthSource(LiveSource):
         self._last_counter = -1
         self._opens_accounted = 0
         self._reads_started = False
+        # the simulated chip's transfers are timed through a BurstIndexTap (a test's own tap is not timed)
+        self._timed_tap = tap if isinstance(tap, BurstIndexTap) else None
+        self._reads = 0                  # reads since the first, and of them measured (MEASURE_EVERY)
+        self._measured_reads = 0
+        self._bookkeeping_cpu_s = 0.0     # thread CPU time of this truth bookkeeping (`_account`), measured reads
+        self._reads_since = 0.0          # CLOCK_MONOTONIC of the first read
 
     # what the inner source says
     description = property(lambda self: self.inner.description)
@@ -92,9 +123,31 @@ class GroundTruthSource(LiveSource):
         if not self._reads_started:
             self._reads_started = True
             self._rebase_faults(kinds_excluded=("self_test_fail",))   # run-time faults: from the first read
-        s = self.inner.read_one(now)
+            self._reads_since = time.monotonic()
+        self._reads += 1
+        if (self._reads - 1) % MEASURE_EVERY:
+            s = self.inner.read_one(now)
+            if s is not None:
+                self._account(s)
+            return s
+        return self._measured_read(now)
+
+    def _measured_read(self, now: float):
+        """A read whose simulator parts are timed: the chip's transfers (the tap) and the bookkeeping."""
+        self._measured_reads += 1
+        tap = self._timed_tap
+        if tap is None:
+            s = self.inner.read_one(now)
+        else:
+            tap.measuring = True
+            try:
+                s = self.inner.read_one(now)
+            finally:
+                tap.measuring = False
         if s is not None:
+            t0 = _thread_time()
             self._account(s)
+            self._bookkeeping_cpu_s += _thread_time() - t0
         return s
 
     def _account(self, s) -> None:
@@ -139,6 +192,13 @@ class GroundTruthSource(LiveSource):
         if self.first_chip_index is not None:
             c["chip_first_index_read"] = self.first_chip_index
             c["chip_last_index_read"] = self.last_chip_index
+        if self._measured_reads:
+            # what the simulator cost the reading thread since the first read (the measured reads' CPU, scaled
+            # to every read), and over how long: a share of a core that is the simulated hardware's, not the
+            # daemon's
+            measured = (self._timed_tap.cpu_s if self._timed_tap is not None else 0.0) + self._bookkeeping_cpu_s
+            c["sensor_simulated_cpu_s"] = measured * self._reads / self._measured_reads
+            c["sensor_simulated_wall_s"] = time.monotonic() - self._reads_since
         return c
 
     def close(self) -> None:

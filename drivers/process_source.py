@@ -6,7 +6,9 @@ the daemon holds it, and under CPU contention the holder can be descheduled for 
 real-time reader waits: priority inversion through the GIL. `bench/reader_gil.py` measures it (docs/drivers.md).
 Here the same per-sample source and reader thread run in a child process started with "spawn" (a clean
 interpreter: no event loop, threads or locks inherited); the child hands samples over through a pipe in blocks
-(packed records), with the source's counters every 0.25 s and its errors as they happen. The child starts
+(packed records), with the source's counters every 0.25 s and its errors as they happen. A samples message is
+its packed records behind one tag byte, sent and received as bytes (`send_samples`, `receive`): the other
+messages are pickled as multiprocessing does, and a pickle's first byte (0x80) is never the tag. The child starts
 reading at the daemon's first `poll()` (start-up time is not counted as loss) and ends with the pipe.
 """
 
@@ -18,6 +20,7 @@ import os
 import select
 import struct
 import time
+from multiprocessing.reduction import ForkingPickler
 from types import SimpleNamespace
 from typing import Callable
 
@@ -53,6 +56,25 @@ def pack(samples: list[ImuSample | SampleRecord]) -> bytes:
     return b"".join([p(*s) if type(s) is SampleRecord else
                      p(s.t_s, *s.gyro_rad_s.tolist(), *s.accel_m_s2.tolist(), *s.mag_ut.tolist(), s.temp_c,
                        s.supply_v, int(s.flags), s.diag_stat, s.counter) for s in samples])
+
+
+_SAMPLES_TAG = b"S"           # the first byte of a samples message (a pickle's is 0x80: protocol 2 and later)
+_SAMPLES_TAG_BYTE = _SAMPLES_TAG[0]
+
+
+def send_samples(conn, samples: list[ImuSample | SampleRecord]) -> None:
+    """One samples message: the tag and the packed records, as bytes (pickling them would build a pickler, and
+    copy its dispatch table, for every message: multiprocessing's `send`)."""
+    conn.send_bytes(_SAMPLES_TAG + pack(samples))
+
+
+def receive(conn) -> tuple:
+    """The next message from the other end: ("samples", the packed records) for a samples message, else the
+    unpickled message (a tuple, or the daemon's "go" / "stop")."""
+    data = conn.recv_bytes()
+    if data[0] == _SAMPLES_TAG_BYTE:
+        return "samples", memoryview(data)[1:]
+    return ForkingPickler.loads(data)
 
 
 def unpack_block(data: bytes) -> SampleBlock:
@@ -116,7 +138,7 @@ def _child(sensor_cfg: dict, faults, conn) -> None:
         src.close()                           # stop reading, then hand over the rest and the final counts
         rest = handover.pending + src.poll()
         if rest:
-            conn.send(("samples", pack(rest)))
+            send_samples(conn, rest)
             handover.sent += len(rest)
         conn.send(("counters", handover.counters(), _chip_truth(src)))
     except (BrokenPipeError, EOFError, OSError):
@@ -198,7 +220,7 @@ class _Handover:
                     self.last_error, self.error_sent_at = error, now
         if self.pending and self._room():       # one message a tick: a backlog costs the reader no read
             chunk, self.pending = self.pending[:self.chunk_samples], self.pending[self.chunk_samples:]
-            conn.send(("samples", pack(chunk)))
+            send_samples(conn, chunk)
             self.sent += len(chunk)
         if now >= self.next_counters and self._room():
             self.next_counters = now + COUNTERS_EVERY_S
@@ -293,14 +315,14 @@ class ProcessSource(LiveSource):
         if not self._started:
             self._started = True
             conn.send("go")
-        blocks: list[bytes] = []
+        blocks: list[memoryview] = []
         error = None
         # a poll object made once: Connection.poll(0) builds and registers a selector at every call (10 µs);
         # HUP and errors are reported as ready too, and recv() then raises EOFError / OSError as before
         ready = self._ready
         try:
             while ready(0):
-                msg = conn.recv()
+                msg = receive(conn)
                 kind = msg[0]
                 if kind == "samples":
                     blocks.append(msg[1])
@@ -342,7 +364,7 @@ class ProcessSource(LiveSource):
                 self._conn.send("stop")
             end = time.monotonic() + 3.0
             while time.monotonic() < end and self._conn.poll(max(0.0, end - time.monotonic())):
-                msg = self._conn.recv()
+                msg = receive(self._conn)
                 if msg[0] == "samples":
                     self.undelivered += unpack(msg[1])
                 elif msg[0] == "counters":

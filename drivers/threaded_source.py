@@ -214,10 +214,15 @@ class ThreadedSource(LiveSource):
         period_s = 1.0 / self.sample_rate_hz
         stale_gap_s = STALE_REREAD_PERIODS * period_s
         last_read, last_stale = 0.0, False
+        timer = wait_edge = None
         while not stop.is_set():
             if after_read is not None:
                 after_read()
-            wait_edge = getattr(getattr(inner, "timer", None), "wait", None)
+            if timer is None:
+                # the inner source's timer exists once the chip first started, and is kept through reconnections
+                # (drivers.reconnecting): looked up until then, not at every read
+                timer = getattr(inner, "timer", None)
+                wait_edge = getattr(timer, "wait", None)
             if wait_edge is not None:
                 if not wait_edge(0.1):
                     continue

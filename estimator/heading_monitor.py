@@ -74,6 +74,10 @@ class IronLearner:
     state: np.ndarray = field(default_factory=lambda: np.zeros(N_IRON))
     cov: np.ndarray = field(default_factory=lambda: np.zeros((N_IRON, N_IRON)))
     updates: int = 0
+    # (I + D)⁻¹ and level_heading_variance, kept with what they were computed from: the heading checks ask for
+    # them several times a check, and after the learning (or without it) they do not change for hours
+    _inverse: tuple = field(default=(None, None), init=False, repr=False, compare=False)
+    _level_variance: tuple = field(default=(None, 0.0), init=False, repr=False, compare=False)
 
     def __post_init__(self):
         if not np.any(self.cov):
@@ -127,7 +131,10 @@ class IronLearner:
 
     @property
     def soft_iron_inverse(self) -> np.ndarray:
-        return np.linalg.inv(self.soft_iron)
+        key = self.state[3:].tobytes()
+        if self._inverse[0] != key:
+            self._inverse = (key, np.linalg.inv(self.soft_iron))
+        return self._inverse[1].copy()
 
     def corrected(self, mag_ut) -> np.ndarray:
         """The body field the learned iron leaves: (I + D)⁻¹·(m − b)."""
@@ -193,6 +200,12 @@ class IronLearner:
         learned (the covariance) and of the Earth field, not of the heading the vehicle points at now: the
         covariance only shrinks while learning, so this never grows again until the iron is reset."""
         b = np.asarray(field_ned_ut, dtype=float)
+        key = b.tobytes() + self.state[3:].tobytes() + self.cov.tobytes()
+        if self._level_variance[0] != key:
+            self._level_variance = (key, self._level_heading_variance(b))
+        return self._level_variance[1]
+
+    def _level_heading_variance(self, b: np.ndarray) -> float:
         h2 = b[0] * b[0] + b[1] * b[1]
         if h2 <= 0.0:
             return math.inf

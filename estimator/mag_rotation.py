@@ -30,6 +30,7 @@ import numpy as np
 from numba import njit
 
 _DOWN = np.array([0.0, 0.0, 1.0])
+_EYE3 = np.eye(3)
 
 
 def _heading(c_bn: np.ndarray) -> float:
@@ -76,6 +77,10 @@ class MagRotationBias:
     att_sigma_rad: float = 0.0          # the largest attitude 1σ seen in the window
     tilt_sigma_rad: float = 0.0         # the filter's tilt 1σ now
     samples: list = field(default_factory=list)   # (t, φ, Σ b̂Δt, turn, soft-iron and attitude sensitivities)
+    # what stays the same through a window, made at its start: B × e_z (the direction a turn about down moves the
+    # field, in NED) and e_i × v₀ for the three axes (how v₀ moves with an attitude error about each)
+    turn_ned_ut: np.ndarray = field(default_factory=lambda: np.zeros(3), repr=False)
+    v0_moves_ut: tuple = field(default=(), repr=False)
 
     def restart(self) -> None:
         self.t0_s = math.nan
@@ -106,8 +111,9 @@ class MagRotationBias:
         dpsi = _heading(self.c0 @ rot) - _heading(c_bn)
         cz, sz = math.cos(dpsi), math.sin(dpsi)
         c_k = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]]) @ c_bn
-        v = c_k.T @ self.b_ned_ut
-        w = soft_iron @ (c_k.T @ np.cross(self.b_ned_ut, _DOWN))     # ∂m/∂(a turn about down)
+        c_kt = c_k.T
+        v = c_kt @ self.b_ned_ut
+        w = soft_iron @ (c_kt @ self.turn_ned_ut)     # ∂m/∂(a turn about down)
         ww = float(w @ w)
         if ww < 1.0:            # no horizontal field to turn (µT²)
             self.restart()
@@ -116,8 +122,8 @@ class MagRotationBias:
         rho = (m - self.m0_ut) - soft_iron @ d
         # how φ moves with an error δA of the soft iron (∂φ/∂δA_ij = w_i d_j / |w|²) and with an error ε of the
         # attitude v₀ was taken at (v₀ → v₀ + ε × v₀)
-        rt_i = rot.T - np.eye(3)
-        att = np.array([-(soft_iron @ (rt_i @ np.cross(e, self.v0_ut))) @ w / ww for e in np.eye(3)])
+        rt_i = rot.T - _EYE3
+        att = np.array([-(soft_iron @ (rt_i @ e_v0)) @ w / ww for e_v0 in self.v0_moves_ut])
         self.samples.append((t_s, float(rho @ w) / ww, self.bias_dt, _turn(rot),
                              np.outer(w, d).reshape(9) / ww, att))
         if t_s - self.t0_s < self.window_s:
@@ -132,6 +138,8 @@ class MagRotationBias:
         self.c0 = c_bn.copy()
         self.b_ned_ut = np.asarray(b_ned_ut, dtype=float).copy()
         self.v0_ut = c_bn.T @ self.b_ned_ut
+        self.turn_ned_ut = np.cross(self.b_ned_ut, _DOWN)
+        self.v0_moves_ut = tuple(np.cross(e, self.v0_ut) for e in _EYE3)
         self.rot = np.eye(3)
         self.bias_dt = 0.0
         self.att_sigma_rad = att_sigma_rad

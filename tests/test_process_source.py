@@ -167,7 +167,7 @@ def test_the_hand_over_never_blocks_the_reader_on_a_full_pipe():
     h.maybe_send()
     got = []
     while daemon_end.poll(0.2):
-        msg = daemon_end.recv()
+        msg = process_source.receive(daemon_end)
         if msg[0] == "samples":
             got += [s.counter for s in unpack(msg[1])]
     assert got == list(range(15))
@@ -294,8 +294,11 @@ def test_the_hand_over_sends_one_bounded_message_a_tick_and_never_blocks_a_real_
             return self.conn.fileno()
 
         def send(self, msg):
-            self.samples_messages += msg[0] == "samples"
             self.conn.send(msg)
+
+        def send_bytes(self, data):                          # a samples message (process_source.send_samples)
+            self.samples_messages += 1
+            self.conn.send_bytes(data)
 
     daemon_end, child_end = multiprocessing.Pipe()
     end = CountingEnd(child_end)
@@ -318,7 +321,7 @@ def test_the_hand_over_sends_one_bounded_message_a_tick_and_never_blocks_a_real_
     got: list[int] = []
     for _ in range(10000):
         while daemon_end.poll(0):
-            msg = daemon_end.recv()
+            msg = process_source.receive(daemon_end)
             if msg[0] == "samples":
                 got += [s.counter for s in unpack(msg[1])]
         if len(got) == 20000:

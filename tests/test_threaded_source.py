@@ -201,3 +201,37 @@ def test_a_data_ready_stall_is_waited_out_in_half_periods_not_spun():
     stall_s = 100 * PERIOD_S
     assert 0.8 * stall_s / (0.5 * PERIOD_S) <= src.stats["stale_rereads_spaced"] <= 1.1 * stall_s / (0.5 * PERIOD_S)
     assert len(got) > 100 and gap_samples(got[-100:]) == 0                    # the reads after it are whole
+
+
+def test_a_timer_that_appears_after_the_start_paces_the_reads_from_then_on():
+    """The chip's timer exists once the chip first started (drivers.reconnecting: a sensor down at start has
+    none): the reader looks it up until it is there, and then waits on its data-ready edges for every read."""
+    from types import SimpleNamespace
+
+    class SensorUpAtTheThirdRead:
+        per_sample = True
+        description = "a chip down at start"
+        sample_rate_hz = 819.2
+
+        def __init__(self):
+            self.timer, self.reads, self.waits = None, 0, 0
+
+        def next_read_time(self) -> float:
+            return 0.0                        # read at once (no sleeping in this test)
+
+        def read_one(self, now):
+            self.reads += 1
+            if self.reads == 3:
+                self.timer = SimpleNamespace(wait=self._wait)
+            if self.reads == 10:
+                src._stop.set()
+            return None
+
+        def _wait(self, timeout_s) -> bool:
+            self.waits += 1
+            return True
+
+    inner = SensorUpAtTheThirdRead()
+    src = ThreadedSource(inner, realtime=False, switch_interval_s=None)
+    src._read_per_sample()
+    assert inner.reads == 10 and inner.waits == 7       # every read after the one that brought the timer

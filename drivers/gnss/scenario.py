@@ -20,6 +20,7 @@ from __future__ import annotations
 import functools
 import math
 import threading
+import time
 from collections.abc import Callable
 
 from .simulated import SimulatedGnssReceiver
@@ -66,6 +67,10 @@ class ScenarioGnssReceiver:
         self._pending: list = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        # what the writer thread cost (its thread CPU time) and over how long: the simulated receiver's own work,
+        # which a real receiver does not take from the host (bench/latency.py reports it apart from the daemon's)
+        self.writer_cpu_s = 0.0
+        self.writer_wall_s = 0.0
 
     def start(self) -> "ScenarioGnssReceiver":
         self._thread = threading.Thread(target=self._run, name="sim-gnss-scenario", daemon=True)
@@ -73,11 +78,14 @@ class ScenarioGnssReceiver:
         return self
 
     def _run(self) -> None:
+        started = time.monotonic()
         while not self._stop.is_set():
             try:
                 wait = self.write_due()
             except OSError:                     # the pty was closed under us
                 return
+            self.writer_cpu_s = time.thread_time()      # this thread's CPU since it started
+            self.writer_wall_s = time.monotonic() - started
             self._stop.wait(min(wait, MAX_WAIT_S))
 
     def write_due(self) -> float:
@@ -118,7 +126,8 @@ class ScenarioGnssReceiver:
 
     def counters(self) -> dict:
         return {"fixes_written": self.fixes_written, "glitches_written": self.glitches_written,
-                "fixes_unwritable": self.fixes_unwritable, "fixes_skipped_late": self.fixes_skipped_late}
+                "fixes_unwritable": self.fixes_unwritable, "fixes_skipped_late": self.fixes_skipped_late,
+                "writer_cpu_s": self.writer_cpu_s, "writer_wall_s": self.writer_wall_s}
 
     def close(self) -> None:
         self._stop.set()
