@@ -323,6 +323,29 @@ def broad_section(methods: list[str], trial_names: list[str] | None, quick: bool
 
 
 def main(argv: list[str] | None = None) -> int:
+    ap = _arguments()
+    args = ap.parse_args(argv)
+    unknown = set(args.methods) - set(METHODS)
+    if unknown:
+        ap.error(f"unknown method(s): {', '.join(sorted(unknown))}")
+    methods, notes = available_methods(args.methods)
+    print("# ahrsd attitude accuracy benchmark")
+    for name, note in notes.items():
+        print(f"note: {name} {note}")
+    if not args.no_sim and not args.vehicles:
+        sim_section(methods, args.quick)
+    if not args.no_broad and not args.vehicles:
+        broad_section(methods, args.trials, args.quick, args.max_samples)
+    if not args.no_vehicles:
+        _vehicle_sections(args)
+    if args.cv:
+        from bench.cv import print_report, run_grid
+
+        print_report(run_grid(trial_names=args.trials, max_samples=args.max_samples))
+    return 0
+
+
+def _arguments() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--trials", nargs="*", help="BROAD trial name prefixes or substrings (default: all)")
     ap.add_argument("--methods", nargs="*", default=list(METHODS), help=f"subset of {', '.join(METHODS)}")
@@ -347,39 +370,26 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cv", action="store_true",
                     help="cross-validated tuning of mekf on BROAD (leave-one-trial-out and leave-one-pair-out "
                          "over bench/cv.py's candidate grid, beside VQF)")
-    args = ap.parse_args(argv)
-    unknown = set(args.methods) - set(METHODS)
-    if unknown:
-        ap.error(f"unknown method(s): {', '.join(sorted(unknown))}")
-    methods, notes = available_methods(args.methods)
-    print("# ahrsd attitude accuracy benchmark")
-    for name, note in notes.items():
-        print(f"note: {name} {note}")
-    if not args.no_sim and not args.vehicles:
-        sim_section(methods, args.quick)
-    if not args.no_broad and not args.vehicles:
-        broad_section(methods, args.trials, args.quick, args.max_samples)
-    if not args.no_vehicles:
-        from bench.vehicle_accuracy import VEHICLE_SCENARIOS, vehicle_section
+    return ap
 
-        sites = {f"site{i + 1}": s for i, s in enumerate(args.site)} if args.site else None
-        vehicle_section(args.quick, args.vehicle_seeds, sites, args.vehicle_scenarios or VEHICLE_SCENARIOS,
-                        lever_arm=args.lever_arm)
-    if not args.no_vehicles and not args.no_honesty:
-        from bench.vehicle_accuracy import HONESTY_SITES, VEHICLE_SCENARIOS, honesty_section
 
-        scen = args.vehicle_scenarios or VEHICLE_SCENARIOS
-        if args.honesty_seeds:
-            honesty_section(args.honesty_seconds, tuple(args.honesty_seeds), HONESTY_SITES, scen)
-        else:
-            if not args.quick:
-                honesty_section(args.honesty_seconds, (1,), {"default": HONESTY_SITES["default"]}, scen)
-            honesty_section(args.honesty_seconds, (11,), {"held-out": HONESTY_SITES["held-out"]}, scen)
-    if args.cv:
-        from bench.cv import print_report, run_grid
+def _vehicle_sections(args) -> None:
+    """(c) the vehicles, then (d) the honest heading unless --no-honesty (default seeds: 1 at the default site
+    and 11 at the held-out one; --quick: 11 only)."""
+    from bench.vehicle_accuracy import HONESTY_SITES, VEHICLE_SCENARIOS, honesty_section, vehicle_section
 
-        print_report(run_grid(trial_names=args.trials, max_samples=args.max_samples))
-    return 0
+    sites = {f"site{i + 1}": s for i, s in enumerate(args.site)} if args.site else None
+    vehicle_section(args.quick, args.vehicle_seeds, sites, args.vehicle_scenarios or VEHICLE_SCENARIOS,
+                    lever_arm=args.lever_arm)
+    if args.no_honesty:
+        return
+    scen = args.vehicle_scenarios or VEHICLE_SCENARIOS
+    if args.honesty_seeds:
+        honesty_section(args.honesty_seconds, tuple(args.honesty_seeds), HONESTY_SITES, scen)
+    else:
+        if not args.quick:
+            honesty_section(args.honesty_seconds, (1,), {"default": HONESTY_SITES["default"]}, scen)
+        honesty_section(args.honesty_seconds, (11,), {"held-out": HONESTY_SITES["held-out"]}, scen)
 
 
 if __name__ == "__main__":

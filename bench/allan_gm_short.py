@@ -69,34 +69,43 @@ def main(argv=None) -> int:
     for ratio in args.ratio:
         for f in args.factors:
             for seed in args.seeds:
-                x0, _ = record(seed, 1.0, ratio, 4.0, taps)   # to learn the window's length from the data
-                correlation = SampleCorrelation()
-                correlation.add(x0)
-                # the unit of Tc: 8 of the window's correlation lengths, read as the analysis reads them (module doc)
-                tau_min = TC_UNIT_LENGTHS * int(correlation.lengths().max()) / RATE_HZ
-                tc = f * tau_min
-                seconds = max(args.min_seconds, 30.0 * tc)
-                x, sigma = record(1000 * seed + int(f), tc, ratio, seconds, taps)
-                res = analyse_static(np.arange(len(x)) / RATE_HZ, gyro_rad_s=x)
-                w_true = sigma * math.sqrt(2.0 / tc)
-                for axis, p in res.parameters["gyro"].items():
-                    terms = ",".join(sorted(p.terms))
-                    w_b, _ = bias_drive(p)
-                    gm = p.terms.get("gauss_markov")
-                    s = f"{gm.value / sigma:6.2f} {(gm.value - sigma) / gm.uncertainty:6.1f} {gm.corr_time_s / tc:6.2f}" \
-                        if gm else f"{'-':>6} {'-':>6} {'-':>6}"
-                    wb = f"{w_b / w_true:7.2f}" if w_b else f"{'-':>7}"
-                    print(f"{f:6g} {tc:7.3g} {ratio:5g} {seed:4d} {axis:>4}  {terms:<34} {s} {wb}", flush=True)
-                    key = (ratio, f)
-                    c = counts.setdefault(key, {"gm": 0, "flicker": 0, "n": 0, "wb": [], "z": [], "tc": []})
-                    c["n"] += 1
-                    c["gm"] += gm is not None
-                    c["flicker"] += "flicker" in p.terms
-                    if w_b:
-                        c["wb"].append(w_b / w_true)
-                    if gm:
-                        c["z"].append((gm.value - sigma) / gm.uncertainty)
-                        c["tc"].append(gm.corr_time_s / tc)
+                _one_run(counts, seed, f, ratio, taps, args.min_seconds)
+    _print_summary(counts)
+    return 0
+
+
+def _one_run(counts: dict, seed: int, f: float, ratio: float, taps: np.ndarray, min_seconds: float) -> None:
+    """One recording with Tc = f·τ_min, analysed: a row per gyro axis, and its counts added to `counts`."""
+    x0, _ = record(seed, 1.0, ratio, 4.0, taps)   # to learn the window's length from the data
+    correlation = SampleCorrelation()
+    correlation.add(x0)
+    # the unit of Tc: 8 of the window's correlation lengths, read as the analysis reads them (module doc)
+    tau_min = TC_UNIT_LENGTHS * int(correlation.lengths().max()) / RATE_HZ
+    tc = f * tau_min
+    seconds = max(min_seconds, 30.0 * tc)
+    x, sigma = record(1000 * seed + int(f), tc, ratio, seconds, taps)
+    res = analyse_static(np.arange(len(x)) / RATE_HZ, gyro_rad_s=x)
+    w_true = sigma * math.sqrt(2.0 / tc)
+    for axis, p in res.parameters["gyro"].items():
+        terms = ",".join(sorted(p.terms))
+        w_b, _ = bias_drive(p)
+        gm = p.terms.get("gauss_markov")
+        s = f"{gm.value / sigma:6.2f} {(gm.value - sigma) / gm.uncertainty:6.1f} {gm.corr_time_s / tc:6.2f}" \
+            if gm else f"{'-':>6} {'-':>6} {'-':>6}"
+        wb = f"{w_b / w_true:7.2f}" if w_b else f"{'-':>7}"
+        print(f"{f:6g} {tc:7.3g} {ratio:5g} {seed:4d} {axis:>4}  {terms:<34} {s} {wb}", flush=True)
+        c = counts.setdefault((ratio, f), {"gm": 0, "flicker": 0, "n": 0, "wb": [], "z": [], "tc": []})
+        c["n"] += 1
+        c["gm"] += gm is not None
+        c["flicker"] += "flicker" in p.terms
+        if w_b:
+            c["wb"].append(w_b / w_true)
+        if gm:
+            c["z"].append((gm.value - sigma) / gm.uncertainty)
+            c["tc"].append(gm.corr_time_s / tc)
+
+
+def _print_summary(counts: dict) -> None:
     print("\nsummary: ratio, f (Tc/τ_min): GM read, flicker read, of n; w_b/truth median (min … max); where GM is "
           "read: σ_GM error/σ RMS and share beyond 3σ, fitted Tc/truth (min … max)")
     for (ratio, f), c in counts.items():
@@ -106,7 +115,6 @@ def main(argv=None) -> int:
         print(f"  {ratio:g} {f:6g}: GM {c['gm']}/{c['n']}, flicker {c['flicker']}/{c['n']}; "
               f"w_b {np.median(wb):.2f} ({wb.min():.2f} … {wb.max():.2f}); "
               f"z RMS {np.sqrt(np.mean(z**2)):.2f}, {np.mean(np.abs(z) > 3):.0%} > 3σ; Tc {tcr.min():.2f} … {tcr.max():.2f}")
-    return 0
 
 
 if __name__ == "__main__":

@@ -305,17 +305,8 @@ def main(argv=None) -> int:
         sweep(args.seeds or TUNING_SEEDS, sites)
         return 0
     seeds = args.seeds or HELD_OUT_SEEDS
-    kind = "tuning" if set(seeds) <= set(TUNING_SEEDS) else ("held-out" if not set(seeds) & set(TUNING_SEEDS)
-                                                            else "mixed")
     names = ("plain", "gnss-1pass", "oracle", "frame", "fix", "rts", "acal", "afix")
-    print(f"# back-stepping on the boat, {SECONDS:.0f} s, {kind} seeds {list(seeds)}: true-heading RMS (deg, mean "
-          f"offset kept; target ≤ {TARGET_DEG}), grid / rec / ins / op (see the docstring) / ins heading errors "
-          f"beyond 3σ")
-    if args.levelling_params:
-        print(f"# the aided levelling filter with {json.dumps(args.levelling_params)}")
-    hdr = f"{'site':8s} {'seed':>4s} " + "".join(f"{n:>34s}" for n in names) + f"{'tilt fwd/rts':>14s}"
-    print(hdr)
-    print("-" * len(hdr))
+    hdr = _print_header(seeds, names, args.levelling_params)
     t0 = time.perf_counter()
     acal_sigma = None if args.acal_sigma_mg is None else args.acal_sigma_mg * 1e-3 * STANDARD_GRAVITY_M_S2
     table = {n: [] for n in names}
@@ -326,24 +317,51 @@ def main(argv=None) -> int:
             line = f"{label:8s} {seed:4d} "
             for name, res in calibrations(run, acal_sigma_m_s2=acal_sigma,
                                           levelling_params=args.levelling_params).items():
-                if not res.ok:
-                    line += f"{'refused':>34s}"
-                    table[name].append((math.nan,) * 5)
-                    continue
-                g = _rms(grid_error_deg(run, res.model))
-                r = _rms(recording_error_deg(run, res.model))
-                data, accel_model = {"acal": (run.data_acal, run.accel_model),
-                                     "afix": (run.data_afix, run.accel_model_afix)}.get(name, (None, None))
-                i, h, est = (math.nan, math.nan, None) if args.no_ins else ins_error_deg(run, res, data)
-                h = math.nan if est is None else beyond_3_sigma_pct(i, h)
-                o = math.nan if est is None else _rms(operational_grid_error_deg(
-                    run, res.model, est.accel_bias_m_s2, accel_model=accel_model))
-                table[name].append((g, r, _rms(i), o, h))
-                line += f"{g:8.2f}/{r:5.2f}/{_rms(i):5.2f}/{o:5.2f}/{h:4.1f}%"
+                cells, text_cell = _calibration_cells(run, name, res, args.no_ins)
+                table[name].append(cells)
+                line += text_cell
             tilts.append(levelling_tilt_error_deg(run))
             line += f"{tilts[-1][0]:7.3f}/{tilts[-1][1]:5.3f}"
             print(line, flush=True)
     print("-" * len(hdr))
+    _print_aggregates(names, table, tilts)
+    print(f"({time.perf_counter() - t0:.0f} s)")
+    return 0
+
+
+def _print_header(seeds, names, levelling_params) -> str:
+    """The title (which seeds: tuning, held-out or mixed) and the column header; returns the header line."""
+    kind = "tuning" if set(seeds) <= set(TUNING_SEEDS) else ("held-out" if not set(seeds) & set(TUNING_SEEDS)
+                                                            else "mixed")
+    print(f"# back-stepping on the boat, {SECONDS:.0f} s, {kind} seeds {list(seeds)}: true-heading RMS (deg, mean "
+          f"offset kept; target ≤ {TARGET_DEG}), grid / rec / ins / op (see the docstring) / ins heading errors "
+          f"beyond 3σ")
+    if levelling_params:
+        print(f"# the aided levelling filter with {json.dumps(levelling_params)}")
+    hdr = f"{'site':8s} {'seed':>4s} " + "".join(f"{n:>34s}" for n in names) + f"{'tilt fwd/rts':>14s}"
+    print(hdr)
+    print("-" * len(hdr))
+    return hdr
+
+
+def _calibration_cells(run: BoatRun, name: str, res, no_ins: bool):
+    """One calibration's (grid, recording, ins, operational RMS, ins beyond 3σ %) and its table cell; NaNs and
+    "refused" for a refused fit."""
+    if not res.ok:
+        return (math.nan,) * 5, f"{'refused':>34s}"
+    g = _rms(grid_error_deg(run, res.model))
+    r = _rms(recording_error_deg(run, res.model))
+    data, accel_model = {"acal": (run.data_acal, run.accel_model),
+                         "afix": (run.data_afix, run.accel_model_afix)}.get(name, (None, None))
+    i, h, est = (math.nan, math.nan, None) if no_ins else ins_error_deg(run, res, data)
+    h = math.nan if est is None else beyond_3_sigma_pct(i, h)
+    o = math.nan if est is None else _rms(operational_grid_error_deg(
+        run, res.model, est.accel_bias_m_s2, accel_model=accel_model))
+    return (g, r, _rms(i), o, h), f"{g:8.2f}/{r:5.2f}/{_rms(i):5.2f}/{o:5.2f}/{h:4.1f}%"
+
+
+def _print_aggregates(names, table: dict, tilts: list) -> None:
+    """The mean and worst row of every column (NaN-aware: refused fits and skipped ins are left out)."""
     for agg, fn in (("mean", np.nanmean), ("worst", np.nanmax)):
         line = f"{agg:13s} "
         for name in names:
@@ -351,8 +369,6 @@ def main(argv=None) -> int:
             line += f"{g:8.2f}/{r:5.2f}/{i:5.2f}/{o:5.2f}/{h:4.1f}%"
         tf, ts = fn(np.array(tilts), axis=0)
         print(line + f"{tf:7.3f}/{ts:5.3f}")
-    print(f"({time.perf_counter() - t0:.0f} s)")
-    return 0
 
 
 if __name__ == "__main__":

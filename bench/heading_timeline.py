@@ -37,7 +37,6 @@ def one_run(job) -> tuple:
     from ahrsd.simulation import SensorErrors
 
     scen, case, seed, site_label, seconds, params = job
-    logging.disable(logging.WARNING)
     site, iron = HONESTY_SITES[site_label]
     run = simulate_vehicle(scen, seconds, seed, site, mag=case, iron=iron)
     est = Ins(declination_rad=run.declination_rad, lever_arm_m=run.lever_arm_m,
@@ -97,6 +96,9 @@ def main(argv=None) -> int:
                     help="also print, pooled over the seeds, the RMS of heading error / σ and the share beyond 3σ "
                          "while turning, within 30 s after a turn and later (from 30 s)")
     args = ap.parse_args(argv)
+    # the simulated sensors' and estimators' warnings would bury the table; here, in main, not in one_run:
+    # the pool's workers inherit it, and a test that calls one_run keeps its logging
+    logging.disable(logging.WARNING)
     params = json.loads(args.params)
     jobs = [(args.scenario, args.case, s, args.site, args.seconds, params) for s in args.seeds]
     print(f"ins {params or 'defaults'}, {args.scenario} {args.case}, site {args.site}, {args.seconds:.0f} s "

@@ -25,7 +25,6 @@ from bench.vehicle_accuracy import HONESTY_SITES, IRON_STEP_AT, honesty_figures,
 
 def one_run(job) -> tuple:
     scen, case, seed, site_label, seconds, params = job
-    logging.disable(logging.WARNING)
     site, iron = HONESTY_SITES[site_label]
     run = simulate_vehicle(scen, seconds, seed, site, mag=case, iron=iron)
     out = run_ins_detailed(run, **params)
@@ -45,6 +44,9 @@ def main(argv=None) -> int:
     ap.add_argument("--params", default="{}", help="InsParams overrides as JSON, e.g. '{\"iron_soft_prior_sigma\": 0}'")
     ap.add_argument("--processes", type=int, default=2)
     args = ap.parse_args(argv)
+    # the simulated sensors' and estimators' warnings would bury the table; here, in main, not in one_run:
+    # the pool's workers inherit it, and a test that calls one_run keeps its logging
+    logging.disable(logging.WARNING)
     params = json.loads(args.params)
     jobs = [(s, c, seed, args.site, args.seconds, params) for s in args.scenarios for c in args.cases for seed in args.seeds]
     print(f"ins {params or 'defaults'}, site {args.site}, {args.seconds:.0f} s; uncalibrated: RMS from 180 s; iron step: "

@@ -70,63 +70,86 @@ def best_of(repeat: int, fn, clock=time.perf_counter) -> float:
 def one_at_a_time(name: str, samples, g, a, m, fixes=None):
     """A callable that runs every sample through estimator `name`, one call per sample."""
     if name == "ins+gnss":
-        from ahrsd.estimator import make_estimator
-
-        def run():
-            est = make_estimator("ins")
-            upd = est.update
-            fix_at = fixes or {}
-            for i, s in enumerate(samples):
-                f = fix_at.get(i)
-                if f is not None:
-                    est.update_gnss(f)
-                upd(s)
-
-        return run
+        return _ins_with_fixes(samples, fixes)
     if name in ("mekf", "thesis", "ins"):
-        from ahrsd.estimator import make_estimator
-
-        def run():
-            est = make_estimator(name)
-            upd = est.update
-            for s in samples:
-                upd(s)
-
-        return run
+        return _ahrsd_updates(name, samples)
     if name == "mekf-view":
-        from ahrsd.estimator.mekf import Mekf
-
-        def run():
-            step = Mekf().step
-            for s in samples:
-                step(s).q_wxyz
-
-        return run
+        return _mekf_view_steps(samples)
     if name == "vqf":
-        from vqf import VQF
-
-        def run():
-            v = VQF(1.0 / RATE_HZ)
-            for i in range(len(g)):
-                v.update(g[i], a[i], m[i])
-                v.getQuat9D()
-
-        return run
+        return _vqf_updates(g, a, m)
     if name == "fusion":
-        import imufusion
-
-        gd = np.degrees(g)
-        ag = a / 9.80665
-
-        def run():
-            f = imufusion.Ahrs()
-            f.set_sample_period(1.0 / RATE_HZ)
-            for i in range(len(gd)):
-                f.update(gd[i], ag[i], m[i])
-                f.get_quaternion()
-
-        return run
+        return _fusion_updates(g, a, m)
     raise ValueError(name)
+
+
+def _ins_with_fixes(samples, fixes):
+    """ins through `update`, given the 5 Hz fixes (`fixes`: sample index → fix) through `update_gnss`."""
+    from ahrsd.estimator import make_estimator
+
+    def run():
+        est = make_estimator("ins")
+        upd = est.update
+        fix_at = fixes or {}
+        for i, s in enumerate(samples):
+            f = fix_at.get(i)
+            if f is not None:
+                est.update_gnss(f)
+            upd(s)
+
+    return run
+
+
+def _ahrsd_updates(name: str, samples):
+    """An ahrsd estimator through `update(ImuSample) -> AttitudeEstimate`."""
+    from ahrsd.estimator import make_estimator
+
+    def run():
+        est = make_estimator(name)
+        upd = est.update
+        for s in samples:
+            upd(s)
+
+    return run
+
+
+def _mekf_view_steps(samples):
+    """mekf's hot path: `Mekf.step` and its quaternion read (no AttitudeEstimate built)."""
+    from ahrsd.estimator.mekf import Mekf
+
+    def run():
+        step = Mekf().step
+        for s in samples:
+            step(s).q_wxyz
+
+    return run
+
+
+def _vqf_updates(g, a, m):
+    from vqf import VQF
+
+    def run():
+        v = VQF(1.0 / RATE_HZ)
+        for i in range(len(g)):
+            v.update(g[i], a[i], m[i])
+            v.getQuat9D()
+
+    return run
+
+
+def _fusion_updates(g, a, m):
+    import imufusion
+
+    gd = np.degrees(g)
+    ag = a / 9.80665
+
+    def run():
+        f = imufusion.Ahrs()
+        f.set_sample_period(1.0 / RATE_HZ)
+        for i in range(len(gd)):
+            f.update(gd[i], ag[i], m[i])
+            f.get_quaternion()
+
+    return run
 
 
 def batch(name: str, t, g, a, m):

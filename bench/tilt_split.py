@@ -63,7 +63,6 @@ def one_run(job) -> tuple:
     from ahrsd.simulation import SensorErrors
 
     scen, seed, row, seconds = job
-    logging.disable(logging.WARNING)
     site, iron = HONESTY_SITES["held-out"]
     errors = SensorErrors.adis16405(seed)
     if row in ("sensor m = 0", "neither"):
@@ -115,6 +114,9 @@ def main(argv=None) -> int:
     ap.add_argument("--seconds", type=float, default=600.0)
     ap.add_argument("--processes", type=int, default=1)
     args = ap.parse_args(argv)
+    # the simulated sensors' and estimators' warnings would bury the table; here, in main, not in one_run:
+    # the pool's workers inherit it, and a test that calls one_run keeps its logging
+    logging.disable(logging.WARNING)
     jobs = [(args.scenario, s, r, args.seconds) for s in args.seeds for r in args.rows]
     print(f"ins, {args.scenario} (held-out site and iron, {args.seconds:.0f} s, every {EVERY}th sample): heading / "
           "tilt RMS from 180 s; from 180 s the mean pitch and roll errors, the forward accelerometer-bias error as a "

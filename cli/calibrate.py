@@ -583,16 +583,41 @@ class MagSite:
 
 
 def _given_mag_site(args) -> MagSite | None:
-    """The site --lat/--lon give; None when neither is given and --gnss will give it (a usage error when
-    nothing gives it, or only one of the two is given)."""
+    """The site --lat/--lon give; None when neither is given and --gnss will give it; else the position the
+    daemon last knew (daemon.position_memory). A usage error when nothing gives it, or only one of the two is
+    given."""
     if args.lat is None and args.lon is None:
-        if not args.gnss:
-            raise _Usage("the reference field needs the calibration site: give --lat and --lon, or --gnss "
-                         "GNSS.csv (with --method backstepping) whose fixes give it")
-        return None
+        return None if args.gnss else _remembered_mag_site(args)
     if args.lat is None or args.lon is None:
         raise _Usage("give --lat and --lon together")
     return MagSite(args.lat, args.lon, 0.0 if args.alt_m is None else args.alt_m, "given with --lat/--lon")
+
+
+def _remembered_mag_site(args) -> MagSite:
+    """The position the daemon last knew, kept in the state directory, when young enough for the daemon's own
+    declination (MAX_AGE_DAYS); a usage error naming the three ways to give a site otherwise."""
+    import time
+    from pathlib import Path
+
+    from ahrsd.daemon.position_memory import FILE_NAME, MAX_AGE_DAYS, read_position_file
+
+    path = Path(args.state_dir) / FILE_NAME
+    ways = ("give --lat and --lon, or --gnss GNSS.csv (with --method backstepping) whose fixes give it, or let "
+            "the daemon remember one: `ahrsd run` with a GNSS receiver or an autopilot's position keeps its last "
+            f"position in the state directory ({path}; --state-dir DIR for another)")
+    pos, problem = read_position_file(Path(args.state_dir))
+    if pos is None:
+        why = f"the remembered position is unusable ({problem})" if problem else "no position remembered"
+        raise _Usage(f"the reference field needs the calibration site, and {why}: {ways}")
+    now_s = time.time()
+    age = pos.describe_age(now_s)
+    if pos.age_s(now_s) > MAX_AGE_DAYS * 86400:
+        raise _Usage(f"the reference field needs the calibration site, and the position the daemon last knew is "
+                     f"{age} ({pos.saved_date.isoformat()}; older than {MAX_AGE_DAYS:.0f} days the vehicle may "
+                     f"have moved): {ways}")
+    return MagSite(pos.lat_deg, pos.lon_deg, pos.alt_m if args.alt_m is None else args.alt_m,
+                   f"the position the daemon last knew, from its {pos.source} on {pos.saved_date.isoformat()}, "
+                   f"{age} ({path}): give --lat/--lon if the vehicle has moved since")
 
 
 def _check_mag_options(args) -> None:

@@ -307,8 +307,9 @@ class LocationConfig:
     """Where the vehicle is, for the WMM declination (true heading = magnetic heading + declination).
 
     Priority: declination_deg if set; else lat/lon if set; else the [gnss] receiver's position; else the
-    autopilot's GLOBAL_POSITION_INT/GPS_RAW_INT (when use_autopilot_position); else the simulator's site for
-    source = "sim"; else 0 with a warning (daemon.position, daemon.declination).
+    autopilot's GLOBAL_POSITION_INT/GPS_RAW_INT (when use_autopilot_position); else the position remembered in
+    the state directory (daemon.position_memory); else the simulator's site for source = "sim"; else 0 with a
+    warning (daemon.position, daemon.declination).
     """
 
     lat_deg: float | None = None

@@ -1,6 +1,6 @@
 """Declination (true heading = magnetic heading + declination): DECL_MANUAL/DECL_DEG, else the WMM at the
-position of daemon.position's priority (configured, GNSS receiver, autopilot, simulator site). A step larger
-than DECLINATION_RESET_STEP_RAD is a heading reset the autopilot is told about."""
+position of daemon.position's priority (configured, GNSS receiver, autopilot, remembered, simulator site). A
+step larger than DECLINATION_RESET_STEP_RAD is a heading reset the autopilot is told about."""
 
 from __future__ import annotations
 
@@ -26,6 +26,8 @@ def _label(position) -> str:
         return "WMM at the GNSS position"   # no coordinates: they change while moving (logged on change)
     if position.source == "simulator":
         return "WMM at the simulator's site"
+    if position.source == "remembered":     # no age: the label stays the same while the age grows
+        return f"WMM at {position.lat_deg:.4f},{position.lon_deg:.4f} (remembered from {position.remembered})"
     return f"WMM at {position.lat_deg:.4f},{position.lon_deg:.4f} ({position.source})"
 
 
@@ -47,26 +49,26 @@ class Declination:
 
     def resolve(self, initial: bool = False) -> None:
         self._last_update = self.clock()
-        decl, source = None, ""
+        decl, source, age = None, "", ""
         if self.params.get("DECL_MANUAL") >= 0.5:
             decl, source = math.radians(self.params.get("DECL_DEG")), "manual"
         else:
             position = self.positions.position()
             if position is not None:
-                decl, source = position.earth_field().declination_rad, _label(position)
+                decl, source, age = position.earth_field().declination_rad, _label(position), position.age
         if decl is None:
             if initial:
                 log.warning("no position and no declination configured: true heading = magnetic heading until "
                             "the autopilot reports a position")
             decl, source = 0.0, "none (no position yet)"
-        self._set(decl, source)
+        self._set(decl, source, age)
 
     @property
     def waiting_for_position(self) -> bool:
         return self.source.startswith("none")
 
     def on_gnss_position(self) -> None:
-        """The first GNSS fix: it outranks the autopilot's position and the simulator's site."""
+        """The first GNSS fix: it outranks the autopilot's, the remembered position and the simulator's site."""
         if not (self.source == "manual" or self.source.endswith("(config)")):
             self.resolve()
 
@@ -74,10 +76,10 @@ class Declination:
         if now - self._last_update > UPDATE_PERIOD_S:
             self.resolve()
 
-    def _set(self, decl: float, source: str) -> None:
+    def _set(self, decl: float, source: str, age: str = "") -> None:
         step = abs(math.remainder(decl - self.rad, 2 * math.pi))
         if source != self.source:
-            log.info("declination %.2f° from %s", math.degrees(decl), source)
+            log.info("declination %.2f° from %s%s", math.degrees(decl), source, f", {age}" if age else "")
         self.rad, self.source = decl, source
         if self.set_estimator is not None and step > 1e-9:
             self.set_estimator(decl)

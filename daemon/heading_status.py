@@ -15,6 +15,13 @@ The estimator decides the state (estimator/heading_monitor.py); this part only r
 ANNOUNCE_AFTER_S, so a σ that swings with each turn does not flip MAV_STATE each time. A magnetometer heading
 that becomes good by its state (the estimator holds a state change itself) is good at once, as before.
 
+Without GNSS the estimator checks the calibration by the circle the levelled field sweeps in turns
+(estimator/field_circle.py, `on_estimate(..., field_circle=)`): a circle off-centre (or elliptic) beyond its
+uncertainty is a calibration that is wrong or an iron that changed. It is said as such ("magnetometer field
+off-centre by X µT in turns: calibration wrong or iron changed", STATUSTEXT at the change), the magnetometer is
+unhealthy in SYS_STATUS, and "heading good" is not said while it lasts (the estimator's σ carries the heading error
+it implies; the heading is no better than that σ says).
+
 The magnetometer disagreement is named only when it is beyond what both sides' uncertainties explain: the GSF
 yaw's 1σ and the calibration's predicted heading error (`calibration_sigma_rad`, NaN = no calibration), the
 same 3σ test as the estimator's heading monitor.
@@ -76,6 +83,7 @@ class HeadingStatus:
         self._good_since: float | None = None        # when the heading last became good enough
         self._wide_magnetometer = False               # it last stopped being good by a magnetometer heading's σ
         self._now = -math.inf
+        self.field_off_centre_ut = math.nan           # the circle check's centre offset while it finds the calibration wrong
 
     def set_calibration_sigma(self, sigma_rad: float, in_force: bool | None = None) -> None:
         self.calibration_sigma_rad = float(sigma_rad)
@@ -89,12 +97,18 @@ class HeadingStatus:
         return "mag not calibrated" if short else "magnetometer not calibrated"
 
     # ------------------------------------------------------------------ inputs
-    def on_estimate(self, est, now: float, yaw_resets: int = 0, gnss_yaw_alignments: int = 0) -> None:
+    def on_estimate(self, est, now: float, yaw_resets: int = 0, gnss_yaw_alignments: int = 0,
+                    field_circle=None) -> None:
         """The latest estimate (and the estimator's yaw reset count, and how many of those were the planned
-        alignment to the GNSS yaw) at `now`; announces a state that held ANNOUNCE_AFTER_S and every yaw reset: an
-        alignment as news (INFO), a reset of a heading found wrong as a WARNING."""
+        alignment to the GNSS yaw, and its circle check's FieldCircleResult or None) at `now`; announces a state
+        that held ANNOUNCE_AFTER_S and every yaw reset: an alignment as news (INFO), a reset of a heading found wrong
+        as a WARNING."""
         if est is None:
             return
+        cal = self.calibration_sigma_rad
+        claimed_var = cal * cal if math.isfinite(cal) else math.inf
+        self.field_off_centre_ut = (field_circle.offset_ut if field_circle is not None
+                                    and field_circle.finds_wrong(claimed_var) else math.nan)
         state = HeadingState(est.heading_state)
         self.state = state
         self.sigma_rad = float(est.sigma_rpy_rad[2])
@@ -125,7 +139,8 @@ class HeadingStatus:
                 self.statustext(mavlink.MAV_SEVERITY_INFO,
                                 f"ahrsd: heading aligned to the GNSS yaw (±{math.degrees(self.sigma_rad):.1f}°): "
                                 "no trusted magnetometer calibration")
-        key = (state, self._unknown_cause(est)[0] if state == HeadingState.UNKNOWN else "")
+        key = (state, self._unknown_cause(est)[0] if state == HeadingState.UNKNOWN
+               else "off-centre" if self._off_centre() else "")
         if key == self.announced_key:
             self._candidate = None
             return
@@ -137,7 +152,8 @@ class HeadingStatus:
     # ------------------------------------------------------------------ outputs
     @property
     def heading_good(self) -> bool:
-        """May the daemon say "heading good"? A heading with 1σ ≤ good_sigma_rad for ANNOUNCE_AFTER_S (a σ
+        """May the daemon say "heading good"? Never on a calibration the circle check finds wrong. A heading with
+        1σ ≤ good_sigma_rad for ANNOUNCE_AFTER_S (a σ
         hovering at the limit, or swinging with each turn, does not flip MAV_STATE each second); a MAGNETOMETER
         heading at once unless its own σ was what made it not good; never UNKNOWN, never before the first
         estimate. Bad at once, good only once it held."""
@@ -147,7 +163,7 @@ class HeadingStatus:
         return at_once or self._now - self._good_since >= ANNOUNCE_AFTER_S
 
     def _good_now(self) -> bool:
-        if self.state is None or self.initialising or self.state == HeadingState.UNKNOWN:
+        if self.state is None or self.initialising or self.state == HeadingState.UNKNOWN or self._off_centre():
             return False
         return self.sigma_rad <= self.good_sigma_rad
 
@@ -181,6 +197,8 @@ class HeadingStatus:
         if self.state not in (HeadingState.MAGNETOMETER, HeadingState.UNKNOWN) or self.gnss_checked \
                 or self.state is None or self.initialising:
             return None
+        if self._off_centre():
+            return f"mag field off-centre {self.field_off_centre_ut:.1f} µT"
         cal = self.calibration_sigma_rad
         if not math.isfinite(cal):
             return self._no_figure(short=True)
@@ -216,6 +234,14 @@ class HeadingStatus:
         return None
 
     # ------------------------------------------------------------------ internals
+    def _off_centre(self) -> bool:
+        """The circle check finds the calibration wrong (without GNSS: with it ins checks the heading itself)."""
+        return math.isfinite(self.field_off_centre_ut) and not self.gnss_checked
+
+    def _off_centre_cause(self) -> str:
+        return (f"magnetometer field off-centre by {self.field_off_centre_ut:.1f} µT in turns: calibration wrong or "
+                "iron changed")
+
     def _disagreement(self, integrity) -> tuple[float, bool]:
         """(magnetometer − GNSS yaw or NaN, whether it is beyond both uncertainties)."""
         if integrity is None or not integrity.gsf_valid:
@@ -234,6 +260,8 @@ class HeadingStatus:
         caveat = self.calibration_caveat()
         if self.mag_inconsistent:
             return "disagrees", ""
+        if self._off_centre() and not self.initialising:
+            return "off-centre", self._off_centre_cause()
         if self.initialising and self.announced in (None, HeadingState.UNKNOWN):
             return "initialising", "initialising"
         if self.initialising:
@@ -268,6 +296,9 @@ class HeadingStatus:
         integrity = est.integrity
         if state == HeadingState.MAGNETOMETER:
             caveat = self.calibration_caveat()
+            if self._off_centre():
+                return mavlink.MAV_SEVERITY_WARNING, (f"ahrsd: {self._off_centre_cause()}; heading from magnetometer "
+                                                      f"({sig}), no GNSS fix to check it")
             if caveat is None:
                 wide = ", not good" if not self.sigma_rad <= self.good_sigma_rad else ""
                 return mavlink.MAV_SEVERITY_INFO, f"ahrsd: heading from magnetometer ({sig}{wide})"

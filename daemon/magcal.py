@@ -574,10 +574,16 @@ class DaemonMagCalHost:
         return bool(self.autopilot.armed)
 
     def reference_field(self, lat_deg: float | None = None, lon_deg: float | None = None):
-        """The WMM field at the position the request gives, else at daemon.position's (the declination's)."""
+        """The WMM field at the position the request gives, else at daemon.position's (the declination's); a
+        remembered position is said (`ahrsd magcal` shows it): the vehicle may have moved since."""
         if lat_deg or lon_deg:
             return earth_field(float(lat_deg), float(lon_deg))
-        return self.positions.reference_field()
+        position = self.positions.position()
+        if position is None:
+            return None
+        if position.source == "remembered":
+            self.statustext(SEV_INFO, f"Mag cal: reference field at the position {position.describe()}")
+        return position.earth_field()
 
 
 class FieldCalibrationPart:

@@ -52,6 +52,8 @@ def collect_stats(service) -> dict:
     out["logs"] = service.logs.counters()
     out["autopilot"] = {"rejected_positions": service.autopilot.rejected_positions,
                         "rejected_courses": service.autopilot.rejected_courses}
+    if service.positions.memory is not None:
+        out["position_memory"] = service.positions.memory.counters()
     if service.gnss is not None:
         out["gnss"] = service.gnss.stats()
     return out

@@ -61,6 +61,7 @@ from ahrsd.daemon.param_protocol import MOUNTING_PARAMS, ParamProtocol, param_sp
 from ahrsd.daemon.params import ParamError, ParamStore
 from ahrsd.daemon.pipeline import Pipeline
 from ahrsd.daemon.position import PositionResolver
+from ahrsd.daemon.position_memory import PositionMemory
 from ahrsd.daemon.publishers import Publishers
 from ahrsd.daemon.restart_heading import RestartHeading
 from ahrsd.daemon.run_stats import sample_accounting
@@ -74,7 +75,8 @@ from ahrsd.drivers.source import SensorSource, open_source
 from ahrsd.daemon.broadcast_notice import BroadcastNotice
 from ahrsd.estimator import make_estimator
 from ahrsd.daemon.estimator_news import estimator_news_muted
-from ahrsd.estimator.base import Estimator, HeadingCheckedEstimator, MagCalibrationAwareEstimator
+from ahrsd.estimator.base import (Estimator, FieldCircleCheckedEstimator, HeadingCheckedEstimator,
+                                  MagCalibrationAwareEstimator)
 from ahrsd.estimator.warm_up import warm_up
 
 log = logging.getLogger(__name__)
@@ -88,6 +90,10 @@ VISION_POSITION_ESTIMATE = mavlink.MAVLINK_MSG_ID_VISION_POSITION_ESTIMATE
 class Service:
     def __init__(self, config: Config, *, source: SensorSource | None = None, environ=os.environ, stdout=None,
                  clock: Callable[[], float] = time.monotonic, warm_fit_worker: bool = True):
+        """The parts that exist from construction on, in named steps and this order: the service's own state, the
+        MAVLink core (`_build_mavlink_core`), the heading and position parts (`_build_heading_and_position`),
+        the outputs' parts (`_build_output_parts`); the parts built at start are declared None
+        (`_declare_parts_built_at_start`, built by `start`)."""
         self.config = config
         # the daemon's one clock (CLOCK_MONOTONIC, the event loop's and the sensor source's): every rate limit and
         # timeout of the parts reads it; a test steps it
@@ -103,7 +109,14 @@ class Service:
         self._stdout = stdout if stdout is not None else sys.stdout
         self._stop: asyncio.Event | None = None
         self._tasks: list[asyncio.Task] = []
-        # the parts that exist from construction on
+        self._build_mavlink_core(config, environ, clock)
+        self._build_heading_and_position(config, environ, clock)
+        self._build_output_parts()
+        self._declare_parts_built_at_start()
+
+    def _build_mavlink_core(self, config: Config, environ, clock: Callable[[], float]) -> None:
+        """Health, the autopilot's state, the counters, the outbound side (identity, endpoints, STATUSTEXT), the
+        parameters, the command router, the service manager's notifier and the sample listeners."""
         self.health = Health(stale_timeout_s=config.sensor.stale_timeout_s)
         self.autopilot = AutopilotState()
         self.counters = ServiceCounters()
@@ -120,25 +133,38 @@ class Service:
                                       clock=clock)
         self.notifier = Notifier(environ)
         self.listeners = SampleListeners()
-        # the VISION_POSITION_ESTIMATE yaw after a calibration change, and reset_counter
+
+    def _build_heading_and_position(self, config: Config, environ, clock: Callable[[], float]) -> None:
+        """The VISION_POSITION_ESTIMATE yaw after a calibration change and its reset_counter, the GNSS and NMEA
+        slots (filled at start when configured), the position resolver, the declination and the vehicle logs."""
         self.heading = HeadingResets(HeadingSlew(max_rate_deg_s=config.outputs.heading_slew_deg_s),
                                      statustext=self.outbound.statustext)
         self.gnss: GnssTask | None = None      # [gnss] source (daemon.gnss_task), None without one
         self.nmea: NmeaOutputs | None = None    # [[nmea]] outputs (daemon.nmea_output), None without any
+        # the last real position, kept across restarts; a simulated or replayed run's positions are not the vehicle's
+        memory = PositionMemory(self.state_dir, record=config.sensor.source in ("spi", "iio"),
+                                background=self._in_background)
         self.positions = PositionResolver(config.location, gnss_position=self._gnss_position,
-                                          autopilot=self.autopilot, simulator=config.sensor.source == "sim")
+                                          autopilot=self.autopilot, simulator=config.sensor.source == "sim",
+                                          memory=memory)
         self.declination = Declination(self.params, self.positions, signal_reset=self.heading.signal, clock=clock)
         self.logs = VehicleLogs(config.log, state_dir=self.state_dir, environ=environ,
                                 gnss_source=config.gnss.source, recording_time_base=config.sensor.source == "replay")
+
+    def _build_output_parts(self) -> None:
+        """The per-endpoint output schedules (SR_* base rates, signing) and the parameter protocol."""
         self.endpoint_outputs = EndpointOutputs(
             self.outbound, base_rates_hz=lambda: {o.message_id: self.params.get(o.param_name) for o in OUTPUTS},
             signed=lambda: self.signing_key is not None, warn_soon=self._statustext_soon)
         self.param_protocol = ParamProtocol(self.params, self.outbound, self.counters,
                                             signing_required=lambda: self.signing_required,
                                             spawn=lambda coro: self.loop.create_task(coro))
+
+    def _declare_parts_built_at_start(self) -> None:
+        """The parts `start` builds (they need the state directory's contents, the pipeline, the endpoints or the
+        source), None until then."""
         self.restart_heading: RestartHeading | None = None   # the restart rule (daemon.restart_heading)
         self.source_set_check: SourceSetCheck | None = None  # may ArduPilot's source set be switched (same)
-        # the parts built at start (they need the pipeline, the endpoints or the source)
         self.pipeline: Pipeline | None = None
         self.swap: CalibrationSwap | None = None
         self.publishers: Publishers | None = None
@@ -255,6 +281,12 @@ class Service:
         if not isinstance(est, HeadingCheckedEstimator):
             return 0, 0
         return int(est.yaw_resets), int(est.gnss_yaw_alignments)
+
+    def _field_circle(self):
+        """The estimator's check of the calibration by the field's circle in turns (mekf, ins before its first fix;
+        estimator/field_circle.py), None where there is none."""
+        est = self.pipeline.estimator
+        return est.field_circle() if isinstance(est, FieldCircleCheckedEstimator) else None
 
     def local_origin(self):
         return None if self.gnss is None else self.gnss.origin
@@ -543,7 +575,8 @@ class Service:
         """The heading state (daemon.heading_status) into the health (MAV_STATE, SYS_STATUS bits) before the
         health report reads it; the learned iron's parameters and periodic save (daemon.learned_iron)."""
         if self.heading_status is not None:
-            self.heading_status.on_estimate(self.pipeline.last_estimate, now, *self._yaw_resets())
+            self.heading_status.on_estimate(self.pipeline.last_estimate, now, *self._yaw_resets(),
+                                            field_circle=self._field_circle())
             self.health.heading_good = self.heading_status.heading_good
             self.health.heading_unhealthy_bits = self.heading_status.unhealthy_bits()
         if self.learned_iron is not None:
@@ -659,6 +692,7 @@ class Service:
             self.restart_heading.save_now(self.heading.reset_counter)
         if self.learned_iron is not None:
             self.learned_iron.save_now()
+        self.positions.memory.save_now()
         if self.reader is not None:
             self.reader.outputs.raw_sink = None
         self.logs.close(self.endpoints)             # after the last frames went out

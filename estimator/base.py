@@ -65,6 +65,16 @@ class MagCalibrationAwareEstimator(Protocol):
 
 
 @runtime_checkable
+class FieldCircleCheckedEstimator(Protocol):
+    """An estimator that checks its magnetometer calibration without GNSS by the circle the levelled field sweeps in
+    turns (mekf: estimator/field_circle.py) and adds the heading error a wrong one implies to its published σ.
+    `field_circle()`: the latest FieldCircleResult while the check governs the σ, else None. (ins runs the check
+    before its first fix for its σ only: Ins.field_circle_check.)"""
+
+    def field_circle(self): ...
+
+
+@runtime_checkable
 class HeadingCheckedEstimator(Protocol):
     """An estimator that checks its heading against GNSS (ins): it counts the resets of its yaw to the GNSS
     yaw, takes the heading error a magnetometer calibration predicts (1σ, rad) into its checks, and reports

@@ -46,6 +46,7 @@ from .mag_rotation import MagRotationBias
 from .constrained_update import scalar_update
 from .params import with_overrides
 from .estimate_view import BuiltEstimateView, EstimateView
+from .field_circle import SKIPPED_FLAGS, FieldCircleCheck, FieldCircleParams, FieldCircleResult
 from .published_heading import PublishedHeading
 from .rotations import quat_to_dcm, quat_to_euler, rotvec_to_dcm
 
@@ -427,6 +428,8 @@ class Ins:
         self._published_since_init = False
         self._last_fix_velocity = None
         self._view = BuiltEstimateView(self._build_estimate)   # step()'s result: the estimate built on demand
+        # before the first fix the calibration is checked by the circle its levelled field sweeps in turns
+        self._field_circle = FieldCircleCheck(FieldCircleParams(mag_noise_ut=self.params.mag_noise_ut))
         self._new_heading_checks()
 
     def _step_args_example(self) -> tuple:
@@ -467,6 +470,33 @@ class Ins:
         self._par["mag_bias_var_rad2"] = p.calibration_sigma_rad ** 2
         self._set_accel_bias_learning()
         self._apply_learned_iron()
+        self._set_field_circle()
+
+    def _set_field_circle(self) -> None:
+        """Start the circle check again (field_circle.py): it runs until the first fix, while a calibration states
+        its heading error (with none, σ is π before the first fix and a check could add nothing)."""
+        self._field_circle.reset()
+        p = self.params
+        s = p.mag_calibration_sigma_rad
+        self._field_circle_on = p.mag_field_circle_check and p.mag_enabled and math.isfinite(s) and s >= 0.0
+
+    def _check_field_circle(self, t_s: float, m, f: int) -> None:
+        """One levelled field (with the learned iron removed, as the kernel removes it) into the circle check."""
+        if f & SKIPPED_FLAGS:
+            self._field_circle.due_t_s = t_s + self._field_circle.params.period_s
+            return
+        m_used = self._iron.corrected(m)
+        o = self._out_flat
+        self._field_circle.add(t_s, float(o[_OUT_EULER.start]), float(o[_OUT_EULER.start + 1]), m_used,
+                               max(float(o[_OUT_SIGMA.start]), float(o[_OUT_SIGMA.start + 1])))
+
+    def field_circle_check(self) -> FieldCircleResult | None:
+        """What the circle check found (field_circle.py) while it widens the published σ (before the first fix); None
+        otherwise. Not the daemon's `field_circle()` (base.FieldCircleCheckedEstimator): ins levels its attitude
+        without GNSS less well than mekf (docs/estimator.md "Known limits": 5–15° of tilt on the simulated car and
+        plane), and a wrongly levelled field is no circle either, so a flag here widens σ — the heading is off — but
+        does not show that the calibration is what is wrong, and the daemon does not say so."""
+        return self._field_circle.result if self._field_circle_on and not self._ever_aided else None
 
     # ----------------------------------------------------------------------- Estimator protocol
     def reset(self) -> None:
@@ -539,6 +569,7 @@ class Ins:
         self._par["mag_bias_var_rad2"] = p.calibration_sigma_rad ** 2
         self._par["mag_bias_tau_s"] = p.mag_bias_tau
         self._set_accel_bias_learning()
+        self._set_field_circle()
 
     def heading_report(self) -> HeadingReport:
         """What the heading checks did so far (replay's summary, the daemon's warning)."""
@@ -566,6 +597,7 @@ class Ins:
         converged (docs/daemon.md "Calibration changes")."""
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
         mag.relearn_reference(self._mag_state(), RELEARN_GATE_OPEN_S)
+        self._field_circle.reset()
         x = self._x
         if x["nav_ok"] > 0.0 and x["t_last_s"] - x["gnss_fused_t_s"] <= self.params.gnss_timeout_s:
             return
@@ -636,6 +668,8 @@ class Ins:
             if not f & NEEDS_INIT:
                 if self._queue:
                     self._fuse_queued()       # before the estimate of this sample, as every fix before it
+                if self._field_circle_on and not self._ever_aided and sample.t_s >= self._field_circle.due_t_s:
+                    self._check_field_circle(sample.t_s, m, f)
                 return self._stepped(sample.t_s, f)
             self._initialised = False
             self._reinit_pending = True
@@ -1056,9 +1090,14 @@ class Ins:
         self._integrity = HeadingIntegrity(gsf_yaw, math.sqrt(gsf_var) if math.isfinite(gsf_var) else math.nan,
                                            gsf_valid, self._monitor.disagreement_rad, self._iron.offset_ut.copy(),
                                            self._iron.sigma_ut)
+        raw = self._monitor.heading_state(sig, False, True, p.heading_unknown_sigma_rad, self._mag_trust_var)
+        if raw == HeadingState.MAGNETOMETER and self._mag_state()["since_update_s"] > p.mag_unavailable_s:
+            # the monitor lets the magnetometer back, but the kernel's field check still rejects every field (its
+            # norm/dip reference was learned on the field before the iron was learned, and is re-learned only
+            # after mag_new_time_s of rotation): the GNSS still holds the heading, as the flags say
+            raw = HeadingState.LEARNING if self._monitor.learning else HeadingState.GNSS_ONLY
         # held at the check rate, so the state does not depend on how often estimates are built
-        self._heading_state = self._state_hold.update(
-            t_s, self._monitor.heading_state(sig, False, True, p.heading_unknown_sigma_rad, self._mag_trust_var), sig)
+        self._heading_state = self._state_hold.update(t_s, raw, sig)
 
     def _gnss_yaw_alignment_due(self, gsf_valid: bool) -> bool:
         """The first valid GNSS yaw, no trusted magnetometer calibration, the heading not yet confirmed: the
@@ -1374,8 +1413,12 @@ class Ins:
         if not self._ever_aided and self.params.mag_enabled:
             # no GNSS yet: the magnetometer calibration is the only heading reference and its error is not in
             # the filter's σ (the checks that would show it need GNSS): calibration_heading.py
-            sigma_yaw = math.sqrt(sigma_yaw ** 2
-                                  + calibration_heading_variance_rad2(self.params.mag_calibration_sigma_rad))
+            # or, once the field has swept a circle in turns, the error its centre and shape show when that is more
+            # (field_circle.py)
+            cal_var = calibration_heading_variance_rad2(self.params.mag_calibration_sigma_rad)
+            if self._field_circle_on:
+                cal_var = self._field_circle.result.checked_var_rad2(cal_var)
+            sigma_yaw = math.sqrt(sigma_yaw ** 2 + cal_var)
             o[_OUT_SIGMA.start + 2] = sigma_yaw
         if self._ever_aided and self._accel_axes_var_rad2 > 0.0:
             # a heading the GNSS has observed is the accelerometer axes' heading: their misalignment is in it

@@ -73,6 +73,7 @@ from .turn_lean import (
     TURN_LEAN_DTYPE,
     add_pushes_to_sigma,
     clear,
+    levelling_gain,
     lowpass_rate_down,
     track_heading_push,
     track_tilt_push,
@@ -347,16 +348,8 @@ def transition_matrix(x, par):
 
 
 @njit(cache=True)
-def propagate_covariance(x, P, par):
-    """P ← Φ P Φᵀ + Q over the time accumulated since the last call (cov_t_s), then clear the sums.
-
-    Φ: `transition_matrix`. Q: white gyro and accelerometer noise and bias random walks, density² · T on the
-    diagonal (isotropic, so rotating it by C changes nothing)."""
-    T = x.cov_t_s
-    if T <= 0.0:
-        return
-    phi = transition_matrix(x, par)
-    # M = Φ P (skipping Φ's zeros), then P = M Φᵀ
+def _phi_p_phi_t(phi, P):
+    """P ← Φ P Φᵀ in place, skipping Φ's zeros (most of it: `transition_matrix`): M = Φ P, then P = M Φᵀ."""
     m = np.zeros((N_ERR, N_ERR))
     for i in range(N_ERR):
         for k in range(N_ERR):
@@ -373,6 +366,13 @@ def propagate_covariance(x, P, par):
             if a != 0.0:
                 for i in range(N_ERR):
                     P[i, j] += m[i, k] * a
+
+
+@njit(cache=True)
+def _add_process_noise(P, par, T):
+    """P += Q over T s: white gyro and accelerometer noise and the bias, scale-factor and misalignment random
+    walks, density² · T on the diagonal (isotropic, so rotating it by C changes nothing); the accelerometer's
+    noise integrated twice into the position (T³/3) and its velocity–position correlation (T²/2)."""
     qg = par.gyro_noise_rad_s_sqrt_hz ** 2 * T
     qa = par.accel_noise_m_s2_sqrt_hz ** 2 * T
     qbg = par.gyro_bias_walk_rad_s_sqrt_s ** 2 * T
@@ -388,7 +388,11 @@ def propagate_covariance(x, P, par):
         P[E_SG + i, E_SG + i] += par.gyro_scale_walk_sqrt_s ** 2 * T
         P[E_MG + i, E_MG + i] += par.gyro_misalignment_walk_rad_sqrt_s ** 2 * T
         P[E_MG + 3 + i, E_MG + 3 + i] += par.gyro_misalignment_walk_rad_sqrt_s ** 2 * T
-    _symmetrise(P)
+
+
+@njit(cache=True)
+def _clear_increments(x):
+    """Start the next covariance interval: the time and the sums ∫C dt, ∫C ω dt, ΔV^n back to zero."""
     x.cov_t_s = 0.0
     for i in range(9):
         x.cov_c_s[i] = 0.0
@@ -396,6 +400,20 @@ def propagate_covariance(x, P, par):
         x.cov_c_omega_rad[i] = 0.0
     for i in range(3):
         x.cov_dv_m_s[i] = 0.0
+
+
+@njit(cache=True)
+def propagate_covariance(x, P, par):
+    """P ← Φ P Φᵀ + Q over the time accumulated since the last call (cov_t_s), then clear the sums.
+
+    Φ: `transition_matrix`; the product `_phi_p_phi_t`; Q: `_add_process_noise`."""
+    T = x.cov_t_s
+    if T <= 0.0:
+        return
+    _phi_p_phi_t(transition_matrix(x, par), P)
+    _add_process_noise(P, par, T)
+    _symmetrise(P)
+    _clear_increments(x)
 
 
 # ----------------------------------------------------------------------------------- the per-sample step
@@ -435,7 +453,7 @@ def _level(x, P, par, dt_epoch):
         return F_ACCEL_REJECTED
     r = (par.level_noise_m_s2 / g) ** 2
     # the lean this update carries into the tilt in a turn, for the published 1σ (turn_lean.py)
-    track_tilt_push(x.turn_lean, par.turn_speed_m_s, g, P[E_TILT_E, E_TILT_E], r)
+    track_tilt_push(x.turn_lean, par.turn_speed_m_s, g, levelling_gain(P[E_TILT_E, E_TILT_E], r))
     mask = M_HEADING | M_ACC_BIAS | M_GYRO_BIAS | M_GYRO_SCALE | M_GYRO_MIS   # tilt only (see the docstring)
     dx = np.zeros(N_ERR)
     h = np.zeros(N_ERR)
@@ -450,8 +468,71 @@ def _level(x, P, par, dt_epoch):
 
 
 @njit(cache=True)
+def _iron_corrected(par, mx, my, mz):
+    """The magnetometer sample in the body frame with the learned iron removed: the hard iron subtracted, then
+    the soft iron's inverse (I + D)⁻¹ applied, µT."""
+    hx = mx - par.iron_ut[0]
+    hy = my - par.iron_ut[1]
+    hz = mz - par.iron_ut[2]
+    a = par.iron_soft_inv
+    return (a[0, 0] * hx + a[0, 1] * hy + a[0, 2] * hz,
+            a[1, 0] * hx + a[1, 1] * hy + a[1, 2] * hz,
+            a[2, 0] * hx + a[2, 1] * hy + a[2, 2] * hz)
+
+
+@njit(cache=True)
+def _mag_heading_row(x, par, mn, me, md):
+    """The heading measurement's row h (N_ERR) for the field (mn, me, md) in the estimated NED frame, and whether
+    its update may move the tilt.
+
+    The heading of the horizontal field depends on the tilt too: with m = H u + Z e_D (u the magnetic north),
+    m_est = m − δθ × m gives α = −δθ_D + (Z/H) u·δθ, so a tilt error along magnetic north reads as tan(dip)
+    times as much heading error (3.4× at 60° N). While fixes hold the horizon (GNSS_AIDED) the row carries that
+    sensitivity, so the heading correction allows for the known tilt error through their covariance; the gain
+    on the tilt itself is zero (a wrong magnetometer must never move the horizon) unless mag_moves_tilt.
+    Otherwise — before the first fix, dead reckoning, levelling — the row is heading only, as in mekf."""
+    h = np.zeros(N_ERR)
+    h[2] = -1.0
+    aided = x.nav_ok > 0.0 and x.t_last_s - x.gnss_fused_t_s <= par.gnss_timeout_s
+    moves_tilt = aided and par.mag_moves_tilt > 0.0
+    mh2 = mn * mn + me * me
+    if aided and mh2 > 0.0:
+        h[0] = md * mn / mh2
+        h[1] = md * me / mh2
+    return h, moves_tilt
+
+
+@njit(cache=True)
+def _attitude_variance(P, h):
+    """h P hᵀ over the attitude block (the heading row has no other entries)."""
+    hph = 0.0
+    for i in range(3):
+        for j in range(3):
+            hph += h[i] * P[i, j] * h[j]
+    return hph
+
+
+@njit(cache=True)
+def _fuse_mag_heading(x, P, par, dt_epoch, h, alpha, r, moves_tilt):
+    """The heading update (innovation alpha, row h, noise r from mag_heading.py) into the state, its gain on the
+    tilt zero unless `moves_tilt`.
+
+    The calibration's error is not white: a heading bias of variance mag_bias_var_rad2 that lasts about
+    mag_bias_tau_s. Fused every Δt as if white it would shrink the heading σ below it; spread over the τ/Δt
+    updates of one correlation time it adds at most its own variance's worth of information."""
+    r += par.mag_bias_var_rad2 * max(1.0, par.mag_bias_tau_s / max(dt_epoch, 1e-6))
+    if not _aided(x, par):
+        # levelled: the tilt's turn lean becomes heading error through the dip (turn_lean.py)
+        track_heading_push(x.turn_lean, x.mag.ref_dip_rad, P[E_YAW, E_YAW], r)
+    dx = np.zeros(N_ERR)
+    scalar_update(P, h, alpha, r, 0 if moves_tilt else M_TILT, dx)
+    _apply_correction(x, par, dx)
+
+
+@njit(cache=True)
 def _mag_update(x, P, par, dt_epoch, rate):
-    """Magnetometer heading update (the shared check of mag_heading.py): returns flag bits."""
+    """Magnetometer heading update (the shared check of mag_heading.py, `_fuse_mag_heading` when it passes):
+    returns flag bits."""
     ms = x.mag
     mp = par.mag
     flags = 0
@@ -460,47 +541,14 @@ def _mag_update(x, P, par, dt_epoch, rate):
     my = x.mag_last_ut[1]
     mz = x.mag_last_ut[2]
     if par.mag_enabled > 0.0 and par.mag_use > 0.0 and math.isfinite(mx):
-        hx = mx - par.iron_ut[0]
-        hy = my - par.iron_ut[1]
-        hz = mz - par.iron_ut[2]
-        a = par.iron_soft_inv
-        mx = a[0, 0] * hx + a[0, 1] * hy + a[0, 2] * hz
-        my = a[1, 0] * hx + a[1, 1] * hy + a[1, 2] * hz
-        mz = a[2, 0] * hx + a[2, 1] * hy + a[2, 2] * hz
+        mx, my, mz = _iron_corrected(par, mx, my, mz)
         mn, me, md = rotate_to_ned(x.q[0], x.q[1], x.q[2], x.q[3], mx, my, mz)
         mnorm = math.sqrt(mx * mx + my * my + mz * mz)
-        # the heading of the horizontal field depends on the tilt too: with m = H u + Z e_D (u the magnetic
-        # north), m_est = m − δθ × m gives α = −δθ_D + (Z/H) u·δθ, so a tilt error along magnetic north reads
-        # as tan(dip) times as much heading error (3.4× at 60° N). While fixes hold the horizon (GNSS_AIDED)
-        # the row carries that sensitivity, so the heading correction allows for the known tilt error through
-        # their covariance; the gain on the tilt itself is zero (a wrong magnetometer must never move the
-        # horizon) unless mag_moves_tilt. Otherwise — before the first fix, dead reckoning, levelling — the row
-        # is heading only, as in mekf.
-        h = np.zeros(N_ERR)
-        h[2] = -1.0
-        aided = x.nav_ok > 0.0 and x.t_last_s - x.gnss_fused_t_s <= par.gnss_timeout_s
-        moves_tilt = aided and par.mag_moves_tilt > 0.0
-        mh2 = mn * mn + me * me
-        if aided and mh2 > 0.0:
-            h[0] = md * mn / mh2
-            h[1] = md * me / mh2
-        hph = 0.0
-        for i in range(3):
-            for j in range(3):
-                hph += h[i] * P[i, j] * h[j]
-        res, alpha, r = mag.heading_measurement(ms, mp, dt_epoch, rate, False, False, mn, me, md,
-                                                mnorm, par.declination_rad, hph + par.mag_bias_var_rad2)
+        h, moves_tilt = _mag_heading_row(x, par, mn, me, md)
+        res, alpha, r = mag.heading_measurement(ms, mp, dt_epoch, rate, False, False, mn, me, md, mnorm,
+                                                par.declination_rad, _attitude_variance(P, h) + par.mag_bias_var_rad2)
         if res == mag.MAG_USE:
-            # the calibration's error is not white: a heading bias of variance mag_bias_var_rad2 that lasts about
-            # mag_bias_tau_s. Fused every Δt as if white it would shrink the heading σ below it; spread over the
-            # τ/Δt updates of one correlation time it adds at most its own variance's worth of information.
-            r += par.mag_bias_var_rad2 * max(1.0, par.mag_bias_tau_s / max(dt_epoch, 1e-6))
-            if not _aided(x, par):
-                # levelled: the tilt's turn lean becomes heading error through the dip (turn_lean.py)
-                track_heading_push(x.turn_lean, ms.ref_dip_rad, P[E_YAW, E_YAW], r)
-            dx = np.zeros(N_ERR)
-            scalar_update(P, h, alpha, r, 0 if moves_tilt else M_TILT, dx)
-            _apply_correction(x, par, dx)
+            _fuse_mag_heading(x, P, par, dt_epoch, h, alpha, r, moves_tilt)
             used = True
         elif res == mag.MAG_REJECTED:
             flags |= F_MAG_REJECTED
@@ -742,6 +790,44 @@ def _covariance_epoch(x, P, par, nav_ok, rate):
     return flags
 
 
+@njit(cache=True, inline="always")
+def _feed_gnss_yaw_bank(x, gsf, gsf_par, dt, mwx, mwy, mwz, fx, fy, fz):
+    """The sample for the GNSS yaw bank (gsf_yaw.py): this filter's corrected rate over the step with the bank's
+    gyro bias in place of the filter's (to first order: the scale and misalignment terms of the bias difference
+    are second order), and the specific force."""
+    bgx = x.gyro_bias_rad_s[0] - x.bank_gyro_bias_rad_s[0]
+    bgy = x.gyro_bias_rad_s[1] - x.bank_gyro_bias_rad_s[1]
+    bgz = x.gyro_bias_rad_s[2] - x.bank_gyro_bias_rad_s[2]
+    gsf_accumulate_imu(gsf[0], gsf_par[0], dt, np.array((mwx + bgx, mwy + bgy, mwz + bgz)), np.array((fx, fy, fz)))
+
+
+@njit(cache=True, inline="always")
+def _status_flags(x, par, sigma_rpy_rad):
+    """GNSS_AIDED or GNSS_OUTAGE (once a fix has been fused), and INITIALISING while the filter has not run
+    init_min_time_s or its 1σ (`sigma_rpy_rad`, before the turn-lean terms) is above the converged limits."""
+    flags = 0
+    if x.was_aided > 0.0:
+        if x.t_last_s - x.gnss_fused_t_s <= par.gnss_timeout_s:
+            flags |= F_GNSS_AIDED
+        else:
+            flags |= F_GNSS_OUTAGE
+    if initialising(x.t_run_s, sigma_rpy_rad[0], sigma_rpy_rad[1], sigma_rpy_rad[2], par.init_min_time_s,
+                    par.converged_tilt_rad, par.mag_enabled > 0.0, par.converged_yaw_rad):
+        flags |= F_INITIALISING
+    return flags
+
+
+@njit(cache=True, inline="always")
+def _sum_gyro_rotation(x, t_s, gx, gy, gz):
+    """The gyro's raw rotation since the last heading check, for Ins._mag_rotation_check (mag_rotation.py):
+    here rather than in Python per sample for speed; a gap of 0.1 s or more is not summed."""
+    dt_rotation = t_s - x.gyro_rotation_last_t_s
+    x.gyro_rotation_last_t_s = t_s
+    if 0.0 < dt_rotation < 0.1:
+        rotation_vector_step(x.gyro_rotation_rad, gx, gy, gz, dt_rotation)
+        x.gyro_rotation_s += dt_rotation
+
+
 @njit(cache=True)
 def ins_step(state, P, hist, params, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, out, gsf, gsf_par):
     """One IMU sample through the stages: take the sample, mechanise (`_mechanise`) and record the history,
@@ -763,13 +849,7 @@ def ins_step(state, P, hist, params, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sa
     x.t_run_s += dt
     wx, wy, wz, mwx, mwy, mwz, fx, fy, fz = _take_sample(x, valid, gx, gy, gz, ax, ay, az, mx, my, mz)
     if par.gnss_yaw > 0.0:
-        # the bank's gyro: this filter's corrected rate with the bank's bias in place of the filter's (to first
-        # order: the scale and misalignment terms of the bias difference are second order)
-        bgx = x.gyro_bias_rad_s[0] - x.bank_gyro_bias_rad_s[0]
-        bgy = x.gyro_bias_rad_s[1] - x.bank_gyro_bias_rad_s[1]
-        bgz = x.gyro_bias_rad_s[2] - x.bank_gyro_bias_rad_s[2]
-        gsf_accumulate_imu(gsf[0], gsf_par[0], dt, np.array((mwx + bgx, mwy + bgy, mwz + bgz)),
-                           np.array((fx, fy, fz)))
+        _feed_gnss_yaw_bank(x, gsf, gsf_par, dt, mwx, mwy, mwz, fx, fy, fz)
     nav_ok = _navigation_known(x, par)
     if dt > 0.0:
         q0, q1, q2, q3, vn, ve, vd = _mechanise(x, par, dt, nav_ok, mwx, mwy, mwz, fx, fy, fz)
@@ -777,25 +857,11 @@ def ins_step(state, P, hist, params, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sa
     if x.cov_t_s >= par.cov_period_s:
         flags |= _covariance_epoch(x, P, par, nav_ok, math.sqrt(wx * wx + wy * wy + wz * wz))
     fill_outputs(x, P, par, wx, wy, wz, o)
-    if x.was_aided > 0.0:
-        if x.t_last_s - x.gnss_fused_t_s <= par.gnss_timeout_s:
-            flags |= F_GNSS_AIDED
-        else:
-            flags |= F_GNSS_OUTAGE
-    sig = o.sigma_rpy_rad
-    if initialising(x.t_run_s, sig[0], sig[1], sig[2], par.init_min_time_s,
-                    par.converged_tilt_rad, par.mag_enabled > 0.0, par.converged_yaw_rad):
-        flags |= F_INITIALISING
+    flags |= _status_flags(x, par, o.sigma_rpy_rad)
     # after the convergence test (the filter converges on its covariance, not on a turn's lean, as mekf):
     # the published 1σ adds the lean levelling has left in a turn (turn_lean.py; zero while aided)
-    add_pushes_to_sigma(x.turn_lean, sig)
-    # the gyro's raw rotation since the last heading check, for Ins._mag_rotation_check (mag_rotation.py): here
-    # rather than in Python per sample for speed; a gap of 0.1 s or more is not summed
-    dt_rotation = t_s - x.gyro_rotation_last_t_s
-    x.gyro_rotation_last_t_s = t_s
-    if 0.0 < dt_rotation < 0.1:
-        rotation_vector_step(x.gyro_rotation_rad, gx, gy, gz, dt_rotation)
-        x.gyro_rotation_s += dt_rotation
+    add_pushes_to_sigma(x.turn_lean, o.sigma_rpy_rad)
+    _sum_gyro_rotation(x, t_s, gx, gy, gz)
     return flags
 
 
@@ -1126,27 +1192,10 @@ def _fuse_fix(x, P, hist, par, t_fix, nu_v, nu_p, var_v, var_p, c, on, oe, od, u
 
 
 @njit(cache=True)
-def fuse_gnss(state, P, hist, params, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, ve_fix, vd_fix, sig_h, sig_v, sig_s,
-              use_pos, use_alt, use_vel, use_vd):
-    """Fuse one GNSS fix (angles in rad, σ in m and m/s) at its time of validity t_fix. Returns R_* bits.
-
-    The innovation is formed against the nominal state interpolated from the history at t_fix (latency) and
-    the antenna lever arm: p_ant = p + C r, v_ant = v + C (ω × r). The correction is applied to the current
-    state with the current covariance (the error state changes little over the ≤ 1 s of latency). Velocity
-    and position are gated separately by the χ² of their normalised innovation; a run of rejections lasting
-    reject_reset_s resets that quantity to the fix (a real change, e.g. a receiver that switched to another
-    solution) without touching the attitude."""
-    x = state[0]
-    par = params[0]
-    res = 0
-    if t_fix < x.t_last_s - par.max_delay_s:
-        return R_TOO_OLD
-    j, k, w = _history_at(x, hist, t_fix)
-    if j < 0:
-        return R_TOO_OLD
-    propagate_covariance(x, P, par)
-    x.last_fix_t_s = t_fix
-    # the state at the time of validity
+def _state_at_fix(hist, j, k, w):
+    """The nominal state at a fix's time of validity, interpolated between the history rows j and k (w: the
+    weight of k, `_history_at`): attitude (normalised), velocity, bias-corrected body rate, latitude, longitude
+    and height."""
     a0 = hist[j].q[0] * (1.0 - w) + hist[k].q[0] * w
     a1 = hist[j].q[1] * (1.0 - w) + hist[k].q[1] * w
     a2 = hist[j].q[2] * (1.0 - w) + hist[k].q[2] * w
@@ -1160,10 +1209,15 @@ def fuse_gnss(state, P, hist, params, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, 
     plat = hist[j].lat_rad * (1.0 - w) + hist[k].lat_rad * w
     plon = hist[j].lon_rad * (1.0 - w) + hist[k].lon_rad * w
     ph = hist[j].h_m * (1.0 - w) + hist[k].h_m * w
-    on, oe, od, un, ue, ud, c = _lever_terms(a0, a1, a2, a3, pw[0], pw[1], pw[2],
-                                             par.lever_arm_m[0], par.lever_arm_m[1], par.lever_arm_m[2])
-    r_n, r_e = _radii(par, plat)
-    # innovations (fix − prediction), NED
+    return a0, a1, a2, a3, pv, pw, plat, plon, ph
+
+
+@njit(cache=True)
+def _innovations(lat_fix, lon_fix, alt_fix, vn_fix, ve_fix, vd_fix, use_alt, use_vd, plat, plon, ph, pv, r_n, r_e,
+                 on, oe, od, un, ue, ud):
+    """(nu_p, nu_v): the fix's position and velocity less the state's at its time of validity (plat, plon, ph,
+    pv) carried to the antenna (on, oe, od: C r; un, ue, ud: C (ω × r)), NED metres and m/s; the down component
+    zero without a height (2D fix) or a vertical velocity."""
     nu_p = np.zeros(3)
     nu_p[0] = (lat_fix - plat) * (r_n + ph) - on
     nu_p[1] = (lon_fix - plon) * (r_e + ph) * math.cos(plat) - oe
@@ -1172,13 +1226,43 @@ def fuse_gnss(state, P, hist, params, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, 
     nu_v[0] = vn_fix - pv[0] - un
     nu_v[1] = ve_fix - pv[1] - ue
     nu_v[2] = (vd_fix - pv[2] - ud) if use_vd else 0.0
+    return nu_p, nu_v
+
+
+@njit(cache=True)
+def fuse_gnss(state, P, hist, params, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, ve_fix, vd_fix, sig_h, sig_v, sig_s,
+              use_pos, use_alt, use_vel, use_vd):
+    """Fuse one GNSS fix (angles in rad, σ in m and m/s) at its time of validity t_fix. Returns R_* bits.
+
+    The innovation is formed against the nominal state interpolated from the history at t_fix (latency,
+    `_state_at_fix`) and the antenna lever arm: p_ant = p + C r, v_ant = v + C (ω × r) (`_innovations`). The
+    correction is applied to the current state with the current covariance (the error state changes little over
+    the ≤ 1 s of latency). Velocity and position are gated separately by the χ² of their normalised innovation;
+    a run of rejections lasting reject_reset_s resets that quantity to the fix (a real change, e.g. a receiver
+    that switched to another solution) without touching the attitude (`_fuse_fix`). The first fix, and the
+    first after an outage, set velocity and position (`_reset_from_fix`)."""
+    x = state[0]
+    par = params[0]
+    if t_fix < x.t_last_s - par.max_delay_s:
+        return R_TOO_OLD
+    j, k, w = _history_at(x, hist, t_fix)
+    if j < 0:
+        return R_TOO_OLD
+    propagate_covariance(x, P, par)
+    x.last_fix_t_s = t_fix
+    a0, a1, a2, a3, pv, pw, plat, plon, ph = _state_at_fix(hist, j, k, w)
+    on, oe, od, un, ue, ud, c = _lever_terms(a0, a1, a2, a3, pw[0], pw[1], pw[2],
+                                             par.lever_arm_m[0], par.lever_arm_m[1], par.lever_arm_m[2])
+    r_n, r_e = _radii(par, plat)
+    nu_p, nu_v = _innovations(lat_fix, lon_fix, alt_fix, vn_fix, ve_fix, vd_fix, use_alt, use_vd, plat, plon, ph, pv,
+                              r_n, r_e, on, oe, od, un, ue, ud)
     var_p = np.array([sig_h * sig_h, sig_h * sig_h, sig_v * sig_v])
     var_v = np.array([sig_s * sig_s, sig_s * sig_s, sig_s * sig_s])
     first = x.nav_ok <= 0.0
     outage = (not first) and t_fix - x.gnss_fused_t_s > par.outage_reset_s
     if first or outage:
         if not (use_pos and use_vel):
-            return res
+            return 0
         return _reset_from_fix(x, P, hist, par, t_fix, first, nu_v, nu_p, var_v, var_p, use_alt, use_vd, r_n, r_e,
                                ph, plat)
     return _fuse_fix(x, P, hist, par, t_fix, nu_v, nu_p, var_v, var_p, c, on, oe, od, un, ue, ud, use_pos, use_alt,

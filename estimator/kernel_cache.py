@@ -107,16 +107,34 @@ def _write_memo(memo: dict) -> None:
 
 def kernel_sources() -> list[Path]:
     """The source files the compiled kernels are made from: this package's modules that import numba, and
-    what they import names from, transitively.
+    what they import names from, transitively."""
+    return list(_kernel_source_hashes())
+
+
+def source_digest() -> str:
+    """A digest of the kernels' source files (names and contents: the SHA-256 of each file's contents, taken
+    once by `_kernel_source_hashes`)."""
+    h = hashlib.sha256()
+    for path, sha in _kernel_source_hashes().items():
+        h.update(f"{path.parent.name}/{path.name}\0{sha}\0".encode())
+    return h.hexdigest()[:16]
+
+
+def _kernel_source_hashes() -> dict[Path, str]:
+    """`kernel_sources` in order, each with the SHA-256 (hex) of its contents: every file is read and hashed once.
 
     Parsing is what costs, and every process start computes this (the daemon, its reader process, each CLI
     run): what a file's parse gave (does it import numba, which files may it import from) is kept in
     `__pycache__/MEMO_NAME` under the file's path and the SHA-256 of its contents, so only a file whose
     contents changed is parsed again. Whether an imported file exists is looked up every time."""
     memo, used = _read_memo(), {}
+    package = {p: p.read_bytes() for p in _PACKAGE.glob("*.py")}
 
-    def parsed(path: Path, src: bytes) -> list:
+    def parsed(path: Path) -> list:
         key = os.path.relpath(path, _ROOT)
+        if key in used:
+            return used[key]
+        src = package[path] if path in package else path.read_bytes()
         sha = hashlib.sha256(src).hexdigest()
         entry = memo.get(key)
         if not (isinstance(entry, list) and len(entry) == 3 and entry[0] == sha):
@@ -126,27 +144,16 @@ def kernel_sources() -> list[Path]:
         return entry
 
     # only a file that names numba can import it
-    sources = {p: src for p in _PACKAGE.glob("*.py") if b"numba" in (src := p.read_bytes())}
-    todo = [p for p, src in sources.items() if parsed(p, src)[1]]
+    todo = [p for p, src in package.items() if b"numba" in src and parsed(p)[1]]
     seen: set[Path] = set()
     while todo:
         path = todo.pop()
         if path not in seen:
             seen.add(path)
-            candidates = parsed(path, sources[path] if path in sources else path.read_bytes())[2]
-            todo += [c for c in (_ROOT / name for name in candidates) if c.is_file()]
+            todo += [c for c in (_ROOT / name for name in parsed(path)[2]) if c.is_file()]
     if used != memo:
         _write_memo(used)
-    return sorted(seen)
-
-
-def source_digest() -> str:
-    """A digest of the kernels' source files (names and contents)."""
-    h = hashlib.sha256()
-    for path in kernel_sources():
-        h.update(f"{path.parent.name}/{path.name}\0".encode())
-        h.update(path.read_bytes())
-    return h.hexdigest()[:16]
+    return {path: parsed(path)[0] for path in sorted(seen)}
 
 
 def use_source_keyed_cache() -> str:

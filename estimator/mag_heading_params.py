@@ -39,3 +39,6 @@ class MagHeadingParams:
     magMaxRejectionTime)."""
     mag_unavailable_s: float = 10.0
     """No heading update for this long sets MAG_UNAVAILABLE, s."""
+    mag_field_circle_check: bool = True
+    """Without GNSS, check the calibration by the circle the levelled field sweeps in turns and add the heading
+    error an off-centre or elliptic circle implies to the published σ (field_circle.py); False: not checked."""

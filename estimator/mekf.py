@@ -37,6 +37,7 @@ from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate,
                             float_field_slice, uninitialised_estimate)
 from .calibration_heading import calibration_heading_variance_rad2
 from .estimate_view import EstimateView
+from .field_circle import SKIPPED_FLAGS, FieldCircleCheck, FieldCircleParams, FieldCircleResult
 from .initial_attitude import initial_attitude
 from .mag_heading import RELEARN_GATE_OPEN_S, heading_params, relearn_reference, widen_after_calibration_change
 from .mag_heading_params import MagHeadingParams
@@ -249,12 +250,17 @@ class Mekf:
         self._t_s = math.nan
         self._bits = -1
         self._view = MekfView(self)
+        # the calibration checked by the circle its levelled field sweeps in turns (field_circle.py)
+        self._field_circle = FieldCircleCheck(FieldCircleParams(mag_noise_ut=self.params.mag_noise_ut))
+        self._field_circle_on = False
+        self._set_field_circle()
 
     # ----------------------------------------------------------------------- Estimator protocol
     def reset(self) -> None:
         self._buf["state"] = 0
         self._initialised = False
         self._reinit_pending = False
+        self._set_field_circle()
 
     def set_declination(self, declination_rad: float) -> None:
         self._declination = float(declination_rad)
@@ -283,12 +289,43 @@ class Mekf:
         down_body = quat_to_dcm(s["q"])[2]          # C_b^n's last row: NED down in the body frame
         widen_after_calibration_change(s["P"], core.E_HEADING, core.E_BIAS, down_body,
                                        heading_change_rad, self.params.init_bias_sigma_rad_s)
+        self._set_field_circle()
 
     def set_mag_calibration_sigma(self, sigma_rad: float) -> None:
         """A magnetometer calibration is in force whose predicted heading error is `sigma_rad` (1σ; NaN: none, or
-        its quality unknown): from the next estimate the published yaw 1σ includes it (calibration_heading.py)."""
+        its quality unknown): from the next estimate the published yaw 1σ includes it (calibration_heading.py),
+        and the circle check (field_circle.py) starts again on it."""
         self.params = replace(self.params, mag_calibration_sigma_rad=float(sigma_rad))
         self._buf[0]["par"]["heading_calibration_var_rad2"] = calibration_heading_variance_rad2(float(sigma_rad))
+        self._set_field_circle()
+
+    def _set_field_circle(self) -> None:
+        """Start the circle check again (a new calibration, a reset). It runs while a calibration states its
+        heading error: with none (σ π) there is nothing a check could add."""
+        self._field_circle.reset()
+        p = self.params
+        self._field_circle_on = (p.mag_field_circle_check and p.mag_enabled
+                                 and calibration_heading_variance_rad2(p.mag_calibration_sigma_rad)
+                                 < calibration_heading_variance_rad2(math.nan))
+        self._buf[0]["par"]["heading_calibration_var_rad2"] = calibration_heading_variance_rad2(
+            p.mag_calibration_sigma_rad)
+
+    def _check_field_circle(self, t_s: float, m, f: int) -> None:
+        """One levelled field into the circle check (at its own rate, after start-up); its verdict into the published
+        σ's calibration term."""
+        if f & SKIPPED_FLAGS:
+            self._field_circle.due_t_s = t_s + self._field_circle.params.period_s
+            return
+        self._read_euler()
+        e, sig = self._euler_out, self._sigma_out
+        if self._field_circle.add(t_s, float(e[0]), float(e[1]), m, max(float(sig[0]), float(sig[1]))):
+            self._buf[0]["par"]["heading_calibration_var_rad2"] = self._field_circle.result.checked_var_rad2(
+                calibration_heading_variance_rad2(self.params.mag_calibration_sigma_rad))
+
+    def field_circle(self) -> FieldCircleResult | None:
+        """What the circle check found of the calibration in force (field_circle.py); None while it does not run
+        (no calibration figure, or switched off)."""
+        return self._field_circle.result if self._field_circle_on else None
 
     @property
     def gyro_bias_rad_s(self) -> np.ndarray:
@@ -330,6 +367,8 @@ class Mekf:
             if not f & _NEEDS_INIT_OR_BAD:
                 self._bits = f
                 self._euler_stale = True
+                if self._field_circle_on and t_s >= self._field_circle.due_t_s:
+                    self._check_field_circle(t_s, m, f)
                 return self._view
             if f & core.BAD_SHAPE:
                 raise ValueError("ImuSample vectors must have 3 elements")

@@ -66,6 +66,7 @@ from .kernel_rotations import dcm, euler_zyx, normalised, quat_mul, rotate_to_ne
 from .turn_lean import (
     TURN_LEAN_DTYPE,
     bound_pushes,
+    levelling_gain,
     lowpass_rate_down,
     tilt_pushes_rad,
     track_accel_push,
@@ -615,11 +616,11 @@ def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish):
     if not _vertical_accepted(st, par, dt, unorm, g_ref, nu_n, nu_e):
         return F_ACCEL_REJECTED
     r = _vertical_noise_rad2(par, at_rest, unorm, g_ref, r_motion)
+    gain_e = levelling_gain(st.P[E_TILT_E, E_TILT_E], r)
     if publish:
-        track_tilt_push(st.unmodelled, par.turn_speed_m_s, g_ref, st.P[E_TILT_E, E_TILT_E], r)
+        track_tilt_push(st.unmodelled, par.turn_speed_m_s, g_ref, gain_e)
     # on both paths (a sum: no bound after a batch could stand for it), so a batch leaves the state a step leaves
-    track_accel_push(st.unmodelled, nu_n, nu_e, st.P[E_TILT_N, E_TILT_N], st.P[E_TILT_E, E_TILT_E], r, dt,
-                     at_rest)
+    track_accel_push(st.unmodelled, nu_n, nu_e, levelling_gain(st.P[E_TILT_N, E_TILT_N], r), gain_e, dt, at_rest)
     _correct_tilt(st, par, fnorm, g_ref, nu_n, nu_e, r)
     return 0
 

@@ -33,19 +33,6 @@ LARGE_OFFSET_MAX_RATE_RAD_S = math.radians(2.0)
 """The slew rate while the σ sent is above EKF3_YAW_FLOOR_RAD (module docstring)."""
 
 
-def slewed_yaw_sigma_rad(sigma_rad: float, offset_rad: float) -> float:
-    """The 1σ of a yaw that is `offset_rad` off the estimator's, whose own 1σ is `sigma_rad`: σ + |d|/3."""
-    return sigma_rad + abs(offset_rad) / 3.0
-
-
-def slew_rate_rad_s(rate_rad_s: float, sigma_rad: float, offset_rad: float) -> float:
-    """The rate to slew at, for a configured `rate_rad_s`, the estimator's 1σ and the offset still to come:
-    no more than LARGE_OFFSET_MAX_RATE_RAD_S while the σ sent for that offset is above EKF3's floor."""
-    if rate_rad_s > LARGE_OFFSET_MAX_RATE_RAD_S and slewed_yaw_sigma_rad(sigma_rad, offset_rad) > EKF3_YAW_FLOOR_RAD:
-        return LARGE_OFFSET_MAX_RATE_RAD_S
-    return rate_rad_s
-
-
 class YawSlew:
     """One rule for every slewed yaw: the published yaw moves towards the estimator's at no more than `rate_rad_s`
     (slew_rate_rad_s: slower while the σ sent is above EKF3's floor), all the way once it is within that step or
@@ -69,5 +56,15 @@ class YawSlew:
 
     @staticmethod
     def sigma_rad(sigma_rad: float, offset_rad: float) -> float:
-        """The 1σ of the published yaw `offset_rad` off the estimator's, whose 1σ is `sigma_rad`: σ + |offset|/3."""
-        return slewed_yaw_sigma_rad(sigma_rad, offset_rad)
+        """The 1σ of the published yaw `offset_rad` off the estimator's, whose 1σ is `sigma_rad`: σ + |offset|/3
+        (module docstring)."""
+        return sigma_rad + abs(offset_rad) / 3.0
+
+
+def slew_rate_rad_s(rate_rad_s: float, sigma_rad: float, offset_rad: float) -> float:
+    """The rate to slew at, for a configured `rate_rad_s`, the estimator's 1σ and the offset still to come:
+    no more than LARGE_OFFSET_MAX_RATE_RAD_S while the σ sent for that offset (YawSlew.sigma_rad's rule, which
+    EKF3's floor was compared with, whatever σ a subclass sends) is above EKF3's floor."""
+    if rate_rad_s > LARGE_OFFSET_MAX_RATE_RAD_S and YawSlew.sigma_rad(sigma_rad, offset_rad) > EKF3_YAW_FLOOR_RAD:
+        return LARGE_OFFSET_MAX_RATE_RAD_S
+    return rate_rad_s

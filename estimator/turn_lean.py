@@ -20,6 +20,7 @@ One rule for both filters that level with the accelerometer: mekf (always) and i
 aids it: with GNSS the lean is observed and corrected). Each filter keeps a TURN_LEAN_DTYPE record in its state
 and calls, in its own stages:
   `lowpass_rate_down`    the rate about the vertical, low-passed as the levelling's specific force is
+  `levelling_gain`       k = P/(P + R) of a levelling update, once per axis for the two pushes below
   `track_tilt_push`      at each accepted levelling update
   `track_accel_push`     at each accepted levelling update (mekf)
   `track_heading_push`   at each magnetometer heading update
@@ -60,37 +61,44 @@ def lean_rad(turn_speed_m_s, rate_down_rad_s, g_m_s2):
     return math.atan(turn_speed_m_s * abs(rate_down_rad_s) / g_m_s2)
 
 
+@njit(cache=True, inline="always")
+def levelling_gain(p_tilt, r):
+    """k = P/(P + R): the gain of a levelling update on the tilt axis it observes (p_tilt: that axis' variance
+    before the update, r: the update's noise variance), the fraction of its innovation it takes."""
+    return p_tilt / (p_tilt + r)
+
+
 @njit(cache=True)
-def track_tilt_push(u, turn_speed_m_s, g_m_s2, p_tilt, r):
+def track_tilt_push(u, turn_speed_m_s, g_m_s2, gain):
     """Each accepted levelling update moves the estimate toward the lean (`lean_rad` at the low-passed rate)
-    with its own gain k = P/(P + R) (p_tilt: the tilt variance before the update, r: the update's noise
-    variance), so the lean carried into the estimate follows ε ← ε + k (φ − ε): it builds up over a turn and is
-    corrected away after it at the rate the filter corrects any tilt error."""
+    with its own gain k (`levelling_gain`; both filters pass δθ_E's), so the lean carried into the estimate
+    follows ε ← ε + k (φ − ε): it builds up over a turn and is corrected away after it at the rate the filter
+    corrects any tilt error."""
     phi = lean_rad(turn_speed_m_s, u.rate_down_lp_rad_s, g_m_s2)
-    u.tilt_push_rad += p_tilt / (p_tilt + r) * (phi - u.tilt_push_rad)
+    u.tilt_push_rad += gain * (phi - u.tilt_push_rad)
 
 
 @njit(cache=True)
-def track_accel_push(u, nu_n, nu_e, p_tilt_n, p_tilt_e, r, dt, at_rest):
+def track_accel_push(u, nu_n, nu_e, gain_n, gain_e, dt, at_rest):
     """The tilt the levelling takes from a speed change. Speeding up or braking at a leans the apparent vertical
     by a/g along the track; nothing but the velocity shows a, so the levelling reads the lean as tilt error and
     corrects toward it. Its innovation ν (the low-passed vertical's horizontal part in the estimated frame) is
     then the lean φ less the error e the filter already carries, and each update moves the estimate by k·ν
-    (k = P/(P + R)): e ← e + k(φ − e). The sum of those corrections is e itself, whatever φ was (the measurement
-    noise in ν telescopes away: Σ k(n − e) = e_N − e_0), so summing k·ν reconstructs the lean the filter
-    carries with no speed known. It also sums the corrections of the gyro's own drift, which are not lean: the
-    sum forgets at ACCEL_PUSH_MEMORY_S, which bounds that part by the drift over the memory (so only a filter
-    whose levelling also learns the gyro bias may use it: the module docstring), and nothing is summed while the
-    vehicle is at rest (`at_rest`: nothing leans the vertical then; the corrections are the gyro bias being
-    learned and its noise). nu_n: the innovation on δθ_E, nu_e: on −δθ_N (mekf_core._tilt_update); p_tilt_n,
-    p_tilt_e: the tilt variances before the update; r: its noise variance; dt: the time since the previous
-    update, s."""
+    (k = P/(P + R), `levelling_gain`): e ← e + k(φ − e). The sum of those corrections is e itself, whatever φ
+    was (the measurement noise in ν telescopes away: Σ k(n − e) = e_N − e_0), so summing k·ν reconstructs the
+    lean the filter carries with no speed known. It also sums the corrections of the gyro's own drift, which are
+    not lean: the sum forgets at ACCEL_PUSH_MEMORY_S, which bounds that part by the drift over the memory (so
+    only a filter whose levelling also learns the gyro bias may use it: the module docstring), and nothing is
+    summed while the vehicle is at rest (`at_rest`: nothing leans the vertical then; the corrections are the
+    gyro bias being learned and its noise). nu_n: the innovation on δθ_E, nu_e: on −δθ_N
+    (mekf_core._tilt_update); gain_n, gain_e: the `levelling_gain` of δθ_N and δθ_E; dt: the time since the
+    previous update, s."""
     keep = math.exp(-dt / ACCEL_PUSH_MEMORY_S)
     u.accel_push_e_rad *= keep
     u.accel_push_n_rad *= keep
     if not at_rest:
-        u.accel_push_e_rad += p_tilt_e / (p_tilt_e + r) * nu_n
-        u.accel_push_n_rad -= p_tilt_n / (p_tilt_n + r) * nu_e
+        u.accel_push_e_rad += gain_e * nu_n
+        u.accel_push_n_rad -= gain_n * nu_e
 
 
 @njit(cache=True, inline="always")

@@ -5,6 +5,7 @@ Shared helpers live in tests/support (import `support.<module>`); the benchmark 
 
 from __future__ import annotations
 
+import logging
 import os
 import subprocess
 import sys
@@ -104,6 +105,18 @@ def broad_dir() -> Path:
     if not BROAD_DIR.is_dir() or not any(BROAD_DIR.glob("*.npz")):
         pytest.skip(f"BROAD data not found at {BROAD_DIR} (needs ../shared/data/broad beside the checkout)")
     return BROAD_DIR
+
+
+@pytest.fixture(autouse=True)
+def _logging_left_enabled():
+    """A test must not leave logging disabled: `logging.disable` is process-wide, so every later test of the same
+    worker would lose the warnings it checks with caplog (which tests those are depends on how the files fall on
+    the workers). The test that leaves it disabled fails here, by name, and the next one starts clean."""
+    yield
+    left = logging.root.manager.disable
+    if left != logging.NOTSET:
+        logging.disable(logging.NOTSET)
+        pytest.fail(f"the test left logging disabled at level {left} (logging.disable is process-wide)")
 
 
 @pytest.fixture(autouse=True)

@@ -40,19 +40,20 @@ from support.mavlink_feed import as_if_from
 CONFIG_SITE = (64.0, -22.0, 0.0)        # Iceland
 GNSS_SITE = (61.2, -149.9, 30.0)        # Alaska
 AUTOPILOT_SITE = (-45.0, 170.0, 10.0)   # New Zealand
+REMEMBERED_SITE = (-33.9, 18.4, 20.0)   # Cape Town
 SIM_SITE = (DEFAULT_SITE.lat_deg, DEFAULT_SITE.lon_deg, DEFAULT_SITE.alt_m)
 
 
 class Sources:
-    """Every position source at once, each removable."""
+    """Every position source at once, each removable; `memory` (daemon.position_memory) for a remembered one."""
 
-    def __init__(self):
+    def __init__(self, memory=None):
         self.location = LocationConfig(lat_deg=CONFIG_SITE[0], lon_deg=CONFIG_SITE[1], alt_m=CONFIG_SITE[2])
         self.gnss = GNSS_SITE
         self.autopilot = AutopilotState()
         self.autopilot.lat_deg, self.autopilot.lon_deg, self.autopilot.alt_m = AUTOPILOT_SITE
         self.resolver = PositionResolver(self.location, gnss_position=lambda: self.gnss, autopilot=self.autopilot,
-                                         simulator=True)
+                                         simulator=True, memory=memory)
 
     def drop(self, which: str) -> None:
         if which == "config":
@@ -61,26 +62,44 @@ class Sources:
             self.gnss = None
         elif which == "autopilot":
             self.autopilot.lat_deg = self.autopilot.lon_deg = None
+        elif which == "remembered":
+            self.resolver.memory = None
         elif which == "simulator":
             self.resolver.simulator = False
 
 
 def _declinations_are_distinct():
-    d = [earth_field(*p).declination_rad for p in (CONFIG_SITE, GNSS_SITE, AUTOPILOT_SITE, SIM_SITE)]
+    d = [earth_field(*p).declination_rad
+         for p in (CONFIG_SITE, GNSS_SITE, AUTOPILOT_SITE, REMEMBERED_SITE, SIM_SITE)]
     return min(abs(a - b) for i, a in enumerate(d) for b in d[i + 1:]) > math.radians(3.0)
 
 
-def test_one_position_priority_for_the_declination_and_the_field_calibration():
-    """Config > GNSS receiver > autopilot > simulator site, for both users of a position; every source set,
-    then removed one by one in that order."""
+def _remembered(tmp_path, site, *, record: bool):
+    """A memory whose file (written here in the documented format) holds `site`, saved a day ago."""
+    import json
+    import time
+
+    from ahrsd.daemon.position_memory import FILE_NAME, PositionMemory
+
+    now = time.time()
+    (tmp_path / FILE_NAME).write_text(json.dumps({
+        "format": "ahrsd-last-position", "schema_version": 1, "lat_deg": site[0], "lon_deg": site[1],
+        "alt_m": site[2], "source": "gnss", "wall_time_s": now - 86400.0}))
+    return PositionMemory(tmp_path, record=record, wall_clock=lambda: now)
+
+
+def test_one_position_priority_for_the_declination_and_the_field_calibration(tmp_path):
+    """Config > GNSS receiver > autopilot > remembered > simulator site, for both users of a position; every
+    source set, then removed one by one in that order (a memory that records nothing: a simulator run)."""
     assert _declinations_are_distinct()
-    src = Sources()
+    src = Sources(_remembered(tmp_path, REMEMBERED_SITE, record=False))
     params = ParamStore(param_specs(Config()))
     decl = Declination(params, src.resolver, signal_reset=lambda: None)
     host = DaemonMagCalHost(pipeline=None, swap=None, outbound=None, autopilot=src.autopilot,
                             positions=src.resolver, slew=HeadingSlew())
     expected = [("config", CONFIG_SITE), ("gnss", GNSS_SITE), ("autopilot", AUTOPILOT_SITE),
-                ("simulator", SIM_SITE)]
+                ("remembered", REMEMBERED_SITE), ("simulator", SIM_SITE)]
+    host.statustext = lambda severity, text: None     # the remembered position is said (tested below)
     for source, site in expected:
         position = src.resolver.position()
         assert position.source == source
@@ -95,6 +114,31 @@ def test_one_position_priority_for_the_declination_and_the_field_calibration():
     assert src.resolver.position() is None and host.reference_field() is None
     decl.resolve()
     assert decl.rad == 0.0 and decl.waiting_for_position
+
+
+def test_within_a_run_the_remembered_position_is_the_last_live_one(tmp_path):
+    """A daemon on the real chip notes every live position: once the receiver and the autopilot are gone, the
+    remembered position is the autopilot's last (below them, above the simulator's site), not the file's."""
+    src = Sources(_remembered(tmp_path, REMEMBERED_SITE, record=True))
+    src.drop("config")
+    assert src.resolver.position().source == "gnss"
+    src.drop("gnss")
+    assert src.resolver.position().source == "autopilot"
+    src.drop("autopilot")
+    p = src.resolver.position()
+    assert p.source == "remembered" and (p.lat_deg, p.lon_deg, p.alt_m) == AUTOPILOT_SITE
+
+
+def test_the_field_calibration_says_it_uses_a_remembered_position(tmp_path):
+    src = Sources(_remembered(tmp_path, REMEMBERED_SITE, record=False))
+    for which in ("config", "gnss", "autopilot"):
+        src.drop(which)
+    said = []
+    host = DaemonMagCalHost(pipeline=None, swap=None, outbound=None, autopilot=src.autopilot,
+                            positions=src.resolver, slew=HeadingSlew())
+    host.statustext = lambda severity, text: said.append(text)
+    host.reference_field()
+    assert len(said) == 1 and "remembered (gnss, " in said[0] and "24 h old" in said[0], said
 
 
 def test_the_autopilot_position_is_not_used_when_the_config_says_so():

@@ -30,7 +30,7 @@ def test_the_summed_corrections_are_the_lean_the_levelling_took():
     e_now = 0.0
     for i in range(len(t)):
         nu = phi[i] - e_now + rng.normal(0.0, 0.01)
-        track_accel_push(u, nu, 0.0, p, p, r, dt, False)    # the innovation on δθ_E (nu_n)
+        track_accel_push(u, nu, 0.0, k, k, dt, False)       # the innovation on δθ_E (nu_n), its gain k
         e_now += k * nu
         e[i], push[i] = e_now, u["accel_push_e_rad"]
     assert np.max(np.abs(e)) > math.radians(9.0)     # the lean was taken
@@ -44,5 +44,6 @@ def test_the_summed_corrections_are_the_lean_the_levelling_took():
 def test_mekf_without_gnss_on_a_car_that_speeds_up_and_brakes_is_honest(seed):
     """Car seed 13, 120 s, from 30 s: every axis within 3σ on ≥ 99 % of the samples (without the term: roll,
     pitch and heading 10 / 11 / 13 % beyond; 180 s: 21 / 8 / 19 %, bench/unaided_sigma.py)."""
-    _, _, _, rms, sigma_deg, beyond_pct = one_run(("car", seed, 120.0, 30.0, "mekf"))
+    # the calibration right (no error injected), the daemon's 5° "heading good" limit, the circle check on
+    _, _, _, rms, sigma_deg, beyond_pct = one_run(("car", seed, 120.0, 30.0, "mekf", None, math.radians(5.0), True))[:6]
     assert np.all(beyond_pct <= 1.0), (rms, sigma_deg, beyond_pct)
