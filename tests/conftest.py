@@ -33,26 +33,71 @@ os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 sys.dont_write_bytecode = False
 
 
+_warm_up_running: list[subprocess.Popen] = []     # the numba warm-up's ins group, while the workers collect
+
+
 def pytest_configure(config):
     """With pytest-xdist workers (the README's `-n 3`), compile the numba kernels once in the controller before
-    the workers start (tests/support/numba_warm_up.py says why); the groups run side by side. Skipped in a
+    the workers run a test (tests/support/numba_warm_up.py says why); the groups run side by side. Skipped in a
     worker, without -n, and with AHRSD_TEST_NO_WARM_UP=1.
 
     The mekf group ends long before the ins group, and on the core it leaves idle one collection of the tests
     runs meanwhile: it writes the test modules' assertion-rewritten bytecode, which each worker would otherwise
-    make again on a fresh checkout (the workers collect at the same time, so none finds another's)."""
+    make again on a fresh checkout (the workers collect at the same time, so none finds another's). The workers
+    start when that collection is done, and collect while the ins group still compiles (collecting calls no
+    kernel); the controller hands out the first test when the ins group is done
+    (pytest_xdist_node_collection_finished)."""
     workers = getattr(config.option, "numprocesses", None)
+    if workers and not hasattr(config, "workerinput"):
+        # hand out the files in the workers' collection order (pytest_collection_modifyitems below), not
+        # re-sorted by their number of tests
+        config.option.loadscopereorder = False
     if hasattr(config, "workerinput") or not workers or os.environ.get("AHRSD_TEST_NO_WARM_UP") == "1":
         return
     script = Path(__file__).parent / "support" / "numba_warm_up.py"
     ins, mekf = (subprocess.Popen([sys.executable, str(script), group], stdout=subprocess.DEVNULL)
                  for group in ("ins", "mekf"))
+    _warm_up_running.append(ins)
     mekf.wait()
     collect = subprocess.Popen([sys.executable, "-m", "pytest", "--collect-only", "-q", "-p", "no:cacheprovider",
                                 *config.args], cwd=config.invocation_params.dir, stdout=subprocess.DEVNULL,
                                stderr=subprocess.DEVNULL, env=dict(os.environ, AHRSD_TEST_NO_WARM_UP="1"))
-    ins.wait()
     collect.wait()
+
+
+def _warm_up_done() -> None:
+    while _warm_up_running:
+        _warm_up_running.pop().wait()
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_node_collection_finished(node, ids):
+    """In the controller, before it schedules the workers' tests: the warm-up's ins group has written its cache
+    (a worker that ran an ins test before would compile the kernels itself)."""
+    _warm_up_done()
+
+
+def pytest_unconfigure(config):
+    _warm_up_done()       # a run that ended before any worker collected leaves no compiler behind
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_collection_modifyitems(config, items):
+    """In a pytest-xdist worker (whose collection order the controller hands the files out in, one file to a
+    worker under `--dist loadfile`): the files with a `slow` test first, then the others by their number of
+    tests, as pytest-xdist itself would order them; each file's tests keep their order. A long file that
+    starts last, as a file of one or two tests would, ends the run on one worker while the others stand idle;
+    started first, it runs beside the rest."""
+    if not hasattr(config, "workerinput"):
+        return
+    files: dict[str, list[int]] = {}      # file -> [index of its first test, its number of tests, has a slow test]
+    for index, item in enumerate(items):
+        entry = files.setdefault(item.nodeid.split("::")[0], [index, 0, 0])
+        entry[1] += 1
+        entry[2] |= item.get_closest_marker("slow") is not None
+    order = {name: (not slow, -count, first) for name, (first, count, slow) in files.items()}
+    items[:] = [item for _, item in sorted(enumerate(items), key=lambda pair: (order[pair[1].nodeid.split("::")[0]],
+                                                                                 pair[0]))]
 
 
 @pytest.fixture

@@ -8,11 +8,14 @@ from __future__ import annotations
 import logging
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from ahrsd.calibration.mag.backstepping_aided import fit_backstepping_aided
 from ahrsd.calibration.mag.fit_types import MagFitInput
 from ahrsd.simulation import DEFAULT_SITE, open_stream, simulate_gnss
+
+pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
 
 
 def heading_error_on_other_attitudes_deg(model, stream) -> np.ndarray:

@@ -11,6 +11,8 @@ import subprocess
 import sys
 import time
 
+import pytest
+
 from ahrsd.daemon.config import Config, EndpointConfig, StateConfig
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.drivers.chip_source import ChipSource
@@ -19,6 +21,8 @@ from ahrsd.drivers.adis16405 import Adis16405
 from ahrsd.drivers.faults import FaultKind, FaultPlan
 from ahrsd.drivers.simulated import SimulatedAdis16405
 from bench.sim_calibration import save_mag_calibration, sim_chip_mag_model
+
+pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
 
 
 def test_corrupt_frames_and_a_vanished_device(tmp_path):

@@ -19,6 +19,8 @@ from support.ahrsd_process import OUR_COMP, Daemon
 
 from ahrsd.daemon.mavlink_io import mavlink, mavutil
 
+pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
+
 REPO = Path(__file__).resolve().parents[1]
 MAVPROXY = Path(sys.executable).with_name("mavproxy.py")
 

@@ -38,6 +38,8 @@ from support.field_vehicle import (SITE_FIELD, course_fixes, heading_rms_deg, in
 from service_rig import free_udp_port, stop_process  # noqa: E402
 from test_magcal_integration import Client  # noqa: E402
 
+pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
+
 RECORDING_S = 300.0
 GATE_STALL_S = 10.0        # wall seconds the replay waits for the daemon to take a fix before it moves on
 

@@ -35,6 +35,8 @@ from ahrsd.calibration.store import CalibrationStore  # noqa: E402
 from ahrsd.daemon.mavlink_io import mavlink, mavutil  # noqa: E402
 from ahrsd.simulation import DEFAULT_SITE, open_stream  # noqa: E402
 
+pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
+
 TIME_SCALE = 16.0  # when the CPU cannot keep up the replay simply runs as fast as it can
 SIM_RATE_HZ = 204.8   # the chip's 819.2 SPS decimated by 4 (SMPL_PRD): a quarter of the CPU per simulated second
 MAV_STATE_CALIBRATING = 2

@@ -3,7 +3,11 @@ while faults are injected. The 10-minute figures are in docs/reliability.md (`py
 
 from __future__ import annotations
 
+import pytest
+
 from bench import soak
+
+pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
 
 
 def test_short_soak_meets_the_criteria(tmp_path):

@@ -24,10 +24,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from ahrsd.daemon.mavlink_io import SO_TIMESTAMPNS, TIMESPEC, Endpoint, mavlink
 from service_rig import stop_process
 from bench.sim_calibration import save_mag_calibration, sim_chip_mag_model
+
+pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
 
 AHRSD = Path(sys.executable).with_name("ahrsd")
 OFFSET_US = 987_654_321.0

@@ -3,7 +3,9 @@
 Off by default; load it with `python -m pytest -p tools.pytest_cpu_time ...` from the repository root. It prints
 the files by CPU at the end of the run. With pytest-xdist each worker appends its tests to
 `$AHRSD_CPU_TIME_OUT-<worker>.jsonl` when that variable is set (the controller sees no test run), and
-`python tools/pytest_cpu_time.py FILE...` sums such files per test file.
+`python tools/pytest_cpu_time.py FILE...` sums such files per test file; with `--timeline` it prints each worker's
+files in the order it ran them, with their wall spans, and when each worker ran out of work (the run's critical
+path under `--dist loadfile`: a worker that ends early leaves its core idle while another finishes a long file).
 
 Why CPU and not wall: the suite runs on a shared 2-core machine where wall time follows the load; the CPU a test
 spends is what it takes from the other workers. Children are counted when they have been waited for, so a daemon
@@ -16,6 +18,7 @@ import json
 import os
 import resource
 import sys
+import time
 
 import pytest
 
@@ -33,13 +36,16 @@ _per_test: dict[str, float] = {}
 def pytest_runtest_protocol(item, nextitem):
     """Runs where the test runs (an xdist worker, or this process without -n): setup, call and teardown."""
     started_s = _cpu_s()
+    wall_started_s = time.time()
     yield
     _per_test[item.nodeid] = _cpu_s() - started_s
     out = os.environ.get("AHRSD_CPU_TIME_OUT")
     if out:
         worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+        row = {"test": item.nodeid, "cpu_s": _per_test[item.nodeid], "worker": worker,
+               "wall_start_s": wall_started_s, "wall_end_s": time.time()}
         with open(f"{out}-{worker}.jsonl", "a") as fh:
-            fh.write(json.dumps({"test": item.nodeid, "cpu_s": _per_test[item.nodeid]}) + "\n")
+            fh.write(json.dumps(row) + "\n")
 
 
 def per_file(per_test: dict[str, float]) -> list[tuple[str, float, int]]:
@@ -69,11 +75,32 @@ def pytest_terminal_summary(terminalreporter):
         terminalreporter.write_line(f"{cpu_s:8.1f}  {nodeid}")
 
 
+def _print_timeline(rows: list[dict], write) -> None:
+    """Each worker's files in run order: start and end (s after the first test began), wall span, CPU."""
+    t0 = min(r["wall_start_s"] for r in rows)
+    by_worker: dict[str, list[dict]] = collections.defaultdict(list)
+    for r in rows:
+        by_worker[r["worker"]].append(r)
+    for worker, tests in sorted(by_worker.items()):
+        tests.sort(key=lambda r: r["wall_start_s"])
+        write(f"{worker}: last test ended at {tests[-1]['wall_end_s'] - t0:.1f} s")
+        files: dict[str, list[float]] = {}
+        for r in tests:
+            entry = files.setdefault(r["test"].split("::")[0], [r["wall_start_s"], 0.0, 0.0])
+            entry[1] = r["wall_end_s"]
+            entry[2] += r["cpu_s"]
+        for name, (start, end, cpu_s) in files.items():
+            write(f"  {start - t0:7.1f} {end - t0:7.1f} wall {end - start:6.1f} CPU {cpu_s:6.1f}  {name}")
+
+
 if __name__ == "__main__":
-    merged: dict[str, float] = {}
-    for path in sys.argv[1:]:
+    args = sys.argv[1:]
+    timeline = "--timeline" in args
+    rows = []
+    for path in (a for a in args if a != "--timeline"):
         with open(path) as fh:
-            for line in fh:
-                row = json.loads(line)
-                merged[row["test"]] = row["cpu_s"]
-    _print(per_file(merged), print)
+            rows.extend(json.loads(line) for line in fh)
+    if timeline:
+        _print_timeline([r for r in rows if "wall_start_s" in r], print)
+    else:
+        _print(per_file({r["test"]: r["cpu_s"] for r in rows}), print)
