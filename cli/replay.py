@@ -5,7 +5,8 @@
                  [--plot FILE.png]
 
 The output CSV is a public interface (docs/replay.md): it is how the estimator is evaluated on data the
-project has never seen. Its header is exactly OUTPUT_HEADER; the first eight columns are fixed for good.
+project has never seen. Its header is exactly OUTPUT_HEADER (with --gnss AIDED_OUTPUT_HEADER; with a calibration
+check that runs, FIELD_CIRCLE_OUTPUT_COLUMNS follow); the first eight columns are fixed for good.
 On a terminal a progress bar shows the rate and the time left (none in a pipe or with --quiet).
 Exit status: 0 done, 1 bad input (recording, calibration, parameters, output path), 2 bad usage (including
 --plot without matplotlib, checked before the replay runs).
@@ -33,10 +34,16 @@ NAV_OUTPUT_COLUMNS = ("vel_n_m_s", "vel_e_m_s", "vel_d_m_s", "lat_deg", "lon_deg
 # 3 learning)
 HEADING_OUTPUT_COLUMNS = ("gsf_yaw_deg", "gsf_sigma_deg", "heading_state")
 AIDED_OUTPUT_HEADER = ",".join(OUTPUT_COLUMNS + NAV_OUTPUT_COLUMNS + HEADING_OUTPUT_COLUMNS)
+# When a calibration states its heading error and the estimator checks it by the field's circle in turns (mekf:
+# ahrsd.estimator.replay.FIELD_CIRCLE_COLUMNS) these follow: the verdict per sample (0 not judged: too little
+# turning, 1 consistent, 2 the calibration found wrong) and the circle centre's offset, µT (NaN while not judged).
+# Without the check the header stays OUTPUT_HEADER (or AIDED_OUTPUT_HEADER).
+FIELD_CIRCLE_OUTPUT_COLUMNS = ("mag_cal_check", "mag_field_centre_ut")
 # REFERENCE: the quaternion and yaw are relative to true north (NED) when a position is given (--lat/--lon: the
 # WMM declination rotates the estimator's magnetic-north attitude about down), else to magnetic north.
 _FORMAT = ",".join(["%.6f"] + ["%.9f"] * 4 + ["%.6f"] * 5 + ["%.6f"] * 3 + ["%.6e"] * 3 + ["%d"])
 _NAV_FORMAT = ",".join(["%.4f"] * 3 + ["%.9f"] * 2 + ["%.4f"] + ["%.4f"] * 2 + ["%d"])
+_FIELD_CIRCLE_FORMAT = "%d,%.3f"
 
 
 def register(subparsers) -> None:
@@ -319,8 +326,9 @@ def _run(args, compile_estimator: Callable[[str], object], count_compiles: Calla
     compile_wall_s = compile_cpu_s = 0.0
     if os.path.isfile(args.recording):   # a missing one fails at once, without a compile
         compile_wall_s, compile_cpu_s = _compile_announced(estimator_name, compile_estimator, count_compiles)
-    estimator = _make_estimator(estimator_name, declination, calibration, params, aided=fixes is not None)
-    done = _replay(args, estimator, calibration, fixes, trace)
+    params = _told_calibration_sigma(estimator_name, calibration, params)
+    estimator = _make_estimator(estimator_name, declination, params, aided=fixes is not None)
+    done = _replay(args, estimator, calibration, fixes, trace, params.get("mag_calibration_sigma_rad"))
     if trace is not None:
         from ahrsd.estimator.replay_plot import replay_title
 
@@ -400,17 +408,22 @@ def _load_calibration(args):
         raise ReplayError(str(exc)) from None
 
 
-def _make_estimator(name: str, declination_rad: float, calibration, params: dict, aided: bool):
-    """The estimator, told (as the daemon does) the heading error the calibration predicts (ins, mekf)."""
-    from ahrsd.estimator import make_estimator
-    from ahrsd.estimator.base import GnssAidedEstimator
-
+def _told_calibration_sigma(name: str, calibration, params: dict) -> dict:
+    """The parameters with the heading error the calibration predicts (ins, mekf), as the daemon tells them."""
     if calibration is not None and name in ("ins", "mekf") and "mag_calibration_sigma_rad" not in params:
         from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad
 
         # how far ins may trust this calibration's magnetometer, and the heading error a magnetometer-held heading's
         # published σ carries without GNSS (estimator/calibration_heading.py): as the daemon does (NaN: unknown)
         params = {**params, "mag_calibration_sigma_rad": calibration_heading_sigma_rad(calibration)}
+    return params
+
+
+def _make_estimator(name: str, declination_rad: float, params: dict, aided: bool):
+    """The estimator with these parameters; `aided`: it must take GNSS fixes."""
+    from ahrsd.estimator import make_estimator
+    from ahrsd.estimator.base import GnssAidedEstimator
+
     try:
         estimator = make_estimator(name, declination_rad=declination_rad, **params)
     except ModuleNotFoundError as exc:
@@ -456,46 +469,66 @@ class _ReplayDone:
     aided: bool
     history: list
     loop_cpu_s: float
+    calibration_check: object = None   # CalibrationCheckSummary while the circle check ran, else None
+    calibration_sigma_rad: float = float("nan")
 
 
-def _output_order(aided: bool) -> tuple[list[int], int]:
-    """The replay table's columns in the output CSV's order, and the heading-state column of the table."""
-    from ahrsd.estimator.replay import ATTITUDE_COLUMNS, HEADING_COLUMNS, NAV_COLUMNS
+def _output_order(aided: bool, checked: bool = False) -> tuple[list[int], int, int]:
+    """The replay table's columns in the output CSV's order, the heading-state column of the table and where its
+    calibration check's columns start (`checked`: the table has them)."""
+    from ahrsd.estimator.replay import ATTITUDE_COLUMNS, FIELD_CIRCLE_COLUMNS, HEADING_COLUMNS, NAV_COLUMNS
 
     order = [ATTITUDE_COLUMNS.index(name) for name in OUTPUT_COLUMNS]
+    circle_col = len(ATTITUDE_COLUMNS)
     if aided:
         order += [len(ATTITUDE_COLUMNS) + NAV_COLUMNS.index(name) for name in NAV_OUTPUT_COLUMNS]
         order += [len(ATTITUDE_COLUMNS) + len(NAV_COLUMNS) + HEADING_COLUMNS.index(name)
                   for name in HEADING_OUTPUT_COLUMNS]
-    return order, len(ATTITUDE_COLUMNS) + len(NAV_COLUMNS) + HEADING_COLUMNS.index("heading_state")
+        circle_col += len(NAV_COLUMNS) + len(HEADING_COLUMNS)
+    if checked:
+        order += [circle_col + FIELD_CIRCLE_COLUMNS.index(name) for name in FIELD_CIRCLE_OUTPUT_COLUMNS]
+    return order, len(ATTITUDE_COLUMNS) + len(NAV_COLUMNS) + HEADING_COLUMNS.index("heading_state"), circle_col
 
 
-def _replay(args, estimator, calibration, fixes, trace) -> _ReplayDone:
-    """Stream the recording (calibrated) through the estimator into the output file, a table at a time."""
+def _replay(args, estimator, calibration, fixes, trace, calibration_sigma_rad=None) -> _ReplayDone:
+    """Stream the recording (calibrated) through the estimator into the output file, a table at a time;
+    `calibration_sigma_rad`: the heading error the estimator was told the calibration leaves (None: not told)."""
     import time
 
     from ahrsd.drivers.recording import RecordingFormatError, iter_samples
-    from ahrsd.estimator.replay import replay_attitude
+    from ahrsd.estimator.replay import checks_calibration, replay_attitude
 
+    from .calibration_check_summary import CalibrationCheckSummary
     from .progress import expected_rows, progress_bar
 
     aided = fixes is not None
+    circle_checked = checks_calibration(estimator, calibration_sigma_rad) is not None
+    header, row_format = (AIDED_OUTPUT_HEADER, _FORMAT + "," + _NAV_FORMAT) if aided else (OUTPUT_HEADER, _FORMAT)
+    if circle_checked:
+        header += "," + ",".join(FIELD_CIRCLE_OUTPUT_COLUMNS)
+        row_format += "," + _FIELD_CIRCLE_FORMAT
+    verdicts = CalibrationCheckSummary() if circle_checked else None
     try:
-        out = _Output(args.output, AIDED_OUTPUT_HEADER, _FORMAT + "," + _NAV_FORMAT) if aided else _Output(args.output)
+        out = _Output(args.output, header, row_format)
     except OSError as exc:
         raise ReplayError(f"{args.output}: cannot write: {exc.strerror or exc}") from None
-    checked = _CheckedSamples(args.recording, iter_samples(args.recording, strict=False))   # a file cut mid-row: its complete rows
-    samples = map(calibration.apply, checked) if calibration is not None and not calibration.is_identity else checked
+    # a file cut mid-row: its complete rows
+    checked = _CheckedSamples(args.recording, iter_samples(args.recording, strict=False))
+    samples = (map(calibration.apply, checked) if calibration is not None and not calibration.is_identity
+               else checked)
     t_run = time.process_time()
     history: list[tuple[float, int]] = []
     try:
-        order, state_col = _output_order(aided)
+        order, state_col, circle_col = _output_order(aided, circle_checked)
         true_north = args.lat is not None or aided
         with progress_bar(args, expected_rows(args.recording), "replay") as bar:
-            for table in replay_attitude(estimator, samples, true_north=true_north, fixes=fixes):
+            for table in replay_attitude(estimator, samples, true_north=true_north, fixes=fixes,
+                                         calibration_sigma_rad=calibration_sigma_rad if circle_checked else None):
                 out.write(table[:, order])
                 if aided:
                     _state_changes(table[:, 0], table[:, state_col], history)
+                if verdicts is not None:
+                    verdicts.add(table[:, 0], table[:, circle_col], table[:, circle_col + 1])
                 bar.update(len(table))
                 if trace is not None:
                     trace.add(table)
@@ -512,7 +545,8 @@ def _replay(args, estimator, calibration, fixes, trace) -> _ReplayDone:
         raise ReplayError(f"{exc.filename or args.output}: {exc.strerror or exc}") from None
     finally:
         out.discard()
-    return _ReplayDone(checked, aided, history, time.process_time() - t_run)
+    return _ReplayDone(checked, aided, history, time.process_time() - t_run, verdicts,
+                       float(calibration_sigma_rad) if circle_checked else float("nan"))
 
 
 def _print_summary(args, done: _ReplayDone, estimator_name: str, estimator, declination: float, validator,
@@ -544,5 +578,7 @@ def _print_summary(args, done: _ReplayDone, estimator_name: str, estimator, decl
              "cached afterwards; not counted)" if compile_wall_s > 0 else ""), file=sys.stderr)
     if aided:
         print(f"ahrsd replay: heading state {_history_text(done.history, done.samples.last_t)}", file=sys.stderr)
+    if done.calibration_check is not None:
+        print(f"ahrsd replay: {done.calibration_check.text(done.calibration_sigma_rad)}", file=sys.stderr)
     if args.plot:
         print(f"ahrsd replay: figure written to {args.plot}", file=sys.stderr)

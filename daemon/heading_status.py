@@ -35,6 +35,7 @@ from typing import Callable
 from ahrsd.core.estimate import EstimateFlags, HeadingState
 from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.estimator.field_circle import wrong_calibration_text
 
 STATE_LABELS = {HeadingState.UNKNOWN: "hdg unknown", HeadingState.MAGNETOMETER: "hdg mag",
                 HeadingState.GNSS_ONLY: "hdg GNSS-only", HeadingState.LEARNING: "hdg learning"}
@@ -239,8 +240,7 @@ class HeadingStatus:
         return math.isfinite(self.field_off_centre_ut) and not self.gnss_checked
 
     def _off_centre_cause(self) -> str:
-        return (f"magnetometer field off-centre by {self.field_off_centre_ut:.1f} µT in turns: calibration wrong or "
-                "iron changed")
+        return wrong_calibration_text(self.field_off_centre_ut)
 
     def _disagreement(self, integrity) -> tuple[float, bool]:
         """(magnetometer − GNSS yaw or NaN, whether it is beyond both uncertainties)."""

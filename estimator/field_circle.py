@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import IntEnum
 
 import numpy as np
 
@@ -57,6 +58,19 @@ seen from every heading."""
 N_SECTORS = 8
 """Heading sectors the coverage counts (45° each)."""
 _TWO_PI = 2.0 * math.pi
+
+
+class CalibrationVerdict(IntEnum):
+    """What the check says of the calibration in force (`FieldCircleResult.verdict`; replay's mag_cal_check column)."""
+
+    NOT_JUDGED = 0     # the field has not swept min_sectors sectors within the window: the vehicle did not turn enough
+    CONSISTENT = 1     # judged: the circle shows no more heading error than the calibration states
+    WRONG = 2          # judged: it shows more (finds_wrong)
+
+
+def wrong_calibration_text(offset_ut: float) -> str:
+    """The cause a wrong calibration is named by (the daemon's STATUSTEXT, the replay's summary)."""
+    return f"magnetometer field off-centre by {offset_ut:.1f} µT in turns: calibration wrong or iron changed"
 
 
 @dataclass(frozen=True)
@@ -107,6 +121,12 @@ class FieldCircleResult:
     def finds_wrong(self, claimed_var_rad2: float) -> bool:
         """The circle shows more heading error than the calibration claims (its heading variance, rad²)."""
         return self.significant and self.heading_var_rad2 > claimed_var_rad2
+
+    def verdict(self, claimed_var_rad2: float) -> CalibrationVerdict:
+        """Not judged (too little turning), consistent, or wrong (finds_wrong) against the claimed variance, rad²."""
+        if self.finds_wrong(claimed_var_rad2):
+            return CalibrationVerdict.WRONG
+        return CalibrationVerdict.CONSISTENT if self.covered else CalibrationVerdict.NOT_JUDGED
 
     def checked_var_rad2(self, claimed_var_rad2: float) -> float:
         """The calibration's heading variance as the published σ carries it: what it claims, or what the circle

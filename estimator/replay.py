@@ -21,7 +21,8 @@ from ahrsd.core.angles import wrap_pi
 from ahrsd.core.gnss import GnssFix
 from ahrsd.core.sample import ImuSample
 
-from .base import Estimator, GnssAidedEstimator
+from .base import Estimator, FieldCircleCheckedEstimator, GnssAidedEstimator
+from .calibration_heading import calibration_heading_variance_rad2
 from .fix_feed import GnssFixFeed
 from .rotations import quat_multiply
 
@@ -42,12 +43,17 @@ HEADING_COLUMNS = (
     "gsf_yaw_deg", "gsf_sigma_deg",            # the magnetometer-free GNSS yaw (true north) and its 1σ; NaN: none yet
     "heading_state",                           # HeadingState as an integer (0 unknown, 1 magnetometer, 2 GNSS only, 3 learning)
 )
+FIELD_CIRCLE_COLUMNS = (
+    "mag_cal_check",                           # field_circle.CalibrationVerdict: 0 not judged, 1 consistent, 2 wrong
+    "mag_field_centre_ut",                     # |the levelled field circle's centre|, µT; NaN while not judged
+)
 CHUNK_ROWS = 16384   # rows per table yielded (memory stays constant for long recordings)
 _DEG = 180.0 / math.pi
 
 
 def replay_attitude(estimator: Estimator, samples: Iterable[ImuSample], true_north: bool = False,
-                    chunk_rows: int = CHUNK_ROWS, fixes: Iterable[GnssFix] | None = None) -> Iterator[np.ndarray]:
+                    chunk_rows: int = CHUNK_ROWS, fixes: Iterable[GnssFix] | None = None,
+                    calibration_sigma_rad: float | None = None) -> Iterator[np.ndarray]:
     """Feed `samples` to `estimator.update` in order and yield the output as float64 tables of at most
     `chunk_rows` rows × len(ATTITUDE_COLUMNS) (+ len(NAV_COLUMNS) with `fixes`).
 
@@ -56,6 +62,10 @@ def replay_attitude(estimator: Estimator, samples: Iterable[ImuSample], true_nor
     estimated. Rows before the estimator initialised have NaN quaternion and angles.
     fixes: GNSS fixes in time order, for an aided estimator (base.GnssAidedEstimator), offered in time order
     with the samples; the table then ends with NAV_COLUMNS and HEADING_COLUMNS.
+    calibration_sigma_rad: the heading error (1σ) the estimator was told the calibration leaves; with it, and an
+    estimator that checks the calibration by the field's circle in turns (field_circle.py; `field_circle()` not
+    None), the table ends with FIELD_CIRCLE_COLUMNS: the check's verdict against that figure per sample, as the
+    daemon judges it (daemon/heading_status.py).
     """
     if fixes is not None and not isinstance(estimator, GnssAidedEstimator):
         raise ValueError(f"estimator {estimator.name!r} takes no GNSS fixes (not aided)")
@@ -67,6 +77,9 @@ def replay_attitude(estimator: Estimator, samples: Iterable[ImuSample], true_nor
     feed = GnssFixFeed(estimator, fixes) if fixes is not None else None
     no_nav = (nan,) * len(NAV_COLUMNS)
     no_gsf = (nan, nan)
+    circle = checks_calibration(estimator, calibration_sigma_rad)
+    claimed_var = calibration_heading_variance_rad2(calibration_sigma_rad) if circle is not None else nan
+    result = verdict_cols = None
     for sample in samples:
         if feed is not None:
             feed.offer_until(sample.t_s)
@@ -85,6 +98,13 @@ def replay_attitude(estimator: Estimator, samples: Iterable[ImuSample], true_nor
             row += no_nav if nav is None else (*nav.vel_ned_m_s.tolist(), nav.lat_deg, nav.lon_deg, nav.alt_m)
             hi = est.integrity
             row += (no_gsf if hi is None else (hi.gsf_yaw_rad * deg, hi.gsf_sigma_rad * deg)) + (int(est.heading_state),)
+        if circle is not None:
+            r = circle()
+            if r is not result:      # a new result only once a second (field_circle.py solve_period_s)
+                result = r
+                v = r.verdict(claimed_var)
+                verdict_cols = (int(v), r.offset_ut if v else nan)
+            row += verdict_cols
         append(row)
         if len(rows) >= chunk_rows:
             yield _finish_table(rows, true_north)
@@ -92,6 +112,14 @@ def replay_attitude(estimator: Estimator, samples: Iterable[ImuSample], true_nor
             append = rows.append
     if rows:
         yield _finish_table(rows, true_north)
+
+
+def checks_calibration(estimator: Estimator, calibration_sigma_rad: float | None):
+    """The estimator's `field_circle` (its calibration check's latest result) when a calibration figure is given
+    and the estimator runs the check, else None."""
+    if calibration_sigma_rad is None or not isinstance(estimator, FieldCircleCheckedEstimator):
+        return None
+    return estimator.field_circle if estimator.field_circle() is not None else None
 
 
 def _finish_table(rows: list[tuple], true_north: bool) -> np.ndarray:
