@@ -1,0 +1,87 @@
+"""A field magnetometer calibration session leaves the estimator alone until its result is accepted (#28, #30:
+the README tour saw mekf's heading 1σ peak 0.1–0.4° higher in daemons running a session). The same simulated
+boat samples go through the daemon's own parts — the sample reader, the pipeline, mekf on a right calibration with
+its stated figure, and the field calibration (daemon.magcal.FieldCalibrationPart as Service wires it, ticked on
+the samples' clock) — once without a session and once with one started 5 s in and run to its result, left
+unanswered as `ahrsd magcal start </dev/null` leaves it. Every published attitude and 1σ must be the same bit for
+bit: what differed in the tour was the daemon's start (docs/magcal-field.md "A session and the heading 1σ")."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+pytest.importorskip("ahrsd.daemon.service")
+
+from ahrsd.calibration.field import CalStatus  # noqa: E402
+from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad  # noqa: E402
+from ahrsd.calibration.models import Calibration, MagModel  # noqa: E402
+from ahrsd.core.sample import SampleFlags, make_sample  # noqa: E402
+from ahrsd.daemon.config import Config  # noqa: E402
+from ahrsd.daemon.magcal import CMD_START, DaemonMagCalHost, FieldCalibrationPart  # noqa: E402
+from ahrsd.daemon.magcal_settings import MagCalSettings  # noqa: E402
+from ahrsd.daemon.pipeline import Pipeline  # noqa: E402
+from ahrsd.daemon.service import Service  # noqa: E402
+from ahrsd.estimator.mekf import Mekf  # noqa: E402
+from ahrsd.simulation import open_stream  # noqa: E402
+
+RUN_S = 100.0
+START_AT_S = 5.0
+TICK_S = 0.1      # the part's ticker period at the default progress rate (daemon.magcal: ≥ 10 Hz)
+
+
+def _run(tmp_path, with_session: bool):
+    """(t, roll, pitch, yaw, σ roll, σ pitch, σ yaw) every TICK_S, and the session's last status (None without)."""
+    svc = Service(Config().with_overrides(state_dir=str(tmp_path)))
+    stream = open_stream("level-turns", seed=1)
+    e = stream.errors
+    right = Calibration.identity().with_sensor("mag", MagModel(e.hard_iron_ut, np.linalg.inv(e.soft_iron)),
+                                               method="test", heading_std_deg=0.09, offset_std_deg=0.09)
+    estimator = Mekf()
+    svc.use_pipeline(Pipeline(estimator, right))
+    estimator.set_mag_calibration_sigma(calibration_heading_sigma_rad(right))      # as Service.start does
+    now = [0.0]
+    host = DaemonMagCalHost(svc.pipeline, svc.swap, svc.outbound, svc.autopilot, svc.positions, svc.heading.slew)
+    part = FieldCalibrationPart(host, MagCalSettings(), commands=svc.commands, autopilot=svc.autopilot,
+                                set_calibrating=svc.set_calibrating, clock=lambda: now[0], warm_fit_worker=False)
+    part.protocol.fit_in_process = False      # fits in a thread: no worker process to start
+    part._task = object()                     # no asyncio ticker: ticked below on the samples' clock
+    svc.listeners.add(part.on_sample, in_place=True)        # as Service._start_field_calibration adds it
+    start = SimpleNamespace(command=CMD_START, param1=0.0, param2=0.0, param3=0.0, param4=0.0, param5=0.0,
+                            param6=0.0, param7=0.0, get_type=lambda: "COMMAND_LONG")
+    rows, k, next_tick, started = [], 0, 0.0, False
+    while True:
+        b = stream.next_block(4096)
+        for i in range(len(b.t_s)):
+            t = float(b.t_s[i])
+            now[0] = t
+            if t >= RUN_S:
+                s = part.protocol.session
+                return np.array(rows), (s.status if s is not None else None), part
+            if with_session and not started and t >= START_AT_S:
+                assert part.protocol.handle_start(start) == 0      # MAV_RESULT_ACCEPTED
+                started = True
+            svc.reader.process((make_sample(t, b.gyro_rad_s[i], b.accel_m_s2[i], b.mag_ut[i], counter=k,
+                                            flags=SampleFlags.NEW_DATA),), t)
+            k += 1
+            if t >= next_tick:
+                next_tick = t + TICK_S
+                part.tick()
+                est = svc.pipeline.last_estimate
+                rows.append((t, est.roll_rad, est.pitch_rad, est.yaw_rad, *est.sigma_rpy_rad))
+
+
+def test_a_running_session_changes_no_published_attitude_or_sigma(tmp_path):
+    without, status_without, _ = _run(tmp_path / "a", with_session=False)
+    with_, status, part = _run(tmp_path / "b", with_session=True)
+    assert status_without is None
+    # the session ran its whole course: it took samples, fitted and waits for an answer
+    assert status == CalStatus.SUCCESS and not part.protocol.saved, status
+    assert part.protocol.session.result is not None
+    assert len(with_) == len(without) and np.all(np.isfinite(without[20:]))
+    # the heading 1σ moves over the run (the boat's turns): the comparison is not of a constant
+    assert np.ptp(without[20:, 6]) > math.radians(1.0)
+    assert np.array_equal(with_, without), np.max(np.abs(with_ - without), axis=0)
