@@ -363,6 +363,12 @@ _MAX_QUEUED = 16
 HEADING_CHECKS_KEPT = 128   # the latest heading checks a reader can look at (`Ins.heading_checks`)
 _MAG_ROTATION_GATE = 9.0    # NIS above which a magnetometer-rotation bias measurement is not fused (3σ)
 _NAV_MASK = sum(1 << j for j in range(core.E_V, core.E_P + 3))   # velocity and position: no gain
+_PYTHON_CALLED_KERNELS_LOADED = False   # Ins._load_python_called_kernels has run in this process
+
+
+def _loaded_python_called_kernels() -> None:
+    global _PYTHON_CALLED_KERNELS_LOADED
+    _PYTHON_CALLED_KERNELS_LOADED = True
 
 # where each output lies in the flat float64 view of an INS_OUT_DTYPE record
 _OUT = AttitudeFields(core.INS_OUT_DTYPE)
@@ -421,6 +427,7 @@ class Ins:
         self._gsf = self._gsf_arr[0]
         self._par["gnss_yaw"] = 1.0 if self.params.gnss_yaw else 0.0
         self._step = core.fast_step(self._step_args_example())
+        self._load_python_called_kernels()
         self._iron = IronLearner(self.params.iron_prior_sigma_ut, self.params.iron_soft_prior)
         self._iron_last_t = None
         self._iron_restored = False
@@ -441,6 +448,32 @@ class Ins:
         return (x, np.eye(core.N_ERR), np.zeros(core.H_LEN, core.INS_HISTORY_DTYPE), self._par_arr.copy(),
                 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, -9.8, 20.0, 0.0, 40.0, 0, np.zeros(1, core.INS_OUT_DTYPE), gsf,
                 self._gsf_par_arr)
+
+    def _load_python_called_kernels(self) -> None:
+        """Load the kernels this class calls from Python (numba's on-disk cache) for the types it calls them with,
+        once per process, here at construction: a kernel's first call types its arguments and loads its machine
+        code (milliseconds each, docs/daemon.md "Performance"), which would otherwise fall on the first fix, the
+        first heading check and the first yaw reset in the daemon's event loop. Later calls go through numba's
+        dispatcher as before (same compiled code); a call with other types just loads its own at its first call."""
+        if _PYTHON_CALLED_KERNELS_LOADED:
+            return
+        x, par, gsf, gsf_par = self._x, self._par, self._gsf, self._gsf_par
+        dx = np.zeros(core.N_ERR)
+        v3 = np.zeros(3)
+        for kernel, args in (
+                (core.fuse_gnss, (self._x_arr, self._P, self._hist, self._par_arr) + (0.0,) * 10 + (True,) * 4),
+                (gsf_fuse_velocity, (gsf, gsf_par, 0.0, v3, 0.0)),
+                (gsf_output, (gsf,)),
+                (gsf_reset, (gsf, gsf_par, 0.0, np.zeros(4))),
+                (scalar_update, (self._P, dx, 0.0, 0.0, _NAV_MASK, dx)),
+                (core._apply_correction, (x, par, dx)),
+                (core._correct_history, (self._hist, x, 0.0, dx, 0.0, 0.0, 0.0)),
+                (core._rotate_attitude, (x["q"], 0.0, 0.0, 0.0)),
+                (core._history_at, (x, self._hist, 0.0)),
+                (core.fill_outputs, (x, self._P, par, 0.0, 0.0, 0.0, self._out)),
+                (input_validity, (0,) + (0.0,) * 9)):
+            kernel.compile(tuple(kernel.typeof_pyval(a) for a in args))
+        _loaded_python_called_kernels()
 
     def _new_heading_checks(self) -> None:
         p = self.params
@@ -1228,9 +1261,9 @@ class Ins:
         dv = np.zeros(3)
         dv[:m] = v_fix[:m] - v_ant[:m]
         x["vel_ned_m_s"] += dv
-        n = int(x["hist_count"])
-        for k in range(n):
-            hist["vel_ned_m_s"][(int(x["hist_newest"]) - k) % core.H_LEN] += dv
+        # every kept row once (hist_count ≤ H_LEN): one indexed add, not a Python loop over up to H_LEN rows
+        rows = (int(x["hist_newest"]) - np.arange(int(x["hist_count"]))) % core.H_LEN
+        hist["vel_ned_m_s"][rows] += dv
         P = self._P
         for i in range(m):
             e = core.E_V + i
