@@ -48,7 +48,7 @@ from .params import with_overrides
 from .estimate_view import BuiltEstimateView, EstimateView
 from .field_circle import SKIPPED_FLAGS, FieldCircleCheck, FieldCircleParams, FieldCircleResult
 from .published_heading import PublishedHeading
-from .rotations import quat_to_dcm, quat_to_euler, rotvec_to_dcm
+from .rotations import quat_to_dcm, quat_to_euler, rotvec_to_dcm_3
 
 log = logging.getLogger(__name__)
 _DEG = math.pi / 180.0
@@ -363,6 +363,12 @@ _MAX_QUEUED = 16
 HEADING_CHECKS_KEPT = 128   # the latest heading checks a reader can look at (`Ins.heading_checks`)
 _MAG_ROTATION_GATE = 9.0    # NIS above which a magnetometer-rotation bias measurement is not fused (3σ)
 _NAV_MASK = sum(1 << j for j in range(core.E_V, core.E_P + 3))   # velocity and position: no gain
+_PYTHON_CALLED_KERNELS_LOADED = False   # Ins._load_python_called_kernels has run in this process
+
+
+def _loaded_python_called_kernels() -> None:
+    global _PYTHON_CALLED_KERNELS_LOADED
+    _PYTHON_CALLED_KERNELS_LOADED = True
 
 # where each output lies in the flat float64 view of an INS_OUT_DTYPE record
 _OUT = AttitudeFields(core.INS_OUT_DTYPE)
@@ -421,6 +427,7 @@ class Ins:
         self._gsf = self._gsf_arr[0]
         self._par["gnss_yaw"] = 1.0 if self.params.gnss_yaw else 0.0
         self._step = core.fast_step(self._step_args_example())
+        self._load_python_called_kernels()
         self._iron = IronLearner(self.params.iron_prior_sigma_ut, self.params.iron_soft_prior)
         self._iron_last_t = None
         self._iron_restored = False
@@ -441,6 +448,32 @@ class Ins:
         return (x, np.eye(core.N_ERR), np.zeros(core.H_LEN, core.INS_HISTORY_DTYPE), self._par_arr.copy(),
                 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, -9.8, 20.0, 0.0, 40.0, 0, np.zeros(1, core.INS_OUT_DTYPE), gsf,
                 self._gsf_par_arr)
+
+    def _load_python_called_kernels(self) -> None:
+        """Load the kernels this class calls from Python (numba's on-disk cache) for the types it calls them with,
+        once per process, here at construction: a kernel's first call types its arguments and loads its machine
+        code (milliseconds each, docs/daemon.md "Performance"), which would otherwise fall on the first fix, the
+        first heading check and the first yaw reset in the daemon's event loop. Later calls go through numba's
+        dispatcher as before (same compiled code); a call with other types just loads its own at its first call."""
+        if _PYTHON_CALLED_KERNELS_LOADED:
+            return
+        x, par, gsf, gsf_par = self._x, self._par, self._gsf, self._gsf_par
+        dx = np.zeros(core.N_ERR)
+        v3 = np.zeros(3)
+        for kernel, args in (
+                (core.fuse_gnss, (self._x_arr, self._P, self._hist, self._par_arr) + (0.0,) * 10 + (True,) * 4),
+                (gsf_fuse_velocity, (gsf, gsf_par, 0.0, v3, 0.0)),
+                (gsf_output, (gsf,)),
+                (gsf_reset, (gsf, gsf_par, 0.0, np.zeros(4))),
+                (scalar_update, (self._P, dx, 0.0, 0.0, _NAV_MASK, dx)),
+                (core._apply_correction, (x, par, dx)),
+                (core._correct_history, (self._hist, x, 0.0, dx, 0.0, 0.0, 0.0)),
+                (core._rotate_attitude, (x["q"], 0.0, 0.0, 0.0)),
+                (core._history_at, (x, self._hist, 0.0)),
+                (core.fill_outputs, (x, self._P, par, 0.0, 0.0, 0.0, self._out)),
+                (input_validity, (0,) + (0.0,) * 9)):
+            kernel.compile(tuple(kernel.typeof_pyval(a) for a in args))
+        _loaded_python_called_kernels()
 
     def _new_heading_checks(self) -> None:
         p = self.params
@@ -842,10 +875,12 @@ class Ins:
         yaw = math.atan2(c_bn[1, 0], c_bn[0, 0])
         yaw_var = float(self._P[core.E_YAW, core.E_YAW])
         m_body = self._iron.corrected(x["mag_last_ut"])
+        # the position does not move within a check (its updates give no position gain): one WMM look-up
+        field = self._earth_field_ned()
         if self._mag_rotation_on:
-            self._mag_rotation_check(t_s, c_bn)
+            self._mag_rotation_check(t_s, c_bn, field)
         mag_yaw, mag_var, noise = self._magnetometer_heading(c_bn, yaw, m_body)
-        trust_var = self._magnetometer_trust_var(mag_var, noise)
+        trust_var = self._magnetometer_trust_var(mag_var, noise, field)
         gsf_yaw, gsf_var, gsf_valid = self._gnss_yaw()
         d = self._monitor_decision(t_s, yaw, yaw_var, mag_yaw, mag_var, noise, trust_var, gsf_yaw, gsf_var,
                                    gsf_valid)
@@ -857,14 +892,14 @@ class Ins:
         iron_updates = self._iron.updates
         if self.params.iron_learning and self._monitor.learning and np.all(np.isfinite(m_body)) \
                 and self._x["nav_ok"] > 0:
-            self._learn_iron(t_s, c_bn)
+            self._learn_iron(t_s, c_bn, field)
         yaw_now = yaw if yaw_reset_to is None else wrap_pi(yaw_reset_to)
         self._publish_heading_checks(t_s, yaw_now, gsf_yaw, gsf_var, gsf_valid)
         self.heading_checks.append(HeadingCheckRecord(t_s, d.mag_use, d.yaw_var_floor_rad2,
                                                       float(self._P[core.E_YAW, core.E_YAW]), yaw_reset_to,
                                                       self._iron.updates > iron_updates))
 
-    def _mag_rotation_check(self, t_s: float, c_bn: np.ndarray) -> None:
+    def _mag_rotation_check(self, t_s: float, c_bn: np.ndarray, field: np.ndarray | None) -> None:
         """The vertical gyro bias from the magnetometer's turning (MagRotationBias, mag_rotation.py): the gyro's
         rotation since the last check (less the bias estimate and the Earth's rotation, which turns the field with
         it) goes into the window; a completed window's b_z − b̂_z is fused as a measurement of the bias, less what
@@ -875,10 +910,9 @@ class Ins:
         dt = float(x["gyro_rotation_s"])      # the kernel's sum of raw rates: the bias is taken out here
         lat = float(x["lat_rad"])
         earth_rate = EARTH_RATE_RAD_S * np.array([math.cos(lat), 0.0, -math.sin(lat)])
-        step = rotvec_to_dcm(x["gyro_rotation_rad"] - (x["gyro_bias_rad_s"] + c_bn.T @ earth_rate) * dt)
+        step = rotvec_to_dcm_3(x["gyro_rotation_rad"] - (x["gyro_bias_rad_s"] + c_bn.T @ earth_rate) * dt)
         x["gyro_rotation_rad"] = 0.0
         x["gyro_rotation_s"] = 0.0
-        field = self._earth_field_ned()
         m = x["mag_last_ut"]
         if field is None or not np.all(np.isfinite(m)) or x["nav_ok"] <= 0 or dt <= 0.0:
             self._mag_rotation.restart()
@@ -935,7 +969,7 @@ class Ins:
                         + self._iron.heading_variance(c_bn, m_ned)
         return mag_yaw, mag_var, noise
 
-    def _magnetometer_trust_var(self, mag_var: float, noise: float) -> float:
+    def _magnetometer_trust_var(self, mag_var: float, noise: float, field: np.ndarray | None) -> float:
         """The magnetometer heading's slowly varying error variance that the heading state and the end of the iron
         learning are judged on, rad²: the calibration's; with a learned iron, what the iron leaves at the worst
         heading of a level vehicle (IronLearner.level_heading_variance) plus the floor of what a learned iron
@@ -945,7 +979,6 @@ class Ins:
         stopping and restarting the learning and flipping the published state MAGNETOMETER ↔ LEARNING each time
         the boat turned (docs/gnss.md "Heading state"). This one only falls while learning."""
         p = self.params
-        field = self._earth_field_ned()
         if not (self._iron.updates > 0 or self._iron_restored) or field is None or not math.isfinite(mag_var):
             return mag_var - noise if math.isfinite(mag_var) else math.nan
         h2 = float(field[0] ** 2 + field[1] ** 2)
@@ -1064,11 +1097,10 @@ class Ins:
             learned = self._iron.updates > 0 or self._iron_restored
             self._par["mag_bias_tau_s"] = p.iron_learned_tau_s if learned else p.mag_bias_tau
 
-    def _learn_iron(self, t_s: float, c_bn: np.ndarray) -> None:
+    def _learn_iron(self, t_s: float, c_bn: np.ndarray, field: np.ndarray | None) -> None:
         """One step of the iron learning (IronLearner) against the WMM field at the filter's position, with the
         attitude c_bn and its covariance; the kernel then removes the learned iron."""
         p = self.params
-        field = self._earth_field_ned()
         if field is None:
             return
         dt = max(t_s - (self._iron_last_t if self._iron_last_t is not None else t_s - 0.2), 1e-3)
@@ -1088,7 +1120,7 @@ class Ins:
         if self._unconfirmed_sigma_rad > sig:
             sig = self._unconfirmed_sigma_rad
         self._integrity = HeadingIntegrity(gsf_yaw, math.sqrt(gsf_var) if math.isfinite(gsf_var) else math.nan,
-                                           gsf_valid, self._monitor.disagreement_rad, self._iron.offset_ut.copy(),
+                                           gsf_valid, self._monitor.disagreement_rad, self._iron.offset_ut,
                                            self._iron.sigma_ut)
         raw = self._monitor.heading_state(sig, False, True, p.heading_unknown_sigma_rad, self._mag_trust_var)
         if raw == HeadingState.MAGNETOMETER and self._mag_state()["since_update_s"] > p.mag_unavailable_s:
@@ -1228,9 +1260,9 @@ class Ins:
         dv = np.zeros(3)
         dv[:m] = v_fix[:m] - v_ant[:m]
         x["vel_ned_m_s"] += dv
-        n = int(x["hist_count"])
-        for k in range(n):
-            hist["vel_ned_m_s"][(int(x["hist_newest"]) - k) % core.H_LEN] += dv
+        # every kept row once (hist_count ≤ H_LEN): one indexed add, not a Python loop over up to H_LEN rows
+        rows = (int(x["hist_newest"]) - np.arange(int(x["hist_count"]))) % core.H_LEN
+        hist["vel_ned_m_s"][rows] += dv
         P = self._P
         for i in range(m):
             e = core.E_V + i

@@ -1,0 +1,52 @@
+"""Ins loads the compiled kernels it calls from Python at construction, not at their first call: the first
+call types the arguments and loads the machine code from numba's cache (milliseconds each), which in the daemon
+would fall on its event loop at the first fix, heading check and yaw alignment. A fresh interpreter, so that
+nothing else has loaded them before."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+_SCRIPT = r"""
+import json, math
+import numba.core.dispatcher as dispatcher
+from ahrsd.core.sample import SampleFlags, make_sample
+from ahrsd.estimator.ins import Ins
+from bench.vehicle_accuracy import HONESTY_SITES, simulate_vehicle
+
+site, iron = HONESTY_SITES["held-out"]
+run = simulate_vehicle("car", 20.0, 14, site, mag="uncalibrated", iron=iron)
+est = Ins(declination_rad=run.declination_rad, lever_arm_m=run.lever_arm_m,
+          mag_calibration_sigma_rad=run.mag_calibration_sigma_rad)
+loaded = []
+compile_for_args = dispatcher.Dispatcher._compile_for_args
+
+
+def counted(self, *args, **kws):
+    loaded.append(self.py_func.__name__)
+    return compile_for_args(self, *args, **kws)
+
+
+dispatcher.Dispatcher._compile_for_args = counted
+fi = 0
+for k, t in enumerate(run.t_s):
+    while fi < len(run.fixes) and run.fixes[fi].extra["t_rx_s"] <= t:
+        est.update_gnss(run.fixes[fi])
+        fi += 1
+    est.update(make_sample(t, run.gyro_rad_s[k], run.accel_m_s2[k], run.mag_ut[k], flags=SampleFlags.NEW_DATA))
+print(json.dumps({"loaded_in_run": loaded, "alignments": est.gnss_yaw_alignments,
+                  "checks": len(est.heading_checks)}))
+"""
+
+
+def test_no_kernel_is_loaded_after_construction_through_a_gnss_yaw_alignment():
+    """The held-out car from start-up through its first fixes, heading checks and the alignment to the GNSS yaw
+    (a yaw reset: attitude, history and velocity corrected): numba's dispatcher compiles (or loads) nothing after
+    `Ins()`. Broken (the loading at construction dropped): fuse_gnss, the GNSS yaw bank's kernels, the history
+    corrections and fill_outputs are loaded in the run."""
+    out = subprocess.run([sys.executable, "-c", _SCRIPT], capture_output=True, text=True, timeout=600, check=True)
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    assert result["alignments"] == 1 and result["checks"] > 10      # the paths were taken
+    assert result["loaded_in_run"] == []
