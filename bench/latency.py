@@ -180,7 +180,9 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
             source_args = ["--iio", str(device.sysfs)]
         else:
             source_args = ["--sim", scenario]
-        save_mag_calibration(tmp, sim_chip_mag_model())    # without it (and GNSS) no heading, no VPE, is sent
+        # the scenario's own iron (the boat's is not the static chip's): without a calibration (and GNSS) no
+        # heading, no VPE, is sent, and with a wrong one the GNSS path would be measured rejecting it
+        save_mag_calibration(tmp, sim_chip_mag_model(scenario))
         proc = subprocess.Popen(
             [sys.executable, "-m", "ahrsd.cli", "run", *source_args, *(("--gnss-sim",) if gnss else ()),
              "--config", str(config),
