@@ -48,7 +48,7 @@ from .params import with_overrides
 from .estimate_view import BuiltEstimateView, EstimateView
 from .field_circle import SKIPPED_FLAGS, FieldCircleCheck, FieldCircleParams, FieldCircleResult
 from .published_heading import PublishedHeading
-from .rotations import quat_to_dcm, quat_to_euler, rotvec_to_dcm_3
+from .rotations import quat_to_dcm, quat_to_euler, rotvec_to_dcm
 
 log = logging.getLogger(__name__)
 _DEG = math.pi / 180.0
@@ -910,7 +910,7 @@ class Ins:
         dt = float(x["gyro_rotation_s"])      # the kernel's sum of raw rates: the bias is taken out here
         lat = float(x["lat_rad"])
         earth_rate = EARTH_RATE_RAD_S * np.array([math.cos(lat), 0.0, -math.sin(lat)])
-        step = rotvec_to_dcm_3(x["gyro_rotation_rad"] - (x["gyro_bias_rad_s"] + c_bn.T @ earth_rate) * dt)
+        step = rotvec_to_dcm(x["gyro_rotation_rad"] - (x["gyro_bias_rad_s"] + c_bn.T @ earth_rate) * dt)
         x["gyro_rotation_rad"] = 0.0
         x["gyro_rotation_s"] = 0.0
         m = x["mag_last_ut"]

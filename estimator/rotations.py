@@ -225,24 +225,6 @@ def rotvec_to_dcm(rotvec_rad) -> np.ndarray:
     return quat_to_dcm(quat_exp(rotvec_rad))
 
 
-def rotvec_to_dcm_3(rotvec_rad) -> np.ndarray:
-    """`rotvec_to_dcm` of one 3-vector in scalar arithmetic: the same operations in the same order (numpy's sin and
-    cos, as `quat_exp`), so bit-identical, without the array steps (the heading checks call it at every fix)."""
-    v0, v1, v2 = float(rotvec_rad[0]), float(rotvec_rad[1]), float(rotvec_rad[2])
-    theta = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-    if theta < _SMALL_ANGLE_RAD:
-        half_sinc, w = 0.5 - theta * theta / 48.0, 1.0 - theta * theta / 8.0
-    else:
-        half_sinc, w = float(np.sin(0.5 * theta)) / theta, float(np.cos(0.5 * theta))
-    x, y, z = half_sinc * v0, half_sinc * v1, half_sinc * v2
-    xx, yy, zz = x * x, y * y, z * z
-    xy, xz, yz = x * y, x * z, y * z
-    wx, wy, wz = w * x, w * y, w * z
-    return np.array([[1.0 - 2.0 * (yy + zz), 2.0 * (xy - wz), 2.0 * (xz + wy)],
-                     [2.0 * (xy + wz), 1.0 - 2.0 * (xx + zz), 2.0 * (yz - wx)],
-                     [2.0 * (xz - wy), 2.0 * (yz + wx), 1.0 - 2.0 * (xx + yy)]])
-
-
 def dcm_to_rotvec(c) -> np.ndarray:
     """Rotation vector of a DCM."""
     return quat_log(dcm_to_quat(c))
@@ -325,7 +307,7 @@ def dcm_angle_between(a, b) -> np.ndarray:
 __all__ = [
     "quat_normalize", "quat_canonical", "quat_conjugate", "quat_multiply",
     "quat_rotate", "quat_to_dcm", "dcm_to_quat", "euler_to_dcm", "dcm_to_euler", "euler_to_quat",
-    "quat_to_euler", "quat_exp", "quat_log", "rotvec_to_dcm", "rotvec_to_dcm_3", "dcm_to_rotvec", "quat_integrate", "skew",
+    "quat_to_euler", "quat_exp", "quat_log", "rotvec_to_dcm", "dcm_to_rotvec", "quat_integrate", "skew",
     "reorthonormalize", "reorthonormalize_rows", "dcm_rows_to_quat", "orthonormality_error", "quat_from_scalar_last", "quat_to_scalar_last",
     "quat_angle_between", "dcm_angle_between",
 ]

@@ -240,14 +240,3 @@ def test_integrate_constant_rate(n):
     expected = (scipy_rot(q0) * Rotation.from_rotvec(w)).as_matrix()
     np.testing.assert_allclose(rot.quat_to_dcm(q), expected, atol=1e-14)
 
-
-def test_rotvec_to_dcm_3_is_scipys_rotation_and_bit_identical_to_rotvec_to_dcm():
-    # the heading checks' scalar form must give the array form's bytes (the filter's outputs stay bit-identical)
-    # and the rotation itself (scipy, independent), over angles from below the small-angle branch to beyond π
-    rng = np.random.default_rng(7)
-    for scale in (0.0, 1e-9, 5e-7, 1e-6, 1e-4, 0.01, 0.3, 1.0, 3.0, 5.0):
-        for _ in range(200):
-            v = rng.standard_normal(3) * scale
-            c = rot.rotvec_to_dcm_3(v)
-            assert c.tobytes() == rot.rotvec_to_dcm(v).tobytes()
-            assert np.allclose(c, Rotation.from_rotvec(v).as_matrix(), rtol=0.0, atol=1e-12)
