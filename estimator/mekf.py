@@ -296,8 +296,7 @@ class Mekf:
         its quality unknown): from the next estimate the published yaw 1σ includes it (calibration_heading.py),
         and the circle check (field_circle.py) starts again on it."""
         self.params = replace(self.params, mag_calibration_sigma_rad=float(sigma_rad))
-        self._buf[0]["par"]["heading_calibration_var_rad2"] = calibration_heading_variance_rad2(float(sigma_rad))
-        self._set_field_circle()
+        self._set_field_circle()        # it also states the calibration's variance to the kernel
 
     def _set_field_circle(self) -> None:
         """Start the circle check again (a new calibration, a reset). It runs while a calibration states its
