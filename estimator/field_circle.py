@@ -135,9 +135,9 @@ class FieldCircleResult:
 
 
 class FieldCircleCheck:
-    """`add(t_s, roll_rad, pitch_rad, mag_body_ut, tilt_sigma_rad)` from `due_t_s` on (it takes one per
-    period_s; a caller skipping a field sets `due_t_s` itself); True when a new `result` was judged. `reset()`
-    forgets everything (a new calibration)."""
+    """`add(t_s, roll_rad, pitch_rad, mag_body_ut, tilt_sigma_rad, estimate_flags)` from `due_t_s` on (it takes one
+    per period_s, none of an estimate flagged SKIPPED_FLAGS); True when a new `result` was judged. `reset()` forgets
+    everything (a new calibration)."""
 
     def __init__(self, params: FieldCircleParams | None = None):
         self.params = params or FieldCircleParams()
@@ -155,10 +155,14 @@ class FieldCircleCheck:
         self._next_solve_t_s = -math.inf
         self.result = FieldCircleResult()
 
-    def add(self, t_s: float, roll_rad: float, pitch_rad: float, mag_body_ut, tilt_sigma_rad: float) -> bool:
+    def add(self, t_s: float, roll_rad: float, pitch_rad: float, mag_body_ut, tilt_sigma_rad: float,
+            estimate_flags: int = 0) -> bool:
         if t_s < self.due_t_s:
             return False
         p = self.params
+        if estimate_flags & SKIPPED_FLAGS:
+            self.due_t_s = t_s + p.period_s
+            return False
         mx, my, mz = float(mag_body_ut[0]), float(mag_body_ut[1]), float(mag_body_ut[2])
         if not (math.isfinite(mx) and math.isfinite(my) and math.isfinite(mz)
                 and math.isfinite(roll_rad) and math.isfinite(pitch_rad)):

@@ -46,7 +46,7 @@ from .mag_rotation import MagRotationBias
 from .constrained_update import scalar_update
 from .params import with_overrides
 from .estimate_view import BuiltEstimateView, EstimateView
-from .field_circle import SKIPPED_FLAGS, FieldCircleCheck, FieldCircleParams, FieldCircleResult
+from .field_circle import FieldCircleCheck, FieldCircleParams, FieldCircleResult
 from .published_heading import PublishedHeading
 from .rotations import quat_to_dcm, quat_to_euler, rotvec_to_dcm
 
@@ -515,13 +515,10 @@ class Ins:
 
     def _check_field_circle(self, t_s: float, m, f: int) -> None:
         """One levelled field (with the learned iron removed, as the kernel removes it) into the circle check."""
-        if f & SKIPPED_FLAGS:
-            self._field_circle.due_t_s = t_s + self._field_circle.params.period_s
-            return
         m_used = self._iron.corrected(m)
         o = self._out_flat
         self._field_circle.add(t_s, float(o[_OUT_EULER.start]), float(o[_OUT_EULER.start + 1]), m_used,
-                               max(float(o[_OUT_SIGMA.start]), float(o[_OUT_SIGMA.start + 1])))
+                               max(float(o[_OUT_SIGMA.start]), float(o[_OUT_SIGMA.start + 1])), f)
 
     def field_circle_check(self) -> FieldCircleResult | None:
         """What the circle check found (field_circle.py) while it widens the published σ (before the first fix); None

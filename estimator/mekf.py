@@ -37,7 +37,7 @@ from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate,
                             float_field_slice, uninitialised_estimate)
 from .calibration_heading import calibration_heading_variance_rad2
 from .estimate_view import EstimateView
-from .field_circle import SKIPPED_FLAGS, FieldCircleCheck, FieldCircleParams, FieldCircleResult
+from .field_circle import FieldCircleCheck, FieldCircleParams, FieldCircleResult
 from .initial_attitude import initial_attitude
 from .mag_heading import RELEARN_GATE_OPEN_S, heading_params, relearn_reference, widen_after_calibration_change
 from .mag_heading_params import MagHeadingParams
@@ -312,12 +312,9 @@ class Mekf:
     def _check_field_circle(self, t_s: float, m, f: int) -> None:
         """One levelled field into the circle check (at its own rate, after start-up); its verdict into the published
         σ's calibration term."""
-        if f & SKIPPED_FLAGS:
-            self._field_circle.due_t_s = t_s + self._field_circle.params.period_s
-            return
         self._read_euler()
         e, sig = self._euler_out, self._sigma_out
-        if self._field_circle.add(t_s, float(e[0]), float(e[1]), m, max(float(sig[0]), float(sig[1]))):
+        if self._field_circle.add(t_s, float(e[0]), float(e[1]), m, max(float(sig[0]), float(sig[1])), f):
             self._buf[0]["par"]["heading_calibration_var_rad2"] = self._field_circle.result.checked_var_rad2(
                 calibration_heading_variance_rad2(self.params.mag_calibration_sigma_rad))
 
