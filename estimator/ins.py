@@ -365,11 +365,6 @@ _MAG_ROTATION_GATE = 9.0    # NIS above which a magnetometer-rotation bias measu
 _NAV_MASK = sum(1 << j for j in range(core.E_V, core.E_P + 3))   # velocity and position: no gain
 _PYTHON_CALLED_KERNELS_LOADED = False   # Ins._load_python_called_kernels has run in this process
 
-
-def _loaded_python_called_kernels() -> None:
-    global _PYTHON_CALLED_KERNELS_LOADED
-    _PYTHON_CALLED_KERNELS_LOADED = True
-
 # where each output lies in the flat float64 view of an INS_OUT_DTYPE record
 _OUT = AttitudeFields(core.INS_OUT_DTYPE)
 _OUT_Q, _OUT_RATE, _OUT_SIGMA, _OUT_BIAS, _OUT_EULER = _OUT.q, _OUT.rate, _OUT.sigma, _OUT.bias, _OUT.euler
@@ -455,6 +450,7 @@ class Ins:
         code (milliseconds each, docs/daemon.md "Performance"), which would otherwise fall on the first fix, the
         first heading check and the first yaw reset in the daemon's event loop. Later calls go through numba's
         dispatcher as before (same compiled code); a call with other types just loads its own at its first call."""
+        global _PYTHON_CALLED_KERNELS_LOADED
         if _PYTHON_CALLED_KERNELS_LOADED:
             return
         x, par, gsf, gsf_par = self._x, self._par, self._gsf, self._gsf_par
@@ -473,7 +469,7 @@ class Ins:
                 (core.fill_outputs, (x, self._P, par, 0.0, 0.0, 0.0, self._out)),
                 (input_validity, (0,) + (0.0,) * 9)):
             kernel.compile(tuple(kernel.typeof_pyval(a) for a in args))
-        _loaded_python_called_kernels()
+        _PYTHON_CALLED_KERNELS_LOADED = True
 
     def _new_heading_checks(self) -> None:
         p = self.params
