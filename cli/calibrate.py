@@ -611,7 +611,7 @@ def _remembered_mag_site(args) -> MagSite:
         raise _Usage(f"the reference field needs the calibration site, and {why}: {ways}")
     now_s = time.time()
     age = pos.describe_age(now_s)
-    if pos.age_s(now_s) > MAX_AGE_DAYS * 86400:
+    if pos.too_old(now_s):
         raise _Usage(f"the reference field needs the calibration site, and the position the daemon last knew is "
                      f"{age} ({pos.saved_date.isoformat()}; older than {MAX_AGE_DAYS:.0f} days the vehicle may "
                      f"have moved): {ways}")

@@ -67,6 +67,10 @@ class RememberedPosition:
     def age_s(self, now_wall_s: float) -> float:
         return now_wall_s - self.wall_time_s
 
+    def too_old(self, now_wall_s: float) -> bool:
+        """Older than MAX_AGE_DAYS: not used (the module docstring says why)."""
+        return self.age_s(now_wall_s) > MAX_AGE_DAYS * 86400
+
     def describe_age(self, now_wall_s: float) -> str:
         """"1.2 days old"; a clock behind the saved time (a host without a real-time clock before its time is
         set) cannot tell the age and says so."""
@@ -175,7 +179,7 @@ class PositionMemory:
         """The last position known: this run's last live one, else the one the last run left; None when there
         is none or it is older than MAX_AGE_DAYS."""
         pos = self._latest or self.remembered
-        if pos is None or pos.age_s(self.wall_clock()) > MAX_AGE_DAYS * 86400:
+        if pos is None or pos.too_old(self.wall_clock()):
             return None
         return pos
 
