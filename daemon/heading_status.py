@@ -35,6 +35,7 @@ from typing import Callable
 from ahrsd.core.estimate import EstimateFlags, HeadingState
 from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.estimator.calibration_heading import calibration_heading_variance_rad2
 from ahrsd.estimator.field_circle import wrong_calibration_text
 
 STATE_LABELS = {HeadingState.UNKNOWN: "hdg unknown", HeadingState.MAGNETOMETER: "hdg mag",
@@ -106,8 +107,8 @@ class HeadingStatus:
         as a WARNING."""
         if est is None:
             return
-        cal = self.calibration_sigma_rad
-        claimed_var = cal * cal if math.isfinite(cal) else math.inf
+        # the calibration's variance as the estimator states it (the check runs only while a calibration states one)
+        claimed_var = calibration_heading_variance_rad2(self.calibration_sigma_rad)
         self.field_off_centre_ut = (field_circle.offset_ut if field_circle is not None
                                     and field_circle.finds_wrong(claimed_var) else math.nan)
         state = HeadingState(est.heading_state)
