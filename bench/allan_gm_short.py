@@ -2,7 +2,8 @@
 
 White noise through the ADIS16405's default SENS_AVG window (7-tap Bartlett, 819.2 SPS) plus a first-order
 Gauss–Markov bias of correlation time Tc = f × τ_min, τ_min = 8 of the window's correlation lengths as read from
-the data (the fit's start in allan_correlation, kept as the unit whatever that start is), σ_GM set so the bump's
+the data (the fit's start in allan_correlation until session 20, which starts it at 2; kept as the unit so rows
+compare across fit rules), σ_GM set so the bump's
 Allan variance at its peak is `--ratio` × the white noise's there. Per case: which terms
 are read, σ_GM and Tc against the generator's, and the bias-driving density w_b that allan_kalman proposes against
 the truth σ_GM·√(2/Tc). `--seeds`, `--factors` and `--ratio` choose the cases (in-sample: seeds 1-3, Tc factors
@@ -79,7 +80,8 @@ def _one_run(counts: dict, seed: int, f: float, ratio: float, taps: np.ndarray, 
     x0, _ = record(seed, 1.0, ratio, 4.0, taps)   # to learn the window's length from the data
     correlation = SampleCorrelation()
     correlation.add(x0)
-    # the unit of Tc: 8 of the window's correlation lengths, read as the analysis reads them (module doc)
+    # the unit of Tc: 8 of the window's correlation lengths, read as the analysis reads them (module doc), whatever
+    # the fit's start
     tau_min = TC_UNIT_LENGTHS * int(correlation.lengths().max()) / RATE_HZ
     tc = f * tau_min
     seconds = max(min_seconds, 30.0 * tc)

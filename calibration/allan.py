@@ -90,10 +90,12 @@ def _no_terms_read(curve: AllanCurve, axis: int, std: float, reason: str,
 
 
 def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float, correlation_samples: int = 1,
-              white_deficit_s: float = 0.0, samples_to_tell: int = 0, noise_lsb: float = math.inf) -> NoiseParameters:
+              white_deficit_s: float = 0.0, samples_to_tell: int = 0, noise_lsb: float = math.inf,
+              white_deficit_sd_s: float = 0.0) -> NoiseParameters:
     """Decide the terms of one axis' curve and read their values. correlation_samples: how many samples apart
     the samples stop being correlated (allan_correlation): the fit uses only the τ beyond a few of those, where
-    the filter lowers white noise to N²·(1/τ − D/τ²), D = white_deficit_s. samples_to_tell > 0: the samples are
+    the filter lowers white noise to N²·(1/τ − D/τ²), D = white_deficit_s ± white_deficit_sd_s (1σ, carried by
+    the fit: allan_terms). samples_to_tell > 0: the samples are
     correlated but the record is too short to tell over how many (allan_correlation): no term is read.
     noise_lsb: the output's σ per sample in its LSB; below MIN_NOISE_LSB no term is read
     (allan_resolution)."""
@@ -107,7 +109,7 @@ def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float, correlat
     if min_tau_s > 0:
         keep = pts.taus >= min_tau_s
         pts = type(pts)(pts.taus[keep], pts.avar[keep], pts.level_n[keep], pts.level_m[keep], pts.record_s,
-                        white_deficit_s)
+                        white_deficit_s, white_deficit_sd_s)
         short_note = [f"τ < {min_tau_s:.3g} s not fitted: the samples are correlated over {correlation_samples} "
                       "samples (the sensor's filter), which bends the curve there"]
     if len(pts.taus) < 3 or not np.all(pts.avar > 0):
@@ -140,7 +142,7 @@ def _unreadable(curve: AllanCurve, axis: int, std: float, rate_hz: float, pts, m
         return _no_terms_read(curve, axis, std, (
             f"recording too short: the samples are correlated over {correlation_samples} samples (the sensor's "
             f"filter), so only τ ≥ {min_tau_s:.3g} s can be fitted, and it has fewer than 3 cluster sizes there; "
-            f"record about {longer:.0f}× longer (≥ {longer * pts.record_s:.0f} s): no noise terms read"),
+            f"record about {longer:.2g}× longer (≥ {longer * pts.record_s:.0f} s): no noise terms read"),
             longer * pts.record_s)
     return None
 
@@ -296,9 +298,10 @@ class StaticAllanAnalysis:
             std = np.sqrt(np.maximum(self._sum_sq[sensor] / n - (self._sum[sensor] / n) ** 2, 0.0))
             correlation = self._correlation[sensor]
             lengths, deficits = correlation.lengths(), correlation.deficits_s(self._rate_hz)
+            deficit_sds = correlation.deficit_sds_s(self._rate_hz)
             to_tell, noise_lsb = correlation.samples_to_tell(), correlation.noise_lsb()
             axes = {ax: read_axis(curve, i, std[i], self._rate_hz, int(lengths[i]), float(deficits[i]), int(to_tell[i]),
-                                  float(noise_lsb[i]))
+                                  float(noise_lsb[i]), float(deficit_sds[i]))
                     for i, ax in enumerate(AXES)}
             lo, hi = np.empty_like(curve.adev), np.empty_like(curve.adev)
             for i, ax in enumerate(AXES):

@@ -4,9 +4,10 @@ A sensor's digital filter (the ADIS16405's SENS_AVG Bartlett window, two 2^N-tap
 anti-alias filter, a decimator) makes neighbouring samples correlated: the Allan deviation of its white noise
 then falls below N/√τ for τ within a few filter lengths and bends like a short Gauss–Markov bump, and a fit over
 those τ reads the white noise as that bump (IEEE Std 952-1997 C.1 assumes the samples are independent at the
-shortest τ). The fit is therefore given only the τ of at least FIT_LENGTHS correlation lengths, where the
-filter's share of the white-noise Allan variance is below about 1/FIT_LENGTHS of it; uncorrelated samples
-(length 1) keep every τ.
+shortest τ). The fit is therefore given only the τ of at least FIT_LENGTHS correlation lengths: beyond the filter's
+span (a Bartlett window's correlation length is 0.64 (N = 7) to 1 (N = 1) of its span), where filtered white noise
+is N²·(1/τ − D/τ²) exactly (below), which the fit models, so the white noise is read over as many octaves as the
+filter leaves; uncorrelated samples (length 1) keep every τ.
 
 The filter is read from the data, not from a chip model, and from the steps between samples (first differences) of
 the first CORR_SAMPLES samples of each axis, not from the samples: a slow process (a Gauss–Markov bias, a random
@@ -37,7 +38,10 @@ over the lag distribution a(s) of the filter's autocorrelation, which is G again
 −E|s|/2 at h = 0, so the second difference loses 3·E|s| of its variance and
     σ²(τ) = N²·(1/τ − D/τ²),   D = (3/2)·E|s| = (3/2)·Σ|s|·ρ(s) / Σρ(s)   (s over the filter's span, both signs).
 The term fit takes white noise in that form (`deficits_s`), so the few percent the filter takes off at the
-shortest fitted τ do not bias N.
+shortest fitted τ do not bias N. D is read from a finite record, so near the span its error weighs as N²·δD/τ²:
+`deficit_sds_s` is δD, from the scatter of D over DEFICIT_BLOCKS blocks of the samples it was read from (the
+span of the whole read, each block's D by the same formula; δD = their standard deviation / √DEFICIT_BLOCKS),
+which the term fit carries as the uncertainty of the white term's shape (allan_terms).
 """
 
 from __future__ import annotations
@@ -50,9 +54,10 @@ CORR_SAMPLES = 1 << 18
 MAX_LAG = 4096        # the chip's longest window (N = 7: 255 taps) seen through steps of 256 needs lags to 4·512 + 16
 STEP_LAGS = tuple(1 << j for j in range(9))   # 1 … 256: steps long enough to see a 255-tap window beside 14-bit LSBs
 CORR_THRESHOLD = 0.1
-FIT_LENGTHS = 8
+FIT_LENGTHS = 2
 TELL_SIGMAS = 4.0     # a tail lag beyond 4σ by chance: ~6e-5 per lag (normal tails)
 TELL_SPANS = 400      # spans a record needs to read the window's length and D (module doc)
+DEFICIT_BLOCKS = 8    # blocks over which D's scatter gives its uncertainty (module doc)
 
 
 class SampleCorrelation:
@@ -63,6 +68,7 @@ class SampleCorrelation:
         self._n = 0
         self._n_axes = n_axes
         self._read: tuple[int, tuple] | None = None      # (samples it was read from, _filter's result)
+        self._deficit_sds: np.ndarray | None = None      # δD in samples per axis, read with the filter
 
     def add(self, data: np.ndarray) -> None:
         if self._n >= CORR_SAMPLES:
@@ -80,6 +86,12 @@ class SampleCorrelation:
         """Per axis: D (s) of the filter's share of the white noise's Allan variance, N²·D/τ² (module doc);
         0 where lengths() finds no filter."""
         return self._filter()[1] / rate_hz
+
+    def deficit_sds_s(self, rate_hz: float) -> np.ndarray:
+        """Per axis: the 1σ of deficits_s (s), from D's scatter over blocks of the samples (module doc); 0 where
+        lengths() finds no filter."""
+        self._filter()
+        return self._deficit_sds / rate_hz
 
     def samples_to_tell(self) -> np.ndarray:
         """Per axis: 0 when the samples tell their correlation (a filter's length, independent samples, or steps
@@ -101,6 +113,7 @@ class SampleCorrelation:
         lengths, deficits = np.ones(self._n_axes, dtype=int), np.zeros(self._n_axes)
         needed = np.zeros(self._n_axes, dtype=int)
         noise_lsb = np.full(self._n_axes, np.inf)
+        self._deficit_sds = np.zeros(self._n_axes)
         if self._n < 8:
             return lengths, deficits, needed, noise_lsb   # nothing to read; the Allan fit has too few cluster sizes
         x = np.concatenate(self._rows)
@@ -119,9 +132,26 @@ class SampleCorrelation:
             if not white[0] > 0 or white[1] < CORR_THRESHOLD * white[0]:
                 continue                          # independent neighbours
             lengths[axis] = int(np.flatnonzero(white >= CORR_THRESHOLD * white[0])[-1]) + 1
-            lags = np.arange(len(white))
-            deficits[axis] = 1.5 * 2.0 * float(np.dot(lags, white)) / (white[0] + 2.0 * float(np.sum(white[1:])))
+            deficits[axis] = _deficit(white)
+            self._deficit_sds[axis] = _deficit_sd(col, span)
         return lengths, deficits, needed, noise_lsb
+
+
+def _deficit(white: np.ndarray) -> float:
+    """D in samples from the filtered white noise's autocovariance at lags 0…span (module doc)."""
+    lags = np.arange(len(white))
+    return 1.5 * 2.0 * float(np.dot(lags, white)) / (white[0] + 2.0 * float(np.sum(white[1:])))
+
+
+def _deficit_sd(x: np.ndarray, span: int) -> float:
+    """The 1σ of D read from all of x: the standard deviation of D over DEFICIT_BLOCKS blocks of x (each read with
+    the whole record's span) over √DEFICIT_BLOCKS (module doc)."""
+    blocks = np.array_split(x, DEFICIT_BLOCKS)
+    max_lag = int(tail_lags(span, MAX_LAG)[-1])
+    if len(blocks[-1]) < 4 * max_lag:
+        return 0.0
+    each = [_deficit(_white_autocovariance(_autocovariance(b, max_lag), span)) for b in blocks]
+    return float(np.std(each, ddof=1)) / np.sqrt(DEFICIT_BLOCKS)
 
 
 def _filter_span(x: np.ndarray, max_lag: int) -> int | None:

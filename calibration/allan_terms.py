@@ -107,6 +107,7 @@ class _Points:
     level_m: np.ndarray
     record_s: float
     white_deficit_s: float = 0.0   # a sensor filter's D (allan_correlation): white noise is 1/τ − D/τ²
+    white_deficit_sd_s: float = 0.0   # D's 1σ (allan_correlation.deficit_sds_s), carried by _fit_fixed
     fits: dict = field(default_factory=dict, compare=False, repr=False)   # fit_terms' results by term set
     bases: dict = field(default_factory=dict, compare=False, repr=False)   # _stacked_basis' columns by (term, Tc)
 
@@ -180,26 +181,52 @@ def _stacked_basis(pts: _Points, terms: tuple[str, ...], tc: float | None) -> np
 
 def _fit_fixed(pts: _Points, terms: tuple[str, ...], tc: float | None, fixed: tuple[str, float] | None = None) -> ModelFit:
     """Iteratively reweighted NNLS: weights 1/(σ²_model·√(2/edf)), edf for the model's local noise type.
-    fixed: (term, coefficient) held at that value beside the fitted terms (for a profile of the deviance)."""
+    fixed: (term, coefficient) held at that value beside the fitted terms (for a profile of the deviance).
+    With white noise in the model and the filter's D read with an uncertainty δD (pts.white_deficit_sd_s), the
+    white term's shape N²·(1/τ − D/τ²) is uncertain by N²·δD/τ², a rank-one term in the points' covariance. Its
+    equivalent in a fit of independent points (Gaussian marginalisation: (r − u·v)ᵀΣ⁻¹(r − u·v) + u²/s² minimised
+    over u gives rᵀ(Σ + s²vvᵀ)⁻¹r) is a coefficient u on v = 1/τ² of either sign, fitted beside the terms with the
+    penalty (u/s)², s = N²·δD: the fit returns D − u/N² as the white term's D, and the penalty is in the deviance."""
     all_terms = terms if fixed is None else terms + (fixed[0],)
     n = len(pts.taus)
     stacked = _stacked_basis(pts, all_terms, tc)
-    basis = np.ascontiguousarray(stacked[:n, :len(terms)])
+    k = len(terms)
+    basis = np.ascontiguousarray(stacked[:n, :k])
     offset = np.zeros_like(pts.avar) if fixed is None else fixed[1] * stacked[:n, -1]
     model = pts.avar.copy()
     edf = pts.edf_table[2]   # α = 0 (white rate noise) until the model says otherwise
-    coef = np.zeros(len(terms))
+    coef = np.zeros(k)
     coef_all = np.zeros(len(all_terms))   # the fitted terms' coefficients, then the fixed one
     if fixed is not None:
         coef_all[-1] = fixed[1]
     target, floor = pts.avar - offset, 1e-3 * pts.avar
+    shape = pts.white_deficit_sd_s > 0 and "white" in all_terms
+    if shape:
+        # the shape's nuisance as two non-negative columns (+v, −v), and the penalty as one more row of the system
+        v = _with_slope_taus(pts.taus) ** -2.0
+        stacked = np.column_stack([stacked, v, -v])
+        basis = np.vstack([np.column_stack([basis, v[:n], -v[:n]]), np.r_[np.zeros(k), 1.0, -1.0]])
+        target = np.r_[target, 0.0]
+        coef_all = np.r_[coef_all, 0.0, 0.0]
+        white = all_terms.index("white")
+        c_white = fixed[1] if fixed is not None and fixed[0] == "white" else float(pts.avar[0] * pts.taus[0])
+    u, s_u = 0.0, 1.0
     for _ in range(IRLS_ITERATIONS):
         # The model's own value sets the weight (a low measured point must not get a high weight); floored so
         # a term the model lacks cannot make a point's weight infinite.
         ref = np.maximum(model, floor)
         sigma = ref * np.sqrt(2.0 / edf)
-        coef = _nnls_weighted(basis, target, 1.0 / sigma)
-        coef_all[:len(terms)] = coef
+        if shape:
+            s_u = max(c_white, 1e-300) * pts.white_deficit_sd_s
+            # the data's rows are counted once per two points (OCTAVE_CORRELATION), the penalty once
+            sigma = np.r_[sigma, s_u * math.sqrt(OCTAVE_CORRELATION)]
+        solved = _nnls_weighted(basis, target, 1.0 / sigma)
+        coef = solved[:k]
+        coef_all[:k] = coef
+        if shape:
+            coef_all[-2:] = solved[k:]
+            u = float(solved[k] - solved[k + 1])
+            c_white = float(coef_all[white])
         model, edf = model_and_edf(stacked, coef_all, pts.edf_table)
     ref = np.maximum(model, floor)
     # Deviance of the χ²(edf) likelihood of each point, σ̂²·edf/σ² ~ χ²(edf): the likelihood-ratio statistic
@@ -208,7 +235,11 @@ def _fit_fixed(pts: _Points, terms: tuple[str, ...], tc: float | None, fixed: tu
     # octave points are correlated: they are counted as one independent point per two (OCTAVE_CORRELATION).
     ratio = pts.avar / ref
     chi2 = OCTAVE_CORRELATION * float(np.sum(edf * (ratio - 1.0 - np.log(ratio))))
-    return ModelFit(terms, coef, tc, chi2, pts.white_deficit_s)
+    deficit = pts.white_deficit_s
+    if shape:
+        chi2 += (u / s_u) ** 2
+        deficit = pts.white_deficit_s - (u / c_white if c_white > 0 else 0.0)
+    return ModelFit(terms, coef, tc, chi2, deficit)
 
 
 def profile_upper_bound(pts: _Points, fit: ModelFit, name: str, delta: float) -> float:
@@ -433,6 +464,10 @@ def coefficient_sigma(fit: ModelFit, pts: _Points) -> np.ndarray:
     cov_avar = avar_covariance(fit, pts.taus, pts.level_n, pts.level_m, pts.record_s)
     if not np.all(np.isfinite(cov_avar)):
         return np.full(len(fit.terms), math.inf)
+    if "white" in fit.terms and pts.white_deficit_sd_s > 0:
+        # the white term's shape, uncertain by N²·δD/τ² (_fit_fixed): a rank-one term in the points' covariance
+        v = fit.coef[fit.terms.index("white")] * pts.white_deficit_sd_s / pts.taus**2
+        cov_avar = cov_avar + np.outer(v, v)
     bw = basis * weight[:, None]
     a = np.linalg.pinv(basis.T @ bw)
     cov = a @ bw.T @ cov_avar @ bw @ a

@@ -68,16 +68,49 @@ def assert_white_only_at_the_density(x, label):
 @pytest.mark.parametrize("n, seconds", [(5, 120), (7, 150)])
 def test_white_noise_through_a_long_window_is_its_density_and_no_other_term(n, seconds):
     # These windows correlate samples over 41 and 162 lags; read as "slow processes", their bend was fitted as
-    # other terms and white noise was "not seen" on every axis.
+    # other terms and white noise was "not seen" on every axis. (N = 5 over many records, for the rate of a false
+    # term: the test below; this record, seed 45, is one of the rare draws that read one, so only its window here.)
     taps = _window(n)
     samples = int(seconds * RATE_HZ)
     x = _filtered_white(samples, taps, np.random.default_rng(40 + n))
-    assert_white_only_at_the_density(x, f"N={n}")
+    if n == 7:
+        assert_white_only_at_the_density(x, f"N={n}")
     correlation = SampleCorrelation()
     correlation.add(x)
     length, deficit = _window_truth(taps)
     assert np.all(np.abs(correlation.lengths() / length - 1) < 0.2), (correlation.lengths(), length)
     assert correlation.deficits_s(1.0) == pytest.approx(np.full(3, deficit), rel=0.15)
+
+
+FALSE_TERM_RECORDS = range(500, 540)   # 40 records × 3 axes, seeds fixed (none chosen: the first 40 from 500)
+
+
+def test_white_noise_through_the_n5_window_reads_a_false_term_no_more_often_than_the_tests_level():
+    # Each other term is kept only where its deviance drop passes the 0.1 % point of its χ² (allan_terms), so on
+    # white noise an axis should read one no more often than that. One record is one draw of that rate (seed 45 of
+    # the test above reads a rate random walk on one axis; many other records were measured, docs/calibration.md
+    # "A short correlation time"), so the claim is a rate: over 120 axes of white noise through the N = 5 window
+    # (120 s), at most the binomial count that 0.1 % per axis exceeds with probability < 0.1 % — and on every axis
+    # the white noise within 4 of its 1σ. 120 axes tell a gross break, not a halved threshold: test_cal_allan
+    # holds the thresholds themselves.
+    from scipy.stats import binom
+
+    from ahrsd.calibration.allan_terms import SIGNIFICANCE_P
+
+    taps = _window(5)
+    samples = int(120 * RATE_HZ)
+    axes, false_terms = 0, []
+    for seed in FALSE_TERM_RECORDS:
+        x = _filtered_white(samples, taps, np.random.default_rng(seed))
+        for axis, p in analyse_static(np.arange(samples) / RATE_HZ, gyro_rad_s=x).parameters["gyro"].items():
+            axes += 1
+            white = p.terms.get("white")
+            assert white is not None and abs(white.value - DENSITY) < 4 * white.uncertainty, (seed, axis, p.flags)
+            if set(p.terms) != {"white"}:
+                false_terms.append((seed, axis, sorted(p.terms)))
+    allowed = int(binom.isf(1e-3, axes, SIGNIFICANCE_P))   # P(count > allowed) < 0.1 % at the stated level
+    print(f"false terms on {len(false_terms)} of {axes} axes (allowed {allowed}): {false_terms}")
+    assert len(false_terms) <= allowed, false_terms
 
 
 @pytest.mark.parametrize("n", [2, 5])
@@ -188,16 +221,14 @@ def test_a_short_gauss_markov_beside_the_default_window_is_read_as_gauss_markov_
         assert tc / 1.5 < gm.corr_time_s < tc * 1.5, axis     # Tc is taken as known: no 1σ of its own
 
 
-@pytest.mark.xfail(strict=True, reason="open (issue 30 item 9): the fit starts at 8 correlation lengths, where "
-                   "white noise leads for less than an octave; docs/calibration.md 'A short correlation time'")
 @pytest.mark.parametrize("seed", [31, 32])
 def test_a_strong_short_gauss_markov_beside_the_default_window_is_read_with_the_white_noise_in_front(seed):
     # Issue 30 item 9's last case: Tc 0.27 s (7 × 8 of the window's correlation lengths) and σ so the bump's Allan
     # variance at its peak (τ = 1.89·Tc) is 30 times the white noise's there. Fitted only from 8 lengths (0.05 s)
-    # white noise leads for less than an octave: it is not seen, and the bump's 1/τ tail stands in for it (σ_GM
-    # 10–20 % high, its 1σ far too small) or a flicker floor is read. White noise through the window is
-    # N²·(1/τ − D/τ²) exactly from the window's span on (allan_correlation), so a fit that starts nearer the span
-    # sees it for more octaves, if D's own uncertainty is carried there (docs/calibration.md).
+    # white noise led for less than an octave: it was not seen, and the bump's 1/τ tail stood in for it (σ_GM
+    # 10–20 % high, its 1σ far too small) or a flicker floor was read. White noise through the window is
+    # N²·(1/τ − D/τ²) exactly from the window's span on (allan_correlation), so the fit starts at 2 lengths,
+    # beyond the span, with D's own uncertainty carried (allan_terms), and sees it for two more octaves.
     from ahrsd.calibration.allan_terms import gauss_markov_avar
 
     tc = 7 * 8 * 5 / RATE_HZ

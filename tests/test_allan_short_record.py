@@ -36,13 +36,14 @@ def test_a_short_filtered_record_is_analysed_without_error(n, length):
 
 
 def test_too_few_cluster_sizes_beyond_the_filter_reads_no_term_and_says_how_long_to_record():
-    # 2 s of samples correlated over 40 samples: only τ ≥ 8·40/819.2 = 0.39 s can be fitted, and a 2 s record has
-    # fewer than three cluster sizes there. A fit over the bent short τ would read the filter as a Gauss–Markov term.
-    n = 1640
+    # 1.2 s of samples correlated over 40 samples: only τ ≥ 2·40/819.2 = 0.098 s (the fit's start, 2 correlation
+    # lengths) can be fitted, and a 1.2 s record has two cluster sizes there. A fit over the bent short τ would read
+    # the filter as a Gauss–Markov term.
+    n = 1000
     acc = StreamingAllan(RATE_HZ, n_axes=3)
     acc.add(_bartlett_filtered(n, 40, seed=3))
     curve = acc.curve()
-    assert np.count_nonzero(octave_points(curve, 0).taus >= 8 * 40 / RATE_HZ) < 3    # the case this test is about
+    assert np.count_nonzero(octave_points(curve, 0).taus >= 2 * 40 / RATE_HZ) < 3    # the case this test is about
     p = read_axis(curve, 0, SIGMA, RATE_HZ, correlation_samples=40)
     assert p.white_noise is None and p.gauss_markov_sigma is None
     assert len(p.flags) == 1 and p.flags[0].startswith("recording too short") and "no noise terms read" in p.flags[0]

@@ -114,6 +114,19 @@ def test_gauss_markov_allan_variance_limits():
 # --------------------------------------------------------------------------- terms of known synthetic records
 
 
+def test_each_terms_threshold_is_the_chi_square_point_of_the_stated_level():
+    # A term is kept when its deviance drop passes the 0.1 % point of χ²(k) (k = 1, or 2 for a Gauss–Markov term
+    # whose Tc is fitted too): the rate of false terms on white noise that tests/test_allan_chip_filters.py holds
+    # rests on these numbers (from scipy, not from the code).
+    from scipy.stats import chi2
+
+    from ahrsd.calibration.allan_terms import DELTA_CHI2, SIGNIFICANCE_P
+
+    assert SIGNIFICANCE_P == 1e-3
+    for k in (1, 2):
+        assert DELTA_CHI2[k] == pytest.approx(chi2.isf(SIGNIFICANCE_P, k), rel=1e-3), k
+
+
 def test_white_only_reports_white_and_nothing_else():
     rng = np.random.default_rng(10)
     rate, n = 100.0, 360_000        # 1 h
