@@ -85,6 +85,7 @@ def test_white_noise_through_a_long_window_is_its_density_and_no_other_term(n, s
 FALSE_TERM_RECORDS = range(500, 540)   # 40 records × 3 axes, seeds fixed (none chosen: the first 40 from 500)
 
 
+@pytest.mark.slow   # 40 records analysed: the file starts first under --dist loadfile (tests/conftest.py)
 def test_white_noise_through_the_n5_window_reads_a_false_term_no_more_often_than_the_tests_level():
     # Each other term is kept only where its deviance drop passes the 0.1 % point of its χ² (allan_terms), so on
     # white noise an axis should read one no more often than that. One record is one draw of that rate (seed 45 of
