@@ -428,7 +428,10 @@ def main() -> None:
                   f"{src.get('reader_handover_dropped', 0)}; reads that waited for the simulated chip's producer "
                   f"{src.get('sensor_producer_waits', 0)} (worst {src.get('sensor_producer_wait_max_us', 0) / 1e3:.1f} ms)")
         if ld:
-            print(f"   load: {os.cpu_count()} busy processes, {r['flooded']} MAVLink messages flooded in")
+            print(f"   load: {os.cpu_count()} busy processes, {r['flooded']} MAVLink messages flooded in; TIMESYNC "
+                  f"answers received {r['counts'].get('TIMESYNC', 0) / r['window_s']:.1f}/s, requests not answered "
+                  f"(the per-sender limit, daemon.timesync_answers) {r['stats'].get('service', {}).get('timesync_refused', 0)}"
+                  f" (whole run)")
     if len(full) >= 2 or len(sensors) > 1 or len(loads) > 1:
         print(f"\n   per path, scenario {scenario}, {args.seconds:g} s windows; load average {os.getloadavg()[0]:.2f}")
         print("   CPU %: the daemon's processes (the issue's ≤ 10 % target: docs/daemon.md \"Performance\"); own: "

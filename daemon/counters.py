@@ -16,3 +16,4 @@ class ServiceCounters:
     unsigned_refused: int = 0    # parameter protocol: PARAM_SET refused unsigned (commands: the router counts)
     published: int = 0          # publishers
     statustext_suppressed: int = 0  # outbound: non-critical STATUSTEXTs dropped by the rate limit (flooding peer)
+    timesync_refused: int = 0    # inbound: TIMESYNC requests not answered, beyond their sender's rate limit

@@ -10,7 +10,6 @@ import logging
 import time
 from typing import Callable, Protocol
 
-from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.autopilot import AutopilotState
 from ahrsd.daemon.commands import CommandRouter
 from ahrsd.daemon.declination import Declination
@@ -20,6 +19,7 @@ from ahrsd.daemon.outbound import Outbound
 from ahrsd.daemon.param_protocol import ParamProtocol
 from ahrsd.daemon.restart_heading import RestartHeading
 from ahrsd.daemon.source_set_check import SourceSetCheck
+from ahrsd.daemon.timesync_answers import TimesyncAnswers
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +48,7 @@ class InboundDispatch:
         self.source_set_check = source_set_check
         self.restart_heading = restart_heading
         self.clock = clock
+        self.timesync = TimesyncAnswers(outbound.counters)   # answers TIMESYNC requests, rate limited per sender
 
     def on_message(self, endpoint: Endpoint, msg) -> None:
         identity = self.outbound.identity
@@ -83,7 +84,7 @@ class InboundDispatch:
             return
         if mtype == "TIMESYNC":
             if msg.tc1 == 0:   # a request; answers have tc1 != 0 (MAVLink TIMESYNC v2)
-                endpoint.send(msgs.timesync_reply(endpoint.timesync_stamp_ns(), msg.ts1))
+                self.timesync.on_request(endpoint, msg, now)
             return
         if mtype == "COMMAND_ACK":
             if self.restart_heading is not None and autopilot.from_this_autopilot(msg):

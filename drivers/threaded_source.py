@@ -186,7 +186,7 @@ class ThreadedSource(LiveSource):
     def _read_blocks(self) -> None:
         """A source that buffers on its own (the kernel's IIO buffer): wait for data, take every record."""
         failures = ReadFailures()
-        inner, clock, stop, after_read = self.inner, self._clock, self._stop, self.after_read
+        inner, stop, after_read = self.inner, self._stop, self.after_read
         while not stop.is_set():
             if after_read is not None:
                 after_read()
@@ -196,12 +196,7 @@ class ThreadedSource(LiveSource):
                 with self._inner_lock:
                     samples = inner.poll()
             except Exception as exc:  # noqa: BLE001 - BusError / OSError: the source re-opens on its own
-                self.stats["corrupt_frames" if isinstance(exc, FrameError) else "read_failures"] += 1
-                verdict = failures.read_failed(exc)
-                if verdict.failed:
-                    self._set_error(exc)
-                if verdict.retry_after_s is not None:
-                    self._sleep_until(clock() + verdict.retry_after_s)
+                self._read_failed(exc, failures)
                 continue
             self.stats["reads"] += 1
             failures.read_ok()
@@ -209,64 +204,46 @@ class ThreadedSource(LiveSource):
                 self._hand_over(sample)
 
     def _read_per_sample(self) -> None:
+        """A per-sample source: the hand-over tick, wait for the next sample, read it, hand it over."""
         failures = ReadFailures()    # when a failed read is a sensor failure (drivers.read_failures)
-        inner, clock, stop, after_read = self.inner, self._clock, self._stop, self.after_read
-        period_s = 1.0 / self.sample_rate_hz
-        stale_gap_s = STALE_REREAD_PERIODS * period_s
-        last_read, last_stale = 0.0, False
-        timer = wait_edge = None
+        pacing = _Pacing(self.inner, self._clock, self._sleep_until, 1.0 / self.sample_rate_hz, self.stats)
+        stop, after_read, wait_for_sample = self._stop, self.after_read, pacing.wait_for_sample
         while not stop.is_set():
             if after_read is not None:
                 after_read()
-            if timer is None:
-                # the inner source's timer exists once the chip first started, and is kept through reconnections
-                # (drivers.reconnecting): looked up until then, not at every read
-                timer = getattr(inner, "timer", None)
-                wait_edge = getattr(timer, "wait", None)
-            if wait_edge is not None:
-                if not wait_edge(0.1):
-                    continue
-            else:
-                target = inner.next_read_time()
-                if last_stale and target < last_read + stale_gap_s:
-                    # no new sample, and the timer's next read time is already past: the chip's data-ready
-                    # stalled (the timer keeps its phase through a stall). Re-reading at once would busy-loop at
-                    # real-time priority for the whole stall, starving the daemon on that core (and a unit's
-                    # LimitRTTIME kills a real-time task that runs that long without sleeping)
-                    target = last_read + stale_gap_s
-                    self.stats["stale_rereads_spaced"] += 1
-                if target > 0.0:
-                    self._sleep_until(target)
-                    woke = clock()
-                    late_s = woke - target
-                    if late_s > 0.25 * period_s:     # the distribution's tail, beside bench/wake_floor.py's
-                        self.stats["wakes_late_quarter"] += 1
-                        if late_s > period_s:        # woke (and got the GIL) after the chip's next sample
-                            self.stats["wakes_late"] += 1
-                    if late_s * 1e6 > self.stats["wake_late_max_us"]:
-                        self.stats["wake_late_max_us"] = int(late_s * 1e6)
-            if stop.is_set():
-                break
+            if not wait_for_sample() or stop.is_set():
+                continue
             try:
-                with self._inner_lock:
-                    woke = last_read = clock()
-                    sample = inner.read_one(woke)
-                    read_us = (clock() - woke) * 1e6
-                    if read_us > self.stats["read_us_max"]:
-                        self.stats["read_us_max"] = int(read_us)
+                sample = self._read_one(pacing)
             except Exception as exc:  # noqa: BLE001 - FrameError / BusError / SensorUnavailable / OSError
-                self.stats["corrupt_frames" if isinstance(exc, FrameError) else "read_failures"] += 1
-                verdict = failures.read_failed(exc)
-                if verdict.failed:
-                    self._set_error(exc)
-                if verdict.retry_after_s is not None:      # a bus failure (the inner source backs off on its own)
-                    self._sleep_until(clock() + verdict.retry_after_s)
+                self._read_failed(exc, failures)
                 continue
             self.stats["reads"] += 1
             failures.read_ok()
-            last_stale = sample is None
+            pacing.last_stale = sample is None
             if sample is not None:
                 self._hand_over(sample)
+
+    def _read_one(self, pacing: _Pacing):
+        """One read of the inner source, timed (`read_us_max`); its start is the pacing's last read time."""
+        clock = self._clock
+        with self._inner_lock:
+            woke = pacing.last_read_s = clock()
+            sample = self.inner.read_one(woke)
+            read_us = (clock() - woke) * 1e6
+        if read_us > self.stats["read_us_max"]:
+            self.stats["read_us_max"] = int(read_us)
+        return sample
+
+    def _read_failed(self, exc: Exception, failures: ReadFailures) -> None:
+        """A failed read: counted, the error set when it is a sensor failure, and a bus failure waited out (the
+        inner source backs off on its own)."""
+        self.stats["corrupt_frames" if isinstance(exc, FrameError) else "read_failures"] += 1
+        verdict = failures.read_failed(exc)
+        if verdict.failed:
+            self._set_error(exc)
+        if verdict.retry_after_s is not None:
+            self._sleep_until(self._clock() + verdict.retry_after_s)
 
     def _set_error(self, exc: Exception) -> None:
         with self._lock:
@@ -320,3 +297,53 @@ class ThreadedSource(LiveSource):
             sys.setswitchinterval(self._saved_switch_interval)
             self._saved_switch_interval = None
         self.inner.close()
+
+
+class _Pacing:
+    """When a per-sample reader reads next: at the chip's data-ready edge when the inner source's timer can wait
+    for one (drivers.data_ready), else at its SampleTimer's next read time, with a stalled chip's re-reads spaced
+    and the wakes' lateness counted (`stats`: the reader's, shared with ThreadedSource)."""
+
+    EDGE_WAIT_S = 0.1     # a data-ready wait gives up after this, so the loop sees a stop and runs its hand-over
+
+    def __init__(self, inner, clock, sleep_until, period_s: float, stats: dict):
+        self.inner, self.clock, self.sleep_until, self.stats = inner, clock, sleep_until, stats
+        self.period_s = period_s
+        self.stale_gap_s = STALE_REREAD_PERIODS * period_s
+        self.last_read_s = 0.0      # when the latest read started (ThreadedSource._read_one sets it)
+        self.last_stale = False     # the latest read found no new sample
+        self._timer = self._wait_edge = None
+
+    def wait_for_sample(self) -> bool:
+        """Wait until the next sample should be ready; False when no data-ready edge came (look again)."""
+        if self._timer is None:
+            # the inner source's timer exists once the chip first started, and is kept through reconnections
+            # (drivers.reconnecting): looked up until then, not at every read
+            self._timer = getattr(self.inner, "timer", None)
+            self._wait_edge = getattr(self._timer, "wait", None)
+        if self._wait_edge is not None:
+            return self._wait_edge(self.EDGE_WAIT_S)
+        target = self._spaced(self.inner.next_read_time())
+        if target > 0.0:
+            self.sleep_until(target)
+            self._count_lateness(self.clock() - target)
+        return True
+
+    def _spaced(self, target: float) -> float:
+        """No new sample, and the timer's next read time is already past: the chip's data-ready stalled (the
+        timer keeps its phase through a stall). Re-reading at once would busy-loop at real-time priority for the
+        whole stall, starving the daemon on that core (and a unit's LimitRTTIME kills a real-time task that runs
+        that long without sleeping): the next read is half a period after the last one instead."""
+        if self.last_stale and target < self.last_read_s + self.stale_gap_s:
+            self.stats["stale_rereads_spaced"] += 1
+            return self.last_read_s + self.stale_gap_s
+        return target
+
+    def _count_lateness(self, late_s: float) -> None:
+        stats = self.stats
+        if late_s > 0.25 * self.period_s:     # the distribution's tail, beside bench/wake_floor.py's
+            stats["wakes_late_quarter"] += 1
+            if late_s > self.period_s:        # woke (and got the GIL) after the chip's next sample
+                stats["wakes_late"] += 1
+        if late_s * 1e6 > stats["wake_late_max_us"]:
+            stats["wake_late_max_us"] = int(late_s * 1e6)
