@@ -263,7 +263,9 @@ def test_flood_keeps_output_rates_answers_valid_traffic_and_counts_junk(faulty):
     att = [t for t, _ in of_type(d, "ATTITUDE", t0 + 0.5) if t < end]
     assert len(att) / (end - t0 - 0.5) > 0.9 * 50                        # 50 Hz kept under the flood
     answered = {m.ts1 for _, m in of_type(d, "TIMESYNC", t0)} & marks
-    assert len(answered) >= 0.95 * len(marks)
+    # one sender's requests are answered up to its limit (daemon/timesync_answers.py); every answer is to a request
+    from ahrsd.daemon.timesync_answers import ANSWERS_PER_S, BURST
+    assert len(answered) >= 0.95 * min(len(marks), BURST + ANSWERS_PER_S * (end - t0)), (len(answered), len(marks))
     acks = [m for _, m in of_type(d, "COMMAND_ACK", t0) if m.command == 511]
     assert acks and all(m.result == mavlink.MAV_RESULT_DENIED for m in acks)
     assert _last_sys_status(d).errors_comm > comm_before + 100            # junk counted
