@@ -34,8 +34,8 @@ fit may take the moved one for an ellipse and stay within its gate, but its resi
 Sources: W. Premerlani, "Automatic nulling of magnetometer offsets" (DIY Drones, 2010) and "Magnetometer offsets
 revisited" (2011): offsets rotate with the body while the Earth field does not, so rotation separates them;
 ArduPilot's `CompassLearn` (libraries/AP_Compass/Compass_learn.cpp) learns offsets in flight against the EKF-GSF
-yaw, which needs GNSS — this check needs none, and only says how far the calibration can be trusted (it does not
-correct the field). What it cannot see: a vertical hard iron on a level vehicle (it never leaves the vertical),
+yaw, which needs GNSS — this check needs none. It says how far the calibration can be trusted; mekf then removes
+the hard iron it shows from the field (field_circle_correction.py: `correction_ut`, judged against). What it cannot see: a vertical hard iron on a level vehicle (it never leaves the vertical),
 the antisymmetric soft iron (a constant heading offset), and anything while the vehicle does not turn.
 """
 
