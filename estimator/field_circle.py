@@ -118,6 +118,7 @@ class FieldCircleResult:
                                               # are not on one circle (scatter beyond scatter_gate)
     heading_var_rad2: float = 0.0             # the heading variance to add to the published σ (0: nothing)
     correction_ut: tuple = (0.0, 0.0)         # the learned correction the centre was judged against (levelled)
+    tilt_rms_rad: float = math.nan            # the filter's tilt over the window, RMS (how far levelled is from body)
 
     @property
     def offset_ut(self) -> float:
@@ -164,6 +165,7 @@ class FieldCircleCheck:
         self._tt = 0.0                     # Σ w t²
         self._w = 0.0                      # Σ w
         self._floor = 0.0                  # Σ w · (the residual's variance floor)
+        self._tilt2 = 0.0                  # Σ w · (roll² + pitch²)
         self._sector_s = np.zeros(N_SECTORS)
         self.due_t_s = -math.inf          # the next field is taken from this time on
         self._last_t_s = math.nan
@@ -201,6 +203,7 @@ class FieldCircleCheck:
         self._b += w * t * u
         self._tt += w * t * t
         self._w += w
+        self._tilt2 += w * (roll_rad * roll_rad + pitch_rad * pitch_rad)
         # a residual of the conic is ≈ 2·(m − c)·δm: the horizontal field error of the noise and of a tilt error
         # (the vertical field turned into the horizontal by it)
         tilt = tilt_sigma_rad if math.isfinite(tilt_sigma_rad) else 0.0
@@ -220,6 +223,7 @@ class FieldCircleCheck:
         self._tt *= f
         self._w *= f
         self._floor *= f
+        self._tilt2 *= f
         self._sector_s *= f
 
     def _judge(self) -> FieldCircleResult:
@@ -275,4 +279,5 @@ class FieldCircleCheck:
             var = max(var, (resid - floor) / radius ** 4)
         significant = fitted or scattered
         return FieldCircleResult((float(c[0]), float(c[1])), math.sqrt(float(np.max(np.linalg.eigvalsh(cov_c)))),
-                                 radius, a_soft, covered, significant, var)
+                                 radius, a_soft, covered, significant, var,
+                                 tilt_rms_rad=math.sqrt(self._tilt2 / self._w))

@@ -62,6 +62,7 @@ class FieldCircleCorrection:
         self.applied_ut = np.zeros(2)       # what is subtracted now
         self.settled_ut = np.zeros(2)       # what the filter's heading has taken up (a lag of settle_s)
         self.centre_sigma_ut = 0.0
+        self.tilt_rms_rad = 0.0
         self.radius_ut = math.nan
         self.started_t_s = math.nan
         self.body_ut: np.ndarray | None = None
@@ -77,6 +78,7 @@ class FieldCircleCorrection:
             self.target_ut = np.array(result.centre_ut, dtype=float)
             self.radius_ut = result.radius_ut
             self.centre_sigma_ut = result.centre_sigma_ut
+            self.tilt_rms_rad = result.tilt_rms_rad if math.isfinite(result.tilt_rms_rad) else 0.0
 
     def advance(self, dt_s: float, yaw_sigma_rad: float) -> None:
         """Move the applied correction towards the target over dt_s (yaw_sigma_rad: the filter's, for the slew's
@@ -94,9 +96,13 @@ class FieldCircleCorrection:
 
     def heading_var_rad2(self) -> float:
         """The heading variance still left: the centre not yet applied or taken up, as a sinusoid's RMS
-        (amplitude asin(|c − applied|/H)), plus the fit's uncertainty of the centre over H."""
+        (amplitude asin(|c − applied|/H)), plus the fit's uncertainty of the centre over H, plus how far the
+        levelled centre can be from the body-fixed iron on a vehicle that tilts: the iron seen through a tilt τ
+        is shortened by up to |c|·(1 − cos τ) (τ the tilt's RMS over the fit's window), a bias the fit's
+        residuals do not show."""
         if not self.active:
             return 0.0
         left = max(math.hypot(*(self.target_ut - self.applied_ut)), math.hypot(*(self.target_ut - self.settled_ut)))
         a = math.asin(min(1.0, left / self.radius_ut))
-        return 0.5 * a * a + (self.centre_sigma_ut / self.radius_ut) ** 2
+        seen_through_tilt_ut = math.hypot(*self.target_ut) * (1.0 - math.cos(self.tilt_rms_rad))
+        return 0.5 * a * a + (self.centre_sigma_ut ** 2 + seen_through_tilt_ut ** 2) / self.radius_ut ** 2
