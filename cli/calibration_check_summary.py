@@ -21,6 +21,8 @@ class CalibrationCheckSummary:
         self.max_wrong_ut = math.nan         # the largest offset while wrong
         self.wrong_s = 0.0                   # time found wrong
         self.last_centre_ut = math.nan       # the centre's offset at the last judged sample
+        self.first_corrected_t_s = math.nan  # the first sample consistent with the correction learned from the turns
+        self.last_corrected_ut = math.nan    # the field's offset the correction removes, at the last such sample
         self._last_t_s = math.nan
         self._last_wrong = False
 
@@ -31,6 +33,7 @@ class CalibrationCheckSummary:
             return
         judged = v != int(CalibrationVerdict.NOT_JUDGED)
         wrong = v == int(CalibrationVerdict.WRONG)
+        corrected = v == int(CalibrationVerdict.CORRECTED)
         if judged.any():
             if not math.isfinite(self.first_judged_t_s):
                 self.first_judged_t_s = float(t_s[np.argmax(judged)])
@@ -40,6 +43,10 @@ class CalibrationCheckSummary:
                 k = int(np.argmax(wrong))
                 self.first_wrong_t_s, self.first_wrong_ut = float(t_s[k]), float(centre_ut[k])
             self.max_wrong_ut = float(np.nanmax([self.max_wrong_ut, np.nanmax(np.asarray(centre_ut)[wrong])]))
+        if corrected.any():
+            if not math.isfinite(self.first_corrected_t_s):
+                self.first_corrected_t_s = float(t_s[np.argmax(corrected)])
+            self.last_corrected_ut = float(np.asarray(centre_ut)[np.flatnonzero(corrected)[-1]])
         # time in WRONG: each sample's interval to the next (the first one's from the previous table's last)
         dt = np.diff(np.concatenate([[self._last_t_s if math.isfinite(self._last_t_s) else t_s[0]], t_s]))
         was = np.concatenate([[self._last_wrong], wrong[:-1]])
@@ -53,9 +60,12 @@ class CalibrationCheckSummary:
                 "field's circle in turns: ")
         if math.isfinite(self.first_wrong_t_s):
             more = f", up to {self.max_wrong_ut:.1f} µT" if self.max_wrong_ut >= self.first_wrong_ut + 0.05 else ""
+            then = "" if not math.isfinite(self.first_corrected_t_s) else (
+                f"; then {wrong_calibration_text(self.last_corrected_ut, corrected=True)} (consistent with it from "
+                f"{self.first_corrected_t_s:.1f} s on; samples marked mag_cal_check = 3)")
             return (what + f"WARNING: {wrong_calibration_text(self.first_wrong_ut)} (found at "
                     f"{self.first_wrong_t_s:.1f} s{more}; wrong for {self.wrong_s:.0f} s; samples marked "
-                    "mag_cal_check = 2)")
+                    "mag_cal_check = 2)" + then)
         if math.isfinite(self.first_judged_t_s):
             return what + (f"checked, consistent (judged from {self.first_judged_t_s:.1f} s on; the circle's centre "
                            f"{self.last_centre_ut:.1f} µT off at the last judgement: within the fit's uncertainty or "

@@ -36,7 +36,8 @@ HEADING_OUTPUT_COLUMNS = ("gsf_yaw_deg", "gsf_sigma_deg", "heading_state")
 AIDED_OUTPUT_HEADER = ",".join(OUTPUT_COLUMNS + NAV_OUTPUT_COLUMNS + HEADING_OUTPUT_COLUMNS)
 # When a calibration states its heading error and the estimator checks it by the field's circle in turns (mekf:
 # ahrsd.estimator.replay.FIELD_CIRCLE_COLUMNS) these follow: the verdict per sample (0 not judged: too little
-# turning, 1 consistent, 2 the calibration found wrong) and the circle centre's offset, µT (NaN while not judged).
+# turning, 1 consistent, 2 the calibration found wrong, 3 consistent with the hard iron mekf learned from the turns)
+# and the circle centre's offset, µT (NaN while not judged).
 # Without the check the header stays OUTPUT_HEADER (or AIDED_OUTPUT_HEADER).
 FIELD_CIRCLE_OUTPUT_COLUMNS = ("mag_cal_check", "mag_field_centre_ut")
 # REFERENCE: the quaternion and yaw are relative to true north (NED) when a position is given (--lat/--lon: the

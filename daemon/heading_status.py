@@ -20,7 +20,11 @@ Without GNSS the estimator checks the calibration by the circle the levelled fie
 uncertainty is a calibration that is wrong or an iron that changed. It is said as such ("magnetometer field
 off-centre by X µT in turns: calibration wrong or iron changed", STATUSTEXT at the change), the magnetometer is
 unhealthy in SYS_STATUS, and "heading good" is not said while it lasts (the estimator's σ carries the heading error
-it implies; the heading is no better than that σ says).
+it implies; the heading is no better than that σ says). mekf then learns the hard iron the circle shows and removes
+it from the field (estimator/field_circle_correction.py); once the corrected field is consistent again that is said
+("… off-centre by X µT in turns: learned correction applied, recalibrate to confirm"), the magnetometer stays
+unhealthy (the calibration in force is still wrong) and the heading may be good again by its σ, which carries what
+the correction leaves.
 
 The magnetometer disagreement is named only when it is beyond what both sides' uncertainties explain: the GSF
 yaw's 1σ and the calibration's predicted heading error (`calibration_sigma_rad`, NaN = no calibration), the
@@ -36,7 +40,7 @@ from ahrsd.core.estimate import EstimateFlags, HeadingState
 from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.estimator.calibration_heading import calibration_heading_variance_rad2
-from ahrsd.estimator.field_circle import wrong_calibration_text
+from ahrsd.estimator.field_circle import CalibrationVerdict, wrong_calibration_text
 
 STATE_LABELS = {HeadingState.UNKNOWN: "hdg unknown", HeadingState.MAGNETOMETER: "hdg mag",
                 HeadingState.GNSS_ONLY: "hdg GNSS-only", HeadingState.LEARNING: "hdg learning"}
@@ -86,6 +90,7 @@ class HeadingStatus:
         self._wide_magnetometer = False               # it last stopped being good by a magnetometer heading's σ
         self._now = -math.inf
         self.field_off_centre_ut = math.nan           # the circle check's centre offset while it finds the calibration wrong
+        self.field_corrected_ut = math.nan            # ... while a correction learned from the turns makes it consistent
 
     def set_calibration_sigma(self, sigma_rad: float, in_force: bool | None = None) -> None:
         self.calibration_sigma_rad = float(sigma_rad)
@@ -109,8 +114,9 @@ class HeadingStatus:
             return
         # the calibration's variance as the estimator states it (the check runs only while a calibration states one)
         claimed_var = calibration_heading_variance_rad2(self.calibration_sigma_rad)
-        self.field_off_centre_ut = (field_circle.offset_ut if field_circle is not None
-                                    and field_circle.finds_wrong(claimed_var) else math.nan)
+        verdict = field_circle.verdict(claimed_var) if field_circle is not None else CalibrationVerdict.NOT_JUDGED
+        self.field_off_centre_ut = field_circle.offset_ut if verdict == CalibrationVerdict.WRONG else math.nan
+        self.field_corrected_ut = field_circle.offset_ut if verdict == CalibrationVerdict.CORRECTED else math.nan
         state = HeadingState(est.heading_state)
         self.state = state
         self.sigma_rad = float(est.sigma_rpy_rad[2])
@@ -142,7 +148,7 @@ class HeadingStatus:
                                 f"ahrsd: heading aligned to the GNSS yaw (±{math.degrees(self.sigma_rad):.1f}°): "
                                 "no trusted magnetometer calibration")
         key = (state, self._unknown_cause(est)[0] if state == HeadingState.UNKNOWN
-               else "off-centre" if self._off_centre() else "")
+               else "off-centre" if self._off_centre() else "corrected" if self._corrected() else "")
         if key == self.announced_key:
             self._candidate = None
             return
@@ -201,6 +207,8 @@ class HeadingStatus:
             return None
         if self._off_centre():
             return f"mag field off-centre {self.field_off_centre_ut:.1f} µT"
+        if self._corrected():
+            return f"mag field corrected {self.field_corrected_ut:.1f} µT in turns"
         cal = self.calibration_sigma_rad
         if not math.isfinite(cal):
             return self._no_figure(short=True)
@@ -242,6 +250,10 @@ class HeadingStatus:
 
     def _off_centre_cause(self) -> str:
         return wrong_calibration_text(self.field_off_centre_ut)
+
+    def _corrected(self) -> bool:
+        """The circle check finds the field consistent with a correction learned from the turns (without GNSS)."""
+        return math.isfinite(self.field_corrected_ut) and not self.gnss_checked
 
     def _disagreement(self, integrity) -> tuple[float, bool]:
         """(magnetometer − GNSS yaw or NaN, whether it is beyond both uncertainties)."""
@@ -300,6 +312,10 @@ class HeadingStatus:
             if self._off_centre():
                 return mavlink.MAV_SEVERITY_WARNING, (f"ahrsd: {self._off_centre_cause()}; heading from magnetometer "
                                                       f"({sig}), no GNSS fix to check it")
+            if self._corrected():
+                return mavlink.MAV_SEVERITY_WARNING, (
+                    f"ahrsd: {wrong_calibration_text(self.field_corrected_ut, corrected=True)}; heading from "
+                    f"magnetometer ({sig}), no GNSS fix to check it")
             if caveat is None:
                 wide = ", not good" if not self.sigma_rad <= self.good_sigma_rad else ""
                 return mavlink.MAV_SEVERITY_INFO, f"ahrsd: heading from magnetometer ({sig}{wide})"

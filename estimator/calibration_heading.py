@@ -28,9 +28,16 @@ UNKNOWN_CALIBRATION_SIGMA_RAD = math.pi
 """The heading 1σ of a magnetometer of unknown calibration: the heading is unknown (module docstring)."""
 
 
+def calibration_states_error(mag_calibration_sigma_rad: float) -> bool:
+    """The calibration states the heading error it leaves (a finite 1σ ≥ 0); NaN: none, or its quality unknown.
+    The circle check (field_circle.py) runs only then: with none, σ is π and a check could add nothing."""
+    s = float(mag_calibration_sigma_rad)
+    return math.isfinite(s) and s >= 0.0
+
+
 def calibration_heading_variance_rad2(mag_calibration_sigma_rad: float) -> float:
     """The calibration's heading variance (rad²) to add to a magnetometer-held heading's: the 1σ given squared
     when it is finite and ≥ 0, else (NaN: no calibration, or its quality unknown) UNKNOWN_CALIBRATION_SIGMA_RAD².
     (The calibration's own figure is calibration/heading_trust.calibration_heading_sigma_rad.)"""
     s = float(mag_calibration_sigma_rad)
-    return (s if math.isfinite(s) and s >= 0.0 else UNKNOWN_CALIBRATION_SIGMA_RAD) ** 2
+    return (s if calibration_states_error(s) else UNKNOWN_CALIBRATION_SIGMA_RAD) ** 2

@@ -34,15 +34,15 @@ fit may take the moved one for an ellipse and stay within its gate, but its resi
 Sources: W. Premerlani, "Automatic nulling of magnetometer offsets" (DIY Drones, 2010) and "Magnetometer offsets
 revisited" (2011): offsets rotate with the body while the Earth field does not, so rotation separates them;
 ArduPilot's `CompassLearn` (libraries/AP_Compass/Compass_learn.cpp) learns offsets in flight against the EKF-GSF
-yaw, which needs GNSS — this check needs none, and only says how far the calibration can be trusted (it does not
-correct the field). What it cannot see: a vertical hard iron on a level vehicle (it never leaves the vertical),
+yaw, which needs GNSS — this check needs none. It says how far the calibration can be trusted; mekf then removes
+the hard iron it shows from the field (field_circle_correction.py: `correction_ut`, judged against). What it cannot see: a vertical hard iron on a level vehicle (it never leaves the vertical),
 the antisymmetric soft iron (a constant heading offset), and anything while the vehicle does not turn.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import IntEnum
 
 import numpy as np
@@ -66,10 +66,15 @@ class CalibrationVerdict(IntEnum):
     NOT_JUDGED = 0     # the field has not swept min_sectors sectors within the window: the vehicle did not turn enough
     CONSISTENT = 1     # judged: the circle shows no more heading error than the calibration states
     WRONG = 2          # judged: it shows more (finds_wrong)
+    CORRECTED = 3      # not wrong now, with a correction learned from the turns applied (field_circle_correction.py)
 
 
-def wrong_calibration_text(offset_ut: float) -> str:
-    """The cause a wrong calibration is named by (the daemon's STATUSTEXT, the replay's summary)."""
+def wrong_calibration_text(offset_ut: float, corrected: bool = False) -> str:
+    """The cause a wrong calibration is named by (the daemon's STATUSTEXT, the replay's summary); `corrected`: the
+    correction learned from the turns is applied and the field is consistent again."""
+    if corrected:
+        return (f"magnetometer field off-centre by {offset_ut:.1f} µT in turns: learned correction applied, "
+                "recalibrate to confirm")
     return f"magnetometer field off-centre by {offset_ut:.1f} µT in turns: calibration wrong or iron changed"
 
 
@@ -112,11 +117,18 @@ class FieldCircleResult:
     significant: bool = False                 # the centre or the ellipse is beyond its χ² gate, or the fields
                                               # are not on one circle (scatter beyond scatter_gate)
     heading_var_rad2: float = 0.0             # the heading variance to add to the published σ (0: nothing)
+    correction_ut: tuple = (0.0, 0.0)         # the learned correction the centre was judged against (levelled)
+    tilt_rms_rad: float = math.nan            # the filter's tilt over the window, RMS (how far levelled is from body)
 
     @property
     def offset_ut(self) -> float:
-        """|centre|, µT (NaN while not fitted)."""
+        """|centre| of the field as the calibration gives it, µT (NaN while not fitted)."""
         return math.hypot(*self.centre_ut)
+
+    @property
+    def corrected(self) -> bool:
+        """A correction learned from the turns is applied (field_circle_correction.py)."""
+        return self.correction_ut != (0.0, 0.0)
 
     def finds_wrong(self, claimed_var_rad2: float) -> bool:
         """The circle shows more heading error than the calibration claims (its heading variance, rad²)."""
@@ -126,6 +138,8 @@ class FieldCircleResult:
         """Not judged (too little turning), consistent, or wrong (finds_wrong) against the claimed variance, rad²."""
         if self.finds_wrong(claimed_var_rad2):
             return CalibrationVerdict.WRONG
+        if self.corrected:
+            return CalibrationVerdict.CORRECTED
         return CalibrationVerdict.CONSISTENT if self.covered else CalibrationVerdict.NOT_JUDGED
 
     def checked_var_rad2(self, claimed_var_rad2: float) -> float:
@@ -137,7 +151,9 @@ class FieldCircleResult:
 class FieldCircleCheck:
     """`add(t_s, roll_rad, pitch_rad, mag_body_ut, tilt_sigma_rad, estimate_flags)` from `due_t_s` on (it takes one
     per period_s, none of an estimate flagged SKIPPED_FLAGS); True when a new `result` was judged. `reset()` forgets
-    everything (a new calibration)."""
+    everything (a new calibration). `correction_ut`: a correction (levelled x, y) the filter subtracts from the
+    field (field_circle_correction.py); the fit goes on with the fields as the calibration gives them and judges
+    its centre minus it."""
 
     def __init__(self, params: FieldCircleParams | None = None):
         self.params = params or FieldCircleParams()
@@ -149,10 +165,12 @@ class FieldCircleCheck:
         self._tt = 0.0                     # Σ w t²
         self._w = 0.0                      # Σ w
         self._floor = 0.0                  # Σ w · (the residual's variance floor)
+        self._tilt2 = 0.0                  # Σ w · (roll² + pitch²)
         self._sector_s = np.zeros(N_SECTORS)
         self.due_t_s = -math.inf          # the next field is taken from this time on
         self._last_t_s = math.nan
         self._next_solve_t_s = -math.inf
+        self.correction_ut = (0.0, 0.0)
         self.result = FieldCircleResult()
 
     def add(self, t_s: float, roll_rad: float, pitch_rad: float, mag_body_ut, tilt_sigma_rad: float,
@@ -185,6 +203,7 @@ class FieldCircleCheck:
         self._b += w * t * u
         self._tt += w * t * t
         self._w += w
+        self._tilt2 += w * (roll_rad * roll_rad + pitch_rad * pitch_rad)
         # a residual of the conic is ≈ 2·(m − c)·δm: the horizontal field error of the noise and of a tilt error
         # (the vertical field turned into the horizontal by it)
         tilt = tilt_sigma_rad if math.isfinite(tilt_sigma_rad) else 0.0
@@ -194,6 +213,8 @@ class FieldCircleCheck:
             return False
         self._next_solve_t_s = t_s + p.solve_period_s
         self.result = self._judge()
+        if self.correction_ut != (0.0, 0.0):
+            self.result = replace(self.result, correction_ut=self.correction_ut)
         return True
 
     def _forget(self, f: float) -> None:
@@ -202,6 +223,7 @@ class FieldCircleCheck:
         self._tt *= f
         self._w *= f
         self._floor *= f
+        self._tilt2 *= f
         self._sector_s *= f
 
     def _judge(self) -> FieldCircleResult:
@@ -237,12 +259,13 @@ class FieldCircleCheck:
         jac[:, 2:4] = -0.5 * m_inv
         cov_c = jac @ cov @ jac.T
         cov_e = cov[:2, :2]
+        c_left = c - np.asarray(self.correction_ut)         # what the filter's field still has
         try:
-            chi2_c = float(c @ np.linalg.solve(cov_c, c))
+            chi2_c = float(c_left @ np.linalg.solve(cov_c, c_left))
             chi2_e = float(theta[:2] @ np.linalg.solve(cov_e, theta[:2]))
         except np.linalg.LinAlgError:
             return FieldCircleResult(covered=False)
-        a_hard = math.asin(min(1.0, float(np.hypot(*c)) / radius))
+        a_hard = math.asin(min(1.0, float(np.hypot(*c_left)) / radius))
         a_soft = 0.5 * math.hypot(beta, gamma)          # β = −2e₁, γ = −2e₂ to first order
         fitted = chi2_c > p.gate_chi2 or chi2_e > p.gate_chi2
         var = 0.5 * (a_hard ** 2 + a_soft ** 2) if fitted else 0.0
@@ -256,4 +279,5 @@ class FieldCircleCheck:
             var = max(var, (resid - floor) / radius ** 4)
         significant = fitted or scattered
         return FieldCircleResult((float(c[0]), float(c[1])), math.sqrt(float(np.max(np.linalg.eigvalsh(cov_c)))),
-                                 radius, a_soft, covered, significant, var)
+                                 radius, a_soft, covered, significant, var,
+                                 tilt_rms_rad=math.sqrt(self._tilt2 / self._w))

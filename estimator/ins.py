@@ -32,7 +32,7 @@ from ahrsd.core.sample import ImuSample
 from . import ins_core as core
 from . import mag_heading as mag
 from .accel_axes_heading import accel_axes_heading_variance_rad2
-from .calibration_heading import calibration_heading_variance_rad2
+from .calibration_heading import calibration_heading_variance_rad2, calibration_states_error
 from .gsf_yaw import GsfParams, gsf_fuse_velocity, gsf_output, gsf_reset, new_gsf_state
 from .heading_monitor import HeadingCheckRecord, HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
 from .heading_state_hold import HeadingStateHold
@@ -506,8 +506,8 @@ class Ins:
         its heading error (with none, σ is π before the first fix and a check could add nothing)."""
         self._field_circle.reset()
         p = self.params
-        s = p.mag_calibration_sigma_rad
-        self._field_circle_on = p.mag_field_circle_check and p.mag_enabled and math.isfinite(s) and s >= 0.0
+        self._field_circle_on = (p.mag_field_circle_check and p.mag_enabled
+                                 and calibration_states_error(p.mag_calibration_sigma_rad))
 
     def _check_field_circle(self, t_s: float, m, f: int) -> None:
         """One levelled field (with the learned iron removed, as the kernel removes it) into the circle check."""

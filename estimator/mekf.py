@@ -35,9 +35,10 @@ from . import mekf_core as core
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
                             float_field_slice, uninitialised_estimate)
-from .calibration_heading import calibration_heading_variance_rad2
+from .calibration_heading import calibration_heading_variance_rad2, calibration_states_error
 from .estimate_view import EstimateView
 from .field_circle import FieldCircleCheck, FieldCircleParams, FieldCircleResult
+from .field_circle_correction import FieldCircleCorrection
 from .initial_attitude import initial_attitude
 from .mag_heading import RELEARN_GATE_OPEN_S, heading_params, relearn_reference, widen_after_calibration_change
 from .mag_heading_params import MagHeadingParams
@@ -165,6 +166,9 @@ class MekfParams(MagHeadingParams):
     """... and the 1σ heading is below this (ignored without a magnetometer), rad."""
     heading_unknown_sigma_rad: float = 15.0 * _DEG
     """Above this yaw 1σ the estimate's heading state is UNKNOWN (a heading consumer cannot use it), rad."""
+    mag_field_circle_correction: bool = True
+    """When the circle check (mag_field_circle_check) finds the calibration wrong, learn the hard iron it shows and
+    remove it from the field (field_circle_correction.py); False: only widen σ by it."""
     mag_calibration_sigma_rad: float = 0.0
     """The heading error the magnetometer calibration leaves, 1σ rad, added to the published yaw 1σ
     (calibration_heading.py): 0 = the input is calibrated (the library default); NaN = no calibration or its
@@ -253,6 +257,10 @@ class Mekf:
         # the calibration checked by the circle its levelled field sweeps in turns (field_circle.py)
         self._field_circle = FieldCircleCheck(FieldCircleParams(mag_noise_ut=self.params.mag_noise_ut))
         self._field_circle_on = False
+        # the hard iron it finds, learned and subtracted from the field (field_circle_correction.py)
+        self._iron = FieldCircleCorrection()
+        self._iron_body_ut = None           # what is subtracted from the field (None: nothing)
+        self._iron_t_s = math.nan
         self._set_field_circle()
 
     # ----------------------------------------------------------------------- Estimator protocol
@@ -302,21 +310,37 @@ class Mekf:
         """Start the circle check again (a new calibration, a reset). It runs while a calibration states its
         heading error: with none (σ π) there is nothing a check could add."""
         self._field_circle.reset()
+        self._iron.reset()
+        self._iron_body_ut = None
+        self._iron_t_s = math.nan
         p = self.params
         self._field_circle_on = (p.mag_field_circle_check and p.mag_enabled
-                                 and calibration_heading_variance_rad2(p.mag_calibration_sigma_rad)
-                                 < calibration_heading_variance_rad2(math.nan))
+                                 and calibration_states_error(p.mag_calibration_sigma_rad))
         self._buf[0]["par"]["heading_calibration_var_rad2"] = calibration_heading_variance_rad2(
             p.mag_calibration_sigma_rad)
 
     def _check_field_circle(self, t_s: float, m, f: int) -> None:
-        """One levelled field into the circle check (at its own rate, after start-up); its verdict into the published
-        σ's calibration term."""
+        """One levelled field (as the calibration gives it) into the circle check (at its own rate, after start-up);
+        the hard iron it finds learned and moved in (field_circle_correction.py); the verdict and what the
+        correction leaves into the published σ's calibration term."""
         self._read_euler()
         e, sig = self._euler_out, self._sigma_out
-        if self._field_circle.add(t_s, float(e[0]), float(e[1]), m, max(float(sig[0]), float(sig[1])), f):
-            self._buf[0]["par"]["heading_calibration_var_rad2"] = self._field_circle.result.checked_var_rad2(
-                calibration_heading_variance_rad2(self.params.mag_calibration_sigma_rad))
+        roll, pitch = float(e[0]), float(e[1])
+        check, iron = self._field_circle, self._iron
+        judged = check.add(t_s, roll, pitch, m, max(float(sig[0]), float(sig[1])), f)
+        claimed = calibration_heading_variance_rad2(self.params.mag_calibration_sigma_rad)
+        if judged and self.params.mag_field_circle_correction:
+            iron.learn(check.result, claimed, t_s)
+        if iron.active:
+            iron.advance(t_s - self._iron_t_s if math.isfinite(self._iron_t_s) else 0.0, float(sig[2]))
+            self._iron_t_s = t_s
+            if iron.body_ut is not None:
+                self._iron_body_ut = iron.body_ut
+                check.correction_ut = (float(iron.applied_ut[0]), float(iron.applied_ut[1]))
+            self._buf[0]["par"]["heading_calibration_var_rad2"] = max(check.result.checked_var_rad2(claimed),
+                                                                      iron.heading_var_rad2())
+        elif judged:
+            self._buf[0]["par"]["heading_calibration_var_rad2"] = check.result.checked_var_rad2(claimed)
 
     def field_circle(self) -> FieldCircleResult | None:
         """What the circle check found of the calibration in force (field_circle.py); None while it does not run
@@ -358,8 +382,10 @@ class Mekf:
             # any 8-byte dtype as float64 unchecked), else as float64 copies
             if not (g.dtype is _F64 and a.dtype is _F64 and m.dtype is _F64):
                 g, a, m = _as_f64(g), _as_f64(a), _as_f64(m)
-            # the flags as they are: the entry point reads an int (SampleFlags is one) as int64
-            f = self._step(self._buf, t_s, g, a, m, sample.flags)
+            # the flags as they are: the entry point reads an int (SampleFlags is one) as int64; the field with the
+            # hard iron learned in turns removed (the check keeps the field as the calibration gives it)
+            f = self._step(self._buf, t_s, g, a, m if self._iron_body_ut is None else m - self._iron_body_ut,
+                           sample.flags)
             if not f & _NEEDS_INIT_OR_BAD:
                 self._bits = f
                 self._euler_stale = True

@@ -44,7 +44,8 @@ HEADING_COLUMNS = (
     "heading_state",                           # HeadingState as an integer (0 unknown, 1 magnetometer, 2 GNSS only, 3 learning)
 )
 FIELD_CIRCLE_COLUMNS = (
-    "mag_cal_check",                           # field_circle.CalibrationVerdict: 0 not judged, 1 consistent, 2 wrong
+    "mag_cal_check",                           # field_circle.CalibrationVerdict: 0 not judged, 1 consistent, 2 wrong,
+                                               # 3 corrected
     "mag_field_centre_ut",                     # |the levelled field circle's centre|, µT; NaN while not judged
 )
 CHUNK_ROWS = 16384   # rows per table yielded (memory stays constant for long recordings)

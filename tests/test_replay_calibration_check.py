@@ -68,6 +68,15 @@ def test_a_wrong_hard_iron_is_named_with_when_and_how_much(tmp_path, capsys):
     assert m, err
     assert float(m.group(1)) == pytest.approx(centre[first], abs=0.051)
     assert float(m.group(2)) == pytest.approx(data[first, 0], abs=0.051)
+    # mekf then removes the hard iron it learned from the turns (field_circle_correction.py): marked 3 once the
+    # corrected field is consistent, and the summary says so from the first such sample
+    corrected = verdict == 3
+    assert corrected.any() and int(np.argmax(corrected)) > first
+    m = re.search(r"then magnetometer field off-centre by ([0-9.]+) µT in turns: learned correction applied, "
+                  r"recalibrate to confirm \(consistent with it from ([0-9.]+) s", err)
+    assert m, err
+    assert float(m.group(1)) == pytest.approx(HARD_IRON_ERROR_UT, abs=1.0)
+    assert float(m.group(2)) == pytest.approx(data[int(np.argmax(corrected)), 0], abs=0.051)
 
 
 def test_a_calibration_that_states_the_error_it_leaves_is_consistent(tmp_path, capsys):
