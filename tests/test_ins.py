@@ -41,17 +41,26 @@ REJECTED = int(EstimateFlags.GNSS_REJECTED)
 CALIBRATED = {"mag_calibration_sigma_rad": math.radians(0.5)}
 
 
-@functools.lru_cache(maxsize=None)
-def _run(scenario, seconds, seed=1):
-    return simulated_run(scenario, seconds, rate_hz=200.0, seed=seed)
+def _run(scenario, seconds, seed=1, earth="wgs84"):
+    return _simulated(scenario, seconds, seed, earth)
 
 
 @functools.lru_cache(maxsize=None)
-def _clean(scenario, seconds, latency_s=0.1, seed=1):
-    """The reference: the ins with clean 5 Hz fixes (1.5 m, 0.05 m/s)."""
-    run = _run(scenario, seconds, seed)
-    fixes = gnss_fixes(run.truth, latency_s=latency_s, seed=seed + 10)
-    return run, fixes, run_ins(Ins(declination_rad=DECLINATION, **CALIBRATED), run, fixes)
+def _simulated(scenario, seconds, seed, earth):
+    return simulated_run(scenario, seconds, rate_hz=200.0, seed=seed, earth=earth)
+
+
+def _clean(scenario, seconds, latency_s=0.1, seed=1, earth="wgs84"):
+    """The reference: the ins with clean 5 Hz fixes (1.5 m, 0.05 m/s), the track, fixes and filter on `earth`.
+    Shared by the tests that read it (read only), however they pass the arguments."""
+    return _clean_run(scenario, seconds, latency_s, seed, earth)
+
+
+@functools.lru_cache(maxsize=None)
+def _clean_run(scenario, seconds, latency_s, seed, earth):
+    run = _run(scenario, seconds, seed, earth)
+    fixes = gnss_fixes(run.truth, latency_s=latency_s, seed=seed + 10, earth=earth)
+    return run, fixes, run_ins(Ins(declination_rad=DECLINATION, **CALIBRATED, earth_model=earth), run, fixes)
 
 
 def _rms(a):
@@ -235,11 +244,9 @@ def test_position_follows_the_earth_model_the_fixes_are_on(earth):
     """Fixes on the WGS-84 ellipsoid or on the R0 sphere: with the matching earth_model the position is
     unbiased. With the other one the north scale is 0.3 % off (R vs R_N at 36°), which the position updates
     absorb without changing the attitude."""
-    run = simulated_run("coordinated-turn", 150.0, rate_hz=200.0, seed=1, earth=earth)
-    fixes = gnss_fixes(run.truth, seed=11, earth=earth)
+    run, fixes, good = _clean("coordinated-turn", 150.0, earth=earth)     # on WGS-84: the outage test's run
     m = run.truth.t_s > 30.0
     other = "sphere" if earth == "wgs84" else "wgs84"
-    good = run_ins(Ins(declination_rad=DECLINATION, **CALIBRATED, earth_model=earth), run, fixes)
     mismatched = run_ins(Ins(declination_rad=DECLINATION, **CALIBRATED, earth_model=other), run, fixes)
     err = position_error_ned(good, run.truth, earth)[m]
     assert np.linalg.norm(np.mean(err, axis=0)) < 0.3 and _rms(np.linalg.norm(err, axis=1)) < 0.5

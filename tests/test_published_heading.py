@@ -96,6 +96,12 @@ def boat():
     return simulate_vehicle("boat", 150.0, 5, None)
 
 
+@pytest.fixture(scope="module")
+def boat_with_resets(boat):
+    """`_run_with_resets(boat)` at the default settings, read by two tests (read only)."""
+    return _run_with_resets(boat)
+
+
 def _run_with_resets(run, build_every: int = 1, **params):
     """ins on the boat; at 60 s its yaw is reset 8° off with σ 10° (a reset to a GNSS yaw that is wrong but says
     so), and neither a fix nor a magnetometer sample arrives for 6 s (nothing corrects it: the published yaw slews
@@ -142,13 +148,13 @@ def _run_with_resets(run, build_every: int = 1, **params):
     return {"q": q, "sigma_yaw_rad": sigma, "flags": flags, "heading_state": np.zeros(n), "ins": est}
 
 
-def test_yaw_resets_in_ins_reach_the_published_heading_without_a_step_and_within_3_sigma(boat):
+def test_yaw_resets_in_ins_reach_the_published_heading_without_a_step_and_within_3_sigma(boat, boat_with_resets):
     """Two resets of the filter's yaw (8° off, then back to the truth): the published heading error changes by
     ≤ 0.5° in any 0.1 s and stays within 3σ of the published σ — for 4 s after the second reset only the offset
     in the published σ covers it; without the slew (rate 1000 rad/s) each reset is a step."""
     from bench.vehicle_accuracy import honesty_figures
 
-    out = _run_with_resets(boat)
+    out = boat_with_resets
     assert np.count_nonzero(out["flags"] & int(EstimateFlags.YAW_RESET)) == 2
     f = honesty_figures(boat, out, 30.0)
     assert f["max_step_0_1s"] <= 0.5 and f["beyond_3sigma"] <= 0.01, f
@@ -156,11 +162,11 @@ def test_yaw_resets_in_ins_reach_the_published_heading_without_a_step_and_within
     assert unslewed["max_step_0_1s"] > 5.0, unslewed
 
 
-def test_the_published_heading_does_not_depend_on_how_often_estimates_are_built(boat):
+def test_the_published_heading_does_not_depend_on_how_often_estimates_are_built(boat, boat_with_resets):
     """The slew moves with every sample (ins.step), so an estimate built at every 30th sample (the daemon builds
     one for its outputs, 30–50 Hz) is the estimate of that sample had every sample's been built — through both
     resets and the slews after them, σ (the offset in it) and flags included — bit for bit."""
-    every = _run_with_resets(boat)
+    every = boat_with_resets
     sparse = _run_with_resets(boat, build_every=30)
     built = np.arange(0, len(boat.t_s), 30)
     assert np.all(np.isnan(sparse["sigma_yaw_rad"][1:30]))

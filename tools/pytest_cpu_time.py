@@ -23,10 +23,14 @@ import time
 import pytest
 
 
+def _children_cpu_s() -> float:
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return children.ru_utime + children.ru_stime
+
+
 def _cpu_s() -> float:
     own = resource.getrusage(resource.RUSAGE_SELF)
-    children = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+    return own.ru_utime + own.ru_stime + _children_cpu_s()
 
 
 _per_test: dict[str, float] = {}
@@ -35,7 +39,7 @@ _per_test: dict[str, float] = {}
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
     """Runs where the test runs (an xdist worker, or this process without -n): setup, call and teardown."""
-    started_s = _cpu_s()
+    started_s, children_started_s = _cpu_s(), _children_cpu_s()
     wall_started_s = time.time()
     yield
     _per_test[item.nodeid] = _cpu_s() - started_s
@@ -43,9 +47,21 @@ def pytest_runtest_protocol(item, nextitem):
     if out:
         worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
         row = {"test": item.nodeid, "cpu_s": _per_test[item.nodeid], "worker": worker,
+               "children_cpu_s": _children_cpu_s() - children_started_s,
                "wall_start_s": wall_started_s, "wall_end_s": time.time()}
         with open(f"{out}-{worker}.jsonl", "a") as fh:
             fh.write(json.dumps(row) + "\n")
+
+
+def pytest_sessionfinish(session):
+    """Where tests ran: the process's whole CPU at the end of the session (start-up, collection, and what no test
+    waited for), beside the tests' sum; the difference is what no test row holds."""
+    out = os.environ.get("AHRSD_CPU_TIME_OUT")
+    if out and _per_test:
+        worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+        with open(f"{out}-{worker}.jsonl", "a") as fh:
+            fh.write(json.dumps({"session_of": worker, "cpu_s": _cpu_s(), "children_cpu_s": _children_cpu_s(),
+                                 "tests_cpu_s": sum(_per_test.values())}) + "\n")
 
 
 def per_file(per_test: dict[str, float]) -> list[tuple[str, float, int]]:
@@ -100,7 +116,12 @@ if __name__ == "__main__":
     for path in (a for a in args if a != "--timeline"):
         with open(path) as fh:
             rows.extend(json.loads(line) for line in fh)
+    sessions = [r for r in rows if "session_of" in r]
+    rows = [r for r in rows if "test" in r]
     if timeline:
         _print_timeline([r for r in rows if "wall_start_s" in r], print)
     else:
         _print(per_file({r["test"]: r["cpu_s"] for r in rows}), print)
+    for r in sessions:
+        print(f"{r['session_of']}: {r['cpu_s']:.1f} CPU-s in all ({r['children_cpu_s']:.1f} in waited-for children), "
+              f"{r['cpu_s'] - r['tests_cpu_s']:.1f} outside its tests")
