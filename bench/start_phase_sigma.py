@@ -2,7 +2,8 @@
 (`level-turns`, the README tour's `ahrsd run --sim level-turns`), its magnetometer calibrated right and stating a
 0.09° figure as the tour's calibration does, through the daemon's pipeline started 0, 3, 6 … samples into the
 stream (a daemon's start lands anywhere in the chip's sample stream). Prints, per start, the peak heading 1σ from
-5 s after the start, when it occurs, the heading RMS against the simulator's truth and the share beyond 3σ.
+5 s after the start, when it occurs, the heading RMS against the simulator's truth and the share beyond 3σ;
+then the peaks' spread over the starts (docs/estimator.md "What the filter's own bias learning explains").
 
     .venv/bin/python bench/start_phase_sigma.py --seed 0 --offsets 0 3 6 12 18 24 48 96 200
 """
@@ -64,10 +65,14 @@ def main() -> None:
     ap.add_argument("--offsets", type=int, nargs="+", default=[0, 3, 6, 12, 18, 24, 48, 96, 200])
     ap.add_argument("--run-s", type=float, default=120.0)
     args = ap.parse_args()
+    peaks = []
     for off in args.offsets:
         peak, at, rms, beyond = one_start(args.seed, off, args.run_s)
+        peaks.append(peak)
         print(f"seed {args.seed} start +{off:3d} samples: peak heading 1σ {peak:.3f}° at {at:5.1f} s, "
               f"heading RMS {rms:.2f}°, beyond 3σ {beyond:.2f} %", flush=True)
+    print(f"seed {args.seed}: peaks {min(peaks):.3f}–{max(peaks):.3f}°, spread {max(peaks) - min(peaks):.3f}° over "
+          f"{len(peaks)} starts")
 
 
 if __name__ == "__main__":

@@ -68,8 +68,10 @@ from .turn_lean import (
     bound_pushes,
     levelling_gain,
     lowpass_rate_down,
+    prior_share,
     tilt_pushes_rad,
     track_accel_push,
+    track_bias_learning,
     track_heading_push,
     track_tilt_push,
 )
@@ -596,15 +598,28 @@ def _correct_tilt(st, par, fnorm, g_ref, nu_n, nu_e, r):
     st.acc_since_accept_s = 0.0
 
 
+@njit(cache=True, inline="always")
+def _sums_lean(st, par, at_rest):
+    """Whether the speed change's sum (turn_lean.track_accel_push) takes this step's levelling: not at rest
+    (nothing leans the vertical then) and not while the filter still converges from its initialisation
+    (t_run < init_min_time_s or a tilt 1σ ≥ converged_tilt_rad, the INITIALISING test's tilt part): those
+    corrections remove the error it started with, which its covariance carries, and the gyro bias it learns
+    from them is the start's guess, not the drift it will explain."""
+    P = st.P
+    return (not at_rest and st.t_run_s >= par.init_min_time_s
+            and max(P[E_TILT_N, E_TILT_N], P[E_TILT_E, E_TILT_E]) < par.converged_tilt_rad * par.converged_tilt_rad)
+
+
 @njit(cache=True)
-def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish):
+def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish, summing):
     """The vertical of the specific force, low-passed in the estimated NED frame (`_vertical_lowpass`), corrects
     δθ_N, δθ_E with the gain on heading forced to zero (`_correct_tilt`), with a variance that grows with the
     motion (`_motion_noise_rad2`, `_vertical_noise_rad2`). Rejected while the low-passed |f| is far from g or
     its vertical is more than acc_gate_rad from the estimate, then held off until the low-pass has forgotten
     the push (`_vertical_accepted`). (wx, wy, wz): the bias-corrected rate, for the lean a turn leaves
     (`turn_lean.track_tilt_push`, only when `publish`: it feeds the published 1σ only); c: C_b^n of the current
-    attitude (`dcm`, 9 scalars). Returns F_ACCEL_REJECTED or 0."""
+    attitude (`dcm`, 9 scalars); summing: the speed change's sum takes this update's correction
+    (`_sums_lean`). Returns F_ACCEL_REJECTED or 0."""
     g_ref = st.g_ref_m_s2   # what `_vertical_lowpass` learns at rest applies from the next sample
     fnorm, un, ue, ud = _vertical_lowpass(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c)
     unorm = math.sqrt(un * un + ue * ue + ud * ud)
@@ -620,7 +635,7 @@ def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish):
     if publish:
         track_tilt_push(st.unmodelled, par.turn_speed_m_s, g_ref, gain_e)
     # on both paths (a sum: no bound after a batch could stand for it), so a batch leaves the state a step leaves
-    track_accel_push(st.unmodelled, nu_n, nu_e, levelling_gain(st.P[E_TILT_N, E_TILT_N], r), gain_e, dt, at_rest)
+    track_accel_push(st.unmodelled, nu_n, nu_e, levelling_gain(st.P[E_TILT_N, E_TILT_N], r), gain_e, dt, summing)
     _correct_tilt(st, par, fnorm, g_ref, nu_n, nu_e, r)
     return 0
 
@@ -947,9 +962,16 @@ def mekf_step(st, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, ou
         gy = glast[1]
         gz = glast[2]
     b = st.gyro_bias_rad_s
-    wx = gx - b[0]
-    wy = gy - b[1]
-    wz = gz - b[2]
+    b0 = b[0]   # the bias the step propagates with and its variance: what its updates learn of its prior is
+    b1 = b[1]   # credited to the speed change's sum (turn_lean.track_bias_learning)
+    b2 = b[2]
+    P = st.P
+    pb0 = P[E_BIAS, E_BIAS]
+    pb1 = P[E_BIAS + 1, E_BIAS + 1]
+    pb2 = P[E_BIAS + 2, E_BIAS + 2]
+    wx = gx - b0
+    wy = gy - b1
+    wz = gz - b2
     rate = math.sqrt(wx * wx + wy * wy + wz * wz)
     if dt > 0.0:
         _propagate_attitude(st.q, dt, wx, wy, wz, rate)
@@ -963,9 +985,16 @@ def mekf_step(st, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, ou
         flags |= F_AT_REST
         _learn_bias_at_rest(st, par, dt, gx, gy, gz)
         c = dcm(st.q[0], st.q[1], st.q[2], st.q[3])
+    summing = _sums_lean(st, par, at_rest)
     if valid & IN_ACC_OK:
-        flags |= _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish)
+        flags |= _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish, summing)
     flags |= _heading_update(st, par, dt, rate, valid, at_rest, mag_moved_at_rest, mx, my, mz, publish)
+    # on both paths, as the sum itself (`_tilt_update`)
+    qb = par.gyro_bias_walk_rad_s_sqrt_s * par.gyro_bias_walk_rad_s_sqrt_s * dt
+    track_bias_learning(st.unmodelled, dt, c, summing,
+                        prior_share(pb0, qb, P[E_BIAS, E_BIAS]) * (b[0] - b0),
+                        prior_share(pb1, qb, P[E_BIAS + 1, E_BIAS + 1]) * (b[1] - b1),
+                        prior_share(pb2, qb, P[E_BIAS + 2, E_BIAS + 2]) * (b[2] - b2))
     if publish:
         return flags | _fill_outputs(st, par, gx, gy, gz, out)
     return flags | _fill_estimate(st, par, out)

@@ -23,6 +23,8 @@ and calls, in its own stages:
   `levelling_gain`       k = P/(P + R) of a levelling update, once per axis for the two pushes below
   `track_tilt_push`      at each accepted levelling update
   `track_accel_push`     at each accepted levelling update (mekf)
+  `track_bias_learning`  once per step, after its updates (mekf): the sum less what the bias learning explains
+                         (`prior_share`: the part of a bias change that learns the bias's prior)
   `track_heading_push`   at each magnetometer heading update
   `bound_pushes`         after a stretch that did not track (mekf's batch): an upper bound of what tracking
                          would have left (the speed change's sum is tracked on mekf's batch too: it has
@@ -42,6 +44,8 @@ TURN_LEAN_DTYPE = np.dtype([
     ("heading_push_rad", np.float64),     # heading error that tilt error leaves through the dip
     ("accel_push_n_rad", np.float64),     # tilt (about north, east) the levelling took from the specific force's
     ("accel_push_e_rad", np.float64),     # horizontal part, forgotten over ACCEL_PUSH_MEMORY_S (`track_accel_push`)
+    ("bias_tilt_n_s", np.float64, (3,)),  # tilt about north (rad) a body-frame gyro bias error of 1 rad/s turns
+    ("bias_tilt_e_s", np.float64, (3,)),  # the estimate by, over the same memory (`track_bias_learning`); east
 ])
 ACCEL_PUSH_MEMORY_S = 30.0
 """How long `track_accel_push` remembers the levelling's corrections, s: the longest sustained speed change whose
@@ -79,26 +83,79 @@ def track_tilt_push(u, turn_speed_m_s, g_m_s2, gain):
 
 
 @njit(cache=True)
-def track_accel_push(u, nu_n, nu_e, gain_n, gain_e, dt, at_rest):
+def track_accel_push(u, nu_n, nu_e, gain_n, gain_e, dt, summing):
     """The tilt the levelling takes from a speed change. Speeding up or braking at a leans the apparent vertical
     by a/g along the track; nothing but the velocity shows a, so the levelling reads the lean as tilt error and
     corrects toward it. Its innovation ν (the low-passed vertical's horizontal part in the estimated frame) is
     then the lean φ less the error e the filter already carries, and each update moves the estimate by k·ν
     (k = P/(P + R), `levelling_gain`): e ← e + k(φ − e). The sum of those corrections is e itself, whatever φ
     was (the measurement noise in ν telescopes away: Σ k(n − e) = e_N − e_0), so summing k·ν reconstructs the
-    lean the filter carries with no speed known. It also sums the corrections of the gyro's own drift, which are
-    not lean: the sum forgets at ACCEL_PUSH_MEMORY_S, which bounds that part by the drift over the memory (so
-    only a filter whose levelling also learns the gyro bias may use it: the module docstring), and nothing is
-    summed while the vehicle is at rest (`at_rest`: nothing leans the vertical then; the corrections are the
-    gyro bias being learned and its noise). nu_n: the innovation on δθ_E, nu_e: on −δθ_N
-    (mekf_core._tilt_update); gain_n, gain_e: the `levelling_gain` of δθ_N and δθ_E; dt: the time since the
-    previous update, s."""
+    lean the filter carries with no speed known. What else it would sum is not lean: the corrections of the
+    gyro's own drift, of which `track_bias_learning` takes out what the filter's bias learning explains, and the
+    sum forgets at ACCEL_PUSH_MEMORY_S, which bounds the rest by the drift over the memory (so only a filter
+    whose levelling also learns the gyro bias may use it: the module docstring); and the corrections nothing
+    leans, which the filter does not sum (`summing` False): at rest (the gyro bias being learned and its noise)
+    and while it still converges from its initialisation (the error it started with, which its covariance
+    carries). The forgetting is per accepted update: a lean taken stays in the estimate while no update corrects
+    it. nu_n: the innovation on δθ_E, nu_e: on −δθ_N (mekf_core._tilt_update); gain_n, gain_e: the
+    `levelling_gain` of δθ_N and δθ_E; dt: the time since the previous update, s."""
     keep = math.exp(-dt / ACCEL_PUSH_MEMORY_S)
     u.accel_push_e_rad *= keep
     u.accel_push_n_rad *= keep
-    if not at_rest:
+    mn = u.bias_tilt_n_s      # the bias learning's weights forget with the sum (`track_bias_learning`)
+    me = u.bias_tilt_e_s
+    for i in range(3):
+        mn[i] *= keep
+        me[i] *= keep
+    if summing:
         u.accel_push_e_rad += gain_e * nu_n
         u.accel_push_n_rad -= gain_n * nu_e
+
+
+@njit(cache=True, inline="always")
+def prior_share(p_before, q, p_after):
+    """The share of a step's bias learning that learns what was unknown before it, in [0, 1]: its updates take
+    the bias variance from p_before + q (q: the random walk the step added) down to p_after; of that reduction
+    p_before − p_after shrinks what was left from before (a turn-on bias being learned from its prior), and the
+    rest, q, only relearns what the walk let wander this step (the share then 0: a bias held at its steady
+    state, whose estimate moves with whatever else the levelling reads as bias)."""
+    learnt = p_before + q - p_after
+    if learnt <= 0.0:
+        return 0.0
+    return min(max((p_before - p_after) / learnt, 0.0), 1.0)
+
+
+@njit(cache=True)
+def track_bias_learning(u, dt, c, summing, db0, db1, db2):
+    """Once per step, after its updates: take out of the speed change's sum (`track_accel_push`) the corrections
+    the filter's own gyro bias learning explains. The estimate propagates with ω − b̂ and each correction turns
+    it by δθ, so its NED error moves as dε = C_b^n (b − b̂(τ)) dτ + δθ, and the corrections sum to
+        Σ w δθ = Σ w dε − ∫ w C (b − b̂(t)) dτ − ∫ w C (b̂(t) − b̂(τ)) dτ
+    (w(t, τ): the sum's forgetting). The first term is what the sum is for (the lean taken); the second is the
+    bias error the filter still has (its covariance's); the third is drift that the bias learned since τ
+    explains in hindsight (the start's bias learning, a bias that moves). It is known to the filter:
+    X = M b̂(t) − ∫ w C b̂ dτ with M = ∫ w C dτ, so dX = M db̂ + (X's forgetting, the sum's), and adding it
+    (X ← X + M δb̂ here, forgotten with the sum) leaves Σ w dε − ∫ w C (b − b̂(t)) dτ. M (`bias_tilt_n_s`,
+    `bias_tilt_e_s`: the north and east rows, how far a body-frame bias error of 1 rad/s has turned the
+    estimate about north and east over the memory) takes the time whose corrections are summed (`summing`).
+    Only a bias being learned explains drift this way: one held at its steady state also moves with what the
+    levelling reads as bias (a speed change's lean among it), so the caller passes the share of δb̂ that learns
+    the bias's prior (`prior_share`: all of it while a turn-on bias is learned, none at the steady state), at
+    rest too (the bias measured there explains the drift summed before). c: C_b^n of the step (`dcm`'s
+    9-tuple, the attitude propagated with b̂ before δb̂); db0, db1, db2: that share of the change of b̂ over
+    the step's updates, rad/s; dt: the step, s."""
+    c00, c01, c02, c10, c11, c12, _, _, _ = c
+    mn = u.bias_tilt_n_s
+    me = u.bias_tilt_e_s
+    if summing:
+        mn[0] += c00 * dt
+        mn[1] += c01 * dt
+        mn[2] += c02 * dt
+        me[0] += c10 * dt
+        me[1] += c11 * dt
+        me[2] += c12 * dt
+    u.accel_push_n_rad += mn[0] * db0 + mn[1] * db1 + mn[2] * db2
+    u.accel_push_e_rad += me[0] * db0 + me[1] * db1 + me[2] * db2
 
 
 @njit(cache=True, inline="always")
