@@ -30,6 +30,7 @@ import math
 import sys
 from multiprocessing import Pool
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -64,7 +65,21 @@ def wrong_calibration_field(mag_ut: np.ndarray, hard_error_ut: float, direction_
     return (mag_ut - db) * np.array([1.0 + soft_error, 1.0, 1.0])
 
 
-def one_run(job) -> tuple:
+class Job(NamedTuple):
+    """One run: the vehicle, the estimator, and the calibration it is given (None: the right one)."""
+    scenario: str
+    seed: int
+    seconds: float
+    from_s: float
+    estimator: str
+    wrong: tuple | None = None
+    good_sigma_rad: float = math.radians(5.0)     # the daemon's heading_good_sigma_deg default
+    circle: bool = True
+    correct: bool = True
+    iron_step: bool = False
+
+
+def one_run(job: Job) -> tuple:
     from ahrsd.core.estimate import EstimateFlags, HeadingState
     from ahrsd.core.sample import SampleFlags, make_sample
     from ahrsd.estimator.ins import Ins
@@ -72,7 +87,7 @@ def one_run(job) -> tuple:
 
     from bench.vehicle_accuracy import IRON_STEP_AT
 
-    scenario, seed, seconds, from_s, estimator, wrong, good_sigma_rad, circle, correct, iron_step = job
+    scenario, seed, seconds, from_s, estimator, wrong, good_sigma_rad, circle, correct, iron_step = Job(*job)
     run = simulate_vehicle(scenario, seconds, seed, None, mag="iron-step" if iron_step else "calibrated")
     mag_ut = run.mag_ut if wrong is None else wrong_calibration_field(run.mag_ut, *wrong)
     n = len(run.t_s)
@@ -149,8 +164,8 @@ def main(argv=None) -> int:
     if args.hard_iron_error_ut is not None or args.soft_iron_error or args.iron_step:
         errors = [(e, math.radians(args.error_direction_deg), args.soft_iron_error)
                   for e in (args.hard_iron_error_ut or [0.0])]
-    jobs = [(sc, seed, args.seconds, args.from_s, e, w, math.radians(args.good_sigma_deg), not args.no_field_circle,
-             not args.no_iron_correction, args.iron_step)
+    jobs = [Job(sc, seed, args.seconds, args.from_s, e, w, math.radians(args.good_sigma_deg),
+                not args.no_field_circle, not args.no_iron_correction, args.iron_step)
             for w in errors for e in args.estimators for sc in args.scenarios for seed in args.seeds]
     print(f"without GNSS, {args.seconds:.0f} s, from {args.from_s:.0f} s: RMS roll/pitch/heading (°), "
           "σ median r/p/y (°), beyond 3σ r/p/h (%)" + ("" if errors == [None] else

@@ -25,7 +25,7 @@ from ahrsd.estimator.turn_lean import (
     track_bias_learning,
 )
 from ahrsd.simulation import open_stream
-from bench.unaided_sigma import one_run
+from bench.unaided_sigma import Job, one_run
 
 
 def test_the_summed_corrections_are_the_lean_the_levelling_took():
@@ -59,7 +59,7 @@ def test_mekf_without_gnss_on_a_car_that_speeds_up_and_brakes_is_honest(seed):
     """Car seed 13, 120 s, from 30 s: every axis within 3σ on ≥ 99 % of the samples (without the term: roll,
     pitch and heading 10 / 11 / 13 % beyond; 180 s: 21 / 8 / 19 %, bench/unaided_sigma.py)."""
     # the calibration right (no error injected), the daemon's 5° "heading good" limit, the circle check on
-    _, _, _, rms, sigma_deg, beyond_pct = one_run(("car", seed, 120.0, 30.0, "mekf", None, math.radians(5.0), True))[:6]
+    _, _, _, rms, sigma_deg, beyond_pct = one_run(Job("car", seed, 120.0, 30.0, "mekf"))[:6]
     assert np.all(beyond_pct <= 1.0), (rms, sigma_deg, beyond_pct)
 
 
@@ -70,7 +70,7 @@ def test_mekf_without_gnss_on_a_car_that_stops_keeps_its_heading_within_3_sigma(
     pitch and heading 9 / 7.5 % beyond where the car stands still at the end. (Pitch is not asserted: there
     its error is the accelerometer's bias, 6.7 mg on x, which no term of the 1σ carries: 4.4 % beyond before,
     1.1 % now; docs/estimator.md.)"""
-    _, _, _, rms, sigma_deg, beyond_pct = one_run(("car", 12, 180.0, 30.0, "mekf", None, math.radians(5.0), True))[:6]
+    _, _, _, rms, sigma_deg, beyond_pct = one_run(Job("car", 12, 180.0, 30.0, "mekf"))[:6]
     assert beyond_pct[0] <= 1.0 and beyond_pct[2] <= 1.0, (rms, sigma_deg, beyond_pct)
 
 
