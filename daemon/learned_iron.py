@@ -331,6 +331,8 @@ class LearnedIron:
         else:
             soft, soft_cov = cur[2], cur[3]
             soft_sd = math.sqrt(max(float(np.max(np.diag(soft_cov))), 0.0))
+            if soft_sd == 0.0 and np.array_equal(soft, np.eye(3)):
+                soft_sd = NOT_LEARNING_SD       # an estimator that learns no soft iron (mekf in turns)
         for name, v in zip((*SOFT_PARAM_NAMES, SOFT_SD_PARAM), (*np.asarray(soft, float).ravel(), soft_sd)):
             if math.isfinite(v):
                 self.publish(name, max(-MAX_PARAM_SOFT, min(MAX_PARAM_SOFT, float(v))))

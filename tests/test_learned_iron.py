@@ -290,11 +290,12 @@ def test_magcal_status_shows_the_learned_iron_and_the_cli_has_its_actions():
     client.sys, client.comp = 1, 200
     assert "learns none" in client.learned_iron_text()
     # what learned it (MAG_LRN_SRC): mekf's correction learned in turns, shown as the GNSS one is, with its source
-    turns = {n: 0.0 for n in none} | {"MAG_LRN_X": 5.2, "MAG_LRN_Y": 3.0, "MAG_LRN_SD": 0.28, "MAG_LRN_SSD": 0.0,
+    turns = {n: 0.0 for n in none} | {"MAG_LRN_X": 5.2, "MAG_LRN_Y": 3.0, "MAG_LRN_SD": 0.28, "MAG_LRN_SSD": -1.0,
                                       "MAG_LRN_S11": 1.0, "MAG_LRN_S22": 1.0, "MAG_LRN_S33": 1.0, "MAG_LRN_SRC": 2.0}
     client = MagCalClient(_FakeConn(turns), timeout_s=0.5, out=io.StringIO())
     client.sys, client.comp = 1, 200
     text = client.learned_iron_text()
     assert "hard +5.20 +3.00 +0.00 uT, 1-sigma up to 0.28 uT (source: turns, no GNSS)" in text, text
+    assert "none learned" in text
     for action in ("accept-learned", "reset-learned"):
         assert build_parser().parse_args(["magcal", action]).action == action

@@ -71,6 +71,7 @@ def test_run_one_saves_what_it_learned_in_turns(learned):
     assert 0.0 < sigma_ut < 0.5
     # shown as the GNSS one is, with its source: 2 = turns, no GNSS
     assert shown["MAG_LRN_X"] == pytest.approx(doc["offset_ut"][0]) and shown["MAG_LRN_SRC"] == 2.0
+    assert shown["MAG_LRN_SSD"] == -1.0                      # no soft iron is learned in turns
 
 
 def _run_two(state_dir, calibration, seed=5):
