@@ -266,15 +266,10 @@ class Mekf:
 
     # ----------------------------------------------------------------------- Estimator protocol
     def reset(self) -> None:
-        """Start the filter again. A hard iron learned in turns belongs to the calibration, not to the filter's
-        state: it is kept as across a restart (taken up again with what was known of it, set_learned_iron)."""
-        learned = self.learned_iron() if self._iron.active else None
         self._buf["state"] = 0
         self._initialised = False
         self._reinit_pending = False
         self._set_field_circle()
-        if learned is not None:
-            self.set_learned_iron(*learned)
 
     def set_declination(self, declination_rad: float) -> None:
         self._declination = float(declination_rad)
@@ -314,7 +309,17 @@ class Mekf:
 
     def _set_field_circle(self) -> None:
         """Start the circle check again (a new calibration, a reset). It runs while a calibration states its
-        heading error: with none (σ π) there is nothing a check could add."""
+        heading error: with none (σ π) there is nothing a check could add. A hard iron learned in turns is kept,
+        taken up again as across a restart (set_learned_iron): it belongs to the magnetometer calibration, not
+        to the filter's state, and the daemon's store (daemon/learned_iron.py calibration_changed) resets it
+        when another magnetometer calibration or mounting comes into force — a gyro calibration or a filter
+        reset keeps it (else the store's next save would write nothing over it)."""
+        learned = self.learned_iron() if self._iron.active else None
+        self._set_field_circle_afresh()
+        if learned is not None:
+            self.set_learned_iron(*learned)
+
+    def _set_field_circle_afresh(self) -> None:
         self._field_circle.reset()
         self._iron.reset()
         self._iron_body_ut = None

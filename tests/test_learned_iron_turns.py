@@ -133,14 +133,21 @@ def test_accept_folds_it_into_the_calibration_and_reset_forgets_it(learned, tmp_
             assert not np.any(json.loads((tmp_path / FILE_NAME).read_text())["offset_ut"])
 
 
-def test_a_filter_reset_keeps_it(learned, tmp_path):
-    """The pipeline resets the estimator when it rejects a sample: the correction belongs to the calibration, not to
-    the filter, so it stays (else the next periodic save would write nothing over it)."""
+def test_a_filter_reset_or_another_sensors_calibration_keeps_it_a_new_magnetometer_calibration_drops_it(learned,
+                                                                                                       tmp_path):
+    """The correction belongs to the magnetometer calibration, not to the filter: the pipeline's reset (after a
+    rejected sample) and the daemon's calibration path for a gyro calibration (set_mag_calibration_sigma, then
+    relearn_field_reference) keep it (else the next periodic save would write nothing over it); the store resets
+    it when another magnetometer calibration comes into force."""
     state_dir, doc, _, _ = learned
     (tmp_path / FILE_NAME).write_text(json.dumps(doc))
     f = _new_mekf()
-    part, _, _ = _store(tmp_path, f, _calibration())
+    part, _, pipeline = _store(tmp_path, f, _calibration())
     assert part.restore()
-    f.reset()
-    assert np.array_equal(f.learned_iron()[0], doc["offset_ut"])
-    assert np.array_equal(f.learned_iron()[1], np.asarray(doc["cov_ut2"]))
+    for keeps in (f.reset, lambda: f.set_mag_calibration_sigma(CLAIMED_SIGMA_RAD), f.relearn_field_reference):
+        keeps()
+        assert np.array_equal(f.learned_iron()[0], doc["offset_ut"])
+        assert np.array_equal(f.learned_iron()[1], np.asarray(doc["cov_ut2"]))
+    pipeline.calibration = _calibration(hard_ut=(10.5, -3.0, 5.0))
+    part.calibration_changed()
+    assert not np.any(f.learned_iron()[0])
