@@ -383,6 +383,8 @@ class Mekf:
         """Start from a correction learned in turns in an earlier run on this calibration: subtracted from the
         first sample on, its σ the horizontal one of `cov_ut2` until this run's circle judges it. ValueError
         for what the turns do not learn (a soft iron, a vertical part) or what is not finite."""
+        if not self.params.mag_field_circle_correction:
+            raise ValueError("the hard iron is not learned in turns (mag_field_circle_correction off)")
         if soft_iron is not None and not np.array_equal(np.asarray(soft_iron, float), np.eye(3)):
             raise ValueError("a soft iron is not learned in turns")
         cov = np.asarray(cov_ut2, dtype=float).reshape(3, 3)

@@ -107,6 +107,14 @@ def test_a_changed_calibration_drops_it_as_a_counted_rejection(learned, tmp_path
     assert json.loads((tmp_path / FILE_NAME).read_text())["calibration_key"] == part.key   # now tied to the new one
 
 
+def test_with_the_learning_switched_off_it_is_not_applied(learned, tmp_path):
+    state_dir, doc, _, _ = learned
+    (tmp_path / FILE_NAME).write_text(json.dumps(doc))
+    f = Mekf(mag_calibration_sigma_rad=CLAIMED_SIGMA_RAD, mag_field_circle_correction=False)
+    part, _, _ = _store(tmp_path, f, _calibration())
+    assert part.restore() is False and part.rejections == 1 and not np.any(f.learned_iron()[0])
+
+
 @pytest.mark.parametrize("text", ["{not json", json.dumps({"format": "something else"})])
 def test_a_corrupt_file_is_a_counted_rejection(tmp_path, text):
     (tmp_path / FILE_NAME).write_text(text)
