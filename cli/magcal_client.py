@@ -320,9 +320,9 @@ class MagCalClient:
     def learned_iron(self, timeout_s: float = 2.0) -> dict[str, float]:
         """The daemon's read-only MAG_LRN_* parameters (daemon.learned_iron: hard iron and soft iron), by
         PARAM_REQUEST_READ; a daemon that does not know a name leaves it out."""
-        from ahrsd.daemon.learned_iron import PARAM_NAMES, SOFT_PARAM_NAMES, SOFT_SD_PARAM
+        from ahrsd.daemon.learned_iron import PARAM_NAMES, SOFT_PARAM_NAMES, SOFT_SD_PARAM, SOURCE_PARAM
 
-        names = (*PARAM_NAMES, *SOFT_PARAM_NAMES, SOFT_SD_PARAM)
+        names = (*PARAM_NAMES, *SOFT_PARAM_NAMES, SOFT_SD_PARAM, SOURCE_PARAM)
         for name in names:
             self.conn.mav.param_request_read_send(self.sys, self.comp, name.encode("ascii"), -1)
         values: dict[str, float] = {}
@@ -338,16 +338,21 @@ class MagCalClient:
         return values
 
     def learned_iron_text(self) -> str:
-        from ahrsd.daemon.learned_iron import NOT_LEARNING_SD, PARAM_NAMES, SOFT_PARAM_NAMES, SOFT_SD_PARAM
+        from ahrsd.daemon.learned_iron import (NOT_LEARNING_SD, PARAM_NAMES, SOFT_PARAM_NAMES, SOFT_SD_PARAM,
+                                               SOURCE_CODES, SOURCE_PARAM)
 
         v = self.learned_iron(min(2.0, self.timeout_s))
         if not all(n in v for n in PARAM_NAMES):
             return "learned iron: not reported (an older ahrsd?)"
         if v[PARAM_NAMES[3]] <= NOT_LEARNING_SD:
-            return "learned iron: none (the estimator learns none: run the GNSS-aided ins)"
+            return "learned iron: none (the estimator learns none: run mekf or the GNSS-aided ins)"
         x, y, z = (v[n] for n in PARAM_NAMES[:3])
+        source = {code: name for name, code in SOURCE_CODES.items()}.get(int(v.get(SOURCE_PARAM, -1)))
+        if SOURCE_PARAM in v and v[SOURCE_PARAM] == 0:
+            source = "nothing learned yet"
         lines = [f"learned iron (body FRD, on top of the calibration): hard {x:+.2f} {y:+.2f} {z:+.2f} uT, "
-                 f"1-sigma up to {v[PARAM_NAMES[3]]:.2f} uT"]
+                 f"1-sigma up to {v[PARAM_NAMES[3]]:.2f} uT"
+                 + (f" (source: {source})" if source is not None else "")]
         if all(n in v for n in (*SOFT_PARAM_NAMES, SOFT_SD_PARAM)):
             rows = ["[" + " ".join(f"{v[n]:+.4f}" for n in SOFT_PARAM_NAMES[3 * r:3 * r + 3]) + "]" for r in range(3)]
             sd = v[SOFT_SD_PARAM]

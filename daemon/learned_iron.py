@@ -1,14 +1,18 @@
-"""The hard iron the aided estimator learns in operation (estimator/heading_monitor.py IronLearner, body frame,
-on top of the accepted calibration), kept across restarts apart from the calibration, shown, and accepted into
-the calibration or reset by the operator.
+"""The iron an estimator learns in operation on top of the accepted calibration (body frame): the GNSS-aided ins's
+(estimator/heading_monitor.py IronLearner) or the hard iron mekf learns in turns without GNSS
+(estimator/field_circle_correction.py) — kept across restarts apart from the calibration, shown, and accepted into
+the calibration or reset by the operator. One store and one set of rules for both: the file says which learned
+it (`source`, base.IronLearningEstimator.learned_iron_source), what, when and against which calibration.
 
 * Persisted in the state directory as `learned_iron.json` (atomic write, calibration/atomic_file.py), tied to
   the calibration it was learned on: the key is a hash of the magnetometer model and the mounting (the learned
   offset is a body-frame field, so it only means something with both). Restored into the estimator at start
-  when the key matches; discarded when it does not. Saved every SAVE_PERIOD_S when it changed, and at stop.
+  when the key and the source match; otherwise discarded, logged and counted (`rejections`), as is a file that
+  cannot be read or that the estimator refuses. A file another source learned is not overwritten until this
+  estimator has learned something. Saved every SAVE_PERIOD_S when it changed, and at stop.
 * Reset whenever another magnetometer calibration or mounting comes into force (`calibration_changed`).
 * Shown as read-only parameters MAG_LRN_X/Y/Z (µT, body FRD) and MAG_LRN_SD (largest 1σ, µT; −1 with an
-  estimator that learns none), and the learned soft iron I + D as MAG_LRN_S11 … MAG_LRN_S33 (row-major, body
+  estimator that learns none), MAG_LRN_SRC (what learned it: SOURCE_CODES, 0 while nothing is learned), and the learned soft iron I + D as MAG_LRN_S11 … MAG_LRN_S33 (row-major, body
   FRD, dimensionless) with MAG_LRN_SSD (the largest 1σ of an element of D), refreshed every PUBLISH_PERIOD_S.
 * One command, CMD_LEARNED_IRON (MAV_CMD_USER_1, 31010): param1 = 1 accepts it into the calibration (the hard
   iron moves by the learned offset, then the learned one is reset), 2 resets it; the same by writing the
@@ -38,7 +42,7 @@ from ahrsd.calibration.models import Calibration, MagModel
 from ahrsd.daemon.command_args import CommandArgs, Refused, whole_number
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.daemon.params import ParamError
-from ahrsd.estimator.base import Estimator, IronLearningEstimator
+from ahrsd.estimator.base import LEARNED_IN_TURNS, LEARNED_WITH_GNSS, Estimator, IronLearningEstimator
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +59,8 @@ SOFT_SD_PARAM = "MAG_LRN_SSD"   # the largest 1σ of an element of D (dimensionl
 MAX_PARAM_SOFT = 10.0
 ACTION_PARAM = "MAG_LRN_ACT"    # momentary: 1 accept, 2 reset (as CMD_LEARNED_IRON's param1)
 NOT_LEARNING_SD = -1.0          # MAG_LRN_SD of an estimator that learns no iron
+SOURCE_PARAM = "MAG_LRN_SRC"    # what learned the iron shown: 0 nothing learned, else SOURCE_CODES
+SOURCE_CODES = {LEARNED_WITH_GNSS: 1, LEARNED_IN_TURNS: 2}
 MAX_PARAM_UT = 1000.0
 
 
@@ -113,6 +119,8 @@ class LearnedIron:
         self.save_period_s = save_period_s
         self.key: str | None = None          # the calibration the estimator's learned iron belongs to
         self.restored = False
+        self.rejections = 0                  # persisted irons dropped: another calibration or source, unreadable
+        self._foreign = False                # the file holds another source's iron: kept until this one learns
         self.saves = 0
         self._saved: tuple | None = None     # (offset, cov) last written
         self._next_save = -math.inf
@@ -131,8 +139,13 @@ class LearnedIron:
         if doc is None:
             return False
         if doc.get("calibration_key") != self.key:
-            log.info("learned iron in %s was learned on another calibration or mounting: discarded", self.path)
+            self._reject("was learned on another calibration or mounting")
             self._write_current()
+            return False
+        source = doc.get("source", LEARNED_WITH_GNSS)      # schema 1 files written before mekf learned any
+        if source != p.estimator.learned_iron_source:
+            self._reject(f"was learned by {source}, not by this estimator ({p.estimator.learned_iron_source})")
+            self._foreign = True
             return False
         try:
             soft = doc.get("soft_iron")
@@ -141,7 +154,7 @@ class LearnedIron:
                                          None if soft is None else np.asarray(soft, float),
                                          None if soft_cov is None else np.asarray(soft_cov, float))
         except (KeyError, TypeError, ValueError) as exc:
-            log.warning("ignoring %s: %s", self.path, exc)
+            self._reject(str(exc))
             return False
         self.restored = True
         self._saved = self._current()
@@ -176,6 +189,7 @@ class LearnedIron:
         if isinstance(p.estimator, IronLearningEstimator):
             p.estimator.reset_learned_iron()
             log.info("new magnetometer calibration or mounting: learned iron reset")
+        self._foreign = False                # another source's iron belonged to the old calibration too
         self._write_current()
         self._publish_now()
 
@@ -210,6 +224,7 @@ class LearnedIron:
         est = self.pipeline.estimator
         if isinstance(est, IronLearningEstimator):
             est.reset_learned_iron()
+        self._foreign = False
         self._write_current()
         self._publish_now()
         return "Learned iron reset"
@@ -280,6 +295,13 @@ class LearnedIron:
             return None
         return math.degrees(math.hypot(old, iron))
 
+    def _reject(self, why: str) -> None:
+        self.rejections += 1
+        log.warning("learned iron in %s dropped (%d so far): %s", self.path, self.rejections, why)
+
+    def _learned_something(self, cur) -> bool:
+        return bool(np.any(cur[0] != 0.0) or np.any(cur[2] != np.eye(3)))
+
     def _current(self) -> tuple[np.ndarray, ...] | None:
         """(hard iron, its covariance, soft iron I + D, the covariance of D) of the estimator, None without."""
         est = self.pipeline.estimator
@@ -287,7 +309,7 @@ class LearnedIron:
 
     def _changed(self) -> bool:
         cur = self._current()
-        if cur is None:
+        if cur is None or (self._foreign and not self._learned_something(cur)):
             return False
         return self._saved is None or not all(np.array_equal(a, b) for a, b in zip(cur, self._saved))
 
@@ -301,11 +323,16 @@ class LearnedIron:
         for name, v in zip(PARAM_NAMES, values):
             if math.isfinite(v):
                 self.publish(name, max(-MAX_PARAM_UT, min(MAX_PARAM_UT, v)))
+        learned = cur is not None and self._learned_something(cur)
+        self.publish(SOURCE_PARAM, float(SOURCE_CODES.get(self.pipeline.estimator.learned_iron_source, 0))
+                     if learned else 0.0)
         if cur is None:
             soft, soft_sd = np.eye(3), NOT_LEARNING_SD
         else:
             soft, soft_cov = cur[2], cur[3]
             soft_sd = math.sqrt(max(float(np.max(np.diag(soft_cov))), 0.0))
+            if soft_sd == 0.0 and np.array_equal(soft, np.eye(3)):
+                soft_sd = NOT_LEARNING_SD       # an estimator that learns no soft iron (mekf in turns)
         for name, v in zip((*SOFT_PARAM_NAMES, SOFT_SD_PARAM), (*np.asarray(soft, float).ravel(), soft_sd)):
             if math.isfinite(v):
                 self.publish(name, max(-MAX_PARAM_SOFT, min(MAX_PARAM_SOFT, float(v))))
@@ -315,6 +342,7 @@ class LearnedIron:
         self._saved = tuple(a.copy() for a in cur)
         offset, cov, soft, soft_cov = cur
         doc = {"format": FILE_FORMAT, "schema_version": SCHEMA_VERSION, "calibration_key": self.key,
+               "source": self.pipeline.estimator.learned_iron_source,
                "offset_ut": offset.tolist(), "cov_ut2": cov.tolist(), "soft_iron": soft.tolist(),
                "soft_cov": soft_cov.tolist(),
                "wall_time_s": time.time()}    # host clock: when it was saved, read across reboots
@@ -337,9 +365,9 @@ class LearnedIron:
         except FileNotFoundError:
             return None
         except (OSError, ValueError) as exc:
-            log.warning("ignoring %s: %s", self.path, exc)
+            self._reject(str(exc))
             return None
         if not isinstance(doc, dict) or doc.get("format") != FILE_FORMAT or doc.get("schema_version") != SCHEMA_VERSION:
-            log.warning("ignoring %s: not an ahrsd learned-iron file of schema %d", self.path, SCHEMA_VERSION)
+            self._reject(f"not an ahrsd learned-iron file of schema {SCHEMA_VERSION}")
             return None
         return doc

@@ -11,6 +11,7 @@ from typing import Callable, Coroutine
 from ahrsd.daemon.learned_iron import ACTION_PARAM as LEARNED_IRON_ACTION
 from ahrsd.daemon.learned_iron import MAX_PARAM_SOFT, MAX_PARAM_UT, NOT_LEARNING_SD, PARAM_NAMES as LEARNED_IRON_PARAMS
 from ahrsd.daemon.learned_iron import SOFT_PARAM_NAMES as LEARNED_SOFT_PARAMS, SOFT_SD_PARAM as LEARNED_SOFT_SD
+from ahrsd.daemon.learned_iron import SOURCE_CODES as LEARNED_IRON_SOURCES, SOURCE_PARAM as LEARNED_IRON_SOURCE
 from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.counters import ServiceCounters
 from ahrsd.daemon.outbound import Outbound
@@ -49,6 +50,10 @@ def param_specs(cfg) -> list[ParamSpec]:
     out.append(ParamSpec(LEARNED_IRON_PARAMS[3], NOT_LEARNING_SD, NOT_LEARNING_SD, MAX_PARAM_UT,
                          "largest 1-sigma of the learned hard iron, uT (-1: the estimator learns none; read-only)",
                          read_only=True))
+    out.append(ParamSpec(LEARNED_IRON_SOURCE, 0.0, 0.0, float(max(LEARNED_IRON_SOURCES.values())),
+                         "what learned the iron: 0 nothing yet, " + ", ".join(
+                             f"{code} {name}" for name, code in LEARNED_IRON_SOURCES.items()) + " (read-only)",
+                         integer=True, read_only=True))
     out += [ParamSpec(n, 1.0 if n[-1] == n[-2] else 0.0, -MAX_PARAM_SOFT, MAX_PARAM_SOFT,
                       f"learned soft iron I + D, row {n[-2]} column {n[-1]}, body FRD (read-only)", read_only=True)
             for n in LEARNED_SOFT_PARAMS]

@@ -88,10 +88,17 @@ class HeadingCheckedEstimator(Protocol):
     def heading_report(self): ...
 
 
+LEARNED_WITH_GNSS = "GNSS-aided ins"   # ins: estimator/heading_monitor.py IronLearner
+LEARNED_IN_TURNS = "turns, no GNSS"    # mekf: estimator/field_circle_correction.py
+
+
 @runtime_checkable
 class IronLearningEstimator(Protocol):
     """An estimator that learns the vehicle's iron on top of the calibration in operation (ins: estimator/heading_
-    monitor.py IronLearner), body frame. The daemon persists, shows and folds it (daemon/learned_iron.py)."""
+    monitor.py IronLearner; mekf: the hard iron in turns, estimator/field_circle_correction.py), body frame. The
+    daemon persists, shows and folds it (daemon/learned_iron.py); `learned_iron_source` says what learned it."""
+
+    learned_iron_source: str
 
     def learned_iron(self) -> tuple[np.ndarray, np.ndarray]:
         """The hard iron (µT) and its 3×3 covariance (µT²)."""

@@ -22,7 +22,11 @@ COMPASS_LEARN=1 nulled offsets that way without GNSS). This part holds that corr
 * the soft iron (the ellipse) is not learned: the check keeps judging it and widening σ by it;
 * the published σ covers what is left (`heading_var_rad2`): the heading error of the centre still not applied or
   not yet taken up by the filter (`settle_s`), as a sinusoid's RMS like the check's own, plus the fit's own
-  uncertainty of the centre, σ_c/H, as a consider term where calibration_heading.py puts the calibration's figure.
+  uncertainty of the centre, σ_c/H, as a consider term where calibration_heading.py puts the calibration's figure;
+* it can start from a correction learned in an earlier run on the same calibration (`restore`, the daemon's
+  learned-iron store): applied from the first sample, with the σ that run knew of it (`sigma_ut`: the fit's σ_c
+  and the tilt term, in µT) over the horizontal field measured now (`see_horizontal_field`), until the circle
+  of this run judges it (the first covered judgement replaces the target and its σ, as in the first run).
 """
 
 from __future__ import annotations
@@ -65,7 +69,39 @@ class FieldCircleCorrection:
         self.tilt_rms_rad = 0.0
         self.radius_ut = math.nan
         self.started_t_s = math.nan
+        self.restored = False               # started from an earlier run's correction, not yet judged in this one
         self.body_ut: np.ndarray | None = None
+
+    def restore(self, body_ut, sigma_ut: float) -> None:
+        """Start from a correction learned in an earlier run on the same calibration: the body's x, y applied at
+        once (the filter starts on the corrected field, so nothing is left to take up), with `sigma_ut` (that
+        run's `sigma_ut()`) as the centre's uncertainty; its heading σ waits for the horizontal field
+        (`see_horizontal_field`). ValueError when not finite, or with a vertical part (the turns learn none)."""
+        b = np.asarray(body_ut, dtype=float).reshape(3)
+        sigma_ut = float(sigma_ut)
+        if not (np.all(np.isfinite(b)) and math.isfinite(sigma_ut) and sigma_ut >= 0.0) or b[2] != 0.0:
+            raise ValueError(f"not a correction learned in turns: {b.tolist()} ± {sigma_ut} µT")
+        self.reset()
+        if not np.any(b != 0.0):
+            return                          # nothing was learned
+        self.active = self.restored = True
+        self.target_ut = b[:2].copy()
+        self.applied_ut = b[:2].copy()
+        self.settled_ut = b[:2].copy()
+        self.centre_sigma_ut = sigma_ut
+        self.body_ut = b.copy()
+
+    def see_horizontal_field(self, horizontal_ut: float) -> None:
+        """The horizontal field the corrected field shows now (levelled), for the heading σ of a restored
+        correction until the circle's own radius is known."""
+        if self.restored and not math.isfinite(self.radius_ut) and horizontal_ut > 0.0:
+            self.radius_ut = float(horizontal_ut)
+
+    def sigma_ut(self) -> float:
+        """What is known of the target, as a horizontal field error (µT, 1σ): the fit's σ_c and the iron seen
+        through the tilt (heading_var_rad2's terms times H) — what a later run may claim of it."""
+        seen_through_tilt_ut = math.hypot(*self.target_ut) * (1.0 - math.cos(self.tilt_rms_rad))
+        return math.hypot(self.centre_sigma_ut, seen_through_tilt_ut)
 
     def learn(self, result, claimed_var_rad2: float, t_s: float) -> None:
         """A new judgement of the circle check (field_circle.FieldCircleResult)."""
@@ -75,6 +111,7 @@ class FieldCircleCorrection:
             self.active = True
             self.started_t_s = t_s
         if result.covered and math.isfinite(result.radius_ut) and math.isfinite(result.centre_sigma_ut):
+            self.restored = False
             self.target_ut = np.array(result.centre_ut, dtype=float)
             self.radius_ut = result.radius_ut
             self.centre_sigma_ut = result.centre_sigma_ut
@@ -102,7 +139,8 @@ class FieldCircleCorrection:
         residuals do not show."""
         if not self.active:
             return 0.0
+        if not math.isfinite(self.radius_ut):
+            return math.pi ** 2             # a restored correction before any field: nothing claimed
         left = max(math.hypot(*(self.target_ut - self.applied_ut)), math.hypot(*(self.target_ut - self.settled_ut)))
         a = math.asin(min(1.0, left / self.radius_ut))
-        seen_through_tilt_ut = math.hypot(*self.target_ut) * (1.0 - math.cos(self.tilt_rms_rad))
-        return 0.5 * a * a + (self.centre_sigma_ut ** 2 + seen_through_tilt_ut ** 2) / self.radius_ut ** 2
+        return 0.5 * a * a + self.sigma_ut() ** 2 / self.radius_ut ** 2

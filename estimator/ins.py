@@ -32,6 +32,7 @@ from ahrsd.core.sample import ImuSample
 from . import ins_core as core
 from . import mag_heading as mag
 from .accel_axes_heading import accel_axes_heading_variance_rad2
+from .base import LEARNED_WITH_GNSS
 from .calibration_heading import calibration_heading_variance_rad2, calibration_states_error
 from .gsf_yaw import GsfParams, gsf_fuse_velocity, gsf_output, gsf_reset, new_gsf_state
 from .heading_monitor import HeadingCheckRecord, HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
@@ -540,6 +541,8 @@ class Ins:
         self._new_heading_checks()
 
     # ----------------------------------------------------------------------- learned iron (persisted by the daemon)
+    learned_iron_source = LEARNED_WITH_GNSS
+
     def _apply_learned_iron(self) -> None:
         """The kernel removes the learned iron before its heading update: (I + D)⁻¹·(m − b)."""
         self._par["iron_ut"] = self._iron.offset_ut

@@ -43,6 +43,7 @@ from .initial_attitude import initial_attitude
 from .mag_heading import RELEARN_GATE_OPEN_S, heading_params, relearn_reference, widen_after_calibration_change
 from .mag_heading_params import MagHeadingParams
 from .params import with_overrides
+from .base import LEARNED_IN_TURNS
 from .rotations import quat_to_dcm
 
 _DEG = math.pi / 180.0
@@ -308,7 +309,17 @@ class Mekf:
 
     def _set_field_circle(self) -> None:
         """Start the circle check again (a new calibration, a reset). It runs while a calibration states its
-        heading error: with none (σ π) there is nothing a check could add."""
+        heading error: with none (σ π) there is nothing a check could add. A hard iron learned in turns is kept,
+        taken up again as across a restart (set_learned_iron): it belongs to the magnetometer calibration, not
+        to the filter's state, and the daemon's store (daemon/learned_iron.py calibration_changed) resets it
+        when another magnetometer calibration or mounting comes into force — a gyro calibration or a filter
+        reset keeps it (else the store's next save would write nothing over it)."""
+        learned = self.learned_iron() if self._iron.active else None
+        self._set_field_circle_afresh()
+        if learned is not None:
+            self.set_learned_iron(*learned)
+
+    def _set_field_circle_afresh(self) -> None:
         self._field_circle.reset()
         self._iron.reset()
         self._iron_body_ut = None
@@ -327,6 +338,10 @@ class Mekf:
         e, sig = self._euler_out, self._sigma_out
         roll, pitch = float(e[0]), float(e[1])
         check, iron = self._field_circle, self._iron
+        if iron.restored and not math.isfinite(iron.radius_ut):
+            # the horizontal field now, for a restored correction's σ (the attitude's yaw does not change it)
+            field_ned = quat_to_dcm(self._state["q"]) @ (np.asarray(m, dtype=float) - iron.body_ut)
+            iron.see_horizontal_field(math.hypot(field_ned[0], field_ned[1]))
         judged = check.add(t_s, roll, pitch, m, max(float(sig[0]), float(sig[1])), f)
         claimed = calibration_heading_variance_rad2(self.params.mag_calibration_sigma_rad)
         if judged and self.params.mag_field_circle_correction:
@@ -341,6 +356,57 @@ class Mekf:
                                                                       iron.heading_var_rad2())
         elif judged:
             self._buf[0]["par"]["heading_calibration_var_rad2"] = check.result.checked_var_rad2(claimed)
+
+    # ----------------------------------------------------------------------- learned iron (persisted by the daemon)
+    # base.IronLearningEstimator, so the daemon's one store (daemon/learned_iron.py) keeps, shows, accepts and
+    # resets the correction learned in turns as it does ins's GNSS-learned iron.
+    learned_iron_source = LEARNED_IN_TURNS
+
+    def learned_iron(self) -> tuple[np.ndarray, np.ndarray]:
+        """The hard iron learned in turns (body frame, µT: the circle's centre, z 0) and its covariance (µT²:
+        what is known of it horizontally, field_circle_correction.sigma_ut; 0 along z, which is not learned)."""
+        iron = self._iron
+        if not iron.active:
+            return np.zeros(3), np.zeros((3, 3))
+        return np.array([iron.target_ut[0], iron.target_ut[1], 0.0]), np.diag([iron.sigma_ut() ** 2] * 2 + [0.0])
+
+    def learned_soft_iron(self) -> tuple[np.ndarray, np.ndarray]:
+        """None is learned in turns: I and a zero covariance."""
+        return np.eye(3), np.zeros((9, 9))
+
+    def learned_iron_heading_sigma_rad(self) -> float:
+        """The heading 1σ the correction still leaves (field_circle_correction.heading_var_rad2); NaN without one."""
+        iron = self._iron
+        return math.sqrt(iron.heading_var_rad2()) if iron.active and math.isfinite(iron.radius_ut) else math.nan
+
+    def set_learned_iron(self, offset_ut, cov_ut2, soft_iron=None, soft_cov=None) -> None:
+        """Start from a correction learned in turns in an earlier run on this calibration: subtracted from the
+        first sample on, its σ the horizontal one of `cov_ut2` until this run's circle judges it. ValueError
+        for what the turns do not learn (a soft iron, a vertical part) or what is not finite."""
+        if not self.params.mag_field_circle_correction:
+            raise ValueError("the hard iron is not learned in turns (mag_field_circle_correction off)")
+        if soft_iron is not None and not np.array_equal(np.asarray(soft_iron, float), np.eye(3)):
+            raise ValueError("a soft iron is not learned in turns")
+        cov = np.asarray(cov_ut2, dtype=float).reshape(3, 3)
+        self._iron.restore(offset_ut, math.sqrt(max(cov[0, 0], cov[1, 1])))
+        self._iron_body_ut = self._iron.body_ut
+        self._field_circle.correction_ut = (float(self._iron.applied_ut[0]), float(self._iron.applied_ut[1]))
+
+    def reset_learned_iron(self) -> None:
+        """Forget the correction (the operator's reset, or it was folded into the calibration): the field as the
+        calibration gives it again, σ widened by the sinusoid the correction removed until the check judges
+        again (and, when the calibration is still wrong, learns it again)."""
+        iron = self._iron
+        if not iron.active:
+            return
+        removed_var = (0.5 * math.asin(min(1.0, math.hypot(*iron.applied_ut) / iron.radius_ut)) ** 2
+                       if math.isfinite(iron.radius_ut) else math.pi ** 2)
+        iron.reset()
+        self._iron_body_ut = None
+        self._iron_t_s = math.nan
+        self._field_circle.correction_ut = (0.0, 0.0)
+        par = self._buf[0]["par"]
+        par["heading_calibration_var_rad2"] = float(par["heading_calibration_var_rad2"]) + removed_var
 
     def field_circle(self) -> FieldCircleResult | None:
         """What the circle check found of the calibration in force (field_circle.py); None while it does not run
@@ -398,6 +464,8 @@ class Mekf:
             self._reinit_pending = True
             extra = f & ~core.NEEDS_INIT
         sflags = int(sample.flags)
+        if self._iron_body_ut is not None:
+            m = m - self._iron_body_ut      # the filter starts on the field with the learned hard iron removed
         if not self._initialise(t_s, g, a, m, sflags):
             self._bits = -1 - extra       # < 0: no estimate yet (snapshot() is the uninitialised estimate)
             self._view.q_wxyz = np.array([1.0, 0.0, 0.0, 0.0])
