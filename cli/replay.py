@@ -40,8 +40,6 @@ AIDED_OUTPUT_HEADER = ",".join(OUTPUT_COLUMNS + NAV_OUTPUT_COLUMNS + HEADING_OUT
 # turning, 1 consistent, 2 the calibration found wrong) and the circle centre's offset, µT (NaN while not judged).
 # Without the check the header stays OUTPUT_HEADER (or AIDED_OUTPUT_HEADER).
 FIELD_CIRCLE_OUTPUT_COLUMNS = ("mag_cal_check", "mag_field_centre_ut")
-# REFERENCE: the quaternion and yaw are relative to true north (NED) when a position is given (--lat/--lon: the
-# WMM declination rotates the estimator's magnetic-north attitude about down), else to magnetic north.
 _FORMAT = ",".join(["%.6f"] + ["%.9f"] * 4 + ["%.6f"] * 5 + ["%.6f"] * 3 + ["%.6e"] * 3 + ["%d"])
 _NAV_FORMAT = ",".join(["%.4f"] * 3 + ["%.9f"] * 2 + ["%.4f"] + ["%.4f"] * 2 + ["%d"])
 _FIELD_CIRCLE_FORMAT = "%d,%.3f"
@@ -81,6 +79,13 @@ def register(subparsers) -> None:
                    "the recording's truth columns when it has them (needs matplotlib: pip install matplotlib, or install ahrsd with -e '.[plot]')")
     p.add_argument("--quiet", "-q", action="store_true", help="no summary and no progress bar on stderr")
     p.set_defaults(func=run)
+
+
+def _true_north(args) -> bool:
+    """REFERENCE: the quaternion, yaw and figure are relative to true north (NED) when a position is given
+    (--lat/--lon) or comes from the first GNSS fix (--gnss): the WMM declination there rotates the estimator's
+    magnetic-north attitude about down. Else to magnetic north."""
+    return args.lat is not None or bool(args.gnss)
 
 
 class ReplayError(Exception):
@@ -382,7 +387,7 @@ def _plot_trace(args):
     except PlotUnavailableError as exc:
         raise ReplayUsageError(str(exc)) from None
     trace = ReplayTrace()
-    trace.true_north = args.lat is not None or args.gnss is not None
+    trace.true_north = _true_north(args)
     return trace
 
 
@@ -508,11 +513,10 @@ def _replay(args, estimator, calibration, fixes, trace, calibration_sigma_rad=No
     verdicts = CalibrationCheckSummary() if checked else None
     # a file cut mid-row: its complete rows
     samples = _CheckedSamples(args.recording, iter_samples(args.recording, strict=False))
-    true_north = args.lat is not None or aided
     t_run = time.process_time()
     try:
         with _replay_errors(args):
-            tables = replay_attitude(estimator, _calibrated(samples, calibration), true_north=true_north,
+            tables = replay_attitude(estimator, _calibrated(samples, calibration), true_north=_true_north(args),
                                      fixes=fixes, field_circle=field_circle)
             history = _write_tables(args, tables, out, aided, verdicts, trace)
             if samples.count == 0:
@@ -594,7 +598,7 @@ def _print_summary(args, done: _ReplayDone, estimator_name: str, estimator, decl
         duration += 1.0 / rate
     speed = duration / wall_s if wall_s > 0 else math.inf
     cpu_speed = duration / cpu_s if cpu_s > 0 else math.inf
-    where = ("magnetic north (no position)" if args.lat is None and not aided
+    where = ("magnetic north (no position)" if not _true_north(args)
              else f"true north, declination {math.degrees(declination):+.2f}°"
              + (" at the first fix" if args.lat is None else ""))
     gnss = ""

@@ -68,7 +68,8 @@ def replay_attitude(estimator: Estimator, samples: Iterable[ImuSample], true_nor
     if fixes is not None and not isinstance(estimator, GnssAidedEstimator):
         raise ValueError(f"estimator {estimator.name!r} takes no GNSS fixes (not aided)")
     feed = GnssFixFeed(estimator, fixes) if fixes is not None else None
-    yield from _tables(_sample_rows(estimator, samples, feed, field_circle), chunk_rows, true_north)
+    for rows in _row_chunks(estimator, samples, feed, field_circle, chunk_rows):
+        yield _finish_table(rows, true_north)
 
 
 class FieldCircleColumns:
@@ -102,10 +103,12 @@ def field_circle_columns(estimator: Estimator, calibration_sigma_rad: float | No
     return FieldCircleColumns(estimator.field_circle, calibration_sigma_rad)
 
 
-def _sample_rows(estimator: Estimator, samples: Iterable[ImuSample], feed: GnssFixFeed | None,
-                 field_circle: FieldCircleColumns | None) -> Iterator[tuple]:
-    """One row of the table per sample: the fixes due before it offered first (`feed`), then the estimate."""
+def _row_chunks(estimator: Estimator, samples: Iterable[ImuSample], feed: GnssFixFeed | None,
+                field_circle: FieldCircleColumns | None, chunk_rows: int) -> Iterator[list[tuple]]:
+    """The table's rows, one per sample (the fixes due before it offered first, then its estimate), in lists of
+    at most `chunk_rows` (memory stays constant for long recordings)."""
     update = estimator.update
+    rows: list[tuple] = []
     for sample in samples:
         if feed is not None:
             feed.offer_until(sample.t_s)
@@ -115,7 +118,12 @@ def _sample_rows(estimator: Estimator, samples: Iterable[ImuSample], feed: GnssF
             row += _aided_columns(est)
         if field_circle is not None:
             row += field_circle.columns()
-        yield row
+        rows.append(row)
+        if len(rows) >= chunk_rows:
+            yield rows
+            rows = []
+    if rows:
+        yield rows
 
 
 def _attitude_columns(t_s: float, est) -> tuple:
@@ -142,20 +150,6 @@ def _aided_columns(est) -> tuple:
     hi = est.integrity
     row += _NO_GSF if hi is None else (hi.gsf_yaw_rad * _DEG, hi.gsf_sigma_rad * _DEG)
     return row + (int(est.heading_state),)
-
-
-def _tables(rows: Iterator[tuple], chunk_rows: int, true_north: bool) -> Iterator[np.ndarray]:
-    """The rows as tables of at most `chunk_rows` rows (memory stays constant for long recordings)."""
-    chunk: list[tuple] = []
-    append = chunk.append
-    for row in rows:
-        append(row)
-        if len(chunk) >= chunk_rows:
-            yield _finish_table(chunk, true_north)
-            chunk = []
-            append = chunk.append
-    if chunk:
-        yield _finish_table(chunk, true_north)
 
 
 def _finish_table(rows: list[tuple], true_north: bool) -> np.ndarray:
