@@ -432,9 +432,15 @@ class GuidedSession:
         return np.array([self.recorded[k] for k in sorted(self.recorded)]) if self.recorded else np.zeros((0, 3))
 
     def feed(self, sample) -> str | None:
-        """Take one sample. Stillness is judged on 0.25 s block means (per-sample noise at 819 SPS is
-        ~10 mg, far above any useful per-sample threshold): the gyro mean must be small and the
-        accelerometer mean must not move between blocks; `still_s` of such blocks make one position."""
+        """Take one sample; once it completes a still period, that period recorded as the position it is in. The
+        text to show the operator (recorded, already have, not a requested position), or None."""
+        mean = self._still_period_mean(sample)
+        return None if mean is None else self._record_position(mean)
+
+    def _still_period_mean(self, sample) -> np.ndarray | None:
+        """The mean specific force of a still period of `still_s` as it completes, else None. Stillness is judged
+        on 0.25 s block means (per-sample noise at 819 SPS is ~10 mg, far above any useful per-sample threshold):
+        the gyro mean must be small and the accelerometer mean must not move between blocks."""
         a, g = np.asarray(sample.accel_m_s2, dtype=float), np.asarray(sample.gyro_rad_s, dtype=float)
         if not (np.all(np.isfinite(a)) and np.all(np.isfinite(g))):
             return None
@@ -463,6 +469,11 @@ class GuidedSession:
         mean = self._sum / self._count
         self._sum = np.zeros(3)
         self._count = 0
+        return mean
+
+    def _record_position(self, mean: np.ndarray) -> str | None:
+        """Record a still period's mean as the first requested position within `tolerance_deg` of its direction
+        that is not recorded yet; each still period is reported once."""
         u = mean / np.linalg.norm(mean)
         cos_lim = math.cos(math.radians(self.tolerance_deg))
         matches = [i for i, (_, d) in enumerate(self.targets) if float(u @ np.array(d)) > cos_lim]
