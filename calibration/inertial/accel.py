@@ -271,12 +271,30 @@ def still_periods(accel_m_s2: np.ndarray, gyro_rad_s: np.ndarray | None, rate_hz
     predecessor and is not penalised). A period spans its still windows, so its duration is the hold's own,
     to a step; the mean is taken over the period less `trim_s` at each end (the settling after a slew)."""
     acc = np.asarray(accel_m_s2, dtype=np.float64)
-    n = acc.shape[0]
     w = max(2, int(round(window_s * rate_hz)))
-    if n < 2 * w:
+    if acc.shape[0] < 2 * w:
         return []
+    starts, still = _still_windows(acc, gyro_rad_s, w, max_gyro_rad_s, accel_std_factor)
+    trim = int(round(trim_s * rate_hz))
+    periods = []
+    edges = np.flatnonzero(np.diff(np.r_[0, still.astype(np.int8), 0]))
+    for first, last in zip(edges[::2], edges[1::2] - 1):
+        begin, end = int(starts[first]), int(starts[last]) + w
+        start, stop = begin + trim, end - trim
+        if stop - start < 2:
+            start, stop = begin, end
+        a = acc[start:stop]
+        gm = np.zeros(3) if gyro_rad_s is None else np.asarray(gyro_rad_s[start:stop]).mean(axis=0)
+        periods.append(StillSegment(start, stop, a.mean(axis=0), gm, (end - begin) / rate_hz, a.std(axis=0)))
+    return periods
+
+
+def _still_windows(acc: np.ndarray, gyro_rad_s: np.ndarray | None, w: int, max_gyro_rad_s: float,
+                   accel_std_factor: float) -> tuple[np.ndarray, np.ndarray]:
+    """The sliding windows of `w` samples (stepped by a tenth of w): their first samples, and which are still
+    by `still_periods`' rule (noise floors, gyro, not moved from the still window one length before)."""
     step = max(1, w // 10)
-    starts = np.arange(0, n - w + 1, step)
+    starts = np.arange(0, acc.shape[0] - w + 1, step)
 
     def window_sums(x):
         c = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
@@ -297,19 +315,7 @@ def still_periods(accel_m_s2: np.ndarray, gyro_rad_s: np.ndarray | None, rate_hz
     lag = w // step                               # the window one length earlier
     moved = np.zeros_like(still)
     moved[lag:] = still[:-lag] & (np.linalg.norm(mean[lag:] - mean[:-lag], axis=1) > accel_std_factor * floor)
-    still &= ~moved
-    trim = int(round(trim_s * rate_hz))
-    periods = []
-    edges = np.flatnonzero(np.diff(np.r_[0, still.astype(np.int8), 0]))
-    for first, last in zip(edges[::2], edges[1::2] - 1):
-        begin, end = int(starts[first]), int(starts[last]) + w
-        start, stop = begin + trim, end - trim
-        if stop - start < 2:
-            start, stop = begin, end
-        a = acc[start:stop]
-        gm = np.zeros(3) if gyro_rad_s is None else np.asarray(gyro_rad_s[start:stop]).mean(axis=0)
-        periods.append(StillSegment(start, stop, a.mean(axis=0), gm, (end - begin) / rate_hz, a.std(axis=0)))
-    return periods
+    return starts, still & ~moved
 
 
 def find_still_segments(accel_m_s2: np.ndarray, gyro_rad_s: np.ndarray | None, rate_hz: float,
