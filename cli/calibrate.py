@@ -359,11 +359,33 @@ def _with_holds(res, used, skipped, rate_hz, min_still_s):
 
 
 def _accel_live(args):
+    """The guided live session's position means from the chip (--sim SCENARIO or --spi DEV), and what they are."""
     import sys
-    import time
 
     from ahrsd.calibration.inertial.accel import GUIDED_TARGETS, GUIDED_TARGETS_FACE_PAIRS, GuidedSession
-    from ahrsd.drivers.errors import DriverError, FrameError
+
+    source, clock = _live_chip_source(args)
+    imu = source.driver
+    # --align-to-faces: each face twice, turned half round between, so a surface tilt cancels (accel_alignment)
+    session = GuidedSession(rate_hz=imu.sample_rate_hz,
+                            targets=GUIDED_TARGETS_FACE_PAIRS if args.align_to_faces else GUIDED_TARGETS)
+    out = sys.stderr
+    out.write(session.prompt + "\n")
+    try:
+        _guide(session, source, clock, args.timeout_s, out)
+    except KeyboardInterrupt:
+        out.write(f"\ninterrupted; {session.coverage()}\n")
+    finally:
+        imu.close()
+    return session.position_means(), f"{len(session.recorded)} guided live positions"
+
+
+def _live_chip_source(args):
+    """The chip's sample source for --live (one timing path: drivers.sample_timer) and the clock it reads on:
+    the simulated chip's own time (free-running) or the host's monotonic clock for --spi."""
+    import time
+
+    from ahrsd.drivers.errors import DriverError
     from ahrsd.drivers.source import start_chip_source
 
     if bool(args.sim) == bool(args.spi):
@@ -373,44 +395,39 @@ def _accel_live(args):
             from ahrsd.drivers.simulated import SimulatedAdis16405
 
             bus = SimulatedAdis16405(args.sim, clock=None)
-            clock = bus.now                      # free-running: the chip's own time
+            clock = bus.now
         else:
             from ahrsd.drivers.spi import SpidevBus
 
             bus = SpidevBus(args.spi)
             clock = time.monotonic
-        source = start_chip_source(bus, "ADIS16405", clock=clock)   # one timing path (drivers.sample_timer)
-        imu = source.driver
+        return start_chip_source(bus, "ADIS16405", clock=clock), clock
     except DriverError as exc:
         raise _Fail(f"sensor: {exc}") from None
-    # --align-to-faces: each face twice, turned half round between, so a surface tilt cancels (accel_alignment)
-    session = GuidedSession(rate_hz=imu.sample_rate_hz,
-                            targets=GUIDED_TARGETS_FACE_PAIRS if args.align_to_faces else GUIDED_TARGETS)
-    out = sys.stderr
-    out.write(session.prompt + "\n")
+
+
+def _guide(session, source, clock, timeout_s: float, out) -> None:
+    """Feed the session every sample until it has every position or `timeout_s` of sensor time passed, writing
+    its prompts to `out`; a corrupt frame is skipped, any other sensor error ends the calibration."""
+    from ahrsd.drivers.errors import DriverError, FrameError
+
     t_first = None
-    try:
-        while not session.done:
-            try:
-                sample = source.read_one(clock())
-            except FrameError:
-                continue
-            except DriverError as exc:
-                raise _Fail(f"sensor: {exc}") from None
-            if sample is None:
-                continue
-            t_first = sample.t_s if t_first is None else t_first
-            if sample.t_s - t_first > args.timeout_s:
-                out.write(f"timed out after {args.timeout_s:.0f} s of sensor time; {session.coverage()}\n")
-                break
-            msg = session.feed(sample)
-            if msg:
-                out.write(msg + "\n")
-    except KeyboardInterrupt:
-        out.write(f"\ninterrupted; {session.coverage()}\n")
-    finally:
-        imu.close()
-    return session.position_means(), f"{len(session.recorded)} guided live positions"
+    while not session.done:
+        try:
+            sample = source.read_one(clock())
+        except FrameError:
+            continue
+        except DriverError as exc:
+            raise _Fail(f"sensor: {exc}") from None
+        if sample is None:
+            continue
+        t_first = sample.t_s if t_first is None else t_first
+        if sample.t_s - t_first > timeout_s:
+            out.write(f"timed out after {timeout_s:.0f} s of sensor time; {session.coverage()}\n")
+            return
+        msg = session.feed(sample)
+        if msg:
+            out.write(msg + "\n")
 
 
 def _gyro(args) -> int:

@@ -179,37 +179,50 @@ class MagCalClient:
             return 0
         deadline = time.monotonic() + max_time_s
         try:
-            while time.monotonic() < deadline:
-                m = self.conn.recv_match(blocking=True, timeout=0.5)
-                if m is None or not self._from_target(m):
-                    continue
-                if m.get_type() != "MAG_CAL_REPORT":
-                    self._show(m)
-                    continue
-                self._report(m)
-                if m.cal_status != MAG_CAL_SUCCESS:
-                    self.command(MAV_CMD_DO_CANCEL_MAG_CAL, 0)  # stop the re-sent reports
-                    return 1
-                if m.autosaved:
-                    return 0
-                answer, elsewhere = (True, None) if accept else \
-                    self._ask_listening("accept and save this calibration? [y/N] ")
-                elsewhere = elsewhere or self._settled_elsewhere()
-                if elsewhere is not None:
-                    return self._settled(elsewhere)
-                if answer is None:
-                    return self._await_decision_elsewhere(deadline)
-                if not answer:
-                    self.command(MAV_CMD_DO_CANCEL_MAG_CAL, 0)
-                    self._print("not accepted: calibration unchanged")
-                    return 1
-                return self.simple(MAV_CMD_DO_ACCEPT_MAG_CAL, "accept", 0)
+            report = self._next_report(deadline)
+            if report is not None:
+                return self._answer_report(report, accept, deadline)
         except KeyboardInterrupt:
             self._print("cancelling...")
             self.command(MAV_CMD_DO_CANCEL_MAG_CAL, 0)
             return 130
         self._print("gave up waiting (--max-time); the calibration is still running on the daemon")
         return 1
+
+    def _next_report(self, deadline: float):
+        """The target's next MAG_CAL_REPORT (its other messages shown meanwhile: progress, STATUSTEXT), or None at
+        `deadline` (time.monotonic)."""
+        while time.monotonic() < deadline:
+            m = self.conn.recv_match(blocking=True, timeout=0.5)
+            if m is None or not self._from_target(m):
+                continue
+            if m.get_type() != "MAG_CAL_REPORT":
+                self._show(m)
+                continue
+            return m
+        return None
+
+    def _answer_report(self, m, accept: bool, deadline: float) -> int:
+        """Show the report and settle it: a failure cancelled, an autosaved one done, else accepted when `accept`
+        or the terminal says yes (cancelled on no); settled elsewhere (another ground station) or by nobody
+        (no terminal), as that says. The exit status."""
+        self._report(m)
+        if m.cal_status != MAG_CAL_SUCCESS:
+            self.command(MAV_CMD_DO_CANCEL_MAG_CAL, 0)  # stop the re-sent reports
+            return 1
+        if m.autosaved:
+            return 0
+        answer, elsewhere = (True, None) if accept else self._ask_listening("accept and save this calibration? [y/N] ")
+        elsewhere = elsewhere or self._settled_elsewhere()
+        if elsewhere is not None:
+            return self._settled(elsewhere)
+        if answer is None:
+            return self._await_decision_elsewhere(deadline)
+        if not answer:
+            self.command(MAV_CMD_DO_CANCEL_MAG_CAL, 0)
+            self._print("not accepted: calibration unchanged")
+            return 1
+        return self.simple(MAV_CMD_DO_ACCEPT_MAG_CAL, "accept", 0)
 
     def _await_decision_elsewhere(self, deadline: float) -> int:
         """Nobody can answer the prompt (stdin is not a terminal, or at its end): the decision is not ours, so

@@ -14,6 +14,7 @@ Exit status: 0 done, 1 bad input (recording, calibration, parameters, output pat
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Callable
 
@@ -40,8 +41,6 @@ AIDED_OUTPUT_HEADER = ",".join(OUTPUT_COLUMNS + NAV_OUTPUT_COLUMNS + HEADING_OUT
 # and the circle centre's offset, µT (NaN while not judged).
 # Without the check the header stays OUTPUT_HEADER (or AIDED_OUTPUT_HEADER).
 FIELD_CIRCLE_OUTPUT_COLUMNS = ("mag_cal_check", "mag_field_centre_ut")
-# REFERENCE: the quaternion and yaw are relative to true north (NED) when a position is given (--lat/--lon: the
-# WMM declination rotates the estimator's magnetic-north attitude about down), else to magnetic north.
 _FORMAT = ",".join(["%.6f"] + ["%.9f"] * 4 + ["%.6f"] * 5 + ["%.6f"] * 3 + ["%.6e"] * 3 + ["%d"])
 _NAV_FORMAT = ",".join(["%.4f"] * 3 + ["%.9f"] * 2 + ["%.4f"] + ["%.4f"] * 2 + ["%d"])
 _FIELD_CIRCLE_FORMAT = "%d,%.3f"
@@ -81,6 +80,13 @@ def register(subparsers) -> None:
                    "the recording's truth columns when it has them (needs matplotlib: pip install matplotlib, or install ahrsd with -e '.[plot]')")
     p.add_argument("--quiet", "-q", action="store_true", help="no summary and no progress bar on stderr")
     p.set_defaults(func=run)
+
+
+def _true_north(args) -> bool:
+    """REFERENCE: the quaternion, yaw and figure are relative to true north (NED) when a position is given
+    (--lat/--lon) or comes from the first GNSS fix (--gnss): the WMM declination there rotates the estimator's
+    magnetic-north attitude about down. Else to magnetic north."""
+    return args.lat is not None or bool(args.gnss)
 
 
 class ReplayError(Exception):
@@ -382,7 +388,7 @@ def _plot_trace(args):
     except PlotUnavailableError as exc:
         raise ReplayUsageError(str(exc)) from None
     trace = ReplayTrace()
-    trace.true_north = args.lat is not None or args.gnss is not None
+    trace.true_north = _true_north(args)
     return trace
 
 
@@ -496,46 +502,58 @@ def _replay(args, estimator, calibration, fixes, trace, calibration_sigma_rad=No
     `calibration_sigma_rad`: the heading error the estimator was told the calibration leaves (None: not told)."""
     import time
 
-    from ahrsd.drivers.recording import RecordingFormatError, iter_samples
-    from ahrsd.estimator.replay import checks_calibration, replay_attitude
+    from ahrsd.drivers.recording import iter_samples
+    from ahrsd.estimator.replay import field_circle_columns, replay_attitude
 
     from .calibration_check_summary import CalibrationCheckSummary
-    from .progress import expected_rows, progress_bar
 
     aided = fixes is not None
-    circle_checked = checks_calibration(estimator, calibration_sigma_rad) is not None
+    field_circle = field_circle_columns(estimator, calibration_sigma_rad)
+    checked = field_circle is not None
+    out = _open_output(args.output, aided, checked)
+    verdicts = CalibrationCheckSummary() if checked else None
+    # a file cut mid-row: its complete rows
+    samples = _CheckedSamples(args.recording, iter_samples(args.recording, strict=False))
+    t_run = time.process_time()
+    try:
+        with _replay_errors(args):
+            tables = replay_attitude(estimator, _calibrated(samples, calibration), true_north=_true_north(args),
+                                     fixes=fixes, field_circle=field_circle)
+            history = _write_tables(args, tables, out, aided, verdicts, trace)
+            if samples.count == 0:
+                raise ReplayError(f"{args.recording}: the recording has a header but no samples")
+            out.commit()
+    finally:
+        out.discard()
+    return _ReplayDone(samples, aided, history, time.process_time() - t_run, verdicts,
+                       float(calibration_sigma_rad) if checked else float("nan"))
+
+
+def _open_output(path: str, aided: bool, checked: bool) -> _Output:
+    """The output file with its header and row format: the attitude columns, then the aided estimator's (`aided`)
+    and the calibration check's (`checked`)."""
     header, row_format = (AIDED_OUTPUT_HEADER, _FORMAT + "," + _NAV_FORMAT) if aided else (OUTPUT_HEADER, _FORMAT)
-    if circle_checked:
+    if checked:
         header += "," + ",".join(FIELD_CIRCLE_OUTPUT_COLUMNS)
         row_format += "," + _FIELD_CIRCLE_FORMAT
-    verdicts = CalibrationCheckSummary() if circle_checked else None
     try:
-        out = _Output(args.output, header, row_format)
+        return _Output(path, header, row_format)
     except OSError as exc:
-        raise ReplayError(f"{args.output}: cannot write: {exc.strerror or exc}") from None
-    # a file cut mid-row: its complete rows
-    checked = _CheckedSamples(args.recording, iter_samples(args.recording, strict=False))
-    samples = (map(calibration.apply, checked) if calibration is not None and not calibration.is_identity
-               else checked)
-    t_run = time.process_time()
-    history: list[tuple[float, int]] = []
+        raise ReplayError(f"{path}: cannot write: {exc.strerror or exc}") from None
+
+
+def _calibrated(samples, calibration):
+    """The samples through the calibration (as they are without one, or with the identity)."""
+    return map(calibration.apply, samples) if calibration is not None and not calibration.is_identity else samples
+
+
+@contextmanager
+def _replay_errors(args):
+    """Reading the recording or writing the output failed: one line naming the file (ReplayError)."""
+    from ahrsd.drivers.recording import RecordingFormatError
+
     try:
-        order, state_col, circle_col = _output_order(aided, circle_checked)
-        true_north = args.lat is not None or aided
-        with progress_bar(args, expected_rows(args.recording), "replay") as bar:
-            for table in replay_attitude(estimator, samples, true_north=true_north, fixes=fixes,
-                                         calibration_sigma_rad=calibration_sigma_rad if circle_checked else None):
-                out.write(table[:, order])
-                if aided:
-                    _state_changes(table[:, 0], table[:, state_col], history)
-                if verdicts is not None:
-                    verdicts.add(table[:, 0], table[:, circle_col], table[:, circle_col + 1])
-                bar.update(len(table))
-                if trace is not None:
-                    trace.add(table)
-        if checked.count == 0:
-            raise ReplayError(f"{args.recording}: the recording has a header but no samples")
-        out.commit()
+        yield
     except FileNotFoundError:
         raise ReplayError(f"{args.recording}: no such file") from None
     except UnicodeDecodeError:
@@ -544,10 +562,27 @@ def _replay(args, estimator, calibration, fixes, trace, calibration_sigma_rad=No
         raise ReplayError(str(exc)) from None
     except OSError as exc:
         raise ReplayError(f"{exc.filename or args.output}: {exc.strerror or exc}") from None
-    finally:
-        out.discard()
-    return _ReplayDone(checked, aided, history, time.process_time() - t_run, verdicts,
-                       float(calibration_sigma_rad) if circle_checked else float("nan"))
+
+
+def _write_tables(args, tables, out: _Output, aided: bool, verdicts, trace) -> list[tuple[float, int]]:
+    """Each replay table into the output file (in the CSV's column order), the heading state's changes (`aided`),
+    the calibration check's verdicts (`verdicts`, a CalibrationCheckSummary) and the figure's trace (`trace`), with
+    a progress bar; the heading state's changes (t, state)."""
+    from .progress import expected_rows, progress_bar
+
+    order, state_col, circle_col = _output_order(aided, verdicts is not None)
+    history: list[tuple[float, int]] = []
+    with progress_bar(args, expected_rows(args.recording), "replay") as bar:
+        for table in tables:
+            out.write(table[:, order])
+            if aided:
+                _state_changes(table[:, 0], table[:, state_col], history)
+            if verdicts is not None:
+                verdicts.add(table[:, 0], table[:, circle_col], table[:, circle_col + 1])
+            bar.update(len(table))
+            if trace is not None:
+                trace.add(table)
+    return history
 
 
 def _print_summary(args, done: _ReplayDone, estimator_name: str, estimator, declination: float, validator,
@@ -564,7 +599,7 @@ def _print_summary(args, done: _ReplayDone, estimator_name: str, estimator, decl
         duration += 1.0 / rate
     speed = duration / wall_s if wall_s > 0 else math.inf
     cpu_speed = duration / cpu_s if cpu_s > 0 else math.inf
-    where = ("magnetic north (no position)" if args.lat is None and not aided
+    where = ("magnetic north (no position)" if not _true_north(args)
              else f"true north, declination {math.degrees(declination):+.2f}°"
              + (" at the first fix" if args.lat is None else ""))
     gnss = ""

@@ -81,12 +81,12 @@ def get_message_interval(parts: BuiltinCommands, msg, ctx) -> int:
     if mid is None:
         return Refused(mavlink.MAV_RESULT_DENIED, f"GET_MESSAGE_INTERVAL: message id {raw_id} invalid")
     if mid == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
-        interval = 1_000_000
+        interval_us = 1_000_000   # the 1 Hz heartbeat
     elif mid is not None and mid in ctx.endpoint.schedule:
-        interval = ctx.endpoint.schedule.interval_us(mid)
+        interval_us = ctx.endpoint.schedule.interval_us(mid)
     else:
-        interval = 0   # "0: not available"
-    parts.call_soon(ctx.endpoint.send, msgs.message_interval(mid, interval))
+        interval_us = 0   # "0: not available"
+    parts.call_soon(ctx.endpoint.send, msgs.message_interval(mid, interval_us))
     return mavlink.MAV_RESULT_ACCEPTED
 
 

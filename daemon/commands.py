@@ -128,23 +128,16 @@ class CommandRouter:
         return sorted(self._handlers)
 
     def handle(self, msg, endpoint, broadcast: bool) -> None:
+        """One COMMAND_LONG / COMMAND_INT by the module's rules: an ignored broadcast, a repeated duplicate, an
+        unsupported or unsigned command answered here; else the handler's outcome ACKed."""
         self.counters.received += 1
         cmd = int(msg.command)
         src = (msg.get_srcSystem(), msg.get_srcComponent())
         reg = self._handlers.get(cmd)
-        if broadcast and (reg is None or not reg.accept_broadcast or not self.accept_broadcast):
-            self.counters.ignored_broadcast += 1
-            if reg is not None and self.broadcast_notice is not None:
-                self.broadcast_notice.note(cmd, src)    # ours, but not on a broadcast: say so
+        if broadcast and self._ignored_broadcast(reg, cmd, src):
             return
         key = (src, cmd, command_params(msg))
-        now = self.clock()
-        self._expire(now)
-        previous = self._recent.get(key) if reg is None or reg.state_changing else None
-        if previous is not None:
-            self.counters.duplicates += 1
-            self._recent[key] = (now, previous[1])
-            self.send_ack(endpoint, previous[1])
+        if self._answered_duplicate(key, reg, endpoint):
             return
 
         def ack(result: int, progress: int = 0, param2: int = 0, remember: bool = True) -> None:
@@ -165,14 +158,43 @@ class CommandRouter:
             return
         ctx = CommandContext(endpoint, src[0], src[1], broadcast, signed,
                              msg.get_type() == "COMMAND_INT", lambda r, p: ack(r, p))
+        self._ack_outcome(self._run_handler(reg, msg, ctx, cmd), ack, cmd, src)
+
+    def _ignored_broadcast(self, reg: _Registration | None, cmd: int, src: tuple[int, int]) -> bool:
+        """A broadcast we do not act on (not ours, not accepted by its handler or by the daemon's policy): counted,
+        and said when the command is ours."""
+        if reg is not None and reg.accept_broadcast and self.accept_broadcast:
+            return False
+        self.counters.ignored_broadcast += 1
+        if reg is not None and self.broadcast_notice is not None:
+            self.broadcast_notice.note(cmd, src)    # ours, but not on a broadcast: say so
+        return True
+
+    def _answered_duplicate(self, key: tuple, reg: _Registration | None, endpoint) -> bool:
+        """A state-changing (or unknown) command seen within DUPLICATE_WINDOW_S: its last ACK sent again."""
+        now = self.clock()
+        self._expire(now)
+        previous = self._recent.get(key) if reg is None or reg.state_changing else None
+        if previous is None:
+            return False
+        self.counters.duplicates += 1
+        self._recent[key] = (now, previous[1])
+        self.send_ack(endpoint, previous[1])
+        return True
+
+    def _run_handler(self, reg: _Registration, msg, ctx: CommandContext, cmd: int):
+        """The handler's outcome; one that raised (a bug: handlers refuse, never raise) is FAILED, counted."""
         try:
-            out = reg.handler(msg, ctx)
+            return reg.handler(msg, ctx)
         except Exception:  # noqa: BLE001 - a failing handler answers FAILED, the daemon carries on
             self.counters.handler_errors += 1
             log.exception("command %d handler failed", cmd)
-            out = mavlink.MAV_RESULT_FAILED
+            return mavlink.MAV_RESULT_FAILED
+
+    def _ack_outcome(self, out, ack: Callable[..., None], cmd: int, src: tuple[int, int]) -> None:
+        """ACK a handler's outcome: None (it answers later through ctx.finish), Refused, CommandAck or a result."""
         if out is None:
-            return   # the handler answers later itself via ctx.finish
+            return
         if isinstance(out, Refused):
             self.counters.refused += 1
             self._log_refusal(cmd, src, out.reason, tell_operator=True)

@@ -26,10 +26,10 @@ class Housekeeping:
         self.jobs = jobs
 
     async def run(self, loop: asyncio.AbstractEventLoop) -> None:
-        period = 1.0 / HOUSEKEEPING_HZ
+        period_s = 1.0 / HOUSEKEEPING_HZ
         deadline = loop.time()
         while True:
-            deadline += period
+            deadline += period_s
             now = loop.time()
             for job in self.jobs:
                 job(now)

@@ -83,6 +83,7 @@ PREFLIGHT_MAG_START = 1       # PREFLIGHT_CALIBRATION_MAGNETOMETER
 PREFLIGHT_MAG_FORCE_SAVE = 76
 COMPASS_ID = 0          # our single magnetometer
 OUR_MASK = 1 << COMPASS_ID
+FIXED_YAW_FIELD_MISMATCH_WARN_MGAUSS = 50.0   # the old model's |field| this far from the WMM's: soft iron may be stale
 
 SEV_ERROR, SEV_WARNING, SEV_NOTICE, SEV_INFO = 3, 4, 5, 6   # MAV_SEVERITY
 
@@ -403,39 +404,21 @@ class MagCalProtocol:
         return mavlink.MAV_RESULT_UNSUPPORTED
 
     def handle_fixed_yaw(self, msg, ctx=None) -> int:
-        args = CommandArgs.of(msg)
-        yaw_deg, mask_f, lat, lon = args.params[:4]
-        mask = whole_number(mask_f, 0, 255)
-        if mask is None or (mask and not mask & OUR_MASK):
-            return Refused(mavlink.MAV_RESULT_FAILED, f"FIXED_MAG_CAL_YAW: no compass of ours in mask {mask_f}")
-        if not (math.isfinite(yaw_deg) and -360.0 <= yaw_deg <= 360.0):
-            return Refused(mavlink.MAV_RESULT_DENIED, f"FIXED_MAG_CAL_YAW: yaw {yaw_deg} deg invalid")
-        int_position = args.int_position_deg()     # COMMAND_INT: a position travels as x/y, degE7
-        if int_position is not None:
-            if not args.position_frame_ok:
-                return Refused(mavlink.MAV_RESULT_DENIED, f"FIXED_MAG_CAL_YAW: frame {args.frame} not global")
-            if not (lat == 0 and lon == 0):
-                return Refused(mavlink.MAV_RESULT_DENIED, "FIXED_MAG_CAL_YAW: position in both param3/4 and x/y")
-            lat, lon = int_position
-        problem = None if (lat == 0 and lon == 0) else position_problem(lat, lon)
-        if problem:
-            return Refused(mavlink.MAV_RESULT_DENIED, f"FIXED_MAG_CAL_YAW: {problem}")
-        if self.host.armed() and not self.settings.allow_armed:
-            self.host.statustext(SEV_NOTICE, "Disarm to allow compass calibration")
-            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
-        if self.calibrating:
-            self.host.statustext(SEV_NOTICE, "Mag cal running: cancel it before a fixed-yaw cal")
-            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
-        est = self._last_estimate
-        if est is None or not self._recent_raw:
-            self.host.statustext(SEV_ERROR, "Mag: no attitude yet for fixed-yaw cal")
-            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+        """MAV_CMD_FIXED_MAG_CAL_YAW: the vehicle's true heading is yaw_deg now. With a finished, unsaved session:
+        its heading offset from it; else the hard iron that makes the calibrated field point so (saved at once)."""
+        request = _fixed_yaw_request(CommandArgs.of(msg))
+        if isinstance(request, Refused):
+            return request
+        yaw_deg, lat, lon = request
+        not_ready = self._not_ready_for_fixed_yaw()
+        if not_ready is not None:
+            return not_ready
         reference = self.host.reference_field(lat, lon) if (lat or lon) else self.host.reference_field()
         if reference is None:
             self.host.statustext(SEV_ERROR, "Mag: no position available")
             return mavlink.MAV_RESULT_FAILED
-        current = self.host.current_calibration()
         raw_mean = self._raw_mag_mean_ut()
+        est = self._last_estimate
         # the fit is in the sensor frame: the attitude of the sensor axes for the body's given true heading
         sensor = sensor_attitude(SimpleNamespace(roll_rad=float(est.roll_rad), pitch_rad=float(est.pitch_rad),
                                                  yaw_rad=math.radians(float(yaw_deg)),
@@ -443,6 +426,25 @@ class MagCalProtocol:
         s = self.session
         if s is not None and s.status == CalStatus.SUCCESS and not self.saved:
             return self._known_heading_offset(s, raw_mean, sensor, reference)
+        return self._fixed_yaw_hard_iron(yaw_deg, raw_mean, sensor, reference)
+
+    def _not_ready_for_fixed_yaw(self) -> int | None:
+        """Why a fixed-yaw calibration cannot run now (said to the operator), as the result to answer; None: it can."""
+        if self.host.armed() and not self.settings.allow_armed:
+            self.host.statustext(SEV_NOTICE, "Disarm to allow compass calibration")
+            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+        if self.calibrating:
+            self.host.statustext(SEV_NOTICE, "Mag cal running: cancel it before a fixed-yaw cal")
+            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+        if self._last_estimate is None or not self._recent_raw:
+            self.host.statustext(SEV_ERROR, "Mag: no attitude yet for fixed-yaw cal")
+            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+        return None
+
+    def _fixed_yaw_hard_iron(self, yaw_deg: float, raw_mean, sensor, reference) -> int:
+        """The calibration in force with the hard iron the known heading gives (soft iron kept), saved and swapped
+        in; a warning when the old model's field strength is far from the WMM's (its soft iron may be stale)."""
+        current = self.host.current_calibration()
         res = fixed_yaw_calibration(math.degrees(sensor.yaw_rad), reference, sensor.roll_rad, sensor.pitch_rad,
                                     raw_mean, current.mag)
         new = current.with_sensor("mag", res.model, method="field:fixed-yaw", true_heading_deg=float(yaw_deg),
@@ -450,8 +452,9 @@ class MagCalProtocol:
                                           "soft_iron": current.mag.soft_iron.tolist()})
         if not self._save_and_swap(new, current, res.message):
             return mavlink.MAV_RESULT_FAILED
-        if res.field_mismatch_ut * UT_TO_MGAUSS > 50:
-            self.host.statustext(SEV_WARNING, f"Mag field {res.field_mismatch_ut * UT_TO_MGAUSS:.0f} mG off WMM: "
+        mismatch_mgauss = res.field_mismatch_ut * UT_TO_MGAUSS
+        if mismatch_mgauss > FIXED_YAW_FIELD_MISMATCH_WARN_MGAUSS:
+            self.host.statustext(SEV_WARNING, f"Mag field {mismatch_mgauss:.0f} mG off WMM: "
                                    "soft iron may be stale, run a full cal")
         return mavlink.MAV_RESULT_ACCEPTED
 
@@ -522,6 +525,28 @@ def _warm_up() -> None:
     import ahrsd.calibration.mag.ellipsoid  # noqa: F401
     import ahrsd.calibration.mag.fit  # noqa: F401
 
+
+
+def _fixed_yaw_request(args: CommandArgs) -> tuple[float, float, float] | Refused:
+    """MAV_CMD_FIXED_MAG_CAL_YAW's (yaw_deg, lat, lon) — lat = lon = 0: no position given — or why it is refused:
+    param1 yaw, param2 compass mask, param3/4 lat/lon (COMMAND_INT: x/y in degE7 instead, in a global frame)."""
+    yaw_deg, mask_f, lat, lon = args.params[:4]
+    mask = whole_number(mask_f, 0, 255)
+    if mask is None or (mask and not mask & OUR_MASK):
+        return Refused(mavlink.MAV_RESULT_FAILED, f"FIXED_MAG_CAL_YAW: no compass of ours in mask {mask_f}")
+    if not (math.isfinite(yaw_deg) and -360.0 <= yaw_deg <= 360.0):
+        return Refused(mavlink.MAV_RESULT_DENIED, f"FIXED_MAG_CAL_YAW: yaw {yaw_deg} deg invalid")
+    int_position = args.int_position_deg()     # COMMAND_INT: a position travels as x/y, degE7
+    if int_position is not None:
+        if not args.position_frame_ok:
+            return Refused(mavlink.MAV_RESULT_DENIED, f"FIXED_MAG_CAL_YAW: frame {args.frame} not global")
+        if not (lat == 0 and lon == 0):
+            return Refused(mavlink.MAV_RESULT_DENIED, "FIXED_MAG_CAL_YAW: position in both param3/4 and x/y")
+        lat, lon = int_position
+    problem = None if (lat == 0 and lon == 0) else position_problem(lat, lon)
+    if problem:
+        return Refused(mavlink.MAV_RESULT_DENIED, f"FIXED_MAG_CAL_YAW: {problem}")
+    return yaw_deg, lat, lon
 
 @dataclass
 class _FakeCommand:
@@ -626,13 +651,13 @@ class FieldCalibrationPart:
             self.set_calibrating("magnetometer calibration" if calibrating else "")
 
     async def _ticker(self) -> None:
-        period = 1.0 / max(10.0, 2.5 * self.protocol.settings.progress_rate_hz)
+        period_s = 1.0 / max(10.0, 2.5 * self.protocol.settings.progress_rate_hz)
         while True:
             try:
                 self.tick()
             except Exception:  # noqa: BLE001 - the calibration must never stop the daemon
                 log.exception("magcal tick failed")
-            await asyncio.sleep(period)
+            await asyncio.sleep(period_s)
 
     def close(self) -> None:
         self.protocol.close()

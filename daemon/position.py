@@ -8,8 +8,9 @@ Priority, first available wins:
 4. the position remembered from the GNSS receiver or the autopilot (daemon.position_memory: kept in the state
    directory across restarts, up to a year old): the last real position is a better guess than none;
 5. the simulator's site, when the sensor is the simulator.
-Every live position of 2. and 3. goes to the memory (which saves it by its own rule), also when the configured
-position outranks it.
+The memory is fed where positions arrive, not where they are asked for: each GNSS fix and each autopilot GPS
+message hands the live position (2., else 3.) to it (`note_live_position`; it saves by its own rule), also when
+the configured position outranks it. `position()` only reads.
 A position given with a request (MAV_CMD_FIXED_MAG_CAL_YAW's lat/lon) is used for that request only and is
 not a source here. The manual declination (DECL_MANUAL/DECL_DEG) is a declination, not a position: it sits
 above all of these in daemon.declination only.
@@ -66,12 +67,11 @@ class PositionResolver:
         self.memory = memory
 
     def position(self) -> Position | None:
+        """The position by the module's priority, None without one."""
         loc = self.location
-        live = self._live_position()
-        if live is not None and self.memory is not None:
-            self.memory.note(live.lat_deg, live.lon_deg, live.alt_m, live.source)
         if loc.lat_deg is not None:
             return Position(loc.lat_deg, loc.lon_deg, loc.alt_m, "config")
+        live = self._live_position()
         if live is not None:
             return live
         kept = None if self.memory is None else self.memory.usable()
@@ -86,6 +86,13 @@ class PositionResolver:
             site = DEFAULT_SITE
             return Position(site.lat_deg, site.lon_deg, site.alt_m, "simulator", site.date)
         return None
+
+    def note_live_position(self) -> None:
+        """A GNSS fix or an autopilot position arrived: the live position goes to the memory, which saves it by
+        its own rule (daemon.position_memory; nothing from a simulator or a replay)."""
+        live = self._live_position()
+        if live is not None and self.memory is not None:
+            self.memory.note(live.lat_deg, live.lon_deg, live.alt_m, live.source)
 
     def _live_position(self) -> Position | None:
         """The GNSS receiver's position, else the autopilot's (when the config allows it), else None."""

@@ -147,6 +147,7 @@ class Service:
         self.positions = PositionResolver(config.location, gnss_position=self._gnss_position,
                                           autopilot=self.autopilot, simulator=config.sensor.source == "sim",
                                           memory=memory)
+        self.autopilot.add_gnss_listener(lambda msg: self.positions.note_live_position())
         self.declination = Declination(self.params, self.positions, signal_reset=self.heading.signal, clock=clock)
         self.logs = VehicleLogs(config.log, state_dir=self.state_dir, environ=environ,
                                 gnss_source=config.gnss.source, recording_time_base=config.sensor.source == "replay")
@@ -502,7 +503,8 @@ class Service:
                                    replay_time_s=newest_sample_time(self.pipeline))
         self.gnss = GnssTask(backend, cfg.gnss, clock=self.clock, estimator=self.pipeline,
                              statustext=self.outbound.statustext, log_fix=self.logs.log_gnss_fix,
-                             subscribers=[on_first_fix(self.declination.on_gnss_position)],
+                             subscribers=[lambda fix: self.positions.note_live_position(),
+                                          on_first_fix(self.declination.on_gnss_position)],
                              rejection_cause=self.heading_status.rejection_cause)
         self.gnss.open(self.loop)
 

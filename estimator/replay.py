@@ -54,7 +54,7 @@ _DEG = 180.0 / math.pi
 
 def replay_attitude(estimator: Estimator, samples: Iterable[ImuSample], true_north: bool = False,
                     chunk_rows: int = CHUNK_ROWS, fixes: Iterable[GnssFix] | None = None,
-                    calibration_sigma_rad: float | None = None) -> Iterator[np.ndarray]:
+                    field_circle: FieldCircleColumns | None = None) -> Iterator[np.ndarray]:
     """Feed `samples` to `estimator.update` in order and yield the output as float64 tables of at most
     `chunk_rows` rows × len(ATTITUDE_COLUMNS) (+ len(NAV_COLUMNS) with `fixes`).
 
@@ -63,64 +63,94 @@ def replay_attitude(estimator: Estimator, samples: Iterable[ImuSample], true_nor
     estimated. Rows before the estimator initialised have NaN quaternion and angles.
     fixes: GNSS fixes in time order, for an aided estimator (base.GnssAidedEstimator), offered in time order
     with the samples; the table then ends with NAV_COLUMNS and HEADING_COLUMNS.
-    calibration_sigma_rad: the heading error (1σ) the estimator was told the calibration leaves; with it, and an
-    estimator that checks the calibration by the field's circle in turns (field_circle.py; `field_circle()` not
-    None), the table ends with FIELD_CIRCLE_COLUMNS: the check's verdict against that figure per sample, as the
-    daemon judges it (daemon/heading_status.py).
+    field_circle: this estimator's calibration check (`field_circle_columns`); with it the table ends with
+    FIELD_CIRCLE_COLUMNS.
     """
     if fixes is not None and not isinstance(estimator, GnssAidedEstimator):
         raise ValueError(f"estimator {estimator.name!r} takes no GNSS fixes (not aided)")
-    nan = math.nan
-    deg = _DEG
+    feed = GnssFixFeed(estimator, fixes) if fixes is not None else None
+    for rows in _row_chunks(estimator, samples, feed, field_circle, chunk_rows):
+        yield _finish_table(rows, true_north)
+
+
+class FieldCircleColumns:
+    """FIELD_CIRCLE_COLUMNS of each sample: the verdict of the estimator's calibration check by the field's circle
+    in turns (field_circle.py) against the heading error (1σ) the estimator was told the calibration leaves, as
+    the daemon judges it (daemon/heading_status.py)."""
+
+    def __init__(self, field_circle, calibration_sigma_rad: float):
+        self._field_circle = field_circle             # the estimator's latest check result (base.FieldCircleChecked…)
+        self._claimed_var_rad2 = calibration_heading_variance_rad2(calibration_sigma_rad)
+        self._result = None
+        self._columns = None
+
+    def columns(self) -> tuple[int, float]:
+        """(the verdict as an integer, the circle centre's offset in µT, NaN while not judged)."""
+        result = self._field_circle()
+        if result is not self._result:      # a new result only once a second (field_circle.py solve_period_s)
+            self._result = result
+            verdict = result.verdict(self._claimed_var_rad2)
+            self._columns = (int(verdict), result.offset_ut if verdict else math.nan)
+        return self._columns
+
+
+def field_circle_columns(estimator: Estimator, calibration_sigma_rad: float | None) -> FieldCircleColumns | None:
+    """The estimator's calibration check for the replay table when a calibration figure is given and the
+    estimator runs the check, else None."""
+    if calibration_sigma_rad is None or not isinstance(estimator, FieldCircleCheckedEstimator):
+        return None
+    if estimator.field_circle() is None:
+        return None
+    return FieldCircleColumns(estimator.field_circle, calibration_sigma_rad)
+
+
+def _row_chunks(estimator: Estimator, samples: Iterable[ImuSample], feed: GnssFixFeed | None,
+                field_circle: FieldCircleColumns | None, chunk_rows: int) -> Iterator[list[tuple]]:
+    """The table's rows, one per sample (the fixes due before it offered first, then its estimate), in lists of
+    at most `chunk_rows` (memory stays constant for long recordings)."""
     update = estimator.update
     rows: list[tuple] = []
-    append = rows.append
-    feed = GnssFixFeed(estimator, fixes) if fixes is not None else None
-    no_nav = (nan,) * len(NAV_COLUMNS)
-    no_gsf = (nan, nan)
-    circle = checks_calibration(estimator, calibration_sigma_rad)
-    claimed_var = calibration_heading_variance_rad2(calibration_sigma_rad) if circle is not None else nan
-    result = verdict_cols = None
     for sample in samples:
         if feed is not None:
             feed.offer_until(sample.t_s)
         est = update(sample)
-        if est.roll_rad == est.roll_rad:   # initialised (not NaN)
-            q0, q1, q2, q3 = est.q_wxyz.tolist()
-        else:
-            q0 = q1 = q2 = q3 = nan
-        s0, s1, s2 = est.sigma_rpy_rad.tolist()
-        b0, b1, b2 = est.gyro_bias_rad_s.tolist()
-        row = (sample.t_s, q0, q1, q2, q3, est.roll_rad * deg, est.pitch_rad * deg, est.yaw_rad * deg,
-               est.heading_mag_rad * deg, est.heading_true_rad * deg, s0 * deg, s1 * deg, s2 * deg,
-               b0, b1, b2, int(est.flags))
+        row = _attitude_columns(sample.t_s, est)
         if feed is not None:
-            nav = est.nav
-            row += no_nav if nav is None else (*nav.vel_ned_m_s.tolist(), nav.lat_deg, nav.lon_deg, nav.alt_m)
-            hi = est.integrity
-            row += (no_gsf if hi is None else (hi.gsf_yaw_rad * deg, hi.gsf_sigma_rad * deg)) + (int(est.heading_state),)
-        if circle is not None:
-            r = circle()
-            if r is not result:      # a new result only once a second (field_circle.py solve_period_s)
-                result = r
-                v = r.verdict(claimed_var)
-                verdict_cols = (int(v), r.offset_ut if v else nan)
-            row += verdict_cols
-        append(row)
+            row += _aided_columns(est)
+        if field_circle is not None:
+            row += field_circle.columns()
+        rows.append(row)
         if len(rows) >= chunk_rows:
-            yield _finish_table(rows, true_north)
+            yield rows
             rows = []
-            append = rows.append
     if rows:
-        yield _finish_table(rows, true_north)
+        yield rows
 
 
-def checks_calibration(estimator: Estimator, calibration_sigma_rad: float | None):
-    """The estimator's `field_circle` (its calibration check's latest result) when a calibration figure is given
-    and the estimator runs the check, else None."""
-    if calibration_sigma_rad is None or not isinstance(estimator, FieldCircleCheckedEstimator):
-        return None
-    return estimator.field_circle if estimator.field_circle() is not None else None
+def _attitude_columns(t_s: float, est) -> tuple:
+    """ATTITUDE_COLUMNS of one estimate (yaw still magnetic: _finish_table turns it)."""
+    if est.roll_rad == est.roll_rad:   # initialised (not NaN)
+        q0, q1, q2, q3 = est.q_wxyz.tolist()
+    else:
+        q0 = q1 = q2 = q3 = math.nan
+    s0, s1, s2 = est.sigma_rpy_rad.tolist()
+    b0, b1, b2 = est.gyro_bias_rad_s.tolist()
+    return (t_s, q0, q1, q2, q3, est.roll_rad * _DEG, est.pitch_rad * _DEG, est.yaw_rad * _DEG,
+            est.heading_mag_rad * _DEG, est.heading_true_rad * _DEG, s0 * _DEG, s1 * _DEG, s2 * _DEG,
+            b0, b1, b2, int(est.flags))
+
+
+_NO_NAV = (math.nan,) * len(NAV_COLUMNS)
+_NO_GSF = (math.nan, math.nan)
+
+
+def _aided_columns(est) -> tuple:
+    """NAV_COLUMNS and HEADING_COLUMNS of one aided estimate (NaN where it has none yet)."""
+    nav = est.nav
+    row = _NO_NAV if nav is None else (*nav.vel_ned_m_s.tolist(), nav.lat_deg, nav.lon_deg, nav.alt_m)
+    hi = est.integrity
+    row += _NO_GSF if hi is None else (hi.gsf_yaw_rad * _DEG, hi.gsf_sigma_rad * _DEG)
+    return row + (int(est.heading_state),)
 
 
 def _finish_table(rows: list[tuple], true_north: bool) -> np.ndarray:

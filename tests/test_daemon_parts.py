@@ -117,12 +117,15 @@ def test_one_position_priority_for_the_declination_and_the_field_calibration(tmp
 
 
 def test_within_a_run_the_remembered_position_is_the_last_live_one(tmp_path):
-    """A daemon on the real chip notes every live position: once the receiver and the autopilot are gone, the
-    remembered position is the autopilot's last (below them, above the simulator's site), not the file's."""
+    """A daemon on the real chip notes every live position as it arrives: once the receiver and the autopilot are
+    gone, the remembered position is the autopilot's last (below them, above the simulator's site), not the
+    file's."""
     src = Sources(_remembered(tmp_path, REMEMBERED_SITE, record=True))
     src.drop("config")
+    src.resolver.note_live_position()                   # a fix arrives
     assert src.resolver.position().source == "gnss"
     src.drop("gnss")
+    src.resolver.note_live_position()                   # an autopilot position arrives
     assert src.resolver.position().source == "autopilot"
     src.drop("autopilot")
     p = src.resolver.position()

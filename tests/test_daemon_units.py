@@ -64,6 +64,9 @@ def test_broadcast_commands(router):
     router.register(8, lambda m, c: mavlink.MAV_RESULT_ACCEPTED)
     router.handle(command(8, target=(1, 0)), "ep", broadcast=True)
     assert router.sent[-1].result == mavlink.MAV_RESULT_ACCEPTED
+    router.accept_broadcast = False                    # the daemon's policy ([mavlink] accept_broadcast_commands)
+    router.handle(command(8, 2, target=(1, 0)), "ep", broadcast=True)
+    assert len(router.sent) == 1 and router.counters.ignored_broadcast == 3
 
 
 def test_duplicates_are_not_re_executed(router):

@@ -209,6 +209,46 @@ def test_fixed_yaw_position_as_command_int_equals_command_long(rig, stale_hard_i
     assert_no_escape(rig)
 
 
+def test_fixed_yaw_is_refused_while_armed_and_warns_of_a_field_far_from_the_wmm(rig, stale_hard_iron):
+    """Armed: TEMPORARILY_REJECTED with "Disarm", unchanged. Disarmed: the stale model (hard iron 21 µT off) is
+    farther than FIXED_YAW_FIELD_MISMATCH_WARN_MGAUSS from the WMM's strength, so the new one comes with a warning
+    to run a full calibration; run again on the model it found (within the noise of the WMM's), no warning."""
+    feed_still_samples(rig, 0.0, 1.5)
+    before = rig.service.pipeline.calibration
+    rig.service.autopilot.armed = True
+    drain(rig)
+    feed(rig, command_long(rig, CMD_FIXED_YAW, 30.0, 0, SITE_LAT, SITE_LON))
+    got = drain(rig)
+    assert [a.result for a in acks(got, CMD_FIXED_YAW)] == [mavlink.MAV_RESULT_TEMPORARILY_REJECTED]
+    assert any("Disarm" in m.text for m in got if m.get_type() == "STATUSTEXT")
+    assert rig.service.pipeline.calibration is before
+    rig.service.autopilot.armed = False
+    for stale in (True, False):
+        rig.clock[0] += 10.0                        # outside the duplicate window
+        feed(rig, command_long(rig, CMD_FIXED_YAW, 30.0, 0, SITE_LAT, SITE_LON))
+        got = drain(rig)
+        assert [a.result for a in acks(got, CMD_FIXED_YAW)] == [mavlink.MAV_RESULT_ACCEPTED]
+        warned = [m.text for m in got if m.get_type() == "STATUSTEXT" and "mG off WMM" in m.text]
+        assert bool(warned) is stale, warned
+    assert_no_escape(rig)
+
+
+def test_fixed_yaw_position_in_both_forms_is_denied(rig, stale_hard_iron):
+    """A COMMAND_INT with the position in param3/4 and in x/y: which one is meant cannot be told, so neither is
+    taken (DENIED, the reason to the operator, the calibration unchanged) — even when the two agree."""
+    feed_still_samples(rig, 0.0, 1.5)
+    before = rig.service.pipeline.calibration
+    drain(rig)
+    feed(rig, command_int(rig, CMD_FIXED_YAW, 30.0, 0, SITE_LAT, SITE_LON, x=round(SITE_LAT * 1e7),
+                          y=round(SITE_LON * 1e7)))
+    got = drain(rig)
+    assert [a.result for a in acks(got, CMD_FIXED_YAW)] == [mavlink.MAV_RESULT_DENIED]
+    texts = [m.text for m in got if m.get_type() == "STATUSTEXT"]
+    assert any("position in both" in t for t in texts), texts
+    assert rig.service.pipeline.calibration is before
+    assert_no_escape(rig)
+
+
 
 # ------------------------------------------------------------------------------------------ parameter protocol
 

@@ -111,6 +111,24 @@ def test_no_still_cancels_when_nobody_else_answered():
     assert conn.sent[-1] == client_module.MAV_CMD_DO_CANCEL_MAG_CAL
 
 
+def test_progress_is_shown_and_a_failed_session_is_cancelled_without_asking():
+    """The daemon's progress while it runs reaches the terminal; a report that the fit failed ends the command
+    (status 1) with a cancel, so the daemon stops re-sending that report, and nobody is asked to accept it."""
+    import ahrsd.cli.magcal_client as client_module
+
+    progress = wire(mavlink.MAVLink_mag_cal_progress_message(0, 1, 2, 1, 40, [255, 1] + [0] * 8, 0.7, 0.7, 0.0))
+    failed = wire(mavlink.MAVLink_mag_cal_report_message(0, 1, mavlink.MAG_CAL_FAILED, 0, 2.0, 1, 2, 3, 1, 1, 1,
+                                                         0, 0, 0))
+    conn = _ScriptedConn([progress, failed])
+    out = io.StringIO()
+    asked = []
+    client = MagCalClient(conn=conn, timeout_s=1.0, out=out, ask=lambda prompt: asked.append(prompt) or True)
+    client.sys, client.comp = 1, 200
+    assert client.start() == 1
+    assert "40%" in out.getvalue()
+    assert conn.sent[-1] == client_module.MAV_CMD_DO_CANCEL_MAG_CAL and not asked
+
+
 class _UdpReceiveBuffer(_ScriptedConn):
     """The link as a UDP socket: at most CAPACITY datagrams wait to be read and the kernel drops what arrives
     while it is full. The daemon streams ATTITUDE and the rest to the terminal all the time."""

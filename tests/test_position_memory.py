@@ -44,25 +44,26 @@ def test_a_live_position_is_saved_when_it_moved_a_kilometre_an_hour_later_and_at
     gnss = [SITE]
     memory = PositionMemory(tmp_path, wall_clock=lambda: t[0])
     live = resolver(memory, gnss=lambda: gnss[0])
+    live.note_live_position()                                 # a fix arrived
     assert live.position().source == "gnss"
     doc = saved(tmp_path)
     assert {k: doc[k] for k in ("lat_deg", "lon_deg", "alt_m", "source", "wall_time_s")} == {
         "lat_deg": 47.0, "lon_deg": 8.0, "alt_m": 400.0, "source": "gnss", "wall_time_s": T0}
     assert doc["saved_utc"] == "2026-12-04T12:00:00+00:00"
     gnss[0], t[0] = (47.0045, 8.0, 400.0), T0 + 60          # 500 m north
-    live.position()
+    live.note_live_position()
     assert saved(tmp_path)["lat_deg"] == 47.0
     gnss[0], t[0] = (47.0108, 8.0, 400.0), T0 + 120         # 1.2 km from the saved position
-    live.position()
+    live.note_live_position()
     assert (saved(tmp_path)["lat_deg"], saved(tmp_path)["wall_time_s"]) == (47.0108, T0 + 120)
     t[0] = T0 + 120 + 3599
-    live.position()
+    live.note_live_position()
     assert saved(tmp_path)["wall_time_s"] == T0 + 120
     t[0] = T0 + 120 + 3600
-    live.position()
+    live.note_live_position()
     assert saved(tmp_path)["wall_time_s"] == T0 + 3720
     gnss[0], t[0] = (47.0153, 8.0, 401.0), T0 + 3780         # 500 m on, then the daemon stops
-    live.position()
+    live.note_live_position()
     assert saved(tmp_path)["lat_deg"] == 47.0108
     memory.save_now()
     assert (saved(tmp_path)["lat_deg"], saved(tmp_path)["alt_m"]) == (47.0153, 401.0)
@@ -89,9 +90,41 @@ def test_the_remembered_position_is_used_up_to_a_year_and_a_clock_behind_it_uses
     assert p.date == datetime.date(2026, 12, 4)             # not 1970: the WMM's secular variation
 
 
+def test_asking_for_the_position_notes_nothing(tmp_path):
+    """The memory is fed where positions arrive: `position()` (the declination every minute, a calibration's
+    reference field) only reads, so nothing is noted or saved until a position arrives."""
+    memory = PositionMemory(tmp_path, wall_clock=lambda: T0)
+    live = resolver(memory, gnss=lambda: SITE)
+    for _ in range(3):
+        assert live.position().source == "gnss"
+    memory.save_now()
+    assert not (tmp_path / FILE_NAME).exists() and memory.usable() is None
+    live.note_live_position()
+    assert saved(tmp_path)["source"] == "gnss" and memory.usable().lat_deg == SITE[0]
+
+
+def test_the_live_position_noted_is_the_receivers_else_the_autopilots_if_allowed(tmp_path):
+    """What the resolver calls live, by its priority: the GNSS receiver's position above the autopilot's, and the
+    autopilot's only when [location] use_autopilot_position; the configured position is no live one."""
+    ap = AutopilotState(lat_deg=10.0, lon_deg=20.0, alt_m=5.0)
+    cases = [(lambda: SITE, LocationConfig(), "gnss", SITE[0]),
+             (lambda: None, LocationConfig(), "autopilot", 10.0),
+             (lambda: SITE, LocationConfig(lat_deg=1.0, lon_deg=2.0), "gnss", SITE[0]),   # outranked, still kept
+             (lambda: None, LocationConfig(use_autopilot_position=False), None, None)]
+    for k, (gnss, location, source, lat) in enumerate(cases):
+        state = tmp_path / str(k)
+        memory = PositionMemory(state, wall_clock=lambda: T0)
+        PositionResolver(location, gnss_position=gnss, autopilot=ap, simulator=False,
+                         memory=memory).note_live_position()
+        if source is None:
+            assert not (state / FILE_NAME).exists(), k
+        else:
+            assert (saved(state)["source"], saved(state)["lat_deg"]) == (source, lat), k
+
+
 def test_a_simulated_or_replayed_run_remembers_nothing(tmp_path):
     memory = PositionMemory(tmp_path, record=False)
-    resolver(memory, gnss=lambda: SITE).position()
+    resolver(memory, gnss=lambda: SITE).note_live_position()
     memory.save_now()
     assert not (tmp_path / FILE_NAME).exists()
 
@@ -153,11 +186,11 @@ def test_the_daemon_starts_with_the_position_it_last_knew(tmp_path, monkeypatch,
     t = [T0]
     monkeypatch.setattr(position_memory, "_wall_time_s", lambda: t[0])
     svc = _service(tmp_path, "spi")
-    svc.autopilot.lat_deg, svc.autopilot.lon_deg, svc.autopilot.alt_m = SITE
-    svc.declination.resolve(initial=True)
-    svc.autopilot.lat_deg = 47.0045
+    svc.autopilot.on_global_position_int(_global_position_int(*SITE), 0.0)
+    assert saved(tmp_path / "state")["lat_deg"] == SITE[0]
     t[0] += 600
-    svc.declination.resolve()
+    svc.autopilot.on_global_position_int(_global_position_int(47.0045, 8.0, 400.0), 1.0)
+    assert saved(tmp_path / "state")["lat_deg"] == SITE[0]
     svc.shutdown_io("test")
     t[0] += 3 * DAY_S
     again = _service(tmp_path, "spi")
@@ -170,10 +203,42 @@ def test_the_daemon_starts_with_the_position_it_last_knew(tmp_path, monkeypatch,
 
     sim_state = tmp_path / "sim"
     sim = Service(dataclasses.replace(Config().with_overrides(state_dir=str(sim_state), sim="static")))
-    sim.autopilot.lat_deg, sim.autopilot.lon_deg = 10.0, 20.0
+    sim.autopilot.on_global_position_int(_global_position_int(10.0, 20.0, 0.0), 0.0)
     sim.declination.resolve(initial=True)
     sim.shutdown_io("test")
     assert not (sim_state / FILE_NAME).exists()
+
+
+def _global_position_int(lat_deg: float, lon_deg: float, alt_m: float):
+    from ahrsd.daemon.mavlink_io import mavlink
+
+    return mavlink.MAVLink_global_position_int_message(1000, round(lat_deg * 1e7), round(lon_deg * 1e7),
+                                                       round(alt_m * 1e3), 0, 0, 0, 0, 0)
+
+
+def test_the_daemon_notes_each_gnss_fix_as_it_arrives(tmp_path, monkeypatch):
+    """The receiver's fix (here [gnss] source = "mavlink", with the autopilot's own position not used) is noted
+    by the GNSS task as it is accepted: saved at once, the first position known."""
+    from ahrsd.daemon.config import GnssConfig, SensorConfig
+    from ahrsd.daemon.mavlink_io import mavlink
+    from service_rig import gcs_socket, start_service, stop_service
+
+    monkeypatch.setattr(position_memory, "_wall_time_s", lambda: T0)
+    gcs = gcs_socket()
+    svc, loop = start_service(gcs, tmp_path / "state", gnss=GnssConfig(source="mavlink"),
+                              sensor=SensorConfig(source="spi"),
+                              location=LocationConfig(use_autopilot_position=False))
+    try:
+        fix = mavlink.MAVLink_gps_raw_int_message(1_000_000, 3, 473977418, 85455939, 488000, 90, 150, 500, 9000,
+                                                  11, 0, 1200, 2500, 300, 0)
+        svc.gnss.on_mavlink(fix, svc.clock())               # outside the loop: the save runs at once
+        doc = saved(tmp_path / "state")
+        assert doc["source"] == "gnss"
+        assert (doc["lat_deg"], doc["lon_deg"], doc["alt_m"]) == pytest.approx((47.3977418, 8.5455939, 488.0),
+                                                                               abs=1e-9)
+    finally:
+        stop_service(svc, loop)
+        gcs.close()
 
 
 def test_calibrate_mag_takes_the_remembered_position_and_says_so(tmp_path, ahrsd_inproc):

@@ -271,12 +271,30 @@ def still_periods(accel_m_s2: np.ndarray, gyro_rad_s: np.ndarray | None, rate_hz
     predecessor and is not penalised). A period spans its still windows, so its duration is the hold's own,
     to a step; the mean is taken over the period less `trim_s` at each end (the settling after a slew)."""
     acc = np.asarray(accel_m_s2, dtype=np.float64)
-    n = acc.shape[0]
     w = max(2, int(round(window_s * rate_hz)))
-    if n < 2 * w:
+    if acc.shape[0] < 2 * w:
         return []
+    starts, still = _still_windows(acc, gyro_rad_s, w, max_gyro_rad_s, accel_std_factor)
+    trim = int(round(trim_s * rate_hz))
+    periods = []
+    edges = np.flatnonzero(np.diff(np.r_[0, still.astype(np.int8), 0]))
+    for first, last in zip(edges[::2], edges[1::2] - 1):
+        begin, end = int(starts[first]), int(starts[last]) + w
+        start, stop = begin + trim, end - trim
+        if stop - start < 2:
+            start, stop = begin, end
+        a = acc[start:stop]
+        gm = np.zeros(3) if gyro_rad_s is None else np.asarray(gyro_rad_s[start:stop]).mean(axis=0)
+        periods.append(StillSegment(start, stop, a.mean(axis=0), gm, (end - begin) / rate_hz, a.std(axis=0)))
+    return periods
+
+
+def _still_windows(acc: np.ndarray, gyro_rad_s: np.ndarray | None, w: int, max_gyro_rad_s: float,
+                   accel_std_factor: float) -> tuple[np.ndarray, np.ndarray]:
+    """The sliding windows of `w` samples (stepped by a tenth of w): their first samples, and which are still
+    by `still_periods`' rule (noise floors, gyro, not moved from the still window one length before)."""
     step = max(1, w // 10)
-    starts = np.arange(0, n - w + 1, step)
+    starts = np.arange(0, acc.shape[0] - w + 1, step)
 
     def window_sums(x):
         c = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
@@ -297,19 +315,7 @@ def still_periods(accel_m_s2: np.ndarray, gyro_rad_s: np.ndarray | None, rate_hz
     lag = w // step                               # the window one length earlier
     moved = np.zeros_like(still)
     moved[lag:] = still[:-lag] & (np.linalg.norm(mean[lag:] - mean[:-lag], axis=1) > accel_std_factor * floor)
-    still &= ~moved
-    trim = int(round(trim_s * rate_hz))
-    periods = []
-    edges = np.flatnonzero(np.diff(np.r_[0, still.astype(np.int8), 0]))
-    for first, last in zip(edges[::2], edges[1::2] - 1):
-        begin, end = int(starts[first]), int(starts[last]) + w
-        start, stop = begin + trim, end - trim
-        if stop - start < 2:
-            start, stop = begin, end
-        a = acc[start:stop]
-        gm = np.zeros(3) if gyro_rad_s is None else np.asarray(gyro_rad_s[start:stop]).mean(axis=0)
-        periods.append(StillSegment(start, stop, a.mean(axis=0), gm, (end - begin) / rate_hz, a.std(axis=0)))
-    return periods
+    return starts, still & ~moved
 
 
 def find_still_segments(accel_m_s2: np.ndarray, gyro_rad_s: np.ndarray | None, rate_hz: float,
@@ -432,9 +438,15 @@ class GuidedSession:
         return np.array([self.recorded[k] for k in sorted(self.recorded)]) if self.recorded else np.zeros((0, 3))
 
     def feed(self, sample) -> str | None:
-        """Take one sample. Stillness is judged on 0.25 s block means (per-sample noise at 819 SPS is
-        ~10 mg, far above any useful per-sample threshold): the gyro mean must be small and the
-        accelerometer mean must not move between blocks; `still_s` of such blocks make one position."""
+        """Take one sample; once it completes a still period, that period recorded as the position it is in. The
+        text to show the operator (recorded, already have, not a requested position), or None."""
+        mean = self._still_period_mean(sample)
+        return None if mean is None else self._record_position(mean)
+
+    def _still_period_mean(self, sample) -> np.ndarray | None:
+        """The mean specific force of a still period of `still_s` as it completes, else None. Stillness is judged
+        on 0.25 s block means (per-sample noise at 819 SPS is ~10 mg, far above any useful per-sample threshold):
+        the gyro mean must be small and the accelerometer mean must not move between blocks."""
         a, g = np.asarray(sample.accel_m_s2, dtype=float), np.asarray(sample.gyro_rad_s, dtype=float)
         if not (np.all(np.isfinite(a)) and np.all(np.isfinite(g))):
             return None
@@ -463,6 +475,11 @@ class GuidedSession:
         mean = self._sum / self._count
         self._sum = np.zeros(3)
         self._count = 0
+        return mean
+
+    def _record_position(self, mean: np.ndarray) -> str | None:
+        """Record a still period's mean as the first requested position within `tolerance_deg` of its direction
+        that is not recorded yet; each still period is reported once."""
         u = mean / np.linalg.norm(mean)
         cos_lim = math.cos(math.radians(self.tolerance_deg))
         matches = [i for i, (_, d) in enumerate(self.targets) if float(u @ np.array(d)) > cos_lim]

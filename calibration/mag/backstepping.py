@@ -280,33 +280,14 @@ def _average_blocks(usable: _Usable, opts: BacksteppingOptions, roll_rad, pitch_
     of k samples is σ/√k."""
     full = usable.data
     href = _delayed_heading_reference(full, opts.heading_ref_delay_s)
-    href_c = href_s = None
-    if href is not None:
-        href_c, href_s = np.cos(np.radians(href)), np.sin(np.radians(href))
     leg_f = None if usable.legs is None else usable.legs.astype(np.float64)
     cal_f = None if usable.calibration_mask is None else usable.calibration_mask.astype(np.float64)
-    speed_in = opts.speed_m_s
-    if isinstance(speed_in, str) and speed_in == "auto":
-        # the forward-speed model a = ω × [V, 0, 0] describes a vehicle, not a hand tumble
-        speed_in = "fit" if (full.gyro_rad_s is not None and vehicle_like) else None
-    speed_arr = None
-    if speed_in is not None and not isinstance(speed_in, str):
-        speed_arr = np.broadcast_to(np.asarray(speed_in, dtype=np.float64), (n_input,))[usable.keep].astype(np.float64)
+    speed_in, speed_arr = _forward_speed(usable, opts, vehicle_like, n_input)
     tb, cols, block_of = block_average(full.t_s, opts.rate_hz, full.mag_ut, down_in_body(roll_rad, pitch_rad),
                                        leg_f, cal_f, full.gyro_rad_s if speed_in is not None else None, speed_arr,
                                        usable.unfiltered_mag_ut)
     mag, down_b, legf, calf, gyro_b, speed_b, mag_unfiltered = cols
-    heading_ref_b = None
-    if href_c is not None:
-        nb = mag.shape[0]
-        valid = np.isfinite(href_c)
-        count = np.bincount(block_of, weights=valid.astype(np.float64), minlength=nb)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            hc = np.bincount(block_of, weights=np.where(valid, href_c, 0.0), minlength=nb) / count
-            hs = np.bincount(block_of, weights=np.where(valid, href_s, 0.0), minlength=nb) / count
-        heading_ref_b = np.degrees(np.arctan2(hs, hc)) % 360.0
-        with np.errstate(invalid="ignore"):
-            heading_ref_b[~(np.hypot(hc, hs) > 0.99)] = np.nan    # no reference in the block, or it straddled a turn
+    heading_ref_b = None if href is None else _block_heading_deg(href, block_of, mag.shape[0])
     down_b = down_b / np.linalg.norm(down_b, axis=1, keepdims=True)
     roll = np.arctan2(down_b[:, 1], down_b[:, 2])
     pitch = -np.arcsin(np.clip(down_b[:, 0], -1.0, 1.0))
@@ -322,6 +303,34 @@ def _average_blocks(usable: _Usable, opts: BacksteppingOptions, roll_rad, pitch_
     quality["sigma_mag_fit_ut"] = sigma_mag_ut
     return _Blocks(tb, mag, down_b, roll, pitch, legs_b, cal_b, heading_ref_b, gyro_b, centripetal, sigma_mag_ut,
                    mag_unfiltered)
+
+
+def _forward_speed(usable: _Usable, opts: BacksteppingOptions, vehicle_like: bool, n_input: int):
+    """(the forward-speed option in force: None, "fit" or the speed given; the given speed per kept sample, m/s,
+    or None). "auto" fits it for a vehicle with gyro samples: the model a = ω × [V, 0, 0] describes a vehicle,
+    not a hand tumble."""
+    speed_in = opts.speed_m_s
+    if isinstance(speed_in, str) and speed_in == "auto":
+        speed_in = "fit" if (usable.data.gyro_rad_s is not None and vehicle_like) else None
+    speed_arr = None
+    if speed_in is not None and not isinstance(speed_in, str):
+        speed_arr = np.broadcast_to(np.asarray(speed_in, dtype=np.float64), (n_input,))[usable.keep].astype(np.float64)
+    return speed_in, speed_arr
+
+
+def _block_heading_deg(href_deg: np.ndarray, block_of: np.ndarray, n_blocks: int) -> np.ndarray:
+    """The heading reference per block, [0, 360) deg: the circular mean of its valid (finite) samples; NaN where
+    the block has none or they straddle a turn (mean resultant length ≤ 0.99)."""
+    href_c, href_s = np.cos(np.radians(href_deg)), np.sin(np.radians(href_deg))
+    valid = np.isfinite(href_c)
+    count = np.bincount(block_of, weights=valid.astype(np.float64), minlength=n_blocks)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        hc = np.bincount(block_of, weights=np.where(valid, href_c, 0.0), minlength=n_blocks) / count
+        hs = np.bincount(block_of, weights=np.where(valid, href_s, 0.0), minlength=n_blocks) / count
+    heading_ref_b = np.degrees(np.arctan2(hs, hc)) % 360.0
+    with np.errstate(invalid="ignore"):
+        heading_ref_b[~(np.hypot(hc, hs) > 0.99)] = np.nan    # no reference in the block, or it straddled a turn
+    return heading_ref_b
 
 
 def _total_source(reference, opts: BacksteppingOptions) -> str:
