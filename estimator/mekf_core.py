@@ -73,6 +73,7 @@ from .turn_lean import (
     track_accel_push,
     track_bias_learning,
     track_heading_push,
+    track_lean_bias_drift,
     track_tilt_push,
 )
 
@@ -903,7 +904,8 @@ def _fill_outputs(st, par, gx, gy, gz, out):
     # (a) the low-passed vertical is on average acc_lowpass_tau_s old, so it has not seen the attitude random
     #     walk of the last τ: the tilt process noise over τ;
     # (b) the lean a turn or a speed change has left in the tilt and, through the dip, in the heading
-    #     (`turn_lean.track_tilt_push`, `turn_lean.track_accel_push`)
+    #     (`turn_lean.track_tilt_push`, `turn_lean.track_accel_push`), and the drift of the gyro bias learnt from
+    #     motion while no levelling corrects it (`turn_lean.track_lean_bias_drift`)
     u = st.unmodelled
     extra = (_tilt_process_noise_rad2(par, math.sqrt(wx * wx + wy * wy + wz * wz), par.acc_lowpass_tau_s)
              + tilt_pushes_rad(u) ** 2)
@@ -981,20 +983,33 @@ def mekf_step(st, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, ou
     if dt > 0.0:
         _propagate_covariance(st.P, par, dt, rate, c)
     at_rest, mag_moved_at_rest = _detect_rest(st, par, dt, valid, gx, gy, gz, ax, ay, az, mx, my, mz)
+    rb0 = rb1 = rb2 = 0.0
     if at_rest:
         flags |= F_AT_REST
         _learn_bias_at_rest(st, par, dt, gx, gy, gz)
         c = dcm(st.q[0], st.q[1], st.q[2], st.q[3])
+        rb0 = b[0] - b0   # what rest learnt this step (turn_lean.track_lean_bias_drift)
+        rb1 = b[1] - b1
+        rb2 = b[2] - b2
     summing = _sums_lean(st, par, at_rest)
+    levelled = False
     if valid & IN_ACC_OK:
-        flags |= _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish, summing)
+        tilt_flags = _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish, summing)
+        flags |= tilt_flags
+        levelled = tilt_flags == 0
     flags |= _heading_update(st, par, dt, rate, valid, at_rest, mag_moved_at_rest, mx, my, mz, publish)
     # on both paths, as the sum itself (`_tilt_update`)
     qb = par.gyro_bias_walk_rad_s_sqrt_s * par.gyro_bias_walk_rad_s_sqrt_s * dt
-    track_bias_learning(st.unmodelled, dt, c, summing,
-                        prior_share(pb0, qb, P[E_BIAS, E_BIAS]) * (b[0] - b0),
-                        prior_share(pb1, qb, P[E_BIAS + 1, E_BIAS + 1]) * (b[1] - b1),
-                        prior_share(pb2, qb, P[E_BIAS + 2, E_BIAS + 2]) * (b[2] - b2))
+    s0 = prior_share(pb0, qb, P[E_BIAS, E_BIAS])
+    s1 = prior_share(pb1, qb, P[E_BIAS + 1, E_BIAS + 1])
+    s2 = prior_share(pb2, qb, P[E_BIAS + 2, E_BIAS + 2])
+    db0 = b[0] - b0
+    db1 = b[1] - b1
+    db2 = b[2] - b2
+    track_bias_learning(st.unmodelled, dt, c, summing, s0 * db0, s1 * db1, s2 * db2)
+    track_lean_bias_drift(st.unmodelled, dt, c, summing, levelled or at_rest, at_rest,
+                          math.exp(-dt / par.rest_filter_tau_s),
+                          (1.0 - s0) * db0, (1.0 - s1) * db1, (1.0 - s2) * db2, rb0, rb1, rb2)
     if publish:
         return flags | _fill_outputs(st, par, gx, gy, gz, out)
     return flags | _fill_estimate(st, par, out)

@@ -26,6 +26,8 @@ and calls, in its own stages:
   `track_bias_learning`  once per step, after its updates (mekf): the sum less what the bias learning explains
                          (`prior_share`: the part of a bias change that learns the bias's prior)
   `track_heading_push`   at each magnetometer heading update
+  `track_lean_bias_drift` once per step, after its updates (mekf): the drift of the gyro bias learnt from motion
+                         (a lean's levelling, a rest declared into a motion's start) while no levelling corrects it
   `bound_pushes`         after a stretch that did not track (mekf's batch): an upper bound of what tracking
                          would have left (the speed change's sum is tracked on mekf's batch too: it has
                          no target to bound)
@@ -46,6 +48,12 @@ TURN_LEAN_DTYPE = np.dtype([
     ("accel_push_e_rad", np.float64),     # horizontal part, forgotten over ACCEL_PUSH_MEMORY_S (`track_accel_push`)
     ("bias_tilt_n_s", np.float64, (3,)),  # tilt about north (rad) a body-frame gyro bias error of 1 rad/s turns
     ("bias_tilt_e_s", np.float64, (3,)),  # the estimate by, over the same memory (`track_bias_learning`); east
+    ("lean_bias_rad_s", np.float64, (3,)),  # the gyro bias (body) the summed levelling taught, over the same
+                                            # memory (`track_lean_bias_drift`)
+    ("lean_drift_n_rad", np.float64),     # tilt (about north, east) that bias turned the estimate by while no
+    ("lean_drift_e_rad", np.float64),     # levelling corrected it, forgotten with the sum (`track_lean_bias_drift`)
+    ("rest_bias_recent_rad_s", np.float64, (3,)),  # the bias learnt at rest over the rest detector's lag
+    ("was_at_rest", np.float64),          # 1 while the previous step was at rest
 ])
 ACCEL_PUSH_MEMORY_S = 30.0
 """How long `track_accel_push` remembers the levelling's corrections, s: the longest sustained speed change whose
@@ -104,9 +112,13 @@ def track_accel_push(u, nu_n, nu_e, gain_n, gain_e, dt, summing):
     u.accel_push_n_rad *= keep
     mn = u.bias_tilt_n_s      # the bias learning's weights forget with the sum (`track_bias_learning`)
     me = u.bias_tilt_e_s
+    lb = u.lean_bias_rad_s    # and so does the bias the summed levelling taught (`track_lean_bias_drift`)
     for i in range(3):
         mn[i] *= keep
         me[i] *= keep
+        lb[i] *= keep
+    u.lean_drift_n_rad *= keep
+    u.lean_drift_e_rad *= keep
     if summing:
         u.accel_push_e_rad += gain_e * nu_n
         u.accel_push_n_rad -= gain_n * nu_e
@@ -158,11 +170,56 @@ def track_bias_learning(u, dt, c, summing, db0, db1, db2):
     u.accel_push_e_rad += me[0] * db0 + me[1] * db1 + me[2] * db2
 
 
+@njit(cache=True)
+def track_lean_bias_drift(u, dt, c, summing, levelled, at_rest, rest_keep, lb0, lb1, lb2, rb0, rb1, rb2):
+    """Once per step, after its updates: the drift of the gyro bias the summed levelling taught, while no
+    levelling corrects it. The levelling learns the bias from its innovations, so the lean it takes (a turn's
+    roll-in, a speed change) is also read as bias: the estimate then propagates with ω − b̂ and turns by
+        dε = −C_b^n b_lean dτ
+    per step (track_bias_learning's dε with b − b̂ = −b_lean). While levelling updates are accepted they correct
+    that drift and the speed change's sum takes their corrections (`track_accel_push`); while they are rejected (a
+    sustained bank, a hard acceleration) nothing corrects or sums it, so it is tracked here (`lean_drift_n_rad`,
+    `lean_drift_e_rad`: ε's north and east rows) and enters the tilt push in quadrature beside the sum, not into
+    the signed sum: whatever else the sum holds (the gyro's own drift corrections) is no lean and must not cancel
+    it. Forgotten with the sum, per accepted update; the corrections that later remove the drift go into the sum,
+    so the two overlap for the memory (an upper bound, not an estimate). b_lean (`lean_bias_rad_s`) is
+    Σ (1 − prior share)·δb̂ over the summed steps (the part of a bias change that does not learn the bias's prior,
+    `prior_share`), forgotten with the sum. c: C_b^n of the step (`dcm`'s 9-tuple); summing: the step's levelling
+    is summed (`_sums_lean`); levelled: a levelling update was accepted this step (or the step was at rest);
+    lb0, lb1, lb2: (1 − prior share)·δb̂ of the step, rad/s.
+    The rest detector declares the end of a rest only once its low-passed motion exceeds its threshold, so the
+    start of a motion is learnt as bias at rest (rb0..rb2: the step's at-rest δb̂); what rest learnt over the
+    detector's lag (`rest_bias_recent_rad_s`, forgotten by rest_keep = exp(−Δt/τ_rest) per step) is added to
+    b_lean when the rest ends: it may be motion, not bias."""
+    lb = u.lean_bias_rad_s
+    rr = u.rest_bias_recent_rad_s
+    if at_rest:
+        rr[0] = rr[0] * rest_keep + rb0
+        rr[1] = rr[1] * rest_keep + rb1
+        rr[2] = rr[2] * rest_keep + rb2
+        u.was_at_rest = 1.0
+    elif u.was_at_rest != 0.0:
+        for i in range(3):
+            lb[i] += rr[i]
+            rr[i] = 0.0
+        u.was_at_rest = 0.0
+    if summing:
+        lb[0] += lb0
+        lb[1] += lb1
+        lb[2] += lb2
+    if not levelled:
+        c00, c01, c02, c10, c11, c12, _, _, _ = c
+        u.lean_drift_n_rad -= (c00 * lb[0] + c01 * lb[1] + c02 * lb[2]) * dt
+        u.lean_drift_e_rad -= (c10 * lb[0] + c11 * lb[1] + c12 * lb[2]) * dt
+
+
 @njit(cache=True, inline="always")
 def tilt_pushes_rad(u):
-    """Both tilt terms together (1σ, rad): the turn's lean and the speed change's, in quadrature."""
+    """The tilt terms together (1σ, rad): the turn's lean, the speed change's and the drift of the bias learnt
+    from a lean while no levelling corrects it, in quadrature."""
     return math.sqrt(u.tilt_push_rad * u.tilt_push_rad + u.accel_push_n_rad * u.accel_push_n_rad
-                     + u.accel_push_e_rad * u.accel_push_e_rad)
+                     + u.accel_push_e_rad * u.accel_push_e_rad + u.lean_drift_n_rad * u.lean_drift_n_rad
+                     + u.lean_drift_e_rad * u.lean_drift_e_rad)
 
 
 @njit(cache=True)
@@ -194,6 +251,8 @@ def clear(u):
     u.heading_push_rad = 0.0
     u.accel_push_n_rad = 0.0
     u.accel_push_e_rad = 0.0
+    u.lean_drift_n_rad = 0.0
+    u.lean_drift_e_rad = 0.0
 
 
 @njit(cache=True, inline="always")
