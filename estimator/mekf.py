@@ -399,8 +399,7 @@ class Mekf:
         iron = self._iron
         if not iron.active:
             return
-        removed_var = (0.5 * math.asin(min(1.0, math.hypot(*iron.applied_ut) / iron.radius_ut)) ** 2
-                       if math.isfinite(iron.radius_ut) else math.pi ** 2)
+        removed_var = iron.applied_heading_var_rad2()
         iron.reset()
         self._iron_body_ut = None
         self._iron_t_s = math.nan
