@@ -159,3 +159,24 @@ def test_a_filter_reset_or_another_sensors_calibration_keeps_it_a_new_magnetomet
     pipeline.calibration = _calibration(hard_ut=(10.5, -3.0, 5.0))
     part.calibration_changed()
     assert not np.any(f.learned_iron()[0])
+
+
+def test_forgetting_the_correction_widens_sigma_by_the_heading_error_it_removed():
+    """The operator's reset (or the correction folded into the calibration) puts the field back as the calibration
+    gives it: until the circle judges it again, the published yaw σ must cover the sinusoid a hard iron of the
+    removed size leaves, amplitude asin(|b|/H) (RMS amplitude/√2), worked here from the simulated iron and field."""
+    from test_field_circle import FIELD_NED, G, RATE_HZ, VEHICLE_TURN_RATE_RAD_S
+    from scipy.spatial.transform import Rotation
+
+    from ahrsd.core.sample import make_sample
+
+    t, _, sig, _, f = _run(lambda **kw: _new_mekf(), IRON_UT, seconds=200.0)
+    assert sig[-1] < math.radians(3.0)                       # learned: σ small again before the reset
+    f.reset_learned_iron()
+    t_s = t[-1] + 1.0 / RATE_HZ
+    heading = 0.3 + VEHICLE_TURN_RATE_RAD_S * t_s
+    mag = Rotation.from_euler("ZYX", [heading, 0.0, 0.0]).inv().apply(FIELD_NED) + np.array([*IRON_UT, 0.0])
+    out = f.update(make_sample(t_s, np.array([0.0, 0.0, VEHICLE_TURN_RATE_RAD_S]), np.array([0.0, 0.0, -G]), mag))
+    removed_rms_rad = math.asin(math.hypot(*IRON_UT) / H_UT) / math.sqrt(2.0)
+    assert out.sigma_rpy_rad[2] >= 0.9 * removed_rms_rad, (math.degrees(out.sigma_rpy_rad[2]),
+                                                          math.degrees(removed_rms_rad))
