@@ -19,7 +19,11 @@ from the first sample it does, the heading's share beyond 3σ ("after the turns 
 mekf then learns the hard iron the check finds and removes it from the field (estimator/field_circle_correction.py;
 `--no-iron-correction`: only the σ widening, the filter before it); the lines end with the heading RMS from 60 s
 after the first flag to the end and its share beyond 3σ there. `--iron-step` runs the vehicles calibrated whose hard
-iron moves by bench/vehicle_accuracy.IRON_STEP_UT half-way (use --seconds 600); the flag is then the first after it.
+iron moves by bench/vehicle_accuracy.IRON_STEP_UT half-way (use --seconds 600); the flag is then the first after it,
+and the lines add the heading RMS, σ median and share beyond 3σ from 120 s after the step to the end and the
+published heading's largest change in 0.1 s (its error's: the vehicle's own turn removed). Every line with a
+calibration given ends with the share of samples a learned correction is applied on and how often the circle
+check's fit restarted after an iron moved (estimator/field_circle.py).
 """
 
 from __future__ import annotations
@@ -96,6 +100,8 @@ def one_run(job: Job) -> tuple:
     state = np.zeros(n, dtype=int)
     init = np.ones(n, dtype=bool)
     off_centre = np.zeros(n, dtype=bool)      # the circle check finds the calibration wrong (field_circle.py)
+    corrected = np.zeros(n, dtype=bool)       # mekf applies a correction learned in turns
+    restarts = 0                              # the check's fit restarted after its iron moved (field_circle.py)
     if estimator == "ins":
         est = Ins(declination_rad=run.declination_rad, mag_calibration_sigma_rad=run.mag_calibration_sigma_rad,
                   mag_field_circle_check=circle)
@@ -114,6 +120,8 @@ def one_run(job: Job) -> tuple:
         init[k] = bool(e.flags & EstimateFlags.INITIALISING)
         fc = est.field_circle() if estimator == "mekf" else est.field_circle_check()
         off_centre[k] = fc is not None and fc.finds_wrong(run.mag_calibration_sigma_rad ** 2)
+        corrected[k] = fc is not None and fc.corrected
+        restarts = max(restarts, getattr(fc, "restarts", 0))
     ok = (run.t_s >= from_s) & np.all(np.isfinite(q), axis=1)
     err = errors_rph(q[ok], run.truth_q_wxyz[ok], run.declination_rad)
     s = sig[ok]
@@ -130,8 +138,22 @@ def one_run(job: Job) -> tuple:
     after = (100.0 * np.mean(np.abs(err[revealed, 2]) > 3.0 * s[revealed, 2]) if revealed.any() else np.nan, t_flag,
              np.degrees(np.sqrt(np.mean(err[settled, 2] ** 2))) if settled.any() else np.nan,
              100.0 * np.mean(np.abs(err[settled, 2]) > 3.0 * s[settled, 2]) if settled.any() else np.nan)
+    step = _after_the_step(t_ok, err[:, 2], s[:, 2], IRON_STEP_AT * seconds) if iron_step else None
+    moved = (100.0 * np.mean(corrected[ok]), restarts)
     return (scenario, seed, estimator, rms, np.degrees(np.median(s, axis=0)), beyond, wrong,
-            100.0 * np.mean(mag_state), 100.0 * np.mean(good), 100.0 * np.mean(off_centre[ok]), after)
+            100.0 * np.mean(mag_state), 100.0 * np.mean(good), 100.0 * np.mean(off_centre[ok]), after, step, moved)
+
+
+def _after_the_step(t_s, err_rad, sigma_rad, t_step_s, from_s=120.0, every_s=0.1):
+    """The iron step's figures: heading RMS, σ median and the share beyond 3σ from `from_s` after the step to the
+    end (°, °, %), and the published heading's largest change in `every_s` over the run (its error's change: the
+    vehicle's own turn removed by the truth), °."""
+    late = t_s >= t_step_s + from_s
+    dt = float(np.median(np.diff(t_s)))
+    k = max(1, int(round(every_s / dt)))
+    change = np.abs(np.angle(np.exp(1j * (err_rad[k:] - err_rad[:-k]))))
+    return (np.degrees(np.sqrt(np.mean(err_rad[late] ** 2))), np.degrees(np.median(sigma_rad[late])),
+            100.0 * np.mean(np.abs(err_rad[late]) > 3.0 * sigma_rad[late]), np.degrees(change.max()))
 
 
 def main(argv=None) -> int:
@@ -171,11 +193,16 @@ def main(argv=None) -> int:
           "σ median r/p/y (°), beyond 3σ r/p/h (%)" + ("" if errors == [None] else
                                                       "; % of samples MAGNETOMETER, % 'heading good', % off-centre"))
     with Pool(args.processes) as pool:
-        for sc, seed, e, rms, med, beyond, wrong, mag_pct, good_pct, off_pct, after in pool.imap(one_run, jobs):
+        for sc, seed, e, rms, med, beyond, wrong, mag_pct, good_pct, off_pct, after, step, moved in pool.imap(
+                one_run, jobs):
             head = "" if wrong is None else f"Δb {wrong[0]:4.1f} µT soft {wrong[2]:+.2f}  "
             tail = "" if wrong is None else (f"   mag {mag_pct:5.1f} good {good_pct:5.1f} off-centre {off_pct:5.1f} "
                                              f"(from {after[1]:5.1f} s: hdg beyond {after[0]:5.1f}; from +60 s: hdg RMS "
-                                             f"{after[2]:5.2f} beyond {after[3]:5.1f})")
+                                             f"{after[2]:5.2f} beyond {after[3]:5.1f}); corrected {moved[0]:5.1f} "
+                                             f"restarts {moved[1]}")
+            if step is not None:
+                tail += (f"; from step + 120 s: hdg RMS {step[0]:5.2f} σ med {step[1]:5.2f} beyond {step[2]:5.1f}; "
+                         f"largest 0.1 s change {step[3]:4.2f}")
             print(f"{head}{e:5s} {sc:6s} seed {seed:3d}  RMS {rms[0]:5.2f} {rms[1]:5.2f} {rms[2]:5.2f}   σ "
                   f"{med[0]:5.2f} {med[1]:5.2f} {med[2]:5.2f}   beyond {beyond[0]:5.1f} {beyond[1]:5.1f} "
                   f"{beyond[2]:5.1f}{tail}", flush=True)

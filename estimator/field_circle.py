@@ -49,6 +49,8 @@ import numpy as np
 
 from ahrsd.core.estimate import EstimateFlags
 
+from .field_circle_change import CircleChange, centre_on_known_radius
+
 SKIPPED_FLAGS = int(EstimateFlags.INITIALISING)
 """A filter's estimate flags whose field the check does not take. It takes every field after start-up, also those
 the norm/dip check rejects: a wrong hard iron swings the field's norm as the vehicle turns, and the fields it
@@ -119,6 +121,10 @@ class FieldCircleResult:
     heading_var_rad2: float = 0.0             # the heading variance to add to the published σ (0: nothing)
     correction_ut: tuple = (0.0, 0.0)         # the learned correction the centre was judged against (levelled)
     tilt_rms_rad: float = math.nan            # the filter's tilt over the window, RMS (how far levelled is from body)
+    moved: bool = False                       # the iron moved and the fit restarted, not yet covering the turns
+                                              # again: the centre is the fields' since the move on the old radius
+                                              # (field_circle_change.py), its σ as wide as they leave it
+    restarts: int = 0                         # how often the fit restarted after its iron moved (since reset)
 
     @property
     def offset_ut(self) -> float:
@@ -160,6 +166,19 @@ class FieldCircleCheck:
         self.reset()
 
     def reset(self) -> None:
+        self._clear_sums()
+        self._change = CircleChange()       # the iron moved: the fields left the circle (field_circle_change.py)
+        self._moved: list | None = None     # the fields since it moved, while the restarted fit does not cover
+        self._moved_radius_ut = math.nan
+        self._moved_prior_ut = np.zeros(2)
+        self._theta = np.zeros(5)           # the conic last solved
+        self.restarts = 0
+        self.due_t_s = -math.inf          # the next field is taken from this time on
+        self._next_solve_t_s = -math.inf
+        self.correction_ut = (0.0, 0.0)
+        self.result = FieldCircleResult()
+
+    def _clear_sums(self) -> None:
         self._n = np.zeros((5, 5))         # Σ w u uᵀ, u = [x² − y², 2xy, x, y, 1]
         self._b = np.zeros(5)              # Σ w u t, t = −(x² + y²)
         self._tt = 0.0                     # Σ w t²
@@ -167,11 +186,7 @@ class FieldCircleCheck:
         self._floor = 0.0                  # Σ w · (the residual's variance floor)
         self._tilt2 = 0.0                  # Σ w · (roll² + pitch²)
         self._sector_s = np.zeros(N_SECTORS)
-        self.due_t_s = -math.inf          # the next field is taken from this time on
         self._last_t_s = math.nan
-        self._next_solve_t_s = -math.inf
-        self.correction_ut = (0.0, 0.0)
-        self.result = FieldCircleResult()
 
     def add(self, t_s: float, roll_rad: float, pitch_rad: float, mag_body_ut, tilt_sigma_rad: float,
             estimate_flags: int = 0) -> bool:
@@ -186,9 +201,6 @@ class FieldCircleCheck:
                 and math.isfinite(roll_rad) and math.isfinite(pitch_rad)):
             return False
         self.due_t_s = t_s + p.period_s
-        dt = p.period_s if not math.isfinite(self._last_t_s) else min(t_s - self._last_t_s, p.window_s)
-        self._last_t_s = t_s
-        self._forget(math.exp(-dt / p.window_s))
         # levelled: the body frame turned about its own vertical only (C_bn = R_z(ψ)·R_y(θ)·R_x(φ))
         cr, sr = math.cos(roll_rad), math.sin(roll_rad)
         cp, sp = math.cos(pitch_rad), math.sin(pitch_rad)
@@ -197,25 +209,55 @@ class FieldCircleCheck:
         y = cr * my - sr * mz
         z = -sp * mx + cp * v
         w = p.period_s / p.correlation_s
+        # a residual of the conic is ≈ 2·(m − c)·δm: the horizontal field error of the noise and of a tilt error
+        # (the vertical field turned into the horizontal by it)
+        tilt = tilt_sigma_rad if math.isfinite(tilt_sigma_rad) else 0.0
+        var = p.mag_noise_ut ** 2 + (z * tilt) ** 2
+        field = (t_s, x, y, var, w, roll_rad * roll_rad + pitch_rad * pitch_rad)
+        if self._change.see(field):
+            self._restart()
+        else:
+            self._take(field)
+            if self._moved is not None:
+                self._moved.append(field)
+        if t_s < self._next_solve_t_s:
+            return False
+        self._next_solve_t_s = t_s + p.solve_period_s
+        self.result = self._judge()
+        if self.correction_ut != (0.0, 0.0) or self.restarts:
+            self.result = replace(self.result, correction_ut=self.correction_ut, restarts=self.restarts)
+        return True
+
+    def _restart(self) -> None:
+        """The iron moved (field_circle_change.py): the fit starts again from the fields since the change, and its
+        centre is judged on the old radius until the restarted fit covers the turns again."""
+        change = self._change
+        fields = list(change.since)
+        self._moved_radius_ut = change.radius_ut
+        self._moved_prior_ut = change.centre_ut.copy()
+        change.reset()                      # no reference until the restarted fit judges
+        self._clear_sums()
+        for field in fields:
+            self._take(field)
+        self._moved = fields
+        self.restarts += 1
+
+    def _take(self, field) -> None:
+        """One levelled field (t, x, y, its horizontal error variance, weight, tilt²) into the fit's sums."""
+        p = self.params
+        t_s, x, y, var, w, tilt2 = field
+        dt = p.period_s if not math.isfinite(self._last_t_s) else min(t_s - self._last_t_s, p.window_s)
+        self._last_t_s = t_s
+        self._forget(math.exp(-dt / p.window_s))
         u = np.array([x * x - y * y, 2.0 * x * y, x, y, 1.0])
         t = -(x * x + y * y)
         self._n += w * np.outer(u, u)
         self._b += w * t * u
         self._tt += w * t * t
         self._w += w
-        self._tilt2 += w * (roll_rad * roll_rad + pitch_rad * pitch_rad)
-        # a residual of the conic is ≈ 2·(m − c)·δm: the horizontal field error of the noise and of a tilt error
-        # (the vertical field turned into the horizontal by it)
-        tilt = tilt_sigma_rad if math.isfinite(tilt_sigma_rad) else 0.0
-        self._floor += w * 4.0 * (x * x + y * y) * (p.mag_noise_ut ** 2 + (z * tilt) ** 2)
+        self._tilt2 += w * tilt2
+        self._floor += w * 4.0 * (x * x + y * y) * var
         self._sector_s[int((math.atan2(y, x) % _TWO_PI) / _TWO_PI * N_SECTORS) % N_SECTORS] += p.period_s
-        if t_s < self._next_solve_t_s:
-            return False
-        self._next_solve_t_s = t_s + p.solve_period_s
-        self.result = self._judge()
-        if self.correction_ut != (0.0, 0.0):
-            self.result = replace(self.result, correction_ut=self.correction_ut)
-        return True
 
     def _forget(self, f: float) -> None:
         self._n *= f
@@ -230,12 +272,37 @@ class FieldCircleCheck:
         p = self.params
         covered = int(np.count_nonzero(self._sector_s >= p.min_sector_s)) >= p.min_sectors
         if not covered or self._w <= 5.0:
-            return FieldCircleResult(covered=False)
+            return FieldCircleResult(covered=False) if self._moved is None else self._judge_moved()
+        self._moved = None
+        result = self._judge_covered()
+        if result.covered:
+            self._change.set_reference(self._theta, result.radius_ut, result.centre_ut, result.centre_sigma_ut)
+        return result
+
+    def _judge_moved(self) -> FieldCircleResult:
+        """After the iron moved, before the restarted fit covers the turns: the new centre from the fields since
+        the move on the old radius, and the heading error it implies against the correction applied — the
+        sinusoid of |c − correction| plus the centre's own σ over H (as wide as the circle where the fields since
+        have not shown it), never more than π²."""
+        r = self._moved_radius_ut
+        c, cov, _ = centre_on_known_radius(self._moved, r, self._moved_prior_ut)
+        sigma_c = min(math.sqrt(float(np.max(np.linalg.eigvalsh(cov)))), r)
+        left = float(np.hypot(*(c - np.asarray(self.correction_ut))))
+        a_hard = math.asin(min(1.0, left / r))
+        var = min(0.5 * a_hard ** 2 + (sigma_c / r) ** 2, math.pi ** 2)
+        tilt_rms = math.sqrt(self._tilt2 / self._w) if self._w > 0.0 else math.nan
+        return FieldCircleResult((float(c[0]), float(c[1])), sigma_c, r, 0.0, False, True, var,
+                                 tilt_rms_rad=tilt_rms, moved=True)
+
+    def _judge_covered(self) -> FieldCircleResult:
+        p = self.params
+        covered = True
         try:
             theta = np.linalg.solve(self._n, self._b)
             n_inv = np.linalg.inv(self._n)
         except np.linalg.LinAlgError:
             return FieldCircleResult(covered=False)
+        self._theta = theta
         beta, gamma, dx, dy, f0 = theta
         m = np.array([[1.0 + beta, gamma], [gamma, 1.0 - beta]])
         try:

@@ -110,7 +110,8 @@ class FieldCircleCorrection:
                 return
             self.active = True
             self.started_t_s = t_s
-        if result.covered and math.isfinite(result.radius_ut) and math.isfinite(result.centre_sigma_ut):
+        if ((result.covered or result.moved) and math.isfinite(result.radius_ut)
+                and math.isfinite(result.centre_sigma_ut)):
             self.restored = False
             self.target_ut = np.array(result.centre_ut, dtype=float)
             self.radius_ut = result.radius_ut

@@ -1,0 +1,133 @@
+"""The iron moved: new levelled fields no longer sit on the circle fitted before (field_circle.py), and where the
+new circle's centre is while the vehicle has not yet swept it.
+
+A hard iron that moves (a battery, a winch, a load) moves the circle the levelled horizontal field sweeps by its
+horizontal change Δ, and leaves its radius, the Earth's horizontal field H, as it was. The circle check's fit
+forgets the old circle only over its window (300 s): where the vehicle keeps to a few headings after the move,
+its centre follows the new iron only as the old fields are forgotten. This part finds the move and says where the
+new centre is from the fields after it:
+
+* **The change point** is Page's CUSUM (E. S. Page, "Continuous inspection schemes", Biometrika 41, 1954) on the
+  squared standardised distance of each new field from the reference circle (the fit's at its last judgement while
+  the CUSUM was at rest): z = e / √f, e the conic's residual (≈ 2r·δ for a field δ off the circle), f its variance
+  from the magnetometer noise and the tilt σ times the vertical field (the fit's own floor) and the reference's
+  uncertainty. Each field counts as `period / correlation` of an independent one (the fit's rule: tilt errors
+  and waves are correlated over seconds), so S ← max(0, S + w·(z² − k)). Under no change z² is at most χ²₁ (the
+  floor is a floor: the fit's residual is 0.07–0.54× it on right calibrations, docs/estimator.md); a field off the
+  circle by δ noise σ has E[z²] = 1 + δ². k is the log-likelihood ratio's per-sample reference for a variance
+  ratio 1 + δ² at the design shift δ (3σ: "more than their noise allows"), k = (1 + δ²)·ln(1 + δ²)/δ², and the
+  threshold h gives an in-control average run length of at least `arl0_samples` independent fields of χ²₁
+  (tests/test_field_circle_change.py computes it with the Brook–Evans Markov chain): nothing is tuned on a run.
+  The change is taken to start where the CUSUM last left zero (Page's estimate of the change time).
+* **The centre on the known radius:** after the change the fields since it are fitted to a circle of the old
+  radius about an unknown centre c (Gauss–Newton on |p − c| − r, each field's radial variance f/(2r)² weighted
+  as above). One heading fixes c along that heading's radial direction only; with the prior c₀ ± r (the old
+  centre, the whole circle as its spread) the unseen direction stays at the old centre with a σ of r, and the
+  heading σ it gives is as large as the iron allows until the vehicle turns (a car's corner is enough: two
+  headings 90° apart fix both axes). The fit's own full circle takes over once the restarted window covers the
+  turns again (field_circle.py).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def reference_k(design_shift_sigma: float) -> float:
+    """The CUSUM's reference per independent field for z² (χ²₁ under no change, 1 + δ² on average a field δ noise
+    σ off the circle): the log-likelihood ratio's break-even of a variance ratio 1 + δ², (1 + δ²)·ln(1 + δ²)/δ²."""
+    v = 1.0 + design_shift_sigma ** 2
+    return v * math.log(v) / (v - 1.0)
+
+
+@dataclass(frozen=True)
+class CircleChangeParams:
+    design_shift_sigma: float = 3.0
+    """The shift of the fields off the circle, in their noise σ, the test is designed for (its k)."""
+    threshold: float = 15.0
+    """Page's h: with k from design_shift_sigma an in-control average run length of 1.35e4 independent fields of
+    χ²₁ (1e4 at h = 14.2; 19 h of fields correlated over 5 s) — the false-alarm rate the fit's χ² gate has,
+    1e-4 (tests/test_field_circle_change.py)."""
+    max_fields: int = 3000
+    """At most this many fields kept since the change (the fit's window at its rate)."""
+
+
+class CircleChange:
+    """`set_reference(theta, radius_ut, centre_ut, centre_sigma_ut)` at each judgement of the fit (taken only while
+    the CUSUM is at rest); `see(field)` for each levelled field (t_s, x, y, var_ut2, w, … : var_ut2 its horizontal
+    error variance, w its weight as the fit counts it): True when the change is found — `since` then holds the
+    fields from its start. `reset()` forgets all (a new calibration, or the fit restarted)."""
+
+    def __init__(self, params: CircleChangeParams | None = None):
+        self.params = params or CircleChangeParams()
+        self.k = reference_k(self.params.design_shift_sigma)
+        self.reset()
+
+    def reset(self) -> None:
+        self.theta = None                 # the reference conic [β, γ, dx, dy, F]
+        self.radius_ut = math.nan
+        self.centre_ut = np.zeros(2)
+        self.centre_sigma_ut = 0.0
+        self.cusum = 0.0
+        self.since: list[tuple] = []      # the fields since the CUSUM last left zero
+
+    @property
+    def at_rest(self) -> bool:
+        return self.cusum == 0.0
+
+    def set_reference(self, theta, radius_ut: float, centre_ut, centre_sigma_ut: float) -> None:
+        if not self.at_rest:
+            return                        # the circle before the change stays the reference
+        self.theta = np.asarray(theta, dtype=float).copy()
+        self.radius_ut = float(radius_ut)
+        self.centre_ut = np.asarray(centre_ut, dtype=float).copy()
+        self.centre_sigma_ut = float(centre_sigma_ut)
+
+    def see(self, field) -> bool:
+        if self.theta is None:
+            return False
+        x, y, var_ut2, w = field[1], field[2], field[3], field[4]
+        beta, gamma, dx, dy, f0 = self.theta
+        e = beta * (x * x - y * y) + gamma * 2.0 * x * y + dx * x + dy * y + f0 + (x * x + y * y)
+        f = 4.0 * self.radius_ut ** 2 * (var_ut2 + self.centre_sigma_ut ** 2)
+        s = self.cusum + w * (e * e / f - self.k)
+        if s <= 0.0:
+            self.cusum = 0.0
+            self.since.clear()
+            return False
+        self.cusum = s
+        self.since.append(field)
+        if len(self.since) > self.params.max_fields:
+            del self.since[0]
+        return s > self.params.threshold
+
+
+def centre_on_known_radius(fields, radius_ut: float, prior_centre_ut, iterations: int = 5):
+    """The centre of a circle of `radius_ut` the fields (t, x, y, var_ut2, w, …) lie on, with the prior
+    `prior_centre_ut` ± radius_ut per axis: Gauss–Newton on ρ = |p − c| − r, each field's ρ of variance var_ut2
+    counted w times. Returns the centre (µT), its covariance (µT², scaled up by the residuals' own spread where
+    they exceed the stated variance) and the number of fields."""
+    a = np.asarray([(f[1], f[2], f[3], f[4]) for f in fields], dtype=float).reshape(-1, 4)
+    p, var, w = a[:, :2], a[:, 2], a[:, 3]
+    c0 = np.asarray(prior_centre_ut, dtype=float)
+    prior_info = np.eye(2) / radius_ut ** 2
+    c = c0.copy()
+    info = prior_info
+    rho = np.zeros(len(a))
+    wi = w / var
+    for _ in range(iterations):
+        d = p - c
+        dist = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
+        n = d / dist[:, None]                     # ∂ρ/∂c = −n
+        rho = dist - radius_ut
+        info = prior_info + (n * wi[:, None]).T @ n
+        grad = (n * (wi * rho)[:, None]).sum(axis=0) - prior_info @ (c - c0)
+        c = c + np.linalg.solve(info, grad)
+    cov = np.linalg.inv(info)
+    if len(a):
+        spread = float(np.sum(wi * rho * rho) / max(np.sum(w), 1e-12))
+        cov = cov * max(1.0, spread)
+    return c, cov, len(a)
