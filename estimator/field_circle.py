@@ -62,6 +62,13 @@ N_SECTORS = 8
 _TWO_PI = 2.0 * math.pi
 
 
+def vertical_heading_var_rad2(vertical_ut: float, tilt_rms_rad: float, radius_ut: float) -> float:
+    """A vertical hard iron the calibration does not remove shows in the levelled horizontal field through the
+    vehicle's tilt, up to |b_z|·sin τ: the heading error (b_z·sin τ / H)², τ the tilt's RMS (a consider term; 0 on
+    a level vehicle, and without a vertical iron)."""
+    return (vertical_ut * math.sin(tilt_rms_rad) / radius_ut) ** 2
+
+
 class CalibrationVerdict(IntEnum):
     """What the check says of the calibration in force (`FieldCircleResult.verdict`; replay's mag_cal_check column)."""
 
@@ -125,6 +132,8 @@ class FieldCircleResult:
                                               # again: the centre is the fields' since the move on the old radius
                                               # (field_circle_change.py), its σ as wide as they leave it
     restarts: int = 0                         # how often the fit restarted after its iron moved (since reset)
+    vertical_ut: float = 0.0                  # the vertical hard iron the moves left (the levelled field's vertical
+                                              # shifts at the restarts): not removed, seen through the tilt
 
     @property
     def offset_ut(self) -> float:
@@ -172,7 +181,9 @@ class FieldCircleCheck:
         self._moved_radius_ut = math.nan
         self._moved_prior_ut = np.zeros(2)
         self._theta = np.zeros(5)           # the conic last solved
+        self._resid = 0.0                   # its residual's variance per independent field
         self.restarts = 0
+        self.vertical_ut = 0.0              # the vertical iron the moves left, µT (the levelled z's shifts)
         self.due_t_s = -math.inf          # the next field is taken from this time on
         self._next_solve_t_s = -math.inf
         self.correction_ut = (0.0, 0.0)
@@ -185,6 +196,7 @@ class FieldCircleCheck:
         self._w = 0.0                      # Σ w
         self._floor = 0.0                  # Σ w · (the residual's variance floor)
         self._tilt2 = 0.0                  # Σ w · (roll² + pitch²)
+        self._z = 0.0                      # Σ w · (the levelled vertical field)
         self._sector_s = np.zeros(N_SECTORS)
         self._last_t_s = math.nan
 
@@ -213,8 +225,9 @@ class FieldCircleCheck:
         # (the vertical field turned into the horizontal by it)
         tilt = tilt_sigma_rad if math.isfinite(tilt_sigma_rad) else 0.0
         var = p.mag_noise_ut ** 2 + (z * tilt) ** 2
-        field = (t_s, x, y, var, w, roll_rad * roll_rad + pitch_rad * pitch_rad)
-        if self._change.see(field):
+        # a body-z iron b shows in the levelled horizontal as b·(sin θ cos φ, −sin φ): its gain
+        field = (t_s, x, y, var, w, roll_rad * roll_rad + pitch_rad * pitch_rad, z, math.hypot(sp * cr, sr))
+        if self._change.see(field, self.vertical_ut):
             self._restart()
         else:
             self._take(field)
@@ -225,7 +238,8 @@ class FieldCircleCheck:
         self._next_solve_t_s = t_s + p.solve_period_s
         self.result = self._judge()
         if self.correction_ut != (0.0, 0.0) or self.restarts:
-            self.result = replace(self.result, correction_ut=self.correction_ut, restarts=self.restarts)
+            self.result = replace(self.result, correction_ut=self.correction_ut, restarts=self.restarts,
+                                  vertical_ut=self.vertical_ut)
         return True
 
     def _restart(self) -> None:
@@ -235,6 +249,9 @@ class FieldCircleCheck:
         fields = list(change.since)
         self._moved_radius_ut = change.radius_ut
         self._moved_prior_ut = change.centre_ut.copy()
+        # the vertical iron moved by the levelled field's vertical shift (the Earth's vertical field is the same)
+        w = np.array([f[4] for f in fields])
+        self.vertical_ut += float(np.sum(w * np.array([f[6] for f in fields])) / np.sum(w)) - change.z_mean_ut
         change.reset()                      # no reference until the restarted fit judges
         self._clear_sums()
         for field in fields:
@@ -243,9 +260,10 @@ class FieldCircleCheck:
         self.restarts += 1
 
     def _take(self, field) -> None:
-        """One levelled field (t, x, y, its horizontal error variance, weight, tilt²) into the fit's sums."""
+        """One levelled field (t, x, y, its horizontal error variance, weight, tilt², z, vertical iron's gain) into
+        the fit's sums; the vertical iron the moves left, seen through the tilt, widens its error."""
         p = self.params
-        t_s, x, y, var, w, tilt2 = field
+        t_s, x, y, var, w, tilt2, z, gain = field
         dt = p.period_s if not math.isfinite(self._last_t_s) else min(t_s - self._last_t_s, p.window_s)
         self._last_t_s = t_s
         self._forget(math.exp(-dt / p.window_s))
@@ -256,7 +274,8 @@ class FieldCircleCheck:
         self._tt += w * t * t
         self._w += w
         self._tilt2 += w * tilt2
-        self._floor += w * 4.0 * (x * x + y * y) * var
+        self._z += w * z
+        self._floor += w * 4.0 * (x * x + y * y) * (var + (self.vertical_ut * gain) ** 2)
         self._sector_s[int((math.atan2(y, x) % _TWO_PI) / _TWO_PI * N_SECTORS) % N_SECTORS] += p.period_s
 
     def _forget(self, f: float) -> None:
@@ -266,6 +285,7 @@ class FieldCircleCheck:
         self._w *= f
         self._floor *= f
         self._tilt2 *= f
+        self._z *= f
         self._sector_s *= f
 
     def _judge(self) -> FieldCircleResult:
@@ -276,7 +296,8 @@ class FieldCircleCheck:
         self._moved = None
         result = self._judge_covered()
         if result.covered:
-            self._change.set_reference(self._theta, result.radius_ut, result.centre_ut, result.centre_sigma_ut)
+            self._change.set_reference(self._theta, result.radius_ut, result.centre_ut, result.centre_sigma_ut,
+                                       self._resid, self._sector_s >= p.min_sector_s, self._z / self._w)
         return result
 
     def _judge_moved(self) -> FieldCircleResult:
@@ -285,12 +306,13 @@ class FieldCircleCheck:
         sinusoid of |c − correction| plus the centre's own σ over H (as wide as the circle where the fields since
         have not shown it), never more than π²."""
         r = self._moved_radius_ut
-        c, cov, _ = centre_on_known_radius(self._moved, r, self._moved_prior_ut)
+        c, cov, _ = centre_on_known_radius(self._moved, r, self._moved_prior_ut, self.vertical_ut)
         sigma_c = min(math.sqrt(float(np.max(np.linalg.eigvalsh(cov)))), r)
         left = float(np.hypot(*(c - np.asarray(self.correction_ut))))
         a_hard = math.asin(min(1.0, left / r))
-        var = min(0.5 * a_hard ** 2 + (sigma_c / r) ** 2, math.pi ** 2)
-        tilt_rms = math.sqrt(self._tilt2 / self._w) if self._w > 0.0 else math.nan
+        tilt_rms = math.sqrt(self._tilt2 / self._w) if self._w > 0.0 else 0.0
+        var = min(0.5 * a_hard ** 2 + (sigma_c / r) ** 2 + vertical_heading_var_rad2(self.vertical_ut, tilt_rms, r),
+                  math.pi ** 2)
         return FieldCircleResult((float(c[0]), float(c[1])), sigma_c, r, 0.0, False, True, var,
                                  tilt_rms_rad=tilt_rms, moved=True)
 
@@ -316,6 +338,7 @@ class FieldCircleCheck:
         radius = math.sqrt(r2)
         # the residual's variance per independent field: the fit's own, never below the noise's and tilt's
         resid = max(self._tt - float(self._b @ theta), 0.0) / max(self._w - 5.0, 1.0)
+        self._resid = resid
         floor = self._floor / self._w
         s2 = max(resid, floor)
         cov = s2 * n_inv
@@ -345,6 +368,8 @@ class FieldCircleCheck:
         if scattered:
             var = max(var, (resid - floor) / radius ** 4)
         significant = fitted or scattered
+        if significant:
+            var += vertical_heading_var_rad2(self.vertical_ut, math.sqrt(self._tilt2 / self._w), radius)
         return FieldCircleResult((float(c[0]), float(c[1])), math.sqrt(float(np.max(np.linalg.eigvalsh(cov_c)))),
                                  radius, a_soft, covered, significant, var,
                                  tilt_rms_rad=math.sqrt(self._tilt2 / self._w))

@@ -11,7 +11,11 @@ new centre is from the fields after it:
   squared standardised distance of each new field from the reference circle (the fit's at its last judgement while
   the CUSUM was at rest): z = e / √f, e the conic's residual (≈ 2r·δ for a field δ off the circle), f its variance
   from the magnetometer noise and the tilt σ times the vertical field (the fit's own floor) and the reference's
-  uncertainty. Each field counts as `period / correlation` of an independent one (the fit's rule: tilt errors
+  uncertainty, or the reference fit's own residual variance where that is larger (what the circle leaves that the
+  noise does not explain — on a banking plane a vertical hard iron the planar fit does not model, seen through
+  the bank — is no change). Only fields in the heading sectors the reference fit covered count: beyond them
+  its conic (with the ellipse terms) is an extrapolation, not evidence (a plane whose fit covered 6 sectors read
+  fields 4.5 µT off its conic in the seventh). Each field counts as `period / correlation` of an independent one (the fit's rule: tilt errors
   and waves are correlated over seconds), so S ← max(0, S + w·(z² − k)). Under no change z² is at most χ²₁ (the
   floor is a floor: the fit's residual is 0.07–0.54× it on right calibrations, docs/estimator.md); a field off the
   circle by δ noise σ has E[z²] = 1 + δ². k is the log-likelihood ratio's per-sample reference for a variance
@@ -35,6 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+_TWO_PI = 2.0 * math.pi
 
 def reference_k(design_shift_sigma: float) -> float:
     """The CUSUM's reference per independent field for z² (χ²₁ under no change, 1 + δ² on average a field δ noise
@@ -56,9 +61,10 @@ class CircleChangeParams:
 
 
 class CircleChange:
-    """`set_reference(theta, radius_ut, centre_ut, centre_sigma_ut)` at each judgement of the fit (taken only while
-    the CUSUM is at rest); `see(field)` for each levelled field (t_s, x, y, var_ut2, w, … : var_ut2 its horizontal
-    error variance, w its weight as the fit counts it): True when the change is found — `since` then holds the
+    """`set_reference(theta, radius_ut, centre_ut, centre_sigma_ut, resid_var, sectors)` at each judgement of the fit (taken only while
+    the CUSUM is at rest); `see(field, vertical_ut)` for each levelled field (t_s, x, y, var_ut2, w, tilt², z,
+    gain: var_ut2 its horizontal error variance, w its weight as the fit counts it, z its levelled vertical part,
+    gain how much of a body-z iron shows in its horizontal part; vertical_ut the vertical iron earlier moves left): True when the change is found — `since` then holds the
     fields from its start. `reset()` forgets all (a new calibration, or the fit restarted)."""
 
     def __init__(self, params: CircleChangeParams | None = None):
@@ -71,6 +77,9 @@ class CircleChange:
         self.radius_ut = math.nan
         self.centre_ut = np.zeros(2)
         self.centre_sigma_ut = 0.0
+        self.resid_var = 0.0              # the reference fit's residual variance per independent field (conic units)
+        self.sectors = np.zeros(0, dtype=bool)   # the heading sectors it covered (field_circle.N_SECTORS)
+        self.z_mean_ut = 0.0              # the mean levelled vertical field of its window
         self.cusum = 0.0
         self.since: list[tuple] = []      # the fields since the CUSUM last left zero
 
@@ -78,39 +87,52 @@ class CircleChange:
     def at_rest(self) -> bool:
         return self.cusum == 0.0
 
-    def set_reference(self, theta, radius_ut: float, centre_ut, centre_sigma_ut: float) -> None:
+    def set_reference(self, theta, radius_ut: float, centre_ut, centre_sigma_ut: float, resid_var: float,
+                      sectors, z_mean_ut: float) -> None:
         if not self.at_rest:
             return                        # the circle before the change stays the reference
         self.theta = np.asarray(theta, dtype=float).copy()
         self.radius_ut = float(radius_ut)
         self.centre_ut = np.asarray(centre_ut, dtype=float).copy()
         self.centre_sigma_ut = float(centre_sigma_ut)
+        self.resid_var = float(resid_var)
+        self.sectors = np.asarray(sectors, dtype=bool).copy()
+        self.z_mean_ut = float(z_mean_ut)
 
-    def see(self, field) -> bool:
+    def see(self, field, vertical_ut: float = 0.0) -> bool:
         if self.theta is None:
             return False
-        x, y, var_ut2, w = field[1], field[2], field[3], field[4]
+        x, y, w = field[1], field[2], field[4]
+        var_ut2 = field[3] + (vertical_ut * field[7]) ** 2
+        n = len(self.sectors)
+        if not self.sectors[int((math.atan2(y, x) % _TWO_PI) / _TWO_PI * n) % n]:
+            if self.cusum > 0.0:
+                self._keep(field)
+            return False
         beta, gamma, dx, dy, f0 = self.theta
         e = beta * (x * x - y * y) + gamma * 2.0 * x * y + dx * x + dy * y + f0 + (x * x + y * y)
-        f = 4.0 * self.radius_ut ** 2 * (var_ut2 + self.centre_sigma_ut ** 2)
+        f = max(4.0 * self.radius_ut ** 2 * (var_ut2 + self.centre_sigma_ut ** 2), self.resid_var)
         s = self.cusum + w * (e * e / f - self.k)
         if s <= 0.0:
             self.cusum = 0.0
             self.since.clear()
             return False
         self.cusum = s
+        self._keep(field)
+        return s > self.params.threshold
+
+    def _keep(self, field) -> None:
         self.since.append(field)
         if len(self.since) > self.params.max_fields:
             del self.since[0]
-        return s > self.params.threshold
 
 
-def centre_on_known_radius(fields, radius_ut: float, prior_centre_ut, iterations: int = 5):
-    """The centre of a circle of `radius_ut` the fields (t, x, y, var_ut2, w, …) lie on, with the prior
+def centre_on_known_radius(fields, radius_ut: float, prior_centre_ut, vertical_ut: float = 0.0, iterations: int = 5):
+    """The centre of a circle of `radius_ut` the fields (t, x, y, var_ut2, w, tilt², z, gain) lie on, with the prior
     `prior_centre_ut` ± radius_ut per axis: Gauss–Newton on ρ = |p − c| − r, each field's ρ of variance var_ut2
-    counted w times. Returns the centre (µT), its covariance (µT², scaled up by the residuals' own spread where
+    (plus the vertical iron `vertical_ut` seen through its tilt, gain·b_z) counted w times. Returns the centre (µT), its covariance (µT², scaled up by the residuals' own spread where
     they exceed the stated variance) and the number of fields."""
-    a = np.asarray([(f[1], f[2], f[3], f[4]) for f in fields], dtype=float).reshape(-1, 4)
+    a = np.asarray([(f[1], f[2], f[3] + (vertical_ut * f[7]) ** 2, f[4]) for f in fields], dtype=float).reshape(-1, 4)
     p, var, w = a[:, :2], a[:, 2], a[:, 3]
     c0 = np.asarray(prior_centre_ut, dtype=float)
     prior_info = np.eye(2) / radius_ut ** 2

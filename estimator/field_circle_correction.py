@@ -67,6 +67,7 @@ class FieldCircleCorrection:
         self.settled_ut = np.zeros(2)       # what the filter's heading has taken up (a lag of settle_s)
         self.centre_sigma_ut = 0.0
         self.tilt_rms_rad = 0.0
+        self.vertical_ut = 0.0              # the vertical iron an iron's move left (not removed: field_circle.py)
         self.radius_ut = math.nan
         self.started_t_s = math.nan
         self.restored = False               # started from an earlier run's correction, not yet judged in this one
@@ -101,7 +102,8 @@ class FieldCircleCorrection:
         """What is known of the target, as a horizontal field error (µT, 1σ): the fit's σ_c and the iron seen
         through the tilt (heading_var_rad2's terms times H) — what a later run may claim of it."""
         seen_through_tilt_ut = math.hypot(*self.target_ut) * (1.0 - math.cos(self.tilt_rms_rad))
-        return math.hypot(self.centre_sigma_ut, seen_through_tilt_ut)
+        vertical_through_tilt_ut = self.vertical_ut * math.sin(self.tilt_rms_rad)
+        return math.hypot(self.centre_sigma_ut, seen_through_tilt_ut, vertical_through_tilt_ut)
 
     def learn(self, result, claimed_var_rad2: float, t_s: float) -> None:
         """A new judgement of the circle check (field_circle.FieldCircleResult)."""
@@ -117,6 +119,7 @@ class FieldCircleCorrection:
             self.radius_ut = result.radius_ut
             self.centre_sigma_ut = result.centre_sigma_ut
             self.tilt_rms_rad = result.tilt_rms_rad if math.isfinite(result.tilt_rms_rad) else 0.0
+            self.vertical_ut = result.vertical_ut
 
     def advance(self, dt_s: float, yaw_sigma_rad: float) -> None:
         """Move the applied correction towards the target over dt_s (yaw_sigma_rad: the filter's, for the slew's
