@@ -112,19 +112,23 @@ def test_a_partial_arc_says_nothing():
 
 
 # --------------------------------------------------------------------------- the filters
-def _run(estimator, centre_error_ut, seconds=240.0, seed=3):
-    """A level vehicle turning in place at 4 °/s; its calibration leaves `centre_error_ut` (body x, y) in the
-    field while claiming 0.5°. Returns time, heading error (rad, wrapped; truth from scipy), published yaw σ, the
+def _run(estimator, centre_error_ut, seconds=240.0, seed=3, yaw_rate_rad_s=None):
+    """A level vehicle turning in place at 4 °/s (or at `yaw_rate_rad_s(t)`, rad/s per sample); its calibration
+    leaves `centre_error_ut` (body x, y, or x, y, z; or one such row per sample: an iron that moves) in the field
+    while claiming 0.5°. Returns time, heading error (rad, wrapped; truth from scipy), published yaw σ, the
     estimates and the filter."""
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, seconds, 1.0 / RATE_HZ)
     n = len(t)
-    heading = (0.3 + VEHICLE_TURN_RATE_RAD_S * t) % (2 * math.pi)
+    rate = np.full(n, VEHICLE_TURN_RATE_RAD_S) if yaw_rate_rad_s is None else yaw_rate_rad_s(t)
+    heading = (0.3 + np.concatenate([[0.0], np.cumsum(rate[:-1]) / RATE_HZ])) % (2 * math.pi)
     r = Rotation.from_euler("ZYX", np.stack([heading, np.zeros(n), np.zeros(n)], axis=-1))
     arw = DEFAULT_MEKF_PARAMS.gyro_noise_rad_s_sqrt_hz
-    gyro = np.tile([0.0, 0.0, VEHICLE_TURN_RATE_RAD_S], (n, 1)) + arw * math.sqrt(RATE_HZ) * rng.standard_normal((n, 3))
+    gyro = np.stack([np.zeros(n), np.zeros(n), rate], axis=1) + arw * math.sqrt(RATE_HZ) * rng.standard_normal((n, 3))
     acc = np.tile([0.0, 0.0, -G], (n, 1)) + 0.05 * rng.standard_normal((n, 3))
-    error = np.array([centre_error_ut[0], centre_error_ut[1], 0.0])
+    error = np.zeros((n, 3))
+    given = np.atleast_2d(np.asarray(centre_error_ut, dtype=float))
+    error[:, :given.shape[1]] = given
     mag = r.inv().apply(FIELD_NED) + error + 0.2 * rng.standard_normal((n, 3))
     f = estimator(mag_calibration_sigma_rad=CLAIMED_SIGMA_RAD)
     err, sig, ests = np.full(n, np.nan), np.full(n, np.nan), []
