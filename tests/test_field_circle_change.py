@@ -18,6 +18,7 @@ import math
 import numpy as np
 import pytest
 from scipy import stats
+from scipy.spatial.transform import Rotation
 from test_field_circle import CLAIMED_SIGMA_RAD, H_UT, RATE_HZ, _levelled_fields, _run, _turning
 
 from ahrsd.estimator.field_circle import FieldCircleCheck
@@ -178,3 +179,38 @@ def test_a_move_seen_from_one_heading_leaves_its_unseen_part_in_sigma():
     turned = math.atan2(8.0, H_UT)
     assert math.degrees(turned) == pytest.approx(21.8, abs=0.05)
     assert turned <= 3.0 * math.sqrt(r.heading_var_rad2)
+
+
+FIELD_NED_UT = np.array([20.0, 0.0, 45.0])
+
+
+def _banked(check, t0, seconds, rate_deg_s, bank_deg, iron_ut, psi0, rng, rate_hz=10.0):
+    """A vehicle turning at `rate_deg_s` banked by `bank_deg` (scipy's attitude), its body field plus `iron_ut`, into
+    the check with the roll it has; returns the time and heading it ends at."""
+    t = t0 + np.arange(0.0, seconds, 1.0 / rate_hz)
+    psi = psi0 + math.radians(rate_deg_s) * (t - t0)
+    att = Rotation.from_euler("ZYX", np.stack([psi, np.zeros(len(t)), np.full(len(t), math.radians(bank_deg))], 1))
+    m = att.inv().apply(FIELD_NED_UT) + np.asarray(iron_ut) + 0.1 * rng.standard_normal((len(t), 3))
+    for k in range(len(t)):
+        check.add(t[k], math.radians(bank_deg), 0.0, m[k], math.radians(0.5))
+    return t[-1] + 1.0 / rate_hz, psi[-1]
+
+
+def test_a_vertical_iron_seen_through_a_bank_that_flips_is_no_second_move():
+    """The iron moves by (3, −3, 5) µT on a vehicle turning banked 20°; the restarted fit learns the new circle; then
+    it turns the other way banked −20°. A body-z iron shows in the levelled horizontal as b_z·(0, −sin φ): the
+    circle moves by 2·5·sin 20° = 3.4 µT when the bank flips — the same iron, not a move. The levelled vertical's
+    shift at the restart (truth: the move turned by the 20° roll with scipy, 3.67 µT) is carried as the vertical
+    iron, and it widens the fields' error through the tilt: one restart, not two."""
+    rng = np.random.default_rng(2)
+    check = FieldCircleCheck()
+    t, psi = _banked(check, 0.0, 300.0, 6.0, 20.0, (0.0, 0.0, 0.0), 0.3, rng)
+    assert check.restarts == 0 and check.result.covered and not check.result.significant
+    move = np.array([3.0, -3.0, 5.0])
+    t, psi = _banked(check, t, 150.0, 6.0, 20.0, move, psi, rng)
+    levelled_z = Rotation.from_euler("ZYX", [0.0, 0.0, math.radians(20.0)]).apply(move)[2]
+    assert levelled_z == pytest.approx(3.67, abs=0.01)
+    assert check.restarts == 1 and check.vertical_ut == pytest.approx(levelled_z, abs=0.2)
+    assert check.result.covered and not check.result.moved
+    _banked(check, t, 150.0, -6.0, -20.0, move, psi, rng)
+    assert check.restarts == 1
