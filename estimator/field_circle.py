@@ -29,7 +29,12 @@ leaves is not wrong, one that claims less than the circle shows is (`finds_wrong
 
 An iron that moves within the window mixes two circles: where the vehicle has kept to a few headings since, the
 fit may take the moved one for an ellipse and stay within its gate, but its residual grows far beyond its floor
-(`scatter_gate`); that is flagged too, with the heading error such a mixture implies.
+(`scatter_gate`); that is flagged too, with the heading error such a mixture implies. Before it comes to that,
+new fields that sit off the fitted circle by more than their noise allows are a change point (field_circle_
+change.py, Page's CUSUM): the fit restarts from the fields after it, its centre is fitted on the old radius (a
+hard iron moves the circle, not its radius) until the restarted fit covers the turns again (`moved`), and the
+vertical iron the move left — the levelled field's vertical shift — widens the fields' error and σ through the
+tilt (`vertical_ut`).
 
 Sources: W. Premerlani, "Automatic nulling of magnetometer offsets" (DIY Drones, 2010) and "Magnetometer offsets
 revisited" (2011): offsets rotate with the body while the Earth field does not, so rotation separates them;

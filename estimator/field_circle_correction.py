@@ -7,7 +7,9 @@ it from the field corrects the heading (W. Premerlani, "Automatic nulling of mag
 COMPASS_LEARN=1 nulled offsets that way without GNSS). This part holds that correction:
 
 * it starts when the check first finds the calibration wrong (`learn`); from then on its target is the fit's
-  centre at every judgement that covered the turns (the fit goes on with the fields as the calibration gives them;
+  centre at every judgement that covered the turns, or, after the iron moved and before the restarted fit covers
+  them again, the centre on the old radius (field_circle_change.py; its σ as wide as the fields leave it) (the
+  fit goes on with the fields as the calibration gives them;
   the check judges the centre minus the correction applied, so a corrected field reads consistent, and an iron
   that moves again is found again);
 * the applied correction moves towards the target at a heading rate of `rate_rad_s` (estimator/slewed_yaw.YawSlew,
