@@ -202,6 +202,7 @@ class FieldCircleCheck:
         self._floor = 0.0                  # Σ w · (the residual's variance floor)
         self._tilt2 = 0.0                  # Σ w · (roll² + pitch²)
         self._z = 0.0                      # Σ w · (the levelled vertical field)
+        self._zz = 0.0                     # Σ w · its square
         self._sector_s = np.zeros(N_SECTORS)
         self._last_t_s = math.nan
 
@@ -231,7 +232,9 @@ class FieldCircleCheck:
         tilt = tilt_sigma_rad if math.isfinite(tilt_sigma_rad) else 0.0
         var = p.mag_noise_ut ** 2 + (z * tilt) ** 2
         # a body-z iron b shows in the levelled horizontal as b·(sin θ cos φ, −sin φ): its gain
-        field = (t_s, x, y, var, w, roll_rad * roll_rad + pitch_rad * pitch_rad, z, math.hypot(sp * cr, sr))
+        # the levelled vertical's error: the noise and the horizontal field turned into the vertical by a tilt error
+        var_z = p.mag_noise_ut ** 2 + (x * x + y * y) * tilt * tilt
+        field = (t_s, x, y, var, w, roll_rad * roll_rad + pitch_rad * pitch_rad, z, math.hypot(sp * cr, sr), var_z)
         if self._change.see(field, self.vertical_ut):
             self._restart()
         else:
@@ -268,7 +271,7 @@ class FieldCircleCheck:
         """One levelled field (t, x, y, its horizontal error variance, weight, tilt², z, vertical iron's gain) into
         the fit's sums; the vertical iron the moves left, seen through the tilt, widens its error."""
         p = self.params
-        t_s, x, y, var, w, tilt2, z, gain = field
+        t_s, x, y, var, w, tilt2, z, gain, _ = field
         dt = p.period_s if not math.isfinite(self._last_t_s) else min(t_s - self._last_t_s, p.window_s)
         self._last_t_s = t_s
         self._forget(math.exp(-dt / p.window_s))
@@ -280,6 +283,7 @@ class FieldCircleCheck:
         self._w += w
         self._tilt2 += w * tilt2
         self._z += w * z
+        self._zz += w * z * z
         self._floor += w * 4.0 * (x * x + y * y) * (var + (self.vertical_ut * gain) ** 2)
         self._sector_s[int((math.atan2(y, x) % _TWO_PI) / _TWO_PI * N_SECTORS) % N_SECTORS] += p.period_s
 
@@ -291,6 +295,7 @@ class FieldCircleCheck:
         self._floor *= f
         self._tilt2 *= f
         self._z *= f
+        self._zz *= f
         self._sector_s *= f
 
     def _judge(self) -> FieldCircleResult:
@@ -302,7 +307,8 @@ class FieldCircleCheck:
         result = self._judge_covered()
         if result.covered:
             self._change.set_reference(self._theta, result.radius_ut, result.centre_ut, result.centre_sigma_ut,
-                                       self._resid, self._sector_s >= p.min_sector_s, self._z / self._w)
+                                       self._resid, self._sector_s >= p.min_sector_s, self._z / self._w,
+                                       max(self._zz / self._w - (self._z / self._w) ** 2, 0.0))
         return result
 
     def _judge_moved(self) -> FieldCircleResult:

@@ -52,10 +52,10 @@ def reference_k(design_shift_sigma: float) -> float:
 class CircleChangeParams:
     design_shift_sigma: float = 3.0
     """The shift of the fields off the circle, in their noise σ, the test is designed for (its k)."""
-    threshold: float = 15.0
-    """Page's h: with k from design_shift_sigma an in-control average run length of 1.35e4 independent fields of
-    χ²₁ (1e4 at h = 14.2; 19 h of fields correlated over 5 s) — the false-alarm rate the fit's χ² gate has,
-    1e-4 (tests/test_field_circle_change.py)."""
+    threshold: float = 16.0
+    """Page's h: with k from design_shift_sigma an in-control average run length of 2.1e4 independent fields of
+    χ²₁ for each of the two CUSUMs (horizontal and vertical), so 1.06e4 for either (29 h of fields correlated over
+    5 s) — the false-alarm rate the fit's χ² gate has, 1e-4 (tests/test_field_circle_change.py)."""
     max_fields: int = 3000
     """At most this many fields kept since the change (the fit's window at its rate)."""
 
@@ -80,15 +80,17 @@ class CircleChange:
         self.resid_var = 0.0              # the reference fit's residual variance per independent field (conic units)
         self.sectors = np.zeros(0, dtype=bool)   # the heading sectors it covered (field_circle.N_SECTORS)
         self.z_mean_ut = 0.0              # the mean levelled vertical field of its window
-        self.cusum = 0.0
+        self.z_var_ut2 = 0.0              # and its variance per field
+        self.cusum = 0.0                  # the horizontal fields' CUSUM
+        self.cusum_vertical = 0.0         # the vertical's
         self.since: list[tuple] = []      # the fields since the CUSUM last left zero
 
     @property
     def at_rest(self) -> bool:
-        return self.cusum == 0.0
+        return self.cusum == 0.0 and self.cusum_vertical == 0.0
 
     def set_reference(self, theta, radius_ut: float, centre_ut, centre_sigma_ut: float, resid_var: float,
-                      sectors, z_mean_ut: float) -> None:
+                      sectors, z_mean_ut: float, z_var_ut2: float) -> None:
         if not self.at_rest:
             return                        # the circle before the change stays the reference
         self.theta = np.asarray(theta, dtype=float).copy()
@@ -98,28 +100,30 @@ class CircleChange:
         self.resid_var = float(resid_var)
         self.sectors = np.asarray(sectors, dtype=bool).copy()
         self.z_mean_ut = float(z_mean_ut)
+        self.z_var_ut2 = float(z_var_ut2)
 
     def see(self, field, vertical_ut: float = 0.0) -> bool:
         if self.theta is None:
             return False
         x, y, w = field[1], field[2], field[4]
-        var_ut2 = field[3] + (vertical_ut * field[7]) ** 2
+        # the vertical: a moved iron shifts the levelled vertical field by its vertical part at any heading (the
+        # Earth's does not move); its error is the noise and the horizontal field turned by the tilt σ, and the
+        # horizontal iron the fields show (the reference's centre) turned into the vertical by the tilt itself
+        e_v = field[6] - self.z_mean_ut
+        f_v = max(field[8] + float(self.centre_ut @ self.centre_ut) * field[5], self.z_var_ut2)
+        self.cusum_vertical = max(0.0, self.cusum_vertical + w * (e_v * e_v / f_v - self.k))
         n = len(self.sectors)
-        if not self.sectors[int((math.atan2(y, x) % _TWO_PI) / _TWO_PI * n) % n]:
-            if self.cusum > 0.0:
-                self._keep(field)
-            return False
-        beta, gamma, dx, dy, f0 = self.theta
-        e = beta * (x * x - y * y) + gamma * 2.0 * x * y + dx * x + dy * y + f0 + (x * x + y * y)
-        f = max(4.0 * self.radius_ut ** 2 * (var_ut2 + self.centre_sigma_ut ** 2), self.resid_var)
-        s = self.cusum + w * (e * e / f - self.k)
-        if s <= 0.0:
-            self.cusum = 0.0
+        if self.sectors[int((math.atan2(y, x) % _TWO_PI) / _TWO_PI * n) % n]:
+            var_ut2 = field[3] + (vertical_ut * field[7]) ** 2
+            beta, gamma, dx, dy, f0 = self.theta
+            e = beta * (x * x - y * y) + gamma * 2.0 * x * y + dx * x + dy * y + f0 + (x * x + y * y)
+            f = max(4.0 * self.radius_ut ** 2 * (var_ut2 + self.centre_sigma_ut ** 2), self.resid_var)
+            self.cusum = max(0.0, self.cusum + w * (e * e / f - self.k))
+        if self.at_rest:
             self.since.clear()
             return False
-        self.cusum = s
         self._keep(field)
-        return s > self.params.threshold
+        return max(self.cusum, self.cusum_vertical) > self.params.threshold
 
     def _keep(self, field) -> None:
         self.since.append(field)
