@@ -215,3 +215,24 @@ def test_a_vertical_iron_seen_through_a_bank_that_flips_is_no_second_move():
     assert check.result.covered and not check.result.moved
     _banked(check, t, 150.0, -6.0, -20.0, move, psi, rng)
     assert check.restarts == 1
+
+
+def test_a_vertical_move_is_found_at_any_heading():
+    """A move across the field at one heading (8 µT, test above: the horizontal CUSUM needs its second-order
+    growth) with a vertical part of 4 µT: the levelled vertical field shifts by 4 µT at once, against its error
+    √(0.7² + (20·0.1°)²) = 0.70 µT (the stated noise; the tilt σ 0.1°): z² = 32.7 a field, the CUSUM grows by
+    0.02·(32.7 − 2.56) = 0.60 a field and passes 16 after 27 fields: found within 3 s of the move (the horizontal
+    CUSUM alone: after 35.7 s)."""
+    check = FieldCircleCheck()
+    _levelled_fields(check, _turning(200.0), (0.0, 0.0), noise_ut=0.1)
+    psi = math.radians(40.0)
+    along, across = np.array([math.cos(psi), math.sin(psi)]), np.array([-math.sin(psi), math.cos(psi)])
+    rng = np.random.default_rng(5)
+    found_t = None
+    for k in range(300):
+        m = np.concatenate([H_UT * along + 8.0 * across + 0.1 * rng.standard_normal(2), [40.0 + 4.0]])
+        check.add(200.0 + k / 10.0, 0.0, 0.0, m, math.radians(0.1))
+        if found_t is None and check.restarts:
+            found_t = 200.0 + k / 10.0
+    assert found_t is not None and found_t < 203.0
+    assert check.vertical_ut == pytest.approx(4.0, abs=0.2)
