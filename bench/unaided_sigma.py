@@ -198,8 +198,8 @@ def main(argv=None) -> int:
             head = "" if wrong is None else f"Δb {wrong[0]:4.1f} µT soft {wrong[2]:+.2f}  "
             tail = "" if wrong is None else (f"   mag {mag_pct:5.1f} good {good_pct:5.1f} off-centre {off_pct:5.1f} "
                                              f"(from {after[1]:5.1f} s: hdg beyond {after[0]:5.1f}; from +60 s: hdg RMS "
-                                             f"{after[2]:5.2f} beyond {after[3]:5.1f}); corrected {moved[0]:5.1f} "
-                                             f"restarts {moved[1]}")
+                                             f"{after[2]:5.2f} beyond {after[3]:5.1f}); "
+                                             f"corrected {moved[0]:5.1f} restarts {moved[1]}")
             if step is not None:
                 tail += (f"; from step + 120 s: hdg RMS {step[0]:5.2f} σ med {step[1]:5.2f} beyond {step[2]:5.1f}; "
                          f"largest 0.1 s change {step[3]:4.2f}")

@@ -40,8 +40,10 @@ Sources: W. Premerlani, "Automatic nulling of magnetometer offsets" (DIY Drones,
 revisited" (2011): offsets rotate with the body while the Earth field does not, so rotation separates them;
 ArduPilot's `CompassLearn` (libraries/AP_Compass/Compass_learn.cpp) learns offsets in flight against the EKF-GSF
 yaw, which needs GNSS — this check needs none. It says how far the calibration can be trusted; mekf then removes
-the hard iron it shows from the field (field_circle_correction.py: `correction_ut`, judged against). What it cannot see: a vertical hard iron on a level vehicle (it never leaves the vertical),
-the antisymmetric soft iron (a constant heading offset), and anything while the vehicle does not turn.
+the hard iron it shows from the field (field_circle_correction.py: `correction_ut`, judged against). What it
+cannot see: a vertical hard iron on a level vehicle (it never leaves the vertical; a move of it shows as the
+levelled vertical's shift, field_circle_change.py), the antisymmetric soft iron (a constant heading offset), and
+anything while the vehicle does not turn.
 """
 
 from __future__ import annotations

@@ -15,14 +15,21 @@ new centre is from the fields after it:
   noise does not explain — on a banking plane a vertical hard iron the planar fit does not model, seen through
   the bank — is no change). Only fields in the heading sectors the reference fit covered count: beyond them
   its conic (with the ellipse terms) is an extrapolation, not evidence (a plane whose fit covered 6 sectors read
-  fields 4.5 µT off its conic in the seventh). Each field counts as `period / correlation` of an independent one (the fit's rule: tilt errors
-  and waves are correlated over seconds), so S ← max(0, S + w·(z² − k)). Under no change z² is at most χ²₁ (the
-  floor is a floor: the fit's residual is 0.07–0.54× it on right calibrations, docs/estimator.md); a field off the
-  circle by δ noise σ has E[z²] = 1 + δ². k is the log-likelihood ratio's per-sample reference for a variance
-  ratio 1 + δ² at the design shift δ (3σ: "more than their noise allows"), k = (1 + δ²)·ln(1 + δ²)/δ², and the
-  threshold h gives an in-control average run length of at least `arl0_samples` independent fields of χ²₁
-  (tests/test_field_circle_change.py computes it with the Brook–Evans Markov chain): nothing is tuned on a run.
-  The change is taken to start where the CUSUM last left zero (Page's estimate of the change time).
+  fields 4.5 µT off its conic in the seventh). Each field counts as `period / correlation` of an independent one
+  (the fit's rule: tilt errors and waves are correlated over seconds), so S ← max(0, S + w·(z² − k)). Under no
+  change z² is at most χ²₁ (the floor is a floor: the fit's residual is below it on right calibrations,
+  docs/estimator.md); a field off the circle by δ noise σ has E[z²] = 1 + δ². k is the log-likelihood ratio's
+  per-sample reference for a variance ratio 1 + δ² at the design shift δ (3σ: "more than their noise allows"),
+  k = (1 + δ²)·ln(1 + δ²)/δ², and the threshold h (`CircleChangeParams.threshold`) gives a stated in-control
+  average run length of independent fields of χ²₁ (tests/test_field_circle_change.py computes it with the
+  Brook–Evans Markov chain): nothing is tuned on a run.
+  A second CUSUM, the same k and h, watches the levelled vertical field against the reference window's mean: a
+  moved iron's vertical part shifts it at any heading, where the horizontal one sees only the part of the move
+  along the field (a move across it, the part that turns the heading, shows in the circle only to second order
+  until the vehicle turns). Its error: the noise, the horizontal field times the tilt σ, the reference's centre
+  (the horizontal iron the fields show) times the tilt itself, or the window's own spread where larger. h is set
+  for each so that either fires by chance no more often than one does at 1e4.
+  The change is taken to start where both CUSUMs were last at zero (Page's estimate of the change time).
 * **The centre on the known radius:** after the change the fields since it are fitted to a circle of the old
   radius about an unknown centre c (Gauss–Newton on |p − c| − r, each field's radial variance f/(2r)² weighted
   as above). One heading fixes c along that heading's radial direction only; with the prior c₀ ± r (the old
@@ -61,11 +68,13 @@ class CircleChangeParams:
 
 
 class CircleChange:
-    """`set_reference(theta, radius_ut, centre_ut, centre_sigma_ut, resid_var, sectors)` at each judgement of the fit (taken only while
-    the CUSUM is at rest); `see(field, vertical_ut)` for each levelled field (t_s, x, y, var_ut2, w, tilt², z,
-    gain: var_ut2 its horizontal error variance, w its weight as the fit counts it, z its levelled vertical part,
-    gain how much of a body-z iron shows in its horizontal part; vertical_ut the vertical iron earlier moves left): True when the change is found — `since` then holds the
-    fields from its start. `reset()` forgets all (a new calibration, or the fit restarted)."""
+    """`set_reference(theta, radius_ut, centre_ut, centre_sigma_ut, resid_var, sectors, z_mean_ut, z_var_ut2)` at
+    each judgement of the fit (taken only while both CUSUMs are at rest); `see(field, vertical_ut)` for each
+    levelled field (t_s, x, y, var_ut2, w, tilt², z, gain, var_z_ut2: var_ut2 its horizontal error variance, w its
+    weight as the fit counts it, z its levelled vertical part, gain how much of a body-z iron shows in its
+    horizontal part, var_z_ut2 its vertical error variance; vertical_ut the vertical iron earlier moves left): True
+    when the change is found — `since` then holds the fields from its start. `reset()` forgets all (a new
+    calibration, or the fit restarted)."""
 
     def __init__(self, params: CircleChangeParams | None = None):
         self.params = params or CircleChangeParams()
@@ -131,12 +140,15 @@ class CircleChange:
             del self.since[0]
 
 
-def centre_on_known_radius(fields, radius_ut: float, prior_centre_ut, vertical_ut: float = 0.0, iterations: int = 5):
-    """The centre of a circle of `radius_ut` the fields (t, x, y, var_ut2, w, tilt², z, gain) lie on, with the prior
+def centre_on_known_radius(fields, radius_ut: float, prior_centre_ut, vertical_ut: float = 0.0,
+                           iterations: int = 5):
+    """The centre of a circle of `radius_ut` the fields (CircleChange.see's) lie on, with the prior
     `prior_centre_ut` ± radius_ut per axis: Gauss–Newton on ρ = |p − c| − r, each field's ρ of variance var_ut2
-    (plus the vertical iron `vertical_ut` seen through its tilt, gain·b_z) counted w times. Returns the centre (µT), its covariance (µT², scaled up by the residuals' own spread where
-    they exceed the stated variance) and the number of fields."""
-    a = np.asarray([(f[1], f[2], f[3] + (vertical_ut * f[7]) ** 2, f[4]) for f in fields], dtype=float).reshape(-1, 4)
+    (plus the vertical iron `vertical_ut` seen through its tilt, gain·b_z) counted w times. Returns the centre
+    (µT), its covariance (µT², scaled up by the residuals' own spread where they exceed the stated variance) and
+    the number of fields."""
+    a = np.asarray([(f[1], f[2], f[3] + (vertical_ut * f[7]) ** 2, f[4]) for f in fields],
+                   dtype=float).reshape(-1, 4)
     p, var, w = a[:, :2], a[:, 2], a[:, 3]
     c0 = np.asarray(prior_centre_ut, dtype=float)
     prior_info = np.eye(2) / radius_ut ** 2
