@@ -243,8 +243,6 @@ class FieldCircleCheck:
             self._take(field)
             if self._moved is not None:
                 self._moved.append(field)
-                if len(self._moved) > self._change.params.max_fields:
-                    del self._moved[0]
         if t_s < self._next_solve_t_s:
             return False
         self._next_solve_t_s = t_s + p.solve_period_s
@@ -307,15 +305,8 @@ class FieldCircleCheck:
         covered = int(np.count_nonzero(self._sector_s >= p.min_sector_s)) >= p.min_sectors
         if not covered or self._w <= 5.0:
             return FieldCircleResult(covered=False) if self._moved is None else self._judge_moved()
+        self._moved = None
         result = self._judge_covered()
-        if self._moved is not None:
-            # just covered again after a move: the restarted fit's centre takes over once it is known better than
-            # the one on the old radius (a fresh five-parameter fit can be too wide to be significant, and would
-            # then claim nothing)
-            moved = self._judge_moved()
-            if not result.covered or moved.centre_sigma_ut < result.centre_sigma_ut:
-                return moved
-            self._moved = None
         if result.covered:
             self._change.set_reference(self._theta, result.radius_ut, result.centre_ut, result.centre_sigma_ut,
                                        self._resid, self._sector_s >= p.min_sector_s, self._z / self._w,
