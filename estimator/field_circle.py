@@ -383,6 +383,12 @@ class FieldCircleCheck:
         significant = fitted or scattered
         if significant:
             var += vertical_heading_var_rad2(self.vertical_ut, math.sqrt(self._tilt2 / self._w), radius)
+        if self.restarts:
+            # the iron is known to have moved: a restarted fit too young to show its centre beyond the gate does not
+            # make the calibration right again — its centre against the correction, and its own σ, stay in σ
+            sigma_c = math.sqrt(float(np.max(np.linalg.eigvalsh(cov_c))))
+            var = max(var, 0.5 * a_hard ** 2 + (sigma_c / radius) ** 2
+                      + vertical_heading_var_rad2(self.vertical_ut, math.sqrt(self._tilt2 / self._w), radius))
         return FieldCircleResult((float(c[0]), float(c[1])), math.sqrt(float(np.max(np.linalg.eigvalsh(cov_c)))),
                                  radius, a_soft, covered, significant, var,
                                  tilt_rms_rad=math.sqrt(self._tilt2 / self._w))
