@@ -6,12 +6,14 @@ The keys come from the config dataclasses the parser checks a file against (each
 keys: `_parse_table` rejects any other by name); the documentation is the table row or the TOML example that
 names the key, in the document the configuration table points to for that section."""
 
+import argparse
 import dataclasses
 import pathlib
 import re
 
 import pytest
 
+from ahrsd.cli import run as run_command
 from ahrsd.daemon import config
 from ahrsd.daemon.magcal_settings import MagCalSettings
 
@@ -62,3 +64,16 @@ def test_every_config_key_is_documented(section):
     assert keys, section
     missing = sorted(set(keys) - documented_names(doc))
     assert not missing, f"[{section}] keys not documented in docs/{doc}: {missing}"
+
+
+def test_every_run_flag_is_in_the_daemons_doc(monkeypatch):
+    """docs/daemon.md "Running it" lists `ahrsd run`'s flags (the walk found --nmea, --log-dir and --no-log missing
+    there); the options come from the parser `ahrsd run` uses."""
+    monkeypatch.setenv("COLUMNS", "1000")     # argparse wraps the help at the terminal's width: no flag split
+    subparsers = argparse.ArgumentParser().add_subparsers()
+    run_command.register(subparsers)
+    help_text = subparsers.choices["run"].format_help()
+    flags = set(re.findall(r"(?<![\w-])--[a-z][a-z0-9-]*", help_text)) - {"--help"}
+    text = (DOCS / "daemon.md").read_text(encoding="utf-8")
+    missing = sorted(f for f in flags if not re.search(rf"(?<![\w-]){re.escape(f)}(?![\w-])", text))
+    assert flags and not missing, f"ahrsd run flags not in docs/daemon.md: {missing}"
