@@ -47,13 +47,33 @@ def _target_arg(text: str) -> str:
     return text
 
 
+def _add_link_options(parser: argparse.ArgumentParser, *, defaults: bool) -> None:
+    """--connect, --target, --timeout: where the daemon is and how long to wait for it."""
+    unset = argparse.SUPPRESS
+    parser.add_argument("--connect", default=DEFAULT_CONNECT if defaults else unset, metavar="URL",
+                        help=f"MAVLink connection (default {DEFAULT_CONNECT})")
+    parser.add_argument("--target", default=None if defaults else unset, metavar="SYS:COMP", type=_target_arg,
+                        help="the daemon's system and component id (default: discover)")
+    parser.add_argument("--timeout", default=10.0 if defaults else unset, metavar="S",
+                        type=_number_arg(0.0, above=True), help="seconds to wait for the daemon (default 10)")
+
+
+def _action_parser(link: argparse.ArgumentParser):
+    """The parser class of the actions: each one takes the link options too (parents=[link])."""
+    def make(**kwargs) -> argparse.ArgumentParser:
+        return argparse.ArgumentParser(parents=[link], **kwargs)
+    return make
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser("magcal", help="run a field magnetometer recalibration on a running daemon",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--connect", default=DEFAULT_CONNECT, metavar="URL", help=f"MAVLink connection (default {DEFAULT_CONNECT})")
-    p.add_argument("--target", metavar="SYS:COMP", type=_target_arg, help="the daemon's system and component id (default: discover)")
-    p.add_argument("--timeout", type=_number_arg(0.0, above=True), default=10.0, metavar="S", help="seconds to wait for the daemon (default 10)")
-    sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
+    _add_link_options(p, defaults=True)
+    # The same options after the action (`ahrsd magcal status --timeout 2`, as a user types them): an action's
+    # copy has no default, so it replaces the value given before the action only when it is given itself.
+    link = argparse.ArgumentParser(add_help=False)
+    _add_link_options(link, defaults=False)
+    sub = p.add_subparsers(dest="action", metavar="ACTION", required=True, parser_class=_action_parser(link))
     s = sub.add_parser("start", help="start a recalibration and follow it")
     s.add_argument("--retry", action="store_true", help="restart automatically after a failed attempt")
     s.add_argument("--autosave", action="store_true", help="save a successful result without asking")
