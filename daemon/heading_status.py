@@ -112,11 +112,24 @@ class HeadingStatus:
         as a WARNING."""
         if est is None:
             return
-        # the calibration's variance as the estimator states it (the check runs only while a calibration states one)
+        self._take_circle_verdict(field_circle)
+        self._take_estimate(est, now)
+        self._track_good(now)
+        self._announce_yaw_resets(yaw_resets, gnss_yaw_alignments, now)
+        self._announce_state_that_held(est, now)
+
+    def _take_circle_verdict(self, field_circle) -> None:
+        """The circle check's centre offset while it finds the calibration wrong, or consistent with the correction
+        learned from the turns (NaN otherwise). The check runs only while a calibration states its heading error:
+        its variance as the estimator states it."""
         claimed_var = calibration_heading_variance_rad2(self.calibration_sigma_rad)
         verdict = field_circle.verdict(claimed_var) if field_circle is not None else CalibrationVerdict.NOT_JUDGED
         self.field_off_centre_ut = field_circle.offset_ut if verdict == CalibrationVerdict.WRONG else math.nan
         self.field_corrected_ut = field_circle.offset_ut if verdict == CalibrationVerdict.CORRECTED else math.nan
+
+    def _take_estimate(self, est, now: float) -> None:
+        """The estimate's state, yaw σ and flags, and whether the magnetometer disagrees with the GNSS(-held)
+        heading."""
         state = HeadingState(est.heading_state)
         self.state = state
         self.sigma_rad = float(est.sigma_rpy_rad[2])
@@ -127,26 +140,40 @@ class HeadingStatus:
         self.mag_inconsistent = significant or (state in (HeadingState.GNSS_ONLY, HeadingState.LEARNING)
                                                 and self.calibration_sigma_rad <= TRUSTED_CALIBRATION_RAD)
         self._now = now
+
+    def _track_good(self, now: float) -> None:
+        """Since when the heading is good enough (`heading_good` waits ANNOUNCE_AFTER_S), and whether a
+        magnetometer heading's own σ made it not good (it then waits too)."""
         if not self._good_now():
             self._good_since = None
-            self._wide_magnetometer = state == HeadingState.MAGNETOMETER and not self.initialising
+            self._wide_magnetometer = self.state == HeadingState.MAGNETOMETER and not self.initialising
         elif self._good_since is None:
             self._good_since = now
-        if yaw_resets < self._resets_announced:       # the estimator was reset: its count starts again
+
+    def _announce_yaw_resets(self, yaw_resets: int, gnss_yaw_alignments: int, now: float) -> None:
+        """Each new yaw reset: a planned alignment to the GNSS yaw as news (INFO), a reset of a heading found
+        wrong as a WARNING. A count that went back is a restarted estimator: counting starts again."""
+        if yaw_resets < self._resets_announced:
             self._resets_announced = yaw_resets
             self._alignments_announced = gnss_yaw_alignments
-        if yaw_resets > self._resets_announced:
-            wrong_headings = (yaw_resets - self._resets_announced) - (gnss_yaw_alignments - self._alignments_announced)
-            self._resets_announced = yaw_resets
-            self._alignments_announced = gnss_yaw_alignments
-            self._last_reset_at = now
-            if wrong_headings > 0:
-                self.statustext(mavlink.MAV_SEVERITY_WARNING,
-                                f"ahrsd: heading reset to the GNSS yaw (±{math.degrees(self.sigma_rad):.1f}°)")
-            else:
-                self.statustext(mavlink.MAV_SEVERITY_INFO,
-                                f"ahrsd: heading aligned to the GNSS yaw (±{math.degrees(self.sigma_rad):.1f}°): "
-                                "no trusted magnetometer calibration")
+        if yaw_resets <= self._resets_announced:
+            return
+        wrong_headings = (yaw_resets - self._resets_announced) - (gnss_yaw_alignments - self._alignments_announced)
+        self._resets_announced = yaw_resets
+        self._alignments_announced = gnss_yaw_alignments
+        self._last_reset_at = now
+        if wrong_headings > 0:
+            self.statustext(mavlink.MAV_SEVERITY_WARNING,
+                            f"ahrsd: heading reset to the GNSS yaw (±{math.degrees(self.sigma_rad):.1f}°)")
+        else:
+            self.statustext(mavlink.MAV_SEVERITY_INFO,
+                            f"ahrsd: heading aligned to the GNSS yaw (±{math.degrees(self.sigma_rad):.1f}°): "
+                            "no trusted magnetometer calibration")
+
+    def _announce_state_that_held(self, est, now: float) -> None:
+        """A state (with its cause: why it is UNKNOWN, a circle found off-centre or corrected) is announced once it
+        held ANNOUNCE_AFTER_S, the first one at once; a flicker back to the announced one is forgotten."""
+        state = self.state
         key = (state, self._unknown_cause(est)[0] if state == HeadingState.UNKNOWN
                else "off-centre" if self._off_centre() else "corrected" if self._corrected() else "")
         if key == self.announced_key:
