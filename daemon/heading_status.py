@@ -332,40 +332,48 @@ class HeadingStatus:
         self.statustext(severity, text)
 
     def _text(self, state: HeadingState, est) -> tuple[int, str]:
-        sig = f"±{math.degrees(self.sigma_rad):.1f}°"
-        integrity = est.integrity
+        """The announcement of `state`: (severity, text)."""
         if state == HeadingState.MAGNETOMETER:
-            caveat = self.calibration_caveat()
-            if self._off_centre():
-                return mavlink.MAV_SEVERITY_WARNING, (f"ahrsd: {self._off_centre_cause()}; heading from magnetometer "
-                                                      f"({sig}), no GNSS fix to check it")
-            if self._corrected():
-                return mavlink.MAV_SEVERITY_WARNING, (
-                    f"ahrsd: {wrong_calibration_text(self.field_corrected_ut, corrected=True)}; heading from "
-                    f"magnetometer ({sig}), no GNSS fix to check it")
-            if caveat is None:
-                wide = ", not good" if not self.sigma_rad <= self.good_sigma_rad else ""
-                return mavlink.MAV_SEVERITY_INFO, f"ahrsd: heading from magnetometer ({sig}{wide})"
-            if not math.isfinite(self.calibration_sigma_rad):     # an estimator whose σ cannot carry it
-                return mavlink.MAV_SEVERITY_WARNING, (
-                    f"ahrsd: heading from magnetometer ({sig}), {self._no_figure(short=True)} and no GNSS fix to check it: the "
-                    "vehicle's iron may turn it by any angle; calibrate it (magcal)")
-            return mavlink.MAV_SEVERITY_WARNING, (
-                f"ahrsd: heading from magnetometer ({sig}, of it {caveat}), no GNSS fix to check it; a better "
-                "calibration gives a better heading (magcal)")
-        d = self.disagreement_rad
-        by = f" by {abs(math.degrees(d)):.0f}°" if math.isfinite(d) else ""
-        disagrees = self.mag_inconsistent
-        if not math.isfinite(self.calibration_sigma_rad):
-            cause = f"magnetometer disagrees with GNSS{by}: {self._no_figure(short=False)}" if disagrees \
-                else self._no_figure(short=False)
-        elif disagrees:
-            cause = f"magnetometer disagrees with GNSS{by}: calibration wrong or iron changed"
-        else:
-            cause = f"magnetometer calibration uncertain (±{math.degrees(self.calibration_sigma_rad):.1f}°)"
+            return self._magnetometer_text()
+        cause = self._magnetometer_cause()
         if state == HeadingState.UNKNOWN:
-            why = cause if disagrees else self._unknown_cause(est)[1]
+            why = cause if self.mag_inconsistent else self._unknown_cause(est)[1]
             return mavlink.MAV_SEVERITY_WARNING, f"ahrsd: heading unknown: {why}; no heading sent"
         doing = "learning its iron" if state == HeadingState.LEARNING else "heading from GNSS only"
         good = "" if self.heading_good else ", not good yet"
-        return mavlink.MAV_SEVERITY_WARNING, f"ahrsd: {cause}; {doing} ({sig}{good})"
+        return mavlink.MAV_SEVERITY_WARNING, f"ahrsd: {cause}; {doing} (±{math.degrees(self.sigma_rad):.1f}°{good})"
+
+    def _magnetometer_text(self) -> tuple[int, str]:
+        """A magnetometer heading: plain (INFO) on a trusted calibration, else a WARNING naming what it rests on."""
+        sig = f"±{math.degrees(self.sigma_rad):.1f}°"
+        caveat = self.calibration_caveat()
+        if self._off_centre():
+            return mavlink.MAV_SEVERITY_WARNING, (f"ahrsd: {self._off_centre_cause()}; heading from magnetometer "
+                                                  f"({sig}), no GNSS fix to check it")
+        if self._corrected():
+            return mavlink.MAV_SEVERITY_WARNING, (
+                f"ahrsd: {wrong_calibration_text(self.field_corrected_ut, corrected=True)}; heading from "
+                f"magnetometer ({sig}), no GNSS fix to check it")
+        if caveat is None:
+            wide = ", not good" if not self.sigma_rad <= self.good_sigma_rad else ""
+            return mavlink.MAV_SEVERITY_INFO, f"ahrsd: heading from magnetometer ({sig}{wide})"
+        if not math.isfinite(self.calibration_sigma_rad):     # an estimator whose σ cannot carry it
+            return mavlink.MAV_SEVERITY_WARNING, (
+                f"ahrsd: heading from magnetometer ({sig}), {self._no_figure(short=True)} and no GNSS fix to check it: the "
+                "vehicle's iron may turn it by any angle; calibrate it (magcal)")
+        return mavlink.MAV_SEVERITY_WARNING, (
+            f"ahrsd: heading from magnetometer ({sig}, of it {caveat}), no GNSS fix to check it; a better "
+            "calibration gives a better heading (magcal)")
+
+    def _magnetometer_cause(self) -> str:
+        """Why the magnetometer does not hold the heading alone: it disagrees with GNSS (by how much, and whether
+        for want of a calibration), it has no calibration (or one stating no figure), or its calibration is
+        uncertain."""
+        d = self.disagreement_rad
+        by = f" by {abs(math.degrees(d)):.0f}°" if math.isfinite(d) else ""
+        if not math.isfinite(self.calibration_sigma_rad):
+            return f"magnetometer disagrees with GNSS{by}: {self._no_figure(short=False)}" if self.mag_inconsistent \
+                else self._no_figure(short=False)
+        if self.mag_inconsistent:
+            return f"magnetometer disagrees with GNSS{by}: calibration wrong or iron changed"
+        return f"magnetometer calibration uncertain (±{math.degrees(self.calibration_sigma_rad):.1f}°)"
