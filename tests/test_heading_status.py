@@ -653,6 +653,8 @@ def test_the_calibrations_predicted_heading_error_reaches_ins_as_a_figure_or_unk
     assert math.isnan(calibration_heading_sigma_rad(cal("mag", model, heading_std_deg=0.3, offset_std_deg=None)))
     assert math.isnan(calibration_heading_sigma_rad(cal("mag", model, method="fixed-yaw")))
     assert math.isnan(calibration_heading_sigma_rad(Calibration.identity()))
+    # a negative figure is no figure (a corrupt or hand-edited file): unknown, not its magnitude
+    assert math.isnan(calibration_heading_sigma_rad(cal("mag", model, heading_std_deg=-0.3, offset_std_deg=0.4)))
     # `ahrsd calibrate mag`: the field residual over WMM's horizontal field at the fit site (Boulder, H ≈ 21 µT)
     from ahrsd.core.wmm import earth_field
 
