@@ -77,13 +77,7 @@ class MagCalClient:
         p = list(params) + [0.0] * (7 - len(params))
         for confirmation in range(3):
             self.conn.mav.command_long_send(self.sys, self.comp, command, confirmation, *p)
-            deadline = time.monotonic() + 1.5
-            while time.monotonic() < deadline:
-                m = self.conn.recv_match(blocking=True, timeout=0.2)
-                if m is None:
-                    continue
-                if not self._from_target(m):
-                    continue
+            for m in self._target_messages(time.monotonic() + 1.5, poll_s=0.2):
                 if m.get_type() == "COMMAND_ACK" and m.command == command:
                     return int(m.result)
                 self._show(m)
@@ -99,11 +93,16 @@ class MagCalClient:
         return 0 if result == 0 else 1
 
     def _drain(self, seconds: float) -> None:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            m = self.conn.recv_match(blocking=True, timeout=0.1)
+        for m in self._target_messages(time.monotonic() + seconds, poll_s=0.1):
+            self._show(m)
+
+    def _target_messages(self, deadline: float, poll_s: float):
+        """The target's messages as they arrive (others dropped) until `deadline` (time.monotonic), each wait for
+        one at most `poll_s`."""
+        while time.monotonic() < deadline:
+            m = self.conn.recv_match(blocking=True, timeout=poll_s)
             if m is not None and self._from_target(m):
-                self._show(m)
+                yield m
 
     # ------------------------------------------------------------------ display
     def _print(self, text: str) -> None:
@@ -192,10 +191,7 @@ class MagCalClient:
     def _next_report(self, deadline: float):
         """The target's next MAG_CAL_REPORT (its other messages shown meanwhile: progress, STATUSTEXT), or None at
         `deadline` (time.monotonic)."""
-        while time.monotonic() < deadline:
-            m = self.conn.recv_match(blocking=True, timeout=0.5)
-            if m is None or not self._from_target(m):
-                continue
+        for m in self._target_messages(deadline, poll_s=0.5):
             if m.get_type() != "MAG_CAL_REPORT":
                 self._show(m)
                 continue
@@ -231,10 +227,7 @@ class MagCalClient:
         self._print("no answer possible here (stdin is not a terminal or at its end): the result waits on the "
                     "daemon; accept it with `ahrsd magcal accept` or drop it with `ahrsd magcal cancel`")
         last_report = time.monotonic()
-        while time.monotonic() < deadline:
-            m = self.conn.recv_match(blocking=True, timeout=0.5)
-            if m is None or not self._from_target(m):
-                continue
+        for m in self._target_messages(deadline, poll_s=0.5):
             if m.get_type() == "MAG_CAL_REPORT":
                 last_report = time.monotonic()
                 continue                    # the report repeats at 1 Hz until the session is settled
@@ -312,12 +305,8 @@ class MagCalClient:
 
     def status(self, seconds: float) -> int:
         """The running calibration (progress) or its last report, then the learned iron."""
-        end = time.monotonic() + seconds
         seen = False
-        while time.monotonic() < end:
-            m = self.conn.recv_match(blocking=True, timeout=0.2)
-            if m is None or not self._from_target(m):
-                continue
+        for m in self._target_messages(time.monotonic() + seconds, poll_s=0.2):
             if m.get_type() == "MAG_CAL_REPORT":
                 self._report(m)
                 seen = True

@@ -112,11 +112,24 @@ class HeadingStatus:
         as a WARNING."""
         if est is None:
             return
-        # the calibration's variance as the estimator states it (the check runs only while a calibration states one)
+        self._take_circle_verdict(field_circle)
+        self._take_estimate(est, now)
+        self._track_good(now)
+        self._announce_yaw_resets(yaw_resets, gnss_yaw_alignments, now)
+        self._announce_state_that_held(est, now)
+
+    def _take_circle_verdict(self, field_circle) -> None:
+        """The circle check's centre offset while it finds the calibration wrong, or consistent with the correction
+        learned from the turns (NaN otherwise). The check runs only while a calibration states its heading error:
+        its variance as the estimator states it."""
         claimed_var = calibration_heading_variance_rad2(self.calibration_sigma_rad)
         verdict = field_circle.verdict(claimed_var) if field_circle is not None else CalibrationVerdict.NOT_JUDGED
         self.field_off_centre_ut = field_circle.offset_ut if verdict == CalibrationVerdict.WRONG else math.nan
         self.field_corrected_ut = field_circle.offset_ut if verdict == CalibrationVerdict.CORRECTED else math.nan
+
+    def _take_estimate(self, est, now: float) -> None:
+        """The estimate's state, yaw σ and flags, and whether the magnetometer disagrees with the GNSS(-held)
+        heading."""
         state = HeadingState(est.heading_state)
         self.state = state
         self.sigma_rad = float(est.sigma_rpy_rad[2])
@@ -127,26 +140,40 @@ class HeadingStatus:
         self.mag_inconsistent = significant or (state in (HeadingState.GNSS_ONLY, HeadingState.LEARNING)
                                                 and self.calibration_sigma_rad <= TRUSTED_CALIBRATION_RAD)
         self._now = now
+
+    def _track_good(self, now: float) -> None:
+        """Since when the heading is good enough (`heading_good` waits ANNOUNCE_AFTER_S), and whether a
+        magnetometer heading's own σ made it not good (it then waits too)."""
         if not self._good_now():
             self._good_since = None
-            self._wide_magnetometer = state == HeadingState.MAGNETOMETER and not self.initialising
+            self._wide_magnetometer = self.state == HeadingState.MAGNETOMETER and not self.initialising
         elif self._good_since is None:
             self._good_since = now
-        if yaw_resets < self._resets_announced:       # the estimator was reset: its count starts again
+
+    def _announce_yaw_resets(self, yaw_resets: int, gnss_yaw_alignments: int, now: float) -> None:
+        """Each new yaw reset: a planned alignment to the GNSS yaw as news (INFO), a reset of a heading found
+        wrong as a WARNING. A count that went back is a restarted estimator: counting starts again."""
+        if yaw_resets < self._resets_announced:
             self._resets_announced = yaw_resets
             self._alignments_announced = gnss_yaw_alignments
-        if yaw_resets > self._resets_announced:
-            wrong_headings = (yaw_resets - self._resets_announced) - (gnss_yaw_alignments - self._alignments_announced)
-            self._resets_announced = yaw_resets
-            self._alignments_announced = gnss_yaw_alignments
-            self._last_reset_at = now
-            if wrong_headings > 0:
-                self.statustext(mavlink.MAV_SEVERITY_WARNING,
-                                f"ahrsd: heading reset to the GNSS yaw (±{math.degrees(self.sigma_rad):.1f}°)")
-            else:
-                self.statustext(mavlink.MAV_SEVERITY_INFO,
-                                f"ahrsd: heading aligned to the GNSS yaw (±{math.degrees(self.sigma_rad):.1f}°): "
-                                "no trusted magnetometer calibration")
+        if yaw_resets <= self._resets_announced:
+            return
+        wrong_headings = (yaw_resets - self._resets_announced) - (gnss_yaw_alignments - self._alignments_announced)
+        self._resets_announced = yaw_resets
+        self._alignments_announced = gnss_yaw_alignments
+        self._last_reset_at = now
+        if wrong_headings > 0:
+            self.statustext(mavlink.MAV_SEVERITY_WARNING,
+                            f"ahrsd: heading reset to the GNSS yaw (±{math.degrees(self.sigma_rad):.1f}°)")
+        else:
+            self.statustext(mavlink.MAV_SEVERITY_INFO,
+                            f"ahrsd: heading aligned to the GNSS yaw (±{math.degrees(self.sigma_rad):.1f}°): "
+                            "no trusted magnetometer calibration")
+
+    def _announce_state_that_held(self, est, now: float) -> None:
+        """A state (with its cause: why it is UNKNOWN, a circle found off-centre or corrected) is announced once it
+        held ANNOUNCE_AFTER_S, the first one at once; a flicker back to the announced one is forgotten."""
+        state = self.state
         key = (state, self._unknown_cause(est)[0] if state == HeadingState.UNKNOWN
                else "off-centre" if self._off_centre() else "corrected" if self._corrected() else "")
         if key == self.announced_key:
@@ -305,40 +332,48 @@ class HeadingStatus:
         self.statustext(severity, text)
 
     def _text(self, state: HeadingState, est) -> tuple[int, str]:
-        sig = f"±{math.degrees(self.sigma_rad):.1f}°"
-        integrity = est.integrity
+        """The announcement of `state`: (severity, text)."""
         if state == HeadingState.MAGNETOMETER:
-            caveat = self.calibration_caveat()
-            if self._off_centre():
-                return mavlink.MAV_SEVERITY_WARNING, (f"ahrsd: {self._off_centre_cause()}; heading from magnetometer "
-                                                      f"({sig}), no GNSS fix to check it")
-            if self._corrected():
-                return mavlink.MAV_SEVERITY_WARNING, (
-                    f"ahrsd: {wrong_calibration_text(self.field_corrected_ut, corrected=True)}; heading from "
-                    f"magnetometer ({sig}), no GNSS fix to check it")
-            if caveat is None:
-                wide = ", not good" if not self.sigma_rad <= self.good_sigma_rad else ""
-                return mavlink.MAV_SEVERITY_INFO, f"ahrsd: heading from magnetometer ({sig}{wide})"
-            if not math.isfinite(self.calibration_sigma_rad):     # an estimator whose σ cannot carry it
-                return mavlink.MAV_SEVERITY_WARNING, (
-                    f"ahrsd: heading from magnetometer ({sig}), {self._no_figure(short=True)} and no GNSS fix to check it: the "
-                    "vehicle's iron may turn it by any angle; calibrate it (magcal)")
-            return mavlink.MAV_SEVERITY_WARNING, (
-                f"ahrsd: heading from magnetometer ({sig}, of it {caveat}), no GNSS fix to check it; a better "
-                "calibration gives a better heading (magcal)")
-        d = self.disagreement_rad
-        by = f" by {abs(math.degrees(d)):.0f}°" if math.isfinite(d) else ""
-        disagrees = self.mag_inconsistent
-        if not math.isfinite(self.calibration_sigma_rad):
-            cause = f"magnetometer disagrees with GNSS{by}: {self._no_figure(short=False)}" if disagrees \
-                else self._no_figure(short=False)
-        elif disagrees:
-            cause = f"magnetometer disagrees with GNSS{by}: calibration wrong or iron changed"
-        else:
-            cause = f"magnetometer calibration uncertain (±{math.degrees(self.calibration_sigma_rad):.1f}°)"
+            return self._magnetometer_text()
+        cause = self._magnetometer_cause()
         if state == HeadingState.UNKNOWN:
-            why = cause if disagrees else self._unknown_cause(est)[1]
+            why = cause if self.mag_inconsistent else self._unknown_cause(est)[1]
             return mavlink.MAV_SEVERITY_WARNING, f"ahrsd: heading unknown: {why}; no heading sent"
         doing = "learning its iron" if state == HeadingState.LEARNING else "heading from GNSS only"
         good = "" if self.heading_good else ", not good yet"
-        return mavlink.MAV_SEVERITY_WARNING, f"ahrsd: {cause}; {doing} ({sig}{good})"
+        return mavlink.MAV_SEVERITY_WARNING, f"ahrsd: {cause}; {doing} (±{math.degrees(self.sigma_rad):.1f}°{good})"
+
+    def _magnetometer_text(self) -> tuple[int, str]:
+        """A magnetometer heading: plain (INFO) on a trusted calibration, else a WARNING naming what it rests on."""
+        sig = f"±{math.degrees(self.sigma_rad):.1f}°"
+        caveat = self.calibration_caveat()
+        if self._off_centre():
+            return mavlink.MAV_SEVERITY_WARNING, (f"ahrsd: {self._off_centre_cause()}; heading from magnetometer "
+                                                  f"({sig}), no GNSS fix to check it")
+        if self._corrected():
+            return mavlink.MAV_SEVERITY_WARNING, (
+                f"ahrsd: {wrong_calibration_text(self.field_corrected_ut, corrected=True)}; heading from "
+                f"magnetometer ({sig}), no GNSS fix to check it")
+        if caveat is None:
+            wide = ", not good" if not self.sigma_rad <= self.good_sigma_rad else ""
+            return mavlink.MAV_SEVERITY_INFO, f"ahrsd: heading from magnetometer ({sig}{wide})"
+        if not math.isfinite(self.calibration_sigma_rad):     # an estimator whose σ cannot carry it
+            return mavlink.MAV_SEVERITY_WARNING, (
+                f"ahrsd: heading from magnetometer ({sig}), {self._no_figure(short=True)} and no GNSS fix to check it: the "
+                "vehicle's iron may turn it by any angle; calibrate it (magcal)")
+        return mavlink.MAV_SEVERITY_WARNING, (
+            f"ahrsd: heading from magnetometer ({sig}, of it {caveat}), no GNSS fix to check it; a better "
+            "calibration gives a better heading (magcal)")
+
+    def _magnetometer_cause(self) -> str:
+        """Why the magnetometer does not hold the heading alone: it disagrees with GNSS (by how much, and whether
+        for want of a calibration), it has no calibration (or one stating no figure), or its calibration is
+        uncertain."""
+        d = self.disagreement_rad
+        by = f" by {abs(math.degrees(d)):.0f}°" if math.isfinite(d) else ""
+        if not math.isfinite(self.calibration_sigma_rad):
+            return f"magnetometer disagrees with GNSS{by}: {self._no_figure(short=False)}" if self.mag_inconsistent \
+                else self._no_figure(short=False)
+        if self.mag_inconsistent:
+            return f"magnetometer disagrees with GNSS{by}: calibration wrong or iron changed"
+        return f"magnetometer calibration uncertain (±{math.degrees(self.calibration_sigma_rad):.1f}°)"

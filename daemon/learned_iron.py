@@ -33,7 +33,7 @@ import logging
 import math
 import time
 from pathlib import Path
-from typing import Callable, Protocol
+from typing import Callable, NamedTuple, Protocol
 
 import numpy as np
 
@@ -80,6 +80,21 @@ def folded_iron(model: MagModel, mounting, offset_ut, soft_iron=None) -> MagMode
     return MagModel(model.hard_iron_ut + shift, c.T @ np.linalg.solve(a, c @ model.soft_iron))
 
 
+class Learned(NamedTuple):
+    """What an IronLearningEstimator has learned: the hard iron (µT, body) and its covariance (µT²), the soft iron
+    I + D (dimensionless) and the covariance of D."""
+
+    offset_ut: np.ndarray
+    cov_ut2: np.ndarray
+    soft_iron: np.ndarray
+    soft_cov: np.ndarray
+
+    def anything(self) -> bool:
+        """A hard iron or a soft iron other than none (what is worth accepting, showing as a source, or saving over
+        another source's file)."""
+        return bool(np.any(np.abs(self.offset_ut) > 0.0) or np.any(self.soft_iron != np.eye(3)))
+
+
 class IronPipeline(Protocol):
     """What the part reads of the per-sample path (daemon.pipeline.Pipeline), when it needs them: they are
     swapped between samples. An estimator that learns no iron (mekf) is not an IronLearningEstimator."""
@@ -122,7 +137,7 @@ class LearnedIron:
         self.rejections = 0                  # persisted irons dropped: another calibration or source, unreadable
         self._foreign = False                # the file holds another source's iron: kept until this one learns
         self.saves = 0
-        self._saved: tuple | None = None     # (offset, cov) last written
+        self._saved: Learned | None = None   # what was last written
         self._next_save = -math.inf
         self._next_publish = -math.inf
 
@@ -201,10 +216,10 @@ class LearnedIron:
         est = p.estimator
         if not isinstance(est, IronLearningEstimator):
             return False, "Learned iron: this estimator learns none"
-        offset, cov = est.learned_iron()
-        soft = est.learned_soft_iron()[0]
+        learned = self._current()
+        offset, cov, soft = learned.offset_ut, learned.cov_ut2, learned.soft_iron
         heading_sigma_rad = est.learned_iron_heading_sigma_rad()
-        if not (np.any(np.abs(offset) > 0.0) or np.any(soft != np.eye(3))):
+        if not learned.anything():
             return False, "Learned iron: nothing learned yet"
         current = p.calibration
         model = folded_iron(current.mag, p.mounting, offset, soft)
@@ -276,61 +291,65 @@ class LearnedIron:
         the estimator's floor for what a hard iron does not explain takes its place."""
         from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad
 
-        h = float(self.horizontal_field_ut())
-        if not (math.isfinite(h) and h > 1.0):
+        horizontal_ut = float(self.horizontal_field_ut())
+        if not (math.isfinite(horizontal_ut) and horizontal_ut > 1.0):
             return None
         # the learned iron's heading σ from its whole covariance when the estimator knows the field (with the soft
         # iron learned, the hard iron alone is poorly known on a level vehicle while their combination is not);
         # else the hard iron's horizontal σ over the horizontal field
-        iron = float(iron_sigma_rad)
-        if not math.isfinite(iron):
-            iron = math.sqrt(max(float(np.max(np.diag(cov)[:2])), 0.0)) / h
-        old = calibration_heading_sigma_rad(current)
-        if not math.isfinite(old):
+        iron_sigma_rad = float(iron_sigma_rad)
+        if not math.isfinite(iron_sigma_rad):
+            iron_sigma_rad = math.sqrt(max(float(np.max(np.diag(cov)[:2])), 0.0)) / horizontal_ut
+        old_sigma_rad = calibration_heading_sigma_rad(current)
+        if not math.isfinite(old_sigma_rad):
             from ahrsd.estimator.ins import DEFAULT_INS_PARAMS, Ins
 
             est = self.pipeline.estimator
-            old = (est.params if isinstance(est, Ins) else DEFAULT_INS_PARAMS).iron_unmodelled_ut / h
-        if not math.isfinite(old):
+            old_sigma_rad = (est.params if isinstance(est, Ins) else DEFAULT_INS_PARAMS).iron_unmodelled_ut / horizontal_ut
+        if not math.isfinite(old_sigma_rad):
             return None
-        return math.degrees(math.hypot(old, iron))
+        return math.degrees(math.hypot(old_sigma_rad, iron_sigma_rad))
 
     def _reject(self, why: str) -> None:
         self.rejections += 1
         log.warning("learned iron in %s dropped (%d so far): %s", self.path, self.rejections, why)
 
-    def _learned_something(self, cur) -> bool:
-        return bool(np.any(cur[0] != 0.0) or np.any(cur[2] != np.eye(3)))
-
-    def _current(self) -> tuple[np.ndarray, ...] | None:
-        """(hard iron, its covariance, soft iron I + D, the covariance of D) of the estimator, None without."""
+    def _current(self) -> Learned | None:
+        """What the estimator has learned, None with one that learns no iron."""
         est = self.pipeline.estimator
-        return (*est.learned_iron(), *est.learned_soft_iron()) if isinstance(est, IronLearningEstimator) else None
+        return Learned(*est.learned_iron(), *est.learned_soft_iron()) if isinstance(est, IronLearningEstimator) \
+            else None
 
     def _changed(self) -> bool:
         cur = self._current()
-        if cur is None or (self._foreign and not self._learned_something(cur)):
+        if cur is None or (self._foreign and not cur.anything()):
             return False
         return self._saved is None or not all(np.array_equal(a, b) for a, b in zip(cur, self._saved))
 
     def _publish_now(self) -> None:
+        """MAG_LRN_X/Y/Z/SD, MAG_LRN_SRC and the soft iron's MAG_LRN_S11 … S33, SSD, from what is learned now."""
         cur = self._current()
+        self._publish_hard_iron(cur)
+        learned = cur is not None and cur.anything()
+        self.publish(SOURCE_PARAM, float(SOURCE_CODES.get(self.pipeline.estimator.learned_iron_source, 0))
+                     if learned else 0.0)
+        self._publish_soft_iron(cur)
+
+    def _publish_hard_iron(self, cur: Learned | None) -> None:
         if cur is None:
             values = (0.0, 0.0, 0.0, NOT_LEARNING_SD)
         else:
-            offset, cov = cur[0], cur[1]
-            values = (*(float(v) for v in offset), math.sqrt(max(float(np.max(np.diag(cov))), 0.0)))
+            values = (*(float(v) for v in cur.offset_ut), math.sqrt(max(float(np.max(np.diag(cur.cov_ut2))), 0.0)))
         for name, v in zip(PARAM_NAMES, values):
             if math.isfinite(v):
                 self.publish(name, max(-MAX_PARAM_UT, min(MAX_PARAM_UT, v)))
-        learned = cur is not None and self._learned_something(cur)
-        self.publish(SOURCE_PARAM, float(SOURCE_CODES.get(self.pipeline.estimator.learned_iron_source, 0))
-                     if learned else 0.0)
+
+    def _publish_soft_iron(self, cur: Learned | None) -> None:
         if cur is None:
             soft, soft_sd = np.eye(3), NOT_LEARNING_SD
         else:
-            soft, soft_cov = cur[2], cur[3]
-            soft_sd = math.sqrt(max(float(np.max(np.diag(soft_cov))), 0.0))
+            soft = cur.soft_iron
+            soft_sd = math.sqrt(max(float(np.max(np.diag(cur.soft_cov))), 0.0))
             if soft_sd == 0.0 and np.array_equal(soft, np.eye(3)):
                 soft_sd = NOT_LEARNING_SD       # an estimator that learns no soft iron (mekf in turns)
         for name, v in zip((*SOFT_PARAM_NAMES, SOFT_SD_PARAM), (*np.asarray(soft, float).ravel(), soft_sd)):
@@ -339,12 +358,11 @@ class LearnedIron:
 
     def _payload(self) -> bytes:
         cur = self._current()
-        self._saved = tuple(a.copy() for a in cur)
-        offset, cov, soft, soft_cov = cur
+        self._saved = Learned(*(a.copy() for a in cur))
         doc = {"format": FILE_FORMAT, "schema_version": SCHEMA_VERSION, "calibration_key": self.key,
                "source": self.pipeline.estimator.learned_iron_source,
-               "offset_ut": offset.tolist(), "cov_ut2": cov.tolist(), "soft_iron": soft.tolist(),
-               "soft_cov": soft_cov.tolist(),
+               "offset_ut": cur.offset_ut.tolist(), "cov_ut2": cur.cov_ut2.tolist(), "soft_iron": cur.soft_iron.tolist(),
+               "soft_cov": cur.soft_cov.tolist(),
                "wall_time_s": time.time()}    # host clock: when it was saved, read across reboots
         return (json.dumps(doc, indent=1) + "\n").encode()
 

@@ -324,8 +324,7 @@ class MagCalProtocol:
         retry, autosave, autoreboot = (bool(f) for f in flags)
         if mask != 0 and not mask & OUR_MASK:
             return Refused(mavlink.MAV_RESULT_FAILED, f"Mag cal: no compass in mask {mask} (ours: compass 0)")
-        if self.host.armed() and not self.settings.allow_armed:
-            self.host.statustext(SEV_NOTICE, "Disarm to allow compass calibration")
+        if self._refused_while_armed():
             return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
         if self.calibrating:
             self.host.statustext(SEV_INFO, f"Mag cal already running ({self.session.completion_pct}%)")
@@ -428,10 +427,16 @@ class MagCalProtocol:
             return self._known_heading_offset(s, raw_mean, sensor, reference)
         return self._fixed_yaw_hard_iron(yaw_deg, raw_mean, sensor, reference)
 
-    def _not_ready_for_fixed_yaw(self) -> int | None:
-        """Why a fixed-yaw calibration cannot run now (said to the operator), as the result to answer; None: it can."""
+    def _refused_while_armed(self) -> bool:
+        """The autopilot reports armed and a calibration is not allowed then (`allow_armed`): said to the operator."""
         if self.host.armed() and not self.settings.allow_armed:
             self.host.statustext(SEV_NOTICE, "Disarm to allow compass calibration")
+            return True
+        return False
+
+    def _not_ready_for_fixed_yaw(self) -> int | None:
+        """Why a fixed-yaw calibration cannot run now (said to the operator), as the result to answer; None: it can."""
+        if self._refused_while_armed():
             return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
         if self.calibrating:
             self.host.statustext(SEV_NOTICE, "Mag cal running: cancel it before a fixed-yaw cal")

@@ -4,7 +4,7 @@ Who asks, and how often: PX4 sends TIMESYNC requests at 10 Hz on an onboard link
 (10 Hz by default), MAVSDK every 5 s. ArduPilot and PX4 themselves answer every request they receive (ArduPilot
 GCS_MAVLINK::handle_timesync drops an answer only when the link has no room for it, HAVE_PAYLOAD_SPACE; PX4
 MavlinkTimesync::handle_message answers unconditionally), which bounds the answers by the link on a radio but not
-on UDP, where a flooding or broken peer makes us send one answer per request (on the bench's flood, 333 a second).
+on UDP, where a flooding or broken peer makes us send one answer per request (bench/latency.py's flood, docs/daemon.md).
 So each sender — system and component id, on one endpoint — may have ANSWERS_PER_S answers a second with
 bursts of BURST: twice the fastest requester above, so no real requester ever loses an answer. A request beyond
 that is not answered: counted (`timesync_refused`, the stats file's "service" section), and logged — a

@@ -216,6 +216,24 @@ def test_the_declination_follows_a_moving_position_every_update_period():
     assert decl.rad == pytest.approx(earth_field(*AUTOPILOT_SITE).declination_rad, abs=1e-12)
 
 
+def test_the_first_gnss_fix_takes_the_declination_over_at_once():
+    """The receiver outranks the autopilot's position (and the remembered one, and the simulator's site): at its
+    first fix (`on_gnss_position`, GnssTask's) the declination is the receiver's place at once, not a whole
+    UPDATE_PERIOD_S later (a stepped clock that never reaches it)."""
+    t = [100.0]
+    src = Sources()
+    src.drop("config")
+    src.gnss = None                                  # no fix yet: the autopilot's position
+    decl = Declination(ParamStore(param_specs(Config())), src.resolver, signal_reset=lambda: None,
+                       clock=lambda: t[0])
+    decl.resolve(initial=True)
+    assert decl.rad == pytest.approx(earth_field(*AUTOPILOT_SITE).declination_rad, abs=1e-12)
+    src.gnss = GNSS_SITE
+    t[0] += 1.0
+    decl.on_gnss_position()
+    assert decl.rad == pytest.approx(earth_field(*GNSS_SITE).declination_rad, abs=1e-12)
+
+
 def test_a_broadcast_parameter_request_for_a_name_we_lack_is_not_ours_to_refuse():
     """A ground station asks every component (target_component 0) for the autopilot's parameters: a name we do
     not have is someone else's, so no STATUSTEXT and no refusal counted; addressed to us, it is refused, counted

@@ -266,6 +266,25 @@ def test_a_new_backend_is_one_class():
     assert rig.task.description == "a list" and rig.task.status(rig.clock.t) == "GNSS 3D 14 sats, unaided"
 
 
+def test_a_failing_subscriber_is_counted_and_the_others_still_get_every_fix():
+    """A subscriber that raises (one of the daemon's parts failing) neither takes the task down nor starves the
+    subscribers after it: each good fix reaches them, and each failure is counted."""
+    clock, recorder, after = Clock(), AidedEstimator(), []
+
+    def failing(fix):
+        raise RuntimeError("a faulty part")
+
+    task = GnssTask(ListBackend(EPOCHS, clock), GnssConfig(), clock=clock, estimator=Hook(recorder),
+                    statustext=lambda *a: None, subscribers=[failing, after.append])
+    task.open()
+    for fix in EPOCHS:
+        clock.t = fix.t_s
+        task.tick(clock.t)
+    task.close()
+    assert after == recorder.fixes and [f.lat_deg for f in after] == [f.lat_deg for f in GOOD]
+    assert task.counters.subscriber_errors == len(GOOD)
+
+
 def test_a_serial_backend_is_read_when_its_descriptor_is_readable():
     """On an event loop, the task watches the backend's descriptor: a fix written to the port is delivered
     without any housekeeping tick."""

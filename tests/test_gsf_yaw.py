@@ -158,6 +158,10 @@ def test_a_gnss_velocity_glitch_does_not_flip_the_yaw():
     assert np.abs(wrap_deg(glitched.err_deg - clean.err_deg))[after].max() < 0.1
     window = (glitched.t_s >= 80.0) & (glitched.t_s < 80.0 + 0.2 * (GsfParams().valid_fixes_required + 2))
     assert np.array_equal(glitched.valid[~window], clean.valid[~window])
+    # inside it, not valid from the rejection (the fix valid at 80.0 s arrives 0.1 s later) until the fifth good fix
+    # after it (valid at 81.0 s) has arrived, where the clean run was valid throughout
+    restarting = (glitched.t_s >= 80.2) & (glitched.t_s < 81.0)
+    assert restarting.any() and clean.valid[restarting].all() and not glitched.valid[restarting].any()
 
 
 def test_fixes_no_hypothesis_explains_restart_the_bank_which_converges_again():

@@ -28,6 +28,10 @@ CASES = {
     "unknown left only below the entry sigma": (
         [(0.0, G, HOVER), (10.0, G, HOVER), (20.0, G, LOW), (24.9, G, LOW), (25.0, G, LOW), (30.0, G, HOVER)],
         [U, U, U, U, G, G]),
+    # a better state that gives way to another better one before it held: the hold starts again for the new one
+    "the hold starts again when the waiting state changes": (
+        [(0.0, G, LOW), (3.0, M, LOW), (5.0, M, LOW), (7.9, M, LOW), (8.0, M, LOW)],
+        [U, U, U, U, M]),
     "an equally good other state waits too": (
         [(0.0, G, LOW), (5.0, G, LOW), (6.0, L, LOW), (7.0, G, LOW), (8.0, L, LOW), (13.0, L, LOW)],
         [U, G, G, G, G, L]),

@@ -289,6 +289,57 @@ def test_the_service_tells_the_heading_status_whether_a_calibration_is_in_force(
             stop_service(svc, loop)
 
 
+class CircleCheck:
+    """What HeadingStatus reads of the estimator's circle check (estimator/field_circle.FieldCircleResult): its
+    verdict on the claimed calibration variance, and the centre's offset."""
+
+    def __init__(self, verdict, offset_ut):
+        self.offset_ut = offset_ut
+        self._verdict = verdict
+        self.claimed = []
+
+    def verdict(self, claimed_var_rad2):
+        self.claimed.append(claimed_var_rad2)
+        return self._verdict
+
+
+def test_a_calibration_the_circle_finds_wrong_is_never_good_whatever_its_sigma_until_corrected():
+    """Without GNSS, a calibration the circle check finds wrong (off-centre 6.3 µT) is named as such, the
+    magnetometer is unhealthy and "heading good" is not said even with a small σ (1°, below the 5° limit); once
+    the correction learned from the turns makes the field consistent that is said, the magnetometer stays
+    unhealthy (the calibration in force is still wrong) and the heading is good again by its σ once it held. With
+    GNSS the check's verdict changes nothing (ins checks the heading itself). The check is asked on the
+    calibration's variance as the estimator states it (1σ 0.5°: (0.5°)², estimator/calibration_heading.py)."""
+    from ahrsd.estimator.field_circle import CalibrationVerdict
+
+    hs, texts = status(cal_sigma_deg=0.5)
+    wrong = CircleCheck(CalibrationVerdict.WRONG, 6.3)
+    for t in (0.0, ANNOUNCE_AFTER_S, 10.0):
+        hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 1.0, with_integrity=False), t, field_circle=wrong)
+        assert not hs.heading_good
+        assert hs.unhealthy_bits() == msgs.SENSOR_MAG | msgs.SENSOR_AHRS
+    assert wrong.claimed[0] == pytest.approx((0.5 * DEG) ** 2)
+    (sev, text), = texts
+    assert sev == mavlink.MAV_SEVERITY_WARNING
+    assert text.startswith("ahrsd: magnetometer field off-centre by 6.3 µT in turns: calibration wrong or iron "
+                           "changed; heading from magnetometer (±1.0°)"), text
+    assert hs.status_text() == "hdg mag uncal ±1.0°"
+    corrected = CircleCheck(CalibrationVerdict.CORRECTED, 6.1)
+    good = []
+    for t in (12.0, 12.0 + ANNOUNCE_AFTER_S, 13.0 + ANNOUNCE_AFTER_S):
+        hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 1.0, with_integrity=False), t, field_circle=corrected)
+        good.append(hs.heading_good)
+        assert hs.unhealthy_bits() & msgs.SENSOR_MAG
+    assert good == [False, True, True]
+    assert "off-centre by 6.1 µT in turns: learned correction applied, recalibrate to confirm" in texts[-1][1]
+    assert hs.active_detail() == "heading: mag field corrected 6.1 µT in turns"
+    hs, texts = status(cal_sigma_deg=0.5)                       # with GNSS: ins checks the heading
+    for t in (0.0, ANNOUNCE_AFTER_S):
+        hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 1.0), t, field_circle=wrong)
+    assert hs.heading_good and hs.unhealthy_bits() == 0
+    assert texts == [(mavlink.MAV_SEVERITY_INFO, "ahrsd: heading from magnetometer (±1.0°)")]
+
+
 def test_unknown_names_why_and_says_no_heading_is_sent():
     hs, texts = status()
     hs.on_estimate(estimate(HeadingState.UNKNOWN, 30.0, flags=EstimateFlags.INITIALISING), 0.0)
@@ -602,6 +653,8 @@ def test_the_calibrations_predicted_heading_error_reaches_ins_as_a_figure_or_unk
     assert math.isnan(calibration_heading_sigma_rad(cal("mag", model, heading_std_deg=0.3, offset_std_deg=None)))
     assert math.isnan(calibration_heading_sigma_rad(cal("mag", model, method="fixed-yaw")))
     assert math.isnan(calibration_heading_sigma_rad(Calibration.identity()))
+    # a negative figure is no figure (a corrupt or hand-edited file): unknown, not its magnitude
+    assert math.isnan(calibration_heading_sigma_rad(cal("mag", model, heading_std_deg=-0.3, offset_std_deg=0.4)))
     # `ahrsd calibrate mag`: the field residual over WMM's horizontal field at the fit site (Boulder, H ≈ 21 µT)
     from ahrsd.core.wmm import earth_field
 

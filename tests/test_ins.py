@@ -23,6 +23,7 @@ from ahrsd.estimator.ins import DEFAULT_INS_PARAMS, Ins
 from ahrsd.estimator.mekf import Mekf
 from ahrsd.simulation.errors import SensorErrors
 
+import ins_truth
 from ins_truth import (
     DECLINATION,
     attitude_error_ned,
@@ -241,18 +242,40 @@ def test_lever_arm_is_applied_to_position_and_velocity():
 
 @pytest.mark.parametrize("earth", ["wgs84", "sphere"])
 def test_position_follows_the_earth_model_the_fixes_are_on(earth):
-    """Fixes on the WGS-84 ellipsoid or on the R0 sphere: with the matching earth_model the position is
-    unbiased. With the other one the north scale is 0.3 % off (R vs R_N at 36°), which the position updates
-    absorb without changing the attitude."""
+    """Fixes on the WGS-84 ellipsoid or on the R0 sphere. Between fixes ins moves its position by its velocity over
+    the radii of its earth_model (L̇ = v_N/(R_N + h), λ̇ = v_E/((R_E + h) cos L), Groves eq. 2.111), radii computed
+    here (ins_truth.RADII): the two models differ by 0.3 % north and 0.1 % east at 36°, so an ins on the other
+    model's radii fails. With the matching earth_model the position is unbiased; with the other one the position
+    updates absorb the scale error without changing the attitude."""
     run, fixes, good = _clean("coordinated-turn", 150.0, earth=earth)     # on WGS-84: the outage test's run
     m = run.truth.t_s > 30.0
     other = "sphere" if earth == "wgs84" else "wgs84"
     mismatched = run_ins(Ins(declination_rad=DECLINATION, **CALIBRATED, earth_model=other), run, fixes)
+    for res, model in ((good, earth), (mismatched, other)):
+        north_scale, east_scale = _propagation_scales(res, run.truth.t_s, fixes, model)
+        assert abs(north_scale - 1.0) < 1e-5 and abs(east_scale - 1.0) < 1e-5, (model, north_scale, east_scale)
     err = position_error_ned(good, run.truth, earth)[m]
     assert np.linalg.norm(np.mean(err, axis=0)) < 0.3 and _rms(np.linalg.norm(err, axis=1)) < 0.5
     tilt_good, _ = tilt_heading_errors_deg(good.q_mag, run.truth.q_wxyz)
     tilt_other, _ = tilt_heading_errors_deg(mismatched.q_mag, run.truth.q_wxyz)
     assert abs(_rms(tilt_good[m]) - _rms(tilt_other[m])) < 0.05
+
+
+def _propagation_scales(res, t_s, fixes, earth) -> tuple[float, float]:
+    """(north, east): the least-squares ratio of ins's position steps between fixes, in metres on `earth`'s radii, to
+    its own velocity × Δt (trapezoid). 1 when it propagates on `earth`. The steps where a fix was applied are left
+    out."""
+    fixed = np.zeros(len(t_s), dtype=bool)
+    fixed[np.clip(np.searchsorted(t_s, [arrival for arrival, _ in fixes]), 0, len(t_s) - 1)] = True
+    between = ~fixed[1:] & np.isfinite(res.lat_rad[:-1]) & (t_s[1:] > 30.0)
+    lat = 0.5 * (res.lat_rad[1:] + res.lat_rad[:-1])
+    h = 0.5 * (res.h_m[1:] + res.h_m[:-1])
+    r_n, r_e = ins_truth.RADII[earth](lat)
+    north = (np.diff(res.lat_rad) * (r_n + h))[between]
+    east = (np.diff(res.lon_rad) * (r_e + h) * np.cos(lat))[between]
+    v_dt = (0.5 * (res.vel[1:] + res.vel[:-1]) * np.diff(t_s)[:, None])[between]
+    return (float(np.dot(north, v_dt[:, 0]) / np.dot(v_dt[:, 0], v_dt[:, 0])),
+            float(np.dot(east, v_dt[:, 1]) / np.dot(v_dt[:, 1], v_dt[:, 1])))
 
 
 # ------------------------------------------------------------------------------ bad GNSS input

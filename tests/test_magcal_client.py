@@ -129,6 +129,32 @@ def test_progress_is_shown_and_a_failed_session_is_cancelled_without_asking():
     assert conn.sent[-1] == client_module.MAV_CMD_DO_CANCEL_MAG_CAL and not asked
 
 
+def test_only_the_targets_messages_and_the_ack_of_the_command_sent_count():
+    """The link carries other systems too (the autopilot 1:1 calibrating its own compass) and ACKs of other
+    commands: the client takes the start's ACK and the report of its target (1:200) only. Here the autopilot's
+    failed report and a DENIED ACK of another command come first; the session still succeeds and is accepted."""
+    import ahrsd.cli.magcal_client as client_module
+
+    autopilot = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    theirs = mavlink.MAVLink(None).parse_char(bytearray(mavlink.MAVLink_mag_cal_report_message(
+        0, 1, mavlink.MAG_CAL_FAILED, 0, 2.0, 1, 2, 3, 1, 1, 1, 0, 0, 0).pack(autopilot)))
+    other_ack = wire(mavlink.MAVLink_command_ack_message(client_module.MAV_CMD_DO_ACCEPT_MAG_CAL,
+                                                         mavlink.MAV_RESULT_DENIED))
+
+    class _Conn(_ScriptedConn):
+        def _command(self, sys_id, comp, command, confirmation, *params):
+            super()._command(sys_id, comp, command, confirmation, *params)
+            if command == client_module.MAV_CMD_DO_START_MAG_CAL:
+                self.queued.insert(0, other_ack)
+
+    conn = _Conn([theirs, _report()])
+    out = io.StringIO()
+    client = MagCalClient(conn=conn, timeout_s=1.0, out=out, ask=lambda prompt: True)
+    client.sys, client.comp = 1, 200
+    assert client.start() == 0, out.getvalue()
+    assert conn.sent == [client_module.MAV_CMD_DO_START_MAG_CAL, client_module.MAV_CMD_DO_ACCEPT_MAG_CAL]
+
+
 class _UdpReceiveBuffer(_ScriptedConn):
     """The link as a UDP socket: at most CAPACITY datagrams wait to be read and the kernel drops what arrives
     while it is full. The daemon streams ATTITUDE and the rest to the terminal all the time."""

@@ -16,10 +16,13 @@ from ahrsd.estimator.published_heading import PublishedHeading
 RATE = math.radians(2.0)
 
 
-def test_a_turn_passes_unchanged():
-    """A 30 °/s turn, rolled 20° and pitched 10° (ψ̇ = (q sinφ + r cosφ)/cosθ): the offset stays zero."""
+@pytest.mark.parametrize("roll_deg, pitch_deg", [(20.0, 10.0), (60.0, 30.0)])
+def test_a_turn_passes_unchanged(roll_deg, pitch_deg):
+    """A 30 °/s turn, rolled and pitched (ψ̇ = (q sinφ + r cosφ)/cosθ): the offset stays zero. At 60° and 30° a
+    rate taken without the roll (r/cosθ: 15 °/s short) or without the pitch (4 °/s short) is wrong by more than the
+    2 °/s slew, which would otherwise hide it step by step."""
     ph = PublishedHeading(RATE)
-    roll, pitch = math.radians(20.0), math.radians(10.0)
+    roll, pitch = math.radians(roll_deg), math.radians(pitch_deg)
     psi_dot = math.radians(30.0)
     # body rates whose Euler yaw rate is psi_dot with φ̇ = θ̇ = 0: (p, q, r) = ψ̇ (−sinθ, sinφ cosθ, cosφ cosθ)
     w = psi_dot * np.array([-math.sin(pitch), math.sin(roll) * math.cos(pitch), math.cos(roll) * math.cos(pitch)])
@@ -48,6 +51,20 @@ def test_a_jump_is_absorbed_and_slewed_out_at_the_rate():
     assert np.max(np.abs(np.diff(p))) == pytest.approx(2.0 * dt, rel=1e-6)       # never faster than 2 °/s
     assert p[400 + int(round(4.9 / dt))] < 10.0 and p[400 + int(round(5.1 / dt))] == pytest.approx(10.0)
     assert ph.absorbed == 1
+
+
+def test_a_lost_filter_yaw_starts_the_published_heading_again():
+    """The filter's yaw not finite (its heading lost): the offset being slewed out is dropped, and the published
+    heading starts again from the filter's next yaw, whatever it is (a heading that comes back is no correction)."""
+    ph = PublishedHeading(RATE)
+    dt = 0.005
+    for k in range(10):
+        ph.update(k * dt, 0.0, 0.0, 0.0, (0.0, 0.0, 0.0))
+    assert ph.update(10 * dt, math.radians(10.0), 0.0, 0.0, (0.0, 0.0, 0.0)) == pytest.approx(
+        -math.radians(10.0) + RATE * dt)
+    assert ph.update(11 * dt, math.nan, 0.0, 0.0, (0.0, 0.0, 0.0)) == 0.0
+    assert ph.update(12 * dt, math.radians(40.0), 0.0, 0.0, (0.0, 0.0, 0.0)) == 0.0
+    assert ph.update(13 * dt, math.radians(40.0), 0.0, 0.0, (0.0, 0.0, 0.0)) == 0.0
 
 
 def test_a_faster_rate_is_held_to_2_deg_s_while_the_sigma_is_above_ekf3s_floor():

@@ -80,3 +80,21 @@ def test_the_same_estimate_is_never_sent_twice_as_a_vision_estimate_but_each_new
         usecs = [m.usec for m in _of(ep, VPE)]
         assert usecs == [int((1000.0 + 1.0) * 1e6), int((1000.0 + 1.040) * 1e6)]
         assert len(_of(ep, ATT)) == 4           # a display output is not limited
+
+
+def test_no_attitude_output_while_the_sensor_is_stalled_or_failed():
+    """docs/reliability.md: a data-ready stall or a sensor error stops the feed (CRITICAL) and it resumes by
+    itself. The last estimate stays in the pipeline, but neither ATTITUDE nor VISION_POSITION_ESTIMATE is built
+    from it while samples do not flow or the sensor reports an error."""
+    pubs, pipeline, endpoints = _rig(1)
+    flowing = [False]
+    pubs.health = SimpleNamespace(samples_flowing=lambda now: flowing[0], sensor_error=False)
+    pipeline.last_estimate = _estimate(1.0)
+    pubs.publish(10.0)                          # stalled
+    pubs.health.sensor_error = True
+    flowing[0] = True
+    pubs.publish(10.1)                          # flowing, but the sensor reports an error
+    assert endpoints[0].sent == []
+    pubs.health.sensor_error = False
+    pubs.publish(10.2)                          # resumed: the feed again
+    assert len(_of(endpoints[0], ATT)) == 1 and len(_of(endpoints[0], VPE)) == 1
