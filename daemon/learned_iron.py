@@ -173,7 +173,10 @@ class LearnedIron:
             return False
         self.restored = True
         self._saved = self._current()
-        log.info("learned iron restored: %s µT", np.round(self._saved[0], 2).tolist())
+        if self._saved.anything():
+            log.info("learned iron restored: %s µT", np.round(self._saved.offset_ut, 2).tolist())
+        else:       # the last run saved its (still zero) iron with its uncertainty: nothing learned to announce
+            log.info("learned iron: nothing learned yet on this calibration")
         self._publish_now()
         return True
 

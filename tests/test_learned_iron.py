@@ -67,6 +67,22 @@ def test_the_learned_iron_survives_a_restart_and_is_shown_read_only(tmp_path):
         stop_service(svc, loop)
 
 
+def test_a_run_that_learned_nothing_is_not_announced_as_a_restored_iron(tmp_path, caplog):
+    """A first run saves its still-zero iron at stop; the next start reads it back but has nothing learned to
+    announce (it used to log "learned iron restored: [0.0, 0.0, 0.0] µT" at every start)."""
+    CalibrationStore(tmp_path).save(_calibration())
+    svc, loop = _start(tmp_path)
+    stop_service(svc, loop)
+    assert (tmp_path / FILE_NAME).exists()
+    with caplog.at_level("INFO", logger="ahrsd.daemon.learned_iron"):
+        svc, loop = _start(tmp_path)
+        stop_service(svc, loop)
+    assert svc.learned_iron.restored
+    said = [r.getMessage() for r in caplog.records]
+    assert not any("learned iron restored" in m for m in said), said
+    assert any("nothing learned yet" in m for m in said), said
+
+
 def test_the_learned_soft_iron_survives_a_restart_too(tmp_path):
     CalibrationStore(tmp_path).save(_calibration())
     svc, loop = _start(tmp_path)
