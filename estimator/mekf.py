@@ -29,6 +29,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
 from ahrsd.core.sample import ImuSample
 
 from . import mekf_core as core
@@ -175,6 +176,13 @@ class MekfParams(MagHeadingParams):
     (calibration_heading.py): 0 = the input is calibrated (the library default); NaN = no calibration or its
     quality unknown, the heading is then UNKNOWN. The daemon passes its calibration's figure
     (`set_mag_calibration_sigma`)."""
+    accel_bias_sigma_m_s2: float = 5e-3 * STANDARD_GRAVITY_M_S2
+    """The accelerometer bias the input still carries, 1σ per axis, m/s²: the published roll/pitch 1σ add
+    its tilt b/g and the yaw 1σ tan(dip)·b/g (no state estimates it: at rest the levelling takes f/|f| as the
+    vertical). The default is the ADIS16405's residual turn-on bias after its factory calibration, 5 mg (the
+    simulator's draw, docs/simulation.md; the datasheet's uncalibrated worst case is 50 mg): an accelerometer
+    without a calibration of its own. With a six-position calibration applied, its bias 1σ
+    (calibration/inertial/accel.py quality["sigma_bias_m_s2"]); 0 = the input is exactly calibrated."""
     large_dt_s: float = 0.1
     """A step longer than this (or not positive) is flagged LARGE_DT, s."""
     reinit_dt_s: float = 2.0

@@ -177,6 +177,7 @@ MEKF_PARAMS_DTYPE = np.dtype([
     ("converged_tilt_rad", np.float64),
     ("converged_yaw_rad", np.float64),
     ("heading_calibration_var_rad2", np.float64),   # calibration_heading.py: the calibration's heading error, 1σ²
+    ("accel_bias_sigma_m_s2", np.float64),
     ("large_dt_s", np.float64),
     ("reinit_dt_s", np.float64),
 ])
@@ -906,16 +907,25 @@ def _fill_outputs(st, par, gx, gy, gz, out):
     # (b) the lean a turn or a speed change has left in the tilt and, through the dip, in the heading
     #     (`turn_lean.track_tilt_push`, `turn_lean.track_accel_push`), and the drift of the gyro bias learnt from
     #     motion while no levelling corrects it (`turn_lean.track_lean_bias_drift`)
+    # (c) the accelerometer's own bias, which no state carries: the levelling takes the vertical as f/|f|, so a
+    #     horizontal bias b tilts it by b/g about each horizontal axis (Groves 2013 §5.6.2, attitude
+    #     initialisation: the levelling error δθ ≈ b_a/g), and through the dip a tilt about north turns the
+    #     field's vertical part into east: a heading error tan(I)·b/g (with the magnetometer only)
     u = st.unmodelled
+    acc_bias_tilt_rad = par.accel_bias_sigma_m_s2 / st.g_ref_m_s2
+    acc_bias_tilt_rad2 = acc_bias_tilt_rad * acc_bias_tilt_rad
     extra = (_tilt_process_noise_rad2(par, math.sqrt(wx * wx + wy * wy + wz * wz), par.acc_lowpass_tau_s)
-             + tilt_pushes_rad(u) ** 2)
+             + tilt_pushes_rad(u) ** 2 + acc_bias_tilt_rad2)
     P = st.P
     sig = out.sigma_rpy_rad
     sig[0], sig[1] = tilt_sigma(cy, sy, P[E_TILT_N, E_TILT_N] + extra, P[E_TILT_N, E_TILT_E],
                                 P[E_TILT_E, E_TILT_E] + extra)
-    # (c) the heading error the magnetometer calibration left, which no magnetometer update can show
+    # (d) the heading error the magnetometer calibration left, which no magnetometer update can show
     #     (calibration_heading.py)
-    cal = par.heading_calibration_var_rad2 if par.mag_enabled else 0.0
+    cal = 0.0
+    if par.mag_enabled:
+        tan_dip = math.tan(st.mag.ref_dip_rad)
+        cal = par.heading_calibration_var_rad2 + tan_dip * tan_dip * acc_bias_tilt_rad2
     sig[2] = math.sqrt(max(P[E_HEADING, E_HEADING], 0.0) + u.heading_push_rad * u.heading_push_rad + cal)
     return F_INITIALISING if init else 0
 

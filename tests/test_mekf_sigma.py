@@ -38,7 +38,7 @@ def _run(t, heading_rad, speed_m_s, seed):
     gyro = gyro + math.radians(0.05) + ARW * math.sqrt(RATE_HZ) * rng.standard_normal((n, 3))
     acc = f_body + ACC_NOISE * rng.standard_normal((n, 3))
     mag = r.inv().apply(FIELD_NED) + 0.2 * rng.standard_normal((n, 3))
-    f = Mekf()
+    f = Mekf(accel_bias_sigma_m_s2=0.0)   # the accelerometer above has no bias (exactly calibrated)
     err = np.full((n, 3), np.nan)
     sig = np.full((n, 3), np.nan)
     for i in range(n):
