@@ -227,8 +227,8 @@ def calibrations(run: BoatRun, settled_tilt_sigma_deg: float | None = None,
                  acal_sigma_m_s2: float | None = None, levelling_params: dict | None = None) -> dict:
     """name -> MagFitResult. `acal_sigma_m_s2`: the `acal` bias prior (default ACCEL_BIAS_SIGMA_CALIBRATED_M_S2);
     `levelling_params`: InsParams overrides of the aided levelling filter (`filter_overrides`)."""
-    from ahrsd.calibration.mag.backstepping_aided import (ACCEL_BIAS_SIGMA_CALIBRATED_M_S2, SETTLED_TILT_SIGMA_DEG,
-                                                      fit_backstepping_aided)
+    from ahrsd.calibration.accel_trust import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
+    from ahrsd.calibration.mag.backstepping_aided import SETTLED_TILT_SIGMA_DEG, fit_backstepping_aided
     from ahrsd.calibration.mag.levelling import roll_pitch_from_estimator
     from ahrsd.calibration.mag.fit import fit_mag
 

@@ -90,7 +90,7 @@ def _exact(fixes, position: bool = True, velocity: bool = True):
 
 def variant_inputs(run: BoatRun, site_text, seed: int, name: str):
     """(data, fixes, accel-bias prior m/s², filter overrides) of one column."""
-    from ahrsd.calibration.mag.backstepping_aided import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
+    from ahrsd.calibration.accel_trust import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
     from ahrsd.calibration.mag.fit_types import MagFitInput
     from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
     from ahrsd.simulation import GnssErrors, simulate_gnss

@@ -772,17 +772,17 @@ def _levelling_accel_bias_prior(args, stored):
     """--gnss: the aided levelling's accelerometer-bias prior (m/s², None: the filter's default) and a note. The
     levelling cannot tell a bias from a tilt on a vehicle that stays level (calibration.backstepping_aided), so
     what splits them is the bench calibration: known to ~2 mg when there is one."""
-    from ahrsd.calibration.mag.backstepping_aided import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
-    from ahrsd.calibration.models import AccelModel
+    from ahrsd.calibration.accel_trust import calibration_accel_bias_sigma_m_s2
     from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
 
     mg = 1e-3 * STANDARD_GRAVITY_M_S2
     if args.accel_bias_sigma_mg is not None:
         return args.accel_bias_sigma_mg * mg, f"accelerometer bias prior {args.accel_bias_sigma_mg:g} mg (given)"
-    if stored.accel != AccelModel.identity():
+    calibrated_sigma_m_s2 = calibration_accel_bias_sigma_m_s2(stored)
+    if calibrated_sigma_m_s2 is not None:
         aligned = "face_alignment" in (stored.metadata.get("accel") or {})
-        return (ACCEL_BIAS_SIGMA_CALIBRATED_M_S2,
-                f"accelerometer calibrated: bias prior {ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 / mg:g} mg"
+        return (calibrated_sigma_m_s2,
+                f"accelerometer calibrated: bias prior {calibrated_sigma_m_s2 / mg:g} mg"
                 + ("" if aligned else "; its frame is not aligned to the housing (`ahrsd calibrate accel "
                    "--align-to-faces`: at a dip I, each 0.1° of the triad's rotation moves the heading by up to "
                    "0.1°·tan I; docs/calibration.md)"))

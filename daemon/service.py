@@ -50,6 +50,7 @@ from ahrsd.daemon.inbound import InboundDispatch
 from ahrsd.daemon.learned_iron import ACTION_PARAM as LEARNED_IRON_ACTION
 from ahrsd.daemon.learned_iron import CMD_LEARNED_IRON, LearnedIron
 from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad, has_mag_calibration
+from ahrsd.calibration.accel_trust import calibration_accel_bias_sigma_m_s2
 from ahrsd.daemon.magcal import DaemonMagCalHost, FieldCalibrationPart, MagCalProtocol
 from ahrsd.daemon.magcal_settings import MagCalSettings
 from ahrsd.daemon.mavlink_io import mavlink
@@ -76,7 +77,7 @@ from ahrsd.daemon.broadcast_notice import BroadcastNotice
 from ahrsd.estimator import make_estimator
 from ahrsd.daemon.estimator_news import estimator_news_muted
 from ahrsd.estimator.base import (Estimator, FieldCircleCheckedEstimator, HeadingCheckedEstimator,
-                                  MagCalibrationAwareEstimator)
+                                  MagCalibrationAwareEstimator, AccelCalibrationAwareEstimator)
 from ahrsd.estimator.warm_up import warm_up
 
 log = logging.getLogger(__name__)
@@ -385,7 +386,7 @@ class Service:
         calibration = CalibrationStore(self.state_dir).load()
         self._compile_estimator()
         mag_sigma_rad = calibration_heading_sigma_rad(calibration)    # the calibration's heading error (NaN: unknown)
-        self.use_pipeline(Pipeline(self._make_estimator(mag_sigma_rad), calibration))
+        self.use_pipeline(Pipeline(self._make_estimator(mag_sigma_rad, calibration), calibration))
         self.pipeline.set_mounting([self.params.get(n) for n in MOUNTING_PARAMS])
         self._start_heading_parts(mag_sigma_rad)
         self._setup_signing()
@@ -426,8 +427,9 @@ class Service:
         if took_s > 1.0:
             log.info("compiled the %s estimator in %.1f s (cached for the next start)", name, took_s)
 
-    def _make_estimator(self, mag_sigma_rad: float) -> Estimator:
-        """The configured estimator at the declination, told the calibration's heading error (NaN: unknown)."""
+    def _make_estimator(self, mag_sigma_rad: float, calibration) -> Estimator:
+        """The configured estimator at the declination, told the calibration's heading error (NaN: unknown) and
+        the accelerometer bias it leaves."""
         cfg = self.config
         options = dict(cfg.estimator_options)
         if cfg.estimator_name == "ins":
@@ -436,7 +438,14 @@ class Service:
         if "mag_calibration_sigma_rad" not in options and isinstance(estimator, MagCalibrationAwareEstimator):
             # mekf: without GNSS its published yaw σ carries the calibration's error (estimator/calibration_heading.py)
             estimator.set_mag_calibration_sigma(mag_sigma_rad)
+        self._tell_accel_calibration(estimator, calibration)
         return estimator
+
+    @staticmethod
+    def _tell_accel_calibration(estimator: Estimator, calibration) -> None:
+        """mekf: its published tilt σ carries the accelerometer bias the calibration leaves (calibration/accel_trust.py)."""
+        if isinstance(estimator, AccelCalibrationAwareEstimator):
+            estimator.set_accel_bias_sigma(calibration_accel_bias_sigma_m_s2(calibration))
 
     def _start_heading_parts(self, mag_sigma_rad: float) -> None:
         """The heading status reported (daemon.heading_status) and the learned iron restored and its command
@@ -592,6 +601,7 @@ class Service:
         est = self.pipeline.estimator
         if isinstance(est, MagCalibrationAwareEstimator):      # mekf, ins
             est.set_mag_calibration_sigma(sigma)
+        self._tell_accel_calibration(est, cal)
         if self.heading_status is not None:
             self.heading_status.set_calibration_sigma(sigma, in_force=has_mag_calibration(cal))
         if self.learned_iron is not None:

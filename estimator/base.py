@@ -65,6 +65,15 @@ class MagCalibrationAwareEstimator(Protocol):
 
 
 @runtime_checkable
+class AccelCalibrationAwareEstimator(Protocol):
+    """An estimator whose published tilt σ carries the accelerometer bias its input still has (1σ per axis, m/s²;
+    None: no accelerometer calibration, the estimator's default for the chip; calibration/accel_trust.py), told at
+    start and after every calibration change (mekf)."""
+
+    def set_accel_bias_sigma(self, sigma_m_s2: float | None) -> None: ...
+
+
+@runtime_checkable
 class FieldCircleCheckedEstimator(Protocol):
     """An estimator that checks its magnetometer calibration without GNSS by the circle the levelled field sweeps in
     turns (mekf: estimator/field_circle.py) and adds the heading error a wrong one implies to its published σ.

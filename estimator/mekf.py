@@ -181,8 +181,9 @@ class MekfParams(MagHeadingParams):
     its tilt b/g and the yaw 1σ tan(dip)·b/g (no state estimates it: at rest the levelling takes f/|f| as the
     vertical). The default is the ADIS16405's residual turn-on bias after its factory calibration, 5 mg (the
     simulator's draw, docs/simulation.md; the datasheet's uncalibrated worst case is 50 mg): an accelerometer
-    without a calibration of its own. With a six-position calibration applied, its bias 1σ
-    (calibration/inertial/accel.py quality["sigma_bias_m_s2"]); 0 = the input is exactly calibrated."""
+    without a calibration of its own. The daemon and `ahrsd replay --calibration` set the figure an accelerometer
+    calibration in force leaves (`set_accel_bias_sigma`, calibration/accel_trust.py); 0 = the input is exactly
+    calibrated."""
     large_dt_s: float = 0.1
     """A step longer than this (or not positive) is flagged LARGE_DT, s."""
     reinit_dt_s: float = 2.0
@@ -314,6 +315,15 @@ class Mekf:
         and the circle check (field_circle.py) starts again on it."""
         self.params = replace(self.params, mag_calibration_sigma_rad=float(sigma_rad))
         self._set_field_circle()        # it also states the calibration's variance to the kernel
+
+    def set_accel_bias_sigma(self, sigma_m_s2: float | None) -> None:
+        """The accelerometer bias the input still carries (1σ per axis, m/s²; None: no accelerometer calibration,
+        DEFAULT_MEKF_PARAMS' figure for the chip): from the next estimate the published tilt and yaw 1σ carry it."""
+        sigma = DEFAULT_MEKF_PARAMS.accel_bias_sigma_m_s2 if sigma_m_s2 is None else float(sigma_m_s2)
+        if not (math.isfinite(sigma) and sigma >= 0.0):
+            raise ValueError(f"accelerometer bias 1σ {sigma_m_s2!r}: expected a finite figure ≥ 0 m/s²")
+        self.params = replace(self.params, accel_bias_sigma_m_s2=sigma)
+        self._buf[0]["par"]["accel_bias_sigma_m_s2"] = sigma
 
     def _set_field_circle(self) -> None:
         """Start the circle check again (a new calibration, a reset). It runs while a calibration states its

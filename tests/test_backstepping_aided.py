@@ -55,7 +55,8 @@ def test_a_calibrated_accelerometer_lets_the_levelling_split_bias_from_tilt(capl
     tilt: with the accelerometer exactly calibrated but the filter's default (uncalibrated) bias prior, the
     smoothed horizon is still off; told the bias is known to ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 it is not
     (truth from the simulator, via scipy)."""
-    from ahrsd.calibration.mag.backstepping_aided import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2, aided_roll_pitch
+    from ahrsd.calibration.accel_trust import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
+    from ahrsd.calibration.mag.backstepping_aided import aided_roll_pitch
     from ahrsd.calibration.models import AccelModel
 
     caplog.set_level(logging.ERROR)

@@ -143,7 +143,7 @@ def test_aided_levelling_on_a_boat(tmp_path, ahrsd_inproc):
     # with an accelerometer calibration stored, the fit is told the bias prior (its JSON says what it got)
     import json
 
-    from ahrsd.calibration.mag.backstepping_aided import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
+    from ahrsd.calibration.accel_trust import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
     from ahrsd.calibration.models import AccelModel, Calibration
     from ahrsd.calibration.store import CalibrationStore
 
@@ -163,7 +163,7 @@ def test_the_levelling_bias_prior_follows_the_accelerometer_calibration(tmp_path
     given."""
     import argparse
 
-    from ahrsd.calibration.mag.backstepping_aided import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
+    from ahrsd.calibration.accel_trust import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
     from ahrsd.calibration.models import AccelModel, Calibration
     from ahrsd.cli.calibrate import _levelling_accel_bias_prior
 

@@ -45,7 +45,6 @@ import math
 
 import numpy as np
 
-from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
 from ahrsd.estimator import AIDED_ESTIMATOR
 
 from .levelling import attitude_from_estimator
@@ -58,10 +57,6 @@ MAG_HEADING_PASSES = 2          # aided levelling passes with the magnetometer (
 MAX_REJECTED_VELOCITY_FRACTION = 0.01   # of the offered fixes: more, and the filter did not converge
 MIN_SETTLED_FRACTION = 0.25    # fewer settled samples than this: fit them all (a short run)
 SMOOTH_LEVELLING = True        # level with the RTS smoother over the whole run (estimator/ins_smoother.py)
-ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 = 2e-3 * STANDARD_GRAVITY_M_S2   # residual accelerometer bias 1σ with a bench
-    # calibration in force: the fit's own uncertainty (its quality.sigma_bias_m_s2), the ADIS16405's 0.2 mg
-    # in-run instability, and a margin for the change between the bench power-up and the run's, which the data
-    # sheet does not give
 
 
 def aided_roll_pitch(data: MagFitInput, fixes, declination_rad: float, mag_enabled: bool = False,
