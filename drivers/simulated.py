@@ -480,7 +480,10 @@ class SimulatedAdis16405:
                 first_index = self._index + 1
                 start_s = self._seg_t0 + (first_index - self._seg_index0) / self._seg_rate
                 self._materialise_output()
-            if self._factory is not None:
+            restart = getattr(self._stream, "restart", None) if self._factory is not None else None
+            if restart is not None:        # a producer process: the same one, not a new import of the simulator
+                restart(self._rate, start_s)
+            elif self._factory is not None:
                 self._close_stream()
                 self._stream = self._factory(self._rate, start_s)
             else:
