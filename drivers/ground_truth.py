@@ -106,7 +106,8 @@ class GroundTruthSource(LiveSource):
         return self.inner.stats["open_attempts"] - self.inner.stats["open_failures"]
 
     def _rebase_faults(self, kinds_excluded=()) -> None:
-        base = max(0, self.chip.sample_index + 1, int(self.chip.now() * self.chip.sample_rate_hz) + 1)
+        # the chip's sample grid now (after a rate change at start-up: its segment at the written rate)
+        base = max(0, self.chip.sample_index + 1, self.chip.first_index_after(self.chip._t_origin + self.chip.now()))
         for f in self.chip.faults.faults:
             if f.kind.value in kinds_excluded:
                 continue

@@ -102,10 +102,20 @@ class _SettableClock:
         return self.t
 
 
+def _bursts(chip, clock: _SettableClock, n: int) -> list[bytes]:
+    """n burst reads of the chip, each in the middle of its sample period on the chip's (settable) clock."""
+    from ahrsd.drivers import registers as R
+
+    rx = []
+    for k in range(n):
+        clock.t = 100.0 + (k + 0.5) / chip.sample_rate_hz
+        rx.append(chip.transfer(R.BURST_COMMAND + bytes(R.BURST_DATA_BYTES), R.SPI_BURST_HZ, 0))
+    return rx
+
+
 def test_the_chip_computes_the_same_samples_in_its_producer_process():
     """drivers.sim_block_producer moves the simulator out of the reader's process, not what it computes: burst
     for burst across three 256-sample blocks, the same bytes as the producer thread's."""
-    from ahrsd.drivers import registers as R
     from ahrsd.drivers.simulated import SimulatedAdis16405
 
     out = {}
@@ -113,13 +123,9 @@ def test_the_chip_computes_the_same_samples_in_its_producer_process():
         clock = _SettableClock()
         chip = SimulatedAdis16405("level-turns", seed=5, clock=clock, producer=producer)
         try:
-            rx = []
-            for k in range(700):
-                clock.t = 100.0 + (k + 0.5) / chip.sample_rate_hz
-                rx.append(chip.transfer(R.BURST_COMMAND + bytes(R.BURST_DATA_BYTES), R.SPI_BURST_HZ, 0))
+            out[producer] = _bursts(chip, clock, 700)
         finally:
             chip.close()
-        out[producer] = rx
     assert len(set(out["thread"])) > 600                    # a moving scenario: the samples differ
     assert out["process"] == out["thread"]
 
@@ -284,13 +290,9 @@ def test_the_chip_restarts_its_producer_at_the_written_rate():
                 chip.transfer(frame, R.SPI_SLOW_HZ, 0)
             pids += chip.helper_pids()
             assert chip.sample_rate_hz == R.sample_rate_hz(0x07)
-            rx = []
-            for k in range(300):
-                clock.t = 100.0 + (k + 0.5) / chip.sample_rate_hz
-                rx.append(chip.transfer(R.BURST_COMMAND + bytes(R.BURST_DATA_BYTES), R.SPI_BURST_HZ, 0))
+            out[producer] = _bursts(chip, clock, 300)
         finally:
             chip.close()
-        out[producer] = rx
     assert len(pids) == 2 and pids[0] == pids[1]           # the process producer's, before and after
     assert len(set(out["thread"])) > 250
     assert out["process"] == out["thread"]
