@@ -106,8 +106,7 @@ class GroundTruthSource(LiveSource):
         return self.inner.stats["open_attempts"] - self.inner.stats["open_failures"]
 
     def _rebase_faults(self, kinds_excluded=()) -> None:
-        # the chip's sample grid now (after a rate change at start-up: its segment at the written rate)
-        base = max(0, self.chip.sample_index + 1, self.chip.first_index_after(self.chip._t_origin + self.chip.now()))
+        base = max(0, self.chip.sample_index + 1, self.chip.first_index_after_now())
         for f in self.chip.faults.faults:
             if f.kind.value in kinds_excluded:
                 continue

@@ -162,6 +162,11 @@ class SimulatedAdis16405:
         """The first sample index that becomes ready after `clock_time` (a value of the chip's clock)."""
         return self._seg_index0 + int(math.floor((clock_time - self._t_origin - self._seg_t0) * self._rate)) + 1
 
+    def first_index_after_now(self) -> int:
+        """The first sample index that becomes ready after now, on the grid of the chip's current rate (a rate
+        written at start-up starts a new grid: drivers.ground_truth rebases its fault plan on it)."""
+        return self.first_index_after(self._t_origin + self.now())
+
     @property
     def data_ready_on_dio1(self) -> bool:
         """MSC_CTRL routes data-ready to DIO1, active high (bit 2 enable, bit 1 polarity, bit 0 clear = DIO1)."""

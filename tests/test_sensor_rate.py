@@ -83,3 +83,38 @@ def test_the_daemon_reads_the_chip_at_the_rate_it_set(tmp_path):
     rates = [float(x) for x in re.findall(r"(\d+\.\d) SPS", out)]
     assert len(rates) >= 4, out[-2000:]
     assert statistics.median(rates[-5:]) == pytest.approx(102.4, rel=0.1)
+
+
+def test_run_time_faults_start_on_the_grid_of_the_written_rate():
+    """--sim-faults counts samples from the first read at the configured rate (drivers.ground_truth rebases the
+    plan there): the plan's sample 0 is the first sample whose data-ready edge comes after that read on the
+    chip's grid (0.3 s at 819.2 SPS from power-on to the start, which wrote SMPL_PRD 7, then 204.85 SPS) — not
+    1.8 s × 204.85 + 1, as if one rate had run since power-on: 0.3 s × (819.2 − 204.85) = 184 samples short."""
+    from reader_rig import FakeClock
+    from sim_streams import FixedStream
+
+    from ahrsd.drivers.faults import FaultPlan
+    from ahrsd.drivers.ground_truth import BurstIndexTap, GroundTruthSource
+    from ahrsd.drivers.reconnecting import ReconnectingSource
+    from ahrsd.drivers.simulated import SimulatedAdis16405
+    from ahrsd.drivers.source import open_chip_driver
+
+    clock = FakeClock(100.0)
+    plan = FaultPlan(seed=0)
+    fault = plan.add("stall", start_sample=0, stop_sample=10)
+    chip = SimulatedAdis16405(FixedStream([0.0, 0.0, 0.0], [0.0, 0.0, -R.STANDARD_GRAVITY_M_S2], [20.0, 0.0, 45.0]),
+                              clock=clock, faults=plan)
+    tap = BurstIndexTap(chip)
+    src = GroundTruthSource(ReconnectingSource(lambda: tap, open_chip_driver, "test chip", clock=clock,
+                                               reopen_same_bus=True, sample_rate_hz=204.8), chip, tap)
+    clock.t = 100.3                                       # the chip powered on 0.3 s before the daemon starts it
+    src.start()
+    assert read_smpl_prd(chip) == 0x07
+    at_start = fault.start_sample                         # (the start's own rebase comes first)
+    clock.t = 101.8
+    src.read_one(clock.t)
+    start = fault.start_sample - at_start
+    assert chip.ready_clock_time(start - 1) <= 101.8 < chip.ready_clock_time(start)   # the chip's DIO1 edges
+    assert chip.ready_clock_time(start) - chip.ready_clock_time(start - 1) == pytest.approx(8 / 1638.404)
+    assert fault.stop_sample == fault.start_sample + 10
+    assert start > int(1.8 * chip.sample_rate_hz) + 1 + 150       # the one-rate count is 184 samples short
