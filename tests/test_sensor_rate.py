@@ -2,7 +2,8 @@
 
 The register values are worked from the ADIS16405 datasheet (SMPL_PRD: t_S = t_B (N_S + 1), t_B = 1/1638.4 s with
 bit 7 clear), not from the code: 204.8 SPS is 1638.4 / 8, N_S = 7; 300 SPS lies between N_S = 4 (327.68 SPS) and
-N_S = 5 (273.07 SPS), and |ln(327.68/300)| = 0.088 < |ln(273.07/300)| = 0.094: the nearest setting is 4.
+N_S = 5 (273.07 SPS), and |ln(327.68/300)| = 0.088 < |ln(273.07/300)| = 0.094: the nearest setting is 4; 102.4 is
+1638.4 / 16 and 12.8 is 1638.4 / 128, the largest divisor.
 """
 
 from __future__ import annotations
@@ -25,8 +26,15 @@ def read_smpl_prd(chip) -> int:
     return int.from_bytes(rx, "big")
 
 
-@pytest.mark.parametrize("rate_hz, smpl_prd", [(204.8, 0x07), (300.0, 0x04)])
-def test_the_chip_is_set_to_the_nearest_smpl_prd_and_set_again_after_a_power_loss(rate_hz, smpl_prd):
+@pytest.mark.parametrize("rate_hz, smpl_prd", [(204.8, 0x07), (300.0, 0x04), (102.4, 0x0F), (819.2, 0x01),
+                                               (12.8, 0x7F)])
+def test_the_nearest_smpl_prd_is_the_datasheets(rate_hz, smpl_prd):
+    assert R.smpl_prd_for_rate(rate_hz) == smpl_prd
+    assert R.nearest_rate_hz(rate_hz) == pytest.approx(1638.404 / (smpl_prd + 1), rel=1e-12)
+
+
+def test_the_chip_is_set_to_the_nearest_smpl_prd_and_set_again_after_a_power_loss():
+    rate_hz, smpl_prd = 204.8, 0x07
     src = open_source(SensorConfig(source="sim", reader="event_loop", rate_hz=rate_hz), clock=time.monotonic)
     try:
         chip = src.chip
