@@ -20,6 +20,9 @@ def register(subparsers) -> None:
     src.add_argument("--iio", metavar="DEVICE", help="the ADIS16405 through the kernel's adis16400 IIO driver: "
                      "iio:deviceN, its name (adis16405) or its sysfs directory")
     src.add_argument("--replay", metavar="FILE", help="replay a recording made by `ahrsd record`")
+    p.add_argument("--rate-hz", metavar="SPS", type=float,
+                   help="--sim/--spi: the chip's output data rate, the nearest SMPL_PRD setting (default 819.2; "
+                   "lower costs less CPU: [sensor] rate_hz, docs/daemon.md)")
     p.add_argument("--replay-speed", metavar="X", type=float,
                    help="with --replay: replay X times faster than real time (default 1)")
     gnss = p.add_mutually_exclusive_group()
@@ -97,7 +100,7 @@ def _config(args):
                              gnss_replay=args.gnss_replay, gnss_serial=args.gnss_serial,
                              gnss_sim=args.gnss_sim, estimator=args.estimator,
                              log_dir=args.log_dir, log_enabled=False if args.no_log else None,
-                             nmea=args.nmea)
+                             nmea=args.nmea, rate_hz=args.rate_hz)
     if args.status_line:
         cfg = dataclasses.replace(cfg, daemon=DaemonConfig(status_line=args.status_line))
     return cfg
@@ -108,13 +111,13 @@ def _fault_plan(schedule: str, cfg):
     import sys
 
     from ahrsd.cli.fault_schedule import FaultScheduleError, build_plan, parse_schedule
-    from ahrsd.drivers.chip_source import ADIS16405_RATE_HZ
 
     if cfg.sensor.source != "sim":
         print("ahrsd run: error: --sim-faults needs the simulated sensor (--sim), not a real one", file=sys.stderr)
         return None
     try:
-        return build_plan(parse_schedule(schedule), ADIS16405_RATE_HZ, seed=cfg.sensor.seed)
+        # the schedule is in seconds; the plan counts the chip's samples, at the rate the chip will run at
+        return build_plan(parse_schedule(schedule), cfg.sensor.chip_rate_hz, seed=cfg.sensor.seed)
     except FaultScheduleError as exc:
         print(f"ahrsd run: error: --sim-faults: {exc}", file=sys.stderr)
         return None

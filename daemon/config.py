@@ -33,6 +33,7 @@ from typing import Any
 
 from ahrsd.core.state_dir import default_state_dir
 from ahrsd.daemon.magcal_settings import settings_from_mapping
+from ahrsd.drivers.registers import SMPL_PRD_DIVISOR_MASK, TIME_BASE_FAST_HZ, nearest_rate_hz
 from ahrsd.daemon.nmea_sentences import (DEFAULT_RATES_HZ, LOW_SPEED_BELOW_BAUD, LOW_SPEED_RATES_HZ, SENTENCE_IDS,
                                          worst_case_bytes)
 from ahrsd.daemon.output_profiles import DEFAULT_PROFILE, PROFILES
@@ -47,6 +48,11 @@ MIN_HEADING_SLEW_DEG_S = 0.1   # slower would take an hour for a 180° change
 MAX_HEADING_SLEW_DEG_S = 90.0
 SERIAL_DEFAULT_BAUD = 115200                   # pymavlink mavserial's default
 MIN_REPLAY_SPEED, MAX_REPLAY_SPEED = 0.01, 100.0
+# [sensor] rate_hz: the ADIS16405's default (SMPL_PRD 0x01) is the most the daemon is built and measured for;
+# the least is the fast time base's largest divisor (1638.404 / 128 = 12.8 SPS)
+CHIP_DEFAULT_RATE_HZ = 819.2
+MIN_RATE_HZ = TIME_BASE_FAST_HZ / (SMPL_PRD_DIVISOR_MASK + 1)
+STALE_PERIODS = 5          # sample periods within [sensor] stale_timeout_s: one late sample is no failure
 ENDPOINT_PREFIXES = ("udpout:", "udpin:", "udpbcast:", "udp:", "tcp:", "tcpin:", "uds:", "unix:")
 
 
@@ -173,6 +179,13 @@ class SensorConfig:
     mounting_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor axes in the body FRD, ZYX Euler deg
     poll_hz: float = 200.0              # replay: polls per second (the chip is read once per sample)
     stale_timeout_s: float = 0.1        # no new sample for this long = sensor failure
+    rate_hz: float = CHIP_DEFAULT_RATE_HZ   # sim/spi: the chip's output data rate, SPS (the nearest SMPL_PRD
+                                        # setting: 1638.404 / (N + 1)); lower costs less CPU (docs/daemon.md)
+
+    @property
+    def chip_rate_hz(self) -> float:
+        """The rate the chip runs at for `rate_hz` (its nearest SMPL_PRD setting)."""
+        return nearest_rate_hz(self.rate_hz)
 
     @classmethod
     def parse(cls, d: dict, prefix="sensor") -> "SensorConfig":
@@ -182,7 +195,9 @@ class SensorConfig:
             "seed": _number_in(0, 2**32 - 1, integer=True), "errors": _choice_of(("adis16405", "ideal")),
             "spi_device": _string, "replay_file": _string, "replay_realtime": _bool,
             "replay_speed": _number_in(MIN_REPLAY_SPEED, MAX_REPLAY_SPEED), "mounting_rpy_deg": _mounting,
-            "poll_hz": _number_in(10.0, 2000.0), "stale_timeout_s": _number_in(0.005, 10.0)}))
+            "poll_hz": _number_in(10.0, 2000.0), "stale_timeout_s": _number_in(0.005, 10.0),
+            "rate_hz": _number_in(MIN_RATE_HZ, CHIP_DEFAULT_RATE_HZ)}))
+        cfg.check_rate(prefix)
         if cfg.source == "replay" and not cfg.replay_file:
             raise _fail(f"{prefix}.replay_file", cfg.replay_file, "a recording path (required when source = 'replay')")
         if cfg.source == "iio" and not cfg.iio_device:
@@ -191,6 +206,19 @@ class SensorConfig:
         if cfg.source == "spi" and not cfg.spi_device.startswith("/dev/"):
             raise _fail(f"{prefix}.spi_device", cfg.spi_device, "a device path such as /dev/spidev0.0")
         return cfg
+
+    def check_rate(self, key: str) -> None:
+        """rate_hz is the SPI chip's SMPL_PRD: the kernel's IIO driver sets its own rate, a recording has one; and
+        a sample period must fit the stale timeout several times over, or a late sample is a sensor failure."""
+        if self.rate_hz != CHIP_DEFAULT_RATE_HZ and self.source in ("iio", "replay"):
+            how = ("the IIO driver's rate is its sysfs attribute sampling_frequency (echo 204.8 > "
+                   f"/sys/bus/iio/devices/{self.iio_device}/sampling_frequency), which the daemon reads"
+                   if self.source == "iio" else "a recording replays at the rate it was recorded at")
+            raise _fail(f"{key}.rate_hz", self.rate_hz, f"only for source = 'sim' or 'spi' (the chip's SMPL_PRD); {how}")
+        if self.stale_timeout_s < STALE_PERIODS / self.chip_rate_hz:
+            raise _fail(f"{key}.rate_hz", self.rate_hz, f"at {self.chip_rate_hz:.4g} SPS {STALE_PERIODS} sample "
+                        f"periods are {STALE_PERIODS / self.chip_rate_hz:.3g} s, longer than stale_timeout_s = "
+                        f"{self.stale_timeout_s:g}: raise the rate or stale_timeout_s")
 
 
 @dataclass(frozen=True)
@@ -636,6 +664,7 @@ class Config:
 
     def check(self) -> None:
         """The checks that involve several sections (run by with_overrides, once the flags are in)."""
+        self.sensor.check_rate("sensor")         # --iio or --replay may have replaced the file's chip
         if self.gnss.source == "replay" and self.sensor.source != "replay":
             raise _fail("gnss.source", "replay", "a GNSS recording replays in step with an IMU recording: "
                         "needs [sensor] source = 'replay' (--replay REC)")
@@ -650,7 +679,7 @@ class Config:
                        gnss_serial: str | None = None, gnss_sim: bool = False,
                        estimator: str | None = None,
                        log_dir: str | None = None, log_enabled: bool | None = None,
-                       nmea: list[str] | None = None) -> "Config":
+                       nmea: list[str] | None = None, rate_hz: float | None = None) -> "Config":
         """Apply command-line flags (they win over the file); values are validated like file values, in the order
         of the steps below (the first bad flag is the one reported)."""
         if sum(bool(x) for x in (gnss_replay, gnss_serial, gnss_sim)) > 1:
@@ -658,6 +687,10 @@ class Config:
         if sum(x is not None for x in (sim, spi, replay, iio)) > 1:
             raise ConfigError("--sim, --spi, --iio and --replay are mutually exclusive")
         cfg = self._with_sensor_flag(sim=sim, spi=spi, replay=replay, iio=iio)
+        if rate_hz is not None:
+            cfg = dataclasses.replace(cfg, sensor=dataclasses.replace(
+                cfg.sensor, rate_hz=_number("--rate-hz", rate_hz, MIN_RATE_HZ, CHIP_DEFAULT_RATE_HZ)))
+            cfg.sensor.check_rate("--rate-hz")
         cfg = cfg._with_output_flags(mavlink, nmea)
         if state_dir is not None:
             cfg = dataclasses.replace(cfg, state=StateConfig(dir=state_dir))

@@ -106,7 +106,7 @@ class GroundTruthSource(LiveSource):
         return self.inner.stats["open_attempts"] - self.inner.stats["open_failures"]
 
     def _rebase_faults(self, kinds_excluded=()) -> None:
-        base = max(0, self.chip.sample_index + 1, int(self.chip.now() * self.chip.sample_rate_hz) + 1)
+        base = max(0, self.chip.sample_index + 1, self.chip.first_index_after_now())
         for f in self.chip.faults.faults:
             if f.kind.value in kinds_excluded:
                 continue

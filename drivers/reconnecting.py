@@ -19,6 +19,7 @@ import time
 
 from ahrsd.drivers.chip_source import ADIS16405_RATE_HZ, ChipSource
 from ahrsd.drivers.errors import BusError, DriverError, SelfTestFailed
+from ahrsd.drivers.registers import nearest_rate_hz
 from ahrsd.drivers.sample_timer import StallAwareSampleTimer
 from ahrsd.drivers.source_interface import LiveSource
 
@@ -38,6 +39,8 @@ class ReconnectingSource(LiveSource):
     open_bus: () -> SpiBus, called for every (re)open (a real spidev node is re-opened; the simulated chip
         returns the same chip, which keeps running like a device that stays powered).
     make_driver: (bus) -> driver with start() and read_sample(stamp) (drivers.source.open_chip_driver).
+    sample_rate_hz: the chip's output data rate, written (SMPL_PRD, `start(sample_rate_hz=...)`) at every
+        (re)start: a chip that lost power comes back at its flash setting. None: the chip's own setting.
     """
 
     description: str
@@ -46,14 +49,17 @@ class ReconnectingSource(LiveSource):
     monotonic_offset_s = 0.0
 
     def __init__(self, open_bus, make_driver, description: str, *, clock=time.monotonic,
-                 reopen_same_bus: bool = False, make_timer=StallAwareSampleTimer):
+                 reopen_same_bus: bool = False, make_timer=StallAwareSampleTimer,
+                 sample_rate_hz: float | None = None):
         self._open_bus = open_bus
         self._make_driver = make_driver
         self._clock = clock
         self._reopen_same_bus = reopen_same_bus
         self._make_timer = make_timer      # (period_s) -> the sample timer (drivers.data_ready: edges)
         self.description = description
-        self.sample_rate_hz = ADIS16405_RATE_HZ
+        self._start_options = {} if sample_rate_hz is None else {"sample_rate_hz": sample_rate_hz}
+        # until the first start reads it back: the rate asked for (the reader paces a chip that is down by it)
+        self.sample_rate_hz = ADIS16405_RATE_HZ if sample_rate_hz is None else nearest_rate_hz(sample_rate_hz)
         self._inner: ChipSource | None = None   # created at the first successful start; keeps its SampleTimer
         self.bus = None
         self.driver = None
@@ -81,7 +87,7 @@ class ReconnectingSource(LiveSource):
                 self.driver = self._make_driver(self.bus)
             else:
                 self.driver.bus = self.bus
-            self.driver.start()
+            self.driver.start(**self._start_options)
         except DriverError as exc:
             self._failed(now, exc, opening=True)
             return False

@@ -306,6 +306,12 @@ def smpl_prd_for_rate(rate_hz: float) -> int:
     return best
 
 
+def nearest_rate_hz(rate_hz: float) -> float:
+    """The rate the chip runs at when asked for rate_hz: that of the nearest SMPL_PRD setting (204.8 ->
+    1638.404 / 8 = 204.8005)."""
+    return sample_rate_hz(smpl_prd_for_rate(rate_hz))
+
+
 # --------------------------------------------------------------------------------------------------------
 # SENS_AVG: gyro range and Bartlett filter                               # datasheet SENS_AVG register
 # --------------------------------------------------------------------------------------------------------

@@ -18,7 +18,11 @@ so nothing the reader waits on runs below it.
 Run as `python -m ahrsd.drivers.sim_block_producer SCENARIO RATE_HZ SEED ERRORS START_S BLOCK SLOTS FD`: FD is
 the shared memory file (HEADER bytes, then SLOTS blocks of BLOCK rows of COLUMNS float64s); it writes one byte
 on stdout per block made, reads one byte on stdin per slot handed back, and ends at the end of stdin or when
-stdout is closed (the chip closed, or its process ended). A subprocess rather than multiprocessing: the chip
+stdout is closed (the chip closed, or its process ended). A rate change (the chip's SMPL_PRD written) restarts
+the stream in the same process (`ProducedStream.restart`: RESTART, then the new rate and start time as two
+float64s on stdin; the producer empties its ring and answers RESTART on stdout before the new stream's blocks):
+a new process would import the simulator again, about half a CPU-second, at every daemon start with a
+configured rate. A subprocess rather than multiprocessing: the chip
 may itself live in a daemonic reader process (drivers.process_source), which multiprocessing does not let have
 children.
 """
@@ -27,6 +31,8 @@ from __future__ import annotations
 
 import mmap
 import os
+import select
+import struct
 import subprocess
 import sys
 import time
@@ -42,6 +48,9 @@ COLUMNS = (("t_s", 1), ("gyro_rad_s", 3), ("accel_m_s2", 3), ("mag_ut", 3), ("te
            ("truth_gyro_rad_s", 3))
 ROW = sum(w for _, w in COLUMNS)
 _TRUTH_Q, _TRUTH_GYRO = 1, 2
+BLOCK_DONE = b"\x01"     # stdout: a block is whole; stdin: a slot is handed back
+RESTART = b"\x02"        # stdin: RESTART + _RESTART_ARGS (rate_hz, start_s); stdout: the old stream's blocks end here
+_RESTART_ARGS = struct.Struct("<dd")
 
 
 def _columns() -> dict[str, slice]:
@@ -112,6 +121,29 @@ class ProducedStream:
             raise RuntimeError(f"the simulated chip's block producer ended (exit code {self._proc.poll()})")
         self._made += len(got)
 
+    def restart(self, rate_hz: float, start_s: float) -> None:
+        """The same scenario from `start_s` at `rate_hz` (the chip's rate changed), computed by the same process;
+        returns once the new stream's first block is whole (the chip's new sample grid starts then)."""
+        try:
+            self._proc.stdin.write(RESTART + _RESTART_ARGS.pack(float(rate_hz), float(start_s)))
+        except BrokenPipeError as exc:
+            raise RuntimeError(f"the simulated chip's block producer ended (exit code {self._proc.poll()})") from exc
+        out = self._proc.stdout.fileno()
+        while True:       # the old stream's blocks announced before the producer read RESTART are not wanted
+            if not select.select([out], [], [], POWER_ON_TIMEOUT_S)[0]:
+                self.close()
+                raise RuntimeError(f"the simulated chip's block producer did not restart in {POWER_ON_TIMEOUT_S:g} s")
+            got = os.read(out, 4 * self._slots)
+            if not got:
+                raise RuntimeError(f"the simulated chip's block producer ended (exit code {self._proc.poll()})")
+            at = got.find(RESTART)
+            if at >= 0:
+                self._made, self._taken = len(got) - at - 1, 0
+                break
+        if self._made == 0:
+            self._wait_for_blocks(POWER_ON_TIMEOUT_S)
+        self._truth = int(np.frombuffer(self._mem, dtype=np.int64, count=1)[0])
+
     def blocks_ahead(self) -> int:
         """Blocks made and not yet taken (non-blocking)."""
         import select
@@ -135,7 +167,7 @@ class ProducedStream:
         cols = {name: np.array(rows[:, s]) for name, s in _COL.items()}
         self._taken += 1
         try:
-            self._proc.stdin.write(b"\x01")    # the slot is free again
+            self._proc.stdin.write(BLOCK_DONE)    # the slot is free again
         except BrokenPipeError as exc:
             raise RuntimeError(f"the simulated chip's block producer ended (exit code {self._proc.poll()})") from exc
         return ChipBlock(cols["t_s"][:, 0], cols["gyro_rad_s"], cols["accel_m_s2"], cols["mag_ut"],
@@ -172,15 +204,33 @@ def main(argv: list[str]) -> int:
     block, slots = int(block), int(slots)
     mem = mmap.mmap(int(fd), HEADER_BYTES + slots * block * ROW * 8)
     ring = _ring(mem, block, slots)
-    stream = open_stream(scenario, rate_hz=float(rate_hz), seed=int(seed), errors=errors, start_s=float(start_s))
+    def opened(rate_hz: str | float, start_s: str | float):
+        return open_stream(scenario, rate_hz=float(rate_hz), seed=int(seed), errors=errors, start_s=float(start_s))
+
+    stream = opened(rate_hz, start_s)
     inp = sys.stdin.buffer.raw
     made = freed = 0
+    unread = b""            # what the chip sent and is not handled yet (a RESTART may arrive in pieces)
     while True:
-        while made - freed >= slots:                       # the ring is full: wait for the chip to take one
-            got = inp.read(slots)
+        # the chip's messages: waited for while the ring is full, else taken as they come
+        while made - freed >= slots or select.select([inp], [], [], 0)[0]:
+            got = inp.read(4096)
             if not got:
                 return 0
-            freed += len(got)
+            unread += got
+            while unread:
+                if unread[:1] == BLOCK_DONE:
+                    freed, unread = freed + 1, unread[1:]
+                elif len(unread) > _RESTART_ARGS.size:
+                    stream = opened(*_RESTART_ARGS.unpack_from(unread, 1))
+                    unread = unread[1 + _RESTART_ARGS.size:]
+                    made = freed = 0                       # the chip discards the old blocks
+                    try:
+                        os.write(out, RESTART)
+                    except BrokenPipeError:                # the chip closed meanwhile
+                        return 0
+                else:
+                    break                                  # the rest of a RESTART is still on its way
         blk = stream.next_block(block)
         if len(blk.t_s) != block:
             raise ValueError(f"the stream made {len(blk.t_s)} samples, {block} were asked")
@@ -197,7 +247,7 @@ def main(argv: list[str]) -> int:
             np.frombuffer(mem, dtype=np.int64, count=1)[0] = truth
         made += 1
         try:
-            os.write(out, b"\x01")                         # after the rows: the pipe orders the two
+            os.write(out, BLOCK_DONE)                      # after the rows: the pipe orders the two
         except BrokenPipeError:                            # the chip closed, or its process ended
             return 0
         # a short sleep between blocks: at the reader's SCHED_FIFO priority, filling the ring in one go would

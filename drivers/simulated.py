@@ -162,6 +162,11 @@ class SimulatedAdis16405:
         """The first sample index that becomes ready after `clock_time` (a value of the chip's clock)."""
         return self._seg_index0 + int(math.floor((clock_time - self._t_origin - self._seg_t0) * self._rate)) + 1
 
+    def first_index_after_now(self) -> int:
+        """The first sample index that becomes ready after now, on the grid of the chip's current rate (a rate
+        written at start-up starts a new grid: drivers.ground_truth rebases its fault plan on it)."""
+        return self.first_index_after(self._t_origin + self.now())
+
     @property
     def data_ready_on_dio1(self) -> bool:
         """MSC_CTRL routes data-ready to DIO1, active high (bit 2 enable, bit 1 polarity, bit 0 clear = DIO1)."""
@@ -480,7 +485,10 @@ class SimulatedAdis16405:
                 first_index = self._index + 1
                 start_s = self._seg_t0 + (first_index - self._seg_index0) / self._seg_rate
                 self._materialise_output()
-            if self._factory is not None:
+            restart = getattr(self._stream, "restart", None) if self._factory is not None else None
+            if restart is not None:        # a producer process: the same one, not a new import of the simulator
+                restart(self._rate, start_s)
+            elif self._factory is not None:
                 self._close_stream()
                 self._stream = self._factory(self._rate, start_s)
             else:

@@ -128,14 +128,20 @@ def _spi_chip_source(sensor_cfg, clock, faults) -> ReconnectingSource:
         raise ValueError("fault injection (--sim-faults) needs the simulated sensor, not --spi")
     path = sensor_cfg.spi_device
     spec = getattr(sensor_cfg, "data_ready", "")
+    rate = _chip_rate(sensor_cfg)
     if not spec:
         return ReconnectingSource(lambda: open_chip_bus("spi", spi_device=path), open_chip_driver,
-                                  f"ADIS16405 on {path}", clock=clock)
+                                  f"ADIS16405 on {path}", clock=clock, sample_rate_hz=rate)
     from ahrsd.drivers.data_ready import open_gpio_line
 
     return ReconnectingSource(lambda: open_chip_bus("spi", spi_device=path), _data_ready_driver,
                               f"ADIS16405 on {path}, paced by data-ready on {spec}", clock=clock,
-                              **_paced_by(open_gpio_line(spec)))
+                              sample_rate_hz=rate, **_paced_by(open_gpio_line(spec)))
+
+
+def _chip_rate(sensor_cfg) -> float | None:
+    """`[sensor] rate_hz`, written to the chip's SMPL_PRD at each (re)start (None: the chip's own setting)."""
+    return getattr(sensor_cfg, "rate_hz", None)
 
 
 def _simulated_chip_source(sensor_cfg, clock, faults):
@@ -155,7 +161,8 @@ def _simulated_chip_source(sensor_cfg, clock, faults):
         timing = _paced_by(SimulatedDataReadyLine(chip, host_clock=clock))
         what += ", paced by its data-ready line"
     return GroundTruthSource(ReconnectingSource(lambda: tap, _data_ready_driver if timing else open_chip_driver,
-                                                what, clock=clock, reopen_same_bus=True, **timing), chip, tap)
+                                                what, clock=clock, reopen_same_bus=True,
+                                                sample_rate_hz=_chip_rate(sensor_cfg), **timing), chip, tap)
 
 
 def reader_kind(sensor_cfg) -> str:

@@ -19,6 +19,7 @@ from ahrsd.daemon.config import ConfigError, EndpointConfig, parse_config
 from ahrsd.daemon.mavlink_io import mavlink
 from service_rig import start_service_on, stop_process, stop_service
 from bench.sim_calibration import save_mag_calibration, sim_chip_mag_model
+from support.ahrsd_process import LOW_RATE
 
 ATT, ATTQ, VPE = 30, 31, 102
 HIGHRES, SCALED, SYS_STATUS, HEARTBEAT = 105, 26, 1, 0
@@ -125,7 +126,7 @@ url = "udpout:127.0.0.1:{ap.getsockname()[1]}"
 profile = "autopilot"
 """)
     save_mag_calibration(tmp_path / "state", sim_chip_mag_model())      # no heading is sent on an uncalibrated one
-    proc = subprocess.Popen([str(AHRSD), "run", "--config", str(cfg), "--sim", "static", "--state-dir",
+    proc = subprocess.Popen([str(AHRSD), "run", "--config", str(cfg), "--sim", "static", *LOW_RATE, "--state-dir",
                              str(tmp_path / "state"), "--status-line", "off"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
     try:

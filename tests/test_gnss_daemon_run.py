@@ -15,16 +15,18 @@ import pytest
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.drivers.gnss.recording import read_gnss_recording
 from ahrsd.drivers.recording import read_recording
-from support.ahrsd_process import AHRSD, Daemon
+from support.ahrsd_process import AHRSD, LOW_RATE, Daemon
 
 GPS = mavlink.MAV_SYS_STATUS_SENSOR_GPS
 TIME_SHIFT_S = 5000.0          # recordings shifted here: far from any boot-relative or monotonic time
 
 
 def record(tmp_path, scenario="boat", seconds=12.0, *extra):
+    """A recording of the simulated chip at LOW_RATE (what these tests check is per fix and per message, not per
+    sample; the replays then run a quarter of the samples too)."""
     out = tmp_path / f"{scenario}.csv"
     res = subprocess.run([str(AHRSD), "record", "--sim", scenario, "--seconds", str(seconds), "-o", str(out),
-                          *extra], capture_output=True, text=True, timeout=120)
+                          *LOW_RATE, *extra], capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
     return out, res.stderr
 
@@ -134,7 +136,7 @@ def test_replay_carries_the_recording_time_and_replays_gnss_in_step(boat, tmp_pa
 
 def test_sim_receiver_on_a_pty(tmp_path):
     stats = tmp_path / "stats.json"
-    d = Daemon(tmp_path, "--gnss-sim", "--stats-file", str(stats), scenario="boat")
+    d = Daemon(tmp_path, "--gnss-sim", "--stats-file", str(stats), *LOW_RATE, scenario="boat")
     status, texts = None, []
     try:
         end = time.monotonic() + 40.0

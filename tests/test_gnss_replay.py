@@ -14,6 +14,7 @@ from ahrsd.cli.replay import AIDED_OUTPUT_HEADER, OUTPUT_HEADER
 from ahrsd.core.gnss import make_fix
 from ahrsd.core.sample import make_sample
 from ahrsd.estimator import make_estimator
+from support.ahrsd_process import LOW_RATE
 from ahrsd.estimator.replay import ATTITUDE_COLUMNS, HEADING_COLUMNS, NAV_COLUMNS, replay_attitude
 from test_gnss_daemon import FakeAided
 
@@ -137,7 +138,7 @@ def replay(*args):
 def boat(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("replay")
     rec = tmp / "boat.csv"
-    res = ahrsd("record", "--sim", "boat", "--seconds", "40", "-o", str(rec))
+    res = ahrsd("record", "--sim", "boat", "--seconds", "40", *LOW_RATE, "-o", str(rec))
     assert res.returncode == 0, res.stderr
     return rec, tmp / "boat.gnss.csv"
 
@@ -210,7 +211,8 @@ def test_a_recorded_antenna_lever_arm_replays_clean_only_when_given(tmp_path):
     (`--set lever_arm_m=...`) it does not. 20 s are enough: without the arm the gate rejects about half the
     velocities (the warning is for more than GATE_HINT_FRACTION, a tenth), with it none."""
     rec = tmp_path / "mast.csv"
-    res = ahrsd("record", "--sim", "boat", "--seconds", "20", "--gnss-lever-arm-m", "-1", "0", "-2", "-o", str(rec))
+    res = ahrsd("record", "--sim", "boat", "--seconds", "20", *LOW_RATE, "--gnss-lever-arm-m", "-1", "0", "-2", "-o",
+                str(rec))
     assert res.returncode == 0, res.stderr
     gnss = tmp_path / "mast.gnss.csv"
     res = replay(str(rec), "--gnss", str(gnss), "-o", str(tmp_path / "a.csv"))

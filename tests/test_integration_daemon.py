@@ -18,11 +18,12 @@ os.environ["MAVLINK20"] = "1"
 os.environ["MAVLINK_DIALECT"] = "ardupilotmega"
 
 from ahrsd.daemon.mavlink_io import mavlink  # noqa: E402  (selects MAVLink 2 / ardupilotmega)
-from support.ahrsd_process import GCS_COMP, GCS_SYS, OUR_COMP, Daemon  # noqa: E402
+from support.ahrsd_process import GCS_COMP, GCS_SYS, LOW_RATE, OUR_COMP, Daemon  # noqa: E402
 
 from ahrsd.calibration.models import Calibration  # noqa: E402
 from ahrsd.calibration.store import CalibrationStore
 from ahrsd.daemon import gyro_cal  # noqa: E402
+from ahrsd.drivers import registers as R  # noqa: E402
 from ahrsd.simulation import open_stream  # noqa: E402
 from bench.sim_calibration import sim_chip_mag_model  # noqa: E402
 
@@ -39,7 +40,7 @@ def assert_sent_at(stamps: list[tuple[float, object]], hz: float) -> None:
 
 @pytest.fixture(scope="module")
 def daemon(tmp_path_factory):
-    d = Daemon(tmp_path_factory.mktemp("ahrsd"), mag_calibrated=True)
+    d = Daemon(tmp_path_factory.mktemp("ahrsd"), *LOW_RATE, mag_calibrated=True)
     try:
         d.wait_active()
         yield d
@@ -193,9 +194,11 @@ def test_gyro_calibration_and_duplicate_command(daemon):
     saved = CalibrationStore(daemon.state_dir).load()
     sim_errors = open_stream("static", seed=0).errors           # the daemon's --sim static, default seed 0
     # the mean of DURATION_S of samples has σ = per-sample noise / sqrt(N) (0.954 °/s at 819.2 SPS -> 0.024 °/s
-    # over 2 s): allow 4σ of that plus 3σ of the in-run instability (a sign error is off by 2|bias| ≈ 0.4 °/s)
-    n = gyro_cal.DURATION_S * 819.2
-    atol = 4 * sim_errors.noise_std(819.2)["gyro_rad_s"] / math.sqrt(n) + 3 * math.radians(0.007)
+    # over 2 s, the same at the daemon's rate: the white noise's σ goes with sqrt(rate)): allow 4σ of that plus
+    # 3σ of the in-run instability (a sign error is off by 2|bias| ≈ 0.4 °/s)
+    rate_hz = R.nearest_rate_hz(float(LOW_RATE[1]))
+    n = gyro_cal.DURATION_S * rate_hz
+    atol = 4 * sim_errors.noise_std(rate_hz)["gyro_rad_s"] / math.sqrt(n) + 3 * math.radians(0.007)
     np.testing.assert_allclose(saved.gyro.bias_rad_s, sim_errors.gyro_bias_rad_s, atol=atol)
     np.testing.assert_array_equal(saved.gyro.matrix, np.eye(3))  # bias only: scale and misalignment kept
     identity = Calibration.identity()

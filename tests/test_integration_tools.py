@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from service_rig import free_udp_port, stop_process
-from support.ahrsd_process import OUR_COMP, Daemon
+from support.ahrsd_process import LOW_RATE, OUR_COMP, Daemon
 
 from ahrsd.daemon.mavlink_io import mavlink, mavutil
 
@@ -27,7 +27,7 @@ MAVPROXY = Path(sys.executable).with_name("mavproxy.py")
 
 @pytest.mark.skipif(not MAVPROXY.exists() and not shutil.which("mavproxy.py"), reason="MAVProxy not installed")
 def test_mavproxy_sees_our_heartbeat_and_attitude(tmp_path):
-    daemon = Daemon(tmp_path, mag_calibrated=True)  # daemon → udpout:P; MAVProxy masters udpin:P
+    daemon = Daemon(tmp_path, *LOW_RATE, mag_calibrated=True)  # daemon → udpout:P; MAVProxy masters udpin:P
     daemon.gcs.close()                            # MAVProxy takes the daemon's port instead of our client
     out_port = free_udp_port()
     client = mavutil.mavlink_connection(f"udpin:127.0.0.1:{out_port}", dialect="ardupilotmega")
@@ -88,7 +88,7 @@ def test_notify_watchdog_and_signing(tmp_path):
     cfg = tmp_path / "ahrsd.toml"
     cfg.write_text(f'[signing]\nkey_file = "{tmp_path / "key"}"\n')
     env = {"NOTIFY_SOCKET": str(notify_path), "WATCHDOG_USEC": "1000000"}
-    d = Daemon(tmp_path, "--config", str(cfg), env=env, mag_calibrated=True)
+    d = Daemon(tmp_path, "--config", str(cfg), *LOW_RATE, env=env, mag_calibrated=True)
     d.gcs.setup_signing(key, sign_outgoing=False, allow_unsigned_callback=lambda mav, mid: False)
     got: list[str] = []
 

@@ -25,6 +25,7 @@ from ahrsd.daemon.nmea_sentences import MAX_SENTENCE_CHARS, SENTENCE_IDS, build_
 from ahrsd.daemon.nmea_transport import SerialTransport, TcpServerTransport, TransportCounters, UdpTransport
 from ahrsd.simulation import open_stream
 from bench.sim_calibration import save_mag_calibration, sim_chip_mag_model
+from support.ahrsd_process import LOW_RATE
 
 RATE_HZ = 819.2
 DECLINATION_DEG = -7.3          # a westerly variation, so the sign of HDG's variation field is exercised
@@ -315,7 +316,7 @@ def test_the_daemon_sends_nmea_from_the_simulated_chip(tmp_path):
     rx.bind(("127.0.0.1", 0))
     rx.settimeout(180.0)
     proc = subprocess.Popen(
-        [sys.executable, "-m", "ahrsd.cli", "run", "--sim", "level-turns", "--no-log", "--status-line", "off",
+        [sys.executable, "-m", "ahrsd.cli", "run", "--sim", "level-turns", *LOW_RATE, "--no-log", "--status-line", "off",
          "--state-dir", str(tmp_path), "--mavlink", "udpout:127.0.0.1:9",
          "--nmea", f"udp:127.0.0.1:{rx.getsockname()[1]}"],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)

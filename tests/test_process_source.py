@@ -102,10 +102,20 @@ class _SettableClock:
         return self.t
 
 
+def _bursts(chip, clock: _SettableClock, n: int) -> list[bytes]:
+    """n burst reads of the chip, each in the middle of its sample period on the chip's (settable) clock."""
+    from ahrsd.drivers import registers as R
+
+    rx = []
+    for k in range(n):
+        clock.t = 100.0 + (k + 0.5) / chip.sample_rate_hz
+        rx.append(chip.transfer(R.BURST_COMMAND + bytes(R.BURST_DATA_BYTES), R.SPI_BURST_HZ, 0))
+    return rx
+
+
 def test_the_chip_computes_the_same_samples_in_its_producer_process():
     """drivers.sim_block_producer moves the simulator out of the reader's process, not what it computes: burst
     for burst across three 256-sample blocks, the same bytes as the producer thread's."""
-    from ahrsd.drivers import registers as R
     from ahrsd.drivers.simulated import SimulatedAdis16405
 
     out = {}
@@ -113,13 +123,9 @@ def test_the_chip_computes_the_same_samples_in_its_producer_process():
         clock = _SettableClock()
         chip = SimulatedAdis16405("level-turns", seed=5, clock=clock, producer=producer)
         try:
-            rx = []
-            for k in range(700):
-                clock.t = 100.0 + (k + 0.5) / chip.sample_rate_hz
-                rx.append(chip.transfer(R.BURST_COMMAND + bytes(R.BURST_DATA_BYTES), R.SPI_BURST_HZ, 0))
+            out[producer] = _bursts(chip, clock, 700)
         finally:
             chip.close()
-        out[producer] = rx
     assert len(set(out["thread"])) > 600                    # a moving scenario: the samples differ
     assert out["process"] == out["thread"]
 
@@ -239,6 +245,57 @@ def test_a_starved_producer_costs_no_block_while_its_ring_lasts():
         np.testing.assert_array_equal(blk.gyro_rad_s, want.gyro_rad_s)
         np.testing.assert_array_equal(blk.mag_ut, want.mag_ut)
         np.testing.assert_array_equal(blk.truth_q_wxyz, want.truth_q_wxyz)
+
+
+def test_a_rate_change_restarts_the_stream_in_the_same_producer_process():
+    """SMPL_PRD written ([sensor] rate_hz): the producer process that imported the simulator computes the new
+    rate's stream (a new process would import it again), and the chip takes the new stream's blocks only, not
+    the old rate's blocks the ring still held: the stream's own, from the new start time."""
+    from ahrsd.drivers import registers as R
+    from ahrsd.drivers.sim_block_producer import SLOTS, ProducedStream
+    from ahrsd.simulation import open_stream
+
+    rate_hz = R.sample_rate_hz(0x07)                       # 1638.404 / 8 = 204.8505 SPS
+    stream = ProducedStream("level-turns", 819.2, 4, "adis16405", 0.0, 256)
+    try:
+        stream.next_block(256)
+        _wait_ahead(stream, SLOTS)                         # old blocks made and announced: to be discarded
+        pid = stream.pid
+        stream.restart(rate_hz, 2.5)
+        blocks = [stream.next_block(256) for _ in range(3)]
+        assert stream.pid == pid and stream._proc.poll() is None
+    finally:
+        stream.close()
+    here = open_stream("level-turns", rate_hz=rate_hz, seed=4, errors="adis16405", start_s=2.5)
+    for blk in blocks:
+        want = here.next_block(256)
+        np.testing.assert_array_equal(blk.t_s, want.t_s)
+        np.testing.assert_array_equal(blk.gyro_rad_s, want.gyro_rad_s)
+        np.testing.assert_array_equal(blk.truth_q_wxyz, want.truth_q_wxyz)
+
+
+def test_the_chip_restarts_its_producer_at_the_written_rate():
+    """The simulated chip's SMPL_PRD write (the driver's configure) reaches its producer process: the bursts
+    after it are the thread producer's, byte for byte, on the new rate's grid."""
+    from ahrsd.drivers import registers as R
+    from ahrsd.drivers.simulated import SimulatedAdis16405
+
+    out, pids = {}, []
+    for producer in ("thread", "process"):
+        clock = _SettableClock()
+        chip = SimulatedAdis16405("level-turns", seed=5, clock=clock, producer=producer)
+        try:
+            pids += chip.helper_pids()
+            for frame in R.write_frames(R.SMPL_PRD, 0x07):
+                chip.transfer(frame, R.SPI_SLOW_HZ, 0)
+            pids += chip.helper_pids()
+            assert chip.sample_rate_hz == R.sample_rate_hz(0x07)
+            out[producer] = _bursts(chip, clock, 300)
+        finally:
+            chip.close()
+    assert len(pids) == 2 and pids[0] == pids[1]           # the process producer's, before and after
+    assert len(set(out["thread"])) > 250
+    assert out["process"] == out["thread"]
 
 
 def test_a_realtime_reader_gives_its_chips_producer_its_own_priority():

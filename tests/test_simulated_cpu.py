@@ -37,6 +37,9 @@ class BusyChip:
     def now(self) -> float:
         return 0.0
 
+    def first_index_after_now(self) -> int:
+        return int(self.now() * self.sample_rate_hz) + 1     # one rate from power-on: the grid is now × rate
+
     def transfer(self, tx: bytes, speed_hz: int, delay_us: int = 0) -> bytes:
         _spin(CHIP_S)
         self.sample_index += 1

@@ -18,6 +18,9 @@ from service_rig import free_udp_port, stop_process  # noqa: E402
 REPO = Path(__file__).resolve().parents[2]
 AHRSD = Path(sys.executable).with_name("ahrsd")   # the console script installed beside the interpreter
 OUR_COMP = 200
+# `ahrsd run --sim` for a test whose guard is not the chip's rate (outputs, commands, GNSS, watchdog): the chip at
+# a quarter of its 819.2 SPS ([sensor] rate_hz, SMPL_PRD 7), a quarter of the reader's and estimator's samples
+LOW_RATE = ("--rate-hz", "204.8")
 GCS_SYS, GCS_COMP = 255, 190
 
 

@@ -1,0 +1,128 @@
+"""`[sensor] rate_hz` / `ahrsd run --rate-hz`: the chip's output data rate, written to its SMPL_PRD.
+
+The register values are worked from the ADIS16405 datasheet (SMPL_PRD: t_S = t_B (N_S + 1), t_B = 1/1638.4 s with
+bit 7 clear), not from the code: 204.8 SPS is 1638.4 / 8, N_S = 7; 300 SPS lies between N_S = 4 (327.68 SPS) and
+N_S = 5 (273.07 SPS), and |ln(327.68/300)| = 0.088 < |ln(273.07/300)| = 0.094: the nearest setting is 4; 102.4 is
+1638.4 / 16 and 12.8 is 1638.4 / 128, the largest divisor.
+"""
+
+from __future__ import annotations
+
+import re
+import statistics
+import time
+
+import pytest
+
+from ahrsd.daemon.config import Config, ConfigError, SensorConfig
+from ahrsd.drivers import registers as R
+from ahrsd.drivers.source import open_source
+
+
+def read_smpl_prd(chip) -> int:
+    """SMPL_PRD as a host reads it over the chip's SPI bytes: the address, then the value in the next frame."""
+    chip.transfer(R.read_frame(R.SMPL_PRD), R.SPI_SLOW_HZ, 50)
+    rx = chip.transfer(R.read_frame(R.PRODUCT_ID), R.SPI_SLOW_HZ, 50)
+    return int.from_bytes(rx, "big")
+
+
+@pytest.mark.parametrize("rate_hz, smpl_prd", [(204.8, 0x07), (300.0, 0x04), (102.4, 0x0F), (819.2, 0x01),
+                                               (12.8, 0x7F)])
+def test_the_nearest_smpl_prd_is_the_datasheets(rate_hz, smpl_prd):
+    assert R.smpl_prd_for_rate(rate_hz) == smpl_prd
+    assert R.nearest_rate_hz(rate_hz) == pytest.approx(1638.404 / (smpl_prd + 1), rel=1e-12)
+
+
+def test_the_chip_is_set_to_the_nearest_smpl_prd_and_set_again_after_a_power_loss():
+    rate_hz, smpl_prd = 204.8, 0x07
+    src = open_source(SensorConfig(source="sim", reader="event_loop", rate_hz=rate_hz), clock=time.monotonic)
+    try:
+        chip = src.chip
+        assert read_smpl_prd(chip) == smpl_prd
+        assert src.sample_rate_hz == pytest.approx(1638.404 / (smpl_prd + 1), rel=1e-12)
+        chip.power_cycle()                            # power lost: the chip is back at its flash setting
+        assert read_smpl_prd(chip) == 0x01
+        src.inner._try_open(time.monotonic())         # the re-open after the bus failure that follows
+        assert read_smpl_prd(chip) == smpl_prd
+    finally:
+        src.close()
+        src.chip.close()
+
+
+@pytest.mark.parametrize("doc, hint", [
+    ({"rate_hz": 900.0}, "[12.8, 819.2]"),
+    ({"rate_hz": 12.0}, "[12.8, 819.2]"),
+    ({"rate_hz": 40.0}, "stale_timeout_s"),              # 5 periods of 39.96 SPS = 0.125 s > 0.1 s
+    ({"rate_hz": "fast"}, "a number"),
+    ({"source": "iio", "rate_hz": 204.8}, "sampling_frequency"),
+    ({"source": "replay", "replay_file": "r.csv", "rate_hz": 204.8}, "recorded at"),
+])
+def test_a_rate_the_chip_or_the_source_cannot_have_is_refused_by_name(doc, hint):
+    with pytest.raises(ConfigError) as exc:
+        SensorConfig.parse(doc)
+    assert "sensor.rate_hz" in str(exc.value) and hint in str(exc.value)
+
+
+def test_the_flag_is_checked_as_the_key_is_and_a_replay_refuses_the_files_rate():
+    assert Config().with_overrides(rate_hz=204.8).sensor.chip_rate_hz == pytest.approx(1638.404 / 8, rel=1e-12)
+    assert SensorConfig.parse({"rate_hz": 40.0, "stale_timeout_s": 0.2}).chip_rate_hz == \
+        pytest.approx(1638.404 / 41, rel=1e-12)          # N_S = 40: 39.96 SPS, 5 periods = 0.125 s < 0.2 s
+    with pytest.raises(ConfigError, match=r"--rate-hz.*recorded at"):
+        Config().with_overrides(rate_hz=204.8, replay="r.csv")
+    with pytest.raises(ConfigError, match=r"--rate-hz.*819.2"):
+        Config().with_overrides(rate_hz=1000.0)
+    from_file = Config(sensor=SensorConfig.parse({"rate_hz": 204.8}))
+    with pytest.raises(ConfigError, match=r"sensor.rate_hz.*sampling_frequency"):
+        from_file.with_overrides(iio="iio:device0")
+
+
+def test_the_daemon_reads_the_chip_at_the_rate_it_set(tmp_path):
+    """`ahrsd run --rate-hz 102.4`: the status line's measured rate is the chip's 1638.404 / 16 = 102.4 SPS, not
+    the 819.2 of a chip left at its default (median of the 1 s windows: a window can miss or catch up a block)."""
+    from support.ahrsd_process import Daemon
+
+    d = Daemon(tmp_path, "--rate-hz", "102.4", "--status-line", "on", mag_calibrated=True)
+    try:
+        d.wait_active()
+        time.sleep(6.0)
+    finally:
+        d.stop()
+    out = d.log_path.read_text()
+    rates = [float(x) for x in re.findall(r"(\d+\.\d) SPS", out)]
+    assert len(rates) >= 4, out[-2000:]
+    assert statistics.median(rates[-5:]) == pytest.approx(102.4, rel=0.1)
+
+
+def test_run_time_faults_start_on_the_grid_of_the_written_rate():
+    """--sim-faults counts samples from the first read at the configured rate (drivers.ground_truth rebases the
+    plan there): the plan's sample 0 is the first sample whose data-ready edge comes after that read on the
+    chip's grid (0.3 s at 819.2 SPS from power-on to the start, which wrote SMPL_PRD 7, then 204.85 SPS) — not
+    1.8 s × 204.85 + 1, as if one rate had run since power-on: 0.3 s × (819.2 − 204.85) = 184 samples short."""
+    from reader_rig import FakeClock
+    from sim_streams import FixedStream
+
+    from ahrsd.drivers.faults import FaultPlan
+    from ahrsd.drivers.ground_truth import BurstIndexTap, GroundTruthSource
+    from ahrsd.drivers.reconnecting import ReconnectingSource
+    from ahrsd.drivers.simulated import SimulatedAdis16405
+    from ahrsd.drivers.source import open_chip_driver
+
+    clock = FakeClock(100.0)
+    plan = FaultPlan(seed=0)
+    fault = plan.add("stall", start_sample=0, stop_sample=10)
+    chip = SimulatedAdis16405(FixedStream([0.0, 0.0, 0.0], [0.0, 0.0, -R.STANDARD_GRAVITY_M_S2], [20.0, 0.0, 45.0]),
+                              clock=clock, faults=plan)
+    tap = BurstIndexTap(chip)
+    src = GroundTruthSource(ReconnectingSource(lambda: tap, open_chip_driver, "test chip", clock=clock,
+                                               reopen_same_bus=True, sample_rate_hz=204.8), chip, tap)
+    clock.t = 100.3                                       # the chip powered on 0.3 s before the daemon starts it
+    src.start()
+    assert read_smpl_prd(chip) == 0x07
+    at_start = fault.start_sample                         # (the start's own rebase comes first)
+    clock.t = 101.8
+    src.read_one(clock.t)
+    start = fault.start_sample - at_start
+    assert chip.ready_clock_time(start - 1) <= 101.8 < chip.ready_clock_time(start)   # the chip's DIO1 edges
+    assert chip.ready_clock_time(start) - chip.ready_clock_time(start - 1) == pytest.approx(8 / 1638.404)
+    assert fault.stop_sample == fault.start_sample + 10
+    assert start > int(1.8 * chip.sample_rate_hz) + 1 + 150       # the one-rate count is 184 samples short
