@@ -399,6 +399,36 @@ def test_the_health_report_sends_one_heartbeat_a_second_on_a_stepped_clock():
     assert notifier.watchdogs == 0                    # no samples flow: systemd must be able to restart us
 
 
+def test_the_watchdog_goes_out_once_an_interval_while_samples_flow_on_a_stepped_clock():
+    """WATCHDOG=1 every watchdog_interval_s while samples flow (sd_watchdog_enabled(3)): with a 2 s interval,
+    10 s at 8 Hz sends one at 100, 102, ..., 110 s (6); after the samples stop, none."""
+    class Counts:
+        samples = 0
+
+    class Notifier:
+        def __init__(self):
+            self.watchdogs = 0
+
+        def status(self, text):
+            pass
+
+        def watchdog(self):
+            self.watchdogs += 1
+
+    outbound = Outbound(Identity(1, 191, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), ServiceCounters(),
+                        clock=lambda: 0.0)
+    health, notifier = Health(stale_timeout_s=0.5), Notifier()
+    report = HealthReport(health, outbound, notifier, Counts(), watchdog_interval_s=2.0, start=100.0)
+    for k in range(81):                               # steps of 0.125 s: exact in binary
+        health.sample_read(100.0 + 0.125 * k)
+        report(100.0 + 0.125 * k)
+    assert notifier.watchdogs == 6
+    for k in range(1, 41):                            # 5 s on: the reader looks and finds nothing
+        health.empty_read(110.0 + 0.125 * k)
+        report(110.0 + 0.125 * k)
+    assert notifier.watchdogs == 6
+
+
 def test_heading_resets_count_and_end_a_slew():
     resets = HeadingResets(HeadingSlew(max_rate_deg_s=5.0), reset_counter=3)
     resets.slew.start_transition()
