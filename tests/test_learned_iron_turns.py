@@ -115,6 +115,16 @@ def test_with_the_learning_switched_off_it_is_not_applied(learned, tmp_path):
     assert part.restore() is False and part.rejections == 1 and not np.any(f.learned_iron()[0])
 
 
+def test_a_saved_correction_with_a_vertical_part_is_a_counted_rejection(learned, tmp_path):
+    """The turns learn no vertical iron (a level circle's centre is horizontal): a file claiming one was not
+    written by them, so none of it is applied (FieldCircleCorrection.restore refuses it)."""
+    state_dir, doc, _, _ = learned
+    (tmp_path / FILE_NAME).write_text(json.dumps({**doc, "offset_ut": [*doc["offset_ut"][:2], 1.0]}))
+    f = _new_mekf()
+    part, _, _ = _store(tmp_path, f, _calibration())
+    assert part.restore() is False and part.rejections == 1 and not np.any(f.learned_iron()[0])
+
+
 @pytest.mark.parametrize("text", ["{not json", json.dumps({"format": "something else"})])
 def test_a_corrupt_file_is_a_counted_rejection(tmp_path, text):
     (tmp_path / FILE_NAME).write_text(text)
