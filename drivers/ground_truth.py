@@ -87,6 +87,7 @@ class GroundTruthSource(LiveSource):
         self._measured_reads = 0
         self._bookkeeping_cpu_s = 0.0     # thread CPU time of this truth bookkeeping (`_account`), measured reads
         self._reads_since = 0.0          # CLOCK_MONOTONIC of the first read
+        self._planned: dict[int, tuple[int, int | None]] | None = None   # id(fault): its plan's (start, stop)
 
     # what the inner source says
     description = property(lambda self: self.inner.description)
@@ -106,13 +107,18 @@ class GroundTruthSource(LiveSource):
         return self.inner.stats["open_attempts"] - self.inner.stats["open_failures"]
 
     def _rebase_faults(self, kinds_excluded=()) -> None:
+        """Place the faults (but `kinds_excluded`) at their planned sample counted from the next sample. Each
+        from its plan, not from where an earlier rebase put it: run-time faults are placed at the start (so
+        the start's transfers do not meet them) and again at the first read, whose base alone must count."""
         base = max(0, self.chip.sample_index + 1, self.chip.first_index_after_now())
+        if self._planned is None:
+            self._planned = {id(f): (f.start_sample, f.stop_sample) for f in self.chip.faults.faults}
         for f in self.chip.faults.faults:
             if f.kind.value in kinds_excluded:
                 continue
-            f.start_sample += base
-            if f.stop_sample is not None:
-                f.stop_sample += base
+            start, stop = self._planned.get(id(f), (f.start_sample, f.stop_sample))
+            f.start_sample = start + base
+            f.stop_sample = None if stop is None else stop + base
 
     def start(self) -> None:
         self._rebase_faults()

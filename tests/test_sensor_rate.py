@@ -110,6 +110,7 @@ def test_run_time_faults_start_on_the_grid_of_the_written_rate():
     clock = FakeClock(100.0)
     plan = FaultPlan(seed=0)
     fault = plan.add("stall", start_sample=0, stop_sample=10)
+    later = plan.add("stall", start_sample=round(2.0 * 204.8))   # stall@2 (cli.fault_schedule: seconds × rate)
     chip = SimulatedAdis16405(FixedStream([0.0, 0.0, 0.0], [0.0, 0.0, -R.STANDARD_GRAVITY_M_S2], [20.0, 0.0, 45.0]),
                               clock=clock, faults=plan)
     tap = BurstIndexTap(chip)
@@ -118,11 +119,12 @@ def test_run_time_faults_start_on_the_grid_of_the_written_rate():
     clock.t = 100.3                                       # the chip powered on 0.3 s before the daemon starts it
     src.start()
     assert read_smpl_prd(chip) == 0x07
-    at_start = fault.start_sample                         # (the start's own rebase comes first)
     clock.t = 101.8
     src.read_one(clock.t)
-    start = fault.start_sample - at_start
+    start = fault.start_sample                            # counted from the first read only, not from the start too
     assert chip.ready_clock_time(start - 1) <= 101.8 < chip.ready_clock_time(start)   # the chip's DIO1 edges
     assert chip.ready_clock_time(start) - chip.ready_clock_time(start - 1) == pytest.approx(8 / 1638.404)
     assert fault.stop_sample == fault.start_sample + 10
     assert start > int(1.8 * chip.sample_rate_hz) + 1 + 150       # the one-rate count is 184 samples short
+    # the schedule's 2 s after the first read, within a sample (the start's base added too: 0.3 s × 819.2 later)
+    assert chip.ready_clock_time(later.start_sample) == pytest.approx(101.8 + 2.0, abs=1.5 / 204.8)
