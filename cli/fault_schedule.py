@@ -4,7 +4,8 @@ For reliability tests and the soak benchmark (bench/soak.py): the schedule becom
 handed to the simulated chip, so every fault travels the real path (bytes on the simulated bus → driver →
 daemon). It is refused with a real sensor (`--spi`): faults are only ever simulated.
 
-Grammar (times in seconds of chip time, i.e. since the daemon opened the simulated chip):
+Grammar (times in seconds of chip time: run-time faults from the daemon's first read of the simulated chip, start-up
+faults such as self_test_fail from when it opened it; drivers/ground_truth.py):
 
     SCHEDULE := ITEM (';' ITEM)*
     ITEM     := KIND '@' START ['-' STOP] [':' OPTION (',' OPTION)*]
