@@ -69,6 +69,13 @@ N_SECTORS = 8
 _TWO_PI = 2.0 * math.pi
 
 
+def hard_iron_heading_var_rad2(offset_ut: float, radius_ut: float) -> float:
+    """A hard iron of `offset_ut` left in a horizontal field of `radius_ut` turns the heading by a sinusoid of
+    amplitude asin(offset/H) in the heading: its mean square, rad²."""
+    a = math.asin(min(1.0, offset_ut / radius_ut))
+    return 0.5 * a * a
+
+
 def vertical_heading_var_rad2(vertical_ut: float, tilt_rms_rad: float, radius_ut: float) -> float:
     """A vertical hard iron the calibration does not remove shows in the levelled horizontal field through the
     vehicle's tilt, up to |b_z|·sin τ: the heading error (b_z·sin τ / H)², τ the tilt's RMS (a consider term; 0 on
@@ -322,16 +329,14 @@ class FieldCircleCheck:
         c, cov, _ = centre_on_known_radius(self._moved, r, self._moved_prior_ut, self.vertical_ut)
         sigma_c = min(math.sqrt(float(np.max(np.linalg.eigvalsh(cov)))), r)
         left = float(np.hypot(*(c - np.asarray(self.correction_ut))))
-        a_hard = math.asin(min(1.0, left / r))
         tilt_rms = math.sqrt(self._tilt2 / self._w) if self._w > 0.0 else 0.0
-        var = min(0.5 * a_hard ** 2 + (sigma_c / r) ** 2 + vertical_heading_var_rad2(self.vertical_ut, tilt_rms, r),
-                  math.pi ** 2)
+        var = min(hard_iron_heading_var_rad2(left, r) + (sigma_c / r) ** 2
+                  + vertical_heading_var_rad2(self.vertical_ut, tilt_rms, r), math.pi ** 2)
         return FieldCircleResult((float(c[0]), float(c[1])), sigma_c, r, 0.0, False, True, var,
                                  tilt_rms_rad=tilt_rms, moved=True)
 
     def _judge_covered(self) -> FieldCircleResult:
         p = self.params
-        covered = True
         try:
             theta = np.linalg.solve(self._n, self._b)
             n_inv = np.linalg.inv(self._n)
@@ -368,7 +373,8 @@ class FieldCircleCheck:
             chi2_e = float(theta[:2] @ np.linalg.solve(cov_e, theta[:2]))
         except np.linalg.LinAlgError:
             return FieldCircleResult(covered=False)
-        a_hard = math.asin(min(1.0, float(np.hypot(*c_left)) / radius))
+        left_ut = float(np.hypot(*c_left))
+        a_hard = math.asin(min(1.0, left_ut / radius))
         a_soft = 0.5 * math.hypot(beta, gamma)          # β = −2e₁, γ = −2e₂ to first order
         fitted = chi2_c > p.gate_chi2 or chi2_e > p.gate_chi2
         var = 0.5 * (a_hard ** 2 + a_soft ** 2) if fitted else 0.0
@@ -381,14 +387,14 @@ class FieldCircleCheck:
         if scattered:
             var = max(var, (resid - floor) / radius ** 4)
         significant = fitted or scattered
+        tilt_rms = math.sqrt(self._tilt2 / self._w)
+        vertical_var = vertical_heading_var_rad2(self.vertical_ut, tilt_rms, radius)
         if significant:
-            var += vertical_heading_var_rad2(self.vertical_ut, math.sqrt(self._tilt2 / self._w), radius)
+            var += vertical_var
+        sigma_c = math.sqrt(float(np.max(np.linalg.eigvalsh(cov_c))))
         if self.restarts:
             # the iron is known to have moved: a restarted fit too young to show its centre beyond the gate does not
             # make the calibration right again — its centre against the correction, and its own σ, stay in σ
-            sigma_c = math.sqrt(float(np.max(np.linalg.eigvalsh(cov_c))))
-            var = max(var, 0.5 * a_hard ** 2 + (sigma_c / radius) ** 2
-                      + vertical_heading_var_rad2(self.vertical_ut, math.sqrt(self._tilt2 / self._w), radius))
-        return FieldCircleResult((float(c[0]), float(c[1])), math.sqrt(float(np.max(np.linalg.eigvalsh(cov_c)))),
-                                 radius, a_soft, covered, significant, var,
-                                 tilt_rms_rad=math.sqrt(self._tilt2 / self._w))
+            var = max(var, hard_iron_heading_var_rad2(left_ut, radius) + (sigma_c / radius) ** 2 + vertical_var)
+        return FieldCircleResult((float(c[0]), float(c[1])), sigma_c, radius, a_soft, True, significant, var,
+                                 tilt_rms_rad=tilt_rms)

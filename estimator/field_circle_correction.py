@@ -38,6 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .field_circle import hard_iron_heading_var_rad2
 from .slewed_yaw import YawSlew
 
 
@@ -148,18 +149,11 @@ class FieldCircleCorrection:
         if not math.isfinite(self.radius_ut):
             return math.pi ** 2             # a restored correction before any field: nothing claimed
         left = max(math.hypot(*(self.target_ut - self.applied_ut)), math.hypot(*(self.target_ut - self.settled_ut)))
-        return _sinusoid_var_rad2(left, self.radius_ut) + self.sigma_ut() ** 2 / self.radius_ut ** 2
+        return hard_iron_heading_var_rad2(left, self.radius_ut) + self.sigma_ut() ** 2 / self.radius_ut ** 2
 
     def applied_heading_var_rad2(self) -> float:
         """The heading variance the applied correction removes (the sinusoid a hard iron of its size leaves), for
         σ when it is forgotten; π² before the horizontal field is known."""
         if not math.isfinite(self.radius_ut):
             return math.pi ** 2
-        return _sinusoid_var_rad2(math.hypot(*self.applied_ut), self.radius_ut)
-
-
-def _sinusoid_var_rad2(offset_ut: float, radius_ut: float) -> float:
-    """A hard iron of `offset_ut` left in a horizontal field of `radius_ut` gives a heading error that is a sinusoid
-    of amplitude asin(offset/H) in the heading (field_circle.py): its mean square, rad²."""
-    a = math.asin(min(1.0, offset_ut / radius_ut))
-    return 0.5 * a * a
+        return hard_iron_heading_var_rad2(math.hypot(*self.applied_ut), self.radius_ut)
