@@ -56,7 +56,7 @@ import numpy as np
 
 from ahrsd.core.estimate import EstimateFlags
 
-from .field_circle_change import CircleChange, centre_on_known_radius
+from .field_circle_change import CircleChange, LevelledField, centre_on_known_radius, heading_sector
 
 SKIPPED_FLAGS = int(EstimateFlags.INITIALISING)
 """A filter's estimate flags whose field the check does not take. It takes every field after start-up, also those
@@ -66,7 +66,6 @@ never judged without them). A passing disturbance widens the fit's residual (its
 seen from every heading."""
 N_SECTORS = 8
 """Heading sectors the coverage counts (45° each)."""
-_TWO_PI = 2.0 * math.pi
 
 
 def hard_iron_heading_var_rad2(offset_ut: float, radius_ut: float) -> float:
@@ -243,7 +242,8 @@ class FieldCircleCheck:
         # a body-z iron b shows in the levelled horizontal as b·(sin θ cos φ, −sin φ): its gain
         # the levelled vertical's error: the noise and the horizontal field turned into the vertical by a tilt error
         var_z = p.mag_noise_ut ** 2 + (x * x + y * y) * tilt * tilt
-        field = (t_s, x, y, var, w, roll_rad * roll_rad + pitch_rad * pitch_rad, z, math.hypot(sp * cr, sr), var_z)
+        field = LevelledField(t_s, x, y, var, w, roll_rad * roll_rad + pitch_rad * pitch_rad, z,
+                              math.hypot(sp * cr, sr), var_z)
         if self._change.see(field, self.vertical_ut):
             self._restart()
         else:
@@ -267,8 +267,8 @@ class FieldCircleCheck:
         self._moved_radius_ut = change.radius_ut
         self._moved_prior_ut = change.centre_ut.copy()
         # the vertical iron moved by the levelled field's vertical shift (the Earth's vertical field is the same)
-        w = np.array([f[4] for f in fields])
-        self.vertical_ut += float(np.sum(w * np.array([f[6] for f in fields])) / np.sum(w)) - change.z_mean_ut
+        w = np.array([f.weight for f in fields])
+        self.vertical_ut += float(np.sum(w * np.array([f.z_ut for f in fields])) / np.sum(w)) - change.z_mean_ut
         change.reset()                      # no reference until the restarted fit judges
         self._clear_sums()
         for field in fields:
@@ -276,9 +276,9 @@ class FieldCircleCheck:
         self._moved = fields
         self.restarts += 1
 
-    def _take(self, field) -> None:
-        """One levelled field (t, x, y, its horizontal error variance, weight, tilt², z, vertical iron's gain) into
-        the fit's sums; the vertical iron the moves left, seen through the tilt, widens its error."""
+    def _take(self, field: LevelledField) -> None:
+        """One levelled field into the fit's sums; the vertical iron the moves left, seen through the tilt, widens
+        its error."""
         p = self.params
         t_s, x, y, var, w, tilt2, z, gain, _ = field
         dt = p.period_s if not math.isfinite(self._last_t_s) else min(t_s - self._last_t_s, p.window_s)
@@ -294,7 +294,7 @@ class FieldCircleCheck:
         self._z += w * z
         self._zz += w * z * z
         self._floor += w * 4.0 * (x * x + y * y) * (var + (self.vertical_ut * gain) ** 2)
-        self._sector_s[int((math.atan2(y, x) % _TWO_PI) / _TWO_PI * N_SECTORS) % N_SECTORS] += p.period_s
+        self._sector_s[heading_sector(x, y, N_SECTORS)] += p.period_s
 
     def _forget(self, f: float) -> None:
         self._n *= f

@@ -43,10 +43,31 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 _TWO_PI = 2.0 * math.pi
+
+
+class LevelledField(NamedTuple):
+    """One field as the circle check takes it (field_circle.FieldCircleCheck.add), levelled by the filter's roll and
+    pitch."""
+
+    t_s: float
+    x_ut: float                 # levelled horizontal field, north-ish and east-ish of the body's heading
+    y_ut: float
+    var_ut2: float              # its horizontal error variance (noise, the vertical field turned by the tilt σ)
+    weight: float               # as the fit counts it (period / correlation)
+    tilt2_rad2: float           # roll² + pitch²
+    z_ut: float                 # levelled vertical field
+    iron_gain: float            # how much of a body-z iron shows in the levelled horizontal field
+    var_z_ut2: float            # the vertical's error variance
+
+
+def heading_sector(x_ut: float, y_ut: float, n_sectors: int) -> int:
+    """Which of `n_sectors` equal heading sectors the levelled field (x, y) points into."""
+    return int((math.atan2(y_ut, x_ut) % _TWO_PI) / _TWO_PI * n_sectors) % n_sectors
 
 def reference_k(design_shift_sigma: float) -> float:
     """The CUSUM's reference per independent field for z² (χ²₁ under no change, 1 + δ² on average a field δ noise
@@ -70,9 +91,7 @@ class CircleChangeParams:
 class CircleChange:
     """`set_reference(theta, radius_ut, centre_ut, centre_sigma_ut, resid_var, sectors, z_mean_ut, z_var_ut2)` at
     each judgement of the fit (taken only while both CUSUMs are at rest); `see(field, vertical_ut)` for each
-    levelled field (t_s, x, y, var_ut2, w, tilt², z, gain, var_z_ut2: var_ut2 its horizontal error variance, w its
-    weight as the fit counts it, z its levelled vertical part, gain how much of a body-z iron shows in its
-    horizontal part, var_z_ut2 its vertical error variance; vertical_ut the vertical iron earlier moves left): True
+    LevelledField (vertical_ut the vertical iron earlier moves left): True
     when the change is found — `since` then holds the fields from its start. `reset()` forgets all (a new
     calibration, or the fit restarted)."""
 
@@ -111,19 +130,18 @@ class CircleChange:
         self.z_mean_ut = float(z_mean_ut)
         self.z_var_ut2 = float(z_var_ut2)
 
-    def see(self, field, vertical_ut: float = 0.0) -> bool:
+    def see(self, field: LevelledField, vertical_ut: float = 0.0) -> bool:
         if self.theta is None:
             return False
-        x, y, w = field[1], field[2], field[4]
+        x, y, w = field.x_ut, field.y_ut, field.weight
         # the vertical: a moved iron shifts the levelled vertical field by its vertical part at any heading (the
         # Earth's does not move); its error is the noise and the horizontal field turned by the tilt σ, and the
         # horizontal iron the fields show (the reference's centre) turned into the vertical by the tilt itself
-        e_v = field[6] - self.z_mean_ut
-        f_v = max(field[8] + float(self.centre_ut @ self.centre_ut) * field[5], self.z_var_ut2)
+        e_v = field.z_ut - self.z_mean_ut
+        f_v = max(field.var_z_ut2 + float(self.centre_ut @ self.centre_ut) * field.tilt2_rad2, self.z_var_ut2)
         self.cusum_vertical = max(0.0, self.cusum_vertical + w * (e_v * e_v / f_v - self.k))
-        n = len(self.sectors)
-        if self.sectors[int((math.atan2(y, x) % _TWO_PI) / _TWO_PI * n) % n]:
-            var_ut2 = field[3] + (vertical_ut * field[7]) ** 2
+        if self.sectors[heading_sector(x, y, len(self.sectors))]:
+            var_ut2 = field.var_ut2 + (vertical_ut * field.iron_gain) ** 2
             beta, gamma, dx, dy, f0 = self.theta
             e = beta * (x * x - y * y) + gamma * 2.0 * x * y + dx * x + dy * y + f0 + (x * x + y * y)
             f = max(4.0 * self.radius_ut ** 2 * (var_ut2 + self.centre_sigma_ut ** 2), self.resid_var)
@@ -147,7 +165,7 @@ def centre_on_known_radius(fields, radius_ut: float, prior_centre_ut, vertical_u
     (plus the vertical iron `vertical_ut` seen through its tilt, gain·b_z) counted w times. Returns the centre
     (µT), its covariance (µT², scaled up by the residuals' own spread where they exceed the stated variance) and
     the number of fields."""
-    a = np.asarray([(f[1], f[2], f[3] + (vertical_ut * f[7]) ** 2, f[4]) for f in fields],
+    a = np.asarray([(f.x_ut, f.y_ut, f.var_ut2 + (vertical_ut * f.iron_gain) ** 2, f.weight) for f in fields],
                    dtype=float).reshape(-1, 4)
     p, var, w = a[:, :2], a[:, 2], a[:, 3]
     c0 = np.asarray(prior_centre_ut, dtype=float)
