@@ -33,6 +33,7 @@ from typing import Any
 
 from ahrsd.core.state_dir import default_state_dir
 from ahrsd.daemon.magcal_settings import settings_from_mapping
+from ahrsd.drivers.chip_source import ADIS16405_RATE_HZ
 from ahrsd.drivers.registers import SMPL_PRD_DIVISOR_MASK, TIME_BASE_FAST_HZ, nearest_rate_hz
 from ahrsd.daemon.nmea_sentences import (DEFAULT_RATES_HZ, LOW_SPEED_BELOW_BAUD, LOW_SPEED_RATES_HZ, SENTENCE_IDS,
                                          worst_case_bytes)
@@ -50,7 +51,7 @@ SERIAL_DEFAULT_BAUD = 115200                   # pymavlink mavserial's default
 MIN_REPLAY_SPEED, MAX_REPLAY_SPEED = 0.01, 100.0
 # [sensor] rate_hz: the ADIS16405's default (SMPL_PRD 0x01) is the most the daemon is built and measured for;
 # the least is the fast time base's largest divisor (1638.404 / 128 = 12.8 SPS)
-CHIP_DEFAULT_RATE_HZ = 819.2
+CHIP_DEFAULT_RATE_HZ = ADIS16405_RATE_HZ
 MIN_RATE_HZ = TIME_BASE_FAST_HZ / (SMPL_PRD_DIVISOR_MASK + 1)
 STALE_PERIODS = 5          # sample periods within [sensor] stale_timeout_s: one late sample is no failure
 ENDPOINT_PREFIXES = ("udpout:", "udpin:", "udpbcast:", "udp:", "tcp:", "tcpin:", "uds:", "unix:")
