@@ -110,8 +110,6 @@ class ProducedStream:
         self._truth = int(np.frombuffer(self._mem, dtype=np.int64, count=1)[0])
 
     def _wait_for_blocks(self, timeout_s: float | None) -> None:
-        import select
-
         out = self._proc.stdout.fileno()
         if timeout_s is not None and not select.select([out], [], [], timeout_s)[0]:
             self.close()
@@ -146,8 +144,6 @@ class ProducedStream:
 
     def blocks_ahead(self) -> int:
         """Blocks made and not yet taken (non-blocking)."""
-        import select
-
         while select.select([self._proc.stdout], [], [], 0)[0]:
             got = os.read(self._proc.stdout.fileno(), 4 * self._slots)
             if not got:
