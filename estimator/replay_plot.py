@@ -312,12 +312,13 @@ def _angle_panel(a, t, flags, settled, value, sigma, label, truth_col=None, wrap
 
 
 def _error_panel(a, t, truth_err, sigmas, true_north: bool) -> None:
-    """Roll, pitch and heading error against truth with their RMS, over the ±1σ bands."""
+    """Roll, pitch and heading error against truth with their RMS, over their ±1σ bands (each in the legend)."""
     for k, (name, colour) in enumerate((("roll", "tab:blue"), ("pitch", "tab:green"), ("heading", "tab:red"))):
         e = truth_err[:, k]
         rms = math.sqrt(np.nanmean(e * e)) if np.isfinite(e).any() else math.nan
         a.plot(t, e, color=colour, lw=0.9, label=f"{name} (RMS {rms:.2f}°)")
-        a.fill_between(t, -sigmas[k], sigmas[k], color=colour, alpha=0.10, lw=0)
+        # each band named in the legend: the three overlap into grey, and a reader must tell heading's from tilt's
+        a.fill_between(t, -sigmas[k], sigmas[k], color=colour, alpha=0.10, lw=0, label=f"{name} ±1σ")
     finite = truth_err[np.isfinite(truth_err)]
     if finite.size:   # the bulk, not a start-up transient, sets the scale
         span = max(float(np.percentile(np.abs(finite), 99)) * 1.3, 0.5)

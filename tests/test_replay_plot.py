@@ -214,3 +214,26 @@ def test_an_aided_replay_plot_names_ins_and_true_north_and_draws_velocity_and_tr
     assert np.hypot(*[np.asarray(v)[0] for v in drawn["start"].get_data()]) < 1e-9
     est_n = np.asarray(drawn["estimate"].get_ydata())
     assert np.all(np.isfinite(est_n)) and np.ptp(est_n) > 10     # the boat moved: a track, not a point at 0, 0
+
+
+def test_each_error_band_is_named_in_the_legend_and_spans_its_own_sigma(truth_recording, tmp_path, figures):
+    """The three ±1σ bands overlap into one grey: each must be in the legend, in its line's colour, and span the σ
+    column the replay wrote for that angle (read from the CSV, not from the plot code)."""
+    import matplotlib.colors
+    png, out = tmp_path / "replay.png", tmp_path / "out.csv"
+    assert main(["replay", str(truth_recording), "--output", str(out), "--plot", str(png),
+                 "--lat", "36.42", "--lon", "54.98", "--quiet"]) == 0
+    (fig,) = figures
+    error_ax = axis_labelled(fig, "error vs truth (°)")
+    legend = [t.get_text() for t in error_ax.get_legend().get_texts()]
+    header = out.read_text().splitlines()[0].split(",")
+    table = np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2)
+    bands = {c.get_label(): c for c in error_ax.collections}
+    lines = {ln.get_label().split(" ")[0]: ln for ln in error_ax.get_lines() if "RMS" in ln.get_label()}
+    for name, column in (("roll", "sigma_roll_deg"), ("pitch", "sigma_pitch_deg"), ("heading", "sigma_yaw_deg")):
+        assert f"{name} ±1σ" in legend
+        band = bands[f"{name} ±1σ"]
+        np.testing.assert_allclose(band.get_facecolor()[0][:3], matplotlib.colors.to_rgb(lines[name].get_color()))
+        top = band.get_paths()[0].vertices[:, 1].max()
+        sigma = table[:, header.index(column)]
+        assert top == pytest.approx(np.nanmax(sigma[np.isfinite(sigma)]), rel=1e-6)
