@@ -51,7 +51,7 @@ def register(subparsers) -> None:
         "replay",
         help="run a recording through calibration and an estimator; write the attitude per sample (CSV)",
         description="Replay a CSV recording (see `ahrsd record`; any sample rate, taken from its t_s column) "
-        "through a calibration (identity without --calibration) and an attitude estimator, and write one row "
+        "through a calibration (none without --calibration: mekf's heading is then unknown) and an attitude estimator, and write one row "
         f"per input sample with the header: {OUTPUT_HEADER}. Without --lat/--lon the quaternion, yaw and "
         "heading are referenced to magnetic north; with them, to true north (WMM2025 declination there). The "
         "speed (× real time) is printed to stderr at the end. With --gnss (a GNSS recording, docs/gnss.md) the "
@@ -67,7 +67,8 @@ def register(subparsers) -> None:
                    "its fixes are merged in time order with the samples")
     p.add_argument("--output", "-o", required=True, metavar="OUT.csv", help="output CSV file ('-' for stdout)")
     p.add_argument("--calibration", "-c", metavar="FILE", default=None,
-                   help="calibration file (ahrsd calibrate / the state directory's calibration); default identity")
+                   help="calibration file (ahrsd calibrate / the state directory's calibration); without it the samples go in "
+                        "as they are and the magnetometer's calibration is unknown (mekf: heading σ 180°, as the daemon)")
     p.add_argument("--lat", type=float, default=None, metavar="DEG", help="latitude for the WMM declination")
     p.add_argument("--lon", type=float, default=None, metavar="DEG", help="longitude for the WMM declination")
     p.add_argument("--alt-m", type=float, default=0.0, metavar="M", help="height above the ellipsoid, m (default 0)")
@@ -319,6 +320,7 @@ def _plot(args, trace, title: str, fixes) -> None:
 def _run(args, compile_estimator: Callable[[str], object], count_compiles: Callable[[], int]) -> int:
     """Read the inputs, build the estimator, replay the recording into the output, draw, and summarise."""
     import os
+    import sys
     import time
 
     t_start, cpu_start = time.perf_counter(), time.process_time()
@@ -347,7 +349,26 @@ def _run(args, compile_estimator: Callable[[str], object], count_compiles: Calla
         _print_summary(args, done, estimator_name, estimator, declination, validator,
                        time.perf_counter() - t_start - compile_wall_s, time.process_time() - cpu_start - compile_cpu_s,
                        compile_wall_s)
+        unknown = _unknown_heading_text(estimator_name, calibration, params.get("mag_calibration_sigma_rad"), done.aided)
+        if unknown:
+            print(f"ahrsd replay: {unknown}", file=sys.stderr)
     return 0
+
+
+def _unknown_heading_text(estimator_name: str, calibration, calibration_sigma_rad, aided: bool) -> str:
+    """What the summary says when mekf's heading is unknown for want of a calibration figure, as the daemon's heading
+    state says it ("hdg unknown uncal"): without GNSS the magnetometer calibration is the only heading reference, and
+    the σ column carries the unknown calibration (estimator/calibration_heading.py) — "" otherwise."""
+    import math
+
+    from ahrsd.estimator.calibration_heading import UNKNOWN_CALIBRATION_SIGMA_RAD, calibration_states_error
+
+    if aided or estimator_name != "mekf" or calibration_sigma_rad is None or calibration_states_error(calibration_sigma_rad):
+        return ""
+    why = ("no magnetometer calibration given (--calibration FILE: ahrsd calibrate mag, or the state directory's)"
+           if calibration is None else "the calibration does not state the heading error it leaves")
+    return (f"heading unknown (sigma_yaw_deg {math.degrees(UNKNOWN_CALIBRATION_SIGMA_RAD):.0f}°): {why}; without "
+            "GNSS the magnetometer calibration is the only heading reference (roll and pitch are unaffected)")
 
 
 def _compile_announced(estimator_name: str, compile_estimator: Callable[[str], object],
@@ -418,7 +439,7 @@ def _load_calibration(args):
 def _told_calibration_sigma(name: str, calibration, params: dict) -> dict:
     """The parameters with the heading error the calibration predicts (ins, mekf) and, for mekf, the accelerometer
     bias it leaves, as the daemon tells them."""
-    if calibration is not None and name in ("ins", "mekf") and "mag_calibration_sigma_rad" not in params:
+    if name in ("ins", "mekf") and "mag_calibration_sigma_rad" not in params:
         from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad
 
         # how far ins may trust this calibration's magnetometer, and the heading error a magnetometer-held heading's

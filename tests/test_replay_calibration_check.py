@@ -110,3 +110,21 @@ def test_without_a_stated_calibration_error_the_output_is_unchanged(tmp_path, ca
     err, cols, _ = _replay(capsys, path, tmp_path / "plain.csv", None)
     assert ",".join(cols) == OUTPUT_HEADER
     assert "checked without GNSS" not in err
+
+
+def test_without_a_calibration_the_heading_is_unknown_as_the_daemon_says(tmp_path, capsys):
+    """No --calibration: the magnetometer's calibration is unknown, as the daemon takes an empty state directory
+    ("hdg unknown uncal"). The σ column must cover the heading error the wrong iron leaves (truth from the
+    simulator: ~12° RMS here once the plane turns), the summary must say why, and roll and pitch keep their own σ. Told it was
+    calibrated (0.5°), mekf's σ is small again and nothing is said."""
+    path, run = _recording(tmp_path, 60.0)
+    err, cols, data = _replay(capsys, path, tmp_path / "none.csv", None)
+    heading_err = np.degrees(errors_rph(data[:, 1:5], run.truth_q_wxyz, run.declination_rad)[:, 2])
+    sigma_yaw = data[:, cols.index("sigma_yaw_deg")]
+    ok = np.isfinite(heading_err)
+    assert np.max(np.abs(heading_err[ok])) > 5.0                        # the case is one a small σ would not cover
+    assert np.all(np.abs(heading_err[ok]) <= 3.0 * sigma_yaw[ok])
+    assert np.median(data[:, cols.index("sigma_roll_deg")]) < 5.0
+    assert "heading unknown" in err and "no magnetometer calibration given" in err, err
+    err, cols, data = _replay(capsys, path, tmp_path / "told.csv", CLAIMED_SIGMA_RAD)
+    assert np.median(data[:, cols.index("sigma_yaw_deg")]) < 5.0 and "heading unknown" not in err, err
