@@ -123,21 +123,30 @@ def test_the_simulated_device_streams_what_the_chip_produced(device):
     assert np.mean([s.accel_m_s2[2] for s in got]) == pytest.approx(-9.81, abs=0.8)
 
 
-def test_the_simulated_iio_device_through_the_daemon(tmp_path):
-    device = SimulatedIioDevice(tmp_path / "iio", scenario="static", seed=5)
+def start_iio_daemon(tmp_path, device, *flags: str) -> tuple[subprocess.Popen, Path]:
+    """`ahrsd run --iio` on the simulated device (output piped, MAVLink to a discard port); (process, stats file)."""
     stats = tmp_path / "stats.json"
-    proc = subprocess.Popen([sys.executable, "-m", "ahrsd.cli", "run", "--iio", str(device.sysfs),
-                             "--state-dir", str(tmp_path / "state"), "--no-log", "--status-line", "off",
+    proc = subprocess.Popen([sys.executable, "-m", "ahrsd.cli", "run", "--iio", str(device.sysfs), *flags,
+                             "--state-dir", str(tmp_path / "state"), "--no-log",
                              "--mavlink", "udpout:127.0.0.1:9", "--stats-file", str(stats)],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    return proc, stats
+
+
+def wait_for_records(device, proc, count: int, t_end: float) -> None:
+    """Until the simulated kernel has written `count` records (or the daemon ended, or t_end)."""
+    while device.stats["records"] < count and time.monotonic() < t_end and proc.poll() is None:
+        time.sleep(0.1)
+
+
+def test_the_simulated_iio_device_through_the_daemon(tmp_path):
+    device = SimulatedIioDevice(tmp_path / "iio", scenario="static", seed=5)
+    proc, stats = start_iio_daemon(tmp_path, device, "--status-line", "off")
     try:
         t_end = time.monotonic() + 120.0
-        while device.stats["records"] < 2000 and time.monotonic() < t_end and proc.poll() is None:
-            time.sleep(0.1)
+        wait_for_records(device, proc, 2000, t_end)
         device.stall(0.25)
-        t_more = device.stats["records"] + 2000
-        while device.stats["records"] < t_more and time.monotonic() < t_end and proc.poll() is None:
-            time.sleep(0.1)
+        wait_for_records(device, proc, device.stats["records"] + 2000, t_end)
         device.close()                                         # the "kernel" stops; the daemon drains the rest
         time.sleep(1.0)
     finally:
