@@ -120,16 +120,17 @@ def test_the_daemon_runs_the_simulated_iio_device_at_the_rate_it_wrote(tmp_path)
     device = SimulatedIioDevice(tmp_path / "iio", scenario="static", seed=5)
     proc, stats = start_iio_daemon(tmp_path, device, "--rate-hz", "204.8", "--status-line", "on")
     try:
-        wait_for_records(device, proc, 1400, time.monotonic() + 120.0)
+        wait_for_records(device, proc, 100, time.monotonic() + 120.0)
+        time.sleep(6.5)                                      # 1330 samples at 204.8 SPS, status lines each second
     finally:
         proc.send_signal(2)
         out, _ = proc.communicate(timeout=30)
         device.close()
     assert proc.returncode in (0, 130), out[-2000:]
-    assert device.smpl_prd == 0x07 and "reads back 204.800000" in out
     rates = [float(x) for x in re.findall(r"(\d+\.\d) SPS", out)]
     assert len(rates) >= 4, out[-2000:]
     assert statistics.median(rates[-4:]) == pytest.approx(204.8, rel=0.05)
+    assert device.smpl_prd == 0x07 and "reads back 204.800000" in out
     st = json.loads(stats.read_text())
-    assert st["source"]["records"] >= 1400 and device.stats["overflow_dropped"] == 0
+    assert st["source"]["records"] >= 1200 and device.stats["overflow_dropped"] == 0
     assert st["pipeline"]["lost_samples"] == st["source"]["lost_samples_host"] == device.lost_truth() == 0, st

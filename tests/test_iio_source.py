@@ -291,9 +291,10 @@ def test_a_vanished_iio_device_is_reopened_counted_and_logged(tmp_path, caplog):
 
 def test_the_udev_rule_opens_every_sysfs_file_the_source_writes(device):
     """Under systemd the daemon is not root: systemd/99-ahrsd-iio.rules must give its group every sysfs file
-    the source writes — channels, buffer length and enable, time stamp clock, trigger (an empty one too). What it
-    writes is read off the simulated sysfs tree: every file's modification time is set back first, and the files
-    written are those whose time moved."""
+    the source writes — channels, buffer length and enable, time stamp clock, trigger (an empty one too), and the
+    sampling rate when [sensor] rate_hz asks for one. What it writes is read off the simulated sysfs tree: every
+    file's modification time is set back first, and the files written are those whose time moved (the rate
+    attribute is a FIFO, replaced by a fresh one when read: it counts as written, which it is here)."""
     import fnmatch
     import os
     import re
@@ -303,16 +304,18 @@ def test_the_udev_rule_opens_every_sysfs_file_the_source_writes(device):
     opened = loop.split()
     (device.sysfs / "trigger" / "current_trigger").write_text("\n")     # a kernel with no trigger set yet
     long_ago_s = 1_000_000_000
-    files = [p for p in device.sysfs.rglob("*") if p.is_file()]
+    files = [p for p in device.sysfs.rglob("*") if p.is_file() or p.is_fifo()]
     for p in files:
         os.utime(p, (long_ago_s, long_ago_s))
-    src = started(device)
+    src = IioSource(str(device.sysfs), rate_hz=204.8)
+    src.start()
     try:
         src._open_buffer()
     finally:
         src.close()
     written = [p.relative_to(device.sysfs).as_posix() for p in files if p.stat().st_mtime != long_ago_s]
-    assert {"buffer/enable", "buffer/length", "current_timestamp_clock", "trigger/current_trigger"} <= set(written)
+    assert {"buffer/enable", "buffer/length", "current_timestamp_clock", "trigger/current_trigger",
+            "sampling_frequency"} <= set(written)
     assert any(w.startswith("scan_elements/") for w in written)
     assert [w for w in written if not any(fnmatch.fnmatch(w, p) for p in opened)] == []
     assert 'GROUP="iio"' in rule and "SupplementaryGroups=iio" in \
