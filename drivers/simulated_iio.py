@@ -99,8 +99,8 @@ ATTRIBUTE_POLL_S = 0.01          # the attribute thread looks for a reader or a 
 # the shared counters of the kernel process (an int64 array): their slots
 _STATS = ("records", "stale_records", "overflow_dropped", "sessions", "first_index", "last_index")
 _STALL_US, _UNPLUGGED, _UNPLUG_ACK, _READY = len(_STATS), len(_STATS) + 1, len(_STATS) + 2, len(_STATS) + 3
-_SMPL_PRD, _ATTRIBUTE_STOP = len(_STATS) + 4, len(_STATS) + 5
-_SLOTS = len(_STATS) + 6
+_SMPL_PRD, _ATTRIBUTE_STOP, _PROBED = len(_STATS) + 4, len(_STATS) + 5, len(_STATS) + 6
+_SLOTS = len(_STATS) + 7
 
 
 def layout(enabled: list[tuple[str, int, str]]) -> tuple[list[tuple[str, int, int]], int]:
@@ -220,10 +220,16 @@ class SimulatedIioDevice:
         except FileNotFoundError:
             pass
 
-    def recreate(self) -> None:
-        """The device is back (a fresh probe): buffer and channels disabled until a reader enables them."""
-        self._build_tree()
+    def recreate(self, timeout_s: float = 10.0) -> None:
+        """The device is back (a fresh probe): buffer and channels disabled until a reader enables them. Its
+        files appear once the probe has reset the chip (devm_iio_device_register ends the probe), so that a
+        reader's rate written at once is not undone by the reset."""
+        self._shared[_PROBED] = 0
         self._shared[_UNPLUGGED] = 0
+        end = time.monotonic() + timeout_s
+        while not self._shared[_PROBED] and time.monotonic() < end and self._proc.is_alive():
+            time.sleep(0.005)
+        self._build_tree()
 
     def close(self) -> None:
         self._freeze_rate_attribute()
@@ -282,6 +288,7 @@ def _kernel(sysfs: str, node: str, scenario, seed: int, errors: str, shared, sto
             if unplugged:                                  # a re-probe: adis_initial_startup resets the chip
                 unplugged = False
                 kernel.probe()
+                shared[_PROBED] = 1
             if kernel.read("buffer/enable") != "1":
                 time.sleep(0.01)
                 continue
@@ -299,11 +306,16 @@ class _Kernel:
         self.spi_hz = R.SPI_FAST_HZ         # adis16400_initial_setup: fast while the divisor is below 0x0A
 
     def probe(self) -> None:
-        """The driver's probe: the chip reset (its flash settings), the register clock chosen again."""
+        """The driver's probe (adis16400_initial_setup): the chip reset (its flash settings), SMPL_PRD read at
+        the slow clock, the fast clock kept if its divisor is below 0x0A."""
         with self.bus:
-            self.clock.t = time.monotonic()
+            self.clock.t = max(self.clock.t, time.monotonic())
             self.chip.power_cycle()
-            self.spi_hz = R.SPI_FAST_HZ
+            self.chip.transfer(R.read_frame(R.SMPL_PRD), R.SPI_SLOW_HZ, R.STALL_US)
+            smpl_prd = int.from_bytes(self.chip.transfer(bytes(2), R.SPI_SLOW_HZ, R.STALL_US), "big")
+            fast = (smpl_prd & R.SMPL_PRD_DIVISOR_MASK) < R.SPI_FAST_MAX_DIVISOR
+            self.spi_hz = R.SPI_FAST_HZ if fast else R.SPI_SLOW_HZ
+        self.shared[_SMPL_PRD] = smpl_prd
 
     def _register_access_clock(self) -> None:
         # outside a buffer session the chip's clock is now; inside, the handler's (never set back)

@@ -69,6 +69,31 @@ def test_the_rate_is_written_read_back_and_set_on_the_chip(device, caplog):
     assert "sampling_frequency asked 12.8 SPS (wrote 12.800000), the driver reads back 10.570000" in caplog.text
 
 
+def test_the_rate_is_written_again_after_a_re_probe(tmp_path):
+    """The device unbound and probed again (the probe resets the chip: SMPL_PRD back at 0x01): the source's
+    re-open writes 102.4 again, and the records after it come 16 / 1638.404 s apart."""
+    from test_iio_source import _take
+
+    device = SimulatedIioDevice(tmp_path, scenario="static", seed=4)
+    try:
+        src = IioSource(str(device.sysfs), rate_hz=102.4)
+        src.start()
+        got, errors, t_end = [], [], time.monotonic() + 60.0
+        _take(src, 50, t_end, got, errors)
+        device.remove()
+        while not errors and time.monotonic() < t_end:
+            _take(src, len(got) + 1, min(t_end, time.monotonic() + 0.2), got, errors)
+        device.recreate()
+        assert device.smpl_prd == 0x01                     # the probe's reset, read over SPI
+        after = len(got)
+        _take(src, after + 100, t_end, got, errors)
+        src.close()
+    finally:
+        device.close()
+    assert src.counters()["reopens"] == 1 and device.smpl_prd == 0x0F
+    assert np.median(np.diff([s.t_s for s in got[after:]])) == pytest.approx(16 / 1638.404, rel=1e-4)
+
+
 def test_a_refused_write_is_a_clear_start_up_error(device, monkeypatch, capsys, tmp_path):
     """EACCES (the unit's group lacks the file) through `ahrsd run`: one line naming the file and the fix, exit
     1; EINVAL (the driver refuses the value) the same BusError from the source."""
