@@ -100,8 +100,8 @@ DRIVER_FAST_BASE_MSPS = 1638404
 DRIVER_SLOW_BASE_MSPS = 52851
 RATE_WRITE_FIX = ("the daemon's group needs write access to it: systemd/99-ahrsd-iio.rules gives the group iio "
                   "the device's files (sampling_frequency among them) and systemd/ahrsd-iio.conf adds the group "
-                  "and lifts ProtectKernelTunables (docs/drivers.md, \"The kernel's IIO driver under systemd\"); "
-                  "or leave [sensor] rate_hz at its default to keep the driver's rate")
+                  "and lifts ProtectKernelTunables (docs/drivers.md, \"Under systemd\"); without it, leave "
+                  "[sensor] rate_hz at its default: the driver's rate is then only read (where the kernel reads it)")
 
 # the channels this source enables, in the roles of an ImuSample (sysfs scan element name → role)
 CHANNELS = ("in_voltage0_supply", "in_anglvel_x", "in_anglvel_y", "in_anglvel_z", "in_accel_x", "in_accel_y",
