@@ -488,6 +488,8 @@ class _RateAttribute:
             return False
         try:
             fresh = self.path.with_name(f".{RATE_ATTRIBUTE}.next")
+            if fresh.exists():
+                fresh.unlink()                      # left by an answer the device's removal cut short
             os.mkfifo(fresh)
             os.replace(fresh, self.path)
             milli_sps = self.kernel.get_freq()
