@@ -163,13 +163,14 @@ class Load:
 
 def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = False, gnss: bool = False,
            scenario: str = "static", sensor: str = "sim", load: bool = False, flood_hz: float = 1000.0,
-           floor: bool = False) -> dict:
+           floor: bool = False, rate_hz: float | None = None) -> dict:
     sock = free_udp_socket()
     port = sock.getsockname()[1]
     with tempfile.TemporaryDirectory() as tmp:
         config = Path(tmp) / "ahrsd.toml"
         reader = {"sim": "thread", "sim-process": "process"}.get(sensor, "auto")   # iio: auto, a thread
-        config.write_text(f'[sensor]\nreader = "{reader}"\n\n'
+        rate = f"rate_hz = {rate_hz}\n" if rate_hz is not None else ""          # sim/spi: SMPL_PRD, iio: the driver's
+        config.write_text(f'[sensor]\nreader = "{reader}"\n{rate}\n'
                           f'[[endpoint]]\nurl = "udpout:127.0.0.1:{port}"\nprofile = "{profile}"\n')
         stats_path = Path(tmp) / "stats.json"
         device = None
@@ -376,6 +377,9 @@ def main() -> None:
                     help="run bench/wake_floor.py's bare real-time loop beside each window: the periods it "
                     "misses per second are the machine's floor for any user-space reader, in the same run")
     ap.add_argument("--skip-b", action="store_true", help="skip part B (the in-process time-stamp check)")
+    ap.add_argument("--rate-hz", type=float, default=None,
+                    help="[sensor] rate_hz for part A (default: the chip's 819.2 SPS; with iio, written to the "
+                    "kernel driver's sampling_frequency)")
     args = ap.parse_args()
     scenario = args.scenario or ("static" if args.gnss == "off" else "boat")
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f} (shared machine)")
@@ -385,7 +389,7 @@ def main() -> None:
     sensors = ("sim", "sim-process", "iio") if args.sensor == "all" else tuple(args.sensor.split(","))
     loads = {"off": (False,), "on": (True,), "both": (False, True)}[args.load]
     full = {(p, lg, gn, se, ld): part_a(args.seconds, args.warmup, p, lg, gn, scenario, se, ld, args.flood_hz,
-                                        args.floor)
+                                        args.floor, args.rate_hz)
             for se in sensors for ld in loads for gn in gnss_runs for p in profiles for lg in logs
             if not (gn and se == "iio")}
     runs = {k[:3]: r for k, r in full.items() if k[3] == sensors[0] and k[4] == loads[0]}
@@ -395,7 +399,8 @@ def main() -> None:
     for (p, lg, gn, se, ld), r in full.items():
         print(f"\nA. ahrsd run {'--iio (simulated IIO device)' if se == 'iio' else '--sim'} {scenario} ({se})"
               f"{' --gnss-sim' if gn else ''}, profile \"{p}\", logging {'on' if lg else 'off'}, "
-              f"load {'on' if ld else 'off'}, {r['window_s']:.1f} s window")
+              f"load {'on' if ld else 'off'}, {r['window_s']:.1f} s window"
+              f"{f', [sensor] rate_hz = {args.rate_hz:g}' if args.rate_hz is not None else ''}")
         print(f"   {gnss_summary(r['stats'])}")
         for name, values in r["latency_s"].items():
             if values:

@@ -34,6 +34,7 @@ from typing import Any
 from ahrsd.core.state_dir import default_state_dir
 from ahrsd.daemon.magcal_settings import settings_from_mapping
 from ahrsd.drivers.chip_source import ADIS16405_RATE_HZ
+from ahrsd.drivers.iio_source import driver_rate_hz
 from ahrsd.drivers.registers import SMPL_PRD_DIVISOR_MASK, TIME_BASE_FAST_HZ, nearest_rate_hz
 from ahrsd.daemon.nmea_sentences import (DEFAULT_RATES_HZ, LOW_SPEED_BELOW_BAUD, LOW_SPEED_RATES_HZ, SENTENCE_IDS,
                                          worst_case_bytes)
@@ -180,8 +181,9 @@ class SensorConfig:
     mounting_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor axes in the body FRD, ZYX Euler deg
     poll_hz: float = 200.0              # replay: polls per second (the chip is read once per sample)
     stale_timeout_s: float = 0.1        # no new sample for this long = sensor failure
-    rate_hz: float = CHIP_DEFAULT_RATE_HZ   # sim/spi: the chip's output data rate, SPS (the nearest SMPL_PRD
-                                        # setting: 1638.404 / (N + 1)); lower costs less CPU (docs/daemon.md)
+    rate_hz: float = CHIP_DEFAULT_RATE_HZ   # sim/spi/iio: the chip's output data rate, SPS (the nearest SMPL_PRD
+                                        # setting: 1638.404 / (N + 1); iio: written to the driver's
+                                        # sampling_frequency unless at the default); lower costs less CPU
 
     @property
     def chip_rate_hz(self) -> float:
@@ -209,16 +211,17 @@ class SensorConfig:
         return cfg
 
     def check_rate(self, key: str) -> None:
-        """rate_hz is the SPI chip's SMPL_PRD: the kernel's IIO driver sets its own rate, a recording has one; and
-        a sample period must fit the stale timeout several times over, or a late sample is a sensor failure."""
-        if self.rate_hz != CHIP_DEFAULT_RATE_HZ and self.source in ("iio", "replay"):
-            how = ("the IIO driver's rate is its sysfs attribute sampling_frequency (echo 204.8 > "
-                   f"/sys/bus/iio/devices/{self.iio_device}/sampling_frequency), which the daemon reads"
-                   if self.source == "iio" else "a recording replays at the rate it was recorded at")
-            raise _fail(f"{key}.rate_hz", self.rate_hz, f"only for source = 'sim' or 'spi' (the chip's SMPL_PRD); {how}")
-        if self.stale_timeout_s < STALE_PERIODS / self.chip_rate_hz:
-            raise _fail(f"{key}.rate_hz", self.rate_hz, f"at {self.chip_rate_hz:.4g} SPS {STALE_PERIODS} sample "
-                        f"periods are {STALE_PERIODS / self.chip_rate_hz:.3g} s, longer than stale_timeout_s = "
+        """rate_hz is the chip's SMPL_PRD (through the kernel driver's sampling_frequency with iio); a recording
+        has its own rate; and a sample period must fit the stale timeout several times over, or a late sample is
+        a sensor failure."""
+        if self.rate_hz != CHIP_DEFAULT_RATE_HZ and self.source == "replay":
+            raise _fail(f"{key}.rate_hz", self.rate_hz, "not for source = 'replay': a recording replays at the "
+                        "rate it was recorded at")
+        # the kernel's set_freq rounds by its own integer rule (12.8 becomes 10.570 SPS: drivers.iio_source)
+        rate = driver_rate_hz(self.rate_hz) if self.source == "iio" else self.chip_rate_hz
+        if self.stale_timeout_s < STALE_PERIODS / rate:
+            raise _fail(f"{key}.rate_hz", self.rate_hz, f"at {rate:.4g} SPS {STALE_PERIODS} sample "
+                        f"periods are {STALE_PERIODS / rate:.3g} s, longer than stale_timeout_s = "
                         f"{self.stale_timeout_s:g}: raise the rate or stale_timeout_s")
 
 

@@ -38,6 +38,24 @@ drivers.threaded_source's reader thread drains the kernel's buffer in blocks as 
 (`buffer/length` scans) is what a stalled reader has before a scan is lost, the thread's hand-over buffer what
 a stalled event loop has.
 
+The sampling rate (`[sensor] rate_hz`, `IioSource(rate_hz=...)`): the driver's `sampling_frequency` attribute
+(IIO_CHAN_INFO_SAMP_FREQ, shared by all channels). A write is parsed as micro-units (`iio_write_channel_info`:
+"204.8" is 204 + 800000 µ) and handed to `adis16400_write_raw`, which takes milli-SPS (val × 1000 + val2 / 1000)
+and calls `adis16400_set_freq`: t = 1638404 / mSPS (integer division); t < 128 writes SMPL_PRD = t − 1 on the
+fast time base, else the slow base bit with t = 52851 / mSPS (at most 127, and not decremented), one byte write
+(`__adis_write_reg_8`). A read is `adis16400_get_freq`: (52851 if bit 7 else 1638404) / (divisor + 1) mSPS,
+formatted "%d.%06u" (IIO_VAL_INT_PLUS_MICRO). The driver takes the write whether or not the buffer runs (no
+`iio_device_claim_direct_mode`); this source writes with the buffer disabled, before enabling it, since its
+gap detection needs the period from the start. It writes the kernel's own value of the SMPL_PRD setting that
+`registers.smpl_prd_for_rate` picks (the spidev path's rule: "204.800000" for 204.8, SMPL_PRD 7), reads it back
+and runs at what it reads. The driver's integer rule cannot reach SMPL_PRD 0x7F (12.8 SPS): 12.8 becomes the
+slow base's 0x84, 10.570 SPS (driver_smpl_prd). Kernels since 5.5 read the attribute as an empty line:
+`adis16400_read_raw` returns get_freq's positive value where the IIO core expects a format code
+(`if (ret) return ret;`, from "iio: imu: adis16400: check ret val for non-zero vs less-than-zero", 2019),
+and `iio_format_value` prints nothing for an unknown code. On such a kernel the rate is what the driver's
+set_freq/get_freq make of the value written (without `rate_hz` the chip's default, 819.2, is written so that
+the rate is known), with a warning.
+
 A vanished device (the chip or its driver unbound: reads fail with ENODEV, or the stream ends) is closed,
 counted (`device_lost`) and logged once; `poll()` then raises BusError (the daemon reports the sensor failed)
 and re-opens it with backoff (0.2 s doubling to 5 s): found again by the same spec (a name may come back as
@@ -61,6 +79,7 @@ import numpy as np
 
 from ahrsd.core.sample import ImuSample, SampleFlags
 from ahrsd.drivers import registers as R
+from ahrsd.drivers.chip_source import ADIS16405_RATE_HZ
 from ahrsd.drivers.errors import BusError
 from ahrsd.drivers.source_interface import LiveSource
 
@@ -75,6 +94,14 @@ BACKOFF_MAX_S = 5.0
 NO_WRITER_POLL_S = 0.01              # the FIFO stand-in before its writer opened: select() would not block
 READ_EVERY_S = 0.004                 # blocks: the reader drains the buffer at most this often (the event loop
                                      # takes samples every 5 ms; a wake per scan costs a decode per scan)
+
+# adis16400_get_freq / adis16400_set_freq: the two time bases in milli-SPS, integer arithmetic
+DRIVER_FAST_BASE_MSPS = 1638404
+DRIVER_SLOW_BASE_MSPS = 52851
+RATE_WRITE_FIX = ("the daemon's group needs write access to it: systemd/99-ahrsd-iio.rules gives the group iio "
+                  "the device's files (sampling_frequency among them) and systemd/ahrsd-iio.conf adds the group "
+                  "and lifts ProtectKernelTunables (docs/drivers.md, \"Under systemd\"); without it, leave "
+                  "[sensor] rate_hz at its default: the driver's rate is then only read (where the kernel reads it)")
 
 # the channels this source enables, in the roles of an ImuSample (sysfs scan element name → role)
 CHANNELS = ("in_voltage0_supply", "in_anglvel_x", "in_anglvel_y", "in_anglvel_z", "in_accel_x", "in_accel_y",
@@ -164,6 +191,40 @@ def record_layout(elements: list[tuple[str, int, ScanType]]) -> tuple[list[Eleme
     return out, nbytes
 
 
+def driver_smpl_prd(milli_sps: int) -> int:
+    """The SMPL_PRD `adis16400_set_freq` writes for a sampling_frequency of `milli_sps` (> 0), its integer
+    arithmetic as it is: the slow time base's divisor is not decremented."""
+    t = DRIVER_FAST_BASE_MSPS // milli_sps
+    if t >= 128:
+        return R.SMPL_PRD_TIME_BASE | min(127, DRIVER_SLOW_BASE_MSPS // milli_sps)
+    return t - 1 if t else 0
+
+
+def driver_milli_sps(smpl_prd: int) -> int:
+    """`adis16400_get_freq`: the rate of a SMPL_PRD value in milli-SPS, as the driver reports it."""
+    base = DRIVER_SLOW_BASE_MSPS if smpl_prd & R.SMPL_PRD_TIME_BASE else DRIVER_FAST_BASE_MSPS
+    return base // ((smpl_prd & R.SMPL_PRD_DIVISOR_MASK) + 1)
+
+
+def sysfs_rate_text(milli_sps: int) -> str:
+    """A rate as the driver's read formats it (IIO_VAL_INT_PLUS_MICRO, "%d.%06u"): 204800 -> "204.800000"."""
+    return f"{milli_sps // 1000}.{milli_sps % 1000 * 1000:06d}"
+
+
+def written_milli_sps(text: str) -> int:
+    """What `adis16400_write_raw` receives for a written string: iio_write_channel_info parses micro-units
+    (digits past the sixth dropped), the driver takes val × 1000 + val2 / 1000."""
+    whole, _, frac = text.strip().partition(".")
+    micro = int((frac + "000000")[:6]) if frac else 0
+    return int(whole) * 1000 + micro // 1000
+
+
+def driver_rate_hz(rate_hz: float) -> float:
+    """The rate the kernel's driver runs at when this source asks for `rate_hz`: the kernel's value of the
+    nearest SMPL_PRD setting written, then set_freq's and get_freq's integer rules (12.8 -> 10.570)."""
+    return driver_milli_sps(driver_smpl_prd(driver_milli_sps(R.smpl_prd_for_rate(rate_hz)))) / 1000.0
+
+
 def resolve_device(spec: str) -> tuple[Path, Path]:
     """(sysfs directory, character device) of `spec`: a sysfs directory path (…/sys/bus/iio/devices/iio:deviceN,
     the device node then being …/dev/iio:deviceN under the same root — how the simulated device lives in a
@@ -203,8 +264,12 @@ class IioSource(LiveSource):
     per_sample = False
     monotonic_offset_s = 0.0            # the kernel's stamps are CLOCK_MONOTONIC (current_timestamp_clock)
 
-    def __init__(self, spec: str, *, buffer_length: int = BUFFER_LENGTH, clock=time.monotonic):
+    def __init__(self, spec: str, *, buffer_length: int = BUFFER_LENGTH, clock=time.monotonic,
+                 rate_hz: float | None = None):
+        """rate_hz: written to the driver's sampling_frequency at every (re)start (None: the driver's rate is
+        left as it is and read)."""
         self.spec = spec
+        self.rate_hz = rate_hz
         self.sysfs, self.node = resolve_device(spec)
         self.buffer_length = buffer_length
         self._clock = clock
@@ -233,11 +298,9 @@ class IioSource(LiveSource):
         d = self.sysfs
         try:
             self.name = _read(d / "name")
-            rate = _read(d / "sampling_frequency") if (d / "sampling_frequency").exists() else \
-                _read(d / "in_sampling_frequency")
-            self.sample_rate_hz = float(rate)
             if (d / "buffer" / "enable").exists() and _read(d / "buffer" / "enable") == "1":
                 _write(d / "buffer" / "enable", "0")       # a previous run left it on: reconfigure
+            self.sample_rate_hz = self._set_rate()
             scan = d / "scan_elements"
             for name in os.listdir(scan):
                 if name.endswith("_en"):
@@ -270,6 +333,42 @@ class IioSource(LiveSource):
         self.description = f"{self.name} through the kernel's IIO driver ({d.name}, {self.record_bytes}-byte scans)"
         log.info("IIO %s: %s at %.3f SPS, %d-byte records, buffer %d scans", d.name, self.name,
                  self.sample_rate_hz, self.record_bytes, self.buffer_length)
+
+    def _set_rate(self) -> float:
+        """Write `rate_hz` (if asked) to sampling_frequency with the buffer disabled, read it back and return
+        the rate read; on a kernel whose read is empty (module doc) the driver's rule for the value written."""
+        path = self.sysfs / "sampling_frequency"
+        if not path.exists():
+            path = self.sysfs / "in_sampling_frequency"
+        written = None
+        if self.rate_hz is not None:
+            written = self._write_rate(path, self.rate_hz)
+        got = _read(path)
+        if not got:
+            if written is None:
+                written = self._write_rate(path, ADIS16405_RATE_HZ)
+            rate_hz = driver_milli_sps(driver_smpl_prd(written_milli_sps(written))) / 1000.0
+            log.warning("IIO %s: %s reads empty (adis16400_read_raw on Linux >= 5.5, docs/drivers.md); wrote %s, "
+                        "so the driver runs at %.3f SPS by its set_freq rule", self.sysfs.name, path.name,
+                        written, rate_hz)
+            return rate_hz
+        if written is not None:
+            log.info("IIO %s: sampling_frequency asked %g SPS (wrote %s), the driver reads back %s",
+                     self.sysfs.name, self.rate_hz, written, got)
+        return float(got)
+
+    @staticmethod
+    def _write_rate(path: Path, rate_hz: float) -> str:
+        """The kernel's own value of the nearest SMPL_PRD setting (module doc), written; BusError naming the file
+        and the fix if the kernel or the file's permissions refuse it."""
+        text = sysfs_rate_text(driver_milli_sps(R.smpl_prd_for_rate(rate_hz)))
+        try:
+            _write(path, text)
+        except OSError as exc:
+            why = os.strerror(exc.errno) if exc.errno else str(exc)
+            raise BusError(f"cannot set the sampling rate: writing {text} to {path} failed ({why}); "
+                           f"{RATE_WRITE_FIX}") from exc
+        return text
 
     def _scales(self) -> dict[str, tuple[float, float]]:
         """(offset LSB, SI per LSB) per channel from sysfs: shared-by-type (in_anglvel_scale) or separate."""

@@ -19,7 +19,7 @@ from __future__ import annotations
 import time
 
 from ahrsd.drivers.adis16405 import Adis16405
-from ahrsd.drivers.chip_source import ChipSource
+from ahrsd.drivers.chip_source import ADIS16405_RATE_HZ, ChipSource
 from ahrsd.drivers.reconnecting import ReconnectingSource
 from ahrsd.drivers.replay_source import ReplaySource
 from ahrsd.drivers.source_interface import PerSampleSource, SensorSource
@@ -111,7 +111,9 @@ def _iio_source(sensor_cfg, clock, faults):
         raise ValueError("fault injection (--sim-faults) needs the simulated sensor, not --iio")
     from ahrsd.drivers.iio_source import IioSource
 
-    return IioSource(sensor_cfg.iio_device, clock=clock)
+    # rate_hz at the chip's default leaves the driver's sampling_frequency as it is (and needs no write access)
+    rate = _chip_rate(sensor_cfg)
+    return IioSource(sensor_cfg.iio_device, clock=clock, rate_hz=None if rate in (None, ADIS16405_RATE_HZ) else rate)
 
 
 def _paced_by(line) -> dict:

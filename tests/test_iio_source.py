@@ -123,21 +123,30 @@ def test_the_simulated_device_streams_what_the_chip_produced(device):
     assert np.mean([s.accel_m_s2[2] for s in got]) == pytest.approx(-9.81, abs=0.8)
 
 
-def test_the_simulated_iio_device_through_the_daemon(tmp_path):
-    device = SimulatedIioDevice(tmp_path / "iio", scenario="static", seed=5)
+def start_iio_daemon(tmp_path, device, *flags: str) -> tuple[subprocess.Popen, Path]:
+    """`ahrsd run --iio` on the simulated device (output piped, MAVLink to a discard port); (process, stats file)."""
     stats = tmp_path / "stats.json"
-    proc = subprocess.Popen([sys.executable, "-m", "ahrsd.cli", "run", "--iio", str(device.sysfs),
-                             "--state-dir", str(tmp_path / "state"), "--no-log", "--status-line", "off",
+    proc = subprocess.Popen([sys.executable, "-m", "ahrsd.cli", "run", "--iio", str(device.sysfs), *flags,
+                             "--state-dir", str(tmp_path / "state"), "--no-log",
                              "--mavlink", "udpout:127.0.0.1:9", "--stats-file", str(stats)],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    return proc, stats
+
+
+def wait_for_records(device, proc, count: int, t_end: float) -> None:
+    """Until the simulated kernel has written `count` records (or the daemon ended, or t_end)."""
+    while device.stats["records"] < count and time.monotonic() < t_end and proc.poll() is None:
+        time.sleep(0.1)
+
+
+def test_the_simulated_iio_device_through_the_daemon(tmp_path):
+    device = SimulatedIioDevice(tmp_path / "iio", scenario="static", seed=5)
+    proc, stats = start_iio_daemon(tmp_path, device, "--status-line", "off")
     try:
         t_end = time.monotonic() + 120.0
-        while device.stats["records"] < 2000 and time.monotonic() < t_end and proc.poll() is None:
-            time.sleep(0.1)
+        wait_for_records(device, proc, 2000, t_end)
         device.stall(0.25)
-        t_more = device.stats["records"] + 2000
-        while device.stats["records"] < t_more and time.monotonic() < t_end and proc.poll() is None:
-            time.sleep(0.1)
+        wait_for_records(device, proc, device.stats["records"] + 2000, t_end)
         device.close()                                         # the "kernel" stops; the daemon drains the rest
         time.sleep(1.0)
     finally:
@@ -282,9 +291,10 @@ def test_a_vanished_iio_device_is_reopened_counted_and_logged(tmp_path, caplog):
 
 def test_the_udev_rule_opens_every_sysfs_file_the_source_writes(device):
     """Under systemd the daemon is not root: systemd/99-ahrsd-iio.rules must give its group every sysfs file
-    the source writes — channels, buffer length and enable, time stamp clock, trigger (an empty one too). What it
-    writes is read off the simulated sysfs tree: every file's modification time is set back first, and the files
-    written are those whose time moved."""
+    the source writes — channels, buffer length and enable, time stamp clock, trigger (an empty one too), and the
+    sampling rate when [sensor] rate_hz asks for one. What it writes is read off the simulated sysfs tree: every
+    file's modification time is set back first, and the files written are those whose time moved (the rate
+    attribute is a FIFO, replaced by a fresh one when read: it counts as written, which it is here)."""
     import fnmatch
     import os
     import re
@@ -294,16 +304,18 @@ def test_the_udev_rule_opens_every_sysfs_file_the_source_writes(device):
     opened = loop.split()
     (device.sysfs / "trigger" / "current_trigger").write_text("\n")     # a kernel with no trigger set yet
     long_ago_s = 1_000_000_000
-    files = [p for p in device.sysfs.rglob("*") if p.is_file()]
+    files = [p for p in device.sysfs.rglob("*") if p.is_file() or p.is_fifo()]
     for p in files:
         os.utime(p, (long_ago_s, long_ago_s))
-    src = started(device)
+    src = IioSource(str(device.sysfs), rate_hz=204.8)
+    src.start()
     try:
         src._open_buffer()
     finally:
         src.close()
     written = [p.relative_to(device.sysfs).as_posix() for p in files if p.stat().st_mtime != long_ago_s]
-    assert {"buffer/enable", "buffer/length", "current_timestamp_clock", "trigger/current_trigger"} <= set(written)
+    assert {"buffer/enable", "buffer/length", "current_timestamp_clock", "trigger/current_trigger",
+            "sampling_frequency"} <= set(written)
     assert any(w.startswith("scan_elements/") for w in written)
     assert [w for w in written if not any(fnmatch.fnmatch(w, p) for p in opened)] == []
     assert 'GROUP="iio"' in rule and "SupplementaryGroups=iio" in \

@@ -54,7 +54,10 @@ def test_the_chip_is_set_to_the_nearest_smpl_prd_and_set_again_after_a_power_los
     ({"rate_hz": 12.0}, "[12.8, 819.2]"),
     ({"rate_hz": 40.0}, "stale_timeout_s"),              # 5 periods of 39.96 SPS = 0.125 s > 0.1 s
     ({"rate_hz": "fast"}, "a number"),
-    ({"source": "iio", "rate_hz": 204.8}, "sampling_frequency"),
+    # 12.81's nearest setting is SMPL_PRD 0x7F (12.80003 SPS: |ln(12.81/12.80003)| = 0.0008 < |ln(12.90082/12.81)|
+    # = 0.0071), which the kernel driver's set_freq makes its slow base's 10.570 SPS (tests/test_iio_rate.py):
+    # 5 periods are 0.473 s > 0.45 s, where the spidev path's 12.8 SPS would fit (0.391 s)
+    ({"source": "iio", "rate_hz": 12.81, "stale_timeout_s": 0.45}, "stale_timeout_s"),
     ({"source": "replay", "replay_file": "r.csv", "rate_hz": 204.8}, "recorded at"),
 ])
 def test_a_rate_the_chip_or_the_source_cannot_have_is_refused_by_name(doc, hint):
@@ -72,8 +75,8 @@ def test_the_flag_is_checked_as_the_key_is_and_a_replay_refuses_the_files_rate()
     with pytest.raises(ConfigError, match=r"--rate-hz.*819.2"):
         Config().with_overrides(rate_hz=1000.0)
     from_file = Config(sensor=SensorConfig.parse({"rate_hz": 204.8}))
-    with pytest.raises(ConfigError, match=r"sensor.rate_hz.*sampling_frequency"):
-        from_file.with_overrides(iio="iio:device0")
+    assert from_file.with_overrides(iio="iio:device0").sensor.rate_hz == 204.8     # the driver's sampling_frequency
+    assert SensorConfig.parse({"source": "iio", "rate_hz": 12.81, "stale_timeout_s": 0.5}).rate_hz == 12.81
 
 
 def test_the_daemon_reads_the_chip_at_the_rate_it_set(tmp_path):
