@@ -11,6 +11,7 @@ from ahrsd.drivers.errors import ConfigError, DriverError, FrameError, ProductId
 from ahrsd.drivers.faults import FaultPlan
 from ahrsd.core.sample import SampleFlags
 from ahrsd.drivers.simulated import SimulatedAdis16405
+from ahrsd.drivers.sim_clock import ChipClock
 from ahrsd.drivers.source import start_chip_source
 from sim_streams import FixedStream
 from ahrsd.drivers.spi import SpiBus
@@ -223,7 +224,7 @@ def test_unsaturated_sample_has_no_alarm():
     assert imu.counters["saturations"] == 0 and imu.counters["ea_flags"] == 0
 
 
-class FakeClock:
+class FakeClock(ChipClock):
     def __init__(self):
         self.t = 100.0
 
