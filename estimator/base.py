@@ -67,8 +67,8 @@ class MagCalibrationAwareEstimator(Protocol):
 @runtime_checkable
 class AccelCalibrationAwareEstimator(Protocol):
     """An estimator whose published tilt σ carries the accelerometer bias its input still has (1σ per axis, m/s²;
-    None: no accelerometer calibration, the estimator's default for the chip; calibration/accel_trust.py), told at
-    start and after every calibration change (mekf)."""
+    None: no accelerometer calibration, the chip's figure the estimator was built with; calibration/accel_trust.py),
+    told at start and after every calibration change (mekf)."""
 
     def set_accel_bias_sigma(self, sigma_m_s2: float | None) -> None: ...
 

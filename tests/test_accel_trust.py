@@ -1,7 +1,8 @@
 """The accelerometer bias a calibration leaves reaches mekf's published tilt σ the same way in the daemon (at start
-and after every calibration change, with the calibration's predicted heading error) and in `ahrsd replay --calibration` (calibration/accel_trust.py): 2 mg with an
-accelerometer calibration in force, the chip's 5 mg without one (figures from the docstrings' sources: the bench
-calibration's residual in calibration/accel_trust.py, the ADIS16405's residual turn-on bias in MekfParams)."""
+and after every calibration change, with the calibration's predicted heading error) and in `ahrsd replay
+--calibration` (calibration/accel_trust.py): 2 mg with an accelerometer calibration in force, without one the
+chip's figure mekf was built with, by default 5 mg (figures from the docstrings' sources: the bench calibration's
+residual in calibration/accel_trust.py, the ADIS16405's residual turn-on bias in MekfParams)."""
 
 from __future__ import annotations
 
@@ -93,3 +94,15 @@ def test_the_published_tilt_variance_moves_by_the_told_bias_over_g_squared():
     assert diff == pytest.approx((CHIP_M_S2 ** 2 - CALIBRATED_M_S2 ** 2) / G ** 2, rel=0.02)
     with pytest.raises(ValueError):
         a.set_accel_bias_sigma(math.nan)
+
+
+def test_no_accelerometer_calibration_brings_back_the_figure_mekf_was_built_with():
+    """`set_accel_bias_sigma(None)` (a calibration without the accelerometer's) is the chip's figure as this filter
+    was built with it, not the default's 5 mg: a filter built with 30 mg, told 2 mg, then None, is at 30 mg again."""
+    built_m_s2 = 0.03
+    f = Mekf(accel_bias_sigma_m_s2=built_m_s2)
+    f.set_accel_bias_sigma(CALIBRATED_M_S2)
+    assert float(f._buf[0]["par"]["accel_bias_sigma_m_s2"]) == pytest.approx(CALIBRATED_M_S2)
+    f.set_accel_bias_sigma(None)
+    assert float(f._buf[0]["par"]["accel_bias_sigma_m_s2"]) == built_m_s2     # what the kernel publishes its σ with
+    assert f.params.accel_bias_sigma_m_s2 == built_m_s2
