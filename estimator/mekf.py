@@ -44,7 +44,7 @@ from .initial_attitude import initial_attitude
 from .mag_heading import RELEARN_GATE_OPEN_S, heading_params, relearn_reference, widen_after_calibration_change
 from .mag_heading_params import MagHeadingParams
 from .params import with_overrides
-from .base import LEARNED_IN_TURNS
+from .base import DEFAULT_UNMODELLED_IRON_UT, LEARNED_IN_TURNS
 from .rotations import quat_to_dcm
 
 _DEG = math.pi / 180.0
@@ -381,6 +381,7 @@ class Mekf:
     # base.IronLearningEstimator, so the daemon's one store (daemon/learned_iron.py) keeps, shows, accepts and
     # resets the correction learned in turns as it does ins's GNSS-learned iron.
     learned_iron_source = LEARNED_IN_TURNS
+    unmodelled_iron_ut = DEFAULT_UNMODELLED_IRON_UT
 
     def learned_iron(self) -> tuple[np.ndarray, np.ndarray]:
         """The hard iron learned in turns (body frame, µT: the circle's centre, z 0) and its covariance (µT²:
