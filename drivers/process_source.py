@@ -94,7 +94,7 @@ def unpack(data: bytes) -> list[ImuSample]:
 
 
 def _chip_truth(src) -> dict | None:
-    chip = getattr(src, "chip", None)
+    chip = src.chip
     if chip is None:
         return None
     return {"stats": dict(chip.stats), "sample_index": chip.sample_index, "injected": dict(chip.faults.injected),
@@ -266,6 +266,9 @@ class _ChipView:
 
     def now(self) -> float:
         return time.monotonic() - self._t_origin       # the simulated chip runs on CLOCK_MONOTONIC
+
+    def helper_pids(self) -> list[int]:
+        return []          # the chip's block producer is the reader process's child, given its priority there
 
 
 class ProcessSource(LiveSource):

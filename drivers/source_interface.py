@@ -23,6 +23,10 @@ class SimulatedChipView(Protocol):
 
     def now(self) -> float: ...
 
+    def helper_pids(self) -> list[int]:
+        """The processes the chip's reads may wait on (its block producer): a real-time reader gives them its
+        own priority (drivers.threaded_source)."""
+
 
 @runtime_checkable
 class SensorSource(Protocol):

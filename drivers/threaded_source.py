@@ -79,9 +79,8 @@ def share_realtime_priority(pids: list[int], priority: int = FIFO_PRIORITY) -> s
 
 def _helper_pids(inner) -> list[int]:
     """The processes the inner source's reads may wait on (a simulated chip's block producer)."""
-    chip = getattr(inner, "chip", None)
-    helpers = getattr(chip, "helper_pids", None)
-    return list(helpers()) if callable(helpers) else []
+    chip = inner.chip         # drivers.source_interface.SensorSource: None for a real sensor
+    return [] if chip is None else list(chip.helper_pids())
 
 
 def log_realtime_priority(who: str, refused: str, priority: int = FIFO_PRIORITY) -> None:
