@@ -107,7 +107,7 @@ def _child(sensor_cfg: dict, faults, conn) -> None:
     from ahrsd.drivers.source import open_source
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)     # the daemon ends the reader (Ctrl-C reaches the group)
-    Adis16405.samples_as_records = True              # this process only packs the chip's samples (pack)
+    Adis16405.samples_as_records = True     # process-wide: every driver built here packs its samples (pack)
 
     cfg = SimpleNamespace(**{**sensor_cfg, "reader": "thread"})
     try:
