@@ -115,8 +115,9 @@ def _child(sensor_cfg: dict, faults, conn) -> None:
     except Exception as exc:  # noqa: BLE001 - reported to the daemon, which says why it cannot start
         conn.send(("error", type(exc).__name__, str(exc)))
         return
-    # the chip source's own description: its reader thread's ("read in a dedicated thread") is not the daemon's
-    conn.send(("hello", getattr(src, "inner", src).description, src.sample_rate_hz, _chip_truth(src)))
+    # the chip source's own description: its reader thread's ("read in a dedicated thread") is not the daemon's;
+    # with reader "thread" open_source reads every chip (sim, spi, iio) through a ThreadedSource
+    conn.send(("hello", src.inner.description, src.sample_rate_hz, _chip_truth(src)))
     # what start-up imported stays for good: out of the collector's sight, so that a full collection during
     # the reads (the reader thread pays for it, holding the GIL) does not walk every module's objects
     gc.collect()
