@@ -46,6 +46,7 @@ class DataReadyTimer:
 
     ambiguous_reads = 0          # the edges' sequence numbers leave no ambiguity
     ambiguous_samples = 0
+    waits_for_edges = True       # a reader thread calls wait(timeout_s) instead of sleeping until next_read_time
 
     def __init__(self, line: DataReadyLine, period_s: float):
         self.line = line
