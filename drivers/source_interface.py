@@ -58,6 +58,15 @@ class PerSampleSource(SensorSource, Protocol):
         """CLOCK_MONOTONIC time of the next read (0: now)."""
 
 
+@runtime_checkable
+class WaitingSource(SensorSource, Protocol):
+    """A block source (`per_sample` False) whose reader can wait for its data: the kernel's IIO buffer
+    (drivers.iio_source), drained by a reader thread (drivers.threaded_source)."""
+
+    def wait(self, timeout_s: float) -> bool:
+        """Block until new data is ready (True) or `timeout_s` passes (False)."""
+
+
 class LiveSource:
     """The defaults of a sensor read live: stamped in CLOCK_MONOTONIC, never finished, not a recording, no
     simulated chip behind it (a source that has one says so)."""

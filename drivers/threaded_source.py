@@ -32,7 +32,7 @@ from typing import Callable
 from ahrsd.core.sample import ImuSample, SampleFlags
 from ahrsd.drivers.errors import FrameError
 from ahrsd.drivers.read_failures import ReadFailures
-from ahrsd.drivers.source_interface import LiveSource
+from ahrsd.drivers.source_interface import LiveSource, WaitingSource
 
 log = logging.getLogger(__name__)
 
@@ -115,7 +115,7 @@ class ThreadedSource(LiveSource):
                  capacity_samples: int = CAPACITY_SAMPLES, realtime: bool = True,
                  switch_interval_s: float | None = SWITCH_INTERVAL_S,
                  request_priority: Callable[[], str] = request_realtime_priority):
-        if getattr(inner, "per_sample", False) is not True and not callable(getattr(inner, "wait", None)):
+        if not (inner.per_sample or isinstance(inner, WaitingSource)):
             raise TypeError("ThreadedSource reads a per-sample source (read_one / next_read_time) or a block "
                             "source that can wait for data (wait(timeout_s) / poll())")
         self.inner = inner
