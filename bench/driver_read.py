@@ -41,6 +41,9 @@ def main(argv=None) -> None:
                 def transfer(self, tx, speed_hz, delay_us=0, _frame=frame):
                     return _frame
 
+                def sleep(self, seconds):
+                    time.sleep(seconds)
+
                 def close(self):
                     pass
 

@@ -97,7 +97,7 @@ class Learned(NamedTuple):
 
 class IronPipeline(Protocol):
     """What the part reads of the per-sample path (daemon.pipeline.Pipeline), when it needs them: they are
-    swapped between samples. An estimator that learns no iron (mekf) is not an IronLearningEstimator."""
+    swapped between samples. An estimator that learns no iron (thesis) is not an IronLearningEstimator."""
 
     estimator: Estimator
     calibration: Calibration
@@ -226,7 +226,8 @@ class LearnedIron:
             return False, "Learned iron: nothing learned yet"
         current = p.calibration
         model = folded_iron(current.mag, p.mounting, offset, soft)
-        heading_std = self._accepted_heading_std_deg(current, cov, heading_sigma_rad)   # the old offset's σ is inside it
+        heading_std = self._accepted_heading_std_deg(current, cov, heading_sigma_rad,    # the old offset's σ is inside it
+                                                     est.unmodelled_iron_ut)
         new = current.with_sensor("mag", model, method="learned-iron", heading_std_deg=heading_std,
                                   offset_std_deg=None if heading_std is None else 0.0,
                                   learned_iron_ut=offset.tolist(),
@@ -288,10 +289,12 @@ class LearnedIron:
         return (mavlink.MAV_RESULT_ACCEPTED if done else mavlink.MAV_RESULT_FAILED), text
 
     # ------------------------------------------------------------------ internals
-    def _accepted_heading_std_deg(self, current, cov, iron_sigma_rad: float) -> float | None:
+    def _accepted_heading_std_deg(self, current, cov, iron_sigma_rad: float,
+                                  unmodelled_iron_ut: float) -> float | None:
         """The heading 1σ of the calibration with the iron folded in: the old calibration's figure and the
-        learned iron's (iron_sigma_rad: the estimator's, NaN unknown) in quadrature; without an old figure,
-        the estimator's floor for what a hard iron does not explain takes its place."""
+        learned iron's (iron_sigma_rad: the estimator's, NaN unknown) in quadrature; without an old figure, the
+        estimator's floor for what its learned iron does not explain (unmodelled_iron_ut over the horizontal
+        field) takes its place."""
         from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad
 
         horizontal_ut = float(self.horizontal_field_ut())
@@ -305,10 +308,7 @@ class LearnedIron:
             iron_sigma_rad = math.sqrt(max(float(np.max(np.diag(cov)[:2])), 0.0)) / horizontal_ut
         old_sigma_rad = calibration_heading_sigma_rad(current)
         if not math.isfinite(old_sigma_rad):
-            from ahrsd.estimator.ins import DEFAULT_INS_PARAMS, Ins
-
-            est = self.pipeline.estimator
-            old_sigma_rad = (est.params if isinstance(est, Ins) else DEFAULT_INS_PARAMS).iron_unmodelled_ut / horizontal_ut
+            old_sigma_rad = unmodelled_iron_ut / horizontal_ut
         if not math.isfinite(old_sigma_rad):
             return None
         return math.degrees(math.hypot(old_sigma_rad, iron_sigma_rad))

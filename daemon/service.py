@@ -386,7 +386,7 @@ class Service:
         calibration = CalibrationStore(self.state_dir).load()
         self._compile_estimator()
         mag_sigma_rad = calibration_heading_sigma_rad(calibration)    # the calibration's heading error (NaN: unknown)
-        self.use_pipeline(Pipeline(self._make_estimator(mag_sigma_rad, calibration), calibration))
+        self.use_pipeline(Pipeline(self._make_estimator(calibration), calibration))
         self.pipeline.set_mounting([self.params.get(n) for n in MOUNTING_PARAMS])
         self._start_heading_parts(mag_sigma_rad)
         self._setup_signing()
@@ -427,23 +427,26 @@ class Service:
         if took_s > 1.0:
             log.info("compiled the %s estimator in %.1f s (cached for the next start)", name, took_s)
 
-    def _make_estimator(self, mag_sigma_rad: float, calibration) -> Estimator:
-        """The configured estimator at the declination, told the calibration's heading error (NaN: unknown) and
-        the accelerometer bias it leaves."""
+    def _make_estimator(self, calibration) -> Estimator:
+        """The configured estimator at the declination, built on the calibration in force and told it."""
         cfg = self.config
         options = dict(cfg.estimator_options)
         if cfg.estimator_name == "ins":
-            options["mag_calibration_sigma_rad"] = mag_sigma_rad
+            # ins builds its first heading checks on the calibration's heading error; set_mag_calibration_sigma (a
+            # hot swap) restarts them but keeps what the running filter has, such as its unconfirmed-yaw floor
+            options["mag_calibration_sigma_rad"] = calibration_heading_sigma_rad(calibration)
         estimator = make_estimator(cfg.estimator_name, declination_rad=self.declination.rad, **options)
-        if "mag_calibration_sigma_rad" not in options and isinstance(estimator, MagCalibrationAwareEstimator):
-            # mekf: without GNSS its published yaw σ carries the calibration's error (estimator/calibration_heading.py)
-            estimator.set_mag_calibration_sigma(mag_sigma_rad)
-        self._tell_accel_calibration(estimator, calibration)
+        self._tell_calibration(estimator, calibration)
         return estimator
 
     @staticmethod
-    def _tell_accel_calibration(estimator: Estimator, calibration) -> None:
-        """mekf: its published tilt σ carries the accelerometer bias the calibration leaves (calibration/accel_trust.py)."""
+    def _tell_calibration(estimator: Estimator, calibration) -> None:
+        """Tell the estimator what a calibration leaves (at start, and after every change): its predicted heading
+        error (NaN: unknown; mekf and ins: without GNSS the published yaw σ carries it, and their heading checks
+        start again on it: estimator/calibration_heading.py), then the accelerometer bias (mekf: the published
+        tilt σ carries it, calibration/accel_trust.py)."""
+        if isinstance(estimator, MagCalibrationAwareEstimator):
+            estimator.set_mag_calibration_sigma(calibration_heading_sigma_rad(calibration))
         if isinstance(estimator, AccelCalibrationAwareEstimator):
             estimator.set_accel_bias_sigma(calibration_accel_bias_sigma_m_s2(calibration))
 
@@ -594,16 +597,13 @@ class Service:
             self.learned_iron.tick(now)
 
     def _on_calibration_applied(self, cal) -> None:
-        """After every calibration change (daemon.calibration_swap): the vehicle log names it; ins and the
-        heading status get its predicted heading error; the iron learned on the old one is reset."""
+        """After every calibration change (daemon.calibration_swap): the vehicle log names it; the estimator is
+        told it; the heading status gets its predicted heading error; the iron learned on the old one is reset."""
         self.logs.log_calibration(cal)
-        sigma = calibration_heading_sigma_rad(cal)
-        est = self.pipeline.estimator
-        if isinstance(est, MagCalibrationAwareEstimator):      # mekf, ins
-            est.set_mag_calibration_sigma(sigma)
-        self._tell_accel_calibration(est, cal)
+        self._tell_calibration(self.pipeline.estimator, cal)
         if self.heading_status is not None:
-            self.heading_status.set_calibration_sigma(sigma, in_force=has_mag_calibration(cal))
+            self.heading_status.set_calibration_sigma(calibration_heading_sigma_rad(cal),
+                                                      in_force=has_mag_calibration(cal))
         if self.learned_iron is not None:
             self.learned_iron.calibration_changed()
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 import logging
 import math
 import struct
-import time
 from operator import mul as _mul
 from collections.abc import Callable, Iterable
 
@@ -75,8 +74,8 @@ class Adis16405:
     Read alone, every fresh sample is one sample period after the previous one and t_s starts at 0; read
     through drivers.chip_source.ChipSource (the daemon, `record`, `calibrate --live`), the host-clock
     SampleTimer stamps and indexes them and counts the samples lost between reads.
-    sleep: how to wait for the chip (reset, self-test). Default: the bus's own `sleep` if it has one (the
-        simulated chip runs on virtual time), else `time.sleep`.
+    sleep: how to wait for the chip (reset, self-test). Default: the bus's `sleep` (the host's time on a real
+        bus; the simulated chip's own, virtual time).
     """
 
     # read_sample returns a drivers.sample_record.SampleRecord instead of an ImuSample: set for its whole process
@@ -88,7 +87,7 @@ class Adis16405:
                  stuck_window_s: float = STUCK_WINDOW_S, data_ready: bool = False):
         self.bus = bus
         self.data_ready = data_ready      # start() routes data-ready to DIO1 (reads paced by drivers.data_ready)
-        self._sleep = sleep or getattr(bus, "sleep", None) or time.sleep
+        self._sleep = sleep or bus.sleep
         self._stuck_window_s = stuck_window_s
         self.counters: dict[str, int] = dict.fromkeys(COUNTER_NAMES, 0)
         self.product_id: int | None = None

@@ -12,6 +12,7 @@ import math
 import time
 
 from ahrsd.core.sample import ImuSample, SampleFlags
+from ahrsd.drivers.adis16405 import Adis16405
 from ahrsd.drivers.errors import FrameError
 from ahrsd.drivers.sample_timer import SampleTimer
 from ahrsd.drivers.source_interface import LiveSource
@@ -41,12 +42,12 @@ class ChipSource(LiveSource):
     per_sample = True          # read once per chip sample on the phase lock (see SampleTimer)
     monotonic_offset_s = 0.0   # the SampleTimer stamps samples in CLOCK_MONOTONIC already
 
-    def __init__(self, driver, bus, description: str, clock=None, timer: SampleTimer | None = None):
+    def __init__(self, driver: Adis16405, bus, description: str, clock=None, timer: SampleTimer | None = None):
         self.driver = driver
         self.bus = bus
         self.description = description
         self.clock = clock
-        self.sample_rate_hz = float(getattr(driver, "sample_rate_hz", ADIS16405_RATE_HZ) or ADIS16405_RATE_HZ)
+        self.sample_rate_hz = float(driver.sample_rate_hz)     # the chip's, as read back (its default until start)
         self.timer = timer if timer is not None else SampleTimer(1.0 / self.sample_rate_hz)
         self.stale_reads = 0
         self.lost_samples = 0
@@ -94,7 +95,7 @@ class ChipSource(LiveSource):
         return [] if s is None else [s]
 
     def counters(self) -> dict:
-        c = dict(getattr(self.driver, "counters", {}) or {})
+        c = dict(self.driver.counters)
         c["stale_reads"] = self.stale_reads
         c["lost_samples_host"] = self.lost_samples
         c["index_ambiguous_reads"] = self.timer.ambiguous_reads

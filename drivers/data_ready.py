@@ -22,6 +22,7 @@ extension, which development machines and the timer-paced set-up do not need.
 from __future__ import annotations
 
 import logging
+from typing import Protocol
 
 from ahrsd.drivers.errors import BusError
 
@@ -30,13 +31,24 @@ log = logging.getLogger(__name__)
 GUARD_S = 50e-6          # next_read_time (event-loop reader only): this long after the predicted edge
 
 
+class DataReadyLine(Protocol):
+    """What the timer asks of the line: libgpiod's LineRequest for one line with rising-edge detection."""
+
+    def wait_edge_events(self, timeout=None) -> bool: ...
+
+    def read_edge_events(self, max_events: int | None = None) -> list: ...
+
+    def release(self) -> None: ...
+
+
 class DataReadyTimer:
     """Sample time stamps and indices from data-ready edges (see the module doc)."""
 
     ambiguous_reads = 0          # the edges' sequence numbers leave no ambiguity
     ambiguous_samples = 0
+    waits_for_edges = True       # a reader thread calls wait(timeout_s) instead of sleeping until next_read_time
 
-    def __init__(self, line, period_s: float):
+    def __init__(self, line: DataReadyLine, period_s: float):
         self.line = line
         self.period_s = period_s
         self.k = -1                  # index of the last fresh sample (edge sequence number − first + 0)
@@ -103,9 +115,7 @@ class DataReadyTimer:
         return self._last_edge_s + self.period_s + GUARD_S
 
     def close(self) -> None:
-        release = getattr(self.line, "release", None)
-        if release is not None:
-            release()
+        self.line.release()
 
 
 def parse_gpio(spec: str) -> tuple[str, int]:

@@ -94,7 +94,7 @@ def unpack(data: bytes) -> list[ImuSample]:
 
 
 def _chip_truth(src) -> dict | None:
-    chip = getattr(src, "chip", None)
+    chip = src.chip
     if chip is None:
         return None
     return {"stats": dict(chip.stats), "sample_index": chip.sample_index, "injected": dict(chip.faults.injected),
@@ -107,7 +107,7 @@ def _child(sensor_cfg: dict, faults, conn) -> None:
     from ahrsd.drivers.source import open_source
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)     # the daemon ends the reader (Ctrl-C reaches the group)
-    Adis16405.samples_as_records = True              # this process only packs the chip's samples (pack)
+    Adis16405.samples_as_records = True     # process-wide: every driver built here packs its samples (pack)
 
     cfg = SimpleNamespace(**{**sensor_cfg, "reader": "thread"})
     try:
@@ -115,8 +115,9 @@ def _child(sensor_cfg: dict, faults, conn) -> None:
     except Exception as exc:  # noqa: BLE001 - reported to the daemon, which says why it cannot start
         conn.send(("error", type(exc).__name__, str(exc)))
         return
-    # the chip source's own description: its reader thread's ("read in a dedicated thread") is not the daemon's
-    conn.send(("hello", getattr(src, "inner", src).description, src.sample_rate_hz, _chip_truth(src)))
+    # the chip source's own description: its reader thread's ("read in a dedicated thread") is not the daemon's;
+    # with reader "thread" open_source reads every chip (sim, spi, iio) through a ThreadedSource
+    conn.send(("hello", src.inner.description, src.sample_rate_hz, _chip_truth(src)))
     # what start-up imported stays for good: out of the collector's sight, so that a full collection during
     # the reads (the reader thread pays for it, holding the GIL) does not walk every module's objects
     gc.collect()
@@ -266,6 +267,9 @@ class _ChipView:
 
     def now(self) -> float:
         return time.monotonic() - self._t_origin       # the simulated chip runs on CLOCK_MONOTONIC
+
+    def helper_pids(self) -> list[int]:
+        return []          # the chip's block producer is the reader process's child, given its priority there
 
 
 class ProcessSource(LiveSource):

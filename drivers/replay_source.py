@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
+from collections.abc import Generator
 from typing import Iterator
 
 from ahrsd.core.sample import ImuSample, SampleFlags
@@ -75,6 +76,5 @@ class ReplaySource:
         return {}
 
     def close(self) -> None:
-        close = getattr(self._it, "close", None)
-        if close:
-            close()
+        if isinstance(self._it, Generator):      # a recording read lazily (iter_samples): its file closes with it
+            self._it.close()

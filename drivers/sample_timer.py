@@ -53,6 +53,7 @@ class SampleTimer:
 
     ambiguous_reads = 0     # fresh reads whose index was not unique (the largest allowed was taken)
     ambiguous_samples = 0   # lost samples counted at those reads that may be phantoms (upper bound)
+    waits_for_edges = False  # a reader sleeps until next_read_time (drivers.data_ready's timer can wait instead)
 
     def fresh(self, read_time: float, read_end: float | None = None,
               newer_ready: bool = False) -> tuple[float, int, int]:

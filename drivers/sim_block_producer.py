@@ -36,9 +36,10 @@ import struct
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
 
 import numpy as np
+
+from ahrsd.drivers.sim_block_stream import ChipBlock
 
 SLOTS = 32               # blocks computed ahead: 10 s of samples at 819.2 SPS
 POWER_ON_TIMEOUT_S = 120.0   # the producer imports the simulator (numba kernels compile on a first run)
@@ -64,28 +65,16 @@ def _columns() -> dict[str, slice]:
 _COL = _columns()
 
 
-@dataclass
-class ChipBlock:
-    """What the simulated chip takes from a stream block (drivers.simulated._refill)."""
-
-    t_s: np.ndarray
-    gyro_rad_s: np.ndarray
-    accel_m_s2: np.ndarray
-    mag_ut: np.ndarray
-    temp_c: np.ndarray
-    truth_q_wxyz: np.ndarray | None
-    truth_gyro_rad_s: np.ndarray | None
-
-
 def _ring(buf, block: int, slots: int) -> np.ndarray:
     return np.ndarray((slots, block, ROW), dtype=np.float64, buffer=buf, offset=HEADER_BYTES)
 
 
 class ProducedStream:
-    """A simulation stream computed ahead in a child process (module doc); `next_block(n)` like the stream's."""
+    """A simulation stream computed ahead in a child process (module doc): a drivers.sim_block_stream.BlockStream."""
 
     computed_elsewhere = True          # the chip's reads never compute: the blocks are made ahead
     waited_s = 0.0                     # how long the last next_block waited for the producer (ring empty)
+    pid: int | None
 
     def __init__(self, scenario: str, rate_hz: float, seed: int, errors: str, start_s: float, block: int,
                  slots: int = SLOTS):
@@ -227,13 +216,14 @@ def main(argv: list[str]) -> int:
                         return 0
                 else:
                     break                                  # the rest of a RESTART is still on its way
-        blk = stream.next_block(block)
+        blk = ChipBlock.of(stream.next_block(block))
         if len(blk.t_s) != block:
             raise ValueError(f"the stream made {len(blk.t_s)} samples, {block} were asked")
         rows = ring[made % slots]
         truth = 0
+        values = blk.columns()
         for name, s in _COL.items():
-            value = getattr(blk, name, None)
+            value = values[name]
             if value is None:
                 rows[:, s] = 0.0
                 continue

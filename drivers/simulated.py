@@ -22,13 +22,15 @@ import errno
 import logging
 import math
 import struct
-import time
 from collections.abc import Callable
+from datetime import timedelta
 
 import numpy as np
 
 from . import registers as R
 from .faults import FaultKind, FaultPlan
+from .sim_block_stream import BlockStream, ChipBlock, InProcessStream, SimulationStream
+from .sim_clock import ChipClock, chip_clock
 
 log = logging.getLogger(__name__)
 
@@ -59,10 +61,12 @@ def _default_registers() -> list[int]:
 class SimulatedAdis16405:
     """An ADIS16405 on a simulated SPI bus (implements `SpiBus`).
 
-    scenario: a scenario name for `ahrsd.simulation.open_stream`, a ready stream object (`next_block(n)`),
-        or a factory `f(rate_hz, start_s) -> stream` (used again when SMPL_PRD changes the rate).
-    clock: None (free-running, virtual time) or a monotonic clock in seconds; if the clock object has a
-        `sleep(s)` method (a test's fake clock), `sleep()` uses it instead of time.sleep.
+    scenario: a scenario name for `ahrsd.simulation.open_stream`, a ready stream object (a
+        `drivers.sim_block_stream.SimulationStream`), or a factory `f(rate_hz, start_s) -> stream` (used again
+        when SMPL_PRD changes the rate).
+    clock: None (free-running, virtual time) or a monotonic clock in seconds: a `drivers.sim_clock.ChipClock`
+        (a test's stepped clock, whose `sleep` `sleep()` uses) or a plain function (`time.monotonic`: real
+        sleeps).
     faults: a FaultPlan to inject faults (an empty one is created otherwise: `chip.faults.add(...)`).
     product_id: what PRODUCT_ID reads (0x4015; 0x4010 simulates an ADIS16400).
     producer: where a named scenario's samples are computed on a clock: "thread" (a helper thread of this
@@ -71,35 +75,18 @@ class SimulatedAdis16405:
     """
 
     def __init__(self, scenario="static", seed: int = 0, errors="adis16405",
-                 clock: Callable[[], float] | None = None, faults: FaultPlan | None = None,
+                 clock: ChipClock | Callable[[], float] | None = None, faults: FaultPlan | None = None,
                  product_id: int = R.PRODUCT_ID_ADIS16405, producer: str = "thread"):
         if producer not in ("thread", "process"):
             raise ValueError(f"producer must be 'thread' or 'process', not {producer!r}")
         self.faults = faults if faults is not None else FaultPlan(seed=seed)
         self.stats = {"transfers": 0, "bursts": 0, "samples_produced": 0, "samples_lost": 0,
                       "clock_violations": 0, "spi_failures": 0}
-        self._clock = clock
-        self._t_origin = clock() if clock is not None else 0.0
+        self._clock = None if clock is None else chip_clock(clock)
+        self._t_origin = self._clock() if clock is not None else 0.0
         self._vt = 0.0
         self._closed = False
-        if isinstance(scenario, str) and producer == "process" and clock is not None and isinstance(errors, str):
-            def factory(rate_hz, start_s, _name=scenario):
-                from ahrsd.drivers.sim_block_producer import ProducedStream
-
-                return ProducedStream(_name, rate_hz, seed, errors, start_s, BLOCK_SAMPLES)
-            self._factory = factory
-        elif isinstance(scenario, str):
-            def factory(rate_hz, start_s, _name=scenario):
-                from ahrsd.simulation import open_stream   # imported here: simulation is heavy
-                return open_stream(_name, rate_hz=rate_hz, seed=seed, errors=errors, start_s=start_s)
-            self._factory = factory
-        elif hasattr(scenario, "next_block"):
-            self._factory = None
-            self._fixed_stream = scenario
-        elif callable(scenario):
-            self._factory = scenario
-        else:
-            raise TypeError("scenario must be a name, a stream with next_block(n), or a factory(rate_hz, start_s)")
+        self._open_blocks = self._block_stream_opener(scenario, seed, errors, producer)
         self._product_id = product_id
         self._regs = _default_registers()
         self._regs[R.PRODUCT_ID >> 1] = product_id
@@ -117,11 +104,32 @@ class SimulatedAdis16405:
         self._out_row = -1
         self._blk = None
         self._apply_config(reopen=True, start_s=0.0, first_index=0)
-        if clock is not None:
+        if self._clock is not None:
             # power-on: chip time 0 (sample 0's data-ready) is when the chip can make samples, i.e. once its
             # stream is open — a producer process may take seconds to import the simulator, samples that the
             # simulated chip could not have made are not lost samples
-            self._t_origin, self._seg_t0 = clock(), 0.0
+            self._t_origin, self._seg_t0 = self._clock(), 0.0
+
+    def _block_stream_opener(self, scenario, seed: int, errors, producer: str
+                             ) -> Callable[[float, float], BlockStream]:
+        """How the chip opens its block stream at a rate and a start time (`scenario`: the constructor's)."""
+        ahead = self._clock is not None
+        if isinstance(scenario, str) and producer == "process" and self._clock is not None and isinstance(errors, str):
+            def produced(rate_hz, start_s, _name=scenario):
+                from ahrsd.drivers.sim_block_producer import ProducedStream
+
+                return ProducedStream(_name, rate_hz, seed, errors, start_s, BLOCK_SAMPLES)
+            return produced
+        if isinstance(scenario, str):
+            def reopen(rate_hz, start_s, _name=scenario):
+                from ahrsd.simulation import open_stream   # imported here: simulation is heavy
+                return open_stream(_name, rate_hz=rate_hz, seed=seed, errors=errors, start_s=start_s)
+            return lambda rate_hz, start_s: InProcessStream(reopen(rate_hz, start_s), reopen, ahead)
+        if isinstance(scenario, SimulationStream):
+            return lambda rate_hz, start_s: InProcessStream(scenario, None, ahead)
+        if callable(scenario):
+            return lambda rate_hz, start_s: InProcessStream(scenario(rate_hz, start_s), scenario, ahead)
+        raise TypeError("scenario must be a name, a stream with next_block(n), or a factory(rate_hz, start_s)")
 
     # --------------------------------------------------------------------------------- public helpers
     @property
@@ -185,20 +193,17 @@ class SimulatedAdis16405:
             if self._vt >= self._next_event:
                 self._run_events(self._vt)
         else:
-            getattr(self._clock, "sleep", time.sleep)(max(0.0, seconds))
+            self._clock.sleep(max(0.0, seconds))
 
     def helper_pids(self) -> list[int]:
         """The processes the chip's reads may wait on (its block producer, drivers.sim_block_producer): a
         real-time reader gives them its own priority (drivers.threaded_source)."""
-        pid = getattr(self._stream, "pid", None)
+        pid = self._stream.pid
         return [pid] if pid is not None else []
 
     def close(self) -> None:
         self._closed = True
-        self._close_stream()
-        if self._prefetcher is not None:
-            self._prefetcher.shutdown(wait=False, cancel_futures=True)
-            self._prefetcher = None
+        self._stream.close()
 
     def power_cycle(self) -> None:
         """Back to the flash settings with a clean DIAG_STAT (like a reset, but instant)."""
@@ -485,17 +490,10 @@ class SimulatedAdis16405:
                 first_index = self._index + 1
                 start_s = self._seg_t0 + (first_index - self._seg_index0) / self._seg_rate
                 self._materialise_output()
-            restart = getattr(self._stream, "restart", None) if self._factory is not None else None
-            if restart is not None:        # a producer process: the same one, not a new import of the simulator
-                restart(self._rate, start_s)
-            elif self._factory is not None:
-                self._close_stream()
-                self._stream = self._factory(self._rate, start_s)
-            else:
-                self._stream = self._fixed_stream
-                if first_index > 0:
-                    log.warning("fixed stream: rate change to %.3f SPS keeps the stream's own sample spacing",
-                                self._rate)
+            if self._stream is None:
+                self._stream = self._open_blocks(self._rate, start_s)
+            else:        # a producer process restarts in place: not a new import of the simulator
+                self._stream.restart(self._rate, start_s)
             # the new sample grid starts once its stream is open (a producer process has its first block)
             self._seg_t0 = self.now() if self._clock is not None else start_s
             self._seg_index0 = first_index
@@ -527,46 +525,24 @@ class SimulatedAdis16405:
         self._blk_n = n
         self._blk_raw = raw
         self._blk_temp = np.asarray(blk.temp_c, dtype=np.float64)
-        self._blk_truth_q = getattr(blk, "truth_q_wxyz", None)
-        self._blk_truth_gyro = getattr(blk, "truth_gyro_rad_s", None)
+        self._blk_truth_q = blk.truth_q_wxyz
+        self._blk_truth_gyro = blk.truth_gyro_rad_s
         self._encode()
 
-    def _next_block(self):
-        """The stream's next block. On a real-time clock the block after it is computed meanwhile in a helper
-        thread: the simulator takes milliseconds per block, and computed inside a read it would make that read
-        late and lose chip samples the real part would not lose (the real chip's work is in silicon)."""
-        if self._clock is None:
-            return self._stream.next_block(BLOCK_SAMPLES)
-        if getattr(self._stream, "computed_elsewhere", False):
+    def _next_block(self) -> ChipBlock:
+        """The stream's next block (on a real-time clock it was computed ahead: drivers.sim_block_stream)."""
+        blk = self._stream.next_block(BLOCK_SAMPLES)
+        if self._stream.computed_elsewhere:
             # computed ahead in a producer process: a wait (its ring empty) is the producer short of CPU,
             # counted: the read waits with it and samples are lost that the real chip, computing in silicon,
             # would keep
-            blk = self._stream.next_block(BLOCK_SAMPLES)
             wait_us = int(self._stream.waited_s * 1e6)
             if wait_us > 1e6 / self._rate:
                 self.stats["producer_waits"] = self.stats.get("producer_waits", 0) + 1
             self.stats["producer_wait_max_us"] = max(self.stats.get("producer_wait_max_us", 0), wait_us)
-            return blk
-        stream = self._stream
-        ahead = self._prefetched
-        if ahead is not None and ahead[0] is stream:       # (a rate change opened a new stream: not this one's)
-            blk = ahead[1].result()
-        else:
-            blk = stream.next_block(BLOCK_SAMPLES)
-        if self._prefetcher is None:
-            from concurrent.futures import ThreadPoolExecutor
-
-            self._prefetcher = ThreadPoolExecutor(1, thread_name_prefix="sim-adis16405-blocks")
-        self._prefetched = (stream, self._prefetcher.submit(stream.next_block, BLOCK_SAMPLES))
         return blk
 
-    _prefetcher = None
-    _prefetched = None
-    _stream = None
-
-    def _close_stream(self) -> None:
-        if getattr(self._stream, "computed_elsewhere", False):    # a producer process (sim_block_producer)
-            self._stream.close()
+    _stream: BlockStream | None = None
 
     def _encode(self) -> None:
         """Bartlett filter, offsets, quantisation, saturation and word encoding for the whole block."""
@@ -633,17 +609,12 @@ class SimulatedDataReadyLine:
             raise ValueError("a data-ready line needs the chip on a clock (free-running chips have no edges)")
         self.chip = chip
         self.offset = offset
-        self._host = host_clock or chip._clock
-        self._to_host = to_host or getattr(chip._clock, "to_host", None) or (lambda t: t)
-        self._sleep_until = sleep_until or getattr(self._host, "sleep_until", None) or self._sleep_real
+        self._host = chip._clock if host_clock is None else chip_clock(host_clock)
+        self._to_host = to_host or chip._clock.to_host
+        self._sleep_until = sleep_until or self._host.sleep_until
         self._first: int | None = None          # the chip index of edge seqno 1
         self._next = None                       # the chip index of the next edge not yet read
         self.released = False
-
-    def _sleep_real(self, t: float) -> None:
-        dt = t - self._host()
-        if dt > 0:
-            time.sleep(dt)
 
     def _edge_host_time(self, index: int) -> float:
         return self._to_host(self.chip.ready_clock_time(index))
@@ -667,7 +638,9 @@ class SimulatedDataReadyLine:
             raise OSError(errno.EBADF, "line request released")
         if self._due():
             return True
-        limit = None if timeout is None else self._host() + float(getattr(timeout, "total_seconds", lambda: timeout)())
+        if isinstance(timeout, timedelta):                # libgpiod takes a timedelta or seconds
+            timeout = timeout.total_seconds()
+        limit = None if timeout is None else self._host() + float(timeout)
         if self._next is None:
             target = limit if limit is not None else self._host() + 0.1
         else:

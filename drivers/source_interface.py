@@ -23,6 +23,10 @@ class SimulatedChipView(Protocol):
 
     def now(self) -> float: ...
 
+    def helper_pids(self) -> list[int]:
+        """The processes the chip's reads may wait on (its block producer): a real-time reader gives them its
+        own priority (drivers.threaded_source)."""
+
 
 @runtime_checkable
 class SensorSource(Protocol):
@@ -52,6 +56,15 @@ class PerSampleSource(SensorSource, Protocol):
 
     def next_read_time(self) -> float:
         """CLOCK_MONOTONIC time of the next read (0: now)."""
+
+
+@runtime_checkable
+class WaitingSource(SensorSource, Protocol):
+    """A block source (`per_sample` False) whose reader can wait for its data: the kernel's IIO buffer
+    (drivers.iio_source), drained by a reader thread (drivers.threaded_source)."""
+
+    def wait(self, timeout_s: float) -> bool:
+        """Block until new data is ready (True) or `timeout_s` passes (False)."""
 
 
 class LiveSource:

@@ -6,6 +6,7 @@ Nothing here knows about the ADIS16405.
 
 from __future__ import annotations
 
+import time
 from typing import Protocol, runtime_checkable
 
 from .errors import BusError
@@ -19,6 +20,11 @@ class SpiBus(Protocol):
 
     def transfer(self, tx: bytes, speed_hz: int, delay_us: int = 0) -> bytes:
         """One CS-asserted transfer at `speed_hz`; `delay_us` is the stall after it before CS may assert again."""
+        ...
+
+    def sleep(self, seconds: float) -> None:
+        """Wait `seconds` for the chip (a reset, the self-test): the host's time on a real bus, the chip's own
+        (virtual) time on the simulated one."""
         ...
 
     def close(self) -> None:
@@ -61,6 +67,9 @@ class SpidevBus:
         except OSError as exc:
             raise BusError(f"SPI transfer on {self.path} failed: {exc}") from exc
         return bytes(rx)
+
+    def sleep(self, seconds: float) -> None:
+        time.sleep(seconds)
 
     def close(self) -> None:
         self._spi.close()

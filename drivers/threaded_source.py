@@ -32,7 +32,7 @@ from typing import Callable
 from ahrsd.core.sample import ImuSample, SampleFlags
 from ahrsd.drivers.errors import FrameError
 from ahrsd.drivers.read_failures import ReadFailures
-from ahrsd.drivers.source_interface import LiveSource
+from ahrsd.drivers.source_interface import LiveSource, WaitingSource
 
 log = logging.getLogger(__name__)
 
@@ -79,9 +79,8 @@ def share_realtime_priority(pids: list[int], priority: int = FIFO_PRIORITY) -> s
 
 def _helper_pids(inner) -> list[int]:
     """The processes the inner source's reads may wait on (a simulated chip's block producer)."""
-    chip = getattr(inner, "chip", None)
-    helpers = getattr(chip, "helper_pids", None)
-    return list(helpers()) if callable(helpers) else []
+    chip = inner.chip         # drivers.source_interface.SensorSource: None for a real sensor
+    return [] if chip is None else list(chip.helper_pids())
 
 
 def log_realtime_priority(who: str, refused: str, priority: int = FIFO_PRIORITY) -> None:
@@ -100,10 +99,10 @@ class ThreadedSource(LiveSource):
     last call. Sensor failures reach the daemon as exceptions from `poll()` once the buffer is drained.
 
     clock: the host clock of the reads (the inner source's); sleep_until(t): wait until clock() ≥ t (a test's
-        stepped clock). Pacing: when the inner source's timer can `wait(timeout_s)` for the chip's data-ready
-        (drivers.data_ready.DataReadyTimer) each read follows an edge; otherwise the thread sleeps until the
-        SampleTimer's next read time. realtime: the reader thread asks for SCHED_FIFO with `request_priority()`
-        ("" granted, else why not; request_realtime_priority asks the kernel).
+        stepped clock). Pacing: when the inner source's timer waits for the chip's data-ready (`waits_for_edges`:
+        drivers.data_ready.DataReadyTimer's `wait(timeout_s)`) each read follows an edge; otherwise the thread
+        sleeps until the SampleTimer's next read time. realtime: the reader thread asks for SCHED_FIFO with
+        `request_priority()` ("" granted, else why not; request_realtime_priority asks the kernel).
     """
 
     description: str
@@ -116,7 +115,7 @@ class ThreadedSource(LiveSource):
                  capacity_samples: int = CAPACITY_SAMPLES, realtime: bool = True,
                  switch_interval_s: float | None = SWITCH_INTERVAL_S,
                  request_priority: Callable[[], str] = request_realtime_priority):
-        if getattr(inner, "per_sample", False) is not True and not callable(getattr(inner, "wait", None)):
+        if not (inner.per_sample or isinstance(inner, WaitingSource)):
             raise TypeError("ThreadedSource reads a per-sample source (read_one / next_read_time) or a block "
                             "source that can wait for data (wait(timeout_s) / poll())")
         self.inner = inner
@@ -312,17 +311,16 @@ class _Pacing:
         self.stale_gap_s = STALE_REREAD_PERIODS * period_s
         self.last_read_s = 0.0      # when the latest read started (ThreadedSource._read_one sets it)
         self.last_stale = False     # the latest read found no new sample
-        self._timer = self._wait_edge = None
+        self._timer = None
 
     def wait_for_sample(self) -> bool:
         """Wait until the next sample should be ready; False when no data-ready edge came (look again)."""
         if self._timer is None:
             # the inner source's timer exists once the chip first started, and is kept through reconnections
             # (drivers.reconnecting): looked up until then, not at every read
-            self._timer = getattr(self.inner, "timer", None)
-            self._wait_edge = getattr(self._timer, "wait", None)
-        if self._wait_edge is not None:
-            return self._wait_edge(self.EDGE_WAIT_S)
+            self._timer = self.inner.timer
+        if self._timer is not None and self._timer.waits_for_edges:
+            return self._timer.wait(self.EDGE_WAIT_S)
         target = self._spaced(self.inner.next_read_time())
         if target > 0.0:
             self.sleep_until(target)

@@ -67,8 +67,8 @@ class MagCalibrationAwareEstimator(Protocol):
 @runtime_checkable
 class AccelCalibrationAwareEstimator(Protocol):
     """An estimator whose published tilt σ carries the accelerometer bias its input still has (1σ per axis, m/s²;
-    None: no accelerometer calibration, the estimator's default for the chip; calibration/accel_trust.py), told at
-    start and after every calibration change (mekf)."""
+    None: no accelerometer calibration, the chip's figure the estimator was built with; calibration/accel_trust.py),
+    told at start and after every calibration change (mekf)."""
 
     def set_accel_bias_sigma(self, sigma_m_s2: float | None) -> None: ...
 
@@ -99,6 +99,9 @@ class HeadingCheckedEstimator(Protocol):
 
 LEARNED_WITH_GNSS = "GNSS-aided ins"   # ins: estimator/heading_monitor.py IronLearner
 LEARNED_IN_TURNS = "turns, no GNSS"    # mekf: estimator/field_circle_correction.py
+# 1σ per axis, µT, of the field error a learned iron does not explain (WMM and local anomalies): ins's default
+# (InsParams.iron_unmodelled_ut), and mekf's figure for the hard iron it learns in turns
+DEFAULT_UNMODELLED_IRON_UT = 1.0
 
 
 @runtime_checkable
@@ -108,6 +111,9 @@ class IronLearningEstimator(Protocol):
     daemon persists, shows and folds it (daemon/learned_iron.py); `learned_iron_source` says what learned it."""
 
     learned_iron_source: str
+    # the field error (1σ per axis, µT) the learned iron does not explain: over the horizontal field, the floor of
+    # the heading error of a calibration with the learned iron folded in, when that calibration states none
+    unmodelled_iron_ut: float
 
     def learned_iron(self) -> tuple[np.ndarray, np.ndarray]:
         """The hard iron (µT) and its 3×3 covariance (µT²)."""

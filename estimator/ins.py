@@ -32,7 +32,7 @@ from ahrsd.core.sample import ImuSample
 from . import ins_core as core
 from . import mag_heading as mag
 from .accel_axes_heading import accel_axes_heading_variance_rad2
-from .base import LEARNED_WITH_GNSS
+from .base import DEFAULT_UNMODELLED_IRON_UT, LEARNED_WITH_GNSS
 from .calibration_heading import calibration_heading_variance_rad2, calibration_states_error
 from .gsf_yaw import GsfParams, gsf_fuse_velocity, gsf_output, gsf_reset, new_gsf_state
 from .heading_monitor import HeadingCheckRecord, HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
@@ -184,7 +184,7 @@ class InsParams(MagHeadingParams):
     """1σ prior of each element of the learned soft iron D (m = (I + D)·B + b), dimensionless: vehicle iron
     scales and couples the field by up to ~10 % (simulation/magnetic.py VehicleIron). 0: learn the hard iron
     alone."""
-    iron_unmodelled_ut: float = 1.0
+    iron_unmodelled_ut: float = DEFAULT_UNMODELLED_IRON_UT
     """1σ per axis of the field error the learned hard and soft iron do not explain (WMM and local anomalies,
     the soft iron's third column while the vehicle stays level), µT: both the learner's measurement noise and,
     as heading, the floor of the learned magnetometer's error. Learning the hard iron alone needed 2.5 µT (the
@@ -542,6 +542,10 @@ class Ins:
 
     # ----------------------------------------------------------------------- learned iron (persisted by the daemon)
     learned_iron_source = LEARNED_WITH_GNSS
+
+    @property
+    def unmodelled_iron_ut(self) -> float:
+        return self.params.iron_unmodelled_ut
 
     def _apply_learned_iron(self) -> None:
         """The kernel removes the learned iron before its heading update: (I + D)⁻¹·(m − b)."""

@@ -44,7 +44,7 @@ from .initial_attitude import initial_attitude
 from .mag_heading import RELEARN_GATE_OPEN_S, heading_params, relearn_reference, widen_after_calibration_change
 from .mag_heading_params import MagHeadingParams
 from .params import with_overrides
-from .base import LEARNED_IN_TURNS
+from .base import DEFAULT_UNMODELLED_IRON_UT, LEARNED_IN_TURNS
 from .rotations import quat_to_dcm
 
 _DEG = math.pi / 180.0
@@ -238,6 +238,7 @@ class Mekf:
 
     def __init__(self, declination_rad: float = 0.0, params: MekfParams | None = None, **overrides):
         self.params = with_overrides(params or DEFAULT_MEKF_PARAMS, overrides, "mekf")
+        self._built_accel_bias_sigma_m_s2 = self.params.accel_bias_sigma_m_s2     # set_accel_bias_sigma(None)
         # one record {state, parameters, outputs} for the one-sample kernel (one array to pass per call);
         # the three are views of it
         self._buf = np.zeros(1, core.MEKF_BUFFER_DTYPE)
@@ -318,8 +319,9 @@ class Mekf:
 
     def set_accel_bias_sigma(self, sigma_m_s2: float | None) -> None:
         """The accelerometer bias the input still carries (1σ per axis, m/s²; None: no accelerometer calibration,
-        DEFAULT_MEKF_PARAMS' figure for the chip): from the next estimate the published tilt and yaw 1σ carry it."""
-        sigma = DEFAULT_MEKF_PARAMS.accel_bias_sigma_m_s2 if sigma_m_s2 is None else float(sigma_m_s2)
+        the chip's figure this filter was built with): from the next estimate the published tilt and yaw 1σ carry
+        it."""
+        sigma = self._built_accel_bias_sigma_m_s2 if sigma_m_s2 is None else float(sigma_m_s2)
         if not (math.isfinite(sigma) and sigma >= 0.0):
             raise ValueError(f"accelerometer bias 1σ {sigma_m_s2!r}: expected a finite figure ≥ 0 m/s²")
         self.params = replace(self.params, accel_bias_sigma_m_s2=sigma)
@@ -379,6 +381,7 @@ class Mekf:
     # base.IronLearningEstimator, so the daemon's one store (daemon/learned_iron.py) keeps, shows, accepts and
     # resets the correction learned in turns as it does ins's GNSS-learned iron.
     learned_iron_source = LEARNED_IN_TURNS
+    unmodelled_iron_ut = DEFAULT_UNMODELLED_IRON_UT
 
     def learned_iron(self) -> tuple[np.ndarray, np.ndarray]:
         """The hard iron learned in turns (body frame, µT: the circle's centre, z 0) and its covariance (µT²:

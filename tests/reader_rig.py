@@ -10,10 +10,11 @@ from ahrsd.daemon.counters import ServiceCounters
 from ahrsd.daemon.health import Health
 from ahrsd.daemon.pipeline import Pipeline
 from ahrsd.daemon.sample_reader import ReaderOutputs, SampleListeners, SampleReader
+from ahrsd.drivers.sim_clock import ChipClock
 from ahrsd.estimator import make_estimator
 
 
-class FakeClock:
+class FakeClock(ChipClock):
     def __init__(self, t: float = 100.0):
         self.t = t
 

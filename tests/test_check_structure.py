@@ -122,3 +122,40 @@ def test_a_part_reading_the_host_clock_fails_unless_the_line_says_why(tmp_path):
     r = run(_tree(tmp_path, src))
     assert r.returncode == 1 and "bad.py:6: time.monotonic() read by a part" in r.stdout
     assert "bad.py:3" not in r.stdout and "bad.py:8" not in r.stdout
+
+
+def test_monkeypatching_another_modules_object_fails_in_every_package(tmp_path):
+    """Rule 7, the shape magcal had (`AutopilotState.on_gps_raw_int` replaced) and the reader process's class
+    switch: an attribute of an imported module or name assigned or set with setattr, in daemon/ and outside it;
+    a part's own state, a local object's and a line that says why (`# process-wide:`) are not this rule's."""
+    (tmp_path / "daemon").mkdir()
+    (tmp_path / "daemon" / "bad.py").write_text(textwrap.dedent("""\
+        import ahrsd.daemon.autopilot
+        from ahrsd.daemon.autopilot import AutopilotState
+        def hook(fn, state):
+            AutopilotState.on_gps_raw_int = fn
+            ahrsd.daemon.autopilot.AutopilotState.on_global_position_int = fn
+            setattr(AutopilotState, 'on_gps_raw_int', fn)
+            state.on_gps_raw_int = fn
+        """))
+    (tmp_path / "drivers").mkdir()
+    (tmp_path / "drivers" / "bad.py").write_text(textwrap.dedent("""\
+        from ahrsd.drivers import adis16405 as chip
+        from ahrsd.drivers.adis16405 import Adis16405
+        class Own:
+            count = 0
+            def bump(self):
+                self.count += 1
+        def child():
+            Adis16405.samples_as_records = True
+            chip.Adis16405.samples_as_records = True
+            chip.READS += 1
+            Adis16405.samples_as_records = True   # process-wide: this process only packs records
+        """))
+    r = run(tmp_path)
+    assert r.returncode == 1
+    for at in ("daemon/bad.py:4:", "daemon/bad.py:5:", "daemon/bad.py:6:", "drivers/bad.py:8:", "drivers/bad.py:9:",
+               "drivers/bad.py:10:"):
+        assert f"{at} " in r.stdout and "sets another module's object" in r.stdout.split(at)[1].splitlines()[0], at
+    for clean in ("daemon/bad.py:7:", "drivers/bad.py:6:", "drivers/bad.py:11:"):
+        assert clean not in r.stdout, clean

@@ -12,13 +12,14 @@ from ahrsd.drivers.data_ready import DataReadyTimer, parse_gpio
 from ahrsd.drivers.ground_truth import BurstIndexTap
 from ahrsd.drivers.sample_timer import StallAwareSampleTimer
 from ahrsd.drivers.simulated import SimulatedAdis16405, SimulatedDataReadyLine
+from ahrsd.drivers.sim_clock import ChipClock
 
 RATE_HZ = 819.2
 PERIOD_S = 1 / RATE_HZ
 READ_LATENCY_S = 20e-6          # edge (or timer) to the start of the transfer
 
 
-class HostClock:
+class HostClock(ChipClock):
     def __init__(self, t: float = 100.0):
         self.t = t
 
@@ -32,7 +33,7 @@ class HostClock:
         self.t = max(self.t, t + READ_LATENCY_S)
 
 
-class DriftingChipClock:
+class DriftingChipClock(ChipClock):
     """The chip's oscillator, `ppm` fast (or slow) against the host clock."""
 
     def __init__(self, host: HostClock, ppm: float):

@@ -1,6 +1,7 @@
 """The ADIS16405 driver against the byte-level simulated chip (fixed-value streams: exact expectations)."""
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -11,6 +12,7 @@ from ahrsd.drivers.errors import ConfigError, DriverError, FrameError, ProductId
 from ahrsd.drivers.faults import FaultPlan
 from ahrsd.core.sample import SampleFlags
 from ahrsd.drivers.simulated import SimulatedAdis16405
+from ahrsd.drivers.sim_clock import ChipClock
 from ahrsd.drivers.source import start_chip_source
 from sim_streams import FixedStream
 from ahrsd.drivers.spi import SpiBus
@@ -89,6 +91,9 @@ def test_product_id_mismatch_is_a_clear_error():
     class DeadBus:
         def transfer(self, tx, speed_hz, delay_us=0):
             return bytes(len(tx))
+
+        def sleep(self, seconds):
+            time.sleep(seconds)
 
         def close(self):
             pass
@@ -223,7 +228,7 @@ def test_unsaturated_sample_has_no_alarm():
     assert imu.counters["saturations"] == 0 and imu.counters["ea_flags"] == 0
 
 
-class FakeClock:
+class FakeClock(ChipClock):
     def __init__(self):
         self.t = 100.0
 
@@ -294,6 +299,9 @@ class ReplayBus:
     def transfer(self, tx, speed_hz, delay_us=0):
         return self.answers.pop(0) if self.answers else bytes(len(tx))
 
+    def sleep(self, seconds):
+        time.sleep(seconds)
+
     def close(self):
         pass
 
@@ -336,6 +344,9 @@ class FrameBus:
         answer = self.registers.get(self.requested, 0) if self.requested is not None else 0
         self.requested = tx[0] & 0x7F if not tx[0] & R.WRITE_BIT else None
         return answer.to_bytes(2, "big")
+
+    def sleep(self, seconds):
+        time.sleep(seconds)
 
     def close(self):
         pass

@@ -192,14 +192,14 @@ def test_reset_forgets_it_and_both_commands_are_refused_while_armed(tmp_path):
         stop_service(svc, loop)
 
 
-def _aided_ins():
+def _aided_ins(**params):
     """A real ins that knows its position (a fix after a second at rest), so it can say the heading σ its learned
     iron leaves."""
     from ahrsd.core.gnss import make_fix
     from ahrsd.core.sample import make_sample
     from ahrsd.estimator.ins import Ins
 
-    ins = Ins()
+    ins = Ins(**params)
     acc, mag = np.array([0.0, 0.0, -9.81]), np.array([18.0, 0.0, 45.0])
     for i in range(120):
         ins.update(make_sample(0.01 * i, np.zeros(3), acc, mag))
@@ -315,3 +315,32 @@ def test_magcal_status_shows_the_learned_iron_and_the_cli_has_its_actions():
     assert "none learned" in text
     for action in ("accept-learned", "reset-learned"):
         assert build_parser().parse_args(["magcal", action]).action == action
+
+
+def test_without_a_heading_figure_the_accepted_calibration_takes_the_estimators_unmodelled_iron_as_its_floor(tmp_path):
+    """The calibration in force states no heading error (a fit without one): the accepted one's heading σ is what
+    the estimator says its learned iron leaves unexplained, over the horizontal field, in quadrature with the
+    learned iron's own σ. ins built with 2.5 µT unexplained (not its 1 µT default), horizontal field 18 µT:
+    worked here as hypot(2.5/18, σ_iron)."""
+    from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad
+    from ahrsd.daemon.learned_iron import LearnedIron
+    from ahrsd.daemon.pipeline import Pipeline
+
+    unexplained_ut, horizontal_ut = 2.5, 18.0
+    ins = _aided_ins(iron_unmodelled_ut=unexplained_ut)
+    ins.set_learned_iron(OFFSET_UT, COV_UT2, LEARNED_SOFT, LEARNED_SOFT_COV)
+    iron_sigma = ins.learned_iron_heading_sigma_rad()
+    assert math.isfinite(iron_sigma)
+    no_figure = Calibration.identity().with_sensor("mag", MagModel(HARD_UT, SOFT), method="test")
+    assert math.isnan(calibration_heading_sigma_rad(no_figure))
+    pipeline = Pipeline(ins, no_figure)
+
+    def apply_calibration(cal):
+        pipeline.calibration = cal
+
+    part = LearnedIron(tmp_path, pipeline, publish=lambda name, value: None, statustext=lambda sev, t: None,
+                       armed=lambda: False, apply_calibration=apply_calibration,
+                       horizontal_field_ut=lambda: horizontal_ut)
+    assert part.act(ACTION_ACCEPT)[0] == mavlink.MAV_RESULT_ACCEPTED
+    assert pipeline.calibration.metadata["mag"]["heading_std_deg"] == pytest.approx(
+        math.degrees(math.hypot(unexplained_ut / horizontal_ut, iron_sigma)), rel=1e-12)

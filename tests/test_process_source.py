@@ -142,6 +142,7 @@ def test_the_hand_over_never_blocks_the_reader_on_a_full_pipe():
 
     class Source:                                            # the reader's bounded buffer
         realtime_refused = None
+        chip = None                                          # a real sensor's (SensorSource.chip)
 
         def __init__(self):
             self.buf, self.k = [], 0
@@ -331,6 +332,7 @@ def test_the_hand_over_sends_one_bounded_message_a_tick_and_never_blocks_a_real_
 
     class Reader:                                            # the reader's buffer, 20 000 samples read
         realtime_refused = None
+        chip = None                                          # a real sensor's (SensorSource.chip)
 
         def __init__(self):
             self.buf = [ImuSample(k * 0.001, np.zeros(3), np.zeros(3), np.zeros(3), 25.0, 5.0,

@@ -222,7 +222,7 @@ def test_a_timer_that_appears_after_the_start_paces_the_reads_from_then_on():
         def read_one(self, now):
             self.reads += 1
             if self.reads == 3:
-                self.timer = SimpleNamespace(wait=self._wait)
+                self.timer = SimpleNamespace(wait=self._wait, waits_for_edges=True)
             if self.reads == 10:
                 src._stop.set()
             return None

@@ -18,6 +18,11 @@ Rules in daemon/:
 Rule in every other package (cli/, calibration/, estimator/, drivers/, core/, simulation/):
 4. no `getattr`/`hasattr` probing of an estimator (the names of rule 3): what an estimator can do is declared
    in estimator/base.py, whoever asks.
+Rule in every package (daemon/ and the others above):
+7. no monkeypatching of another module's objects: no attribute of an imported module or of a name imported from
+   one is assigned (`autopilot.AutopilotState.on_gps_raw_int = hook`, `Adis16405.flag = True`) or set with
+   `setattr`; a module changes another's behaviour through what that one declares (an argument, a
+   subscription). A line that must set a process-wide switch says why in a `# process-wide:` comment.
 Rule in tests/:
 5. no spy on an estimator: no function or lambda assigned to an attribute of an estimator object (the names of
    rule 3, and what hangs below them: `est._monitor.check = spy`). A test reads what the estimator decided
@@ -49,6 +54,7 @@ PART_NAMES = {
 
 HOST_CLOCKS = {"time.monotonic", "time.time", "time.monotonic_ns", "time.time_ns"}
 HOST_CLOCK_MARK = "# host clock:"
+PROCESS_WIDE_MARK = "# process-wide:"
 
 
 def _dotted(node: ast.AST) -> str:
@@ -60,14 +66,56 @@ def _dotted(node: ast.AST) -> str:
     return ""
 
 
+def _imported_names(tree: ast.AST) -> set[str]:
+    """The names a module binds by importing: modules (`import a.b` binds a) and names from them."""
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names |= {alias.asname or alias.name.split(".")[0] for alias in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            names |= {alias.asname or alias.name for alias in node.names}
+    return names
+
+
+def _root_name(node: ast.AST) -> str:
+    while isinstance(node, ast.Attribute):
+        node = node.value
+    return node.id if isinstance(node, ast.Name) else ""
+
+
+def _monkeypatches(tree: ast.AST, lines: list[str], shown: str) -> list[str]:
+    """Rule 7: an attribute of an imported module or name assigned, or set with setattr."""
+    imported = _imported_names(tree)
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Assign):
+            targets = node.targets
+        elif isinstance(node, (ast.AugAssign, ast.AnnAssign)):
+            targets = [node.target]
+        elif (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "setattr"
+              and node.args):
+            targets = [node.args[0]]        # setattr(target, ...): the object itself is set on
+        else:
+            continue
+        for target in targets:
+            attribute_set = isinstance(target, ast.Attribute) or isinstance(node, ast.Call)
+            if (attribute_set and _root_name(target) in imported
+                    and PROCESS_WIDE_MARK not in lines[node.lineno - 1]):
+                what = ast.unparse(target) if isinstance(node, ast.Assign | ast.AugAssign | ast.AnnAssign) \
+                    else f"setattr({ast.unparse(target)}, …)"
+                out.append(f"{shown}:{node.lineno}: {what} sets another module's object (monkeypatching: pass "
+                           f"an argument or subscribe instead; or say why on the line: '{PROCESS_WIDE_MARK} ...')")
+    return out
+
+
 def check_file(path: Path, shown: str, daemon_rules: bool = True) -> list[str]:
-    """The problems in one file: every rule (daemon_rules), or only rule 4 (an estimator probed)."""
+    """The problems in one file: every rule (daemon_rules), or only rules 4 (an estimator probed) and 7."""
     try:
         tree = ast.parse(path.read_text(encoding="utf-8"))
     except SyntaxError as exc:
         return [f"{shown}:{exc.lineno}: does not parse"]
-    out = []
     lines = path.read_text(encoding="utf-8").splitlines()
+    out = _monkeypatches(tree, lines, shown)
     for node in ast.walk(tree):
         if (daemon_rules and isinstance(node, ast.Call) and _dotted(node.func) in HOST_CLOCKS
                 and HOST_CLOCK_MARK not in lines[node.lineno - 1]):

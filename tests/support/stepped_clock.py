@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import threading
 
+from ahrsd.drivers.sim_clock import ChipClock
 
-class SteppedClock:
+
+class SteppedClock(ChipClock):
     def __init__(self, t: float = 100.0, patience_s: float = 10.0):
         self.t = t
         self.patience_s = patience_s        # real seconds a sleeper may take to come back (a hung thread)
