@@ -33,7 +33,7 @@ if __package__ in (None, ""):
 from bench.vehicle_accuracy import (HONESTY_IRONS, IRON_STEP_AT, SETTLE_S, estimates_in_arrival_order,  # noqa: E402
                                     honesty_figures, honesty_site, simulate_vehicle, tilt_heading_errors_deg)
 
-EVERY = 8          # keep every 8th sample (≈ 100 Hz)
+EVERY = 8          # keep every 8th sample (25 Hz of the 200 SPS runs)
 TURN_DEG_S = 5.0   # --consistency: the vehicle is turning while its true heading rate is above this
 
 
