@@ -2,11 +2,18 @@
 heading / tilt RMS from 180 s, σ median and share beyond 3σ from 30 s (every 8th sample), then per 30 s the tilt
 RMS, mean roll and pitch error, heading RMS, median yaw σ, heading state and the accelerometer bias error
 (estimate − the simulator's turn-on bias, m/s²). With `--case iron-step` also the heading / tilt RMS from 120 s
-after the iron step (the issue's target).
+after the iron step (the issue's target); with `--step` the largest change of the published heading error within
+0.1 s (vehicle_accuracy.honesty_figures, every sample) and, with `--case iron-step`, the heading / tilt RMS from
+30 s to the step (the issue's other iron-step target).
+
+`--site` is a name ("held-out": 33.9° S with VehicleIron.held_out; "default": the site and iron tuned on) or any
+place "LAT,LON[,ALT_M[,YYYY-MM-DD]]" (with the held-out iron); `--iron` puts another iron there ("unseen":
+VehicleIron.unseen, drawn, never used for a choice).
 
     python bench/heading_timeline.py --scenario boat --case uncalibrated --seeds 12 13 15 16
     python bench/heading_timeline.py --seeds 15 --timeline --params \
         '{"yaw_align_to_gnss_yaw": false, "accel_bias_needs_heading": false}'     # the filter before heading5
+    python bench/heading_timeline.py --site 69.65,18.96 --iron unseen --seeds 11 14 17 --step   # Tromsø, dip 78°
 """
 
 from __future__ import annotations
@@ -23,10 +30,10 @@ import numpy as np
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.vehicle_accuracy import (HONESTY_SITES, IRON_STEP_AT, estimates_in_arrival_order,  # noqa: E402
-                                    simulate_vehicle, tilt_heading_errors_deg)
+from bench.vehicle_accuracy import (HONESTY_IRONS, IRON_STEP_AT, SETTLE_S, estimates_in_arrival_order,  # noqa: E402
+                                    honesty_figures, honesty_site, simulate_vehicle, tilt_heading_errors_deg)
 
-EVERY = 8          # keep every 8th sample (≈ 100 Hz)
+EVERY = 8          # keep every 8th sample (25 Hz of the 200 SPS runs)
 TURN_DEG_S = 5.0   # --consistency: the vehicle is turning while its true heading rate is above this
 
 
@@ -36,8 +43,8 @@ def one_run(job) -> tuple:
     from ahrsd.estimator.ins import Ins
     from ahrsd.simulation import SensorErrors
 
-    scen, case, seed, site_label, seconds, params = job
-    site, iron = HONESTY_SITES[site_label]
+    scen, case, seed, site_label, seconds, params, iron_label = job
+    site, iron = honesty_site(site_label, iron_label)
     run = simulate_vehicle(scen, seconds, seed, site, mag=case, iron=iron)
     est = Ins(declination_rad=run.declination_rad, lever_arm_m=run.lever_arm_m,
               mag_calibration_sigma_rad=run.mag_calibration_sigma_rad, **params)
@@ -47,8 +54,12 @@ def one_run(job) -> tuple:
     sig = np.empty(len(keep))
     state = np.zeros(len(keep), dtype=np.int8)
     ba = np.empty((len(keep), 3))
+    # every sample's published heading for the largest 0.1 s step (honesty_figures)
+    published = {"q": np.empty((len(t), 4)), "sigma_yaw_rad": np.empty(len(t)), "flags": np.zeros(len(t), np.int64)}
     j = 0
     for k, e in estimates_in_arrival_order(est, run, run.fixes):
+        published["q"][k], published["sigma_yaw_rad"][k] = e.q_wxyz, e.sigma_rpy_rad[2]
+        published["flags"][k] = int(e.flags)
         if k % EVERY == 0:
             q[j], sig[j], state[j], ba[j] = e.q_wxyz, e.sigma_rpy_rad[2], int(e.heading_state), est.accel_bias_m_s2
             j += 1
@@ -59,10 +70,13 @@ def one_run(job) -> tuple:
     ba_err = ba - SensorErrors.adis16405(seed).accel_bias_m_s2
     late, honest = tk >= 180.0, tk >= 30.0
     after = tk >= IRON_STEP_AT * seconds + 120.0      # the iron-step case: from 120 s after the step
+    before = (tk >= SETTLE_S) & (tk < IRON_STEP_AT * seconds)
     summary = (float(np.sqrt(np.mean(hdg[late] ** 2))), float(np.sqrt(np.mean(tilt[late] ** 2))),
                float(np.degrees(np.median(sig[honest]))),
                float(np.mean(np.abs(hdg[honest]) > 3.0 * np.degrees(sig[honest]))), est.yaw_resets,
-               float(np.sqrt(np.mean(hdg[after] ** 2))), float(np.sqrt(np.mean(tilt[after] ** 2))))
+               float(np.sqrt(np.mean(hdg[after] ** 2))), float(np.sqrt(np.mean(tilt[after] ** 2))),
+               honesty_figures(run, published, SETTLE_S)["max_step_0_1s"],
+               float(np.sqrt(np.mean(hdg[before] ** 2))), float(np.sqrt(np.mean(tilt[before] ** 2))))
     # heading error / published σ from 30 s by turn phase (truth heading rate above TURN_DEG_S, within 30 s after
     # one, later): (sum of squares, samples, samples beyond 3σ) per phase, pooled over seeds by --consistency
     z = hdg / np.degrees(sig)
@@ -82,11 +96,26 @@ def one_run(job) -> tuple:
     return job, summary, rows, consistency
 
 
+def _site_arg(text: str) -> str:
+    """--site as given, once honesty_site has parsed it (a mistyped place is a usage error, not a failed run)."""
+    try:
+        honesty_site(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", default="boat")
     ap.add_argument("--case", default="uncalibrated", choices=["uncalibrated", "calibrated", "iron-step"])
-    ap.add_argument("--site", choices=sorted(HONESTY_SITES), default="held-out")
+    ap.add_argument("--site", type=_site_arg, default="held-out",
+                    help='"held-out", "default" or a place "LAT,LON[,ALT_M[,YYYY-MM-DD]]" (default held-out)')
+    ap.add_argument("--iron", choices=HONESTY_IRONS, default=None,
+                    help="the vehicle iron instead of the site's own (a place's own: held-out)")
+    ap.add_argument("--step", action="store_true",
+                    help="also print the largest change of the published heading error within 0.1 s (from 30 s) "
+                         "and, with --case iron-step, the heading / tilt RMS from 30 s to the step")
     ap.add_argument("--seeds", type=int, nargs="+", default=[12, 13, 15, 16])
     ap.add_argument("--seconds", type=float, default=600.0)
     ap.add_argument("--params", default="{}", help="InsParams overrides as JSON")
@@ -100,20 +129,24 @@ def main(argv=None) -> int:
     # the pool's workers inherit it, and a test that calls one_run keeps its logging
     logging.disable(logging.WARNING)
     params = json.loads(args.params)
-    jobs = [(args.scenario, args.case, s, args.site, args.seconds, params) for s in args.seeds]
-    print(f"ins {params or 'defaults'}, {args.scenario} {args.case}, site {args.site}, {args.seconds:.0f} s "
+    jobs = [(args.scenario, args.case, s, args.site, args.seconds, params, args.iron) for s in args.seeds]
+    iron = f", iron {args.iron}" if args.iron else ""
+    print(f"ins {params or 'defaults'}, {args.scenario} {args.case}, site {args.site}{iron}, {args.seconds:.0f} s "
           f"(every {EVERY}th sample): heading / tilt RMS from 180 s, σ median and beyond 3σ from 30 s", flush=True)
     with Pool(args.processes) as pool:
         pooled = {}
-        for job, (hdg, tilt, sig, beyond, resets, hdg_after, tilt_after), rows, consistency in pool.imap(one_run,
-                                                                                                     jobs):
+        for job, (hdg, tilt, sig, beyond, resets, hdg_after, tilt_after, step, hdg_before, tilt_before), rows, \
+                consistency in pool.imap(one_run, jobs):
             for name, (ss, n, out) in consistency.items():
                 p_ss, p_n, p_out = pooled.get(name, (0.0, 0, 0))
                 pooled[name] = (p_ss + ss, p_n + n, p_out + out)
             after = (f"  from 120 s after the step: heading {hdg_after:5.2f}°  tilt {tilt_after:5.2f}°"
                      if args.case == "iron-step" else "")
+            step_text = f"  largest 0.1 s step {step:4.2f}°" if args.step else ""
+            if args.step and args.case == "iron-step":
+                step_text += f"  before the step: heading {hdg_before:5.2f}°  tilt {tilt_before:5.2f}°"
             print(f"seed {job[2]:3d}: heading {hdg:5.2f}°  tilt {tilt:5.2f}°  σ median {sig:5.2f}°  "
-                  f"beyond 3σ {beyond:6.2%}  yaw resets {resets}{after}", flush=True)
+                  f"beyond 3σ {beyond:6.2%}  yaw resets {resets}{after}{step_text}", flush=True)
             if args.timeline:
                 print("     t  tilt  roll err  pitch err  heading  σ yaw  state  accel bias error x y z (m/s²)")
                 for t0, tl, re, pe, hd, sg, st, b in rows:

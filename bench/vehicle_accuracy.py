@@ -104,7 +104,8 @@ def simulate_vehicle(name: str, seconds: float, seed: int, site_text: str | None
     mag: "calibrated" (the iron in force removed, a perfect calibration), "uncalibrated" (the raw field with the
     vehicle's strong non-symmetric iron, what a new user feeds), "iron-step" (calibrated for the iron at the
     start; the hard iron moves by IRON_STEP_UT at IRON_STEP_AT of the run). iron: None (the scenario's own
-    vehicle iron), "default" (VehicleIron.default) or "held-out" (VehicleIron.held_out), on every vehicle.
+    vehicle iron), "default" (VehicleIron.default), "held-out" (VehicleIron.held_out) or "unseen"
+    (VehicleIron.unseen), on every vehicle.
     errors: the sensor's SensorErrors (None: SensorErrors.adis16405(seed))."""
     from ahrsd.simulation import DEFAULT_SITE, GnssErrors, SensorErrors, Site, VehicleIron, open_stream, simulate_gnss
 
@@ -114,7 +115,8 @@ def simulate_vehicle(name: str, seconds: float, seed: int, site_text: str | None
     errors = SensorErrors.adis16405(seed) if errors is None else errors
     if mag == "iron-step":
         errors = errors.replace(hard_iron_step_ut=IRON_STEP_UT, hard_iron_step_t_s=IRON_STEP_AT * seconds)
-    irons = {None: "scenario", "default": VehicleIron.default(), "held-out": VehicleIron.held_out()}
+    irons = {None: "scenario", "default": VehicleIron.default(), "held-out": VehicleIron.held_out(),
+             "unseen": VehicleIron.unseen()}
     stream = open_stream(name, rate_hz=rate_hz, seed=seed, site=site, errors=errors, vehicle_iron=irons[iron])
     block = stream.next_block(int(round(seconds * rate_hz)))
     err = stream.errors
@@ -340,6 +342,26 @@ OLD_INS = {"heading_monitor": False, "gnss_yaw": False, "mag_calibration_sigma_r
            "mag_moves_tilt": True}
 """`ins` without the honest-heading parts: the magnetometer trusted as calibrated, always fused, moving the tilt."""
 HONESTY_TARGETS = {"heading": 1.0, "tilt": 0.3, "beyond_3sigma": 0.01, "iron_heading": 0.5, "step": 0.5}
+HONESTY_IRONS = ("default", "held-out", "unseen")
+"""simulate_vehicle's vehicle irons by name; "unseen" (VehicleIron.unseen) was drawn, never used for a choice."""
+
+
+def honesty_site(site: str, iron: str | None = None) -> tuple[str | None, str]:
+    """(simulate_vehicle's site text, its vehicle iron) for a bench's `--site` / `--iron`: `site` is a name of
+    HONESTY_SITES (with its own iron) or a place "LAT,LON[,ALT_M[,YYYY-MM-DD]]" (with the held-out iron), `iron`
+    one of HONESTY_IRONS instead of that. The place is parsed here, as simulate_vehicle will (Site.parse), so
+    that a mistyped place fails before a run; ValueError names what is wrong."""
+    from ahrsd.simulation import Site
+
+    if site in HONESTY_SITES:
+        text, own_iron = HONESTY_SITES[site]
+    else:
+        Site.parse(site)
+        text, own_iron = site, "held-out"
+    iron = own_iron if iron is None else iron
+    if iron not in HONESTY_IRONS:
+        raise ValueError(f"iron must be one of {HONESTY_IRONS}, got {iron!r}")
+    return text, iron
 
 
 def honesty_section(seconds: float = 600.0, seeds=(1,), sites: dict | None = None,

@@ -75,6 +75,23 @@ class VehicleIron:
             ]),
         )
 
+    @classmethod
+    def unseen(cls) -> "VehicleIron":
+        """A third strong non-symmetric vehicle iron, never used to choose anything: only for figures at places
+        and irons nobody tuned on (issue 28's "held-back vehicles"). Drawn once, not chosen:
+        `rng = np.random.default_rng(2028)`; hard iron `rng.uniform(20, 40, 3) * rng.choice([-1, 1], 3)` µT;
+        soft iron `I + diag(rng.uniform(-0.10, 0.10, 3))` plus `rng.uniform(-0.10, 0.10, (3, 3))` with its
+        diagonal zeroed (±10 % cross-coupling, not symmetric); rounded to 0.1 µT and 0.001. Its hard iron is
+        several times the horizontal Earth field at a high dip."""
+        return cls(
+            hard_iron_ut=np.array([-27.7, 31.9, 34.7]),
+            soft_iron=np.array([
+                [0.980, -0.085, -0.097],
+                [-0.046, 1.066, 0.019],
+                [0.028, -0.091, 0.996],
+            ]),
+        )
+
 
 def dipole_field_ut(moment_a_m2: np.ndarray, r_m: np.ndarray) -> np.ndarray:
     """Field (µT) of point dipoles with moment `moment_a_m2` (…,3) at offset `r_m` (…,3) from dipole to sensor.

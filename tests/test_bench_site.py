@@ -1,0 +1,52 @@
+"""The honest-heading benches' `--site` / `--iron`: a place "LAT,LON[,ALT_M[,YYYY-MM-DD]]" and the unseen iron reach
+the simulator. The truth is independent of the code under test: the field's dip at Tromsø (≈ 78°, published
+WMM/IGRF maps; the default site dips ≈ 56°, the held-out one ≈ −64°) and the unseen iron's numbers written here."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from bench.heading_timeline import main as heading_timeline_main
+from bench.vehicle_accuracy import honesty_site, simulate_vehicle
+
+TROMSO = "69.65,18.96"
+UNSEEN_HARD_IRON_UT = np.array([-27.7, 31.9, 34.7])
+UNSEEN_SOFT_IRON = np.array([[0.980, -0.085, -0.097], [-0.046, 1.066, 0.019], [0.028, -0.091, 0.996]])
+
+
+def _field_ned_ut(run, mag_ut) -> np.ndarray:
+    """Each sample's magnetometer reading turned into NED by the simulator's true attitude (body → NED)."""
+    return Rotation.from_quat(run.truth_q_wxyz[:, [1, 2, 3, 0]]).apply(mag_ut)
+
+
+def test_the_named_sites_resolve_as_before_and_a_place_takes_the_held_out_iron():
+    assert honesty_site("held-out") == ("-33.87,151.21,40,2026-09-01", "held-out")
+    assert honesty_site("default") == (None, "default")
+    assert honesty_site(TROMSO) == (TROMSO, "held-out")
+    assert honesty_site("held-out", "unseen") == ("-33.87,151.21,40,2026-09-01", "unseen")
+    with pytest.raises(ValueError):
+        honesty_site("69.65")            # no longitude
+    with pytest.raises(ValueError):
+        honesty_site(TROMSO, "rusty")
+
+
+def test_a_mistyped_place_is_a_usage_error_before_any_run():
+    with pytest.raises(SystemExit) as exc:
+        heading_timeline_main(["--site", "69.65,north", "--seeds", "11"])
+    assert exc.value.code == 2
+
+
+def test_a_place_and_the_unseen_iron_reach_the_simulator():
+    site, iron = honesty_site(TROMSO, "unseen")
+    calibrated = simulate_vehicle("boat", 3.0, 11, site, mag="calibrated", iron=iron)
+    b = _field_ned_ut(calibrated, calibrated.mag_ut).mean(axis=0)
+    dip_deg = np.degrees(np.arctan2(b[2], np.hypot(b[0], b[1])))
+    assert dip_deg == pytest.approx(78.4, abs=1.0)
+    assert np.hypot(b[0], b[1]) == pytest.approx(10.8, abs=1.0)        # the weak horizontal field up there
+    # the raw field is the unseen iron's: raw = S · B_body + h (+ the sensor's own < 1 µT / 1 % errors)
+    raw = simulate_vehicle("boat", 3.0, 11, site, mag="uncalibrated", iron=iron)
+    b_body = Rotation.from_quat(raw.truth_q_wxyz[:, [1, 2, 3, 0]]).inv().apply(b)
+    hard_ut = (raw.mag_ut - b_body @ UNSEEN_SOFT_IRON.T).mean(axis=0)
+    np.testing.assert_allclose(hard_ut, UNSEEN_HARD_IRON_UT, atol=2.0)
