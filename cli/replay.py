@@ -102,10 +102,14 @@ def _parse_params(items: list[str]) -> dict:
         name, sep, text = item.partition("=")
         if not sep or not name.strip():
             raise ReplayError(f"--set {item!r}: expected NAME=VALUE")
-        try:
-            value = ast.literal_eval(text.strip())
-        except (ValueError, SyntaxError):
-            value = text.strip()   # a bare word (e.g. a string option)
+        word = text.strip()
+        if word.lower() in ("true", "false"):   # as the config file writes a switch (TOML), not only Python's True
+            value = word.lower() == "true"
+        else:
+            try:
+                value = ast.literal_eval(word)
+            except (ValueError, SyntaxError):
+                value = word   # a bare word (e.g. a string option)
         params[name.strip()] = value
     return params
 

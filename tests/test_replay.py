@@ -309,3 +309,21 @@ def test_bad_options(capsys, tmp_path, recording):
 def test_bad_input_in_a_subprocess_has_no_traceback(tmp_path):
     r = replay_subprocess(tmp_path / "missing.csv", "--output", tmp_path / "o.csv")
     assert r.returncode == 1 and "ahrsd replay: error:" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_set_takes_true_and_false_as_switches_and_refuses_a_wrong_kind(recording, tmp_path, capsys):
+    """`--set iron_refine=false` once passed the text "false", which Python takes as true: a switch the user turned
+    off was on. true/false (any case, as the config file writes them) are switches; text for a switch or a number is
+    a usage error naming the parameter, before any work."""
+    from ahrsd.cli.replay import _parse_params
+
+    assert _parse_params(["heading_monitor=false", "gnss_yaw=TRUE", "mag_bias_tau_s=2"]) == {
+        "heading_monitor": False, "gnss_yaw": True, "mag_bias_tau_s": 2}
+    path, _ = recording
+    for item, words in (("gyro_noise_rad_s_sqrt_hz=fast", "expected a number"),
+                        ("mag_field_circle_check=maybe", "expected true or false"),
+                        ("mag_field_circle_check=1", "expected true or false")):
+        capsys.readouterr()
+        assert cli.main(["replay", str(path), "-o", str(tmp_path / "o.csv"), "--set", item]) == 1
+        err = capsys.readouterr().err
+        assert words in err and item.split("=")[0] in err, err
