@@ -65,6 +65,7 @@ from .kernel_flags import (
 from .kernel_rotations import dcm, euler_zyx, normalised, quat_mul, rotate_to_ned, tilt_sigma
 from .turn_lean import (
     TURN_LEAN_DTYPE,
+    RestLearning,
     bound_pushes,
     levelling_gain,
     lowpass_rate_down,
@@ -1017,9 +1018,9 @@ def mekf_step(st, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, ou
     db1 = b[1] - b1
     db2 = b[2] - b2
     track_bias_learning(st.unmodelled, dt, c, summing, s0 * db0, s1 * db1, s2 * db2)
-    track_lean_bias_drift(st.unmodelled, dt, c, summing, levelled or at_rest, at_rest,
-                          math.exp(-dt / par.rest_filter_tau_s),
-                          (1.0 - s0) * db0, (1.0 - s1) * db1, (1.0 - s2) * db2, rb0, rb1, rb2)
+    track_lean_bias_drift(st.unmodelled, dt, c, summing, levelled or at_rest,
+                          ((1.0 - s0) * db0, (1.0 - s1) * db1, (1.0 - s2) * db2),
+                          RestLearning(at_rest, math.exp(-dt / par.rest_filter_tau_s), (rb0, rb1, rb2)))
     if publish:
         return flags | _fill_outputs(st, par, gx, gy, gz, out)
     return flags | _fill_estimate(st, par, out)

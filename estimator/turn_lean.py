@@ -36,6 +36,7 @@ and calls, in its own stages:
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -170,8 +171,15 @@ def track_bias_learning(u, dt, c, summing, db0, db1, db2):
     u.accel_push_e_rad += me[0] * db0 + me[1] * db1 + me[2] * db2
 
 
+class RestLearning(NamedTuple):
+    """What a rest taught the gyro bias on one step (`track_lean_bias_drift`; numba passes it by value)."""
+    at_rest: bool                          # the step was at rest
+    keep: float                            # exp(−Δt/τ_rest): the share of what rest learnt before that still counts
+    db_rad_s: tuple[float, float, float]   # the step's at-rest change of the bias estimate, body frame, rad/s
+
+
 @njit(cache=True)
-def track_lean_bias_drift(u, dt, c, summing, levelled, at_rest, rest_keep, lb0, lb1, lb2, rb0, rb1, rb2):
+def track_lean_bias_drift(u, dt, c, summing, levelled, lean_db_rad_s, rest):
     """Once per step, after its updates: the drift of the gyro bias the summed levelling taught, while no
     levelling corrects it. The levelling learns the bias from its innovations, so the lean it takes (a turn's
     roll-in, a speed change) is also read as bias: the estimate then propagates with ω − b̂ and turns by
@@ -186,17 +194,18 @@ def track_lean_bias_drift(u, dt, c, summing, levelled, at_rest, rest_keep, lb0, 
     Σ (1 − prior share)·δb̂ over the summed steps (the part of a bias change that does not learn the bias's prior,
     `prior_share`), forgotten with the sum. c: C_b^n of the step (`dcm`'s 9-tuple); summing: the step's levelling
     is summed (`_sums_lean`); levelled: a levelling update was accepted this step (or the step was at rest);
-    lb0, lb1, lb2: (1 − prior share)·δb̂ of the step, rad/s.
+    lean_db_rad_s: (1 − prior share)·δb̂ of the step (body x, y, z), rad/s.
     The rest detector declares the end of a rest only once its low-passed motion exceeds its threshold, so the
-    start of a motion is learnt as bias at rest (rb0..rb2: the step's at-rest δb̂); what rest learnt over the
-    detector's lag (`rest_bias_recent_rad_s`, forgotten by rest_keep = exp(−Δt/τ_rest) per step) is added to
-    b_lean when the rest ends: it may be motion, not bias."""
+    start of a motion is learnt as bias at rest (`rest`: the step's `RestLearning`, its at-rest δb̂); what rest
+    learnt over the detector's lag (`rest_bias_recent_rad_s`, forgotten by rest.keep = exp(−Δt/τ_rest) per step)
+    is added to b_lean when the rest ends: it may be motion, not bias."""
     lb = u.lean_bias_rad_s
     rr = u.rest_bias_recent_rad_s
-    if at_rest:
-        rr[0] = rr[0] * rest_keep + rb0
-        rr[1] = rr[1] * rest_keep + rb1
-        rr[2] = rr[2] * rest_keep + rb2
+    if rest.at_rest:
+        rb0, rb1, rb2 = rest.db_rad_s
+        rr[0] = rr[0] * rest.keep + rb0
+        rr[1] = rr[1] * rest.keep + rb1
+        rr[2] = rr[2] * rest.keep + rb2
         u.was_at_rest = 1.0
     elif u.was_at_rest != 0.0:
         for i in range(3):
@@ -204,6 +213,7 @@ def track_lean_bias_drift(u, dt, c, summing, levelled, at_rest, rest_keep, lb0, 
             rr[i] = 0.0
         u.was_at_rest = 0.0
     if summing:
+        lb0, lb1, lb2 = lean_db_rad_s
         lb[0] += lb0
         lb[1] += lb1
         lb[2] += lb2

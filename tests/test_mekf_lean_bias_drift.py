@@ -13,9 +13,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ahrsd.estimator.turn_lean import TURN_LEAN_DTYPE, track_lean_bias_drift
+from ahrsd.estimator.turn_lean import TURN_LEAN_DTYPE, RestLearning, track_lean_bias_drift
 
 _IDENTITY = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+_ZERO = (0.0, 0.0, 0.0)
+_NOT_AT_REST = RestLearning(False, 1.0, _ZERO)
 
 
 def _record():
@@ -25,18 +27,18 @@ def _record():
 def test_the_learnt_bias_drifts_into_the_sum_only_while_no_levelling_is_accepted():
     u = _record()
     b = math.radians(0.05)   # rad/s about body x, learnt in one summed step
-    track_lean_bias_drift(u, 0.01, _IDENTITY, True, True, False, 1.0, b, 0.0, 0.0, 0.0, 0.0, 0.0)
+    track_lean_bias_drift(u, 0.01, _IDENTITY, True, True, (b, 0.0, 0.0), _NOT_AT_REST)
     assert u.lean_drift_n_rad == 0.0 and u.lean_drift_e_rad == 0.0   # levelled: its corrections are summed
     for _ in range(1000):                                                # 10 s rejected, body = NED
-        track_lean_bias_drift(u, 0.01, _IDENTITY, False, False, False, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        track_lean_bias_drift(u, 0.01, _IDENTITY, False, False, _ZERO, _NOT_AT_REST)
     # the estimate turns by −b·t about north: −0.5°
     assert u.lean_drift_n_rad == pytest.approx(-math.radians(0.5), rel=1e-9)
     assert u.lean_drift_e_rad == 0.0
     # body x pointing east (yawed 90°: C_b^n row 1 = (1, 0, 0)): the drift goes to the east axis
     v = _record()
-    track_lean_bias_drift(v, 0.0, _IDENTITY, True, True, False, 1.0, b, 0.0, 0.0, 0.0, 0.0, 0.0)
+    track_lean_bias_drift(v, 0.0, _IDENTITY, True, True, (b, 0.0, 0.0), _NOT_AT_REST)
     yawed = (0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0)
-    track_lean_bias_drift(v, 2.0, yawed, False, False, False, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    track_lean_bias_drift(v, 2.0, yawed, False, False, _ZERO, _NOT_AT_REST)
     assert v.lean_drift_n_rad == 0.0
     assert v.lean_drift_e_rad == pytest.approx(-2.0 * b, rel=1e-12)
 
@@ -45,13 +47,13 @@ def test_what_rest_learnt_over_the_detectors_lag_counts_as_learnt_from_motion_wh
     u = _record()
     keep = math.exp(-0.01 / 0.5)
     for _ in range(100):   # 1 s at rest learning 1e-5 rad/s per step about body y
-        track_lean_bias_drift(u, 0.01, _IDENTITY, False, True, True, keep, 0.0, 0.0, 0.0, 0.0, 1e-5, 0.0)
+        track_lean_bias_drift(u, 0.01, _IDENTITY, False, True, _ZERO, RestLearning(True, keep, (0.0, 1e-5, 0.0)))
     assert u.lean_drift_n_rad == 0.0 and u.lean_drift_e_rad == 0.0 and u.lean_bias_rad_s[1] == 0.0
     recent = 1e-5 * (1.0 - keep**100) / (1.0 - keep)   # the geometric sum of the forgotten steps
-    track_lean_bias_drift(u, 0.01, _IDENTITY, False, False, False, keep, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    track_lean_bias_drift(u, 0.01, _IDENTITY, False, False, _ZERO, RestLearning(False, keep, _ZERO))
     assert u.lean_bias_rad_s[1] == pytest.approx(recent, rel=1e-12)
     assert u.lean_drift_e_rad == pytest.approx(-recent * 0.01, rel=1e-12)   # body y = east: turns about east
-    track_lean_bias_drift(u, 0.01, _IDENTITY, False, False, False, keep, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    track_lean_bias_drift(u, 0.01, _IDENTITY, False, False, _ZERO, RestLearning(False, keep, _ZERO))
     assert u.lean_bias_rad_s[1] == pytest.approx(recent, rel=1e-12)          # transferred once
 
 
