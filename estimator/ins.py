@@ -184,10 +184,6 @@ class InsParams(MagHeadingParams):
     """1σ prior of each element of the learned soft iron D (m = (I + D)·B + b), dimensionless: vehicle iron
     scales and couples the field by up to ~10 % (simulation/magnetic.py VehicleIron). 0: learn the hard iron
     alone."""
-    iron_refine: bool = True
-    """Once the iron has been learned in this run, keep learning it while the GNSS holds the heading better than the
-    magnetometer does (`Ins._iron_learning_due`): its turn about the vertical is seen only against such a heading.
-    False: the learning ends when the learned iron is known to 3° at every level heading."""
     iron_unmodelled_ut: float = 1.0
     """1σ per axis of the field error the learned hard and soft iron do not explain (WMM and local anomalies,
     the soft iron's third column while the vehicle stays level), µT: both the learner's measurement noise and,
@@ -890,8 +886,8 @@ class Ins:
         # the monitor says no learning on a check that reset the yaw (c_bn is the attitude before the reset, P its
         # covariance after it): the next check learns with the new yaw
         iron_updates = self._iron.updates
-        if self.params.iron_learning and self._iron_learning_due(yaw_var, mag_var - noise, yaw_reset_to) \
-                and np.all(np.isfinite(m_body)) and self._x["nav_ok"] > 0:
+        if self.params.iron_learning and self._monitor.learning and np.all(np.isfinite(m_body)) \
+                and self._x["nav_ok"] > 0:
             self._learn_iron(t_s, c_bn, field)
         yaw_now = yaw if yaw_reset_to is None else wrap_pi(yaw_reset_to)
         self._publish_heading_checks(t_s, yaw_now, gsf_yaw, gsf_var, gsf_valid)
@@ -1096,22 +1092,6 @@ class Ins:
             self._par["mag_bias_var_rad2"] = mag_var - noise   # at this attitude; the white part is the kernel's own noise
             learned = self._iron.updates > 0 or self._iron_restored
             self._par["mag_bias_tau_s"] = p.iron_learned_tau_s if learned else p.mag_bias_tau
-
-    def _iron_learning_due(self, yaw_var: float, mag_bias_var: float, yaw_reset_to: float | None) -> bool:
-        """The iron is learned at this check: while the monitor says so (the magnetometer rejected, or its learned
-        iron not yet known to 3° at every level heading), and, with `iron_refine`, after that too while the GNSS
-        holds the heading better than the magnetometer does. The iron's turn about the vertical (a soft iron's
-        antisymmetric part, as a magnetometer mounted turned) leaves the field's size and the circle it sweeps
-        unchanged: only a heading the GNSS holds shows it, a little at every manoeuvre, and a boat has few before
-        the 3° line. The magnetometer is fused then, so the filter's yaw is partly its own heading: learning
-        against it is learning the iron from itself. `yaw_var < mag_bias_var / 2` is where the GNSS–inertial
-        heading alone (1/P − 1/M in information) is better than the magnetometer's slowly varying part M, so the
-        filter's yaw is mostly the GNSS's (docs/gnss.md "Heading state", the learned iron's rotation)."""
-        if self._monitor.learning:
-            return True
-        p = self.params
-        return (p.iron_refine and self._iron.updates > 0 and yaw_reset_to is None and not self._monitor.mag_rejected
-                and yaw_var < p.heading_observable_sigma_rad ** 2 and 2.0 * yaw_var < mag_bias_var)
 
     def _learn_iron(self, t_s: float, c_bn: np.ndarray, field: np.ndarray | None) -> None:
         """One step of the iron learning (IronLearner) against the WMM field at the filter's position, with the
