@@ -867,7 +867,7 @@ def run(args) -> int:
 
         args.state_dir = str(default_state_dir())
     try:
-        if getattr(args, "plot", None):
+        if args.plot:
             _check_matplotlib()   # before fitting and saving: a missing optional extra is a usage error
         return handlers[args.sensor](args)
     except _Fail as exc:
@@ -878,7 +878,7 @@ def run(args) -> int:
         if not isinstance(exc, PlotUnavailableError):
             raise
         failure = _Usage(_plot_needs_matplotlib())
-    if getattr(args, "json", False):
+    if args.json:
         import json
 
         print(json.dumps({"sensor": args.sensor, "error": str(failure)}))

@@ -36,6 +36,7 @@ from ahrsd.daemon.magcal_settings import settings_from_mapping
 from ahrsd.drivers.chip_source import ADIS16405_RATE_HZ
 from ahrsd.drivers.iio_source import driver_rate_hz
 from ahrsd.drivers.registers import SMPL_PRD_DIVISOR_MASK, TIME_BASE_FAST_HZ, nearest_rate_hz
+from ahrsd.drivers.source_settings import SensorSettings
 from ahrsd.daemon.nmea_sentences import (DEFAULT_RATES_HZ, LOW_SPEED_BELOW_BAUD, LOW_SPEED_RATES_HZ, SENTENCE_IDS,
                                          worst_case_bytes)
 from ahrsd.daemon.output_profiles import DEFAULT_PROFILE, PROFILES
@@ -160,30 +161,18 @@ def _parse_output_table(cls, d: Any, prefix: str, example_url: str, checks: dict
 
 
 @dataclass(frozen=True)
-class SensorConfig:
-    """Where samples come from and how the sensor sits in the vehicle."""
+class SensorConfig(SensorSettings):
+    """[sensor]: where samples come from and how they are read (drivers.source_settings.SensorSettings, the
+    settings drivers.source builds the source from: this table is one, and is handed to it as it is), how the
+    sensor sits in the vehicle, and the daemon's timing of its samples."""
 
-    source: str = "sim"                 # "sim" (simulated ADIS16405 chip), "spi" (real chip), "iio" (the kernel's
-                                        # adis16400 IIO driver), "replay" (CSV)
-    scenario: str = "static"            # simulated scenario (source = "sim")
-    seed: int = 0                       # simulator noise seed
-    errors: str = "adis16405"           # simulated sensor errors: "adis16405" (datasheet) or "ideal"
-    spi_device: str = "/dev/spidev0.0"  # source = "spi"
-    data_ready: str = ""                # source = "spi": the GPIO of the chip's DIO1 data-ready, "gpiochip0:25"
-                                        # ("": reads paced by the host timer)
-    iio_device: str = "iio:device0"     # source = "iio": the IIO device (name under /sys/bus/iio/devices)
-    reader: str = "auto"                # sim/spi/iio: read in a dedicated "thread", a child "process", on the
-                                        # "event_loop"; "auto": process for spi and sim, thread for iio
-                                        # (docs/drivers.md)
-    replay_file: str = ""               # source = "replay": a recording written by `ahrsd record`
-    replay_realtime: bool = True        # replay at the recorded pace (false: as fast as possible)
-    replay_speed: float = 1.0           # realtime replay: this many times faster than recorded (1 = real time)
     mounting_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor axes in the body FRD, ZYX Euler deg
     poll_hz: float = 200.0              # replay: polls per second (the chip is read once per sample)
     stale_timeout_s: float = 0.1        # no new sample for this long = sensor failure
-    rate_hz: float = CHIP_DEFAULT_RATE_HZ   # sim/spi/iio: the chip's output data rate, SPS (the nearest SMPL_PRD
-                                        # setting: 1638.404 / (N + 1); iio: written to the driver's
-                                        # sampling_frequency unless at the default); lower costs less CPU
+    # the daemon always asks the chip for a rate (SensorSettings.rate_hz; lower costs less CPU): by default the
+    # chip's own default, so a chip whose flash holds another SMPL_PRD still runs at the rate the daemon is
+    # built and measured for
+    rate_hz: float = CHIP_DEFAULT_RATE_HZ
 
     @property
     def chip_rate_hz(self) -> float:

@@ -32,6 +32,7 @@ from ahrsd.drivers import errors as driver_errors
 from ahrsd.drivers.adis16405 import Adis16405
 from ahrsd.drivers.sample_record import SampleRecord
 from ahrsd.drivers.source_interface import LiveSource
+from ahrsd.drivers.source_settings import SensorSettings
 
 log = logging.getLogger(__name__)
 
@@ -101,7 +102,7 @@ def _chip_truth(src) -> dict | None:
             "t_origin": chip._t_origin}
 
 
-def _child(sensor_cfg: dict, faults, conn) -> None:
+def _child(sensor_cfg: SensorSettings, faults, conn) -> None:
     import signal
 
     from ahrsd.drivers.source import open_source
@@ -109,9 +110,8 @@ def _child(sensor_cfg: dict, faults, conn) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)     # the daemon ends the reader (Ctrl-C reaches the group)
     Adis16405.samples_as_records = True     # process-wide: every driver built here packs its samples (pack)
 
-    cfg = SimpleNamespace(**{**sensor_cfg, "reader": "thread"})
     try:
-        src = open_source(cfg, faults=faults)
+        src = open_source(sensor_cfg, faults=faults)
     except Exception as exc:  # noqa: BLE001 - reported to the daemon, which says why it cannot start
         conn.send(("error", type(exc).__name__, str(exc)))
         return
@@ -280,15 +280,14 @@ class ProcessSource(LiveSource):
     per_sample = False
     monotonic_offset_s = 0.0
 
-    def __init__(self, sensor_cfg, faults=None):
-        import dataclasses
+    def __init__(self, sensor_cfg: SensorSettings, faults=None):
         import multiprocessing
 
-        fields = (dataclasses.asdict(sensor_cfg) if dataclasses.is_dataclass(sensor_cfg) else dict(vars(sensor_cfg)))
         ctx = multiprocessing.get_context("spawn")
         self._conn, child = ctx.Pipe()
-        self._proc = ctx.Process(target=_child, args=(fields, faults, child), name="ahrsd-sensor-reader",
-                                 daemon=True)
+        # a plain SensorSettings with reader "thread": the child reads the chip itself, in a thread
+        self._proc = ctx.Process(target=_child, args=(sensor_cfg.read_in_thread(), faults, child),
+                                 name="ahrsd-sensor-reader", daemon=True)
         self._proc.start()
         child.close()
         self._counters: dict = {}

@@ -23,8 +23,9 @@ from ahrsd.drivers.chip_source import ADIS16405_RATE_HZ, ChipSource
 from ahrsd.drivers.reconnecting import ReconnectingSource
 from ahrsd.drivers.replay_source import ReplaySource
 from ahrsd.drivers.source_interface import PerSampleSource, SensorSource
+from ahrsd.drivers.source_settings import SensorSettings
 
-__all__ = ["SensorSource", "PerSampleSource", "open_source", "open_chip_bus", "open_chip_driver", "start_chip_source",
+__all__ = ["SensorSource", "PerSampleSource", "SensorSettings", "open_source", "open_chip_bus", "open_chip_driver", "start_chip_source",
            "reader_kind"]
 
 
@@ -71,9 +72,9 @@ def start_chip_source(bus, description: str, *, clock=time.monotonic, **start) -
     return ChipSource(driver, bus, description, clock=clock)
 
 
-def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
-    """The source `sensor_cfg` names (`source` = "sim" | "spi" | "iio" | "replay", with its keys: any object
-    with the attributes of daemon.config.SensorConfig): a chip with start-up retries and bus reconnection — read in a
+def open_source(sensor_cfg: SensorSettings, *, clock=time.monotonic, faults=None):
+    """The source `sensor_cfg` names (`source` = "sim" | "spi" | "iio" | "replay", with its keys:
+    drivers.source_settings; the daemon's `[sensor]`, daemon.config.SensorConfig, is one): a chip with start-up retries and bus reconnection — read in a
     dedicated thread (`reader` = "thread"), in a child process ("process": drivers.process_source) or on the
     daemon's event loop ("event_loop") —, the kernel's IIO driver (drivers.iio_source), or a replay.
 
@@ -95,24 +96,24 @@ def open_source(sensor_cfg, *, clock=time.monotonic, faults=None):
     return _off_the_loop(src, sensor_cfg, clock)
 
 
-def _replay_source(sensor_cfg, clock) -> ReplaySource:
+def _replay_source(sensor_cfg: SensorSettings, clock) -> ReplaySource:
     """A recording (`replay_file`), at its recorded pace × `replay_speed` or as fast as it is read."""
     from ahrsd.drivers.recording import iter_samples
 
     # a recording cut mid-row (a recorder killed) replays its complete rows, with a warning naming the line
     return ReplaySource(iter_samples(sensor_cfg.replay_file, strict=False), f"replay {sensor_cfg.replay_file}",
                         realtime=sensor_cfg.replay_realtime, clock=clock,
-                        speed=getattr(sensor_cfg, "replay_speed", 1.0))
+                        speed=sensor_cfg.replay_speed)
 
 
-def _iio_source(sensor_cfg, clock, faults):
+def _iio_source(sensor_cfg: SensorSettings, clock, faults):
     """The kernel's IIO driver (`iio_device`), not started."""
     if faults is not None:
         raise ValueError("fault injection (--sim-faults) needs the simulated sensor, not --iio")
     from ahrsd.drivers.iio_source import IioSource
 
     # rate_hz at the chip's default leaves the driver's sampling_frequency as it is (and needs no write access)
-    rate = _chip_rate(sensor_cfg)
+    rate = sensor_cfg.rate_hz
     return IioSource(sensor_cfg.iio_device, clock=clock, rate_hz=None if rate in (None, ADIS16405_RATE_HZ) else rate)
 
 
@@ -123,14 +124,14 @@ def _paced_by(line) -> dict:
     return {"make_timer": lambda period_s: DataReadyTimer(line, period_s)}
 
 
-def _spi_chip_source(sensor_cfg, clock, faults) -> ReconnectingSource:
+def _spi_chip_source(sensor_cfg: SensorSettings, clock, faults) -> ReconnectingSource:
     """The real chip on `spi_device`, re-opened when the bus fails, paced by the host timer or, when `data_ready`
     names its GPIO line, by the chip's data-ready edges; not started."""
     if faults is not None:
         raise ValueError("fault injection (--sim-faults) needs the simulated sensor, not --spi")
     path = sensor_cfg.spi_device
-    spec = getattr(sensor_cfg, "data_ready", "")
-    rate = _chip_rate(sensor_cfg)
+    spec = sensor_cfg.data_ready
+    rate = sensor_cfg.rate_hz      # written to the chip's SMPL_PRD at each (re)start (None: the chip's own)
     if not spec:
         return ReconnectingSource(lambda: open_chip_bus("spi", spi_device=path), open_chip_driver,
                                   f"ADIS16405 on {path}", clock=clock, sample_rate_hz=rate)
@@ -141,12 +142,7 @@ def _spi_chip_source(sensor_cfg, clock, faults) -> ReconnectingSource:
                               sample_rate_hz=rate, **_paced_by(open_gpio_line(spec)))
 
 
-def _chip_rate(sensor_cfg) -> float | None:
-    """`[sensor] rate_hz`, written to the chip's SMPL_PRD at each (re)start (None: the chip's own setting)."""
-    return getattr(sensor_cfg, "rate_hz", None)
-
-
-def _simulated_chip_source(sensor_cfg, clock, faults):
+def _simulated_chip_source(sensor_cfg: SensorSettings, clock, faults):
     """The simulated chip flying `scenario` (faults injected as planned), read as the real one is and accounted
     against its truth (drivers.ground_truth); not started."""
     from ahrsd.drivers.ground_truth import BurstIndexTap, GroundTruthSource
@@ -157,27 +153,26 @@ def _simulated_chip_source(sensor_cfg, clock, faults):
     what = f"simulated ADIS16405 ({sensor_cfg.scenario}{', faults injected' if faults is not None else ''})"
     tap = BurstIndexTap(chip)
     timing = {}
-    if getattr(sensor_cfg, "data_ready", ""):       # the simulated chip's own DIO1 (drivers.simulated)
+    if sensor_cfg.data_ready:       # the simulated chip's own DIO1 (drivers.simulated)
         from ahrsd.drivers.simulated import SimulatedDataReadyLine
 
         timing = _paced_by(SimulatedDataReadyLine(chip, host_clock=clock))
         what += ", paced by its data-ready line"
     return GroundTruthSource(ReconnectingSource(lambda: tap, _data_ready_driver if timing else open_chip_driver,
                                                 what, clock=clock, reopen_same_bus=True,
-                                                sample_rate_hz=_chip_rate(sensor_cfg), **timing), chip, tap)
+                                                sample_rate_hz=sensor_cfg.rate_hz, **timing), chip, tap)
 
 
-def reader_kind(sensor_cfg) -> str:
+def reader_kind(sensor_cfg: SensorSettings) -> str:
     """`[sensor] reader`: "auto" is a child process for a chip without a FIFO, real or simulated (its own GIL:
     docs/drivers.md, measured), so the simulated chip is read the way the real one is; a thread for the
     kernel's IIO buffer (the kernel reads the chip; the thread only drains the buffer)."""
-    reader = getattr(sensor_cfg, "reader", "auto")
-    if reader == "auto":
+    if sensor_cfg.reader == "auto":
         return "process" if sensor_cfg.source in ("spi", "sim") else "thread"
-    return reader
+    return sensor_cfg.reader
 
 
-def _off_the_loop(src, sensor_cfg, clock):
+def _off_the_loop(src, sensor_cfg: SensorSettings, clock):
     """The per-sample chip source read in its own thread (`[sensor] reader = "thread"`: drivers.threaded_source),
     or left to the daemon's event loop ("event_loop")."""
     if reader_kind(sensor_cfg) != "thread":

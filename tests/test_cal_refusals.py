@@ -48,3 +48,16 @@ def test_mag_on_a_too_short_recording_gives_the_count_and_says_record_longer(tmp
     rec = write(tmp_path / "short.csv", 20)
     text = refusal(capsys, "mag", rec, "--lat", 36.42, "--lon", 54.98, "--state-dir", tmp_path)
     assert "too few samples: 20 usable, need at least 30" in text and "record longer while turning" in text
+
+
+def test_every_calibrate_subcommand_carries_plot_and_json():
+    """calibrate.run reads args.plot and args.json plainly (no getattr): every subcommand's parser defines them."""
+    import argparse
+
+    from ahrsd.cli import calibrate
+
+    parser = argparse.ArgumentParser()
+    calibrate.register(parser.add_subparsers())
+    for sensor in ("allan", "accel", "gyro", "mag"):
+        args = parser.parse_args(["calibrate", sensor, "rec.csv"])
+        assert (args.plot, args.json) == (None, False), sensor

@@ -159,3 +159,25 @@ def test_monkeypatching_another_modules_object_fails_in_every_package(tmp_path):
         assert f"{at} " in r.stdout and "sets another module's object" in r.stdout.split(at)[1].splitlines()[0], at
     for clean in ("daemon/bad.py:7:", "drivers/bad.py:6:", "drivers/bad.py:11:"):
         assert clean not in r.stdout, clean
+
+
+def test_probing_a_settings_object_in_the_drivers_fails(tmp_path):
+    """Rule 8: drivers.source once read `getattr(sensor_cfg, "rate_hz", None)`, so a settings object without the
+    field meant "the chip's own rate" while the config's default meant 819.2 SPS; the fields are declared now
+    (drivers/source_settings.py). A message's optional field stays data."""
+    (tmp_path / "drivers").mkdir()
+    (tmp_path / "drivers" / "bad.py").write_text(textwrap.dedent("""\
+        def a(sensor_cfg):
+            return getattr(sensor_cfg, 'rate_hz', None)
+        def b(settings):
+            return hasattr(settings, 'reader')
+        def c(msg):
+            return getattr(msg, 'invalidLlh', 0)
+        def d(sensor_cfg):
+            return sensor_cfg.rate_hz
+        """))
+    r = run(tmp_path)
+    assert r.returncode == 1
+    assert "drivers/bad.py:2: getattr(sensor_cfg, 'rate_hz') probes a settings object" in r.stdout
+    assert "drivers/bad.py:4: hasattr(settings, 'reader') probes a settings object" in r.stdout
+    assert "bad.py:6:" not in r.stdout and "bad.py:8:" not in r.stdout

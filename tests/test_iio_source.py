@@ -172,9 +172,9 @@ def test_a_missing_iio_device_is_one_line_not_a_traceback(tmp_path, capsys):
 
 
 def _iio_cfg(device, reader="auto"):
-    from types import SimpleNamespace
+    from ahrsd.drivers.source_settings import SensorSettings
 
-    return SimpleNamespace(source="iio", iio_device=str(device.sysfs), reader=reader)
+    return SensorSettings(source="iio", iio_device=str(device.sysfs), reader=reader)
 
 
 def _take(src, want: int, t_end: float, got: list, errors: list) -> None:

@@ -4,7 +4,6 @@ counters handed over through a pipe (real time: assertions on counts, never on d
 from __future__ import annotations
 
 import time
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -16,11 +15,12 @@ from ahrsd.drivers.errors import BusError
 from ahrsd.drivers.faults import FaultPlan
 from ahrsd.drivers import process_source
 from ahrsd.drivers.process_source import ProcessSource, pack, unpack
+from ahrsd.drivers.source_settings import SensorSettings
 
 
 def sim_cfg(**kw):
-    return SimpleNamespace(**{"source": "sim", "reader": "process", "scenario": "static", "seed": 1,
-                              "errors": "adis16405", "data_ready": "", **kw})
+    return SensorSettings(**{"source": "sim", "reader": "process", "scenario": "static", "seed": 1,
+                             "errors": "adis16405", "data_ready": "", **kw})
 
 
 def test_records_cross_the_pipe_unchanged():

@@ -23,6 +23,10 @@ Rule in every package (daemon/ and the others above):
    one is assigned (`autopilot.AutopilotState.on_gps_raw_int = hook`, `Adis16405.flag = True`) or set with
    `setattr`; a module changes another's behaviour through what that one declares (an argument, a
    subscription). A line that must set a process-wide switch says why in a `# process-wide:` comment.
+Rule in drivers/ and daemon/:
+8. no `getattr`/`hasattr` probing of a settings object (`sensor_cfg`, `settings`, `cfg`, `config`, …): what a
+   source is built from is a declared type (drivers/source_settings.py: SensorSettings; the daemon's config
+   tables), every field with its one default, so a missing field is an error, not a second meaning.
 Rule in tests/:
 5. no spy on an estimator: no function or lambda assigned to an attribute of an estimator object (the names of
    rule 3, and what hangs below them: `est._monitor.check = spy`). A test reads what the estimator decided
@@ -42,6 +46,9 @@ PROBED_OBJECTS = {"self", "service", "svc", "s", "host", "self.service", "self.h
                   "source", "src", "self.source", "service.source",    # a sensor source: drivers.source_interface
                   *ESTIMATOR_OBJECTS}
 DAEMON = "daemon"
+SETTINGS_RULE_PACKAGES = ("drivers", DAEMON)
+SETTINGS_OBJECTS = {"sensor_cfg", "sensor_settings", "settings", "cfg", "config", "self.settings", "self.config",
+                    "self.cfg", "self.sensor_cfg"}                    # drivers/source_settings.py, daemon/config.py
 ESTIMATOR_RULE_PACKAGES = ("cli", "calibration", "estimator", "drivers", "core", "simulation")
 TESTS = "tests"
 PART_NAMES = {
@@ -108,8 +115,9 @@ def _monkeypatches(tree: ast.AST, lines: list[str], shown: str) -> list[str]:
     return out
 
 
-def check_file(path: Path, shown: str, daemon_rules: bool = True) -> list[str]:
-    """The problems in one file: every rule (daemon_rules), or only rules 4 (an estimator probed) and 7."""
+def check_file(path: Path, shown: str, daemon_rules: bool = True, settings_rule: bool = False) -> list[str]:
+    """The problems in one file: every rule (daemon_rules), or only rules 4 (an estimator probed) and 7; and
+    rule 8 (a settings object probed) with settings_rule."""
     try:
         tree = ast.parse(path.read_text(encoding="utf-8"))
     except SyntaxError as exc:
@@ -138,6 +146,9 @@ def check_file(path: Path, shown: str, daemon_rules: bool = True) -> list[str]:
             elif not daemon_rules and target in ESTIMATOR_OBJECTS:
                 out.append(f"{shown}:{node.lineno}: {name}({target}, {attr!r}) probes an estimator (declare the "
                            "capability as a Protocol in estimator/base.py and test it with isinstance)")
+            if settings_rule and target in SETTINGS_OBJECTS:
+                out.append(f"{shown}:{node.lineno}: {name}({target}, {attr!r}) probes a settings object (declare "
+                           "the field with its default: drivers/source_settings.py SensorSettings)")
     return sorted(out, key=lambda line: int(line.split(":")[1]))
 
 
@@ -170,7 +181,8 @@ def check(root: Path) -> list[str]:
     out = []
     for package in (DAEMON, *ESTIMATOR_RULE_PACKAGES):
         for path in sorted((root / package).rglob("*.py")):
-            out += check_file(path, str(path.relative_to(root)), daemon_rules=package == DAEMON)
+            out += check_file(path, str(path.relative_to(root)), daemon_rules=package == DAEMON,
+                              settings_rule=package in SETTINGS_RULE_PACKAGES)
     for path in sorted((root / TESTS).rglob("*.py")):
         out += check_test_file(path, str(path.relative_to(root)))
     return out
