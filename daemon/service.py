@@ -428,14 +428,11 @@ class Service:
             log.info("compiled the %s estimator in %.1f s (cached for the next start)", name, took_s)
 
     def _make_estimator(self, calibration) -> Estimator:
-        """The configured estimator at the declination, built on the calibration in force and told it."""
+        """The configured estimator at the declination, told the calibration in force (told before its first
+        sample, it is the estimator built with it)."""
         cfg = self.config
-        options = dict(cfg.estimator_options)
-        if cfg.estimator_name == "ins":
-            # ins builds its first heading checks on the calibration's heading error; set_mag_calibration_sigma (a
-            # hot swap) restarts them but keeps what the running filter has, such as its unconfirmed-yaw floor
-            options["mag_calibration_sigma_rad"] = calibration_heading_sigma_rad(calibration)
-        estimator = make_estimator(cfg.estimator_name, declination_rad=self.declination.rad, **options)
+        estimator = make_estimator(cfg.estimator_name, declination_rad=self.declination.rad,
+                                   **cfg.estimator_options)
         self._tell_calibration(estimator, calibration)
         return estimator
 

@@ -586,12 +586,15 @@ class Ins:
     def set_mag_calibration_sigma(self, sigma_rad: float) -> None:
         """A new magnetometer calibration is in force (the daemon's calibration swap): its predicted heading
         error, 1σ rad (NaN: unknown). The heading checks start again with it; the filter's yaw variance is
-        left to them (a changed heading is caught by the monitor and slewed in the published yaw)."""
+        left to them (a changed heading is caught by the monitor and slewed in the published yaw). Told before
+        the first sample, the filter is the one built with this calibration."""
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
         s = float(sigma_rad)
         self.params = replace(self.params, mag_calibration_sigma_rad=s if math.isfinite(s) and s >= 0.0 else math.nan)
         p = self.params
-        self._iron.soft_prior_sigma = p.iron_soft_prior     # takes effect at the learned iron's reset
+        self._iron.soft_prior_sigma = p.iron_soft_prior     # a learned iron's takes effect at its reset
+        if self._iron.updates == 0 and not self._iron_restored:
+            self._iron.reset()     # nothing learned yet: it starts from the new calibration's prior, as when built
         self._monitor = HeadingMonitor(p.calibration_sigma_rad, reentry_s=p.mag_reentry_s,
                                        max_resets=p.yaw_reset_max, reset_spacing_s=p.yaw_reset_spacing_s,
                                        resets=self._monitor.resets, last_reset_t_s=self._monitor.last_reset_t_s)
@@ -603,6 +606,17 @@ class Ins:
         self._par["mag_bias_tau_s"] = p.mag_bias_tau
         self._set_accel_bias_learning()
         self._set_field_circle()
+        if self._heading_checks_run:    # else the floor is none, or the one without magnetometer (no calibration's)
+            self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(*self._yaw_and_gnss_yaw_now())
+
+    def _yaw_and_gnss_yaw_now(self) -> tuple[float, float, float]:
+        """What the unconfirmed-yaw floor is computed from (`_unconfirmed_yaw_sigma`), now: the filter's yaw and
+        the GNSS yaw bank's yaw and variance; before the filter has started, no yaw yet (its floor at
+        construction)."""
+        if not self._initialised:
+            return 0.0, math.nan, math.nan
+        gsf_yaw, gsf_var, _ = self._gnss_yaw()
+        return float(quat_to_euler(self._x["q"])[2]), gsf_yaw, gsf_var
 
     def heading_report(self) -> HeadingReport:
         """What the heading checks did so far (replay's summary, the daemon's warning)."""
