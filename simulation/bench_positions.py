@@ -13,12 +13,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ahrsd.simulation.profiles import smoothstep
 from ahrsd.simulation.scenarios import Scenario
+
+if TYPE_CHECKING:   # imported where a rotation is made (simulation/scenarios.py says why)
+    from scipy.spatial.transform import Rotation
 
 _UP_NED = np.array([0.0, 0.0, -1.0])
 # the body direction that points up in each position (FRD: level is −z up)
@@ -28,6 +31,8 @@ CORNERS = tuple((sx, sy, sz) for sx in (1.0, -1.0) for sy in (1.0, -1.0) for sz 
 
 def _up_along(d) -> Rotation:
     """A body→NED rotation that points the body direction d up."""
+    from scipy.spatial.transform import Rotation
+
     d = np.asarray(d, dtype=float) / np.linalg.norm(d)
     c = float(d @ _UP_NED)
     if c > 1.0 - 1e-12:
@@ -52,6 +57,8 @@ class AccelPositions(Scenario):
                    "corners) on a surface 0.2° off level")
 
     def __post_init__(self):
+        from scipy.spatial.transform import Rotation
+
         az = math.radians(self.tilt_azimuth_deg)
         tilt_axis = np.array([-math.sin(az), math.cos(az), 0.0])     # horizontal, normal to the tilt's azimuth
         surface = Rotation.from_rotvec(math.radians(self.surface_tilt_deg) * tilt_axis)
@@ -69,6 +76,8 @@ class AccelPositions(Scenario):
         return len(self._quats)
 
     def attitude(self, t_s):
+        from scipy.spatial.transform import Rotation
+
         t = np.atleast_1d(np.asarray(t_s, dtype=float))
         period = self.hold_s + self.move_s
         k = np.clip(np.floor(t / period).astype(int), 0, self.n_positions - 1)

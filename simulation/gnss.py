@@ -38,7 +38,6 @@ from dataclasses import dataclass
 from typing import Callable, Iterator
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
 from ahrsd.core.gnss import GnssFix, GnssFixType
 from ahrsd.core.sample import ImuSample
@@ -140,6 +139,8 @@ class GnssTruth:
 
 def _block_truth(block: SensorBlock) -> Callable[[np.ndarray], Truth]:
     """Truth between a block's samples: linear in position, velocity and rate, slerp in attitude."""
+    from scipy.spatial.transform import Rotation, Slerp   # here, not at the top: simulation/scenarios.py says why
+
     t = block.t_s
     q = block.truth_q_wxyz
     slerp = Slerp(t, Rotation.from_quat(np.column_stack([q[:, 1:], q[:, 0]])))
@@ -285,6 +286,8 @@ class GnssSimulator:
         lat, lon, alt, vel = truth.lat_deg, truth.lon_deg, truth.alt_m, truth.vel_ned_m_s
         if not np.any(self.lever_arm_m):
             return lat, lon, alt, vel
+        from scipy.spatial.transform import Rotation
+
         q = truth.q_wxyz
         c_bn = Rotation.from_quat(np.column_stack([q[:, 1:], q[:, 0]]))
         arm_ned = c_bn.apply(self.lever_arm_m)

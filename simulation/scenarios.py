@@ -16,12 +16,19 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ahrsd.simulation.magnetic import PassingMagnet, VehicleIron
 from ahrsd.simulation.profiles import RateProfile, hold, ramp, smoothstep
+
+# scipy's Rotation is imported where a rotation is made (here, gnss.py, bench_positions.py), not at the top: the
+# daemon imports this package only for the scenario names and the simulator's site (daemon/config.py,
+# daemon/position.py), its simulated chip runs in another process, and every `ahrsd run` would load scipy.spatial
+# for nothing (docs/simulation.md)
+if TYPE_CHECKING:
+    from scipy.spatial.transform import Rotation
 
 DEG = math.pi / 180.0
 _RATE_STEP_S = 1e-5  # half-width of the central difference for the body rate
@@ -29,6 +36,8 @@ _RATE_STEP_S = 1e-5  # half-width of the central difference for the body rate
 
 def euler_zyx(yaw, pitch, roll) -> Rotation:
     """C_b^n = Rz(yaw) Ry(pitch) Rx(roll) (ZYX Euler, body→NED)."""
+    from scipy.spatial.transform import Rotation
+
     return Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll]))
 
 
@@ -139,14 +148,17 @@ class Static(EulerScenario):
 # (body→NED). With the table turning about NED down, the body turns about that axis. The six static holds are
 # also the classic six-position accelerometer calibration set (static gravity reference, as the ADIS16405
 # AHRS thesis calibrates with).
-_TABLE_MOUNTS = (
-    ("z down (level)", Rotation.identity()),
-    ("z up", Rotation.from_euler("X", 180, degrees=True)),
-    ("x up", Rotation.from_euler("Y", 90, degrees=True)),
-    ("x down", Rotation.from_euler("Y", -90, degrees=True)),
-    ("y up", Rotation.from_euler("X", -90, degrees=True)),
-    ("y down", Rotation.from_euler("X", 90, degrees=True)),
-)
+def _table_mounts() -> tuple[tuple[str, Rotation], ...]:
+    from scipy.spatial.transform import Rotation
+
+    return (
+        ("z down (level)", Rotation.identity()),
+        ("z up", Rotation.from_euler("X", 180, degrees=True)),
+        ("x up", Rotation.from_euler("Y", 90, degrees=True)),
+        ("x down", Rotation.from_euler("Y", -90, degrees=True)),
+        ("y up", Rotation.from_euler("X", -90, degrees=True)),
+        ("y down", Rotation.from_euler("X", 90, degrees=True)),
+    )
 
 
 @dataclass
@@ -173,9 +185,10 @@ class RateTable(Scenario):
         const_s = 2 * math.pi * self.turns / w - self.ramp_s  # ramps add w·ramp_s in total
         if const_s <= 0:
             raise ValueError("rate-table: turns too few for that rate and ramp time")
+        table_mounts = _table_mounts()
         segs, windows = [], []
         t = 0.0
-        for _ in _TABLE_MOUNTS:
+        for _ in table_mounts:
             start = t
             for sign in (1.0, -1.0):
                 block = [hold(self.hold_s), ramp(self.ramp_s, 0, sign * w), hold(const_s, sign * w),
@@ -190,12 +203,12 @@ class RateTable(Scenario):
         self._table = RateProfile(segs)
         self.period_s = self._table.period_s
         self._mount_end = np.array([w1 for _, w1 in windows])
-        self._mounts = [m for _, m in _TABLE_MOUNTS]
+        self._mounts = [m for _, m in table_mounts]
         # The rotation from each mount to the next, applied gradually during the remount.
         self._steps = [self._mounts[(k + 1) % 6] * self._mounts[k].inv() for k in range(6)]
         self._mount_quats = np.array([m.as_quat() for m in self._mounts])
         self._step_rotvecs = np.array([st.as_rotvec() for st in self._steps])
-        self.mount_names = tuple(n for n, _ in _TABLE_MOUNTS)
+        self.mount_names = tuple(n for n, _ in table_mounts)
 
     def table_rate_rad_s(self, t_s):
         return self._table.rate(t_s)
@@ -211,6 +224,8 @@ class RateTable(Scenario):
         return k, into_remount, self._table.angle(t)
 
     def attitude(self, t_s):
+        from scipy.spatial.transform import Rotation
+
         t = np.asarray(t_s, dtype=float)
         k, x, theta = self._parts(t)
         mounts = Rotation.from_quat(self._mount_quats[k])
@@ -221,6 +236,8 @@ class RateTable(Scenario):
 
     def body_rate_rad_s(self, t_s):
         """Exact: R = Rz(θ) · exp(s v) · M gives ω_n = θ̇ e_z + Rz(θ) ṡ v, and ω_b = Rᵀ ω_n."""
+        from scipy.spatial.transform import Rotation
+
         t = np.asarray(t_s, dtype=float)
         k, x, theta = self._parts(t)
         s_dot = np.where((x > 0.0) & (x < 1.0), 6.0 * x * (1.0 - x) / self.remount_s, 0.0)   # d smoothstep / dt
