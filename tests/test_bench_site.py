@@ -50,3 +50,26 @@ def test_a_place_and_the_unseen_iron_reach_the_simulator():
     b_body = Rotation.from_quat(raw.truth_q_wxyz[:, [1, 2, 3, 0]]).inv().apply(b)
     hard_ut = (raw.mag_ut - b_body @ UNSEEN_SOFT_IRON.T).mean(axis=0)
     np.testing.assert_allclose(hard_ut, UNSEEN_HARD_IRON_UT, atol=2.0)
+
+
+def test_the_daemon_benchs_place_and_iron_reach_the_recording_it_replays(tmp_path):
+    """bench/daemon_heading.py --site/--iron: the recording `ahrsd run --replay` reads (through the simulated chip)
+    and its GNSS file are at the place, with the unseen iron."""
+    from ahrsd.drivers.gnss.recording import read_gnss_recording
+    from ahrsd.drivers.recording import read_recording
+    from bench.daemon_heading import main as daemon_heading_main, record_boat
+
+    with pytest.raises(SystemExit) as exc:
+        daemon_heading_main(["--site", "69.65,north"])
+    assert exc.value.code == 2
+    rec = tmp_path / "boat.csv"
+    record_boat(rec, 2.0, 11, TROMSO, "unseen")
+    r = read_recording(rec)
+    q_wxyz = np.column_stack([r.extra[c] for c in ("truth_qw", "truth_qx", "truth_qy", "truth_qz")])
+    # raw = S · B_body + h: the field in the body from the unseen iron's numbers written here, then into NED
+    b_body = (np.linalg.inv(UNSEEN_SOFT_IRON) @ (r.mag_ut - UNSEEN_HARD_IRON_UT).T).T
+    b = Rotation.from_quat(q_wxyz[:, [1, 2, 3, 0]]).apply(b_body).mean(axis=0)
+    assert np.degrees(np.arctan2(b[2], np.hypot(b[0], b[1]))) == pytest.approx(78.4, abs=1.5)
+    assert np.hypot(b[0], b[1]) == pytest.approx(10.8, abs=1.5)
+    fixes = read_gnss_recording(rec.with_name("boat.gnss.csv"))
+    assert fixes and all(abs(f.lat_deg - 69.65) < 0.1 and abs(f.lon_deg - 18.96) < 0.1 for f in fixes)
