@@ -4,6 +4,8 @@ WMM/IGRF maps; the default site dips ≈ 56°, the held-out one ≈ −64°) and
 
 from __future__ import annotations
 
+import importlib
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -32,9 +34,17 @@ def test_the_named_sites_resolve_as_before_and_a_place_takes_the_held_out_iron()
         honesty_site(TROMSO, "rusty")
 
 
-def test_a_mistyped_place_is_a_usage_error_before_any_run():
+QUICK_ACCURACY = ["--vehicles", "--quick", "--vehicle-scenarios", "boat", "--vehicle-seeds", "1"]
+
+
+@pytest.mark.parametrize("bench, argv", [("heading_timeline", ["--site", "69.65,north", "--seeds", "11"]),
+                                         ("daemon_heading", ["--site", "69.65,north"]),
+                                         ("honesty_spread", ["--site", "69.65,north", "--seeds", "11"]),
+                                         ("accuracy", [*QUICK_ACCURACY, "--honesty-site", "69.65,north"])])
+def test_a_mistyped_place_is_a_usage_error_before_any_run(bench, argv):
+    main = heading_timeline_main if bench == "heading_timeline" else importlib.import_module(f"bench.{bench}").main
     with pytest.raises(SystemExit) as exc:
-        heading_timeline_main(["--site", "69.65,north", "--seeds", "11"])
+        main(argv)
     assert exc.value.code == 2
 
 
@@ -57,11 +67,8 @@ def test_the_daemon_benchs_place_and_iron_reach_the_recording_it_replays(tmp_pat
     and its GNSS file are at the place, with the unseen iron."""
     from ahrsd.drivers.gnss.recording import read_gnss_recording
     from ahrsd.drivers.recording import read_recording
-    from bench.daemon_heading import main as daemon_heading_main, record_boat
+    from bench.daemon_heading import record_boat
 
-    with pytest.raises(SystemExit) as exc:
-        daemon_heading_main(["--site", "69.65,north"])
-    assert exc.value.code == 2
     rec = tmp_path / "boat.csv"
     record_boat(rec, 2.0, 11, TROMSO, "unseen")
     r = read_recording(rec)
@@ -73,3 +80,18 @@ def test_the_daemon_benchs_place_and_iron_reach_the_recording_it_replays(tmp_pat
     assert np.hypot(b[0], b[1]) == pytest.approx(10.8, abs=1.5)
     fixes = read_gnss_recording(rec.with_name("boat.gnss.csv"))
     assert fixes and all(abs(f.lat_deg - 69.65) < 0.1 and abs(f.lon_deg - 18.96) < 0.1 for f in fixes)
+
+
+def test_the_daemon_benchs_own_recording_at_the_default_site_and_iron_is_ahrsd_records(tmp_path):
+    """At the default site with the default iron (the boat scenario's own) the in-process recording is byte for byte
+    what `ahrsd record --sim boat` writes: the place and the iron are all that --site / --iron change."""
+    from ahrsd.cli.main import main as ahrsd_main
+    from bench.daemon_heading import record_boat
+
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    assert ahrsd_main(["record", "--sim", "boat", "--seconds", "2", "--seed", "12", "-o", str(tmp_path / "a/boat.csv"),
+                       "--quiet"]) == 0
+    record_boat(tmp_path / "b/boat.csv", 2.0, 12, None, "default")
+    for name in ("boat.csv", "boat.gnss.csv"):
+        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
