@@ -346,6 +346,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _arguments() -> argparse.ArgumentParser:
+    from bench.heading_timeline import _site_arg
+    from bench.vehicle_accuracy import HONESTY_IRONS
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--trials", nargs="*", help="BROAD trial name prefixes or substrings (default: all)")
     ap.add_argument("--methods", nargs="*", default=list(METHODS), help=f"subset of {', '.join(METHODS)}")
@@ -366,6 +369,11 @@ def _arguments() -> argparse.ArgumentParser:
                     help="(d) honest heading: run length of the uncalibrated / iron-change vehicles, s")
     ap.add_argument("--honesty-seeds", type=int, nargs="*", default=None,
                     help="(d): seeds (default 1 at the default site and 11 at the held-out one; --quick: 11 only)")
+    ap.add_argument("--honesty-site", type=_site_arg, default=None,
+                    help='(d) at this site only (seeds: --honesty-seeds, else 11): "held-out", "default" or a place '
+                         '"LAT,LON[,ALT_M[,YYYY-MM-DD]]" (with the held-out iron), as heading_timeline\'s --site')
+    ap.add_argument("--honesty-iron", choices=HONESTY_IRONS, default=None,
+                    help="(d) at --honesty-site (default held-out) with this vehicle iron instead of the site's own")
     ap.add_argument("--no-honesty", action="store_true", help="skip the honest-heading section (d)")
     ap.add_argument("--cv", action="store_true",
                     help="cross-validated tuning of mekf on BROAD (leave-one-trial-out and leave-one-pair-out "
@@ -375,8 +383,8 @@ def _arguments() -> argparse.ArgumentParser:
 
 def _vehicle_sections(args) -> None:
     """(c) the vehicles, then (d) the honest heading unless --no-honesty (default seeds: 1 at the default site
-    and 11 at the held-out one; --quick: 11 only)."""
-    from bench.vehicle_accuracy import HONESTY_SITES, VEHICLE_SCENARIOS, honesty_section, vehicle_section
+    and 11 at the held-out one; --quick: 11 only; with --honesty-site / --honesty-iron: there, 11 only)."""
+    from bench.vehicle_accuracy import HONESTY_SITES, VEHICLE_SCENARIOS, honesty_section, honesty_site, vehicle_section
 
     sites = {f"site{i + 1}": s for i, s in enumerate(args.site)} if args.site else None
     vehicle_section(args.quick, args.vehicle_seeds, sites, args.vehicle_scenarios or VEHICLE_SCENARIOS,
@@ -384,7 +392,11 @@ def _vehicle_sections(args) -> None:
     if args.no_honesty:
         return
     scen = args.vehicle_scenarios or VEHICLE_SCENARIOS
-    if args.honesty_seeds:
+    if args.honesty_site or args.honesty_iron:
+        site = args.honesty_site or "held-out"
+        honesty_section(args.honesty_seconds, tuple(args.honesty_seeds or (11,)),
+                        {site: honesty_site(site, args.honesty_iron)}, scen)
+    elif args.honesty_seeds:
         honesty_section(args.honesty_seconds, tuple(args.honesty_seeds), HONESTY_SITES, scen)
     else:
         if not args.quick:

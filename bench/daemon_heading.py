@@ -3,25 +3,64 @@
 --replay-speed 5`; every VISION_POSITION_ESTIMATE against the recording's truth: the share whose yaw is within 3σ
 of the VPE's own yaw variance after 30 s, and the yaw RMS from 180 s (targets ≥ 99 %, ≤ 1°).
 
+`--site` / `--iron` as bench/heading_timeline.py's (vehicle_accuracy.honesty_site): a name ("held-out", "default")
+or any place "LAT,LON[,ALT_M[,YYYY-MM-DD]]" (with the held-out iron), another iron ("unseen": never used for a
+choice). `ahrsd record` has no such option, so the bench then runs the same `ahrsd record` in its own process with
+the simulator (the chip's samples and the GNSS receiver's track) opened at that place with that iron.
+
     python bench/daemon_heading.py --seconds 600 --seed 11
+    python bench/daemon_heading.py --seed 12 --site=-45.87,170.50 --iron unseen     # Dunedin ("=": a minus sign)
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import functools
+import io
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from support.ahrsd_process import AHRSD, Daemon  # noqa: E402
 
 from ahrsd.drivers.recording import read_recording  # noqa: E402
+from bench.heading_timeline import _site_arg  # noqa: E402
+from bench.vehicle_accuracy import HONESTY_IRONS, honesty_site  # noqa: E402
+
+
+def record_boat(rec: Path, seconds: float, seed: int, site: str | None = None, iron: str | None = None) -> None:
+    """The boat recording the daemon replays (and REC.gnss.csv beside it): `ahrsd record --sim boat` as a user
+    runs it; with a `site` or an `iron` (honesty_site's) the same command in this process with
+    `ahrsd.simulation.open_stream` opening the chip's samples and the GNSS receiver's track there (both open their
+    stream through it), so the place's field, gravity and the receiver's latitude (the daemon's declination) agree."""
+    argv = ["record", "--sim", "boat", "--seconds", str(seconds), "--seed", str(seed), "-o", str(rec), "--quiet"]
+    if site is None and iron is None:
+        subprocess.run([str(AHRSD), *argv], check=True, capture_output=True)
+        return
+    from ahrsd import simulation
+    from ahrsd.cli.main import main as ahrsd_main
+
+    site_text, iron_name = honesty_site("default" if site is None else site, iron)
+    at_site = functools.partial(simulation.open_stream,
+                                site=simulation.Site.parse(site_text) if site_text else simulation.DEFAULT_SITE,
+                                # HONESTY_IRONS are VehicleIron's constructors by name
+                                vehicle_iron=getattr(simulation.VehicleIron, iron_name.replace("-", "_"))())
+    said = io.StringIO()
+    with mock.patch.object(simulation, "open_stream", at_site), contextlib.redirect_stdout(said), \
+            contextlib.redirect_stderr(said):
+        status = ahrsd_main(argv)
+    if status != 0:
+        raise RuntimeError(f"ahrsd record at {site_text} failed ({status}): {said.getvalue()}")
 
 
 def main(argv=None) -> int:
@@ -29,12 +68,16 @@ def main(argv=None) -> int:
     ap.add_argument("--seconds", type=float, default=600.0)
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--speed", type=float, default=5.0)
+    ap.add_argument("--site", type=_site_arg, default=None,
+                    help='"held-out", "default" or a place "LAT,LON[,ALT_M[,YYYY-MM-DD]]" (default: `ahrsd record`\'s '
+                         "own site and boat iron)")
+    ap.add_argument("--iron", choices=HONESTY_IRONS, default=None,
+                    help="the vehicle iron instead of the site's own (a place's own: held-out)")
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         rec = tmp / "boat.csv"
-        subprocess.run([str(AHRSD), "record", "--sim", "boat", "--seconds", str(args.seconds), "--seed",
-                        str(args.seed), "-o", str(rec), "--quiet"], check=True, capture_output=True)
+        record_boat(rec, args.seconds, args.seed, args.site, args.iron)
         d = Daemon(tmp, "--gnss-replay", str(rec.with_name("boat.gnss.csv")), "--replay-speed", str(args.speed),
                    source=("--replay", str(rec)))
         got: dict = {}
@@ -61,7 +104,8 @@ def main(argv=None) -> int:
     err = np.degrees(np.angle(np.exp(1j * (np.array([m.yaw for m in vpe]) - truth[rows].as_euler("ZYX")[:, 0]))))
     sigma = np.degrees(np.sqrt([m.covariance[20] for m in vpe]))
     after30, from180 = t >= 30.0, t >= 180.0
-    print(f"boat seed {args.seed}, {args.seconds:.0f} s at {args.speed:g}x, no magnetometer calibration: "
+    where = "".join(f", {name} {value}" for name, value in (("site", args.site), ("iron", args.iron)) if value)
+    print(f"boat seed {args.seed}{where}, {args.seconds:.0f} s at {args.speed:g}x, no magnetometer calibration: "
           f"{len(vpe)} VPE, first at {t[0]:.1f} s")
     print(f"  within 3σ of the VPE's yaw variance after 30 s: {np.mean(np.abs(err[after30]) <= 3 * sigma[after30]):.2%}")
     if from180.any():

@@ -1,8 +1,10 @@
 """The honest-heading figures of bench/vehicle_accuracy.py section (d) for `ins` alone, over many seeds, in
 parallel processes: heading / tilt RMS, σ median, share beyond 3σ and the largest 0.1 s step per run, and their
 spread. Used to choose the heading parameters on held-out-site seeds other than the reported seed 11.
+`--site` / `--iron` as bench/heading_timeline.py's: a name or any place "LAT,LON[,ALT_M[,YYYY-MM-DD]]", another iron.
 
     python bench/honesty_spread.py --site held-out --seeds 12 13 14 15 16 17 --scenarios boat
+    python bench/honesty_spread.py --site 69.65,18.96 --iron unseen --seeds 11 14 17 --scenarios boat   # Tromsø
 """
 
 from __future__ import annotations
@@ -20,12 +22,14 @@ import numpy as np
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.vehicle_accuracy import HONESTY_SITES, IRON_STEP_AT, honesty_figures, run_ins_detailed, simulate_vehicle  # noqa: E402
+from bench.heading_timeline import _site_arg  # noqa: E402
+from bench.vehicle_accuracy import (HONESTY_IRONS, IRON_STEP_AT, honesty_figures, honesty_site,  # noqa: E402
+                                    run_ins_detailed, simulate_vehicle)
 
 
 def one_run(job) -> tuple:
-    scen, case, seed, site_label, seconds, params = job
-    site, iron = HONESTY_SITES[site_label]
+    scen, case, seed, site_label, seconds, params, iron_label = job
+    site, iron = honesty_site(site_label, iron_label)
     run = simulate_vehicle(scen, seconds, seed, site, mag=case, iron=iron)
     out = run_ins_detailed(run, **params)
     if case == "uncalibrated":
@@ -36,7 +40,10 @@ def one_run(job) -> tuple:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--site", choices=sorted(HONESTY_SITES), default="held-out")
+    ap.add_argument("--site", type=_site_arg, default="held-out",
+                    help='"held-out", "default" or a place "LAT,LON[,ALT_M[,YYYY-MM-DD]]" (default held-out)')
+    ap.add_argument("--iron", choices=HONESTY_IRONS, default=None,
+                    help="the vehicle iron instead of the site's own (a place's own: held-out)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[12, 13, 14, 15, 16, 17])
     ap.add_argument("--scenarios", nargs="+", default=["boat", "car", "plane"])
     ap.add_argument("--cases", nargs="+", default=["uncalibrated", "iron-step"], choices=["uncalibrated", "iron-step"])
@@ -48,8 +55,11 @@ def main(argv=None) -> int:
     # the pool's workers inherit it, and a test that calls one_run keeps its logging
     logging.disable(logging.WARNING)
     params = json.loads(args.params)
-    jobs = [(s, c, seed, args.site, args.seconds, params) for s in args.scenarios for c in args.cases for seed in args.seeds]
-    print(f"ins {params or 'defaults'}, site {args.site}, {args.seconds:.0f} s; uncalibrated: RMS from 180 s; iron step: "
+    jobs = [(s, c, seed, args.site, args.seconds, params, args.iron)
+            for s in args.scenarios for c in args.cases for seed in args.seeds]
+    iron = f", iron {args.iron}" if args.iron else ""
+    print(f"ins {params or 'defaults'}, site {args.site}{iron}, {args.seconds:.0f} s; uncalibrated: RMS from 180 s; "
+          f"iron step: "
           f"RMS before the step and from 120 s after ('aft'); σ and beyond 3σ from 30 s", flush=True)
     print(f"{'vehicle':7s} {'case':12s} {'seed':>4s} {'hdg':>5s} {'tilt':>5s} {'σ med':>5s} {'>3σ':>6s} {'step':>5s} "
           f"{'hdg aft':>7s} {'tilt aft':>8s}", flush=True)
