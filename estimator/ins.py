@@ -227,7 +227,8 @@ class InsParams(MagHeadingParams):
     filter's heading (within their joint 3σ): a linearised filter pulled in from tens of
     degrees shrinks its σ faster than its error. ArduPilot's compass learning waits for the same 5°
     (`Compass_learn.cpp`, YAW_ACCURACY_THRESHOLD_DEG). A yaw that was set to the GNSS yaw (`yaw_align_to_gnss_yaw`)
-    was not pulled in: `accel_bias_gsf_sigma_rad` confirms it."""
+    was not pulled in: `accel_bias_gsf_sigma_rad` confirms it, but after a later rejection the published σ keeps
+    the GNSS yaw's until a GNSS yaw this accurate agrees (the yaw is pulled in again; docs/gnss.md, stby22)."""
     accel_bias_gsf_sigma_rad: float = 10.0 * _DEG
     """With `accel_bias_needs_heading`, the horizontal accelerometer bias learns again once a GNSS yaw this accurate
     agrees with the filter's heading (within their joint 3σ), or a trusted magnetometer holds it. Looser than
