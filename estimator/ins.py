@@ -227,7 +227,8 @@ class InsParams(MagHeadingParams):
     filter's heading (within their joint 3σ): a linearised filter pulled in from tens of
     degrees shrinks its σ faster than its error. ArduPilot's compass learning waits for the same 5°
     (`Compass_learn.cpp`, YAW_ACCURACY_THRESHOLD_DEG). A yaw that was set to the GNSS yaw (`yaw_align_to_gnss_yaw`)
-    was not pulled in: `accel_bias_gsf_sigma_rad` confirms it."""
+    was not pulled in: `accel_bias_gsf_sigma_rad` confirms it, but after a later rejection the published σ keeps
+    the GNSS yaw's until a GNSS yaw this accurate agrees (the yaw is pulled in again; docs/gnss.md, stby22)."""
     accel_bias_gsf_sigma_rad: float = 10.0 * _DEG
     """With `accel_bias_needs_heading`, the horizontal accelerometer bias learns again once a GNSS yaw this accurate
     agrees with the filter's heading (within their joint 3σ), or a trusted magnetometer holds it. Looser than
@@ -490,6 +491,10 @@ class Ins:
         self._mag_rotation_on = p.mag_rotation_gyro_bias and p.heading_monitor and p.mag_enabled
         self._x["gyro_rotation_last_t_s"] = math.nan   # the kernel sums the gyro's rotation (ins_core.py)
         self._gnss_yaw_aligned = False     # the yaw was set to the first valid GNSS yaw (yaw_align_to_gnss_yaw)
+        # the yaw was set to a GNSS yaw (alignment, emergency reset) and no rejection has widened it since, so a
+        # confirmation by the looser accel_bias_gsf_sigma_rad also lifts the published σ's floor
+        self._yaw_set_to_gnss = False
+        self._sigma_confirmed = False      # the published σ's floor is lifted (`_update_sigma_confirmation`)
         # the published yaw σ's floor until a GNSS yaw confirms the heading (aided only; updated at every check)
         self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(0.0, math.nan, math.nan)
         self.yaw_resets = 0
@@ -1038,6 +1043,8 @@ class Ins:
             # the magnetometer was just rejected: the heading it held is unconfirmed again (`_confirm_heading`)
             self._heading_confirmed = False
             self._bias_heading_confirmed = False
+            self._yaw_set_to_gnss = False
+            self._sigma_confirmed = False
             # what the magnetometer taught the gyro bias since the last confirmation goes with it: a wrong
             # magnetometer's heading error rate, which the filter would otherwise keep integrating as GNSS-only.
             # The value only: widening its variance too let the GNSS-only heading wander after an iron change
@@ -1057,9 +1064,11 @@ class Ins:
         that agrees with it. Returns the yaw a reset turned the attitude (about down) to, None without one."""
         if d.reset_yaw_to_rad is not None:
             self._reset_yaw(d.reset_yaw_to_rad - yaw, d.reset_yaw_var_rad2)
+            self._yaw_set_to_gnss = True
             return d.reset_yaw_to_rad
         if self._gnss_yaw_alignment_due(gsf_valid):
             self._align_yaw_to_gnss(t_s, gsf_yaw - yaw, gsf_var)
+            self._yaw_set_to_gnss = True
             return gsf_yaw
         if not self._heading_confirmed and gsf_valid and (self._calibration_untrusted or self._monitor.mag_rejected):
             self._confirm_heading(yaw, gsf_yaw, gsf_var)
@@ -1084,8 +1093,7 @@ class Ins:
         bias figure after the alignment); otherwise the yaw variance is raised to at least the GNSS yaw's."""
         p = self.params
         P = self._P
-        yaw_var_now = P[core.E_YAW, core.E_YAW]
-        agrees = wrap_pi(gsf_yaw - yaw) ** 2 <= self._monitor.gate_sigma ** 2 * (yaw_var_now + gsf_var)
+        agrees = self._gnss_yaw_agrees(yaw, gsf_yaw, gsf_var)
         if agrees and gsf_var < p.accel_bias_gsf_sigma_rad ** 2:
             self._bias_heading_confirmed = True
         # a yaw set to the GNSS yaw (not pulled in from tens of degrees) is confirmed by the looser GNSS yaw
@@ -1129,6 +1137,7 @@ class Ins:
         """What the checks publish: the yaw σ's floor while the heading is unconfirmed (`_unconfirmed_yaw_sigma`
         at the yaw after any reset), the integrity figures and the heading state."""
         p = self.params
+        self._update_sigma_confirmation(yaw_rad, gsf_yaw, gsf_var, gsf_valid)
         self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(yaw_rad, gsf_yaw, gsf_var)
         sig = math.sqrt(max(self._P[core.E_YAW, core.E_YAW], 0.0))
         if self._unconfirmed_sigma_rad > sig:
@@ -1157,6 +1166,26 @@ class Ins:
         return (p.yaw_align_to_gnss_yaw and gsf_valid and not self._gnss_yaw_aligned
                 and not self._heading_confirmed and self._calibration_untrusted)
 
+    def _gnss_yaw_agrees(self, yaw_rad: float, gsf_yaw: float, gsf_var: float) -> bool:
+        """The GNSS yaw is within the monitor's gate of the filter's yaw, with their joint variance."""
+        yaw_var_now = self._P[core.E_YAW, core.E_YAW]
+        return wrap_pi(gsf_yaw - yaw_rad) ** 2 <= self._monitor.gate_sigma ** 2 * (yaw_var_now + gsf_var)
+
+    def _update_sigma_confirmation(self, yaw_rad: float, gsf_yaw: float, gsf_var: float, gsf_valid: bool) -> None:
+        """Whether the published yaw σ's floor (`_unconfirmed_yaw_sigma`) is lifted: the filter's confirmation
+        (`_confirm_heading`) lifts it when a GNSS yaw within `heading_confirm_gsf_sigma_rad` agreed, or within the
+        looser `accel_bias_gsf_sigma_rad` while the yaw is one set to a GNSS yaw. After a rejection the monitor
+        widens the yaw variance (tens of degrees) and the next fixes pull the yaw in through the linearised update,
+        as before an alignment: the looser GNSS yaw then agrees with that wide variance whatever the yaw, and the
+        variance shrinks faster than the error as the turn ends (docs/gnss.md, stby22). Until a GNSS yaw within
+        `heading_confirm_gsf_sigma_rad` agrees, the floor stays published; the filter keeps its own decision."""
+        if not self._heading_confirmed:
+            self._sigma_confirmed = False
+        elif not self._sigma_confirmed:
+            self._sigma_confirmed = self._yaw_set_to_gnss or (
+                gsf_valid and gsf_var < self.params.heading_confirm_gsf_sigma_rad ** 2
+                and self._gnss_yaw_agrees(yaw_rad, gsf_yaw, gsf_var))
+
     def _unconfirmed_yaw_sigma(self, yaw_rad: float, gsf_yaw: float, gsf_var: float) -> float:
         """Without a trusted magnetometer calibration, until a GNSS yaw has confirmed the heading: the filter's yaw
         came from a magnetometer that may be off by anything (or was just set to a GNSS yaw the next fixes may
@@ -1165,7 +1194,7 @@ class Ins:
         hypotheses, plus the distance to it (π before the bank has a yaw; NaN: no floor). Published only: the
         filter keeps its own variance (raising it would make the linearised update pull harder)."""
         p = self.params
-        if not (p.yaw_align_to_gnss_yaw and self._heading_checks_run) or self._heading_confirmed \
+        if not (p.yaw_align_to_gnss_yaw and self._heading_checks_run) or self._sigma_confirmed \
                 or not self._calibration_untrusted:
             return math.nan
         return _gnss_yaw_floor(yaw_rad, gsf_yaw, gsf_var)
