@@ -346,8 +346,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _arguments() -> argparse.ArgumentParser:
-    from bench.heading_timeline import _site_arg
-    from bench.vehicle_accuracy import HONESTY_IRONS
+    from bench.vehicle_accuracy import HONESTY_IRONS, honesty_site_arg
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--trials", nargs="*", help="BROAD trial name prefixes or substrings (default: all)")
@@ -369,7 +368,7 @@ def _arguments() -> argparse.ArgumentParser:
                     help="(d) honest heading: run length of the uncalibrated / iron-change vehicles, s")
     ap.add_argument("--honesty-seeds", type=int, nargs="*", default=None,
                     help="(d): seeds (default 1 at the default site and 11 at the held-out one; --quick: 11 only)")
-    ap.add_argument("--honesty-site", type=_site_arg, default=None,
+    ap.add_argument("--honesty-site", type=honesty_site_arg, default=None,
                     help='(d) at this site only (seeds: --honesty-seeds, else 11): "held-out", "default" or a place '
                          '"LAT,LON[,ALT_M[,YYYY-MM-DD]]" (with the held-out iron), as heading_timeline\'s --site')
     ap.add_argument("--honesty-iron", choices=HONESTY_IRONS, default=None,

@@ -34,8 +34,7 @@ if __package__ in (None, ""):
 from support.ahrsd_process import AHRSD, Daemon  # noqa: E402
 
 from ahrsd.drivers.recording import read_recording  # noqa: E402
-from bench.heading_timeline import _site_arg  # noqa: E402
-from bench.vehicle_accuracy import HONESTY_IRONS, honesty_site  # noqa: E402
+from bench.vehicle_accuracy import HONESTY_IRONS, honesty_iron, honesty_site, honesty_site_arg  # noqa: E402
 
 
 def record_boat(rec: Path, seconds: float, seed: int, site: str | None = None, iron: str | None = None) -> None:
@@ -53,8 +52,7 @@ def record_boat(rec: Path, seconds: float, seed: int, site: str | None = None, i
     site_text, iron_name = honesty_site("default" if site is None else site, iron)
     at_site = functools.partial(simulation.open_stream,
                                 site=simulation.Site.parse(site_text) if site_text else simulation.DEFAULT_SITE,
-                                # HONESTY_IRONS are VehicleIron's constructors by name
-                                vehicle_iron=getattr(simulation.VehicleIron, iron_name.replace("-", "_"))())
+                                vehicle_iron=honesty_iron(iron_name))
     said = io.StringIO()
     with mock.patch.object(simulation, "open_stream", at_site), contextlib.redirect_stdout(said), \
             contextlib.redirect_stderr(said):
@@ -68,7 +66,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seconds", type=float, default=600.0)
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--speed", type=float, default=5.0)
-    ap.add_argument("--site", type=_site_arg, default=None,
+    ap.add_argument("--site", type=honesty_site_arg, default=None,
                     help='"held-out", "default" or a place "LAT,LON[,ALT_M[,YYYY-MM-DD]]" (default: `ahrsd record`\'s '
                          "own site and boat iron)")
     ap.add_argument("--iron", choices=HONESTY_IRONS, default=None,

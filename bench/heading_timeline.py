@@ -31,7 +31,8 @@ if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.vehicle_accuracy import (HONESTY_IRONS, IRON_STEP_AT, SETTLE_S, estimates_in_arrival_order,  # noqa: E402
-                                    honesty_figures, honesty_site, simulate_vehicle, tilt_heading_errors_deg)
+                                    honesty_figures, honesty_site, honesty_site_arg, simulate_vehicle,
+                                    tilt_heading_errors_deg)
 
 EVERY = 8          # keep every 8th sample (25 Hz of the 200 SPS runs)
 TURN_DEG_S = 5.0   # --consistency: the vehicle is turning while its true heading rate is above this
@@ -96,20 +97,11 @@ def one_run(job) -> tuple:
     return job, summary, rows, consistency
 
 
-def _site_arg(text: str) -> str:
-    """--site as given, once honesty_site has parsed it (a mistyped place is a usage error, not a failed run)."""
-    try:
-        honesty_site(text)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-    return text
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", default="boat")
     ap.add_argument("--case", default="uncalibrated", choices=["uncalibrated", "calibrated", "iron-step"])
-    ap.add_argument("--site", type=_site_arg, default="held-out",
+    ap.add_argument("--site", type=honesty_site_arg, default="held-out",
                     help='"held-out", "default" or a place "LAT,LON[,ALT_M[,YYYY-MM-DD]]" (default held-out)')
     ap.add_argument("--iron", choices=HONESTY_IRONS, default=None,
                     help="the vehicle iron instead of the site's own (a place's own: held-out)")

@@ -22,9 +22,8 @@ import numpy as np
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.heading_timeline import _site_arg  # noqa: E402
 from bench.vehicle_accuracy import (HONESTY_IRONS, IRON_STEP_AT, honesty_figures, honesty_site,  # noqa: E402
-                                    run_ins_detailed, simulate_vehicle)
+                                    honesty_site_arg, run_ins_detailed, simulate_vehicle)
 
 
 def one_run(job) -> tuple:
@@ -40,7 +39,7 @@ def one_run(job) -> tuple:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--site", type=_site_arg, default="held-out",
+    ap.add_argument("--site", type=honesty_site_arg, default="held-out",
                     help='"held-out", "default" or a place "LAT,LON[,ALT_M[,YYYY-MM-DD]]" (default held-out)')
     ap.add_argument("--iron", choices=HONESTY_IRONS, default=None,
                     help="the vehicle iron instead of the site's own (a place's own: held-out)")

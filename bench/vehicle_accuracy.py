@@ -115,9 +115,8 @@ def simulate_vehicle(name: str, seconds: float, seed: int, site_text: str | None
     errors = SensorErrors.adis16405(seed) if errors is None else errors
     if mag == "iron-step":
         errors = errors.replace(hard_iron_step_ut=IRON_STEP_UT, hard_iron_step_t_s=IRON_STEP_AT * seconds)
-    irons = {None: "scenario", "default": VehicleIron.default(), "held-out": VehicleIron.held_out(),
-             "unseen": VehicleIron.unseen()}
-    stream = open_stream(name, rate_hz=rate_hz, seed=seed, site=site, errors=errors, vehicle_iron=irons[iron])
+    stream = open_stream(name, rate_hz=rate_hz, seed=seed, site=site, errors=errors,
+                         vehicle_iron="scenario" if iron is None else honesty_iron(iron))
     block = stream.next_block(int(round(seconds * rate_hz)))
     err = stream.errors
     if mag == "uncalibrated":
@@ -346,6 +345,13 @@ HONESTY_IRONS = ("default", "held-out", "unseen")
 """simulate_vehicle's vehicle irons by name; "unseen" (VehicleIron.unseen) was drawn, never used for a choice."""
 
 
+def honesty_iron(name: str):
+    """The VehicleIron of one of HONESTY_IRONS."""
+    from ahrsd.simulation import VehicleIron
+
+    return {"default": VehicleIron.default, "held-out": VehicleIron.held_out, "unseen": VehicleIron.unseen}[name]()
+
+
 def honesty_site(site: str, iron: str | None = None) -> tuple[str | None, str]:
     """(simulate_vehicle's site text, its vehicle iron) for a bench's `--site` / `--iron`: `site` is a name of
     HONESTY_SITES (with its own iron) or a place "LAT,LON[,ALT_M[,YYYY-MM-DD]]" (with the held-out iron), `iron`
@@ -362,6 +368,18 @@ def honesty_site(site: str, iron: str | None = None) -> tuple[str | None, str]:
     if iron not in HONESTY_IRONS:
         raise ValueError(f"iron must be one of {HONESTY_IRONS}, got {iron!r}")
     return text, iron
+
+
+def honesty_site_arg(text: str) -> str:
+    """A bench's `--site` (argparse type): as given, once honesty_site has parsed it (a mistyped place is a usage
+    error, not a failed run)."""
+    import argparse
+
+    try:
+        honesty_site(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
 
 
 def honesty_section(seconds: float = 600.0, seeds=(1,), sites: dict | None = None,
