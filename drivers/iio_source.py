@@ -345,9 +345,10 @@ class IioSource(LiveSource):
             written = self._write_rate(path, self.rate_hz)
         got = _read(path)
         if not got:
+            asked = ADIS16405_RATE_HZ if self.rate_hz is None else self.rate_hz
             if written is None:
-                written = self._write_rate(path, ADIS16405_RATE_HZ)
-            rate_hz = driver_milli_sps(driver_smpl_prd(written_milli_sps(written))) / 1000.0
+                written = self._write_rate(path, asked)
+            rate_hz = driver_rate_hz(asked)
             log.warning("IIO %s: %s reads empty (adis16400_read_raw on Linux >= 5.5, docs/drivers.md); wrote %s, "
                         "so the driver runs at %.3f SPS by its set_freq rule", self.sysfs.name, path.name,
                         written, rate_hz)
