@@ -52,7 +52,7 @@ Samples flagged invalid (or non-finite) skip that sensor's update; an invalid gy
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg.lapack import dposv as _dposv
@@ -61,6 +61,7 @@ from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
 from ahrsd.core.sample import ImuSample, SampleFlags
 
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags
+from .params import with_overrides
 from .rotations import dcm_rows_to_quat, reorthonormalize_rows
 from .wahba import thesis_dcm_from_floats, thesis_matrix
 
@@ -195,11 +196,7 @@ class ThesisKf:
     name = "thesis"
 
     def __init__(self, declination_rad: float = 0.0, params: ThesisKfParams | None = None, **overrides):
-        known = {f.name for f in fields(ThesisKfParams)}
-        unknown = set(overrides) - known
-        if unknown:
-            raise ValueError(f"unknown thesis parameter(s): {', '.join(sorted(unknown))}")
-        self.params = replace(params or DEFAULT_THESIS_KF_PARAMS, **overrides)
+        self.params = with_overrides(params or DEFAULT_THESIS_KF_PARAMS, overrides, "thesis")
         p = self.params
         self._declination = float(declination_rad)
         self._r = np.diag(p.r_diag)

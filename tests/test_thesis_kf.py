@@ -238,6 +238,9 @@ def test_fixed_reference_field_sets_the_dip():
 def test_parameters_are_validated():
     with pytest.raises(ValueError, match="unknown thesis parameter"):
         ThesisKf(nonsense=1)
+    # the kind, as every estimator's parameters (estimator/params.py): `replay --set q_inflation=high` is text
+    with pytest.raises(ValueError, match="q_inflation: expected a number"):
+        ThesisKf(q_inflation="high")
     with pytest.raises(ValueError):
         ThesisKf(wahba_version=3)
     with pytest.raises(ValueError):
