@@ -5,8 +5,7 @@ of the VPE's own yaw variance after 30 s, and the yaw RMS from 180 s (targets â‰
 
 `--site` / `--iron` as bench/heading_timeline.py's (vehicle_accuracy.honesty_site): a name ("held-out", "default")
 or any place "LAT,LON[,ALT_M[,YYYY-MM-DD]]" (with the held-out iron), another iron ("unseen": never used for a
-choice). `ahrsd record` has no such option, so the bench then runs the same `ahrsd record` in its own process with
-the simulator (the chip's samples and the GNSS receiver's track) opened at that place with that iron.
+choice); they reach `ahrsd record --site/--iron` (the chip's field and gravity, the GNSS receiver's track).
 
     python bench/daemon_heading.py --seconds 600 --seed 11
     python bench/daemon_heading.py --seed 12 --site=-45.87,170.50 --iron unseen     # Dunedin ("=": a minus sign)
@@ -15,15 +14,11 @@ the simulator (the chip's samples and the GNSS receiver's track) opened at that 
 from __future__ import annotations
 
 import argparse
-import contextlib
-import functools
-import io
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
-from unittest import mock
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -34,31 +29,20 @@ if __package__ in (None, ""):
 from support.ahrsd_process import AHRSD, Daemon  # noqa: E402
 
 from ahrsd.drivers.recording import read_recording  # noqa: E402
-from bench.vehicle_accuracy import HONESTY_IRONS, honesty_iron, honesty_site, honesty_site_arg  # noqa: E402
+from bench.vehicle_accuracy import HONESTY_IRONS, honesty_site, honesty_site_arg  # noqa: E402
 
 
 def record_boat(rec: Path, seconds: float, seed: int, site: str | None = None, iron: str | None = None) -> None:
     """The boat recording the daemon replays (and REC.gnss.csv beside it): `ahrsd record --sim boat` as a user
-    runs it; with a `site` or an `iron` (honesty_site's) the same command in this process with
-    `ahrsd.simulation.open_stream` opening the chip's samples and the GNSS receiver's track there (both open their
-    stream through it), so the place's field, gravity and the receiver's latitude (the daemon's declination) agree."""
+    runs it; a `site` or an `iron` (honesty_site's) goes to its `--site` / `--iron`, so the place's field and
+    gravity and the receiver's latitude (the daemon's declination) agree."""
     argv = ["record", "--sim", "boat", "--seconds", str(seconds), "--seed", str(seed), "-o", str(rec), "--quiet"]
-    if site is None and iron is None:
-        subprocess.run([str(AHRSD), *argv], check=True, capture_output=True)
-        return
-    from ahrsd import simulation
-    from ahrsd.cli.main import main as ahrsd_main
-
-    site_text, iron_name = honesty_site("default" if site is None else site, iron)
-    at_site = functools.partial(simulation.open_stream,
-                                site=simulation.Site.parse(site_text) if site_text else simulation.DEFAULT_SITE,
-                                vehicle_iron=honesty_iron(iron_name))
-    said = io.StringIO()
-    with mock.patch.object(simulation, "open_stream", at_site), contextlib.redirect_stdout(said), \
-            contextlib.redirect_stderr(said):
-        status = ahrsd_main(argv)
-    if status != 0:
-        raise RuntimeError(f"ahrsd record at {site_text} failed ({status}): {said.getvalue()}")
+    if site is not None or iron is not None:
+        site_text, iron_name = honesty_site("default" if site is None else site, iron)
+        argv += ([f"--site={site_text}"] if site_text else []) + ["--iron", iron_name]
+    done = subprocess.run([str(AHRSD), *argv], capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"ahrsd {' '.join(argv)} failed ({done.returncode}): {done.stderr}")
 
 
 def main(argv=None) -> int:

@@ -31,6 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ahrsd.cli.sim_place import VEHICLE_IRONS, site_arg, vehicle_iron
+
 SETTLE_S = 30.0
 OUTAGE_S = 30.0
 VEHICLE_SCENARIOS = ("boat", "car", "plane")
@@ -341,15 +343,9 @@ OLD_INS = {"heading_monitor": False, "gnss_yaw": False, "mag_calibration_sigma_r
            "mag_moves_tilt": True}
 """`ins` without the honest-heading parts: the magnetometer trusted as calibrated, always fused, moving the tilt."""
 HONESTY_TARGETS = {"heading": 1.0, "tilt": 0.3, "beyond_3sigma": 0.01, "iron_heading": 0.5, "step": 0.5}
-HONESTY_IRONS = ("default", "held-out", "unseen")
-"""simulate_vehicle's vehicle irons by name; "unseen" (VehicleIron.unseen) was drawn, never used for a choice."""
-
-
-def honesty_iron(name: str):
-    """The VehicleIron of one of HONESTY_IRONS."""
-    from ahrsd.simulation import VehicleIron
-
-    return {"default": VehicleIron.default, "held-out": VehicleIron.held_out, "unseen": VehicleIron.unseen}[name]()
+HONESTY_IRONS = VEHICLE_IRONS
+"""simulate_vehicle's vehicle irons by name (the command line's, ahrsd.cli.sim_place)."""
+honesty_iron = vehicle_iron
 
 
 def honesty_site(site: str, iron: str | None = None) -> tuple[str | None, str]:
@@ -371,14 +367,10 @@ def honesty_site(site: str, iron: str | None = None) -> tuple[str | None, str]:
 
 
 def honesty_site_arg(text: str) -> str:
-    """A bench's `--site` (argparse type): as given, once honesty_site has parsed it (a mistyped place is a usage
-    error, not a failed run)."""
-    import argparse
-
-    try:
-        honesty_site(text)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
+    """A bench's `--site` (argparse type): as given, a name of HONESTY_SITES or a place parsed by the command
+    line's parser (ahrsd.cli.sim_place.site_arg: a mistyped place is a usage error, not a failed run)."""
+    if text not in HONESTY_SITES:
+        site_arg(text)
     return text
 
 

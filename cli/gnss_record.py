@@ -30,12 +30,13 @@ class GnssRecorder:
 
     @classmethod
     def for_scenario(cls, path, scenario: str, seed: int, chip_now, recording_clock,
-                     lever_arm_m=(0.0, 0.0, 0.0)) -> "GnssRecorder":
+                     lever_arm_m=(0.0, 0.0, 0.0), site=None) -> "GnssRecorder":
         """The simulated receiver of `scenario` (5 Hz, the simulator's default noise and latency), its antenna at
-        `lever_arm_m` (body FRD from the IMU, m)."""
+        `lever_arm_m` (body FRD from the IMU, m), its track starting at `site` (a simulation.Site; None: the
+        simulator's DEFAULT_SITE), the chip's place."""
         from ahrsd.simulation import GnssSimulator, open_stream
 
-        truth = open_stream(scenario, seed=seed, errors="ideal")
+        truth = open_stream(scenario, seed=seed, errors="ideal", site=site)
         t0 = chip_now()
         simulator = GnssSimulator(truth.truth_at, seed=seed, start_s=max(0.0, t0), lever_arm_m=lever_arm_m)
         return cls(path, simulator=simulator, time_offset_s=recording_clock() - t0)

@@ -7,7 +7,7 @@ import argparse
 
 SIM_SEED = 0
 SIM_ERRORS = "adis16405"
-SIM_ONLY_OPTIONS = ("seed", "errors", "realtime")   # options of the simulated chip, refused with --spi
+SIM_ONLY_OPTIONS = ("seed", "errors", "realtime", "site", "iron")   # options of the simulated chip, refused with --spi
 
 
 class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
@@ -20,6 +20,8 @@ class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
 
 
 def register(subparsers) -> None:
+    from ahrsd.cli.sim_place import SITE_FORMAT, VEHICLE_IRONS, site_arg
+
     p = subparsers.add_parser(
         "record",
         help="record raw IMU samples to a CSV file (simulated chip or a real ADIS16405 on SPI)",
@@ -45,6 +47,13 @@ def register(subparsers) -> None:
     p.add_argument("--seed", type=int, default=None, help=f"simulation seed (--sim) (default: {SIM_SEED})")
     p.add_argument("--errors", default=None, choices=("adis16405", "ideal"),
                    help=f"simulated sensor errors (--sim) (default: {SIM_ERRORS})")
+    p.add_argument("--site", type=site_arg, default=None, metavar=SITE_FORMAT,
+                   help="with --sim: the place (degrees, metres above the ellipsoid, date for the field) of the "
+                   "simulated chip's field and gravity and of the simulated GNSS receiver's track (default: the "
+                   "simulator's site, python -m ahrsd.simulation; a negative latitude as --site=-45.87,170.50)")
+    p.add_argument("--iron", choices=VEHICLE_IRONS, default=None,
+                   help="with --sim: the simulated vehicle's iron instead of the scenario's own (default: the "
+                   "scenario's; held-out and unseen: irons no default was chosen on, docs/simulation.md)")
     p.add_argument("--rate-hz", type=float, default=None,
                    help="output data rate; the nearest SMPL_PRD setting is used (chip default 819.2)")
     p.add_argument("--filter-taps", type=int, default=None, metavar="N", choices=range(8),
@@ -153,8 +162,12 @@ def _open_chip(args, paced: bool, open_chip_bus):
     clock = time.monotonic if paced else None
     try:
         if args.sim is not None:
+            from ahrsd.cli.sim_place import vehicle_iron
+
+            iron = "scenario" if args.iron is None else vehicle_iron(args.iron)
             bus = open_chip_bus("sim", scenario=args.sim, seed=SIM_SEED if args.seed is None else args.seed,
-                                errors=SIM_ERRORS if args.errors is None else args.errors, clock=clock)
+                                errors=SIM_ERRORS if args.errors is None else args.errors, clock=clock,
+                                site=args.site, vehicle_iron=iron)
         else:
             bus = open_chip_bus("spi", spi_device=args.spi)
         # one timing path (drivers.sample_timer): the host clock, or the free-running chip's own
@@ -267,7 +280,7 @@ def _open_gnss(args, bus, source, paced: bool):
     if args.sim not in VEHICLES:
         return None        # a scenario that does not move: no receiver to record
     seed = SIM_SEED if args.seed is None else args.seed
-    return GnssRecorder.for_scenario(path, args.sim, seed, bus.now, source.clock, lever_arm_m=arm)
+    return GnssRecorder.for_scenario(path, args.sim, seed, bus.now, source.clock, lever_arm_m=arm, site=args.site)
 
 
 class _LiveStatus:

@@ -72,13 +72,20 @@ class SimulatedAdis16405:
     producer: where a named scenario's samples are computed on a clock: "thread" (a helper thread of this
         process) or "process" (drivers.sim_block_producer: out of the reader's GIL, as the real chip's work
         is in silicon).
+    site, vehicle_iron: a named scenario's place (a simulation.Site; None: simulation.DEFAULT_SITE) and vehicle
+        iron ("scenario": the scenario's own, None, or a simulation.VehicleIron), as `open_stream` takes them;
+        the field, gravity and track are the place's. Only in this process: producer "thread".
     """
 
     def __init__(self, scenario="static", seed: int = 0, errors="adis16405",
                  clock: ChipClock | Callable[[], float] | None = None, faults: FaultPlan | None = None,
-                 product_id: int = R.PRODUCT_ID_ADIS16405, producer: str = "thread"):
+                 product_id: int = R.PRODUCT_ID_ADIS16405, producer: str = "thread", site=None,
+                 vehicle_iron="scenario"):
         if producer not in ("thread", "process"):
             raise ValueError(f"producer must be 'thread' or 'process', not {producer!r}")
+        if producer == "process" and (site is not None or not isinstance(vehicle_iron, str)):
+            raise ValueError("a simulated chip at another place or with another iron is computed in this process "
+                             "(producer 'thread')")
         self.faults = faults if faults is not None else FaultPlan(seed=seed)
         self.stats = {"transfers": 0, "bursts": 0, "samples_produced": 0, "samples_lost": 0,
                       "clock_violations": 0, "spi_failures": 0}
@@ -86,7 +93,7 @@ class SimulatedAdis16405:
         self._t_origin = self._clock() if clock is not None else 0.0
         self._vt = 0.0
         self._closed = False
-        self._open_blocks = self._block_stream_opener(scenario, seed, errors, producer)
+        self._open_blocks = self._block_stream_opener(scenario, seed, errors, producer, site, vehicle_iron)
         self._product_id = product_id
         self._regs = _default_registers()
         self._regs[R.PRODUCT_ID >> 1] = product_id
@@ -110,7 +117,7 @@ class SimulatedAdis16405:
             # simulated chip could not have made are not lost samples
             self._t_origin, self._seg_t0 = self._clock(), 0.0
 
-    def _block_stream_opener(self, scenario, seed: int, errors, producer: str
+    def _block_stream_opener(self, scenario, seed: int, errors, producer: str, site, vehicle_iron
                              ) -> Callable[[float, float], BlockStream]:
         """How the chip opens its block stream at a rate and a start time (`scenario`: the constructor's)."""
         ahead = self._clock is not None
@@ -123,7 +130,8 @@ class SimulatedAdis16405:
         if isinstance(scenario, str):
             def reopen(rate_hz, start_s, _name=scenario):
                 from ahrsd.simulation import open_stream   # imported here: simulation is heavy
-                return open_stream(_name, rate_hz=rate_hz, seed=seed, errors=errors, start_s=start_s)
+                return open_stream(_name, rate_hz=rate_hz, seed=seed, errors=errors, start_s=start_s, site=site,
+                                   vehicle_iron=vehicle_iron)
             return lambda rate_hz, start_s: InProcessStream(reopen(rate_hz, start_s), reopen, ahead)
         if isinstance(scenario, SimulationStream):
             return lambda rate_hz, start_s: InProcessStream(scenario, None, ahead)

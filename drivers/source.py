@@ -30,11 +30,12 @@ __all__ = ["SensorSource", "PerSampleSource", "SensorSettings", "open_source", "
 
 
 def open_chip_bus(kind: str, *, spi_device: str = "", scenario: str = "static", seed: int = 0,
-                  errors: str = "adis16405", clock=time.monotonic, faults=None, producer: str = "thread"):
+                  errors: str = "adis16405", clock=time.monotonic, faults=None, producer: str = "thread",
+                  site=None, vehicle_iron="scenario"):
     """The SPI bus the chip answers on (the one place a chip is built): kind "spi", the spidev node `spi_device`;
     kind "sim", the byte-level simulated ADIS16405 flying `scenario` (clock None: it runs free, one sample
     period per read, as fast as it is read; faults: a drivers.faults.FaultPlan; producer: where its samples
-    are computed, drivers.simulated)."""
+    are computed; site, vehicle_iron: where it flies and the vehicle's iron, drivers.simulated)."""
     if kind == "spi":
         if faults is not None:
             raise ValueError("faults are injected into the simulated chip only")
@@ -45,7 +46,7 @@ def open_chip_bus(kind: str, *, spi_device: str = "", scenario: str = "static", 
         from ahrsd.drivers.simulated import SimulatedAdis16405
 
         return SimulatedAdis16405(scenario=scenario, seed=seed, errors=errors, clock=clock, faults=faults,
-                                  producer=producer)
+                                  producer=producer, site=site, vehicle_iron=vehicle_iron)
     raise ValueError(f"no chip bus {kind!r}: choose sim or spi")
 
 

@@ -83,7 +83,7 @@ def test_the_daemon_benchs_place_and_iron_reach_the_recording_it_replays(tmp_pat
 
 
 def test_the_daemon_benchs_own_recording_at_the_default_site_and_iron_is_ahrsd_records(tmp_path):
-    """At the default site with the default iron (the boat scenario's own) the in-process recording is byte for byte
+    """At the default site with the default iron (the boat scenario's own) the bench's recording is byte for byte
     what `ahrsd record --sim boat` writes: the place and the iron are all that --site / --iron change."""
     from ahrsd.cli.main import main as ahrsd_main
     from bench.daemon_heading import record_boat

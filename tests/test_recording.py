@@ -184,7 +184,8 @@ def test_rows_all_one_field_short_are_refused_not_recut(tmp_path):
         read_recording(path)
 
 
-@pytest.mark.parametrize("sim_option", [["--seed", "0"], ["--errors", "ideal"], ["--realtime"]])
+@pytest.mark.parametrize("sim_option", [["--seed", "0"], ["--errors", "ideal"], ["--realtime"],
+                                        ["--site", "69.65,18.96"], ["--iron", "unseen"]])
 def test_record_spi_refuses_simulation_options(tmp_path, capsys, sim_option):
     from ahrsd.cli import record
     from ahrsd.cli.main import build_parser
