@@ -385,8 +385,9 @@ class Service:
         self._load_state()
         calibration = CalibrationStore(self.state_dir).load()
         self._compile_estimator()
-        mag_sigma_rad = calibration_heading_sigma_rad(calibration)    # the calibration's heading error (NaN: unknown)
-        self.use_pipeline(Pipeline(self._make_estimator(calibration), calibration))
+        estimator = self._make_estimator()
+        mag_sigma_rad = self._tell_calibration(estimator, calibration)    # before its first sample: built with it
+        self.use_pipeline(Pipeline(estimator, calibration))
         self.pipeline.set_mounting([self.params.get(n) for n in MOUNTING_PARAMS])
         self._start_heading_parts(mag_sigma_rad)
         self._setup_signing()
@@ -427,25 +428,25 @@ class Service:
         if took_s > 1.0:
             log.info("compiled the %s estimator in %.1f s (cached for the next start)", name, took_s)
 
-    def _make_estimator(self, calibration) -> Estimator:
-        """The configured estimator at the declination, told the calibration in force (told before its first
-        sample, it is the estimator built with it)."""
+    def _make_estimator(self) -> Estimator:
+        """The configured estimator at the declination (told the calibration next, before its first sample: it
+        is then the estimator built with it)."""
         cfg = self.config
-        estimator = make_estimator(cfg.estimator_name, declination_rad=self.declination.rad,
-                                   **cfg.estimator_options)
-        self._tell_calibration(estimator, calibration)
-        return estimator
+        return make_estimator(cfg.estimator_name, declination_rad=self.declination.rad, **cfg.estimator_options)
 
     @staticmethod
-    def _tell_calibration(estimator: Estimator, calibration) -> None:
+    def _tell_calibration(estimator: Estimator, calibration) -> float:
         """Tell the estimator what a calibration leaves (at start, and after every change): its predicted heading
         error (NaN: unknown; mekf and ins: without GNSS the published yaw σ carries it, and their heading checks
         start again on it: estimator/calibration_heading.py), then the accelerometer bias (mekf: the published
-        tilt σ carries it, calibration/accel_trust.py)."""
+        tilt σ carries it, calibration/accel_trust.py). Returns that heading error, the one figure the heading
+        status takes too (computed here only)."""
+        mag_sigma_rad = calibration_heading_sigma_rad(calibration)
         if isinstance(estimator, MagCalibrationAwareEstimator):
-            estimator.set_mag_calibration_sigma(calibration_heading_sigma_rad(calibration))
+            estimator.set_mag_calibration_sigma(mag_sigma_rad)
         if isinstance(estimator, AccelCalibrationAwareEstimator):
             estimator.set_accel_bias_sigma(calibration_accel_bias_sigma_m_s2(calibration))
+        return mag_sigma_rad
 
     def _start_heading_parts(self, mag_sigma_rad: float) -> None:
         """The heading status reported (daemon.heading_status) and the learned iron restored and its command
@@ -597,10 +598,9 @@ class Service:
         """After every calibration change (daemon.calibration_swap): the vehicle log names it; the estimator is
         told it; the heading status gets its predicted heading error; the iron learned on the old one is reset."""
         self.logs.log_calibration(cal)
-        self._tell_calibration(self.pipeline.estimator, cal)
+        mag_sigma_rad = self._tell_calibration(self.pipeline.estimator, cal)
         if self.heading_status is not None:
-            self.heading_status.set_calibration_sigma(calibration_heading_sigma_rad(cal),
-                                                      in_force=has_mag_calibration(cal))
+            self.heading_status.set_calibration_sigma(mag_sigma_rad, in_force=has_mag_calibration(cal))
         if self.learned_iron is not None:
             self.learned_iron.calibration_changed()
 
