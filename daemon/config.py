@@ -189,7 +189,7 @@ class SensorConfig(SensorSettings):
             "replay_speed": _number_in(MIN_REPLAY_SPEED, MAX_REPLAY_SPEED), "mounting_rpy_deg": _mounting,
             "poll_hz": _number_in(10.0, 2000.0), "stale_timeout_s": _number_in(0.005, 10.0),
             "rate_hz": _number_in(MIN_RATE_HZ, CHIP_DEFAULT_RATE_HZ)}))
-        cfg.check_rate(prefix)
+        cfg.check_rate(f"{prefix}.rate_hz")      # the table on its own: an error names the file (load_config)
         if cfg.source == "replay" and not cfg.replay_file:
             raise _fail(f"{prefix}.replay_file", cfg.replay_file, "a recording path (required when source = 'replay')")
         if cfg.source == "iio" and not cfg.iio_device:
@@ -202,14 +202,14 @@ class SensorConfig(SensorSettings):
     def check_rate(self, key: str) -> None:
         """rate_hz is the chip's SMPL_PRD (through the kernel driver's sampling_frequency with iio); a recording
         has its own rate; and a sample period must fit the stale timeout several times over, or a late sample is
-        a sensor failure."""
+        a sensor failure. key: where rate_hz came from, named in the error ("sensor.rate_hz", "--rate-hz")."""
         if self.rate_hz != CHIP_DEFAULT_RATE_HZ and self.source == "replay":
-            raise _fail(f"{key}.rate_hz", self.rate_hz, "not for source = 'replay': a recording replays at the "
+            raise _fail(key, self.rate_hz, "not for source = 'replay': a recording replays at the "
                         "rate it was recorded at")
         # the kernel's set_freq rounds by its own integer rule (12.8 becomes 10.570 SPS: drivers.iio_source)
         rate = driver_rate_hz(self.rate_hz) if self.source == "iio" else self.chip_rate_hz
         if self.stale_timeout_s < STALE_PERIODS / rate:
-            raise _fail(f"{key}.rate_hz", self.rate_hz, f"at {rate:.4g} SPS {STALE_PERIODS} sample "
+            raise _fail(key, self.rate_hz, f"at {rate:.4g} SPS {STALE_PERIODS} sample "
                         f"periods are {STALE_PERIODS / rate:.3g} s, longer than stale_timeout_s = "
                         f"{self.stale_timeout_s:g}: raise the rate or stale_timeout_s")
 
@@ -655,9 +655,11 @@ class Config:
         """What the estimator needs from the rest of the configuration: the aided one, the antenna lever arm."""
         return {"lever_arm_m": self.gnss.lever_arm_m} if self.estimator_name == AIDED_ESTIMATOR else {}
 
-    def check(self) -> None:
-        """The checks that involve several sections (run by with_overrides, once the flags are in)."""
-        self.sensor.check_rate("sensor")         # --iio or --replay may have replaced the file's chip
+    def check(self, rate_key: str = "sensor.rate_hz") -> None:
+        """The checks that involve several sections or a flag (run by with_overrides, once the flags are in): the
+        rate against the source (--rate-hz, --iio or --replay may have replaced the file's; rate_key names where
+        the rate came from)."""
+        self.sensor.check_rate(rate_key)
         if self.gnss.source == "replay" and self.sensor.source != "replay":
             raise _fail("gnss.source", "replay", "a GNSS recording replays in step with an IMU recording: "
                         "needs [sensor] source = 'replay' (--replay REC)")
@@ -683,7 +685,6 @@ class Config:
         if rate_hz is not None:
             cfg = dataclasses.replace(cfg, sensor=dataclasses.replace(
                 cfg.sensor, rate_hz=_number("--rate-hz", rate_hz, MIN_RATE_HZ, CHIP_DEFAULT_RATE_HZ)))
-            cfg.sensor.check_rate("--rate-hz")
         cfg = cfg._with_output_flags(mavlink, nmea)
         if state_dir is not None:
             cfg = dataclasses.replace(cfg, state=StateConfig(dir=state_dir))
@@ -695,7 +696,7 @@ class Config:
             cfg = dataclasses.replace(cfg, estimator=EstimatorConfig(_choice("--estimator", estimator, ESTIMATORS)))
         cfg = cfg._with_log_flags(log_dir, log_enabled)
         cfg.gnss.check("gnss")
-        cfg.check()
+        cfg.check(rate_key="sensor.rate_hz" if rate_hz is None else "--rate-hz")
         return cfg
 
     def _with_sensor_flag(self, *, sim: str | None, spi: str | None, replay: str | None,

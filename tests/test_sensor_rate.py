@@ -131,3 +131,33 @@ def test_run_time_faults_start_on_the_grid_of_the_written_rate():
     assert start > int(1.8 * chip.sample_rate_hz) + 1 + 150       # the one-rate count is 184 samples short
     # the schedule's 2 s after the first read, within a sample (the start's base added too: 0.3 s × 819.2 later)
     assert chip.ready_clock_time(later.start_sample) == pytest.approx(101.8 + 2.0, abs=1.5 / 204.8)
+
+
+def test_a_refused_rate_is_named_where_it_came_from_at_each_entry(tmp_path):
+    """One rule (SensorConfig.check_rate), checked where the rate or the source can come from: the file (the error
+    names the file and the key), --rate-hz (names the flag, also when the source is a flag), and --replay / --iio
+    replacing the file's source under the file's rate (names the file's key). 5 periods of 39.96 SPS (SMPL_PRD
+    N_S = 40: 1638.404 / 41) are 0.125 s, longer than the default stale_timeout_s 0.1 s; the kernel driver's
+    10.570 SPS for 12.81 (tests/test_iio_rate.py) makes 0.473 s > 0.45 s."""
+    from ahrsd.daemon.config import load_config
+
+    toml = tmp_path / "ahrsd.toml"
+    toml.write_text("[sensor]\nrate_hz = 40.0\n")
+    with pytest.raises(ConfigError) as exc:
+        load_config(toml)
+    assert str(toml) in str(exc.value) and "sensor.rate_hz = 40.0" in str(exc.value) \
+        and "stale_timeout_s" in str(exc.value)
+    for flags, hint in (({"rate_hz": 40.0}, "stale_timeout_s"), ({"rate_hz": 204.8, "replay": "r.csv"}, "recorded at"),
+                        ({"replay": "r.csv", "rate_hz": 409.6}, "recorded at")):
+        with pytest.raises(ConfigError) as exc:
+            Config().with_overrides(**flags)
+        assert "--rate-hz = " in str(exc.value) and "sensor.rate_hz" not in str(exc.value) \
+            and hint in str(exc.value), str(exc.value)
+    from_file = Config(sensor=SensorConfig.parse({"rate_hz": 204.8}))
+    with pytest.raises(ConfigError) as exc:
+        from_file.with_overrides(replay="r.csv")
+    assert "sensor.rate_hz = 204.8" in str(exc.value) and "recorded at" in str(exc.value)
+    slow_iio = Config(sensor=SensorConfig.parse({"rate_hz": 12.81, "stale_timeout_s": 0.45}))   # fine on spidev
+    with pytest.raises(ConfigError) as exc:
+        slow_iio.with_overrides(iio="iio:device0")
+    assert "sensor.rate_hz = 12.81" in str(exc.value) and "stale_timeout_s" in str(exc.value)
