@@ -57,8 +57,15 @@ class BurstIndexTap:
             self.burst_index = self.chip.sample_index
         return rx
 
-    def __getattr__(self, name):
-        return getattr(self.chip, name)
+    # the rest of the chip's bus (drivers.spi.SpiBus) and its clock (a benchmark places chip time on the host's)
+    def sleep(self, seconds: float) -> None:
+        self.chip.sleep(seconds)
+
+    def close(self) -> None:
+        self.chip.close()
+
+    def now(self) -> float:
+        return self.chip.now()
 
 
 class GroundTruthSource(LiveSource):
@@ -99,9 +106,6 @@ class GroundTruthSource(LiveSource):
     @property
     def stats(self) -> dict:
         return {**self.inner.stats, **self.truth_stats}
-
-    def __getattr__(self, name):
-        return getattr(self.inner, name)
 
     def _successful_opens(self) -> int:
         return self.inner.stats["open_attempts"] - self.inner.stats["open_failures"]

@@ -181,3 +181,31 @@ def test_probing_a_settings_object_in_the_drivers_fails(tmp_path):
     assert "drivers/bad.py:2: getattr(sensor_cfg, 'rate_hz') probes a settings object" in r.stdout
     assert "drivers/bad.py:4: hasattr(settings, 'reader') probes a settings object" in r.stdout
     assert "bad.py:6:" not in r.stdout and "bad.py:8:" not in r.stdout
+
+
+def test_a_forwarding_wrapper_in_the_drivers_fails_and_a_lazy_module_import_passes(tmp_path):
+    """Rule 9: drivers.ground_truth and drivers.threaded_source forwarded whatever they lacked to what they wrapped
+    (`def __getattr__(self, name): return getattr(self.inner, name)`); a wrapper now declares what it passes on.
+    A module's `__getattr__` (PEP 562, drivers/__init__.py's imports on first use) and a wrapper outside drivers/
+    and daemon/ are not this rule's."""
+    (tmp_path / "drivers").mkdir()
+    (tmp_path / "drivers" / "bad.py").write_text(textwrap.dedent("""\
+        class Wrapper:
+            def __init__(self, inner):
+                self.inner = inner
+            def __getattr__(self, name):
+                return getattr(self.inner, name)
+        class Declared:
+            bus = property(lambda self: self.inner.bus)
+        def __getattr__(name):
+            raise AttributeError(name)
+        """))
+    (tmp_path / "daemon").mkdir()
+    (tmp_path / "daemon" / "bad.py").write_text("class View:\n    def __getattr__(self, name):\n        return 0\n")
+    (tmp_path / "estimator").mkdir()
+    (tmp_path / "estimator" / "view.py").write_text("class View:\n    def __getattr__(self, name):\n        return 0\n")
+    r = run(tmp_path)
+    assert r.returncode == 1
+    assert "drivers/bad.py:4: class Wrapper forwards every attribute" in r.stdout
+    assert "daemon/bad.py:2: class View forwards every attribute" in r.stdout
+    assert "bad.py:7:" not in r.stdout and "bad.py:8:" not in r.stdout and "estimator/" not in r.stdout

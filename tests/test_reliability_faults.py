@@ -148,9 +148,9 @@ def test_self_test_failure_at_start_is_retried_with_backoff_then_runs():
     clock = FakeClock()
     windows = parse_schedule("self_test_fail@0-12")
     src = sim_source(build_plan(windows, ADIS16405_RATE_HZ), clock)
-    assert not src.up and "self-test failed" in src.last_error     # no exception: the daemon comes up CRITICAL
+    assert not src.inner.up and "self-test failed" in src.inner.last_error     # no exception: the daemon comes up CRITICAL
     attempts = []
-    while not src.up and clock() < 200:
+    while not src.inner.up and clock() < 200:
         before = src.stats["open_attempts"]
         try:
             src.read_one(clock())
@@ -159,7 +159,7 @@ def test_self_test_failure_at_start_is_retried_with_backoff_then_runs():
         if src.stats["open_attempts"] > before:
             attempts.append(clock())
         clock.sleep(0.2)
-    assert src.up and src.stats["self_test_failures_at_start"] >= 3
+    assert src.inner.up and src.stats["self_test_failures_at_start"] >= 3
     gaps = np.diff(attempts)
     assert np.all(np.diff(gaps[:-1]) >= -0.21)                       # backoff grows ...
     assert gaps.max() <= BACKOFF_MAX_S + 0.21                         # ... up to its cap
@@ -172,7 +172,7 @@ def test_bus_gone_and_back_reconnects_and_counts_the_outage():
     src = sim_source(build_plan(parse_schedule("bus_error@1-2.5"), ADIS16405_RATE_HZ), clock)
     samples, errors = run_reader(src, clock, 6.0)
     assert errors and set(errors) <= {"BusError", "SensorUnavailable"}
-    assert src.up and src.stats["reopens"] >= 1 and src.stats["bus_failures"] >= 1
+    assert src.inner.up and src.stats["reopens"] >= 1 and src.stats["bus_failures"] >= 1
     assert never_silent(src, samples)                                  # every chip sample processed or counted lost
     gap = max(b.t_s - a.t_s for a, b in zip(samples, samples[1:]))
     assert 1.5 <= gap < 1.5 + 2 * BACKOFF_MAX_S                        # the outage, seen as a time gap

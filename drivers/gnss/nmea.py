@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import datetime as dt
 import math
+from dataclasses import dataclass
 
 from pynmeagps import GET, NMEAMessage
 
@@ -41,16 +42,32 @@ def _num(value) -> float:
         return math.nan
 
 
+@dataclass(frozen=True, slots=True)
 class _Sentence:
-    """A parsed sentence whose missing fields (a receiver sending a short sentence) read as empty ('')."""
+    """The fields of a parsed RMC/GGA/VTG/GSA sentence that a fix is made of (pynmeagps's names); a field the
+    sentence lacks (a receiver sending a short sentence, or another type's field) reads as empty ('')."""
 
-    __slots__ = ("_msg",)
+    lat: object = ""
+    lon: object = ""
+    alt: object = ""            # GGA: above mean sea level
+    sep: object = ""            # GGA: geoid separation
+    quality: object = ""        # GGA
+    numSV: object = ""          # GGA
+    HDOP: object = ""           # GGA, GSA
+    status: object = ""         # RMC
+    posMode: object = ""        # RMC, VTG
+    spd: object = ""            # RMC: knots
+    cog: object = ""            # RMC: degrees
+    sogn: object = ""           # VTG: knots
+    sogk: object = ""           # VTG: km/h
+    cogt: object = ""           # VTG: degrees true
+    navMode: object = ""        # GSA
+    time: object = ""           # RMC, GGA: UTC time of day
+    date: object = ""           # RMC
 
-    def __init__(self, msg):
-        self._msg = msg
-
-    def __getattr__(self, name):
-        return getattr(self._msg, name, "")
+    @classmethod
+    def of(cls, msg) -> "_Sentence":
+        return cls(**{name: getattr(msg, name, "") for name in cls.__slots__})
 
 
 def _seconds_of_day(t) -> float:
@@ -112,7 +129,7 @@ class NmeaEpochAssembler:
 
 def fix_from_nmea_epoch(sentences: dict, t_s: float, source: str = "nmea") -> GnssFix:
     """One GnssFix from the sentences of one epoch, keyed by type ("RMC", "GGA", "VTG", "GSA")."""
-    rmc, gga, vtg, gsa = (_Sentence(sentences[k]) if k in sentences else None for k in EPOCH_SENTENCES)
+    rmc, gga, vtg, gsa = (_Sentence.of(sentences[k]) if k in sentences else None for k in EPOCH_SENTENCES)
     extra: dict = {}
     lat = lon = alt = math.nan
     if gga is not None and math.isfinite(_num(gga.lat)) and math.isfinite(_num(gga.lon)):
