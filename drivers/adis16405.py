@@ -76,17 +76,16 @@ class Adis16405:
     SampleTimer stamps and indexes them and counts the samples lost between reads.
     sleep: how to wait for the chip (reset, self-test). Default: the bus's `sleep` (the host's time on a real
         bus; the simulated chip's own, virtual time).
+    samples_as_records: read_sample returns a drivers.sample_record.SampleRecord instead of an ImuSample (the
+        same numbers): the reader process (drivers.process_source) only packs the samples for the pipe, and asks
+        the driver it opens for records (drivers.source.open_source(samples_as_records=True)).
     """
 
-    # read_sample returns a drivers.sample_record.SampleRecord instead of an ImuSample: set for its whole process
-    # by the reader process (drivers.process_source), which only packs the samples for the pipe; every driver it
-    # opens (a reconnection opens a new one) then hands over records
-    samples_as_records = False
-
     def __init__(self, bus: SpiBus, *, sleep: Callable[[float], None] | None = None,
-                 stuck_window_s: float = STUCK_WINDOW_S, data_ready: bool = False):
+                 stuck_window_s: float = STUCK_WINDOW_S, data_ready: bool = False, samples_as_records: bool = False):
         self.bus = bus
         self.data_ready = data_ready      # start() routes data-ready to DIO1 (reads paced by drivers.data_ready)
+        self.samples_as_records = samples_as_records
         self._sleep = sleep or bus.sleep
         self._stuck_window_s = stuck_window_s
         self.counters: dict[str, int] = dict.fromkeys(COUNTER_NAMES, 0)

@@ -29,7 +29,6 @@ import numpy as np
 from ahrsd.core.sample import ImuSample
 from ahrsd.core.sample_block import SampleBlock
 from ahrsd.drivers import errors as driver_errors
-from ahrsd.drivers.adis16405 import Adis16405
 from ahrsd.drivers.sample_record import SampleRecord
 from ahrsd.drivers.source_interface import LiveSource
 from ahrsd.drivers.source_settings import SensorSettings
@@ -108,10 +107,9 @@ def _child(sensor_cfg: SensorSettings, faults, conn) -> None:
     from ahrsd.drivers.source import open_source
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)     # the daemon ends the reader (Ctrl-C reaches the group)
-    Adis16405.samples_as_records = True     # process-wide: every driver built here packs its samples (pack)
-
     try:
-        src = open_source(sensor_cfg, faults=faults)
+        # the chip's driver hands over records: this process only packs them (pack)
+        src = open_source(sensor_cfg, faults=faults, samples_as_records=True)
     except Exception as exc:  # noqa: BLE001 - reported to the daemon, which says why it cannot start
         conn.send(("error", type(exc).__name__, str(exc)))
         return

@@ -16,6 +16,7 @@ A GNSS receiver is a sibling source with its own sample type (ahrsd.core.GnssFix
 
 from __future__ import annotations
 
+import functools
 import time
 
 from ahrsd.drivers.adis16405 import Adis16405
@@ -50,14 +51,15 @@ def open_chip_bus(kind: str, *, spi_device: str = "", scenario: str = "static", 
     raise ValueError(f"no chip bus {kind!r}: choose sim or spi")
 
 
-def open_chip_driver(bus) -> Adis16405:
-    """The IMU driver on a bus (the one place the chip model is named)."""
-    return Adis16405(bus)
+def open_chip_driver(bus, *, data_ready: bool = False, samples_as_records: bool = False) -> Adis16405:
+    """The IMU driver on a bus (the one place the chip model is named); data_ready: data-ready routed to DIO1
+    at every (re)start; samples_as_records: it hands over SampleRecords (the reader process's, Adis16405)."""
+    return Adis16405(bus, data_ready=data_ready, samples_as_records=samples_as_records)
 
 
-def _data_ready_driver(bus) -> Adis16405:
-    """The IMU driver with data-ready routed to DIO1 at every (re)start."""
-    return Adis16405(bus, data_ready=True)
+def _chip_drivers(*, data_ready: bool, samples_as_records: bool):
+    """How a reconnecting source opens the driver on each (re)opened bus: every one alike."""
+    return functools.partial(open_chip_driver, data_ready=data_ready, samples_as_records=samples_as_records)
 
 
 def start_chip_source(bus, description: str, *, clock=time.monotonic, **start) -> ChipSource:
@@ -73,7 +75,7 @@ def start_chip_source(bus, description: str, *, clock=time.monotonic, **start) -
     return ChipSource(driver, bus, description, clock=clock)
 
 
-def open_source(sensor_cfg: SensorSettings, *, clock=time.monotonic, faults=None):
+def open_source(sensor_cfg: SensorSettings, *, clock=time.monotonic, faults=None, samples_as_records: bool = False):
     """The source `sensor_cfg` names (`source` = "sim" | "spi" | "iio" | "replay", with its keys:
     drivers.source_settings; the daemon's `[sensor]`, daemon.config.SensorConfig, is one): a chip with start-up retries and bus reconnection — read in a
     dedicated thread (`reader` = "thread"), in a child process ("process": drivers.process_source) or on the
@@ -81,6 +83,8 @@ def open_source(sensor_cfg: SensorSettings, *, clock=time.monotonic, faults=None
 
     faults: a drivers.faults.FaultPlan for the simulated chip (refused for a real sensor); the simulated chip
     is wrapped in drivers.ground_truth.GroundTruthSource, which accounts its lost samples against the truth.
+    samples_as_records: the chip's drivers hand over SampleRecords (the reader process, drivers.process_source,
+    which only packs them); the kernel's IIO scans and a recording are ImuSamples either way.
     """
     kind = sensor_cfg.source
     if kind in ("sim", "spi", "iio") and reader_kind(sensor_cfg) == "process":
@@ -89,10 +93,13 @@ def open_source(sensor_cfg: SensorSettings, *, clock=time.monotonic, faults=None
         return ProcessSource(sensor_cfg, faults=faults)     # the same source, read in a child process
     if kind == "replay":
         return _replay_source(sensor_cfg, clock)
-    build = {"iio": _iio_source, "spi": _spi_chip_source, "sim": _simulated_chip_source}.get(kind)
-    if build is None:
+    if kind == "iio":
+        src = _iio_source(sensor_cfg, clock, faults)
+    elif kind in ("spi", "sim"):
+        build = _spi_chip_source if kind == "spi" else _simulated_chip_source
+        src = build(sensor_cfg, clock, faults, samples_as_records)
+    else:
         raise ValueError(f"no sensor source {kind!r}: choose sim, spi, iio or replay")
-    src = build(sensor_cfg, clock, faults)
     src.start()
     return _off_the_loop(src, sensor_cfg, clock)
 
@@ -125,7 +132,7 @@ def _paced_by(line) -> dict:
     return {"make_timer": lambda period_s: DataReadyTimer(line, period_s)}
 
 
-def _spi_chip_source(sensor_cfg: SensorSettings, clock, faults) -> ReconnectingSource:
+def _spi_chip_source(sensor_cfg: SensorSettings, clock, faults, samples_as_records: bool) -> ReconnectingSource:
     """The real chip on `spi_device`, re-opened when the bus fails, paced by the host timer or, when `data_ready`
     names its GPIO line, by the chip's data-ready edges; not started."""
     if faults is not None:
@@ -134,16 +141,18 @@ def _spi_chip_source(sensor_cfg: SensorSettings, clock, faults) -> ReconnectingS
     spec = sensor_cfg.data_ready
     rate = sensor_cfg.rate_hz      # written to the chip's SMPL_PRD at each (re)start (None: the chip's own)
     if not spec:
-        return ReconnectingSource(lambda: open_chip_bus("spi", spi_device=path), open_chip_driver,
+        return ReconnectingSource(lambda: open_chip_bus("spi", spi_device=path),
+                                  _chip_drivers(data_ready=False, samples_as_records=samples_as_records),
                                   f"ADIS16405 on {path}", clock=clock, sample_rate_hz=rate)
     from ahrsd.drivers.data_ready import open_gpio_line
 
-    return ReconnectingSource(lambda: open_chip_bus("spi", spi_device=path), _data_ready_driver,
+    return ReconnectingSource(lambda: open_chip_bus("spi", spi_device=path),
+                              _chip_drivers(data_ready=True, samples_as_records=samples_as_records),
                               f"ADIS16405 on {path}, paced by data-ready on {spec}", clock=clock,
                               sample_rate_hz=rate, **_paced_by(open_gpio_line(spec)))
 
 
-def _simulated_chip_source(sensor_cfg: SensorSettings, clock, faults):
+def _simulated_chip_source(sensor_cfg: SensorSettings, clock, faults, samples_as_records: bool):
     """The simulated chip flying `scenario` (faults injected as planned), read as the real one is and accounted
     against its truth (drivers.ground_truth); not started."""
     from ahrsd.drivers.ground_truth import BurstIndexTap, GroundTruthSource
@@ -159,8 +168,8 @@ def _simulated_chip_source(sensor_cfg: SensorSettings, clock, faults):
 
         timing = _paced_by(SimulatedDataReadyLine(chip, host_clock=clock))
         what += ", paced by its data-ready line"
-    return GroundTruthSource(ReconnectingSource(lambda: tap, _data_ready_driver if timing else open_chip_driver,
-                                                what, clock=clock, reopen_same_bus=True,
+    drivers = _chip_drivers(data_ready=bool(timing), samples_as_records=samples_as_records)
+    return GroundTruthSource(ReconnectingSource(lambda: tap, drivers, what, clock=clock, reopen_same_bus=True,
                                                 sample_rate_hz=sensor_cfg.rate_hz, **timing), chip, tap)
 
 

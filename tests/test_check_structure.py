@@ -126,8 +126,9 @@ def test_a_part_reading_the_host_clock_fails_unless_the_line_says_why(tmp_path):
 
 def test_monkeypatching_another_modules_object_fails_in_every_package(tmp_path):
     """Rule 7, the shape magcal had (`AutopilotState.on_gps_raw_int` replaced) and the reader process's class
-    switch: an attribute of an imported module or name assigned or set with setattr, in daemon/ and outside it;
-    a part's own state, a local object's and a line that says why (`# process-wide:`) are not this rule's."""
+    switch had (`Adis16405.samples_as_records = True`, now the driver's constructor setting): an attribute of an
+    imported module or name assigned or set with setattr, in daemon/ and outside it; a part's own state, a local
+    object's and a line that says why (`# process-wide:`) are not this rule's."""
     (tmp_path / "daemon").mkdir()
     (tmp_path / "daemon" / "bad.py").write_text(textwrap.dedent("""\
         import ahrsd.daemon.autopilot
@@ -147,10 +148,10 @@ def test_monkeypatching_another_modules_object_fails_in_every_package(tmp_path):
             def bump(self):
                 self.count += 1
         def child():
-            Adis16405.samples_as_records = True
-            chip.Adis16405.samples_as_records = True
+            Adis16405.spi_speed_hz = 2_000_000
+            chip.Adis16405.spi_speed_hz = 2_000_000
             chip.READS += 1
-            Adis16405.samples_as_records = True   # process-wide: this process only packs records
+            Adis16405.spi_speed_hz = 2_000_000   # process-wide: this process's bus is slower
         """))
     r = run(tmp_path)
     assert r.returncode == 1

@@ -18,8 +18,7 @@ from ahrsd.simulation import open_stream
 
 def _driver(records: bool) -> Adis16405:
     chip = SimulatedAdis16405(open_stream("boat", rate_hz=R.sample_rate_hz(R.SMPL_PRD_DEFAULT), seed=3))
-    imu = Adis16405(chip)
-    imu.samples_as_records = records          # this driver only (the reader process sets the class's)
+    imu = Adis16405(chip, samples_as_records=records)
     imu.start()
     return imu
 
@@ -50,8 +49,7 @@ def test_record_holds_the_frames_values_in_si_units():
     gyro 0.05 °/s, accel 3.333 mg (of 9.80665 m/s²), mag 0.5 mgauss, supply 2.418 mV, temp 0.14 °C (12 bit) from 25 °C."""
     chip = SimulatedAdis16405(open_stream("boat", rate_hz=R.sample_rate_hz(R.SMPL_PRD_DEFAULT), seed=3))
     bus = _TapBus(chip)
-    imu = Adis16405(bus)
-    imu.samples_as_records = True
+    imu = Adis16405(bus, samples_as_records=True)
     imu.start()
     for _ in range(50):
         rec = imu.read_sample()
@@ -94,3 +92,43 @@ def test_a_gap_flag_set_on_the_way_keeps_the_rest():
     assert gapped[:12] == rec[:12] and gapped.diag_stat == 7 and gapped.counter == 42
     one = unpack(pack([gapped]))[0]
     assert one.flags & SampleFlags.GAP_BEFORE and one.counter == 42 and one.t_s == 1.5
+
+
+def _first_sample(src, give_up_s: float = 30.0):
+    """The source's next sample, read as the daemon's per-sample reader does (at its next read time)."""
+    import time
+
+    end = time.monotonic() + give_up_s
+    while time.monotonic() < end:
+        time.sleep(max(0.0, src.next_read_time() - time.monotonic()))
+        s = src.read_one(time.monotonic())
+        if s is not None:
+            return s
+    raise AssertionError("no sample")
+
+
+def test_records_are_a_setting_of_the_source_not_of_the_process():
+    """open_source(samples_as_records=True), as the reader process opens its chip: its driver hands over records,
+    also after a re-open (a power loss: drivers.reconnecting); a source opened beside it in the same process
+    without the setting reads ImuSamples (the class-wide switch made every driver in the process hand over
+    records)."""
+    import time
+
+    from ahrsd.core.sample import ImuSample
+    from ahrsd.daemon.config import SensorConfig
+    from ahrsd.drivers.source import open_source
+
+    cfg = SensorConfig(source="sim", reader="event_loop")
+    records = open_source(cfg, clock=time.monotonic, samples_as_records=True)
+    plain = open_source(cfg, clock=time.monotonic)
+    try:
+        assert type(_first_sample(records)) is SampleRecord
+        assert type(_first_sample(plain)) is ImuSample
+        records.chip.power_cycle()
+        records.inner._try_open(time.monotonic())       # the re-open after the bus failure that follows
+        assert type(_first_sample(records)) is SampleRecord
+        assert type(_first_sample(plain)) is ImuSample
+    finally:
+        for src in (records, plain):
+            src.close()
+            src.chip.close()
