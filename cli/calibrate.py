@@ -136,8 +136,9 @@ def _plot_needs_matplotlib() -> str:
 _RECORDING_META: dict = {}
 
 
-def _read(path, progress_args=None):
-    """The recording at `path`; with `progress_args` (the command's args), a progress bar while it is read."""
+def _read(path, quiet: bool = True):
+    """The recording at `path`; unless `quiet` (the command's --json; by default), a progress bar while it is
+    read."""
     import os
 
     from ahrsd.drivers.recording import RecordingFormatError, read_recording
@@ -145,7 +146,7 @@ def _read(path, progress_args=None):
     from .progress import expected_rows, progress_bar
 
     try:
-        with progress_bar(progress_args, expected_rows(path), f"reading {os.path.basename(path)}") as bar:
+        with progress_bar(quiet, expected_rows(path), f"reading {os.path.basename(path)}") as bar:
             rec = read_recording(path, strict=False, on_rows=bar.update)   # a file cut mid-row: its complete rows
     except FileNotFoundError:
         raise _Fail(f"{path}: no such file") from None
@@ -218,11 +219,11 @@ def _allan(args) -> int:
 
     try:   # streamed: one chunk of the recording in memory at a time (.csv or .csv.gz)
         analysis = StaticAllanAnalysis()
-        with progress_bar(args, expected_rows(args.recording), f"reading {os.path.basename(args.recording)}") as bar:
+        with progress_bar(args.json, expected_rows(args.recording), f"reading {os.path.basename(args.recording)}") as bar:
             for chunk in iter_recording_chunks(args.recording, strict=False):
                 analysis.add(chunk.t_s, chunk.gyro_rad_s, chunk.accel_m_s2, chunk.mag_ut)
                 bar.update(len(chunk))
-        with activity(args, "Allan analysis"):
+        with activity(args.json, "Allan analysis"):
             res = analysis.result()
     except FileNotFoundError:
         raise _Fail(f"{args.recording}: no such file") from None
@@ -332,7 +333,7 @@ def _still_positions(args):
 
     from ahrsd.calibration.inertial.accel import split_by_duration, still_periods
 
-    rec = _read(args.recording, args)
+    rec = _read(args.recording, quiet=args.json)
     step_s = float(np.median(np.diff(rec.t_s)))
     if not (math.isfinite(step_s) and step_s > 0):
         raise _Fail(f"{args.recording}: t_s does not increase (median step {step_s:g} s): the sample times "
@@ -578,7 +579,7 @@ def _mag(args) -> int:
         calibrated = procedure.calibrate_mag(
             args.method, data, ref, alignment=alignment, gnss=gnss, fit_options=options,
             swing_table=None if swing_table is None else procedure.SwingTable(*swing_table, args.swing_table),
-            step=lambda description: activity(args, description))
+            step=lambda description: activity(args.json, description))
     except NotImplementedError as exc:
         raise _Fail(str(exc)) from None
     except procedure.MagCalibrationError as exc:
@@ -674,7 +675,7 @@ def _mag_inputs(args):
     from ahrsd.calibration.mag import procedure
     from ahrsd.calibration.mag.fit_types import MagFitInput
 
-    rec = _read(args.recording, args)
+    rec = _read(args.recording, quiet=args.json)
     stored = _stored(args)
     gyro, accel, _ = stored.apply_arrays(rec.gyro_rad_s, rec.accel_m_s2, None)
     heading_ref, ref_note = _heading_reference_column(rec, args.recording, args.method)
@@ -689,7 +690,7 @@ def _mag_inputs(args):
         gnss = procedure.GnssLevelling(fixes, gnss_options)
     alignment = None
     if args.align_recording:
-        arec = _read(args.align_recording, args)
+        arec = _read(args.align_recording, quiet=args.json)
         alignment = procedure.AlignmentRecording(arec.gyro_rad_s, stored.accel.apply(arec.accel_m_s2), arec.mag_ut,
                                                  arec.sample_rate_hz)
     return rec, MagFitInput(rec.t_s, rec.mag_ut, accel, gyro, heading_ref), ref_note, gnss, alignment

@@ -275,7 +275,7 @@ def _write_cut(args, chosen: list[tuple], side0: dict) -> tuple[int, float, floa
     tmp = os.path.join(head, f".{base}.part" + (".gz" if base.endswith(".gz") else ""))   # renamed when complete
     try:
         with RecordingWriter(tmp, extra_columns=SAMPLE_COLUMNS) as out, \
-                progress_bar(args, expected, "log cut") as bar:
+                progress_bar(args.quiet, expected, "log cut") as bar:
             note = (f"ahrsd log cut {args.t_from} .. {args.t_to} from {', '.join(p.name for p, _, _, _ in chosen)}; "
                     f"samples {_calibration_label(side0)}")
             out.comment(note)

@@ -1,6 +1,7 @@
 """Progress bars for long offline work (`replay`, `calibrate allan|mag`, `log cut`): tqdm on stderr with the
-rate and the time left, only when stderr is a terminal and the command was not asked for --json or --quiet
-(a pipe, a log file or a script gets no bar and no control characters).
+rate and the time left, only when stderr is a terminal and the command was not asked for quiet output (its
+--quiet; calibrate's --json, whose stdout a script reads): a pipe, a log file or a script gets no bar and no
+control characters. The caller says which of its options means quiet (`quiet`): the commands have different ones.
 
 Two kinds: `progress_bar` counts rows (reading, replaying, cutting: rate and time left); `activity` is for one
 step whose progress cannot be counted from outside (a fit, the Allan analysis after the reading): a line that
@@ -26,9 +27,9 @@ class _NoBar:
         pass
 
 
-def wanted(args) -> bool:
-    """A bar on this run: stderr is a terminal, and no --json/--quiet (args None: no bar)."""
-    if args is None or getattr(args, "json", False) or getattr(args, "quiet", False):
+def wanted(quiet: bool) -> bool:
+    """A bar on this run: stderr is a terminal, and the command was not asked for quiet output."""
+    if quiet:
         return False
     try:
         return sys.stderr.isatty()
@@ -36,9 +37,9 @@ def wanted(args) -> bool:
         return False
 
 
-def progress_bar(args, total: float | None, desc: str, unit: str = "sample", unit_scale: bool = True):
+def progress_bar(quiet: bool, total: float | None, desc: str, unit: str = "sample", unit_scale: bool = True):
     """A tqdm bar (or a silent stand-in when not `wanted`): `.update(n)`, `.close()`, a context manager."""
-    if not wanted(args):
+    if not wanted(quiet):
         return _NoBar()
     from tqdm import tqdm
 
@@ -46,9 +47,9 @@ def progress_bar(args, total: float | None, desc: str, unit: str = "sample", uni
                                    dynamic_ncols=True, mininterval=0.2, leave=True))
 
 
-def activity(args, desc: str):
+def activity(quiet: bool, desc: str):
     """A context manager showing `desc: <elapsed>` while its block runs (or nothing when not `wanted`)."""
-    if not wanted(args):
+    if not wanted(quiet):
         return _NoBar()
     from tqdm import tqdm
 

@@ -605,7 +605,7 @@ def _write_tables(args, tables, out: _Output, aided: bool, verdicts, trace) -> l
 
     order, state_col, circle_col = _output_order(aided, verdicts is not None)
     history: list[tuple[float, int]] = []
-    with progress_bar(args, expected_rows(args.recording), "replay") as bar:
+    with progress_bar(args.quiet, expected_rows(args.recording), "replay") as bar:
         for table in tables:
             out.write(table[:, order])
             if aided:

@@ -95,6 +95,8 @@ def test_calibrate_allan_streams_with_a_bar_and_shows_the_analysis_in_a_terminal
     lines = shown.splitlines()
     assert any(line.startswith("reading tumble.csv: 100%") and BAR_RATE in line for line in lines), shown
     assert any(line.startswith("Allan analysis: 00:") and line.endswith("done") for line in lines), shown
+    with_json = in_tmux(["sh", "-c", " ".join(ahrsd(*args, "--json")) + " > /dev/null"])
+    assert BAR_RATE not in with_json and "Allan analysis" not in with_json, with_json
 
 
 def test_no_bar_in_a_pipe(recording, tmp_path):
@@ -115,3 +117,6 @@ def test_log_cut_shows_a_bar_in_a_terminal(tmp_path):
                           "--output", tmp_path / "cut.csv"))
     bar = [line for line in shown.splitlines() if line.startswith("log cut")]
     assert bar and BAR_RATE in bar[-1] and "100%" in bar[-1] and "20.0k/20.0k" in bar[-1], shown
+    quiet = in_tmux(ahrsd("log", "cut", "--dir", tmp_path / "logs", "--from", 10, "--to", 150,
+                          "--output", tmp_path / "quiet.csv", "--quiet"))
+    assert BAR_RATE not in quiet and (tmp_path / "quiet.csv").read_bytes() == (tmp_path / "cut.csv").read_bytes()
