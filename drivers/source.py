@@ -58,7 +58,7 @@ def open_chip_driver(bus, *, data_ready: bool = False, samples_as_records: bool 
 
 
 def _chip_drivers(*, data_ready: bool, samples_as_records: bool):
-    """How a reconnecting source opens the driver on each (re)opened bus: every one alike."""
+    """The driver factory a reconnecting source builds its chip's driver with (drivers.reconnecting)."""
     return functools.partial(open_chip_driver, data_ready=data_ready, samples_as_records=samples_as_records)
 
 
