@@ -227,8 +227,9 @@ class InsParams(MagHeadingParams):
     filter's heading (within their joint 3σ): a linearised filter pulled in from tens of
     degrees shrinks its σ faster than its error. ArduPilot's compass learning waits for the same 5°
     (`Compass_learn.cpp`, YAW_ACCURACY_THRESHOLD_DEG). A yaw that was set to the GNSS yaw (`yaw_align_to_gnss_yaw`)
-    was not pulled in: `accel_bias_gsf_sigma_rad` confirms it, but after a later rejection the published σ keeps
-    the GNSS yaw's until a GNSS yaw this accurate agrees (the yaw is pulled in again; docs/gnss.md, stby22)."""
+    was not pulled in: `accel_bias_gsf_sigma_rad` confirms it for the filter, but the published σ keeps the GNSS
+    yaw's until a GNSS yaw this accurate agrees: the bank that set and confirmed that yaw may be 10° wide, and the
+    fixes pull it through the same linearised update (docs/gnss.md, stby22 and early23)."""
     accel_bias_gsf_sigma_rad: float = 10.0 * _DEG
     """With `accel_bias_needs_heading`, the horizontal accelerometer bias learns again once a GNSS yaw this accurate
     agrees with the filter's heading (within their joint 3σ), or a trusted magnetometer holds it. Looser than
@@ -491,9 +492,6 @@ class Ins:
         self._mag_rotation_on = p.mag_rotation_gyro_bias and p.heading_monitor and p.mag_enabled
         self._x["gyro_rotation_last_t_s"] = math.nan   # the kernel sums the gyro's rotation (ins_core.py)
         self._gnss_yaw_aligned = False     # the yaw was set to the first valid GNSS yaw (yaw_align_to_gnss_yaw)
-        # the yaw was set to a GNSS yaw (alignment, emergency reset) and no rejection has widened it since, so a
-        # confirmation by the looser accel_bias_gsf_sigma_rad also lifts the published σ's floor
-        self._yaw_set_to_gnss = False
         self._sigma_confirmed = False      # the published σ's floor is lifted (`_update_sigma_confirmation`)
         # the published yaw σ's floor until a GNSS yaw confirms the heading (aided only; updated at every check)
         self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(0.0, math.nan, math.nan)
@@ -1043,7 +1041,6 @@ class Ins:
             # the magnetometer was just rejected: the heading it held is unconfirmed again (`_confirm_heading`)
             self._heading_confirmed = False
             self._bias_heading_confirmed = False
-            self._yaw_set_to_gnss = False
             self._sigma_confirmed = False
             # what the magnetometer taught the gyro bias since the last confirmation goes with it: a wrong
             # magnetometer's heading error rate, which the filter would otherwise keep integrating as GNSS-only.
@@ -1064,11 +1061,9 @@ class Ins:
         that agrees with it. Returns the yaw a reset turned the attitude (about down) to, None without one."""
         if d.reset_yaw_to_rad is not None:
             self._reset_yaw(d.reset_yaw_to_rad - yaw, d.reset_yaw_var_rad2)
-            self._yaw_set_to_gnss = True
             return d.reset_yaw_to_rad
         if self._gnss_yaw_alignment_due(gsf_valid):
             self._align_yaw_to_gnss(t_s, gsf_yaw - yaw, gsf_var)
-            self._yaw_set_to_gnss = True
             return gsf_yaw
         if not self._heading_confirmed and gsf_valid and (self._calibration_untrusted or self._monitor.mag_rejected):
             self._confirm_heading(yaw, gsf_yaw, gsf_var)
@@ -1172,19 +1167,19 @@ class Ins:
         return wrap_pi(gsf_yaw - yaw_rad) ** 2 <= self._monitor.gate_sigma ** 2 * (yaw_var_now + gsf_var)
 
     def _update_sigma_confirmation(self, yaw_rad: float, gsf_yaw: float, gsf_var: float, gsf_valid: bool) -> None:
-        """Whether the published yaw σ's floor (`_unconfirmed_yaw_sigma`) is lifted: the filter's confirmation
-        (`_confirm_heading`) lifts it when a GNSS yaw within `heading_confirm_gsf_sigma_rad` agreed, or within the
-        looser `accel_bias_gsf_sigma_rad` while the yaw is one set to a GNSS yaw. After a rejection the monitor
-        widens the yaw variance (tens of degrees) and the next fixes pull the yaw in through the linearised update,
-        as before an alignment: the looser GNSS yaw then agrees with that wide variance whatever the yaw, and the
-        variance shrinks faster than the error as the turn ends (docs/gnss.md, stby22). Until a GNSS yaw within
-        `heading_confirm_gsf_sigma_rad` agrees, the floor stays published; the filter keeps its own decision."""
+        """Whether the published yaw σ's floor (`_unconfirmed_yaw_sigma`) is lifted: once the filter has confirmed
+        its heading (`_confirm_heading`), when a GNSS yaw within `heading_confirm_gsf_sigma_rad` agrees. The filter
+        confirms a yaw set to a GNSS yaw (alignment, emergency reset) with the looser `accel_bias_gsf_sigma_rad`,
+        but that yaw is only as good as the bank that set and confirmed it (σ up to 10°), and the fixes pull it
+        through the linearised update, whose variance shrinks faster than the error as a turn ends (docs/gnss.md,
+        early23). After a rejection the monitor widens the yaw variance (tens of degrees) and the
+        looser GNSS yaw agrees with it whatever the yaw (stby22). In both cases the floor stays published until the
+        5° GNSS yaw agrees; the filter keeps its own decision."""
         if not self._heading_confirmed:
             self._sigma_confirmed = False
         elif not self._sigma_confirmed:
-            self._sigma_confirmed = self._yaw_set_to_gnss or (
-                gsf_valid and gsf_var < self.params.heading_confirm_gsf_sigma_rad ** 2
-                and self._gnss_yaw_agrees(yaw_rad, gsf_yaw, gsf_var))
+            self._sigma_confirmed = (gsf_valid and gsf_var < self.params.heading_confirm_gsf_sigma_rad ** 2
+                                     and self._gnss_yaw_agrees(yaw_rad, gsf_yaw, gsf_var))
 
     def _unconfirmed_yaw_sigma(self, yaw_rad: float, gsf_yaw: float, gsf_var: float) -> float:
         """Without a trusted magnetometer calibration, until a GNSS yaw has confirmed the heading: the filter's yaw
