@@ -192,6 +192,16 @@ class InsParams(MagHeadingParams):
     iron_learned_tau_s: float = 3.0
     """Correlation time of the heading error the learned iron leaves, s (the magnetometer update's noise is
     inflated by τ/Δt, ins_core._mag_update)."""
+    iron_heading_corr_rad: float = 0.5
+    """While the heading monitor rejects a magnetometer without a trusted calibration, all the iron was learned
+    since (against the GNSS heading; nothing learned or restored before the rejection, which that iron may have
+    caused), and its floor alone keeps it above the trust limit for good (`Ins._never_trusted_here`: H below
+    ~19 µT, it never re-enters), its heading is still fused at the learned iron's honest slowly varying variance
+    (`_magnetometer_trust_var`: the worst level heading plus the floor), never moving the tilt: too wide to set the
+    heading, it still adds to the GNSS. The error a learned iron leaves is a function of the heading (the hard
+    iron's once per turn, the soft iron's twice), constant while the heading holds: its correlation is taken as
+    lasting this change of heading, so its correlation time is this over the vertical rate (at least
+    `iron_learned_tau_s`), rad. 0: a rejected magnetometer is not fused."""
     iron_tau_s: float = 5.0
     """Correlation time of that unexplained error while the vehicle moves, s (the learner's noise is inflated
     by τ/Δt between fixes)."""
@@ -486,6 +496,9 @@ class Ins:
         self._field_ned = None
         self._mag_var = p.calibration_sigma_rad ** 2
         self._mag_trust_var = p.calibration_sigma_rad ** 2
+        # an iron was learned or restored before the magnetometer's latest rejection: the learned iron may be what
+        # the rejection found wrong, so a rejected magnetometer is not fused (`_rejected_magnetometer_fused`)
+        self._iron_before_rejection = False
         self._heading_confirmed = False    # by a GNSS yaw within heading_confirm_gsf_sigma_rad
         self._bias_heading_confirmed = False   # by a GNSS yaw within accel_bias_gsf_sigma_rad
         self._mag_rotation = MagRotationBias(gyro_noise_rad_s_rthz=p.gyro_noise_rad_s_sqrt_hz)
@@ -1038,6 +1051,7 @@ class Ins:
                 # after the filter again (docs/estimator.md, "Magnetometer-free GNSS yaw", Limits)
                 self._x["bank_gyro_bias_rad_s"] = self._x["gyro_bias_rad_s"]
         if d.yaw_var_floor_rad2 > 0.0:
+            self._iron_before_rejection = self._iron.updates > 0 or self._iron_restored
             # the magnetometer was just rejected: the heading it held is unconfirmed again (`_confirm_heading`)
             self._heading_confirmed = False
             self._bias_heading_confirmed = False
@@ -1113,6 +1127,43 @@ class Ins:
             self._par["mag_bias_var_rad2"] = mag_var - noise   # at this attitude; the white part is the kernel's own noise
             learned = self._iron.updates > 0 or self._iron_restored
             self._par["mag_bias_tau_s"] = p.iron_learned_tau_s if learned else p.mag_bias_tau
+            if self._rejected_magnetometer_fused(d, trust_var):
+                self._par["mag_use"] = 1.0
+                self._par["mag_moves_tilt"] = 0.0
+                self._par["mag_bias_var_rad2"] = max(trust_var, mag_var - noise)
+                self._par["mag_bias_tau_s"] = max(p.iron_learned_tau_s,
+                                                  p.iron_heading_corr_rad / max(self._heading_rate_rad_s(), 1e-6))
+
+    def _heading_rate_rad_s(self) -> float:
+        """|rate about down| of the last gyro sample, bias removed, rad/s."""
+        x = self._x
+        c_bn = np.asarray(quat_to_dcm(x["q"]), dtype=float)
+        return abs(float(c_bn[2] @ (x["gyro_last_rad_s"] - x["gyro_bias_rad_s"])))
+
+    def _rejected_magnetometer_fused(self, d: MonitorDecision, trust_var: float) -> bool:
+        """`iron_heading_corr_rad`: the monitor rejects a magnetometer without a trusted calibration, but an iron has
+        been learned since the rejection and none before it, so the learner's covariance and the floor
+        (`trust_var`) are all the error there is; and the floor alone keeps it from ever being trusted again here
+        (`_never_trusted_here`). Not with a trusted calibration: its own σ stands in for the floor there
+        (`_magnetometer_trust_var`), and the rejection has just shown the calibration wrong."""
+        return (self.params.iron_heading_corr_rad > 0.0 and not d.mag_use and self._calibration_untrusted
+                and self._iron.updates > 0 and not self._iron_before_rejection and not self._iron_restored
+                and math.isfinite(trust_var) and self._never_trusted_here())
+
+    def _never_trusted_here(self) -> bool:
+        """The floor of a learned magnetometer's heading σ (what no learned iron explains, `iron_unmodelled_ut`,
+        over the WMM horizontal field at the filter's position) is above the monitor's trust limit: however well the
+        iron is learned, the magnetometer cannot re-enter here (H below ~19 µT with the defaults: high latitudes).
+        Where it can, it is left out until it does, as before: fused weakly meanwhile, the kernel's field check
+        follows the learned iron and takes the magnetometer back at once on re-entry, with an iron not yet learned
+        as well as the check's delay left it (docs/figures.md "At places and irons not tuned on")."""
+        field = self._field_ned
+        if field is None:
+            return False
+        h2 = float(field[0] ** 2 + field[1] ** 2)
+        floor = min(self.params.calibration_sigma_rad ** 2, self.params.iron_unmodelled_ut ** 2 / h2) if h2 > 0.0 \
+            else math.inf
+        return floor > self._monitor.trusted_sigma_rad ** 2
 
     def _learn_iron(self, t_s: float, c_bn: np.ndarray, field: np.ndarray | None) -> None:
         """One step of the iron learning (IronLearner) against the WMM field at the filter's position, with the
@@ -1531,8 +1582,9 @@ class Ins:
                     and self._heading_state in (HeadingState.GNSS_ONLY, HeadingState.LEARNING)):
                 return HeadingState.UNKNOWN
         if not f & core.F_GNSS_AIDED:
-            # unaided the magnetometer is the only heading reference: trusted only when it is in use
-            if not p.mag_enabled or self._mag_use[0] <= 0.0:
+            # unaided the magnetometer is the only heading reference: trusted only when it is in use and not
+            # rejected (a rejected one may still be fused at its learned iron's σ, `iron_heading_corr_rad`)
+            if not p.mag_enabled or self._mag_use[0] <= 0.0 or self._monitor.mag_rejected:
                 return HeadingState.UNKNOWN
             return HeadingState.MAGNETOMETER
         return self._heading_state if p.heading_monitor else HeadingState.MAGNETOMETER
