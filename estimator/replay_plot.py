@@ -226,7 +226,7 @@ def replay_figure(trace: ReplayTrace, truth_q_wxyz: np.ndarray | None = None, tr
         _angle_panel(ax["heading"], t, flags, settled, tab[:, col["yaw_deg"]] % 360.0, s_yaw,
                      "magnetic heading (°)", truth[2], wrap=True)
     if truth_err is not None:
-        _error_panel(ax["error"], t, truth_err, (s_roll, s_pitch, s_yaw), trace.true_north)
+        _error_panel(ax["error"], t, truth_err, (s_roll, s_pitch, s_yaw), trace.true_north, settled)
     _flags_panel(ax["flags"], t, _flag_rows(flags, gnss_rows), flags)
     if trace.gnss:
         _gnss_panel(ax["gnss"], t, trace.gnss)
@@ -311,25 +311,63 @@ def _angle_panel(a, t, flags, settled, value, sigma, label, truth_col=None, wrap
     a.legend(loc="upper right", fontsize=8, ncol=7)
 
 
-def _error_panel(a, t, truth_err, sigmas, true_north: bool) -> None:
-    """Roll, pitch and heading error against truth with their RMS, over their ±1σ bands (each in the legend)."""
+# an angle whose σ is this large is not known (the daemon's "heading unknown" reads 180°): its error is no accuracy
+UNKNOWN_SIGMA_DEG = 90.0
+
+
+def _error_panel(a, t, truth_err, sigmas, true_north: bool, settled: np.ndarray) -> None:
+    """Roll, pitch and heading error against truth, over their ±1σ bands (each in the legend). The RMS in the
+    legend and the panel's scale come from the rows where the angle is known — the filter settled (not
+    INITIALISING) and its σ below UNKNOWN_SIGMA_DEG — so an initialisation or an unknown heading (tens of degrees)
+    neither sets the figure's headline nor squashes a tilt error of tenths of a degree flat; what it leaves off
+    scale is said above the panel."""
+    known_errors, off_scale = [], []
     for k, (name, colour) in enumerate((("roll", "tab:blue"), ("pitch", "tab:green"), ("heading", "tab:red"))):
         e = truth_err[:, k]
-        rms = math.sqrt(np.nanmean(e * e)) if np.isfinite(e).any() else math.nan
-        a.plot(t, e, color=colour, lw=0.9, label=f"{name} (RMS {rms:.2f}°)")
+        known = settled & (sigmas[k] < UNKNOWN_SIGMA_DEG) & np.isfinite(e)
+        known_errors.append(e[known])
+        a.plot(t, e, color=colour, lw=0.9, label=f"{name} ({_rms_words(t, e, known)})")
         # each band named in the legend: the three overlap into grey, and a reader must tell heading's from tilt's
         a.fill_between(t, -sigmas[k], sigmas[k], color=colour, alpha=0.10, lw=0, label=f"{name} ±1σ")
-    finite = truth_err[np.isfinite(truth_err)]
+    for start, width in _spans(t, ~settled):
+        a.axvspan(start, start + width, color="tab:gray", alpha=0.12, lw=0)
+    finite = np.concatenate(known_errors)
+    if not finite.size:   # nothing known anywhere: the whole run sets the scale
+        finite = truth_err[np.isfinite(truth_err)]
     if finite.size:   # the bulk, not a start-up transient, sets the scale
         span = max(float(np.percentile(np.abs(finite), 99)) * 1.3, 0.5)
         a.set_ylim(-span, span)
+        for k, name in enumerate(("roll", "pitch", "heading")):
+            e = truth_err[:, k]
+            if (np.abs(e[np.isfinite(e)]) > span).any():
+                off_scale.append(name)
     a.axhline(0, color="black", lw=0.5)
     a.set_ylabel("error vs truth (°)")
     a.grid(alpha=0.3)
     a.legend(loc="upper right", fontsize=8, ncol=3)
+    notes = []
+    if off_scale:
+        notes.append(f"{', '.join(off_scale)} error off scale while initialising or unknown (σ ≥ "
+                     f"{UNKNOWN_SIGMA_DEG:.0f}°)")
     if not true_north:
-        a.set_title("heading error includes the declination: give --lat/--lon for true north", fontsize=8,
-                    loc="left")
+        notes.append("heading error includes the declination: give --lat/--lon for true north")
+    if notes:
+        a.set_title("; ".join(notes), fontsize=8, loc="left")
+
+
+def _rms_words(t: np.ndarray, e: np.ndarray, known: np.ndarray) -> str:
+    """'RMS 0.11°', with where it was taken when not over the whole run: 'from 81 s' (a settled tail) or 'on 40 %
+    of the run'; 'unknown throughout' when the angle never was."""
+    if not known.any():
+        return f"unknown throughout: σ ≥ {UNKNOWN_SIGMA_DEG:.0f}°"
+    rms = math.sqrt(float(np.mean(e[known] ** 2)))
+    drawn = np.isfinite(e)
+    if known.sum() == drawn.sum():
+        return f"RMS {rms:.2f}°"
+    first = int(np.flatnonzero(known)[0])
+    if known[first:].sum() == drawn[first:].sum():
+        return f"RMS {rms:.2f}° from {t[first]:.0f} s"
+    return f"RMS {rms:.2f}° on {100.0 * known.sum() / drawn.sum():.0f} % of the run"
 
 
 def _flags_panel(a, t, rows: list[tuple], flags) -> None:

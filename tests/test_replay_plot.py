@@ -102,6 +102,21 @@ def axis_labelled(fig, ylabel):
     return found[0]
 
 
+def error_lines(error_ax) -> dict:
+    """The error panel's roll, pitch and heading lines by name (their labels: 'roll (RMS …)')."""
+    return {ln.get_label().split(" ")[0]: ln for ln in error_ax.get_lines()
+            if ln.get_label().split(" ")[0] in ("roll", "pitch", "heading")}
+
+
+def known_rows(out_csv) -> dict:
+    """Per angle, the replay's rows where it is known: not INITIALISING and its σ column below 90°."""
+    header = out_csv.read_text().splitlines()[0].split(",")
+    table = np.loadtxt(out_csv, delimiter=",", skiprows=1, ndmin=2)
+    settled = (table[:, header.index("flags")].astype(np.int64) & int(EstimateFlags.INITIALISING)) == 0
+    return {name: settled & (table[:, header.index(column)] < 90.0)
+            for name, column in (("roll", "sigma_roll_deg"), ("pitch", "sigma_pitch_deg"), ("heading", "sigma_yaw_deg"))}
+
+
 def scipy_errors_deg(out_csv, recording):
     """roll, pitch, heading error of the replay output against the recording's truth, by scipy (ZYX)."""
     from ahrsd.drivers.recording import read_recording
@@ -126,16 +141,20 @@ def test_replay_plot_draws_the_truth_error_panel_that_scipy_computes(truth_recor
     (fig,) = figures
     assert "through mekf" in fig.texts[0].get_text() and "true north" in fig.texts[0].get_text()
     error_ax = axis_labelled(fig, "error vs truth (°)")
-    lines = {ln.get_label().split(" ")[0]: ln for ln in error_ax.get_lines() if "RMS" in ln.get_label()}
+    lines = error_lines(error_ax)
     assert sorted(lines) == ["heading", "pitch", "roll"]
     expected = scipy_errors_deg(out, truth_recording)
+    known = known_rows(out)
     for k, name in enumerate(("roll", "pitch", "heading")):
         drawn = np.asarray(lines[name].get_ydata(), dtype=float)
         assert len(drawn) == len(expected)               # 2000 rows: not decimated
         settled = slice(100, None)
         np.testing.assert_allclose(drawn[settled], expected[settled, k], atol=1e-3)
-        rms = float(np.sqrt(np.nanmean(drawn ** 2)))
-        assert f"RMS {rms:.2f}°" in lines[name].get_label()
+        if known[name].any():   # the RMS where the angle is known: settled, σ below 90°
+            rms = float(np.sqrt(np.mean(expected[known[name], k] ** 2)))
+            assert f"RMS {rms:.2f}°" in lines[name].get_label()
+        else:
+            assert "unknown throughout" in lines[name].get_label()
     # the truth is drawn on each angle panel too
     for ylabel in ("roll (°)", "pitch (°)", "true heading (°)"):
         assert [ln for ln in axis_labelled(fig, ylabel).get_lines() if ln.get_label() == "truth"]
@@ -229,7 +248,7 @@ def test_each_error_band_is_named_in_the_legend_and_spans_its_own_sigma(truth_re
     header = out.read_text().splitlines()[0].split(",")
     table = np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2)
     bands = {c.get_label(): c for c in error_ax.collections}
-    lines = {ln.get_label().split(" ")[0]: ln for ln in error_ax.get_lines() if "RMS" in ln.get_label()}
+    lines = error_lines(error_ax)
     for name, column in (("roll", "sigma_roll_deg"), ("pitch", "sigma_pitch_deg"), ("heading", "sigma_yaw_deg")):
         assert f"{name} ±1σ" in legend
         band = bands[f"{name} ±1σ"]
@@ -237,3 +256,27 @@ def test_each_error_band_is_named_in_the_legend_and_spans_its_own_sigma(truth_re
         top = band.get_paths()[0].vertices[:, 1].max()
         sigma = table[:, header.index(column)]
         assert top == pytest.approx(np.nanmax(sigma[np.isfinite(sigma)]), rel=1e-6)
+
+
+def test_an_unknown_heading_neither_sets_the_error_scale_nor_the_rms(truth_recording, tmp_path, figures):
+    """Without a calibration mekf's heading is unknown (σ 180°): its error (tens of degrees) must not squash the
+    tilt errors flat, nor an initialisation set the RMS (session 23's walk: `replay gboat.csv --gnss` read 'heading
+    RMS 8.66°' with roll and pitch flat lines, where the settled run had 0.80° / 0.11° / 0.09°). The scale is 1.3 ×
+    the 99th percentile of the known rows' errors, computed here from scipy's errors and the CSV's flags and σ."""
+    png, out = tmp_path / "replay.png", tmp_path / "out.csv"
+    assert main(["replay", str(truth_recording), "--output", str(out), "--plot", str(png), "--quiet"]) == 0
+    (fig,) = figures
+    error_ax = axis_labelled(fig, "error vs truth (°)")
+    expected, known = scipy_errors_deg(out, truth_recording), known_rows(out)
+    assert not known["heading"].any() and known["roll"].any()       # the case: heading unknown, tilt known
+    tilt = np.concatenate([expected[known["roll"], 0], expected[known["pitch"], 1]])
+    span = max(float(np.percentile(np.abs(tilt), 99)) * 1.3, 0.5)
+    assert error_ax.get_ylim() == pytest.approx((-span, span), rel=1e-6)   # scipy vs the plot: 5e-8
+    assert np.abs(expected[:, 2]).max() > 3 * span              # the heading's error would have set it
+    assert "heading error off scale" in error_ax.get_title(loc="left")
+    lines = error_lines(error_ax)
+    assert "unknown throughout" in lines["heading"].get_label()
+    first = int(np.flatnonzero(known["roll"])[0])
+    rms = float(np.sqrt(np.mean(expected[known["roll"], 0] ** 2)))
+    t = np.asarray(lines["roll"].get_xdata(), dtype=float)
+    assert lines["roll"].get_label() == f"roll (RMS {rms:.2f}° from {t[first]:.0f} s)"
