@@ -46,6 +46,9 @@ _FLAG_ROWS = (
 # flags shaded behind the angle panels: the ones that say "do not trust this stretch as much"
 _SHADED = ((EstimateFlags.INITIALISING, "tab:gray"), (EstimateFlags.MAG_REJECTED, "tab:red"),
            (EstimateFlags.ACCEL_REJECTED, "tab:orange"), (EstimateFlags.MAG_UNAVAILABLE, "tab:purple"))
+# an angle whose σ is this large is not known (the daemon's "heading unknown" reads 180°): its error is no accuracy,
+# and a heading band of ±90° or more, wrapped at 0/360°, would cover the panel with nothing to read in it
+UNKNOWN_SIGMA_DEG = 90.0
 
 
 class ReplayTrace:
@@ -280,6 +283,12 @@ def _angle_panel(a, t, flags, settled, value, sigma, label, truth_col=None, wrap
     for flag, colour in _SHADED:
         for start, width in _spans(t, (flags & int(flag)) != 0):
             a.axvspan(start, start + width, color=colour, alpha=0.12, lw=0)
+    unknown = np.asarray(sigma >= UNKNOWN_SIGMA_DEG) if wrap else np.zeros(len(t), dtype=bool)
+    if unknown.any():   # no heading band where the heading is unknown: the panel says so instead
+        sigma = np.where(unknown, np.nan, sigma)
+        a.text(0.01, 0.97, f"heading unknown (σ ≥ {UNKNOWN_SIGMA_DEG:.0f}°, no band) on "
+               f"{100.0 * float(np.mean(unknown)):.0f} % of the run", transform=a.transAxes, ha="left", va="top",
+               fontsize=8, color="tab:red", gid="unknown heading")
     finite = value[np.isfinite(value) & settled]
     # a heading that stays within a half turn is drawn on its own scale (continuous across north)
     local = wrap and finite.size and np.ptp(np.unwrap(np.radians(finite))) < math.pi
@@ -298,7 +307,8 @@ def _angle_panel(a, t, flags, settled, value, sigma, label, truth_col=None, wrap
     else:
         a.fill_between(t, value - sigma, value + sigma, color="tab:blue", alpha=0.25, lw=0, label="±1σ")
         a.plot(t, value, color="tab:blue", lw=1.0, label="estimate")
-        shown = [value - sigma, value + sigma] + ([truth_col] if truth_col is not None else [])
+        shown = [value - sigma, value + sigma] + ([value] if unknown.any() else []) + \
+                ([truth_col] if truth_col is not None else [])
         a.set_ylim(*_robust_limits(shown, settled))
     if truth_col is not None:
         tv = truth_col % 360.0 if wrap else truth_col
@@ -309,10 +319,6 @@ def _angle_panel(a, t, flags, settled, value, sigma, label, truth_col=None, wrap
     a.set_ylabel(label)
     a.grid(alpha=0.3)
     a.legend(loc="upper right", fontsize=8, ncol=7)
-
-
-# an angle whose σ is this large is not known (the daemon's "heading unknown" reads 180°): its error is no accuracy
-UNKNOWN_SIGMA_DEG = 90.0
 
 
 def _error_panel(a, t, truth_err, sigmas, true_north: bool, settled: np.ndarray) -> None:
@@ -327,8 +333,10 @@ def _error_panel(a, t, truth_err, sigmas, true_north: bool, settled: np.ndarray)
         known = settled & (sigmas[k] < UNKNOWN_SIGMA_DEG) & np.isfinite(e)
         known_errors.append(e[known])
         a.plot(t, e, color=colour, lw=0.9, label=f"{name} ({_rms_words(t, e, known)})")
-        # each band named in the legend: the three overlap into grey, and a reader must tell heading's from tilt's
-        a.fill_between(t, -sigmas[k], sigmas[k], color=colour, alpha=0.10, lw=0, label=f"{name} ±1σ")
+        # each band named in the legend: the three overlap into grey, and a reader must tell heading's from tilt's;
+        # none where the angle is unknown (a ±180° band would cover the panel)
+        band = np.where(np.asarray(sigmas[k]) >= UNKNOWN_SIGMA_DEG, np.nan, sigmas[k])
+        a.fill_between(t, -band, band, color=colour, alpha=0.10, lw=0, label=f"{name} ±1σ")
     for start, width in _spans(t, ~settled):
         a.axvspan(start, start + width, color="tab:gray", alpha=0.12, lw=0)
     finite = np.concatenate(known_errors)

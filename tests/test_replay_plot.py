@@ -253,9 +253,14 @@ def test_each_error_band_is_named_in_the_legend_and_spans_its_own_sigma(truth_re
         assert f"{name} ±1σ" in legend
         band = bands[f"{name} ±1σ"]
         np.testing.assert_allclose(band.get_facecolor()[0][:3], matplotlib.colors.to_rgb(lines[name].get_color()))
-        top = band.get_paths()[0].vertices[:, 1].max()
         sigma = table[:, header.index(column)]
-        assert top == pytest.approx(np.nanmax(sigma[np.isfinite(sigma)]), rel=1e-6)
+        known = sigma[np.isfinite(sigma) & (sigma < 90.0)]     # no band where the angle is unknown (σ ≥ 90°)
+        paths = band.get_paths()
+        if not known.size:
+            assert not paths or not np.isfinite(np.concatenate([p.vertices for p in paths])).any()
+            continue
+        top = max(p.vertices[:, 1].max() for p in paths)
+        assert top == pytest.approx(np.max(known), rel=1e-6)
 
 
 def test_an_unknown_heading_neither_sets_the_error_scale_nor_the_rms(truth_recording, tmp_path, figures):
@@ -280,3 +285,21 @@ def test_an_unknown_heading_neither_sets_the_error_scale_nor_the_rms(truth_recor
     rms = float(np.sqrt(np.mean(expected[known["roll"], 0] ** 2)))
     t = np.asarray(lines["roll"].get_xdata(), dtype=float)
     assert lines["roll"].get_label() == f"roll (RMS {rms:.2f}° from {t[first]:.0f} s)"
+
+
+def test_an_unknown_heading_has_no_band_but_says_so(truth_recording, tmp_path, figures):
+    """σ 180° (no calibration) drew a ±180° band wrapped at 0/360° across the whole heading panel (session 23's
+    walk): where the CSV's sigma_yaw_deg is ≥ 90° no band is drawn, and the panel says the heading is unknown."""
+    png, out = tmp_path / "replay.png", tmp_path / "out.csv"
+    assert main(["replay", str(truth_recording), "--output", str(out), "--plot", str(png), "--quiet"]) == 0
+    (fig,) = figures
+    header = out.read_text().splitlines()[0].split(",")
+    sigma = np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2)[:, header.index("sigma_yaw_deg")]
+    unknown_share = float(np.mean(sigma >= 90.0))
+    assert unknown_share > 0.9                                  # the case: no calibration, heading unknown
+    heading_ax = axis_labelled(fig, "magnetic heading (°)")
+    (band,) = [c for c in heading_ax.collections if c.get_label() == "±1σ"]
+    drawn = np.concatenate([p.vertices for p in band.get_paths()]) if band.get_paths() else np.empty((0, 2))
+    assert len(drawn) <= 4 * (1 - unknown_share) * len(sigma) + 8   # only the known rows' band, if any
+    notes = [t.get_text() for t in heading_ax.texts if t.get_gid() == "unknown heading"]
+    assert notes == [f"heading unknown (σ ≥ 90°, no band) on {100 * unknown_share:.0f} % of the run"]
