@@ -146,14 +146,23 @@ def _break_wraps(t: np.ndarray, deg: np.ndarray, *more: np.ndarray, jump_deg: fl
     return [np.insert(np.asarray(x, dtype=float), cut, np.nan) for x in (t, deg, *more)]
 
 
-def _robust_limits(values: list[np.ndarray], settled: np.ndarray, min_span: float = 1.0) -> tuple[float, float]:
-    """y limits holding the settled rows' values (0.5…99.5 percentiles, 10 % margin): a start-up transient or
-    the wide σ before the filter converged does not squash the rest of the trace."""
-    v = np.concatenate([x[settled] for x in values]) if settled.any() else np.concatenate(values)
+def _robust_limits(bands: list[np.ndarray], settled: np.ndarray, whole: list[np.ndarray] = (),
+                   truth=None, min_span: float = 1.0) -> tuple[float, float]:
+    """y limits (10 % margin) holding the settled rows' σ bands (0.5…99.5 percentiles: a start-up transient or
+    the wide σ before the filter converged does not squash the rest of the trace), every settled value of `whole`
+    (the estimate) and every value of `truth` (no transient there): a percentile cut the highest wave peaks of a
+    heaving boat flat (session 23)."""
+    rows = settled if settled.any() else np.ones_like(settled, dtype=bool)
+    v = np.concatenate([x[rows] for x in bands]) if bands else np.empty(0)
     v = v[np.isfinite(v)]
-    if not v.size:
+    w = np.concatenate([np.asarray(x)[rows] for x in whole] + ([np.asarray(truth)] if truth is not None else [])) \
+        if len(whole) or truth is not None else np.empty(0)
+    w = w[np.isfinite(w)]
+    if not v.size and not w.size:
         return -1.0, 1.0
-    lo, hi = np.percentile(v, [0.5, 99.5])
+    lo, hi = np.percentile(v, [0.5, 99.5]) if v.size else (np.inf, -np.inf)
+    if w.size:
+        lo, hi = min(lo, float(w.min())), max(hi, float(w.max()))
     mid, half = (lo + hi) / 2, max(hi - lo, min_span) / 2 * 1.1
     return float(mid - half), float(mid + half)
 
@@ -307,9 +316,7 @@ def _angle_panel(a, t, flags, settled, value, sigma, label, truth_col=None, wrap
     else:
         a.fill_between(t, value - sigma, value + sigma, color="tab:blue", alpha=0.25, lw=0, label="±1σ")
         a.plot(t, value, color="tab:blue", lw=1.0, label="estimate")
-        shown = [value - sigma, value + sigma] + ([value] if unknown.any() else []) + \
-                ([truth_col] if truth_col is not None else [])
-        a.set_ylim(*_robust_limits(shown, settled))
+        a.set_ylim(*_robust_limits([value - sigma, value + sigma], settled, [value], truth_col))
     if truth_col is not None:
         tv = truth_col % 360.0 if wrap else truth_col
         a.plot(*(_break_wraps(t, tv) if wrap else (t, tv)), color="black", lw=0.8, ls="--", label="truth")

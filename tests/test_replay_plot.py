@@ -303,3 +303,40 @@ def test_an_unknown_heading_has_no_band_but_says_so(truth_recording, tmp_path, f
     assert len(drawn) <= 4 * (1 - unknown_share) * len(sigma) + 8   # only the known rows' band, if any
     notes = [t.get_text() for t in heading_ax.texts if t.get_gid() == "unknown heading"]
     assert notes == [f"heading unknown (σ ≥ 90°, no band) on {100 * unknown_share:.0f} % of the run"]
+
+
+def test_the_roll_panel_holds_the_truth_and_the_settled_estimate(tmp_path, figures):
+    """The panels' limits came from the 0.5…99.5 percentiles: the highest wave peaks of the tour's boat were cut
+    flat (session 23's walk, gatt.png's roll, its peaks during ins's 81 s of initialising). A trace with gusts
+    well above the swell: the truth's while the filter initialised, the estimate's after; both inside the roll
+    panel (the values are the arrays given, not read from the plot code)."""
+    from ahrsd.estimator import replay_plot
+
+    n = 4000
+    t = np.arange(n) / 100.0
+    roll = 2.0 * np.sin(2 * np.pi * t / 8.0)
+    roll[1000:1010] = 6.5                    # a gust: 0.25 % of the rows
+    table = np.zeros((n, len(ATTITUDE_COLUMNS)))
+    col = {c: i for i, c in enumerate(ATTITUDE_COLUMNS)}
+    table[:, col["t_s"]] = t
+    table[:, col["roll_deg"]] = roll
+    table[:, col["pitch_deg"]] = -roll / 2
+    table[:, col["heading_true_deg"]] = table[:, col["yaw_deg"]] = 30.0
+    for c in ("sigma_roll_deg", "sigma_pitch_deg", "sigma_yaw_deg"):
+        table[:, col[c]] = 0.2
+    table[:, col["qw"]] = 1.0
+    table[:, col["flags"]] = int(EstimateFlags.INITIALISING)
+    table[2000:, col["flags"]] = 0
+    table[3000:3010, col["roll_deg"]] = -5.0    # a settled gust: the estimate's own
+    truth_roll = np.radians(table[:, col["roll_deg"]])
+    truth_q = np.column_stack([np.cos(truth_roll / 2), np.sin(truth_roll / 2), np.zeros(n), np.zeros(n)])
+    trace = ReplayTrace()
+    trace.add(table)
+    fig = replay_plot.replay_figure(trace, truth_q, t)
+    try:   # the truth's gust came while the filter initialised (the tour's ins initialises for 81 s)
+        low, high = axis_labelled(fig, "roll (°)").get_ylim()
+        assert low < -5.0 and 6.5 < high, (low, high)
+    finally:
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)
