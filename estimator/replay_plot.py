@@ -49,6 +49,7 @@ _SHADED = ((EstimateFlags.INITIALISING, "tab:gray"), (EstimateFlags.MAG_REJECTED
 # an angle whose σ is this large is not known (the daemon's "heading unknown" reads 180°): its error is no accuracy,
 # and a heading band of ±90° or more, wrapped at 0/360°, would cover the panel with nothing to read in it
 UNKNOWN_SIGMA_DEG = 90.0
+TILT_BANDS_ONE_RTOL = 0.01    # roll's and pitch's σ this close on every row: one error band for both
 
 
 class ReplayTrace:
@@ -335,15 +336,23 @@ def _error_panel(a, t, truth_err, sigmas, true_north: bool, settled: np.ndarray)
     neither sets the figure's headline nor squashes a tilt error of tenths of a degree flat; what it leaves off
     scale is said above the panel."""
     known_errors, off_scale = [], []
+    roll_sigma, pitch_sigma = np.asarray(sigmas[0], dtype=float), np.asarray(sigmas[1], dtype=float)
+    # within 1 % on every row the two bands cannot be told apart on the figure (mekf's differ by ~1e-5°)
+    tilt_equal = bool(np.allclose(roll_sigma, pitch_sigma, rtol=TILT_BANDS_ONE_RTOL, atol=0.0, equal_nan=True))
     for k, (name, colour) in enumerate((("roll", "tab:blue"), ("pitch", "tab:green"), ("heading", "tab:red"))):
         e = truth_err[:, k]
         known = settled & (sigmas[k] < UNKNOWN_SIGMA_DEG) & np.isfinite(e)
         known_errors.append(e[known])
         a.plot(t, e, color=colour, lw=0.9, label=f"{name} ({_rms_words(t, e, known)})")
         # each band named in the legend: the three overlap into grey, and a reader must tell heading's from tilt's;
-        # none where the angle is unknown (a ±180° band would cover the panel)
+        # none where the angle is unknown (a ±180° band would cover the panel). Pitch's band equal to roll's (mekf
+        # gives both the same σ) is one band named for both: two bands on one another read as a third colour
+        if name == "pitch" and tilt_equal:
+            continue
         band = np.where(np.asarray(sigmas[k]) >= UNKNOWN_SIGMA_DEG, np.nan, sigmas[k])
-        a.fill_between(t, -band, band, color=colour, alpha=0.10, lw=0, label=f"{name} ±1σ")
+        both = name == "roll" and tilt_equal
+        a.fill_between(t, -band, band, color="tab:cyan" if both else colour, alpha=0.10, lw=0,
+                       label="roll ≈ pitch ±1σ" if both else f"{name} ±1σ")
     for start, width in _spans(t, ~settled):
         a.axvspan(start, start + width, color="tab:gray", alpha=0.12, lw=0)
     finite = np.concatenate(known_errors)
