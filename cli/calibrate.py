@@ -712,12 +712,31 @@ def _report_mag(args, calibrated, data, ref, ref_note, site: MagSite) -> int:
     lines += ["  " + note for note in calibrated.notes]
     if ref_note:
         lines.append("  " + ref_note)
+    lines += _gnss_beside_hint(args)
     q = res.quality
     meta = {"method": res.method, "residual_rms_ut": res.residual_rms_ut, "field_ut": ref.total_ut,
             "site": {**site_json, "date": args.date}}
     if "heading_reference" in q:
         meta["heading_reference"] = q["heading_reference"]
     return _report_fit(args, res, payload, lines, "mag", report.mag_model_lines, meta)
+
+
+def _gnss_beside_hint(args) -> list[str]:
+    """A back-stepping fit levelled by the accelerometer while the run's GNSS recording lies beside it: say that
+    `--gnss` levels with the aided attitude. On a heaving, turning vehicle the accelerometer's levelling error is
+    not in the predicted heading error (docs/magcal-vehicle.md; session 23's walk: a boat fitted without it)."""
+    from pathlib import Path
+
+    from ahrsd.drivers.gnss.recording import gnss_path_for
+
+    if args.method != "backstepping" or args.gnss or not args.recording:
+        return []
+    beside = gnss_path_for(args.recording)
+    if not Path(beside).is_file():
+        return []
+    return [f"  note: levelled by the accelerometer, though {beside} lies beside the recording: on a vehicle that "
+            f"heaves or turns, `--gnss {beside}` levels with the GNSS-aided attitude, whose error the predicted "
+            "heading error then covers (docs/magcal-vehicle.md)"]
 
 
 def _plot_mag(args, res, data, rec, ref, swing_table) -> None:

@@ -4,7 +4,8 @@
     ahrsd log cut --from TIME --to TIME --output REC.csv [--dir DIR] [--quiet]
 
 The logs are drivers/sample_log.py's `imu-*.csv.gz` files, drivers/gnss/log.py's `gnss-*.gnss.csv.gz` (every
-GNSS fix delivered, accepted or rejected) and their `.json` sidecars. TIME is ISO-8601
+GNSS fix delivered, accepted or rejected), drivers/tlog.py's `mavlink-*.tlog` (the MAVLink traffic; listed, not
+cut: MAVProxy, MAVExplorer and pymavlink read it as it is) and their `.json` sidecars. TIME is ISO-8601
 (`2026-12-01T10:42:00`, UTC unless it carries an offset; mapped to sample times through each file's sidecar)
 or a number of seconds on the samples' own clock (the t_s column, as `log list` shows it). The cut is a
 plain recording (`.csv`, or `.csv.gz` by its name) that `replay` and `calibrate` take as it is; when the
@@ -63,8 +64,8 @@ def run(args) -> int:
 
 
 def _log_files(directory: str, kind: str = "samples") -> list[tuple]:
-    """[(path, sidecar dict)] of the sample logs (kind "samples") or GNSS logs ("gnss") in `directory`, oldest
-    first."""
+    """[(path, sidecar dict)] of the sample logs (kind "samples"), GNSS logs ("gnss") or MAVLink logs ("tlog")
+    in `directory`, oldest first."""
     import json
     from pathlib import Path
 
@@ -72,6 +73,7 @@ def _log_files(directory: str, kind: str = "samples") -> list[tuple]:
     from ahrsd.drivers.gnss.log import GNSS_LOG_PREFIX, GNSS_LOG_SUFFIX
     from ahrsd.drivers.rotating_log import SIDECAR_SUFFIX
     from ahrsd.drivers.sample_log import SAMPLE_LOG_PREFIX, SAMPLE_LOG_SUFFIX
+    from ahrsd.drivers.tlog import TLOG_PREFIX, TLOG_SUFFIX
 
     d = Path(directory)
     if not d.is_dir():
@@ -81,7 +83,8 @@ def _log_files(directory: str, kind: str = "samples") -> list[tuple]:
         where = (f"the service keeps its logs there once it has run; {by_hand}" if d == service_logs
                  else f"the service's is {service_logs}; {by_hand}")
         raise LogError(f"{directory}: no such log directory ({where})")
-    prefix, suffix = {"samples": (SAMPLE_LOG_PREFIX, SAMPLE_LOG_SUFFIX), "gnss": (GNSS_LOG_PREFIX, GNSS_LOG_SUFFIX)}[kind]
+    prefix, suffix = {"samples": (SAMPLE_LOG_PREFIX, SAMPLE_LOG_SUFFIX), "gnss": (GNSS_LOG_PREFIX, GNSS_LOG_SUFFIX),
+                      "tlog": (TLOG_PREFIX, TLOG_SUFFIX)}[kind]
     out = []
     for path in sorted(d.glob(f"{prefix}-*{suffix}")):
         try:
@@ -105,6 +108,11 @@ def _iso(unix_s: float | None) -> str:
     if unix_s is None:
         return "?"
     return dt.datetime.fromtimestamp(unix_s, dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def _iso_text(text: str | None) -> str | None:
+    """A sidecar's ISO time (`2026-12-05T20:31:34.124451Z`) to the second, as `_iso` writes it."""
+    return None if not text else text.split(".")[0].rstrip("Z") + "Z"
 
 
 def _calibration_label(side: dict) -> str:
@@ -153,9 +161,25 @@ def _list(args) -> int:
         t = (f"t_s {side['t_first_s']:.1f}…{side.get('t_last_s', float('nan')):.1f}" if "t_first_s" in side else "t_s ?")
         print(f"{path.name}  {_iso(first)} → {_iso(last)}  {t}  {side.get('entries', '?')} GNSS fixes (accepted "
               f"and rejected)  {size / 1e6:.2f} MB{state}")
+    tlog_files = _log_files(args.dir, "tlog")
+    for path, side in tlog_files:
+        size = path.stat().st_size
+        total += size
+        # frames are stamped with the wall clock (drivers/tlog.py): the span is the file's opening and closing
+        start, end = side.get("opened_utc"), side.get("closed_utc")
+        if args.json:
+            print(json.dumps({"kind": "tlog", "file": str(path), "size_bytes": size,
+                              "start_utc": _iso_text(start), "end_utc": _iso_text(end),
+                              "messages": side.get("entries"), "closed": side.get("closed", False)}, sort_keys=True))
+            continue
+        state = "" if side.get("closed") else " (open, or cut by a crash)"
+        print(f"{path.name}  {_iso_text(start) or '?'} → {_iso_text(end) or '?'}  {side.get('entries', '?')} MAVLink "
+              f"messages in and out  {size / 1e6:.2f} MB{state}")
     if not args.json:
-        extra = f" ({len(gnss_files)} of GNSS fixes)" if gnss_files else ""
-        print(f"{len(files) + len(gnss_files)} files{extra}, {total / 1e6:.1f} MB in {args.dir}")
+        extra = ", ".join(f"{n} of {what}" for n, what in ((len(gnss_files), "GNSS fixes"),
+                                                           (len(tlog_files), "MAVLink traffic")) if n)
+        print(f"{len(files) + len(gnss_files) + len(tlog_files)} files{f' ({extra})' if extra else ''}, "
+              f"{total / 1e6:.1f} MB in {args.dir}")
     return 0
 
 

@@ -75,7 +75,13 @@ def run(args: argparse.Namespace) -> int:
     if args.check_config:
         import json
 
-        print(json.dumps(dataclasses.asdict(cfg), indent=2, default=str))
+        from ahrsd.daemon.magcal_settings import MagCalSettings
+
+        shown = dataclasses.asdict(cfg)
+        # no [magcal] table is the field calibration's defaults (as the daemon builds it): print those, not null,
+        # so that accept_broadcast = false shows beside [mavlink] accept_broadcast_commands
+        shown["magcal"] = dataclasses.asdict(cfg.magcal or MagCalSettings())
+        print(json.dumps(shown, indent=2, default=str))
         return 0
     if logging.getLogger().level > logging.INFO:
         logging.getLogger("ahrsd").setLevel(logging.INFO)   # the daemon reports its life cycle by default

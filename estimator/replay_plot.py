@@ -46,6 +46,10 @@ _FLAG_ROWS = (
 # flags shaded behind the angle panels: the ones that say "do not trust this stretch as much"
 _SHADED = ((EstimateFlags.INITIALISING, "tab:gray"), (EstimateFlags.MAG_REJECTED, "tab:red"),
            (EstimateFlags.ACCEL_REJECTED, "tab:orange"), (EstimateFlags.MAG_UNAVAILABLE, "tab:purple"))
+# an angle whose σ is this large is not known (the daemon's "heading unknown" reads 180°): its error is no accuracy,
+# and a heading band of ±90° or more, wrapped at 0/360°, would cover the panel with nothing to read in it
+UNKNOWN_SIGMA_DEG = 90.0
+TILT_BANDS_ONE_RTOL = 0.01    # roll's and pitch's σ this close on every row: one error band for both
 
 
 class ReplayTrace:
@@ -143,14 +147,23 @@ def _break_wraps(t: np.ndarray, deg: np.ndarray, *more: np.ndarray, jump_deg: fl
     return [np.insert(np.asarray(x, dtype=float), cut, np.nan) for x in (t, deg, *more)]
 
 
-def _robust_limits(values: list[np.ndarray], settled: np.ndarray, min_span: float = 1.0) -> tuple[float, float]:
-    """y limits holding the settled rows' values (0.5…99.5 percentiles, 10 % margin): a start-up transient or
-    the wide σ before the filter converged does not squash the rest of the trace."""
-    v = np.concatenate([x[settled] for x in values]) if settled.any() else np.concatenate(values)
+def _robust_limits(bands: list[np.ndarray], settled: np.ndarray, whole: list[np.ndarray] = (),
+                   truth=None, min_span: float = 1.0) -> tuple[float, float]:
+    """y limits (10 % margin) holding the settled rows' σ bands (0.5…99.5 percentiles: a start-up transient or
+    the wide σ before the filter converged does not squash the rest of the trace), every settled value of `whole`
+    (the estimate) and every value of `truth` (no transient there): a percentile cut the highest wave peaks of a
+    heaving boat flat (session 23)."""
+    rows = settled if settled.any() else np.ones_like(settled, dtype=bool)
+    v = np.concatenate([x[rows] for x in bands]) if bands else np.empty(0)
     v = v[np.isfinite(v)]
-    if not v.size:
+    w = np.concatenate([np.asarray(x)[rows] for x in whole] + ([np.asarray(truth)] if truth is not None else [])) \
+        if len(whole) or truth is not None else np.empty(0)
+    w = w[np.isfinite(w)]
+    if not v.size and not w.size:
         return -1.0, 1.0
-    lo, hi = np.percentile(v, [0.5, 99.5])
+    lo, hi = np.percentile(v, [0.5, 99.5]) if v.size else (np.inf, -np.inf)
+    if w.size:
+        lo, hi = min(lo, float(w.min())), max(hi, float(w.max()))
     mid, half = (lo + hi) / 2, max(hi - lo, min_span) / 2 * 1.1
     return float(mid - half), float(mid + half)
 
@@ -226,7 +239,7 @@ def replay_figure(trace: ReplayTrace, truth_q_wxyz: np.ndarray | None = None, tr
         _angle_panel(ax["heading"], t, flags, settled, tab[:, col["yaw_deg"]] % 360.0, s_yaw,
                      "magnetic heading (°)", truth[2], wrap=True)
     if truth_err is not None:
-        _error_panel(ax["error"], t, truth_err, (s_roll, s_pitch, s_yaw), trace.true_north)
+        _error_panel(ax["error"], t, truth_err, (s_roll, s_pitch, s_yaw), trace.true_north, settled)
     _flags_panel(ax["flags"], t, _flag_rows(flags, gnss_rows), flags)
     if trace.gnss:
         _gnss_panel(ax["gnss"], t, trace.gnss)
@@ -280,6 +293,12 @@ def _angle_panel(a, t, flags, settled, value, sigma, label, truth_col=None, wrap
     for flag, colour in _SHADED:
         for start, width in _spans(t, (flags & int(flag)) != 0):
             a.axvspan(start, start + width, color=colour, alpha=0.12, lw=0)
+    unknown = np.asarray(sigma >= UNKNOWN_SIGMA_DEG) if wrap else np.zeros(len(t), dtype=bool)
+    if unknown.any():   # no heading band where the heading is unknown: the panel says so instead
+        sigma = np.where(unknown, np.nan, sigma)
+        a.text(0.01, 0.97, f"heading unknown (σ ≥ {UNKNOWN_SIGMA_DEG:.0f}°, no band) on "
+               f"{100.0 * float(np.mean(unknown)):.0f} % of the run", transform=a.transAxes, ha="left", va="top",
+               fontsize=8, color="tab:red", gid="unknown heading")
     finite = value[np.isfinite(value) & settled]
     # a heading that stays within a half turn is drawn on its own scale (continuous across north)
     local = wrap and finite.size and np.ptp(np.unwrap(np.radians(finite))) < math.pi
@@ -298,8 +317,7 @@ def _angle_panel(a, t, flags, settled, value, sigma, label, truth_col=None, wrap
     else:
         a.fill_between(t, value - sigma, value + sigma, color="tab:blue", alpha=0.25, lw=0, label="±1σ")
         a.plot(t, value, color="tab:blue", lw=1.0, label="estimate")
-        shown = [value - sigma, value + sigma] + ([truth_col] if truth_col is not None else [])
-        a.set_ylim(*_robust_limits(shown, settled))
+        a.set_ylim(*_robust_limits([value - sigma, value + sigma], settled, [value], truth_col))
     if truth_col is not None:
         tv = truth_col % 360.0 if wrap else truth_col
         a.plot(*(_break_wraps(t, tv) if wrap else (t, tv)), color="black", lw=0.8, ls="--", label="truth")
@@ -311,25 +329,69 @@ def _angle_panel(a, t, flags, settled, value, sigma, label, truth_col=None, wrap
     a.legend(loc="upper right", fontsize=8, ncol=7)
 
 
-def _error_panel(a, t, truth_err, sigmas, true_north: bool) -> None:
-    """Roll, pitch and heading error against truth with their RMS, over their ±1σ bands (each in the legend)."""
+def _error_panel(a, t, truth_err, sigmas, true_north: bool, settled: np.ndarray) -> None:
+    """Roll, pitch and heading error against truth, over their ±1σ bands (each in the legend). The RMS in the
+    legend and the panel's scale come from the rows where the angle is known — the filter settled (not
+    INITIALISING) and its σ below UNKNOWN_SIGMA_DEG — so an initialisation or an unknown heading (tens of degrees)
+    neither sets the figure's headline nor squashes a tilt error of tenths of a degree flat; what it leaves off
+    scale is said above the panel."""
+    known_errors, off_scale = [], []
+    roll_sigma, pitch_sigma = np.asarray(sigmas[0], dtype=float), np.asarray(sigmas[1], dtype=float)
+    # within 1 % on every row the two bands cannot be told apart on the figure (mekf's differ by ~1e-5°)
+    tilt_equal = bool(np.allclose(roll_sigma, pitch_sigma, rtol=TILT_BANDS_ONE_RTOL, atol=0.0, equal_nan=True))
     for k, (name, colour) in enumerate((("roll", "tab:blue"), ("pitch", "tab:green"), ("heading", "tab:red"))):
         e = truth_err[:, k]
-        rms = math.sqrt(np.nanmean(e * e)) if np.isfinite(e).any() else math.nan
-        a.plot(t, e, color=colour, lw=0.9, label=f"{name} (RMS {rms:.2f}°)")
-        # each band named in the legend: the three overlap into grey, and a reader must tell heading's from tilt's
-        a.fill_between(t, -sigmas[k], sigmas[k], color=colour, alpha=0.10, lw=0, label=f"{name} ±1σ")
-    finite = truth_err[np.isfinite(truth_err)]
+        known = settled & (sigmas[k] < UNKNOWN_SIGMA_DEG) & np.isfinite(e)
+        known_errors.append(e[known])
+        a.plot(t, e, color=colour, lw=0.9, label=f"{name} ({_rms_words(t, e, known)})")
+        # each band named in the legend: the three overlap into grey, and a reader must tell heading's from tilt's;
+        # none where the angle is unknown (a ±180° band would cover the panel). Pitch's band equal to roll's (mekf
+        # gives both the same σ) is one band named for both: two bands on one another read as a third colour
+        if name == "pitch" and tilt_equal:
+            continue
+        band = np.where(np.asarray(sigmas[k]) >= UNKNOWN_SIGMA_DEG, np.nan, sigmas[k])
+        both = name == "roll" and tilt_equal
+        a.fill_between(t, -band, band, color="tab:cyan" if both else colour, alpha=0.10, lw=0,
+                       label="roll ≈ pitch ±1σ" if both else f"{name} ±1σ")
+    for start, width in _spans(t, ~settled):
+        a.axvspan(start, start + width, color="tab:gray", alpha=0.12, lw=0)
+    finite = np.concatenate(known_errors)
+    if not finite.size:   # nothing known anywhere: the whole run sets the scale
+        finite = truth_err[np.isfinite(truth_err)]
     if finite.size:   # the bulk, not a start-up transient, sets the scale
         span = max(float(np.percentile(np.abs(finite), 99)) * 1.3, 0.5)
         a.set_ylim(-span, span)
+        for k, name in enumerate(("roll", "pitch", "heading")):
+            e = truth_err[:, k]
+            if (np.abs(e[np.isfinite(e)]) > span).any():
+                off_scale.append(name)
     a.axhline(0, color="black", lw=0.5)
     a.set_ylabel("error vs truth (°)")
     a.grid(alpha=0.3)
     a.legend(loc="upper right", fontsize=8, ncol=3)
+    notes = []
+    if off_scale:
+        notes.append(f"{', '.join(off_scale)} error off scale while initialising or unknown (σ ≥ "
+                     f"{UNKNOWN_SIGMA_DEG:.0f}°)")
     if not true_north:
-        a.set_title("heading error includes the declination: give --lat/--lon for true north", fontsize=8,
-                    loc="left")
+        notes.append("heading error includes the declination: give --lat/--lon for true north")
+    if notes:
+        a.set_title("; ".join(notes), fontsize=8, loc="left")
+
+
+def _rms_words(t: np.ndarray, e: np.ndarray, known: np.ndarray) -> str:
+    """'RMS 0.11°', with where it was taken when not over the whole run: 'from 81 s' (a settled tail) or 'on 40 %
+    of the run'; 'unknown throughout' when the angle never was."""
+    if not known.any():
+        return f"unknown throughout: σ ≥ {UNKNOWN_SIGMA_DEG:.0f}°"
+    rms = math.sqrt(float(np.mean(e[known] ** 2)))
+    drawn = np.isfinite(e)
+    if known.sum() == drawn.sum():
+        return f"RMS {rms:.2f}°"
+    first = int(np.flatnonzero(known)[0])
+    if known[first:].sum() == drawn[first:].sum():
+        return f"RMS {rms:.2f}° from {t[first]:.0f} s"
+    return f"RMS {rms:.2f}° on {100.0 * known.sum() / drawn.sum():.0f} % of the run"
 
 
 def _flags_panel(a, t, rows: list[tuple], flags) -> None:

@@ -255,3 +255,20 @@ def test_bad_reference_inputs_are_clear(boat, tmp_path, ahrsd_inproc):
                                 "--heading-ref-delay-s", "2")
     assert rc == 2 and "--heading-ref-delay-s goes with --method backstepping" in err
     assert not (state / "calibration.json").exists()
+
+
+def test_a_gnss_recording_beside_it_is_named_when_levelled_by_the_accelerometer(boat, tmp_path, ahrsd_inproc):
+    """Session 23's walk fitted the tour's GNSS boat with --lat/--lon: 'predicted 0.16°', then 0.83° heading RMS in
+    ins. With REC.gnss.csv beside the recording and no --gnss, the report says --gnss levels with the aided
+    attitude; without the file, or with --json, nothing is added."""
+    import shutil
+
+    rec = shutil.copy(boat["noref"], tmp_path / "run.csv")
+    rc, stdout, _ = ahrsd_inproc("mag", "--method", "backstepping", rec, *SITE_ARGS, "--dry-run")
+    assert rc == 0 and "--gnss" not in stdout
+    (tmp_path / "run.gnss.csv").write_text("t_s\n")   # only its presence is read
+    rc, stdout, _ = ahrsd_inproc("mag", "--method", "backstepping", rec, *SITE_ARGS, "--dry-run")
+    hint = [line for line in stdout.splitlines() if "lies beside the recording" in line]
+    assert rc == 0 and len(hint) == 1 and f"--gnss {tmp_path / 'run.gnss.csv'}" in hint[0], stdout
+    rc, stdout, _ = ahrsd_inproc("mag", "--method", "backstepping", rec, *SITE_ARGS, "--dry-run", "--json")
+    assert rc == 0 and json.loads(stdout)["method"] == "backstepping"

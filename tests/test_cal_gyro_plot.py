@@ -109,3 +109,47 @@ def test_rate_table_panel_shows_each_segments_residual():
         import matplotlib.pyplot as plt
 
         plt.close(fig)
+
+
+def points_under_legend(fig) -> list[tuple[str, float, float]]:
+    """The plotted points (lines' data, in display coordinates after drawing) that fall inside a legend's box."""
+    fig.canvas.draw()
+    hidden = []
+    for ax in fig.axes:
+        legend = ax.get_legend()
+        if legend is None:
+            continue
+        box = legend.get_window_extent()
+        for ln in ax.get_lines():
+            xy = ax.transData.transform(np.column_stack([ln.get_xdata(), ln.get_ydata()]).astype(float))
+            inside = ((xy[:, 0] >= box.x0) & (xy[:, 0] <= box.x1) & (xy[:, 1] >= box.y0) & (xy[:, 1] <= box.y1))
+            hidden += [(ln.get_label(), *p) for p in xy[inside]]
+    return hidden
+
+
+def test_the_rate_table_legend_hides_no_segment():
+    """Session 23's walk: on the six-axis table of `ahrsd record --sim rate-table` the legend ("best") covered
+    the y axis's +90 °/s segments 24 and 27. The segments here: each axis ±90 °/s, holds between, 30 of them."""
+    rates = [0.0, 90.0, 0.0, -90.0, 0.0]
+    reference = np.radians([[r if k == axis else 0.0 for k in range(3)] for axis in (2, 2, 0, 0, 1, 1) for r in rates])
+    measured = reference + np.radians(0.02) * np.sin(np.arange(reference.size)).reshape(reference.shape)
+    fig = gyro_plot.rate_table_figure(reference, measured, "t")
+    try:
+        assert points_under_legend(fig) == []
+    finally:
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)
+
+
+def test_the_bias_figure_legend_hides_no_sample():
+    """The bias-only figure's legends sat over the rates they label ("upper right" inside each panel)."""
+    t = np.arange(0.0, 20.0, 0.01)
+    gyro = np.radians(0.2) * np.column_stack([np.sin(t * k) for k in (1.0, 2.0, 3.0)])
+    fig = gyro_plot.bias_figure(t, gyro, [(0, 500)], np.zeros(3), np.full(3, 1e-3), "t")
+    try:
+        assert points_under_legend(fig) == []
+    finally:
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)

@@ -150,3 +150,30 @@ def test_a_log_killed_within_its_opening_is_skipped_by_the_cut(tmp_path, capsys)
     (tmp_path / "imu-29990101T000000.000000Z.csv.gz").write_bytes(b"\x1f\x8b\x08\x00")   # torn in its header
     assert run("log", "cut", "--dir", tmp_path, "--from", 0, "--to", 1e9, "--output", tmp_path / "x.csv") == 0
     assert len(read_recording(tmp_path / "x.csv")) == 100
+
+
+def test_list_shows_the_mavlink_traffic_logs_beside_the_samples(tmp_path, capsys):
+    """The README's `log list` lists the MAVLink .tlog too (session 23's walk: it showed only the samples)."""
+    from ahrsd.drivers.tlog import TlogLog
+
+    ticks = iter(range(10**6))     # the wall clock: one second later at every reading
+    clock = lambda: START_UNIX + next(ticks)   # noqa: E731
+    with SampleLog(tmp_path, clock=clock, unix_minus_t=lambda: START_UNIX - 10.0) as log:
+        for i in range(50):
+            log.put(make_sample(10.0 + i / 100, [0.0] * 3, [0.0, 0.0, -9.8], [20.0, 0.0, 40.0], counter=i))
+    with TlogLog(tmp_path, clock=clock) as tlog:
+        for i in range(7):
+            tlog.put((START_UNIX + i, b"\xfd" + bytes(11)))
+    (sidecar,) = [json.loads(p.read_text()) for p in tmp_path.glob("mavlink-*.tlog.json")]
+    opened, closed = (sidecar[k][:19] + "Z" for k in ("opened_utc", "closed_utc"))
+    assert opened < closed and opened.startswith("2027-01-15T08:00:")
+    assert run("log", "list", "--dir", tmp_path) == 0
+    lines = capsys.readouterr().out.splitlines()
+    tlog_lines = [x for x in lines if x.startswith("mavlink-") and x.split()[0].endswith(".tlog")]
+    assert len(tlog_lines) == 1, lines
+    assert f"{opened} → {closed}" in tlog_lines[0] and "7 MAVLink messages" in tlog_lines[0]
+    assert lines[-1].startswith("2 files (1 of MAVLink traffic)"), lines[-1]
+    assert run("log", "list", "--dir", tmp_path, "--json") == 0
+    rows = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    (row,) = [r for r in rows if r["kind"] == "tlog"]
+    assert (row["messages"], row["start_utc"], row["end_utc"], row["closed"]) == (7, opened, closed, True)

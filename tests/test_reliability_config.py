@@ -344,3 +344,17 @@ def test_corrupted_calibration_file_at_start_falls_back_to_the_previous(tmp_path
         assert np.allclose(service.calibration.gyro.bias_rad_s, 0.0)
     finally:
         close()
+
+
+def test_check_config_prints_the_field_calibrations_defaults_without_a_magcal_table(tmp_path, capsys):
+    """`run --check-config` shows what the daemon will use: without [magcal] the field calibration's defaults
+    (MAVProxy's broadcast `magcal start` ignored), not null (session 23's walk)."""
+    path = tmp_path / "ahrsd.toml"
+    path.write_text("[sensor]\nsource = 'sim'\n")
+    code, text = run_cli(["run", "--config", str(path), "--check-config"], capsys)
+    assert code == 0
+    shown = json.loads(text)
+    assert shown["magcal"]["accept_broadcast"] is False and shown["magcal"]["timeout_s"] == 300.0
+    path.write_text("[magcal]\naccept_broadcast = true\n")
+    code, text = run_cli(["run", "--config", str(path), "--check-config"], capsys)
+    assert code == 0 and json.loads(text)["magcal"]["accept_broadcast"] is True

@@ -102,6 +102,21 @@ def axis_labelled(fig, ylabel):
     return found[0]
 
 
+def error_lines(error_ax) -> dict:
+    """The error panel's roll, pitch and heading lines by name (their labels: 'roll (RMS …)')."""
+    return {ln.get_label().split(" ")[0]: ln for ln in error_ax.get_lines()
+            if ln.get_label().split(" ")[0] in ("roll", "pitch", "heading")}
+
+
+def known_rows(out_csv) -> dict:
+    """Per angle, the replay's rows where it is known: not INITIALISING and its σ column below 90°."""
+    header = out_csv.read_text().splitlines()[0].split(",")
+    table = np.loadtxt(out_csv, delimiter=",", skiprows=1, ndmin=2)
+    settled = (table[:, header.index("flags")].astype(np.int64) & int(EstimateFlags.INITIALISING)) == 0
+    return {name: settled & (table[:, header.index(column)] < 90.0)
+            for name, column in (("roll", "sigma_roll_deg"), ("pitch", "sigma_pitch_deg"), ("heading", "sigma_yaw_deg"))}
+
+
 def scipy_errors_deg(out_csv, recording):
     """roll, pitch, heading error of the replay output against the recording's truth, by scipy (ZYX)."""
     from ahrsd.drivers.recording import read_recording
@@ -126,16 +141,20 @@ def test_replay_plot_draws_the_truth_error_panel_that_scipy_computes(truth_recor
     (fig,) = figures
     assert "through mekf" in fig.texts[0].get_text() and "true north" in fig.texts[0].get_text()
     error_ax = axis_labelled(fig, "error vs truth (°)")
-    lines = {ln.get_label().split(" ")[0]: ln for ln in error_ax.get_lines() if "RMS" in ln.get_label()}
+    lines = error_lines(error_ax)
     assert sorted(lines) == ["heading", "pitch", "roll"]
     expected = scipy_errors_deg(out, truth_recording)
+    known = known_rows(out)
     for k, name in enumerate(("roll", "pitch", "heading")):
         drawn = np.asarray(lines[name].get_ydata(), dtype=float)
         assert len(drawn) == len(expected)               # 2000 rows: not decimated
         settled = slice(100, None)
         np.testing.assert_allclose(drawn[settled], expected[settled, k], atol=1e-3)
-        rms = float(np.sqrt(np.nanmean(drawn ** 2)))
-        assert f"RMS {rms:.2f}°" in lines[name].get_label()
+        if known[name].any():   # the RMS where the angle is known: settled, σ below 90°
+            rms = float(np.sqrt(np.mean(expected[known[name], k] ** 2)))
+            assert f"RMS {rms:.2f}°" in lines[name].get_label()
+        else:
+            assert "unknown throughout" in lines[name].get_label()
     # the truth is drawn on each angle panel too
     for ylabel in ("roll (°)", "pitch (°)", "true heading (°)"):
         assert [ln for ln in axis_labelled(fig, ylabel).get_lines() if ln.get_label() == "truth"]
@@ -186,6 +205,11 @@ def test_an_aided_replay_plot_names_ins_and_true_north_and_draws_velocity_and_tr
 
     header = out.read_text().splitlines()[0].split(",")
     table = np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2)
+    # ins's roll and pitch σ differ (more than 1 % somewhere): two bands, each named, not one for both
+    roll_sigma, pitch_sigma = (table[:, header.index(c)] for c in ("sigma_roll_deg", "sigma_pitch_deg"))
+    assert not np.allclose(roll_sigma, pitch_sigma, rtol=0.01, atol=1e-6)
+    legend = [t.get_text() for t in axis_labelled(fig, "error vs truth (°)").get_legend().get_texts()]
+    assert "roll ±1σ" in legend and "pitch ±1σ" in legend and "roll ≈ pitch ±1σ" not in legend
     fixes = np.genfromtxt(gnss, delimiter=",", names=True)
     t0 = table[0, 0]
     velocity = axis_labelled(fig, "velocity (m/s)")
@@ -217,8 +241,9 @@ def test_an_aided_replay_plot_names_ins_and_true_north_and_draws_velocity_and_tr
 
 
 def test_each_error_band_is_named_in_the_legend_and_spans_its_own_sigma(truth_recording, tmp_path, figures):
-    """The three ±1σ bands overlap into one grey: each must be in the legend, in its line's colour, and span the σ
-    column the replay wrote for that angle (read from the CSV, not from the plot code)."""
+    """The ±1σ bands overlap into one grey: each must be in the legend (heading's in its line's colour; roll's and
+    pitch's, equal in mekf, as one band named for both, session 23) and span the σ column the replay wrote for
+    that angle (read from the CSV, not from the plot code)."""
     import matplotlib.colors
     png, out = tmp_path / "replay.png", tmp_path / "out.csv"
     assert main(["replay", str(truth_recording), "--output", str(out), "--plot", str(png),
@@ -229,11 +254,99 @@ def test_each_error_band_is_named_in_the_legend_and_spans_its_own_sigma(truth_re
     header = out.read_text().splitlines()[0].split(",")
     table = np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2)
     bands = {c.get_label(): c for c in error_ax.collections}
-    lines = {ln.get_label().split(" ")[0]: ln for ln in error_ax.get_lines() if "RMS" in ln.get_label()}
-    for name, column in (("roll", "sigma_roll_deg"), ("pitch", "sigma_pitch_deg"), ("heading", "sigma_yaw_deg")):
-        assert f"{name} ±1σ" in legend
+    lines = error_lines(error_ax)
+    roll_sigma, pitch_sigma = (table[:, header.index(c)] for c in ("sigma_roll_deg", "sigma_pitch_deg"))
+    # mekf: roll's and pitch's σ within 1 % on every row (the CSV's 6 decimals), drawn as one band named for both
+    assert np.allclose(roll_sigma, pitch_sigma, rtol=0.01, atol=1e-6)
+    assert "roll ≈ pitch ±1σ" in legend and "roll ±1σ" not in legend and "pitch ±1σ" not in legend
+    for name, column in (("roll ≈ pitch", "sigma_roll_deg"), ("heading", "sigma_yaw_deg")):
         band = bands[f"{name} ±1σ"]
-        np.testing.assert_allclose(band.get_facecolor()[0][:3], matplotlib.colors.to_rgb(lines[name].get_color()))
-        top = band.get_paths()[0].vertices[:, 1].max()
+        if name == "heading":
+            np.testing.assert_allclose(band.get_facecolor()[0][:3], matplotlib.colors.to_rgb(lines[name].get_color()))
         sigma = table[:, header.index(column)]
-        assert top == pytest.approx(np.nanmax(sigma[np.isfinite(sigma)]), rel=1e-6)
+        known = sigma[np.isfinite(sigma) & (sigma < 90.0)]     # no band where the angle is unknown (σ ≥ 90°)
+        paths = band.get_paths()
+        if not known.size:
+            assert not paths or not np.isfinite(np.concatenate([p.vertices for p in paths])).any()
+            continue
+        top = max(p.vertices[:, 1].max() for p in paths)
+        assert top == pytest.approx(np.max(known), rel=1e-6)
+
+
+def test_an_unknown_heading_neither_sets_the_error_scale_nor_the_rms(truth_recording, tmp_path, figures):
+    """Without a calibration mekf's heading is unknown (σ 180°): its error (tens of degrees) must not squash the
+    tilt errors flat, nor an initialisation set the RMS (session 23's walk: `replay gboat.csv --gnss` read 'heading
+    RMS 8.66°' with roll and pitch flat lines, where the settled run had 0.80° / 0.11° / 0.09°). The scale is 1.3 ×
+    the 99th percentile of the known rows' errors, computed here from scipy's errors and the CSV's flags and σ."""
+    png, out = tmp_path / "replay.png", tmp_path / "out.csv"
+    assert main(["replay", str(truth_recording), "--output", str(out), "--plot", str(png), "--quiet"]) == 0
+    (fig,) = figures
+    error_ax = axis_labelled(fig, "error vs truth (°)")
+    expected, known = scipy_errors_deg(out, truth_recording), known_rows(out)
+    assert not known["heading"].any() and known["roll"].any()       # the case: heading unknown, tilt known
+    tilt = np.concatenate([expected[known["roll"], 0], expected[known["pitch"], 1]])
+    span = max(float(np.percentile(np.abs(tilt), 99)) * 1.3, 0.5)
+    assert error_ax.get_ylim() == pytest.approx((-span, span), rel=1e-6)   # scipy vs the plot: 5e-8
+    assert np.abs(expected[:, 2]).max() > 3 * span              # the heading's error would have set it
+    assert "heading error off scale" in error_ax.get_title(loc="left")
+    lines = error_lines(error_ax)
+    assert "unknown throughout" in lines["heading"].get_label()
+    first = int(np.flatnonzero(known["roll"])[0])
+    rms = float(np.sqrt(np.mean(expected[known["roll"], 0] ** 2)))
+    t = np.asarray(lines["roll"].get_xdata(), dtype=float)
+    assert lines["roll"].get_label() == f"roll (RMS {rms:.2f}° from {t[first]:.0f} s)"
+
+
+def test_an_unknown_heading_has_no_band_but_says_so(truth_recording, tmp_path, figures):
+    """σ 180° (no calibration) drew a ±180° band wrapped at 0/360° across the whole heading panel (session 23's
+    walk): where the CSV's sigma_yaw_deg is ≥ 90° no band is drawn, and the panel says the heading is unknown."""
+    png, out = tmp_path / "replay.png", tmp_path / "out.csv"
+    assert main(["replay", str(truth_recording), "--output", str(out), "--plot", str(png), "--quiet"]) == 0
+    (fig,) = figures
+    header = out.read_text().splitlines()[0].split(",")
+    sigma = np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2)[:, header.index("sigma_yaw_deg")]
+    unknown_share = float(np.mean(sigma >= 90.0))
+    assert unknown_share > 0.9                                  # the case: no calibration, heading unknown
+    heading_ax = axis_labelled(fig, "magnetic heading (°)")
+    (band,) = [c for c in heading_ax.collections if c.get_label() == "±1σ"]
+    drawn = np.concatenate([p.vertices for p in band.get_paths()]) if band.get_paths() else np.empty((0, 2))
+    assert len(drawn) <= 4 * (1 - unknown_share) * len(sigma) + 8   # only the known rows' band, if any
+    notes = [t.get_text() for t in heading_ax.texts if t.get_gid() == "unknown heading"]
+    assert notes == [f"heading unknown (σ ≥ 90°, no band) on {100 * unknown_share:.0f} % of the run"]
+
+
+def test_the_roll_panel_holds_the_truth_and_the_settled_estimate(tmp_path, figures):
+    """The panels' limits came from the 0.5…99.5 percentiles: the highest wave peaks of the tour's boat were cut
+    flat (session 23's walk, gatt.png's roll, its peaks during ins's 81 s of initialising). A trace with gusts
+    well above the swell: the truth's while the filter initialised, the estimate's after; both inside the roll
+    panel (the values are the arrays given, not read from the plot code)."""
+    from ahrsd.estimator import replay_plot
+
+    n = 4000
+    t = np.arange(n) / 100.0
+    roll = 2.0 * np.sin(2 * np.pi * t / 8.0)
+    roll[1000:1010] = 6.5                    # a gust: 0.25 % of the rows
+    table = np.zeros((n, len(ATTITUDE_COLUMNS)))
+    col = {c: i for i, c in enumerate(ATTITUDE_COLUMNS)}
+    table[:, col["t_s"]] = t
+    table[:, col["roll_deg"]] = roll
+    table[:, col["pitch_deg"]] = -roll / 2
+    table[:, col["heading_true_deg"]] = table[:, col["yaw_deg"]] = 30.0
+    for c in ("sigma_roll_deg", "sigma_pitch_deg", "sigma_yaw_deg"):
+        table[:, col[c]] = 0.2
+    table[:, col["qw"]] = 1.0
+    table[:, col["flags"]] = int(EstimateFlags.INITIALISING)
+    table[2000:, col["flags"]] = 0
+    table[3000:3010, col["roll_deg"]] = -5.0    # a settled gust: the estimate's own
+    truth_roll = np.radians(table[:, col["roll_deg"]])
+    truth_q = np.column_stack([np.cos(truth_roll / 2), np.sin(truth_roll / 2), np.zeros(n), np.zeros(n)])
+    trace = ReplayTrace()
+    trace.add(table)
+    fig = replay_plot.replay_figure(trace, truth_q, t)
+    try:   # the truth's gust came while the filter initialised (the tour's ins initialises for 81 s)
+        low, high = axis_labelled(fig, "roll (°)").get_ylim()
+        assert low < -5.0 and 6.5 < high, (low, high)
+    finally:
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)

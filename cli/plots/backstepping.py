@@ -33,7 +33,7 @@ def plot_backstepping(result: MagFitResult, data: MagFitInput, path, **options) 
 def backstepping_figure(result: MagFitResult, data: MagFitInput, *, roll_rad=None, pitch_rad=None,
                         reference=None, swing_table=None):
     """Report figure (returned; the caller saves and closes it): levelled horizontal field before/after (should
-    be a circle of radius H_h), |H| and H_z over time before/after, and heading error vs heading when
+    be a circle of radius H_h), |H| and H_z over time as departures from the reference field, and heading error vs heading when
     data.heading_ref_deg exists or a compass-swing table `swing_table=(reference_deg, compass_deg)` is given (its
     points and the fitted card). roll_rad/pitch_rad: the levelling, per row of `data` (default: the fit's own,
     `result.levelling`, then the accelerometer). Raises PlotUnavailableError when matplotlib is not installed."""
@@ -105,18 +105,24 @@ def _horizontal_panel(ax, lv_raw, lv_cal, q: dict) -> None:
 
 
 def _field_panel(ax, result: MagFitResult, d: MagFitInput, cal, lv_cal, q: dict, levelled_by: str) -> None:
-    """|H| and the levelled H_z of the calibrated field over time, against the reference's."""
-    ax.plot(d.t_s, np.linalg.norm(cal, axis=1), lw=0.6, label="|H| calibrated")
-    ax.plot(d.t_s, lv_cal[:, 2], lw=0.6, label="H_z calibrated")
-    if q.get("total_ut"):
-        ax.axhline(q["total_ut"], color="k", ls="--", lw=0.8)
-    if q.get("vertical_ut") is not None:
-        ax.axhline(q["vertical_ut"], color="k", ls=":", lw=0.8)
+    """|H| and the levelled H_z of the calibrated field over time, as their departures from the reference's |F|
+    and Z: drawn as absolutes (41–50 µT) the hundredths of a µT the title quotes were two flat lines; as
+    departures the residual is what the eye sees, against the zero line of the reference."""
+    total, vertical_ref = q.get("total_ut"), q.get("vertical_ut")
+    magnitude, vertical = np.linalg.norm(cal, axis=1), lv_cal[:, 2]
+    if total and vertical_ref is not None:
+        ax.plot(d.t_s, magnitude - total, lw=0.6, label=f"|H| − WMM |F| ({total:.2f} µT)")
+        ax.plot(d.t_s, vertical - vertical_ref, lw=0.6, label=f"H_z − WMM Z ({vertical_ref:.2f} µT)")
+        ax.axhline(0.0, color="k", ls="--", lw=0.8, label="WMM reference")
+        ax.set_ylabel("calibrated − reference (µT)")
+    else:   # no reference field: the values themselves
+        ax.plot(d.t_s, magnitude, lw=0.6, label="|H| calibrated")
+        ax.plot(d.t_s, vertical, lw=0.6, label="H_z calibrated")
+        ax.set_ylabel("µT")
     ax.set_xlabel("t (s)")
-    ax.set_ylabel("µT")
-    vertical = (result.quality.get("vertical_channel") or {}).get("vertical_rms_ut")
+    vertical_rms = (result.quality.get("vertical_channel") or {}).get("vertical_rms_ut")
     ax.set_title(f"{result.method}: |H| residual {result.residual_rms_ut:.3f} µT"
-                 + (f", H_z {vertical:.3f} µT" if isinstance(vertical, (int, float)) else "")
+                 + (f", H_z {vertical_rms:.3f} µT" if isinstance(vertical_rms, (int, float)) else "")
                  + f"\nlevelled by {levelled_by}", fontsize=9)
     ax.legend(fontsize=7)
 

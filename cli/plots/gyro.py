@@ -19,7 +19,7 @@ def bias_figure(t_s: np.ndarray, gyro_rad_s: np.ndarray, used: list[tuple[int, i
     """The bias-only figure: one panel per axis, in °/s. `used`: (start, stop) sample ranges the bias came
     from; bias_rad_s / std_rad_s None when the fit was refused (the rates are drawn alone)."""
     plt = pyplot()
-    fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
+    fig, axes = plt.subplots(3, 1, figsize=(12, 7), sharex=True)
     step = max(1, len(t_s) // MAX_POINTS)
     rate_deg_s = np.degrees(np.asarray(gyro_rad_s, dtype=float))
     for k, ax in enumerate(axes):
@@ -33,7 +33,7 @@ def bias_figure(t_s: np.ndarray, gyro_rad_s: np.ndarray, used: list[tuple[int, i
             ax.axhspan(b - s, b + s, color="tab:red", alpha=0.10, label=f"±1σ of the samples ({s:.3f} °/s)")
         ax.set_ylabel(f"{'xyz'[k]} (°/s)")
         ax.grid(alpha=0.3)
-        ax.legend(loc="upper right", fontsize=8)
+        _legend_beside(ax)
     axes[-1].set_xlabel("t (s)")
     fig.suptitle(title)
     fig.tight_layout()
@@ -49,7 +49,7 @@ def rate_table_figure(reference_rad_s: np.ndarray, measured_rad_s: np.ndarray, t
     ref = np.degrees(np.asarray(reference_rad_s, dtype=float)).reshape(-1, 3)
     cal = np.degrees(np.asarray(measured_rad_s, dtype=float)).reshape(-1, 3)
     seg = np.arange(1, len(ref) + 1)
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True)
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(11.5, 6.5), sharex=True)
     for k, colour in enumerate(("tab:blue", "tab:orange", "tab:green")):
         top.plot(seg, ref[:, k], "o", mfc="none", color=colour, label=f"{'xyz'[k]} reference")
         top.plot(seg, cal[:, k], "x", color=colour, label=f"{'xyz'[k]} {measured}")
@@ -59,10 +59,16 @@ def rate_table_figure(reference_rad_s: np.ndarray, measured_rad_s: np.ndarray, t
     bottom.set_xlabel("steady segment")
     for ax in (top, bottom):
         ax.grid(alpha=0.3)
-        ax.legend(loc="best", fontsize=8, ncol=3)
+        _legend_beside(ax)
     fig.suptitle(title)
     fig.tight_layout()
     return fig
+
+
+def _legend_beside(ax) -> None:
+    """The legend right of the panel, outside it: inside, "best" still covered the ±90 °/s segments at the top
+    of a full six-axis table (a user could not see that the y axis was turned both ways)."""
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=8)
 
 
 def save(fig, path) -> None:
