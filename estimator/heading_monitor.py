@@ -33,6 +33,8 @@ import numpy as np
 
 from ahrsd.core.estimate import HeadingState
 
+from .mag_step import MagStepDetector
+
 N_IRON = 12
 """IronLearner's states: the hard iron b (3, µT) then the soft iron D row by row (9)."""
 _LEVEL_HEADINGS = np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False)
@@ -227,6 +229,7 @@ class MonitorDecision:
     yaw_var_floor_rad2: float         # raise the filter's yaw variance to at least this (0: leave it)
     reset_yaw_to_rad: float | None    # reset the filter's yaw (true) to this
     reset_yaw_var_rad2: float
+    mag_step_rad: float = math.nan    # the step of the magnetometer heading the step test saw here (NaN: none)
 
 
 @dataclass(frozen=True)
@@ -240,6 +243,7 @@ class HeadingCheckRecord:
     yaw_var_rad2: float               # the filter's yaw variance when the check returned
     reset_yaw_to_rad: float | None    # the yaw a reset or the alignment to the GNSS yaw turned the attitude to
     iron_learned: bool                # the iron learner updated at this check
+    mag_step_rad: float = math.nan    # the magnetometer heading's step the step test saw (mag_step.py; NaN: none)
 
 
 @dataclass
@@ -270,6 +274,7 @@ class HeadingMonitor:
     # low-passed and latest innovation against the filter's heading and its disagreement with the GNSS yaw
     max_disagreement_rad: float = 0.0   # the largest rejection_disagreement_rad so far
     lowpassed_velocity_nis: float = 0.0
+    step: MagStepDetector = field(default_factory=MagStepDetector)   # an iron that steps (mag_step.py)
 
     def mag_sigma_rad2(self, iron_var_rad2: float, noise_var_rad2: float) -> float:
         return self.calibration_sigma_rad ** 2 + iron_var_rad2 + noise_var_rad2
@@ -277,7 +282,8 @@ class HeadingMonitor:
     def check(self, t_s: float, yaw_rad: float, yaw_var_rad2: float, mag_yaw_rad: float, mag_var_rad2: float,
               gsf_yaw_rad: float, gsf_var_rad2: float, gsf_valid: bool, heading_observable: bool,
               velocity_nis: float = math.nan, mag_bias_var_rad2: float = math.nan,
-              iron_trust_var_rad2: float = math.nan) -> MonitorDecision:
+              iron_trust_var_rad2: float = math.nan, tilt_heading_var_rad2: float = math.nan,
+              gyro_bias_var_rad2_s2: float = 0.0, gyro_arw_rad_s_sqrt_hz: float = 0.0) -> MonitorDecision:
         """One check at a fused GNSS fix. yaw: the filter's (true); mag_yaw: the heading the magnetometer (with
         the learned iron removed) gives at the filter's tilt, NaN when it has none; mag_var: its variance
         (calibration + learned iron + noise); gsf_*: the Gaussian-sum yaw; heading_observable: the filter's yaw
@@ -288,16 +294,23 @@ class HeadingMonitor:
         as EKF3's realignYawGPS needs a failing velocity test; mag_bias_var: the slowly varying part of mag_var
         (without the white noise of one sample), which decides whether the magnetometer is trusted;
         iron_trust_var: the learned iron's heading variance at its worst heading (Ins._magnetometer_trust_var),
-        which decides whether the iron is still learned (NaN: mag_bias_var)."""
+        which decides whether the iron is still learned (NaN: mag_bias_var); tilt_heading_var, gyro_bias_var,
+        gyro_arw: what the step test (MagStepDetector.add) needs of the filter — NaN tilt_heading_var: no step
+        test."""
         bias_var = mag_var_rad2 if math.isnan(mag_bias_var_rad2) else mag_bias_var_rad2
         have_mag = math.isfinite(mag_yaw_rad)
         dt, k = self._advance(t_s)
         innovation = self._track_innovation(k, yaw_rad, mag_yaw_rad, gsf_yaw_rad, have_mag, gsf_valid)
         bad = have_mag and self._disagrees(innovation, yaw_var_rad2, mag_var_rad2, gsf_var_rad2, gsf_valid)
         self._count_agreement(bad, heading_observable, dt)
+        step = None
+        if not self.mag_rejected and have_mag and math.isfinite(tilt_heading_var_rad2):
+            step = self.step.add(t_s, innovation, yaw_rad, yaw_var_rad2, bias_var, tilt_heading_var_rad2,
+                                 gyro_bias_var_rad2_s2, gyro_arw_rad_s_sqrt_hz)
         floor = 0.0
-        if not self.mag_rejected and have_mag and self.failures >= self.reject_checks:
-            floor = self._reject(innovation, yaw_rad, yaw_var_rad2, gsf_yaw_rad, gsf_var_rad2, gsf_valid)
+        if not self.mag_rejected and have_mag and (self.failures >= self.reject_checks or step is not None):
+            floor = self._reject(innovation, yaw_rad, yaw_var_rad2, gsf_yaw_rad, gsf_var_rad2, gsf_valid,
+                                 0.0 if step is None else step)
         elif self.mag_rejected and have_mag and heading_observable and self.consistent_s >= self.reentry_s \
                 and bias_var < self.trusted_sigma_rad ** 2:
             self.mag_rejected = False
@@ -307,8 +320,12 @@ class HeadingMonitor:
         learn_var = bias_var if math.isnan(iron_trust_var_rad2) else iron_trust_var_rad2
         self.learning = heading_observable and reset_to is None and (
             self.mag_rejected or learn_var > self.trusted_sigma_rad ** 2)
+        if self.mag_rejected or reset_to is not None or self.learning:
+            # the innovation's reference moves by itself (a yaw reset, the learned iron changes the magnetometer
+            # heading at the next check) or the magnetometer is not used: the step test starts again
+            self.step.restart()
         return MonitorDecision(not self.mag_rejected, mag_var_rad2 if not self.mag_rejected else 0.0, floor,
-                               reset_to, reset_var)
+                               reset_to, reset_var, math.nan if step is None else step)
 
     def _advance(self, t_s: float) -> tuple[float, float]:
         """The time since the last check and the low-pass gain over it (1 at the first check: no history)."""
@@ -355,16 +372,19 @@ class HeadingMonitor:
                 self.consistent_s += dt
 
     def _reject(self, innovation: float, yaw_rad: float, yaw_var_rad2: float, gsf_yaw_rad: float,
-                gsf_var_rad2: float, gsf_valid: bool) -> float:
-        """Reject the magnetometer; returns the yaw variance floor the filter must take."""
+                gsf_var_rad2: float, gsf_valid: bool, step_rad: float = 0.0) -> float:
+        """Reject the magnetometer; returns the yaw variance floor the filter must take. step_rad: the step of
+        the magnetometer heading the step test saw (0: none)."""
         # σ first: cover what the magnetometer may already have pulled the heading by (its low-passed
-        # innovation: a step just seen has not moved the filter yet) and the disagreement with the GNSS yaw
+        # innovation: a step just seen has not moved the filter yet; a step the step test saw: the filter has
+        # followed it for at most the test's windows, by less than the step) and the disagreement with the GNSS yaw
         self.mag_rejected = True
         self.rejections += 1
         seen = abs(self.disagreement_rad) if math.isfinite(self.disagreement_rad) else 0.0
-        self.rejection_disagreement_rad = max(abs(self.lowpassed_innovation_rad), abs(innovation), seen)
+        self.rejection_disagreement_rad = max(abs(self.lowpassed_innovation_rad), abs(innovation), seen,
+                                              abs(step_rad))
         self.max_disagreement_rad = max(self.max_disagreement_rad, self.rejection_disagreement_rad)
-        floor = self.lowpassed_innovation_rad ** 2 + yaw_var_rad2
+        floor = max(self.lowpassed_innovation_rad ** 2, step_rad ** 2) + yaw_var_rad2
         if gsf_valid:
             floor = max(floor, wrap_pi(yaw_rad - gsf_yaw_rad) ** 2 + gsf_var_rad2)
         return floor
@@ -389,9 +409,11 @@ class HeadingMonitor:
 
     def yaw_was_reset(self, t_s: float) -> None:
         """The filter's yaw was reset outside `check` (the GNSS-yaw alignment at this check): an emergency reset
-        keeps its spacing from it, and nothing is learned on the σ `check` judged before it."""
+        keeps its spacing from it, and nothing is learned on the σ `check` judged before it; the step test starts
+        again (its innovations before the reset are against another yaw)."""
         self.last_reset_t_s = t_s
         self.learning = False
+        self.step.restart()
 
     def heading_state(self, yaw_sigma_rad: float, initialising: bool, aided: bool, unknown_sigma_rad: float,
                       mag_var_rad2: float) -> HeadingState:

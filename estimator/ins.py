@@ -346,6 +346,7 @@ class HeadingReport:
     mag_rejections: int            # times the heading monitor rejected the magnetometer
     max_disagreement_deg: float    # the largest disagreement (with the GNSS-held heading or yaw) at a rejection
     yaw_resets: int                # resets of the yaw to the GNSS yaw
+    mag_steps: int = 0             # of the rejections, those for a step of the magnetometer heading (mag_step.py)
 
 
 @dataclass
@@ -637,7 +638,8 @@ class Ins:
     def heading_report(self) -> HeadingReport:
         """What the heading checks did so far (replay's summary, the daemon's warning)."""
         m = self._monitor
-        return HeadingReport(m.rejections, math.degrees(m.max_disagreement_rad), self.yaw_resets)
+        return HeadingReport(m.rejections, math.degrees(m.max_disagreement_rad), self.yaw_resets,
+                             m.step.detections)
 
     @property
     def heading_state(self) -> HeadingState:
@@ -927,7 +929,7 @@ class Ins:
         self._publish_heading_checks(t_s, yaw_now, gsf_yaw, gsf_var, gsf_valid)
         self.heading_checks.append(HeadingCheckRecord(t_s, d.mag_use, d.yaw_var_floor_rad2,
                                                       float(self._P[core.E_YAW, core.E_YAW]), yaw_reset_to,
-                                                      self._iron.updates > iron_updates))
+                                                      self._iron.updates > iron_updates, d.mag_step_rad))
 
     def _mag_rotation_check(self, t_s: float, c_bn: np.ndarray, field: np.ndarray | None) -> None:
         """The vertical gyro bias from the magnetometer's turning (MagRotationBias, mag_rotation.py): the gyro's
@@ -1014,6 +1016,20 @@ class Ins:
         h2 = float(field[0] ** 2 + field[1] ** 2)
         return min(p.calibration_sigma_rad ** 2, p.iron_unmodelled_ut ** 2 / h2) + self._iron.level_heading_variance(field)
 
+    def _tilt_heading_var(self) -> float:
+        """The variance the filter's tilt uncertainty gives the magnetometer heading, rad²: a tilt about the
+        horizontal axis across the field turns the heading of the field's horizontal part by tan(dip) as much
+        (the larger tilt variance of the two, at the WMM dip). For the step test (mag_step.py); NaN without the
+        WMM field (no test)."""
+        field = self._field_ned
+        if field is None:
+            return math.nan
+        h2 = float(field[0] ** 2 + field[1] ** 2)
+        if h2 <= 0.0:
+            return math.nan
+        tilt_var = float(max(self._P[core.E_TILT_N, core.E_TILT_N], self._P[core.E_TILT_E, core.E_TILT_E]))
+        return tilt_var * float(field[2]) ** 2 / h2
+
     def _gnss_yaw(self) -> tuple[float, float, bool]:
         """The GNSS yaw bank's yaw, its variance (rad²) and whether it is valid: (NaN, inf, False) without the
         bank (gnss_yaw off) or before it has a finite yaw."""
@@ -1035,7 +1051,9 @@ class Ins:
         observable = yaw_var < p.heading_observable_sigma_rad ** 2
         d = self._monitor.check(t_s, yaw, yaw_var, mag_yaw, mag_var, gsf_yaw, gsf_var, gsf_valid, observable,
                                 float(self._x["vel_gate"]["nis"]),
-                                mag_var - noise if math.isfinite(mag_var) else math.nan, trust_var)
+                                mag_var - noise if math.isfinite(mag_var) else math.nan, trust_var,
+                                self._tilt_heading_var(), float(P[core.E_BG + 2, core.E_BG + 2]),
+                                p.gyro_noise_rad_s_sqrt_hz)
         if gsf_valid and wrap_pi(gsf_yaw - yaw) ** 2 <= self._monitor.gate_sigma ** 2 * (yaw_var + gsf_var) \
                 and self._monitor.lowpassed_velocity_nis < self._monitor.reset_velocity_nis:
             # the GNSS yaw confirms the filter's heading: its gyro bias was learned with a right heading
@@ -1064,8 +1082,13 @@ class Ins:
         if d.yaw_var_floor_rad2 > P[core.E_YAW, core.E_YAW]:
             P[core.E_YAW, core.E_YAW] = d.yaw_var_floor_rad2
             self.heading_interventions += 1
-            log.warning("ins: magnetometer disagrees with the GNSS-held heading by %.1f°: calibration wrong or "
-                        "iron changed; magnetometer rejected", math.degrees(self._monitor.rejection_disagreement_rad))
+            if math.isfinite(d.mag_step_rad):
+                log.warning("ins: magnetometer heading stepped by %+.1f° while the gyro saw no turn: iron changed; "
+                            "magnetometer rejected", math.degrees(d.mag_step_rad))
+            else:
+                log.warning("ins: magnetometer disagrees with the GNSS-held heading by %.1f°: calibration wrong or "
+                            "iron changed; magnetometer rejected",
+                            math.degrees(self._monitor.rejection_disagreement_rad))
         return d
 
     def _reset_or_confirm_yaw(self, t_s: float, d: MonitorDecision, yaw: float, gsf_yaw: float, gsf_var: float,

@@ -1,0 +1,118 @@
+"""An iron that steps is seen against the gyro (issue 28, estimator/mag_step.py): the magnetometer heading jumps
+while the gyro says the vehicle did not turn. The two-window test on worked numbers; on the simulator a step of
+the hard iron on a straight road is caught within seconds and the published heading stays within 3σ of the truth;
+calibrated runs with turns and waves never trip it."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from ahrsd.estimator.mag_step import MagStepDetector
+from bench.vehicle_accuracy import IRON_STEP_UT, run_ins_detailed, simulate_vehicle, tilt_heading_errors_deg
+
+RATE_HZ = 4.9          # the heading checks run at the GNSS fixes (not 5 Hz: no check on a window's edge)
+NOISE_RAD = 0.002      # ± this, alternating: the mean square successive difference is (2a)²/2 = 2a²
+STEP_RAD = 10 * NOISE_RAD
+
+
+def _feed(det: MagStepDetector, innovations, yaw_rate_rad_s: float = 0.0, bias_sigma_rad: float = 0.0):
+    """(check index, step) of each detection."""
+    found = []
+    for k, inn in enumerate(innovations):
+        t = k / RATE_HZ
+        step = det.add(t, inn, yaw_rate_rad_s * t, 0.0, bias_sigma_rad ** 2, 0.0, 0.0, 0.0)
+        if step is not None:
+            found.append((k, step))
+    return found
+
+
+def _innovations(n_before: int, n_after: int, step_rad: float) -> np.ndarray:
+    alternating = NOISE_RAD * (-1.0) ** np.arange(n_before + n_after)
+    return alternating + np.r_[np.zeros(n_before), np.full(n_after, step_rad)]
+
+
+def test_a_step_is_declared_at_the_check_the_worked_numbers_give():
+    """Windows 5 s / 2 s at 4.9 Hz: 25 checks before, 10 after. Only noise: σ of the difference of the means is
+    √(2a²·(1/25 + 1/10)) = a·√0.28 = 0.529 a, the gate 5σ = 2.646 a. k checks after a step of 10 a the after-mean
+    is up by k·a, the ten after-checks' alternating noise cancels and the 25 before-checks' leaves ±a/25: k = 2
+    gives 2a + a/25 = 2.04 a, k = 3 gives 3a − a/25 = 2.96 a — declared at the third check after the step, as
+    2.96 a."""
+    det = MagStepDetector()
+    found = _feed(det, _innovations(60, 10, STEP_RAD))
+    assert [k for k, _ in found] == [60 + 2], found
+    assert found[0][1] == pytest.approx(2.96 * NOISE_RAD, rel=1e-9), found
+    assert det.detections == 1
+    # the same with the step downwards: −3a − a/25 = −3.04 a
+    found = _feed(MagStepDetector(), _innovations(60, 10, -STEP_RAD))
+    assert [k for k, _ in found] == [62] and found[0][1] == pytest.approx(-3.04 * NOISE_RAD, rel=1e-9), found
+
+
+def test_a_turn_widens_the_test_by_the_magnetometers_heading_dependent_error():
+    """The same step while the vehicle turns at 20°/s with a calibration good to 0.5°: over the 7 s span the
+    heading turns by 140° (capped at 2 rad): the calibration's error may change by √2·0.5°·2 = 1.41° = 0.0247 rad
+    (1σ), so the gate is 0.123 rad — a 0.02 rad step is not declared, a 0.2 rad one is."""
+    rate = math.radians(20.0)
+    assert _feed(MagStepDetector(), _innovations(60, 20, STEP_RAD), rate, math.radians(0.5)) == []
+    assert len(_feed(MagStepDetector(), _innovations(60, 20, 0.2), rate, math.radians(0.5))) == 1
+    # a straight leg with the same calibration: declared
+    assert len(_feed(MagStepDetector(), _innovations(60, 20, STEP_RAD), 0.0, math.radians(0.5))) == 1
+
+
+# the car at Dunedin (dip −70.7°, H 19.4 µT), seed 3, drives straight from 120 s to 197 s (truth yaw rate below
+# 0.5°/s): at 130 s the hard iron moves by the bench's 9 µT step reversed (−IRON_STEP_UT), which turns its heading
+# by 4.0° and the field's magnitude by only 3 % (inside the norm check's 10 %), while the GNSS yaw says nothing on a
+# straight road. Without the step test the filter follows the trusted magnetometer: 2.3° off with σ 0.30° at
+# 150 s (site22's miss at Dunedin: 2.9° off with σ 0.22°). (IRON_STEP_UT itself turns this car's heading by only
+# 1.7° here, and the magnetometer's norm by 1 %: below what the test sees, docs/gnss.md "An iron that steps".)
+SITE = "-45.87,170.50"
+STEP_UT = tuple(-x for x in IRON_STEP_UT)
+STEP_AT_S = 130.0
+SECONDS = 150.0     # the check records kept (the latest 128, 25 s) reach back to the step
+
+
+@pytest.fixture(scope="module")
+def straight_step():
+    from ahrsd.simulation import SensorErrors
+
+    errors = SensorErrors.adis16405(3).replace(hard_iron_step_ut=STEP_UT, hard_iron_step_t_s=STEP_AT_S)
+    run = simulate_vehicle("car", SECONDS, 3, SITE, errors=errors)   # calibrated for the iron before the step
+    return run, run_ins_detailed(run)
+
+
+def _true_magnetometer_step_rad(run) -> float:
+    """The step of the magnetometer heading's error from the simulator's truth: the angle of the horizontal field
+    turned to NED by the true attitude, 1 s after the step against 1 s before; the heading the magnetometer gives
+    moves the other way."""
+    m_ned = Rotation.from_quat(run.truth_q_wxyz[:, [1, 2, 3, 0]]).apply(run.mag_ut)
+    angle = np.unwrap(np.arctan2(m_ned[:, 1], m_ned[:, 0]))
+    before = (run.t_s > STEP_AT_S - 1.0) & (run.t_s < STEP_AT_S)
+    after = (run.t_s > STEP_AT_S) & (run.t_s < STEP_AT_S + 1.0)
+    return -(float(np.mean(angle[after])) - float(np.mean(angle[before])))
+
+
+def test_an_iron_step_on_a_straight_road_is_caught_and_the_heading_stays_within_3_sigma(straight_step):
+    run, out = straight_step
+    true_step = _true_magnetometer_step_rad(run)
+    assert math.radians(2.0) < abs(true_step) < math.radians(5.0)      # the case: a few degrees
+    # the published heading within 3σ of the truth from the step on (without the step test: 7.7σ at 150 s)
+    _, hdg = tilt_heading_errors_deg(out["q"], run.truth_q_wxyz, run.declination_rad)
+    sig = np.degrees(out["sigma_yaw_rad"])
+    w = run.t_s >= STEP_AT_S
+    assert np.all(np.abs(hdg[w]) <= 3.0 * sig[w]), (np.max(np.abs(hdg[w]) / sig[w]), np.max(np.abs(hdg[w])))
+    steps = [(c.t_s, c.mag_step_rad) for c in out["ins"].heading_checks if math.isfinite(c.mag_step_rad)]
+    assert out["ins"].heading_report().mag_steps == 1
+    assert len(steps) == 1 and STEP_AT_S < steps[0][0] <= STEP_AT_S + 3.0, steps
+    # the step as seen, of the same sign, part of it (the after-window is still filling when it is declared)
+    assert 0.3 < steps[0][1] / true_step < 1.2, (steps, true_step)
+
+
+@pytest.mark.parametrize("scenario", ["boat", "car"])
+def test_no_step_is_declared_over_a_calibrated_run_with_turns_and_waves(scenario):
+    """The boat in waves and the car in its turns, calibrated, 240 s at the default site: no detection."""
+    run = simulate_vehicle(scenario, 240.0, 2, None)
+    ins = run_ins_detailed(run)["ins"]
+    assert ins.heading_report().mag_steps == 0
