@@ -58,6 +58,7 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     import dataclasses
     import logging
+    import os
     import sys
 
     from ahrsd.daemon.config import ConfigError
@@ -85,12 +86,28 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if logging.getLogger().level > logging.INFO:
         logging.getLogger("ahrsd").setLevel(logging.INFO)   # the daemon reports its life cycle by default
-    source = _open_checked_source(cfg, plan)
-    if source is None:
-        return 1
-    from ahrsd.daemon.service import Service
+    from ahrsd.daemon.state_lock import StateDirBusy, StateDirLock
 
-    return _serve(Service(cfg, source=source), source, cfg, args.stats_file)
+    state_dir = cfg.state.resolve(os.environ)    # as the daemon resolves it (daemon.service)
+    try:   # before anything in the directory is written, and before a compile: a refusal comes at once
+        lock = StateDirLock.acquire(state_dir)
+    except StateDirBusy as exc:
+        print(f"ahrsd run: error: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:   # an unusable directory: the daemon warns that nothing persists, and runs
+        lock = None
+        logging.getLogger("ahrsd").warning("cannot lock the state directory %s (%s): a second daemon on it would "
+                                           "not be refused", state_dir, exc.strerror or exc)
+    try:
+        source = _open_checked_source(cfg, plan)
+        if source is None:
+            return 1
+        from ahrsd.daemon.service import Service
+
+        return _serve(Service(cfg, source=source), source, cfg, args.stats_file)
+    finally:
+        if lock is not None:
+            lock.release()
 
 
 def _config(args):
