@@ -41,7 +41,7 @@ pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdis
 TIME_SCALE = 16.0  # when the CPU cannot keep up the replay simply runs as fast as it can
 SIM_RATE_HZ = 204.8   # the chip's 819.2 SPS decimated by 4 (SMPL_PRD): a quarter of the CPU per simulated second
 MAV_STATE_CALIBRATING = 2
-REPLY_LIMIT_S = 15.0   # a reply (ACK, STATUSTEXT, the first MAG_CAL_PROGRESS) comes at once; 15 s is for a loaded machine
+REPLY_LIMIT_S = 15.0     # a reply (ACK, STATUSTEXT, the first MAG_CAL_PROGRESS) comes at once; 15 s: a loaded machine
 SESSION_LIMIT_S = 180.0  # start to MAG_CAL_REPORT: ~60 s of turning at TIME_SCALE plus the fit in its worker process
 
 LAUNCH = r"""
@@ -296,7 +296,8 @@ def test_full_session_with_pymavlink(daemon_env):
     # accept: saved atomically, applied without restart
     n_accept = len(c.msgs)
     assert c.command(42425).result == mavlink.MAV_RESULT_ACCEPTED
-    assert c.seen_or_wait(lambda m: m.get_type() == "STATUSTEXT" and "saved" in m.text, REPLY_LIMIT_S, n_accept) is not None
+    assert c.seen_or_wait(lambda m: m.get_type() == "STATUSTEXT" and "saved" in m.text, REPLY_LIMIT_S,
+                          n_accept) is not None
     saved = CalibrationStore(state).load()
     assert np.allclose(saved.mag.hard_iron_ut, fitted.hard_iron_ut, atol=1e-3)
     # the session's samples, first to last (sample time: the session takes none while its fit runs)
