@@ -356,7 +356,8 @@ def _arguments() -> argparse.ArgumentParser:
     ap.add_argument("--no-broad", action="store_true", help="skip BROAD")
     ap.add_argument("--max-samples", type=int, default=None, help="truncate each BROAD trial")
     ap.add_argument("--vehicles", action="store_true", help="only the vehicle section (c)")
-    ap.add_argument("--no-vehicles", action="store_true", help="skip the vehicle section (c)")
+    ap.add_argument("--no-vehicles", action="store_true",
+                    help="skip the vehicle section (c) and with it the honest-heading section (d)")
     ap.add_argument("--vehicle-seeds", type=int, default=3, help="seeds per vehicle and site in (c)")
     ap.add_argument("--vehicle-scenarios", nargs="*", default=None, metavar="SCENARIO",
                     help="moving scenarios for (c) (default: boat car plane)")
