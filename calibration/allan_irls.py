@@ -18,7 +18,8 @@ SLOPE_STEP = 1e-3   # the model's local log-log slope from its values at τ·(1 
 @njit(cache=True)
 def weighted_system(basis: np.ndarray, y: np.ndarray, w: np.ndarray):
     """The row-weighted least-squares system with unit-max columns, for NNLS:
-    a = basis·w[:, None]; scale = max|a| per column (1 where 0); returns (a / scale, y·w, scale)."""
+    a = basis·w[:, None]; scale = max|a| per column (1 where 0); returns (a / scale, y·w, scale).
+    Raises ValueError where scipy.optimize.nnls would (asarray_chkfinite): a value of either is not finite."""
     n, k = basis.shape
     a = np.empty((n, k))
     scale = np.zeros(k)
@@ -29,10 +30,17 @@ def weighted_system(basis: np.ndarray, y: np.ndarray, w: np.ndarray):
     for i in range(k):
         if scale[i] == 0.0:
             scale[i] = 1.0
+    finite = True
     for r in range(n):
         for i in range(k):
             a[r, i] = a[r, i] / scale[i]
-    return a, y * w, scale
+            finite = finite and math.isfinite(a[r, i])
+    yw = y * w
+    for r in range(n):
+        finite = finite and math.isfinite(yw[r])
+    if not finite:
+        raise ValueError("array must not contain infs or NaNs")
+    return a, yw, scale
 
 
 @njit(cache=True)

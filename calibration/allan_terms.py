@@ -110,6 +110,7 @@ class _Points:
     white_deficit_sd_s: float = 0.0   # D's 1σ (allan_correlation.deficit_sds_s), carried by _fit_fixed
     fits: dict = field(default_factory=dict, compare=False, repr=False)   # fit_terms' results by term set
     bases: dict = field(default_factory=dict, compare=False, repr=False)   # _stacked_basis' columns by (term, Tc)
+    systems: dict = field(default_factory=dict, compare=False, repr=False)   # _system's arrays by (terms, k, Tc)
 
     @cached_property
     def edf_table(self) -> np.ndarray:
@@ -161,12 +162,32 @@ def octave_points(curve: AllanCurve, axis: int) -> _Points:
                    curve.record_s)
 
 
-def _nnls_weighted(basis: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
-    from scipy.optimize import nnls
+@lru_cache(maxsize=1)
+def _nnls_solver():
+    """scipy's NNLS routine. From scipy 1.16 `scipy.optimize.nnls` checks its arguments (finite, 2-D, shapes) and
+    calls the compiled `_slsqplib.nnls(A, b, maxiter)`; the fit calls it a few hundred thousand times on a system
+    weighted_system has just built (C-ordered float64 of matching shapes), where the checks cost three times the
+    solve (weighted_system raises where the finite check would). The same routine is called, so the coefficients
+    are the same bits. Older scipy: the public function."""
+    try:
+        from scipy.optimize._slsqplib import nnls as compiled
+    except ImportError:
+        from scipy.optimize import nnls
 
+        return lambda a, b, maxiter: nnls(a, b, maxiter=maxiter)[0]
+
+    def solve(a: np.ndarray, b: np.ndarray, maxiter: int) -> np.ndarray:
+        x, _, info = compiled(a, b, maxiter)
+        if info == 3:   # as scipy.optimize.nnls
+            raise RuntimeError("Maximum number of iterations reached.")
+        return x
+
+    return solve
+
+
+def _nnls_weighted(basis: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
     a, yw, scale = weighted_system(basis, y, w)
-    coef, _ = nnls(a, yw, maxiter=500)
-    return coef / scale
+    return _nnls_solver()(a, yw, 500) / scale
 
 
 def _stacked_basis(pts: _Points, terms: tuple[str, ...], tc: float | None) -> np.ndarray:
@@ -179,6 +200,26 @@ def _stacked_basis(pts: _Points, terms: tuple[str, ...], tc: float | None) -> np
     return np.column_stack([pts.bases[key] for key in keys])
 
 
+def _system(pts: _Points, all_terms: tuple[str, ...], k: int, tc: float | None):
+    """What _fit_fixed's iterations read and never change, once per (terms, fitted count k, Tc) (a deviance
+    profile fits the same system some 50 times): the basis at _with_slope_taus (model_and_edf's `stacked`), the
+    basis of the k fitted terms at the points (NNLS's), and whether the white term's shape is carried. With it,
+    its nuisance as two non-negative columns (+v, −v) of both, and the penalty as one more row of NNLS's."""
+    key = (all_terms, k, tc)
+    if key not in pts.systems:
+        n = len(pts.taus)
+        stacked = _stacked_basis(pts, all_terms, tc)
+        basis = np.ascontiguousarray(stacked[:n, :k])
+        shape = pts.white_deficit_sd_s > 0 and "white" in all_terms
+        if shape:
+            v = _with_slope_taus(pts.taus) ** -2.0
+            stacked = np.column_stack([stacked, v, -v])
+            basis = np.vstack([np.column_stack([basis, v[:n], -v[:n]]),
+                               np.concatenate([np.zeros(k), [1.0, -1.0]])])
+        pts.systems[key] = (stacked, basis, shape)
+    return pts.systems[key]
+
+
 def _fit_fixed(pts: _Points, terms: tuple[str, ...], tc: float | None, fixed: tuple[str, float] | None = None) -> ModelFit:
     """Iteratively reweighted NNLS: weights 1/(σ²_model·√(2/edf)), edf for the model's local noise type.
     fixed: (term, coefficient) held at that value beside the fitted terms (for a profile of the deviance).
@@ -189,25 +230,19 @@ def _fit_fixed(pts: _Points, terms: tuple[str, ...], tc: float | None, fixed: tu
     penalty (u/s)², s = N²·δD: the fit returns D − u/N² as the white term's D, and the penalty is in the deviance."""
     all_terms = terms if fixed is None else terms + (fixed[0],)
     n = len(pts.taus)
-    stacked = _stacked_basis(pts, all_terms, tc)
     k = len(terms)
-    basis = np.ascontiguousarray(stacked[:n, :k])
-    offset = np.zeros_like(pts.avar) if fixed is None else fixed[1] * stacked[:n, -1]
+    stacked, basis, shape = _system(pts, all_terms, k, tc)
+    offset = np.zeros_like(pts.avar) if fixed is None else fixed[1] * stacked[:n, len(all_terms) - 1]
     model = pts.avar.copy()
     edf = pts.edf_table[2]   # α = 0 (white rate noise) until the model says otherwise
     coef = np.zeros(k)
-    coef_all = np.zeros(len(all_terms))   # the fitted terms' coefficients, then the fixed one
+    coef_all = np.zeros(len(all_terms) + (2 if shape else 0))   # the fitted terms', the fixed one, the shape's
     if fixed is not None:
-        coef_all[-1] = fixed[1]
+        coef_all[len(all_terms) - 1] = fixed[1]
     target, floor = pts.avar - offset, 1e-3 * pts.avar
-    shape = pts.white_deficit_sd_s > 0 and "white" in all_terms
+    sigma = np.empty(n + 1 if shape else n)
     if shape:
-        # the shape's nuisance as two non-negative columns (+v, −v), and the penalty as one more row of the system
-        v = _with_slope_taus(pts.taus) ** -2.0
-        stacked = np.column_stack([stacked, v, -v])
-        basis = np.vstack([np.column_stack([basis, v[:n], -v[:n]]), np.r_[np.zeros(k), 1.0, -1.0]])
-        target = np.r_[target, 0.0]
-        coef_all = np.r_[coef_all, 0.0, 0.0]
+        target = np.append(target, 0.0)   # the penalty's row
         white = all_terms.index("white")
         c_white = fixed[1] if fixed is not None and fixed[0] == "white" else float(pts.avar[0] * pts.taus[0])
     u, s_u = 0.0, 1.0
@@ -215,11 +250,11 @@ def _fit_fixed(pts: _Points, terms: tuple[str, ...], tc: float | None, fixed: tu
         # The model's own value sets the weight (a low measured point must not get a high weight); floored so
         # a term the model lacks cannot make a point's weight infinite.
         ref = np.maximum(model, floor)
-        sigma = ref * np.sqrt(2.0 / edf)
+        np.multiply(ref, np.sqrt(2.0 / edf), out=sigma[:n])
         if shape:
             s_u = max(c_white, 1e-300) * pts.white_deficit_sd_s
             # the data's rows are counted once per two points (OCTAVE_CORRELATION), the penalty once
-            sigma = np.r_[sigma, s_u * math.sqrt(OCTAVE_CORRELATION)]
+            sigma[n] = s_u * math.sqrt(OCTAVE_CORRELATION)
         solved = _nnls_weighted(basis, target, 1.0 / sigma)
         coef = solved[:k]
         coef_all[:k] = coef
@@ -311,9 +346,17 @@ def _log_grid(tau_lo: float, tau_hi: float) -> np.ndarray:
 def dominant_range(fit: ModelFit, name: str, tau_lo: float, tau_hi: float) -> tuple[float, float] | None:
     """The widest τ interval within [tau_lo, tau_hi] over which `name` is the largest term of the model."""
     grid = _log_grid(tau_lo, tau_hi)
-    own = fit.contribution(name, grid)
+    return _widest_run(grid, fit.contribution(name, grid), _largest_other(fit, name, grid))
+
+
+def _largest_other(fit: ModelFit, name: str, grid: np.ndarray) -> np.ndarray:
+    """The largest of the model's other terms at each τ of the grid (0 where there are none)."""
     others = [fit.contribution(t, grid) for t in fit.terms if t != name]
-    largest_other = np.max(others, axis=0) if others else np.zeros_like(grid)
+    return np.max(others, axis=0) if others else np.zeros_like(grid)
+
+
+def _widest_run(grid: np.ndarray, own: np.ndarray, largest_other: np.ndarray) -> tuple[float, float] | None:
+    """dominant_range's interval: the widest run of the grid where `own` is positive and above the others."""
     on = (own > largest_other) & (own > 0)
     edges = np.diff(np.concatenate([[0], on.astype(np.int8), [0]]))
     starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1   # runs of `on`, inclusive
@@ -533,11 +576,16 @@ def detection_limit(fit: ModelFit, pts: _Points, name: str) -> float | None:
     """The smallest value of a term (not in `fit`) that this curve would show beside the terms found: the
     largest term over an octave from a τ with ≥ MIN_CLUSTERS clusters (bisection on its coefficient)."""
     per_unit = pts.avar / term_basis(name, pts.taus, None, pts.white_deficit_s)   # coefficient alone explaining each point
+    # dominant_range of the fit with the term added at `coef`, bisected 80 times: the other terms' largest, and
+    # the term's shape, on the grid once (a term the fit already holds keeps its own coefficient, as
+    # ModelFit.contribution reads the first of a name)
+    grid = _log_grid(pts.taus[0], pts.taus[-1])
+    unit = term_basis(name, grid, fit.corr_time_s, fit.white_deficit_s)
+    largest_other = _largest_other(fit, name, grid)
+    held = fit.coef[fit.terms.index(name)] if name in fit.terms else None
 
     def shows(coef: float) -> bool:
-        probe = ModelFit(fit.terms + (name,), np.append(fit.coef, coef),
-                         fit.corr_time_s, fit.chi2, fit.white_deficit_s)
-        span = dominant_range(probe, name, pts.taus[0], pts.taus[-1])
+        span = _widest_run(grid, np.float64(coef if held is None else held) * unit, largest_other)
         return span is not None and span[1] >= 2.0 * span[0] and pts.record_s / span[0] >= MIN_CLUSTERS
 
     lo, hi = math.log(float(np.min(per_unit)) * 1e-6), math.log(float(np.max(per_unit)) * 1e3)

@@ -51,12 +51,18 @@ class ImuSample:
         return replace(self, **changes)
 
 
+_FLOAT64 = np.dtype(np.float64)
+
+
+def _vector3(v) -> np.ndarray:
+    """`v` as a float64 array of shape (3,). A row of an (n, 3) float64 array, what a per-sample loop passes, is
+    one already and is taken as it is: np.asarray would return it too, and reshape a view of the same memory,
+    at twice the cost of the checks (make_sample runs once per sample of every replay and simulation)."""
+    if v.__class__ is np.ndarray and v.dtype is _FLOAT64 and v.shape == (3,):
+        return v
+    return np.asarray(v, dtype=np.float64).reshape(3)
+
+
 def make_sample(t_s: float, gyro_rad_s, accel_m_s2, mag_ut, **kw) -> ImuSample:
     """Convenience constructor that coerces the vectors to float64 arrays of shape (3,)."""
-    return ImuSample(
-        float(t_s),
-        np.asarray(gyro_rad_s, dtype=np.float64).reshape(3),
-        np.asarray(accel_m_s2, dtype=np.float64).reshape(3),
-        np.asarray(mag_ut, dtype=np.float64).reshape(3),
-        **kw,
-    )
+    return ImuSample(float(t_s), _vector3(gyro_rad_s), _vector3(accel_m_s2), _vector3(mag_ut), **kw)

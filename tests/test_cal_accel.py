@@ -17,6 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ahrsd.calibration.inertial.accel import (
+    GUIDED_TARGETS,
     GuidedSession,
     find_still_segments,
     fit_accel,
@@ -285,3 +286,23 @@ def test_guided_face_pairs_take_a_second_hold_of_each_face_only_after_the_unit_m
         session.feed(s)
     messages = [m for s in op.samples(face, 3.5) if (m := session.feed(s))]
     assert sorted(session.recorded) == [0, 1] and messages[0].startswith("already have")
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf])
+def test_guided_session_skips_a_non_finite_sample_as_if_it_never_came(bad):
+    """A sample with a NaN or infinite value (an invalid read) is dropped before the still-period blocks: the
+    position is recorded with the same mean, at the same sample, as without it."""
+    rate = 50.0
+    held = list(FakeOperator(rate, np.zeros(3), np.eye(3)).samples(GUIDED_TARGETS[0][1], 4.0))
+    clean, damaged = GuidedSession(rate_hz=rate, still_s=3.0), GuidedSession(rate_hz=rate, still_s=3.0)
+    clean_msgs = [clean.feed(s) for s in held]
+    damaged_msgs = []
+    for k, s in enumerate(held):
+        if k in (20, 61):
+            accel = np.array(s.accel_m_s2)
+            accel[k % 3] = bad
+            assert damaged.feed(s.with_values(accel_m_s2=accel)) is None
+            assert damaged.feed(s.with_values(gyro_rad_s=np.array([0.0, bad, 0.0]))) is None
+        damaged_msgs.append(damaged.feed(s))
+    assert clean_msgs == damaged_msgs and sorted(clean.recorded) == [0]
+    assert np.array_equal(clean.recorded[0], damaged.recorded[0])

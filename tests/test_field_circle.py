@@ -131,14 +131,14 @@ def _run(estimator, centre_error_ut, seconds=240.0, seed=3, yaw_rate_rad_s=None)
     error[:, :given.shape[1]] = given
     mag = r.inv().apply(FIELD_NED) + error + 0.2 * rng.standard_normal((n, 3))
     f = estimator(mag_calibration_sigma_rad=CLAIMED_SIGMA_RAD)
-    err, sig, ests = np.full(n, np.nan), np.full(n, np.nan), []
+    q, sig, ests = np.full((n, 4), np.nan), np.full(n, np.nan), []
     for i in range(n):
         out = f.update(make_sample(t[i], gyro[i], acc[i], mag[i]))
         ests.append((out, f.field_circle() if isinstance(f, Mekf) else f.field_circle_check()))
-        q = np.asarray(out.q_wxyz)
-        yaw = Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_euler("ZYX")[0]
-        err[i] = (yaw - heading[i] + math.pi) % (2 * math.pi) - math.pi
+        q[i] = out.q_wxyz
         sig[i] = out.sigma_rpy_rad[2]
+    yaw = Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_euler("ZYX")[:, 0]   # scipy, once for the whole run
+    err = (yaw - heading + math.pi) % (2 * math.pi) - math.pi
     return t, err, sig, ests, f
 
 

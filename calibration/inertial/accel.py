@@ -448,7 +448,8 @@ class GuidedSession:
         on 0.25 s block means (per-sample noise at 819 SPS is ~10 mg, far above any useful per-sample threshold):
         the gyro mean must be small and the accelerometer mean must not move between blocks."""
         a, g = np.asarray(sample.accel_m_s2, dtype=float), np.asarray(sample.gyro_rad_s, dtype=float)
-        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(g))):
+        # per sample (live at 819.2 SPS): math.isfinite on the values costs a tenth of np.isfinite on 3-vectors
+        if not (all(map(math.isfinite, a.ravel().tolist())) and all(map(math.isfinite, g.ravel().tolist()))):
             return None
         self._block_a.append(a)
         self._block_g.append(g)
