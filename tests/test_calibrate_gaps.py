@@ -99,7 +99,8 @@ def test_a_fit_that_averages_reports_the_gaps_and_fits(tables, tmp_path, capsys)
     assert "gaps: 20 samples missing (0.2%) in 1 gaps, the longest 20 samples (1 s" in capsys.readouterr().out
 
 
-def test_allan_counts_the_gaps_of_the_streamed_recording(tmp_path, capsys):
+def test_still_fits_report_the_gaps_and_the_estimator_run_refuses_them(tmp_path, capsys):
+    """allan (streamed) and --bias-only average; --estimator-bias runs the estimator across the 0.35 s gap."""
     path = tmp_path / "still.csv"
     block = simulate("static", 120, rate_hz=RATE_HZ, seed=3, errors=SensorErrors.adis16405(seed=3))
     with RecordingWriter(path, extra_columns=("counter",)) as w:
@@ -108,3 +109,26 @@ def test_allan_counts_the_gaps_of_the_streamed_recording(tmp_path, capsys):
     code, out = calibrate_json(capsys, "allan", path, "--state-dir", tmp_path)
     assert code == 0
     assert (out["gaps"]["missing_samples"], out["gaps"]["longest_gap_samples"]) == (7, 7)
+    code, out = calibrate_json(capsys, "gyro", "--bias-only", path, "--state-dir", tmp_path)
+    assert code == 0 and out["gaps"]["missing_samples"] == 7
+    code, out = calibrate_json(capsys, "gyro", "--bias-only", "--estimator-bias", path, "--state-dir", tmp_path)
+    assert code == 1 and "the estimator run of --estimator-bias" in out["refused"]
+
+
+def test_backstepping_refuses_a_boat_recording_with_a_long_gap_and_fits_the_whole_one(tmp_path, capsys):
+    from ahrsd.simulation import DEFAULT_SITE as SITE
+
+    blk = simulate("level-turns", 120, rate_hz=RATE_HZ, seed=3, errors=SensorErrors.adis16405(seed=3))
+    site = ["--lat", SITE.lat_deg, "--lon", SITE.lon_deg, "--alt-m", SITE.alt_m, "--date", SITE.date.isoformat()]
+    for name, kept in (("whole", np.arange(len(blk))), ("gappy", np.r_[0:1000, 1020:len(blk)])):
+        path = tmp_path / f"{name}.csv"
+        with RecordingWriter(path, extra_columns=("counter",)) as w:
+            for i in kept:
+                w.write(make_sample(blk.t_s[i], blk.gyro_rad_s[i], blk.accel_m_s2[i], blk.mag_ut[i], counter=int(i)))
+        code, out = calibrate_json(capsys, "mag", "--method", "backstepping", path, *site, "--state-dir", tmp_path)
+        assert out["gaps"]["missing_samples"] == len(blk) - len(kept)
+        if name == "whole":
+            assert code == 0 and out["refused"] is None
+        else:
+            assert code == 1 and "gap longer than 0.05 s" in out["refused"]
+            assert out["hard_iron_ut"] == [0.0, 0.0, 0.0] and "rejected_model" in out["quality"]
