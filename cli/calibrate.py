@@ -206,6 +206,33 @@ def _stored(args):
     return CalibrationStore(args.state_dir).load()
 
 
+def _gaps(rec):
+    """The recording's gaps (calibration.recording_gaps): from its counter column when it has one, else t_s."""
+    from ahrsd.calibration.recording_gaps import find_gaps
+
+    return find_gaps(rec.t_s, rec.extra.get("counter"))
+
+
+def _judged_on_gaps(res, gaps, integrating: str | None):
+    """The one gap check of every fit from a recording. A fit that relates samples across time (`integrating`
+    says what it does, for the message) is refused when the longest gap is above
+    recording_gaps.MAX_GAP_INTEGRATING_S (identity model, the fitted one under quality['rejected_model']); a fit
+    that averages (integrating None) keeps its result. Either way the caller reports the gaps (_gap_report)."""
+    from ahrsd.calibration.recording_gaps import integrating_refusal
+
+    refusal = integrating_refusal(gaps, integrating) if integrating and res.ok else None
+    if refusal is None:
+        return res
+    return dataclasses.replace(res, model=type(res.model).identity(), refused=refusal,
+                               quality={**res.quality, "rejected_model": res.model.to_dict()})
+
+
+def _gap_report(payload: dict, lines: list, gaps) -> None:
+    """The gaps in the --json object (key `gaps`) and as a report line under the title."""
+    payload["gaps"] = gaps.to_json_dict()
+    lines.insert(1, "  " + gaps.describe())
+
+
 # ---------------------------------------------------------------------------------------------- commands
 
 
@@ -213,15 +240,18 @@ def _allan(args) -> int:
     import os
 
     from ahrsd.calibration.allan import NOISE_FILE_NAME, StaticAllanAnalysis, describe, save_noise_parameters
+    from ahrsd.calibration.recording_gaps import GapCounter
     from ahrsd.drivers.recording import RecordingFormatError, iter_recording_chunks
 
     from .progress import activity, expected_rows, progress_bar
 
     try:   # streamed: one chunk of the recording in memory at a time (.csv or .csv.gz)
         analysis = StaticAllanAnalysis()
+        gap_counter = GapCounter()    # Allan averages: gaps are reported, not refused (recording_gaps)
         with progress_bar(args.json, expected_rows(args.recording), f"reading {os.path.basename(args.recording)}") as bar:
             for chunk in iter_recording_chunks(args.recording, strict=False):
                 analysis.add(chunk.t_s, chunk.gyro_rad_s, chunk.accel_m_s2, chunk.mag_ut)
+                gap_counter.add(chunk.t_s, chunk.extra.get("counter"))
                 bar.update(len(chunk))
         with activity(args.json, "Allan analysis"):
             res = analysis.result()
@@ -251,6 +281,7 @@ def _allan(args) -> int:
     length = f"{res.duration_s / 3600:.2f} h" if res.duration_s >= 360 else f"{res.duration_s:.1f} s"
     lines = [f"Allan analysis of {args.recording}: {length} at {res.rate_hz:.1f} Hz; noise "
              f"parameters {note}"]
+    _gap_report(payload, lines, gap_counter.result())
     lines += summary(res) + ["  details:"] + ["  " + line for line in describe(res)]
     _emit(args, payload, "\n".join(lines))
     return 0
@@ -263,10 +294,12 @@ def _accel(args) -> int:
     from ahrsd.calibration.inertial.accel import local_gravity_m_s2
 
     g = local_gravity_m_s2(args.lat, args.alt_m)
-    res, source = _accel_fit(args, g)
+    res, source, gaps = _accel_fit(args, g)
     payload = {"sensor": "accel", **res.to_json_dict(), "positions_source": source}
     lines = [f"Accelerometer calibration ({res.terms} parameters) from {source}; g = {g:.5f} m/s²"
              + ("" if args.lat is not None else " (standard gravity: give --lat for local gravity)")]
+    if gaps is not None:     # the still periods' means average: gaps are reported, not refused
+        _gap_report(payload, lines, gaps)
     q = res.quality
     lines.append(f"  distinct orientations: {q.get('distinct_orientations')}; faces up: "
                  + ", ".join(k for k, v in q.get("faces", {}).items() if v))
@@ -287,9 +320,9 @@ def _accel(args) -> int:
 
 
 def _accel_fit(args, g: float):
-    """(fit, where the positions came from) for gravity g: the positions held live or the still periods of the
-    recording, the multi-position fit (refused naming short holds when none was long enough), what the holds
-    cost, and the alignment to the faces if asked."""
+    """(fit, where the positions came from, the recording's gaps or None live) for gravity g: the positions held
+    live or the still periods of the recording, the multi-position fit (refused naming short holds when none was
+    long enough), what the holds cost, and the alignment to the faces if asked."""
     import math
 
     from ahrsd.calibration.inertial.accel import fit_accel
@@ -301,12 +334,13 @@ def _accel_fit(args, g: float):
         raise _Usage("give a RECORDING or --live, not both")
     if (args.sim or args.spi) and not args.live:
         raise _Usage("--sim/--spi go with --live (a recording is given as RECORDING)")
+    gaps = None
     if args.live:
         means, source = _accel_live(args)
     else:
         if not args.recording:
             raise _Usage("give a RECORDING, or --live with --sim SCENARIO or --spi DEV")
-        means, source, periods, used, skipped, rate_hz = _still_positions(args)
+        means, source, periods, used, skipped, rate_hz, gaps = _still_positions(args)
     if args.live or len(means):
         res = fit_accel(means, g, terms)
     else:
@@ -321,12 +355,12 @@ def _accel_fit(args, g: float):
         from ahrsd.calibration.inertial.accel_alignment import align_to_faces
 
         res = align_to_faces(res, means)
-    return res, source
+    return res, source, gaps
 
 
 def _still_positions(args):
     """(position means (n, 3), a description, every still period, those used, those too short, the sample
-    rate) of the recording."""
+    rate, the gaps) of the recording."""
     import math
 
     import numpy as np
@@ -342,7 +376,7 @@ def _still_positions(args):
     periods = still_periods(rec.accel_m_s2, rec.gyro_rad_s, rate_hz)
     used, skipped = split_by_duration(periods, args.min_still_s)
     means = np.array([p.mean_accel_m_s2 for p in used]).reshape(-1, 3)
-    return means, f"{len(used)} still periods in {args.recording}", periods, used, skipped, rate_hz
+    return means, f"{len(used)} still periods in {args.recording}", periods, used, skipped, rate_hz, _gaps(rec)
 
 
 def _with_holds(res, used, skipped, rate_hz, min_still_s):
@@ -440,8 +474,11 @@ def _gyro(args) -> int:
         res, source, segs = _gyro_bias_only(args, rec, stored)
     else:
         res, source, ref, raw = _gyro_rate_table(args, rec, stored)
+    gaps = _gaps(rec)
+    res = _judged_on_gaps(res, gaps, _gyro_integrates(args))
     payload = {"sensor": "gyro", **res.to_json_dict(), "source": source}
     lines = [f"Gyro calibration ({res.method}) from {source}"]
+    _gap_report(payload, lines, gaps)
     rc = _report_fit(args, res, payload, lines, "gyro", report.gyro_model_lines,
                      {"method": res.method, "residual_rms_rad_s": res.residual_rms_rad_s})
     if args.plot:
@@ -458,6 +495,18 @@ def _gyro(args) -> int:
                                               "calibrated" if res.ok else "raw")
         _write_plot(args, gyro_plot.save, fig)
     return rc
+
+
+def _gyro_integrates(args) -> str | None:
+    """What of the gyro fit relates samples across time (for the gap check), None when it only averages: the
+    reference rate differentiated from the truth attitude (across a gap, one step of the gap's length) and the
+    estimator run for --estimator-bias. The still means of --bias-only and the segment means against
+    --table-rate-deg-s average."""
+    if args.bias_only:
+        return "the estimator run of --estimator-bias" if args.estimator_bias else None
+    if args.table_rate_deg_s is None:
+        return "the rate-table reference differentiated from the truth attitude"
+    return None
 
 
 def _gyro_bias_only(args, rec, stored):
@@ -584,7 +633,11 @@ def _mag(args) -> int:
         raise _Fail(str(exc)) from None
     except procedure.MagCalibrationError as exc:
         raise _Fail(("--gnss: " if exc.step == "gnss" else "") + str(exc)) from None
-    rc = _report_mag(args, calibrated, data, ref, ref_note, site)
+    gaps = _gaps(rec)
+    integrates = ("the back-stepping fit (low-pass filters and levelling run over time)"
+                  if args.method == "backstepping" else None)   # the other methods fit the field's samples
+    calibrated = dataclasses.replace(calibrated, result=_judged_on_gaps(calibrated.result, gaps, integrates))
+    rc = _report_mag(args, calibrated, data, ref, ref_note, site, gaps)
     if args.plot:
         _plot_mag(args, calibrated.result, data, rec, ref, swing_table)
     return rc
@@ -696,7 +749,7 @@ def _mag_inputs(args):
     return rec, MagFitInput(rec.t_s, rec.mag_ut, accel, gyro, heading_ref), ref_note, gnss, alignment
 
 
-def _report_mag(args, calibrated, data, ref, ref_note, site: MagSite) -> int:
+def _report_mag(args, calibrated, data, ref, ref_note, site: MagSite, gaps) -> int:
     """The fit's report (text or --json) and, unless --dry-run, the stored calibration (_report_fit)."""
     import numpy as np
 
@@ -709,6 +762,7 @@ def _report_mag(args, calibrated, data, ref, ref_note, site: MagSite) -> int:
     lines = [f"Magnetometer calibration ({res.method}) from {len(data)} samples of {args.recording}",
              f"  reference field (WMM2025 at {site.lat_deg:.4f}, {site.lon_deg:.4f}, {site.alt_m:.0f} m: "
              f"{site.source}): |F| = {ref.total_ut:.2f} µT, dip {np.degrees(ref.inclination_rad):.2f}°"]
+    _gap_report(payload, lines, gaps)
     lines += ["  " + note for note in calibrated.notes]
     if ref_note:
         lines.append("  " + ref_note)
