@@ -103,3 +103,22 @@ def test_the_tilt_envelope_is_printed_in_whole_degrees():
     line = mag_decision_lines(result, "accepted")[1]
     assert line == "  predicted heading error (1σ): 0.16° constant offset, 0.03° varying with heading, for tilts " \
                    "within ±10°", line
+
+
+def test_the_stored_calibration_states_the_predicted_heading_error_ins_trusts(turning_boat, tmp_path, capsys):
+    """ins trusts a calibration to its stated heading error (calibration/heading_trust.py): the back-stepping
+    fit's prediction, not the field residual over H (0.04° on session 23's boat, whose fit was 0.8° off)."""
+    import json
+    import math
+
+    from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad
+    from ahrsd.calibration.store import load_calibration_file
+
+    code = cli.main(["calibrate", "mag", "--method", "backstepping", str(turning_boat), "--lat", "36.42", "--lon",
+                     "54.98", "--state-dir", str(tmp_path / "s"), "--json"])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    pred = json.loads(out)["quality"]["predicted_heading"]
+    cal = load_calibration_file(tmp_path / "s" / "calibration.json")
+    assert math.degrees(calibration_heading_sigma_rad(cal)) == pytest.approx(
+        math.hypot(pred["offset_std_deg"], pred["heading_dependent_std_deg"]), rel=1e-9)
