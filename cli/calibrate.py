@@ -772,6 +772,10 @@ def _report_mag(args, calibrated, data, ref, ref_note, site: MagSite, gaps) -> i
             "site": {**site_json, "date": args.date}}
     if "heading_reference" in q:
         meta["heading_reference"] = q["heading_reference"]
+    pred = q.get("predicted_heading") or {}
+    if "heading_dependent_std_deg" in pred and "offset_std_deg" in pred:   # what ins then trusts (heading_trust.py)
+        meta["heading_std_deg"] = pred["heading_dependent_std_deg"]
+        meta["offset_std_deg"] = pred["offset_std_deg"]
     return _report_fit(args, res, payload, lines, "mag", report.mag_model_lines, meta)
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 from ahrsd.calibration.report import fmt_value
+from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
 
 # quality keys a reader of the report cannot act on: the optimiser's own bookkeeping and intermediate fits
 INTERNAL_KEYS = frozenset({"sphere_fit_paper", "time_s", "backstep", "fit_rate_hz", "n_samples", "support_model"})
@@ -38,8 +39,12 @@ def mag_decision_lines(result, outcome: str) -> list[str]:
     offset, varying = _num(pred.get("offset_std_deg")), _num(pred.get("heading_dependent_std_deg"))
     if math.isfinite(offset) or math.isfinite(varying):
         envelope = _num(pred.get("envelope_tilt_deg"))
+        lev = pred.get("levelling")
         lines.append(f"  predicted heading error (1σ): {offset:.2f}° constant offset, {varying:.2f}° varying with "
-                     "heading" + (f", for tilts within ±{envelope:g}°" if math.isfinite(envelope) else ""))
+                     "heading" + (f", for tilts within ±{envelope:.0f}°" if math.isfinite(envelope) else "")
+                     + (f" (with the accelerometer levelling's bias, "
+                        f"{lev['accel_bias_sigma_m_s2'] / STANDARD_GRAVITY_M_S2 * 1e3:g} mg, and its tilt errors "
+                        f"correlated over {lev['residual_correlation_samples']:.0f} fitted samples)" if lev else ""))
     parts = []
     heading_cov = _num(q.get("heading_coverage"))
     if math.isfinite(heading_cov):

@@ -14,21 +14,9 @@ from scipy.spatial.transform import Rotation
 from ahrsd.calibration.mag.backstepping_aided import fit_backstepping_aided
 from ahrsd.calibration.mag.fit_types import MagFitInput
 from ahrsd.simulation import DEFAULT_SITE, open_stream, simulate_gnss
+from support.sim_heading import heading_error_on_other_attitudes_deg
 
 pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
-
-
-def heading_error_on_other_attitudes_deg(model, stream) -> np.ndarray:
-    """The calibration on the noise-free raw field of the same sensor at every 10° of heading, roll and pitch
-    in ±8°, tilt-compensated with the true tilt, against the true heading (scipy only)."""
-    f = stream.earth_field
-    y, p, r = (a.ravel() for a in np.meshgrid(np.radians(np.arange(0, 360, 10.0)), np.radians([-8.0, 0.0, 8.0]),
-                                              np.radians([-8.0, 0.0, 8.0]), indexing="ij"))
-    raw = Rotation.from_euler("ZYX", np.column_stack([y, p, r])).inv().apply(f.ned_ut) @ stream.errors.soft_iron.T \
-        + stream.errors.hard_iron_ut
-    level = Rotation.from_euler("ZYX", np.column_stack([0 * y, p, r])).apply(model.apply(raw))
-    psi = np.arctan2(-level[:, 1], level[:, 0]) + f.declination_rad
-    return np.degrees(np.angle(np.exp(1j * (psi - y))))
 
 
 def test_the_levelling_takes_its_heading_from_the_magnetometer_where_gnss_alone_never_finds_it(caplog):

@@ -3,6 +3,8 @@ residuals) and keeps the fit's internals (optimiser messages, the paper's sphere
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from ahrsd.cli import main as cli
@@ -27,6 +29,8 @@ def test_the_report_leads_with_the_decision_and_hides_internals(turning_boat, tm
     assert lines[0].startswith("Magnetometer calibration (backstepping)")
     assert lines[1].startswith("  verdict: accepted, saved to ")
     assert lines[2].startswith("  predicted heading error (1σ): ")
+    assert re.search(r"for tilts within ±\d+° ", lines[2]), lines[2]      # whole degrees, not ±10.0385°
+    assert "with the accelerometer levelling's bias, 5 mg" in lines[2], lines[2]
     assert lines[3].startswith("  coverage: headings ")
     assert lines[4].startswith("  residual: |m| − |F| RMS ")
     assert lines.index("  details:") > lines.index(next(l for l in lines if l.startswith("  hard iron (µT)")))
@@ -86,3 +90,35 @@ def test_a_calibration_made_without_state_dir_is_the_one_run_loads(turning_boat,
     assert loaded.mag.hard_iron_ut.any()                         # the fit, not the identity
     monkeypatch.setenv("STATE_DIRECTORY", str(tmp_path / "unit"))   # under systemd: its StateDirectory
     assert _run_state_dir() == tmp_path / "unit"
+
+def test_the_tilt_envelope_is_printed_in_whole_degrees():
+    """Session 23's walk read "for tilts within ±10.0385°": the envelope is the largest tilt seen, not a figure
+    known to 1e-4°."""
+    from types import SimpleNamespace
+
+    from ahrsd.cli.fit_summary import mag_decision_lines
+
+    result = SimpleNamespace(residual_rms_ut=0.02, quality={"predicted_heading": {"offset_std_deg": 0.16, "heading_dependent_std_deg": 0.03,
+                                                            "envelope_tilt_deg": 10.0385}})
+    line = mag_decision_lines(result, "accepted")[1]
+    assert line == "  predicted heading error (1σ): 0.16° constant offset, 0.03° varying with heading, for tilts " \
+                   "within ±10°", line
+
+
+def test_the_stored_calibration_states_the_predicted_heading_error_ins_trusts(turning_boat, tmp_path, capsys):
+    """ins trusts a calibration to its stated heading error (calibration/heading_trust.py): the back-stepping
+    fit's prediction, not the field residual over H (0.04° on session 23's boat, whose fit was 0.8° off)."""
+    import json
+    import math
+
+    from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad
+    from ahrsd.calibration.store import load_calibration_file
+
+    code = cli.main(["calibrate", "mag", "--method", "backstepping", str(turning_boat), "--lat", "36.42", "--lon",
+                     "54.98", "--state-dir", str(tmp_path / "s"), "--json"])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    pred = json.loads(out)["quality"]["predicted_heading"]
+    cal = load_calibration_file(tmp_path / "s" / "calibration.json")
+    assert math.degrees(calibration_heading_sigma_rad(cal)) == pytest.approx(
+        math.hypot(pred["offset_std_deg"], pred["heading_dependent_std_deg"]), rel=1e-9)

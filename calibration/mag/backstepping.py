@@ -34,6 +34,7 @@ from .backstepping_paper import (PAPER_STEP_TOL_UT, BacksteppingError, backstep_
                                  leg_statistics, magnetic_heading_deg, segment_legs, sphere_fit_paper)
 from .block_average import block_average
 from .levelling import roll_pitch_from_estimator
+from .levelling_error import ACCEL_BIAS_SIGMA_UNCALIBRATED_M_S2, accel_bias_heading_std_deg, integrated_autocorrelation_time
 from .fit_types import MagFitInput, MagFitResult, finite_rows, refuse
 from ..models import MagModel
 from .observability import assess_support, lowpass, parameter_uncertainty
@@ -95,6 +96,9 @@ class BacksteppingOptions:
     """("paper") most corrective passes."""
     max_heading_std_deg: float = MAX_PREDICTED_HEADING_STD_DEG
     """Refuse when the predicted heading-dependent 1σ (deg) exceeds this."""
+    accel_bias_sigma_m_s2: float = ACCEL_BIAS_SIGMA_UNCALIBRATED_M_S2
+    """The accelerometer's residual bias (1σ per axis, m/s²) when it levels the fit: its body-fixed tilt enters
+    the predicted heading error (levelling_error.py). Not used with roll_rad/pitch_rad given."""
     robust: Any = "auto"
     """"auto" (refit with a soft-L1 loss when more than 1 % of samples are magnetically disturbed), True or
     False."""
@@ -185,7 +189,8 @@ def fit_backstepping(data: MagFitInput, reference=None, options: BacksteppingOpt
     else:
         result = _fit_general(blocks.t_s, blocks.mag_ut, blocks.roll_rad, blocks.pitch_rad, ref.total_ut,
                               ref.vertical_ut, blocks.legs, quality, blocks.sigma_mag_ut, opts.sigma_tilt_deg,
-                              opts.max_heading_std_deg, opts.robust, support, blocks.centripetal, levelling)
+                              opts.max_heading_std_deg, opts.robust, support, blocks.centripetal, levelling,
+                              opts.accel_bias_sigma_m_s2)
     if isinstance(result, MagFitResult):
         return result
     mag_model = _with_heading_reference(result, blocks, ref, opts, levelling, quality)
@@ -406,7 +411,8 @@ def _finish(model: MagModel, blocks: _Blocks, ref: _ReferenceField, quality: dic
 
 
 def _fit_general(t_s, mag, roll, pitch, total, vertical, legs_b, quality, sigma_mag_ut, sigma_tilt_deg,
-                 max_heading_std_deg, robust, support, centripetal=None, levelling=None):
+                 max_heading_std_deg, robust, support, centripetal=None, levelling=None,
+                 accel_bias_sigma_m_s2=ACCEL_BIAS_SIGMA_UNCALIBRATED_M_S2):
     """The generalised vertical-channel fit (vertical_channel.py) and its checks: the MagModel, or the refusal
     (a MagFitResult). What it found goes into `quality`; the forward speed the levelling was compensated with
     into `levelling`."""
@@ -432,7 +438,8 @@ def _fit_general(t_s, mag, roll, pitch, total, vertical, legs_b, quality, sigma_
     }
     if fit.free_dip:
         quality["vertical_channel"]["dip_deg"] = math.degrees(math.asin(max(-1.0, min(1.0, fit.vertical_ut / total))))
-    refused = _general_fit_refusal(fit, quality, support, max_heading_std_deg)
+    refused = _general_fit_refusal(fit, quality, support, max_heading_std_deg,
+                                   None if quality.get("attitude_source") == "given" else accel_bias_sigma_m_s2)
     if refused is not None:
         return refused
     model = MagModel(fit.hard_iron_ut, fit.soft_iron)
@@ -476,10 +483,12 @@ def _vertical_channel_fit(mag, roll, pitch, total, vertical, quality, sigma_mag_
     return fit, cen
 
 
-def _general_fit_refusal(fit, quality, support, max_heading_std_deg):
+def _general_fit_refusal(fit, quality, support, max_heading_std_deg, accel_bias_sigma_m_s2=None):
     """The fit's parameter uncertainty and predicted heading error (into `quality`), and its refusal when the
     soft iron is a reflection, the fit did not converge, or the data leave the heading more uncertain than
-    max_heading_std_deg; None when it is usable (with a warning when the constant offset is poorly known)."""
+    max_heading_std_deg; None when it is usable (with a warning when the constant offset is poorly known).
+    accel_bias_sigma_m_s2: the levelling accelerometer's residual bias (None: levelled otherwise, roll/pitch
+    given); it and the levelling error's correlation enter the prediction (levelling_error.py)."""
     limits = {n: 0.02 for n in fit.names[:9]}
     limits.update({n: 1.0 for n in fit.names[9:12]})
     unc = parameter_uncertainty(fit.jacobian, fit.names, limits, residual_scale=max(fit.whitened_rms, 1.0))
@@ -487,8 +496,9 @@ def _general_fit_refusal(fit, quality, support, max_heading_std_deg):
     quality["parameter_std"] = unc["std"]
     quality["undetermined"] = unc["undetermined"]
     envelope = max(10.0, support.tilt["tilt_max_deg"]) if support.tilt else 10.0
+    # what the data determine decides the refusal (observability); the prediction reported adds the levelling
     pred = predicted_heading_std_deg(fit, envelope)
-    quality["predicted_heading"] = pred
+    quality["predicted_heading"] = _with_levelling_error(fit, envelope, accel_bias_sigma_m_s2, pred)
     if np.linalg.det(fit.soft_iron) <= 0:
         return refuse(METHOD, "the fitted soft iron is a reflection (det ≤ 0): heading would be mirrored", **quality)
     if not fit.success and fit.whitened_rms > 10:
@@ -502,6 +512,21 @@ def _general_fit_refusal(fit, quality, support, max_heading_std_deg):
             f"the constant heading offset (yaw misalignment, coefficient A) is determined only to "
             f"{pred['offset_std_deg']:.1f}° (1σ); give a heading reference (GNSS course or known headings)")
     return None
+
+
+def _with_levelling_error(fit, envelope_deg: float, accel_bias_sigma_m_s2, data_only: dict) -> dict:
+    """The predicted heading error `data_only` (predicted_heading_std_deg), with the accelerometer levelling's
+    errors when it levelled the fit: the covariance grown by the vertical residual's correlation time, the
+    bias's heading-dependent error added in quadrature (levelling_error.py)."""
+    if accel_bias_sigma_m_s2 is None or fit.vertical_residual is None:
+        return data_only
+    tau = integrated_autocorrelation_time(fit.vertical_residual)
+    pred = predicted_heading_std_deg(fit, envelope_deg, covariance_inflation=tau)
+    bias_deg = accel_bias_heading_std_deg(accel_bias_sigma_m_s2, fit.vertical_ut, fit.total_ut)
+    pred["heading_dependent_std_deg"] = math.hypot(pred["heading_dependent_std_deg"], bias_deg)
+    pred["levelling"] = {"residual_correlation_samples": tau, "accel_bias_sigma_m_s2": accel_bias_sigma_m_s2,
+                         "accel_bias_heading_std_deg": bias_deg}
+    return pred
 
 
 def _leg_report(t_s, model: MagModel, mag, roll, pitch, legs_b, quality, before: MagModel | None):

@@ -46,6 +46,7 @@ class VerticalChannelFit:
     success: bool
     message: str
     speed_m_s: float | None = None     # fitted forward speed of the centripetal compensation (None: not fitted)
+    vertical_residual: np.ndarray | None = None   # whitened vertical-channel residuals per sample, in time order
 
 
 _PARAM_NAMES = [f"soft_iron[{i}{j}]" for i in "xyz" for j in "xyz"] + ["hard_iron_x_ut", "hard_iron_y_ut", "hard_iron_z_ut"]
@@ -225,7 +226,8 @@ def _fit_result(problem, sol, jac, start_name: str, total: float, free_dip: bool
     speed = float(sol.x[problem.i_speed]) if fit_speed else None
     return VerticalChannelFit(w, h, total, hz, free_dip, float(np.sqrt(np.mean((r[:n] * sig_f) ** 2))),
                               float(np.sqrt(np.mean((r[n:] * sig_v) ** 2))), float(np.sqrt(np.mean(r**2))),
-                              jd, names, start_name, int(sol.nfev), bool(sol.success), str(sol.message), speed)
+                              jd, names, start_name, int(sol.nfev), bool(sol.success), str(sol.message), speed,
+                              np.array(r[n:]))
 
 
 class _VerticalChannelProblem:
@@ -330,14 +332,17 @@ def _start_values(m, d_fixed, total, hz_guesses, free_dip, init) -> list[tuple]:
 
 
 def predicted_heading_std_deg(fit: VerticalChannelFit, tilt_envelope_deg: float, *,
-                              prior_sigma: float = PRIOR_SIGMA_SOFT_IRON, n_headings: int = 12) -> dict:
+                              prior_sigma: float = PRIOR_SIGMA_SOFT_IRON, n_headings: int = 12,
+                              covariance_inflation: float = 1.0) -> dict:
     """Propagate the fit's parameter covariance (data + the weak prior) to the tilt-compensated heading on a
     grid of attitudes (every 360/n_headings° of heading; level and ±tilt_envelope in roll and in pitch). Returns
     the 1σ of the constant heading offset (what a heading reference would remove) and the RMS 1σ of the
-    heading-dependent part."""
+    heading-dependent part. `covariance_inflation` scales the data's covariance: the residuals are weighted as
+    independent per sample, and when they are not (a levelling error correlated over seconds) the data hold fewer
+    independent samples than rows (levelling_error.py)."""
     j = fit.jacobian
     npar = j.shape[1]
-    info = j.T @ j * (1.0 / max(fit.whitened_rms, 1.0) ** 2)
+    info = j.T @ j * (1.0 / (max(fit.whitened_rms, 1.0) ** 2 * covariance_inflation))
     prior = np.zeros(npar)
     prior[:9] = 1.0 / prior_sigma**2
     for i, name in enumerate(fit.names):

@@ -1,0 +1,54 @@
+"""What the accelerometer levelling's error adds to a back-stepping fit's predicted heading error.
+
+The fit weights every levelled sample as an independent tilt error (vertical_channel.py, σ_tilt per sample).
+On a vehicle two parts of the levelling error are not independent:
+
+- the accelerometer's bias, fixed in the body: a tilt error b/g that the fit folds into the soft iron as a small
+  rotation, invisible in its residuals. At heading ψ it turns the heading by tan(dip)·(ε_x cos ψ − ε_y sin ψ)
+  (the rotation ε moves the calibrated horizontal field by H_z·(ε_y, −ε_x)), RMS over heading tan(dip)·σ_b/g
+  per axis: a heading-dependent error, no constant offset;
+- what is left of the lean in turns and of the waves after the low-pass and the centripetal compensation,
+  correlated over a turn or a wave group: the fit's data then hold fewer independent samples than rows. The
+  vertical-channel residual carries it (a tilt error δ shows as H_h·δ there), so its integrated autocorrelation
+  time (Sokal, "Monte Carlo Methods in Statistical Mechanics", 1996, §3: τ_int = 1 + 2 Σ ρ_k, summed up to the
+  first lag M ≥ 5 τ_int) is the factor by which the parameter covariance grows.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
+from ahrsd.estimator.mekf import MekfParams
+
+# the residual bias of the chip's factory calibration: what the estimators assume without a bench calibration
+ACCEL_BIAS_SIGMA_UNCALIBRATED_M_S2 = MekfParams().accel_bias_sigma_m_s2
+SOKAL_WINDOW = 5.0      # sum the autocorrelation up to the first lag ≥ SOKAL_WINDOW · τ_int (Sokal 1996)
+
+
+def integrated_autocorrelation_time(residual: np.ndarray) -> float:
+    """τ_int (in samples, ≥ 1) of a residual series in time order: 1 for white residuals, about the
+    correlation length for residuals correlated over several samples."""
+    x = np.asarray(residual, dtype=np.float64)
+    x = x[np.isfinite(x)] - np.mean(x[np.isfinite(x)])
+    n = x.size
+    if n < 4 or not np.any(x):
+        return 1.0
+    spec = np.fft.rfft(x, 2 * n)
+    acf = np.fft.irfft(spec * np.conj(spec))[:n]
+    rho = acf / acf[0]
+    tau = 1.0
+    for lag in range(1, n):
+        tau += 2.0 * rho[lag]
+        if lag >= SOKAL_WINDOW * tau:
+            break
+    return max(tau, 1.0)
+
+
+def accel_bias_heading_std_deg(accel_bias_sigma_m_s2: float, vertical_ut: float, total_ut: float) -> float:
+    """RMS over heading (deg, 1σ) of the heading error a body-fixed accelerometer bias of 1σ
+    `accel_bias_sigma_m_s2` per axis leaves in a fit levelled by that accelerometer: tan(dip)·σ_b/g."""
+    horizontal = math.sqrt(max(total_ut**2 - vertical_ut**2, 1e-12))
+    return math.degrees(abs(vertical_ut) / horizontal * accel_bias_sigma_m_s2 / STANDARD_GRAVITY_M_S2)
