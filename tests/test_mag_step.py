@@ -144,6 +144,24 @@ def test_the_estimates_integrity_says_the_rejection_is_for_a_step_while_the_magn
     assert report.first_step_t_s == t_detect and report.first_step_deg == math.degrees(step_rad)
 
 
+def test_the_integrity_stops_saying_step_once_the_magnetometer_is_used_again():
+    """The same road run on to 180 s: the magnetometer re-enters after its 20 s of agreement (about 30 s after the
+    step here); from the check that uses it again on, the integrity no longer names a step."""
+    from ahrsd.simulation import SensorErrors
+
+    errors = SensorErrors.adis16405(3).replace(hard_iron_step_ut=STEP_UT, hard_iron_step_t_s=STEP_AT_S)
+    run = simulate_vehicle("car", 180.0, 3, SITE, errors=errors)
+    out = _run_keeping_integrity(run)
+    ins, said = out["ins"], out["integrity_step_rad"]
+    report = ins.heading_report()
+    assert report.mag_steps == 1 and STEP_AT_S < report.first_step_t_s <= STEP_AT_S + 3.0
+    used_again = [c.t_s for c in ins.heading_checks if c.t_s > report.first_step_t_s and c.mag_use]
+    assert used_again, "the magnetometer did not re-enter before the end of the run"
+    while_rejected = (run.t_s > report.first_step_t_s + 0.2) & (run.t_s < used_again[0])
+    assert np.all(np.degrees(said[while_rejected]) == pytest.approx(report.first_step_deg, rel=1e-12))
+    assert np.all(np.isnan(said[run.t_s > used_again[0] + 0.2]))
+
+
 @pytest.mark.parametrize("scenario", ["boat", "car"])
 def test_no_step_is_declared_over_a_calibrated_run_with_turns_and_waves(scenario):
     """The boat in waves and the car in its turns, calibrated, 240 s at the default site: no detection."""
