@@ -130,15 +130,30 @@ def _gate_summary(estimator) -> str:
     report = estimator.heading_report() if isinstance(estimator, HeadingCheckedEstimator) else None
     if report is not None and report.mag_rejections:
         # the magnetometer, not the antenna: a filter pulled by a wrong magnetometer rejects correct fixes
-        by = (f"by {report.max_disagreement_deg:.1f}° when rejected" if report.mag_rejections == 1 else
-              f"by up to {report.max_disagreement_deg:.1f}° (the largest at its {report.mag_rejections} rejections)")
-        text += (f"; WARNING: magnetometer disagreed with GNSS {by}: calibration wrong or iron changed (heading "
-                 f"reset to the GNSS yaw {report.yaw_resets}×)")
+        text += f"; WARNING: {_rejection_summary(report)}"
     if c.rejected_velocity > GATE_HINT_FRACTION * max(c.offered, 1):
         arm = " ".join(f"{v:g}" for v in estimator.lever_arm_m)
         text += (f"; WARNING: that many rejected velocities usually mean the antenna is not where the filter was "
                  f"told ({arm} m, body FRD: --set \"lever_arm_m=(x, y, z)\") or the fixes' time stamps are off")
     return text
+
+
+def _rejection_summary(report) -> str:
+    """Why the heading checks rejected the magnetometer (estimator.ins.HeadingReport): an iron that stepped while
+    the gyro saw no turn (estimator/mag_step.py), said as such with the first step's time and size, and the
+    rejections for a disagreement with GNSS."""
+    resets = f"heading reset to the GNSS yaw {report.yaw_resets}×"
+    others = report.mag_rejections - report.mag_steps
+    parts = []
+    if report.mag_steps:
+        times = "once" if report.mag_steps == 1 else f"{report.mag_steps}×, the first"
+        parts.append(f"iron changed {times} at {report.first_step_t_s:.1f} s: magnetometer heading stepped by "
+                     f"{report.first_step_deg:+.1f}° while the gyro saw no turn, magnetometer rejected")
+    if others:
+        by = (f"by {report.max_disagreement_deg:.1f}° when rejected" if others == 1 else
+              f"by up to {report.max_disagreement_deg:.1f}° (the largest at its {others} rejections)")
+        parts.append(f"magnetometer disagreed with GNSS {by}: calibration wrong or iron changed")
+    return "; ".join(parts) + f" ({resets})"
 
 
 _STATE_NAMES = {0: "unknown", 1: "magnetometer", 2: "GNSS only", 3: "learning"}

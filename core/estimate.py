@@ -51,6 +51,8 @@ class HeadingIntegrity:
     mag_disagreement_rad: float          # magnetometer heading − GNSS yaw, wrapped to ±π
     iron_offset_ut: np.ndarray           # (3,) learned hard iron (body frame) on top of the calibration, µT
     iron_sigma_ut: np.ndarray            # (3,) its 1σ
+    mag_step_rad: float = float("nan")   # the magnetometer is rejected now for a step of its heading the gyro did not
+                                         # see (estimator/mag_step.py): the step's size (NaN: not rejected for a step)
 
 
 @dataclass(frozen=True, slots=True)

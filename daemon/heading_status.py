@@ -26,6 +26,12 @@ it from the field (estimator/field_circle_correction.py); once the corrected fie
 unhealthy (the calibration in force is still wrong) and the heading may be good again by its σ, which carries what
 the correction leaves.
 
+An iron that steps (a battery or a load moved: the magnetometer heading steps while the gyro saw no turn,
+estimator/mag_step.py) is named as such while the magnetometer is rejected for it (`HeadingIntegrity.mag_step_rad`):
+"iron changed: mag heading stepped +4°, the gyro saw no turn; heading GNSS-held while the iron is relearned" — its
+first 50 characters (one STATUSTEXT, what a receiver that does not join chunks shows) say what happened and by how
+much; "heading good" is not said until the magnetometer re-enters (the relearned iron is not yet confirmed).
+
 The magnetometer disagreement is named only when it is beyond what both sides' uncertainties explain: the GSF
 yaw's 1σ and the calibration's predicted heading error (`calibration_sigma_rad`, NaN = no calibration), the
 same 3σ test as the estimator's heading monitor.
@@ -77,6 +83,7 @@ class HeadingStatus:
         self.sigma_rad = math.nan
         self.disagreement_rad = math.nan              # magnetometer − GNSS yaw (NaN: no valid GNSS yaw)
         self.mag_inconsistent = False                 # the magnetometer disagrees with the GNSS(-held) heading
+        self.mag_step_rad = math.nan                  # the magnetometer is rejected for this step of its heading
         self.initialising = True
         self.gnss_checked = False                     # the estimator checks its heading against GNSS (ins, fixes)
         self.announced: HeadingState | None = None
@@ -136,8 +143,9 @@ class HeadingStatus:
         self.initialising = bool(est.flags & EstimateFlags.INITIALISING)
         self.gnss_checked = est.integrity is not None
         self.disagreement_rad, significant = self._disagreement(est.integrity)
+        self.mag_step_rad = float(est.integrity.mag_step_rad) if est.integrity is not None else math.nan
         # a trusted calibration rejected by ins (GNSS-held state) disagreed with the heading GNSS holds
-        self.mag_inconsistent = significant or (state in (HeadingState.GNSS_ONLY, HeadingState.LEARNING)
+        self.mag_inconsistent = significant or self._iron_stepped() or (state in (HeadingState.GNSS_ONLY, HeadingState.LEARNING)
                                                 and self.calibration_sigma_rad <= TRUSTED_CALIBRATION_RAD)
         self._now = now
 
@@ -175,7 +183,8 @@ class HeadingStatus:
         held ANNOUNCE_AFTER_S, the first one at once; a flicker back to the announced one is forgotten."""
         state = self.state
         key = (state, self._unknown_cause(est)[0] if state == HeadingState.UNKNOWN
-               else "off-centre" if self._off_centre() else "corrected" if self._corrected() else "")
+               else "off-centre" if self._off_centre() else "corrected" if self._corrected()
+               else "iron step" if self._iron_stepped() else "")
         if key == self.announced_key:
             self._candidate = None
             return
@@ -198,7 +207,8 @@ class HeadingStatus:
         return at_once or self._now - self._good_since >= ANNOUNCE_AFTER_S
 
     def _good_now(self) -> bool:
-        if self.state is None or self.initialising or self.state == HeadingState.UNKNOWN or self._off_centre():
+        if self.state is None or self.initialising or self.state == HeadingState.UNKNOWN or self._off_centre() \
+                or self._iron_stepped():
             return False
         return self.sigma_rad <= self.good_sigma_rad
 
@@ -220,6 +230,8 @@ class HeadingStatus:
         if self.state is None:
             return "hdg --"
         label = STATE_LABELS[self.state] + (" uncal" if self.calibration_caveat() else "")
+        if self._iron_stepped():
+            label += f" iron step {math.degrees(self.mag_step_rad):+.0f}°"
         return f"{label} ±{math.degrees(self.sigma_rad):.1f}°"
 
     def calibration_caveat(self) -> str | None:
@@ -263,6 +275,8 @@ class HeadingStatus:
         """When the aided filter rejects GNSS velocities: the heading as the cause (a short phrase for the
         STATUSTEXT: "mag vs GNSS 36°") when the magnetometer disagrees with the GNSS yaw or the heading was just
         reset to it, else None (then the lever arm or latency, as the GNSS task says)."""
+        if self._iron_stepped():
+            return f"mag iron step {math.degrees(self.mag_step_rad):+.0f}°"
         if self.mag_inconsistent:
             d = self.disagreement_rad
             return f"mag vs GNSS {abs(math.degrees(d)):.0f}°" if math.isfinite(d) else "mag rejected"
@@ -274,6 +288,10 @@ class HeadingStatus:
     def _off_centre(self) -> bool:
         """The circle check finds the calibration wrong (without GNSS: with it ins checks the heading itself)."""
         return math.isfinite(self.field_off_centre_ut) and not self.gnss_checked
+
+    def _iron_stepped(self) -> bool:
+        """The magnetometer is rejected now for a step of its heading the gyro did not see (an iron that changed)."""
+        return math.isfinite(self.mag_step_rad)
 
     def _off_centre_cause(self) -> str:
         return wrong_calibration_text(self.field_off_centre_ut)
@@ -339,7 +357,8 @@ class HeadingStatus:
         if state == HeadingState.UNKNOWN:
             why = cause if self.mag_inconsistent else self._unknown_cause(est)[1]
             return mavlink.MAV_SEVERITY_WARNING, f"ahrsd: heading unknown: {why}; no heading sent"
-        doing = "learning its iron" if state == HeadingState.LEARNING else "heading from GNSS only"
+        doing = ("heading GNSS-held while the iron is relearned" if self._iron_stepped()
+                 else "learning its iron" if state == HeadingState.LEARNING else "heading from GNSS only")
         good = "" if self.heading_good else ", not good yet"
         return mavlink.MAV_SEVERITY_WARNING, f"ahrsd: {cause}; {doing} (±{math.degrees(self.sigma_rad):.1f}°{good})"
 
@@ -366,9 +385,13 @@ class HeadingStatus:
             "calibration gives a better heading (magcal)")
 
     def _magnetometer_cause(self) -> str:
-        """Why the magnetometer does not hold the heading alone: it disagrees with GNSS (by how much, and whether
+        """Why the magnetometer does not hold the heading alone: its heading stepped while the gyro saw no turn
+        (the iron changed), it disagrees with GNSS (by how much, and whether
         for want of a calibration), it has no calibration (or one stating no figure), or its calibration is
         uncertain."""
+        if self._iron_stepped():
+            # "ahrsd: iron changed: mag heading stepped +180°" is 49 ASCII characters: one STATUSTEXT's worth
+            return f"iron changed: mag heading stepped {math.degrees(self.mag_step_rad):+.0f}°, the gyro saw no turn"
         d = self.disagreement_rad
         by = f" by {abs(math.degrees(d)):.0f}°" if math.isfinite(d) else ""
         if not math.isfinite(self.calibration_sigma_rad):

@@ -347,6 +347,8 @@ class HeadingReport:
     max_disagreement_deg: float    # the largest disagreement (with the GNSS-held heading or yaw) at a rejection
     yaw_resets: int                # resets of the yaw to the GNSS yaw
     mag_steps: int = 0             # of the rejections, those for a step of the magnetometer heading (mag_step.py)
+    first_step_t_s: float = math.nan     # the first of those: its time (NaN: none)
+    first_step_deg: float = math.nan     # ... and the step of the magnetometer heading it saw
 
 
 @dataclass
@@ -493,6 +495,8 @@ class Ins:
         self._state_hold = HeadingStateHold(p.heading_state_hold_s, p.heading_known_sigma_rad)
         self.heading_checks: deque[HeadingCheckRecord] = deque(maxlen=HEADING_CHECKS_KEPT)
         self._integrity = None
+        self._rejection_step_rad = math.nan   # the step (mag_step.py) the current rejection is for (NaN: none)
+        self._first_step: tuple[float, float] | None = None   # (t_s, step rad) of the first step rejection
         self._field_key = None
         self._field_ned = None
         self._mag_var = p.calibration_sigma_rad ** 2
@@ -638,8 +642,9 @@ class Ins:
     def heading_report(self) -> HeadingReport:
         """What the heading checks did so far (replay's summary, the daemon's warning)."""
         m = self._monitor
+        t_step, step = self._first_step if self._first_step is not None else (math.nan, math.nan)
         return HeadingReport(m.rejections, math.degrees(m.max_disagreement_rad), self.yaw_resets,
-                             m.step.detections)
+                             m.step.detections, t_step, math.degrees(step))
 
     @property
     def heading_state(self) -> HeadingState:
@@ -926,10 +931,22 @@ class Ins:
                 and self._x["nav_ok"] > 0:
             self._learn_iron(t_s, c_bn, field)
         yaw_now = yaw if yaw_reset_to is None else wrap_pi(yaw_reset_to)
+        self._note_step_rejection(t_s, d.mag_step_rad)
         self._publish_heading_checks(t_s, yaw_now, gsf_yaw, gsf_var, gsf_valid)
         self.heading_checks.append(HeadingCheckRecord(t_s, d.mag_use, d.yaw_var_floor_rad2,
                                                       float(self._P[core.E_YAW, core.E_YAW]), yaw_reset_to,
                                                       self._iron.updates > iron_updates, d.mag_step_rad))
+
+    def _note_step_rejection(self, t_s: float, step_rad: float) -> None:
+        """Whether the magnetometer is rejected now for a step of its heading (the integrity says so, the daemon
+        names it): from the check whose step test rejected it until it re-enters; the first such step for the
+        report."""
+        if math.isfinite(step_rad):
+            self._rejection_step_rad = step_rad
+            if self._first_step is None:
+                self._first_step = (t_s, step_rad)
+        elif not self._monitor.mag_rejected:
+            self._rejection_step_rad = math.nan
 
     def _mag_rotation_check(self, t_s: float, c_bn: np.ndarray, field: np.ndarray | None) -> None:
         """The vertical gyro bias from the magnetometer's turning (MagRotationBias, mag_rotation.py): the gyro's
@@ -1213,7 +1230,7 @@ class Ins:
             sig = self._unconfirmed_sigma_rad
         self._integrity = HeadingIntegrity(gsf_yaw, math.sqrt(gsf_var) if math.isfinite(gsf_var) else math.nan,
                                            gsf_valid, self._monitor.disagreement_rad, self._iron.offset_ut,
-                                           self._iron.sigma_ut)
+                                           self._iron.sigma_ut, self._rejection_step_rad)
         raw = self._monitor.heading_state(sig, False, True, p.heading_unknown_sigma_rad, self._mag_trust_var)
         if raw == HeadingState.MAGNETOMETER and self._mag_state()["since_update_s"] > p.mag_unavailable_s:
             # the monitor lets the magnetometer back, but the kernel's field check still rejects every field (its

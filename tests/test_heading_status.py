@@ -19,9 +19,9 @@ DEG = math.radians(1.0)
 
 
 def estimate(state, sigma_deg, *, disagreement_deg=math.nan, gsf_sigma_deg=2.0, gsf_valid=True, flags=0,
-             with_integrity=True):
+             with_integrity=True, mag_step_deg=math.nan):
     integrity = HeadingIntegrity(0.0, gsf_sigma_deg * DEG, gsf_valid, disagreement_deg * DEG, np.zeros(3),
-                                 np.full(3, 10.0)) if with_integrity else None
+                                 np.full(3, 10.0), mag_step_deg * DEG) if with_integrity else None
     return AttitudeEstimate(0.0, np.array([1.0, 0, 0, 0]), 0.0, 0.0, 0.0, 0.0, 0.0, np.zeros(3), np.zeros(3),
                             np.array([0.01, 0.01, sigma_deg * DEG]), EstimateFlags(flags), None,
                             HeadingState(state), integrity)
@@ -131,6 +131,39 @@ def test_a_change_is_announced_with_the_disagreement_as_its_cause_once_it_held()
     hs.on_estimate(estimate(HeadingState.GNSS_ONLY, 3.0, disagreement_deg=-36.4), 11.0)
     hs.on_estimate(estimate(HeadingState.GNSS_ONLY, 3.0, disagreement_deg=-36.4), 20.0)
     assert len(texts) == 2
+
+
+def test_a_rejection_for_an_iron_step_is_named_iron_changed_and_never_heading_good_while_it_holds():
+    """ins rejected the magnetometer because its heading stepped while the gyro saw no turn (estimator/mag_step.py):
+    the daemon names the iron change, its size and what holds the heading — not a disagreement with GNSS (on a
+    straight leg there is no valid GNSS yaw to disagree with) — and does not say "heading good" with a GNSS σ that
+    would otherwise be good; once the magnetometer re-enters (no step in the integrity) it is good again."""
+    hs, texts = status(cal_sigma_deg=0.5, good_deg=5.0)
+    hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 0.6), 0.0)
+    for t in (1.0, 1.0 + ANNOUNCE_AFTER_S, 30.0):
+        hs.on_estimate(estimate(HeadingState.GNSS_ONLY, 1.0, gsf_valid=False, mag_step_deg=-4.2), t)
+        assert not hs.heading_good                             # 1.0° < 5°: good, were it not a step
+    assert len(texts) == 2
+    sev, text = texts[1]
+    assert sev == mavlink.MAV_SEVERITY_WARNING
+    assert text == ("ahrsd: iron changed: mag heading stepped -4°, the gyro saw no turn; heading GNSS-held while "
+                    "the iron is relearned (±1.0°, not good yet)")
+    assert "disagrees" not in text
+    # its first STATUSTEXT chunk alone (a receiver that does not join chunks) says what changed and by how much
+    first = msgs.statustext_chunks(sev, text, 1)[0].text
+    first = first.decode() if isinstance(first, bytes) else first
+    assert first.rstrip("\x00") == "ahrsd: iron changed: mag heading stepped -4 deg, t"
+    assert hs.status_text() == "hdg GNSS-only iron step -4° ±1.0°"
+    assert hs.rejection_cause(30.0) == "mag iron step -4°"
+    assert hs.unhealthy_bits() & msgs.SENSOR_MAG and hs.unhealthy_bits() & msgs.SENSOR_AHRS
+    # the same GNSS-held state, the step no longer the cause (a disagreement with GNSS is): the old text, good by σ
+    hs.on_estimate(estimate(HeadingState.GNSS_ONLY, 1.0, disagreement_deg=-10.4, gsf_sigma_deg=7.0), 40.0)
+    hs.on_estimate(estimate(HeadingState.GNSS_ONLY, 1.0, disagreement_deg=-10.4, gsf_sigma_deg=7.0),
+                   40.0 + ANNOUNCE_AFTER_S)
+    assert texts[-1][1] == ("ahrsd: magnetometer disagrees with GNSS by 10°: calibration wrong or iron changed; "
+                            "heading from GNSS only (±1.0°)")
+    assert hs.heading_good and hs.status_text() == "hdg GNSS-only ±1.0°"
+    assert hs.rejection_cause(42.0) == "mag vs GNSS 10°"
 
 
 def test_a_disagreement_within_both_uncertainties_is_not_called_one():

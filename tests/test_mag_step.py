@@ -80,7 +80,23 @@ def straight_step():
 
     errors = SensorErrors.adis16405(3).replace(hard_iron_step_ut=STEP_UT, hard_iron_step_t_s=STEP_AT_S)
     run = simulate_vehicle("car", SECONDS, 3, SITE, errors=errors)   # calibrated for the iron before the step
-    return run, run_ins_detailed(run)
+    return run, _run_keeping_integrity(run)
+
+
+def _run_keeping_integrity(run) -> dict:
+    """run_ins_detailed's q, published yaw σ and estimator, and what each estimate's integrity (what the daemon
+    reads) says of a rejection for a step (NaN: none)."""
+    from ahrsd.estimator.ins import Ins
+    from bench.vehicle_accuracy import estimates_in_arrival_order
+
+    est = Ins(declination_rad=run.declination_rad, lever_arm_m=run.lever_arm_m,
+              mag_calibration_sigma_rad=run.mag_calibration_sigma_rad)
+    n = len(run.t_s)
+    q, sigma, step = np.empty((n, 4)), np.empty(n), np.full(n, np.nan)
+    for k, e in estimates_in_arrival_order(est, run, run.fixes):
+        q[k], sigma[k] = e.q_wxyz, e.sigma_rpy_rad[2]
+        step[k] = e.integrity.mag_step_rad if e.integrity is not None else np.nan
+    return {"q": q, "sigma_yaw_rad": sigma, "integrity_step_rad": step, "ins": est}
 
 
 def _true_magnetometer_step_rad(run) -> float:
@@ -110,9 +126,82 @@ def test_an_iron_step_on_a_straight_road_is_caught_and_the_heading_stays_within_
     assert 0.3 < steps[0][1] / true_step < 1.2, (steps, true_step)
 
 
+def test_the_estimates_integrity_says_the_rejection_is_for_a_step_while_the_magnetometer_stays_rejected(straight_step):
+    """What the daemon reads (HeadingIntegrity.mag_step_rad): nothing before the step test rejects the magnetometer,
+    then the step it saw, on every estimate while the magnetometer stays rejected (it re-enters only after 20 s of
+    agreement: after the end of this run)."""
+    run, out = straight_step
+    ins = out["ins"]
+    t_detect, step_rad = [(c.t_s, c.mag_step_rad) for c in ins.heading_checks if math.isfinite(c.mag_step_rad)][0]
+    said = out["integrity_step_rad"]
+    assert np.all(np.isnan(said[run.t_s < t_detect]))
+    # a check runs when its fix arrives, 0.1 s after the fix's time (simulate_vehicle's latency)
+    assert np.all(said[run.t_s > t_detect + 0.2] == step_rad)
+    # of the same sign as the truth's step and a part of it (the after-window was still filling when declared)
+    assert 0.3 < step_rad / _true_magnetometer_step_rad(run) < 1.2
+    assert not any(c.mag_use for c in ins.heading_checks if c.t_s > t_detect)   # no re-entry before the run ends
+    report = ins.heading_report()
+    assert report.first_step_t_s == t_detect and report.first_step_deg == math.degrees(step_rad)
+
+
+def test_the_integrity_stops_saying_step_once_the_magnetometer_is_used_again():
+    """The same road run on to 180 s: the magnetometer re-enters after its 20 s of agreement (about 30 s after the
+    step here); from the check that uses it again on, the integrity no longer names a step."""
+    from ahrsd.simulation import SensorErrors
+
+    errors = SensorErrors.adis16405(3).replace(hard_iron_step_ut=STEP_UT, hard_iron_step_t_s=STEP_AT_S)
+    run = simulate_vehicle("car", 180.0, 3, SITE, errors=errors)
+    out = _run_keeping_integrity(run)
+    ins, said = out["ins"], out["integrity_step_rad"]
+    report = ins.heading_report()
+    assert report.mag_steps == 1 and STEP_AT_S < report.first_step_t_s <= STEP_AT_S + 3.0
+    used_again = [c.t_s for c in ins.heading_checks if c.t_s > report.first_step_t_s and c.mag_use]
+    assert used_again, "the magnetometer did not re-enter before the end of the run"
+    while_rejected = (run.t_s > report.first_step_t_s + 0.2) & (run.t_s < used_again[0])
+    assert np.all(np.degrees(said[while_rejected]) == pytest.approx(report.first_step_deg, rel=1e-12))
+    assert np.all(np.isnan(said[run.t_s > used_again[0] + 0.2]))
+
+
 @pytest.mark.parametrize("scenario", ["boat", "car"])
 def test_no_step_is_declared_over_a_calibrated_run_with_turns_and_waves(scenario):
     """The boat in waves and the car in its turns, calibrated, 240 s at the default site: no detection."""
     run = simulate_vehicle(scenario, 240.0, 2, None)
     ins = run_ins_detailed(run)["ins"]
     assert ins.heading_report().mag_steps == 0
+
+
+def test_replay_names_the_iron_step_with_its_time_and_size(straight_step, tmp_path, capsys):
+    """`ahrsd replay --gnss` of the straight-road step written as a recording (the magnetometer calibrated for the
+    iron before the step, its calibration's heading error told as the daemon would): the summary names the rejection
+    an iron change, when and by how much the magnetometer heading stepped — against the simulator's truth — and
+    does not call it a disagreement with GNSS (there is no valid GNSS yaw on the straight road)."""
+    import re
+
+    from ahrsd.cli.main import main
+    from ahrsd.core.sample import SampleFlags, make_sample
+    from ahrsd.drivers.gnss.recording import GnssRecordingWriter
+    from ahrsd.drivers.recording import RecordingWriter
+    from bench.vehicle_accuracy import CALIBRATED_SIGMA_RAD
+
+    run, _ = straight_step
+    rec, gnss, out = tmp_path / "car.csv", tmp_path / "car.gnss.csv", tmp_path / "out.csv"
+    with RecordingWriter(rec) as w:
+        for k in range(len(run.t_s)):
+            w.write(make_sample(run.t_s[k], run.gyro_rad_s[k], run.accel_m_s2[k], run.mag_ut[k],
+                                flags=SampleFlags.NEW_DATA))
+    g = GnssRecordingWriter(gnss, extra_columns=("t_rx_s",))
+    for fix in run.fixes:
+        g.write(fix)
+    g.close()
+    code = main(["replay", str(rec), "--gnss", str(gnss), "-o", str(out), "--date", "2026-01-01",
+                 "--set", f"mag_calibration_sigma_rad={float(CALIBRATED_SIGMA_RAD)!r}"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    found = re.findall(r"WARNING: iron changed once at ([0-9.]+) s: magnetometer heading stepped by ([-+][0-9.]+)° "
+                       r"while the gyro saw no turn, magnetometer rejected \(heading reset", err)
+    assert len(found) == 1, err
+    t_step, step_deg = float(found[0][0]), float(found[0][1])
+    assert STEP_AT_S < t_step <= STEP_AT_S + 3.0, err
+    true_step_deg = math.degrees(_true_magnetometer_step_rad(run))
+    assert 0.3 < step_deg / true_step_deg < 1.2, (step_deg, true_step_deg)
+    assert "disagreed with GNSS" not in err, err
