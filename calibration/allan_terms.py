@@ -168,13 +168,17 @@ def _nnls_solver():
     calls the compiled `_slsqplib.nnls(A, b, maxiter)`; the fit calls it a few hundred thousand times on a system
     weighted_system has just built (C-ordered float64 of matching shapes), where the checks cost three times the
     solve (weighted_system raises where the finite check would). The same routine is called, so the coefficients
-    are the same bits. Older scipy: the public function."""
+    are the same bits. `_slsqplib` is scipy's private module: where it is missing, or where it no longer answers a
+    small problem exactly as the public function does (a scipy release that changed it), the public function."""
+    from scipy.optimize import nnls
+
+    def public(a: np.ndarray, b: np.ndarray, maxiter: int) -> np.ndarray:
+        return nnls(a, b, maxiter=maxiter)[0]
+
     try:
         from scipy.optimize._slsqplib import nnls as compiled
     except ImportError:
-        from scipy.optimize import nnls
-
-        return lambda a, b, maxiter: nnls(a, b, maxiter=maxiter)[0]
+        return public
 
     def solve(a: np.ndarray, b: np.ndarray, maxiter: int) -> np.ndarray:
         x, _, info = compiled(a, b, maxiter)
@@ -182,7 +186,13 @@ def _nnls_solver():
             raise RuntimeError("Maximum number of iterations reached.")
         return x
 
-    return solve
+    probe_a = np.array([[1.0, 2.0], [3.0, 1.0], [0.5, 4.0]])
+    probe_b = np.array([1.0, -2.0, 3.0])
+    try:
+        same = np.array_equal(solve(probe_a, probe_b, 100), public(probe_a, probe_b, 100))
+    except Exception:     # a changed signature or return: any failure of the private call means "not usable"
+        same = False
+    return solve if same else public
 
 
 def _nnls_weighted(basis: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:

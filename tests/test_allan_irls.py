@@ -81,3 +81,20 @@ def test_a_fit_does_not_depend_on_the_fits_before_it_on_the_same_points(deficit_
     _fit_fixed(shared, ("flicker",), None, ("white", 1e-6))   # the fixed term is the shape's white term
     assert _fit_fixed(shared, ("flicker",), None, ("white", 2e-6)).chi2 == \
         _fit_fixed(_points(deficit_sd_s), ("flicker",), None, ("white", 2e-6)).chi2
+
+
+def test_a_private_routine_that_answers_differently_is_not_used(monkeypatch):
+    """A scipy release that changes `_slsqplib.nnls` (its signature, its return) must not break the fit: the solver
+    falls back to the public function. Simulated by a private routine that answers with a different tuple."""
+    import scipy.optimize._slsqplib as private
+
+    from ahrsd.calibration import allan_terms
+
+    monkeypatch.setattr(private, "nnls", lambda a, b, maxiter: (np.zeros(a.shape[1]),))
+    allan_terms._nnls_solver.cache_clear()
+    try:
+        rng = np.random.default_rng(6)
+        a, b = rng.normal(size=(10, 4)), rng.normal(size=10)
+        assert np.array_equal(allan_terms._nnls_solver()(a, b, 500), nnls(a, b, maxiter=500)[0])
+    finally:
+        allan_terms._nnls_solver.cache_clear()
