@@ -227,10 +227,15 @@ def _judged_on_gaps(res, gaps, integrating: str | None):
                                quality={**res.quality, "rejected_model": res.model.to_dict()})
 
 
-def _gap_report(payload: dict, lines: list, gaps) -> None:
-    """The gaps in the --json object (key `gaps`) and as a report line under the title."""
+def _gap_report(payload: dict, lines: list, gaps, under_title: bool = True) -> None:
+    """The gaps in the --json object (key `gaps`) and as a report line under the title, or last (`under_title`
+    False: the Allan report leads with the data sheet's figures, docs/calibration.md)."""
     payload["gaps"] = gaps.to_json_dict()
-    lines.insert(1, "  " + gaps.describe())
+    line = "  " + gaps.describe()
+    if under_title:
+        lines.insert(1, line)
+    else:
+        lines.append(line)
 
 
 # ---------------------------------------------------------------------------------------------- commands
@@ -281,8 +286,9 @@ def _allan(args) -> int:
     length = f"{res.duration_s / 3600:.2f} h" if res.duration_s >= 360 else f"{res.duration_s:.1f} s"
     lines = [f"Allan analysis of {args.recording}: {length} at {res.rate_hz:.1f} Hz; noise "
              f"parameters {note}"]
-    _gap_report(payload, lines, gap_counter.result())
-    lines += summary(res) + ["  details:"] + ["  " + line for line in describe(res)]
+    lines += summary(res)
+    _gap_report(payload, lines, gap_counter.result(), under_title=False)
+    lines += ["  details:"] + ["  " + line for line in describe(res)]
     _emit(args, payload, "\n".join(lines))
     return 0
 
