@@ -272,3 +272,53 @@ def test_daemon_session_with_gnss_course_removes_the_offset(tmp_path):
     assert meta["offset_source"] == "GNSS course", texts
     assert any("GNSS course" in t for t in texts) or meta["offset_source"] == "GNSS course"
     assert total <= 0.4
+
+
+def _session_data_span(tmp_path, tick_every_s: float) -> tuple[float, float]:
+    """A ±10° session through the protocol handler on a stepped clock (one clock second per sample second, fits
+    in a thread), ticked every `tick_every_s` of sample time; the saved calibration's data span."""
+    from types import SimpleNamespace
+
+    from ahrsd.daemon.magcal import CMD_ACCEPT, CMD_START, MagCalProtocol, MagCalSettings
+    from support.magcal_host import Clock, FakeHost, cmd, tick_settled
+
+    block = record(vehicle(10.0), 150.0)
+    eul = truth_euler(block)
+    host = FakeHost(tmp_path)
+    host.reference_field = lambda lat_deg=None, lon_deg=None: SITE_FIELD
+    clock = Clock()
+    proto = MagCalProtocol(host, MagCalSettings(), clock=clock, warm_fit_worker=False, fit_in_process=False)
+    try:
+        assert proto.handle_start(cmd(CMD_START)) == mavlink.MAV_RESULT_ACCEPTED
+        next_tick = 0.0
+        for i in range(len(block.t_s)):
+            t = float(block.t_s[i])
+            clock.t = 1000.0 + t
+            mag = host.cal.mag.apply(block.mag_ut[i])
+            proto.on_sample(make_sample(t, block.gyro_rad_s[i], block.accel_m_s2[i], mag),
+                            SimpleNamespace(roll_rad=eul[i, 2], pitch_rad=eul[i, 1], yaw_rad=eul[i, 0],
+                                            rate_body_rad_s=block.truth_gyro_rad_s[i]))
+            if t >= next_tick:
+                next_tick = t + tick_every_s
+                tick_settled(proto)
+                if host.of_type("MAG_CAL_REPORT"):
+                    break
+        assert host.of_type("MAG_CAL_REPORT")[-1].cal_status == 4, host.texts()
+        assert proto.handle_accept(cmd(CMD_ACCEPT)) == mavlink.MAV_RESULT_ACCEPTED
+    finally:
+        proto.close()
+    t0, t1 = CalibrationStore(tmp_path).load().metadata["mag"]["data_span_s"]
+    return t0, t1
+
+
+def test_the_session_data_ends_where_it_asked_for_its_fit_however_late_the_tick(tmp_path):
+    """The session asks for its final fit at a sample (coverage, in sample time); the tick that collects fits
+    runs on the wall clock (10 Hz). A daemon catching up after a stall on a loaded machine processes tens of
+    seconds of recording between two ticks, so the data must end at the request, not at the next tick: the
+    same span whether the tick comes every 0.1 s or every 20 s of sample time."""
+    prompt = _session_data_span(tmp_path / "prompt", 0.1)
+    late = _session_data_span(tmp_path / "late", 20.0)
+    print(f"\nsession data span, tick every 0.1 s: {prompt[0]:.2f}-{prompt[1]:.2f} s; every 20 s: "
+          f"{late[0]:.2f}-{late[1]:.2f} s")
+    assert prompt[1] - prompt[0] < 120.0
+    assert late == pytest.approx(prompt, abs=0.051)      # one kept block (20 Hz)
