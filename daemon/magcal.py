@@ -208,6 +208,9 @@ class MagCalProtocol:
         if self._fit_future is None:
             job = s.pending_fit()
             if job is not None:
+                # the data's span in the log: a session longer than its coverage needed shows here
+                log.info("magcal: %s fit of %d samples, %.2f-%.2f s", job.stage, len(job.t),
+                         job.t[0] if len(job.t) else math.nan, job.t[-1] if len(job.t) else math.nan)
                 self._fit_future = self._submit(job)
 
     def on_gnss_message(self, msg) -> None:
