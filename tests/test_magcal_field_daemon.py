@@ -274,42 +274,44 @@ def test_daemon_session_with_gnss_course_removes_the_offset(tmp_path):
     assert total <= 0.4
 
 
+class _LateTicks:
+    """The protocol handler with its tick let through only once every `every_s` of the (stepped) clock: the
+    wall-clock tick of a daemon that runs through that much recording between two ticks."""
+
+    def __init__(self, proto, clock, every_s: float):
+        self.proto, self.clock, self.every_s, self._next = proto, clock, every_s, -math.inf
+
+    def __getattr__(self, name):
+        return getattr(self.proto, name)
+
+    def tick(self) -> None:
+        if self.clock() >= self._next:
+            self._next = self.clock() + self.every_s
+            self.proto.tick()
+
+
 def _session_data_span(tmp_path, tick_every_s: float) -> tuple[float, float]:
-    """A ±10° session through the protocol handler on a stepped clock (one clock second per sample second, fits
-    in a thread), ticked every `tick_every_s` of sample time; the saved calibration's data span."""
-    from types import SimpleNamespace
-
+    """A ±10° session through the protocol handler on a stepped clock (clock = sample time, fits in a thread, the
+    truth attitude as the estimate: test_magcal_protocol's driver), ticked every `tick_every_s` of sample time;
+    the saved calibration's data span."""
     from ahrsd.daemon.magcal import CMD_ACCEPT, CMD_START, MagCalProtocol, MagCalSettings
-    from support.magcal_host import Clock, FakeHost, cmd, tick_settled
+    from support.magcal_host import Clock, FakeHost, cmd
+    from test_magcal_protocol import _drive_vehicle
 
-    block = record(vehicle(10.0), 150.0)
-    eul = truth_euler(block)
     host = FakeHost(tmp_path)
     host.reference_field = lambda lat_deg=None, lon_deg=None: SITE_FIELD
     clock = Clock()
     proto = MagCalProtocol(host, MagCalSettings(), clock=clock, warm_fit_worker=False, fit_in_process=False)
     try:
         assert proto.handle_start(cmd(CMD_START)) == mavlink.MAV_RESULT_ACCEPTED
-        next_tick = 0.0
-        for i in range(len(block.t_s)):
-            t = float(block.t_s[i])
-            clock.t = 1000.0 + t
-            mag = host.cal.mag.apply(block.mag_ut[i])
-            proto.on_sample(make_sample(t, block.gyro_rad_s[i], block.accel_m_s2[i], mag),
-                            SimpleNamespace(roll_rad=eul[i, 2], pitch_rad=eul[i, 1], yaw_rad=eul[i, 0],
-                                            rate_body_rad_s=block.truth_gyro_rad_s[i]))
-            if t >= next_tick:
-                next_tick = t + tick_every_s
-                tick_settled(proto)
-                if host.of_type("MAG_CAL_REPORT"):
-                    break
+        _drive_vehicle(_LateTicks(proto, clock, tick_every_s), clock, record(vehicle(10.0), 150.0), host,
+                       until=lambda: bool(host.of_type("MAG_CAL_REPORT")))
         assert host.of_type("MAG_CAL_REPORT")[-1].cal_status == 4, host.texts()
         assert proto.handle_accept(cmd(CMD_ACCEPT)) == mavlink.MAV_RESULT_ACCEPTED
     finally:
         proto.close()
     t0, t1 = CalibrationStore(tmp_path).load().metadata["mag"]["data_span_s"]
     return t0, t1
-
 
 def test_the_session_data_ends_where_it_asked_for_its_fit_however_late_the_tick(tmp_path):
     """The session asks for its final fit at a sample (coverage, in sample time); the tick that collects fits
