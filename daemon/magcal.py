@@ -199,6 +199,19 @@ class MagCalProtocol:
         s = self.session
         if s is not None and s.status.running:
             s.add_sample(sample, sensor_attitude(estimate, mounting), now_s=self.clock())
+            self._submit_requested_fit(s)
+
+    def _submit_requested_fit(self, s: FieldCalibration) -> None:
+        """Hand a fit the session asked for to the worker at the sample that asked (its data end there).
+        Left to the wall-clock tick, the session would keep taking samples until the next tick: up to tens of
+        seconds of recording when the daemon catches up after a stall on a loaded machine."""
+        if self._fit_future is None:
+            job = s.pending_fit()
+            if job is not None:
+                # the data's span in the log: a session longer than its coverage needed shows here
+                log.info("magcal: %s fit of %d samples, %.2f-%.2f s", job.stage, len(job.t),
+                         job.t[0] if len(job.t) else math.nan, job.t[-1] if len(job.t) else math.nan)
+                self._fit_future = self._submit(job)
 
     def on_gnss_message(self, msg) -> None:
         """The autopilot's GPS_RAW_INT (GLOBAL_POSITION_INT only with `course_from_global_position_int`),
@@ -256,10 +269,8 @@ class MagCalProtocol:
             s.fit_done(outcome)
             if not s.status.running:
                 self._release_worker()
-        if self._fit_future is None and s.status.running:
-            job = s.pending_fit()
-            if job is not None:
-                self._fit_future = self._submit(job)
+        if s.status.running:
+            self._submit_requested_fit(s)
 
     def _warm_worker(self) -> None:
         """Start the fit worker (and its imports) while the operator is still turning."""

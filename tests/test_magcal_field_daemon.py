@@ -272,3 +272,55 @@ def test_daemon_session_with_gnss_course_removes_the_offset(tmp_path):
     assert meta["offset_source"] == "GNSS course", texts
     assert any("GNSS course" in t for t in texts) or meta["offset_source"] == "GNSS course"
     assert total <= 0.4
+
+
+class _LateTicks:
+    """The protocol handler with its tick let through only once every `every_s` of the (stepped) clock: the
+    wall-clock tick of a daemon that runs through that much recording between two ticks."""
+
+    def __init__(self, proto, clock, every_s: float):
+        self.proto, self.clock, self.every_s, self._next = proto, clock, every_s, -math.inf
+
+    def __getattr__(self, name):
+        return getattr(self.proto, name)
+
+    def tick(self) -> None:
+        if self.clock() >= self._next:
+            self._next = self.clock() + self.every_s
+            self.proto.tick()
+
+
+def _session_data_span(tmp_path, tick_every_s: float) -> tuple[float, float]:
+    """A ±10° session through the protocol handler on a stepped clock (clock = sample time, fits in a thread, the
+    truth attitude as the estimate: test_magcal_protocol's driver), ticked every `tick_every_s` of sample time;
+    the saved calibration's data span."""
+    from ahrsd.daemon.magcal import CMD_ACCEPT, CMD_START, MagCalProtocol, MagCalSettings
+    from support.magcal_host import Clock, FakeHost, cmd
+    from test_magcal_protocol import _drive_vehicle
+
+    host = FakeHost(tmp_path)
+    host.reference_field = lambda lat_deg=None, lon_deg=None: SITE_FIELD
+    clock = Clock()
+    proto = MagCalProtocol(host, MagCalSettings(), clock=clock, warm_fit_worker=False, fit_in_process=False)
+    try:
+        assert proto.handle_start(cmd(CMD_START)) == mavlink.MAV_RESULT_ACCEPTED
+        _drive_vehicle(_LateTicks(proto, clock, tick_every_s), clock, record(vehicle(10.0), 150.0), host,
+                       until=lambda: bool(host.of_type("MAG_CAL_REPORT")))
+        assert host.of_type("MAG_CAL_REPORT")[-1].cal_status == 4, host.texts()
+        assert proto.handle_accept(cmd(CMD_ACCEPT)) == mavlink.MAV_RESULT_ACCEPTED
+    finally:
+        proto.close()
+    t0, t1 = CalibrationStore(tmp_path).load().metadata["mag"]["data_span_s"]
+    return t0, t1
+
+def test_the_session_data_ends_where_it_asked_for_its_fit_however_late_the_tick(tmp_path):
+    """The session asks for its final fit at a sample (coverage, in sample time); the tick that collects fits
+    runs on the wall clock (10 Hz). A daemon catching up after a stall on a loaded machine processes tens of
+    seconds of recording between two ticks, so the data must end at the request, not at the next tick: the
+    same span whether the tick comes every 0.1 s or every 20 s of sample time."""
+    prompt = _session_data_span(tmp_path / "prompt", 0.1)
+    late = _session_data_span(tmp_path / "late", 20.0)
+    print(f"\nsession data span, tick every 0.1 s: {prompt[0]:.2f}-{prompt[1]:.2f} s; every 20 s: "
+          f"{late[0]:.2f}-{late[1]:.2f} s")
+    assert prompt[1] - prompt[0] < 120.0
+    assert late == pytest.approx(prompt, abs=0.051)      # one kept block (20 Hz)
