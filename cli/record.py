@@ -109,7 +109,7 @@ def _record(args, open_bus) -> int:
     gnss, writer = _open_files(args, bus, source, paced)
     status = _LiveStatus.wanted(args, imu)
     recorder = SourceRecorder(source, writer, paced=paced,
-                              truth_q_wxyz=(lambda: bus.output_truth_q_wxyz) if simulated else None,
+                              truth_q_wxyz=(lambda: source.bus.burst_truth_q_wxyz) if simulated else None,
                               on_sample=lambda sample: _after_sample(recorder, sample, gnss, status))
     n_target = None if args.seconds is None else max(1, int(round(args.seconds * imu.sample_rate_hz)))
 
@@ -157,6 +157,7 @@ def _open_chip(args, paced: bool, open_chip_bus):
     import time
 
     from ahrsd.drivers.errors import DriverError
+    from ahrsd.drivers.ground_truth import BurstTruthTap
     from ahrsd.drivers.source import start_chip_source
 
     clock = time.monotonic if paced else None
@@ -170,8 +171,10 @@ def _open_chip(args, paced: bool, open_chip_bus):
                                 site=args.site, vehicle_iron=iron)
         else:
             bus = open_chip_bus("spi", spi_device=args.spi)
+        # a simulated chip is read through a tap that keeps the truth of the sample each burst returned
+        read_bus = BurstTruthTap(bus) if args.sim is not None else bus
         # one timing path (drivers.sample_timer): the host clock, or the free-running chip's own
-        source = start_chip_source(bus, "ADIS16405", clock=clock or bus.now, self_test=not args.no_self_test,
+        source = start_chip_source(read_bus, "ADIS16405", clock=clock or bus.now, self_test=not args.no_self_test,
                                    sample_rate_hz=args.rate_hz, filter_n=args.filter_taps)
     except DriverError as exc:
         raise RecordError(str(exc)) from None

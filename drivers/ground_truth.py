@@ -68,6 +68,24 @@ class BurstIndexTap:
         return self.chip.now()
 
 
+class BurstTruthTap(BurstIndexTap):
+    """A BurstIndexTap that also notes the truth attitude (body->NED, wxyz) of the sample each burst returned,
+    for `ahrsd record --sim`'s truth columns: the chip's own `output_truth_q_wxyz` after the read is a later
+    sample's when the driver went on with a register read (burst-bug check, DIAG_STAT) during which the chip
+    produced the next sample."""
+
+    def __init__(self, chip):
+        super().__init__(chip)
+        self.burst_truth_q_wxyz = None
+
+    def _transfer(self, tx: bytes, speed_hz: int, delay_us: int) -> bytes:
+        rx = super()._transfer(tx, speed_hz, delay_us)
+        if tx[0] == GLOB_CMD and tx[1] == 0:
+            truth = self.chip.output_truth_q_wxyz     # a row of the chip's block: copied, ours to keep
+            self.burst_truth_q_wxyz = None if truth is None else truth.copy()
+        return rx
+
+
 class GroundTruthSource(LiveSource):
     """A per-sample source over `BurstIndexTap(chip)` plus the chip's truth (`truth_stats`, in `counters()`
     as sensor_*; chip_first/last_index_read). Fault windows of the chip's FaultPlan are rebased to count chip
