@@ -21,6 +21,12 @@ def wrap_pi(angle_rad):
     return np.mod(_f(angle_rad) + np.pi, TWO_PI) - np.pi
 
 
+def wrap_pi_float(angle_rad: float) -> float:
+    """One angle (a Python float) wrapped to [−π, π), without numpy's per-call cost: the per-check scalar paths
+    (the heading monitor, the step test, the NMEA variation)."""
+    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
+
+
 def wrap_2pi(angle_rad):
     """Wrap angles to [0, 2π) (headings)."""
     a = np.mod(_f(angle_rad), TWO_PI)

@@ -27,6 +27,7 @@ import math
 import numpy as np
 from pynmeagps import GET, NMEAMessage
 
+from ahrsd.core.angles import wrap_pi_float
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState
 
 SENTENCE_IDS = ("HDT", "HDG", "HDM", "ROT", "XDR")
@@ -67,10 +68,6 @@ def _signed(value: float) -> float:
     return round(value, DECIMALS) + 0.0
 
 
-def _wrap_pi(angle_rad: float) -> float:
-    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
-
-
 def build_sentence(sentence_id: str, est: AttitudeEstimate, talker: str) -> bytes | None:
     """One sentence for this estimate, or None when it must be withheld (see the module docstring)."""
     initialising = bool(est.flags & EstimateFlags.INITIALISING)
@@ -79,7 +76,7 @@ def build_sentence(sentence_id: str, est: AttitudeEstimate, talker: str) -> byte
     if sentence_id == "HDT":
         msg = NMEAMessage(talker, "HDT", GET, headingT=_deg360(est.heading_true_rad), headingTu="T")
     elif sentence_id == "HDG":
-        variation_deg = _signed(math.degrees(_wrap_pi(est.heading_true_rad - est.heading_mag_rad)))
+        variation_deg = _signed(math.degrees(wrap_pi_float(est.heading_true_rad - est.heading_mag_rad)))
         msg = NMEAMessage(talker, "HDG", GET, headingM=_deg360(est.heading_mag_rad), deviation=0.0,
                           deviationEW="E", variation=abs(variation_deg),
                           variationEW="E" if variation_deg >= 0.0 else "W")

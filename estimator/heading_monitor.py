@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ahrsd.core.angles import wrap_pi_float as wrap_pi
 from ahrsd.core.estimate import HeadingState
 
 from .mag_step import MagStepDetector
@@ -39,10 +40,6 @@ N_IRON = 12
 """IronLearner's states: the hard iron b (3, µT) then the soft iron D row by row (9)."""
 _LEVEL_HEADINGS = np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False)
 """The headings IronLearner.level_heading_variance looks at (rad)."""
-
-
-def wrap_pi(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def skew(v) -> np.ndarray:

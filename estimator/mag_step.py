@@ -34,9 +34,7 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
-
-def _wrap_pi(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
+from ahrsd.core.angles import wrap_pi_float
 
 
 @dataclass
@@ -100,7 +98,7 @@ class MagStepDetector:
         white = sum((b - a) ** 2 for a, b in zip(inn, inn[1:])) / (2.0 * (len(inn) - 1))
         span_s = self._checks[-1][0] - self._checks[0][0]
         yaws = [c[2] for c in self._checks]
-        turned = min(sum(abs(_wrap_pi(b - a)) for a, b in zip(yaws, yaws[1:])), self.max_heading_span_rad)
+        turned = min(sum(abs(wrap_pi_float(b - a)) for a, b in zip(yaws, yaws[1:])), self.max_heading_span_rad)
         return (white * (1.0 / len(inn) + 1.0 / n_after)
                 + 2.0 * tilt_heading_var_rad2 + 2.0 * yaw_var_rad2
                 + gyro_bias_var_rad2_s2 * span_s ** 2 + gyro_arw_rad_s_sqrt_hz ** 2 * span_s
