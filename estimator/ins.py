@@ -1027,11 +1027,16 @@ class Ins:
         the heading the vehicle points at, so a half-learned iron read as learned on one leg and not on the next,
         stopping and restarting the learning and flipping the published state MAGNETOMETER ↔ LEARNING each time
         the boat turned (docs/gnss.md "Heading state"). This one only falls while learning."""
-        p = self.params
         if not (self._iron.updates > 0 or self._iron_restored) or field is None or not math.isfinite(mag_var):
             return mag_var - noise if math.isfinite(mag_var) else math.nan
         h2 = float(field[0] ** 2 + field[1] ** 2)
-        return min(p.calibration_sigma_rad ** 2, p.iron_unmodelled_ut ** 2 / h2) + self._iron.level_heading_variance(field)
+        return self._learned_floor_var(h2) + self._iron.level_heading_variance(field)
+
+    def _learned_floor_var(self, h2_ut2: float) -> float:
+        """The floor of a learned magnetometer's heading variance at a horizontal field of h2 (µT²), rad²: what no
+        learned iron explains (`iron_unmodelled_ut`) over the field, at most the calibration's own figure."""
+        p = self.params
+        return min(p.calibration_sigma_rad ** 2, p.iron_unmodelled_ut ** 2 / h2_ut2)
 
     def _tilt_heading_var(self) -> float:
         """The variance the filter's tilt uncertainty gives the magnetometer heading, rad²: a tilt about the
@@ -1201,8 +1206,7 @@ class Ins:
         if field is None:
             return False
         h2 = float(field[0] ** 2 + field[1] ** 2)
-        floor = min(self.params.calibration_sigma_rad ** 2, self.params.iron_unmodelled_ut ** 2 / h2) if h2 > 0.0 \
-            else math.inf
+        floor = self._learned_floor_var(h2) if h2 > 0.0 else math.inf
         return floor > self._monitor.trusted_sigma_rad ** 2
 
     def _learn_iron(self, t_s: float, c_bn: np.ndarray, field: np.ndarray | None) -> None:
