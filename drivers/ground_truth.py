@@ -54,8 +54,12 @@ class BurstIndexTap:
     def _transfer(self, tx: bytes, speed_hz: int, delay_us: int) -> bytes:
         rx = self.chip.transfer(tx, speed_hz, delay_us)
         if tx[0] == GLOB_CMD and tx[1] == 0:          # 0x3E00 starts a burst read
-            self.burst_index = self.chip.sample_index
+            self._on_burst()
         return rx
+
+    def _on_burst(self) -> None:
+        """A burst read has just returned the chip's current sample: note what belongs to that sample."""
+        self.burst_index = self.chip.sample_index
 
     # the rest of the chip's bus (drivers.spi.SpiBus) and its clock (a benchmark places chip time on the host's)
     def sleep(self, seconds: float) -> None:
@@ -78,12 +82,10 @@ class BurstTruthTap(BurstIndexTap):
         super().__init__(chip)
         self.burst_truth_q_wxyz = None
 
-    def _transfer(self, tx: bytes, speed_hz: int, delay_us: int) -> bytes:
-        rx = super()._transfer(tx, speed_hz, delay_us)
-        if tx[0] == GLOB_CMD and tx[1] == 0:
-            truth = self.chip.output_truth_q_wxyz     # a row of the chip's block: copied, ours to keep
-            self.burst_truth_q_wxyz = None if truth is None else truth.copy()
-        return rx
+    def _on_burst(self) -> None:
+        super()._on_burst()
+        truth = self.chip.output_truth_q_wxyz     # a row of the chip's block: copied, ours to keep
+        self.burst_truth_q_wxyz = None if truth is None else truth.copy()
 
 
 class GroundTruthSource(LiveSource):
