@@ -90,6 +90,23 @@ def test_reentry_counts_consistency_only_while_the_gnss_holds_the_heading():
     assert back[0] == pytest.approx(30.0 + 20.0, abs=0.21), back[0]
 
 
+def test_a_magnetometer_whose_heading_error_is_not_trusted_never_re_enters_however_long_it_agrees():
+    """Agreement is not enough: the magnetometer heading's slowly varying error (its calibration and learned iron,
+    `mag_bias_var`) must be below `trusted_sigma_rad` (3°) too. 60 s of agreement while the GNSS holds the heading
+    with that error at 5°: still rejected; the first check with it at 2°: back at once (the agreement has held)."""
+    mon = HeadingMonitor(D(0.5))
+    _checks(mon, [0.0] * 10 + [8.0] * 3)
+    assert mon.mag_rejected
+    t0 = 0.2 * 13
+    for i in range(300):
+        d = mon.check(t0 + 0.2 * i, 0.0, D(0.3) ** 2, 0.0, D(5.0) ** 2, math.nan, math.inf, False,
+                      heading_observable=True, mag_bias_var_rad2=D(5.0) ** 2)
+        assert not d.mag_use, f"re-entered at {0.2 * i:.1f} s with a 5° heading error"
+    d = mon.check(t0 + 60.0, 0.0, D(0.3) ** 2, 0.0, D(2.0) ** 2, math.nan, math.inf, False,
+                  heading_observable=True, mag_bias_var_rad2=D(2.0) ** 2)
+    assert d.mag_use and not mon.mag_rejected
+
+
 def test_a_reset_check_decides_no_learning():
     """A check that resets the yaw to the GNSS yaw (valid, 40° ± 2° off a filter yaw of σ 0.3°, the magnetometer
     rejected, the filter's velocity fusion failing) says nothing is learned at it: the heading σ the learning was

@@ -52,6 +52,20 @@ def test_heading_good_only_for_the_magnetometer_or_a_small_gnss_sigma():
     assert not hs.heading_good
 
 
+@pytest.mark.parametrize("cal_sigma_deg", [0.5, 10.0, math.nan], ids=["trusted", "untrusted", "none"])
+def test_3d_mag_is_unhealthy_while_the_magnetometer_is_not_used_whatever_its_calibration(cal_sigma_deg):
+    """GNSS-only or learning: the magnetometer is not what holds the heading, so SYS_STATUS says 3D_MAG is not
+    healthy also when its calibration was never trusted (then no disagreement with the GNSS is claimed; the
+    trusted case above clears the bit for that reason too)."""
+    for state in (HeadingState.GNSS_ONLY, HeadingState.LEARNING):
+        hs, _ = status(cal_sigma_deg=cal_sigma_deg)
+        hs.on_estimate(estimate(state, 2.0), 0.0)
+        assert hs.unhealthy_bits() & msgs.SENSOR_MAG, (state, cal_sigma_deg)
+    hs, _ = status(cal_sigma_deg=0.5)
+    hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 1.0), 0.0)
+    assert not hs.unhealthy_bits() & msgs.SENSOR_MAG
+
+
 def test_a_magnetometer_heading_whose_sigma_widens_is_not_good_at_once_and_good_again_only_once_it_held():
     """An unaided magnetometer heading whose σ widens beyond the 5° limit for 10 s (a turn harder than the
     simulated boat's: 20 °/s at 2 m/s leans 4.1°, σ ≈ 6°), through the health report as the daemon runs it at

@@ -142,6 +142,37 @@ def test_fixed_yaw_latitude_214_is_denied_up_front(rig, stale_hard_iron):
     assert_no_escape(rig)
 
 
+FIRST_BEYOND_EACH_LIMIT = [     # (form, params, MAV_RESULT, the reason's words)
+    ("long", (30.0, 0, 90.5, 10.0), mavlink.MAV_RESULT_DENIED, "latitude 90.5"),        # just beyond a pole
+    ("long", (30.0, 0, 35.7, 180.5), mavlink.MAV_RESULT_DENIED, "longitude 180.5"),
+    ("long", (30.0, 1.5, 0.0, 0.0), mavlink.MAV_RESULT_FAILED, "mask 1.5"),             # a mask is a whole number
+    ("int", dict(x=357_000_000, y=514_000_000, frame=mavlink.MAV_FRAME_LOCAL_NED), mavlink.MAV_RESULT_DENIED,
+     "frame 1 not global"),                                                              # x/y are no lat/lon there
+]
+
+
+def test_fixed_yaw_just_outside_each_limit_is_refused_with_its_reason(rig, stale_hard_iron):
+    """Each input check of MAV_CMD_FIXED_MAG_CAL_YAW at the first value beyond its limit (the cases above are far
+    beyond): the MAVLink limits (common.xml: latitude ±90°, longitude ±180°, a compass bitmask, x/y a position only
+    in a global frame), not what the code happens to accept. One daemon for all (each request differs, so none is
+    a duplicate of another)."""
+    feed_still_samples(rig, 0.0, 1.5)
+    before = rig.service.pipeline.calibration
+    for form, params, result, reason in FIRST_BEYOND_EACH_LIMIT:
+        drain(rig)
+        feed(rig, command_long(rig, CMD_FIXED_YAW, *params) if form == "long" else
+             command_int(rig, CMD_FIXED_YAW, 30.0, **params))
+        got = drain(rig)
+        (ack,) = acks(got, CMD_FIXED_YAW)
+        assert ack.result == result, reason
+        said = "".join(m.text for m in got if m.get_type() == "STATUSTEXT")     # chunked above 50 bytes
+        assert reason in said, (reason, said)
+        rig.clock[0] += 10.0                  # past the STATUSTEXT rate limit: each refusal says why
+    assert rig.service.pipeline.calibration is before
+    assert rig.service.commands.counters.refused == len(FIRST_BEYOND_EACH_LIMIT)
+    assert_no_escape(rig)
+
+
 def test_fixed_yaw_int32_extremes_in_command_int_are_read_as_position_and_denied(rig, stale_hard_iron):
     """The COMMAND_INT of the finding: x = 2^31−1, y = −2^31 are degE7 (214.7°, −214.7°): DENIED, unchanged."""
     feed_still_samples(rig, 0.0, 1.5)
