@@ -4,7 +4,8 @@ At 819.2 SPS the daemon's publishers want an estimate 30–50 times a second, no
 immutable AttitudeEstimate (a fresh output buffer, NavState, the heading state) costs several times the filter
 step's own Python around the compiled kernel. So `step` returns a view, one per estimator, reused: `t_s`,
 `valid` and `flags` are read per sample, `snapshot()` is the AttitudeEstimate `update` returns for the sample
-stepped last, and any other attribute of the AttitudeEstimate (`roll_rad`, `nav`, …) reads through the view.
+stepped last, and every other field of the AttitudeEstimate (`roll_rad`, `nav`, …) is a member of the view
+(`EstimateView` declares each one, reading the snapshot; a view that reads a field in place declares its own).
 
 `EstimateView` is that one concept; an estimator gives it in one of two ways, and the difference is what a
 change between a step and a read does:
@@ -25,7 +26,9 @@ from __future__ import annotations
 import math
 from typing import Callable
 
-from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags
+import numpy as np
+
+from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingIntegrity, HeadingState, NavState
 
 from .filter_output import estimate_flags
 
@@ -34,7 +37,8 @@ _INITIALISING = EstimateFlags.INITIALISING
 
 class EstimateView:
     """The latest estimate of a stepping estimator (module docstring). A subclass gives `t_s`, `valid`,
-    `flags` and `snapshot()`, and may read any other field in place; the rest read the snapshot."""
+    `flags` and `snapshot()`, and may read any other field in place (overriding its member here); the rest
+    read the snapshot."""
 
     __slots__ = ()
 
@@ -50,11 +54,55 @@ class EstimateView:
         """The estimator is about to change something a read after the step would see (a view read in place
         shows such a change: nothing to do)."""
 
-    def __getattr__(self, name: str):
-        # only called for what the view does not read itself
-        if name.startswith("_"):
-            raise AttributeError(name)
-        return getattr(self.snapshot(), name)
+    # The other fields of the AttitudeEstimate read the snapshot; a view that reads one in place (mekf.MekfView)
+    # declares its own. Named one by one, not forwarded wholesale, so what a view has is read here.
+    @property
+    def q_wxyz(self) -> np.ndarray:
+        return self.snapshot().q_wxyz
+
+    @property
+    def roll_rad(self) -> float:
+        return self.snapshot().roll_rad
+
+    @property
+    def pitch_rad(self) -> float:
+        return self.snapshot().pitch_rad
+
+    @property
+    def yaw_rad(self) -> float:
+        return self.snapshot().yaw_rad
+
+    @property
+    def heading_mag_rad(self) -> float:
+        return self.snapshot().heading_mag_rad
+
+    @property
+    def heading_true_rad(self) -> float:
+        return self.snapshot().heading_true_rad
+
+    @property
+    def rate_body_rad_s(self) -> np.ndarray:
+        return self.snapshot().rate_body_rad_s
+
+    @property
+    def gyro_bias_rad_s(self) -> np.ndarray:
+        return self.snapshot().gyro_bias_rad_s
+
+    @property
+    def sigma_rpy_rad(self) -> np.ndarray:
+        return self.snapshot().sigma_rpy_rad
+
+    @property
+    def nav(self) -> NavState | None:
+        return self.snapshot().nav
+
+    @property
+    def heading_state(self) -> HeadingState:
+        return self.snapshot().heading_state
+
+    @property
+    def integrity(self) -> HeadingIntegrity | None:
+        return self.snapshot().integrity
 
 
 class BuiltEstimateView(EstimateView):

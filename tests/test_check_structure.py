@@ -184,11 +184,12 @@ def test_probing_a_settings_object_in_the_drivers_fails(tmp_path):
     assert "bad.py:6:" not in r.stdout and "bad.py:8:" not in r.stdout
 
 
-def test_a_forwarding_wrapper_in_the_drivers_fails_and_a_lazy_module_import_passes(tmp_path):
+def test_a_forwarding_wrapper_fails_in_every_package_and_in_tests_and_a_lazy_module_import_passes(tmp_path):
     """Rule 9: drivers.ground_truth and drivers.threaded_source forwarded whatever they lacked to what they wrapped
-    (`def __getattr__(self, name): return getattr(self.inner, name)`); a wrapper now declares what it passes on.
-    A module's `__getattr__` (PEP 562, drivers/__init__.py's imports on first use) and a wrapper outside drivers/
-    and daemon/ are not this rule's."""
+    (`def __getattr__(self, name): return getattr(self.inner, name)`), estimator.estimate_view.EstimateView every
+    field to its snapshot, and test fakes everything to the chip or source behind them; a wrapper now declares
+    what it passes on. A module's `__getattr__` (PEP 562, drivers/__init__.py's imports on first use) is not
+    this rule's."""
     (tmp_path / "drivers").mkdir()
     (tmp_path / "drivers" / "bad.py").write_text(textwrap.dedent("""\
         class Wrapper:
@@ -205,8 +206,12 @@ def test_a_forwarding_wrapper_in_the_drivers_fails_and_a_lazy_module_import_pass
     (tmp_path / "daemon" / "bad.py").write_text("class View:\n    def __getattr__(self, name):\n        return 0\n")
     (tmp_path / "estimator").mkdir()
     (tmp_path / "estimator" / "view.py").write_text("class View:\n    def __getattr__(self, name):\n        return 0\n")
+    (tmp_path / "tests").mkdir()
+    (tmp_path / "tests" / "test_fake.py").write_text("class Bus:\n    def __getattr__(self, name):\n        return 0\n")
     r = run(tmp_path)
     assert r.returncode == 1
     assert "drivers/bad.py:4: class Wrapper forwards every attribute" in r.stdout
     assert "daemon/bad.py:2: class View forwards every attribute" in r.stdout
-    assert "bad.py:7:" not in r.stdout and "bad.py:8:" not in r.stdout and "estimator/" not in r.stdout
+    assert "estimator/view.py:2: class View forwards every attribute" in r.stdout
+    assert "tests/test_fake.py:2: class Bus forwards every attribute" in r.stdout
+    assert "bad.py:7:" not in r.stdout and "bad.py:8:" not in r.stdout

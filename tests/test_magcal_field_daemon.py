@@ -281,8 +281,15 @@ class _LateTicks:
     def __init__(self, proto, clock, every_s: float):
         self.proto, self.clock, self.every_s, self._next = proto, clock, every_s, -math.inf
 
-    def __getattr__(self, name):
-        return getattr(self.proto, name)
+    def on_sample(self, sample, est) -> None:
+        self.proto.on_sample(sample, est)
+
+    def on_gnss_message(self, msg) -> None:
+        self.proto.on_gnss_message(msg)
+
+    @property
+    def _fit_future(self):               # what support.magcal_host.tick_settled waits for
+        return self.proto._fit_future
 
     def tick(self) -> None:
         if self.clock() >= self._next:

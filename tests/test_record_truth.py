@@ -41,8 +41,20 @@ class _SteppedClockChip:
             self.burst_indices.append(self.chip.sample_index)
         return rx
 
-    def __getattr__(self, name):
-        return getattr(self.chip, name)
+    # the rest of what `ahrsd record --sim` reads of the simulated chip (drivers.spi.SpiBus, its clock, and what
+    # drivers.ground_truth.BurstTruthTap notes at each burst)
+    def sleep(self, seconds: float) -> None:
+        self.chip.sleep(seconds)
+
+    def close(self) -> None:
+        self.chip.close()
+
+    def now(self) -> float:
+        return self.chip.now()
+
+    stats = property(lambda self: self.chip.stats)
+    sample_index = property(lambda self: self.chip.sample_index)
+    output_truth_q_wxyz = property(lambda self: self.chip.output_truth_q_wxyz)
 
 
 def test_each_row_has_the_truth_of_the_sample_its_burst_returned(tmp_path):

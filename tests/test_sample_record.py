@@ -40,8 +40,11 @@ class _TapBus:
             self.last = rx
         return rx
 
-    def __getattr__(self, name):
-        return getattr(self.chip, name)
+    def sleep(self, seconds):
+        self.chip.sleep(seconds)
+
+    def close(self):
+        self.chip.close()
 
 
 def test_record_holds_the_frames_values_in_si_units():

@@ -49,8 +49,24 @@ class TappedSource:
         self.samples.extend(samples)
         return samples
 
-    def __getattr__(self, name):
-        return getattr(self._source, name)
+    # the rest of drivers.source_interface's members, passed on as the source has them
+    description = property(lambda self: self._source.description)
+    sample_rate_hz = property(lambda self: self._source.sample_rate_hz)
+    per_sample = property(lambda self: self._source.per_sample)
+    monotonic_offset_s = property(lambda self: self._source.monotonic_offset_s)
+    recording_time_base = property(lambda self: self._source.recording_time_base)
+    finished = property(lambda self: self._source.finished)
+    chip = property(lambda self: self._source.chip)
+    ready_fd = property(lambda self: self._source.ready_fd)
+
+    def next_read_time(self):
+        return self._source.next_read_time()
+
+    def counters(self):
+        return self._source.counters()
+
+    def close(self):
+        self._source.close()
 
 
 @dataclasses.dataclass

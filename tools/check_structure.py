@@ -27,11 +27,13 @@ Rule in drivers/ and daemon/:
 8. no `getattr`/`hasattr` probing of a settings object (`sensor_cfg`, `settings`, `cfg`, `config`, …): what a
    source is built from is a declared type (drivers/source_settings.py: SensorSettings; the daemon's config
    tables), every field with its one default, so a missing field is an error, not a second meaning.
-Rule in drivers/ and daemon/:
+Rule in every package and in tests/:
 9. no `__getattr__` method in a class (a wrapper that forwards whatever it is asked to what it wraps): a wrapper
-   declares each member it passes on (a property or a method), so what a source, a bus or a sentence has is
-   read in one place (drivers/source_interface.py, drivers/spi.py SpiBus). A module's own `__getattr__` (PEP 562:
-   a name imported on first use, drivers/__init__.py) is not a wrapper and stays allowed.
+   declares each member it passes on (a property or a method), so what a source, a bus, a sentence or an
+   estimate view has is read in one place (drivers/source_interface.py, drivers/spi.py SpiBus,
+   estimator/estimate_view.py EstimateView); a test's fake declares what the code under test uses of it. A
+   module's own `__getattr__` (PEP 562: a name imported on first use, drivers/__init__.py) is not a wrapper and
+   stays allowed.
 Rule in tests/:
 5. no spy on an estimator: no function or lambda assigned to an attribute of an estimator object (the names of
    rule 3, and what hangs below them: `est._monitor.check = spy`). A test reads what the estimator decided
@@ -52,7 +54,6 @@ PROBED_OBJECTS = {"self", "service", "svc", "s", "host", "self.service", "self.h
                   *ESTIMATOR_OBJECTS}
 DAEMON = "daemon"
 SETTINGS_RULE_PACKAGES = ("drivers", DAEMON)
-FORWARDING_RULE_PACKAGES = ("drivers", DAEMON)
 SETTINGS_OBJECTS = {"sensor_cfg", "sensor_settings", "settings", "cfg", "config", "self.settings", "self.config",
                     "self.cfg", "self.sensor_cfg"}                    # drivers/source_settings.py, daemon/config.py
 ESTIMATOR_RULE_PACKAGES = ("cli", "calibration", "estimator", "drivers", "core", "simulation")
@@ -129,18 +130,15 @@ def _forwarding_wrappers(tree: ast.AST, shown: str) -> list[str]:
             for item in node.body if isinstance(item, ast.FunctionDef) and item.name == "__getattr__"]
 
 
-def check_file(path: Path, shown: str, daemon_rules: bool = True, settings_rule: bool = False,
-               forwarding_rule: bool = False) -> list[str]:
-    """The problems in one file: every rule (daemon_rules), or only rules 4 (an estimator probed) and 7; and
-    rule 8 (a settings object probed) with settings_rule, rule 9 (a forwarding wrapper) with forwarding_rule."""
+def check_file(path: Path, shown: str, daemon_rules: bool = True, settings_rule: bool = False) -> list[str]:
+    """The problems in one file: every rule (daemon_rules), or only rules 4 (an estimator probed), 7 and 9 (a
+    forwarding wrapper); and rule 8 (a settings object probed) with settings_rule."""
     try:
         tree = ast.parse(path.read_text(encoding="utf-8"))
     except SyntaxError as exc:
         return [f"{shown}:{exc.lineno}: does not parse"]
     lines = path.read_text(encoding="utf-8").splitlines()
-    out = _monkeypatches(tree, lines, shown)
-    if forwarding_rule:
-        out += _forwarding_wrappers(tree, shown)
+    out = _monkeypatches(tree, lines, shown) + _forwarding_wrappers(tree, shown)
     for node in ast.walk(tree):
         if (daemon_rules and isinstance(node, ast.Call) and _dotted(node.func) in HOST_CLOCKS
                 and HOST_CLOCK_MARK not in lines[node.lineno - 1]):
@@ -174,13 +172,14 @@ def _is_estimator(dotted: str) -> bool:
 
 
 def check_test_file(path: Path, shown: str) -> list[str]:
-    """Rule 5: a function or lambda assigned to an attribute of an estimator (a spy replacing its method)."""
+    """Rule 5: a function or lambda assigned to an attribute of an estimator (a spy replacing its method); rule 9:
+    a fake that forwards whatever it lacks."""
     try:
         tree = ast.parse(path.read_text(encoding="utf-8"))
     except SyntaxError as exc:
         return [f"{shown}:{exc.lineno}: does not parse"]
     functions = {n.name for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))}
-    out = []
+    out = _forwarding_wrappers(tree, shown)
     for node in ast.walk(tree):
         if not isinstance(node, ast.Assign):
             continue
@@ -199,8 +198,7 @@ def check(root: Path) -> list[str]:
     for package in (DAEMON, *ESTIMATOR_RULE_PACKAGES):
         for path in sorted((root / package).rglob("*.py")):
             out += check_file(path, str(path.relative_to(root)), daemon_rules=package == DAEMON,
-                              settings_rule=package in SETTINGS_RULE_PACKAGES,
-                              forwarding_rule=package in FORWARDING_RULE_PACKAGES)
+                              settings_rule=package in SETTINGS_RULE_PACKAGES)
     for path in sorted((root / TESTS).rglob("*.py")):
         out += check_test_file(path, str(path.relative_to(root)))
     return out
