@@ -34,6 +34,17 @@ def test_a_dropped_block_is_counted_from_the_counter_and_from_the_time_stamps():
     assert find_gaps(t_s, counter).counted_from == "counter" and find_gaps(t_s).counted_from == "t_s"
 
 
+def test_single_lost_samples_are_gaps_and_a_step_back_is_none():
+    """By hand: samples 0..99 at 819.2 SPS without 10, 20 and 21 (a step of k counts or periods is k − 1 lost), and
+    a restarted counter (a step back) that loses nothing."""
+    kept = np.array([k for k in range(100) if k not in (10, 20, 21)])
+    t_s = kept / 819.2
+    for gaps in (find_gaps(t_s, kept.astype(float)), find_gaps(t_s)):
+        assert (gaps.missing_samples, gaps.gaps, gaps.longest_gap_samples) == (3, 2, 2), gaps.counted_from
+    restarted = np.r_[np.arange(50.0), np.arange(50.0)]
+    assert find_gaps(np.arange(100) / 819.2, restarted).missing_samples == 0
+
+
 def test_a_counter_that_never_advances_gives_way_to_the_time_stamps():
     t_s, _ = counter_with_a_dropped_block()
     gaps = find_gaps(t_s, np.zeros(len(t_s)))

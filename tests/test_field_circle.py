@@ -78,6 +78,15 @@ def test_a_round_centred_circle_is_not_flagged():
         assert r.covered and not r.significant and r.heading_var_rad2 == 0.0
 
 
+def test_a_magnetometer_quieter_than_its_stated_noise_does_not_flag_a_centre_too_small_to_matter():
+    """The fit's residual can be far below the noise the check assumes (a quiet sensor, a still bench): the
+    centre's uncertainty is then floored by that noise and the tilt's (module docstring), so a right calibration
+    with 0.05 µT left (0.14° of heading at 20 µT, below the 0.5° it claims) is not flagged as wrong."""
+    for seed in range(3):
+        r = _levelled_fields(FieldCircleCheck(), _turning(300.0), (0.05, -0.03), noise_ut=0.005, seed=seed)
+        assert r.covered and not r.significant and r.heading_var_rad2 == 0.0, seed
+
+
 def test_an_iron_that_moves_mid_window_scatters_the_circle():
     # 200 s of full turns with a right calibration, then the iron moves by (−5.2, −3.0) µT and the vehicle keeps to
     # a 120° arc: no new circle to fit there, but the fields are no longer on one circle

@@ -100,6 +100,26 @@ def test_flags_stale_records_and_gaps_from_the_kernel_time_stamps(device):
     assert c["lost_samples_host"] == 2 and c["gaps"] == 1 and c["stale"] == 1 and c["ea_flags"] == 1
 
 
+def test_garbage_and_repeated_records_are_no_samples_and_a_reading_beyond_full_scale_is_saturated(device):
+    """By the datasheet's ranges: gyro ±300 °/s at 0.05 °/s/LSB is 6000 LSB. A gyro word of 8000 LSB is beyond
+    any reading the chip reports (garbage: more than 1.25 × full scale), 7400 LSB is a saturated reading (a sample,
+    flagged invalid); a record stamped at the time of the one before is the same record again (not a sample)."""
+    src = started(device)
+    period_ns = 1e9 / 819.202
+
+    def record(k: int, gyro_x_lsb: int = 2) -> bytes:
+        words = list(WORDS)
+        words[1] = 0x8000 | gyro_x_lsb                          # ND, positive 14-bit value
+        return scan_record(words, int(STAMP_NS + k * period_ns), list(SCAN_ELEMENTS))
+
+    out = src.decode(b"".join([record(0), record(1, 8000), record(2), record(3, 7400), record(3, 7400), record(4)]))
+    assert [s.counter for s in out] == [0, 2, 3, 4]
+    saturated = [bool(s.flags & SampleFlags.GYRO_SATURATED and s.flags & SampleFlags.GYRO_INVALID) for s in out]
+    assert saturated == [False, False, True, False]
+    c = src.counters()
+    assert c["garbage_frames"] == 1 and c["timestamp_backwards"] == 1
+
+
 def test_the_simulated_device_streams_what_the_chip_produced(device):
     src = started(device)
     got = []

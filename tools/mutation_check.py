@@ -57,7 +57,8 @@ def problem(m: Mutation, root: Path = ROOT) -> str | None:
 
 
 def run_one(m: Mutation, work: Path, env: dict) -> tuple[bool, float, str]:
-    """(caught, seconds, pytest's last line) for one entry, on a fresh copy at work/ahrsd."""
+    """(caught, seconds, the first failed test or pytest's last line) for one entry, on a fresh copy at
+    work/ahrsd."""
     tree = work / "ahrsd"
     if tree.exists():
         shutil.rmtree(tree)
@@ -71,12 +72,14 @@ def run_one(m: Mutation, work: Path, env: dict) -> tuple[bool, float, str]:
     proc = subprocess.run([sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *m.tests],
                           cwd=tree, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     took = time.monotonic() - start
-    last = (proc.stdout.strip().splitlines() or [""])[-1]
-    # pytest's exit 1: tests failed (the break was seen); 0: all passed; another code (a collection error, an
-    # interrupted run) is no verdict on the tests: said as such
+    lines = proc.stdout.strip().splitlines() or [""]
+    # pytest's exit 1: tests failed (the break was seen: the first failed test is named); 0: all passed; another
+    # code (a collection error, an interrupted run) is no verdict on the tests: said as such
+    failed = [line.split()[1] for line in lines if line.startswith("FAILED ")]
+    said = failed[0] if failed else lines[-1]
     if proc.returncode not in (0, 1):
-        last = f"pytest exit {proc.returncode}: {last}"
-    return proc.returncode != 0, took, last
+        said = f"pytest exit {proc.returncode}: {lines[-1]}"
+    return proc.returncode != 0, took, said
 
 
 def main(argv: list[str] | None = None) -> int:
