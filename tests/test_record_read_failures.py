@@ -19,6 +19,8 @@ from ahrsd.drivers.recording import RecordingWriter, read_recording
 from ahrsd.drivers.source import open_chip_bus, start_chip_source
 from ahrsd.drivers.source_recorder import SourceRecorder
 
+from support.chip_bus import SimulatedChipBus
+
 SECONDS = 1.0
 RATE_HZ = 819.2
 FAULT_START = 200
@@ -118,34 +120,20 @@ def test_the_limit_of_corrupt_frames_in_a_row_stops_the_recording(tmp_path):
     assert rows == recorder.written == FAULT_START
 
 
-class _BusFailingForAWhile:
+class _BusFailingForAWhile(SimulatedChipBus):
     """The simulated chip behind a bus whose transfers fail (ENODEV) for `n_failures` calls after `start`
     transfers, then work again: counted in transfers, so a reader that kept going would come out of it."""
 
     def __init__(self, chip, start: int, n_failures: int):
-        self._chip, self._start, self._stop = chip, start, start + n_failures
+        super().__init__(chip)
+        self._start, self._stop = start, start + n_failures
         self.transfers = 0
 
     def transfer(self, tx: bytes, speed_hz: int, delay_us: int = 0) -> bytes:
         self.transfers += 1
         if self._start < self.transfers <= self._stop:
             raise OSError(errno.ENODEV, "No such device")
-        return self._chip.transfer(tx, speed_hz, delay_us)
-
-    # the rest of what `ahrsd record --sim` reads of the simulated chip (drivers.spi.SpiBus, its clock, and what
-    # drivers.ground_truth.BurstTruthTap notes at each burst)
-    def sleep(self, seconds: float) -> None:
-        self._chip.sleep(seconds)
-
-    def close(self) -> None:
-        self._chip.close()
-
-    def now(self) -> float:
-        return self._chip.now()
-
-    stats = property(lambda self: self._chip.stats)
-    sample_index = property(lambda self: self._chip.sample_index)
-    output_truth_q_wxyz = property(lambda self: self._chip.output_truth_q_wxyz)
+        return self.chip.transfer(tx, speed_hz, delay_us)
 
 
 def test_a_bus_error_stops_the_recording(tmp_path):

@@ -16,13 +16,15 @@ from ahrsd.drivers.registers import GLOB_CMD
 from ahrsd.drivers.source import open_chip_bus
 from ahrsd.simulation import open_stream
 
+from support.chip_bus import SimulatedChipBus
+
 RATE_HZ = 819.2
 SEED = 12
 SECONDS = 5.5                 # 4506 rows: the last ~300 in the alarm, every third chip sample
 ALARM_FROM_SAMPLE = 4200      # the rate table is turning from chip sample 4097 (5 s) on
 
 
-class _SteppedClockChip:
+class _SteppedClockChip(SimulatedChipBus):
     """The simulated chip on a clock that moves one sample period at each transfer, noting the chip's sample
     index right after each burst (the sample the burst returned)."""
 
@@ -31,7 +33,7 @@ class _SteppedClockChip:
         plan = FaultPlan(seed=1)
         plan.add(FaultKind.ALARM, start_sample=ALARM_FROM_SAMPLE)    # every burst from there is followed by DIAG_STAT
         kw.update(clock=lambda: self.now_s, faults=plan)
-        self.chip = open_chip_bus("sim", **kw)
+        super().__init__(open_chip_bus("sim", **kw))
         self.burst_indices: list[int] = []
 
     def transfer(self, tx: bytes, speed_hz: int, delay_us: int = 0) -> bytes:
@@ -40,21 +42,6 @@ class _SteppedClockChip:
         if tx[0] == GLOB_CMD and tx[1] == 0:
             self.burst_indices.append(self.chip.sample_index)
         return rx
-
-    # the rest of what `ahrsd record --sim` reads of the simulated chip (drivers.spi.SpiBus, its clock, and what
-    # drivers.ground_truth.BurstTruthTap notes at each burst)
-    def sleep(self, seconds: float) -> None:
-        self.chip.sleep(seconds)
-
-    def close(self) -> None:
-        self.chip.close()
-
-    def now(self) -> float:
-        return self.chip.now()
-
-    stats = property(lambda self: self.chip.stats)
-    sample_index = property(lambda self: self.chip.sample_index)
-    output_truth_q_wxyz = property(lambda self: self.chip.output_truth_q_wxyz)
 
 
 def test_each_row_has_the_truth_of_the_sample_its_burst_returned(tmp_path):

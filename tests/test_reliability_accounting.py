@@ -31,17 +31,19 @@ from ahrsd.drivers.simulated import SimulatedAdis16405
 from ahrsd.drivers.source import open_chip_driver, start_chip_source
 from reader_rig import FakeClock, ReaderRig
 from sim_streams import FixedStream
+from support.chip_bus import SimulatedChipBus
 
 CI_FAULTS = ("alarm@3-3.5:bits=SUPPLY_LOW;garbage@4-6:p=0.02;bus_error@7-8;stall@11-11.5;"
              "stuck_axis@13-15:axis=mag_x;short_read@16-17:p=0.01;burst_bug@18-20")   # bench/soak.py CI_FAULTS
 
 
-class PreemptedBus:
+class PreemptedBus(SimulatedChipBus):
     """The chip behind a bus whose transfers start `delay(rng)` after they are asked for; records the chip's
     index at every burst (the ground truth of what the burst returned)."""
 
     def __init__(self, chip, clock, rng, delay):
-        self.chip, self.clock, self.rng, self.delay = chip, clock, rng, delay
+        super().__init__(chip)
+        self.clock, self.rng, self.delay = clock, rng, delay
         self.burst_index = -1
 
     def transfer(self, tx, speed_hz, delay_us=0):
@@ -54,9 +56,6 @@ class PreemptedBus:
 
     def close(self):
         pass
-
-    def sleep(self, seconds):                        # the chip's own (virtual) time
-        self.chip.sleep(seconds)
 
 
 def late_wakes(rng):

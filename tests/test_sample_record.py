@@ -15,6 +15,8 @@ from ahrsd.drivers.sample_record import SampleRecord
 from ahrsd.drivers.simulated import SimulatedAdis16405
 from ahrsd.simulation import open_stream
 
+from support.chip_bus import SimulatedChipBus
+
 
 def _driver(records: bool) -> Adis16405:
     chip = SimulatedAdis16405(open_stream("boat", rate_hz=R.sample_rate_hz(R.SMPL_PRD_DEFAULT), seed=3))
@@ -28,23 +30,18 @@ def _signed14(word: int) -> int:
     return v - 0x4000 if v >= 0x2000 else v
 
 
-class _TapBus:
+class _TapBus(SimulatedChipBus):
     """The simulated chip's SPI bus, keeping the last burst frame (to work the values out by hand)."""
 
     def __init__(self, chip):
-        self.chip, self.last = chip, b""
+        super().__init__(chip)
+        self.last = b""
 
     def transfer(self, tx, speed_hz, delay_us=0):
         rx = self.chip.transfer(tx, speed_hz, delay_us)
         if tx[:2] == R.BURST_COMMAND:
             self.last = rx
         return rx
-
-    def sleep(self, seconds):
-        self.chip.sleep(seconds)
-
-    def close(self):
-        self.chip.close()
 
 
 def test_record_holds_the_frames_values_in_si_units():
