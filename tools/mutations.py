@@ -119,7 +119,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("ins-learned-floor", "a learned magnetometer's heading floor is at most the calibration's own figure",
              "estimator/ins.py", "return min(p.calibration_sigma_rad ** 2, p.iron_unmodelled_ut ** 2 / h2_ut2)",
              "return p.iron_unmodelled_ut ** 2 / h2_ut2",
-             ("tests/test_learned_iron.py", "tests/test_learned_iron_turns.py")),
+             ("tests/test_ins_learned_floor.py", "tests/test_learned_iron.py", "tests/test_learned_iron_turns.py")),
     Mutation("replay-plot-error-panel", "replay --plot draws the error-vs-truth panel with truth (item 2)",
              "estimator/replay_plot.py", '(["error"] if truth_err is not None else [])',
              '([] if truth_err is not None else [])',
