@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ahrsd.cli.sim_place import VEHICLE_IRONS, site_arg, vehicle_iron
+from ahrsd.simulation.place_options import VEHICLE_IRONS, site_arg, vehicle_iron
 
 SETTLE_S = 30.0
 OUTAGE_S = 30.0
@@ -344,7 +344,7 @@ OLD_INS = {"heading_monitor": False, "gnss_yaw": False, "mag_calibration_sigma_r
 """`ins` without the honest-heading parts: the magnetometer trusted as calibrated, always fused, moving the tilt."""
 HONESTY_TARGETS = {"heading": 1.0, "tilt": 0.3, "beyond_3sigma": 0.01, "iron_heading": 0.5, "step": 0.5}
 HONESTY_IRONS = VEHICLE_IRONS
-"""simulate_vehicle's vehicle irons by name (the command line's, ahrsd.cli.sim_place)."""
+"""simulate_vehicle's vehicle irons by name (the command line's, ahrsd.simulation.place_options)."""
 honesty_iron = vehicle_iron
 
 
@@ -368,7 +368,7 @@ def honesty_site(site: str, iron: str | None = None) -> tuple[str | None, str]:
 
 def honesty_site_arg(text: str) -> str:
     """A bench's `--site` (argparse type): as given, a name of HONESTY_SITES or a place parsed by the command
-    line's parser (ahrsd.cli.sim_place.site_arg: a mistyped place is a usage error, not a failed run)."""
+    line's parser (ahrsd.simulation.place_options.site_arg: a mistyped place is a usage error, not a failed run)."""
     if text not in HONESTY_SITES:
         site_arg(text)
     return text

@@ -20,7 +20,7 @@ class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
 
 
 def register(subparsers) -> None:
-    from ahrsd.cli.sim_place import SITE_FORMAT, VEHICLE_IRONS, site_arg
+    from ahrsd.simulation.place_options import SITE_FORMAT, VEHICLE_IRONS, site_arg
 
     p = subparsers.add_parser(
         "record",
@@ -163,7 +163,7 @@ def _open_chip(args, paced: bool, open_chip_bus):
     clock = time.monotonic if paced else None
     try:
         if args.sim is not None:
-            from ahrsd.cli.sim_place import vehicle_iron
+            from ahrsd.simulation.place_options import vehicle_iron
 
             iron = "scenario" if args.iron is None else vehicle_iron(args.iron)
             bus = open_chip_bus("sim", scenario=args.sim, seed=SIM_SEED if args.seed is None else args.seed,

@@ -1,5 +1,7 @@
 """The simulated vehicle's place and iron as a command line names them (`ahrsd record --sim --site/--iron`, and
-the benches' `--site`/`--iron`): one parser of a place, one set of iron names."""
+the benches' `--site`/`--iron`): one parser of a place (Site.parse, as an argparse type), one set of iron names.
+Every `ahrsd` command's parser reads this module, so the site and the irons are imported when a value is parsed,
+not before (the package's own names are lazy too: simulation/__init__.py)."""
 
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ VEHICLE_IRONS = ("default", "held-out", "unseen")
 def site_arg(text: str):
     """An option's place (argparse type): simulation.Site.parse of "LAT,LON[,ALT_M[,YYYY-MM-DD]]"; a mistyped
     place is a usage error naming the option (argparse adds its name), not a failed run."""
-    from ahrsd.simulation import Site
+    from ahrsd.simulation.site import Site
 
     try:
         return Site.parse(text)
@@ -23,6 +25,6 @@ def site_arg(text: str):
 
 def vehicle_iron(name: str):
     """The simulation.VehicleIron of one of VEHICLE_IRONS."""
-    from ahrsd.simulation import VehicleIron
+    from ahrsd.simulation.magnetic import VehicleIron
 
     return {"default": VehicleIron.default, "held-out": VehicleIron.held_out, "unseen": VehicleIron.unseen}[name]()
