@@ -37,6 +37,7 @@ from .allan_terms import (
     select_terms,
     term_estimates,
 )
+from .report import sig_figs
 
 AXES = ("x", "y", "z")
 SENSORS = ("gyro", "accel", "mag")
@@ -110,7 +111,7 @@ def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float, correlat
         keep = pts.taus >= min_tau_s
         pts = type(pts)(pts.taus[keep], pts.avar[keep], pts.level_n[keep], pts.level_m[keep], pts.record_s,
                         white_deficit_s, white_deficit_sd_s)
-        short_note = [f"τ < {min_tau_s:.3g} s not fitted: the samples are correlated over {correlation_samples} "
+        short_note = [f"τ < {sig_figs(min_tau_s)} s not fitted: the samples are correlated over {correlation_samples} "
                       "samples (the sensor's filter), which bends the curve there"]
     if len(pts.taus) < 3 or not np.all(pts.avar > 0):
         return _no_terms_read(curve, axis, std, "constant signal or too few cluster sizes: no noise terms read")
@@ -132,7 +133,7 @@ def _unreadable(curve: AllanCurve, axis: int, std: float, rate_hz: float, pts, m
         need_s = samples_to_tell / rate_hz
         return _no_terms_read(curve, axis, std, (
             f"recording too short: neighbouring samples are correlated (the sensor's filter), and "
-            f"{curve.record_s:.3g} s of samples cannot tell over how many; record about "
+            f"{sig_figs(curve.record_s)} s of samples cannot tell over how many; record about "
             f"{math.ceil(need_s / curve.record_s):.0f}× longer (≥ {need_s:.0f} s): no noise terms read"), need_s)
     if min_tau_s > 0 and np.count_nonzero(pts.taus >= min_tau_s) < 3:
         # Below min_tau_s the sensor's filter bends the curve (a fit there reads the filter as a Gauss–Markov
@@ -141,8 +142,8 @@ def _unreadable(curve: AllanCurve, axis: int, std: float, rate_hz: float, pts, m
         longer = 4.0 * min_tau_s / pts.taus[-1]
         return _no_terms_read(curve, axis, std, (
             f"recording too short: the samples are correlated over {correlation_samples} samples (the sensor's "
-            f"filter), so only τ ≥ {min_tau_s:.3g} s can be fitted, and it has fewer than 3 cluster sizes there; "
-            f"record about {longer:.2g}× longer (≥ {longer * pts.record_s:.0f} s): no noise terms read"),
+            f"filter), so only τ ≥ {sig_figs(min_tau_s)} s can be fitted, and it has fewer than 3 cluster sizes there; "
+            f"record about {sig_figs(longer, 2)}× longer (≥ {longer * pts.record_s:.0f} s): no noise terms read"),
             longer * pts.record_s)
     return None
 
@@ -159,7 +160,7 @@ def _terms_read(curve: AllanCurve, axis: int, std: float, rate_hz: float, pts, s
             report = not_seen_report(fit, pts, name, rate_hz)
             not_seen[name] = report
             bound = report.get("upper_bound")
-            bound_text = "" if bound is None else f" (≤ {bound:.3g} at 2σ)"
+            bound_text = "" if bound is None else f" (≤ {sig_figs(bound)} at 2σ)"
             flags.append(f"{name.replace('_', ' ')} not seen{bound_text}: {report['note']}")
     flags = short_note + flags
     bias = flicker_reading(fit, pts)
@@ -352,10 +353,10 @@ def summary(result: AllanResult) -> list[str]:
     for sensor, axes in result.parameters.items():
         name, unit, scale = _SUMMARY_UNITS[sensor]
         bias_unit, bias_scale = _BIAS_UNITS[sensor]
-        white = "  ".join(f"{ax} " + (_unread(p) if p.white_noise is None else f"{p.white_noise * scale:.3g}")
+        white = "  ".join(f"{ax} " + (_unread(p) if p.white_noise is None else f"{sig_figs(p.white_noise * scale)}")
                           for ax, p in axes.items())
         bias = "  ".join(f"{ax} " + (_unread(p) if p.bias_instability is None
-                                     else f"{p.bias_instability * bias_scale:.3g}") for ax, p in axes.items())
+                                     else f"{sig_figs(p.bias_instability * bias_scale)}") for ax, p in axes.items())
         lines.append(f"  {sensor:<5} {name} ({unit}): {white};  bias instability ({bias_unit}): {bias}")
     needs = [p.too_short_need_s for axes in result.parameters.values() for p in axes.values()
              if p.too_short_need_s is not None]
@@ -387,12 +388,12 @@ def describe(result: AllanResult) -> list[str]:
         for ax, p in axes.items():
             white = "not seen" if p.white_noise is None else f"{p.white_noise:.3e} {wu}"
             bi = ("not seen" if p.bias_instability is None
-                  else f"{p.bias_instability:.3e} {bu} (at τ≈{p.tau_bias_instability_s:.3g} s)")
+                  else f"{p.bias_instability:.3e} {bu} (at τ≈{sig_figs(p.tau_bias_instability_s)} s)")
             lines.append(f"    {ax}: {name} {white}; bias instability {bi}")
             for term, est in p.terms.items():
-                extra = f", Tc {est.corr_time_s:.3g} s" if est.corr_time_s else ""
+                extra = f", Tc {sig_figs(est.corr_time_s)} s" if est.corr_time_s else ""
                 lines.append(f"       {term}: {est.value:.3e} ± {est.uncertainty:.1e}{extra} "
-                             f"(τ {est.tau_range_s[0]:.3g}…{est.tau_range_s[1]:.3g} s)")
+                             f"(τ {sig_figs(est.tau_range_s[0])}…{sig_figs(est.tau_range_s[1])} s)")
             for flag in p.flags:
                 lines.append(f"       note: {flag}")
     k = kalman_tuning(result)

@@ -8,6 +8,7 @@ import numpy as np
 
 from .allan_terms import FLICKER_FACTOR
 from ahrsd.core.plotting import pyplot
+from .report import sig_figs
 
 TERM_STYLE = {"quantization": ("Q", "tab:purple"), "white": ("N", "tab:blue"), "flicker": ("B", "tab:green"),
               "rate_random_walk": ("K", "tab:red"), "rate_ramp": ("R", "tab:brown"),
@@ -31,7 +32,7 @@ def plot_allan(result, path) -> None:
                 short, colour = TERM_STYLE[name]
                 t = np.geomspace(*est.tau_range_s, 100)
                 ax.loglog(t, np.sqrt(p.fit.contribution(name, t)), "-", color=colour, lw=2,
-                          label=f"{short} {est.value:.3g} ± {est.uncertainty:.1g}")
+                          label=f"{short} {sig_figs(est.value)} ± {sig_figs(est.uncertainty, 1)}")
                 reading = est.reading_tau_s
                 if reading is not None and name in ("white", "rate_random_walk"):
                     lo, hi = min(reading, est.tau_range_s[0]), max(reading, est.tau_range_s[1])
@@ -43,7 +44,7 @@ def plot_allan(result, path) -> None:
             if p.bias_instability is not None:
                 level = FLICKER_FACTOR * p.bias_instability
                 ax.plot([p.tau_bias_instability_s], [level], "s", color=TERM_STYLE["flicker"][1], mec="k", ms=8)
-                ax.annotate(f"B = min σ / 0.664 = {p.bias_instability:.3g}", (p.tau_bias_instability_s, level), textcoords="offset points",
+                ax.annotate(f"B = min σ / 0.664 = {sig_figs(p.bias_instability)}", (p.tau_bias_instability_s, level), textcoords="offset points",
                             xytext=(6, -14), color=TERM_STYLE["flicker"][1])
             if p.fit is not None and p.terms:
                 # the model over the τ it was fitted on: below that (the sensor filter's correlated samples) the

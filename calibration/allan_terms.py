@@ -42,6 +42,7 @@ import numpy as np
 from .allan_adev import AllanCurve, edf_by_alpha
 from .allan_covariance import avar_covariance
 from .allan_irls import SLOPE_STEP, model_and_edf, weighted_system
+from .report import sig_figs
 
 FLICKER_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)  # 0.6643, IEEE Std 952-1997 Table B.1
 TERMS = ("quantization", "white", "flicker", "rate_random_walk", "rate_ramp", "gauss_markov")
@@ -551,7 +552,7 @@ def not_seen_report(fit: ModelFit, pts: _Points, name: str, rate_hz: float) -> d
     if name == "gauss_markov":
         lo, hi = GM_TC_RANGE[0] * pts.taus[0], GM_TC_RANGE[1] * pts.taus[-1]
         return {"upper_bound": None, "recording_needed_s": None,
-                "note": f"no Gauss–Markov bump for correlation times {lo:.3g}…{hi:.3g} s; a recording of "
+                "note": f"no Gauss–Markov bump for correlation times {sig_figs(lo)}…{sig_figs(hi)} s; a recording of "
                         f"≥ {2 * MIN_CLUSTERS * 1.89:.0f}·Tc would show one with a longer Tc"}
     bound_coef = profile_upper_bound(pts, fit, name, UPPER_BOUND_SIGMAS**2)
     bound = coefficient_to_value(name, bound_coef)
@@ -567,7 +568,7 @@ def not_seen_report(fit: ModelFit, pts: _Points, name: str, rate_hz: float) -> d
             out["note"] = "hidden under the other terms at any sample rate"
         else:
             out["sample_rate_needed_hz"] = 2.0 / span[1]
-            out["note"] = f"would show at a sample rate ≥ {2.0 / span[1]:.4g} Hz if it were this large"
+            out["note"] = f"would show at a sample rate ≥ {sig_figs(2.0 / span[1], 4)} Hz if it were this large"
         return out
     limit = detection_limit(fit, pts, name)
     out["detection_limit"] = limit
@@ -577,8 +578,8 @@ def not_seen_report(fit: ModelFit, pts: _Points, name: str, rate_hz: float) -> d
         return out
     need = MIN_CLUSTERS * span[0]
     out["recording_needed_s"] = need
-    out["note"] = (f"this recording would show one ≥ {limit:.3g}; one as large as the bound would dominate from "
-                   f"τ = {span[0]:.3g} s, i.e. in a recording of ≥ {need / 3600:.3g} h")
+    out["note"] = (f"this recording would show one ≥ {sig_figs(limit)}; one as large as the bound would dominate from "
+                   f"τ = {sig_figs(span[0])} s, i.e. in a recording of ≥ {sig_figs(need / 3600)} h")
     return out
 
 

@@ -24,6 +24,13 @@ def fmt_mat(m, fmt: str = "{:+.6f}", indent: str = "    ") -> str:
     return "\n".join(indent + fmt_vec(row, fmt) for row in m)
 
 
+def sig_figs(value: float, digits: int = 3) -> str:
+    """`value` with `digits` significant digits, trailing zeros kept (2.00, not 2: a figure that says how well it
+    is known), exponent form only where plain digits would not show them (as :g: 1.23e+04, 4.56e-05)."""
+    text = f"{value:#.{digits}g}"
+    return text if "e" in text else text.rstrip(".")
+
+
 def fmt_value(value) -> str:
     """Quality values for a person: 4 significant digits."""
     if isinstance(value, float):

@@ -28,14 +28,15 @@ def register(subparsers) -> None:
     sub = p.add_subparsers(dest="sensor", metavar="SENSOR", required=True)
     a = sub.add_parser("allan", help="Allan-variance noise analysis of a static recording (ARW/VRW, bias "
                        "instability, Kalman Q/R); writes noise.json to the state directory")
-    _common_options(a)
+    _common_options(a, saves_calibration=False)
     _register_accel(sub)
     _register_gyro(sub)
     _register_mag(sub)
 
 
-def _common_options(sp, recording_required=True) -> None:
-    """The options every sensor's calibration takes (and the recording, unless it may be live)."""
+def _common_options(sp, recording_required=True, saves_calibration=True) -> None:
+    """The options every sensor's calibration takes (and the recording, unless it may be live); --force for those
+    that save calibration.json (the daemon's: Allan's noise.json it never reads)."""
     if recording_required:
         sp.add_argument("recording", metavar="RECORDING", help="CSV recording (ahrsd record)")
     sp.add_argument("--state-dir", metavar="DIR", default=None,
@@ -45,6 +46,10 @@ def _common_options(sp, recording_required=True) -> None:
     sp.add_argument("--plot", metavar="FILE.png", help="write a plot (needs matplotlib: pip install matplotlib, or install "
                     "ahrsd with -e '.[plot]')")
     sp.add_argument("--dry-run", action="store_true", help="fit and report, but do not save")
+    if saves_calibration:
+        sp.add_argument("--force", action="store_true",
+                        help="save even while a running ahrsd holds the state directory (it uses the new calibration "
+                        "only after a restart, and saves its own over it if it accepts a magnetometer calibration first)")
     sp.add_argument("--sensor-id", default=None, help="sensor serial or id to record in the metadata")
     sp.set_defaults(func=run)
 
@@ -953,6 +958,8 @@ def run(args) -> int:
     try:
         if args.plot:
             _check_matplotlib()   # before fitting and saving: a missing optional extra is a usage error
+        if args.sensor != "allan" and not (args.dry_run or getattr(args, "force", False)):
+            _refuse_a_held_state_dir(args.state_dir)
         return handlers[args.sensor](args)
     except _Fail as exc:
         failure = exc
@@ -968,6 +975,27 @@ def run(args) -> int:
         print(json.dumps({"sensor": args.sensor, "error": str(failure)}))
     print(f"ahrsd calibrate {args.sensor}: error: {failure}", file=sys.stderr)
     return 2 if isinstance(failure, _Usage) else 1
+
+
+def _refuse_a_held_state_dir(state_dir: str) -> None:
+    """_Fail when a running ahrsd holds `state_dir` (daemon.state_lock): it reads calibration.json only when it
+    starts (daemon.service), and every calibration it applies itself (a magnetometer calibration accepted, a
+    fixed yaw: daemon.calibration_swap) saves its whole calibration over the file, so one written under it is
+    unused until a restart and may be lost. Free (or not yet made), the lock is taken and dropped at once."""
+    from pathlib import Path
+
+    from ahrsd.daemon.state_lock import StateDirBusy, StateDirLock
+
+    try:
+        StateDirLock.acquire(Path(state_dir)).release()
+    except StateDirBusy as busy:
+        who = f"PID {busy.pid}" if busy.pid is not None else "its PID not yet written"
+        raise _Fail(f"a running ahrsd ({who}) holds {state_dir}: it would use this calibration only after a "
+                    f"restart and saves its own over it when it accepts a magnetometer calibration; stop it first "
+                    f"(systemctl stop ahrsd), calibrate, start it again — or --force (then restart it), or "
+                    f"--dry-run") from None
+    except OSError:
+        pass                  # a directory that cannot be had: the save says so
 
 
 def _check_matplotlib() -> None:

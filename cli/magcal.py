@@ -112,8 +112,8 @@ def _fixed_yaw_position(args) -> tuple[float, float]:
 
 
 def run(args) -> int:
-    from ahrsd.cli.magcal_client import (CLIENT_COMPONENT, CLIENT_SYSTEM, MAV_CMD_DO_ACCEPT_MAG_CAL,
-                                         MAV_CMD_DO_CANCEL_MAG_CAL, MAV_CMD_FIXED_MAG_CAL_YAW, MagCalClient)
+    from ahrsd.cli.magcal_client import (CLIENT_COMPONENT, CLIENT_SYSTEM, MAV_CMD_DO_CANCEL_MAG_CAL,
+                                         MAV_CMD_FIXED_MAG_CAL_YAW, MagCalClient)
     from ahrsd.daemon.mavlink_io import mavutil  # sets MAVLink 2 + ardupilotmega before pymavlink loads
 
     if args.action == "fixed-yaw":
@@ -139,7 +139,7 @@ def run(args) -> int:
             return client.start(retry=args.retry, autosave=args.autosave, delay_s=args.delay, wait=not args.no_wait,
                                 max_time_s=args.max_time, accept=args.accept)
         if args.action == "accept":
-            return client.simple(MAV_CMD_DO_ACCEPT_MAG_CAL, "accept")
+            return client.accept()
         if args.action == "cancel":
             return client.simple(MAV_CMD_DO_CANCEL_MAG_CAL, "cancel")
         if args.action == "status":

@@ -27,6 +27,7 @@ MAV_CMD_DO_CANCEL_MAG_CAL = 42426
 MAV_CMD_FIXED_MAG_CAL_YAW = 42006
 MAG_CAL_SUCCESS = 4
 REPORT_GONE_S = 5.0     # a finished session's MAG_CAL_REPORT comes at 1 Hz (daemon.magcal) until it is settled
+REPORT_WAIT_S = 2.5     # `accept` listens this long for that report (or a running session's progress) first
 
 
 class MagCalClient:
@@ -91,6 +92,24 @@ class MagCalClient:
         self._drain(1.0)
         self._print(f"{what}: {RESULT_NAMES.get(result, result)}")
         return 0 if result == 0 else 1
+
+    def accept(self, listen_s: float = REPORT_WAIT_S) -> int:
+        """`ahrsd magcal accept`: accept the finished calibration that waits on the daemon. The daemon's ACK alone
+        cannot say whether anything was saved: an accept sent again after a save is ACCEPTED (ArduPilot's rule,
+        which MAVProxy's accept on every report and a client's re-sent accept rely on). So first listen for what
+        waits: a finished session's MAG_CAL_REPORT (1 Hz until settled) or a running one's progress; with
+        neither, nothing is sent and the exit status is 1."""
+        for m in self._target_messages(time.monotonic() + listen_s, poll_s=0.2):
+            kind = m.get_type()
+            if kind == "MAG_CAL_REPORT" and m.cal_status == MAG_CAL_SUCCESS and m.autosaved:
+                self._print("nothing to accept: the calibration was saved already (autosave or an earlier accept)")
+                return 1
+            if kind in ("MAG_CAL_REPORT", "MAG_CAL_PROGRESS"):
+                return self.simple(MAV_CMD_DO_ACCEPT_MAG_CAL, "accept")
+            self._show(m)
+        self._print("nothing to accept: no calibration waiting (none finished, or it was already saved or "
+                    "cancelled; `ahrsd magcal status` shows what the daemon is doing)")
+        return 1
 
     def _drain(self, seconds: float) -> None:
         for m in self._target_messages(time.monotonic() + seconds, poll_s=0.1):

@@ -50,6 +50,9 @@ STUCK_WINDOW_S = 0.5                 # an axis frozen this long while its siblin
 
 _SUPPLY_MIN_LSB = int(SUPPLY_PLAUSIBLE_V[0] / R.SUPPLY_V_PER_LSB)
 _SUPPLY_MAX_LSB = int(SUPPLY_PLAUSIBLE_V[1] / R.SUPPLY_V_PER_LSB)
+# the supply does not move 0.24 V from one sample to the next: a register read after a burst whose SUPPLY_OUT
+# does (with ND set) is a corrupt frame, not the next sample (Adis16405.take_newer_sample)
+_SUPPLY_STEP_MAX_LSB = 100
 
 COUNTER_NAMES = (
     "samples",               # samples returned (any flags)
@@ -59,6 +62,8 @@ COUNTER_NAMES = (
     "burst_bug_recovered",   # X-gyro bit-13 burst bug fixed from a register read
     "burst_bug_unverified",  # suspected burst bug the register read could not confirm (gyro flagged invalid)
     "nd_taken_by_check",     # ... the register read found a newer sample and took its ND (read at the next burst)
+    "index_checks",          # register reads after a burst that may have straddled a data-ready (take_newer_sample)
+    "nd_taken_by_index_check",  # ... that found a newer sample ready (the burst's was the one before)
     "garbage_frames",        # frames rejected: inconsistent ND/EA, implausible supply or values
     "short_reads",           # the bus returned fewer bytes than clocked
     "bus_errors",            # the bus raised (device gone, ioctl failure)
@@ -143,6 +148,7 @@ class Adis16405:
         self._stuck = [False] * 9
         self._any_stuck = False
         self._nd_taken = False             # a register read after the last burst took a new sample's ND
+        self._burst_supply_lsb = -1        # the last burst's SUPPLY_OUT (a stale register read returns the same)
 
     # ---------------------------------------------------------------------------------- bus primitives
     def _xfer(self, tx: bytes, speed_hz: int, delay_us: int = R.STALL_US) -> bytes:
@@ -350,6 +356,7 @@ class Adis16405:
         supply = w0 & 0x3FFF
         if not _SUPPLY_MIN_LSB <= supply <= _SUPPLY_MAX_LSB:
             raise self._reject(f"implausible supply {supply * R.SUPPLY_V_PER_LSB:.2f} V", rx)
+        self._burst_supply_lsb = supply
         raw9 = [((x & 0x3FFF) ^ 0x2000) - 0x2000 for x in (w1, w2, w3, w4, w5, w6, w7, w8, w9)]
         # ND clear but the previous read's XGYRO_OUT check took the ND of the sample that became ready after
         # its burst: these registers hold that sample, new to us
@@ -447,6 +454,27 @@ class Adis16405:
         self.counters["samples"] += 1
         self._last = sample
         return sample
+
+    def take_newer_sample(self) -> bool:
+        """Is a sample newer than the last burst's ready? One output register read (SUPPLY_OUT): its ND says so,
+        and reading it clears ND, so the next burst returns that sample as new (`_nd_taken`). For the host-clock
+        sample timer, when a burst may have straddled a data-ready (drivers.chip_source). Raises FrameError
+        (counted, as for a burst) when the answer cannot be trusted: a short frame, ND clear with another supply
+        word than the burst's (the same sample's registers), or ND set with a supply step no supply makes."""
+        self.counters["index_checks"] += 1
+        reg = self.read_register(R.SUPPLY_OUT)
+        supply = reg & 0x3FFF
+        if reg & R.ND:
+            if abs(supply - self._burst_supply_lsb) > _SUPPLY_STEP_MAX_LSB:
+                raise self._reject("register read after the burst: supply step beyond any supply's",
+                                   reg.to_bytes(2, "big"))
+            self._nd_taken = True
+            self.counters["nd_taken_by_index_check"] += 1
+            return True
+        if supply != self._burst_supply_lsb:
+            raise self._reject("register read after the burst: another sample's supply without ND",
+                               reg.to_bytes(2, "big"))
+        return False
 
     @property
     def newer_sample_taken(self) -> bool:

@@ -98,6 +98,10 @@ class DataReadyTimer:
         self._last_edge_s = last.timestamp_ns * 1e-9
         return self._last_edge_s, self.k, lost
 
+    def index_uncertain(self, read_time: float, read_end: float) -> bool:
+        """Never: the edges' sequence numbers index the samples."""
+        return False
+
     def stale(self, read_time: float) -> None:
         """ND clear although an edge came: its sample was taken by an earlier register read (DIAG_STAT, the
         burst-bug check). The edges stay pending, so the next fresh read counts that sample as lost."""

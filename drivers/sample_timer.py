@@ -46,10 +46,21 @@ class SampleTimer:
         self._t_lo = 0.0
         self._t_hi = 0.0
 
+    def _leaked(self, now: float) -> tuple[float, float]:
+        """The bounds (lo, hi) leaked up to `now`."""
+        hi = self.hi + self.HI_LEAK_S_PER_S * (now - self._t_hi)
+        return max(self.lo - self.LO_LEAK_S_PER_S * (now - self._t_lo), hi - self.period_s), hi   # φ mod P
+
     def _leak(self, now: float) -> None:
-        self.hi += self.HI_LEAK_S_PER_S * (now - self._t_hi)
-        self.lo = max(self.lo - self.LO_LEAK_S_PER_S * (now - self._t_lo), self.hi - self.period_s)  # φ mod P
+        self.lo, self.hi = self._leaked(now)
         self._t_hi = self._t_lo = now
+
+    def _index_range(self, read_time: float, end: float, lo: float, hi: float) -> tuple[int, int]:
+        """The largest and the smallest index a fresh read between `read_time` and `end` allows with the phase in
+        (lo, hi]: the latest k with ready_k ≤ end for some φ in the bracket (the largest k with end − k·P > lo),
+        and the latest with ready_k ≤ read_time even at φ = hi; neither below the one after the last."""
+        P, first = self.period_s, self.k + 1
+        return max(first, math.ceil((end - lo) / P) - 1), max(first, math.floor((read_time - hi) / P))
 
     ambiguous_reads = 0     # fresh reads whose index was not unique (the largest allowed was taken)
     ambiguous_samples = 0   # lost samples counted at those reads that may be phantoms (upper bound)
@@ -76,14 +87,10 @@ class SampleTimer:
                 self.ambiguous_samples += 1
             return read_time, 0, 0
         self._leak(read_time)
-        # the latest k with ready_k ≤ end for some φ in (lo, hi]: the largest k with end − k·P > lo
-        first = self.k + 1
-        k = max(first, math.ceil((end - self.lo) / P) - 1)
-        if k > first:
-            k_min = max(first, math.floor((read_time - self.hi) / P))   # ready_k ≤ read_time even at φ = hi
-            if k > k_min:
-                self.ambiguous_reads += 1
-                self.ambiguous_samples += k - k_min
+        k, k_min = self._index_range(read_time, end, self.lo, self.hi)
+        if k > k_min:
+            self.ambiguous_reads += 1
+            self.ambiguous_samples += k - k_min
         lost = k - self.k - 1
         self.k = k
         self._consumed_upto = -1
@@ -91,6 +98,16 @@ class SampleTimer:
         if self.lo >= self.hi:                       # only after k was forced up: trust the newest read
             self.lo = self.hi - 0.25 * P
         return self.hi + k * P, k, lost
+
+    def index_uncertain(self, read_time: float, read_end: float) -> bool:
+        """Would a fresh read between `read_time` and `read_end` get an index that is only the largest allowed (a
+        sample may have become ready during the transfer, or the phase bracket straddles a ready time)? Then a
+        register read after the burst tells which sample it was (drivers.chip_source: its ND says whether a
+        newer sample is ready)."""
+        if self.hi is None:
+            return False
+        k, k_min = self._index_range(read_time, read_end, *self._leaked(read_time))
+        return k > k_min
 
     def stale(self, read_time: float) -> None:
         """The chip had no new sample at `read_time`."""

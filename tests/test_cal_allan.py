@@ -403,3 +403,22 @@ def test_bias_instability_is_never_read_at_the_shortest_tau():
     b, tau = flicker_reading(fit, pts)
     assert tau >= pts.taus[1]
     assert b == pytest.approx(math.sqrt(1e-8 + 1e-12 * pts.taus[1]) / FLICKER_FACTOR, rel=1e-9)
+
+
+def test_the_report_gives_every_figure_three_significant_digits():
+    """#30: the lead line printed an ARW of 2.00 °/√h as "2" (:.3g drops trailing zeros, so a figure known to
+    three digits read as known to one)."""
+    from ahrsd.calibration.allan import summary
+    from ahrsd.calibration.report import sig_figs
+
+    assert [sig_figs(v) for v in (2.0, 0.2, 99.96, 4.56e-5, 123456.0)] == ["2.00", "0.200", "100", "4.56e-05",
+                                                                           "1.23e+05"]
+    n = 20000
+    result = analyse_static(np.arange(n) / 819.2, gyro_rad_s=np.random.default_rng(3).normal(0.0, 1e-3, (n, 3)))
+    from dataclasses import replace
+
+    gyro = result.parameters["gyro"]
+    for axis, arw_deg_sqrt_h in (("x", 2.0), ("y", 0.5)):
+        gyro[axis] = replace(gyro[axis], white_noise=arw_deg_sqrt_h / (math.degrees(1.0) * 60.0))
+    lead = summary(result)[0]
+    assert "ARW (°/√h): x 2.00  y 0.500  z " in lead, lead

@@ -303,3 +303,29 @@ def test_live_align_to_faces_end_to_end_on_a_tilted_bench(tmp_path, ahrsd_inproc
     print(off, f"applied {applied.magnitude() * 57.29578:.3f}°, truth {truth.magnitude() * 57.29578:.3f}°")
     assert np.degrees((applied * truth.inv()).magnitude()) < 0.05
     assert off["aligned"] < 0.07 and off["unaligned"] > 0.12, off
+
+
+def test_a_state_directory_a_running_daemon_holds_is_refused_unless_forced(recordings, tmp_path, ahrsd_inproc):
+    """#30: `ahrsd calibrate` saved into the directory of a running daemon, which reads calibration.json only at
+    its start and saves its whole calibration over it when it applies one itself (a magnetometer calibration
+    accepted): refused in one line naming the daemon's PID and what to do; --dry-run and --force go ahead."""
+    import os
+
+    from ahrsd.daemon.state_lock import StateDirLock
+
+    state = tmp_path / "state"
+    positions = ("accel", recordings["positions"], "--lat", DEFAULT_SITE.lat_deg, "--state-dir", state)
+    held = StateDirLock.acquire(state)                  # as `ahrsd run` holds it (another open file: flock(2))
+    try:
+        proc = ahrsd_inproc(*positions, check_rc=1)
+        assert not (state / "calibration.json").exists()
+        line = proc.stderr.strip()
+        assert "\n" not in line and f"a running ahrsd (PID {os.getpid()}) holds {state}" in line
+        assert "stop it first (systemctl stop ahrsd)" in line and "--force" in line
+        ahrsd_inproc(*positions, "--dry-run", check_rc=0)
+        assert not (state / "calibration.json").exists()
+        ahrsd_inproc(*positions, "--force", check_rc=0)
+        assert (state / "calibration.json").exists()
+    finally:
+        held.release()
+    ahrsd_inproc(*positions, check_rc=0)                  # the daemon gone: saved as before

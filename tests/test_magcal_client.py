@@ -304,3 +304,32 @@ def test_a_client_at_eof_that_missed_the_settling_text_stops_when_the_report_sto
     assert client.start(max_time_s=10.0) == 1
     assert "no longer reports this result" in out.getvalue() and "gave up" not in out.getvalue()
     assert client_module.MAV_CMD_DO_CANCEL_MAG_CAL not in conn.sent
+
+
+def _accept_with(queued):
+    out = io.StringIO()
+    conn = _ScriptedConn(queued)
+    client = MagCalClient(conn=conn, timeout_s=1.0, out=out)
+    client.sys, client.comp = 1, 200
+    return client.accept(listen_s=0.3), conn.sent, out.getvalue()
+
+
+def test_accept_with_nothing_waiting_says_so_and_fails():
+    """#30: `ahrsd magcal accept` with no finished calibration waiting printed "accept: ACCEPTED" (the daemon
+    answers a re-sent accept after a save so, ArduPilot's rule). Now: nothing sent, one line, exit 1."""
+    status, sent, out = _accept_with([])
+    assert status == 1 and sent == []
+    assert out.startswith("nothing to accept: no calibration waiting")
+
+
+def test_accept_of_an_autosaved_result_says_it_was_saved_already():
+    saved = wire(mavlink.MAVLink_mag_cal_report_message(0, 1, 4, 1, 2.0, 1, 2, 3, 1, 1, 1, 0, 0, 0))
+    status, sent, out = _accept_with([saved])
+    assert status == 1 and sent == []
+    assert out.startswith("nothing to accept: the calibration was saved already")
+
+
+def test_accept_of_a_waiting_result_sends_the_accept():
+    status, sent, out = _accept_with([_report()])
+    assert status == 0 and sent == [42425]                  # MAV_CMD_DO_ACCEPT_MAG_CAL
+    assert "accept: ACCEPTED" in out
