@@ -116,11 +116,22 @@ class SignalKServer:
         return self
 
     def _wait_listening(self, timeout_s: float = 120.0) -> None:
+        """Until the stream port greets with Signal K's hello: a bare accept could be another process that took
+        the port between free_port() and the server's bind (the check would then read nothing from it)."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             if self.process.poll() is not None:
                 raise SignalKUnavailable("signalk-server exited at start: " + self.log_tail())
-            with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", self.stream_port), 0.5):
+            with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", self.stream_port), 0.5) as s:
+                s.settimeout(10.0)
+                hello = s.makefile("rb").readline()
+                try:
+                    name = json.loads(hello).get("name")
+                except (ValueError, AttributeError):
+                    name = None
+                if name != "signalk-server":
+                    raise RuntimeError(f"port {self.stream_port} is not Signal K's stream: {hello[:200]!r}; "
+                                       + self.log_tail())
                 return
             time.sleep(0.2)
         raise SignalKUnavailable("signalk-server did not start listening in time: " + self.log_tail())
@@ -140,7 +151,8 @@ class SignalKServer:
 
 
 class DeltaStream(threading.Thread):
-    """Signal K's TCP delta stream, subscribed to PATHS: (arrival time, path, value) of every update."""
+    """Signal K's TCP delta stream, subscribed to PATHS: (arrival time, path, value) of every update.
+    `lines`, `first_line` and `ended` say what came when no update did (a failed check prints them)."""
 
     def __init__(self, port: int):
         super().__init__(daemon=True)
@@ -148,34 +160,49 @@ class DeltaStream(threading.Thread):
         subscribe = {"context": "vessels.self", "subscribe": [{"path": p, "policy": "instant"} for p in PATHS]}
         self.sock.sendall((json.dumps(subscribe) + "\r\n").encode())
         self.updates: list[tuple[float, str, object]] = []
-        self._stop = threading.Event()
+        self.lines = 0
+        self.first_line = b""
+        self.ended = "running"
+        self._stopping = threading.Event()      # not `_stop`: threading.Thread has a method of that name
 
     def run(self) -> None:
+        try:
+            self.ended = self._read()
+        except Exception as exc:                 # noqa: BLE001 — said in the report instead of a thread traceback
+            self.ended = f"reader failed: {exc!r}"
+
+    def _read(self) -> str:
         buffer = b""
         self.sock.settimeout(0.5)
-        while not self._stop.is_set():
+        while not self._stopping.is_set():
             try:
                 chunk = self.sock.recv(65536)
             except socket.timeout:
                 continue
-            except OSError:
-                return
+            except OSError as exc:
+                return "stopped" if self._stopping.is_set() else f"socket error {exc!r}"
             if not chunk:
-                return
+                return "the server closed the stream"
             buffer += chunk
             *lines, buffer = buffer.split(b"\n")
             now = time.monotonic()
             for line in lines:
+                self.lines += 1
+                self.first_line = self.first_line or line[:200]
                 with contextlib.suppress(ValueError):
                     delta = json.loads(line)
-                    for update in delta.get("updates", ()):
+                    for update in delta.get("updates", ()) if isinstance(delta, dict) else ():
                         for value in update.get("values", ()):
                             if value.get("path") in PATHS:
                                 self.updates.append((now, value["path"], value["value"]))
+        return "stopped"
 
     def stop(self) -> None:
-        self._stop.set()
+        self._stopping.set()
         self.sock.close()
+
+    def describe(self) -> str:
+        return f"stream: {self.lines} lines, first {self.first_line!r}, {self.ended}"
 
 
 class SentTap(threading.Thread):
@@ -188,12 +215,12 @@ class SentTap(threading.Thread):
         self.sock.settimeout(0.5)
         self.port = self.sock.getsockname()[1]
         self.sentences: list[tuple[float, object]] = []
-        self._stop = threading.Event()
+        self._stopping = threading.Event()      # not `_stop`: threading.Thread has a method of that name
 
     def run(self) -> None:
         from pynmeagps import NMEAReader
 
-        while not self._stop.is_set():
+        while not self._stopping.is_set():
             try:
                 data = self.sock.recv(200)
             except socket.timeout:
@@ -203,7 +230,7 @@ class SentTap(threading.Thread):
             self.sentences.append((time.monotonic(), NMEAReader.parse(data, validate=1)))
 
     def stop(self) -> None:
-        self._stop.set()
+        self._stopping.set()
         self.sock.close()
 
 
@@ -243,15 +270,19 @@ class PathReport:
     example: tuple[object, object] | None
     rest: object = None                  # the value the REST API gave at the end of the run
     rest_difference: float = math.nan    # ... against the closest of ahrsd's sentences just before
+    sent: int = 0                        # ahrsd's sentences for this path while the stream was read
+    run_notes: str = ""                  # the stream's state, ahrsd's exit and log tail (for a failure message)
 
 
 MATCH_WINDOW_S = 1.0     # an update is ahrsd's sentence of the same kind sent within this long of its arrival
 
 
-def compare(updates, sentences, seconds: float) -> list[PathReport]:
+def compare(updates, sentences, seconds: float, listened: tuple[float, float] = (-math.inf, math.inf)
+            ) -> list[PathReport]:
     """Each Signal K update against ahrsd's sentences of that kind sent within MATCH_WINDOW_S of its arrival:
     the closest value. `max_difference` is the worst of those: what Signal K changed in a value (units, signs,
-    rounding); `matched` counts the updates with a sentence in the window."""
+    rounding); `matched` counts the updates with a sentence in the window; `sent` counts ahrsd's values for the
+    path sent while the stream was read (`listened`, monotonic seconds from and to)."""
     sent_by_path: dict[str, list[tuple[float, object]]] = {p: [] for p in PATHS}
     for t, msg in sentences:
         for path, value in signal_k_value_of(msg).items():
@@ -269,8 +300,9 @@ def compare(updates, sentences, seconds: float) -> list[PathReport]:
             worst, matched = max(worst, _difference(path, value, best)), matched + 1
             example = example or (value, best)
         span = (ups[-1][0] - ups[0][0]) if len(ups) > 1 else math.nan
+        sent_while_listening = sum(1 for ts, _ in sent if listened[0] <= ts <= listened[1])
         reports.append(PathReport(path, len(ups), (len(ups) - 1) / span if span > 0 else 0.0, matched, worst,
-                                  example))
+                                  example, sent=sent_while_listening))
     return reports
 
 
@@ -287,16 +319,19 @@ def run_check(seconds: float = 30.0, scenario: str = "level-turns", log=print, m
             from bench.sim_calibration import save_mag_calibration, sim_chip_mag_model
 
             save_mag_calibration(state, sim_chip_mag_model(scenario))   # without it (and GNSS) no heading is sent
-            ahrsd = subprocess.Popen(
-                [sys.executable, "-m", "ahrsd.cli", "run", "--sim", scenario, "--no-log", "--status-line", "off",
-                 "--state-dir", state, "--mavlink", f"udpout:127.0.0.1:{free_port(socket.SOCK_DGRAM)}",
-                 "--nmea", f"udp:127.0.0.1:{server.nmea_udp_port}", "--nmea", f"udp:127.0.0.1:{tap.port}"],
-                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+            # ahrsd's log to a file: a pipe nobody reads would stop the daemon once it held 64 KiB
+            ahrsd_log_path = Path(state) / "ahrsd-stderr.log"
+            with open(ahrsd_log_path, "w") as ahrsd_log:
+                ahrsd = subprocess.Popen(
+                    [sys.executable, "-m", "ahrsd.cli", "run", "--sim", scenario, "--no-log", "--status-line", "off",
+                     "--state-dir", state, "--mavlink", f"udpout:127.0.0.1:{free_port(socket.SOCK_DGRAM)}",
+                     "--nmea", f"udp:127.0.0.1:{server.nmea_udp_port}", "--nmea", f"udp:127.0.0.1:{tap.port}"],
+                    stdout=subprocess.DEVNULL, stderr=ahrsd_log)
             try:
                 deadline = time.monotonic() + 300.0          # a first start compiles the estimator
                 while not any(m.msgID == "HDT" for _, m in tap.sentences):
                     if ahrsd.poll() is not None or time.monotonic() > deadline:
-                        raise RuntimeError("ahrsd sent no heading: " + (ahrsd.stderr.read() or "")[-600:])
+                        raise RuntimeError("ahrsd sent no heading: " + ahrsd_log_path.read_text()[-600:])
                     time.sleep(0.2)
                 stream = DeltaStream(server.stream_port)
                 stream.start()
@@ -308,6 +343,12 @@ def run_check(seconds: float = 30.0, scenario: str = "level-turns", log=print, m
                 rest_at = time.monotonic()
                 rest = rest_navigation(server.http_port)
                 stream.stop()
+                ahrsd_exit = ahrsd.poll()
+                run_notes = (f"listened {rest_at - listen_from:.1f} s; {stream.describe()}; ahrsd "
+                             + ("running" if ahrsd_exit is None else f"exited {ahrsd_exit}")
+                             + "; ahrsd's last log lines: " + " | ".join(
+                                 ahrsd_log_path.read_text(errors="replace").splitlines()[-6:])
+                             + "; server log: " + server.log_tail()[-300:])
             finally:
                 ahrsd.terminate()
                 try:
@@ -315,10 +356,11 @@ def run_check(seconds: float = 30.0, scenario: str = "level-turns", log=print, m
                 except subprocess.TimeoutExpired:
                     ahrsd.kill()
         tap.stop()
-    reports = compare(stream.updates, tap.sentences, seconds)
+    reports = compare(stream.updates, tap.sentences, seconds, listened=(listen_from, rest_at))
     for r in reports:
         r.rest = rest_value(rest, r.path)
         r.rest_difference = rest_difference(r.path, r.rest, tap.sentences, rest_at)
+        r.run_notes = run_notes
     return reports
 
 

@@ -1,7 +1,5 @@
 """`python -m ahrsd.cli ...`: the same as the `ahrsd` console script."""
 
-import sys
+from ahrsd.cli.main import console_main
 
-from ahrsd.cli.main import main
-
-sys.exit(main())
+console_main()

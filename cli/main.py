@@ -32,6 +32,37 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def console_main() -> None:
+    """The `ahrsd` console script and `python -m ahrsd.cli`: main(), then the process's exit (tests call main()).
+
+    After `ahrsd run`'s daemon has stopped, with nothing of it left running (no thread but this one, no child
+    process: the sensor reader, the log writers and their files were closed and joined by the stop), the process
+    ends with os._exit once the log handlers are flushed. What the interpreter's teardown would still do is free
+    memory that the exit frees anyway, and once the estimator's compiled kernels are loaded that costs a good
+    part of a daemon start's CPU (docs/daemon.md "Stopping"), which every daemon a test starts pays."""
+    from ahrsd.cli import run as run_command
+
+    code = main()
+    if run_command.daemon_stopped and _nothing_left_running():
+        logging.shutdown()      # flushes and closes the log's handlers, as the interpreter's exit would
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):
+                pass
+        os._exit(code)
+    sys.exit(code)
+
+
+def _nothing_left_running() -> bool:
+    import threading
+
+    if threading.active_count() > 1:
+        return False
+    multiprocessing = sys.modules.get("multiprocessing")
+    return multiprocessing is None or not multiprocessing.active_children()
+
+
 def main(argv: list[str] | None = None) -> int:
     try:
         return _main(argv)
@@ -78,4 +109,4 @@ def _silence_stdout() -> None:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    console_main()

@@ -55,7 +55,13 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
+# True once a daemon this process ran has stopped: its service returned, --stats-file was written and the state
+# directory's lock released. cli.main's console entry may then end the process without the interpreter's teardown.
+daemon_stopped = False
+
+
 def run(args: argparse.Namespace) -> int:
+    global daemon_stopped
     import dataclasses
     import logging
     import os
@@ -104,10 +110,12 @@ def run(args: argparse.Namespace) -> int:
             return 1
         from ahrsd.daemon.service import Service
 
-        return _serve(Service(cfg, source=source), source, cfg, args.stats_file)
+        code = _serve(Service(cfg, source=source), source, cfg, args.stats_file)
     finally:
         if lock is not None:
             lock.release()
+    daemon_stopped = True
+    return code
 
 
 def _config(args):
