@@ -30,6 +30,14 @@ def levelling_source(quality: dict) -> str | None:
     return "the attitude given to the fit"
 
 
+def _levelling_error_text(lev: dict) -> str:
+    """What of the levelling's error the prediction carries (quality.predicted_heading.levelling)."""
+    if "accel_bias_sigma_m_s2" in lev:
+        return (f"with the accelerometer levelling's bias, {lev['accel_bias_sigma_m_s2'] / STANDARD_GRAVITY_M_S2 * 1e3:g}"
+                f" mg, and its tilt errors correlated over {lev['residual_correlation_samples']:.0f} fitted samples")
+    return f"with the aided levelling's body-fixed tilt, {lev['given_tilt_sigma_deg']:.2f}° per axis"
+
+
 def mag_decision_lines(result, outcome: str) -> list[str]:
     """The lead of the magnetometer report: verdict (`outcome`: saved where / not saved / refused why), the
     predicted heading error, the coverage and the residuals."""
@@ -42,9 +50,7 @@ def mag_decision_lines(result, outcome: str) -> list[str]:
         lev = pred.get("levelling")
         lines.append(f"  predicted heading error (1σ): {offset:.2f}° constant offset, {varying:.2f}° varying with "
                      "heading" + (f", for tilts within ±{envelope:.0f}°" if math.isfinite(envelope) else "")
-                     + (f" (with the accelerometer levelling's bias, "
-                        f"{lev['accel_bias_sigma_m_s2'] / STANDARD_GRAVITY_M_S2 * 1e3:g} mg, and its tilt errors "
-                        f"correlated over {lev['residual_correlation_samples']:.0f} fitted samples)" if lev else ""))
+                     + (f" ({_levelling_error_text(lev)})" if lev else ""))
     parts = []
     heading_cov = _num(q.get("heading_coverage"))
     if math.isfinite(heading_cov):

@@ -34,7 +34,8 @@ from .backstepping_paper import (PAPER_STEP_TOL_UT, BacksteppingError, backstep_
                                  leg_statistics, magnetic_heading_deg, segment_legs, sphere_fit_paper)
 from .block_average import block_average
 from .levelling import roll_pitch_from_estimator
-from .levelling_error import ACCEL_BIAS_SIGMA_UNCALIBRATED_M_S2, accel_bias_heading_std_deg, integrated_autocorrelation_time
+from .levelling_error import (ACCEL_BIAS_SIGMA_UNCALIBRATED_M_S2, accel_bias_heading_std_deg, integrated_autocorrelation_time,
+                              tilt_heading_std_deg)
 from .fit_types import MagFitInput, MagFitResult, finite_rows, refuse
 from ..models import MagModel
 from .observability import assess_support, lowpass, parameter_uncertainty
@@ -99,6 +100,11 @@ class BacksteppingOptions:
     accel_bias_sigma_m_s2: float = ACCEL_BIAS_SIGMA_UNCALIBRATED_M_S2
     """The accelerometer's residual bias (1σ per axis, m/s²) when it levels the fit: its body-fixed tilt enters
     the predicted heading error (levelling_error.py). Not used with roll_rad/pitch_rad given."""
+    levelling_tilt_sigma_rad: float | None = None
+    """With roll_rad/pitch_rad given: the tilt error of that attitude that stays fixed in the body over the run
+    (1σ per axis, rad; the GNSS-aided levelling's, backstepping_aided.py). It enters the predicted heading
+    error as the accelerometer's bias does, tan(dip)·σ (levelling_error.py). None: the given attitude is taken
+    as exact."""
     robust: Any = "auto"
     """"auto" (refit with a soft-L1 loss when more than 1 % of samples are magnetically disturbed), True or
     False."""
@@ -190,7 +196,7 @@ def fit_backstepping(data: MagFitInput, reference=None, options: BacksteppingOpt
         result = _fit_general(blocks.t_s, blocks.mag_ut, blocks.roll_rad, blocks.pitch_rad, ref.total_ut,
                               ref.vertical_ut, blocks.legs, quality, blocks.sigma_mag_ut, opts.sigma_tilt_deg,
                               opts.max_heading_std_deg, opts.robust, support, blocks.centripetal, levelling,
-                              opts.accel_bias_sigma_m_s2)
+                              opts.accel_bias_sigma_m_s2, opts.levelling_tilt_sigma_rad)
     if isinstance(result, MagFitResult):
         return result
     mag_model = _with_heading_reference(result, blocks, ref, opts, levelling, quality)
@@ -412,10 +418,11 @@ def _finish(model: MagModel, blocks: _Blocks, ref: _ReferenceField, quality: dic
 
 def _fit_general(t_s, mag, roll, pitch, total, vertical, legs_b, quality, sigma_mag_ut, sigma_tilt_deg,
                  max_heading_std_deg, robust, support, centripetal=None, levelling=None,
-                 accel_bias_sigma_m_s2=ACCEL_BIAS_SIGMA_UNCALIBRATED_M_S2):
+                 accel_bias_sigma_m_s2=ACCEL_BIAS_SIGMA_UNCALIBRATED_M_S2, levelling_tilt_sigma_rad=None):
     """The generalised vertical-channel fit (vertical_channel.py) and its checks: the MagModel, or the refusal
     (a MagFitResult). What it found goes into `quality`; the forward speed the levelling was compensated with
-    into `levelling`."""
+    into `levelling`. The levelling's body-fixed tilt in the prediction: the accelerometer's bias
+    (`accel_bias_sigma_m_s2`) when it levelled the fit, `levelling_tilt_sigma_rad` with the attitude given."""
     # the paper's sphere fit, for comparison (it often fails or is wrong on level data: that is the point)
     sph = sphere_fit_paper(mag, total)
     quality["sphere_fit_paper"] = ({"b_ut": sph.model.bias.tolist(), "s": sph.model.scale.tolist(),
@@ -438,8 +445,14 @@ def _fit_general(t_s, mag, roll, pitch, total, vertical, legs_b, quality, sigma_
     }
     if fit.free_dip:
         quality["vertical_channel"]["dip_deg"] = math.degrees(math.asin(max(-1.0, min(1.0, fit.vertical_ut / total))))
-    refused = _general_fit_refusal(fit, quality, support, max_heading_std_deg,
-                                   None if quality.get("attitude_source") == "given" else accel_bias_sigma_m_s2)
+    if quality.get("attitude_source") != "given":
+        tilt = {"accel_bias_sigma_m_s2": accel_bias_sigma_m_s2}
+    elif levelling_tilt_sigma_rad is not None:
+        tilt = {"given_tilt_sigma_deg": math.degrees(levelling_tilt_sigma_rad),
+                "tilt_sigma_rad": levelling_tilt_sigma_rad}
+    else:
+        tilt = None
+    refused = _general_fit_refusal(fit, quality, support, max_heading_std_deg, tilt)
     if refused is not None:
         return refused
     model = MagModel(fit.hard_iron_ut, fit.soft_iron)
@@ -483,12 +496,13 @@ def _vertical_channel_fit(mag, roll, pitch, total, vertical, quality, sigma_mag_
     return fit, cen
 
 
-def _general_fit_refusal(fit, quality, support, max_heading_std_deg, accel_bias_sigma_m_s2=None):
+def _general_fit_refusal(fit, quality, support, max_heading_std_deg, levelling_tilt=None):
     """The fit's parameter uncertainty and predicted heading error (into `quality`), and its refusal when the
     soft iron is a reflection, the fit did not converge, or the data leave the heading more uncertain than
     max_heading_std_deg; None when it is usable (with a warning when the constant offset is poorly known).
-    accel_bias_sigma_m_s2: the levelling accelerometer's residual bias (None: levelled otherwise, roll/pitch
-    given); it and the levelling error's correlation enter the prediction (levelling_error.py)."""
+    levelling_tilt: the levelling's body-fixed tilt, {"accel_bias_sigma_m_s2": σ_b} for the accelerometer's
+    bias or {"tilt_sigma_rad": 1σ per axis, "given_tilt_sigma_deg": the same} for a given attitude's (None: a
+    given attitude taken as exact); it enters the prediction (`_with_levelling_error`)."""
     limits = {n: 0.02 for n in fit.names[:9]}
     limits.update({n: 1.0 for n in fit.names[9:12]})
     unc = parameter_uncertainty(fit.jacobian, fit.names, limits, residual_scale=max(fit.whitened_rms, 1.0))
@@ -498,7 +512,7 @@ def _general_fit_refusal(fit, quality, support, max_heading_std_deg, accel_bias_
     envelope = max(10.0, support.tilt["tilt_max_deg"]) if support.tilt else 10.0
     # what the data determine decides the refusal (observability); the prediction reported adds the levelling
     pred = predicted_heading_std_deg(fit, envelope)
-    quality["predicted_heading"] = _with_levelling_error(fit, envelope, accel_bias_sigma_m_s2, pred)
+    quality["predicted_heading"] = _with_levelling_error(fit, envelope, levelling_tilt, pred)
     if np.linalg.det(fit.soft_iron) <= 0:
         return refuse(METHOD, "the fitted soft iron is a reflection (det ≤ 0): heading would be mirrored", **quality)
     if not fit.success and fit.whitened_rms > 10:
@@ -514,17 +528,28 @@ def _general_fit_refusal(fit, quality, support, max_heading_std_deg, accel_bias_
     return None
 
 
-def _with_levelling_error(fit, envelope_deg: float, accel_bias_sigma_m_s2, data_only: dict) -> dict:
-    """The predicted heading error `data_only` (predicted_heading_std_deg), with the accelerometer levelling's
-    errors when it levelled the fit: the covariance grown by the vertical residual's correlation time, the
-    bias's heading-dependent error added in quadrature (levelling_error.py)."""
-    if accel_bias_sigma_m_s2 is None or fit.vertical_residual is None:
+def _with_levelling_error(fit, envelope_deg: float, levelling_tilt: dict | None, data_only: dict) -> dict:
+    """The predicted heading error `data_only` (predicted_heading_std_deg), with the levelling's errors when
+    they are known (`levelling_tilt`, _general_fit_refusal): the body-fixed tilt's heading-dependent error
+    added in quadrature (levelling_error.py) and, levelled by the accelerometer, the covariance grown by the
+    vertical residual's correlation time (the lean in turns and the waves the low-pass leaves). The aided
+    levelling's varying error is not grown so: its residual is correlated over seconds (the smoother's slow
+    drift), the offset is seen through the waves' tilt, which varies faster, and the growth overstated the offset
+    tenfold (docs/magcal-vehicle.md, "The prediction with --gnss")."""
+    if levelling_tilt is None or fit.vertical_residual is None:
         return data_only
+    if "accel_bias_sigma_m_s2" not in levelling_tilt:      # an aided levelling's tilt (attitude given)
+        tilt_deg = tilt_heading_std_deg(levelling_tilt["tilt_sigma_rad"], fit.vertical_ut, fit.total_ut)
+        pred = dict(data_only, heading_dependent_std_deg=math.hypot(data_only["heading_dependent_std_deg"], tilt_deg))
+        pred["levelling"] = {"given_tilt_sigma_deg": levelling_tilt["given_tilt_sigma_deg"],
+                             "given_tilt_heading_std_deg": tilt_deg}
+        return pred
     tau = integrated_autocorrelation_time(fit.vertical_residual)
     pred = predicted_heading_std_deg(fit, envelope_deg, covariance_inflation=tau)
-    bias_deg = accel_bias_heading_std_deg(accel_bias_sigma_m_s2, fit.vertical_ut, fit.total_ut)
+    bias_deg = accel_bias_heading_std_deg(levelling_tilt["accel_bias_sigma_m_s2"], fit.vertical_ut, fit.total_ut)
     pred["heading_dependent_std_deg"] = math.hypot(pred["heading_dependent_std_deg"], bias_deg)
-    pred["levelling"] = {"residual_correlation_samples": tau, "accel_bias_sigma_m_s2": accel_bias_sigma_m_s2,
+    pred["levelling"] = {"residual_correlation_samples": tau,
+                         "accel_bias_sigma_m_s2": levelling_tilt["accel_bias_sigma_m_s2"],
                          "accel_bias_heading_std_deg": bias_deg}
     return pred
 

@@ -48,6 +48,7 @@ import numpy as np
 from ahrsd.estimator import AIDED_ESTIMATOR
 
 from .levelling import attitude_from_estimator
+from .levelling_error import body_fixed_tilt_sigma_rad
 from .fit_types import MagFitInput, MagFitResult
 
 SETTLED_TILT_SIGMA_DEG = math.inf   # fit only where the filter's tilt 1σ is below this; on the tuning seeds
@@ -86,7 +87,8 @@ def aided_roll_pitch(data: MagFitInput, fixes, declination_rad: float, mag_enabl
 
 def _level(data: MagFitInput, fixes, declination_rad: float, mag_enabled: bool, settled_tilt_sigma_deg: float,
            smooth: bool, accel_bias_sigma_m_s2: float | None, filter_overrides: dict | None):
-    """Roll, pitch, the settled mask and whether the filter fused the GNSS velocity cleanly."""
+    """Roll, pitch, the settled mask, the levelling's body-fixed tilt 1σ per axis over the settled samples (rad)
+    and whether the filter fused the GNSS velocity cleanly."""
     roll, pitch, tilt_sigma, est = aided_roll_pitch(data, fixes, declination_rad, mag_enabled, smooth,
                                                     accel_bias_sigma_m_s2, filter_overrides)
     settled = tilt_sigma <= math.radians(settled_tilt_sigma_deg)
@@ -94,16 +96,21 @@ def _level(data: MagFitInput, fixes, declination_rad: float, mag_enabled: bool, 
         settled = np.ones(len(data), dtype=bool)
     c = est.gnss_counters
     healthy = c.reset_velocity == 0 and c.rejected_velocity <= MAX_REJECTED_VELOCITY_FRACTION * max(c.offered, 1)
-    return roll, pitch, settled, {"gnss": {"offered": c.offered, "fused_velocity": c.fused_velocity,
-                                           "rejected_velocity": c.rejected_velocity,
-                                           "reset_velocity": c.reset_velocity}, "healthy": healthy}
+    tilt_sigma_axis_rad = body_fixed_tilt_sigma_rad(tilt_sigma[settled])
+    return roll, pitch, settled, tilt_sigma_axis_rad, {
+        "gnss": {"offered": c.offered, "fused_velocity": c.fused_velocity, "rejected_velocity": c.rejected_velocity,
+                 "reset_velocity": c.reset_velocity}, "healthy": healthy,
+        "tilt_sigma_per_axis_deg": math.degrees(tilt_sigma_axis_rad)}
 
 
-def _fit_settled(data: MagFitInput, roll, pitch, settled, reference, options: dict) -> MagFitResult:
+def _fit_settled(data: MagFitInput, roll, pitch, settled, tilt_sigma_axis_rad: float, reference,
+                 options: dict) -> MagFitResult:
+    """The fit of the settled samples, levelled by `roll`/`pitch`, whose body-fixed tilt 1σ per axis enters
+    its predicted heading error (levelling_error.py)."""
     from .backstepping import fit_backstepping
 
     return fit_backstepping(data.select(settled), reference, roll_rad=roll[settled], pitch_rad=pitch[settled],
-                            speed_m_s=None, **options)
+                            speed_m_s=None, levelling_tilt_sigma_rad=tilt_sigma_axis_rad, **options)
 
 
 def _pass_report(data: MagFitInput, settled, res: MagFitResult, health: dict) -> dict:
@@ -145,18 +152,20 @@ def fit_backstepping_aided(data: MagFitInput, fixes, reference, declination_rad:
     heading_only = {**(filter_overrides or {}), "mag_moves_tilt": False}
     for _ in range(MAG_HEADING_PASSES if model is not None else 0):
         calibrated = dataclasses.replace(data, mag_ut=np.ascontiguousarray(model.apply(data.mag_ut)))
-        roll, pitch, settled, health = _level(calibrated, fixes, declination_rad, True, settled_tilt_sigma_deg,
-                                              smooth, accel_bias_sigma_m_s2, heading_only)
-        res = _fit_settled(data, roll, pitch, settled, reference, options)
+        roll, pitch, settled, tilt_sigma, health = _level(calibrated, fixes, declination_rad, True,
+                                                          settled_tilt_sigma_deg, smooth, accel_bias_sigma_m_s2,
+                                                          heading_only)
+        res = _fit_settled(data, roll, pitch, settled, tilt_sigma, reference, options)
         passes.append({"magnetometer": "heading only, the previous fit's calibration",
                        **_pass_report(data, settled, res, health)})
         if not res.ok:
             break
         result, model, levelling = res, res.model, (roll, pitch, settled)
     if result is None:   # no calibration to take the heading from: the GNSS velocity alone
-        roll, pitch, settled, health = _level(data, fixes, declination_rad, False, settled_tilt_sigma_deg, smooth,
-                                              accel_bias_sigma_m_s2, filter_overrides)
-        result = _fit_settled(data, roll, pitch, settled, reference, options)
+        roll, pitch, settled, tilt_sigma, health = _level(data, fixes, declination_rad, False,
+                                                          settled_tilt_sigma_deg, smooth, accel_bias_sigma_m_s2,
+                                                          filter_overrides)
+        result = _fit_settled(data, roll, pitch, settled, tilt_sigma, reference, options)
         levelling = (roll, pitch, settled)
         passes.append({"magnetometer": "off", **_pass_report(data, settled, result, health)})
     warning = _rejection_warning(passes, filter_overrides)

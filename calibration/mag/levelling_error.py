@@ -1,4 +1,4 @@
-"""What the accelerometer levelling's error adds to a back-stepping fit's predicted heading error.
+"""What the levelling's error adds to a back-stepping fit's predicted heading error.
 
 The fit weights every levelled sample as an independent tilt error (vertical_channel.py, σ_tilt per sample).
 On a vehicle two parts of the levelling error are not independent:
@@ -12,6 +12,12 @@ On a vehicle two parts of the levelling error are not independent:
   vertical-channel residual carries it (a tilt error δ shows as H_h·δ there), so its integrated autocorrelation
   time (Sokal, "Monte Carlo Methods in Statistical Mechanics", 1996, §3: τ_int = 1 + 2 Σ ρ_k, summed up to the
   first lag M ≥ 5 τ_int) is the factor by which the parameter covariance grows.
+
+Levelled by the GNSS-aided estimator (`--gnss`, backstepping_aided.py) the body-fixed part is the tilt the
+filter cannot tell from an accelerometer bias and gyro misalignment on a vehicle that stays near level and
+mostly yaws (docs/magcal-vehicle.md): it is what the RTS smoother's tilt 1σ is left with once the fixes before
+and after every sample are in. It enters as the accelerometer's bias does, a body-fixed tilt ε turning the
+heading by tan(dip)·ε: `tilt_heading_std_deg` of the smoother's per-axis 1σ (`body_fixed_tilt_sigma_rad`).
 """
 
 from __future__ import annotations
@@ -47,8 +53,25 @@ def integrated_autocorrelation_time(residual: np.ndarray) -> float:
     return max(tau, 1.0)
 
 
+def tilt_heading_std_deg(tilt_sigma_rad: float, vertical_ut: float, total_ut: float) -> float:
+    """RMS over heading (deg, 1σ) of the heading error a body-fixed levelling tilt of 1σ `tilt_sigma_rad` per
+    axis leaves in the fit: tan(dip)·σ (the rotation ε moves the calibrated horizontal field by H_z·(ε_y, −ε_x))."""
+    horizontal = math.sqrt(max(total_ut**2 - vertical_ut**2, 1e-12))
+    return math.degrees(abs(vertical_ut) / horizontal * tilt_sigma_rad)
+
+
 def accel_bias_heading_std_deg(accel_bias_sigma_m_s2: float, vertical_ut: float, total_ut: float) -> float:
     """RMS over heading (deg, 1σ) of the heading error a body-fixed accelerometer bias of 1σ
     `accel_bias_sigma_m_s2` per axis leaves in a fit levelled by that accelerometer: tan(dip)·σ_b/g."""
     horizontal = math.sqrt(max(total_ut**2 - vertical_ut**2, 1e-12))
     return math.degrees(abs(vertical_ut) / horizontal * accel_bias_sigma_m_s2 / STANDARD_GRAVITY_M_S2)
+
+
+def body_fixed_tilt_sigma_rad(tilt_sigma_rad: np.ndarray) -> float:
+    """The per-axis 1σ (rad) of the body-fixed tilt an estimator's levelling leaves, from its per-sample tilt 1σ
+    √(σ_roll² + σ_pitch²) (rad; NaN where it had not started): the RMS over the samples, per axis (÷ √2). The
+    part that stays fixed in the body is one draw for the whole run, so its σ is not reduced by the number of
+    samples; the RMS keeps the filter's start in, where its tilt is least known."""
+    s = np.asarray(tilt_sigma_rad, dtype=np.float64)
+    s = s[np.isfinite(s)]
+    return float(np.sqrt(np.mean(s**2)) / math.sqrt(2.0)) if s.size else math.nan
