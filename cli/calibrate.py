@@ -981,21 +981,16 @@ def _refuse_a_held_state_dir(state_dir: str) -> None:
     """_Fail when a running ahrsd holds `state_dir` (daemon.state_lock): it reads calibration.json only when it
     starts (daemon.service), and every calibration it applies itself (a magnetometer calibration accepted, a
     fixed yaw: daemon.calibration_swap) saves its whole calibration over the file, so one written under it is
-    unused until a restart and may be lost. Free (or not yet made), the lock is taken and dropped at once."""
-    from pathlib import Path
+    unused until a restart and may be lost. Nothing is created or written by the check."""
+    from ahrsd.daemon.state_lock import holder
 
-    from ahrsd.daemon.state_lock import StateDirBusy, StateDirLock
-
-    try:
-        StateDirLock.acquire(Path(state_dir)).release()
-    except StateDirBusy as busy:
+    busy = holder(state_dir)
+    if busy is not None:
         who = f"PID {busy.pid}" if busy.pid is not None else "its PID not yet written"
         raise _Fail(f"a running ahrsd ({who}) holds {state_dir}: it would use this calibration only after a "
                     f"restart and saves its own over it when it accepts a magnetometer calibration; stop it first "
                     f"(systemctl stop ahrsd), calibrate, start it again — or --force (then restart it), or "
-                    f"--dry-run") from None
-    except OSError:
-        pass                  # a directory that cannot be had: the save says so
+                    f"--dry-run")
 
 
 def _check_matplotlib() -> None:

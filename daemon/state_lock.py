@@ -76,6 +76,24 @@ class StateDirLock:
         self._fd = None
 
 
+def holder(state_dir: Path) -> StateDirBusy | None:
+    """Who holds `state_dir`'s lock (StateDirBusy, not raised), or None when nobody does — without creating or
+    writing anything (an offline writer's check, cli/calibrate.py): no lock file means no daemon ever ran there."""
+    try:
+        fd = os.open(Path(state_dir) / LOCK_FILE_NAME, os.O_RDONLY | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)   # conflicts with the daemon's exclusive lock only
+    except BlockingIOError:
+        return StateDirBusy(Path(state_dir), _read_pid(fd))
+    except OSError:
+        return None
+    finally:
+        os.close(fd)                                     # drops a shared lock taken here
+    return None
+
+
 def _read_pid(fd: int) -> int | None:
     try:
         text = os.pread(fd, 32, 0).decode("ascii", "replace").strip()
