@@ -126,7 +126,9 @@ class FieldCalConfig:
     course_max_turn_rate_deg_s: float = DEFAULT_MAX_TURN_RATE_DEG_S  # …on straight runs (heading rate below this)
     course_window_s: float = DEFAULT_STRAIGHT_WINDOW_S               # …for this long around the fix
     course_capacity: int = 4096       # GNSS course fixes kept at most
-    max_offset_std_deg: float = 0.5   # a constant heading offset known worse than this is "undetermined"
+    # a tilt-based constant heading offset known worse than this is reported with the hint that a GNSS course or
+    # a fixed-yaw command would set it better; it keeps its stated 1σ (covers the error: docs/magcal-field.md)
+    max_offset_std_deg: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -142,7 +144,9 @@ class FieldCalResult:
     partial: bool = False  # True when only the hard iron was fitted
     heading_std_deg: float = math.nan  # predicted 1σ of the heading-dependent error (within the tilt envelope)
     offset_std_deg: float = math.nan   # 1σ of the constant heading offset (math.inf: undetermined)
-    offset_source: str = ""            # "GNSS course", "tilt", "calibration in force", "undetermined"
+    # "GNSS course", "tilt", "calibration in force", "known heading"; "undetermined" exactly when offset_std_deg
+    # is not finite (stored as null: the heading is unknown after accepting, calibration/heading_trust.py)
+    offset_source: str = ""
     undetermined: tuple = ()           # parameters the data could not determine
 
     def accuracy_text(self) -> str:
@@ -155,6 +159,9 @@ class FieldCalResult:
             off = "offset undetermined: no usable GNSS course (a fixed-yaw command sets it)"
         elif math.isfinite(self.offset_std_deg):
             off = f"offset +-{deg(self.offset_std_deg)} deg ({self.offset_source})"
+            if self.offset_source == "tilt" and self.quality.get("offset_weakly_determined"):
+                # weakly determined by the tilt alone: still a stated figure the daemon uses, never "undetermined"
+                off += ", no usable GNSS course (a fixed-yaw command sets it better)"
         else:
             off = f"offset from {self.offset_source}"
         return f"Mag cal: {dep}, {off}"
@@ -809,7 +816,10 @@ class FitJob:
         """The constant heading offset from GNSS course (course_offset.py), folded into the soft iron when it
         is better known than the field fit's own; else what the offset rests on."""
         cfg = self.config
-        source = "tilt" if offset_std <= cfg.max_offset_std_deg else "undetermined"
+        # a finite offset 1σ is the fit's own (propagated from its covariance through the tilt) and is stored and
+        # used as such (calibration/heading_trust.py), however large; only an offset without any figure is
+        # undetermined
+        source = "tilt" if math.isfinite(offset_std) else "undetermined"
         if kept_soft_iron and math.isfinite(self.current_heading_std_deg):
             # an offsets-only refit keeps the soft iron in force, and with it the constant heading offset folded
             # into it (fold_heading_offset): the offset is the in-force calibration's, known as well as that
@@ -831,8 +841,10 @@ class FitJob:
             elif cf.std_deg < offset_std:
                 notes.extend(cf.notes)
                 return fold_heading_offset(model, cf.offset_deg), cf.std_deg, "GNSS course"
-        elif source == "undetermined":
+        elif source == "undetermined" or offset_std > cfg.max_offset_std_deg:
             quality["gnss_course"] = {"refused": "no GNSS course received"}
+        if source == "tilt" and offset_std > cfg.max_offset_std_deg:
+            quality["offset_weakly_determined"] = True
         return model, offset_std, source
 
     def _acceptable_shape(self, model: MagModel) -> tuple[bool, str]:

@@ -65,11 +65,12 @@ def vehicle(tilt_deg: float, straight_runs: bool = False) -> TiltedTurns:
     return TiltedTurns(tilt_deg=tilt_deg, straight_runs=straight_runs)
 
 
-def record(scenario: TiltedTurns, seconds: float, seed: int = 0) -> SimpleNamespace:
-    """`seconds` of the scenario at RATE_HZ with ADIS16405 errors and STRONG_IRON. The accelerometer is
+def record(scenario: LevelTurns, seconds: float, seed: int = 0, iron: VehicleIron | str = STRONG_IRON) -> SimpleNamespace:
+    """`seconds` of the scenario at RATE_HZ with ADIS16405 errors and `iron` (STRONG_IRON; "scenario": the
+    scenario's own, as `ahrsd run --sim level-turns`). The accelerometer is
     corrected with the simulator's own turn-on bias/scale/misalignment, as a unit whose accelerometer was
     calibrated on the bench before the field (docs/magcal-vehicle.md: roll/pitch quality matters)."""
-    stream = open_stream(scenario, RATE_HZ, seed=seed, vehicle_iron=STRONG_IRON)
+    stream = open_stream(scenario, RATE_HZ, seed=seed, vehicle_iron=iron)
     b = stream.next_block(int(round(seconds * RATE_HZ)))
     e = stream.errors
     accel = (b.accel_m_s2 - e.accel_bias_m_s2) @ np.linalg.inv(e.accel_matrix).T
@@ -109,10 +110,10 @@ def test_attitudes(n_headings: int = 24):
     return np.radians(np.array(out))
 
 
-def injected_iron(seed: int = 0) -> VehicleIron:
-    """The whole distortion of the recording made with `seed`: vehicle iron and the sensor's own, as the
-    simulator reports it (measured = soft_iron · true + hard_iron)."""
-    e = open_stream(TiltedTurns(), RATE_HZ, seed=seed, vehicle_iron=STRONG_IRON).errors
+def injected_iron(seed: int = 0, scenario: LevelTurns | None = None, iron: VehicleIron | str = STRONG_IRON) -> VehicleIron:
+    """The whole distortion of the recording made with `seed` (and `scenario`, `iron` as given to `record`):
+    vehicle iron and the sensor's own, as the simulator reports it (measured = soft_iron · true + hard_iron)."""
+    e = open_stream(scenario or TiltedTurns(), RATE_HZ, seed=seed, vehicle_iron=iron).errors
     return VehicleIron(e.hard_iron_ut, e.soft_iron)
 
 
