@@ -18,7 +18,11 @@ Each seed is run (the place's held-out iron, 600 s, GNSS 5 Hz) once per row:
   turn-on 0, no in-run  that, and the in-run bias processes (gyro and accelerometer) removed instead;
   yaw aid 1°          the sensor as simulated, and at every fix a heading measurement of the truth with 1° of
                       white noise fused into the filter: what a heading reference on the straight legs (a water
-                      track, a second antenna) would be worth at most.
+                      track, a second antenna) would be worth at most;
+  yaw aid 1° + 1° over 60 s   the same aid with a slowly varying error as well (first-order Gauss–Markov, 1°,
+                      60 s, from 0 at the first aid: within 1 % of its stationary variance by 180 s; a water
+                      track's leeway that changes with the wind), fused as ins fuses a correlated heading (its
+                      variance inflated by τ/Δt, ins_core._fuse_mag_heading).
 Per seed and row: heading and tilt RMS from 180 s, the share of heading errors beyond 3σ (published σ) from 30 s,
 the vertical gyro bias's error RMS from 180 s (°/h, against the turn-on bias) and its scale-factor error at the end.
 """
@@ -42,8 +46,9 @@ from bench.vehicle_accuracy import (estimates_in_arrival_order, honesty_site, ho
 
 EVERY = 8
 ROWS = ("defaults", "s_z truth", "b_z truth", "b_z,s_z truth", "turn-on 0", "turn-on 0, no ARW", "turn-on 0, no VRW",
-        "turn-on 0, no in-run", "yaw aid 1°")
+        "turn-on 0, no in-run", "yaw aid 1°", "yaw aid 1° + 1° over 60 s")
 YAW_AID_SIGMA_DEG = 1.0
+YAW_AID_DRIFT_DEG, YAW_AID_DRIFT_TAU_S = 1.0, 60.0
 FIX_EVERY_S = 0.2
 
 
@@ -109,8 +114,10 @@ def one_run(job) -> tuple:
     holds = {"s_z truth": [(core.E_SG + 2, err.gyro_scale[2])],
              "b_z truth": [(core.E_BG + 2, err.gyro_bias_rad_s[2])],
              "b_z,s_z truth": [(core.E_BG + 2, err.gyro_bias_rad_s[2]), (core.E_SG + 2, err.gyro_scale[2])]}.get(row, [])
-    aid = row == "yaw aid 1°"
+    aid = row.startswith("yaw aid")
+    drift = row.endswith("over 60 s")
     rng = np.random.default_rng(seed + 2000)
+    drift_rad = 0.0
     t = run.t_s
     keep = np.arange(0, len(t), EVERY)
     q = np.empty((len(keep), 4))
@@ -126,7 +133,14 @@ def one_run(job) -> tuple:
                 _, hdg = tilt_heading_errors_deg(e.q_wxyz[None, :], run.truth_q_wxyz[k][None, :],
                                                  run.declination_rad)
                 sigma = math.radians(YAW_AID_SIGMA_DEG)
-                _fuse_truth_heading(est, math.radians(float(hdg[0])) + sigma * rng.standard_normal(), sigma)
+                noise_rad, var = sigma * rng.standard_normal(), sigma ** 2
+                if drift:
+                    phi = math.exp(-FIX_EVERY_S / YAW_AID_DRIFT_TAU_S)
+                    sd = math.radians(YAW_AID_DRIFT_DEG)
+                    drift_rad = phi * drift_rad + sd * math.sqrt(1.0 - phi * phi) * rng.standard_normal()
+                    noise_rad += drift_rad
+                    var += sd ** 2 * YAW_AID_DRIFT_TAU_S / FIX_EVERY_S
+                _fuse_truth_heading(est, math.radians(float(hdg[0])) + noise_rad, math.sqrt(var))
                 next_aid_s = t[k] + FIX_EVERY_S
         if k % EVERY == 0:
             q[j], sig[j], bz[j] = e.q_wxyz, e.sigma_rpy_rad[2], est._x["gyro_bias_rad_s"][2]
