@@ -1,42 +1,47 @@
-"""The uncalibrated boat's heading at a weak horizontal field, split with the simulator's truth
-(bench/heading_split.py; docs/gnss.md "The uncalibrated boat at a weak field: the vertical gyro's bias / scale split
-is not the limit, its white noise is"). Tromsø (H 10.8 µT, dip 78°: the magnetometer is never trusted there),
-in-sample seed 12 (nothing is chosen here), no magnetometer calibration, 300 s, heading error from 180 s against the
-simulator's attitude."""
+"""The row mechanics of bench/heading_split.py (docs/gnss.md "The uncalibrated boat at a weak field: the vertical
+gyro's bias / scale split is not the limit, its white noise is"): a state held at the simulator's value stays there,
+a removed sensor term is the one removed, and the truth heading aid is fused with the right sign. The conclusions
+need 300–600 s per row and are measured by the bench (figures in docs/gnss.md); here a 60 s run keeps the test
+under ~3 CPU-s. Tromsø (the magnetometer is never trusted there), in-sample seed 12, no calibration."""
 
+import numpy as np
 import pytest
 
-from bench.heading_split import one_run
+from ahrsd.simulation import SensorErrors
+from bench.heading_split import one_run, sensor_errors
 
-SECONDS = 300.0
+SECONDS, FROM_S = 60.0, 30.0
 TROMSO = "69.65,18.96"
-ROWS = ("defaults", "s_z truth", "turn-on 0", "turn-on 0, no ARW", "yaw aid 1°")
+ROWS = ("defaults", "s_z truth", "yaw aid 1°")
+TURN_ON = ("gyro_bias_rad_s", "gyro_scale", "gyro_misalignment_rad", "gyro_bias_temp_rad_s_per_c", "accel_bias_m_s2",
+           "accel_scale", "accel_misalignment_rad", "accel_bias_temp_m_s2_per_c")
 
 
 @pytest.fixture(scope="module")
 def runs():
-    # (heading RMS, tilt RMS, beyond 3σ, b_z error RMS °/h, s_z error at the end %) per row
-    return {row: one_run(("boat", 12, row, SECONDS, TROMSO))[1] for row in ROWS}
+    # (heading RMS, tilt RMS, beyond 3σ, b_z error RMS °/h, s_z error at the end %) per row, errors from 30 s
+    return {row: one_run(("boat", 12, row, SECONDS, TROMSO), late_s=FROM_S)[1] for row in ROWS}
 
 
-def test_the_vertical_gyro_scale_factor_is_not_what_limits_the_heading(runs):
-    # told the simulator's vertical scale factor at every sample, the heading is the same: the turns of both signs
-    # split it from the bias well enough
+def test_a_held_state_stays_at_the_simulators_value(runs):
     assert runs["s_z truth"][4] == 0.0 and runs["defaults"][4] != 0.0
-    assert abs(runs["defaults"][4]) < 0.25          # under half its 0.5 % prior
-    assert abs(runs["s_z truth"][0] - runs["defaults"][0]) < 0.1 * runs["defaults"][0]
 
 
-def test_the_gyro_white_noise_is(runs):
-    # without any turn-on error the heading is no better; without the gyro's angle random walk as well it is far
-    # better: between the turns the GNSS-only yaw wanders with the gyro's white noise
-    assert runs["turn-on 0"][0] > 0.8 * runs["defaults"][0]
-    assert runs["turn-on 0, no ARW"][0] < 0.6 * runs["turn-on 0"][0]
+def test_a_removed_term_is_the_one_removed():
+    sim = SensorErrors.adis16405(12)
+    no_arw = sensor_errors(12, "turn-on 0, no ARW")
+    assert no_arw.gyro_noise_density_rad_s_rthz == 0.0 < sim.gyro_noise_density_rad_s_rthz
+    assert no_arw.accel_noise_density_m_s2_rthz == sim.accel_noise_density_m_s2_rthz > 0.0
+    assert no_arw.gyro_bias_instability_rad_s == sim.gyro_bias_instability_rad_s > 0.0
+    for name in TURN_ON:
+        assert not np.any(getattr(no_arw, name)), name
+        assert np.array_equal(getattr(sensor_errors(12, "defaults"), name), getattr(sim, name)), name
 
 
-def test_a_heading_reference_on_the_straight_legs_would_remove_it(runs):
+def test_the_truth_heading_aid_pulls_the_heading_to_the_truth(runs):
+    # 60 s in, the GNSS alone has not yet found this boat's yaw (a ~20° RMS error); a 1° aid at 5 Hz has
     heading, _, beyond, _, _ = runs["yaw aid 1°"]
-    assert heading < 0.3 < runs["defaults"][0]
+    assert heading < 2.0 < runs["defaults"][0]
     assert beyond == 0.0
     for row in ROWS:
-        assert runs[row][2] < 0.01, row             # σ honest in every row but the two-state oracle (not run here)
+        assert runs[row][2] < 0.01, row
