@@ -1,11 +1,11 @@
-"""The `ins` estimator's compiled kernels (numba): NED strapdown mechanisation, 24-state error covariance,
+"""The `ins` estimator's compiled kernels (numba): NED strapdown mechanisation, 29-state error covariance,
 accelerometer levelling while unaided, magnetometer heading, and the delayed GNSS velocity/position fusion.
 
 `ins.py` owns the parameters, initialisation, input checks and the Estimator interface; this module is the
 arithmetic. The nominal state and its bookkeeping `x` is an INS_STATE_DTYPE record, the parameters `par` an
 INS_PARAMS_DTYPE record (numpy structured types: named fields that numba compiles to fixed offsets), `hist`
 a ring of INS_HISTORY_DTYPE records (past nominal states for fusing a fix at its time of validity), `P` the
-24×24 error covariance, `out` the per-step outputs (an INS_OUT_DTYPE record). The entry points (`ins_step`,
+29×29 error covariance, `out` the per-step outputs (an INS_OUT_DTYPE record). The entry points (`ins_step`,
 `fuse_gnss`) take the state and parameters (and `ins_step` the outputs) as 1-element arrays (an array unboxes
 cheaper than a record).
 
