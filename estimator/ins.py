@@ -42,6 +42,7 @@ from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate,
 from .initial_attitude import initial_attitude
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .mag_heading import RELEARN_GATE_OPEN_S
+from .mag_harmonics import prior_variances_rad2
 from .mag_heading_params import MagHeadingParams
 from .mag_rotation import MagRotationBias
 from .constrained_update import scalar_update
@@ -165,7 +166,24 @@ class InsParams(MagHeadingParams):
     against a 20–30 µT horizontal field turns the heading by tens of degrees)."""
     mag_bias_tau_s: float = 1.0
     """Correlation time of the calibration's heading error, s: each update's noise is inflated by τ/Δt so that
-    repeated updates do not average a bias away (ins_core._mag_update)."""
+    repeated updates do not average a bias away (ins_core._mag_update). With `mag_harmonic_states` only the part
+    the harmonics leave (`mag_harmonic_residual_share`) is fused so."""
+    mag_harmonic_states: bool = True
+    """A calibration that states its heading error σ (and is trusted: at most the monitor's 3°) has that error
+    carried as five filter states, the harmonics of the heading error in the magnetic heading (mag_harmonics.py),
+    with σ² for their prior: while the vehicle holds a heading the error is a bias the filter cannot average away,
+    as it turns the gyro separates the harmonics. False: the whole error is noise with `mag_bias_tau_s`."""
+    mag_harmonic_offset_share: float = 0.25
+    """The share of the calibration's heading variance given to the constant term c0 (the rest to the once- and
+    twice-per-turn terms, mag_harmonics.prior_variances_rad2): chosen on in-sample seeds, checked held-out
+    (docs/figures.md "A calibrated magnetometer's heading error as states")."""
+    mag_harmonic_residual_share: float = 0.1
+    """The share of the calibration's heading variance the harmonics do not hold (a boat's heel and a plane's
+    bank turn the field against the calibration's levelled one: error that changes in seconds), fused as noise
+    lasting `mag_bias_tau_s`."""
+    mag_harmonic_walk_rad_sqrt_s: float = 1e-5
+    """Random walk of the harmonic coefficients, rad/√s: a calibration's error drifts with temperature and load
+    only slowly (0.03° in an hour)."""
     gnss_yaw: bool = True
     """Run the magnetometer-free Gaussian-sum GNSS yaw (gsf_yaw.py) beside the filter: the heading monitor checks
     the magnetometer against it and resets the yaw to it."""
@@ -311,6 +329,7 @@ class InsParams(MagHeadingParams):
         p["iron_soft_inv"] = np.eye(3)
         p["mag_bias_var_rad2"] = self.calibration_sigma_rad ** 2
         p["mag_bias_tau_s"] = self.mag_bias_tau
+        p["mag_harmonic_walk_rad_sqrt_s"] = self.mag_harmonic_walk_rad_sqrt_s
         p["level_noise_m_s2"] = self.level_noise_m_s2
         p["level_reject_m_s2"] = self.level_reject_m_s2
         p["level_gate_rad"] = self.level_gate_rad
@@ -399,7 +418,7 @@ class Ins:
     `update(sample) -> AttitudeEstimate` with `nav=NavState` once a fix has set velocity and position;
     `update_gnss(fix) -> int` (core.R_* bits of what happened; never raises on bad input, counts it in
     `gnss_counters`); `reset()`, `set_declination(rad)`, `relearn_field_reference()`; read-only `covariance`
-    (24×24), `gyro_bias_rad_s`, `gyro_scale`, `gyro_misalignment_rad`, `accel_bias_m_s2`, `last_nis` (velocity,
+    (29×29), `gyro_bias_rad_s`, `gyro_scale`, `gyro_misalignment_rad`, `accel_bias_m_s2`, `last_nis` (velocity,
     position); `heading_checks`, the latest heading checks' decisions (heading_monitor.HeadingCheckRecord).
     """
 
@@ -521,6 +540,7 @@ class Ins:
         self._par["mag_bias_var_rad2"] = p.calibration_sigma_rad ** 2
         self._set_accel_bias_learning()
         self._apply_learned_iron()
+        self._set_mag_harmonics()
         self._set_field_circle()
 
     def _set_field_circle(self) -> None:
@@ -569,9 +589,11 @@ class Ins:
         return self.params.iron_unmodelled_ut
 
     def _apply_learned_iron(self) -> None:
-        """The kernel removes the learned iron before its heading update: (I + D)⁻¹·(m − b)."""
+        """The kernel removes the learned iron before its heading update: (I + D)⁻¹·(m − b); a learned iron's
+        error is the learner's, not the calibration's harmonic states' (`_mag_harmonics_apply`)."""
         self._par["iron_ut"] = self._iron.offset_ut
         self._par["iron_soft_inv"] = self._iron.soft_iron_inverse
+        self._set_mag_harmonics()
 
     def learned_iron(self) -> tuple[np.ndarray, np.ndarray]:
         """The hard iron learned on top of the calibration (body frame, µT) and its covariance (µT²)."""
@@ -625,10 +647,45 @@ class Ins:
         self._par["mag_moves_tilt"] = 1.0 if p.mag_moves_tilt else 0.0
         self._par["mag_bias_var_rad2"] = p.calibration_sigma_rad ** 2
         self._par["mag_bias_tau_s"] = p.mag_bias_tau
+        self._set_mag_harmonics()
+        self._restart_mag_harmonics()    # the new calibration's error, independent of the old one's
         self._set_accel_bias_learning()
         self._set_field_circle()
         if self._heading_checks_run:    # else the floor is none, or the one without magnetometer (no calibration's)
             self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(*self._yaw_and_gnss_yaw_now())
+
+    @property
+    def _mag_harmonics_apply(self) -> bool:
+        """The calibration's heading error is carried as the harmonic states (InsParams.mag_harmonic_states): a
+        calibration that states its error, trusted by the monitor, and no iron learned on top of it (a learned
+        iron's error is the learner's covariance, `_magnetometer_heading`)."""
+        p = self.params
+        return (p.mag_harmonic_states and p.mag_enabled and calibration_states_error(p.mag_calibration_sigma_rad)
+                and not self._calibration_untrusted and self._iron.updates == 0 and not self._iron_restored)
+
+    def _set_mag_harmonics(self) -> None:
+        """Tell the kernel whether the harmonic states carry the heading error, and what they leave as noise;
+        switched on (a learned iron reset) they start from their prior."""
+        p = self.params
+        on = self._mag_harmonics_apply
+        was_on = self._par["mag_harmonics_on"] > 0.0
+        self._par["mag_harmonics_on"] = 1.0 if on else 0.0
+        self._par["mag_harmonic_residual_var_rad2"] = p.mag_harmonic_residual_share * p.calibration_sigma_rad ** 2
+        if on and not was_on:
+            self._restart_mag_harmonics()
+
+    def _restart_mag_harmonics(self) -> None:
+        """The harmonic states back to zero with the calibration's prior, uncorrelated (at start-up, a new
+        calibration, a yaw reset); without them (`_set_mag_harmonics` off) zero, variance zero: they never move."""
+        p = self.params
+        self._x["mag_heading_error_rad"] = 0.0
+        block = slice(core.E_MH, core.N_ERR)
+        P = self._P
+        P[block, :] = 0.0
+        P[:, block] = 0.0
+        if self._par["mag_harmonics_on"] > 0.0:
+            var = prior_variances_rad2(p.calibration_sigma_rad, p.mag_harmonic_offset_share)
+            P[block, block] = np.diag(var)
 
     def _yaw_and_gnss_yaw_now(self) -> tuple[float, float, float]:
         """What the unconfirmed-yaw floor is computed from (`_unconfirmed_yaw_sigma`), now: the filter's yaw and
@@ -686,8 +743,8 @@ class Ins:
 
     @property
     def covariance(self) -> np.ndarray:
-        """Error covariance 24×24 [δθ NED (rad), δv NED (m/s), δp NED (m), δb_g (rad/s), δb_a (m/s²), δs_g,
-        δm_g (xy, xz, yx, yz, zx, zy, rad)]."""
+        """Error covariance 29×29 [δθ NED (rad), δv NED (m/s), δp NED (m), δb_g (rad/s), δb_a (m/s²), δs_g,
+        δm_g (xy, xz, yx, yz, zx, zy, rad), δe_m (the magnetometer heading error's c0, c1, s1, c2, s2, rad)]."""
         return self._P.copy()
 
     @property
@@ -1361,6 +1418,8 @@ class Ins:
             P[:, i] = 0.0
             P[i, i] = var
         self._reset_velocity_to_fix()
+        # the calibration's error estimated against the heading just found wrong starts again from its prior
+        self._restart_mag_harmonics()
         self._mag_rotation.restart()      # its window started from the old heading
         self.yaw_resets += 1
         self.heading_interventions += 1
@@ -1526,6 +1585,7 @@ class Ins:
             P[core.E_SG + i, core.E_SG + i] = p.init_gyro_scale_sigma ** 2
         for i in range(6):
             P[core.E_MG + i, core.E_MG + i] = p.init_gyro_misalignment_sigma_rad ** 2
+        self._restart_mag_harmonics()
 
     def _restart_companions(self, t_s) -> None:
         """What runs beside the filter starts again with it: no queued fixes, the published heading follows the
@@ -1581,9 +1641,13 @@ class Ins:
             # or, once the field has swept a circle in turns, the error its centre and shape show when that is more
             # (field_circle.py)
             cal_var = calibration_heading_variance_rad2(self.params.mag_calibration_sigma_rad)
+            add_var = cal_var
             if self._field_circle_on:
-                cal_var = self._field_circle.result.checked_var_rad2(cal_var)
-            sigma_yaw = math.sqrt(sigma_yaw ** 2 + cal_var)
+                add_var = self._field_circle.result.checked_var_rad2(cal_var)
+            if self._par["mag_harmonics_on"] > 0.0:
+                # the harmonic states carry the calibration's error in the filter's σ: only what the circle adds
+                add_var = max(0.0, add_var - cal_var)
+            sigma_yaw = math.sqrt(sigma_yaw ** 2 + add_var)
             o[_OUT_SIGMA.start + 2] = sigma_yaw
         if self._ever_aided and self._accel_axes_var_rad2 > 0.0:
             # a heading the GNSS has observed is the accelerometer axes' heading: their misalignment is in it

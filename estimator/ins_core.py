@@ -1,11 +1,11 @@
-"""The `ins` estimator's compiled kernels (numba): NED strapdown mechanisation, 24-state error covariance,
+"""The `ins` estimator's compiled kernels (numba): NED strapdown mechanisation, 29-state error covariance,
 accelerometer levelling while unaided, magnetometer heading, and the delayed GNSS velocity/position fusion.
 
 `ins.py` owns the parameters, initialisation, input checks and the Estimator interface; this module is the
 arithmetic. The nominal state and its bookkeeping `x` is an INS_STATE_DTYPE record, the parameters `par` an
 INS_PARAMS_DTYPE record (numpy structured types: named fields that numba compiles to fixed offsets), `hist`
 a ring of INS_HISTORY_DTYPE records (past nominal states for fusing a fix at its time of validity), `P` the
-24×24 error covariance, `out` the per-step outputs (an INS_OUT_DTYPE record). The entry points (`ins_step`,
+29×29 error covariance, `out` the per-step outputs (an INS_OUT_DTYPE record). The entry points (`ins_step`,
 `fuse_gnss`) take the state and parameters (and `ins_step` the outputs) as 1-element arrays (an array unboxes
 cheaper than a record).
 
@@ -18,10 +18,11 @@ Error state δx (24, true − estimate), in this order:
   δb_g (9–11) gyro bias error, rad/s;  δb_a (12–14) accelerometer bias error, m/s²
   δs_g (15–17) gyro scale-factor error (ω_meas = (I + diag(s) + M) ω + b), fraction
   δm_g (18–23) gyro misalignment M's off-diagonal elements xy, xz, yx, yz, zx, zy (ω_j picks up m_jk ω_k), rad
+  δe_m (24–28) the calibrated magnetometer's heading error harmonics c0, c1, s1, c2, s2 (mag_harmonics.py), rad
 Error dynamics (Groves 2nd ed. ch. 14; the ω_in^n × δθ, Coriolis and gravity-gradient couplings are
 below the ADIS16405's noise over the filter's time constants and are left out):
   δθ̇ = −C δb_g − C diag(ω) δs_g − C W(ω) δm_g + w_g,  δv̇ = −[f^n×] δθ − C δb_a + w_a,  δṗ = δv,  biases,
-  scale factors and misalignments random walks (W(ω): the 3×6 map of δm_g into δω). An uncalibrated 0.3 %
+  scale factors, misalignments and magnetometer harmonics random walks (W(ω): the 3×6 map of δm_g into δω). An uncalibrated 0.3 %
   gyro scale error turns into 0.07 °/s of attitude drift in a 13 °/s turn, a 0.1° misalignment of the x or
   y gyro towards z into 0.02 °/s of tilt drift — in a long turn a lean the GNSS must keep correcting; with
   these states the GNSS learns both (the turn itself makes them observable).
@@ -67,6 +68,7 @@ from .kernel_flags import (
     input_validity,
     step_dt,
 )
+from .mag_harmonics import N_MAG_HARMONICS, harmonic_basis, heading_error_rad
 from .mag_rotation import rotation_vector_step
 from .kernel_rotations import dcm, euler_and_tilt_sigma, normalised, quat_mul, rotate_to_ned, rotvec_quat
 from .turn_lean import (
@@ -79,8 +81,8 @@ from .turn_lean import (
     track_tilt_push,
 )
 
-N_ERR = 24
-E_TH, E_V, E_P, E_BG, E_BA, E_SG, E_MG = 0, 3, 6, 9, 12, 15, 18
+E_TH, E_V, E_P, E_BG, E_BA, E_SG, E_MG, E_MH = 0, 3, 6, 9, 12, 15, 18, 24
+N_ERR = E_MH + N_MAG_HARMONICS
 E_TILT_N, E_TILT_E, E_YAW = E_TH, E_TH + 1, E_TH + 2     # δθ_N, δθ_E, δθ_D (the yaw error about down)
 # (row j, column k) of each misalignment error component E_MG + n: δω_j = δm_jk ω_k
 MIS_ROW = (0, 0, 1, 1, 2, 2)
@@ -136,6 +138,8 @@ INS_STATE_DTYPE = np.dtype([
     ("hist_newest", np.float64),                 # index of the newest history row
     ("hist_count", np.float64),                  # rows of history filled
     ("mag", mag.MAG_HEADING_STATE_DTYPE),        # the magnetometer heading check
+    # the calibrated magnetometer's heading error c0, c1, s1, c2, s2 (mag_harmonics.py; error states E_MH…)
+    ("mag_heading_error_rad", np.float64, (N_MAG_HARMONICS,)),
 ])
 
 # ----------------------------------------------------------------------------------- history ring buffer
@@ -176,6 +180,9 @@ INS_PARAMS_DTYPE = np.dtype([
     ("mag_moves_tilt", np.float64),              # 1.0: while aided the heading update may move the tilt
     ("mag_bias_var_rad2", np.float64),           # slowly varying part of the heading error (calibration)
     ("mag_bias_tau_s", np.float64),              # its correlation time: noise inflated by τ/Δt (_mag_update)
+    ("mag_harmonics_on", np.float64),            # 1.0: the heading error is the E_MH states (mag_harmonics.py)
+    ("mag_harmonic_walk_rad_sqrt_s", np.float64),   # their random walk
+    ("mag_harmonic_residual_var_rad2", np.float64),  # the part they leave, fused as mag_bias_var is without them
     ("iron_ut", np.float64, (3,)),               # learned hard iron removed before use (body frame)
     ("iron_soft_inv", np.float64, (3, 3)),       # (I + D)⁻¹ of the learned soft iron, applied after the hard iron
     ("mag", mag.MAG_HEADING_PARAMS_DTYPE),       # the magnetometer heading check
@@ -234,6 +241,7 @@ M_ACC_BIAS_XY = 0b011 << E_BA   # body x, y: the axes a near-level vehicle's yaw
 M_GYRO_SCALE = 0b111 << E_SG
 M_GYRO_MIS = 0b111111 << E_MG
 M_NAV = 0b111111 << E_V
+M_MAG_HARMONICS = ((1 << N_MAG_HARMONICS) - 1) << E_MH
 NAV_UNKNOWN_VAR_V = 100.0    # (10 m/s)², velocity variance before a fix sets it
 NAV_UNKNOWN_VAR_P = 1e6      # (1 km)², position variance before a fix sets it
 
@@ -284,6 +292,8 @@ def _apply_correction(x, par, dx):
         x.gyro_scale[i] = min(max(x.gyro_scale[i] + dx[E_SG + i], -sc), sc)
     for i in range(6):
         x.gyro_misalignment_rad[i] = min(max(x.gyro_misalignment_rad[i] + dx[E_MG + i], -sc), sc)
+    for i in range(N_MAG_HARMONICS):
+        x.mag_heading_error_rad[i] += dx[E_MH + i]
     # the NED-frame low-passed specific force lives in the estimated NED frame: keep it there
     an = x.acc_ned_lp_m_s2[0]
     ae = x.acc_ned_lp_m_s2[1]
@@ -388,6 +398,9 @@ def _add_process_noise(P, par, T):
         P[E_SG + i, E_SG + i] += par.gyro_scale_walk_sqrt_s ** 2 * T
         P[E_MG + i, E_MG + i] += par.gyro_misalignment_walk_rad_sqrt_s ** 2 * T
         P[E_MG + 3 + i, E_MG + 3 + i] += par.gyro_misalignment_walk_rad_sqrt_s ** 2 * T
+    if par.mag_harmonics_on > 0.0:
+        for i in range(N_MAG_HARMONICS):
+            P[E_MH + i, E_MH + i] += par.mag_harmonic_walk_rad_sqrt_s ** 2 * T
 
 
 @njit(cache=True)
@@ -454,7 +467,7 @@ def _level(x, P, par, dt_epoch):
     r = (par.level_noise_m_s2 / g) ** 2
     # the lean this update carries into the tilt in a turn, for the published 1σ (turn_lean.py)
     track_tilt_push(x.turn_lean, par.turn_speed_m_s, g, levelling_gain(P[E_TILT_E, E_TILT_E], r))
-    mask = M_HEADING | M_ACC_BIAS | M_GYRO_BIAS | M_GYRO_SCALE | M_GYRO_MIS   # tilt only (see the docstring)
+    mask = M_HEADING | M_ACC_BIAS | M_GYRO_BIAS | M_GYRO_SCALE | M_GYRO_MIS | M_MAG_HARMONICS   # tilt only
     dx = np.zeros(N_ERR)
     h = np.zeros(N_ERR)
     h[1] = 1.0
@@ -481,6 +494,12 @@ def _iron_corrected(par, mx, my, mz):
 
 
 @njit(cache=True)
+def _gnss_holds_tilt(x, par):
+    """A fix was fused within gnss_timeout_s: the GNSS velocity holds the horizon (GNSS_AIDED)."""
+    return x.nav_ok > 0.0 and x.t_last_s - x.gnss_fused_t_s <= par.gnss_timeout_s
+
+
+@njit(cache=True)
 def _mag_heading_row(x, par, mn, me, md):
     """The heading measurement's row h (N_ERR) for the field (mn, me, md) in the estimated NED frame, and whether
     its update may move the tilt.
@@ -493,7 +512,7 @@ def _mag_heading_row(x, par, mn, me, md):
     Otherwise — before the first fix, dead reckoning, levelling — the row is heading only, as in mekf."""
     h = np.zeros(N_ERR)
     h[2] = -1.0
-    aided = x.nav_ok > 0.0 and x.t_last_s - x.gnss_fused_t_s <= par.gnss_timeout_s
+    aided = _gnss_holds_tilt(x, par)
     moves_tilt = aided and par.mag_moves_tilt > 0.0
     mh2 = mn * mn + me * me
     if aided and mh2 > 0.0:
@@ -513,6 +532,51 @@ def _attitude_variance(P, h):
 
 
 @njit(cache=True)
+def _magnetic_heading_rad(x, par):
+    """The vehicle's estimated magnetic heading (body x about down from magnetic north), rad: what the
+    calibration's heading error is a function of (mag_harmonics.py)."""
+    q0, q1, q2, q3 = x.q[0], x.q[1], x.q[2], x.q[3]
+    return math.atan2(2.0 * (q0 * q3 + q1 * q2), 1.0 - 2.0 * (q2 * q2 + q3 * q3)) - par.declination_rad
+
+
+@njit(cache=True)
+def _add_harmonics_to_row(x, par, h):
+    """With the harmonic states on: their entries in the heading row h (the basis at the magnetic heading), and
+    the field azimuth they predict (rad, subtracted from the measured one); 0 otherwise."""
+    if par.mag_harmonics_on <= 0.0:
+        return 0.0
+    psi = _magnetic_heading_rad(x, par)
+    b0, b1, b2, b3, b4 = harmonic_basis(psi)
+    h[E_MH] = b0
+    h[E_MH + 1] = b1
+    h[E_MH + 2] = b2
+    h[E_MH + 3] = b3
+    h[E_MH + 4] = b4
+    return heading_error_rad(x.mag_heading_error_rad, psi)
+
+
+@njit(cache=True)
+def _harmonic_row_variance(P, h):
+    """h P hᵀ over the harmonic states and their covariance with the attitude (the rest of the heading row's
+    h P hᵀ, `_attitude_variance` having the attitude block)."""
+    v = 0.0
+    for i in range(N_MAG_HARMONICS):
+        hi = h[E_MH + i]
+        for j in range(N_MAG_HARMONICS):
+            v += hi * P[E_MH + i, E_MH + j] * h[E_MH + j]
+        for j in range(3):
+            v += 2.0 * hi * P[E_MH + i, E_TH + j] * h[E_TH + j]
+    return v
+
+
+@njit(cache=True)
+def _heading_error_var(par):
+    """The heading error's variance the update treats as slowly varying noise (inflated by τ/Δt): the whole
+    calibration's without the harmonic states, only what they leave with them."""
+    return par.mag_harmonic_residual_var_rad2 if par.mag_harmonics_on > 0.0 else par.mag_bias_var_rad2
+
+
+@njit(cache=True)
 def _fuse_mag_heading(x, P, par, dt_epoch, h, alpha, r, moves_tilt):
     """The heading update (innovation alpha, row h, noise r from mag_heading.py) into the state, its gain on the
     tilt zero unless `moves_tilt`.
@@ -520,12 +584,18 @@ def _fuse_mag_heading(x, P, par, dt_epoch, h, alpha, r, moves_tilt):
     The calibration's error is not white: a heading bias of variance mag_bias_var_rad2 that lasts about
     mag_bias_tau_s. Fused every Δt as if white it would shrink the heading σ below it; spread over the τ/Δt
     updates of one correlation time it adds at most its own variance's worth of information."""
-    r += par.mag_bias_var_rad2 * max(1.0, par.mag_bias_tau_s / max(dt_epoch, 1e-6))
+    r += _heading_error_var(par) * max(1.0, par.mag_bias_tau_s / max(dt_epoch, 1e-6))
     if not _aided(x, par):
         # levelled: the tilt's turn lean becomes heading error through the dip (turn_lean.py)
         track_heading_push(x.turn_lean, x.mag.ref_dip_rad, P[E_YAW, E_YAW], r)
+    held = 0 if moves_tilt else M_TILT
+    if not _gnss_holds_tilt(x, par):
+        # the harmonic states learn only while the GNSS holds the tilt: levelled in turns, the tilt leans towards
+        # the turn's centre, a lean that turns with the heading and so, through the dip, reads as a once-per-turn
+        # heading error the states would take for the calibration's (they still count in the innovation's variance)
+        held |= M_MAG_HARMONICS
     dx = np.zeros(N_ERR)
-    scalar_update(P, h, alpha, r, 0 if moves_tilt else M_TILT, dx)
+    scalar_update(P, h, alpha, r, held, dx)
     _apply_correction(x, par, dx)
 
 
@@ -545,8 +615,10 @@ def _mag_update(x, P, par, dt_epoch, rate):
         mn, me, md = rotate_to_ned(x.q[0], x.q[1], x.q[2], x.q[3], mx, my, mz)
         mnorm = math.sqrt(mx * mx + my * my + mz * mz)
         h, moves_tilt = _mag_heading_row(x, par, mn, me, md)
+        predicted_error = _add_harmonics_to_row(x, par, h)
+        heading_var = _attitude_variance(P, h) + _harmonic_row_variance(P, h) + _heading_error_var(par)
         res, alpha, r = mag.heading_measurement(ms, mp, dt_epoch, rate, False, False, mn, me, md, mnorm,
-                                                par.declination_rad, _attitude_variance(P, h) + par.mag_bias_var_rad2)
+                                                par.declination_rad + predicted_error, heading_var)
         if res == mag.MAG_USE:
             _fuse_mag_heading(x, P, par, dt_epoch, h, alpha, r, moves_tilt)
             used = True

@@ -146,7 +146,7 @@ def _compose_link(a, b, d, phi, p_post_prev, p_prior, dx, cut):
 
 @njit(cache=True)
 def nominal_difference(x_before, x_after, par) -> np.ndarray:
-    """The error-state correction (core's 24 components) that takes the nominal state x_before to x_after:
+    """The error-state correction (core's N_ERR components) that takes the nominal state x_before to x_after:
     δθ with C_after = exp([δθ×]) C_before (NED), δv, δp (NED, m), and the sensor-error states' differences.
     Scalar arithmetic (numba): it runs at every epoch of the recorded filter."""
     dx = np.zeros(core.N_ERR)
@@ -178,6 +178,8 @@ def nominal_difference(x_before, x_after, par) -> np.ndarray:
         dx[15 + i] = x_after["gyro_scale"][i] - x_before["gyro_scale"][i]
     for i in range(6):
         dx[18 + i] = x_after["gyro_misalignment_rad"][i] - x_before["gyro_misalignment_rad"][i]
+    for i in range(core.N_ERR - core.E_MH):
+        dx[core.E_MH + i] = x_after["mag_heading_error_rad"][i] - x_before["mag_heading_error_rad"][i]
     return dx
 
 
