@@ -269,7 +269,7 @@ class PathReport:
     max_difference: float
     example: tuple[object, object] | None
     rest: object = None                  # the value the REST API gave at the end of the run
-    rest_difference: float = math.nan    # ... against the closest of ahrsd's sentences just before
+    rest_difference: float = math.nan    # ... against the closest of ahrsd's sentences sent while listening
     sent: int = 0                        # ahrsd's sentences for this path while the stream was read
     run_notes: str = ""                  # the stream's state, ahrsd's exit and log tail (for a failure message)
 
@@ -342,6 +342,7 @@ def run_check(seconds: float = 30.0, scenario: str = "level-turns", log=print, m
                     time.sleep(0.5)
                 rest_at = time.monotonic()
                 rest = rest_navigation(server.http_port)
+                rest_answered = time.monotonic()     # a loaded server can answer seconds after the request
                 stream.stop()
                 ahrsd_exit = ahrsd.poll()
                 run_notes = (f"listened {rest_at - listen_from:.1f} s; {stream.describe()}; ahrsd "
@@ -359,7 +360,7 @@ def run_check(seconds: float = 30.0, scenario: str = "level-turns", log=print, m
     reports = compare(stream.updates, tap.sentences, seconds, listened=(listen_from, rest_at))
     for r in reports:
         r.rest = rest_value(rest, r.path)
-        r.rest_difference = rest_difference(r.path, r.rest, tap.sentences, rest_at)
+        r.rest_difference = rest_difference(r.path, r.rest, tap.sentences, listen_from, rest_answered)
         r.run_notes = run_notes
     return reports
 
@@ -378,11 +379,14 @@ def rest_value(navigation: dict, path: str):
     return node.get("value") if isinstance(node, dict) else None
 
 
-def rest_difference(path: str, value, sentences, at: float) -> float:
-    """The REST value against ahrsd's sentences of that kind sent within MATCH_WINDOW_S before the request."""
+def rest_difference(path: str, value, sentences, since: float, at: float) -> float:
+    """The REST value against ahrsd's sentences of that kind sent from `since` (the stream's start) until `at`
+    (the answer came). Not only the last MATCH_WINDOW_S before the request: on a loaded machine the value Signal K
+    serves can be seconds from the request's time (docs/marine.md); a wrong unit or sign matches none of them
+    either way."""
     if value is None:
         return math.nan
-    near = [v for t, msg in sentences if at - MATCH_WINDOW_S <= t <= at + 0.2
+    near = [v for t, msg in sentences if since <= t <= at + 0.2
             for p, v in signal_k_value_of(msg).items() if p == path]
     return min((_difference(path, value, v) for v in near), default=math.nan)
 
