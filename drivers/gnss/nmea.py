@@ -33,13 +33,15 @@ _RMC_MODE = {"A": GnssFixType.FIX_2D, "D": GnssFixType.DGPS, "F": GnssFixType.RT
 
 
 def _num(value) -> float:
-    """A pynmeagps field as a float: empty fields ('') are NaN."""
+    """A pynmeagps field as a float: empty fields ('') are NaN, and so is a field that reads as infinite ('1E310',
+    'inf'): no NMEA quantity is, and math.cos/sin of it would raise instead of leaving the value unknown."""
     if value is None or value == "":
         return math.nan
     try:
-        return float(value)
+        number = float(value)
     except (TypeError, ValueError):
         return math.nan
+    return number if math.isfinite(number) else math.nan
 
 
 @dataclass(frozen=True, slots=True)
