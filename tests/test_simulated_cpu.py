@@ -115,7 +115,9 @@ def test_the_simulated_receivers_writer_counts_its_cpu_not_its_waits():
     try:
         t0 = time.monotonic()
         rx.start()
-        time.sleep(0.3)
+        deadline = time.monotonic() + 60        # by count, not by a wall window (6 calls in 0.3 s at load 16, ci24)
+        while calls[0] < 12 and time.monotonic() < deadline:
+            time.sleep(0.01)
         rx._stop.set()
         rx._thread.join(5.0)
         elapsed = time.monotonic() - t0
