@@ -291,12 +291,15 @@ def _write_cut(args, chosen: list[tuple], side0: dict) -> tuple[int, float, floa
 
     from ahrsd.drivers.recording import SAMPLE_COLUMNS, RecordingFormatError, RecordingWriter, iter_samples
 
+    from .output_target import renamed_into_place
     from .progress import progress_bar
 
     expected = sum(s.get("entries", 0) for _, s, _, _ in chosen) or None
     count, first_t, last_t = 0, math.nan, math.nan
     head, base = os.path.split(args.output)
     tmp = os.path.join(head, f".{base}.part" + (".gz" if base.endswith(".gz") else ""))   # renamed when complete
+    if not renamed_into_place(args.output):
+        tmp = args.output                   # a device or FIFO: written through, never replaced
     try:
         with RecordingWriter(tmp, extra_columns=SAMPLE_COLUMNS) as out, \
                 progress_bar(args.quiet, expected, "log cut") as bar:
@@ -317,11 +320,12 @@ def _write_cut(args, chosen: list[tuple], side0: dict) -> tuple[int, float, floa
         if count == 0:
             raise LogError(f"no logged samples between {args.t_from} and {args.t_to} (the files around it: "
                            f"{', '.join(p.name for p, _, _, _ in chosen)})")
-        os.replace(tmp, args.output)
+        if tmp != args.output:
+            os.replace(tmp, args.output)
     except (OSError, RecordingFormatError) as exc:
         raise LogError(f"{getattr(exc, 'filename', None) or args.output}: {getattr(exc, 'strerror', None) or exc}") from None
     finally:
-        if os.path.exists(tmp):
+        if tmp != args.output and os.path.exists(tmp):
             os.unlink(tmp)
     return count, first_t, last_t
 

@@ -247,11 +247,17 @@ class _Output:
         import sys
         import tempfile
 
+        from .output_target import renamed_into_place
+
         self.path = path
         self.header, self.row_format = header, row_format
         self._tmp = None
+        self._opened_through = False
         if path == "-":
             self._file = sys.stdout
+        elif not renamed_into_place(path):
+            self._file = open(path, "w", encoding="utf-8", newline="\n")
+            self._opened_through = True
         else:
             directory = os.path.dirname(os.path.abspath(path))
             fd, self._tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".part", dir=directory)
@@ -273,7 +279,10 @@ class _Output:
         import os
 
         if self._tmp is None:
-            self._file.flush()
+            if self._opened_through:
+                self._file.close()
+            else:
+                self._file.flush()
             return
         self._file.close()
         os.replace(self._tmp, self.path)
