@@ -31,13 +31,34 @@ MEASURE_EVERY = 17                  # reads between two measured ones (prime: th
 FLOW_STOPPING_FAULTS = ("bus_error", "stall", "garbage", "short_read", "self_test_fail")
 
 
-class BurstIndexTap:
+class ChipBus:
+    """The simulated chip as the SPI bus (drivers.spi.SpiBus: transfer, sleep, close) and its clock (`now`; a
+    benchmark places chip time on the host's), each passed on as it is: what a tap in front of the chip overrides
+    the rest of (the taps below; tests' fakes, tests/support/chip_bus.py)."""
+
+    def __init__(self, chip):
+        self.chip = chip
+
+    def transfer(self, tx: bytes, speed_hz: int, delay_us: int = 0) -> bytes:
+        return self.chip.transfer(tx, speed_hz, delay_us)
+
+    def sleep(self, seconds: float) -> None:
+        self.chip.sleep(seconds)
+
+    def close(self) -> None:
+        self.chip.close()
+
+    def now(self) -> float:
+        return self.chip.now()
+
+
+class BurstIndexTap(ChipBus):
     """The simulated chip as the SPI bus, noting the chip's sample index at each burst: the ground truth of
     the sample a burst returned (`chip.sample_index` after the read can be one further when the driver went
     on with a register read — burst-bug check, DIAG_STAT — during which the chip produced the next sample)."""
 
     def __init__(self, chip):
-        self.chip = chip
+        super().__init__(chip)
         self.burst_index = -1
         self.measuring = False        # time the transfers (GroundTruthSource's measured reads)
         self.cpu_s = 0.0              # thread CPU time inside the simulated chip's transfers, while measuring
@@ -52,7 +73,7 @@ class BurstIndexTap:
         return self._transfer(tx, speed_hz, delay_us)
 
     def _transfer(self, tx: bytes, speed_hz: int, delay_us: int) -> bytes:
-        rx = self.chip.transfer(tx, speed_hz, delay_us)
+        rx = super().transfer(tx, speed_hz, delay_us)
         if tx[0] == GLOB_CMD and tx[1] == 0:          # 0x3E00 starts a burst read
             self._on_burst()
         return rx
@@ -60,16 +81,6 @@ class BurstIndexTap:
     def _on_burst(self) -> None:
         """A burst read has just returned the chip's current sample: note what belongs to that sample."""
         self.burst_index = self.chip.sample_index
-
-    # the rest of the chip's bus (drivers.spi.SpiBus) and its clock (a benchmark places chip time on the host's)
-    def sleep(self, seconds: float) -> None:
-        self.chip.sleep(seconds)
-
-    def close(self) -> None:
-        self.chip.close()
-
-    def now(self) -> float:
-        return self.chip.now()
 
 
 class BurstTruthTap(BurstIndexTap):
