@@ -958,7 +958,7 @@ def run(args) -> int:
     try:
         if args.plot:
             _check_matplotlib()   # before fitting and saving: a missing optional extra is a usage error
-        if args.sensor != "allan" and not (args.dry_run or getattr(args, "force", False)):
+        if args.sensor != "allan" and not (args.dry_run or args.force):     # allan has no --force
             _refuse_a_held_state_dir(args.state_dir)
         return handlers[args.sensor](args)
     except _Fail as exc:
@@ -986,8 +986,7 @@ def _refuse_a_held_state_dir(state_dir: str) -> None:
 
     busy = holder(state_dir)
     if busy is not None:
-        who = f"PID {busy.pid}" if busy.pid is not None else "its PID not yet written"
-        raise _Fail(f"a running ahrsd ({who}) holds {state_dir}: it would use this calibration only after a "
+        raise _Fail(f"a running ahrsd ({busy.who}) holds {state_dir}: it would use this calibration only after a "
                     f"restart and saves its own over it when it accepts a magnetometer calibration; stop it first "
                     f"(systemctl stop ahrsd), calibrate, start it again — or --force (then restart it), or "
                     f"--dry-run")

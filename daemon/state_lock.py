@@ -28,11 +28,15 @@ class StateDirBusy(Exception):
     def __init__(self, directory: Path, pid: int | None):
         self.directory = directory
         self.pid = pid
-        who = f"another ahrsd (PID {pid})" if pid is not None else "another ahrsd (its PID not yet written)"
         super().__init__(
-            f"the state directory {directory} is in use by {who}: two daemons on one directory would overwrite each "
-            f"other's calibration, learned iron, position memory and logs. Stop the other one (under systemd: "
-            f"systemctl stop ahrsd), or give this one its own directory with --state-dir DIR")
+            f"the state directory {directory} is in use by another ahrsd ({self.who}): two daemons on one "
+            f"directory would overwrite each other's calibration, learned iron, position memory and logs. Stop the "
+            f"other one (under systemd: systemctl stop ahrsd), or give this one its own directory with --state-dir DIR")
+
+    @property
+    def who(self) -> str:
+        """The holder as a message names it."""
+        return f"PID {self.pid}" if self.pid is not None else "its PID not yet written"
 
 
 class StateDirLock:
