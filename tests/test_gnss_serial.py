@@ -2,6 +2,7 @@
 hardware: UBX and NMEA, garbage, truncated frames, a baud mismatch, silence, the device going away."""
 
 import contextlib
+import datetime as dt
 import select
 
 import numpy as np
@@ -9,7 +10,7 @@ import pytest
 
 from ahrsd.core.gnss import GnssFixType, make_fix
 from ahrsd.drivers.gnss.serial_port import GnssDeviceError, GnssLinkState, SerialGnssSource
-from ahrsd.drivers.gnss.simulated import SimulatedGnssReceiver, uart_resample
+from ahrsd.drivers.gnss.simulated import GPS_EPOCH, SimulatedGnssReceiver, uart_resample
 
 
 class FakeClock:
@@ -135,6 +136,28 @@ def test_a_held_up_read_then_a_burst_never_stamps_backwards(protocol):
         validator = GnssFixValidator(clock=clock)
         assert [validator.check(f) for f in got] == [None] * 9
         assert src.counters["stamps_held"] == 0 and src.counters["receiver_clock_jumps"] == 0
+
+
+@pytest.mark.parametrize("protocol, start_utc", [
+    ("ubx", GPS_EPOCH + dt.timedelta(weeks=2400, seconds=-0.4)),       # iTOW wraps at the end of the GPS week
+    ("nmea", dt.datetime(2026, 6, 1, 23, 59, 59, 600_000, tzinfo=dt.timezone.utc))])   # UTC at midnight
+def test_the_receiver_time_wrap_is_no_clock_jump(protocol, start_utc):
+    """Epochs across the wrap of the receiver's time, each read on time: stamped at their arrival (minus the
+    latency) without a clock jump: each protocol's time is unwrapped at its own period."""
+    fixes = _fixes(5)
+    clock = FakeClock(20.0)
+    with _link(fixes, {"protocol": protocol, "start_utc": start_utc}, protocol=protocol, latency_s=0.1,
+               clock=clock, write=False) as (rx, src):
+        got = []
+        for k, f in enumerate(fixes):
+            clock.t = 20.0 + 0.2 * k
+            rx.write_fix(f)
+            got += _read_all(src, rx)
+        got += src.decoder.flush()
+        rx_times = [f.extra["receiver_time_s"] for f in got]
+        assert rx_times[2] < rx_times[1]                      # the wrap is there
+        assert [f.t_s for f in got] == pytest.approx([20.0 + 0.2 * k - 0.1 for k in range(5)], abs=1e-6)
+        assert src.counters["receiver_clock_jumps"] == 0 and src.counters["stamps_held"] == 0
 
 
 def test_an_epoch_begun_before_a_burst_keeps_its_earlier_time():

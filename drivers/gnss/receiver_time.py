@@ -119,8 +119,10 @@ class ReceiverTimeStamper:
     def _monotonic(self, fix: GnssFix, t_s: float) -> GnssFix:
         if t_s < self._last_stamp_s:
             self.stamps_held += 1
-            log.info("%s: fix stamp %.3f s before the previous one (a less-delayed fix showed it late); held "
-                     "at the previous stamp + %.0f ms", self.name, self._last_stamp_s - t_s, HOLD_STEP_S * 1e3)
+            if self.stamps_held in (1, 100, 10000):
+                log.info("%s: fix stamp %.3f s before the previous one (a less-delayed fix showed it late); held "
+                         "at the previous stamp + %.0f ms (%d so far)", self.name, self._last_stamp_s - t_s,
+                         HOLD_STEP_S * 1e3, self.stamps_held)
             t_s = self._last_stamp_s + HOLD_STEP_S
         self._last_stamp_s = t_s
         return fix if t_s == fix.t_s else dataclasses.replace(fix, t_s=t_s)
