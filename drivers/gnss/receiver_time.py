@@ -14,8 +14,9 @@ Properties (with the receiver's time increasing): a stamp is never later than it
 window holds the fix's own offset); consecutive stamps never go backwards unless the minimum itself falls
 by more than the epochs' spacing (a newly seen, less-delayed fix showing that earlier stamps were late: at
 start-up, or after a load spike longer than the window); the stamp is then held at the previous one + 1 ms
-and counted (`stamps_held`), since every consumer (the edge validator, the ins) refuses a time that is not
-after the previous one and a fix held back by a few ms is better fused than lost.
+and counted (`stamps_held`): every consumer (the edge validator, the ins) refuses a time that is not after
+the previous one, and the held stamp is no later than the fix's arrival stamp (+ 1 ms a held fix), so the
+fix is kept with no worse a time than stamping by arrival would give it.
 
 All fixes of one read are entered into the window before any is stamped: the last of a burst that a held-up
 reader found waiting is the least delayed, and stamps the earlier ones back from it.
