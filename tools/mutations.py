@@ -202,4 +202,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("gnss-time-repeated", "a GNSS fix with a repeated time is rejected",
              "drivers/gnss/validation.py", "if t == self._last_t_s:", "if False:",
              ("tests/test_gnss_validation.py",)),
+    Mutation("gnss-stamp-min-offset", "serial GNSS fixes are stamped at the least-delayed host−receiver offset",
+             "drivers/gnss/receiver_time.py", "while window and window[-1][1] >= offset:", "while window:",
+             ("tests/test_gnss_receiver_time.py",)),
 )
