@@ -28,6 +28,8 @@ from ahrsd.daemon.service import Service  # noqa: E402
 from ahrsd.estimator.mekf import Mekf  # noqa: E402
 from support.stream_samples import stream_samples  # noqa: E402
 
+pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
+
 RUN_S = 100.0
 START_AT_S = 5.0
 TICK_S = 0.1      # the part's ticker period at the default progress rate (daemon.magcal: ≥ 10 Hz)
