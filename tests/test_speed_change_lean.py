@@ -172,7 +172,7 @@ def _heading_sigma_peak_and_beyond(offset: int, run_s: float) -> tuple[float, fl
     return math.degrees(float(sig_a.max())), 100.0 * float(np.mean(np.abs(err_a) > 3.0 * sig_a))
 
 
-@pytest.mark.slow    # nine starts of 2 min at 819.2 Hz: ≈ 19 s
+@pytest.mark.slow    # nine starts of 2 min at 819.2 Hz: the file starts first under --dist loadfile (tests/conftest.py)
 def test_the_heading_sigma_does_not_depend_on_the_start_sample():
     """The daemon's start lands anywhere in the chip's stream. Started 0…200 samples (0–0.24 s) in, the tour's
     boat did the same turns, and its heading 1σ's peak over 2 min moved 4.81–6.01° (1.20°) when the sum counted
