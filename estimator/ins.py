@@ -410,6 +410,10 @@ _OUT_VEL, _OUT_SIGMA_VEL, _OUT_SIGMA_POS, _OUT_ACCEL_BIAS = (float_field_slice(c
     "vel_ned_m_s", "sigma_vel_m_s", "sigma_pos_m", "accel_bias_m_s2"))
 _OUT_LAT, _OUT_LON, _OUT_H = (
     float_field_slice(core.INS_OUT_DTYPE, n).start for n in ("lat_rad", "lon_rad", "h_m"))
+assert _OUT_LON == _OUT_LAT + 1 and _OUT_H == _OUT_LAT + 2
+_OUT_LAT_LON_H = slice(_OUT_LAT, _OUT_H + 1)        # read with one call (Ins._build_estimate)
+_OUT_SIGMA_YAW = _OUT_SIGMA.start + 2
+_F_GNSS_AIDED, _F_INITIALISING = core.F_GNSS_AIDED, core.F_INITIALISING   # read per sample: no module lookup
 
 
 class Ins:
@@ -434,6 +438,7 @@ class Ins:
         self._x = self._x_arr[0]
         # fields read on every sample, as (1,) array views (indexing an array costs less than a record lookup)
         self._nav_ok = self._x_arr["nav_ok"]
+        self._t_run_s = self._x_arr["t_run_s"]
         self._mag_use = self._par_arr["mag_use"]
         self._P = np.zeros((core.N_ERR, core.N_ERR))
         self._hist = np.zeros(core.H_LEN, core.INS_HISTORY_DTYPE)
@@ -789,9 +794,12 @@ class Ins:
         sflags = int(sample.flags)
         extra = 0
         if self._initialised:
+            # each vector read with one call (nine element reads cost more): the same values as floats
+            gx, gy, gz = g.tolist()
+            ax, ay, az = a.tolist()
+            mx, my, mz = m.tolist()
             f = self._step(self._x_arr, self._P, self._hist, self._par_arr, sample.t_s,
-                           g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], sflags, self._out_arr,
-                           self._gsf_arr, self._gsf_par_arr)
+                           gx, gy, gz, ax, ay, az, mx, my, mz, sflags, self._out_arr, self._gsf_arr, self._gsf_par_arr)
             if not f & NEEDS_INIT:
                 if self._queue:
                     self._fuse_queued()       # before the estimate of this sample, as every fix before it
@@ -1612,15 +1620,13 @@ class Ins:
         if self._pending_flags:
             f |= self._pending_flags
             self._pending_flags = 0
-        if not self._ever_aided and f & core.F_GNSS_AIDED:
+        if not self._ever_aided and f & _F_GNSS_AIDED:
             self._ever_aided = True
-        o = self._out_flat
-        if f & core.F_INITIALISING and not self._published_since_init:
-            self._published.reset()        # nothing published since the filter started: follow it
-        else:
-            r = o[_OUT_RATE_TO_EULER].tolist()     # one call: rate first, then σ, …, Euler angles last
+        # nothing published since the filter started (INITIALISING from its start): the published heading follows
+        # the filter, as _restart_companions left it reset (it moves only in `update`, not called until then)
+        if self._published_since_init or not f & _F_INITIALISING:
+            r = self._out_flat[_OUT_RATE_TO_EULER].tolist()     # one call: rate first, then σ, …, Euler angles last
             self._published.update(t_s, r[-1], r[-3], r[-2], r, r[_STEP_SIGMA_YAW])
-        if not f & core.F_INITIALISING:
             self._published_since_init = True
         self._view.set(t_s, f, True)
         return self._view
@@ -1631,10 +1637,10 @@ class Ins:
             return uninitialised_estimate(t_s, f)
         o = self._out_flat.copy()  # one fresh buffer; the estimate's arrays are views of it
         roll, pitch, yaw_true = o[_OUT_EULER].tolist()
-        sigma_yaw = float(o[_OUT_SIGMA.start + 2])
+        sigma_yaw = float(o[_OUT_SIGMA_YAW])
         if self._unconfirmed_sigma_rad > sigma_yaw and self._nav_ok[0] > 0.0:
             sigma_yaw = self._unconfirmed_sigma_rad        # _unconfirmed_yaw_sigma says why
-            o[_OUT_SIGMA.start + 2] = sigma_yaw
+            o[_OUT_SIGMA_YAW] = sigma_yaw
         if not self._ever_aided and self.params.mag_enabled:
             # no GNSS yet: the magnetometer calibration is the only heading reference and its error is not in
             # the filter's σ (the checks that would show it need GNSS): calibration_heading.py
@@ -1648,11 +1654,11 @@ class Ins:
                 # the harmonic states carry the calibration's error in the filter's σ: only what the circle adds
                 add_var = max(0.0, add_var - cal_var)
             sigma_yaw = math.sqrt(sigma_yaw ** 2 + add_var)
-            o[_OUT_SIGMA.start + 2] = sigma_yaw
+            o[_OUT_SIGMA_YAW] = sigma_yaw
         if self._ever_aided and self._accel_axes_var_rad2 > 0.0:
             # a heading the GNSS has observed is the accelerometer axes' heading: their misalignment is in it
             sigma_yaw = math.sqrt(sigma_yaw * sigma_yaw + self._accel_axes_var_rad2)
-            o[_OUT_SIGMA.start + 2] = sigma_yaw
+            o[_OUT_SIGMA_YAW] = sigma_yaw
         if self._published.offset_rad:
             # the filter's yaw moved faster than the published one may: publish it turned back by the offset
             off = self._published.offset_rad
@@ -1660,15 +1666,16 @@ class Ins:
             c, s = math.cos(0.5 * off), math.sin(0.5 * off)
             w, x_, y, z = o[_OUT_Q].tolist()
             o[_OUT_Q] = (c * w - s * z, c * x_ - s * y, c * y + s * x_, c * z + s * w)
-            o[_OUT_SIGMA.start + 2] = self._published.published_sigma(sigma_yaw)
+            o[_OUT_SIGMA_YAW] = self._published.published_sigma(sigma_yaw)
         yaw = (yaw_true - self._declination + math.pi) % _TWO_PI - math.pi
         nav = None
         if self._nav_ok[0] > 0.0:
+            lat, lon, h = o[_OUT_LAT_LON_H].tolist()
             nav = NavState(
                 o[_OUT_VEL],
-                math.degrees(o[_OUT_LAT]),
-                (math.degrees(o[_OUT_LON]) + 180.0) % 360.0 - 180.0,
-                float(o[_OUT_H]),
+                math.degrees(lat),
+                (math.degrees(lon) + 180.0) % 360.0 - 180.0,
+                h,
                 o[_OUT_SIGMA_VEL],
                 o[_OUT_SIGMA_POS],
                 o[_OUT_ACCEL_BIAS],
@@ -1680,16 +1687,16 @@ class Ins:
         p = self.params
         if not yaw_sigma_rad <= p.heading_unknown_sigma_rad:
             return HeadingState.UNKNOWN
-        if f & core.F_INITIALISING:
+        if f & _F_INITIALISING:
             # INITIALISING also stands for a yaw σ above `converged_yaw_rad` (3°) or a tilt σ above 1°. Aided, a
             # GNSS-held heading with σ up to `heading_unknown_sigma_rad` is what GNSS_ONLY and LEARNING say (the
             # boat's GNSS yaw is 5–6° for minutes; the published σ covers its error): only the start-up time or a
             # heading the magnetometer alone would claim keep it UNKNOWN (the flag itself stays: no VPE yet)
-            aided = f & core.F_GNSS_AIDED and self._x["t_run_s"] >= p.init_min_time_s
+            aided = f & _F_GNSS_AIDED and self._t_run_s[0] >= p.init_min_time_s
             if not (aided and p.heading_monitor
                     and self._heading_state in (HeadingState.GNSS_ONLY, HeadingState.LEARNING)):
                 return HeadingState.UNKNOWN
-        if not f & core.F_GNSS_AIDED:
+        if not f & _F_GNSS_AIDED:
             # unaided the magnetometer is the only heading reference: trusted only when it is in use and not
             # rejected (a rejected one may still be fused at its learned iron's σ, `iron_heading_corr_rad`)
             if not p.mag_enabled or self._mag_use[0] <= 0.0 or self._monitor.mag_rejected:

@@ -76,6 +76,8 @@ def quat_to_dcm(q) -> np.ndarray:
     """DCM C_b^n (…, 3, 3) of unit quaternion(s) q (body→NED). Same matrix as
     Ghasemzadeh & Heyrani Nobari eq 44 with ε4 = w."""
     q = _f(q)
+    if q.shape == (4,):
+        return _quat_to_dcm_one(*q.tolist())
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     xx, yy, zz = x * x, y * y, z * z
     xy, xz, yz = x * y, x * z, y * z
@@ -91,6 +93,17 @@ def quat_to_dcm(q) -> np.ndarray:
     c[..., 2, 1] = 2.0 * (yz + wx)
     c[..., 2, 2] = 1.0 - 2.0 * (xx + yy)
     return c
+
+
+def _quat_to_dcm_one(w: float, x: float, y: float, z: float) -> np.ndarray:
+    """`quat_to_dcm` of one quaternion in Python floats: the same products and sums in the same order (so the
+    same matrix to the bit), without the per-element array indexing that costs most of a single conversion."""
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz = x * y, x * z, y * z
+    wx, wy, wz = w * x, w * y, w * z
+    return np.array(((1.0 - 2.0 * (yy + zz), 2.0 * (xy - wz), 2.0 * (xz + wy)),
+                     (2.0 * (xy + wz), 1.0 - 2.0 * (xx + zz), 2.0 * (yz - wx)),
+                     (2.0 * (xz - wy), 2.0 * (yz + wx), 1.0 - 2.0 * (xx + yy))))
 
 
 def dcm_to_quat(c) -> np.ndarray:
