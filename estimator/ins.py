@@ -34,12 +34,13 @@ from . import mag_heading as mag
 from .accel_axes_heading import accel_axes_heading_variance_rad2
 from .base import DEFAULT_UNMODELLED_IRON_UT, LEARNED_WITH_GNSS
 from .calibration_heading import calibration_heading_variance_rad2, calibration_states_error
-from .gsf_yaw import GsfParams, gsf_fuse_velocity, gsf_output, gsf_reset, new_gsf_state
+from .gsf_yaw import GsfParams, gsf_fuse_velocity_of, gsf_output_of, gsf_reset, new_gsf_state
 from .heading_monitor import HeadingCheckRecord, HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
 from .heading_state_hold import HeadingStateHold
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
                             float_field_slice, uninitialised_estimate)
 from .initial_attitude import initial_attitude
+from .kernel_entry import entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .mag_heading import RELEARN_GATE_OPEN_S
 from .mag_harmonics import prior_variances_rad2
@@ -462,6 +463,12 @@ class Ins:
         self._gsf = self._gsf_arr[0]
         self._par["gnss_yaw"] = 1.0 if self.params.gnss_yaw else 0.0
         self._step = core.fast_step(self._step_args_example())
+        # the bank's per-fix kernels called with its 1-element arrays through their entry points (kernel_entry.py:
+        # these arrays only): a record argument costs several µs to unbox, an array a fraction of one
+        self._gsf_output = entry_point(gsf_output_of, (gsf_output_of.typeof_pyval(self._gsf_arr),))
+        fuse_args = (self._gsf_arr, self._gsf_par_arr, 0.0, np.zeros(3), 0.0)
+        self._gsf_fuse_velocity = entry_point(gsf_fuse_velocity_of,
+                                              tuple(gsf_fuse_velocity_of.typeof_pyval(a) for a in fuse_args))
         self._load_python_called_kernels()
         self._iron = IronLearner(self.params.iron_prior_sigma_ut, self.params.iron_soft_prior)
         self._iron_last_t = None
@@ -495,11 +502,8 @@ class Ins:
             return
         x, par, gsf, gsf_par = self._x, self._par, self._gsf, self._gsf_par
         dx = np.zeros(core.N_ERR)
-        v3 = np.zeros(3)
         for kernel, args in (
                 (core.fuse_gnss, (self._x_arr, self._P, self._hist, self._par_arr) + (0.0,) * 10 + (True,) * 4),
-                (gsf_fuse_velocity, (gsf, gsf_par, 0.0, v3, 0.0)),
-                (gsf_output, (gsf,)),
                 (gsf_reset, (gsf, gsf_par, 0.0, np.zeros(4))),
                 (scalar_update, (self._P, dx, 0.0, 0.0, _NAV_MASK, dx)),
                 (core._apply_correction, (x, par, dx)),
@@ -914,17 +918,18 @@ class Ins:
         finite value in range (a receiver's 'no value' is NaN or a huge number)."""
         use_pos = math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90.0 and abs(lon) <= 360.0
         use_alt = use_pos and fix_type >= GnssFixType.FIX_3D and math.isfinite(alt) and abs(alt) < 1e5
-        use_vel = bool(np.all(np.isfinite(v[:2]))) and float(np.max(np.abs(v[:2]))) < 600.0
+        vn, ve = float(v[0]), float(v[1])
+        use_vel = math.isfinite(vn) and math.isfinite(ve) and max(abs(vn), abs(ve)) < 600.0
         use_vd = use_vel and use_vertical_velocity and math.isfinite(v[2]) and abs(v[2]) < 600.0
         return use_pos, use_alt, use_vel, use_vd
 
     def _keep_fix_velocity(self, t_s: float, v: np.ndarray, use_vd: bool, sig_s: float) -> None:
         """Keep the fix's velocity (vertical NaN when not used) for a yaw reset, which sets the velocity to it, and
         give it to the GNSS yaw bank."""
-        vel = np.array([v[0], v[1], v[2] if use_vd else math.nan])
+        vel = np.array([v[0], v[1], v[2] if use_vd else math.nan], dtype=np.float64)
         self._last_fix_velocity = (t_s, vel, sig_s)
         if self.params.gnss_yaw:
-            gsf_fuse_velocity(self._gsf, self._gsf_par, t_s, vel, sig_s)
+            self._gsf_fuse_velocity(self._gsf_arr, self._gsf_par_arr, float(t_s), vel, float(sig_s))
 
     def _count_fuse_result(self, res: int, fix: GnssFix) -> None:
         """Count and log what fuse_gnss did with the fix (its R_* bits) in gnss_counters; rejections flag
@@ -1121,7 +1126,7 @@ class Ins:
         """The GNSS yaw bank's yaw, its variance (rad²) and whether it is valid: (NaN, inf, False) without the
         bank (gnss_yaw off) or before it has a finite yaw."""
         if self.params.gnss_yaw:
-            y, sg, valid, _ = gsf_output(self._gsf)
+            y, sg, valid, _ = self._gsf_output(self._gsf_arr)
             if math.isfinite(y) and math.isfinite(sg):
                 return float(y), float(sg) ** 2, bool(valid)
         return math.nan, math.inf, False

@@ -210,8 +210,8 @@ def test_the_slew_out_of_a_large_yaw_reset_is_covered_by_its_sigma_and_fused_by_
 
 
 def test_after_a_restart_the_published_heading_is_the_filters_until_it_first_publishes(boat):
-    """A yaw reset 8° off at 60 s (the offset it leaves, 2.5° at 60.02 s, is being slewed out), then 4 s of no samples:
-    the filter re-initialises at 64 s (reinit_dt_s 2 s). While it is INITIALISING from there the
+    """A yaw reset 8° off at 60 s (the offset it leaves, 2.5° at 60.02 s, is being slewed out), then 4 s of no
+    samples: the filter re-initialises at 64 s (reinit_dt_s 2 s). While it is INITIALISING from there the
     published yaw is the filter's own (to rounding: its Euler yaw computed apart): the offset left from before the
     gap is dropped at the restart (Ins._restart_companions), not carried into the new filter's estimates."""
     from ahrsd.core.sample import SampleFlags, make_sample
