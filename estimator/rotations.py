@@ -212,12 +212,31 @@ def quat_to_euler(q) -> np.ndarray:
 def quat_exp(rotvec_rad) -> np.ndarray:
     """Unit quaternion of a rotation vector θ·u (axis u, angle θ): [cos θ/2, sin(θ/2)·u]."""
     v = _f(rotvec_rad)
+    if v.shape == (3,):
+        x, y, z = v.tolist()
+        theta = math.sqrt((x * x + y * y) + z * z)
+        if not math.isinf(theta):          # (math.sin(inf) raises where np.sin gives NaN)
+            return _quat_exp_one(x, y, z, theta)
     theta = np.linalg.norm(v, axis=-1, keepdims=True)
     small = theta < _SMALL_ANGLE_RAD
     safe = np.where(small, 1.0, theta)
     half_sinc = np.where(small, 0.5 - theta * theta / 48.0, np.sin(0.5 * safe) / safe)  # sin(θ/2)/θ
     w = np.where(small, 1.0 - theta * theta / 8.0, np.cos(0.5 * theta))
     return np.concatenate((w, half_sinc * v), axis=-1)
+
+
+def _quat_exp_one(x: float, y: float, z: float, theta: float) -> np.ndarray:
+    """`quat_exp` of one rotation vector (x, y, z) of norm theta = √((x² + y²) + z²), summed as numpy sums it here,
+    in Python floats, without the array machinery that costs most of a single call: the same operations in the same
+    order (math's sin and cos are the C library's, as numpy's float64 ones on this machine), so the same quaternion
+    to the bit here (tests/test_rotations.py), elsewhere within an ulp or two."""
+    if theta < _SMALL_ANGLE_RAD:
+        half_sinc = 0.5 - theta * theta / 48.0
+        w = 1.0 - theta * theta / 8.0
+    else:
+        half_sinc = math.sin(0.5 * theta) / theta
+        w = math.cos(0.5 * theta)
+    return np.array((w, half_sinc * x, half_sinc * y, half_sinc * z))
 
 
 def quat_log(q) -> np.ndarray:

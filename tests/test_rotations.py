@@ -105,6 +105,22 @@ def test_one_quaternions_dcm_is_scipys_and_the_batchs_to_the_bit():
     assert rot.quat_to_dcm([1, 0, 0, 0]).tobytes() == np.eye(3).tobytes()       # a list of ints, as before
 
 
+def test_one_rotation_vectors_quaternion_is_the_batchs_to_the_bit():
+    """One (3,) rotation vector goes through quat_exp's Python-float path: bit for bit what the array path gives
+    the same vector in a batch, small angles (the series) and NaN included, and an infinite one still NaN."""
+    rng = np.random.default_rng(11)
+    v = np.concatenate((rng.normal(size=(300, 3)), 1e-3 * rng.normal(size=(300, 3)),
+                        1e-8 * rng.normal(size=(100, 3)), [[0.0, 0.0, 0.0], [np.nan, 0.0, 0.0], [3.0, -2.0, 1.0]]))
+    batch = rot.quat_exp(v)
+    for vi, qi in zip(v, batch):
+        one = rot.quat_exp(vi)
+        assert one.shape == (4,) and one.dtype == np.float64 and one.tobytes() == qi.tobytes(), vi
+    np.testing.assert_allclose(np.array([rot.quat_exp(vi) for vi in v[:600]]),
+                               np.roll(Rotation.from_rotvec(v[:600]).as_quat(), 1, axis=1), atol=1e-14)
+    with np.errstate(invalid="ignore"):
+        assert np.all(np.isnan(rot.quat_exp([np.inf, 0.0, 0.0])[1:]))
+
+
 def test_wrap():
     assert angles.wrap_pi(math.pi) == -math.pi
     assert math.isclose(angles.wrap_pi(3 * math.pi / 2), -math.pi / 2)
