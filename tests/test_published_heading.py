@@ -145,9 +145,7 @@ def _run_with_resets(run, build_every: int = 1, **params):
         return Rotation.from_quat(np.roll(q_wxyz, -1)).as_euler("ZYX")[0]
 
     for k in range(n):
-        while fi < len(fixes) and fixes[fi].extra["t_rx_s"] <= run.t_s[k]:
-            est.update_gnss(fixes[fi])
-            fi += 1
+        fi = _offer_fixes(est, fixes, fi, run.t_s[k])
         if k == k_wrong:
             est._reset_yaw(math.radians(8.0), math.radians(10.0) ** 2)
         if k == k_right:     # the simulator's truth is body → true NED, as the filter's own attitude
@@ -163,6 +161,14 @@ def _run_with_resets(run, build_every: int = 1, **params):
             e = view.snapshot()
         q[k], sigma[k], flags[k] = e.q_wxyz, e.sigma_rpy_rad[2], int(e.flags)
     return {"q": q, "sigma_yaw_rad": sigma, "flags": flags, "heading_state": np.zeros(n), "ins": est}
+
+
+def _offer_fixes(est, fixes, fi: int, t_s: float) -> int:
+    """Offer `est` the fixes from index `fi` on that have been received by t_s (their t_rx_s); the next index."""
+    while fi < len(fixes) and fixes[fi].extra["t_rx_s"] <= t_s:
+        est.update_gnss(fixes[fi])
+        fi += 1
+    return fi
 
 
 def test_yaw_resets_in_ins_reach_the_published_heading_without_a_step_and_within_3_sigma(boat, boat_with_resets):
@@ -224,9 +230,7 @@ def test_after_a_restart_the_published_heading_is_the_filters_until_it_first_pub
     fixes = [f for f in run.fixes if f.t_s < 60.0]
     fi = 0
     for k in range(k_gap):
-        while fi < len(fixes) and fixes[fi].extra["t_rx_s"] <= run.t_s[k]:
-            est.update_gnss(fixes[fi])
-            fi += 1
+        fi = _offer_fixes(est, fixes, fi, run.t_s[k])
         if k == k_wrong:
             est._reset_yaw(math.radians(8.0), math.radians(10.0) ** 2)
         est.update(make_sample(run.t_s[k], run.gyro_rad_s[k], run.accel_m_s2[k], run.mag_ut[k],
