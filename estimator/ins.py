@@ -34,12 +34,13 @@ from . import mag_heading as mag
 from .accel_axes_heading import accel_axes_heading_variance_rad2
 from .base import DEFAULT_UNMODELLED_IRON_UT, LEARNED_WITH_GNSS
 from .calibration_heading import calibration_heading_variance_rad2, calibration_states_error
-from .gsf_yaw import GsfParams, gsf_fuse_velocity, gsf_output, gsf_reset, new_gsf_state
+from .gsf_yaw import GsfParams, gsf_fuse_velocity_of, gsf_output_of, gsf_reset, new_gsf_state
 from .heading_monitor import HeadingCheckRecord, HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
 from .heading_state_hold import HeadingStateHold
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
                             float_field_slice, uninitialised_estimate)
 from .initial_attitude import initial_attitude
+from .kernel_entry import entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .mag_heading import RELEARN_GATE_OPEN_S
 from .mag_harmonics import prior_variances_rad2
@@ -410,6 +411,10 @@ _OUT_VEL, _OUT_SIGMA_VEL, _OUT_SIGMA_POS, _OUT_ACCEL_BIAS = (float_field_slice(c
     "vel_ned_m_s", "sigma_vel_m_s", "sigma_pos_m", "accel_bias_m_s2"))
 _OUT_LAT, _OUT_LON, _OUT_H = (
     float_field_slice(core.INS_OUT_DTYPE, n).start for n in ("lat_rad", "lon_rad", "h_m"))
+assert _OUT_LON == _OUT_LAT + 1 and _OUT_H == _OUT_LAT + 2
+_OUT_LAT_LON_H = slice(_OUT_LAT, _OUT_H + 1)        # read with one call (Ins._build_estimate)
+_OUT_SIGMA_YAW = _OUT_SIGMA.start + 2
+_F_GNSS_AIDED, _F_INITIALISING = core.F_GNSS_AIDED, core.F_INITIALISING   # read per sample: no module lookup
 
 
 class Ins:
@@ -434,6 +439,7 @@ class Ins:
         self._x = self._x_arr[0]
         # fields read on every sample, as (1,) array views (indexing an array costs less than a record lookup)
         self._nav_ok = self._x_arr["nav_ok"]
+        self._t_run_s = self._x_arr["t_run_s"]
         self._mag_use = self._par_arr["mag_use"]
         self._P = np.zeros((core.N_ERR, core.N_ERR))
         self._hist = np.zeros(core.H_LEN, core.INS_HISTORY_DTYPE)
@@ -457,6 +463,12 @@ class Ins:
         self._gsf = self._gsf_arr[0]
         self._par["gnss_yaw"] = 1.0 if self.params.gnss_yaw else 0.0
         self._step = core.fast_step(self._step_args_example())
+        # the bank's per-fix kernels called with its 1-element arrays through their entry points (kernel_entry.py:
+        # these arrays only): a record argument costs several µs to unbox, an array a fraction of one
+        self._gsf_output = entry_point(gsf_output_of, (gsf_output_of.typeof_pyval(self._gsf_arr),))
+        fuse_args = (self._gsf_arr, self._gsf_par_arr, 0.0, np.zeros(3), 0.0)
+        self._gsf_fuse_velocity = entry_point(gsf_fuse_velocity_of,
+                                              tuple(gsf_fuse_velocity_of.typeof_pyval(a) for a in fuse_args))
         self._load_python_called_kernels()
         self._iron = IronLearner(self.params.iron_prior_sigma_ut, self.params.iron_soft_prior)
         self._iron_last_t = None
@@ -490,11 +502,8 @@ class Ins:
             return
         x, par, gsf, gsf_par = self._x, self._par, self._gsf, self._gsf_par
         dx = np.zeros(core.N_ERR)
-        v3 = np.zeros(3)
         for kernel, args in (
                 (core.fuse_gnss, (self._x_arr, self._P, self._hist, self._par_arr) + (0.0,) * 10 + (True,) * 4),
-                (gsf_fuse_velocity, (gsf, gsf_par, 0.0, v3, 0.0)),
-                (gsf_output, (gsf,)),
                 (gsf_reset, (gsf, gsf_par, 0.0, np.zeros(4))),
                 (scalar_update, (self._P, dx, 0.0, 0.0, _NAV_MASK, dx)),
                 (core._apply_correction, (x, par, dx)),
@@ -789,9 +798,12 @@ class Ins:
         sflags = int(sample.flags)
         extra = 0
         if self._initialised:
+            # each vector read with one call (nine element reads cost more): the same values as floats
+            gx, gy, gz = g.tolist()
+            ax, ay, az = a.tolist()
+            mx, my, mz = m.tolist()
             f = self._step(self._x_arr, self._P, self._hist, self._par_arr, sample.t_s,
-                           g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], sflags, self._out_arr,
-                           self._gsf_arr, self._gsf_par_arr)
+                           gx, gy, gz, ax, ay, az, mx, my, mz, sflags, self._out_arr, self._gsf_arr, self._gsf_par_arr)
             if not f & NEEDS_INIT:
                 if self._queue:
                     self._fuse_queued()       # before the estimate of this sample, as every fix before it
@@ -906,17 +918,18 @@ class Ins:
         finite value in range (a receiver's 'no value' is NaN or a huge number)."""
         use_pos = math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90.0 and abs(lon) <= 360.0
         use_alt = use_pos and fix_type >= GnssFixType.FIX_3D and math.isfinite(alt) and abs(alt) < 1e5
-        use_vel = bool(np.all(np.isfinite(v[:2]))) and float(np.max(np.abs(v[:2]))) < 600.0
+        vn, ve = float(v[0]), float(v[1])
+        use_vel = math.isfinite(vn) and math.isfinite(ve) and max(abs(vn), abs(ve)) < 600.0
         use_vd = use_vel and use_vertical_velocity and math.isfinite(v[2]) and abs(v[2]) < 600.0
         return use_pos, use_alt, use_vel, use_vd
 
     def _keep_fix_velocity(self, t_s: float, v: np.ndarray, use_vd: bool, sig_s: float) -> None:
         """Keep the fix's velocity (vertical NaN when not used) for a yaw reset, which sets the velocity to it, and
         give it to the GNSS yaw bank."""
-        vel = np.array([v[0], v[1], v[2] if use_vd else math.nan])
+        vel = np.array([v[0], v[1], v[2] if use_vd else math.nan], dtype=np.float64)
         self._last_fix_velocity = (t_s, vel, sig_s)
         if self.params.gnss_yaw:
-            gsf_fuse_velocity(self._gsf, self._gsf_par, t_s, vel, sig_s)
+            self._gsf_fuse_velocity(self._gsf_arr, self._gsf_par_arr, float(t_s), vel, float(sig_s))
 
     def _count_fuse_result(self, res: int, fix: GnssFix) -> None:
         """Count and log what fuse_gnss did with the fix (its R_* bits) in gnss_counters; rejections flag
@@ -1113,7 +1126,7 @@ class Ins:
         """The GNSS yaw bank's yaw, its variance (rad²) and whether it is valid: (NaN, inf, False) without the
         bank (gnss_yaw off) or before it has a finite yaw."""
         if self.params.gnss_yaw:
-            y, sg, valid, _ = gsf_output(self._gsf)
+            y, sg, valid, _ = self._gsf_output(self._gsf_arr)
             if math.isfinite(y) and math.isfinite(sg):
                 return float(y), float(sg) ** 2, bool(valid)
         return math.nan, math.inf, False
@@ -1612,15 +1625,13 @@ class Ins:
         if self._pending_flags:
             f |= self._pending_flags
             self._pending_flags = 0
-        if not self._ever_aided and f & core.F_GNSS_AIDED:
+        if not self._ever_aided and f & _F_GNSS_AIDED:
             self._ever_aided = True
-        o = self._out_flat
-        if f & core.F_INITIALISING and not self._published_since_init:
-            self._published.reset()        # nothing published since the filter started: follow it
-        else:
-            r = o[_OUT_RATE_TO_EULER].tolist()     # one call: rate first, then σ, …, Euler angles last
+        # nothing published since the filter started (INITIALISING from its start): the published heading follows
+        # the filter, as _restart_companions left it reset (it moves only in `update`, not called until then)
+        if self._published_since_init or not f & _F_INITIALISING:
+            r = self._out_flat[_OUT_RATE_TO_EULER].tolist()     # one call: rate first, then σ, …, Euler angles last
             self._published.update(t_s, r[-1], r[-3], r[-2], r, r[_STEP_SIGMA_YAW])
-        if not f & core.F_INITIALISING:
             self._published_since_init = True
         self._view.set(t_s, f, True)
         return self._view
@@ -1631,10 +1642,10 @@ class Ins:
             return uninitialised_estimate(t_s, f)
         o = self._out_flat.copy()  # one fresh buffer; the estimate's arrays are views of it
         roll, pitch, yaw_true = o[_OUT_EULER].tolist()
-        sigma_yaw = float(o[_OUT_SIGMA.start + 2])
+        sigma_yaw = float(o[_OUT_SIGMA_YAW])
         if self._unconfirmed_sigma_rad > sigma_yaw and self._nav_ok[0] > 0.0:
             sigma_yaw = self._unconfirmed_sigma_rad        # _unconfirmed_yaw_sigma says why
-            o[_OUT_SIGMA.start + 2] = sigma_yaw
+            o[_OUT_SIGMA_YAW] = sigma_yaw
         if not self._ever_aided and self.params.mag_enabled:
             # no GNSS yet: the magnetometer calibration is the only heading reference and its error is not in
             # the filter's σ (the checks that would show it need GNSS): calibration_heading.py
@@ -1648,11 +1659,11 @@ class Ins:
                 # the harmonic states carry the calibration's error in the filter's σ: only what the circle adds
                 add_var = max(0.0, add_var - cal_var)
             sigma_yaw = math.sqrt(sigma_yaw ** 2 + add_var)
-            o[_OUT_SIGMA.start + 2] = sigma_yaw
+            o[_OUT_SIGMA_YAW] = sigma_yaw
         if self._ever_aided and self._accel_axes_var_rad2 > 0.0:
             # a heading the GNSS has observed is the accelerometer axes' heading: their misalignment is in it
             sigma_yaw = math.sqrt(sigma_yaw * sigma_yaw + self._accel_axes_var_rad2)
-            o[_OUT_SIGMA.start + 2] = sigma_yaw
+            o[_OUT_SIGMA_YAW] = sigma_yaw
         if self._published.offset_rad:
             # the filter's yaw moved faster than the published one may: publish it turned back by the offset
             off = self._published.offset_rad
@@ -1660,15 +1671,16 @@ class Ins:
             c, s = math.cos(0.5 * off), math.sin(0.5 * off)
             w, x_, y, z = o[_OUT_Q].tolist()
             o[_OUT_Q] = (c * w - s * z, c * x_ - s * y, c * y + s * x_, c * z + s * w)
-            o[_OUT_SIGMA.start + 2] = self._published.published_sigma(sigma_yaw)
+            o[_OUT_SIGMA_YAW] = self._published.published_sigma(sigma_yaw)
         yaw = (yaw_true - self._declination + math.pi) % _TWO_PI - math.pi
         nav = None
         if self._nav_ok[0] > 0.0:
+            lat, lon, h = o[_OUT_LAT_LON_H].tolist()
             nav = NavState(
                 o[_OUT_VEL],
-                math.degrees(o[_OUT_LAT]),
-                (math.degrees(o[_OUT_LON]) + 180.0) % 360.0 - 180.0,
-                float(o[_OUT_H]),
+                math.degrees(lat),
+                (math.degrees(lon) + 180.0) % 360.0 - 180.0,
+                h,
                 o[_OUT_SIGMA_VEL],
                 o[_OUT_SIGMA_POS],
                 o[_OUT_ACCEL_BIAS],
@@ -1680,16 +1692,16 @@ class Ins:
         p = self.params
         if not yaw_sigma_rad <= p.heading_unknown_sigma_rad:
             return HeadingState.UNKNOWN
-        if f & core.F_INITIALISING:
+        if f & _F_INITIALISING:
             # INITIALISING also stands for a yaw σ above `converged_yaw_rad` (3°) or a tilt σ above 1°. Aided, a
             # GNSS-held heading with σ up to `heading_unknown_sigma_rad` is what GNSS_ONLY and LEARNING say (the
             # boat's GNSS yaw is 5–6° for minutes; the published σ covers its error): only the start-up time or a
             # heading the magnetometer alone would claim keep it UNKNOWN (the flag itself stays: no VPE yet)
-            aided = f & core.F_GNSS_AIDED and self._x["t_run_s"] >= p.init_min_time_s
+            aided = f & _F_GNSS_AIDED and self._t_run_s[0] >= p.init_min_time_s
             if not (aided and p.heading_monitor
                     and self._heading_state in (HeadingState.GNSS_ONLY, HeadingState.LEARNING)):
                 return HeadingState.UNKNOWN
-        if not f & core.F_GNSS_AIDED:
+        if not f & _F_GNSS_AIDED:
             # unaided the magnetometer is the only heading reference: trusted only when it is in use and not
             # rejected (a rejected one may still be fused at its learned iron's σ, `iron_heading_corr_rad`)
             if not p.mag_enabled or self._mag_use[0] <= 0.0 or self._monitor.mag_rejected:

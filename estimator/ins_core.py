@@ -40,7 +40,7 @@ import numpy as np
 from numba import njit
 
 from . import mag_heading as mag
-from .gsf_yaw import gsf_accumulate_imu
+from .gsf_yaw import gsf_accumulate_imu_xyz
 from .ins_mechanisation import (
     earth_rate_ned,
     normal_gravity_m_s2,
@@ -870,7 +870,7 @@ def _feed_gnss_yaw_bank(x, gsf, gsf_par, dt, mwx, mwy, mwz, fx, fy, fz):
     bgx = x.gyro_bias_rad_s[0] - x.bank_gyro_bias_rad_s[0]
     bgy = x.gyro_bias_rad_s[1] - x.bank_gyro_bias_rad_s[1]
     bgz = x.gyro_bias_rad_s[2] - x.bank_gyro_bias_rad_s[2]
-    gsf_accumulate_imu(gsf[0], gsf_par[0], dt, np.array((mwx + bgx, mwy + bgy, mwz + bgz)), np.array((fx, fy, fz)))
+    gsf_accumulate_imu_xyz(gsf[0], gsf_par[0], dt, mwx + bgx, mwy + bgy, mwz + bgz, fx, fy, fz)
 
 
 @njit(cache=True, inline="always")

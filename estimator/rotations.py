@@ -76,6 +76,8 @@ def quat_to_dcm(q) -> np.ndarray:
     """DCM C_b^n (…, 3, 3) of unit quaternion(s) q (body→NED). Same matrix as
     Ghasemzadeh & Heyrani Nobari eq 44 with ε4 = w."""
     q = _f(q)
+    if q.shape == (4,):
+        return _quat_to_dcm_one(*q.tolist())
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     xx, yy, zz = x * x, y * y, z * z
     xy, xz, yz = x * y, x * z, y * z
@@ -91,6 +93,17 @@ def quat_to_dcm(q) -> np.ndarray:
     c[..., 2, 1] = 2.0 * (yz + wx)
     c[..., 2, 2] = 1.0 - 2.0 * (xx + yy)
     return c
+
+
+def _quat_to_dcm_one(w: float, x: float, y: float, z: float) -> np.ndarray:
+    """`quat_to_dcm` of one quaternion in Python floats: the same products and sums in the same order (so the
+    same matrix to the bit), without the per-element array indexing that costs most of a single conversion."""
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz = x * y, x * z, y * z
+    wx, wy, wz = w * x, w * y, w * z
+    return np.array(((1.0 - 2.0 * (yy + zz), 2.0 * (xy - wz), 2.0 * (xz + wy)),
+                     (2.0 * (xy + wz), 1.0 - 2.0 * (xx + zz), 2.0 * (yz - wx)),
+                     (2.0 * (xz - wy), 2.0 * (yz + wx), 1.0 - 2.0 * (xx + yy))))
 
 
 def dcm_to_quat(c) -> np.ndarray:
@@ -199,12 +212,31 @@ def quat_to_euler(q) -> np.ndarray:
 def quat_exp(rotvec_rad) -> np.ndarray:
     """Unit quaternion of a rotation vector θ·u (axis u, angle θ): [cos θ/2, sin(θ/2)·u]."""
     v = _f(rotvec_rad)
+    if v.shape == (3,):
+        x, y, z = v.tolist()
+        theta = math.sqrt((x * x + y * y) + z * z)
+        if not math.isinf(theta):          # (math.sin(inf) raises where np.sin gives NaN)
+            return _quat_exp_one(x, y, z, theta)
     theta = np.linalg.norm(v, axis=-1, keepdims=True)
     small = theta < _SMALL_ANGLE_RAD
     safe = np.where(small, 1.0, theta)
     half_sinc = np.where(small, 0.5 - theta * theta / 48.0, np.sin(0.5 * safe) / safe)  # sin(θ/2)/θ
     w = np.where(small, 1.0 - theta * theta / 8.0, np.cos(0.5 * theta))
     return np.concatenate((w, half_sinc * v), axis=-1)
+
+
+def _quat_exp_one(x: float, y: float, z: float, theta: float) -> np.ndarray:
+    """`quat_exp` of one rotation vector (x, y, z) of norm theta = √((x² + y²) + z²), summed as numpy sums it here,
+    in Python floats, without the array machinery that costs most of a single call: the same operations in the same
+    order (math's sin and cos are the C library's, as numpy's float64 ones on this machine), so the same quaternion
+    to the bit here (tests/test_rotations.py), elsewhere within an ulp or two."""
+    if theta < _SMALL_ANGLE_RAD:
+        half_sinc = 0.5 - theta * theta / 48.0
+        w = 1.0 - theta * theta / 8.0
+    else:
+        half_sinc = math.sin(0.5 * theta) / theta
+        w = math.cos(0.5 * theta)
+    return np.array((w, half_sinc * x, half_sinc * y, half_sinc * z))
 
 
 def quat_log(q) -> np.ndarray:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 
 import numpy as np
 import pytest
@@ -267,3 +268,37 @@ def test_a_vehicle_standing_still_is_never_valid():
                           seed=8))
     assert not tr.valid.any()
     assert tr.sigma_deg[tr.t_s > 10.0].min() > 60.0      # the hypotheses stay spread over the circle
+
+
+def test_the_array_entry_points_fuse_and_read_as_the_record_kernels():
+    """`gsf_fuse_velocity_of` / `gsf_output_of` (the bank and its parameters held as 1-element arrays: what ins calls
+    at every fix) against `gsf_fuse_velocity` / `gsf_output` on a twin bank held as a record, fed the same car run:
+    the same outcome and output at every fix, and the same state bytes at the end."""
+    from ahrsd.estimator.gsf_yaw import FUSED, GsfYaw, gsf_fuse_velocity_of, gsf_output_of, gsf_state_dtype
+
+    sim = vehicle_sim("car")
+    n = int(15.0 * 200.0)
+    twin = GsfYaw()                                   # the record path (GsfYaw.update_gnss, .output)
+    held = GsfYaw()                                   # its bank and parameters moved into 1-element arrays
+    states = np.zeros(1, dtype=gsf_state_dtype(GsfParams().n_models)).view(np.recarray)
+    params = np.zeros(1, dtype=held._par.dtype).view(np.recarray)
+    params[0] = held._par
+    held.state = states[0]                            # update_imu writes through this view into the array
+    fi = fused = 0
+    for k in range(n):
+        while fi < len(sim.fixes) and sim.fixes[fi].extra["t_rx_s"] <= sim.t_s[k]:
+            fix = sim.fixes[fi]
+            fi += 1
+            if not twin._started:                     # before the first sample GsfYaw fuses nothing
+                continue
+            v = np.asarray(fix.vel_ned_m_s, dtype=np.float64)
+            s_acc = fix.s_acc_m_s if math.isfinite(fix.s_acc_m_s) else 0.0     # as GsfYaw.update_gnss
+            got = gsf_fuse_velocity_of(states, params, float(fix.t_s), v, float(s_acc))
+            assert got == twin.update_gnss(fix)
+            yaw, sigma, valid, clipped = gsf_output_of(states)
+            assert (float(yaw), float(sigma), bool(valid), int(clipped)) == twin.output
+            fused += got == FUSED
+        for bank in (twin, held):
+            bank.update_imu(sim.t_s[k:k + 1], sim.gyro_rad_s[k:k + 1], sim.accel_m_s2[k:k + 1])
+    assert fused > 50
+    assert states[0].tobytes() == twin.state.tobytes()

@@ -92,6 +92,35 @@ def test_scalar_last_quaternion_dcm_formula_is_quat_to_dcm():
     np.testing.assert_allclose(rot.quat_to_dcm(rot.quat_from_scalar_last(e)), c44, atol=1e-15)
 
 
+def test_one_quaternions_dcm_is_scipys_and_the_batchs_to_the_bit():
+    """One (4,) quaternion goes through quat_to_dcm's Python-float path: scipy's matrix, and bit for bit the
+    matrix the array path gives the same quaternion in a batch (the ins's heading checks read one at a time)."""
+    q = rot.quat_normalize(np.random.default_rng(7).normal(size=(300, 4)))
+    q[:4] = np.eye(4)                                  # ±0 products: signed zeros must match too
+    batch = rot.quat_to_dcm(q)
+    for qi, ci in zip(q, batch):
+        one = rot.quat_to_dcm(qi)
+        assert one.shape == (3, 3) and one.dtype == np.float64 and one.tobytes() == ci.tobytes()
+    np.testing.assert_allclose(np.array([rot.quat_to_dcm(qi) for qi in q]), scipy_rot(q).as_matrix(), atol=1e-15)
+    assert rot.quat_to_dcm([1, 0, 0, 0]).tobytes() == np.eye(3).tobytes()       # a list of ints, as before
+
+
+def test_one_rotation_vectors_quaternion_is_the_batchs_to_the_bit():
+    """One (3,) rotation vector goes through quat_exp's Python-float path: bit for bit what the array path gives
+    the same vector in a batch, small angles (the series) and NaN included, and an infinite one still NaN."""
+    rng = np.random.default_rng(11)
+    v = np.concatenate((rng.normal(size=(300, 3)), 1e-3 * rng.normal(size=(300, 3)),
+                        1e-8 * rng.normal(size=(100, 3)), [[0.0, 0.0, 0.0], [np.nan, 0.0, 0.0], [3.0, -2.0, 1.0]]))
+    batch = rot.quat_exp(v)
+    for vi, qi in zip(v, batch):
+        one = rot.quat_exp(vi)
+        assert one.shape == (4,) and one.dtype == np.float64 and one.tobytes() == qi.tobytes(), vi
+    np.testing.assert_allclose(np.array([rot.quat_exp(vi) for vi in v[:600]]),
+                               np.roll(Rotation.from_rotvec(v[:600]).as_quat(), 1, axis=1), atol=1e-14)
+    with np.errstate(invalid="ignore"):
+        assert np.all(np.isnan(rot.quat_exp([np.inf, 0.0, 0.0])[1:]))
+
+
 def test_wrap():
     assert angles.wrap_pi(math.pi) == -math.pi
     assert math.isclose(angles.wrap_pi(3 * math.pi / 2), -math.pi / 2)
