@@ -6,7 +6,7 @@ Body frame FRD after mounting; SI units. Magnetic field in µT.
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -66,34 +66,3 @@ def _vector3(v) -> np.ndarray:
 def make_sample(t_s: float, gyro_rad_s, accel_m_s2, mag_ut, **kw) -> ImuSample:
     """Convenience constructor that coerces the vectors to float64 arrays of shape (3,)."""
     return ImuSample(float(t_s), _vector3(gyro_rad_s), _vector3(accel_m_s2), _vector3(mag_ut), **kw)
-
-
-def _imu_sample_builder():
-    """`new_imu_sample(t_s, gyro_rad_s, accel_m_s2, mag_ut, temp_c, supply_v, flags, diag_stat, counter)`: the
-    ImuSample `ImuSample(...)` makes of these nine values, set through its slots' descriptors in field order
-    instead of the frozen dataclass's `__init__` (which goes through `object.__setattr__` by name for each field:
-    about twice the cost, and the daemon builds one calibrated sample per sample at 819.2 SPS). No coercion and no
-    defaults: the caller passes every field as the sample is to hold it (the pipeline's calibrated rows)."""
-    names = tuple(f.name for f in fields(ImuSample))
-    if ImuSample.__slots__ != names or hasattr(ImuSample, "__post_init__"):
-        raise TypeError("ImuSample's slots are not its fields in order, or it has a __post_init__: "
-                        "new_imu_sample would not build what ImuSample(...) builds")
-    s0, s1, s2, s3, s4, s5, s6, s7, s8 = (ImuSample.__dict__[n].__set__ for n in names)
-
-    def new_imu_sample(t_s, gyro_rad_s, accel_m_s2, mag_ut, temp_c, supply_v, flags, diag_stat, counter,
-                       _new=object.__new__, _cls=ImuSample) -> ImuSample:
-        s = _new(_cls)
-        s0(s, t_s)
-        s1(s, gyro_rad_s)
-        s2(s, accel_m_s2)
-        s3(s, mag_ut)
-        s4(s, temp_c)
-        s5(s, supply_v)
-        s6(s, flags)
-        s7(s, diag_stat)
-        s8(s, counter)
-        return s
-    return new_imu_sample
-
-
-new_imu_sample = _imu_sample_builder()

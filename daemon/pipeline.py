@@ -16,12 +16,10 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
-from functools import reduce
-from operator import or_
 
 import numpy as np
 
-from ahrsd.core.sample import ImuSample, SampleFlags, new_imu_sample
+from ahrsd.core.sample import ImuSample, SampleFlags
 from ahrsd.core.sample_block import SampleBlock, sample_flags
 from ahrsd.estimator.base import SteppingEstimator
 from ahrsd.estimator.rotations import euler_to_dcm
@@ -32,13 +30,6 @@ INVALID = SampleFlags.GYRO_INVALID | SampleFlags.ACCEL_INVALID | SampleFlags.MAG
 # IntFlag operators are slow (enum machinery); the per-sample path tests bits on plain ints
 _int_and = int.__and__
 _INVALID, _GAP_BEFORE = int(INVALID), int(SampleFlags.GAP_BEFORE)
-_GAP_OR_INVALID = _INVALID | _GAP_BEFORE
-_REJECTED = (ValueError, FloatingPointError, np.linalg.LinAlgError)    # what an estimator raises on a bad sample
-
-
-def _or_all(values) -> int:
-    """The bitwise OR of a block's flags."""
-    return reduce(or_, values, 0)
 
 
 def mounting_matrix(rpy_deg) -> np.ndarray | None:
@@ -69,8 +60,7 @@ class Pipeline:
         self.last_sample: ImuSample | None = None    # calibrated, body frame
         # the last sample as the source gave it (what a new calibration would take): (block, row), its
         # ImuSample built only when asked for (last_raw_sample)
-        self._raw_block: SampleBlock | None = None
-        self._raw_i = 0
+        self._raw: tuple | None = None
         self._view = None                  # the estimator's in-place view of its latest estimate (step())
         self._snapshot = None              # the immutable AttitudeEstimate of _view, built on demand
         self._last_counter: int | None = None
@@ -112,9 +102,10 @@ class Pipeline:
     def last_raw_sample(self) -> ImuSample | None:
         """The last sample as the source gave it (sensor frame, uncalibrated): what a new calibration is applied
         to (calibration_heading_change.py)."""
-        if self._raw_block is None:
+        if self._raw is None:
             return None
-        return self._raw_block[self._raw_i]
+        block, i = self._raw
+        return block[i]
 
     @property
     def last_estimate(self):
@@ -135,48 +126,23 @@ class Pipeline:
         yields each sample's estimate (read it before the next one). The block's vectors are calibrated and
         rotated at once, one (n, 9) · (9, 9) product (`block_map`: the calibration's affine maps followed by the
         mounting), and only the calibrated ImuSample of each row is built. A calibration or mounting swapped
-        between two samples (a listener's) takes effect from the next one.
-
-        The counters take a block without a gap or an invalid sample (nearly every block) at once, when the first
-        sample is yielded; a block with one is counted sample by sample (`_count`)."""
+        between two samples (a listener's) takes effect from the next one."""
         t_s, temp_c, supply_v, diag, counter = block.t_s, block.temp_c, block.supply_v, block.diag_stat, block.counter
         raw_flags = block.flags
-        n = len(t_s)
-        if not n:
-            return
-        self._raw_block = block
-        # one OR over the block's flags (a C loop) instead of a _count call a sample
-        counted = not _int_and(_or_all(raw_flags), _GAP_OR_INVALID)
-        if counted:
-            self.counters.samples += n
-            self._last_counter = counter[-1]
-        new_sample, flags_of, step = new_imu_sample, sample_flags, self._step
         cal = m = None
-        for i in range(n):
+        for i in range(len(t_s)):
             if self.calibration is not cal or self.mounting is not m:
                 cal, m = self.calibration, self.mounting
                 rows = _calibrated_rows(block.vectors[i:], cal, m)     # row k is sample i + k
-                gyro, accel, mag = rows[:, 0:3], rows[:, 3:6], rows[:, 6:9]
                 first = i
-            k = i - first
+            r = rows[i - first]
             flags = raw_flags[i]
-            if not counted:
-                self._count(flags, counter[i])
-            self._raw_i = i
+            self._count(flags, counter[i])
+            self._raw = (block, i)
             if m is not None:
                 self._sensor, self._sensor_sample = (block, i, cal), None
-            sample = self.last_sample = new_sample(t_s[i], gyro[k], accel[k], mag[k], temp_c[i], supply_v[i],
-                                                   flags_of(flags), diag[i], counter[i])
-            if step is None or self._step is not step:
-                yield self._estimate(sample)
-                continue
-            try:
-                est = step(sample)
-            except _REJECTED as exc:
-                yield self._rejected(sample, exc)
-                continue
-            self._view, self._snapshot = est, None
-            yield est
+            yield self._estimate(ImuSample(t_s[i], r[0:3], r[3:6], r[6:9], temp_c[i], supply_v[i], sample_flags(flags),
+                                           diag[i], counter[i]))
 
     def _count(self, flags: int, counter: int) -> None:
         """The sample's share of the counters: a gap the source found (its size from the counter), invalid."""
@@ -197,23 +163,18 @@ class Pipeline:
         step = self._step
         try:
             est = step(sample) if step is not None else self._estimator.update(sample)
-        except _REJECTED as exc:
-            return self._rejected(sample, exc)
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
+            c = self.counters
+            c.estimator_errors += 1
+            if c.estimator_errors in (1, 100, 10000):
+                log.error("estimator rejected sample %d: %s; resetting it", sample.counter, exc)
+            self._estimator.reset()
+            return None
         if step is not None:
             self._view, self._snapshot = est, None
         else:
             self._view, self._snapshot = None, est
         return est
-
-    def _rejected(self, sample: ImuSample, exc: Exception) -> None:
-        """The estimator raised `exc` (one of _REJECTED) on `sample`: counted, logged now and then, the estimator
-        reset."""
-        c = self.counters
-        c.estimator_errors += 1
-        if c.estimator_errors in (1, 100, 10000):
-            log.error("estimator rejected sample %d: %s; resetting it", sample.counter, exc)
-        self._estimator.reset()
-        return None
 
 
 def block_map(cal, m: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:

@@ -47,16 +47,12 @@ class SampleListeners:
     def __init__(self):
         self.fns: list[Callable] = []
         self.in_place: set[Callable] = set()
-        # what a sample's dispatch walks: (fn, in place) of every listener, made again after an add or a drop
-        # (the reader reads it at every sample, so a change made by a listener holds from the next sample)
-        self.plan: tuple[tuple[Callable, bool], ...] = ()
 
     def add(self, fn: Callable, *, in_place: bool = False) -> Callable[[], None]:
         """Add `fn`; returns the remover."""
         self.fns.append(fn)
         if in_place:
             self.in_place.add(fn)
-        self._plan()
 
         def remove() -> None:
             self.drop(fn)
@@ -66,10 +62,6 @@ class SampleListeners:
         if fn in self.fns:
             self.fns.remove(fn)
         self.in_place.discard(fn)
-        self._plan()
-
-    def _plan(self) -> None:
-        self.plan = tuple((fn, fn in self.in_place) for fn in self.fns)
 
 
 @dataclass
@@ -275,22 +267,20 @@ class SampleReader:
             out.statustext(mavlink.MAV_SEVERITY_NOTICE, "ahrsd: sensor recovered")
         est = None
         reinitialised = False
-        listeners = self.listeners
+        listeners = self.listeners.fns
+        in_place = self.listeners.in_place
         log_put = out.raw_sink                # daemon.vehicle_log: a queue append, never blocks
         if log_put is not None:
             for raw in block:
                 log_put(raw)
         # the block stays columns: calibrated at once, only the calibrated samples built
         for est in pipeline.process_block(block):
-            if est is None:
-                continue
-            if _int_and(est.flags, _REINITIALISED):
+            if est is not None and _int_and(est.flags, _REINITIALISED):
                 reinitialised = True          # on any sample of a block, not only the last one
-            plan = listeners.plan             # read at every sample: a listener may add or drop one
-            if plan:
+            if listeners and est is not None:
                 snapshot = None                        # built only for a listener that keeps it
-                for fn, in_place in plan:
-                    if in_place:
+                for fn in tuple(listeners):
+                    if fn in in_place:
                         given = est
                     else:
                         if snapshot is None:
@@ -300,7 +290,7 @@ class SampleReader:
                         fn(pipeline.last_sample, given)
                     except Exception:  # noqa: BLE001 - a faulty listener is dropped, the reader carries on
                         log.exception("sample listener %r failed; removed", fn)
-                        listeners.drop(fn)
+                        self.listeners.drop(fn)
         source = self.source
         if source is None or not source.recording_time_base:   # samples in time order: count from the oldest
             ready_by = now - LATE_AFTER_S - (source.monotonic_offset_s if source is not None else 0.0)

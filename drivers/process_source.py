@@ -47,8 +47,6 @@ _WRITABLE = select.POLLOUT | select.POLLERR
 
 _PACK_RECORD = struct.Struct("<12d3q").pack    # one _RECORD (packed, little-endian) from its 15 numbers
 assert struct.calcsize("<12d3q") == _RECORD.itemsize
-_SCALARS = struct.Struct("<d72x2d3q")          # a _RECORD's t_s, temp_c, supply_v, flags, diag, counter
-assert _SCALARS.size == _RECORD.itemsize
 
 
 def pack(samples: list[ImuSample | SampleRecord]) -> bytes:
@@ -82,15 +80,12 @@ def receive(conn) -> tuple:
 def unpack_block(data: bytes) -> SampleBlock:
     """The samples of one or more packed blocks (`pack`), concatenated, as columns: no ImuSample is built until
     one is asked for (the daemon calibrates the block's arrays at once: daemon.pipeline)."""
-    # the six scalar columns through struct (the vectors skipped as pad bytes), the vectors as one (n, 9) copy of
-    # the records' floats: three numpy calls a block instead of fifteen (a numpy call costs more than its rows'
-    # worth of Python here: blocks of 4, 200 a second)
-    columns = tuple(zip(*_SCALARS.iter_unpack(data)))
-    if not columns:
-        return SampleBlock((), np.empty((0, 9)), (), (), (), (), ())
-    t_s, temp_c, supply_v, flags, diag, counter = columns
-    floats = np.frombuffer(data, dtype="<f8").reshape(len(t_s), _RECORD.itemsize // 8)
-    return SampleBlock(t_s, floats[:, 1:10].copy(), temp_c, supply_v, flags, diag, counter)
+    rec = np.frombuffer(data, dtype=_RECORD)
+    # column by column (a field access per record and row costs more than the estimator's step); gyro, accel
+    # and mag lie side by side in a record: one (n, 9) copy
+    floats = rec.view("<f8").reshape(len(rec), _RECORD.itemsize // 8)
+    return SampleBlock(rec["t_s"].tolist(), floats[:, 1:10].copy(), rec["temp_c"].tolist(), rec["supply_v"].tolist(),
+                       rec["flags"].tolist(), rec["diag"].tolist(), rec["counter"].tolist())
 
 
 def unpack(data: bytes) -> list[ImuSample]:
