@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ahrsd.simulation.profiles import smoothstep
-from ahrsd.simulation.scenarios import Scenario
+from ahrsd.simulation.scenario_base import Scenario
 
 if TYPE_CHECKING:   # imported where a rotation is made (simulation/scenarios.py says why)
     from scipy.spatial.transform import Rotation

@@ -25,7 +25,7 @@ import numpy as np
 
 from ahrsd.simulation.magnetic import VehicleIron
 from ahrsd.simulation.profiles import RateProfile, Segment
-from ahrsd.simulation.scenarios import DEG, EulerScenario
+from ahrsd.simulation.scenario_base import DEG, EulerScenario
 
 
 @dataclass(frozen=True, slots=True)

@@ -5,7 +5,7 @@ truth with white noise, and error measures in the filter's error convention (sci
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.integrate import cumulative_trapezoid
@@ -62,6 +62,19 @@ class Run:
     mag: np.ndarray
     truth: Truth
     earth: str = "wgs84"
+    # the samples as fed to the estimator, built once for the filters a test runs on the same run (run_ins):
+    # with the arrays they were built from, so a run whose arrays were replaced builds them again
+    _samples: tuple = field(default=(), init=False, repr=False, compare=False)
+
+    def samples(self) -> list:
+        from ahrsd.core.sample import SampleFlags, make_sample
+
+        built_from = (self.truth.t_s, self.gyro, self.accel, self.mag)
+        if len(self._samples) != 2 or any(a is not b for a, b in zip(self._samples[0], built_from)):
+            t = self.truth.t_s
+            self._samples = (built_from, [make_sample(t[k], self.gyro[k], self.accel[k], self.mag[k],
+                                                      flags=SampleFlags.NEW_DATA) for k in range(len(t))])
+        return self._samples[1]
 
 
 def simulated_run(scenario, seconds, rate_hz=200.0, seed=1, errors="adis16405", earth_rate=True,
@@ -129,8 +142,7 @@ class Result:
 
 def run_ins(est, run: Run, fixes, cov_every=0, fix_filter=None) -> Result:
     """Feed the samples one at a time, each fix once the IMU time passes its arrival time."""
-    from ahrsd.core.sample import SampleFlags, make_sample
-
+    samples = run.samples()
     n = len(run.truth.t_s)
     t = run.truth.t_s
     q_mag = np.zeros((n, 4))
@@ -149,7 +161,7 @@ def run_ins(est, run: Run, fixes, cov_every=0, fix_filter=None) -> Result:
             if fix_filter is None or fix_filter(fix):
                 outcomes.append(est.update_gnss(fix))
             fi += 1
-        r = est.update(make_sample(t[k], run.gyro[k], run.accel[k], run.mag[k], flags=SampleFlags.NEW_DATA))
+        r = est.update(samples[k])
         q_mag[k] = r.q_wxyz
         q_true[k] = est.true_attitude_q_wxyz()
         flags[k] = int(r.flags)

@@ -5,10 +5,12 @@ VISION_POSITION_ESTIMATE moves to the new heading at the bounded slew rate (no s
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import math
 
 import numpy as np
+import pytest
 
 
 from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad  # noqa: E402
@@ -18,11 +20,11 @@ from ahrsd.daemon.mavlink_io import mavlink  # noqa: E402
 from ahrsd.daemon.output_registry import BY_MESSAGE_ID  # noqa: E402
 from ahrsd.daemon.pipeline import Pipeline  # noqa: E402
 from ahrsd.daemon.service import Service  # noqa: E402
-from ahrsd.core.sample import SampleFlags, make_sample  # noqa: E402
+from ahrsd.core.sample import make_sample  # noqa: E402
 from ahrsd.core.estimate import EstimateFlags  # noqa: E402
 from ahrsd.estimator.mekf import Mekf  # noqa: E402
 from ahrsd.estimator.thesis_kf import ThesisKf  # noqa: E402
-from ahrsd.simulation import open_stream  # noqa: E402
+from support.stream_samples import stream_samples  # noqa: E402
 
 VPE = mavlink.MAVLINK_MSG_ID_VISION_POSITION_ESTIMATE
 SLEW_DEG_S = 3.0
@@ -36,6 +38,21 @@ def _wrap_deg(x):
 def _truth_yaw_deg(q):
     w, x, y, z = q
     return math.degrees(math.atan2(2.0 * (x * y + w * z), 1.0 - 2.0 * (y * y + z * z)))
+
+
+RUN_S = 130.0     # the longest run_swap
+
+
+@functools.lru_cache(maxsize=1)
+def _level_turns(seed: int):
+    """The level turns of `seed`, simulated once for this module's runs (freed after it: _level_turns_freed)."""
+    return stream_samples("level-turns", seed, RUN_S)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _level_turns_freed():
+    yield
+    _level_turns.cache_clear()
 
 
 def run_swap(tmp_path, estimator, swap_at_s=60.0, total_s=130.0, reset_on_cal=False, seed=3, before=None):
@@ -53,9 +70,9 @@ def run_swap(tmp_path, estimator, swap_at_s=60.0, total_s=130.0, reset_on_cal=Fa
     wrong = Calibration.identity().with_sensor("mag", MagModel.identity(), **stated) if before is None else before
     svc.use_pipeline(Pipeline(estimator, wrong))
     estimator.set_mag_calibration_sigma(calibration_heading_sigma_rad(wrong))    # as Service.start does
-    stream = open_stream("level-turns", seed=seed)
+    stream = _level_turns(seed)
     # the simulated site's declination: the heading is then true north, comparable with the simulator's truth
-    estimator.set_declination(stream.earth_field.declination_rad)
+    estimator.set_declination(stream.declination_rad)
     e = stream.errors
     corrected = Calibration.identity().with_sensor("mag", MagModel(e.hard_iron_ut, np.linalg.inv(e.soft_iron)),
                                                    **stated)
@@ -63,32 +80,26 @@ def run_swap(tmp_path, estimator, swap_at_s=60.0, total_s=130.0, reset_on_cal=Fa
     counter0 = svc.reset_counter
     swapped = False
     next_vpe = 0.0
-    k = 0
-    while True:
-        b = stream.next_block(4096)
-        for i in range(len(b.t_s)):
-            t = float(b.t_s[i])
-            if t >= total_s:
-                return np.array(rows), flags_after, svc, counter0
-            if not swapped and t >= swap_at_s:
-                svc.apply_calibration(corrected, save=False, reason="test")
-                swapped = True
-            s = make_sample(t, b.gyro_rad_s[i], b.accel_m_s2[i], b.mag_ut[i], counter=k, flags=SampleFlags.NEW_DATA)
-            k += 1
-            svc.reader.process((s,), t)
-            est = svc.pipeline.last_estimate
-            if swapped and est is not None:
-                flags_after |= int(est.flags)
-            if t >= next_vpe:
-                next_vpe = t + 1.0 / VPE_HZ
-                m = BY_MESSAGE_ID[VPE].build(svc, est, svc.pipeline.last_sample, t)
-                truth = _truth_yaw_deg(b.truth_q_wxyz[i])
-                # a VPE withheld (heading UNKNOWN: the uncalibrated field is rejected as a disturbance) is a NaN row
-                rows.append((t, float(_wrap_deg(math.degrees(m.yaw) - truth)) if m is not None else math.nan,
-                             float(_wrap_deg(math.degrees(est.heading_true_rad) - truth)),
-                             m.reset_counter if m is not None else svc.reset_counter,
-                             math.degrees(math.sqrt(m.covariance[20])) if m is not None else math.nan,
-                             math.degrees(float(est.sigma_rpy_rad[2]))))
+    for i, t, s in stream.until(total_s):
+        if t >= total_s:
+            return np.array(rows), flags_after, svc, counter0
+        if not swapped and t >= swap_at_s:
+            svc.apply_calibration(corrected, save=False, reason="test")
+            swapped = True
+        svc.reader.process((s,), t)
+        est = svc.pipeline.last_estimate
+        if swapped and est is not None:
+            flags_after |= int(est.flags)
+        if t >= next_vpe:
+            next_vpe = t + 1.0 / VPE_HZ
+            m = BY_MESSAGE_ID[VPE].build(svc, est, svc.pipeline.last_sample, t)
+            truth = _truth_yaw_deg(stream.truth_q_wxyz[i])
+            # a VPE withheld (heading UNKNOWN: the uncalibrated field is rejected as a disturbance) is a NaN row
+            rows.append((t, float(_wrap_deg(math.degrees(m.yaw) - truth)) if m is not None else math.nan,
+                         float(_wrap_deg(math.degrees(est.heading_true_rad) - truth)),
+                         m.reset_counter if m is not None else svc.reset_counter,
+                         math.degrees(math.sqrt(m.covariance[20])) if m is not None else math.nan,
+                         math.degrees(float(est.sigma_rpy_rad[2]))))
 
 
 def test_mekf_calibration_swap_slews_the_autopilot_heading_without_reinitialising(tmp_path):

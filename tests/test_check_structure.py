@@ -215,3 +215,40 @@ def test_a_forwarding_wrapper_fails_in_every_package_and_in_tests_and_a_lazy_mod
     assert "estimator/view.py:2: class View forwards every attribute" in r.stdout
     assert "tests/test_fake.py:2: class Bus forwards every attribute" in r.stdout
     assert "bad.py:7:" not in r.stdout and "bad.py:8:" not in r.stdout
+
+
+def _package(tmp_path: Path, files: dict[str, str]) -> Path:
+    (tmp_path / "simulation").mkdir()
+    (tmp_path / "simulation" / "__init__.py").write_text("")
+    for name, source in files.items():
+        (tmp_path / "simulation" / name).write_text(textwrap.dedent(source))
+    return tmp_path
+
+
+def test_a_module_level_import_cycle_fails_whichever_form_it_takes(tmp_path):
+    # the shape simulation/scenarios.py and vehicles.py had: importing vehicles first failed with
+    # "cannot import name 'VEHICLES' from partially initialized module"
+    r = run(_package(tmp_path, {
+        "scenarios.py": "from ahrsd.simulation.base import DEG\nfrom ahrsd.simulation.vehicles import VEHICLES\n",
+        "vehicles.py": "from . import scenarios\nVEHICLES = {}\n",
+        "base.py": "DEG = 1.0\n"}))
+    assert r.returncode == 1, r.stdout
+    assert "scenarios.py:2: module-level import of ahrsd.simulation.vehicles closes an import cycle" in r.stdout
+    assert "vehicles.py:1: module-level import of ahrsd.simulation.scenarios" in r.stdout
+    assert "base.py" not in r.stdout
+
+
+def test_an_import_inside_a_function_or_for_type_checking_is_no_cycle(tmp_path):
+    r = run(_package(tmp_path, {
+        "a.py": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from ahrsd.simulation.b import B\n"
+                "def make():\n    from ahrsd.simulation.b import B\n    return B()\n",
+        "b.py": "from ahrsd.simulation.a import make\nclass B:\n    pass\n"}))
+    assert r.returncode == 0, r.stdout
+
+
+def test_a_package_importing_its_submodules_is_no_cycle(tmp_path):
+    # drivers/__init__.py imports .adis16405, which imports `from . import registers`: the package is only
+    # being initialised, none of its own names is read
+    root = _package(tmp_path, {"registers.py": "X = 1\n", "chip.py": "from . import registers\n"})
+    (root / "simulation" / "__init__.py").write_text("from .chip import registers\n")
+    assert run(root).returncode == 0

@@ -15,6 +15,7 @@ from ahrsd.drivers.simulated import SimulatedAdis16405
 from ahrsd.drivers.sim_clock import ChipClock
 from ahrsd.drivers.source import start_chip_source
 from sim_streams import FixedStream
+from support.frame_bus import FrameBus
 from ahrsd.drivers.spi import SpiBus
 
 G0 = R.STANDARD_GRAVITY_M_S2
@@ -327,29 +328,6 @@ def test_random_bus_answers_never_crash_the_driver(answers):
     assert imu.counters["samples"] == before["samples"] + 1
     assert all(np.all(np.isfinite(v)) for v in (sample.gyro_rad_s, sample.accel_m_s2, sample.mag_ut))
     assert 3.0 <= sample.supply_v <= 6.0, sample.supply_v
-
-
-class FrameBus:
-    """Answers a burst read with one given frame and register reads from a table, pipelined like the chip
-    (the data of a request arrives in the next 2-byte frame)."""
-
-    def __init__(self, words, registers):
-        self.frame = bytes(2) + b"".join(w.to_bytes(2, "big") for w in words)
-        self.registers = registers
-        self.requested = None
-
-    def transfer(self, tx, speed_hz, delay_us=0):
-        if tx[:2] == R.BURST_COMMAND:
-            return self.frame
-        answer = self.registers.get(self.requested, 0) if self.requested is not None else 0
-        self.requested = tx[0] & 0x7F if not tx[0] & R.WRITE_BIT else None
-        return answer.to_bytes(2, "big")
-
-    def sleep(self, seconds):
-        time.sleep(seconds)
-
-    def close(self):
-        pass
 
 
 # datasheet full scales (LSB) at the default ±300 °/s range: 300/0.05, 18 g/3.333 mg, 2.5 gauss/0.5 mgauss

@@ -2,6 +2,7 @@
 hardware: UBX and NMEA, garbage, truncated frames, a baud mismatch, silence, the device going away."""
 
 import contextlib
+import datetime as dt
 import select
 
 import numpy as np
@@ -9,7 +10,7 @@ import pytest
 
 from ahrsd.core.gnss import GnssFixType, make_fix
 from ahrsd.drivers.gnss.serial_port import GnssDeviceError, GnssLinkState, SerialGnssSource
-from ahrsd.drivers.gnss.simulated import SimulatedGnssReceiver, uart_resample
+from ahrsd.drivers.gnss.simulated import GPS_EPOCH, SimulatedGnssReceiver, uart_resample
 
 
 class FakeClock:
@@ -73,7 +74,8 @@ def test_fixes_arrive_intact(protocol, source_protocol):
         got += src.decoder.flush()      # nothing pending once the epoch's sentence set is learned; be sure
         assert len(got) == len(fixes)
         for a, b, arrived in zip(fixes, got, arrivals):
-            assert b.t_s == arrived - 0.125           # arrival on the caller's clock minus the latency
+            # arrival on the caller's clock minus the latency (every read on time: the receiver-time stamps agree)
+            assert b.t_s == pytest.approx(arrived - 0.125, abs=1e-6)
             assert b.lat_deg == pytest.approx(a.lat_deg, abs=1e-7) and b.lon_deg == pytest.approx(a.lon_deg, abs=1e-7)
             assert b.alt_m == pytest.approx(a.alt_m, abs=1e-3)
             np.testing.assert_allclose(b.vel_ned_m_s[:2], a.vel_ned_m_s[:2], atol=2e-3)
@@ -105,9 +107,63 @@ def test_epochs_read_in_one_burst_keep_their_own_times(protocol):
     assert [f.t_s for f in got] == pytest.approx([80.0 - 0.1 - 0.2 * (4 - k) for k in range(5)], abs=1e-6)
 
 
+@pytest.mark.parametrize("protocol", ["ubx", "nmea"])
+def test_a_held_up_read_then_a_burst_never_stamps_backwards(protocol):
+    """Last session's record failure, on the port: epochs read on time, then a read held up 0.68 s that gets
+    one epoch, then the three behind it at once. Every epoch is stamped at the time it was sent (its on-time
+    arrival minus the latency, from the receiver's epoch times), so the stamps increase and none is refused."""
+    from ahrsd.drivers.gnss.validation import GnssFixValidator
+    fixes = _fixes(9)
+    clock = FakeClock(50.0)
+    sent = [50.0 + 0.2 * k for k in range(9)]        # when each epoch's bytes were complete on the host
+    with _link(fixes, {"protocol": protocol}, protocol=protocol, latency_s=0.1, clock=clock,
+               write=False) as (rx, src):
+        got = []
+        for k in range(5):
+            clock.t = sent[k]
+            rx.write_fix(fixes[k])
+            got += _read_all(src, rx)
+        rx.write_fix(fixes[5])
+        clock.t = sent[5] + 0.68                      # the held-up read gets epoch 5 alone
+        got += _read_all(src, rx)
+        for f in fixes[6:]:
+            rx.write_fix(f)
+        clock.t += 0.001                              # and the next one the three behind it
+        got += _read_all(src, rx)
+        got += src.decoder.flush()
+        stamps = [f.t_s for f in got]
+        assert stamps == pytest.approx([t - 0.1 for t in sent], abs=1e-6)
+        validator = GnssFixValidator(clock=clock)
+        assert [validator.check(f) for f in got] == [None] * 9
+        assert src.counters["stamps_held"] == 0 and src.counters["receiver_clock_jumps"] == 0
+
+
+@pytest.mark.parametrize("protocol, start_utc", [
+    ("ubx", GPS_EPOCH + dt.timedelta(weeks=2400, seconds=-0.4)),       # iTOW wraps at the end of the GPS week
+    ("nmea", dt.datetime(2026, 6, 1, 23, 59, 59, 600_000, tzinfo=dt.timezone.utc))])   # UTC at midnight
+def test_the_receiver_time_wrap_is_no_clock_jump(protocol, start_utc):
+    """Epochs across the wrap of the receiver's time, each read on time: stamped at their arrival (minus the
+    latency) without a clock jump: each protocol's time is unwrapped at its own period."""
+    fixes = _fixes(5)
+    clock = FakeClock(20.0)
+    with _link(fixes, {"protocol": protocol, "start_utc": start_utc}, protocol=protocol, latency_s=0.1,
+               clock=clock, write=False) as (rx, src):
+        got = []
+        for k, f in enumerate(fixes):
+            clock.t = 20.0 + 0.2 * k
+            rx.write_fix(f)
+            got += _read_all(src, rx)
+        got += src.decoder.flush()
+        rx_times = [f.extra["receiver_time_s"] for f in got]
+        assert rx_times[2] < rx_times[1]                      # the wrap is there
+        assert [f.t_s for f in got] == pytest.approx([20.0 + 0.2 * k - 0.1 for k in range(5)], abs=1e-6)
+        assert src.counters["receiver_clock_jumps"] == 0 and src.counters["stamps_held"] == 0
+
+
 def test_an_epoch_begun_before_a_burst_keeps_its_earlier_time():
-    """An NMEA epoch whose first sentence arrived at an earlier read keeps that read's time: moving it to the
-    burst's time minus the receiver-time gap would make it later than it was seen."""
+    """An NMEA epoch whose first sentence arrived at an earlier read keeps that read's time (the earliest it was
+    seen), and the next epoch, read late in a stalled burst, is stamped from it by the receiver's epoch times
+    (0.2 s later), not at the stalled read."""
     fixes = _fixes(2)
     clock = FakeClock(10.0)
     with _link(fixes, {"protocol": "nmea"}, protocol="nmea", latency_s=0.1, clock=clock, write=False) as (rx, src):
@@ -117,7 +173,7 @@ def test_an_epoch_begun_before_a_burst_keeps_its_earlier_time():
         clock.t = 10.5                                # the reader then stalls; the rest comes in one go
         rx.write_bytes(b"".join(rest) + b"".join(rx.frames_for(fixes[1])))
         got = _read_all(src, rx)
-    assert [f.t_s for f in got] == pytest.approx([10.0 - 0.1, 10.5 - 0.1], abs=1e-9)
+    assert [f.t_s for f in got] == pytest.approx([10.0 - 0.1, 10.0 - 0.1 + 0.2], abs=1e-6)
 
 
 def test_garbage_between_frames_is_counted_and_every_fix_survives():

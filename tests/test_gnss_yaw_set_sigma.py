@@ -6,10 +6,13 @@ Until a GNSS yaw within `heading_confirm_gsf_sigma_rad` agrees, the published σ
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from ahrsd.core.estimate import EstimateFlags
 from bench.daemon_heading import record_boat
 from support.aided_replay_truth import aided_replay_heading
+
+pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
 
 # the daemon bench's boat at Tromsø (H 10.8 µT, dip 78°), seed 17, no calibration: the magnetometer disagrees with
 # the GNSS yaw by ~70°, the yaw is reset to it and aligned at 26 s (the bank's σ 14.5°) and confirmed by the looser

@@ -6,9 +6,12 @@ velocity update, and a GNSS yaw of 5–10° agrees with the widened variance wha
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from ahrsd.cli.main import main
 from support.aided_replay_truth import aided_replay_heading
+
+pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
 
 # the daemon bench's boat (`ahrsd record --sim boat`), seed 17: the magnetometer is re-admitted and rejected at
 # 75 s, after the alignment at ~55 s and before any GNSS yaw within 5° (the bank's σ is 6° there, 5° at ~114 s)

@@ -6,11 +6,14 @@ from __future__ import annotations
 import re
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from ahrsd.cli.main import main
 from ahrsd.cli.replay import AIDED_OUTPUT_HEADER, HEADING_OUTPUT_COLUMNS
 from ahrsd.core.estimate import HeadingState
+
+pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
 
 SEED = 2
 

@@ -146,6 +146,7 @@ FIRST_BEYOND_EACH_LIMIT = [     # (form, params, MAV_RESULT, the reason's words)
     ("long", (30.0, 0, 90.5, 10.0), mavlink.MAV_RESULT_DENIED, "latitude 90.5"),        # just beyond a pole
     ("long", (30.0, 0, 35.7, 180.5), mavlink.MAV_RESULT_DENIED, "longitude 180.5"),
     ("long", (30.0, 1.5, 0.0, 0.0), mavlink.MAV_RESULT_FAILED, "mask 1.5"),             # a mask is a whole number
+    ("long", (360.5, 0, 0.0, 0.0), mavlink.MAV_RESULT_DENIED, "yaw 360.5 deg invalid"),  # a yaw is within ±360°
     ("int", dict(x=357_000_000, y=514_000_000, frame=mavlink.MAV_FRAME_LOCAL_NED), mavlink.MAV_RESULT_DENIED,
      "frame 1 not global"),                                                              # x/y are no lat/lon there
 ]
@@ -154,7 +155,8 @@ FIRST_BEYOND_EACH_LIMIT = [     # (form, params, MAV_RESULT, the reason's words)
 def test_fixed_yaw_just_outside_each_limit_is_refused_with_its_reason(rig, stale_hard_iron):
     """Each input check of MAV_CMD_FIXED_MAG_CAL_YAW at the first value beyond its limit (the cases above are far
     beyond): the MAVLink limits (common.xml: latitude ±90°, longitude ±180°, a compass bitmask, x/y a position only
-    in a global frame), not what the code happens to accept. One daemon for all (each request differs, so none is
+    in a global frame) and the yaw range daemon/magcal.py states (±360°),
+    not what the code happens to accept. One daemon for all (each request differs, so none is
     a duplicate of another)."""
     feed_still_samples(rig, 0.0, 1.5)
     before = rig.service.pipeline.calibration

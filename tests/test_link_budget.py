@@ -1,5 +1,5 @@
 """The serial link budget: the warning for a 57600-baud endpoint with the default outputs, and priority dropping
-on a pseudo-terminal whose reader is slower than the outputs.
+on a line (a pipe, stepped in simulated time) whose reader is slower than the outputs.
 
 Truth for the byte counts: the full payload lengths of common.xml (HEARTBEAT 9, SYS_STATUS 43, ATTITUDE 28,
 ATTITUDE_QUATERNION 48, VISION_POSITION_ESTIMATE 117, HIGHRES_IMU 63 bytes), + 12 bytes of MAVLink 2 header
@@ -8,17 +8,19 @@ and CRC, + 13 when signed, at the documented default rates; a 57600-baud 8N1 lin
 
 from __future__ import annotations
 
+import array
 import asyncio
+import fcntl
 import logging
 import os
-import select
-import time
+import termios
 import tty
+from dataclasses import dataclass
 
 import pytest
 
 from ahrsd.daemon.config import EndpointConfig
-from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.daemon.mavlink_io import Endpoint, mavlink
 from service_rig import start_service_on, stop_service
 
 PAYLOAD = {0: 9, 1: 43, 30: 28, 31: 48, 102: 117, 105: 63}
@@ -115,54 +117,76 @@ def _heartbeat():
     return mavlink.MAVLink_heartbeat_message(40, 8, 0, 0, 4, 3)
 
 
-def _take(master: int, n: int, wait_s: float = 5.0) -> bytes:
-    """`n` bytes the writer has already handed to the pty. The pty passes written bytes to its reader in deferred
-    kernel work, late on a loaded machine, while this loop runs simulated time ~60 × faster than real time: a few
-    ms of that lag would be seconds of line time. So wait for bytes known to be in the pty (real time, bounded)
-    instead of letting the simulated line fall behind."""
-    data = b""
-    deadline = time.monotonic() + wait_s
-    while len(data) < n and time.monotonic() < deadline:
-        select.select([master], [], [], 0.05)
-        try:
-            data += os.read(master, n - len(data))
-        except BlockingIOError:
-            pass
-    return data
+LINE_BUFFER_B = 4096
+"""The pipe standing for the line holds one page: a UART's kernel transmit buffer (UART_XMIT_SIZE)."""
 
 
-PTY_ROOM_B = 12_000
-"""Bytes in the pty below which it has room for the queue's writes: it holds ~20 kB and takes writes again in ~4 kB
-chunks, so in the slow-reader test it sits at 16-20 kB while the queue holds bytes (never below 12 kB at idle over
-the test's 6000 steps)."""
+class _PipeConnection:
+    """What the endpoint needs of a pymavlink serial connection (its descriptor, its packer, close) on the
+    write end of a pipe."""
+
+    def __init__(self, fd: int, source_system: int, source_component: int):
+        self.fd = fd
+        self.mav = mavlink.MAVLink(None, srcSystem=source_system, srcComponent=source_component)
+
+    def close(self) -> None:
+        pass                                          # the test owns the pipe
 
 
-def _await_pty_room(loop, ep, in_pty, waited, wait_s: float = 0.2, budget_s: float = 5.0) -> None:
-    """The pty tells its writer it has room again in deferred kernel work too, late on a loaded machine (~40 ms of
-    real time is ~2 s of this test's line): while it holds under PTY_ROOM_B and the queue still holds bytes, run
-    the loop (real time, bounded per step and per test) until the writer has moved them."""
-    deadline = time.monotonic() + min(wait_s, budget_s - waited[0])
-    t0 = time.monotonic()
-    while in_pty() < PTY_ROOM_B and ep.out_queue.waiting_bytes() > 0 and time.monotonic() < deadline:
-        loop.run_until_complete(asyncio.sleep(0.001))
-    waited[0] += time.monotonic() - t0
+@dataclass
+class _PipeLineEndpoint(Endpoint):
+    """A serial endpoint (its out queue, priorities and sends are the daemon's) whose line is a pipe the test
+    reads at the simulated line's rate. A pipe hands written bytes to its reader, and tells its writer it has
+    room, within the write and read calls themselves; a pty does both in deferred kernel work, late on a loaded
+    machine, where a few ms are seconds of this test's line, so the result depended on the machine's load."""
+
+    line_fd: int = -1
+
+    def _make_connection(self):
+        return _PipeConnection(self.line_fd, self.source_system, self.source_component)
 
 
-def test_slow_reader_drops_lowest_priority_first_and_never_cuts_a_frame(pty_pair):
+@pytest.fixture
+def pipe_line():
+    read_fd, write_fd = os.pipe()
+    fcntl.fcntl(write_fd, fcntl.F_SETPIPE_SZ, LINE_BUFFER_B)
+    os.set_blocking(read_fd, False)
+    yield read_fd, write_fd
+    os.close(read_fd)
+    os.close(write_fd)
+
+
+def _in_pipe(fd: int) -> int:
+    buf = array.array("i", [0])
+    fcntl.ioctl(fd, termios.FIONREAD, buf, True)
+    return buf[0]
+
+
+def _count(parser, data: bytes, received: dict[str, int]) -> int:
+    """Count the whole frames in `data` by type into `received`; returns the number of bad ones."""
+    bad = 0
+    for m in parser.parse_buffer(data) or ():
+        if m.get_type() == "BAD_DATA":
+            bad += 1
+        else:
+            received[m.get_type()] = received.get(m.get_type(), 0) + 1
+    return bad
+
+
+def test_slow_reader_drops_lowest_priority_first_and_never_cuts_a_frame(pipe_line):
     """The reader takes 3000 B/s; we offer VPE 20 Hz + HEARTBEAT 1 Hz (2.6 kB/s, fits), ATTITUDE 50 Hz and
     HIGHRES_IMU 20 Hz (3.5 kB/s more) through a 57600-baud serial endpoint with the daemon's priorities, built
-    alone. Simulated time in 10 ms steps, the event loop run once per step.
+    alone. Simulated time in 10 ms steps, the event loop run once per step: no wall time anywhere, so the
+    counts are the same at any load.
 
-    A pty is not a UART: it hides its ~20 kB buffer from TIOCOUTQ and takes writes again only in ~4 kB chunks
-    once its reader has taken that much (1.4 s at this reader's rate), where a UART drains byte by byte. The
-    queue is given 2 s of line time here (`serial_queue_s`) so that granularity is not mistaken for the line
-    falling behind."""
+    The line is a pipe (`_PipeLineEndpoint`), which hides its buffer from TIOCOUTQ as a pty does (a UART reports
+    it): the queue is given 2 s of line time (`serial_queue_s`) so that the hidden page is not mistaken for
+    the line falling behind."""
     from ahrsd.daemon.link_budget import line_bytes_per_s, priority_of
-    from ahrsd.daemon.mavlink_io import Endpoint
 
-    master, dev = pty_pair
-    ep = Endpoint(f"{dev},57600", 1, 200, lambda _ep, _msg: None, line_bytes_per_s=line_bytes_per_s(57600),
-                  priority_of=priority_of, serial_queue_s=2.0)
+    read_fd, write_fd = pipe_line
+    ep = _PipeLineEndpoint("line,57600", 1, 200, lambda _ep, _msg: None, line_bytes_per_s=line_bytes_per_s(57600),
+                           priority_of=priority_of, serial_queue_s=2.0, line_fd=write_fd)
     loop = asyncio.new_event_loop()
     ep.open(loop)
     assert ep.out_queue is not None and ep.out_queue.capacity_bytes == 2 * 5760
@@ -171,12 +195,9 @@ def test_slow_reader_drops_lowest_priority_first_and_never_cuts_a_frame(pty_pair
     received: dict[str, int] = {}
     bad = 0
     offered: dict[str, int] = {}
-    os.set_blocking(master, False)
     step_s, reader_b_s = 0.01, 3000.0
     tx0 = ep.counters.tx_messages                     # (0: nothing sent before)
     credit = 0.0                                      # bytes the reader may still take
-    waited = [0.0]                                    # real seconds spent waiting for the pty's writer wake-ups
-    accepted_bytes = read_bytes = 0                   # what the queue took in; what the reader took out
     try:
         for k in range(6000):                         # 60 s of line time
             due = []
@@ -190,39 +211,21 @@ def test_slow_reader_drops_lowest_priority_first_and_never_cuts_a_frame(pty_pair
                 due.append(_highres())                # 20 Hz
             for m in due:
                 offered[m.get_type()] = offered.get(m.get_type(), 0) + 1
-                if ep.send(m):
-                    accepted_bytes += len(m.get_msgbuf())
-            # the line takes reader_b_s of simulated time: what the pty could not hand over in a step (the
-            # kernel passes written bytes to the reader side in deferred work, late on a loaded machine) is
-            # taken in a later step, not lost
+                ep.send(m)
+            # the line takes reader_b_s of simulated time; what it could not take (nothing waiting) is kept
             credit += reader_b_s * step_s
-            in_pty = accepted_bytes - ep.out_queue.waiting_bytes() - read_bytes
-            data = _take(master, min(int(credit), in_pty))
-            read_bytes += len(data)
+            data = os.read(read_fd, min(int(credit), _in_pipe(read_fd))) if _in_pipe(read_fd) and credit >= 1 else b""
             credit -= len(data)
-            for m in parser.parse_buffer(data) or ():
-                if m.get_type() == "BAD_DATA":
-                    bad += 1
-                else:
-                    received[m.get_type()] = received.get(m.get_type(), 0) + 1
-            loop.run_until_complete(asyncio.sleep(0))  # the writer callback flushes the queue
-            _await_pty_room(loop, ep, lambda: accepted_bytes - ep.out_queue.waiting_bytes() - read_bytes, waited)
+            bad += _count(parser, data, received)
+            loop.run_until_complete(asyncio.sleep(0))  # the writer callback moves the queue into the room made
         sent, dropped = ep.counters.tx_messages - tx0, ep.counters.tx_dropped
         by_prio = dict(ep.counters.tx_dropped_by_priority)
-        idle = 0
-        while idle < 3:                               # the reader takes what is still buffered
-            loop.run_until_complete(asyncio.sleep(0.001))
-            try:
-                data = os.read(master, 65536)
-            except BlockingIOError:
-                idle += 1
-                continue
-            idle = 0
-            for m in parser.parse_buffer(data) or ():
-                if m.get_type() == "BAD_DATA":
-                    bad += 1
-                else:
-                    received[m.get_type()] = received.get(m.get_type(), 0) + 1
+        for _ in range(100):                          # the reader takes what is still buffered
+            if not (_in_pipe(read_fd) or ep.out_queue.waiting_bytes()):
+                break
+            bad += _count(parser, os.read(read_fd, 65536) if _in_pipe(read_fd) else b"", received)
+            loop.run_until_complete(asyncio.sleep(0))
+        assert ep.out_queue.waiting_bytes() == 0
     finally:
         ep.close()
         loop.close()

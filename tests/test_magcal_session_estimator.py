@@ -8,6 +8,7 @@ bit: what differed in the tour was the daemon's start (docs/magcal-field.md "A s
 
 from __future__ import annotations
 
+import functools
 import math
 from types import SimpleNamespace
 
@@ -19,24 +20,37 @@ pytest.importorskip("ahrsd.daemon.service")
 from ahrsd.calibration.field import CalStatus  # noqa: E402
 from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad  # noqa: E402
 from ahrsd.calibration.models import Calibration, MagModel  # noqa: E402
-from ahrsd.core.sample import SampleFlags, make_sample  # noqa: E402
 from ahrsd.daemon.config import Config  # noqa: E402
 from ahrsd.daemon.magcal import CMD_START, DaemonMagCalHost, FieldCalibrationPart  # noqa: E402
 from ahrsd.daemon.magcal_settings import MagCalSettings  # noqa: E402
 from ahrsd.daemon.pipeline import Pipeline  # noqa: E402
 from ahrsd.daemon.service import Service  # noqa: E402
 from ahrsd.estimator.mekf import Mekf  # noqa: E402
-from ahrsd.simulation import open_stream  # noqa: E402
+from support.stream_samples import stream_samples  # noqa: E402
+
+pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
 
 RUN_S = 100.0
 START_AT_S = 5.0
 TICK_S = 0.1      # the part's ticker period at the default progress rate (daemon.magcal: ≥ 10 Hz)
 
 
+@functools.lru_cache(maxsize=1)
+def _level_turns():
+    """The level turns of seed 1, simulated once for both runs (freed after the module: _level_turns_freed)."""
+    return stream_samples("level-turns", 1, RUN_S)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _level_turns_freed():
+    yield
+    _level_turns.cache_clear()
+
+
 def _run(tmp_path, with_session: bool):
     """(t, roll, pitch, yaw, σ roll, σ pitch, σ yaw) every TICK_S, and the session's last status (None without)."""
     svc = Service(Config().with_overrides(state_dir=str(tmp_path)))
-    stream = open_stream("level-turns", seed=1)
+    stream = _level_turns()
     e = stream.errors
     right = Calibration.identity().with_sensor("mag", MagModel(e.hard_iron_ut, np.linalg.inv(e.soft_iron)),
                                                method="test", heading_std_deg=0.09, offset_std_deg=0.09)
@@ -52,26 +66,21 @@ def _run(tmp_path, with_session: bool):
     svc.listeners.add(part.on_sample, in_place=True)        # as Service._start_field_calibration adds it
     start = SimpleNamespace(command=CMD_START, param1=0.0, param2=0.0, param3=0.0, param4=0.0, param5=0.0,
                             param6=0.0, param7=0.0, get_type=lambda: "COMMAND_LONG")
-    rows, k, next_tick, started = [], 0, 0.0, False
-    while True:
-        b = stream.next_block(4096)
-        for i in range(len(b.t_s)):
-            t = float(b.t_s[i])
-            now[0] = t
-            if t >= RUN_S:
-                s = part.protocol.session
-                return np.array(rows), (s.status if s is not None else None), part
-            if with_session and not started and t >= START_AT_S:
-                assert part.protocol.handle_start(start) == 0      # MAV_RESULT_ACCEPTED
-                started = True
-            svc.reader.process((make_sample(t, b.gyro_rad_s[i], b.accel_m_s2[i], b.mag_ut[i], counter=k,
-                                            flags=SampleFlags.NEW_DATA),), t)
-            k += 1
-            if t >= next_tick:
-                next_tick = t + TICK_S
-                part.tick()
-                est = svc.pipeline.last_estimate
-                rows.append((t, est.roll_rad, est.pitch_rad, est.yaw_rad, *est.sigma_rpy_rad))
+    rows, next_tick, started = [], 0.0, False
+    for _k, t, s in stream.until(RUN_S):
+        now[0] = t
+        if t >= RUN_S:
+            s = part.protocol.session
+            return np.array(rows), (s.status if s is not None else None), part
+        if with_session and not started and t >= START_AT_S:
+            assert part.protocol.handle_start(start) == 0      # MAV_RESULT_ACCEPTED
+            started = True
+        svc.reader.process((s,), t)
+        if t >= next_tick:
+            next_tick = t + TICK_S
+            part.tick()
+            est = svc.pipeline.last_estimate
+            rows.append((t, est.roll_rad, est.pitch_rad, est.yaw_rad, *est.sigma_rpy_rad))
 
 
 def test_a_running_session_changes_no_published_attitude_or_sigma(tmp_path):

@@ -8,6 +8,7 @@ sample it started on."""
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -128,34 +129,50 @@ def test_the_prior_share_of_a_steps_bias_learning():
     assert prior_share(4.0, 1.0, 5.0) == 0.0
 
 
+START_OFFSETS = (0, 3, 6, 12, 18, 24, 48, 96, 200)
+RUN_S = 120.0
+
+
+@functools.lru_cache(maxsize=1)
+def _tour_boat(n: int):
+    """The first `n` samples of the README tour's boat (`level-turns` seed 0) as the filter's samples, its
+    magnetometer calibrated right, the true yaw and the calibration's heading σ (rad): simulated once for every
+    start (the simulator's stream is the same whatever the block length: a start `offset` samples in sees the
+    samples a stream of its own would give)."""
+    stream = open_stream("level-turns", seed=0)
+    e = stream.errors
+    blk = stream.next_block(n)
+    soft_inv = np.linalg.inv(e.soft_iron)
+    mag = (soft_inv @ (blk.mag_ut - e.hard_iron_ut).T).T
+    samples = [make_sample(blk.t_s[i], blk.gyro_rad_s[i], blk.accel_m_s2[i], mag[i], flags=SampleFlags.NEW_DATA)
+               for i in range(n)]
+    cal = Calibration.identity().with_sensor("mag", MagModel(e.hard_iron_ut, soft_inv), method="test",
+                                             heading_std_deg=0.09, offset_std_deg=0.09)
+    q = blk.truth_q_wxyz
+    yaw_true = np.arctan2(2.0 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]), 1.0 - 2.0 * (q[:, 2] ** 2 + q[:, 3] ** 2))
+    return samples, yaw_true, calibration_heading_sigma_rad(cal), stream.earth_field.declination_rad
+
+
 def _heading_sigma_peak_and_beyond(offset: int, run_s: float) -> tuple[float, float]:
     """mekf on the README tour's boat (`level-turns` seed 0, its magnetometer calibrated right and stating
     0.09°, as bench/start_phase_sigma.py), started `offset` samples into the stream: the peak heading 1σ from 5 s
     on (deg) and the share of samples whose true-heading error (the simulator's) is beyond 3σ."""
-    stream = open_stream("level-turns", seed=0)
-    e = stream.errors
     n = offset + int(run_s * 819.2)
-    blk = stream.next_block(n)
-    soft_inv = np.linalg.inv(e.soft_iron)
-    mag = (soft_inv @ (blk.mag_ut - e.hard_iron_ut).T).T
-    cal = Calibration.identity().with_sensor("mag", MagModel(e.hard_iron_ut, soft_inv), method="test",
-                                             heading_std_deg=0.09, offset_std_deg=0.09)
-    decl = stream.earth_field.declination_rad
+    samples, yaw_true, heading_sigma_rad, decl = _tour_boat(max(START_OFFSETS) + int(RUN_S * 819.2))
     est = Mekf(declination_rad=decl)
-    est.set_mag_calibration_sigma(calibration_heading_sigma_rad(cal))
-    q = blk.truth_q_wxyz
-    yaw_true = np.arctan2(2.0 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]), 1.0 - 2.0 * (q[:, 2] ** 2 + q[:, 3] ** 2))
+    est.set_mag_calibration_sigma(heading_sigma_rad)
+    t0_s = samples[offset].t_s
     sig, err = [], []
     for i in range(offset, n):
-        v = est.step(make_sample(blk.t_s[i], blk.gyro_rad_s[i], blk.accel_m_s2[i], mag[i], flags=SampleFlags.NEW_DATA))
-        if blk.t_s[i] - blk.t_s[offset] >= 5.0:
+        v = est.step(samples[i])
+        if samples[i].t_s - t0_s >= 5.0:
             sig.append(float(v.sigma_rpy_rad[2]))
             err.append(math.remainder(v.yaw_rad + decl - yaw_true[i], 2.0 * math.pi))
     sig_a, err_a = np.array(sig), np.array(err)
     return math.degrees(float(sig_a.max())), 100.0 * float(np.mean(np.abs(err_a) > 3.0 * sig_a))
 
 
-@pytest.mark.slow    # nine starts of 2 min at 819.2 Hz: ≈ 19 s
+@pytest.mark.slow    # nine starts of 2 min at 819.2 Hz: the file starts first under --dist loadfile (tests/conftest.py)
 def test_the_heading_sigma_does_not_depend_on_the_start_sample():
     """The daemon's start lands anywhere in the chip's stream. Started 0…200 samples (0–0.24 s) in, the tour's
     boat did the same turns, and its heading 1σ's peak over 2 min moved 4.81–6.01° (1.20°) when the sum counted
@@ -165,8 +182,8 @@ def test_the_heading_sigma_does_not_depend_on_the_start_sample():
     sum may add a little to that, not the 1.2° the bias learning did. In each start the heading stays within
     3σ of the truth on every sample."""
     peaks = []
-    for offset in (0, 3, 6, 12, 18, 24, 48, 96, 200):
-        peak, beyond = _heading_sigma_peak_and_beyond(offset, 120.0)
+    for offset in START_OFFSETS:
+        peak, beyond = _heading_sigma_peak_and_beyond(offset, RUN_S)
         assert beyond <= 1.0, (offset, peak, beyond)
         peaks.append(peak)
     assert max(peaks) - min(peaks) < 0.5, peaks

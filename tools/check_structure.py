@@ -34,6 +34,11 @@ Rule in every package and in tests/:
    estimator/estimate_view.py EstimateView); a test's fake declares what the code under test uses of it. A
    module's own `__getattr__` (PEP 562: a name imported on first use, drivers/__init__.py) is not a wrapper and
    stays allowed.
+10. no import cycle between modules through their module-level imports (those run when a module is first
+   imported; an import inside a function or under `if TYPE_CHECKING:` does not count): a module of the cycle
+   imported first finds the other half-built ("cannot import name … from partially initialized module"), so
+   whether it works depended on which one a program happened to import first. Shared parts go into a module
+   both import (simulation/scenario_base.py).
 Rule in tests/:
 5. no spy on an estimator: no function or lambda assigned to an attribute of an estimator object (the names of
    rule 3, and what hangs below them: `est._monitor.check = spy`). A test reads what the estimator decided
@@ -193,8 +198,94 @@ def check_test_file(path: Path, shown: str) -> list[str]:
     return out
 
 
+def _module_name(root: Path, path: Path) -> str:
+    parts = list(path.relative_to(root).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(["ahrsd", *parts])
+
+
+def _is_type_checking(node: ast.If) -> bool:
+    return _dotted(node.test) in ("TYPE_CHECKING", "typing.TYPE_CHECKING")
+
+
+def _module_level_imports(tree: ast.Module, module: str, is_package: bool, modules) -> list[tuple[str, int]]:
+    """(imported module, line) for the imports that run when `module` is imported: its top level and the
+    bodies of top-level try / if blocks other than `if TYPE_CHECKING:`. `from P import x` imports the module P.x
+    when there is one (P itself is then only the package being initialised, whose names are not read), else
+    reads x from P."""
+    out, todo = [], list(tree.body)
+    package = module if is_package else module.rpartition(".")[0]
+    while todo:
+        node = todo.pop(0)
+        if isinstance(node, ast.Import):
+            out += [(a.name, node.lineno) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+                base = f"{anchor}.{base}" if base else anchor
+            out += [(f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base, node.lineno) for a in node.names]
+        elif isinstance(node, ast.If) and not _is_type_checking(node):
+            todo += node.body + node.orelse
+        elif isinstance(node, ast.Try):
+            todo += node.body + node.orelse + node.finalbody + [n for h in node.handlers for n in h.body]
+    return out
+
+
+def _import_cycles(root: Path, packages: tuple[str, ...]) -> list[str]:
+    """Rule 10: the cycles of the module-level import graph among this checkout's modules (Tarjan's strongly
+    connected components; a module importing itself is no cycle)."""
+    paths = {}
+    for package in packages:
+        for path in sorted((root / package).rglob("*.py")):
+            paths[_module_name(root, path)] = path
+    edges: dict[str, list[tuple[str, int]]] = {}
+    for name, path in paths.items():
+        try:
+            tree = ast.parse(path.read_text(encoding="utf-8"))
+        except SyntaxError:
+            continue                                   # check_file reports it
+        edges[name] = [(target, line) for target, line in
+                       _module_level_imports(tree, name, path.name == "__init__.py", paths)
+                       if target in paths and target != name]
+        edges[name] = list(dict.fromkeys(edges[name]))  # one line importing two names of a module: one edge
+    index, low, stack, on_stack, out = {}, {}, [], set(), []
+
+    def visit(v: str) -> None:                         # recursion depth ≤ the number of modules (a few hundred)
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w, _ in edges.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                members = set(component)
+                for m in sorted(members):
+                    for w, line in edges[m]:
+                        if w in members:
+                            out.append(f"{paths[m].relative_to(root)}:{line}: module-level import of {w} "
+                                       f"closes an import cycle ({', '.join(sorted(members))})")
+
+    for v in sorted(edges):
+        if v not in index:
+            visit(v)
+    return out
+
+
 def check(root: Path) -> list[str]:
-    out = []
+    out = _import_cycles(root, (DAEMON, *ESTIMATOR_RULE_PACKAGES))
     for package in (DAEMON, *ESTIMATOR_RULE_PACKAGES):
         for path in sorted((root / package).rglob("*.py")):
             out += check_file(path, str(path.relative_to(root)), daemon_rules=package == DAEMON,

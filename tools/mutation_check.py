@@ -8,8 +8,9 @@ entry this copies the checkout (without .git, .venv and caches) into a temporary
 there, and runs `python -m pytest -x -q -p no:cacheprovider <tests>` in the copy with PYTHONPATH pointing at it
 (so the copy, not the installed checkout, is imported: also by the daemons and commands the tests start). The
 checkout itself is never written, so Ctrl-C leaves nothing to restore; the copy is removed on the way out.
-Prints one line per entry: caught (the tests failed) or SURVIVED (they passed with the behaviour broken), and
-exits 1 when any survived.
+Prints one line per entry: caught (the tests failed), SURVIVED (they passed with the behaviour broken) or ERROR
+(pytest ended otherwise: a collection error, which says nothing about the tests' power), and exits 1 when any
+survived or ended in an error.
 
 --check: only that every `old` still occurs exactly once (no test run; tests/test_mutation_table.py runs it).
 --list: the entries' names and behaviours.
@@ -56,9 +57,9 @@ def problem(m: Mutation, root: Path = ROOT) -> str | None:
     return None
 
 
-def run_one(m: Mutation, work: Path, env: dict) -> tuple[bool, float, str]:
-    """(caught, seconds, the first failed test or pytest's last line) for one entry, on a fresh copy at
-    work/ahrsd."""
+def run_one(m: Mutation, work: Path, env: dict) -> tuple[str, float, str]:
+    """(verdict, seconds, the first failed test or pytest's last line) for one entry, on a fresh copy at
+    work/ahrsd: "caught", "SURVIVED" or "ERROR"."""
     tree = work / "ahrsd"
     if tree.exists():
         shutil.rmtree(tree)
@@ -74,12 +75,12 @@ def run_one(m: Mutation, work: Path, env: dict) -> tuple[bool, float, str]:
     took = time.monotonic() - start
     lines = proc.stdout.strip().splitlines() or [""]
     # pytest's exit 1: tests failed (the break was seen: the first failed test is named); 0: all passed; another
-    # code (a collection error, an interrupted run) is no verdict on the tests: said as such
+    # code (a collection error: a break that does not import, or a test file that does not import on its own; an
+    # interrupted run) is no verdict on the tests: ERROR, with pytest's last line
     failed = [line.split()[1] for line in lines if line.startswith("FAILED ")]
-    said = failed[0] if failed else lines[-1]
-    if proc.returncode not in (0, 1):
-        said = f"pytest exit {proc.returncode}: {lines[-1]}"
-    return proc.returncode != 0, took, said
+    if proc.returncode in (0, 1):
+        return ("caught" if proc.returncode else "SURVIVED"), took, (failed[0] if failed else lines[-1])
+    return "ERROR", took, f"pytest exit {proc.returncode}: {lines[-1]}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -114,18 +115,18 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     env = dict(os.environ, PYTHONPATH=str(base), NUMBA_CACHE_DIR=str(base / "numba-cache"),
                AHRSD_SHARED=os.environ.get("AHRSD_SHARED", str(ROOT.parent / "shared")))
-    survived = []
+    survived, errors = [], []
     try:
         for m in chosen:
-            caught, took, tail = run_one(m, base, env)
-            print(f"{'caught  ' if caught else 'SURVIVED'} {m.name:28s} {took:6.0f} s  {tail}", flush=True)
-            if not caught:
-                survived.append(m.name)
+            verdict, took, tail = run_one(m, base, env)
+            print(f"{verdict:8s} {m.name:28s} {took:6.0f} s  {tail}", flush=True)
+            {"SURVIVED": survived, "ERROR": errors}.get(verdict, []).append(m.name)
     finally:
         shutil.rmtree(base / "ahrsd", ignore_errors=True)
-    print(f"{len(chosen) - len(survived)} of {len(chosen)} caught" + (f"; survived: {', '.join(survived)}"
-                                                                      if survived else ""))
-    return 1 if survived else 0
+    print(f"{len(chosen) - len(survived) - len(errors)} of {len(chosen)} caught"
+          + (f"; survived: {', '.join(survived)}" if survived else "")
+          + (f"; no verdict (pytest error): {', '.join(errors)}" if errors else ""))
+    return 1 if survived or errors else 0
 
 
 if __name__ == "__main__":

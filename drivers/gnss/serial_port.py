@@ -8,15 +8,16 @@ apart. For tools that want the port at once: the constructor opens it and raises
 `missing_ok` (the daemon: the receiver may be plugged in later); `read_available()` and `poll_health()` are
 the plain read and the once-a-second check.
 
-Time stamping: each fix gets t_s = (the caller's clock when its last byte was read) − latency_s.
+Time stamping: each fix's arrival stamp is (the caller's clock when its last byte was read) − latency_s.
 latency_s is the receiver's output latency (measurement epoch to the end of the message on the wire): the
 navigation computation plus the transmission time of the epoch's messages at the baud rate (10 bits per
-byte: a 100-byte NAV-PVT is 1000/baud s). docs/gnss.md has the figures.
+byte: a 100-byte NAV-PVT is 1000/baud s). A fix with the receiver's own epoch time (UBX iTOW, NMEA UTC) is
+then stamped at that time plus the least-delayed offset seen (receiver_time.ReceiverTimeStamper), so a read
+that was held up stamps nothing late and stamps never go backwards. docs/gnss.md has the figures.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import time
@@ -26,6 +27,7 @@ import serial
 
 from ..errors import DriverError
 from .backend import GnssBackend, GnssHealth, GnssLinkState
+from .receiver_time import ReceiverTimeStamper
 from .stream import PROTOCOLS, GnssStreamDecoder
 from ahrsd.core.gnss import GnssFix
 
@@ -39,7 +41,8 @@ NO_FRAME_TIMEOUT_S = 3.0        # bytes but no valid frame for this long: garbag
 GARBAGE_MIN_BYTES = 64          # ...and at least this many bytes arrived in that time
 REOPEN_INTERVAL_S = 2.0
 READ_CHUNK = 4096
-MAX_BURST_SPAN_S = 10.0         # epochs further apart than this in one read are not a held-up reader's backlog
+WEEK_S = 7 * 86400.0            # UBX iTOW wraps at the end of the GPS week
+DAY_S = 86400.0                 # NMEA's UTC time of day wraps at midnight
 MAX_READ_PER_CALL = 65536
 
 
@@ -73,6 +76,7 @@ class SerialGnssSource(GnssBackend):
         self.read_errors = 0
         self.reopen_count = 0
         self.internal_errors = 0
+        self._stampers: dict[float, ReceiverTimeStamper] = {}     # by the receiver time's wrap period
         self.state = GnssLinkState.WAITING
         self.status_message = f"{device}: waiting for data at {baud} baud ({protocol})"
         now = clock()
@@ -114,7 +118,7 @@ class SerialGnssSource(GnssBackend):
             total += len(data)
             fixes += self._feed(data)
         self._update_state(self.clock())
-        return _back_date_burst(fixes)
+        return self._stamp(fixes)
 
     def poll_health(self) -> GnssLinkState:
         """Re-evaluate the link state (call ~1 Hz); re-opens a lost device every REOPEN_INTERVAL_S."""
@@ -144,7 +148,9 @@ class SerialGnssSource(GnssBackend):
     @property
     def counters(self) -> dict:
         c = self.decoder.counters.as_dict()
-        c.update(read_errors=self.read_errors, reopens=self.reopen_count, internal_errors=self.internal_errors)
+        c.update(read_errors=self.read_errors, reopens=self.reopen_count, internal_errors=self.internal_errors,
+                 receiver_clock_jumps=sum(s.receiver_clock_jumps for s in self._stampers.values()),
+                 stamps_held=sum(s.stamps_held for s in self._stampers.values()))
         return c
 
     def close(self) -> None:
@@ -191,6 +197,20 @@ class SerialGnssSource(GnssBackend):
         if fixes:
             self._last_fix_at = now
         return fixes
+
+    def _stamp(self, fixes: list[GnssFix]) -> list[GnssFix]:
+        """Each fix of one read at its receiver time + the least-delayed offset (receiver_time.py); one stamper
+        per kind of receiver time (protocol "auto" may see NMEA epochs before the first NAV-PVT)."""
+        periods = [_receiver_time_period_s(f) for f in fixes]
+        out: list[GnssFix] = list(fixes)
+        for period_s in dict.fromkeys(periods):
+            stamper = self._stampers.get(period_s)
+            if stamper is None:
+                stamper = self._stampers[period_s] = ReceiverTimeStamper(period_s, name=self.device)
+            at = [i for i, p in enumerate(periods) if p == period_s]
+            for i, fix in zip(at, stamper.stamp_read([fixes[i] for i in at])):
+                out[i] = fix
+        return out
 
     def _lost(self, exc: Exception) -> None:
         self.read_errors += 1
@@ -239,20 +259,7 @@ class SerialGnssSource(GnssBackend):
         self.state, self.status_message = state, msg
 
 
-def _back_date_burst(fixes: list[GnssFix]) -> list[GnssFix]:
-    """Epochs read together (the reader was held up) carry that read's time stamp, though the receiver sent
-    them apart. Its own epoch times say how far apart, and its output latency is the same for every epoch, so
-    an earlier one is stamped at the last one's stamp minus its receiver-time distance from it (never later
-    than its own stamp). Without a usable receiver time (none, or a day/week wrap between them) a stamp stays."""
-    if len(fixes) < 2:
-        return fixes
-    last = fixes[-1]
-    rx_last = last.extra.get("receiver_time_s", math.nan)
-    out = []
-    for fix in fixes[:-1]:
-        gap_s = rx_last - fix.extra.get("receiver_time_s", math.nan)
-        if 0.0 < gap_s < MAX_BURST_SPAN_S and last.t_s - gap_s < fix.t_s:
-            fix = dataclasses.replace(fix, t_s=last.t_s - gap_s)
-        out.append(fix)
-    out.append(last)
-    return out
+def _receiver_time_period_s(fix: GnssFix) -> float:
+    """Where the fix's receiver time wraps: a NAV-PVT's iTOW at the end of the GPS week, NMEA's UTC time of
+    day at midnight."""
+    return WEEK_S if "itow_ms" in fix.extra else DAY_S
