@@ -65,15 +65,15 @@ def scalar_update_6(P, j, sign, nu, r, zero_mask):
 @njit(cache=True)
 def pair_update_6(P, i, a, j, b, nu, r, zero_mask):
     """The constrained update of the 6×6 covariance P for the row h = a·e_i + b·e_j (i ≠ j) and innovation nu,
-    variance r (the Joseph form above, in loops: a rare update). Returns the error-state correction K·ν as six
-    scalars."""
-    u = np.empty(6)
-    for m in range(6):
-        u[m] = a * P[m, i] + b * P[m, j]
+    variance r. Returns the error-state correction K·ν as six scalars. (u and K as tuples, as in
+    `scalar_update_6`: a step allocates nothing.)"""
+    u = (a * P[0, i] + b * P[0, j], a * P[1, i] + b * P[1, j], a * P[2, i] + b * P[2, j],
+         a * P[3, i] + b * P[3, j], a * P[4, i] + b * P[4, j], a * P[5, i] + b * P[5, j])
     s = a * u[i] + b * u[j] + r
-    k = np.empty(6)
-    for m in range(6):
-        k[m] = 0.0 if (zero_mask >> m) & 1 else u[m] / s
+    inv_s = 1.0 / s
+    k = (0.0 if zero_mask & 1 else u[0] * inv_s, 0.0 if zero_mask & 2 else u[1] * inv_s,
+         0.0 if zero_mask & 4 else u[2] * inv_s, 0.0 if zero_mask & 8 else u[3] * inv_s,
+         0.0 if zero_mask & 16 else u[4] * inv_s, 0.0 if zero_mask & 32 else u[5] * inv_s)
     for m in range(6):
         for n in range(m, 6):
             P[m, n] += -k[m] * u[n] - u[m] * k[n] + s * k[m] * k[n]
