@@ -7,8 +7,9 @@ u = P hᵀ and s = h P hᵀ + r, expands to P ← P − K uᵀ − u Kᵀ + s K 
 Estimation and Control, vol. 1, eq. 5-61; D. Simon, Optimal State Estimation, 2006, eq. 7.50 for
 constrained gains). `zero_mask`: bit i set = the gain of error-state component i is zero.
 
-Two forms of the same update: `scalar_update_6` for a row that observes one component of a 6-state filter
-(mekf: h = sign·e_j), written out for the compiler; `scalar_update` for any row of an n-state filter (ins).
+Three forms of the same update: `scalar_update_6` for a row that observes one component of a 6-state filter
+(mekf: h = sign·e_j), written out for the compiler; `pair_update_6` for a row that observes a combination of
+two (mekf's levelling across a lean: h = a·e_i + b·e_j); `scalar_update` for any row of an n-state filter (ins).
 """
 
 from __future__ import annotations
@@ -59,6 +60,25 @@ def scalar_update_6(P, j, sign, nu, r, zero_mask):
     P[4, 5] = P[5, 4] = P[4, 5] - k4 * u5 - u4 * k5 + s * k4 * k5
     P[5, 5] += s * k5 * k5 - 2.0 * k5 * u5
     return k0 * nu, k1 * nu, k2 * nu, k3 * nu, k4 * nu, k5 * nu
+
+
+@njit(cache=True)
+def pair_update_6(P, i, a, j, b, nu, r, zero_mask):
+    """The constrained update of the 6×6 covariance P for the row h = a·e_i + b·e_j (i ≠ j) and innovation nu,
+    variance r. Returns the error-state correction K·ν as six scalars. (u and K as tuples, as in
+    `scalar_update_6`: a step allocates nothing.)"""
+    u = (a * P[0, i] + b * P[0, j], a * P[1, i] + b * P[1, j], a * P[2, i] + b * P[2, j],
+         a * P[3, i] + b * P[3, j], a * P[4, i] + b * P[4, j], a * P[5, i] + b * P[5, j])
+    s = a * u[i] + b * u[j] + r
+    inv_s = 1.0 / s
+    k = (0.0 if zero_mask & 1 else u[0] * inv_s, 0.0 if zero_mask & 2 else u[1] * inv_s,
+         0.0 if zero_mask & 4 else u[2] * inv_s, 0.0 if zero_mask & 8 else u[3] * inv_s,
+         0.0 if zero_mask & 16 else u[4] * inv_s, 0.0 if zero_mask & 32 else u[5] * inv_s)
+    for m in range(6):
+        for n in range(m, 6):
+            P[m, n] += -k[m] * u[n] - u[m] * k[n] + s * k[m] * k[n]
+            P[n, m] = P[m, n]
+    return k[0] * nu, k[1] * nu, k[2] * nu, k[3] * nu, k[4] * nu, k[5] * nu
 
 
 @njit(cache=True)

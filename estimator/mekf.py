@@ -559,6 +559,7 @@ class Mekf:
             s["mag_lp_ut"] = m
         s["g_ref_m_s2"] = keep_gref or an
         s["acc_ned_lp_m_s2"] = np.asarray(quat_to_dcm(q0), dtype=float) @ a
+        s["unturned"]["f_m_s2"] = s["acc_ned_lp_m_s2"]
         s["gyro_last_rad_s"] = g
         if keep_ref is not None and keep_ref[0] > 0:
             ms["ref_norm_ut"] = ms["cand_norm_ut"] = keep_ref[0]

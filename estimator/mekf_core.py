@@ -13,7 +13,9 @@ stages in order:
   `_tilt_update`                                 the accelerometer's vertical corrects tilt only:
                                                  `_vertical_lowpass` (f in NED, low-passed), `_motion_noise_rad2`,
                                                  `_vertical_accepted` (the gate), `_vertical_noise_rad2`,
-                                                 `_correct_tilt` (two constrained scalar updates)
+                                                 `_correct_tilt` (two constrained scalar updates), or at rest
+                                                 while f leans without the gyro turning (unturned_lean.py: a
+                                                 speed change) `_correct_tilt_across` (across the lean only)
   `_field_offset`                                a body-fixed field offset learned and removed (attached magnet):
                                                  `_turned_since_snapshot`, `_refit_offset` (least squares),
                                                  `_take_snapshot`, `_offset_explained_field` (the field to use)
@@ -43,7 +45,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from . import mag_heading as mag
-from .constrained_update import scalar_update_6
+from .constrained_update import pair_update_6, scalar_update_6
 from .kernel_entry import entry_point
 from .kernel_flags import (
     BAD_SHAPE,
@@ -77,6 +79,7 @@ from .turn_lean import (
     track_lean_bias_drift,
     track_tilt_push,
 )
+from .unturned_lean import UNTURNED_LEAN_DTYPE, add_correction, leans_unturned, lowpass_f
 
 __all__ = [
     "MEKF_STATE_DTYPE", "MEKF_PARAMS_DTYPE", "MEKF_OUT_DTYPE", "MEKF_BUFFER_DTYPE", "mekf_step", "mekf_step_full",
@@ -134,6 +137,7 @@ MEKF_STATE_DTYPE = np.dtype([
     ("mag", mag.MAG_HEADING_STATE_DTYPE),     # the magnetometer heading check
     ("offset", FIELD_OFFSET_DTYPE),
     ("unmodelled", TURN_LEAN_DTYPE),          # attitude errors the covariance does not carry (turn_lean.py)
+    ("unturned", UNTURNED_LEAN_DTYPE),        # the lean of f the gyro did not turn: no rest (unturned_lean.py)
     # cached low-pass weights
     ("lp_rest", LOWPASS_WEIGHT_DTYPE),
     ("lp_acc_ned", LOWPASS_WEIGHT_DTYPE),
@@ -261,6 +265,7 @@ def _apply_correction(st, par, dx0, dx1, dx2, dx3, dx4, dx5):
     b[0] = min(max(b[0] + dx3, -clip), clip)
     b[1] = min(max(b[1] + dx4, -clip), clip)
     b[2] = min(max(b[2] + dx5, -clip), clip)
+    add_correction(st.unturned, dx0, dx1, dx2)
     # the NED-frame low-passed specific force lives in the estimated NED frame: keep it there
     f = st.acc_ned_lp_m_s2
     ax = f[0]
@@ -515,6 +520,8 @@ def _vertical_lowpass(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c):
     fe = e10 * ax + e11 * ay + e12 * az
     fd = e20 * ax + e21 * ay + e22 * az
     fnorm = math.sqrt(ax * ax + ay * ay + az * az)
+    if dt > 0.0:
+        lowpass_f(st.unturned, st.lp_rest.k, fn, fe, fd)   # the rest detector's weight, set this step
     if at_rest and dt > 0.0:
         st.g_ref_m_s2 += _lowpass_weight(st.lp_g_ref, dt, 10.0) * (fnorm - st.g_ref_m_s2)
     tau = par.acc_lowpass_tau_s
@@ -602,6 +609,21 @@ def _correct_tilt(st, par, fnorm, g_ref, nu_n, nu_e, r):
 
 
 @njit(cache=True, inline="always")
+def _correct_tilt_across(st, par, fnorm, g_ref, nu_n, nu_e, r, lean_n, lean_e):
+    """The vertical's update across a lean the gyro did not turn (unturned_lean.py) only: along it the specific
+    force holds the speed change, across it the vertical is as good as ever. p = (−lean_e, lean_n)/|lean|, the
+    horizontal direction across; the innovation p·(nu_n, nu_e) observes p_n δθ_E − p_e δθ_N (`_correct_tilt`'s
+    rows), variance r; the gain on heading forced to zero, and on the bias as `_correct_tilt` does."""
+    norm = math.sqrt(lean_n * lean_n + lean_e * lean_e)
+    pn = -lean_e / norm
+    pe = lean_n / norm
+    mask = M_HEADING if abs(fnorm - g_ref) < par.rest_acc_th_m_s2 else (M_HEADING | M_BIAS)
+    d0, d1, d2, d3, d4, d5 = pair_update_6(st.P, E_TILT_N, -pe, E_TILT_E, pn, pn * nu_n + pe * nu_e, r, mask)
+    _apply_correction(st, par, d0, d1, d2, d3, d4, d5)
+    st.acc_since_accept_s = 0.0
+
+
+@njit(cache=True, inline="always")
 def _sums_lean(st, par, at_rest):
     """Whether the speed change's sum (turn_lean.track_accel_push) takes this step's levelling: not at rest
     (nothing leans the vertical then) and not while the filter still converges from its initialisation
@@ -631,6 +653,10 @@ def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish, summi
     nu_n = un * inv_unorm
     nu_e = ue * inv_unorm
     r_motion = _motion_noise_rad2(st, par, dt, nu_n, nu_e)
+    P = st.P
+    bias_var = max(P[E_BIAS, E_BIAS], max(P[E_BIAS + 1, E_BIAS + 1], P[E_BIAS + 2, E_BIAS + 2]))
+    leaning, lean_n, lean_e = leans_unturned(st.unturned, at_rest, dt, g_ref, st.gyro_bias_rad_s, bias_var,
+                                             st.unmodelled.rate_down_lp_rad_s)
     if not _vertical_accepted(st, par, dt, unorm, g_ref, nu_n, nu_e):
         return F_ACCEL_REJECTED
     r = _vertical_noise_rad2(par, at_rest, unorm, g_ref, r_motion)
@@ -639,7 +665,10 @@ def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish, summi
         track_tilt_push(st.unmodelled, par.turn_speed_m_s, g_ref, gain_e)
     # on both paths (a sum: no bound after a batch could stand for it), so a batch leaves the state a step leaves
     track_accel_push(st.unmodelled, nu_n, nu_e, levelling_gain(st.P[E_TILT_N, E_TILT_N], r), gain_e, dt, summing)
-    _correct_tilt(st, par, fnorm, g_ref, nu_n, nu_e, r)
+    if leaning:   # at rest, a lean the gyro did not turn: a speed change, not the vertical (unturned_lean.py)
+        _correct_tilt_across(st, par, fnorm, g_ref, nu_n, nu_e, r, lean_n, lean_e)
+    else:
+        _correct_tilt(st, par, fnorm, g_ref, nu_n, nu_e, r)
     return 0
 
 

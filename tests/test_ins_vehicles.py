@@ -52,14 +52,16 @@ def test_ins_meets_the_targets_where_a_levelling_filter_leans(vehicle):
     assert _rms(tilt) <= 0.3 and _rms(heading) <= 0.5, (_rms(tilt), _rms(heading))
     assert tilt.max() < 1.0 and np.abs(heading).max() < 1.5, (tilt.max(), np.abs(heading).max())
     # a plain accelerometer-levelled filter (mekf without its acceleration-adaptive tilt noise) leans by
-    # 2° / 9° / 12°; mekf as shipped leans less (2.1° / 0.5–0.7° / 0.9–1.2°) but still more than twice as much as ins
+    # 2° / 9° / 12°; mekf as shipped leans less (tilt RMS here 2.27° / 0.45° / 0.58° since it levels a speed change
+    # at rest across the lean only, unturned_lean.py; 2.27° / 0.47° / 0.84° before) but still about twice as much
+    # as ins or more
     from ahrsd.estimator.mekf import Mekf
 
     q_plain, _ = Mekf(acc_adaptive_gain=0.0).run_batch(run.t_s, run.gyro_rad_s, run.accel_m_s2, run.mag_ut, None)
     tilt_plain, _ = _errors(run, q_plain)
     assert _rms(tilt_plain) > {"boat": 1.5, "car": 5.0, "plane": 8.0}[vehicle], _rms(tilt_plain)
     tilt_mekf, _ = _errors(run, run_mekf(run))
-    assert _rms(tilt) < _rms(tilt_mekf) / 2.0, (_rms(tilt), _rms(tilt_mekf))
+    assert _rms(tilt) < _rms(tilt_mekf) / 1.8, (_rms(tilt), _rms(tilt_mekf))
 
 
 @pytest.mark.parametrize("vehicle", ["boat", "car", "plane"])
