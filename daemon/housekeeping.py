@@ -63,11 +63,13 @@ class HealthReport:
                  watchdog_interval_s: float | None, start: float,
                  cpu_clock: Callable[[], float] = time.process_time,
                  standby_detail: Callable[[], str] = lambda: "initialising, no heading out",
-                 active_detail: Callable[[], str] = lambda: "heading good"):
+                 active_detail: Callable[[], str] = lambda: "heading good",
+                 last_sample_t_s: Callable[[], float | None] = lambda: None):
         self.health = health
         self.outbound = outbound
         self.notifier = notifier
         self.counts = counts
+        self.last_sample_t_s = last_sample_t_s     # the last sample's time stamp (the pipeline's), or None
         self.watchdog_interval_s = watchdog_interval_s
         self.cpu_clock = cpu_clock
         self.standby_detail = standby_detail       # why no heading is good (daemon.heading_status)
@@ -78,7 +80,7 @@ class HealthReport:
         self._next_watchdog = start
         self._last_state: int | None = None
         self._cpu_window: tuple[float, float] = (start, cpu_clock())     # on the clock of `now`
-        self._rate_window: tuple[float, int] = (0.0, 0)
+        self._rate_window: tuple[float, int, float | None] = (0.0, 0, None)   # (clock, samples, last time stamp)
 
     def __call__(self, now: float) -> None:
         self.health.housekeeping_tick()
@@ -104,11 +106,18 @@ class HealthReport:
         if now > t0:
             self.load_permille = int(1000.0 * (cpu - cpu0) / (now - t0))
         self._cpu_window = (now, cpu)
-        t_prev, n_prev = self._rate_window
-        n = self.counts.samples
+        # The rate on the sensor's clock: the samples delivered over the span of their own time stamps. Blocks
+        # arrive in bursts when the machine is busy (the reader's hand-overs, the kernel buffer's reads), so a
+        # count over a second of the event loop's clock read 272.8 SPS of a 204.8 SPS chip; a lost sample still
+        # lowers the rate (it is not delivered, its time passes).
+        t_prev, n_prev, ts_prev = self._rate_window
+        n, ts = self.counts.samples, self.last_sample_t_s()
         if t_prev:
-            self.measured_rate_hz = (n - n_prev) / (now - t_prev)
-        self._rate_window = (now, n)
+            if ts is not None and ts_prev is not None and ts > ts_prev:
+                self.measured_rate_hz = (n - n_prev) / (ts - ts_prev)
+            else:
+                self.measured_rate_hz = (n - n_prev) / (now - t_prev)     # no sample since, or none yet
+        self._rate_window = (now, n, ts)
 
     def _on_state_change(self, new: int) -> None:
         name = STATE_NAMES.get(new, str(new))

@@ -64,6 +64,7 @@ class Pipeline:
         self._view = None                  # the estimator's in-place view of its latest estimate (step())
         self._snapshot = None              # the immutable AttitudeEstimate of _view, built on demand
         self._last_counter: int | None = None
+        self.last_sample_t_s: float | None = None     # the last sample's time stamp (the sensor's clock)
         # the last sample calibrated in the sensor frame: (block, row, calibration), built when asked for
         self._sensor: tuple | None = None
         self._sensor_sample: ImuSample | None = None
@@ -138,6 +139,7 @@ class Pipeline:
             r = rows[i - first]
             flags = raw_flags[i]
             self._count(flags, counter[i])
+            self.last_sample_t_s = t_s[i]
             self._raw = (block, i)
             if m is not None:
                 self._sensor, self._sensor_sample = (block, i, cal), None

@@ -537,7 +537,8 @@ class Service:
         self.health_report = HealthReport(self.health, self.outbound, self.notifier, self.pipeline.counters,
                                           watchdog_interval_s=watchdog_interval_s(self.environ),
                                           start=self.loop.time(), standby_detail=self.heading_status.standby_detail,
-                                          active_detail=self.heading_status.active_detail)
+                                          active_detail=self.heading_status.active_detail,
+                                          last_sample_t_s=lambda: self.pipeline.last_sample_t_s)
         self.health_report.send_heartbeat(self.clock())   # routers learn us from our first packet
 
     def _on_message(self, endpoint, msg) -> None:

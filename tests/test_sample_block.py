@@ -87,6 +87,9 @@ def test_a_gap_in_the_middle_of_a_block_counts_exactly_that_gap():
     _reader(pipeline).process(unpack_block(pack(_raw(counters, flags))), 100.0)
     c = pipeline.counters
     assert (c.samples, c.gaps, c.lost_samples, c.invalid_samples) == (7, 1, 3, 1)
+    # the status line's rate is counted on the sensor's clock (daemon/housekeeping.HealthReport): the last
+    # sample's own time stamp, sample 19's
+    assert pipeline.last_sample_t_s == 100.0 + 19 / RATE_HZ
 
 
 def test_every_sample_of_a_block_reaches_the_estimator_and_the_listeners_calibrated_and_mounted():

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
+import pytest
+
 from ahrsd.daemon.autopilot import AutopilotState
 from ahrsd.daemon.housekeeping import HealthReport
 from ahrsd.daemon.status_line import format_status
@@ -45,3 +47,35 @@ def test_the_first_cpu_load_is_measured_from_the_start_on_the_clock_the_report_i
     cpu_s[0] = 1.25
     report._update_load(103.0)
     assert report.load_permille == 500
+
+
+def test_the_rate_is_counted_on_the_sensors_clock_not_on_the_arrivals():
+    """A 204.8 SPS chip whose blocks arrive in a burst (a busy machine: the reader's hand-overs, the kernel
+    buffer's reads) read 272.8 SPS over a second of the event loop's clock; the rate is the samples delivered over
+    the span of their own time stamps. A lost sample still lowers it (not delivered, its time passes)."""
+    counts = SimpleNamespace(samples=0)
+    t_last = [None]
+    report = HealthReport(SimpleNamespace(), SimpleNamespace(), SimpleNamespace(), counts,
+                          watchdog_interval_s=None, start=100.0, cpu_clock=lambda: 0.0,
+                          last_sample_t_s=lambda: t_last[0])
+    period_s = 1.0 / 204.8
+    made = [0]                                   # samples the chip has made: sample k is stamped k periods on
+
+    def deliver(n: int, lost: int = 0) -> None:
+        made[0] += n + lost
+        counts.samples += n
+        t_last[0] = (made[0] - 1) * period_s
+
+    deliver(1)
+    report._update_load(101.0)                  # opens the window
+    deliver(150)
+    report._update_load(102.0)                  # a late second: 150 samples arrived
+    assert report.measured_rate_hz == pytest.approx(204.8, rel=1e-12)
+    deliver(279)
+    report._update_load(103.0)                  # the burst that catches up: 279 arrived in one second
+    assert report.measured_rate_hz == pytest.approx(204.8, rel=1e-12)
+    deliver(203, lost=2)                        # two samples the chip made and nobody read
+    report._update_load(104.0)
+    assert report.measured_rate_hz == pytest.approx(203 / 205 * 204.8, rel=1e-12)
+    report._update_load(105.0)                  # nothing since: the sensor stopped
+    assert report.measured_rate_hz == 0.0
