@@ -183,6 +183,36 @@ def nominal_difference(x_before, x_after, par) -> np.ndarray:
     return dx
 
 
+def _copy_records(dst: np.ndarray, src: np.ndarray) -> None:
+    """dst[...] = src for record arrays of one dtype, as bytes: bit-identical, and without numpy's copy of a
+    structured record field by field (most of the recording's cost when it was per sample)."""
+    np.copyto(dst.view(np.uint8), src.view(np.uint8))
+
+
+@njit(cache=True)
+def _epoch_prior(x_pre_arr, x_arr, par_arr, p_before, p, p_prior):
+    """What SmoothingIns._epoch needs at every epoch, in one compiled call (from Python, a record argument
+    costs more than this arithmetic): whether the call propagated the covariance (with the sums in x_pre_arr,
+    which this clears), whether the filter is a Kalman filter after it (`kalman`; not, see the module
+    docstring: a cut), whether a measurement changed the covariance (`measured`: p ≠ P⁻); Φ of the
+    propagation (0×0 when none); p_prior ← P⁻, p_before propagated."""
+    x_pre, x, par = x_pre_arr[0], x_arr[0], par_arr[0]
+    kalman = x.nav_ok > 0.0 and core._aided(x, par)
+    propagated = x_pre.cov_t_s > 0.0 and x.cov_t_s < x_pre.cov_t_s
+    p_prior[:, :] = p_before
+    phi = np.zeros((0, 0))
+    if propagated:
+        phi = core.transition_matrix(x_pre, par)
+        core.propagate_covariance(x_pre, p_prior, par)
+    measured = False
+    n = p.shape[0]
+    for i in range(n):
+        for j in range(n):
+            if p_prior[i, j] != p[i, j]:    # as np.array_equal: a NaN counts as a change
+                measured = True
+    return propagated, kalman, measured, phi
+
+
 class SmoothingIns(Ins):
     """`Ins` that records its epochs for `RtsSmoother` (same estimates, same counters; recording costs run time). Run it
     over a recording (`update`, `update_gnss` as for Ins), then `smoothed_roll_pitch()`."""
@@ -194,29 +224,28 @@ class SmoothingIns(Ins):
         self._step = self._recorded_step
         self._shadow_hist = np.zeros_like(self._hist)
         self._shadow_out = np.zeros(1, core.INS_OUT_DTYPE)
+        self._shadow_par = np.zeros_like(self._par_arr)
+        self._x_pre = np.zeros_like(self._x_arr)     # the state before an epoch's covariance update (scratch)
         self._p_before = np.zeros_like(self._P)
+        self._p_prior = np.zeros_like(self._P)
         self._rec = np.empty(4096, _RECORD_DTYPE)   # one row per sample
         self._n_rec = 0
         self._block_t = -math.inf
 
     # ------------------------------------------------------------------ recording
-    def _cut_here(self, x) -> bool:
-        """The filter is not a Kalman filter at this epoch (see the module docstring)."""
-        return not (x["nav_ok"] > 0.0 and core._aided(x, self._par))
-
     def _epoch(self, x_pre, p_before, t, cut: bool, block_end: bool) -> None:
-        """After a call that may have propagated the covariance (with the sums in x_pre) and then updated the
-        state: a propagation, and a node when a measurement (or a reset: `cut`) changed the state."""
-        propagated = x_pre["cov_t_s"] > 0.0 and self._x["cov_t_s"] < x_pre["cov_t_s"]
-        p_prior = p_before
+        """After a call that may have propagated the covariance (with the sums in x_pre, a 1-element state array
+        this scratches) and then updated the state: a propagation, and a node when a measurement (or a reset:
+        `cut`) changed the state."""
+        propagated, kalman, measured, phi = _epoch_prior(x_pre, self._x_arr, self._par_arr, p_before, self._P,
+                                                         self._p_prior)
         if propagated:
-            self.smoother.propagate(core.transition_matrix(x_pre, self._par))
-            p_prior = p_before.copy()
-            core.propagate_covariance(x_pre.copy(), p_prior, self._par)
-        if not cut and np.array_equal(p_prior, self._P):
+            self.smoother.propagate(phi)
+        cut = cut or not kalman
+        if not cut and not measured:
             return   # no measurement at this epoch
         end = block_end or cut or t - self._block_t >= MAX_BLOCK_S
-        self.smoother.node(t, p_prior, self._P, nominal_difference(x_pre, self._x, self._par), cut=cut,
+        self.smoother.node(t, self._p_prior, self._P, nominal_difference(x_pre[0], self._x, self._par), cut=cut,
                            block_end=end)
         if end:
             self._block_t = t
@@ -224,27 +253,29 @@ class SmoothingIns(Ins):
     def _recorded_step(self, x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sflags, out, gsf, gsf_par):
         # the mechanisation alone (no covariance epoch, no GNSS-yaw bank) on a copy: its sums are those the
         # epoch will use
-        shadow_par = par.copy()
-        shadow_par["cov_period_s"] = math.inf
-        shadow_par["gnss_yaw"] = 0.0
-        xs = x.copy()
-        self._live_step(xs, P, self._shadow_hist, shadow_par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sflags,
+        _copy_records(self._shadow_par, par)
+        self._shadow_par["cov_period_s"] = math.inf
+        self._shadow_par["gnss_yaw"] = 0.0
+        xs = self._x_pre
+        _copy_records(xs, x)
+        self._live_step(xs, P, self._shadow_hist, self._shadow_par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sflags,
                         self._shadow_out, gsf, gsf_par)
         np.copyto(self._p_before, P)
         f = self._live_step(x, P, hist, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sflags, out, gsf, gsf_par)
         if f & core.NEEDS_INIT:
             return f
-        # x, xs: 1-element state arrays (the step's arguments); the epoch reads their records
-        self._epoch(xs[0], self._p_before, float(x[0]["t_last_s"]), self._cut_here(x[0]), False)
+        # x, xs: 1-element state arrays (the step's arguments)
+        self._epoch(xs, self._p_before, float(x[0]["t_last_s"]), False, False)
         return f
 
     def _fuse(self, fix) -> int:
-        x_pre, p_before = self._x.copy(), self._P.copy()
+        _copy_records(self._x_pre, self._x_arr)
+        np.copyto(self._p_before, self._P)
         interventions = self.heading_interventions
         res = super()._fuse(fix)
         # a yaw reset or a raised yaw variance (heading monitor) is not a Kalman update: cut there too
-        cut = bool(res & _CUT_RESULTS) or self._cut_here(self._x) or self.heading_interventions != interventions
-        self._epoch(x_pre, p_before, float(self._x["t_last_s"]), cut, True)
+        cut = bool(res & _CUT_RESULTS) or self.heading_interventions != interventions
+        self._epoch(self._x_pre, self._p_before, float(self._x["t_last_s"]), cut, True)
         return res
 
     def _initialise(self, t_s, g, a, m, sample_flags: int) -> bool:
