@@ -37,7 +37,7 @@ _warm_up_running: list[subprocess.Popen] = []     # the numba warm-up's ins grou
 
 
 def pytest_configure(config):
-    """With pytest-xdist workers (the README's `-n 3`), compile the numba kernels once in the controller before
+    """With pytest-xdist workers (the README's `-n 4`), compile the numba kernels once in the controller before
     the workers run a test (tests/support/numba_warm_up.py says why); the groups run side by side. Skipped in a
     worker, without -n, and with AHRSD_TEST_NO_WARM_UP=1.
 
