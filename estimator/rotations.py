@@ -77,33 +77,24 @@ def quat_to_dcm(q) -> np.ndarray:
     Ghasemzadeh & Heyrani Nobari eq 44 with ε4 = w."""
     q = _f(q)
     if q.shape == (4,):
-        return _quat_to_dcm_one(*q.tolist())
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    xx, yy, zz = x * x, y * y, z * z
-    xy, xz, yz = x * y, x * z, y * z
-    wx, wy, wz = w * x, w * y, w * z
+        # one quaternion in Python floats: the per-element array indexing costs most of a single conversion
+        return np.array(_dcm_rows(*q.tolist()))
     c = np.empty(q.shape[:-1] + (3, 3))
-    c[..., 0, 0] = 1.0 - 2.0 * (yy + zz)
-    c[..., 0, 1] = 2.0 * (xy - wz)
-    c[..., 0, 2] = 2.0 * (xz + wy)
-    c[..., 1, 0] = 2.0 * (xy + wz)
-    c[..., 1, 1] = 1.0 - 2.0 * (xx + zz)
-    c[..., 1, 2] = 2.0 * (yz - wx)
-    c[..., 2, 0] = 2.0 * (xz - wy)
-    c[..., 2, 1] = 2.0 * (yz + wx)
-    c[..., 2, 2] = 1.0 - 2.0 * (xx + yy)
+    for i, row in enumerate(_dcm_rows(q[..., 0], q[..., 1], q[..., 2], q[..., 3])):
+        for j, entry in enumerate(row):
+            c[..., i, j] = entry
     return c
 
 
-def _quat_to_dcm_one(w: float, x: float, y: float, z: float) -> np.ndarray:
-    """`quat_to_dcm` of one quaternion in Python floats: the same products and sums in the same order (so the
-    same matrix to the bit), without the per-element array indexing that costs most of a single conversion."""
+def _dcm_rows(w, x, y, z):
+    """The rows of `quat_to_dcm`'s matrix from the quaternion's components, floats or arrays alike (the same
+    products and sums in the same order either way, so the same matrix to the bit)."""
     xx, yy, zz = x * x, y * y, z * z
     xy, xz, yz = x * y, x * z, y * z
     wx, wy, wz = w * x, w * y, w * z
-    return np.array(((1.0 - 2.0 * (yy + zz), 2.0 * (xy - wz), 2.0 * (xz + wy)),
-                     (2.0 * (xy + wz), 1.0 - 2.0 * (xx + zz), 2.0 * (yz - wx)),
-                     (2.0 * (xz - wy), 2.0 * (yz + wx), 1.0 - 2.0 * (xx + yy))))
+    return ((1.0 - 2.0 * (yy + zz), 2.0 * (xy - wz), 2.0 * (xz + wy)),
+            (2.0 * (xy + wz), 1.0 - 2.0 * (xx + zz), 2.0 * (yz - wx)),
+            (2.0 * (xz - wy), 2.0 * (yz + wx), 1.0 - 2.0 * (xx + yy)))
 
 
 def dcm_to_quat(c) -> np.ndarray:
@@ -220,9 +211,15 @@ def quat_exp(rotvec_rad) -> np.ndarray:
     theta = np.linalg.norm(v, axis=-1, keepdims=True)
     small = theta < _SMALL_ANGLE_RAD
     safe = np.where(small, 1.0, theta)
-    half_sinc = np.where(small, 0.5 - theta * theta / 48.0, np.sin(0.5 * safe) / safe)  # sin(θ/2)/θ
-    w = np.where(small, 1.0 - theta * theta / 8.0, np.cos(0.5 * theta))
+    half_sinc_small, w_small = _small_angle_exp(theta)
+    half_sinc = np.where(small, half_sinc_small, np.sin(0.5 * safe) / safe)  # sin(θ/2)/θ
+    w = np.where(small, w_small, np.cos(0.5 * theta))
     return np.concatenate((w, half_sinc * v), axis=-1)
+
+
+def _small_angle_exp(theta):
+    """sin(θ/2)/θ and cos(θ/2) by their series to θ² (below _SMALL_ANGLE_RAD), for a float or an array."""
+    return 0.5 - theta * theta / 48.0, 1.0 - theta * theta / 8.0
 
 
 def _quat_exp_one(x: float, y: float, z: float, theta: float) -> np.ndarray:
@@ -231,8 +228,7 @@ def _quat_exp_one(x: float, y: float, z: float, theta: float) -> np.ndarray:
     order (math's sin and cos are the C library's, as numpy's float64 ones on this machine), so the same quaternion
     to the bit here (tests/test_rotations.py), elsewhere within an ulp or two."""
     if theta < _SMALL_ANGLE_RAD:
-        half_sinc = 0.5 - theta * theta / 48.0
-        w = 1.0 - theta * theta / 8.0
+        half_sinc, w = _small_angle_exp(theta)
     else:
         half_sinc = math.sin(0.5 * theta) / theta
         w = math.cos(0.5 * theta)
