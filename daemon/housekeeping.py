@@ -108,8 +108,8 @@ class HealthReport:
         self._cpu_window = (now, cpu)
         # The rate on the sensor's clock: the samples delivered over the span of their own time stamps. Blocks
         # arrive in bursts when the machine is busy (the reader's hand-overs, the kernel buffer's reads), so a
-        # count over a second of the event loop's clock read 272.8 SPS of a 204.8 SPS chip; a lost sample still
-        # lowers the rate (it is not delivered, its time passes).
+        # count over a second of the event loop's clock reads a catching-up burst as a faster chip; a lost sample
+        # still lowers the rate (it is not delivered, its time passes).
         t_prev, n_prev, ts_prev = self._rate_window
         n, ts = self.counts.samples, self.last_sample_t_s()
         if t_prev:
