@@ -66,6 +66,7 @@ from .kernel_flags import (
 )
 from .kernel_rotations import dcm, euler_zyx, normalised, quat_mul, rotate_to_ned, tilt_sigma
 from .turn_lean import (
+    ACCEL_PUSH_MEMORY_S,
     TURN_LEAN_DTYPE,
     RestLearning,
     bound_pushes,
@@ -73,7 +74,7 @@ from .turn_lean import (
     lowpass_rate_down,
     prior_share,
     tilt_pushes_rad,
-    track_accel_push,
+    track_accel_push_kept,
     track_bias_learning,
     track_heading_push,
     track_lean_bias_drift,
@@ -144,6 +145,7 @@ MEKF_STATE_DTYPE = np.dtype([
     ("lp_spread", LOWPASS_WEIGHT_DTYPE),
     ("lp_g_ref", LOWPASS_WEIGHT_DTYPE),
     ("lp_disagree", LOWPASS_WEIGHT_DTYPE),
+    ("push_keep", LOWPASS_WEIGHT_DTYPE),      # its k: exp(−Δt/ACCEL_PUSH_MEMORY_S) (`_push_keep`)
 ])
 
 # ----------------------------------------------------------------------------------- parameters
@@ -240,6 +242,18 @@ def _lowpass_weight(w, dt, tau):
     if w.dt_s != dt:
         w.dt_s = dt
         w.k = 1.0 - math.exp(-dt / tau)
+    return w.k
+
+
+@njit(cache=True, inline="always")
+def _push_keep(w, dt):
+    """exp(−Δt/ACCEL_PUSH_MEMORY_S), the speed change's sum's forgetting (turn_lean.track_accel_push), cached in
+    the LOWPASS_WEIGHT_DTYPE record `w` (its k) for the last Δt: the same number as computing it each step.
+    An unset record (k = 0) is computed: the exp is not 0 for any step the filter takes, and were it 0 it would
+    be computed again to the same 0."""
+    if w.dt_s != dt or w.k == 0.0:
+        w.dt_s = dt
+        w.k = math.exp(-dt / ACCEL_PUSH_MEMORY_S)
     return w.k
 
 
@@ -654,7 +668,9 @@ def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish, summi
     nu_e = ue * inv_unorm
     r_motion = _motion_noise_rad2(st, par, dt, nu_n, nu_e)
     P = st.P
-    bias_var = max(P[E_BIAS, E_BIAS], max(P[E_BIAS + 1, E_BIAS + 1], P[E_BIAS + 2, E_BIAS + 2]))
+    bias_var = 0.0   # read at rest only (`leans_unturned` returns before it in motion)
+    if at_rest:
+        bias_var = max(P[E_BIAS, E_BIAS], max(P[E_BIAS + 1, E_BIAS + 1], P[E_BIAS + 2, E_BIAS + 2]))
     leaning, lean_n, lean_e = leans_unturned(st.unturned, at_rest, dt, g_ref, st.gyro_bias_rad_s, bias_var,
                                              st.unmodelled.rate_down_lp_rad_s)
     if not _vertical_accepted(st, par, dt, unorm, g_ref, nu_n, nu_e):
@@ -664,7 +680,8 @@ def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish, summi
     if publish:
         track_tilt_push(st.unmodelled, par.turn_speed_m_s, g_ref, gain_e)
     # on both paths (a sum: no bound after a batch could stand for it), so a batch leaves the state a step leaves
-    track_accel_push(st.unmodelled, nu_n, nu_e, levelling_gain(st.P[E_TILT_N, E_TILT_N], r), gain_e, dt, summing)
+    track_accel_push_kept(st.unmodelled, nu_n, nu_e, levelling_gain(st.P[E_TILT_N, E_TILT_N], r), gain_e,
+                          _push_keep(st.push_keep, dt), summing)
     if leaning:   # at rest, a lean the gyro did not turn: a speed change, not the vertical (unturned_lean.py)
         _correct_tilt_across(st, par, fnorm, g_ref, nu_n, nu_e, r, lean_n, lean_e)
     else:
@@ -1047,9 +1064,11 @@ def mekf_step(st, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, ou
     db1 = b[1] - b1
     db2 = b[2] - b2
     track_bias_learning(st.unmodelled, dt, c, summing, s0 * db0, s1 * db1, s2 * db2)
+    # rest.keep is read at rest only: no exp on the steps in motion
+    keep_rest = math.exp(-dt / par.rest_filter_tau_s) if at_rest else 1.0
     track_lean_bias_drift(st.unmodelled, dt, c, summing, levelled or at_rest,
                           ((1.0 - s0) * db0, (1.0 - s1) * db1, (1.0 - s2) * db2),
-                          RestLearning(at_rest, math.exp(-dt / par.rest_filter_tau_s), (rb0, rb1, rb2)))
+                          RestLearning(at_rest, keep_rest, (rb0, rb1, rb2)))
     if publish:
         return flags | _fill_outputs(st, par, gx, gy, gz, out)
     return flags | _fill_estimate(st, par, out)

@@ -108,7 +108,13 @@ def track_accel_push(u, nu_n, nu_e, gain_n, gain_e, dt, summing):
     carries). The forgetting is per accepted update: a lean taken stays in the estimate while no update corrects
     it. nu_n: the innovation on δθ_E, nu_e: on −δθ_N (mekf_core._tilt_update); gain_n, gain_e: the
     `levelling_gain` of δθ_N and δθ_E; dt: the time since the previous update, s."""
-    keep = math.exp(-dt / ACCEL_PUSH_MEMORY_S)
+    track_accel_push_kept(u, nu_n, nu_e, gain_n, gain_e, math.exp(-dt / ACCEL_PUSH_MEMORY_S), summing)
+
+
+@njit(cache=True)
+def track_accel_push_kept(u, nu_n, nu_e, gain_n, gain_e, keep, summing):
+    """`track_accel_push` with its forgetting keep = exp(−dt/ACCEL_PUSH_MEMORY_S) given: a caller whose dt
+    repeats computes it once (mekf_core caches it per dt), not an exp per update."""
     u.accel_push_e_rad *= keep
     u.accel_push_n_rad *= keep
     mn = u.bias_tilt_n_s      # the bias learning's weights forget with the sum (`track_bias_learning`)
