@@ -223,6 +223,21 @@ _OUT = AttitudeFields(core.MEKF_OUT_DTYPE)
 _OUT_Q, _OUT_RATE, _OUT_SIGMA, _OUT_BIAS, _OUT_EULER = _OUT.q, _OUT.rate, _OUT.sigma, _OUT.bias, _OUT.euler
 
 
+_RECORD_OF = (None, None)   # the last parameters turned into a record, and that record (`_params_record`)
+
+
+def _params_record(params: MekfParams) -> np.ndarray:
+    """`params.to_record()`, kept for the last parameters asked (frozen: the same object, the same record; a
+    Mekf copies it into its buffer and never writes the kept one), so filters started on one set of parameters
+    build it once. The pair is read and replaced whole: two threads starting filters get their own record."""
+    global _RECORD_OF
+    kept, rec = _RECORD_OF
+    if kept is not params:
+        rec = params.to_record()
+        _RECORD_OF = (params, rec)
+    return rec
+
+
 def _as_f64(v) -> np.ndarray:
     return np.asarray(v, dtype=np.float64)
 
@@ -237,13 +252,17 @@ class Mekf:
     name = "mekf"
 
     def __init__(self, declination_rad: float = 0.0, params: MekfParams | None = None, **overrides):
-        self.params = with_overrides(params or DEFAULT_MEKF_PARAMS, overrides, "mekf")
+        # no overrides: the given (frozen) parameters themselves, not a copy (`replace` builds every field again)
+        base = params or DEFAULT_MEKF_PARAMS
+        self.params = with_overrides(base, overrides, "mekf") if overrides else base
         self._built_accel_bias_sigma_m_s2 = self.params.accel_bias_sigma_m_s2     # set_accel_bias_sigma(None)
         # one record {state, parameters, outputs} for the one-sample kernel (one array to pass per call);
         # the three are views of it
         self._buf = np.zeros(1, core.MEKF_BUFFER_DTYPE)
         self._state = self._buf[0]["state"]
-        self._buf[0]["par"] = self.params.to_record()
+        off = core.MEKF_BUFFER_DTYPE.fields["state"][1]
+        self._state_bytes = self._buf.view(np.uint8)[off:off + core.MEKF_STATE_DTYPE.itemsize]   # `_zero_state`
+        self._buf[0]["par"] = _params_record(self.params)
         self._out = self._buf[0]["out"]
         # the outputs as one flat float64 array over the same memory: copied whole for an estimate (copying
         # a structured array goes field by field)
@@ -274,9 +293,14 @@ class Mekf:
         self._iron_t_s = math.nan
         self._set_field_circle()
 
+    def _zero_state(self) -> None:
+        """Every byte of the state 0 (0.0, False): what `self._buf["state"] = 0` leaves, which numpy does field
+        by field, as one fill of its bytes."""
+        self._state_bytes.fill(0)
+
     # ----------------------------------------------------------------------- Estimator protocol
     def reset(self) -> None:
-        self._buf["state"] = 0
+        self._zero_state()
         self._initialised = False
         self._reinit_pending = False
         self._set_field_circle()
@@ -508,7 +532,8 @@ class Mekf:
         n = len(t)
         sf = (np.zeros(n, dtype=np.int64) if sample_flags is None
               else np.ascontiguousarray(sample_flags, dtype=np.int64))
-        q = np.full((n, 4), np.nan)
+        # every row is written once: by an initialisation (NaN where none could be made) or by the kernel's step
+        q = np.empty((n, 4))
         fl = np.zeros(n, dtype=np.int64)
         scratch_out = np.zeros(1, core.MEKF_OUT_DTYPE)
         i = 0
@@ -517,6 +542,8 @@ class Mekf:
                 if self._initialise(t[i], g[i], a[i], m[i], int(sf[i])):
                     q[i] = self._q_out
                     fl[i] = self._after_init_flags()
+                else:
+                    q[i] = np.nan
                 i += 1
                 continue
             j = core.mekf_run(self._buf, scratch_out, t, g, a, m, sf, i, q, fl)
@@ -543,7 +570,7 @@ class Mekf:
         keep_gref = s["g_ref_m_s2"] if self._reinit_pending and s["g_ref_m_s2"] > 0 else 0.0
         ms = s["mag"]
         keep_ref = (float(ms["ref_norm_ut"]), float(ms["ref_dip_rad"])) if self._reinit_pending else None
-        self._buf["state"] = 0
+        self._zero_state()
         s["q"] = q0
         s["gyro_bias_rad_s"] = keep_bias
         P = s["P"]

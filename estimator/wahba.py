@@ -74,6 +74,11 @@ class WahbaSolution:
 
 
 # ------------------------------------------------------------------------------------------- helpers
+def _unit_rows(v, norms):
+    """The rows of v (N, 3) over their norms (N,): the unit vectors every solver works on."""
+    return v / norms[:, None]
+
+
 def _prepare(body_vectors, reference_vectors, weights, min_vectors: int = 2):
     b = np.asarray(body_vectors, dtype=np.float64)
     r = np.asarray(reference_vectors, dtype=np.float64)
@@ -93,8 +98,8 @@ def _prepare(body_vectors, reference_vectors, weights, min_vectors: int = 2):
     nr = np.linalg.norm(r, axis=1)
     if np.any(nb == 0) or np.any(nr == 0):
         raise WahbaError("zero-length vector")
-    b = b / nb[:, None]
-    r = r / nr[:, None]
+    b = _unit_rows(b, nb)
+    r = _unit_rows(r, nr)
     for v, frame in ((b, "body"), (r, "reference")):
         if np.max(np.linalg.norm(np.cross(v[0], v), axis=1)) < _MIN_SIN_ANGLE:
             raise WahbaError(f"{frame} vectors are collinear: the rotation about them is unobservable")
@@ -274,12 +279,26 @@ def davenport_k(profile) -> np.ndarray:
     return k
 
 
+def _davenport_dcm(b, r, w) -> np.ndarray:
+    """C of the eigenvector of K's largest eigenvalue (unit vectors b, r; weights w)."""
+    _, vecs = np.linalg.eigh(davenport_k(profile_matrix(b, r, w)))
+    return quat_to_dcm(quat_normalize(vecs[:, -1]))
+
+
 def davenport(body_vectors, reference_vectors, weights=None) -> WahbaSolution:
     """Davenport's q-method: q = eigenvector of K's largest eigenvalue."""
     b, r, w = _prepare(body_vectors, reference_vectors, weights)
-    _, vecs = np.linalg.eigh(davenport_k(profile_matrix(b, r, w)))
-    q = vecs[:, -1]
-    return _solution("davenport", quat_to_dcm(quat_normalize(q)), b, r, w)
+    return _solution("davenport", _davenport_dcm(b, r, w), b, r, w)
+
+
+def davenport_q(body_vectors, reference_vectors, weights) -> np.ndarray:
+    """`davenport(...).q_wxyz` bit for bit, and nothing else: for a caller that has already made sure its
+    vectors are finite, non-zero and not collinear and its weights positive (a filter's initialisation,
+    initial_attitude.py, once per start), so none of `_prepare`'s checks and neither the loss nor the
+    covariance is computed. body_vectors, reference_vectors: (N, 3) float64; weights: (N,) float64."""
+    b = _unit_rows(body_vectors, np.linalg.norm(body_vectors, axis=1))
+    r = _unit_rows(reference_vectors, np.linalg.norm(reference_vectors, axis=1))
+    return dcm_to_quat(_davenport_dcm(b, r, weights))
 
 
 _FLIPS = (  # 180° rotations of the reference frame for QUEST's method of sequential rotations (Shuster 1981)
