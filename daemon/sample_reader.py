@@ -188,8 +188,7 @@ class SampleReader:
         """
         loop = self.loop
         self._tick_period_s = 1.0 / self.poll_hz
-        self._hand_over_by = getattr(self.source, "hand_over_by", None)
-        self._standin_s = getattr(self.source, "handover_max_s", 0.0)
+        self._standin_s = self.source.handover_max_s
         self._deadline = loop.time()
         self._tick_handle: asyncio.TimerHandle | None = None
         self.done = loop.create_future()
@@ -241,8 +240,7 @@ class SampleReader:
             else:
                 self.health.empty_read(now)
             out.publish(now)
-            if self._hand_over_by is not None:
-                self._hand_over_by(out.next_due())
+            source.hand_over_by(out.next_due())
             after = loop.time()
             if on_data:
                 handle = self._tick_handle
