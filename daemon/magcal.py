@@ -630,7 +630,7 @@ class DaemonMagCalHost:
 class FieldCalibrationPart:
     """The field magnetometer calibration in the daemon: the protocol handler (`protocol`, its commands
     registered in the router), fed every sample (`on_sample`, a sample listener) and the autopilot's GPS
-    messages (an AutopilotState listener), ticked by its own task; it reports CALIBRATING through
+    messages (an AutopilotState listener), ticked by its own loop callback; it reports CALIBRATING through
     `set_calibrating(text)`."""
 
     def __init__(self, host: DaemonMagCalHost, settings: MagCalSettings, *, commands, autopilot: AutopilotState,
@@ -638,7 +638,7 @@ class FieldCalibrationPart:
         self.host = host
         self.protocol = MagCalProtocol(host, settings, clock, warm_fit_worker=warm_fit_worker)
         self.set_calibrating = set_calibrating
-        self._task: asyncio.Task | None = None
+        self._tick_handle: asyncio.Handle | None = None
         self._calibrating_shown = False
         self.protocol.register(commands)
         autopilot.add_gnss_listener(self.protocol.on_gnss_message)
@@ -653,8 +653,8 @@ class FieldCalibrationPart:
         if self.protocol.calibrating:
             estimate = pipeline.last_estimate
         self.protocol.on_sample(pipeline.last_sensor_sample, estimate, pipeline.mounting)
-        if self._task is None:
-            self._task = asyncio.get_running_loop().create_task(self._ticker(), name="magcal")
+        if self._tick_handle is None:
+            self._tick_handle = asyncio.get_running_loop().call_soon(self._tick_and_rearm)
 
     def tick(self) -> None:
         self.protocol.tick()
@@ -666,14 +666,17 @@ class FieldCalibrationPart:
             self._calibrating_shown = calibrating
             self.set_calibrating("magnetometer calibration" if calibrating else "")
 
-    async def _ticker(self) -> None:
+    def _tick_and_rearm(self) -> None:
+        """The part's ticker, from the first sample on: a loop callback that re-arms itself (`call_later`), not a
+        task resumed by `asyncio.sleep`, which costs the event loop two wakes a tick instead of one."""
+        try:
+            self.tick()
+        except Exception:  # noqa: BLE001 - the calibration must never stop the daemon
+            log.exception("magcal tick failed")
         period_s = 1.0 / max(10.0, 2.5 * self.protocol.settings.progress_rate_hz)
-        while True:
-            try:
-                self.tick()
-            except Exception:  # noqa: BLE001 - the calibration must never stop the daemon
-                log.exception("magcal tick failed")
-            await asyncio.sleep(period_s)
+        self._tick_handle = asyncio.get_running_loop().call_later(period_s, self._tick_and_rearm)
 
     def close(self) -> None:
+        if self._tick_handle is not None:
+            self._tick_handle.cancel()
         self.protocol.close()

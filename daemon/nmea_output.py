@@ -49,6 +49,10 @@ class NmeaOutput:
             if self.transport.send(sentence):
                 self.sent[name] += 1
 
+    def next_due_s(self) -> float:
+        """The sample time at which a sentence falls due next (inf: none yet, before the first estimate)."""
+        return min((t for t in self._next_due_s.values() if t > -math.inf), default=math.inf)
+
     def counters(self) -> dict:
         return {"sent": dict(self.sent), "withheld": dict(self.withheld), **self.transport.counters.as_dict()}
 
@@ -78,6 +82,10 @@ class NmeaOutputs:
             self._heading_was_known = known
         for out in self.outputs:
             out.on_estimate(est)
+
+    def next_due_s(self) -> float:
+        """The sample time at which a sentence of any output falls due next (inf: none)."""
+        return min((out.next_due_s() for out in self.outputs), default=math.inf)
 
     def counters(self) -> dict:
         return {out.description: out.counters() for out in self.outputs}

@@ -66,6 +66,12 @@ class OutputSchedule:
         hz = self._streams[message_id].rate_hz
         return -1 if hz <= 0.0 else int(round(1e6 / hz))
 
+    @property
+    def next_due(self) -> float:
+        """The earliest deadline of the streams as of the last `due` call (0.0 after a rate change: look now;
+        inf: every stream off)."""
+        return self._next_due
+
     def due(self, now: float) -> list[int]:
         """Messages whose deadline has come; advances their deadlines."""
         if now < self._next_due:

@@ -3,6 +3,8 @@ sample and sent to the endpoints whose own schedule (daemon.endpoint_outputs) ha
 
 from __future__ import annotations
 
+import math
+
 from ahrsd.daemon.counters import ServiceCounters
 from ahrsd.daemon.health import Health
 from ahrsd.daemon.output_registry import BY_MESSAGE_ID, OutputContext
@@ -51,6 +53,10 @@ class Publishers:
                     self._sent_estimate_t_s[key] = est.t_s
                 if ep.send(m):
                     self.counters.published += 1
+
+    def next_due(self) -> float:
+        """When an output falls due next on any endpoint (the clock of `publish`; inf: none)."""
+        return min((ep.schedule.next_due for ep in self.outbound.endpoints), default=math.inf)
 
     def build_output(self, mid: int, now: float):
         """The output message `mid` from the current state (REQUEST_MESSAGE), or None if it cannot be sent."""

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
@@ -69,7 +70,8 @@ class ReaderOutputs:
     """What the reader calls. `publish(now)` after every wake; `statustext(severity, text)`;
     `heading_reset()` on an estimator re-initialisation; `ready()` on the first good estimate; `batch_done(t_s)`
     after each replay batch (a GNSS replay in step); `finished()` when a replay has no more samples;
-    `raw_sink(sample)` every raw sample (the vehicle log; None = not logging)."""
+    `raw_sink(sample)` every raw sample (the vehicle log; None = not logging); `next_due()` when an output falls
+    due next (CLOCK_MONOTONIC s, inf: none), told to a source that hands blocks over when asked (`hand_over_by`)."""
 
     publish: Callable[[float], None]
     statustext: Callable[[int, str], None]
@@ -78,6 +80,7 @@ class ReaderOutputs:
     batch_done: Callable[[float], None] = lambda t_s: None
     finished: Callable[[], None] = lambda: None
     raw_sink: Callable | None = None
+    next_due: Callable[[], float] = lambda: math.inf
 
 
 class SampleReader:
@@ -177,9 +180,15 @@ class SampleReader:
         periods (a stalled or failed sensor: SYS_STATUS and the health checks go on). The reader then hands over
         once a tick period instead of twice as often to meet the tick, and the newest sample of a block reaches
         the outputs as soon as it is handed over rather than at the next tick.
+
+        A source that hands over when asked (`hand_over_by`: the reader process) is told after every wake when
+        the next output falls due (`ReaderOutputs.next_due`), and hands its block over then, or at the latest
+        `handover_max_s` after the last one: a wake per output due instead of one per fixed hand-over period, and
+        the output still goes out with the newest sample. The stand-in tick then waits `handover_max_s` longer.
         """
         loop = self.loop
         self._tick_period_s = 1.0 / self.poll_hz
+        self._standin_s = self.source.handover_max_s
         self._deadline = loop.time()
         self._tick_handle: asyncio.TimerHandle | None = None
         self.done = loop.create_future()
@@ -231,15 +240,18 @@ class SampleReader:
             else:
                 self.health.empty_read(now)
             out.publish(now)
+            source.hand_over_by(out.next_due())
             after = loop.time()
             if on_data:
                 handle = self._tick_handle
-                if handle is not None and not handle.cancelled() and handle.when() - after >= 2 * period:
+                standin = self._standin_s
+                if handle is not None and not handle.cancelled() and handle.when() - after >= standin + 2 * period:
                     return
                 if handle is not None:
                     handle.cancel()           # a cancelled timer at the heap's head never wakes the loop
-                self._deadline = after + 3 * period     # the stand-in tick's own deadline is one period on
-                self._tick_handle = loop.call_at(after + 4 * period, self._batch_step)
+                # the stand-in tick's own deadline is one period on; kept ahead by one more hand-over at least
+                self._deadline = after + 2 * standin + 3 * period
+                self._tick_handle = loop.call_at(after + 2 * standin + 4 * period, self._batch_step)
                 return
             if after - self._deadline > period:
                 self.counters.overruns += 1

@@ -567,8 +567,18 @@ class Service:
                                    ReaderOutputs(publish=self.publishers.publish, statustext=self.outbound.statustext,
                                                  heading_reset=self.heading.signal, ready=self._on_ready,
                                                  batch_done=self._on_replay_batch,
-                                                 finished=lambda: self.request_stop(0)),
+                                                 finished=lambda: self.request_stop(0),
+                                                 next_due=self._next_output_due),
                                    poll_hz=self.config.sensor.poll_hz)
+
+    def _next_output_due(self) -> float:
+        """When a MAVLink or NMEA output falls due next (the event loop's clock; inf: none): the reader process
+        hands its block over then (daemon.sample_reader)."""
+        t = self.publishers.next_due()
+        if self.nmea is not None:
+            offset = self.source.monotonic_offset_s if self.source is not None else 0.0
+            t = min(t, self.nmea.next_due_s() + offset)
+        return t
 
     def _housekeeping(self) -> Housekeeping:
         """The periodic jobs, in the order they run at each tick (daemon.housekeeping)."""

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import gc
 import logging
+import math
 import os
 import select
 import struct
@@ -35,9 +36,16 @@ from ahrsd.drivers.source_settings import SensorSettings
 
 log = logging.getLogger(__name__)
 
-# the child's hand-over tick: the daemon's poll period (200 Hz), since the daemon takes a block as soon as it
-# arrives (SampleReader: `ready_fd`); a shorter tick only costs sends and wakes (bench/reader_floor.py)
+# When the child hands a block over (the daemon takes it as it arrives, SampleReader `ready_fd`, so each hand-over
+# is a wake of the daemon's event loop, whose cost is mostly per wake: docs/daemon.md "Performance"):
+# - at its first read once the daemon's next output falls due (`ProcessSource.hand_over_by`, told after every
+#   block): the output then goes out with the newest sample, and a wake carries work only when an output needs it;
+# - at the latest HANDOVER_MAX_S after the last hand-over: samples reach the listeners, the log and the health
+#   checks without an output due. Below LATE_AFTER_S (daemon.sample_reader), so a block's oldest sample is not
+#   counted late, and short of CHUNK_SAMPLES periods at the chip's fastest rate, so one message carries a block;
+# - every HANDOVER_S while a backlog drains (a stalled daemon: one chunk a tick, _Handover).
 HANDOVER_S = 0.005
+HANDOVER_MAX_S = 0.025
 COUNTERS_EVERY_S = 0.25
 START_TIMEOUT_S = 120.0       # the child imports the drivers (and, simulated, the simulator) and starts the chip
 _RECORD = np.dtype([("t_s", "<f8"), ("gyro", "<f8", 3), ("accel", "<f8", 3), ("mag", "<f8", 3), ("temp_c", "<f8"),
@@ -101,7 +109,7 @@ def _chip_truth(src) -> dict | None:
             "t_origin": chip._t_origin}
 
 
-def _child(sensor_cfg: SensorSettings, faults, conn) -> None:
+def _child(sensor_cfg: SensorSettings, faults, conn, handover_at=None) -> None:
     import signal
 
     from ahrsd.drivers.source import open_source
@@ -128,7 +136,7 @@ def _child(sensor_cfg: SensorSettings, faults, conn) -> None:
         # blocked in recv() without the GIL. A second Python thread here would hold the reader's GIL at
         # times, and when the machine is short of CPU be descheduled while holding it (a priority inversion
         # that the reader's SCHED_FIFO cannot break: docs/drivers.md).
-        handover = _Handover(conn, src)
+        handover = _Handover(conn, src, wanted=None if handover_at is None else lambda: handover_at.value)
         src.after_read = handover.maybe_send
         src.log_realtime = False              # the child's log goes nowhere: the daemon logs what it is told
         src.start()
@@ -147,8 +155,10 @@ def _child(sensor_cfg: SensorSettings, faults, conn) -> None:
 
 
 class _Handover:
-    """Every HANDOVER_S, from the reader thread: the samples read, the errors, and every COUNTERS_EVERY_S the
-    source's counters, through the pipe to the daemon. Never blocks the reader, and does a bounded amount of
+    """From the reader thread, when the daemon's next output falls due (`wanted()`, CLOCK_MONOTONIC s) and at
+    the latest HANDOVER_MAX_S after the last time (HANDOVER_S while a backlog drains): the samples read, the
+    errors, and every COUNTERS_EVERY_S the source's counters, through the pipe to the daemon. A deadline is
+    served once: the daemon tells the next one after it took the block. Never blocks the reader, and does a bounded amount of
     work a tick: a stalled daemon leaves the samples queued (what the reader took in `pending`, the rest in the
     reader's bounded buffer, drivers.threaded_source, which counts what it must drop), and once the daemon reads
     again they go one message a tick, in order.
@@ -164,11 +174,14 @@ class _Handover:
 
     CHUNK_SAMPLES = 32
 
-    def __init__(self, conn, src, room: Callable[[], bool] | None = None):
+    def __init__(self, conn, src, room: Callable[[], bool] | None = None, wanted: Callable[[], float] | None = None):
         """room(): whether a message may be sent now without blocking (default: select() calls the pipe
-        writable, as the class doc says)."""
+        writable, as the class doc says). wanted(): the daemon's next output deadline (default: none, every
+        HANDOVER_MAX_S only)."""
         self.conn, self.src = conn, src
         self.next_send = self.next_counters = 0.0
+        self._wanted = wanted or (lambda: math.inf)
+        self._served = math.inf            # the deadline of the last hand-over made for one
         self.last_error, self.error_sent_at = None, -1.0
         self.pending: list[ImuSample] = []
         self.sent = 0                 # samples sent to the daemon: all the reader handed over, at the end
@@ -196,10 +209,13 @@ class _Handover:
 
     def maybe_send(self) -> None:
         now = time.monotonic()
-        if now < self.next_send:
+        wanted = self._wanted()
+        if now < self.next_send and (now < wanted or wanted == self._served):
             return
-        self.next_send = now + HANDOVER_S
+        if now >= wanted:
+            self._served = wanted         # a hand-over for HANDOVER_MAX_S before it leaves the deadline to come
         self._send(now)
+        self.next_send = now + (HANDOVER_S if self.pending else HANDOVER_MAX_S)
         work_us = (time.monotonic() - now) * 1e6
         if work_us > self.work_us_max:
             self.work_us_max = int(work_us)
@@ -283,8 +299,12 @@ class ProcessSource(LiveSource):
 
         ctx = multiprocessing.get_context("spawn")
         self._conn, child = ctx.Pipe()
+        # the daemon's next output deadline, read by the child's reader thread between reads (one double in shared
+        # memory: no message, no syscall, no lock: a torn read is impossible for an aligned double on the
+        # platforms ahrsd runs on, and a stale one only moves a hand-over to the next read or HANDOVER_MAX_S)
+        self._handover_at = ctx.RawValue("d", math.inf)
         # a plain SensorSettings with reader "thread": the child reads the chip itself, in a thread
-        self._proc = ctx.Process(target=_child, args=(sensor_cfg.read_in_thread(), faults, child),
+        self._proc = ctx.Process(target=_child, args=(sensor_cfg.read_in_thread(), faults, child, self._handover_at),
                                  name="ahrsd-sensor-reader", daemon=True)
         self._proc.start()
         child.close()
@@ -309,9 +329,19 @@ class ProcessSource(LiveSource):
         self._ready = poller.poll
         self.ready_fd = self._conn.fileno()       # readable when the child sent something: poll() then
 
+    # the longest the child goes without handing over while the daemon takes its blocks (the reader's stand-in
+    # tick waits that much longer: daemon.sample_reader)
+    handover_max_s = HANDOVER_MAX_S
+
+    def hand_over_by(self, t: float) -> None:
+        """The daemon's next output deadline (CLOCK_MONOTONIC s; inf: none): the child hands its block over at its
+        first read from then on."""
+        self._handover_at.value = t
+
     def poll(self) -> list[ImuSample] | SampleBlock:
         """Every sample block the child sent since the last call, unpacked in one go into one SampleBlock (the
-        child sends a block every HANDOVER_S; the daemon polls when one arrives, `ready_fd`, or on its tick)."""
+        child sends a block when an output falls due, `hand_over_by`, or after HANDOVER_MAX_S; the daemon polls
+        when one arrives, `ready_fd`, or on its tick)."""
         conn = self._conn
         if not self._started:
             self._started = True

@@ -26,6 +26,10 @@ class ReplaySource:
     recording_time_base = True   # outgoing messages carry the recording's t_s (what a plot lines up with)
     chip = None                  # a recording: no simulated chip behind it
     ready_fd = None              # polled on the tick
+    handover_max_s = 0.0
+
+    def hand_over_by(self, t: float) -> None:
+        """A recording is released by its own clock: the daemon's output deadlines change nothing."""
     description: str
     sample_rate_hz: float
     finished: bool

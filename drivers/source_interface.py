@@ -38,9 +38,14 @@ class SensorSource(Protocol):
     finished: bool               # no sample will come any more (a replay at its end)
     chip: SimulatedChipView | None   # the simulated chip read, None for a real sensor or a recording
     ready_fd: int | None         # readable when poll() has something new (a reader process); None: poll on a tick
+    handover_max_s: float        # a ready_fd source: the longest it goes without handing over (0: no promise)
 
     def poll(self) -> list[ImuSample]:
         """Every new sample since the last call (possibly none)."""
+
+    def hand_over_by(self, t: float) -> None:
+        """The daemon's next output deadline (CLOCK_MONOTONIC s; inf: none), told after every poll: a source
+        that hands blocks over (the reader process) hands one over then; others ignore it."""
 
     def counters(self) -> dict: ...
 
@@ -78,3 +83,7 @@ class LiveSource:
     # a descriptor that becomes readable when poll() has something new (a reader process's pipe): the daemon
     # then polls when it does instead of on a fixed tick; None: poll on the tick
     ready_fd: int | None = None
+    handover_max_s = 0.0
+
+    def hand_over_by(self, t: float) -> None:
+        """The daemon's next output deadline: a source that hands blocks over when asked overrides this."""

@@ -62,7 +62,7 @@ def _run(tmp_path, with_session: bool):
     part = FieldCalibrationPart(host, MagCalSettings(), commands=svc.commands, autopilot=svc.autopilot,
                                 set_calibrating=svc.set_calibrating, clock=lambda: now[0], warm_fit_worker=False)
     part.protocol.fit_in_process = False      # fits in a thread: no worker process to start
-    part._task = object()                     # no asyncio ticker: ticked below on the samples' clock
+    part._tick_handle = object()              # no loop ticker: ticked below on the samples' clock
     svc.listeners.add(part.on_sample, in_place=True)        # as Service._start_field_calibration adds it
     start = SimpleNamespace(command=CMD_START, param1=0.0, param2=0.0, param3=0.0, param4=0.0, param5=0.0,
                             param6=0.0, param7=0.0, get_type=lambda: "COMMAND_LONG")

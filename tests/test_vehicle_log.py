@@ -58,6 +58,10 @@ class TappedSource:
     finished = property(lambda self: self._source.finished)
     chip = property(lambda self: self._source.chip)
     ready_fd = property(lambda self: self._source.ready_fd)
+    handover_max_s = property(lambda self: self._source.handover_max_s)
+
+    def hand_over_by(self, t):
+        self._source.hand_over_by(t)
 
     def next_read_time(self):
         return self._source.next_read_time()
