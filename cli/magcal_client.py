@@ -253,10 +253,7 @@ class MagCalClient:
             if time.monotonic() - last_report > REPORT_GONE_S:
                 # settled while this terminal heard nothing: a second `ahrsd magcal` on this computer binds the
                 # same UDP port, and while it runs the kernel hands the daemon's datagrams to it alone
-                self._print("the daemon no longer reports this result: it was accepted or cancelled elsewhere "
-                            "while this terminal heard nothing (the other `ahrsd magcal` or ground station got "
-                            "the daemon's answer)")
-                return 1
+                return self._settled("gone")
             if m.get_type() != "STATUSTEXT":
                 self._show(m)
                 continue
@@ -270,27 +267,47 @@ class MagCalClient:
         return 1
 
     def _settled(self, how: str) -> int:
-        """Say how another ground station or terminal settled the session ("saved" or "cancelled"): exit 0 when
-        the calibration was saved."""
+        """Say how another ground station or terminal settled the session ("saved", "cancelled", or "gone":
+        settled, but this terminal did not hear how): exit 0 when the calibration was saved."""
         if how == "saved":
             self._print("accepted from another ground station or terminal: calibration saved")
             return 0
+        if how == "gone":
+            self._print("the daemon no longer reports this result: it was accepted or cancelled elsewhere "
+                        "while this terminal heard nothing (the other `ahrsd magcal` or ground station got "
+                        "the daemon's answer); nothing sent from here")
+            return 1
         self._print("cancelled from another ground station or terminal: calibration unchanged")
         return 1
 
     def _ask_listening(self, prompt: str) -> tuple[bool | None, str | None]:
         """Ask on the terminal while a thread keeps reading the link: (the operator's answer, "saved" or
-        "cancelled" when the daemon said the session was settled elsewhere while the prompt waited). Unread, the
-        link's receive buffer fills with the daemon's streams within seconds and the kernel drops what comes
-        after, the one STATUSTEXT that says another ground station accepted included."""
+        "cancelled" when the daemon said the session was settled elsewhere while the prompt waited, "gone" when
+        it said nothing but its report stopped while its other messages went on). Unread, the link's receive
+        buffer fills with the daemon's streams within seconds and the kernel drops what comes after, the one
+        STATUSTEXT that says another ground station accepted included. The report stopping is the only news
+        when the settling came from a second `ahrsd magcal` on this computer: it binds the same UDP port and,
+        while it runs, the kernel hands the daemon's datagrams to it alone (#30 item 12, walked: "not
+        accepted: calibration unchanged" after `ahrsd magcal accept` had saved it)."""
         stop = threading.Event()
         settled: list[str] = []
+        last_report = time.monotonic()      # the report that brought us to the prompt
+        gone = False
 
         def listen() -> None:
+            nonlocal last_report, gone
             while not stop.is_set():
-                what = self._settle_news(self.conn.recv_match(blocking=True, timeout=0.1))
+                m = self.conn.recv_match(blocking=True, timeout=0.1)
+                if m is None or not self._from_target(m):
+                    continue
+                if m.get_type() == "MAG_CAL_REPORT":
+                    last_report = time.monotonic()
+                    continue
+                what = self._settle_news(m)
                 if what is not None:
                     settled.append(what)
+                elif time.monotonic() - last_report > REPORT_GONE_S:
+                    gone = True                 # the daemon talks on, but its report (1 Hz until settled) stopped
 
         reader = threading.Thread(target=listen, name="magcal-listen", daemon=True)
         reader.start()
@@ -299,7 +316,8 @@ class MagCalClient:
         finally:
             stop.set()
             reader.join()
-        return answer, (settled[-1] if settled else None)
+        # what the daemon said beats what we inferred
+        return answer, (settled[-1] if settled else "gone" if gone else None)
 
     def _settle_news(self, m) -> str | None:
         """"saved" or "cancelled" when `m` is the daemon's STATUSTEXT saying so (its last chunk), else None."""

@@ -59,6 +59,13 @@ def test_the_figure_draws_the_vertical_field_the_fit_saw(boat):
         assert high - low < 20 * math.hypot(fit_vertical_ut, noise_ut) and low < 0 < high
         assert [ln for ln in panel.get_lines() if ln.get_label() == "WMM reference"]
         assert f"H_z {fit_vertical_ut:.3f} µT" in " ".join(ax.get_title() for ax in fig.axes)
+        # the title's residual is the fit's, at its averaged rate; the band drawn carries every sample's noise,
+        # so each trace's label says its own RMS (walk26: a band of ±0.2 µT under a title of 0.014 µT looked
+        # like a contradiction)
+        assert f"(fit at {res.quality['fit_rate_hz']:g} Hz)" in panel.get_title()
+        for line in panel.get_lines()[:2]:
+            y = np.asarray(line.get_ydata(), dtype=float)
+            assert f"RMS {np.sqrt(np.mean(y[np.isfinite(y)] ** 2)):.3f} µT of every sample" in line.get_label()
     finally:
         plt.close(fig)
     assert spread <= 2.0 * math.hypot(fit_vertical_ut, noise_ut), (spread, fit_vertical_ut)

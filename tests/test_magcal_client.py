@@ -218,6 +218,63 @@ def test_an_accept_elsewhere_long_after_the_prompt_appeared_is_not_lost():
     assert client_module.MAV_CMD_DO_CANCEL_MAG_CAL not in conn.sent
 
 
+GONE_S = 1.0       # the report's silence that means settled, in these tests; the operator answers after 2.5 GONE_S
+
+
+def _answer_no_after(conn, feed, seconds):
+    """An operator who answers no after `seconds` at the prompt, while the daemon sends `feed()` every 20 ms
+    (each waits for room in the link's buffer, so nothing is dropped however slowly the listener reads)."""
+    def ask(prompt):
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            conn.wait_for_room(5.0)
+            conn.arrive(feed())
+            time.sleep(0.02)
+        return False
+    return ask
+
+
+def test_a_prompt_whose_report_stopped_says_settled_elsewhere_not_unchanged(monkeypatch):
+    """#30 item 12 as walked on 2026-12-06 (walk26): the prompt waited, `ahrsd magcal accept` in another terminal
+    saved the result, the operator answered no, and the client said "not accepted: calibration unchanged". The
+    second client had bound the same UDP port, so the kernel gave it the daemon's "Mag cal saved" and this one
+    heard only that the 1 Hz report stopped while the daemon's streams went on. (Broken by ignoring the report
+    stopping at the prompt: the client cancels and says "not accepted".)"""
+    import ahrsd.cli.magcal_client as client_module
+
+    monkeypatch.setattr(client_module, "REPORT_GONE_S", GONE_S)
+    attitude = wire(mavlink.MAVLink_attitude_message(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+    conn = _UdpReceiveBuffer([_report()])
+    out = io.StringIO()
+    client = MagCalClient(conn=conn, timeout_s=1.0, out=out,
+                          ask=_answer_no_after(conn, lambda: attitude, 2.5 * GONE_S))
+    client.sys, client.comp = 1, 200
+    assert client.start() == 1
+    assert "no longer reports this result" in out.getvalue()
+    assert "not accepted" not in out.getvalue()
+    assert client_module.MAV_CMD_DO_CANCEL_MAG_CAL not in conn.sent      # nothing sent from here
+
+
+def test_a_prompt_whose_report_goes_on_still_cancels_on_no(monkeypatch):
+    """The other side: the report still comes at 1 Hz (here every other message, 40 ms apart, against a 1 s
+    limit: a margin that holds at load 10) while the prompt waits, so the session waits on us and no cancels it.
+    (Broken by taking any long prompt as settled elsewhere.)"""
+    import ahrsd.cli.magcal_client as client_module
+
+    monkeypatch.setattr(client_module, "REPORT_GONE_S", GONE_S)
+    attitude = wire(mavlink.MAVLink_attitude_message(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+    ticks = iter(range(10 ** 6))
+    conn = _UdpReceiveBuffer([_report()])
+    out = io.StringIO()
+    feed = lambda: _report() if next(ticks) % 2 == 0 else attitude        # noqa: E731 (every other message)
+    client = MagCalClient(conn=conn, timeout_s=1.0, out=out, ask=_answer_no_after(conn, feed, 2.5 * GONE_S))
+    client.sys, client.comp = 1, 200
+    assert client.start() == 1
+    assert "not accepted: calibration unchanged" in out.getvalue()
+    assert "no longer reports" not in out.getvalue()
+    assert conn.sent[-1] == client_module.MAV_CMD_DO_CANCEL_MAG_CAL
+
+
 class _EndedTerminal(io.StringIO):
     """A terminal whose input has ended (Ctrl-D), as `ahrsd magcal start` met it with its prompt reading /dev/null."""
 

@@ -111,8 +111,11 @@ def _field_panel(ax, result: MagFitResult, d: MagFitInput, cal, lv_cal, q: dict,
     total, vertical_ref = q.get("total_ut"), q.get("vertical_ut")
     magnitude, vertical = np.linalg.norm(cal, axis=1), lv_cal[:, 2]
     if total and vertical_ref is not None:
-        ax.plot(d.t_s, magnitude - total, lw=0.6, label=f"|H| − WMM |F| ({total:.2f} µT)")
-        ax.plot(d.t_s, vertical - vertical_ref, lw=0.6, label=f"H_z − WMM Z ({vertical_ref:.2f} µT)")
+        # each trace's own RMS in its label: the samples drawn here carry every sample's noise, which the fit's
+        # averaged blocks (the title's residual) do not, so the eye sees a wider band than the title quotes
+        for departure, name in ((magnitude - total, f"|H| − WMM |F| ({total:.2f} µT)"),
+                                (vertical - vertical_ref, f"H_z − WMM Z ({vertical_ref:.2f} µT)")):
+            ax.plot(d.t_s, departure, lw=0.6, label=f"{name}: RMS {_rms(departure):.3f} µT of every sample")
         ax.axhline(0.0, color="k", ls="--", lw=0.8, label="WMM reference")
         ax.set_ylabel("calibrated − reference (µT)")
     else:   # no reference field: the values themselves
@@ -121,10 +124,18 @@ def _field_panel(ax, result: MagFitResult, d: MagFitInput, cal, lv_cal, q: dict,
         ax.set_ylabel("µT")
     ax.set_xlabel("t (s)")
     vertical_rms = (result.quality.get("vertical_channel") or {}).get("vertical_rms_ut")
-    ax.set_title(f"{result.method}: |H| residual {result.residual_rms_ut:.3f} µT"
+    fit_rate_hz = result.quality.get("fit_rate_hz")
+    at_rate = f" (fit at {fit_rate_hz:g} Hz)" if isinstance(fit_rate_hz, (int, float)) else ""
+    ax.set_title(f"{result.method}{at_rate}: |H| residual {result.residual_rms_ut:.3f} µT"
                  + (f", H_z {vertical_rms:.3f} µT" if isinstance(vertical_rms, (int, float)) else "")
                  + f"\nlevelled by {levelled_by}", fontsize=9)
     ax.legend(fontsize=7)
+
+
+def _rms(x: np.ndarray) -> float:
+    x = np.asarray(x, dtype=np.float64)
+    x = x[np.isfinite(x)]
+    return float(np.sqrt(np.mean(x * x))) if x.size else math.nan
 
 
 def _heading_error_panel(ax, result: MagFitResult, d: MagFitInput, cal, roll_rad, pitch_rad, q: dict,
