@@ -93,7 +93,8 @@ class MekfParams(MagHeadingParams):
     """A plausible speed of the vehicle while it turns, m/s (a boat's or a walker's; 25 in
     `FIXED_WING_MEKF_PARAMS`), for the published 1σ only (the estimate does not depend on it): a turn at ω
     about the vertical leans the apparent vertical by atan(ω·v/g), which the accelerometer's norm cannot show
-    and the filter cannot tell from a tilt (turn_lean.py)."""
+    and the filter cannot tell from a tilt (turn_lean.py). The least speed: a faster vehicle's is read from
+    its turns (the force across its heading over the turn rate, turn_lean.track_turn_speed)."""
     acc_reject_m_s2: float = 2.0
     """The accelerometer is not used while the low-passed | |f| − g | exceeds this (sustained linear
     acceleration), m/s²."""
@@ -498,9 +499,10 @@ class Mekf:
         """Process arrays of samples (N,), (N,3)… with the same step as `update`, continuing from the current
         state; returns (q_wxyz (N,4), EstimateFlags bits (N,) int), bit for bit `update`'s. Samples before
         the filter could initialise have NaN quaternions. sample_flags: optional (N,) SampleFlags ints.
-        Computes only what it returns: the published 1σ's unmodelled turn-lean terms are not tracked through
-        the batch but set to an upper bound at its end (turn_lean `bound_pushes`), so an `update` after
-        a batch publishes a 1σ no smaller than had every sample gone through `update`."""
+        Computes only what it returns: the published 1σ's heading turn-lean term is not tracked through the
+        batch but set to an upper bound at its end (turn_lean `bound_pushes`; the tilt's is tracked and bounded
+        too), so an `update` after a batch publishes a 1σ no smaller than had every sample gone through
+        `update`."""
         t = np.ascontiguousarray(t_s, dtype=np.float64)
         g = np.ascontiguousarray(gyro_rad_s, dtype=np.float64)
         a = np.ascontiguousarray(accel_m_s2, dtype=np.float64)
