@@ -499,10 +499,9 @@ class Mekf:
         """Process arrays of samples (N,), (N,3)… with the same step as `update`, continuing from the current
         state; returns (q_wxyz (N,4), EstimateFlags bits (N,) int), bit for bit `update`'s. Samples before
         the filter could initialise have NaN quaternions. sample_flags: optional (N,) SampleFlags ints.
-        Computes only what it returns: the published 1σ's heading turn-lean term is not tracked through the
-        batch but set to an upper bound at its end (turn_lean `bound_pushes`; the tilt's is tracked and bounded
-        too), so an `update` after a batch publishes a 1σ no smaller than had every sample gone through
-        `update`."""
+        Computes only what it returns: the published 1σ's unmodelled turn-lean terms are not tracked through
+        the batch but set to an upper bound at its end (turn_lean `bound_pushes`), so an `update` after
+        a batch publishes a 1σ no smaller than had every sample gone through `update`."""
         t = np.ascontiguousarray(t_s, dtype=np.float64)
         g = np.ascontiguousarray(gyro_rad_s, dtype=np.float64)
         a = np.ascontiguousarray(accel_m_s2, dtype=np.float64)

@@ -77,7 +77,7 @@ from .turn_lean import (
     track_bias_learning,
     track_heading_push,
     track_lean_bias_drift,
-    track_tilt_push_ned,
+    track_tilt_push,
     track_turn_speed,
     turn_speed_m_s,
 )
@@ -639,15 +639,15 @@ def _sums_lean(st, par, at_rest):
 
 
 @njit(cache=True)
-def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, summing):
+def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish, summing):
     """The vertical of the specific force, low-passed in the estimated NED frame (`_vertical_lowpass`), corrects
     δθ_N, δθ_E with the gain on heading forced to zero (`_correct_tilt`), with a variance that grows with the
     motion (`_motion_noise_rad2`, `_vertical_noise_rad2`). Rejected while the low-passed |f| is far from g or
     its vertical is more than acc_gate_rad from the estimate, then held off until the low-pass has forgotten
     the push (`_vertical_accepted`). (wx, wy, wz): the bias-corrected rate, for the lean a turn leaves
-    (`turn_lean.track_turn_speed`, `turn_lean.track_tilt_push_ned`: they feed the published 1σ only); c: C_b^n
-    of the current attitude (`dcm`, 9 scalars); summing: the speed change's sum takes this update's correction
-    (`_sums_lean`). Returns F_ACCEL_REJECTED or 0."""
+    (`turn_lean.track_turn_speed` on both paths, `turn_lean.track_tilt_push` only when `publish`: they feed the
+    published 1σ only); c: C_b^n of the current attitude (`dcm`, 9 scalars); summing: the speed change's sum
+    takes this update's correction (`_sums_lean`). Returns F_ACCEL_REJECTED or 0."""
     g_ref = st.g_ref_m_s2   # what `_vertical_lowpass` learns at rest applies from the next sample
     fnorm, un, ue, ud = _vertical_lowpass(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c)
     unorm = math.sqrt(un * un + ue * ue + ud * ud)
@@ -664,12 +664,10 @@ def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, summing):
         return F_ACCEL_REJECTED
     r = _vertical_noise_rad2(par, at_rest, unorm, g_ref, r_motion)
     gain_e = levelling_gain(st.P[E_TILT_E, E_TILT_E], r)
-    gain_n = levelling_gain(st.P[E_TILT_N, E_TILT_N], r)
-    # both on both paths (the turn's lean vector, and a sum: no bound after a batch could stand for either), so a
-    # batch leaves the state a step leaves
-    track_tilt_push_ned(st.unmodelled, turn_speed_m_s(st.unmodelled, par.turn_speed_m_s), g_ref, gain_n, gain_e,
-                        c[0], c[3])
-    track_accel_push(st.unmodelled, nu_n, nu_e, gain_n, gain_e, dt, summing)
+    if publish:
+        track_tilt_push(st.unmodelled, turn_speed_m_s(st.unmodelled, par.turn_speed_m_s), g_ref, gain_e)
+    # on both paths (a sum: no bound after a batch could stand for it), so a batch leaves the state a step leaves
+    track_accel_push(st.unmodelled, nu_n, nu_e, levelling_gain(st.P[E_TILT_N, E_TILT_N], r), gain_e, dt, summing)
     if leaning:   # at rest, a lean the gyro did not turn: a speed change, not the vertical (unturned_lean.py)
         _correct_tilt_across(st, par, fnorm, g_ref, nu_n, nu_e, r, lean_n, lean_e)
     else:
@@ -940,7 +938,7 @@ def _fill_outputs(st, par, gx, gy, gz, out):
     # (a) the low-passed vertical is on average acc_lowpass_tau_s old, so it has not seen the attitude random
     #     walk of the last τ: the tilt process noise over τ;
     # (b) the lean a turn or a speed change has left in the tilt and, through the dip, in the heading
-    #     (`turn_lean.track_tilt_push_ned`, `turn_lean.track_accel_push`), and the drift of the gyro bias learnt from
+    #     (`turn_lean.track_tilt_push`, `turn_lean.track_accel_push`), and the drift of the gyro bias learnt from
     #     motion while no levelling corrects it (`turn_lean.track_lean_bias_drift`)
     # (c) the accelerometer's own bias, which no state carries: the levelling takes the vertical as f/|f|, so a
     #     horizontal bias b tilts it by b/g about each horizontal axis (Groves 2013 §5.6.2, attitude
@@ -1039,7 +1037,7 @@ def mekf_step(st, par, t_s, gx, gy, gz, ax, ay, az, mx, my, mz, sample_flags, ou
     summing = _sums_lean(st, par, at_rest)
     levelled = False
     if valid & IN_ACC_OK:
-        tilt_flags = _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, summing)
+        tilt_flags = _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish, summing)
         flags |= tilt_flags
         levelled = tilt_flags == 0
     flags |= _heading_update(st, par, dt, rate, valid, at_rest, mag_moved_at_rest, mx, my, mz, publish)

@@ -23,8 +23,7 @@ and calls, in its own stages:
   `lowpass_rate_down`    the rate about the vertical, low-passed as the levelling's specific force is
   `track_turn_speed`     beside it (mekf): the speed the turns show (`turn_speed_m_s`: it or the prior)
   `levelling_gain`       k = P/(P + R) of a levelling update, once per axis for the two pushes below
-  `track_tilt_push`      at each accepted levelling update (ins); mekf: `track_tilt_push_ned`, the lean as a
-                         vector, on both its paths
+  `track_tilt_push`      at each accepted levelling update
   `track_accel_push`     at each accepted levelling update (mekf)
   `track_bias_learning`  once per step, after its updates (mekf): the sum less what the bias learning explains
                          (`prior_share`: the part of a bias change that learns the bias's prior)
@@ -58,9 +57,6 @@ TURN_LEAN_DTYPE = np.dtype([
     ("lean_drift_e_rad", np.float64),     # levelling corrected it, forgotten with the sum (`track_lean_bias_drift`)
     ("rest_bias_recent_rad_s", np.float64, (3,)),  # the bias learnt at rest over the rest detector's lag
     ("was_at_rest", np.float64),          # 1 while the previous step was at rest
-    ("tilt_push_n_rad", np.float64),      # the tilt push as a horizontal vector (`track_tilt_push_ned`): the lean
-    ("tilt_push_e_rad", np.float64),      # of the specific force carried in, north and east parts (its size is
-                                          # tilt_push_rad)
     ("lateral_lp_m_s2", np.float64),      # specific force across the heading (to the right), low-passed as ω_D
     ("speed_moment_m_s", np.float64),     # Σ lateral·ω_D·dt and Σ ω_D²·dt (rad²/s), forgotten over
     ("speed_weight_rad2_s", np.float64),  # TURN_SPEED_MEMORY_S: the turn speed's regression (`track_turn_speed`)
@@ -138,40 +134,6 @@ def track_tilt_push(u, turn_speed_m_s, g_m_s2, gain):
     corrects any tilt error."""
     phi = lean_rad(turn_speed_m_s, u.rate_down_lp_rad_s, g_m_s2)
     u.tilt_push_rad += gain * (phi - u.tilt_push_rad)
-
-
-@njit(cache=True, inline="always")
-def track_tilt_push_ned(u, turn_speed_m_s, g_m_s2, gain_n, gain_e, xn, xe):
-    """`track_tilt_push` with the lean's direction (mekf): a turn leans the specific force toward the turn's
-    centre, across the heading (to the right for ω_D > 0), and each accepted levelling update moves the estimate
-    toward that lean vector with the gain of the axis it observes (`levelling_gain`: the north lean on δθ_E's,
-    the east on δθ_N's), e ← e + k (φ − e) per axis. A turn one way and then the other (a slalom) leans the
-    vertical one way and back and the levelling follows both: the errors cancel as the vectors do, where the
-    size alone would add them up. Between updates e stays put in the NED frame, as the estimate's error does
-    (the gyro turns the body under it). tilt_push_rad is set to |e|. xn, xe: the body x axis in the estimated
-    NED frame (C_b^n's first column), whose horizontal part is the heading; above 60° of pitch the heading is
-    not defined and the lean keeps the direction e has. The speed change's sum (`track_accel_push`) takes the
-    same corrections, so a turn's lean is in both (taking the turn's part out of the sum left too little where
-    the speed read is wrong: docs/estimator.md "plane26")."""
-    phi = lean_rad(turn_speed_m_s, u.rate_down_lp_rad_s, g_m_s2)
-    if u.rate_down_lp_rad_s < 0.0:
-        phi = -phi
-    h2 = xn * xn + xe * xe
-    if h2 >= 0.25:
-        inv_h = 1.0 / math.sqrt(h2)
-        tn = -xe * inv_h * phi
-        te = xn * inv_h * phi
-    else:
-        size = math.sqrt(u.tilt_push_n_rad * u.tilt_push_n_rad + u.tilt_push_e_rad * u.tilt_push_e_rad)
-        if size > 0.0:
-            tn = u.tilt_push_n_rad / size * abs(phi)
-            te = u.tilt_push_e_rad / size * abs(phi)
-        else:
-            tn = abs(phi)
-            te = 0.0
-    u.tilt_push_n_rad += gain_e * (tn - u.tilt_push_n_rad)
-    u.tilt_push_e_rad += gain_n * (te - u.tilt_push_e_rad)
-    u.tilt_push_rad = math.sqrt(u.tilt_push_n_rad * u.tilt_push_n_rad + u.tilt_push_e_rad * u.tilt_push_e_rad)
 
 
 @njit(cache=True)

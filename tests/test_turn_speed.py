@@ -1,10 +1,10 @@
 """The lean a turn leaves in mekf's levelling, at the speed the turns show (estimator/turn_lean.py:
-`track_turn_speed`, `turn_speed_m_s`, `track_tilt_push_ned`). Worked numbers first: a coordinated turn's lateral
-specific force over its turn rate is the speed (a speed change along the heading and a small tilt error do not
-move it); the push is the lean vector, toward the turn's centre, so a slalom's leans cancel. Then mekf without GNSS on the simulator's plane through its
-180° left turn at 26 m/s, banked 29° (held-out seed 11, 84–110 s): the roll error against the simulator's truth
-(the error rotation computed with scipy, not the estimator's rotations) stays within the published 3σ, which the
-default `turn_speed_m_s` of 2 m/s alone did not give (main: 1.09° against a 0.35° σ at 96.5 s)."""
+`track_turn_speed`, `turn_speed_m_s`). Worked numbers first: a coordinated turn's lateral specific force over its
+turn rate is the speed (a speed change along the heading and a small tilt error do not move it). Then mekf
+without GNSS on the simulator's plane through its 180° left turn at 26 m/s, banked 29° (held-out seed 11,
+84–110 s): the roll error against the simulator's truth (the error rotation computed with scipy, not the
+estimator's rotations) stays within the published 3σ, which the default `turn_speed_m_s` of 2 m/s alone did not
+give (main: 1.09° against a 0.35° σ at 96.5 s)."""
 
 from __future__ import annotations
 
@@ -17,8 +17,6 @@ from ahrsd.estimator.mekf import Mekf
 from ahrsd.estimator.turn_lean import (
     TURN_LEAN_DTYPE,
     lowpass_rate_down,
-    track_tilt_push,
-    track_tilt_push_ned,
     track_turn_speed,
     turn_speed_m_s,
 )
@@ -88,43 +86,6 @@ def test_the_prior_stands_without_turns_and_where_it_is_larger():
     plane = _record()
     _fly_turn(plane, 26.0, math.radians(12.0), 14.0)
     assert turn_speed_m_s(plane, PRIOR) == pytest.approx(26.0, rel=0.01)
-
-
-def _lean(speed_m_s, rate_rad_s):
-    return math.atan(speed_m_s * abs(rate_rad_s) / G)
-
-
-def test_the_turn_push_leans_toward_the_turns_centre():
-    """Heading north turning right (ω_D > 0) the specific force leans east; heading east turning right it leans
-    south; turning left, north. With the gain 1 the push is that lean: atan(v·|ω|/g) toward the centre."""
-    w = math.radians(12.0)
-    phi = _lean(22.0, w)
-    cases = [((1.0, 0.0), w, (0.0, phi)), ((0.0, 1.0), w, (-phi, 0.0)), ((0.0, 1.0), -w, (phi, 0.0))]
-    for (xn, xe), rate, (want_n, want_e) in cases:
-        u = _record()
-        u.rate_down_lp_rad_s = rate
-        track_tilt_push_ned(u, 22.0, G, 1.0, 1.0, xn, xe)
-        assert u.tilt_push_n_rad == pytest.approx(want_n, abs=1e-12)
-        assert u.tilt_push_e_rad == pytest.approx(want_e, abs=1e-12)
-        assert u.tilt_push_rad == pytest.approx(phi, rel=1e-12)
-
-
-def test_a_slaloms_leans_cancel_in_the_push():
-    """A slalom (right and left for 2 s each at 15 °/s, 15 m/s, heading north; 40 s at a levelling gain of 2e-4
-    per sample): the levelling follows a lean that swings east and west, so what it carries stays near the
-    swing's mean; the push does so too (below a fifth of the 22° lean), where the lean's size alone (ins's
-    `track_tilt_push`) builds up toward the full lean (above 0.7 of it)."""
-    u = _record()
-    size_only = _record()
-    w = math.radians(15.0)
-    gain = 2e-4
-    for i in range(int(round(40.0 / DT))):
-        u.rate_down_lp_rad_s = size_only.rate_down_lp_rad_s = w if (i * DT) % 4.0 < 2.0 else -w
-        track_tilt_push_ned(u, 15.0, G, gain, gain, 1.0, 0.0)
-        track_tilt_push(size_only, 15.0, G, gain)
-    phi = _lean(15.0, w)
-    assert u.tilt_push_rad < 0.2 * phi, math.degrees(u.tilt_push_rad)
-    assert size_only.tilt_push_rad > 0.7 * phi
 
 
 @pytest.fixture(scope="module")
