@@ -93,7 +93,8 @@ class MekfParams(MagHeadingParams):
     """A plausible speed of the vehicle while it turns, m/s (a boat's or a walker's; 25 in
     `FIXED_WING_MEKF_PARAMS`), for the published 1σ only (the estimate does not depend on it): a turn at ω
     about the vertical leans the apparent vertical by atan(ω·v/g), which the accelerometer's norm cannot show
-    and the filter cannot tell from a tilt (turn_lean.py)."""
+    and the filter cannot tell from a tilt (turn_lean.py). The least speed: a faster vehicle's is read from
+    its turns (the force across its heading over the turn rate, turn_lean.track_turn_speed)."""
     acc_reject_m_s2: float = 2.0
     """The accelerometer is not used while the low-passed | |f| − g | exceeds this (sustained linear
     acceleration), m/s²."""

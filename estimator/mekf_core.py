@@ -79,6 +79,8 @@ from .turn_lean import (
     track_heading_push,
     track_lean_bias_drift,
     track_tilt_push,
+    track_turn_speed,
+    turn_speed_m_s,
 )
 from .unturned_lean import UNTURNED_LEAN_DTYPE, add_correction, leans_unturned, lowpass_f
 
@@ -554,6 +556,7 @@ def _vertical_lowpass(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c):
         ue = fe
         ud = fd
     lowpass_rate_down(st.unmodelled, ka, e20 * wx + e21 * wy + e22 * wz)
+    track_turn_speed(st.unmodelled, ka, dt, fn, fe, e00, e10)
     return fnorm, un, ue, ud
 
 
@@ -656,9 +659,9 @@ def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish, summi
     motion (`_motion_noise_rad2`, `_vertical_noise_rad2`). Rejected while the low-passed |f| is far from g or
     its vertical is more than acc_gate_rad from the estimate, then held off until the low-pass has forgotten
     the push (`_vertical_accepted`). (wx, wy, wz): the bias-corrected rate, for the lean a turn leaves
-    (`turn_lean.track_tilt_push`, only when `publish`: it feeds the published 1σ only); c: C_b^n of the current
-    attitude (`dcm`, 9 scalars); summing: the speed change's sum takes this update's correction
-    (`_sums_lean`). Returns F_ACCEL_REJECTED or 0."""
+    (`turn_lean.track_turn_speed` on both paths, `turn_lean.track_tilt_push` only when `publish`: they feed the
+    published 1σ only); c: C_b^n of the current attitude (`dcm`, 9 scalars); summing: the speed change's sum
+    takes this update's correction (`_sums_lean`). Returns F_ACCEL_REJECTED or 0."""
     g_ref = st.g_ref_m_s2   # what `_vertical_lowpass` learns at rest applies from the next sample
     fnorm, un, ue, ud = _vertical_lowpass(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c)
     unorm = math.sqrt(un * un + ue * ue + ud * ud)
@@ -678,7 +681,7 @@ def _tilt_update(st, par, dt, at_rest, ax, ay, az, wx, wy, wz, c, publish, summi
     r = _vertical_noise_rad2(par, at_rest, unorm, g_ref, r_motion)
     gain_e = levelling_gain(st.P[E_TILT_E, E_TILT_E], r)
     if publish:
-        track_tilt_push(st.unmodelled, par.turn_speed_m_s, g_ref, gain_e)
+        track_tilt_push(st.unmodelled, turn_speed_m_s(st.unmodelled, par.turn_speed_m_s), g_ref, gain_e)
     # on both paths (a sum: no bound after a batch could stand for it), so a batch leaves the state a step leaves
     track_accel_push_kept(st.unmodelled, nu_n, nu_e, levelling_gain(st.P[E_TILT_N, E_TILT_N], r), gain_e,
                           _push_keep(st.push_keep, dt), summing)
@@ -1130,6 +1133,7 @@ def mekf_run(buf, scratch_out, t_s, gyro, acc, mag_ut, sample_flags, start, q_ou
     u = st.unmodelled
     # the extremes of what the unmodelled terms' targets are made of, over the states the batch passes through
     rate_max = abs(u.rate_down_lp_rad_s)
+    speed_max = turn_speed_m_s(u, par.turn_speed_m_s)
     g_min = st.g_ref_m_s2
     dip_max = abs(st.mag.ref_dip_rad)
     n = t_s.shape[0]
@@ -1142,15 +1146,16 @@ def mekf_run(buf, scratch_out, t_s, gyro, acc, mag_ut, sample_flags, start, q_ou
             sample_flags[i], out, False,
         )
         if f & NEEDS_INIT:
-            bound_pushes(u, par.turn_speed_m_s, rate_max, g_min, dip_max)
+            bound_pushes(u, speed_max, rate_max, g_min, dip_max)
             return i
         rate_max = max(rate_max, abs(u.rate_down_lp_rad_s))
+        speed_max = max(speed_max, turn_speed_m_s(u, par.turn_speed_m_s))
         g_min = min(g_min, st.g_ref_m_s2)
         dip_max = max(dip_max, abs(st.mag.ref_dip_rad))
         for j in range(4):
             q_out[i, j] = out.q[j]
         flags_out[i] = f
-    bound_pushes(u, par.turn_speed_m_s, rate_max, g_min, dip_max)
+    bound_pushes(u, speed_max, rate_max, g_min, dip_max)
     return n
 
 

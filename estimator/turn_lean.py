@@ -4,7 +4,8 @@ A vehicle turning at ω_D about the vertical with speed v feels the centripetal 
 the apparent vertical leans by φ = atan(ω_D v / g) while |f| stays within (ω_D v)²/(2g) of g (0.005 m/s² for a
 boat at 9 °/s and 2 m/s), below what any norm check can see, and a filter that levels with the accelerometer
 cannot tell it from a tilt. Without a velocity v is unknown: a plausible turning speed stands for it (the
-filters' `turn_speed_m_s`). Through the field's dip I that tilt error becomes a heading error of the
+filters' `turn_speed_m_s`), and mekf reads a faster vehicle's speed from its turns (`track_turn_speed`: the
+force across the heading over the turn rate). Through the field's dip I that tilt error becomes a heading error of the
 magnetometer (`track_heading_push`). Neither error is white noise, so neither is in the filter's covariance:
 both are tracked here beside it and added to the published 1σ in quadrature (Schmidt's "consider" terms).
 
@@ -20,6 +21,7 @@ One rule for both filters that level with the accelerometer: mekf (always) and i
 aids it: with GNSS the lean is observed and corrected). Each filter keeps a TURN_LEAN_DTYPE record in its state
 and calls, in its own stages:
   `lowpass_rate_down`    the rate about the vertical, low-passed as the levelling's specific force is
+  `track_turn_speed`     beside it (mekf): the speed the turns show (`turn_speed_m_s`: it or the prior)
   `levelling_gain`       k = P/(P + R) of a levelling update, once per axis for the two pushes below
   `track_tilt_push`      at each accepted levelling update
   `track_accel_push`     at each accepted levelling update (mekf)
@@ -55,6 +57,9 @@ TURN_LEAN_DTYPE = np.dtype([
     ("lean_drift_e_rad", np.float64),     # levelling corrected it, forgotten with the sum (`track_lean_bias_drift`)
     ("rest_bias_recent_rad_s", np.float64, (3,)),  # the bias learnt at rest over the rest detector's lag
     ("was_at_rest", np.float64),          # 1 while the previous step was at rest
+    ("lateral_lp_m_s2", np.float64),      # specific force across the heading (to the right), low-passed as ω_D
+    ("speed_moment_m_s", np.float64),     # Σ lateral·ω_D·dt and Σ ω_D²·dt (rad²/s), forgotten over
+    ("speed_weight_rad2_s", np.float64),  # TURN_SPEED_MEMORY_S: the turn speed's regression (`track_turn_speed`)
 ])
 ACCEL_PUSH_MEMORY_S = 30.0
 """How long `track_accel_push` remembers the levelling's corrections, s: the longest sustained speed change whose
@@ -66,6 +71,46 @@ def lowpass_rate_down(u, k, rate_down_rad_s):
     """The rate about the vertical (the third row of C_b^n times the bias-corrected rate) low-passed with the
     weight `k` of the levelling's specific-force low-pass: the levelled vertical sees the turn through it."""
     u.rate_down_lp_rad_s += k * (rate_down_rad_s - u.rate_down_lp_rad_s)
+
+
+TURN_SPEED_MEMORY_S = 60.0
+"""How long `track_turn_speed` remembers the turns it saw, s: a turn's onset (small ω_D, little evidence of its
+own) uses the speed the turns of the last minute showed."""
+TURN_SPEED_EVIDENCE_RAD2_S = (2.0 * math.pi / 180.0) ** 2
+"""Σ ω_D²·dt (rad²/s) below which the turns seen tell no speed and the prior `turn_speed_m_s` stands alone: a
+second of turning at 2 °/s, where a tilt error of 0.5° (g·ε = 0.09 m/s² across the heading) reads as 2.5 m/s."""
+
+
+@njit(cache=True, inline="always")
+def track_turn_speed(u, k, dt, fn, fe, xn, xe):
+    """The vehicle's speed as its turns show it. In a turn at ω_D about the vertical a vehicle moving along its
+    heading at v feels the centripetal acceleration ω_D·v across its heading (to the right for ω_D > 0, NED), and
+    nothing else leans the specific force in step with the turn rate: the lateral specific force, low-passed with
+    the weight k of the rate about the vertical (`lowpass_rate_down`, so the two lag alike), is regressed on it
+    through the origin, v = Σ a ω dt / Σ ω² dt (forgotten over TURN_SPEED_MEMORY_S). A speed change (along the
+    heading) does not enter it; a tilt error or a sway that does not turn with ω_D averages out of the
+    numerator; the share of the lean the levelling has already taken is missing from the lateral force, so the
+    figure is low by that share. fn, fe: the specific force in the estimated NED frame, north and east, m/s²;
+    xn, xe: the body x axis in it (C_b^n's first column); below 60° of pitch only (the heading is then defined).
+    Call after `lowpass_rate_down` with the same k; dt: the step, s."""
+    h2 = xn * xn + xe * xe
+    if dt <= 0.0 or h2 < 0.25:
+        return
+    lateral = (xn * fe - xe * fn) / math.sqrt(h2)
+    u.lateral_lp_m_s2 += k * (lateral - u.lateral_lp_m_s2)
+    w = u.rate_down_lp_rad_s
+    keep = max(1.0 - dt / TURN_SPEED_MEMORY_S, 0.0)
+    u.speed_moment_m_s = u.speed_moment_m_s * keep + u.lateral_lp_m_s2 * w * dt
+    u.speed_weight_rad2_s = u.speed_weight_rad2_s * keep + w * w * dt
+
+
+@njit(cache=True, inline="always")
+def turn_speed_m_s(u, prior_m_s):
+    """The speed a turn's lean is reckoned at: the speed the turns showed (`track_turn_speed`), or the prior (the
+    filter's `turn_speed_m_s`) where that is larger or the turns seen are too few to tell."""
+    if u.speed_weight_rad2_s < TURN_SPEED_EVIDENCE_RAD2_S:
+        return prior_m_s
+    return max(prior_m_s, u.speed_moment_m_s / u.speed_weight_rad2_s)
 
 
 @njit(cache=True, inline="always")

@@ -12,7 +12,6 @@ import math
 import numpy as np
 import pytest
 
-from ahrsd.core.sample import SampleFlags, make_sample
 from ahrsd.estimator.mekf import Mekf
 from ahrsd.estimator.unturned_lean import (
     HOLD_S,
@@ -27,6 +26,7 @@ from ahrsd.estimator.unturned_lean import (
 )
 from bench.unaided_sigma import errors_rph
 from bench.vehicle_accuracy import simulate_vehicle
+from unaided_mekf import estimates_over
 
 G = 9.81
 DT = 0.005
@@ -141,15 +141,7 @@ def plane_speed_up():
     360° turn to 42 s, straight and level at 22 m/s, speeding up to 26 m/s over 50–58 s (peak 0.94 m/s²,
     5.5° of lean along the track), a climb entered at 60 s. Errors from 45 s, after the turn."""
     run = simulate_vehicle("plane", 70.0, 12, None, mag="calibrated")
-    est = Mekf(declination_rad=run.declination_rad)
-    n = len(run.t_s)
-    q = np.empty((n, 4))
-    sig = np.empty((n, 3))
-    for k in range(n):
-        e = est.update(make_sample(run.t_s[k], run.gyro_rad_s[k], run.accel_m_s2[k], run.mag_ut[k],
-                                   flags=SampleFlags.NEW_DATA))
-        q[k] = e.q_wxyz
-        sig[k] = e.sigma_rpy_rad
+    q, sig = estimates_over(run, Mekf(declination_rad=run.declination_rad))
     late = run.t_s >= 45.0
     err = errors_rph(q[late], run.truth_q_wxyz[late], run.declination_rad)
     return run.t_s[late], err, sig[late]
