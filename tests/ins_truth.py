@@ -175,6 +175,20 @@ def run_ins(est, run: Run, fixes, cov_every=0, fix_filter=None) -> Result:
     return Result(q_mag, q_true, flags, vel, lat, lon, h, cov, outcomes)
 
 
+def run_ins_with_yaw_sigma(est, run: Run, fixes) -> tuple[Result, np.ndarray]:
+    """`run_ins`, and the published yaw σ of every sample (rad)."""
+    sigma_yaw = []
+    real_update = est.update
+
+    def update(sample):
+        r = real_update(sample)
+        sigma_yaw.append(float(r.sigma_rpy_rad[2]))
+        return r
+
+    est.update = update
+    return run_ins(est, run, fixes), np.asarray(sigma_yaw)
+
+
 def attitude_error_ned(q_true_est, q_truth) -> np.ndarray:
     """δθ with C_true = (I + [δθ×]) C_est, rad (n, 3): NED rotation vector of C_true C_estᵀ."""
     return (rot(q_truth) * rot(q_true_est).inv()).as_rotvec()
