@@ -208,15 +208,23 @@ class IronLearner:
         h2 = b[0] * b[0] + b[1] * b[1]
         if h2 <= 0.0:
             return math.inf
+        a = self.level_heading_rows(b, _LEVEL_HEADINGS)
+        return float(np.max(np.einsum("ki,ij,kj->k", a, self.cov, a)))
+
+    def level_heading_rows(self, field_ned_ut, yaw_rad) -> np.ndarray:
+        """∂(magnetometer heading)/∂(b, D) of a level vehicle at each yaw (rad, true), one row of N_IRON a yaw:
+        `heading_variance`'s a at those attitudes (a · cov · aᵀ is the heading variance the learned iron leaves
+        there). The field must have a horizontal part."""
+        b = np.asarray(field_ned_ut, dtype=float)
+        h2 = b[0] * b[0] + b[1] * b[1]
         g = np.array([-b[1], b[0], 0.0]) / h2
-        c, s = np.cos(_LEVEL_HEADINGS), np.sin(_LEVEL_HEADINGS)
+        c, s = np.cos(yaw_rad), np.sin(yaw_rad)
         zero, one = np.zeros_like(c), np.ones_like(c)
         c_bn = np.stack([np.stack([c, -s, zero], -1), np.stack([s, c, zero], -1), np.stack([zero, zero, one], -1)], 1)
         # heading_variance for each c_bn at once: a = [w, w_i·(C_bnᵀ B)_j] with w = g C_bn (I + D)⁻¹
         w = np.einsum("j,kji->ki", g, c_bn) @ self.soft_iron_inverse
         field_body = np.einsum("kji,j->ki", c_bn, b)
-        a = np.concatenate([w, (w[:, :, None] * field_body[:, None, :]).reshape(len(c), 9)], axis=1)
-        return float(np.max(np.einsum("ki,ij,kj->k", a, self.cov, a)))
+        return np.concatenate([w, (w[:, :, None] * field_body[:, None, :]).reshape(len(c), 9)], axis=1)
 
 
 @dataclass

@@ -43,7 +43,7 @@ from .initial_attitude import initial_attitude
 from .kernel_entry import entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .mag_heading import RELEARN_GATE_OPEN_S
-from .mag_harmonics import prior_variances_rad2
+from .mag_harmonics import prior_from_heading_rows, prior_variances_rad2
 from .mag_heading_params import MagHeadingParams
 from .mag_rotation import MagRotationBias
 from .constrained_update import scalar_update
@@ -221,6 +221,18 @@ class InsParams(MagHeadingParams):
     iron's once per turn, the soft iron's twice), constant while the heading holds: its correlation is taken as
     lasting this change of heading, so its correlation time is this over the vertical rate (at least
     `iron_learned_tau_s`), rad. 0: a rejected magnetometer is not fused."""
+    iron_harmonic_states: bool = True
+    """Once the iron learning has ended (a learned or restored iron, the magnetometer used and not being learned,
+    the filter GNSS-aided), the heading error that iron leaves is carried as the five harmonic states
+    (mag_harmonics.py, with `mag_harmonic_states`), their prior the learner's covariance projected on them
+    (correlated, `mag_harmonics.prior_from_heading_rows`) at the WMM field: the error is a function of the
+    heading, constant while the heading holds, which only turns and the GNSS can learn. Fused as noise lasting
+    `iron_learned_tau_s`, a straight leg averaged it away and pulled the heading (and the vertical gyro bias) to
+    the learned magnetometer's (docs/gnss.md "A learned iron's error as states"). False: that noise, as before."""
+    iron_harmonic_residual_share: float = 1.0
+    """With `iron_harmonic_states`: the share of the learned magnetometer's floor (`_learned_floor_var`, what no
+    learned iron explains) still fused as noise lasting `iron_learned_tau_s`; the rest is added to the states'
+    prior, split as a calibration's (`mag_harmonic_offset_share`)."""
     iron_tau_s: float = 5.0
     """Correlation time of that unexplained error while the vehicle moves, s (the learner's noise is inflated
     by τ/Δt between fixes)."""
@@ -398,6 +410,8 @@ _TWO_PI = 2.0 * math.pi
 _MAX_QUEUED = 16
 HEADING_CHECKS_KEPT = 128   # the latest heading checks a reader can look at (`Ins.heading_checks`)
 _MAG_ROTATION_GATE = 9.0    # NIS above which a magnetometer-rotation bias measurement is not fused (3σ)
+# the yaws a learned iron's heading error is fitted on (Ins._iron_harmonics_prior): 16, as level_heading_variance's
+_IRON_HARMONIC_YAWS_RAD = np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False)
 _NAV_MASK = sum(1 << j for j in range(core.E_V, core.E_P + 3))   # velocity and position: no gain
 _PYTHON_CALLED_KERNELS_LOADED = False   # Ins._load_python_called_kernels has run in this process
 
@@ -473,6 +487,7 @@ class Ins:
         self._iron = IronLearner(self.params.iron_prior_sigma_ut, self.params.iron_soft_prior)
         self._iron_last_t = None
         self._iron_restored = False
+        self._mag_harmonics_source = None  # what the harmonic states carry: "calibration", "iron" or None (off)
         self._published = PublishedHeading(self.params.published_yaw_slew_rad_s)
         self._published_since_init = False
         self._last_fix_velocity = None
@@ -672,29 +687,63 @@ class Ins:
         return (p.mag_harmonic_states and p.mag_enabled and calibration_states_error(p.mag_calibration_sigma_rad)
                 and not self._calibration_untrusted and self._iron.updates == 0 and not self._iron_restored)
 
-    def _set_mag_harmonics(self) -> None:
-        """Tell the kernel whether the harmonic states carry the heading error, and what they leave as noise;
-        switched on (a learned iron reset) they start from their prior."""
+    @property
+    def _iron_harmonics_apply(self) -> bool:
+        """The learned iron's heading error is carried as the harmonic states (InsParams.iron_harmonic_states): an
+        iron learned or restored, its learning ended (the monitor neither learns nor rejects the magnetometer), the
+        filter GNSS-aided at a known WMM field (what the prior is projected at)."""
         p = self.params
-        on = self._mag_harmonics_apply
-        was_on = self._par["mag_harmonics_on"] > 0.0
-        self._par["mag_harmonics_on"] = 1.0 if on else 0.0
+        field = self._field_ned
+        return (p.iron_harmonic_states and p.mag_harmonic_states and p.mag_enabled and self._ever_aided
+                and (self._iron.updates > 0 or self._iron_restored) and not self._monitor.learning
+                and not self._monitor.mag_rejected and field is not None and field[0] ** 2 + field[1] ** 2 > 0.0)
+
+    def _set_mag_harmonics(self) -> None:
+        """Tell the kernel whether the harmonic states carry the heading error (the calibration's or the learned
+        iron's), and what they leave as noise; switched on, or to the other error, they start from its prior."""
+        p = self.params
+        source = "calibration" if self._mag_harmonics_apply else "iron" if self._iron_harmonics_apply else None
+        was = self._mag_harmonics_source
+        self._mag_harmonics_source = source
+        self._par["mag_harmonics_on"] = 0.0 if source is None else 1.0
         self._par["mag_harmonic_residual_var_rad2"] = p.mag_harmonic_residual_share * p.calibration_sigma_rad ** 2
-        if on and not was_on:
+        if source == "iron":
+            self._par["mag_harmonic_residual_var_rad2"] = p.iron_harmonic_residual_share * self._iron_floor_var()
+        if source is not None and source != was:
             self._restart_mag_harmonics()
 
+    def _iron_floor_var(self) -> float:
+        """`_learned_floor_var` at the WMM field (rad²)."""
+        field = self._field_ned
+        return self._learned_floor_var(float(field[0] ** 2 + field[1] ** 2))
+
     def _restart_mag_harmonics(self) -> None:
-        """The harmonic states back to zero with the calibration's prior, uncorrelated (at start-up, a new
-        calibration, a yaw reset); without them (`_set_mag_harmonics` off) zero, variance zero: they never move."""
+        """The harmonic states back to zero with their prior (at start-up, a new calibration, a yaw reset, the iron
+        learning ended): the calibration's, uncorrelated, or the learned iron's (`_iron_harmonics_prior`); without
+        them (`_set_mag_harmonics` off) zero, variance zero: they never move."""
         p = self.params
         self._x["mag_heading_error_rad"] = 0.0
         block = slice(core.E_MH, core.N_ERR)
         P = self._P
         P[block, :] = 0.0
         P[:, block] = 0.0
-        if self._par["mag_harmonics_on"] > 0.0:
+        if self._par["mag_harmonics_on"] > 0.0 and self._mag_harmonics_source == "iron":
+            P[block, block] = self._iron_harmonics_prior()
+        elif self._par["mag_harmonics_on"] > 0.0:
             var = prior_variances_rad2(p.calibration_sigma_rad, p.mag_harmonic_offset_share)
             P[block, block] = np.diag(var)
+
+    def _iron_harmonics_prior(self) -> np.ndarray:
+        """The harmonic states' prior for a learned iron (5×5, rad²): the learner's covariance projected on the
+        harmonics of the magnetic heading (`prior_from_heading_rows`, a level vehicle at the WMM field), plus the
+        part of the floor not fused as noise (`iron_harmonic_residual_share`), split as a calibration's."""
+        p = self.params
+        field = self._field_ned
+        yaw = _IRON_HARMONIC_YAWS_RAD
+        prior = prior_from_heading_rows(self._iron.level_heading_rows(field, yaw), yaw - self._declination,
+                                        self._iron.cov)
+        floor_sigma = math.sqrt(max(0.0, 1.0 - p.iron_harmonic_residual_share) * self._iron_floor_var())
+        return prior + np.diag(prior_variances_rad2(floor_sigma, p.mag_harmonic_offset_share))
 
     def _yaw_and_gnss_yaw_now(self) -> tuple[float, float, float]:
         """What the unconfirmed-yaw floor is computed from (`_unconfirmed_yaw_sigma`), now: the filter's yaw and
@@ -1000,6 +1049,7 @@ class Ins:
         if self.params.iron_learning and self._monitor.learning and np.all(np.isfinite(m_body)) \
                 and self._x["nav_ok"] > 0:
             self._learn_iron(t_s, c_bn, field)
+        self._set_mag_harmonics()      # the iron learning may have ended here (`_iron_harmonics_apply`)
         yaw_now = yaw if yaw_reset_to is None else wrap_pi(yaw_reset_to)
         self._note_step_rejection(t_s, d.mag_step_rad)
         self._publish_heading_checks(t_s, yaw_now, gsf_yaw, gsf_var, gsf_valid)

@@ -62,3 +62,17 @@ def prior_variances_rad2(calibration_sigma_rad: float, offset_share: float) -> n
     once = (1.0 - f0) * ONCE_PER_TURN_SHARE * var
     twice = (1.0 - f0) * (1.0 - ONCE_PER_TURN_SHARE) * var
     return np.array([f0 * var, once, once, twice, twice])
+
+
+def prior_from_heading_rows(rows: np.ndarray, psi_rad: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """The coefficients' covariance (5×5, rad²) of a heading error e(ψ) = a(ψ)·δx with δx ~ (0, cov): `rows`
+    holds a(ψ) at the magnetic headings `psi_rad` (one row a heading, evenly spread over the turn), fitted by least
+    squares onto the basis. A learned iron's error on a level vehicle is such a series (to first order in its
+    error: the hard iron's once per turn, the soft iron's constant and twice per turn, the module docstring), so
+    its coefficients are correlated as the learner's covariance says and their sum at any heading keeps
+    a(ψ) · cov · a(ψ)ᵀ."""
+    psi = np.asarray(psi_rad, dtype=float)
+    basis = np.stack([np.ones_like(psi), np.cos(psi), np.sin(psi), np.cos(2.0 * psi), np.sin(2.0 * psi)], axis=1)
+    coeffs = np.linalg.lstsq(basis, np.asarray(rows, dtype=float), rcond=None)[0]     # (5, len(δx))
+    prior = coeffs @ np.asarray(cov, dtype=float) @ coeffs.T
+    return 0.5 * (prior + prior.T)

@@ -140,8 +140,9 @@ class Result:
     outcomes: list           # update_gnss return values
 
 
-def run_ins(est, run: Run, fixes, cov_every=0, fix_filter=None) -> Result:
-    """Feed the samples one at a time, each fix once the IMU time passes its arrival time."""
+def run_ins(est, run: Run, fixes, cov_every=0, fix_filter=None, sigma_yaw_out=None) -> Result:
+    """Feed the samples one at a time, each fix once the IMU time passes its arrival time; `sigma_yaw_out` (a
+    list) gets each sample's published yaw σ (rad)."""
     samples = run.samples()
     n = len(run.truth.t_s)
     t = run.truth.t_s
@@ -162,6 +163,8 @@ def run_ins(est, run: Run, fixes, cov_every=0, fix_filter=None) -> Result:
                 outcomes.append(est.update_gnss(fix))
             fi += 1
         r = est.update(samples[k])
+        if sigma_yaw_out is not None:
+            sigma_yaw_out.append(float(r.sigma_rpy_rad[2]))
         q_mag[k] = r.q_wxyz
         q_true[k] = est.true_attitude_q_wxyz()
         flags[k] = int(r.flags)
@@ -173,6 +176,13 @@ def run_ins(est, run: Run, fixes, cov_every=0, fix_filter=None) -> Result:
         if cov_every and k % cov_every == 0:
             cov[k] = est.covariance
     return Result(q_mag, q_true, flags, vel, lat, lon, h, cov, outcomes)
+
+
+def run_ins_with_yaw_sigma(est, run: Run, fixes) -> tuple[Result, np.ndarray]:
+    """`run_ins`, and the published yaw σ of every sample (rad)."""
+    sigma_yaw = []
+    res = run_ins(est, run, fixes, sigma_yaw_out=sigma_yaw)
+    return res, np.asarray(sigma_yaw)
 
 
 def attitude_error_ned(q_true_est, q_truth) -> np.ndarray:

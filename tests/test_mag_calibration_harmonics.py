@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 import pytest
-from ins_truth import DECLINATION, gnss_fixes, rot, run_ins, simulated_run, tilt_heading_errors_deg
+from ins_truth import DECLINATION, gnss_fixes, rot, run_ins_with_yaw_sigma, simulated_run, tilt_heading_errors_deg
 from scipy.spatial.transform import Rotation
 
 from ahrsd.estimator.ins import Ins
@@ -51,16 +51,7 @@ def boat_with_calibration_error():
 
 def _heading_errors_and_sigma_deg(run, fixes, **params):
     ins = Ins(declination_rad=DECLINATION, mag_calibration_sigma_rad=STATED_SIGMA_RAD, **params)
-    sigma_yaw = []
-    real_update = ins.update
-
-    def update(sample):
-        est = real_update(sample)
-        sigma_yaw.append(float(est.sigma_rpy_rad[2]))
-        return est
-
-    ins.update = update
-    res = run_ins(ins, run, fixes)
+    res, sigma_yaw = run_ins_with_yaw_sigma(ins, run, fixes)
     _, heading = tilt_heading_errors_deg(res.q_mag, run.truth.q_wxyz)
     keep = run.truth.t_s - run.truth.t_s[0] >= SKIP_S
     return heading[keep], np.degrees(np.asarray(sigma_yaw))[keep]
