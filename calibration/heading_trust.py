@@ -59,6 +59,21 @@ def calibration_heading_sigma_rad(calibration) -> float:
     return NAN
 
 
+def calibration_frame_tilt_sigma_rad(calibration) -> float:
+    """The tilt of `calibration`'s magnetometer frame against the body, 1σ per axis, rad: the body-fixed tilt of
+    the levelling that fitted it (`metadata["mag"]["frame_tilt_std_deg"]`, written by `ahrsd calibrate mag` from
+    the fit's predicted heading: calibration/mag/levelling_error.frame_tilt_sigma_deg). 0 when the calibration
+    states none (levelled with the true attitude, a field session, older files): its frame is taken as the
+    body's. ins carries the tilt as two states with this prior (estimator/mag_frame_tilt.py)."""
+    if calibration is None:
+        return 0.0
+    meta = calibration.metadata.get("mag") if isinstance(calibration.metadata, dict) else None
+    if not isinstance(meta, dict):
+        return 0.0
+    tilt = _finite(meta.get("frame_tilt_std_deg"))
+    return math.radians(tilt) if math.isfinite(tilt) else 0.0
+
+
 def has_mag_calibration(calibration) -> bool:
     """Whether `calibration` holds a magnetometer calibration at all (a fitted or stated model), as opposed to
     none (no file, the identity, a gyro or accelerometer calibration alone). One that states no heading error

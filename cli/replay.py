@@ -465,14 +465,20 @@ def _load_calibration(args):
 
 
 def _told_calibration_sigma(name: str, calibration, params: dict) -> dict:
-    """The parameters with the heading error the calibration predicts (ins, mekf) and, for mekf, the accelerometer
-    bias it leaves, as the daemon tells them."""
+    """The parameters with the heading error the calibration predicts (ins, mekf), for ins its frame's tilt and,
+    for mekf, the accelerometer bias it leaves, as the daemon tells them."""
     if name in ("ins", "mekf") and "mag_calibration_sigma_rad" not in params:
         from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad
 
         # how far ins may trust this calibration's magnetometer, and the heading error a magnetometer-held heading's
         # published σ carries without GNSS (estimator/calibration_heading.py): as the daemon does (NaN: unknown)
         params = {**params, "mag_calibration_sigma_rad": calibration_heading_sigma_rad(calibration)}
+    if name == "ins" and "mag_calibration_frame_tilt_sigma_rad" not in params:
+        from ahrsd.calibration.heading_trust import calibration_frame_tilt_sigma_rad
+
+        # the calibration frame's tilt against the body (its levelling's): ins's frame-tilt states' prior, as the
+        # daemon tells it (0: none stated, the frame is the body's)
+        params = {**params, "mag_calibration_frame_tilt_sigma_rad": calibration_frame_tilt_sigma_rad(calibration)}
     if name == "mekf" and "accel_bias_sigma_m_s2" not in params:
         from ahrsd.calibration.accel_trust import calibration_accel_bias_sigma_m_s2
 

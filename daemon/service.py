@@ -49,7 +49,8 @@ from ahrsd.daemon.housekeeping import Every, HealthReport, Housekeeping
 from ahrsd.daemon.inbound import InboundDispatch
 from ahrsd.daemon.learned_iron import ACTION_PARAM as LEARNED_IRON_ACTION
 from ahrsd.daemon.learned_iron import CMD_LEARNED_IRON, LearnedIron
-from ahrsd.calibration.heading_trust import calibration_heading_sigma_rad, has_mag_calibration
+from ahrsd.calibration.heading_trust import (calibration_frame_tilt_sigma_rad, calibration_heading_sigma_rad,
+                                             has_mag_calibration)
 from ahrsd.calibration.accel_trust import calibration_accel_bias_sigma_m_s2
 from ahrsd.daemon.magcal import DaemonMagCalHost, FieldCalibrationPart, MagCalProtocol
 from ahrsd.daemon.magcal_settings import MagCalSettings
@@ -77,7 +78,8 @@ from ahrsd.daemon.broadcast_notice import BroadcastNotice
 from ahrsd.estimator import make_estimator
 from ahrsd.daemon.estimator_news import estimator_news_muted
 from ahrsd.estimator.base import (Estimator, FieldCircleCheckedEstimator, HeadingCheckedEstimator,
-                                  MagCalibrationAwareEstimator, AccelCalibrationAwareEstimator)
+                                  MagCalibrationAwareEstimator, AccelCalibrationAwareEstimator,
+                                  MagFrameTiltAwareEstimator)
 from ahrsd.estimator.warm_up import warm_up
 
 log = logging.getLogger(__name__)
@@ -438,12 +440,15 @@ class Service:
     def _tell_calibration(estimator: Estimator, calibration) -> float:
         """Tell the estimator what a calibration leaves (at start, and after every change): its predicted heading
         error (NaN: unknown; mekf and ins: without GNSS the published yaw σ carries it, and their heading checks
-        start again on it: estimator/calibration_heading.py), then the accelerometer bias (mekf: the published
-        tilt σ carries it, calibration/accel_trust.py). Returns that heading error, the one figure the heading
+        start again on it: estimator/calibration_heading.py), the tilt of its frame (ins's frame-tilt states'
+        prior, estimator/mag_frame_tilt.py), then the accelerometer bias (mekf: the published tilt σ carries it,
+        calibration/accel_trust.py). Returns that heading error, the one figure the heading
         status takes too (computed here only)."""
         mag_sigma_rad = calibration_heading_sigma_rad(calibration)
         if isinstance(estimator, MagCalibrationAwareEstimator):
             estimator.set_mag_calibration_sigma(mag_sigma_rad)
+        if isinstance(estimator, MagFrameTiltAwareEstimator):
+            estimator.set_mag_calibration_frame_tilt_sigma(calibration_frame_tilt_sigma_rad(calibration))
         if isinstance(estimator, AccelCalibrationAwareEstimator):
             estimator.set_accel_bias_sigma(calibration_accel_bias_sigma_m_s2(calibration))
         return mag_sigma_rad

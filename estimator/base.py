@@ -65,6 +65,15 @@ class MagCalibrationAwareEstimator(Protocol):
 
 
 @runtime_checkable
+class MagFrameTiltAwareEstimator(Protocol):
+    """An estimator told the tilt of its magnetometer calibration's frame against the body (1σ per axis, rad; 0: none
+    stated, the frame is the body's; calibration/heading_trust.calibration_frame_tilt_sigma_rad), at start and after
+    every calibration change, after `set_mag_calibration_sigma` (ins: estimator/mag_frame_tilt.py)."""
+
+    def set_mag_calibration_frame_tilt_sigma(self, sigma_rad: float) -> None: ...
+
+
+@runtime_checkable
 class AccelCalibrationAwareEstimator(Protocol):
     """An estimator whose published tilt σ carries the accelerometer bias its input still has (1σ per axis, m/s²;
     None: no accelerometer calibration, the chip's figure the estimator was built with; calibration/accel_trust.py),

@@ -43,6 +43,7 @@ from .initial_attitude import initial_attitude
 from .kernel_entry import entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .mag_heading import RELEARN_GATE_OPEN_S
+from .mag_frame_tilt import N_MAG_FRAME_TILT, accel_bias_share
 from .mag_harmonics import prior_from_heading_rows, prior_variances_rad2
 from .mag_heading_params import MagHeadingParams
 from .mag_rotation import MagRotationBias
@@ -185,6 +186,15 @@ class InsParams(MagHeadingParams):
     mag_harmonic_walk_rad_sqrt_s: float = 1e-5
     """Random walk of the harmonic coefficients, rad/√s: a calibration's error drifts with temperature and load
     only slowly (0.03° in an hour)."""
+    mag_calibration_frame_tilt_sigma_rad: float = 0.0
+    """1σ per axis of the tilt of the magnetometer calibration's frame against the body: its levelling's
+    body-fixed tilt, as the calibration states it (calibration/heading_trust.calibration_frame_tilt_sigma_rad; the
+    daemon and `ahrsd replay --calibration` pass it). With the harmonic states on, a calibration that states one has
+    the tilt carried as two filter states, ε about body x and y, with this prior (mag_frame_tilt.py); 0: the
+    calibration's frame is the body's (levelled with the true attitude), the states stay off."""
+    mag_frame_tilt_shares_accel_bias: bool = True
+    """The frame tilt's prior is correlated with the filter's accelerometer-bias error (mag_frame_tilt.accel_bias_share):
+    the calibration's levelling could not tell the same bias from tilt. False: independent of every other state."""
     gnss_yaw: bool = True
     """Run the magnetometer-free Gaussian-sum GNSS yaw (gsf_yaw.py) beside the filter: the heading monitor checks
     the magnetometer against it and resets the yaw to it."""
@@ -437,7 +447,7 @@ class Ins:
     `update(sample) -> AttitudeEstimate` with `nav=NavState` once a fix has set velocity and position;
     `update_gnss(fix) -> int` (core.R_* bits of what happened; never raises on bad input, counts it in
     `gnss_counters`); `reset()`, `set_declination(rad)`, `relearn_field_reference()`; read-only `covariance`
-    (29×29), `gyro_bias_rad_s`, `gyro_scale`, `gyro_misalignment_rad`, `accel_bias_m_s2`, `last_nis` (velocity,
+    (31×31), `gyro_bias_rad_s`, `gyro_scale`, `gyro_misalignment_rad`, `accel_bias_m_s2`, `last_nis` (velocity,
     position); `heading_checks`, the latest heading checks' decisions (heading_monitor.HeadingCheckRecord).
     """
 
@@ -673,6 +683,7 @@ class Ins:
         self._par["mag_bias_tau_s"] = p.mag_bias_tau
         self._set_mag_harmonics()
         self._restart_mag_harmonics()    # the new calibration's error, independent of the old one's
+        self._restart_mag_frame_tilt()
         self._set_accel_bias_learning()
         self._set_field_circle()
         if self._heading_checks_run:    # else the floor is none, or the one without magnetometer (no calibration's)
@@ -711,6 +722,49 @@ class Ins:
             self._par["mag_harmonic_residual_var_rad2"] = p.iron_harmonic_residual_share * self._iron_floor_var()
         if source is not None and source != was:
             self._restart_mag_harmonics()
+        self._set_mag_frame_tilt()
+
+    def _set_mag_frame_tilt(self) -> None:
+        """Tell the kernel whether the frame-tilt states carry the calibration frame's tilt (mag_frame_tilt.py):
+        with the harmonic states, when the calibration states a frame tilt; switched on they start from their
+        prior, switched off they are zero with zero variance."""
+        s = float(self.params.mag_calibration_frame_tilt_sigma_rad)
+        on = self._par["mag_harmonics_on"] > 0.0 and math.isfinite(s) and s > 0.0
+        was_on = self._par["mag_frame_tilt_on"] > 0.0
+        self._par["mag_frame_tilt_on"] = 1.0 if on else 0.0
+        if on != was_on:
+            self._restart_mag_frame_tilt()
+
+    def set_mag_calibration_frame_tilt_sigma(self, sigma_rad: float) -> None:
+        """The magnetometer calibration in force states its frame's tilt against the body, 1σ per axis, rad (0 or
+        NaN: none, its frame is the body's): the frame-tilt states start again from it. Told after
+        `set_mag_calibration_sigma` (which restarts them with the previous figure)."""
+        self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
+        s = float(sigma_rad)
+        self.params = replace(self.params,
+                              mag_calibration_frame_tilt_sigma_rad=s if math.isfinite(s) and s > 0.0 else 0.0)
+        self._set_mag_frame_tilt()
+        self._restart_mag_frame_tilt()
+
+    def _restart_mag_frame_tilt(self) -> None:
+        """The frame-tilt states back to zero with the calibration's prior (its stated tilt σ² per axis); off,
+        zero with zero variance: they never move. With `mag_frame_tilt_shares_accel_bias` the prior is the
+        frame-tilt prior of mag_frame_tilt.py: the tilt is partly the filter's own accelerometer-bias error."""
+        self._x["mag_frame_tilt_rad"] = 0.0
+        block = slice(core.E_MF, core.E_MF + N_MAG_FRAME_TILT)
+        P = self._P
+        P[block, :] = 0.0
+        P[:, block] = 0.0
+        if self._par["mag_frame_tilt_on"] > 0.0:
+            sigma = float(self.params.mag_calibration_frame_tilt_sigma_rad)
+            shares = self.params.mag_frame_tilt_shares_accel_bias
+            gain = accel_bias_share(sigma, np.diag(P)[core.E_BA:core.E_BA + 3]) if shares else np.zeros((2, 3))
+            bias = slice(core.E_BA, core.E_BA + 3)
+            cross = gain @ P[bias, :]        # ε = G δb_a + w: Cov(ε, δx) = G Cov(δb_a, δx)
+            P[block, :] = cross
+            P[:, block] = cross.T
+            shared = gain @ P[bias, bias] @ gain.T
+            P[block, block] = shared + np.diag(sigma ** 2 - np.diag(shared))    # w: the rest of σ² per axis
 
     def _iron_floor_var(self) -> float:
         """`_learned_floor_var` at the WMM field (rad²)."""
@@ -723,7 +777,7 @@ class Ins:
         them (`_set_mag_harmonics` off) zero, variance zero: they never move."""
         p = self.params
         self._x["mag_heading_error_rad"] = 0.0
-        block = slice(core.E_MH, core.N_ERR)
+        block = slice(core.E_MH, core.E_MF)
         P = self._P
         P[block, :] = 0.0
         P[:, block] = 0.0
@@ -801,8 +855,9 @@ class Ins:
 
     @property
     def covariance(self) -> np.ndarray:
-        """Error covariance 29×29 [δθ NED (rad), δv NED (m/s), δp NED (m), δb_g (rad/s), δb_a (m/s²), δs_g,
-        δm_g (xy, xz, yx, yz, zx, zy, rad), δe_m (the magnetometer heading error's c0, c1, s1, c2, s2, rad)]."""
+        """Error covariance 31×31 [δθ NED (rad), δv NED (m/s), δp NED (m), δb_g (rad/s), δb_a (m/s²), δs_g,
+        δm_g (xy, xz, yx, yz, zx, zy, rad), δe_m (the magnetometer heading error's c0, c1, s1, c2, s2, rad),
+        δε_m (the magnetometer calibration frame's tilt about body x, y, rad)]."""
         return self._P.copy()
 
     @property
@@ -1483,6 +1538,7 @@ class Ins:
         self._reset_velocity_to_fix()
         # the calibration's error estimated against the heading just found wrong starts again from its prior
         self._restart_mag_harmonics()
+        self._restart_mag_frame_tilt()
         self._mag_rotation.restart()      # its window started from the old heading
         self.yaw_resets += 1
         self.heading_interventions += 1
@@ -1649,6 +1705,7 @@ class Ins:
         for i in range(6):
             P[core.E_MG + i, core.E_MG + i] = p.init_gyro_misalignment_sigma_rad ** 2
         self._restart_mag_harmonics()
+        self._restart_mag_frame_tilt()
 
     def _restart_companions(self, t_s) -> None:
         """What runs beside the filter starts again with it: no queued fixes, the published heading follows the

@@ -1,11 +1,11 @@
-"""The `ins` estimator's compiled kernels (numba): NED strapdown mechanisation, 29-state error covariance,
+"""The `ins` estimator's compiled kernels (numba): NED strapdown mechanisation, 31-state error covariance,
 accelerometer levelling while unaided, magnetometer heading, and the delayed GNSS velocity/position fusion.
 
 `ins.py` owns the parameters, initialisation, input checks and the Estimator interface; this module is the
 arithmetic. The nominal state and its bookkeeping `x` is an INS_STATE_DTYPE record, the parameters `par` an
 INS_PARAMS_DTYPE record (numpy structured types: named fields that numba compiles to fixed offsets), `hist`
 a ring of INS_HISTORY_DTYPE records (past nominal states for fusing a fix at its time of validity), `P` the
-29×29 error covariance, `out` the per-step outputs (an INS_OUT_DTYPE record). The entry points (`ins_step`,
+31×31 error covariance, `out` the per-step outputs (an INS_OUT_DTYPE record). The entry points (`ins_step`,
 `fuse_gnss`) take the state and parameters (and `ins_step` the outputs) as 1-element arrays (an array unboxes
 cheaper than a record).
 
@@ -19,10 +19,11 @@ Error state δx (24, true − estimate), in this order:
   δs_g (15–17) gyro scale-factor error (ω_meas = (I + diag(s) + M) ω + b), fraction
   δm_g (18–23) gyro misalignment M's off-diagonal elements xy, xz, yx, yz, zx, zy (ω_j picks up m_jk ω_k), rad
   δe_m (24–28) the calibrated magnetometer's heading error harmonics c0, c1, s1, c2, s2 (mag_harmonics.py), rad
+  δε_m (29–30) the calibrated magnetometer's frame tilt about body x, y (mag_frame_tilt.py), rad
 Error dynamics (Groves 2nd ed. ch. 14; the ω_in^n × δθ, Coriolis and gravity-gradient couplings are
 below the ADIS16405's noise over the filter's time constants and are left out):
   δθ̇ = −C δb_g − C diag(ω) δs_g − C W(ω) δm_g + w_g,  δv̇ = −[f^n×] δθ − C δb_a + w_a,  δṗ = δv,  biases,
-  scale factors, misalignments and magnetometer harmonics random walks (W(ω): the 3×6 map of δm_g into δω). An uncalibrated 0.3 %
+  scale factors, misalignments and magnetometer harmonics random walks, the frame tilt constant (W(ω): the 3×6 map of δm_g into δω). An uncalibrated 0.3 %
   gyro scale error turns into 0.07 °/s of attitude drift in a 13 °/s turn, a 0.1° misalignment of the x or
   y gyro towards z into 0.02 °/s of tilt drift — in a long turn a lean the GNSS must keep correcting; with
   these states the GNSS learns both (the turn itself makes them observable).
@@ -68,6 +69,7 @@ from .kernel_flags import (
     input_validity,
     step_dt,
 )
+from .mag_frame_tilt import N_MAG_FRAME_TILT, frame_tilt_partials
 from .mag_harmonics import N_MAG_HARMONICS, harmonic_basis, heading_error_rad
 from .mag_rotation import rotation_vector_step
 from .kernel_rotations import dcm, euler_and_tilt_sigma, normalised, quat_mul, rotate_to_ned, rotvec_quat
@@ -82,7 +84,8 @@ from .turn_lean import (
 )
 
 E_TH, E_V, E_P, E_BG, E_BA, E_SG, E_MG, E_MH = 0, 3, 6, 9, 12, 15, 18, 24
-N_ERR = E_MH + N_MAG_HARMONICS
+E_MF = E_MH + N_MAG_HARMONICS
+N_ERR = E_MF + N_MAG_FRAME_TILT
 E_TILT_N, E_TILT_E, E_YAW = E_TH, E_TH + 1, E_TH + 2     # δθ_N, δθ_E, δθ_D (the yaw error about down)
 # (row j, column k) of each misalignment error component E_MG + n: δω_j = δm_jk ω_k
 MIS_ROW = (0, 0, 1, 1, 2, 2)
@@ -140,6 +143,8 @@ INS_STATE_DTYPE = np.dtype([
     ("mag", mag.MAG_HEADING_STATE_DTYPE),        # the magnetometer heading check
     # the calibrated magnetometer's heading error c0, c1, s1, c2, s2 (mag_harmonics.py; error states E_MH…)
     ("mag_heading_error_rad", np.float64, (N_MAG_HARMONICS,)),
+    # the calibrated magnetometer's frame tilt about body x, y (mag_frame_tilt.py; error states E_MF…)
+    ("mag_frame_tilt_rad", np.float64, (N_MAG_FRAME_TILT,)),
 ])
 
 # ----------------------------------------------------------------------------------- history ring buffer
@@ -183,6 +188,7 @@ INS_PARAMS_DTYPE = np.dtype([
     ("mag_harmonics_on", np.float64),            # 1.0: the heading error is the E_MH states (mag_harmonics.py)
     ("mag_harmonic_walk_rad_sqrt_s", np.float64),   # their random walk
     ("mag_harmonic_residual_var_rad2", np.float64),  # the part they leave, fused as mag_bias_var is without them
+    ("mag_frame_tilt_on", np.float64),           # 1.0: the calibration's frame tilt is the E_MF states (mag_frame_tilt.py)
     ("iron_ut", np.float64, (3,)),               # learned hard iron removed before use (body frame)
     ("iron_soft_inv", np.float64, (3, 3)),       # (I + D)⁻¹ of the learned soft iron, applied after the hard iron
     ("mag", mag.MAG_HEADING_PARAMS_DTYPE),       # the magnetometer heading check
@@ -242,6 +248,7 @@ M_GYRO_SCALE = 0b111 << E_SG
 M_GYRO_MIS = 0b111111 << E_MG
 M_NAV = 0b111111 << E_V
 M_MAG_HARMONICS = ((1 << N_MAG_HARMONICS) - 1) << E_MH
+M_MAG_FRAME_TILT = ((1 << N_MAG_FRAME_TILT) - 1) << E_MF
 NAV_UNKNOWN_VAR_V = 100.0    # (10 m/s)², velocity variance before a fix sets it
 NAV_UNKNOWN_VAR_P = 1e6      # (1 km)², position variance before a fix sets it
 
@@ -294,6 +301,8 @@ def _apply_correction(x, par, dx):
         x.gyro_misalignment_rad[i] = min(max(x.gyro_misalignment_rad[i] + dx[E_MG + i], -sc), sc)
     for i in range(N_MAG_HARMONICS):
         x.mag_heading_error_rad[i] += dx[E_MH + i]
+    for i in range(N_MAG_FRAME_TILT):
+        x.mag_frame_tilt_rad[i] += dx[E_MF + i]
     # the NED-frame low-passed specific force lives in the estimated NED frame: keep it there
     an = x.acc_ned_lp_m_s2[0]
     ae = x.acc_ned_lp_m_s2[1]
@@ -467,7 +476,8 @@ def _level(x, P, par, dt_epoch):
     r = (par.level_noise_m_s2 / g) ** 2
     # the lean this update carries into the tilt in a turn, for the published 1σ (turn_lean.py)
     track_tilt_push(x.turn_lean, par.turn_speed_m_s, g, levelling_gain(P[E_TILT_E, E_TILT_E], r))
-    mask = M_HEADING | M_ACC_BIAS | M_GYRO_BIAS | M_GYRO_SCALE | M_GYRO_MIS | M_MAG_HARMONICS   # tilt only
+    mask = (M_HEADING | M_ACC_BIAS | M_GYRO_BIAS | M_GYRO_SCALE | M_GYRO_MIS | M_MAG_HARMONICS
+            | M_MAG_FRAME_TILT)   # tilt only
     dx = np.zeros(N_ERR)
     h = np.zeros(N_ERR)
     h[1] = 1.0
@@ -570,6 +580,34 @@ def _harmonic_row_variance(P, h):
 
 
 @njit(cache=True)
+def _add_frame_tilt_to_row(x, par, h):
+    """With the frame-tilt states on: their entries in the heading row h (`frame_tilt_partials` of the row's
+    entries on the attitude, which must be in h already), and the field azimuth the estimated tilt turns (rad,
+    subtracted from the measured one); 0 otherwise."""
+    if par.mag_frame_tilt_on <= 0.0:
+        return 0.0
+    dx_, dy_ = frame_tilt_partials(h[E_TH], h[E_TH + 1], h[E_TH + 2], dcm(x.q[0], x.q[1], x.q[2], x.q[3]))
+    h[E_MF] = dx_
+    h[E_MF + 1] = dy_
+    return dx_ * x.mag_frame_tilt_rad[0] + dy_ * x.mag_frame_tilt_rad[1]
+
+
+@njit(cache=True)
+def _frame_tilt_row_variance(P, h):
+    """h P hᵀ's part that involves the frame-tilt states F, the other entries of h being those of
+    `_attitude_variance` and `_harmonic_row_variance`: Σ_{i∈F} h_i (2 (P h)_i − Σ_{j∈F} P_ij h_j), their block
+    once and their covariance with every other entry twice."""
+    v = 0.0
+    for i in range(E_MF, E_MF + N_MAG_FRAME_TILT):
+        whole = 0.0
+        for j in range(N_ERR):
+            whole += P[i, j] * h[j]
+        own = P[i, E_MF] * h[E_MF] + P[i, E_MF + 1] * h[E_MF + 1]
+        v += h[i] * (2.0 * whole - own)
+    return v
+
+
+@njit(cache=True)
 def _heading_error_var(par):
     """The heading error's variance the update treats as slowly varying noise (inflated by τ/Δt): the whole
     calibration's without the harmonic states, only what they leave with them."""
@@ -590,10 +628,10 @@ def _fuse_mag_heading(x, P, par, dt_epoch, h, alpha, r, moves_tilt):
         track_heading_push(x.turn_lean, x.mag.ref_dip_rad, P[E_YAW, E_YAW], r)
     held = 0 if moves_tilt else M_TILT
     if not _gnss_holds_tilt(x, par):
-        # the harmonic states learn only while the GNSS holds the tilt: levelled in turns, the tilt leans towards
+        # the harmonic states (and the frame tilt) learn only while the GNSS holds the tilt: levelled in turns, the tilt leans towards
         # the turn's centre, a lean that turns with the heading and so, through the dip, reads as a once-per-turn
         # heading error the states would take for the calibration's (they still count in the innovation's variance)
-        held |= M_MAG_HARMONICS
+        held |= M_MAG_HARMONICS | M_MAG_FRAME_TILT
     dx = np.zeros(N_ERR)
     scalar_update(P, h, alpha, r, held, dx)
     _apply_correction(x, par, dx)
@@ -617,6 +655,9 @@ def _mag_update(x, P, par, dt_epoch, rate):
         h, moves_tilt = _mag_heading_row(x, par, mn, me, md)
         predicted_error = _add_harmonics_to_row(x, par, h)
         heading_var = _attitude_variance(P, h) + _harmonic_row_variance(P, h) + _heading_error_var(par)
+        if par.mag_frame_tilt_on > 0.0:
+            predicted_error += _add_frame_tilt_to_row(x, par, h)
+            heading_var += _frame_tilt_row_variance(P, h)
         res, alpha, r = mag.heading_measurement(ms, mp, dt_epoch, rate, False, False, mn, me, md, mnorm,
                                                 par.declination_rad + predicted_error, heading_var)
         if res == mag.MAG_USE:

@@ -178,8 +178,10 @@ def nominal_difference(x_before, x_after, par) -> np.ndarray:
         dx[15 + i] = x_after["gyro_scale"][i] - x_before["gyro_scale"][i]
     for i in range(6):
         dx[18 + i] = x_after["gyro_misalignment_rad"][i] - x_before["gyro_misalignment_rad"][i]
-    for i in range(core.N_ERR - core.E_MH):
+    for i in range(core.E_MF - core.E_MH):
         dx[core.E_MH + i] = x_after["mag_heading_error_rad"][i] - x_before["mag_heading_error_rad"][i]
+    for i in range(core.N_ERR - core.E_MF):
+        dx[core.E_MF + i] = x_after["mag_frame_tilt_rad"][i] - x_before["mag_frame_tilt_rad"][i]
     return dx
 
 

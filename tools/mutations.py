@@ -339,4 +339,12 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("gnss-accuracy-positive", "a GNSS fix stating an accuracy <= 0 is rejected",
              "drivers/gnss/validation.py", "if bad_acc:", "if False:",
              ("tests/test_gnss_validation.py",)),
+    # ------------------------------------------------------------------ session 26 (frame26)
+    Mutation("frame-tilt-partial-sign", "the heading row's partials on the calibration frame's tilt are −h_θ·C e_k",
+             "estimator/mag_frame_tilt.py", "    return (-(h_n * c00 + h_e * c10 + h_d * c20),",
+             "    return ((h_n * c00 + h_e * c10 + h_d * c20),",
+             ("tests/test_mag_frame_tilt.py",)),
+    Mutation("frame-tilt-prior-shares-bias", "the frame tilt's prior is correlated with the accelerometer bias",
+             "estimator/ins.py", "cross = gain @ P[bias, :]", "cross = 0.0 * gain @ P[bias, :]",
+             ("tests/test_mag_frame_tilt.py",)),
 )

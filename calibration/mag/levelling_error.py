@@ -67,6 +67,23 @@ def accel_bias_heading_std_deg(accel_bias_sigma_m_s2: float, vertical_ut: float,
     return math.degrees(abs(vertical_ut) / horizontal * accel_bias_sigma_m_s2 / STANDARD_GRAVITY_M_S2)
 
 
+def frame_tilt_sigma_deg(levelling: dict | None) -> float | None:
+    """The per-axis 1σ (deg) of the body-fixed tilt a fit's levelling left in the calibration's frame, from its
+    predicted heading's `levelling` entry (backstepping._with_levelling_error): the aided levelling's stated tilt,
+    or the accelerometer's bias over g when it levelled the fit. None: not known (a given attitude taken as exact,
+    another method). ins carries that tilt as two states with this prior (estimator/mag_frame_tilt.py)."""
+    if not isinstance(levelling, dict):
+        return None
+    if "given_tilt_sigma_deg" in levelling:
+        value = levelling["given_tilt_sigma_deg"]
+    elif "accel_bias_sigma_m_s2" in levelling:
+        value = math.degrees(float(levelling["accel_bias_sigma_m_s2"]) / STANDARD_GRAVITY_M_S2)
+    else:
+        return None
+    value = float(value)
+    return value if math.isfinite(value) and value > 0.0 else None
+
+
 def body_fixed_tilt_sigma_rad(tilt_sigma_rad: np.ndarray) -> float:
     """The per-axis 1σ (rad) of the body-fixed tilt an estimator's levelling leaves, from its per-sample tilt 1σ
     √(σ_roll² + σ_pitch²) (rad; NaN where it had not started): the RMS over the samples, per axis (÷ √2). The
