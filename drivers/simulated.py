@@ -34,7 +34,13 @@ from .sim_clock import ChipClock, chip_clock
 
 log = logging.getLogger(__name__)
 
-BLOCK_SAMPLES = 256
+BLOCK_SAMPLES = 256                  # a block on a clock: computed ahead while the reader waits (sim_block_stream)
+# A free-running chip (clock=None: `ahrsd record --seconds`, tests) on a named scenario pulls its blocks when it
+# runs out: larger blocks share each block's fixed cost (the trajectory's attitude, the encoding) over more samples.
+# The simulation's samples do not depend on the block length (its random processes and the Bartlett filter's
+# history run on across blocks), so the chip's bytes are the same as with BLOCK_SAMPLES. A stream object or
+# factory given by the caller keeps BLOCK_SAMPLES: its values may change, or its noise be drawn, per block.
+FREE_RUNNING_BLOCK_SAMPLES = 2048
 SUPPLY_V = 5.0
 _PACK12 = struct.Struct(">12H").pack
 _ZERO2 = b"\x00\x00"
@@ -94,6 +100,8 @@ class SimulatedAdis16405:
         self._vt = 0.0
         self._closed = False
         self._open_blocks = self._block_stream_opener(scenario, seed, errors, producer, site, vehicle_iron)
+        self._block_samples = (FREE_RUNNING_BLOCK_SAMPLES if clock is None and isinstance(scenario, str)
+                               else BLOCK_SAMPLES)
         self._product_id = product_id
         self._regs = _default_registers()
         self._regs[R.PRODUCT_ID >> 1] = product_id
@@ -539,7 +547,7 @@ class SimulatedAdis16405:
 
     def _next_block(self) -> ChipBlock:
         """The stream's next block (on a real-time clock it was computed ahead: drivers.sim_block_stream)."""
-        blk = self._stream.next_block(BLOCK_SAMPLES)
+        blk = self._stream.next_block(self._block_samples)
         if self._stream.computed_elsewhere:
             # computed ahead in a producer process: a wait (its ring empty) is the producer short of CPU,
             # counted: the read waits with it and samples are lost that the real chip, computing in silicon,

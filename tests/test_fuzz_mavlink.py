@@ -23,6 +23,7 @@ run, so a failure replays). Longer runs from the command line, with a seed of yo
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import math
 import multiprocessing
@@ -151,22 +152,37 @@ def near_valid_command(draw, command_int: bool) -> dict:
     return {k: st.just(v) for k, v in fields.items()}
 
 
+@functools.cache
+def _payloads_of(name: str):
+    """The payload strategy of a message type with its OVERRIDES, built once."""
+    return message_payloads(CLASSES[name], OVERRIDES.get(name))
+
+
+# built once, not per example (hypothesis validates each new strategy object on its first draw)
+MESSAGE_NAME = st.one_of(st.sampled_from(HANDLED), st.sampled_from(HANDLED), st.sampled_from(HANDLED),
+                         st.sampled_from(HANDLED), st.sampled_from(OTHERS))
+SOURCE = st.sampled_from([(GCS_SYS, GCS_COMP), (GCS_SYS, GCS_COMP), (OUR_SYS, 1), (7, 1), (OUR_SYS, OUR_COMP)])
+SIGN_KIND_SIGNING = st.sampled_from(["unsigned", "key", "key", "other_key", "stale"])
+SIGN_KIND_UNSIGNED = st.sampled_from(["unsigned", "unsigned", "other_key"])
+LINK_ID = st.sampled_from([0, 1, 2, 255])
+
+
 @st.composite
 def hostile_frames(draw, signing: bool):
     """(message type, frame bytes, how it is signed) — a handled type 4 times in 5."""
-    name = draw(st.one_of(st.sampled_from(HANDLED), st.sampled_from(HANDLED), st.sampled_from(HANDLED),
-                          st.sampled_from(HANDLED), st.sampled_from(OTHERS)))
+    name = draw(MESSAGE_NAME)
     cls = CLASSES[name]
-    overrides = OVERRIDES.get(name)
     if name in ("COMMAND_LONG", "COMMAND_INT") and draw(st.booleans()):
-        overrides = {**overrides, **draw(near_valid_command(name == "COMMAND_INT"))}
-    _values, payload, cut = draw(message_payloads(cls, overrides))
-    src = draw(st.sampled_from([(GCS_SYS, GCS_COMP), (GCS_SYS, GCS_COMP), (OUR_SYS, 1), (7, 1), (OUR_SYS, OUR_COMP)]))
-    sign_kind = draw(st.sampled_from(["unsigned", "key", "key", "other_key", "stale"] if signing
-                                     else ["unsigned", "unsigned", "other_key"]))
+        overrides = {**OVERRIDES[name], **draw(near_valid_command(name == "COMMAND_INT"))}
+        payloads = message_payloads(cls, overrides)
+    else:
+        payloads = _payloads_of(name)
+    _values, payload, cut = draw(payloads)
+    src = draw(SOURCE)
+    sign_kind = draw(SIGN_KIND_SIGNING if signing else SIGN_KIND_UNSIGNED)
     sign = None
     if sign_kind != "unsigned":
-        link_id = draw(st.sampled_from([0, 1, 2, 255]))
+        link_id = draw(LINK_ID)
         now = int((time.time() - 1420070400) * 100_000)
         ts = {"stale": now - 10 * 60 * 100_000}.get(sign_kind, now + draw(st.integers(0, 1000)))
         sign = (OTHER_KEY if sign_kind == "other_key" else KEY, link_id, ts)

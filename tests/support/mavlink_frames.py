@@ -17,6 +17,7 @@ import math
 import struct
 from collections import Counter
 from dataclasses import dataclass
+from functools import cache
 
 from hypothesis import strategies as st
 
@@ -34,17 +35,23 @@ HOSTILE_FLOATS = (math.nan, math.inf, -math.inf, 0.0, -0.0, 1.0, -1.0, 1e38, -1e
                   -3.4028235e38, 1.4e-45, 2**31, -2**31 - 1.0, 16777217.0)
 
 
+# Each strategy below is built once per argument (functools.cache): hypothesis validates a new strategy object
+# and computes its label on its first draw, which was most of the fuzz tests' CPU when every example built its
+# own (docs/testing.md "Where the suite's CPU goes"). The values each one can draw are the same.
+@cache
 def int_values(ctype: str):
     lo, hi = INT_RANGES[ctype]
     return st.one_of(st.sampled_from(sorted({lo, hi, 0, 1, lo + 1, hi - 1, -1 if lo < 0 else 2})),
                      st.integers(lo, hi))
 
 
+@cache
 def float_values(ctype: str):
     width = 64 if ctype == "double" else 32
     return st.one_of(st.sampled_from(HOSTILE_FLOATS), st.floats(width=width))
 
 
+@cache
 def char_values(n: int):
     """char[n]: shorter (NUL-terminated on the wire), exactly n (no NUL), NULs inside, non-ASCII bytes."""
     return st.one_of(st.binary(max_size=n), st.binary(min_size=n, max_size=n).map(lambda b: b.replace(b"\0", b"A")),
@@ -52,6 +59,7 @@ def char_values(n: int):
                              max_size=n).map(str.encode))
 
 
+@cache
 def enum_values(enum_name: str, ctype: str):
     """An enum field: a defined value, the ENUM_END sentinel, or any value of the type."""
     defined = sorted(mavlink.enums.get(enum_name, {}))
@@ -68,18 +76,25 @@ class FieldDef:
     enum: str | None
 
 
-def message_fields(cls) -> list[FieldDef]:
+@cache
+def message_fields(cls) -> tuple[FieldDef, ...]:
     """The fields of a pymavlink message class in wire order (ordered_fieldnames; array_lengths follow it)."""
     out = []
     for name, n in zip(cls.ordered_fieldnames, cls.array_lengths):
         ctype = cls.fieldtypes[cls.fieldnames.index(name)]
         out.append(FieldDef(name, ctype, n, cls.fieldenums_by_name.get(name)))
-    return out
+    return tuple(out)
 
 
 def field_strategy(f: FieldDef, overrides: dict):
     if f.name in overrides:
         return overrides[f.name]
+    return _field_values(f)
+
+
+@cache
+def _field_values(f: FieldDef):
+    """The strategy of a field that is not overridden: its type's values (an array of them for an array)."""
     if f.ctype == "char":
         return char_values(max(1, f.array_length))
     if f.ctype in ("float", "double"):
@@ -137,13 +152,16 @@ class FrameLog:
         return "\n".join(lines)
 
 
+_PAYLOAD_FORM = st.sampled_from(["trimmed", "trimmed", "full", "cut"])
+
+
 @st.composite
 def message_payloads(draw, cls, overrides: dict | None = None):
     """(values by field name, payload bytes — full length or cut short) for message class `cls`."""
     overrides = overrides or {}
     values = {f.name: draw(field_strategy(f, overrides)) for f in message_fields(cls)}
     payload = encode_payload(cls, values)
-    how = draw(st.sampled_from(["trimmed", "trimmed", "full", "cut"]))
+    how = draw(_PAYLOAD_FORM)
     if how == "trimmed":                         # what a MAVLink 2 sender puts on the wire
         payload = payload.rstrip(b"\0") or payload[:1]
     elif how == "cut":                           # shorter still: later fields (extensions first) read as 0
