@@ -158,10 +158,20 @@ def run_session(client: Client, on_imu=None, timeout_s: float = 120.0):
             report = m
         elif on_imu is not None:
             on_imu(m)
-    texts = [m.text for m in client.of("STATUSTEXT", n)]
-    assert report is not None, texts
+    assert report is not None, [m.text for m in client.of("STATUSTEXT", n)]
+    if report.cal_status == mavlink.MAG_CAL_SUCCESS and not _said_accuracy(client.of("STATUSTEXT", n)):
+        # the session says its accuracy in the tick that ends it; the text may come after the report (the
+        # STATUSTEXT queue is paced), later still on a busy machine: wait for it rather than read too early
+        client.wait(lambda m: _said_accuracy([m]), ACCURACY_TEXT_WAIT_S)
     assert client.command(42425).result == mavlink.MAV_RESULT_ACCEPTED
-    return report, texts
+    return report, [m.text for m in client.of("STATUSTEXT", n)]
+
+
+ACCURACY_TEXT_WAIT_S = 30.0
+
+
+def _said_accuracy(msgs) -> bool:
+    return any(m.get_type() == "STATUSTEXT" and m.text.startswith("Mag cal: heading") for m in msgs)
 
 
 def offline_backstepping(tmp_path: Path, block, sel) -> MagModel:
