@@ -229,6 +229,11 @@ class MagCalProtocol:
         else:
             self.course_unusable += 1
 
+    @property
+    def fit_running(self) -> bool:
+        """A fit handed to the worker and not taken in yet (a tick takes it in once it is done)."""
+        return self._fit_future is not None
+
     # ------------------------------------------------------------------ periodic
     def tick(self) -> None:
         """Call at ≥ 4 Hz: collects finished fits, streams progress/report, watches for arming."""
