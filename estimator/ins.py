@@ -32,6 +32,7 @@ from ahrsd.core.sample import ImuSample
 from . import ins_core as core
 from . import mag_heading as mag
 from .accel_axes_heading import accel_axes_heading_variance_rad2
+from .accel_axes_tilt import accel_axes_tilt_variance_rad2
 from .base import DEFAULT_UNMODELLED_IRON_UT, LEARNED_WITH_GNSS
 from .calibration_heading import calibration_heading_variance_rad2, calibration_states_error
 from .gsf_yaw import GsfParams, gsf_fuse_velocity_of, gsf_output_of, gsf_reset, new_gsf_state
@@ -295,6 +296,10 @@ class InsParams(MagHeadingParams):
     """1σ of the accelerometer's x–y cross-axis misalignment, rad: a GNSS-aided heading is the accelerometer's
     axes' heading, off by that much (accel_axes_heading.py), and once GNSS has aided the published yaw σ carries
     it (ADIS16405-class factory alignment; the simulated sensor's 0.1°). 0: not carried."""
+    accel_axes_tilt_sigma_rad: float = 0.1 * _DEG
+    """1σ of each off-diagonal element of the accelerometer's misalignment, rad: ins's tilt is the accelerometer's
+    axes' tilt, off by m_yz (roll) and m_xz (pitch) when level (accel_axes_tilt.py), and the published roll and
+    pitch σ carry it (ADIS16405-class factory alignment; the simulated sensor's 0.1°). 0: not carried."""
     published_yaw_slew_rad_s: float = 2.0 * _DEG
     """The published yaw follows the filter's corrections at no more than this rate beyond the vehicle's own
     rotation: a yaw reset or a fast correction is slewed in, the published σ covering what is left
@@ -1767,6 +1772,12 @@ class Ins:
                 add_var = max(0.0, add_var - cal_var)
             sigma_yaw = math.sqrt(sigma_yaw ** 2 + add_var)
             o[_OUT_SIGMA_YAW] = sigma_yaw
+        if self.params.accel_axes_tilt_sigma_rad > 0.0:
+            # the tilt ins levels is the accelerometer axes' tilt: their misalignment is in it (accel_axes_tilt.py)
+            var_roll, var_pitch = accel_axes_tilt_variance_rad2(roll, pitch, self.params.accel_axes_tilt_sigma_rad)
+            sig_roll, sig_pitch = o[_OUT_SIGMA.start], o[_OUT_SIGMA.start + 1]
+            o[_OUT_SIGMA.start] = math.sqrt(sig_roll * sig_roll + var_roll)
+            o[_OUT_SIGMA.start + 1] = math.sqrt(sig_pitch * sig_pitch + var_pitch)
         if self._ever_aided and self._accel_axes_var_rad2 > 0.0:
             # a heading the GNSS has observed is the accelerometer axes' heading: their misalignment is in it
             sigma_yaw = math.sqrt(sigma_yaw * sigma_yaw + self._accel_axes_var_rad2)

@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 from ahrsd.core.estimate import EstimateFlags
 from ahrsd.core.sample import make_sample
 from ahrsd.estimator import ins_core as core
+from ahrsd.estimator.accel_axes_tilt import accel_axes_tilt_variance_rad2
 from ahrsd.estimator.ins import Ins
 
 from ins_truth import DECLINATION, gnss_fixes, rot, simulated_run
@@ -50,11 +51,14 @@ def test_every_output_field_is_the_state_it_names():
             # aided: with the accelerometer axes' heading term in quadrature (estimator/accel_axes_heading.py)
             sigma_yaw = math.hypot(math.sqrt(P[2, 2]), est.params.accel_axes_heading_sigma_rad)
             assert math.isclose(e.sigma_rpy_rad[2], sigma_yaw, rel_tol=1e-12)
-        # roll and pitch 1σ: the NED tilt covariance along the heading (the roll axis) and across it
+        # roll and pitch 1σ: the NED tilt covariance along the heading (the roll axis) and across it, with the
+        # accelerometer axes' tilt term in quadrature (estimator/accel_axes_tilt.py)
         along = np.array([math.cos(yaw_true), math.sin(yaw_true)])
         across = np.array([-math.sin(yaw_true), math.cos(yaw_true)])
-        assert math.isclose(e.sigma_rpy_rad[0], math.sqrt(along @ P[:2, :2] @ along), rel_tol=1e-9)
-        assert math.isclose(e.sigma_rpy_rad[1], math.sqrt(across @ P[:2, :2] @ across), rel_tol=1e-9)
+        axes_roll, axes_pitch = accel_axes_tilt_variance_rad2(roll, pitch, est.params.accel_axes_tilt_sigma_rad)
+        assert axes_roll > 0.0 and axes_pitch > 0.0
+        assert math.isclose(e.sigma_rpy_rad[0], math.sqrt(along @ P[:2, :2] @ along + axes_roll), rel_tol=1e-9)
+        assert math.isclose(e.sigma_rpy_rad[1], math.sqrt(across @ P[:2, :2] @ across + axes_pitch), rel_tol=1e-9)
         n = e.nav
         np.testing.assert_array_equal(n.vel_ned_m_s, x["vel_ned_m_s"])
         assert n.lat_deg == math.degrees(x["lat_rad"])

@@ -14,6 +14,7 @@ from ins_truth import DECLINATION, gnss_fixes, rot, simulated_run, tilt_heading_
 from ahrsd.core.estimate import EstimateFlags, HeadingState
 from ahrsd.core.sample import SampleFlags, make_sample
 from ahrsd.daemon.heading_status import HeadingStatus
+from ahrsd.estimator.accel_axes_tilt import accel_axes_tilt_variance_rad2
 from ahrsd.estimator.ins import Ins
 
 CLAIMED_SIGMA_RAD = math.radians(math.hypot(0.5, 0.2))   # the calibration's claim, as bench/calibration_change_ins.py
@@ -34,7 +35,7 @@ def _run(seed, seconds=75.0, fixes=()):
     sigma = np.zeros((n, 3))
     flags = np.zeros(n, dtype=np.int64)
     state = np.zeros(n, dtype=np.int64)
-    tilt_cov_sigma = np.zeros((n, 2))    # roll, pitch 1σ of the filter's own covariance (aided runs only)
+    tilt_cov_sigma = np.zeros((n, 2))    # roll, pitch 1σ of the filter's own covariance + axes term (aided only)
     estimates = []                       # every 20th estimate (10 Hz): what the daemon's housekeeping reads
     fi = 0
     for k in range(n):
@@ -53,12 +54,15 @@ def _run(seed, seconds=75.0, fixes=()):
             # (not where a fix was fused after the step: the covariance then is the fix's, the estimate's before)
             # roll and pitch variances of the NED tilt block rotated into the heading frame, computed here
             p = ins.covariance[:2, :2]
-            yaw = rot(ins.true_attitude_q_wxyz()).as_euler("ZYX")[0]
+            yaw, pitch, roll = rot(ins.true_attitude_q_wxyz()).as_euler("ZYX")
+            # with the accelerometer axes' term in quadrature (estimator/accel_axes_tilt.py)
+            axes_roll, axes_pitch = accel_axes_tilt_variance_rad2(roll, pitch, ins.params.accel_axes_tilt_sigma_rad)
             c, s = math.cos(yaw), math.sin(yaw)
             # roll is about the heading axis (c, s), pitch about the axis across it (−s, c)
             roll_axis = np.array([c, s])
             pitch_axis = np.array([-s, c])
-            tilt_cov_sigma[k] = (math.sqrt(roll_axis @ p @ roll_axis), math.sqrt(pitch_axis @ p @ pitch_axis))
+            tilt_cov_sigma[k] = (math.sqrt(roll_axis @ p @ roll_axis + axes_roll),
+                                 math.sqrt(pitch_axis @ p @ pitch_axis + axes_pitch))
     return run, q, sigma, flags, state, tilt_cov_sigma, estimates
 
 
@@ -104,7 +108,7 @@ def test_unaided_turns_stay_converged_and_magnetometer(unaided):
 
 def test_terms_off_with_gnss():
     """With GNSS velocity the lean is observed: from shortly after the first fix the published roll and pitch σ
-    are the filter covariance's own (computed here from `Ins.covariance`)."""
+    are the filter covariance's own (computed here from `Ins.covariance`) with the accelerometer axes' term."""
     run = simulated_run("level-turns", 20.0, rate_hz=200.0, seed=3)
     fixes = gnss_fixes(run.truth)
     run, _, sigma, _, _, cov_sigma, _ = _run(3, 20.0, fixes)

@@ -347,4 +347,13 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("frame-tilt-prior-shares-bias", "the frame tilt's prior is correlated with the accelerometer bias",
              "estimator/ins.py", "cross = gain @ P[bias, :]", "cross = 0.0 * gain @ P[bias, :]",
              ("tests/test_mag_frame_tilt.py",)),
+    # ------------------------------------------------------------------ session 26 (roll26)
+    Mutation("accel-axes-tilt-heel", "the tilt σ's accelerometer-axes term follows the heel (the levelling's partials)",
+             "estimator/accel_axes_tilt.py", "    return var_roll * s * s, var_pitch * s * s",
+             "    return s * s, s * s",
+             ("tests/test_accel_axes_tilt.py",)),
+    Mutation("accel-axes-tilt-published", "the published roll σ carries the accelerometer axes' term",
+             "estimator/ins.py", "o[_OUT_SIGMA.start] = math.sqrt(sig_roll * sig_roll + var_roll)",
+             "o[_OUT_SIGMA.start] = sig_roll",
+             ("tests/test_accel_axes_tilt.py", "tests/test_ins_outputs.py")),
 )

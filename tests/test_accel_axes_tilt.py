@@ -1,0 +1,95 @@
+"""ins's tilt is the accelerometer axes' tilt (estimator/accel_axes_tilt.py): the published roll and pitch σ carry
+the accelerometer's misalignment as a consider term, the estimate itself unchanged. The partials are checked
+against the levelling of a misaligned accelerometer computed here (scipy's rotation, finite differences) and
+against the worked heel figures; ins's published σ against the filter's σ plus the hand-computed term."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from ahrsd.core.sample import SampleFlags, make_sample
+from ahrsd.estimator.accel_axes_tilt import accel_axes_tilt_variance_rad2
+from ahrsd.estimator.ins import Ins
+
+G = 9.80665
+SIGMA_M_RAD = math.radians(0.1)          # InsParams.accel_axes_tilt_sigma_rad's default
+
+
+def _levelled(f):
+    """Roll and pitch that put gravity's specific force along f (the accelerometer's own levelling)."""
+    return math.atan2(-f[1], -f[2]), math.atan2(f[0], math.hypot(f[1], f[2]))
+
+
+def _finite_difference_variance(roll, pitch, sigma, h=1e-7):
+    f = Rotation.from_euler("ZYX", [0.3, pitch, roll]).inv().apply([0.0, 0.0, -G])   # at rest, body frame
+    r0, p0 = _levelled(f)
+    vr = vp = 0.0
+    for j in range(3):
+        for k in range(3):
+            if j == k:
+                continue
+            m = np.zeros((3, 3))
+            m[j, k] = h
+            r1, p1 = _levelled((np.eye(3) + m) @ f)
+            vr += ((r1 - r0) / h * sigma) ** 2
+            vp += ((p1 - p0) / h * sigma) ** 2
+    return vr, vp
+
+
+@pytest.mark.parametrize("roll_deg, pitch_deg", [(0, 0), (20, 0), (0, 15), (-25, 10), (40, -30), (5, 60)])
+def test_partials_are_the_misaligned_accelerometers_levelling(roll_deg, pitch_deg):
+    roll, pitch = math.radians(roll_deg), math.radians(pitch_deg)
+    vr, vp = accel_axes_tilt_variance_rad2(roll, pitch, SIGMA_M_RAD)
+    er, ep = _finite_difference_variance(roll, pitch, SIGMA_M_RAD)
+    assert vr == pytest.approx(er, rel=1e-5)
+    assert vp == pytest.approx(ep, rel=1e-5)
+
+
+def test_worked_heel():
+    s2 = SIGMA_M_RAD ** 2
+    phi = math.radians(20.0)
+    # heel φ, level pitch: roll error m_yz cos²φ − m_zy sin²φ; pitch error −m_xz cos φ − m_xy sin φ
+    vr, vp = accel_axes_tilt_variance_rad2(phi, 0.0, SIGMA_M_RAD)
+    assert vr == pytest.approx(s2 * (math.cos(phi) ** 4 + math.sin(phi) ** 4), rel=1e-12)
+    assert vp == pytest.approx(s2, rel=1e-12)
+    # level: σ_m on each
+    assert accel_axes_tilt_variance_rad2(0.0, 0.0, SIGMA_M_RAD) == pytest.approx((s2, s2), rel=1e-12)
+    assert accel_axes_tilt_variance_rad2(phi, 0.0, 0.0) == (0.0, 0.0)
+    assert accel_axes_tilt_variance_rad2(phi, 0.0, math.nan) == (0.0, 0.0)
+
+
+def _heeled_run(**params):
+    """A still, heeled ins (20° roll, 5° pitch), 30 s at 100 Hz: its last estimate."""
+    r = Rotation.from_euler("ZYX", [0.5, math.radians(5.0), math.radians(20.0)])    # body → NED
+    f_b = r.inv().apply([0.0, 0.0, -G])
+    m_b = r.inv().apply([20.0, 1.0, 45.0])
+    est = Ins(**params)
+    e = None
+    for i in range(3000):
+        e = est.update(make_sample(i * 0.01, np.zeros(3), f_b, m_b, flags=SampleFlags.NEW_DATA))
+    return e
+
+
+def test_ins_publishes_the_term_in_quadrature_and_the_same_estimate():
+    on = _heeled_run()
+    off = _heeled_run(accel_axes_tilt_sigma_rad=0.0)
+    # the estimate itself is the same to the bit: only the published σ changes
+    assert (on.roll_rad, on.pitch_rad, on.heading_true_rad) == (off.roll_rad, off.pitch_rad, off.heading_true_rad)
+    np.testing.assert_array_equal(on.q_wxyz, off.q_wxyz)
+    assert on.sigma_rpy_rad[2] == off.sigma_rpy_rad[2]
+    # by hand at the estimate's attitude (≈ 20° heel, 5° pitch: the first-order terms of the partials)
+    phi, th = on.roll_rad, on.pitch_rad
+    assert abs(phi - math.radians(20.0)) < math.radians(0.5)
+    cp, sp, cr, sr = math.cos(th), math.sin(th), math.cos(phi), math.sin(phi)
+    # roll: m_yx f_x, m_yz f_z through ∂φ/∂f_y = −cos φ / cos θ; m_zx f_x, m_zy f_y through ∂φ/∂f_z = sin φ / cos θ
+    var_roll = SIGMA_M_RAD ** 2 * ((cr / cp * sp) ** 2 + (cr / cp * cr * cp) ** 2
+                                   + (sr / cp * sp) ** 2 + (sr / cp * sr * cp) ** 2)
+    # pitch: ∂θ/∂f_x = cos θ (m_xy f_y, m_xz f_z), ∂θ/∂f_y = −sin θ sin φ (m_yx f_x, m_yz f_z),
+    # ∂θ/∂f_z = −sin θ cos φ (m_zx f_x, m_zy f_y)
+    var_pitch = SIGMA_M_RAD ** 2 * (cp ** 2 * cp ** 2 + (sp * sr) ** 2 * (sp ** 2 + (cr * cp) ** 2)
+                                    + (sp * cr) ** 2 * (sp ** 2 + (sr * cp) ** 2))
+    assert on.sigma_rpy_rad[0] ** 2 == pytest.approx(off.sigma_rpy_rad[0] ** 2 + var_roll, rel=1e-9)
+    assert on.sigma_rpy_rad[1] ** 2 == pytest.approx(off.sigma_rpy_rad[1] ** 2 + var_pitch, rel=1e-9)
+    assert on.sigma_rpy_rad[0] >= SIGMA_M_RAD * math.sqrt(cr ** 4 + sr ** 4) * 0.99
