@@ -687,8 +687,7 @@ class Ins:
         self._par["mag_bias_var_rad2"] = p.calibration_sigma_rad ** 2
         self._par["mag_bias_tau_s"] = p.mag_bias_tau
         self._set_mag_harmonics()
-        self._restart_mag_harmonics()    # the new calibration's error, independent of the old one's
-        self._restart_mag_frame_tilt()
+        self._restart_calibration_error_states()    # the new calibration's error, independent of the old one's
         self._set_accel_bias_learning()
         self._set_field_circle()
         if self._heading_checks_run:    # else the floor is none, or the one without magnetometer (no calibration's)
@@ -775,6 +774,12 @@ class Ins:
         """`_learned_floor_var` at the WMM field (rad²)."""
         field = self._field_ned
         return self._learned_floor_var(float(field[0] ** 2 + field[1] ** 2))
+
+    def _restart_calibration_error_states(self) -> None:
+        """The magnetometer's error states — the heading harmonics and the calibration frame's tilt — back to their
+        priors together (start-up, a new calibration, a yaw reset): both are estimated against the heading."""
+        self._restart_mag_harmonics()
+        self._restart_mag_frame_tilt()
 
     def _restart_mag_harmonics(self) -> None:
         """The harmonic states back to zero with their prior (at start-up, a new calibration, a yaw reset, the iron
@@ -1542,8 +1547,7 @@ class Ins:
             P[i, i] = var
         self._reset_velocity_to_fix()
         # the calibration's error estimated against the heading just found wrong starts again from its prior
-        self._restart_mag_harmonics()
-        self._restart_mag_frame_tilt()
+        self._restart_calibration_error_states()
         self._mag_rotation.restart()      # its window started from the old heading
         self.yaw_resets += 1
         self.heading_interventions += 1
@@ -1709,8 +1713,7 @@ class Ins:
             P[core.E_SG + i, core.E_SG + i] = p.init_gyro_scale_sigma ** 2
         for i in range(6):
             P[core.E_MG + i, core.E_MG + i] = p.init_gyro_misalignment_sigma_rad ** 2
-        self._restart_mag_harmonics()
-        self._restart_mag_frame_tilt()
+        self._restart_calibration_error_states()
 
     def _restart_companions(self, t_s) -> None:
         """What runs beside the filter starts again with it: no queued fixes, the published heading follows the
