@@ -207,7 +207,7 @@ MUTATIONS: tuple[Mutation, ...] = (
              ("tests/test_gnss_receiver_time.py",)),
     # ------------------------------------------------------------------ session 25 (mut25)
     Mutation("harmonics-restart-new-calibration", "a new calibration restarts the harmonic states from its prior",
-             "estimator/ins.py", "self._restart_mag_harmonics()    # the new calibration",
+             "estimator/ins.py", "self._restart_calibration_error_states()    # the new calibration",
              "None    # the new calibration",
              ("tests/test_mag_harmonics_new_calibration.py",)),
     Mutation("mag-pred-levelling-tilt", "calibrate mag --gnss adds the levelling tilt's tan(dip)·σ to its prediction",
