@@ -385,10 +385,12 @@ class MagCalClient:
             return "learned iron: not reported (an older ahrsd?)"
         if v[PARAM_NAMES[3]] <= NOT_LEARNING_SD:
             return "learned iron: none (the estimator learns none: run mekf or the GNSS-aided ins)"
+        if SOURCE_PARAM in v and v[SOURCE_PARAM] == 0:
+            # the daemon publishes source 0 until its estimator learned something; accept-learned would be refused
+            return ("learned iron: nothing learned yet (the GNSS-aided ins learns it while GNSS holds the heading, "
+                    "mekf in turns once it finds the calibration wrong)")
         x, y, z = (v[n] for n in PARAM_NAMES[:3])
         source = {code: name for name, code in SOURCE_CODES.items()}.get(int(v.get(SOURCE_PARAM, -1)))
-        if SOURCE_PARAM in v and v[SOURCE_PARAM] == 0:
-            source = "nothing learned yet"
         lines = [f"learned iron (body FRD, on top of the calibration): hard {x:+.2f} {y:+.2f} {z:+.2f} uT, "
                  f"1-sigma up to {v[PARAM_NAMES[3]]:.2f} uT"
                  + (f" (source: {source})" if source is not None else "")]

@@ -313,6 +313,15 @@ def test_magcal_status_shows_the_learned_iron_and_the_cli_has_its_actions():
     text = client.learned_iron_text()
     assert "hard +5.20 +3.00 +0.00 uT, 1-sigma up to 0.28 uT (source: turns, no GNSS)" in text, text
     assert "none learned" in text
+    # nothing learned yet (MAG_LRN_SRC 0, what the daemon publishes until the estimator learned something): said so,
+    # with no zero "hard iron" and no hint to accept what the daemon would refuse ("nothing learned yet", FAILED)
+    nothing = {n: 0.0 for n in none} | {"MAG_LRN_SD": 0.0, "MAG_LRN_SSD": -1.0, "MAG_LRN_S11": 1.0,
+                                        "MAG_LRN_S22": 1.0, "MAG_LRN_S33": 1.0, "MAG_LRN_SRC": 0.0}
+    client = MagCalClient(_FakeConn(nothing), timeout_s=0.5, out=io.StringIO())
+    client.sys, client.comp = 1, 200
+    text = client.learned_iron_text()
+    assert text.startswith("learned iron: nothing learned yet"), text
+    assert "accept-learned" not in text and "hard +" not in text, text
     for action in ("accept-learned", "reset-learned"):
         assert build_parser().parse_args(["magcal", action]).action == action
 
