@@ -170,6 +170,17 @@ def _open_checked_source(cfg, plan):
         except (OSError, ValueError) as exc:
             print(f"ahrsd run: error: cannot replay {_os_error_text(exc, cfg.sensor.replay_file)}", file=sys.stderr)
             return None
+    if cfg.gnss.source == "replay":
+        from ahrsd.drivers.gnss.recording import iter_gnss_fixes
+
+        fixes = iter_gnss_fixes(cfg.gnss.file)
+        try:   # the GNSS recording too: its header and first fix, as the daemon's backend reads them at its start
+            next(fixes, None)
+        except (OSError, ValueError) as exc:
+            print(f"ahrsd run: error: cannot replay the GNSS recording {exc}", file=sys.stderr)
+            return None
+        finally:
+            fixes.close()
     from ahrsd.cli.warm_up import compile_estimator
 
     try:   # said before a compile (first start only), not after it

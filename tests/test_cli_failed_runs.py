@@ -47,6 +47,23 @@ def test_run_replay_of_a_bad_header_fails_in_one_line(tmp_path):
     assert "ahrsd run: error: cannot replay" in r.stderr and "'t_s'" in r.stderr
 
 
+def test_run_replay_of_a_missing_or_bad_gnss_recording_fails_at_once_in_one_line(tmp_path):
+    """The GNSS recording beside the IMU one is checked as the IMU one is: before the state directory is used and
+    the ins compiles, one line, exit 1 (walk27: it failed after the compile and the start-up logs, as an ERROR log
+    line "ahrsd cannot start: missing.gnss.csv: cannot read: [Errno 2] No such file or directory: …")."""
+    rec = write_rows(tmp_path / "rec.csv", 100)
+    common = ("--no-log", "--status-line", "off", "--state-dir", tmp_path / "s", "--mavlink", "udpout:127.0.0.1:9")
+    r = ahrsd("run", "--replay", rec, "--gnss-replay", tmp_path / "missing.gnss.csv", *common)
+    assert r.returncode == 1
+    assert r.stderr.strip().splitlines() == [f"ahrsd run: error: cannot replay the GNSS recording "
+                                             f"{tmp_path / 'missing.gnss.csv'}: cannot read: No such file or directory"]
+    bad = tmp_path / "bad.gnss.csv"
+    bad.write_text("time,lat\n1,2\n")
+    r = ahrsd("run", "--replay", rec, "--gnss-replay", bad, *common)
+    assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert r.stderr.startswith("ahrsd run: error: cannot replay the GNSS recording") and "'time'" in r.stderr
+
+
 def test_run_replay_that_meets_a_bad_row_exits_non_zero_and_a_cut_one_replays_to_the_end(tmp_path, cut_file):
     bad = write_rows(tmp_path / "bad_row.csv", 1000, tail="0.3,1,2\n" + ROW.format(t=0.31))
     common = ("--no-log", "--status-line", "off", "--state-dir", tmp_path / "s", "--mavlink", "udpout:127.0.0.1:9",

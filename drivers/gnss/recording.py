@@ -126,7 +126,8 @@ def iter_gnss_fixes(path: str | os.PathLike, source: str = "recording") -> Itera
         f = _open_text(path, "r")
         header = f.readline()
     except (OSError, EOFError, UnicodeDecodeError) as exc:   # gzip.BadGzipFile is an OSError
-        raise GnssRecordingFormatError(f"{path}: cannot read: {exc}") from exc
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc   # not errno and path again
+        raise GnssRecordingFormatError(f"{path}: cannot read: {reason}") from exc
     with f:
         columns = read_gnss_header(header, path)
         index = {name: i for i, name in enumerate(columns)}
