@@ -125,5 +125,10 @@ class ParamProtocol:
             ok, reason = self.params.set(name, msg.param_value)
             if not ok:
                 self.outbound.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: {reason}")
+            elif self.params.specs[index].momentary:
+                # an action done: answered with the value written, as ground stations check a write by its answer
+                # (MAVProxy re-sends a write answered otherwise, repeating the action); it reads 0 again after
+                self.outbound.send(msgs.param_value(name, float(msg.param_value), index, len(self.params)))
+                return
         self.outbound.send(self._param_value(index))   # always answered, with the value in force
 

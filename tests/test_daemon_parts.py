@@ -283,6 +283,32 @@ def test_a_refused_parameter_write_says_its_whole_reason_and_answers_the_value_i
     assert value.param_value == 0.0
 
 
+def test_an_accepted_action_parameter_write_is_answered_with_the_value_written_then_reads_0():
+    """MAG_LRN_ACT = 2 (reset) done: the PARAM_VALUE answering the write carries 2, as a ground station checks its
+    write by the answer — MAVProxy 1.8 printed "Failed to set MAG_LRN_ACT to 2 (invalid returned value 0.0)" and sent
+    the write again, acting twice or three times (walk27) —; a read afterwards gives 0, the action done once."""
+    from ahrsd.daemon.params import ParamSpec
+
+    done = []
+    params = ParamStore([ParamSpec("MAG_LRN_ACT", 0, 0, 2, "action", integer=True, momentary=True)],
+                        on_change=lambda name, value: done.append((name, value)))
+    counters = ServiceCounters()
+    outbound = Outbound(Identity(1, 191, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), counters, clock=lambda: 0.0)
+    link = KeptLink()
+    outbound.endpoints.append(link)
+    proto = ParamProtocol(params, outbound, counters, signing_required=lambda: False, spawn=lambda coro: None)
+    write = as_if_from(mavlink.MAVLink_param_set_message(1, 191, b"MAG_LRN_ACT", 2.0,
+                                                         mavlink.MAV_PARAM_TYPE_REAL32), 255, 190)
+    proto.on_message(link, write, "PARAM_SET", broadcast=False)
+    assert done == [("MAG_LRN_ACT", 2.0)]
+    (value,) = [m for m in link.sent if m.get_type() == "PARAM_VALUE"]
+    assert value.param_value == 2.0
+    read = as_if_from(mavlink.MAVLink_param_request_read_message(1, 191, b"MAG_LRN_ACT", -1), 255, 190)
+    proto.on_message(link, read, "PARAM_REQUEST_READ", broadcast=False)
+    assert [m.param_value for m in link.sent if m.get_type() == "PARAM_VALUE"] == [2.0, 0.0]
+    assert params.get("MAG_LRN_ACT") == 0.0
+
+
 def _inbound(tmp_path, resolver, autopilot):
     params = ParamStore(param_specs(Config()), tmp_path)
     counters = ServiceCounters()
