@@ -83,6 +83,8 @@ PREFLIGHT_MAG_START = 1       # PREFLIGHT_CALIBRATION_MAGNETOMETER
 PREFLIGHT_MAG_FORCE_SAVE = 76
 COMPASS_ID = 0          # our single magnetometer
 OUR_MASK = 1 << COMPASS_ID
+FIXED_YAW_MAX_TURN_DEG = 2.0   # turn about the vertical within the averaging window above which a fixed yaw is refused:
+                               # the field's mean is half the turn away from the heading given for now
 FIXED_YAW_FIELD_MISMATCH_WARN_MGAUSS = 50.0   # the old model's |field| this far from the WMM's: soft iron may be stale
 
 SEV_ERROR, SEV_WARNING, SEV_NOTICE, SEV_INFO = 3, 4, 5, 6   # MAV_SEVERITY
@@ -192,8 +194,9 @@ class MagCalProtocol:
         now = sample.t_s
         self._last_sample_t = now
         q = self._recent_raw
-        # with the magnetometer model that calibrated it, so the raw field can be recovered later
-        q.append((now, sample.mag_ut, self.host.current_calibration().mag))
+        # with the magnetometer model that calibrated it, so the raw field can be recovered later, and the sample
+        # (its gyro and specific force tell a still vehicle: worked out only when a fixed yaw asks)
+        q.append((now, sample.mag_ut, self.host.current_calibration().mag, sample))
         while q and now - q[0][0] > self.settings.fixed_yaw_average_s:
             q.popleft()
         s = self.session
@@ -460,7 +463,26 @@ class MagCalProtocol:
         if self._last_estimate is None or not self._recent_raw:
             self.host.statustext(SEV_ERROR, "Mag: no attitude yet for fixed-yaw cal")
             return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+        turned_deg = self._turned_in_window_deg()
+        if turned_deg > FIXED_YAW_MAX_TURN_DEG:
+            self.host.statustext(SEV_NOTICE, f"Mag: turned {turned_deg:.0f} deg in the last "
+                                             f"{self.settings.fixed_yaw_average_s:g} s: hold it still on the known "
+                                             "heading for fixed-yaw cal")
+            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
         return None
+
+    def _turned_in_window_deg(self) -> float:
+        """|heading change| over the fixed-yaw averaging window, from the gyro about the vertical less the
+        estimator's gyro bias (an uncalibrated ADIS16405 may read up to 3 °/s still: data sheet)."""
+        bias = np.asarray(getattr(self._last_estimate, "gyro_bias_rad_s", np.zeros(3)), dtype=float)
+        if not np.all(np.isfinite(bias)):
+            bias = np.zeros(3)
+        if self._mounting is not None:
+            bias = self._mounting.T @ bias          # body axes -> sensor axes (the samples')
+        q = self._recent_raw
+        turned = sum((t1 - t0) * _rate_about_vertical_rad_s(sample, bias)
+                     for (t0, *_), (t1, _m, _c, sample) in zip(q, list(q)[1:]))
+        return abs(math.degrees(turned))
 
     def _fixed_yaw_hard_iron(self, yaw_deg: float, raw_mean, sensor, reference) -> int:
         """The calibration in force with the hard iron the known heading gives (soft iron kept), saved and swapped
@@ -494,7 +516,7 @@ class MagCalProtocol:
         (raw = W⁻¹·m + h), so a calibration swapped in meanwhile — a fixed-yaw request a moment ago — does
         not enter the result twice."""
         by_model: dict[int, tuple[Any, list]] = {}
-        for _t, mag_ut, model in self._recent_raw:
+        for _t, mag_ut, model, _sample in self._recent_raw:
             by_model.setdefault(id(model), (model, []))[1].append(mag_ut)
         total = np.zeros(3)
         for model, mags in by_model.values():
@@ -546,6 +568,17 @@ def _warm_up() -> None:
     import ahrsd.calibration.mag.ellipsoid  # noqa: F401
     import ahrsd.calibration.mag.fit  # noqa: F401
 
+
+
+def _rate_about_vertical_rad_s(sample, gyro_bias_rad_s: np.ndarray) -> float:
+    """The gyro's rate, less its bias, about the specific force's direction (the vertical at rest); 0 when either
+    is not finite."""
+    f = np.asarray(sample.accel_m_s2, dtype=float)
+    norm = float(np.linalg.norm(f))
+    if not math.isfinite(norm) or norm < 1.0:
+        return 0.0
+    rate = float(np.dot(np.asarray(sample.gyro_rad_s, dtype=float) - gyro_bias_rad_s, f) / norm)
+    return rate if math.isfinite(rate) else 0.0
 
 
 def _fixed_yaw_request(args: CommandArgs) -> tuple[float, float, float] | Refused:

@@ -258,6 +258,48 @@ def test_fixed_yaw_keeps_soft_iron_and_finds_the_true_hard_iron(tmp_path):
     assert np.allclose(saved.soft_iron, soft) and np.allclose(saved.hard_iron_ut, host.cal.mag.hard_iron_ut)
 
 
+def test_fixed_yaw_is_refused_while_the_vehicle_turns_and_taken_once_it_is_still(tmp_path):
+    """The known heading is the vehicle's now, the field is averaged over the last second: a vehicle turning at the
+    README tour boat's 6°/s would have its offset wrong by half the turn. Refused (TEMPORARILY_REJECTED, a
+    STATUSTEXT naming the turn) while the gyro saw more than 2° of turn about the vertical in that window — walk27
+    sent `ahrsd magcal fixed-yaw 100` to the turning tour boat and it was taken (ACCEPTED, "heading offset -73.7
+    deg") —; taken once the vehicle has been still for that window."""
+    host = FakeHost(tmp_path)
+    soft = np.linalg.inv(SOFT_DISTORTION)
+    host.cal = Calibration.identity().with_sensor("mag", MagModel(np.zeros(3), soft))
+    settings = MagCalSettings()
+    proto = MagCalProtocol(host, settings, clock=Clock(), fit_in_process=False)
+    rate_rad_s = np.radians(6.0)
+    t = np.arange(0.0, 2.0, 1.0 / 50.0)
+    level = np.zeros_like(t)
+    traj = trajectory(t, level, level, np.radians(30.0) + rate_rad_s * t)
+    estimate = SimpleNamespace(roll_rad=0.0, pitch_rad=0.0, yaw_rad=0.0, rate_body_rad_s=np.zeros(3))
+    for i in range(len(t)):      # level, turning right about body z (FRD) at 6°/s
+        proto.on_sample(make_sample(t[i], [0.0, 0.0, rate_rad_s], traj.accel[i], host.cal.mag.apply(traj.raw[i])),
+                        estimate)
+    assert proto.handle_fixed_yaw(cmd(CMD_FIXED_YAW, 42.0, 0, 0, 0)) == mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+    assert any("hold it still" in text and "turned 6" in text for text in host.texts()), host.texts()
+    assert np.array_equal(host.cal.mag.hard_iron_ut, np.zeros(3))          # nothing saved
+    t_still = t[-1] + np.arange(1, 60) / 50.0                              # then still at the last heading
+    still = trajectory(t_still, np.zeros_like(t_still), np.zeros_like(t_still),
+                       np.full_like(t_still, np.radians(30.0) + rate_rad_s * t[-1]))
+    for i in range(len(t_still)):
+        proto.on_sample(make_sample(t_still[i], np.zeros(3), still.accel[i], host.cal.mag.apply(still.raw[i])),
+                        estimate)
+    assert proto.handle_fixed_yaw(cmd(CMD_FIXED_YAW, 30.0 + np.degrees(rate_rad_s * t[-1]), 0, 0, 0)) \
+        == mavlink.MAV_RESULT_ACCEPTED
+    # still, with an uncalibrated gyro reading 3 °/s (the data sheet's worst turn-on bias) that the estimator has
+    # learned as its bias: taken
+    biased = MagCalProtocol(host, settings, clock=Clock(), fit_in_process=False)
+    knows_bias = SimpleNamespace(roll_rad=0.0, pitch_rad=0.0, yaw_rad=0.0, rate_body_rad_s=np.zeros(3),
+                                 gyro_bias_rad_s=np.array([0.0, 0.0, np.radians(3.0)]))
+    for i in range(len(t_still)):
+        biased.on_sample(make_sample(t_still[i], [0.0, 0.0, np.radians(3.0)], still.accel[i],
+                                     host.cal.mag.apply(still.raw[i])), knows_bias)
+    assert biased.handle_fixed_yaw(cmd(CMD_FIXED_YAW, 30.0 + np.degrees(rate_rad_s * t[-1]), 0, 0, 0)) \
+        == mavlink.MAV_RESULT_ACCEPTED
+
+
 def test_settings_from_mapping_validates():
     s = settings_from_mapping({"accept_broadcast": True, "fitness_mgauss": 3})
     assert s.accept_broadcast and s.fitness_mgauss == 3.0
