@@ -259,9 +259,9 @@ def test_fixed_yaw_keeps_soft_iron_and_finds_the_true_hard_iron(tmp_path):
 
 
 def test_fixed_yaw_is_refused_while_the_vehicle_turns_and_taken_once_it_is_still(tmp_path):
-    """The known heading is the vehicle's now, the field is averaged over the last second: a vehicle turning at the
-    README tour boat's 6°/s would have its offset wrong by half the turn. Refused (TEMPORARILY_REJECTED, a
-    STATUSTEXT naming the turn) while the gyro saw more than 2° of turn about the vertical in that window — walk27
+    """The known heading is the vehicle's now, the field is averaged over the last second: a vehicle turning at
+    6°/s (the README tour boat turns at 9 ± 4 °/s) would have its offset wrong by half the turn. Refused
+    (TEMPORARILY_REJECTED, a STATUSTEXT naming the turn) while the gyro saw more than 2° of turn about the vertical in that window — walk27
     sent `ahrsd magcal fixed-yaw 100` to the turning tour boat and it was taken (ACCEPTED, "heading offset -73.7
     deg") —; taken once the vehicle has been still for that window."""
     host = FakeHost(tmp_path)
