@@ -214,6 +214,8 @@ class SampleReader:
         """One tick of the polled reader (or a look when the source's descriptor became readable): poll,
         process, publish, schedule the next tick."""
         loop, source, out, done = self.loop, self.source, self.outputs, self.done
+        if done.done():           # a look queued before the reader stopped: its source may be closed already
+            return
         period = self._tick_period_s
         try:
             if not on_data:
@@ -263,6 +265,8 @@ class SampleReader:
 
     def _batch_retry(self) -> None:
         """After a failed poll and DRIVER_RETRY_S: the tick restarts from now."""
+        if self.done.done():      # stopped meanwhile (its source closed): nothing to re-register
+            return
         self._deadline = self.loop.time()
         if self._on_data:
             self.loop.add_reader(self.source.ready_fd, self._data_step)

@@ -143,7 +143,11 @@ def _child(sensor_cfg: SensorSettings, faults, conn, handover_at=None) -> None:
         while conn.recv() != "stop":
             pass
         src.close()                           # stop reading, then hand over the rest and the final counts
-        rest = handover.pending + src.poll()
+        try:
+            tail = src.poll()
+        except Exception:  # noqa: BLE001 - the sensor's failure, handed over already: at the stop only samples count
+            tail = []
+        rest = handover.pending + tail
         if rest:
             send_samples(conn, rest)
             handover.sent += len(rest)

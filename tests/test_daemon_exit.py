@@ -66,3 +66,37 @@ def test_a_failed_run_still_exits_non_zero_past_the_teardown(tmp_path):
     assert TEARDOWN not in r.stderr
     last = r.stderr.strip().splitlines()[-1]
     assert last.startswith("ahrsd run: error: the replay stopped early:") and "line 1002" in last
+
+
+def test_a_daemon_stopped_while_its_sensor_fails_stops_without_a_traceback(tmp_path):
+    """Ctrl-C (SIGINT) of a daemon whose sensor has failed — walk27: the shipped config on a computer with no
+    /dev/spidev0.0, and the same with the simulated chip gone (`--sim-faults bus_error@1-100`) — printed two
+    tracebacks after "ahrsd: stopping": the reader process's final drain re-raised the sensor's failure
+    ("Process ahrsd-sensor-reader: … SensorUnavailable"), and a retry armed by a look queued before the stop
+    re-registered the closed pipe ("Exception in callback SampleReader._batch_retry() … Bad file descriptor")."""
+    import os
+    import signal
+    import time
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ahrsd.cli", "run", "--sim-faults", "bus_error@1-100", "--status-line", "off",
+         "--state-dir", str(tmp_path / "state"), "--no-log", "--mavlink", "udpout:127.0.0.1:9"],
+        stderr=subprocess.PIPE, text=True)
+    lines: list[str] = []
+    try:
+        deadline = time.monotonic() + 240                  # a first compile included, at load 10
+        for line in proc.stderr:
+            lines.append(line)
+            if "sensor failure" in line or time.monotonic() > deadline:
+                break
+        assert any("sensor failure" in line for line in lines), "".join(lines[-20:])
+        time.sleep(1.0)                                    # the reader's retries (0.2 s) go on meanwhile
+        os.kill(proc.pid, signal.SIGINT)
+        _, rest = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    after = "".join(lines) + rest
+    assert "Traceback" not in after and "Exception in callback" not in after, after[-3000:]
+    assert proc.returncode == 0

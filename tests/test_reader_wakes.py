@@ -175,3 +175,31 @@ def test_after_the_last_block_the_tick_stands_in():
 
     _drive(reader, source, body)
     assert published[-1] >= 3                     # outputs after the block went on without samples
+
+
+def test_a_look_queued_before_the_reader_stopped_does_not_rearm_on_a_closed_source():
+    """Ctrl-C of a daemon whose sensor keeps failing (walk27: `ahrsd run` on the shipped config with no
+    /dev/spidev0.0): a look at the reader process's descriptor queued before the reader stopped ran after it, its
+    failed poll armed the retry, and the retry re-registered the closed descriptor: "Exception in callback
+    SampleReader._batch_retry() … OSError: [Errno 9] Bad file descriptor" after "stopping". A look after the stop
+    now does nothing."""
+    source, reader, _, _ = _rig(poll_hz=100.0)
+    errors: list[dict] = []
+
+    async def main():
+        loop = asyncio.get_running_loop()
+        loop.set_exception_handler(lambda _loop, context: errors.append(context))
+        task = loop.create_task(reader.run(loop))
+        await asyncio.sleep(0.05)
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        source.fail_next = 10                       # the sensor is still failing
+        os.close(source.ready_fd)                   # the service closes the source at its stop
+        reader._data_step()                         # the look that was already queued
+        await asyncio.sleep(0.5)                    # past the retry (0.2 s)
+
+    try:
+        asyncio.run(asyncio.wait_for(main(), 3.0))
+    finally:
+        os.close(source._w)
+    assert errors == [], errors
