@@ -181,6 +181,14 @@ def _open_checked_source(cfg, plan):
             return None
         finally:
             fixes.close()
+    if cfg.signing.key_file:
+        from ahrsd.daemon.signing import SigningKeyError, load_key
+
+        try:   # the daemon loads it at its start: a key it cannot use fails here, before a compile
+            load_key(cfg.signing.key_file)
+        except SigningKeyError as exc:
+            print(f"ahrsd run: error: {exc}", file=sys.stderr)
+            return None
     from ahrsd.cli.warm_up import compile_estimator
 
     try:   # said before a compile (first start only), not after it

@@ -64,6 +64,24 @@ def test_run_replay_of_a_missing_or_bad_gnss_recording_fails_at_once_in_one_line
     assert r.stderr.startswith("ahrsd run: error: cannot replay the GNSS recording") and "'time'" in r.stderr
 
 
+def test_run_with_a_signing_key_it_cannot_read_fails_at_once_in_one_line(tmp_path):
+    """[signing] key_file missing or malformed: one line, exit 1, before the compile (walk27: it failed after the
+    compile and the start-up logs, as an ERROR log line "ahrsd cannot start: signing.key_file …"; on a Raspberry
+    Pi a first compile takes minutes)."""
+    rec = write_rows(tmp_path / "rec.csv", 100)
+    for key, why in ((tmp_path / "missing.key", "cannot read (No such file or directory)"),
+                     (tmp_path / "short.key", "expected 32 raw bytes or 64 hex characters")):
+        if key.name == "short.key":
+            key.write_text("abcd\n")
+        cfg = tmp_path / f"{key.stem}.toml"
+        cfg.write_text(f'[signing]\nkey_file = "{key}"\n')
+        r = ahrsd("run", "--config", cfg, "--replay", rec, "--no-log", "--status-line", "off",
+                  "--state-dir", tmp_path / "s", "--mavlink", "udpout:127.0.0.1:9")
+        assert r.returncode == 1
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith(f"ahrsd run: error: signing.key_file {key}: {why}"), r.stderr
+
+
 def test_run_replay_that_meets_a_bad_row_exits_non_zero_and_a_cut_one_replays_to_the_end(tmp_path, cut_file):
     bad = write_rows(tmp_path / "bad_row.csv", 1000, tail="0.3,1,2\n" + ROW.format(t=0.31))
     common = ("--no-log", "--status-line", "off", "--state-dir", tmp_path / "s", "--mavlink", "udpout:127.0.0.1:9",
