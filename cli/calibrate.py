@@ -604,6 +604,7 @@ def _mag(args) -> int:
     """`calibrate mag`: the options, the inputs, one call of the calibration procedure
     (calibration/mag/procedure.py: fit, alignment, swing, GNSS levelling), the report and the figure."""
     import datetime as dt
+    import os
 
     from ahrsd.calibration.mag import procedure
     from ahrsd.core.wmm import earth_field
@@ -620,6 +621,8 @@ def _mag(args) -> int:
         date = dt.date.fromisoformat(args.date) if args.date else None
     except ValueError as exc:
         raise _Usage(str(exc)) from None
+    if not os.path.exists(args.recording):          # said first: the site's questions wait for a recording
+        raise _Fail(f"{args.recording}: no such file")
     site = _given_mag_site(args)
     ref = reference_field(site) if site else None     # a bad --lat/--lon fails before the files are read
     _check_mag_options(args)

@@ -153,3 +153,14 @@ def test_a_broken_config_and_a_missing_recording_fail_with_the_commands_error_pr
     assert capsys.readouterr().err.startswith(f"ahrsd run: error: config file {broken} is not valid TOML")
     assert cli.main(["calibrate", "gyro", str(tmp_path / "missing.csv"), "--state-dir", str(tmp_path / "s")]) == 1
     assert capsys.readouterr().err.startswith("ahrsd calibrate gyro: error: ")
+
+
+def test_calibrate_mag_of_a_missing_file_says_so_first(tmp_path, capsys):
+    """Without --lat/--lon and with no remembered position, a missing recording was met with the usage error about
+    the calibration site (exit 2) — fix that, and the next run said the file is missing (walk26, walk27). The file
+    comes first, as for `calibrate gyro` and `replay`."""
+    code = cli.main(["calibrate", "mag", str(tmp_path / "missing.csv"), "--state-dir", str(tmp_path / "s"),
+                     "--dry-run"])
+    err = capsys.readouterr().err
+    assert code == 1, err
+    assert err.strip() == f"ahrsd calibrate mag: error: {tmp_path / 'missing.csv'}: no such file"
