@@ -256,26 +256,37 @@ def test_a_broadcast_parameter_request_for_a_name_we_lack_is_not_ours_to_refuse(
     assert params.rejected_reads == 1 and params.rejected_writes == 1
 
 
+def _action_param_rig(on_change):
+    """(params, link, protocol) for one momentary action parameter, MAG_LRN_ACT, whose write calls on_change."""
+    from ahrsd.daemon.params import ParamSpec
+
+    params = ParamStore([ParamSpec("MAG_LRN_ACT", 0, 0, 2, "action", integer=True, momentary=True)],
+                        on_change=on_change)
+    counters = ServiceCounters()
+    outbound = Outbound(Identity(1, 191, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), counters, clock=lambda: 0.0)
+    link = KeptLink()
+    outbound.endpoints.append(link)
+    return params, link, ParamProtocol(params, outbound, counters, signing_required=lambda: False,
+                                       spawn=lambda coro: None)
+
+
+def _action_param_write(value: float):
+    return as_if_from(mavlink.MAVLink_param_set_message(1, 191, b"MAG_LRN_ACT", value,
+                                                        mavlink.MAV_PARAM_TYPE_REAL32), 255, 190)
+
+
 def test_a_refused_parameter_write_says_its_whole_reason_and_answers_the_value_in_force():
     """The reason a change is refused (the part's ParamError) reaches the operator whole, however long: it used to
     be cut at 50 bytes ("ahrsd: MAG_LRN_ACT 1: Disarm to change the learn")."""
-    from ahrsd.daemon.params import ParamError, ParamSpec
+    from ahrsd.daemon.params import ParamError
 
     reason = "MAG_LRN_ACT 1: Disarm to change the learned iron"
 
     def refuse(name, value):
         raise ParamError(reason)
 
-    params = ParamStore([ParamSpec("MAG_LRN_ACT", 0, 0, 2, "action", integer=True, momentary=True)],
-                        on_change=refuse)
-    counters = ServiceCounters()
-    outbound = Outbound(Identity(1, 191, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), counters, clock=lambda: 0.0)
-    link = KeptLink()
-    outbound.endpoints.append(link)
-    proto = ParamProtocol(params, outbound, counters, signing_required=lambda: False, spawn=lambda coro: None)
-    write = as_if_from(mavlink.MAVLink_param_set_message(1, 191, b"MAG_LRN_ACT", 1.0,
-                                                         mavlink.MAV_PARAM_TYPE_REAL32), 255, 190)
-    proto.on_message(link, write, "PARAM_SET", broadcast=False)
+    _, link, proto = _action_param_rig(refuse)
+    proto.on_message(link, _action_param_write(1.0), "PARAM_SET", broadcast=False)
     texts = [m for m in link.sent if m.get_type() == "STATUSTEXT"]
     assert "".join(m.text.decode() if isinstance(m.text, bytes) else m.text for m in texts) == f"ahrsd: {reason}"
     assert len({m.id for m in texts}) == 1 and texts[0].id != 0
@@ -287,19 +298,9 @@ def test_an_accepted_action_parameter_write_is_answered_with_the_value_written_t
     """MAG_LRN_ACT = 2 (reset) done: the PARAM_VALUE answering the write carries 2, as a ground station checks its
     write by the answer — MAVProxy 1.8 printed "Failed to set MAG_LRN_ACT to 2 (invalid returned value 0.0)" and sent
     the write again, acting twice or three times (walk27) —; a read afterwards gives 0, the action done once."""
-    from ahrsd.daemon.params import ParamSpec
-
     done = []
-    params = ParamStore([ParamSpec("MAG_LRN_ACT", 0, 0, 2, "action", integer=True, momentary=True)],
-                        on_change=lambda name, value: done.append((name, value)))
-    counters = ServiceCounters()
-    outbound = Outbound(Identity(1, 191, mavlink.MAV_TYPE_ONBOARD_CONTROLLER), counters, clock=lambda: 0.0)
-    link = KeptLink()
-    outbound.endpoints.append(link)
-    proto = ParamProtocol(params, outbound, counters, signing_required=lambda: False, spawn=lambda coro: None)
-    write = as_if_from(mavlink.MAVLink_param_set_message(1, 191, b"MAG_LRN_ACT", 2.0,
-                                                         mavlink.MAV_PARAM_TYPE_REAL32), 255, 190)
-    proto.on_message(link, write, "PARAM_SET", broadcast=False)
+    params, link, proto = _action_param_rig(lambda name, value: done.append((name, value)))
+    proto.on_message(link, _action_param_write(2.0), "PARAM_SET", broadcast=False)
     assert done == [("MAG_LRN_ACT", 2.0)]
     (value,) = [m for m in link.sent if m.get_type() == "PARAM_VALUE"]
     assert value.param_value == 2.0
