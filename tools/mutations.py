@@ -356,4 +356,11 @@ MUTATIONS: tuple[Mutation, ...] = (
              "estimator/ins.py", "o[_OUT_SIGMA.start] = math.sqrt(sig_roll * sig_roll + var_roll)",
              "o[_OUT_SIGMA.start] = sig_roll",
              ("tests/test_accel_axes_tilt.py", "tests/test_ins_outputs.py")),
+    # ------------------------------------------------------------------ session 27 (walk27)
+    Mutation("fixed-yaw-held-still", "a fixed yaw is refused while the vehicle turned more than 2° in the window",
+             "daemon/magcal.py", "if turned_deg > FIXED_YAW_MAX_TURN_DEG:", "if False:",
+             ("tests/test_magcal_protocol.py",)),
+    Mutation("action-param-answer-written", "a momentary parameter's write that was done is answered with its value",
+             "daemon/param_protocol.py", "elif self.params.specs[index].momentary:", "elif False:",
+             ("tests/test_daemon_parts.py",)),
 )
