@@ -7,7 +7,7 @@ for operators without a ground station.
     ahrsd magcal start                 # turn the vehicle, watch the bar, accept at the prompt (or --accept)
     ahrsd magcal status                # what is the daemon doing
     ahrsd magcal accept | cancel
-    ahrsd magcal accept-learned        # fold the iron the aided filter learned into the calibration
+    ahrsd magcal accept-learned        # fold the iron the estimator learned into the calibration
     ahrsd magcal reset-learned         # forget the learned iron
     ahrsd magcal fixed-yaw 123.5       # the vehicle points at 123.5° TRUE: offsets from WMM, soft iron kept
 
@@ -83,8 +83,8 @@ def register(subparsers) -> None:
     s.add_argument("--max-time", type=_number_arg(0.0, above=True), default=600.0, metavar="S", help="give up following after S seconds")
     sub.add_parser("accept", help="accept (save and apply) a successful result")
     sub.add_parser("cancel", help="cancel the running calibration")
-    sub.add_parser("accept-learned", help="accept the iron the GNSS-aided filter learned into the calibration")
-    sub.add_parser("reset-learned", help="forget the iron the GNSS-aided filter learned")
+    sub.add_parser("accept-learned", help="accept the iron the estimator learned (GNSS-aided ins, or mekf in turns) into the calibration")
+    sub.add_parser("reset-learned", help="forget the iron the estimator learned")
     st = sub.add_parser("status", help="print progress or the last report, and the learned iron")
     st.add_argument("--seconds", type=_number_arg(0.0, above=True), default=3.0, help="how long to listen (default 3)")
     fy = sub.add_parser("fixed-yaw", help="calibrate offsets from a known TRUE heading (WMM field, soft iron kept)")
