@@ -45,3 +45,52 @@ def test_the_truth_heading_aid_pulls_the_heading_to_the_truth(runs):
     assert beyond == 0.0
     for row in ROWS:
         assert runs[row][2] < 0.01, row
+
+
+def test_the_oracle_iron_learner_is_fed_the_simulators_attitude():
+    # bench/heading_split.py "iron at true attitude": each learning step gets the truth at the filter's latest
+    # sample, not the attitude it was called with (the filter's); the truth here is scipy's, from the run's quaternion
+    from scipy.spatial.transform import Rotation
+
+    from ahrsd.estimator.ins import Ins
+    from bench.heading_split import learn_iron_at_truth
+    from bench.vehicle_accuracy import estimates_in_arrival_order, honesty_site, simulate_vehicle
+
+    site, iron = honesty_site(TROMSO)
+    run = simulate_vehicle("boat", 5.0, 12, site, mag="uncalibrated", iron=iron)
+    est = Ins(declination_rad=run.declination_rad, mag_calibration_sigma_rad=run.mag_calibration_sigma_rad)
+    for _ in zip(range(700), estimates_in_arrival_order(est, run, run.fixes)):
+        pass
+    learn_iron_at_truth(est, run)
+    seen = []
+    est._iron.update = lambda mag, c_bn, *rest: seen.append(np.array(c_bn))
+    est._apply_learned_iron = lambda: None
+    est._learn_iron(3.5, np.eye(3), np.array([10.0, 1.0, 50.0]))
+    k = int(np.flatnonzero(run.t_s == est._x["t_last_s"])[0])
+    truth = Rotation.from_quat(run.truth_q_wxyz[k, [1, 2, 3, 0]]).as_matrix()
+    assert len(seen) == 1
+    assert np.allclose(seen[0], truth, atol=1e-12)
+    assert not np.allclose(seen[0], np.eye(3), atol=1e-3)
+
+
+def test_receiver_errors_0_gives_the_true_velocity_with_the_same_stated_accuracy():
+    # the fixes of "receiver errors 0" are the simulator's truth at their time of validity (the vehicle's velocity
+    # from the stream itself), and say the same accuracies as the benches' noisy receiver
+    from ahrsd.simulation import Site, open_stream
+    from bench.heading_split import gnss_errors
+    from bench.vehicle_accuracy import RATE_HZ, honesty_site, simulate_vehicle
+
+    site, iron = honesty_site(TROMSO)
+    clean = simulate_vehicle("boat", 10.0, 12, site, mag="uncalibrated", iron=iron,
+                             gnss_errors=gnss_errors("receiver errors 0"))
+    noisy = simulate_vehicle("boat", 10.0, 12, site, mag="uncalibrated", iron=iron, gnss_errors=gnss_errors("defaults"))
+    block = open_stream("boat", rate_hz=RATE_HZ, seed=12, site=Site.parse(site)).next_block(int(10.0 * RATE_HZ))
+
+    def velocity_error(fixes):
+        k = np.array([int(round(f.t_s * RATE_HZ)) for f in fixes])
+        return np.array([f.vel_ned_m_s for f in fixes]) - block.truth_vel_ned_m_s[k]
+
+    assert len(clean.fixes) == len(noisy.fixes) > 40
+    assert np.max(np.abs(velocity_error(clean.fixes))) < 1e-6
+    assert np.sqrt(np.mean(velocity_error(noisy.fixes) ** 2)) > 0.02
+    assert {f.s_acc_m_s for f in clean.fixes} == {f.s_acc_m_s for f in noisy.fixes} == {0.05}
