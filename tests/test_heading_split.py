@@ -48,10 +48,14 @@ def test_the_truth_heading_aid_pulls_the_heading_to_the_truth(runs):
 
 
 def test_the_oracle_iron_learner_is_fed_the_simulators_attitude():
-    # bench/heading_split.py "iron at true attitude": each learning step gets the truth at the filter's latest
-    # sample, not the attitude it was called with (the filter's); the truth here is scipy's, from the run's quaternion
+    # bench/heading_split.py "iron at true attitude": a learning step takes the truth at the filter's latest sample,
+    # not the attitude it was called with (the filter's). Against a copy of the learner updated here with scipy's
+    # truth (the run's quaternion) and the step's other inputs as Ins._learn_iron forms them
+    import copy
+
     from scipy.spatial.transform import Rotation
 
+    from ahrsd.estimator import ins_core as core
     from ahrsd.estimator.ins import Ins
     from bench.heading_split import learn_iron_at_truth
     from bench.vehicle_accuracy import estimates_in_arrival_order, honesty_site, simulate_vehicle
@@ -62,15 +66,21 @@ def test_the_oracle_iron_learner_is_fed_the_simulators_attitude():
     for _ in zip(range(700), estimates_in_arrival_order(est, run, run.fixes)):
         pass
     learn_iron_at_truth(est, run)
-    seen = []
-    est._iron.update = lambda mag, c_bn, *rest: seen.append(np.array(c_bn))
-    est._apply_learned_iron = lambda: None
-    est._learn_iron(3.5, np.eye(3), np.array([10.0, 1.0, 50.0]))
+    field = np.array([10.0, 1.0, 50.0])
+    att = slice(core.E_TH, core.E_TH + 3)
+    inputs = (est._x["mag_last_ut"].copy(), field, est._P[att, att].copy(), est.params.iron_unmodelled_ut,
+              max(1.0, est.params.iron_tau_s / 0.2))          # no learning step before: Δt 0.2 s (Ins._learn_iron)
+    learner = copy.deepcopy(est._iron)
     k = int(np.flatnonzero(run.t_s == est._x["t_last_s"])[0])
     truth = Rotation.from_quat(run.truth_q_wxyz[k, [1, 2, 3, 0]]).as_matrix()
-    assert len(seen) == 1
-    assert np.allclose(seen[0], truth, atol=1e-12)
-    assert not np.allclose(seen[0], np.eye(3), atol=1e-3)
+    at_truth, at_called = copy.deepcopy(learner), copy.deepcopy(learner)
+    for one, c_bn in ((at_truth, truth), (at_called, np.eye(3))):
+        mag, fld, p_att, noise, inflate = inputs
+        one.update(mag, c_bn, fld, p_att, noise, inflate)
+    est._learn_iron(3.5, np.eye(3), field)
+    assert est._iron.updates == learner.updates + 1
+    assert np.allclose(est._iron.state, at_truth.state, rtol=0.0, atol=1e-12)
+    assert not np.allclose(est._iron.state, at_called.state, rtol=0.0, atol=1e-6)
 
 
 def test_receiver_errors_0_gives_the_true_velocity_with_the_same_stated_accuracy():
