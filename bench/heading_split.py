@@ -3,8 +3,9 @@ truth (docs/gnss.md "The uncalibrated boat at a weak field: the vertical gyro's 
 limit, its white noise is").
 
     .venv/bin/python bench/heading_split.py --site 69.65,18.96 [--scenario boat] [--seeds 12 13 15 16] [--rows …]
+        [--iron unseen] [--seconds 900]
 
-Each seed is run (the place's held-out iron, 600 s, GNSS 5 Hz) once per row:
+Each seed is run (the place's own iron or `--iron`'s, 600 s, GNSS 5 Hz) once per row:
   defaults            ins as it is, the sensor as simulated (SensorErrors.adis16405(seed)), no calibration;
   s_z truth           the vertical gyro's scale-factor error written into the filter at the simulator's value at
                       every sample, its covariance row and column cleared (an oracle: the filter's private state,
@@ -22,7 +23,13 @@ Each seed is run (the place's held-out iron, 600 s, GNSS 5 Hz) once per row:
   yaw aid 1° + 1° over 60 s   the same aid with a slowly varying error as well (first-order Gauss–Markov, 1°,
                       60 s, from 0 at the first aid: within 1 % of its stationary variance by 180 s; a water
                       track's leeway that changes with the wind), fused as ins fuses a correlated heading (its
-                      variance inflated by τ/Δt, ins_core._fuse_mag_heading).
+                      variance inflated by τ/Δt, ins_core._fuse_mag_heading);
+  iron at true attitude   the iron learner fed the simulator's attitude instead of the filter's (an oracle: what a
+                      learner that no yaw error of its learning window reaches would give; the learner's covariance
+                      still counts the filter's attitude σ) — docs/gnss.md "The learning window's yaw error";
+  no magnetometer     ins without its magnetometer (`mag_enabled` false): the GNSS–inertial heading alone;
+  receiver errors 0   the GNSS fixes without their position and velocity errors, their reported accuracies kept
+                      (the filter weights them as before).
 Per seed and row: heading and tilt RMS from 180 s, the share of heading errors beyond 3σ (published σ) from 30 s,
 the vertical gyro bias's error RMS from 180 s (°/h, against the turn-on bias) and its scale-factor error at the end.
 """
@@ -41,12 +48,13 @@ import numpy as np
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.vehicle_accuracy import (estimates_in_arrival_order, honesty_site, honesty_site_arg,  # noqa: E402
-                                    simulate_vehicle, tilt_heading_errors_deg)
+from bench.vehicle_accuracy import (GNSS_ERRORS, HONESTY_IRONS, estimates_in_arrival_order,  # noqa: E402
+                                    honesty_site, honesty_site_arg, simulate_vehicle, tilt_heading_errors_deg)
 
 EVERY = 8
 ROWS = ("defaults", "s_z truth", "b_z truth", "b_z,s_z truth", "turn-on 0", "turn-on 0, no ARW", "turn-on 0, no VRW",
-        "turn-on 0, no in-run", "yaw aid 1°", "yaw aid 1° + 1° over 60 s")
+        "turn-on 0, no in-run", "yaw aid 1°", "yaw aid 1° + 1° over 60 s", "iron at true attitude",
+        "no magnetometer", "receiver errors 0")
 YAW_AID_SIGMA_DEG = 1.0
 YAW_AID_DRIFT_DEG, YAW_AID_DRIFT_TAU_S = 1.0, 60.0
 FIX_EVERY_S = 0.2
@@ -102,18 +110,45 @@ def _fuse_truth_heading(est, heading_error_rad: float, sigma_rad: float) -> None
     core._apply_correction(est._x, est._par, dx)
 
 
+def gnss_errors(row: str):
+    """The receiver's errors for `row`: the benches' (vehicle_accuracy.GNSS_ERRORS), or for "receiver errors 0" none,
+    with the same reported accuracies (None: the benches' own)."""
+    from ahrsd.simulation import GnssErrors
+
+    if row != "receiver errors 0":
+        return None
+    return GnssErrors(horizontal_m=0.0, vertical_m=0.0, velocity_m_s=0.0, h_acc_m=GNSS_ERRORS["horizontal_m"],
+                      v_acc_m=GNSS_ERRORS["vertical_m"], s_acc_m_s=GNSS_ERRORS["velocity_m_s"])
+
+
+def learn_iron_at_truth(est, run) -> None:
+    """Oracle: `est`'s iron learner fed the simulator's attitude at the filter's latest sample instead of the
+    filter's own (the rest of the learning step as it is: Ins._learn_iron)."""
+    from ahrsd.estimator.ins import Ins
+    from ahrsd.estimator.rotations import quat_to_dcm
+
+    def learn(t_s, c_bn, field):
+        k = min(int(np.searchsorted(run.t_s, float(est._x["t_last_s"]))), len(run.t_s) - 1)
+        Ins._learn_iron(est, t_s, np.asarray(quat_to_dcm(run.truth_q_wxyz[k]), dtype=float), field)
+
+    est._learn_iron = learn
+
+
 def one_run(job, late_s: float = LATE_S) -> tuple:
-    """One seed and row (job = scenario, seed, row, seconds, site); the errors from `late_s` (heading, tilt, bias)
-    and from 30 s (the share beyond 3σ)."""
+    """One seed and row (job = scenario, seed, row, seconds, site[, iron]); the errors from `late_s` (heading, tilt,
+    bias) and from 30 s (the share beyond 3σ)."""
     from ahrsd.estimator import ins_core as core
     from ahrsd.estimator.ins import Ins
 
-    scen, seed, row, seconds, site_label = job
-    site, iron = honesty_site(site_label)
+    scen, seed, row, seconds, site_label = job[:5]
+    site, iron = honesty_site(site_label, job[5] if len(job) > 5 else None)
     err = sensor_errors(seed, row)
-    run = simulate_vehicle(scen, seconds, seed, site, mag="uncalibrated", iron=iron, errors=err)
+    run = simulate_vehicle(scen, seconds, seed, site, mag="uncalibrated", iron=iron, errors=err,
+                           gnss_errors=gnss_errors(row))
     est = Ins(declination_rad=run.declination_rad, lever_arm_m=run.lever_arm_m,
-              mag_calibration_sigma_rad=run.mag_calibration_sigma_rad)
+              mag_calibration_sigma_rad=run.mag_calibration_sigma_rad, mag_enabled=row != "no magnetometer")
+    if row == "iron at true attitude":
+        learn_iron_at_truth(est, run)
     holds = {"s_z truth": [(core.E_SG + 2, err.gyro_scale[2])],
              "b_z truth": [(core.E_BG + 2, err.gyro_bias_rad_s[2])],
              "b_z,s_z truth": [(core.E_BG + 2, err.gyro_bias_rad_s[2]), (core.E_SG + 2, err.gyro_scale[2])]}.get(row, [])
@@ -162,6 +197,8 @@ def main(argv=None) -> int:
     ap.add_argument("--scenario", default="boat")
     ap.add_argument("--site", type=honesty_site_arg, default="held-out",
                     help='"held-out", "default" or a place "LAT,LON[,ALT_M[,YYYY-MM-DD]]" (default held-out)')
+    ap.add_argument("--iron", choices=HONESTY_IRONS, default=None,
+                    help="the vehicle iron instead of the site's own (a place's own: held-out)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[12, 13, 15, 16])
     ap.add_argument("--rows", nargs="+", default=list(ROWS), choices=ROWS)
     ap.add_argument("--seconds", type=float, default=600.0)
@@ -170,12 +207,13 @@ def main(argv=None) -> int:
     # the simulated sensors' and estimators' warnings would bury the table; here, in main, not in one_run:
     # the pool's workers inherit it, and a test that calls one_run keeps its logging
     logging.disable(logging.WARNING)
-    jobs = [(args.scenario, s, r, args.seconds, args.site) for s in args.seeds for r in args.rows]
-    print(f"ins, {args.scenario} without calibration, site {args.site}, {args.seconds:.0f} s: heading / tilt RMS "
-          "from 180 s, heading beyond 3σ from 30 s, vertical gyro bias error RMS from 180 s, its scale-factor error "
-          "at the end", flush=True)
+    jobs = [(args.scenario, s, r, args.seconds, args.site, args.iron) for s in args.seeds for r in args.rows]
+    iron = f", iron {args.iron}" if args.iron else ""
+    print(f"ins, {args.scenario} without calibration, site {args.site}{iron}, {args.seconds:.0f} s: heading / tilt "
+          "RMS from 180 s, heading beyond 3σ from 30 s, vertical gyro bias error RMS from 180 s, its scale-factor "
+          "error at the end", flush=True)
     with Pool(args.processes) as pool:
-        for (_, seed, row, _, _), (hdg, tilt, beyond, bz_err, sz_err) in pool.imap(one_run, jobs):
+        for (_, seed, row, *_), (hdg, tilt, beyond, bz_err, sz_err) in pool.imap(one_run, jobs):
             print(f"seed {seed:3d}  {row:20s} heading {hdg:5.2f}°  tilt {tilt:5.2f}°  beyond 3σ {beyond:6.2%}  "
                   f"b_z error {bz_err:4.0f} °/h  s_z error {sz_err:+6.3f} %", flush=True)
     return 0

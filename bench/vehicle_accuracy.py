@@ -41,6 +41,7 @@ RATE_HZ = 200.0
 TARGETS = {"tilt": 0.3, "heading": 0.5, "outage_tilt": 1.0, "outage_heading": 2.0}
 CALIBRATED_SIGMA_RAD = np.radians(0.5)   # the heading error a good calibration reports of itself (1σ)
 MAG_CASES = ("calibrated", "uncalibrated", "iron-step")
+GNSS_ERRORS = {"horizontal_m": 1.5, "vertical_m": 2.5, "velocity_m_s": 0.05}   # the receiver's (GnssErrors)
 IRON_STEP_UT = (6.0, -5.0, 4.5)          # the hard iron moves by 9.0 µT (a battery or a winch moved)
 IRON_STEP_AT = 0.5                       # ... half-way through the run
 LEVER_ARMS_M = {"boat": (-1.0, 0.0, -2.0), "car": (-0.5, 0.0, -1.5), "plane": (0.3, 0.2, -0.2)}   # body FRD, m
@@ -98,7 +99,7 @@ def longest_turn_after(t_s, q_wxyz, t_from_s: float, t_last_start_s: float, min_
 
 def simulate_vehicle(name: str, seconds: float, seed: int, site_text: str | None, outage: bool = False,
                      rate_hz: float = RATE_HZ, lever_arm: bool = False, mag: str = "calibrated",
-                     iron: str | None = None, errors=None) -> VehicleRun:
+                     iron: str | None = None, errors=None, gnss_errors=None) -> VehicleRun:
     """`seconds` of vehicle `name` at the site ("LAT,LON[,ALT[,DATE]]", None: DEFAULT_SITE) with its GNSS fixes
     (in arrival order), with a 30 s outage from the start of the longest turn after 60 s when `outage`, the
     antenna at LEVER_ARMS_M[name] when `lever_arm`.
@@ -108,7 +109,8 @@ def simulate_vehicle(name: str, seconds: float, seed: int, site_text: str | None
     start; the hard iron moves by IRON_STEP_UT at IRON_STEP_AT of the run). iron: None (the scenario's own
     vehicle iron), "default" (VehicleIron.default), "held-out" (VehicleIron.held_out) or "unseen"
     (VehicleIron.unseen), on every vehicle.
-    errors: the sensor's SensorErrors (None: SensorErrors.adis16405(seed))."""
+    errors: the sensor's SensorErrors (None: SensorErrors.adis16405(seed)); gnss_errors: the receiver's GnssErrors
+    (None: GNSS_ERRORS)."""
     from ahrsd.simulation import DEFAULT_SITE, GnssErrors, SensorErrors, Site, VehicleIron, open_stream, simulate_gnss
 
     if mag not in MAG_CASES:
@@ -131,7 +133,7 @@ def simulate_vehicle(name: str, seconds: float, seed: int, site_text: str | None
         window = (t0, t0 + OUTAGE_S) if t0 is not None else None
     arm = LEVER_ARMS_M.get(name, (0.0, 0.0, 0.0)) if lever_arm else (0.0, 0.0, 0.0)
     fixes = simulate_gnss(block, rate_hz=5.0, seed=seed + 1000, outages=[window] if window else [],
-                          errors=GnssErrors(horizontal_m=1.5, vertical_m=2.5, velocity_m_s=0.05), latency_s=0.1,
+                          errors=GnssErrors(**GNSS_ERRORS) if gnss_errors is None else gnss_errors, latency_s=0.1,
                           lever_arm_m=arm)
     fixes.sort(key=lambda f: f.extra["t_rx_s"])
     return VehicleRun(block.t_s, block.gyro_rad_s, block.accel_m_s2, np.ascontiguousarray(mag_ut),

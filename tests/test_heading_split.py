@@ -45,3 +45,62 @@ def test_the_truth_heading_aid_pulls_the_heading_to_the_truth(runs):
     assert beyond == 0.0
     for row in ROWS:
         assert runs[row][2] < 0.01, row
+
+
+def test_the_oracle_iron_learner_is_fed_the_simulators_attitude():
+    # bench/heading_split.py "iron at true attitude": a learning step takes the truth at the filter's latest sample,
+    # not the attitude it was called with (the filter's). Against a copy of the learner updated here with scipy's
+    # truth (the run's quaternion) and the step's other inputs as Ins._learn_iron forms them
+    import copy
+
+    from scipy.spatial.transform import Rotation
+
+    from ahrsd.estimator import ins_core as core
+    from ahrsd.estimator.ins import Ins
+    from bench.heading_split import learn_iron_at_truth
+    from bench.vehicle_accuracy import estimates_in_arrival_order, honesty_site, simulate_vehicle
+
+    site, iron = honesty_site(TROMSO)
+    run = simulate_vehicle("boat", 5.0, 12, site, mag="uncalibrated", iron=iron)
+    est = Ins(declination_rad=run.declination_rad, mag_calibration_sigma_rad=run.mag_calibration_sigma_rad)
+    for _ in zip(range(700), estimates_in_arrival_order(est, run, run.fixes)):
+        pass
+    learn_iron_at_truth(est, run)
+    field = np.array([10.0, 1.0, 50.0])
+    att = slice(core.E_TH, core.E_TH + 3)
+    inputs = (est._x["mag_last_ut"].copy(), field, est._P[att, att].copy(), est.params.iron_unmodelled_ut,
+              max(1.0, est.params.iron_tau_s / 0.2))          # no learning step before: Δt 0.2 s (Ins._learn_iron)
+    learner = copy.deepcopy(est._iron)
+    k = int(np.flatnonzero(run.t_s == est._x["t_last_s"])[0])
+    truth = Rotation.from_quat(run.truth_q_wxyz[k, [1, 2, 3, 0]]).as_matrix()
+    at_truth, at_called = copy.deepcopy(learner), copy.deepcopy(learner)
+    for one, c_bn in ((at_truth, truth), (at_called, np.eye(3))):
+        mag, fld, p_att, noise, inflate = inputs
+        one.update(mag, c_bn, fld, p_att, noise, inflate)
+    est._learn_iron(3.5, np.eye(3), field)
+    assert est._iron.updates == learner.updates + 1
+    assert np.allclose(est._iron.state, at_truth.state, rtol=0.0, atol=1e-12)
+    assert not np.allclose(est._iron.state, at_called.state, rtol=0.0, atol=1e-6)
+
+
+def test_receiver_errors_0_gives_the_true_velocity_with_the_same_stated_accuracy():
+    # the fixes of "receiver errors 0" are the simulator's truth at their time of validity (the vehicle's velocity
+    # from the stream itself), and say the same accuracies as the benches' noisy receiver
+    from ahrsd.simulation import Site, open_stream
+    from bench.heading_split import gnss_errors
+    from bench.vehicle_accuracy import RATE_HZ, honesty_site, simulate_vehicle
+
+    site, iron = honesty_site(TROMSO)
+    clean = simulate_vehicle("boat", 10.0, 12, site, mag="uncalibrated", iron=iron,
+                             gnss_errors=gnss_errors("receiver errors 0"))
+    noisy = simulate_vehicle("boat", 10.0, 12, site, mag="uncalibrated", iron=iron, gnss_errors=gnss_errors("defaults"))
+    block = open_stream("boat", rate_hz=RATE_HZ, seed=12, site=Site.parse(site)).next_block(int(10.0 * RATE_HZ))
+
+    def velocity_error(fixes):
+        k = np.array([int(round(f.t_s * RATE_HZ)) for f in fixes])
+        return np.array([f.vel_ned_m_s for f in fixes]) - block.truth_vel_ned_m_s[k]
+
+    assert len(clean.fixes) == len(noisy.fixes) > 40
+    assert np.max(np.abs(velocity_error(clean.fixes))) < 1e-6
+    assert np.sqrt(np.mean(velocity_error(noisy.fixes) ** 2)) > 0.02
+    assert {f.s_acc_m_s for f in clean.fixes} == {f.s_acc_m_s for f in noisy.fixes} == {0.05}
