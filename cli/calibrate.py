@@ -797,7 +797,7 @@ def _report_mag(args, calibrated, data, ref, ref_note, site: MagSite, gaps) -> i
 def _gnss_beside_hint(args) -> list[str]:
     """A back-stepping fit levelled by the accelerometer while the run's GNSS recording lies beside it: say that
     `--gnss` levels with the aided attitude. On a heaving, turning vehicle the accelerometer's levelling error is
-    not in the predicted heading error (docs/magcal-vehicle.md; session 23's walk: a boat fitted without it)."""
+    not in the predicted heading error (docs/magcal-vehicle.md)."""
     from pathlib import Path
 
     from ahrsd.drivers.gnss.recording import gnss_path_for
