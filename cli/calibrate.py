@@ -283,7 +283,7 @@ def _allan(args) -> int:
         note = f"saved to {path}"
         payload["saved_to"] = str(path)
     if args.plot:
-        from ahrsd.calibration.allan_plot import plot_allan
+        from ahrsd.cli.plots.allan import plot_allan
 
         _write_plot(args, plot_allan, res)
     from ahrsd.calibration.allan import summary

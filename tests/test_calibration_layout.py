@@ -105,8 +105,6 @@ def test_the_method_modules_do_not_import_the_dispatcher():
 def test_calibration_and_the_daemon_import_no_plotting_module():
     for part in ("calibration", "daemon"):
         for path in sorted((ROOT / part).rglob("*.py")):
-            if path.name == "allan_plot.py":
-                continue
             bad = {m for m in _imports(path) if m.startswith("ahrsd.cli.plots") or m == "ahrsd.core.plotting"
                    or m.endswith("_plot")}
             assert not bad, f"{path.relative_to(ROOT)} imports {sorted(bad)}"
