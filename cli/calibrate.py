@@ -249,7 +249,7 @@ def _gap_report(payload: dict, lines: list, gaps, under_title: bool = True) -> N
 def _allan(args) -> int:
     import os
 
-    from ahrsd.calibration.allan import NOISE_FILE_NAME, StaticAllanAnalysis, describe, save_noise_parameters
+    from ahrsd.calibration.allan.analysis import NOISE_FILE_NAME, StaticAllanAnalysis, describe, save_noise_parameters
     from ahrsd.calibration.recording_gaps import GapCounter
     from ahrsd.drivers.recording import RecordingFormatError, iter_recording_chunks
 
@@ -286,7 +286,7 @@ def _allan(args) -> int:
         from ahrsd.cli.plots.allan import plot_allan
 
         _write_plot(args, plot_allan, res)
-    from ahrsd.calibration.allan import summary
+    from ahrsd.calibration.allan.analysis import summary
 
     length = f"{res.duration_s / 3600:.2f} h" if res.duration_s >= 360 else f"{res.duration_s:.1f} s"
     lines = [f"Allan analysis of {args.recording}: {length} at {res.rate_hz:.1f} Hz; noise "

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ahrsd.calibration.allan_terms import FLICKER_FACTOR
+from ahrsd.calibration.allan.terms import FLICKER_FACTOR
 from ahrsd.calibration.report import sig_figs
 from ahrsd.core.plotting import pyplot
 
