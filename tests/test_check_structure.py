@@ -277,3 +277,20 @@ def test_a_comment_or_docstring_naming_a_session_fails_in_every_package_but_a_st
         assert f"{at} a comment names a session" in r.stdout, (at, r.stdout)
     assert "daemon/bad.py:6:" not in r.stdout and "test_ok.py" not in r.stdout, r.stdout
     assert r.stdout.count("a comment names a session") == 4, r.stdout
+
+
+def test_a_fake_class_fails_in_every_package_but_not_in_tests(tmp_path):
+    """Rule 12, the shape daemon.magcal had: a `_FakeCommand` forged for its own handler lacked the `command`
+    field CommandArgs.of reads, and PREFLIGHT_CALIBRATION's magnetometer path failed for it. A name that only
+    contains the word and tests/ are not this rule's."""
+    (tmp_path / "daemon").mkdir()
+    (tmp_path / "daemon" / "bad.py").write_text(
+        "class _FakeCommand:\n    pass\nclass DummyLink:\n    pass\nclass MockClock:\n    pass\n"
+        "class StubSource:\n    pass\nclass FakeryReport:\n    pass\nclass NoFakeHere:\n    pass\n")
+    (tmp_path / "tests").mkdir()
+    (tmp_path / "tests" / "test_ok.py").write_text("class FakeHost:\n    pass\n")
+    r = run(tmp_path)
+    assert r.returncode == 1
+    for at in ("bad.py:1:", "bad.py:3:", "bad.py:5:", "bad.py:7:"):
+        assert f"{at} class " in r.stdout and "is a fake" in r.stdout.split(at)[1].splitlines()[0], (at, r.stdout)
+    assert r.stdout.count("is a fake") == 4, r.stdout

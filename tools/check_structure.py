@@ -43,6 +43,10 @@ Rule in every package (not tests/, tools/ or bench/):
 11. no comment or docstring tells the code's history by session ("session 23", "sessions 24–25", "walk26's
    walk"): a comment says why the code is as it is; when and by whom it changed is in git, and what was measured
    is in docs/ (issue 29 item 7). Rule 11 reads comments (`#`) and docstrings only, never strings the code uses.
+12. no fake, dummy or mock class (`class _FakeCommand`): a module that needs another's behaviour calls it with
+   what it has (daemon.magcal's PREFLIGHT_CALIBRATION path calls `_start(CommandArgs(...))`), it does not forge
+   the other's input; a forged message missed a field the reader needs and failed where no test looked. Fakes
+   live in tests/.
 Rule in tests/:
 5. no spy on an estimator: no function or lambda assigned to an attribute of an estimator object (the names of
    rule 3, and what hangs below them: `est._monitor.check = spy`). A test reads what the estimator decided
@@ -161,9 +165,19 @@ def _session_history(text: str, tree: ast.AST, shown: str) -> list[str]:
             for line, comment in _comment_lines(text, tree) if (m := SESSION_HISTORY.search(comment))]
 
 
+FAKE_CLASS = re.compile(r"^_*(Fake|Dummy|Mock|Stub)[A-Z_]")
+
+
+def _fake_classes(tree: ast.AST, shown: str) -> list[str]:
+    """Rule 12: a class named as a fake."""
+    return [f"{shown}:{node.lineno}: class {node.name} is a fake in a package (call the code with what you have; "
+            "fakes live in tests/)"
+            for node in ast.walk(tree) if isinstance(node, ast.ClassDef) and FAKE_CLASS.match(node.name)]
+
+
 def check_file(path: Path, shown: str, daemon_rules: bool = True, settings_rule: bool = False) -> list[str]:
     """The problems in one file: every rule (daemon_rules), or only rules 4 (an estimator probed), 7, 9 (a
-    forwarding wrapper) and 11 (a session named in a comment); and rule 8 (a settings object probed) with
+    forwarding wrapper), 11 (a session named in a comment) and 12 (a fake class); and rule 8 (a settings object probed) with
     settings_rule."""
     try:
         tree = ast.parse(path.read_text(encoding="utf-8"))
@@ -171,7 +185,8 @@ def check_file(path: Path, shown: str, daemon_rules: bool = True, settings_rule:
         return [f"{shown}:{exc.lineno}: does not parse"]
     text = path.read_text(encoding="utf-8")
     lines = text.splitlines()
-    out = _monkeypatches(tree, lines, shown) + _forwarding_wrappers(tree, shown) + _session_history(text, tree, shown)
+    out = (_monkeypatches(tree, lines, shown) + _forwarding_wrappers(tree, shown) + _session_history(text, tree, shown)
+           + _fake_classes(tree, shown))
     for node in ast.walk(tree):
         if (daemon_rules and isinstance(node, ast.Call) and _dotted(node.func) in HOST_CLOCKS
                 and HOST_CLOCK_MARK not in lines[node.lineno - 1]):
