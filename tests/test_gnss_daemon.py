@@ -17,7 +17,7 @@ from ahrsd.core.sample import make_sample
 from ahrsd.daemon.config import Config, EstimatorConfig, GnssConfig, OutputsConfig
 from ahrsd.daemon.mavlink_io import mavlink
 from service_rig import gcs_socket, start_service, stop_service
-from test_fuzz_mavlink import drain
+from support.mavlink_feed import drain
 
 GPS = mavlink.MAV_SYS_STATUS_SENSOR_GPS
 AP_SYS, AP_COMP = 1, 1
