@@ -17,21 +17,11 @@ from ahrsd.core.sample import make_sample
 from ahrsd.daemon.config import Config, EstimatorConfig, GnssConfig, OutputsConfig
 from ahrsd.daemon.mavlink_io import mavlink
 from service_rig import gcs_socket, start_service, stop_service
+from support.gnss_counters import GateCounters
 from support.mavlink_feed import drain
 
 GPS = mavlink.MAV_SYS_STATUS_SENSOR_GPS
 AP_SYS, AP_COMP = 1, 1
-
-
-@dataclasses.dataclass
-class GateCounters:
-    """The part of an aided filter's GNSS counters the daemon watches (estimator.ins.GnssCounters)."""
-
-    offered: int = 0
-    rejected_velocity: int = 0
-
-    def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
 
 
 class FakeAided:
