@@ -28,7 +28,7 @@ from ahrsd.drivers.gnss.recording import GnssRecordingWriter
 from ahrsd.drivers.gnss.replay import RecordingGnssBackend
 from ahrsd.drivers.gnss.serial_port import SerialGnssSource
 from ahrsd.drivers.gnss.simulated import SimulatedGnssReceiver
-from support.gnss_counters import GateCounters
+from support.fake_aided import GateCounters
 
 LATENCY_S = 0.1
 BAD = 3                                   # the epoch at 95° N
