@@ -698,6 +698,23 @@ class FieldCalibration:
 # ============================================================================ the fit (picklable, pure)
 
 
+def shape_failure(ap: ArduPilotMagParams, offsets_max_mgauss: float) -> CalStatus | None:
+    """ArduPilot's shape limits on a fitted model (CompassCalibrator::fit_acceptable; COMPASS_OFFS_MAX), the one
+    rule both for choosing a full fit over the offsets and for judging the result: FAILED_OFFSETS when an offset
+    reaches `offsets_max_mgauss`, FAILED_DIAG_SCALING when a diagonal or off-diagonal element is out of range,
+    None within them."""
+    if np.any(np.abs(ap.ofs_mgauss) >= offsets_max_mgauss):
+        return CalStatus.FAILED_OFFSETS
+    if np.any(ap.diag <= DIAG_MIN) or np.any(ap.diag >= DIAG_MAX) or np.any(np.abs(ap.offdiag) >= OFFDIAG_MAX):
+        return CalStatus.FAILED_DIAG_SCALING
+    return None
+
+
+# why a full fit outside the shape limits was not taken (a note of the result: "backstepping rejected (…)")
+_SHAPE_REFUSED = {CalStatus.FAILED_OFFSETS: "offsets too large",
+                  CalStatus.FAILED_DIAG_SCALING: "diagonals out of range"}
+
+
 @dataclass
 class FitJob:
     """Everything a fit needs, copied out of the session so it can run in another thread or process
@@ -848,12 +865,9 @@ class FitJob:
         return model, offset_std, source
 
     def _acceptable_shape(self, model: MagModel) -> tuple[bool, str]:
-        ap = to_ardupilot(model)
-        if np.any(np.abs(ap.ofs_mgauss) >= self.config.offsets_max_mgauss):
-            return False, "offsets too large"
-        if np.any(ap.diag <= DIAG_MIN) or np.any(ap.diag >= DIAG_MAX) or np.any(np.abs(ap.offdiag) >= OFFDIAG_MAX):
-            return False, "diagonals out of range"
-        return True, ""
+        """Whether a full fit may replace the offsets: ArduPilot's shape limits (`shape_failure`), and why not."""
+        failure = shape_failure(to_ardupilot(model), self.config.offsets_max_mgauss)
+        return failure is None, _SHAPE_REFUSED.get(failure, "")
 
     def _judge(self, model: MagModel, method: str, quality, notes, partial: bool) -> FieldCalResult:
         cfg = self.config
@@ -864,12 +878,13 @@ class FitJob:
         ap = to_ardupilot(model)
         status, reason = CalStatus.SUCCESS, "; ".join(notes)
         mean_radius_mg = float(np.mean(norms)) * UT_TO_MGAUSS
+        shape = shape_failure(ap, cfg.offsets_max_mgauss)
         if not math.isfinite(fitness):
             status, reason = CalStatus.FAILED, "fit diverged (fitness NaN)"
-        elif np.any(np.abs(ap.ofs_mgauss) >= cfg.offsets_max_mgauss):
+        elif shape == CalStatus.FAILED_OFFSETS:
             status = CalStatus.FAILED_OFFSETS
             reason = f"offsets {np.round(ap.ofs_mgauss).astype(int).tolist()} > {cfg.offsets_max_mgauss:.0f} mG"
-        elif np.any(ap.diag <= DIAG_MIN) or np.any(ap.diag >= DIAG_MAX) or np.any(np.abs(ap.offdiag) >= OFFDIAG_MAX):
+        elif shape == CalStatus.FAILED_DIAG_SCALING:
             status, reason = CalStatus.FAILED_DIAG_SCALING, "diagonals/off-diagonals out of range"
         elif not (RADIUS_MIN_MGAUSS < mean_radius_mg < RADIUS_MAX_MGAUSS):
             status, reason = CalStatus.BAD_RADIUS, f"radius {mean_radius_mg:.0f} mG outside [150, 950]"

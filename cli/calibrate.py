@@ -249,7 +249,7 @@ def _gap_report(payload: dict, lines: list, gaps, under_title: bool = True) -> N
 def _allan(args) -> int:
     import os
 
-    from ahrsd.calibration.allan import NOISE_FILE_NAME, StaticAllanAnalysis, describe, save_noise_parameters
+    from ahrsd.calibration.allan.analysis import NOISE_FILE_NAME, StaticAllanAnalysis, describe, save_noise_parameters
     from ahrsd.calibration.recording_gaps import GapCounter
     from ahrsd.drivers.recording import RecordingFormatError, iter_recording_chunks
 
@@ -283,10 +283,10 @@ def _allan(args) -> int:
         note = f"saved to {path}"
         payload["saved_to"] = str(path)
     if args.plot:
-        from ahrsd.calibration.allan_plot import plot_allan
+        from ahrsd.cli.plots.allan import plot_allan
 
         _write_plot(args, plot_allan, res)
-    from ahrsd.calibration.allan import summary
+    from ahrsd.calibration.allan.analysis import summary
 
     length = f"{res.duration_s / 3600:.2f} h" if res.duration_s >= 360 else f"{res.duration_s:.1f} s"
     lines = [f"Allan analysis of {args.recording}: {length} at {res.rate_hz:.1f} Hz; noise "
@@ -800,7 +800,7 @@ def _report_mag(args, calibrated, data, ref, ref_note, site: MagSite, gaps) -> i
 def _gnss_beside_hint(args) -> list[str]:
     """A back-stepping fit levelled by the accelerometer while the run's GNSS recording lies beside it: say that
     `--gnss` levels with the aided attitude. On a heaving, turning vehicle the accelerometer's levelling error is
-    not in the predicted heading error (docs/magcal-vehicle.md; session 23's walk: a boat fitted without it)."""
+    not in the predicted heading error (docs/magcal-vehicle.md)."""
     from pathlib import Path
 
     from ahrsd.drivers.gnss.recording import gnss_path_for
