@@ -74,6 +74,22 @@ def calibration_frame_tilt_sigma_rad(calibration) -> float:
     return math.radians(tilt) if math.isfinite(tilt) else 0.0
 
 
+def calibration_frame_tilt_heading_sigma_rad(calibration) -> float:
+    """The share of `calibration`'s stated heading error that its frame's tilt makes, 1σ rad (RMS over heading):
+    tan(dip) times the frame tilt, which the fit's predicted heading error added in quadrature
+    (`metadata["mag"]["frame_tilt_heading_std_deg"]`, written by `ahrsd calibrate mag` beside
+    `frame_tilt_std_deg`). ins's frame-tilt states carry that share, so its harmonic states leave it out
+    (mag_harmonics.prior_variances_rad2). 0 when not stated (older files, a field session): the harmonics keep
+    the whole heading error, as before."""
+    if calibration is None:
+        return 0.0
+    meta = calibration.metadata.get("mag") if isinstance(calibration.metadata, dict) else None
+    if not isinstance(meta, dict):
+        return 0.0
+    share = _finite(meta.get("frame_tilt_heading_std_deg"))
+    return math.radians(share) if math.isfinite(share) else 0.0
+
+
 def has_mag_calibration(calibration) -> bool:
     """Whether `calibration` holds a magnetometer calibration at all (a fitted or stated model), as opposed to
     none (no file, the identity, a gyro or accelerometer calibration alone). One that states no heading error

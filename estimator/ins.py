@@ -193,6 +193,12 @@ class InsParams(MagHeadingParams):
     daemon and `ahrsd replay --calibration` pass it). With the harmonic states on, a calibration that states one has
     the tilt carried as two filter states, ε about body x and y, with this prior (mag_frame_tilt.py); 0: the
     calibration's frame is the body's (levelled with the true attitude), the states stay off."""
+    mag_calibration_frame_tilt_heading_sigma_rad: float = 0.0
+    """The share of the calibration's heading error (`mag_calibration_sigma_rad`) its frame's tilt makes, 1σ rad
+    (tan(dip) times the tilt, which the calibration's prediction added in quadrature: heading_trust.py). While the
+    frame-tilt states carry the tilt, the calibration's harmonic states leave this share out of their once-per-turn
+    prior (mag_harmonics.prior_variances_rad2), or the heading σ would count it twice. 0: not stated (older
+    files), the harmonics keep the whole error."""
     mag_frame_tilt_shares_accel_bias: bool = True
     """The frame tilt's prior is correlated with the filter's accelerometer-bias error (mag_frame_tilt.accel_bias_share):
     the calibration's levelling could not tell the same bias from tilt. False: independent of every other state."""
@@ -739,15 +745,20 @@ class Ins:
         if on != was_on:
             self._restart_mag_frame_tilt()
 
-    def set_mag_calibration_frame_tilt_sigma(self, sigma_rad: float) -> None:
+    def set_mag_calibration_frame_tilt_sigma(self, sigma_rad: float, heading_sigma_rad: float = 0.0) -> None:
         """The magnetometer calibration in force states its frame's tilt against the body, 1σ per axis, rad (0 or
-        NaN: none, its frame is the body's): the frame-tilt states start again from it. Told after
-        `set_mag_calibration_sigma` (which restarts them with the previous figure)."""
+        NaN: none, its frame is the body's), and the share of its heading error that tilt makes (rad, 0: not
+        stated): the frame-tilt states start again from it, and the calibration's harmonic states from their prior
+        without that share. Told after `set_mag_calibration_sigma` (which restarts them with the previous figures)."""
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
         s = float(sigma_rad)
+        h = float(heading_sigma_rad)
         self.params = replace(self.params,
-                              mag_calibration_frame_tilt_sigma_rad=s if math.isfinite(s) and s > 0.0 else 0.0)
+                              mag_calibration_frame_tilt_sigma_rad=s if math.isfinite(s) and s > 0.0 else 0.0,
+                              mag_calibration_frame_tilt_heading_sigma_rad=h if math.isfinite(h) and h > 0.0 else 0.0)
         self._set_mag_frame_tilt()
+        if self._mag_harmonics_source == "calibration":
+            self._restart_mag_harmonics()     # their prior leaves out what the frame-tilt states now carry
         self._restart_mag_frame_tilt()
 
     def _restart_mag_frame_tilt(self) -> None:
@@ -794,8 +805,19 @@ class Ins:
         if self._par["mag_harmonics_on"] > 0.0 and self._mag_harmonics_source == "iron":
             P[block, block] = self._iron_harmonics_prior()
         elif self._par["mag_harmonics_on"] > 0.0:
-            var = prior_variances_rad2(p.calibration_sigma_rad, p.mag_harmonic_offset_share)
+            var = prior_variances_rad2(p.calibration_sigma_rad, p.mag_harmonic_offset_share,
+                                       self._frame_tilt_heading_sigma_rad())
             P[block, block] = np.diag(var)
+
+    def _frame_tilt_heading_sigma_rad(self) -> float:
+        """The share of the calibration's heading error the frame-tilt states carry (rad): its stated frame tilt's
+        (InsParams.mag_calibration_frame_tilt_heading_sigma_rad) while they are on with the calibration's harmonics
+        (the condition of `_set_mag_frame_tilt`, evaluated here: the harmonics restart before it runs); else 0."""
+        p = self.params
+        tilt = float(p.mag_calibration_frame_tilt_sigma_rad)
+        share = float(p.mag_calibration_frame_tilt_heading_sigma_rad)
+        on = self._par["mag_harmonics_on"] > 0.0 and math.isfinite(tilt) and tilt > 0.0
+        return share if on and math.isfinite(share) and share > 0.0 else 0.0
 
     def _iron_harmonics_prior(self) -> np.ndarray:
         """The harmonic states' prior for a learned iron (5×5, rad²): the learner's covariance projected on the
