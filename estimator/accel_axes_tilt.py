@@ -25,6 +25,13 @@ from __future__ import annotations
 
 import math
 
+ACCEL_MISALIGNMENT_SIGMA_RAD = math.radians(0.1)
+"""1σ of each off-diagonal element of the accelerometer's cross-axis misalignment M (rad): an ADIS16405-class
+factory alignment, the simulated sensor's figure (simulation/errors.MISALIGN_SIGMA_RAD). One physical figure for
+every element, so the default of both consider terms: the tilt's (m_yz, m_xz, …: InsParams.accel_axes_tilt_sigma_rad,
+MekfParams.accel_axes_tilt_sigma_rad) and the GNSS heading's (m_xy: InsParams.accel_axes_heading_sigma_rad,
+accel_axes_heading.py). Kept as two parameters, as a sensor whose figure is known per axis may set them apart."""
+
 
 def accel_axes_tilt_variance_rad2(roll_rad: float, pitch_rad: float,
                                   accel_axes_sigma_rad: float) -> tuple[float, float]:

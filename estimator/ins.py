@@ -32,7 +32,7 @@ from ahrsd.core.sample import ImuSample
 from . import ins_core as core
 from . import mag_heading as mag
 from .accel_axes_heading import accel_axes_heading_variance_rad2
-from .accel_axes_tilt import accel_axes_tilt_variance_rad2
+from .accel_axes_tilt import ACCEL_MISALIGNMENT_SIGMA_RAD, accel_axes_tilt_variance_rad2
 from .base import DEFAULT_UNMODELLED_IRON_UT, LEARNED_WITH_GNSS
 from .calibration_heading import calibration_heading_variance_rad2, calibration_states_error
 from .gsf_yaw import GsfParams, gsf_fuse_velocity_of, gsf_output_of, gsf_reset, new_gsf_state
@@ -298,14 +298,16 @@ class InsParams(MagHeadingParams):
     """Learn the vertical gyro bias from how the magnetometer's field turns in the body against the gyro's heading
     (mag_rotation.py): the hard iron cancels in the field's change, so an uncalibrated or learning magnetometer
     still sees the bias on straight legs, where the GNSS says nothing of the yaw."""
-    accel_axes_heading_sigma_rad: float = 0.1 * _DEG
+    accel_axes_heading_sigma_rad: float = ACCEL_MISALIGNMENT_SIGMA_RAD
     """1σ of the accelerometer's x–y cross-axis misalignment, rad: a GNSS-aided heading is the accelerometer's
     axes' heading, off by that much (accel_axes_heading.py), and once GNSS has aided the published yaw σ carries
-    it (ADIS16405-class factory alignment; the simulated sensor's 0.1°). 0: not carried."""
-    accel_axes_tilt_sigma_rad: float = 0.1 * _DEG
+    it (ADIS16405-class factory alignment, accel_axes_tilt.ACCEL_MISALIGNMENT_SIGMA_RAD: the same figure as
+    `accel_axes_tilt_sigma_rad`'s). 0: not carried."""
+    accel_axes_tilt_sigma_rad: float = ACCEL_MISALIGNMENT_SIGMA_RAD
     """1σ of each off-diagonal element of the accelerometer's misalignment, rad: ins's tilt is the accelerometer's
     axes' tilt, off by m_yz (roll) and m_xz (pitch) when level (accel_axes_tilt.py), and the published roll and
-    pitch σ carry it (ADIS16405-class factory alignment; the simulated sensor's 0.1°). 0: not carried."""
+    pitch σ carry it (ADIS16405-class factory alignment, accel_axes_tilt.ACCEL_MISALIGNMENT_SIGMA_RAD: the same
+    figure as `accel_axes_heading_sigma_rad`'s). 0: not carried."""
     published_yaw_slew_rad_s: float = 2.0 * _DEG
     """The published yaw follows the filter's corrections at no more than this rate beyond the vehicle's own
     rotation: a yaw reset or a fast correction is slewed in, the published σ covering what is left

@@ -93,3 +93,18 @@ def test_ins_publishes_the_term_in_quadrature_and_the_same_estimate():
     assert on.sigma_rpy_rad[0] ** 2 == pytest.approx(off.sigma_rpy_rad[0] ** 2 + var_roll, rel=1e-9)
     assert on.sigma_rpy_rad[1] ** 2 == pytest.approx(off.sigma_rpy_rad[1] ** 2 + var_pitch, rel=1e-9)
     assert on.sigma_rpy_rad[0] >= SIGMA_M_RAD * math.sqrt(cr ** 4 + sr ** 4) * 0.99
+
+
+def test_one_misalignment_figure_is_both_terms_default():
+    """The heading's and the tilt's consider terms are the same physical figure, the accelerometer's misalignment
+    1σ per off-diagonal element (0.1°, the simulated sensor's): one named constant is both parameters' default,
+    and both keys stay (a sensor known per axis may set them apart)."""
+    from ahrsd.estimator.accel_axes_tilt import ACCEL_MISALIGNMENT_SIGMA_RAD
+    from ahrsd.estimator.ins import InsParams
+    from ahrsd.simulation.errors import MISALIGN_SIGMA_RAD
+
+    assert ACCEL_MISALIGNMENT_SIGMA_RAD == MISALIGN_SIGMA_RAD == math.radians(0.1)
+    p = InsParams()
+    assert p.accel_axes_heading_sigma_rad == p.accel_axes_tilt_sigma_rad == ACCEL_MISALIGNMENT_SIGMA_RAD
+    apart = InsParams(accel_axes_heading_sigma_rad=0.0, accel_axes_tilt_sigma_rad=math.radians(0.2))
+    assert apart.accel_axes_heading_sigma_rad == 0.0 and apart.accel_axes_tilt_sigma_rad == math.radians(0.2)
