@@ -10,8 +10,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ahrsd.core.sample import SampleFlags, make_sample
-from ahrsd.estimator.accel_axes_tilt import accel_axes_tilt_variance_rad2
+from ahrsd.estimator.accel_axes_tilt import accel_axes_tilt_variance_in_force_rad2, accel_axes_tilt_variance_rad2
 from ahrsd.estimator.ins import Ins
+from ahrsd.estimator.mekf import Mekf
 
 G = 9.80665
 SIGMA_M_RAD = math.radians(0.1)          # InsParams.accel_axes_tilt_sigma_rad's default
@@ -60,21 +61,24 @@ def test_worked_heel():
     assert accel_axes_tilt_variance_rad2(phi, 0.0, math.nan) == (0.0, 0.0)
 
 
-def _heeled_run(**params):
-    """A still, heeled ins (20° roll, 5° pitch), 30 s at 100 Hz: its last estimate."""
+def _heeled_run(estimator=Ins, **params):
+    """A still, heeled ins (or mekf) (20° roll, 5° pitch), 30 s at 100 Hz: its last estimate."""
     r = Rotation.from_euler("ZYX", [0.5, math.radians(5.0), math.radians(20.0)])    # body → NED
     f_b = r.inv().apply([0.0, 0.0, -G])
     m_b = r.inv().apply([20.0, 1.0, 45.0])
-    est = Ins(**params)
+    est = estimator(**params)
     e = None
     for i in range(3000):
         e = est.update(make_sample(i * 0.01, np.zeros(3), f_b, m_b, flags=SampleFlags.NEW_DATA))
     return e
 
 
-def test_ins_publishes_the_term_in_quadrature_and_the_same_estimate():
-    on = _heeled_run()
-    off = _heeled_run(accel_axes_tilt_sigma_rad=0.0)
+@pytest.mark.parametrize("estimator, rel", [(Ins, 1e-9), (Mekf, 1e-3)])
+def test_the_filter_publishes_the_term_in_quadrature_and_the_same_estimate(estimator, rel):
+    """ins and mekf both level on the accelerometer: their published roll and pitch σ carry its misalignment (mekf
+    at the low-passed force it levels on, gravity's here to within the estimate's error: rel 1e-3)."""
+    on = _heeled_run(estimator)
+    off = _heeled_run(estimator, accel_axes_tilt_sigma_rad=0.0)
     # the estimate itself is the same to the bit: only the published σ changes
     assert (on.roll_rad, on.pitch_rad, on.heading_true_rad) == (off.roll_rad, off.pitch_rad, off.heading_true_rad)
     np.testing.assert_array_equal(on.q_wxyz, off.q_wxyz)
@@ -90,9 +94,55 @@ def test_ins_publishes_the_term_in_quadrature_and_the_same_estimate():
     # ∂θ/∂f_z = −sin θ cos φ (m_zx f_x, m_zy f_y)
     var_pitch = SIGMA_M_RAD ** 2 * (cp ** 2 * cp ** 2 + (sp * sr) ** 2 * (sp ** 2 + (cr * cp) ** 2)
                                     + (sp * cr) ** 2 * (sp ** 2 + (sr * cp) ** 2))
-    assert on.sigma_rpy_rad[0] ** 2 == pytest.approx(off.sigma_rpy_rad[0] ** 2 + var_roll, rel=1e-9)
-    assert on.sigma_rpy_rad[1] ** 2 == pytest.approx(off.sigma_rpy_rad[1] ** 2 + var_pitch, rel=1e-9)
+    assert on.sigma_rpy_rad[0] ** 2 == pytest.approx(off.sigma_rpy_rad[0] ** 2 + var_roll, rel=rel)
+    assert on.sigma_rpy_rad[1] ** 2 == pytest.approx(off.sigma_rpy_rad[1] ** 2 + var_pitch, rel=rel)
     assert on.sigma_rpy_rad[0] >= SIGMA_M_RAD * math.sqrt(cr ** 4 + sr ** 4) * 0.99
+
+
+def _finite_difference_variance_in_force(c_bn: Rotation, f_b, sigma, h=1e-7):
+    """The roll and pitch variance a misaligned accelerometer leaves in an attitude levelled on the force f_b (body):
+    the attitude that puts the measured force (I + M) f_b along the true one in NED is C·R, R the least rotation
+    taking the measured direction onto f_b's (scipy), its Euler roll and pitch differenced per element m_jk."""
+    e0 = c_bn.as_euler("ZYX")
+    f = np.asarray(f_b, dtype=float)
+    vr = vp = 0.0
+    for j in range(3):
+        for k in range(3):
+            if j == k:
+                continue
+            m = np.zeros((3, 3))
+            m[j, k] = h
+            meas = (np.eye(3) + m) @ f
+            rot, _ = Rotation.align_vectors([f], [meas])        # R: measured direction → f_b's
+            e1 = (c_bn * rot).as_euler("ZYX")
+            vr += ((e1[2] - e0[2]) / h * sigma) ** 2
+            vp += ((e1[1] - e0[1]) / h * sigma) ** 2
+    return vr, vp
+
+
+@pytest.mark.parametrize("roll_deg, pitch_deg, force_b", [
+    (0, 0, (0.0, 0.0, -G)),                          # level, at rest
+    (20, 5, None),                                   # heeled at rest: gravity's force
+    (30, 0, (0.0, 0.0, -G / math.cos(math.radians(30.0)))),   # a coordinated 30° bank: the force on body z
+    (45, 3, (0.4, 0.0, -G / math.cos(math.radians(45.0)))),   # a steeper one, braking a little
+    (10, -8, (1.5, 2.0, -9.0)),                      # a car turning and accelerating
+])
+def test_the_term_in_any_force_is_the_levelled_attitudes_turn(roll_deg, pitch_deg, force_b):
+    """The variance at the filter's specific force, against the attitude a misaligned accelerometer's force puts the
+    levelling at (scipy's least rotation between the measured and true directions, Euler angles differenced); at
+    rest it is the gravity-only closed form; in a coordinated turn the roll's is σ_m² whatever the bank."""
+    c_bn = Rotation.from_euler("ZYX", [0.7, math.radians(pitch_deg), math.radians(roll_deg)])
+    f_b = c_bn.inv().apply([0.0, 0.0, -G]) if force_b is None else np.asarray(force_b)
+    f_n = c_bn.apply(f_b)
+    vr, vp = accel_axes_tilt_variance_in_force_rad2(tuple(c_bn.as_matrix().ravel()), *f_n, SIGMA_M_RAD)
+    er, ep = _finite_difference_variance_in_force(c_bn, f_b, SIGMA_M_RAD)
+    assert vr == pytest.approx(er, rel=1e-4)
+    assert vp == pytest.approx(ep, rel=1e-4)
+    if force_b is None:
+        at_rest = accel_axes_tilt_variance_rad2(math.radians(roll_deg), math.radians(pitch_deg), SIGMA_M_RAD)
+        assert (vr, vp) == pytest.approx(at_rest, rel=1e-9)
+    if roll_deg == 30:
+        assert vr == pytest.approx(SIGMA_M_RAD ** 2, rel=1e-9)
 
 
 def test_one_misalignment_figure_is_both_terms_default():
