@@ -32,7 +32,7 @@ from ahrsd.core.sample import ImuSample
 from . import ins_core as core
 from . import mag_heading as mag
 from .accel_axes_heading import accel_axes_heading_variance_rad2
-from .accel_axes_tilt import ACCEL_MISALIGNMENT_SIGMA_RAD, accel_axes_tilt_variance_rad2
+from .accel_axes_tilt import ACCEL_MISALIGNMENT_SIGMA_RAD, accel_axes_tilt_variance_in_force_rad2
 from .base import DEFAULT_UNMODELLED_IRON_UT, LEARNED_WITH_GNSS
 from .calibration_heading import calibration_heading_variance_rad2, calibration_states_error
 from .gsf_yaw import GsfParams, gsf_fuse_velocity_of, gsf_output_of, gsf_reset, new_gsf_state
@@ -54,6 +54,7 @@ from .estimate_view import BuiltEstimateView, EstimateView
 from .field_circle import FieldCircleCheck, FieldCircleParams, FieldCircleResult
 from .published_heading import PublishedHeading
 from .rotations import quat_to_dcm, quat_to_euler, rotvec_to_dcm
+from .kernel_rotations import dcm
 
 log = logging.getLogger(__name__)
 _DEG = math.pi / 180.0
@@ -1800,8 +1801,12 @@ class Ins:
             sigma_yaw = math.sqrt(sigma_yaw ** 2 + add_var)
             o[_OUT_SIGMA_YAW] = sigma_yaw
         if self.params.accel_axes_tilt_sigma_rad > 0.0:
-            # the tilt ins levels is the accelerometer axes' tilt: their misalignment is in it (accel_axes_tilt.py)
-            var_roll, var_pitch = accel_axes_tilt_variance_rad2(roll, pitch, self.params.accel_axes_tilt_sigma_rad)
+            # the tilt ins levels is the accelerometer axes' tilt: their misalignment is in it (accel_axes_tilt.py),
+            # at the specific force the filter has (low-passed in NED: a turn's, not only gravity's)
+            q0, q1, q2, q3 = self._x["q"].tolist()
+            fn, fe, fd = self._x["acc_ned_lp_m_s2"].tolist()
+            var_roll, var_pitch = accel_axes_tilt_variance_in_force_rad2(dcm(q0, q1, q2, q3), fn, fe, fd,
+                                                                         self.params.accel_axes_tilt_sigma_rad)
             sig_roll, sig_pitch = o[_OUT_SIGMA.start], o[_OUT_SIGMA.start + 1]
             o[_OUT_SIGMA.start] = math.sqrt(sig_roll * sig_roll + var_roll)
             o[_OUT_SIGMA.start + 1] = math.sqrt(sig_pitch * sig_pitch + var_pitch)
