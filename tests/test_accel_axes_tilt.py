@@ -23,9 +23,10 @@ def _levelled(f):
     return math.atan2(-f[1], -f[2]), math.atan2(f[0], math.hypot(f[1], f[2]))
 
 
-def _finite_difference_variance(roll, pitch, sigma, h=1e-7):
-    f = Rotation.from_euler("ZYX", [0.3, pitch, roll]).inv().apply([0.0, 0.0, -G])   # at rest, body frame
-    r0, p0 = _levelled(f)
+def _variance_by_element(roll_pitch_of_measured, f, sigma, h=1e-7):
+    """Σ over the off-diagonal elements m_jk of the misalignment of ((∂angle/∂m_jk) σ)², roll and pitch, with the
+    angles the function gives for the force measured as (I + M) f, differenced at m_jk = h."""
+    r0, p0 = roll_pitch_of_measured(f)
     vr = vp = 0.0
     for j in range(3):
         for k in range(3):
@@ -33,10 +34,15 @@ def _finite_difference_variance(roll, pitch, sigma, h=1e-7):
                 continue
             m = np.zeros((3, 3))
             m[j, k] = h
-            r1, p1 = _levelled((np.eye(3) + m) @ f)
+            r1, p1 = roll_pitch_of_measured((np.eye(3) + m) @ f)
             vr += ((r1 - r0) / h * sigma) ** 2
             vp += ((p1 - p0) / h * sigma) ** 2
     return vr, vp
+
+
+def _finite_difference_variance(roll, pitch, sigma):
+    f = Rotation.from_euler("ZYX", [0.3, pitch, roll]).inv().apply([0.0, 0.0, -G])   # at rest, body frame
+    return _variance_by_element(_levelled, f, sigma)
 
 
 @pytest.mark.parametrize("roll_deg, pitch_deg", [(0, 0), (20, 0), (0, 15), (-25, 10), (40, -30), (5, 60)])
@@ -99,25 +105,18 @@ def test_the_filter_publishes_the_term_in_quadrature_and_the_same_estimate(estim
     assert on.sigma_rpy_rad[0] >= SIGMA_M_RAD * math.sqrt(cr ** 4 + sr ** 4) * 0.99
 
 
-def _finite_difference_variance_in_force(c_bn: Rotation, f_b, sigma, h=1e-7):
+def _finite_difference_variance_in_force(c_bn: Rotation, f_b, sigma):
     """The roll and pitch variance a misaligned accelerometer leaves in an attitude levelled on the force f_b (body):
     the attitude that puts the measured force (I + M) f_b along the true one in NED is C·R, R the least rotation
     taking the measured direction onto f_b's (scipy), its Euler roll and pitch differenced per element m_jk."""
-    e0 = c_bn.as_euler("ZYX")
     f = np.asarray(f_b, dtype=float)
-    vr = vp = 0.0
-    for j in range(3):
-        for k in range(3):
-            if j == k:
-                continue
-            m = np.zeros((3, 3))
-            m[j, k] = h
-            meas = (np.eye(3) + m) @ f
-            rot, _ = Rotation.align_vectors([f], [meas])        # R: measured direction → f_b's
-            e1 = (c_bn * rot).as_euler("ZYX")
-            vr += ((e1[2] - e0[2]) / h * sigma) ** 2
-            vp += ((e1[1] - e0[1]) / h * sigma) ** 2
-    return vr, vp
+
+    def roll_pitch(meas):
+        rot, _ = Rotation.align_vectors([f], [meas])        # R: measured direction → f_b's (identity for f_b)
+        e = (c_bn * rot).as_euler("ZYX")
+        return e[2], e[1]
+
+    return _variance_by_element(roll_pitch, f, sigma)
 
 
 @pytest.mark.parametrize("roll_deg, pitch_deg, force_b", [
