@@ -550,7 +550,9 @@ class Ins:
                 (core._rotate_attitude, (x["q"], 0.0, 0.0, 0.0)),
                 (core._history_at, (x, self._hist, 0.0)),
                 (core.fill_outputs, (x, self._P, par, 0.0, 0.0, 0.0, self._out)),
-                (input_validity, (0,) + (0.0,) * 9)):
+                (input_validity, (0,) + (0.0,) * 9),
+                (dcm, (1.0, 0.0, 0.0, 0.0)),
+                (accel_axes_tilt_variance_in_force_rad2, ((1.0,) + (0.0,) * 8, 0.0, 0.0, -9.8, 0.0))):
             kernel.compile(tuple(kernel.typeof_pyval(a) for a in args))
         _PYTHON_CALLED_KERNELS_LOADED = True
 
