@@ -56,6 +56,7 @@ from .mag.course_offset import (DEFAULT_MAX_TURN_RATE_DEG_S, DEFAULT_STRAIGHT_WI
 from .mag.offsets import fit_offsets_keep_soft_iron
 from .mag.fit import fit_mag
 from .mag.fit_types import MagFitInput
+from .mag.levelling_error import frame_tilt_heading_std_deg, frame_tilt_sigma_deg
 from .heading_trust import calibration_heading_sigma_rad
 from .models import Calibration, MagModel
 from .mag.observability import algebraic_sphere_centre, compare_with_offsets
@@ -148,6 +149,11 @@ class FieldCalResult:
     # is not finite (stored as null: the heading is unknown after accepting, calibration/heading_trust.py)
     offset_source: str = ""
     undetermined: tuple = ()           # parameters the data could not determine
+    # the levelling's body-fixed tilt (1σ per axis) and its share of heading_std_deg (tan(dip) times it), as `ahrsd
+    # calibrate mag` states them (levelling_error.py): the back-stepping fit is levelled by the accelerometer, its
+    # bias over g; NaN: none stated (offsets only, the ellipsoid), ins then takes the frame as the body's
+    frame_tilt_std_deg: float = math.nan
+    frame_tilt_heading_std_deg: float = math.nan
 
     def accuracy_text(self) -> str:
         """One line for a person: the predicted heading accuracy and what the offset rests on."""
@@ -167,6 +173,10 @@ class FieldCalResult:
         return f"Mag cal: {dep}, {off}"
 
     def proposed_calibration(self, current: Calibration) -> Calibration:
+        # the frame's tilt only when stated (calibration/heading_trust.py reads its absence as none)
+        frame_tilt = {key: float(value) for key, value in (("frame_tilt_std_deg", self.frame_tilt_std_deg),
+                                                           ("frame_tilt_heading_std_deg", self.frame_tilt_heading_std_deg))
+                      if math.isfinite(value)}
         return current.with_sensor(
             "mag",
             self.model,
@@ -177,6 +187,7 @@ class FieldCalResult:
             offset_source=self.offset_source, undetermined=list(self.undetermined),
             data_span_s=self.quality.get("t_span_s"),
             before={"hard_iron_ut": self.before.hard_iron_ut.tolist(), "soft_iron": self.before.soft_iron.tolist()},
+            **frame_tilt,
         )
 
     def describe_change(self) -> str:
@@ -766,8 +777,14 @@ class FitJob:
         model, offset_std, offset_source = self._heading_offset(model, offset_std, notes, quality,
                                                                 kept_soft_iron=method == "offsets")
         res = self._judge(model, method, quality, notes, partial=method == "offsets")
+        # the full fit's levelling (the accelerometer here, as `calibrate mag` without --gnss) states its frame's
+        # tilt and that tilt's share of heading_std (ins's frame-tilt states, estimator/mag_frame_tilt.py)
+        levelling = (quality.get(f"{method}_predicted_heading") or {}).get("levelling")
+        tilt_deg, tilt_heading_deg = frame_tilt_sigma_deg(levelling), frame_tilt_heading_std_deg(levelling)
         return dataclasses.replace(res, heading_std_deg=float(heading_std), offset_std_deg=float(offset_std),
-                                   offset_source=offset_source, undetermined=tuple(undetermined))
+                                   offset_source=offset_source, undetermined=tuple(undetermined),
+                                   frame_tilt_std_deg=math.nan if tilt_deg is None else tilt_deg,
+                                   frame_tilt_heading_std_deg=math.nan if tilt_heading_deg is None else tilt_heading_deg)
 
     def _coverage_quality(self) -> dict:
         """What the session's data covered: tilt range, sphere and heading coverage, samples and time span."""

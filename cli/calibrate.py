@@ -768,7 +768,7 @@ def _report_mag(args, calibrated, data, ref, ref_note, site: MagSite, gaps) -> i
     import numpy as np
 
     from ahrsd.calibration import report
-    from ahrsd.calibration.mag.levelling_error import frame_tilt_sigma_deg
+    from ahrsd.calibration.mag.levelling_error import frame_tilt_heading_std_deg, frame_tilt_sigma_deg
 
     res = calibrated.result
     site_json = {"lat_deg": site.lat_deg, "lon_deg": site.lon_deg, "alt_m": site.alt_m, "source": site.source}
@@ -794,6 +794,9 @@ def _report_mag(args, calibrated, data, ref, ref_note, site: MagSite, gaps) -> i
     frame_tilt_deg = frame_tilt_sigma_deg(pred.get("levelling"))
     if frame_tilt_deg is not None:   # the levelling's body-fixed tilt: ins's frame-tilt states' prior (heading_trust.py)
         meta["frame_tilt_std_deg"] = frame_tilt_deg
+        tilt_heading_deg = frame_tilt_heading_std_deg(pred.get("levelling"))
+        if tilt_heading_deg is not None:   # its share of heading_std_deg: ins's harmonics leave it to those states
+            meta["frame_tilt_heading_std_deg"] = tilt_heading_deg
     return _report_fit(args, res, payload, lines, "mag", report.mag_model_lines, meta)
 
 
