@@ -513,7 +513,7 @@ def _learn_bias_at_rest(st, par, dt, gx, gy, gz):
         gi = gx if i == 0 else (gy if i == 1 else gz)
         bi = a3 if i == 0 else (a4 if i == 1 else a5)
         nu = gi - b[i] - bi
-        d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, E_BIAS + i, 1.0, nu, r, 0)
+        d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, E_BIAS + i, 1.0, nu, r, np.int64(0))
         a0 += d0
         a1 += d1
         a2 += d2
@@ -618,9 +618,11 @@ def _correct_tilt(st, par, fnorm, g_ref, nu_n, nu_e, r):
     read as bias). Sequential: the second innovation is re-evaluated after the first correction; the two
     corrections are applied together."""
     mask = M_HEADING if abs(fnorm - g_ref) < par.rest_acc_th_m_s2 else (M_HEADING | M_BIAS)
-    a0, a1, a2, a3, a4, a5 = scalar_update_6(st.P, E_TILT_E, 1.0, nu_n, r, mask)
+    # the row as np.int64, not the constant: numba compiles a callee once per literal argument it is passed
+    # (scalar_update_6 was compiled four times, once per row and mask constant, in every first start)
+    a0, a1, a2, a3, a4, a5 = scalar_update_6(st.P, np.int64(E_TILT_E), 1.0, nu_n, r, mask)
     nu_e2 = nu_e + a0
-    d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, E_TILT_N, -1.0, nu_e2, r, mask)
+    d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, np.int64(E_TILT_N), -1.0, nu_e2, r, mask)
     _apply_correction(st, par, a0 + d0, a1 + d1, a2 + d2, a3 + d3, a4 + d4, a5 + d5)
     st.acc_since_accept_s = 0.0
 
@@ -882,7 +884,7 @@ def _heading_update(st, par, dt, rate, valid, at_rest, moved_at_rest, mx, my, mz
         if res == mag.MAG_USE:
             if publish:
                 track_heading_push(st.unmodelled, st.mag.ref_dip_rad, st.P[E_HEADING, E_HEADING], r)
-            d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, E_HEADING, -1.0, alpha, r, M_TILT)
+            d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, np.int64(E_HEADING), -1.0, alpha, r, np.int64(M_TILT))
             _apply_correction(st, par, d0, d1, d2, d3, d4, d5)
             used = True
         elif res == mag.MAG_REJECTED:
