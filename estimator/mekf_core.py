@@ -1088,7 +1088,7 @@ def mekf_step_full(buf, t_s, gyro, acc, mag_ut, sample_flags):
         return BAD_SHAPE
     b = borrowed(buf)[0]   # the caller holds buf for the call: no reference counting in the step
     return mekf_step(b.state, b.par, t_s, gyro[0], gyro[1], gyro[2], acc[0], acc[1], acc[2],
-                     mag_ut[0], mag_ut[1], mag_ut[2], sample_flags, b.out, True)
+                     mag_ut[0], mag_ut[1], mag_ut[2], sample_flags, b.out, np.bool_(True))
 
 
 @njit(cache=True, inline="always")
@@ -1145,7 +1145,7 @@ def mekf_run(buf, scratch_out, t_s, gyro, acc, mag_ut, sample_flags, start, q_ou
             gyro[i, 0], gyro[i, 1], gyro[i, 2],
             acc[i, 0], acc[i, 1], acc[i, 2],
             mag_ut[i, 0], mag_ut[i, 1], mag_ut[i, 2],
-            sample_flags[i], out, False,
+            sample_flags[i], out, np.bool_(False),   # not the literal: one compile of the step serves both paths
         )
         if f & NEEDS_INIT:
             bound_pushes(u, speed_max, rate_max, g_min, dip_max)
