@@ -76,12 +76,6 @@ HOST_CLOCK_MARK = "# host clock:"
 PROCESS_WIDE_MARK = "# process-wide:"
 
 
-def _parsed(path: Path) -> tuple[ast.Module, str]:
-    """A file's syntax tree and its text (read once)."""
-    text = path.read_text(encoding="utf-8")
-    return ast.parse(text), text
-
-
 def _dotted(node: ast.AST) -> str:
     if isinstance(node, ast.Name):
         return node.id
@@ -91,10 +85,10 @@ def _dotted(node: ast.AST) -> str:
     return ""
 
 
-def _imported_names(nodes: list[ast.AST]) -> set[str]:
+def _imported_names(tree: ast.AST) -> set[str]:
     """The names a module binds by importing: modules (`import a.b` binds a) and names from them."""
     names = set()
-    for node in nodes:
+    for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             names |= {alias.asname or alias.name.split(".")[0] for alias in node.names}
         elif isinstance(node, ast.ImportFrom):
@@ -108,11 +102,11 @@ def _root_name(node: ast.AST) -> str:
     return node.id if isinstance(node, ast.Name) else ""
 
 
-def _monkeypatches(nodes: list[ast.AST], lines: list[str], shown: str) -> list[str]:
+def _monkeypatches(tree: ast.AST, lines: list[str], shown: str) -> list[str]:
     """Rule 7: an attribute of an imported module or name assigned, or set with setattr."""
-    imported = _imported_names(nodes)
+    imported = _imported_names(tree)
     out = []
-    for node in nodes:
+    for node in ast.walk(tree):
         if isinstance(node, ast.Assign):
             targets = node.targets
         elif isinstance(node, (ast.AugAssign, ast.AnnAssign)):
@@ -133,27 +127,24 @@ def _monkeypatches(nodes: list[ast.AST], lines: list[str], shown: str) -> list[s
     return out
 
 
-def _forwarding_wrappers(nodes: list[ast.AST], shown: str) -> list[str]:
+def _forwarding_wrappers(tree: ast.AST, shown: str) -> list[str]:
     """Rule 9: a class with a `__getattr__` method."""
     return [f"{shown}:{item.lineno}: class {node.name} forwards every attribute it lacks (__getattr__): declare "
             "the members it passes on (a property or a method each)"
-            for node in nodes if isinstance(node, ast.ClassDef)
+            for node in ast.walk(tree) if isinstance(node, ast.ClassDef)
             for item in node.body if isinstance(item, ast.FunctionDef) and item.name == "__getattr__"]
 
 
-def check_file(path: Path, shown: str, daemon_rules: bool = True, settings_rule: bool = False,
-               parsed: tuple[ast.Module, str] | None = None) -> list[str]:
+def check_file(path: Path, shown: str, daemon_rules: bool = True, settings_rule: bool = False) -> list[str]:
     """The problems in one file: every rule (daemon_rules), or only rules 4 (an estimator probed), 7 and 9 (a
-    forwarding wrapper); and rule 8 (a settings object probed) with settings_rule. parsed: its `_parsed`, when
-    the caller has it."""
+    forwarding wrapper); and rule 8 (a settings object probed) with settings_rule."""
     try:
-        tree, text = parsed or _parsed(path)
+        tree = ast.parse(path.read_text(encoding="utf-8"))
     except SyntaxError as exc:
         return [f"{shown}:{exc.lineno}: does not parse"]
-    lines = text.splitlines()
-    nodes = list(ast.walk(tree))      # each rule reads every node: walked once (the walk is most of the run)
-    out = _monkeypatches(nodes, lines, shown) + _forwarding_wrappers(nodes, shown)
-    for node in nodes:
+    lines = path.read_text(encoding="utf-8").splitlines()
+    out = _monkeypatches(tree, lines, shown) + _forwarding_wrappers(tree, shown)
+    for node in ast.walk(tree):
         if (daemon_rules and isinstance(node, ast.Call) and _dotted(node.func) in HOST_CLOCKS
                 and HOST_CLOCK_MARK not in lines[node.lineno - 1]):
             out.append(f"{shown}:{node.lineno}: {_dotted(node.func)}() read by a part (take a clock argument, "
@@ -189,13 +180,12 @@ def check_test_file(path: Path, shown: str) -> list[str]:
     """Rule 5: a function or lambda assigned to an attribute of an estimator (a spy replacing its method); rule 9:
     a fake that forwards whatever it lacks."""
     try:
-        tree, _ = _parsed(path)
+        tree = ast.parse(path.read_text(encoding="utf-8"))
     except SyntaxError as exc:
         return [f"{shown}:{exc.lineno}: does not parse"]
-    nodes = list(ast.walk(tree))
-    functions = {n.name for n in nodes if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))}
-    out = _forwarding_wrappers(nodes, shown)
-    for node in nodes:
+    functions = {n.name for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))}
+    out = _forwarding_wrappers(tree, shown)
+    for node in ast.walk(tree):
         if not isinstance(node, ast.Assign):
             continue
         value = node.value
@@ -243,18 +233,23 @@ def _module_level_imports(tree: ast.Module, module: str, is_package: bool, modul
     return out
 
 
-def _import_edges(tree: ast.Module, name: str, path: Path, paths: dict[str, Path]) -> list[tuple[str, int]]:
-    """Module `name`'s module-level imports of this checkout's other modules (`paths`: name → file), one edge a
-    line and module."""
-    edges = [(target, line) for target, line in _module_level_imports(tree, name, path.name == "__init__.py", paths)
-             if target in paths and target != name]
-    return list(dict.fromkeys(edges))                  # one line importing two names of a module: one edge
-
-
-def _import_cycles(root: Path, paths: dict[str, Path], edges: dict[str, list[tuple[str, int]]]) -> list[str]:
-    """Rule 10: the cycles of the module-level import graph among this checkout's modules (`paths`, `edges`:
-    _import_edges of each module that parses; Tarjan's strongly connected components; a module importing
-    itself is no cycle)."""
+def _import_cycles(root: Path, packages: tuple[str, ...]) -> list[str]:
+    """Rule 10: the cycles of the module-level import graph among this checkout's modules (Tarjan's strongly
+    connected components; a module importing itself is no cycle)."""
+    paths = {}
+    for package in packages:
+        for path in sorted((root / package).rglob("*.py")):
+            paths[_module_name(root, path)] = path
+    edges: dict[str, list[tuple[str, int]]] = {}
+    for name, path in paths.items():
+        try:
+            tree = ast.parse(path.read_text(encoding="utf-8"))
+        except SyntaxError:
+            continue                                   # check_file reports it
+        edges[name] = [(target, line) for target, line in
+                       _module_level_imports(tree, name, path.name == "__init__.py", paths)
+                       if target in paths and target != name]
+        edges[name] = list(dict.fromkeys(edges[name]))  # one line importing two names of a module: one edge
     index, low, stack, on_stack, out = {}, {}, [], set(), []
 
     def visit(v: str) -> None:                         # recursion depth ≤ the number of modules (a few hundred)
@@ -290,27 +285,11 @@ def _import_cycles(root: Path, paths: dict[str, Path], edges: dict[str, list[tup
 
 
 def check(root: Path) -> list[str]:
-    """Every problem: the import cycles first, then each file's, in path order. Each file is parsed once, for
-    its import edges and its rules, and its tree dropped before the next (the trees of every file kept at once
-    make each garbage collection walk them all)."""
-    packages = (DAEMON, *ESTIMATOR_RULE_PACKAGES)
-    files = [(package, path) for package in packages for path in sorted((root / package).rglob("*.py"))]
-    paths = {_module_name(root, path): path for _, path in files}
-    edges: dict[str, list[tuple[str, int]]] = {}
-    found = []
-    for package, path in files:
-        try:
-            parsed = _parsed(path)
-        except SyntaxError:
-            parsed = None                              # check_file reports it
-        else:
-            name = _module_name(root, path)
-            if paths[name] == path:                    # a module and a package of one name: the later file's edges
-                edges[name] = _import_edges(parsed[0], name, path, paths)
-        found += check_file(path, str(path.relative_to(root)), daemon_rules=package == DAEMON,
-                            settings_rule=package in SETTINGS_RULE_PACKAGES, parsed=parsed)
-    out = _import_cycles(root, paths, edges)
-    out += found
+    out = _import_cycles(root, (DAEMON, *ESTIMATOR_RULE_PACKAGES))
+    for package in (DAEMON, *ESTIMATOR_RULE_PACKAGES):
+        for path in sorted((root / package).rglob("*.py")):
+            out += check_file(path, str(path.relative_to(root)), daemon_rules=package == DAEMON,
+                              settings_rule=package in SETTINGS_RULE_PACKAGES)
     for path in sorted((root / TESTS).rglob("*.py")):
         out += check_test_file(path, str(path.relative_to(root)))
     return out
