@@ -618,8 +618,8 @@ def _correct_tilt(st, par, fnorm, g_ref, nu_n, nu_e, r):
     read as bias). Sequential: the second innovation is re-evaluated after the first correction; the two
     corrections are applied together."""
     mask = M_HEADING if abs(fnorm - g_ref) < par.rest_acc_th_m_s2 else (M_HEADING | M_BIAS)
-    # the row as np.int64, not the constant: numba compiles a callee once per literal argument it is passed
-    # (scalar_update_6 was compiled four times, once per row and mask constant, in every first start)
+    # the row as np.int64, not the constant: numba compiles a callee once per literal argument it is passed,
+    # so every row and mask shares one compile of scalar_update_6
     a0, a1, a2, a3, a4, a5 = scalar_update_6(st.P, np.int64(E_TILT_E), 1.0, nu_n, r, mask)
     nu_e2 = nu_e + a0
     d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, np.int64(E_TILT_N), -1.0, nu_e2, r, mask)

@@ -61,7 +61,7 @@ def test_integrated_autocorrelation_time_of_white_and_ar1_residuals():
     rng = np.random.default_rng(3)
     white = rng.normal(size=200_000)
     assert integrated_autocorrelation_time(white) == pytest.approx(1.0, abs=0.05)
-    from scipy.signal import lfilter    # here: scipy.signal imports scipy.stats, ~0.4 CPU-s a collection
+    from scipy.signal import lfilter    # here, not at the top: scipy.signal imports scipy.stats, for every collection
 
     phi = 0.8      # AR(1): ρ_k = φ^k, τ_int = 1 + 2φ/(1 − φ) = (1 + φ)/(1 − φ) = 9
     ar1 = lfilter([1.0], [1.0, -phi], white)

@@ -64,7 +64,7 @@ def test_the_threshold_gives_the_false_alarm_rate_it_states():
 
 def _average_run_length(k, h, m=600):
     """Brook & Evans (1972): the CUSUM's states on [0, h] discretised in m cells, X ~ χ²₁ (scipy)."""
-    from scipy import stats    # here: importing scipy.stats costs every collection of the suite ~0.3 CPU-s
+    from scipy import stats    # here, not at the top: every collection of the suite would import scipy.stats
 
     w = h / (m - 0.5)
     centres = np.arange(m) * w

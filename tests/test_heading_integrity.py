@@ -42,7 +42,7 @@ def test_heading_nees_under_a_wrong_calibration_is_not_overconfident(uncalibrate
     every 10 s after 30 s stays below the 99 % χ² bound of its mean, and ≤ 1 % of the samples are beyond 3σ.
     The heading state says MAGNETOMETER only once the iron is learned, and then honestly.
     The old filter (magnetometer trusted as calibrated, no monitor) says 0.4° while 30° off."""
-    from scipy.stats import chi2    # here: importing scipy.stats costs every collection of the suite ~0.3 CPU-s
+    from scipy.stats import chi2    # here, not at the top: every collection of the suite would import scipy.stats
 
     run = uncalibrated_boat
     n = len(run.t_s)
