@@ -45,20 +45,19 @@ def accel_axes_tilt_variance_rad2(roll_rad: float, pitch_rad: float,
         return 0.0, 0.0
     sr, cr = math.sin(roll_rad), math.cos(roll_rad)
     sp, cp = math.sin(pitch_rad), math.cos(pitch_rad)
-    f = (sp, -sr * cp, -cr * cp)                    # gravity's specific force in the body, per g
-    r2 = f[1] * f[1] + f[2] * f[2]                  # cos²θ
+    f0, f1, f2 = sp, -sr * cp, -cr * cp             # gravity's specific force in the body, per g
+    r2 = f1 * f1 + f2 * f2                          # cos²θ
     r = math.sqrt(r2)
     if r < 1e-9:                                    # pitched ±90°: roll is undefined, and so is its error
         return math.inf, s * s
-    # ∂roll/∂f and ∂pitch/∂f (per g: |f| = 1)
-    d_roll = (0.0, f[2] / r2, -f[1] / r2)
-    d_pitch = (r, -f[0] * f[1] / r, -f[0] * f[2] / r)
-    var_roll = var_pitch = 0.0
-    for j in range(3):
-        for k in range(3):
-            if j != k:                              # m_jk: the j axis picks up m_jk · f_k
-                var_roll += (d_roll[j] * f[k]) ** 2
-                var_pitch += (d_pitch[j] * f[k]) ** 2
+    # ∂roll/∂f = (0, f_z, −f_y)/r² and ∂pitch/∂f = (r, −f_x f_y/r, −f_x f_z/r) (per g: |f| = 1); the j axis picks
+    # up m_jk · f_k, so each variance sums (∂angle/∂f_j · f_k)² over j ≠ k, written out term by term (j, then k)
+    # in that order (∂roll/∂f_x is 0: its two terms add nothing); this runs for every estimate ins builds
+    dr1, dr2 = f2 / r2, -f1 / r2
+    dp0, dp1, dp2 = r, -f0 * f1 / r, -f0 * f2 / r
+    var_roll = (dr1 * f0) ** 2 + (dr1 * f2) ** 2 + (dr2 * f0) ** 2 + (dr2 * f1) ** 2
+    var_pitch = (dp0 * f1) ** 2 + (dp0 * f2) ** 2 + (dp1 * f0) ** 2 + (dp1 * f2) ** 2 + (dp2 * f0) ** 2 \
+        + (dp2 * f1) ** 2
     return var_roll * s * s, var_pitch * s * s
 
 

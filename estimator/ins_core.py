@@ -892,8 +892,8 @@ def _covariance_epoch(x, P, par, nav_ok, rate):
     propagate_covariance(x, P, par)
     if not nav_ok:
         # unknown velocity/position: keep their block bounded and uncorrelated until a fix sets them
-        _reset_block(P, E_V, np.full(3, NAV_UNKNOWN_VAR_V))
-        _reset_block(P, E_P, np.full(3, NAV_UNKNOWN_VAR_P))
+        _reset_block(P, np.int64(E_V), np.full(3, NAV_UNKNOWN_VAR_V))    # np.int64: one compile for every block
+        _reset_block(P, np.int64(E_P), np.full(3, NAV_UNKNOWN_VAR_P))
     if levelling:
         flags |= _level(x, P, par, epoch)
     else:
@@ -1181,8 +1181,8 @@ def _reset_from_fix(x, P, hist, par, t_fix, first, nu_v, nu_p, var_v, var_p, use
     x.lat_rad += dlat
     x.lon_rad += dlon
     x.h_m -= dx[E_P + 2]
-    _reset_block(P, E_V, var_v if use_vd else np.array([var_v[0], var_v[1], 1.0]))
-    _reset_block(P, E_P, var_p if use_alt else np.array([var_p[0], var_p[1], NAV_UNKNOWN_VAR_P]))
+    _reset_block(P, np.int64(E_V), var_v if use_vd else np.array([var_v[0], var_v[1], 1.0]))
+    _reset_block(P, np.int64(E_P), var_p if use_alt else np.array([var_p[0], var_p[1], NAV_UNKNOWN_VAR_P]))
     # the tilt so far came from levelling, which leans by the unknown acceleration (a turn: a/g); its
     # small variance would make the GNSS read that lean as accelerometer bias: widen it
     st2 = par.nav_init_sigma_tilt_rad ** 2 if first or t_fix - x.gnss_fused_t_s > par.dead_reckon_s else 0.0
@@ -1238,11 +1238,13 @@ def _gate_velocity_and_position(x, P, par, hv, hp, nu_v, nu_p, var_v, var_p, dx,
         # a velocity reset needs the positions to disagree too (or none): a receiver whose velocity
         # contradicts its own positions is wrong, not the filter
         may_reset = not use_pos or not math.isnan(x.pos_gate.rejected_since_s)
+        # the flags as np.int64 (np.bool_), not the constants: numba compiles a callee once per literal argument
+        # it is passed, so velocity and position share one compile of _gated_update
         res |= _gated_update(x.vel_gate, P, par, hv, nu_v, var_v, 3 if use_vd else 2, dx, t_fix, may_reset,
-                             R_VEL_FUSED, R_VEL_REJECTED, R_VEL_RESET)
+                             np.int64(R_VEL_FUSED), np.int64(R_VEL_REJECTED), np.int64(R_VEL_RESET))
     if use_pos:
-        res |= _gated_update(x.pos_gate, P, par, hp, nu_p, var_p, 3 if use_alt else 2, dx, t_fix, True,
-                             R_POS_FUSED, R_POS_REJECTED, R_POS_RESET)
+        res |= _gated_update(x.pos_gate, P, par, hp, nu_p, var_p, 3 if use_alt else 2, dx, t_fix, np.bool_(True),
+                             np.int64(R_POS_FUSED), np.int64(R_POS_REJECTED), np.int64(R_POS_RESET))
     return res
 
 
@@ -1253,7 +1255,7 @@ def _velocity_reset_to_fix(x, P, nu_v, var_v, m_v, dx):
     for i in range(m_v):
         x.vel_ned_m_s[i] += nu_v[i] - dx[E_V + i]
         dx[E_V + i] = nu_v[i]
-    _reset_block(P, E_V, var_v)
+    _reset_block(P, np.int64(E_V), var_v)
     x.vel_gate.rejected_since_s = math.nan
 
 
@@ -1268,7 +1270,7 @@ def _position_reset_to_fix(x, P, nu_p, var_p, dx, use_alt, r_n, r_e, ph, plat):
     x.lat_rad += extra_lat
     x.lon_rad += extra_lon
     x.h_m += extra_h
-    _reset_block(P, E_P, var_p)
+    _reset_block(P, np.int64(E_P), var_p)
     x.pos_gate.rejected_since_s = math.nan
     return extra_lat, extra_lon, extra_h
 

@@ -515,7 +515,7 @@ def _learn_bias_at_rest(st, par, dt, gx, gy, gz):
         gi = gx if i == 0 else (gy if i == 1 else gz)
         bi = a3 if i == 0 else (a4 if i == 1 else a5)
         nu = gi - b[i] - bi
-        d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, E_BIAS + i, 1.0, nu, r, 0)
+        d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, E_BIAS + i, 1.0, nu, r, np.int64(0))
         a0 += d0
         a1 += d1
         a2 += d2
@@ -620,9 +620,11 @@ def _correct_tilt(st, par, fnorm, g_ref, nu_n, nu_e, r):
     read as bias). Sequential: the second innovation is re-evaluated after the first correction; the two
     corrections are applied together."""
     mask = M_HEADING if abs(fnorm - g_ref) < par.rest_acc_th_m_s2 else (M_HEADING | M_BIAS)
-    a0, a1, a2, a3, a4, a5 = scalar_update_6(st.P, E_TILT_E, 1.0, nu_n, r, mask)
+    # the row as np.int64, not the constant: numba compiles a callee once per literal argument it is passed,
+    # so every row and mask shares one compile of scalar_update_6
+    a0, a1, a2, a3, a4, a5 = scalar_update_6(st.P, np.int64(E_TILT_E), 1.0, nu_n, r, mask)
     nu_e2 = nu_e + a0
-    d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, E_TILT_N, -1.0, nu_e2, r, mask)
+    d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, np.int64(E_TILT_N), -1.0, nu_e2, r, mask)
     _apply_correction(st, par, a0 + d0, a1 + d1, a2 + d2, a3 + d3, a4 + d4, a5 + d5)
     st.acc_since_accept_s = 0.0
 
@@ -884,7 +886,7 @@ def _heading_update(st, par, dt, rate, valid, at_rest, moved_at_rest, mx, my, mz
         if res == mag.MAG_USE:
             if publish:
                 track_heading_push(st.unmodelled, st.mag.ref_dip_rad, st.P[E_HEADING, E_HEADING], r)
-            d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, E_HEADING, -1.0, alpha, r, M_TILT)
+            d0, d1, d2, d3, d4, d5 = scalar_update_6(st.P, np.int64(E_HEADING), -1.0, alpha, r, np.int64(M_TILT))
             _apply_correction(st, par, d0, d1, d2, d3, d4, d5)
             used = True
         elif res == mag.MAG_REJECTED:
@@ -1096,7 +1098,7 @@ def mekf_step_full(buf, t_s, gyro, acc, mag_ut, sample_flags):
         return BAD_SHAPE
     b = borrowed(buf)[0]   # the caller holds buf for the call: no reference counting in the step
     return mekf_step(b.state, b.par, t_s, gyro[0], gyro[1], gyro[2], acc[0], acc[1], acc[2],
-                     mag_ut[0], mag_ut[1], mag_ut[2], sample_flags, b.out, True)
+                     mag_ut[0], mag_ut[1], mag_ut[2], sample_flags, b.out, np.bool_(True))
 
 
 @njit(cache=True, inline="always")
@@ -1153,7 +1155,7 @@ def mekf_run(buf, scratch_out, t_s, gyro, acc, mag_ut, sample_flags, start, q_ou
             gyro[i, 0], gyro[i, 1], gyro[i, 2],
             acc[i, 0], acc[i, 1], acc[i, 2],
             mag_ut[i, 0], mag_ut[i, 1], mag_ut[i, 2],
-            sample_flags[i], out, False,
+            sample_flags[i], out, np.bool_(False),   # not the literal: one compile of the step serves both paths
         )
         if f & NEEDS_INIT:
             bound_pushes(u, speed_max, rate_max, g_min, dip_max)

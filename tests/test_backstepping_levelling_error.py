@@ -9,7 +9,6 @@ import math
 
 import numpy as np
 import pytest
-from scipy.signal import lfilter
 from scipy.spatial.transform import Rotation
 
 from ahrsd.calibration.mag import backstepping as bs
@@ -62,6 +61,8 @@ def test_integrated_autocorrelation_time_of_white_and_ar1_residuals():
     rng = np.random.default_rng(3)
     white = rng.normal(size=200_000)
     assert integrated_autocorrelation_time(white) == pytest.approx(1.0, abs=0.05)
+    from scipy.signal import lfilter    # here, not at the top: scipy.signal imports scipy.stats, for every collection
+
     phi = 0.8      # AR(1): ρ_k = φ^k, τ_int = 1 + 2φ/(1 − φ) = (1 + φ)/(1 − φ) = 9
     ar1 = lfilter([1.0], [1.0, -phi], white)
     assert integrated_autocorrelation_time(ar1) == pytest.approx(9.0, rel=0.1)

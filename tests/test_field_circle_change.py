@@ -17,7 +17,6 @@ import math
 
 import numpy as np
 import pytest
-from scipy import stats
 from scipy.spatial.transform import Rotation
 from test_field_circle import CLAIMED_SIGMA_RAD, H_UT, RATE_HZ, _levelled_fields, _run, _turning
 
@@ -65,6 +64,8 @@ def test_the_threshold_gives_the_false_alarm_rate_it_states():
 
 def _average_run_length(k, h, m=600):
     """Brook & Evans (1972): the CUSUM's states on [0, h] discretised in m cells, X ~ χ²₁ (scipy)."""
+    from scipy import stats    # here, not at the top: every collection of the suite would import scipy.stats
+
     w = h / (m - 0.5)
     centres = np.arange(m) * w
     edges = np.concatenate([[w / 2.0], (np.arange(1, m) + 0.5) * w])

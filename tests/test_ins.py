@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from scipy.stats import chi2
 
 from ahrsd.core.estimate import EstimateFlags
 from ahrsd.core.gnss import GnssFixType, make_fix
@@ -123,6 +122,8 @@ def test_nees_of_attitude_velocity_and_position_within_chi_square_bounds():
     (0.12 rad), is mekf's floor at rest (0.03 rad). For each 3-dof block (δθ, δv, δp) the NEES is averaged
     over 6 runs × 6 times (10 s apart after 60 s, taken as independent): a consistent filter puts 36·mean
     inside the 99 % two-sided interval of χ²(108), i.e. mean ∈ [2.14, 4.03]."""
+    from scipy.stats import chi2    # here, not at the top: every collection of the suite would import scipy.stats
+
     p = DEFAULT_INS_PARAMS
     lo, hi = chi2.ppf([0.005, 0.995], 3 * 36) / 36
     nees = {"att": [], "vel": [], "pos": []}
