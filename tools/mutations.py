@@ -363,4 +363,12 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("action-param-answer-written", "a momentary parameter's write that was done is answered with its value",
              "daemon/param_protocol.py", "elif self.params.specs[index].momentary:", "elif False:",
              ("tests/test_daemon_parts.py",)),
+    # ------------------------------------------------------------------ session 27 (car27)
+    Mutation("levelling-less-gnss-motion", "calibrate mag --gnss's first fit can level without the vehicle's acceleration",
+             "calibration/mag/gnss_motion.py", "return np.ascontiguousarray(accel - a)",
+             "return np.ascontiguousarray(accel)",
+             ("tests/test_backstepping_aided_car.py",)),
+    Mutation("rejection-heading-unknown", "GNSS velocities rejected before the heading is found are not the lever arm's",
+             "estimator/velocity_rejection_cause.py", "if heading_unknown:", "if False:",
+             ("tests/test_heading_status.py", "tests/test_backstepping_aided_car.py")),
 )
