@@ -47,6 +47,7 @@ from ahrsd.daemon import messages as msgs
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.estimator.calibration_heading import calibration_heading_variance_rad2
 from ahrsd.estimator.field_circle import CalibrationVerdict, wrong_calibration_text
+from ahrsd.estimator.velocity_rejection_cause import heading_rejection_cause
 
 STATE_LABELS = {HeadingState.UNKNOWN: "hdg unknown", HeadingState.MAGNETOMETER: "hdg mag",
                 HeadingState.GNSS_ONLY: "hdg GNSS-only", HeadingState.LEARNING: "hdg learning"}
@@ -54,7 +55,6 @@ DISAGREEMENT_GATE_SIGMA = 3.0         # as the estimator's heading monitor (Head
 UNCALIBRATED_SIGMA_RAD = math.radians(20.0)   # InsParams.mag_uncalibrated_sigma_rad: how far ins weighs an unknown calibration
 TRUSTED_CALIBRATION_RAD = math.radians(3.0)   # HeadingMonitor.trusted_sigma_rad: a calibration ins trusts to hold the heading
 ANNOUNCE_AFTER_S = 2.0                # a state must hold this long to be announced (no STATUSTEXT per flicker)
-YAW_RESET_CAUSE_S = 30.0              # a yaw reset this recent explains rejected GNSS velocities
 
 
 class HeadingStatus:
@@ -273,16 +273,14 @@ class HeadingStatus:
 
     def rejection_cause(self, now: float) -> str | None:
         """When the aided filter rejects GNSS velocities: the heading as the cause (a short phrase for the
-        STATUSTEXT: "mag vs GNSS 36°") when the magnetometer disagrees with the GNSS yaw or the heading was just
-        reset to it, else None (then the lever arm or latency, as the GNSS task says)."""
-        if self._iron_stepped():
-            return f"mag iron step {math.degrees(self.mag_step_rad):+.0f}°"
-        if self.mag_inconsistent:
-            d = self.disagreement_rad
-            return f"mag vs GNSS {abs(math.degrees(d)):.0f}°" if math.isfinite(d) else "mag rejected"
-        if now - self._last_reset_at <= YAW_RESET_CAUSE_S:
-            return "heading reset"
-        return None
+        STATUSTEXT: "mag vs GNSS 36°") when the iron stepped, the magnetometer disagrees with the GNSS yaw, the
+        heading was just reset to it or is not known yet, else None (then the lever arm or latency, as the GNSS
+        task says). The rule is estimator/velocity_rejection_cause.py's, shared with `calibrate mag --gnss`."""
+        cause = heading_rejection_cause(iron_step_rad=self.mag_step_rad, mag_inconsistent=self.mag_inconsistent,
+                                        disagreement_rad=self.disagreement_rad,
+                                        since_yaw_reset_s=now - self._last_reset_at,
+                                        heading_unknown=self.state == HeadingState.UNKNOWN and not self.initialising)
+        return None if cause is None else cause.text
 
     # ------------------------------------------------------------------ internals
     def _off_centre(self) -> bool:

@@ -73,13 +73,21 @@ def test_levelling_refuses_fixes_for_an_unaided_estimator():
         roll_pitch_from_estimator(data, "mekf", fixes=[])
 
 
+def _a_recording(tmp_path):
+    """A recording path that exists: `calibrate mag` says "no such file" before any usage error (the usage
+    checks below run before the file is read, so its content does not matter)."""
+    path = tmp_path / "x.csv"
+    path.write_text("")
+    return path
+
+
 def test_gnss_needs_backstepping(tmp_path, ahrsd_inproc):
-    res = ahrsd_inproc("mag", tmp_path / "x.csv", "--lat", "50", "--lon", "5", "--gnss", "x.gnss.csv", "--dry-run")
+    res = ahrsd_inproc("mag", _a_recording(tmp_path), "--lat", "50", "--lon", "5", "--gnss", "x.gnss.csv", "--dry-run")
     assert res.returncode == 2 and "--gnss goes with --method backstepping" in res.stderr
 
 
 def test_gnss_course_needs_gnss(tmp_path, ahrsd_inproc):
-    res = ahrsd_inproc("mag", tmp_path / "x.csv", "--lat", "50", "--lon", "5", "--method", "backstepping",
+    res = ahrsd_inproc("mag", _a_recording(tmp_path), "--lat", "50", "--lon", "5", "--method", "backstepping",
                        "--gnss-course", "--dry-run")
     assert res.returncode == 2 and "--gnss-course needs --gnss" in res.stderr
 
@@ -187,7 +195,7 @@ def test_the_levelling_bias_prior_follows_the_accelerometer_calibration(tmp_path
     (["--gnss", "g.csv", "--accel-bias-sigma-mg", "nan"], "expected 0 < MG"),
 ])
 def test_accel_bias_sigma_usage(tmp_path, extra, message, ahrsd_inproc):
-    res = ahrsd_inproc("mag", tmp_path / "x.csv", "--lat", "50", "--lon", "5", "--method", "backstepping",
+    res = ahrsd_inproc("mag", _a_recording(tmp_path), "--lat", "50", "--lon", "5", "--method", "backstepping",
                        "--dry-run", *extra)
     assert res.returncode == 2 and message in res.stderr, res.stderr
 
@@ -198,7 +206,7 @@ def test_accel_bias_sigma_usage(tmp_path, extra, message, ahrsd_inproc):
     (["--gnss", "g.csv", "--lever-arm-m", "nan", "0", "0"], "expected three numbers"),
 ])
 def test_lever_arm_usage(tmp_path, extra, message, ahrsd_inproc):
-    res = ahrsd_inproc("mag", tmp_path / "x.csv", "--lat", "50", "--lon", "5", "--method", "backstepping",
+    res = ahrsd_inproc("mag", _a_recording(tmp_path), "--lat", "50", "--lon", "5", "--method", "backstepping",
                        "--dry-run", *extra)
     assert res.returncode == 2 and message in res.stderr, res.stderr
 
@@ -257,5 +265,5 @@ def test_the_reference_field_is_taken_at_the_recordings_position_without_lat_lon
     (("--lon", "5", "--method", "backstepping", "--gnss", "x.gnss.csv"), "give --lat and --lon together"),
 ])
 def test_a_reference_field_needs_a_site(tmp_path, extra, message, ahrsd_inproc):
-    res = ahrsd_inproc("mag", tmp_path / "x.csv", *extra, "--dry-run")
+    res = ahrsd_inproc("mag", _a_recording(tmp_path), *extra, "--dry-run")
     assert res.returncode == 2 and message in res.stderr, res.stderr

@@ -709,3 +709,17 @@ def test_the_calibrations_predicted_heading_error_reaches_ins_as_a_figure_or_unk
     got = calibration_heading_sigma_rad(cal("mag", model, residual_rms_ut=0.5,
                                             site={"lat_deg": 40.0, "lon_deg": -105.0, "alt_m": 0.0}))
     assert got == pytest.approx(math.atan2(0.5, h))
+
+
+def test_rejected_velocities_while_the_heading_is_unknown_are_the_headings_not_the_lever_arms():
+    """The rule `calibrate mag --gnss` shares (estimator/velocity_rejection_cause.py): a filter that has not found
+    its heading rejects correct fixes; the GNSS task's "lever arm?" is for a heading that is known. While
+    initialising nothing is said of it (no heading yet, no fixes fused)."""
+    hs, _ = status()
+    hs.on_estimate(estimate(HeadingState.UNKNOWN, 60.0, gsf_valid=False), 0.0)
+    assert hs.rejection_cause(0.0) == "heading unknown"
+    hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 1.0, gsf_valid=False), 1.0)
+    assert hs.rejection_cause(1.0) is None
+    hs, _ = status()
+    hs.on_estimate(estimate(HeadingState.UNKNOWN, 60.0, gsf_valid=False, flags=EstimateFlags.INITIALISING), 0.0)
+    assert hs.rejection_cause(0.0) is None

@@ -384,4 +384,12 @@ MUTATIONS: tuple[Mutation, ...] = (
              "estimator/mekf_core.py", "        sig[0] = math.sqrt(sig[0] * sig[0] + var_roll)",
              "        sig[0] = sig[0] + 0.0 * var_roll",
              ("tests/test_accel_axes_tilt.py",)),
+    # ------------------------------------------------------------------ session 27 (car27)
+    Mutation("levelling-less-gnss-motion", "calibrate mag --gnss's first fit can level without the vehicle's acceleration",
+             "calibration/mag/gnss_motion.py", "return np.ascontiguousarray(accel - a)",
+             "return np.ascontiguousarray(accel)",
+             ("tests/test_backstepping_aided_car.py",)),
+    Mutation("rejection-heading-unknown", "GNSS velocities rejected before the heading is found are not the lever arm's",
+             "estimator/velocity_rejection_cause.py", "if heading_unknown:", "if False:",
+             ("tests/test_heading_status.py", "tests/test_backstepping_aided_car.py")),
 )

@@ -26,7 +26,15 @@ the error is the levelling's (measured in docs/magcal-vehicle.md). What this mod
   it would by tan(dip) times the heading error. The fit from that levelling calibrates the magnetometer for the
   next pass (MAG_HEADING_PASSES). Only when the accelerometer-levelled fit is refused does the filter level
   without a magnetometer. `quality["aided_levelling"]["passes"]` reports each pass and its GNSS counters, and a
-  warning says when a pass rejected the GNSS velocities (a lever arm or time stamps the filter was not told).
+  warning says when a pass rejected the GNSS velocities, with the cause the evidence supports
+  (levelling_rejections.py: the heading not yet found or just reset, or else the antenna's lever arm and the
+  fixes' time stamps; the daemon's rule).
+- **The accelerometer-levelled fit on a vehicle whose speed changes.** The accelerometer reads the vehicle's own
+  acceleration as tilt; back-stepping fits out the lean of steady turns with one constant speed, which describes
+  a boat but not a car that brakes, accelerates and corners at 0–20 m/s (its fit leaned tens of degrees or did
+  not converge, and the magnetometer passes were lost). So that fit is made twice: as back-stepping makes it, and
+  with the acceleration the GNSS speed and the gyro give removed from the accelerometer (gnss_motion.py); the one
+  with the smaller vertical residual is kept (docs/gnss.md "Offline").
 - **The accelerometer bias.** On a boat that stays near level and mostly yaws, a body-fixed accelerometer bias b
   and a tilt b/g give nearly the same GNSS velocities, so 180 s of motion splits them only weakly and the
   levelling's tilt is off by up to the bias the filter's prior allows (its default 10 mg: up to 0.6°). What
@@ -48,6 +56,7 @@ import numpy as np
 from ahrsd.estimator import AIDED_ESTIMATOR
 
 from .levelling import attitude_from_estimator
+from .levelling_rejections import MAX_REJECTED_VELOCITY_FRACTION, RejectionWatch, rejection_warning
 from .levelling_error import body_fixed_tilt_sigma_rad
 from .fit_types import MagFitInput, MagFitResult
 
@@ -55,20 +64,20 @@ SETTLED_TILT_SIGMA_DEG = math.inf   # fit only where the filter's tilt 1σ is be
                                     # (bench/backstepping_gnss.py --sweep) no limit did as well as any
 MAG_HEADING_PASSES = 2          # aided levelling passes with the magnetometer (heading only), each calibrated by
                                 # the previous fit; chosen on the tuning seeds (docs/magcal-vehicle.md)
-MAX_REJECTED_VELOCITY_FRACTION = 0.01   # of the offered fixes: more, and the filter did not converge
 MIN_SETTLED_FRACTION = 0.25    # fewer settled samples than this: fit them all (a short run)
 SMOOTH_LEVELLING = True        # level with the RTS smoother over the whole run (estimator/ins_smoother.py)
 
 
 def aided_roll_pitch(data: MagFitInput, fixes, declination_rad: float, mag_enabled: bool = False,
                      smooth: bool = SMOOTH_LEVELLING, accel_bias_sigma_m_s2: float | None = None,
-                     filter_overrides: dict | None = None):
+                     filter_overrides: dict | None = None, watch=None):
     """The levelling the fit uses: roll, pitch and tilt 1σ (rad, per sample) of the aided estimator over `data`
     with the GNSS `fixes`, and the estimator (its GNSS counters). `smooth`: those of the RTS smoother over the
     filter's run (given every fix, before and after) instead of the filter's own (given the fixes before).
     `accel_bias_sigma_m_s2`: the filter's accelerometer-bias prior (None: its default, for an uncalibrated
     accelerometer). `filter_overrides`: other InsParams fields of the filter (e.g. the gyro-misalignment prior of
-    a rate-table-calibrated gyro)."""
+    a rate-table-calibrated gyro). `watch(est)`: made with the estimator before it runs, called with each
+    sample's estimate (a `RejectionWatch`)."""
     from ahrsd.estimator import make_estimator
     from ahrsd.estimator.ins_smoother import SmoothingIns
 
@@ -77,7 +86,9 @@ def aided_roll_pitch(data: MagFitInput, fixes, declination_rad: float, mag_enabl
         prior["init_accel_bias_sigma_m_s2"] = float(accel_bias_sigma_m_s2)
     est = (SmoothingIns(declination_rad=declination_rad, mag_enabled=mag_enabled, **prior) if smooth else
            make_estimator(AIDED_ESTIMATOR, declination_rad=declination_rad, mag_enabled=mag_enabled, **prior))
-    roll, pitch, tilt_sigma = attitude_from_estimator(data, AIDED_ESTIMATOR, fixes=fixes, estimator=est)
+    on_estimate = None if watch is None else watch(est)
+    roll, pitch, tilt_sigma = attitude_from_estimator(data, AIDED_ESTIMATOR, fixes=fixes, estimator=est,
+                                                      on_estimate=on_estimate)
     if smooth:
         sr, sp, ss = est.smoothed_roll_pitch()
         ok = np.isfinite(sr) & np.isfinite(sp)
@@ -89,8 +100,14 @@ def _level(data: MagFitInput, fixes, declination_rad: float, mag_enabled: bool, 
            smooth: bool, accel_bias_sigma_m_s2: float | None, filter_overrides: dict | None):
     """Roll, pitch, the settled mask, the levelling's body-fixed tilt 1σ per axis over the settled samples (rad)
     and whether the filter fused the GNSS velocity cleanly."""
+    watches = []
+
+    def watch(est):
+        watches.append(RejectionWatch(est, mag_enabled))
+        return watches[-1]
+
     roll, pitch, tilt_sigma, est = aided_roll_pitch(data, fixes, declination_rad, mag_enabled, smooth,
-                                                    accel_bias_sigma_m_s2, filter_overrides)
+                                                    accel_bias_sigma_m_s2, filter_overrides, watch)
     settled = tilt_sigma <= math.radians(settled_tilt_sigma_deg)
     if settled.mean() < MIN_SETTLED_FRACTION:
         settled = np.ones(len(data), dtype=bool)
@@ -99,7 +116,8 @@ def _level(data: MagFitInput, fixes, declination_rad: float, mag_enabled: bool, 
     tilt_sigma_axis_rad = body_fixed_tilt_sigma_rad(tilt_sigma[settled])
     return roll, pitch, settled, tilt_sigma_axis_rad, {
         "gnss": {"offered": c.offered, "fused_velocity": c.fused_velocity, "rejected_velocity": c.rejected_velocity,
-                 "reset_velocity": c.reset_velocity}, "healthy": healthy,
+                 "reset_velocity": c.reset_velocity}, "rejected_velocity_by_cause": dict(watches[0].by_cause),
+        "healthy": healthy,
         "tilt_sigma_per_axis_deg": math.degrees(tilt_sigma_axis_rad)}
 
 
@@ -118,18 +136,35 @@ def _pass_report(data: MagFitInput, settled, res: MagFitResult, health: dict) ->
             "ok": res.ok, "refused": res.refused, **health}
 
 
-def _rejection_warning(passes: list, filter_overrides: dict | None) -> str | None:
-    """When a levelling pass did not fuse the GNSS velocities cleanly: its counts and the likely causes (a filter
-    whose heading is right fuses a correct fix)."""
-    bad = [p for p in passes if not p.get("healthy", True)]
-    if not bad:
-        return None
-    g = bad[-1]["gnss"]
-    arm = tuple(float(v) for v in (filter_overrides or {}).get("lever_arm_m", (0.0, 0.0, 0.0)))
-    return (f"the aided levelling ({bad[-1]['magnetometer']}) rejected {g['rejected_velocity']} of {g['offered']} "
-            f"GNSS velocities and reset its velocity {g['reset_velocity']} times: check the antenna's lever arm "
-            f"(the levelling was told {' '.join(f'{v:g}' for v in arm)} m, body FRD from the IMU) and the fixes' "
-            "time stamps")
+def _vertical_rms_ut(res: MagFitResult) -> float:
+    """The fit's vertical-channel residual RMS (µT): how well its levelling explains the vertical field."""
+    vc = res.quality.get("vertical_channel") or {}
+    value = vc.get("vertical_rms_ut")
+    return float(value) if res.ok and value is not None else math.inf
+
+
+def _accelerometer_levelled_fit(data: MagFitInput, fixes, reference, options: dict):
+    """The fit that calibrates the magnetometer for the first heading-only pass, and its pass reports: levelled
+    by the accelerometer as back-stepping does (a constant speed fitted to the turns' lean), and by the
+    accelerometer less the vehicle's acceleration that the GNSS speed and the gyro give (gnss_motion.py); the one
+    whose levelling explains the vertical field better (smaller vertical residual) is kept. A boat turns at a
+    steady speed through the water and the first describes it better; a car's speed changes and only the second
+    converges (docs/gnss.md "Offline")."""
+    from .backstepping import fit_backstepping
+    from .gnss_motion import accel_less_gnss_motion
+
+    as_is = fit_backstepping(data, reference, **options)
+    fits = [("accelerometer", as_is)]
+    if data.accel_m_s2 is not None and data.gyro_rad_s is not None and sum(f.has_velocity for f in fixes) >= 2:
+        less = dataclasses.replace(data, accel_m_s2=accel_less_gnss_motion(data.t_s, data.accel_m_s2,
+                                                                           data.gyro_rad_s, fixes))
+        fits.append(("accelerometer less the GNSS speed's acceleration",
+                     fit_backstepping(less, reference, **{**options, "speed_m_s": None})))
+    kept = min(range(len(fits)), key=lambda i: _vertical_rms_ut(fits[i][1]))
+    passes = [{"levelling": name, "ok": res.ok, "refused": res.refused,
+               "vertical_rms_ut": _vertical_rms_ut(res) if res.ok else None, "kept": i == kept}
+              for i, (name, res) in enumerate(fits)]
+    return fits[kept][1], passes
 
 
 def fit_backstepping_aided(data: MagFitInput, fixes, reference, declination_rad: float,
@@ -142,12 +177,9 @@ def fit_backstepping_aided(data: MagFitInput, fixes, reference, declination_rad:
     known (None: uncalibrated, the filter's default prior); `filter_overrides`: other InsParams fields of the
     levelling filter. See the module docstring;
     `quality["aided_levelling"]` reports each pass."""
-    from .backstepping import fit_backstepping
-
     if accel_bias_sigma_m_s2 is not None and not (math.isfinite(accel_bias_sigma_m_s2) and accel_bias_sigma_m_s2 > 0):
         raise ValueError(f"accel_bias_sigma_m_s2 must be a positive number, got {accel_bias_sigma_m_s2!r}")
-    seed = fit_backstepping(data, reference, **options)
-    passes = [{"levelling": "accelerometer", "ok": seed.ok, "refused": seed.refused}]
+    seed, passes = _accelerometer_levelled_fit(data, fixes, reference, options)
     result, model = None, (seed.model if seed.ok else None)
     heading_only = {**(filter_overrides or {}), "mag_moves_tilt": False}
     for _ in range(MAG_HEADING_PASSES if model is not None else 0):
@@ -168,7 +200,7 @@ def fit_backstepping_aided(data: MagFitInput, fixes, reference, declination_rad:
         result = _fit_settled(data, roll, pitch, settled, tilt_sigma, reference, options)
         levelling = (roll, pitch, settled)
         passes.append({"magnetometer": "off", **_pass_report(data, settled, result, health)})
-    warning = _rejection_warning(passes, filter_overrides)
+    warning = rejection_warning(passes, filter_overrides)
     if warning:
         result.quality.setdefault("warnings", []).append(warning)
     result.quality["aided_levelling"] = {"estimator": AIDED_ESTIMATOR, "smoothed": smooth,

@@ -26,11 +26,12 @@ def roll_pitch_from_estimator(data: MagFitInput, name: str = "mekf", fixes=None,
     return roll, pitch
 
 
-def attitude_from_estimator(data: MagFitInput, name: str = "mekf", fixes=None, estimator=None,
+def attitude_from_estimator(data: MagFitInput, name: str = "mekf", fixes=None, estimator=None, on_estimate=None,
                             **params) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """As `roll_pitch_from_estimator`, plus the estimator's own 1σ of the tilt per sample (rad,
     √(σ_roll² + σ_pitch²)): how far it has converged. `estimator`: run this (fresh) estimator object instead of
-    making one (the caller then reads its counters)."""
+    making one (the caller then reads its counters); `on_estimate(estimate)`: called with each sample's estimate
+    (the caller watches the estimator as it runs)."""
     if data.gyro_rad_s is None or data.accel_m_s2 is None:
         raise BacksteppingError("the estimator needs gyro and accelerometer samples")
     est = estimator if estimator is not None else make_estimator(name, **params)
@@ -44,6 +45,8 @@ def attitude_from_estimator(data: MagFitInput, name: str = "mekf", fixes=None, e
         if feed is not None:
             feed.offer_until(t)
         e = est.update(make_sample(t, data.gyro_rad_s[i], data.accel_m_s2[i], data.mag_ut[i]))
+        if on_estimate is not None:
+            on_estimate(e)
         roll[i], pitch[i] = e.roll_rad, e.pitch_rad
         tilt_sigma[i] = float(np.hypot(e.sigma_rpy_rad[0], e.sigma_rpy_rad[1]))
     return roll, pitch, tilt_sigma
