@@ -22,8 +22,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 import allan_noise as gen  # noqa: E402
 
-from ahrsd.calibration import allan_terms  # noqa: E402
-from ahrsd.calibration.allan import analyse_static  # noqa: E402
+from ahrsd.calibration.allan import terms as allan_terms  # noqa: E402
+from ahrsd.calibration.allan.analysis import analyse_static  # noqa: E402
 
 RATE_HZ = 819.2
 DENSITY = 5.8e-4     # rad/s/√Hz, the ADIS16405's 2 °/√h

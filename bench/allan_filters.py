@@ -8,7 +8,7 @@ of two 2^N-tap averages and its 14-bit output), then the analysis `ahrsd calibra
 Per sensor and axis: the white noise read against the configured density (± its reported 1σ), the other terms
 reported, and the filtered noise per sample in LSB (the configured noise σ·√(Σh²) over the output's step): below
 about half an LSB the 14-bit output holds a handful of values, and the analysis says "below LSB" instead
-(calibration/allan_resolution.py). The chip's "stuck axis" warnings of those settings are not shown.
+(calibration/allan/resolution.py). The chip's "stuck axis" warnings of those settings are not shown.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ahrsd.calibration.allan import analyse_static
+from ahrsd.calibration.allan.analysis import analyse_static
 from ahrsd.cli.main import main as cli_main
 from ahrsd.drivers import registers as R
 from ahrsd.drivers.recording import read_recording

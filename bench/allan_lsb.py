@@ -18,7 +18,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 import allan_noise as gen  # noqa: E402
 
-from ahrsd.calibration import allan  # noqa: E402
+from ahrsd.calibration.allan import analysis as allan  # noqa: E402
 
 RATE_HZ = 819.2
 DENSITY = 5.8e-4

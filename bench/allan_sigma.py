@@ -7,7 +7,7 @@ floor B) and rate random walk (K) against their errors on synthetic records with
                                                      # (--case N: only row N of it)
 
 The records come from tests/allan_noise.py (white noise, Kasdin–Walter 1/f, random walk of the rate; generated
-independently of the analysis). Each record has three gyro axes, analysed by `calibration.allan.analyse_static`.
+independently of the analysis). Each record has three gyro axes, analysed by `calibration.allan.analysis.analyse_static`.
 For every term the analysis reports, z = (value − truth) / reported 1σ; an honest σ gives RMS(z) ≈ 1, about
 4.6 % of |z| beyond 2 and 0.27 % beyond 3. "in-sample" is the case the σ was first measured on (docs/calibration.md);
 the held-out cases differ in seeds, record length, sample rate, noise levels (down to a barely visible K) and a
@@ -28,7 +28,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 import allan_noise as gen  # noqa: E402
 
-from ahrsd.calibration.allan import analyse_static  # noqa: E402
+from ahrsd.calibration.allan.analysis import analyse_static  # noqa: E402
 
 ARW = math.radians(2.0) / 60.0        # 2 °/√h, the ADIS16405 data sheet
 BIAS = math.radians(0.007)            # 0.007 °/s

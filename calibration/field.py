@@ -56,6 +56,7 @@ from .mag.course_offset import (DEFAULT_MAX_TURN_RATE_DEG_S, DEFAULT_STRAIGHT_WI
 from .mag.offsets import fit_offsets_keep_soft_iron
 from .mag.fit import fit_mag
 from .mag.fit_types import MagFitInput
+from .mag.levelling_error import frame_tilt_heading_std_deg, frame_tilt_sigma_deg
 from .heading_trust import calibration_heading_sigma_rad
 from .models import Calibration, MagModel
 from .mag.observability import algebraic_sphere_centre, compare_with_offsets
@@ -148,6 +149,11 @@ class FieldCalResult:
     # is not finite (stored as null: the heading is unknown after accepting, calibration/heading_trust.py)
     offset_source: str = ""
     undetermined: tuple = ()           # parameters the data could not determine
+    # the levelling's body-fixed tilt (1σ per axis) and its share of heading_std_deg (tan(dip) times it), as `ahrsd
+    # calibrate mag` states them (levelling_error.py): the back-stepping fit is levelled by the accelerometer, its
+    # bias over g; NaN: none stated (offsets only, the ellipsoid), ins then takes the frame as the body's
+    frame_tilt_std_deg: float = math.nan
+    frame_tilt_heading_std_deg: float = math.nan
 
     def accuracy_text(self) -> str:
         """One line for a person: the predicted heading accuracy and what the offset rests on."""
@@ -167,6 +173,10 @@ class FieldCalResult:
         return f"Mag cal: {dep}, {off}"
 
     def proposed_calibration(self, current: Calibration) -> Calibration:
+        # the frame's tilt only when stated (calibration/heading_trust.py reads its absence as none)
+        frame_tilt = {key: float(value) for key, value in (("frame_tilt_std_deg", self.frame_tilt_std_deg),
+                                                           ("frame_tilt_heading_std_deg", self.frame_tilt_heading_std_deg))
+                      if math.isfinite(value)}
         return current.with_sensor(
             "mag",
             self.model,
@@ -177,6 +187,7 @@ class FieldCalResult:
             offset_source=self.offset_source, undetermined=list(self.undetermined),
             data_span_s=self.quality.get("t_span_s"),
             before={"hard_iron_ut": self.before.hard_iron_ut.tolist(), "soft_iron": self.before.soft_iron.tolist()},
+            **frame_tilt,
         )
 
     def describe_change(self) -> str:
@@ -698,6 +709,23 @@ class FieldCalibration:
 # ============================================================================ the fit (picklable, pure)
 
 
+def shape_failure(ap: ArduPilotMagParams, offsets_max_mgauss: float) -> CalStatus | None:
+    """ArduPilot's shape limits on a fitted model (CompassCalibrator::fit_acceptable; COMPASS_OFFS_MAX), the one
+    rule both for choosing a full fit over the offsets and for judging the result: FAILED_OFFSETS when an offset
+    reaches `offsets_max_mgauss`, FAILED_DIAG_SCALING when a diagonal or off-diagonal element is out of range,
+    None within them."""
+    if np.any(np.abs(ap.ofs_mgauss) >= offsets_max_mgauss):
+        return CalStatus.FAILED_OFFSETS
+    if np.any(ap.diag <= DIAG_MIN) or np.any(ap.diag >= DIAG_MAX) or np.any(np.abs(ap.offdiag) >= OFFDIAG_MAX):
+        return CalStatus.FAILED_DIAG_SCALING
+    return None
+
+
+# why a full fit outside the shape limits was not taken (a note of the result: "backstepping rejected (…)")
+_SHAPE_REFUSED = {CalStatus.FAILED_OFFSETS: "offsets too large",
+                  CalStatus.FAILED_DIAG_SCALING: "diagonals out of range"}
+
+
 @dataclass
 class FitJob:
     """Everything a fit needs, copied out of the session so it can run in another thread or process
@@ -749,8 +777,14 @@ class FitJob:
         model, offset_std, offset_source = self._heading_offset(model, offset_std, notes, quality,
                                                                 kept_soft_iron=method == "offsets")
         res = self._judge(model, method, quality, notes, partial=method == "offsets")
+        # the full fit's levelling (the accelerometer here, as `calibrate mag` without --gnss) states its frame's
+        # tilt and that tilt's share of heading_std (ins's frame-tilt states, estimator/mag_frame_tilt.py)
+        levelling = (quality.get(f"{method}_predicted_heading") or {}).get("levelling")
+        tilt_deg, tilt_heading_deg = frame_tilt_sigma_deg(levelling), frame_tilt_heading_std_deg(levelling)
         return dataclasses.replace(res, heading_std_deg=float(heading_std), offset_std_deg=float(offset_std),
-                                   offset_source=offset_source, undetermined=tuple(undetermined))
+                                   offset_source=offset_source, undetermined=tuple(undetermined),
+                                   frame_tilt_std_deg=math.nan if tilt_deg is None else tilt_deg,
+                                   frame_tilt_heading_std_deg=math.nan if tilt_heading_deg is None else tilt_heading_deg)
 
     def _coverage_quality(self) -> dict:
         """What the session's data covered: tilt range, sphere and heading coverage, samples and time span."""
@@ -848,12 +882,9 @@ class FitJob:
         return model, offset_std, source
 
     def _acceptable_shape(self, model: MagModel) -> tuple[bool, str]:
-        ap = to_ardupilot(model)
-        if np.any(np.abs(ap.ofs_mgauss) >= self.config.offsets_max_mgauss):
-            return False, "offsets too large"
-        if np.any(ap.diag <= DIAG_MIN) or np.any(ap.diag >= DIAG_MAX) or np.any(np.abs(ap.offdiag) >= OFFDIAG_MAX):
-            return False, "diagonals out of range"
-        return True, ""
+        """Whether a full fit may replace the offsets: ArduPilot's shape limits (`shape_failure`), and why not."""
+        failure = shape_failure(to_ardupilot(model), self.config.offsets_max_mgauss)
+        return failure is None, _SHAPE_REFUSED.get(failure, "")
 
     def _judge(self, model: MagModel, method: str, quality, notes, partial: bool) -> FieldCalResult:
         cfg = self.config
@@ -864,12 +895,13 @@ class FitJob:
         ap = to_ardupilot(model)
         status, reason = CalStatus.SUCCESS, "; ".join(notes)
         mean_radius_mg = float(np.mean(norms)) * UT_TO_MGAUSS
+        shape = shape_failure(ap, cfg.offsets_max_mgauss)
         if not math.isfinite(fitness):
             status, reason = CalStatus.FAILED, "fit diverged (fitness NaN)"
-        elif np.any(np.abs(ap.ofs_mgauss) >= cfg.offsets_max_mgauss):
+        elif shape == CalStatus.FAILED_OFFSETS:
             status = CalStatus.FAILED_OFFSETS
             reason = f"offsets {np.round(ap.ofs_mgauss).astype(int).tolist()} > {cfg.offsets_max_mgauss:.0f} mG"
-        elif np.any(ap.diag <= DIAG_MIN) or np.any(ap.diag >= DIAG_MAX) or np.any(np.abs(ap.offdiag) >= OFFDIAG_MAX):
+        elif shape == CalStatus.FAILED_DIAG_SCALING:
             status, reason = CalStatus.FAILED_DIAG_SCALING, "diagonals/off-diagonals out of range"
         elif not (RADIUS_MIN_MGAUSS < mean_radius_mg < RADIUS_MAX_MGAUSS):
             status, reason = CalStatus.BAD_RADIUS, f"radius {mean_radius_mg:.0f} mG outside [150, 950]"

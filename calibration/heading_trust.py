@@ -63,15 +63,30 @@ def calibration_frame_tilt_sigma_rad(calibration) -> float:
     """The tilt of `calibration`'s magnetometer frame against the body, 1σ per axis, rad: the body-fixed tilt of
     the levelling that fitted it (`metadata["mag"]["frame_tilt_std_deg"]`, written by `ahrsd calibrate mag` from
     the fit's predicted heading: calibration/mag/levelling_error.frame_tilt_sigma_deg). 0 when the calibration
-    states none (levelled with the true attitude, a field session, older files): its frame is taken as the
-    body's. ins carries the tilt as two states with this prior (estimator/mag_frame_tilt.py)."""
+    states none (levelled with the true attitude, an offsets-only field session, older files): its frame is taken
+    as the body's. ins carries the tilt as two states with this prior (estimator/mag_frame_tilt.py)."""
+    return _stated_deg_as_rad(calibration, "frame_tilt_std_deg")
+
+
+def calibration_frame_tilt_heading_sigma_rad(calibration) -> float:
+    """The share of `calibration`'s stated heading error that its frame's tilt makes, 1σ rad (RMS over heading):
+    tan(dip) times the frame tilt, which the fit's predicted heading error added in quadrature
+    (`metadata["mag"]["frame_tilt_heading_std_deg"]`, written by `ahrsd calibrate mag` beside
+    `frame_tilt_std_deg`). ins's frame-tilt states carry that share, so its harmonic states leave it out
+    (mag_harmonics.prior_variances_rad2). 0 when not stated (older files): the harmonics keep the whole heading
+    error, as before."""
+    return _stated_deg_as_rad(calibration, "frame_tilt_heading_std_deg")
+
+
+def _stated_deg_as_rad(calibration, key: str) -> float:
+    """`calibration`'s `metadata["mag"][key]` (deg, finite, ≥ 0) in rad; 0 when it is not stated."""
     if calibration is None:
         return 0.0
     meta = calibration.metadata.get("mag") if isinstance(calibration.metadata, dict) else None
     if not isinstance(meta, dict):
         return 0.0
-    tilt = _finite(meta.get("frame_tilt_std_deg"))
-    return math.radians(tilt) if math.isfinite(tilt) else 0.0
+    value = _finite(meta.get(key))
+    return math.radians(value) if math.isfinite(value) else 0.0
 
 
 def has_mag_calibration(calibration) -> bool:

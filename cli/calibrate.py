@@ -249,7 +249,7 @@ def _gap_report(payload: dict, lines: list, gaps, under_title: bool = True) -> N
 def _allan(args) -> int:
     import os
 
-    from ahrsd.calibration.allan import NOISE_FILE_NAME, StaticAllanAnalysis, describe, save_noise_parameters
+    from ahrsd.calibration.allan.analysis import NOISE_FILE_NAME, StaticAllanAnalysis, describe, save_noise_parameters
     from ahrsd.calibration.recording_gaps import GapCounter
     from ahrsd.drivers.recording import RecordingFormatError, iter_recording_chunks
 
@@ -283,10 +283,10 @@ def _allan(args) -> int:
         note = f"saved to {path}"
         payload["saved_to"] = str(path)
     if args.plot:
-        from ahrsd.calibration.allan_plot import plot_allan
+        from ahrsd.cli.plots.allan import plot_allan
 
         _write_plot(args, plot_allan, res)
-    from ahrsd.calibration.allan import summary
+    from ahrsd.calibration.allan.analysis import summary
 
     length = f"{res.duration_s / 3600:.2f} h" if res.duration_s >= 360 else f"{res.duration_s:.1f} s"
     lines = [f"Allan analysis of {args.recording}: {length} at {res.rate_hz:.1f} Hz; noise "
@@ -768,7 +768,7 @@ def _report_mag(args, calibrated, data, ref, ref_note, site: MagSite, gaps) -> i
     import numpy as np
 
     from ahrsd.calibration import report
-    from ahrsd.calibration.mag.levelling_error import frame_tilt_sigma_deg
+    from ahrsd.calibration.mag.levelling_error import frame_tilt_heading_std_deg, frame_tilt_sigma_deg
 
     res = calibrated.result
     site_json = {"lat_deg": site.lat_deg, "lon_deg": site.lon_deg, "alt_m": site.alt_m, "source": site.source}
@@ -794,13 +794,16 @@ def _report_mag(args, calibrated, data, ref, ref_note, site: MagSite, gaps) -> i
     frame_tilt_deg = frame_tilt_sigma_deg(pred.get("levelling"))
     if frame_tilt_deg is not None:   # the levelling's body-fixed tilt: ins's frame-tilt states' prior (heading_trust.py)
         meta["frame_tilt_std_deg"] = frame_tilt_deg
+        tilt_heading_deg = frame_tilt_heading_std_deg(pred.get("levelling"))
+        if tilt_heading_deg is not None:   # its share of heading_std_deg: ins's harmonics leave it to those states
+            meta["frame_tilt_heading_std_deg"] = tilt_heading_deg
     return _report_fit(args, res, payload, lines, "mag", report.mag_model_lines, meta)
 
 
 def _gnss_beside_hint(args) -> list[str]:
     """A back-stepping fit levelled by the accelerometer while the run's GNSS recording lies beside it: say that
     `--gnss` levels with the aided attitude. On a heaving, turning vehicle the accelerometer's levelling error is
-    not in the predicted heading error (docs/magcal-vehicle.md; session 23's walk: a boat fitted without it)."""
+    not in the predicted heading error (docs/magcal-vehicle.md)."""
     from pathlib import Path
 
     from ahrsd.drivers.gnss.recording import gnss_path_for

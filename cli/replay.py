@@ -479,6 +479,12 @@ def _told_calibration_sigma(name: str, calibration, params: dict) -> dict:
         # the calibration frame's tilt against the body (its levelling's): ins's frame-tilt states' prior, as the
         # daemon tells it (0: none stated, the frame is the body's)
         params = {**params, "mag_calibration_frame_tilt_sigma_rad": calibration_frame_tilt_sigma_rad(calibration)}
+    if name == "ins" and "mag_calibration_frame_tilt_heading_sigma_rad" not in params:
+        from ahrsd.calibration.heading_trust import calibration_frame_tilt_heading_sigma_rad
+
+        # the share of its heading error that tilt makes: ins's harmonics leave it to the frame-tilt states
+        params = {**params, "mag_calibration_frame_tilt_heading_sigma_rad":
+                  calibration_frame_tilt_heading_sigma_rad(calibration)}
     if name == "mekf" and "accel_bias_sigma_m_s2" not in params:
         from ahrsd.calibration.accel_trust import calibration_accel_bias_sigma_m_s2
 

@@ -49,58 +49,82 @@ class InboundDispatch:
         self.restart_heading = restart_heading
         self.clock = clock
         self.timesync = TimesyncAnswers(outbound.counters)   # answers TIMESYNC requests, rate limited per sender
+        # who takes each message type (a handler (endpoint, msg, now) per type)
+        self._routes: dict[str, Callable[[Endpoint, object, float], None]] = {
+            "HEARTBEAT": self._on_heartbeat, "PARAM_VALUE": self._on_param_value,
+            "GLOBAL_POSITION_INT": self._on_position, "GPS_RAW_INT": self._on_position,
+            "TIMESYNC": self._on_timesync, "COMMAND_ACK": self._on_command_ack,
+            "COMMAND_LONG": self._on_command, "COMMAND_INT": self._on_command,
+            "FILE_TRANSFER_PROTOCOL": self._on_ftp,
+            "PARAM_REQUEST_LIST": self._on_param_request, "PARAM_REQUEST_READ": self._on_param_request,
+            "PARAM_SET": self._on_param_request,
+        }
 
     def on_message(self, endpoint: Endpoint, msg) -> None:
+        """Route one message by its type (`_routes`); our own traffic echoed back by a router or a broadcast
+        link is dropped, a type no part takes is ignored."""
         identity = self.outbound.identity
-        src_sys, src_comp = msg.get_srcSystem(), msg.get_srcComponent()
-        if src_sys == identity.system_id and src_comp == identity.component_id:
-            return   # our own traffic echoed back by a router or a broadcast link
-        mtype = msg.get_type()
+        if msg.get_srcSystem() == identity.system_id and msg.get_srcComponent() == identity.component_id:
+            return
         now = self.clock()
+        route = self._routes.get(msg.get_type())
+        if route is not None:
+            route(endpoint, msg, now)
+
+    def _on_heartbeat(self, endpoint: Endpoint, msg, now: float) -> None:
+        """The autopilot found (and its system id adopted, when following it); ArduPilot's heartbeat starts the
+        source-set check's EK3_SRC reads."""
+        identity, autopilot = self.outbound.identity, self.autopilot
+        src_sys = msg.get_srcSystem()
+        if AutopilotState.is_autopilot_heartbeat(msg) and autopilot.on_heartbeat(msg, now):
+            log.info("autopilot found: system %d component %d", src_sys, msg.get_srcComponent())
+            if self.follow_autopilot_id and src_sys != identity.system_id:
+                self.outbound.set_system_id(src_sys)
+        if (self.source_set_check is not None and autopilot.from_this_autopilot(msg)
+                and msg.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA):
+            self.source_set_check.on_autopilot_heartbeat()     # reads its EK3_SRC parameters
+
+    def _on_param_value(self, endpoint: Endpoint, msg, now: float) -> None:
+        if self.source_set_check is not None and self.autopilot.from_this_autopilot(msg):
+            self.source_set_check.on_param_value(msg)
+
+    def _on_position(self, endpoint: Endpoint, msg, now: float) -> None:
+        """GLOBAL_POSITION_INT / GPS_RAW_INT of our autopilot (any before one is found): to its state, to a
+        MAVLink GNSS source, and to the declination while it waits for a position."""
         autopilot = self.autopilot
-        if mtype == "HEARTBEAT":
-            if AutopilotState.is_autopilot_heartbeat(msg) and autopilot.on_heartbeat(msg, now):
-                log.info("autopilot found: system %d component %d", src_sys, src_comp)
-                if self.follow_autopilot_id and src_sys != identity.system_id:
-                    self.outbound.set_system_id(src_sys)
-            if (self.source_set_check is not None and autopilot.from_this_autopilot(msg)
-                    and msg.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA):
-                self.source_set_check.on_autopilot_heartbeat()     # reads its EK3_SRC parameters
+        if autopilot.system_id is not None and msg.get_srcSystem() != autopilot.system_id:
             return
-        if mtype == "PARAM_VALUE":
-            if self.source_set_check is not None and autopilot.from_this_autopilot(msg):
-                self.source_set_check.on_param_value(msg)
-            return
-        if mtype in ("GLOBAL_POSITION_INT", "GPS_RAW_INT"):
-            if autopilot.system_id is None or src_sys == autopilot.system_id:
-                if mtype == "GLOBAL_POSITION_INT":
-                    autopilot.on_global_position_int(msg, now)
-                else:
-                    autopilot.on_gps_raw_int(msg, now)
-                if self.gnss is not None:
-                    self.gnss.on_mavlink(msg, now)
-                if self.declination.waiting_for_position:
-                    self.declination.resolve()
-            return
-        if mtype == "TIMESYNC":
-            if msg.tc1 == 0:   # a request; answers have tc1 != 0 (MAVLink TIMESYNC v2)
-                self.timesync.on_request(endpoint, msg, now)
-            return
-        if mtype == "COMMAND_ACK":
-            if self.restart_heading is not None and autopilot.from_this_autopilot(msg):
-                self.restart_heading.on_command_ack(msg)
-            return
-        if mtype in ("COMMAND_LONG", "COMMAND_INT"):
-            ours, broadcast = is_for_us(msg, identity.system_id, identity.component_id)
-            if ours:
-                self.commands.handle(msg, endpoint, broadcast)
-            return
-        if mtype == "FILE_TRANSFER_PROTOCOL":
-            reply = ftp_nak(msg, identity.system_id, identity.component_id)
-            if reply is not None:
-                endpoint.send(reply)
-            return
-        if mtype in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"):
-            ours, broadcast = is_for_us(msg, identity.system_id, identity.component_id)
-            if ours:
-                self.params.on_message(endpoint, msg, mtype, broadcast)
+        if msg.get_type() == "GLOBAL_POSITION_INT":
+            autopilot.on_global_position_int(msg, now)
+        else:
+            autopilot.on_gps_raw_int(msg, now)
+        if self.gnss is not None:
+            self.gnss.on_mavlink(msg, now)
+        if self.declination.waiting_for_position:
+            self.declination.resolve()
+
+    def _on_timesync(self, endpoint: Endpoint, msg, now: float) -> None:
+        if msg.tc1 == 0:   # a request; answers have tc1 != 0 (MAVLink TIMESYNC v2)
+            self.timesync.on_request(endpoint, msg, now)
+
+    def _on_command_ack(self, endpoint: Endpoint, msg, now: float) -> None:
+        if self.restart_heading is not None and self.autopilot.from_this_autopilot(msg):
+            self.restart_heading.on_command_ack(msg)
+
+    def _on_command(self, endpoint: Endpoint, msg, now: float) -> None:
+        identity = self.outbound.identity
+        ours, broadcast = is_for_us(msg, identity.system_id, identity.component_id)
+        if ours:
+            self.commands.handle(msg, endpoint, broadcast)
+
+    def _on_ftp(self, endpoint: Endpoint, msg, now: float) -> None:
+        identity = self.outbound.identity
+        reply = ftp_nak(msg, identity.system_id, identity.component_id)
+        if reply is not None:
+            endpoint.send(reply)
+
+    def _on_param_request(self, endpoint: Endpoint, msg, now: float) -> None:
+        identity = self.outbound.identity
+        ours, broadcast = is_for_us(msg, identity.system_id, identity.component_id)
+        if ours:
+            self.params.on_message(endpoint, msg, msg.get_type(), broadcast)

@@ -50,7 +50,6 @@ import logging
 import math
 import time
 from collections import deque
-from dataclasses import dataclass
 from types import SimpleNamespace
 from typing import Any, Protocol
 
@@ -331,7 +330,11 @@ class MagCalProtocol:
 
     # ------------------------------------------------------------------ command handlers: (msg, ctx) -> MAV_RESULT
     def handle_start(self, msg, ctx=None) -> int:
-        mask_f, retry_f, autosave_f, delay_s, autoreboot_f = CommandArgs.of(msg).params[:5]
+        return self._start(CommandArgs.of(msg))
+
+    def _start(self, args: CommandArgs) -> int:
+        """DO_START_MAG_CAL's parameters (also PREFLIGHT_CALIBRATION's magnetometer start, as ArduPilot maps it)."""
+        mask_f, retry_f, autosave_f, delay_s, autoreboot_f = args.params[:5]
         mask = whole_number(mask_f, 0, 255)
         flags = [whole_number(v, 0, 1) for v in (retry_f, autosave_f, autoreboot_f)]
         if mask is None:
@@ -373,7 +376,10 @@ class MagCalProtocol:
         return mavlink.MAV_RESULT_ACCEPTED
 
     def handle_accept(self, msg, ctx=None) -> int:
-        mask_f = CommandArgs.of(msg).p(1)
+        return self._accept(CommandArgs.of(msg).p(1))
+
+    def _accept(self, mask_f: float) -> int:
+        """DO_ACCEPT_MAG_CAL's compass mask (also PREFLIGHT_CALIBRATION's force-save, mask 0: every compass)."""
         if whole_number(mask_f, 0, 255) is None:
             return Refused(mavlink.MAV_RESULT_FAILED, f"DO_ACCEPT_MAG_CAL: mask {mask_f} not in 0..255")
         mask = int(mask_f) or 0xFF
@@ -414,11 +420,10 @@ class MagCalProtocol:
 
     def handle_preflight_mag(self, msg, ctx=None) -> int:
         p2 = CommandArgs.of(msg).p(2)
-        if p2 == PREFLIGHT_MAG_START:
-            start = _FakeCommand(0.0, 0.0, 1.0, 0.0, 0.0)
-            return self.handle_start(start, ctx)
+        if p2 == PREFLIGHT_MAG_START:    # every compass, no retry, autosave, no delay (docs/magcal-field.md)
+            return self._start(CommandArgs(CMD_START, False, (0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0)))
         if p2 == PREFLIGHT_MAG_FORCE_SAVE:
-            return self.handle_accept(_FakeCommand(0.0), ctx)
+            return self._accept(0.0)
         return mavlink.MAV_RESULT_UNSUPPORTED
 
     def handle_fixed_yaw(self, msg, ctx=None) -> int:
@@ -601,19 +606,6 @@ def _fixed_yaw_request(args: CommandArgs) -> tuple[float, float, float] | Refuse
     if problem:
         return Refused(mavlink.MAV_RESULT_DENIED, f"FIXED_MAG_CAL_YAW: {problem}")
     return yaw_deg, lat, lon
-
-@dataclass
-class _FakeCommand:
-    param1: float = 0.0
-    param2: float = 0.0
-    param3: float = 0.0
-    param4: float = 0.0
-    param5: float = 0.0
-    param6: float = 0.0
-    param7: float = 0.0
-
-    def get_type(self) -> str:
-        return "COMMAND_LONG"
 
 
 # ============================================================================ the daemon adapter

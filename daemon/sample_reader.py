@@ -29,7 +29,7 @@ log = logging.getLogger(__name__)
 
 LATE_AFTER_S = 0.05               # a sample used this long after it became ready is counted late (run_stats)
 
-# IntFlag operators go through the enum machinery (µs each); the per-sample path tests bits on plain ints
+# IntFlag operators go through the enum machinery (a Python call each); the per-sample path tests bits on plain ints
 _int_and = int.__and__
 _GAP_BEFORE = int(SampleFlags.GAP_BEFORE)
 _REINITIALISED = int(EstimateFlags.REINITIALISED)

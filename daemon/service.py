@@ -49,8 +49,8 @@ from ahrsd.daemon.housekeeping import Every, HealthReport, Housekeeping
 from ahrsd.daemon.inbound import InboundDispatch
 from ahrsd.daemon.learned_iron import ACTION_PARAM as LEARNED_IRON_ACTION
 from ahrsd.daemon.learned_iron import CMD_LEARNED_IRON, LearnedIron
-from ahrsd.calibration.heading_trust import (calibration_frame_tilt_sigma_rad, calibration_heading_sigma_rad,
-                                             has_mag_calibration)
+from ahrsd.calibration.heading_trust import (calibration_frame_tilt_heading_sigma_rad, calibration_frame_tilt_sigma_rad,
+                                             calibration_heading_sigma_rad, has_mag_calibration)
 from ahrsd.calibration.accel_trust import calibration_accel_bias_sigma_m_s2
 from ahrsd.daemon.magcal import DaemonMagCalHost, FieldCalibrationPart, MagCalProtocol
 from ahrsd.daemon.magcal_settings import MagCalSettings
@@ -448,7 +448,8 @@ class Service:
         if isinstance(estimator, MagCalibrationAwareEstimator):
             estimator.set_mag_calibration_sigma(mag_sigma_rad)
         if isinstance(estimator, MagFrameTiltAwareEstimator):
-            estimator.set_mag_calibration_frame_tilt_sigma(calibration_frame_tilt_sigma_rad(calibration))
+            estimator.set_mag_calibration_frame_tilt_sigma(calibration_frame_tilt_sigma_rad(calibration),
+                                                           calibration_frame_tilt_heading_sigma_rad(calibration))
         if isinstance(estimator, AccelCalibrationAwareEstimator):
             estimator.set_accel_bias_sigma(calibration_accel_bias_sigma_m_s2(calibration))
         return mag_sigma_rad

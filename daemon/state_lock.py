@@ -2,7 +2,7 @@
 the directory is written and held for the process's life.
 
 Two daemons on one directory would each write the calibration, the learned iron, the heading and position memory,
-the parameters and the logs: the last writer wins and the state is silently mixed (session 23's walk).
+the parameters and the logs: the last writer wins and the state is silently mixed.
 
 Why flock and not a PID file: the lock belongs to the open file, so the kernel drops it when the process ends, however
 it ends (SIGKILL, a crash, the OOM killer, a power cut: the lock is gone after a reboot). There is no stale lock to

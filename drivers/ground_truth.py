@@ -7,9 +7,9 @@ It also measures what the simulator costs the process that reads it (`sensor_sim
 time spent inside the simulated chip's transfers — its register model, on hardware the kernel's spidev — and
 in this truth bookkeeping, from the first read on), so that a benchmark can report the daemon's own CPU apart
 from the simulated hardware's (bench/latency.py, docs/daemon.md "Performance"). Reading a thread's CPU clock is
-a system call (0.6–3.4 µs on the development VM, against 0.05–0.23 µs for CLOCK_MONOTONIC), so one read in
-MEASURE_EVERY is measured and the sum scaled to every read: timing every read would cost 0.2–1 % of a core,
-charged to the reader.
+a system call, many times dearer than CLOCK_MONOTONIC, so one read in MEASURE_EVERY is measured and the sum
+scaled to every read: timing every read would charge the reader a visible share of a core (the figures:
+docs/daemon.md "Performance").
 """
 
 from __future__ import annotations

@@ -352,7 +352,8 @@ class ProcessSource(LiveSource):
             conn.send("go")
         blocks: list[memoryview] = []
         error = None
-        # a poll object made once: Connection.poll(0) builds and registers a selector at every call (10 µs);
+        # a poll object made once: Connection.poll(0) builds and registers a selector at every call
+        # (docs/daemon.md "Performance");
         # HUP and errors are reported as ready too, and recv() then raises EOFError / OSError as before
         ready = self._ready
         try:

@@ -68,9 +68,10 @@ class MagCalibrationAwareEstimator(Protocol):
 class MagFrameTiltAwareEstimator(Protocol):
     """An estimator told the tilt of its magnetometer calibration's frame against the body (1σ per axis, rad; 0: none
     stated, the frame is the body's; calibration/heading_trust.calibration_frame_tilt_sigma_rad), at start and after
-    every calibration change, after `set_mag_calibration_sigma` (ins: estimator/mag_frame_tilt.py)."""
+    every calibration change, after `set_mag_calibration_sigma` (ins: estimator/mag_frame_tilt.py), with the share of
+    the calibration's heading error that tilt makes (rad; heading_trust.calibration_frame_tilt_heading_sigma_rad)."""
 
-    def set_mag_calibration_frame_tilt_sigma(self, sigma_rad: float) -> None: ...
+    def set_mag_calibration_frame_tilt_sigma(self, sigma_rad: float, heading_sigma_rad: float = 0.0) -> None: ...
 
 
 @runtime_checkable

@@ -32,7 +32,7 @@ from ahrsd.core.sample import ImuSample
 from . import ins_core as core
 from . import mag_heading as mag
 from .accel_axes_heading import accel_axes_heading_variance_rad2
-from .accel_axes_tilt import accel_axes_tilt_variance_rad2
+from .accel_axes_tilt import ACCEL_MISALIGNMENT_SIGMA_RAD, accel_axes_tilt_variance_in_force_rad2
 from .base import DEFAULT_UNMODELLED_IRON_UT, LEARNED_WITH_GNSS
 from .calibration_heading import calibration_heading_variance_rad2, calibration_states_error
 from .accel_z_lean_tilt import accel_z_lean_tilt_variance_rad2
@@ -55,6 +55,7 @@ from .estimate_view import BuiltEstimateView, EstimateView
 from .field_circle import FieldCircleCheck, FieldCircleParams, FieldCircleResult
 from .published_heading import PublishedHeading
 from .rotations import quat_to_dcm, quat_to_euler, rotvec_to_dcm
+from .kernel_rotations import dcm
 
 log = logging.getLogger(__name__)
 _DEG = math.pi / 180.0
@@ -194,6 +195,12 @@ class InsParams(MagHeadingParams):
     daemon and `ahrsd replay --calibration` pass it). With the harmonic states on, a calibration that states one has
     the tilt carried as two filter states, ε about body x and y, with this prior (mag_frame_tilt.py); 0: the
     calibration's frame is the body's (levelled with the true attitude), the states stay off."""
+    mag_calibration_frame_tilt_heading_sigma_rad: float = 0.0
+    """The share of the calibration's heading error (`mag_calibration_sigma_rad`) its frame's tilt makes, 1σ rad
+    (tan(dip) times the tilt, which the calibration's prediction added in quadrature: heading_trust.py). While the
+    frame-tilt states carry the tilt, the calibration's harmonic states leave this share out of their once-per-turn
+    prior (mag_harmonics.prior_variances_rad2), or the heading σ would count it twice. 0: not stated (older
+    files), the harmonics keep the whole error."""
     mag_frame_tilt_shares_accel_bias: bool = True
     """The frame tilt's prior is correlated with the filter's accelerometer-bias error (mag_frame_tilt.accel_bias_share):
     the calibration's levelling could not tell the same bias from tilt. False: independent of every other state."""
@@ -293,14 +300,16 @@ class InsParams(MagHeadingParams):
     """Learn the vertical gyro bias from how the magnetometer's field turns in the body against the gyro's heading
     (mag_rotation.py): the hard iron cancels in the field's change, so an uncalibrated or learning magnetometer
     still sees the bias on straight legs, where the GNSS says nothing of the yaw."""
-    accel_axes_heading_sigma_rad: float = 0.1 * _DEG
+    accel_axes_heading_sigma_rad: float = ACCEL_MISALIGNMENT_SIGMA_RAD
     """1σ of the accelerometer's x–y cross-axis misalignment, rad: a GNSS-aided heading is the accelerometer's
     axes' heading, off by that much (accel_axes_heading.py), and once GNSS has aided the published yaw σ carries
-    it (ADIS16405-class factory alignment; the simulated sensor's 0.1°). 0: not carried."""
-    accel_axes_tilt_sigma_rad: float = 0.1 * _DEG
+    it (ADIS16405-class factory alignment, accel_axes_tilt.ACCEL_MISALIGNMENT_SIGMA_RAD: the same figure as
+    `accel_axes_tilt_sigma_rad`'s). 0: not carried."""
+    accel_axes_tilt_sigma_rad: float = ACCEL_MISALIGNMENT_SIGMA_RAD
     """1σ of each off-diagonal element of the accelerometer's misalignment, rad: ins's tilt is the accelerometer's
     axes' tilt, off by m_yz (roll) and m_xz (pitch) when level (accel_axes_tilt.py), and the published roll and
-    pitch σ carry it (ADIS16405-class factory alignment; the simulated sensor's 0.1°). 0: not carried."""
+    pitch σ carry it (ADIS16405-class factory alignment, accel_axes_tilt.ACCEL_MISALIGNMENT_SIGMA_RAD: the same
+    figure as `accel_axes_heading_sigma_rad`'s). 0: not carried."""
     published_yaw_slew_rad_s: float = 2.0 * _DEG
     """The published yaw follows the filter's corrections at no more than this rate beyond the vehicle's own
     rotation: a yaw reset or a fast correction is slewed in, the published σ covering what is left
@@ -542,7 +551,9 @@ class Ins:
                 (core._rotate_attitude, (x["q"], 0.0, 0.0, 0.0)),
                 (core._history_at, (x, self._hist, 0.0)),
                 (core.fill_outputs, (x, self._P, par, 0.0, 0.0, 0.0, self._out)),
-                (input_validity, (0,) + (0.0,) * 9)):
+                (input_validity, (0,) + (0.0,) * 9),
+                (dcm, (1.0, 0.0, 0.0, 0.0)),
+                (accel_axes_tilt_variance_in_force_rad2, ((1.0,) + (0.0,) * 8, 0.0, 0.0, -9.8, 0.0))):
             kernel.compile(tuple(kernel.typeof_pyval(a) for a in args))
         _PYTHON_CALLED_KERNELS_LOADED = True
 
@@ -740,15 +751,20 @@ class Ins:
         if on != was_on:
             self._restart_mag_frame_tilt()
 
-    def set_mag_calibration_frame_tilt_sigma(self, sigma_rad: float) -> None:
+    def set_mag_calibration_frame_tilt_sigma(self, sigma_rad: float, heading_sigma_rad: float = 0.0) -> None:
         """The magnetometer calibration in force states its frame's tilt against the body, 1σ per axis, rad (0 or
-        NaN: none, its frame is the body's): the frame-tilt states start again from it. Told after
-        `set_mag_calibration_sigma` (which restarts them with the previous figure)."""
+        NaN: none, its frame is the body's), and the share of its heading error that tilt makes (rad, 0: not
+        stated): the frame-tilt states start again from it, and the calibration's harmonic states from their prior
+        without that share. Told after `set_mag_calibration_sigma` (which restarts them with the previous figures)."""
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
         s = float(sigma_rad)
+        h = float(heading_sigma_rad)
         self.params = replace(self.params,
-                              mag_calibration_frame_tilt_sigma_rad=s if math.isfinite(s) and s > 0.0 else 0.0)
+                              mag_calibration_frame_tilt_sigma_rad=s if math.isfinite(s) and s > 0.0 else 0.0,
+                              mag_calibration_frame_tilt_heading_sigma_rad=h if math.isfinite(h) and h > 0.0 else 0.0)
         self._set_mag_frame_tilt()
+        if self._mag_harmonics_source == "calibration":
+            self._restart_mag_harmonics()     # their prior leaves out what the frame-tilt states now carry
         self._restart_mag_frame_tilt()
 
     def _restart_mag_frame_tilt(self) -> None:
@@ -795,8 +811,19 @@ class Ins:
         if self._par["mag_harmonics_on"] > 0.0 and self._mag_harmonics_source == "iron":
             P[block, block] = self._iron_harmonics_prior()
         elif self._par["mag_harmonics_on"] > 0.0:
-            var = prior_variances_rad2(p.calibration_sigma_rad, p.mag_harmonic_offset_share)
+            var = prior_variances_rad2(p.calibration_sigma_rad, p.mag_harmonic_offset_share,
+                                       self._frame_tilt_heading_sigma_rad())
             P[block, block] = np.diag(var)
+
+    def _frame_tilt_heading_sigma_rad(self) -> float:
+        """The share of the calibration's heading error the frame-tilt states carry (rad): its stated frame tilt's
+        (InsParams.mag_calibration_frame_tilt_heading_sigma_rad) while they are on with the calibration's harmonics
+        (the condition of `_set_mag_frame_tilt`, evaluated here: the harmonics restart before it runs); else 0."""
+        p = self.params
+        tilt = float(p.mag_calibration_frame_tilt_sigma_rad)
+        share = float(p.mag_calibration_frame_tilt_heading_sigma_rad)
+        on = self._par["mag_harmonics_on"] > 0.0 and math.isfinite(tilt) and tilt > 0.0
+        return share if on and math.isfinite(share) and share > 0.0 else 0.0
 
     def _iron_harmonics_prior(self) -> np.ndarray:
         """The harmonic states' prior for a learned iron (5×5, rad²): the learner's covariance projected on the
@@ -1777,8 +1804,12 @@ class Ins:
             sigma_yaw = math.sqrt(sigma_yaw ** 2 + add_var)
             o[_OUT_SIGMA_YAW] = sigma_yaw
         if self.params.accel_axes_tilt_sigma_rad > 0.0:
-            # the tilt ins levels is the accelerometer axes' tilt: their misalignment is in it (accel_axes_tilt.py)
-            var_roll, var_pitch = accel_axes_tilt_variance_rad2(roll, pitch, self.params.accel_axes_tilt_sigma_rad)
+            # the tilt ins levels is the accelerometer axes' tilt: their misalignment is in it (accel_axes_tilt.py),
+            # at the specific force the filter has (low-passed in NED: a turn's, not only gravity's)
+            q0, q1, q2, q3 = self._x["q"].tolist()
+            fn, fe, fd = self._x["acc_ned_lp_m_s2"].tolist()
+            var_roll, var_pitch = accel_axes_tilt_variance_in_force_rad2(dcm(q0, q1, q2, q3), fn, fe, fd,
+                                                                         self.params.accel_axes_tilt_sigma_rad)
             sig_roll, sig_pitch = o[_OUT_SIGMA.start], o[_OUT_SIGMA.start + 1]
             o[_OUT_SIGMA.start] = math.sqrt(sig_roll * sig_roll + var_roll)
             o[_OUT_SIGMA.start + 1] = math.sqrt(sig_pitch * sig_pitch + var_pitch)

@@ -53,15 +53,31 @@ def heading_error_rad(coeffs, psi_rad):
     return b0 * coeffs[0] + b1 * coeffs[1] + b2 * coeffs[2] + b3 * coeffs[3] + b4 * coeffs[4]
 
 
-def prior_variances_rad2(calibration_sigma_rad: float, offset_share: float) -> np.ndarray:
+def prior_variances_rad2(calibration_sigma_rad: float, offset_share: float,
+                         carried_once_per_turn_sigma_rad: float = 0.0) -> np.ndarray:
     """The prior variance of each coefficient (c0, c1, s1, c2, s2), rad², for a calibration whose heading error is
     σ (1σ at any heading): c0 the offset share f0 of σ², c1 and s1 each `ONCE_PER_TURN_SHARE` of the rest, c2 and
-    s2 each what is left; their sum at any heading is σ²."""
+    s2 each what is left; their sum at any heading is σ².
+
+    `carried_once_per_turn_sigma_rad` σ_t: a part of σ that other states carry (the calibration frame's tilt,
+    tan(dip)·ε: mag_frame_tilt.py), once per turn with σ_t² on each of cos ψ and sin ψ, so σ_t² at any heading.
+    It is taken out of c1 and s1; what they hold less than σ_t² (the split is a generic prior: the tilt can be most
+    of a calibration's error) out of the other heading-dependent terms c2, s2, and only what is left then out of
+    the constant c0. The sum at any heading is σ² − σ_t², with the tilt's σ_t² the calibration's σ² again (its
+    prediction added σ_t² in quadrature, levelling_error.py)."""
     var = float(calibration_sigma_rad) ** 2
     f0 = min(max(float(offset_share), 0.0), 1.0)
     once = (1.0 - f0) * ONCE_PER_TURN_SHARE * var
     twice = (1.0 - f0) * (1.0 - ONCE_PER_TURN_SHARE) * var
-    return np.array([f0 * var, once, once, twice, twice])
+    offset = f0 * var
+    left = float(carried_once_per_turn_sigma_rad) ** 2 if carried_once_per_turn_sigma_rad > 0.0 else 0.0
+    if left > 0.0:      # at any heading each pair counts once (cos² + sin² = 1), the constant once
+        taken = min(once, left)
+        once, left = once - taken, left - taken
+        taken = min(twice, left)
+        twice, left = twice - taken, left - taken
+        offset = max(0.0, offset - left)
+    return np.array([offset, once, once, twice, twice])
 
 
 def prior_from_heading_rows(rows: np.ndarray, psi_rad: np.ndarray, cov: np.ndarray) -> np.ndarray:

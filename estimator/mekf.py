@@ -33,6 +33,7 @@ from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
 from ahrsd.core.sample import ImuSample
 
 from . import mekf_core as core
+from .accel_axes_tilt import ACCEL_MISALIGNMENT_SIGMA_RAD
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
                             float_field_slice, uninitialised_estimate)
@@ -185,6 +186,11 @@ class MekfParams(MagHeadingParams):
     without a calibration of its own. The daemon and `ahrsd replay --calibration` set the figure an accelerometer
     calibration in force leaves (`set_accel_bias_sigma`, calibration/accel_trust.py); 0 = the input is exactly
     calibrated."""
+    accel_axes_tilt_sigma_rad: float = ACCEL_MISALIGNMENT_SIGMA_RAD
+    """1σ of each off-diagonal element of the accelerometer's misalignment, rad: mekf levels on the direction of the
+    specific force it measures, so its tilt is the accelerometer axes' tilt, and the published roll and pitch σ carry
+    the misalignment at the low-passed force the filter levels on (accel_axes_tilt.accel_axes_tilt_variance_in_force_rad2;
+    ins's `accel_axes_tilt_sigma_rad`, the same figure). 0: not carried."""
     large_dt_s: float = 0.1
     """A step longer than this (or not positive) is flagged LARGE_DT, s."""
     reinit_dt_s: float = 2.0

@@ -45,6 +45,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from . import mag_heading as mag
+from .accel_axes_tilt import accel_axes_tilt_variance_in_force_rad2
 from .constrained_update import pair_update_6, scalar_update_6
 from .kernel_entry import entry_point
 from .kernel_flags import (
@@ -187,6 +188,7 @@ MEKF_PARAMS_DTYPE = np.dtype([
     ("converged_yaw_rad", np.float64),
     ("heading_calibration_var_rad2", np.float64),   # calibration_heading.py: the calibration's heading error, 1σ²
     ("accel_bias_sigma_m_s2", np.float64),
+    ("accel_axes_tilt_sigma_rad", np.float64),
     ("large_dt_s", np.float64),
     ("reinit_dt_s", np.float64),
 ])
@@ -970,6 +972,14 @@ def _fill_outputs(st, par, gx, gy, gz, out):
     sig = out.sigma_rpy_rad
     sig[0], sig[1] = tilt_sigma(cy, sy, P[E_TILT_N, E_TILT_N] + extra, P[E_TILT_N, E_TILT_E],
                                 P[E_TILT_E, E_TILT_E] + extra)
+    # (e) the accelerometer's misalignment, which no state carries either: the levelled vertical is the measured
+    #     force's direction, turned by it (accel_axes_tilt.py), at the low-passed force the levelling uses
+    if par.accel_axes_tilt_sigma_rad > 0.0:
+        f = st.acc_ned_lp_m_s2
+        var_roll, var_pitch = accel_axes_tilt_variance_in_force_rad2(dcm(q0, q1, q2, q3), f[0], f[1], f[2],
+                                                                     par.accel_axes_tilt_sigma_rad)
+        sig[0] = math.sqrt(sig[0] * sig[0] + var_roll)
+        sig[1] = math.sqrt(sig[1] * sig[1] + var_pitch)
     # (d) the heading error the magnetometer calibration left, which no magnetometer update can show
     #     (calibration_heading.py)
     cal = 0.0

@@ -152,7 +152,7 @@ def _robust_limits(bands: list[np.ndarray], settled: np.ndarray, whole: list[np.
     """y limits (10 % margin) holding the settled rows' σ bands (0.5…99.5 percentiles: a start-up transient or
     the wide σ before the filter converged does not squash the rest of the trace), every settled value of `whole`
     (the estimate) and every value of `truth` (no transient there): a percentile cut the highest wave peaks of a
-    heaving boat flat (session 23)."""
+    heaving boat flat."""
     rows = settled if settled.any() else np.ones_like(settled, dtype=bool)
     v = np.concatenate([x[rows] for x in bands]) if bands else np.empty(0)
     v = v[np.isfinite(v)]

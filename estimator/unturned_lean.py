@@ -17,7 +17,7 @@ too, so the limit grows with what it can turn the frame by. While f leans, mekf'
 the lean (mekf_core._correct_tilt_across): along it f holds the acceleration; the gyro holds the attitude there,
 and the rest's bias learning goes on (the gyro reads the bias during a straight-leg speed change). HOLD_S is the
 prior on how long a speed change lasts: a steady acceleration held longer is again indistinguishable from a
-tilted rest. docs/estimator.md "σ honesty in turns" (plane25) has the figures and what was tried.
+tilted rest. docs/estimator.md "σ honesty in turns" has the figures and what was tried.
 """
 
 from __future__ import annotations

@@ -11,9 +11,10 @@ import math
 import numpy as np
 import pytest
 
-from ahrsd.estimator.accel_axes_tilt import accel_axes_tilt_variance_rad2
+from ahrsd.estimator.accel_axes_tilt import accel_axes_tilt_variance_in_force_rad2
 from ahrsd.estimator.accel_z_lean_tilt import accel_z_lean_tilt_variance_rad2
 from ahrsd.estimator.ins import Ins
+from ahrsd.estimator.rotations import quat_to_dcm
 
 SIGMA_M_RAD = math.radians(0.1)          # InsParams.accel_axes_tilt_sigma_rad's default
 M_ZX_RAD = math.radians(0.3)             # the z axis leaning towards x: a 3σ_m element, as seed 31's (+0.32°)
@@ -47,7 +48,9 @@ def car_with_a_leaning_z_axis():
                   mag_calibration_sigma_rad=run.mag_calibration_sigma_rad, accel_axes_tilt_sigma_rad=sigma)
         rows = []
         for k, e in estimates_in_arrival_order(est, run, run.fixes):
-            rows.append((e.q_wxyz.copy(), e.sigma_rpy_rad.copy(), e.roll_rad, e.pitch_rad, bool(est._ever_aided)))
+            x = est._x
+            rows.append((e.q_wxyz.copy(), e.sigma_rpy_rad.copy(), e.roll_rad, e.pitch_rad, bool(est._ever_aided),
+                         tuple(quat_to_dcm(x["q"]).ravel()), x["acc_ned_lp_m_s2"].copy()))
         out[name] = rows
     truth_pitch = Rotation.from_quat(run.truth_q_wxyz[:, [1, 2, 3, 0]]).as_euler("ZYX")[:, 1]
     return run.t_s, truth_pitch, out
@@ -69,13 +72,14 @@ def test_ins_publishes_the_z_lean_once_aided_and_the_same_estimate(car_with_a_le
     t, _, out = car_with_a_leaning_z_axis
     aided_seen = unaided_seen = 0
     for k in range(0, len(t), 50):
-        q_on, s_on, roll, pitch, aided = out["on"][k]
+        q_on, s_on, roll, pitch, aided, c, f_ned = out["on"][k]
         q_off, s_off, *_ = out["off"][k]
         np.testing.assert_array_equal(q_on, q_off)          # the estimate to the bit
         assert s_on[2] == s_off[2]
         if not (s_off[0] < 0.1 and s_off[1] < 0.1):          # still levelling at start-up: σ near π
             continue
-        var_roll, var_pitch = accel_axes_tilt_variance_rad2(roll, pitch, SIGMA_M_RAD)
+        # roll26/tilt27's x and y axes' term at the filter's attitude and force (accel_axes_tilt.py), then this one
+        var_roll, var_pitch = accel_axes_tilt_variance_in_force_rad2(c, *f_ned, SIGMA_M_RAD)
         add = SIGMA_M_RAD ** 2 if aided else 0.0
         assert s_on[0] ** 2 == pytest.approx(s_off[0] ** 2 + var_roll + add, rel=1e-9)
         assert s_on[1] ** 2 == pytest.approx(s_off[1] ** 2 + var_pitch + add, rel=1e-9)

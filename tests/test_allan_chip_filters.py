@@ -1,8 +1,8 @@
 """Allan analysis of samples through the ADIS16405's longer SENS_AVG windows (two 2^N-tap averages; the chip allows
 N = 0…7, up to a 255-tap Bartlett window): the white noise is read at the density put in, with no Gauss–Markov or
 other term made of the window's correlation, and the window is read from the steps between samples, so a slow
-process beside it does not hide it (calibration/allan_correlation.py); an output too coarse for its noise says so
-(calibration/allan_resolution.py)."""
+process beside it does not hide it (calibration/allan/correlation.py); an output too coarse for its noise says so
+(calibration/allan/resolution.py)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import allan_noise as gen
-from ahrsd.calibration.allan import analyse_static, summary
-from ahrsd.calibration.allan_correlation import SampleCorrelation
+from ahrsd.calibration.allan.analysis import analyse_static, summary
+from ahrsd.calibration.allan.correlation import SampleCorrelation
 
 RATE_HZ = 819.2
 DENSITY = 5.8e-4     # rad/s/√Hz, the ADIS16405's 2 °/√h
@@ -87,7 +87,7 @@ FALSE_TERM_RECORDS = range(500, 540)   # 40 records × 3 axes, seeds fixed (none
 
 @pytest.mark.slow   # 40 records analysed: the file starts first under --dist loadfile (tests/conftest.py)
 def test_white_noise_through_the_n5_window_reads_a_false_term_no_more_often_than_the_tests_level():
-    # Each other term is kept only where its deviance drop passes the 0.1 % point of its χ² (allan_terms), so on
+    # Each other term is kept only where its deviance drop passes the 0.1 % point of its χ² (allan/terms.py), so on
     # white noise an axis should read one no more often than that. One record is one draw of that rate (seed 45 of
     # the test above reads a rate random walk on one axis; many other records were measured, docs/calibration.md
     # "A short correlation time"), so the claim is a rate: over 120 axes of white noise through the N = 5 window
@@ -96,7 +96,7 @@ def test_white_noise_through_the_n5_window_reads_a_false_term_no_more_often_than
     # holds the thresholds themselves.
     from scipy.stats import binom
 
-    from ahrsd.calibration.allan_terms import SIGNIFICANCE_P
+    from ahrsd.calibration.allan.terms import SIGNIFICANCE_P
 
     taps = _window(5)
     samples = int(120 * RATE_HZ)
@@ -228,9 +228,9 @@ def test_a_strong_short_gauss_markov_beside_the_default_window_is_read_with_the_
     # variance at its peak (τ = 1.89·Tc) is 30 times the white noise's there. Fitted only from 8 lengths (0.05 s)
     # white noise led for less than an octave: it was not seen, and the bump's 1/τ tail stood in for it (σ_GM
     # 10–20 % high, its 1σ far too small) or a flicker floor was read. White noise through the window is
-    # N²·(1/τ − D/τ²) exactly from the window's span on (allan_correlation), so the fit starts at 2 lengths,
-    # beyond the span, with D's own uncertainty carried (allan_terms), and sees it for two more octaves.
-    from ahrsd.calibration.allan_terms import gauss_markov_avar
+    # N²·(1/τ − D/τ²) exactly from the window's span on (allan/correlation.py), so the fit starts at 2 lengths,
+    # beyond the span, with D's own uncertainty carried (calibration/allan/terms.py), and sees it for two more octaves.
+    from ahrsd.calibration.allan.terms import gauss_markov_avar
 
     tc = 7 * 8 * 5 / RATE_HZ
     peak_tau = 1.89 * tc

@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ahrsd.calibration.allan import analyse_static
-from ahrsd.calibration.allan_correlation import SampleCorrelation, shortest_fit_tau_s
+from ahrsd.calibration.allan.analysis import analyse_static
+from ahrsd.calibration.allan.correlation import SampleCorrelation, shortest_fit_tau_s
 from ahrsd.cli.main import main
 from ahrsd.drivers.recording import read_recording
 from ahrsd.simulation.errors import SensorErrors
@@ -63,7 +63,7 @@ def test_the_correlation_length_comes_from_the_data():
     # estimate's scatter (√((1 + 2Σρ²)/n) ≈ 0.015) of the threshold
     assert np.all(np.abs(lengths - 5) <= 1), lengths
     # the fit starts at 2 correlation lengths: beyond the window's span (7 taps, 1.4 lengths) filtered white noise
-    # is N²·(1/τ − D/τ²) exactly (allan_correlation), so nothing nearer the filter is left out
+    # is N²·(1/τ − D/τ²) exactly (calibration/allan/correlation.py), so nothing nearer the filter is left out
     assert shortest_fit_tau_s(5, 819.2) == pytest.approx(2 * 5 / 819.2)
 
 

@@ -1,4 +1,4 @@
-"""The Allan-term fit's inner loop (calibration/allan_terms._fit_fixed) calls scipy's compiled NNLS routine without
+"""The Allan-term fit's inner loop (calibration/allan/terms.py's _fit_fixed) calls scipy's compiled NNLS routine without
 the public function's argument checks, and reuses each system it builds: the coefficients must be scipy.optimize.nnls's
 own bits, its errors must be raised as scipy raises them, and a fit must not depend on which fits ran before it on
 the same points."""
@@ -10,9 +10,9 @@ import pytest
 from scipy.optimize import nnls
 
 import allan_noise as gen
-from ahrsd.calibration.allan_adev import allan_deviation
-from ahrsd.calibration.allan_irls import weighted_system
-from ahrsd.calibration.allan_terms import _fit_fixed, _nnls_solver, _nnls_weighted, octave_points, term_basis
+from ahrsd.calibration.allan.adev import allan_deviation
+from ahrsd.calibration.allan.irls import weighted_system
+from ahrsd.calibration.allan.terms import _fit_fixed, _nnls_solver, _nnls_weighted, octave_points, term_basis
 
 RATE_HZ = 100.0
 
@@ -88,7 +88,7 @@ def test_a_private_routine_that_answers_differently_is_not_used(monkeypatch):
     falls back to the public function. Simulated by a private routine that answers with a different tuple."""
     import scipy.optimize._slsqplib as private
 
-    from ahrsd.calibration import allan_terms
+    from ahrsd.calibration.allan import terms as allan_terms
 
     monkeypatch.setattr(private, "nnls", lambda a, b, maxiter: (np.zeros(a.shape[1]),))
     allan_terms._nnls_solver.cache_clear()

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ahrsd.calibration.allan import analyse_static
-from ahrsd.calibration.allan_plot import plot_allan
+from ahrsd.calibration.allan.analysis import analyse_static
+from ahrsd.cli.plots.allan import plot_allan
 
 pytest.importorskip("matplotlib")
 

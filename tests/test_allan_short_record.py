@@ -1,13 +1,13 @@
-"""A record too short for the Allan fit gets a reason, not a crash or a wrong reading (calibration/allan.py
-read_axis, calibration/allan_terms.py select_terms, calibration/allan_correlation.py samples_to_tell)."""
+"""A record too short for the Allan fit gets a reason, not a crash or a wrong reading (calibration/allan/analysis.py
+read_axis, calibration/allan/terms.py select_terms, calibration/allan/correlation.py samples_to_tell)."""
 
 import numpy as np
 import pytest
 
-from ahrsd.calibration.allan import analyse_static, read_axis, summary
-from ahrsd.calibration.allan_adev import StreamingAllan
-from ahrsd.calibration.allan_correlation import SampleCorrelation
-from ahrsd.calibration.allan_terms import octave_points
+from ahrsd.calibration.allan.analysis import analyse_static, read_axis, summary
+from ahrsd.calibration.allan.adev import StreamingAllan
+from ahrsd.calibration.allan.correlation import SampleCorrelation
+from ahrsd.calibration.allan.terms import octave_points
 
 RATE_HZ = 819.2
 SIGMA = 1e-3                                   # rad/s per sample before the window

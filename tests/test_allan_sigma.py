@@ -1,5 +1,5 @@
 """The reported 1σ of the Allan terms is honest: the covariance of the octave points' Allan variances
-(calibration/allan_covariance.py) against NIST SP 1065's equivalent degrees of freedom and against Monte Carlo,
+(calibration/allan/covariance.py) against NIST SP 1065's equivalent degrees of freedom and against Monte Carlo,
 and the white-noise and rate-random-walk 1σ against their errors on held-out synthetic records (z = error/σ:
 RMS ≈ 1, about 0.3 % beyond 3σ). The full figures, with the term selection, come from bench/allan_sigma.py.
 """
@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 import allan_noise as gen
-from ahrsd.calibration.allan_adev import allan_deviation, edf_overlapping
-from ahrsd.calibration.allan_covariance import avar_covariance, second_difference_covariance
-from ahrsd.calibration.allan_terms import ModelFit, fit_terms, gauss_markov_avar, octave_points, term_estimates
+from ahrsd.calibration.allan.adev import allan_deviation, edf_overlapping
+from ahrsd.calibration.allan.covariance import avar_covariance, second_difference_covariance
+from ahrsd.calibration.allan.terms import ModelFit, fit_terms, gauss_markov_avar, octave_points, term_estimates
 
 
 def _unit_fit(name: str, corr_time_s: float | None = None) -> ModelFit:
@@ -119,7 +119,7 @@ def test_a_filters_share_of_white_noise_is_the_deficit_read_from_the_data():
     for m in (16, 40, 333):
         weights = np.convolve(np.concatenate([-np.ones(m), np.ones(m)]), BARTLETT)   # d on unit white samples
         assert float(np.sum(weights**2)) / (2 * m * m) == pytest.approx(1 / m - deficit / m**2, rel=1e-12)
-    from ahrsd.calibration.allan_correlation import SampleCorrelation
+    from ahrsd.calibration.allan.correlation import SampleCorrelation
 
     rng = np.random.default_rng(12)
     white = rng.normal(size=(300_000, 3))
@@ -131,7 +131,7 @@ def test_a_filters_share_of_white_noise_is_the_deficit_read_from_the_data():
 def test_a_sensor_filter_does_not_bias_the_white_noise():
     """White noise at 819.2 SPS through the chip's filter, 20 min: N within 3 reported σ on every axis, and
     their mean within 3σ of the mean (a fit of N/√τ alone reads it 1–1.5 % low: 5σ of the mean of three)."""
-    from ahrsd.calibration.allan import analyse_static
+    from ahrsd.calibration.allan.analysis import analyse_static
 
     rng = np.random.default_rng(13)
     rate, n, density = 819.2, 1 << 20, 5.8e-4

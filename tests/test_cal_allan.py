@@ -16,10 +16,11 @@ import numpy as np
 import pytest
 
 import allan_noise as gen
-from ahrsd.calibration.allan import AllanResult, NoiseParameters, analyse_static, load_noise_parameters, save_noise_parameters
-from ahrsd.calibration.allan_adev import StreamingAllan, allan_deviation, confidence_interval, edf_overlapping
-from ahrsd.calibration.allan_kalman import kalman_tuning
-from ahrsd.calibration.allan_terms import FLICKER_FACTOR, TERMS, gauss_markov_avar
+from ahrsd.calibration.allan.analysis import (AllanResult, NoiseParameters, analyse_static, load_noise_parameters,
+                                             save_noise_parameters)
+from ahrsd.calibration.allan.adev import StreamingAllan, allan_deviation, confidence_interval, edf_overlapping
+from ahrsd.calibration.allan.kalman import kalman_tuning
+from ahrsd.calibration.allan.terms import FLICKER_FACTOR, TERMS, gauss_markov_avar
 
 DAY_S = 86_400
 ARW = math.radians(2.0) / 60.0          # 2 °/√h (ADIS16405 data sheet), rad/√s
@@ -120,7 +121,7 @@ def test_each_terms_threshold_is_the_chi_square_point_of_the_stated_level():
     # rests on these numbers (from scipy, not from the code).
     from scipy.stats import chi2
 
-    from ahrsd.calibration.allan_terms import DELTA_CHI2, SIGNIFICANCE_P
+    from ahrsd.calibration.allan.terms import DELTA_CHI2, SIGNIFICANCE_P
 
     assert SIGNIFICANCE_P == 1e-3
     for k in (1, 2):
@@ -373,7 +374,7 @@ def test_a_random_walk_that_bends_like_a_floor_is_not_a_bias_instability():
 
 def _points_from_model(fit, record_s: float, tau0: float):
     """Octave points lying exactly on a model, with the cluster bookkeeping of a record of record_s."""
-    from ahrsd.calibration.allan_terms import _Points
+    from ahrsd.calibration.allan.terms import _Points
 
     taus = tau0 * 2.0 ** np.arange(int(math.log2(record_s / 3 / tau0)) + 1)
     n = record_s / tau0
@@ -381,7 +382,7 @@ def _points_from_model(fit, record_s: float, tau0: float):
 
 
 def test_a_term_must_dominate_from_enough_clusters():
-    from ahrsd.calibration.allan_terms import MIN_CLUSTERS, ModelFit, is_seen
+    from ahrsd.calibration.allan.terms import MIN_CLUSTERS, ModelFit, is_seen
 
     record_s = 10_000.0
     for start_clusters, seen in ((2 * MIN_CLUSTERS, True), (MIN_CLUSTERS / 2, False)):
@@ -396,7 +397,7 @@ def test_a_term_must_dominate_from_enough_clusters():
 
 def test_bias_instability_is_never_read_at_the_shortest_tau():
     """Flicker dominating from the first τ, then a random walk: the model's minimum would be the first point."""
-    from ahrsd.calibration.allan_terms import ModelFit, flicker_reading
+    from ahrsd.calibration.allan.terms import ModelFit, flicker_reading
 
     fit = ModelFit(("flicker", "rate_random_walk"), np.array([1e-8, 1e-12]), None, 0.0)
     pts = _points_from_model(fit, 100_000.0, 1.0)
@@ -408,7 +409,7 @@ def test_bias_instability_is_never_read_at_the_shortest_tau():
 def test_the_report_gives_every_figure_three_significant_digits():
     """#30: the lead line printed an ARW of 2.00 °/√h as "2" (:.3g drops trailing zeros, so a figure known to
     three digits read as known to one)."""
-    from ahrsd.calibration.allan import summary
+    from ahrsd.calibration.allan.analysis import summary
     from ahrsd.calibration.report import sig_figs
 
     assert [sig_figs(v) for v in (2.0, 0.2, 99.96, 4.56e-5, 123456.0)] == ["2.00", "0.200", "100", "4.56e-05",

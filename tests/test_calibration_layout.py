@@ -1,6 +1,7 @@
 """The calibration package's layout rules, read from the import statements (every import, also those inside
 functions): no import loop between its modules; the fits (mag/, inertial/) never import the runtime modules
-above them but `models`; only the orchestrators (field, mag.procedure) import the dispatcher; the plotting modules
+above them but `models`, the Allan analysis (allan/) none but the number format and the atomic write, and nothing
+of calibration/ imports it; only the orchestrators (field, mag.procedure) import the dispatcher; the plotting modules
 are imported by the CLI only, so the daemon never loads them."""
 
 from __future__ import annotations
@@ -95,6 +96,22 @@ def test_the_fits_do_not_import_the_runtime_modules():
             assert not upward, f"{module} imports {sorted(upward)}"
 
 
+def test_the_allan_analysis_imports_of_the_runtime_only_the_number_format_and_the_atomic_write():
+    """calibration/allan/ is an offline fit like mag/ and inertial/: apart from the runtime modules, which it may use
+    only for the report's significant figures and noise.json's atomic write."""
+    graph = import_graph("calibration")
+    assert "ahrsd.calibration.allan.analysis" in graph and "ahrsd.calibration.allan.terms" in graph
+    allowed = {"ahrsd.calibration", "ahrsd.calibration.report", "ahrsd.calibration.atomic_file"}
+    for module, targets in graph.items():
+        if module.startswith("ahrsd.calibration.allan"):
+            upward = {t for t in targets if t.startswith("ahrsd.calibration")
+                      and not t.startswith("ahrsd.calibration.allan")} - allowed
+            assert not upward, f"{module} imports {sorted(upward)}"
+        else:
+            assert not any(t.startswith("ahrsd.calibration.allan") for t in targets), \
+                f"{module} imports the offline Allan analysis"
+
+
 def test_the_method_modules_do_not_import_the_dispatcher():
     graph = import_graph("calibration")
     dispatcher = "ahrsd.calibration.mag.fit"
@@ -105,8 +122,6 @@ def test_the_method_modules_do_not_import_the_dispatcher():
 def test_calibration_and_the_daemon_import_no_plotting_module():
     for part in ("calibration", "daemon"):
         for path in sorted((ROOT / part).rglob("*.py")):
-            if path.name == "allan_plot.py":
-                continue
             bad = {m for m in _imports(path) if m.startswith("ahrsd.cli.plots") or m == "ahrsd.core.plotting"
                    or m.endswith("_plot")}
             assert not bad, f"{path.relative_to(ROOT)} imports {sorted(bad)}"

@@ -252,3 +252,45 @@ def test_a_package_importing_its_submodules_is_no_cycle(tmp_path):
     root = _package(tmp_path, {"registers.py": "X = 1\n", "chip.py": "from . import registers\n"})
     (root / "simulation" / "__init__.py").write_text("from .chip import registers\n")
     assert run(root).returncode == 0
+
+
+def test_a_comment_or_docstring_naming_a_session_fails_in_every_package_but_a_string_the_code_uses_passes(tmp_path):
+    """Rule 11, issue 29 item 7 (the shapes three modules had: "(session 23's walk)" in a module docstring, "session
+    23" in a function's): history is in git, figures in docs/. A string the code uses (a message with the word) and
+    tests/ are not this rule's."""
+    (tmp_path / "daemon").mkdir()
+    (tmp_path / "daemon" / "bad.py").write_text(textwrap.dedent('''\
+        """One daemon per state directory: the state is silently mixed (session 23's walk)."""
+        def f():
+            """Limits that hold the wave peaks (sessions 24–25)."""
+            return 1   # walk26's walk found it
+        def g():
+            return "mag-cal session 2 accepted"
+        '''))
+    (tmp_path / "cli").mkdir()
+    (tmp_path / "cli" / "bad.py").write_text("x = 1\n# why: the operator's prompt waits for an answer (Session 7)\n")
+    (tmp_path / "tests").mkdir()
+    (tmp_path / "tests" / "test_ok.py").write_text('"""Found on session 23\'s walk."""\n')
+    r = run(tmp_path)
+    assert r.returncode == 1
+    for at in ("daemon/bad.py:1:", "daemon/bad.py:3:", "daemon/bad.py:4:", "cli/bad.py:2:"):
+        assert f"{at} a comment names a session" in r.stdout, (at, r.stdout)
+    assert "daemon/bad.py:6:" not in r.stdout and "test_ok.py" not in r.stdout, r.stdout
+    assert r.stdout.count("a comment names a session") == 4, r.stdout
+
+
+def test_a_fake_class_fails_in_every_package_but_not_in_tests(tmp_path):
+    """Rule 12, the shape daemon.magcal had: a `_FakeCommand` forged for its own handler lacked the `command`
+    field CommandArgs.of reads, and PREFLIGHT_CALIBRATION's magnetometer path failed for it. A name that only
+    contains the word and tests/ are not this rule's."""
+    (tmp_path / "daemon").mkdir()
+    (tmp_path / "daemon" / "bad.py").write_text(
+        "class _FakeCommand:\n    pass\nclass DummyLink:\n    pass\nclass MockClock:\n    pass\n"
+        "class StubSource:\n    pass\nclass FakeryReport:\n    pass\nclass NoFakeHere:\n    pass\n")
+    (tmp_path / "tests").mkdir()
+    (tmp_path / "tests" / "test_ok.py").write_text("class FakeHost:\n    pass\n")
+    r = run(tmp_path)
+    assert r.returncode == 1
+    for at in ("bad.py:1:", "bad.py:3:", "bad.py:5:", "bad.py:7:"):
+        assert f"{at} class " in r.stdout and "is a fake" in r.stdout.split(at)[1].splitlines()[0], (at, r.stdout)
+    assert r.stdout.count("is a fake") == 4, r.stdout

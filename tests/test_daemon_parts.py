@@ -337,6 +337,27 @@ def test_inbound_takes_the_autopilot_position_and_id(tmp_path):
     assert decl.rad == pytest.approx(earth_field(64.0, -22.0, 0.0).declination_rad) and "autopilot" in decl.source
 
 
+def test_inbound_answers_an_ftp_request_to_us_on_its_endpoint_and_nothing_else(tmp_path):
+    """A MAVLink FTP request addressed to us is answered on the endpoint it came from with a NAK (daemon.ftp_nak,
+    tested alone in test_ftp_nak_and_broadcast_notice: a ground station stops waiting); one for the autopilot's
+    FTP server gets nothing from us."""
+    autopilot = AutopilotState()
+    resolver = PositionResolver(LocationConfig(), gnss_position=lambda: None, autopilot=autopilot, simulator=False)
+    inbound, _, outbound = _inbound(tmp_path, resolver, autopilot)
+    us, link = outbound.identity, KeptLink()
+
+    def ftp_request(target_component):
+        return as_if_from(mavlink.MAVLink_file_transfer_protocol_message(0, us.system_id, target_component,
+                                                                         [7, 0, 3, 4] + [0] * 247), 255, 190)
+
+    inbound.on_message(link, ftp_request(1))                 # to the autopilot's component
+    assert link.sent == []
+    inbound.on_message(link, ftp_request(us.component_id))
+    (reply,) = link.sent
+    assert reply.get_type() == "FILE_TRANSFER_PROTOCOL"
+    assert (reply.target_system, reply.target_component) == (255, 190)
+
+
 def test_the_autopilot_hands_every_gps_message_to_its_listeners():
     """The field calibration subscribes; a refused message is still handed on (the listener judges it), and
     a listener that raises does not stop the input handling."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from types import SimpleNamespace
 
 import numpy as np
@@ -135,6 +136,9 @@ def test_flat_turns_keep_a_good_soft_iron_and_fit_offsets_only_with_clear_messag
     # soft iron is kept from the calibration in force, never invented; the hard iron is corrected
     assert np.array_equal(res.model.soft_iron, current.mag.soft_iron)
     assert np.linalg.norm(res.model.hard_iron_ut - HARD_IRON_UT) < 1.0
+    # the offsets are fitted on the attitude given, no levelling of its own: no frame tilt stated (ins: none)
+    assert math.isnan(res.frame_tilt_std_deg) and math.isnan(res.frame_tilt_heading_std_deg)
+    assert "frame_tilt_std_deg" not in res.proposed_calibration(current).metadata["mag"]
 
 
 def test_flat_turns_with_strong_soft_iron_use_the_full_fit_and_name_what_is_undetermined():

@@ -128,3 +128,36 @@ def test_the_tour_boats_offset_from_tilt_is_stated_covers_the_truth_and_is_not_c
     assert ("undetermined" in text) == math.isnan(stored_sigma_deg), text
     assert res.offset_source == "tilt" and f"offset +-{res.offset_std_deg:.1f} deg (tilt)" in text, text
     assert stored_sigma_deg == pytest.approx(math.hypot(res.heading_std_deg, res.offset_std_deg))
+
+
+def test_a_back_stepping_session_states_its_levelling_tilt_as_calibrate_mag_does():
+    """The session's back-stepping fit is levelled by the accelerometer, as `ahrsd calibrate mag --method
+    backstepping` without --gnss: its predicted heading error holds the accelerometer bias's tilt, σ_b/g per axis,
+    tan(dip)·σ_b/g in the heading (levelling_error.py). The calibration it proposes states both, as `calibrate mag`
+    does (`frame_tilt_std_deg`, `frame_tilt_heading_std_deg`), so ins carries the tilt as its frame-tilt states and
+    its harmonics leave that share out; the figures here are computed from the site's field and the bias σ the fit
+    assumes (the chip's, without an accelerometer calibration), not read from the fit."""
+    from ahrsd.calibration.heading_trust import (calibration_frame_tilt_heading_sigma_rad,
+                                                 calibration_frame_tilt_sigma_rad)
+    from ahrsd.calibration.mag.levelling_error import ACCEL_BIAS_SIGMA_UNCALIBRATED_M_S2
+    from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
+    from ahrsd.daemon.service import Service
+    from ahrsd.estimator.ins import Ins
+
+    block = record(vehicle(10.0), 200.0)
+    session, _n = run_session(block)
+    res = session.result
+    assert session.status == CalStatus.SUCCESS, session.fail_reason
+    assert res.method == "backstepping" and res.quality["full_vs_offsets"]["use_full"]
+    tilt_rad = ACCEL_BIAS_SIGMA_UNCALIBRATED_M_S2 / STANDARD_GRAVITY_M_S2
+    share_rad = math.tan(SITE_FIELD.inclination_rad) * tilt_rad
+    assert res.frame_tilt_std_deg == pytest.approx(math.degrees(tilt_rad), rel=1e-9)
+    assert res.frame_tilt_heading_std_deg == pytest.approx(math.degrees(share_rad), rel=1e-6)
+    assert res.frame_tilt_heading_std_deg <= res.heading_std_deg     # in it, in quadrature
+    proposed = res.proposed_calibration(Calibration.identity())
+    assert calibration_frame_tilt_sigma_rad(proposed) == pytest.approx(tilt_rad, rel=1e-9)
+    assert calibration_frame_tilt_heading_sigma_rad(proposed) == pytest.approx(share_rad, rel=1e-6)
+    ins = Ins(declination_rad=SITE_FIELD.declination_rad)
+    Service._tell_calibration(ins, proposed)      # what the daemon does when it accepts the session's calibration
+    assert ins.params.mag_calibration_frame_tilt_sigma_rad == pytest.approx(tilt_rad, rel=1e-9)
+    assert ins.params.mag_calibration_frame_tilt_heading_sigma_rad == pytest.approx(share_rad, rel=1e-6)

@@ -28,6 +28,7 @@ from ahrsd.drivers.gnss.recording import GnssRecordingWriter
 from ahrsd.drivers.gnss.replay import RecordingGnssBackend
 from ahrsd.drivers.gnss.serial_port import SerialGnssSource
 from ahrsd.drivers.gnss.simulated import SimulatedGnssReceiver
+from support.fake_aided import GateCounters
 
 LATENCY_S = 0.1
 BAD = 3                                   # the epoch at 95° N
@@ -44,15 +45,6 @@ class Clock:
 
     def __call__(self) -> float:
         return self.t
-
-
-@dataclasses.dataclass
-class GateCounters:
-    offered: int = 0
-    rejected_velocity: int = 0
-
-    def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
 
 
 class AidedEstimator:

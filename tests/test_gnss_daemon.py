@@ -9,64 +9,18 @@ import dataclasses
 import math
 import time
 
-import numpy as np
 import pytest
 
-from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, NavState
+from ahrsd.core.estimate import EstimateFlags
 from ahrsd.core.sample import make_sample
 from ahrsd.daemon.config import Config, EstimatorConfig, GnssConfig, OutputsConfig
 from ahrsd.daemon.mavlink_io import mavlink
 from service_rig import gcs_socket, start_service, stop_service
-from test_fuzz_mavlink import drain
+from support.fake_aided import FakeAided
+from support.mavlink_feed import drain
 
 GPS = mavlink.MAV_SYS_STATUS_SENSOR_GPS
 AP_SYS, AP_COMP = 1, 1
-
-
-@dataclasses.dataclass
-class GateCounters:
-    """The part of an aided filter's GNSS counters the daemon watches (estimator.ins.GnssCounters)."""
-
-    offered: int = 0
-    rejected_velocity: int = 0
-
-    def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
-
-class FakeAided:
-    """An 'aided' estimator (it has update_gnss): a fixed attitude, records the fixes it is offered, and a
-    navigation state once it has one. `flags` is what its estimates carry."""
-
-    name = "fake-aided"
-    lever_arm_m = (0.0, 0.0, 0.0)
-
-    def __init__(self):
-        self.fixes = []
-        self.flags = EstimateFlags.NONE
-        self.gnss_counters = GateCounters()
-
-    def update_gnss(self, fix):
-        self.fixes.append(fix)
-        return 0
-
-    def update(self, sample):
-        nav = None
-        if self.fixes:
-            f = self.fixes[-1]
-            nav = NavState(np.array([1.5, -2.0, 0.25]), f.lat_deg, f.lon_deg, f.alt_m, np.full(3, 0.1),
-                           np.full(3, 1.0), np.zeros(3))
-        return AttitudeEstimate(sample.t_s, np.array([1.0, 0, 0, 0]), 0.0, 0.0, 0.0, 0.0, 0.0, np.zeros(3),
-                                np.zeros(3), np.full(3, 0.01), self.flags, nav)
-
-    def reset(self):
-        pass
-
-    def set_declination(self, rad):
-        pass
-
-    def relearn_field_reference(self, heading_change_rad=float("nan")):
-        pass
 
 
 class Autopilot:

@@ -16,7 +16,7 @@ from ahrsd.core.sample import make_sample
 from ahrsd.estimator import make_estimator
 from support.ahrsd_process import LOW_RATE
 from ahrsd.estimator.replay import ATTITUDE_COLUMNS, HEADING_COLUMNS, NAV_COLUMNS, replay_attitude
-from test_gnss_daemon import FakeAided
+from support.fake_aided import FakeAided
 
 
 class RecordingOrder(FakeAided):

@@ -99,6 +99,21 @@ def test_request_message_as_command_int_reads_z_as_param7(rig):
     assert_no_escape(rig)
 
 
+def test_preflight_calibration_of_the_magnetometer_starts_and_accepts_through_the_daemon(rig):
+    """PREFLIGHT_CALIBRATION param2 = 76 (force save) with nothing finished, then param2 = 1 (start), on the
+    daemon's receive path, delegated to the field calibration (daemon.builtin_commands → daemon.magcal): FAILED
+    then ACCEPTED and a session running, nothing raised (a delegated handler that raised answered FAILED for
+    both and started nothing)."""
+    drain(rig)
+    feed(rig, command_long(rig, mavlink.MAV_CMD_PREFLIGHT_CALIBRATION, 0, 76))
+    feed(rig, command_long(rig, mavlink.MAV_CMD_PREFLIGHT_CALIBRATION, 0, 1))
+    got = drain(rig)
+    assert [a.result for a in acks(got, mavlink.MAV_CMD_PREFLIGHT_CALIBRATION)] == [
+        mavlink.MAV_RESULT_FAILED, mavlink.MAV_RESULT_ACCEPTED]
+    assert rig.service.magcal.calibrating
+    assert_no_escape(rig)
+
+
 # ------------------------------------------------------------------------------------------ fixed yaw
 
 

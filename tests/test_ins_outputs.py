@@ -12,8 +12,9 @@ from scipy.spatial.transform import Rotation
 from ahrsd.core.estimate import EstimateFlags
 from ahrsd.core.sample import make_sample
 from ahrsd.estimator import ins_core as core
-from ahrsd.estimator.accel_axes_tilt import accel_axes_tilt_variance_rad2
+from ahrsd.estimator.accel_axes_tilt import accel_axes_tilt_variance_in_force_rad2
 from ahrsd.estimator.accel_z_lean_tilt import accel_z_lean_tilt_variance_rad2
+from ahrsd.estimator.rotations import quat_to_dcm
 from ahrsd.estimator.ins import Ins
 
 from ins_truth import DECLINATION, gnss_fixes, rot, simulated_run
@@ -56,7 +57,10 @@ def test_every_output_field_is_the_state_it_names():
         # accelerometer axes' tilt term in quadrature (estimator/accel_axes_tilt.py)
         along = np.array([math.cos(yaw_true), math.sin(yaw_true)])
         across = np.array([-math.sin(yaw_true), math.cos(yaw_true)])
-        axes_roll, axes_pitch = accel_axes_tilt_variance_rad2(roll, pitch, est.params.accel_axes_tilt_sigma_rad)
+        # at the filter's attitude and low-passed specific force (the coordinated turn's, not gravity's)
+        axes_roll, axes_pitch = accel_axes_tilt_variance_in_force_rad2(tuple(quat_to_dcm(x["q"]).ravel()),
+                                                                       *x["acc_ned_lp_m_s2"],
+                                                                       est.params.accel_axes_tilt_sigma_rad)
         assert axes_roll > 0.0 and axes_pitch > 0.0
         z_lean = accel_z_lean_tilt_variance_rad2(est.params.accel_axes_tilt_sigma_rad, est._ever_aided)  # once aided
         axes_roll, axes_pitch = axes_roll + z_lean, axes_pitch + z_lean

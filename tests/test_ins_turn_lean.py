@@ -14,7 +14,8 @@ from ins_truth import DECLINATION, gnss_fixes, rot, simulated_run, tilt_heading_
 from ahrsd.core.estimate import EstimateFlags, HeadingState
 from ahrsd.core.sample import SampleFlags, make_sample
 from ahrsd.daemon.heading_status import HeadingStatus
-from ahrsd.estimator.accel_axes_tilt import accel_axes_tilt_variance_rad2
+from ahrsd.estimator.accel_axes_tilt import accel_axes_tilt_variance_in_force_rad2
+from ahrsd.estimator.rotations import quat_to_dcm
 from ahrsd.estimator.ins import Ins
 
 CLAIMED_SIGMA_RAD = math.radians(math.hypot(0.5, 0.2))   # the calibration's claim, as bench/calibration_change_ins.py
@@ -56,7 +57,11 @@ def _run(seed, seconds=75.0, fixes=()):
             p = ins.covariance[:2, :2]
             yaw, pitch, roll = rot(ins.true_attitude_q_wxyz()).as_euler("ZYX")
             # with the accelerometer axes' term in quadrature (estimator/accel_axes_tilt.py)
-            axes_roll, axes_pitch = accel_axes_tilt_variance_rad2(roll, pitch, ins.params.accel_axes_tilt_sigma_rad)
+            # at the filter's attitude and low-passed specific force (the turn's, not gravity's)
+            x = ins._x
+            axes_roll, axes_pitch = accel_axes_tilt_variance_in_force_rad2(tuple(quat_to_dcm(x["q"]).ravel()),
+                                                                           *x["acc_ned_lp_m_s2"],
+                                                                           ins.params.accel_axes_tilt_sigma_rad)
             c, s = math.cos(yaw), math.sin(yaw)
             # roll is about the heading axis (c, s), pitch about the axis across it (−s, c)
             roll_axis = np.array([c, s])

@@ -139,3 +139,87 @@ def test_the_calibration_states_its_levelling_tilt_and_replay_tells_ins():
     assert ins.params.mag_calibration_frame_tilt_sigma_rad == pytest.approx(math.radians(0.22))
     Service._tell_calibration(ins, older)
     assert ins.params.mag_calibration_frame_tilt_sigma_rad == 0.0
+
+
+def _level_heading_variance_rad2(P, tan_dip: float, psi_rad: float) -> float:
+    """The variance of the heading error the calibration's states hold at a level magnetic heading ψ, from the
+    covariance `P`: the harmonics' e(ψ) = (1, cos ψ, sin ψ, cos 2ψ, sin 2ψ)·c (mag_harmonics.py) and the frame tilt's
+    −tan(dip)(cos ψ, −sin ψ)·ε (the level closed form above), written out here."""
+    row = np.zeros(P.shape[0])
+    row[core.E_MH:core.E_MH + 5] = [1.0, math.cos(psi_rad), math.sin(psi_rad), math.cos(2.0 * psi_rad),
+                                    math.sin(2.0 * psi_rad)]
+    row[core.E_MF:core.E_MF + 2] = [-tan_dip * math.cos(psi_rad), tan_dip * math.sin(psi_rad)]
+    return float(row @ P @ row)
+
+
+@pytest.mark.parametrize("tilt_deg, dip_deg", [(0.1, 55.0), (0.22, 55.85), (0.07, 78.0), (0.08, 78.0)])
+def test_the_harmonics_leave_the_frame_tilts_heading_share_to_its_states(tilt_deg, dip_deg):
+    """A calibration's stated heading error σ holds its frame tilt's tan(dip)·σ_ε in quadrature
+    (levelling_error.py); the frame-tilt states carry that tilt, so the harmonics' prior leaves its share out and
+    at every level heading the states together hold σ², not σ² + tan²(dip)σ_ε² (frame26's double count). The tilt
+    can be more than the harmonics' once-per-turn share (the rest comes out of c2, s2, then c0). A
+    calibration that does not state the share (older files) keeps the old prior."""
+    sigma = math.radians(0.4)
+    tilt = math.radians(tilt_deg)
+    tan_dip = math.tan(math.radians(dip_deg))
+    share = tan_dip * tilt
+    assert share < sigma
+    P = _initialised_ins(mag_calibration_frame_tilt_sigma_rad=tilt,
+                         mag_calibration_frame_tilt_heading_sigma_rad=share).covariance
+    older = _initialised_ins(mag_calibration_frame_tilt_sigma_rad=tilt).covariance
+    for psi in np.radians([0.0, 40.0, 90.0, 160.0, 275.0]):
+        assert _level_heading_variance_rad2(P, tan_dip, psi) == pytest.approx(sigma ** 2, rel=1e-4)
+        assert _level_heading_variance_rad2(older, tan_dip, psi) == pytest.approx(sigma ** 2 + share ** 2, rel=1e-4)
+    harmonics = np.diag(P)[core.E_MH:core.E_MH + 5]
+    assert np.all(harmonics >= 0.0)
+    assert harmonics[1] == pytest.approx(harmonics[2]) and harmonics[3] == pytest.approx(harmonics[4])
+    # the tilt is once per turn: out of c1, s1 first (f0 = 0.25, 2 : 1: each 0.5 σ²), then c2, s2 (each 0.25 σ²),
+    # the constant c0 (0.25 σ²) last
+    if share ** 2 <= 0.5 * sigma ** 2:
+        assert harmonics[3] == pytest.approx(0.25 * sigma ** 2, rel=1e-4)
+    else:
+        assert harmonics[1] == pytest.approx(0.0, abs=1e-9)   # the walk of 1.5 s: 1.5e-10
+    if share ** 2 <= 0.75 * sigma ** 2:
+        assert harmonics[0] == pytest.approx(0.25 * sigma ** 2, rel=1e-4)
+    else:
+        assert harmonics[3] == pytest.approx(0.0, abs=1e-9)   # the walk of 1.5 s: 1.5e-10
+
+
+def test_the_calibration_states_its_tilts_heading_share_and_the_daemon_and_replay_tell_ins():
+    """`calibrate mag` stores the tilt's share of its heading error (the levelling's `given_tilt_heading_std_deg`,
+    or the accelerometer's `accel_bias_heading_std_deg`) as `frame_tilt_heading_std_deg`; heading_trust reads it
+    back (0: not stated); replay passes it and the daemon tells it after the heading error, the harmonics then
+    starting from the prior without it (the same covariance as ins built with it)."""
+    import dataclasses
+
+    from ahrsd.calibration.heading_trust import calibration_frame_tilt_heading_sigma_rad
+    from ahrsd.calibration.mag.levelling_error import frame_tilt_heading_std_deg
+    from ahrsd.calibration.models import Calibration
+    from ahrsd.cli.replay import _told_calibration_sigma
+    from ahrsd.daemon.service import Service
+
+    assert frame_tilt_heading_std_deg({"given_tilt_sigma_deg": 0.22, "given_tilt_heading_std_deg": 0.33}) == 0.33
+    assert frame_tilt_heading_std_deg({"accel_bias_sigma_m_s2": 0.05, "accel_bias_heading_std_deg": 0.41,
+                                       "residual_correlation_samples": 3.0}) == 0.41
+    assert frame_tilt_heading_std_deg(None) is None and frame_tilt_heading_std_deg({}) is None
+    mag = {"heading_std_deg": 0.33, "offset_std_deg": 0.15, "frame_tilt_std_deg": 0.22}
+    stated = dataclasses.replace(Calibration.identity(), metadata={"mag": {**mag, "frame_tilt_heading_std_deg": 0.2}})
+    older = dataclasses.replace(Calibration.identity(), metadata={"mag": mag})
+    assert calibration_frame_tilt_heading_sigma_rad(stated) == pytest.approx(math.radians(0.2))
+    assert calibration_frame_tilt_heading_sigma_rad(older) == 0.0
+    assert calibration_frame_tilt_heading_sigma_rad(None) == 0.0
+    told = _told_calibration_sigma("ins", stated, {})
+    assert told["mag_calibration_frame_tilt_heading_sigma_rad"] == pytest.approx(math.radians(0.2))
+    assert _told_calibration_sigma("ins", older, {})["mag_calibration_frame_tilt_heading_sigma_rad"] == 0.0
+    assert "mag_calibration_frame_tilt_heading_sigma_rad" not in _told_calibration_sigma("mekf", stated, {})
+    built = Ins(declination_rad=0.0, **told).covariance
+    ins = Ins(declination_rad=0.0)
+    Service._tell_calibration(ins, stated)
+    assert ins.params.mag_calibration_frame_tilt_heading_sigma_rad == pytest.approx(math.radians(0.2))
+    block = slice(core.E_MH, core.E_MF + 2)
+    np.testing.assert_allclose(ins.covariance[block, block], built[block, block], rtol=1e-12, atol=0.0)
+    sigma = math.radians(math.hypot(0.33, 0.15))
+    once = 0.75 * (2.0 / 3.0) * sigma ** 2     # c1's share of an older file's prior (f0 = 0.25, 2 : 1)
+    assert ins.covariance[core.E_MH + 1, core.E_MH + 1] == pytest.approx(once - math.radians(0.2) ** 2, rel=1e-9)
+    Service._tell_calibration(ins, older)
+    assert ins.covariance[core.E_MH + 1, core.E_MH + 1] == pytest.approx(once, rel=1e-9)

@@ -20,6 +20,7 @@ from ahrsd.daemon.magcal import (
     CMD_ACCEPT,
     CMD_CANCEL,
     CMD_FIXED_YAW,
+    CMD_PREFLIGHT,
     CMD_START,
     MagCalProtocol,
     MagCalSettings,
@@ -86,6 +87,24 @@ def test_autosave_reports_autosaved_and_accept_is_idempotent(setup):
     assert rep.cal_status == CalStatus.SUCCESS and rep.autosaved == 1
     assert len(host.applied) == 1
     assert proto.handle_accept(cmd(CMD_ACCEPT, 1)) == mavlink.MAV_RESULT_ACCEPTED  # MAVProxy accepts after autosave
+    assert len(host.applied) == 1
+
+
+def test_preflight_calibration_starts_an_autosaving_session_and_76_accepts_as_ardupilot_maps_it(setup):
+    """MAV_CMD_PREFLIGHT_CALIBRATION's magnetometer as the daemon delegates it (daemon.builtin_commands;
+    docs/magcal-field.md): param2 = 1 starts on every compass, no retry, autosave, no delay; 76 accepts (force
+    save); any other value is not ours."""
+    host, clock, proto = setup
+    assert proto.handle_preflight_mag(cmd(CMD_PREFLIGHT, 0, 76)) == mavlink.MAV_RESULT_FAILED   # nothing yet
+    assert "nothing to accept" in host.texts()[-1]
+    assert proto.handle_preflight_mag(cmd(CMD_PREFLIGHT, 0, 2)) == mavlink.MAV_RESULT_UNSUPPORTED
+    assert proto.handle_preflight_mag(cmd(CMD_PREFLIGHT, 0, 1)) == mavlink.MAV_RESULT_ACCEPTED
+    assert proto.calibrating and host.texts()[-1] == "Mag cal started"         # no delay
+    drive(proto, clock, level_turns(), host, until=lambda: bool(host.of_type("MAG_CAL_REPORT")))
+    rep = host.of_type("MAG_CAL_REPORT")[-1]
+    assert rep.cal_status == CalStatus.SUCCESS and rep.autosaved == 1 and rep.cal_mask == 1
+    assert len(host.applied) == 1
+    assert proto.handle_preflight_mag(cmd(CMD_PREFLIGHT, 0, 76)) == mavlink.MAV_RESULT_ACCEPTED   # saved already
     assert len(host.applied) == 1
 
 

@@ -90,7 +90,8 @@ def test_initial_attitude_without_field_sets_tilt_and_zero_heading():
 def test_the_initialising_sample_publishes_the_1sigma_of_a_step():
     """The estimate of the sample that initialises carries the terms every step's 1σ carries (docs/estimator.md,
     "consider" terms): roll and pitch 1σ² = init_sigma_tilt² + the tilt process noise over the low-passed
-    vertical's age, (σ_g² + (σ_s |ω|)²)·τ, + the accelerometer bias's tilt (σ_a/g)²; yaw 1σ² = init_sigma_yaw²
+    vertical's age, (σ_g² + (σ_s |ω|)²)·τ, + the accelerometer bias's tilt (σ_a/g)² + its misalignment's (level:
+    σ_m², accel_axes_tilt.py); yaw 1σ² = init_sigma_yaw²
     + the calibration's stated heading variance (the bias's share through the dip starts with the field's
     reference, learnt from the next sample on: tests/test_mekf_accel_bias_sigma.py). Worked from the
     parameters; a turning sample so that the rate term counts."""
@@ -103,6 +104,7 @@ def test_the_initialising_sample_publishes_the_1sigma_of_a_step():
     tilt_var = p.init_sigma_tilt_rad ** 2 + (p.gyro_noise_rad_s_sqrt_hz ** 2
                                              + p.gyro_rate_noise_sqrt_s ** 2 * w2) * p.acc_lowpass_tau_s
     tilt_var += (p.accel_bias_sigma_m_s2 / G) ** 2          # |f| = G: the g the filter starts from
+    tilt_var += p.accel_axes_tilt_sigma_rad ** 2            # the accelerometer's misalignment, level: σ_m on each
     yaw_var = p.init_sigma_yaw_rad ** 2 + math.radians(2.0) ** 2
     assert out.sigma_rpy_rad == pytest.approx([math.sqrt(tilt_var), math.sqrt(tilt_var), math.sqrt(yaw_var)],
                                               rel=1e-12)

@@ -25,7 +25,8 @@ TILTED_ACC_M_S2 = np.array([1.2, -0.8, -9.7])     # not level, so C has no zero 
 
 
 def _initialised_then_one_propagation():
-    f = Mekf(gyro_rate_noise_sqrt_s=RATE_NOISE_SQRT_S, turn_speed_m_s=0.0, accel_bias_sigma_m_s2=0.0)
+    f = Mekf(gyro_rate_noise_sqrt_s=RATE_NOISE_SQRT_S, turn_speed_m_s=0.0, accel_bias_sigma_m_s2=0.0,
+             accel_axes_tilt_sigma_rad=0.0)
     f.update(make_sample(10.0, np.zeros(3), TILTED_ACC_M_S2, FIELD_BODY_UT))
     p_before = f.covariance
     bias = f.gyro_bias_rad_s
@@ -60,7 +61,7 @@ def test_a_step_without_aiding_propagates_the_covariance_with_the_rate_dependent
 def test_the_published_tilt_sigma_adds_the_tilt_noise_over_the_vertical_s_age():
     """σ_roll² + σ_pitch² = P_NN + P_EE + 2 (σ_g² + (σ_s |ω − b|)²) τ, b the bias after the step (the trace does not depend on the yaw the
     tilt is rotated by; turn_speed_m_s = 0 and no tilt update leave no turn lean, accel_bias_sigma_m_s2 = 0 no
-    accelerometer bias term). (Broken by dropping the rate
+    accelerometer bias term, accel_axes_tilt_sigma_rad = 0 no misalignment term). (Broken by dropping the rate
     term from the published σ: the age term 5.1e-7 against 5.6e-6 rad².)"""
     f, _, _, out = _initialised_then_one_propagation()
     p_now = f.covariance

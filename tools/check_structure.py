@@ -39,6 +39,14 @@ Rule in every package and in tests/:
    imported first finds the other half-built ("cannot import name … from partially initialized module"), so
    whether it works depended on which one a program happened to import first. Shared parts go into a module
    both import (simulation/scenario_base.py).
+Rule in every package (not tests/, tools/ or bench/):
+11. no comment or docstring tells the code's history by session ("session 23", "sessions 24–25", "walk26's
+   walk"): a comment says why the code is as it is; when and by whom it changed is in git, and what was measured
+   is in docs/ (issue 29 item 7). Rule 11 reads comments (`#`) and docstrings only, never strings the code uses.
+12. no fake, dummy or mock class (`class _FakeCommand`): a module that needs another's behaviour calls it with
+   what it has (daemon.magcal's PREFLIGHT_CALIBRATION path calls `_start(CommandArgs(...))`), it does not forge
+   the other's input; a forged message missed a field the reader needs and failed where no test looked. Fakes
+   live in tests/.
 Rule in tests/:
 5. no spy on an estimator: no function or lambda assigned to an attribute of an estimator object (the names of
    rule 3, and what hangs below them: `est._monitor.check = spy`). A test reads what the estimator decided
@@ -48,7 +56,10 @@ Rule in tests/:
 from __future__ import annotations
 
 import ast
+import io
+import re
 import sys
+import tokenize
 from pathlib import Path
 
 MAX_BASES = 2
@@ -73,6 +84,8 @@ PART_NAMES = {
 
 HOST_CLOCKS = {"time.monotonic", "time.time", "time.monotonic_ns", "time.time_ns"}
 HOST_CLOCK_MARK = "# host clock:"
+# rule 11: a session named ("session 23", "sessions 24–25") or a session's walk by its helper ("walk26's walk")
+SESSION_HISTORY = re.compile(r"\bsessions? \d+|\b[a-z]+\d{2}'s walk\b", re.IGNORECASE)
 PROCESS_WIDE_MARK = "# process-wide:"
 
 
@@ -135,15 +148,45 @@ def _forwarding_wrappers(tree: ast.AST, shown: str) -> list[str]:
             for item in node.body if isinstance(item, ast.FunctionDef) and item.name == "__getattr__"]
 
 
+def _comment_lines(text: str, tree: ast.AST) -> list[tuple[int, str]]:
+    """(line, text) of every `#` comment and every docstring line (a string standing alone as a statement)."""
+    out = [(tok.start[0], tok.string) for tok in tokenize.generate_tokens(io.StringIO(text).readline)
+           if tok.type == tokenize.COMMENT]
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant) and isinstance(node.value.value, str):
+            out += [(node.lineno + i, line) for i, line in enumerate(node.value.value.splitlines())]
+    return out
+
+
+def _session_history(text: str, tree: ast.AST, shown: str) -> list[str]:
+    """Rule 11: a comment or docstring that names a session."""
+    return [f"{shown}:{line}: a comment names a session ({m.group(0)!r}): say why, not when (history is in "
+            "git, figures in docs/)"
+            for line, comment in _comment_lines(text, tree) if (m := SESSION_HISTORY.search(comment))]
+
+
+FAKE_CLASS = re.compile(r"^_*(Fake|Dummy|Mock|Stub)[A-Z_]")
+
+
+def _fake_classes(tree: ast.AST, shown: str) -> list[str]:
+    """Rule 12: a class named as a fake."""
+    return [f"{shown}:{node.lineno}: class {node.name} is a fake in a package (call the code with what you have; "
+            "fakes live in tests/)"
+            for node in ast.walk(tree) if isinstance(node, ast.ClassDef) and FAKE_CLASS.match(node.name)]
+
+
 def check_file(path: Path, shown: str, daemon_rules: bool = True, settings_rule: bool = False) -> list[str]:
-    """The problems in one file: every rule (daemon_rules), or only rules 4 (an estimator probed), 7 and 9 (a
-    forwarding wrapper); and rule 8 (a settings object probed) with settings_rule."""
+    """The problems in one file: every rule (daemon_rules), or only rules 4 (an estimator probed), 7, 9 (a
+    forwarding wrapper), 11 (a session named in a comment) and 12 (a fake class); and rule 8 (a settings object probed) with
+    settings_rule."""
     try:
         tree = ast.parse(path.read_text(encoding="utf-8"))
     except SyntaxError as exc:
         return [f"{shown}:{exc.lineno}: does not parse"]
-    lines = path.read_text(encoding="utf-8").splitlines()
-    out = _monkeypatches(tree, lines, shown) + _forwarding_wrappers(tree, shown)
+    text = path.read_text(encoding="utf-8")
+    lines = text.splitlines()
+    out = (_monkeypatches(tree, lines, shown) + _forwarding_wrappers(tree, shown) + _session_history(text, tree, shown)
+           + _fake_classes(tree, shown))
     for node in ast.walk(tree):
         if (daemon_rules and isinstance(node, ast.Call) and _dotted(node.func) in HOST_CLOCKS
                 and HOST_CLOCK_MARK not in lines[node.lineno - 1]):

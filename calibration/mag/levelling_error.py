@@ -84,6 +84,21 @@ def frame_tilt_sigma_deg(levelling: dict | None) -> float | None:
     return value if math.isfinite(value) and value > 0.0 else None
 
 
+def frame_tilt_heading_std_deg(levelling: dict | None) -> float | None:
+    """The heading error (deg, 1σ, RMS over heading) the fit's predicted heading error holds for that body-fixed
+    tilt (`frame_tilt_sigma_deg`): tan(dip)·σ, added in quadrature to its heading-dependent part
+    (backstepping._with_levelling_error). It is all once per turn, so ins takes it out of the calibration's
+    once-per-turn harmonics when its frame-tilt states carry the tilt (mag_harmonics.prior_variances_rad2). None:
+    not known, as `frame_tilt_sigma_deg`."""
+    if not isinstance(levelling, dict):
+        return None
+    value = levelling.get("given_tilt_heading_std_deg", levelling.get("accel_bias_heading_std_deg"))
+    if value is None:
+        return None
+    value = float(value)
+    return value if math.isfinite(value) and value > 0.0 else None
+
+
 def body_fixed_tilt_sigma_rad(tilt_sigma_rad: np.ndarray) -> float:
     """The per-axis 1σ (rad) of the body-fixed tilt an estimator's levelling leaves, from its per-sample tilt 1σ
     √(σ_roll² + σ_pitch²) (rad; NaN where it had not started): the RMS over the samples, per axis (÷ √2). The

@@ -35,7 +35,7 @@ def _mekf_steps():
     yield "mekf batch", batch
 
     def allan():
-        from ahrsd.calibration.allan import analyse_static
+        from ahrsd.calibration.allan.analysis import analyse_static
 
         rng = np.random.default_rng(0)
         n = 20000

@@ -11,7 +11,7 @@ Model (IEEE Std 952-1997 Annex C, Table C.1), every coefficient ≥ 0, in Allan 
 
 The fit uses the octave-spaced points of the curve (τ doubling) and treats each point's Allan variance as
 σ²·χ²(edf)/edf, with the equivalent degrees of freedom of the overlapping estimator for the noise type that
-the model says dominates there (`allan_adev.edf_overlapping`): the maximum-likelihood fit is an iteratively
+the model says dominates there (`adev.edf_overlapping`): the maximum-likelihood fit is an iteratively
 reweighted NNLS (weights edf/σ⁴_model), its deviance the likelihood-ratio statistic. The estimate at 2τ reuses
 the data of τ, so neighbouring octave points are correlated: the deviance (and the information) is halved,
 counting one independent point per two octaves. Each term is kept only if
@@ -39,10 +39,10 @@ from functools import cached_property, lru_cache
 
 import numpy as np
 
-from .allan_adev import AllanCurve, edf_by_alpha
-from .allan_covariance import avar_covariance
-from .allan_irls import SLOPE_STEP, model_and_edf, weighted_system
-from .report import sig_figs
+from .adev import AllanCurve, edf_by_alpha
+from .covariance import avar_covariance
+from .irls import SLOPE_STEP, model_and_edf, weighted_system
+from ..report import sig_figs
 
 FLICKER_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)  # 0.6643, IEEE Std 952-1997 Table B.1
 TERMS = ("quantization", "white", "flicker", "rate_random_walk", "rate_ramp", "gauss_markov")
@@ -70,7 +70,7 @@ def gauss_markov_avar(taus: np.ndarray, corr_time_s: float) -> np.ndarray:
 
 def term_basis(name: str, taus: np.ndarray, corr_time_s: float | None = None, white_deficit_s: float = 0.0) -> np.ndarray:
     """Allan variance of the term per unit coefficient (the coefficient is 3Q², N², (0.664B)², K²/3, R²/2, σ²).
-    white_deficit_s: D of a sensor filter, which makes white noise 1/τ − D/τ² (allan_correlation)."""
+    white_deficit_s: D of a sensor filter, which makes white noise 1/τ − D/τ² (correlation)."""
     t = np.asarray(taus, dtype=np.float64)
     if name == "quantization":
         return t**-2.0
@@ -107,15 +107,15 @@ class _Points:
     level_n: np.ndarray
     level_m: np.ndarray
     record_s: float
-    white_deficit_s: float = 0.0   # a sensor filter's D (allan_correlation): white noise is 1/τ − D/τ²
-    white_deficit_sd_s: float = 0.0   # D's 1σ (allan_correlation.deficit_sds_s), carried by _fit_fixed
+    white_deficit_s: float = 0.0   # a sensor filter's D (correlation): white noise is 1/τ − D/τ²
+    white_deficit_sd_s: float = 0.0   # D's 1σ (correlation.deficit_sds_s), carried by _fit_fixed
     fits: dict = field(default_factory=dict, compare=False, repr=False)   # fit_terms' results by term set
     bases: dict = field(default_factory=dict, compare=False, repr=False)   # _stacked_basis' columns by (term, Tc)
     systems: dict = field(default_factory=dict, compare=False, repr=False)   # _system's arrays by (terms, k, Tc)
 
     @cached_property
     def edf_table(self) -> np.ndarray:
-        """edf of every point for every noise type (allan_adev.edf_by_alpha)."""
+        """edf of every point for every noise type (adev.edf_by_alpha)."""
         return edf_by_alpha(self.level_n, self.level_m)
 
 
@@ -150,7 +150,7 @@ class ModelFit:
 
 
 def _with_slope_taus(taus: np.ndarray) -> np.ndarray:
-    """τ, then τ·(1 + SLOPE_STEP), then τ/(1 + SLOPE_STEP): where allan_irls.model_and_edf wants the basis."""
+    """τ, then τ·(1 + SLOPE_STEP), then τ/(1 + SLOPE_STEP): where irls.model_and_edf wants the basis."""
     return np.concatenate([taus, taus * (1 + SLOPE_STEP), taus / (1 + SLOPE_STEP)])
 
 
@@ -202,7 +202,7 @@ def _nnls_weighted(basis: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarra
 
 
 def _stacked_basis(pts: _Points, terms: tuple[str, ...], tc: float | None) -> np.ndarray:
-    """term_basis of each term (columns) at _with_slope_taus(pts.taus) (rows), for allan_irls.model_and_edf;
+    """term_basis of each term (columns) at _with_slope_taus(pts.taus) (rows), for irls.model_and_edf;
     each column computed once per (term, Tc)."""
     keys = [(name, tc if name == "gauss_markov" else None) for name in terms]   # only GM depends on Tc
     for name, key in zip(terms, keys):
@@ -508,7 +508,7 @@ class TermEstimate:
 
 
 def coefficient_sigma(fit: ModelFit, pts: _Points) -> np.ndarray:
-    """1σ of the fitted coefficients from the covariance of the points' Allan variances (allan_covariance:
+    """1σ of the fitted coefficients from the covariance of the points' Allan variances (covariance:
     the correlation of neighbouring τ and each point's variance for the fitted noise), propagated through the
     fit's own weighted least squares (the sandwich A Bᵀ W V W B A, A = (Bᵀ W B)⁻¹, W the fit's last weights)."""
     basis = np.column_stack([term_basis(name, pts.taus, fit.corr_time_s, fit.white_deficit_s) for name in fit.terms])

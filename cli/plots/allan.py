@@ -1,14 +1,15 @@
-"""Plot of an Allan analysis: per sensor and axis the Allan deviation with its confidence band, each term the
-curve shows drawn over its τ range, and the IEEE Std 952 readings marked (N at τ = 1 s, B at the flicker
-floor's minimum, K at τ = 3 s). Needs matplotlib (the optional `ahrsd[plot]` extra)."""
+"""The Allan analysis figure (`ahrsd calibrate allan --plot FILE.png`): per sensor and axis the Allan deviation
+with its confidence band, each term the curve shows drawn over its τ range, and the IEEE Std 952 readings marked
+(N at τ = 1 s, B at the flicker floor's minimum, K at τ = 3 s). Needs matplotlib (the optional `ahrsd[plot]`
+extra)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from .allan_terms import FLICKER_FACTOR
+from ahrsd.calibration.allan.terms import FLICKER_FACTOR
+from ahrsd.calibration.report import sig_figs
 from ahrsd.core.plotting import pyplot
-from .report import sig_figs
 
 TERM_STYLE = {"quantization": ("Q", "tab:purple"), "white": ("N", "tab:blue"), "flicker": ("B", "tab:green"),
               "rate_random_walk": ("K", "tab:red"), "rate_ramp": ("R", "tab:brown"),

@@ -1,6 +1,6 @@
 """The covariance of the Allan variances at the octave points of a curve, and from it the 1σ of the fitted terms.
 
-Why: the term fit (allan_terms) weights each point by its own χ² confidence (the equivalent degrees of freedom
+Why: the term fit (terms) weights each point by its own χ² confidence (the equivalent degrees of freedom
 of the overlapping estimator, NIST SP 1065 Table 5), as if the points were independent. They are not: the
 estimate at 2τ is built from the same data as at τ, and at long τ, where a rate random walk dominates and few
 clusters remain, neighbouring points move together almost as one. A least-squares fit that treats them as
@@ -19,7 +19,7 @@ second differences do (Matheron's intrinsic random functions of order 1):
     flicker rate noise                         G(h) = h² ln|h| / (4 ln 2)
     first-order Gauss–Markov, correlation Tc   G(h) = −Tc² e^(−|h|/Tc) − Tc·|h|
     quantization (white angle noise)           G(h) = [h = 0] / 3
-each for a unit coefficient of allan_terms.term_basis (so 1/(2τ²)·c_ii(0) is that basis: σ²(τ) of the term).
+each for a unit coefficient of terms.term_basis (so 1/(2τ²)·c_ii(0) is that basis: σ²(τ) of the term).
 The independent terms add. A rate ramp is deterministic: it shifts d by its mean R·τ², which adds
 4·μ_i·μ_j·c_ij to the sum (the mean's cross term in the fourth moment).
 
@@ -98,7 +98,7 @@ def _integrate(fn, points: np.ndarray) -> float:
 
 def avar_covariance(fit, taus_s: np.ndarray, level_n: np.ndarray, level_m: np.ndarray, record_s: float) -> np.ndarray:
     """Covariance (n, n) of the overlapping Allan variances at the points (τ, their series' length and cluster
-    size, as allan_adev.AllanCurve), for the noise of the fitted model `fit` (allan_terms.ModelFit)."""
+    size, as adev.AllanCurve), for the noise of the fitted model `fit` (terms.ModelFit)."""
     taus = np.asarray(taus_s, dtype=np.float64)
     spacing = taus / np.asarray(level_m, dtype=np.float64)        # the sample interval of each point's series
     n_starts = np.asarray(level_n, dtype=np.float64) - 2.0 * np.asarray(level_m, dtype=np.float64) + 1.0

@@ -2,9 +2,9 @@
 for the estimators and confidence intervals; the analysis the ADIS16405 AHRS thesis runs).
 
 The recording is consumed a chunk at a time (`StaticAllanAnalysis.add`, or `analyse_chunks` over a chunked
-reader): per sensor a streaming overlapping Allan deviation (allan_adev.py), so a day at 819.2 SPS needs no
+reader): per sensor a streaming overlapping Allan deviation (adev.py), so a day at 819.2 SPS needs no
 more memory than a chunk. Each axis' curve is then read by a significance test that keeps only the noise terms
-the curve shows (allan_terms.py), and the Kalman tuning is derived from those terms (allan_kalman.py).
+the curve shows (terms.py), and the Kalman tuning is derived from those terms (kalman.py).
 
 Per sensor and axis (u = the sample unit: rad/s, m/s², µT):
   white_noise N (u/√Hz: ARW, VRW), quantization Q (u·s), bias_instability B (u, IEEE reading min σ/0.664
@@ -23,11 +23,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .allan_adev import ONE_SIGMA, AllanCurve, StreamingAllan, confidence_interval, edf_overlapping
-from .allan_correlation import SampleCorrelation, shortest_fit_tau_s
-from .allan_kalman import kalman_tuning
-from .allan_resolution import MIN_NOISE_LSB
-from .allan_terms import (
+from .adev import ONE_SIGMA, AllanCurve, StreamingAllan, confidence_interval, edf_overlapping
+from .correlation import SampleCorrelation, shortest_fit_tau_s
+from .kalman import kalman_tuning
+from .resolution import MIN_NOISE_LSB
+from .terms import (
     TERMS,
     ModelFit,
     TermEstimate,
@@ -37,7 +37,7 @@ from .allan_terms import (
     select_terms,
     term_estimates,
 )
-from .report import sig_figs
+from ..report import sig_figs
 
 AXES = ("x", "y", "z")
 SENSORS = ("gyro", "accel", "mag")
@@ -94,12 +94,12 @@ def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float, correlat
               white_deficit_s: float = 0.0, samples_to_tell: int = 0, noise_lsb: float = math.inf,
               white_deficit_sd_s: float = 0.0) -> NoiseParameters:
     """Decide the terms of one axis' curve and read their values. correlation_samples: how many samples apart
-    the samples stop being correlated (allan_correlation): the fit uses only the τ beyond a few of those, where
+    the samples stop being correlated (correlation): the fit uses only the τ beyond a few of those, where
     the filter lowers white noise to N²·(1/τ − D/τ²), D = white_deficit_s ± white_deficit_sd_s (1σ, carried by
-    the fit: allan_terms). samples_to_tell > 0: the samples are
-    correlated but the record is too short to tell over how many (allan_correlation): no term is read.
+    the fit: terms). samples_to_tell > 0: the samples are
+    correlated but the record is too short to tell over how many (correlation): no term is read.
     noise_lsb: the output's σ per sample in its LSB; below MIN_NOISE_LSB no term is read
-    (allan_resolution)."""
+    (resolution)."""
     pts = octave_points(curve, axis)
     min_tau_s = shortest_fit_tau_s(correlation_samples, rate_hz)
     unreadable = _unreadable(curve, axis, std, rate_hz, pts, min_tau_s, correlation_samples, samples_to_tell,
@@ -411,12 +411,13 @@ NOISE_FILE_NAME = "noise.json"
 
 def save_noise_parameters(result: AllanResult, path: Path | str) -> Path:
     """Write the noise parameters and Kalman tuning as JSON (atomically) for the estimator to load."""
-    from .store import _write_atomic
+    from ..atomic_file import write_atomic
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     doc = {"format": "ahrsd-noise", "version": 1, **result.to_json_dict()}
-    _write_atomic(path, (json.dumps(_finite(doc), indent=2, sort_keys=True) + "\n").encode())
+    # readable by the operator (0644), as the calibration files the store writes
+    write_atomic(path, (json.dumps(_finite(doc), indent=2, sort_keys=True) + "\n").encode(), mode=0o644)
     return path
 
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 
-from .allan_terms import FLICKER_FACTOR
+from .terms import FLICKER_FACTOR
 
 Q_INFLATION = 3.0          # the thesis's rule: diagonal Q inflated ×3 for correlated axes
 BIAS_DRIVE_FRACTION = 0.1  # the thesis's rule: bias-driving noise = ARW/10 (used only when no bias term is seen)

@@ -4,12 +4,11 @@ A sensor that averages many samples before rounding them (the ADIS16405 with a l
 accelerometer's filtered noise is 0.21 LSB, the magnetometer's 0.18) outputs a handful of values. Its rounding is
 then no white noise added to the signal (that needs the signal to move over several LSB between samples, Widrow &
 Kollár, Quantization Noise, 2008, ch. 4–5) but a staircase of the slowly moving filtered signal, and the Allan
-deviation of the output is the staircase's. On the simulated chip (bench/allan_filters.py, 300 s per setting) the
-white noise read against the configured density, by the output's σ per sample (rounding included):
-N = 3 magnetometer (0.78 LSB) −1.0 … +3.9 %, N = 4 accelerometer (0.66–0.67) +0.8 … +4.0 % and magnetometer
-(0.58–0.59) +1.0 … +7.8 %, N = 5 accelerometer (0.50–0.53) +3.7 … +11 % and magnetometer (0.41–0.51) −7.7 … +27 %,
-N = 7 (0.09–0.5) up to +146 % or other terms in place of white noise. Below MIN_NOISE_LSB the analysis reads no term and says to lower the
-filter setting instead. The σ is the samples' own (a slow process adds to it, so an axis is never refused for it).
+deviation of the output is the staircase's: the white noise read against the configured density drifts high
+as the output's σ per sample (rounding included) falls below an LSB, and other terms take its place (the figures
+per filter setting, and the threshold held out: docs/calibration.md "An output too coarse for its noise"). Below
+MIN_NOISE_LSB the analysis reads no term and says to lower the filter setting instead. The σ is the samples' own
+(a slow process adds to it, so an axis is never refused for it).
 """
 
 from __future__ import annotations

@@ -41,14 +41,14 @@ The term fit takes white noise in that form (`deficits_s`), so the few percent t
 shortest fitted τ do not bias N. D is read from a finite record, so near the span its error weighs as N²·δD/τ²:
 `deficit_sds_s` is δD, from the scatter of D over DEFICIT_BLOCKS blocks of the samples it was read from (the
 span of the whole read, each block's D by the same formula; δD = their standard deviation / √DEFICIT_BLOCKS),
-which the term fit carries as the uncertainty of the white term's shape (allan_terms).
+which the term fit carries as the uncertainty of the white term's shape (terms).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .allan_resolution import noise_in_lsb, output_lsb
+from .resolution import noise_in_lsb, output_lsb
 
 CORR_SAMPLES = 1 << 18
 MAX_LAG = 4096        # the chip's longest window (N = 7: 255 taps) seen through steps of 256 needs lags to 4·512 + 16
@@ -99,7 +99,7 @@ class SampleCorrelation:
         return self._filter()[2]
 
     def noise_lsb(self) -> np.ndarray:
-        """Per axis: the output's σ per sample in its LSB (allan_resolution); inf for an output not on a grid."""
+        """Per axis: the output's σ per sample in its LSB (resolution); inf for an output not on a grid."""
         return self._filter()[3]
 
     def _filter(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

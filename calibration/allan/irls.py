@@ -1,4 +1,4 @@
-"""The per-iteration arithmetic of the Allan-term fit (allan_terms._fit_fixed), compiled (numba): it runs a few
+"""The per-iteration arithmetic of the Allan-term fit (terms._fit_fixed), compiled (numba): it runs a few
 hundred thousand times on vectors of a few dozen points, where numpy's per-call cost would dominate.
 
 Both kernels do element by element what the numpy expressions in their docstrings do, in the same order, so
@@ -46,10 +46,10 @@ def weighted_system(basis: np.ndarray, y: np.ndarray, w: np.ndarray):
 @njit(cache=True)
 def model_and_edf(stacked: np.ndarray, coef: np.ndarray, edf_table: np.ndarray):
     """The model σ²(τ) = Σ_i coef_i·basis_i(τ) (summed in term order, as ModelFit.avar) and each point's edf for
-    the noise type of its local slope μ = d ln σ² / d ln τ (α from μ as allan_adev.alpha_from_slope: −μ − 1
+    the noise type of its local slope μ = d ln σ² / d ln τ (α from μ as adev.alpha_from_slope: −μ − 1
     rounded half to even, clipped to −2…2; μ = −1 where the model is not positive).
     stacked: the basis (columns) at the n points' τ, then at τ·(1 + SLOPE_STEP), then at τ/(1 + SLOPE_STEP)
-    (3n rows); edf_table: row α + 2 of allan_adev.edf_by_alpha."""
+    (3n rows); edf_table: row α + 2 of adev.edf_by_alpha."""
     n = stacked.shape[0] // 3
     values = np.zeros(3 * n)
     for r in range(3 * n):
