@@ -35,6 +35,7 @@ from .accel_axes_heading import accel_axes_heading_variance_rad2
 from .accel_axes_tilt import ACCEL_MISALIGNMENT_SIGMA_RAD, accel_axes_tilt_variance_in_force_rad2
 from .base import DEFAULT_UNMODELLED_IRON_UT, LEARNED_WITH_GNSS
 from .calibration_heading import calibration_heading_variance_rad2, calibration_states_error
+from .accel_z_lean_tilt import accel_z_lean_tilt_variance_rad2
 from .gsf_yaw import GsfParams, gsf_fuse_velocity_of, gsf_output_of, gsf_reset, new_gsf_state
 from .heading_monitor import HeadingCheckRecord, HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
 from .heading_state_hold import HeadingStateHold
@@ -1816,6 +1817,11 @@ class Ins:
             # a heading the GNSS has observed is the accelerometer axes' heading: their misalignment is in it
             sigma_yaw = math.sqrt(sigma_yaw * sigma_yaw + self._accel_axes_var_rad2)
             o[_OUT_SIGMA_YAW] = sigma_yaw
+        z_lean_var = accel_z_lean_tilt_variance_rad2(self.params.accel_axes_tilt_sigma_rad, self._ever_aided)
+        if z_lean_var > 0.0:
+            # a tilt the GNSS has levelled through the vertical channel is the z axis's tilt (accel_z_lean_tilt.py)
+            for i in (_OUT_SIGMA.start, _OUT_SIGMA.start + 1):
+                o[i] = math.sqrt(o[i] * o[i] + z_lean_var)
         if self._published.offset_rad:
             # the filter's yaw moved faster than the published one may: publish it turned back by the offset
             off = self._published.offset_rad

@@ -360,6 +360,14 @@ MUTATIONS: tuple[Mutation, ...] = (
              "estimator/ins.py", "o[_OUT_SIGMA.start] = math.sqrt(sig_roll * sig_roll + var_roll)",
              "o[_OUT_SIGMA.start] = sig_roll",
              ("tests/test_accel_axes_tilt.py", "tests/test_ins_outputs.py")),
+    # ------------------------------------------------------------------ session 27 (pitch27)
+    Mutation("accel-z-lean-published", "the published roll and pitch σ carry the z axis's lean once aided",
+             "estimator/ins.py", "        if z_lean_var > 0.0:", "        if False:",
+             ("tests/test_accel_z_lean_tilt.py", "tests/test_ins_outputs.py")),
+    Mutation("accel-z-lean-once-aided", "the z axis's lean enters the tilt σ only once a fix has aided",
+             "estimator/accel_z_lean_tilt.py", "if not (ever_aided and math.isfinite(s) and s > 0.0):",
+             "if not (math.isfinite(s) and s > 0.0):",
+             ("tests/test_accel_z_lean_tilt.py",)),
     # ------------------------------------------------------------------ session 27 (walk27)
     Mutation("fixed-yaw-held-still", "a fixed yaw is refused while the vehicle turned more than 2° in the window",
              "daemon/magcal.py", "if turned_deg > FIXED_YAW_MAX_TURN_DEG:", "if False:",
