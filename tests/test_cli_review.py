@@ -133,9 +133,13 @@ def test_every_commented_key_of_the_example_exists_and_parses(tmp_path):
     (["accel", "some.csv", "--sim", "static"], "go with --live"),
     (["mag", "some.csv", "--lat", "1", "--lon", "2", "--align-recording", "t.csv"], "goes with --method three-step"),
 ])
-def test_calibrate_usage_errors_exit_2(argv, message, tmp_path, capsys):
+def test_calibrate_usage_errors_exit_2(argv, message, tmp_path, capsys, monkeypatch):
     from ahrsd.cli.main import main
 
+    # the recording exists (empty): `calibrate mag` says "no such file" before a usage error, and the usage checks
+    # run before the file is read
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "some.csv").write_text("")
     rc = main(["calibrate", *argv, "--state-dir", str(tmp_path / "st"), "--dry-run"])
     err = capsys.readouterr().err
     assert rc == 2 and message in err, err
@@ -148,7 +152,9 @@ def test_calibrate_mag_bad_site_is_a_usage_error_on_stderr_and_in_json(extra, tm
 
     from ahrsd.cli.main import main
 
-    rc = main(["calibrate", "mag", "some.csv", *extra, "--state-dir", str(tmp_path), "--json"])
+    recording = tmp_path / "some.csv"      # exists: a missing file is said first (exit 1), before the site
+    recording.write_text("")
+    rc = main(["calibrate", "mag", str(recording), *extra, "--state-dir", str(tmp_path), "--json"])
     out, err = capsys.readouterr()
     assert rc == 2 and "ahrsd calibrate mag:" in err
     assert json.loads(out)["sensor"] == "mag" and json.loads(out)["error"]   # stdout stays one JSON object

@@ -288,6 +288,8 @@ def test_calibrate_mag_refuses_a_remembered_position_older_than_the_daemon_would
     state = tmp_path / "state"
     state.mkdir()
     (state / FILE_NAME).write_text(json.dumps({**GOOD, "wall_time_s": time.time() - 400 * DAY_S}))
-    res = ahrsd_inproc("mag", tmp_path / "x.csv", "--state-dir", state, "--dry-run")
+    recording = tmp_path / "x.csv"        # exists: a missing file is said first (exit 1), before the position
+    recording.write_text("")
+    res = ahrsd_inproc("mag", recording, "--state-dir", state, "--dry-run")
     assert res.returncode == 2 and "days old" in res.stderr and "give --lat and --lon" in res.stderr, res.stderr
     assert math.isfinite(position_memory.MAX_AGE_DAYS) and position_memory.MAX_AGE_DAYS < 400
