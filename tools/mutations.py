@@ -353,8 +353,9 @@ MUTATIONS: tuple[Mutation, ...] = (
              ("tests/test_mag_frame_tilt.py",)),
     # ------------------------------------------------------------------ session 26 (roll26)
     Mutation("accel-axes-tilt-heel", "the tilt σ's accelerometer-axes term follows the heel (the levelling's partials)",
-             "estimator/accel_axes_tilt.py", "    return var_roll * s * s, var_pitch * s * s",
-             "    return s * s, s * s",
+             "estimator/accel_axes_tilt.py",
+             "        var[i] = (wx * wx * (1.0 - ux * ux) + wy * wy * (1.0 - uy * uy) + wz * wz * (1.0 - uz * uz)) * s * s",
+             "        var[i] = s * s",
              ("tests/test_accel_axes_tilt.py",)),
     Mutation("accel-axes-tilt-published", "the published roll σ carries the accelerometer axes' term",
              "estimator/ins.py", "o[_OUT_SIGMA.start] = math.sqrt(sig_roll * sig_roll + var_roll)",
