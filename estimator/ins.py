@@ -1803,13 +1803,17 @@ class Ins:
                 add_var = max(0.0, add_var - cal_var)
             sigma_yaw = math.sqrt(sigma_yaw ** 2 + add_var)
             o[_OUT_SIGMA_YAW] = sigma_yaw
+        # the tilt ins levels is the accelerometer axes' tilt: their misalignment is in it, once a fix has levelled
+        # it through the vertical channel the z axis's lean (accel_z_lean_tilt.py), and the levelling's partials
+        # at the specific force the filter has (accel_axes_tilt.py; low-passed in NED: a turn's, not only gravity's)
+        var_roll = var_pitch = accel_z_lean_tilt_variance_rad2(self.params.accel_axes_tilt_sigma_rad, self._ever_aided)
         if self.params.accel_axes_tilt_sigma_rad > 0.0:
-            # the tilt ins levels is the accelerometer axes' tilt: their misalignment is in it (accel_axes_tilt.py),
-            # at the specific force the filter has (low-passed in NED: a turn's, not only gravity's)
             q0, q1, q2, q3 = self._x["q"].tolist()
             fn, fe, fd = self._x["acc_ned_lp_m_s2"].tolist()
-            var_roll, var_pitch = accel_axes_tilt_variance_in_force_rad2(dcm(q0, q1, q2, q3), fn, fe, fd,
-                                                                         self.params.accel_axes_tilt_sigma_rad)
+            axes_roll, axes_pitch = accel_axes_tilt_variance_in_force_rad2(dcm(q0, q1, q2, q3), fn, fe, fd,
+                                                                           self.params.accel_axes_tilt_sigma_rad)
+            var_roll, var_pitch = var_roll + axes_roll, var_pitch + axes_pitch
+        if var_roll > 0.0 or var_pitch > 0.0:
             sig_roll, sig_pitch = o[_OUT_SIGMA.start], o[_OUT_SIGMA.start + 1]
             o[_OUT_SIGMA.start] = math.sqrt(sig_roll * sig_roll + var_roll)
             o[_OUT_SIGMA.start + 1] = math.sqrt(sig_pitch * sig_pitch + var_pitch)
@@ -1817,11 +1821,6 @@ class Ins:
             # a heading the GNSS has observed is the accelerometer axes' heading: their misalignment is in it
             sigma_yaw = math.sqrt(sigma_yaw * sigma_yaw + self._accel_axes_var_rad2)
             o[_OUT_SIGMA_YAW] = sigma_yaw
-        z_lean_var = accel_z_lean_tilt_variance_rad2(self.params.accel_axes_tilt_sigma_rad, self._ever_aided)
-        if z_lean_var > 0.0:
-            # a tilt the GNSS has levelled through the vertical channel is the z axis's tilt (accel_z_lean_tilt.py)
-            for i in (_OUT_SIGMA.start, _OUT_SIGMA.start + 1):
-                o[i] = math.sqrt(o[i] * o[i] + z_lean_var)
         if self._published.offset_rad:
             # the filter's yaw moved faster than the published one may: publish it turned back by the offset
             off = self._published.offset_rad

@@ -363,7 +363,9 @@ MUTATIONS: tuple[Mutation, ...] = (
              ("tests/test_accel_axes_tilt.py", "tests/test_ins_outputs.py")),
     # ------------------------------------------------------------------ session 27 (pitch27)
     Mutation("accel-z-lean-published", "the published roll and pitch σ carry the z axis's lean once aided",
-             "estimator/ins.py", "        if z_lean_var > 0.0:", "        if False:",
+             "estimator/ins.py",
+             "        var_roll = var_pitch = accel_z_lean_tilt_variance_rad2(",
+             "        var_roll = var_pitch = 0.0 * accel_z_lean_tilt_variance_rad2(",
              ("tests/test_accel_z_lean_tilt.py", "tests/test_ins_outputs.py")),
     Mutation("accel-z-lean-once-aided", "the z axis's lean enters the tilt σ only once a fix has aided",
              "estimator/accel_z_lean_tilt.py", "if not (ever_aided and math.isfinite(s) and s > 0.0):",
