@@ -24,7 +24,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 from scipy.special import chdtri   # χ² inverse survival function (scipy.stats costs 1.4 s to import)
 
-from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingIntegrity, HeadingState, NavState
+from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingIntegrity, HeadingState
 from ahrsd.core.gravity import EARTH_RATE_RAD_S
 from ahrsd.core.gnss import DEFAULT_H_ACC_M, DEFAULT_S_ACC_M_S, DEFAULT_V_ACC_M, GnssFix, GnssFixType
 from ahrsd.core.sample import ImuSample
@@ -40,7 +40,7 @@ from .gsf_yaw import GsfParams, gsf_fuse_velocity_of, gsf_output_of, gsf_reset, 
 from .heading_monitor import HeadingCheckRecord, HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
 from .heading_state_hold import HeadingStateHold
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
-                            float_field_slice, uninitialised_estimate)
+                            float_field_slice, nav_state, uninitialised_estimate)
 from .initial_attitude import initial_attitude
 from .kernel_entry import entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
@@ -1840,7 +1840,7 @@ class Ins:
         nav = None
         if self._nav_ok[0] > 0.0:
             lat, lon, h = o[_OUT_LAT_LON_H].tolist()
-            nav = NavState(
+            nav = nav_state(
                 o[_OUT_VEL],
                 math.degrees(lat),
                 (math.degrees(lon) + 180.0) % 360.0 - 180.0,
