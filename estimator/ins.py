@@ -24,7 +24,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 from scipy.special import chdtri   # χ² inverse survival function (scipy.stats costs 1.4 s to import)
 
-from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingIntegrity, HeadingState, NavState
+from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingIntegrity, HeadingState
 from ahrsd.core.gravity import EARTH_RATE_RAD_S
 from ahrsd.core.gnss import DEFAULT_H_ACC_M, DEFAULT_S_ACC_M_S, DEFAULT_V_ACC_M, GnssFix, GnssFixType
 from ahrsd.core.sample import ImuSample
@@ -40,7 +40,7 @@ from .gsf_yaw import GsfParams, gsf_fuse_velocity_of, gsf_output_of, gsf_reset, 
 from .heading_monitor import HeadingCheckRecord, HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
 from .heading_state_hold import HeadingStateHold
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
-                            float_field_slice, uninitialised_estimate)
+                            float_field_slice, nav_state, uninitialised_estimate)
 from .initial_attitude import initial_attitude
 from .kernel_entry import entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
@@ -488,6 +488,15 @@ class Ins:
         # the same outputs as one flat float64 array: copied whole for an estimate (copying a record goes field
         # by field)
         self._out_flat = self._out_arr.view(np.float64)
+        # what the accelerometer axes' tilt term reads per built estimate (`_build_estimate`): the attitude and the
+        # low-passed specific force as flat float64 views of the state (a record field lookup costs more than the
+        # term), and its two kernels through their entry points (kernel_entry.py: called with these types only)
+        self._q_true = _float_field_view(self._x_arr, "q")
+        self._acc_ned_lp = _float_field_view(self._x_arr, "acc_ned_lp_m_s2")
+        self._dcm = entry_point(dcm, (dcm.typeof_pyval(1.0),) * 4)
+        axes_args = ((1.0,) * 9, 0.0, 0.0, -9.8, 0.0)
+        self._axes_tilt_variance = entry_point(accel_axes_tilt_variance_in_force_rad2, tuple(
+            accel_axes_tilt_variance_in_force_rad2.typeof_pyval(a) for a in axes_args))
         self._initialised = False
         self._reinit_pending = False
         self._pending_flags = 0
@@ -553,9 +562,7 @@ class Ins:
                 (core._rotate_attitude, (x["q"], 0.0, 0.0, 0.0)),
                 (core._history_at, (x, self._hist, 0.0)),
                 (core.fill_outputs, (x, self._P, par, 0.0, 0.0, 0.0, self._out)),
-                (input_validity, (0,) + (0.0,) * 9),
-                (dcm, (1.0, 0.0, 0.0, 0.0)),
-                (accel_axes_tilt_variance_in_force_rad2, ((1.0,) + (0.0,) * 8, 0.0, 0.0, -9.8, 0.0))):
+                (input_validity, (0,) + (0.0,) * 9)):
             kernel.compile(tuple(kernel.typeof_pyval(a) for a in args))
         _PYTHON_CALLED_KERNELS_LOADED = True
 
@@ -1835,10 +1842,10 @@ class Ins:
         # at the specific force the filter has (accel_axes_tilt.py; low-passed in NED: a turn's, not only gravity's)
         var_roll = var_pitch = accel_z_lean_tilt_variance_rad2(self.params.accel_axes_tilt_sigma_rad, self._ever_aided)
         if self.params.accel_axes_tilt_sigma_rad > 0.0:
-            q0, q1, q2, q3 = self._x["q"].tolist()
-            fn, fe, fd = self._x["acc_ned_lp_m_s2"].tolist()
-            axes_roll, axes_pitch = accel_axes_tilt_variance_in_force_rad2(dcm(q0, q1, q2, q3), fn, fe, fd,
-                                                                           self.params.accel_axes_tilt_sigma_rad)
+            q0, q1, q2, q3 = self._q_true.tolist()
+            fn, fe, fd = self._acc_ned_lp.tolist()
+            axes_roll, axes_pitch = self._axes_tilt_variance(self._dcm(q0, q1, q2, q3), fn, fe, fd,
+                                                             float(self.params.accel_axes_tilt_sigma_rad))
             var_roll, var_pitch = var_roll + axes_roll, var_pitch + axes_pitch
         if var_roll > 0.0 or var_pitch > 0.0:
             sig_roll, sig_pitch = o[_OUT_SIGMA.start], o[_OUT_SIGMA.start + 1]
@@ -1860,7 +1867,7 @@ class Ins:
         nav = None
         if self._nav_ok[0] > 0.0:
             lat, lon, h = o[_OUT_LAT_LON_H].tolist()
-            nav = NavState(
+            nav = nav_state(
                 o[_OUT_VEL],
                 math.degrees(lat),
                 (math.degrees(lon) + 180.0) % 360.0 - 180.0,
@@ -1900,6 +1907,14 @@ def _gnss_yaw_floor(yaw_rad: float, gsf_yaw: float, gsf_var: float) -> float:
     if not (math.isfinite(gsf_yaw) and math.isfinite(gsf_var)):
         return math.pi
     return math.sqrt(gsf_var + wrap_pi(gsf_yaw - yaw_rad) ** 2)
+
+
+def _float_field_view(records: np.ndarray, name: str) -> np.ndarray:
+    """The float64 field `name` of the first record of `records` as a flat float64 array sharing its memory."""
+    sub, offset = records.dtype.fields[name][:2]
+    if sub.base != np.float64:
+        raise TypeError(f"{name}: not a float64 field")
+    return np.ndarray(sub.itemsize // 8, np.float64, records, offset)
 
 
 def _one_record_array(record) -> np.recarray:
