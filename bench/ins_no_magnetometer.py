@@ -1,7 +1,7 @@
 """ins without a magnetometer (`mag_enabled=False`: `calibrate mag --gnss`'s magnetometer-free levelling, and a user
 without one) over a simulated vehicle with GNSS: the velocities its gate rejected, whether its yaw was set to the
 GNSS yaw (`gnss_yaw_alignments`), and from `--from-s` on the RMS and largest error of its own yaw, of the published
-yaw and the tilt, each with the share beyond 3σ of the published σ.
+true heading (`heading_true_rad`) and the tilt, each with the share beyond 3σ of the published σ.
 
     .venv/bin/python bench/ins_no_magnetometer.py --kind car --seeds 0 1 2 3 --rates 819.2 400
     PYTHONPATH=/tmp/old ...                       # the same against another checkout (before → after)
@@ -21,9 +21,9 @@ import time
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ahrsd.calibration.mag.levelling import GnssFixFeed
 from ahrsd.core.sample import make_sample
 from ahrsd.estimator import make_estimator
+from ahrsd.estimator.fix_feed import GnssFixFeed
 from ahrsd.simulation import DEFAULT_SITE, open_stream, simulate_gnss
 
 
@@ -46,7 +46,7 @@ def run(kind: str, seed: int, rate_hz: float, seconds: float, from_s: float) -> 
             continue
         w, x, y, z = est._x["q"]
         own[i] = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-        pub[i], roll[i], pitch[i], sig[i] = e.yaw_rad, e.roll_rad, e.pitch_rad, e.sigma_rpy_rad
+        pub[i], roll[i], pitch[i], sig[i] = e.heading_true_rad, e.roll_rad, e.pitch_rad, e.sigma_rpy_rad
     late = b.t_s >= from_s
 
     def wrap_deg(a):

@@ -13,6 +13,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ahrsd.core.sample import make_sample
+from ahrsd.estimator.fix_feed import GnssFixFeed
 from ahrsd.estimator.ins import Ins
 from ahrsd.simulation import DEFAULT_SITE, open_stream, simulate_gnss
 
@@ -28,18 +29,16 @@ def _run(kind: str, seed: int, rate_hz: float, seconds: float, site=DEFAULT_SITE
     true_yaw = Rotation.from_quat(np.column_stack([q[:, 1:], q[:, :1]])).as_euler("ZYX")[:, 0]
     n = len(b.t_s)
     own, pub, sigma, rejected = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), np.zeros(n, int)
-    j = 0
+    feed = GnssFixFeed(est, fixes)     # each fix before the first sample not earlier than it
     for i, t in enumerate(b.t_s):
-        while j < len(fixes) and fixes[j].t_s <= t:
-            est.update_gnss(fixes[j])
-            j += 1
+        feed.offer_until(t)
         e = est.update(make_sample(t, b.gyro_rad_s[i], b.accel_m_s2[i], b.mag_ut[i]))
         rejected[i] = est.gnss_counters.rejected_velocity
         if e.yaw_rad is None:
             continue
         x = est._x["q"]
         yaw = math.atan2(2.0 * (x[0] * x[3] + x[1] * x[2]), 1.0 - 2.0 * (x[2] ** 2 + x[3] ** 2))
-        own[i], pub[i], sigma[i] = yaw - true_yaw[i], e.yaw_rad - true_yaw[i], e.sigma_rpy_rad[2]
+        own[i], pub[i], sigma[i] = yaw - true_yaw[i], e.heading_true_rad - true_yaw[i], e.sigma_rpy_rad[2]
     wrap = lambda a: np.degrees((a + np.pi) % (2.0 * np.pi) - np.pi)     # noqa: E731
     return {"t": b.t_s, "own": wrap(own), "pub": wrap(pub), "sigma": np.degrees(sigma), "rejected": rejected,
             "alignments": est.gnss_yaw_alignments}
