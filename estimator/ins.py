@@ -589,6 +589,7 @@ class Ins:
         self._mag_rotation_on = p.mag_rotation_gyro_bias and p.heading_monitor and p.mag_enabled
         self._x["gyro_rotation_last_t_s"] = math.nan   # the kernel sums the gyro's rotation (ins_core.py)
         self._gnss_yaw_aligned = False     # the yaw was set to the first valid GNSS yaw (yaw_align_to_gnss_yaw)
+        self._gnss_yaw_valid_seen = False  # a GNSS yaw was valid (without a magnetometer, the alignment's chance)
         self._sigma_confirmed = False      # the published σ's floor is lifted (`_update_sigma_confirmation`)
         # the published yaw σ's floor until a GNSS yaw confirms the heading (aided only; updated at every check)
         self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(0.0, math.nan, math.nan)
@@ -1043,7 +1044,7 @@ class Ins:
         if p.heading_monitor and p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
             self._check_heading(float(fix.t_s))
         elif not p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
-            self._floor_yaw_sigma_without_magnetometer()
+            self._floor_yaw_sigma_without_magnetometer(float(fix.t_s))
         return res
 
     def _read_fix(self, fix: GnssFix) -> tuple | None:
@@ -1368,7 +1369,7 @@ class Ins:
         if d.reset_yaw_to_rad is not None:
             self._reset_yaw(d.reset_yaw_to_rad - yaw, d.reset_yaw_var_rad2)
             return d.reset_yaw_to_rad
-        if self._gnss_yaw_alignment_due(gsf_valid):
+        if self._gnss_yaw_alignment_due(yaw, gsf_yaw, gsf_var, gsf_valid):
             self._align_yaw_to_gnss(t_s, gsf_yaw - yaw, gsf_var)
             return gsf_yaw
         if not self._heading_confirmed and gsf_valid and (self._calibration_untrusted or self._monitor.mag_rejected):
@@ -1491,17 +1492,37 @@ class Ins:
         # held at the check rate, so the state does not depend on how often estimates are built
         self._heading_state = self._state_hold.update(t_s, raw, sig)
 
-    def _gnss_yaw_alignment_due(self, gsf_valid: bool) -> bool:
-        """The first valid GNSS yaw, no trusted magnetometer calibration, the heading not yet confirmed: the
-        filter's yaw came from the magnetometer (tens of degrees off with a strong iron) and was pulled in by the
-        GNSS velocity through a linearised update, whose biases take up what the yaw error projects (docs/
-        estimator.md "A wrong heading must not teach the accelerometer bias"). `_reset_yaw` sets the yaw to the
-        GNSS yaw with its variance and gives the biases their start-up values back. An emergency reset at the same
-        fix (HeadingMonitor.check) does not count: the alignment follows at the next check, which resets the
-        velocity and the biases once more after the first update with the new yaw (measured, docs/estimator.md)."""
+    def _gnss_yaw_alignment_due(self, yaw_rad: float, gsf_yaw: float, gsf_var: float, gsf_valid: bool) -> bool:
+        """Whether the yaw is set, once per run, to the valid GNSS yaw (`_align_yaw_to_gnss`), with or without the
+        magnetometer (the one rule for both).
+        With the magnetometer: at the first valid GNSS yaw, no trusted magnetometer calibration, the heading not
+        yet confirmed: the filter's yaw came from the magnetometer (tens of degrees off with a strong iron) and was
+        pulled in by the GNSS velocity through a linearised update, whose biases take up what the yaw error
+        projects (docs/estimator.md "A wrong heading must not teach the accelerometer bias"). An emergency reset at
+        the same fix (HeadingMonitor.check) does not count: the alignment follows at the next check, which resets
+        the velocity and the biases once more after the first update with the new yaw (measured, docs/estimator.md).
+        Without it (mag_enabled off): at the first valid GNSS yaw, if the filter's yaw lies outside its 3σ
+        (`HeadingMonitor.gate_sigma` of the bank's σ alone: the filter's own variance, shrunk by the linearised
+        pull-in faster than its error, would widen the gate for a yaw nothing has confirmed, as for
+        `_unconfirmed_yaw_sigma`). The filter's yaw and its biases came from the same GNSS velocities as the bank's;
+        where the filter's is inside the bank's 3σ it is kept: setting it to the bank's would widen its variance to
+        the bank's and send the biases back to their start-up values, and on a boat's weak accelerations the
+        velocities then pull the yaw further off than it was. Outside it, the filter's linearised update has not
+        pulled its yaw in from the unknown start, and a yaw tens of degrees off makes the gate reject the very
+        velocities that would (a car accelerating away): it is set to the bank's, as PX4 EKF2 aligns its yaw to
+        the EKF-GSF without a magnetometer heading. Only at the first valid one: without the heading checks nothing
+        gives the bank the filter's gyro bias, so on a long run its yaw drifts while its σ shrinks, and it comes to
+        "disagree" with a right yaw (docs/estimator.md "Without a magnetometer: the yaw set to a GNSS yaw that
+        disagrees").
+        `_reset_yaw` sets the yaw to the GNSS yaw with its variance and gives the biases, learned against the
+        wrong yaw, their start-up values back."""
         p = self.params
-        return (p.yaw_align_to_gnss_yaw and gsf_valid and not self._gnss_yaw_aligned
-                and not self._heading_confirmed and self._calibration_untrusted)
+        if not (p.yaw_align_to_gnss_yaw and gsf_valid and not self._gnss_yaw_aligned):
+            return False
+        if not p.mag_enabled:
+            outside = wrap_pi(gsf_yaw - yaw_rad) ** 2 > self._monitor.gate_sigma ** 2 * gsf_var
+            return outside and not self._gnss_yaw_valid_seen
+        return not self._heading_confirmed and self._calibration_untrusted
 
     def _gnss_yaw_agrees(self, yaw_rad: float, gsf_yaw: float, gsf_var: float) -> bool:
         """The GNSS yaw is within the monitor's gate of the filter's yaw, with their joint variance."""
@@ -1536,16 +1557,22 @@ class Ins:
             return math.nan
         return _gnss_yaw_floor(yaw_rad, gsf_yaw, gsf_var)
 
-    def _floor_yaw_sigma_without_magnetometer(self) -> None:
+    def _floor_yaw_sigma_without_magnetometer(self, t_s: float) -> None:
         """No magnetometer (mag_enabled off): the yaw comes from the GNSS velocity alone, pulled in from an unknown
         start (1σ π) through linearised updates, whose variance shrinks faster than the error on a boat's weak
-        accelerations (docs/estimator.md "Known limits: ins on level turns"). The heading checks do not run (they weigh a
-        magnetometer), so nothing ever confirms this yaw: its published 1σ is at least the GNSS yaw bank's
-        plus the distance to it, as an unconfirmed heading's (`_unconfirmed_yaw_sigma`), at every fused fix."""
+        accelerations (docs/estimator.md "Known limits: ins on level turns"), and which, tens of degrees off, reject
+        the velocities that would pull it in: if the first valid GNSS yaw disagrees with it, it is set to that yaw
+        (`_gnss_yaw_alignment_due`). The heading checks do not run (they weigh a magnetometer), so nothing ever
+        confirms this yaw: its published 1σ is at least the GNSS yaw bank's plus the distance to it, as an
+        unconfirmed heading's (`_unconfirmed_yaw_sigma`), at every fused fix."""
         if not (self.params.gnss_yaw and self.params.heading_monitor):
             return
         yaw = float(quat_to_euler(self._x["q"])[2])
-        gsf_yaw, gsf_var, _ = self._gnss_yaw()
+        gsf_yaw, gsf_var, gsf_valid = self._gnss_yaw()
+        if self._gnss_yaw_alignment_due(yaw, gsf_yaw, gsf_var, gsf_valid):
+            self._align_yaw_to_gnss(t_s, gsf_yaw - yaw, gsf_var)
+            yaw = gsf_yaw
+        self._gnss_yaw_valid_seen = self._gnss_yaw_valid_seen or gsf_valid
         self._unconfirmed_sigma_rad = _gnss_yaw_floor(yaw, gsf_yaw, gsf_var)
 
     @property
