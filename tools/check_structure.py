@@ -51,6 +51,8 @@ Rule in tests/:
 5. no spy on an estimator: no function or lambda assigned to an attribute of an estimator object (the names of
    rule 3, and what hangs below them: `est._monitor.check = spy`). A test reads what the estimator decided
    from its records (`Ins.heading_checks`), so it keeps testing the code that runs.
+13. no test module imports another (`from test_field_circle import _run`): what tests share has one home,
+   tests/support/, where a reader looks for it; a test module is free to change for its own tests.
 """
 
 from __future__ import annotations
@@ -221,7 +223,7 @@ def _is_estimator(dotted: str) -> bool:
 
 def check_test_file(path: Path, shown: str) -> list[str]:
     """Rule 5: a function or lambda assigned to an attribute of an estimator (a spy replacing its method); rule 9:
-    a fake that forwards whatever it lacks."""
+    a fake that forwards whatever it lacks; rule 13: a test module imported."""
     try:
         tree = ast.parse(path.read_text(encoding="utf-8"))
     except SyntaxError as exc:
@@ -229,6 +231,13 @@ def check_test_file(path: Path, shown: str) -> list[str]:
     functions = {n.name for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))}
     out = _forwarding_wrappers(tree, shown)
     for node in ast.walk(tree):
+        imported = ([alias.name for alias in node.names] if isinstance(node, ast.Import)
+                    else [node.module] if isinstance(node, ast.ImportFrom) and node.module and not node.level
+                    else [])
+        for name in imported:
+            if name.split(".")[0].startswith("test_"):
+                out.append(f"{shown}:{node.lineno}: imports the test module {name} (what tests share lives in "
+                           "tests/support/)")
         if not isinstance(node, ast.Assign):
             continue
         value = node.value
