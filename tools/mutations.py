@@ -403,4 +403,18 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("rejection-heading-unknown", "GNSS velocities rejected before the heading is found are not the lever arm's",
              "estimator/velocity_rejection_cause.py", "if heading_unknown:", "if False:",
              ("tests/test_heading_status.py", "tests/test_backstepping_aided_car.py")),
+    # ------------------------------------------------------------------ session 28 (walk28)
+    Mutation("mavlink-endpoint-checked-before-compile", "run refuses a MAVLink server address it cannot have at once",
+             "cli/run.py", "            check_endpoint_opens(endpoint.url)", "            pass",
+             ("tests/test_cli_failed_runs.py",)),
+    Mutation("action-param-refusal-said-once", "a refused MAG_LRN_ACT write says why in one STATUSTEXT",
+             "daemon/learned_iron.py", "self.act(int(value), say_refusal=False)", "self.act(int(value), say_refusal=True)",
+             ("tests/test_learned_iron.py",)),
+    Mutation("standby-converging-on-calibration", "STANDBY after a calibration change says it converges on it",
+             "daemon/heading_status.py", "            self._calibration_changed_at = self._now", "            pass",
+             ("tests/test_heading_status.py", "tests/test_calibration_change.py")),
+    Mutation("replay-mag-cause-calibration", "replay blames a calibration for a disagreement only when one states its error",
+             "cli/replay.py", "    if calibration_sigma_rad is not None and calibration_states_error(calibration_sigma_rad):",
+             "    if True:",
+             ("tests/test_gnss_replay.py",)),
 )
