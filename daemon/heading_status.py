@@ -286,7 +286,8 @@ class HeadingStatus:
     def standby_detail(self) -> str:
         """Why the daemon is not ACTIVE although the estimator runs (the MAV_STATE STATUSTEXT)."""
         if self.initialising and self.converging_on_calibration:
-            return f"heading converging on the new calibration (±{math.degrees(self.sigma_rad):.0f}°), no heading out"
+            # no σ figure: the estimate of that moment may still carry the old calibration's (±164° live, walk28)
+            return "heading converging on the new calibration, no heading out"
         if self.initialising or self.state is None:
             return "initialising, no heading out"
         caveat = self.calibration_caveat()

@@ -216,7 +216,7 @@ def test_the_standby_after_a_calibration_change_says_the_heading_converges_on_it
     its convergence threshold (kernel_flags.py), the VPE withheld meanwhile. The daemon's path here: the real
     mekf, the first calibration of the tour's uncalibrated boat applied through Service.apply_calibration, the
     heading status updated as the housekeeping does. Before the change and at the first start it is
-    "initialising"; after it, while INITIALISING, "heading converging on the new calibration (±N°)"."""
+    "initialising"; after it, while INITIALISING, "heading converging on the new calibration"."""
     from ahrsd.daemon.config import EndpointConfig
     from service_rig import start_service_on, stop_service
 
@@ -229,8 +229,7 @@ def test_the_standby_after_a_calibration_change_says_the_heading_converges_on_it
     after = [d for t, init, d in details if init and t >= 30.0]
     assert first and all(d == "initialising, no heading out" for d in first), first
     assert after, "the change did not widen the heading past convergence: nothing to say (the case walk27 saw)"
-    assert all(d.startswith("heading converging on the new calibration (±") and d.endswith("°), no heading out")
-               for d in after), after
+    assert all(d == "heading converging on the new calibration, no heading out" for d in after), after
     assert not details[-1][1]                         # converged again before the end
 
 

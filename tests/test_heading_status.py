@@ -734,7 +734,7 @@ def test_initialising_soon_after_a_calibration_change_is_its_convergence_and_lat
     hs.set_calibration_sigma(0.4 * DEG, in_force=True)                      # the swap, between two ticks
     hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 1.0), 10.2)         # the estimate from before it
     hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 12.0, flags=EstimateFlags.INITIALISING), 10.4)
-    assert hs.standby_detail() == "heading converging on the new calibration (±12°), no heading out"
+    assert hs.standby_detail() == "heading converging on the new calibration, no heading out"
     hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 2.0), 11.0)
     hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 12.0, flags=EstimateFlags.INITIALISING), 30.0)
     assert hs.standby_detail() == "initialising, no heading out"
