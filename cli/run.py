@@ -156,7 +156,8 @@ def _fault_plan(schedule: str, cfg):
 
 def _open_checked_source(cfg, plan):
     """The sensor source, after what can fail at once has been checked (a replay's file, the signing key, the
-    MAVLink server addresses, the estimator's compile); None (one error line on stderr) when something failed."""
+    MAVLink and NMEA server addresses, the estimator's compile); None (one error line on stderr) when something
+    failed."""
     import sys
 
     from ahrsd.drivers.errors import DriverError
@@ -195,6 +196,14 @@ def _open_checked_source(cfg, plan):
         try:   # a server address it cannot have (not a local address, a port taken) fails here, before a compile
             check_endpoint_opens(endpoint.url)
         except EndpointOpenError as exc:
+            print(f"ahrsd run: error: {exc}", file=sys.stderr)
+            return None
+    from ahrsd.daemon.nmea_transport import check_nmea_output_opens
+
+    for output in cfg.nmea:
+        try:   # a TCP server's address too (the NMEA output names itself and the address)
+            check_nmea_output_opens(output.url)
+        except OSError as exc:
             print(f"ahrsd run: error: {exc}", file=sys.stderr)
             return None
     from ahrsd.cli.warm_up import compile_estimator

@@ -83,9 +83,9 @@ def test_run_with_a_signing_key_it_cannot_read_fails_at_once_in_one_line(tmp_pat
 
 
 def test_run_with_a_mavlink_server_address_it_cannot_have_fails_at_once_in_one_line(tmp_path):
-    """`--mavlink udpin:` on an address that is not this machine's, and `tcpin:` on a port another socket
-    listens on: one line naming the endpoint and the reason, exit 1, before the compile (walk27: exit 1, but as
-    an ERROR log line after the compile and the start-up lines, "[Errno 99]" first)."""
+    """`--mavlink udpin:` on an address that is not this machine's, and `tcpin:` (or `--nmea tcpserver:`) on a
+    port another socket listens on: one line naming the endpoint and the reason, exit 1, before the compile
+    (walk27: exit 1, but as an ERROR log line after the compile and the start-up lines, "[Errno 99]" first)."""
     import socket
 
     rec = write_rows(tmp_path / "rec.csv", 100)
@@ -100,6 +100,12 @@ def test_run_with_a_mavlink_server_address_it_cannot_have_fails_at_once_in_one_l
                       "--mavlink", "udpout:127.0.0.1:9", "--mavlink", url)
             assert r.returncode == 1
             assert r.stderr.strip().splitlines() == [f"ahrsd run: error: MAVLink endpoint {url}: {why}"], r.stderr
+        # an NMEA TCP server output on the taken port: the same, naming the output (was: after the compile)
+        r = ahrsd("run", "--replay", rec, "--no-log", "--status-line", "off", "--state-dir", tmp_path / "s",
+                  "--mavlink", "udpout:127.0.0.1:9", "--nmea", f"tcpserver:127.0.0.1:{port}")
+        assert r.returncode == 1
+        assert r.stderr.strip().splitlines() == [f"ahrsd run: error: NMEA output tcpserver:127.0.0.1:{port}: cannot "
+                                                 f"listen on 127.0.0.1:{port}: Address already in use"], r.stderr
     finally:
         taken.close()
 
