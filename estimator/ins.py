@@ -44,6 +44,7 @@ from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate,
 from .initial_attitude import initial_attitude
 from .kernel_entry import entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
+from .lever_arm_fit import LeverArmFit, LeverArmFitResult, rate_cross_ned
 from .mag_heading import RELEARN_GATE_OPEN_S
 from .mag_frame_tilt import N_MAG_FRAME_TILT, accel_bias_share
 from .mag_harmonics import prior_from_heading_rows, prior_variances_rad2
@@ -496,6 +497,7 @@ class Ins:
         # what the accelerometer's axes add to an aided heading's published variance (accel_axes_heading.py)
         self._accel_axes_var_rad2 = accel_axes_heading_variance_rad2(self.params.accel_axes_heading_sigma_rad)
         self.gnss_counters = GnssCounters()
+        self._lever_arm_fit = LeverArmFit()    # can the told antenna arm explain the velocity innovations?
         self._gsf_par_arr = _one_record_array(GsfParams(lever_arm_m=tuple(self.params.lever_arm_m)).to_record())
         self._gsf_arr = _one_record_array(new_gsf_state(GsfParams(), 0.0))
         self._gsf_par = self._gsf_par_arr[0]      # record views of the arrays the compiled step takes
@@ -630,6 +632,7 @@ class Ins:
         self._last_fix_t = -math.inf
         self._ever_aided = False
         self._published.reset()
+        self._lever_arm_fit.reset()
         self._new_heading_checks()
 
     # ----------------------------------------------------------------------- learned iron (persisted by the daemon)
@@ -1019,12 +1022,16 @@ class Ins:
         sig_s = _accuracy(s_acc, DEFAULT_S_ACC_M_S, p.min_s_acc_m_s)
         if use_vel:
             self._keep_fix_velocity(float(fix.t_s), v, use_vd, sig_s)
+            self._add_to_lever_arm_fit(float(fix.t_s), v, use_vd, sig_s)
+        vel_before = self._x["vel_ned_m_s"].copy()
         res = core.fuse_gnss(
             self._x_arr, self._P, self._hist, self._par_arr, float(fix.t_s),
             math.radians(lat) if use_pos else 0.0, math.radians(lon) if use_pos else 0.0,
             alt if use_alt else 0.0, v[0] if use_vel else 0.0, v[1] if use_vel else 0.0,
             v[2] if use_vd else 0.0, sig_h, sig_v, sig_s, use_pos, use_alt, use_vel, use_vd,
         )
+        if use_vel:
+            self._lever_arm_fit.corrected(self._x["vel_ned_m_s"] - vel_before)
         self._count_fuse_result(res, fix)
         if p.heading_monitor and p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
             self._check_heading(float(fix.t_s))
@@ -1072,6 +1079,26 @@ class Ins:
         self._last_fix_velocity = (t_s, vel, sig_s)
         if self.params.gnss_yaw:
             self._gsf_fuse_velocity(self._gsf_arr, self._gsf_par_arr, float(t_s), vel, float(sig_s))
+
+    def _add_to_lever_arm_fit(self, t_s: float, v: np.ndarray, use_vd: bool, sig_s: float) -> None:
+        """The fix's velocity innovation at the antenna the filter was told, before the fix is fused, from the
+        history row nearest its time of validity (the kernel interpolates; a row is 1/rate apart), for the
+        lever-arm check (lever_arm_fit.py)."""
+        n = int(self._x["hist_count"])
+        if n == 0:
+            return
+        rows = self._hist if n >= core.H_LEN else self._hist[:n]
+        k = int(np.argmin(np.abs(rows["t_s"] - t_s)))
+        row = rows[k]
+        c_bn = quat_to_dcm(row["q"])
+        rate_cross = rate_cross_ned(c_bn, row["rate_rad_s"])
+        innovation = np.array([v[0], v[1], v[2] if use_vd else math.nan]) - (
+            row["vel_ned_m_s"] + rate_cross @ np.asarray(self.params.lever_arm_m, dtype=float))
+        self._lever_arm_fit.add(t_s, innovation, rate_cross, sig_s)
+
+    def lever_arm_fit(self) -> LeverArmFitResult | None:
+        """The lever-arm check over the latest velocity fixes (lever_arm_fit.py), None before it has enough."""
+        return self._lever_arm_fit.result()
 
     def _count_fuse_result(self, res: int, fix: GnssFix) -> None:
         """Count and log what fuse_gnss did with the fix (its R_* bits) in gnss_counters; rejections flag
