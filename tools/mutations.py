@@ -442,4 +442,17 @@ MUTATIONS: tuple[Mutation, ...] = (
              "cli/replay.py", "    if calibration_sigma_rad is not None and calibration_states_error(calibration_sigma_rad):",
              "    if True:",
              ("tests/test_gnss_replay.py",)),
+    # ------------------------------------------------------------------ session 28 (nomag28)
+    Mutation("nomag-yaw-alignment",
+             "ins without a magnetometer takes the first valid GNSS yaw if its own lies outside that yaw's 3σ",
+             "estimator/ins.py",
+             "outside = wrap_pi(gsf_yaw - yaw_rad) ** 2 > self._monitor.gate_sigma ** 2 * gsf_var",
+             "outside = False",
+             ("tests/test_gnss_yaw_alignment_without_magnetometer.py",)),
+    Mutation("nomag-yaw-kept-where-agrees",
+             "ins without a magnetometer keeps its yaw where it lies inside the first valid GNSS yaw's 3σ",
+             "estimator/ins.py",
+             "outside = wrap_pi(gsf_yaw - yaw_rad) ** 2 > self._monitor.gate_sigma ** 2 * gsf_var",
+             "outside = True",
+             ("tests/test_gnss_yaw_alignment_without_magnetometer.py",)),
 )
