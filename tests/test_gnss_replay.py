@@ -95,6 +95,24 @@ def test_the_summary_reads_the_gate_and_the_heading_checks_an_estimator_declares
         "calibration wrong or iron changed (heading reset to the GNSS yaw 2×)")
 
 
+def test_the_summary_says_an_uncalibrated_magnetometer_disagreed_for_want_of_a_calibration():
+    """walk28: `replay --gnss` of the README's uncalibrated boat said the magnetometer disagreed "calibration wrong
+    or iron changed" with no calibration given; the daemon says "magnetometer not calibrated" then. The cause follows
+    what the replay was given: none, one that states no heading error, one that does."""
+    import math
+
+    from ahrsd.calibration.models import Calibration, MagModel
+    from ahrsd.cli.replay import _disagreement_cause, _gate_summary
+
+    stated = Calibration.identity().with_sensor("mag", MagModel.identity(), method="test", heading_std_deg=0.5)
+    unstated = Calibration.identity().with_sensor("mag", MagModel.identity(), method="test")
+    for calibration, sigma_rad, cause in ((None, math.nan, "magnetometer not calibrated (no --calibration)"),
+                                          (unstated, math.nan, "the magnetometer calibration states no heading error"),
+                                          (stated, math.radians(0.5), "calibration wrong or iron changed")):
+        assert _gate_summary(MagnetometerRejected(), mag_cause=_disagreement_cause(calibration, sigma_rad)).endswith(
+            f"(the largest at its 3 rejections): {cause} (heading reset to the GNSS yaw 2×)")
+
+
 def test_many_rejected_velocities_name_the_lever_arm_the_estimator_declares():
     """More than a tenth of the velocities rejected: the summary names where the filter was told the antenna is
     (GnssAidedEstimator.lever_arm_m, which ins takes from its parameters)."""
