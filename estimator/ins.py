@@ -516,6 +516,7 @@ class Ins:
         self._published = PublishedHeading(self.params.published_yaw_slew_rad_s)
         self._published_since_init = False
         self._last_fix_velocity = None
+        self._fix_velocity_step = None    # (t_fix, m/s) what the last fix's own update added to the velocity
         self._view = BuiltEstimateView(self._build_estimate)   # step()'s result: the estimate built on demand
         # before the first fix the calibration is checked by the circle its levelled field sweeps in turns
         self._field_circle = FieldCircleCheck(FieldCircleParams(mag_noise_ut=self.params.mag_noise_ut))
@@ -1019,12 +1020,18 @@ class Ins:
         sig_s = _accuracy(s_acc, DEFAULT_S_ACC_M_S, p.min_s_acc_m_s)
         if use_vel:
             self._keep_fix_velocity(float(fix.t_s), v, use_vd, sig_s)
+        vel_before = self._x["vel_ned_m_s"].copy()
         res = core.fuse_gnss(
             self._x_arr, self._P, self._hist, self._par_arr, float(fix.t_s),
             math.radians(lat) if use_pos else 0.0, math.radians(lon) if use_pos else 0.0,
             alt if use_alt else 0.0, v[0] if use_vel else 0.0, v[1] if use_vel else 0.0,
             v[2] if use_vd else 0.0, sig_h, sig_v, sig_s, use_pos, use_alt, use_vel, use_vd,
         )
+        # the update corrected the state and the history rows after the fix's time, not those up to it: kept for
+        # a yaw reset at this fix (`_reset_velocity_to_fix`). The resets from a first fix or after an outage
+        # correct the row at the fix's time as well, so they leave nothing to add
+        step_rows = not res & (core.R_NAV_INIT | core.R_OUTAGE_RESET)
+        self._fix_velocity_step = (float(fix.t_s), self._x["vel_ned_m_s"] - vel_before) if step_rows else None
         self._count_fuse_result(res, fix)
         if p.heading_monitor and p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
             self._check_heading(float(fix.t_s))
@@ -1599,6 +1606,20 @@ class Ins:
         i0, i1, w = core._history_at(x, hist, t_fix)
         if i0 < 0:
             return
+        # every kept row once (hist_count ≤ H_LEN): one indexed add, not a Python loop over up to H_LEN rows
+        rows = (int(x["hist_newest"]) - np.arange(int(x["hist_count"]))) % core.H_LEN
+        step = self._fix_velocity_step
+        if step is not None and step[0] == t_fix:
+            # this fix's own update (fuse_gnss, just before the heading checks that reset the yaw) moved the
+            # velocity of the state and of the rows after the fix's time, not of the rows up to it: without the
+            # same step there, the velocity at the fix's time read below is the one before the update, and the
+            # reset keeps the update's step as a velocity error. Computed with the wrong yaw's covariance, that
+            # step can be large; the next fixes' velocities are then rejected while the tilt the wrong yaw left
+            # drives the velocity off, and what is fused after that turns the new yaw away again (docs/gnss.md,
+            # "The velocity a yaw reset sets")
+            older = rows[hist["t_s"][rows] <= t_fix]
+            hist["vel_ned_m_s"][older] += step[1]
+            self._fix_velocity_step = None     # the rows now carry it: a second reset at this fix adds nothing
         a, b = hist[i0], hist[i1]
         q, vel, rate = (a[k] + w * (b[k] - a[k]) for k in ("q", "vel_ned_m_s", "rate_rad_s"))
         c_bn = np.asarray(quat_to_dcm(q / np.linalg.norm(q)), dtype=float)
@@ -1608,8 +1629,6 @@ class Ins:
         dv = np.zeros(3)
         dv[:m] = v_fix[:m] - v_ant[:m]
         x["vel_ned_m_s"] += dv
-        # every kept row once (hist_count ≤ H_LEN): one indexed add, not a Python loop over up to H_LEN rows
-        rows = (int(x["hist_newest"]) - np.arange(int(x["hist_count"]))) % core.H_LEN
         hist["vel_ned_m_s"][rows] += dv
         P = self._P
         for i in range(m):
@@ -1751,6 +1770,7 @@ class Ins:
         self._published.reset()
         self._published_since_init = False
         self._last_fix_velocity = None
+        self._fix_velocity_step = None
         if not self._reinit_pending or not self.params.gnss_yaw:
             gsf_reset(self._gsf, self._gsf_par, float(t_s), np.full(4, np.nan))
         else:
