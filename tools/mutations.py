@@ -403,4 +403,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("rejection-heading-unknown", "GNSS velocities rejected before the heading is found are not the lever arm's",
              "estimator/velocity_rejection_cause.py", "if heading_unknown:", "if False:",
              ("tests/test_heading_status.py", "tests/test_backstepping_aided_car.py")),
+    # ------------------------------------------------------------------ session 28 (reset28)
+    Mutation("yaw-reset-velocity-with-update", "a yaw reset reads the velocity at the fix's time with that fix's update",
+             "estimator/ins.py", 'hist["vel_ned_m_s"][older] += step[1]', "pass",
+             ("tests/test_yaw_reset_velocity.py",)),
 )
