@@ -117,10 +117,15 @@ def _parse_params(items: list[str]) -> dict:
 GATE_HINT_FRACTION = 0.1   # of the fixes offered: more velocities rejected than this, and the replay says why it may be
 
 
-def _gate_summary(estimator) -> str:
-    """What the aided filter's innovation gate did with the fixes, and a hint when it rejected many velocities:
-    a filter whose attitude is right rejects a correct fix only if the antenna is not where it was told."""
+def _gate_summary(estimator, by_cause: dict[str, int] | None = None) -> str:
+    """What the aided filter's innovation gate did with the fixes, and why, when it rejected many velocities: the
+    cause the evidence supports (`by_cause`: the rejections counted by cause as the replay went,
+    estimator/velocity_rejection_watch.py — the daemon's rule and `calibrate mag --gnss`'s): the heading when it
+    explains all but GATE_HINT_FRACTION of the fixes offered (a filter whose heading is wrong or not yet found
+    rejects correct fixes), else the antenna's place and the fixes' time stamps (a filter whose attitude is right
+    rejects a correct fix only if the antenna is not where it was told)."""
     from ahrsd.estimator.base import GnssAidedEstimator, HeadingCheckedEstimator
+    from ahrsd.estimator.velocity_rejection_watch import UNEXPLAINED, heading_causes_text
 
     if not isinstance(estimator, GnssAidedEstimator):
         return "not offered"
@@ -131,10 +136,27 @@ def _gate_summary(estimator) -> str:
     if report is not None and report.mag_rejections:
         # the magnetometer, not the antenna: a filter pulled by a wrong magnetometer rejects correct fixes
         text += f"; WARNING: {_rejection_summary(report)}"
-    if c.rejected_velocity > GATE_HINT_FRACTION * max(c.offered, 1):
-        arm = " ".join(f"{v:g}" for v in estimator.lever_arm_m)
-        text += (f"; WARNING: that many rejected velocities usually mean the antenna is not where the filter was "
-                 f"told ({arm} m, body FRD: --set \"lever_arm_m=(x, y, z)\") or the fixes' time stamps are off")
+    limit = GATE_HINT_FRACTION * max(c.offered, 1)
+    if c.rejected_velocity > limit:
+        heading = {k: v for k, v in (by_cause or {}).items() if k != UNEXPLAINED}
+        unexplained = c.rejected_velocity - sum(heading.values())
+        if heading and unexplained <= limit:
+            text += (f"; WARNING: the velocities were rejected while the filter's heading was not one to trust "
+                     f"({heading_causes_text(heading)}), not for the antenna's place or the fixes' time stamps")
+        else:
+            arm = " ".join(f"{v:g}" for v in estimator.lever_arm_m)
+            known = f" ({unexplained} of them with its heading known)" if heading else ""
+            fit = estimator.lever_arm_fit()
+            if fit is not None and fit.explains:
+                # the lever-arm check (estimator/lever_arm_fit.py): where the innovations put the antenna
+                at = ", ".join(f"{float(v) + float(d):.1f}" for v, d in zip(estimator.lever_arm_m, fit.offset_m))
+                text += (f"; WARNING: the rejected velocities fit an antenna at ({at}) m ±"
+                         f"{float(max(fit.sigma_m)):.1f} m, not where the filter was told ({arm} m, body FRD): "
+                         f"measure it and give it (--set \"lever_arm_m=(x, y, z)\")")
+            else:
+                text += (f"; WARNING: that many rejected velocities{known} usually mean the antenna is not where "
+                         f"the filter was told ({arm} m, body FRD: --set \"lever_arm_m=(x, y, z)\") or the fixes' "
+                         "time stamps are off")
     return text
 
 
@@ -547,6 +569,7 @@ class _ReplayDone:
     loop_cpu_s: float
     calibration_check: object = None   # CalibrationCheckSummary while the circle check ran, else None
     calibration_sigma_rad: float = float("nan")
+    rejected_velocity_by_cause: dict | None = None   # aided: the gate's rejected velocities by cause (RejectionWatch)
 
 
 def _output_order(aided: bool, checked: bool = False) -> tuple[list[int], int, int]:
@@ -573,10 +596,12 @@ def _replay(args, estimator, calibration, fixes, trace, calibration_sigma_rad=No
 
     from ahrsd.drivers.recording import iter_samples
     from ahrsd.estimator.replay import field_circle_columns, replay_attitude
+    from ahrsd.estimator.velocity_rejection_watch import RejectionWatch
 
     from .calibration_check_summary import CalibrationCheckSummary
 
     aided = fixes is not None
+    watch = RejectionWatch(estimator, estimator.params.mag_enabled) if aided else None
     field_circle = field_circle_columns(estimator, calibration_sigma_rad)
     checked = field_circle is not None
     out = _open_output(args.output, aided, checked)
@@ -587,7 +612,7 @@ def _replay(args, estimator, calibration, fixes, trace, calibration_sigma_rad=No
     try:
         with _replay_errors(args):
             tables = replay_attitude(estimator, _calibrated(samples, calibration), true_north=_true_north(args),
-                                     fixes=fixes, field_circle=field_circle)
+                                     fixes=fixes, field_circle=field_circle, on_estimate=watch)
             history = _write_tables(args, tables, out, aided, verdicts, trace)
             if samples.count == 0:
                 raise ReplayError(f"{args.recording}: the recording has a header but no samples")
@@ -595,7 +620,8 @@ def _replay(args, estimator, calibration, fixes, trace, calibration_sigma_rad=No
     finally:
         out.discard()
     return _ReplayDone(samples, aided, history, time.process_time() - t_run, verdicts,
-                       float(calibration_sigma_rad) if checked else float("nan"))
+                       float(calibration_sigma_rad) if checked else float("nan"),
+                       None if watch is None else dict(watch.by_cause))
 
 
 def _open_output(path: str, aided: bool, checked: bool) -> _Output:
@@ -675,7 +701,7 @@ def _print_summary(args, done: _ReplayDone, estimator_name: str, estimator, decl
     if aided:
         reasons = ", ".join(f"{k} {v}" for k, v in validator.counters.items() if k != "accepted" and v)
         gnss = (f"and {validator.counters['accepted']} GNSS fixes ({validator.rejected} rejected"
-                f"{': ' + reasons if reasons else ''}; {_gate_summary(estimator)}) ")
+                f"{': ' + reasons if reasons else ''}; {_gate_summary(estimator, done.rejected_velocity_by_cause)}) ")
     print(f"ahrsd replay: {count} samples ({duration:.1f} s at {rate:.1f} Hz) {gnss}through {estimator_name}, "
           f"heading to {where}; {wall_s:.2f} s wall ({done.loop_cpu_s * 1e6 / count:.1f} CPU µs/sample to read, "
           f"estimate and write): {speed:.1f}× real time ({cpu_speed:.1f}× per CPU second)"

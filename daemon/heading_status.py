@@ -271,15 +271,18 @@ class HeadingStatus:
         because = "" if caveat is None else f", {caveat}"
         return f"heading not good ({STATE_LABELS[self.state][4:]} ±{math.degrees(self.sigma_rad):.0f}°{because})"
 
-    def rejection_cause(self, now: float) -> str | None:
+    def rejection_cause(self, now: float, lever_arm_explains: bool = False) -> str | None:
         """When the aided filter rejects GNSS velocities: the heading as the cause (a short phrase for the
         STATUSTEXT: "mag vs GNSS 36°") when the iron stepped, the magnetometer disagrees with the GNSS yaw, the
-        heading was just reset to it or is not known yet, else None (then the lever arm or latency, as the GNSS
-        task says). The rule is estimator/velocity_rejection_cause.py's, shared with `calibrate mag --gnss`."""
+        heading was just reset to it or is not known yet — the last three only while the lever-arm check
+        (`lever_arm_explains`, estimator/lever_arm_fit.py) does not find a wrong arm — else None (then the lever
+        arm or latency, as the GNSS task says). The rule is estimator/velocity_rejection_cause.py's, shared with
+        `calibrate mag --gnss` and `replay --gnss`."""
         cause = heading_rejection_cause(iron_step_rad=self.mag_step_rad, mag_inconsistent=self.mag_inconsistent,
                                         disagreement_rad=self.disagreement_rad,
                                         since_yaw_reset_s=now - self._last_reset_at,
-                                        heading_unknown=self.state == HeadingState.UNKNOWN and not self.initialising)
+                                        heading_unknown=self.state == HeadingState.UNKNOWN and not self.initialising,
+                                        lever_arm_explains=lever_arm_explains)
         return None if cause is None else cause.text
 
     # ------------------------------------------------------------------ internals

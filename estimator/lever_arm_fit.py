@@ -1,0 +1,111 @@
+"""Can a wrong antenna lever arm explain the GNSS velocities an aided filter rejects? The check the rejection warning
+needs before it names the lever arm (issue 28: "not the lever arm, when the lever-arm check cannot explain it"), and
+before it names the heading while the heading is only not yet known (estimator/velocity_rejection_cause.py).
+
+The receiver measures the antenna's velocity, v_ant = v + C (ω × r) (Groves, Principles of GNSS, Inertial, and
+Multisensor Integrated Navigation Systems, 2nd ed., eq. 14.123): v the IMU's velocity, C body → NED, ω the body
+rate, r the antenna's place from the IMU (body FRD). The filter predicts it with the arm it was told, r_told, so
+its velocity innovation holds C (ω × δr) = C [ω×] δr with δr = r − r_told, plus its own velocity error and the
+receiver's noise. A wrong heading or tilt makes a velocity error that follows the vehicle's accelerations and
+changes slowly against the 5 Hz fixes; the arm's term follows the body rate, which on a rolling boat or a turning
+vehicle changes from fix to fix. So the check fits δr by least squares to the *differences* of consecutive
+innovations (which remove the slowly changing part) against the differences of C [ω×], and says the arm explains
+the innovations when δr is significant against its own covariance (χ², three degrees of freedom) and removes a
+real share of their variance. A vehicle that does not rotate leaves δr unobservable: the covariance says so and
+the check does not claim it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import NamedTuple
+
+import numpy as np
+
+WINDOW_PAIRS = 100             # fix-to-fix differences fitted: 20 s at 5 Hz
+MIN_PAIRS = 30                 # fewer: no verdict
+MAX_PAIR_GAP_S = 0.6           # consecutive velocity fixes further apart than this are not differenced
+CHI2_3DOF_P999 = 16.27         # δr significant: its χ² against its covariance beyond the 99.9 % point of χ²(3)
+MIN_EXPLAINED_SHARE = 0.1      # and the fitted arm removes at least this share of the differences' sum of squares
+
+
+class LeverArmFitResult(NamedTuple):
+    """The fitted error of the told arm (`offset_m`, body FRD, m: the antenna is at told + offset) with its 1σ
+    (`sigma_m`), the share of the innovation differences' sum of squares it removes (`explained_share`), and
+    whether the arm explains the innovations (`explains`)."""
+
+    offset_m: np.ndarray
+    sigma_m: np.ndarray
+    explained_share: float
+    explains: bool
+
+
+def rate_cross_ned(c_bn: np.ndarray, rate_b_rad_s: np.ndarray) -> np.ndarray:
+    """C [ω×]: the NED velocity of an antenna offset δr (body) per metre of δr, as a 3 × 3 matrix."""
+    wx, wy, wz = (float(v) for v in rate_b_rad_s)
+    skew = np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]])
+    return c_bn @ skew
+
+
+class LeverArmFit:
+    """The lever-arm check over the last WINDOW_PAIRS fix-to-fix differences. `add` each offered velocity fix's
+    innovation (fix less the filter's prediction at the antenna it was told, NED m/s; a NaN component is not used)
+    with C [ω×] at its time of validity (`rate_cross_ned`) and its 1σ; `result()` fits."""
+
+    def __init__(self):
+        self._pairs: deque = deque(maxlen=WINDOW_PAIRS)
+        self._last = None
+        self._result: LeverArmFitResult | None = None
+        self._dirty = False
+
+    def reset(self) -> None:
+        self.__init__()
+
+    def add(self, t_s: float, innovation_ned_m_s: np.ndarray, rate_cross: np.ndarray, sigma_m_s: float) -> None:
+        nu = np.asarray(innovation_ned_m_s, dtype=float).reshape(3)
+        last, self._last = self._last, (float(t_s), nu, np.asarray(rate_cross, dtype=float), float(sigma_m_s))
+        if last is None or not (0.0 < t_s - last[0] <= MAX_PAIR_GAP_S):
+            return
+        d_nu = nu - last[1]
+        use = np.isfinite(d_nu)
+        if not use.any():
+            return
+        # the difference of two fixes' noise: variance the sum of theirs
+        self._pairs.append((d_nu[use], (rate_cross - last[2])[use], math.hypot(sigma_m_s, last[3])))
+        self._dirty = True
+
+    def corrected(self, velocity_correction_ned_m_s: np.ndarray) -> None:
+        """The filter corrected its velocity by this at the latest fix (fused, or reset to it): the next
+        difference is taken against the innovation the corrected state would have had, so that the correction,
+        which is not the antenna's, does not enter the fit."""
+        if self._last is not None:
+            t_s, nu, rate_cross, sigma = self._last
+            self._last = (t_s, nu - np.asarray(velocity_correction_ned_m_s, dtype=float), rate_cross, sigma)
+
+    def result(self) -> LeverArmFitResult | None:
+        """The fit over the window, or None with fewer than MIN_PAIRS differences."""
+        if not self._dirty:
+            return self._result
+        self._dirty = False
+        if len(self._pairs) < MIN_PAIRS:
+            self._result = None
+            return None
+        y = np.concatenate([p[0] for p in self._pairs])
+        a = np.vstack([p[1] for p in self._pairs])
+        noise_var = np.concatenate([np.full(len(p[0]), p[2] ** 2) for p in self._pairs])
+        ata = a.T @ a
+        if np.linalg.cond(ata) > 1e12:        # no rotation: the arm is not observable
+            self._result = LeverArmFitResult(np.full(3, math.nan), np.full(3, math.inf), 0.0, False)
+            return self._result
+        offset = np.linalg.solve(ata, a.T @ y)
+        residual = y - a @ offset
+        # the residual's own scale, never below the receiver's: the filter's own error left after differencing
+        scale_var = max(float(residual @ residual) / max(len(y) - 3, 1), float(np.mean(noise_var)))
+        cov = np.linalg.inv(ata) * scale_var
+        chi2 = float(offset @ np.linalg.solve(cov, offset))
+        total = float(y @ y)
+        share = 1.0 - float(residual @ residual) / total if total > 0.0 else 0.0
+        self._result = LeverArmFitResult(offset, np.sqrt(np.diag(cov)), share,
+                                         chi2 > CHI2_3DOF_P999 and share >= MIN_EXPLAINED_SHARE)
+        return self._result
