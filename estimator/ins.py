@@ -1040,7 +1040,7 @@ class Ins:
             v[2] if use_vd else 0.0, sig_h, sig_v, sig_s, use_pos, use_alt, use_vel, use_vd,
         )
         if use_vel:
-            self._lever_arm_fit.corrected(self._x["vel_ned_m_s"] - vel_before)
+            self._lever_arm_fit.fused(self._x["vel_ned_m_s"] - vel_before, bool(res & core.R_VEL_REJECTED))
         # the update corrected the state and the history rows after the fix's time, not those up to it: kept for
         # a yaw reset at this fix (`_reset_velocity_to_fix`). The resets from a first fix or after an outage
         # correct the row at the fix's time as well, so they leave nothing to add
@@ -1868,6 +1868,11 @@ class Ins:
         sigma_yaw = float(o[_OUT_SIGMA_YAW])
         if self._unconfirmed_sigma_rad > sigma_yaw and self._nav_ok[0] > 0.0:
             sigma_yaw = self._unconfirmed_sigma_rad        # _unconfirmed_yaw_sigma says why
+            o[_OUT_SIGMA_YAW] = sigma_yaw
+        if self._lever_arm_fit.arm_wrong:
+            # the GNSS velocities fit another antenna place than the one told (lever_arm_fit.py): the heading they
+            # held, and the GNSS yaw bank's, are bent by an error no state models: unknown until the arm is right
+            sigma_yaw = math.pi
             o[_OUT_SIGMA_YAW] = sigma_yaw
         if not self._ever_aided and self.params.mag_enabled:
             # no GNSS yet: the magnetometer calibration is the only heading reference and its error is not in

@@ -75,7 +75,7 @@ def test_a_magnetometer_heading_whose_sigma_widens_is_not_good_at_once_and_good_
     from ahrsd.daemon.counters import ServiceCounters
     from ahrsd.daemon.housekeeping import HealthReport
     from ahrsd.daemon.outbound import Identity, Outbound
-    from test_state_change_statustext import Counts, Notifier
+    from support.health_report_fakes import Counts, Notifier
 
     hs, texts = status(cal_sigma_deg=0.5)
     health = Health(stale_timeout_s=1.0)
