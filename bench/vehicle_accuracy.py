@@ -61,6 +61,7 @@ class VehicleRun:
     outage: tuple[float, float] | None
     lever_arm_m: tuple = (0.0, 0.0, 0.0)     # the receiver's antenna, body FRD from the IMU, m
     mag_calibration_sigma_rad: float = float("nan")   # what the calibration says of its heading error (NaN: none)
+    truth_vel_ned_m_s: np.ndarray | None = None        # the vehicle's true NED velocity at the IMU, m/s (n, 3)
 
 
 def _rot(q_wxyz) -> Rotation:
@@ -138,7 +139,8 @@ def simulate_vehicle(name: str, seconds: float, seed: int, site_text: str | None
     fixes.sort(key=lambda f: f.extra["t_rx_s"])
     return VehicleRun(block.t_s, block.gyro_rad_s, block.accel_m_s2, np.ascontiguousarray(mag_ut),
                       block.truth_q_wxyz, stream.earth_field.declination_rad, fixes, window, arm,
-                      float("nan") if mag == "uncalibrated" else CALIBRATED_SIGMA_RAD)
+                      float("nan") if mag == "uncalibrated" else CALIBRATED_SIGMA_RAD,
+                      truth_vel_ned_m_s=block.truth_vel_ned_m_s)
 
 
 def run_ins(run: VehicleRun, use_gnss: bool = True, **params) -> np.ndarray:

@@ -527,6 +527,7 @@ class Ins:
         self._published = PublishedHeading(self.params.published_yaw_slew_rad_s)
         self._published_since_init = False
         self._last_fix_velocity = None
+        self._fix_velocity_step = None    # (t_fix, m/s) what the last fix's own update added to the velocity
         self._view = BuiltEstimateView(self._build_estimate)   # step()'s result: the estimate built on demand
         # before the first fix the calibration is checked by the circle its levelled field sweeps in turns
         self._field_circle = FieldCircleCheck(FieldCircleParams(mag_noise_ut=self.params.mag_noise_ut))
@@ -1040,6 +1041,11 @@ class Ins:
         )
         if use_vel:
             self._lever_arm_fit.fused(self._x["vel_ned_m_s"] - vel_before, bool(res & core.R_VEL_REJECTED))
+        # the update corrected the state and the history rows after the fix's time, not those up to it: kept for
+        # a yaw reset at this fix (`_reset_velocity_to_fix`). The resets from a first fix or after an outage
+        # correct the row at the fix's time as well, so they leave nothing to add
+        step_rows = not res & (core.R_NAV_INIT | core.R_OUTAGE_RESET)
+        self._fix_velocity_step = (float(fix.t_s), self._x["vel_ned_m_s"] - vel_before) if step_rows else None
         self._count_fuse_result(res, fix)
         if p.heading_monitor and p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
             self._check_heading(float(fix.t_s))
@@ -1660,6 +1666,20 @@ class Ins:
         i0, i1, w = core._history_at(x, hist, t_fix)
         if i0 < 0:
             return
+        # every kept row once (hist_count ≤ H_LEN): one indexed add, not a Python loop over up to H_LEN rows
+        rows = (int(x["hist_newest"]) - np.arange(int(x["hist_count"]))) % core.H_LEN
+        step = self._fix_velocity_step
+        if step is not None and step[0] == t_fix:
+            # this fix's own update (fuse_gnss, just before the heading checks that reset the yaw) moved the
+            # velocity of the state and of the rows after the fix's time, not of the rows up to it: without the
+            # same step there, the velocity at the fix's time read below is the one before the update, and the
+            # reset keeps the update's step as a velocity error. Computed with the wrong yaw's covariance, that
+            # step can be large; the next fixes' velocities are then rejected while the tilt the wrong yaw left
+            # drives the velocity off, and what is fused after that turns the new yaw away again (docs/gnss.md,
+            # "The velocity a yaw reset sets")
+            older = rows[hist["t_s"][rows] <= t_fix]
+            hist["vel_ned_m_s"][older] += step[1]
+            self._fix_velocity_step = None     # the rows now carry it: a second reset at this fix adds nothing
         a, b = hist[i0], hist[i1]
         q, vel, rate = (a[k] + w * (b[k] - a[k]) for k in ("q", "vel_ned_m_s", "rate_rad_s"))
         c_bn = np.asarray(quat_to_dcm(q / np.linalg.norm(q)), dtype=float)
@@ -1669,8 +1689,6 @@ class Ins:
         dv = np.zeros(3)
         dv[:m] = v_fix[:m] - v_ant[:m]
         x["vel_ned_m_s"] += dv
-        # every kept row once (hist_count ≤ H_LEN): one indexed add, not a Python loop over up to H_LEN rows
-        rows = (int(x["hist_newest"]) - np.arange(int(x["hist_count"]))) % core.H_LEN
         hist["vel_ned_m_s"][rows] += dv
         P = self._P
         for i in range(m):
@@ -1812,6 +1830,7 @@ class Ins:
         self._published.reset()
         self._published_since_init = False
         self._last_fix_velocity = None
+        self._fix_velocity_step = None
         if not self._reinit_pending or not self.params.gnss_yaw:
             gsf_reset(self._gsf, self._gsf_par, float(t_s), np.full(4, np.nan))
         else:

@@ -467,4 +467,8 @@ MUTATIONS: tuple[Mutation, ...] = (
              "outside = wrap_pi(gsf_yaw - yaw_rad) ** 2 > self._monitor.gate_sigma ** 2 * gsf_var",
              "outside = True",
              ("tests/test_gnss_yaw_alignment_without_magnetometer.py",)),
+    # ------------------------------------------------------------------ session 28 (reset28)
+    Mutation("yaw-reset-velocity-with-update", "a yaw reset reads the velocity at the fix's time with that fix's update",
+             "estimator/ins.py", 'hist["vel_ned_m_s"][older] += step[1]', "pass",
+             ("tests/test_yaw_reset_velocity.py",)),
 )
