@@ -42,11 +42,6 @@ def fmt_value(value) -> str:
     return str(value)
 
 
-def quality_lines(quality: dict) -> list[str]:
-    """One `key: value` line per quality entry not shown otherwise."""
-    return [f"  {key}: {fmt_value(value)}" for key, value in quality.items() if key not in _QUALITY_NOT_LISTED]
-
-
 def accel_model_lines(model, result) -> list[str]:
     """An AccelModel and the residual of the fit (AccelFitResult) that made it."""
     q = result.quality

@@ -926,7 +926,7 @@ def _read_swing_table(path):
 def _report_fit(args, res, payload, lines, sensor, describe, meta) -> int:
     """Common tail: refused → report and 1; else save, report parameters and 0. The magnetometer report leads
     with what the operator decides on (cli.fit_summary), the details after it."""
-    from ahrsd.calibration.report import _QUALITY_NOT_LISTED, quality_lines
+    from ahrsd.calibration.report import _QUALITY_NOT_LISTED
 
     from .fit_summary import detail_lines, mag_decision_lines
 
@@ -948,9 +948,10 @@ def _report_fit(args, res, payload, lines, sensor, describe, meta) -> int:
         lines += detail_lines(res.quality, frozenset(_QUALITY_NOT_LISTED) | {
             "predicted_heading", "heading_coverage", "coverage", "sphere_coverage", "tilt", "warnings",
             "attitude_source", "residual_max_ut", "sigma_hard_iron_ut"})
-    else:
+    else:   # the fit's own figures after the model, under "details:" as the magnetometer's (issue 30 item 8)
         lines += describe(model, res)
-        lines += quality_lines(res.quality)
+        details = detail_lines(res.quality, frozenset(_QUALITY_NOT_LISTED))
+        lines += ["  details:", *details] if details else []
         lines.append(f"  {note}")
     _emit(args, payload, "\n".join(lines))
     return 0

@@ -10,7 +10,8 @@ from ahrsd.calibration.report import fmt_value
 from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
 
 # quality keys a reader of the report cannot act on: the optimiser's own bookkeeping and intermediate fits
-INTERNAL_KEYS = frozenset({"sphere_fit_paper", "time_s", "backstep", "fit_rate_hz", "n_samples", "support_model"})
+INTERNAL_KEYS = frozenset({"sphere_fit_paper", "time_s", "backstep", "fit_rate_hz", "n_samples", "support_model",
+                           "lm_status"})    # the accelerometer fit's least-squares exit code
 INTERNAL_NESTED = frozenset({"message", "nfev", "init", "converged"})
 
 

@@ -117,10 +117,33 @@ def _parse_params(items: list[str]) -> dict:
 GATE_HINT_FRACTION = 0.1   # of the fixes offered: more velocities rejected than this, and the replay says why it may be
 
 
-def _gate_summary(estimator) -> str:
-    """What the aided filter's innovation gate did with the fixes, and a hint when it rejected many velocities:
-    a filter whose attitude is right rejects a correct fix only if the antenna is not where it was told."""
+CALIBRATION_WRONG = "calibration wrong or iron changed"
+
+
+def _disagreement_cause(calibration, calibration_sigma_rad) -> str:
+    """Why a magnetometer disagreed with GNSS, as the daemon's heading state says it (daemon/heading_status.py): a
+    calibration that states its heading error was wrong (or the iron moved since); none, or one of unknown quality,
+    is the reason itself."""
+    from ahrsd.calibration.heading_trust import has_mag_calibration
+    from ahrsd.estimator.calibration_heading import calibration_states_error
+
+    if calibration_sigma_rad is not None and calibration_states_error(calibration_sigma_rad):
+        return CALIBRATION_WRONG
+    if has_mag_calibration(calibration):
+        return "the magnetometer calibration states no heading error"
+    return "magnetometer not calibrated (no --calibration)"
+
+
+def _gate_summary(estimator, by_cause: dict[str, int] | None = None, mag_cause: str = CALIBRATION_WRONG) -> str:
+    """What the aided filter's innovation gate did with the fixes, and why, when it rejected many velocities: the
+    cause the evidence supports (`by_cause`: the rejections counted by cause as the replay went,
+    estimator/velocity_rejection_watch.py — the daemon's rule and `calibrate mag --gnss`'s): the heading when it
+    explains all but GATE_HINT_FRACTION of the fixes offered (a filter whose heading is wrong or not yet found
+    rejects correct fixes), else the antenna's place and the fixes' time stamps (a filter whose attitude is right
+    rejects a correct fix only if the antenna is not where it was told). `mag_cause`: why the magnetometer
+    disagreed, when the heading checks rejected it (_disagreement_cause)."""
     from ahrsd.estimator.base import GnssAidedEstimator, HeadingCheckedEstimator
+    from ahrsd.estimator.velocity_rejection_watch import UNEXPLAINED, heading_causes_text
 
     if not isinstance(estimator, GnssAidedEstimator):
         return "not offered"
@@ -130,15 +153,32 @@ def _gate_summary(estimator) -> str:
     report = estimator.heading_report() if isinstance(estimator, HeadingCheckedEstimator) else None
     if report is not None and report.mag_rejections:
         # the magnetometer, not the antenna: a filter pulled by a wrong magnetometer rejects correct fixes
-        text += f"; WARNING: {_rejection_summary(report)}"
-    if c.rejected_velocity > GATE_HINT_FRACTION * max(c.offered, 1):
-        arm = " ".join(f"{v:g}" for v in estimator.lever_arm_m)
-        text += (f"; WARNING: that many rejected velocities usually mean the antenna is not where the filter was "
-                 f"told ({arm} m, body FRD: --set \"lever_arm_m=(x, y, z)\") or the fixes' time stamps are off")
+        text += f"; WARNING: {_rejection_summary(report, mag_cause)}"
+    limit = GATE_HINT_FRACTION * max(c.offered, 1)
+    if c.rejected_velocity > limit:
+        heading = {k: v for k, v in (by_cause or {}).items() if k != UNEXPLAINED}
+        unexplained = c.rejected_velocity - sum(heading.values())
+        if heading and unexplained <= limit:
+            text += (f"; WARNING: the velocities were rejected while the filter's heading was not one to trust "
+                     f"({heading_causes_text(heading)}), not for the antenna's place or the fixes' time stamps")
+        else:
+            arm = " ".join(f"{v:g}" for v in estimator.lever_arm_m)
+            known = f" ({unexplained} of them with its heading known)" if heading else ""
+            fit = estimator.lever_arm_fit()
+            if fit is not None and fit.explains:
+                # the lever-arm check (estimator/lever_arm_fit.py): where the innovations put the antenna
+                at = ", ".join(f"{float(v) + float(d):.1f}" for v, d in zip(estimator.lever_arm_m, fit.offset_m))
+                text += (f"; WARNING: the rejected velocities fit an antenna at ({at}) m ±"
+                         f"{float(max(fit.sigma_m)):.1f} m, not where the filter was told ({arm} m, body FRD): "
+                         f"measure it and give it (--set \"lever_arm_m=(x, y, z)\")")
+            else:
+                text += (f"; WARNING: that many rejected velocities{known} usually mean the antenna is not where "
+                         f"the filter was told ({arm} m, body FRD: --set \"lever_arm_m=(x, y, z)\") or the fixes' "
+                         "time stamps are off")
     return text
 
 
-def _rejection_summary(report) -> str:
+def _rejection_summary(report, mag_cause: str) -> str:
     """Why the heading checks rejected the magnetometer (estimator.ins.HeadingReport): an iron that stepped while
     the gyro saw no turn (estimator/mag_step.py), said as such with the first step's time and size, and the
     rejections for a disagreement with GNSS."""
@@ -152,7 +192,7 @@ def _rejection_summary(report) -> str:
     if others:
         by = (f"by {report.max_disagreement_deg:.1f}° when rejected" if others == 1 else
               f"by up to {report.max_disagreement_deg:.1f}° (the largest at its {others} rejections)")
-        parts.append(f"magnetometer disagreed with GNSS {by}: calibration wrong or iron changed")
+        parts.append(f"magnetometer disagreed with GNSS {by}: {mag_cause}")
     return "; ".join(parts) + f" ({resets})"
 
 
@@ -376,7 +416,7 @@ def _run(args, compile_estimator: Callable[[str], object], count_compiles: Calla
     if not args.quiet:
         _print_summary(args, done, estimator_name, estimator, declination, validator,
                        time.perf_counter() - t_start - compile_wall_s, time.process_time() - cpu_start - compile_cpu_s,
-                       compile_wall_s)
+                       compile_wall_s, _disagreement_cause(calibration, params.get("mag_calibration_sigma_rad")))
         unknown = _unknown_heading_text(estimator_name, calibration, params.get("mag_calibration_sigma_rad"), done.aided)
         if unknown:
             print(f"ahrsd replay: {unknown}", file=sys.stderr)
@@ -547,6 +587,7 @@ class _ReplayDone:
     loop_cpu_s: float
     calibration_check: object = None   # CalibrationCheckSummary while the circle check ran, else None
     calibration_sigma_rad: float = float("nan")
+    rejected_velocity_by_cause: dict | None = None   # aided: the gate's rejected velocities by cause (RejectionWatch)
 
 
 def _output_order(aided: bool, checked: bool = False) -> tuple[list[int], int, int]:
@@ -573,10 +614,12 @@ def _replay(args, estimator, calibration, fixes, trace, calibration_sigma_rad=No
 
     from ahrsd.drivers.recording import iter_samples
     from ahrsd.estimator.replay import field_circle_columns, replay_attitude
+    from ahrsd.estimator.velocity_rejection_watch import RejectionWatch
 
     from .calibration_check_summary import CalibrationCheckSummary
 
     aided = fixes is not None
+    watch = RejectionWatch(estimator, estimator.params.mag_enabled) if aided else None
     field_circle = field_circle_columns(estimator, calibration_sigma_rad)
     checked = field_circle is not None
     out = _open_output(args.output, aided, checked)
@@ -587,7 +630,7 @@ def _replay(args, estimator, calibration, fixes, trace, calibration_sigma_rad=No
     try:
         with _replay_errors(args):
             tables = replay_attitude(estimator, _calibrated(samples, calibration), true_north=_true_north(args),
-                                     fixes=fixes, field_circle=field_circle)
+                                     fixes=fixes, field_circle=field_circle, on_estimate=watch)
             history = _write_tables(args, tables, out, aided, verdicts, trace)
             if samples.count == 0:
                 raise ReplayError(f"{args.recording}: the recording has a header but no samples")
@@ -595,7 +638,8 @@ def _replay(args, estimator, calibration, fixes, trace, calibration_sigma_rad=No
     finally:
         out.discard()
     return _ReplayDone(samples, aided, history, time.process_time() - t_run, verdicts,
-                       float(calibration_sigma_rad) if checked else float("nan"))
+                       float(calibration_sigma_rad) if checked else float("nan"),
+                       None if watch is None else dict(watch.by_cause))
 
 
 def _open_output(path: str, aided: bool, checked: bool) -> _Output:
@@ -655,7 +699,8 @@ def _write_tables(args, tables, out: _Output, aided: bool, verdicts, trace) -> l
 
 
 def _print_summary(args, done: _ReplayDone, estimator_name: str, estimator, declination: float, validator,
-                   wall_s: float, cpu_s: float, compile_wall_s: float = 0.0) -> None:
+                   wall_s: float, cpu_s: float, compile_wall_s: float = 0.0,
+                   mag_cause: str = CALIBRATION_WRONG) -> None:
     """The end-of-run lines on stderr: what was replayed, through what, referenced to which north, how fast (the
     replay's wall and CPU time: an estimator compile before it, `compile_wall_s` > 0, is named apart)."""
     import math
@@ -675,7 +720,8 @@ def _print_summary(args, done: _ReplayDone, estimator_name: str, estimator, decl
     if aided:
         reasons = ", ".join(f"{k} {v}" for k, v in validator.counters.items() if k != "accepted" and v)
         gnss = (f"and {validator.counters['accepted']} GNSS fixes ({validator.rejected} rejected"
-                f"{': ' + reasons if reasons else ''}; {_gate_summary(estimator)}) ")
+                f"{': ' + reasons if reasons else ''}; "
+                f"{_gate_summary(estimator, done.rejected_velocity_by_cause, mag_cause)}) ")
     print(f"ahrsd replay: {count} samples ({duration:.1f} s at {rate:.1f} Hz) {gnss}through {estimator_name}, "
           f"heading to {where}; {wall_s:.2f} s wall ({done.loop_cpu_s * 1e6 / count:.1f} CPU µs/sample to read, "
           f"estimate and write): {speed:.1f}× real time ({cpu_speed:.1f}× per CPU second)"

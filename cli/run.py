@@ -155,8 +155,9 @@ def _fault_plan(schedule: str, cfg):
 
 
 def _open_checked_source(cfg, plan):
-    """The sensor source, after what can fail at once has been checked (a replay's file, the estimator's
-    compile); None (one error line on stderr) when something failed."""
+    """The sensor source, after what can fail at once has been checked (a replay's file, the signing key, the
+    MAVLink and NMEA server addresses, the estimator's compile); None (one error line on stderr) when something
+    failed."""
     import sys
 
     from ahrsd.drivers.errors import DriverError
@@ -187,6 +188,22 @@ def _open_checked_source(cfg, plan):
         try:   # the daemon loads it at its start: a key it cannot use fails here, before a compile
             load_key(cfg.signing.key_file)
         except SigningKeyError as exc:
+            print(f"ahrsd run: error: {exc}", file=sys.stderr)
+            return None
+    from ahrsd.daemon.mavlink_io import EndpointOpenError, check_endpoint_opens
+
+    for endpoint in cfg.endpoints:
+        try:   # a server address it cannot have (not a local address, a port taken) fails here, before a compile
+            check_endpoint_opens(endpoint.url)
+        except EndpointOpenError as exc:
+            print(f"ahrsd run: error: {exc}", file=sys.stderr)
+            return None
+    from ahrsd.daemon.nmea_transport import check_nmea_output_opens
+
+    for output in cfg.nmea:
+        try:   # a TCP server's address too (the NMEA output names itself and the address)
+            check_nmea_output_opens(output.url)
+        except OSError as exc:
             print(f"ahrsd run: error: {exc}", file=sys.stderr)
             return None
     from ahrsd.cli.warm_up import compile_estimator

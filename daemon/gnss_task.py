@@ -153,14 +153,14 @@ class GnssTask:
     statustext: `statustext(severity, text)` to the ground station.
     log_fix: `log_fix(fix, rejection)` for every fix with its verdict (the vehicle log), or None.
     subscribers: `fn(fix)` for every accepted fix, after the estimator.
-    rejection_cause: `rejection_cause(now)` -> the cause of rejected velocities when it is not the lever arm
+    rejection_cause: `rejection_cause(now, lever_arm_explains)` -> the cause of rejected velocities when it is not the lever arm
     (daemon.heading_status: a heading the magnetometer made wrong), or None.
     """
 
     def __init__(self, backend: GnssBackend, cfg: GnssConfig, *, clock: Callable[[], float],
                  estimator: EstimatorHook | None, statustext: Callable[[int, str], None],
                  log_fix: FixLog | None = None, subscribers: Sequence[FixSubscriber] = (),
-                 rejection_cause: Callable[[float], str | None] | None = None):
+                 rejection_cause: Callable[[float, bool], str | None] | None = None):
         self.backend = backend
         self.cfg = cfg
         self.clock = clock
@@ -388,15 +388,27 @@ class GnssTask:
         self._gate_window = (now, c.offered, c.rejected_velocity)
         if offered >= GATE_MIN_OFFERED and rejected > GATE_WARN_FRACTION * offered:
             self.counters.gate_warnings += 1
-            cause = self.rejection_cause(now) if self.rejection_cause is not None else None
+            fit = est.lever_arm_fit()
+            explains = fit is not None and fit.explains
+            cause = self.rejection_cause(now, explains) if self.rejection_cause is not None else None
             if cause is not None:
                 log.warning("the aided filter rejected %d of %d GNSS velocities in the last %.0f s: %s",
                             rejected, offered, now - t0, cause)
                 self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: GNSS vel rejected {rejected}/{offered}: {cause}")
                 return
+            told = " ".join(f"{v:g}" for v in self.cfg.lever_arm_m)
+            if explains:
+                # the lever-arm check (estimator/lever_arm_fit.py) found where the innovations put the antenna
+                at = [float(v) + float(d) for v, d in zip(self.cfg.lever_arm_m, fit.offset_m)]
+                log.warning("the aided filter rejected %d of %d GNSS velocities in the last %.0f s: they fit an "
+                            "antenna at %s m (body FRD from the IMU), not at [gnss] lever_arm_m %s m: measure it "
+                            "and set lever_arm_m", rejected, offered, now - t0, " ".join(f"{v:.1f}" for v in at),
+                            told)
+                self.statustext(mavlink.MAV_SEVERITY_WARNING,     # ≤ 50 characters: a STATUSTEXT's text
+                                f"ahrsd: GNSS vel rej {rejected}/{offered}: arm {','.join(f'{v:.1f}' for v in at)}?")
+                return
             log.warning("the aided filter rejected %d of %d GNSS velocities in the last %.0f s: check [gnss] "
-                        "lever_arm_m (%s m, body FRD from the IMU) and latency_s", rejected, offered, now - t0,
-                        " ".join(f"{v:g}" for v in self.cfg.lever_arm_m))
+                        "lever_arm_m (%s m, body FRD from the IMU) and latency_s", rejected, offered, now - t0, told)
             self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: GNSS vel rejected {rejected}/{offered}: lever arm?")
 
     def stats(self) -> dict:

@@ -55,6 +55,10 @@ DISAGREEMENT_GATE_SIGMA = 3.0         # as the estimator's heading monitor (Head
 UNCALIBRATED_SIGMA_RAD = math.radians(20.0)   # InsParams.mag_uncalibrated_sigma_rad: how far ins weighs an unknown calibration
 TRUSTED_CALIBRATION_RAD = math.radians(3.0)   # HeadingMonitor.trusted_sigma_rad: a calibration ins trusts to hold the heading
 ANNOUNCE_AFTER_S = 2.0                # a state must hold this long to be announced (no STATUSTEXT per flicker)
+# An estimator that flags INITIALISING within this long after a calibration change is converging on the new
+# calibration, not restarting: the swap widens its heading variance to cover the change (relearn_field_reference),
+# and INITIALISING holds while the filter's own heading 1σ is above its convergence threshold (kernel_flags.py)
+CALIBRATION_CONVERGE_WINDOW_S = 1.0
 
 
 class HeadingStatus:
@@ -98,8 +102,14 @@ class HeadingStatus:
         self._now = -math.inf
         self.field_off_centre_ut = math.nan           # the circle check's centre offset while it finds the calibration wrong
         self.field_corrected_ut = math.nan            # ... while a correction learned from the turns makes it consistent
+        self.converging_on_calibration = False        # INITIALISING since a calibration change: converging on it
+        self._calibration_changed_at: float | None = None
 
     def set_calibration_sigma(self, sigma_rad: float, in_force: bool | None = None) -> None:
+        """A calibration in force (at start) or changed (after the first estimate: then an INITIALISING that
+        follows is its convergence, `converging_on_calibration`)."""
+        if self.state is not None:
+            self._calibration_changed_at = self._now
         self.calibration_sigma_rad = float(sigma_rad)
         if in_force is not None:
             self.calibration_in_force = bool(in_force)
@@ -141,6 +151,7 @@ class HeadingStatus:
         self.state = state
         self.sigma_rad = float(est.sigma_rpy_rad[2])
         self.initialising = bool(est.flags & EstimateFlags.INITIALISING)
+        self._track_calibration_convergence(now)
         self.gnss_checked = est.integrity is not None
         self.disagreement_rad, significant = self._disagreement(est.integrity)
         self.mag_step_rad = float(est.integrity.mag_step_rad) if est.integrity is not None else math.nan
@@ -148,6 +159,17 @@ class HeadingStatus:
         self.mag_inconsistent = significant or self._iron_stepped() or (state in (HeadingState.GNSS_ONLY, HeadingState.LEARNING)
                                                 and self.calibration_sigma_rad <= TRUSTED_CALIBRATION_RAD)
         self._now = now
+
+    def _track_calibration_convergence(self, now: float) -> None:
+        """INITIALISING within CALIBRATION_CONVERGE_WINDOW_S of a calibration change is the convergence on it, until
+        it ends (an estimate taken before the swap may come first: not initialising, it waits)."""
+        changed = self._calibration_changed_at
+        if self.initialising and changed is not None and now - changed <= CALIBRATION_CONVERGE_WINDOW_S:
+            self.converging_on_calibration = True
+        elif not self.initialising:
+            self.converging_on_calibration = False
+        if changed is not None and (self.converging_on_calibration or now - changed > CALIBRATION_CONVERGE_WINDOW_S):
+            self._calibration_changed_at = None
 
     def _track_good(self, now: float) -> None:
         """Since when the heading is good enough (`heading_good` waits ANNOUNCE_AFTER_S), and whether a
@@ -263,6 +285,9 @@ class HeadingStatus:
 
     def standby_detail(self) -> str:
         """Why the daemon is not ACTIVE although the estimator runs (the MAV_STATE STATUSTEXT)."""
+        if self.initialising and self.converging_on_calibration:
+            # no σ figure: the estimate of that moment may still carry the old calibration's (±164° live, walk28)
+            return "heading converging on the new calibration, no heading out"
         if self.initialising or self.state is None:
             return "initialising, no heading out"
         caveat = self.calibration_caveat()
@@ -271,15 +296,18 @@ class HeadingStatus:
         because = "" if caveat is None else f", {caveat}"
         return f"heading not good ({STATE_LABELS[self.state][4:]} ±{math.degrees(self.sigma_rad):.0f}°{because})"
 
-    def rejection_cause(self, now: float) -> str | None:
+    def rejection_cause(self, now: float, lever_arm_explains: bool = False) -> str | None:
         """When the aided filter rejects GNSS velocities: the heading as the cause (a short phrase for the
         STATUSTEXT: "mag vs GNSS 36°") when the iron stepped, the magnetometer disagrees with the GNSS yaw, the
-        heading was just reset to it or is not known yet, else None (then the lever arm or latency, as the GNSS
-        task says). The rule is estimator/velocity_rejection_cause.py's, shared with `calibrate mag --gnss`."""
+        heading was just reset to it or is not known yet — the last three only while the lever-arm check
+        (`lever_arm_explains`, estimator/lever_arm_fit.py) does not find a wrong arm — else None (then the lever
+        arm or latency, as the GNSS task says). The rule is estimator/velocity_rejection_cause.py's, shared with
+        `calibrate mag --gnss` and `replay --gnss`."""
         cause = heading_rejection_cause(iron_step_rad=self.mag_step_rad, mag_inconsistent=self.mag_inconsistent,
                                         disagreement_rad=self.disagreement_rad,
                                         since_yaw_reset_s=now - self._last_reset_at,
-                                        heading_unknown=self.state == HeadingState.UNKNOWN and not self.initialising)
+                                        heading_unknown=self.state == HeadingState.UNKNOWN and not self.initialising,
+                                        lever_arm_explains=lever_arm_explains)
         return None if cause is None else cause.text
 
     # ------------------------------------------------------------------ internals
@@ -318,6 +346,8 @@ class HeadingStatus:
             return "disagrees", ""
         if self._off_centre() and not self.initialising:
             return "off-centre", self._off_centre_cause()
+        if self.initialising and self.converging_on_calibration:
+            return "converging", "converging on the new calibration"
         if self.initialising and self.announced in (None, HeadingState.UNKNOWN):
             return "initialising", "initialising"
         if self.initialising:

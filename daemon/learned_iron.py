@@ -237,7 +237,8 @@ class LearnedIron:
                                           "soft_iron": current.mag.soft_iron.tolist()})
         self.apply_calibration(new)          # the daemon's one path: persist, swap, calibration_changed()
         self.calibration_changed()           # (when the daemon's path did not call it)
-        return True, (f"Learned iron accepted: hard iron +{np.round(offset, 1).tolist()} uT")
+        shown = " ".join(f"{v:+.1f}" for v in offset)   # as `ahrsd magcal status` shows a hard iron
+        return True, f"Learned iron accepted into the calibration: hard iron {shown} uT"
 
     def reset(self) -> str:
         est = self.pipeline.estimator
@@ -257,15 +258,17 @@ class LearnedIron:
 
     def on_param(self, value: float) -> None:
         """MAG_LRN_ACT written (a momentary parameter, for ground stations without a command panel): 1
-        accepts, 2 resets, 0 does nothing. Raises ParamError (the write is refused, with why) when refused."""
+        accepts, 2 resets, 0 does nothing. Raises ParamError (the write is refused, with why) when refused: the
+        parameter protocol's refusal is then the one STATUSTEXT that says why (not the action's as well)."""
         if value == 0:
             return
-        result, text = self.act(int(value))
+        result, text = self.act(int(value), say_refusal=False)
         if result != mavlink.MAV_RESULT_ACCEPTED:
             raise ParamError(f"MAG_LRN_ACT {value:g}: {text}")
 
-    def act(self, action: int) -> tuple[int, str]:
-        """ACTION_ACCEPT or ACTION_RESET: (MAV_RESULT, what happened), said in a STATUSTEXT."""
+    def act(self, action: int, *, say_refusal: bool = True) -> tuple[int, str]:
+        """ACTION_ACCEPT or ACTION_RESET: (MAV_RESULT, what happened), said in a STATUSTEXT (a refusal only when
+        `say_refusal`: a caller that says it itself, as a refused parameter write does, passes False)."""
         if not isinstance(self.pipeline.estimator, IronLearningEstimator):
             result, text = mavlink.MAV_RESULT_UNSUPPORTED, "Learned iron: this estimator learns none"
         elif self.armed() and not self.allow_armed:
@@ -273,19 +276,22 @@ class LearnedIron:
         elif action == ACTION_RESET:
             result, text = mavlink.MAV_RESULT_ACCEPTED, self.reset()
         else:
-            return self._accept_action()
-        self.statustext(mavlink.MAV_SEVERITY_NOTICE, text)
+            return self._accept_action(say_refusal)
+        if result == mavlink.MAV_RESULT_ACCEPTED or say_refusal:
+            self.statustext(mavlink.MAV_SEVERITY_NOTICE, text)
         return result, text
 
-    def _accept_action(self) -> tuple[int, str]:
+    def _accept_action(self, say_refusal: bool) -> tuple[int, str]:
         try:
             done, text = self.accept()
         except Exception as exc:  # noqa: BLE001 - the calibration in force stays (apply_calibration's contract)
             log.exception("accepting the learned iron failed")
             text = f"Learned iron: save failed: {exc}"
-            self.statustext(mavlink.MAV_SEVERITY_ERROR, text)
+            if say_refusal:
+                self.statustext(mavlink.MAV_SEVERITY_ERROR, text)
             return mavlink.MAV_RESULT_FAILED, text
-        self.statustext(mavlink.MAV_SEVERITY_NOTICE if done else mavlink.MAV_SEVERITY_WARNING, text)
+        if done or say_refusal:
+            self.statustext(mavlink.MAV_SEVERITY_NOTICE if done else mavlink.MAV_SEVERITY_WARNING, text)
         return (mavlink.MAV_RESULT_ACCEPTED if done else mavlink.MAV_RESULT_FAILED), text
 
     # ------------------------------------------------------------------ internals

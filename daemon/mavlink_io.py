@@ -80,6 +80,29 @@ class LinkCounters:
 MessageHandler = Callable[["Endpoint", object], None]
 
 
+class EndpointOpenError(OSError):
+    """A UDP/TCP server address the daemon cannot open (not a local address, a port taken): a configuration
+    error. Its text names the endpoint and the reason, without the "[Errno N]" that OSError puts first, in
+    the form the other start failures take (`ahrsd run: error: …`, `ahrsd cannot start: …`)."""
+
+    def __str__(self) -> str:
+        return f"MAVLink endpoint {self.filename}: {self.strerror}"
+
+
+def check_endpoint_opens(url: str) -> None:
+    """Open and close the connection `Endpoint.open` will make for `url`, so that a server address the
+    daemon cannot have is refused before the estimator's compile (EndpointOpenError). A TCP client and a
+    serial port are not tried: the daemon retries those in the background (a peer or adapter may come later)."""
+    probe = Endpoint(url, 1, 1, lambda _ep, _msg: None)
+    if probe.kind in ("tcp", "serial"):
+        return
+    try:
+        conn = probe._make_connection()
+    except OSError as exc:
+        raise EndpointOpenError(exc.errno, exc.strerror or str(exc), url) from exc
+    conn.close()
+
+
 @dataclass
 class Endpoint:
     """A pymavlink connection whose input is delivered to `on_message(endpoint, msg)` from the event loop."""
@@ -135,7 +158,7 @@ class Endpoint:
             conn = self._make_connection()
         except OSError as exc:
             if self.kind != "serial":   # a configuration error: say which endpoint (the OS error names none)
-                raise OSError(exc.errno, f"MAVLink endpoint {self.url}: {exc.strerror or exc}") from exc
+                raise EndpointOpenError(exc.errno, exc.strerror or str(exc), self.url) from exc
             log.warning("MAVLink %s: %s; retrying every %.0f s", self.url, exc, TCP_RETRY_S)
             self._connect_task = loop.create_task(self._connect_retrying())
             return

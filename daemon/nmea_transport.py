@@ -83,6 +83,13 @@ class TcpServerTransport:
 
     def open(self, loop: asyncio.AbstractEventLoop) -> None:
         """Bind now (a port in use is an error at start, naming the output), serve on the loop."""
+        sock = self._listening_socket()
+        sock.setblocking(False)
+        self.port = sock.getsockname()[1]          # the real port when 0 was asked for
+        self._serving = loop.create_task(self._serve(sock), name=f"nmea {self.description}")
+
+    def _listening_socket(self) -> socket.socket:
+        """The socket bound and listening; OSError naming the output when the address cannot be had."""
         sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
@@ -92,9 +99,7 @@ class TcpServerTransport:
             sock.close()
             raise OSError(f"NMEA output {self.description}: cannot listen on {self.host}:{self.port}: "
                           f"{exc.strerror or exc}") from None
-        sock.setblocking(False)
-        self.port = sock.getsockname()[1]          # the real port when 0 was asked for
-        self._serving = loop.create_task(self._serve(sock), name=f"nmea {self.description}")
+        return sock
 
     async def _serve(self, sock: socket.socket) -> None:
         self._server = await asyncio.start_server(self._on_client, sock=sock)
@@ -178,6 +183,14 @@ class SerialTransport:
 
     def close(self) -> None:
         self.port.close()
+
+
+def check_nmea_output_opens(url: str) -> None:
+    """Bind and close what a `tcpserver:` output will listen on, so that an address the daemon cannot have is
+    refused before the estimator's compile (OSError naming the output). UDP outputs bind nothing; a serial port is
+    opened by the daemon, which says why when it cannot."""
+    if url.startswith("tcpserver:"):
+        TcpServerTransport(url)._listening_socket().close()
 
 
 def open_transport(url: str):

@@ -277,18 +277,29 @@ class SampleReader:
         process's) or a sequence of ImuSamples (made a block: `SampleBlock.of`). Returns the last sample's time."""
         if type(block) is not SampleBlock:
             block = SampleBlock.of(block)
-        health, pipeline, out = self.health, self.pipeline, self.outputs
+        health, out = self.health, self.outputs
         if health.sensor_error:
             health.sensor_error = ""
             out.statustext(mavlink.MAV_SEVERITY_NOTICE, "ahrsd: sensor recovered")
-        est = None
-        reinitialised = False
-        listeners = self.listeners.fns
-        in_place = self.listeners.in_place
         log_put = out.raw_sink                # daemon.vehicle_log: a queue append, never blocks
         if log_put is not None:
             for raw in block:
                 log_put(raw)
+        est, reinitialised = self._estimate(block)
+        source = self.source
+        if source is None or not source.recording_time_base:   # samples in time order: count from the oldest
+            self._count_late(block, now - LATE_AFTER_S - (source.monotonic_offset_s if source is not None else 0.0))
+        self._bookkeep(block, est, reinitialised, now)
+        return block.t_s[-1]
+
+    def _estimate(self, block: SampleBlock):
+        """The pipeline over the block, each estimate handed to the listeners. Returns the last estimate (None
+        when the block gave none) and whether any sample of the block re-initialised the estimator."""
+        pipeline = self.pipeline
+        est = None
+        reinitialised = False
+        listeners = self.listeners.fns
+        in_place = self.listeners.in_place
         # the block stays columns: calibrated at once, only the calibrated samples built
         for est in pipeline.process_block(block):
             if est is not None and _int_and(est.flags, _REINITIALISED):
@@ -307,13 +318,19 @@ class SampleReader:
                     except Exception:  # noqa: BLE001 - a faulty listener is dropped, the reader carries on
                         log.exception("sample listener %r failed; removed", fn)
                         self.listeners.drop(fn)
-        source = self.source
-        if source is None or not source.recording_time_base:   # samples in time order: count from the oldest
-            ready_by = now - LATE_AFTER_S - (source.monotonic_offset_s if source is not None else 0.0)
-            for t_s in block.t_s:
-                if t_s >= ready_by:
-                    break
-                self.counters.late_samples += 1
+        return est, reinitialised
+
+    def _count_late(self, block: SampleBlock, ready_by: float) -> None:
+        """Count the block's samples that became ready before `ready_by` (used LATE_AFTER_S or more after)."""
+        for t_s in block.t_s:
+            if t_s >= ready_by:
+                break
+            self.counters.late_samples += 1
+
+    def _bookkeep(self, block: SampleBlock, est, reinitialised: bool, now: float) -> None:
+        """The health's view of the block just processed; a re-initialisation signalled, READY on the first good
+        estimate."""
+        health, out = self.health, self.outputs
         health.sample_read(now)
         health.last_sample_flags = block.flags[-1]
         if reinitialised:
@@ -324,7 +341,6 @@ class SampleReader:
                 self.ready_sent = True
                 out.ready()
                 log.info("first good estimate: READY")
-        return block.t_s[-1]
 
     def on_driver_error(self, exc: Exception) -> None:
         self.counters.driver_errors += 1

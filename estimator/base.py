@@ -45,14 +45,17 @@ class GnssAidedEstimator(Protocol):
     the fix and never raises on bad input; `gnss_counters` counts what became of the fixes offered (offered,
     fused_velocity, fused_position, rejected_velocity, rejected_position, …, `as_dict()`: estimator/ins.py
     GnssCounters); `lever_arm_m` is where it was told the antenna is (x, y, z from the IMU, body FRD, m), which a
-    report of rejected velocities names. The daemon's GNSS task offers it every accepted fix and watches its
-    innovation gate; replay merges a GNSS recording's fixes with the samples."""
+    report of rejected velocities names; `lever_arm_fit()` says whether its velocity innovations put the antenna
+    elsewhere (estimator/lever_arm_fit.py LeverArmFitResult, None before it can say). The daemon's GNSS task offers
+    it every accepted fix and watches its innovation gate; replay merges a GNSS recording's fixes with the samples."""
 
     name: str
     gnss_counters: object
     lever_arm_m: tuple[float, float, float]
 
     def update_gnss(self, fix: GnssFix) -> int: ...
+
+    def lever_arm_fit(self): ...
 
 
 @runtime_checkable

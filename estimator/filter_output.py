@@ -1,14 +1,16 @@
-"""What every filter hands out: the AttitudeEstimate of its output record, EstimateFlags from the kernels' int
-bits, the flags of the first estimate after an initialisation, the estimate of a filter that could not
-initialise yet, and where a field of an output record lies in its flat view. Shared by mekf and ins."""
+"""What every filter hands out: the AttitudeEstimate of its output record (and an aided filter's NavState),
+EstimateFlags from the kernels' int bits, the flags of the first estimate after an initialisation, the estimate of
+a filter that could not initialise yet, and where a field of an output record lies in its flat view. Shared by mekf
+and ins."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 
-from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState
+from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState, NavState
 
 _FLAG_CACHE: dict[int, EstimateFlags] = {}
 _TWO_PI = 2.0 * math.pi
@@ -80,3 +82,31 @@ def attitude_estimate(t_s: float, out: np.ndarray, fields: AttitudeFields, roll_
     return AttitudeEstimate(t_s, out[fields.q], roll_rad, pitch_rad, yaw_rad, yaw_rad % _TWO_PI,
                             heading_true_rad % _TWO_PI, out[fields.rate], out[fields.bias], out[fields.sigma],
                             estimate_flags(flag_bits), nav, heading_state, integrity)
+
+
+# NavState is a frozen dataclass with slots: its generated __init__ sets each field through object.__setattr__ (the
+# class's own __setattr__ raises), about twice what setting the slot through its descriptor costs, and ins builds one
+# with every estimate it builds. `nav_state` sets the slots directly; these are all its fields, in order, and
+# nothing else runs at construction (no __post_init__, every field an __init__ argument), else it must not.
+_NAV_FIELDS = ("vel_ned_m_s", "lat_deg", "lon_deg", "alt_m", "sigma_vel_m_s", "sigma_pos_m", "accel_bias_m_s2")
+if (tuple(f.name for f in dataclasses.fields(NavState)) != _NAV_FIELDS
+        or not all(f.init for f in dataclasses.fields(NavState)) or hasattr(NavState, "__post_init__")
+        or "__slots__" not in NavState.__dict__ or not NavState.__dataclass_params__.frozen):
+    raise TypeError("NavState changed: nav_state must set exactly its fields (estimator/filter_output.py)")
+_new_nav = object.__new__
+_set_vel, _set_lat, _set_lon, _set_alt, _set_sigma_vel, _set_sigma_pos, _set_accel_bias = (
+    getattr(NavState, name).__set__ for name in _NAV_FIELDS)
+
+
+def nav_state(vel_ned_m_s: np.ndarray, lat_deg: float, lon_deg: float, alt_m: float, sigma_vel_m_s: np.ndarray,
+              sigma_pos_m: np.ndarray, accel_bias_m_s2: np.ndarray) -> NavState:
+    """NavState(vel_ned_m_s, lat_deg, …, accel_bias_m_s2): the same object, built for half the cost (above)."""
+    n = _new_nav(NavState)
+    _set_vel(n, vel_ned_m_s)
+    _set_lat(n, lat_deg)
+    _set_lon(n, lon_deg)
+    _set_alt(n, alt_m)
+    _set_sigma_vel(n, sigma_vel_m_s)
+    _set_sigma_pos(n, sigma_pos_m)
+    _set_accel_bias(n, accel_bias_m_s2)
+    return n

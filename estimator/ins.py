@@ -24,7 +24,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 from scipy.special import chdtri   # χ² inverse survival function (scipy.stats costs 1.4 s to import)
 
-from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingIntegrity, HeadingState, NavState
+from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingIntegrity, HeadingState
 from ahrsd.core.gravity import EARTH_RATE_RAD_S
 from ahrsd.core.gnss import DEFAULT_H_ACC_M, DEFAULT_S_ACC_M_S, DEFAULT_V_ACC_M, GnssFix, GnssFixType
 from ahrsd.core.sample import ImuSample
@@ -39,10 +39,11 @@ from .gsf_yaw import GsfParams, gsf_fuse_velocity_of, gsf_output_of, gsf_reset, 
 from .heading_monitor import HeadingCheckRecord, HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
 from .heading_state_hold import HeadingStateHold
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
-                            float_field_slice, uninitialised_estimate)
+                            float_field_slice, nav_state, uninitialised_estimate)
 from .initial_attitude import initial_attitude
 from .kernel_entry import entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
+from .lever_arm_fit import LeverArmFit, LeverArmFitResult, rate_cross_ned
 from .mag_heading import RELEARN_GATE_OPEN_S
 from .mag_frame_tilt import N_MAG_FRAME_TILT, accel_bias_share
 from .mag_harmonics import prior_from_heading_rows, prior_variances_rad2
@@ -487,6 +488,15 @@ class Ins:
         # the same outputs as one flat float64 array: copied whole for an estimate (copying a record goes field
         # by field)
         self._out_flat = self._out_arr.view(np.float64)
+        # what the accelerometer axes' tilt term reads per built estimate (`_build_estimate`): the attitude and the
+        # low-passed specific force as flat float64 views of the state (a record field lookup costs more than the
+        # term), and its two kernels through their entry points (kernel_entry.py: called with these types only)
+        self._q_true = _float_field_view(self._x_arr, "q")
+        self._acc_ned_lp = _float_field_view(self._x_arr, "acc_ned_lp_m_s2")
+        self._dcm = entry_point(dcm, (dcm.typeof_pyval(1.0),) * 4)
+        axes_args = ((1.0,) * 9, 0.0, 0.0, -9.8, 0.0)
+        self._axes_tilt_variance = entry_point(accel_axes_tilt_variance_in_force_rad2, tuple(
+            accel_axes_tilt_variance_in_force_rad2.typeof_pyval(a) for a in axes_args))
         self._initialised = False
         self._reinit_pending = False
         self._pending_flags = 0
@@ -496,6 +506,7 @@ class Ins:
         # what the accelerometer's axes add to an aided heading's published variance (accel_axes_heading.py)
         self._accel_axes_var_rad2 = accel_axes_heading_variance_rad2(self.params.accel_axes_heading_sigma_rad)
         self.gnss_counters = GnssCounters()
+        self._lever_arm_fit = LeverArmFit()    # can the told antenna arm explain the velocity innovations?
         self._gsf_par_arr = _one_record_array(GsfParams(lever_arm_m=tuple(self.params.lever_arm_m)).to_record())
         self._gsf_arr = _one_record_array(new_gsf_state(GsfParams(), 0.0))
         self._gsf_par = self._gsf_par_arr[0]      # record views of the arrays the compiled step takes
@@ -551,9 +562,7 @@ class Ins:
                 (core._rotate_attitude, (x["q"], 0.0, 0.0, 0.0)),
                 (core._history_at, (x, self._hist, 0.0)),
                 (core.fill_outputs, (x, self._P, par, 0.0, 0.0, 0.0, self._out)),
-                (input_validity, (0,) + (0.0,) * 9),
-                (dcm, (1.0, 0.0, 0.0, 0.0)),
-                (accel_axes_tilt_variance_in_force_rad2, ((1.0,) + (0.0,) * 8, 0.0, 0.0, -9.8, 0.0))):
+                (input_validity, (0,) + (0.0,) * 9)):
             kernel.compile(tuple(kernel.typeof_pyval(a) for a in args))
         _PYTHON_CALLED_KERNELS_LOADED = True
 
@@ -580,6 +589,7 @@ class Ins:
         self._mag_rotation_on = p.mag_rotation_gyro_bias and p.heading_monitor and p.mag_enabled
         self._x["gyro_rotation_last_t_s"] = math.nan   # the kernel sums the gyro's rotation (ins_core.py)
         self._gnss_yaw_aligned = False     # the yaw was set to the first valid GNSS yaw (yaw_align_to_gnss_yaw)
+        self._gnss_yaw_valid_seen = False  # a GNSS yaw was valid (without a magnetometer, the alignment's chance)
         self._sigma_confirmed = False      # the published σ's floor is lifted (`_update_sigma_confirmation`)
         # the published yaw σ's floor until a GNSS yaw confirms the heading (aided only; updated at every check)
         self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(0.0, math.nan, math.nan)
@@ -630,6 +640,7 @@ class Ins:
         self._last_fix_t = -math.inf
         self._ever_aided = False
         self._published.reset()
+        self._lever_arm_fit.reset()
         self._new_heading_checks()
 
     # ----------------------------------------------------------------------- learned iron (persisted by the daemon)
@@ -1019,17 +1030,21 @@ class Ins:
         sig_s = _accuracy(s_acc, DEFAULT_S_ACC_M_S, p.min_s_acc_m_s)
         if use_vel:
             self._keep_fix_velocity(float(fix.t_s), v, use_vd, sig_s)
+            self._add_to_lever_arm_fit(float(fix.t_s), v, use_vd, sig_s)
+        vel_before = self._x["vel_ned_m_s"].copy()
         res = core.fuse_gnss(
             self._x_arr, self._P, self._hist, self._par_arr, float(fix.t_s),
             math.radians(lat) if use_pos else 0.0, math.radians(lon) if use_pos else 0.0,
             alt if use_alt else 0.0, v[0] if use_vel else 0.0, v[1] if use_vel else 0.0,
             v[2] if use_vd else 0.0, sig_h, sig_v, sig_s, use_pos, use_alt, use_vel, use_vd,
         )
+        if use_vel:
+            self._lever_arm_fit.fused(self._x["vel_ned_m_s"] - vel_before, bool(res & core.R_VEL_REJECTED))
         self._count_fuse_result(res, fix)
         if p.heading_monitor and p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
             self._check_heading(float(fix.t_s))
         elif not p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
-            self._floor_yaw_sigma_without_magnetometer()
+            self._floor_yaw_sigma_without_magnetometer(float(fix.t_s))
         return res
 
     def _read_fix(self, fix: GnssFix) -> tuple | None:
@@ -1072,6 +1087,26 @@ class Ins:
         self._last_fix_velocity = (t_s, vel, sig_s)
         if self.params.gnss_yaw:
             self._gsf_fuse_velocity(self._gsf_arr, self._gsf_par_arr, float(t_s), vel, float(sig_s))
+
+    def _add_to_lever_arm_fit(self, t_s: float, v: np.ndarray, use_vd: bool, sig_s: float) -> None:
+        """The fix's velocity innovation at the antenna the filter was told, before the fix is fused, from the
+        history row nearest its time of validity (the kernel interpolates; a row is 1/rate apart), for the
+        lever-arm check (lever_arm_fit.py)."""
+        n = int(self._x["hist_count"])
+        if n == 0:
+            return
+        rows = self._hist if n >= core.H_LEN else self._hist[:n]
+        k = int(np.argmin(np.abs(rows["t_s"] - t_s)))
+        row = rows[k]
+        c_bn = quat_to_dcm(row["q"])
+        rate_cross = rate_cross_ned(c_bn, row["rate_rad_s"])
+        innovation = np.array([v[0], v[1], v[2] if use_vd else math.nan]) - (
+            row["vel_ned_m_s"] + rate_cross @ np.asarray(self.params.lever_arm_m, dtype=float))
+        self._lever_arm_fit.add(t_s, innovation, rate_cross, sig_s)
+
+    def lever_arm_fit(self) -> LeverArmFitResult | None:
+        """The lever-arm check over the latest velocity fixes (lever_arm_fit.py), None before it has enough."""
+        return self._lever_arm_fit.result()
 
     def _count_fuse_result(self, res: int, fix: GnssFix) -> None:
         """Count and log what fuse_gnss did with the fix (its R_* bits) in gnss_counters; rejections flag
@@ -1334,7 +1369,7 @@ class Ins:
         if d.reset_yaw_to_rad is not None:
             self._reset_yaw(d.reset_yaw_to_rad - yaw, d.reset_yaw_var_rad2)
             return d.reset_yaw_to_rad
-        if self._gnss_yaw_alignment_due(gsf_valid):
+        if self._gnss_yaw_alignment_due(yaw, gsf_yaw, gsf_var, gsf_valid):
             self._align_yaw_to_gnss(t_s, gsf_yaw - yaw, gsf_var)
             return gsf_yaw
         if not self._heading_confirmed and gsf_valid and (self._calibration_untrusted or self._monitor.mag_rejected):
@@ -1457,17 +1492,37 @@ class Ins:
         # held at the check rate, so the state does not depend on how often estimates are built
         self._heading_state = self._state_hold.update(t_s, raw, sig)
 
-    def _gnss_yaw_alignment_due(self, gsf_valid: bool) -> bool:
-        """The first valid GNSS yaw, no trusted magnetometer calibration, the heading not yet confirmed: the
-        filter's yaw came from the magnetometer (tens of degrees off with a strong iron) and was pulled in by the
-        GNSS velocity through a linearised update, whose biases take up what the yaw error projects (docs/
-        estimator.md "A wrong heading must not teach the accelerometer bias"). `_reset_yaw` sets the yaw to the
-        GNSS yaw with its variance and gives the biases their start-up values back. An emergency reset at the same
-        fix (HeadingMonitor.check) does not count: the alignment follows at the next check, which resets the
-        velocity and the biases once more after the first update with the new yaw (measured, docs/estimator.md)."""
+    def _gnss_yaw_alignment_due(self, yaw_rad: float, gsf_yaw: float, gsf_var: float, gsf_valid: bool) -> bool:
+        """Whether the yaw is set, once per run, to the valid GNSS yaw (`_align_yaw_to_gnss`), with or without the
+        magnetometer (the one rule for both).
+        With the magnetometer: at the first valid GNSS yaw, no trusted magnetometer calibration, the heading not
+        yet confirmed: the filter's yaw came from the magnetometer (tens of degrees off with a strong iron) and was
+        pulled in by the GNSS velocity through a linearised update, whose biases take up what the yaw error
+        projects (docs/estimator.md "A wrong heading must not teach the accelerometer bias"). An emergency reset at
+        the same fix (HeadingMonitor.check) does not count: the alignment follows at the next check, which resets
+        the velocity and the biases once more after the first update with the new yaw (measured, docs/estimator.md).
+        Without it (mag_enabled off): at the first valid GNSS yaw, if the filter's yaw lies outside its 3σ
+        (`HeadingMonitor.gate_sigma` of the bank's σ alone: the filter's own variance, shrunk by the linearised
+        pull-in faster than its error, would widen the gate for a yaw nothing has confirmed, as for
+        `_unconfirmed_yaw_sigma`). The filter's yaw and its biases came from the same GNSS velocities as the bank's;
+        where the filter's is inside the bank's 3σ it is kept: setting it to the bank's would widen its variance to
+        the bank's and send the biases back to their start-up values, and on a boat's weak accelerations the
+        velocities then pull the yaw further off than it was. Outside it, the filter's linearised update has not
+        pulled its yaw in from the unknown start, and a yaw tens of degrees off makes the gate reject the very
+        velocities that would (a car accelerating away): it is set to the bank's, as PX4 EKF2 aligns its yaw to
+        the EKF-GSF without a magnetometer heading. Only at the first valid one: without the heading checks nothing
+        gives the bank the filter's gyro bias, so on a long run its yaw drifts while its σ shrinks, and it comes to
+        "disagree" with a right yaw (docs/estimator.md "Without a magnetometer: the yaw set to a GNSS yaw that
+        disagrees").
+        `_reset_yaw` sets the yaw to the GNSS yaw with its variance and gives the biases, learned against the
+        wrong yaw, their start-up values back."""
         p = self.params
-        return (p.yaw_align_to_gnss_yaw and gsf_valid and not self._gnss_yaw_aligned
-                and not self._heading_confirmed and self._calibration_untrusted)
+        if not (p.yaw_align_to_gnss_yaw and gsf_valid and not self._gnss_yaw_aligned):
+            return False
+        if not p.mag_enabled:
+            outside = wrap_pi(gsf_yaw - yaw_rad) ** 2 > self._monitor.gate_sigma ** 2 * gsf_var
+            return outside and not self._gnss_yaw_valid_seen
+        return not self._heading_confirmed and self._calibration_untrusted
 
     def _gnss_yaw_agrees(self, yaw_rad: float, gsf_yaw: float, gsf_var: float) -> bool:
         """The GNSS yaw is within the monitor's gate of the filter's yaw, with their joint variance."""
@@ -1502,16 +1557,22 @@ class Ins:
             return math.nan
         return _gnss_yaw_floor(yaw_rad, gsf_yaw, gsf_var)
 
-    def _floor_yaw_sigma_without_magnetometer(self) -> None:
+    def _floor_yaw_sigma_without_magnetometer(self, t_s: float) -> None:
         """No magnetometer (mag_enabled off): the yaw comes from the GNSS velocity alone, pulled in from an unknown
         start (1σ π) through linearised updates, whose variance shrinks faster than the error on a boat's weak
-        accelerations (docs/estimator.md "Known limits: ins on level turns"). The heading checks do not run (they weigh a
-        magnetometer), so nothing ever confirms this yaw: its published 1σ is at least the GNSS yaw bank's
-        plus the distance to it, as an unconfirmed heading's (`_unconfirmed_yaw_sigma`), at every fused fix."""
+        accelerations (docs/estimator.md "Known limits: ins on level turns"), and which, tens of degrees off, reject
+        the velocities that would pull it in: if the first valid GNSS yaw disagrees with it, it is set to that yaw
+        (`_gnss_yaw_alignment_due`). The heading checks do not run (they weigh a magnetometer), so nothing ever
+        confirms this yaw: its published 1σ is at least the GNSS yaw bank's plus the distance to it, as an
+        unconfirmed heading's (`_unconfirmed_yaw_sigma`), at every fused fix."""
         if not (self.params.gnss_yaw and self.params.heading_monitor):
             return
         yaw = float(quat_to_euler(self._x["q"])[2])
-        gsf_yaw, gsf_var, _ = self._gnss_yaw()
+        gsf_yaw, gsf_var, gsf_valid = self._gnss_yaw()
+        if self._gnss_yaw_alignment_due(yaw, gsf_yaw, gsf_var, gsf_valid):
+            self._align_yaw_to_gnss(t_s, gsf_yaw - yaw, gsf_var)
+            yaw = gsf_yaw
+        self._gnss_yaw_valid_seen = self._gnss_yaw_valid_seen or gsf_valid
         self._unconfirmed_sigma_rad = _gnss_yaw_floor(yaw, gsf_yaw, gsf_var)
 
     @property
@@ -1791,6 +1852,11 @@ class Ins:
         if self._unconfirmed_sigma_rad > sigma_yaw and self._nav_ok[0] > 0.0:
             sigma_yaw = self._unconfirmed_sigma_rad        # _unconfirmed_yaw_sigma says why
             o[_OUT_SIGMA_YAW] = sigma_yaw
+        if self._lever_arm_fit.arm_wrong:
+            # the GNSS velocities fit another antenna place than the one told (lever_arm_fit.py): the heading they
+            # held, and the GNSS yaw bank's, are bent by an error no state models: unknown until the arm is right
+            sigma_yaw = math.pi
+            o[_OUT_SIGMA_YAW] = sigma_yaw
         if not self._ever_aided and self.params.mag_enabled:
             # no GNSS yet: the magnetometer calibration is the only heading reference and its error is not in
             # the filter's σ (the checks that would show it need GNSS): calibration_heading.py
@@ -1811,10 +1877,10 @@ class Ins:
         # states', already in the filter's σ
         var_roll = var_pitch = 0.0
         if self.params.accel_axes_tilt_sigma_rad > 0.0:
-            q0, q1, q2, q3 = self._x["q"].tolist()
-            fn, fe, fd = self._x["acc_ned_lp_m_s2"].tolist()
-            axes_roll, axes_pitch = accel_axes_tilt_variance_in_force_rad2(dcm(q0, q1, q2, q3), fn, fe, fd,
-                                                                           self.params.accel_axes_tilt_sigma_rad)
+            q0, q1, q2, q3 = self._q_true.tolist()
+            fn, fe, fd = self._acc_ned_lp.tolist()
+            axes_roll, axes_pitch = self._axes_tilt_variance(self._dcm(q0, q1, q2, q3), fn, fe, fd,
+                                                             float(self.params.accel_axes_tilt_sigma_rad))
             var_roll, var_pitch = var_roll + axes_roll, var_pitch + axes_pitch
         if var_roll > 0.0 or var_pitch > 0.0:
             sig_roll, sig_pitch = o[_OUT_SIGMA.start], o[_OUT_SIGMA.start + 1]
@@ -1836,7 +1902,7 @@ class Ins:
         nav = None
         if self._nav_ok[0] > 0.0:
             lat, lon, h = o[_OUT_LAT_LON_H].tolist()
-            nav = NavState(
+            nav = nav_state(
                 o[_OUT_VEL],
                 math.degrees(lat),
                 (math.degrees(lon) + 180.0) % 360.0 - 180.0,
@@ -1876,6 +1942,14 @@ def _gnss_yaw_floor(yaw_rad: float, gsf_yaw: float, gsf_var: float) -> float:
     if not (math.isfinite(gsf_yaw) and math.isfinite(gsf_var)):
         return math.pi
     return math.sqrt(gsf_var + wrap_pi(gsf_yaw - yaw_rad) ** 2)
+
+
+def _float_field_view(records: np.ndarray, name: str) -> np.ndarray:
+    """The float64 field `name` of the first record of `records` as a flat float64 array sharing its memory."""
+    sub, offset = records.dtype.fields[name][:2]
+    if sub.base != np.float64:
+        raise TypeError(f"{name}: not a float64 field")
+    return np.ndarray(sub.itemsize // 8, np.float64, records, offset)
 
 
 def _one_record_array(record) -> np.recarray:

@@ -13,7 +13,7 @@ caller validates them first (drivers.gnss.validation), as the daemon does.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 
 import numpy as np
 
@@ -54,7 +54,8 @@ _DEG = 180.0 / math.pi
 
 def replay_attitude(estimator: Estimator, samples: Iterable[ImuSample], true_north: bool = False,
                     chunk_rows: int = CHUNK_ROWS, fixes: Iterable[GnssFix] | None = None,
-                    field_circle: FieldCircleColumns | None = None) -> Iterator[np.ndarray]:
+                    field_circle: FieldCircleColumns | None = None,
+                    on_estimate: Callable[[object], None] | None = None) -> Iterator[np.ndarray]:
     """Feed `samples` to `estimator.update` in order and yield the output as float64 tables of at most
     `chunk_rows` rows × len(ATTITUDE_COLUMNS) (+ len(NAV_COLUMNS) with `fixes`).
 
@@ -65,11 +66,12 @@ def replay_attitude(estimator: Estimator, samples: Iterable[ImuSample], true_nor
     with the samples; the table then ends with NAV_COLUMNS and HEADING_COLUMNS.
     field_circle: this estimator's calibration check (`field_circle_columns`); with it the table ends with
     FIELD_CIRCLE_COLUMNS.
+    on_estimate: called with each sample's estimate (e.g. a velocity_rejection_watch.RejectionWatch).
     """
     if fixes is not None and not isinstance(estimator, GnssAidedEstimator):
         raise ValueError(f"estimator {estimator.name!r} takes no GNSS fixes (not aided)")
     feed = GnssFixFeed(estimator, fixes) if fixes is not None else None
-    for rows in _row_chunks(estimator, samples, feed, field_circle, chunk_rows):
+    for rows in _row_chunks(estimator, samples, feed, field_circle, chunk_rows, on_estimate):
         yield _finish_table(rows, true_north)
 
 
@@ -105,7 +107,8 @@ def field_circle_columns(estimator: Estimator, calibration_sigma_rad: float | No
 
 
 def _row_chunks(estimator: Estimator, samples: Iterable[ImuSample], feed: GnssFixFeed | None,
-                field_circle: FieldCircleColumns | None, chunk_rows: int) -> Iterator[list[tuple]]:
+                field_circle: FieldCircleColumns | None, chunk_rows: int,
+                on_estimate: Callable[[object], None] | None = None) -> Iterator[list[tuple]]:
     """The table's rows, one per sample (the fixes due before it offered first, then its estimate), in lists of
     at most `chunk_rows` (memory stays constant for long recordings)."""
     update = estimator.update
@@ -114,6 +117,8 @@ def _row_chunks(estimator: Estimator, samples: Iterable[ImuSample], feed: GnssFi
         if feed is not None:
             feed.offer_until(sample.t_s)
         est = update(sample)
+        if on_estimate is not None:
+            on_estimate(est)
         row = _attitude_columns(sample.t_s, est)
         if feed is not None:
             row += _aided_columns(est)

@@ -10,14 +10,21 @@ rejected until the heading is found (Groves, Principles of GNSS, Inertial, and M
 Systems, 2nd ed., §14.2.1: the heading is observed through the GNSS velocity only in accelerations). So the
 heading is named when, at the rejections, the heading was not one the filter could trust:
 
-- the magnetometer was rejected for a step of its heading the gyro did not see (an iron that changed);
+- the magnetometer was rejected for a step of its heading the gyro did not see (an iron that changed: the gyro and
+  the magnetometer say so without the GNSS);
+
+and, unless the lever-arm check (lever_arm_fit.py) finds that a wrong antenna arm explains the velocity innovations
+— a wrong arm also turns the GNSS yaw bank's yaw (it takes the same velocities through the same arm), so a
+magnetometer disagreeing with it, and a heading not yet found or just reset, then say nothing of the cause —
+
 - the magnetometer disagreed with the GNSS(-held) heading;
 - the yaw was reset (or first aligned) to the GNSS yaw within YAW_RESET_CAUSE_S: the filter's velocity and
   accelerometer-bias states still carry the wrong heading's integration;
 - the heading was unknown (none published yet: a filter without a magnetometer heading before the GNSS yaw was
   found).
 
-The lever arm and the time stamps are named only when none of these held.
+The lever arm and the time stamps are named when none of these held, or when the lever-arm check explains the
+rejections and the iron did not step.
 """
 
 from __future__ import annotations
@@ -41,14 +48,17 @@ KEYS = ("iron step", "mag disagrees", "heading reset", "heading unknown")
 
 def heading_rejection_cause(*, iron_step_rad: float = math.nan, mag_inconsistent: bool = False,
                             disagreement_rad: float = math.nan, since_yaw_reset_s: float = math.inf,
-                            heading_unknown: bool = False) -> HeadingCause | None:
+                            heading_unknown: bool = False, lever_arm_explains: bool = False) -> HeadingCause | None:
     """The heading as the cause of rejected GNSS velocities, or None when the heading cannot explain them (then the
     lever arm or the time stamps). `iron_step_rad`: the magnetometer is rejected for this step of its heading
     (NaN: not); `mag_inconsistent`: it disagrees with the GNSS(-held) heading, by `disagreement_rad` (NaN: no
     valid GNSS yaw to say by how much); `since_yaw_reset_s`: since the yaw was last reset to the GNSS yaw (inf:
-    never); `heading_unknown`: no heading known yet."""
+    never); `heading_unknown`: no heading known yet; `lever_arm_explains`: the lever-arm check (lever_arm_fit.py)
+    finds the told antenna arm wrong by enough to explain the innovations."""
     if math.isfinite(iron_step_rad):
         return HeadingCause("iron step", f"mag iron step {math.degrees(iron_step_rad):+.0f}°")
+    if lever_arm_explains:
+        return None
     if mag_inconsistent:
         return HeadingCause("mag disagrees", f"mag vs GNSS {abs(math.degrees(disagreement_rad)):.0f}°"
                             if math.isfinite(disagreement_rad) else "mag rejected")

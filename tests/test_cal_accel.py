@@ -30,6 +30,7 @@ from ahrsd.simulation import DEFAULT_SITE, SensorErrors, simulate
 from ahrsd.simulation.scenarios import Static
 
 from support.accel_positions import roll_pitch_for_up, up_vectors
+from support.gravity_worked_values import GRAVITY_WORKED_VALUES
 
 G = DEFAULT_SITE.gravity_m_s2
 TOL_BIAS = 5e-3
@@ -159,11 +160,6 @@ def test_a_position_taken_while_moving_is_refused():
     raw[3] *= 1.05  # someone bumped the table
     res = fit_accel(raw, G)
     assert not res.ok and "residual" in res.refused and "position 4 of 26" in res.refused
-
-
-# worked values of the 1980 International Gravity Formula × (R0/(R0+h))²: g(L, 0) and g(L, 1000 m) in m/s²
-GRAVITY_WORKED_VALUES = [(0.0, 9.780327, 9.777261), (30.0, 9.793249, 9.790179), (35.7, 9.797935, 9.794864),
-                   (45.0, 9.806200, 9.803126), (60.0, 9.819179, 9.816101), (90.0, 9.832186, 9.829104)]
 
 
 def somigliana_m_s2(lat_deg: float, alt_m: float) -> float:

@@ -106,6 +106,23 @@ def test_each_sensor_is_merged_into_the_stored_calibration(recordings, tmp_path,
     assert prev.accel.bias_m_s2.tolist() == [0.0, 0.0, 0.0] and prev.gyro.matrix.tolist() == gyro["matrix"]
 
 
+def test_the_gyro_and_accel_reports_put_the_fits_figures_under_details_without_internals(recordings, tmp_path,
+                                                                                          ahrsd_inproc):
+    """issue 30 item 8's order for the other sensors too (walk28 saw `calibrate gyro` and `calibrate accel` end
+    with bare `n_used: …` and `lm_status: 4` lines after the model): the model first, then "details:" with the
+    fit's own figures, the least-squares exit code left out."""
+    for sensor, rec, extra in (("gyro", recordings["table"], ()),
+                               ("accel", recordings["positions"], ("--lat", DEFAULT_SITE.lat_deg))):
+        out = ahrsd_inproc(sensor, rec, *extra, "--state-dir", tmp_path / sensor, "--dry-run", check_rc=0).stdout
+        lines = out.splitlines()
+        assert "  details:" in lines, out
+        after = lines[lines.index("  details:") + 1:]
+        key = {"gyro": "    condition_number: ", "accel": "    positions: "}[sensor]   # a fit figure of each
+        assert any(x.startswith(key) for x in after), out
+        assert not any(x.startswith(key[2:]) for x in lines) and "lm_status" not in out, out
+        assert lines[-1] == "  not saved (--dry-run)", out
+
+
 def test_three_step_with_alignment_recording(recordings, tmp_path, ahrsd_inproc):
     """The thesis's full magnetometer chain from the command line: three-step on a tumble, alignment from the
     rate table's levelled turns (same unit, same magnetic environment) → the full soft iron."""

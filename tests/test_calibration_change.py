@@ -207,3 +207,50 @@ def test_a_first_calibration_from_unknown_sends_the_estimators_heading_without_a
     texts = [r.getMessage() for r in caplog.records]
     assert not any("slew" in x for x in texts), texts
     assert not svc.heading_slew.active and svc.heading_slew.ended_why == "nothing sent before"
+
+
+def test_the_standby_after_a_calibration_change_says_the_heading_converges_on_it_not_initialising(tmp_path):
+    """walk27: after MAVProxy's `magcal start` (autosave) the daemon said "STANDBY: initialising, no heading out"
+    between CALIBRATING and ACTIVE, as if the estimator had restarted. It had not: the swap widens the filter's
+    heading variance to cover the change (relearn_field_reference) and INITIALISING holds while that 1σ is above
+    its convergence threshold (kernel_flags.py), the VPE withheld meanwhile. The daemon's path here: the real
+    mekf, the first calibration of the tour's uncalibrated boat applied through Service.apply_calibration, the
+    heading status updated as the housekeeping does. Before the change and at the first start it is
+    "initialising"; after it, while INITIALISING, "heading converging on the new calibration"."""
+    from ahrsd.daemon.config import EndpointConfig
+    from service_rig import start_service_on, stop_service
+
+    svc, loop = start_service_on((EndpointConfig("udpout:127.0.0.1:9"),), tmp_path)   # mekf, no calibration
+    try:
+        details = _standby_details_around_a_first_calibration(svc)
+    finally:
+        stop_service(svc, loop)
+    first = [d for t, init, d in details if init and t < 30.0]
+    after = [d for t, init, d in details if init and t >= 30.0]
+    assert first and all(d == "initialising, no heading out" for d in first), first
+    assert after, "the change did not widen the heading past convergence: nothing to say (the case walk27 saw)"
+    assert all(d == "heading converging on the new calibration, no heading out" for d in after), after
+    assert not details[-1][1]                         # converged again before the end
+
+
+def _standby_details_around_a_first_calibration(svc, swap_s=30.0, end_s=40.0, tick_s=0.1):
+    """(t, INITIALISING, MAV_STATE STANDBY's detail) at the housekeeping's rate over the level turns, the true
+    iron applied at `swap_s` through the daemon's one calibration path."""
+    stream = _level_turns(3)
+    e = stream.errors
+    corrected = Calibration.identity().with_sensor("mag", MagModel(e.hard_iron_ut, np.linalg.inv(e.soft_iron)),
+                                                   method="test", heading_std_deg=0.5, offset_std_deg=0.2)
+    details, next_tick, swapped = [], 0.0, False
+    for _i, t, s in stream.until(end_s):
+        if t >= end_s:
+            break
+        if not swapped and t >= swap_s:
+            svc.apply_calibration(corrected, save=False, reason="test")
+            swapped = True
+        svc.reader.process((s,), t)
+        if t >= next_tick:                           # the housekeeping's heading status, at its rate
+            next_tick = t + tick_s
+            svc._update_heading_status(t)
+            est = svc.pipeline.last_estimate
+            details.append((t, bool(est.flags & EstimateFlags.INITIALISING), svc.heading_status.standby_detail()))
+    return details

@@ -22,10 +22,16 @@ def test_this_tree_is_clean():
     assert r.returncode == 0, r.stdout
 
 
-def _tree(tmp_path: Path, source: str) -> Path:
-    (tmp_path / "daemon").mkdir()
-    (tmp_path / "daemon" / "bad.py").write_text(source)
+def _files(tmp_path: Path, sources: dict[str, str]) -> Path:
+    """A tree with each source at its path below tmp_path (directories made as needed)."""
+    for name, source in sources.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(source)
     return tmp_path
+
+
+def _tree(tmp_path: Path, source: str) -> Path:
+    return _files(tmp_path, {"daemon/bad.py": source})
 
 
 def test_a_class_of_mixins_fails(tmp_path):
@@ -202,13 +208,9 @@ def test_a_forwarding_wrapper_fails_in_every_package_and_in_tests_and_a_lazy_mod
         def __getattr__(name):
             raise AttributeError(name)
         """))
-    (tmp_path / "daemon").mkdir()
-    (tmp_path / "daemon" / "bad.py").write_text("class View:\n    def __getattr__(self, name):\n        return 0\n")
-    (tmp_path / "estimator").mkdir()
-    (tmp_path / "estimator" / "view.py").write_text("class View:\n    def __getattr__(self, name):\n        return 0\n")
-    (tmp_path / "tests").mkdir()
-    (tmp_path / "tests" / "test_fake.py").write_text("class Bus:\n    def __getattr__(self, name):\n        return 0\n")
-    r = run(tmp_path)
+    forwards = "class {}:\n    def __getattr__(self, name):\n        return 0\n"
+    r = run(_files(tmp_path, {"daemon/bad.py": forwards.format("View"), "estimator/view.py": forwards.format("View"),
+                              "tests/test_fake.py": forwards.format("Bus")}))
     assert r.returncode == 1
     assert "drivers/bad.py:4: class Wrapper forwards every attribute" in r.stdout
     assert "daemon/bad.py:2: class View forwards every attribute" in r.stdout
@@ -267,11 +269,8 @@ def test_a_comment_or_docstring_naming_a_session_fails_in_every_package_but_a_st
         def g():
             return "mag-cal session 2 accepted"
         '''))
-    (tmp_path / "cli").mkdir()
-    (tmp_path / "cli" / "bad.py").write_text("x = 1\n# why: the operator's prompt waits for an answer (Session 7)\n")
-    (tmp_path / "tests").mkdir()
-    (tmp_path / "tests" / "test_ok.py").write_text('"""Found on session 23\'s walk."""\n')
-    r = run(tmp_path)
+    r = run(_files(tmp_path, {"cli/bad.py": "x = 1\n# why: the operator's prompt waits for an answer (Session 7)\n",
+                              "tests/test_ok.py": '"""Found on session 23\'s walk."""\n'}))
     assert r.returncode == 1
     for at in ("daemon/bad.py:1:", "daemon/bad.py:3:", "daemon/bad.py:4:", "cli/bad.py:2:"):
         assert f"{at} a comment names a session" in r.stdout, (at, r.stdout)
@@ -283,14 +282,24 @@ def test_a_fake_class_fails_in_every_package_but_not_in_tests(tmp_path):
     """Rule 12, the shape daemon.magcal had: a `_FakeCommand` forged for its own handler lacked the `command`
     field CommandArgs.of reads, and PREFLIGHT_CALIBRATION's magnetometer path failed for it. A name that only
     contains the word and tests/ are not this rule's."""
-    (tmp_path / "daemon").mkdir()
-    (tmp_path / "daemon" / "bad.py").write_text(
-        "class _FakeCommand:\n    pass\nclass DummyLink:\n    pass\nclass MockClock:\n    pass\n"
-        "class StubSource:\n    pass\nclass FakeryReport:\n    pass\nclass NoFakeHere:\n    pass\n")
-    (tmp_path / "tests").mkdir()
-    (tmp_path / "tests" / "test_ok.py").write_text("class FakeHost:\n    pass\n")
-    r = run(tmp_path)
+    r = run(_files(tmp_path, {
+        "daemon/bad.py": "class _FakeCommand:\n    pass\nclass DummyLink:\n    pass\nclass MockClock:\n    pass\n"
+                         "class StubSource:\n    pass\nclass FakeryReport:\n    pass\nclass NoFakeHere:\n    pass\n",
+        "tests/test_ok.py": "class FakeHost:\n    pass\n"}))
     assert r.returncode == 1
     for at in ("bad.py:1:", "bad.py:3:", "bad.py:5:", "bad.py:7:"):
         assert f"{at} class " in r.stdout and "is a fake" in r.stdout.split(at)[1].splitlines()[0], (at, r.stdout)
     assert r.stdout.count("is a fake") == 4, r.stdout
+
+
+def test_a_test_module_imported_by_another_fails_and_tests_support_passes(tmp_path):
+    """Rule 13, the shape eight test modules had (`from test_field_circle import _run`, one inside a function):
+    what tests share lives in tests/support/."""
+    r = run(_files(tmp_path, {
+        "tests/test_a.py": "import test_b\nfrom test_c import helper\nfrom support.rig import rig\n"
+                           "import testing_tools\ndef test_x():\n    from test_d.sub import y\n",
+        "tests/support/rig.py": "from support.other import thing\n"}))
+    assert r.returncode == 1
+    for at, name in (("test_a.py:1:", "test_b"), ("test_a.py:2:", "test_c"), ("test_a.py:6:", "test_d.sub")):
+        assert f"{at} imports the test module {name} " in r.stdout, (at, r.stdout)
+    assert r.stdout.count("imports the test module") == 3, r.stdout

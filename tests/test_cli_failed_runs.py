@@ -82,6 +82,50 @@ def test_run_with_a_signing_key_it_cannot_read_fails_at_once_in_one_line(tmp_pat
         assert len(lines) == 1 and lines[0].startswith(f"ahrsd run: error: signing.key_file {key}: {why}"), r.stderr
 
 
+def test_run_with_a_mavlink_server_address_it_cannot_have_fails_at_once_in_one_line(tmp_path):
+    """`--mavlink udpin:` on an address that is not this machine's, and `tcpin:` (or `--nmea tcpserver:`) on a
+    port another socket listens on: one line naming the endpoint and the reason, exit 1, before the compile
+    (walk27: exit 1, but as an ERROR log line after the compile and the start-up lines, "[Errno 99]" first)."""
+    import socket
+
+    rec = write_rows(tmp_path / "rec.csv", 100)
+    taken = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    taken.bind(("127.0.0.1", 0))
+    taken.listen(1)
+    port = taken.getsockname()[1]
+    try:
+        for url, why in (("udpin:192.0.2.1:14550", "Cannot assign requested address"),   # TEST-NET-1
+                         (f"tcpin:127.0.0.1:{port}", "Address already in use")):
+            r = ahrsd("run", "--replay", rec, "--no-log", "--status-line", "off", "--state-dir", tmp_path / "s",
+                      "--mavlink", "udpout:127.0.0.1:9", "--mavlink", url)
+            assert r.returncode == 1
+            assert r.stderr.strip().splitlines() == [f"ahrsd run: error: MAVLink endpoint {url}: {why}"], r.stderr
+        # an NMEA TCP server output on the taken port: the same, naming the output (was: after the compile)
+        r = ahrsd("run", "--replay", rec, "--no-log", "--status-line", "off", "--state-dir", tmp_path / "s",
+                  "--mavlink", "udpout:127.0.0.1:9", "--nmea", f"tcpserver:127.0.0.1:{port}")
+        assert r.returncode == 1
+        assert r.stderr.strip().splitlines() == [f"ahrsd run: error: NMEA output tcpserver:127.0.0.1:{port}: cannot "
+                                                 f"listen on 127.0.0.1:{port}: Address already in use"], r.stderr
+    finally:
+        taken.close()
+
+
+def test_the_daemons_own_endpoint_error_names_the_endpoint_without_the_errno_first():
+    """The daemon's start (daemon.service: "ahrsd cannot start: …") meets the same error when the address goes
+    between the command's check and the start: the same text."""
+    import asyncio
+
+    from ahrsd.daemon.mavlink_io import Endpoint, EndpointOpenError
+
+    loop = asyncio.new_event_loop()
+    try:
+        with pytest.raises(EndpointOpenError) as err:
+            Endpoint("udpin:192.0.2.1:14550", 1, 200, lambda _ep, _msg: None).open(loop)
+    finally:
+        loop.close()
+    assert str(err.value) == "MAVLink endpoint udpin:192.0.2.1:14550: Cannot assign requested address"
+
+
 def test_run_replay_that_meets_a_bad_row_exits_non_zero_and_a_cut_one_replays_to_the_end(tmp_path, cut_file):
     bad = write_rows(tmp_path / "bad_row.csv", 1000, tail="0.3,1,2\n" + ROW.format(t=0.31))
     common = ("--no-log", "--status-line", "off", "--state-dir", tmp_path / "s", "--mavlink", "udpout:127.0.0.1:9",

@@ -2,12 +2,12 @@
 the fit restarted from the fields after it and the new correction reached within a stated time (issue 28;
 estimator/field_circle_change.py, field_circle.py, mekf).
 
-The vehicle is test_field_circle's level vehicle (H = 20 µT, the calibration claims 0.5°), with the truth (its
-heading, the iron in the field) from scipy and the simulation, never from the code under test. After the step it
-drives a zigzag between two headings 90° apart — the car's case: a few headings, never the 270° the circle fit
-needs to judge again, so without the change point the fit's centre moves only as its 300 s window forgets.
-Checked: the step is found and the correction reaches the new iron within 60 s; σ covers the heading error
-throughout; the published heading does not step; a right calibration never restarts the fit in a long run; the
+The vehicle is test_field_circle's level vehicle (tests/support/turning_in_place.py: H = 20 µT, the calibration
+claims 0.5°), with the truth (its heading, the iron in the field) from scipy and the simulation, never from the code
+under test. After the step it drives a zigzag between two headings 90° apart — the car's case: a few headings, never
+the 270° the circle fit needs to judge again, so without the change point the fit's centre moves only as its 300 s
+window forgets. Checked: the step is found and the correction reaches the new iron within 60 s; σ covers the heading
+error throughout; the published heading does not step; a right calibration never restarts the fit in a long run; the
 CUSUM's threshold gives the false-alarm rate it states (Brook–Evans Markov chain with scipy's χ²₁).
 """
 
@@ -18,11 +18,11 @@ import math
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from test_field_circle import CLAIMED_SIGMA_RAD, H_UT, RATE_HZ, _levelled_fields, _run, _turning
 
 from ahrsd.estimator.field_circle import FieldCircleCheck
 from ahrsd.estimator.field_circle_change import CircleChangeParams, reference_k
 from ahrsd.estimator.mekf import Mekf
+from support.turning_in_place import H_UT, RATE_HZ, levelled_fields, run_turning, turning_headings
 
 STEP_S = 200.0                            # the iron moves here, after 800° of turning at 4 °/s
 STEP_UT = (4.0, -4.5, 3.0)                # the iron's move, body x, y, z (6.0 µT horizontally: up to ±17.5°)
@@ -46,7 +46,7 @@ def _iron_step(t):
 
 def _stepped_run(estimator, seconds=SECONDS):
     t = np.arange(0.0, seconds, 1.0 / RATE_HZ)
-    return _run(estimator, _iron_step(t), seconds=seconds, yaw_rate_rad_s=_zigzag_after_step)
+    return run_turning(estimator, _iron_step(t), seconds=seconds, yaw_rate_rad_s=_zigzag_after_step)
 
 
 def test_the_threshold_gives_the_false_alarm_rate_it_states():
@@ -81,7 +81,7 @@ def test_a_moved_iron_is_found_where_it_moved_and_its_centre_on_the_old_radius()
     # 200 s of full turns with a right calibration, then the iron moves by (−5.2, −3.0) µT and the vehicle keeps to
     # a 120° arc (test_field_circle's mixed-circle case): found, the fit restarted from the fields after the move
     check = FieldCircleCheck()
-    _levelled_fields(check, _turning(200.0), (0.0, 0.0), noise_ut=0.1)
+    levelled_fields(check, turning_headings(200.0), (0.0, 0.0), noise_ut=0.1)
     assert check.restarts == 0
     arc = 0.3 + math.radians(120.0) * (0.5 + 0.5 * np.sin(np.linspace(0.0, 2.0 * math.pi, 200)))
     rng = np.random.default_rng(4)
@@ -148,7 +148,7 @@ def test_without_the_change_point_the_moved_iron_is_not_reached():
 def test_a_right_calibration_never_restarts_the_fit():
     """A long run (1200 s: 200 s of turns, then 1000 s of the zigzag) with the iron where the calibration says:
     never a restart, never a correction."""
-    t, err, sig, ests, f = _run(Mekf, (0.0, 0.0), seconds=1200.0, yaw_rate_rad_s=_zigzag_after_step)
+    t, err, sig, ests, f = run_turning(Mekf, (0.0, 0.0), seconds=1200.0, yaw_rate_rad_s=_zigzag_after_step)
     assert all(fc.restarts == 0 and fc.correction_ut == (0.0, 0.0) for _, fc in ests)
     assert not f._iron.active
 
@@ -169,7 +169,7 @@ def test_a_move_seen_from_one_heading_leaves_its_unseen_part_in_sigma():
     by √(20² + 8²) − 20 = 1.54 µT, enough for the change point (held 60 s); that radial 1.54 µT alone would give
     σ = asin(1.54/20)/√2 = 3.1°, 3σ = 9.4° < 21.8°."""
     check = FieldCircleCheck()
-    _levelled_fields(check, _turning(200.0), (0.0, 0.0), noise_ut=0.1)
+    levelled_fields(check, turning_headings(200.0), (0.0, 0.0), noise_ut=0.1)
     psi = math.radians(40.0)
     along, across = np.array([math.cos(psi), math.sin(psi)]), np.array([-math.sin(psi), math.cos(psi)])
     rng = np.random.default_rng(5)
@@ -225,7 +225,7 @@ def test_a_vertical_move_is_found_at_any_heading():
     0.02·(32.7 − 2.56) = 0.60 a field and passes 16 after 27 fields: found within 3 s of the move (the horizontal
     CUSUM alone: after 35.7 s)."""
     check = FieldCircleCheck()
-    _levelled_fields(check, _turning(200.0), (0.0, 0.0), noise_ut=0.1)
+    levelled_fields(check, turning_headings(200.0), (0.0, 0.0), noise_ut=0.1)
     psi = math.radians(40.0)
     along, across = np.array([math.cos(psi), math.sin(psi)]), np.array([-math.sin(psi), math.cos(psi)])
     rng = np.random.default_rng(5)
@@ -247,7 +247,7 @@ def test_the_first_judgement_of_the_restarted_fit_keeps_its_centre_in_sigma():
     seconds = 420.0
     t = np.arange(0.0, seconds, 1.0 / RATE_HZ)
     iron = np.where((t >= STEP_S)[:, None], np.array([5.2, 3.0]), 0.0)
-    t, err, sig, ests, f = _run(lambda **kw: Mekf(mag_field_circle_correction=False, **kw), iron, seconds=seconds)
+    t, err, sig, ests, f = run_turning(lambda **kw: Mekf(mag_field_circle_correction=False, **kw), iron, seconds=seconds)
     assert ests[-1][1].restarts == 1 and ests[-1][1].covered
     after = t >= STEP_S
     assert np.all(np.abs(err[after]) <= 3.0 * sig[after])

@@ -1,12 +1,13 @@
 """The hard iron a wrong calibration left, learned from the turns without GNSS and removed (issue 28;
 estimator/field_circle_correction.py, mekf).
 
-The vehicle and its truth are test_field_circle's: a level vehicle turning in place at 4 °/s whose calibration
-leaves a hard iron of (5.2, 3.0) µT in the field (6 µT against H = 20 µT: up to ±17.5° of heading) while it
-claims 0.5°; attitude and heading error from scipy, never from the code under test. Checked: the correction
-learned is the iron given, the heading error after it is small, σ covers the error from the first flag on, the
-published heading does not step, the daemon says what was done; a right calibration runs bit for bit as without
-the learning. The correction's own rules against worked numbers: its slew rate and its turn into the body frame.
+The vehicle and its truth are test_field_circle's (tests/support/turning_in_place.py): a level vehicle turning in
+place at 4 °/s whose calibration leaves a hard iron of (5.2, 3.0) µT in the field (6 µT against H = 20 µT: up to
+±17.5° of heading) while it claims 0.5°; attitude and heading error from scipy, never from the code under test.
+Checked: the correction learned is the iron given, the heading error after it is small, σ covers the error from the
+first flag on, the published heading does not step, the daemon says what was done; a right calibration runs bit for
+bit as without the learning. The correction's own rules against worked numbers: its slew rate and its turn into the
+body frame.
 """
 
 from __future__ import annotations
@@ -15,11 +16,11 @@ import math
 
 import numpy as np
 import pytest
-from test_field_circle import CLAIMED_SIGMA_RAD, RATE_HZ, _run, _status
 
 from ahrsd.estimator.field_circle import CalibrationVerdict, FieldCircleResult
 from ahrsd.estimator.field_circle_correction import FieldCircleCorrection, FieldCircleCorrectionParams
 from ahrsd.estimator.mekf import Mekf
+from support.turning_in_place import CLAIMED_SIGMA_RAD, RATE_HZ, heading_status_over, run_turning
 
 IRON_UT = (5.2, 3.0)
 SECONDS = 200.0
@@ -30,7 +31,7 @@ def _without_learning(**kw):
 
 
 def test_a_wrong_hard_iron_is_learned_and_removed():
-    t, err, sig, ests, f = _run(Mekf, IRON_UT, seconds=SECONDS)
+    t, err, sig, ests, f = run_turning(Mekf, IRON_UT, seconds=SECONDS)
     fc = f.field_circle()
     # the correction learned is the iron given (level vehicle: the levelled frame is the body's x, y)
     assert np.allclose(fc.correction_ut, IRON_UT, atol=0.5)
@@ -38,7 +39,7 @@ def test_a_wrong_hard_iron_is_learned_and_removed():
     # the heading after it, against the truth; without the learning it stays off by the iron's sinusoid
     late = t >= SECONDS - 60.0
     rms = math.degrees(math.sqrt(np.mean(err[late] ** 2)))
-    t0, err0, sig0, _, _ = _run(_without_learning, IRON_UT, seconds=SECONDS)
+    t0, err0, sig0, _, _ = run_turning(_without_learning, IRON_UT, seconds=SECONDS)
     rms0 = math.degrees(math.sqrt(np.mean(err0[late] ** 2)))
     assert rms <= 1.0 < 5.0 <= rms0
     # σ covers the error from the first flag on (the flag's own sample carries the σ from before it)
@@ -50,7 +51,7 @@ def test_a_wrong_hard_iron_is_learned_and_removed():
     step = np.abs(np.diff(err[first::every]))
     assert math.degrees(step.max()) <= 0.5
     # the daemon says it: a correction learned from the turns, recalibrate to confirm; the magnetometer unhealthy
-    hs, texts, good = _status(ests)
+    hs, texts, good = heading_status_over(ests)
     assert any("learned correction applied, recalibrate to confirm" in x for x in texts)
     from ahrsd.daemon import messages as msgs
 
@@ -59,9 +60,9 @@ def test_a_wrong_hard_iron_is_learned_and_removed():
 
 
 def test_a_right_calibration_runs_as_without_the_learning():
-    t, err, sig, ests, f = _run(Mekf, (0.0, 0.0), seconds=SECONDS)
+    t, err, sig, ests, f = run_turning(Mekf, (0.0, 0.0), seconds=SECONDS)
     assert all(fc.correction_ut == (0.0, 0.0) for _, fc in ests)
-    t0, err0, sig0, _, _ = _run(_without_learning, (0.0, 0.0), seconds=SECONDS)
+    t0, err0, sig0, _, _ = run_turning(_without_learning, (0.0, 0.0), seconds=SECONDS)
     assert np.array_equal(err, err0) and np.array_equal(sig, sig0)
 
 

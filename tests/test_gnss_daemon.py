@@ -9,6 +9,7 @@ import dataclasses
 import math
 import time
 
+import numpy as np
 import pytest
 
 from ahrsd.core.estimate import EstimateFlags
@@ -153,6 +154,7 @@ def test_a_gate_that_rejects_most_velocities_warns_the_operator(rig):
     from types import SimpleNamespace
 
     from ahrsd.daemon.gnss_task import GATE_WINDOW_S
+    from ahrsd.estimator.lever_arm_fit import LeverArmFitResult
 
     svc = rig.service
     rig.fake.gnss_counters = counters = SimpleNamespace(offered=0, rejected_velocity=0)
@@ -169,6 +171,19 @@ def test_a_gate_that_rejects_most_velocities_warns_the_operator(rig):
     assert svc.gnss.counters.gate_warnings == 1
     svc.gnss.tick(now + 2 * GATE_WINDOW_S + 5.0)                   # within the window: not repeated
     assert not [m for m in received(rig) if m.get_type() == "STATUSTEXT" and "rejected" in m.text]
+    # the lever-arm check (estimator/lever_arm_fit.py) finds where the innovations put the antenna: said instead
+    fit = LeverArmFitResult(np.array([-1.0, 0.0, -2.0]), np.full(3, 0.2), 0.3, True)
+    rig.fake.lever_arm_fit = lambda: fit
+    counters.offered, counters.rejected_velocity = 450, 190        # 90 of the next 150
+    svc.gnss.tick(now + 3 * GATE_WINDOW_S + 0.3)
+    texts = [m.text for m in received(rig) if m.get_type() == "STATUSTEXT" and "rej" in m.text]
+    assert texts == ["ahrsd: GNSS vel rej 90/150: arm -1.0,0.0,-2.0?"] and len(texts[0]) <= 50
+    # a fit that does not explain them leaves the plain hint
+    rig.fake.lever_arm_fit = lambda: fit._replace(explains=False)
+    counters.offered, counters.rejected_velocity = 600, 280
+    svc.gnss.tick(now + 4 * GATE_WINDOW_S + 0.4)
+    texts = [m.text for m in received(rig) if m.get_type() == "STATUSTEXT" and "rej" in m.text]
+    assert texts == ["ahrsd: GNSS vel rejected 90/150: lever arm?"]
 
 
 def test_no_gnss_source_no_gps_bit(tmp_path):

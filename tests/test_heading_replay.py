@@ -38,6 +38,7 @@ def test_an_uncalibrated_boat_replays_with_an_honest_heading(tmp_path, capsys, c
     logged = re.findall(r"disagrees with the GNSS-held heading by ([0-9.]+)°", caplog.text)
     summary = re.findall(r"disagreed with GNSS by ([0-9.]+)° when rejected", err)
     assert len(logged) == 1 and summary == logged, (logged, err)
+    assert "when rejected: magnetometer not calibrated (no --calibration)" in err, err    # no calibration given
     lines = out.read_text().splitlines()
     assert lines[0] == AIDED_OUTPUT_HEADER and lines[0].endswith(",".join(HEADING_OUTPUT_COLUMNS))
     cols = lines[0].split(",")

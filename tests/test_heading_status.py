@@ -75,7 +75,7 @@ def test_a_magnetometer_heading_whose_sigma_widens_is_not_good_at_once_and_good_
     from ahrsd.daemon.counters import ServiceCounters
     from ahrsd.daemon.housekeeping import HealthReport
     from ahrsd.daemon.outbound import Identity, Outbound
-    from test_state_change_statustext import Counts, Notifier
+    from support.health_report_fakes import Counts, Notifier
 
     hs, texts = status(cal_sigma_deg=0.5)
     health = Health(stale_timeout_s=1.0)
@@ -726,3 +726,22 @@ def test_rejected_velocities_while_the_heading_is_unknown_are_the_headings_not_t
     hs, _ = status()
     hs.on_estimate(estimate(HeadingState.UNKNOWN, 60.0, gsf_valid=False, flags=EstimateFlags.INITIALISING), 0.0)
     assert hs.rejection_cause(0.0) is None
+
+
+def test_initialising_soon_after_a_calibration_change_is_its_convergence_and_later_a_restart_again():
+    """INITIALISING within a second of a calibration change (the swap widened the heading past convergence) is said
+    as converging on it; an estimate taken before the swap (not initialising) does not end the wait; INITIALISING
+    long after a change (an estimator restarted) is "initialising" again."""
+    hs, _texts = status()
+    hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 1.0), 10.0)
+    hs.set_calibration_sigma(0.4 * DEG, in_force=True)                      # the swap, between two ticks
+    hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 1.0), 10.2)         # the estimate from before it
+    hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 12.0, flags=EstimateFlags.INITIALISING), 10.4)
+    assert hs.standby_detail() == "heading converging on the new calibration, no heading out"
+    hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 2.0), 11.0)
+    hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 12.0, flags=EstimateFlags.INITIALISING), 30.0)
+    assert hs.standby_detail() == "initialising, no heading out"
+    hs.set_calibration_sigma(0.4 * DEG, in_force=True)                      # a change whose estimate never widens
+    hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 1.0), 30.5)
+    hs.on_estimate(estimate(HeadingState.MAGNETOMETER, 12.0, flags=EstimateFlags.INITIALISING), 40.0)
+    assert hs.standby_detail() == "initialising, no heading out"

@@ -29,6 +29,7 @@ from ahrsd.drivers.errors import BusError
 from ahrsd.drivers.iio_source import (IioSource, driver_milli_sps, driver_smpl_prd, sysfs_rate_text,
                                       written_milli_sps)
 from ahrsd.drivers.simulated_iio import SimulatedIioDevice
+from support.iio_rig import start_iio_daemon, take_samples, wait_for_records
 
 
 def test_the_drivers_integer_rules_give_the_worked_numbers():
@@ -72,21 +73,20 @@ def test_the_rate_is_written_read_back_and_set_on_the_chip(device, caplog):
 def test_the_rate_is_written_again_after_a_re_probe(tmp_path):
     """The device unbound and probed again (the probe resets the chip: SMPL_PRD back at 0x01): the source's
     re-open writes 102.4 again, and the records after it come 16 / 1638.404 s apart."""
-    from test_iio_source import _take
 
     device = SimulatedIioDevice(tmp_path, scenario="static", seed=4)
     try:
         src = IioSource(str(device.sysfs), rate_hz=102.4)
         src.start()
         got, errors, t_end = [], [], time.monotonic() + 60.0
-        _take(src, 50, t_end, got, errors)
+        take_samples(src, 50, t_end, got, errors)
         device.remove()
         while not errors and time.monotonic() < t_end:
-            _take(src, len(got) + 1, min(t_end, time.monotonic() + 0.2), got, errors)
+            take_samples(src, len(got) + 1, min(t_end, time.monotonic() + 0.2), got, errors)
         device.recreate()
         assert device.smpl_prd == 0x01                     # the probe's reset, read over SPI
         after = len(got)
-        _take(src, after + 100, t_end, got, errors)
+        take_samples(src, after + 100, t_end, got, errors)
         src.close()
     finally:
         device.close()
@@ -140,7 +140,6 @@ def test_an_empty_read_back_runs_at_the_drivers_rule_for_the_value_written(tmp_p
 def test_the_daemon_runs_the_simulated_iio_device_at_the_rate_it_wrote(tmp_path):
     """`ahrsd run --iio … --rate-hz 204.8`: the status line's measured rate is 204.8 SPS (the driver's default
     would show 819.2), and no sample is lost."""
-    from test_iio_source import start_iio_daemon, wait_for_records
 
     device = SimulatedIioDevice(tmp_path / "iio", scenario="static", seed=5)
     proc, stats = start_iio_daemon(tmp_path, device, "--rate-hz", "204.8", "--status-line", "on")

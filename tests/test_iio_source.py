@@ -5,9 +5,6 @@ simulated IIO device (drivers.simulated_iio) through the whole daemon."""
 from __future__ import annotations
 
 import json
-import math
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -17,6 +14,7 @@ import pytest
 from ahrsd.core.sample import SampleFlags
 from ahrsd.drivers.iio_source import IioSource, ScanType, record_layout
 from ahrsd.drivers.simulated_iio import SCAN_ELEMENTS, SimulatedIioDevice, scan_record
+from support.iio_rig import start_iio_daemon, take_samples, wait_for_records
 
 # One record, by hand: 12 big-endian 16-bit words as the chip's burst gives them (bit 15 ND, bit 14 EA, then
 # 14-bit two's complement; TEMP_OUT/AUX_ADC 12-bit), scan indices 0-9, 11, 16 in that order, 2 bytes each, the
@@ -143,22 +141,6 @@ def test_the_simulated_device_streams_what_the_chip_produced(device):
     assert np.mean([s.accel_m_s2[2] for s in got]) == pytest.approx(-9.81, abs=0.8)
 
 
-def start_iio_daemon(tmp_path, device, *flags: str) -> tuple[subprocess.Popen, Path]:
-    """`ahrsd run --iio` on the simulated device (output piped, MAVLink to a discard port); (process, stats file)."""
-    stats = tmp_path / "stats.json"
-    proc = subprocess.Popen([sys.executable, "-m", "ahrsd.cli", "run", "--iio", str(device.sysfs), *flags,
-                             "--state-dir", str(tmp_path / "state"), "--no-log",
-                             "--mavlink", "udpout:127.0.0.1:9", "--stats-file", str(stats)],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    return proc, stats
-
-
-def wait_for_records(device, proc, count: int, t_end: float) -> None:
-    """Until the simulated kernel has written `count` records (or the daemon ended, or t_end)."""
-    while device.stats["records"] < count and time.monotonic() < t_end and proc.poll() is None:
-        time.sleep(0.1)
-
-
 def test_the_simulated_iio_device_through_the_daemon(tmp_path):
     device = SimulatedIioDevice(tmp_path / "iio", scenario="static", seed=5)
     proc, stats = start_iio_daemon(tmp_path, device, "--status-line", "off")
@@ -197,21 +179,12 @@ def _iio_cfg(device, reader="auto"):
     return SensorSettings(source="iio", iio_device=str(device.sysfs), reader=reader)
 
 
-def _take(src, want: int, t_end: float, got: list, errors: list) -> None:
-    while len(got) < want and time.monotonic() < t_end:
-        try:
-            got += src.poll()
-        except Exception as exc:  # noqa: BLE001 - the test looks at what the daemon would be told
-            errors.append(exc)
-        time.sleep(0.02)
-
-
 def _drain(src, got: list, errors: list, quiet_s: float = 0.2) -> None:
     """Read until the source has had nothing new for quiet_s."""
     quiet_since = time.monotonic()
     while time.monotonic() - quiet_since < quiet_s:
         n = len(got)
-        _take(src, n + 1, time.monotonic() + 0.05, got, errors)
+        take_samples(src, n + 1, time.monotonic() + 0.05, got, errors)
         if len(got) > n:
             quiet_since = time.monotonic()
 
@@ -230,11 +203,11 @@ def test_the_reader_loses_nothing_while_the_kernel_buffer_holds_and_counts_an_ov
         src.inner.start()
         got, errors = [], []
         t_end = time.monotonic() + 60.0
-        _take(src, 400, t_end, got, errors)
+        take_samples(src, 400, t_end, got, errors)
         src._inner_lock.acquire()                               # the reader stops reading (holds the source)
         time.sleep(0.6)                                         # ≈ 490 scans: 128 fit, the rest are dropped
         src._inner_lock.release()
-        _take(src, len(got) + 800, t_end, got, errors)
+        take_samples(src, len(got) + 800, t_end, got, errors)
         dropped_by_kernel = device.stats["overflow_dropped"]
         src.close()
     finally:
@@ -250,11 +223,11 @@ def test_the_reader_loses_nothing_while_the_kernel_buffer_holds_and_counts_an_ov
         src = open_source(_iio_cfg(device))                     # the default buffer: 8192 scans, 10 s
         got, errors = [], []
         t_end = time.monotonic() + 60.0
-        _take(src, 400, t_end, got, errors)
+        take_samples(src, 400, t_end, got, errors)
         src._inner_lock.acquire()
         time.sleep(1.0)
         src._inner_lock.release()
-        _take(src, len(got) + 1600, t_end, got, errors)
+        take_samples(src, len(got) + 1600, t_end, got, errors)
         src.close()
         truth, dropped = device.lost_truth(), device.stats["overflow_dropped"]
     finally:
@@ -274,16 +247,16 @@ def test_a_vanished_iio_device_is_reopened_counted_and_logged(tmp_path, caplog):
         src = open_source(_iio_cfg(device))
         got, errors = [], []
         t_end = time.monotonic() + 90.0
-        _take(src, 400, t_end, got, errors)
+        take_samples(src, 400, t_end, got, errors)
         assert not errors
         device.remove()                                        # unbound: the stream ends, sysfs and node go
         n_before = len(got)
         while not errors and time.monotonic() < t_end:
-            _take(src, len(got) + 1, min(t_end, time.monotonic() + 0.2), got, errors)
+            take_samples(src, len(got) + 1, min(t_end, time.monotonic() + 0.2), got, errors)
         assert errors and all(isinstance(e, BusError) for e in errors)     # the daemon is told: sensor failed
         time.sleep(0.5)
         device.recreate()                                      # probed again: channels and buffer disabled
-        _take(src, len(got) + 800, t_end, got, errors)
+        take_samples(src, len(got) + 800, t_end, got, errors)
         # the truth and the count over the same records: the device writes nothing more for 2 s (an interrupt
         # outage from now on) and the source reads all it wrote. Otherwise a scan the full buffer dropped among the
         # records still in the pipe is in the truth before the source has seen the gap (1173 counted against 1174

@@ -18,7 +18,7 @@ from ahrsd.estimator.ins import Ins
 from ahrsd.simulation import DEFAULT_SITE
 
 from ins_truth import attitude_error_ned, position_error_ned, run_ins, simulated_run
-from test_simulation_environment import GRAVITY_WORKED_VALUES   # g(0, L) and g(1000 m, L)
+from support.gravity_worked_values import GRAVITY_WORKED_VALUES   # g(0, L) and g(1000 m, L)
 
 R0 = 6_378_137.0        # spherical Earth radius (WGS-84 a)
 OMEGA_IE = 7.292e-5     # Earth rate, rounded, rad/s

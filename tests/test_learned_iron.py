@@ -159,6 +159,38 @@ def test_accept_folds_the_learned_iron_into_the_hard_iron_and_resets_it(tmp_path
         stop_service(svc, loop)
 
 
+def test_a_refused_mag_lrn_act_write_says_why_once_and_an_accept_names_the_iron_in_numbers(tmp_path):
+    """A ground station's MAG_LRN_ACT write the daemon refuses (nothing learned yet; armed) is said in one
+    STATUSTEXT, the parameter refusal's (walk27: the part's text and then the refusal's, the reason twice); a done
+    accept says the iron it folded in as `magcal status` shows one ("+23.3 -29.7 +19.8 uT", not "+[23.3, …]")."""
+    from support.kept_link import KeptLink
+    from support.mavlink_feed import as_if_from
+
+    def write(value):
+        msg = mavlink.MAVLink_param_set_message(1, 200, b"MAG_LRN_ACT", value, mavlink.MAV_PARAM_TYPE_REAL32)
+        svc.param_protocol.on_message(KeptLink(), as_if_from(msg, 255, 190), "PARAM_SET", broadcast=False)
+
+    CalibrationStore(tmp_path).save(_calibration())
+    svc, loop = _start(tmp_path)
+    try:
+        svc.outbound.sent_texts.clear()
+        write(1.0)                                   # nothing learned yet
+        assert [t for t in _said(svc) if "nothing learned yet" in t] == [
+            "ahrsd: MAG_LRN_ACT 1: Learned iron: nothing learned yet"], _said(svc)
+        svc.pipeline.estimator.set_learned_iron(OFFSET_UT, COV_UT2)
+        svc.autopilot.armed = True
+        svc.outbound.sent_texts.clear()
+        write(1.0)
+        assert [t for t in _said(svc) if "Disarm" in t] == ["ahrsd: MAG_LRN_ACT 1: Disarm to change the learned iron"]
+        svc.autopilot.armed = False
+        svc.outbound.sent_texts.clear()
+        write(1.0)
+        assert _said(svc).count("Learned iron accepted into the calibration: hard iron +4.0 -6.5 +2.0 uT") == 1, \
+            _said(svc)                               # OFFSET_UT, written out
+    finally:
+        stop_service(svc, loop)
+
+
 def test_reset_forgets_it_and_both_commands_are_refused_while_armed(tmp_path):
     CalibrationStore(tmp_path).save(_calibration())
     svc, loop = _start(tmp_path)

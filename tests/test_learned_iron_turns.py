@@ -1,12 +1,12 @@
 """The hard iron mekf learned in turns without GNSS survives a restart (issue 28 item 2; daemon/learned_iron.py,
 the same store and rules as ins's GNSS-learned iron; estimator/field_circle_correction.py `restore`).
 
-The vehicle and its truth are test_field_circle's: a level vehicle turning in place at 4 °/s whose calibration
-leaves a hard iron of (5.2, 3.0) µT in the field (6 µT against H = 20 µT: up to ±17.5° of heading) while it
-claims 0.5°; the heading error is against scipy's truth, never the code under test. Run 1 learns the correction
-and the store saves it; run 2 (a new filter, another noise seed) starts with it applied: its heading is right from
-the start, and its σ claims no more than run 1 knew (σ_c over H, H from the simulator's field). A changed
-calibration drops the saved correction, as does a corrupt file: each a counted rejection.
+The vehicle and its truth are test_field_circle's (tests/support/turning_in_place.py): a level vehicle turning in
+place at 4 °/s whose calibration leaves a hard iron of (5.2, 3.0) µT in the field (6 µT against H = 20 µT: up to
+±17.5° of heading) while it claims 0.5°; the heading error is against scipy's truth, never the code under test. Run
+1 learns the correction and the store saves it; run 2 (a new filter, another noise seed) starts with it applied: its
+heading is right from the start, and its σ claims no more than run 1 knew (σ_c over H, H from the simulator's
+field). A changed calibration drops the saved correction, as does a corrupt file: each a counted rejection.
 """
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ import math
 
 import numpy as np
 import pytest
-from test_field_circle import CLAIMED_SIGMA_RAD, H_UT, _run
 
 from ahrsd.calibration.models import Calibration, MagModel
 from ahrsd.daemon.learned_iron import ACTION_ACCEPT, ACTION_RESET, FILE_NAME, LearnedIron
@@ -24,6 +23,7 @@ from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.daemon.pipeline import Pipeline
 from ahrsd.estimator.base import LEARNED_IN_TURNS
 from ahrsd.estimator.mekf import Mekf
+from support.turning_in_place import CLAIMED_SIGMA_RAD, H_UT, run_turning
 
 IRON_UT = (5.2, 3.0)
 SOFT = np.array([[1.05, 0.02, 0.0], [0.02, 0.97, 0.01], [0.0, 0.01, 1.01]])
@@ -56,7 +56,7 @@ def _new_mekf():
 def learned(tmp_path_factory):
     """Run 1: 200 s of turns; the store saves what mekf learned. (state_dir, the saved document, run 1's filter)"""
     state_dir = tmp_path_factory.mktemp("state")
-    _, _, _, _, f = _run(lambda **kw: _new_mekf(), IRON_UT, seconds=200.0)
+    _, _, _, _, f = run_turning(lambda **kw: _new_mekf(), IRON_UT, seconds=200.0)
     part, shown, _ = _store(state_dir, f, _calibration())
     assert part.restore() is False                   # nothing saved yet
     part.save_now()
@@ -78,7 +78,7 @@ def _run_two(state_dir, calibration, seed=5):
     f = _new_mekf()
     part, shown, _ = _store(state_dir, f, calibration)
     restored = part.restore()
-    t, err, sig, _, _ = _run(lambda **kw: f, IRON_UT, seconds=START_S, seed=seed)
+    t, err, sig, _, _ = run_turning(lambda **kw: f, IRON_UT, seconds=START_S, seed=seed)
     return restored, part, t, err, sig, f
 
 
@@ -175,12 +175,12 @@ def test_forgetting_the_correction_widens_sigma_by_the_heading_error_it_removed(
     """The operator's reset (or the correction folded into the calibration) puts the field back as the calibration
     gives it: until the circle judges it again, the published yaw σ must cover the sinusoid a hard iron of the
     removed size leaves, amplitude asin(|b|/H) (RMS amplitude/√2), worked here from the simulated iron and field."""
-    from test_field_circle import FIELD_NED, G, RATE_HZ, VEHICLE_TURN_RATE_RAD_S
+    from support.turning_in_place import FIELD_NED, G, RATE_HZ, VEHICLE_TURN_RATE_RAD_S
     from scipy.spatial.transform import Rotation
 
     from ahrsd.core.sample import make_sample
 
-    t, _, sig, _, f = _run(lambda **kw: _new_mekf(), IRON_UT, seconds=200.0)
+    t, _, sig, _, f = run_turning(lambda **kw: _new_mekf(), IRON_UT, seconds=200.0)
     assert sig[-1] < math.radians(3.0)                       # learned: σ small again before the reset
     f.reset_learned_iron()
     t_s = t[-1] + 1.0 / RATE_HZ

@@ -36,7 +36,7 @@ from support.field_vehicle import RATE_HZ as FIELD_RATE_HZ  # noqa: E402
 from support.field_vehicle import (SITE_FIELD, course_fixes, heading_rms_deg, injected_iron, record, truth_euler,  # noqa: E402
                           vehicle)
 from service_rig import free_udp_port, stop_process  # noqa: E402
-from test_magcal_integration import Client  # noqa: E402
+from support.magcal_client import Client  # noqa: E402
 
 pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
 
@@ -313,7 +313,7 @@ def _session_data_span(tmp_path, tick_every_s: float) -> tuple[float, float]:
     the saved calibration's data span."""
     from ahrsd.daemon.magcal import CMD_ACCEPT, CMD_START, MagCalProtocol, MagCalSettings
     from support.magcal_host import Clock, FakeHost, cmd
-    from test_magcal_protocol import _drive_vehicle
+    from support.magcal_host import drive_vehicle
 
     host = FakeHost(tmp_path)
     host.reference_field = lambda lat_deg=None, lon_deg=None: SITE_FIELD
@@ -321,7 +321,7 @@ def _session_data_span(tmp_path, tick_every_s: float) -> tuple[float, float]:
     proto = MagCalProtocol(host, MagCalSettings(), clock=clock, warm_fit_worker=False, fit_in_process=False)
     try:
         assert proto.handle_start(cmd(CMD_START)) == mavlink.MAV_RESULT_ACCEPTED
-        _drive_vehicle(_LateTicks(proto, clock, tick_every_s), clock, record(vehicle(10.0), 150.0), host,
+        drive_vehicle(_LateTicks(proto, clock, tick_every_s), clock, record(vehicle(10.0), 150.0), host,
                        until=lambda: bool(host.of_type("MAG_CAL_REPORT")))
         assert host.of_type("MAG_CAL_REPORT")[-1].cal_status == 4, host.texts()
         assert proto.handle_accept(cmd(CMD_ACCEPT)) == mavlink.MAV_RESULT_ACCEPTED

@@ -10,7 +10,6 @@ source (calibration, estimator, MAVLink, the mag-cal protocol, the store) is the
 
 from __future__ import annotations
 
-import collections
 import json
 import os
 import shutil
@@ -31,9 +30,10 @@ from ahrsd.calibration.ardupilot_compass import from_ardupilot  # noqa: E402
 from ahrsd.core.angles import tilt_compensated_heading_rad  # noqa: E402
 from ahrsd.calibration.models import Calibration  # noqa: E402
 from service_rig import free_udp_port  # noqa: E402
+from support.magcal_client import REPLY_LIMIT_S, Client  # noqa: E402
 from ahrsd.calibration.store import CalibrationStore  # noqa: E402
 from ahrsd.daemon.commands import DUPLICATE_WINDOW_S  # noqa: E402
-from ahrsd.daemon.mavlink_io import mavlink, mavutil  # noqa: E402
+from ahrsd.daemon.mavlink_io import mavlink  # noqa: E402
 from ahrsd.simulation import DEFAULT_SITE, open_stream  # noqa: E402
 
 pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
@@ -41,7 +41,6 @@ pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdis
 TIME_SCALE = 16.0  # when the CPU cannot keep up the replay simply runs as fast as it can
 SIM_RATE_HZ = 204.8   # the chip's 819.2 SPS decimated by 4 (SMPL_PRD): a quarter of the CPU per simulated second
 MAV_STATE_CALIBRATING = 2
-REPLY_LIMIT_S = 15.0     # a reply (ACK, STATUSTEXT, the first MAG_CAL_PROGRESS) comes at once; 15 s: a loaded machine
 SESSION_LIMIT_S = 180.0  # start to MAG_CAL_REPORT: ~60 s of turning at TIME_SCALE plus the fit in its worker process
 
 LAUNCH = r"""
@@ -102,64 +101,6 @@ class Daemon:
 
     def text(self) -> str:
         return self.log_path.read_text()
-
-
-class Client:
-    def __init__(self, port: int):
-        self.conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255, source_component=190)
-        self.msgs: list = []
-
-    def wait(self, pred, timeout: float):
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            m = self.conn.recv_match(blocking=True, timeout=0.2)
-            if m is None or m.get_type() == "BAD_DATA":
-                continue
-            self.msgs.append(m)
-            if pred(m):
-                return m
-        return None
-
-    def drop_queued(self) -> int:
-        """Read and drop every message already waiting in the socket; how many."""
-        dropped = 0
-        while self.conn.recv_match(blocking=False) is not None:
-            dropped += 1
-        return dropped
-
-    def seen_or_wait(self, pred, timeout: float, since: int = 0):
-        """A message already received (after index `since`) matching pred, else wait for one."""
-        for m in self.msgs[since:]:
-            if pred(m):
-                return m
-        return self.wait(pred, timeout)
-
-    def of(self, kind: str, since: int = 0) -> list:
-        return [m for m in self.msgs[since:] if m.get_type() == kind]
-
-    def command(self, command: int, *params: float, target=(1, 200), timeout: float = REPLY_LIMIT_S):
-        p = list(params) + [0.0] * (7 - len(params))
-        self.conn.mav.command_long_send(target[0], target[1], command, 0, *p)
-        return self.wait(lambda m: m.get_type() == "COMMAND_ACK" and m.command == command, timeout)
-
-    def autopilot_heartbeat(self, armed: bool) -> None:
-        mav = self.conn.mav
-        mav.srcSystem, mav.srcComponent = 1, 1
-        mav.heartbeat_send(mavlink.MAV_TYPE_SURFACE_BOAT, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
-                           mavlink.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0, 0, mavlink.MAV_STATE_STANDBY)
-        mav.srcSystem, mav.srcComponent = 255, 190
-
-    def mag_norm_spread_ut(self, seconds: float) -> tuple[float, float]:
-        """Mean and std of |calibrated mag| from HIGHRES_IMU (gauss) over `seconds`."""
-        start = len(self.msgs)
-        self.wait(lambda m: False, seconds)
-        for _ in range(3):  # a loaded machine can starve the daemon for a while: wait longer, not fail
-            if len(self.of("HIGHRES_IMU", start)) > 5:
-                break
-            self.wait(lambda m: False, seconds)
-        norms = [100.0 * np.linalg.norm([m.xmag, m.ymag, m.zmag]) for m in self.of("HIGHRES_IMU", start)]
-        assert len(norms) > 5, f"no HIGHRES_IMU from the daemon: {collections.Counter(m.get_type() for m in self.msgs[start:])}"
-        return float(np.mean(norms)), float(np.std(norms))
 
 
 STARTED_LINE = "ahrsd started"    # daemon.service logs it when the loop is about to run

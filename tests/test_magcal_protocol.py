@@ -30,7 +30,7 @@ from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.core.sample import make_sample
 
 from support.field_data import HARD_IRON_UT, MAG_NOISE_UT, SOFT_DISTORTION, level_turns, trajectory
-from support.magcal_host import Clock, FakeHost, cmd, drive, tick_settled, wire
+from support.magcal_host import Clock, FakeHost, cmd, drive, drive_vehicle, gps_raw_int, wire
 
 @pytest.fixture
 def setup(tmp_path):
@@ -351,13 +351,6 @@ def test_router_ignores_broadcast_unless_configured_and_refuses_unsigned(tmp_pat
 # ------------------------------------------------------------------ GNSS course and a known heading
 
 
-def gps_raw_int(t_valid_s, course_rad, speed_m_s, fix_type=3, vel_acc_mm_s=0):
-    """GPS_RAW_INT as an autopilot sends it (cog cdeg, vel cm/s), packed and parsed by pymavlink."""
-    return wire(mavlink.MAVLink_gps_raw_int_message(
-        int(t_valid_s * 1e6), fix_type, 364200000, 549800000, 1345000, 80, 120, int(round(speed_m_s * 100)),
-        int(round(np.degrees(course_rad) * 100)) % 36000, 12, 0, 0, 0, vel_acc_mm_s, 0, 0))
-
-
 def test_gnss_messages_reach_the_session_once_and_only_with_a_velocity(tmp_path):
     """GPS_RAW_INT through drivers/gnss/mavlink.py: a repeated fix (same time_usec) is fed once, an unknown
     course is not fed, GLOBAL_POSITION_INT is left alone by default (the autopilot may fuse our heading), and
@@ -381,30 +374,6 @@ def test_gnss_messages_reach_the_session_once_and_only_with_a_velocity(tmp_path)
     proto.close()
 
 
-def _drive_vehicle(proto, clock, block, host, courses=None, until=None):
-    """Feed a fieldcal_sim recording (truth attitude as the estimate) and GPS_RAW_INT at arrival times."""
-    from support.field_vehicle import truth_euler
-
-    eul = truth_euler(block)
-    next_tick, k = 0.0, 0
-    for i in range(len(block.t_s)):
-        t = float(block.t_s[i])
-        clock.t = 1000.0 + t
-        mag = host.cal.mag.apply(block.mag_ut[i])
-        proto.on_sample(make_sample(t, block.gyro_rad_s[i], block.accel_m_s2[i], mag),
-                        SimpleNamespace(roll_rad=eul[i, 2], pitch_rad=eul[i, 1], yaw_rad=eul[i, 0],
-                                        rate_body_rad_s=block.truth_gyro_rad_s[i]))
-        while courses is not None and k < courses[0].size and courses[0][k] <= t:
-            proto.on_gnss_message(gps_raw_int(courses[1][k], courses[2][k], courses[3][k]))
-            k += 1
-        if t >= next_tick:
-            next_tick = t + 0.1
-            tick_settled(proto)
-            if until is not None and until():
-                return i
-    return len(block.t_s) - 1
-
-
 def test_gnss_course_over_mavlink_sets_the_heading_offset(tmp_path):
     """GPS_RAW_INT course from the simulation truth (0.5° noise, 0.1 s latency, a 0.18 m/s current) during a
     ±2° session: the accepted calibration's heading on other attitudes, offset included, is within 0.4°."""
@@ -419,7 +388,7 @@ def test_gnss_course_over_mavlink_sets_the_heading_offset(tmp_path):
                            fit_in_process=False)
     try:
         assert proto.handle_start(cmd(CMD_START)) == mavlink.MAV_RESULT_ACCEPTED
-        _drive_vehicle(proto, clock, block, host, course_fixes(sc, 300.0, current_ne_m_s=(0.1, -0.15)),
+        drive_vehicle(proto, clock, block, host, course_fixes(sc, 300.0, current_ne_m_s=(0.1, -0.15)),
                        until=lambda: bool(host.of_type("MAG_CAL_REPORT")))
         assert host.of_type("MAG_CAL_REPORT")[-1].cal_status == CalStatus.SUCCESS, host.texts()
         assert proto.course_fed > 100
@@ -444,7 +413,7 @@ def test_without_gnss_the_report_says_the_offset_rests_on_the_tilt_and_a_known_h
     proto = MagCalProtocol(host, MagCalSettings(vehicle_type="level"), clock=clock, fit_in_process=False)
     try:
         proto.handle_start(cmd(CMD_START))
-        _drive_vehicle(proto, clock, block, host, until=lambda: bool(host.of_type("MAG_CAL_REPORT")))
+        drive_vehicle(proto, clock, block, host, until=lambda: bool(host.of_type("MAG_CAL_REPORT")))
         # ±2° of tilt: the offset is weakly determined by the tilt alone (stated, ~1.8°), and the report says how
         # to do better
         assert proto.session.result.offset_source == "tilt"

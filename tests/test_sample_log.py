@@ -21,17 +21,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ahrsd.core.sample import SampleFlags, make_sample
+from ahrsd.core.sample import make_sample
 from ahrsd.drivers.recording import iter_samples, read_recording
 from ahrsd.drivers.rotating_log import LogLimits
 from ahrsd.drivers.sample_log import SampleFile, SampleLog
 from ahrsd.drivers.tlog import TlogLog
-
-
-def samples(n, t0=100.0, rate_hz=819.2, seed=0):
-    rng = np.random.default_rng(seed)
-    return [make_sample(t0 + k / rate_hz, rng.normal(size=3), rng.normal(size=3) + [0, 0, -9.8], rng.normal(size=3) * 20,
-                        temp_c=25.0 + k * 1e-4, supply_v=5.0, flags=SampleFlags(k % 4), counter=k) for k in range(n)]
+from support.random_samples import random_samples
 
 
 def log_files(directory, suffix=".csv.gz"):
@@ -49,7 +44,7 @@ def assert_same(rec, originals):
 
 
 def test_samples_read_back_exactly_with_the_calibration_in_the_sidecar(tmp_path):
-    data = samples(5000)
+    data = random_samples(5000)
     cal = {"checksum": "abc123", "method": "multi-position"}
     with SampleLog(tmp_path, metadata={"calibrated": True, "calibration": cal}) as log:
         for s in data:
@@ -82,7 +77,7 @@ def test_repeated_values_signed_zeros_and_nan_read_back_exactly(tmp_path):
 
 
 def test_a_calibration_change_starts_a_new_file_saying_so(tmp_path):
-    data = samples(200)
+    data = random_samples(200)
     with SampleLog(tmp_path, metadata={"calibration": {"checksum": "old"}}) as log:
         for s in data[:100]:
             log.put(s)
@@ -97,7 +92,7 @@ def test_a_calibration_change_starts_a_new_file_saying_so(tmp_path):
 
 def test_files_rotate_by_size_and_the_oldest_go_beyond_the_total(tmp_path):
     limits = LogLimits(max_file_bytes=40_000, max_total_bytes=200_000, flush_entries=500)
-    data = samples(40_000)
+    data = random_samples(40_000)
     with SampleLog(tmp_path, limits) as log:
         for s in data:
             log.put(s)
@@ -124,7 +119,7 @@ def test_files_rotate_by_age(tmp_path):
     limits = LogLimits(max_file_age_s=600.0, flush_entries=100)
     with SampleLog(tmp_path, limits, clock=lambda: now[0]) as log:
         for block in range(3):
-            for s in samples(100, t0=block * 1000.0):
+            for s in random_samples(100, t0=block * 1000.0):
                 log.put(s)
             deadline = time.monotonic() + 10
             while log.written < 100 * (block + 1) and time.monotonic() < deadline:
@@ -145,7 +140,7 @@ class _StuckLog(SampleLog):
 
 def test_overflow_is_dropped_and_counted_and_never_blocks_the_caller(tmp_path):
     log = _StuckLog(tmp_path, LogLimits(queue_entries=10))
-    data, results = samples(100), []
+    data, results = random_samples(100), []
     caller = threading.Thread(target=lambda: results.extend(log.put(s) for s in data))
     caller.start()
     caller.join(5.0)
@@ -172,13 +167,13 @@ class _FullDiskLog(SampleLog):
 def test_a_full_disk_stops_the_log_with_one_warning(tmp_path, caplog):
     caplog.set_level(logging.WARNING)
     log = _FullDiskLog(tmp_path, LogLimits(flush_entries=10))
-    for s in samples(1000):
+    for s in random_samples(1000):
         log.put(s)
     log.close()
     assert log.failure is not None and "No space left" in log.failure
     warnings = [r for r in caplog.records if "stopped" in r.getMessage()]
     assert len(warnings) == 1 and "the disk is full" in warnings[0].getMessage()
-    assert log.put(samples(1)[0]) is False and log.written + log.dropped >= 1000
+    assert log.put(random_samples(1)[0]) is False and log.written + log.dropped >= 1000
 
 
 @pytest.fixture
@@ -197,7 +192,7 @@ def test_a_real_full_tmpfs_stops_the_log_and_the_caller_goes_on(small_tmpfs, cap
     caplog.set_level(logging.WARNING)
     log = SampleLog(small_tmpfs, LogLimits(flush_entries=200))
     t0 = time.perf_counter()
-    for s in samples(30_000):
+    for s in random_samples(30_000):
         log.put(s)
     put_s = time.perf_counter() - t0
     log.close()
@@ -214,7 +209,7 @@ def test_a_read_only_filesystem_stops_the_log_with_one_warning(small_tmpfs, capl
     caplog.set_level(logging.WARNING)
     subprocess.run(["mount", "-o", "remount,ro", str(small_tmpfs)], check=True)
     log = SampleLog(small_tmpfs / "logs")
-    for s in samples(100):
+    for s in random_samples(100):
         log.put(s)
     log.close()
     assert log.failure is not None
@@ -223,7 +218,7 @@ def test_a_read_only_filesystem_stops_the_log_with_one_warning(small_tmpfs, capl
 
 
 def test_a_file_cut_anywhere_reads_up_to_its_last_complete_line(tmp_path):
-    data = samples(3000)
+    data = random_samples(3000)
     with SampleLog(tmp_path / "logs", LogLimits(flush_entries=250)) as log:
         for s in data:
             log.put(s)
@@ -240,13 +235,13 @@ def test_a_file_cut_anywhere_reads_up_to_its_last_complete_line(tmp_path):
 KILLED_LOGGER = """
 import sys, time
 sys.path.insert(0, {tests!r})
-from test_sample_log import samples
+from support.random_samples import random_samples
 from ahrsd.drivers.rotating_log import LogLimits
 from ahrsd.drivers.sample_log import SampleFile, SampleLog
 log = SampleLog({d!r}, LogLimits(max_file_bytes=8000, flush_entries=50, flush_interval_s=0.01))
 k = 0
 while True:
-    for s in samples(200, t0=k * 200 / 819.2):
+    for s in random_samples(200, t0=k * 200 / 819.2):
         log.put(s)
     k += 1
     time.sleep(0.002)

@@ -9,17 +9,7 @@ import pytest
 
 from ahrsd.simulation import DEFAULT_SITE, SCENARIOS, Site, simulate
 from ahrsd.core.gravity import normal_gravity_m_s2
-
-# worked example: g(0, L) and g(1000 m, L) of 9.780327 (1 + 0.0053024 sin²L − 0.0000058 sin²2L) (R0/(R0+h))²,
-# R0 = 6 378 137 m, evaluated by hand
-GRAVITY_WORKED_VALUES = [
-    (0.0, 9.780327, 9.777261),
-    (30.0, 9.793249, 9.790179),
-    (35.7, 9.797935, 9.794864),
-    (45.0, 9.806200, 9.803126),
-    (60.0, 9.819179, 9.816101),
-    (90.0, 9.832186, 9.829104),
-]
+from support.gravity_worked_values import GRAVITY_WORKED_VALUES
 
 
 @pytest.mark.parametrize("lat, g0, g1000", GRAVITY_WORKED_VALUES)

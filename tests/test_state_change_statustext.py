@@ -9,24 +9,10 @@ from ahrsd.daemon.health import Health
 from ahrsd.daemon.housekeeping import HealthReport
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.daemon.outbound import Identity, Outbound
+from support.health_report_fakes import Counts, Notifier
 from support.kept_link import KeptLink
 
 STANDBY_DETAIL = "heading unknown (mag not calibrated), no heading out"   # daemon.heading_status's words
-
-
-class Counts:
-    samples = 0
-
-
-class Notifier:
-    def __init__(self):
-        self.statuses = []
-
-    def status(self, text):
-        self.statuses.append(text)
-
-    def watchdog(self):
-        pass
 
 
 def _text(msg) -> str:

@@ -101,7 +101,8 @@ def test_px4_stamps_our_samples_within_2_ms(tmp_path):
     errors_ms, before_ms = [], []
     addr = None
     next_request = time.monotonic()
-    deadline = time.monotonic() + 120
+    deadline = time.monotonic() + 300      # a give-up time only: the run ends at 300 VPEs, however slowly a loaded
+                                           # machine sends them (the count, not the time, is the evidence)
     try:
         while time.monotonic() < deadline and len(errors_ms) < 300:
             now = peer_now_us()

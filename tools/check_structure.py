@@ -51,6 +51,8 @@ Rule in tests/:
 5. no spy on an estimator: no function or lambda assigned to an attribute of an estimator object (the names of
    rule 3, and what hangs below them: `est._monitor.check = spy`). A test reads what the estimator decided
    from its records (`Ins.heading_checks`), so it keeps testing the code that runs.
+13. no test module imports another (`from test_field_circle import _run`): what tests share has one home,
+   tests/support/, where a reader looks for it; a test module is free to change for its own tests.
 """
 
 from __future__ import annotations
@@ -98,10 +100,16 @@ def _dotted(node: ast.AST) -> str:
     return ""
 
 
-def _imported_names(tree: ast.AST) -> set[str]:
+def _parsed(path: Path) -> tuple[ast.Module, str]:
+    """A file's syntax tree and its text (read once)."""
+    text = path.read_text(encoding="utf-8")
+    return ast.parse(text), text
+
+
+def _imported_names(nodes: list[ast.AST]) -> set[str]:
     """The names a module binds by importing: modules (`import a.b` binds a) and names from them."""
     names = set()
-    for node in ast.walk(tree):
+    for node in nodes:
         if isinstance(node, ast.Import):
             names |= {alias.asname or alias.name.split(".")[0] for alias in node.names}
         elif isinstance(node, ast.ImportFrom):
@@ -115,11 +123,11 @@ def _root_name(node: ast.AST) -> str:
     return node.id if isinstance(node, ast.Name) else ""
 
 
-def _monkeypatches(tree: ast.AST, lines: list[str], shown: str) -> list[str]:
+def _monkeypatches(nodes: list[ast.AST], lines: list[str], shown: str) -> list[str]:
     """Rule 7: an attribute of an imported module or name assigned, or set with setattr."""
-    imported = _imported_names(tree)
+    imported = _imported_names(nodes)
     out = []
-    for node in ast.walk(tree):
+    for node in nodes:
         if isinstance(node, ast.Assign):
             targets = node.targets
         elif isinstance(node, (ast.AugAssign, ast.AnnAssign)):
@@ -140,54 +148,55 @@ def _monkeypatches(tree: ast.AST, lines: list[str], shown: str) -> list[str]:
     return out
 
 
-def _forwarding_wrappers(tree: ast.AST, shown: str) -> list[str]:
+def _forwarding_wrappers(nodes: list[ast.AST], shown: str) -> list[str]:
     """Rule 9: a class with a `__getattr__` method."""
     return [f"{shown}:{item.lineno}: class {node.name} forwards every attribute it lacks (__getattr__): declare "
             "the members it passes on (a property or a method each)"
-            for node in ast.walk(tree) if isinstance(node, ast.ClassDef)
+            for node in nodes if isinstance(node, ast.ClassDef)
             for item in node.body if isinstance(item, ast.FunctionDef) and item.name == "__getattr__"]
 
 
-def _comment_lines(text: str, tree: ast.AST) -> list[tuple[int, str]]:
+def _comment_lines(text: str, nodes: list[ast.AST]) -> list[tuple[int, str]]:
     """(line, text) of every `#` comment and every docstring line (a string standing alone as a statement)."""
     out = [(tok.start[0], tok.string) for tok in tokenize.generate_tokens(io.StringIO(text).readline)
            if tok.type == tokenize.COMMENT]
-    for node in ast.walk(tree):
+    for node in nodes:
         if isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant) and isinstance(node.value.value, str):
             out += [(node.lineno + i, line) for i, line in enumerate(node.value.value.splitlines())]
     return out
 
 
-def _session_history(text: str, tree: ast.AST, shown: str) -> list[str]:
+def _session_history(text: str, nodes: list[ast.AST], shown: str) -> list[str]:
     """Rule 11: a comment or docstring that names a session."""
     return [f"{shown}:{line}: a comment names a session ({m.group(0)!r}): say why, not when (history is in "
             "git, figures in docs/)"
-            for line, comment in _comment_lines(text, tree) if (m := SESSION_HISTORY.search(comment))]
+            for line, comment in _comment_lines(text, nodes) if (m := SESSION_HISTORY.search(comment))]
 
 
 FAKE_CLASS = re.compile(r"^_*(Fake|Dummy|Mock|Stub)[A-Z_]")
 
 
-def _fake_classes(tree: ast.AST, shown: str) -> list[str]:
+def _fake_classes(nodes: list[ast.AST], shown: str) -> list[str]:
     """Rule 12: a class named as a fake."""
     return [f"{shown}:{node.lineno}: class {node.name} is a fake in a package (call the code with what you have; "
             "fakes live in tests/)"
-            for node in ast.walk(tree) if isinstance(node, ast.ClassDef) and FAKE_CLASS.match(node.name)]
+            for node in nodes if isinstance(node, ast.ClassDef) and FAKE_CLASS.match(node.name)]
 
 
-def check_file(path: Path, shown: str, daemon_rules: bool = True, settings_rule: bool = False) -> list[str]:
+def check_file(path: Path, shown: str, daemon_rules: bool = True, settings_rule: bool = False,
+               parsed: tuple[ast.Module, str] | None = None) -> list[str]:
     """The problems in one file: every rule (daemon_rules), or only rules 4 (an estimator probed), 7, 9 (a
     forwarding wrapper), 11 (a session named in a comment) and 12 (a fake class); and rule 8 (a settings object probed) with
-    settings_rule."""
+    settings_rule. parsed: its `_parsed`, when the caller has it."""
     try:
-        tree = ast.parse(path.read_text(encoding="utf-8"))
+        tree, text = parsed or _parsed(path)
     except SyntaxError as exc:
         return [f"{shown}:{exc.lineno}: does not parse"]
-    text = path.read_text(encoding="utf-8")
     lines = text.splitlines()
-    out = (_monkeypatches(tree, lines, shown) + _forwarding_wrappers(tree, shown) + _session_history(text, tree, shown)
-           + _fake_classes(tree, shown))
-    for node in ast.walk(tree):
+    nodes = list(ast.walk(tree))      # each rule reads every node: walked once (the walk is most of the run)
+    out = (_monkeypatches(nodes, lines, shown) + _forwarding_wrappers(nodes, shown)
+           + _session_history(text, nodes, shown) + _fake_classes(nodes, shown))
+    for node in nodes:
         if (daemon_rules and isinstance(node, ast.Call) and _dotted(node.func) in HOST_CLOCKS
                 and HOST_CLOCK_MARK not in lines[node.lineno - 1]):
             out.append(f"{shown}:{node.lineno}: {_dotted(node.func)}() read by a part (take a clock argument, "
@@ -221,14 +230,22 @@ def _is_estimator(dotted: str) -> bool:
 
 def check_test_file(path: Path, shown: str) -> list[str]:
     """Rule 5: a function or lambda assigned to an attribute of an estimator (a spy replacing its method); rule 9:
-    a fake that forwards whatever it lacks."""
+    a fake that forwards whatever it lacks; rule 13: a test module imported."""
     try:
-        tree = ast.parse(path.read_text(encoding="utf-8"))
+        tree, _ = _parsed(path)
     except SyntaxError as exc:
         return [f"{shown}:{exc.lineno}: does not parse"]
-    functions = {n.name for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))}
-    out = _forwarding_wrappers(tree, shown)
-    for node in ast.walk(tree):
+    nodes = list(ast.walk(tree))
+    functions = {n.name for n in nodes if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))}
+    out = _forwarding_wrappers(nodes, shown)
+    for node in nodes:
+        imported = ([alias.name for alias in node.names] if isinstance(node, ast.Import)
+                    else [node.module] if isinstance(node, ast.ImportFrom) and node.module and not node.level
+                    else [])
+        for name in imported:
+            if name.split(".")[0].startswith("test_"):
+                out.append(f"{shown}:{node.lineno}: imports the test module {name} (what tests share lives in "
+                           "tests/support/)")
         if not isinstance(node, ast.Assign):
             continue
         value = node.value
@@ -276,23 +293,18 @@ def _module_level_imports(tree: ast.Module, module: str, is_package: bool, modul
     return out
 
 
-def _import_cycles(root: Path, packages: tuple[str, ...]) -> list[str]:
-    """Rule 10: the cycles of the module-level import graph among this checkout's modules (Tarjan's strongly
-    connected components; a module importing itself is no cycle)."""
-    paths = {}
-    for package in packages:
-        for path in sorted((root / package).rglob("*.py")):
-            paths[_module_name(root, path)] = path
-    edges: dict[str, list[tuple[str, int]]] = {}
-    for name, path in paths.items():
-        try:
-            tree = ast.parse(path.read_text(encoding="utf-8"))
-        except SyntaxError:
-            continue                                   # check_file reports it
-        edges[name] = [(target, line) for target, line in
-                       _module_level_imports(tree, name, path.name == "__init__.py", paths)
-                       if target in paths and target != name]
-        edges[name] = list(dict.fromkeys(edges[name]))  # one line importing two names of a module: one edge
+def _import_edges(tree: ast.Module, name: str, path: Path, paths: dict[str, Path]) -> list[tuple[str, int]]:
+    """Module `name`'s module-level imports of this checkout's other modules (`paths`: name → file), one edge a
+    line and module."""
+    edges = [(target, line) for target, line in _module_level_imports(tree, name, path.name == "__init__.py", paths)
+             if target in paths and target != name]
+    return list(dict.fromkeys(edges))                  # one line importing two names of a module: one edge
+
+
+def _import_cycles(root: Path, paths: dict[str, Path], edges: dict[str, list[tuple[str, int]]]) -> list[str]:
+    """Rule 10: the cycles of the module-level import graph among this checkout's modules (`paths`, `edges`:
+    _import_edges of each module that parses; Tarjan's strongly connected components; a module importing
+    itself is no cycle)."""
     index, low, stack, on_stack, out = {}, {}, [], set(), []
 
     def visit(v: str) -> None:                         # recursion depth ≤ the number of modules (a few hundred)
@@ -328,11 +340,27 @@ def _import_cycles(root: Path, packages: tuple[str, ...]) -> list[str]:
 
 
 def check(root: Path) -> list[str]:
-    out = _import_cycles(root, (DAEMON, *ESTIMATOR_RULE_PACKAGES))
-    for package in (DAEMON, *ESTIMATOR_RULE_PACKAGES):
-        for path in sorted((root / package).rglob("*.py")):
-            out += check_file(path, str(path.relative_to(root)), daemon_rules=package == DAEMON,
-                              settings_rule=package in SETTINGS_RULE_PACKAGES)
+    """Every problem: the import cycles first, then each file's, in path order. Each file is parsed once, for
+    its import edges and its rules, and its tree dropped before the next (the trees of every file kept at once
+    make each garbage collection walk them all)."""
+    packages = (DAEMON, *ESTIMATOR_RULE_PACKAGES)
+    files = [(package, path) for package in packages for path in sorted((root / package).rglob("*.py"))]
+    paths = {_module_name(root, path): path for _, path in files}
+    edges: dict[str, list[tuple[str, int]]] = {}
+    found = []
+    for package, path in files:
+        try:
+            parsed = _parsed(path)
+        except SyntaxError:
+            parsed = None                              # check_file reports it
+        else:
+            name = _module_name(root, path)
+            if paths[name] == path:                    # a module and a package of one name: the later file's edges
+                edges[name] = _import_edges(parsed[0], name, path, paths)
+        found += check_file(path, str(path.relative_to(root)), daemon_rules=package == DAEMON,
+                            settings_rule=package in SETTINGS_RULE_PACKAGES, parsed=parsed)
+    out = _import_cycles(root, paths, edges)
+    out += found
     for path in sorted((root / TESTS).rglob("*.py")):
         out += check_test_file(path, str(path.relative_to(root)))
     return out

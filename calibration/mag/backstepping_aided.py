@@ -54,9 +54,10 @@ import math
 import numpy as np
 
 from ahrsd.estimator import AIDED_ESTIMATOR
+from ahrsd.estimator.velocity_rejection_watch import RejectionWatch
 
 from .levelling import attitude_from_estimator
-from .levelling_rejections import MAX_REJECTED_VELOCITY_FRACTION, RejectionWatch, rejection_warning
+from .levelling_rejections import MAX_REJECTED_VELOCITY_FRACTION, rejection_warning
 from .levelling_error import body_fixed_tilt_sigma_rad
 from .fit_types import MagFitInput, MagFitResult
 

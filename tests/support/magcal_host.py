@@ -130,3 +130,34 @@ def drive(proto, clock, traj, host, until=None, max_t=None):
             if until is not None and until():
                 return t
     return traj.t[-1]
+
+
+def drive_vehicle(proto, clock, block, host, courses=None, until=None):
+    """Feed a fieldcal_sim recording (truth attitude as the estimate) and GPS_RAW_INT at arrival times."""
+    from support.field_vehicle import truth_euler
+
+    eul = truth_euler(block)
+    next_tick, k = 0.0, 0
+    for i in range(len(block.t_s)):
+        t = float(block.t_s[i])
+        clock.t = 1000.0 + t
+        mag = host.cal.mag.apply(block.mag_ut[i])
+        proto.on_sample(make_sample(t, block.gyro_rad_s[i], block.accel_m_s2[i], mag),
+                        SimpleNamespace(roll_rad=eul[i, 2], pitch_rad=eul[i, 1], yaw_rad=eul[i, 0],
+                                        rate_body_rad_s=block.truth_gyro_rad_s[i]))
+        while courses is not None and k < courses[0].size and courses[0][k] <= t:
+            proto.on_gnss_message(gps_raw_int(courses[1][k], courses[2][k], courses[3][k]))
+            k += 1
+        if t >= next_tick:
+            next_tick = t + 0.1
+            tick_settled(proto)
+            if until is not None and until():
+                return i
+    return len(block.t_s) - 1
+
+
+def gps_raw_int(t_valid_s, course_rad, speed_m_s, fix_type=3, vel_acc_mm_s=0):
+    """GPS_RAW_INT as an autopilot sends it (cog cdeg, vel cm/s), packed and parsed by pymavlink."""
+    return wire(mavlink.MAVLink_gps_raw_int_message(
+        int(t_valid_s * 1e6), fix_type, 364200000, 549800000, 1345000, 80, 120, int(round(speed_m_s * 100)),
+        int(round(np.degrees(course_rad) * 100)) % 36000, 12, 0, 0, 0, vel_acc_mm_s, 0, 0))

@@ -1,0 +1,72 @@
+"""A ground station for the daemon's mag-cal sessions over UDP (tests/test_magcal_integration.py,
+test_magcal_field_daemon.py): pymavlink on a udpin socket that keeps what it received, sends COMMAND_LONG and
+waits for its ACK, plays the armed or disarmed autopilot's HEARTBEAT, and reads the calibrated field's norm."""
+
+from __future__ import annotations
+
+import collections
+import time
+
+import numpy as np
+
+from ahrsd.daemon.mavlink_io import mavlink, mavutil
+
+REPLY_LIMIT_S = 15.0     # a reply (ACK, STATUSTEXT, the first MAG_CAL_PROGRESS) comes at once; 15 s: a loaded machine
+
+
+class Client:
+    def __init__(self, port: int):
+        self.conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255, source_component=190)
+        self.msgs: list = []
+
+    def wait(self, pred, timeout: float):
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            m = self.conn.recv_match(blocking=True, timeout=0.2)
+            if m is None or m.get_type() == "BAD_DATA":
+                continue
+            self.msgs.append(m)
+            if pred(m):
+                return m
+        return None
+
+    def drop_queued(self) -> int:
+        """Read and drop every message already waiting in the socket; how many."""
+        dropped = 0
+        while self.conn.recv_match(blocking=False) is not None:
+            dropped += 1
+        return dropped
+
+    def seen_or_wait(self, pred, timeout: float, since: int = 0):
+        """A message already received (after index `since`) matching pred, else wait for one."""
+        for m in self.msgs[since:]:
+            if pred(m):
+                return m
+        return self.wait(pred, timeout)
+
+    def of(self, kind: str, since: int = 0) -> list:
+        return [m for m in self.msgs[since:] if m.get_type() == kind]
+
+    def command(self, command: int, *params: float, target=(1, 200), timeout: float = REPLY_LIMIT_S):
+        p = list(params) + [0.0] * (7 - len(params))
+        self.conn.mav.command_long_send(target[0], target[1], command, 0, *p)
+        return self.wait(lambda m: m.get_type() == "COMMAND_ACK" and m.command == command, timeout)
+
+    def autopilot_heartbeat(self, armed: bool) -> None:
+        mav = self.conn.mav
+        mav.srcSystem, mav.srcComponent = 1, 1
+        mav.heartbeat_send(mavlink.MAV_TYPE_SURFACE_BOAT, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                           mavlink.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0, 0, mavlink.MAV_STATE_STANDBY)
+        mav.srcSystem, mav.srcComponent = 255, 190
+
+    def mag_norm_spread_ut(self, seconds: float) -> tuple[float, float]:
+        """Mean and std of |calibrated mag| from HIGHRES_IMU (gauss) over `seconds`."""
+        start = len(self.msgs)
+        self.wait(lambda m: False, seconds)
+        for _ in range(3):  # a loaded machine can starve the daemon for a while: wait longer, not fail
+            if len(self.of("HIGHRES_IMU", start)) > 5:
+                break
+            self.wait(lambda m: False, seconds)
+        norms = [100.0 * np.linalg.norm([m.xmag, m.ymag, m.zmag]) for m in self.of("HIGHRES_IMU", start)]
+        assert len(norms) > 5, f"no HIGHRES_IMU from the daemon: {collections.Counter(m.get_type() for m in self.msgs[start:])}"
+        return float(np.mean(norms)), float(np.std(norms))
