@@ -35,7 +35,6 @@ from .accel_axes_heading import accel_axes_heading_variance_rad2
 from .accel_axes_tilt import ACCEL_MISALIGNMENT_SIGMA_RAD, accel_axes_tilt_variance_in_force_rad2
 from .base import DEFAULT_UNMODELLED_IRON_UT, LEARNED_WITH_GNSS
 from .calibration_heading import calibration_heading_variance_rad2, calibration_states_error
-from .accel_z_lean_tilt import accel_z_lean_tilt_variance_rad2
 from .gsf_yaw import GsfParams, gsf_fuse_velocity_of, gsf_output_of, gsf_reset, new_gsf_state
 from .heading_monitor import HeadingCheckRecord, HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
 from .heading_state_hold import HeadingStateHold
@@ -310,7 +309,8 @@ class InsParams(MagHeadingParams):
     """1σ of each off-diagonal element of the accelerometer's misalignment, rad: ins's tilt is the accelerometer's
     axes' tilt, off by m_yz (roll) and m_xz (pitch) when level (accel_axes_tilt.py), and the published roll and
     pitch σ carry it (ADIS16405-class factory alignment, accel_axes_tilt.ACCEL_MISALIGNMENT_SIGMA_RAD: the same
-    figure as `accel_axes_heading_sigma_rad`'s). 0: not carried."""
+    figure as `accel_axes_heading_sigma_rad`'s). It is also the prior σ of the z axis's lean states m_zx, m_zy
+    (ins_core.E_AZ_LEAN). 0: not carried, and the lean states stay at zero."""
     published_yaw_slew_rad_s: float = 2.0 * _DEG
     """The published yaw follows the filter's corrections at no more than this rate beyond the vehicle's own
     rotation: a yaw reset or a fast correction is slewed in, the published σ covering what is left
@@ -1820,6 +1820,8 @@ class Ins:
             P[core.E_SG + i, core.E_SG + i] = p.init_gyro_scale_sigma ** 2
         for i in range(6):
             P[core.E_MG + i, core.E_MG + i] = p.init_gyro_misalignment_sigma_rad ** 2
+        for i in range(core.N_ACC_Z_LEAN):   # the accelerometer z axis's lean m_zx, m_zy: 0 leaves them at zero
+            P[core.E_AZ_LEAN + i, core.E_AZ_LEAN + i] = p.accel_axes_tilt_sigma_rad ** 2
         self._restart_calibration_error_states()
 
     def _restart_companions(self, t_s) -> None:
@@ -1888,10 +1890,11 @@ class Ins:
                 add_var = max(0.0, add_var - cal_var)
             sigma_yaw = math.sqrt(sigma_yaw ** 2 + add_var)
             o[_OUT_SIGMA_YAW] = sigma_yaw
-        # the tilt ins levels is the accelerometer axes' tilt: their misalignment is in it, once a fix has levelled
-        # it through the vertical channel the z axis's lean (accel_z_lean_tilt.py), and the levelling's partials
-        # at the specific force the filter has (accel_axes_tilt.py; low-passed in NED: a turn's, not only gravity's)
-        var_roll = var_pitch = accel_z_lean_tilt_variance_rad2(self.params.accel_axes_tilt_sigma_rad, self._ever_aided)
+        # the tilt ins levels is the accelerometer axes' tilt: the x and y axes' misalignment is in it, at the
+        # levelling's partials at the specific force the filter has (accel_axes_tilt.py; low-passed in NED: a turn's,
+        # not only gravity's); the z axis's lean, which a fix levels through the vertical channel, is the E_AZ_LEAN
+        # states', already in the filter's σ
+        var_roll = var_pitch = 0.0
         if self.params.accel_axes_tilt_sigma_rad > 0.0:
             q0, q1, q2, q3 = self._q_true.tolist()
             fn, fe, fd = self._acc_ned_lp.tolist()

@@ -1,17 +1,18 @@
-"""The `ins` estimator's compiled kernels (numba): NED strapdown mechanisation, 31-state error covariance,
+"""The `ins` estimator's compiled kernels (numba): NED strapdown mechanisation, 33-state error covariance,
 accelerometer levelling while unaided, magnetometer heading, and the delayed GNSS velocity/position fusion.
 
 `ins.py` owns the parameters, initialisation, input checks and the Estimator interface; this module is the
 arithmetic. The nominal state and its bookkeeping `x` is an INS_STATE_DTYPE record, the parameters `par` an
 INS_PARAMS_DTYPE record (numpy structured types: named fields that numba compiles to fixed offsets), `hist`
 a ring of INS_HISTORY_DTYPE records (past nominal states for fusing a fix at its time of validity), `P` the
-31×31 error covariance, `out` the per-step outputs (an INS_OUT_DTYPE record). The entry points (`ins_step`,
+33×33 error covariance, `out` the per-step outputs (an INS_OUT_DTYPE record). The entry points (`ins_step`,
 `fuse_gnss`) take the state and parameters (and `ins_step` the outputs) as 1-element arrays (an array unboxes
 cheaper than a record).
 
 Nominal state: attitude q (body FRD → true-north NED, Hamilton scalar first), NED velocity v, WGS-84 geodetic
-position (L, λ, h), gyro bias b_g, accelerometer bias b_a (body frame), gyro scale factors and misalignment.
-Error state δx (24, true − estimate), in this order:
+position (L, λ, h), gyro bias b_g, accelerometer bias b_a (body frame), gyro scale factors and misalignment, the
+accelerometer z axis's lean.
+Error state δx (N_ERR = 33, true − estimate), in this order:
   δθ (0–2)  attitude error in NED, C_true = (I + [δθ×]) C_est; tilt δθ_N, δθ_E, heading δθ_D
   δv (3–5)  velocity error, NED, m/s
   δp (6–8)  position error, NED, m
@@ -20,10 +21,13 @@ Error state δx (24, true − estimate), in this order:
   δm_g (18–23) gyro misalignment M's off-diagonal elements xy, xz, yx, yz, zx, zy (ω_j picks up m_jk ω_k), rad
   δe_m (24–28) the calibrated magnetometer's heading error harmonics c0, c1, s1, c2, s2 (mag_harmonics.py), rad
   δε_m (29–30) the calibrated magnetometer's frame tilt about body x, y (mag_frame_tilt.py), rad
+  δm_a (31–32) the accelerometer z axis's lean towards x and y: its misalignment elements m_zx, m_zy
+            (f_meas = (I + diag(s) + M_a) f + b_a, the simulator's and Groves eq. 4.16's M), rad
 Error dynamics (Groves 2nd ed. ch. 14; the ω_in^n × δθ, Coriolis and gravity-gradient couplings are
 below the ADIS16405's noise over the filter's time constants and are left out):
-  δθ̇ = −C δb_g − C diag(ω) δs_g − C W(ω) δm_g + w_g,  δv̇ = −[f^n×] δθ − C δb_a + w_a,  δṗ = δv,  biases,
-  scale factors, misalignments and magnetometer harmonics random walks, the frame tilt constant (W(ω): the 3×6 map of δm_g into δω). An uncalibrated 0.3 %
+  δθ̇ = −C δb_g − C diag(ω) δs_g − C W(ω) δm_g + w_g,  δv̇ = −[f^n×] δθ − C δb_a − C e_z (f_x δm_zx + f_y δm_zy)
+  + w_a,  δṗ = δv,  biases, scale factors, misalignments and magnetometer harmonics random walks, the frame tilt and
+  the accelerometer's lean constant (W(ω): the 3×6 map of δm_g into δω). An uncalibrated 0.3 %
   gyro scale error turns into 0.07 °/s of attitude drift in a 13 °/s turn, a 0.1° misalignment of the x or
   y gyro towards z into 0.02 °/s of tilt drift — in a long turn a lean the GNSS must keep correcting; with
   these states the GNSS learns both (the turn itself makes them observable).
@@ -85,7 +89,12 @@ from .turn_lean import (
 
 E_TH, E_V, E_P, E_BG, E_BA, E_SG, E_MG, E_MH = 0, 3, 6, 9, 12, 15, 18, 24
 E_MF = E_MH + N_MAG_HARMONICS
-N_ERR = E_MF + N_MAG_FRAME_TILT
+# the accelerometer z axis's lean towards body x and y (its misalignment elements m_zx, m_zy), rad: the z axis reads
+# m_zx f_x + m_zy f_y more, which in a horizontal acceleration a the GNSS's vertical channel cannot tell from a tilt
+# of m_zx (docs/estimator.md "The accelerometer z axis's lean as states")
+E_AZ_LEAN = E_MF + N_MAG_FRAME_TILT
+N_ACC_Z_LEAN = 2
+N_ERR = E_AZ_LEAN + N_ACC_Z_LEAN
 E_TILT_N, E_TILT_E, E_YAW = E_TH, E_TH + 1, E_TH + 2     # δθ_N, δθ_E, δθ_D (the yaw error about down)
 # (row j, column k) of each misalignment error component E_MG + n: δω_j = δm_jk ω_k
 MIS_ROW = (0, 0, 1, 1, 2, 2)
@@ -111,6 +120,7 @@ INS_STATE_DTYPE = np.dtype([
     ("accel_bias_m_s2", np.float64, (3,)),       # body frame
     ("gyro_scale", np.float64, (3,)),            # scale-factor errors (ω_meas = (I + diag(s) + M) ω + b), fraction
     ("gyro_misalignment_rad", np.float64, (6,)),  # M: xy, xz, yx, yz, zx, zy (MIS_ROW, MIS_COL)
+    ("accel_z_lean_rad", np.float64, (N_ACC_Z_LEAN,)),   # the accelerometer's m_zx, m_zy (error states E_AZ_LEAN…)
     ("t_last_s", np.float64),                    # time of the previous sample
     ("t_run_s", np.float64),                     # time since initialisation
     # sums since the last covariance propagation
@@ -118,6 +128,7 @@ INS_STATE_DTYPE = np.dtype([
     ("cov_c_s", np.float64, (9,)),               # ∫ C_b^n dt (row-major)
     ("cov_dv_m_s", np.float64, (3,)),            # ∫ f^n dt
     ("cov_c_omega_rad", np.float64, (27,)),      # ∫ C_ij ω_k dt (index 9 i + 3 j + k)
+    ("cov_c_f_m_s", np.float64, (6,)),           # ∫ C_iz f_k dt, k = x, y (index 2 i + k): the lean's partials
     # levelling
     ("acc_ned_lp_m_s2", np.float64, (3,)),       # specific force low-passed in the estimated NED frame
     ("acc_hold_s", np.float64),                  # levelling stays off this much longer after a sustained push
@@ -249,6 +260,7 @@ M_GYRO_MIS = 0b111111 << E_MG
 M_NAV = 0b111111 << E_V
 M_MAG_HARMONICS = ((1 << N_MAG_HARMONICS) - 1) << E_MH
 M_MAG_FRAME_TILT = ((1 << N_MAG_FRAME_TILT) - 1) << E_MF
+M_ACC_Z_LEAN = ((1 << N_ACC_Z_LEAN) - 1) << E_AZ_LEAN
 NAV_UNKNOWN_VAR_V = 100.0    # (10 m/s)², velocity variance before a fix sets it
 NAV_UNKNOWN_VAR_P = 1e6      # (1 km)², position variance before a fix sets it
 
@@ -303,6 +315,8 @@ def _apply_correction(x, par, dx):
         x.mag_heading_error_rad[i] += dx[E_MH + i]
     for i in range(N_MAG_FRAME_TILT):
         x.mag_frame_tilt_rad[i] += dx[E_MF + i]
+    for i in range(N_ACC_Z_LEAN):
+        x.accel_z_lean_rad[i] = min(max(x.accel_z_lean_rad[i] + dx[E_AZ_LEAN + i], -sc), sc)
     # the NED-frame low-passed specific force lives in the estimated NED frame: keep it there
     an = x.acc_ned_lp_m_s2[0]
     ae = x.acc_ned_lp_m_s2[1]
@@ -338,9 +352,9 @@ def _accumulate_c_omega(x, c00, c01, c02, c10, c11, c12, c20, c21, c22, tx, ty, 
 def transition_matrix(x, par):
     """Φ (N_ERR × N_ERR) of the interval accumulated since the last propagation (cov_t_s, the sums ∫C dt,
     ∫C ω dt, ΔV^n), as `propagate_covariance` applies it (3×3 blocks, order δθ, δv, δp, δb_g, δb_a, then δs_g,
-    δm_g), with A = −∫C dt and B = −[ΔV^n×]:
-        δθ: [I, 0, 0, A, 0, −∫C diag(ω) dt, −∫C W(ω) dt];  δv: [B, I, 0, 0, A, 0, 0];
-        δp: [½T B, T I, I, 0, ½T A, 0, 0];  biases, scale factors, misalignments: identity.
+    δm_g, then δm_a), with A = −∫C dt, B = −[ΔV^n×] and L = −∫C e_z [f_x, f_y] dt (the lean's):
+        δθ: [I, 0, 0, A, 0, −∫C diag(ω) dt, −∫C W(ω) dt, 0];  δv: [B, I, 0, 0, A, 0, 0, L];
+        δp: [½T B, T I, I, 0, ½T A, 0, 0, ½T L];  biases, scale factors, misalignments, lean: identity.
     The offline smoother (ins_smoother.py) reads it too."""
     T = x.cov_t_s
     phi = np.eye(N_ERR)
@@ -353,6 +367,10 @@ def transition_matrix(x, par):
             phi[E_P + i, E_BA + j] = 0.5 * T * a
         for n in range(6):   # δθ̇ = −C W(ω) δm: δm_jk moves ω_j by δm_jk ω_k
             phi[E_TH + i, E_MG + n] = -x.cov_c_omega_rad[9 * i + 3 * MIS_ROW[n] + MIS_COL[n]]
+        for k in range(N_ACC_Z_LEAN):   # δv̇ = −C e_z f_k δm_zk: the lean moves the z axis's reading by m_zk f_k
+            lean = -x.cov_c_f_m_s[2 * i + k]
+            phi[E_V + i, E_AZ_LEAN + k] = lean
+            phi[E_P + i, E_AZ_LEAN + k] = 0.5 * T * lean
     dvn = x.cov_dv_m_s[0]
     dve = x.cov_dv_m_s[1]
     dvd = x.cov_dv_m_s[2]
@@ -420,6 +438,8 @@ def _clear_increments(x):
         x.cov_c_s[i] = 0.0
     for i in range(27):
         x.cov_c_omega_rad[i] = 0.0
+    for i in range(6):
+        x.cov_c_f_m_s[i] = 0.0
     for i in range(3):
         x.cov_dv_m_s[i] = 0.0
 
@@ -477,7 +497,7 @@ def _level(x, P, par, dt_epoch):
     # the lean this update carries into the tilt in a turn, for the published 1σ (turn_lean.py)
     track_tilt_push(x.turn_lean, par.turn_speed_m_s, g, levelling_gain(P[E_TILT_E, E_TILT_E], r))
     mask = (M_HEADING | M_ACC_BIAS | M_GYRO_BIAS | M_GYRO_SCALE | M_GYRO_MIS | M_MAG_HARMONICS
-            | M_MAG_FRAME_TILT)   # tilt only
+            | M_MAG_FRAME_TILT | M_ACC_Z_LEAN)   # tilt only
     dx = np.zeros(N_ERR)
     h = np.zeros(N_ERR)
     h[1] = 1.0
@@ -709,6 +729,8 @@ def _take_sample(x, valid, gx, gy, gz, ax, ay, az, mx, my, mz):
     fx = 0.5 * (pax + x.acc_last_m_s2[0]) - x.accel_bias_m_s2[0]
     fy = 0.5 * (pay + x.acc_last_m_s2[1]) - x.accel_bias_m_s2[1]
     fz = 0.5 * (paz + x.acc_last_m_s2[2]) - x.accel_bias_m_s2[2]
+    # the z axis's lean: f_z,meas = f_z + m_zx f_x + m_zy f_y (first order in M_a, as the gyro's above)
+    fz -= x.accel_z_lean_rad[0] * fx + x.accel_z_lean_rad[1] * fy
     return wx, wy, wz, mwx, mwy, mwz, fx, fy, fz
 
 
@@ -792,9 +814,9 @@ def _integrate_navigation(x, dt, fn, fe, fd, r_n, r_e, earth):
 
 
 @njit(cache=True, inline="always")
-def _accumulate_increments(x, par, dt, c, fn, fe, fd, mwx, mwy, mwz):
-    """What the covariance epoch and the levelling take from each step: the interval, ∫C dt, ΔV^n = ∫f^n dt and
-    ∫C_ij ω_k dt (`propagate_covariance`'s transition matrix), and the NED-frame low-pass of the specific force
+def _accumulate_increments(x, par, dt, c, fn, fe, fd, mwx, mwy, mwz, fx, fy):
+    """What the covariance epoch and the levelling take from each step: the interval, ∫C dt, ΔV^n = ∫f^n dt,
+    ∫C_ij ω_k dt and ∫C_iz f_k dt (body f_x, f_y: the lean's) (`propagate_covariance`'s transition matrix), and the NED-frame low-pass of the specific force
     (levelling: linear acceleration averages out, gravity stays)."""
     c00, c01, c02, c10, c11, c12, c20, c21, c22 = c
     x.cov_t_s += dt
@@ -811,6 +833,13 @@ def _accumulate_increments(x, par, dt, c, fn, fe, fd, mwx, mwy, mwz):
     x.cov_dv_m_s[1] += fe * dt
     x.cov_dv_m_s[2] += fd * dt
     _accumulate_c_omega(x, c00, c01, c02, c10, c11, c12, c20, c21, c22, mwx * dt, mwy * dt, mwz * dt)
+    s = x.cov_c_f_m_s
+    s[0] += c02 * fx * dt
+    s[1] += c02 * fy * dt
+    s[2] += c12 * fx * dt
+    s[3] += c12 * fy * dt
+    s[4] += c22 * fx * dt
+    s[5] += c22 * fy * dt
     tau = par.level_lowpass_tau_s
     k = 1.0 - math.exp(-dt / tau) if tau > 0.0 else 1.0
     x.acc_ned_lp_m_s2[0] += k * (fn - x.acc_ned_lp_m_s2[0])
@@ -840,7 +869,7 @@ def _mechanise(x, par, dt, nav_ok, mwx, mwy, mwz, fx, fy, fz):
     vd = x.vel_ned_m_s[2]
     if nav_ok:
         vn, ve, vd = _integrate_navigation(x, dt, fn, fe, fd, r_n, r_e, earth)
-    _accumulate_increments(x, par, dt, c, fn, fe, fd, mwx, mwy, mwz)
+    _accumulate_increments(x, par, dt, c, fn, fe, fd, mwx, mwy, mwz, fx, fy)
     return q0, q1, q2, q3, vn, ve, vd
 
 
@@ -1145,8 +1174,9 @@ def _gated_update(gate, P, par, H, nu, var, m, dx, t_fix, may_reset, r_fused, r_
         # wrong yaw would be taken up by the horizontal accelerometer bias, which then holds a matching tilt error
         # that a steady turn cannot separate (pitch error, forward bias and gyro misalignment move together): the
         # x and y bias wait for a known heading; z (vertical on a near-level vehicle) learns on (docs/estimator.md
-        # "A wrong heading must not teach the accelerometer bias")
-        zero = 0 if par.accel_bias_learn > 0.5 else M_ACC_BIAS_XY
+        # "A wrong heading must not teach the accelerometer bias"); nor the z axis's lean, which the vertical channel
+        # learns against that tilt (the lean and a pitch are one error there)
+        zero = 0 if par.accel_bias_learn > 0.5 else M_ACC_BIAS_XY | M_ACC_Z_LEAN
         for i in range(m):
             scalar_update(P, H[i], residual(H[i], nu[i], dx), var[i], zero, dx)
         gate.rejected_since_s = math.nan

@@ -180,8 +180,10 @@ def nominal_difference(x_before, x_after, par) -> np.ndarray:
         dx[18 + i] = x_after["gyro_misalignment_rad"][i] - x_before["gyro_misalignment_rad"][i]
     for i in range(core.E_MF - core.E_MH):
         dx[core.E_MH + i] = x_after["mag_heading_error_rad"][i] - x_before["mag_heading_error_rad"][i]
-    for i in range(core.N_ERR - core.E_MF):
+    for i in range(core.E_AZ_LEAN - core.E_MF):
         dx[core.E_MF + i] = x_after["mag_frame_tilt_rad"][i] - x_before["mag_frame_tilt_rad"][i]
+    for i in range(core.N_ERR - core.E_AZ_LEAN):
+        dx[core.E_AZ_LEAN + i] = x_after["accel_z_lean_rad"][i] - x_before["accel_z_lean_rad"][i]
     return dx
 
 

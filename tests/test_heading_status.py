@@ -624,9 +624,12 @@ def test_an_uncalibrated_magnetometer_is_named_and_heading_good_waits_for_gnss(u
 
 def test_a_wrong_calibration_is_rejected_named_and_reported_unhealthy(wrongly_calibrated_boat):
     vpe, texts, svc, _ = wrongly_calibrated_boat
-    states = [int(e.heading_state) for _, e, _ in vpe]
-    assert HeadingState.GNSS_ONLY in states or HeadingState.LEARNING in states
-    assert any("calibration wrong or iron changed" in t for t in texts)
+    # the rejection is named and the heading status leaves the magnetometer (learning its iron, then GNSS only); the
+    # VPEs need not show it: the GNSS-only yaw σ is about 3° (INITIALISING above it, no VPE) right after the rejection
+    # and 12–14° from 25 s (a VPE with that state came only in a 1 s window where the σ was within 0.01° under 3°)
+    rejected = [i for i, t in enumerate(texts) if "calibration wrong or iron changed" in t]
+    assert rejected
+    assert {HeadingState.GNSS_ONLY, HeadingState.LEARNING} <= {t.state for t in texts[rejected[0]:]}
     assert all(e.heading_state != HeadingState.UNKNOWN for _, e, _ in vpe)
     for m, e, _ in vpe:
         assert m.covariance[20] == pytest.approx(float(e.sigma_rpy_rad[2]) ** 2, rel=1e-6)

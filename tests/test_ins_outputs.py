@@ -13,7 +13,6 @@ from ahrsd.core.estimate import EstimateFlags
 from ahrsd.core.sample import make_sample
 from ahrsd.estimator import ins_core as core
 from ahrsd.estimator.accel_axes_tilt import accel_axes_tilt_variance_in_force_rad2
-from ahrsd.estimator.accel_z_lean_tilt import accel_z_lean_tilt_variance_rad2
 from ahrsd.estimator.rotations import quat_to_dcm
 from ahrsd.estimator.ins import Ins
 
@@ -62,8 +61,7 @@ def test_every_output_field_is_the_state_it_names():
                                                                        *x["acc_ned_lp_m_s2"],
                                                                        est.params.accel_axes_tilt_sigma_rad)
         assert axes_roll > 0.0 and axes_pitch > 0.0
-        z_lean = accel_z_lean_tilt_variance_rad2(est.params.accel_axes_tilt_sigma_rad, est._ever_aided)  # once aided
-        axes_roll, axes_pitch = axes_roll + z_lean, axes_pitch + z_lean
+        # (the z axis's lean is the E_AZ_LEAN states': already in P's tilt block, nothing more is added)
         assert math.isclose(e.sigma_rpy_rad[0], math.sqrt(along @ P[:2, :2] @ along + axes_roll), rel_tol=1e-9)
         assert math.isclose(e.sigma_rpy_rad[1], math.sqrt(across @ P[:2, :2] @ across + axes_pitch), rel_tol=1e-9)
         n = e.nav

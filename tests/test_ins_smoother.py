@@ -101,7 +101,7 @@ def test_nominal_difference_inverts_the_closed_loop_correction():
     x["vel_ned_m_s"] = [3.0, -1.0, 0.2]
     x["lat_rad"], x["lon_rad"], x["h_m"] = 0.9, 0.4, 35.0
     dx = rng.standard_normal(core.N_ERR) * np.r_[[1e-3] * 3, [0.1] * 3, [2.0] * 3, [1e-4] * 3, [1e-2] * 3,
-                                                 [1e-3] * 9, [1e-2] * 5, [1e-3] * 2]
+                                                 [1e-3] * 9, [1e-2] * 5, [1e-3] * 2, [1e-3] * 2]
     after = x.copy()
     core._apply_correction(after, par, dx)
     np.testing.assert_allclose(nominal_difference(x, after, par), dx, rtol=1e-9, atol=1e-12)

@@ -62,9 +62,7 @@ def _run(seed, seconds=75.0, fixes=()):
             axes_roll, axes_pitch = accel_axes_tilt_variance_in_force_rad2(tuple(quat_to_dcm(x["q"]).ravel()),
                                                                            *x["acc_ned_lp_m_s2"],
                                                                            ins.params.accel_axes_tilt_sigma_rad)
-            # and, once a fix has aided, the z axis's lean σ_m² on each (estimator/accel_z_lean_tilt.py)
-            z_lean = ins.params.accel_axes_tilt_sigma_rad ** 2 if ins._ever_aided else 0.0
-            axes_roll, axes_pitch = axes_roll + z_lean, axes_pitch + z_lean
+            # (the z axis's lean is the E_AZ_LEAN states': already in the covariance's tilt block)
             c, s = math.cos(yaw), math.sin(yaw)
             # roll is about the heading axis (c, s), pitch about the axis across it (−s, c)
             roll_axis = np.array([c, s])
