@@ -1362,9 +1362,13 @@ class Ins:
                 log.warning("ins: magnetometer heading stepped by %+.1f° while the gyro saw no turn: iron changed; "
                             "magnetometer rejected", math.degrees(d.mag_step_rad))
             else:
-                log.warning("ins: magnetometer disagrees with the GNSS-held heading by %.1f°: calibration wrong or "
-                            "iron changed; magnetometer rejected",
-                            math.degrees(self._monitor.rejection_disagreement_rad))
+                # the daemon's and replay's wording: a calibration that states its heading error was wrong (or the
+                # iron moved since it); with none, or one of unknown quality, that is the reason itself
+                stated = calibration_states_error(self.params.mag_calibration_sigma_rad)
+                why = ("calibration wrong or iron changed" if stated
+                       else "no magnetometer calibration stating its heading error")
+                log.warning("ins: magnetometer disagrees with the GNSS-held heading by %.1f°: %s; magnetometer "
+                            "rejected", math.degrees(self._monitor.rejection_disagreement_rad), why)
         return d
 
     def _reset_or_confirm_yaw(self, t_s: float, d: MonitorDecision, yaw: float, gsf_yaw: float, gsf_var: float,

@@ -251,7 +251,7 @@ def fitted_antenna_m(summary: str) -> np.ndarray:
     return np.array([float(v) for v in found.groups()])
 
 
-def test_a_recorded_antenna_lever_arm_replays_clean_only_when_given(tmp_path):
+def test_a_recorded_antenna_lever_arm_replays_clean_only_when_given(tmp_path, caplog):
     """`record --sim boat --gnss-lever-arm-m` puts the simulated receiver's antenna on a mast; replayed without
     the arm the filter's gate rejects the rocking antenna's velocities and the summary warns, given the same arm
     (`--set lever_arm_m=...`) it does not. 20 s are enough: without the arm the gate rejects about half the
@@ -264,6 +264,10 @@ def test_a_recorded_antenna_lever_arm_replays_clean_only_when_given(tmp_path):
     res = replay(str(rec), "--gnss", str(gnss), "-o", str(tmp_path / "a.csv"))
     # told no arm, the lever-arm check puts the antenna near the mast's top, whatever the magnetometer said
     assert res.returncode == 0 and np.linalg.norm(fitted_antenna_m(res.stderr) - (-1, 0, -2)) < 1.0, res.stderr
+    # the filter's own log of the rejected magnetometer says what the daemon says: no calibration, not a wrong one
+    logged = caplog.text
+    assert "GNSS-held heading by" in logged and "no magnetometer calibration stating its heading error" in logged
+    assert "calibration wrong or iron changed; magnetometer rejected" not in logged
     res = replay(str(rec), "--gnss", str(gnss), "--set", "lever_arm_m=(-1, 0, -2)",
                 "-o", str(tmp_path / "b.csv"))
     assert res.returncode == 0 and "WARNING" not in res.stderr, res.stderr
