@@ -342,6 +342,10 @@ class HeadingStatus:
         sig = f"±{math.degrees(self.sigma_rad):.1f}°"
         integrity = est.integrity
         caveat = self.calibration_caveat()
+        if integrity is not None and integrity.lever_arm_wrong:
+            # before a magnetometer disagreeing with the GNSS yaw: a wrong arm bends that yaw too
+            return "lever arm", ("the GNSS velocities fit another antenna place than [gnss] lever_arm_m; measure it "
+                                 "and set it")
         if self.mag_inconsistent:
             return "disagrees", ""
         if self._off_centre() and not self.initialising:
@@ -383,7 +387,8 @@ class HeadingStatus:
             return self._magnetometer_text()
         cause = self._magnetometer_cause()
         if state == HeadingState.UNKNOWN:
-            why = cause if self.mag_inconsistent else self._unknown_cause(est)[1]
+            key, unknown_why = self._unknown_cause(est)
+            why = unknown_why if key == "lever arm" or not self.mag_inconsistent else cause
             return mavlink.MAV_SEVERITY_WARNING, f"ahrsd: heading unknown: {why}; no heading sent"
         doing = ("heading GNSS-held while the iron is relearned" if self._iron_stepped()
                  else "learning its iron" if state == HeadingState.LEARNING else "heading from GNSS only")

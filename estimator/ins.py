@@ -1492,7 +1492,8 @@ class Ins:
             sig = self._unconfirmed_sigma_rad
         self._integrity = HeadingIntegrity(gsf_yaw, math.sqrt(gsf_var) if math.isfinite(gsf_var) else math.nan,
                                            gsf_valid, self._monitor.disagreement_rad, self._iron.offset_ut,
-                                           self._iron.sigma_ut, self._rejection_step_rad)
+                                           self._iron.sigma_ut, self._rejection_step_rad,
+                                           self._lever_arm_fit.arm_wrong)
         raw = self._monitor.heading_state(sig, False, True, p.heading_unknown_sigma_rad, self._mag_trust_var)
         if raw == HeadingState.MAGNETOMETER and self._mag_state()["since_update_s"] > p.mag_unavailable_s:
             # the monitor lets the magnetometer back, but the kernel's field check still rejects every field (its

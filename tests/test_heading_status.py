@@ -19,9 +19,9 @@ DEG = math.radians(1.0)
 
 
 def estimate(state, sigma_deg, *, disagreement_deg=math.nan, gsf_sigma_deg=2.0, gsf_valid=True, flags=0,
-             with_integrity=True, mag_step_deg=math.nan):
+             with_integrity=True, mag_step_deg=math.nan, lever_arm_wrong=False):
     integrity = HeadingIntegrity(0.0, gsf_sigma_deg * DEG, gsf_valid, disagreement_deg * DEG, np.zeros(3),
-                                 np.full(3, 10.0), mag_step_deg * DEG) if with_integrity else None
+                                 np.full(3, 10.0), mag_step_deg * DEG, lever_arm_wrong) if with_integrity else None
     return AttitudeEstimate(0.0, np.array([1.0, 0, 0, 0]), 0.0, 0.0, 0.0, 0.0, 0.0, np.zeros(3), np.zeros(3),
                             np.array([0.01, 0.01, sigma_deg * DEG]), EstimateFlags(flags), None,
                             HeadingState(state), integrity)
@@ -395,6 +395,18 @@ def test_unknown_names_why_and_says_no_heading_is_sent():
     hs.on_estimate(estimate(HeadingState.UNKNOWN, 20.0, gsf_valid=False), 0.0)
     assert "GNSS yaw not valid yet" in texts[-1][1]
     assert hs.standby_detail() == "heading unknown, no heading out"
+
+
+def test_a_heading_unknown_for_a_wrong_lever_arm_says_so_not_the_magnetometer():
+    """ins publishes the heading unknown once the lever-arm check found the arm wrong (estimator/lever_arm_fit.py);
+    the reason said is the arm, also while the magnetometer disagrees with the GNSS yaw the arm bent."""
+    hs, texts = status(cal_sigma_deg=0.5)
+    hs.on_estimate(estimate(HeadingState.UNKNOWN, 180.0, disagreement_deg=70.0, lever_arm_wrong=True), 0.0)
+    assert texts[-1][1] == ("ahrsd: heading unknown: the GNSS velocities fit another antenna place than [gnss] "
+                            "lever_arm_m; measure it and set it; no heading sent")
+    hs, texts = status(cal_sigma_deg=0.5)
+    hs.on_estimate(estimate(HeadingState.UNKNOWN, 180.0, disagreement_deg=70.0), 0.0)
+    assert "lever_arm_m" not in texts[-1][1]
 
 
 def test_each_yaw_reset_is_announced_once():

@@ -164,7 +164,9 @@ def test_the_filter_finds_an_antenna_told_4_m_up_at_the_imu(boat_40s):
     assert result.explains and np.linalg.norm(np.asarray(told) + result.offset_m) < 1.0, result
     # the heading the wrong arm bent is published unknown (σ π), not held by GNSS
     assert last.sigma_rpy_rad[2] == pytest.approx(math.pi) and last.heading_state == HeadingState.UNKNOWN
+    assert last.integrity.lever_arm_wrong          # for the daemon to say why (daemon/heading_status.py)
     right_est, right_last = run_ins(boat_40s, (0.0, 0.0, 0.0))
     right = right_est.lever_arm_fit()
     assert not right.explains and np.linalg.norm(right.offset_m) < 0.5, right
     assert right_last.sigma_rpy_rad[2] < math.radians(15.0), right_last
+    assert not right_last.integrity.lever_arm_wrong
