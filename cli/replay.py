@@ -143,7 +143,7 @@ def _gate_summary(estimator, by_cause: dict[str, int] | None = None, mag_cause: 
     rejects a correct fix only if the antenna is not where it was told). `mag_cause`: why the magnetometer
     disagreed, when the heading checks rejected it (_disagreement_cause)."""
     from ahrsd.estimator.base import GnssAidedEstimator, HeadingCheckedEstimator
-    from ahrsd.estimator.velocity_rejection_watch import UNEXPLAINED, heading_causes_text
+    from ahrsd.estimator.velocity_rejection_watch import heading_causes_text, heading_explained
 
     if not isinstance(estimator, GnssAidedEstimator):
         return "not offered"
@@ -156,7 +156,7 @@ def _gate_summary(estimator, by_cause: dict[str, int] | None = None, mag_cause: 
         text += f"; WARNING: {_rejection_summary(report, mag_cause)}"
     limit = GATE_HINT_FRACTION * max(c.offered, 1)
     if c.rejected_velocity > limit:
-        heading = {k: v for k, v in (by_cause or {}).items() if k != UNEXPLAINED}
+        heading = heading_explained(by_cause or {})
         unexplained = c.rejected_velocity - sum(heading.values())
         if heading and unexplained <= limit:
             text += (f"; WARNING: the velocities were rejected while the filter's heading was not one to trust "

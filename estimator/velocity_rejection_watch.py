@@ -59,9 +59,10 @@ class RejectionWatch:
         key = UNEXPLAINED if cause is None else cause.key
         self.by_cause[key] = self.by_cause.get(key, 0) + new
 
-    def heading_explained(self) -> dict[str, int]:
-        """The rejections the heading explains, by cause key."""
-        return {k: v for k, v in self.by_cause.items() if k != UNEXPLAINED}
+
+def heading_explained(by_cause: dict[str, int]) -> dict[str, int]:
+    """Of the rejections counted by cause (RejectionWatch.by_cause), those the heading explains, by cause key."""
+    return {k: v for k, v in by_cause.items() if k != UNEXPLAINED}
 
 
 def heading_causes_text(heading: dict[str, int]) -> str:

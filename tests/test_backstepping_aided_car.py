@@ -79,7 +79,8 @@ def test_rejections_before_the_heading_is_found_are_not_blamed_on_the_lever_arm(
     the warning names the heading, not the lever arm; the untold arm of
     tests/test_backstepping_aided.py::test_an_untold_lever_arm_is_named_in_the_warning is still named."""
     from ahrsd.calibration.mag.backstepping_aided import _level
-    from ahrsd.calibration.mag.levelling_rejections import UNEXPLAINED, rejection_warning
+    from ahrsd.calibration.mag.levelling_rejections import rejection_warning
+    from ahrsd.estimator.velocity_rejection_watch import UNEXPLAINED
 
     caplog.set_level(logging.ERROR)
     stream, fixes, data = _car(0, rate_hz=400.0)

@@ -9,7 +9,7 @@ velocity in accelerations and rejects correct fixes until it has it (docs/gnss.m
 
 from __future__ import annotations
 
-from ahrsd.estimator.velocity_rejection_watch import UNEXPLAINED, heading_causes_text
+from ahrsd.estimator.velocity_rejection_watch import heading_causes_text, heading_explained
 
 MAX_REJECTED_VELOCITY_FRACTION = 0.01   # of the offered fixes: more, and the filter did not converge
 
@@ -27,7 +27,7 @@ def rejection_warning(passes: list, filter_overrides: dict | None) -> str | None
     text = (f"the aided levelling ({bad[-1]['magnetometer']}) rejected {g['rejected_velocity']} of {g['offered']} "
             f"GNSS velocities and reset its velocity {g['reset_velocity']} times")
     by_cause = bad[-1].get("rejected_velocity_by_cause", {})
-    heading = {k: v for k, v in by_cause.items() if k != UNEXPLAINED}
+    heading = heading_explained(by_cause)
     unexplained = g["rejected_velocity"] - sum(heading.values())
     if heading and unexplained <= MAX_REJECTED_VELOCITY_FRACTION * max(g["offered"], 1):
         causes = heading_causes_text(heading)
