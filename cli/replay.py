@@ -167,7 +167,7 @@ def _gate_summary(estimator, by_cause: dict[str, int] | None = None, mag_cause: 
             fit = estimator.lever_arm_fit()
             if fit is not None and fit.explains:
                 # the lever-arm check (estimator/lever_arm_fit.py): where the innovations put the antenna
-                at = ", ".join(f"{float(v) + float(d):.1f}" for v, d in zip(estimator.lever_arm_m, fit.offset_m))
+                at = ", ".join(f"{v:.1f}" for v in fit.antenna_m(estimator.lever_arm_m).tolist())
                 text += (f"; WARNING: the rejected velocities fit an antenna at ({at}) m ±"
                          f"{float(max(fit.sigma_m)):.1f} m, not where the filter was told ({arm} m, body FRD): "
                          f"measure it and give it (--set \"lever_arm_m=(x, y, z)\")")

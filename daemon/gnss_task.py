@@ -399,7 +399,7 @@ class GnssTask:
             told = " ".join(f"{v:g}" for v in self.cfg.lever_arm_m)
             if explains:
                 # the lever-arm check (estimator/lever_arm_fit.py) found where the innovations put the antenna
-                at = [float(v) + float(d) for v, d in zip(self.cfg.lever_arm_m, fit.offset_m)]
+                at = fit.antenna_m(self.cfg.lever_arm_m).tolist()
                 log.warning("the aided filter rejected %d of %d GNSS velocities in the last %.0f s: they fit an "
                             "antenna at %s m (body FRD from the IMU), not at [gnss] lever_arm_m %s m: measure it "
                             "and set lever_arm_m", rejected, offered, now - t0, " ".join(f"{v:.1f}" for v in at),

@@ -1039,13 +1039,14 @@ class Ins:
             alt if use_alt else 0.0, v[0] if use_vel else 0.0, v[1] if use_vel else 0.0,
             v[2] if use_vd else 0.0, sig_h, sig_v, sig_s, use_pos, use_alt, use_vel, use_vd,
         )
+        velocity_step = self._x["vel_ned_m_s"] - vel_before
         if use_vel:
-            self._lever_arm_fit.fused(self._x["vel_ned_m_s"] - vel_before, bool(res & core.R_VEL_REJECTED))
+            self._lever_arm_fit.fused(velocity_step, bool(res & core.R_VEL_REJECTED))
         # the update corrected the state and the history rows after the fix's time, not those up to it: kept for
         # a yaw reset at this fix (`_reset_velocity_to_fix`). The resets from a first fix or after an outage
         # correct the row at the fix's time as well, so they leave nothing to add
         step_rows = not res & (core.R_NAV_INIT | core.R_OUTAGE_RESET)
-        self._fix_velocity_step = (float(fix.t_s), self._x["vel_ned_m_s"] - vel_before) if step_rows else None
+        self._fix_velocity_step = (float(fix.t_s), velocity_step) if step_rows else None
         self._count_fuse_result(res, fix)
         if p.heading_monitor and p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
             self._check_heading(float(fix.t_s))

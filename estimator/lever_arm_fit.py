@@ -30,6 +30,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .rotations import skew
+
 WINDOW_PAIRS = 100             # fix-to-fix differences fitted: 20 s at 5 Hz
 MIN_PAIRS = 30                 # fewer: no verdict
 MAX_PAIR_GAP_S = 0.6           # consecutive velocity fixes further apart than this are not differenced
@@ -50,12 +52,14 @@ class LeverArmFitResult(NamedTuple):
     explains: bool
     chi2: float = 0.0
 
+    def antenna_m(self, told_m) -> np.ndarray:
+        """Where the fit puts the antenna (body FRD, m): the told arm plus the fitted error."""
+        return np.asarray(told_m, dtype=float) + self.offset_m
+
 
 def rate_cross_ned(c_bn: np.ndarray, rate_b_rad_s: np.ndarray) -> np.ndarray:
     """C [ω×]: the NED velocity of an antenna offset δr (body) per metre of δr, as a 3 × 3 matrix."""
-    wx, wy, wz = (float(v) for v in rate_b_rad_s)
-    skew = np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]])
-    return c_bn @ skew
+    return c_bn @ skew(rate_b_rad_s)
 
 
 class LeverArmFit:
