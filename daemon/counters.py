@@ -16,4 +16,5 @@ class ServiceCounters:
     unsigned_refused: int = 0    # parameter protocol: PARAM_SET refused unsigned (commands: the router counts)
     published: int = 0          # publishers
     statustext_suppressed: int = 0  # outbound: non-critical STATUSTEXTs dropped by the rate limit (flooding peer)
+    timesync_answered: int = 0   # inbound: TIMESYNC requests answered, within their sender's rate limit
     timesync_refused: int = 0    # inbound: TIMESYNC requests not answered, beyond their sender's rate limit

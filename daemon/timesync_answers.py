@@ -7,8 +7,9 @@ MavlinkTimesync::handle_message answers unconditionally), which bounds the answe
 on UDP, where a flooding or broken peer makes us send one answer per request (bench/latency.py's flood, docs/daemon.md).
 So each sender — system and component id, on one endpoint — may have ANSWERS_PER_S answers a second with
 bursts of BURST: twice the fastest requester above, so no real requester ever loses an answer. A request beyond
-that is not answered: counted (`timesync_refused`, the stats file's "service" section), and logged — a
-warning at a sender's first refusal, then at most once every LOG_EVERY_S with how many since.
+that is not answered: counted (`timesync_refused`, the stats file's "service" section, beside the answered ones,
+`timesync_answered`), and logged — a warning at a sender's first refusal, then at most once every LOG_EVERY_S
+with how many since.
 
 A hostile peer can forge any number of sender ids: at most MAX_SENDERS are followed one by one, the requests of
 any further sender share one limit.
@@ -57,6 +58,7 @@ class TimesyncAnswers:
                 sender = self._senders[key] = _Sender()
         if sender.budget.take(now_s):
             endpoint.send(msgs.timesync_reply(endpoint.timesync_stamp_ns(), msg.ts1))
+            self.counters.timesync_answered += 1
             return
         self.counters.timesync_refused += 1
         sender.refused_since_log += 1

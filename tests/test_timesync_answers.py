@@ -34,10 +34,10 @@ def test_a_flood_at_one_instant_gets_the_burst_then_the_rate():
         answers.on_request(link, request(1000 + k), 50.0)
     assert [m.ts1 for m in link.sent] == list(range(1000, 1020))        # the first 20, ts1 mirrored
     assert all(m.tc1 == STAMP_NS for m in link.sent)
-    assert counters.timesync_refused == 980
+    assert counters.timesync_refused == 980 and counters.timesync_answered == 20
     for k in range(1000):
         answers.on_request(link, request(5000 + k), 51.0)               # one second refills 20
-    assert len(link.sent) == 40 and counters.timesync_refused == 1960
+    assert len(link.sent) == counters.timesync_answered == 40 and counters.timesync_refused == 1960
 
 
 def test_a_real_requester_beside_a_flood_loses_nothing():
