@@ -274,15 +274,21 @@ class PathReport:
     run_notes: str = ""                  # the stream's state, ahrsd's exit and log tail (for a failure message)
 
 
-MATCH_WINDOW_S = 1.0     # an update is ahrsd's sentence of the same kind sent within this long of its arrival
+# An update is one of ahrsd's sentences of the same kind sent from MATCH_BEFORE_S before its arrival to MATCH_AFTER_S
+# after. Before: a server on a loaded machine delivers late (docs/testing.md "Session 29"), never early. After: this
+# process stamps the sentence (SentTap) and the update (DeltaStream) in two threads, and the tap's may come later.
+# The match is exact (1e-6 rad against sentences in 0.1° steps, 10 a second, of a heading turning 5-13 °/s): a wrong
+# unit, sign or variation finds no sentence of its value in a wider window either.
+MATCH_BEFORE_S = 5.0
+MATCH_AFTER_S = 1.0
 
 
 def compare(updates, sentences, seconds: float, listened: tuple[float, float] = (-math.inf, math.inf)
             ) -> list[PathReport]:
-    """Each Signal K update against ahrsd's sentences of that kind sent within MATCH_WINDOW_S of its arrival:
-    the closest value. `max_difference` is the worst of those: what Signal K changed in a value (units, signs,
-    rounding); `matched` counts the updates with a sentence in the window; `sent` counts ahrsd's values for the
-    path sent while the stream was read (`listened`, monotonic seconds from and to)."""
+    """Each Signal K update against ahrsd's sentences of that kind sent from MATCH_BEFORE_S before its arrival to
+    MATCH_AFTER_S after: the closest value. `max_difference` is the worst of those: what Signal K changed in a value
+    (units, signs, rounding); `matched` counts the updates with a sentence in the window; `sent` counts ahrsd's
+    values for the path sent while the stream was read (`listened`, monotonic seconds from and to)."""
     sent_by_path: dict[str, list[tuple[float, object]]] = {p: [] for p in PATHS}
     for t, msg in sentences:
         for path, value in signal_k_value_of(msg).items():
@@ -293,7 +299,7 @@ def compare(updates, sentences, seconds: float, listened: tuple[float, float] = 
         sent = sent_by_path[path]
         worst, matched, example = 0.0, 0, None
         for t, value in ups:
-            near = [v for ts, v in sent if abs(ts - t) <= MATCH_WINDOW_S]
+            near = [v for ts, v in sent if -MATCH_BEFORE_S <= ts - t <= MATCH_AFTER_S]
             if not near:
                 continue
             best = min(near, key=lambda v: _difference(path, value, v))
@@ -381,7 +387,7 @@ def rest_value(navigation: dict, path: str):
 
 def rest_difference(path: str, value, sentences, since: float, at: float) -> float:
     """The REST value against ahrsd's sentences of that kind sent from `since` (the stream's start) until `at`
-    (the answer came). Not only the last MATCH_WINDOW_S before the request: on a loaded machine the value Signal K
+    (the answer came). Not only the last MATCH_BEFORE_S before the request: on a loaded machine the value Signal K
     serves can be seconds from the request's time (docs/marine.md); a wrong unit or sign matches none of them
     either way."""
     if value is None:

@@ -7,7 +7,10 @@ from __future__ import annotations
 
 import pytest
 
-from bench.signalk import PATHS, SignalKUnavailable, ensure_server, run_check
+import math
+from types import SimpleNamespace
+
+from bench.signalk import PATHS, SignalKUnavailable, compare, ensure_server, run_check
 
 pytestmark = pytest.mark.slow
 
@@ -42,3 +45,21 @@ def test_signal_k_updates_at_our_rates(reports):
                    "navigation.rateOfTurn": 5.0, "navigation.attitude": 5.0}
     for path, hz in expected_hz.items():
         assert reports[path].rate_hz == pytest.approx(hz, rel=0.2), (path, reports[path])
+
+
+def test_an_update_a_loaded_server_delivers_late_is_still_its_sentence():
+    """compare() without a server: HDT at 10 Hz (0.1° steps) of a heading turning 9 °/s, Signal K's updates of them
+    arriving 3 s late (a server on a loaded machine) are each their own sentence; the same updates with a sign or a
+    unit wrong, or 0.5° off, find no sentence of their value."""
+    sent = [(0.1 * k, round(9.0 * 0.1 * k % 360.0, 1)) for k in range(300)]
+    sentences = [(t, SimpleNamespace(msgID="HDT", headingT=deg)) for t, deg in sent]
+
+    def report(value_of):
+        updates = [(t + 3.0, "navigation.headingTrue", value_of(deg)) for t, deg in sent]
+        return next(r for r in compare(updates, sentences, 30.0) if r.path == "navigation.headingTrue")
+
+    late = report(math.radians)
+    assert late.matched == late.updates == 300 and late.max_difference < 1e-9, late
+    for wrong in (lambda deg: -math.radians(deg), lambda deg: deg, lambda deg: math.radians(deg + 0.5)):
+        r = report(wrong)
+        assert r.matched == r.updates == 300 and r.max_difference > 1e-3, r
