@@ -816,8 +816,8 @@ def _integrate_navigation(x, dt, fn, fe, fd, r_n, r_e, earth):
 @njit(cache=True, inline="always")
 def _accumulate_increments(x, par, dt, c, fn, fe, fd, mwx, mwy, mwz, fx, fy):
     """What the covariance epoch and the levelling take from each step: the interval, ∫C dt, ΔV^n = ∫f^n dt,
-    ∫C_ij ω_k dt and ∫C_iz f_k dt (body f_x, f_y: the lean's) (`propagate_covariance`'s transition matrix), and the NED-frame low-pass of the specific force
-    (levelling: linear acceleration averages out, gravity stays)."""
+    ∫C_ij ω_k dt and ∫C_iz f_k dt (body f_x, f_y: the lean's) (`propagate_covariance`'s transition matrix), and the
+    NED-frame low-pass of the specific force (levelling: linear acceleration averages out, gravity stays)."""
     c00, c01, c02, c10, c11, c12, c20, c21, c22 = c
     x.cov_t_s += dt
     x.cov_c_s[0] += c00 * dt
