@@ -275,10 +275,11 @@ class PathReport:
 
 
 # An update is one of ahrsd's sentences of the same kind sent from MATCH_BEFORE_S before its arrival to MATCH_AFTER_S
-# after. Before: a server on a loaded machine delivers late (docs/testing.md "Session 29"), never early. After: this
-# process stamps the sentence (SentTap) and the update (DeltaStream) in two threads, and the tap's may come later.
-# The match is exact (1e-6 rad against sentences in 0.1° steps, 10 a second, of a heading turning 5-13 °/s): a wrong
-# unit, sign or variation finds no sentence of its value in a wider window either.
+# after. Before: a server on a loaded machine delivers late (docs/testing.md, "Tests that ran the daemon in real time
+# on a loaded machine"), never early. After: this process stamps the sentence (SentTap) and the update (DeltaStream)
+# in two threads, and the tap's may come later. The match is exact (1e-6 rad against sentences in 0.1° steps, 10 a
+# second, of a heading turning 5-13 °/s): a wrong unit, sign or variation finds no sentence of its value in a wider
+# window either.
 MATCH_BEFORE_S = 5.0
 MATCH_AFTER_S = 1.0
 

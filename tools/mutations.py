@@ -484,4 +484,11 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("yaw-reset-velocity-with-update", "a yaw reset reads the velocity at the fix's time with that fix's update",
              "estimator/ins.py", 'hist["vel_ned_m_s"][older] += step[1]', "pass",
              ("tests/test_yaw_reset_velocity.py",)),
+    # ------------------------------------------------------------------ session 29 (ci29)
+    Mutation("timesync-answered-counted", "every TIMESYNC answer is counted (the flood test checks against it)",
+             "daemon/timesync_answers.py", "            self.counters.timesync_answered += 1", "            pass",
+             ("tests/test_timesync_answers.py", "tests/test_reliability_daemon.py")),
+    Mutation("signalk-late-update-matched", "a Signal K update delivered seconds late is matched with its sentence",
+             "bench/signalk.py", "if -MATCH_BEFORE_S <= ts - t <= MATCH_AFTER_S]", "if abs(ts - t) <= MATCH_AFTER_S]",
+             ("tests/test_signalk.py",)),
 )
