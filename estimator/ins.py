@@ -41,7 +41,7 @@ from .heading_state_hold import HeadingStateHold
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
                             float_field_slice, nav_state, uninitialised_estimate)
 from .initial_attitude import initial_attitude
-from .kernel_entry import entry_point
+from .kernel_entry import argument_types, entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .lever_arm_fit import LeverArmFit, LeverArmFitResult, rate_cross_ned
 from .mag_heading import RELEARN_GATE_OPEN_S
@@ -518,10 +518,9 @@ class Ins:
         self._step = core.fast_step(self._step_args_example())
         # the bank's per-fix kernels called with its 1-element arrays through their entry points (kernel_entry.py:
         # these arrays only): a record argument costs several µs to unbox, an array a fraction of one
-        self._gsf_output = entry_point(gsf_output_of, (gsf_output_of.typeof_pyval(self._gsf_arr),))
+        self._gsf_output = entry_point(gsf_output_of, argument_types(gsf_output_of, (self._gsf_arr,)))
         fuse_args = (self._gsf_arr, self._gsf_par_arr, 0.0, np.zeros(3), 0.0)
-        self._gsf_fuse_velocity = entry_point(gsf_fuse_velocity_of,
-                                              tuple(gsf_fuse_velocity_of.typeof_pyval(a) for a in fuse_args))
+        self._gsf_fuse_velocity = entry_point(gsf_fuse_velocity_of, argument_types(gsf_fuse_velocity_of, fuse_args))
         self._load_python_called_kernels()
         self._iron = IronLearner(self.params.iron_prior_sigma_ut, self.params.iron_soft_prior)
         self._iron_last_t = None
