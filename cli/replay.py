@@ -155,26 +155,27 @@ def _gate_summary(estimator, by_cause: dict[str, int] | None = None, mag_cause: 
         # the magnetometer, not the antenna: a filter pulled by a wrong magnetometer rejects correct fixes
         text += f"; WARNING: {_rejection_summary(report, mag_cause)}"
     limit = GATE_HINT_FRACTION * max(c.offered, 1)
-    if c.rejected_velocity > limit:
+    arm = " ".join(f"{v:g}" for v in estimator.lever_arm_m)
+    fit = estimator.lever_arm_fit()
+    if fit is not None and fit.arm_wrong:
+        # the lever-arm check's latch (estimator/lever_arm_fit.py), as the heading reads it: where the velocities
+        # put the antenna, whether or not the fitted arm, once adopted, left many rejections
+        at = ", ".join(f"{v:.1f}" for v in fit.antenna_m(estimator.lever_arm_m).tolist())
+        used = "; the filter fused at the fitted arm once it was sure of it" if fit.arm_adopted else ""
+        text += (f"; WARNING: the GNSS velocities fit an antenna at ({at}) m ±{float(max(fit.sigma_m)):.1f} m, not "
+                 f"where the filter was told ({arm} m, body FRD){used}: measure it and give it "
+                 f"(--set \"lever_arm_m=(x, y, z)\")")
+    elif c.rejected_velocity > limit:
         heading = heading_explained(by_cause or {})
         unexplained = c.rejected_velocity - sum(heading.values())
         if heading and unexplained <= limit:
             text += (f"; WARNING: the velocities were rejected while the filter's heading was not one to trust "
                      f"({heading_causes_text(heading)}), not for the antenna's place or the fixes' time stamps")
         else:
-            arm = " ".join(f"{v:g}" for v in estimator.lever_arm_m)
             known = f" ({unexplained} of them with its heading known)" if heading else ""
-            fit = estimator.lever_arm_fit()
-            if fit is not None and fit.explains:
-                # the lever-arm check (estimator/lever_arm_fit.py): where the innovations put the antenna
-                at = ", ".join(f"{v:.1f}" for v in fit.antenna_m(estimator.lever_arm_m).tolist())
-                text += (f"; WARNING: the rejected velocities fit an antenna at ({at}) m ±"
-                         f"{float(max(fit.sigma_m)):.1f} m, not where the filter was told ({arm} m, body FRD): "
-                         f"measure it and give it (--set \"lever_arm_m=(x, y, z)\")")
-            else:
-                text += (f"; WARNING: that many rejected velocities{known} usually mean the antenna is not where "
-                         f"the filter was told ({arm} m, body FRD: --set \"lever_arm_m=(x, y, z)\") or the fixes' "
-                         "time stamps are off")
+            text += (f"; WARNING: that many rejected velocities{known} usually mean the antenna is not where "
+                     f"the filter was told ({arm} m, body FRD: --set \"lever_arm_m=(x, y, z)\") or the fixes' "
+                     "time stamps are off")
     return text
 
 
