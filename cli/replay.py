@@ -140,8 +140,10 @@ def _gate_summary(estimator, by_cause: dict[str, int] | None = None, mag_cause: 
     estimator/velocity_rejection_watch.py — the daemon's rule and `calibrate mag --gnss`'s): the heading when it
     explains all but GATE_HINT_FRACTION of the fixes offered (a filter whose heading is wrong or not yet found
     rejects correct fixes), else the antenna's place and the fixes' time stamps (a filter whose attitude is right
-    rejects a correct fix only if the antenna is not where it was told). `mag_cause`: why the magnetometer
-    disagreed, when the heading checks rejected it (_disagreement_cause)."""
+    rejects a correct fix only if the antenna is not where it was told). First, whatever the count, the antenna's
+    place when the lever-arm check found the told arm wrong (its latch: the filter may have adopted the fitted arm
+    since and rejected few). `mag_cause`: why the magnetometer disagreed, when the heading checks rejected it
+    (_disagreement_cause)."""
     from ahrsd.estimator.base import GnssAidedEstimator, HeadingCheckedEstimator
     from ahrsd.estimator.velocity_rejection_watch import heading_causes_text, heading_explained
 

@@ -422,7 +422,8 @@ class GnssTask:
         fit = est.lever_arm_fit() if est is not None else None
         if fit is None or not fit.arm_adopted:
             return
-        at = tuple(round(float(v), 1) + 0.0 for v in fit.antenna_m(self.cfg.lever_arm_m))
+        # the arm in use (told + adopted), not the latest fit's: that moves with every fix while it is refitted
+        at = tuple(round(float(t) + float(a), 1) + 0.0 for t, a in zip(self.cfg.lever_arm_m, fit.adopted_m))
         if at == self._fitted_arm_shown:
             return
         self._fitted_arm_shown = at

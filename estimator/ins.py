@@ -1046,6 +1046,8 @@ class Ins:
             self._lever_arm_fit.fused(velocity_step, bool(res & core.R_VEL_REJECTED))
             if self._lever_arm_fit.adoptions != adoptions:
                 self._adopt_fitted_arm()
+            else:
+                self._gsf_par["lever_arm_m"] = self._lever_arm_fit.bank_arm(self.params.lever_arm_m)
         # the update corrected the state and the history rows after the fix's time, not those up to it: kept for
         # a yaw reset at this fix (`_reset_velocity_to_fix`). The resets from a first fix or after an outage
         # correct the row at the fix's time as well, so they leave nothing to add
@@ -1354,7 +1356,7 @@ class Ins:
         if self.params.gnss_yaw:
             y, sg, valid, _ = self._gsf_output(self._gsf_arr)
             if math.isfinite(y) and math.isfinite(sg):
-                return float(y), float(sg) ** 2, bool(valid) and not self._lever_arm_fit.in_use_wrong
+                return float(y), float(sg) ** 2, bool(valid)
         return math.nan, math.inf, False
 
     def _monitor_decision(self, t_s: float, yaw: float, yaw_var: float, mag_yaw: float, mag_var: float,
@@ -1698,8 +1700,9 @@ class Ins:
             self.gnss_yaw_alignments += 1
             log.info("ins: heading aligned to the GNSS yaw by %.1f° (reset %d)", math.degrees(dyaw), self.yaw_resets)
         else:
-            log.warning("ins: heading reset to the GNSS yaw by %.1f° (reset %d)", math.degrees(dyaw),
-                        self.yaw_resets)
+            log.warning("ins: heading reset to the GNSS yaw by %.1f° (reset %d)%s", math.degrees(dyaw),
+                        self.yaw_resets, " (the antenna arm found wrong: the heading stays unknown)"
+                        if self._lever_arm_fit.heading_bent else "")
 
     def _reset_velocity_to_fix(self) -> None:
         """Set the velocity to the last fix's (at its time of validity, through the lever arm with the reset

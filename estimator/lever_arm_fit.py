@@ -19,7 +19,17 @@ the check does not claim it.
 Once it has explained them the arm stays **found wrong** (`arm_wrong`) until a fit finds no significant error and
 rules out the error found (each by χ² against the fit's covariance): the arm is configuration, it does not heal within a run, and a window that explains less (a calm spell) does not make
 the heading the wrong arm bent (through the GNSS yaw bank's resets and the velocity updates) right again. While it is
-found wrong, the aided filter publishes its heading as unknown (ins.py `_build_estimate`).
+found wrong, the aided filter publishes its heading as unknown (ins.py `_build_estimate`), and the GNSS yaw bank,
+which takes the velocities through the same arm, neither resets nor confirms its yaw (ins.py `_gnss_yaw`). The
+latch is released only while the gate fuses the fixes: a fit over a filter whose heading the wrong arm let wander
+far is that filter's own error, not the arm's.
+
+The fitted error is adopted once the fit is sure of it (its 1σ at most ADOPT_SIGMA_SHARE of it), as VectorNav and SBG
+units estimate or adopt the antenna arm: the filter and the bank then fuse at told + `correction_m` (`arm_in_use`),
+and the check goes on fitting the error of that arm (adopting again when it explains the rejections). The heading
+stays unknown (`heading_bent`) until the arm in use has left a full window's rejections at the right-arm level
+(RIGHT_ARM_REJECTED_SHARE); the told arm stays found wrong (`arm_wrong`: the configuration is the operator's, and
+nothing is persisted). Every consumer reads these latches through `result()`, not the momentary `explains`.
 """
 
 from __future__ import annotations
@@ -58,6 +68,7 @@ class LeverArmFitResult(NamedTuple):
     told_error_m: np.ndarray | None = None  # the told arm's error as best known (LeverArmFit.result)
     arm_adopted: bool = False               # the filter uses told + told_error_m (LeverArmFit.correction_m)
     heading_bent: bool = False              # LeverArmFit.heading_bent: the arm in use not shown right
+    adopted_m: np.ndarray | None = None     # LeverArmFit.correction_m: the arm in use is the told one plus this
 
     def antenna_m(self, told_m) -> np.ndarray:
         """Where the check puts the antenna (body FRD, m): the told arm plus its error as best known."""
@@ -88,6 +99,7 @@ class LeverArmFit:
         self.correction_m = np.zeros(3)  # adopted: the innovations are taken at told + correction_m (`arm_in_use`)
         self.adoptions = 0
         self.in_use_wrong = False  # the arm in use explains the rejections (before an adoption: arm_wrong)
+        self._in_use_offset_m = np.zeros(3)  # the arm in use's error the last explaining fit found
         self.in_use_right = False  # an adopted arm left a full window's rejections at the right-arm level
 
     def reset(self) -> None:
@@ -102,6 +114,13 @@ class LeverArmFit:
     def arm_in_use(self, told_m) -> np.ndarray:
         """The arm the innovations are taken at and the filter fuses with: the told arm plus what was adopted."""
         return np.asarray(told_m, dtype=float) + self.correction_m
+
+    def bank_arm(self, told_m) -> np.ndarray:
+        """The arm the GNSS yaw bank takes the velocities through: the arm in use, or, while that is found wrong,
+        the arm in use plus the error the last explaining fit found (not yet sure enough to be adopted by the
+        filter, but a bank fed through the arm found wrong has its yaw bent as the filter's)."""
+        arm = self.arm_in_use(told_m)
+        return arm + self._in_use_offset_m if self.in_use_wrong else arm
 
     def add(self, t_s: float, innovation_ned_m_s: np.ndarray, rate_cross: np.ndarray, sigma_m_s: float) -> None:
         nu = np.asarray(innovation_ned_m_s, dtype=float).reshape(3)
@@ -131,6 +150,7 @@ class LeverArmFit:
             return
         if result.explains:
             self.in_use_wrong, self.in_use_right = True, False
+            self._in_use_offset_m = result.offset_m
             if not self.adoptions:
                 self.arm_wrong, self._found_offset_m = True, result.offset_m
             if self.adopt and _confident(result):
@@ -151,6 +171,7 @@ class LeverArmFit:
         self.correction_m = self.correction_m + offset_m
         self.adoptions += 1
         self.in_use_wrong, self.in_use_right = False, False
+        self._in_use_offset_m = np.zeros(3)
         self._pairs = deque(((d_nu - d_rc @ offset_m, d_rc, sig) for d_nu, d_rc, sig in self._pairs),
                             maxlen=WINDOW_PAIRS)
         if self._last is not None:
@@ -174,7 +195,7 @@ class LeverArmFit:
         else:
             told_error = self._found_offset_m if self.arm_wrong else fit.offset_m
         return fit._replace(arm_wrong=self.arm_wrong, told_error_m=told_error, arm_adopted=self.adoptions > 0,
-                            heading_bent=self.heading_bent)
+                            heading_bent=self.heading_bent, adopted_m=self.correction_m)
 
     def _fit(self) -> LeverArmFitResult | None:
         """The fit over the window, or None with fewer than MIN_PAIRS differences."""

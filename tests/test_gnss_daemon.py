@@ -204,12 +204,17 @@ def test_the_daemon_says_the_fitted_antenna_arm_it_uses(rig, caplog):
     received(rig)
     svc.gnss.tick(now + 0.1)                                         # found wrong, not adopted: nothing yet
     assert not [m for m in received(rig) if m.get_type() == "STATUSTEXT" and "fitted" in m.text]
-    rig.fake.lever_arm_fit = lambda: fit._replace(arm_adopted=True)
+    rig.fake.lever_arm_fit = lambda: fit._replace(arm_adopted=True, adopted_m=np.array([-0.93, 0.02, -1.74]))
     svc.gnss.tick(now + 0.2)
     svc.gnss.tick(now + 0.3)
     texts = [m.text for m in received(rig) if m.get_type() == "STATUSTEXT" and "fitted" in m.text]
     assert texts == ["ahrsd: GNSS arm -0.9,0.0,-1.7 m fitted: set it"] and len(texts[0]) <= 50
-    rig.fake.lever_arm_fit = lambda: fit._replace(arm_adopted=True, told_error_m=np.array([-1.0, 0.0, -2.0]))
+    # the arm in use is said, not the latest fit's (it moves with every fix while the arm in use is refitted)
+    rig.fake.lever_arm_fit = lambda: fit._replace(arm_adopted=True, adopted_m=np.array([-0.93, 0.02, -1.74]),
+                                                  told_error_m=np.array([-1.1, 0.1, -1.9]))
+    svc.gnss.tick(now + 0.35)
+    assert not [m for m in received(rig) if m.get_type() == "STATUSTEXT" and "fitted" in m.text]
+    rig.fake.lever_arm_fit = lambda: fit._replace(arm_adopted=True, adopted_m=np.array([-1.0, 0.0, -2.0]))
     svc.gnss.tick(now + 0.4)
     texts = [m.text for m in received(rig) if m.get_type() == "STATUSTEXT" and "fitted" in m.text]
     assert texts == ["ahrsd: GNSS arm -1.0,0.0,-2.0 m fitted: set it"]

@@ -452,9 +452,9 @@ MUTATIONS: tuple[Mutation, ...] = (
              "daemon/gnss_task.py", "            if explains:", "            if False:",
              ("tests/test_gnss_daemon.py",)),
     # ------------------------------------------------------------------ session 29 (arm29)
-    Mutation("lever-arm-bank-held", "no yaw reset from a GNSS yaw bank fed through an arm found wrong",
-             "estimator/ins.py", "bool(valid) and not self._lever_arm_fit.in_use_wrong", "bool(valid)",
-             ("tests/test_lever_arm_fit.py",)),
+    Mutation("lever-arm-bank-fitted-arm", "no yaw reset from a GNSS yaw bank fed through an arm found wrong",
+             "estimator/lever_arm_fit.py", "        return arm + self._in_use_offset_m if self.in_use_wrong else arm",
+             "        return arm", ("tests/test_lever_arm_fit.py",)),
     Mutation("status-no-reset-text-arm-wrong", "the daemon announces no yaw reset while the arm is found wrong",
              "daemon/heading_status.py", "        if self.lever_arm_bent:",
              "        if False:", ("tests/test_heading_status.py",)),
