@@ -1349,10 +1349,9 @@ class Ins:
 
     def _gnss_yaw(self) -> tuple[float, float, bool]:
         """The GNSS yaw bank's yaw, its variance (rad²) and whether it is valid: (NaN, inf, False) without the
-        bank (gnss_yaw off) or before it has a finite yaw. Not valid while the lever-arm check finds the antenna
-        arm wrong (lever_arm_fit.py `arm_wrong`): the bank takes the same velocities through the same arm, so its
-        yaw is bent as the filter's is, and a reset, alignment or confirmation by it would publish a bent heading
-        as found (docs/gnss.md "The lever-arm check")."""
+        bank (gnss_yaw off) or before it has a finite yaw. While the lever-arm check finds the arm in use wrong,
+        the bank takes the velocities through the arm it found (LeverArmFit.bank_arm, set in `_fuse`), not through
+        the wrong one (docs/gnss.md "The lever-arm check")."""
         if self.params.gnss_yaw:
             y, sg, valid, _ = self._gsf_output(self._gsf_arr)
             if math.isfinite(y) and math.isfinite(sg):
