@@ -19,10 +19,11 @@ the check does not claim it.
 Once it has explained them the arm stays **found wrong** (`arm_wrong`) until a fit finds no significant error and
 rules out the error found (each by χ² against the fit's covariance): the arm is configuration, it does not heal within a run, and a window that explains less (a calm spell) does not make
 the heading the wrong arm bent (through the GNSS yaw bank's resets and the velocity updates) right again. While it is
-found wrong, the aided filter publishes its heading as unknown (ins.py `_build_estimate`), and the GNSS yaw bank,
-which takes the velocities through the same arm, neither resets nor confirms its yaw (ins.py `_gnss_yaw`). The
-latch is released only while the gate fuses the fixes: a fit over a filter whose heading the wrong arm let wander
-far is that filter's own error, not the arm's.
+found wrong, the aided filter publishes its heading as unknown (ins.py `_build_estimate`), and the GNSS yaw bank
+takes the velocities through the arm the check found (`bank_arm`), not through the wrong one: a bank fed through
+the wrong arm has its yaw bent as the filter's, and one not let reset the filter's yaw leaves that yaw held by
+nothing, wandering until the fit over it is the filter's error (docs/gnss.md). The latch is released only while the
+gate fuses the fixes: a fit over a filter whose heading the wrong arm let wander far is that filter's own error.
 
 The fitted error is adopted once the fit is sure of it (its 1σ at most ADOPT_SIGMA_SHARE of it), as VectorNav and SBG
 units estimate or adopt the antenna arm: the filter and the bank then fuse at told + `correction_m` (`arm_in_use`),
