@@ -103,6 +103,10 @@ class LeverArmFit:
         if self._last is not None:
             t_s, nu, rate_cross, sigma = self._last
             self._last = (t_s, nu - np.asarray(velocity_correction_ned_m_s, dtype=float), rate_cross, sigma)
+        if not self.arm_wrong and not self._rejecting():
+            # nothing to latch or release: an arm explains only while the gate rejects, and releases only once
+            # latched (the fit is made when asked, `result`: the daemon's and replay's warnings ask on rejections)
+            return
         result = self.result()
         if result is None:
             return
@@ -137,10 +141,14 @@ class LeverArmFit:
         chi2 = float(offset @ np.linalg.solve(cov, offset))
         total = float(y @ y)
         share = 1.0 - float(residual @ residual) / total if total > 0.0 else 0.0
-        rejecting = sum(self._rejected) >= MIN_REJECTED_SHARE * max(len(self._rejected), 1)
+        rejecting = self._rejecting()
         self._result = LeverArmFitResult(offset, np.sqrt(np.diag(cov)), share,
                                          chi2 > CHI2_3DOF_P999 and share >= MIN_EXPLAINED_SHARE and rejecting, chi2)
         return self._result
+
+    def _rejecting(self) -> bool:
+        """The gate rejected at least MIN_REJECTED_SHARE of the window's velocity fixes."""
+        return sum(self._rejected) >= MIN_REJECTED_SHARE * max(len(self._rejected), 1)
 
 
 def _chi2(offset_m: np.ndarray, sigma_m: np.ndarray) -> float:
