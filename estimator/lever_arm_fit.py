@@ -146,6 +146,11 @@ class LeverArmFit:
         if self._last is not None:
             t_s, nu, rate_cross, sigma = self._last
             self._last = (t_s, nu - np.asarray(velocity_correction_ned_m_s, dtype=float), rate_cross, sigma)
+        if not self.arm_wrong and not self._rejecting():
+            # nothing to latch, adopt or release: an arm explains only while the gate rejects, and is adopted or
+            # released only once latched (the fit is made when asked, `result`: the daemon's and replay's warnings
+            # ask on rejections)
+            return
         result = self._fit()
         if result is None:
             return

@@ -296,3 +296,34 @@ def test_the_fitted_arm_is_adopted_and_the_heading_found_again(boat_120s):
     assert np.all(np.abs(err[known]) <= 3.0 * sigma[known])                # σ covers the error once known
     assert math.degrees(np.sqrt(np.mean(err[-3000:] ** 2))) < 1.0         # the last 30 s
     assert est.gnss_counters.rejected_velocity < 0.05 * est.gnss_counters.offered
+
+
+def test_the_fit_is_made_when_asked_while_nothing_can_latch(monkeypatch):
+    """While the gate rejects nothing and no arm is latched, a fix's `fused` makes no fit (it could change nothing:
+    an arm explains only rejections), and the fit made when asked is the one made at every fix, to the bit. Counted
+    by the fit's one call of np.linalg.cond. Broken (the fit made at every fix again, or the skip also while the gate
+    rejects): the count during the feed is not 0, or the wrong arm is not latched."""
+    import ahrsd.estimator.lever_arm_fit as module
+
+    calls = []
+    cond = np.linalg.cond
+    monkeypatch.setattr(module.np.linalg, "cond", lambda a: calls.append(1) or cond(a))
+    lazy = LeverArmFit()
+    feed(lazy, np.array([-1.0, 0.5, -2.0]), 30.0, slow_error_m_s=0.05, rejected=False)
+    assert calls == [] and not lazy.arm_wrong
+    eager = LeverArmFit()
+    eager_fused = eager.fused
+
+    def fused_then_fit(correction, rejected):
+        eager_fused(correction, rejected)
+        eager.result()
+
+    eager.fused = fused_then_fit
+    feed(eager, np.array([-1.0, 0.5, -2.0]), 30.0, slow_error_m_s=0.05, rejected=False)
+    assert len(calls) > 100
+    a, b = lazy.result(), eager.result()
+    assert a.offset_m.tobytes() == b.offset_m.tobytes() and a.sigma_m.tobytes() == b.sigma_m.tobytes()
+    assert (a.explained_share, a.explains, a.chi2) == (b.explained_share, b.explains, b.chi2)
+    rejecting = LeverArmFit()
+    feed(rejecting, np.array([-1.0, 0.5, -2.0]), 30.0, slow_error_m_s=0.05)
+    assert rejecting.arm_wrong
