@@ -1399,20 +1399,25 @@ class Ins:
         self._confirmed_gyro_bias = self._startup_gyro_bias.copy()
         self._confirmed_accel_bias = self._startup_accel_bias.copy()
         self._reset_yaw(dyaw_rad, gsf_var, alignment=True)
-        self._relevel_after_wrong_yaw()
+        # the specific force the tilt was levelled against, turned by the alignment's yaw step: its horizontal part
+        # across the new heading, |f_h|·|sin Δψ|, was taken as a lean of the tilt (a car accelerating away leans
+        # degrees; a boat at 0.1–0.5 m/s² hardly any)
+        f = self._x["acc_ned_lp_m_s2"]
+        across = math.hypot(float(f[0]), float(f[1])) * abs(math.sin(wrap_pi(dyaw_rad)))
+        self._relevel_after_wrong_yaw(math.atan2(across, abs(float(f[2]))))
 
-    def _relevel_after_wrong_yaw(self) -> None:
-        """The tilt gets back the 1σ a fix assumes when it first sets the velocity (`nav_init_sigma_tilt_rad`),
-        uncorrelated, at the first valid GNSS yaw (the alignment, or without a magnetometer the yaw kept there).
-        Until then the yaw was tens of degrees off (the magnetometer's, or pulled in from an unknown start), and the
-        GNSS velocity levelled the tilt against the horizontal acceleration projected through it: a car
-        accelerating away at 3–4 m/s² under a yaw 80–100° off leans its tilt by degrees, while the linearised
-        updates leave its variance at tenths of a degree. The tilt is then as unknown as when levelled into a
-        sustained acceleration: with its variance kept small, the fixes after the alignment would put that tilt
-        error into the horizontal accelerometer bias and the z axis's lean just released to learn, which keep it
-        (docs/gnss.md "The horizon while the heading is being found")."""
+    def _relevel_after_wrong_yaw(self, lean_sigma_rad: float) -> None:
+        """The tilt's 1σ, uncorrelated, becomes at least `lean_sigma_rad` (no more than the 1σ a fix assumes when it
+        first sets the velocity, `nav_init_sigma_tilt_rad`), at the first valid GNSS yaw (the alignment, or without a
+        magnetometer the yaw kept there). Until then the yaw was tens of degrees off (the magnetometer's, or pulled
+        in from an unknown start), and the GNSS velocity levelled the tilt against the horizontal acceleration
+        projected through it: a car accelerating away at 3–4 m/s² under a yaw 80–100° off leans its tilt by
+        degrees, while the linearised updates leave its variance at tenths of a degree. With its variance kept
+        small, the fixes after the alignment would put that tilt error into the horizontal accelerometer bias and
+        the z axis's lean just released to learn, which keep it (docs/gnss.md "The horizon while the heading is
+        being found")."""
         P = self._P
-        var = self.params.nav_init_sigma_tilt_rad ** 2
+        var = min(lean_sigma_rad, self.params.nav_init_sigma_tilt_rad) ** 2
         for i in (core.E_TILT_N, core.E_TILT_E):
             v = max(P[i, i], var)
             P[i, :] = 0.0
@@ -1622,7 +1627,7 @@ class Ins:
             # the yaw is kept, but the pull-in that brought it inside the bank's 3σ ran through yaws tens of
             # degrees off: the horizontal bias and the tilt it taught are restarted as an alignment restarts them
             self._restart_horizontal_accel_bias()
-            self._relevel_after_wrong_yaw()
+            self._relevel_after_wrong_yaw(self.params.nav_init_sigma_tilt_rad)
         self._gnss_yaw_valid_seen = self._gnss_yaw_valid_seen or gsf_valid
         self._unconfirmed_sigma_rad = _gnss_yaw_floor(yaw, gsf_yaw, gsf_var)
 
