@@ -140,8 +140,10 @@ def _gate_summary(estimator, by_cause: dict[str, int] | None = None, mag_cause: 
     estimator/velocity_rejection_watch.py — the daemon's rule and `calibrate mag --gnss`'s): the heading when it
     explains all but GATE_HINT_FRACTION of the fixes offered (a filter whose heading is wrong or not yet found
     rejects correct fixes), else the antenna's place and the fixes' time stamps (a filter whose attitude is right
-    rejects a correct fix only if the antenna is not where it was told). `mag_cause`: why the magnetometer
-    disagreed, when the heading checks rejected it (_disagreement_cause)."""
+    rejects a correct fix only if the antenna is not where it was told). First, whatever the count, the antenna's
+    place when the lever-arm check found the told arm wrong (its latch: the filter may have adopted the fitted arm
+    since and rejected few). `mag_cause`: why the magnetometer disagreed, when the heading checks rejected it
+    (_disagreement_cause)."""
     from ahrsd.estimator.base import GnssAidedEstimator, HeadingCheckedEstimator
     from ahrsd.estimator.velocity_rejection_watch import heading_causes_text, heading_explained
 
@@ -155,26 +157,27 @@ def _gate_summary(estimator, by_cause: dict[str, int] | None = None, mag_cause: 
         # the magnetometer, not the antenna: a filter pulled by a wrong magnetometer rejects correct fixes
         text += f"; WARNING: {_rejection_summary(report, mag_cause)}"
     limit = GATE_HINT_FRACTION * max(c.offered, 1)
-    if c.rejected_velocity > limit:
+    arm = " ".join(f"{v:g}" for v in estimator.lever_arm_m)
+    fit = estimator.lever_arm_fit()
+    if fit is not None and fit.arm_wrong:
+        # the lever-arm check's latch (estimator/lever_arm_fit.py), as the heading reads it: where the velocities
+        # put the antenna, whether or not the fitted arm, once adopted, left many rejections
+        at = ", ".join(f"{v:.1f}" for v in fit.antenna_m(estimator.lever_arm_m).tolist())
+        used = "; the filter fused at the fitted arm once it was sure of it" if fit.arm_adopted else ""
+        text += (f"; WARNING: the GNSS velocities fit an antenna at ({at}) m ±{float(max(fit.sigma_m)):.1f} m, not "
+                 f"where the filter was told ({arm} m, body FRD){used}: measure it and give it "
+                 f"(--set \"lever_arm_m=(x, y, z)\")")
+    elif c.rejected_velocity > limit:
         heading = heading_explained(by_cause or {})
         unexplained = c.rejected_velocity - sum(heading.values())
         if heading and unexplained <= limit:
             text += (f"; WARNING: the velocities were rejected while the filter's heading was not one to trust "
                      f"({heading_causes_text(heading)}), not for the antenna's place or the fixes' time stamps")
         else:
-            arm = " ".join(f"{v:g}" for v in estimator.lever_arm_m)
             known = f" ({unexplained} of them with its heading known)" if heading else ""
-            fit = estimator.lever_arm_fit()
-            if fit is not None and fit.explains:
-                # the lever-arm check (estimator/lever_arm_fit.py): where the innovations put the antenna
-                at = ", ".join(f"{v:.1f}" for v in fit.antenna_m(estimator.lever_arm_m).tolist())
-                text += (f"; WARNING: the rejected velocities fit an antenna at ({at}) m ±"
-                         f"{float(max(fit.sigma_m)):.1f} m, not where the filter was told ({arm} m, body FRD): "
-                         f"measure it and give it (--set \"lever_arm_m=(x, y, z)\")")
-            else:
-                text += (f"; WARNING: that many rejected velocities{known} usually mean the antenna is not where "
-                         f"the filter was told ({arm} m, body FRD: --set \"lever_arm_m=(x, y, z)\") or the fixes' "
-                         "time stamps are off")
+            text += (f"; WARNING: that many rejected velocities{known} usually mean the antenna is not where "
+                     f"the filter was told ({arm} m, body FRD: --set \"lever_arm_m=(x, y, z)\") or the fixes' "
+                     "time stamps are off")
     return text
 
 

@@ -181,6 +181,7 @@ class GnssTask:
         self._pending_text = ""
         self._last_text_at = -math.inf
         self._gate_window = None        # (start time, offered, rejected velocities) of the estimator's counters
+        self._fitted_arm_shown = None   # the fitted antenna arm last announced (_watch_fitted_arm)
 
     @property
     def description(self) -> str:
@@ -350,6 +351,7 @@ class GnssTask:
             self.poll()
             self._report_state(now)
             self._watch_gate(now)
+            self._watch_fitted_arm()
         except Exception:  # noqa: BLE001 - housekeeping carries on whatever the GNSS source does
             self.counters.source_errors += 1
             log.exception("GNSS housekeeping failed")
@@ -389,7 +391,8 @@ class GnssTask:
         if offered >= GATE_MIN_OFFERED and rejected > GATE_WARN_FRACTION * offered:
             self.counters.gate_warnings += 1
             fit = est.lever_arm_fit()
-            explains = fit is not None and fit.explains
+            # the latch, as the heading reads it: the arm in use (told, or the fitted one adopted) not yet shown right
+            explains = fit is not None and fit.heading_bent
             cause = self.rejection_cause(now, explains) if self.rejection_cause is not None else None
             if cause is not None:
                 log.warning("the aided filter rejected %d of %d GNSS velocities in the last %.0f s: %s",
@@ -410,6 +413,26 @@ class GnssTask:
             log.warning("the aided filter rejected %d of %d GNSS velocities in the last %.0f s: check [gnss] "
                         "lever_arm_m (%s m, body FRD from the IMU) and latency_s", rejected, offered, now - t0, told)
             self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: GNSS vel rejected {rejected}/{offered}: lever arm?")
+
+    def _watch_fitted_arm(self) -> None:
+        """The arm the aided filter fuses with once its lever-arm check adopted a fitted one (the told arm plus the
+        fitted error, estimator/lever_arm_fit.py): logged and sent as a STATUSTEXT warning each time it changes by
+        0.1 m. The told arm stays the operator's: nothing is written to the config."""
+        est = self._aided_estimator()
+        fit = est.lever_arm_fit() if est is not None else None
+        if fit is None or not fit.arm_adopted:
+            return
+        # the arm in use (told + adopted), not the latest fit's: that moves with every fix while it is refitted
+        at = tuple(round(float(t) + float(a), 1) + 0.0 for t, a in zip(self.cfg.lever_arm_m, fit.adopted_m))
+        if at == self._fitted_arm_shown:
+            return
+        self._fitted_arm_shown = at
+        text = ",".join(f"{v:.1f}" for v in at)
+        log.warning("GNSS arm %s m fitted: set gnss.lever_arm_m (it says %s m, body FRD from the IMU; the aided "
+                    "filter fuses at the fitted arm until restarted)", text,
+                    " ".join(f"{v:g}" for v in self.cfg.lever_arm_m))
+        # ≤ 50 characters: a STATUSTEXT's text (longer is sent in chunks)
+        self.statustext(mavlink.MAV_SEVERITY_WARNING, f"ahrsd: GNSS arm {text} m fitted: set it")
 
     def stats(self) -> dict:
         """Every counter, for `--stats-file` and the tests: the task's, the validator's (by reason), the

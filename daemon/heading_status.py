@@ -88,6 +88,7 @@ class HeadingStatus:
         self.disagreement_rad = math.nan              # magnetometer − GNSS yaw (NaN: no valid GNSS yaw)
         self.mag_inconsistent = False                 # the magnetometer disagrees with the GNSS(-held) heading
         self.mag_step_rad = math.nan                  # the magnetometer is rejected for this step of its heading
+        self.lever_arm_bent = False                   # the heading is bent by an antenna arm found wrong (_take_estimate)
         self.initialising = True
         self.gnss_checked = False                     # the estimator checks its heading against GNSS (ins, fixes)
         self.announced: HeadingState | None = None
@@ -155,6 +156,9 @@ class HeadingStatus:
         self.gnss_checked = est.integrity is not None
         self.disagreement_rad, significant = self._disagreement(est.integrity)
         self.mag_step_rad = float(est.integrity.mag_step_rad) if est.integrity is not None else math.nan
+        # the lever-arm check finds the arm the GNSS yaw bank takes the velocities through wrong, or not yet shown
+        # right: a yaw reset then is no heading found (`_announce_yaw_resets`)
+        self.lever_arm_bent = est.integrity is not None and bool(est.integrity.lever_arm_wrong)
         # a trusted calibration rejected by ins (GNSS-held state) disagreed with the heading GNSS holds
         self.mag_inconsistent = significant or self._iron_stepped() or (state in (HeadingState.GNSS_ONLY, HeadingState.LEARNING)
                                                 and self.calibration_sigma_rad <= TRUSTED_CALIBRATION_RAD)
@@ -192,6 +196,10 @@ class HeadingStatus:
         self._resets_announced = yaw_resets
         self._alignments_announced = gnss_yaw_alignments
         self._last_reset_at = now
+        if self.lever_arm_bent:
+            # a reset or alignment while the antenna arm is found wrong (or a fitted one is on trial) finds no
+            # heading: it stays unknown, as its own STATUSTEXT says (`_unknown_cause`)
+            return
         if wrong_headings > 0:
             self.statustext(mavlink.MAV_SEVERITY_WARNING,
                             f"ahrsd: heading reset to the GNSS yaw (±{math.degrees(self.sigma_rad):.1f}°)")

@@ -46,7 +46,8 @@ class GnssAidedEstimator(Protocol):
     fused_velocity, fused_position, rejected_velocity, rejected_position, …, `as_dict()`: estimator/ins.py
     GnssCounters); `lever_arm_m` is where it was told the antenna is (x, y, z from the IMU, body FRD, m), which a
     report of rejected velocities names; `lever_arm_fit()` says whether its velocity innovations put the antenna
-    elsewhere (estimator/lever_arm_fit.py LeverArmFitResult, None before it can say). The daemon's GNSS task offers
+    elsewhere (estimator/lever_arm_fit.py LeverArmFitResult, None before it can say; read its latches `arm_wrong` and
+    `heading_bent`, not the momentary `explains`). The daemon's GNSS task offers
     it every accepted fix and watches its innovation gate; replay merges a GNSS recording's fixes with the samples."""
 
     name: str

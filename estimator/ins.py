@@ -41,7 +41,7 @@ from .heading_state_hold import HeadingStateHold
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
                             float_field_slice, nav_state, uninitialised_estimate)
 from .initial_attitude import initial_attitude
-from .kernel_entry import entry_point
+from .kernel_entry import argument_types, entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .lever_arm_fit import LeverArmFit, LeverArmFitResult, rate_cross_ned
 from .mag_heading import RELEARN_GATE_OPEN_S
@@ -454,6 +454,9 @@ _OUT_LAT, _OUT_LON, _OUT_H = (
 assert _OUT_LON == _OUT_LAT + 1 and _OUT_H == _OUT_LAT + 2
 _OUT_LAT_LON_H = slice(_OUT_LAT, _OUT_H + 1)        # read with one call (Ins._build_estimate)
 _OUT_SIGMA_YAW = _OUT_SIGMA.start + 2
+# the σ, the gyro bias and the Euler angles, read with one call (Ins._build_estimate)
+_OUT_SIGMA_TO_EULER = slice(_OUT_SIGMA.start, _OUT_EULER.stop)
+assert _OUT_SIGMA.stop == _OUT_BIAS.start and _OUT_BIAS.stop == _OUT_EULER.start
 _F_GNSS_AIDED, _F_INITIALISING = core.F_GNSS_AIDED, core.F_INITIALISING   # read per sample: no module lookup
 
 
@@ -515,10 +518,9 @@ class Ins:
         self._step = core.fast_step(self._step_args_example())
         # the bank's per-fix kernels called with its 1-element arrays through their entry points (kernel_entry.py:
         # these arrays only): a record argument costs several µs to unbox, an array a fraction of one
-        self._gsf_output = entry_point(gsf_output_of, (gsf_output_of.typeof_pyval(self._gsf_arr),))
+        self._gsf_output = entry_point(gsf_output_of, argument_types(gsf_output_of, (self._gsf_arr,)))
         fuse_args = (self._gsf_arr, self._gsf_par_arr, 0.0, np.zeros(3), 0.0)
-        self._gsf_fuse_velocity = entry_point(gsf_fuse_velocity_of,
-                                              tuple(gsf_fuse_velocity_of.typeof_pyval(a) for a in fuse_args))
+        self._gsf_fuse_velocity = entry_point(gsf_fuse_velocity_of, argument_types(gsf_fuse_velocity_of, fuse_args))
         self._load_python_called_kernels()
         self._iron = IronLearner(self.params.iron_prior_sigma_ut, self.params.iron_soft_prior)
         self._iron_last_t = None
@@ -642,6 +644,7 @@ class Ins:
         self._ever_aided = False
         self._published.reset()
         self._lever_arm_fit.reset()
+        self._use_arm(self.params.lever_arm_m)     # an arm adopted in the run before is not kept
         self._new_heading_checks()
 
     # ----------------------------------------------------------------------- learned iron (persisted by the daemon)
@@ -1041,7 +1044,12 @@ class Ins:
         )
         velocity_step = self._x["vel_ned_m_s"] - vel_before
         if use_vel:
+            adoptions = self._lever_arm_fit.adoptions
             self._lever_arm_fit.fused(velocity_step, bool(res & core.R_VEL_REJECTED))
+            if self._lever_arm_fit.adoptions != adoptions:
+                self._adopt_fitted_arm()
+            else:
+                self._gsf_par["lever_arm_m"] = self._lever_arm_fit.bank_arm(self.params.lever_arm_m)
         # the update corrected the state and the history rows after the fix's time, not those up to it: kept for
         # a yaw reset at this fix (`_reset_velocity_to_fix`). The resets from a first fix or after an outage
         # correct the row at the fix's time as well, so they leave nothing to add
@@ -1099,17 +1107,51 @@ class Ins:
         """The fix's velocity innovation at the antenna the filter was told, before the fix is fused, from the
         history row nearest its time of validity (the kernel interpolates; a row is 1/rate apart), for the
         lever-arm check (lever_arm_fit.py)."""
-        n = int(self._x["hist_count"])
-        if n == 0:
+        at = self._history_state_at(t_s)
+        if at is None:
             return
-        rows = self._hist if n >= core.H_LEN else self._hist[:n]
-        k = int(np.argmin(np.abs(rows["t_s"] - t_s)))
-        row = rows[k]
-        c_bn = quat_to_dcm(row["q"])
-        rate_cross = rate_cross_ned(c_bn, row["rate_rad_s"])
-        innovation = np.array([v[0], v[1], v[2] if use_vd else math.nan]) - (
-            row["vel_ned_m_s"] + rate_cross @ np.asarray(self.params.lever_arm_m, dtype=float))
+        c_bn, vel, rate = at
+        rate_cross = rate_cross_ned(c_bn, rate)
+        innovation = np.array([v[0], v[1], v[2] if use_vd else math.nan]) - (vel + rate_cross @ self._arm_in_use())
         self._lever_arm_fit.add(t_s, innovation, rate_cross, sig_s)
+
+    def _history_state_at(self, t_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The attitude (body → NED DCM), velocity (NED m/s) and body rate (rad/s) the history holds at t_s,
+        interpolated between its two rows as the kernel does for a fix (core._history_at); None before any row.
+        For the lever-arm check's innovation and a yaw reset's velocity at the fix: one reading for both."""
+        hist = self._hist
+        i0, i1, w = core._history_at(self._x, hist, t_s)
+        if i0 < 0:
+            return None
+        a, b = hist[i0], hist[i1]
+        q, vel, rate = (a[k] + w * (b[k] - a[k]) for k in ("q", "vel_ned_m_s", "rate_rad_s"))
+        return np.asarray(quat_to_dcm(q / np.linalg.norm(q)), dtype=float), vel, rate
+
+    def _arm_in_use(self) -> np.ndarray:
+        """The antenna arm the filter fuses with: the told one plus what the lever-arm check adopted."""
+        return self._lever_arm_fit.arm_in_use(self.params.lever_arm_m)
+
+    def _use_arm(self, arm_m) -> None:
+        """Fuse the velocities (the filter's and the GNSS yaw bank's) at this antenna arm (body FRD, m)."""
+        self._par["lever_arm_m"] = np.asarray(arm_m, dtype=float)
+        self._gsf_par["lever_arm_m"] = np.asarray(arm_m, dtype=float)
+
+    def _adopt_fitted_arm(self) -> None:
+        """The lever-arm check adopted its fitted error (lever_arm_fit.py `_adopt`): the filter and the GNSS yaw
+        bank fuse at the corrected arm; the bank starts again (its hypotheses took the velocities through the
+        wrong arm) and the heading, bent by the wrong arm, is found again as at the start: unconfirmed, aligned
+        to the bank's yaw once valid. Nothing is persisted: the arm is the operator's configuration."""
+        arm = self._arm_in_use()
+        self._use_arm(arm)
+        gsf_reset(self._gsf, self._gsf_par, float(self._x["t_last_s"]), np.full(4, np.nan))
+        self._gnss_yaw_aligned = False
+        self._gnss_yaw_valid_seen = False
+        self._heading_confirmed = False
+        self._bias_heading_confirmed = False
+        self._sigma_confirmed = False
+        log.warning("ins: the GNSS velocities fit an antenna at %s m (body FRD), told %s m: fusing at the fitted arm "
+                    "(adoption %d); set lever_arm_m", ",".join(f"{v:.2f}" for v in arm),
+                    ",".join(f"{v:g}" for v in self.params.lever_arm_m), self._lever_arm_fit.adoptions)
 
     def lever_arm_fit(self) -> LeverArmFitResult | None:
         """The lever-arm check over the latest velocity fixes (lever_arm_fit.py), None before it has enough."""
@@ -1309,7 +1351,9 @@ class Ins:
 
     def _gnss_yaw(self) -> tuple[float, float, bool]:
         """The GNSS yaw bank's yaw, its variance (rad²) and whether it is valid: (NaN, inf, False) without the
-        bank (gnss_yaw off) or before it has a finite yaw."""
+        bank (gnss_yaw off) or before it has a finite yaw. While the lever-arm check finds the arm in use wrong,
+        the bank takes the velocities through the arm it found (LeverArmFit.bank_arm, set in `_fuse`), not through
+        the wrong one (docs/gnss.md "The lever-arm check")."""
         if self.params.gnss_yaw:
             y, sg, valid, _ = self._gsf_output(self._gsf_arr)
             if math.isfinite(y) and math.isfinite(sg):
@@ -1533,7 +1577,7 @@ class Ins:
         self._integrity = HeadingIntegrity(gsf_yaw, math.sqrt(gsf_var) if math.isfinite(gsf_var) else math.nan,
                                            gsf_valid, self._monitor.disagreement_rad, self._iron.offset_ut,
                                            self._iron.sigma_ut, self._rejection_step_rad,
-                                           self._lever_arm_fit.arm_wrong)
+                                           self._lever_arm_fit.heading_bent)
         raw = self._monitor.heading_state(sig, False, True, p.heading_unknown_sigma_rad, self._mag_trust_var)
         if raw == HeadingState.MAGNETOMETER and self._mag_state()["since_update_s"] > p.mag_unavailable_s:
             # the monitor lets the magnetometer back, but the kernel's field check still rejects every field (its
@@ -1707,8 +1751,9 @@ class Ins:
             self.gnss_yaw_alignments += 1
             log.info("ins: heading aligned to the GNSS yaw by %.1f° (reset %d)", math.degrees(dyaw), self.yaw_resets)
         else:
-            log.warning("ins: heading reset to the GNSS yaw by %.1f° (reset %d)", math.degrees(dyaw),
-                        self.yaw_resets)
+            log.warning("ins: heading reset to the GNSS yaw by %.1f° (reset %d)%s", math.degrees(dyaw),
+                        self.yaw_resets, " (the antenna arm found wrong: the heading stays unknown)"
+                        if self._lever_arm_fit.heading_bent else "")
 
     def _reset_velocity_to_fix(self) -> None:
         """Set the velocity to the last fix's (at its time of validity, through the lever arm with the reset
@@ -1719,8 +1764,7 @@ class Ins:
             return
         t_fix, v_fix, sig_s = self._last_fix_velocity
         x, hist = self._x, self._hist
-        i0, i1, w = core._history_at(x, hist, t_fix)
-        if i0 < 0:
+        if core._history_at(x, hist, t_fix)[0] < 0:
             return
         # every kept row once (hist_count ≤ H_LEN): one indexed add, not a Python loop over up to H_LEN rows
         rows = (int(x["hist_newest"]) - np.arange(int(x["hist_count"]))) % core.H_LEN
@@ -1736,11 +1780,8 @@ class Ins:
             older = rows[hist["t_s"][rows] <= t_fix]
             hist["vel_ned_m_s"][older] += step[1]
             self._fix_velocity_step = None     # the rows now carry it: a second reset at this fix adds nothing
-        a, b = hist[i0], hist[i1]
-        q, vel, rate = (a[k] + w * (b[k] - a[k]) for k in ("q", "vel_ned_m_s", "rate_rad_s"))
-        c_bn = np.asarray(quat_to_dcm(q / np.linalg.norm(q)), dtype=float)
-        lever = np.asarray(self.params.lever_arm_m, dtype=float)
-        v_ant = vel + c_bn @ np.cross(rate, lever)
+        c_bn, vel, rate = self._history_state_at(t_fix)
+        v_ant = vel + c_bn @ np.cross(rate, self._arm_in_use())
         m = 3 if math.isfinite(v_fix[2]) else 2
         dv = np.zeros(3)
         dv[:m] = v_fix[:m] - v_ant[:m]
@@ -1922,16 +1963,16 @@ class Ins:
         if not initialised:
             return uninitialised_estimate(t_s, f)
         o = self._out_flat.copy()  # one fresh buffer; the estimate's arrays are views of it
-        roll, pitch, yaw_true = o[_OUT_EULER].tolist()
-        sigma_yaw = float(o[_OUT_SIGMA_YAW])
+        # the σ and the Euler angles read as floats with one call (float arithmetic is cheaper than numpy scalars'
+        # and gives the same bits); the yaw σ is written once, below
+        sig_roll, sig_pitch, sigma_yaw, _, _, _, roll, pitch, yaw_true = o[_OUT_SIGMA_TO_EULER].tolist()
         if self._unconfirmed_sigma_rad > sigma_yaw and self._nav_ok[0] > 0.0:
             sigma_yaw = self._unconfirmed_sigma_rad        # _unconfirmed_yaw_sigma says why
-            o[_OUT_SIGMA_YAW] = sigma_yaw
-        if self._lever_arm_fit.arm_wrong:
+        if self._lever_arm_fit.heading_bent:
             # the GNSS velocities fit another antenna place than the one told (lever_arm_fit.py): the heading they
-            # held, and the GNSS yaw bank's, are bent by an error no state models: unknown until the arm is right
+            # held, and the GNSS yaw bank's, are bent by an error no state models: unknown until an arm (the told
+            # one or the fitted one adopted) leaves the gate rejecting as a right arm does
             sigma_yaw = math.pi
-            o[_OUT_SIGMA_YAW] = sigma_yaw
         if not self._ever_aided and self.params.mag_enabled:
             # no GNSS yet: the magnetometer calibration is the only heading reference and its error is not in
             # the filter's σ (the checks that would show it need GNSS): calibration_heading.py
@@ -1945,7 +1986,6 @@ class Ins:
                 # the harmonic states carry the calibration's error in the filter's σ: only what the circle adds
                 add_var = max(0.0, add_var - cal_var)
             sigma_yaw = math.sqrt(sigma_yaw ** 2 + add_var)
-            o[_OUT_SIGMA_YAW] = sigma_yaw
         # the tilt ins levels is the accelerometer axes' tilt: the x and y axes' misalignment is in it, at the
         # levelling's partials at the specific force the filter has (accel_axes_tilt.py; low-passed in NED: a turn's,
         # not only gravity's); the z axis's lean, which a fix levels through the vertical channel, is the E_AZ_LEAN
@@ -1958,13 +1998,12 @@ class Ins:
                                                              float(self.params.accel_axes_tilt_sigma_rad))
             var_roll, var_pitch = var_roll + axes_roll, var_pitch + axes_pitch
         if var_roll > 0.0 or var_pitch > 0.0:
-            sig_roll, sig_pitch = o[_OUT_SIGMA.start], o[_OUT_SIGMA.start + 1]
             o[_OUT_SIGMA.start] = math.sqrt(sig_roll * sig_roll + var_roll)
             o[_OUT_SIGMA.start + 1] = math.sqrt(sig_pitch * sig_pitch + var_pitch)
         if self._ever_aided and self._accel_axes_var_rad2 > 0.0:
             # a heading the GNSS has observed is the accelerometer axes' heading: their misalignment is in it
             sigma_yaw = math.sqrt(sigma_yaw * sigma_yaw + self._accel_axes_var_rad2)
-            o[_OUT_SIGMA_YAW] = sigma_yaw
+        published_sigma_yaw = sigma_yaw
         if self._published.offset_rad:
             # the filter's yaw moved faster than the published one may: publish it turned back by the offset
             off = self._published.offset_rad
@@ -1972,7 +2011,8 @@ class Ins:
             c, s = math.cos(0.5 * off), math.sin(0.5 * off)
             w, x_, y, z = o[_OUT_Q].tolist()
             o[_OUT_Q] = (c * w - s * z, c * x_ - s * y, c * y + s * x_, c * z + s * w)
-            o[_OUT_SIGMA_YAW] = self._published.published_sigma(sigma_yaw)
+            published_sigma_yaw = self._published.published_sigma(sigma_yaw)
+        o[_OUT_SIGMA_YAW] = published_sigma_yaw
         yaw = (yaw_true - self._declination + math.pi) % _TWO_PI - math.pi
         nav = None
         if self._nav_ok[0] > 0.0:

@@ -19,7 +19,18 @@ the check does not claim it.
 Once it has explained them the arm stays **found wrong** (`arm_wrong`) until a fit finds no significant error and
 rules out the error found (each by χ² against the fit's covariance): the arm is configuration, it does not heal within a run, and a window that explains less (a calm spell) does not make
 the heading the wrong arm bent (through the GNSS yaw bank's resets and the velocity updates) right again. While it is
-found wrong, the aided filter publishes its heading as unknown (ins.py `_build_estimate`).
+found wrong, the aided filter publishes its heading as unknown (ins.py `_build_estimate`), and the GNSS yaw bank
+takes the velocities through the arm the check found (`bank_arm`), not through the wrong one: a bank fed through
+the wrong arm has its yaw bent as the filter's, and one not let reset the filter's yaw leaves that yaw held by
+nothing, wandering until the fit over it is the filter's error (docs/gnss.md). The latch is released only while the
+gate fuses the fixes: a fit over a filter whose heading the wrong arm let wander far is that filter's own error.
+
+The fitted error is adopted once the fit is sure of it (its 1σ at most ADOPT_SIGMA_SHARE of it), as VectorNav and SBG
+units estimate or adopt the antenna arm: the filter and the bank then fuse at told + `correction_m` (`arm_in_use`),
+and the check goes on fitting the error of that arm (adopting again when it explains the rejections). The heading
+stays unknown (`heading_bent`) until the arm in use has left a full window's rejections at the right-arm level
+(RIGHT_ARM_REJECTED_SHARE); the told arm stays found wrong (`arm_wrong`: the configuration is the operator's, and
+nothing is persisted). Every consumer reads these latches through `result()`, not the momentary `explains`.
 """
 
 from __future__ import annotations
@@ -39,6 +50,9 @@ CHI2_3DOF_P999 = 16.27         # δr significant: its χ² against its covarianc
 MIN_EXPLAINED_SHARE = 0.1      # and the fitted arm removes at least this share of the differences' sum of squares
 MIN_REJECTED_SHARE = 0.1       # and the gate rejected at least this share of the window's fixes: an arm explains
                                # rejections; a filter that rejects none is not bent by its arm beyond its noise
+ADOPT_SIGMA_SHARE = 0.25       # a fitted error is adopted once its 1σ (norm) is at most this share of it (norm)
+RIGHT_ARM_REJECTED_SHARE = 0.02   # an adopted arm is right once a full window's rejections are at most this share:
+                               # a right arm leaves the gate rejecting next to none (docs/gnss.md)
 
 
 class LeverArmFitResult(NamedTuple):
@@ -51,10 +65,16 @@ class LeverArmFitResult(NamedTuple):
     explained_share: float
     explains: bool
     chi2: float = 0.0
+    arm_wrong: bool = False                 # LeverArmFit.arm_wrong: the told arm found wrong (the latch)
+    told_error_m: np.ndarray | None = None  # the told arm's error as best known (LeverArmFit.result)
+    arm_adopted: bool = False               # the filter uses told + told_error_m (LeverArmFit.correction_m)
+    heading_bent: bool = False              # LeverArmFit.heading_bent: the arm in use not shown right
+    adopted_m: np.ndarray | None = None     # LeverArmFit.correction_m: the arm in use is the told one plus this
 
     def antenna_m(self, told_m) -> np.ndarray:
-        """Where the fit puts the antenna (body FRD, m): the told arm plus the fitted error."""
-        return np.asarray(told_m, dtype=float) + self.offset_m
+        """Where the check puts the antenna (body FRD, m): the told arm plus its error as best known."""
+        err = self.offset_m if self.told_error_m is None else self.told_error_m
+        return np.asarray(told_m, dtype=float) + err
 
 
 def rate_cross_ned(c_bn: np.ndarray, rate_b_rad_s: np.ndarray) -> np.ndarray:
@@ -68,7 +88,7 @@ class LeverArmFit:
     with C [ω×] at its time of validity (`rate_cross_ned`) and its 1σ, then `fused` with what the filter did with
     it; `result()` is the latest fit."""
 
-    def __init__(self):
+    def __init__(self, adopt: bool = True):
         self._pairs: deque = deque(maxlen=WINDOW_PAIRS)
         self._rejected: deque = deque(maxlen=WINDOW_PAIRS)     # per velocity fix: the gate rejected it
         self._last = None
@@ -76,9 +96,32 @@ class LeverArmFit:
         self._dirty = False
         self.arm_wrong = False     # latched: a fit explained the innovations, none since found the arm right
         self._found_offset_m = np.zeros(3)
+        self.adopt = adopt
+        self.correction_m = np.zeros(3)  # adopted: the innovations are taken at told + correction_m (`arm_in_use`)
+        self.adoptions = 0
+        self.in_use_wrong = False  # the arm in use explains the rejections (before an adoption: arm_wrong)
+        self._in_use_offset_m = np.zeros(3)  # the arm in use's error the last explaining fit found
+        self.in_use_right = False  # an adopted arm left a full window's rejections at the right-arm level
 
     def reset(self) -> None:
-        self.__init__()
+        self.__init__(self.adopt)
+
+    @property
+    def heading_bent(self) -> bool:
+        """The heading is bent by an antenna arm error: the told arm found wrong and no adopted arm shown right
+        (the aided filter publishes its heading unknown)."""
+        return self.arm_wrong and not self.in_use_right
+
+    def arm_in_use(self, told_m) -> np.ndarray:
+        """The arm the innovations are taken at and the filter fuses with: the told arm plus what was adopted."""
+        return np.asarray(told_m, dtype=float) + self.correction_m
+
+    def bank_arm(self, told_m) -> np.ndarray:
+        """The arm the GNSS yaw bank takes the velocities through: the arm in use, or, while that is found wrong,
+        the arm in use plus the error the last explaining fit found (not yet sure enough to be adopted by the
+        filter, but a bank fed through the arm found wrong has its yaw bent as the filter's)."""
+        arm = self.arm_in_use(told_m)
+        return arm + self._in_use_offset_m if self.in_use_wrong else arm
 
     def add(self, t_s: float, innovation_ned_m_s: np.ndarray, rate_cross: np.ndarray, sigma_m_s: float) -> None:
         nu = np.asarray(innovation_ned_m_s, dtype=float).reshape(3)
@@ -103,16 +146,64 @@ class LeverArmFit:
         if self._last is not None:
             t_s, nu, rate_cross, sigma = self._last
             self._last = (t_s, nu - np.asarray(velocity_correction_ned_m_s, dtype=float), rate_cross, sigma)
-        result = self.result()
+        if not self.arm_wrong and not self._rejecting():
+            # nothing to latch, adopt or release: an arm explains only while the gate rejects, and is adopted or
+            # released only once latched (the fit is made when asked, `result`: the daemon's and replay's warnings
+            # ask on rejections)
+            return
+        result = self._fit()
         if result is None:
             return
         if result.explains:
-            self.arm_wrong, self._found_offset_m = True, result.offset_m
-        elif self.arm_wrong and result.chi2 <= CHI2_3DOF_P999 and _chi2(self._found_offset_m - result.offset_m,
-                                                                          result.sigma_m) > CHI2_3DOF_P999:
-            self.arm_wrong = False      # the arm is right after all: this fit rules out the error found before
+            self.in_use_wrong, self.in_use_right = True, False
+            self._in_use_offset_m = result.offset_m
+            if not self.adoptions:
+                self.arm_wrong, self._found_offset_m = True, result.offset_m
+            if self.adopt and _confident(result):
+                self._adopt(result.offset_m)
+        elif self.arm_wrong and not self.adoptions and result.chi2 <= CHI2_3DOF_P999 and _chi2(
+                self._found_offset_m - result.offset_m, result.sigma_m) > CHI2_3DOF_P999 and not self._rejecting():
+            # the arm is right after all: this fit rules out the error found, and the gate fuses the fixes (a fit
+            # over a filter whose heading a wrong arm let wander far is its own error, not the arm's)
+            self.arm_wrong = self.in_use_wrong = False
+        elif self.adoptions and not self.in_use_wrong and len(self._rejected) == WINDOW_PAIRS \
+                and sum(self._rejected) <= RIGHT_ARM_REJECTED_SHARE * WINDOW_PAIRS:
+            self.in_use_right = True    # the adopted arm leaves the gate rejecting as a right arm does
+
+    def _adopt(self, offset_m: np.ndarray) -> None:
+        """Take the fitted error into the arm in use (told + correction_m): the kept differences become those the
+        new arm would have given (each less its ΔC[ω×] δr), the rejections start again (they were the old arm's)."""
+        offset_m = np.asarray(offset_m, dtype=float)
+        self.correction_m = self.correction_m + offset_m
+        self.adoptions += 1
+        self.in_use_wrong, self.in_use_right = False, False
+        self._in_use_offset_m = np.zeros(3)
+        self._pairs = deque(((d_nu - d_rc @ offset_m, d_rc, sig) for d_nu, d_rc, sig in self._pairs),
+                            maxlen=WINDOW_PAIRS)
+        if self._last is not None:
+            t_s, nu, rate_cross, sigma = self._last
+            self._last = (t_s, nu - rate_cross @ offset_m, rate_cross, sigma)
+        self._rejected.clear()
+        self._dirty = True
+
+    def _rejecting(self) -> bool:
+        """The gate rejected at least MIN_REJECTED_SHARE of the window's velocity fixes."""
+        return sum(self._rejected) >= MIN_REJECTED_SHARE * max(len(self._rejected), 1)
 
     def result(self) -> LeverArmFitResult | None:
+        """The fit over the window with the latch and the arm's error as best known (what every consumer reads:
+        `arm_wrong`, `antenna_m`), or None with fewer than MIN_PAIRS differences."""
+        fit = self._fit()
+        if fit is None:
+            return None
+        if self.adoptions:
+            told_error = self.correction_m + (fit.offset_m if self.in_use_wrong else 0.0)
+        else:
+            told_error = self._found_offset_m if self.arm_wrong else fit.offset_m
+        return fit._replace(arm_wrong=self.arm_wrong, told_error_m=told_error, arm_adopted=self.adoptions > 0,
+                            heading_bent=self.heading_bent, adopted_m=self.correction_m)
+
+    def _fit(self) -> LeverArmFitResult | None:
         """The fit over the window, or None with fewer than MIN_PAIRS differences."""
         if not self._dirty:
             return self._result
@@ -120,9 +211,11 @@ class LeverArmFit:
         if len(self._pairs) < MIN_PAIRS:
             self._result = None
             return None
+        # once per fix over the whole window: each pair's rows are (k, 3) already (what vstack would make of them),
+        # and each difference's noise variance is repeated over its k components in one call, not one array a pair
         y = np.concatenate([p[0] for p in self._pairs])
-        a = np.vstack([p[1] for p in self._pairs])
-        noise_var = np.concatenate([np.full(len(p[0]), p[2] ** 2) for p in self._pairs])
+        a = np.concatenate([p[1] for p in self._pairs])
+        noise_var = np.repeat([p[2] ** 2 for p in self._pairs], [len(p[0]) for p in self._pairs])
         ata = a.T @ a
         if np.linalg.cond(ata) > 1e12:        # no rotation: the arm is not observable
             self._result = LeverArmFitResult(np.full(3, math.nan), np.full(3, math.inf), 0.0, False, math.nan)
@@ -135,10 +228,16 @@ class LeverArmFit:
         chi2 = float(offset @ np.linalg.solve(cov, offset))
         total = float(y @ y)
         share = 1.0 - float(residual @ residual) / total if total > 0.0 else 0.0
-        rejecting = sum(self._rejected) >= MIN_REJECTED_SHARE * max(len(self._rejected), 1)
+        rejecting = self._rejecting()
         self._result = LeverArmFitResult(offset, np.sqrt(np.diag(cov)), share,
                                          chi2 > CHI2_3DOF_P999 and share >= MIN_EXPLAINED_SHARE and rejecting, chi2)
         return self._result
+
+
+def _confident(fit: LeverArmFitResult) -> bool:
+    """The fitted error is known well enough to be adopted: its 1σ (norm) at most ADOPT_SIGMA_SHARE of it."""
+    return bool(np.all(np.isfinite(fit.offset_m))) and \
+        float(np.linalg.norm(fit.sigma_m)) <= ADOPT_SIGMA_SHARE * float(np.linalg.norm(fit.offset_m))
 
 
 def _chi2(offset_m: np.ndarray, sigma_m: np.ndarray) -> float:

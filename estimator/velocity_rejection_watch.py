@@ -55,7 +55,8 @@ class RejectionWatch:
             # the estimator's own bound of an UNKNOWN heading, on its yaw σ: a filter without a magnetometer
             # publishes no heading state of its own (UNKNOWN throughout), its yaw σ says when the GNSS found it
             heading_unknown=bool(e.sigma_rpy_rad[2] > self.est.params.heading_unknown_sigma_rad),
-            lever_arm_explains=fit is not None and fit.explains)
+            # the latch, as the heading reads it (lever_arm_fit.py heading_bent), not the momentary fit
+            lever_arm_explains=fit is not None and fit.heading_bent)
         key = UNEXPLAINED if cause is None else cause.key
         self.by_cause[key] = self.by_cause.get(key, 0) + new
 

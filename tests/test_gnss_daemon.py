@@ -171,19 +171,54 @@ def test_a_gate_that_rejects_most_velocities_warns_the_operator(rig):
     assert svc.gnss.counters.gate_warnings == 1
     svc.gnss.tick(now + 2 * GATE_WINDOW_S + 5.0)                   # within the window: not repeated
     assert not [m for m in received(rig) if m.get_type() == "STATUSTEXT" and "rejected" in m.text]
-    # the lever-arm check (estimator/lever_arm_fit.py) finds where the innovations put the antenna: said instead
-    fit = LeverArmFitResult(np.array([-1.0, 0.0, -2.0]), np.full(3, 0.2), 0.3, True)
+    # the lever-arm check (estimator/lever_arm_fit.py) found where the innovations put the antenna: said instead.
+    # Its latch is read (the heading reads it too), not the momentary fit: this window's fit explains less (a calm
+    # spell), the arm in use is still found wrong
+    fit = LeverArmFitResult(np.array([-1.0, 0.0, -2.0]), np.full(3, 0.2), 0.05, False, arm_wrong=True,
+                            heading_bent=True)
     rig.fake.lever_arm_fit = lambda: fit
     counters.offered, counters.rejected_velocity = 450, 190        # 90 of the next 150
     svc.gnss.tick(now + 3 * GATE_WINDOW_S + 0.3)
     texts = [m.text for m in received(rig) if m.get_type() == "STATUSTEXT" and "rej" in m.text]
     assert texts == ["ahrsd: GNSS vel rej 90/150: arm -1.0,0.0,-2.0?"] and len(texts[0]) <= 50
-    # a fit that does not explain them leaves the plain hint
-    rig.fake.lever_arm_fit = lambda: fit._replace(explains=False)
+    # a momentary fit that explains them while the latch is off (an adopted arm shown right) leaves the plain hint
+    rig.fake.lever_arm_fit = lambda: fit._replace(explains=True, arm_wrong=False, heading_bent=False)
     counters.offered, counters.rejected_velocity = 600, 280
     svc.gnss.tick(now + 4 * GATE_WINDOW_S + 0.4)
     texts = [m.text for m in received(rig) if m.get_type() == "STATUSTEXT" and "rej" in m.text]
     assert texts == ["ahrsd: GNSS vel rejected 90/150: lever arm?"]
+
+
+def test_the_daemon_says_the_fitted_antenna_arm_it_uses(rig, caplog):
+    """Once the aided filter adopts the arm its lever-arm check fitted (estimator/lever_arm_fit.py), the ground
+    station is told which arm it uses and that the configuration still holds the told one: once per arm (to 0.1 m),
+    not before an adoption."""
+    from ahrsd.estimator.lever_arm_fit import LeverArmFitResult
+
+    svc = rig.service
+    now = time.monotonic()
+    fit = LeverArmFitResult(np.array([-0.1, 0.0, 0.1]), np.full(3, 0.2), 0.3, True, arm_wrong=True,
+                            told_error_m=np.array([-0.93, 0.02, -1.74]), heading_bent=True)
+    rig.fake.lever_arm_fit = lambda: fit
+    svc.gnss.tick(now)
+    received(rig)
+    svc.gnss.tick(now + 0.1)                                         # found wrong, not adopted: nothing yet
+    assert not [m for m in received(rig) if m.get_type() == "STATUSTEXT" and "fitted" in m.text]
+    rig.fake.lever_arm_fit = lambda: fit._replace(arm_adopted=True, adopted_m=np.array([-0.93, 0.02, -1.74]))
+    svc.gnss.tick(now + 0.2)
+    svc.gnss.tick(now + 0.3)
+    texts = [m.text for m in received(rig) if m.get_type() == "STATUSTEXT" and "fitted" in m.text]
+    assert texts == ["ahrsd: GNSS arm -0.9,0.0,-1.7 m fitted: set it"] and len(texts[0]) <= 50
+    # the arm in use is said, not the latest fit's (it moves with every fix while the arm in use is refitted)
+    rig.fake.lever_arm_fit = lambda: fit._replace(arm_adopted=True, adopted_m=np.array([-0.93, 0.02, -1.74]),
+                                                  told_error_m=np.array([-1.1, 0.1, -1.9]))
+    svc.gnss.tick(now + 0.35)
+    assert not [m for m in received(rig) if m.get_type() == "STATUSTEXT" and "fitted" in m.text]
+    rig.fake.lever_arm_fit = lambda: fit._replace(arm_adopted=True, adopted_m=np.array([-1.0, 0.0, -2.0]))
+    svc.gnss.tick(now + 0.4)
+    texts = [m.text for m in received(rig) if m.get_type() == "STATUSTEXT" and "fitted" in m.text]
+    assert texts == ["ahrsd: GNSS arm -1.0,0.0,-2.0 m fitted: set it"]
+    assert "GNSS arm -1.0,0.0,-2.0 m fitted: set gnss.lever_arm_m" in caplog.text
 
 
 def test_no_gnss_source_no_gps_bit(tmp_path):

@@ -409,6 +409,19 @@ def test_a_heading_unknown_for_a_wrong_lever_arm_says_so_not_the_magnetometer():
     assert "lever_arm_m" not in texts[-1][1]
 
 
+def test_no_yaw_reset_is_announced_while_the_arm_is_found_wrong():
+    """A reset or alignment while the lever-arm check finds the arm the GNSS yaw bank takes its velocities through
+    wrong (or a fitted arm not yet shown right) finds no heading: nothing says "heading reset to the GNSS yaw
+    (±180°)" then (session 28's daemon did); once the arm is shown right, a reset is news again."""
+    hs, texts = status(cal_sigma_deg=math.nan)
+    bent = estimate(HeadingState.UNKNOWN, 180.0, lever_arm_wrong=True)
+    hs.on_estimate(bent, 0.0, yaw_resets=1, gnss_yaw_alignments=1)
+    hs.on_estimate(bent, 1.0, yaw_resets=2, gnss_yaw_alignments=1)
+    assert not [t for _, t in texts if "GNSS yaw (" in t], texts
+    hs.on_estimate(estimate(HeadingState.GNSS_ONLY, 3.0), 2.0, yaw_resets=3, gnss_yaw_alignments=1)
+    assert [t for _, t in texts if "GNSS yaw (" in t] == ["ahrsd: heading reset to the GNSS yaw (±3.0°)"]
+
+
 def test_each_yaw_reset_is_announced_once():
     hs, texts = status()
     e = estimate(HeadingState.MAGNETOMETER, 2.0)

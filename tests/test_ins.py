@@ -231,16 +231,26 @@ def test_latency_longer_than_the_fix_interval():
 
 def test_lever_arm_is_applied_to_position_and_velocity():
     """Antenna 3 m behind, 1 m right of and 1.5 m above the IMU on a turning, rolling boat: with the lever arm
-    configured the estimated IMU position has no offset; without it, it carries the arm."""
+    configured the estimated IMU position has no offset; without it (and without the lever-arm check's adoption of
+    the arm it fits), it carries the arm; with the adoption, the fitted arm takes most of it away."""
     run = _run("level-turns", 120.0)
     arm = (-3.0, 1.0, -1.5)
     fixes = gnss_fixes(run.truth, lever_arm_m=arm, body_rate=run.block.truth_gyro_rad_s, seed=3)
     m = run.truth.t_s > 30.0
     with_arm = run_ins(Ins(declination_rad=DECLINATION, **CALIBRATED, lever_arm_m=arm), run, fixes)
-    without = run_ins(Ins(declination_rad=DECLINATION, **CALIBRATED), run, fixes)
+    untold = Ins(declination_rad=DECLINATION, **CALIBRATED)
+    untold._lever_arm_fit.adopt = False         # what the arm alone does (estimator/lever_arm_fit.py)
+    without = run_ins(untold, run, fixes)
     err_with = np.linalg.norm(position_error_ned(with_arm, run.truth)[m], axis=1)
     err_without = np.linalg.norm(position_error_ned(without, run.truth)[m], axis=1)
     assert _rms(err_with) < 0.35 and _rms(err_without) > 2.5, (_rms(err_with), _rms(err_without))
+    adopting = Ins(declination_rad=DECLINATION, **CALIBRATED)
+    adopted = run_ins(adopting, run, fixes)
+    fit = adopting.lever_arm_fit()
+    late = run.truth.t_s > 90.0
+    err_adopted = np.linalg.norm(position_error_ned(adopted, run.truth)[late], axis=1)
+    assert fit.arm_adopted and np.linalg.norm(fit.antenna_m((0.0, 0.0, 0.0)) - arm) < 1.0, fit
+    assert _rms(err_adopted) < 1.0, _rms(err_adopted)
     tilt, _ = tilt_heading_errors_deg(with_arm.q_mag, run.truth.q_wxyz)
     assert _rms(tilt[m]) < 0.3
 
