@@ -1443,6 +1443,45 @@ class Ins:
         self._confirmed_gyro_bias = self._startup_gyro_bias.copy()
         self._confirmed_accel_bias = self._startup_accel_bias.copy()
         self._reset_yaw(dyaw_rad, gsf_var, alignment=True)
+        # the specific force the tilt was levelled against, turned by the alignment's yaw step: its horizontal part
+        # across the new heading, |f_h|·|sin Δψ|, was taken as a lean of the tilt (a car accelerating away leans
+        # degrees; a boat at 0.1–0.5 m/s² hardly any)
+        f = self._x["acc_ned_lp_m_s2"]
+        across = math.hypot(float(f[0]), float(f[1])) * abs(math.sin(wrap_pi(dyaw_rad)))
+        self._relevel_after_wrong_yaw(math.atan2(across, abs(float(f[2]))))
+
+    def _relevel_after_wrong_yaw(self, lean_sigma_rad: float) -> None:
+        """The tilt's 1σ, uncorrelated, becomes at least `lean_sigma_rad` (no more than the 1σ a fix assumes when it
+        first sets the velocity, `nav_init_sigma_tilt_rad`), at the first valid GNSS yaw (the alignment, or without a
+        magnetometer the yaw kept there). Until then the yaw was tens of degrees off (the magnetometer's, or pulled
+        in from an unknown start), and the GNSS velocity levelled the tilt against the horizontal acceleration
+        projected through it: a car accelerating away at 3–4 m/s² under a yaw 80–100° off leans its tilt by
+        degrees, while the linearised updates leave its variance at tenths of a degree. With its variance kept
+        small, the fixes after the alignment would put that tilt error into the horizontal accelerometer bias and
+        the z axis's lean just released to learn, which keep it (docs/gnss.md "The horizon while the heading is
+        being found")."""
+        P = self._P
+        var = min(lean_sigma_rad, self.params.nav_init_sigma_tilt_rad) ** 2
+        for i in (core.E_TILT_N, core.E_TILT_E):
+            v = max(P[i, i], var)
+            P[i, :] = 0.0
+            P[:, i] = 0.0
+            P[i, i] = v
+
+    def _restart_horizontal_accel_bias(self) -> None:
+        """The horizontal (body x, y) accelerometer bias back to its start-up value and 1σ, uncorrelated: what it
+        learned while the yaw was being pulled in was the GNSS acceleration projected through a yaw tens of degrees
+        off, which a steady turn cannot separate from a tilt (ins_core._gated_update). The vertical one keeps what
+        it learned (the vertical channel sees no yaw)."""
+        x, P = self._x, self._P
+        var = self.params.init_accel_bias_sigma_m_s2 ** 2
+        for k in range(2):
+            x["accel_bias_m_s2"][k] = self._startup_accel_bias[k]
+            i = core.E_BA + k
+            v = max(P[i, i], var)
+            P[i, :] = 0.0
+            P[:, i] = 0.0
+            P[i, i] = v
 
     def _confirm_heading(self, yaw: float, gsf_yaw: float, gsf_var: float) -> None:
         """A GNSS yaw that agrees with the held heading confirms it for the accelerometer bias (within
@@ -1628,8 +1667,19 @@ class Ins:
         if self._gnss_yaw_alignment_due(yaw, gsf_yaw, gsf_var, gsf_valid):
             self._align_yaw_to_gnss(t_s, gsf_yaw - yaw, gsf_var)
             yaw = gsf_yaw
+        elif self._first_gnss_yaw_keeps_yaw(gsf_valid):
+            # the yaw is kept, but the pull-in that brought it inside the bank's 3σ ran through yaws tens of
+            # degrees off: the horizontal bias and the tilt it taught are restarted as an alignment restarts them
+            self._restart_horizontal_accel_bias()
+            self._relevel_after_wrong_yaw(self.params.nav_init_sigma_tilt_rad)
         self._gnss_yaw_valid_seen = self._gnss_yaw_valid_seen or gsf_valid
         self._unconfirmed_sigma_rad = _gnss_yaw_floor(yaw, gsf_yaw, gsf_var)
+
+    def _first_gnss_yaw_keeps_yaw(self, gsf_valid: bool) -> bool:
+        """Without a magnetometer: this is the first valid GNSS yaw, and the filter's yaw was inside its 3σ, so
+        `_gnss_yaw_alignment_due` kept it."""
+        return (self.params.yaw_align_to_gnss_yaw and gsf_valid and not self._gnss_yaw_valid_seen
+                and not self._gnss_yaw_aligned)
 
     @property
     def _calibration_untrusted(self) -> bool:

@@ -511,6 +511,15 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("yaw-reset-velocity-with-update", "a yaw reset reads the velocity at the fix's time with that fix's update",
              "estimator/ins.py", 'hist["vel_ned_m_s"][older] += step[1]', "pass",
              ("tests/test_yaw_reset_velocity.py",)),
+    # ------------------------------------------------------------------ session 29 (tilt29)
+    Mutation("relevel-after-wrong-yaw",
+             "at the first valid GNSS yaw the tilt levelled under the wrong yaw gets its start-up σ back",
+             "estimator/ins.py", "var = min(lean_sigma_rad, self.params.nav_init_sigma_tilt_rad) ** 2", "var = 0.0",
+             ("tests/test_gnss_yaw_alignment.py", "tests/test_gnss_yaw_alignment_without_magnetometer.py")),
+    Mutation("nomag-bias-restarted-where-yaw-kept",
+             "ins without a magnetometer restarts the horizontal accelerometer bias at the first valid GNSS yaw it keeps",
+             "estimator/ins.py", "            self._restart_horizontal_accel_bias()", "            pass",
+             ("tests/test_gnss_yaw_alignment_without_magnetometer.py",)),
     # ------------------------------------------------------------------ session 29 (walk29)
     Mutation("mag-residuals-named", "calibrate mag names each magnitude residual by the blocks it is of",
              "cli/fit_summary.py", 'as_fitted.append(f"|m| − |F| {magnitude:.3f} µT")',
