@@ -91,11 +91,13 @@ def gyro_model_lines(model, result) -> list[str]:
 def mag_model_lines(model, result) -> list[str]:
     """A MagModel, the fit's residual and coverage, and the deviation card when there is one."""
     q = result.quality
+    rate_hz = q.get("fit_rate_hz")    # the back-stepping fit's blocks: their means, not every sample
+    of_what = f" of the {rate_hz:g} Hz block means" if isinstance(rate_hz, (int, float)) else ""
     return [
         "  hard iron (µT): " + fmt_vec(model.hard_iron_ut, "{:+.3f}"),
         "  soft iron:\n" + fmt_mat(model.soft_iron),
         f"  residual | |m| − |F| |: RMS {result.residual_rms_ut:.3f} µT, "
-        f"max {q.get('residual_max_ut', float('nan')):.3f} µT",
+        f"max {q.get('residual_max_ut', float('nan')):.3f} µT{of_what}",
         f"  coverage {q.get('coverage', float('nan')):.0%}; hard-iron 1σ "
         + fmt_vec(q.get("sigma_hard_iron_ut", [float("nan")] * 3), "{:.3f}") + " µT",
         *deviation_card_lines(q),

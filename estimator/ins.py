@@ -41,7 +41,7 @@ from .heading_state_hold import HeadingStateHold
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
                             float_field_slice, nav_state, uninitialised_estimate)
 from .initial_attitude import initial_attitude
-from .kernel_entry import entry_point
+from .kernel_entry import argument_types, entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .lever_arm_fit import LeverArmFit, LeverArmFitResult, rate_cross_ned
 from .mag_heading import RELEARN_GATE_OPEN_S
@@ -454,6 +454,9 @@ _OUT_LAT, _OUT_LON, _OUT_H = (
 assert _OUT_LON == _OUT_LAT + 1 and _OUT_H == _OUT_LAT + 2
 _OUT_LAT_LON_H = slice(_OUT_LAT, _OUT_H + 1)        # read with one call (Ins._build_estimate)
 _OUT_SIGMA_YAW = _OUT_SIGMA.start + 2
+# the σ, the gyro bias and the Euler angles, read with one call (Ins._build_estimate)
+_OUT_SIGMA_TO_EULER = slice(_OUT_SIGMA.start, _OUT_EULER.stop)
+assert _OUT_SIGMA.stop == _OUT_BIAS.start and _OUT_BIAS.stop == _OUT_EULER.start
 _F_GNSS_AIDED, _F_INITIALISING = core.F_GNSS_AIDED, core.F_INITIALISING   # read per sample: no module lookup
 
 
@@ -515,10 +518,9 @@ class Ins:
         self._step = core.fast_step(self._step_args_example())
         # the bank's per-fix kernels called with its 1-element arrays through their entry points (kernel_entry.py:
         # these arrays only): a record argument costs several µs to unbox, an array a fraction of one
-        self._gsf_output = entry_point(gsf_output_of, (gsf_output_of.typeof_pyval(self._gsf_arr),))
+        self._gsf_output = entry_point(gsf_output_of, argument_types(gsf_output_of, (self._gsf_arr,)))
         fuse_args = (self._gsf_arr, self._gsf_par_arr, 0.0, np.zeros(3), 0.0)
-        self._gsf_fuse_velocity = entry_point(gsf_fuse_velocity_of,
-                                              tuple(gsf_fuse_velocity_of.typeof_pyval(a) for a in fuse_args))
+        self._gsf_fuse_velocity = entry_point(gsf_fuse_velocity_of, argument_types(gsf_fuse_velocity_of, fuse_args))
         self._load_python_called_kernels()
         self._iron = IronLearner(self.params.iron_prior_sigma_ut, self.params.iron_soft_prior)
         self._iron_last_t = None
@@ -1896,16 +1898,15 @@ class Ins:
         if not initialised:
             return uninitialised_estimate(t_s, f)
         o = self._out_flat.copy()  # one fresh buffer; the estimate's arrays are views of it
-        roll, pitch, yaw_true = o[_OUT_EULER].tolist()
-        sigma_yaw = float(o[_OUT_SIGMA_YAW])
+        # the σ and the Euler angles read as floats with one call (float arithmetic is cheaper than numpy scalars'
+        # and gives the same bits); the yaw σ is written once, below
+        sig_roll, sig_pitch, sigma_yaw, _, _, _, roll, pitch, yaw_true = o[_OUT_SIGMA_TO_EULER].tolist()
         if self._unconfirmed_sigma_rad > sigma_yaw and self._nav_ok[0] > 0.0:
             sigma_yaw = self._unconfirmed_sigma_rad        # _unconfirmed_yaw_sigma says why
-            o[_OUT_SIGMA_YAW] = sigma_yaw
         if self._lever_arm_fit.arm_wrong:
             # the GNSS velocities fit another antenna place than the one told (lever_arm_fit.py): the heading they
             # held, and the GNSS yaw bank's, are bent by an error no state models: unknown until the arm is right
             sigma_yaw = math.pi
-            o[_OUT_SIGMA_YAW] = sigma_yaw
         if not self._ever_aided and self.params.mag_enabled:
             # no GNSS yet: the magnetometer calibration is the only heading reference and its error is not in
             # the filter's σ (the checks that would show it need GNSS): calibration_heading.py
@@ -1919,7 +1920,6 @@ class Ins:
                 # the harmonic states carry the calibration's error in the filter's σ: only what the circle adds
                 add_var = max(0.0, add_var - cal_var)
             sigma_yaw = math.sqrt(sigma_yaw ** 2 + add_var)
-            o[_OUT_SIGMA_YAW] = sigma_yaw
         # the tilt ins levels is the accelerometer axes' tilt: the x and y axes' misalignment is in it, at the
         # levelling's partials at the specific force the filter has (accel_axes_tilt.py; low-passed in NED: a turn's,
         # not only gravity's); the z axis's lean, which a fix levels through the vertical channel, is the E_AZ_LEAN
@@ -1932,13 +1932,12 @@ class Ins:
                                                              float(self.params.accel_axes_tilt_sigma_rad))
             var_roll, var_pitch = var_roll + axes_roll, var_pitch + axes_pitch
         if var_roll > 0.0 or var_pitch > 0.0:
-            sig_roll, sig_pitch = o[_OUT_SIGMA.start], o[_OUT_SIGMA.start + 1]
             o[_OUT_SIGMA.start] = math.sqrt(sig_roll * sig_roll + var_roll)
             o[_OUT_SIGMA.start + 1] = math.sqrt(sig_pitch * sig_pitch + var_pitch)
         if self._ever_aided and self._accel_axes_var_rad2 > 0.0:
             # a heading the GNSS has observed is the accelerometer axes' heading: their misalignment is in it
             sigma_yaw = math.sqrt(sigma_yaw * sigma_yaw + self._accel_axes_var_rad2)
-            o[_OUT_SIGMA_YAW] = sigma_yaw
+        published_sigma_yaw = sigma_yaw
         if self._published.offset_rad:
             # the filter's yaw moved faster than the published one may: publish it turned back by the offset
             off = self._published.offset_rad
@@ -1946,7 +1945,8 @@ class Ins:
             c, s = math.cos(0.5 * off), math.sin(0.5 * off)
             w, x_, y, z = o[_OUT_Q].tolist()
             o[_OUT_Q] = (c * w - s * z, c * x_ - s * y, c * y + s * x_, c * z + s * w)
-            o[_OUT_SIGMA_YAW] = self._published.published_sigma(sigma_yaw)
+            published_sigma_yaw = self._published.published_sigma(sigma_yaw)
+        o[_OUT_SIGMA_YAW] = published_sigma_yaw
         yaw = (yaw_true - self._declination + math.pi) % _TWO_PI - math.pi
         nav = None
         if self._nav_ok[0] > 0.0:

@@ -56,7 +56,7 @@ from .ins_mechanisation import (
     velocity_rate_ned,
 )
 from .constrained_update import residual, scalar_update
-from .kernel_entry import entry_point
+from .kernel_entry import argument_types, entry_point
 from .kernel_flags import (
     F_ACCEL_REJECTED,
     F_GNSS_AIDED,
@@ -1417,4 +1417,4 @@ def fuse_gnss(state, P, hist, params, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, 
 def fast_step(example_args):
     """`ins_step` compiled for the types of `example_args` and returned as that overload's directly callable
     entry point (kernel_entry.py)."""
-    return entry_point(ins_step, tuple(ins_step.typeof_pyval(a) for a in example_args))
+    return entry_point(ins_step, argument_types(ins_step, example_args))

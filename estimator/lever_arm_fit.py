@@ -120,9 +120,11 @@ class LeverArmFit:
         if len(self._pairs) < MIN_PAIRS:
             self._result = None
             return None
+        # once per fix over the whole window: each pair's rows are (k, 3) already (what vstack would make of them),
+        # and each difference's noise variance is repeated over its k components in one call, not one array a pair
         y = np.concatenate([p[0] for p in self._pairs])
-        a = np.vstack([p[1] for p in self._pairs])
-        noise_var = np.concatenate([np.full(len(p[0]), p[2] ** 2) for p in self._pairs])
+        a = np.concatenate([p[1] for p in self._pairs])
+        noise_var = np.repeat([p[2] ** 2 for p in self._pairs], [len(p[0]) for p in self._pairs])
         ata = a.T @ a
         if np.linalg.cond(ata) > 1e12:        # no rotation: the arm is not observable
             self._result = LeverArmFitResult(np.full(3, math.nan), np.full(3, math.inf), 0.0, False, math.nan)

@@ -378,8 +378,8 @@ def test_plot_shows_the_levelled_field_on_the_wmm_circle(tmp_path, tilt10, monke
     assert np.sqrt(np.mean((radius - h_ut) ** 2)) < 0.02 * h_ut, (radius.mean(), h_ut)
     raw_radius = np.linalg.norm(line(levelled, "raw (centred)"), axis=1)
     assert np.sqrt(np.mean((raw_radius - h_ut) ** 2)) > 0.05 * h_ut
-    # |H| drawn as its departure from the reference |F| (named in the label), at the truth's total field
-    (total_label,) = [ln.get_label() for ln in over_time.get_lines() if ln.get_label().startswith("|H| − WMM |F|")]
+    # |m| drawn as its departure from the reference F (named in the label), at the truth's total field
+    (total_label,) = [ln.get_label() for ln in over_time.get_lines() if ln.get_label().startswith("|m| − WMM F")]
     reference_total = float(total_label.split("(")[1].split(" µT")[0])
     total = line(over_time, total_label)
     np.testing.assert_allclose(total[:, 0], data.t_s)

@@ -62,6 +62,8 @@ def test_bias_only_plot_draws_the_fitted_bias_and_the_still_periods(tmp_path, fi
         assert len(bias_lines) == 1, [ln.get_label() for ln in ax.get_lines()]
         drawn_deg = float(np.mean(bias_lines[0].get_ydata()))
         assert abs(drawn_deg - math.degrees(BIAS_RAD_S[k])) < 4 * sigma_deg
+        # its label in the axis's own unit first (walk29: "bias -808.9 °/h" over an axis in °/s)
+        assert bias_lines[0].get_label().startswith(f"bias {drawn_deg:+.3f} °/s ("), bias_lines[0].get_label()
         # the shaded still periods: never over the handled interval, and most of the rest of the recording
         spans = [x_extent(p) for p in ax.patches if p.get_gid() == "still"]
         assert spans

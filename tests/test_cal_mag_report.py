@@ -122,3 +122,56 @@ def test_the_stored_calibration_states_the_predicted_heading_error_ins_trusts(tu
     cal = load_calibration_file(tmp_path / "s" / "calibration.json")
     assert math.degrees(calibration_heading_sigma_rad(cal)) == pytest.approx(
         math.hypot(pred["offset_std_deg"], pred["heading_dependent_std_deg"]), rel=1e-9)
+
+
+def _zero_phase_lowpass(x, dt_s: float, tau_s: float):
+    """A first-order low-pass run forward then backward (written here, not the library's), per column."""
+    import numpy as np
+
+    a = 1.0 - np.exp(-dt_s / tau_s)
+    out = np.array(x, dtype=float)
+    for i in range(1, len(out)):
+        out[i] = out[i - 1] + a * (out[i] - out[i - 1])
+    for i in range(len(out) - 2, -1, -1):
+        out[i] = out[i + 1] + a * (out[i] - out[i + 1])
+    return out
+
+
+def test_the_two_magnitude_residuals_are_each_named_by_the_samples_they_are_of(turning_boat, tmp_path, capsys):
+    """walk28: the report said "residual: |m| − |F| RMS 0.042 µT" (of the unfiltered 10 Hz block means) while its
+    details had `vertical_channel.magnitude_rms_ut` 0.029 µT (of the low-passed blocks the fit levelled with the
+    accelerometer): two magnitude residuals of one fit, unlabelled. Each figure is recomputed here from the
+    recording and the stored model, on the samples its label names."""
+    import json
+
+    import numpy as np
+
+    from ahrsd.calibration.models import MagModel
+
+    args = ["calibrate", "mag", "--method", "backstepping", str(turning_boat), "--lat", "36.42", "--lon", "54.98",
+            "--state-dir", str(tmp_path / "s"), "--dry-run"]
+    assert cli.main(args + ["--json"]) == 0
+    fit = json.loads(capsys.readouterr().out)
+    assert cli.main(args) == 0
+    (line,) = [l for l in capsys.readouterr().out.splitlines() if l.startswith("  residual: ")]
+    m = re.match(r"  residual: \|m\| − \|F\| RMS (\d\.\d{3}) µT of the 10 Hz block means; of the blocks fitted "
+                 r"\(low-passed with the levelling\): \|m\| − \|F\| (\d\.\d{3}) µT, vertical field \d\.\d{3} µT ", line)
+    assert m, line
+    block_means_ut, fitted_ut = float(m.group(1)), float(m.group(2))
+
+    rec = np.genfromtxt(turning_boat, delimiter=",", names=True)
+    mag = np.column_stack([rec["mag_x_ut"], rec["mag_y_ut"], rec["mag_z_ut"]])
+    model = MagModel(np.array(fit["hard_iron_ut"]), np.array(fit["soft_iron"]))
+    total_ut = fit["quality"]["reference"]["total_ut"]
+    per_block = 5                                             # 50 Hz recorded, 10 Hz blocks
+    n = len(mag) // per_block * per_block
+
+    def block_rms_ut(samples):
+        blocks = samples[:n].reshape(-1, per_block, 3).mean(axis=1)
+        return float(np.sqrt(np.mean((np.linalg.norm(model.apply(blocks), axis=1) - total_ut) ** 2)))
+
+    raw_ut = block_rms_ut(mag)
+    lowpassed_ut = block_rms_ut(_zero_phase_lowpass(mag, 1 / 50.0, 0.2))
+    assert lowpassed_ut < 0.85 * raw_ut, (lowpassed_ut, raw_ut)          # two figures worth telling apart
+    assert block_means_ut == pytest.approx(raw_ut, abs=0.0015), (block_means_ut, raw_ut)
+    assert fitted_ut == pytest.approx(lowpassed_ut, rel=0.1), (fitted_ut, lowpassed_ut)

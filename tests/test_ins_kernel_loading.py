@@ -50,3 +50,26 @@ def test_no_kernel_is_loaded_after_construction_through_a_gnss_yaw_alignment():
     result = json.loads(out.stdout.strip().splitlines()[-1])
     assert result["alignments"] == 1 and result["checks"] > 10      # the paths were taken
     assert result["loaded_in_run"] == []
+
+
+def test_argument_types_are_numbas_own_for_every_array_kind():
+    """kernel_entry.argument_types looks an array's numba type up once per process: it must still be exactly what
+    numba's typeof gives for each array, after another array of the same dtype but another layout, read-only flag
+    or class has been typed first (the first seen of each is cached). Compared with `typeof_pyval` of each array,
+    called directly. Broken (the read-only flag or the contiguity dropped from the look-up key): the second array
+    gets the first one's type. (numba types a recarray as the ndarray it views: the class in the key costs nothing.)"""
+    import numpy as np
+
+    from ahrsd.estimator import ins_core as core
+    from ahrsd.estimator.kernel_entry import argument_types
+
+    kernel = core.fuse_gnss
+    state = np.zeros(1, core.INS_STATE_DTYPE)
+    read_only = state.copy()
+    read_only.flags.writeable = False
+    matrix = np.zeros((4, 3))
+    strided = np.zeros((4, 6))[:, ::2]
+    args = (state, read_only, state.view(np.recarray), matrix, np.asfortranarray(matrix), strided, 1.0, 2, True,
+            matrix[0], np.zeros(3, np.float32))
+    for order in (args, args[::-1]):
+        assert argument_types(kernel, order) == tuple(kernel.typeof_pyval(a) for a in order)

@@ -32,8 +32,8 @@ def boat():
 
 
 def vertical_spread_ut(fig, vertical_ut):
-    """RMS of the drawn H_z about the reference Z (the figure draws H_z − Z; its label names Z)."""
-    (hz,) = [ln for ax in fig.axes for ln in ax.get_lines() if ln.get_label().startswith("H_z − WMM Z")]
+    """RMS of the drawn m_z about the reference Z (the figure draws m_z − Z; its label names Z)."""
+    (hz,) = [ln for ax in fig.axes for ln in ax.get_lines() if ln.get_label().startswith("m_z − WMM Z")]
     assert f"({vertical_ut:.2f} µT)" in hz.get_label()
     y = np.asarray(hz.get_ydata(), dtype=float)
     return float(np.sqrt(np.mean(y ** 2)))
@@ -58,14 +58,14 @@ def test_the_figure_draws_the_vertical_field_the_fit_saw(boat):
         low, high = panel.get_ylim()
         assert high - low < 20 * math.hypot(fit_vertical_ut, noise_ut) and low < 0 < high
         assert [ln for ln in panel.get_lines() if ln.get_label() == "WMM reference"]
-        assert f"H_z {fit_vertical_ut:.3f} µT" in " ".join(ax.get_title() for ax in fig.axes)
+        assert f"m_z − Z {fit_vertical_ut:.3f} µT" in " ".join(ax.get_title() for ax in fig.axes)
         # the title's residual is the fit's, at its averaged rate; the band drawn carries every sample's noise,
         # so each trace's label says its own RMS (walk26: a band of ±0.2 µT under a title of 0.014 µT looked
         # like a contradiction)
         assert f"(fit at {res.quality['fit_rate_hz']:g} Hz)" in panel.get_title()
         for line in panel.get_lines()[:2]:
             y = np.asarray(line.get_ydata(), dtype=float)
-            assert f"RMS {np.sqrt(np.mean(y[np.isfinite(y)] ** 2)):.3f} µT of every sample" in line.get_label()
+            assert f"RMS {np.sqrt(np.mean(y[np.isfinite(y)] ** 2)):.3f} µT of the samples drawn" in line.get_label()
     finally:
         plt.close(fig)
     assert spread <= 2.0 * math.hypot(fit_vertical_ut, noise_ut), (spread, fit_vertical_ut)
@@ -97,6 +97,16 @@ def test_the_accelerometer_levelled_figure_draws_the_vertical_field_the_fit_saw(
         # blocks): the title says so (walk28: the tour's boat drew 0.028 µT under a title of 0.042 µT, unexplained)
         titles = " ".join(ax.get_title() for ax in fig.axes)
         assert "levelled by the accelerometer, drawn low-passed (τ 0.2 s) as fitted" in titles, titles
+        # the title's two magnitude residuals, each named by its samples (walk28: "|H| residual 0.042 µT" of the
+        # unfiltered blocks beside the fit's own 0.029 µT of the low-passed ones, and "|H|" read as the WMM's H,
+        # the horizontal intensity the other panel's circle is)
+        channel = res.quality["vertical_channel"]
+        assert f"|m| − F RMS {res.residual_rms_ut:.3f} µT of the block means" in titles, titles
+        assert (f"of the blocks fitted: |m| − F {channel['magnitude_rms_ut']:.3f} µT, "
+                f"m_z − Z {fit_vertical_ut:.3f} µT") in titles, titles
+        labels = [ln.get_label() for ax in fig.axes for ln in ax.get_lines()]
+        assert any(label.startswith("WMM H (horizontal) ") for label in labels), labels
+        assert not any("|H|" in label or "H_h" in label for label in labels + [titles]), labels
     finally:
         plt.close(fig)
     assert spread <= 1.5 * math.hypot(fit_vertical_ut, noise_ut), (spread, fit_vertical_ut)

@@ -489,4 +489,9 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("yaw-reset-velocity-with-update", "a yaw reset reads the velocity at the fix's time with that fix's update",
              "estimator/ins.py", 'hist["vel_ned_m_s"][older] += step[1]', "pass",
              ("tests/test_yaw_reset_velocity.py",)),
+    # ------------------------------------------------------------------ session 29 (walk29)
+    Mutation("mag-residuals-named", "calibrate mag names each magnitude residual by the blocks it is of",
+             "cli/fit_summary.py", 'as_fitted.append(f"|m| − |F| {magnitude:.3f} µT")',
+             'as_fitted.append(f"|m| − |F| {result.residual_rms_ut:.3f} µT")',
+             ("tests/test_cal_mag_report.py",)),
 )

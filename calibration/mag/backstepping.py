@@ -43,6 +43,16 @@ from .vertical_channel import (ADIS16405_MAG_NOISE_UT, DEFAULT_TILT_SIGMA_DEG, c
                                fit_vertical_channel, predicted_heading_std_deg)
 
 METHOD = "backstepping"
+
+# said in quality["attitude_source"] when the magnetometer and gyro were low-passed with the accelerometer before
+# the fit (_levelling_attitude): the fit's blocks are then quieter than the unfiltered ones its residual is of
+LOWPASSED_ALIKE = ", magnetometer and gyro alike"
+
+
+def fit_blocks_lowpassed(quality: dict) -> bool:
+    """Whether the blocks the vertical-channel fit saw were low-passed (its `vertical_channel.magnitude_rms_ut`
+    and `vertical_rms_ut`), unlike the unfiltered 10 Hz block means of the result's `residual_rms_ut`."""
+    return LOWPASSED_ALIKE in str(quality.get("attitude_source", ""))
 DEFAULT_FIT_RATE_HZ = 10.0       # samples are block-averaged to this rate before fitting
 MAX_PREDICTED_HEADING_STD_DEG = 3.0  # refuse when the data leave the heading worse than this (1σ)
 MAX_FITTED_SPEED_M_S = 15.0      # a fitted centripetal speed above this is not a boat/AUV/rover calibration run
@@ -261,7 +271,7 @@ def _levelling_attitude(usable: _Usable, opts: BacksteppingOptions, quality: dic
         usable.data = dataclasses.replace(full, mag_ut=lowpass(full.mag_ut, full.t_s, opts.accel_tau_s),
                                           gyro_rad_s=None if full.gyro_rad_s is None else
                                           lowpass(full.gyro_rad_s, full.t_s, opts.accel_tau_s))
-        quality["attitude_source"] += ", magnetometer and gyro alike"
+        quality["attitude_source"] += LOWPASSED_ALIKE
     return roll_rad, pitch_rad, vehicle_like
 
 

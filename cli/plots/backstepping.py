@@ -13,7 +13,7 @@ import numpy as np
 from ahrsd.core.angles import down_in_body, roll_pitch_from_accel, wrap_180_deg
 
 from ahrsd.calibration.mag import swing
-from ahrsd.calibration.mag.backstepping import BacksteppingOptions
+from ahrsd.calibration.mag.backstepping import BacksteppingOptions, fit_blocks_lowpassed
 from ahrsd.calibration.mag.backstepping_paper import BacksteppingError, magnetic_heading_deg
 from ahrsd.calibration.mag.fit_types import MagFitInput, MagFitResult, finite_rows
 from ahrsd.calibration.mag.observability import level_vectors, lowpass
@@ -33,7 +33,8 @@ def plot_backstepping(result: MagFitResult, data: MagFitInput, path, **options) 
 def backstepping_figure(result: MagFitResult, data: MagFitInput, *, roll_rad=None, pitch_rad=None,
                         reference=None, swing_table=None):
     """Report figure (returned; the caller saves and closes it): levelled horizontal field before/after (should
-    be a circle of radius H_h), |H| and H_z over time as departures from the reference field, and heading error vs heading when
+    be a circle of the WMM's horizontal intensity H), the calibrated field's magnitude |m| and levelled vertical m_z over
+    time as departures from the reference's F and Z, and heading error vs heading when
     data.heading_ref_deg exists or a compass-swing table `swing_table=(reference_deg, compass_deg)` is given (its
     points and the fitted card). roll_rad/pitch_rad: the levelling, per row of `data` (default: the fit's own,
     `result.levelling`, then the accelerometer). Raises PlotUnavailableError when matplotlib is not installed."""
@@ -72,7 +73,7 @@ def _levelled(result: MagFitResult, data: MagFitInput, roll_rad, pitch_rad):
             raise BacksteppingError("plot needs roll/pitch or accelerometer samples")
         tau_s = BacksteppingOptions.accel_tau_s
         roll_rad, pitch_rad = roll_pitch_from_accel(lowpass(d.accel_m_s2, d.t_s, tau_s))
-        if "magnetometer and gyro alike" in str(result.quality.get("attitude_source", "")):
+        if fit_blocks_lowpassed(result.quality):
             # the fit low-passed the magnetometer and gyro with the accelerometer (backstepping._levelling_attitude:
             # the wave tilt then shrinks on both sides); levelling the raw field with the filtered tilt would draw
             # the filter's lag as a wave-period wobble of the vertical field that the fit never had
@@ -99,7 +100,7 @@ def _horizontal_panel(ax, lv_raw, lv_cal, q: dict) -> None:
     if q.get("vertical_ut") is not None:
         hh = math.sqrt(max(q["total_ut"] ** 2 - q["vertical_ut"] ** 2, 0))
         th = np.linspace(0, 2 * math.pi, 200)
-        ax.plot(hh * np.sin(th), hh * np.cos(th), "k--", lw=0.8, label=f"WMM H_h {hh:.1f} µT")
+        ax.plot(hh * np.sin(th), hh * np.cos(th), "k--", lw=0.8, label=f"WMM H (horizontal) {hh:.1f} µT")
     ax.set_aspect("equal")
     ax.set_xlabel("east-ish (µT)")
     ax.set_ylabel("north-ish (µT)")
@@ -108,29 +109,38 @@ def _horizontal_panel(ax, lv_raw, lv_cal, q: dict) -> None:
 
 
 def _field_panel(ax, result: MagFitResult, d: MagFitInput, cal, lv_cal, q: dict, levelled_by: str) -> None:
-    """|H| and the levelled H_z of the calibrated field over time, as their departures from the reference's |F|
-    and Z: drawn as absolutes (41–50 µT) the hundredths of a µT the title quotes were two flat lines; as
-    departures the residual is what the eye sees, against the zero line of the reference."""
+    """The calibrated field's magnitude |m| and levelled vertical m_z over time, as their departures from the
+    reference's total F and vertical Z (the WMM's names; its H is the horizontal intensity of the other panel):
+    drawn as absolutes (41–50 µT) the hundredths of a µT the title quotes were two flat lines; as departures the
+    residual is what the eye sees, against the zero line of the reference. The title names each residual by the
+    samples it is of (the unfiltered block means, or the blocks fitted), the labels that of the samples drawn."""
     total, vertical_ref = q.get("total_ut"), q.get("vertical_ut")
     magnitude, vertical = np.linalg.norm(cal, axis=1), lv_cal[:, 2]
     if total and vertical_ref is not None:
         # each trace's own RMS in its label: the samples drawn here carry every sample's noise, which the fit's
         # averaged blocks (the title's residual) do not, so the eye sees a wider band than the title quotes
-        for departure, name in ((magnitude - total, f"|H| − WMM |F| ({total:.2f} µT)"),
-                                (vertical - vertical_ref, f"H_z − WMM Z ({vertical_ref:.2f} µT)")):
-            ax.plot(d.t_s, departure, lw=0.6, label=f"{name}: RMS {_rms(departure):.3f} µT of every sample")
+        for departure, name in ((magnitude - total, f"|m| − WMM F ({total:.2f} µT)"),
+                                (vertical - vertical_ref, f"m_z − WMM Z ({vertical_ref:.2f} µT)")):
+            ax.plot(d.t_s, departure, lw=0.6, label=f"{name}: RMS {_rms(departure):.3f} µT of the samples drawn")
         ax.axhline(0.0, color="k", ls="--", lw=0.8, label="WMM reference")
         ax.set_ylabel("calibrated − reference (µT)")
     else:   # no reference field: the values themselves
-        ax.plot(d.t_s, magnitude, lw=0.6, label="|H| calibrated")
-        ax.plot(d.t_s, vertical, lw=0.6, label="H_z calibrated")
+        ax.plot(d.t_s, magnitude, lw=0.6, label="|m| calibrated")
+        ax.plot(d.t_s, vertical, lw=0.6, label="m_z calibrated")
         ax.set_ylabel("µT")
     ax.set_xlabel("t (s)")
-    vertical_rms = (result.quality.get("vertical_channel") or {}).get("vertical_rms_ut")
+    channel = result.quality.get("vertical_channel") or {}
+    vertical_rms, magnitude_fitted = channel.get("vertical_rms_ut"), channel.get("magnitude_rms_ut")
     fit_rate_hz = result.quality.get("fit_rate_hz")
     at_rate = f" (fit at {fit_rate_hz:g} Hz)" if isinstance(fit_rate_hz, (int, float)) else ""
-    ax.set_title(f"{result.method}{at_rate}: |H| residual {result.residual_rms_ut:.3f} µT"
-                 + (f", H_z {vertical_rms:.3f} µT" if isinstance(vertical_rms, (int, float)) else "")
+    fitted = []     # the vertical-channel fit's own residuals, of the (low-passed, when so levelled) blocks it fitted
+    if fit_blocks_lowpassed(result.quality) and isinstance(magnitude_fitted, (int, float)):
+        fitted.append(f"|m| − F {magnitude_fitted:.3f} µT")
+    if isinstance(vertical_rms, (int, float)):
+        fitted.append(f"m_z − Z {vertical_rms:.3f} µT")
+    ax.set_title(f"{result.method}{at_rate}: |m| − F RMS {result.residual_rms_ut:.3f} µT"
+                 + (" of the block means" if at_rate else "")
+                 + (f"\nof the blocks fitted: {', '.join(fitted)}" if fitted else "")
                  + f"\nlevelled by {levelled_by}", fontsize=9)
     ax.legend(fontsize=7)
 

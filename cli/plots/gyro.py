@@ -29,7 +29,7 @@ def bias_figure(t_s: np.ndarray, gyro_rad_s: np.ndarray, used: list[tuple[int, i
                        label="still: used for the bias" if n == 0 else None)
         if bias_rad_s is not None:
             b, s = np.degrees(bias_rad_s[k]), np.degrees(std_rad_s[k])
-            ax.axhline(b, color="tab:red", lw=1.2, label=f"bias {b * 3600:+.1f} °/h")
+            ax.axhline(b, color="tab:red", lw=1.2, label=f"bias {b:+.3f} °/s ({b * 3600:+.0f} °/h)")
             ax.axhspan(b - s, b + s, color="tab:red", alpha=0.10, label=f"±1σ of the samples ({s:.3f} °/s)")
         ax.set_ylabel(f"{'xyz'[k]} (°/s)")
         ax.grid(alpha=0.3)
