@@ -776,26 +776,7 @@ class Ins:
             self._par["mag_harmonic_residual_var_rad2"] = p.iron_harmonic_residual_share * self._iron_floor_var()
         if source is not None and source != was:
             self._restart_mag_harmonics()
-            if source == "iron" and self._iron.updates > 0:
-                self._iron_offset_shares_yaw_error()    # learned in this run, through this run's yaw
         self._set_mag_frame_tilt()
-
-    def _iron_offset_shares_yaw_error(self) -> None:
-        """The learned iron's heading offset (the harmonic c0) holds the learning window's yaw error: the learner
-        fitted the field to the WMM's through the filter's attitude, so the corrected field's azimuth is off by the
-        yaw error the filter had then (iron27), an error the learner's covariance does not count and that is
-        common to the filter's yaw. At the end of the learning, the yaw error is still that one (no reset since:
-        a reset restarts the harmonics without it; an iron restored from an earlier run was learned through
-        another yaw and gets none of it), so c0's prior gains the yaw's variance and its covariance with
-        every state (c0 = δψ + the learner's own error, independent): the magnetometer then tells the heading's
-        changes and the iron's turn, not a second copy of the yaw the iron was learned with."""
-        P = self._P
-        c0, yaw = core.E_MH, core.E_YAW
-        shared = P[yaw, :].copy()
-        shared[c0] = 0.0
-        P[c0, :] += shared
-        P[:, c0] += shared
-        P[c0, c0] += P[yaw, yaw]
 
     def _set_mag_frame_tilt(self) -> None:
         """Tell the kernel whether the frame-tilt states carry the calibration frame's tilt (mag_frame_tilt.py):

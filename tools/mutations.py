@@ -115,9 +115,6 @@ MUTATIONS: tuple[Mutation, ...] = (
              "estimator/ins.py", "if (self._iron.updates > 0 or self._iron_restored) and field is not None:",
              "if False:",
              ("tests/test_learned_iron_field_check.py",)),
-    Mutation("learned-iron-offset-shares-yaw", "a learned iron's heading offset (c0) starts sharing the learning "
-             "window's yaw error", "estimator/ins.py", 'if source == "iron" and self._iron.updates > 0:',
-             "if False:", ("tests/test_learned_iron_window_yaw.py",)),
     Mutation("monitor-reject-checks", "the magnetometer is rejected after reject_checks failed checks",
              "estimator/heading_monitor.py", "(self.failures >= self.reject_checks or step is not None)",
              "(self.failures > self.reject_checks or step is not None)",
