@@ -525,6 +525,7 @@ class Ins:
         self._iron = IronLearner(self.params.iron_prior_sigma_ut, self.params.iron_soft_prior)
         self._iron_last_t = None
         self._iron_restored = False
+        self._field_reference_from_iron = False   # the kernel's field reference is the learned iron's (WMM)
         self._mag_harmonics_source = None  # what the harmonic states carry: "calibration", "iron" or None (off)
         self._published = PublishedHeading(self.params.published_yaw_slew_rad_s)
         self._published_since_init = False
@@ -660,6 +661,29 @@ class Ins:
         self._par["iron_ut"] = self._iron.offset_ut
         self._par["iron_soft_inv"] = self._iron.soft_iron_inverse
         self._set_mag_harmonics()
+        self._field_reference_follows_iron()
+
+    def _field_reference_follows_iron(self) -> None:
+        """The kernel's field check (mag_heading._track_field) compares the magnitude and dip of the field it
+        fuses — the iron-corrected one — with a reference it took from the first field and adopts a new one only
+        after 20 s of rotation faster than 20 °/s, which a boat or a car never turns. A learned iron changes the
+        field the kernel fuses, so a reference taken before it is of another field: on a vehicle started without
+        a calibration, the raw field's (strong iron: ~25 % off the Earth's), against which the corrected field
+        read as disturbed from the end of the learning on, and the magnetometer went unused for
+        `mag_reject_max_s` and then fused with 100 times its noise for the rest of the run. The learner maps the
+        field onto the WMM's (IronLearner), so with a learned iron the reference is the WMM field's magnitude and
+        dip at the filter's position (the check then follows the accepted field as before, `mag_ref_tau_s`);
+        forgotten again (the next field sets it) when the learned iron is reset."""
+        ms = self._mag_state()
+        field = self._field_ned
+        if (self._iron.updates > 0 or self._iron_restored) and field is not None:
+            horizontal_ut = math.hypot(float(field[0]), float(field[1]))
+            ms["ref_norm_ut"] = ms["cand_norm_ut"] = float(np.linalg.norm(field))
+            ms["ref_dip_rad"] = ms["cand_dip_rad"] = math.atan2(float(field[2]), horizontal_ut)
+            self._field_reference_from_iron = True
+        elif self._iron.updates == 0 and not self._iron_restored and self._field_reference_from_iron:
+            mag.relearn_reference(ms, 0.0)
+            self._field_reference_from_iron = False
 
     def learned_iron(self) -> tuple[np.ndarray, np.ndarray]:
         """The hard iron learned on top of the calibration (body frame, µT) and its covariance (µT²)."""

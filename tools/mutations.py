@@ -110,6 +110,11 @@ MUTATIONS: tuple[Mutation, ...] = (
              "estimator/mag_step.py", "+ 2.0 * tilt_heading_var_rad2 + 2.0 * yaw_var_rad2",
              "+ 2.0 * tilt_heading_var_rad2",
              ("tests/test_mag_step.py",)),
+    Mutation("learned-iron-field-reference", "with a learned iron the kernel's field check compares the corrected "
+             "field with the WMM's, not with the raw field it saw first",
+             "estimator/ins.py", "if (self._iron.updates > 0 or self._iron_restored) and field is not None:",
+             "if False:",
+             ("tests/test_learned_iron_field_check.py",)),
     Mutation("monitor-reject-checks", "the magnetometer is rejected after reject_checks failed checks",
              "estimator/heading_monitor.py", "(self.failures >= self.reject_checks or step is not None)",
              "(self.failures > self.reject_checks or step is not None)",
