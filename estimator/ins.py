@@ -1488,9 +1488,7 @@ class Ins:
         var = min(lean_sigma_rad, self.params.nav_init_sigma_tilt_rad) ** 2
         for i in (core.E_TILT_N, core.E_TILT_E):
             v = max(P[i, i], var)
-            P[i, :] = 0.0
-            P[:, i] = 0.0
-            P[i, i] = v
+            _restart_uncorrelated(P, i, v)
 
     def _restart_horizontal_accel_bias(self) -> None:
         """The horizontal (body x, y) accelerometer bias back to its start-up value and 1σ, uncorrelated: what it
@@ -1503,9 +1501,7 @@ class Ins:
             x["accel_bias_m_s2"][k] = self._startup_accel_bias[k]
             i = core.E_BA + k
             v = max(P[i, i], var)
-            P[i, :] = 0.0
-            P[:, i] = 0.0
-            P[i, i] = v
+            _restart_uncorrelated(P, i, v)
 
     def _confirm_heading(self, yaw: float, gsf_yaw: float, gsf_var: float) -> None:
         """A GNSS yaw that agrees with the held heading confirms it for the accelerometer bias (within
@@ -1745,9 +1741,7 @@ class Ins:
         tilt_floor = p.nav_init_sigma_tilt_rad ** 2 * 0.04
         for i, var in ((core.E_YAW, var_rad2), (core.E_TILT_N, max(P[core.E_TILT_N, core.E_TILT_N], tilt_floor)),
                        (core.E_TILT_E, max(P[core.E_TILT_E, core.E_TILT_E], tilt_floor))):
-            P[i, :] = 0.0
-            P[:, i] = 0.0
-            P[i, i] = var
+            _restart_uncorrelated(P, i, var)
         # the gyro and accelerometer biases learned since the heading was last confirmed were learned against a
         # wrong yaw (the magnetometer pulling one way, the GNSS velocity the other, the biases taking up the
         # difference): back to the last confirmed ones (the start-up values before any), with their start-up
@@ -1756,14 +1750,10 @@ class Ins:
         x["accel_bias_m_s2"] = self._confirmed_accel_bias
         for i in range(core.E_BG, core.E_BG + 3):
             var = max(P[i, i], p.init_gyro_bias_sigma_rad_s ** 2)
-            P[i, :] = 0.0
-            P[:, i] = 0.0
-            P[i, i] = var
+            _restart_uncorrelated(P, i, var)
         for i in range(core.E_BA, core.E_BA + 3):
             var = max(P[i, i], p.init_accel_bias_sigma_m_s2 ** 2)
-            P[i, :] = 0.0
-            P[:, i] = 0.0
-            P[i, i] = var
+            _restart_uncorrelated(P, i, var)
         self._reset_velocity_to_fix()
         # the calibration's error estimated against the heading just found wrong starts again from its prior
         self._restart_calibration_error_states()
@@ -2081,6 +2071,13 @@ def _gnss_yaw_floor(yaw_rad: float, gsf_yaw: float, gsf_var: float) -> float:
     if not (math.isfinite(gsf_yaw) and math.isfinite(gsf_var)):
         return math.pi
     return math.sqrt(gsf_var + wrap_pi(gsf_yaw - yaw_rad) ** 2)
+
+
+def _restart_uncorrelated(P: np.ndarray, i: int, var: float) -> None:
+    """Error state i restarted on its own: its row and column of P cleared, its variance set to var."""
+    P[i, :] = 0.0
+    P[:, i] = 0.0
+    P[i, i] = var
 
 
 def _float_field_view(records: np.ndarray, name: str) -> np.ndarray:
