@@ -68,10 +68,12 @@ def test_a_calibrated_accelerometer_lets_the_levelling_split_bias_from_tilt(capl
             d = np.hypot(np.angle(np.exp(1j * (r - ypr[:, 2]))), p - ypr[:, 1])[late]
             return float(np.degrees(np.sqrt(np.mean(d ** 2))))
 
-        default_prior, calibrated_prior = tilt_rms_deg(None), tilt_rms_deg(ACCEL_BIAS_SIGMA_CALIBRATED_M_S2)
-        assert calibrated_prior < 0.2, (seed, default_prior, calibrated_prior)
-        if seed == 19:
+        calibrated_prior = tilt_rms_deg(ACCEL_BIAS_SIGMA_CALIBRATED_M_S2)
+        assert calibrated_prior < 0.2, (seed, calibrated_prior)
+        if seed == 19:     # seed 12's default prior is no longer off (above): only seed 19 is levelled with it
+            default_prior = tilt_rms_deg(None)
             assert calibrated_prior < 0.75 * default_prior, (seed, default_prior, calibrated_prior)
+            print(f"seed 19: tilt RMS {calibrated_prior:.3f}° calibrated, {default_prior:.3f}° default prior")
 
 
 def test_the_antenna_lever_arm_reaches_the_levelling_filter(caplog):

@@ -5,6 +5,7 @@ Truth is the simulator's (scipy rotations in bench.vehicle_accuracy); runs are s
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -20,6 +21,17 @@ from bench.vehicle_accuracy import (
 )
 
 SECONDS = 240.0
+
+
+TRUSTING_S = 60.0       # how long the old filter is run in the NEES test
+
+
+def _first_seconds(run, seconds):
+    """The run's samples before `seconds` (its fixes stay: those after the last sample are never fed)."""
+    k = int(np.searchsorted(run.t_s, seconds))
+    vel = None if run.truth_vel_ned_m_s is None else run.truth_vel_ned_m_s[:k]
+    return dataclasses.replace(run, t_s=run.t_s[:k], gyro_rad_s=run.gyro_rad_s[:k], accel_m_s2=run.accel_m_s2[:k],
+                               mag_ut=run.mag_ut[:k], truth_q_wxyz=run.truth_q_wxyz[:k], truth_vel_ned_m_s=vel)
 
 
 @pytest.fixture(scope="module")
@@ -49,10 +61,10 @@ def test_heading_nees_under_a_wrong_calibration_is_not_overconfident(uncalibrate
     picks = np.searchsorted(run.t_s, np.arange(30.0, SECONDS, 10.0))
     hi = chi2.ppf(0.99, len(picks)) / len(picks)
 
-    def mean_nees(out):
-        _, hdg = tilt_heading_errors_deg(out["q"], run.truth_q_wxyz, run.declination_rad)
-        e = np.radians(hdg[picks])
-        return float(np.mean(e ** 2 / out["sigma_yaw_rad"][picks] ** 2))
+    def mean_nees(out, at=picks):
+        _, hdg = tilt_heading_errors_deg(out["q"], run.truth_q_wxyz[:len(out["q"])], run.declination_rad)
+        e = np.radians(hdg[at])
+        return float(np.mean(e ** 2 / out["sigma_yaw_rad"][at] ** 2))
 
     honest = run_ins_detailed(run)
     assert mean_nees(honest) < hi, (mean_nees(honest), hi)
@@ -65,8 +77,14 @@ def test_heading_nees_under_a_wrong_calibration_is_not_overconfident(uncalibrate
     sig_deg = np.degrees(honest["sigma_yaw_rad"])
     assert not np.any(good[run.t_s < 60.0])
     assert np.all(sig_deg[good] < 3.0) and np.all(np.abs(hdg[good]) <= 3.0 * sig_deg[good])
-    trusting = run_ins_detailed(run, mag_calibration_sigma_rad=0.0, heading_monitor=False, gnss_yaw=False)
-    assert mean_nees(trusting) > 10.0 * hi
+    # the old filter over the first 60 s only: its NEES there is already far beyond the bound (measured in
+    # docs/testing.md), so the rest of the run would show nothing more
+    early = picks[run.t_s[picks] < TRUSTING_S]
+    trusting = run_ins_detailed(_first_seconds(run, TRUSTING_S), mag_calibration_sigma_rad=0.0,
+                                heading_monitor=False, gnss_yaw=False)
+    print(f"heading NEES: {mean_nees(honest):.2f} honest, {mean_nees(trusting, early):.0f} trusting "
+          f"(first {TRUSTING_S:.0f} s), bound {hi:.2f}")
+    assert mean_nees(trusting, early) > 10.0 * hi
     assert n == len(honest["q"])
 
 
@@ -176,8 +194,6 @@ def test_a_confident_wrong_calibration_is_held_honest_after_its_rejection():
     calibration done without the battery in): once the GNSS has shown it wrong (30 s on), ≥ 99 % of the
     published headings are within 3σ of the simulator's truth. Without the yaw σ held at the GNSS yaw's after
     the rejection, the filter pulled in from ~20° claims 1.4° while 4–9° off."""
-    import dataclasses
-
     from ahrsd.simulation import SensorErrors, open_stream
 
     run = simulate_vehicle("boat", 150.0, 3, None)
