@@ -1,0 +1,100 @@
+"""ins with its GNSS antenna somewhere else than told: the lever-arm check (estimator/lever_arm_fit.py) against the
+simulator's truth. Per run: the velocities the gate rejected, when the told arm was found wrong, the arm the filter
+fuses at in the end (told + adopted), and from `--from-s` on the published true heading: the share of samples
+published known (σ below `heading_unknown_sigma_rad`), their RMS error, the share of them beyond 3σ and the median σ.
+
+    .venv/bin/python bench/lever_arm_heading.py                                # the mast boat, told none / told right
+    .venv/bin/python bench/lever_arm_heading.py --kinds boat car --seeds 0 1 2 3 --seconds 300 --cases right
+    PYTHONPATH=/tmp/old ...                                                    # the same against another checkout
+
+Data: the simulator's vehicle at the default site (ADIS16405 errors, its iron, the magnetometer uncalibrated),
+`simulate_gnss` at 5 Hz with the seed 1000 + N and the antenna at `--antenna-m` (body FRD, m), fed as
+`calibrate mag --gnss` feeds fixes (`GnssFixFeed`). Cases: `none` (the filter told (0, 0, 0): the antenna on a mast
+it does not know of) and `right` (told the true arm). Truth: scipy's ZYX yaw of the simulator's body→NED attitude.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ahrsd.core.sample import make_sample
+from ahrsd.estimator import make_estimator
+from ahrsd.estimator.fix_feed import GnssFixFeed
+from ahrsd.simulation import DEFAULT_SITE, open_stream, simulate_gnss
+
+MAST_M = (-1.0, 0.0, -2.0)       # 1 m aft, 2 m up (body FRD): a boat's receiver on its mast
+
+
+def run(kind: str, seed: int, rate_hz: float, seconds: float, from_s: float, antenna_m, told_m,
+        show_fit_every_s: float = 0.0) -> str:
+    stream = open_stream(kind, rate_hz=rate_hz, seed=seed, site=DEFAULT_SITE)
+    b = stream.next_block(int(seconds * rate_hz))
+    fixes = simulate_gnss(b, rate_hz=5.0, seed=1000 + seed, lever_arm_m=antenna_m)
+    est = make_estimator("ins", declination_rad=stream.earth_field.declination_rad, lever_arm_m=told_m)
+    feed = GnssFixFeed(est, fixes)
+    q = b.truth_q_wxyz
+    true_yaw = Rotation.from_quat(np.column_stack([q[:, 1:], q[:, :1]])).as_euler("ZYX")[:, 0]
+    unknown_rad = est.params.heading_unknown_sigma_rad
+    errors_deg, sigmas_deg, late, found_at_s = [], [], 0, math.nan
+    next_show_s = show_fit_every_s if show_fit_every_s > 0.0 else math.inf
+    for i in range(len(b.t_s)):
+        feed.offer_until(b.t_s[i])
+        e = est.update(make_sample(b.t_s[i], b.gyro_rad_s[i], b.accel_m_s2[i], b.mag_ut[i]))
+        fit = est.lever_arm_fit()
+        if math.isnan(found_at_s) and fit is not None and fit.arm_wrong:
+            found_at_s = float(b.t_s[i])
+        if b.t_s[i] >= next_show_s and fit is not None:
+            next_show_s += show_fit_every_s
+            print(f"  {b.t_s[i]:6.1f} s  fit δr {np.round(fit.offset_m, 2)} m  1σ {np.round(fit.sigma_m, 2)} m  "
+                  f"χ² {fit.chi2:5.1f}  explained {fit.explained_share:.2f}  explains {fit.explains}  "
+                  f"rejected {est.gnss_counters.rejected_velocity}")
+        if b.t_s[i] < from_s or e.yaw_rad is None:
+            continue
+        late += 1
+        if e.sigma_rpy_rad[2] >= unknown_rad:
+            continue                     # published unknown: claims nothing, so it is neither right nor wrong
+        d = (e.heading_true_rad - true_yaw[i] + math.pi) % (2.0 * math.pi) - math.pi
+        errors_deg.append(math.degrees(d))
+        sigmas_deg.append(math.degrees(e.sigma_rpy_rad[2]))
+    fit = est.lever_arm_fit()
+    in_use = np.asarray(told_m, dtype=float) + (fit.adopted_m if fit is not None and fit.adopted_m is not None else 0.0)
+    c = est.gnss_counters
+    found = "never" if math.isnan(found_at_s) else f"{found_at_s:5.1f} s"
+    arm = ",".join(f"{v:+.2f}" for v in in_use)
+    head = f"{kind:5s} {seed:4d} {rate_hz:6.1f}  told {','.join(f'{v:g}' for v in told_m):>9s}  rejected {c.rejected_velocity:4d}/{c.offered:4d}  found wrong {found:>7s}  arm in use {arm}"
+    if not errors_deg:
+        return f"{head}  from {from_s:g} s: unknown on all {late} samples"
+    err, sig = np.asarray(errors_deg), np.asarray(sigmas_deg)
+    return (f"{head}  from {from_s:g} s: known {100.0 * len(err) / max(late, 1):5.1f} %  RMS {math.sqrt(np.mean(err ** 2)):5.2f}°"
+            f"  beyond 3σ {100.0 * np.mean(np.abs(err) > 3.0 * sig):5.2f} %  σ median {np.median(sig):5.2f}°")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--kinds", nargs="+", default=["boat"])
+    ap.add_argument("--seeds", nargs="+", type=int, default=[0])
+    ap.add_argument("--rates", nargs="+", type=float, default=[100.0], help="IMU rate(s), Hz")
+    ap.add_argument("--seconds", type=float, default=240.0)
+    ap.add_argument("--from-s", type=float, default=120.0, help="score the heading from this time on")
+    ap.add_argument("--antenna-m", type=float, nargs=3, default=MAST_M, help="the true antenna arm, body FRD, m")
+    ap.add_argument("--cases", nargs="+", choices=("none", "right"), default=["none", "right"])
+    ap.add_argument("--show-fit-every-s", type=float, default=0.0,
+                    help="print the lever-arm fit (δr, its 1σ, χ², explained share) this often, s (0: never)")
+    args = ap.parse_args()
+    logging.basicConfig(level=logging.ERROR)
+    for kind in args.kinds:
+        for seed in args.seeds:
+            for rate in args.rates:
+                for case in args.cases:
+                    told = (0.0, 0.0, 0.0) if case == "none" else tuple(args.antenna_m)
+                    print(run(kind, seed, rate, args.seconds, args.from_s, tuple(args.antenna_m), told,
+                              args.show_fit_every_s), flush=True)
+
+
+if __name__ == "__main__":
+    main()
