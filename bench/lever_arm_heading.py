@@ -4,6 +4,7 @@ fuses at in the end (told + adopted), and from `--from-s` on the published true 
 published known (σ below `heading_unknown_sigma_rad`), their RMS error, the share of them beyond 3σ and the median σ.
 
     .venv/bin/python bench/lever_arm_heading.py                                # the mast boat, told none / told right
+    .venv/bin/python bench/lever_arm_heading.py --adopt                        # ins adopting the fitted arm
     .venv/bin/python bench/lever_arm_heading.py --kinds boat car --seeds 0 1 2 3 --seconds 300 --cases right
     PYTHONPATH=/tmp/old ...                                                    # the same against another checkout
 
@@ -31,11 +32,12 @@ MAST_M = (-1.0, 0.0, -2.0)       # 1 m aft, 2 m up (body FRD): a boat's receiver
 
 
 def run(kind: str, seed: int, rate_hz: float, seconds: float, from_s: float, antenna_m, told_m,
-        show_fit_every_s: float = 0.0) -> str:
+        show_fit_every_s: float = 0.0, adopt: bool = False) -> str:
     stream = open_stream(kind, rate_hz=rate_hz, seed=seed, site=DEFAULT_SITE)
     b = stream.next_block(int(seconds * rate_hz))
     fixes = simulate_gnss(b, rate_hz=5.0, seed=1000 + seed, lever_arm_m=antenna_m)
-    est = make_estimator("ins", declination_rad=stream.earth_field.declination_rad, lever_arm_m=told_m)
+    est = make_estimator("ins", declination_rad=stream.earth_field.declination_rad, lever_arm_m=told_m,
+                         lever_arm_adopt=adopt)
     feed = GnssFixFeed(est, fixes)
     q = b.truth_q_wxyz
     true_yaw = Rotation.from_quat(np.column_stack([q[:, 1:], q[:, :1]])).as_euler("ZYX")[:, 0]
@@ -83,6 +85,8 @@ def main() -> None:
     ap.add_argument("--from-s", type=float, default=120.0, help="score the heading from this time on")
     ap.add_argument("--antenna-m", type=float, nargs=3, default=MAST_M, help="the true antenna arm, body FRD, m")
     ap.add_argument("--cases", nargs="+", choices=("none", "right"), default=["none", "right"])
+    ap.add_argument("--adopt", action="store_true",
+                    help="let ins adopt the fitted arm once sure of it (InsParams.lever_arm_adopt, off by default)")
     ap.add_argument("--show-fit-every-s", type=float, default=0.0,
                     help="print the lever-arm fit (δr, its 1σ, χ², explained share) this often, s (0: never)")
     args = ap.parse_args()
@@ -93,7 +97,7 @@ def main() -> None:
                 for case in args.cases:
                     told = (0.0, 0.0, 0.0) if case == "none" else tuple(args.antenna_m)
                     print(run(kind, seed, rate, args.seconds, args.from_s, tuple(args.antenna_m), told,
-                              args.show_fit_every_s), flush=True)
+                              args.show_fit_every_s, args.adopt), flush=True)
 
 
 if __name__ == "__main__":

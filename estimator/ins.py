@@ -107,6 +107,11 @@ class InsParams(MagHeadingParams):
     # --- GNSS
     lever_arm_m: tuple = (0.0, 0.0, 0.0)
     """Antenna position relative to the IMU in the body frame (FRD), m."""
+    lever_arm_adopt: bool = False
+    """Fuse at the told arm plus the lever-arm check's fitted error once the fit is sure of it (lever_arm_fit.py),
+    instead of publishing the heading unknown for as long as the told arm is found wrong. Off by default: a fit made
+    while the heading is still unknown (an uncalibrated plane's first seconds) was found sure of arms of tens of
+    metres and adopted them, bending the horizon by degrees (docs/gnss.md "The lever-arm check")."""
     min_h_acc_m: float = 0.3
     min_v_acc_m: float = 0.5
     min_s_acc_m_s: float = 0.03
@@ -509,7 +514,8 @@ class Ins:
         # what the accelerometer's axes add to an aided heading's published variance (accel_axes_heading.py)
         self._accel_axes_var_rad2 = accel_axes_heading_variance_rad2(self.params.accel_axes_heading_sigma_rad)
         self.gnss_counters = GnssCounters()
-        self._lever_arm_fit = LeverArmFit()    # can the told antenna arm explain the velocity innovations?
+        # can the told antenna arm explain the velocity innovations? (and adopt the fitted one, if asked)
+        self._lever_arm_fit = LeverArmFit(adopt=self.params.lever_arm_adopt)
         self._gsf_par_arr = _one_record_array(GsfParams(lever_arm_m=tuple(self.params.lever_arm_m)).to_record())
         self._gsf_arr = _one_record_array(new_gsf_state(GsfParams(), 0.0))
         self._gsf_par = self._gsf_par_arr[0]      # record views of the arrays the compiled step takes

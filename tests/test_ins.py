@@ -240,13 +240,12 @@ def test_lever_arm_is_applied_to_position_and_velocity():
     fixes = gnss_fixes(run.truth, lever_arm_m=arm, body_rate=run.block.truth_gyro_rad_s, seed=3)
     m = run.truth.t_s > 30.0
     with_arm = run_ins(Ins(declination_rad=DECLINATION, **CALIBRATED, lever_arm_m=arm), run, fixes)
-    untold = Ins(declination_rad=DECLINATION, **CALIBRATED)
-    untold._lever_arm_fit.adopt = False         # what the arm alone does (estimator/lever_arm_fit.py)
+    untold = Ins(declination_rad=DECLINATION, **CALIBRATED, lever_arm_adopt=False)   # what the arm alone does
     without = run_ins(untold, run, fixes)
     err_with = np.linalg.norm(position_error_ned(with_arm, run.truth)[m], axis=1)
     err_without = np.linalg.norm(position_error_ned(without, run.truth)[m], axis=1)
     assert _rms(err_with) < 0.35 and _rms(err_without) > 2.5, (_rms(err_with), _rms(err_without))
-    adopting = Ins(declination_rad=DECLINATION, **CALIBRATED)
+    adopting = Ins(declination_rad=DECLINATION, **CALIBRATED, lever_arm_adopt=True)
     adopted = run_ins(adopting, run, fixes)
     fit = adopting.lever_arm_fit()
     late = run.truth.t_s > 90.0

@@ -203,8 +203,8 @@ def run_ins(boat, told_m, antenna_m=(0.0, 0.0, 0.0), adopt: bool = True, each=No
     from ahrsd.simulation import simulate_gnss
 
     stream, block = boat
-    est = make_estimator("ins", declination_rad=stream.earth_field.declination_rad, lever_arm_m=told_m)
-    est._lever_arm_fit.adopt = adopt
+    est = make_estimator("ins", declination_rad=stream.earth_field.declination_rad, lever_arm_m=told_m,
+                         lever_arm_adopt=adopt)
     feed_fixes = GnssFixFeed(est, simulate_gnss(block, rate_hz=FIX_HZ, seed=1000, lever_arm_m=antenna_m))
     for i in range(len(block.t_s)):
         feed_fixes.offer_until(block.t_s[i])
@@ -296,6 +296,29 @@ def test_the_fitted_arm_is_adopted_and_the_heading_found_again(boat_120s):
     assert np.all(np.abs(err[known]) <= 3.0 * sigma[known])                # σ covers the error once known
     assert math.degrees(np.sqrt(np.mean(err[-3000:] ** 2))) < 1.0         # the last 30 s
     assert est.gnss_counters.rejected_velocity < 0.05 * est.gnss_counters.offered
+
+
+def test_by_default_the_fitted_arm_is_not_adopted_and_the_heading_stays_unknown(boat_120s):
+    """`lever_arm_adopt` is off by default (estimator/ins.py InsParams): the mast boat told no arm is found wrong and
+    its heading published unknown to the end, fused at the told arm — not at a fitted one (a fit made while an
+    uncalibrated plane's heading was still unknown was once sure of arms of tens of metres, docs/gnss.md)."""
+    from ahrsd.core.sample import make_sample
+    from ahrsd.estimator import make_estimator
+    from ahrsd.estimator.fix_feed import GnssFixFeed
+    from ahrsd.simulation import simulate_gnss
+
+    stream, block = boat_120s
+    est = make_estimator("ins", declination_rad=stream.earth_field.declination_rad, lever_arm_m=(0.0, 0.0, 0.0))
+    feed_fixes = GnssFixFeed(est, simulate_gnss(block, rate_hz=FIX_HZ, seed=1000, lever_arm_m=MAST_M))
+    sigmas = []
+    for i in range(len(block.t_s)):
+        feed_fixes.offer_until(block.t_s[i])
+        sigmas.append(est.update(make_sample(block.t_s[i], block.gyro_rad_s[i], block.accel_m_s2[i],
+                                             block.mag_ut[i])).sigma_rpy_rad[2])
+    result = est.lever_arm_fit()
+    assert result.arm_wrong and not result.arm_adopted, result
+    assert np.array_equal(est._arm_in_use(), np.zeros(3))                  # fused at the told arm
+    assert np.all(np.array(sigmas[-3000:]) >= est.params.heading_unknown_sigma_rad)   # unknown to the end
 
 
 def test_the_fit_is_made_when_asked_while_nothing_can_latch(monkeypatch):
