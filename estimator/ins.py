@@ -501,10 +501,10 @@ class Ins:
         # term), and its two kernels through their entry points (kernel_entry.py: called with these types only)
         self._q_true = _float_field_view(self._x_arr, "q")
         self._acc_ned_lp = _float_field_view(self._x_arr, "acc_ned_lp_m_s2")
-        self._dcm = entry_point(dcm, (dcm.typeof_pyval(1.0),) * 4)
+        self._dcm = entry_point(dcm, argument_types(dcm, (1.0,) * 4))
         axes_args = ((1.0,) * 9, 0.0, 0.0, -9.8, 0.0)
-        self._axes_tilt_variance = entry_point(accel_axes_tilt_variance_in_force_rad2, tuple(
-            accel_axes_tilt_variance_in_force_rad2.typeof_pyval(a) for a in axes_args))
+        self._axes_tilt_variance = entry_point(accel_axes_tilt_variance_in_force_rad2,
+                                               argument_types(accel_axes_tilt_variance_in_force_rad2, axes_args))
         self._initialised = False
         self._reinit_pending = False
         self._pending_flags = 0
@@ -1134,9 +1134,9 @@ class Ins:
             self._gsf_fuse_velocity(self._gsf_arr, self._gsf_par_arr, float(t_s), vel, float(sig_s))
 
     def _add_to_lever_arm_fit(self, t_s: float, v: np.ndarray, use_vd: bool, sig_s: float) -> None:
-        """The fix's velocity innovation at the antenna the filter was told, before the fix is fused, from the
-        history row nearest its time of validity (the kernel interpolates; a row is 1/rate apart), for the
-        lever-arm check (lever_arm_fit.py)."""
+        """The fix's velocity innovation at the antenna arm the filter fuses with (`_arm_in_use`), before the fix is
+        fused, from the history interpolated at its time of validity as the kernel reads it (`_history_state_at`),
+        for the lever-arm check (lever_arm_fit.py)."""
         at = self._history_state_at(t_s)
         if at is None:
             return
@@ -1784,8 +1784,6 @@ class Ins:
             return
         t_fix, v_fix, sig_s = self._last_fix_velocity
         x, hist = self._x, self._hist
-        if core._history_at(x, hist, t_fix)[0] < 0:
-            return
         # every kept row once (hist_count ≤ H_LEN): one indexed add, not a Python loop over up to H_LEN rows
         rows = (int(x["hist_newest"]) - np.arange(int(x["hist_count"]))) % core.H_LEN
         step = self._fix_velocity_step
@@ -1800,7 +1798,10 @@ class Ins:
             older = rows[hist["t_s"][rows] <= t_fix]
             hist["vel_ned_m_s"][older] += step[1]
             self._fix_velocity_step = None     # the rows now carry it: a second reset at this fix adds nothing
-        c_bn, vel, rate = self._history_state_at(t_fix)
+        at = self._history_state_at(t_fix)
+        if at is None:
+            return          # the fix is older than the history (no row up to it took the step above either)
+        c_bn, vel, rate = at
         v_ant = vel + c_bn @ np.cross(rate, self._arm_in_use())
         m = 3 if math.isfinite(v_fix[2]) else 2
         dv = np.zeros(3)
