@@ -85,14 +85,15 @@ def residual_line(result) -> str:
         line += f" of the {rate_hz:g} Hz block means"
     channel = q.get("vertical_channel") or {}
     magnitude, vertical = _num(channel.get("magnitude_rms_ut")), _num(channel.get("vertical_rms_ut"))
+    lowpassed = fit_blocks_lowpassed(q)
     as_fitted = []
-    if fit_blocks_lowpassed(q) and math.isfinite(magnitude):
+    if lowpassed and math.isfinite(magnitude):
         as_fitted.append(f"|m| − |F| {magnitude:.3f} µT")
     if math.isfinite(vertical):
         as_fitted.append(f"vertical field {vertical:.3f} µT")
     if as_fitted:
-        lowpassed = " (low-passed with the levelling)" if fit_blocks_lowpassed(q) else ""
-        line += f"; of the blocks fitted{lowpassed}: " + ", ".join(as_fitted)
+        how = " (low-passed with the levelling)" if lowpassed else ""
+        line += f"; of the blocks fitted{how}: " + ", ".join(as_fitted)
     return line
 
 

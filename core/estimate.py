@@ -53,7 +53,8 @@ class HeadingIntegrity:
     iron_sigma_ut: np.ndarray            # (3,) its 1σ
     mag_step_rad: float = float("nan")   # the magnetometer is rejected now for a step of its heading the gyro did not
                                          # see (estimator/mag_step.py): the step's size (NaN: not rejected for a step)
-    lever_arm_wrong: bool = False        # the GNSS velocities fit another antenna place than the one told
+    lever_arm_wrong: bool = False        # the GNSS velocities fit another antenna place than the one told, and no
+                                         # adopted arm has been shown right yet (LeverArmFit.heading_bent)
                                          # (estimator/lever_arm_fit.py): the heading is unknown until the arm is set
 
 
