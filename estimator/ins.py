@@ -274,7 +274,8 @@ class InsParams(MagHeadingParams):
     """True: the horizontal (body x, y) accelerometer bias learns from GNSS only while the heading is known (a
     trusted magnetometer, or a GNSS yaw confirmed it), so a wrong yaw's mis-projected GNSS acceleration cannot be
     taken up by the bias and hold a tilt error that a steady turn cannot separate from it (ins_core._gated_update;
-    docs/estimator.md "A wrong heading must not teach the accelerometer bias")."""
+    docs/estimator.md "A wrong heading must not teach the accelerometer bias"); the accelerometer z axis's lean and
+    the x and y gyros' misalignment towards z, the other members of that error, wait with it."""
     mag_reentry_s: float = 20.0
     """A rejected magnetometer re-enters after its learned correction was consistent this long, s."""
     yaw_align_to_gnss_yaw: bool = True

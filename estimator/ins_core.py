@@ -257,6 +257,9 @@ M_ACC_BIAS = 0b111 << E_BA
 M_ACC_BIAS_XY = 0b011 << E_BA   # body x, y: the axes a near-level vehicle's yaw error trades with
 M_GYRO_SCALE = 0b111 << E_SG
 M_GYRO_MIS = 0b111111 << E_MG
+# m_xz, m_yz (MIS_ROW/MIS_COL 1 and 3): what the x and y gyros pick up of the turn rate, the elements that keep a
+# tilt error fixed in the body through a turn (the third member of the pitch / forward-bias pair)
+M_GYRO_MIS_TURN = (1 << (E_MG + 1)) | (1 << (E_MG + 3))
 M_NAV = 0b111111 << E_V
 M_MAG_HARMONICS = ((1 << N_MAG_HARMONICS) - 1) << E_MH
 M_MAG_FRAME_TILT = ((1 << N_MAG_FRAME_TILT) - 1) << E_MF
@@ -1175,8 +1178,11 @@ def _gated_update(gate, P, par, H, nu, var, m, dx, t_fix, may_reset, r_fused, r_
         # that a steady turn cannot separate (pitch error, forward bias and gyro misalignment move together): the
         # x and y bias wait for a known heading; z (vertical on a near-level vehicle) learns on (docs/estimator.md
         # "A wrong heading must not teach the accelerometer bias"); nor the z axis's lean, which the vertical channel
-        # learns against that tilt (the lean and a pitch are one error there)
-        zero = 0 if par.accel_bias_learn > 0.5 else M_ACC_BIAS_XY | M_ACC_Z_LEAN
+        # learns against that tilt (the lean and a pitch are one error there); nor the x and y gyros' misalignment
+        # towards z, which a turn with the yaw far off would set to keep that tilt in the body, where nothing on a
+        # level turning vehicle undoes it ("The uncalibrated boat's tilt: the gyro misalignment learned before the
+        # heading is known")
+        zero = 0 if par.accel_bias_learn > 0.5 else M_ACC_BIAS_XY | M_ACC_Z_LEAN | M_GYRO_MIS_TURN
         for i in range(m):
             scalar_update(P, H[i], residual(H[i], nu[i], dx), var[i], zero, dx)
         gate.rejected_since_s = math.nan

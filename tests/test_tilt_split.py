@@ -18,10 +18,12 @@ def runs():
 def test_the_pitch_error_is_the_forward_bias_error(runs):
     # (heading, tilt, pitch, roll, forward bias as a pitch, pitch σ, beyond 3σ); degrees
     _, tilt, pitch, _, bias_deg, sigma_pitch, _ = runs["defaults"]
-    assert tilt > 0.3 and pitch > 0.3
+    # what is left once m_xz, m_yz no longer learn before the heading is known (tests/test_tilt_unknown_heading.py;
+    # +0.35° before): the set is still unobservable after the release, and its split leaves a pitch error
+    assert pitch > 0.1
     # the forward bias error cancels the pitch error's gravity along x: the vehicle's horizontal specific force is
     # right, its split between pitch and bias is not, and nothing on this boat's motion tells them apart
-    assert abs(pitch + bias_deg) < 0.1 * pitch
+    assert abs(pitch + bias_deg) < 0.05
     assert pitch < 3.0 * sigma_pitch            # the published pitch σ covers it
 
 
