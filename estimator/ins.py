@@ -36,6 +36,7 @@ from .accel_axes_tilt import ACCEL_MISALIGNMENT_SIGMA_RAD, accel_axes_tilt_varia
 from .base import DEFAULT_UNMODELLED_IRON_UT, LEARNED_WITH_GNSS
 from .calibration_heading import calibration_heading_variance_rad2, calibration_states_error
 from .gsf_yaw import GsfParams, gsf_fuse_velocity_of, gsf_output_of, gsf_reset, new_gsf_state
+from .heading_confirmation import HeadingConfirmation, gnss_yaw_floor
 from .heading_monitor import HeadingCheckRecord, HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
 from .heading_state_hold import HeadingStateHold
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
@@ -580,6 +581,12 @@ class Ins:
         p = self.params
         self._monitor = HeadingMonitor(p.calibration_sigma_rad, reentry_s=p.mag_reentry_s,
                                        max_resets=p.yaw_reset_max, reset_spacing_s=p.yaw_reset_spacing_s)
+        # whether a GNSS yaw has confirmed the heading, the alignment to it, the published σ's floor until then
+        self._confirmation = HeadingConfirmation(
+            align_to_gnss_yaw=p.yaw_align_to_gnss_yaw, mag_enabled=p.mag_enabled,
+            checks_run=self._heading_checks_run, heading_confirm_sigma_rad=p.heading_confirm_gsf_sigma_rad,
+            bias_confirm_sigma_rad=p.accel_bias_gsf_sigma_rad, gate_sigma=self._monitor.gate_sigma, calibration_sigma_rad=p.calibration_sigma_rad,
+            trusted_sigma_rad=self._monitor.trusted_sigma_rad)
         self._heading_state = HeadingState.UNKNOWN
         self._state_hold = HeadingStateHold(p.heading_state_hold_s, p.heading_known_sigma_rad)
         self.heading_checks: deque[HeadingCheckRecord] = deque(maxlen=HEADING_CHECKS_KEPT)
@@ -593,16 +600,9 @@ class Ins:
         # an iron was learned or restored before the magnetometer's latest rejection: the learned iron may be what
         # the rejection found wrong, so a rejected magnetometer is not fused (`_rejected_magnetometer_fused`)
         self._iron_before_rejection = False
-        self._heading_confirmed = False    # by a GNSS yaw within heading_confirm_gsf_sigma_rad
-        self._bias_heading_confirmed = False   # by a GNSS yaw within accel_bias_gsf_sigma_rad
         self._mag_rotation = MagRotationBias(gyro_noise_rad_s_rthz=p.gyro_noise_rad_s_sqrt_hz)
         self._mag_rotation_on = p.mag_rotation_gyro_bias and p.heading_monitor and p.mag_enabled
         self._x["gyro_rotation_last_t_s"] = math.nan   # the kernel sums the gyro's rotation (ins_core.py)
-        self._gnss_yaw_aligned = False     # the yaw was set to the first valid GNSS yaw (yaw_align_to_gnss_yaw)
-        self._gnss_yaw_valid_seen = False  # a GNSS yaw was valid (without a magnetometer, the alignment's chance)
-        self._sigma_confirmed = False      # the published σ's floor is lifted (`_update_sigma_confirmation`)
-        # the published yaw σ's floor until a GNSS yaw confirms the heading (aided only; updated at every check)
-        self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(0.0, math.nan, math.nan)
         self.yaw_resets = 0
         self.gnss_yaw_alignments = 0
         self.heading_interventions = 0    # yaw resets and raised yaw variances (not Kalman updates)
@@ -737,6 +737,7 @@ class Ins:
         self._monitor = HeadingMonitor(p.calibration_sigma_rad, reentry_s=p.mag_reentry_s,
                                        max_resets=p.yaw_reset_max, reset_spacing_s=p.yaw_reset_spacing_s,
                                        resets=self._monitor.resets, last_reset_t_s=self._monitor.last_reset_t_s)
+        self._confirmation.set_calibration(p.calibration_sigma_rad, self._monitor.trusted_sigma_rad)
         self._mag_var = p.calibration_sigma_rad ** 2
         self._mag_trust_var = p.calibration_sigma_rad ** 2
         self._par["mag_use"] = 1.0
@@ -748,7 +749,8 @@ class Ins:
         self._set_accel_bias_learning()
         self._set_field_circle()
         if self._heading_checks_run:    # else the floor is none, or the one without magnetometer (no calibration's)
-            self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(*self._yaw_and_gnss_yaw_now())
+            c = self._confirmation
+            c.unconfirmed_sigma_rad = c.unconfirmed_yaw_sigma(*self._yaw_and_gnss_yaw_now())
 
     @property
     def _mag_harmonics_apply(self) -> bool:
@@ -883,9 +885,9 @@ class Ins:
         return prior + np.diag(prior_variances_rad2(floor_sigma, p.mag_harmonic_offset_share))
 
     def _yaw_and_gnss_yaw_now(self) -> tuple[float, float, float]:
-        """What the unconfirmed-yaw floor is computed from (`_unconfirmed_yaw_sigma`), now: the filter's yaw and
-        the GNSS yaw bank's yaw and variance; before the filter has started, no yaw yet (its floor at
-        construction)."""
+        """What the unconfirmed-yaw floor is computed from (HeadingConfirmation.unconfirmed_yaw_sigma), now: the
+        filter's yaw and the GNSS yaw bank's yaw and variance; before the filter has started, no yaw yet (its floor
+        at construction)."""
         if not self._initialised:
             return 0.0, math.nan, math.nan
         gsf_yaw, gsf_var, _ = self._gnss_yaw()
@@ -1174,11 +1176,7 @@ class Ins:
         arm = self._arm_in_use()
         self._use_arm(arm)
         gsf_reset(self._gsf, self._gsf_par, float(self._x["t_last_s"]), np.full(4, np.nan))
-        self._gnss_yaw_aligned = False
-        self._gnss_yaw_valid_seen = False
-        self._heading_confirmed = False
-        self._bias_heading_confirmed = False
-        self._sigma_confirmed = False
+        self._confirmation.arm_adopted()
         log.warning("ins: the GNSS velocities fit an antenna at %s m (body FRD), told %s m: fusing at the fitted arm "
                     "(adoption %d); set lever_arm_m", ",".join(f"{v:.2f}" for v in arm),
                     ",".join(f"{v:g}" for v in self.params.lever_arm_m), self._lever_arm_fit.adoptions)
@@ -1408,28 +1406,24 @@ class Ins:
         if gsf_valid and wrap_pi(gsf_yaw - yaw) ** 2 <= self._monitor.gate_sigma ** 2 * (yaw_var + gsf_var) \
                 and self._monitor.lowpassed_velocity_nis < self._monitor.reset_velocity_nis:
             # the GNSS yaw confirms the filter's heading: its gyro bias was learned with a right heading
-            self._confirmed_gyro_bias = self._x["gyro_bias_rad_s"].copy()
-            self._confirmed_accel_bias = self._x["accel_bias_m_s2"].copy()
+            self._confirmation.keep_confirmed_biases(self._x["gyro_bias_rad_s"], self._x["accel_bias_m_s2"])
             if gsf_var < p.accel_bias_gsf_sigma_rad ** 2:
                 # and the bank is sure enough that its agreement is not just its width: from now on the bank's gyro
                 # is corrected with this bias, not the filter's. A wrong magnetometer trusted before the first check
                 # teaches the vertical gyro bias its heading error's rate, and a bank that learns no bias itself
                 # would drift at that rate and hold the wrong magnetometer's heading against the right one later.
-                # Tighter than `_confirmed_gyro_bias` (any agreement within the gate): a bank near its validity
+                # Tighter than the confirmed gyro bias (any agreement within the gate): a bank near its validity
                 # limit agrees with headings tens of degrees off, and a bias confirmed by that would drag the bank
                 # after the filter again (docs/estimator.md, "Magnetometer-free GNSS yaw", Limits)
                 self._x["bank_gyro_bias_rad_s"] = self._x["gyro_bias_rad_s"]
         if d.yaw_var_floor_rad2 > 0.0:
             self._iron_before_rejection = self._iron.updates > 0 or self._iron_restored
-            # the magnetometer was just rejected: the heading it held is unconfirmed again (`_confirm_heading`)
-            self._heading_confirmed = False
-            self._bias_heading_confirmed = False
-            self._sigma_confirmed = False
+            self._confirmation.magnetometer_rejected()
             # what the magnetometer taught the gyro bias since the last confirmation goes with it: a wrong
             # magnetometer's heading error rate, which the filter would otherwise keep integrating as GNSS-only.
             # The value only: widening its variance too let the GNSS-only heading wander after an iron change
             # (docs/estimator.md, "Known limits: ins on level turns")
-            self._x["gyro_bias_rad_s"] = self._confirmed_gyro_bias
+            self._x["gyro_bias_rad_s"] = self._confirmation.confirmed_gyro_bias
         if d.yaw_var_floor_rad2 > P[core.E_YAW, core.E_YAW]:
             P[core.E_YAW, core.E_YAW] = d.yaw_var_floor_rad2
             self.heading_interventions += 1
@@ -1449,29 +1443,23 @@ class Ins:
     def _reset_or_confirm_yaw(self, t_s: float, d: MonitorDecision, yaw: float, gsf_yaw: float, gsf_var: float,
                               gsf_valid: bool) -> float | None:
         """At most one of: the monitor's emergency yaw reset, the alignment to the first valid GNSS yaw
-        (`_gnss_yaw_alignment_due`), or, while the heading is held unconfirmed, its confirmation by a GNSS yaw
-        that agrees with it. Returns the yaw a reset turned the attitude (about down) to, None without one."""
+        (HeadingConfirmation.alignment_due), or, while the heading is held unconfirmed, its confirmation by a GNSS
+        yaw that agrees with it. Returns the yaw a reset turned the attitude (about down) to, None without one."""
+        c = self._confirmation
         if d.reset_yaw_to_rad is not None:
             self._reset_yaw(d.reset_yaw_to_rad - yaw, d.reset_yaw_var_rad2)
             return d.reset_yaw_to_rad
-        if self._gnss_yaw_alignment_due(yaw, gsf_yaw, gsf_var, gsf_valid):
+        if c.alignment_due(yaw, gsf_yaw, gsf_var, gsf_valid):
             self._align_yaw_to_gnss(t_s, gsf_yaw - yaw, gsf_var)
             return gsf_yaw
-        if not self._heading_confirmed and gsf_valid and (self._calibration_untrusted or self._monitor.mag_rejected):
+        if not c.heading_confirmed and gsf_valid and (c.calibration_untrusted or self._monitor.mag_rejected):
             self._confirm_heading(yaw, gsf_yaw, gsf_var)
         return None
 
     def _align_yaw_to_gnss(self, t_s: float, dyaw_rad: float, gsf_var: float) -> None:
         """The planned first alignment of the yaw to the GNSS yaw (yaw_align_to_gnss_yaw)."""
-        self._gnss_yaw_aligned = True
+        self._confirmation.aligned()         # the biases a reset goes back to: the start-up ones
         self._monitor.yaw_was_reset(t_s)     # an emergency reset keeps its spacing from this one
-        # nothing confirmed the heading before the alignment, so the biases go back to their start-up values:
-        # learned against an uncalibrated magnetometer, whose heading error changes as the vehicle turns (vehicle
-        # iron), the vertical gyro bias has taken up that error's rate, and the agreement check in
-        # `_monitor_decision`, with the bank's σ near its validity limit, would keep them as "confirmed"
-        # (docs/estimator.md, "Alignment")
-        self._confirmed_gyro_bias = self._startup_gyro_bias.copy()
-        self._confirmed_accel_bias = self._startup_accel_bias.copy()
         self._reset_yaw(dyaw_rad, gsf_var, alignment=True)
         # the specific force the tilt was levelled against, turned by the alignment's yaw step: its horizontal part
         # across the new heading, |f_h|·|sin Δψ|, was taken as a lean of the tilt (a car accelerating away leans
@@ -1504,26 +1492,16 @@ class Ins:
         x, P = self._x, self._P
         var = self.params.init_accel_bias_sigma_m_s2 ** 2
         for k in range(2):
-            x["accel_bias_m_s2"][k] = self._startup_accel_bias[k]
+            x["accel_bias_m_s2"][k] = self._confirmation.startup_accel_bias[k]
             i = core.E_BA + k
             v = max(P[i, i], var)
             _restart_uncorrelated(P, i, v)
 
     def _confirm_heading(self, yaw: float, gsf_yaw: float, gsf_var: float) -> None:
-        """A GNSS yaw that agrees with the held heading confirms it for the accelerometer bias (within
-        `accel_bias_gsf_sigma_rad`) and for the heading (within `heading_confirm_gsf_sigma_rad`, or the looser
-        bias figure after the alignment); otherwise the yaw variance is raised to at least the GNSS yaw's."""
-        p = self.params
+        """A GNSS yaw that agrees with the held heading confirms it (HeadingConfirmation.confirm); otherwise the
+        yaw variance is raised to at least the GNSS yaw's."""
         P = self._P
-        agrees = self._gnss_yaw_agrees(yaw, gsf_yaw, gsf_var)
-        if agrees and gsf_var < p.accel_bias_gsf_sigma_rad ** 2:
-            self._bias_heading_confirmed = True
-        # a yaw set to the GNSS yaw (not pulled in from tens of degrees) is confirmed by the looser GNSS yaw
-        confirm_rad = p.accel_bias_gsf_sigma_rad if self._gnss_yaw_aligned else p.heading_confirm_gsf_sigma_rad
-        if agrees and gsf_var < confirm_rad ** 2:
-            self._heading_confirmed = True
-            self._bias_heading_confirmed = True
-        elif gsf_var > P[core.E_YAW, core.E_YAW]:
+        if self._confirmation.confirm(yaw, gsf_yaw, gsf_var, P[core.E_YAW, core.E_YAW]):
             P[core.E_YAW, core.E_YAW] = gsf_var
 
     def _set_magnetometer_use(self, d: MonitorDecision, mag_var: float, noise: float, trust_var: float) -> None:
@@ -1592,14 +1570,16 @@ class Ins:
 
     def _publish_heading_checks(self, t_s: float, yaw_rad: float, gsf_yaw: float, gsf_var: float,
                                 gsf_valid: bool) -> None:
-        """What the checks publish: the yaw σ's floor while the heading is unconfirmed (`_unconfirmed_yaw_sigma`
-        at the yaw after any reset), the integrity figures and the heading state."""
+        """What the checks publish: the yaw σ's floor while the heading is unconfirmed
+        (HeadingConfirmation.unconfirmed_yaw_sigma at the yaw after any reset), the integrity figures and the
+        heading state."""
         p = self.params
-        self._update_sigma_confirmation(yaw_rad, gsf_yaw, gsf_var, gsf_valid)
-        self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(yaw_rad, gsf_yaw, gsf_var)
+        c = self._confirmation
+        c.update_sigma_confirmation(yaw_rad, gsf_yaw, gsf_var, gsf_valid, self._P[core.E_YAW, core.E_YAW])
+        c.unconfirmed_sigma_rad = c.unconfirmed_yaw_sigma(yaw_rad, gsf_yaw, gsf_var)
         sig = math.sqrt(max(self._P[core.E_YAW, core.E_YAW], 0.0))
-        if self._unconfirmed_sigma_rad > sig:
-            sig = self._unconfirmed_sigma_rad
+        if c.unconfirmed_sigma_rad > sig:
+            sig = c.unconfirmed_sigma_rad
         self._integrity = HeadingIntegrity(gsf_yaw, math.sqrt(gsf_var) if math.isfinite(gsf_var) else math.nan,
                                            gsf_valid, self._monitor.disagreement_rad, self._iron.offset_ut,
                                            self._iron.sigma_ut, self._rejection_step_rad,
@@ -1613,105 +1593,35 @@ class Ins:
         # held at the check rate, so the state does not depend on how often estimates are built
         self._heading_state = self._state_hold.update(t_s, raw, sig)
 
-    def _gnss_yaw_alignment_due(self, yaw_rad: float, gsf_yaw: float, gsf_var: float, gsf_valid: bool) -> bool:
-        """Whether the yaw is set, once per run, to the valid GNSS yaw (`_align_yaw_to_gnss`), with or without the
-        magnetometer (the one rule for both).
-        With the magnetometer: at the first valid GNSS yaw, no trusted magnetometer calibration, the heading not
-        yet confirmed: the filter's yaw came from the magnetometer (tens of degrees off with a strong iron) and was
-        pulled in by the GNSS velocity through a linearised update, whose biases take up what the yaw error
-        projects (docs/estimator.md "A wrong heading must not teach the accelerometer bias"). An emergency reset at
-        the same fix (HeadingMonitor.check) does not count: the alignment follows at the next check, which resets
-        the velocity and the biases once more after the first update with the new yaw (measured, docs/estimator.md).
-        Without it (mag_enabled off): at the first valid GNSS yaw, if the filter's yaw lies outside its 3σ
-        (`HeadingMonitor.gate_sigma` of the bank's σ alone: the filter's own variance, shrunk by the linearised
-        pull-in faster than its error, would widen the gate for a yaw nothing has confirmed, as for
-        `_unconfirmed_yaw_sigma`). The filter's yaw and its biases came from the same GNSS velocities as the bank's;
-        where the filter's is inside the bank's 3σ it is kept: setting it to the bank's would widen its variance to
-        the bank's and send the biases back to their start-up values, and on a boat's weak accelerations the
-        velocities then pull the yaw further off than it was. Outside it, the filter's linearised update has not
-        pulled its yaw in from the unknown start, and a yaw tens of degrees off makes the gate reject the very
-        velocities that would (a car accelerating away): it is set to the bank's, as PX4 EKF2 aligns its yaw to
-        the EKF-GSF without a magnetometer heading. Only at the first valid one: without the heading checks nothing
-        gives the bank the filter's gyro bias, so on a long run its yaw drifts while its σ shrinks, and it comes to
-        "disagree" with a right yaw (docs/estimator.md "Without a magnetometer: the yaw set to a GNSS yaw that
-        disagrees").
-        `_reset_yaw` sets the yaw to the GNSS yaw with its variance and gives the biases, learned against the
-        wrong yaw, their start-up values back."""
-        p = self.params
-        if not (p.yaw_align_to_gnss_yaw and gsf_valid and not self._gnss_yaw_aligned):
-            return False
-        if not p.mag_enabled:
-            outside = wrap_pi(gsf_yaw - yaw_rad) ** 2 > self._monitor.gate_sigma ** 2 * gsf_var
-            return outside and not self._gnss_yaw_valid_seen
-        return not self._heading_confirmed and self._calibration_untrusted
-
-    def _gnss_yaw_agrees(self, yaw_rad: float, gsf_yaw: float, gsf_var: float) -> bool:
-        """The GNSS yaw is within the monitor's gate of the filter's yaw, with their joint variance."""
-        yaw_var_now = self._P[core.E_YAW, core.E_YAW]
-        return wrap_pi(gsf_yaw - yaw_rad) ** 2 <= self._monitor.gate_sigma ** 2 * (yaw_var_now + gsf_var)
-
-    def _update_sigma_confirmation(self, yaw_rad: float, gsf_yaw: float, gsf_var: float, gsf_valid: bool) -> None:
-        """Whether the published yaw σ's floor (`_unconfirmed_yaw_sigma`) is lifted: once the filter has confirmed
-        its heading (`_confirm_heading`), when a GNSS yaw within `heading_confirm_gsf_sigma_rad` agrees. The filter
-        confirms a yaw set to a GNSS yaw (alignment, emergency reset) with the looser `accel_bias_gsf_sigma_rad`,
-        but that yaw is only as good as the bank that set and confirmed it (σ up to 10°), and the fixes pull it
-        through the linearised update, whose variance shrinks faster than the error as a turn ends (docs/gnss.md,
-        early23). After a rejection the monitor widens the yaw variance (tens of degrees) and the
-        looser GNSS yaw agrees with it whatever the yaw (stby22). In both cases the floor stays published until the
-        5° GNSS yaw agrees; the filter keeps its own decision."""
-        if not self._heading_confirmed:
-            self._sigma_confirmed = False
-        elif not self._sigma_confirmed:
-            self._sigma_confirmed = (gsf_valid and gsf_var < self.params.heading_confirm_gsf_sigma_rad ** 2
-                                     and self._gnss_yaw_agrees(yaw_rad, gsf_yaw, gsf_var))
-
-    def _unconfirmed_yaw_sigma(self, yaw_rad: float, gsf_yaw: float, gsf_var: float) -> float:
-        """Without a trusted magnetometer calibration, until a GNSS yaw has confirmed the heading: the filter's yaw
-        came from a magnetometer that may be off by anything (or was just set to a GNSS yaw the next fixes may
-        pull away), and the GNSS velocity pulling it through a linearised update shrinks its variance faster than
-        its error. The honest 1σ is then at least the GNSS yaw bank's, which carries the spread of its
-        hypotheses, plus the distance to it (π before the bank has a yaw; NaN: no floor). Published only: the
-        filter keeps its own variance (raising it would make the linearised update pull harder)."""
-        p = self.params
-        if not (p.yaw_align_to_gnss_yaw and self._heading_checks_run) or self._sigma_confirmed \
-                or not self._calibration_untrusted:
-            return math.nan
-        return _gnss_yaw_floor(yaw_rad, gsf_yaw, gsf_var)
-
     def _floor_yaw_sigma_without_magnetometer(self, t_s: float) -> None:
         """No magnetometer (mag_enabled off): the yaw comes from the GNSS velocity alone, pulled in from an unknown
         start (1σ π) through linearised updates, whose variance shrinks faster than the error on a boat's weak
         accelerations (docs/estimator.md "Known limits: ins on level turns"), and which, tens of degrees off, reject
         the velocities that would pull it in: if the first valid GNSS yaw disagrees with it, it is set to that yaw
-        (`_gnss_yaw_alignment_due`). The heading checks do not run (they weigh a magnetometer), so nothing ever
-        confirms this yaw: its published 1σ is at least the GNSS yaw bank's plus the distance to it, as an
-        unconfirmed heading's (`_unconfirmed_yaw_sigma`), at every fused fix."""
+        (HeadingConfirmation.alignment_due). The heading checks do not run (they weigh a magnetometer), so nothing
+        ever confirms this yaw: its published 1σ is at least the GNSS yaw bank's plus the distance to it, as an
+        unconfirmed heading's (HeadingConfirmation.unconfirmed_yaw_sigma), at every fused fix."""
         if not (self.params.gnss_yaw and self.params.heading_monitor):
             return
         yaw = float(quat_to_euler(self._x["q"])[2])
         gsf_yaw, gsf_var, gsf_valid = self._gnss_yaw()
-        if self._gnss_yaw_alignment_due(yaw, gsf_yaw, gsf_var, gsf_valid):
+        c = self._confirmation
+        if c.alignment_due(yaw, gsf_yaw, gsf_var, gsf_valid):
             self._align_yaw_to_gnss(t_s, gsf_yaw - yaw, gsf_var)
             yaw = gsf_yaw
-        elif self._first_gnss_yaw_keeps_yaw(gsf_valid):
+        elif c.first_gnss_yaw_keeps_yaw(gsf_valid):
             # the yaw is kept, but the pull-in that brought it inside the bank's 3σ ran through yaws tens of
             # degrees off: the horizontal bias and the tilt it taught are restarted as an alignment restarts them
             self._restart_horizontal_accel_bias()
             self._relevel_after_wrong_yaw(self.params.nav_init_sigma_tilt_rad)
-        self._gnss_yaw_valid_seen = self._gnss_yaw_valid_seen or gsf_valid
-        self._unconfirmed_sigma_rad = _gnss_yaw_floor(yaw, gsf_yaw, gsf_var)
-
-    def _first_gnss_yaw_keeps_yaw(self, gsf_valid: bool) -> bool:
-        """Without a magnetometer: this is the first valid GNSS yaw, and the filter's yaw was inside its 3σ, so
-        `_gnss_yaw_alignment_due` kept it."""
-        return (self.params.yaw_align_to_gnss_yaw and gsf_valid and not self._gnss_yaw_valid_seen
-                and not self._gnss_yaw_aligned)
+        c.gnss_yaw_seen(gsf_valid)
+        c.unconfirmed_sigma_rad = gnss_yaw_floor(yaw, gsf_yaw, gsf_var)
 
     @property
     def _calibration_untrusted(self) -> bool:
         """The magnetometer calibration in force predicts a heading error above what the heading monitor trusts
-        (an unknown calibration counts as the uncalibrated figure, `InsParams.calibration_sigma_rad`)."""
-        return self.params.calibration_sigma_rad > self._monitor.trusted_sigma_rad
+        (HeadingConfirmation.calibration_untrusted)."""
+        return self._confirmation.calibration_untrusted
 
     @property
     def _heading_checks_run(self) -> bool:
@@ -1726,8 +1636,7 @@ class Ins:
         heading since the magnetometer was last rejected (ins_core._gated_update says why). Without the heading
         checks (no GNSS yaw, monitor or magnetometer) there is nothing to confirm with: it always learns."""
         p = self.params
-        held = p.accel_bias_needs_heading and self._heading_checks_run and not self._bias_heading_confirmed and (
-            self._calibration_untrusted or self._monitor.mag_rejected)
+        held = self._confirmation.bias_learning_held(p.accel_bias_needs_heading, self._monitor.mag_rejected)
         self._par["accel_bias_learn"] = 0.0 if held else 1.0
 
     def _reset_yaw(self, dyaw_rad: float, var_rad2: float, alignment: bool = False) -> None:
@@ -1752,8 +1661,8 @@ class Ins:
         # wrong yaw (the magnetometer pulling one way, the GNSS velocity the other, the biases taking up the
         # difference): back to the last confirmed ones (the start-up values before any), with their start-up
         # uncertainty
-        x["gyro_bias_rad_s"] = self._confirmed_gyro_bias
-        x["accel_bias_m_s2"] = self._confirmed_accel_bias
+        x["gyro_bias_rad_s"] = self._confirmation.confirmed_gyro_bias
+        x["accel_bias_m_s2"] = self._confirmation.confirmed_accel_bias
         for i in range(core.E_BG, core.E_BG + 3):
             var = max(P[i, i], p.init_gyro_bias_sigma_rad_s ** 2)
             _restart_uncorrelated(P, i, var)
@@ -1891,11 +1800,8 @@ class Ins:
         goes back to) and the start-up ones."""
         x = self._x
         x["gyro_bias_rad_s"] = gyro_bias
-        self._confirmed_gyro_bias = gyro_bias.copy()
-        self._confirmed_accel_bias = accel_bias.copy()
-        self._startup_gyro_bias = gyro_bias.copy()     # what the GNSS-yaw alignment goes back to
+        self._confirmation.start_biases(gyro_bias, accel_bias)
         x["bank_gyro_bias_rad_s"] = gyro_bias       # the GNSS yaw bank's, until its own yaw confirms one
-        self._startup_accel_bias = accel_bias.copy()
         x["accel_bias_m_s2"] = accel_bias
         x["gyro_scale"] = gyro_scale
         x["gyro_misalignment_rad"] = gyro_misalignment
@@ -1987,8 +1893,9 @@ class Ins:
         # the σ and the Euler angles read as floats with one call (float arithmetic is cheaper than numpy scalars'
         # and gives the same bits); the yaw σ is written once, below
         sig_roll, sig_pitch, sigma_yaw, _, _, _, roll, pitch, yaw_true = o[_OUT_SIGMA_TO_EULER].tolist()
-        if self._unconfirmed_sigma_rad > sigma_yaw and self._nav_ok[0] > 0.0:
-            sigma_yaw = self._unconfirmed_sigma_rad        # _unconfirmed_yaw_sigma says why
+        unconfirmed_sigma_rad = self._confirmation.unconfirmed_sigma_rad
+        if unconfirmed_sigma_rad > sigma_yaw and self._nav_ok[0] > 0.0:
+            sigma_yaw = unconfirmed_sigma_rad        # HeadingConfirmation.unconfirmed_yaw_sigma says why
         if self._lever_arm_fit.heading_bent:
             # the GNSS velocities fit another antenna place than the one told (lever_arm_fit.py): the heading they
             # held, and the GNSS yaw bank's, are bent by an error no state models: unknown until an arm (the told
@@ -2070,14 +1977,6 @@ class Ins:
                 return HeadingState.UNKNOWN
             return HeadingState.MAGNETOMETER
         return self._heading_state if p.heading_monitor else HeadingState.MAGNETOMETER
-
-
-def _gnss_yaw_floor(yaw_rad: float, gsf_yaw: float, gsf_var: float) -> float:
-    """The smallest honest 1σ of a yaw the GNSS yaw bank has not confirmed: the bank's own (the spread of its
-    hypotheses) plus the distance to it; π before the bank has a yaw."""
-    if not (math.isfinite(gsf_yaw) and math.isfinite(gsf_var)):
-        return math.pi
-    return math.sqrt(gsf_var + wrap_pi(gsf_yaw - yaw_rad) ** 2)
 
 
 def _restart_uncorrelated(P: np.ndarray, i: int, var: float) -> None:

@@ -505,14 +505,14 @@ MUTATIONS: tuple[Mutation, ...] = (
     # ------------------------------------------------------------------ session 28 (nomag28)
     Mutation("nomag-yaw-alignment",
              "ins without a magnetometer takes the first valid GNSS yaw if its own lies outside that yaw's 3σ",
-             "estimator/ins.py",
-             "outside = wrap_pi(gsf_yaw - yaw_rad) ** 2 > self._monitor.gate_sigma ** 2 * gsf_var",
+             "estimator/heading_confirmation.py",
+             "outside = wrap_pi(gsf_yaw - yaw_rad) ** 2 > self._gate_sigma ** 2 * gsf_var",
              "outside = False",
              ("tests/test_gnss_yaw_alignment_without_magnetometer.py",)),
     Mutation("nomag-yaw-kept-where-agrees",
              "ins without a magnetometer keeps its yaw where it lies inside the first valid GNSS yaw's 3σ",
-             "estimator/ins.py",
-             "outside = wrap_pi(gsf_yaw - yaw_rad) ** 2 > self._monitor.gate_sigma ** 2 * gsf_var",
+             "estimator/heading_confirmation.py",
+             "outside = wrap_pi(gsf_yaw - yaw_rad) ** 2 > self._gate_sigma ** 2 * gsf_var",
              "outside = True",
              ("tests/test_gnss_yaw_alignment_without_magnetometer.py",)),
     # ------------------------------------------------------------------ session 28 (reset28)
