@@ -19,14 +19,14 @@ from __future__ import annotations
 import logging
 import math
 from collections import deque
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.special import chdtri   # χ² inverse survival function (scipy.stats costs 1.4 s to import)
 
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingIntegrity, HeadingState
 from ahrsd.core.gravity import EARTH_RATE_RAD_S
-from ahrsd.core.gnss import DEFAULT_H_ACC_M, DEFAULT_S_ACC_M_S, DEFAULT_V_ACC_M, GnssFix, GnssFixType
+from ahrsd.core.gnss import GnssFix
 from ahrsd.core.sample import ImuSample
 
 from . import ins_core as core
@@ -36,6 +36,7 @@ from .accel_axes_tilt import ACCEL_MISALIGNMENT_SIGMA_RAD, accel_axes_tilt_varia
 from .base import DEFAULT_UNMODELLED_IRON_UT, LEARNED_WITH_GNSS
 from .calibration_heading import calibration_heading_variance_rad2, calibration_states_error
 from .gsf_yaw import GsfParams, gsf_fuse_velocity_of, gsf_output_of, gsf_reset, new_gsf_state
+from .gnss_intake import GnssCounters, GnssFixIntake
 from .heading_confirmation import HeadingConfirmation, gnss_yaw_floor
 from .heading_monitor import HeadingCheckRecord, HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
 from .heading_state_hold import HeadingStateHold
@@ -415,29 +416,6 @@ class HeadingReport:
     first_step_deg: float = math.nan     # ... and the step of the magnetometer heading it saw
 
 
-@dataclass
-class GnssCounters:
-    """What became of the fixes offered to `update_gnss` (each fix counts once in `offered`)."""
-
-    offered: int = 0
-    fused_velocity: int = 0
-    fused_position: int = 0
-    rejected_velocity: int = 0      # χ² gate (a spike)
-    rejected_position: int = 0      # χ² gate (a jump)
-    reset_velocity: int = 0         # after reject_reset_s of rejections: re-acquired
-    reset_position: int = 0
-    nav_initialised: int = 0        # first fix, or first after nav_drop_s
-    nav_reset_after_outage: int = 0  # first fix after outage_reset_s: velocity and position set from it
-    invalid: int = 0                # no fix, non-finite position and velocity, bad accuracies
-    time_backwards: int = 0         # not newer than the previous fix
-    too_old: int = 0                # older than max_delay_s / the history
-    queued: int = 0                 # ahead of the IMU: held until the samples reach it
-    before_init: int = 0            # offered before the attitude was initialised
-
-    def as_dict(self) -> dict:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
-
-
 _TWO_PI = 2.0 * math.pi
 _MAX_QUEUED = 16
 HEADING_CHECKS_KEPT = 128   # the latest heading checks a reader can look at (`Ins.heading_checks`)
@@ -509,12 +487,17 @@ class Ins:
         self._initialised = False
         self._reinit_pending = False
         self._pending_flags = 0
-        self._queue: list[GnssFix] = []
-        self._last_fix_t = -math.inf
+        # the fixes offered (update_gnss): taken, queued until the samples reach them, or refused, and counted
+        p = self.params
+        self._intake = GnssFixIntake(max_queued=_MAX_QUEUED, use_vertical_velocity=p.use_vertical_velocity,
+                                     min_h_acc_m=p.min_h_acc_m, min_v_acc_m=p.min_v_acc_m,
+                                     min_s_acc_m_s=p.min_s_acc_m_s, reject_reset_s=p.reject_reset_s,
+                                     on_reject=self._flag_gnss_rejected)
+        self._fix_queue = self._intake.queue     # the intake's queue: is a fix waiting? (read on every sample)
         self._ever_aided = False     # a fix has aided the filter since it started (calibration_heading.py until then)
         # what the accelerometer's axes add to an aided heading's published variance (accel_axes_heading.py)
         self._accel_axes_var_rad2 = accel_axes_heading_variance_rad2(self.params.accel_axes_heading_sigma_rad)
-        self.gnss_counters = GnssCounters()
+        self.gnss_counters: GnssCounters = self._intake.counters
         # can the told antenna arm explain the velocity innovations? (and adopt the fitted one, if asked)
         self._lever_arm_fit = LeverArmFit(adopt=self.params.lever_arm_adopt)
         self._gsf_par_arr = _one_record_array(GsfParams(lever_arm_m=tuple(self.params.lever_arm_m)).to_record())
@@ -585,8 +568,8 @@ class Ins:
         self._confirmation = HeadingConfirmation(
             align_to_gnss_yaw=p.yaw_align_to_gnss_yaw, mag_enabled=p.mag_enabled,
             checks_run=self._heading_checks_run, heading_confirm_sigma_rad=p.heading_confirm_gsf_sigma_rad,
-            bias_confirm_sigma_rad=p.accel_bias_gsf_sigma_rad, gate_sigma=self._monitor.gate_sigma, calibration_sigma_rad=p.calibration_sigma_rad,
-            trusted_sigma_rad=self._monitor.trusted_sigma_rad)
+            bias_confirm_sigma_rad=p.accel_bias_gsf_sigma_rad, gate_sigma=self._monitor.gate_sigma,
+            calibration_sigma_rad=p.calibration_sigma_rad, trusted_sigma_rad=self._monitor.trusted_sigma_rad)
         self._heading_state = HeadingState.UNKNOWN
         self._state_hold = HeadingStateHold(p.heading_state_hold_s, p.heading_known_sigma_rad)
         self.heading_checks: deque[HeadingCheckRecord] = deque(maxlen=HEADING_CHECKS_KEPT)
@@ -646,8 +629,7 @@ class Ins:
         self._initialised = False
         self._reinit_pending = False
         self._pending_flags = 0
-        self._queue.clear()
-        self._last_fix_t = -math.inf
+        self._intake.reset()
         self._ever_aided = False
         self._published.reset()
         self._lever_arm_fit.reset()
@@ -994,7 +976,7 @@ class Ins:
             f = self._step(self._x_arr, self._P, self._hist, self._par_arr, sample.t_s,
                            gx, gy, gz, ax, ay, az, mx, my, mz, sflags, self._out_arr, self._gsf_arr, self._gsf_par_arr)
             if not f & NEEDS_INIT:
-                if self._queue:
+                if self._fix_queue:
                     self._fuse_queued()       # before the estimate of this sample, as every fix before it
                 if self._field_circle_on and not self._ever_aided and sample.t_s >= self._field_circle.due_t_s:
                     self._check_field_circle(sample.t_s, m, f)
@@ -1013,57 +995,28 @@ class Ins:
         (no fix, NaN fields, time not increasing, older than max_delay_s, χ² outliers) are counted in
         `gnss_counters`, logged, and flag GNSS_REJECTED on the next estimate; never raises."""
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
-        c = self.gnss_counters
-        c.offered += 1
-        try:
-            t = float(fix.t_s)
-        except (TypeError, ValueError):
-            t = math.nan
-        if not math.isfinite(t):
-            c.invalid += 1
-            self._reject("non-finite time", fix)
+        if not self._intake.offer(fix, self._initialised, self._x["t_last_s"]):
             return 0
-        if t <= self._last_fix_t:
-            c.time_backwards += 1
-            self._reject(f"time {t:.3f} s not after the previous fix's {self._last_fix_t:.3f} s", fix)
-            return 0
-        if not self._initialised:
-            c.before_init += 1
-            return 0
-        if t > self._x["t_last_s"]:
-            if len(self._queue) >= _MAX_QUEUED:
-                c.invalid += 1
-                self._reject("too far ahead of the IMU samples", fix)
-                return 0
-            c.queued += 1
-            self._last_fix_t = t
-            self._queue.append(fix)
-            return 0
-        self._last_fix_t = t
         return self._fuse(fix)
 
     def _fuse_queued(self) -> None:
         now = self._x["t_last_s"]
-        while self._queue and self._queue[0].t_s <= now:
-            self._fuse(self._queue.pop(0))
+        while (fix := self._intake.pop_due(now)) is not None:
+            self._fuse(fix)
+
+    def _flag_gnss_rejected(self) -> None:
+        """A fix was refused or rejected (GnssFixIntake): the next estimate says so."""
+        self._pending_flags |= int(EstimateFlags.GNSS_REJECTED)
 
     def _fuse(self, fix: GnssFix) -> int:
         """Fuse one fix whose time the IMU samples have reached: its usable parts (position, height, velocity,
         vertical velocity), each weighted by the fix's own 1σ; then count what the kernel did and run the heading
         checks that a fused or rejected velocity allows. Returns core.R_* bits (0 when nothing was usable)."""
         p = self.params
-        read = self._read_fix(fix)
-        if read is None:
+        parts = self._intake.read(fix)
+        if parts is None:
             return 0
-        fix_type, lat, lon, alt, v, h_acc, v_acc, s_acc = read
-        use_pos, use_alt, use_vel, use_vd = self._usable_parts(fix_type, lat, lon, alt, v, p.use_vertical_velocity)
-        if not (use_pos or use_vel):
-            self.gnss_counters.invalid += 1
-            self._reject("neither position nor velocity is finite", fix)
-            return 0
-        sig_h = _accuracy(h_acc, DEFAULT_H_ACC_M, p.min_h_acc_m)
-        sig_v = _accuracy(v_acc, DEFAULT_V_ACC_M, p.min_v_acc_m)
-        sig_s = _accuracy(s_acc, DEFAULT_S_ACC_M_S, p.min_s_acc_m_s)
+        _, lat, lon, alt, v, sig_h, sig_v, sig_s, use_pos, use_alt, use_vel, use_vd = parts
         if use_vel:
             self._keep_fix_velocity(float(fix.t_s), v, use_vd, sig_s)
             self._add_to_lever_arm_fit(float(fix.t_s), v, use_vd, sig_s)
@@ -1087,45 +1040,12 @@ class Ins:
         # correct the row at the fix's time as well, so they leave nothing to add
         step_rows = not res & (core.R_NAV_INIT | core.R_OUTAGE_RESET)
         self._fix_velocity_step = (float(fix.t_s), velocity_step) if step_rows else None
-        self._count_fuse_result(res, fix)
+        self._intake.count(res, fix, self._x["vel_gate"]["nis"], self._x["pos_gate"]["nis"])
         if p.heading_monitor and p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
             self._check_heading(float(fix.t_s))
         elif not p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
             self._floor_yaw_sigma_without_magnetometer(float(fix.t_s))
         return res
-
-    def _read_fix(self, fix: GnssFix) -> tuple | None:
-        """The fix's fields as numbers: (fix type, lat °, lon °, alt m, NED velocity m/s, h/v/speed accuracy).
-        None, counted invalid and rejected, when a field is malformed or there is no fix (below 2D)."""
-        try:
-            fix_type = int(fix.fix_type)
-            lat = float(fix.lat_deg)
-            lon = float(fix.lon_deg)
-            alt = float(fix.alt_m)
-            v = np.asarray(fix.vel_ned_m_s, dtype=float).reshape(3)
-            h_acc, v_acc, s_acc = float(fix.h_acc_m), float(fix.v_acc_m), float(fix.s_acc_m_s)
-        except (TypeError, ValueError, AttributeError):
-            self.gnss_counters.invalid += 1
-            self._reject("malformed fix", fix)
-            return None
-        if fix_type < GnssFixType.FIX_2D:
-            self.gnss_counters.invalid += 1
-            self._reject(f"no fix (type {fix_type})", fix)
-            return None
-        return fix_type, lat, lon, alt, v, h_acc, v_acc, s_acc
-
-    @staticmethod
-    def _usable_parts(fix_type: int, lat: float, lon: float, alt: float, v: np.ndarray,
-                      use_vertical_velocity: bool) -> tuple[bool, bool, bool, bool]:
-        """Which parts of a fix are fused: (position, height, horizontal velocity, vertical velocity). Height
-        needs a 3D fix and a position; the vertical velocity a horizontal one and `use_vertical_velocity`; each a
-        finite value in range (a receiver's 'no value' is NaN or a huge number)."""
-        use_pos = math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90.0 and abs(lon) <= 360.0
-        use_alt = use_pos and fix_type >= GnssFixType.FIX_3D and math.isfinite(alt) and abs(alt) < 1e5
-        vn, ve = float(v[0]), float(v[1])
-        use_vel = math.isfinite(vn) and math.isfinite(ve) and max(abs(vn), abs(ve)) < 600.0
-        use_vd = use_vel and use_vertical_velocity and math.isfinite(v[2]) and abs(v[2]) < 600.0
-        return use_pos, use_alt, use_vel, use_vd
 
     def _keep_fix_velocity(self, t_s: float, v: np.ndarray, use_vd: bool, sig_s: float) -> None:
         """Keep the fix's velocity (vertical NaN when not used) for a yaw reset, which sets the velocity to it, and
@@ -1184,34 +1104,6 @@ class Ins:
     def lever_arm_fit(self) -> LeverArmFitResult | None:
         """The lever-arm check over the latest velocity fixes (lever_arm_fit.py), None before it has enough."""
         return self._lever_arm_fit.result()
-
-    def _count_fuse_result(self, res: int, fix: GnssFix) -> None:
-        """Count and log what fuse_gnss did with the fix (its R_* bits) in gnss_counters; rejections flag
-        GNSS_REJECTED on the next estimate."""
-        c = self.gnss_counters
-        if res & core.R_TOO_OLD:
-            c.too_old += 1
-            self._reject("older than the state history", fix)
-        if res & core.R_NAV_INIT:
-            c.nav_initialised += 1
-            log.info("ins: velocity and position set from the GNSS fix at t=%.3f s", fix.t_s)
-        if res & core.R_OUTAGE_RESET:
-            c.nav_reset_after_outage += 1
-            log.info("ins: GNSS back after an outage: velocity and position reset to the fix at t=%.3f s", fix.t_s)
-        c.fused_velocity += bool(res & core.R_VEL_FUSED)
-        c.fused_position += bool(res & core.R_POS_FUSED)
-        if res & core.R_VEL_REJECTED:
-            c.rejected_velocity += 1
-            self._reject(f"velocity innovation χ² {self._x['vel_gate']['nis']:.1f}", fix)
-        if res & core.R_POS_REJECTED:
-            c.rejected_position += 1
-            self._reject(f"position innovation χ² {self._x['pos_gate']['nis']:.1f}", fix)
-        if res & core.R_VEL_RESET:
-            c.reset_velocity += 1
-            log.warning("ins: GNSS velocity rejected for %.1f s: velocity reset to the fix", self.params.reject_reset_s)
-        if res & core.R_POS_RESET:
-            c.reset_position += 1
-            log.warning("ins: GNSS position rejected for %.1f s: position reset to the fix", self.params.reject_reset_s)
 
     # ----------------------------------------------------------------------- heading checks (heading_monitor.py)
     def _earth_field_ned(self) -> np.ndarray | None:
@@ -1725,10 +1617,6 @@ class Ins:
             P[e, e] = sig_s ** 2
         x["vel_gate"]["rejected_since_s"] = math.nan
 
-    def _reject(self, why: str, fix) -> None:
-        self._pending_flags |= int(EstimateFlags.GNSS_REJECTED)
-        log.info("ins: GNSS fix rejected (%s)", why)
-
     # ----------------------------------------------------------------------- internals
     def _initialise(self, t_s, g, a, m, sample_flags: int) -> bool:
         """Start the filter from one sample (levelled on the accelerometer, heading from the magnetometer when it
@@ -1852,7 +1740,7 @@ class Ins:
         """What runs beside the filter starts again with it: no queued fixes, the published heading follows the
         filter, no fix velocity for a yaw reset; the GNSS yaw bank restarts, or after a short gap keeps its
         hypotheses and only moves its clock on."""
-        self._queue.clear()
+        self._intake.drop_queued()
         self._published.reset()
         self._published_since_init = False
         self._last_fix_velocity = None
@@ -1999,13 +1887,6 @@ def _one_record_array(record) -> np.recarray:
     arr = np.zeros(1, dtype=record.dtype).view(np.recarray)
     arr[0] = record
     return arr
-
-
-def _accuracy(reported: float, default: float, floor: float) -> float:
-    """A reported 1σ, the default when it is missing or not positive, never below the floor."""
-    if not (math.isfinite(reported) and reported > 0.0):
-        return default
-    return max(reported, floor)
 
 
 __all__ = ["Ins", "InsParams", "DEFAULT_INS_PARAMS", "GnssCounters"]

@@ -528,6 +528,16 @@ MUTATIONS: tuple[Mutation, ...] = (
              "ins without a magnetometer restarts the horizontal accelerometer bias at the first valid GNSS yaw it keeps",
              "estimator/ins.py", "            self._restart_horizontal_accel_bias()", "            pass",
              ("tests/test_gnss_yaw_alignment_without_magnetometer.py",)),
+    # ------------------------------------------------------------------ session 30 (split30): ins's parts alone
+    Mutation("gnss-intake-accuracy-floor", "a fix's reported 1σ is never below the filter's floor",
+             "estimator/gnss_intake.py", "    return max(reported, floor)", "    return reported",
+             ("tests/test_gnss_intake.py",)),
+    Mutation("confirmation-looser-after-alignment",
+             "a yaw set to the GNSS yaw is confirmed by the looser (accelerometer-bias) GNSS yaw figure",
+             "estimator/heading_confirmation.py",
+             "confirm_rad = self._bias_confirm_sigma_rad if self.gnss_yaw_aligned else self._heading_confirm_sigma_rad",
+             "confirm_rad = self._heading_confirm_sigma_rad",
+             ("tests/test_heading_confirmation.py", "tests/test_gnss_yaw_alignment.py")),
     # ------------------------------------------------------------------ session 29 (walk29)
     Mutation("mag-residuals-named", "calibrate mag names each magnitude residual by the blocks it is of",
              "cli/fit_summary.py", 'as_fitted.append(f"|m| − |F| {magnitude:.3f} µT")',
