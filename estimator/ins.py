@@ -40,9 +40,10 @@ from .gnss_intake import GnssCounters, GnssFixIntake
 from .heading_confirmation import HeadingConfirmation, gnss_yaw_floor
 from .heading_monitor import HeadingCheckRecord, HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
 from .heading_state_hold import HeadingStateHold
+from .ins_start import (first_history_row, fresh_state, initial_covariance, initial_true_attitude, learned_to_keep,
+                        start_mag_reference, start_sensor_errors)
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
                             float_field_slice, nav_state, uninitialised_estimate)
-from .initial_attitude import initial_attitude
 from .kernel_entry import argument_types, entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .lever_arm_fit import LeverArmFit, LeverArmFitResult, rate_cross_ned
@@ -1628,113 +1629,24 @@ class Ins:
         an = float(np.linalg.norm(a))
         if an < 2.0 or an > 30.0:
             return False
-        use_mag = bool(valid & IN_MAG_OK) and self.params.mag_enabled
-        q0 = self._initial_true_attitude(a, m if use_mag else None)
-        keep_bg, keep_ba, keep_sg, keep_mg, keep_mag = self._learned_to_keep()
-        self._fresh_state(t_s, q0, g, a, m if valid & IN_MAG_OK else np.nan)
-        self._start_biases(keep_bg, keep_ba, keep_sg, keep_mg)
-        self._first_history_row(t_s, q0, g, keep_bg)
-        self._start_mag_reference(keep_mag)
-        self._initial_covariance(use_mag)
+        p = self.params
+        use_mag = bool(valid & IN_MAG_OK) and p.mag_enabled
+        q0 = initial_true_attitude(a, m if use_mag else None, self._declination)
+        kept = learned_to_keep(self._x, self._reinit_pending)
+        fresh_state(self._x_arr, t_s, q0, g, a, m if valid & IN_MAG_OK else np.nan)
+        start_sensor_errors(self._x, kept)
+        # the biases are also the last confirmed ones (what a yaw reset goes back to) and the start-up ones
+        keep_bg = kept.gyro_bias_rad_s
+        self._confirmation.start_biases(keep_bg, kept.accel_bias_m_s2)
+        first_history_row(self._x, self._hist, t_s, q0, g, keep_bg)
+        start_mag_reference(self._x, kept, p.mag_min_undisturbed_s)
+        initial_covariance(self._P, p, use_mag)
+        self._restart_calibration_error_states()
         self._restart_companions(t_s)
         self._initialised = True
         core.fill_outputs(self._x, self._P, self._par, g[0] - keep_bg[0], g[1] - keep_bg[1], g[2] - keep_bg[2],
                           self._out)
         return True
-
-    def _initial_true_attitude(self, a, m) -> np.ndarray:
-        """The levelled attitude (heading from m, or 0 without it: initial_attitude.py) turned from magnetic to
-        the filter's frame, true north: q_true = q_z(declination) ⊗ q_mag."""
-        q_mag = initial_attitude(a, m)
-        hd = 0.5 * self._declination
-        w, x_, y, z = q_mag
-        c, s = math.cos(hd), math.sin(hd)
-        return np.array([c * w - s * z, c * x_ - s * y, c * y + s * x_, c * z + s * w])
-
-    def _learned_to_keep(self) -> tuple:
-        """What a restart after a gap keeps (the sensor errors learned: gyro bias, accelerometer bias, gyro scale
-        and misalignment; the magnetometer's reference field) as copies, before the state is cleared; zeros and
-        None at the first start."""
-        x = self._x
-        if not self._reinit_pending:
-            return np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(6), None
-        return (x["gyro_bias_rad_s"].copy(), x["accel_bias_m_s2"].copy(), x["gyro_scale"].copy(),
-                x["gyro_misalignment_rad"].copy(), self._mag_state().copy())
-
-    def _fresh_state(self, t_s, q0, g, a, mag_ut) -> None:
-        """Clear the state (but the gyro rotation check's window: the next check's) and set the attitude and the
-        last sample; no fix yet, no gate rejections."""
-        x = self._x
-        rotation = ("gyro_rotation_rad", "gyro_rotation_s", "gyro_rotation_last_t_s")   # the next check's
-        keep_rotation = [x[k].copy() for k in rotation]
-        self._x_arr[:] = 0
-        for k, v in zip(rotation, keep_rotation):
-            x[k] = v
-        x["q"] = q0
-        x["t_last_s"] = t_s
-        x["gyro_last_rad_s"] = g
-        x["acc_last_m_s2"] = a
-        x["mag_last_ut"] = mag_ut
-        x["acc_ned_lp_m_s2"] = np.asarray(quat_to_dcm(q0), dtype=float) @ a
-        x["gnss_fused_t_s"] = -math.inf
-        x["last_fix_t_s"] = -math.inf
-        x["vel_gate"]["rejected_since_s"] = math.nan
-        x["pos_gate"]["rejected_since_s"] = math.nan
-        x["vel_gate"]["nis"] = math.nan
-        x["pos_gate"]["nis"] = math.nan
-
-    def _start_biases(self, gyro_bias, accel_bias, gyro_scale, gyro_misalignment) -> None:
-        """The sensor errors the filter starts from; the biases are also the last confirmed ones (what a yaw reset
-        goes back to) and the start-up ones."""
-        x = self._x
-        x["gyro_bias_rad_s"] = gyro_bias
-        self._confirmation.start_biases(gyro_bias, accel_bias)
-        x["bank_gyro_bias_rad_s"] = gyro_bias       # the GNSS yaw bank's, until its own yaw confirms one
-        x["accel_bias_m_s2"] = accel_bias
-        x["gyro_scale"] = gyro_scale
-        x["gyro_misalignment_rad"] = gyro_misalignment
-
-    def _first_history_row(self, t_s, q0, g, gyro_bias) -> None:
-        """The history's first row: a fix valid at this very sample can be fused."""
-        x = self._x
-        x["hist_newest"] = 0
-        x["hist_count"] = 1
-        self._hist[0] = 0
-        row = self._hist[0]
-        row["t_s"] = t_s
-        row["q"] = q0
-        row["rate_rad_s"] = np.asarray(g, dtype=float) - gyro_bias
-
-    def _start_mag_reference(self, kept) -> None:
-        """The magnetometer check's reference field: kept over a restart (`kept`, the old check state), else
-        learned anew; counted undisturbed from the start (the Wahba heading is already the best)."""
-        ms = self._mag_state()
-        if kept is not None:
-            ms["ref_norm_ut"] = ms["cand_norm_ut"] = kept["ref_norm_ut"]
-            ms["ref_dip_rad"] = ms["cand_dip_rad"] = kept["ref_dip_rad"]
-        ms["undisturbed_t_s"] = self.params.mag_min_undisturbed_s
-
-    def _initial_covariance(self, use_mag: bool) -> None:
-        """The start-up uncertainty, uncorrelated: tilt from levelling, yaw from the magnetometer and its
-        calibration (π, unknown, without it), velocity and position unknown until the first fix, the sensor
-        errors their prior σ."""
-        p = self.params
-        P = self._P
-        P[:] = 0.0
-        for i in (core.E_TILT_N, core.E_TILT_E):
-            P[i, i] = p.init_sigma_tilt_rad ** 2
-        P[core.E_YAW, core.E_YAW] = (max(p.init_sigma_yaw_rad, p.calibration_sigma_rad) if use_mag else math.pi) ** 2
-        for i in range(3):
-            P[core.E_V + i, core.E_V + i] = core.NAV_UNKNOWN_VAR_V
-            P[core.E_P + i, core.E_P + i] = core.NAV_UNKNOWN_VAR_P
-            P[core.E_BG + i, core.E_BG + i] = p.init_gyro_bias_sigma_rad_s ** 2
-            P[core.E_BA + i, core.E_BA + i] = p.init_accel_bias_sigma_m_s2 ** 2
-            P[core.E_SG + i, core.E_SG + i] = p.init_gyro_scale_sigma ** 2
-        for i in range(6):
-            P[core.E_MG + i, core.E_MG + i] = p.init_gyro_misalignment_sigma_rad ** 2
-        for i in range(core.N_ACC_Z_LEAN):   # the accelerometer z axis's lean m_zx, m_zy: 0 leaves them at zero
-            P[core.E_AZ_LEAN + i, core.E_AZ_LEAN + i] = p.accel_axes_tilt_sigma_rad ** 2
-        self._restart_calibration_error_states()
 
     def _restart_companions(self, t_s) -> None:
         """What runs beside the filter starts again with it: no queued fixes, the published heading follows the

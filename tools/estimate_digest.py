@@ -3,12 +3,15 @@ filter (issue #29, "a filter you can read") leaves its output bit-identical.
 
     .venv/bin/python tools/estimate_digest.py                  # one digest per run and one over all of them
     .venv/bin/python tools/estimate_digest.py --seconds 300    # longer runs
+    .venv/bin/python tools/estimate_digest.py --gap-s 3        # instead: the runs with a gap in the samples
 
 Run it on two checkouts (the same command in each worktree) and compare the lines. Runs: the boat, the car and
 the plane of `bench/vehicle_accuracy.simulate_vehicle` (seed 0, the default site, each fix offered where it
 arrives), the magnetometer uncalibrated and calibrated, the antenna at the vehicle's arm (`lever_arm=True`) and
 the filter told that arm; and the same three vehicles uncalibrated told (0, 0, 0): a wrong arm, for the lever-arm
-check. Each run goes through both entry points:
+check. With `--gap-s`: instead, the uncalibrated runs told the right arm with no samples for that long from 40 % of
+the run (the fixes still offered: those ahead of the samples wait), so that the filter restarts after the gap
+keeping what it had learned (InsParams.reinit_dt_s). Each run goes through both entry points:
 - `update`: every field of every estimate (AttitudeEstimate with its NavState and HeadingIntegrity), bit by bit;
 - `step`: the view's t_s, valid and flags at every sample, and its snapshot at every 20th (the daemon builds an
   estimate when a publisher asks; a fix in between must not change what the view shows);
@@ -83,7 +86,7 @@ def _after_fix(h, est, res) -> None:
     _feed(h, est.lever_arm_fit())
 
 
-def digest_run(run, told_arm_m, path: str) -> str:
+def digest_run(run, told_arm_m, path: str, gap_s: float = 0.0) -> str:
     """The md5 of one run through `path` ("update" or "step")."""
     from ahrsd.core.gnss import GnssFix
     from ahrsd.core.sample import SampleFlags, make_sample
@@ -94,7 +97,9 @@ def digest_run(run, told_arm_m, path: str) -> str:
               mag_calibration_sigma_rad=run.mag_calibration_sigma_rad)
     h = hashlib.md5()
     t, g, a, m = run.t_s, run.gyro_rad_s, run.accel_m_s2, run.mag_ut
-    samples = (make_sample(t[k], g[k], a[k], m[k], flags=SampleFlags.NEW_DATA) for k in range(len(t)))
+    gap_from_s = t[0] + 0.4 * (t[-1] - t[0])
+    kept = [k for k in range(len(t)) if not gap_from_s <= t[k] < gap_from_s + gap_s]
+    samples = (make_sample(t[k], g[k], a[k], m[k], flags=SampleFlags.NEW_DATA) for k in kept)
     k = 0
     for item in in_arrival_order(samples, run.fixes):
         if isinstance(item, GnssFix):
@@ -117,19 +122,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=120.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--vehicles", nargs="+", default=list(VEHICLES))
+    ap.add_argument("--gap-s", type=float, default=0.0, help="instead: the runs with a gap this long (s)")
     args = ap.parse_args(argv)
     logging.disable(logging.WARNING)
     from vehicle_accuracy import simulate_vehicle
 
     total = hashlib.md5()
     for vehicle in args.vehicles:
-        for mag, told in (("uncalibrated", "right"), ("calibrated", "right"), ("uncalibrated", "zero")):
+        cases = (("uncalibrated", "right"),) if args.gap_s > 0.0 else (
+            ("uncalibrated", "right"), ("calibrated", "right"), ("uncalibrated", "zero"))
+        for mag, told in cases:
             run = simulate_vehicle(vehicle, args.seconds, args.seed, None, lever_arm=True, mag=mag)
             arm = run.lever_arm_m if told == "right" else (0.0, 0.0, 0.0)
             for path in ("update", "step"):
-                d = digest_run(run, arm, path)
+                d = digest_run(run, arm, path, args.gap_s)
                 total.update(d.encode())
-                print(f"{vehicle:5s} {mag:12s} told {told:5s} {path:6s} {d}", flush=True)
+                gap = f" gap {args.gap_s:g} s" if args.gap_s > 0.0 else ""
+                print(f"{vehicle:5s} {mag:12s} told {told:5s}{gap} {path:6s} {d}", flush=True)
     print(f"all {total.hexdigest()}")
     return 0
 
