@@ -77,6 +77,7 @@ class IronLearner:
     # them several times a check, and after the learning (or without it) they do not change for hours
     _inverse: tuple = field(default=(None, None), init=False, repr=False, compare=False)
     _level_variance: tuple = field(default=(None, 0.0), init=False, repr=False, compare=False)
+    last_gain: tuple = field(default=None, init=False, repr=False, compare=False)   # update's (K, H, j)
 
     def __post_init__(self):
         if not np.any(self.cov):
@@ -168,6 +169,7 @@ class IronLearner:
         s_inv = np.linalg.inv(s)
         k = ph @ s_inv
         self.state = self.state + k @ nu
+        self.last_gain = (k, h, j)
         ikh = np.eye(N_IRON) - k @ h
         self.cov = ikh @ self.cov @ ikh.T + k @ r @ k.T
         self.cov = 0.5 * (self.cov + self.cov.T)

@@ -46,6 +46,7 @@ from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate,
                             float_field_slice, nav_state, uninitialised_estimate)
 from .kernel_entry import argument_types, entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
+from .learned_iron import WindowYawShare
 from .lever_arm_fit import LeverArmFit, LeverArmFitResult, rate_cross_ned
 from .mag_heading import RELEARN_GATE_OPEN_S
 from .mag_frame_tilt import N_MAG_FRAME_TILT, accel_bias_share
@@ -514,6 +515,7 @@ class Ins:
         self._gsf_fuse_velocity = entry_point(gsf_fuse_velocity_of, argument_types(gsf_fuse_velocity_of, fuse_args))
         self._load_python_called_kernels()
         self._iron = IronLearner(self.params.iron_prior_sigma_ut, self.params.iron_soft_prior)
+        self._iron_yaw_share = WindowYawShare()    # the learning window's yaw error in it (learned_iron.py)
         self._iron_last_t = None
         self._iron_restored = False
         self._field_reference_from_iron = False   # the kernel's field reference is the learned iron's (WMM)
@@ -695,6 +697,7 @@ class Ins:
         ValueError when not finite or a covariance is not positive definite."""
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
         self._iron.set(offset_ut, cov_ut2, soft_iron, soft_cov)
+        self._iron_yaw_share.reset()
         self._iron_restored = True
         self._apply_learned_iron()
 
@@ -702,6 +705,7 @@ class Ins:
         """Forget the learned iron (a new calibration was accepted, or the operator reset it)."""
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
         self._iron.reset()
+        self._iron_yaw_share.reset()
         self._iron_restored = False
         self._apply_learned_iron()
 
@@ -716,6 +720,7 @@ class Ins:
         p = self.params
         self._iron.soft_prior_sigma = p.iron_soft_prior     # a learned iron's takes effect at its reset
         if self._iron.updates == 0 and not self._iron_restored:
+            self._iron_yaw_share.reset()
             self._iron.reset()     # nothing learned yet: it starts from the new calibration's prior, as when built
         self._monitor = HeadingMonitor(p.calibration_sigma_rad, reentry_s=p.mag_reentry_s,
                                        max_resets=p.yaw_reset_max, reset_spacing_s=p.yaw_reset_spacing_s,
@@ -863,7 +868,7 @@ class Ins:
         field = self._field_ned
         yaw = _IRON_HARMONIC_YAWS_RAD
         prior = prior_from_heading_rows(self._iron.level_heading_rows(field, yaw), yaw - self._declination,
-                                        self._iron.cov)
+                                        self._iron.cov + self._iron_yaw_share.cov())
         floor_sigma = math.sqrt(max(0.0, 1.0 - p.iron_harmonic_residual_share) * self._iron_floor_var())
         return prior + np.diag(prior_variances_rad2(floor_sigma, p.mag_harmonic_offset_share))
 
@@ -1459,6 +1464,7 @@ class Ins:
         att = slice(core.E_TH, core.E_TH + 3)
         self._iron.update(self._x["mag_last_ut"], c_bn, field, self._P[att, att],
                           p.iron_unmodelled_ut, max(1.0, p.iron_tau_s / dt))
+        self._iron_yaw_share.step(*self._iron.last_gain, math.sqrt(max(self._P[core.E_YAW, core.E_YAW], 0.0)))
         self._apply_learned_iron()
 
     def _publish_heading_checks(self, t_s: float, yaw_rad: float, gsf_yaw: float, gsf_var: float,

@@ -115,6 +115,15 @@ MUTATIONS: tuple[Mutation, ...] = (
              "estimator/ins.py", "if (self._iron.updates > 0 or self._iron_restored) and field is not None:",
              "if False:",
              ("tests/test_learned_iron_field_check.py",)),
+    Mutation("learned-iron-window-yaw", "a learned iron's harmonic prior carries its learning window's yaw "
+             "error (the share learned_iron.WindowYawShare propagates), not only the learner's averaged covariance",
+             "estimator/ins.py", "self._iron.cov + self._iron_yaw_share.cov())", "self._iron.cov)",
+             ("tests/test_learned_iron_window_yaw.py",)),
+    Mutation("learned-iron-window-yaw-step", "the window's yaw share grows with each learning step at the filter's "
+             "yaw σ",
+             "estimator/learned_iron.py", "self.share = kept + k @ np.asarray(attitude_jacobian, dtype=float)[:, _DOWN] * sigma",
+             "self.share = kept",
+             ("tests/test_learned_iron_window_yaw.py",)),
     Mutation("monitor-reject-checks", "the magnetometer is rejected after reject_checks failed checks",
              "estimator/heading_monitor.py", "(self.failures >= self.reject_checks or step is not None)",
              "(self.failures > self.reject_checks or step is not None)",
