@@ -19,14 +19,14 @@ from __future__ import annotations
 import logging
 import math
 from collections import deque
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.special import chdtri   # χ² inverse survival function (scipy.stats costs 1.4 s to import)
 
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingIntegrity, HeadingState
 from ahrsd.core.gravity import EARTH_RATE_RAD_S
-from ahrsd.core.gnss import DEFAULT_H_ACC_M, DEFAULT_S_ACC_M_S, DEFAULT_V_ACC_M, GnssFix, GnssFixType
+from ahrsd.core.gnss import GnssFix
 from ahrsd.core.sample import ImuSample
 
 from . import ins_core as core
@@ -36,11 +36,14 @@ from .accel_axes_tilt import ACCEL_MISALIGNMENT_SIGMA_RAD, accel_axes_tilt_varia
 from .base import DEFAULT_UNMODELLED_IRON_UT, LEARNED_WITH_GNSS
 from .calibration_heading import calibration_heading_variance_rad2, calibration_states_error
 from .gsf_yaw import GsfParams, gsf_fuse_velocity_of, gsf_output_of, gsf_reset, new_gsf_state
+from .gnss_intake import GnssCounters, GnssFixIntake
+from .heading_confirmation import HeadingConfirmation, gnss_yaw_floor
 from .heading_monitor import HeadingCheckRecord, HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
 from .heading_state_hold import HeadingStateHold
+from .ins_start import (first_history_row, fresh_state, initial_covariance, initial_true_attitude, learned_to_keep,
+                        start_mag_reference, start_sensor_errors)
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
                             float_field_slice, nav_state, uninitialised_estimate)
-from .initial_attitude import initial_attitude
 from .kernel_entry import argument_types, entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .learned_iron import WindowYawShare
@@ -416,29 +419,6 @@ class HeadingReport:
     first_step_deg: float = math.nan     # ... and the step of the magnetometer heading it saw
 
 
-@dataclass
-class GnssCounters:
-    """What became of the fixes offered to `update_gnss` (each fix counts once in `offered`)."""
-
-    offered: int = 0
-    fused_velocity: int = 0
-    fused_position: int = 0
-    rejected_velocity: int = 0      # χ² gate (a spike)
-    rejected_position: int = 0      # χ² gate (a jump)
-    reset_velocity: int = 0         # after reject_reset_s of rejections: re-acquired
-    reset_position: int = 0
-    nav_initialised: int = 0        # first fix, or first after nav_drop_s
-    nav_reset_after_outage: int = 0  # first fix after outage_reset_s: velocity and position set from it
-    invalid: int = 0                # no fix, non-finite position and velocity, bad accuracies
-    time_backwards: int = 0         # not newer than the previous fix
-    too_old: int = 0                # older than max_delay_s / the history
-    queued: int = 0                 # ahead of the IMU: held until the samples reach it
-    before_init: int = 0            # offered before the attitude was initialised
-
-    def as_dict(self) -> dict:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
-
-
 _TWO_PI = 2.0 * math.pi
 _MAX_QUEUED = 16
 HEADING_CHECKS_KEPT = 128   # the latest heading checks a reader can look at (`Ins.heading_checks`)
@@ -510,12 +490,17 @@ class Ins:
         self._initialised = False
         self._reinit_pending = False
         self._pending_flags = 0
-        self._queue: list[GnssFix] = []
-        self._last_fix_t = -math.inf
+        # the fixes offered (update_gnss): taken, queued until the samples reach them, or refused, and counted
+        p = self.params
+        self._intake = GnssFixIntake(max_queued=_MAX_QUEUED, use_vertical_velocity=p.use_vertical_velocity,
+                                     min_h_acc_m=p.min_h_acc_m, min_v_acc_m=p.min_v_acc_m,
+                                     min_s_acc_m_s=p.min_s_acc_m_s, reject_reset_s=p.reject_reset_s,
+                                     on_reject=self._flag_gnss_rejected)
+        self._fix_queue = self._intake.queue     # the intake's queue: is a fix waiting? (read on every sample)
         self._ever_aided = False     # a fix has aided the filter since it started (calibration_heading.py until then)
         # what the accelerometer's axes add to an aided heading's published variance (accel_axes_heading.py)
         self._accel_axes_var_rad2 = accel_axes_heading_variance_rad2(self.params.accel_axes_heading_sigma_rad)
-        self.gnss_counters = GnssCounters()
+        self.gnss_counters: GnssCounters = self._intake.counters
         # can the told antenna arm explain the velocity innovations? (and adopt the fitted one, if asked)
         self._lever_arm_fit = LeverArmFit(adopt=self.params.lever_arm_adopt)
         self._gsf_par_arr = _one_record_array(GsfParams(lever_arm_m=tuple(self.params.lever_arm_m)).to_record())
@@ -583,6 +568,12 @@ class Ins:
         p = self.params
         self._monitor = HeadingMonitor(p.calibration_sigma_rad, reentry_s=p.mag_reentry_s,
                                        max_resets=p.yaw_reset_max, reset_spacing_s=p.yaw_reset_spacing_s)
+        # whether a GNSS yaw has confirmed the heading, the alignment to it, the published σ's floor until then
+        self._confirmation = HeadingConfirmation(
+            align_to_gnss_yaw=p.yaw_align_to_gnss_yaw, mag_enabled=p.mag_enabled,
+            checks_run=self._heading_checks_run, heading_confirm_sigma_rad=p.heading_confirm_gsf_sigma_rad,
+            bias_confirm_sigma_rad=p.accel_bias_gsf_sigma_rad, gate_sigma=self._monitor.gate_sigma,
+            calibration_sigma_rad=p.calibration_sigma_rad, trusted_sigma_rad=self._monitor.trusted_sigma_rad)
         self._heading_state = HeadingState.UNKNOWN
         self._state_hold = HeadingStateHold(p.heading_state_hold_s, p.heading_known_sigma_rad)
         self.heading_checks: deque[HeadingCheckRecord] = deque(maxlen=HEADING_CHECKS_KEPT)
@@ -596,16 +587,9 @@ class Ins:
         # an iron was learned or restored before the magnetometer's latest rejection: the learned iron may be what
         # the rejection found wrong, so a rejected magnetometer is not fused (`_rejected_magnetometer_fused`)
         self._iron_before_rejection = False
-        self._heading_confirmed = False    # by a GNSS yaw within heading_confirm_gsf_sigma_rad
-        self._bias_heading_confirmed = False   # by a GNSS yaw within accel_bias_gsf_sigma_rad
         self._mag_rotation = MagRotationBias(gyro_noise_rad_s_rthz=p.gyro_noise_rad_s_sqrt_hz)
         self._mag_rotation_on = p.mag_rotation_gyro_bias and p.heading_monitor and p.mag_enabled
         self._x["gyro_rotation_last_t_s"] = math.nan   # the kernel sums the gyro's rotation (ins_core.py)
-        self._gnss_yaw_aligned = False     # the yaw was set to the first valid GNSS yaw (yaw_align_to_gnss_yaw)
-        self._gnss_yaw_valid_seen = False  # a GNSS yaw was valid (without a magnetometer, the alignment's chance)
-        self._sigma_confirmed = False      # the published σ's floor is lifted (`_update_sigma_confirmation`)
-        # the published yaw σ's floor until a GNSS yaw confirms the heading (aided only; updated at every check)
-        self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(0.0, math.nan, math.nan)
         self.yaw_resets = 0
         self.gnss_yaw_alignments = 0
         self.heading_interventions = 0    # yaw resets and raised yaw variances (not Kalman updates)
@@ -649,8 +633,7 @@ class Ins:
         self._initialised = False
         self._reinit_pending = False
         self._pending_flags = 0
-        self._queue.clear()
-        self._last_fix_t = -math.inf
+        self._intake.reset()
         self._ever_aided = False
         self._published.reset()
         self._lever_arm_fit.reset()
@@ -743,6 +726,7 @@ class Ins:
         self._monitor = HeadingMonitor(p.calibration_sigma_rad, reentry_s=p.mag_reentry_s,
                                        max_resets=p.yaw_reset_max, reset_spacing_s=p.yaw_reset_spacing_s,
                                        resets=self._monitor.resets, last_reset_t_s=self._monitor.last_reset_t_s)
+        self._confirmation.set_calibration(p.calibration_sigma_rad, self._monitor.trusted_sigma_rad)
         self._mag_var = p.calibration_sigma_rad ** 2
         self._mag_trust_var = p.calibration_sigma_rad ** 2
         self._par["mag_use"] = 1.0
@@ -754,7 +738,8 @@ class Ins:
         self._set_accel_bias_learning()
         self._set_field_circle()
         if self._heading_checks_run:    # else the floor is none, or the one without magnetometer (no calibration's)
-            self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(*self._yaw_and_gnss_yaw_now())
+            c = self._confirmation
+            c.unconfirmed_sigma_rad = c.unconfirmed_yaw_sigma(*self._yaw_and_gnss_yaw_now())
 
     @property
     def _mag_harmonics_apply(self) -> bool:
@@ -889,9 +874,9 @@ class Ins:
         return prior + np.diag(prior_variances_rad2(floor_sigma, p.mag_harmonic_offset_share))
 
     def _yaw_and_gnss_yaw_now(self) -> tuple[float, float, float]:
-        """What the unconfirmed-yaw floor is computed from (`_unconfirmed_yaw_sigma`), now: the filter's yaw and
-        the GNSS yaw bank's yaw and variance; before the filter has started, no yaw yet (its floor at
-        construction)."""
+        """What the unconfirmed-yaw floor is computed from (HeadingConfirmation.unconfirmed_yaw_sigma), now: the
+        filter's yaw and the GNSS yaw bank's yaw and variance; before the filter has started, no yaw yet (its floor
+        at construction)."""
         if not self._initialised:
             return 0.0, math.nan, math.nan
         gsf_yaw, gsf_var, _ = self._gnss_yaw()
@@ -998,7 +983,7 @@ class Ins:
             f = self._step(self._x_arr, self._P, self._hist, self._par_arr, sample.t_s,
                            gx, gy, gz, ax, ay, az, mx, my, mz, sflags, self._out_arr, self._gsf_arr, self._gsf_par_arr)
             if not f & NEEDS_INIT:
-                if self._queue:
+                if self._fix_queue:
                     self._fuse_queued()       # before the estimate of this sample, as every fix before it
                 if self._field_circle_on and not self._ever_aided and sample.t_s >= self._field_circle.due_t_s:
                     self._check_field_circle(sample.t_s, m, f)
@@ -1017,57 +1002,28 @@ class Ins:
         (no fix, NaN fields, time not increasing, older than max_delay_s, χ² outliers) are counted in
         `gnss_counters`, logged, and flag GNSS_REJECTED on the next estimate; never raises."""
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
-        c = self.gnss_counters
-        c.offered += 1
-        try:
-            t = float(fix.t_s)
-        except (TypeError, ValueError):
-            t = math.nan
-        if not math.isfinite(t):
-            c.invalid += 1
-            self._reject("non-finite time", fix)
+        if not self._intake.offer(fix, self._initialised, self._x["t_last_s"]):
             return 0
-        if t <= self._last_fix_t:
-            c.time_backwards += 1
-            self._reject(f"time {t:.3f} s not after the previous fix's {self._last_fix_t:.3f} s", fix)
-            return 0
-        if not self._initialised:
-            c.before_init += 1
-            return 0
-        if t > self._x["t_last_s"]:
-            if len(self._queue) >= _MAX_QUEUED:
-                c.invalid += 1
-                self._reject("too far ahead of the IMU samples", fix)
-                return 0
-            c.queued += 1
-            self._last_fix_t = t
-            self._queue.append(fix)
-            return 0
-        self._last_fix_t = t
         return self._fuse(fix)
 
     def _fuse_queued(self) -> None:
         now = self._x["t_last_s"]
-        while self._queue and self._queue[0].t_s <= now:
-            self._fuse(self._queue.pop(0))
+        while (fix := self._intake.pop_due(now)) is not None:
+            self._fuse(fix)
+
+    def _flag_gnss_rejected(self) -> None:
+        """A fix was refused or rejected (GnssFixIntake): the next estimate says so."""
+        self._pending_flags |= int(EstimateFlags.GNSS_REJECTED)
 
     def _fuse(self, fix: GnssFix) -> int:
         """Fuse one fix whose time the IMU samples have reached: its usable parts (position, height, velocity,
         vertical velocity), each weighted by the fix's own 1σ; then count what the kernel did and run the heading
         checks that a fused or rejected velocity allows. Returns core.R_* bits (0 when nothing was usable)."""
         p = self.params
-        read = self._read_fix(fix)
-        if read is None:
+        parts = self._intake.read(fix)
+        if parts is None:
             return 0
-        fix_type, lat, lon, alt, v, h_acc, v_acc, s_acc = read
-        use_pos, use_alt, use_vel, use_vd = self._usable_parts(fix_type, lat, lon, alt, v, p.use_vertical_velocity)
-        if not (use_pos or use_vel):
-            self.gnss_counters.invalid += 1
-            self._reject("neither position nor velocity is finite", fix)
-            return 0
-        sig_h = _accuracy(h_acc, DEFAULT_H_ACC_M, p.min_h_acc_m)
-        sig_v = _accuracy(v_acc, DEFAULT_V_ACC_M, p.min_v_acc_m)
-        sig_s = _accuracy(s_acc, DEFAULT_S_ACC_M_S, p.min_s_acc_m_s)
+        _, lat, lon, alt, v, sig_h, sig_v, sig_s, use_pos, use_alt, use_vel, use_vd = parts
         if use_vel:
             self._keep_fix_velocity(float(fix.t_s), v, use_vd, sig_s)
             self._add_to_lever_arm_fit(float(fix.t_s), v, use_vd, sig_s)
@@ -1091,45 +1047,12 @@ class Ins:
         # correct the row at the fix's time as well, so they leave nothing to add
         step_rows = not res & (core.R_NAV_INIT | core.R_OUTAGE_RESET)
         self._fix_velocity_step = (float(fix.t_s), velocity_step) if step_rows else None
-        self._count_fuse_result(res, fix)
+        self._intake.count(res, fix, self._x["vel_gate"]["nis"], self._x["pos_gate"]["nis"])
         if p.heading_monitor and p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
             self._check_heading(float(fix.t_s))
         elif not p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
             self._floor_yaw_sigma_without_magnetometer(float(fix.t_s))
         return res
-
-    def _read_fix(self, fix: GnssFix) -> tuple | None:
-        """The fix's fields as numbers: (fix type, lat °, lon °, alt m, NED velocity m/s, h/v/speed accuracy).
-        None, counted invalid and rejected, when a field is malformed or there is no fix (below 2D)."""
-        try:
-            fix_type = int(fix.fix_type)
-            lat = float(fix.lat_deg)
-            lon = float(fix.lon_deg)
-            alt = float(fix.alt_m)
-            v = np.asarray(fix.vel_ned_m_s, dtype=float).reshape(3)
-            h_acc, v_acc, s_acc = float(fix.h_acc_m), float(fix.v_acc_m), float(fix.s_acc_m_s)
-        except (TypeError, ValueError, AttributeError):
-            self.gnss_counters.invalid += 1
-            self._reject("malformed fix", fix)
-            return None
-        if fix_type < GnssFixType.FIX_2D:
-            self.gnss_counters.invalid += 1
-            self._reject(f"no fix (type {fix_type})", fix)
-            return None
-        return fix_type, lat, lon, alt, v, h_acc, v_acc, s_acc
-
-    @staticmethod
-    def _usable_parts(fix_type: int, lat: float, lon: float, alt: float, v: np.ndarray,
-                      use_vertical_velocity: bool) -> tuple[bool, bool, bool, bool]:
-        """Which parts of a fix are fused: (position, height, horizontal velocity, vertical velocity). Height
-        needs a 3D fix and a position; the vertical velocity a horizontal one and `use_vertical_velocity`; each a
-        finite value in range (a receiver's 'no value' is NaN or a huge number)."""
-        use_pos = math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90.0 and abs(lon) <= 360.0
-        use_alt = use_pos and fix_type >= GnssFixType.FIX_3D and math.isfinite(alt) and abs(alt) < 1e5
-        vn, ve = float(v[0]), float(v[1])
-        use_vel = math.isfinite(vn) and math.isfinite(ve) and max(abs(vn), abs(ve)) < 600.0
-        use_vd = use_vel and use_vertical_velocity and math.isfinite(v[2]) and abs(v[2]) < 600.0
-        return use_pos, use_alt, use_vel, use_vd
 
     def _keep_fix_velocity(self, t_s: float, v: np.ndarray, use_vd: bool, sig_s: float) -> None:
         """Keep the fix's velocity (vertical NaN when not used) for a yaw reset, which sets the velocity to it, and
@@ -1180,11 +1103,7 @@ class Ins:
         arm = self._arm_in_use()
         self._use_arm(arm)
         gsf_reset(self._gsf, self._gsf_par, float(self._x["t_last_s"]), np.full(4, np.nan))
-        self._gnss_yaw_aligned = False
-        self._gnss_yaw_valid_seen = False
-        self._heading_confirmed = False
-        self._bias_heading_confirmed = False
-        self._sigma_confirmed = False
+        self._confirmation.arm_adopted()
         log.warning("ins: the GNSS velocities fit an antenna at %s m (body FRD), told %s m: fusing at the fitted arm "
                     "(adoption %d); set lever_arm_m", ",".join(f"{v:.2f}" for v in arm),
                     ",".join(f"{v:g}" for v in self.params.lever_arm_m), self._lever_arm_fit.adoptions)
@@ -1192,34 +1111,6 @@ class Ins:
     def lever_arm_fit(self) -> LeverArmFitResult | None:
         """The lever-arm check over the latest velocity fixes (lever_arm_fit.py), None before it has enough."""
         return self._lever_arm_fit.result()
-
-    def _count_fuse_result(self, res: int, fix: GnssFix) -> None:
-        """Count and log what fuse_gnss did with the fix (its R_* bits) in gnss_counters; rejections flag
-        GNSS_REJECTED on the next estimate."""
-        c = self.gnss_counters
-        if res & core.R_TOO_OLD:
-            c.too_old += 1
-            self._reject("older than the state history", fix)
-        if res & core.R_NAV_INIT:
-            c.nav_initialised += 1
-            log.info("ins: velocity and position set from the GNSS fix at t=%.3f s", fix.t_s)
-        if res & core.R_OUTAGE_RESET:
-            c.nav_reset_after_outage += 1
-            log.info("ins: GNSS back after an outage: velocity and position reset to the fix at t=%.3f s", fix.t_s)
-        c.fused_velocity += bool(res & core.R_VEL_FUSED)
-        c.fused_position += bool(res & core.R_POS_FUSED)
-        if res & core.R_VEL_REJECTED:
-            c.rejected_velocity += 1
-            self._reject(f"velocity innovation χ² {self._x['vel_gate']['nis']:.1f}", fix)
-        if res & core.R_POS_REJECTED:
-            c.rejected_position += 1
-            self._reject(f"position innovation χ² {self._x['pos_gate']['nis']:.1f}", fix)
-        if res & core.R_VEL_RESET:
-            c.reset_velocity += 1
-            log.warning("ins: GNSS velocity rejected for %.1f s: velocity reset to the fix", self.params.reject_reset_s)
-        if res & core.R_POS_RESET:
-            c.reset_position += 1
-            log.warning("ins: GNSS position rejected for %.1f s: position reset to the fix", self.params.reject_reset_s)
 
     # ----------------------------------------------------------------------- heading checks (heading_monitor.py)
     def _earth_field_ned(self) -> np.ndarray | None:
@@ -1414,28 +1305,24 @@ class Ins:
         if gsf_valid and wrap_pi(gsf_yaw - yaw) ** 2 <= self._monitor.gate_sigma ** 2 * (yaw_var + gsf_var) \
                 and self._monitor.lowpassed_velocity_nis < self._monitor.reset_velocity_nis:
             # the GNSS yaw confirms the filter's heading: its gyro bias was learned with a right heading
-            self._confirmed_gyro_bias = self._x["gyro_bias_rad_s"].copy()
-            self._confirmed_accel_bias = self._x["accel_bias_m_s2"].copy()
+            self._confirmation.keep_confirmed_biases(self._x["gyro_bias_rad_s"], self._x["accel_bias_m_s2"])
             if gsf_var < p.accel_bias_gsf_sigma_rad ** 2:
                 # and the bank is sure enough that its agreement is not just its width: from now on the bank's gyro
                 # is corrected with this bias, not the filter's. A wrong magnetometer trusted before the first check
                 # teaches the vertical gyro bias its heading error's rate, and a bank that learns no bias itself
                 # would drift at that rate and hold the wrong magnetometer's heading against the right one later.
-                # Tighter than `_confirmed_gyro_bias` (any agreement within the gate): a bank near its validity
+                # Tighter than the confirmed gyro bias (any agreement within the gate): a bank near its validity
                 # limit agrees with headings tens of degrees off, and a bias confirmed by that would drag the bank
                 # after the filter again (docs/estimator.md, "Magnetometer-free GNSS yaw", Limits)
                 self._x["bank_gyro_bias_rad_s"] = self._x["gyro_bias_rad_s"]
         if d.yaw_var_floor_rad2 > 0.0:
             self._iron_before_rejection = self._iron.updates > 0 or self._iron_restored
-            # the magnetometer was just rejected: the heading it held is unconfirmed again (`_confirm_heading`)
-            self._heading_confirmed = False
-            self._bias_heading_confirmed = False
-            self._sigma_confirmed = False
+            self._confirmation.magnetometer_rejected()
             # what the magnetometer taught the gyro bias since the last confirmation goes with it: a wrong
             # magnetometer's heading error rate, which the filter would otherwise keep integrating as GNSS-only.
             # The value only: widening its variance too let the GNSS-only heading wander after an iron change
             # (docs/estimator.md, "Known limits: ins on level turns")
-            self._x["gyro_bias_rad_s"] = self._confirmed_gyro_bias
+            self._x["gyro_bias_rad_s"] = self._confirmation.confirmed_gyro_bias
         if d.yaw_var_floor_rad2 > P[core.E_YAW, core.E_YAW]:
             P[core.E_YAW, core.E_YAW] = d.yaw_var_floor_rad2
             self.heading_interventions += 1
@@ -1455,29 +1342,23 @@ class Ins:
     def _reset_or_confirm_yaw(self, t_s: float, d: MonitorDecision, yaw: float, gsf_yaw: float, gsf_var: float,
                               gsf_valid: bool) -> float | None:
         """At most one of: the monitor's emergency yaw reset, the alignment to the first valid GNSS yaw
-        (`_gnss_yaw_alignment_due`), or, while the heading is held unconfirmed, its confirmation by a GNSS yaw
-        that agrees with it. Returns the yaw a reset turned the attitude (about down) to, None without one."""
+        (HeadingConfirmation.alignment_due), or, while the heading is held unconfirmed, its confirmation by a GNSS
+        yaw that agrees with it. Returns the yaw a reset turned the attitude (about down) to, None without one."""
+        c = self._confirmation
         if d.reset_yaw_to_rad is not None:
             self._reset_yaw(d.reset_yaw_to_rad - yaw, d.reset_yaw_var_rad2)
             return d.reset_yaw_to_rad
-        if self._gnss_yaw_alignment_due(yaw, gsf_yaw, gsf_var, gsf_valid):
+        if c.alignment_due(yaw, gsf_yaw, gsf_var, gsf_valid):
             self._align_yaw_to_gnss(t_s, gsf_yaw - yaw, gsf_var)
             return gsf_yaw
-        if not self._heading_confirmed and gsf_valid and (self._calibration_untrusted or self._monitor.mag_rejected):
+        if not c.heading_confirmed and gsf_valid and (c.calibration_untrusted or self._monitor.mag_rejected):
             self._confirm_heading(yaw, gsf_yaw, gsf_var)
         return None
 
     def _align_yaw_to_gnss(self, t_s: float, dyaw_rad: float, gsf_var: float) -> None:
         """The planned first alignment of the yaw to the GNSS yaw (yaw_align_to_gnss_yaw)."""
-        self._gnss_yaw_aligned = True
+        self._confirmation.aligned()         # the biases a reset goes back to: the start-up ones
         self._monitor.yaw_was_reset(t_s)     # an emergency reset keeps its spacing from this one
-        # nothing confirmed the heading before the alignment, so the biases go back to their start-up values:
-        # learned against an uncalibrated magnetometer, whose heading error changes as the vehicle turns (vehicle
-        # iron), the vertical gyro bias has taken up that error's rate, and the agreement check in
-        # `_monitor_decision`, with the bank's σ near its validity limit, would keep them as "confirmed"
-        # (docs/estimator.md, "Alignment")
-        self._confirmed_gyro_bias = self._startup_gyro_bias.copy()
-        self._confirmed_accel_bias = self._startup_accel_bias.copy()
         self._reset_yaw(dyaw_rad, gsf_var, alignment=True)
         # the specific force the tilt was levelled against, turned by the alignment's yaw step: its horizontal part
         # across the new heading, |f_h|·|sin Δψ|, was taken as a lean of the tilt (a car accelerating away leans
@@ -1510,26 +1391,16 @@ class Ins:
         x, P = self._x, self._P
         var = self.params.init_accel_bias_sigma_m_s2 ** 2
         for k in range(2):
-            x["accel_bias_m_s2"][k] = self._startup_accel_bias[k]
+            x["accel_bias_m_s2"][k] = self._confirmation.startup_accel_bias[k]
             i = core.E_BA + k
             v = max(P[i, i], var)
             _restart_uncorrelated(P, i, v)
 
     def _confirm_heading(self, yaw: float, gsf_yaw: float, gsf_var: float) -> None:
-        """A GNSS yaw that agrees with the held heading confirms it for the accelerometer bias (within
-        `accel_bias_gsf_sigma_rad`) and for the heading (within `heading_confirm_gsf_sigma_rad`, or the looser
-        bias figure after the alignment); otherwise the yaw variance is raised to at least the GNSS yaw's."""
-        p = self.params
+        """A GNSS yaw that agrees with the held heading confirms it (HeadingConfirmation.confirm); otherwise the
+        yaw variance is raised to at least the GNSS yaw's."""
         P = self._P
-        agrees = self._gnss_yaw_agrees(yaw, gsf_yaw, gsf_var)
-        if agrees and gsf_var < p.accel_bias_gsf_sigma_rad ** 2:
-            self._bias_heading_confirmed = True
-        # a yaw set to the GNSS yaw (not pulled in from tens of degrees) is confirmed by the looser GNSS yaw
-        confirm_rad = p.accel_bias_gsf_sigma_rad if self._gnss_yaw_aligned else p.heading_confirm_gsf_sigma_rad
-        if agrees and gsf_var < confirm_rad ** 2:
-            self._heading_confirmed = True
-            self._bias_heading_confirmed = True
-        elif gsf_var > P[core.E_YAW, core.E_YAW]:
+        if self._confirmation.confirm(yaw, gsf_yaw, gsf_var, P[core.E_YAW, core.E_YAW]):
             P[core.E_YAW, core.E_YAW] = gsf_var
 
     def _set_magnetometer_use(self, d: MonitorDecision, mag_var: float, noise: float, trust_var: float) -> None:
@@ -1599,14 +1470,16 @@ class Ins:
 
     def _publish_heading_checks(self, t_s: float, yaw_rad: float, gsf_yaw: float, gsf_var: float,
                                 gsf_valid: bool) -> None:
-        """What the checks publish: the yaw σ's floor while the heading is unconfirmed (`_unconfirmed_yaw_sigma`
-        at the yaw after any reset), the integrity figures and the heading state."""
+        """What the checks publish: the yaw σ's floor while the heading is unconfirmed
+        (HeadingConfirmation.unconfirmed_yaw_sigma at the yaw after any reset), the integrity figures and the
+        heading state."""
         p = self.params
-        self._update_sigma_confirmation(yaw_rad, gsf_yaw, gsf_var, gsf_valid)
-        self._unconfirmed_sigma_rad = self._unconfirmed_yaw_sigma(yaw_rad, gsf_yaw, gsf_var)
+        c = self._confirmation
+        c.update_sigma_confirmation(yaw_rad, gsf_yaw, gsf_var, gsf_valid, self._P[core.E_YAW, core.E_YAW])
+        c.unconfirmed_sigma_rad = c.unconfirmed_yaw_sigma(yaw_rad, gsf_yaw, gsf_var)
         sig = math.sqrt(max(self._P[core.E_YAW, core.E_YAW], 0.0))
-        if self._unconfirmed_sigma_rad > sig:
-            sig = self._unconfirmed_sigma_rad
+        if c.unconfirmed_sigma_rad > sig:
+            sig = c.unconfirmed_sigma_rad
         self._integrity = HeadingIntegrity(gsf_yaw, math.sqrt(gsf_var) if math.isfinite(gsf_var) else math.nan,
                                            gsf_valid, self._monitor.disagreement_rad, self._iron.offset_ut,
                                            self._iron.sigma_ut, self._rejection_step_rad,
@@ -1620,105 +1493,35 @@ class Ins:
         # held at the check rate, so the state does not depend on how often estimates are built
         self._heading_state = self._state_hold.update(t_s, raw, sig)
 
-    def _gnss_yaw_alignment_due(self, yaw_rad: float, gsf_yaw: float, gsf_var: float, gsf_valid: bool) -> bool:
-        """Whether the yaw is set, once per run, to the valid GNSS yaw (`_align_yaw_to_gnss`), with or without the
-        magnetometer (the one rule for both).
-        With the magnetometer: at the first valid GNSS yaw, no trusted magnetometer calibration, the heading not
-        yet confirmed: the filter's yaw came from the magnetometer (tens of degrees off with a strong iron) and was
-        pulled in by the GNSS velocity through a linearised update, whose biases take up what the yaw error
-        projects (docs/estimator.md "A wrong heading must not teach the accelerometer bias"). An emergency reset at
-        the same fix (HeadingMonitor.check) does not count: the alignment follows at the next check, which resets
-        the velocity and the biases once more after the first update with the new yaw (measured, docs/estimator.md).
-        Without it (mag_enabled off): at the first valid GNSS yaw, if the filter's yaw lies outside its 3σ
-        (`HeadingMonitor.gate_sigma` of the bank's σ alone: the filter's own variance, shrunk by the linearised
-        pull-in faster than its error, would widen the gate for a yaw nothing has confirmed, as for
-        `_unconfirmed_yaw_sigma`). The filter's yaw and its biases came from the same GNSS velocities as the bank's;
-        where the filter's is inside the bank's 3σ it is kept: setting it to the bank's would widen its variance to
-        the bank's and send the biases back to their start-up values, and on a boat's weak accelerations the
-        velocities then pull the yaw further off than it was. Outside it, the filter's linearised update has not
-        pulled its yaw in from the unknown start, and a yaw tens of degrees off makes the gate reject the very
-        velocities that would (a car accelerating away): it is set to the bank's, as PX4 EKF2 aligns its yaw to
-        the EKF-GSF without a magnetometer heading. Only at the first valid one: without the heading checks nothing
-        gives the bank the filter's gyro bias, so on a long run its yaw drifts while its σ shrinks, and it comes to
-        "disagree" with a right yaw (docs/estimator.md "Without a magnetometer: the yaw set to a GNSS yaw that
-        disagrees").
-        `_reset_yaw` sets the yaw to the GNSS yaw with its variance and gives the biases, learned against the
-        wrong yaw, their start-up values back."""
-        p = self.params
-        if not (p.yaw_align_to_gnss_yaw and gsf_valid and not self._gnss_yaw_aligned):
-            return False
-        if not p.mag_enabled:
-            outside = wrap_pi(gsf_yaw - yaw_rad) ** 2 > self._monitor.gate_sigma ** 2 * gsf_var
-            return outside and not self._gnss_yaw_valid_seen
-        return not self._heading_confirmed and self._calibration_untrusted
-
-    def _gnss_yaw_agrees(self, yaw_rad: float, gsf_yaw: float, gsf_var: float) -> bool:
-        """The GNSS yaw is within the monitor's gate of the filter's yaw, with their joint variance."""
-        yaw_var_now = self._P[core.E_YAW, core.E_YAW]
-        return wrap_pi(gsf_yaw - yaw_rad) ** 2 <= self._monitor.gate_sigma ** 2 * (yaw_var_now + gsf_var)
-
-    def _update_sigma_confirmation(self, yaw_rad: float, gsf_yaw: float, gsf_var: float, gsf_valid: bool) -> None:
-        """Whether the published yaw σ's floor (`_unconfirmed_yaw_sigma`) is lifted: once the filter has confirmed
-        its heading (`_confirm_heading`), when a GNSS yaw within `heading_confirm_gsf_sigma_rad` agrees. The filter
-        confirms a yaw set to a GNSS yaw (alignment, emergency reset) with the looser `accel_bias_gsf_sigma_rad`,
-        but that yaw is only as good as the bank that set and confirmed it (σ up to 10°), and the fixes pull it
-        through the linearised update, whose variance shrinks faster than the error as a turn ends (docs/gnss.md,
-        early23). After a rejection the monitor widens the yaw variance (tens of degrees) and the
-        looser GNSS yaw agrees with it whatever the yaw (stby22). In both cases the floor stays published until the
-        5° GNSS yaw agrees; the filter keeps its own decision."""
-        if not self._heading_confirmed:
-            self._sigma_confirmed = False
-        elif not self._sigma_confirmed:
-            self._sigma_confirmed = (gsf_valid and gsf_var < self.params.heading_confirm_gsf_sigma_rad ** 2
-                                     and self._gnss_yaw_agrees(yaw_rad, gsf_yaw, gsf_var))
-
-    def _unconfirmed_yaw_sigma(self, yaw_rad: float, gsf_yaw: float, gsf_var: float) -> float:
-        """Without a trusted magnetometer calibration, until a GNSS yaw has confirmed the heading: the filter's yaw
-        came from a magnetometer that may be off by anything (or was just set to a GNSS yaw the next fixes may
-        pull away), and the GNSS velocity pulling it through a linearised update shrinks its variance faster than
-        its error. The honest 1σ is then at least the GNSS yaw bank's, which carries the spread of its
-        hypotheses, plus the distance to it (π before the bank has a yaw; NaN: no floor). Published only: the
-        filter keeps its own variance (raising it would make the linearised update pull harder)."""
-        p = self.params
-        if not (p.yaw_align_to_gnss_yaw and self._heading_checks_run) or self._sigma_confirmed \
-                or not self._calibration_untrusted:
-            return math.nan
-        return _gnss_yaw_floor(yaw_rad, gsf_yaw, gsf_var)
-
     def _floor_yaw_sigma_without_magnetometer(self, t_s: float) -> None:
         """No magnetometer (mag_enabled off): the yaw comes from the GNSS velocity alone, pulled in from an unknown
         start (1σ π) through linearised updates, whose variance shrinks faster than the error on a boat's weak
         accelerations (docs/estimator.md "Known limits: ins on level turns"), and which, tens of degrees off, reject
         the velocities that would pull it in: if the first valid GNSS yaw disagrees with it, it is set to that yaw
-        (`_gnss_yaw_alignment_due`). The heading checks do not run (they weigh a magnetometer), so nothing ever
-        confirms this yaw: its published 1σ is at least the GNSS yaw bank's plus the distance to it, as an
-        unconfirmed heading's (`_unconfirmed_yaw_sigma`), at every fused fix."""
+        (HeadingConfirmation.alignment_due). The heading checks do not run (they weigh a magnetometer), so nothing
+        ever confirms this yaw: its published 1σ is at least the GNSS yaw bank's plus the distance to it, as an
+        unconfirmed heading's (HeadingConfirmation.unconfirmed_yaw_sigma), at every fused fix."""
         if not (self.params.gnss_yaw and self.params.heading_monitor):
             return
         yaw = float(quat_to_euler(self._x["q"])[2])
         gsf_yaw, gsf_var, gsf_valid = self._gnss_yaw()
-        if self._gnss_yaw_alignment_due(yaw, gsf_yaw, gsf_var, gsf_valid):
+        c = self._confirmation
+        if c.alignment_due(yaw, gsf_yaw, gsf_var, gsf_valid):
             self._align_yaw_to_gnss(t_s, gsf_yaw - yaw, gsf_var)
             yaw = gsf_yaw
-        elif self._first_gnss_yaw_keeps_yaw(gsf_valid):
+        elif c.first_gnss_yaw_keeps_yaw(gsf_valid):
             # the yaw is kept, but the pull-in that brought it inside the bank's 3σ ran through yaws tens of
             # degrees off: the horizontal bias and the tilt it taught are restarted as an alignment restarts them
             self._restart_horizontal_accel_bias()
             self._relevel_after_wrong_yaw(self.params.nav_init_sigma_tilt_rad)
-        self._gnss_yaw_valid_seen = self._gnss_yaw_valid_seen or gsf_valid
-        self._unconfirmed_sigma_rad = _gnss_yaw_floor(yaw, gsf_yaw, gsf_var)
-
-    def _first_gnss_yaw_keeps_yaw(self, gsf_valid: bool) -> bool:
-        """Without a magnetometer: this is the first valid GNSS yaw, and the filter's yaw was inside its 3σ, so
-        `_gnss_yaw_alignment_due` kept it."""
-        return (self.params.yaw_align_to_gnss_yaw and gsf_valid and not self._gnss_yaw_valid_seen
-                and not self._gnss_yaw_aligned)
+        c.gnss_yaw_seen(gsf_valid)
+        c.unconfirmed_sigma_rad = gnss_yaw_floor(yaw, gsf_yaw, gsf_var)
 
     @property
     def _calibration_untrusted(self) -> bool:
         """The magnetometer calibration in force predicts a heading error above what the heading monitor trusts
-        (an unknown calibration counts as the uncalibrated figure, `InsParams.calibration_sigma_rad`)."""
-        return self.params.calibration_sigma_rad > self._monitor.trusted_sigma_rad
+        (HeadingConfirmation.calibration_untrusted)."""
+        return self._confirmation.calibration_untrusted
 
     @property
     def _heading_checks_run(self) -> bool:
@@ -1733,8 +1536,7 @@ class Ins:
         heading since the magnetometer was last rejected (ins_core._gated_update says why). Without the heading
         checks (no GNSS yaw, monitor or magnetometer) there is nothing to confirm with: it always learns."""
         p = self.params
-        held = p.accel_bias_needs_heading and self._heading_checks_run and not self._bias_heading_confirmed and (
-            self._calibration_untrusted or self._monitor.mag_rejected)
+        held = self._confirmation.bias_learning_held(p.accel_bias_needs_heading, self._monitor.mag_rejected)
         self._par["accel_bias_learn"] = 0.0 if held else 1.0
 
     def _reset_yaw(self, dyaw_rad: float, var_rad2: float, alignment: bool = False) -> None:
@@ -1759,8 +1561,8 @@ class Ins:
         # wrong yaw (the magnetometer pulling one way, the GNSS velocity the other, the biases taking up the
         # difference): back to the last confirmed ones (the start-up values before any), with their start-up
         # uncertainty
-        x["gyro_bias_rad_s"] = self._confirmed_gyro_bias
-        x["accel_bias_m_s2"] = self._confirmed_accel_bias
+        x["gyro_bias_rad_s"] = self._confirmation.confirmed_gyro_bias
+        x["accel_bias_m_s2"] = self._confirmation.confirmed_accel_bias
         for i in range(core.E_BG, core.E_BG + 3):
             var = max(P[i, i], p.init_gyro_bias_sigma_rad_s ** 2)
             _restart_uncorrelated(P, i, var)
@@ -1823,10 +1625,6 @@ class Ins:
             P[e, e] = sig_s ** 2
         x["vel_gate"]["rejected_since_s"] = math.nan
 
-    def _reject(self, why: str, fix) -> None:
-        self._pending_flags |= int(EstimateFlags.GNSS_REJECTED)
-        log.info("ins: GNSS fix rejected (%s)", why)
-
     # ----------------------------------------------------------------------- internals
     def _initialise(self, t_s, g, a, m, sample_flags: int) -> bool:
         """Start the filter from one sample (levelled on the accelerometer, heading from the magnetometer when it
@@ -1838,122 +1636,30 @@ class Ins:
         an = float(np.linalg.norm(a))
         if an < 2.0 or an > 30.0:
             return False
-        use_mag = bool(valid & IN_MAG_OK) and self.params.mag_enabled
-        q0 = self._initial_true_attitude(a, m if use_mag else None)
-        keep_bg, keep_ba, keep_sg, keep_mg, keep_mag = self._learned_to_keep()
-        self._fresh_state(t_s, q0, g, a, m if valid & IN_MAG_OK else np.nan)
-        self._start_biases(keep_bg, keep_ba, keep_sg, keep_mg)
-        self._first_history_row(t_s, q0, g, keep_bg)
-        self._start_mag_reference(keep_mag)
-        self._initial_covariance(use_mag)
+        p = self.params
+        use_mag = bool(valid & IN_MAG_OK) and p.mag_enabled
+        q0 = initial_true_attitude(a, m if use_mag else None, self._declination)
+        kept = learned_to_keep(self._x, self._reinit_pending)
+        fresh_state(self._x_arr, t_s, q0, g, a, m if valid & IN_MAG_OK else np.nan)
+        start_sensor_errors(self._x, kept)
+        # the biases are also the last confirmed ones (what a yaw reset goes back to) and the start-up ones
+        keep_bg = kept.gyro_bias_rad_s
+        self._confirmation.start_biases(keep_bg, kept.accel_bias_m_s2)
+        first_history_row(self._x, self._hist, t_s, q0, g, keep_bg)
+        start_mag_reference(self._x, kept, p.mag_min_undisturbed_s)
+        initial_covariance(self._P, p, use_mag)
+        self._restart_calibration_error_states()
         self._restart_companions(t_s)
         self._initialised = True
         core.fill_outputs(self._x, self._P, self._par, g[0] - keep_bg[0], g[1] - keep_bg[1], g[2] - keep_bg[2],
                           self._out)
         return True
 
-    def _initial_true_attitude(self, a, m) -> np.ndarray:
-        """The levelled attitude (heading from m, or 0 without it: initial_attitude.py) turned from magnetic to
-        the filter's frame, true north: q_true = q_z(declination) ⊗ q_mag."""
-        q_mag = initial_attitude(a, m)
-        hd = 0.5 * self._declination
-        w, x_, y, z = q_mag
-        c, s = math.cos(hd), math.sin(hd)
-        return np.array([c * w - s * z, c * x_ - s * y, c * y + s * x_, c * z + s * w])
-
-    def _learned_to_keep(self) -> tuple:
-        """What a restart after a gap keeps (the sensor errors learned: gyro bias, accelerometer bias, gyro scale
-        and misalignment; the magnetometer's reference field) as copies, before the state is cleared; zeros and
-        None at the first start."""
-        x = self._x
-        if not self._reinit_pending:
-            return np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(6), None
-        return (x["gyro_bias_rad_s"].copy(), x["accel_bias_m_s2"].copy(), x["gyro_scale"].copy(),
-                x["gyro_misalignment_rad"].copy(), self._mag_state().copy())
-
-    def _fresh_state(self, t_s, q0, g, a, mag_ut) -> None:
-        """Clear the state (but the gyro rotation check's window: the next check's) and set the attitude and the
-        last sample; no fix yet, no gate rejections."""
-        x = self._x
-        rotation = ("gyro_rotation_rad", "gyro_rotation_s", "gyro_rotation_last_t_s")   # the next check's
-        keep_rotation = [x[k].copy() for k in rotation]
-        self._x_arr[:] = 0
-        for k, v in zip(rotation, keep_rotation):
-            x[k] = v
-        x["q"] = q0
-        x["t_last_s"] = t_s
-        x["gyro_last_rad_s"] = g
-        x["acc_last_m_s2"] = a
-        x["mag_last_ut"] = mag_ut
-        x["acc_ned_lp_m_s2"] = np.asarray(quat_to_dcm(q0), dtype=float) @ a
-        x["gnss_fused_t_s"] = -math.inf
-        x["last_fix_t_s"] = -math.inf
-        x["vel_gate"]["rejected_since_s"] = math.nan
-        x["pos_gate"]["rejected_since_s"] = math.nan
-        x["vel_gate"]["nis"] = math.nan
-        x["pos_gate"]["nis"] = math.nan
-
-    def _start_biases(self, gyro_bias, accel_bias, gyro_scale, gyro_misalignment) -> None:
-        """The sensor errors the filter starts from; the biases are also the last confirmed ones (what a yaw reset
-        goes back to) and the start-up ones."""
-        x = self._x
-        x["gyro_bias_rad_s"] = gyro_bias
-        self._confirmed_gyro_bias = gyro_bias.copy()
-        self._confirmed_accel_bias = accel_bias.copy()
-        self._startup_gyro_bias = gyro_bias.copy()     # what the GNSS-yaw alignment goes back to
-        x["bank_gyro_bias_rad_s"] = gyro_bias       # the GNSS yaw bank's, until its own yaw confirms one
-        self._startup_accel_bias = accel_bias.copy()
-        x["accel_bias_m_s2"] = accel_bias
-        x["gyro_scale"] = gyro_scale
-        x["gyro_misalignment_rad"] = gyro_misalignment
-
-    def _first_history_row(self, t_s, q0, g, gyro_bias) -> None:
-        """The history's first row: a fix valid at this very sample can be fused."""
-        x = self._x
-        x["hist_newest"] = 0
-        x["hist_count"] = 1
-        self._hist[0] = 0
-        row = self._hist[0]
-        row["t_s"] = t_s
-        row["q"] = q0
-        row["rate_rad_s"] = np.asarray(g, dtype=float) - gyro_bias
-
-    def _start_mag_reference(self, kept) -> None:
-        """The magnetometer check's reference field: kept over a restart (`kept`, the old check state), else
-        learned anew; counted undisturbed from the start (the Wahba heading is already the best)."""
-        ms = self._mag_state()
-        if kept is not None:
-            ms["ref_norm_ut"] = ms["cand_norm_ut"] = kept["ref_norm_ut"]
-            ms["ref_dip_rad"] = ms["cand_dip_rad"] = kept["ref_dip_rad"]
-        ms["undisturbed_t_s"] = self.params.mag_min_undisturbed_s
-
-    def _initial_covariance(self, use_mag: bool) -> None:
-        """The start-up uncertainty, uncorrelated: tilt from levelling, yaw from the magnetometer and its
-        calibration (π, unknown, without it), velocity and position unknown until the first fix, the sensor
-        errors their prior σ."""
-        p = self.params
-        P = self._P
-        P[:] = 0.0
-        for i in (core.E_TILT_N, core.E_TILT_E):
-            P[i, i] = p.init_sigma_tilt_rad ** 2
-        P[core.E_YAW, core.E_YAW] = (max(p.init_sigma_yaw_rad, p.calibration_sigma_rad) if use_mag else math.pi) ** 2
-        for i in range(3):
-            P[core.E_V + i, core.E_V + i] = core.NAV_UNKNOWN_VAR_V
-            P[core.E_P + i, core.E_P + i] = core.NAV_UNKNOWN_VAR_P
-            P[core.E_BG + i, core.E_BG + i] = p.init_gyro_bias_sigma_rad_s ** 2
-            P[core.E_BA + i, core.E_BA + i] = p.init_accel_bias_sigma_m_s2 ** 2
-            P[core.E_SG + i, core.E_SG + i] = p.init_gyro_scale_sigma ** 2
-        for i in range(6):
-            P[core.E_MG + i, core.E_MG + i] = p.init_gyro_misalignment_sigma_rad ** 2
-        for i in range(core.N_ACC_Z_LEAN):   # the accelerometer z axis's lean m_zx, m_zy: 0 leaves them at zero
-            P[core.E_AZ_LEAN + i, core.E_AZ_LEAN + i] = p.accel_axes_tilt_sigma_rad ** 2
-        self._restart_calibration_error_states()
-
     def _restart_companions(self, t_s) -> None:
         """What runs beside the filter starts again with it: no queued fixes, the published heading follows the
         filter, no fix velocity for a yaw reset; the GNSS yaw bank restarts, or after a short gap keeps its
         hypotheses and only moves its clock on."""
-        self._queue.clear()
+        self._intake.drop_queued()
         self._published.reset()
         self._published_since_init = False
         self._last_fix_velocity = None
@@ -1994,8 +1700,9 @@ class Ins:
         # the σ and the Euler angles read as floats with one call (float arithmetic is cheaper than numpy scalars'
         # and gives the same bits); the yaw σ is written once, below
         sig_roll, sig_pitch, sigma_yaw, _, _, _, roll, pitch, yaw_true = o[_OUT_SIGMA_TO_EULER].tolist()
-        if self._unconfirmed_sigma_rad > sigma_yaw and self._nav_ok[0] > 0.0:
-            sigma_yaw = self._unconfirmed_sigma_rad        # _unconfirmed_yaw_sigma says why
+        unconfirmed_sigma_rad = self._confirmation.unconfirmed_sigma_rad
+        if unconfirmed_sigma_rad > sigma_yaw and self._nav_ok[0] > 0.0:
+            sigma_yaw = unconfirmed_sigma_rad        # HeadingConfirmation.unconfirmed_yaw_sigma says why
         if self._lever_arm_fit.heading_bent:
             # the GNSS velocities fit another antenna place than the one told (lever_arm_fit.py): the heading they
             # held, and the GNSS yaw bank's, are bent by an error no state models: unknown until an arm (the told
@@ -2079,14 +1786,6 @@ class Ins:
         return self._heading_state if p.heading_monitor else HeadingState.MAGNETOMETER
 
 
-def _gnss_yaw_floor(yaw_rad: float, gsf_yaw: float, gsf_var: float) -> float:
-    """The smallest honest 1σ of a yaw the GNSS yaw bank has not confirmed: the bank's own (the spread of its
-    hypotheses) plus the distance to it; π before the bank has a yaw."""
-    if not (math.isfinite(gsf_yaw) and math.isfinite(gsf_var)):
-        return math.pi
-    return math.sqrt(gsf_var + wrap_pi(gsf_yaw - yaw_rad) ** 2)
-
-
 def _restart_uncorrelated(P: np.ndarray, i: int, var: float) -> None:
     """Error state i restarted on its own: its row and column of P cleared, its variance set to var."""
     P[i, :] = 0.0
@@ -2107,13 +1806,6 @@ def _one_record_array(record) -> np.recarray:
     arr = np.zeros(1, dtype=record.dtype).view(np.recarray)
     arr[0] = record
     return arr
-
-
-def _accuracy(reported: float, default: float, floor: float) -> float:
-    """A reported 1σ, the default when it is missing or not positive, never below the floor."""
-    if not (math.isfinite(reported) and reported > 0.0):
-        return default
-    return max(reported, floor)
 
 
 __all__ = ["Ins", "InsParams", "DEFAULT_INS_PARAMS", "GnssCounters"]

@@ -1,7 +1,8 @@
 """Without a trusted magnetometer calibration the aided filter's yaw is set to the first valid GNSS yaw
-(Ins._gnss_yaw_alignment_due, InsParams.yaw_align_to_gnss_yaw); until a GNSS yaw confirms the heading the published
-yaw σ covers the distance to the GNSS yaw bank (Ins._unconfirmed_yaw_sigma) — the heading state says UNKNOWN, not
-a heading 100° off with a 10° σ — and the horizontal accelerometer bias is held (accel_bias_needs_heading).
+(HeadingConfirmation.alignment_due, InsParams.yaw_align_to_gnss_yaw); until a GNSS yaw confirms the heading the
+published yaw σ covers the distance to the GNSS yaw bank (HeadingConfirmation.unconfirmed_yaw_sigma) — the heading
+state says UNKNOWN, not a heading 100° off with a 10° σ — and the horizontal accelerometer bias is held
+(accel_bias_needs_heading).
 Truth: the simulator's attitude (scipy rotations in bench.vehicle_accuracy)."""
 
 from __future__ import annotations
@@ -115,8 +116,8 @@ def test_the_horizontal_accel_bias_waits_for_the_gnss_yaw(uncalibrated):
                                  {"yaw_align_to_gnss_yaw": False}])
 def test_without_the_heading_checks_the_published_sigma_is_the_filters(off):
     """Nothing would ever confirm the heading: no floor on the published σ (it would stay at π for good)."""
-    assert math.isnan(Ins(**off)._unconfirmed_sigma_rad)
-    assert Ins()._unconfirmed_sigma_rad == pytest.approx(math.pi)
+    assert math.isnan(Ins(**off)._confirmation.unconfirmed_sigma_rad)
+    assert Ins()._confirmation.unconfirmed_sigma_rad == pytest.approx(math.pi)
 
 
 def test_a_gnss_held_heading_is_not_reported_unknown_while_its_sigma_is_a_few_degrees(uncalibrated):

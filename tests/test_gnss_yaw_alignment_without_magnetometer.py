@@ -1,6 +1,6 @@
 """ins with the magnetometer off (`mag_enabled=False`: what `calibrate mag --gnss`'s magnetometer-free levelling
 runs, and what a user without a magnetometer gets) sets its yaw to the GNSS yaw bank's once a valid bank yaw
-disagrees with it beyond their joint 3σ (Ins._gnss_yaw_alignment_due), and keeps its own where they agree.
+disagrees with it beyond their joint 3σ (HeadingConfirmation.alignment_due), and keeps its own where they agree.
 Truth: the simulator's attitude, through scipy's rotations (not the estimator's)."""
 
 from __future__ import annotations
