@@ -533,6 +533,14 @@ MUTATIONS: tuple[Mutation, ...] = (
              "cli/fit_summary.py", 'as_fitted.append(f"|m| − |F| {magnitude:.3f} µT")',
              'as_fitted.append(f"|m| − |F| {result.residual_rms_ut:.3f} µT")',
              ("tests/test_cal_mag_report.py",)),
+    # ------------------------------------------------------------------ session 30 (walk30)
+    Mutation("live-sim-unknown-usage", "calibrate accel --live --sim with an unknown scenario is one usage line",
+             "cli/calibrate.py", "if args.sim not in SCENARIOS + tuple(EXTRA_SCENARIOS):", "if False:",
+             ("tests/test_cli_error_prefix.py",)),
+    Mutation("spi-hint-own-pip", "the missing-spidev hint names this interpreter's pip and the package",
+             "drivers/spi.py", 'f"{shlex.quote(sys.executable)} -m pip install \'spidev>=3.6\'  "',
+             '"pip install \'ahrsd[spi]\'  "',
+             ("tests/test_drivers_spi.py", "tests/test_recording.py")),
     # ------------------------------------------------------------------ session 29 (ci29)
     Mutation("timesync-answered-counted", "every TIMESYNC answer is counted (the flood test checks against it)",
              "daemon/timesync_answers.py", "            self.counters.timesync_answered += 1", "            pass",
