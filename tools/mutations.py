@@ -541,6 +541,11 @@ MUTATIONS: tuple[Mutation, ...] = (
              "drivers/spi.py", 'f"{shlex.quote(sys.executable)} -m pip install \'spidev>=3.6\'  "',
              '"pip install \'ahrsd[spi]\'  "',
              ("tests/test_drivers_spi.py", "tests/test_recording.py")),
+    Mutation("mag-plot-legends-placed", "the back-stepping figure's legends are placed, not searched for (best)",
+             "cli/plots/backstepping.py",
+             'ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), borderaxespad=0.0, fontsize=7, **options)',
+             "ax.legend(fontsize=7, **options)",
+             ("tests/test_mag_plot_levelling.py",)),
     # ------------------------------------------------------------------ session 29 (ci29)
     Mutation("timesync-answered-counted", "every TIMESYNC answer is counted (the flood test checks against it)",
              "daemon/timesync_answers.py", "            self.counters.timesync_answered += 1", "            pass",
