@@ -436,6 +436,13 @@ def _live_chip_source(args):
 
     if bool(args.sim) == bool(args.spi):
         raise _Usage("--live needs exactly one of --sim SCENARIO or --spi DEV")
+    if args.sim:
+        from ahrsd.simulation.scenarios import EXTRA_SCENARIOS, SCENARIOS
+
+        # checked here, as `record` and `run` check theirs: the simulator's own ValueError came up as a traceback
+        if args.sim not in SCENARIOS + tuple(EXTRA_SCENARIOS):
+            raise _Usage(f"unknown scenario {args.sim!r}; choose one of: "
+                         f"{', '.join(SCENARIOS + tuple(EXTRA_SCENARIOS))} (accel-positions: the guided positions)")
     try:
         if args.sim:
             from ahrsd.drivers.simulated import SimulatedAdis16405

@@ -3,8 +3,8 @@ daemon's start (the service unit runs it as `ExecStartPre`), and the announcemen
 when a compile is under way.
 
 numba compiles a kernel on its first call and caches it (`NUMBA_CACHE_DIR`; the unit points it at the service's
-cache directory). A compile takes 15–40 s on a desktop and several times that on a Raspberry Pi, during which
-nothing else is printed. Loading the cached kernels also takes seconds on a slow or busy computer, so time alone
+cache directory). A compile takes tens of seconds on a desktop and minutes on a Raspberry Pi (docs/figures.md),
+during which nothing else is printed. Loading the cached kernels also takes seconds on a slow or busy computer, so time alone
 cannot tell a compile from a cache load: the announcement goes out once a kernel has missed the cache (numba
 counts the misses per dispatcher before it compiles) and the warm-up has run for ANNOUNCE_AFTER_S, so a cached
 start stays silent however long its loading takes.

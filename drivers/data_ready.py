@@ -14,7 +14,7 @@ instead of sleeping until next_read_time. The line is anything with libgpiod's L
 (`wait_edge_events`, `read_edge_events`, `release`): the real GPIO (`open_gpio_line`) or the simulated chip's
 DIO1 (drivers.simulated.SimulatedDataReadyLine).
 
-libgpiod's Python bindings (`gpiod` on PyPI, v2 API) are an optional extra (`pip install 'ahrsd[gpio]'`),
+libgpiod's Python bindings (`gpiod` on PyPI, v2 API) are an optional extra (`pip install '.[gpio]'` in the source tree),
 imported only when a data-ready GPIO is configured: they need the Linux GPIO character device and build a C
 extension, which development machines and the timer-paced set-up do not need.
 """
@@ -22,6 +22,8 @@ extension, which development machines and the timer-paced set-up do not need.
 from __future__ import annotations
 
 import logging
+import shlex
+import sys
 from typing import Protocol
 
 from ahrsd.drivers.errors import BusError
@@ -138,7 +140,9 @@ def open_gpio_line(spec: str):
         import gpiod  # noqa: PLC0415  (optional dependency: ahrsd[gpio])
         from gpiod.line import Clock, Direction, Edge
     except ImportError as exc:
-        raise BusError("data-ready pacing needs libgpiod's Python bindings (v2): pip install 'ahrsd[gpio]' — "
+        # as drivers/spi.py: the interpreter's own pip and the package of pyproject's gpio extra
+        raise BusError("data-ready pacing needs libgpiod's Python bindings (v2): "
+                       f"{shlex.quote(sys.executable)} -m pip install 'gpiod>=2.1' — "
                        "or leave [sensor] data_ready empty to pace reads with the host timer") from exc
     try:
         return gpiod.request_lines(path, consumer="ahrsd-data-ready", config={offset: gpiod.LineSettings(

@@ -6,6 +6,8 @@ Nothing here knows about the ADIS16405.
 
 from __future__ import annotations
 
+import shlex
+import sys
 import time
 from typing import Protocol, runtime_checkable
 
@@ -41,8 +43,11 @@ class SpidevBus:
         try:
             import spidev  # noqa: PLC0415  (optional dependency: ahrsd[spi])
         except ImportError as exc:
+            # ahrsd comes from its source tree, not a package registry: `pip install 'ahrsd[spi]'` finds nothing
+            # there, so the hint names this interpreter (its virtualenv) and the package (pyproject's spi extra)
             raise BusError(
-                "the 'spidev' module is not installed: install it with  pip install 'ahrsd[spi]'  "
+                "the 'spidev' module is not installed: install it with  "
+                f"{shlex.quote(sys.executable)} -m pip install 'spidev>=3.6'  "
                 "(Linux only; it needs the kernel spidev driver)"
             ) from exc
         self.path = path

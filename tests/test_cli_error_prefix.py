@@ -26,6 +26,8 @@ CASES = [
      "ahrsd magcal fixed-yaw: error: give --lat and --lon together"),
     (["replay", "{tmp}/nope.csv", "-o", "{tmp}/o.csv"], "ahrsd replay: error: "),
     (["log", "list", "--dir", "{tmp}/none"], "ahrsd log list: error: "),
+    # walk30: a traceback ending "ValueError: unknown scenario 'nosuch'; …" (the simulator's own check)
+    (["calibrate", "accel", "--live", "--sim", "nosuch"], "ahrsd calibrate accel: error: unknown scenario 'nosuch'"),
 ]
 
 

@@ -68,8 +68,20 @@ def test_spidev_open_errors_say_what_to_do(fake_spidev, path, message):
 
 def test_spidev_missing_module_is_a_clear_error(monkeypatch):
     monkeypatch.setitem(sys.modules, "spidev", None)      # import spidev -> ImportError
-    with pytest.raises(BusError, match=r"pip install 'ahrsd\[spi\]'"):
+    # the interpreter's own pip and the package: ahrsd is on no registry, so `pip install 'ahrsd[spi]'` (the old
+    # hint, walk30) finds nothing
+    with pytest.raises(BusError) as info:
         SpidevBus("/dev/spidev0.0")
+    assert f"{sys.executable} -m pip install 'spidev>=3.6'" in str(info.value) and "ahrsd[" not in str(info.value)
+
+
+def test_gpio_missing_module_is_a_clear_error(monkeypatch):
+    from ahrsd.drivers.data_ready import open_gpio_line
+
+    monkeypatch.setitem(sys.modules, "gpiod", None)
+    with pytest.raises(BusError) as info:
+        open_gpio_line("gpiochip0:25")
+    assert f"{sys.executable} -m pip install 'gpiod>=2.1'" in str(info.value) and "ahrsd[" not in str(info.value)
 
 
 def test_simulated_chip_catches_clock_rule_violations():

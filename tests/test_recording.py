@@ -150,7 +150,7 @@ def test_record_command_errors_are_clear(tmp_path, capsys, monkeypatch):
     assert "unknown scenario" in err and "rate-table" in err
     monkeypatch.setitem(sys.modules, "spidev", None)          # as on a machine without the spi extra
     assert main(["record", "--spi", "/dev/spidev-none", "--output", str(tmp_path / "b.csv"), "--seconds", "1"]) == 1
-    assert "pip install 'ahrsd[spi]'" in capsys.readouterr().err
+    assert f"{sys.executable} -m pip install 'spidev>=3.6'" in capsys.readouterr().err
     with pytest.raises(SystemExit) as info:
         main(["record", "--output", str(tmp_path / "c.csv")])
     assert info.value.code == 2 and "--sim" in capsys.readouterr().err

@@ -105,7 +105,7 @@ def _horizontal_panel(ax, lv_raw, lv_cal, q: dict) -> None:
     ax.set_xlabel("east-ish (µT)")
     ax.set_ylabel("north-ish (µT)")
     ax.set_title("levelled horizontal field")
-    ax.legend(fontsize=7)
+    _legend_below(ax, markerscale=8)
 
 
 def _field_panel(ax, result: MagFitResult, d: MagFitInput, cal, lv_cal, q: dict, levelled_by: str) -> None:
@@ -142,7 +142,14 @@ def _field_panel(ax, result: MagFitResult, d: MagFitInput, cal, lv_cal, q: dict,
                  + (" of the block means" if at_rate else "")
                  + (f"\nof the blocks fitted: {', '.join(fitted)}" if fitted else "")
                  + f"\nlevelled by {levelled_by}", fontsize=9)
-    ax.legend(fontsize=7)
+    _legend_below(ax)
+
+
+def _legend_below(ax, **options) -> None:
+    """The legend under the panel, outside it: matplotlib's default "best" searched a 200 s recording's 160 000
+    points for a free spot (seconds, and a UserWarning "Creating legend with loc="best" can be slow" printed to
+    the user, walk30), and inside the circle panel it covered the raw field it sat on."""
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), borderaxespad=0.0, fontsize=7, **options)
 
 
 def _rms(x: np.ndarray) -> float:
