@@ -4,7 +4,9 @@ RMS, mean roll and pitch error, heading RMS, median yaw σ, heading state and th
 (estimate − the simulator's turn-on bias, m/s²). With `--case iron-step` also the heading / tilt RMS from 120 s
 after the iron step (the issue's target); with `--step` the largest change of the published heading error within
 0.1 s (vehicle_accuracy.honesty_figures, every sample) and, with `--case iron-step`, the heading / tilt RMS from
-30 s to the step (the issue's other iron-step target).
+30 s to the step (the issue's other iron-step target). With `--tilt-sigma` the roll and pitch apart: the mean pitch
+error and the median published roll / pitch σ from 180 s, and the shares of roll / pitch errors beyond 3σ of their
+published σ from 30 s (the columns of docs/figures.md's held-back tilt tables, lean28 and tilt29).
 
 `--site` is a name ("held-out": 33.9° S with VehicleIron.held_out; "default": the site and iron tuned on) or any
 place "LAT,LON[,ALT_M[,YYYY-MM-DD]]" (with the held-out iron); `--iron` puts another iron there ("unseen":
@@ -14,6 +16,7 @@ VehicleIron.unseen, drawn, never used for a choice).
     python bench/heading_timeline.py --seeds 15 --timeline --params \
         '{"yaw_align_to_gnss_yaw": false, "accel_bias_needs_heading": false}'     # the filter before heading5
     python bench/heading_timeline.py --site 69.65,18.96 --iron unseen --seeds 11 14 17 --step   # Tromsø, dip 78°
+    python bench/heading_timeline.py --site=-1.29,36.82 --iron unseen --scenario car --seeds 31 --tilt-sigma
 """
 
 from __future__ import annotations
@@ -53,6 +56,7 @@ def one_run(job) -> tuple:
     keep = np.arange(0, len(t), EVERY)
     q = np.empty((len(keep), 4))
     sig = np.empty(len(keep))
+    sig_rp = np.empty((len(keep), 2))   # published roll, pitch σ (rad)
     state = np.zeros(len(keep), dtype=np.int8)
     ba = np.empty((len(keep), 3))
     # every sample's published heading for the largest 0.1 s step (honesty_figures)
@@ -63,6 +67,7 @@ def one_run(job) -> tuple:
         published["flags"][k] = int(e.flags)
         if k % EVERY == 0:
             q[j], sig[j], state[j], ba[j] = e.q_wxyz, e.sigma_rpy_rad[2], int(e.heading_state), est.accel_bias_m_s2
+            sig_rp[j] = e.sigma_rpy_rad[:2]
             j += 1
     tk = t[keep]
     tilt, hdg = tilt_heading_errors_deg(q, run.truth_q_wxyz[keep], run.declination_rad)
@@ -88,13 +93,21 @@ def one_run(job) -> tuple:
               "later": ~turning & (tk - last_turn >= 30.0)}
     consistency = {name: (float(np.sum(z[w & honest] ** 2)), int(np.sum(w & honest)),
                           int(np.sum(np.abs(z[w & honest]) > 3.0))) for name, w in phases.items()}
+    # roll and pitch apart (ZYX: a yaw offset such as the declination leaves them unchanged): pitch mean and σ
+    # medians from 180 s, shares beyond 3σ of each one's published σ from 30 s
+    sig_rp_deg = np.degrees(sig_rp)
+    tilt_sigma = {"pitch_mean": float(rp[late, 1].mean()),
+                  "roll_beyond": float(np.mean(np.abs(rp[honest, 2]) > 3.0 * sig_rp_deg[honest, 0])),
+                  "pitch_beyond": float(np.mean(np.abs(rp[honest, 1]) > 3.0 * sig_rp_deg[honest, 1])),
+                  "roll_sigma": float(np.median(sig_rp_deg[late, 0])),
+                  "pitch_sigma": float(np.median(sig_rp_deg[late, 1]))}
     rows = []
     for t0 in range(0, int(tk[-1]), 30):
         w = (tk >= t0) & (tk < t0 + 30)
         rows.append((t0, float(np.sqrt(np.mean(tilt[w] ** 2))), float(rp[w, 2].mean()), float(rp[w, 1].mean()),
                      float(np.sqrt(np.mean(hdg[w] ** 2))), float(np.degrees(np.median(sig[w]))),
                      int(np.bincount(state[w]).argmax()), ba_err[w].mean(axis=0)))
-    return job, summary, rows, consistency
+    return job, summary, rows, consistency, tilt_sigma
 
 
 def main(argv=None) -> int:
@@ -116,6 +129,9 @@ def main(argv=None) -> int:
     ap.add_argument("--consistency", action="store_true",
                     help="also print, pooled over the seeds, the RMS of heading error / σ and the share beyond 3σ "
                          "while turning, within 30 s after a turn and later (from 30 s)")
+    ap.add_argument("--tilt-sigma", action="store_true",
+                    help="also print the pitch mean error and roll / pitch σ medians from 180 s and the roll / pitch "
+                         "shares beyond 3σ from 30 s")
     args = ap.parse_args(argv)
     # the simulated sensors' and estimators' warnings would bury the table; here, in main, not in one_run:
     # the pool's workers inherit it, and a test that calls one_run keeps its logging
@@ -128,7 +144,7 @@ def main(argv=None) -> int:
     with Pool(args.processes) as pool:
         pooled = {}
         for job, (hdg, tilt, sig, beyond, resets, hdg_after, tilt_after, step, hdg_before, tilt_before), rows, \
-                consistency in pool.imap(one_run, jobs):
+                consistency, tilt_sigma in pool.imap(one_run, jobs):
             for name, (ss, n, out) in consistency.items():
                 p_ss, p_n, p_out = pooled.get(name, (0.0, 0, 0))
                 pooled[name] = (p_ss + ss, p_n + n, p_out + out)
@@ -139,6 +155,11 @@ def main(argv=None) -> int:
                 step_text += f"  before the step: heading {hdg_before:5.2f}°  tilt {tilt_before:5.2f}°"
             print(f"seed {job[2]:3d}: heading {hdg:5.2f}°  tilt {tilt:5.2f}°  σ median {sig:5.2f}°  "
                   f"beyond 3σ {beyond:6.2%}  yaw resets {resets}{after}{step_text}", flush=True)
+            if args.tilt_sigma:
+                ts = tilt_sigma
+                print(f"          pitch mean {ts['pitch_mean']:+6.3f}°  beyond 3σ pitch {ts['pitch_beyond']:6.2%} "
+                      f"roll {ts['roll_beyond']:6.2%}  σ median pitch {ts['pitch_sigma']:5.3f}° "
+                      f"roll {ts['roll_sigma']:5.3f}°", flush=True)
             if args.timeline:
                 print("     t  tilt  roll err  pitch err  heading  σ yaw  state  accel bias error x y z (m/s²)")
                 for t0, tl, re, pe, hd, sg, st, b in rows:

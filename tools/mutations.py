@@ -578,4 +578,13 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("signalk-late-update-matched", "a Signal K update delivered seconds late is matched with its sentence",
              "bench/signalk.py", "if -MATCH_BEFORE_S <= ts - t <= MATCH_AFTER_S]", "if abs(ts - t) <= MATCH_AFTER_S]",
              ("tests/test_signalk.py",)),
+    # ------------------------------------------------------------------ session 30 (prov30)
+    Mutation("docs-figure-script-in-repo", "a figure in docs/ names a command in the repository, not a script under /tmp",
+             "docs/gnss.md", "`python bench/lever_arm_heading.py --adopt`, its defaults, arm29",
+             "`/tmp/arm29/armrun.py 240 100 -1,0,-2 0,0,0 120`, arm29",
+             ("tests/test_docs_commands.py",)),
+    Mutation("docs-no-notes-path", "no figure in docs/ names a file among the sessions' notes",
+             "docs/estimator.md", "(diagnostic not kept: the simulated accelerometer's m_zx set to 0;",
+             "(`/work/notes/pitch27-diag.py … azx0`;",
+             ("tests/test_docs_commands.py",)),
 )
