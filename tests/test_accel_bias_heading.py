@@ -14,28 +14,12 @@ import numpy as np
 import pytest
 
 from ahrsd.estimator import ins_core as core
-from ahrsd.estimator.ins import InsParams, Ins
+from ahrsd.estimator.ins import Ins
+from support.gated_update import gated_velocity_update
 
 
 def _gated(learn: float):
-    rng = np.random.default_rng(5)
-    a = rng.normal(size=(core.N_ERR, core.N_ERR)) * 0.1
-    P = a @ a.T + np.eye(core.N_ERR) * 0.01           # a full covariance: every state correlated with the velocity
-    par = InsParams().to_array(0.0)
-    par[0]["accel_bias_learn"] = learn
-    gate = np.zeros(1, core.GNSS_GATE_DTYPE)
-    gate[0]["rejected_since_s"] = math.nan
-    h = np.zeros((3, core.N_ERR))
-    h[0, core.E_V] = 1.0                              # one velocity row (north)
-    nu = np.array([0.05, 0.0, 0.0])
-    var = np.array([0.04, 0.04, 0.04])
-    dx = np.zeros(core.N_ERR)
-    P_before = P.copy()
-    res = core._gated_update(gate[0], P, par[0], h, nu, var, 1, dx, 1.0, False, core.R_VEL_FUSED,
-                             core.R_VEL_REJECTED, core.R_VEL_RESET)
-    assert res == core.R_VEL_FUSED
-    k = P_before[:, core.E_V] / (P_before[core.E_V, core.E_V] + var[0])   # the ordinary gain (numpy)
-    return dx, k * nu[0]
+    return gated_velocity_update(learn, seed=5, velocity_axis=0, innovation_m_s=0.05)
 
 
 def test_an_unknown_heading_leaves_the_horizontal_accel_bias_alone():
