@@ -265,7 +265,9 @@ class InsParams(MagHeadingParams):
     """Correlation time of that unexplained error while the vehicle moves, s (the learner's noise is inflated
     by τ/Δt between fixes)."""
     heading_observable_sigma_rad: float = 2.0 * _DEG
-    """The GNSS holds the heading (iron learned, magnetometer allowed back) while the yaw 1σ is below this."""
+    """The GNSS holds the heading (iron learned, magnetometer allowed back) while the yaw 1σ is below this: the
+    filter's own and, without a trusted calibration until a GNSS yaw confirms the heading, the floor published for it
+    (HeadingConfirmation.unconfirmed_yaw_sigma)."""
     heading_unknown_sigma_rad: float = 15.0 * _DEG
     """Above this yaw 1σ the heading state is UNKNOWN (consumers must not use the heading), rad."""
     heading_known_sigma_rad: float = 12.0 * _DEG
@@ -1296,7 +1298,13 @@ class Ins:
         heading unconfirmed again, and its yaw variance floor is applied (with the warning)."""
         p = self.params
         P = self._P
-        observable = yaw_var < p.heading_observable_sigma_rad ** 2
+        # the GNSS holds the heading (the iron is learned against it, the magnetometer's agreement counts towards its
+        # re-entry) while the yaw's honest 1σ is below heading_observable: the filter's own and, until a GNSS yaw has
+        # confirmed the heading, the floor published for it (HeadingConfirmation.unconfirmed_yaw_sigma, NaN: none).
+        # The linearised pull-in shrinks the filter's variance faster than its error, and an iron learned against
+        # that yaw takes its error in as iron (docs/gnss.md "The iron learned against an unconfirmed heading")
+        floor = self._confirmation.unconfirmed_sigma_rad
+        observable = yaw_var < p.heading_observable_sigma_rad ** 2 and not floor >= p.heading_observable_sigma_rad
         d = self._monitor.check(t_s, yaw, yaw_var, mag_yaw, mag_var, gsf_yaw, gsf_var, gsf_valid, observable,
                                 float(self._x["vel_gate"]["nis"]),
                                 mag_var - noise if math.isfinite(mag_var) else math.nan, trust_var,

@@ -131,6 +131,11 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("monitor-reentry-trusted", "the magnetometer re-enters only with a trusted heading error",
              "estimator/heading_monitor.py", "and bias_var < self.trusted_sigma_rad ** 2:", "and True:",
              ("tests/test_heading_monitor.py",)),
+    Mutation("iron-learning-confirmed-heading", "the GNSS holds the heading for the iron learning (and the "
+             "magnetometer's re-entry) only while the yaw's honest 1σ, the unconfirmed heading's published floor "
+             "included, is below heading_observable",
+             "estimator/ins.py", " and not floor >= p.heading_observable_sigma_rad", "",
+             ("tests/test_iron_learning_confirmed_heading.py",)),
     Mutation("gsf-min-active", "the GSF yaw is not valid before min_active_s after a (re)start",
              "estimator/gsf_yaw.py", "ok = ok and t - state.reset_t_s >= params.min_active_s", "ok = ok",
              ("tests/test_gsf_yaw.py",)),
