@@ -1072,7 +1072,7 @@ class Ins:
         c_bn, vel, rate = at
         rate_cross = rate_cross_ned(c_bn, rate)
         innovation = np.array([v[0], v[1], v[2] if use_vd else math.nan]) - (vel + rate_cross @ self._arm_in_use())
-        self._lever_arm_fit.add(t_s, innovation, rate_cross, sig_s)
+        self._lever_arm_fit.add(t_s, innovation, rate_cross, sig_s, vel)
 
     def _history_state_at(self, t_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """The attitude (body → NED DCM), velocity (NED m/s) and body rate (rad/s) the history holds at t_s,
