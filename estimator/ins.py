@@ -1574,6 +1574,7 @@ class Ins:
         self._restart_calibration_error_states()
         self._mag_rotation.restart()      # its window started from the old heading
         self.yaw_resets += 1
+        self._lever_arm_fit.heading_reset()    # another attitude error from here on (lever_arm_fit.py)
         self.heading_interventions += 1
         self._pending_flags |= int(EstimateFlags.YAW_RESET)
         if alignment:     # the planned first alignment (yaw_align_to_gnss_yaw), not a heading found wrong

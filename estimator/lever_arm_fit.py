@@ -104,6 +104,7 @@ class LeverArmFit:
         self._pairs: deque = deque(maxlen=WINDOW_PAIRS)
         self._rejected: deque = deque(maxlen=WINDOW_PAIRS)     # per velocity fix: the gate rejected it
         self._last = None
+        self._segment = 0          # counts the filter's yaw resets: each starts another attitude error (`_fit`)
         self._result: LeverArmFitResult | None = None
         self._dirty = False
         self.arm_wrong = False     # latched: a fit explained the innovations, none since found the arm right
@@ -117,6 +118,15 @@ class LeverArmFit:
 
     def reset(self) -> None:
         self.__init__(self.adopt, self.prior_sigma_m)
+
+    def heading_reset(self) -> None:
+        """The filter's yaw was reset (its velocity set to a fix, its biases set back): the pairs after it hold
+        another attitude error than those before it, so they get their own attitude columns (`_fit`), and no pair is
+        taken across the reset (its velocity step is not the arm's). The arm's columns are the same on both sides:
+        the pairs before it still say where the antenna is. The latches and an adopted arm are kept."""
+        self._segment += 1
+        self._last = None
+        self._dirty = True
 
     @property
     def heading_bent(self) -> bool:
@@ -151,7 +161,7 @@ class LeverArmFit:
         # the difference of two fixes' noise: variance the sum of theirs
         self._pairs.append((d_nu[use], (rate_cross - last[2])[use], math.hypot(sigma_m_s, last[3]),
                             _attitude_columns(None if vel is None or last[4] is None else vel - last[4],
-                                              float(t_s) - last[0])[use]))
+                                              float(t_s) - last[0])[use], self._segment))
         self._dirty = True
 
     def fused(self, velocity_correction_ned_m_s: np.ndarray, rejected: bool) -> None:
@@ -199,8 +209,8 @@ class LeverArmFit:
         self.adoptions += 1
         self.in_use_wrong, self.in_use_right = False, False
         self._in_use_offset_m = np.zeros(3)
-        self._pairs = deque(((d_nu - d_rc @ offset_m, d_rc, sig, att) for d_nu, d_rc, sig, att in self._pairs),
-                            maxlen=WINDOW_PAIRS)
+        self._pairs = deque(((d_nu - d_rc @ offset_m, d_rc, sig, att, seg) for d_nu, d_rc, sig, att, seg
+                             in self._pairs), maxlen=WINDOW_PAIRS)
         if self._last is not None:
             t_s, nu, rate_cross, sigma, vel = self._last
             self._last = (t_s, nu - rate_cross @ offset_m, rate_cross, sigma, vel)
@@ -246,7 +256,7 @@ class LeverArmFit:
         # and each difference's noise variance is repeated over its k components in one call, not one array a pair
         y = np.concatenate([p[0] for p in self._pairs])
         a = np.concatenate([p[1] for p in self._pairs])
-        n = np.concatenate([p[3] for p in self._pairs])
+        n = _per_segment(self._pairs)
         noise_var = np.repeat([p[2] ** 2 for p in self._pairs], [len(p[0]) for p in self._pairs])
         n = n[:, np.linalg.norm(n, axis=0) > 1e-9 * max(1.0, float(np.abs(n).max(initial=0.0)))]
         # the attitude's columns projected out of the arm's and of the innovations (least squares on both)
@@ -298,6 +308,22 @@ def _attitude_columns(dv_ned_m_s: np.ndarray | None, dt_s: float) -> np.ndarray:
     return np.array([[dn, -de, dt_s, 0.0, 0.0],
                      [de, dn, 0.0, dt_s, 0.0],
                      [0.0, 0.0, 0.0, 0.0, dt_s]])
+
+
+def _per_segment(pairs) -> np.ndarray:
+    """The attitude's columns of every pair's rows, one block of them per segment between the filter's yaw resets
+    (`LeverArmFit.heading_reset`): a reset sets the heading, the velocity and the biases anew, so each segment has
+    its own heading error, tilt and accelerometer bias."""
+    att = np.concatenate([p[3] for p in pairs])
+    seg = np.repeat([p[4] for p in pairs], [len(p[0]) for p in pairs])
+    segments, which = np.unique(seg, return_inverse=True)
+    if len(segments) == 1:
+        return att
+    width = att.shape[1]
+    n = np.zeros((len(att), width * len(segments)))
+    cols = which[:, None] * width + np.arange(width)
+    n[np.arange(len(att))[:, None], cols] = att
+    return n
 
 
 def _confident(fit: LeverArmFitResult) -> bool:

@@ -200,16 +200,21 @@ def weaving(k: int, rng, speed_m_s: float) -> tuple[np.ndarray, np.ndarray, np.n
 
 
 def feed_weaving(fit: LeverArmFit, offset_m, seconds: float, heading_error_rad: float, speed_m_s: float = 15.0,
-                 seed: int = 1, rejected: bool = True) -> None:
+                 seed: int = 1, rejected: bool = True, reset: tuple[float, float] | None = None) -> None:
     """Innovations of a weaving vehicle (`weaving`) whose filter holds a heading `heading_error_rad` off: the
     velocity it integrates is the true change turned by that error (Groves eq. 14.69's specific-force term), so its
     velocity error follows the turns' accelerations; plus an antenna `offset_m` from where it was told, the
     receiver's 0.05 m/s noise and the filter's partial corrections, each fix `rejected` or not. The filter's own
-    velocity (NED) goes with each innovation, as ins gives it."""
+    velocity (NED) goes with each innovation, as ins gives it. `reset` (time s, heading error after, rad): the
+    filter's yaw reset at that fix, as ins's `_reset_yaw` does: its heading error another from then on, its velocity
+    set to the fix, and the fit told (`heading_reset`)."""
     rng = np.random.default_rng(seed)
     turn = Rotation.from_euler("z", heading_error_rad).as_matrix()
     error, last_velocity = np.zeros(3), None          # error: true − filter velocity, NED m/s
     for k in range(int(seconds * FIX_HZ)):
+        if reset is not None and k == round(reset[0] * FIX_HZ):
+            turn, error = Rotation.from_euler("z", reset[1]).as_matrix(), np.zeros(3)
+            fit.heading_reset()
         c_bn, rate, velocity = weaving(k, rng, speed_m_s)
         if last_velocity is not None:
             error += (np.eye(3) - turn) @ (velocity - last_velocity)
@@ -246,6 +251,32 @@ def test_a_wrong_arm_is_found_beside_a_heading_far_off():
     result = fit.result()
     assert result.explains and fit.arm_wrong, result
     assert np.all(np.abs(result.offset_m[:2] - offset[:2]) < np.minimum(3 * result.sigma_m[:2], 0.5)), result
+
+
+def test_a_right_arm_is_not_found_wrong_across_a_yaw_reset():
+    """A car whose heading, 100° off, is reset to the GNSS yaw (3° off) halfway through the fit's window, its
+    velocity set to the fix: the pairs before the reset hold one heading error, those after another, and a single
+    heading error over the window leaves the difference to the arm (the uncalibrated plane at Nairobi had its right
+    arm found wrong at 14.3 s, just after its two alignment resets). With each reset starting another attitude error
+    (`heading_reset`) the right arm is not found wrong and the fit puts it within its 3σ of the told one. Broken
+    (one attitude error over the window): found wrong."""
+    fit = LeverArmFit(adopt=False)
+    feed_weaving(fit, np.zeros(3), 20.0, math.radians(100.0), reset=(10.0, math.radians(3.0)))
+    result = fit.result()
+    assert not fit.arm_wrong, result
+    assert result.directions >= 2 and float(result.offset_m @ np.linalg.pinv(result.cov_m2) @ result.offset_m) < 16.27
+
+
+def test_a_wrong_arm_is_found_across_a_yaw_reset():
+    """A reset does not throw away what the pairs before it say of the arm: the plane (50 m/s) 100° off, reset to
+    3° off at 10 s, its antenna 2.5 m aft and 1 m to the side: found wrong, within 3σ of its fit (and 0.6 m)
+    horizontally. Broken (one attitude error over the window, or no reset told): not found."""
+    offset = np.array([-2.5, 1.0, 0.0])
+    fit = LeverArmFit(adopt=False)
+    feed_weaving(fit, offset, 30.0, math.radians(100.0), speed_m_s=50.0, reset=(10.0, math.radians(3.0)))
+    result = fit.result()
+    assert fit.arm_wrong and result.explains, result
+    assert np.all(np.abs(result.offset_m[:2] - offset[:2]) < np.minimum(3 * result.sigma_m[:2], 0.6)), result
 
 
 def test_directions_the_rotation_does_not_observe_stay_at_the_told_arm():
