@@ -47,7 +47,7 @@ from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate,
 from .kernel_entry import argument_types, entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .learned_iron import WindowYawShare
-from .lever_arm_fit import LeverArmFit, LeverArmFitResult, rate_cross_ned
+from .lever_arm_fit import LeverArmFit, LeverArmFitResult, mean_rate, rate_cross_ned
 from .mag_heading import RELEARN_GATE_OPEN_S
 from .mag_frame_tilt import N_MAG_FRAME_TILT, accel_bias_share
 from .mag_harmonics import prior_from_heading_rows, prior_variances_rad2
@@ -1070,7 +1070,8 @@ class Ins:
         if at is None:
             return
         c_bn, vel, rate = at
-        rate_cross = rate_cross_ned(c_bn, rate)
+        kept = (int(self._x["hist_newest"]) - np.arange(int(self._x["hist_count"]))) % core.H_LEN
+        rate_cross = rate_cross_ned(c_bn, mean_rate(self._hist["t_s"][kept], self._hist["rate_rad_s"][kept], t_s, rate))
         innovation = np.array([v[0], v[1], v[2] if use_vd else math.nan]) - (vel + rate_cross @ self._arm_in_use())
         self._lever_arm_fit.add(t_s, innovation, rate_cross, sig_s, vel)
 

@@ -58,6 +58,11 @@ CHI2_P999 = (math.inf, 10.83, 13.82, 16.27)   # δr significant: its χ² agains
 MIN_EXPLAINED_SHARE = 0.1      # and the fitted arm removes at least this share of what the attitude's part leaves
 MIN_REJECTED_SHARE = 0.1       # and the gate rejected at least this share of the window's fixes: an arm explains
                                # rejections; a filter that rejects none is not bent by its arm beyond its noise
+RATE_MEAN_S = 0.1              # the body rate of the arm's term is the gyro's mean over this span about the fix: one
+                               # sample's noise (ADIS16405 0.5°/s at 204.8 SPS, twice that at 819.2), doubled by
+                               # the differencing, is a third of a boat's roll-rate change between fixes and shrinks
+                               # the fitted arm towards zero (errors in the regressor; docs/gnss.md), while a
+                               # vehicle's rotation does not change within it (a boat rolls in seconds)
 ADOPT_SIGMA_SHARE = 0.25       # a fitted error is adopted once its total 1σ (√ trace of its covariance) is at most
                                # this share of its size
 RIGHT_ARM_REJECTED_SHARE = 0.02   # an adopted arm is right once a full window's rejections are at most this share:
@@ -86,6 +91,13 @@ class LeverArmFitResult(NamedTuple):
         """Where the check puts the antenna (body FRD, m): the told arm plus its error as best known."""
         err = self.offset_m if self.told_error_m is None else self.told_error_m
         return np.asarray(told_m, dtype=float) + err
+
+
+def mean_rate(t_rows_s: np.ndarray, rate_rows_rad_s: np.ndarray, t_s: float, rate_at_rad_s: np.ndarray) -> np.ndarray:
+    """The body rate for the arm's term at a fix of time t_s: the mean of the rates (rows of body rate, rad/s, at
+    times t_rows_s) within RATE_MEAN_S about t_s, or `rate_at_rad_s` when no row is within it."""
+    near = np.abs(np.asarray(t_rows_s) - t_s) <= 0.5 * RATE_MEAN_S
+    return np.asarray(rate_rows_rad_s)[near].mean(axis=0) if near.any() else np.asarray(rate_at_rad_s, dtype=float)
 
 
 def rate_cross_ned(c_bn: np.ndarray, rate_b_rad_s: np.ndarray) -> np.ndarray:
