@@ -61,8 +61,11 @@ def one_run(job) -> tuple:
     ba = np.empty((len(keep), 3))
     # every sample's published heading for the largest 0.1 s step (honesty_figures)
     published = {"q": np.empty((len(t), 4)), "sigma_yaw_rad": np.empty(len(t)), "flags": np.zeros(len(t), np.int64)}
-    j = 0
+    j, arm_wrong_at_s = 0, None
     for k, e in estimates_in_arrival_order(est, run, run.fixes):
+        if arm_wrong_at_s is None and k % EVERY == 0:       # the lever-arm check's latch (estimator/lever_arm_fit.py)
+            fit = est.lever_arm_fit()
+            arm_wrong_at_s = float(t[k]) if fit is not None and fit.arm_wrong else None
         published["q"][k], published["sigma_yaw_rad"][k] = e.q_wxyz, e.sigma_rpy_rad[2]
         published["flags"][k] = int(e.flags)
         if k % EVERY == 0:
@@ -107,7 +110,11 @@ def one_run(job) -> tuple:
         rows.append((t0, float(np.sqrt(np.mean(tilt[w] ** 2))), float(rp[w, 2].mean()), float(rp[w, 1].mean()),
                      float(np.sqrt(np.mean(hdg[w] ** 2))), float(np.degrees(np.median(sig[w]))),
                      int(np.bincount(state[w]).argmax()), ba_err[w].mean(axis=0)))
-    return job, summary, rows, consistency, tilt_sigma
+    fit = est.lever_arm_fit()
+    arm = ("" if arm_wrong_at_s is None else f"  arm found wrong at {arm_wrong_at_s:.1f} s") + (
+        f"  arm adopted, in use {','.join(f'{v:+.1f}' for v in np.add(run.lever_arm_m, fit.adopted_m))} m"
+        if fit is not None and fit.arm_adopted else "")
+    return job, summary, rows, (consistency, arm), tilt_sigma
 
 
 def main(argv=None) -> int:
@@ -144,7 +151,7 @@ def main(argv=None) -> int:
     with Pool(args.processes) as pool:
         pooled = {}
         for job, (hdg, tilt, sig, beyond, resets, hdg_after, tilt_after, step, hdg_before, tilt_before), rows, \
-                consistency, tilt_sigma in pool.imap(one_run, jobs):
+                (consistency, arm), tilt_sigma in pool.imap(one_run, jobs):
             for name, (ss, n, out) in consistency.items():
                 p_ss, p_n, p_out = pooled.get(name, (0.0, 0, 0))
                 pooled[name] = (p_ss + ss, p_n + n, p_out + out)
@@ -154,7 +161,7 @@ def main(argv=None) -> int:
             if args.step and args.case == "iron-step":
                 step_text += f"  before the step: heading {hdg_before:5.2f}°  tilt {tilt_before:5.2f}°"
             print(f"seed {job[2]:3d}: heading {hdg:5.2f}°  tilt {tilt:5.2f}°  σ median {sig:5.2f}°  "
-                  f"beyond 3σ {beyond:6.2%}  yaw resets {resets}{after}{step_text}", flush=True)
+                  f"beyond 3σ {beyond:6.2%}  yaw resets {resets}{after}{step_text}{arm}", flush=True)
             if args.tilt_sigma:
                 ts = tilt_sigma
                 print(f"          pitch mean {ts['pitch_mean']:+6.3f}°  beyond 3σ pitch {ts['pitch_beyond']:6.2%} "

@@ -11,7 +11,12 @@ published known (σ below `heading_unknown_sigma_rad`), their RMS error, the sha
 Data: the simulator's vehicle at the default site (ADIS16405 errors, its iron, the magnetometer uncalibrated),
 `simulate_gnss` at 5 Hz with the seed 1000 + N and the antenna at `--antenna-m` (body FRD, m), fed as
 `calibrate mag --gnss` feeds fixes (`GnssFixFeed`). Cases: `none` (the filter told (0, 0, 0): the antenna on a mast
-it does not know of) and `right` (told the true arm). Truth: scipy's ZYX yaw of the simulator's body→NED attitude.
+it does not know of), `right` (told the true arm) and `told` (told `--told-m`). `--errors ideal`: an IMU without
+errors, so that the fit sees only the arm, the receiver and the filter's own errors; `fitted antenna` is the mean of
+where the check puts the antenna (told + its error as best known), once a second from `--from-s`.
+
+    .venv/bin/python bench/lever_arm_heading.py --kinds car --errors ideal --seconds 300 --from-s 60 \
+        --cases told --told-m -1 0 0                                               # the car told a height 2 m wrong Truth: scipy's ZYX yaw of the simulator's body→NED attitude.
 """
 
 from __future__ import annotations
@@ -32,8 +37,8 @@ MAST_M = (-1.0, 0.0, -2.0)       # 1 m aft, 2 m up (body FRD): a boat's receiver
 
 
 def run(kind: str, seed: int, rate_hz: float, seconds: float, from_s: float, antenna_m, told_m,
-        show_fit_every_s: float = 0.0, adopt: bool = False) -> str:
-    stream = open_stream(kind, rate_hz=rate_hz, seed=seed, site=DEFAULT_SITE)
+        show_fit_every_s: float = 0.0, adopt: bool = False, errors: str = "adis16405") -> str:
+    stream = open_stream(kind, rate_hz=rate_hz, seed=seed, site=DEFAULT_SITE, errors=errors)
     b = stream.next_block(int(seconds * rate_hz))
     fixes = simulate_gnss(b, rate_hz=5.0, seed=1000 + seed, lever_arm_m=antenna_m)
     est = make_estimator("ins", declination_rad=stream.earth_field.declination_rad, lever_arm_m=told_m,
@@ -42,7 +47,7 @@ def run(kind: str, seed: int, rate_hz: float, seconds: float, from_s: float, ant
     q = b.truth_q_wxyz
     true_yaw = Rotation.from_quat(np.column_stack([q[:, 1:], q[:, :1]])).as_euler("ZYX")[:, 0]
     unknown_rad = est.params.heading_unknown_sigma_rad
-    errors_deg, sigmas_deg, late, found_at_s = [], [], 0, math.nan
+    errors_deg, sigmas_deg, late, found_at_s, antennas = [], [], 0, math.nan, []
     next_show_s = show_fit_every_s if show_fit_every_s > 0.0 else math.inf
     for i in range(len(b.t_s)):
         feed.offer_until(b.t_s[i])
@@ -50,6 +55,8 @@ def run(kind: str, seed: int, rate_hz: float, seconds: float, from_s: float, ant
         fit = est.lever_arm_fit()
         if math.isnan(found_at_s) and fit is not None and fit.arm_wrong:
             found_at_s = float(b.t_s[i])
+        if b.t_s[i] >= from_s and fit is not None and i % int(rate_hz) == 0 and np.all(np.isfinite(fit.offset_m)):
+            antennas.append(fit.antenna_m(told_m))      # once a second: where the check puts the antenna
         if b.t_s[i] >= next_show_s and fit is not None:
             next_show_s += show_fit_every_s
             print(f"  {b.t_s[i]:6.1f} s  fit δr {np.round(fit.offset_m, 2)} m  1σ {np.round(fit.sigma_m, 2)} m  "
@@ -68,7 +75,9 @@ def run(kind: str, seed: int, rate_hz: float, seconds: float, from_s: float, ant
     c = est.gnss_counters
     found = "never" if math.isnan(found_at_s) else f"{found_at_s:5.1f} s"
     arm = ",".join(f"{v:+.2f}" for v in in_use)
-    head = f"{kind:5s} {seed:4d} {rate_hz:6.1f}  told {','.join(f'{v:g}' for v in told_m):>9s}  rejected {c.rejected_velocity:4d}/{c.offered:4d}  found wrong {found:>7s}  arm in use {arm}"
+    fitted = ",".join(f"{v:+.2f}" for v in np.mean(antennas, axis=0)) if antennas else "none"
+    head = (f"{kind:5s} {seed:4d} {rate_hz:6.1f}  told {','.join(f'{v:g}' for v in told_m):>9s}  rejected {c.rejected_velocity:4d}/{c.offered:4d}  found wrong {found:>7s}  arm in use {arm}"
+            f"  fitted antenna (mean from {from_s:g} s) {fitted}")
     if not errors_deg:
         return f"{head}  from {from_s:g} s: unknown on all {late} samples"
     err, sig = np.asarray(errors_deg), np.asarray(sigmas_deg)
@@ -84,7 +93,11 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=240.0)
     ap.add_argument("--from-s", type=float, default=120.0, help="score the heading from this time on")
     ap.add_argument("--antenna-m", type=float, nargs=3, default=MAST_M, help="the true antenna arm, body FRD, m")
-    ap.add_argument("--cases", nargs="+", choices=("none", "right"), default=["none", "right"])
+    ap.add_argument("--cases", nargs="+", choices=("none", "right", "told"), default=["none", "right"])
+    ap.add_argument("--told-m", type=float, nargs=3, default=(0.0, 0.0, 0.0),
+                    help="the arm the filter is told in the case `told`, body FRD, m")
+    ap.add_argument("--errors", choices=("adis16405", "ideal"), default="adis16405",
+                    help="the simulated IMU's errors (open_stream): `ideal` leaves only the arm and the receiver")
     ap.add_argument("--adopt", action="store_true",
                     help="let ins adopt the fitted arm once sure of it (InsParams.lever_arm_adopt, off by default)")
     ap.add_argument("--show-fit-every-s", type=float, default=0.0,
@@ -95,9 +108,9 @@ def main() -> None:
         for seed in args.seeds:
             for rate in args.rates:
                 for case in args.cases:
-                    told = (0.0, 0.0, 0.0) if case == "none" else tuple(args.antenna_m)
+                    told = {"none": (0.0, 0.0, 0.0), "right": tuple(args.antenna_m), "told": tuple(args.told_m)}[case]
                     print(run(kind, seed, rate, args.seconds, args.from_s, tuple(args.antenna_m), told,
-                              args.show_fit_every_s, args.adopt), flush=True)
+                              args.show_fit_every_s, args.adopt, args.errors), flush=True)
 
 
 if __name__ == "__main__":

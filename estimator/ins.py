@@ -47,7 +47,7 @@ from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate,
 from .kernel_entry import argument_types, entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .learned_iron import WindowYawShare
-from .lever_arm_fit import LeverArmFit, LeverArmFitResult, rate_cross_ned
+from .lever_arm_fit import LeverArmFit, LeverArmFitResult, mean_rate, rate_cross_ned
 from .mag_heading import RELEARN_GATE_OPEN_S
 from .mag_frame_tilt import N_MAG_FRAME_TILT, accel_bias_share
 from .mag_harmonics import prior_from_heading_rows, prior_variances_rad2
@@ -1072,9 +1072,10 @@ class Ins:
         if at is None:
             return
         c_bn, vel, rate = at
-        rate_cross = rate_cross_ned(c_bn, rate)
+        kept = (int(self._x["hist_newest"]) - np.arange(int(self._x["hist_count"]))) % core.H_LEN
+        rate_cross = rate_cross_ned(c_bn, mean_rate(self._hist["t_s"][kept], self._hist["rate_rad_s"][kept], t_s, rate))
         innovation = np.array([v[0], v[1], v[2] if use_vd else math.nan]) - (vel + rate_cross @ self._arm_in_use())
-        self._lever_arm_fit.add(t_s, innovation, rate_cross, sig_s)
+        self._lever_arm_fit.add(t_s, innovation, rate_cross, sig_s, vel)
 
     def _history_state_at(self, t_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """The attitude (body → NED DCM), velocity (NED m/s) and body rate (rad/s) the history holds at t_s,
@@ -1582,6 +1583,7 @@ class Ins:
         self._restart_calibration_error_states()
         self._mag_rotation.restart()      # its window started from the old heading
         self.yaw_resets += 1
+        self._lever_arm_fit.heading_reset()    # another attitude error from here on (lever_arm_fit.py)
         self.heading_interventions += 1
         self._pending_flags |= int(EstimateFlags.YAW_RESET)
         if alignment:     # the planned first alignment (yaw_align_to_gnss_yaw), not a heading found wrong
