@@ -140,13 +140,16 @@ class Result:
     outcomes: list           # update_gnss return values
 
 
-def run_ins(est, run: Run, fixes, cov_every=0, fix_filter=None, sigma_yaw_out=None) -> Result:
+def run_ins(est, run: Run, fixes, cov_every=0, fix_filter=None, sigma_yaw_out=None, estimates_every=1) -> Result:
     """Feed the samples one at a time, each fix once the IMU time passes its arrival time; `sigma_yaw_out` (a
-    list) gets each sample's published yaw σ (rad)."""
+    list) gets each sample's published yaw σ (rad). `estimates_every` = n > 1: the estimate (q_mag, flags, nav) is
+    read at every n-th sample only (NaN, 0 at the others; q_true and the covariances as always): the others are
+    stepped without building one (Ins.step), which changes no estimate (estimator/estimate_view.py: what a
+    snapshot holds does not depend on how often snapshots are taken)."""
     samples = run.samples()
     n = len(run.truth.t_s)
     t = run.truth.t_s
-    q_mag = np.zeros((n, 4))
+    q_mag = np.zeros((n, 4)) if estimates_every == 1 else np.full((n, 4), np.nan)
     q_true = np.zeros((n, 4))
     flags = np.zeros(n, dtype=np.int64)
     vel = np.full((n, 3), np.nan)
@@ -162,6 +165,12 @@ def run_ins(est, run: Run, fixes, cov_every=0, fix_filter=None, sigma_yaw_out=No
             if fix_filter is None or fix_filter(fix):
                 outcomes.append(est.update_gnss(fix))
             fi += 1
+        if k % estimates_every:
+            est.step(samples[k])
+            q_true[k] = est.true_attitude_q_wxyz()
+            if cov_every and k % cov_every == 0:
+                cov[k] = est.covariance
+            continue
         r = est.update(samples[k])
         if sigma_yaw_out is not None:
             sigma_yaw_out.append(float(r.sigma_rpy_rad[2]))

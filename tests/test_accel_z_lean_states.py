@@ -41,7 +41,7 @@ def _run(scenario, seconds, errors, **params):
     learns from the fixes at the end of the run (not held, as it is with the x/y bias while the heading is unknown)."""
     run = simulated_run(scenario, seconds, errors=errors)
     est = Ins(declination_rad=DECLINATION, **params)
-    run_ins(est, run, gnss_fixes(run.truth))
+    run_ins(est, run, gnss_fixes(run.truth), estimates_every=len(run.truth.t_s))   # the final state only: no estimate
     assert est._par["accel_bias_learn"] > 0.5
     lean = est._x["accel_z_lean_rad"].copy()
     sigma = np.sqrt(np.diag(est._P)[LEAN])

@@ -42,7 +42,7 @@ def _gyro_beside_gauss_markov(rng, sigma: float, tc: float) -> dict:
     samples = int(320 * RATE_HZ)
     x = _filtered_white(samples, _window(2), rng) + np.column_stack(
         [gen.gauss_markov(samples, RATE_HZ, sigma, tc, rng) for _ in range(3)])
-    return analyse_static(np.arange(samples) / RATE_HZ, gyro_rad_s=x).parameters["gyro"]
+    return analyse_static(np.arange(samples) / RATE_HZ, gyro_rad_s=x, not_seen_bounds=False).parameters["gyro"]
 
 
 def _white_and_gauss_markov(axis: str, p, sigma: float, tc: float):
@@ -56,7 +56,7 @@ def _white_and_gauss_markov(axis: str, p, sigma: float, tc: float):
 
 def assert_white_only_at_the_density(x, label):
     """Every gyro axis of `x` (at RATE_HZ) reads white noise only, at DENSITY within 4 of its own σ (< 10 %)."""
-    result = analyse_static(np.arange(len(x)) / RATE_HZ, gyro_rad_s=x)
+    result = analyse_static(np.arange(len(x)) / RATE_HZ, gyro_rad_s=x, not_seen_bounds=False)
     for axis, p in result.parameters["gyro"].items():
         white = p.terms.get("white")
         assert white is not None and set(p.terms) == {"white"}, (axis, p.flags)
@@ -103,7 +103,8 @@ def test_white_noise_through_the_n5_window_reads_a_false_term_no_more_often_than
     axes, false_terms = 0, []
     for seed in FALSE_TERM_RECORDS:
         x = _filtered_white(samples, taps, np.random.default_rng(seed))
-        for axis, p in analyse_static(np.arange(samples) / RATE_HZ, gyro_rad_s=x).parameters["gyro"].items():
+        for axis, p in analyse_static(np.arange(samples) / RATE_HZ, gyro_rad_s=x,
+                                      not_seen_bounds=False).parameters["gyro"].items():
             axes += 1
             white = p.terms.get("white")
             assert white is not None and abs(white.value - DENSITY) < 4 * white.uncertainty, (seed, axis, p.flags)
@@ -112,6 +113,25 @@ def test_white_noise_through_the_n5_window_reads_a_false_term_no_more_often_than
     allowed = int(binom.isf(1e-3, axes, SIGNIFICANCE_P))   # P(count > allowed) < 0.1 % at the stated level
     print(f"false terms on {len(false_terms)} of {axes} axes (allowed {allowed}): {false_terms}")
     assert len(false_terms) <= allowed, false_terms
+
+
+def test_the_terms_read_without_the_not_seen_bounds_are_the_terms_read_with_them():
+    # The tests above read only the terms seen, and skip the profile bounds of the others (not_seen_bounds=False)
+    # that cost as much as the fit: the terms, their values and 1σ must be the full analysis's. Seed 45 (N = 5)
+    # reads a rate random walk beside the white noise on one axis (the test above), so more than white is compared.
+    x = _filtered_white(int(120 * RATE_HZ), _window(5), np.random.default_rng(45))
+    t = np.arange(len(x)) / RATE_HZ
+    full = analyse_static(t, gyro_rad_s=x).parameters["gyro"]
+    terms_only = analyse_static(t, gyro_rad_s=x, not_seen_bounds=False).parameters["gyro"]
+    assert any(set(p.terms) != {"white"} for p in full.values()), {ax: sorted(p.terms) for ax, p in full.items()}
+    for axis, p in full.items():
+        q = terms_only[axis]
+        assert p.not_seen and not q.not_seen, axis
+        assert sorted(q.terms) == sorted(p.terms), (axis, sorted(p.terms), sorted(q.terms))
+        for name, term in p.terms.items():
+            assert (q.terms[name].value, q.terms[name].uncertainty) == (term.value, term.uncertainty), (axis, name)
+        assert (q.white_noise, q.bias_instability, q.gauss_markov_tau_s) == \
+            (p.white_noise, p.bias_instability, p.gauss_markov_tau_s), axis
 
 
 @pytest.mark.parametrize("n", [2, 5])

@@ -92,14 +92,15 @@ def _no_terms_read(curve: AllanCurve, axis: int, std: float, reason: str,
 
 def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float, correlation_samples: int = 1,
               white_deficit_s: float = 0.0, samples_to_tell: int = 0, noise_lsb: float = math.inf,
-              white_deficit_sd_s: float = 0.0) -> NoiseParameters:
+              white_deficit_sd_s: float = 0.0, not_seen_bounds: bool = True) -> NoiseParameters:
     """Decide the terms of one axis' curve and read their values. correlation_samples: how many samples apart
     the samples stop being correlated (correlation): the fit uses only the τ beyond a few of those, where
     the filter lowers white noise to N²·(1/τ − D/τ²), D = white_deficit_s ± white_deficit_sd_s (1σ, carried by
     the fit: terms). samples_to_tell > 0: the samples are
     correlated but the record is too short to tell over how many (correlation): no term is read.
     noise_lsb: the output's σ per sample in its LSB; below MIN_NOISE_LSB no term is read
-    (resolution)."""
+    (resolution). not_seen_bounds=False leaves out the terms not seen (`not_seen` and their flags stay empty):
+    for a caller that reads only the terms seen, since their profile bounds cost as much as the fit."""
     pts = octave_points(curve, axis)
     min_tau_s = shortest_fit_tau_s(correlation_samples, rate_hz)
     unreadable = _unreadable(curve, axis, std, rate_hz, pts, min_tau_s, correlation_samples, samples_to_tell,
@@ -115,7 +116,7 @@ def read_axis(curve: AllanCurve, axis: int, std: float, rate_hz: float, correlat
                       "samples (the sensor's filter), which bends the curve there"]
     if len(pts.taus) < 3 or not np.all(pts.avar > 0):
         return _no_terms_read(curve, axis, std, "constant signal or too few cluster sizes: no noise terms read")
-    return _terms_read(curve, axis, std, rate_hz, pts, short_note)
+    return _terms_read(curve, axis, std, rate_hz, pts, short_note, not_seen_bounds)
 
 
 def _unreadable(curve: AllanCurve, axis: int, std: float, rate_hz: float, pts, min_tau_s: float,
@@ -148,15 +149,15 @@ def _unreadable(curve: AllanCurve, axis: int, std: float, rate_hz: float, pts, m
     return None
 
 
-def _terms_read(curve: AllanCurve, axis: int, std: float, rate_hz: float, pts, short_note: list[str]
-                ) -> NoiseParameters:
+def _terms_read(curve: AllanCurve, axis: int, std: float, rate_hz: float, pts, short_note: list[str],
+                not_seen_bounds: bool = True) -> NoiseParameters:
     """Fit the terms the points support (select_terms) and read their values; each term not seen is flagged
     with its upper bound and why."""
     fit = select_terms(pts)
     terms: dict[str, TermEstimate] = term_estimates(fit, pts)
     flags, not_seen = [], {}
     for name in TERMS:
-        if name not in terms:
+        if name not in terms and not_seen_bounds:
             report = not_seen_report(fit, pts, name, rate_hz)
             not_seen[name] = report
             bound = report.get("upper_bound")
@@ -285,7 +286,8 @@ class StaticAllanAnalysis:
             self._sum[sensor] += d.sum(axis=0)
             self._sum_sq[sensor] += np.einsum("ij,ij->j", d, d)
 
-    def result(self) -> AllanResult:
+    def result(self, not_seen_bounds: bool = True) -> AllanResult:
+        """The analysis of what was added; not_seen_bounds as in read_axis."""
         if self._rate_hz is None:
             n = sum(len(c[0]) for c in self._start)
             raise ValueError(f"recording too short for an Allan analysis ({n} samples)")
@@ -302,7 +304,7 @@ class StaticAllanAnalysis:
             deficit_sds = correlation.deficit_sds_s(self._rate_hz)
             to_tell, noise_lsb = correlation.samples_to_tell(), correlation.noise_lsb()
             axes = {ax: read_axis(curve, i, std[i], self._rate_hz, int(lengths[i]), float(deficits[i]), int(to_tell[i]),
-                                  float(noise_lsb[i]), float(deficit_sds[i]))
+                                  float(noise_lsb[i]), float(deficit_sds[i]), not_seen_bounds)
                     for i, ax in enumerate(AXES)}
             lo, hi = np.empty_like(curve.adev), np.empty_like(curve.adev)
             for i, ax in enumerate(AXES):
@@ -325,14 +327,16 @@ def analyse_chunks(chunks) -> AllanResult:
     return acc.result()
 
 
-def analyse_static(t_s: np.ndarray, gyro_rad_s=None, accel_m_s2=None, mag_ut=None) -> AllanResult:
-    """Allan analysis of every sensor given ((n, 3) arrays) from one static recording in memory."""
+def analyse_static(t_s: np.ndarray, gyro_rad_s=None, accel_m_s2=None, mag_ut=None, *,
+                   not_seen_bounds: bool = True) -> AllanResult:
+    """Allan analysis of every sensor given ((n, 3) arrays) from one static recording in memory; not_seen_bounds
+    as in read_axis."""
     t_s = np.asarray(t_s, dtype=np.float64)
     if t_s.shape[0] < MIN_SAMPLES:
         raise ValueError(f"recording too short for an Allan analysis ({t_s.shape[0]} samples)")
     acc = StaticAllanAnalysis()
     acc.add(t_s, gyro_rad_s, accel_m_s2, mag_ut)
-    return acc.result()
+    return acc.result(not_seen_bounds)
 
 
 _REPORT_NAMES = {"gyro": ("ARW", "rad/s/√Hz", "rad/s"), "accel": ("VRW", "m/s²/√Hz", "m/s²"),
