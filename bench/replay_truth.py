@@ -1,7 +1,10 @@
 """A replay's attitude against the simulator's truth: RMS error, median published σ and the share of samples
 beyond 3σ, for roll, pitch and true heading, from a chosen time on.
 
-    python bench/replay_truth.py att.csv boat.csv [--from-s 1]
+    python bench/replay_truth.py att.csv boat.csv [--from-s 1] [--every 10]
+
+With `--every S` also the heading per S seconds from `--from-s` on: its mean and RMS error, the median published
+σ and, for an aided replay (`--gnss`), the heading state the replay wrote most often in that stretch.
 
 ATT.csv is what `ahrsd replay … --output` writes; REC.csv the simulated recording it replayed (`ahrsd record
 --sim …`, whose `truth_q*` columns hold the true body-to-navigation quaternion, true north). Rows are matched by
@@ -40,6 +43,7 @@ def main(argv=None) -> int:
     ap.add_argument("attitude_csv")
     ap.add_argument("recording_csv")
     ap.add_argument("--from-s", type=float, default=0.0, help="leave out the samples before this time since the first")
+    ap.add_argument("--every", type=float, default=0.0, help="also the heading per this many seconds (0: not)")
     args = ap.parse_args(argv)
     att, rec = read_csv(args.attitude_csv), read_csv(args.recording_csv)
     # each attitude row to the recording's row of the same sample time (the replay drops none, but say so if it did)
@@ -60,7 +64,29 @@ def main(argv=None) -> int:
         sigma = att[sigma_column][keep]
         print(f"  {name:<8} RMS {np.sqrt(np.mean(err**2)):6.2f}°   median σ {np.median(sigma):6.2f}°   "
               f"beyond 3σ {100.0 * np.mean(np.abs(err) > 3.0 * sigma):5.2f} %")
+    if args.every > 0.0:
+        _heading_every(att[keep], truth["heading"][keep], args.every)
     return 0
+
+
+def _heading_every(att: np.ndarray, truth_deg: np.ndarray, every_s: float) -> None:
+    """The heading's error per `every_s` seconds: mean, RMS, median σ, and the most frequent heading state."""
+    from ahrsd.core.estimate import HeadingState
+
+    err = wrap_deg(att["heading_true_deg"] - truth_deg)
+    t = att["t_s"]
+    states = att["heading_state"] if "heading_state" in (att.dtype.names or ()) else None
+    print(f"  heading per {every_s:g} s: from s | mean error ° | RMS ° | median σ ° | heading state")
+    for start in np.arange(t[0], t[-1], every_s):
+        k = (t >= start) & (t < start + every_s)
+        if not np.any(k):
+            continue
+        state = ""
+        if states is not None:
+            values, counts = np.unique(states[k].astype(int), return_counts=True)
+            state = HeadingState(int(values[np.argmax(counts)])).name.lower()
+        print(f"  {start:7.1f} | {np.mean(err[k]):+6.2f} | {np.sqrt(np.mean(err[k] ** 2)):5.2f} | "
+              f"{np.median(att['sigma_yaw_deg'][k]):5.2f} | {state}")
 
 
 if __name__ == "__main__":

@@ -1415,10 +1415,21 @@ class Ins:
     def _set_magnetometer_use(self, d: MonitorDecision, mag_var: float, noise: float, trust_var: float) -> None:
         """What the kernel does with the magnetometer after the check: whether it uses it (the monitor's
         decision), whether its update may move the horizon (a trusted one may, with `mag_trusted_moves_tilt`),
-        and its heading bias's variance and time constant (the learned iron's once there is one)."""
+        and its heading bias's variance and time constant (the learned iron's once there is one).
+
+        Not while the iron is being learned (`HeadingMonitor.learning`), even where the monitor has let the
+        magnetometer back (it judges the variance at this heading, the learning the worst heading's): the iron is
+        learned against the filter's own attitude, so the field it corrects tells the filter its own yaw over the
+        learning window back, not a second heading. Fused, the two errors are one error counted twice (the Kalman
+        update takes the measurement's error as independent of the state's, Maybeck, Stochastic Models,
+        Estimation and Control vol. 1 ch. 5): the filter's yaw follows the half-learned magnetometer and the iron
+        learns that yaw (docs/tour.md "The aided boat's heading after the learning"). The GNSS holds the heading
+        until the learning ends; then the learned iron's error is carried as the harmonic states
+        (`_set_mag_harmonics`)."""
         p = self.params
-        self._par["mag_use"] = 1.0 if d.mag_use else 0.0
-        trusted = d.mag_use and self._mag_var < self._monitor.trusted_sigma_rad ** 2
+        use = d.mag_use and not self._monitor.learning
+        self._par["mag_use"] = 1.0 if use else 0.0
+        trusted = use and self._mag_var < self._monitor.trusted_sigma_rad ** 2
         self._par["mag_moves_tilt"] = 1.0 if p.mag_moves_tilt or (p.mag_trusted_moves_tilt and trusted) else 0.0
         if math.isfinite(mag_var):
             self._mag_var = mag_var - noise      # the slowly varying part at this attitude: what trust uses

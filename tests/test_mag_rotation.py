@@ -108,10 +108,12 @@ def _vertical_bias_error_deg_h(on: bool) -> float:
 
 def test_ins_learns_the_vertical_gyro_bias_from_the_magnetometer_turning():
     """Without a calibration the magnetometer's heading is not trusted and the GNSS sees the yaw only in turns:
-    the vertical gyro bias stays tens of °/h off (54 °/h RMS at 180–280 s, measured). The field's turning halves
-    it (27 °/h); the simulator's in-run instability (25 °/h) is part of both."""
-    assert _vertical_bias_error_deg_h(True) < 40.0
-    assert _vertical_bias_error_deg_h(False) > 40.0
+    the vertical gyro bias stays tens of °/h off (39.5 °/h RMS at 180–280 s, measured; 42.9 °/h while the
+    magnetometer was still fused during the iron learning, 54 °/h before that). The field's turning nearly halves
+    it (22.6 °/h); the simulator's in-run instability (25 °/h) is part of both."""
+    on, off = _vertical_bias_error_deg_h(True), _vertical_bias_error_deg_h(False)
+    assert on < 30.0
+    assert off > 1.5 * on
 
 
 def test_the_window_start_cross_product_is_numpys_to_the_bit():

@@ -115,6 +115,10 @@ MUTATIONS: tuple[Mutation, ...] = (
              "estimator/ins.py", "if (self._iron.updates > 0 or self._iron_restored) and field is not None:",
              "if False:",
              ("tests/test_learned_iron_field_check.py",)),
+    Mutation("mag-unused-while-learning", "the magnetometer is not fused while its iron is being learned against "
+             "the filter's own attitude, even where the monitor has let it back",
+             "estimator/ins.py", "use = d.mag_use and not self._monitor.learning", "use = d.mag_use",
+             ("tests/test_mag_unused_while_learning.py",)),
     Mutation("learned-iron-window-yaw", "a learned iron's harmonic prior carries its learning window's yaw "
              "error (the share learned_iron.WindowYawShare propagates), not only the learner's averaged covariance",
              "estimator/ins.py", "self._iron.cov + self._iron_yaw_share.cov())", "self._iron.cov)",
