@@ -8,9 +8,11 @@ error, which is the window's yaw error, and kept it after the learning (docs/tou
 the learning": the tour's boat 0.82° → 1.20° RMS).
 
 Truth is the simulator's (its attitude). One in-sample run, the uncalibrated boat at the bench's default site and
-iron, seed 15, 240 s: the learning ends at ~159 s, the magnetometer is let back ~13 % of the run before that;
-fused meanwhile, the heading is 1.28° off when the learning ends and 1.24° RMS over the next 40 s (0.50° and 0.54°
-not fused)."""
+iron, seed 15, 300 s: the learning runs from ~117 s (a GNSS yaw has confirmed the heading) to ~240 s, the magnetometer
+is let back from ~189 s, ~17 % of the run;
+fused meanwhile, the heading is 0.65° off when the learning ends and 0.52° RMS over the next 40 s (0.27° and 0.43°
+not fused). Before the learning waited for a GNSS-confirmed heading (Ins._monitor_decision) the same run learned from
+~100 to ~159 s and the gap was wider (1.24° against 0.54° over those 40 s)."""
 
 from __future__ import annotations
 
@@ -20,9 +22,9 @@ import pytest
 from ahrsd.estimator.ins import Ins
 from bench.vehicle_accuracy import estimates_in_arrival_order, honesty_site, simulate_vehicle, tilt_heading_errors_deg
 
-SEED, SECONDS = 15, 240.0
+SEED, SECONDS = 15, 300.0
 AFTER_S = 40.0              # the window after the learning ends, s
-MAX_RMS_DEG = 0.8           # fused while learning: 1.24°; not: 0.54°
+MAX_RMS_DEG = 0.47          # fused while learning: 0.52°; not: 0.43°
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +51,7 @@ def test_the_monitor_lets_the_magnetometer_back_while_the_iron_is_learned(boat):
     """The premise: a stretch where the monitor uses the magnetometer and the iron is still being learned."""
     run, _, learning, let_back, _ = boat
     assert np.mean(learning & let_back) > 0.05
-    assert learning[run.t_s < 200.0].any() and not learning[run.t_s >= 200.0].any()
+    assert learning[run.t_s < 250.0].any() and not learning[run.t_s >= 250.0].any()
 
 
 def test_it_is_not_fused_until_the_learning_ends(boat):
