@@ -565,7 +565,7 @@ class Ins:
             bias_confirm_sigma_rad=p.accel_bias_gsf_sigma_rad, gate_sigma=self._monitor.gate_sigma,
             calibration_sigma_rad=p.calibration_sigma_rad, trusted_sigma_rad=self._monitor.trusted_sigma_rad)
         # the heading state held at the check rate, the integrity figures, the first step rejection
-        self._publication = HeadingPublication(p, self._monitor)
+        self._publication = HeadingPublication(p)
         self.heading_checks: deque[HeadingCheckRecord] = deque(maxlen=HEADING_CHECKS_KEPT)
         self._field_key = None
         self._field_ned = None
@@ -871,7 +871,7 @@ class Ins:
 
     def heading_report(self) -> HeadingReport:
         """What the heading checks did so far (replay's summary, the daemon's warning)."""
-        return self._publication.report(self.yaw_resets)
+        return self._publication.report(self._monitor, self.yaw_resets)
 
     @property
     def heading_state(self) -> HeadingState:
@@ -1139,7 +1139,7 @@ class Ins:
             self._learn_iron(t_s, c_bn, field)
         self._set_mag_harmonics()      # the iron learning may have ended here (`_iron_harmonics_apply`)
         yaw_now = yaw if yaw_reset_to is None else wrap_pi(yaw_reset_to)
-        self._publication.note_step_rejection(t_s, d.mag_step_rad)
+        self._publication.note_step_rejection(t_s, d.mag_step_rad, self._monitor.mag_rejected)
         self._publish_heading_checks(t_s, yaw_now, gsf_yaw, gsf_var, gsf_valid)
         self.heading_checks.append(HeadingCheckRecord(t_s, d.mag_use, d.yaw_var_floor_rad2,
                                                       float(self._P[core.E_YAW, core.E_YAW]), yaw_reset_to,
@@ -1452,7 +1452,7 @@ class Ins:
         sig = math.sqrt(max(self._P[core.E_YAW, core.E_YAW], 0.0))
         if c.unconfirmed_sigma_rad > sig:
             sig = c.unconfirmed_sigma_rad
-        self._publication.publish(t_s, sig, gsf_yaw, gsf_var, gsf_valid, self._mag_trust_var,
+        self._publication.publish(t_s, self._monitor, sig, gsf_yaw, gsf_var, gsf_valid, self._mag_trust_var,
                                   float(self._mag_state()["since_update_s"]), self._iron.offset_ut,
                                   self._iron.sigma_ut, self._lever_arm_fit.heading_bent)
 
@@ -1725,8 +1725,9 @@ class Ins:
                 o[_OUT_ACCEL_BIAS],
             )
         return attitude_estimate(t_s, o, _OUT, roll, pitch, yaw, yaw_true, f,
-                                 self._publication.published(f, sigma_yaw, self._t_run_s[0], self._mag_use[0]), nav,
-                                 self._publication.integrity)
+                                 self._publication.published(f, sigma_yaw, self._t_run_s[0], self._mag_use[0],
+                                                             self._monitor.mag_rejected),
+                                 nav, self._publication.integrity)
 
 
 def _restart_uncorrelated(P: np.ndarray, i: int, var: float) -> None:
