@@ -18,7 +18,7 @@ Honesty first, so the hysteresis only ever delays a *better* state, never a wors
 
 ins updates it at each heading check (the GNSS rate), not when an estimate is built, so the state does not depend
 on how often estimates are built; between checks a σ beyond `heading_unknown_sigma_rad` still makes the published
-state UNKNOWN at once (ins._published_heading_state).
+state UNKNOWN at once (heading_publication.HeadingPublication.published).
 """
 
 from __future__ import annotations

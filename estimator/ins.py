@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.special import chdtri   # χ² inverse survival function (scipy.stats costs 1.4 s to import)
 
-from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingIntegrity, HeadingState
+from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState
 from ahrsd.core.gravity import EARTH_RATE_RAD_S
 from ahrsd.core.gnss import GnssFix
 from ahrsd.core.sample import ImuSample
@@ -39,7 +39,7 @@ from .gsf_yaw import GsfParams, gsf_fuse_velocity_of, gsf_output_of, gsf_reset, 
 from .gnss_intake import GnssCounters, GnssFixIntake
 from .heading_confirmation import HeadingConfirmation, gnss_yaw_floor
 from .heading_monitor import HeadingCheckRecord, HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
-from .heading_state_hold import HeadingStateHold
+from .heading_publication import HeadingPublication, HeadingReport
 from .ins_start import (first_history_row, fresh_state, initial_covariance, initial_true_attitude, learned_to_keep,
                         start_mag_reference, start_sensor_errors)
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
@@ -411,16 +411,6 @@ class InsParams(MagHeadingParams):
 DEFAULT_INS_PARAMS = InsParams()
 
 
-@dataclass(frozen=True)
-class HeadingReport:
-    mag_rejections: int            # times the heading monitor rejected the magnetometer
-    max_disagreement_deg: float    # the largest disagreement (with the GNSS-held heading or yaw) at a rejection
-    yaw_resets: int                # resets of the yaw to the GNSS yaw
-    mag_steps: int = 0             # of the rejections, those for a step of the magnetometer heading (mag_step.py)
-    first_step_t_s: float = math.nan     # the first of those: its time (NaN: none)
-    first_step_deg: float = math.nan     # ... and the step of the magnetometer heading it saw
-
-
 _TWO_PI = 2.0 * math.pi
 _MAX_QUEUED = 16
 HEADING_CHECKS_KEPT = 128   # the latest heading checks a reader can look at (`Ins.heading_checks`)
@@ -576,12 +566,9 @@ class Ins:
             checks_run=self._heading_checks_run, heading_confirm_sigma_rad=p.heading_confirm_gsf_sigma_rad,
             bias_confirm_sigma_rad=p.accel_bias_gsf_sigma_rad, gate_sigma=self._monitor.gate_sigma,
             calibration_sigma_rad=p.calibration_sigma_rad, trusted_sigma_rad=self._monitor.trusted_sigma_rad)
-        self._heading_state = HeadingState.UNKNOWN
-        self._state_hold = HeadingStateHold(p.heading_state_hold_s, p.heading_known_sigma_rad)
+        # the heading state held at the check rate, the integrity figures, the first step rejection
+        self._publication = HeadingPublication(p)
         self.heading_checks: deque[HeadingCheckRecord] = deque(maxlen=HEADING_CHECKS_KEPT)
-        self._integrity = None
-        self._rejection_step_rad = math.nan   # the step (mag_step.py) the current rejection is for (NaN: none)
-        self._first_step: tuple[float, float] | None = None   # (t_s, step rad) of the first step rejection
         self._field_key = None
         self._field_ned = None
         self._mag_var = p.calibration_sigma_rad ** 2
@@ -886,14 +873,11 @@ class Ins:
 
     def heading_report(self) -> HeadingReport:
         """What the heading checks did so far (replay's summary, the daemon's warning)."""
-        m = self._monitor
-        t_step, step = self._first_step if self._first_step is not None else (math.nan, math.nan)
-        return HeadingReport(m.rejections, math.degrees(m.max_disagreement_rad), self.yaw_resets,
-                             m.step.detections, t_step, math.degrees(step))
+        return self._publication.report(self._monitor, self.yaw_resets)
 
     @property
     def heading_state(self) -> HeadingState:
-        return self._heading_state
+        return self._publication.state
 
     def set_declination(self, declination_rad: float) -> None:
         """Magnetic declination (rad): the magnetometer heading is compared with true heading − declination,
@@ -1158,22 +1142,11 @@ class Ins:
             self._learn_iron(t_s, c_bn, field)
         self._set_mag_harmonics()      # the iron learning may have ended here (`_iron_harmonics_apply`)
         yaw_now = yaw if yaw_reset_to is None else wrap_pi(yaw_reset_to)
-        self._note_step_rejection(t_s, d.mag_step_rad)
+        self._publication.note_step_rejection(t_s, d.mag_step_rad, self._monitor.mag_rejected)
         self._publish_heading_checks(t_s, yaw_now, gsf_yaw, gsf_var, gsf_valid)
         self.heading_checks.append(HeadingCheckRecord(t_s, d.mag_use, d.yaw_var_floor_rad2,
                                                       float(self._P[core.E_YAW, core.E_YAW]), yaw_reset_to,
                                                       self._iron.updates > iron_updates, d.mag_step_rad))
-
-    def _note_step_rejection(self, t_s: float, step_rad: float) -> None:
-        """Whether the magnetometer is rejected now for a step of its heading (the integrity says so, the daemon
-        names it): from the check whose step test rejected it until it re-enters; the first such step for the
-        report."""
-        if math.isfinite(step_rad):
-            self._rejection_step_rad = step_rad
-            if self._first_step is None:
-                self._first_step = (t_s, step_rad)
-        elif not self._monitor.mag_rejected:
-            self._rejection_step_rad = math.nan
 
     def _mag_rotation_check(self, t_s: float, c_bn: np.ndarray, field: np.ndarray | None) -> None:
         """The vertical gyro bias from the magnetometer's turning (MagRotationBias, mag_rotation.py): the gyro's
@@ -1493,25 +1466,15 @@ class Ins:
         """What the checks publish: the yaw σ's floor while the heading is unconfirmed
         (HeadingConfirmation.unconfirmed_yaw_sigma at the yaw after any reset), the integrity figures and the
         heading state."""
-        p = self.params
         c = self._confirmation
         c.update_sigma_confirmation(yaw_rad, gsf_yaw, gsf_var, gsf_valid, self._P[core.E_YAW, core.E_YAW])
         c.unconfirmed_sigma_rad = c.unconfirmed_yaw_sigma(yaw_rad, gsf_yaw, gsf_var)
         sig = math.sqrt(max(self._P[core.E_YAW, core.E_YAW], 0.0))
         if c.unconfirmed_sigma_rad > sig:
             sig = c.unconfirmed_sigma_rad
-        self._integrity = HeadingIntegrity(gsf_yaw, math.sqrt(gsf_var) if math.isfinite(gsf_var) else math.nan,
-                                           gsf_valid, self._monitor.disagreement_rad, self._iron.offset_ut,
-                                           self._iron.sigma_ut, self._rejection_step_rad,
-                                           self._lever_arm_fit.heading_bent)
-        raw = self._monitor.heading_state(sig, False, True, p.heading_unknown_sigma_rad, self._mag_trust_var)
-        if raw == HeadingState.MAGNETOMETER and self._mag_state()["since_update_s"] > p.mag_unavailable_s:
-            # the monitor lets the magnetometer back, but the kernel's field check still rejects every field (its
-            # norm/dip reference was learned on the field before the iron was learned, and is re-learned only
-            # after mag_new_time_s of rotation): the GNSS still holds the heading, as the flags say
-            raw = HeadingState.LEARNING if self._monitor.learning else HeadingState.GNSS_ONLY
-        # held at the check rate, so the state does not depend on how often estimates are built
-        self._heading_state = self._state_hold.update(t_s, raw, sig)
+        self._publication.publish(t_s, self._monitor, sig, gsf_yaw, gsf_var, gsf_valid, self._mag_trust_var,
+                                  float(self._mag_state()["since_update_s"]), self._iron.offset_ut,
+                                  self._iron.sigma_ut, self._lever_arm_fit.heading_bent)
 
     def _floor_yaw_sigma_without_magnetometer(self, t_s: float) -> None:
         """No magnetometer (mag_enabled off): the yaw comes from the GNSS velocity alone, pulled in from an unknown
@@ -1783,28 +1746,9 @@ class Ins:
                 o[_OUT_ACCEL_BIAS],
             )
         return attitude_estimate(t_s, o, _OUT, roll, pitch, yaw, yaw_true, f,
-                                 self._published_heading_state(f, sigma_yaw), nav, self._integrity)
-
-    def _published_heading_state(self, f: int, yaw_sigma_rad: float) -> HeadingState:
-        p = self.params
-        if not yaw_sigma_rad <= p.heading_unknown_sigma_rad:
-            return HeadingState.UNKNOWN
-        if f & _F_INITIALISING:
-            # INITIALISING also stands for a yaw σ above `converged_yaw_rad` (3°) or a tilt σ above 1°. Aided, a
-            # GNSS-held heading with σ up to `heading_unknown_sigma_rad` is what GNSS_ONLY and LEARNING say (the
-            # boat's GNSS yaw is 5–6° for minutes; the published σ covers its error): only the start-up time or a
-            # heading the magnetometer alone would claim keep it UNKNOWN (the flag itself stays: no VPE yet)
-            aided = f & _F_GNSS_AIDED and self._t_run_s[0] >= p.init_min_time_s
-            if not (aided and p.heading_monitor
-                    and self._heading_state in (HeadingState.GNSS_ONLY, HeadingState.LEARNING)):
-                return HeadingState.UNKNOWN
-        if not f & _F_GNSS_AIDED:
-            # unaided the magnetometer is the only heading reference: trusted only when it is in use and not
-            # rejected (a rejected one may still be fused at its learned iron's σ, `iron_heading_corr_rad`)
-            if not p.mag_enabled or self._mag_use[0] <= 0.0 or self._monitor.mag_rejected:
-                return HeadingState.UNKNOWN
-            return HeadingState.MAGNETOMETER
-        return self._heading_state if p.heading_monitor else HeadingState.MAGNETOMETER
+                                 self._publication.published(f, sigma_yaw, self._t_run_s[0], self._mag_use[0],
+                                                             self._monitor.mag_rejected),
+                                 nav, self._publication.integrity)
 
 
 def _restart_uncorrelated(P: np.ndarray, i: int, var: float) -> None:

@@ -495,8 +495,8 @@ MUTATIONS: tuple[Mutation, ...] = (
              "estimator/ins.py", "        if self._lever_arm_fit.heading_bent:", "        if False:",
              ("tests/test_lever_arm_fit.py",)),
     Mutation("integrity-lever-arm-wrong", "ins's heading integrity says when the arm is found wrong",
-             "estimator/ins.py", "                                           self._lever_arm_fit.heading_bent)",
-             "                                           False)",
+             "estimator/heading_publication.py", "self.rejection_step_rad, heading_bent)",
+             "self.rejection_step_rad, False)",
              ("tests/test_lever_arm_fit.py",)),
     Mutation("status-lever-arm-unknown", "the daemon names a wrong arm as why the heading is unknown",
              "daemon/heading_status.py", "        if integrity is not None and integrity.lever_arm_wrong:",
@@ -590,6 +590,13 @@ MUTATIONS: tuple[Mutation, ...] = (
              "confirm_rad = self._bias_confirm_sigma_rad if self.gnss_yaw_aligned else self._heading_confirm_sigma_rad",
              "confirm_rad = self._heading_confirm_sigma_rad",
              ("tests/test_heading_confirmation.py", "tests/test_gnss_yaw_alignment.py")),
+    # ------------------------------------------------------------------ session 31 (split31): ins's parts alone
+    Mutation("publication-kernel-rejects-field",
+             "a magnetometer the monitor lets back while the kernel's field check still rejects it is published "
+             "LEARNING or GNSS_ONLY, not MAGNETOMETER",
+             "estimator/heading_publication.py",
+             "if raw == HeadingState.MAGNETOMETER and mag_since_update_s > self._mag_unavailable_s:", "if False:",
+             ("tests/test_heading_publication.py", "tests/test_heading_learning_state.py")),
     # ------------------------------------------------------------------ session 29 (walk29)
     Mutation("mag-residuals-named", "calibrate mag names each magnitude residual by the blocks it is of",
              "cli/fit_summary.py", 'as_fitted.append(f"|m| − |F| {magnitude:.3f} µT")',
