@@ -52,6 +52,7 @@ from .mag_heading import RELEARN_GATE_OPEN_S
 from .mag_frame_tilt import N_MAG_FRAME_TILT, accel_bias_share
 from .mag_harmonics import prior_from_heading_rows, prior_variances_rad2
 from .mag_heading_params import MagHeadingParams
+from .magnetometer_use import IronState, magnetometer_use
 from .mag_rotation import MagRotationBias
 from .constrained_update import scalar_update
 from .params import with_overrides
@@ -242,7 +243,7 @@ class InsParams(MagHeadingParams):
     iron_heading_corr_rad: float = 0.5
     """While the heading monitor rejects a magnetometer without a trusted calibration, all the iron was learned
     since (against the GNSS heading; nothing learned or restored before the rejection, which that iron may have
-    caused), and its floor alone keeps it above the trust limit for good (`Ins._never_trusted_here`: H below
+    caused), and its floor alone keeps it above the trust limit for good (`magnetometer_use.never_trusted_here`: H below
     ~19 µT, it never re-enters), its heading is still fused at the learned iron's honest slowly varying variance
     (`_magnetometer_trust_var`: the worst level heading plus the floor), never moving the tilt: too wide to set the
     heading, it still adds to the GNSS. The error a learned iron leaves is a function of the heading (the hard
@@ -574,7 +575,8 @@ class Ins:
         self._mag_var = p.calibration_sigma_rad ** 2
         self._mag_trust_var = p.calibration_sigma_rad ** 2
         # an iron was learned or restored before the magnetometer's latest rejection: the learned iron may be what
-        # the rejection found wrong, so a rejected magnetometer is not fused (`_rejected_magnetometer_fused`)
+        # the rejection found wrong, so a rejected magnetometer is not fused
+        # (`magnetometer_use.rejected_magnetometer_fused`)
         self._iron_before_rejection = False
         self._mag_rotation = MagRotationBias(gyro_noise_rad_s_rthz=p.gyro_noise_rad_s_sqrt_hz)
         self._mag_rotation_on = p.mag_rotation_gyro_bias and p.heading_monitor and p.mag_enabled
@@ -1386,66 +1388,35 @@ class Ins:
             P[core.E_YAW, core.E_YAW] = gsf_var
 
     def _set_magnetometer_use(self, d: MonitorDecision, mag_var: float, noise: float, trust_var: float) -> None:
-        """What the kernel does with the magnetometer after the check: whether it uses it (the monitor's
-        decision), whether its update may move the horizon (a trusted one may, with `mag_trusted_moves_tilt`),
-        and its heading bias's variance and time constant (the learned iron's once there is one).
-
-        Not while the iron is being learned (`HeadingMonitor.learning`), even where the monitor has let the
-        magnetometer back (it judges the variance at this heading, the learning the worst heading's): the iron is
-        learned against the filter's own attitude, so the field it corrects tells the filter its own yaw over the
-        learning window back, not a second heading. Fused, the two errors are one error counted twice (the Kalman
-        update takes the measurement's error as independent of the state's, Maybeck, Stochastic Models,
-        Estimation and Control vol. 1 ch. 5): the filter's yaw follows the half-learned magnetometer and the iron
-        learns that yaw (docs/tour.md "The aided boat's heading after the learning"). The GNSS holds the heading
-        until the learning ends; then the learned iron's error is carried as the harmonic states
-        (`_set_mag_harmonics`)."""
-        p = self.params
-        use = d.mag_use and not self._monitor.learning
-        self._par["mag_use"] = 1.0 if use else 0.0
-        trusted = use and self._mag_var < self._monitor.trusted_sigma_rad ** 2
-        self._par["mag_moves_tilt"] = 1.0 if p.mag_moves_tilt or (p.mag_trusted_moves_tilt and trusted) else 0.0
+        """What the kernel does with the magnetometer after the check (magnetometer_use.py decides it from what the
+        check left), written into the kernel's parameters; and the variances the next check's trust and the heading
+        state use."""
+        field = self._field_ned
+        if field is None:
+            floor = None
+        else:
+            h2 = float(field[0] ** 2 + field[1] ** 2)
+            floor = self._learned_floor_var(h2) if h2 > 0.0 else math.inf
+        iron = IronState(learning=self._monitor.learning, updates=self._iron.updates, restored=self._iron_restored,
+                         before_rejection=self._iron_before_rejection)
+        u = magnetometer_use(self.params, monitor_use=d.mag_use, trusted_sigma_rad=self._monitor.trusted_sigma_rad,
+                             slow_var_rad2=self._mag_var, mag_var_rad2=mag_var, noise_rad2=noise,
+                             trust_var_rad2=trust_var, calibration_untrusted=self._calibration_untrusted, iron=iron,
+                             learned_floor_var_rad2=floor, heading_rate_rad_s=self._heading_rate_rad_s())
+        self._par["mag_use"] = u.mag_use
+        self._par["mag_moves_tilt"] = u.mag_moves_tilt
         if math.isfinite(mag_var):
             self._mag_var = mag_var - noise      # the slowly varying part at this attitude: what trust uses
             self._mag_trust_var = trust_var      # what the heading state uses (_magnetometer_trust_var)
-            self._par["mag_bias_var_rad2"] = mag_var - noise   # at this attitude; the white part is the kernel's own noise
-            learned = self._iron.updates > 0 or self._iron_restored
-            self._par["mag_bias_tau_s"] = p.iron_learned_tau_s if learned else p.mag_bias_tau
-            if self._rejected_magnetometer_fused(d, trust_var):
-                self._par["mag_use"] = 1.0
-                self._par["mag_moves_tilt"] = 0.0
-                self._par["mag_bias_var_rad2"] = max(trust_var, mag_var - noise)
-                self._par["mag_bias_tau_s"] = max(p.iron_learned_tau_s,
-                                                  p.iron_heading_corr_rad / max(self._heading_rate_rad_s(), 1e-6))
+        if u.mag_bias_var_rad2 is not None:
+            self._par["mag_bias_var_rad2"] = u.mag_bias_var_rad2
+            self._par["mag_bias_tau_s"] = u.mag_bias_tau_s
 
     def _heading_rate_rad_s(self) -> float:
         """|rate about down| of the last gyro sample, bias removed, rad/s."""
         x = self._x
         c_bn = np.asarray(quat_to_dcm(x["q"]), dtype=float)
         return abs(float(c_bn[2] @ (x["gyro_last_rad_s"] - x["gyro_bias_rad_s"])))
-
-    def _rejected_magnetometer_fused(self, d: MonitorDecision, trust_var: float) -> bool:
-        """`iron_heading_corr_rad`: the monitor rejects a magnetometer without a trusted calibration, but an iron has
-        been learned since the rejection and none before it, so the learner's covariance and the floor
-        (`trust_var`) are all the error there is; and the floor alone keeps it from ever being trusted again here
-        (`_never_trusted_here`). Not with a trusted calibration: its own σ stands in for the floor there
-        (`_magnetometer_trust_var`), and the rejection has just shown the calibration wrong."""
-        return (self.params.iron_heading_corr_rad > 0.0 and not d.mag_use and self._calibration_untrusted
-                and self._iron.updates > 0 and not self._iron_before_rejection and not self._iron_restored
-                and math.isfinite(trust_var) and self._never_trusted_here())
-
-    def _never_trusted_here(self) -> bool:
-        """The floor of a learned magnetometer's heading σ (what no learned iron explains, `iron_unmodelled_ut`,
-        over the WMM horizontal field at the filter's position) is above the monitor's trust limit: however well the
-        iron is learned, the magnetometer cannot re-enter here (H below ~19 µT with the defaults: high latitudes).
-        Where it can, it is left out until it does, as before: fused weakly meanwhile, the kernel's field check
-        follows the learned iron and takes the magnetometer back at once on re-entry, with an iron not yet learned
-        as well as the check's delay left it (docs/figures.md "At places and irons not tuned on")."""
-        field = self._field_ned
-        if field is None:
-            return False
-        h2 = float(field[0] ** 2 + field[1] ** 2)
-        floor = self._learned_floor_var(h2) if h2 > 0.0 else math.inf
-        return floor > self._monitor.trusted_sigma_rad ** 2
 
     def _learn_iron(self, t_s: float, c_bn: np.ndarray, field: np.ndarray | None) -> None:
         """One step of the iron learning (IronLearner) against the WMM field at the filter's position, with the

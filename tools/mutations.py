@@ -117,8 +117,8 @@ MUTATIONS: tuple[Mutation, ...] = (
              ("tests/test_learned_iron_field_check.py",)),
     Mutation("mag-unused-while-learning", "the magnetometer is not fused while its iron is being learned against "
              "the filter's own attitude, even where the monitor has let it back",
-             "estimator/ins.py", "use = d.mag_use and not self._monitor.learning", "use = d.mag_use",
-             ("tests/test_mag_unused_while_learning.py",)),
+             "estimator/magnetometer_use.py", "use = monitor_use and not iron.learning", "use = monitor_use",
+             ("tests/test_magnetometer_use.py", "tests/test_mag_unused_while_learning.py")),
     Mutation("learned-iron-window-yaw", "a learned iron's harmonic prior carries its learning window's yaw "
              "error (the share learned_iron.WindowYawShare propagates), not only the learner's averaged covariance",
              "estimator/ins.py", "self._iron.cov + self._iron_yaw_share.cov())", "self._iron.cov)",
@@ -597,6 +597,13 @@ MUTATIONS: tuple[Mutation, ...] = (
              "estimator/heading_publication.py",
              "if raw == HeadingState.MAGNETOMETER and mag_since_update_s > self._mag_unavailable_s:", "if False:",
              ("tests/test_heading_publication.py", "tests/test_heading_learning_state.py")),
+    # ------------------------------------------------------------------ session 31 (use31): ins's parts alone
+    Mutation("rejected-mag-fused-only-never-trusted",
+             "a rejected magnetometer is fused at its floor only where the floor keeps it above the trust limit for "
+             "good; where it can re-enter it is left out until it does",
+             "estimator/magnetometer_use.py", "and math.isfinite(trust_var_rad2) and never_trusted)",
+             "and math.isfinite(trust_var_rad2))",
+             ("tests/test_magnetometer_use.py",)),
     # ------------------------------------------------------------------ session 29 (walk29)
     Mutation("mag-residuals-named", "calibrate mag names each magnitude residual by the blocks it is of",
              "cli/fit_summary.py", 'as_fitted.append(f"|m| − |F| {magnitude:.3f} µT")',
