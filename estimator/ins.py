@@ -52,6 +52,7 @@ from .mag_heading import RELEARN_GATE_OPEN_S
 from .mag_frame_tilt import N_MAG_FRAME_TILT, accel_bias_share
 from .mag_harmonics import prior_from_heading_rows, prior_variances_rad2
 from .mag_heading_params import MagHeadingParams
+from .monitor_follow_up import heading_observable, monitor_follow_up
 from .magnetometer_use import IronState, magnetometer_use
 from .mag_rotation import MagRotationBias
 from .constrained_update import scalar_update
@@ -1274,32 +1275,24 @@ class Ins:
         heading unconfirmed again, and its yaw variance floor is applied (with the warning)."""
         p = self.params
         P = self._P
-        # the GNSS holds the heading (the iron is learned against it, the magnetometer's agreement counts towards its
-        # re-entry) while the yaw's honest 1σ is below heading_observable: the filter's own and, until a GNSS yaw has
-        # confirmed the heading, the floor published for it (HeadingConfirmation.unconfirmed_yaw_sigma, NaN: none).
-        # The linearised pull-in shrinks the filter's variance faster than its error, and an iron learned against
-        # that yaw takes its error in as iron (docs/gnss.md "The iron learned against an unconfirmed heading")
-        floor = self._confirmation.unconfirmed_sigma_rad
-        observable = yaw_var < p.heading_observable_sigma_rad ** 2 and not floor >= p.heading_observable_sigma_rad
+        observable = heading_observable(yaw_var, self._confirmation.unconfirmed_sigma_rad,
+                                        p.heading_observable_sigma_rad)
         d = self._monitor.check(t_s, yaw, yaw_var, mag_yaw, mag_var, gsf_yaw, gsf_var, gsf_valid, observable,
                                 float(self._x["vel_gate"]["nis"]),
                                 mag_var - noise if math.isfinite(mag_var) else math.nan, trust_var,
                                 self._tilt_heading_var(), float(P[core.E_BG + 2, core.E_BG + 2]),
                                 p.gyro_noise_rad_s_sqrt_hz)
-        if gsf_valid and wrap_pi(gsf_yaw - yaw) ** 2 <= self._monitor.gate_sigma ** 2 * (yaw_var + gsf_var) \
-                and self._monitor.lowpassed_velocity_nis < self._monitor.reset_velocity_nis:
-            # the GNSS yaw confirms the filter's heading: its gyro bias was learned with a right heading
+        f = monitor_follow_up(d, yaw_rad=yaw, yaw_var_rad2=yaw_var, gsf_yaw_rad=gsf_yaw, gsf_var_rad2=gsf_var,
+                              gsf_valid=gsf_valid, gate_sigma=self._monitor.gate_sigma,
+                              lowpassed_velocity_nis=self._monitor.lowpassed_velocity_nis,
+                              reset_velocity_nis=self._monitor.reset_velocity_nis,
+                              accel_bias_gsf_sigma_rad=p.accel_bias_gsf_sigma_rad,
+                              filter_yaw_var_rad2=float(P[core.E_YAW, core.E_YAW]))
+        if f.keep_confirmed_biases:
             self._confirmation.keep_confirmed_biases(self._x["gyro_bias_rad_s"], self._x["accel_bias_m_s2"])
-            if gsf_var < p.accel_bias_gsf_sigma_rad ** 2:
-                # and the bank is sure enough that its agreement is not just its width: from now on the bank's gyro
-                # is corrected with this bias, not the filter's. A wrong magnetometer trusted before the first check
-                # teaches the vertical gyro bias its heading error's rate, and a bank that learns no bias itself
-                # would drift at that rate and hold the wrong magnetometer's heading against the right one later.
-                # Tighter than the confirmed gyro bias (any agreement within the gate): a bank near its validity
-                # limit agrees with headings tens of degrees off, and a bias confirmed by that would drag the bank
-                # after the filter again (docs/estimator.md, "Magnetometer-free GNSS yaw", Limits)
-                self._x["bank_gyro_bias_rad_s"] = self._x["gyro_bias_rad_s"]
-        if d.yaw_var_floor_rad2 > 0.0:
+        if f.bank_takes_filter_bias:
+            self._x["bank_gyro_bias_rad_s"] = self._x["gyro_bias_rad_s"]
+        if f.rejected:
             self._iron_before_rejection = self._iron.updates > 0 or self._iron_restored
             self._confirmation.magnetometer_rejected()
             # what the magnetometer taught the gyro bias since the last confirmation goes with it: a wrong
@@ -1307,8 +1300,8 @@ class Ins:
             # The value only: widening its variance too let the GNSS-only heading wander after an iron change
             # (docs/estimator.md, "Known limits: ins on level turns")
             self._x["gyro_bias_rad_s"] = self._confirmation.confirmed_gyro_bias
-        if d.yaw_var_floor_rad2 > P[core.E_YAW, core.E_YAW]:
-            P[core.E_YAW, core.E_YAW] = d.yaw_var_floor_rad2
+        if f.raise_yaw_var_to_rad2 is not None:
+            P[core.E_YAW, core.E_YAW] = f.raise_yaw_var_to_rad2
             self.heading_interventions += 1
             if math.isfinite(d.mag_step_rad):
                 log.warning("ins: magnetometer heading stepped by %+.1f° while the gyro saw no turn: iron changed; "

@@ -138,8 +138,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("iron-learning-confirmed-heading", "the GNSS holds the heading for the iron learning (and the "
              "magnetometer's re-entry) only while the yaw's honest 1σ, the unconfirmed heading's published floor "
              "included, is below heading_observable",
-             "estimator/ins.py", " and not floor >= p.heading_observable_sigma_rad", "",
-             ("tests/test_iron_learning_confirmed_heading.py",)),
+             "estimator/monitor_follow_up.py", " and not floor >= observable_sigma_rad", "",
+             ("tests/test_monitor_follow_up.py", "tests/test_iron_learning_confirmed_heading.py")),
     Mutation("gsf-min-active", "the GSF yaw is not valid before min_active_s after a (re)start",
              "estimator/gsf_yaw.py", "ok = ok and t - state.reset_t_s >= params.min_active_s", "ok = ok",
              ("tests/test_gsf_yaw.py",)),
@@ -604,6 +604,11 @@ MUTATIONS: tuple[Mutation, ...] = (
              "estimator/magnetometer_use.py", "and math.isfinite(trust_var_rad2) and never_trusted)",
              "and math.isfinite(trust_var_rad2))",
              ("tests/test_magnetometer_use.py",)),
+    Mutation("bank-bias-only-when-sure", "the GNSS yaw bank takes the filter's gyro bias only when its agreeing yaw "
+             "is sure (below accel_bias_gsf_sigma_rad), not at any agreement within the gate",
+             "estimator/monitor_follow_up.py", "bank = confirms and gsf_var_rad2 < accel_bias_gsf_sigma_rad ** 2",
+             "bank = confirms",
+             ("tests/test_monitor_follow_up.py",)),
     # ------------------------------------------------------------------ session 29 (walk29)
     Mutation("mag-residuals-named", "calibrate mag names each magnitude residual by the blocks it is of",
              "cli/fit_summary.py", 'as_fitted.append(f"|m| − |F| {magnitude:.3f} µT")',
