@@ -114,10 +114,12 @@ class HeadingPublication:
         # held at the check rate, so the state does not depend on how often estimates are built
         self.state = self._hold.update(t_s, raw, yaw_sigma_rad)
 
-    def published(self, f: int, yaw_sigma_rad: float, t_run_s: float, mag_use: float,
-                  mag_rejected: bool) -> HeadingState:
-        """The state an estimate carries: f, its flags; yaw_sigma_rad, its yaw 1σ; t_run_s, the filter's run time;
-        mag_use, the kernel's magnetometer use (0: not fused); mag_rejected, the heading monitor's verdict."""
+    def published(self, f: int, yaw_sigma_rad: float, t_run_s, mag_use, monitor: MonitorVerdicts) -> HeadingState:
+        """The state an estimate carries: f, its flags; yaw_sigma_rad, its yaw 1σ; t_run_s, the filter's run time,
+        and mag_use, the kernel's magnetometer use (0: not fused), as one-element arrays (the filter's views);
+        monitor, the heading monitor (its verdict `mag_rejected`). Called for every estimate built: the run time,
+        the use and the verdict are read only on the branches that need them (an aided filter past its start needs
+        none)."""
         if not yaw_sigma_rad <= self._unknown_sigma_rad:
             return HeadingState.UNKNOWN
         if f & _F_INITIALISING:
@@ -125,14 +127,14 @@ class HeadingPublication:
             # GNSS-held heading with σ up to `heading_unknown_sigma_rad` is what GNSS_ONLY and LEARNING say (the
             # boat's GNSS yaw is 5–6° for minutes; the published σ covers its error): only the start-up time or a
             # heading the magnetometer alone would claim keep it UNKNOWN (the flag itself stays: no VPE yet)
-            aided = f & _F_GNSS_AIDED and t_run_s >= self._init_min_time_s
+            aided = f & _F_GNSS_AIDED and t_run_s[0] >= self._init_min_time_s
             if not (aided and self._heading_monitor
                     and self.state in (HeadingState.GNSS_ONLY, HeadingState.LEARNING)):
                 return HeadingState.UNKNOWN
         if not f & _F_GNSS_AIDED:
             # unaided the magnetometer is the only heading reference: trusted only when it is in use and not
             # rejected (a rejected one may still be fused at its learned iron's σ, `iron_heading_corr_rad`)
-            if not self._mag_enabled or mag_use <= 0.0 or mag_rejected:
+            if not self._mag_enabled or mag_use[0] <= 0.0 or monitor.mag_rejected:
                 return HeadingState.UNKNOWN
             return HeadingState.MAGNETOMETER
         return self.state if self._heading_monitor else HeadingState.MAGNETOMETER

@@ -1059,10 +1059,14 @@ class Ins:
         if at is None:
             return
         c_bn, vel, rate = at
-        kept = (int(self._x["hist_newest"]) - np.arange(int(self._x["hist_count"]))) % core.H_LEN
+        kept = self._kept_history_rows()
         rate_cross = rate_cross_ned(c_bn, mean_rate(self._hist["t_s"][kept], self._hist["rate_rad_s"][kept], t_s, rate))
         innovation = np.array([v[0], v[1], v[2] if use_vd else math.nan]) - (vel + rate_cross @ self._arm_in_use())
         self._lever_arm_fit.add(t_s, innovation, rate_cross, sig_s, vel)
+
+    def _kept_history_rows(self) -> np.ndarray:
+        """The indices of the history's kept rows (hist_count ≤ H_LEN), newest first."""
+        return (int(self._x["hist_newest"]) - np.arange(int(self._x["hist_count"]))) % core.H_LEN
 
     def _history_state_at(self, t_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """The attitude (body → NED DCM), velocity (NED m/s) and body rate (rad/s) the history holds at t_s,
@@ -1541,8 +1545,8 @@ class Ins:
             return
         t_fix, v_fix, sig_s = self._last_fix_velocity
         x, hist = self._x, self._hist
-        # every kept row once (hist_count ≤ H_LEN): one indexed add, not a Python loop over up to H_LEN rows
-        rows = (int(x["hist_newest"]) - np.arange(int(x["hist_count"]))) % core.H_LEN
+        # every kept row once: one indexed add, not a Python loop over up to H_LEN rows
+        rows = self._kept_history_rows()
         step = self._fix_velocity_step
         if step is not None and step[0] == t_fix:
             # this fix's own update (fuse_gnss, just before the heading checks that reset the yaw) moved the
@@ -1710,8 +1714,7 @@ class Ins:
                 o[_OUT_ACCEL_BIAS],
             )
         return attitude_estimate(t_s, o, _OUT, roll, pitch, yaw, yaw_true, f,
-                                 self._publication.published(f, sigma_yaw, self._t_run_s[0], self._mag_use[0],
-                                                             self._monitor.mag_rejected),
+                                 self._publication.published(f, sigma_yaw, self._t_run_s, self._mag_use, self._monitor),
                                  nav, self._publication.integrity)
 
 

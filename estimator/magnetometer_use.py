@@ -84,7 +84,7 @@ def magnetometer_use(params: MagnetometerUseParams, *, monitor_use: bool, truste
     if rejected_magnetometer_fused(p, monitor_use=monitor_use, calibration_untrusted=calibration_untrusted,
                                    iron=iron, trust_var_rad2=trust_var_rad2,
                                    never_trusted=never_trusted_here(learned_floor_var_rad2, trusted_sigma_rad)):
-        return MagnetometerKernelUse(1.0, 0.0, max(trust_var_rad2, mag_var_rad2 - noise_rad2),
+        return MagnetometerKernelUse(1.0, 0.0, max(trust_var_rad2, bias_var),
                                      max(p.iron_learned_tau_s, p.iron_heading_corr_rad / max(heading_rate_rad_s, 1e-6)))
     return MagnetometerKernelUse(mag_use, moves_tilt, bias_var, tau)
 

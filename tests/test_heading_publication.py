@@ -46,7 +46,7 @@ def _check(part, t_s, sigma_deg=2.0, trust_deg=1.0, since_update_s=0.0, bent=Fal
 
 
 def _published(part, f, sigma_rad, t_run_s, mag_use):
-    return part.published(f, sigma_rad, t_run_s, mag_use, part.monitor.mag_rejected)
+    return part.published(f, sigma_rad, np.array([t_run_s]), np.array([mag_use]), part.monitor)
 
 
 def _note_step(part, t_s, step_rad):
@@ -57,7 +57,8 @@ def test_ins_params_are_what_the_part_judges_with():
     p = InsParams()
     part = HeadingPublication(p)
     assert part.state == HeadingState.UNKNOWN and part.integrity is None
-    assert part.published(AIDED, p.heading_unknown_sigma_rad * 1.01, 10.0, 1.0, False) == HeadingState.UNKNOWN
+    assert part.published(AIDED, p.heading_unknown_sigma_rad * 1.01, np.array([10.0]), np.array([1.0]),
+                          SimpleNamespace(mag_rejected=False)) == HeadingState.UNKNOWN
 
 
 def test_unknown_while_the_sigma_is_above_the_unknown_limit():
