@@ -34,16 +34,16 @@ def boat():
     est = Ins(declination_rad=run.declination_rad, lever_arm_m=run.lever_arm_m,
               mag_calibration_sigma_rad=run.mag_calibration_sigma_rad)
     n = len(run.t_s)
-    err_deg = np.full(n, np.nan)
+    q_est = np.full((n, 4), np.nan)
     learning = np.zeros(n, dtype=bool)
     let_back = np.zeros(n, dtype=bool)
     fused = np.zeros(n, dtype=bool)
     for k, e in estimates_in_arrival_order(est, run, run.fixes):
-        _, hdg = tilt_heading_errors_deg(np.asarray(e.q_wxyz)[None], run.truth_q_wxyz[k][None], run.declination_rad)
-        err_deg[k] = hdg[0]
+        q_est[k] = e.q_wxyz
         learning[k] = est._monitor.learning
         let_back[k] = not est._monitor.mag_rejected
         fused[k] = est._par["mag_use"] > 0.0
+    _, err_deg = tilt_heading_errors_deg(q_est, run.truth_q_wxyz, run.declination_rad)   # one scipy call, not n
     return run, err_deg, learning, let_back, fused
 
 
