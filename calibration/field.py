@@ -48,7 +48,7 @@ from ahrsd.core.angles import roll_pitch_from_accel, tilt_compensated_heading_ra
 from .ardupilot_compass import (COMPASS_CAL_FIT_DEFAULT_MGAUSS, COMPASS_OFFS_MAX_MGAUSS, DIAG_MAX, DIAG_MIN,
                                 MAX_SCALE_FACTOR, OFFDIAG_MAX, RADIUS_MAX_MGAUSS, RADIUS_MIN_MGAUSS, UT_TO_MGAUSS,
                                 ArduPilotMagParams, to_ardupilot)
-from .mag.geodesic_grid import N_SECTIONS, completion_mask_bytes, geodesic_sections, section_centres
+from .mag.geodesic_grid import N_SECTIONS, completion_mask_bytes, geodesic_section, geodesic_sections, section_centres
 from .mag.backstepping import fold_heading_offset
 from .mag.backstepping_paper import magnetic_heading_deg
 from .mag.course_offset import (DEFAULT_MAX_TURN_RATE_DEG_S, DEFAULT_STRAIGHT_WINDOW_S, CourseOffsetFit,
@@ -592,7 +592,7 @@ class FieldCalibration:
         step = float(wrap_pi(yaw - self._last_yaw)) if self._n > 1 else 0.0
         self._turn_sign = int(np.sign(step)) if abs(step) > math.radians(1.0) * self._keep_period else 0
         self._last_yaw = yaw
-        s = int(geodesic_sections(corrected)[0])
+        s = geodesic_section(corrected)
         sector = int((yaw % (2 * math.pi)) / (2 * math.pi) * self.config.heading_sectors) % self.config.heading_sectors
         tilt = math.degrees(math.acos(max(-1.0, min(1.0, math.cos(roll) * math.cos(pitch)))))
         self._tilt_max_deg = max(self._tilt_max_deg, tilt)

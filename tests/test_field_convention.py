@@ -15,6 +15,7 @@ from ahrsd.calibration.mag.geodesic_grid import (
     GEODESIC_MID_TRIANGLES,
     GEODESIC_TRIANGLES,
     completion_mask_bytes,
+    geodesic_section,
     geodesic_sections,
     section_centres,
 )
@@ -37,6 +38,7 @@ def test_geodesic_sections_match_ardupilot_test_vectors():
     ]
     got = geodesic_sections(np.array([c[0] for c in cases]))
     assert got.tolist() == [c[1] for c in cases]
+    assert [geodesic_section(np.array(c[0])) for c in cases] == [c[1] for c in cases]   # the one-vector form
 
 
 def test_geodesic_section_centroids_map_to_their_own_section():
@@ -49,10 +51,24 @@ def test_geodesic_section_centroids_map_to_their_own_section():
             centroids.append((a + b + c) / 3)
     assert geodesic_sections(np.array(centroids)).tolist() == list(range(80))
     assert geodesic_sections(section_centres()).tolist() == list(range(80))
+    assert [geodesic_section(c) for c in centroids] == list(range(80))
 
 
 def test_geodesic_zero_and_nan_vectors_have_no_section():
     assert geodesic_sections(np.array([[0.0, 0, 0], [np.nan, 1, 0]])).tolist() == [-1, -1]
+    assert [geodesic_section(v) for v in ([0.0, 0, 0], [np.nan, 1, 0], [1.0, np.inf, 0])] == [-1, -1, -1]
+
+
+def test_one_vector_lands_where_the_batch_puts_it():
+    """The field session's per-sample form (geodesic_section) and the batch form agree everywhere: random
+    directions at any scale, the 60 triangle vertices and edge midpoints (where two triangles share the
+    direction: the batch takes the first), and directions within 1e-10 of those edges."""
+    rng = np.random.default_rng(3)
+    t = GEODESIC_TRIANGLES.reshape(-1, 3)
+    edges = np.array([(a + b) / 2 for a in t for b in t if np.linalg.norm(a - b) < 2.1])
+    v = np.concatenate([rng.normal(size=(3000, 3)) * rng.uniform(0.01, 100.0, (3000, 1)), t, edges,
+                        edges + rng.normal(size=edges.shape) * 1e-10, GEODESIC_MID_TRIANGLES.reshape(-1, 3)])
+    assert [geodesic_section(x) for x in v] == geodesic_sections(v).tolist()
 
 
 @settings(derandomize=True, max_examples=60, deadline=None)
@@ -60,6 +76,7 @@ def test_geodesic_zero_and_nan_vectors_have_no_section():
 def test_every_direction_lands_in_exactly_one_valid_section(v):
     s = int(geodesic_sections(np.array([v]))[0])
     assert 0 <= s < 80
+    assert geodesic_section(np.array(v)) == s
     # scale invariance: a section is a direction, not a magnitude
     assert int(geodesic_sections(np.array([v]) * 7.5)[0]) == s
 

@@ -62,6 +62,27 @@ def geodesic_sections(vectors: np.ndarray) -> np.ndarray:
     return out
 
 
+_TRI_INV_ROWS = np.ascontiguousarray(_TRI_INV.reshape(60, 3))      # row 3·t + i: vertex i of triangle t
+
+
+def geodesic_section(vector) -> int:
+    """geodesic_sections of one vector (3,), the field session's per-sample call: the same rule on one matrix
+    product, without the batch's (n, 20, 3) set-up."""
+    v = np.asarray(vector, dtype=np.float64).reshape(3)
+    x, y, z = v.tolist()
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+        return -1
+    norm = math.sqrt(x * x + y * y + z * z)
+    if not norm > 0:
+        return -1
+    inside = (_TRI_INV_ROWS @ v).reshape(20, 3).min(axis=1) >= -1e-9 * norm
+    tri = int(np.argmax(inside))
+    wm0, wm1, wm2 = (_MID_INV[tri] @ v).tolist()
+    eps = 1e-12 * norm
+    sub = 3 if wm0 < -eps else 1 if wm1 < -eps else 2 if wm2 < -eps else 0
+    return 4 * tri + sub
+
+
 def section_centres() -> np.ndarray:
     """Unit vector through the centroid of each of the 80 sections (80, 3)."""
     t, m = GEODESIC_TRIANGLES, GEODESIC_MID_TRIANGLES
