@@ -125,6 +125,7 @@ def ins_reset_slew_out(run, rate_deg_s: float, wrong_deg: float = 100.0, slew=Ya
               published_yaw_slew_rad_s=math.radians(rate_deg_s))
     est._published._slew = slew(est._published.max_rate_rad_s)       # the rule compared
     k_wrong, k_right = np.searchsorted(run.t_s, [40.0, 50.0])
+    truth_yaw = Rotation.from_quat(np.roll(run.truth_q_wxyz, -1, axis=1)).as_euler("ZYX")[:, 0]   # one call, not n
     fixes = [f for f in run.fixes if not 40.0 <= f.t_s < 50.0]
     ekf3 = FakeEkf3(0.05)
     n = len(run.t_s)
@@ -136,7 +137,7 @@ def ins_reset_slew_out(run, rate_deg_s: float, wrong_deg: float = 100.0, slew=Ya
             est.update_gnss(item)
             continue
         k += 1
-        truth = yaw(run.truth_q_wxyz[k])
+        truth = float(truth_yaw[k])
         if k == k_wrong:
             est._reset_yaw(truth + math.radians(wrong_deg) - yaw(est.true_attitude_q_wxyz()), math.radians(0.5) ** 2)
             est._published.reset()      # the wrong yaw is what was published all along
