@@ -38,6 +38,7 @@ from .calibration_heading import calibration_heading_variance_rad2, calibration_
 from .gsf_yaw import GsfParams, gsf_fuse_velocity_of, gsf_output_of, gsf_reset, new_gsf_state
 from .gnss_intake import GnssCounters, GnssFixIntake
 from .heading_confirmation import HeadingConfirmation, gnss_yaw_floor
+from .heading_check_log import HeadingCheckLog
 from .heading_monitor import HeadingCheckRecord, HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
 from .heading_publication import HeadingPublication, HeadingReport
 from .ins_start import (first_history_row, fresh_state, initial_covariance, initial_true_attitude, learned_to_keep,
@@ -415,7 +416,6 @@ DEFAULT_INS_PARAMS = InsParams()
 
 _TWO_PI = 2.0 * math.pi
 _MAX_QUEUED = 16
-HEADING_CHECKS_KEPT = 128   # the latest heading checks a reader can look at (`Ins.heading_checks`)
 _MAG_ROTATION_GATE = 9.0    # NIS above which a magnetometer-rotation bias measurement is not fused (3σ)
 # the yaws a learned iron's heading error is fitted on (Ins._iron_harmonics_prior): 16, as level_heading_variance's
 _IRON_HARMONIC_YAWS_RAD = np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False)
@@ -570,7 +570,7 @@ class Ins:
             calibration_sigma_rad=p.calibration_sigma_rad, trusted_sigma_rad=self._monitor.trusted_sigma_rad)
         # the heading state held at the check rate, the integrity figures, the first step rejection
         self._publication = HeadingPublication(p)
-        self.heading_checks: deque[HeadingCheckRecord] = deque(maxlen=HEADING_CHECKS_KEPT)
+        self._check_log = HeadingCheckLog()     # the latest checks' records (`heading_checks`)
         self._field_key = None
         self._field_ned = None
         self._mag_var = p.calibration_sigma_rad ** 2
@@ -882,6 +882,11 @@ class Ins:
     def heading_state(self) -> HeadingState:
         return self._publication.state
 
+    @property
+    def heading_checks(self) -> deque[HeadingCheckRecord]:
+        """The latest heading checks' decisions, oldest first (heading_check_log.py)."""
+        return self._check_log.records
+
     def set_declination(self, declination_rad: float) -> None:
         """Magnetic declination (rad): the magnetometer heading is compared with true heading − declination,
         and the estimate's yaw/q are reported relative to magnetic north (as every estimator)."""
@@ -1151,9 +1156,8 @@ class Ins:
         yaw_now = yaw if yaw_reset_to is None else wrap_pi(yaw_reset_to)
         self._publication.note_step_rejection(t_s, d.mag_step_rad, self._monitor.mag_rejected)
         self._publish_heading_checks(t_s, yaw_now, gsf_yaw, gsf_var, gsf_valid)
-        self.heading_checks.append(HeadingCheckRecord(t_s, d.mag_use, d.yaw_var_floor_rad2,
-                                                      float(self._P[core.E_YAW, core.E_YAW]), yaw_reset_to,
-                                                      self._iron.updates > iron_updates, d.mag_step_rad))
+        self._check_log.add(t_s, d, float(self._P[core.E_YAW, core.E_YAW]), yaw_reset_to,
+                            self._iron.updates > iron_updates)
 
     def _mag_rotation_check(self, t_s: float, c_bn: np.ndarray, field: np.ndarray | None) -> None:
         """The vertical gyro bias from the magnetometer's turning (MagRotationBias, mag_rotation.py): the gyro's
