@@ -50,8 +50,8 @@ from .kernel_entry import argument_types, entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .lever_arm_fit import LeverArmFit, LeverArmFitResult, mean_rate, rate_cross_ned
 from .mag_heading import RELEARN_GATE_OPEN_S
-from .mag_frame_tilt import N_MAG_FRAME_TILT, accel_bias_share
-from .mag_harmonics import prior_from_heading_rows, prior_variances_rad2
+from .mag_error_restarts import (IRON_HARMONIC_YAWS_RAD, calibration_harmonics_prior, frame_tilt_heading_sigma_rad,
+                                 iron_harmonics_prior, restart_frame_tilt, restart_harmonics)
 from .mag_heading_params import MagHeadingParams
 from .monitor_follow_up import heading_observable, monitor_follow_up
 from .magnetometer_use import IronState, magnetometer_use
@@ -417,8 +417,6 @@ DEFAULT_INS_PARAMS = InsParams()
 _TWO_PI = 2.0 * math.pi
 _MAX_QUEUED = 16
 _MAG_ROTATION_GATE = 9.0    # NIS above which a magnetometer-rotation bias measurement is not fused (3σ)
-# the yaws a learned iron's heading error is fitted on (Ins._iron_harmonics_prior): 16, as level_heading_variance's
-_IRON_HARMONIC_YAWS_RAD = np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False)
 _NAV_MASK = sum(1 << j for j in range(core.E_V, core.E_P + 3))   # velocity and position: no gain
 _PYTHON_CALLED_KERNELS_LOADED = False   # Ins._load_python_called_kernels has run in this process
 
@@ -772,24 +770,11 @@ class Ins:
         self._restart_mag_frame_tilt()
 
     def _restart_mag_frame_tilt(self) -> None:
-        """The frame-tilt states back to zero with the calibration's prior (its stated tilt σ² per axis); off,
-        zero with zero variance: they never move. With `mag_frame_tilt_shares_accel_bias` the prior is the
-        frame-tilt prior of mag_frame_tilt.py: the tilt is partly the filter's own accelerometer-bias error."""
-        self._x["mag_frame_tilt_rad"] = 0.0
-        block = slice(core.E_MF, core.E_MF + N_MAG_FRAME_TILT)
-        P = self._P
-        P[block, :] = 0.0
-        P[:, block] = 0.0
-        if self._par["mag_frame_tilt_on"] > 0.0:
-            sigma = float(self.params.mag_calibration_frame_tilt_sigma_rad)
-            shares = self.params.mag_frame_tilt_shares_accel_bias
-            gain = accel_bias_share(sigma, np.diag(P)[core.E_BA:core.E_BA + 3]) if shares else np.zeros((2, 3))
-            bias = slice(core.E_BA, core.E_BA + 3)
-            cross = gain @ P[bias, :]        # ε = G δb_a + w: Cov(ε, δx) = G Cov(δb_a, δx)
-            P[block, :] = cross
-            P[:, block] = cross.T
-            shared = gain @ P[bias, bias] @ gain.T
-            P[block, block] = shared + np.diag(sigma ** 2 - np.diag(shared))    # w: the rest of σ² per axis
+        """The frame-tilt states back to their prior (mag_error_restarts.restart_frame_tilt): the calibration's
+        stated tilt while they are on, shared with the accelerometer bias with `mag_frame_tilt_shares_accel_bias`."""
+        restart_frame_tilt(self._x, self._P, self._par["mag_frame_tilt_on"] > 0.0,
+                           self.params.mag_calibration_frame_tilt_sigma_rad,
+                           self.params.mag_frame_tilt_shares_accel_bias)
 
     def _iron_floor_var(self) -> float:
         """`_learned_floor_var` at the WMM field (rad²)."""
@@ -804,42 +789,32 @@ class Ins:
 
     def _restart_mag_harmonics(self) -> None:
         """The harmonic states back to zero with their prior (at start-up, a new calibration, a yaw reset, the iron
-        learning ended): the calibration's, uncorrelated, or the learned iron's (`_iron_harmonics_prior`); without
-        them (`_set_mag_harmonics` off) zero, variance zero: they never move."""
+        learning ended; mag_error_restarts.py): the calibration's, uncorrelated, or the learned iron's
+        (`_iron_harmonics_prior`); without them (`_set_mag_harmonics` off) zero, variance zero: they never move."""
         p = self.params
-        self._x["mag_heading_error_rad"] = 0.0
-        block = slice(core.E_MH, core.E_MF)
-        P = self._P
-        P[block, :] = 0.0
-        P[:, block] = 0.0
+        prior = None
         if self._par["mag_harmonics_on"] > 0.0 and self._mag_harmonics_source == "iron":
-            P[block, block] = self._iron_harmonics_prior()
+            prior = self._iron_harmonics_prior()
         elif self._par["mag_harmonics_on"] > 0.0:
-            var = prior_variances_rad2(p.calibration_sigma_rad, p.mag_harmonic_offset_share,
-                                       self._frame_tilt_heading_sigma_rad())
-            P[block, block] = np.diag(var)
+            prior = calibration_harmonics_prior(p.calibration_sigma_rad, p.mag_harmonic_offset_share,
+                                                self._frame_tilt_heading_sigma_rad())
+        restart_harmonics(self._x, self._P, prior)
 
     def _frame_tilt_heading_sigma_rad(self) -> float:
-        """The share of the calibration's heading error the frame-tilt states carry (rad): its stated frame tilt's
-        (InsParams.mag_calibration_frame_tilt_heading_sigma_rad) while they are on with the calibration's harmonics
-        (the condition of `_set_mag_frame_tilt`, evaluated here: the harmonics restart before it runs); else 0."""
+        """The share of the calibration's heading error the frame-tilt states carry (rad), with the condition of
+        `_set_mag_frame_tilt` evaluated here: the harmonics restart before it runs."""
         p = self.params
-        tilt = float(p.mag_calibration_frame_tilt_sigma_rad)
-        share = float(p.mag_calibration_frame_tilt_heading_sigma_rad)
-        on = self._par["mag_harmonics_on"] > 0.0 and math.isfinite(tilt) and tilt > 0.0
-        return share if on and math.isfinite(share) and share > 0.0 else 0.0
+        return frame_tilt_heading_sigma_rad(self._par["mag_harmonics_on"] > 0.0, p.mag_calibration_frame_tilt_sigma_rad,
+                                            p.mag_calibration_frame_tilt_heading_sigma_rad)
 
     def _iron_harmonics_prior(self) -> np.ndarray:
-        """The harmonic states' prior for a learned iron (5×5, rad²): the learner's covariance projected on the
-        harmonics of the magnetic heading (`prior_from_heading_rows`, a level vehicle at the WMM field), plus the
-        part of the floor not fused as noise (`iron_harmonic_residual_share`), split as a calibration's."""
+        """The harmonic states' prior for a learned iron (5×5, rad², mag_error_restarts.iron_harmonics_prior) at the
+        WMM field: the learned iron's covariance with its window's yaw share, and the floor's unfused part."""
         p = self.params
-        field = self._field_ned
-        yaw = _IRON_HARMONIC_YAWS_RAD
-        prior = prior_from_heading_rows(self._iron.level_heading_rows(field, yaw), yaw - self._declination,
-                                        self._learned_iron.harmonic_cov())
-        floor_sigma = math.sqrt(max(0.0, 1.0 - p.iron_harmonic_residual_share) * self._iron_floor_var())
-        return prior + np.diag(prior_variances_rad2(floor_sigma, p.mag_harmonic_offset_share))
+        yaw = IRON_HARMONIC_YAWS_RAD
+        return iron_harmonics_prior(self._iron.level_heading_rows(self._field_ned, yaw), yaw - self._declination,
+                                    self._learned_iron.harmonic_cov(), self._iron_floor_var(),
+                                    p.iron_harmonic_residual_share, p.mag_harmonic_offset_share)
 
     def _yaw_and_gnss_yaw_now(self) -> tuple[float, float, float]:
         """What the unconfirmed-yaw floor is computed from (HeadingConfirmation.unconfirmed_yaw_sigma), now: the

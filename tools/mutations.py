@@ -388,8 +388,8 @@ MUTATIONS: tuple[Mutation, ...] = (
              "    return ((h_n * c00 + h_e * c10 + h_d * c20),",
              ("tests/test_mag_frame_tilt.py",)),
     Mutation("frame-tilt-prior-shares-bias", "the frame tilt's prior is correlated with the accelerometer bias",
-             "estimator/ins.py", "cross = gain @ P[bias, :]", "cross = 0.0 * gain @ P[bias, :]",
-             ("tests/test_mag_frame_tilt.py",)),
+             "estimator/mag_error_restarts.py", "cross = gain @ P[bias, :]", "cross = 0.0 * gain @ P[bias, :]",
+             ("tests/test_mag_error_restarts.py", "tests/test_mag_frame_tilt.py")),
     # ------------------------------------------------------------------ session 26 (roll26)
     Mutation("accel-axes-tilt-heel", "the tilt σ's accelerometer-axes term follows the heel (the levelling's partials)",
              "estimator/accel_axes_tilt.py",
@@ -430,8 +430,8 @@ MUTATIONS: tuple[Mutation, ...] = (
              ("tests/test_daemon_parts.py",)),
     # ------------------------------------------------------------------ session 27 (tilt27)
     Mutation("frame-tilt-share-out-of-harmonics", "the calibration's harmonics leave the frame tilt's heading share out",
-             "estimator/ins.py", "                                       self._frame_tilt_heading_sigma_rad())",
-             "                                       0.0)",
+             "estimator/ins.py", "                                                self._frame_tilt_heading_sigma_rad())",
+             "                                                0.0)",
              ("tests/test_mag_frame_tilt.py",)),
     Mutation("field-session-states-frame-tilt", "a field session's back-stepping calibration states its levelling tilt",
              "calibration/field.py",
