@@ -111,7 +111,7 @@ def trace(scenario: str, case: str, seed: int, site_label: str, iron_label: str 
         a_true, b_true = true_mag_model(truth_errors, case, t)
         errs = np.degrees(learned_level_errors_rad(learner, a_true, b_true, field_ned))
         own = math.degrees(c0_sigma_rad(learner, learner.cov, field_ned))
-        with_share = math.degrees(c0_sigma_rad(learner, learner.cov + est._iron_yaw_share.cov(), field_ned))
+        with_share = math.degrees(c0_sigma_rad(learner, learner.cov + est._learned_iron.yaw_share.cov(), field_ned))
         print(f"{t:7.1f} | {hdg[0]:+6.2f} | {sigmas} | {'yes' if learning else 'no '} | "
               f"{np.mean(errs):+6.2f} | {errs[np.argmax(np.abs(errs))]:+6.2f} | {own:5.2f} | {with_share:5.2f}"
               + ("   <- learning ended" if ended else ""))

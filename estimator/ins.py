@@ -38,19 +38,20 @@ from .calibration_heading import calibration_heading_variance_rad2, calibration_
 from .gsf_yaw import GsfParams, gsf_fuse_velocity_of, gsf_output_of, gsf_reset, new_gsf_state
 from .gnss_intake import GnssCounters, GnssFixIntake
 from .heading_confirmation import HeadingConfirmation, gnss_yaw_floor
-from .heading_monitor import HeadingCheckRecord, HeadingMonitor, IronLearner, MonitorDecision, wrap_pi
+from .heading_check_log import HeadingCheckLog
+from .heading_monitor import HeadingCheckRecord, HeadingMonitor, MonitorDecision, wrap_pi
 from .heading_publication import HeadingPublication, HeadingReport
+from .iron_in_use import IronInUse
 from .ins_start import (first_history_row, fresh_state, initial_covariance, initial_true_attitude, learned_to_keep,
                         start_mag_reference, start_sensor_errors)
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
                             float_field_slice, nav_state, uninitialised_estimate)
 from .kernel_entry import argument_types, entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
-from .learned_iron import WindowYawShare
 from .lever_arm_fit import LeverArmFit, LeverArmFitResult, mean_rate, rate_cross_ned
 from .mag_heading import RELEARN_GATE_OPEN_S
-from .mag_frame_tilt import N_MAG_FRAME_TILT, accel_bias_share
-from .mag_harmonics import prior_from_heading_rows, prior_variances_rad2
+from .mag_error_restarts import (IRON_HARMONIC_YAWS_RAD, calibration_harmonics_prior, frame_tilt_heading_sigma_rad,
+                                 iron_harmonics_prior, restart_frame_tilt, restart_harmonics)
 from .mag_heading_params import MagHeadingParams
 from .monitor_follow_up import heading_observable, monitor_follow_up
 from .magnetometer_use import IronState, magnetometer_use
@@ -415,10 +416,7 @@ DEFAULT_INS_PARAMS = InsParams()
 
 _TWO_PI = 2.0 * math.pi
 _MAX_QUEUED = 16
-HEADING_CHECKS_KEPT = 128   # the latest heading checks a reader can look at (`Ins.heading_checks`)
 _MAG_ROTATION_GATE = 9.0    # NIS above which a magnetometer-rotation bias measurement is not fused (3σ)
-# the yaws a learned iron's heading error is fitted on (Ins._iron_harmonics_prior): 16, as level_heading_variance's
-_IRON_HARMONIC_YAWS_RAD = np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False)
 _NAV_MASK = sum(1 << j for j in range(core.E_V, core.E_P + 3))   # velocity and position: no gain
 _PYTHON_CALLED_KERNELS_LOADED = False   # Ins._load_python_called_kernels has run in this process
 
@@ -509,11 +507,10 @@ class Ins:
         fuse_args = (self._gsf_arr, self._gsf_par_arr, 0.0, np.zeros(3), 0.0)
         self._gsf_fuse_velocity = entry_point(gsf_fuse_velocity_of, argument_types(gsf_fuse_velocity_of, fuse_args))
         self._load_python_called_kernels()
-        self._iron = IronLearner(self.params.iron_prior_sigma_ut, self.params.iron_soft_prior)
-        self._iron_yaw_share = WindowYawShare()    # the learning window's yaw error in it (learned_iron.py)
-        self._iron_last_t = None
-        self._iron_restored = False
-        self._field_reference_from_iron = False   # the kernel's field reference is the learned iron's (WMM)
+        # the iron learned on top of the calibration and its bookkeeping (iron_in_use.py); `_iron` is its learner
+        # (the same object for the filter's life), which the heading checks read
+        self._learned_iron = IronInUse(self.params.iron_prior_sigma_ut, self.params.iron_soft_prior)
+        self._iron = self._learned_iron.learner
         self._mag_harmonics_source = None  # what the harmonic states carry: "calibration", "iron" or None (off)
         self._published = PublishedHeading(self.params.published_yaw_slew_rad_s)
         self._published_since_init = False
@@ -570,7 +567,7 @@ class Ins:
             calibration_sigma_rad=p.calibration_sigma_rad, trusted_sigma_rad=self._monitor.trusted_sigma_rad)
         # the heading state held at the check rate, the integrity figures, the first step rejection
         self._publication = HeadingPublication(p)
-        self.heading_checks: deque[HeadingCheckRecord] = deque(maxlen=HEADING_CHECKS_KEPT)
+        self._check_log = HeadingCheckLog()     # the latest checks' records (`heading_checks`)
         self._field_key = None
         self._field_ned = None
         self._mag_var = p.calibration_sigma_rad ** 2
@@ -639,35 +636,19 @@ class Ins:
     def unmodelled_iron_ut(self) -> float:
         return self.params.iron_unmodelled_ut
 
+    @property
+    def _iron_restored(self) -> bool:
+        """The learned iron was restored from an earlier run (IronInUse.restored)."""
+        return self._learned_iron.restored
+
     def _apply_learned_iron(self) -> None:
         """The kernel removes the learned iron before its heading update: (I + D)⁻¹·(m − b); a learned iron's
-        error is the learner's, not the calibration's harmonic states' (`_mag_harmonics_apply`)."""
+        error is the learner's, not the calibration's harmonic states' (`_mag_harmonics_apply`); the kernel's field
+        check takes its reference from the WMM field while an iron is learned (IronInUse.follow_field_reference)."""
         self._par["iron_ut"] = self._iron.offset_ut
         self._par["iron_soft_inv"] = self._iron.soft_iron_inverse
         self._set_mag_harmonics()
-        self._field_reference_follows_iron()
-
-    def _field_reference_follows_iron(self) -> None:
-        """The kernel's field check (mag_heading._track_field) compares the magnitude and dip of the field it
-        fuses — the iron-corrected one — with a reference it took from the first field and adopts a new one only
-        after 20 s of rotation faster than 20 °/s, which a boat or a car never turns. A learned iron changes the
-        field the kernel fuses, so a reference taken before it is of another field: on a vehicle started without
-        a calibration, the raw field's (strong iron: ~25 % off the Earth's), against which the corrected field
-        read as disturbed from the end of the learning on, and the magnetometer went unused for
-        `mag_reject_max_s` and then fused with 100 times its noise for the rest of the run. The learner maps the
-        field onto the WMM's (IronLearner), so with a learned iron the reference is the WMM field's magnitude and
-        dip at the filter's position (the check then follows the accepted field as before, `mag_ref_tau_s`);
-        forgotten again (the next field sets it) when the learned iron is reset."""
-        ms = self._mag_state()
-        field = self._field_ned
-        if (self._iron.updates > 0 or self._iron_restored) and field is not None:
-            horizontal_ut = math.hypot(float(field[0]), float(field[1]))
-            ms["ref_norm_ut"] = ms["cand_norm_ut"] = float(np.linalg.norm(field))
-            ms["ref_dip_rad"] = ms["cand_dip_rad"] = math.atan2(float(field[2]), horizontal_ut)
-            self._field_reference_from_iron = True
-        elif self._iron.updates == 0 and not self._iron_restored and self._field_reference_from_iron:
-            mag.relearn_reference(ms, 0.0)
-            self._field_reference_from_iron = False
+        self._learned_iron.follow_field_reference(self._mag_state(), self._field_ned)
 
     def learned_iron(self) -> tuple[np.ndarray, np.ndarray]:
         """The hard iron learned on top of the calibration (body frame, µT) and its covariance (µT²)."""
@@ -689,17 +670,13 @@ class Ins:
         optionally the soft iron I + D and the 9×9 covariance of D (else D starts at its prior). Raises
         ValueError when not finite or a covariance is not positive definite."""
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
-        self._iron.set(offset_ut, cov_ut2, soft_iron, soft_cov)
-        self._iron_yaw_share.reset()
-        self._iron_restored = True
+        self._learned_iron.restore(offset_ut, cov_ut2, soft_iron, soft_cov)
         self._apply_learned_iron()
 
     def reset_learned_iron(self) -> None:
         """Forget the learned iron (a new calibration was accepted, or the operator reset it)."""
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
-        self._iron.reset()
-        self._iron_yaw_share.reset()
-        self._iron_restored = False
+        self._learned_iron.forget()
         self._apply_learned_iron()
 
     def set_mag_calibration_sigma(self, sigma_rad: float) -> None:
@@ -711,10 +688,7 @@ class Ins:
         s = float(sigma_rad)
         self.params = replace(self.params, mag_calibration_sigma_rad=s if math.isfinite(s) and s >= 0.0 else math.nan)
         p = self.params
-        self._iron.soft_prior_sigma = p.iron_soft_prior     # a learned iron's takes effect at its reset
-        if self._iron.updates == 0 and not self._iron_restored:
-            self._iron_yaw_share.reset()
-            self._iron.reset()     # nothing learned yet: it starts from the new calibration's prior, as when built
+        self._learned_iron.new_calibration(p.iron_soft_prior)
         self._monitor = HeadingMonitor(p.calibration_sigma_rad, reentry_s=p.mag_reentry_s,
                                        max_resets=p.yaw_reset_max, reset_spacing_s=p.yaw_reset_spacing_s,
                                        resets=self._monitor.resets, last_reset_t_s=self._monitor.last_reset_t_s)
@@ -740,7 +714,7 @@ class Ins:
         iron's error is the learner's covariance, `_magnetometer_heading`)."""
         p = self.params
         return (p.mag_harmonic_states and p.mag_enabled and calibration_states_error(p.mag_calibration_sigma_rad)
-                and not self._calibration_untrusted and self._iron.updates == 0 and not self._iron_restored)
+                and not self._calibration_untrusted and not self._learned_iron.learned)
 
     @property
     def _iron_harmonics_apply(self) -> bool:
@@ -750,7 +724,7 @@ class Ins:
         p = self.params
         field = self._field_ned
         return (p.iron_harmonic_states and p.mag_harmonic_states and p.mag_enabled and self._ever_aided
-                and (self._iron.updates > 0 or self._iron_restored) and not self._monitor.learning
+                and self._learned_iron.learned and not self._monitor.learning
                 and not self._monitor.mag_rejected and field is not None and field[0] ** 2 + field[1] ** 2 > 0.0)
 
     def _set_mag_harmonics(self) -> None:
@@ -796,24 +770,11 @@ class Ins:
         self._restart_mag_frame_tilt()
 
     def _restart_mag_frame_tilt(self) -> None:
-        """The frame-tilt states back to zero with the calibration's prior (its stated tilt σ² per axis); off,
-        zero with zero variance: they never move. With `mag_frame_tilt_shares_accel_bias` the prior is the
-        frame-tilt prior of mag_frame_tilt.py: the tilt is partly the filter's own accelerometer-bias error."""
-        self._x["mag_frame_tilt_rad"] = 0.0
-        block = slice(core.E_MF, core.E_MF + N_MAG_FRAME_TILT)
-        P = self._P
-        P[block, :] = 0.0
-        P[:, block] = 0.0
-        if self._par["mag_frame_tilt_on"] > 0.0:
-            sigma = float(self.params.mag_calibration_frame_tilt_sigma_rad)
-            shares = self.params.mag_frame_tilt_shares_accel_bias
-            gain = accel_bias_share(sigma, np.diag(P)[core.E_BA:core.E_BA + 3]) if shares else np.zeros((2, 3))
-            bias = slice(core.E_BA, core.E_BA + 3)
-            cross = gain @ P[bias, :]        # ε = G δb_a + w: Cov(ε, δx) = G Cov(δb_a, δx)
-            P[block, :] = cross
-            P[:, block] = cross.T
-            shared = gain @ P[bias, bias] @ gain.T
-            P[block, block] = shared + np.diag(sigma ** 2 - np.diag(shared))    # w: the rest of σ² per axis
+        """The frame-tilt states back to their prior (mag_error_restarts.restart_frame_tilt): the calibration's
+        stated tilt while they are on, shared with the accelerometer bias with `mag_frame_tilt_shares_accel_bias`."""
+        restart_frame_tilt(self._x, self._P, self._par["mag_frame_tilt_on"] > 0.0,
+                           self.params.mag_calibration_frame_tilt_sigma_rad,
+                           self.params.mag_frame_tilt_shares_accel_bias)
 
     def _iron_floor_var(self) -> float:
         """`_learned_floor_var` at the WMM field (rad²)."""
@@ -828,42 +789,32 @@ class Ins:
 
     def _restart_mag_harmonics(self) -> None:
         """The harmonic states back to zero with their prior (at start-up, a new calibration, a yaw reset, the iron
-        learning ended): the calibration's, uncorrelated, or the learned iron's (`_iron_harmonics_prior`); without
-        them (`_set_mag_harmonics` off) zero, variance zero: they never move."""
+        learning ended; mag_error_restarts.py): the calibration's, uncorrelated, or the learned iron's
+        (`_iron_harmonics_prior`); without them (`_set_mag_harmonics` off) zero, variance zero: they never move."""
         p = self.params
-        self._x["mag_heading_error_rad"] = 0.0
-        block = slice(core.E_MH, core.E_MF)
-        P = self._P
-        P[block, :] = 0.0
-        P[:, block] = 0.0
+        prior = None
         if self._par["mag_harmonics_on"] > 0.0 and self._mag_harmonics_source == "iron":
-            P[block, block] = self._iron_harmonics_prior()
+            prior = self._iron_harmonics_prior()
         elif self._par["mag_harmonics_on"] > 0.0:
-            var = prior_variances_rad2(p.calibration_sigma_rad, p.mag_harmonic_offset_share,
-                                       self._frame_tilt_heading_sigma_rad())
-            P[block, block] = np.diag(var)
+            prior = calibration_harmonics_prior(p.calibration_sigma_rad, p.mag_harmonic_offset_share,
+                                                self._frame_tilt_heading_sigma_rad())
+        restart_harmonics(self._x, self._P, prior)
 
     def _frame_tilt_heading_sigma_rad(self) -> float:
-        """The share of the calibration's heading error the frame-tilt states carry (rad): its stated frame tilt's
-        (InsParams.mag_calibration_frame_tilt_heading_sigma_rad) while they are on with the calibration's harmonics
-        (the condition of `_set_mag_frame_tilt`, evaluated here: the harmonics restart before it runs); else 0."""
+        """The share of the calibration's heading error the frame-tilt states carry (rad), with the condition of
+        `_set_mag_frame_tilt` evaluated here: the harmonics restart before it runs."""
         p = self.params
-        tilt = float(p.mag_calibration_frame_tilt_sigma_rad)
-        share = float(p.mag_calibration_frame_tilt_heading_sigma_rad)
-        on = self._par["mag_harmonics_on"] > 0.0 and math.isfinite(tilt) and tilt > 0.0
-        return share if on and math.isfinite(share) and share > 0.0 else 0.0
+        return frame_tilt_heading_sigma_rad(self._par["mag_harmonics_on"] > 0.0, p.mag_calibration_frame_tilt_sigma_rad,
+                                            p.mag_calibration_frame_tilt_heading_sigma_rad)
 
     def _iron_harmonics_prior(self) -> np.ndarray:
-        """The harmonic states' prior for a learned iron (5×5, rad²): the learner's covariance projected on the
-        harmonics of the magnetic heading (`prior_from_heading_rows`, a level vehicle at the WMM field), plus the
-        part of the floor not fused as noise (`iron_harmonic_residual_share`), split as a calibration's."""
+        """The harmonic states' prior for a learned iron (5×5, rad², mag_error_restarts.iron_harmonics_prior) at the
+        WMM field: the learned iron's covariance with its window's yaw share, and the floor's unfused part."""
         p = self.params
-        field = self._field_ned
-        yaw = _IRON_HARMONIC_YAWS_RAD
-        prior = prior_from_heading_rows(self._iron.level_heading_rows(field, yaw), yaw - self._declination,
-                                        self._iron.cov + self._iron_yaw_share.cov())
-        floor_sigma = math.sqrt(max(0.0, 1.0 - p.iron_harmonic_residual_share) * self._iron_floor_var())
-        return prior + np.diag(prior_variances_rad2(floor_sigma, p.mag_harmonic_offset_share))
+        yaw = IRON_HARMONIC_YAWS_RAD
+        return iron_harmonics_prior(self._iron.level_heading_rows(self._field_ned, yaw), yaw - self._declination,
+                                    self._learned_iron.harmonic_cov(), self._iron_floor_var(),
+                                    p.iron_harmonic_residual_share, p.mag_harmonic_offset_share)
 
     def _yaw_and_gnss_yaw_now(self) -> tuple[float, float, float]:
         """What the unconfirmed-yaw floor is computed from (HeadingConfirmation.unconfirmed_yaw_sigma), now: the
@@ -881,6 +832,11 @@ class Ins:
     @property
     def heading_state(self) -> HeadingState:
         return self._publication.state
+
+    @property
+    def heading_checks(self) -> deque[HeadingCheckRecord]:
+        """The latest heading checks' decisions, oldest first (heading_check_log.py)."""
+        return self._check_log.records
 
     def set_declination(self, declination_rad: float) -> None:
         """Magnetic declination (rad): the magnetometer heading is compared with true heading − declination,
@@ -1151,9 +1107,8 @@ class Ins:
         yaw_now = yaw if yaw_reset_to is None else wrap_pi(yaw_reset_to)
         self._publication.note_step_rejection(t_s, d.mag_step_rad, self._monitor.mag_rejected)
         self._publish_heading_checks(t_s, yaw_now, gsf_yaw, gsf_var, gsf_valid)
-        self.heading_checks.append(HeadingCheckRecord(t_s, d.mag_use, d.yaw_var_floor_rad2,
-                                                      float(self._P[core.E_YAW, core.E_YAW]), yaw_reset_to,
-                                                      self._iron.updates > iron_updates, d.mag_step_rad))
+        self._check_log.add(t_s, d, float(self._P[core.E_YAW, core.E_YAW]), yaw_reset_to,
+                            self._iron.updates > iron_updates)
 
     def _mag_rotation_check(self, t_s: float, c_bn: np.ndarray, field: np.ndarray | None) -> None:
         """The vertical gyro bias from the magnetometer's turning (MagRotationBias, mag_rotation.py): the gyro's
@@ -1218,7 +1173,7 @@ class Ins:
                 mag_yaw = wrap_pi(yaw - alpha)
                 noise = (p.mag_noise_ut / h) ** 2
                 mag_var = p.calibration_sigma_rad ** 2 + noise
-                if self._iron.updates > 0 or self._iron_restored:
+                if self._learned_iron.learned:
                     # learning (or learned): the learned hard iron's uncertainty replaces the calibration's
                     # hard-iron error; what a hard iron cannot explain stays
                     mag_var = min(p.calibration_sigma_rad ** 2, (p.iron_unmodelled_ut / h) ** 2) + noise \
@@ -1234,7 +1189,7 @@ class Ins:
         the heading the vehicle points at, so a half-learned iron read as learned on one leg and not on the next,
         stopping and restarting the learning and flipping the published state MAGNETOMETER ↔ LEARNING each time
         the boat turned (docs/gnss.md "Heading state"). This one only falls while learning."""
-        if not (self._iron.updates > 0 or self._iron_restored) or field is None or not math.isfinite(mag_var):
+        if not self._learned_iron.learned or field is None or not math.isfinite(mag_var):
             return mag_var - noise if math.isfinite(mag_var) else math.nan
         h2 = float(field[0] ** 2 + field[1] ** 2)
         return self._learned_floor_var(h2) + self._iron.level_heading_variance(field)
@@ -1297,7 +1252,7 @@ class Ins:
         if f.bank_takes_filter_bias:
             self._x["bank_gyro_bias_rad_s"] = self._x["gyro_bias_rad_s"]
         if f.rejected:
-            self._iron_before_rejection = self._iron.updates > 0 or self._iron_restored
+            self._iron_before_rejection = self._learned_iron.learned
             self._confirmation.magnetometer_rejected()
             # what the magnetometer taught the gyro bias since the last confirmation goes with it: a wrong
             # magnetometer's heading error rate, which the filter would otherwise keep integrating as GNSS-only.
@@ -1421,12 +1376,9 @@ class Ins:
         p = self.params
         if field is None:
             return
-        dt = max(t_s - (self._iron_last_t if self._iron_last_t is not None else t_s - 0.2), 1e-3)
-        self._iron_last_t = t_s
         att = slice(core.E_TH, core.E_TH + 3)
-        self._iron.update(self._x["mag_last_ut"], c_bn, field, self._P[att, att],
-                          p.iron_unmodelled_ut, max(1.0, p.iron_tau_s / dt))
-        self._iron_yaw_share.step(*self._iron.last_gain, math.sqrt(max(self._P[core.E_YAW, core.E_YAW], 0.0)))
+        self._learned_iron.learn(t_s, self._x["mag_last_ut"], c_bn, field, self._P[att, att],
+                                 self._P[core.E_YAW, core.E_YAW], p.iron_unmodelled_ut, p.iron_tau_s)
         self._apply_learned_iron()
 
     def _publish_heading_checks(self, t_s: float, yaw_rad: float, gsf_yaw: float, gsf_var: float,

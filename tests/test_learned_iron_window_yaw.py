@@ -124,4 +124,4 @@ def test_a_reset_or_restored_iron_forgets_the_window():
     restored = _offset_sigma_deg(est)
     assert restored < 0.5 * WINDOW_YAW_SIGMA_DEG     # a restored iron's window is not persisted: its own σ only
     est.reset_learned_iron()
-    assert not np.any(est._iron_yaw_share.share)
+    assert not np.any(est._learned_iron.yaw_share.share)

@@ -112,17 +112,28 @@ MUTATIONS: tuple[Mutation, ...] = (
              ("tests/test_mag_step.py",)),
     Mutation("learned-iron-field-reference", "with a learned iron the kernel's field check compares the corrected "
              "field with the WMM's, not with the raw field it saw first",
-             "estimator/ins.py", "if (self._iron.updates > 0 or self._iron_restored) and field is not None:",
+             "estimator/iron_in_use.py", "if self.learned and field_ned_ut is not None:",
              "if False:",
-             ("tests/test_learned_iron_field_check.py",)),
+             ("tests/test_iron_in_use.py", "tests/test_learned_iron_field_check.py")),
     Mutation("mag-unused-while-learning", "the magnetometer is not fused while its iron is being learned against "
              "the filter's own attitude, even where the monitor has let it back",
              "estimator/magnetometer_use.py", "use = monitor_use and not iron.learning", "use = monitor_use",
              ("tests/test_magnetometer_use.py", "tests/test_mag_unused_while_learning.py")),
     Mutation("learned-iron-window-yaw", "a learned iron's harmonic prior carries its learning window's yaw "
              "error (the share learned_iron.WindowYawShare propagates), not only the learner's averaged covariance",
-             "estimator/ins.py", "self._iron.cov + self._iron_yaw_share.cov())", "self._iron.cov)",
-             ("tests/test_learned_iron_window_yaw.py",)),
+             "estimator/iron_in_use.py", "return self.learner.cov + self.yaw_share.cov()", "return self.learner.cov",
+             ("tests/test_iron_in_use.py", "tests/test_learned_iron_window_yaw.py")),
+    Mutation("iron-new-calibration-keeps-learned", "a new calibration's soft-iron prior restarts the learner only "
+             "where it has learned or restored nothing; a learned iron is kept until it is reset",
+             "estimator/iron_in_use.py", "        if not self.learned:", "        if True:",
+             ("tests/test_iron_in_use.py",)),
+    Mutation("iron-first-step-one-check", "the first learning step counts one heading check's span (0.2 s) in the "
+             "attitude noise's inflation, the later ones the time since the last step",
+             "estimator/iron_in_use.py", "FIRST_STEP_S = 0.2", "FIRST_STEP_S = 1.0",
+             ("tests/test_iron_in_use.py",)),
+    Mutation("heading-checks-latest-kept", "only the latest HEADING_CHECKS_KEPT heading checks' records are kept",
+             "estimator/heading_check_log.py", "deque(maxlen=kept)", "deque()",
+             ("tests/test_heading_check_log.py",)),
     Mutation("learned-iron-window-yaw-step", "the window's yaw share grows with each learning step at the filter's "
              "yaw σ",
              "estimator/learned_iron.py", "self.share = kept + k @ np.asarray(attitude_jacobian, dtype=float)[:, _DOWN] * sigma",
@@ -377,8 +388,8 @@ MUTATIONS: tuple[Mutation, ...] = (
              "    return ((h_n * c00 + h_e * c10 + h_d * c20),",
              ("tests/test_mag_frame_tilt.py",)),
     Mutation("frame-tilt-prior-shares-bias", "the frame tilt's prior is correlated with the accelerometer bias",
-             "estimator/ins.py", "cross = gain @ P[bias, :]", "cross = 0.0 * gain @ P[bias, :]",
-             ("tests/test_mag_frame_tilt.py",)),
+             "estimator/mag_error_restarts.py", "cross = gain @ P[bias, :]", "cross = 0.0 * gain @ P[bias, :]",
+             ("tests/test_mag_error_restarts.py", "tests/test_mag_frame_tilt.py")),
     # ------------------------------------------------------------------ session 26 (roll26)
     Mutation("accel-axes-tilt-heel", "the tilt σ's accelerometer-axes term follows the heel (the levelling's partials)",
              "estimator/accel_axes_tilt.py",
@@ -419,8 +430,8 @@ MUTATIONS: tuple[Mutation, ...] = (
              ("tests/test_daemon_parts.py",)),
     # ------------------------------------------------------------------ session 27 (tilt27)
     Mutation("frame-tilt-share-out-of-harmonics", "the calibration's harmonics leave the frame tilt's heading share out",
-             "estimator/ins.py", "                                       self._frame_tilt_heading_sigma_rad())",
-             "                                       0.0)",
+             "estimator/ins.py", "                                                self._frame_tilt_heading_sigma_rad())",
+             "                                                0.0)",
              ("tests/test_mag_frame_tilt.py",)),
     Mutation("field-session-states-frame-tilt", "a field session's back-stepping calibration states its levelling tilt",
              "calibration/field.py",
