@@ -48,7 +48,8 @@ from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate,
                             float_field_slice, nav_state, uninitialised_estimate)
 from .kernel_entry import argument_types, entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
-from .lever_arm_fit import LeverArmFit, LeverArmFitResult, mean_rate, rate_cross_ned
+from .history_rows import bracket, rows_near
+from .lever_arm_fit import RATE_MEAN_S, LeverArmFit, LeverArmFitResult, mean_rate, rate_cross_ned
 from .mag_heading import RELEARN_GATE_OPEN_S
 from .mag_error_restarts import (IRON_HARMONIC_YAWS_RAD, calibration_harmonics_prior, frame_tilt_heading_sigma_rad,
                                  iron_harmonics_prior, restart_frame_tilt, restart_harmonics)
@@ -65,6 +66,8 @@ from .rotations import quat_to_dcm, quat_to_euler, rotvec_to_dcm
 from .kernel_rotations import dcm
 
 log = logging.getLogger(__name__)
+_HIST_Q, _HIST_VEL, _HIST_RATE = (float_field_slice(core.INS_HISTORY_DTYPE, name)
+                                  for name in ("q", "vel_ned_m_s", "rate_rad_s"))
 _DEG = math.pi / 180.0
 
 
@@ -465,6 +468,10 @@ class Ins:
         self._mag_use = self._par_arr["mag_use"]
         self._P = np.zeros((core.N_ERR, core.N_ERR))
         self._hist = np.zeros(core.H_LEN, core.INS_HISTORY_DTYPE)
+        # what each fix reads of the history (`_history_state_at`, `_add_to_lever_arm_fit`): its times and body
+        # rates as views, its rows as flat float64 rows (one interpolation for the attitude, velocity and rate)
+        self._hist_t_s, self._hist_rate = self._hist["t_s"], self._hist["rate_rad_s"]
+        self._hist_rows = self._hist.view(np.float64).reshape(core.H_LEN, -1)
         self._out_arr = np.zeros(1, core.INS_OUT_DTYPE)   # the step's outputs (what the compiled step takes)
         self._out = self._out_arr[0]
         # the same outputs as one flat float64 array: copied whole for an estimate (copying a record goes field
@@ -549,7 +556,6 @@ class Ins:
                 (core._apply_correction, (x, par, dx)),
                 (core._correct_history, (self._hist, x, 0.0, dx, 0.0, 0.0, 0.0)),
                 (core._rotate_attitude, (x["q"], 0.0, 0.0, 0.0)),
-                (core._history_at, (x, self._hist, 0.0)),
                 (core.fill_outputs, (x, self._P, par, 0.0, 0.0, 0.0, self._out)),
                 (input_validity, (0,) + (0.0,) * 9)):
             kernel.compile(tuple(kernel.typeof_pyval(a) for a in args))
@@ -1015,8 +1021,9 @@ class Ins:
         if at is None:
             return
         c_bn, vel, rate = at
-        kept = self._kept_history_rows()
-        rate_cross = rate_cross_ned(c_bn, mean_rate(self._hist["t_s"][kept], self._hist["rate_rad_s"][kept], t_s, rate))
+        near = rows_near(self._hist_t_s, int(self._x["hist_newest"]), int(self._x["hist_count"]), t_s,
+                         0.5 * RATE_MEAN_S)
+        rate_cross = rate_cross_ned(c_bn, mean_rate(self._hist_t_s[near], self._hist_rate[near], t_s, rate))
         innovation = np.array([v[0], v[1], v[2] if use_vd else math.nan]) - (vel + rate_cross @ self._arm_in_use())
         self._lever_arm_fit.add(t_s, innovation, rate_cross, sig_s, vel)
 
@@ -1028,12 +1035,12 @@ class Ins:
         """The attitude (body → NED DCM), velocity (NED m/s) and body rate (rad/s) the history holds at t_s,
         interpolated between its two rows as the kernel does for a fix (core._history_at); None before any row.
         For the lever-arm check's innovation and a yaw reset's velocity at the fix: one reading for both."""
-        hist = self._hist
-        i0, i1, w = core._history_at(self._x, hist, t_s)
+        i0, i1, w = bracket(self._hist_t_s, int(self._x["hist_newest"]), int(self._x["hist_count"]), t_s)
         if i0 < 0:
             return None
-        a, b = hist[i0], hist[i1]
-        q, vel, rate = (a[k] + w * (b[k] - a[k]) for k in ("q", "vel_ned_m_s", "rate_rad_s"))
+        a, b = self._hist_rows[i0], self._hist_rows[i1]
+        row = a + w * (b - a)
+        q, vel, rate = row[_HIST_Q], row[_HIST_VEL], row[_HIST_RATE]
         return np.asarray(quat_to_dcm(q / np.linalg.norm(q)), dtype=float), vel, rate
 
     def _arm_in_use(self) -> np.ndarray:

@@ -97,7 +97,10 @@ def mean_rate(t_rows_s: np.ndarray, rate_rows_rad_s: np.ndarray, t_s: float, rat
     """The body rate for the arm's term at a fix of time t_s: the mean of the rates (rows of body rate, rad/s, at
     times t_rows_s) within RATE_MEAN_S about t_s, or `rate_at_rad_s` when no row is within it."""
     near = np.abs(np.asarray(t_rows_s) - t_s) <= 0.5 * RATE_MEAN_S
-    return np.asarray(rate_rows_rad_s)[near].mean(axis=0) if near.any() else np.asarray(rate_at_rad_s, dtype=float)
+    rows = np.asarray(rate_rows_rad_s)[near]
+    # the mean as numpy's `mean` computes it (the sum along the rows, then divided by their count), without its
+    # wrapper's checks
+    return rows.sum(axis=0) / len(rows) if len(rows) else np.asarray(rate_at_rad_s, dtype=float)
 
 
 def rate_cross_ned(c_bn: np.ndarray, rate_b_rad_s: np.ndarray) -> np.ndarray:
