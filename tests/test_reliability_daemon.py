@@ -33,6 +33,7 @@ from ahrsd.daemon.messages import SENSOR_AHRS, SENSOR_GYRO
 from ahrsd.daemon.mavlink_io import mavlink
 from service_rig import stop_process
 from support.ahrsd_process import OUR_COMP, REPO, Daemon
+from support.daemon_stamps import stamps_s
 from support.udp_drops import socket_drops, widen_receive_buffer
 
 SCHEDULE = "self_test_fail@0-6;bus_error@10-11;stall@15-15.5;alarm@17-17.3:bits=SUPPLY_HIGH"
@@ -93,14 +94,10 @@ def pump_until(d, t_end: float) -> None:
 
 
 def sent_at(d, mtype: str, since: float = 0.0) -> list[float]:
-    """When the daemon sent each `mtype` (a message stamped with time_boot_ms at sending) received since `since`,
-    in CLOCK_MONOTONIC s, the clock this process and the daemon share: time_boot_ms plus the daemon's start,
-    which is the least of (arrival − time_boot_ms) over every `mtype` kept (a message never arrives before it is
-    sent, and the least delivery delay of hundreds on loopback is small beside their period). Counts in this
-    clock do not depend on when this process got round to receiving."""
+    """When the daemon sent each `mtype` received since `since` (a message stamped with time_boot_ms at sending),
+    in the daemon's clock (support/daemon_stamps.py): counts in it do not depend on when this process received."""
     kept = of_type(d, mtype)
-    boot_s = min(t - m.time_boot_ms * 1e-3 for t, m in kept)
-    return [boot_s + m.time_boot_ms * 1e-3 for t, m in kept if t >= since]
+    return [s for (t, _), s in zip(kept, stamps_s(kept)) if t >= since]
 
 
 def is_text(part):
