@@ -19,6 +19,7 @@ os.environ["MAVLINK_DIALECT"] = "ardupilotmega"
 
 from ahrsd.daemon.mavlink_io import mavlink  # noqa: E402  (selects MAVLink 2 / ardupilotmega)
 from support.ahrsd_process import GCS_COMP, GCS_SYS, LOW_RATE, OUR_COMP, Daemon  # noqa: E402
+from support.daemon_stamps import stamps_s  # noqa: E402
 
 from ahrsd.calibration.models import Calibration  # noqa: E402
 from ahrsd.calibration.store import CalibrationStore
@@ -51,17 +52,26 @@ def daemon(tmp_path_factory):
 def test_outputs_arrive_at_their_default_rates(daemon):
     """The exact default rates are checked on a stepped clock (test_default_output_rates.py); here, in real
     time, every default output arrives, never faster than its rate, and at least at half of it: bounds that
-    hold on a loaded machine (the daemon and this reader starved in turns), yet fail for an output that is
-    missing, sent per sample or throttled to a fraction of its rate."""
-    window_s = 6.0
-    got = daemon.collect(window_s)
-    expected = {"ATTITUDE": 50.0, "ATTITUDE_QUATERNION": 10.0, "VISION_POSITION_ESTIMATE": 30.0,
-                "HIGHRES_IMU": 10.0, "SYS_STATUS": 1.0, "HEARTBEAT": 1.0}
-    for name, hz in expected.items():
+    hold on a loaded machine (a starved daemon drops what it cannot send in time), yet fail for an output that
+    is missing, sent per sample or throttled to a fraction of its rate. A stamped output is counted in the
+    daemon's clock (its send or sample time stamps, support/daemon_stamps.py) over a window that starts after
+    the collection did and ends before it does: what was queued before, or received late, is neither in nor out
+    by when this process read it. HEARTBEAT and SYS_STATUS carry no stamp: counted as received."""
+    window_s, lead_s, tail_s = 6.0, 0.5, 1.5
+    t_start = time.monotonic()
+    got = daemon.collect(lead_s + window_s + tail_s)
+    w0, w1 = t_start + lead_s, t_start + lead_s + window_s
+    stamped = {"ATTITUDE": 50.0, "ATTITUDE_QUATERNION": 10.0, "VISION_POSITION_ESTIMATE": 30.0, "HIGHRES_IMU": 10.0}
+    for name, hz in stamped.items():
+        assert name in got, f"no {name} in {sorted(got)}"
+        n = sum(1 for t in stamps_s(got[name]) if w0 <= t < w1)
+        assert 0.5 * hz * window_s - 1 <= n <= 1.1 * hz * window_s + 2, (name, n)
+    collected_s = lead_s + window_s + tail_s
+    for name, hz in {"SYS_STATUS": 1.0, "HEARTBEAT": 1.0}.items():
         assert name in got, f"no {name} in {sorted(got)}"
         n = len(got[name])
-        # a late reader can receive, inside the window, what was queued in the socket before it opened
-        assert 0.5 * hz * window_s - 1 <= n <= 1.1 * hz * window_s + 2, (name, n)
+        # a late reader can receive, inside the collection, what was queued in the socket before it began
+        assert 0.5 * hz * collected_s - 1 <= n <= 1.1 * hz * collected_s + 2, (name, n)
     assert "SCALED_IMU" not in got   # off by default
 
 

@@ -8,6 +8,12 @@ Each test stands on its own whichever tests ran on its daemon before (pytest-xdi
 worker its own daemon and a share of the tests): everything our component sent is kept from the daemon's start
 (`d.events`), a test of a scheduled fault finds it there or waits for it, and a test that disturbs the daemon
 (freeze, flood, stop) first waits until the schedule is over (`after_the_faults`).
+
+What a test measures in real time is measured in the daemon's clock or counted, not timed on this test's wall
+clock: on a loaded machine this process (flooding, receiving) is starved in turns with the daemon and receives
+late, and the kernel drops what arrives while its socket's buffer is full. ATTITUDE rates are counted from the
+daemon's own stamps (time_boot_ms, its CLOCK_MONOTONIC at sending), and what the kernel dropped on the ground
+station's socket is its own count (`socket_drops`, tests/support/udp_drops.py), apart from what the daemon sent.
 """
 
 from __future__ import annotations
@@ -27,6 +33,8 @@ from ahrsd.daemon.messages import SENSOR_AHRS, SENSOR_GYRO
 from ahrsd.daemon.mavlink_io import mavlink
 from service_rig import stop_process
 from support.ahrsd_process import OUR_COMP, REPO, Daemon
+from support.daemon_stamps import stamps_s
+from support.udp_drops import socket_drops, widen_receive_buffer
 
 SCHEDULE = "self_test_fail@0-6;bus_error@10-11;stall@15-15.5;alarm@17-17.3:bits=SUPPLY_HIGH"
 
@@ -36,6 +44,7 @@ def faulty(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("faulty")
     t_started = time.monotonic()
     d = Daemon(tmp, "--sim-faults", SCHEDULE, "--stats-file", str(tmp / "stats.json"), mag_calibrated=True)
+    widen_receive_buffer(d.gcs.port)    # fewer drops while this process is starved; those left are counted
     d.stats_path = tmp / "stats.json"
     d.events = []                       # (t, message) of everything our component sent, in order
     d.t_started = t_started
@@ -82,6 +91,13 @@ def seen(d, pred, seconds: float, since=0.0):
 def pump_until(d, t_end: float) -> None:
     """Collect until the monotonic time t_end (at once if past)."""
     pump(d, max(0.0, t_end - time.monotonic()))
+
+
+def sent_at(d, mtype: str, since: float = 0.0) -> list[float]:
+    """When the daemon sent each `mtype` received since `since` (a message stamped with time_boot_ms at sending),
+    in the daemon's clock (support/daemon_stamps.py): counts in it do not depend on when this process received."""
+    kept = of_type(d, mtype)
+    return [s for (t, _), s in zip(kept, stamps_s(kept)) if t >= since]
 
 
 def is_text(part):
@@ -131,8 +147,16 @@ def test_vanished_device_stops_the_heading_then_reconnects(faulty):
     texts = [m.text for _, m in of_type(d, "STATUSTEXT", t0, t_end)]
     assert any("sensor failure: SPI transfer failed" in t for t in texts), texts
     assert any("recovered" in t for t in texts)
-    vpe = [t for t, _ in of_type(d, "VISION_POSITION_ESTIMATE", t0, t_end)]
-    assert max(b - a for a, b in zip(vpe, vpe[1:])) > 0.8               # the feed stopped during the outage
+    # the feed stopped during the outage: no VPE between the failure's text and the recovery's in the order the
+    # daemon sent them (one UDP socket on loopback keeps it), and none stamped inside the outage (1 s of chip
+    # time) in the estimates' own sample times (VPE usec): neither moves when this process receives late
+    window = [m for t, m in d.events if t0 <= t <= t_end]
+    i_failed = next(i for i, m in enumerate(window) if m.get_type() == "STATUSTEXT" and "sensor failure" in m.text)
+    i_back = next(i for i, m in enumerate(window) if i > i_failed and m.get_type() == "STATUSTEXT"
+                  and "recovered" in m.text)
+    assert not [m for m in window[i_failed:i_back] if m.get_type() == "VISION_POSITION_ESTIMATE"]
+    vpe = [m.usec * 1e-6 for m in window if m.get_type() == "VISION_POSITION_ESTIMATE"]
+    assert max(b - a for a, b in zip(vpe, vpe[1:])) > 0.8
     sys_status = [m for _, m in of_type(d, "SYS_STATUS", t0, t_end)]
     assert any(not m.onboard_control_sensors_health & SENSOR_AHRS for m in sys_status)
     assert sys_status[-1].onboard_control_sensors_health & SENSOR_AHRS
@@ -254,6 +278,7 @@ def test_flood_keeps_output_rates_answers_valid_traffic_and_counts_junk(faulty):
     addr = next(iter(d.gcs.clients))
     mav = d.gcs.mav
     comm_before = _last_sys_status(d).errors_comm
+    drops_before = socket_drops(sock)
     t0 = time.monotonic()
     marks = set()
     end = t0 + 4.0
@@ -277,8 +302,14 @@ def test_flood_keeps_output_rates_answers_valid_traffic_and_counts_junk(faulty):
             sent += 1
         pump(d, 0.01)
     pump(d, 1.5)
-    att = [t for t, _ in of_type(d, "ATTITUDE", t0 + 0.5) if t < end]
-    assert len(att) / (end - t0 - 0.5) > 0.9 * 50                        # 50 Hz kept under the flood
+    dropped = socket_drops(sock) - drops_before
+    # 50 Hz kept under the flood, in the daemon's clock: the ATTITUDEs it sent from 0.5 s into the flood to its
+    # end, with the datagrams the kernel dropped on their way in to us (any type: a bound) counted as sent.
+    # The schedule's deadlines are absolute and a late wake catches up (daemon/outputs.py), so a daemon the
+    # machine starves in turns sends the count late, not short; a daemon the flood starves sends it short.
+    span_s = end - t0 - 0.5
+    att = [t for t in sent_at(d, "ATTITUDE", t0) if t0 + 0.5 <= t < end]
+    assert len(att) + dropped >= 0.9 * 50 * span_s, (len(att), dropped, span_s, sent)
     # one sender's requests are answered up to its limit (daemon/timesync_answers.py), each once, every answer to a
     # request. How many the daemon had tokens for depends on when it read them (a stall longer than a burst's worth
     # of refill, or datagrams the kernel dropped while it stalled, leave tokens unused): that every request it read
@@ -307,10 +338,14 @@ def test_stats_file_and_clean_exit(faulty):
     while (m := d.gcs.recv_match(blocking=False)) is not None:         # what it sent before it exited
         if m.get_srcComponent() == OUR_COMP:
             d.events.append((time.monotonic(), m))
+    dropped = socket_drops(d.gcs.port)                                 # on the way in to us, since the start
     assert d.stop() == 0
     stats = json.loads(d.stats_path.read_text())
-    # every TIMESYNC answer the daemon counted reached us, and no other (the flood's, in file order)
-    assert stats["service"]["timesync_answered"] == len([m for _, m in of_type(d, "TIMESYNC") if m.tc1 != 0])
+    # every TIMESYNC answer the daemon counted reached us, and no other (the flood's, in file order): exactly,
+    # when the kernel dropped nothing on our socket; else at most what it dropped (of any type) is missing
+    answered = stats["service"]["timesync_answered"]
+    received = len([m for _, m in of_type(d, "TIMESYNC") if m.tc1 != 0])
+    assert received <= answered <= received + dropped, (answered, received, dropped)
     assert stats["source"]["sensor_self_test_failures_at_start"] >= 1
     assert stats["source"]["sensor_reopens"] >= 1 and stats["faults_injected"]["bus_error"] >= 1
     assert stats["commands"]["handler_errors"] == 0

@@ -654,4 +654,12 @@ MUTATIONS: tuple[Mutation, ...] = (
              "docs/estimator.md", "(diagnostic not kept: the simulated accelerometer's m_zx set to 0;",
              "(`/work/notes/pitch27-diag.py … azx0`;",
              ("tests/test_docs_commands.py",)),
+    # ------------------------------------------------------------------ session 32 (rel32)
+    Mutation("flood-keeps-outputs", "a MAVLink flood does not starve the outputs (ATTITUDE 50 Hz, daemon clock)",
+             "daemon/inbound.py", "now = self.clock()", "now = self.clock(); time.sleep(0.02)",
+             ("tests/test_reliability_daemon.py",)),
+    Mutation("timesync-answered-once", "each TIMESYNC answer is counted once (not one over)",
+             "daemon/timesync_answers.py", "            self.counters.timesync_answered += 1",
+             "            self.counters.timesync_answered += 1 + (self.counters.timesync_answered == 0)",
+             ("tests/test_timesync_answers.py", "tests/test_reliability_daemon.py")),
 )
