@@ -1350,18 +1350,13 @@ class Ins:
         """What the kernel does with the magnetometer after the check (magnetometer_use.py decides it from what the
         check left), written into the kernel's parameters; and the variances the next check's trust and the heading
         state use."""
-        field = self._field_ned
-        if field is None:
-            floor = None
-        else:
-            h2 = float(field[0] ** 2 + field[1] ** 2)
-            floor = self._learned_floor_var(h2) if h2 > 0.0 else math.inf
         iron = IronState(learning=self._monitor.learning, updates=self._iron.updates, restored=self._iron_restored,
                          before_rejection=self._iron_before_rejection)
         u = magnetometer_use(self.params, monitor_use=d.mag_use, trusted_sigma_rad=self._monitor.trusted_sigma_rad,
                              slow_var_rad2=self._mag_var, mag_var_rad2=mag_var, noise_rad2=noise,
                              trust_var_rad2=trust_var, calibration_untrusted=self._calibration_untrusted, iron=iron,
-                             learned_floor_var_rad2=floor, heading_rate_rad_s=self._heading_rate_rad_s())
+                             learned_floor_var_rad2=self._learned_floor_var_here,
+                             heading_rate_rad_s=self._heading_rate_rad_s)
         self._par["mag_use"] = u.mag_use
         self._par["mag_moves_tilt"] = u.mag_moves_tilt
         if math.isfinite(mag_var):
@@ -1370,6 +1365,15 @@ class Ins:
         if u.mag_bias_var_rad2 is not None:
             self._par["mag_bias_var_rad2"] = u.mag_bias_var_rad2
             self._par["mag_bias_tau_s"] = u.mag_bias_tau_s
+
+    def _learned_floor_var_here(self) -> float | None:
+        """`_learned_floor_var` at the WMM horizontal field at the filter's position (inf where it has none, None
+        without the WMM field), rad²."""
+        field = self._field_ned
+        if field is None:
+            return None
+        h2 = float(field[0] ** 2 + field[1] ** 2)
+        return self._learned_floor_var(h2) if h2 > 0.0 else math.inf
 
     def _heading_rate_rad_s(self) -> float:
         """|rate about down| of the last gyro sample, bias removed, rad/s."""

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Callable, Protocol
 
 
 class MagnetometerUseParams(Protocol):
@@ -53,15 +53,18 @@ class IronState:
 
 def magnetometer_use(params: MagnetometerUseParams, *, monitor_use: bool, trusted_sigma_rad: float,
                      slow_var_rad2: float, mag_var_rad2: float, noise_rad2: float, trust_var_rad2: float,
-                     calibration_untrusted: bool, iron: IronState, learned_floor_var_rad2: float | None,
-                     heading_rate_rad_s: float) -> MagnetometerKernelUse:
+                     calibration_untrusted: bool, iron: IronState,
+                     learned_floor_var_rad2: Callable[[], float | None],
+                     heading_rate_rad_s: Callable[[], float]) -> MagnetometerKernelUse:
     """The kernel's settings after the check.
 
     monitor_use: the monitor's decision (MonitorDecision.mag_use); trusted_sigma_rad: its trust limit;
     slow_var_rad2: the magnetometer heading's slowly varying variance judged at the previous check (what trust
     uses); mag_var_rad2, noise_rad2: this check's variance and its white part (NaN: no magnetometer heading);
     trust_var_rad2: the variance the heading state uses; learned_floor_var_rad2: the learned magnetometer's floor at
-    this place (None: no WMM field); heading_rate_rad_s: |rate about down|, bias removed.
+    this place (None: no WMM field); heading_rate_rad_s: |rate about down|, bias removed. These two are functions of
+    no arguments, called only by the rule that reads them (`rejected_magnetometer_fused`, once its other conditions
+    hold): the filter works them out at a check only when one is read.
 
     Not fused while the iron is being learned (`IronState.learning`), even where the monitor has let the
     magnetometer back (it judges the variance at this heading, the learning the worst heading's): the iron is
@@ -83,22 +86,24 @@ def magnetometer_use(params: MagnetometerUseParams, *, monitor_use: bool, truste
     tau = p.iron_learned_tau_s if learned else p.mag_bias_tau
     if rejected_magnetometer_fused(p, monitor_use=monitor_use, calibration_untrusted=calibration_untrusted,
                                    iron=iron, trust_var_rad2=trust_var_rad2,
-                                   never_trusted=never_trusted_here(learned_floor_var_rad2, trusted_sigma_rad)):
+                                   never_trusted=lambda: never_trusted_here(learned_floor_var_rad2(),
+                                                                            trusted_sigma_rad)):
         return MagnetometerKernelUse(1.0, 0.0, max(trust_var_rad2, bias_var),
-                                     max(p.iron_learned_tau_s, p.iron_heading_corr_rad / max(heading_rate_rad_s, 1e-6)))
+                                     max(p.iron_learned_tau_s,
+                                         p.iron_heading_corr_rad / max(heading_rate_rad_s(), 1e-6)))
     return MagnetometerKernelUse(mag_use, moves_tilt, bias_var, tau)
 
 
 def rejected_magnetometer_fused(params: MagnetometerUseParams, *, monitor_use: bool, calibration_untrusted: bool,
-                                iron: IronState, trust_var_rad2: float, never_trusted: bool) -> bool:
+                                iron: IronState, trust_var_rad2: float, never_trusted: Callable[[], bool]) -> bool:
     """`iron_heading_corr_rad`: the monitor rejects a magnetometer without a trusted calibration, but an iron has
     been learned since the rejection and none before it, so the learner's covariance and the floor
     (`trust_var_rad2`) are all the error there is; and the floor alone keeps it from ever being trusted again here
-    (`never_trusted_here`). Not with a trusted calibration: its own σ stands in for the floor there
+    (`never_trusted_here`; `never_trusted` is asked last, once the others hold). Not with a trusted calibration: its own σ stands in for the floor there
     (Ins._magnetometer_trust_var), and the rejection has just shown the calibration wrong."""
     return (params.iron_heading_corr_rad > 0.0 and not monitor_use and calibration_untrusted
             and iron.updates > 0 and not iron.before_rejection and not iron.restored
-            and math.isfinite(trust_var_rad2) and never_trusted)
+            and math.isfinite(trust_var_rad2) and never_trusted())
 
 
 def never_trusted_here(learned_floor_var_rad2: float | None, trusted_sigma_rad: float) -> bool:

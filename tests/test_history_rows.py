@@ -37,7 +37,7 @@ def test_bracket_is_the_kernels(count, newest):
     some = np.unique(np.concatenate([rng.integers(0, count, 30), [0, count - 1]]))
     queries = np.concatenate([times[some],                             # exactly on a row
                               times[some[:-1]] + 0.37 * (times[some[:-1] + 1] - times[some[:-1]]),   # between rows
-                              [times[0] - 1e-3, times[-1] + 1e-3, times[-1], times[0]],
+                              [times[0] - 1e-3, times[-1] + 1e-3, times[-1], times[0], np.nan],
                               rng.uniform(times[0] - 0.1, times[-1] + 0.1, 50)])
     for t in queries:
         got = bracket(hist["t_s"], newest, count, float(t))
@@ -60,7 +60,7 @@ def test_rows_near_keep_what_a_mask_over_all_rows_keeps(count, newest, rate_hz):
     kept = (newest - np.arange(count)) % H           # newest first, every kept row
     half = 0.05
     on = times[np.unique(np.concatenate([rng.integers(0, count, 30), [0, count - 1]]))]
-    queries = np.concatenate([on, on + half, on - half,              # a row exactly at the span's edge
+    queries = np.concatenate([on, on + half, on - half, [np.nan],    # a row exactly at the span's edge
                               rng.uniform(times[0] - 0.2, times[-1] + 0.2, 60)])
     for t in queries:
         want = kept[np.abs(ts[kept] - t) <= half]

@@ -34,6 +34,8 @@ def _use(params=None, **kw):
                 mag_var_rad2=(2.0 * DEG) ** 2, noise_rad2=(0.5 * DEG) ** 2, trust_var_rad2=(2.5 * DEG) ** 2,
                 calibration_untrusted=True, iron=NOT_LEARNING, learned_floor_var_rad2=None, heading_rate_rad_s=0.1)
     args.update(kw)
+    for name in ("learned_floor_var_rad2", "heading_rate_rad_s"):     # the part asks for these when it reads them
+        args[name] = (lambda value: lambda: value)(args[name])
     return magnetometer_use(params or _params(), **args)
 
 
@@ -110,3 +112,26 @@ def test_never_trusted_here_compares_the_floor_with_the_trust_limit():
     assert not never_trusted_here((2.9 * DEG) ** 2, TRUSTED)
     assert not never_trusted_here(None, TRUSTED)
     assert never_trusted_here(math.inf, TRUSTED)
+
+
+def _not_to_be_read():
+    raise AssertionError("read where no rule needs it")
+
+
+@pytest.mark.parametrize("change", [{"monitor_use": True}, {"calibration_untrusted": False},
+                                    {"iron": replace(LEARNED_SINCE, updates=0)}, {"trust_var_rad2": math.inf},
+                                    {"mag_var_rad2": math.nan}],
+                         ids=["monitor-uses", "trusted-calibration", "no-iron", "no-trust-var", "no-mag-heading"])
+def test_the_floor_and_the_heading_rate_are_read_only_by_the_rule_that_needs_them(change):
+    """The filter works out the floor and the heading rate at a check only when the rejected-but-fused rule reads
+    them (they are asked for, not passed): where another condition decides first, neither is asked; where the
+    rule's other conditions hold, both are."""
+    args = {k: v for k, v in REJECTED.items() if k not in ("learned_floor_var_rad2", "heading_rate_rad_s")}
+    args.update(trusted_sigma_rad=TRUSTED, slow_var_rad2=(1.0 * DEG) ** 2)
+    u = magnetometer_use(_params(), **{**args, **change}, learned_floor_var_rad2=_not_to_be_read,
+                         heading_rate_rad_s=_not_to_be_read)
+    assert u.mag_use == (1.0 if change.get("monitor_use") else 0.0)
+    asked = []
+    u = magnetometer_use(_params(), **args, learned_floor_var_rad2=lambda: asked.append("floor") or HIGH_FLOOR,
+                         heading_rate_rad_s=lambda: asked.append("rate") or 0.05)
+    assert u.mag_use == 1.0 and asked == ["floor", "rate"]

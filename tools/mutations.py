@@ -612,8 +612,14 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("rejected-mag-fused-only-never-trusted",
              "a rejected magnetometer is fused at its floor only where the floor keeps it above the trust limit for "
              "good; where it can re-enter it is left out until it does",
-             "estimator/magnetometer_use.py", "and math.isfinite(trust_var_rad2) and never_trusted)",
+             "estimator/magnetometer_use.py", "and math.isfinite(trust_var_rad2) and never_trusted())",
              "and math.isfinite(trust_var_rad2))",
+             ("tests/test_magnetometer_use.py",)),
+    Mutation("mag-use-floor-rate-asked-lazily",
+             "the learned floor and the heading rate are worked out at a check only when the rejected-but-fused rule "
+             "reads them (asked for, not passed)",
+             "estimator/magnetometer_use.py", "    use = monitor_use and not iron.learning",
+             "    use = learned_floor_var_rad2() is heading_rate_rad_s() or monitor_use and not iron.learning",
              ("tests/test_magnetometer_use.py",)),
     Mutation("bank-bias-only-when-sure", "the GNSS yaw bank takes the filter's gyro bias only when its agreeing yaw "
              "is sure (below accel_bias_gsf_sigma_rad), not at any agreement within the gate",
