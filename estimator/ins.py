@@ -1298,6 +1298,7 @@ class Ins:
             self._x["bank_gyro_bias_rad_s"] = self._x["gyro_bias_rad_s"]
         if f.rejected:
             self._iron_before_rejection = self._iron.updates > 0 or self._iron_restored
+            self._iron.release_offset()     # the iron may have changed: its offset is learned again
             self._confirmation.magnetometer_rejected()
             # what the magnetometer taught the gyro bias since the last confirmation goes with it: a wrong
             # magnetometer's heading error rate, which the filter would otherwise keep integrating as GNSS-only.
@@ -1424,6 +1425,10 @@ class Ins:
         dt = max(t_s - (self._iron_last_t if self._iron_last_t is not None else t_s - 0.2), 1e-3)
         self._iron_last_t = t_s
         att = slice(core.E_TH, core.E_TH + 3)
+        if self._par["mag_use"] > 0.5:
+            # fused while learned (Ins._set_magnetometer_use: only a rejected magnetometer that can never be trusted
+            # here): the filter reads the learned offset back as heading, and learned on, the offset follows the yaw
+            self._iron.hold_offset(field, float(self._P[core.E_YAW, core.E_YAW]))
         self._iron.update(self._x["mag_last_ut"], c_bn, field, self._P[att, att],
                           p.iron_unmodelled_ut, max(1.0, p.iron_tau_s / dt))
         self._iron_yaw_share.step(*self._iron.last_gain, math.sqrt(max(self._P[core.E_YAW, core.E_YAW], 0.0)))
