@@ -85,8 +85,8 @@ def trace(scenario: str, case: str, seed: int, site_label: str, iron_label: str 
     est = Ins(declination_rad=run.declination_rad, lever_arm_m=run.lever_arm_m,
               mag_calibration_sigma_rad=run.mag_calibration_sigma_rad)
     print(f"{scenario} {case} seed {seed} at {site_label} ({iron} iron), {seconds:.0f} s: "
-          "t s | heading err ° | filter yaw σ ° | published σ ° | GNSS yaw σ ° | learning | learned c0 err ° | worst ° | c0 σ: learner ° | "
-          "+ window yaw °")
+          "t s | heading err ° | filter yaw σ ° | published σ ° | GNSS yaw σ ° | learning | mag fused | learned c0 err ° | worst ° | "
+          "c0 σ: learner ° | + window yaw ° | worst heading σ: learner ° | offset σ: learner ° | offset held (not learned against the yaw)")
     next_t = every_s
     learning_was = False
     for k, e in estimates_in_arrival_order(est, run, run.fixes):
@@ -105,15 +105,19 @@ def trace(scenario: str, case: str, seed: int, site_label: str, iron_label: str 
         sigmas = (f"{yaw_sigma:5.2f} | {math.degrees(e.sigma_rpy_rad[2]):5.2f} | "
                   f"{math.degrees(math.sqrt(gsf_var)) if math.isfinite(gsf_var) else math.nan:5.2f}")
         learner = est._iron
+        fused = 'yes' if est._par["mag_use"] > 0.5 else 'no '
         if learner.updates == 0:
-            print(f"{t:7.1f} | {hdg[0]:+6.2f} | {sigmas} | {'yes' if learning else 'no '} | (nothing learned)")
+            print(f"{t:7.1f} | {hdg[0]:+6.2f} | {sigmas} | {'yes' if learning else 'no '} | {fused} | (nothing learned)")
             continue
         a_true, b_true = true_mag_model(truth_errors, case, t)
         errs = np.degrees(learned_level_errors_rad(learner, a_true, b_true, field_ned))
         own = math.degrees(c0_sigma_rad(learner, learner.cov, field_ned))
         with_share = math.degrees(c0_sigma_rad(learner, learner.cov + est._learned_iron.yaw_share.cov(), field_ned))
-        print(f"{t:7.1f} | {hdg[0]:+6.2f} | {sigmas} | {'yes' if learning else 'no '} | "
-              f"{np.mean(errs):+6.2f} | {errs[np.argmax(np.abs(errs))]:+6.2f} | {own:5.2f} | {with_share:5.2f}"
+        worst_sigma = math.degrees(learner.level_heading_sigma_rad(field_ned))
+        offset_sigma = math.degrees(math.sqrt(learner.offset_heading_variance(field_ned)))
+        print(f"{t:7.1f} | {hdg[0]:+6.2f} | {sigmas} | {'yes' if learning else 'no '} | {fused} | "
+              f"{np.mean(errs):+6.2f} | {errs[np.argmax(np.abs(errs))]:+6.2f} | {own:5.2f} | {with_share:5.2f} | "
+              f"{worst_sigma:5.2f} | {offset_sigma:5.2f} | {'yes' if learner.offset_held else 'no'}"
               + ("   <- learning ended" if ended else ""))
 
 

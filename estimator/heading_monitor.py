@@ -38,6 +38,20 @@ from .mag_step import MagStepDetector
 
 N_IRON = 12
 """IronLearner's states: the hard iron b (3, µT) then the soft iron D row by row (9)."""
+_YAW = 2
+"""The attitude error's component about the vertical (the yaw error)."""
+
+
+def _across(direction: np.ndarray) -> np.ndarray:
+    """2×3: an orthonormal basis of the plane perpendicular to `direction` (rows)."""
+    u = np.asarray(direction, dtype=float)
+    n = float(np.linalg.norm(u))
+    if n <= 0.0:
+        return np.eye(3)[:2]
+    w, v = np.linalg.eigh(np.eye(3) - np.outer(u, u) / (n * n))
+    return v[:, np.argsort(w)[1:]].T
+
+
 _LEVEL_HEADINGS = np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False)
 """The headings IronLearner.level_heading_variance looks at (rad)."""
 
@@ -78,6 +92,7 @@ class IronLearner:
     _inverse: tuple = field(default=(None, None), init=False, repr=False, compare=False)
     _level_variance: tuple = field(default=(None, 0.0), init=False, repr=False, compare=False)
     last_gain: tuple = field(default=None, init=False, repr=False, compare=False)   # update's (K, H, j)
+    offset_held: bool = False    # the heading offset is no longer learned against the yaw (`hold_offset`)
 
     def __post_init__(self):
         if not np.any(self.cov):
@@ -90,6 +105,7 @@ class IronLearner:
         self.state = np.zeros(N_IRON)
         self.cov = self._prior_cov()
         self.updates = 0
+        self.offset_held = False
 
     def set(self, offset_ut, cov_ut2, soft_iron=None, soft_cov=None) -> None:
         """Start from a persisted hard iron and its covariance, and optionally the soft iron I + D and the 9×9
@@ -151,7 +167,7 @@ class IronLearner:
 
     def update(self, mag_body_ut, c_bn, field_ned_ut, p_att_rad2, noise_ut: float, inflate: float) -> float:
         """One measurement m = (I + D)·C_bnᵀ·B + b + v (linear in b and D for a known attitude); returns its NIS
-        (3 dof). `noise_ut`: 1σ per axis of what the iron does not explain; `inflate`: the correlation-time
+        (3 dof; 2 once the offset is held, `hold_offset`). `noise_ut`: 1σ per axis of what the iron does not explain; `inflate`: the correlation-time
         factor applied to the whole measurement noise. A level vehicle turning sees the horizontal field rotate
         in the body frame (the 2×2 horizontal block and D_zx, D_zy observed) but a constant vertical field, so D's
         third column is seen only together with b: those combinations stay at their prior split."""
@@ -164,6 +180,11 @@ class IronLearner:
         j = a @ c.T @ skew(b_ned)                  # ∂(A C_trueᵀ B)/∂δθ with C_true = (I + [δθ×]) C
         r = (j @ p_att_rad2 @ j.T + np.eye(3) * noise_ut ** 2) * inflate
         h = self._jacobian(field_body)
+        if self.offset_held:
+            # the limit of an unknown yaw (its variance without bound): only the two directions a yaw error
+            # does not move are measured
+            t = _across(j[:, _YAW])
+            nu, r, h, j = t @ nu, t @ r @ t.T, t @ h, t @ j
         ph = self.cov @ h.T
         s = h @ ph + r
         s_inv = np.linalg.inv(s)
@@ -175,6 +196,38 @@ class IronLearner:
         self.cov = 0.5 * (self.cov + self.cov.T)
         self.updates += 1
         return float(nu @ s_inv @ nu)
+
+    def hold_offset(self, field_ned_ut, yaw_var_rad2: float) -> bool:
+        """Whether the updates no longer learn against the filter's yaw, holding it so from here (until `reset`,
+        `set` or `release_offset`) once the learned magnetometer's heading offset (`offset_heading_variance`) is
+        known, by the learner's own covariance, at least as well as the filter's yaw (yaw_var, rad²). Each update
+        takes the filter's attitude as the truth within its covariance, renewed as noise every correlation time;
+        the yaw error is not renewed: it is the gyro's drift since the GNSS last corrected it, common to minutes
+        of updates (learned_iron.py). Such an error turns the Earth field about the vertical in every update, and
+        an iron takes it in as a heading offset, the same at every heading; past this point an update tells the
+        offset nothing the yaw's own error does not swamp, and what it takes in is that error, learned as iron,
+        which the filter then reads back as a second heading (a reference error common to all measurements, the
+        consider analysis: Maybeck, Stochastic Models, Estimation and Control vol. 1, §6.8). From here `update`
+        learns only from the part of the measurement a yaw error does not move: the field along itself and the
+        vertical, which still show the hard iron and the soft iron's stretch over a turn, but not its rotation."""
+        if not self.offset_held and self.updates > 0 and math.isfinite(yaw_var_rad2):
+            self.offset_held = self.offset_heading_variance(field_ned_ut) <= yaw_var_rad2
+        return self.offset_held
+
+    def offset_heading_variance(self, field_ned_ut) -> float:
+        """The variance of the learned magnetometer's heading offset on a level vehicle, rad²: the mean over a
+        turn of its heading error (the constant term of the harmonic series mag_harmonics.py fits, the mean of
+        `level_heading_rows` over evenly spread headings), as the learner's covariance states it."""
+        b = np.asarray(field_ned_ut, dtype=float)
+        if b[0] * b[0] + b[1] * b[1] <= 0.0:
+            return math.inf
+        a = np.mean(self.level_heading_rows(b, _LEVEL_HEADINGS), axis=0)
+        return float(a @ self.cov @ a)
+
+    def release_offset(self) -> None:
+        """The heading offset is learned against the yaw again (the magnetometer has just been rejected: its iron
+        may have changed)."""
+        self.offset_held = False
 
     def heading_variance(self, c_bn, field_corrected_ned) -> float:
         """Variance of the magnetometer heading that the learned iron's uncertainty causes (rad²): the heading of

@@ -1260,6 +1260,7 @@ class Ins:
             self._x["bank_gyro_bias_rad_s"] = self._x["gyro_bias_rad_s"]
         if f.rejected:
             self._iron_before_rejection = self._learned_iron.learned
+            self._learned_iron.release_offset()     # the iron may have changed: its offset is learned again
             self._confirmation.magnetometer_rejected()
             # what the magnetometer taught the gyro bias since the last confirmation goes with it: a wrong
             # magnetometer's heading error rate, which the filter would otherwise keep integrating as GNSS-only.
@@ -1389,7 +1390,8 @@ class Ins:
             return
         att = slice(core.E_TH, core.E_TH + 3)
         self._learned_iron.learn(t_s, self._x["mag_last_ut"], c_bn, field, self._P[att, att],
-                                 self._P[core.E_YAW, core.E_YAW], p.iron_unmodelled_ut, p.iron_tau_s)
+                                 self._P[core.E_YAW, core.E_YAW], p.iron_unmodelled_ut, p.iron_tau_s,
+                                 magnetometer_fused=self._par["mag_use"] > 0.5)
         self._apply_learned_iron()
 
     def _publish_heading_checks(self, t_s: float, yaw_rad: float, gsf_yaw: float, gsf_var: float,

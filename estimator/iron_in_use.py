@@ -61,16 +61,27 @@ class IronInUse:
             self.learner.reset()
 
     def learn(self, t_s: float, mag_ut: np.ndarray, c_bn: np.ndarray, field_ned_ut: np.ndarray,
-              attitude_cov_rad2: np.ndarray, yaw_var_rad2: float, unmodelled_ut: float, tau_s: float) -> None:
+              attitude_cov_rad2: np.ndarray, yaw_var_rad2: float, unmodelled_ut: float, tau_s: float,
+              magnetometer_fused: bool = False) -> None:
         """One learning step at t_s: the magnetometer sample (µT, body, calibration applied, learned iron not),
         against the WMM field with the filter's attitude c_bn and its 3×3 covariance; the filter's yaw variance
         (rad²) at the step feeds the window's yaw share. The attitude error is counted as new every `tau_s` (s),
-        so a step `dt` apart inflates its noise by tau_s / dt (at least 1)."""
+        so a step `dt` apart inflates its noise by tau_s / dt (at least 1). `magnetometer_fused`: the kernel fuses
+        the magnetometer while its iron is learned (Ins._set_magnetometer_use: only a rejected magnetometer that can
+        never be trusted here): the filter reads the learned offset back as heading, and learned on, the offset
+        would follow the filter's yaw; once known as well as the filter knows its yaw it is held
+        (IronLearner.hold_offset)."""
+        if magnetometer_fused:
+            self.learner.hold_offset(field_ned_ut, float(yaw_var_rad2))
         last = self.last_t_s if self.last_t_s is not None else t_s - FIRST_STEP_S
         dt = max(t_s - last, 1e-3)
         self.last_t_s = t_s
         self.learner.update(mag_ut, c_bn, field_ned_ut, attitude_cov_rad2, unmodelled_ut, max(1.0, tau_s / dt))
         self.yaw_share.step(*self.learner.last_gain, math.sqrt(max(yaw_var_rad2, 0.0)))
+
+    def release_offset(self) -> None:
+        """The magnetometer was rejected: the iron may have changed, its heading offset is learned again."""
+        self.learner.release_offset()
 
     def harmonic_cov(self) -> np.ndarray:
         """The learned iron's error covariance (N_IRON×N_IRON): the learner's, which averages the filter's yaw

@@ -47,6 +47,7 @@ def _learn(est: Ins, turn_rad: float, yaw_error_deg: float, seconds: float = 120
     magnetometer `iron` (soft, hard) on the field."""
     att = slice(core.E_TH, core.E_TH + 3)
     est._P[att, att] = np.diag(np.radians([0.1, 0.1, WINDOW_YAW_SIGMA_DEG]) ** 2)
+    est._par["mag_use"] = 0.0     # not fused while its iron is learned (magnetometer_use.py), as in a run
     rng = np.random.default_rng(7)
     n = int(seconds / CHECK_S)
     for i in range(n):

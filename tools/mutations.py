@@ -139,6 +139,15 @@ MUTATIONS: tuple[Mutation, ...] = (
              "estimator/learned_iron.py", "self.share = kept + k @ np.asarray(attitude_jacobian, dtype=float)[:, _DOWN] * sigma",
              "self.share = kept",
              ("tests/test_learned_iron_window_yaw.py",)),
+    Mutation("learned-iron-offset-hold", "a learned iron fused while it is learned stops learning its heading "
+             "offset against the filter's yaw once the offset is known as well as the yaw (the update measures only "
+             "what a yaw error does not move)",
+             "estimator/heading_monitor.py", "        if self.offset_held:", "        if False:",
+             ("tests/test_learned_iron_offset_hold.py",)),
+    Mutation("learned-iron-offset-hold-fused", "the offset is held only where the magnetometer is fused while its "
+             "iron is learned",
+             "estimator/ins.py", 'if self._par["mag_use"] > 0.5:', 'if self._par["mag_use"] > 1.5:',
+             ("tests/test_learned_iron_offset_hold.py",)),
     Mutation("monitor-reject-checks", "the magnetometer is rejected after reject_checks failed checks",
              "estimator/heading_monitor.py", "(self.failures >= self.reject_checks or step is not None)",
              "(self.failures > self.reject_checks or step is not None)",
