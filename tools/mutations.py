@@ -146,7 +146,8 @@ MUTATIONS: tuple[Mutation, ...] = (
              ("tests/test_learned_iron_offset_hold.py",)),
     Mutation("learned-iron-offset-hold-fused", "the offset is held only where the magnetometer is fused while its "
              "iron is learned",
-             "estimator/ins.py", 'if self._par["mag_use"] > 0.5:', 'if self._par["mag_use"] > 1.5:',
+             "estimator/ins.py", 'magnetometer_fused=self._par["mag_use"] > 0.5)',
+             'magnetometer_fused=self._par["mag_use"] > 1.5)',
              ("tests/test_learned_iron_offset_hold.py",)),
     Mutation("monitor-reject-checks", "the magnetometer is rejected after reject_checks failed checks",
              "estimator/heading_monitor.py", "(self.failures >= self.reject_checks or step is not None)",
