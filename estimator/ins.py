@@ -49,6 +49,7 @@ from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate,
 from .kernel_entry import argument_types, entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .history_rows import bracket, rows_near
+from .lever_arm_consider import ARM_TERM_CORRELATION_S, arm_covariance_m2
 from .lever_arm_fit import RATE_MEAN_S, LeverArmFit, LeverArmFitResult, mean_rate, rate_cross_ned
 from .mag_heading import RELEARN_GATE_OPEN_S
 from .mag_error_restarts import (IRON_HARMONIC_YAWS_RAD, calibration_harmonics_prior, frame_tilt_heading_sigma_rad,
@@ -117,6 +118,10 @@ class InsParams(MagHeadingParams):
     # --- GNSS
     lever_arm_m: tuple = (0.0, 0.0, 0.0)
     """Antenna position relative to the IMU in the body frame (FRD), m."""
+    lever_arm_sigma_m: float = math.nan
+    """1σ per axis of the antenna arm's error, m: the fusion adds what it makes of the fixes to their noise
+    (lever_arm_consider.py): a told arm's few centimetres, or 2 m for an arm not told (left at (0, 0, 0)) on a
+    vehicle whose antenna is within metres of the IMU. NaN (the default): the arm fused as exact."""
     lever_arm_adopt: bool = False
     """Fuse at the told arm plus the lever-arm check's fitted error once the fit is sure of it (lever_arm_fit.py),
     instead of publishing the heading unknown for as long as the told arm is found wrong. Off by default: a fit made
@@ -396,6 +401,8 @@ class InsParams(MagHeadingParams):
         p["mag_enabled"] = 1.0 if self.mag_enabled else 0.0
         p["declination_rad"] = declination_rad
         p["lever_arm_m"] = np.asarray(self.lever_arm_m, dtype=float).reshape(3)
+        p["lever_arm_cov_m2"] = arm_covariance_m2(self.lever_arm_sigma_m)
+        p["lever_arm_corr_s"] = ARM_TERM_CORRELATION_S
         p["gate_chi2"] = chdtri([1.0, 2.0, 3.0], self.gate_false_alarm)
         p["reject_reset_s"] = self.reject_reset_s
         p["dead_reckon_s"] = self.dead_reckon_s

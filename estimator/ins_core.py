@@ -205,6 +205,9 @@ INS_PARAMS_DTYPE = np.dtype([
     ("mag", mag.MAG_HEADING_PARAMS_DTYPE),       # the magnetometer heading check
     ("declination_rad", np.float64),             # true = magnetic + declination
     ("lever_arm_m", np.float64, (3,)),           # antenna position in the body frame relative to the IMU
+    ("lever_arm_cov_m2", np.float64, (3, 3)),    # the arm's own uncertainty (covariance of its error), m²: the
+                                                 # fixes' R gains what it makes of them (`_arm_consider`)
+    ("lever_arm_corr_s", np.float64),            # the span its term is one error over (lever_arm_consider.py)
     ("gate_chi2", np.float64, (3,)),             # innovation gate (χ² threshold) for 1, 2, 3 degrees of freedom
     ("reject_reset_s", np.float64),
     ("dead_reckon_s", np.float64),
@@ -1166,11 +1169,13 @@ def _correct_history(hist, x, t_from, dx, dpos_lat, dpos_lon, dpos_h):
 
 
 @njit(cache=True)
-def _gated_update(gate, P, par, H, nu, var, m, dx, t_fix, may_reset, r_fused, r_rejected, r_reset):
-    """The χ² gate on m rows of one GNSS quantity, then its sequential scalar updates (into dx); on
-    rejection, the start of the run of rejections is kept in `gate` (GNSS_GATE_DTYPE), and a run spanning
-    reject_reset_s asks for a reset (r_reset) when `may_reset`. Returns the R_* bits."""
-    nis = _nis(P, H, nu, var, m)
+def _gated_update(gate, P, par, H, nu, var, m, dx, t_fix, may_reset, r_fused, r_rejected, r_reset, h_gate, nu_gate,
+                  var_gate):
+    """The χ² gate on m rows of one GNSS quantity (h_gate, nu_gate, var_gate), then its sequential scalar updates
+    (H, nu, var: independent rows) into dx; on rejection, the start of the run of rejections is kept in `gate`
+    (GNSS_GATE_DTYPE), and a run spanning reject_reset_s asks for a reset (r_reset) when `may_reset`. Returns the
+    R_* bits."""
+    nis = _nis(P, h_gate, nu_gate, var_gate, m)
     gate.nis = nis
     if nis <= par.gate_chi2[m - 1]:
         # while the heading is not known (ins.py decides), the horizontal GNSS acceleration projected through a
@@ -1265,22 +1270,106 @@ def _antenna_rows(par, c, on, oe, od, un, ue, ud):
 
 
 @njit(cache=True)
+def _arm_consider(par, c, wx, wy, wz, dt_fix):
+    """What the arm's uncertainty P_r (par.lever_arm_cov_m2, body) adds to the fix's noise: the arm is not estimated
+    but fused as if exact, so its error is a consider parameter (Groves, Principles of GNSS, Inertial, and
+    Multisensor Integrated Navigation Systems, 2nd ed., §14.2.1 the lever arm; the consider covariance of Schmidt's
+    filter): the velocity's R gains U P_r Uᵀ with U = C [ω×] (v_ant = v + C (ω × r)), the position's C P_r Cᵀ
+    (p_ant = p + C r), each times lever_arm_corr_s / dt_fix (≥ 1; dt_fix the time since the fix before): one error
+    over that span, not a new one at every fix (time-correlated noise, Groves §3.4.3). Returns (3 × 3 velocity,
+    3 × 3 position) in NED."""
+    scale = 1.0
+    if dt_fix > 0.0 and par.lever_arm_corr_s > dt_fix:
+        scale = par.lever_arm_corr_s / dt_fix
+    pr = scale * par.lever_arm_cov_m2
+    cm = np.empty((3, 3))
+    for i in range(3):
+        for k in range(3):
+            cm[i, k] = c[3 * i + k]
+    # U = C [ω×]: column k of [ω×] is ω × e_k
+    w = ((0.0, -wz, wy), (wz, 0.0, -wx), (-wy, wx, 0.0))
+    u = np.zeros((3, 3))
+    for i in range(3):
+        for k in range(3):
+            u[i, k] = cm[i, 0] * w[0][k] + cm[i, 1] * w[1][k] + cm[i, 2] * w[2][k]
+    return _sandwich(u, pr), _sandwich(cm, pr)
+
+
+@njit(cache=True)
+def _sandwich(a, b):
+    """a b aᵀ for 3 × 3 matrices."""
+    ab = np.zeros((3, 3))
+    for i in range(3):
+        for k in range(3):
+            ab[i, k] = a[i, 0] * b[0, k] + a[i, 1] * b[1, k] + a[i, 2] * b[2, k]
+    out = np.zeros((3, 3))
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = ab[i, 0] * a[j, 0] + ab[i, 1] * a[j, 1] + ab[i, 2] * a[j, 2]
+    return out
+
+
+@njit(cache=True)
+def _whitened(H, nu, var, add, m):
+    """The m rows of H and nu with the noise diag(var) + add (correlated by the arm's part) made white: with
+    L Lᵀ = R (Cholesky), L⁻¹ H, L⁻¹ ν and unit variances, which the sequential scalar updates and the χ² gate take
+    as independent rows (the NIS is unchanged)."""
+    r = np.zeros((3, 3))
+    for a in range(m):
+        for b in range(m):
+            r[a, b] = add[a, b]
+        r[a, a] += var[a]
+    low = np.zeros((3, 3))
+    for a in range(m):
+        for b in range(a + 1):
+            acc = r[a, b]
+            for k in range(b):
+                acc -= low[a, k] * low[b, k]
+            low[a, b] = math.sqrt(acc) if a == b else acc / low[b, b]
+    hw = np.zeros((3, N_ERR))
+    nw = np.zeros(3)
+    vw = np.ones(3)
+    for a in range(m):
+        nw[a] = nu[a]
+        for j in range(N_ERR):
+            hw[a, j] = H[a, j]
+        for k in range(a):
+            nw[a] -= low[a, k] * nw[k]
+            for j in range(N_ERR):
+                hw[a, j] -= low[a, k] * hw[k, j]
+        nw[a] /= low[a, a]
+        for j in range(N_ERR):
+            hw[a, j] /= low[a, a]
+    return hw, nw, vw
+
+
+@njit(cache=True)
 def _gate_velocity_and_position(x, P, par, hv, hp, nu_v, nu_p, var_v, var_p, dx, t_fix, use_pos, use_alt, use_vel,
-                                use_vd):
+                                use_vd, add_v, add_p):
     """The χ²-gated updates of the fix's velocity (m_v rows: 2 without a vertical velocity), then its position
-    (2 rows on a 2D fix), into dx. Returns the R_* bits of both."""
+    (2 rows on a 2D fix), into dx, their noise the receiver's plus what the arm's uncertainty makes of them
+    (add_v, add_p: `_arm_consider`; none when the arm is exact). The gate judges each against the receiver's noise
+    alone: a fix the arm's term puts beyond it is rejected as before, the evidence the lever-arm check reads
+    (lever_arm_fit.py: an arm explains rejections), while what is fused is weighted with the arm's part. Returns
+    the R_* bits of both."""
     res = 0
+    hv_w, nu_v_w, var_v_w = hv, nu_v, var_v
+    hp_w, nu_p_w, var_p_w = hp, nu_p, var_p
+    if np.any(par.lever_arm_cov_m2 != 0.0):
+        hv_w, nu_v_w, var_v_w = _whitened(hv, nu_v, var_v, add_v, 3 if use_vd else 2)
+        hp_w, nu_p_w, var_p_w = _whitened(hp, nu_p, var_p, add_p, 3 if use_alt else 2)
     if use_vel:
         # a velocity reset needs the positions to disagree too (or none): a receiver whose velocity
         # contradicts its own positions is wrong, not the filter
         may_reset = not use_pos or not math.isnan(x.pos_gate.rejected_since_s)
         # the flags as np.int64 (np.bool_), not the constants: numba compiles a callee once per literal argument
         # it is passed, so velocity and position share one compile of _gated_update
-        res |= _gated_update(x.vel_gate, P, par, hv, nu_v, var_v, 3 if use_vd else 2, dx, t_fix, may_reset,
-                             np.int64(R_VEL_FUSED), np.int64(R_VEL_REJECTED), np.int64(R_VEL_RESET))
+        res |= _gated_update(x.vel_gate, P, par, hv_w, nu_v_w, var_v_w, 3 if use_vd else 2, dx, t_fix, may_reset,
+                             np.int64(R_VEL_FUSED), np.int64(R_VEL_REJECTED), np.int64(R_VEL_RESET), hv, nu_v, var_v)
     if use_pos:
-        res |= _gated_update(x.pos_gate, P, par, hp, nu_p, var_p, 3 if use_alt else 2, dx, t_fix, np.bool_(True),
-                             np.int64(R_POS_FUSED), np.int64(R_POS_REJECTED), np.int64(R_POS_RESET))
+        res |= _gated_update(x.pos_gate, P, par, hp_w, nu_p_w, var_p_w, 3 if use_alt else 2, dx, t_fix,
+                             np.bool_(True), np.int64(R_POS_FUSED), np.int64(R_POS_REJECTED), np.int64(R_POS_RESET),
+                             hp, nu_p, var_p)
     return res
 
 
@@ -1312,15 +1401,17 @@ def _position_reset_to_fix(x, P, nu_p, var_p, dx, use_alt, r_n, r_e, ph, plat):
 
 
 @njit(cache=True)
-def _fuse_fix(x, P, hist, par, t_fix, nu_v, nu_p, var_v, var_p, c, on, oe, od, un, ue, ud, use_pos, use_alt,
-              use_vel, use_vd, r_n, r_e, ph, plat):
+def _fuse_fix(x, P, hist, par, t_fix, nu_v, nu_p, var_v, var_p, c, on, oe, od, un, ue, ud, pw, dt_fix, use_pos,
+              use_alt, use_vel, use_vd, r_n, r_e, ph, plat):
     """The χ²-gated sequential updates of the fix's velocity and position (innovations nu_v, nu_p against the
-    state at its time of validity; lever-arm terms C, C r, C (ω × r)), folded into the state and the history;
+    state at its time of validity; lever-arm terms C, C r, C (ω × r), ω = pw the body rate), folded into the
+    state and the history (dt_fix: the time since the fix before, `_arm_consider`);
     a run of rejections lasting reject_reset_s resets that quantity to the fix. Returns R_* bits."""
     dx = np.zeros(N_ERR)
     hv, hp = _antenna_rows(par, c, on, oe, od, un, ue, ud)
+    add_v, add_p = _arm_consider(par, c, pw[0], pw[1], pw[2], dt_fix)
     res = _gate_velocity_and_position(x, P, par, hv, hp, nu_v, nu_p, var_v, var_p, dx, t_fix, use_pos, use_alt,
-                                      use_vel, use_vd)
+                                      use_vel, use_vd, add_v, add_p)
     _symmetrise(P)
     lat_before = x.lat_rad
     lon_before = x.lon_rad
@@ -1400,6 +1491,7 @@ def fuse_gnss(state, P, hist, params, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, 
     if j < 0:
         return R_TOO_OLD
     propagate_covariance(x, P, par)
+    dt_fix = t_fix - x.last_fix_t_s
     x.last_fix_t_s = t_fix
     a0, a1, a2, a3, pv, pw, plat, plon, ph = _state_at_fix(hist, j, k, w)
     on, oe, od, un, ue, ud, c = _lever_terms(a0, a1, a2, a3, pw[0], pw[1], pw[2],
@@ -1416,8 +1508,8 @@ def fuse_gnss(state, P, hist, params, t_fix, lat_fix, lon_fix, alt_fix, vn_fix, 
             return 0
         return _reset_from_fix(x, P, hist, par, t_fix, first, nu_v, nu_p, var_v, var_p, use_alt, use_vd, r_n, r_e,
                                ph, plat)
-    return _fuse_fix(x, P, hist, par, t_fix, nu_v, nu_p, var_v, var_p, c, on, oe, od, un, ue, ud, use_pos, use_alt,
-                     use_vel, use_vd, r_n, r_e, ph, plat)
+    return _fuse_fix(x, P, hist, par, t_fix, nu_v, nu_p, var_v, var_p, c, on, oe, od, un, ue, ud, pw, dt_fix,
+                     use_pos, use_alt, use_vel, use_vd, r_n, r_e, ph, plat)
 
 
 def fast_step(example_args):
