@@ -654,4 +654,11 @@ MUTATIONS: tuple[Mutation, ...] = (
              "docs/estimator.md", "(diagnostic not kept: the simulated accelerometer's m_zx set to 0;",
              "(`/work/notes/pitch27-diag.py … azx0`;",
              ("tests/test_docs_commands.py",)),
+    # ------------------------------------------------------------------ session 32 (start32)
+    Mutation("cli-main-no-estimator-import", "the `ahrsd` script's module imports neither numpy nor ahrsd.estimator",
+             "cli/replay.py", "from ahrsd.core.estimator_names import ESTIMATORS",
+             "from ahrsd.estimator import ESTIMATORS", ("tests/test_daemon_imports.py",)),
+    Mutation("cli-command-keyed-kernel-cache", "a command runs with numba's cache at the source-keyed directory",
+             "cli/main.py", "    import ahrsd.estimator  # noqa: F401", "    pass",
+             ("tests/test_daemon_imports.py",)),
 )
