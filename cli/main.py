@@ -87,6 +87,11 @@ def _main(argv: list[str] | None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    # Before the command imports anything of its own: the estimator package points numba's cache at the
+    # directory keyed by the kernels' sources (estimator/kernel_cache.py), which a kernel outside the estimator
+    # (calibration/allan/irls.py) must also find set when it is defined. Here, not at the top of this module:
+    # every process multiprocessing spawns from the `ahrsd` script imports this module again, and needs neither.
+    import ahrsd.estimator  # noqa: F401
     return int(args.func(args) or 0)
 
 

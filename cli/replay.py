@@ -18,7 +18,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Callable
 
-from ahrsd.estimator import ESTIMATORS
+from ahrsd.core.estimator_names import ESTIMATORS
 
 # The CSV columns, picked by name from the replay table (ahrsd.estimator.replay.ATTITUDE_COLUMNS, which
 # documents each); named here so that `ahrsd --help` needs no numpy and the file format cannot drift.

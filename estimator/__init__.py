@@ -7,9 +7,10 @@ from .kernel_cache import use_source_keyed_cache
 
 KERNEL_CACHE_DIR = use_source_keyed_cache()   # before any kernel is compiled or loaded (kernel_cache.py)
 
+from ahrsd.core.estimator_names import ESTIMATORS  # noqa: E402  (named in core: the command line reads them)
+
 from .base import Estimator  # noqa: E402
 
-ESTIMATORS = ("mekf", "thesis", "ins")
 UNAIDED_ESTIMATOR = "mekf"     # the daemon's choice without a GNSS source
 AIDED_ESTIMATOR = "ins"        # ... and with one; also the aided levelling of back-stepping --gnss
 DEFAULT_ESTIMATOR = "mekf"

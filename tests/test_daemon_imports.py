@@ -20,3 +20,31 @@ def test_the_daemon_process_imports_no_scipy_spatial_for_the_scenario_names():
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]", out.stdout
+
+
+def test_the_ahrsd_script_module_imports_neither_numpy_nor_the_estimator():
+    """multiprocessing's spawn imports the parent's main module again in each child it starts (the daemon's
+    sensor reader, the field fit's worker): for the `ahrsd` script that is ahrsd.cli.main, which must then not
+    load numpy or digest the kernels' sources (ahrsd.estimator) for the --estimator choices."""
+    probe = ("import sys\nimport ahrsd.cli.main\n"
+             "print(sorted(m for m in sys.modules if m == 'numpy' or m.startswith('ahrsd.estimator')))")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]", out.stdout
+
+
+def test_a_command_runs_with_numbas_cache_at_the_source_keyed_directory():
+    """A command's own numba kernels (calibration/allan/irls.py is outside ahrsd.estimator) are defined once the
+    estimator package has pointed numba's cache at the directory keyed by the kernels' sources, as when
+    ahrsd.cli.main imported it at its top."""
+    probe = ("import os, sys\nimport ahrsd.cli.log as log\nfrom ahrsd.cli.main import main\n"
+             "def spy(args):\n"
+             "    print(os.path.basename(os.environ.get('NUMBA_CACHE_DIR', '')).startswith('ahrsd-kernels-'),\n"
+             "          'numba' in sys.modules)\n"
+             "    return 0\n"
+             "log.run = spy\n"
+             "sys.exit(main(['log', 'list', '--dir', '.']))")
+    env = {k: v for k, v in __import__("os").environ.items() if k != "NUMBA_CACHE_DIR"}
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120, env=env)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["True", "False"], out.stdout

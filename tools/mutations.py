@@ -685,4 +685,11 @@ MUTATIONS: tuple[Mutation, ...] = (
              "daemon/timesync_answers.py", "            self.counters.timesync_answered += 1",
              "            self.counters.timesync_answered += 1 + (self.counters.timesync_answered == 0)",
              ("tests/test_timesync_answers.py", "tests/test_reliability_daemon.py")),
+    # ------------------------------------------------------------------ session 32 (start32)
+    Mutation("cli-main-no-estimator-import", "the `ahrsd` script's module imports neither numpy nor ahrsd.estimator",
+             "cli/replay.py", "from ahrsd.core.estimator_names import ESTIMATORS",
+             "from ahrsd.estimator import ESTIMATORS", ("tests/test_daemon_imports.py",)),
+    Mutation("cli-command-keyed-kernel-cache", "a command runs with numba's cache at the source-keyed directory",
+             "cli/main.py", "    import ahrsd.estimator  # noqa: F401", "    pass",
+             ("tests/test_daemon_imports.py",)),
 )
