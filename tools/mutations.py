@@ -692,4 +692,11 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("cli-command-keyed-kernel-cache", "a command runs with numba's cache at the source-keyed directory",
              "cli/main.py", "    import ahrsd.estimator  # noqa: F401", "    pass",
              ("tests/test_daemon_imports.py",)),
+    # ------------------------------------------------------------------ session 32 (sim32)
+    Mutation("gnss-draws-epoch-order", "each GNSS epoch's noise is that epoch's draw of the white stream",
+             "simulation/gnss.py", "standard_normal((n, 3)) * self._sigma_white",
+             "standard_normal((3, n)).T * self._sigma_white", ("tests/test_simulation_gnss.py",)),
+    Mutation("gnss-jitter-per-epoch", "each GNSS epoch draws its own arrival jitter",
+             "simulation/gnss.py", "self._rng_jitter.uniform(0.0, self.jitter_s, n)",
+             "self._rng_jitter.uniform(0.0, self.jitter_s)", ("tests/test_simulation_gnss.py",)),
 )
