@@ -699,4 +699,13 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("gnss-jitter-per-epoch", "each GNSS epoch draws its own arrival jitter",
              "simulation/gnss.py", "self._rng_jitter.uniform(0.0, self.jitter_s, n)",
              "self._rng_jitter.uniform(0.0, self.jitter_s)", ("tests/test_simulation_gnss.py",)),
+    Mutation("euler-quat-intrinsic", "the simulator's Euler quaternions are scipy's intrinsic ZYX, bit for bit",
+             "simulation/euler_quat.py", "q = _hamilton(q, _elementary(1, angles[:, 1]))",
+             "q = _hamilton(_elementary(1, angles[:, 1]), q)", ("tests/test_simulation_euler_quat.py",)),
+    Mutation("euler-rotate-scipy-bits", "NED vectors in body axes are scipy's apply, bit for bit",
+             "simulation/euler_quat.py", "m[:, 0, 0] = x2 - y2 - z2 + w2", "m[:, 0, 0] = w2 + x2 - y2 - z2",
+             ("tests/test_simulation_euler_quat.py",)),
+    Mutation("producer-no-scipy-spatial", "an Euler scenario's stream blocks import no scipy.spatial",
+             "simulation/scenario_base.py", "return quat_xyzw_from_euler_zyx(*self.euler_rad(np.asarray(t_s, dtype=float)))",
+             "return self.attitude(t_s).as_quat()", ("tests/test_simulation_euler_quat.py",)),
 )
