@@ -195,6 +195,7 @@ class GnssSimulator:
         for g in self.glitches:
             if not isinstance(g, GnssGlitch):
                 raise TypeError(f"glitches must be GnssGlitch, got {type(g).__name__}")
+        self._glitch_spans = [(g, *self._glitch_epochs(g)) for g in self.glitches]
         self._k = math.ceil(start_s * self.rate_hz - 1e-9)     # next epoch index
         rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(4)]
         self._rng_white, self._rng_wander, self._rng_vel, self._rng_jitter = rngs
@@ -228,58 +229,70 @@ class GnssSimulator:
             return []
         self._k = k1 + 1
         t = np.arange(k0, k1 + 1) / self.rate_hz
+        n = len(t)
         truth = self._truth_at(t)
         lat, lon, alt, vel = self._antenna(truth)
         e = self.errors
         h_acc, v_acc, s_acc = e.reported
+        # every epoch's draws at once, outage or not, so the noise at an epoch does not depend on the outages; a
+        # Generator gives the same numbers for one (n, 3) draw as for n draws of 3 (the same stream, in order)
+        white = self._rng_white.standard_normal((n, 3)) * self._sigma_white
+        innovation = self._rng_wander.standard_normal((n, 3)) * self._sigma_wander * math.sqrt(1 - self._phi**2)
+        dv = self._rng_vel.standard_normal((n, 3)) * e.velocity_m_s
+        t_rx = (t + self.latency_s + self._rng_jitter.uniform(0.0, self.jitter_s, n)).tolist()
+        wander = np.empty((n, 3))
+        for i in range(n):              # the Gauss–Markov recursion, epoch by epoch
+            self._wander = self._phi * self._wander + innovation[i]
+            wander[i] = self._wander
+        d_all = white + wander
+        v_all = vel + dv
+        # Python floats from here: the same IEEE operations as on numpy scalars, without their per-call cost
+        t_list = t.tolist()
+        lat_l, lon_l, alt_l = np.asarray(lat).tolist(), np.asarray(lon).tolist(), np.asarray(alt).tolist()
+        d_list = d_all.tolist()
         fixes = []
-        for i, tk in enumerate(t):
-            # draw for every epoch, outage or not, so the noise at an epoch does not depend on the outages
-            white = self._rng_white.standard_normal(3) * self._sigma_white
-            self._wander = (self._phi * self._wander
-                            + self._rng_wander.standard_normal(3) * self._sigma_wander * math.sqrt(1 - self._phi**2))
-            dv = self._rng_vel.standard_normal(3) * e.velocity_m_s
-            t_rx = tk + self.latency_s + self._rng_jitter.uniform(0.0, self.jitter_s)
-            outage = next((o for o in self.outages if o.start_s <= tk < o.stop_s), None)
-            truth_i = GnssTruth(float(tk), float(lat[i]), float(lon[i]), float(alt[i]), vel[i].copy())
+        for i, tk in enumerate(t_list):
+            outage = next((o for o in self.outages if o.start_s <= tk < o.stop_s), None) if self.outages else None
+            truth_i = GnssTruth(tk, lat_l[i], lon_l[i], alt_l[i], vel[i].copy())
             if outage is not None:
                 if outage.reports_no_fix:
-                    fixes.append(GnssFix(float(tk), math.nan, math.nan, math.nan, np.full(3, math.nan),
+                    fixes.append(GnssFix(tk, math.nan, math.nan, math.nan, np.full(3, math.nan),
                                          fix_type=GnssFixType.NO_FIX, num_sats=2, source="simulated",
-                                         extra={"t_rx_s": float(t_rx), "glitch": None, "truth": truth_i}))
+                                         extra={"t_rx_s": t_rx[i], "glitch": None, "truth": truth_i}))
                 continue
-            d_ned = white + self._wander
-            v_meas = vel[i] + dv
-            t_stamp = float(tk)
+            d_ned = d_list[i]
+            v_meas = v_all[i].copy()
+            t_stamp = tk
             glitch = None
-            for g in self.glitches:
-                if not self._hits(g, k0 + i):
+            for g, first, last in self._glitch_spans:
+                if not first <= k0 + i <= last:
                     continue
                 glitch = g.kind
                 u = np.array([math.cos(math.radians(g.direction_deg)), math.sin(math.radians(g.direction_deg)), 0.0])
                 if g.kind == "position_jump":
-                    d_ned = d_ned + g.size * u
+                    d_ned = (np.array(d_ned) + g.size * u).tolist()
                 elif g.kind == "velocity_spike":
                     v_meas = v_meas + g.size * u
                 elif g.kind == "time_backwards":
-                    t_stamp = float(tk) - g.size
-            r = EARTH_RADIUS_M + alt[i]
-            lat_m = lat[i] + math.degrees(d_ned[0] / r)
-            lon_m = lon[i] + math.degrees(d_ned[1] / (r * math.cos(math.radians(lat[i]))))
-            alt_m = alt[i] - d_ned[2]
+                    t_stamp = tk - g.size
+            d_n, d_e, d_d = d_ned
+            r = EARTH_RADIUS_M + alt_l[i]
+            lat_m = lat_l[i] + math.degrees(d_n / r)
+            lon_m = lon_l[i] + math.degrees(d_e / (r * math.cos(math.radians(lat_l[i]))))
+            alt_m = alt_l[i] - d_d
             if glitch == "nan":
                 lat_m = lon_m = alt_m = math.nan
                 v_meas = np.full(3, math.nan)
-            fixes.append(GnssFix(t_stamp, float(lat_m), float(lon_m), float(alt_m), v_meas, h_acc_m=h_acc,
+            fixes.append(GnssFix(t_stamp, lat_m, lon_m, alt_m, v_meas, h_acc_m=h_acc,
                                  v_acc_m=v_acc, s_acc_m_s=s_acc, fix_type=GnssFixType.FIX_3D, num_sats=e.num_sats,
-                                 source="simulated", extra={"t_rx_s": float(t_rx), "glitch": glitch,
+                                 source="simulated", extra={"t_rx_s": t_rx[i], "glitch": glitch,
                                                             "truth": truth_i}))
         return fixes
 
-    def _hits(self, g: GnssGlitch, k: int) -> bool:
+    def _glitch_epochs(self, g: GnssGlitch) -> tuple[int, int]:
+        """The first and last epoch index a glitch applies to."""
         first = math.ceil(g.t_s * self.rate_hz - 1e-9)
-        last = max(first, math.floor((g.t_s + g.duration_s) * self.rate_hz + 1e-9))
-        return first <= k <= last
+        return first, max(first, math.floor((g.t_s + g.duration_s) * self.rate_hz + 1e-9))
 
     def _antenna(self, truth: Truth):
         """The antenna's geodetic position and NED velocity from the IMU's truth and the lever arm."""

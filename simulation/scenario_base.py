@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ahrsd.simulation.euler_quat import quat_xyzw_from_euler_zyx
 from ahrsd.simulation.magnetic import VehicleIron
 from ahrsd.simulation.profiles import RateProfile
 
@@ -39,6 +40,10 @@ class Scenario:
 
     def attitude(self, t_s: np.ndarray) -> Rotation:
         raise NotImplementedError
+
+    def attitude_xyzw(self, t_s: np.ndarray) -> np.ndarray:
+        """The attitude as (n, 4) quaternions, scalar last: `attitude(t_s).as_quat()`."""
+        return self.attitude(t_s).as_quat()
 
     def body_rate_rad_s(self, t_s: np.ndarray) -> np.ndarray:
         """ω of body w.r.t. NED, in body axes: R(t+h) = R(t−h) exp(2h ω)."""
@@ -80,6 +85,10 @@ class EulerScenario(Scenario):
 
     def attitude(self, t_s):
         return euler_zyx(*self.euler_rad(np.asarray(t_s, dtype=float)))
+
+    def attitude_xyzw(self, t_s):
+        # without scipy (the same bits as euler_zyx's): the simulated chip's producer computes its blocks with this
+        return quat_xyzw_from_euler_zyx(*self.euler_rad(np.asarray(t_s, dtype=float)))
 
     def body_rate_rad_s(self, t_s):
         t = np.asarray(t_s, dtype=float)

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ahrsd.simulation.errors import ErrorProcess, SensorErrors
+from ahrsd.simulation.euler_quat import ned_to_body
 from ahrsd.core.gravity import EARTH_RADIUS_M, normal_gravity_m_s2
 from ahrsd.simulation.gravity import earth_rate_ned_rad_s, transport_rate_ned_rad_s
 from ahrsd.simulation.magnetic import VehicleIron
@@ -35,9 +36,8 @@ class Truth:
     alt_m: np.ndarray
 
 
-def _wxyz(rotation) -> np.ndarray:
-    q = rotation.as_quat()                 # scipy: scalar last [x, y, z, w]
-    q = np.column_stack([q[:, 3], q[:, :3]])
+def _wxyz(q_xyzw: np.ndarray) -> np.ndarray:
+    q = np.column_stack([q_xyzw[:, 3], q_xyzw[:, :3]])
     return q * np.where(q[:, :1] < 0, -1.0, 1.0)
 
 
@@ -179,8 +179,7 @@ class SensorStream:
         self._k_gen = k0 + n
         t = self.start_s + (k0 + np.arange(n)) / self.rate_hz
         sc = self.scenario
-        att = sc.attitude(t)
-        ned_to_body = att.inv()
+        q_xyzw = sc.attitude_xyzw(t)
         omega = sc.body_rate_rad_s(t)
         v = sc.velocity_ned_m_s(t)
         lat_deg, lon_deg, alt_m = self._position_deg(t)
@@ -192,17 +191,17 @@ class SensorStream:
             w_en = transport_rate_ned_rad_s(v, lat_deg, alt_m)
             f_ned = sc.accel_ned_m_s2(t) + np.cross(2.0 * w_ie + w_en, v)
             f_ned[:, 2] -= normal_gravity_m_s2(lat_deg, alt_m)
-            gyro_sensed = omega + ned_to_body.apply(w_ie + w_en)
+            gyro_sensed = omega + ned_to_body(q_xyzw, w_ie + w_en)
         else:
             # Flat, non-rotating Earth with the site's gravity throughout.
             f_ned = sc.accel_ned_m_s2(t) - self._gravity_ned
             gyro_sensed = omega
-        accel_true = ned_to_body.apply(f_ned)
-        mag_earth = ned_to_body.apply(self._field_ned)
+        accel_true = ned_to_body(q_xyzw, f_ned)
+        mag_earth = ned_to_body(q_xyzw, self._field_ned)
         dist_ned = sc.disturbance_ned_ut(t)
-        dist = ned_to_body.apply(dist_ned) if dist_ned is not None else np.zeros((n, 3))
+        dist = ned_to_body(q_xyzw, dist_ned) if dist_ned is not None else np.zeros((n, 3))
         gyro, accel, mag, temp, gbias, abias = self._process.apply(t, gyro_sensed, accel_true, mag_earth + dist)
-        return SensorBlock(t, gyro, accel, mag, temp, _wxyz(att), omega, mag_earth, accel_true, dist, gbias, abias,
+        return SensorBlock(t, gyro, accel, mag, temp, _wxyz(q_xyzw), omega, mag_earth, accel_true, dist, gbias, abias,
                            v, lat_deg, lon_deg, alt_m)
 
     def _position_deg(self, t):
@@ -213,7 +212,7 @@ class SensorStream:
         t = np.atleast_1d(np.asarray(t_s, dtype=float))
         sc = self.scenario
         lat_deg, lon_deg, alt_m = self._position_deg(t)
-        return Truth(t, _wxyz(sc.attitude(t)), sc.body_rate_rad_s(t), sc.velocity_ned_m_s(t), lat_deg, lon_deg,
+        return Truth(t, _wxyz(sc.attitude_xyzw(t)), sc.body_rate_rad_s(t), sc.velocity_ned_m_s(t), lat_deg, lon_deg,
                      alt_m)
 
 

@@ -131,6 +131,35 @@ def test_stream_truth_and_block_truth_give_the_same_fixes():
         simulate_gnss(open_stream("car"))
 
 
+def test_each_epoch_has_its_own_draws_of_the_four_noise_streams(boat):
+    """The noise of epoch k is the k-th draw of each of the receiver's four streams (white, wander, velocity,
+    jitter: SeedSequence(seed).spawn(4)), whatever the outages: recomputed here epoch by epoch from the model the
+    module docstring states, so a batched draw taken in another order (or an outage that skips draws) fails."""
+    seed, rate_hz, jitter_s, latency_s = 9, 5.0, 0.04, 0.1
+    model = GnssErrors()
+    fixes = simulate_gnss(boat, rate_hz=rate_hz, seed=seed, jitter_s=jitter_s, latency_s=latency_s,
+                          outages=[(20.0, 30.0)], errors=model)
+    white_rng, wander_rng, vel_rng, jitter_rng = (np.random.default_rng(s)
+                                                  for s in np.random.SeedSequence(seed).spawn(4))
+    sigma = np.array([model.horizontal_m, model.horizontal_m, model.vertical_m])
+    phi = math.exp(-1.0 / (rate_hz * model.wander_tau_s))
+    wander = wander_rng.standard_normal(3) * sigma * math.sqrt(model.wander_fraction)
+    expected = {}
+    for k in range(int(119.98 * rate_hz) + 1):
+        white = white_rng.standard_normal(3) * sigma * math.sqrt(1.0 - model.wander_fraction)
+        wander = phi * wander + wander_rng.standard_normal(3) * sigma * math.sqrt(model.wander_fraction * (1 - phi**2))
+        dv = vel_rng.standard_normal(3) * model.velocity_m_s
+        t_rx = k / rate_hz + latency_s + jitter_rng.uniform(0.0, jitter_s)
+        expected[round(k / rate_hz, 6)] = (white + wander, dv, t_rx)
+    assert len(fixes) == len(expected) - 50          # 10 s of outage at 5 Hz
+    p_err, v_err = error_ned_m(fixes)
+    for f, p, v in zip(fixes, p_err, v_err):
+        d_ned, dv, t_rx = expected[round(f.t_s, 6)]
+        np.testing.assert_allclose(p, d_ned, atol=1e-6)      # metres; the lat/lon round trip costs ~1e-9
+        np.testing.assert_allclose(v, dv, atol=1e-12)
+        assert f.extra["t_rx_s"] == pytest.approx(t_rx, abs=1e-12)
+
+
 def test_incremental_delivery_equals_the_batch(boat):
     batch = simulate_gnss(boat, seed=5, latency_s=0.15)
     stream = open_stream("boat", rate_hz=50.0, errors="ideal")
