@@ -52,6 +52,8 @@ def _across(direction: np.ndarray) -> np.ndarray:
     return v[:, np.argsort(w)[1:]].T
 
 
+_EYE3 = np.eye(3)
+_EYE_IRON = np.eye(N_IRON)
 _LEVEL_HEADINGS = np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False)
 """The headings IronLearner.level_heading_variance looks at (rad)."""
 
@@ -146,6 +148,19 @@ class IronLearner:
         return np.sqrt(np.maximum(np.diag(self.cov[3:, 3:]), 0.0)).reshape(3, 3)
 
     @property
+    def largest_soft_iron_sigma(self) -> float:
+        """The largest element of `soft_iron_sigma` (NaN if any is NaN), read from the covariance's diagonal
+        without building the 3×3: the square root is monotone, so the root of the largest variance is the
+        largest root."""
+        top = 0.0
+        for v in self.cov.diagonal()[3:].tolist():
+            if v != v:
+                return math.nan
+            if v > top:
+                top = v
+        return math.sqrt(top)
+
+    @property
     def soft_iron_inverse(self) -> np.ndarray:
         key = self.state[3:].tobytes()
         if self._inverse[0] != key:
@@ -178,7 +193,7 @@ class IronLearner:
         predicted = a @ field_body + self.state[0:3]
         nu = np.asarray(mag_body_ut, dtype=float) - predicted
         j = a @ c.T @ skew(b_ned)                  # ∂(A C_trueᵀ B)/∂δθ with C_true = (I + [δθ×]) C
-        r = (j @ p_att_rad2 @ j.T + np.eye(3) * noise_ut ** 2) * inflate
+        r = (j @ p_att_rad2 @ j.T + _EYE3 * noise_ut ** 2) * inflate
         h = self._jacobian(field_body)
         if self.offset_held:
             # the limit of an unknown yaw (its variance without bound): only the two directions a yaw error
@@ -191,7 +206,7 @@ class IronLearner:
         k = ph @ s_inv
         self.state = self.state + k @ nu
         self.last_gain = (k, h, j)
-        ikh = np.eye(N_IRON) - k @ h
+        ikh = _EYE_IRON - k @ h
         self.cov = ikh @ self.cov @ ikh.T + k @ r @ k.T
         self.cov = 0.5 * (self.cov + self.cov.T)
         self.updates += 1
