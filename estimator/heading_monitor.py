@@ -78,6 +78,28 @@ def _positive_definite(value, n: int, semi: bool = False) -> np.ndarray:
     return a
 
 
+_LEVEL_ATTITUDES: dict = {}
+"""The level attitudes of each yaw array `_level_attitudes` was asked for, by its bytes: the heading checks ask for
+the same few (_LEVEL_HEADINGS, the harmonic fit's yaws) at every learning step."""
+
+
+def _level_attitudes(yaw_rad) -> np.ndarray:
+    """C_bn (k×3×3) of a level vehicle at each yaw (rad), made once per yaw array (read only)."""
+    yaw = np.asarray(yaw_rad)
+    key = (yaw.dtype.str, yaw.shape, yaw.tobytes())
+    c_bn = _LEVEL_ATTITUDES.get(key)
+    if c_bn is None:
+        c, s = np.cos(yaw), np.sin(yaw)
+        zero, one = np.zeros_like(c), np.ones_like(c)
+        c_bn = np.stack([np.stack([c, -s, zero], -1), np.stack([s, c, zero], -1), np.stack([zero, zero, one], -1)],
+                        1)
+        c_bn.setflags(write=False)
+        if len(_LEVEL_ATTITUDES) >= 16:     # a caller sweeping yaws: keep the cache small
+            _LEVEL_ATTITUDES.clear()
+        _LEVEL_ATTITUDES[key] = c_bn
+    return c_bn
+
+
 @dataclass
 class IronLearner:
     """Learned iron on top of the calibration: the hard iron b (body frame, µT) and the soft iron D
@@ -288,13 +310,11 @@ class IronLearner:
         b = np.asarray(field_ned_ut, dtype=float)
         h2 = b[0] * b[0] + b[1] * b[1]
         g = np.array([-b[1], b[0], 0.0]) / h2
-        c, s = np.cos(yaw_rad), np.sin(yaw_rad)
-        zero, one = np.zeros_like(c), np.ones_like(c)
-        c_bn = np.stack([np.stack([c, -s, zero], -1), np.stack([s, c, zero], -1), np.stack([zero, zero, one], -1)], 1)
+        c_bn = _level_attitudes(yaw_rad)
         # heading_variance for each c_bn at once: a = [w, w_i·(C_bnᵀ B)_j] with w = g C_bn (I + D)⁻¹
         w = np.einsum("j,kji->ki", g, c_bn) @ self.soft_iron_inverse
         field_body = np.einsum("kji,j->ki", c_bn, b)
-        return np.concatenate([w, (w[:, :, None] * field_body[:, None, :]).reshape(len(c), 9)], axis=1)
+        return np.concatenate([w, (w[:, :, None] * field_body[:, None, :]).reshape(len(c_bn), 9)], axis=1)
 
 
 @dataclass
