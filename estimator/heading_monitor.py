@@ -52,6 +52,8 @@ def _across(direction: np.ndarray) -> np.ndarray:
     return v[:, np.argsort(w)[1:]].T
 
 
+_EYE3 = np.eye(3)
+_EYE_IRON = np.eye(N_IRON)
 _LEVEL_HEADINGS = np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False)
 """The headings IronLearner.level_heading_variance looks at (rad)."""
 
@@ -74,6 +76,28 @@ def _positive_definite(value, n: int, semi: bool = False) -> np.ndarray:
     if np.any(low < -1e-12 * max(1.0, float(np.max(np.abs(a))))) if semi else np.any(low <= 0.0):
         raise ValueError("learned iron covariance must be positive " + ("semi-definite" if semi else "definite"))
     return a
+
+
+_LEVEL_ATTITUDES: dict = {}
+"""The level attitudes of each yaw array `_level_attitudes` was asked for, by its bytes: the heading checks ask for
+the same few (_LEVEL_HEADINGS, the harmonic fit's yaws) at every learning step."""
+
+
+def _level_attitudes(yaw_rad) -> np.ndarray:
+    """C_bn (k×3×3) of a level vehicle at each yaw (rad), made once per yaw array (read only)."""
+    yaw = np.asarray(yaw_rad)
+    key = (yaw.dtype.str, yaw.shape, yaw.tobytes())
+    c_bn = _LEVEL_ATTITUDES.get(key)
+    if c_bn is None:
+        c, s = np.cos(yaw), np.sin(yaw)
+        zero, one = np.zeros_like(c), np.ones_like(c)
+        c_bn = np.stack([np.stack([c, -s, zero], -1), np.stack([s, c, zero], -1), np.stack([zero, zero, one], -1)],
+                        1)
+        c_bn.setflags(write=False)
+        if len(_LEVEL_ATTITUDES) >= 16:     # a caller sweeping yaws: keep the cache small
+            _LEVEL_ATTITUDES.clear()
+        _LEVEL_ATTITUDES[key] = c_bn
+    return c_bn
 
 
 @dataclass
@@ -146,6 +170,19 @@ class IronLearner:
         return np.sqrt(np.maximum(np.diag(self.cov[3:, 3:]), 0.0)).reshape(3, 3)
 
     @property
+    def largest_soft_iron_sigma(self) -> float:
+        """The largest element of `soft_iron_sigma` (NaN if any is NaN), read from the covariance's diagonal
+        without building the 3×3: the square root is monotone, so the root of the largest variance is the
+        largest root."""
+        top = 0.0
+        for v in self.cov.diagonal()[3:].tolist():
+            if v != v:
+                return math.nan
+            if v > top:
+                top = v
+        return math.sqrt(top)
+
+    @property
     def soft_iron_inverse(self) -> np.ndarray:
         key = self.state[3:].tobytes()
         if self._inverse[0] != key:
@@ -178,7 +215,7 @@ class IronLearner:
         predicted = a @ field_body + self.state[0:3]
         nu = np.asarray(mag_body_ut, dtype=float) - predicted
         j = a @ c.T @ skew(b_ned)                  # ∂(A C_trueᵀ B)/∂δθ with C_true = (I + [δθ×]) C
-        r = (j @ p_att_rad2 @ j.T + np.eye(3) * noise_ut ** 2) * inflate
+        r = (j @ p_att_rad2 @ j.T + _EYE3 * noise_ut ** 2) * inflate
         h = self._jacobian(field_body)
         if self.offset_held:
             # the limit of an unknown yaw (its variance without bound): only the two directions a yaw error
@@ -191,7 +228,7 @@ class IronLearner:
         k = ph @ s_inv
         self.state = self.state + k @ nu
         self.last_gain = (k, h, j)
-        ikh = np.eye(N_IRON) - k @ h
+        ikh = _EYE_IRON - k @ h
         self.cov = ikh @ self.cov @ ikh.T + k @ r @ k.T
         self.cov = 0.5 * (self.cov + self.cov.T)
         self.updates += 1
@@ -273,13 +310,11 @@ class IronLearner:
         b = np.asarray(field_ned_ut, dtype=float)
         h2 = b[0] * b[0] + b[1] * b[1]
         g = np.array([-b[1], b[0], 0.0]) / h2
-        c, s = np.cos(yaw_rad), np.sin(yaw_rad)
-        zero, one = np.zeros_like(c), np.ones_like(c)
-        c_bn = np.stack([np.stack([c, -s, zero], -1), np.stack([s, c, zero], -1), np.stack([zero, zero, one], -1)], 1)
+        c_bn = _level_attitudes(yaw_rad)
         # heading_variance for each c_bn at once: a = [w, w_i·(C_bnᵀ B)_j] with w = g C_bn (I + D)⁻¹
         w = np.einsum("j,kji->ki", g, c_bn) @ self.soft_iron_inverse
         field_body = np.einsum("kji,j->ki", c_bn, b)
-        return np.concatenate([w, (w[:, :, None] * field_body[:, None, :]).reshape(len(c), 9)], axis=1)
+        return np.concatenate([w, (w[:, :, None] * field_body[:, None, :]).reshape(len(c_bn), 9)], axis=1)
 
 
 @dataclass

@@ -72,6 +72,18 @@ _HIST_Q, _HIST_VEL, _HIST_RATE = (float_field_slice(core.INS_HISTORY_DTYPE, name
 _DEG = math.pi / 180.0
 
 
+def _largest(*values: float) -> float:
+    """The largest of the values as np.max takes it (NaN if any is NaN), without its array set-up: a few floats
+    at every heading check."""
+    top = -math.inf
+    for v in values:
+        if v != v:
+            return math.nan
+        if v > top:
+            top = v
+    return top
+
+
 @dataclass(frozen=True)
 class InsParams(MagHeadingParams):
     """Tuning of the ins. SI units, angles in rad. Defaults for an ADIS16405-class IMU and a consumer GNSS
@@ -1139,14 +1151,16 @@ class Ins:
         x["gyro_rotation_rad"] = 0.0
         x["gyro_rotation_s"] = 0.0
         m = x["mag_last_ut"]
-        if field is None or not np.all(np.isfinite(m)) or x["nav_ok"] <= 0 or dt <= 0.0:
+        m0, m1, m2 = m.tolist()
+        if field is None or not (math.isfinite(m0) and math.isfinite(m1) and math.isfinite(m2)) \
+                or x["nav_ok"] <= 0 or dt <= 0.0:
             self._mag_rotation.restart()
             return
-        att = slice(core.E_TH, core.E_TH + 3)
-        att_sigma = math.sqrt(max(float(np.max(np.diag(P[att, att]))), 0.0))
+        i = core.E_TH
+        att_sigma = math.sqrt(max(_largest(float(P[i, i]), float(P[i + 1, i + 1]), float(P[i + 2, i + 2])), 0.0))
         tilt_sigma = math.sqrt(max(float(max(P[core.E_TILT_N, core.E_TILT_N], P[core.E_TILT_E, core.E_TILT_E])), 0.0))
         out = self._mag_rotation.add(t_s, m, c_bn, field, step, float(x["gyro_bias_rad_s"][2]), dt,
-                                     self._iron.soft_iron, float(np.max(self._iron.soft_iron_sigma)), att_sigma,
+                                     self._iron.soft_iron, self._iron.largest_soft_iron_sigma, att_sigma,
                                      tilt_sigma)
         if out is None:
             return

@@ -133,7 +133,7 @@ class MagRotationBias:
         rt_i = rot.T - _EYE3
         att = np.array([-(soft_iron @ (rt_i @ e_v0)) @ w / ww for e_v0 in self.v0_moves_ut])
         self.samples.append((t_s, float(rho @ w) / ww, self.bias_dt, _turn(rot),
-                             np.outer(w, d).reshape(9) / ww, att))
+                             (w[:, None] * d[None, :]).reshape(9) / ww, att))
         if t_s - self.t0_s < self.window_s:
             return None
         result = self._fit(bias_z_rad_s, soft_sigma)

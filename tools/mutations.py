@@ -638,6 +638,12 @@ MUTATIONS: tuple[Mutation, ...] = (
              "estimator/magnetometer_use.py", "    use = monitor_use and not iron.learning",
              "    use = learned_floor_var_rad2() is heading_rate_rad_s() or monitor_use and not iron.learning",
              ("tests/test_magnetometer_use.py",)),
+    Mutation("iron-level-attitudes-per-yaw-array",
+             "the level attitudes IronLearner.level_heading_rows reuses are those of the yaw array asked for (keyed by "
+             "its values, not its shape)",
+             "estimator/heading_monitor.py", "    key = (yaw.dtype.str, yaw.shape, yaw.tobytes())",
+             "    key = (yaw.dtype.str, yaw.shape)",
+             ("tests/test_iron_level_rows.py",)),
     Mutation("bank-bias-only-when-sure", "the GNSS yaw bank takes the filter's gyro bias only when its agreeing yaw "
              "is sure (below accel_bias_gsf_sigma_rad), not at any agreement within the gate",
              "estimator/monitor_follow_up.py", "bank = confirms and gsf_var_rad2 < accel_bias_gsf_sigma_rad ** 2",
