@@ -195,7 +195,6 @@ class GnssSimulator:
         for g in self.glitches:
             if not isinstance(g, GnssGlitch):
                 raise TypeError(f"glitches must be GnssGlitch, got {type(g).__name__}")
-        self._glitch_spans = [(g, *self._glitch_epochs(g)) for g in self.glitches]
         self._k = math.ceil(start_s * self.rate_hz - 1e-9)     # next epoch index
         rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(4)]
         self._rng_white, self._rng_wander, self._rng_vel, self._rng_jitter = rngs
@@ -246,6 +245,7 @@ class GnssSimulator:
             wander[i] = self._wander
         d_all = white + wander
         v_all = vel + dv
+        hit = [(g, *self._glitch_epochs(g)) for g in self.glitches]
         # Python floats from here: the same IEEE operations as on numpy scalars, without their per-call cost
         t_list = t.tolist()
         lat_l, lon_l, alt_l = np.asarray(lat).tolist(), np.asarray(lon).tolist(), np.asarray(alt).tolist()
@@ -264,7 +264,7 @@ class GnssSimulator:
             v_meas = v_all[i].copy()
             t_stamp = tk
             glitch = None
-            for g, first, last in self._glitch_spans:
+            for g, first, last in hit:
                 if not first <= k0 + i <= last:
                     continue
                 glitch = g.kind

@@ -29,8 +29,9 @@ def gated_velocity_update(learn: float, *, seed: int, velocity_axis: int, innova
     var = np.array([0.04, 0.04, 0.04])
     dx = np.zeros(core.N_ERR)
     P_before = P.copy()
+    # the gate on the same row (no antenna-arm term: lever_arm_consider.py adds one only to the update's rows)
     res = core._gated_update(gate[0], P, par[0], h, nu, var, 1, dx, 1.0, False, core.R_VEL_FUSED,
-                             core.R_VEL_REJECTED, core.R_VEL_RESET)
+                             core.R_VEL_REJECTED, core.R_VEL_RESET, h, nu, var)
     assert res == core.R_VEL_FUSED
     k = P_before[:, row] / (P_before[row, row] + var[0])   # the ordinary gain (numpy)
     return dx, k * nu[0]
