@@ -52,6 +52,18 @@ def _across(direction: np.ndarray) -> np.ndarray:
     return v[:, np.argsort(w)[1:]].T
 
 
+def largest(values) -> float:
+    """The largest of the floats as np.max takes it (NaN if any is NaN), without numpy's array set-up: a few floats
+    at every heading check."""
+    top = -math.inf
+    for v in values:
+        if v != v:
+            return math.nan
+        if v > top:
+            top = v
+    return top
+
+
 _EYE3 = np.eye(3)
 _EYE_IRON = np.eye(N_IRON)
 _LEVEL_HEADINGS = np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False)
@@ -174,13 +186,7 @@ class IronLearner:
         """The largest element of `soft_iron_sigma` (NaN if any is NaN), read from the covariance's diagonal
         without building the 3×3: the square root is monotone, so the root of the largest variance is the
         largest root."""
-        top = 0.0
-        for v in self.cov.diagonal()[3:].tolist():
-            if v != v:
-                return math.nan
-            if v > top:
-                top = v
-        return math.sqrt(top)
+        return math.sqrt(max(largest(self.cov.diagonal()[3:].tolist()), 0.0))
 
     @property
     def soft_iron_inverse(self) -> np.ndarray:

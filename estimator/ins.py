@@ -39,7 +39,7 @@ from .gsf_yaw import GsfParams, gsf_fuse_velocity_of, gsf_output_of, gsf_reset, 
 from .gnss_intake import GnssCounters, GnssFixIntake
 from .heading_confirmation import HeadingConfirmation, gnss_yaw_floor
 from .heading_check_log import HeadingCheckLog
-from .heading_monitor import HeadingCheckRecord, HeadingMonitor, MonitorDecision, wrap_pi
+from .heading_monitor import HeadingCheckRecord, HeadingMonitor, MonitorDecision, largest, wrap_pi
 from .heading_publication import HeadingPublication, HeadingReport
 from .iron_in_use import IronInUse
 from .ins_start import (first_history_row, fresh_state, initial_covariance, initial_true_attitude, learned_to_keep,
@@ -70,18 +70,6 @@ log = logging.getLogger(__name__)
 _HIST_Q, _HIST_VEL, _HIST_RATE = (float_field_slice(core.INS_HISTORY_DTYPE, name)
                                   for name in ("q", "vel_ned_m_s", "rate_rad_s"))
 _DEG = math.pi / 180.0
-
-
-def _largest(*values: float) -> float:
-    """The largest of the values as np.max takes it (NaN if any is NaN), without its array set-up: a few floats
-    at every heading check."""
-    top = -math.inf
-    for v in values:
-        if v != v:
-            return math.nan
-        if v > top:
-            top = v
-    return top
 
 
 @dataclass(frozen=True)
@@ -661,11 +649,6 @@ class Ins:
     def unmodelled_iron_ut(self) -> float:
         return self.params.iron_unmodelled_ut
 
-    @property
-    def _iron_restored(self) -> bool:
-        """The learned iron was restored from an earlier run (IronInUse.restored)."""
-        return self._learned_iron.restored
-
     def _apply_learned_iron(self) -> None:
         """The kernel removes the learned iron before its heading update: (I + D)⁻¹·(m − b); a learned iron's
         error is the learner's, not the calibration's harmonic states' (`_mag_harmonics_apply`); the kernel's field
@@ -1157,7 +1140,7 @@ class Ins:
             self._mag_rotation.restart()
             return
         i = core.E_TH
-        att_sigma = math.sqrt(max(_largest(float(P[i, i]), float(P[i + 1, i + 1]), float(P[i + 2, i + 2])), 0.0))
+        att_sigma = math.sqrt(max(largest((float(P[i, i]), float(P[i + 1, i + 1]), float(P[i + 2, i + 2]))), 0.0))
         tilt_sigma = math.sqrt(max(float(max(P[core.E_TILT_N, core.E_TILT_N], P[core.E_TILT_E, core.E_TILT_E])), 0.0))
         out = self._mag_rotation.add(t_s, m, c_bn, field, step, float(x["gyro_bias_rad_s"][2]), dt,
                                      self._iron.soft_iron, self._iron.largest_soft_iron_sigma, att_sigma,
@@ -1372,8 +1355,8 @@ class Ins:
         """What the kernel does with the magnetometer after the check (magnetometer_use.py decides it from what the
         check left), written into the kernel's parameters; and the variances the next check's trust and the heading
         state use."""
-        iron = IronState(learning=self._monitor.learning, updates=self._iron.updates, restored=self._iron_restored,
-                         before_rejection=self._iron_before_rejection)
+        iron = IronState(learning=self._monitor.learning, updates=self._iron.updates,
+                         restored=self._learned_iron.restored, before_rejection=self._iron_before_rejection)
         u = magnetometer_use(self.params, monitor_use=d.mag_use, trusted_sigma_rad=self._monitor.trusted_sigma_rad,
                              slow_var_rad2=self._mag_var, mag_var_rad2=mag_var, noise_rad2=noise,
                              trust_var_rad2=trust_var, calibration_untrusted=self._calibration_untrusted, iron=iron,
