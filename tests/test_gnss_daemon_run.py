@@ -217,7 +217,10 @@ def test_end_to_end_boat_replay_is_aided(tmp_path):
     rows = np.array([index_us[m.usec] for m in vpe])
     yaw_true = truth[rows].as_euler("ZYX")[:, 0]
     heading = np.degrees(np.angle(np.exp(1j * (np.array([m.yaw for m in vpe]) - yaw_true))))
-    assert len(att) > 200 and len(vpe) > 100
+    # enough messages, over the whole window, for the RMS to mean something: counted, not timed (at 5x on a loaded
+    # machine the daemon's 50 Hz ATTITUDE in wall time and the socket's drops leave fewer than an idle run's ~300)
+    att_span_s = (att[-1].time_boot_ms - att[0].time_boot_ms) / 1000.0 if att else 0.0
+    assert len(att) > 100 and len(vpe) > 50 and att_span_s > 20.0, (len(att), len(vpe), att_span_s)
     tilt_rms, heading_rms = np.sqrt(np.mean(tilt ** 2)), np.sqrt(np.mean(heading ** 2))
     print(f"end to end, boat 60 s at 5x, after 30 s: ATTITUDE tilt RMS {tilt_rms:.3f} deg (max {tilt.max():.3f}), "
           f"VPE heading RMS {heading_rms:.3f} deg (max {np.abs(heading).max():.3f})")
