@@ -11,6 +11,7 @@ import argparse
 import logging
 import os
 import sys
+from typing import NoReturn
 
 from ahrsd.cli import calibrate, log, magcal, record, replay, run, warm_up
 
@@ -43,7 +44,16 @@ def console_main() -> None:
     from ahrsd.cli import run as run_command
 
     code = main()
-    if run_command.daemon_stopped and _nothing_left_running():
+    if run_command.daemon_stopped:
+        exit_stopped_daemon(code)
+    sys.exit(code)
+
+
+def exit_stopped_daemon(code: int) -> NoReturn:
+    """The end of a process whose daemon (`Service.run()`) has returned: os._exit(code) once the log handlers
+    are flushed when nothing of it is left running, else sys.exit(code) (console_main; a script that runs a
+    Service of its own, as the mag-cal integration tests do, ends the same way)."""
+    if _nothing_left_running(ENDING_WAIT_S):
         logging.shutdown()      # flushes and closes the log's handlers, as the interpreter's exit would
         for stream in (sys.stdout, sys.stderr):
             try:
@@ -54,12 +64,28 @@ def console_main() -> None:
     sys.exit(code)
 
 
-def _nothing_left_running() -> bool:
-    import threading
+# How long the exit waits for what the stop has already told to end: the field calibration's fit worker, shut
+# down without waiting by the daemon's stop (daemon/magcal.py), ends with its manager thread once its process
+# has exited (its own interpreter's exit: seconds on a loaded machine). The interpreter's exit would wait for
+# them too, so the wait delays nothing; what is still alive after it is left to that exit.
+ENDING_WAIT_S = 5.0
 
+
+def _nothing_left_running(wait_s: float = 0.0) -> bool:
+    """No thread but this one and no child process, once the child processes and non-daemon threads still alive
+    have had up to wait_s to end."""
+    import threading
+    import time
+
+    deadline = time.monotonic() + wait_s
+    multiprocessing = sys.modules.get("multiprocessing")
+    for child in multiprocessing.active_children() if multiprocessing is not None else ():
+        child.join(max(0.0, deadline - time.monotonic()))
+    for thread in threading.enumerate():
+        if thread is not threading.current_thread() and not thread.daemon:   # what the interpreter's exit joins
+            thread.join(max(0.0, deadline - time.monotonic()))
     if threading.active_count() > 1:
         return False
-    multiprocessing = sys.modules.get("multiprocessing")
     return multiprocessing is None or not multiprocessing.active_children()
 
 

@@ -11,6 +11,9 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
 
 from ahrsd.estimator import kernel_cache
 
@@ -35,22 +38,6 @@ def _probe(root: Path) -> tuple[int, int, float]:
     return int(out[0]), int(out[1]), float(out[2])
 
 
-def test_a_changed_helper_in_another_module_is_recompiled_into_the_kernel(tmp_path):
-    for part in ("core", "estimator"):
-        shutil.copytree(REPO / part, tmp_path / "ahrsd" / part, ignore=shutil.ignore_patterns("__pycache__"))
-    hits, misses, roll = _probe(tmp_path)
-    assert misses >= 1                                  # compiled into the empty cache
-    hits, misses, roll_again = _probe(tmp_path)
-    assert hits >= 1 and misses == 0 and roll_again == roll   # served from the cache
-    # fill_euler lives in mekf_core.py; the helper it calls, euler_zyx, in kernel_rotations.py
-    helper = tmp_path / "ahrsd" / "estimator" / "kernel_rotations.py"
-    text = helper.read_text()
-    assert text.count("    return roll, pitch, yaw\n") == 1
-    helper.write_text(text.replace("    return roll, pitch, yaw\n", "    return -roll, pitch, yaw\n"))
-    hits, misses, roll_changed = _probe(tmp_path)
-    assert misses >= 1 and roll_changed == -roll
-
-
 def _copy_package(root: Path) -> Path:
     for part in ("core", "estimator"):
         shutil.copytree(REPO / part, root / "ahrsd" / part, ignore=shutil.ignore_patterns("__pycache__"))
@@ -61,17 +48,40 @@ def _append_comment(path: Path) -> None:
     path.write_text(path.read_text() + "# an edit that compiles into no kernel\n")
 
 
-def test_an_edit_of_the_python_around_the_kernels_keeps_the_cache(tmp_path):
+@pytest.fixture(scope="module")
+def compiled(tmp_path_factory):
+    """A copy of the package with fill_euler compiled into its empty cache, and the roll the kernel gave. The
+    two tests below edit this one copy (one compile fewer than a copy each): each judges what its own edit does
+    to the tree and cache it finds, whichever ran first."""
+    root = tmp_path_factory.mktemp("kernels")
+    _copy_package(root)
+    hits, misses, roll = _probe(root)
+    assert misses >= 1                                  # compiled into the empty cache
+    return SimpleNamespace(root=root, roll=roll)
+
+
+def test_an_edit_of_the_python_around_the_kernels_keeps_the_cache(compiled):
     """Before, the cache directory's digest covered every file of estimator/ and core/, so an edit of the state
     directory rule or of the filters' Python wrappers compiled every kernel again."""
-    package = _copy_package(tmp_path)
-    assert _probe(tmp_path)[1] >= 1                     # compiled into the empty cache
+    package = compiled.root / "ahrsd"
+    caches = sorted((compiled.root / "cache").glob(kernel_cache.PREFIX + "*"))
     for name in ("core/state_dir.py", "core/wmm.py", "estimator/mekf.py", "estimator/ins.py",
                  "estimator/heading_monitor.py"):
         _append_comment(package / name)
-    hits, misses, _ = _probe(tmp_path)
-    assert hits >= 1 and misses == 0
-    assert len(list((tmp_path / "cache").glob(kernel_cache.PREFIX + "*"))) == 1
+    hits, misses, roll = _probe(compiled.root)
+    assert hits >= 1 and misses == 0 and roll == compiled.roll     # served from the cache
+    assert sorted((compiled.root / "cache").glob(kernel_cache.PREFIX + "*")) == caches
+
+
+def test_a_changed_helper_in_another_module_is_recompiled_into_the_kernel(compiled):
+    # fill_euler lives in mekf_core.py; the helper it calls, euler_zyx, in kernel_rotations.py
+    helper = compiled.root / "ahrsd" / "estimator" / "kernel_rotations.py"
+    text = helper.read_text()
+    assert text.count("    return roll, pitch, yaw\n") == 1
+    helper.write_text(text.replace("    return roll, pitch, yaw\n", "    return -roll, pitch, yaw\n"))
+    hits, misses, roll_changed = _probe(compiled.root)
+    assert misses >= 1 and roll_changed == -compiled.roll
+    compiled.roll = roll_changed
 
 
 def test_the_digest_follows_every_source_a_kernel_is_compiled_from(tmp_path, monkeypatch):

@@ -124,7 +124,9 @@ if ap is not None:
     link = mavutil.mavlink_connection(f"udpout:127.0.0.1:{ap['port']}", source_system=1, source_component=1)
 replay = ReplaySource(samples(), "field-calibration vehicle", realtime=True, rate_hz=RATE_HZ, clock=clock)
 service = Service(cfg, source=replay)
-sys.exit(asyncio.run(service.run()))
+# ended as `ahrsd run` ends (cli/main.py): past the interpreter's teardown (docs/daemon.md "Stopping")
+from ahrsd.cli.main import exit_stopped_daemon
+exit_stopped_daemon(asyncio.run(service.run()))
 """
 
 

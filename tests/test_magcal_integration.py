@@ -75,7 +75,9 @@ def samples():
 cfg = dataclasses.replace(cfg, magcal=settings_from_mapping(a.get("magcal")))
 service = Service(cfg, source=ReplaySource(samples(), "simulator " + a["sim"], realtime=True, clock=clock,
                                            rate_hz=a["rate_hz"]))
-sys.exit(asyncio.run(service.run()))
+# ended as `ahrsd run` ends (cli/main.py): past the interpreter's teardown (docs/daemon.md "Stopping")
+from ahrsd.cli.main import exit_stopped_daemon
+exit_stopped_daemon(asyncio.run(service.run()))
 """
 
 

@@ -295,8 +295,7 @@ MUTATIONS: tuple[Mutation, ...] = (
              "drivers/gnss/nmea.py", "return number if math.isfinite(number) else math.nan", "return number",
              ("tests/test_gnss_parsers.py",)),
     Mutation("clean-stop-only-when-stopped", "os._exit only after a clean stop with nothing left running",
-             "cli/main.py", "if run_command.daemon_stopped and _nothing_left_running():",
-             "if run_command.daemon_stopped:",
+             "cli/main.py", "if _nothing_left_running(ENDING_WAIT_S):", "if True:",
              ("tests/test_daemon_exit_unfinished_work.py", "tests/test_daemon_exit.py")),
     Mutation("monitor-floor-covers-gsf", "a rejection's σ floor covers the disagreement with the GNSS yaw",
              "estimator/heading_monitor.py", "floor = max(floor, wrap_pi(yaw_rad - gsf_yaw_rad) ** 2 + gsf_var_rad2)",
@@ -714,4 +713,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("producer-no-scipy-spatial", "an Euler scenario's stream blocks import no scipy.spatial",
              "simulation/scenario_base.py", "return quat_xyzw_from_euler_zyx(*self.euler_rad(np.asarray(t_s, dtype=float)))",
              "return self.attitude(t_s).as_quat()", ("tests/test_simulation_euler_quat.py",)),
+    Mutation("exit-waits-for-ending-work", "the fast exit waits for a child process and a thread that are ending",
+             "cli/main.py", "ENDING_WAIT_S = 5.0", "ENDING_WAIT_S = 0.0",
+             ("tests/test_daemon_exit_unfinished_work.py",)),
 )

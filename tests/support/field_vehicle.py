@@ -3,7 +3,9 @@ roll/pitch scaled to ±2°, ±10° or ±30°, strong non-symmetric vehicle iron,
 current, GNSS course made from the simulation truth; and the scoring of a magnetometer model on attitudes the
 session never saw, against the injected iron.
 
-Truth comes from the simulator (scipy rotations), never from the code under test."""
+Truth comes from the simulator (scipy rotations), never from the code under test. scipy.spatial is imported by
+the functions that score, not at the top: test_magcal_field_daemon's daemon process imports this module to
+record its vehicle, and would load scipy.spatial for nothing."""
 
 from __future__ import annotations
 
@@ -12,7 +14,6 @@ from dataclasses import dataclass
 from types import SimpleNamespace
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ahrsd.core.sample import make_sample
 from ahrsd.core.wmm import earth_field
@@ -80,6 +81,8 @@ def record(scenario: LevelTurns, seconds: float, seed: int = 0, iron: VehicleIro
 
 def truth_euler(block) -> np.ndarray:
     """(n, 3) yaw, pitch, roll of the truth attitude (rad)."""
+    from scipy.spatial.transform import Rotation
+
     return Rotation.from_quat(block.truth_q_wxyz[:, [1, 2, 3, 0]]).as_euler("ZYX")
 
 
@@ -121,6 +124,8 @@ def heading_errors_deg(model, iron: VehicleIron, field=SITE_FIELD) -> np.ndarray
     """Heading error of `model` on test_attitudes(): the raw field the injected iron makes (no noise),
     calibrated with `model`, levelled with the true roll/pitch (scipy), its heading minus the true magnetic
     heading."""
+    from scipy.spatial.transform import Rotation
+
     ypr = test_attitudes()
     rot = Rotation.from_euler("ZYX", ypr)
     raw = rot.inv().apply(field.ned_ut) @ iron.soft_iron.T + iron.hard_iron_ut
