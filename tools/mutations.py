@@ -716,4 +716,14 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("exit-waits-for-ending-work", "the fast exit waits for a child process and a thread that are ending",
              "cli/main.py", "ENDING_WAIT_S = 5.0", "ENDING_WAIT_S = 0.0",
              ("tests/test_daemon_exit_unfinished_work.py",)),
+    # ------------------------------------------------------------------ session 33 (instest33)
+    Mutation("ins-published-yaw-sigma-whole", "ins publishes its whole yaw 1σ (not a smaller one)",
+             "estimator/ins.py", "o[_OUT_SIGMA_YAW] = published_sigma_yaw",
+             "o[_OUT_SIGMA_YAW] = 0.25 * published_sigma_yaw", ("tests/test_heading_replay.py",)),
+    Mutation("ins-published-yaw-sigma-informative", "ins publishes its yaw 1σ, not a larger one",
+             "estimator/ins.py", "o[_OUT_SIGMA_YAW] = published_sigma_yaw",
+             "o[_OUT_SIGMA_YAW] = 4.0 * published_sigma_yaw", ("tests/test_heading_replay.py",)),
+    Mutation("ins-heading-state-hold-default", "the heading state holds its hysteresis by default (5 s)",
+             "estimator/ins.py", "heading_state_hold_s: float = 5.0", "heading_state_hold_s: float = 0.0",
+             ("tests/test_heading_replay.py",)),
 )
