@@ -76,21 +76,35 @@ def run_swap(tmp_path, estimator, swap_at_s=60.0, total_s=130.0, reset_on_cal=Fa
     e = stream.errors
     corrected = Calibration.identity().with_sensor("mag", MagModel(e.hard_iron_ut, np.linalg.inv(e.soft_iron)),
                                                    **stated)
-    rows, flags_after = [], 0
+    rows, flags_after = [], [0]
     counter0 = svc.reset_counter
     swapped = False
     next_vpe = 0.0
+
+    def seen_after_the_swap(_sample, est):       # each sample's estimate (in place), not only a block's last
+        if swapped and est is not None:
+            flags_after[0] |= int(est.flags)
+
+    svc.listeners.add(seen_after_the_swap, in_place=True)
+    # the samples between two VPEs (or up to the swap) go to the reader as one block, as the daemon's reader hands
+    # them over: the estimator sees the same samples in the same order, the VPE is built after the same sample
+    pending = []
     for i, t, s in stream.until(total_s):
         if t >= total_s:
-            return np.array(rows), flags_after, svc, counter0
+            if pending:
+                svc.reader.process(pending, pending[-1].t_s)
+            return np.array(rows), flags_after[0], svc, counter0
         if not swapped and t >= swap_at_s:
+            if pending:
+                svc.reader.process(pending, pending[-1].t_s)
+                pending = []
             svc.apply_calibration(corrected, save=False, reason="test")
             swapped = True
-        svc.reader.process((s,), t)
-        est = svc.pipeline.last_estimate
-        if swapped and est is not None:
-            flags_after |= int(est.flags)
+        pending.append(s)
         if t >= next_vpe:
+            svc.reader.process(pending, t)
+            pending = []
+            est = svc.pipeline.last_estimate
             next_vpe = t + 1.0 / VPE_HZ
             m = BY_MESSAGE_ID[VPE].build(svc, est, svc.pipeline.last_sample, t)
             truth = _truth_yaw_deg(stream.truth_q_wxyz[i])
@@ -241,14 +255,20 @@ def _standby_details_around_a_first_calibration(svc, swap_s=30.0, end_s=40.0, ti
     corrected = Calibration.identity().with_sensor("mag", MagModel(e.hard_iron_ut, np.linalg.inv(e.soft_iron)),
                                                    method="test", heading_std_deg=0.5, offset_std_deg=0.2)
     details, next_tick, swapped = [], 0.0, False
+    pending = []                      # the samples up to the next tick (or the swap), to the reader as one block
     for _i, t, s in stream.until(end_s):
         if t >= end_s:
             break
         if not swapped and t >= swap_s:
+            if pending:
+                svc.reader.process(pending, pending[-1].t_s)
+                pending = []
             svc.apply_calibration(corrected, save=False, reason="test")
             swapped = True
-        svc.reader.process((s,), t)
+        pending.append(s)
         if t >= next_tick:                           # the housekeeping's heading status, at its rate
+            svc.reader.process(pending, t)
+            pending = []
             next_tick = t + tick_s
             svc._update_heading_status(t)
             est = svc.pipeline.last_estimate

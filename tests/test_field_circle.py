@@ -98,12 +98,14 @@ def test_a_partial_arc_says_nothing():
 def test_a_wrong_hard_iron_is_found_in_turns_and_sigma_covers_it(estimator):
     # the check alone: mekf's learned correction (tests/test_field_circle_correction.py) switched off
     checked = (lambda **kw: Mekf(mag_field_circle_correction=False, **kw)) if estimator is Mekf else estimator
-    t, err, sig, ests, _ = run_turning(checked, (5.2, 3.0))          # 6 µT against H = 20 µT: up to ±17.5°
+    # 6 µT against H = 20 µT: up to ±17.5°
+    t, err, sig, ests, _ = run_turning(checked, (5.2, 3.0), estimates_every=10)
     revealed = t >= REVEALED_S
     inside = np.abs(err[revealed]) <= 3.0 * sig[revealed]
     assert np.mean(inside) >= 0.99
     # the calibration is wrong indeed: believed (no check), its σ does not cover the error
-    t0, err0, sig0, _, _ = run_turning(lambda **kw: estimator(mag_field_circle_check=False, **kw), (5.2, 3.0))
+    t0, err0, sig0, _, _ = run_turning(lambda **kw: estimator(mag_field_circle_check=False, **kw), (5.2, 3.0),
+                                       estimates_every=10)
     assert np.mean(np.abs(err0[revealed]) <= 3.0 * sig0[revealed]) < 0.8
     if estimator is not Mekf:
         return              # ins before its first fix widens σ only (Ins.field_circle_check)
@@ -118,13 +120,14 @@ def test_a_wrong_hard_iron_is_found_in_turns_and_sigma_covers_it(estimator):
 
 @pytest.mark.parametrize("estimator", [Mekf, Ins])
 def test_a_right_calibration_is_not_flagged(estimator):
-    t, err, sig, ests, f = run_turning(estimator, (0.0, 0.0))
+    t, err, sig, ests, f = run_turning(estimator, (0.0, 0.0), estimates_every=10)
     assert all(fc is not None and not fc.significant for _, fc in ests)
     assert ests[-1][1].covered
     _, _, good = heading_status_over(ests)
     assert good[int(30.0 * 10):].all()
     # σ as without the check
-    t0, err0, sig0, _, _ = run_turning(lambda **kw: estimator(mag_field_circle_check=False, **kw), (0.0, 0.0))
+    t0, err0, sig0, _, _ = run_turning(lambda **kw: estimator(mag_field_circle_check=False, **kw), (0.0, 0.0),
+                                       estimates_every=10)
     assert np.array_equal(sig, sig0) and np.array_equal(err, err0)
 
 

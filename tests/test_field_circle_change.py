@@ -46,7 +46,8 @@ def _iron_step(t):
 
 def _stepped_run(estimator, seconds=SECONDS):
     t = np.arange(0.0, seconds, 1.0 / RATE_HZ)
-    return run_turning(estimator, _iron_step(t), seconds=seconds, yaw_rate_rad_s=_zigzag_after_step)
+    return run_turning(estimator, _iron_step(t), seconds=seconds, yaw_rate_rad_s=_zigzag_after_step,
+                       estimates_every=10)
 
 
 def test_the_threshold_gives_the_false_alarm_rate_it_states():
@@ -148,7 +149,8 @@ def test_without_the_change_point_the_moved_iron_is_not_reached():
 def test_a_right_calibration_never_restarts_the_fit():
     """A long run (1200 s: 200 s of turns, then 1000 s of the zigzag) with the iron where the calibration says:
     never a restart, never a correction."""
-    t, err, sig, ests, f = run_turning(Mekf, (0.0, 0.0), seconds=1200.0, yaw_rate_rad_s=_zigzag_after_step)
+    t, err, sig, ests, f = run_turning(Mekf, (0.0, 0.0), seconds=1200.0, yaw_rate_rad_s=_zigzag_after_step,
+                                       estimates_every=10)
     assert all(fc.restarts == 0 and fc.correction_ut == (0.0, 0.0) for _, fc in ests)
     assert not f._iron.active
 
@@ -247,7 +249,8 @@ def test_the_first_judgement_of_the_restarted_fit_keeps_its_centre_in_sigma():
     seconds = 420.0
     t = np.arange(0.0, seconds, 1.0 / RATE_HZ)
     iron = np.where((t >= STEP_S)[:, None], np.array([5.2, 3.0]), 0.0)
-    t, err, sig, ests, f = run_turning(lambda **kw: Mekf(mag_field_circle_correction=False, **kw), iron, seconds=seconds)
+    t, err, sig, ests, f = run_turning(lambda **kw: Mekf(mag_field_circle_correction=False, **kw), iron, seconds=seconds,
+                                       estimates_every=10)
     assert ests[-1][1].restarts == 1 and ests[-1][1].covered
     after = t >= STEP_S
     assert np.all(np.abs(err[after]) <= 3.0 * sig[after])

@@ -68,18 +68,27 @@ def _run(tmp_path, with_session: bool):
     start = SimpleNamespace(command=CMD_START, param1=0.0, param2=0.0, param3=0.0, param4=0.0, param5=0.0,
                             param6=0.0, param7=0.0, get_type=lambda: "COMMAND_LONG")
     rows, next_tick, started = [], 0.0, False
+    pending = []      # the samples up to the next tick (or the start), to the reader as one block as the daemon's
     for _k, t, s in stream.until(RUN_S):
-        now[0] = t
         if t >= RUN_S:
+            if pending:
+                svc.reader.process(pending, now[0])
             s = part.protocol.session
             if s is not None:
                 _wait_for_the_fit(part, s)
             return np.array(rows), (s.status if s is not None else None), part
         if with_session and not started and t >= START_AT_S:
+            if pending:
+                svc.reader.process(pending, now[0])
+                pending = []
+            now[0] = t
             assert part.protocol.handle_start(start) == 0      # MAV_RESULT_ACCEPTED
             started = True
-        svc.reader.process((s,), t)
+        pending.append(s)
+        now[0] = t
         if t >= next_tick:
+            svc.reader.process(pending, t)
+            pending = []
             next_tick = t + TICK_S
             part.tick()
             est = svc.pipeline.last_estimate

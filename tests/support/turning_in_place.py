@@ -44,11 +44,13 @@ def turning_headings(seconds, rate_hz=10.0):
     return 0.3 + TURN_RATE_RAD_S * t
 
 
-def run_turning(estimator, centre_error_ut, seconds=240.0, seed=3, yaw_rate_rad_s=None):
+def run_turning(estimator, centre_error_ut, seconds=240.0, seed=3, yaw_rate_rad_s=None, estimates_every=1):
     """A level vehicle turning in place at 4 °/s (or at `yaw_rate_rad_s(t)`, rad/s per sample); its calibration
     leaves `centre_error_ut` (body x, y, or x, y, z; or one such row per sample: an iron that moves) in the field
     while claiming 0.5°. Returns time, heading error (rad, wrapped; truth from scipy), published yaw σ, the
-    estimates and the filter."""
+    estimates and the filter. The estimates: (AttitudeEstimate, circle check) per sample; with `estimates_every`
+    k > 1 the AttitudeEstimate is built only for every k-th sample and the last (None between: heading_status_over
+    reads every 10th), the attitude and σ read from the estimator's view at every sample (the same values)."""
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, seconds, 1.0 / RATE_HZ)
     n = len(t)
@@ -64,11 +66,15 @@ def run_turning(estimator, centre_error_ut, seconds=240.0, seed=3, yaw_rate_rad_
     mag = r.inv().apply(FIELD_NED) + error + 0.2 * rng.standard_normal((n, 3))
     f = estimator(mag_calibration_sigma_rad=CLAIMED_SIGMA_RAD)
     q, sig, ests = np.full((n, 4), np.nan), np.full(n, np.nan), []
+    circle = f.field_circle if isinstance(f, Mekf) else f.field_circle_check
+    step = f.update if estimates_every == 1 else f.step      # the view: the snapshot only where it is kept
     for i in range(n):
-        out = f.update(make_sample(t[i], gyro[i], acc[i], mag[i]))
-        ests.append((out, f.field_circle() if isinstance(f, Mekf) else f.field_circle_check()))
+        out = step(make_sample(t[i], gyro[i], acc[i], mag[i]))
         q[i] = out.q_wxyz
         sig[i] = out.sigma_rpy_rad[2]
+        kept = out if estimates_every == 1 else (
+            out.snapshot() if i % estimates_every == 0 or i == n - 1 else None)
+        ests.append((kept, circle()))
     yaw = Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_euler("ZYX")[:, 0]   # scipy, once for the whole run
     err = (yaw - heading + math.pi) % (2 * math.pi) - math.pi
     return t, err, sig, ests, f
