@@ -36,13 +36,20 @@ def record_boat(rec: Path, seconds: float, seed: int, site: str | None = None, i
     """The boat recording the daemon replays (and REC.gnss.csv beside it): `ahrsd record --sim boat` as a user
     runs it; a `site` or an `iron` (honesty_site's) goes to its `--site` / `--iron`, so the place's field and
     gravity and the receiver's latitude (the daemon's declination) agree."""
+    argv = record_boat_argv(rec, seconds, seed, site, iron)
+    done = subprocess.run([str(AHRSD), *argv], capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"ahrsd {' '.join(argv)} failed ({done.returncode}): {done.stderr}")
+
+
+def record_boat_argv(rec: Path, seconds: float, seed: int, site: str | None = None,
+                     iron: str | None = None) -> list[str]:
+    """record_boat's `ahrsd` arguments (for a caller that runs the command in its own process)."""
     argv = ["record", "--sim", "boat", "--seconds", str(seconds), "--seed", str(seed), "-o", str(rec), "--quiet"]
     if site is not None or iron is not None:
         site_text, iron_name = honesty_site("default" if site is None else site, iron)
         argv += ([f"--site={site_text}"] if site_text else []) + ["--iron", iron_name]
-    done = subprocess.run([str(AHRSD), *argv], capture_output=True, text=True)
-    if done.returncode != 0:
-        raise RuntimeError(f"ahrsd {' '.join(argv)} failed ({done.returncode}): {done.stderr}")
+    return argv
 
 
 def main(argv=None) -> int:

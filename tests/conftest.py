@@ -55,6 +55,9 @@ def pytest_configure(config):
     if hasattr(config, "workerinput") or not workers or os.environ.get("AHRSD_TEST_NO_WARM_UP") == "1":
         return
     script = Path(__file__).parent / "support" / "numba_warm_up.py"
+    # the workers (started after this, with this environment) learn that the kernels are compiled before their
+    # first test: a module that compiles them itself for a run without -n skips that (test_gnss_daemon_run)
+    os.environ["AHRSD_TEST_KERNELS_WARMED_UP"] = "1"
     ins, mekf = (subprocess.Popen([sys.executable, str(script), group], stdout=subprocess.DEVNULL)
                  for group in ("ins", "mekf"))
     _warm_up_running.append(ins)

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from ahrsd.core.estimate import EstimateFlags
-from bench.daemon_heading import record_boat
+from ahrsd.cli.main import main
+from bench.daemon_heading import record_boat_argv
 from support.aided_replay_truth import aided_replay_heading
 
 pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
@@ -25,7 +26,8 @@ SECONDS = 110.0
 
 def test_a_yaw_set_to_a_loose_gnss_yaw_is_published_with_the_gnss_yaws_sigma(tmp_path):
     rec = tmp_path / "boat.csv"
-    record_boat(rec, SECONDS, SEED, TROMSO, None)
+    # bench/daemon_heading.py's recording, made in this process (the same bytes as its `ahrsd record` process's)
+    assert main(record_boat_argv(rec, SECONDS, SEED, TROMSO, None)) == 0
     h = aided_replay_heading(rec, tmp_path / "out.csv")
     t, yaw_err, sigma = h.t_s, h.yaw_error_deg, h.sigma_yaw_deg
     resets = t[(h.flags & int(EstimateFlags.YAW_RESET)) != 0]

@@ -29,6 +29,7 @@ import pytest
 from ahrsd.daemon.mavlink_io import SO_TIMESTAMPNS, TIMESPEC, Endpoint, mavlink
 from service_rig import stop_process
 from bench.sim_calibration import save_mag_calibration, sim_chip_mag_model
+from support.ahrsd_process import LOW_RATE
 
 pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
 
@@ -91,7 +92,9 @@ def test_px4_stamps_our_samples_within_2_ms(tmp_path):
     sock.setblocking(False)
     sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
     save_mag_calibration(tmp_path / "st", sim_chip_mag_model())      # no heading is sent on an uncalibrated one
-    proc = subprocess.Popen([str(AHRSD), "run", "--sim", "static", "--mavlink",
+    # the chip at a quarter of its rate (LOW_RATE): each VPE's usec is still a sample's stamp, which is what the
+    # peer's time is checked against, and the daemon and its reader take a quarter of the samples
+    proc = subprocess.Popen([str(AHRSD), "run", "--sim", "static", *LOW_RATE, "--mavlink",
                              f"udpout:127.0.0.1:{sock.getsockname()[1]}", "--state-dir", str(tmp_path / "st"),
                              "--status-line", "off"], stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
     px4 = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
