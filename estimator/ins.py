@@ -32,7 +32,7 @@ from ahrsd.core.sample import ImuSample
 from . import ins_core as core
 from . import mag_heading as mag
 from .accel_axes_heading import accel_axes_heading_variance_rad2
-from .accel_axes_tilt import ACCEL_MISALIGNMENT_SIGMA_RAD, accel_axes_tilt_variance_in_force_rad2
+from .accel_axes_tilt import ACCEL_MISALIGNMENT_SIGMA_RAD
 from .base import DEFAULT_UNMODELLED_IRON_UT, LEARNED_WITH_GNSS
 from .calibration_heading import calibration_heading_variance_rad2, calibration_states_error
 from .gsf_yaw import GsfParams, gsf_fuse_velocity_of, gsf_output_of, gsf_reset, new_gsf_state
@@ -64,7 +64,7 @@ from .estimate_view import BuiltEstimateView, EstimateView
 from .field_circle import FieldCircleCheck, FieldCircleParams, FieldCircleResult
 from .published_heading import PublishedHeading
 from .rotations import quat_to_dcm, quat_to_euler, rotvec_to_dcm
-from .kernel_rotations import dcm
+from .ins_published_terms import published_terms
 
 log = logging.getLogger(__name__)
 _HIST_Q, _HIST_VEL, _HIST_RATE = (float_field_slice(core.INS_HISTORY_DTYPE, name)
@@ -424,7 +424,6 @@ class InsParams(MagHeadingParams):
 DEFAULT_INS_PARAMS = InsParams()
 
 
-_TWO_PI = 2.0 * math.pi
 _MAX_QUEUED = 16
 _MAG_ROTATION_GATE = 9.0    # NIS above which a magnetometer-rotation bias measurement is not fused (3σ)
 _NAV_MASK = sum(1 << j for j in range(core.E_V, core.E_P + 3))   # velocity and position: no gain
@@ -438,14 +437,7 @@ assert _OUT_RATE.start < _OUT_SIGMA.start < _OUT_EULER.start
 _STEP_SIGMA_YAW = _OUT_SIGMA.start + 2 - _OUT_RATE.start    # the filter's yaw σ in what the step reads
 _OUT_VEL, _OUT_SIGMA_VEL, _OUT_SIGMA_POS, _OUT_ACCEL_BIAS = (float_field_slice(core.INS_OUT_DTYPE, n) for n in (
     "vel_ned_m_s", "sigma_vel_m_s", "sigma_pos_m", "accel_bias_m_s2"))
-_OUT_LAT, _OUT_LON, _OUT_H = (
-    float_field_slice(core.INS_OUT_DTYPE, n).start for n in ("lat_rad", "lon_rad", "h_m"))
-assert _OUT_LON == _OUT_LAT + 1 and _OUT_H == _OUT_LAT + 2
-_OUT_LAT_LON_H = slice(_OUT_LAT, _OUT_H + 1)        # read with one call (Ins._build_estimate)
 _OUT_SIGMA_YAW = _OUT_SIGMA.start + 2
-# the σ, the gyro bias and the Euler angles, read with one call (Ins._build_estimate)
-_OUT_SIGMA_TO_EULER = slice(_OUT_SIGMA.start, _OUT_EULER.stop)
-assert _OUT_SIGMA.stop == _OUT_BIAS.start and _OUT_BIAS.stop == _OUT_EULER.start
 _F_GNSS_AIDED, _F_INITIALISING = core.F_GNSS_AIDED, core.F_INITIALISING   # read per sample: no module lookup
 
 
@@ -484,15 +476,14 @@ class Ins:
         # the same outputs as one flat float64 array: copied whole for an estimate (copying a record goes field
         # by field)
         self._out_flat = self._out_arr.view(np.float64)
-        # what the accelerometer axes' tilt term reads per built estimate (`_build_estimate`): the attitude and the
-        # low-passed specific force as flat float64 views of the state (a record field lookup costs more than the
-        # term), and its two kernels through their entry points (kernel_entry.py: called with these types only)
+        # what a built estimate reads of the state besides the outputs (`_build_estimate`): the attitude and the
+        # low-passed specific force as flat float64 views; and its compiled terms through their entry point
+        # (kernel_entry.py: called with these types only)
         self._q_true = _float_field_view(self._x_arr, "q")
         self._acc_ned_lp = _float_field_view(self._x_arr, "acc_ned_lp_m_s2")
-        self._dcm = entry_point(dcm, argument_types(dcm, (1.0,) * 4))
-        axes_args = ((1.0,) * 9, 0.0, 0.0, -9.8, 0.0)
-        self._axes_tilt_variance = entry_point(accel_axes_tilt_variance_in_force_rad2,
-                                               argument_types(accel_axes_tilt_variance_in_force_rad2, axes_args))
+        terms_args = (self._out_flat.copy(), self._q_true, self._acc_ned_lp, 0.0, False, False, True, 0.0, 0.0, 0.0,
+                      0.0)
+        self._published_terms = entry_point(published_terms, argument_types(published_terms, terms_args))
         self._initialised = False
         self._reinit_pending = False
         self._pending_flags = 0
@@ -1618,73 +1609,42 @@ class Ins:
         if not initialised:
             return uninitialised_estimate(t_s, f)
         o = self._out_flat.copy()  # one fresh buffer; the estimate's arrays are views of it
-        # the σ and the Euler angles read as floats with one call (float arithmetic is cheaper than numpy scalars'
-        # and gives the same bits); the yaw σ is written once, below
-        sig_roll, sig_pitch, sigma_yaw, _, _, _, roll, pitch, yaw_true = o[_OUT_SIGMA_TO_EULER].tolist()
-        unconfirmed_sigma_rad = self._confirmation.unconfirmed_sigma_rad
-        if unconfirmed_sigma_rad > sigma_yaw and self._nav_ok[0] > 0.0:
-            sigma_yaw = unconfirmed_sigma_rad        # HeadingConfirmation.unconfirmed_yaw_sigma says why
-        if self._lever_arm_fit.heading_bent:
-            # the GNSS velocities fit another antenna place than the one told (lever_arm_fit.py): the heading they
-            # held, and the GNSS yaw bank's, are bent by an error no state models: unknown until an arm (the told
-            # one or the fitted one adopted) leaves the gate rejecting as a right arm does
-            sigma_yaw = math.pi
-        if not self._ever_aided and self.params.mag_enabled:
-            # no GNSS yet: the magnetometer calibration is the only heading reference and its error is not in
-            # the filter's σ (the checks that would show it need GNSS): calibration_heading.py
-            # or, once the field has swept a circle in turns, the error its centre and shape show when that is more
-            # (field_circle.py)
-            cal_var = calibration_heading_variance_rad2(self.params.mag_calibration_sigma_rad)
-            add_var = cal_var
-            if self._field_circle_on:
-                add_var = self._field_circle.result.checked_var_rad2(cal_var)
-            if self._par["mag_harmonics_on"] > 0.0:
-                # the harmonic states carry the calibration's error in the filter's σ: only what the circle adds
-                add_var = max(0.0, add_var - cal_var)
-            sigma_yaw = math.sqrt(sigma_yaw ** 2 + add_var)
-        # the tilt ins levels is the accelerometer axes' tilt: the x and y axes' misalignment is in it, at the
-        # levelling's partials at the specific force the filter has (accel_axes_tilt.py; low-passed in NED: a turn's,
-        # not only gravity's); the z axis's lean, which a fix levels through the vertical channel, is the E_AZ_LEAN
-        # states', already in the filter's σ
-        var_roll = var_pitch = 0.0
-        if self.params.accel_axes_tilt_sigma_rad > 0.0:
-            q0, q1, q2, q3 = self._q_true.tolist()
-            fn, fe, fd = self._acc_ned_lp.tolist()
-            axes_roll, axes_pitch = self._axes_tilt_variance(self._dcm(q0, q1, q2, q3), fn, fe, fd,
-                                                             float(self.params.accel_axes_tilt_sigma_rad))
-            var_roll, var_pitch = var_roll + axes_roll, var_pitch + axes_pitch
-        if var_roll > 0.0 or var_pitch > 0.0:
-            o[_OUT_SIGMA.start] = math.sqrt(sig_roll * sig_roll + var_roll)
-            o[_OUT_SIGMA.start + 1] = math.sqrt(sig_pitch * sig_pitch + var_pitch)
-        if self._ever_aided and self._accel_axes_var_rad2 > 0.0:
-            # a heading the GNSS has observed is the accelerometer axes' heading: their misalignment is in it
-            sigma_yaw = math.sqrt(sigma_yaw * sigma_yaw + self._accel_axes_var_rad2)
-        published_sigma_yaw = sigma_yaw
-        if self._published.offset_rad:
-            # the filter's yaw moved faster than the published one may: publish it turned back by the offset
-            off = self._published.offset_rad
-            yaw_true += off
-            c, s = math.cos(0.5 * off), math.sin(0.5 * off)
-            w, x_, y, z = o[_OUT_Q].tolist()
-            o[_OUT_Q] = (c * w - s * z, c * x_ - s * y, c * y + s * x_, c * z + s * w)
-            published_sigma_yaw = self._published.published_sigma(sigma_yaw)
-        o[_OUT_SIGMA_YAW] = published_sigma_yaw
-        yaw = (yaw_true - self._declination + math.pi) % _TWO_PI - math.pi
+        # the yaw σ's floors, the consider terms of the accelerometer's axes (the tilt ins levels is theirs: the x
+        # and y axes' misalignment is in it, at the levelling's partials at the low-passed specific force, a turn's
+        # too; a heading the GNSS has observed is theirs as well), the published heading's offset, the wrapped yaw
+        # and the position in degrees: ins_published_terms.py, compiled
+        pre_aid = not self._ever_aided and self.params.mag_enabled
+        off = self._published.offset_rad
+        navigating = self._nav_ok[0] > 0.0
+        roll, pitch, yaw, yaw_true, sigma_yaw, lat_deg, lon_deg, h = self._published_terms(
+            o, self._q_true, self._acc_ned_lp, self._confirmation.unconfirmed_sigma_rad, navigating,
+            self._lever_arm_fit.heading_bent, not (pre_aid or off), float(self.params.accel_axes_tilt_sigma_rad),
+            self._accel_axes_var_rad2 if self._ever_aided else 0.0, off, self._declination)
+        if pre_aid or off:
+            if pre_aid:
+                sigma_yaw = math.sqrt(sigma_yaw ** 2 + self._pre_aid_heading_var_rad2())
+            # the filter's yaw moved faster than the published one may: the σ covers the offset (slewed_yaw.py)
+            o[_OUT_SIGMA_YAW] = self._published.published_sigma(sigma_yaw) if off else sigma_yaw
         nav = None
-        if self._nav_ok[0] > 0.0:
-            lat, lon, h = o[_OUT_LAT_LON_H].tolist()
-            nav = nav_state(
-                o[_OUT_VEL],
-                math.degrees(lat),
-                (math.degrees(lon) + 180.0) % 360.0 - 180.0,
-                h,
-                o[_OUT_SIGMA_VEL],
-                o[_OUT_SIGMA_POS],
-                o[_OUT_ACCEL_BIAS],
-            )
+        if navigating:
+            nav = nav_state(o[_OUT_VEL], lat_deg, lon_deg, h, o[_OUT_SIGMA_VEL], o[_OUT_SIGMA_POS], o[_OUT_ACCEL_BIAS])
         return attitude_estimate(t_s, o, _OUT, roll, pitch, yaw, yaw_true, f,
                                  self._publication.published(f, sigma_yaw, self._t_run_s, self._mag_use, self._monitor),
                                  nav, self._publication.integrity)
+
+    def _pre_aid_heading_var_rad2(self) -> float:
+        """What the yaw variance adds before the first fix, rad²: the magnetometer calibration is the only heading
+        reference and its error is not in the filter's σ (the checks that would show it need GNSS):
+        calibration_heading.py; or, once the field has swept a circle in turns, the error its centre and shape show
+        when that is more (field_circle.py). The harmonic states carry the calibration's error in the filter's σ:
+        then only what the circle adds."""
+        cal_var = calibration_heading_variance_rad2(self.params.mag_calibration_sigma_rad)
+        add_var = cal_var
+        if self._field_circle_on:
+            add_var = self._field_circle.result.checked_var_rad2(cal_var)
+        if self._par["mag_harmonics_on"] > 0.0:
+            add_var = max(0.0, add_var - cal_var)
+        return add_var
 
 
 def _restart_uncorrelated(P: np.ndarray, i: int, var: float) -> None:
