@@ -6,6 +6,7 @@ field magnitude and inclination) and the simulator (truth field) all call `earth
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import functools
 import math
@@ -46,8 +47,24 @@ def _geomag():
     return GeoMag(coefficients_file=WMM_COEFFICIENTS)
 
 
+_fixed_date: _dt.date | None = None    # fixed_date(): the date a lookup without one uses instead of today
+
+
+@contextlib.contextmanager
+def fixed_date(date: _dt.date):
+    """Within it, a lookup without a date evaluates the field on `date`, not today: the field moves by a few nT
+    from one day to the next (the secular variation), and a tool whose output must be reproducible
+    (tools/estimate_digest.py, a digest of every estimate) must not change at midnight."""
+    global _fixed_date
+    before, _fixed_date = _fixed_date, date
+    try:
+        yield
+    finally:
+        _fixed_date = before
+
+
 def decimal_year(date: _dt.date | None = None) -> float:
-    date = date or _dt.date.today()
+    date = date or _fixed_date or _dt.date.today()
     start = _dt.date(date.year, 1, 1)
     days = (_dt.date(date.year + 1, 1, 1) - start).days
     return date.year + (date - start).days / days
