@@ -142,10 +142,11 @@ class Result:
 
 def run_ins(est, run: Run, fixes, cov_every=0, fix_filter=None, sigma_yaw_out=None, estimates_every=1) -> Result:
     """Feed the samples one at a time, each fix once the IMU time passes its arrival time; `sigma_yaw_out` (a
-    list) gets each sample's published yaw σ (rad). `estimates_every` = n > 1: the estimate (q_mag, flags, nav) is
-    read at every n-th sample only (NaN, 0 at the others; q_true and the covariances as always): the others are
-    stepped without building one (Ins.step), which changes no estimate (estimator/estimate_view.py: what a
-    snapshot holds does not depend on how often snapshots are taken)."""
+    list) gets each sample's published yaw σ (rad). `estimates_every` = n > 1: the estimate (q_mag, nav) is
+    read at every n-th sample only (NaN at the others; q_true, the flags and the covariances as always: the flags
+    from the step's view, which gives them without building the estimate): the others are stepped without building
+    one (Ins.step), which changes no estimate (estimator/estimate_view.py: what a snapshot holds does not depend on
+    how often snapshots are taken)."""
     samples = run.samples()
     n = len(run.truth.t_s)
     t = run.truth.t_s
@@ -166,7 +167,7 @@ def run_ins(est, run: Run, fixes, cov_every=0, fix_filter=None, sigma_yaw_out=No
                 outcomes.append(est.update_gnss(fix))
             fi += 1
         if k % estimates_every:
-            est.step(samples[k])
+            flags[k] = int(est.step(samples[k]).flags)
             q_true[k] = est.true_attitude_q_wxyz()
             if cov_every and k % cov_every == 0:
                 cov[k] = est.covariance

@@ -41,8 +41,10 @@ def _run(m_xy_rad: float, **params):
         while fi < len(fixes) and fixes[fi][0] <= t[k]:
             est.update_gnss(fixes[fi][1])
             fi += 1
-        e = est.update(make_sample(t[k], run.gyro[k], run.accel[k], run.mag[k], flags=SampleFlags.NEW_DATA))
+        # stepped: the estimate is built only where kept (estimator/estimate_view.py: building none changes none)
+        view = est.step(make_sample(t[k], run.gyro[k], run.accel[k], run.mag[k], flags=SampleFlags.NEW_DATA))
         if j < len(keep) and k == keep[j]:
+            e = view.snapshot()
             q[j], sig[j] = e.q_wxyz, math.degrees(e.sigma_rpy_rad[2])
             j += 1
     _, hdg = tilt_heading_errors_deg(q, run.truth.q_wxyz[keep])
