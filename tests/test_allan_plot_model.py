@@ -29,11 +29,17 @@ def test_model_line_stays_on_the_fitted_taus(tmp_path, monkeypatch):
     result = analyse_static(t, gyro_rad_s=_correlated_white(n, 5.8e-4, rng),
                             accel_m_s2=_correlated_white(n, 3.3e-3, rng) + [0.0, 0.0, -9.81],
                             mag_ut=_correlated_white(n, 4.4e-3, rng) + [20.0, 0.0, 40.0])
+    from matplotlib.figure import Figure
+
     from ahrsd.core.plotting import pyplot
 
     plt = pyplot()
     figures = []
     monkeypatch.setattr(plt, "close", lambda fig: figures.append(fig))
+    # the lines drawn are read, not the picture: matplotlib's layout and rendering (most of this test's CPU) left
+    # out; test_cal_cli and test_cal_allan_cli render the figure and read its PNG
+    monkeypatch.setattr(Figure, "tight_layout", lambda self, *args, **kwargs: None)
+    monkeypatch.setattr(Figure, "savefig", lambda self, *args, **kwargs: None)
     plot_allan(result, tmp_path / "allan.png")
     axes = [ax for ax in figures[0].axes if ax.get_title()]
     assert len(axes) == 9

@@ -2,7 +2,8 @@
 simulator's receiver model: the accuracy targets, the 30 s outage in a turn, and what an accelerometer-levelled
 filter does on the same data. One seed per vehicle (CI speed); bench/accuracy.py --vehicles runs more. The data,
 the fixes and the error measures are the benchmark's (bench/vehicle_accuracy.py): truth from the simulator's
-analytic trajectories, errors with scipy rotations, never the estimator's own maths."""
+analytic trajectories, errors with scipy rotations, never the estimator's own maths. ins's estimates are read at
+50 Hz (tests/support/thinned_ins.py: those of a run read at 200 Hz, at the samples read)."""
 
 from __future__ import annotations
 
@@ -15,12 +16,11 @@ import pytest
 from bench.vehicle_accuracy import (
     SETTLE_S,
     attitude_steps_deg,
-    run_ins,
-    run_ins_detailed,
     run_mekf,
     simulate_vehicle,
     tilt_heading_errors_deg,
 )
+from support.thinned_ins import run_ins_thinned
 
 # 60° N, where the field dips 74°: the magnetometer's heading is 3.4× as sensitive to a tilt error as at the
 # equator-ward default site, so a horizon error shows in the heading too
@@ -49,7 +49,8 @@ def test_ins_meets_the_targets_where_a_levelling_filter_leans(vehicle):
     """ins with 5 Hz GNSS: tilt RMS ≤ 0.3°, true-heading RMS ≤ 0.5° (measured here 0.10–0.19° and 0.16–0.25°);
     an accelerometer-levelled filter on the same samples leans into the accelerations."""
     run = _run(vehicle)
-    tilt, heading = _errors(run, run_ins(run))
+    thin = run_ins_thinned(run)
+    tilt, heading = _errors(thin.run, thin.detailed()["q"])
     assert _rms(tilt) <= 0.3 and _rms(heading) <= 0.5, (_rms(tilt), _rms(heading))
     assert tilt.max() < 1.0 and np.abs(heading).max() < 1.5, (tilt.max(), np.abs(heading).max())
     # a plain accelerometer-levelled filter (mekf without its acceleration-adaptive tilt noise) leans by
@@ -77,7 +78,8 @@ def test_30_s_outage_in_the_longest_turn_dead_reckons_within_the_targets(vehicle
     k = np.searchsorted(run.t_s, t1 + 2.0)
     run = dataclasses.replace(run, t_s=run.t_s[:k], gyro_rad_s=run.gyro_rad_s[:k], accel_m_s2=run.accel_m_s2[:k],
                               mag_ut=run.mag_ut[:k], truth_q_wxyz=run.truth_q_wxyz[:k])
-    q = run_ins(run)
+    thin = run_ins_thinned(run)
+    run, q = thin.run, thin.detailed()["q"]
     tilt, heading = tilt_heading_errors_deg(q, run.truth_q_wxyz, run.declination_rad)
     inside = (run.t_s >= t0) & (run.t_s < t1)
     assert tilt[inside].max() <= 1.0 and np.abs(heading[inside]).max() <= 2.0, \
@@ -89,8 +91,8 @@ def test_heading_at_high_dip_does_not_inherit_the_tilt_error():
     """At 69.65° N (Tromsø, dip 78°) a tilt error along magnetic north turns the magnetometer's heading by
     tan(dip) ≈ 4.7 times as much. Aided, the magnetometer row carries that sensitivity, so the boat's heading stays
     within the target (measured 0.29° RMS; 0.63° with the heading-only row of the unaided filter)."""
-    run = simulate_vehicle("boat", SECONDS, SEED, "69.65,18.96,10,2026-07-01")
-    tilt, heading = _errors(run, run_ins(run))
+    thin = run_ins_thinned(simulate_vehicle("boat", SECONDS, SEED, "69.65,18.96,10,2026-07-01"))
+    tilt, heading = _errors(thin.run, thin.detailed()["q"])
     assert _rms(heading) <= 0.5 and _rms(tilt) <= 0.3, (_rms(heading), _rms(tilt))
 
 
@@ -102,10 +104,11 @@ def test_an_antenna_on_a_mast_is_within_the_targets_when_the_filter_is_told():
     told; not told 0.34° / 0.90° without the adoption, 0.16° / 0.21° with it)."""
     run = simulate_vehicle("boat", SECONDS, SEED, SITE, lever_arm=True)
     assert run.lever_arm_m == (-1.0, 0.0, -2.0)
-    tilt, heading = _errors(run, run_ins(run))
+    told = run_ins_thinned(run)
+    tilt, heading = _errors(told.run, told.detailed()["q"])
     assert _rms(tilt) <= 0.3 and _rms(heading) <= 0.5, (_rms(tilt), _rms(heading))
-    untold = run_ins_detailed(run, lever_arm_m=(0.0, 0.0, 0.0), lever_arm_adopt=True)
-    tilt_untold, heading_untold = _errors(run, untold["q"])
+    untold = run_ins_thinned(run, lever_arm_m=(0.0, 0.0, 0.0), lever_arm_adopt=True).detailed()
+    tilt_untold, heading_untold = _errors(told.run, untold["q"])
     print(f"told {_rms(tilt):.2f}/{_rms(heading):.2f}, untold {_rms(tilt_untold):.2f}/{_rms(heading_untold):.2f}")
     fit = untold["ins"].lever_arm_fit()
     assert fit.arm_wrong and fit.arm_adopted, fit

@@ -12,7 +12,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ahrsd.estimator.mag_step import MagStepDetector
-from bench.vehicle_accuracy import IRON_STEP_UT, run_ins_detailed, simulate_vehicle, tilt_heading_errors_deg
+from bench.vehicle_accuracy import IRON_STEP_UT, simulate_vehicle, tilt_heading_errors_deg
+from support.thinned_ins import run_ins_thinned
 
 RATE_HZ = 4.9          # the heading checks run at the GNSS fixes (not 5 Hz: no check on a window's edge)
 NOISE_RAD = 0.002      # ± this, alternating: the mean square successive difference is (2a)²/2 = 2a²
@@ -85,18 +86,13 @@ def straight_step():
 
 def _run_keeping_integrity(run) -> dict:
     """run_ins_detailed's q, published yaw σ and estimator, and what each estimate's integrity (what the daemon
-    reads) says of a rejection for a step (NaN: none)."""
-    from ahrsd.estimator.ins import Ins
-    from bench.vehicle_accuracy import estimates_in_arrival_order
-
-    est = Ins(declination_rad=run.declination_rad, lever_arm_m=run.lever_arm_m,
-              mag_calibration_sigma_rad=run.mag_calibration_sigma_rad)
-    n = len(run.t_s)
-    q, sigma, step = np.empty((n, 4)), np.empty(n), np.full(n, np.nan)
-    for k, e in estimates_in_arrival_order(est, run, run.fixes):
-        q[k], sigma[k] = e.q_wxyz, e.sigma_rpy_rad[2]
-        step[k] = e.integrity.mag_step_rad if e.integrity is not None else np.nan
-    return {"q": q, "sigma_yaw_rad": sigma, "integrity_step_rad": step, "ins": est}
+    reads) says of a rejection for a step (NaN: none), at the samples read (50 Hz, tests/support/thinned_ins.py:
+    the estimates a run read at 200 Hz has there), and the run at those samples ("run")."""
+    thin = run_ins_thinned(run)
+    e = thin.estimates
+    step = np.array([x.integrity.mag_step_rad if x.integrity is not None else np.nan for x in e])
+    return {"q": np.array([x.q_wxyz for x in e]), "sigma_yaw_rad": np.array([x.sigma_rpy_rad[2] for x in e]),
+            "integrity_step_rad": step, "ins": thin.ins, "run": thin.run}
 
 
 def _true_magnetometer_step_rad(run) -> float:
@@ -115,9 +111,10 @@ def test_an_iron_step_on_a_straight_road_is_caught_and_the_heading_stays_within_
     true_step = _true_magnetometer_step_rad(run)
     assert math.radians(2.0) < abs(true_step) < math.radians(5.0)      # the case: a few degrees
     # the published heading within 3σ of the truth from the step on (without the step test: 7.7σ at 150 s)
-    _, hdg = tilt_heading_errors_deg(out["q"], run.truth_q_wxyz, run.declination_rad)
+    read = out["run"]
+    _, hdg = tilt_heading_errors_deg(out["q"], read.truth_q_wxyz, read.declination_rad)
     sig = np.degrees(out["sigma_yaw_rad"])
-    w = run.t_s >= STEP_AT_S
+    w = read.t_s >= STEP_AT_S
     assert np.all(np.abs(hdg[w]) <= 3.0 * sig[w]), (np.max(np.abs(hdg[w]) / sig[w]), np.max(np.abs(hdg[w])))
     steps = [(c.t_s, c.mag_step_rad) for c in out["ins"].heading_checks if math.isfinite(c.mag_step_rad)]
     assert out["ins"].heading_report().mag_steps == 1
@@ -133,10 +130,10 @@ def test_the_estimates_integrity_says_the_rejection_is_for_a_step_while_the_magn
     run, out = straight_step
     ins = out["ins"]
     t_detect, step_rad = [(c.t_s, c.mag_step_rad) for c in ins.heading_checks if math.isfinite(c.mag_step_rad)][0]
-    said = out["integrity_step_rad"]
-    assert np.all(np.isnan(said[run.t_s < t_detect]))
+    said, t = out["integrity_step_rad"], out["run"].t_s
+    assert np.all(np.isnan(said[t < t_detect]))
     # a check runs when its fix arrives, 0.1 s after the fix's time (simulate_vehicle's latency)
-    assert np.all(said[run.t_s > t_detect + 0.2] == step_rad)
+    assert np.all(said[t > t_detect + 0.2] == step_rad)
     # of the same sign as the truth's step and a part of it (the after-window was still filling when declared)
     assert 0.3 < step_rad / _true_magnetometer_step_rad(run) < 1.2
     assert not any(c.mag_use for c in ins.heading_checks if c.t_s > t_detect)   # no re-entry before the run ends
@@ -157,16 +154,17 @@ def test_the_integrity_stops_saying_step_once_the_magnetometer_is_used_again():
     assert report.mag_steps == 1 and STEP_AT_S < report.first_step_t_s <= STEP_AT_S + 3.0
     used_again = [c.t_s for c in ins.heading_checks if c.t_s > report.first_step_t_s and c.mag_use]
     assert used_again, "the magnetometer did not re-enter before the end of the run"
-    while_rejected = (run.t_s > report.first_step_t_s + 0.2) & (run.t_s < used_again[0])
+    t = out["run"].t_s
+    while_rejected = (t > report.first_step_t_s + 0.2) & (t < used_again[0])
     assert np.all(np.degrees(said[while_rejected]) == pytest.approx(report.first_step_deg, rel=1e-12))
-    assert np.all(np.isnan(said[run.t_s > used_again[0] + 0.2]))
+    assert np.all(np.isnan(said[t > used_again[0] + 0.2]))
 
 
 @pytest.mark.parametrize("scenario", ["boat", "car"])
 def test_no_step_is_declared_over_a_calibrated_run_with_turns_and_waves(scenario):
     """The boat in waves and the car in its turns, calibrated, 240 s at the default site: no detection."""
     run = simulate_vehicle(scenario, 240.0, 2, None)
-    ins = run_ins_detailed(run)["ins"]
+    ins = run_ins_thinned(run, len(run.t_s)).ins         # the filter's checks only: no estimate read
     assert ins.heading_report().mag_steps == 0
 
 

@@ -6,7 +6,8 @@ re-entry limit (the 1 µT it cannot explain is 5.3° there), so an uncalibrated 
 the whole run. Thrown away, the heading rests on the GNSS alone and drifts on the straight legs at the rate of the
 vertical gyro bias error the turns leave. Fused at the learned iron's honest σ, its error correlated over a change of
 heading (constant while the boat holds its heading, fresh every ~0.5 rad of turn), the turns hold heading and bias
-better. Truth is the simulator's (bench.vehicle_accuracy, scipy rotations), never the code under test."""
+better. Truth is the simulator's (bench.vehicle_accuracy, scipy rotations), never the code under test. The estimates
+are read at 50 Hz (tests/support/thinned_ins.py: those of a run read at 200 Hz, at the samples read)."""
 
 from __future__ import annotations
 
@@ -14,7 +15,8 @@ import numpy as np
 import pytest
 
 from ahrsd.core.estimate import HeadingState
-from bench.vehicle_accuracy import run_ins_detailed, simulate_vehicle, tilt_heading_errors_deg
+from bench.vehicle_accuracy import simulate_vehicle, tilt_heading_errors_deg
+from support.thinned_ins import run_ins_thinned
 
 TROMSO = "69.65,18.96"
 SECONDS = 300.0
@@ -25,8 +27,8 @@ FROM_S = 150.0
 @pytest.fixture(scope="module")
 def boat():
     # in-sample seed 15: GNSS-only 0.70° RMS over 150–300 s, 0.49° with the rejected magnetometer fused
-    run = simulate_vehicle("boat", SECONDS, 15, TROMSO, mag="uncalibrated", iron="held-out")
-    return run, run_ins_detailed(run)
+    thin = run_ins_thinned(simulate_vehicle("boat", SECONDS, 15, TROMSO, mag="uncalibrated", iron="held-out"))
+    return thin.run, thin.detailed()
 
 
 def test_the_magnetometer_stays_rejected_at_the_weak_field(boat):
@@ -54,7 +56,8 @@ def test_a_rejected_magnetometer_is_never_published_as_the_heading_source():
     # iron's σ, must not make the published state MAGNETOMETER
     run = simulate_vehicle("boat", 240.0, 15, TROMSO, mag="uncalibrated", iron="held-out", outage=True)
     assert run.outage is not None
-    out = run_ins_detailed(run)
+    thin = run_ins_thinned(run)
+    run, out = thin.run, thin.detailed()
     t0, t1 = run.outage
     w = (run.t_s >= t0 + 2.0) & (run.t_s < t1)
     assert w.any()

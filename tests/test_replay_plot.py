@@ -96,6 +96,33 @@ def figures(monkeypatch):
         yield kept
 
 
+def _replayed(recording, directory, *site):
+    """`ahrsd replay RECORDING --plot` once (its figure kept open for the tests that read it, closed after the
+    module): (exit code, the PNG's path, the output CSV's path, [the figure])."""
+    from ahrsd.estimator import replay_plot
+    from support.kept_figures import kept_figures
+
+    def figure_and_path(trace, path, *args, **kwargs):
+        return replay_plot.replay_figure(trace, *args, **kwargs), path
+
+    png, out = directory / "replay.png", directory / "out.csv"
+    with pytest.MonkeyPatch.context() as mp, kept_figures(mp, replay_plot, "plot_replay", figure_and_path) as kept:
+        rc = main(["replay", str(recording), "--output", str(out), "--plot", str(png), *site, "--quiet"])
+        yield rc, png, out, kept
+
+
+@pytest.fixture(scope="module")
+def replayed_at_the_site(truth_recording, tmp_path_factory):
+    """The truth recording replayed with the site's declination (true north), for the tests that read it."""
+    yield from _replayed(truth_recording, tmp_path_factory.mktemp("site"), "--lat", "36.42", "--lon", "54.98")
+
+
+@pytest.fixture(scope="module")
+def replayed_uncalibrated(truth_recording, tmp_path_factory):
+    """The truth recording replayed without a site (magnetic north) and without a calibration (heading unknown)."""
+    yield from _replayed(truth_recording, tmp_path_factory.mktemp("uncalibrated"))
+
+
 def axis_labelled(fig, ylabel):
     found = [a for a in fig.axes if a.get_ylabel() == ylabel]
     assert len(found) == 1, [a.get_ylabel() for a in fig.axes]
@@ -132,10 +159,8 @@ def scipy_errors_deg(out_csv, recording):
     return d[:, ::-1]                                   # roll, pitch, heading
 
 
-def test_replay_plot_draws_the_truth_error_panel_that_scipy_computes(truth_recording, tmp_path, figures):
-    png, out = tmp_path / "replay.png", tmp_path / "out.csv"
-    rc = main(["replay", str(truth_recording), "--output", str(out), "--plot", str(png),
-               "--lat", "36.42", "--lon", "54.98", "--quiet"])
+def test_replay_plot_draws_the_truth_error_panel_that_scipy_computes(truth_recording, replayed_at_the_site):
+    rc, png, out, figures = replayed_at_the_site
     assert rc == 0
     assert png.read_bytes()[:8] == PNG_MAGIC and out.exists()
     (fig,) = figures
@@ -240,14 +265,13 @@ def test_an_aided_replay_plot_names_ins_and_true_north_and_draws_velocity_and_tr
     assert np.all(np.isfinite(est_n)) and np.ptp(est_n) > 10     # the boat moved: a track, not a point at 0, 0
 
 
-def test_each_error_band_is_named_in_the_legend_and_spans_its_own_sigma(truth_recording, tmp_path, figures):
+def test_each_error_band_is_named_in_the_legend_and_spans_its_own_sigma(replayed_at_the_site):
     """The ±1σ bands overlap into one grey: each must be in the legend (heading's in its line's colour; roll's and
     pitch's, equal in mekf, as one band named for both, session 23) and span the σ column the replay wrote for
     that angle (read from the CSV, not from the plot code)."""
     import matplotlib.colors
-    png, out = tmp_path / "replay.png", tmp_path / "out.csv"
-    assert main(["replay", str(truth_recording), "--output", str(out), "--plot", str(png),
-                 "--lat", "36.42", "--lon", "54.98", "--quiet"]) == 0
+    rc, _png, out, figures = replayed_at_the_site
+    assert rc == 0
     (fig,) = figures
     error_ax = axis_labelled(fig, "error vs truth (°)")
     legend = [t.get_text() for t in error_ax.get_legend().get_texts()]
@@ -273,13 +297,13 @@ def test_each_error_band_is_named_in_the_legend_and_spans_its_own_sigma(truth_re
         assert top == pytest.approx(np.max(known), rel=1e-6)
 
 
-def test_an_unknown_heading_neither_sets_the_error_scale_nor_the_rms(truth_recording, tmp_path, figures):
+def test_an_unknown_heading_neither_sets_the_error_scale_nor_the_rms(truth_recording, replayed_uncalibrated):
     """Without a calibration mekf's heading is unknown (σ 180°): its error (tens of degrees) must not squash the
     tilt errors flat, nor an initialisation set the RMS (session 23's walk: `replay gboat.csv --gnss` read 'heading
     RMS 8.66°' with roll and pitch flat lines, where the settled run had 0.80° / 0.11° / 0.09°). The scale is 1.3 ×
     the 99th percentile of the known rows' errors, computed here from scipy's errors and the CSV's flags and σ."""
-    png, out = tmp_path / "replay.png", tmp_path / "out.csv"
-    assert main(["replay", str(truth_recording), "--output", str(out), "--plot", str(png), "--quiet"]) == 0
+    rc, _png, out, figures = replayed_uncalibrated
+    assert rc == 0
     (fig,) = figures
     error_ax = axis_labelled(fig, "error vs truth (°)")
     expected, known = scipy_errors_deg(out, truth_recording), known_rows(out)
@@ -297,11 +321,11 @@ def test_an_unknown_heading_neither_sets_the_error_scale_nor_the_rms(truth_recor
     assert lines["roll"].get_label() == f"roll (RMS {rms:.2f}° from {t[first]:.0f} s)"
 
 
-def test_an_unknown_heading_has_no_band_but_says_so(truth_recording, tmp_path, figures):
+def test_an_unknown_heading_has_no_band_but_says_so(replayed_uncalibrated):
     """σ 180° (no calibration) drew a ±180° band wrapped at 0/360° across the whole heading panel (session 23's
     walk): where the CSV's sigma_yaw_deg is ≥ 90° no band is drawn, and the panel says the heading is unknown."""
-    png, out = tmp_path / "replay.png", tmp_path / "out.csv"
-    assert main(["replay", str(truth_recording), "--output", str(out), "--plot", str(png), "--quiet"]) == 0
+    rc, _png, out, figures = replayed_uncalibrated
+    assert rc == 0
     (fig,) = figures
     header = out.read_text().splitlines()[0].split(",")
     sigma = np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2)[:, header.index("sigma_yaw_deg")]

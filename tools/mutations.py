@@ -518,6 +518,15 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("lever-arm-adopt-off-by-default", "ins does not adopt a fitted antenna arm unless asked",
              "estimator/ins.py", "    lever_arm_adopt: bool = False", "    lever_arm_adopt: bool = True",
              ("tests/test_lever_arm_fit.py",)),
+    # ------------------------------------------------------------------ session 33 (kern33): the built estimate's
+    # terms compiled (estimator/ins_published_terms.py)
+    Mutation("published-offset-turns-quaternion", "an estimate built while the published heading carries an offset "
+             "has its quaternion turned back by it about down, as its yaw",
+             "estimator/ins_published_terms.py", "out[_Q + 3] = c * z + s * w", "out[_Q + 3] = c * z - s * w",
+             ("tests/test_published_heading.py",)),
+    Mutation("unconfirmed-heading-sigma-floor", "once navigating, the published yaw σ is at least the unconfirmed "
+             "heading's floor", "estimator/ins_published_terms.py", "sigma_yaw = unconfirmed_sigma_rad",
+             "sigma_yaw = sigma_yaw", ("tests/test_gnss_yaw_alignment.py",)),
     Mutation("lever-arm-wrong-heading-unknown", "a heading held through a wrong arm is published unknown",
              "estimator/ins_published_terms.py", "    if heading_bent:", "    if False:",
              ("tests/test_lever_arm_fit.py",)),
@@ -726,6 +735,10 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("ins-iron-learned-default", "ins learns the iron by default",
              "estimator/ins.py", "    iron_learning: bool = True", "    iron_learning: bool = False",
              ("tests/test_heading_integrity.py",)),
+    Mutation("rejected-mag-fused-at-all", "a rejected magnetometer with an iron learned since is fused at its floor",
+             "estimator/magnetometer_use.py", "    return (params.iron_heading_corr_rad > 0.0 and not monitor_use",
+             "    return (params.iron_heading_corr_rad < 0.0 and not monitor_use",
+             ("tests/test_rejected_magnetometer_fused.py",)),
     Mutation("ins-heading-state-hold-default", "the heading state holds its hysteresis by default (5 s)",
              "estimator/ins.py", "heading_state_hold_s: float = 5.0", "heading_state_hold_s: float = 0.0",
              ("tests/test_heading_replay.py",)),
