@@ -51,6 +51,10 @@ _FLASH_REGS = _OFFSET_REGS + (R.XMAGN_HIF, R.YMAGN_HIF, R.ZMAGN_HIF, R.XMAGN_SIF
                               R.GPIO_CTRL, R.MSC_CTRL, R.SMPL_PRD, R.SENS_AVG, R.ALM_MAG1, R.ALM_MAG2,
                               R.ALM_SMPL1, R.ALM_SMPL2, R.ALM_CTRL, R.AUX_DAC)
 _MAX_FILTER_HISTORY = 2 * (1 << 7) - 2   # Bartlett N = 7: two 128-tap boxes
+# MSC_CTRL's data-ready routing as plain ints: a data-ready line checks it at every edge wait, and IntFlag
+# arithmetic builds new enum members on each call
+_DIO1_ROUTED = int(R.MscCtrl.DATA_RDY_EN | R.MscCtrl.DATA_RDY_POL_HIGH)
+_DIO1_ROUTE_BITS = _DIO1_ROUTED | int(R.MscCtrl.DATA_RDY_DIO2)
 
 
 def _default_registers() -> list[int]:
@@ -194,9 +198,7 @@ class SimulatedAdis16405:
     @property
     def data_ready_on_dio1(self) -> bool:
         """MSC_CTRL routes data-ready to DIO1, active high (bit 2 enable, bit 1 polarity, bit 0 clear = DIO1)."""
-        msc = self._regs[R.MSC_CTRL >> 1]
-        want = R.MscCtrl.DATA_RDY_EN | R.MscCtrl.DATA_RDY_POL_HIGH
-        return (msc & (want | R.MscCtrl.DATA_RDY_DIO2)) == want
+        return (self._regs[R.MSC_CTRL >> 1] & _DIO1_ROUTE_BITS) == _DIO1_ROUTED
 
     def now(self) -> float:
         """Chip time in seconds."""

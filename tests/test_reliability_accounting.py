@@ -150,7 +150,7 @@ def test_rejected_frames_consume_samples_without_sliding_the_lock():
     assert r["offset"] <= r["ambiguous"]
 
 
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [0])     # one seed: it fails on every break seed 1 did (docs/testing.md)
 def test_ci_fault_schedule_under_load_accounts_for_every_sample(seed):
     """bus loss + reconnect, stall, garbage, short reads, alarms, burst bug: the span of the outage and of the
     stall is counted from the elapsed time, never less than the chip produced."""
@@ -265,7 +265,7 @@ def loaded_wakes(rng):
     return rng.expovariate(1 / 400e-6) if x < 0.4 else 0.0
 
 
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [0])     # one seed: it fails on every break seed 1 did (docs/testing.md)
 def test_every_sample_has_the_chips_own_index_under_load(seed):
     """Issue 30 (a real-time `record --sim` at load ~10 had ~2 % of rows one sample off the chip's index): a
     burst that may have straddled a data-ready is indexed by the chip's ND (a register read after it), not by

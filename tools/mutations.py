@@ -749,4 +749,11 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("ins-heading-state-hold-default", "the heading state holds its hysteresis by default (5 s)",
              "estimator/ins.py", "heading_state_hold_s: float = 5.0", "heading_state_hold_s: float = 0.0",
              ("tests/test_heading_replay.py",)),
+    # ------------------------------------------------------------------ session 33 (rel33)
+    Mutation("reconnect-keeps-the-timer", "a reopened sensor keeps its sample timer: the outage's samples count lost",
+             "drivers/reconnecting.py", "        if self._inner is None:", "        if True:",
+             ("tests/test_reliability_accounting.py",)),
+    Mutation("chip-index-from-the-transfer-start", "a fresh burst is indexed from the transfer's start and end",
+             "drivers/chip_source.py", "t_s, k, lost = timer.fresh(now, end, newer)",
+             "t_s, k, lost = timer.fresh(end, end, newer)", ("tests/test_reliability_accounting.py",)),
 )
