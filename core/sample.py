@@ -10,6 +10,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ahrsd.core.slot_init import slot_init
+
 
 class SampleFlags(enum.IntFlag):
     """Status of one sample. Anything but NONE/NEW_DATA tells consumers to look closer."""
@@ -28,6 +30,7 @@ class SampleFlags(enum.IntFlag):
     GAP_BEFORE = 1 << 10       # one or more samples were lost before this one
 
 
+@slot_init       # built once per sample: the cheaper __init__
 @dataclass(frozen=True, slots=True)
 class ImuSample:
     """One calibrated-or-raw IMU sample in SI units.

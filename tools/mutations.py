@@ -756,4 +756,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("chip-index-from-the-transfer-start", "a fresh burst is indexed from the transfer's start and end",
              "drivers/chip_source.py", "t_s, k, lost = timer.fresh(now, end, newer)",
              "t_s, k, lost = timer.fresh(end, end, newer)", ("tests/test_reliability_accounting.py",)),
+    # ------------------------------------------------------------------ session 34 (sim)
+    Mutation("slot-init-stores-each-field", "the cheaper __init__ of ImuSample/AttitudeEstimate stores each field "
+             "in its own slot", "core/slot_init.py", 'namespace[f"_set_{f.name}"] = cls.__dict__[f.name].__set__',
+             'namespace[f"_set_{f.name}"] = cls.__dict__[params[0].name].__set__', ("tests/test_slot_init.py",)),
 )
