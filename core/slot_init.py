@@ -14,19 +14,28 @@ from __future__ import annotations
 import dataclasses
 
 
+_HAS_FACTORY = object()     # the default of a field with a default factory: "not given"
+
+
 def slot_init(cls):
     """Class decorator (below `@dataclass(frozen=True, slots=True)`): replace the generated `__init__` by one that
-    stores the fields through their member descriptors. Refuses what it would not reproduce (a field with a
-    default factory or left out of `__init__`, a `__post_init__`)."""
+    stores the fields through their member descriptors. Refuses what it would not reproduce (a field left out of
+    `__init__` or keyword-only, a `__post_init__`)."""
     params = dataclasses.fields(cls)
     if not (cls.__dataclass_params__.frozen and "__slots__" in cls.__dict__) or hasattr(cls, "__post_init__"):
         raise TypeError(f"slot_init needs a frozen, slotted dataclass without __post_init__: {cls.__name__}")
     namespace: dict = {}
     args, body = [], []
     for f in params:
-        if not f.init or f.default_factory is not dataclasses.MISSING or f.kw_only:
+        if not f.init or f.kw_only:
             raise TypeError(f"slot_init: field {cls.__name__}.{f.name} needs the generated __init__")
-        if f.default is dataclasses.MISSING:
+        if f.default_factory is not dataclasses.MISSING:
+            # as dataclasses does: a marker default, replaced by a fresh value from the factory on each call
+            namespace[f"_factory_{f.name}"] = f.default_factory
+            namespace["_HAS_FACTORY"] = _HAS_FACTORY
+            args.append(f"{f.name}=_HAS_FACTORY")
+            body.append(f"    if {f.name} is _HAS_FACTORY:\n        {f.name} = _factory_{f.name}()")
+        elif f.default is dataclasses.MISSING:
             args.append(f.name)
         else:
             namespace[f"_default_{f.name}"] = f.default
