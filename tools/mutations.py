@@ -767,4 +767,10 @@ MUTATIONS: tuple[Mutation, ...] = (
              "simulation/gnss.py", "keep = np.unique(np.concatenate([ind, ind + 1])) if ts.size else np.array([0, 1])",
              "keep = np.unique(np.concatenate([ind, ind + 2])) if ts.size else np.array([0, 1])",
              ("tests/test_simulation_gnss.py",)),
+    Mutation("recording-truth-columns", "a recording's truth_q* columns hold the truth quaternion in wxyz order",
+             "drivers/recording.py", "v = truth[truth_index]", "v = truth[3 - truth_index]",
+             ("tests/test_recording.py", "tests/test_record_truth.py")),
+    Mutation("make-sample-coerces", "make_sample coerces what is not a float64 (3,) array",
+             "core/sample.py", "if not (a.__class__ is _NDARRAY and a.dtype is _FLOAT64 and a.shape == _SHAPE3):",
+             "if not (a.__class__ is _NDARRAY):", ("tests/test_make_sample.py",)),
 )
