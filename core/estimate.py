@@ -7,6 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ahrsd.core.slot_init import slot_init
+
 
 class EstimateFlags(enum.IntFlag):
     NONE = 0
@@ -41,6 +43,7 @@ class HeadingState(enum.IntEnum):
     LEARNING = 3
 
 
+@slot_init       # built once per estimate: the cheaper __init__
 @dataclass(frozen=True, slots=True)
 class HeadingIntegrity:
     """The heading checks of an aided estimator at one instant (angles true, rad; NaN where not known)."""
@@ -58,6 +61,7 @@ class HeadingIntegrity:
                                          # (estimator/lever_arm_fit.py): the heading is unknown until the arm is set
 
 
+@slot_init       # built once per estimate: the cheaper __init__
 @dataclass(frozen=True, slots=True)
 class AttitudeEstimate:
     """Attitude of the body (FRD) in NED at time t_s.
@@ -84,6 +88,7 @@ class AttitudeEstimate:
     integrity: "HeadingIntegrity | None" = None  # only from an aided estimator
 
 
+@slot_init       # built once per estimate: the cheaper __init__
 @dataclass(frozen=True, slots=True)
 class NavState:
     """Position and velocity of the IMU from an aided estimator (ins). NED velocity m/s, WGS-84 geodetic."""

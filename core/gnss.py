@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ahrsd.core.slot_init import slot_init
+
 
 class GnssFixType(enum.IntEnum):
     """The receiver's fix, numbered as MAVLink GPS_FIX_TYPE (0 no GPS ... 6 RTK fixed)."""
@@ -27,6 +29,7 @@ class GnssFixType(enum.IntEnum):
     RTK_FIXED = 6
 
 
+@slot_init       # built once per fix: the cheaper __init__ (core/slot_init.py)
 @dataclass(frozen=True, slots=True)
 class GnssFix:
     """One GNSS solution in SI units. Position WGS-84 geodetic (alt above the ellipsoid); velocity NED."""

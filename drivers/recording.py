@@ -63,27 +63,34 @@ class RecordingWriter:
         self.columns = names
         self.extra_columns = extra
         self._flush_rows = flush_rows
+        # per extra column: its name, whether it is written as an int, whether the sample has it, its truth index
+        self._extra_plan = tuple((name, name in _INT_COLUMNS, name in SAMPLE_COLUMNS,
+                                  TRUTH_COLUMNS.index(name) if name in TRUTH_COLUMNS else -1) for name in extra)
+        self._row_format = ",".join(["%r"] * len(BASE_COLUMNS)
+                                    + ["%d" if n in _INT_COLUMNS else "%r" for n in extra]) + "\n"
         self.rows_written = 0
         self._file = open_text(self.path, "w")
         self._file.write(",".join(names) + "\n")
 
     def write(self, sample: ImuSample, truth_q_wxyz=None, **values) -> None:
         """One row. `truth_q_wxyz` (4,) fills the truth_q* columns; other keyword values fill extra columns."""
-        if truth_q_wxyz is not None:
-            values.update(zip(TRUTH_COLUMNS, (float(v) for v in truth_q_wxyz)))
-        parts = [repr(float(sample.t_s))]
-        parts.extend(map(repr, sample.gyro_rad_s.tolist()))
-        parts.extend(map(repr, sample.accel_m_s2.tolist()))
-        parts.extend(map(repr, sample.mag_ut.tolist()))
-        for name in self.extra_columns:
-            if name in values:
+        truth = None
+        if truth_q_wxyz is not None:     # over any truth_q* keyword values
+            truth = (truth_q_wxyz.tolist() if truth_q_wxyz.__class__ is np.ndarray and truth_q_wxyz.ndim == 1
+                     and truth_q_wxyz.dtype == np.float64 else [float(v) for v in truth_q_wxyz])
+        row = [float(sample.t_s), *sample.gyro_rad_s.tolist(), *sample.accel_m_s2.tolist(), *sample.mag_ut.tolist()]
+        for name, is_int, from_sample, truth_index in self._extra_plan:
+            if truth is not None and 0 <= truth_index < len(truth):
+                v = truth[truth_index]
+            elif name in values:
                 v = values[name]
-            elif name in SAMPLE_COLUMNS:
+            elif from_sample:
                 v = getattr(sample, name)
             else:
                 v = math.nan
-            parts.append(str(int(v)) if name in _INT_COLUMNS else repr(float(v)))
-        self._file.write(",".join(parts) + "\n")
+            row.append(int(v) if is_int else float(v))
+        # "%r" of a float is its repr, "%d" of an int its str: the row as repr/str would write it, in one call
+        self._file.write(self._row_format % tuple(row))
         self.rows_written += 1
         if self.rows_written % self._flush_rows == 0:
             self._file.flush()

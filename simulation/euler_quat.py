@@ -48,10 +48,11 @@ def ned_to_body(q_xyzw: np.ndarray, vectors_ned) -> np.ndarray:
 
 def _elementary(axis: int, angle_rad: np.ndarray) -> np.ndarray:
     """Rotations about one axis: [sin(a/2) on the axis, cos(a/2)]."""
-    a = angle_rad.tolist()
-    q = np.zeros((len(a), 4))
-    q[:, 3] = [math.cos(x / 2) for x in a]
-    q[:, axis] = [math.sin(x / 2) for x in a]
+    half = (angle_rad * 0.5).tolist()          # x * 0.5 is x / 2 exactly (a power of two)
+    n = len(half)
+    q = np.zeros((n, 4))
+    q[:, 3] = np.fromiter(map(math.cos, half), np.float64, n)
+    q[:, axis] = np.fromiter(map(math.sin, half), np.float64, n)
     return q
 
 

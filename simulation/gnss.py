@@ -32,6 +32,7 @@ are on the simulator's spherical Earth (R0 = 6 378 137 m, simulation.track). Det
 
 from __future__ import annotations
 
+import functools
 import heapq
 import math
 from dataclasses import dataclass
@@ -143,7 +144,8 @@ def _block_truth(block: SensorBlock) -> Callable[[np.ndarray], Truth]:
 
     t = block.t_s
     q = block.truth_q_wxyz
-    slerp = Slerp(t, Rotation.from_quat(np.column_stack([q[:, 1:], q[:, 0]])))
+    if np.any(np.diff(t) <= 0):
+        raise ValueError("Times must be in strictly increasing order.")     # Slerp's own check, on every sample
 
     def truth_at(ts):
         ts = np.atleast_1d(np.asarray(ts, dtype=float))
@@ -153,12 +155,34 @@ def _block_truth(block: SensorBlock) -> Callable[[np.ndarray], Truth]:
         def lin(a):
             return np.column_stack([np.interp(ts, t, a[:, i]) for i in range(a.shape[1])])
 
-        qi = slerp(ts).as_quat()
+        # Slerp over the samples that bracket the times asked for, not over the whole block: Slerp interpolates
+        # between the two samples around a time (index searchsorted(t, ts) − 1, the first sample's time counting
+        # in the first interval), each interval from its own two rotations, so the same intervals give the same
+        # rotations, whatever other samples there are
+        ind = np.searchsorted(t, ts) - 1
+        ind[ts == t[0]] = 0
+        keep = np.unique(np.concatenate([ind, ind + 1])) if ts.size else np.array([0, 1])
+        qk = q[keep]
+        qi = Slerp(t[keep], Rotation.from_quat(np.column_stack([qk[:, 1:], qk[:, 0]])))(ts).as_quat()
         return Truth(ts, np.column_stack([qi[:, 3], qi[:, :3]]), lin(block.truth_gyro_rad_s),
                      lin(block.truth_vel_ned_m_s), np.interp(ts, t, block.truth_lat_deg),
                      np.interp(ts, t, block.truth_lon_deg), np.interp(ts, t, block.truth_alt_m))
 
     return truth_at
+
+
+@functools.lru_cache(maxsize=4096)
+def _spawned(seed) -> tuple[np.random.SeedSequence, ...]:
+    return tuple(np.random.SeedSequence(seed).spawn(4))
+
+
+def _seed_children(seed) -> tuple[np.random.SeedSequence, ...]:
+    """The four SeedSequences of the noise streams of `seed`, made once per seed (a test makes hundreds of simulators
+    with a few seeds): a generator seeded from one only reads its state, so they can be shared."""
+    try:
+        return _spawned(seed)
+    except TypeError:                     # not hashable (a list of ints)
+        return tuple(np.random.SeedSequence(seed).spawn(4))
 
 
 def _as_outage(o) -> GnssOutage:
@@ -196,7 +220,7 @@ class GnssSimulator:
             if not isinstance(g, GnssGlitch):
                 raise TypeError(f"glitches must be GnssGlitch, got {type(g).__name__}")
         self._k = math.ceil(start_s * self.rate_hz - 1e-9)     # next epoch index
-        rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(4)]
+        rngs = [np.random.default_rng(s) for s in _seed_children(seed)]
         self._rng_white, self._rng_wander, self._rng_vel, self._rng_jitter = rngs
         e = self.errors
         sigma = np.array([e.horizontal_m, e.horizontal_m, e.vertical_m])
@@ -239,21 +263,25 @@ class GnssSimulator:
         innovation = self._rng_wander.standard_normal((n, 3)) * self._sigma_wander * math.sqrt(1 - self._phi**2)
         dv = self._rng_vel.standard_normal((n, 3)) * e.velocity_m_s
         t_rx = (t + self.latency_s + self._rng_jitter.uniform(0.0, self.jitter_s, n)).tolist()
-        wander = np.empty((n, 3))
-        for i in range(n):              # the Gauss–Markov recursion, epoch by epoch
-            self._wander = self._phi * self._wander + innovation[i]
-            wander[i] = self._wander
-        d_all = white + wander
+        phi, (w0, w1, w2) = self._phi, self._wander.tolist()
+        wander = []
+        for i0, i1, i2 in innovation.tolist():      # the Gauss–Markov recursion, epoch by epoch (in floats: the
+            w0, w1, w2 = phi * w0 + i0, phi * w1 + i1, phi * w2 + i2   # same IEEE products and sums as numpy's)
+            wander.append((w0, w1, w2))
+        self._wander = np.array([w0, w1, w2])
+        d_all = white + np.array(wander)
         v_all = vel + dv
         hit = [(g, *self._glitch_epochs(g)) for g in self.glitches]
         # Python floats from here: the same IEEE operations as on numpy scalars, without their per-call cost
         t_list = t.tolist()
         lat_l, lon_l, alt_l = np.asarray(lat).tolist(), np.asarray(lon).tolist(), np.asarray(alt).tolist()
         d_list = d_all.tolist()
+        # each fix's own copy of its row: the rows of one copy of the array (a row view per fix, no other fix's)
+        vel_rows, v_rows = list(np.array(vel, dtype=float)), list(np.array(v_all, dtype=float))
         fixes = []
         for i, tk in enumerate(t_list):
             outage = next((o for o in self.outages if o.start_s <= tk < o.stop_s), None) if self.outages else None
-            truth_i = GnssTruth(tk, lat_l[i], lon_l[i], alt_l[i], vel[i].copy())
+            truth_i = GnssTruth(tk, lat_l[i], lon_l[i], alt_l[i], vel_rows[i])
             if outage is not None:
                 if outage.reports_no_fix:
                     fixes.append(GnssFix(tk, math.nan, math.nan, math.nan, np.full(3, math.nan),
@@ -261,7 +289,7 @@ class GnssSimulator:
                                          extra={"t_rx_s": t_rx[i], "glitch": None, "truth": truth_i}))
                 continue
             d_ned = d_list[i]
-            v_meas = v_all[i].copy()
+            v_meas = v_rows[i]
             t_stamp = tk
             glitch = None
             for g, first, last in hit:

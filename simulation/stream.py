@@ -83,12 +83,17 @@ class SensorBlock:
     def samples(self, first_counter: int = 0):
         """The sensor outputs as `ImuSample`s (SI, body frame, flags NEW_DATA), one per row: for feeding
         calibration or an estimator directly, without the byte-level chip."""
-        from ahrsd.core.sample import SampleFlags, make_sample
+        from ahrsd.core.sample import ImuSample, SampleFlags
 
-        for i in range(len(self.t_s)):
-            yield make_sample(self.t_s[i], self.gyro_rad_s[i], self.accel_m_s2[i], self.mag_ut[i],
-                              temp_c=float(self.temp_c[i]), flags=SampleFlags.NEW_DATA,
-                              counter=first_counter + i)
+        # make_sample's coercions once for the block: each row of a float64 (n, 3) array is what make_sample
+        # would have passed on as it is, and tolist() gives the floats float() would
+        gyro, accel, mag = (np.asarray(v, dtype=np.float64).reshape(-1, 3)
+                            for v in (self.gyro_rad_s, self.accel_m_s2, self.mag_ut))
+        new_data, nan = SampleFlags.NEW_DATA, float("nan")
+        for t_s, g, a, m, temp_c, counter in zip(np.asarray(self.t_s, dtype=np.float64).tolist(), gyro, accel, mag,
+                                                   np.asarray(self.temp_c, dtype=np.float64).tolist(),
+                                                   range(first_counter, first_counter + len(self.t_s))):
+            yield ImuSample(t_s, g, a, m, temp_c, nan, new_data, 0, counter)
 
     @staticmethod
     def concatenate(blocks) -> "SensorBlock":

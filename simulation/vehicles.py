@@ -122,10 +122,19 @@ def _waves(t, comps):
     for a, p, ph in comps:
         w = 2 * math.pi / p
         arg = w * t + ph
-        y = y + a * np.sin(arg)
+        sin = np.sin(arg)
+        y = y + a * sin
         dy = dy + a * w * np.cos(arg)
-        ddy = ddy - a * w * w * np.sin(arg)
+        ddy = ddy - a * w * w * sin
     return y, dy, ddy
+
+
+def _wave_value(t, comps):
+    """Σ a sin(2πt/T + φ) alone: `_waves(t, comps)[0]`, the same operations, without the derivatives."""
+    y = 0.0
+    for a, p, ph in comps:
+        y = y + a * np.sin(2 * math.pi / p * t + ph)
+    return y
 
 
 @dataclass
@@ -168,8 +177,8 @@ class Boat(TrackVehicle):
     def euler_rad(self, t_s):
         t = np.asarray(t_s, dtype=float)
         centripetal = self._speed.rate(t) * self._course.rate(t)          # to starboard in a right turn
-        roll = _waves(t, self._ROLL)[0] * DEG - self.heel_deg_per_m_s2 * DEG * centripetal
-        return self.heading_rad(t), _waves(t, self._PITCH)[0] * DEG, roll
+        roll = _wave_value(t, self._ROLL) * DEG - self.heel_deg_per_m_s2 * DEG * centripetal
+        return self.heading_rad(t), _wave_value(t, self._PITCH) * DEG, roll
 
 
 @dataclass

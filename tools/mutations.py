@@ -756,4 +756,21 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("chip-index-from-the-transfer-start", "a fresh burst is indexed from the transfer's start and end",
              "drivers/chip_source.py", "t_s, k, lost = timer.fresh(now, end, newer)",
              "t_s, k, lost = timer.fresh(end, end, newer)", ("tests/test_reliability_accounting.py",)),
+    # ------------------------------------------------------------------ session 34 (sim)
+    Mutation("slot-init-stores-each-field", "the cheaper __init__ of ImuSample/AttitudeEstimate stores each field "
+             "in its own slot", "core/slot_init.py", 'namespace[f"_set_{f.name}"] = cls.__dict__[f.name].__set__',
+             'namespace[f"_set_{f.name}"] = cls.__dict__[params[0].name].__set__', ("tests/test_slot_init.py",)),
+    Mutation("gnss-wander-driven", "the simulated receiver's position wander is driven by its innovation each epoch",
+             "simulation/gnss.py", "w0, w1, w2 = phi * w0 + i0, phi * w1 + i1, phi * w2 + i2",
+             "w0, w1, w2 = phi * w0, phi * w1 + i1, phi * w2 + i2", ("tests/test_simulation_gnss.py",)),
+    Mutation("gnss-block-truth-brackets", "a block's truth between samples is slerped between the two around it",
+             "simulation/gnss.py", "keep = np.unique(np.concatenate([ind, ind + 1])) if ts.size else np.array([0, 1])",
+             "keep = np.unique(np.concatenate([ind, ind + 2])) if ts.size else np.array([0, 1])",
+             ("tests/test_simulation_gnss.py",)),
+    Mutation("recording-truth-columns", "a recording's truth_q* columns hold the truth quaternion in wxyz order",
+             "drivers/recording.py", "v = truth[truth_index]", "v = truth[3 - truth_index]",
+             ("tests/test_recording.py", "tests/test_record_truth.py")),
+    Mutation("make-sample-coerces", "make_sample coerces what is not a float64 (3,) array",
+             "core/sample.py", "if not (a.__class__ is _NDARRAY and a.dtype is _FLOAT64 and a.shape == _SHAPE3):",
+             "if not (a.__class__ is _NDARRAY):", ("tests/test_make_sample.py",)),
 )
