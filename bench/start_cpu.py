@@ -112,7 +112,8 @@ def one_run(state_dir: Path, rate_hz: str = "204.8", run_s: float = 0.0) -> dict
     return out
 
 
-IMPORT_STEPS = ("numpy", "numba", "scipy.linalg", "pymavlink.mavutil", "ahrsd.cli.main", "ahrsd.estimator",
+# pymavlink through ahrsd.daemon.mavlink_io, as the daemon imports it (that module keeps mavutil's MAVLink 1 dialect out)
+IMPORT_STEPS = ("numpy", "numba", "scipy.linalg", "ahrsd.daemon.mavlink_io", "ahrsd.cli.main", "ahrsd.estimator",
                 "ahrsd.cli.run", "ahrsd.daemon.config", "ahrsd.drivers.source", "ahrsd.daemon.service")
 
 

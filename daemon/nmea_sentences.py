@@ -25,7 +25,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from pynmeagps import GET, NMEAMessage
 
 from ahrsd.core.angles import wrap_pi_float
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState
@@ -70,6 +69,10 @@ def _signed(value: float) -> float:
 
 def build_sentence(sentence_id: str, est: AttitudeEstimate, talker: str) -> bytes | None:
     """One sentence for this estimate, or None when it must be withheld (see the module docstring)."""
+    # imported here, not at the top: daemon.config takes this module's sentence tables for every daemon, and one
+    # without an NMEA output need not load pynmeagps
+    from pynmeagps import GET, NMEAMessage
+
     initialising = bool(est.flags & EstimateFlags.INITIALISING)
     if sentence_id in HEADING_SENTENCES and not heading_known(est):
         return None

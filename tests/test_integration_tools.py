@@ -1,5 +1,6 @@
-"""ahrsd with the tools around it: MAVProxy as an independent ground station, systemd (unit verification,
-sd_notify READY/WATCHDOG/STOPPING against a fake NOTIFY_SOCKET) and MAVLink 2 signing."""
+"""ahrsd with the tools around it: systemd (unit verification, sd_notify READY/WATCHDOG/STOPPING against a fake
+NOTIFY_SOCKET), MAVLink 2 signing, and its serial and TCP endpoints. MAVProxy as an independent ground station:
+tests/test_magcal_integration.py (it detects our vehicle and drives a mag-cal session over our link)."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from service_rig import free_udp_port, stop_process
+from service_rig import stop_process
 from support.ahrsd_process import LOW_RATE, OUR_COMP, Daemon
 
 from ahrsd.daemon.mavlink_io import mavlink, mavutil
@@ -22,40 +23,6 @@ from ahrsd.daemon.mavlink_io import mavlink, mavutil
 pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
 
 REPO = Path(__file__).resolve().parents[1]
-MAVPROXY = Path(sys.executable).with_name("mavproxy.py")
-
-
-@pytest.mark.skipif(not MAVPROXY.exists() and not shutil.which("mavproxy.py"), reason="MAVProxy not installed")
-def test_mavproxy_sees_our_heartbeat_and_attitude(tmp_path):
-    daemon = Daemon(tmp_path, *LOW_RATE, mag_calibrated=True)  # daemon → udpout:P; MAVProxy masters udpin:P
-    daemon.gcs.close()                            # MAVProxy takes the daemon's port instead of our client
-    out_port = free_udp_port()
-    client = mavutil.mavlink_connection(f"udpin:127.0.0.1:{out_port}", dialect="ardupilotmega")
-    exe = str(MAVPROXY) if MAVPROXY.exists() else shutil.which("mavproxy.py")
-    mp_log = open(tmp_path / "mavproxy.log", "w")
-    mp = subprocess.Popen([sys.executable, exe, f"--master=udpin:127.0.0.1:{daemon.port}",
-                           f"--out=udpout:127.0.0.1:{out_port}", "--daemon", "--non-interactive",
-                           "--default-modules=", "--mav20"], cwd=tmp_path, stdout=mp_log, stderr=subprocess.STDOUT)
-    seen: set[str] = set()
-    try:
-        end = time.monotonic() + 45
-        while time.monotonic() < end and not {"HEARTBEAT", "ATTITUDE"} <= seen:
-            m = client.recv_match(blocking=True, timeout=0.5)
-            if m is not None and m.get_srcComponent() == OUR_COMP:
-                seen.add(m.get_type())
-        deadline = time.monotonic() + 10
-        while "Detected vehicle" not in (tmp_path / "mavproxy.log").read_text() and time.monotonic() < deadline:
-            time.sleep(0.2)
-        text = (tmp_path / "mavproxy.log").read_text()
-    finally:
-        stop_process(mp)
-        mp_log.close()
-        client.close()
-        daemon.proc.send_signal(signal.SIGTERM)
-        daemon.proc.wait(10)
-        daemon.log.close()
-    assert {"HEARTBEAT", "ATTITUDE"} <= seen, daemon.output()
-    assert f"Detected vehicle 1:{OUR_COMP}" in text, text
 
 
 @pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze not available")
@@ -156,14 +123,61 @@ def _free_tcp_port() -> int:
         return s.getsockname()[1]
 
 
-def test_tcp_endpoints_server_and_client_reconnect(tmp_path):
-    """tcpin: a second client after the first one left is served; tcp: the daemon keeps retrying until the
-    peer listens, without blocking the loop (the tcpin client keeps receiving meanwhile)."""
+def _serial_pair() -> tuple[int, int, str]:
+    """A raw pseudo-terminal pair: (master fd, slave fd, the slave's path) — the daemon opens the slave as it
+    would an autopilot's TELEM port."""
+    import pty
+    import termios
+    import tty
+
+    master, slave = pty.openpty()
+    tty.setraw(master)
+    tty.setraw(slave)
+    termios.tcsetattr(slave, termios.TCSANOW, termios.tcgetattr(slave))
+    return master, slave, os.ttyname(slave)
+
+
+def _serial_check(master: int) -> tuple[set[str], object]:
+    """Our message types seen on the pty's other side, and the ACK of a command sent back after our first
+    HEARTBEAT (None if none came within 60 s)."""
+    import select
+
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
+    sender = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+    seen: set[str] = set()
+    ack = None
+    end = time.monotonic() + 60
+    sent = False
+    while time.monotonic() < end and (not {"HEARTBEAT", "ATTITUDE"} <= seen or ack is None):
+        r, _, _ = select.select([master], [], [], 0.3)
+        if not r:
+            continue
+        for m in parser.parse_buffer(os.read(master, 4096)) or ():
+            if m.get_srcComponent() != OUR_COMP:
+                continue
+            seen.add(m.get_type())
+            if m.get_type() == "COMMAND_ACK":
+                ack = m
+            if m.get_type() == "HEARTBEAT" and not sent:
+                os.write(master, sender.command_long_encode(
+                    1, OUR_COMP, mavlink.MAV_CMD_GET_MESSAGE_INTERVAL, 0, 30, 0, 0, 0, 0, 0, 0).pack(sender))
+                sent = True
+    return seen, ack
+
+
+def test_serial_and_tcp_endpoints_server_and_client_reconnect(tmp_path):
+    """One daemon with three endpoints. A serial endpoint ("/dev/pts/N,115200", as for an autopilot's TELEM
+    port): our HEARTBEAT and ATTITUDE come out of the other side of a pty pair, and a command sent back is
+    acknowledged. tcpin: a second client after the first one left is served; tcp: the daemon keeps retrying
+    until the peer listens, without blocking the loop (the tcpin client keeps receiving meanwhile)."""
     p_in, p_out = _free_tcp_port(), _free_tcp_port()
+    master, slave, slave_path = _serial_pair()
     log = open(tmp_path / "ahrsd.log", "w")
     proc = subprocess.Popen([sys.executable, "-m", "ahrsd.cli", "run", "--mavlink", f"tcpin:127.0.0.1:{p_in}",
-                             "--mavlink", f"tcp:127.0.0.1:{p_out}", "--state-dir", str(tmp_path / "s"),
-                             "--status-line", "off"], stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
+                             "--mavlink", f"tcp:127.0.0.1:{p_out}", "--mavlink", f"{slave_path},115200",
+                             *LOW_RATE, "--state-dir", str(tmp_path / "s"), "--status-line", "off"],
+                            stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
 
     def attitudes(conn, timeout, wanted=20):
         """Count ATTITUDE from us, returning as soon as `wanted` arrived."""
@@ -186,6 +200,9 @@ def test_tcp_endpoints_server_and_client_reconnect(tmp_path):
                 time.sleep(0.5)
 
     try:
+        seen, ack = _serial_check(master)
+        assert {"HEARTBEAT", "ATTITUDE"} <= seen, (tmp_path / "ahrsd.log").read_text()
+        assert ack is not None and ack.result == mavlink.MAV_RESULT_ACCEPTED
         first = connect(f"tcp:127.0.0.1:{p_in}")
         assert attitudes(first, 30.0) == 20, (tmp_path / "ahrsd.log").read_text()
         first.close()
@@ -203,53 +220,5 @@ def test_tcp_endpoints_server_and_client_reconnect(tmp_path):
     finally:
         stop_process(proc)
         log.close()
-
-
-def test_serial_endpoint_on_a_pseudo_terminal(tmp_path):
-    """A serial endpoint ("/dev/pts/N,115200", as for an autopilot's TELEM port): our HEARTBEAT and ATTITUDE
-    come out of the other side of a pty pair, and a command sent back is acknowledged."""
-    import pty
-    import termios
-    import tty
-
-    master, slave = pty.openpty()
-    tty.setraw(master)
-    tty.setraw(slave)
-    attrs = termios.tcgetattr(slave)
-    termios.tcsetattr(slave, termios.TCSANOW, attrs)
-    slave_path = os.ttyname(slave)
-    log = open(tmp_path / "ahrsd.log", "w")
-    proc = subprocess.Popen([sys.executable, "-m", "ahrsd.cli", "run", "--mavlink", f"{slave_path},115200",
-                             "--state-dir", str(tmp_path / "s"), "--status-line", "off"],
-                            stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
-    parser = mavlink.MAVLink(None)
-    parser.robust_parsing = True
-    sender = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
-    seen: set[str] = set()
-    ack = None
-    try:
-        import select
-
-        end = time.monotonic() + 60
-        sent = False
-        while time.monotonic() < end and (not {"HEARTBEAT", "ATTITUDE"} <= seen or ack is None):
-            r, _, _ = select.select([master], [], [], 0.3)
-            if not r:
-                continue
-            for m in parser.parse_buffer(os.read(master, 4096)) or ():
-                if m.get_srcComponent() != OUR_COMP:
-                    continue
-                seen.add(m.get_type())
-                if m.get_type() == "COMMAND_ACK":
-                    ack = m
-                if m.get_type() == "HEARTBEAT" and not sent:
-                    os.write(master, sender.command_long_encode(
-                        1, OUR_COMP, mavlink.MAV_CMD_GET_MESSAGE_INTERVAL, 0, 30, 0, 0, 0, 0, 0, 0).pack(sender))
-                    sent = True
-    finally:
-        stop_process(proc)
-        log.close()
         os.close(master)
         os.close(slave)
-    assert {"HEARTBEAT", "ATTITUDE"} <= seen, (tmp_path / "ahrsd.log").read_text()
-    assert ack is not None and ack.result == mavlink.MAV_RESULT_ACCEPTED

@@ -1,7 +1,9 @@
 """Whole field sessions through the daemon over MAVLink (UDP, pymavlink as the ground station) on simulated
-level vehicles at ±2°, ±10° and ±30° of tilt with strong non-symmetric iron (tests/support/field_vehicle.py), the
+level vehicles at ±2° and ±30° of tilt with strong non-symmetric iron (tests/support/field_vehicle.py), the
 saved calibration scored on attitudes the session never saw against the injected iron; and a session during
-which the "autopilot" sends GPS_RAW_INT course made from the simulation truth.
+which the "autopilot" sends GPS_RAW_INT course made from the simulation truth. The tilts in between take the
+same path (no branch of the session below its 60° tumble threshold): ±10° is in-process in
+tests/test_field_session_vehicles.py, which runs the same session and offline fit at ±2°, ±10° and ±30°.
 
 The daemon runs in a subprocess and reads the recording through its ReplaySource, paced by a clock running
 TIME_SCALE times faster than real time; everything after the source (calibration, estimator, MAVLink, the
@@ -195,7 +197,7 @@ def offline_backstepping(tmp_path: Path, block, sel) -> MagModel:
     return MagModel(np.array(res["hard_iron_ut"]), np.array(res["soft_iron"]))
 
 
-@pytest.mark.parametrize("tilt_deg", [2.0, 10.0, 30.0])
+@pytest.mark.parametrize("tilt_deg", [2.0, 30.0])
 def test_daemon_session_beats_offsets_only_and_matches_the_offline_fit(tmp_path, tilt_deg):
     port = free_udp_port()
     client = Client(port)   # bound before the daemon starts sending
