@@ -52,6 +52,10 @@ class Scenario:
         rel = self.attitude(tm).inv() * self.attitude(tp)
         return rel.as_rotvec() / (tp - tm)[:, None]
 
+    def attitude_and_rate(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(`attitude_xyzw(t_s)`, `body_rate_rad_s(t_s)`): what a stream needs at its sample times."""
+        return self.attitude_xyzw(t_s), self.body_rate_rad_s(t_s)
+
     def body_angular_accel_rad_s2(self, t_s: np.ndarray) -> np.ndarray:
         """dω/dt in body axes (central difference of the body rate over ±0.1 ms; for lever-arm effects)."""
         t = np.asarray(t_s, dtype=float)
@@ -90,10 +94,24 @@ class EulerScenario(Scenario):
         # without scipy (the same bits as euler_zyx's): the simulated chip's producer computes its blocks with this
         return quat_xyzw_from_euler_zyx(*self.euler_rad(np.asarray(t_s, dtype=float)))
 
+    def attitude_and_rate(self, t_s):
+        cls = type(self)
+        if (cls.attitude_xyzw is not EulerScenario.attitude_xyzw
+                or cls.body_rate_rad_s is not EulerScenario.body_rate_rad_s):    # a subclass's own: use them
+            return super().attitude_and_rate(t_s)
+        # the angles at t_s once, for both (each would evaluate them)
+        t = np.asarray(t_s, dtype=float)
+        euler = self.euler_rad(t)
+        return quat_xyzw_from_euler_zyx(*euler), self._body_rate(t, euler)
+
     def body_rate_rad_s(self, t_s):
         t = np.asarray(t_s, dtype=float)
+        return self._body_rate(t, self.euler_rad(t))
+
+    def _body_rate(self, t, euler):
+        """The body rate at t from the angles there, `euler` = euler_rad(t), and the angles' central differences."""
         tp, tm = t + _RATE_STEP_S, t - _RATE_STEP_S
-        _, th, ph = self.euler_rad(t)
+        _, th, ph = euler
         ap, am = self.euler_rad(tp), self.euler_rad(tm)
         dpsi, dth, dph = ((x1 - x0) / (tp - tm) for x1, x0 in zip(ap, am))
         sph, cph, sth, cth = np.sin(ph), np.cos(ph), np.sin(th), np.cos(th)

@@ -184,8 +184,7 @@ class SensorStream:
         self._k_gen = k0 + n
         t = self.start_s + (k0 + np.arange(n)) / self.rate_hz
         sc = self.scenario
-        q_xyzw = sc.attitude_xyzw(t)
-        omega = sc.body_rate_rad_s(t)
+        q_xyzw, omega = sc.attitude_and_rate(t)
         v = sc.velocity_ned_m_s(t)
         lat_deg, lon_deg, alt_m = self._position_deg(t)
         if self.earth_rate:
@@ -217,8 +216,8 @@ class SensorStream:
         t = np.atleast_1d(np.asarray(t_s, dtype=float))
         sc = self.scenario
         lat_deg, lon_deg, alt_m = self._position_deg(t)
-        return Truth(t, _wxyz(sc.attitude_xyzw(t)), sc.body_rate_rad_s(t), sc.velocity_ned_m_s(t), lat_deg, lon_deg,
-                     alt_m)
+        q_xyzw, omega = sc.attitude_and_rate(t)
+        return Truth(t, _wxyz(q_xyzw), omega, sc.velocity_ned_m_s(t), lat_deg, lon_deg, alt_m)
 
 
 def _slice(block: SensorBlock, a: int, b: int) -> SensorBlock:

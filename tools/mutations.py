@@ -773,4 +773,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("make-sample-coerces", "make_sample coerces what is not a float64 (3,) array",
              "core/sample.py", "if not (a.__class__ is _NDARRAY and a.dtype is _FLOAT64 and a.shape == _SHAPE3):",
              "if not (a.__class__ is _NDARRAY):", ("tests/test_make_sample.py",)),
+    Mutation("stream-rate-at-the-sample-angles", "a stream's body rate is computed from the angles at its sample times",
+             "simulation/scenario_base.py", "return quat_xyzw_from_euler_zyx(*euler), self._body_rate(t, euler)",
+             "return quat_xyzw_from_euler_zyx(*euler), self._body_rate(t, euler[::-1])",
+             ("tests/test_simulation_scenarios.py", "tests/test_simulation_vehicles.py")),
 )
