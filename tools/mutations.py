@@ -756,4 +756,11 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("chip-index-from-the-transfer-start", "a fresh burst is indexed from the transfer's start and end",
              "drivers/chip_source.py", "t_s, k, lost = timer.fresh(now, end, newer)",
              "t_s, k, lost = timer.fresh(end, end, newer)", ("tests/test_reliability_accounting.py",)),
+    # ------------------------------------------------------------------ session 34 (dmn34)
+    Mutation("daemon-without-mavlink1-dialect", "a daemon's start does not load pymavlink's MAVLink 1 'all' dialect",
+             "daemon/mavlink_io.py", "_skip_mavlink1_all = _MAVLINK1_ALL not in sys.modules",
+             "_skip_mavlink1_all = False", ("tests/test_daemon_imports.py",)),
+    Mutation("daemon-without-pynmeagps", "a daemon without an NMEA output does not load pynmeagps",
+             "daemon/nmea_sentences.py", "import numpy as np", "import numpy as np, pynmeagps",
+             ("tests/test_daemon_imports.py",)),
 )
