@@ -24,12 +24,20 @@ TIME_SHIFT_S = 5000.0          # recordings shifted here: far from any boot-rela
 
 def record(tmp_path, scenario="boat", seconds=12.0, *extra):
     """A recording of the simulated chip at LOW_RATE (what these tests check is per fix and per message, not per
-    sample; the replays then run a quarter of the samples too)."""
+    sample; the replays then run a quarter of the samples too), by `ahrsd record` in this process (its main, as
+    the console script calls it; no interpreter and imports to start): the recording and what it printed on
+    stderr. `ahrsd record` as a process: test_record_with_a_receiver_on_a_serial_port."""
+    import contextlib
+    import io
+
+    from ahrsd.cli.main import main
+
     out = tmp_path / f"{scenario}.csv"
-    res = subprocess.run([str(AHRSD), "record", "--sim", scenario, "--seconds", str(seconds), "-o", str(out),
-                          *LOW_RATE, *extra], capture_output=True, text=True, timeout=120)
-    assert res.returncode == 0, res.stderr
-    return out, res.stderr
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        rc = main(["record", "--sim", scenario, "--seconds", str(seconds), "-o", str(out), *LOW_RATE, *extra])
+    assert rc == 0, err.getvalue()
+    return out, err.getvalue()
 
 
 def shift_times(src, dst, shift_s):
