@@ -756,4 +756,14 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("chip-index-from-the-transfer-start", "a fresh burst is indexed from the transfer's start and end",
              "drivers/chip_source.py", "t_s, k, lost = timer.fresh(now, end, newer)",
              "t_s, k, lost = timer.fresh(end, end, newer)", ("tests/test_reliability_accounting.py",)),
+    # ------------------------------------------------------------------ session 34 (calt34)
+    Mutation("aided-levelling-mag-heading", "calibrate mag --gnss levels its passes with the magnetometer's heading",
+             "calibration/mag/backstepping_aided.py", "_level(calibrated, fixes, declination_rad, True,",
+             "_level(calibrated, fixes, declination_rad, False,",
+             ("tests/test_backstepping_aided.py",)),
+    Mutation("aided-levelling-overrides", "calibrate mag --gnss's heading-only passes are told the filter overrides",
+             "calibration/mag/backstepping_aided.py",
+             'heading_only = {**(filter_overrides or {}), "mag_moves_tilt": False}',
+             'heading_only = {"mag_moves_tilt": False}',
+             ("tests/test_backstepping_aided.py",)),
 )
