@@ -32,7 +32,9 @@ def test_the_levelling_takes_its_heading_from_the_magnetometer_where_gnss_alone_
     *_, alone = aided_roll_pitch(data.select(first), [f for f in fixes if f.t_s < 30.0],
                                  stream.earth_field.declination_rad, smooth=False)
     assert alone.gnss_counters.reset_velocity > 0
-    res = fit_backstepping_aided(data, fixes, stream.earth_field, stream.earth_field.declination_rad)
+    # the filter's own levelling (smooth=False): the heading is what is tested here; the smoother's horizon is
+    # test_backstepping_aided_prediction's and test_a_calibrated_accelerometer_lets_the_levelling_split_bias_from_tilt's
+    res = fit_backstepping_aided(data, fixes, stream.earth_field, stream.earth_field.declination_rad, smooth=False)
     assert res.ok, res.refused
     passes = res.quality["aided_levelling"]["passes"]
     aided = [p for p in passes if "magnetometer" in p]
@@ -106,9 +108,13 @@ def test_the_antenna_lever_arm_reaches_the_levelling_filter(caplog):
     assert out["given"][1] < 0.5 * out["ignored"][1], out
 
 
-def test_an_untold_lever_arm_is_named_in_the_warning(caplog):
+def test_an_untold_lever_arm_is_named_in_the_warning(caplog, monkeypatch):
     """A levelling that rejects the GNSS velocities says how many and points at the antenna's lever arm; told the
-    arm, it rejects none and says nothing."""
+    arm, it rejects none and says nothing. One heading-only pass each: the second is levelled as the first (the
+    same overrides, the same rejections), and both run in test_the_levelling_takes_its_heading_from_the_magnetometer."""
+    from ahrsd.calibration.mag import backstepping_aided
+
+    monkeypatch.setattr(backstepping_aided, "MAG_HEADING_PASSES", 1)
     caplog.set_level(logging.ERROR)
     arm = (-1.0, 0.0, -2.0)
     stream = open_stream("boat", rate_hz=100.0, seed=4, site=DEFAULT_SITE)
@@ -122,5 +128,8 @@ def test_an_untold_lever_arm_is_named_in_the_warning(caplog):
     assert "told 0 0 0 m" in warning, warning
     told = fit_backstepping_aided(data, fixes, stream.earth_field, decl, smooth=False,
                                   filter_overrides={"lever_arm_m": arm})
-    assert all(p.get("healthy", True) for p in told.quality["aided_levelling"]["passes"]), told.quality
+    told_passes = told.quality["aided_levelling"]["passes"]
+    assert [p["magnetometer"] for p in told_passes if "magnetometer" in p] == [
+        "heading only, the previous fit's calibration"], told_passes
+    assert all(p.get("healthy", True) for p in told_passes), told.quality
     assert not any("lever arm" in w for w in told.quality.get("warnings", []))

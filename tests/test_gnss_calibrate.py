@@ -114,9 +114,9 @@ def test_aided_levelling_on_a_boat(tmp_path, ahrsd_inproc):
     from ahrsd.drivers.recording import read_recording
 
     rec = tmp_path / "boat.csv"
-    # at a quarter of the chip's default rate (SMPL_PRD 3): the levelling's cost is per sample
+    # at an eighth of the chip's default rate (SMPL_PRD 7): the recording's and the levelling's cost is per sample
     # in this process: no interpreter start and ahrsd import (the console script is test_recording's)
-    assert main(["record", "--sim", "boat", "--seconds", "90", "--rate-hz", "204.8", "-o", str(rec), "--quiet"]) == 0
+    assert main(["record", "--sim", "boat", "--seconds", "90", "--rate-hz", "102.4", "-o", str(rec), "--quiet"]) == 0
     r = read_recording(rec)
     data = MagFitInput(r.t_s, r.mag_ut, r.accel_m_s2, r.gyro_rad_s)
     roll, pitch, _, _ = aided_roll_pitch(data, read_gnss_recording(tmp_path / "boat.gnss.csv"),

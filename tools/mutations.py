@@ -784,4 +784,14 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("daemon-without-pynmeagps", "a daemon without an NMEA output does not load pynmeagps",
              "daemon/nmea_sentences.py", "import numpy as np", "import numpy as np, pynmeagps",
              ("tests/test_daemon_imports.py",)),
+    # ------------------------------------------------------------------ session 34 (calt34)
+    Mutation("aided-levelling-mag-heading", "calibrate mag --gnss levels its passes with the magnetometer's heading",
+             "calibration/mag/backstepping_aided.py", "_level(calibrated, fixes, declination_rad, True,",
+             "_level(calibrated, fixes, declination_rad, False,",
+             ("tests/test_backstepping_aided.py",)),
+    Mutation("aided-levelling-overrides", "calibrate mag --gnss's heading-only passes are told the filter overrides",
+             "calibration/mag/backstepping_aided.py",
+             'heading_only = {**(filter_overrides or {}), "mag_moves_tilt": False}',
+             'heading_only = {"mag_moves_tilt": False}',
+             ("tests/test_backstepping_aided.py",)),
 )
