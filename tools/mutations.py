@@ -756,4 +756,12 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("chip-index-from-the-transfer-start", "a fresh burst is indexed from the transfer's start and end",
              "drivers/chip_source.py", "t_s, k, lost = timer.fresh(now, end, newer)",
              "t_s, k, lost = timer.fresh(end, end, newer)", ("tests/test_reliability_accounting.py",)),
+    # ------------------------------------------------------------------ session 34 (hdg34)
+    Mutation("ins-published-yaw-sigma-half", "ins publishes its whole yaw 1σ, not half of it",
+             "estimator/ins_published_terms.py", "out[_SIGMA + 2] = sigma_yaw",
+             "out[_SIGMA + 2] = 0.5 * sigma_yaw", ("tests/test_heading_integrity.py",)),
+    Mutation("unconfirmed-heading-floor-skipped", "once navigating, the published yaw σ is at least the unconfirmed "
+             "heading's floor (the floor's branch skipped)", "estimator/ins_published_terms.py",
+             "if unconfirmed_sigma_rad > sigma_yaw and navigating:", "if False:",
+             ("tests/test_gnss_yaw_alignment.py", "tests/test_gnss_yaw_set_sigma.py")),
 )
