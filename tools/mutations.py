@@ -764,4 +764,11 @@ MUTATIONS: tuple[Mutation, ...] = (
              "heading's floor (the floor's branch skipped)", "estimator/ins_published_terms.py",
              "if unconfirmed_sigma_rad > sigma_yaw and navigating:", "if False:",
              ("tests/test_gnss_yaw_alignment.py", "tests/test_gnss_yaw_set_sigma.py")),
+    Mutation("slew-sigma-not-hypot", "a slewed yaw's σ is σ + |offset|/3, not √(σ² + offset²) (EKF3 would weigh it 9× less "
+             "and lag beyond its gate)", "estimator/slewed_yaw.py", "return sigma_rad + abs(offset_rad) / 3.0",
+             "return math.hypot(sigma_rad, offset_rad)", ("tests/test_published_heading.py",)),
+    Mutation("slew-rate-capped-large-offset", "a slew is held to LARGE_OFFSET_MAX_RATE_RAD_S while its σ is above "
+             "EKF3's floor", "estimator/slewed_yaw.py",
+             "if rate_rad_s > LARGE_OFFSET_MAX_RATE_RAD_S and YawSlew.sigma_rad(sigma_rad, offset_rad) > EKF3_YAW_FLOOR_RAD:",
+             "if False:", ("tests/test_published_heading.py",)),
 )
