@@ -176,8 +176,9 @@ def test_a_heading_far_off_is_reset_to_the_gnss_yaw_and_stays_honest(seed):
     against the wrong yaw reverted and the velocity reset to the fix, and from 60 s on ≤ 1 % of the samples are
     beyond 3σ, the heading within 5° RMS (170 s). Without the reset the filter stays tens of degrees off with a
     small σ (seed 11: 95 % beyond 3σ); without the bias revert 18 % (seed 11), without the velocity reset 27 %
-    (seed 12); without the yaw σ held at the GNSS yaw's until a 5° GNSS yaw confirms the heading, seed 13 holds a
-    4–5° error at σ 1.5°."""
+    (seed 12). The yaw σ held at the GNSS yaw's until a 5° GNSS yaw confirms the heading is not what keeps these
+    seeds within 3σ (without it none of their samples is beyond 3σ either): test_gnss_yaw_alignment and the boat
+    replays (test_gnss_yaw_set_sigma, test_heading_rejection_sigma) fail without it."""
     from bench.vehicle_accuracy import HONESTY_SITES
 
     site, iron = HONESTY_SITES["held-out"]
@@ -191,8 +192,8 @@ def test_a_heading_far_off_is_reset_to_the_gnss_yaw_and_stays_honest(seed):
 def test_a_confident_wrong_calibration_is_held_honest_after_its_rejection():
     """A calibration that claims 0.5° but misses (12, −8, 0) µT of the boat's hard iron (what a user gets from a
     calibration done without the battery in): once the GNSS has shown it wrong (30 s on), ≥ 99 % of the
-    published headings are within 3σ of the simulator's truth. Without the yaw σ held at the GNSS yaw's after
-    the rejection, the filter pulled in from ~20° claims 1.4° while 4–9° off."""
+    published headings are within 3σ of the simulator's truth. The error reaches into the σ: with the published σ
+    halved a quarter of the samples are beyond 3σ (mutation ins-published-yaw-sigma-half)."""
     from ahrsd.simulation import SensorErrors, open_stream
 
     run = simulate_vehicle("boat", 150.0, 3, None)

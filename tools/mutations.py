@@ -794,4 +794,19 @@ MUTATIONS: tuple[Mutation, ...] = (
              'heading_only = {**(filter_overrides or {}), "mag_moves_tilt": False}',
              'heading_only = {"mag_moves_tilt": False}',
              ("tests/test_backstepping_aided.py",)),
+    # ------------------------------------------------------------------ session 34 (hdg34)
+    Mutation("ins-published-yaw-sigma-half", "ins publishes its whole yaw 1σ, not half of it",
+             "estimator/ins_published_terms.py", "out[_SIGMA + 2] = sigma_yaw",
+             "out[_SIGMA + 2] = 0.5 * sigma_yaw", ("tests/test_heading_integrity.py",)),
+    Mutation("unconfirmed-heading-floor-skipped", "once navigating, the published yaw σ is at least the unconfirmed "
+             "heading's floor (the floor's branch skipped)", "estimator/ins_published_terms.py",
+             "if unconfirmed_sigma_rad > sigma_yaw and navigating:", "if False:",
+             ("tests/test_gnss_yaw_alignment.py", "tests/test_gnss_yaw_set_sigma.py")),
+    Mutation("slew-sigma-not-hypot", "a slewed yaw's σ is σ + |offset|/3, not √(σ² + offset²) (EKF3 would weigh it 9× less "
+             "and lag beyond its gate)", "estimator/slewed_yaw.py", "return sigma_rad + abs(offset_rad) / 3.0",
+             "return math.hypot(sigma_rad, offset_rad)", ("tests/test_published_heading.py",)),
+    Mutation("slew-rate-capped-large-offset", "a slew is held to LARGE_OFFSET_MAX_RATE_RAD_S while its σ is above "
+             "EKF3's floor", "estimator/slewed_yaw.py",
+             "if rate_rad_s > LARGE_OFFSET_MAX_RATE_RAD_S and YawSlew.sigma_rad(sigma_rad, offset_rad) > EKF3_YAW_FLOOR_RAD:",
+             "if False:", ("tests/test_published_heading.py",)),
 )

@@ -27,7 +27,11 @@ def aided_replay_heading(rec: Path, out: Path) -> AidedReplayHeading:
     code = main(["replay", str(rec), "--gnss", str(rec.with_suffix(".gnss.csv")), "-o", str(out), "--quiet"])
     assert code == 0, f"ahrsd replay failed ({code})"
     cols = open(out).readline().strip().split(",")
-    data = np.loadtxt(out, delimiter=",", skiprows=1)
+    # only the columns read: loadtxt converts a quarter as many fields (the output has ~26 columns a sample)
+    read = ["t_s", "yaw_deg", "sigma_yaw_deg", "flags"]
+    assert cols[0] == "t_s", cols[0]
+    data = np.loadtxt(out, delimiter=",", skiprows=1, usecols=[cols.index(c) for c in read], ndmin=2)
+    cols = read
     r = read_recording(rec)     # the simulator's truth, written beside the samples: not the filter's
     q = np.column_stack([r.extra[c] for c in ("truth_qx", "truth_qy", "truth_qz", "truth_qw")])
     truth_yaw = Rotation.from_quat(q).as_euler("ZYX", degrees=True)[:, 0]
