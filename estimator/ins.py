@@ -1034,7 +1034,7 @@ class Ins:
         a, b = self._hist_rows[i0], self._hist_rows[i1]
         row = a + w * (b - a)
         q, vel, rate = row[_HIST_Q], row[_HIST_VEL], row[_HIST_RATE]
-        return np.asarray(quat_to_dcm(q / np.linalg.norm(q)), dtype=float), vel, rate
+        return quat_to_dcm(q / np.linalg.norm(q)), vel, rate
 
     def _arm_in_use(self) -> np.ndarray:
         """The antenna arm the filter fuses with: the told one plus what the lever-arm check adopted."""
@@ -1081,7 +1081,7 @@ class Ins:
         monitor's decision on them, what it does to the yaw (a floor, a reset or the alignment to the GNSS yaw, or
         a confirmation), the magnetometer's use in the kernel, the iron learning, then what is published."""
         x = self._x
-        c_bn = np.asarray(quat_to_dcm(x["q"]), dtype=float)
+        c_bn = quat_to_dcm(x["q"])
         yaw = math.atan2(c_bn[1, 0], c_bn[0, 0])
         yaw_var = float(self._P[core.E_YAW, core.E_YAW])
         m_body = self._iron.corrected(x["mag_last_ut"])
@@ -1100,8 +1100,7 @@ class Ins:
         # the monitor says no learning on a check that reset the yaw (c_bn is the attitude before the reset, P its
         # covariance after it): the next check learns with the new yaw
         iron_updates = self._iron.updates
-        if self.params.iron_learning and self._monitor.learning and np.all(np.isfinite(m_body)) \
-                and self._x["nav_ok"] > 0:
+        if self.params.iron_learning and self._monitor.learning and _finite3(m_body) and self._x["nav_ok"] > 0:
             self._learn_iron(t_s, c_bn, field)
         self._set_mag_harmonics()      # the iron learning may have ended here (`_iron_harmonics_apply`)
         yaw_now = yaw if yaw_reset_to is None else wrap_pi(yaw_reset_to)
@@ -1167,7 +1166,7 @@ class Ins:
         mag_yaw = math.nan
         mag_var = math.inf
         noise = 0.0
-        if np.all(np.isfinite(m_body)):
+        if _finite3(m_body):
             m_ned = c_bn @ m_body
             h = math.hypot(m_ned[0], m_ned[1])
             if h > 1e-3:
@@ -1645,6 +1644,13 @@ class Ins:
         if self._par["mag_harmonics_on"] > 0.0:
             add_var = max(0.0, add_var - cal_var)
         return add_var
+
+
+def _finite3(v: np.ndarray) -> bool:
+    """Every element of the 3-vector v finite: np.all(np.isfinite(v)) for a float64 3-vector, in Python floats
+    (the ufunc and the reduction cost many times the test, per fix)."""
+    a, b, c = v.tolist()
+    return math.isfinite(a) and math.isfinite(b) and math.isfinite(c)
 
 
 def _restart_uncorrelated(P: np.ndarray, i: int, var: float) -> None:

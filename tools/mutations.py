@@ -756,4 +756,11 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("chip-index-from-the-transfer-start", "a fresh burst is indexed from the transfer's start and end",
              "drivers/chip_source.py", "t_s, k, lost = timer.fresh(now, end, newer)",
              "t_s, k, lost = timer.fresh(end, end, newer)", ("tests/test_reliability_accounting.py",)),
+    # ------------------------------------------------------------------ session 34 (insfix)
+    Mutation("skew-one-vector-signs", "skew of one 3-vector is the batch path's [v×] to the bit",
+             "estimator/rotations.py", "return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])",
+             "return np.array([[0.0, -z, y], [z, 0.0, x], [-y, x, 0.0]])", ("tests/test_rotations.py",)),
+    Mutation("attitude-estimate-true-heading", "attitude_estimate sets every field as the constructor would",
+             "estimator/filter_output.py", "    _set_true(e, heading_true_rad % _TWO_PI)",
+             "    _set_true(e, yaw_rad % _TWO_PI)", ("tests/test_filter_output.py",)),
 )
