@@ -4,6 +4,7 @@ arm) goes through `step` and `update_gnss` in arrival order, as tools/estimate_d
 then `--repeats` timed runs; prints µs per call (the median over the repeats) for each part and for the whole fix.
 
     .venv/bin/python bench/ins_fix_cost.py --vehicles car boat --seconds 60 --repeats 3
+    .venv/bin/python bench/ins_fix_cost.py --parts step _stepped update_gnss _add_to_lever_arm_fit   # other parts
 
 Compare two checkouts by running the same command in each, alternately, at the same load (the timers' own
 overhead, ~1 µs a call, is in every figure).
@@ -58,16 +59,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--parts", nargs="+", default=list(PARTS), help="the Ins methods to time (default: %(default)s)")
     args = ap.parse_args(argv)
     from vehicle_accuracy import simulate_vehicle
 
     for vehicle in args.vehicles:
         run = simulate_vehicle(vehicle, args.seconds, args.seed, None, lever_arm=True, mag="uncalibrated")
-        _timed_run(run, PARTS)      # warm-up: the compiled kernels load
-        per_call = {p: [] for p in PARTS}
+        _timed_run(run, args.parts)      # warm-up: the compiled kernels load
+        per_call = {p: [] for p in args.parts}
         calls = {}
         for _ in range(args.repeats):
-            for p, (s, n) in _timed_run(run, PARTS).items():
+            for p, (s, n) in _timed_run(run, args.parts).items():
                 per_call[p].append(1e6 * s / max(n, 1))
                 calls[p] = n
         print(f"{vehicle}: " + "  ".join(f"{p} {statistics.median(v):.1f} µs ×{calls[p]}"

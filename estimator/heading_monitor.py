@@ -175,7 +175,7 @@ class IronLearner:
     @property
     def soft_iron(self) -> np.ndarray:
         """I + D: what the body field is multiplied by before the hard iron adds."""
-        return np.eye(3) + self.state[3:].reshape(3, 3)
+        return _EYE3 + self.state[3:].reshape(3, 3)
 
     @property
     def soft_iron_sigma(self) -> np.ndarray:
@@ -203,7 +203,7 @@ class IronLearner:
     def _jacobian(field_body_ut) -> np.ndarray:
         """∂m/∂(b, D): I for the hard iron; m_i = Σ_j D_ij B_j for the soft iron (row-major D)."""
         h = np.zeros((3, N_IRON))
-        h[:, 0:3] = np.eye(3)
+        h[:, 0:3] = _EYE3
         for i in range(3):
             h[i, 3 + 3 * i:6 + 3 * i] = field_body_ut
         return h

@@ -465,6 +465,15 @@ class Ins:
         self._nav_ok = self._x_arr["nav_ok"]
         self._t_run_s = self._x_arr["t_run_s"]
         self._mag_use = self._par_arr["mag_use"]
+        # fields read at every fix (the heading checks, the lever-arm check, the history's reading), as views: the
+        # scalars as (1,) arrays, the vectors as flat float64 arrays (a record lookup by name costs more than
+        # what most of these reads are for)
+        self._t_last_s = self._x_arr["t_last_s"]
+        self._hist_newest, self._hist_count = self._x_arr["hist_newest"], self._x_arr["hist_count"]
+        self._vel_nis, self._pos_nis = self._x_arr["vel_gate"]["nis"], self._x_arr["pos_gate"]["nis"]
+        self._lat_rad, self._lon_rad, self._h_m = self._x_arr["lat_rad"], self._x_arr["lon_rad"], self._x_arr["h_m"]
+        self._vel_ned = _float_field_view(self._x_arr, "vel_ned_m_s")
+        self._mag_last_ut = _float_field_view(self._x_arr, "mag_last_ut")
         self._P = np.zeros((core.N_ERR, core.N_ERR))
         self._hist = np.zeros(core.H_LEN, core.INS_HISTORY_DTYPE)
         # what each fix reads of the history (`_history_state_at`, `_add_to_lever_arm_fit`): its times and body
@@ -946,12 +955,12 @@ class Ins:
         (no fix, NaN fields, time not increasing, older than max_delay_s, χ² outliers) are counted in
         `gnss_counters`, logged, and flag GNSS_REJECTED on the next estimate; never raises."""
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
-        if not self._intake.offer(fix, self._initialised, self._x["t_last_s"]):
+        if not self._intake.offer(fix, self._initialised, self._t_last_s[0]):
             return 0
         return self._fuse(fix)
 
     def _fuse_queued(self) -> None:
-        now = self._x["t_last_s"]
+        now = self._t_last_s[0]
         while (fix := self._intake.pop_due(now)) is not None:
             self._fuse(fix)
 
@@ -971,14 +980,14 @@ class Ins:
         if use_vel:
             self._keep_fix_velocity(float(fix.t_s), v, use_vd, sig_s)
             self._add_to_lever_arm_fit(float(fix.t_s), v, use_vd, sig_s)
-        vel_before = self._x["vel_ned_m_s"].copy()
+        vel_before = self._vel_ned.copy()
         res = core.fuse_gnss(
             self._x_arr, self._P, self._hist, self._par_arr, float(fix.t_s),
             math.radians(lat) if use_pos else 0.0, math.radians(lon) if use_pos else 0.0,
             alt if use_alt else 0.0, v[0] if use_vel else 0.0, v[1] if use_vel else 0.0,
             v[2] if use_vd else 0.0, sig_h, sig_v, sig_s, use_pos, use_alt, use_vel, use_vd,
         )
-        velocity_step = self._x["vel_ned_m_s"] - vel_before
+        velocity_step = self._vel_ned - vel_before
         if use_vel:
             adoptions = self._lever_arm_fit.adoptions
             self._lever_arm_fit.fused(velocity_step, bool(res & core.R_VEL_REJECTED))
@@ -991,7 +1000,7 @@ class Ins:
         # correct the row at the fix's time as well, so they leave nothing to add
         step_rows = not res & (core.R_NAV_INIT | core.R_OUTAGE_RESET)
         self._fix_velocity_step = (float(fix.t_s), velocity_step) if step_rows else None
-        self._intake.count(res, fix, self._x["vel_gate"]["nis"], self._x["pos_gate"]["nis"])
+        self._intake.count(res, fix, self._vel_nis[0], self._pos_nis[0])
         if p.heading_monitor and p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
             self._check_heading(float(fix.t_s))
         elif not p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
@@ -1014,7 +1023,7 @@ class Ins:
         if at is None:
             return
         c_bn, vel, rate = at
-        near = rows_near(self._hist_t_s, int(self._x["hist_newest"]), int(self._x["hist_count"]), t_s,
+        near = rows_near(self._hist_t_s, int(self._hist_newest[0]), int(self._hist_count[0]), t_s,
                          0.5 * RATE_MEAN_S)
         rate_cross = rate_cross_ned(c_bn, mean_rate(self._hist_t_s[near], self._hist_rate[near], t_s, rate))
         innovation = np.array([v[0], v[1], v[2] if use_vd else math.nan]) - (vel + rate_cross @ self._arm_in_use())
@@ -1028,13 +1037,13 @@ class Ins:
         """The attitude (body → NED DCM), velocity (NED m/s) and body rate (rad/s) the history holds at t_s,
         interpolated between its two rows as the kernel does for a fix (core._history_at); None before any row.
         For the lever-arm check's innovation and a yaw reset's velocity at the fix: one reading for both."""
-        i0, i1, w = bracket(self._hist_t_s, int(self._x["hist_newest"]), int(self._x["hist_count"]), t_s)
+        i0, i1, w = bracket(self._hist_t_s, int(self._hist_newest[0]), int(self._hist_count[0]), t_s)
         if i0 < 0:
             return None
         a, b = self._hist_rows[i0], self._hist_rows[i1]
         row = a + w * (b - a)
         q, vel, rate = row[_HIST_Q], row[_HIST_VEL], row[_HIST_RATE]
-        return np.asarray(quat_to_dcm(q / np.linalg.norm(q)), dtype=float), vel, rate
+        return quat_to_dcm(q / np.linalg.norm(q)), vel, rate
 
     def _arm_in_use(self) -> np.ndarray:
         """The antenna arm the filter fuses with: the told one plus what the lever-arm check adopted."""
@@ -1065,7 +1074,7 @@ class Ins:
     # ----------------------------------------------------------------------- heading checks (heading_monitor.py)
     def _earth_field_ned(self) -> np.ndarray | None:
         """WMM field at the filter's position (µT, NED), looked up again when the position moves by ~1 km."""
-        lat, lon, h = (math.degrees(self._x["lat_rad"]), math.degrees(self._x["lon_rad"]), float(self._x["h_m"]))
+        lat, lon, h = (math.degrees(self._lat_rad[0]), math.degrees(self._lon_rad[0]), float(self._h_m[0]))
         key = (round(lat, 2), round(lon, 2), round(h, -2))
         if key != self._field_key:
             from ahrsd.core.wmm import earth_field
@@ -1080,11 +1089,10 @@ class Ins:
         """The heading checks at a fused fix, in order: the magnetometer's and the GNSS yaw bank's headings, the
         monitor's decision on them, what it does to the yaw (a floor, a reset or the alignment to the GNSS yaw, or
         a confirmation), the magnetometer's use in the kernel, the iron learning, then what is published."""
-        x = self._x
-        c_bn = np.asarray(quat_to_dcm(x["q"]), dtype=float)
+        c_bn = quat_to_dcm(self._q_true)
         yaw = math.atan2(c_bn[1, 0], c_bn[0, 0])
         yaw_var = float(self._P[core.E_YAW, core.E_YAW])
-        m_body = self._iron.corrected(x["mag_last_ut"])
+        m_body = self._iron.corrected(self._mag_last_ut)
         # the position does not move within a check (its updates give no position gain): one WMM look-up
         field = self._earth_field_ned()
         if self._mag_rotation_on:
@@ -1100,8 +1108,7 @@ class Ins:
         # the monitor says no learning on a check that reset the yaw (c_bn is the attitude before the reset, P its
         # covariance after it): the next check learns with the new yaw
         iron_updates = self._iron.updates
-        if self.params.iron_learning and self._monitor.learning and np.all(np.isfinite(m_body)) \
-                and self._x["nav_ok"] > 0:
+        if self.params.iron_learning and self._monitor.learning and _finite3(m_body) and self._nav_ok[0] > 0:
             self._learn_iron(t_s, c_bn, field)
         self._set_mag_harmonics()      # the iron learning may have ended here (`_iron_harmonics_apply`)
         yaw_now = yaw if yaw_reset_to is None else wrap_pi(yaw_reset_to)
@@ -1119,15 +1126,15 @@ class Ins:
         x = self._x
         P = self._P
         dt = float(x["gyro_rotation_s"])      # the kernel's sum of raw rates: the bias is taken out here
-        lat = float(x["lat_rad"])
+        lat = float(self._lat_rad[0])
         earth_rate = EARTH_RATE_RAD_S * np.array([math.cos(lat), 0.0, -math.sin(lat)])
         step = rotvec_to_dcm(x["gyro_rotation_rad"] - (x["gyro_bias_rad_s"] + c_bn.T @ earth_rate) * dt)
         x["gyro_rotation_rad"] = 0.0
         x["gyro_rotation_s"] = 0.0
-        m = x["mag_last_ut"]
+        m = self._mag_last_ut
         m0, m1, m2 = m.tolist()
         if field is None or not (math.isfinite(m0) and math.isfinite(m1) and math.isfinite(m2)) \
-                or x["nav_ok"] <= 0 or dt <= 0.0:
+                or self._nav_ok[0] <= 0 or dt <= 0.0:
             self._mag_rotation.restart()
             return
         i = core.E_TH
@@ -1167,7 +1174,7 @@ class Ins:
         mag_yaw = math.nan
         mag_var = math.inf
         noise = 0.0
-        if np.all(np.isfinite(m_body)):
+        if _finite3(m_body):
             m_ned = c_bn @ m_body
             h = math.hypot(m_ned[0], m_ned[1])
             if h > 1e-3:
@@ -1239,7 +1246,7 @@ class Ins:
         observable = heading_observable(yaw_var, self._confirmation.unconfirmed_sigma_rad,
                                         p.heading_observable_sigma_rad)
         d = self._monitor.check(t_s, yaw, yaw_var, mag_yaw, mag_var, gsf_yaw, gsf_var, gsf_valid, observable,
-                                float(self._x["vel_gate"]["nis"]),
+                                float(self._vel_nis[0]),
                                 mag_var - noise if math.isfinite(mag_var) else math.nan, trust_var,
                                 self._tilt_heading_var(), float(P[core.E_BG + 2, core.E_BG + 2]),
                                 p.gyro_noise_rad_s_sqrt_hz)
@@ -1384,7 +1391,7 @@ class Ins:
         if field is None:
             return
         att = slice(core.E_TH, core.E_TH + 3)
-        self._learned_iron.learn(t_s, self._x["mag_last_ut"], c_bn, field, self._P[att, att],
+        self._learned_iron.learn(t_s, self._mag_last_ut, c_bn, field, self._P[att, att],
                                  self._P[core.E_YAW, core.E_YAW], p.iron_unmodelled_ut, p.iron_tau_s,
                                  magnetometer_fused=self._par["mag_use"] > 0.5)
         self._apply_learned_iron()
@@ -1645,6 +1652,13 @@ class Ins:
         if self._par["mag_harmonics_on"] > 0.0:
             add_var = max(0.0, add_var - cal_var)
         return add_var
+
+
+def _finite3(v: np.ndarray) -> bool:
+    """Every element of the 3-vector v finite: np.all(np.isfinite(v)) for a float64 3-vector, in Python floats
+    (the ufunc and the reduction cost many times the test, per fix)."""
+    a, b, c = v.tolist()
+    return math.isfinite(a) and math.isfinite(b) and math.isfinite(c)
 
 
 def _restart_uncorrelated(P: np.ndarray, i: int, var: float) -> None:

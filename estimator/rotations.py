@@ -267,6 +267,11 @@ def quat_integrate(q, omega_body_rad_s, dt_s) -> np.ndarray:
 def skew(v) -> np.ndarray:
     """Cross-product matrix [v×] (…, 3, 3): skew(a) @ b == cross(a, b)."""
     v = _f(v)
+    if v.shape == (3,):
+        # one vector (per GNSS fix): built from Python floats, the element-wise assignments below cost most of it;
+        # the same negations and zeros, so the same matrix to the bit
+        x, y, z = v.tolist()
+        return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
     s = np.zeros(v.shape[:-1] + (3, 3))
     s[..., 0, 1], s[..., 0, 2] = -v[..., 2], v[..., 1]
     s[..., 1, 0], s[..., 1, 2] = v[..., 2], -v[..., 0]

@@ -269,3 +269,16 @@ def test_integrate_constant_rate(n):
     expected = (scipy_rot(q0) * Rotation.from_rotvec(w)).as_matrix()
     np.testing.assert_allclose(rot.quat_to_dcm(q), expected, atol=1e-14)
 
+
+
+def test_skew_of_one_vector_is_the_batch_matrix_to_the_bit():
+    """`skew` of one 3-vector (its Python-float path, per GNSS fix) is the matrix the batch path makes of it, bit
+    for bit (signed zeros and NaN included), and its product is the cross product (numpy's, independent)."""
+    vs = np.array([[0.3, -1.7, 2.5], [0.0, -0.0, 0.0], [-0.0, 4.0, math.nan], [1e-300, -1e300, math.inf]])
+    batch = rot.skew(vs)
+    for v, expected in zip(vs, batch, strict=True):
+        one = rot.skew(v)
+        assert one.shape == (3, 3) and one.dtype == np.float64
+        assert one.tobytes() == expected.tobytes(), v
+    b = np.array([0.2, 0.9, -0.4])
+    np.testing.assert_allclose(rot.skew(vs[0]) @ b, np.cross(vs[0], b), rtol=1e-15, atol=1e-15)

@@ -809,4 +809,11 @@ MUTATIONS: tuple[Mutation, ...] = (
              "EKF3's floor", "estimator/slewed_yaw.py",
              "if rate_rad_s > LARGE_OFFSET_MAX_RATE_RAD_S and YawSlew.sigma_rad(sigma_rad, offset_rad) > EKF3_YAW_FLOOR_RAD:",
              "if False:", ("tests/test_published_heading.py",)),
+    # ------------------------------------------------------------------ session 34 (insfix)
+    Mutation("skew-one-vector-signs", "skew of one 3-vector is the batch path's [v×] to the bit",
+             "estimator/rotations.py", "return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])",
+             "return np.array([[0.0, -z, y], [z, 0.0, x], [-y, x, 0.0]])", ("tests/test_rotations.py",)),
+    Mutation("attitude-estimate-true-heading", "attitude_estimate sets every field as the constructor would",
+             "estimator/filter_output.py", "    _set_true(e, heading_true_rad % _TWO_PI)",
+             "    _set_true(e, yaw_rad % _TWO_PI)", ("tests/test_filter_output.py",)),
 )
