@@ -321,7 +321,7 @@ import ahrsd.calibration.store as store
 
 host = FakeHost(sys.argv[1])
 clock = Clock()
-proto = MagCalProtocol(host, MagCalSettings(vehicle_type="level"), clock=clock)
+proto = MagCalProtocol(host, MagCalSettings(vehicle_type="level"), clock=clock, fit_in_process=False)  # fits in a thread: no worker to spawn
 proto.handle_start(cmd(42424))
 drive(proto, clock, level_turns(), host, until=lambda: proto.session.status == 4)
 real_replace = os.replace
