@@ -777,4 +777,11 @@ MUTATIONS: tuple[Mutation, ...] = (
              "simulation/scenario_base.py", "return quat_xyzw_from_euler_zyx(*euler), self._body_rate(t, euler)",
              "return quat_xyzw_from_euler_zyx(*euler), self._body_rate(t, euler[::-1])",
              ("tests/test_simulation_scenarios.py", "tests/test_simulation_vehicles.py")),
+    Mutation("arrival-order-nan-as-heapq", "samples and fixes merge as heapq.merge of their keys, NaN times included",
+             "simulation/gnss.py", "sample_next = not (queue[k][0], 0) < (s.t_s, 1)",
+             "sample_next = (s.t_s, 1) < (queue[k][0], 0)", ("tests/test_arrival_order_merge.py",)),
+    Mutation("arrival-order-fix-first-at-a-tie", "a fix that arrives at a sample's time comes before it",
+             "simulation/gnss.py", "sample_next = (s.t_s, 1) < (queue[0][0], 0)",
+             "sample_next = (s.t_s, 0) < (queue[0][0], 1)",
+             ("tests/test_arrival_order_merge.py", "tests/test_simulation_gnss.py")),
 )
