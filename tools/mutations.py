@@ -784,4 +784,10 @@ MUTATIONS: tuple[Mutation, ...] = (
              "simulation/gnss.py", "sample_next = (s.t_s, 1) < (queue[0][0], 0)",
              "sample_next = (s.t_s, 0) < (queue[0][0], 1)",
              ("tests/test_arrival_order_merge.py", "tests/test_simulation_gnss.py")),
+    Mutation("track-shared-by-value", "a track's chunks are shared only between vehicles equal by value",
+             "simulation/track.py", "owner_key = value_key(owner)", "owner_key = type(owner)",
+             ("tests/test_track_sharing.py",)),
+    Mutation("value-key-class-tables", "a vehicle's key holds its class's tables and methods",
+             "simulation/value_key.py", "return (type(obj), _class_key(type(obj)), tuple(state))",
+             "return (type(obj), tuple(state))", ("tests/test_track_sharing.py",)),
 )
