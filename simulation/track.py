@@ -13,6 +13,7 @@ stream needs bounded memory.
 
 from __future__ import annotations
 
+import threading
 from collections import OrderedDict
 from typing import Callable
 
@@ -39,6 +40,7 @@ def _hermite(y0, y1, d0, d1, h, u):
 # chunks by what they are a function of (GeodeticTrack._shared_key), oldest first: every stream of the same vehicle
 # from the same site integrates the same track (a test opens one per seed)
 _SHARED: OrderedDict = OrderedDict()
+_SHARED_LOCK = threading.Lock()
 
 
 class GeodeticTrack:
@@ -62,15 +64,17 @@ class GeodeticTrack:
         """Chunk j from its start state (requires the start state, i.e. chunk j−1 built once): integrated, or taken
         from a track built before from the same start by a vehicle whose state has the same value (`_shared`)."""
         key = self._shared_key(j)
-        built = _SHARED.get(key) if key is not None else None
+        with _SHARED_LOCK:                     # streams may be read from several threads
+            built = _SHARED.get(key) if key is not None else None
+            if built is not None:
+                _SHARED.move_to_end(key)
         if built is None:
             built = self._integrate(j)
             if key is not None:
-                _SHARED[key] = built
-                while len(_SHARED) > SHARED_CHUNKS:
-                    _SHARED.popitem(last=False)
-        else:
-            _SHARED.move_to_end(key)
+                with _SHARED_LOCK:
+                    _SHARED[key] = built
+                    while len(_SHARED) > SHARED_CHUNKS:
+                        _SHARED.popitem(last=False)
         states, rates = built
         if len(self._start_states) == j + 1:
             self._start_states.append(states[-1].copy())
