@@ -33,7 +33,7 @@ are on the simulator's spherical Earth (R0 = 6 378 137 m, simulation.track). Det
 from __future__ import annotations
 
 import functools
-import heapq
+import itertools
 import math
 from dataclasses import dataclass
 from typing import Callable, Iterator
@@ -42,6 +42,7 @@ import numpy as np
 
 from ahrsd.core.gnss import GnssFix, GnssFixType
 from ahrsd.core.sample import ImuSample
+from ahrsd.core.slot_init import slot_init
 from ahrsd.core.gravity import EARTH_RADIUS_M
 from ahrsd.simulation.stream import SensorBlock, SensorStream, Truth
 
@@ -127,6 +128,7 @@ class GnssGlitch:
         return _DEFAULT_MAGNITUDE[self.kind] if self.magnitude is None else float(self.magnitude)
 
 
+@slot_init       # built once per fix: the cheaper __init__ (core/slot_init.py)
 @dataclass(frozen=True, slots=True)
 class GnssTruth:
     """What a fix should have said: the antenna's true time of validity, position and NED velocity."""
@@ -365,15 +367,41 @@ def simulate_gnss(source: SensorBlock | SensorStream, rate_hz: float = 5.0, seed
     return sim.fixes_until(hi)
 
 
+_END = object()     # an iterator's end (next's default)
+
+
 def in_arrival_order(samples, fixes) -> Iterator[ImuSample | GnssFix]:
     """IMU samples (a SensorBlock or an iterable of ImuSample) and fixes merged in the order they arrive: a
     sample at its t_s, a fix at extra["t_rx_s"] (its t_s when absent); at equal times the fix comes first (a fix
     that has arrived by a sample's time is there for it, as estimator.fix_feed offers one by its time of
     validity)."""
-    imu = samples.samples() if isinstance(samples, SensorBlock) else samples
+    imu = iter(samples.samples() if isinstance(samples, SensorBlock) else samples)
     arrival = sorted(((f.extra.get("t_rx_s", f.t_s), i) for i, f in enumerate(fixes)))
     fixes = list(fixes)
-    keyed_imu = ((s.t_s, 1, i, s) for i, s in enumerate(imu))
-    keyed_fix = ((t, 0, i, fixes[i]) for t, i in arrival)
-    for *_, item in heapq.merge(keyed_imu, keyed_fix):
-        yield item
+    queue = [(t, fixes[i]) for t, i in arrival]
+    # heapq.merge of the keys (t_s, 1, index, sample) and (t, 0, index, fix), written out for its two inputs: the
+    # same comparisons in the same order, NaN times included ((t, 0/1) compares as the keys do: they differ at
+    # the latest in that second place). The head stays with the input just advanced while its new key is below
+    # the other's head; an input that ends leaves the rest of the other.
+    n_fix, k = len(queue), 0
+    s = next(imu, _END)
+    if s is _END or not n_fix:
+        yield from (f for _, f in queue) if s is _END else itertools.chain((s,), imu)
+        return
+    sample_next = (s.t_s, 1) < (queue[0][0], 0)
+    while True:
+        if sample_next:
+            yield s
+            s = next(imu, _END)
+            if s is _END:
+                yield from (f for _, f in queue[k:])
+                return
+            sample_next = (s.t_s, 1) < (queue[k][0], 0)
+        else:
+            yield queue[k][1]
+            k += 1
+            if k == n_fix:
+                yield s
+                yield from imu
+                return
+            sample_next = not (queue[k][0], 0) < (s.t_s, 1)

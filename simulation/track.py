@@ -13,15 +13,19 @@ stream needs bounded memory.
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from typing import Callable
 
 import numpy as np
 
 from ahrsd.core.gravity import EARTH_RADIUS_M
+from ahrsd.simulation.value_key import value_key
 
 STEP_S = 0.05                     # grid step: velocity features are ≥ 1 s long, so Hermite error ≪ 1 µm
 CHUNK_STEPS = 12_000              # 600 s per chunk
 KEPT_CHUNKS = 4
+SHARED_CHUNKS = 16                # chunks kept for other tracks of the same vehicle from the same place
 _GAUSS_X = np.array([-np.sqrt(0.6), 0.0, np.sqrt(0.6)])       # Gauss–Legendre nodes on [-1, 1]
 _GAUSS_W = np.array([5.0, 8.0, 5.0]) / 9.0
 
@@ -31,6 +35,12 @@ def _hermite(y0, y1, d0, d1, h, u):
     u2, u3 = u * u, u * u * u
     return ((2 * u3 - 3 * u2 + 1) * y0 + (u3 - 2 * u2 + u) * h * d0 + (-2 * u3 + 3 * u2) * y1
             + (u3 - u2) * h * d1)
+
+
+# chunks by what they are a function of (GeodeticTrack._shared_key), oldest first: every stream of the same vehicle
+# from the same site integrates the same track (a test opens one per seed)
+_SHARED: OrderedDict = OrderedDict()
+_SHARED_LOCK = threading.Lock()
 
 
 class GeodeticTrack:
@@ -51,7 +61,42 @@ class GeodeticTrack:
         return np.column_stack([v[:, 0] / r, v[:, 1] / (r * np.cos(lat)), -v[:, 2]])   # eq. 17
 
     def _build(self, j: int):
-        """Integrate chunk j from its start state (requires the start state, i.e. chunk j−1 built once)."""
+        """Chunk j from its start state (requires the start state, i.e. chunk j−1 built once): integrated, or taken
+        from a track built before from the same start by a vehicle whose state has the same value (`_shared`)."""
+        key = self._shared_key(j)
+        with _SHARED_LOCK:                     # streams may be read from several threads
+            built = _SHARED.get(key) if key is not None else None
+            if built is not None:
+                _SHARED.move_to_end(key)
+        if built is None:
+            built = self._integrate(j)
+            if key is not None:
+                with _SHARED_LOCK:
+                    _SHARED[key] = built
+                    while len(_SHARED) > SHARED_CHUNKS:
+                        _SHARED.popitem(last=False)
+        states, rates = built
+        if len(self._start_states) == j + 1:
+            self._start_states.append(states[-1].copy())
+        if len(self._chunks) >= KEPT_CHUNKS:
+            self._chunks.pop(next(iter(self._chunks)))   # the oldest built
+        self._chunks[j] = (states, rates)
+
+    def _shared_key(self, j: int):
+        """What chunk j is a function of: the velocity's object by value and its function (a bound method; anything
+        else is not shared), the start and the grid. None: not shared."""
+        velocity = self._velocity
+        owner, func = getattr(velocity, "__self__", None), getattr(velocity, "__func__", None)
+        if owner is None or func is None:
+            return None
+        owner_key = value_key(owner)
+        if owner_key is None:
+            return None
+        return (func, owner_key, self._lat0_deg, self._lat0.tobytes(), self._start_states[j].tobytes(), j, STEP_S,
+                CHUNK_STEPS, EARTH_RADIUS_M)
+
+    def _integrate(self, j: int):
+        """Integrate chunk j from its start state: (states (M+1,3), rates (M+1,3)), read-only."""
         m, h_step = CHUNK_STEPS, STEP_S
         k = j * m + np.arange(m + 1)
         t_nodes = k * h_step
@@ -74,12 +119,9 @@ class GeodeticTrack:
         dlat, dlat_g = integrate(lat0, v_nodes[:, 0] / r_nodes, v_gauss[:, :, 0] / r_gauss)
         lat, lat_g = self._lat0 + dlat, self._lat0 + dlat_g
         dlon, _ = integrate(lon0, v_nodes[:, 1] / (r_nodes * np.cos(lat)), v_gauss[:, :, 1] / (r_gauss * np.cos(lat_g)))
-        states = np.column_stack([dlat, dlon, hgt])
-        if len(self._start_states) == j + 1:
-            self._start_states.append(states[-1].copy())
-        if len(self._chunks) >= KEPT_CHUNKS:
-            self._chunks.pop(next(iter(self._chunks)))   # the oldest built
-        self._chunks[j] = (states, self._rates(v_nodes, lat, hgt))
+        states, rates = np.column_stack([dlat, dlon, hgt]), self._rates(v_nodes, lat, hgt)
+        states.flags.writeable = rates.flags.writeable = False       # shared between tracks
+        return states, rates
 
     def _chunk(self, j: int):
         if j not in self._chunks:
