@@ -21,7 +21,8 @@ from support.sim_heading import heading_error_on_other_attitudes_deg
 
 pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
 
-RATE_HZ = 100.0
+RATE_HZ = 50.0      # half the tour's 100 SPS: the levelling's cost is per sample; the break of the prediction's
+                    # levelling term (mag-pred-levelling-tilt) still fails here (0.168° predicted, 0.195° true RMS)
 SECONDS = 200.0
 
 
@@ -39,8 +40,8 @@ def test_the_gnss_levelled_boat_fit_predicts_at_least_its_true_heading_error(cap
     rms = float(np.sqrt(np.mean(err**2)))
     assert math.hypot(pred["offset_std_deg"], pred["heading_dependent_std_deg"]) >= rms, (pred, rms)
     # the heading-dependent part is the levelling's body-fixed tilt: a 1σ figure, at least the true spread here;
-    # the offset's 1σ (0.16°, the fit's data) is exceeded here (−0.24°): over the tour's seeds 0 and 11–17 its
-    # true RMS is 0.13° (docs/magcal-vehicle.md), so it is not asserted on one draw
+    # the offset's 1σ (the fit's data) can be exceeded on one draw: over the tour's seeds 0 and 11–17 its
+    # true RMS is 0.13° (docs/magcal-vehicle.md), so it is not asserted here
     assert pred["heading_dependent_std_deg"] >= err.std(), (pred, err.std())
     last = res.quality["aided_levelling"]["passes"][-1]
     assert pred["levelling"]["given_tilt_sigma_deg"] == pytest.approx(last["tilt_sigma_per_axis_deg"])

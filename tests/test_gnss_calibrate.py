@@ -224,7 +224,7 @@ def test_the_reference_field_is_taken_at_the_recordings_position_without_lat_lon
     from pygeomag import GeoMag
 
     rec = tmp_path / "boat.csv"
-    assert main(["record", "--sim", "boat", "--seconds", "20", "--rate-hz", "204.8", "-o", str(rec), "--quiet"]) == 0
+    assert main(["record", "--sim", "boat", "--seconds", "20", "--rate-hz", "102.4", "-o", str(rec), "--quiet"]) == 0
     gnss = tmp_path / "boat.gnss.csv"
     with gnss.open() as f:
         rows = list(csv.DictReader(f))

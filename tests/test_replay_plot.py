@@ -211,7 +211,7 @@ def test_replay_plot_without_matplotlib_is_a_usage_error_before_any_work(truth_r
 def boat_with_gnss(tmp_path_factory):
     path = tmp_path_factory.mktemp("aided") / "boat.csv"
     # in this process: no interpreter start and ahrsd import (the console script is test_recording's)
-    assert main(["record", "--sim", "boat", "--seconds", "30", "--rate-hz", "100", "--output", str(path),
+    assert main(["record", "--sim", "boat", "--seconds", "15", "--rate-hz", "100", "--output", str(path),
                  "--quiet"]) == 0
     return path, path.with_name("boat.gnss.csv")
 
