@@ -54,17 +54,19 @@ def _simulated(scenario, seconds, seed, earth):
     return simulated_run(scenario, seconds, rate_hz=200.0, seed=seed, earth=earth)
 
 
-def _clean(scenario, seconds, latency_s=0.1, seed=1, earth="wgs84"):
+def _clean(scenario, seconds, latency_s=0.1, seed=1, earth="wgs84", every=1):
     """The reference: the ins with clean 5 Hz fixes (1.5 m, 0.05 m/s), the track, fixes and filter on `earth`.
-    Shared by the tests that read it (read only), however they pass the arguments."""
-    return _clean_run(scenario, seconds, latency_s, seed, earth)
+    Shared by the tests that read it (read only), however they pass the arguments. every: run_ins's
+    estimates_every (EVERY where every reader judges windows by RMS or worst values, or reads q_true only)."""
+    return _clean_run(scenario, seconds, latency_s, seed, earth, every)
 
 
 @functools.lru_cache(maxsize=None)
-def _clean_run(scenario, seconds, latency_s, seed, earth):
+def _clean_run(scenario, seconds, latency_s, seed, earth, every):
     run = _run(scenario, seconds, seed, earth)
     fixes = gnss_fixes(run.truth, latency_s=latency_s, seed=seed + 10, earth=earth)
-    return run, fixes, run_ins(Ins(declination_rad=DECLINATION, **CALIBRATED, earth_model=earth), run, fixes)
+    return run, fixes, run_ins(Ins(declination_rad=DECLINATION, **CALIBRATED, earth_model=earth), run, fixes,
+                               estimates_every=every)
 
 
 EVERY = 4
@@ -99,11 +101,11 @@ def test_coordinated_turn_tilt_stays_small_where_a_levelling_filter_leans_by_the
     leans by the bank; GNSS velocity says what the acceleration is. (mekf's default adaptive noise sees the
     apparent vertical swing round in NED as the heading turns and leans far less, but not to the aided
     bound.)"""
-    run, fixes, res = _clean("coordinated-turn", 200.0)
+    run, fixes, res = _clean("coordinated-turn", 200.0, every=EVERY)
     m = run.truth.t_s > 30.0
-    tilt, heading = tilt_heading_errors_deg(res.q_mag, run.truth.q_wxyz)
-    assert _rms(tilt[m]) < 0.3 and tilt[m].max() < 1.0, (_rms(tilt[m]), tilt[m].max())
-    assert _rms(heading[m]) < 0.6, _rms(heading[m])
+    tilt, heading = _errors(res, run, m)
+    assert _rms(tilt) < 0.3 and tilt.max() < 1.0, (_rms(tilt), tilt.max())
+    assert _rms(heading) < 0.6, _rms(heading)
     assert np.all(res.flags[m] & AIDED)
 
     for params, leans_by_deg in (({"acc_adaptive_gain": 0.0}, 20.0), ({}, 1.0)):
@@ -112,18 +114,18 @@ def test_coordinated_turn_tilt_stays_small_where_a_levelling_filter_leans_by_the
         tilt_mekf, _ = tilt_heading_errors_deg(q, run.truth.q_wxyz)
         assert tilt_mekf[m].max() > leans_by_deg, (params, tilt_mekf[m].max())
 
-    unaided = run_ins(Ins(declination_rad=DECLINATION, **CALIBRATED), run, [])       # no GNSS at all: levelling
-    tilt_unaided, _ = tilt_heading_errors_deg(unaided.q_mag, run.truth.q_wxyz)
-    assert tilt_unaided[m].max() > 20.0
+    unaided = run_ins(Ins(declination_rad=DECLINATION, **CALIBRATED), run, [], estimates_every=EVERY)   # levelling
+    tilt_unaided, _ = _errors(unaided, run, m)
+    assert tilt_unaided.max() > 20.0
     assert not np.any(unaided.flags & (AIDED | OUTAGE))
     assert np.isnan(unaided.vel).all()                                 # no NavState before a fix
 
 
 def test_boat_in_waves_meets_the_accuracy_targets():
-    run, fixes, res = _clean("level-turns", 200.0)
-    m = run.truth.t_s > 30.0
-    tilt, heading = tilt_heading_errors_deg(res.q_mag, run.truth.q_wxyz)
-    assert _rms(tilt[m]) < 0.3 and _rms(heading[m]) < 0.5, (_rms(tilt[m]), _rms(heading[m]))
+    run, fixes, res = _clean("level-turns", 200.0, every=EVERY)
+    m = _read(res, run.truth.t_s > 30.0)
+    tilt, heading = _errors(res, run, m)
+    assert _rms(tilt) < 0.3 and _rms(heading) < 0.5, (_rms(tilt), _rms(heading))
     vel_err = res.vel[m] - run.truth.vel_ned_m_s[m]
     assert _rms(vel_err) < 0.05
     assert _rms(position_error_ned(res, run.truth)[m]) < 1.0
@@ -226,12 +228,12 @@ def test_gyro_misalignment_is_learned_in_turns_and_levels_the_horizon():
 def test_latency_is_compensated_by_fusing_at_the_time_of_validity():
     """Fixes 200 ms late on a 25 m/s aircraft: fused against the state at their time of validity, the
     position is unbiased (fused as if current it would trail by 5 m along track)."""
-    run, fixes, res = _clean("coordinated-turn", 120.0, latency_s=0.2)
-    m = run.truth.t_s > 30.0
+    run, fixes, res = _clean("coordinated-turn", 120.0, latency_s=0.2, every=EVERY)
+    m = _read(res, run.truth.t_s > 30.0)
     pos = position_error_ned(res, run.truth)[m]
     assert np.linalg.norm(np.mean(pos[:, :2], axis=0)) < 0.5, np.mean(pos, axis=0)
-    tilt, _ = tilt_heading_errors_deg(res.q_mag, run.truth.q_wxyz)
-    assert _rms(tilt[m]) < 0.3
+    tilt, _ = _errors(res, run, m)
+    assert _rms(tilt) < 0.3
 
 
 def test_latency_longer_than_the_fix_interval():
@@ -339,7 +341,7 @@ def _spike(dv):
     (lambda f: dataclasses.replace(f, t_s=f.t_s - 5.0), "time_backwards"),
 ])
 def test_each_bad_fix_is_rejected_and_counted_without_an_attitude_step(change, counter):
-    run, fixes, clean = _clean("coordinated-turn", 120.0)
+    run, fixes, clean = _clean("coordinated-turn", 120.0, every=EVERY)     # its q_true only: every sample's
     ins = Ins(declination_rad=DECLINATION, **CALIBRATED)
     bad = _with_bad(fixes, 60.0, 61.0, change)                         # 5 bad fixes in a turn
     res = run_ins(ins, run, bad, estimates_every=EVERY)
@@ -355,7 +357,7 @@ def test_each_bad_fix_is_rejected_and_counted_without_an_attitude_step(change, c
 def test_a_persistent_position_change_is_reacquired_after_a_run_of_rejections():
     """The receiver's position moves 50 m for good (a new datum, an antenna moved): rejected at first, then
     re-acquired after reject_reset_s without an attitude step."""
-    run, fixes, clean = _clean("coordinated-turn", 120.0)
+    run, fixes, clean = _clean("coordinated-turn", 120.0, every=EVERY)     # its q_true only: every sample's
     ins = Ins(declination_rad=DECLINATION, **CALIBRATED)
     res = run_ins(ins, run, _with_bad(fixes, 60.0, 1e9, _jump(50.0)), estimates_every=EVERY)
     c = ins.gnss_counters
@@ -369,7 +371,7 @@ def test_a_persistent_position_change_is_reacquired_after_a_run_of_rejections():
 def test_velocities_that_contradict_the_positions_stay_rejected():
     """6 s of fixes whose velocity is 4 m/s off while their positions agree with the filter: every one is
     rejected (no reset: the receiver contradicts itself), with no attitude step."""
-    run, fixes, clean = _clean("coordinated-turn", 120.0)
+    run, fixes, clean = _clean("coordinated-turn", 120.0, every=EVERY)     # its q_true only: every sample's
     ins = Ins(declination_rad=DECLINATION, **CALIBRATED)
     # the counters and the filter's own attitude only: no estimate read past the first sample
     res = run_ins(ins, run, _with_bad(fixes, 60.0, 66.0, _spike([4.0, 0.0, 0.0])), estimates_every=len(run.truth.t_s))
@@ -409,7 +411,7 @@ def test_30_s_outage_in_turns_dead_reckons_without_a_step_at_loss_or_return():
 
 
 def test_a_long_outage_degrades_to_levelling_with_a_flag_and_the_next_fix_resets_navigation():
-    run, fixes, clean = _clean("level-turns", 200.0)
+    run, fixes, clean = _clean("level-turns", 200.0, every=EVERY)      # its fixes only
     ins = Ins(declination_rad=DECLINATION, **CALIBRATED, dead_reckon_s=20.0, nav_drop_s=40.0)
     res = run_ins(ins, run, [(a, f) for a, f in fixes if not (60.0 <= f.t_s < 150.0)], estimates_every=EVERY)
     t = run.truth.t_s

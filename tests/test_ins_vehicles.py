@@ -26,7 +26,8 @@ from support.thinned_ins import run_ins_thinned
 # equator-ward default site, so a horizon error shows in the heading too
 SITE = "60.17,24.94,20,2026-06-15"
 SEED = 7            # not among the seeds the defaults were chosen on (1–3, default site)
-SECONDS = 200.0
+SECONDS = 150.0     # the targets' runs: 120 s judged from SETTLE_S (30 s)
+OUTAGE_SECONDS = 200.0   # the outage runs: the longest turn after 60 s, and 2 s after the return
 
 
 def _rms(a) -> float:
@@ -35,7 +36,7 @@ def _rms(a) -> float:
 
 @functools.lru_cache(maxsize=None)
 def _run(vehicle, outage=False):
-    return simulate_vehicle(vehicle, SECONDS, SEED, SITE, outage=outage)
+    return simulate_vehicle(vehicle, OUTAGE_SECONDS if outage else SECONDS, SEED, SITE, outage=outage)
 
 
 def _errors(run, q):
@@ -46,7 +47,8 @@ def _errors(run, q):
 
 @pytest.mark.parametrize("vehicle", ["boat", "car", "plane"])
 def test_ins_meets_the_targets_where_a_levelling_filter_leans(vehicle):
-    """ins with 5 Hz GNSS: tilt RMS ≤ 0.3°, true-heading RMS ≤ 0.5° (measured here 0.10–0.19° and 0.16–0.25°);
+    """ins with 5 Hz GNSS: tilt RMS ≤ 0.3°, true-heading RMS ≤ 0.5° (measured here over 30–150 s 0.10–0.16° and
+    0.16–0.32°);
     an accelerometer-levelled filter on the same samples leans into the accelerations."""
     run = _run(vehicle)
     thin = run_ins_thinned(run)
@@ -54,9 +56,9 @@ def test_ins_meets_the_targets_where_a_levelling_filter_leans(vehicle):
     assert _rms(tilt) <= 0.3 and _rms(heading) <= 0.5, (_rms(tilt), _rms(heading))
     assert tilt.max() < 1.0 and np.abs(heading).max() < 1.5, (tilt.max(), np.abs(heading).max())
     # a plain accelerometer-levelled filter (mekf without its acceleration-adaptive tilt noise) leans by
-    # 2° / 9° / 12°; mekf as shipped leans less (tilt RMS here 2.27° / 0.45° / 0.58° since it levels a speed change
-    # at rest across the lean only, unturned_lean.py; 2.27° / 0.47° / 0.84° before) but still about twice as much
-    # as ins or more
+    # 2.1° / 10.2° / 14.3° (tilt RMS over 30–150 s); mekf as shipped leans less (2.10° / 0.50° / 0.67°, since it
+    # levels a speed change at rest across the lean only, unturned_lean.py) but still about twice as much as ins or
+    # more
     from ahrsd.estimator.mekf import Mekf
 
     q_plain, _ = Mekf(acc_adaptive_gain=0.0).run_batch(run.t_s, run.gyro_rad_s, run.accel_m_s2, run.mag_ut, None)
@@ -90,7 +92,8 @@ def test_30_s_outage_in_the_longest_turn_dead_reckons_within_the_targets(vehicle
 def test_heading_at_high_dip_does_not_inherit_the_tilt_error():
     """At 69.65° N (Tromsø, dip 78°) a tilt error along magnetic north turns the magnetometer's heading by
     tan(dip) ≈ 4.7 times as much. Aided, the magnetometer row carries that sensitivity, so the boat's heading stays
-    within the target (measured 0.29° RMS; 0.63° with the heading-only row of the unaided filter)."""
+    within the target (measured 0.36° RMS over 30–150 s; 0.29° over 30–200 s; 0.63° with the heading-only row of
+    the unaided filter)."""
     thin = run_ins_thinned(simulate_vehicle("boat", SECONDS, SEED, "69.65,18.96,10,2026-07-01"))
     tilt, heading = _errors(thin.run, thin.detailed()["q"])
     assert _rms(heading) <= 0.5 and _rms(tilt) <= 0.3, (_rms(heading), _rms(tilt))
@@ -100,8 +103,9 @@ def test_an_antenna_on_a_mast_is_within_the_targets_when_the_filter_is_told():
     """The boat's receiver antenna 1 m aft and 2 m above the IMU (LEVER_ARMS_M): in the waves it moves at tenths
     of a m/s the IMU does not. Told the lever arm ([gnss] lever_arm_m), ins stays within the targets; not told, its
     lever-arm check finds the antenna and, asked to (`lever_arm_adopt`, off by default), the filter adopts the fitted
-    arm (estimator/lever_arm_fit.py) and is within the targets too (tilt / heading RMS at this seed: 0.14° / 0.24°
-    told; not told 0.34° / 0.90° without the adoption, 0.16° / 0.21° with it)."""
+    arm (estimator/lever_arm_fit.py) and is within the targets too (tilt / heading RMS at this seed over 30–150 s:
+    0.15° / 0.25° told, not told 0.21° / 0.21° with the adoption; over 30–200 s 0.14° / 0.24° told, not told
+    0.34° / 0.90° without the adoption, 0.16° / 0.21° with it)."""
     run = simulate_vehicle("boat", SECONDS, SEED, SITE, lever_arm=True)
     assert run.lever_arm_m == (-1.0, 0.0, -2.0)
     told = run_ins_thinned(run)

@@ -90,7 +90,7 @@ def car_told_none(seed: int, params: dict, every: int = 4) -> float:
 @pytest.mark.parametrize("seed", [2])
 def test_a_car_told_no_arm_publishes_a_heading_its_sigma_covers(seed):
     # told no arm, told it may be the lever-arm check's prior (2 m) from the IMU
+    # (the arm fused as exact, the default, puts ≥ 5 % of them beyond 3σ: the mutations lever-arm-consider-fused and
+    # lever-arm-consider-velocity, which tools/mutation_check.py runs, not a second run of the car here)
     honest = car_told_none(seed, {"lever_arm_sigma_m": PRIOR_SIGMA_M})
-    exact = car_told_none(seed, {})          # the default: the arm fused as exact
     assert honest <= 0.01, f"{100 * honest:.2f} % beyond 3σ"
-    assert exact >= 0.05, f"the arm fused as exact: {100 * exact:.2f} % beyond 3σ"

@@ -305,10 +305,11 @@ def tumble_20_s():
 
 
 def _mekf_after(samples):
+    """mekf after `samples`, stepped (Mekf.step: the same state as `update`, no estimate built; none is read)."""
     t, g, a, m, _ = samples
     est = Mekf()
     for k in range(len(t)):
-        est.update(make_sample(t[k], g[k], a[k], m[k]))
+        est.step(make_sample(t[k], g[k], a[k], m[k]))
     return est
 
 
