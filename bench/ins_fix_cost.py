@@ -5,6 +5,7 @@ then `--repeats` timed runs; prints µs per call (the median over the repeats) f
 
     .venv/bin/python bench/ins_fix_cost.py --vehicles car boat --seconds 60 --repeats 3
     .venv/bin/python bench/ins_fix_cost.py --parts step _stepped update_gnss _add_to_lever_arm_fit   # other parts
+    .venv/bin/python bench/ins_fix_cost.py --path update --parts update update_gnss   # an estimate per sample
 
 Compare two checkouts by running the same command in each, alternately, at the same load (the timers' own
 overhead, ~1 µs a call, is in every figure).
@@ -23,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 PARTS = ("update_gnss", "_check_heading", "_mag_rotation_check", "_learn_iron", "_magnetometer_trust_var")
 
 
-def _timed_run(run, parts) -> dict[str, tuple[float, int]]:
+def _timed_run(run, parts, path: str = "step") -> dict[str, tuple[float, int]]:
     from ahrsd.core.gnss import GnssFix
     from ahrsd.core.sample import SampleFlags, make_sample
     from ahrsd.estimator.ins import Ins
@@ -48,6 +49,8 @@ def _timed_run(run, parts) -> dict[str, tuple[float, int]]:
     for item in in_arrival_order(samples, run.fixes):
         if isinstance(item, GnssFix):
             est.update_gnss(item)
+        elif path == "update":
+            est.update(item)        # an AttitudeEstimate built at every sample, as most tests' harnesses read
         else:
             est.step(item)
     return {p: (s, n) for p, (s, n) in spent.items()}
@@ -59,17 +62,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--path", choices=("step", "update"), default="step",
+                    help="the samples through step (the daemon's) or update (an estimate built at each)")
     ap.add_argument("--parts", nargs="+", default=list(PARTS), help="the Ins methods to time (default: %(default)s)")
     args = ap.parse_args(argv)
     from vehicle_accuracy import simulate_vehicle
 
     for vehicle in args.vehicles:
         run = simulate_vehicle(vehicle, args.seconds, args.seed, None, lever_arm=True, mag="uncalibrated")
-        _timed_run(run, args.parts)      # warm-up: the compiled kernels load
+        _timed_run(run, args.parts, args.path)      # warm-up: the compiled kernels load
         per_call = {p: [] for p in args.parts}
         calls = {}
         for _ in range(args.repeats):
-            for p, (s, n) in _timed_run(run, args.parts).items():
+            for p, (s, n) in _timed_run(run, args.parts, args.path).items():
                 per_call[p].append(1e6 * s / max(n, 1))
                 calls[p] = n
         print(f"{vehicle}: " + "  ".join(f"{p} {statistics.median(v):.1f} µs ×{calls[p]}"

@@ -474,6 +474,13 @@ class Ins:
         self._lat_rad, self._lon_rad, self._h_m = self._x_arr["lat_rad"], self._x_arr["lon_rad"], self._x_arr["h_m"]
         self._vel_ned = _float_field_view(self._x_arr, "vel_ned_m_s")
         self._mag_last_ut = _float_field_view(self._x_arr, "mag_last_ut")
+        self._gyro_rotation_s = self._x_arr["gyro_rotation_s"]
+        self._gyro_rotation_rad = _float_field_view(self._x_arr, "gyro_rotation_rad")
+        self._gyro_bias = _float_field_view(self._x_arr, "gyro_bias_rad_s")
+        # and the parameters each fix sets (`_set_mag_harmonics`, `_set_mag_frame_tilt`)
+        self._harmonics_on = self._par_arr["mag_harmonics_on"]
+        self._harmonic_residual_var = self._par_arr["mag_harmonic_residual_var_rad2"]
+        self._frame_tilt_on = self._par_arr["mag_frame_tilt_on"]
         self._P = np.zeros((core.N_ERR, core.N_ERR))
         self._hist = np.zeros(core.H_LEN, core.INS_HISTORY_DTYPE)
         # what each fix reads of the history (`_history_state_at`, `_add_to_lever_arm_fit`): its times and body
@@ -742,10 +749,10 @@ class Ins:
         source = "calibration" if self._mag_harmonics_apply else "iron" if self._iron_harmonics_apply else None
         was = self._mag_harmonics_source
         self._mag_harmonics_source = source
-        self._par["mag_harmonics_on"] = 0.0 if source is None else 1.0
-        self._par["mag_harmonic_residual_var_rad2"] = p.mag_harmonic_residual_share * p.calibration_sigma_rad ** 2
+        self._harmonics_on[0] = 0.0 if source is None else 1.0
+        self._harmonic_residual_var[0] = p.mag_harmonic_residual_share * p.calibration_sigma_rad ** 2
         if source == "iron":
-            self._par["mag_harmonic_residual_var_rad2"] = p.iron_harmonic_residual_share * self._iron_floor_var()
+            self._harmonic_residual_var[0] = p.iron_harmonic_residual_share * self._iron_floor_var()
         if source is not None and source != was:
             self._restart_mag_harmonics()
         self._set_mag_frame_tilt()
@@ -755,9 +762,9 @@ class Ins:
         with the harmonic states, when the calibration states a frame tilt; switched on they start from their
         prior, switched off they are zero with zero variance."""
         s = float(self.params.mag_calibration_frame_tilt_sigma_rad)
-        on = self._par["mag_harmonics_on"] > 0.0 and math.isfinite(s) and s > 0.0
-        was_on = self._par["mag_frame_tilt_on"] > 0.0
-        self._par["mag_frame_tilt_on"] = 1.0 if on else 0.0
+        on = self._harmonics_on[0] > 0.0 and math.isfinite(s) and s > 0.0
+        was_on = self._frame_tilt_on[0] > 0.0
+        self._frame_tilt_on[0] = 1.0 if on else 0.0
         if on != was_on:
             self._restart_mag_frame_tilt()
 
@@ -1125,12 +1132,12 @@ class Ins:
         p = self.params
         x = self._x
         P = self._P
-        dt = float(x["gyro_rotation_s"])      # the kernel's sum of raw rates: the bias is taken out here
+        dt = float(self._gyro_rotation_s[0])      # the kernel's sum of raw rates: the bias is taken out here
         lat = float(self._lat_rad[0])
         earth_rate = EARTH_RATE_RAD_S * np.array([math.cos(lat), 0.0, -math.sin(lat)])
-        step = rotvec_to_dcm(x["gyro_rotation_rad"] - (x["gyro_bias_rad_s"] + c_bn.T @ earth_rate) * dt)
-        x["gyro_rotation_rad"] = 0.0
-        x["gyro_rotation_s"] = 0.0
+        step = rotvec_to_dcm(self._gyro_rotation_rad - (self._gyro_bias + c_bn.T @ earth_rate) * dt)
+        self._gyro_rotation_rad[:] = 0.0
+        self._gyro_rotation_s[0] = 0.0
         m = self._mag_last_ut
         m0, m1, m2 = m.tolist()
         if field is None or not (math.isfinite(m0) and math.isfinite(m1) and math.isfinite(m2)) \
@@ -1140,14 +1147,14 @@ class Ins:
         i = core.E_TH
         att_sigma = math.sqrt(max(largest((float(P[i, i]), float(P[i + 1, i + 1]), float(P[i + 2, i + 2]))), 0.0))
         tilt_sigma = math.sqrt(max(float(max(P[core.E_TILT_N, core.E_TILT_N], P[core.E_TILT_E, core.E_TILT_E])), 0.0))
-        out = self._mag_rotation.add(t_s, m, c_bn, field, step, float(x["gyro_bias_rad_s"][2]), dt,
+        out = self._mag_rotation.add(t_s, m, c_bn, field, step, float(self._gyro_bias[2]), dt,
                                      self._iron.soft_iron, self._iron.largest_soft_iron_sigma, att_sigma,
                                      tilt_sigma)
         if out is None:
             return
         innovation, var = out
         span = self._mag_rotation.span_s
-        if self._par["mag_use"] > 0.5 and span > 0.0:
+        if self._mag_use[0] > 0.5 and span > 0.0:
             # the kernel fuses these samples as a heading with a slowly varying error of variance mag_bias_var:
             # over the window they told it the bias to about √2 σ / T; count only what is beyond that
             kernel_var = 2.0 * float(self._par["mag_bias_var_rad2"]) / span ** 2
