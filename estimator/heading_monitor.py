@@ -190,14 +190,19 @@ class IronLearner:
 
     @property
     def soft_iron_inverse(self) -> np.ndarray:
+        return self._kept_inverse().copy()
+
+    def _kept_inverse(self) -> np.ndarray:
+        """(I + D)⁻¹, kept while D stays: the array itself, for the products here that only read it (the property
+        hands out a copy)."""
         key = self.state[3:].tobytes()
         if self._inverse[0] != key:
             self._inverse = (key, np.linalg.inv(self.soft_iron))
-        return self._inverse[1].copy()
+        return self._inverse[1]
 
     def corrected(self, mag_ut) -> np.ndarray:
         """The body field the learned iron leaves: (I + D)⁻¹·(m − b)."""
-        return self.soft_iron_inverse @ (np.asarray(mag_ut, dtype=float) - self.state[0:3])
+        return self._kept_inverse() @ (np.asarray(mag_ut, dtype=float) - self.state[0:3])
 
     @staticmethod
     def _jacobian(field_body_ut) -> np.ndarray:
@@ -283,7 +288,7 @@ class IronLearner:
             return math.inf
         g = np.array([-me, mn, 0.0]) / h2
         c = np.asarray(c_bn, dtype=float)
-        a = g @ c @ self.soft_iron_inverse @ self._jacobian(c.T @ m_ned)
+        a = g @ c @ self._kept_inverse() @ self._jacobian(c.T @ m_ned)
         return float(a @ self.cov @ a)
 
 
@@ -318,7 +323,7 @@ class IronLearner:
         g = np.array([-b[1], b[0], 0.0]) / h2
         c_bn = _level_attitudes(yaw_rad)
         # heading_variance for each c_bn at once: a = [w, w_i·(C_bnᵀ B)_j] with w = g C_bn (I + D)⁻¹
-        w = np.einsum("j,kji->ki", g, c_bn) @ self.soft_iron_inverse
+        w = np.einsum("j,kji->ki", g, c_bn) @ self._kept_inverse()
         field_body = np.einsum("kji,j->ki", c_bn, b)
         return np.concatenate([w, (w[:, :, None] * field_body[:, None, :]).reshape(len(c_bn), 9)], axis=1)
 

@@ -477,6 +477,8 @@ class Ins:
         self._gyro_rotation_s = self._x_arr["gyro_rotation_s"]
         self._gyro_rotation_rad = _float_field_view(self._x_arr, "gyro_rotation_rad")
         self._gyro_bias = _float_field_view(self._x_arr, "gyro_bias_rad_s")
+        self._accel_bias = _float_field_view(self._x_arr, "accel_bias_m_s2")
+        self._mag_since_update_s = self._x_arr["mag"]["since_update_s"]
         # and the parameters each fix sets (`_set_mag_harmonics`, `_set_mag_frame_tilt`)
         self._harmonics_on = self._par_arr["mag_harmonics_on"]
         self._harmonic_residual_var = self._par_arr["mag_harmonic_residual_var_rad2"]
@@ -1264,7 +1266,7 @@ class Ins:
                               accel_bias_gsf_sigma_rad=p.accel_bias_gsf_sigma_rad,
                               filter_yaw_var_rad2=float(P[core.E_YAW, core.E_YAW]))
         if f.keep_confirmed_biases:
-            self._confirmation.keep_confirmed_biases(self._x["gyro_bias_rad_s"], self._x["accel_bias_m_s2"])
+            self._confirmation.keep_confirmed_biases(self._gyro_bias, self._accel_bias)
         if f.bank_takes_filter_bias:
             self._x["bank_gyro_bias_rad_s"] = self._x["gyro_bias_rad_s"]
         if f.rejected:
@@ -1415,7 +1417,7 @@ class Ins:
         if c.unconfirmed_sigma_rad > sig:
             sig = c.unconfirmed_sigma_rad
         self._publication.publish(t_s, self._monitor, sig, gsf_yaw, gsf_var, gsf_valid, self._mag_trust_var,
-                                  float(self._mag_state()["since_update_s"]), self._iron.offset_ut,
+                                  float(self._mag_since_update_s[0]), self._iron.offset_ut,
                                   self._iron.sigma_ut, self._lever_arm_fit.heading_bent)
 
     def _floor_yaw_sigma_without_magnetometer(self, t_s: float) -> None:
