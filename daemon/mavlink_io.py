@@ -26,17 +26,7 @@ from typing import Callable
 os.environ["MAVLINK20"] = "1"
 os.environ["MAVLINK_DIALECT"] = "ardupilotmega"
 
-# mavutil imports pymavlink's MAVLink 1 "all" dialect at its top, for pyinstaller's sake, inside a try that accepts
-# its absence (pymavlink/mavutil.py); nothing here speaks MAVLink 1, so that module is kept from loading: a process
-# that starts the daemon or talks to it does not build its hundreds of message classes.
-_MAVLINK1_ALL = "pymavlink.dialects.v10.all"
-_skip_mavlink1_all = _MAVLINK1_ALL not in sys.modules
-if _skip_mavlink1_all:
-    sys.modules[_MAVLINK1_ALL] = None      # None in sys.modules: that import raises ModuleNotFoundError
 from pymavlink import mavutil  # noqa: E402  (must follow the environment set-up)
-
-if _skip_mavlink1_all and sys.modules.get(_MAVLINK1_ALL, ...) is None:
-    del sys.modules[_MAVLINK1_ALL]         # whoever asks for it later gets it
 
 if mavutil.mavlink.WIRE_PROTOCOL_VERSION != "2.0" or mavutil.current_dialect != "ardupilotmega":
     mavutil.set_dialect("ardupilotmega")

@@ -13,14 +13,13 @@ DAEMON_IMPORTS = ("ahrsd.cli.main", "ahrsd.cli.run", "ahrsd.daemon.config", "ahr
 
 
 def test_the_daemon_process_imports_no_scipy_spatial_for_the_scenario_names():
-    """And, in the same process, none of what a daemon without those outputs never uses: pymavlink's MAVLink 1
-    "all" dialect (mavutil imports it for pyinstaller; daemon/mavlink_io.py keeps it out) and pynmeagps without an
-    NMEA output (daemon/nmea_sentences.py imports it where it builds a sentence)."""
+    """And, in the same process, no pynmeagps without an NMEA output (daemon/nmea_sentences.py imports it where it
+    builds a sentence)."""
     probe = (f"import sys\nimport {', '.join(DAEMON_IMPORTS)}\n"
              "from ahrsd.daemon.config import Config\n"
              "Config().with_overrides(sim='rate-table')\n"         # the --sim check reads the scenario names
              "print(sorted(m for m in sys.modules if m.startswith('scipy.spatial')))\n"
-             "print(sorted(m for m in sys.modules if m.startswith(('pymavlink.dialects.v10.', 'pynmeagps'))))")
+             "print(sorted(m for m in sys.modules if m.startswith('pynmeagps')))")
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     spatial, unused = out.stdout.splitlines()

@@ -778,9 +778,6 @@ MUTATIONS: tuple[Mutation, ...] = (
              "return quat_xyzw_from_euler_zyx(*euler), self._body_rate(t, euler[::-1])",
              ("tests/test_simulation_scenarios.py", "tests/test_simulation_vehicles.py")),
     # ------------------------------------------------------------------ session 34 (dmn34)
-    Mutation("daemon-without-mavlink1-dialect", "a daemon's start does not load pymavlink's MAVLink 1 'all' dialect",
-             "daemon/mavlink_io.py", "_skip_mavlink1_all = _MAVLINK1_ALL not in sys.modules",
-             "_skip_mavlink1_all = False", ("tests/test_daemon_imports.py",)),
     Mutation("daemon-without-pynmeagps", "a daemon without an NMEA output does not load pynmeagps",
              "daemon/nmea_sentences.py", "import numpy as np", "import numpy as np, pynmeagps",
              ("tests/test_daemon_imports.py",)),
