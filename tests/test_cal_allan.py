@@ -182,8 +182,7 @@ def test_white_plus_gauss_markov_from_the_simulator():
     rate = 1.0
     block = simulate("static", DAY_S, rate_hz=rate, seed=8)
     errs = open_stream("static", rate_hz=rate, seed=8).errors
-    # the terms read only: without the not-seen bounds (the same terms: allan-terms-without-bounds)
-    res = analyse_static(block.t_s, block.gyro_rad_s, block.accel_m_s2, block.mag_ut, not_seen_bounds=False)
+    res = analyse_static(block.t_s, block.gyro_rad_s, block.accel_m_s2, block.mag_ut)
     tol_gm = ieee952_tolerance(DAY_S, 1.89 * 100.0)
     for ax in "xyz":
         g, a, m = res.parameters["gyro"][ax], res.parameters["accel"][ax], res.parameters["mag"][ax]
