@@ -816,4 +816,14 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("attitude-estimate-true-heading", "attitude_estimate sets every field as the constructor would",
              "estimator/filter_output.py", "    _set_true(e, heading_true_rad % _TWO_PI)",
              "    _set_true(e, yaw_rad % _TWO_PI)", ("tests/test_filter_output.py",)),
+    # ------------------------------------------------------------------ session 34 (soak)
+    Mutation("schedule-skips-uncounted", "a schedule's restart counts the deadlines it skipped",
+             "daemon/outputs.py", "s.dropped_slots += skipped", "s.dropped_slots += 0",
+             ("tests/test_daemon_units.py",)),
+    Mutation("schedule-skips-off-by-one", "a restart's skipped deadlines include the first one ≤ now",
+             "daemon/outputs.py", "skipped = int((now - s.due) // period) + 1",
+             "skipped = int((now - s.due) // period)", ("tests/test_daemon_units.py",)),
+    Mutation("schedule-rate-halved", "each stream sends at its rate (sent + dropped = the deadlines that passed)",
+             "daemon/outputs.py", "period = 1.0 / s.rate_hz", "period = 2.0 / s.rate_hz",
+             ("tests/test_daemon_units.py", "tests/test_reliability_soak.py")),
 )
