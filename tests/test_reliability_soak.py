@@ -41,8 +41,9 @@ def _output_rates(r: dict) -> tuple[list[str], list[str]]:
         if expected <= 0.0:
             out.append(f"{name}: no fault-free seconds")
             continue
-        # a run of seconds holds its rate × length deadlines ±1 (the grid's phase at its edges); a restart
-        # moves the grid by less than one period
+        # a run of whole seconds holds rate × length deadlines (integer rates) but a message due before its end
+        # may arrive after it (and one due before its start, in it): ±1 a run at 1 Hz, at most CATCH_UP_LIMIT_S
+        # of a faster stream, which the 5 % holds; a restart moves the grid by less than one period
         tolerance = soak.RATE_TOLERANCE + (n_blocks + restarts) / expected
         counted = (received + dropped) / expected
         lines.append(f"  {name:26s} {received:5d} received + {dropped:4d} dropped ({restarts} restarts) in "
