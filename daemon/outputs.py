@@ -3,16 +3,20 @@
 Intervals follow MAV_CMD_SET_MESSAGE_INTERVAL semantics (common.xml): interval in µs, −1 disables, 0 restores
 the configured default. Deadlines are absolute (`due += interval`), so rates do not drift with scheduling
 jitter; a wake up to CATCH_UP_LIMIT_S late catches up, after a longer stall the schedule restarts from now
-instead of bursting.
+instead of bursting. The deadlines a restart skips are counted per stream (`dropped_slots`) and the latest
+restarts kept (`skips`): a message not sent because the daemon was not given the CPU is accounted for, so the
+slots sent + dropped are the deadlines that passed whatever the load (the run stats, daemon.run_stats).
 """
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 from ahrsd.daemon.output_registry import BY_MESSAGE_ID, DEFAULT_MAX_RATE_HZ
 
 CATCH_UP_LIMIT_S = 0.25   # a late wake sends what fell due (rates stay exact); a longer stall does not burst
+SKIPS_KEPT = 1000         # restarts remembered with their times (a bounded record; the counts are never bounded)
 
 
 @dataclass
@@ -20,12 +24,24 @@ class _Stream:
     default_hz: float
     rate_hz: float
     due: float = 0.0
+    dropped_slots: int = 0     # deadlines skipped by restarts after a long stall
+
+
+@dataclass(frozen=True)
+class Skip:
+    """One restart: `count` deadlines of `message_id`, the first at `first_due_s` (the daemon's clock), then
+    every `period_s`, were skipped."""
+    message_id: int
+    first_due_s: float
+    period_s: float
+    count: int
 
 
 class OutputSchedule:
     def __init__(self, rates_hz: dict[int, float]):
         self._streams = {mid: _Stream(hz, hz) for mid, hz in rates_hz.items()}
         self._next_due = 0.0   # earliest deadline of all streams: most per-sample calls return at once
+        self.skips: deque[Skip] = deque(maxlen=SKIPS_KEPT)
 
     def __contains__(self, message_id: int) -> bool:
         return message_id in self._streams
@@ -35,6 +51,10 @@ class OutputSchedule:
 
     def rate_hz(self, message_id: int) -> float:
         return self._streams[message_id].rate_hz
+
+    def dropped_slots(self) -> dict[int, int]:
+        """Per stream, the deadlines skipped by restarts since the start (never sent, never due again)."""
+        return {mid: s.dropped_slots for mid, s in self._streams.items()}
 
     def max_rate_hz(self, message_id: int) -> float:
         spec = BY_MESSAGE_ID.get(message_id)
@@ -88,6 +108,11 @@ class OutputSchedule:
                 period = 1.0 / s.rate_hz
                 s.due += period
                 if now - s.due > CATCH_UP_LIMIT_S:    # a long stall: restart instead of bursting
+                    # the deadlines s.due, s.due + period, … ≤ now are skipped; now + period stands in for the
+                    # one deadline in (now, now + period]
+                    skipped = int((now - s.due) // period) + 1
+                    s.dropped_slots += skipped
+                    self.skips.append(Skip(mid, s.due, period, skipped))
                     s.due = now + period
             next_due = min(next_due, s.due)
         self._next_due = next_due

@@ -14,6 +14,7 @@ import os
 from pathlib import Path
 
 from ahrsd.calibration.atomic_file import write_atomic
+from ahrsd.daemon.mavlink_io import mavlink
 
 log = logging.getLogger(__name__)
 
@@ -31,6 +32,16 @@ def sample_accounting(service) -> dict:
             "corrupt": int(c.get("garbage_frames", 0)) + int(c.get("short_reads", 0))}
 
 
+def schedule_accounting(schedule) -> dict:
+    """Beside what a link sent: per message, the deadlines its schedule skipped after long stalls (daemon.outputs)
+    and the latest restarts as [message, first skipped deadline on CLOCK_MONOTONIC s, period s, count]."""
+    if schedule is None:
+        return {}
+    name = lambda mid: mavlink.mavlink_map[mid].msgname   # noqa: E731
+    return {"dropped_slots": {name(mid): n for mid, n in schedule.dropped_slots().items()},
+            "skips": [[name(k.message_id), k.first_due_s, k.period_s, k.count] for k in schedule.skips]}
+
+
 def collect_stats(service) -> dict:
     """A JSON-ready snapshot of the service's counters."""
     out: dict = {"exit_code": service.exit_code, "reset_counter": service.reset_counter}
@@ -46,7 +57,8 @@ def collect_stats(service) -> dict:
         out["chip"] = dict(chip.stats)
         out["chip"]["sample_index"] = chip.sample_index
         out["faults_injected"] = dict(chip.faults.injected)
-    out["links"] = {ep.url: dataclasses.asdict(ep.counters) for ep in service.endpoints}
+    out["links"] = {ep.url: dataclasses.asdict(ep.counters) | schedule_accounting(ep.schedule)
+                    for ep in service.endpoints}
     out["commands"] = dataclasses.asdict(service.commands.counters)
     out["params"] = {"rejected_writes": service.params.rejected_writes, "rejected_reads": service.params.rejected_reads}
     out["logs"] = service.logs.counters()

@@ -243,6 +243,24 @@ def test_schedule_does_not_burst_after_a_stall():
     assert s.due(5.0) == [30]           # 5 s stall: one message, not 250
     assert s.due(5.001) == []
 
+
+def test_schedule_counts_the_deadlines_a_restart_skips():
+    # a 64 Hz stream woken every 1/256 s for 3 s with a 1 s stall from 1.0 s (binary-exact times: every count
+    # below is exact). The deadlines that passed are the grid k/64 s, k = 0 … 192 (the restart at 2.0 s lands
+    # on it): each must be sent or counted dropped, none twice
+    s = OutputSchedule({30: 64.0})
+    sent = 0
+    for k in range(3 * 256 + 1):
+        if not 256 < k < 512:
+            sent += len(s.due(k / 256))
+    dropped = s.dropped_slots()[30]
+    assert sent + dropped == 193
+    # the stall's 64 deadlines in (1.0, 2.0], less the one the wake at 2.0 s sent (65/64 s)
+    assert dropped == 63
+    skip, = s.skips
+    assert (skip.message_id, skip.first_due_s, skip.period_s, skip.count) == (30, 66 / 64, 1 / 64, 63)
+
+
 # ------------------------------------------------------------------------------------------ message builders
 
 

@@ -1,12 +1,14 @@
 """A short soak (bench/soak.py, ~25 s): the daemon on the simulated chip at 819.2 SPS under a mixed MAVLink flood
 while faults are injected. The 10-minute figures are in docs/reliability.md (`python bench/soak.py`).
 
-The output rates: bench/soak.py asks each within 5 % of its configured rate. A daemon that is not given the CPU
-(a loaded 2-core CI machine) wakes late, sends at most one message of a stream per wake and restarts a schedule
-that fell CATCH_UP_LIMIT_S behind (daemon/outputs.py): its 50 Hz and 30 Hz streams then fall short without any
-fault of its own. So the 5 % holds whenever the daemon counted no late wake of its own (`overruns`); when it did,
-a shortfall down to LOADED_RATIO_MIN is put down to the CPU it counted, never more (a halved or dropped stream
-still fails), and no stream may run fast either way."""
+The output rates: bench/soak.py asks each within 5 % of its configured rate, from the intervals between
+arrivals. A daemon that is not given the CPU (a loaded 2-core CI machine) wakes late and restarts a schedule that
+fell CATCH_UP_LIMIT_S behind, skipping the deadlines in between (daemon/outputs.py): its 50 Hz and 30 Hz streams
+then arrive short in wall time without any fault of its own. So the rates are checked by counting, whatever the
+load: per stream, the messages received in the fault-free seconds plus the deadlines the daemon counted skipped
+in them must be the configured rate × those seconds within 5 % (a halved or dropped stream fails, so does one
+that runs fast). The wall-time 5 % is kept whole when the daemon counted no late wake of its own (`overruns`);
+when it did, only its upper bound."""
 
 from __future__ import annotations
 
@@ -16,28 +18,50 @@ from bench import soak
 
 pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
 
-# the lowest rate / configured rate accepted from a daemon that counted late wakes (a rate halved by a bug is 0.5)
-LOADED_RATIO_MIN = 0.7
+
+def _fault_free_blocks(ok: list[int]) -> int:
+    """Runs of consecutive whole seconds in `ok`: each run's two edges cut a stream's grid at some phase."""
+    return sum(1 for k in ok if k - 1 not in ok)
 
 
-def _output_rate_failures(r: dict) -> list[str]:
-    """bench/soak.py's rate criterion (the same intervals between arrivals in fault-free seconds), with the
-    shortfall a daemon that counted its own late wakes may have."""
+def _output_rates(r: dict) -> tuple[list[str], list[str]]:
+    """(report lines, failures): the rate criterion by accounting (every stream), and bench/soak.py's wall-time one (the same intervals
+    between arrivals in fault-free seconds) when the daemon counted no late wake."""
     late_wakes = r["stats"].get("service", {}).get("overruns", 0)
-    ok, t0, out = set(soak.fault_free_seconds(r)), r["t_start"], []
+    ok, t0, out, lines = set(soak.fault_free_seconds(r)), r["t_start"], [], []
+    link = next(iter(r["stats"].get("links", {}).values()), {})
+    n_blocks = _fault_free_blocks(sorted(ok))
     for name, hz in soak.CONFIGURED_HZ.items():
         times = r["arrivals"].get(name, [])
+        received = sum(1 for t in times if int(t - t0) in ok)
+        skips = [s for s in link.get("skips", []) if s[0] == name]
+        dropped = sum(1 for _, first, period, n in skips for k in range(n) if int(first + k * period - t0) in ok)
+        restarts = sum(1 for _, first, _, _ in skips if int(first - t0) in ok)
+        expected = hz * len(ok)
+        if expected <= 0.0:
+            out.append(f"{name}: no fault-free seconds")
+            continue
+        # a run of whole seconds holds rate × length deadlines (integer rates) but a message due before its end
+        # may arrive after it (and one due before its start, in it): ±1 a run at 1 Hz, at most CATCH_UP_LIMIT_S
+        # of a faster stream, which the 5 % holds; a restart moves the grid by less than one period
+        tolerance = soak.RATE_TOLERANCE + (n_blocks + restarts) / expected
+        counted = (received + dropped) / expected
+        lines.append(f"  {name:26s} {received:5d} received + {dropped:4d} dropped ({restarts} restarts) in "
+                     f"{len(ok)} s = {counted:.3f} of {hz:g} Hz (±{tolerance:.3f})")
+        if abs(counted - 1.0) > tolerance:
+            out.append(f"{name}: {received} received + {dropped} counted dropped in {len(ok)} fault-free s = "
+                       f"{counted:.3f} of {hz:g} Hz (accepted ±{tolerance:.3f}; {late_wakes} late wakes)")
         gaps = [b - a for a, b in zip(times, times[1:]) if int(a - t0) in ok and int(b - t0) in ok]
         if not gaps or sum(gaps) <= 0.0:
             out.append(f"{name}: no two messages in fault-free seconds")
             continue
         ratio = len(gaps) / sum(gaps) / hz
         tolerance = soak.RATE_TOLERANCE + 1.0 / (len(gaps) + 1)
-        low = min(LOADED_RATIO_MIN, 1.0 - tolerance) if late_wakes else 1.0 - tolerance
+        low = 0.0 if late_wakes else 1.0 - tolerance
         if not low <= ratio <= 1.0 + tolerance:
-            out.append(f"{name} at {ratio:.3f} of {hz:g} Hz (accepted {low:.3f}..{1 + tolerance:.3f}; "
+            out.append(f"{name} at {ratio:.3f} of {hz:g} Hz in wall time (accepted {low:.3f}..{1 + tolerance:.3f}; "
                        f"{late_wakes} late wakes counted by the daemon)")
-    return out
+    return lines, out
 
 
 def test_short_soak_meets_the_criteria(tmp_path):
@@ -47,8 +71,10 @@ def test_short_soak_meets_the_criteria(tmp_path):
     r = soak.soak(18.0, faults, 300.0, 1, tmp_path, False)
     lines, failed = soak.evaluate(r)
     print("\n".join(lines))
-    # every criterion of bench/soak.py but its wall-clock rate one, which _output_rate_failures replaces
-    failed = [f for f in failed if "Hz, configured" not in f] + _output_rate_failures(r)
+    rate_lines, rate_failed = _output_rates(r)
+    print("output rates by accounting (fault-free seconds):\n" + "\n".join(rate_lines))
+    # every criterion of bench/soak.py but its wall-clock rate one, which _output_rates replaces
+    failed = [f for f in failed if "Hz, configured" not in f] + rate_failed
     # every sample the chip produced while read is processed or counted lost (none hidden); a lost sample
     # counted that the chip did not lose must come from a read the daemon reported as ambiguous
     src, pipe = r["stats"]["source"], r["stats"]["pipeline"]

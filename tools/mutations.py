@@ -826,4 +826,14 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("value-key-class-tables", "a vehicle's key holds its class's tables and methods",
              "simulation/value_key.py", "return (type(obj), _class_key(type(obj)), tuple(state))",
              "return (type(obj), tuple(state))", ("tests/test_track_sharing.py",)),
+    # ------------------------------------------------------------------ session 34 (soak)
+    Mutation("schedule-skips-uncounted", "a schedule's restart counts the deadlines it skipped",
+             "daemon/outputs.py", "s.dropped_slots += skipped", "s.dropped_slots += 0",
+             ("tests/test_daemon_units.py",)),
+    Mutation("schedule-skips-off-by-one", "a restart's skipped deadlines include the first one ≤ now",
+             "daemon/outputs.py", "skipped = int((now - s.due) // period) + 1",
+             "skipped = int((now - s.due) // period)", ("tests/test_daemon_units.py",)),
+    Mutation("schedule-rate-halved", "each stream sends at its rate (sent + dropped = the deadlines that passed)",
+             "daemon/outputs.py", "period = 1.0 / s.rate_hz", "period = 2.0 / s.rate_hz",
+             ("tests/test_daemon_units.py", "tests/test_reliability_soak.py")),
 )
