@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.special import chdtri   # χ² inverse survival function (scipy.stats costs 1.4 s to import)
 
-from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState
+from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState, NavState
 from ahrsd.core.gravity import EARTH_RATE_RAD_S
 from ahrsd.core.gnss import GnssFix
 from ahrsd.core.sample import ImuSample
@@ -45,7 +45,7 @@ from .iron_in_use import IronInUse
 from .ins_start import (first_history_row, fresh_state, initial_covariance, initial_true_attitude, learned_to_keep,
                         start_mag_reference, start_sensor_errors)
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
-                            float_field_slice, nav_state, uninitialised_estimate)
+                            float_field_slice, uninitialised_estimate)
 from .kernel_entry import argument_types, entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .history_rows import bracket, rows_near
@@ -1643,7 +1643,7 @@ class Ins:
             o[_OUT_SIGMA_YAW] = self._published.published_sigma(sigma_yaw) if off else sigma_yaw
         nav = None
         if navigating:
-            nav = nav_state(o[_OUT_VEL], lat_deg, lon_deg, h, o[_OUT_SIGMA_VEL], o[_OUT_SIGMA_POS], o[_OUT_ACCEL_BIAS])
+            nav = NavState(o[_OUT_VEL], lat_deg, lon_deg, h, o[_OUT_SIGMA_VEL], o[_OUT_SIGMA_POS], o[_OUT_ACCEL_BIAS])
         return attitude_estimate(t_s, o, _OUT, roll, pitch, yaw, yaw_true, f,
                                  self._publication.published(f, sigma_yaw, self._t_run_s, self._mag_use, self._monitor),
                                  nav, self._publication.integrity)

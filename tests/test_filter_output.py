@@ -3,14 +3,13 @@ and ins), checked against numbers worked by hand."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
 import pytest
 
-from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState, NavState
-from ahrsd.estimator.filter_output import AttitudeFields, attitude_estimate, nav_state
+from ahrsd.core.estimate import EstimateFlags, HeadingState
+from ahrsd.estimator.filter_output import AttitudeFields, attitude_estimate
 
 # an output record as a filter lays it out, with a field before and between the attitude ones
 OUT_DTYPE = np.dtype([("lat_rad", np.float64), ("q", np.float64, (4,)), ("rate_rad_s", np.float64, (3,)),
@@ -65,42 +64,3 @@ def test_the_headings_are_wrapped_to_a_full_turn(yaw, true, mag_deg, true_deg):
 def test_a_record_type_without_an_attitude_field_is_refused():
     with pytest.raises(KeyError):
         AttitudeFields(np.dtype([("q", np.float64, (4,)), ("rate_rad_s", np.float64, (3,))]))
-
-
-def test_nav_state_is_the_dataclass_built_by_its_constructor():
-    """`nav_state` (ins's NavState, its slots set directly) is the object NavState(...) builds from the same values:
-    every field the value given for it (the very array), equal and alike in repr, and frozen."""
-    vel, sig_v, sig_p, bias = np.array([1.0, 2.0, 3.0]), np.full(3, 0.1), np.full(3, 2.5), np.array([0.01, 0.0, -0.02])
-    args = (vel, 52.25, -4.5, 17.0, sig_v, sig_p, bias)
-    built, constructed = nav_state(*args), NavState(*args)
-    assert type(built) is NavState
-    for f, value in zip(dataclasses.fields(NavState), args, strict=True):
-        assert getattr(built, f.name) is value and getattr(constructed, f.name) is value, f.name
-    assert built == constructed and repr(built) == repr(constructed)
-    with pytest.raises(dataclasses.FrozenInstanceError):
-        built.lat_deg = 0.0
-
-
-def test_attitude_estimate_is_the_dataclass_built_by_its_constructor():
-    """`attitude_estimate` (its slots set directly) is the object AttitudeEstimate(...) builds from the same values:
-    every field the value the constructor gets for it (the arrays the very views), equal and alike in repr, and
-    frozen; with a NavState and without."""
-    out = _record().view(np.float64).copy()
-    fields = AttitudeFields(OUT_DTYPE)
-    nav = nav_state(np.array([1.0, 2.0, 3.0]), 52.25, -4.5, 17.0, np.full(3, 0.1), np.full(3, 2.5), np.zeros(3))
-    for nav_given, integrity in ((None, None), (nav, object())):
-        built = attitude_estimate(3.5, out, fields, 0.2, -0.1, -2.5, -2.2, int(EstimateFlags.AT_REST),
-                                  HeadingState.GNSS_ONLY, nav_given, integrity)
-        constructed = AttitudeEstimate(3.5, out[fields.q], 0.2, -0.1, -2.5, (-2.5) % (2 * math.pi),
-                                       (-2.2) % (2 * math.pi), out[fields.rate], out[fields.bias], out[fields.sigma],
-                                       EstimateFlags.AT_REST, nav_given, HeadingState.GNSS_ONLY, integrity)
-        assert type(built) is AttitudeEstimate
-        for f in dataclasses.fields(AttitudeEstimate):
-            b, c = getattr(built, f.name), getattr(constructed, f.name)
-            if isinstance(c, np.ndarray):
-                assert b.tobytes() == c.tobytes() and np.shares_memory(b, out), f.name
-            else:
-                assert b is c or b == c, f.name
-        assert repr(built) == repr(constructed)
-        with pytest.raises(dataclasses.FrozenInstanceError):
-            built.yaw_rad = 0.0
