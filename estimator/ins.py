@@ -465,24 +465,6 @@ class Ins:
         self._nav_ok = self._x_arr["nav_ok"]
         self._t_run_s = self._x_arr["t_run_s"]
         self._mag_use = self._par_arr["mag_use"]
-        # fields read at every fix (the heading checks, the lever-arm check, the history's reading), as views: the
-        # scalars as (1,) arrays, the vectors as flat float64 arrays (a record lookup by name costs more than
-        # what most of these reads are for)
-        self._t_last_s = self._x_arr["t_last_s"]
-        self._hist_newest, self._hist_count = self._x_arr["hist_newest"], self._x_arr["hist_count"]
-        self._vel_nis, self._pos_nis = self._x_arr["vel_gate"]["nis"], self._x_arr["pos_gate"]["nis"]
-        self._lat_rad, self._lon_rad, self._h_m = self._x_arr["lat_rad"], self._x_arr["lon_rad"], self._x_arr["h_m"]
-        self._vel_ned = _float_field_view(self._x_arr, "vel_ned_m_s")
-        self._mag_last_ut = _float_field_view(self._x_arr, "mag_last_ut")
-        self._gyro_rotation_s = self._x_arr["gyro_rotation_s"]
-        self._gyro_rotation_rad = _float_field_view(self._x_arr, "gyro_rotation_rad")
-        self._gyro_bias = _float_field_view(self._x_arr, "gyro_bias_rad_s")
-        self._accel_bias = _float_field_view(self._x_arr, "accel_bias_m_s2")
-        self._mag_since_update_s = self._x_arr["mag"]["since_update_s"]
-        # and the parameters each fix sets (`_set_mag_harmonics`, `_set_mag_frame_tilt`)
-        self._harmonics_on = self._par_arr["mag_harmonics_on"]
-        self._harmonic_residual_var = self._par_arr["mag_harmonic_residual_var_rad2"]
-        self._frame_tilt_on = self._par_arr["mag_frame_tilt_on"]
         self._P = np.zeros((core.N_ERR, core.N_ERR))
         self._hist = np.zeros(core.H_LEN, core.INS_HISTORY_DTYPE)
         # what each fix reads of the history (`_history_state_at`, `_add_to_lever_arm_fit`): its times and body
@@ -751,10 +733,10 @@ class Ins:
         source = "calibration" if self._mag_harmonics_apply else "iron" if self._iron_harmonics_apply else None
         was = self._mag_harmonics_source
         self._mag_harmonics_source = source
-        self._harmonics_on[0] = 0.0 if source is None else 1.0
-        self._harmonic_residual_var[0] = p.mag_harmonic_residual_share * p.calibration_sigma_rad ** 2
+        self._par["mag_harmonics_on"] = 0.0 if source is None else 1.0
+        self._par["mag_harmonic_residual_var_rad2"] = p.mag_harmonic_residual_share * p.calibration_sigma_rad ** 2
         if source == "iron":
-            self._harmonic_residual_var[0] = p.iron_harmonic_residual_share * self._iron_floor_var()
+            self._par["mag_harmonic_residual_var_rad2"] = p.iron_harmonic_residual_share * self._iron_floor_var()
         if source is not None and source != was:
             self._restart_mag_harmonics()
         self._set_mag_frame_tilt()
@@ -764,9 +746,9 @@ class Ins:
         with the harmonic states, when the calibration states a frame tilt; switched on they start from their
         prior, switched off they are zero with zero variance."""
         s = float(self.params.mag_calibration_frame_tilt_sigma_rad)
-        on = self._harmonics_on[0] > 0.0 and math.isfinite(s) and s > 0.0
-        was_on = self._frame_tilt_on[0] > 0.0
-        self._frame_tilt_on[0] = 1.0 if on else 0.0
+        on = self._par["mag_harmonics_on"] > 0.0 and math.isfinite(s) and s > 0.0
+        was_on = self._par["mag_frame_tilt_on"] > 0.0
+        self._par["mag_frame_tilt_on"] = 1.0 if on else 0.0
         if on != was_on:
             self._restart_mag_frame_tilt()
 
@@ -964,12 +946,12 @@ class Ins:
         (no fix, NaN fields, time not increasing, older than max_delay_s, χ² outliers) are counted in
         `gnss_counters`, logged, and flag GNSS_REJECTED on the next estimate; never raises."""
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
-        if not self._intake.offer(fix, self._initialised, self._t_last_s[0]):
+        if not self._intake.offer(fix, self._initialised, self._x["t_last_s"]):
             return 0
         return self._fuse(fix)
 
     def _fuse_queued(self) -> None:
-        now = self._t_last_s[0]
+        now = self._x["t_last_s"]
         while (fix := self._intake.pop_due(now)) is not None:
             self._fuse(fix)
 
@@ -989,14 +971,14 @@ class Ins:
         if use_vel:
             self._keep_fix_velocity(float(fix.t_s), v, use_vd, sig_s)
             self._add_to_lever_arm_fit(float(fix.t_s), v, use_vd, sig_s)
-        vel_before = self._vel_ned.copy()
+        vel_before = self._x["vel_ned_m_s"].copy()
         res = core.fuse_gnss(
             self._x_arr, self._P, self._hist, self._par_arr, float(fix.t_s),
             math.radians(lat) if use_pos else 0.0, math.radians(lon) if use_pos else 0.0,
             alt if use_alt else 0.0, v[0] if use_vel else 0.0, v[1] if use_vel else 0.0,
             v[2] if use_vd else 0.0, sig_h, sig_v, sig_s, use_pos, use_alt, use_vel, use_vd,
         )
-        velocity_step = self._vel_ned - vel_before
+        velocity_step = self._x["vel_ned_m_s"] - vel_before
         if use_vel:
             adoptions = self._lever_arm_fit.adoptions
             self._lever_arm_fit.fused(velocity_step, bool(res & core.R_VEL_REJECTED))
@@ -1009,7 +991,7 @@ class Ins:
         # correct the row at the fix's time as well, so they leave nothing to add
         step_rows = not res & (core.R_NAV_INIT | core.R_OUTAGE_RESET)
         self._fix_velocity_step = (float(fix.t_s), velocity_step) if step_rows else None
-        self._intake.count(res, fix, self._vel_nis[0], self._pos_nis[0])
+        self._intake.count(res, fix, self._x["vel_gate"]["nis"], self._x["pos_gate"]["nis"])
         if p.heading_monitor and p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
             self._check_heading(float(fix.t_s))
         elif not p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
@@ -1032,7 +1014,7 @@ class Ins:
         if at is None:
             return
         c_bn, vel, rate = at
-        near = rows_near(self._hist_t_s, int(self._hist_newest[0]), int(self._hist_count[0]), t_s,
+        near = rows_near(self._hist_t_s, int(self._x["hist_newest"]), int(self._x["hist_count"]), t_s,
                          0.5 * RATE_MEAN_S)
         rate_cross = rate_cross_ned(c_bn, mean_rate(self._hist_t_s[near], self._hist_rate[near], t_s, rate))
         innovation = np.array([v[0], v[1], v[2] if use_vd else math.nan]) - (vel + rate_cross @ self._arm_in_use())
@@ -1046,7 +1028,7 @@ class Ins:
         """The attitude (body → NED DCM), velocity (NED m/s) and body rate (rad/s) the history holds at t_s,
         interpolated between its two rows as the kernel does for a fix (core._history_at); None before any row.
         For the lever-arm check's innovation and a yaw reset's velocity at the fix: one reading for both."""
-        i0, i1, w = bracket(self._hist_t_s, int(self._hist_newest[0]), int(self._hist_count[0]), t_s)
+        i0, i1, w = bracket(self._hist_t_s, int(self._x["hist_newest"]), int(self._x["hist_count"]), t_s)
         if i0 < 0:
             return None
         a, b = self._hist_rows[i0], self._hist_rows[i1]
@@ -1083,7 +1065,7 @@ class Ins:
     # ----------------------------------------------------------------------- heading checks (heading_monitor.py)
     def _earth_field_ned(self) -> np.ndarray | None:
         """WMM field at the filter's position (µT, NED), looked up again when the position moves by ~1 km."""
-        lat, lon, h = (math.degrees(self._lat_rad[0]), math.degrees(self._lon_rad[0]), float(self._h_m[0]))
+        lat, lon, h = (math.degrees(self._x["lat_rad"]), math.degrees(self._x["lon_rad"]), float(self._x["h_m"]))
         key = (round(lat, 2), round(lon, 2), round(h, -2))
         if key != self._field_key:
             from ahrsd.core.wmm import earth_field
@@ -1098,10 +1080,11 @@ class Ins:
         """The heading checks at a fused fix, in order: the magnetometer's and the GNSS yaw bank's headings, the
         monitor's decision on them, what it does to the yaw (a floor, a reset or the alignment to the GNSS yaw, or
         a confirmation), the magnetometer's use in the kernel, the iron learning, then what is published."""
-        c_bn = quat_to_dcm(self._q_true)
+        x = self._x
+        c_bn = quat_to_dcm(x["q"])
         yaw = math.atan2(c_bn[1, 0], c_bn[0, 0])
         yaw_var = float(self._P[core.E_YAW, core.E_YAW])
-        m_body = self._iron.corrected(self._mag_last_ut)
+        m_body = self._iron.corrected(x["mag_last_ut"])
         # the position does not move within a check (its updates give no position gain): one WMM look-up
         field = self._earth_field_ned()
         if self._mag_rotation_on:
@@ -1117,7 +1100,7 @@ class Ins:
         # the monitor says no learning on a check that reset the yaw (c_bn is the attitude before the reset, P its
         # covariance after it): the next check learns with the new yaw
         iron_updates = self._iron.updates
-        if self.params.iron_learning and self._monitor.learning and _finite3(m_body) and self._nav_ok[0] > 0:
+        if self.params.iron_learning and self._monitor.learning and _finite3(m_body) and self._x["nav_ok"] > 0:
             self._learn_iron(t_s, c_bn, field)
         self._set_mag_harmonics()      # the iron learning may have ended here (`_iron_harmonics_apply`)
         yaw_now = yaw if yaw_reset_to is None else wrap_pi(yaw_reset_to)
@@ -1134,29 +1117,29 @@ class Ins:
         p = self.params
         x = self._x
         P = self._P
-        dt = float(self._gyro_rotation_s[0])      # the kernel's sum of raw rates: the bias is taken out here
-        lat = float(self._lat_rad[0])
+        dt = float(x["gyro_rotation_s"])      # the kernel's sum of raw rates: the bias is taken out here
+        lat = float(x["lat_rad"])
         earth_rate = EARTH_RATE_RAD_S * np.array([math.cos(lat), 0.0, -math.sin(lat)])
-        step = rotvec_to_dcm(self._gyro_rotation_rad - (self._gyro_bias + c_bn.T @ earth_rate) * dt)
-        self._gyro_rotation_rad[:] = 0.0
-        self._gyro_rotation_s[0] = 0.0
-        m = self._mag_last_ut
+        step = rotvec_to_dcm(x["gyro_rotation_rad"] - (x["gyro_bias_rad_s"] + c_bn.T @ earth_rate) * dt)
+        x["gyro_rotation_rad"] = 0.0
+        x["gyro_rotation_s"] = 0.0
+        m = x["mag_last_ut"]
         m0, m1, m2 = m.tolist()
         if field is None or not (math.isfinite(m0) and math.isfinite(m1) and math.isfinite(m2)) \
-                or self._nav_ok[0] <= 0 or dt <= 0.0:
+                or x["nav_ok"] <= 0 or dt <= 0.0:
             self._mag_rotation.restart()
             return
         i = core.E_TH
         att_sigma = math.sqrt(max(largest((float(P[i, i]), float(P[i + 1, i + 1]), float(P[i + 2, i + 2]))), 0.0))
         tilt_sigma = math.sqrt(max(float(max(P[core.E_TILT_N, core.E_TILT_N], P[core.E_TILT_E, core.E_TILT_E])), 0.0))
-        out = self._mag_rotation.add(t_s, m, c_bn, field, step, float(self._gyro_bias[2]), dt,
+        out = self._mag_rotation.add(t_s, m, c_bn, field, step, float(x["gyro_bias_rad_s"][2]), dt,
                                      self._iron.soft_iron, self._iron.largest_soft_iron_sigma, att_sigma,
                                      tilt_sigma)
         if out is None:
             return
         innovation, var = out
         span = self._mag_rotation.span_s
-        if self._mag_use[0] > 0.5 and span > 0.0:
+        if self._par["mag_use"] > 0.5 and span > 0.0:
             # the kernel fuses these samples as a heading with a slowly varying error of variance mag_bias_var:
             # over the window they told it the bias to about √2 σ / T; count only what is beyond that
             kernel_var = 2.0 * float(self._par["mag_bias_var_rad2"]) / span ** 2
@@ -1255,7 +1238,7 @@ class Ins:
         observable = heading_observable(yaw_var, self._confirmation.unconfirmed_sigma_rad,
                                         p.heading_observable_sigma_rad)
         d = self._monitor.check(t_s, yaw, yaw_var, mag_yaw, mag_var, gsf_yaw, gsf_var, gsf_valid, observable,
-                                float(self._vel_nis[0]),
+                                float(self._x["vel_gate"]["nis"]),
                                 mag_var - noise if math.isfinite(mag_var) else math.nan, trust_var,
                                 self._tilt_heading_var(), float(P[core.E_BG + 2, core.E_BG + 2]),
                                 p.gyro_noise_rad_s_sqrt_hz)
@@ -1266,7 +1249,7 @@ class Ins:
                               accel_bias_gsf_sigma_rad=p.accel_bias_gsf_sigma_rad,
                               filter_yaw_var_rad2=float(P[core.E_YAW, core.E_YAW]))
         if f.keep_confirmed_biases:
-            self._confirmation.keep_confirmed_biases(self._gyro_bias, self._accel_bias)
+            self._confirmation.keep_confirmed_biases(self._x["gyro_bias_rad_s"], self._x["accel_bias_m_s2"])
         if f.bank_takes_filter_bias:
             self._x["bank_gyro_bias_rad_s"] = self._x["gyro_bias_rad_s"]
         if f.rejected:
@@ -1400,7 +1383,7 @@ class Ins:
         if field is None:
             return
         att = slice(core.E_TH, core.E_TH + 3)
-        self._learned_iron.learn(t_s, self._mag_last_ut, c_bn, field, self._P[att, att],
+        self._learned_iron.learn(t_s, self._x["mag_last_ut"], c_bn, field, self._P[att, att],
                                  self._P[core.E_YAW, core.E_YAW], p.iron_unmodelled_ut, p.iron_tau_s,
                                  magnetometer_fused=self._par["mag_use"] > 0.5)
         self._apply_learned_iron()
@@ -1417,7 +1400,7 @@ class Ins:
         if c.unconfirmed_sigma_rad > sig:
             sig = c.unconfirmed_sigma_rad
         self._publication.publish(t_s, self._monitor, sig, gsf_yaw, gsf_var, gsf_valid, self._mag_trust_var,
-                                  float(self._mag_since_update_s[0]), self._iron.offset_ut,
+                                  float(self._mag_state()["since_update_s"]), self._iron.offset_ut,
                                   self._iron.sigma_ut, self._lever_arm_fit.heading_bent)
 
     def _floor_yaw_sigma_without_magnetometer(self, t_s: float) -> None:
