@@ -89,11 +89,11 @@ class SensorBlock:
         # would have passed on as it is, and tolist() gives the floats float() would
         gyro, accel, mag = (np.asarray(v, dtype=np.float64).reshape(-1, 3)
                             for v in (self.gyro_rad_s, self.accel_m_s2, self.mag_ut))
-        new_data, nan = SampleFlags.NEW_DATA, float("nan")
+        new_data = SampleFlags.NEW_DATA
         for t_s, g, a, m, temp_c, counter in zip(np.asarray(self.t_s, dtype=np.float64).tolist(), gyro, accel, mag,
                                                    np.asarray(self.temp_c, dtype=np.float64).tolist(),
                                                    range(first_counter, first_counter + len(self.t_s))):
-            yield ImuSample(t_s, g, a, m, temp_c, nan, new_data, 0, counter)
+            yield ImuSample(t_s, g, a, m, temp_c=temp_c, flags=new_data, counter=counter)
 
     @staticmethod
     def concatenate(blocks) -> "SensorBlock":
