@@ -52,8 +52,7 @@ from .history_rows import bracket, rows_near
 from .lever_arm_consider import ARM_TERM_CORRELATION_S, arm_covariance_m2
 from .lever_arm_fit import RATE_MEAN_S, LeverArmFit, LeverArmFitResult, mean_rate, rate_cross_ned
 from .mag_heading import RELEARN_GATE_OPEN_S
-from .mag_error_restarts import (IRON_HARMONIC_YAWS_RAD, calibration_harmonics_prior, frame_tilt_heading_sigma_rad,
-                                 iron_harmonics_prior, restart_frame_tilt, restart_harmonics)
+from .mag_error_states import MagErrorStates, harmonics_source, learned_floor_var_rad2
 from .mag_heading_params import MagHeadingParams
 from .monitor_follow_up import heading_observable, monitor_follow_up
 from .magnetometer_use import IronState, magnetometer_use
@@ -269,7 +268,7 @@ class InsParams(MagHeadingParams):
     `iron_learned_tau_s`, a straight leg averaged it away and pulled the heading (and the vertical gyro bias) to
     the learned magnetometer's (docs/gnss.md "A learned iron's error as states"). False: that noise, as before."""
     iron_harmonic_residual_share: float = 1.0
-    """With `iron_harmonic_states`: the share of the learned magnetometer's floor (`_learned_floor_var`, what no
+    """With `iron_harmonic_states`: the share of the learned magnetometer's floor (mag_error_states.learned_floor_var_rad2, what no
     learned iron explains) still fused as noise lasting `iron_learned_tau_s`; the rest is added to the states'
     prior, split as a calibration's (`mag_harmonic_offset_share`)."""
     iron_tau_s: float = 5.0
@@ -516,7 +515,8 @@ class Ins:
         # (the same object for the filter's life), which the heading checks read
         self._learned_iron = IronInUse(self.params.iron_prior_sigma_ut, self.params.iron_soft_prior)
         self._iron = self._learned_iron.learner
-        self._mag_harmonics_source = None  # what the harmonic states carry: "calibration", "iron" or None (off)
+        # the magnetometer's calibration-error states: the heading harmonics and the frame tilt (mag_error_states.py)
+        self._mag_errors = MagErrorStates(self._x, self._P, self._par, self._learned_iron)
         self._published = PublishedHeading(self.params.published_yaw_slew_rad_s)
         self._published_since_init = False
         self._last_fix_velocity = None
@@ -642,7 +642,7 @@ class Ins:
 
     def _apply_learned_iron(self) -> None:
         """The kernel removes the learned iron before its heading update: (I + D)⁻¹·(m − b); a learned iron's
-        error is the learner's, not the calibration's harmonic states' (`_mag_harmonics_apply`); the kernel's field
+        error is the learner's, not the calibration's harmonic states' (mag_error_states.harmonics_source); the kernel's field
         check takes its reference from the WMM field while an iron is learned (IronInUse.follow_field_reference)."""
         self._par["iron_ut"] = self._iron.offset_ut
         self._par["iron_soft_inv"] = self._iron.soft_iron_inverse
@@ -706,51 +706,15 @@ class Ins:
             c = self._confirmation
             c.unconfirmed_sigma_rad = c.unconfirmed_yaw_sigma(*self._yaw_and_gnss_yaw_now())
 
-    @property
-    def _mag_harmonics_apply(self) -> bool:
-        """The calibration's heading error is carried as the harmonic states (InsParams.mag_harmonic_states): a
-        calibration that states its error, trusted by the monitor, and no iron learned on top of it (a learned
-        iron's error is the learner's covariance, `_magnetometer_heading`)."""
-        p = self.params
-        return (p.mag_harmonic_states and p.mag_enabled and calibration_states_error(p.mag_calibration_sigma_rad)
-                and not self._calibration_untrusted and not self._learned_iron.learned)
-
-    @property
-    def _iron_harmonics_apply(self) -> bool:
-        """The learned iron's heading error is carried as the harmonic states (InsParams.iron_harmonic_states): an
-        iron learned or restored, its learning ended (the monitor neither learns nor rejects the magnetometer), the
-        filter GNSS-aided at a known WMM field (what the prior is projected at)."""
-        p = self.params
-        field = self._field_ned
-        return (p.iron_harmonic_states and p.mag_harmonic_states and p.mag_enabled and self._ever_aided
-                and self._learned_iron.learned and not self._monitor.learning
-                and not self._monitor.mag_rejected and field is not None and field[0] ** 2 + field[1] ** 2 > 0.0)
-
     def _set_mag_harmonics(self) -> None:
-        """Tell the kernel whether the harmonic states carry the heading error (the calibration's or the learned
-        iron's), and what they leave as noise; switched on, or to the other error, they start from its prior."""
+        """Which heading error the harmonic states carry now (mag_error_states.harmonics_source, from what the
+        heading checks and the learned iron say), told to the kernel (MagErrorStates.select)."""
         p = self.params
-        source = "calibration" if self._mag_harmonics_apply else "iron" if self._iron_harmonics_apply else None
-        was = self._mag_harmonics_source
-        self._mag_harmonics_source = source
-        self._par["mag_harmonics_on"] = 0.0 if source is None else 1.0
-        self._par["mag_harmonic_residual_var_rad2"] = p.mag_harmonic_residual_share * p.calibration_sigma_rad ** 2
-        if source == "iron":
-            self._par["mag_harmonic_residual_var_rad2"] = p.iron_harmonic_residual_share * self._iron_floor_var()
-        if source is not None and source != was:
-            self._restart_mag_harmonics()
-        self._set_mag_frame_tilt()
-
-    def _set_mag_frame_tilt(self) -> None:
-        """Tell the kernel whether the frame-tilt states carry the calibration frame's tilt (mag_frame_tilt.py):
-        with the harmonic states, when the calibration states a frame tilt; switched on they start from their
-        prior, switched off they are zero with zero variance."""
-        s = float(self.params.mag_calibration_frame_tilt_sigma_rad)
-        on = self._par["mag_harmonics_on"] > 0.0 and math.isfinite(s) and s > 0.0
-        was_on = self._par["mag_frame_tilt_on"] > 0.0
-        self._par["mag_frame_tilt_on"] = 1.0 if on else 0.0
-        if on != was_on:
-            self._restart_mag_frame_tilt()
+        m = self._monitor
+        source = harmonics_source(p, calibration_untrusted=self._calibration_untrusted,
+                                  iron_learned=self._learned_iron.learned, ever_aided=self._ever_aided,
+                                  iron_learning=m.learning, mag_rejected=m.mag_rejected, field_ned_ut=self._field_ned)
+        self._mag_errors.select(p, source, self._field_ned, self._declination)
 
     def set_mag_calibration_frame_tilt_sigma(self, sigma_rad: float, heading_sigma_rad: float = 0.0) -> None:
         """The magnetometer calibration in force states its frame's tilt against the body, 1σ per axis, rad (0 or
@@ -763,57 +727,16 @@ class Ins:
         self.params = replace(self.params,
                               mag_calibration_frame_tilt_sigma_rad=s if math.isfinite(s) and s > 0.0 else 0.0,
                               mag_calibration_frame_tilt_heading_sigma_rad=h if math.isfinite(h) and h > 0.0 else 0.0)
-        self._set_mag_frame_tilt()
-        if self._mag_harmonics_source == "calibration":
-            self._restart_mag_harmonics()     # their prior leaves out what the frame-tilt states now carry
-        self._restart_mag_frame_tilt()
-
-    def _restart_mag_frame_tilt(self) -> None:
-        """The frame-tilt states back to their prior (mag_error_restarts.restart_frame_tilt): the calibration's
-        stated tilt while they are on, shared with the accelerometer bias with `mag_frame_tilt_shares_accel_bias`."""
-        restart_frame_tilt(self._x, self._P, self._par["mag_frame_tilt_on"] > 0.0,
-                           self.params.mag_calibration_frame_tilt_sigma_rad,
-                           self.params.mag_frame_tilt_shares_accel_bias)
-
-    def _iron_floor_var(self) -> float:
-        """`_learned_floor_var` at the WMM field (rad²)."""
-        field = self._field_ned
-        return self._learned_floor_var(float(field[0] ** 2 + field[1] ** 2))
+        p = self.params
+        self._mag_errors.set_frame_tilt(p)
+        if self._mag_errors.source == "calibration":
+            # their prior leaves out what the frame-tilt states now carry
+            self._mag_errors.restart_harmonics(p, self._field_ned, self._declination)
+        self._mag_errors.restart_frame_tilt(p)
 
     def _restart_calibration_error_states(self) -> None:
-        """The magnetometer's error states — the heading harmonics and the calibration frame's tilt — back to their
-        priors together (start-up, a new calibration, a yaw reset): both are estimated against the heading."""
-        self._restart_mag_harmonics()
-        self._restart_mag_frame_tilt()
-
-    def _restart_mag_harmonics(self) -> None:
-        """The harmonic states back to zero with their prior (at start-up, a new calibration, a yaw reset, the iron
-        learning ended; mag_error_restarts.py): the calibration's, uncorrelated, or the learned iron's
-        (`_iron_harmonics_prior`); without them (`_set_mag_harmonics` off) zero, variance zero: they never move."""
-        p = self.params
-        prior = None
-        if self._par["mag_harmonics_on"] > 0.0 and self._mag_harmonics_source == "iron":
-            prior = self._iron_harmonics_prior()
-        elif self._par["mag_harmonics_on"] > 0.0:
-            prior = calibration_harmonics_prior(p.calibration_sigma_rad, p.mag_harmonic_offset_share,
-                                                self._frame_tilt_heading_sigma_rad())
-        restart_harmonics(self._x, self._P, prior)
-
-    def _frame_tilt_heading_sigma_rad(self) -> float:
-        """The share of the calibration's heading error the frame-tilt states carry (rad), with the condition of
-        `_set_mag_frame_tilt` evaluated here: the harmonics restart before it runs."""
-        p = self.params
-        return frame_tilt_heading_sigma_rad(self._par["mag_harmonics_on"] > 0.0, p.mag_calibration_frame_tilt_sigma_rad,
-                                            p.mag_calibration_frame_tilt_heading_sigma_rad)
-
-    def _iron_harmonics_prior(self) -> np.ndarray:
-        """The harmonic states' prior for a learned iron (5×5, rad², mag_error_restarts.iron_harmonics_prior) at the
-        WMM field: the learned iron's covariance with its window's yaw share, and the floor's unfused part."""
-        p = self.params
-        yaw = IRON_HARMONIC_YAWS_RAD
-        return iron_harmonics_prior(self._iron.level_heading_rows(self._field_ned, yaw), yaw - self._declination,
-                                    self._learned_iron.harmonic_cov(), self._iron_floor_var(),
-                                    p.iron_harmonic_residual_share, p.mag_harmonic_offset_share)
+        """The magnetometer's error states back to their priors (MagErrorStates.restart)."""
+        self._mag_errors.restart(self.params, self._field_ned, self._declination)
 
     def _yaw_and_gnss_yaw_now(self) -> tuple[float, float, float]:
         """What the unconfirmed-yaw floor is computed from (HeadingConfirmation.unconfirmed_yaw_sigma), now: the
@@ -1102,7 +1025,7 @@ class Ins:
         iron_updates = self._iron.updates
         if self.params.iron_learning and self._monitor.learning and _finite3(m_body) and self._x["nav_ok"] > 0:
             self._learn_iron(t_s, c_bn, field)
-        self._set_mag_harmonics()      # the iron learning may have ended here (`_iron_harmonics_apply`)
+        self._set_mag_harmonics()      # the iron learning may have ended here (harmonics_source)
         yaw_now = yaw if yaw_reset_to is None else wrap_pi(yaw_reset_to)
         self._publication.note_step_rejection(t_s, d.mag_step_rad, self._monitor.mag_rejected)
         self._publish_heading_checks(t_s, yaw_now, gsf_yaw, gsf_var, gsf_valid)
@@ -1193,13 +1116,7 @@ class Ins:
         if not self._learned_iron.learned or field is None or not math.isfinite(mag_var):
             return mag_var - noise if math.isfinite(mag_var) else math.nan
         h2 = float(field[0] ** 2 + field[1] ** 2)
-        return self._learned_floor_var(h2) + self._iron.level_heading_variance(field)
-
-    def _learned_floor_var(self, h2_ut2: float) -> float:
-        """The floor of a learned magnetometer's heading variance at a horizontal field of h2 (µT²), rad²: what no
-        learned iron explains (`iron_unmodelled_ut`) over the field, at most the calibration's own figure."""
-        p = self.params
-        return min(p.calibration_sigma_rad ** 2, p.iron_unmodelled_ut ** 2 / h2_ut2)
+        return learned_floor_var_rad2(self.params, h2) + self._iron.level_heading_variance(field)
 
     def _tilt_heading_var(self) -> float:
         """The variance the filter's tilt uncertainty gives the magnetometer heading, rad²: a tilt about the
@@ -1362,13 +1279,13 @@ class Ins:
             self._par["mag_bias_tau_s"] = u.mag_bias_tau_s
 
     def _learned_floor_var_here(self) -> float | None:
-        """`_learned_floor_var` at the WMM horizontal field at the filter's position (inf where it has none, None
+        """mag_error_states.learned_floor_var_rad2 at the WMM horizontal field at the filter's position (inf where it has none, None
         without the WMM field), rad²."""
         field = self._field_ned
         if field is None:
             return None
         h2 = float(field[0] ** 2 + field[1] ** 2)
-        return self._learned_floor_var(h2) if h2 > 0.0 else math.inf
+        return learned_floor_var_rad2(self.params, h2) if h2 > 0.0 else math.inf
 
     def _heading_rate_rad_s(self) -> float:
         """|rate about down| of the last gyro sample, bias removed, rad/s."""

@@ -177,7 +177,7 @@ MUTATIONS: tuple[Mutation, ...] = (
              "held = 0",
              ("tests/test_heading_integrity.py",)),
     Mutation("ins-learned-floor", "a learned magnetometer's heading floor is at most the calibration's own figure",
-             "estimator/ins.py", "return min(p.calibration_sigma_rad ** 2, p.iron_unmodelled_ut ** 2 / h2_ut2)",
+             "estimator/mag_error_states.py", "return min(p.calibration_sigma_rad ** 2, p.iron_unmodelled_ut ** 2 / h2_ut2)",
              "return p.iron_unmodelled_ut ** 2 / h2_ut2",
              ("tests/test_ins_learned_floor.py", "tests/test_learned_iron.py", "tests/test_learned_iron_turns.py")),
     Mutation("replay-plot-error-panel", "replay --plot draws the error-vs-truth panel with truth (item 2)",
@@ -439,7 +439,7 @@ MUTATIONS: tuple[Mutation, ...] = (
              ("tests/test_daemon_parts.py",)),
     # ------------------------------------------------------------------ session 27 (tilt27)
     Mutation("frame-tilt-share-out-of-harmonics", "the calibration's harmonics leave the frame tilt's heading share out",
-             "estimator/ins.py", "                                                self._frame_tilt_heading_sigma_rad())",
+             "estimator/mag_error_states.py", "                                                self._frame_tilt_heading_sigma_rad(p))",
              "                                                0.0)",
              ("tests/test_mag_frame_tilt.py",)),
     Mutation("field-session-states-frame-tilt", "a field session's back-stepping calibration states its levelling tilt",
