@@ -50,6 +50,7 @@ from .kernel_entry import argument_types, entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .lever_arm_consider import ARM_TERM_CORRELATION_S, arm_covariance_m2
 from .ins_gnss_fusion import InsGnssFusion
+from .yaw_reset import YawReset
 from .lever_arm_fit import LeverArmFitResult
 from .mag_heading import RELEARN_GATE_OPEN_S
 from .mag_error_states import MagErrorStates, harmonics_source, learned_floor_var_rad2
@@ -506,6 +507,8 @@ class Ins:
                                      self._gsf_par_arr, self._intake, told_arm_m=p.lever_arm_m, gnss_yaw=p.gnss_yaw,
                                      adopt_arm=p.lever_arm_adopt)
         self._lever_arm_fit = self._fusion.lever_arm_fit     # the same object for the filter's life
+        # the state's resets when the heading is found wrong (yaw_reset.py)
+        self._resets = YawReset(self._x, self._P, self._hist)
         # the iron learned on top of the calibration and its bookkeeping (iron_in_use.py); `_iron` is its learner
         # (the same object for the filter's life), which the heading checks read
         self._learned_iron = IronInUse(self.params.iron_prior_sigma_ut, self.params.iron_soft_prior)
@@ -1128,36 +1131,7 @@ class Ins:
         # degrees; a boat at 0.1–0.5 m/s² hardly any)
         f = self._x["acc_ned_lp_m_s2"]
         across = math.hypot(float(f[0]), float(f[1])) * abs(math.sin(wrap_pi(dyaw_rad)))
-        self._relevel_after_wrong_yaw(math.atan2(across, abs(float(f[2]))))
-
-    def _relevel_after_wrong_yaw(self, lean_sigma_rad: float) -> None:
-        """The tilt's 1σ, uncorrelated, becomes at least `lean_sigma_rad` (no more than the 1σ a fix assumes when it
-        first sets the velocity, `nav_init_sigma_tilt_rad`), at the first valid GNSS yaw (the alignment, or without a
-        magnetometer the yaw kept there). Until then the yaw was tens of degrees off (the magnetometer's, or pulled
-        in from an unknown start), and the GNSS velocity levelled the tilt against the horizontal acceleration
-        projected through it: a car accelerating away at 3–4 m/s² under a yaw 80–100° off leans its tilt by
-        degrees, while the linearised updates leave its variance at tenths of a degree. With its variance kept
-        small, the fixes after the alignment would put that tilt error into the horizontal accelerometer bias and
-        the z axis's lean just released to learn, which keep it (docs/gnss.md "The horizon while the heading is
-        being found")."""
-        P = self._P
-        var = min(lean_sigma_rad, self.params.nav_init_sigma_tilt_rad) ** 2
-        for i in (core.E_TILT_N, core.E_TILT_E):
-            v = max(P[i, i], var)
-            _restart_uncorrelated(P, i, v)
-
-    def _restart_horizontal_accel_bias(self) -> None:
-        """The horizontal (body x, y) accelerometer bias back to its start-up value and 1σ, uncorrelated: what it
-        learned while the yaw was being pulled in was the GNSS acceleration projected through a yaw tens of degrees
-        off, which a steady turn cannot separate from a tilt (ins_core._gated_update). The vertical one keeps what
-        it learned (the vertical channel sees no yaw)."""
-        x, P = self._x, self._P
-        var = self.params.init_accel_bias_sigma_m_s2 ** 2
-        for k in range(2):
-            x["accel_bias_m_s2"][k] = self._confirmation.startup_accel_bias[k]
-            i = core.E_BA + k
-            v = max(P[i, i], var)
-            _restart_uncorrelated(P, i, v)
+        self._resets.relevel(self.params, math.atan2(across, abs(float(f[2]))))
 
     def _confirm_heading(self, yaw: float, gsf_yaw: float, gsf_var: float) -> None:
         """A GNSS yaw that agrees with the held heading confirms it (HeadingConfirmation.confirm); otherwise the
@@ -1247,8 +1221,8 @@ class Ins:
         elif c.first_gnss_yaw_keeps_yaw(gsf_valid):
             # the yaw is kept, but the pull-in that brought it inside the bank's 3σ ran through yaws tens of
             # degrees off: the horizontal bias and the tilt it taught are restarted as an alignment restarts them
-            self._restart_horizontal_accel_bias()
-            self._relevel_after_wrong_yaw(self.params.nav_init_sigma_tilt_rad)
+            self._resets.restart_horizontal_accel_bias(self.params, c.startup_accel_bias)
+            self._resets.relevel(self.params, self.params.nav_init_sigma_tilt_rad)
         c.gnss_yaw_seen(gsf_valid)
         c.unconfirmed_sigma_rad = gnss_yaw_floor(yaw, gsf_yaw, gsf_var)
 
@@ -1275,35 +1249,12 @@ class Ins:
         self._par["accel_bias_learn"] = 0.0 if held else 1.0
 
     def _reset_yaw(self, dyaw_rad: float, var_rad2: float, alignment: bool = False) -> None:
-        """Turn the attitude (and its history) about down by dyaw; yaw variance = var with its cross-covariances
-        cleared; the accelerometer bias and the tilt, which a wrong yaw has been pulling through the GNSS
-        acceleration, get their start-up uncertainty back (uncorrelated)."""
-        p = self.params
-        dyaw = wrap_pi(dyaw_rad)
-        x, P = self._x, self._P
-        dx = np.zeros(core.N_ERR)
-        dx[core.E_YAW] = dyaw
-        core._rotate_attitude(x["q"], 0.0, 0.0, dyaw)
-        core._correct_history(self._hist, x, -math.inf, dx, 0.0, 0.0, 0.0)
-        c, s = math.cos(dyaw), math.sin(dyaw)
-        an, ae = x["acc_ned_lp_m_s2"][0], x["acc_ned_lp_m_s2"][1]
-        x["acc_ned_lp_m_s2"][0], x["acc_ned_lp_m_s2"][1] = c * an - s * ae, s * an + c * ae
-        tilt_floor = p.nav_init_sigma_tilt_rad ** 2 * 0.04
-        for i, var in ((core.E_YAW, var_rad2), (core.E_TILT_N, max(P[core.E_TILT_N, core.E_TILT_N], tilt_floor)),
-                       (core.E_TILT_E, max(P[core.E_TILT_E, core.E_TILT_E], tilt_floor))):
-            _restart_uncorrelated(P, i, var)
-        # the gyro and accelerometer biases learned since the heading was last confirmed were learned against a
-        # wrong yaw (the magnetometer pulling one way, the GNSS velocity the other, the biases taking up the
-        # difference): back to the last confirmed ones (the start-up values before any), with their start-up
-        # uncertainty
-        x["gyro_bias_rad_s"] = self._confirmation.confirmed_gyro_bias
-        x["accel_bias_m_s2"] = self._confirmation.confirmed_accel_bias
-        for i in range(core.E_BG, core.E_BG + 3):
-            var = max(P[i, i], p.init_gyro_bias_sigma_rad_s ** 2)
-            _restart_uncorrelated(P, i, var)
-        for i in range(core.E_BA, core.E_BA + 3):
-            var = max(P[i, i], p.init_accel_bias_sigma_m_s2 ** 2)
-            _restart_uncorrelated(P, i, var)
+        """Turn the attitude (and its history) about down by dyaw with yaw variance var, the biases back to the last
+        confirmed ones (YawReset.turn); then what the wrong yaw had started begins again: the velocity from the
+        last fix, the magnetometer's error states from their priors, the bias-from-rotation window. Counted,
+        flagged and logged."""
+        c = self._confirmation
+        dyaw = self._resets.turn(self.params, dyaw_rad, var_rad2, c.confirmed_gyro_bias, c.confirmed_accel_bias)
         self._fusion.reset_velocity_to_fix()
         # the calibration's error estimated against the heading just found wrong starts again from its prior
         self._restart_calibration_error_states()
@@ -1434,13 +1385,6 @@ def _finite3(v: np.ndarray) -> bool:
     (the ufunc and the reduction cost many times the test, per fix)."""
     a, b, c = v.tolist()
     return math.isfinite(a) and math.isfinite(b) and math.isfinite(c)
-
-
-def _restart_uncorrelated(P: np.ndarray, i: int, var: float) -> None:
-    """Error state i restarted on its own: its row and column of P cleared, its variance set to var."""
-    P[i, :] = 0.0
-    P[:, i] = 0.0
-    P[i, i] = var
 
 
 def _float_field_view(records: np.ndarray, name: str) -> np.ndarray:

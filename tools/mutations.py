@@ -610,11 +610,12 @@ MUTATIONS: tuple[Mutation, ...] = (
     # ------------------------------------------------------------------ session 29 (tilt29)
     Mutation("relevel-after-wrong-yaw",
              "at the first valid GNSS yaw the tilt levelled under the wrong yaw gets its start-up σ back",
-             "estimator/ins.py", "var = min(lean_sigma_rad, self.params.nav_init_sigma_tilt_rad) ** 2", "var = 0.0",
+             "estimator/yaw_reset.py", "var = min(lean_sigma_rad, p.nav_init_sigma_tilt_rad) ** 2", "var = 0.0",
              ("tests/test_gnss_yaw_alignment.py", "tests/test_gnss_yaw_alignment_without_magnetometer.py")),
     Mutation("nomag-bias-restarted-where-yaw-kept",
              "ins without a magnetometer restarts the horizontal accelerometer bias at the first valid GNSS yaw it keeps",
-             "estimator/ins.py", "            self._restart_horizontal_accel_bias()", "            pass",
+             "estimator/ins.py",
+             "            self._resets.restart_horizontal_accel_bias(self.params, c.startup_accel_bias)", "            pass",
              ("tests/test_gnss_yaw_alignment_without_magnetometer.py",)),
     # ------------------------------------------------------------------ session 30 (split30): ins's parts alone
     Mutation("gnss-intake-accuracy-floor", "a fix's reported 1σ is never below the filter's floor",
