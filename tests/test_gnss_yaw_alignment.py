@@ -116,8 +116,8 @@ def test_the_horizontal_accel_bias_waits_for_the_gnss_yaw(uncalibrated):
                                  {"yaw_align_to_gnss_yaw": False}])
 def test_without_the_heading_checks_the_published_sigma_is_the_filters(off):
     """Nothing would ever confirm the heading: no floor on the published σ (it would stay at π for good)."""
-    assert math.isnan(Ins(**off)._confirmation.unconfirmed_sigma_rad)
-    assert Ins()._confirmation.unconfirmed_sigma_rad == pytest.approx(math.pi)
+    assert math.isnan(Ins(**off)._heading.confirmation.unconfirmed_sigma_rad)
+    assert Ins()._heading.confirmation.unconfirmed_sigma_rad == pytest.approx(math.pi)
 
 
 def test_a_gnss_held_heading_is_not_reported_unknown_while_its_sigma_is_a_few_degrees(uncalibrated):

@@ -146,7 +146,7 @@ MUTATIONS: tuple[Mutation, ...] = (
              ("tests/test_learned_iron_offset_hold.py",)),
     Mutation("learned-iron-offset-hold-fused", "the offset is held only where the magnetometer is fused while its "
              "iron is learned",
-             "estimator/ins.py", 'magnetometer_fused=self._par["mag_use"] > 0.5)',
+             "estimator/heading_supervision.py", 'magnetometer_fused=self._par["mag_use"] > 0.5)',
              'magnetometer_fused=self._par["mag_use"] > 1.5)',
              ("tests/test_learned_iron_offset_hold.py",)),
     Mutation("monitor-reject-checks", "the magnetometer is rejected after reject_checks failed checks",
@@ -256,7 +256,7 @@ MUTATIONS: tuple[Mutation, ...] = (
              ("tests/test_gnss_receiver_time.py",)),
     # ------------------------------------------------------------------ session 25 (mut25)
     Mutation("harmonics-restart-new-calibration", "a new calibration restarts the harmonic states from its prior",
-             "estimator/ins.py", "self._restart_calibration_error_states()    # the new calibration",
+             "estimator/heading_supervision.py", "self.restart_calibration_error_states()    # the new calibration",
              "None    # the new calibration",
              ("tests/test_mag_harmonics_new_calibration.py",)),
     Mutation("mag-pred-levelling-tilt", "calibrate mag --gnss adds the levelling tilt's tan(dip)·σ to its prediction",
@@ -614,7 +614,7 @@ MUTATIONS: tuple[Mutation, ...] = (
              ("tests/test_gnss_yaw_alignment.py", "tests/test_gnss_yaw_alignment_without_magnetometer.py")),
     Mutation("nomag-bias-restarted-where-yaw-kept",
              "ins without a magnetometer restarts the horizontal accelerometer bias at the first valid GNSS yaw it keeps",
-             "estimator/ins.py",
+             "estimator/heading_supervision.py",
              "            self._resets.restart_horizontal_accel_bias(self.params, c.startup_accel_bias)", "            pass",
              ("tests/test_gnss_yaw_alignment_without_magnetometer.py",)),
     # ------------------------------------------------------------------ session 30 (split30): ins's parts alone
