@@ -21,7 +21,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-PARTS = ("update_gnss", "_check_heading", "_mag_rotation_check", "_learn_iron", "_magnetometer_trust_var")
+PARTS = ("update_gnss", "_heading.check", "_heading._mag_rotation_check", "_heading._learn_iron",
+         "_heading._magnetometer_trust_var")
 
 
 def _timed_run(run, parts, path: str = "step") -> dict[str, tuple[float, int]]:

@@ -55,7 +55,7 @@ def _learn(est: Ins, start_rad: float, turn_rad: float, yaw_error_deg: float, se
     for i in range(n):
         yaw = start_rad + turn_rad * i / n
         est._x["mag_last_ut"] = _measured(yaw) + rng.normal(0.0, 0.1, 3)
-        est._learn_iron(t0_s + i * CHECK_S, _level(yaw + math.radians(yaw_error_deg)), FIELD_NED_UT)
+        est._heading._learn_iron(t0_s + i * CHECK_S, _level(yaw + math.radians(yaw_error_deg)), FIELD_NED_UT)
 
 
 def _errors_deg(est: Ins) -> np.ndarray:

@@ -53,8 +53,8 @@ def _learn(est: Ins, turn_rad: float, yaw_error_deg: float, seconds: float = 120
     for i in range(n):
         yaw = turn_rad * i / n
         est._x["mag_last_ut"] = _measured(yaw, *iron) + rng.normal(0.0, 0.1, 3)
-        est._learn_iron(i * CHECK_S, _level(yaw + math.radians(yaw_error_deg)), FIELD_NED_UT)
-    est._field_ned = FIELD_NED_UT
+        est._heading._learn_iron(i * CHECK_S, _level(yaw + math.radians(yaw_error_deg)), FIELD_NED_UT)
+    est._heading.field_ned = FIELD_NED_UT
 
 
 def _learned_heading_errors_deg(est: Ins, iron=(SOFT_IRON, HARD_IRON_UT)) -> np.ndarray:
@@ -70,7 +70,7 @@ def _learned_heading_errors_deg(est: Ins, iron=(SOFT_IRON, HARD_IRON_UT)) -> np.
 
 def _offset_sigma_deg(est: Ins) -> float:
     """The harmonic states' prior for the learned iron: its constant term's 1σ (c0, the heading offset)."""
-    return math.degrees(math.sqrt(est._mag_errors.iron_prior(est.params, est._field_ned, est._declination)[0, 0]))
+    return math.degrees(math.sqrt(est._mag_errors.iron_prior(est.params, est._heading.field_ned, est._declination)[0, 0]))
 
 
 @pytest.mark.parametrize("turn_rad", [2.0 * math.pi, math.pi])
@@ -121,7 +121,7 @@ def test_a_reset_or_restored_iron_forgets_the_window():
     offset_ut, cov = est.learned_iron()
     soft, soft_cov = est.learned_soft_iron()
     est.set_learned_iron(offset_ut, cov, soft, soft_cov)     # the daemon's restored iron (without its cross terms)
-    est._field_ned = FIELD_NED_UT
+    est._heading.field_ned = FIELD_NED_UT
     restored = _offset_sigma_deg(est)
     assert restored < 0.5 * WINDOW_YAW_SIGMA_DEG     # a restored iron's window is not persisted: its own σ only
     est.reset_learned_iron()

@@ -87,7 +87,7 @@ def test_the_straight_leg_does_not_drag_the_vertical_gyro_bias(car):
     """On the straight leg after the reset (yaw unobservable but for the car's speed changes) the GNSS-only yaw
     corrections leave b_z within 1.4 × its start-up σ (1800 °/h) of the truth: measured 1246 °/h (1.06σ of its own
     σ) before tilt29, 1902 °/h (1.63σ) since the alignment gives the tilt, leaned 5° by the wrong yaw, a 6° σ to
-    re-level in (Ins._relevel_after_wrong_yaw; the heading after the turn 1.75 → 0.90σ). Broken: the overshoot
+    re-level in (YawReset.relevel; the heading after the turn 1.75 → 0.90σ). Broken: the overshoot
     drags it up to ~4000 °/h off."""
     o = car
     leg = (o["t"] > LEG_S[0] + 0.5) & (o["t"] < LEG_S[1])

@@ -146,7 +146,7 @@ MUTATIONS: tuple[Mutation, ...] = (
              ("tests/test_learned_iron_offset_hold.py",)),
     Mutation("learned-iron-offset-hold-fused", "the offset is held only where the magnetometer is fused while its "
              "iron is learned",
-             "estimator/ins.py", 'magnetometer_fused=self._par["mag_use"] > 0.5)',
+             "estimator/heading_supervision.py", 'magnetometer_fused=self._par["mag_use"] > 0.5)',
              'magnetometer_fused=self._par["mag_use"] > 1.5)',
              ("tests/test_learned_iron_offset_hold.py",)),
     Mutation("monitor-reject-checks", "the magnetometer is rejected after reject_checks failed checks",
@@ -256,7 +256,7 @@ MUTATIONS: tuple[Mutation, ...] = (
              ("tests/test_gnss_receiver_time.py",)),
     # ------------------------------------------------------------------ session 25 (mut25)
     Mutation("harmonics-restart-new-calibration", "a new calibration restarts the harmonic states from its prior",
-             "estimator/ins.py", "self._restart_calibration_error_states()    # the new calibration",
+             "estimator/heading_supervision.py", "self.restart_calibration_error_states()    # the new calibration",
              "None    # the new calibration",
              ("tests/test_mag_harmonics_new_calibration.py",)),
     Mutation("mag-pred-levelling-tilt", "calibrate mag --gnss adds the levelling tilt's tan(dip)·σ to its prediction",
@@ -610,11 +610,12 @@ MUTATIONS: tuple[Mutation, ...] = (
     # ------------------------------------------------------------------ session 29 (tilt29)
     Mutation("relevel-after-wrong-yaw",
              "at the first valid GNSS yaw the tilt levelled under the wrong yaw gets its start-up σ back",
-             "estimator/ins.py", "var = min(lean_sigma_rad, self.params.nav_init_sigma_tilt_rad) ** 2", "var = 0.0",
+             "estimator/yaw_reset.py", "var = min(lean_sigma_rad, p.nav_init_sigma_tilt_rad) ** 2", "var = 0.0",
              ("tests/test_gnss_yaw_alignment.py", "tests/test_gnss_yaw_alignment_without_magnetometer.py")),
     Mutation("nomag-bias-restarted-where-yaw-kept",
              "ins without a magnetometer restarts the horizontal accelerometer bias at the first valid GNSS yaw it keeps",
-             "estimator/ins.py", "            self._restart_horizontal_accel_bias()", "            pass",
+             "estimator/heading_supervision.py",
+             "            self._resets.restart_horizontal_accel_bias(self.params, c.startup_accel_bias)", "            pass",
              ("tests/test_gnss_yaw_alignment_without_magnetometer.py",)),
     # ------------------------------------------------------------------ session 30 (split30): ins's parts alone
     Mutation("gnss-intake-accuracy-floor", "a fix's reported 1σ is never below the filter's floor",
