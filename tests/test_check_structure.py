@@ -74,8 +74,11 @@ def test_probing_a_part_fails(tmp_path):
 
 
 def test_probing_an_estimator_outside_the_daemon_fails(tmp_path):
-    """Outside daemon/ only rule 4 holds: an estimator's capabilities are Protocols of estimator/base.py, in the
-    CLI and the calibration as in the daemon; other getattr, setattr and bases are the package's own business."""
+    """Outside daemon/ rule 4 holds: an estimator's capabilities are Protocols of estimator/base.py, in the CLI and
+    the calibration as in the daemon; setattr and bases are the package's own business. Rule 14 holds in every
+    package, the shapes main had: the field session read `getattr(estimate, "body_yaw_rad", None)` (an attitude of
+    one of two undeclared shapes), the stream `hasattr(sc, "with_gravity")`; a MAVLink 2 extension field,
+    Python's own dunders and a getattr without a default (no probe) stay allowed (probe.py)."""
     (tmp_path / "cli").mkdir()
     (tmp_path / "cli" / "bad.py").write_text(
         "def a(estimator):\n"
@@ -88,11 +91,27 @@ def test_probing_an_estimator_outside_the_daemon_fails(tmp_path):
     (tmp_path / "calibration" / "bad.py").write_text(
         "def d(est):\n"
         "    return hasattr(est, 'update_gnss')\n")
+    _files(tmp_path, {"calibration/probe.py": textwrap.dedent("""\
+        def a(estimate):
+            return getattr(estimate, 'body_yaw_rad', None)
+        def b(sc):
+            return hasattr(sc, 'with_gravity')
+        def c(msg):
+            return getattr(msg, 'alt_ellipsoid', 0)
+        def d(cls):
+            return hasattr(cls, '__post_init__')
+        def e(cfg, key):
+            return getattr(cfg, 'rate_hz'), getattr(cfg, key, None)
+        """), "daemon/probe.py": "def f(estimate):\n    return getattr(estimate, 'gyro_bias_rad_s', 0.0)\n"})
     r = run(tmp_path)
     assert r.returncode == 1
     assert "cli/bad.py:2: getattr(estimator, 'gnss_counters') probes an estimator" in r.stdout
     assert "calibration/bad.py:2: hasattr(est, 'update_gnss') probes an estimator" in r.stdout
     assert "bad.py:4:" not in r.stdout and "bad.py:6:" not in r.stdout
+    assert "calibration/probe.py:2: getattr(estimate, 'body_yaw_rad', …) probes an object for a member" in r.stdout
+    assert "calibration/probe.py:4: hasattr(sc, 'with_gravity') probes an object for a member" in r.stdout
+    assert "daemon/probe.py:2: getattr(estimate, 'gyro_bias_rad_s', …) probes" in r.stdout
+    assert all(f"calibration/probe.py:{line}:" not in r.stdout for line in (6, 8, 10)), r.stdout
 
 
 def test_a_spy_on_an_estimator_in_a_test_fails(tmp_path):
@@ -290,29 +309,6 @@ def test_a_fake_class_fails_in_every_package_but_not_in_tests(tmp_path):
     for at in ("bad.py:1:", "bad.py:3:", "bad.py:5:", "bad.py:7:"):
         assert f"{at} class " in r.stdout and "is a fake" in r.stdout.split(at)[1].splitlines()[0], (at, r.stdout)
     assert r.stdout.count("is a fake") == 4, r.stdout
-
-
-def test_probing_an_object_for_a_member_fails_in_every_package_but_a_foreign_member_or_a_dunder_passes(tmp_path):
-    """Rule 14, the shapes main had: the field session read `getattr(estimate, "body_yaw_rad", None)` (an
-    attitude of one of two undeclared shapes), the stream `hasattr(sc, "with_gravity")`. A MAVLink 2 extension
-    field and Python's own dunders stay allowed, and so does a getattr without a default (no probe)."""
-    r = run(_files(tmp_path, {"calibration/bad.py": textwrap.dedent("""\
-        def a(estimate):
-            return getattr(estimate, 'body_yaw_rad', None)
-        def b(sc):
-            return hasattr(sc, 'with_gravity')
-        def c(msg):
-            return getattr(msg, 'alt_ellipsoid', 0)
-        def d(cls):
-            return hasattr(cls, '__post_init__')
-        def e(cfg, key):
-            return getattr(cfg, 'rate_hz'), getattr(cfg, key, None)
-        """), "daemon/bad.py": "def f(estimate):\n    return getattr(estimate, 'gyro_bias_rad_s', 0.0)\n"}))
-    assert r.returncode == 1
-    assert "calibration/bad.py:2: getattr(estimate, 'body_yaw_rad', …) probes an object for a member" in r.stdout
-    assert "calibration/bad.py:4: hasattr(sc, 'with_gravity') probes an object for a member" in r.stdout
-    assert "daemon/bad.py:2: getattr(estimate, 'gyro_bias_rad_s', …) probes" in r.stdout
-    assert all(f"calibration/bad.py:{line}:" not in r.stdout for line in (6, 8, 10)), r.stdout
 
 
 def test_a_test_module_imported_by_another_fails_and_tests_support_passes(tmp_path):
