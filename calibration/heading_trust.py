@@ -73,8 +73,8 @@ def calibration_frame_tilt_heading_sigma_rad(calibration) -> float:
     tan(dip) times the frame tilt, which the fit's predicted heading error added in quadrature
     (`metadata["mag"]["frame_tilt_heading_std_deg"]`, written by `ahrsd calibrate mag` beside
     `frame_tilt_std_deg`). ins's frame-tilt states carry that share, so its harmonic states leave it out
-    (mag_harmonics.prior_variances_rad2). 0 when not stated (older files): the harmonics keep the whole heading
-    error, as before."""
+    (mag_harmonics.prior_variances_rad2). 0 when not stated (a file written without the field): the harmonic
+    states then keep the whole heading error."""
     return _stated_deg_as_rad(calibration, "frame_tilt_heading_std_deg")
 
 

@@ -77,7 +77,7 @@ def mag_decision_lines(result, outcome: str) -> list[str]:
 def residual_line(result) -> str:
     """The fit's residuals, each named by the samples it is of: `residual_rms_ut` of the unfiltered blocks at the
     fit's rate, and the vertical-channel fit's own (`vertical_channel.*_rms_ut`) of the blocks it fitted, which
-    the accelerometer's levelling low-passes (walk28: 0.042 µT and 0.029 µT of one fit, unlabelled)."""
+    the accelerometer's levelling low-passes (two figures of one fit, unlabelled, read as a contradiction)."""
     q = result.quality
     rate_hz = _num(q.get("fit_rate_hz"))
     line = f"  residual: |m| − |F| RMS {result.residual_rms_ut:.3f} µT"

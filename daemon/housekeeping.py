@@ -24,7 +24,7 @@ class Housekeeping:
 
     Each tick is a loop callback at its deadline (`loop.call_at`), not a task resumed by `asyncio.sleep`: the
     sleep's timer sets a future, whose callback resumes the task one loop iteration later, so a tick would
-    cost two wakes of the loop instead of one. A job that raises ends `run` with its exception, as before."""
+    cost two wakes of the loop instead of one. A job that raises ends `run` with its exception."""
 
     def __init__(self, jobs: list[Callable[[float], None]]):
         self.jobs = jobs

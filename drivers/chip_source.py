@@ -109,7 +109,7 @@ class ChipSource(LiveSource):
         began, as if the burst had been read at that instant — read again until that instant is past the
         bracket's doubt (at most INDEX_PROBES reads within INDEX_PROBE_PERIODS of a period). Taking the largest index the host
         clock allows instead (so that a lost sample is never hidden) was one too high whenever the burst had
-        latched the sample before: issue 30, a real-time `record --sim` at load ~2 % of rows one off."""
+        latched the sample before (a real-time `record --sim` on a loaded machine: rows one sample off)."""
         timer, clock, driver = self.timer, self.clock, self.driver
         newest_at = now               # the burst's sample was the newest at its latch, at or after `now`
         for probe in range(INDEX_PROBES):

@@ -69,6 +69,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 from numba import njit
 
+from ahrsd.core.gnss import GnssFix
+
 from .kernel_rotations import set_dcm_from_euler
 
 MODEL_STATE_NAMES = ("vel_n", "vel_e", "yaw", "bias_front", "bias_right")
@@ -894,12 +896,12 @@ class GsfYaw:
             self._started = True
         _feed(self.state, self._par, t, np.ascontiguousarray(g), np.ascontiguousarray(a))
 
-    def update_gnss(self, fix) -> int:
+    def update_gnss(self, fix: GnssFix) -> int:
         """Fuse a fix's velocity; returns the outcome code. Fixes before the first IMU sample are ignored."""
         if not self._started:
             return WAITING_FOR_TILT
         v = np.asarray(fix.vel_ned_m_s, dtype=float)
-        s_acc = float(getattr(fix, "s_acc_m_s", float("nan")))
+        s_acc = float(fix.s_acc_m_s)
         if not math.isfinite(s_acc):
             s_acc = 0.0
         return int(gsf_fuse_velocity(self.state, self._par, float(fix.t_s), v, s_acc))

@@ -185,9 +185,9 @@ class HeadingConfirmation:
         its heading (`confirm`), when a GNSS yaw within `heading_confirm_sigma_rad` agrees. The filter confirms a
         yaw set to a GNSS yaw (alignment, emergency reset) with the looser `bias_confirm_sigma_rad`, but that yaw
         is only as good as the bank that set and confirmed it (σ up to 10°), and the fixes pull it through the
-        linearised update, whose variance shrinks faster than the error as a turn ends (docs/gnss.md, early23).
+        linearised update, whose variance shrinks faster than the error as a turn ends (docs/gnss.md).
         After a rejection the monitor widens the yaw variance (tens of degrees) and the looser GNSS yaw agrees
-        with it whatever the yaw (stby22). In both cases the floor stays published until the 5° GNSS yaw agrees;
+        with it whatever the yaw. In both cases the floor stays published until the 5° GNSS yaw agrees;
         the filter keeps its own decision."""
         if not self.heading_confirmed:
             self.sigma_confirmed = False

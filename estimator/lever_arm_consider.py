@@ -6,8 +6,8 @@ bends the heading by more than its σ says (docs/gnss.md "The arm's own uncertai
 
 P_r is `lever_arm_sigma_m` per axis: the told arm's σ (a tape measure's: a few centimetres), or for an arm not
 told (left at (0, 0, 0)) how far the antenna may be from the IMU (2 m, the lever-arm check's prior PRIOR_SIGMA_M,
-is what the figures in docs/gnss.md were measured with). NaN, the default: the arm fused as exact, as before — the
-default is the lead's call once the accuracy rows are re-run (every GNSS-aided run's output changes with it).
+is what the figures in docs/gnss.md were measured with). NaN, the default: the arm fused as exact; a finite σ
+changes every GNSS-aided run's output, and docs/gnss.md says which figures were measured with which.
 
 The arm's error is one constant; what it makes of a fix, C [ω×] δr, changes only as the vehicle's rotation does. Taken
 as white noise at every fix it would average away over a turn's fixes, which it does not: the fusion takes it as one

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 # Each name below is imported from its module on first use (PEP 562), not when the package is: a command line that
 # only names a place or an iron (simulation/place_options.py, read by every `ahrsd` command's parser) then loads
-# neither the scenarios nor the streams. `from ahrsd.simulation import X` reads as before.
+# neither the scenarios nor the streams. `from ahrsd.simulation import X` works for each of them.
 _MODULE_OF = {
     "SensorErrors": "errors",
     "PassingMagnet": "magnetic", "VehicleIron": "magnetic",

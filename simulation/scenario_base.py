@@ -73,6 +73,11 @@ class Scenario:
         """Local magnetic disturbance (not the Earth's field, not vehicle iron), NED, µT; None when absent."""
         return None
 
+    def with_gravity(self, g_m_s2: float) -> "Scenario":
+        """The scenario under the local gravity `g_m_s2` (a stream's site): itself, unless its motion depends on g
+        (a coordinated turn banks by atan(v·ω/g): simulation.scenarios.CoordinatedTurn, vehicles.Plane)."""
+        return self
+
 
 class EulerScenario(Scenario):
     """A scenario whose attitude is given by ZYX Euler angles (yaw, pitch, roll) as smooth functions of time.
@@ -130,8 +135,8 @@ def track_accel_ned_m_s2(speed_m_s: float, psi_rad, rate_rad_s, az_m_s2) -> np.n
                             az_m_s2])
 
 
-class ConstantSpeedTrack:
-    """Mixin: level motion at `speed_m_s` along the heading profile `self._heading` (a RateProfile)."""
+class ConstantSpeedTrack(EulerScenario):
+    """An EulerScenario moving level at `speed_m_s` along the heading profile `self._heading` (a RateProfile)."""
 
     def velocity_ned_m_s(self, t_s):
         t = np.asarray(t_s, dtype=float)

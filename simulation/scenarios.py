@@ -213,7 +213,7 @@ class LevelTurns(EulerScenario):
 
 # --------------------------------------------------------------------------------------------------------------
 @dataclass
-class CoordinatedTurn(ConstantSpeedTrack, EulerScenario):
+class CoordinatedTurn(ConstantSpeedTrack):
     """A fixed-wing at `speed_m_s` in banked, coordinated turns: the accelerometer does not point at gravity.
 
     Straight 10 s, roll into a right turn at `bank_deg` (4 s), hold it 60 s, roll out, straight 10 s, the same to
@@ -287,7 +287,7 @@ class Tumble(EulerScenario):
 
 # --------------------------------------------------------------------------------------------------------------
 @dataclass
-class AuvOutAndBack(ConstantSpeedTrack, EulerScenario):
+class AuvOutAndBack(ConstantSpeedTrack):
     """Test 2 of Nourmohammadi & Sabet, "Back-stepping calibration algorithm for three-axial magnetometer applied
     to autonomous underwater vehicles with magnetic deviations", J. of Control 16(3), 2022, §5: an AUV runs out
     on heading 62°, turns, and comes back on −117° (= 243°); repeats.

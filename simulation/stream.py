@@ -230,9 +230,7 @@ def _resolve_scenario(scenario, site: Site) -> Scenario:
     sc = make_scenario(scenario) if isinstance(scenario, str) else scenario
     if not isinstance(sc, Scenario):
         raise TypeError(f"scenario must be a name or a Scenario, got {type(scenario).__name__}")
-    if hasattr(sc, "with_gravity"):
-        sc = sc.with_gravity(site.gravity_m_s2)  # flying coordinated with the local gravity: zero lateral force
-    return sc
+    return sc.with_gravity(site.gravity_m_s2)   # a coordinated turn banks for the local gravity: no lateral force
 
 
 def open_stream(scenario: str | Scenario, rate_hz: float = 819.2, seed: int = 0,

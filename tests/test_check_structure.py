@@ -74,25 +74,44 @@ def test_probing_a_part_fails(tmp_path):
 
 
 def test_probing_an_estimator_outside_the_daemon_fails(tmp_path):
-    """Outside daemon/ only rule 4 holds: an estimator's capabilities are Protocols of estimator/base.py, in the
-    CLI and the calibration as in the daemon; other getattr, setattr and bases are the package's own business."""
+    """Outside daemon/ rule 4 holds: an estimator's capabilities are Protocols of estimator/base.py, in the CLI and
+    the calibration as in the daemon; setattr and bases are the package's own business. Rule 14 holds in every
+    package, the shapes main had: the field session read `getattr(estimate, "body_yaw_rad", None)` (an attitude of
+    one of two undeclared shapes), the stream `hasattr(sc, "with_gravity")`; a MAVLink 2 extension field,
+    Python's own dunders and a getattr without a default (no probe) stay allowed (probe.py)."""
     (tmp_path / "cli").mkdir()
     (tmp_path / "cli" / "bad.py").write_text(
         "def a(estimator):\n"
         "    return getattr(estimator, 'gnss_counters', None)\n"
         "def b(args):\n"
-        "    return getattr(args, 'gnss', None)\n"          # a part's name, but an argparse namespace: allowed here
+        "    return getattr(args, 'gnss')\n"                # a part's name, but an argparse namespace: allowed here
         "def c(x):\n"
         "    setattr(x, 'y', 1)\n")
     (tmp_path / "calibration").mkdir()
     (tmp_path / "calibration" / "bad.py").write_text(
         "def d(est):\n"
         "    return hasattr(est, 'update_gnss')\n")
+    _files(tmp_path, {"calibration/probe.py": textwrap.dedent("""\
+        def a(estimate):
+            return getattr(estimate, 'body_yaw_rad', None)
+        def b(sc):
+            return hasattr(sc, 'with_gravity')
+        def c(msg):
+            return getattr(msg, 'alt_ellipsoid', 0)
+        def d(cls):
+            return hasattr(cls, '__post_init__')
+        def e(cfg, key):
+            return getattr(cfg, 'rate_hz'), getattr(cfg, key, None)
+        """), "daemon/probe.py": "def f(estimate):\n    return getattr(estimate, 'gyro_bias_rad_s', 0.0)\n"})
     r = run(tmp_path)
     assert r.returncode == 1
     assert "cli/bad.py:2: getattr(estimator, 'gnss_counters') probes an estimator" in r.stdout
     assert "calibration/bad.py:2: hasattr(est, 'update_gnss') probes an estimator" in r.stdout
     assert "bad.py:4:" not in r.stdout and "bad.py:6:" not in r.stdout
+    assert "calibration/probe.py:2: getattr(estimate, 'body_yaw_rad', …) probes an object for a member" in r.stdout
+    assert "calibration/probe.py:4: hasattr(sc, 'with_gravity') probes an object for a member" in r.stdout
+    assert "daemon/probe.py:2: getattr(estimate, 'gyro_bias_rad_s', …) probes" in r.stdout
+    assert all(f"calibration/probe.py:{line}:" not in r.stdout for line in (6, 8, 10)), r.stdout
 
 
 def test_a_spy_on_an_estimator_in_a_test_fails(tmp_path):

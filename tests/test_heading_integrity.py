@@ -141,7 +141,9 @@ def test_learned_iron_api_round_trips_and_refuses_garbage():
 
 def test_an_aided_magnetometer_update_never_moves_the_horizon():
     """After 60 s of the boat with GNSS (tilt–heading covariance far from zero), one magnetometer update with a
-    field turned by 10° rotates the attitude about down only; with mag_moves_tilt it leans the horizon."""
+    field turned by 10° rotates the attitude about down only; with mag_moves_tilt it leans the horizon. Without
+    a fix within gnss_timeout_s (dead reckoning: the heading-only row, as before the first fix) not even a
+    trusted magnetometer's update (mag_moves_tilt, as ins sets it for one) moves the horizon (issue 29, item 5)."""
     from scipy.spatial.transform import Rotation
 
     from ahrsd.estimator import ins_core as core
@@ -151,9 +153,11 @@ def test_an_aided_magnetometer_update_never_moves_the_horizon():
     P = ins._P
     assert abs(P[0, 2]) + abs(P[1, 2]) > 1e-3 * math.sqrt(P[0, 0] * P[2, 2])
 
-    def tilt_of_one_update(moves_tilt: bool) -> float:
+    def tilt_of_one_update(moves_tilt: bool, outage: bool = False) -> float:
         x, P1, par = ins._x.copy(), ins._P.copy(), ins._par.copy()
         par["mag_moves_tilt"] = 1.0 if moves_tilt else 0.0
+        if outage:      # the last fix fused longer than gnss_timeout_s ago: the GNSS no longer holds the tilt
+            x["gnss_fused_t_s"] = x["t_last_s"] - par["gnss_timeout_s"] - 1.0
         par["mag_use"] = 1.0
         m = x["mag_last_ut"]
         x["mag_last_ut"] = Rotation.from_euler("z", 10.0, degrees=True).apply(m)
@@ -167,6 +171,7 @@ def test_an_aided_magnetometer_update_never_moves_the_horizon():
 
     assert tilt_of_one_update(False) < 1e-12
     assert tilt_of_one_update(True) > 1e-7
+    assert tilt_of_one_update(True, outage=True) < 1e-12
 
 
 @pytest.mark.parametrize("seed", [11, 12, 13])

@@ -57,6 +57,19 @@ def test_the_horizon_is_moved_only_by_a_trusted_magnetometer_and_only_where_allo
     assert _use(params=_params(mag_moves_tilt=True), monitor_use=False, slow_var_rad2=1.0).mag_moves_tilt == 1.0
 
 
+
+def test_with_the_filters_own_defaults_only_a_trusted_magnetometer_moves_the_horizon():
+    """ins's default InsParams, not this file's: a magnetometer the monitor keeps out, or one whose slowly varying
+    variance is above the trusted σ, gets no gain on the tilt; a trusted one does (`mag_moves_tilt` True by
+    default would let any magnetometer lean the horizon while aided: issue 29, item 5)."""
+    from ahrsd.estimator.ins import InsParams
+
+    p = InsParams()
+    assert _use(params=p, monitor_use=False).mag_moves_tilt == 0.0
+    assert _use(params=p, slow_var_rad2=(4.0 * DEG) ** 2, mag_var_rad2=(1.0 * DEG) ** 2).mag_moves_tilt == 0.0
+    assert _use(params=p, slow_var_rad2=(1.0 * DEG) ** 2).mag_moves_tilt == 1.0
+
+
 def test_the_bias_is_the_slow_part_with_the_learned_irons_time_constant_once_there_is_one():
     u = _use()
     assert u.mag_bias_var_rad2 == pytest.approx((2.0 * DEG) ** 2 - (0.5 * DEG) ** 2, rel=1e-12)

@@ -47,6 +47,12 @@ Rule in every package (not tests/, tools/ or bench/):
    what it has (daemon.magcal's PREFLIGHT_CALIBRATION path calls `_start(CommandArgs(...))`), it does not forge
    the other's input; a forged message missed a field the reader needs and failed where no test looked. Fakes
    live in tests/.
+14. no probing of an object for a member by name (`hasattr(x, "name")`, `getattr(x, "name", default)`): our own
+   types declare their members (a dataclass field with its default, a Protocol: calibration.field.FieldAttitude,
+   daemon.magcal.MagCalEstimate, a GnssFix's `s_acc_m_s`, Scenario.with_gravity), so a probe of one hides a
+   missing member behind a second meaning. Allowed: Python's own dunder names, and the members of other
+   libraries' objects that not all of them have, listed in FOREIGN_ATTRIBUTES with where they come from (a
+   MAVLink 2 extension field, an optional UBX or NMEA field, an exception's errno, argparse's `func`).
 Rule in tests/:
 5. no spy on an estimator: no function or lambda assigned to an attribute of an estimator object (the names of
    rule 3, and what hangs below them: `est._monitor.check = spy`). A test reads what the estimator decided
@@ -84,6 +90,17 @@ PART_NAMES = {
 }
 
 
+# rule 14: members of other libraries' objects that some of those objects lack, read with a default
+FOREIGN_ATTRIBUTES = {
+    # pymavlink messages: the target fields exist on targeted message types only; MAVLink 2 extension fields
+    # (GPS_RAW_INT's alt_ellipsoid, h_acc, v_acc, vel_acc; STATUSTEXT's id, chunk_seq); get_type on messages only
+    "target_system", "target_component", "alt_ellipsoid", "h_acc", "v_acc", "vel_acc", "id", "chunk_seq",
+    "get_type",
+    # pyubx2 / pynmeagps parsed messages: fields of some message types or protocol versions only
+    "invalidLlh", "msgID", "time", "date", "posMode",
+    # an OSError's fields, os.O_DIRECTORY (not on every platform), argparse's sub-command, numba's dispatcher class
+    "errno", "filename", "strerror", "O_DIRECTORY", "func", "CPUDispatcher",
+}
 HOST_CLOCKS = {"time.monotonic", "time.time", "time.monotonic_ns", "time.time_ns"}
 HOST_CLOCK_MARK = "# host clock:"
 # rule 11: a session named ("session 23", "sessions 24–25") or a session's walk by its helper ("walk26's walk")
@@ -186,8 +203,8 @@ def _fake_classes(nodes: list[ast.AST], shown: str) -> list[str]:
 def check_file(path: Path, shown: str, daemon_rules: bool = True, settings_rule: bool = False,
                parsed: tuple[ast.Module, str] | None = None) -> list[str]:
     """The problems in one file: every rule (daemon_rules), or only rules 4 (an estimator probed), 7, 9 (a
-    forwarding wrapper), 11 (a session named in a comment) and 12 (a fake class); and rule 8 (a settings object probed) with
-    settings_rule. parsed: its `_parsed`, when the caller has it."""
+    forwarding wrapper), 11 (a session named in a comment), 12 (a fake class) and 14 (a member probed); and rule 8
+    (a settings object probed) with settings_rule. parsed: its `_parsed`, when the caller has it."""
     try:
         tree, text = parsed or _parsed(path)
     except SyntaxError as exc:
@@ -221,6 +238,13 @@ def check_file(path: Path, shown: str, daemon_rules: bool = True, settings_rule:
             if settings_rule and target in SETTINGS_OBJECTS:
                 out.append(f"{shown}:{node.lineno}: {name}({target}, {attr!r}) probes a settings object (declare "
                            "the field with its default: drivers/source_settings.py SensorSettings)")
+            reported = any(o.startswith(f"{shown}:{node.lineno}: {name}(") for o in out)     # rules 3, 4, 8
+            if (not reported and isinstance(attr, str) and (name == "hasattr" or len(node.args) > 2)
+                    and not attr.startswith("__") and attr not in FOREIGN_ATTRIBUTES):
+                default = ", …" if name == "getattr" else ""
+                out.append(f"{shown}:{node.lineno}: {name}({target or 'expression'}, {attr!r}{default}) probes an object "
+                           "for a member (declare it on the type: a field with its default, a Protocol; a member of "
+                           "another library's object goes into FOREIGN_ATTRIBUTES, with where it comes from)")
     return sorted(out, key=lambda line: int(line.split(":")[1]))
 
 

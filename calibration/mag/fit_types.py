@@ -68,12 +68,6 @@ class MagFitInput:
         return MagFitInput(self.t_s[mask], self.mag_ut[mask], pick(self.accel_m_s2), pick(self.gyro_rad_s),
                            pick(self.heading_ref_deg))
 
-    @classmethod
-    def from_recording(cls, recording) -> "MagFitInput":
-        """From an `ahrsd.drivers.recording.Recording` (or anything with t_s, mag_ut, accel_m_s2, gyro_rad_s)."""
-        return cls(recording.t_s, recording.mag_ut, getattr(recording, "accel_m_s2", None),
-                   getattr(recording, "gyro_rad_s", None))
-
 
 @dataclass(frozen=True)
 class MagFitResult:

@@ -80,7 +80,7 @@ def _levelled(result: MagFitResult, data: MagFitInput, roll_rad, pitch_rad):
             cal = lowpass(cal, d.t_s, tau_s)
             gyro_rad_s = None if gyro_rad_s is None else lowpass(gyro_rad_s, d.t_s, tau_s)
             # said, since every drawn sample is then quieter than the fit's unfiltered 10 Hz blocks the title's
-            # residual is of (walk28: 0.028 µT drawn beside the title's 0.042 µT on the tour's boat)
+            # residual is of (unsaid, the drawn residual reads smaller than the title's)
             levelled_by = f"the accelerometer, drawn low-passed (τ {tau_s:g} s) as fitted"
         # level as the fit did: without the accelerometer's lean into turns (the fitted forward speed)
         speed = result.quality.get("vertical_channel", {}).get("centripetal_speed_m_s")
@@ -148,7 +148,7 @@ def _field_panel(ax, result: MagFitResult, d: MagFitInput, cal, lv_cal, q: dict,
 def _legend_below(ax, **options) -> None:
     """The legend under the panel, outside it: matplotlib's default "best" searched a 200 s recording's 160 000
     points for a free spot (seconds, and a UserWarning "Creating legend with loc="best" can be slow" printed to
-    the user, walk30), and inside the circle panel it covered the raw field it sat on."""
+    the user), and inside the circle panel it covered the raw field it sat on."""
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), borderaxespad=0.0, fontsize=7, **options)
 
 
