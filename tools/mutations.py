@@ -836,4 +836,9 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("schedule-rate-halved", "each stream sends at its rate (sent + dropped = the deadlines that passed)",
              "daemon/outputs.py", "period = 1.0 / s.rate_hz", "period = 2.0 / s.rate_hz",
              ("tests/test_daemon_units.py", "tests/test_reliability_soak.py")),
+    # ------------------------------------------------------------------ session 35 (walk)
+    Mutation("source-set-none-yaw-advised", "an alternate EKF3 source set with yaw None or Compass is allowed with a "
+             "warning naming GSF (EKF3 resets on the ground, spends an emergency reset in flight)",
+             "daemon/source_set_check.py", "if yaw in NO_YAW_SOURCES:", "if False:",
+             ("tests/test_source_set_realign.py",)),
 )
