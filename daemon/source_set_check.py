@@ -88,9 +88,10 @@ class SourceSetCheck:
                 alt, ",".join(differ))
         yaw = v[param_name(alt, "YAW")]
         if yaw in NO_YAW_SOURCES:
-            self.advice = (f"EK3_SRC{alt}_YAW is {yaw:g}: on the ground and disarmed EKF3 stops aiding and resets "
-                           f"velocity, position and height at each switch, in flight it spends an emergency yaw "
-                           f"reset; set EK3_SRC{alt}_YAW = {GSF} (GSF)")
+            self.advice = (f"EK3_SRC{alt}_YAW is {yaw:g}: with no yaw source (0, or 1 without an enabled compass) "
+                           f"EKF3 stops aiding and resets velocity, position and height at each switch on the ground "
+                           f"and disarmed, and spends an emergency yaw reset in flight; with a compass, 1 resets the "
+                           f"yaw to it first; set EK3_SRC{alt}_YAW = {GSF} (GSF)")
         return True, f"EK3_SRC{alt}_* equal set 1 except the yaw ({yaw:g})"
 
     def _decide(self, allowed: bool, why: str) -> None:
