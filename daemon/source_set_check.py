@@ -8,6 +8,11 @@ POSXY, VELXY, VELZ and YAW None, POSZ Baro) has no horizontal source.
 So the sets are read with PARAM_REQUEST_READ and the switch is allowed only when EK3_SRC1_YAW is ExternalNav
 (6), the alternate set's yaw is not, and its POSXY, VELXY, POSZ and VELZ equal set 1's. Until the answers are
 in (requested again at each autopilot HEARTBEAT, a few times), the switch is not allowed: the restart slews.
+
+An alternate yaw of None (0) or Compass (1, None without an enabled compass: AP_NavEKF_Source::getYawSource) is
+allowed but warned about: EKF3's setAidingMode (AP_NavEKF3_Control.cpp) stops aiding and resets velocity,
+position and height whenever the yaw source is None while disarmed on the ground, and in flight a change to None
+spends one of its emergency GSF yaw resets (SelectMagFusion, EK3_GSF_RST_MAX); GSF (8) does neither.
 """
 
 from __future__ import annotations
@@ -21,6 +26,8 @@ from ahrsd.daemon.mavlink_io import mavlink
 log = logging.getLogger(__name__)
 
 EXTNAV = 6
+NO_YAW_SOURCES = (0, 1)   # None, and Compass (None while no compass is enabled)
+GSF = 8
 AXES = ("POSXY", "VELXY", "POSZ", "VELZ", "YAW")
 MAX_REQUESTS = 5          # rounds of requests (one per autopilot HEARTBEAT) before giving up
 
@@ -41,6 +48,7 @@ class SourceSetCheck:
         self.values: dict[str, float] = {}
         self.requests = 0
         self.verdict: tuple[bool, str] | None = None
+        self.advice: str | None = None   # said with an allowed verdict: the alternate set works, but not as well
 
     @property
     def allowed(self) -> bool:
@@ -78,13 +86,21 @@ class SourceSetCheck:
         if differ:
             return False, "EK3_SRC{}_{{{}}} differ from set 1 (EKF3 would reset position/velocity)".format(
                 alt, ",".join(differ))
-        return True, f"EK3_SRC{alt}_* equal set 1 except the yaw ({v[param_name(alt, 'YAW')]:g})"
+        yaw = v[param_name(alt, "YAW")]
+        if yaw in NO_YAW_SOURCES:
+            self.advice = (f"EK3_SRC{alt}_YAW is {yaw:g}: with no yaw source (0, or 1 without an enabled compass) "
+                           f"EKF3 stops aiding and resets velocity, position and height at each switch on the ground "
+                           f"and disarmed, and spends an emergency yaw reset in flight; with a compass, 1 resets the "
+                           f"yaw to it first; set EK3_SRC{alt}_YAW = {GSF} (GSF)")
+        return True, f"EK3_SRC{alt}_* equal set 1 except the yaw ({yaw:g})"
 
     def _decide(self, allowed: bool, why: str) -> None:
         self.verdict = (allowed, why)
         if allowed:
             log.info("ArduPilot source set %d may be used to re-align EKF3's yaw after a restart: %s",
                      self.alternate_set, why)
+            if self.advice is not None:
+                log.warning("ArduPilot source set %d: %s", self.alternate_set, self.advice)
         else:
             log.warning("ArduPilot source set %d will NOT be used to re-align EKF3's yaw (a restart with another "
                         "heading is slewed in): %s", self.alternate_set, why)

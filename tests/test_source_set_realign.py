@@ -110,6 +110,23 @@ def test_the_switch_is_allowed_only_when_the_sets_differ_in_the_yaw_alone(sets, 
     assert check.allowed is allowed and why in check.verdict[1]
 
 
+@pytest.mark.parametrize("alternate_yaw, advised", [(0, True), (1, True), (8, False)])
+def test_an_alternate_yaw_of_none_is_allowed_but_gsf_is_advised(alternate_yaw, advised, caplog):
+    """EKF3 stops aiding and resets velocity, position and height at a switch to a set whose yaw is None while
+    disarmed on the ground (setAidingMode, AP_NavEKF3_Control.cpp; ArduPilot 4.8-dev SITL, issue 30), and Compass
+    is None without an enabled compass: the switch still re-aligns, so it is allowed, with a warning naming 8."""
+    check = SourceSetCheck(2, lambda m: None, lambda: (1, 1))
+    check.on_autopilot_heartbeat()
+    with caplog.at_level("WARNING", logger="ahrsd.daemon.source_set_check"):
+        _answers(check, {1: (3, 3, 1, 3, 6), 2: (3, 3, 1, 3, alternate_yaw)})
+    assert check.allowed
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    if advised:
+        assert len(warned) == 1 and f"EK3_SRC2_YAW is {alternate_yaw}" in warned[0] and "EK3_SRC2_YAW = 8" in warned[0]
+    else:
+        assert not warned and check.advice is None
+
+
 def test_missing_or_invalid_answers_are_asked_again_then_the_switch_is_refused():
     sent = []
     check = SourceSetCheck(3, sent.append, lambda: (1, 1))

@@ -866,4 +866,9 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("ins-suspect-mag-keeps-horizon", "by ins's defaults only a trusted magnetometer moves the horizon",
              "estimator/ins.py", "    mag_moves_tilt: bool = False", "    mag_moves_tilt: bool = True",
              ("tests/test_magnetometer_use.py",)),
+    # ------------------------------------------------------------------ session 35 (walk)
+    Mutation("source-set-none-yaw-advised", "an alternate EKF3 source set with yaw None or Compass is allowed with a "
+             "warning naming GSF (EKF3 resets on the ground, spends an emergency reset in flight)",
+             "daemon/source_set_check.py", "if yaw in NO_YAW_SOURCES:", "if False:",
+             ("tests/test_source_set_realign.py",)),
 )
