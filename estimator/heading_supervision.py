@@ -419,8 +419,8 @@ class HeadingSupervision:
         self.monitor.yaw_was_reset(t_s)     # an emergency reset keeps its spacing from this one
         self.reset_yaw(dyaw_rad, gsf_var, alignment=True)
         # the specific force the tilt was levelled against, turned by the alignment's yaw step: its horizontal part
-        # across the new heading, |f_h|·|sin Δψ|, was taken as a lean of the tilt (a car accelerating away leans
-        # degrees; a boat at 0.1–0.5 m/s² hardly any)
+        # across the new heading, |f_h|·|sin Δψ|, was taken as a lean of the tilt (a car accelerating away leans it
+        # by degrees, a slow boat hardly at all)
         f = self._x["acc_ned_lp_m_s2"]
         across = math.hypot(float(f[0]), float(f[1])) * abs(math.sin(wrap_pi(dyaw_rad)))
         self._resets.relevel(self.params, math.atan2(across, abs(float(f[2]))))

@@ -22,7 +22,7 @@ from collections import deque
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.special import chdtri   # χ² inverse survival function (scipy.stats costs 1.4 s to import)
+from scipy.special import chdtri   # χ² inverse survival function (not scipy.stats: slow to import)
 
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState, NavState
 from ahrsd.core.gnss import GnssFix
@@ -226,7 +226,7 @@ class InsParams(MagHeadingParams):
     heading_monitor: bool = True
     """Check the magnetometer against the filter's heading innovations and the GNSS yaw, reject it when they
     disagree, reset the yaw to the GNSS yaw, learn the iron (heading_monitor.py). False: the magnetometer is
-    always fused with its calibration's noise, as before."""
+    always fused with its calibration's noise."""
     iron_learning: bool = True
     """Learn the hard and soft iron left after the calibration while the GNSS holds the heading (IronLearner)."""
     iron_prior_sigma_ut: float = 10.0
@@ -260,7 +260,7 @@ class InsParams(MagHeadingParams):
     (correlated, `mag_harmonics.prior_from_heading_rows`) at the WMM field: the error is a function of the
     heading, constant while the heading holds, which only turns and the GNSS can learn. Fused as noise lasting
     `iron_learned_tau_s`, a straight leg averaged it away and pulled the heading (and the vertical gyro bias) to
-    the learned magnetometer's (docs/gnss.md "A learned iron's error as states"). False: that noise, as before."""
+    the learned magnetometer's (docs/gnss.md "A learned iron's error as states"). False: that noise."""
     iron_harmonic_residual_share: float = 1.0
     """With `iron_harmonic_states`: the share of the learned magnetometer's floor (mag_error_states.learned_floor_var_rad2, what no
     learned iron explains) still fused as noise lasting `iron_learned_tau_s`; the rest is added to the states'
@@ -305,7 +305,7 @@ class InsParams(MagHeadingParams):
     (`Compass_learn.cpp`, YAW_ACCURACY_THRESHOLD_DEG). A yaw that was set to the GNSS yaw (`yaw_align_to_gnss_yaw`)
     was not pulled in: `accel_bias_gsf_sigma_rad` confirms it for the filter, but the published σ keeps the GNSS
     yaw's until a GNSS yaw this accurate agrees: the bank that set and confirmed that yaw may be 10° wide, and the
-    fixes pull it through the same linearised update (docs/gnss.md, stby22 and early23)."""
+    fixes pull it through the same linearised update (docs/gnss.md)."""
     accel_bias_gsf_sigma_rad: float = 10.0 * _DEG
     """With `accel_bias_needs_heading`, the horizontal accelerometer bias learns again once a GNSS yaw this accurate
     agrees with the filter's heading (within their joint 3σ), or a trusted magnetometer holds it. Looser than
@@ -533,7 +533,7 @@ class Ins:
         once per process, here at construction: a kernel's first call types its arguments and loads its machine
         code (milliseconds each, docs/daemon.md "Performance"), which would otherwise fall on the first fix, the
         first heading check and the first yaw reset in the daemon's event loop. Later calls go through numba's
-        dispatcher as before (same compiled code); a call with other types just loads its own at its first call."""
+        dispatcher (the same compiled code); a call with other types just loads its own at its first call."""
         global _PYTHON_CALLED_KERNELS_LOADED
         if _PYTHON_CALLED_KERNELS_LOADED:
             return
@@ -569,9 +569,9 @@ class Ins:
     def field_circle_check(self) -> FieldCircleResult | None:
         """What the circle check found (field_circle.py) while it widens the published σ (before the first fix); None
         otherwise. Not the daemon's `field_circle()` (base.FieldCircleCheckedEstimator): ins levels its attitude
-        without GNSS less well than mekf (docs/estimator.md "Known limits": 5–15° of tilt on the simulated car and
-        plane), and a wrongly levelled field is no circle either, so a flag here widens σ — the heading is off — but
-        does not show that the calibration is what is wrong, and the daemon does not say so."""
+        without GNSS less well than mekf (docs/estimator.md "Known limits"), and a wrongly levelled field is no
+        circle either, so a flag here widens σ — the heading is off — but does not show that the calibration is what
+        is wrong, and the daemon does not say so."""
         return self._field_circle.result if self._field_circle_on and not self._ever_aided else None
 
     # ----------------------------------------------------------------------- Estimator protocol

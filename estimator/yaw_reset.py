@@ -64,8 +64,8 @@ class YawReset:
         first sets the velocity, `nav_init_sigma_tilt_rad`), at the first valid GNSS yaw (the alignment, or without a
         magnetometer the yaw kept there). Until then the yaw was tens of degrees off (the magnetometer's, or pulled
         in from an unknown start), and the GNSS velocity levelled the tilt against the horizontal acceleration
-        projected through it: a car accelerating away under a yaw 80–100° off leans its tilt by degrees, while the
-        linearised updates leave its variance at tenths of a degree. With its variance kept small, the fixes after
+        projected through it: a car accelerating away under a yaw far off leans its tilt by degrees, while the
+        linearised updates leave its variance small. With its variance kept small, the fixes after
         the alignment would put that tilt error into the horizontal accelerometer bias and the z axis's lean just
         released to learn, which keep it (docs/gnss.md "The horizon while the heading is being found")."""
         P = self._P
