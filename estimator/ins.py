@@ -441,6 +441,13 @@ class Ins:
     `gnss_counters`); `reset()`, `set_declination(rad)`, `relearn_field_reference()`; read-only `covariance`
     (31×31), `gyro_bias_rad_s`, `gyro_scale`, `gyro_misalignment_rad`, `accel_bias_m_s2`, `last_nis` (velocity,
     position); `heading_checks`, the latest heading checks' decisions (heading_monitor.HeadingCheckRecord).
+
+    The class is the composition: it keeps the kernel's arrays and the published estimate, and hands the arrays to
+    its parts, built in `__init__`: a sample goes through the compiled step (ins_core.py); a fix through `_fuse`:
+    `InsGnssFusion` (ins_gnss_fusion.py: the fix into the state, the lever-arm check), then `HeadingSupervision`
+    (heading_supervision.py: the heading checks and what they do to the yaw, the magnetometer's use and the
+    learned iron), which resets through `YawReset` (yaw_reset.py) and switches the magnetometer's error states
+    through `MagErrorStates` (mag_error_states.py). docs/architecture.md has what each part owns and is given.
     """
 
     name = "ins"
