@@ -123,15 +123,15 @@ def gnss_errors(row: str):
 
 def learn_iron_at_truth(est, run) -> None:
     """Oracle: `est`'s iron learner fed the simulator's attitude at the filter's latest sample instead of the
-    filter's own (the rest of the learning step as it is: Ins._learn_iron)."""
-    from ahrsd.estimator.ins import Ins
+    filter's own (the rest of the learning step as it is: HeadingSupervision._learn_iron)."""
+    from ahrsd.estimator.heading_supervision import HeadingSupervision
     from ahrsd.estimator.rotations import quat_to_dcm
 
     def learn(t_s, c_bn, field):
         k = min(int(np.searchsorted(run.t_s, float(est._x["t_last_s"]))), len(run.t_s) - 1)
-        Ins._learn_iron(est, t_s, np.asarray(quat_to_dcm(run.truth_q_wxyz[k]), dtype=float), field)
+        HeadingSupervision._learn_iron(est._heading, t_s, np.asarray(quat_to_dcm(run.truth_q_wxyz[k]), dtype=float), field)
 
-    est._learn_iron = learn
+    est._heading._learn_iron = learn
 
 
 def one_run(job, late_s: float = LATE_S) -> tuple:

@@ -46,7 +46,7 @@ def _state():
 def _pairs(est):
     """(name, how often, before, after): each a zero-argument callable doing one call's work."""
     from ahrsd.estimator import rotations
-    from ahrsd.estimator.ins import _finite3
+    from ahrsd.estimator.heading_supervision import _finite3
 
     x = est._x
     rate = np.array([0.01, -0.2, 0.3])

@@ -91,7 +91,7 @@ def trace(scenario: str, case: str, seed: int, site_label: str, iron_label: str 
     learning_was = False
     for k, e in estimates_in_arrival_order(est, run, run.fixes):
         t = run.t_s[k]
-        learning = bool(est._monitor.learning)
+        learning = bool(est._heading.monitor.learning)
         if t < next_t and not (learning_was and not learning):
             learning_was = learning
             continue
@@ -101,7 +101,7 @@ def trace(scenario: str, case: str, seed: int, site_label: str, iron_label: str 
             next_t += every_s
         _, hdg = tilt_heading_errors_deg(np.asarray(e.q_wxyz)[None], run.truth_q_wxyz[k][None], run.declination_rad)
         yaw_sigma = math.degrees(math.sqrt(max(est._P[core.E_YAW, core.E_YAW], 0.0)))
-        gsf_var = est._gnss_yaw()[1]
+        gsf_var = est._heading.gnss_yaw()[1]
         sigmas = (f"{yaw_sigma:5.2f} | {math.degrees(e.sigma_rpy_rad[2]):5.2f} | "
                   f"{math.degrees(math.sqrt(gsf_var)) if math.isfinite(gsf_var) else math.nan:5.2f}")
         learner = est._iron

@@ -139,10 +139,10 @@ def ins_reset_slew_out(run, rate_deg_s: float, wrong_deg: float = 100.0, slew=Ya
         k += 1
         truth = float(truth_yaw[k])
         if k == k_wrong:
-            est._reset_yaw(truth + math.radians(wrong_deg) - yaw(est.true_attitude_q_wxyz()), math.radians(0.5) ** 2)
+            est._heading.reset_yaw(truth + math.radians(wrong_deg) - yaw(est.true_attitude_q_wxyz()), math.radians(0.5) ** 2)
             est._published.reset()      # the wrong yaw is what was published all along
         if k == k_right:
-            est._reset_yaw(truth - yaw(est.true_attitude_q_wxyz()), math.radians(0.5) ** 2)
+            est._heading.reset_yaw(truth - yaw(est.true_attitude_q_wxyz()), math.radians(0.5) ** 2)
         e = est.update(item)
         if k < k_wrong or run.t_s[k] < t_next:
             continue

@@ -25,7 +25,6 @@ import numpy as np
 from scipy.special import chdtri   # χ² inverse survival function (scipy.stats costs 1.4 s to import)
 
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState, NavState
-from ahrsd.core.gravity import EARTH_RATE_RAD_S
 from ahrsd.core.gnss import GnssFix
 from ahrsd.core.sample import ImuSample
 
@@ -35,12 +34,10 @@ from .accel_axes_heading import accel_axes_heading_variance_rad2
 from .accel_axes_tilt import ACCEL_MISALIGNMENT_SIGMA_RAD
 from .base import DEFAULT_UNMODELLED_IRON_UT, LEARNED_WITH_GNSS
 from .calibration_heading import calibration_heading_variance_rad2, calibration_states_error
-from .gsf_yaw import GsfParams, gsf_fuse_velocity_of, gsf_output_of, gsf_reset, new_gsf_state
+from .gsf_yaw import GsfParams, gsf_reset, new_gsf_state
 from .gnss_intake import GnssCounters, GnssFixIntake
-from .heading_confirmation import HeadingConfirmation, gnss_yaw_floor
-from .heading_check_log import HeadingCheckLog
-from .heading_monitor import HeadingCheckRecord, HeadingMonitor, MonitorDecision, largest, wrap_pi
-from .heading_publication import HeadingPublication, HeadingReport
+from .heading_monitor import HeadingCheckRecord
+from .heading_publication import HeadingReport
 from .iron_in_use import IronInUse
 from .ins_start import (first_history_row, fresh_state, initial_covariance, initial_true_attitude, learned_to_keep,
                         start_mag_reference, start_sensor_errors)
@@ -48,27 +45,23 @@ from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate,
                             float_field_slice, uninitialised_estimate)
 from .kernel_entry import argument_types, entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
-from .history_rows import bracket, rows_near
 from .lever_arm_consider import ARM_TERM_CORRELATION_S, arm_covariance_m2
-from .lever_arm_fit import RATE_MEAN_S, LeverArmFit, LeverArmFitResult, mean_rate, rate_cross_ned
+from .heading_supervision import HeadingSupervision
+from .ins_gnss_fusion import InsGnssFusion
+from .yaw_reset import YawReset
+from .lever_arm_fit import LeverArmFitResult
 from .mag_heading import RELEARN_GATE_OPEN_S
-from .mag_error_restarts import (IRON_HARMONIC_YAWS_RAD, calibration_harmonics_prior, frame_tilt_heading_sigma_rad,
-                                 iron_harmonics_prior, restart_frame_tilt, restart_harmonics)
+from .mag_error_states import MagErrorStates
 from .mag_heading_params import MagHeadingParams
-from .monitor_follow_up import heading_observable, monitor_follow_up
-from .magnetometer_use import IronState, magnetometer_use
-from .mag_rotation import MagRotationBias
 from .constrained_update import scalar_update
 from .params import with_overrides
 from .estimate_view import BuiltEstimateView, EstimateView
 from .field_circle import FieldCircleCheck, FieldCircleParams, FieldCircleResult
 from .published_heading import PublishedHeading
-from .rotations import quat_to_dcm, quat_to_euler, rotvec_to_dcm
+from .rotations import quat_to_dcm
 from .ins_published_terms import published_terms
 
 log = logging.getLogger(__name__)
-_HIST_Q, _HIST_VEL, _HIST_RATE = (float_field_slice(core.INS_HISTORY_DTYPE, name)
-                                  for name in ("q", "vel_ned_m_s", "rate_rad_s"))
 _DEG = math.pi / 180.0
 
 
@@ -269,7 +262,7 @@ class InsParams(MagHeadingParams):
     `iron_learned_tau_s`, a straight leg averaged it away and pulled the heading (and the vertical gyro bias) to
     the learned magnetometer's (docs/gnss.md "A learned iron's error as states"). False: that noise, as before."""
     iron_harmonic_residual_share: float = 1.0
-    """With `iron_harmonic_states`: the share of the learned magnetometer's floor (`_learned_floor_var`, what no
+    """With `iron_harmonic_states`: the share of the learned magnetometer's floor (mag_error_states.learned_floor_var_rad2, what no
     learned iron explains) still fused as noise lasting `iron_learned_tau_s`; the rest is added to the states'
     prior, split as a calibration's (`mag_harmonic_offset_share`)."""
     iron_tau_s: float = 5.0
@@ -425,7 +418,6 @@ DEFAULT_INS_PARAMS = InsParams()
 
 
 _MAX_QUEUED = 16
-_MAG_ROTATION_GATE = 9.0    # NIS above which a magnetometer-rotation bias measurement is not fused (3σ)
 _NAV_MASK = sum(1 << j for j in range(core.E_V, core.E_P + 3))   # velocity and position: no gain
 _PYTHON_CALLED_KERNELS_LOADED = False   # Ins._load_python_called_kernels has run in this process
 
@@ -467,10 +459,6 @@ class Ins:
         self._mag_use = self._par_arr["mag_use"]
         self._P = np.zeros((core.N_ERR, core.N_ERR))
         self._hist = np.zeros(core.H_LEN, core.INS_HISTORY_DTYPE)
-        # what each fix reads of the history (`_history_state_at`, `_add_to_lever_arm_fit`): its times and body
-        # rates as views, its rows as flat float64 rows (one interpolation for the attitude, velocity and rate)
-        self._hist_t_s, self._hist_rate = self._hist["t_s"], self._hist["rate_rad_s"]
-        self._hist_rows = self._hist.view(np.float64).reshape(core.H_LEN, -1)
         self._out_arr = np.zeros(1, core.INS_OUT_DTYPE)   # the step's outputs (what the compiled step takes)
         self._out = self._out_arr[0]
         # the same outputs as one flat float64 array: copied whole for an estimate (copying a record goes field
@@ -498,33 +486,37 @@ class Ins:
         # what the accelerometer's axes add to an aided heading's published variance (accel_axes_heading.py)
         self._accel_axes_var_rad2 = accel_axes_heading_variance_rad2(self.params.accel_axes_heading_sigma_rad)
         self.gnss_counters: GnssCounters = self._intake.counters
-        # can the told antenna arm explain the velocity innovations? (and adopt the fitted one, if asked)
-        self._lever_arm_fit = LeverArmFit(adopt=self.params.lever_arm_adopt)
         self._gsf_par_arr = _one_record_array(GsfParams(lever_arm_m=tuple(self.params.lever_arm_m)).to_record())
         self._gsf_arr = _one_record_array(new_gsf_state(GsfParams(), 0.0))
         self._gsf_par = self._gsf_par_arr[0]      # record views of the arrays the compiled step takes
         self._gsf = self._gsf_arr[0]
         self._par["gnss_yaw"] = 1.0 if self.params.gnss_yaw else 0.0
         self._step = core.fast_step(self._step_args_example())
-        # the bank's per-fix kernels called with its 1-element arrays through their entry points (kernel_entry.py:
-        # these arrays only): a record argument costs several µs to unbox, an array a fraction of one
-        self._gsf_output = entry_point(gsf_output_of, argument_types(gsf_output_of, (self._gsf_arr,)))
-        fuse_args = (self._gsf_arr, self._gsf_par_arr, 0.0, np.zeros(3), 0.0)
-        self._gsf_fuse_velocity = entry_point(gsf_fuse_velocity_of, argument_types(gsf_fuse_velocity_of, fuse_args))
         self._load_python_called_kernels()
+        # a usable fix into the state, the lever-arm check, the velocity a yaw reset sets (ins_gnss_fusion.py)
+        self._fusion = InsGnssFusion(self._x_arr, self._P, self._hist, self._par_arr, self._gsf_arr,
+                                     self._gsf_par_arr, self._intake, told_arm_m=p.lever_arm_m, gnss_yaw=p.gnss_yaw,
+                                     adopt_arm=p.lever_arm_adopt)
+        self._lever_arm_fit = self._fusion.lever_arm_fit     # the same object for the filter's life
+        # the state's resets when the heading is found wrong (yaw_reset.py)
+        self._resets = YawReset(self._x, self._P, self._hist)
         # the iron learned on top of the calibration and its bookkeeping (iron_in_use.py); `_iron` is its learner
         # (the same object for the filter's life), which the heading checks read
         self._learned_iron = IronInUse(self.params.iron_prior_sigma_ut, self.params.iron_soft_prior)
         self._iron = self._learned_iron.learner
-        self._mag_harmonics_source = None  # what the harmonic states carry: "calibration", "iron" or None (off)
+        # the magnetometer's calibration-error states: the heading harmonics and the frame tilt (mag_error_states.py)
+        self._mag_errors = MagErrorStates(self._x, self._P, self._par, self._learned_iron)
         self._published = PublishedHeading(self.params.published_yaw_slew_rad_s)
         self._published_since_init = False
-        self._last_fix_velocity = None
-        self._fix_velocity_step = None    # (t_fix, m/s) what the last fix's own update added to the velocity
         self._view = BuiltEstimateView(self._build_estimate)   # step()'s result: the estimate built on demand
         # before the first fix the calibration is checked by the circle its levelled field sweeps in turns
         self._field_circle = FieldCircleCheck(FieldCircleParams(mag_noise_ut=self.params.mag_noise_ut))
-        self._new_heading_checks()
+        # the heading checks at the fused fixes and what they do to the filter (heading_supervision.py)
+        self._heading = HeadingSupervision(self.params, self._declination, self._x, self._P, self._par, self._hist,
+                                           self._gsf_arr, self._learned_iron, self._mag_errors, self._resets,
+                                           self._fusion, on_yaw_reset=self._flag_yaw_reset)
+        self._heading.restart()
+        self._set_field_circle()
 
     def _step_args_example(self) -> tuple:
         """Scratch arguments of the step's types (compiling it must not touch the filter's own arrays)."""
@@ -558,41 +550,6 @@ class Ins:
                 (input_validity, (0,) + (0.0,) * 9)):
             kernel.compile(tuple(kernel.typeof_pyval(a) for a in args))
         _PYTHON_CALLED_KERNELS_LOADED = True
-
-    def _new_heading_checks(self) -> None:
-        p = self.params
-        self._monitor = HeadingMonitor(p.calibration_sigma_rad, reentry_s=p.mag_reentry_s,
-                                       max_resets=p.yaw_reset_max, reset_spacing_s=p.yaw_reset_spacing_s)
-        # whether a GNSS yaw has confirmed the heading, the alignment to it, the published σ's floor until then
-        self._confirmation = HeadingConfirmation(
-            align_to_gnss_yaw=p.yaw_align_to_gnss_yaw, mag_enabled=p.mag_enabled,
-            checks_run=self._heading_checks_run, heading_confirm_sigma_rad=p.heading_confirm_gsf_sigma_rad,
-            bias_confirm_sigma_rad=p.accel_bias_gsf_sigma_rad, gate_sigma=self._monitor.gate_sigma,
-            calibration_sigma_rad=p.calibration_sigma_rad, trusted_sigma_rad=self._monitor.trusted_sigma_rad)
-        # the heading state held at the check rate, the integrity figures, the first step rejection
-        self._publication = HeadingPublication(p)
-        self._check_log = HeadingCheckLog()     # the latest checks' records (`heading_checks`)
-        self._field_key = None
-        self._field_ned = None
-        self._mag_var = p.calibration_sigma_rad ** 2
-        self._mag_trust_var = p.calibration_sigma_rad ** 2
-        # an iron was learned or restored before the magnetometer's latest rejection: the learned iron may be what
-        # the rejection found wrong, so a rejected magnetometer is not fused
-        # (`magnetometer_use.rejected_magnetometer_fused`)
-        self._iron_before_rejection = False
-        self._mag_rotation = MagRotationBias(gyro_noise_rad_s_rthz=p.gyro_noise_rad_s_sqrt_hz)
-        self._mag_rotation_on = p.mag_rotation_gyro_bias and p.heading_monitor and p.mag_enabled
-        self._x["gyro_rotation_last_t_s"] = math.nan   # the kernel sums the gyro's rotation (ins_core.py)
-        self.yaw_resets = 0
-        self.gnss_yaw_alignments = 0
-        self.heading_interventions = 0    # yaw resets and raised yaw variances (not Kalman updates)
-        self._par["mag_use"] = 1.0
-        self._par["mag_moves_tilt"] = 1.0 if p.mag_moves_tilt else 0.0
-        self._par["mag_bias_var_rad2"] = p.calibration_sigma_rad ** 2
-        self._set_accel_bias_learning()
-        self._apply_learned_iron()
-        self._set_mag_harmonics()
-        self._set_field_circle()
 
     def _set_field_circle(self) -> None:
         """Start the circle check again (field_circle.py): it runs until the first fix, while a calibration states
@@ -629,9 +586,29 @@ class Ins:
         self._intake.reset()
         self._ever_aided = False
         self._published.reset()
-        self._lever_arm_fit.reset()
-        self._use_arm(self.params.lever_arm_m)     # an arm adopted in the run before is not kept
-        self._new_heading_checks()
+        self._fusion.reset()     # an arm adopted in the run before is not kept
+        self._heading.restart()
+        self._set_field_circle()
+
+    # ----------------------------------------------------------------------- the heading checks' counts
+    @property
+    def yaw_resets(self) -> int:
+        """Yaw resets (the emergency ones and the alignments to the GNSS yaw) since the heading checks started."""
+        return self._heading.yaw_resets
+
+    @yaw_resets.setter
+    def yaw_resets(self, n: int) -> None:
+        self._heading.yaw_resets = n
+
+    @property
+    def gnss_yaw_alignments(self) -> int:
+        """The planned alignments to the first valid GNSS yaw among `yaw_resets`."""
+        return self._heading.gnss_yaw_alignments
+
+    @property
+    def heading_interventions(self) -> int:
+        """Yaw resets and raised yaw variances (not Kalman updates) since the heading checks started."""
+        return self._heading.heading_interventions
 
     # ----------------------------------------------------------------------- learned iron (persisted by the daemon)
     learned_iron_source = LEARNED_WITH_GNSS
@@ -639,15 +616,6 @@ class Ins:
     @property
     def unmodelled_iron_ut(self) -> float:
         return self.params.iron_unmodelled_ut
-
-    def _apply_learned_iron(self) -> None:
-        """The kernel removes the learned iron before its heading update: (I + D)⁻¹·(m − b); a learned iron's
-        error is the learner's, not the calibration's harmonic states' (`_mag_harmonics_apply`); the kernel's field
-        check takes its reference from the WMM field while an iron is learned (IronInUse.follow_field_reference)."""
-        self._par["iron_ut"] = self._iron.offset_ut
-        self._par["iron_soft_inv"] = self._iron.soft_iron_inverse
-        self._set_mag_harmonics()
-        self._learned_iron.follow_field_reference(self._mag_state(), self._field_ned)
 
     def learned_iron(self) -> tuple[np.ndarray, np.ndarray]:
         """The hard iron learned on top of the calibration (body frame, µT) and its covariance (µT²)."""
@@ -661,7 +629,7 @@ class Ins:
     def learned_iron_heading_sigma_rad(self) -> float:
         """The largest heading 1σ the learned iron leaves on a level vehicle at the filter's position (WMM), rad;
         NaN before a position is known."""
-        field = self._earth_field_ned() if self._initialised and self._x["nav_ok"] > 0 else None
+        field = self._heading.earth_field_ned() if self._initialised and self._x["nav_ok"] > 0 else None
         return math.nan if field is None else self._iron.level_heading_sigma_rad(field)
 
     def set_learned_iron(self, offset_ut, cov_ut2, soft_iron=None, soft_cov=None) -> None:
@@ -670,13 +638,13 @@ class Ins:
         ValueError when not finite or a covariance is not positive definite."""
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
         self._learned_iron.restore(offset_ut, cov_ut2, soft_iron, soft_cov)
-        self._apply_learned_iron()
+        self._heading.apply_learned_iron()
 
     def reset_learned_iron(self) -> None:
         """Forget the learned iron (a new calibration was accepted, or the operator reset it)."""
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
         self._learned_iron.forget()
-        self._apply_learned_iron()
+        self._heading.apply_learned_iron()
 
     def set_mag_calibration_sigma(self, sigma_rad: float) -> None:
         """A new magnetometer calibration is in force (the daemon's calibration swap): its predicted heading
@@ -686,71 +654,9 @@ class Ins:
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
         s = float(sigma_rad)
         self.params = replace(self.params, mag_calibration_sigma_rad=s if math.isfinite(s) and s >= 0.0 else math.nan)
-        p = self.params
-        self._learned_iron.new_calibration(p.iron_soft_prior)
-        self._monitor = HeadingMonitor(p.calibration_sigma_rad, reentry_s=p.mag_reentry_s,
-                                       max_resets=p.yaw_reset_max, reset_spacing_s=p.yaw_reset_spacing_s,
-                                       resets=self._monitor.resets, last_reset_t_s=self._monitor.last_reset_t_s)
-        self._confirmation.set_calibration(p.calibration_sigma_rad, self._monitor.trusted_sigma_rad)
-        self._mag_var = p.calibration_sigma_rad ** 2
-        self._mag_trust_var = p.calibration_sigma_rad ** 2
-        self._par["mag_use"] = 1.0
-        self._par["mag_moves_tilt"] = 1.0 if p.mag_moves_tilt else 0.0
-        self._par["mag_bias_var_rad2"] = p.calibration_sigma_rad ** 2
-        self._par["mag_bias_tau_s"] = p.mag_bias_tau
-        self._set_mag_harmonics()
-        self._restart_calibration_error_states()    # the new calibration's error, independent of the old one's
-        self._set_accel_bias_learning()
+        self._heading.set_params(self.params)
+        self._heading.new_calibration(self._initialised)
         self._set_field_circle()
-        if self._heading_checks_run:    # else the floor is none, or the one without magnetometer (no calibration's)
-            c = self._confirmation
-            c.unconfirmed_sigma_rad = c.unconfirmed_yaw_sigma(*self._yaw_and_gnss_yaw_now())
-
-    @property
-    def _mag_harmonics_apply(self) -> bool:
-        """The calibration's heading error is carried as the harmonic states (InsParams.mag_harmonic_states): a
-        calibration that states its error, trusted by the monitor, and no iron learned on top of it (a learned
-        iron's error is the learner's covariance, `_magnetometer_heading`)."""
-        p = self.params
-        return (p.mag_harmonic_states and p.mag_enabled and calibration_states_error(p.mag_calibration_sigma_rad)
-                and not self._calibration_untrusted and not self._learned_iron.learned)
-
-    @property
-    def _iron_harmonics_apply(self) -> bool:
-        """The learned iron's heading error is carried as the harmonic states (InsParams.iron_harmonic_states): an
-        iron learned or restored, its learning ended (the monitor neither learns nor rejects the magnetometer), the
-        filter GNSS-aided at a known WMM field (what the prior is projected at)."""
-        p = self.params
-        field = self._field_ned
-        return (p.iron_harmonic_states and p.mag_harmonic_states and p.mag_enabled and self._ever_aided
-                and self._learned_iron.learned and not self._monitor.learning
-                and not self._monitor.mag_rejected and field is not None and field[0] ** 2 + field[1] ** 2 > 0.0)
-
-    def _set_mag_harmonics(self) -> None:
-        """Tell the kernel whether the harmonic states carry the heading error (the calibration's or the learned
-        iron's), and what they leave as noise; switched on, or to the other error, they start from its prior."""
-        p = self.params
-        source = "calibration" if self._mag_harmonics_apply else "iron" if self._iron_harmonics_apply else None
-        was = self._mag_harmonics_source
-        self._mag_harmonics_source = source
-        self._par["mag_harmonics_on"] = 0.0 if source is None else 1.0
-        self._par["mag_harmonic_residual_var_rad2"] = p.mag_harmonic_residual_share * p.calibration_sigma_rad ** 2
-        if source == "iron":
-            self._par["mag_harmonic_residual_var_rad2"] = p.iron_harmonic_residual_share * self._iron_floor_var()
-        if source is not None and source != was:
-            self._restart_mag_harmonics()
-        self._set_mag_frame_tilt()
-
-    def _set_mag_frame_tilt(self) -> None:
-        """Tell the kernel whether the frame-tilt states carry the calibration frame's tilt (mag_frame_tilt.py):
-        with the harmonic states, when the calibration states a frame tilt; switched on they start from their
-        prior, switched off they are zero with zero variance."""
-        s = float(self.params.mag_calibration_frame_tilt_sigma_rad)
-        on = self._par["mag_harmonics_on"] > 0.0 and math.isfinite(s) and s > 0.0
-        was_on = self._par["mag_frame_tilt_on"] > 0.0
-        self._par["mag_frame_tilt_on"] = 1.0 if on else 0.0
-        if on != was_on:
-            self._restart_mag_frame_tilt()
 
     def set_mag_calibration_frame_tilt_sigma(self, sigma_rad: float, heading_sigma_rad: float = 0.0) -> None:
         """The magnetometer calibration in force states its frame's tilt against the body, 1σ per axis, rad (0 or
@@ -763,79 +669,21 @@ class Ins:
         self.params = replace(self.params,
                               mag_calibration_frame_tilt_sigma_rad=s if math.isfinite(s) and s > 0.0 else 0.0,
                               mag_calibration_frame_tilt_heading_sigma_rad=h if math.isfinite(h) and h > 0.0 else 0.0)
-        self._set_mag_frame_tilt()
-        if self._mag_harmonics_source == "calibration":
-            self._restart_mag_harmonics()     # their prior leaves out what the frame-tilt states now carry
-        self._restart_mag_frame_tilt()
-
-    def _restart_mag_frame_tilt(self) -> None:
-        """The frame-tilt states back to their prior (mag_error_restarts.restart_frame_tilt): the calibration's
-        stated tilt while they are on, shared with the accelerometer bias with `mag_frame_tilt_shares_accel_bias`."""
-        restart_frame_tilt(self._x, self._P, self._par["mag_frame_tilt_on"] > 0.0,
-                           self.params.mag_calibration_frame_tilt_sigma_rad,
-                           self.params.mag_frame_tilt_shares_accel_bias)
-
-    def _iron_floor_var(self) -> float:
-        """`_learned_floor_var` at the WMM field (rad²)."""
-        field = self._field_ned
-        return self._learned_floor_var(float(field[0] ** 2 + field[1] ** 2))
-
-    def _restart_calibration_error_states(self) -> None:
-        """The magnetometer's error states — the heading harmonics and the calibration frame's tilt — back to their
-        priors together (start-up, a new calibration, a yaw reset): both are estimated against the heading."""
-        self._restart_mag_harmonics()
-        self._restart_mag_frame_tilt()
-
-    def _restart_mag_harmonics(self) -> None:
-        """The harmonic states back to zero with their prior (at start-up, a new calibration, a yaw reset, the iron
-        learning ended; mag_error_restarts.py): the calibration's, uncorrelated, or the learned iron's
-        (`_iron_harmonics_prior`); without them (`_set_mag_harmonics` off) zero, variance zero: they never move."""
-        p = self.params
-        prior = None
-        if self._par["mag_harmonics_on"] > 0.0 and self._mag_harmonics_source == "iron":
-            prior = self._iron_harmonics_prior()
-        elif self._par["mag_harmonics_on"] > 0.0:
-            prior = calibration_harmonics_prior(p.calibration_sigma_rad, p.mag_harmonic_offset_share,
-                                                self._frame_tilt_heading_sigma_rad())
-        restart_harmonics(self._x, self._P, prior)
-
-    def _frame_tilt_heading_sigma_rad(self) -> float:
-        """The share of the calibration's heading error the frame-tilt states carry (rad), with the condition of
-        `_set_mag_frame_tilt` evaluated here: the harmonics restart before it runs."""
-        p = self.params
-        return frame_tilt_heading_sigma_rad(self._par["mag_harmonics_on"] > 0.0, p.mag_calibration_frame_tilt_sigma_rad,
-                                            p.mag_calibration_frame_tilt_heading_sigma_rad)
-
-    def _iron_harmonics_prior(self) -> np.ndarray:
-        """The harmonic states' prior for a learned iron (5×5, rad², mag_error_restarts.iron_harmonics_prior) at the
-        WMM field: the learned iron's covariance with its window's yaw share, and the floor's unfused part."""
-        p = self.params
-        yaw = IRON_HARMONIC_YAWS_RAD
-        return iron_harmonics_prior(self._iron.level_heading_rows(self._field_ned, yaw), yaw - self._declination,
-                                    self._learned_iron.harmonic_cov(), self._iron_floor_var(),
-                                    p.iron_harmonic_residual_share, p.mag_harmonic_offset_share)
-
-    def _yaw_and_gnss_yaw_now(self) -> tuple[float, float, float]:
-        """What the unconfirmed-yaw floor is computed from (HeadingConfirmation.unconfirmed_yaw_sigma), now: the
-        filter's yaw and the GNSS yaw bank's yaw and variance; before the filter has started, no yaw yet (its floor
-        at construction)."""
-        if not self._initialised:
-            return 0.0, math.nan, math.nan
-        gsf_yaw, gsf_var, _ = self._gnss_yaw()
-        return float(quat_to_euler(self._x["q"])[2]), gsf_yaw, gsf_var
+        self._heading.set_params(self.params)
+        self._heading.new_frame_tilt()
 
     def heading_report(self) -> HeadingReport:
         """What the heading checks did so far (replay's summary, the daemon's warning)."""
-        return self._publication.report(self._monitor, self.yaw_resets)
+        return self._heading.report()
 
     @property
     def heading_state(self) -> HeadingState:
-        return self._publication.state
+        return self._heading.publication.state
 
     @property
     def heading_checks(self) -> deque[HeadingCheckRecord]:
         """The latest heading checks' decisions, oldest first (heading_check_log.py)."""
-        return self._check_log.records
+        return self._heading.check_log.records
 
     def set_declination(self, declination_rad: float) -> None:
         """Magnetic declination (rad): the magnetometer heading is compared with true heading − declination,
@@ -843,6 +691,7 @@ class Ins:
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
         self._declination = float(declination_rad)
         self._par["declination_rad"] = self._declination
+        self._heading.set_declination(self._declination)
 
     def relearn_field_reference(self, heading_change_rad: float = math.nan) -> None:
         """As Mekf.relearn_field_reference: forget the learned field magnitude/dip; unaided, where the
@@ -955,586 +804,32 @@ class Ins:
         while (fix := self._intake.pop_due(now)) is not None:
             self._fuse(fix)
 
+    def _flag_yaw_reset(self) -> None:
+        """The heading checks reset the yaw (HeadingSupervision.reset_yaw): the next estimate says so."""
+        self._pending_flags |= int(EstimateFlags.YAW_RESET)
+
     def _flag_gnss_rejected(self) -> None:
         """A fix was refused or rejected (GnssFixIntake): the next estimate says so."""
         self._pending_flags |= int(EstimateFlags.GNSS_REJECTED)
 
     def _fuse(self, fix: GnssFix) -> int:
-        """Fuse one fix whose time the IMU samples have reached: its usable parts (position, height, velocity,
-        vertical velocity), each weighted by the fix's own 1σ; then count what the kernel did and run the heading
-        checks that a fused or rejected velocity allows. Returns core.R_* bits (0 when nothing was usable)."""
+        """Fuse one fix whose time the IMU samples have reached (InsGnssFusion.fuse), then run the heading checks
+        that a fused or rejected velocity allows. Returns core.R_* bits (0 when nothing was usable)."""
         p = self.params
-        parts = self._intake.read(fix)
-        if parts is None:
-            return 0
-        _, lat, lon, alt, v, sig_h, sig_v, sig_s, use_pos, use_alt, use_vel, use_vd = parts
-        if use_vel:
-            self._keep_fix_velocity(float(fix.t_s), v, use_vd, sig_s)
-            self._add_to_lever_arm_fit(float(fix.t_s), v, use_vd, sig_s)
-        vel_before = self._x["vel_ned_m_s"].copy()
-        res = core.fuse_gnss(
-            self._x_arr, self._P, self._hist, self._par_arr, float(fix.t_s),
-            math.radians(lat) if use_pos else 0.0, math.radians(lon) if use_pos else 0.0,
-            alt if use_alt else 0.0, v[0] if use_vel else 0.0, v[1] if use_vel else 0.0,
-            v[2] if use_vd else 0.0, sig_h, sig_v, sig_s, use_pos, use_alt, use_vel, use_vd,
-        )
-        velocity_step = self._x["vel_ned_m_s"] - vel_before
-        if use_vel:
-            adoptions = self._lever_arm_fit.adoptions
-            self._lever_arm_fit.fused(velocity_step, bool(res & core.R_VEL_REJECTED))
-            if self._lever_arm_fit.adoptions != adoptions:
-                self._adopt_fitted_arm()
-            else:
-                self._gsf_par["lever_arm_m"] = self._lever_arm_fit.bank_arm(self.params.lever_arm_m)
-        # the update corrected the state and the history rows after the fix's time, not those up to it: kept for
-        # a yaw reset at this fix (`_reset_velocity_to_fix`). The resets from a first fix or after an outage
-        # correct the row at the fix's time as well, so they leave nothing to add
-        step_rows = not res & (core.R_NAV_INIT | core.R_OUTAGE_RESET)
-        self._fix_velocity_step = (float(fix.t_s), velocity_step) if step_rows else None
-        self._intake.count(res, fix, self._x["vel_gate"]["nis"], self._x["pos_gate"]["nis"])
+        res, arm_adopted = self._fusion.fuse(fix)
+        if arm_adopted:
+            # the heading, bent by the wrong arm, is found again as at the start: unconfirmed, aligned to the
+            # bank's yaw once valid
+            self._heading.confirmation.arm_adopted()
         if p.heading_monitor and p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
-            self._check_heading(float(fix.t_s))
+            self._heading.check(float(fix.t_s))
         elif not p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
-            self._floor_yaw_sigma_without_magnetometer(float(fix.t_s))
+            self._heading.floor_yaw_sigma_without_magnetometer(float(fix.t_s))
         return res
-
-    def _keep_fix_velocity(self, t_s: float, v: np.ndarray, use_vd: bool, sig_s: float) -> None:
-        """Keep the fix's velocity (vertical NaN when not used) for a yaw reset, which sets the velocity to it, and
-        give it to the GNSS yaw bank."""
-        vel = np.array([v[0], v[1], v[2] if use_vd else math.nan], dtype=np.float64)
-        self._last_fix_velocity = (t_s, vel, sig_s)
-        if self.params.gnss_yaw:
-            self._gsf_fuse_velocity(self._gsf_arr, self._gsf_par_arr, float(t_s), vel, float(sig_s))
-
-    def _add_to_lever_arm_fit(self, t_s: float, v: np.ndarray, use_vd: bool, sig_s: float) -> None:
-        """The fix's velocity innovation at the antenna arm the filter fuses with (`_arm_in_use`), before the fix is
-        fused, from the history interpolated at its time of validity as the kernel reads it (`_history_state_at`),
-        for the lever-arm check (lever_arm_fit.py)."""
-        at = self._history_state_at(t_s)
-        if at is None:
-            return
-        c_bn, vel, rate = at
-        near = rows_near(self._hist_t_s, int(self._x["hist_newest"]), int(self._x["hist_count"]), t_s,
-                         0.5 * RATE_MEAN_S)
-        rate_cross = rate_cross_ned(c_bn, mean_rate(self._hist_t_s[near], self._hist_rate[near], t_s, rate))
-        innovation = np.array([v[0], v[1], v[2] if use_vd else math.nan]) - (vel + rate_cross @ self._arm_in_use())
-        self._lever_arm_fit.add(t_s, innovation, rate_cross, sig_s, vel)
-
-    def _kept_history_rows(self) -> np.ndarray:
-        """The indices of the history's kept rows (hist_count ≤ H_LEN), newest first."""
-        return (int(self._x["hist_newest"]) - np.arange(int(self._x["hist_count"]))) % core.H_LEN
-
-    def _history_state_at(self, t_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """The attitude (body → NED DCM), velocity (NED m/s) and body rate (rad/s) the history holds at t_s,
-        interpolated between its two rows as the kernel does for a fix (core._history_at); None before any row.
-        For the lever-arm check's innovation and a yaw reset's velocity at the fix: one reading for both."""
-        i0, i1, w = bracket(self._hist_t_s, int(self._x["hist_newest"]), int(self._x["hist_count"]), t_s)
-        if i0 < 0:
-            return None
-        a, b = self._hist_rows[i0], self._hist_rows[i1]
-        row = a + w * (b - a)
-        q, vel, rate = row[_HIST_Q], row[_HIST_VEL], row[_HIST_RATE]
-        return quat_to_dcm(q / np.linalg.norm(q)), vel, rate
-
-    def _arm_in_use(self) -> np.ndarray:
-        """The antenna arm the filter fuses with: the told one plus what the lever-arm check adopted."""
-        return self._lever_arm_fit.arm_in_use(self.params.lever_arm_m)
-
-    def _use_arm(self, arm_m) -> None:
-        """Fuse the velocities (the filter's and the GNSS yaw bank's) at this antenna arm (body FRD, m)."""
-        self._par["lever_arm_m"] = np.asarray(arm_m, dtype=float)
-        self._gsf_par["lever_arm_m"] = np.asarray(arm_m, dtype=float)
-
-    def _adopt_fitted_arm(self) -> None:
-        """The lever-arm check adopted its fitted error (lever_arm_fit.py `_adopt`): the filter and the GNSS yaw
-        bank fuse at the corrected arm; the bank starts again (its hypotheses took the velocities through the
-        wrong arm) and the heading, bent by the wrong arm, is found again as at the start: unconfirmed, aligned
-        to the bank's yaw once valid. Nothing is persisted: the arm is the operator's configuration."""
-        arm = self._arm_in_use()
-        self._use_arm(arm)
-        gsf_reset(self._gsf, self._gsf_par, float(self._x["t_last_s"]), np.full(4, np.nan))
-        self._confirmation.arm_adopted()
-        log.warning("ins: the GNSS velocities fit an antenna at %s m (body FRD), told %s m: fusing at the fitted arm "
-                    "(adoption %d); set lever_arm_m", ",".join(f"{v:.2f}" for v in arm),
-                    ",".join(f"{v:g}" for v in self.params.lever_arm_m), self._lever_arm_fit.adoptions)
 
     def lever_arm_fit(self) -> LeverArmFitResult | None:
         """The lever-arm check over the latest velocity fixes (lever_arm_fit.py), None before it has enough."""
-        return self._lever_arm_fit.result()
-
-    # ----------------------------------------------------------------------- heading checks (heading_monitor.py)
-    def _earth_field_ned(self) -> np.ndarray | None:
-        """WMM field at the filter's position (µT, NED), looked up again when the position moves by ~1 km."""
-        lat, lon, h = (math.degrees(self._x["lat_rad"]), math.degrees(self._x["lon_rad"]), float(self._x["h_m"]))
-        key = (round(lat, 2), round(lon, 2), round(h, -2))
-        if key != self._field_key:
-            from ahrsd.core.wmm import earth_field
-            try:
-                self._field_ned = earth_field(lat, (lon + 180.0) % 360.0 - 180.0, h).ned_ut
-            except ValueError:
-                self._field_ned = None
-            self._field_key = key
-        return self._field_ned
-
-    def _check_heading(self, t_s: float) -> None:
-        """The heading checks at a fused fix, in order: the magnetometer's and the GNSS yaw bank's headings, the
-        monitor's decision on them, what it does to the yaw (a floor, a reset or the alignment to the GNSS yaw, or
-        a confirmation), the magnetometer's use in the kernel, the iron learning, then what is published."""
-        x = self._x
-        c_bn = quat_to_dcm(x["q"])
-        yaw = math.atan2(c_bn[1, 0], c_bn[0, 0])
-        yaw_var = float(self._P[core.E_YAW, core.E_YAW])
-        m_body = self._iron.corrected(x["mag_last_ut"])
-        # the position does not move within a check (its updates give no position gain): one WMM look-up
-        field = self._earth_field_ned()
-        if self._mag_rotation_on:
-            self._mag_rotation_check(t_s, c_bn, field)
-        mag_yaw, mag_var, noise = self._magnetometer_heading(c_bn, yaw, m_body)
-        trust_var = self._magnetometer_trust_var(mag_var, noise, field)
-        gsf_yaw, gsf_var, gsf_valid = self._gnss_yaw()
-        d = self._monitor_decision(t_s, yaw, yaw_var, mag_yaw, mag_var, noise, trust_var, gsf_yaw, gsf_var,
-                                   gsf_valid)
-        yaw_reset_to = self._reset_or_confirm_yaw(t_s, d, yaw, gsf_yaw, gsf_var, gsf_valid)
-        self._set_accel_bias_learning()
-        self._set_magnetometer_use(d, mag_var, noise, trust_var)
-        # the monitor says no learning on a check that reset the yaw (c_bn is the attitude before the reset, P its
-        # covariance after it): the next check learns with the new yaw
-        iron_updates = self._iron.updates
-        if self.params.iron_learning and self._monitor.learning and _finite3(m_body) and self._x["nav_ok"] > 0:
-            self._learn_iron(t_s, c_bn, field)
-        self._set_mag_harmonics()      # the iron learning may have ended here (`_iron_harmonics_apply`)
-        yaw_now = yaw if yaw_reset_to is None else wrap_pi(yaw_reset_to)
-        self._publication.note_step_rejection(t_s, d.mag_step_rad, self._monitor.mag_rejected)
-        self._publish_heading_checks(t_s, yaw_now, gsf_yaw, gsf_var, gsf_valid)
-        self._check_log.add(t_s, d, float(self._P[core.E_YAW, core.E_YAW]), yaw_reset_to,
-                            self._iron.updates > iron_updates)
-
-    def _mag_rotation_check(self, t_s: float, c_bn: np.ndarray, field: np.ndarray | None) -> None:
-        """The vertical gyro bias from the magnetometer's turning (MagRotationBias, mag_rotation.py): the gyro's
-        rotation since the last check (less the bias estimate and the Earth's rotation, which turns the field with
-        it) goes into the window; a completed window's b_z − b̂_z is fused as a measurement of the bias, less what
-        the kernel's own magnetometer update already took from the same samples."""
-        p = self.params
-        x = self._x
-        P = self._P
-        dt = float(x["gyro_rotation_s"])      # the kernel's sum of raw rates: the bias is taken out here
-        lat = float(x["lat_rad"])
-        earth_rate = EARTH_RATE_RAD_S * np.array([math.cos(lat), 0.0, -math.sin(lat)])
-        step = rotvec_to_dcm(x["gyro_rotation_rad"] - (x["gyro_bias_rad_s"] + c_bn.T @ earth_rate) * dt)
-        x["gyro_rotation_rad"] = 0.0
-        x["gyro_rotation_s"] = 0.0
-        m = x["mag_last_ut"]
-        m0, m1, m2 = m.tolist()
-        if field is None or not (math.isfinite(m0) and math.isfinite(m1) and math.isfinite(m2)) \
-                or x["nav_ok"] <= 0 or dt <= 0.0:
-            self._mag_rotation.restart()
-            return
-        i = core.E_TH
-        att_sigma = math.sqrt(max(largest((float(P[i, i]), float(P[i + 1, i + 1]), float(P[i + 2, i + 2]))), 0.0))
-        tilt_sigma = math.sqrt(max(float(max(P[core.E_TILT_N, core.E_TILT_N], P[core.E_TILT_E, core.E_TILT_E])), 0.0))
-        out = self._mag_rotation.add(t_s, m, c_bn, field, step, float(x["gyro_bias_rad_s"][2]), dt,
-                                     self._iron.soft_iron, self._iron.largest_soft_iron_sigma, att_sigma,
-                                     tilt_sigma)
-        if out is None:
-            return
-        innovation, var = out
-        span = self._mag_rotation.span_s
-        if self._par["mag_use"] > 0.5 and span > 0.0:
-            # the kernel fuses these samples as a heading with a slowly varying error of variance mag_bias_var:
-            # over the window they told it the bias to about √2 σ / T; count only what is beyond that
-            kernel_var = 2.0 * float(self._par["mag_bias_var_rad2"]) / span ** 2
-            if var >= kernel_var:
-                return
-            var = 1.0 / (1.0 / var - 1.0 / kernel_var)
-        i = core.E_BG + 2
-        if innovation * innovation > _MAG_ROTATION_GATE * (P[i, i] + var):
-            return
-        # a measurement of the bias now: the attitude and the other biases follow through their covariance with
-        # it; the velocity and position are left to the GNSS (their history is not kept for a correction)
-        h = np.zeros(core.N_ERR)
-        h[i] = 1.0
-        dx = np.zeros(core.N_ERR)
-        scalar_update(P, h, innovation, var, _NAV_MASK, dx)
-        core._apply_correction(x, self._par, dx)
-        core._correct_history(self._hist, x, -math.inf, dx, 0.0, 0.0, 0.0)
-
-    def _magnetometer_heading(self, c_bn: np.ndarray, yaw: float, m_body: np.ndarray) -> tuple[float, float, float]:
-        """The yaw the magnetometer (iron-corrected, body frame µT) gives with the attitude c_bn, its variance and
-        the white (noise) part of that variance, rad²: (NaN, inf, 0) when the field is not finite or has no
-        horizontal component."""
-        p = self.params
-        mag_yaw = math.nan
-        mag_var = math.inf
-        noise = 0.0
-        if _finite3(m_body):
-            m_ned = c_bn @ m_body
-            h = math.hypot(m_ned[0], m_ned[1])
-            if h > 1e-3:
-                alpha = wrap_pi(math.atan2(m_ned[1], m_ned[0]) - self._declination)
-                mag_yaw = wrap_pi(yaw - alpha)
-                noise = (p.mag_noise_ut / h) ** 2
-                mag_var = p.calibration_sigma_rad ** 2 + noise
-                if self._learned_iron.learned:
-                    # learning (or learned): the learned hard iron's uncertainty replaces the calibration's
-                    # hard-iron error; what a hard iron cannot explain stays
-                    mag_var = min(p.calibration_sigma_rad ** 2, (p.iron_unmodelled_ut / h) ** 2) + noise \
-                        + self._iron.heading_variance(c_bn, m_ned)
-        return mag_yaw, mag_var, noise
-
-    def _magnetometer_trust_var(self, mag_var: float, noise: float, field: np.ndarray | None) -> float:
-        """The magnetometer heading's slowly varying error variance that the heading state and the end of the iron
-        learning are judged on, rad²: the calibration's; with a learned iron, what the iron leaves at the worst
-        heading of a level vehicle (IronLearner.level_heading_variance) plus the floor of what a learned iron
-        cannot explain, at the WMM horizontal field. Not `mag_var` less its noise (what the kernel fuses, and what
-        the magnetometer's re-entry and tilt trust read, at this attitude): that projects the iron's covariance on
-        the heading the vehicle points at, so a half-learned iron read as learned on one leg and not on the next,
-        stopping and restarting the learning and flipping the published state MAGNETOMETER ↔ LEARNING each time
-        the boat turned (docs/gnss.md "Heading state"). This one only falls while learning."""
-        if not self._learned_iron.learned or field is None or not math.isfinite(mag_var):
-            return mag_var - noise if math.isfinite(mag_var) else math.nan
-        h2 = float(field[0] ** 2 + field[1] ** 2)
-        return self._learned_floor_var(h2) + self._iron.level_heading_variance(field)
-
-    def _learned_floor_var(self, h2_ut2: float) -> float:
-        """The floor of a learned magnetometer's heading variance at a horizontal field of h2 (µT²), rad²: what no
-        learned iron explains (`iron_unmodelled_ut`) over the field, at most the calibration's own figure."""
-        p = self.params
-        return min(p.calibration_sigma_rad ** 2, p.iron_unmodelled_ut ** 2 / h2_ut2)
-
-    def _tilt_heading_var(self) -> float:
-        """The variance the filter's tilt uncertainty gives the magnetometer heading, rad²: a tilt about the
-        horizontal axis across the field turns the heading of the field's horizontal part by tan(dip) as much
-        (the larger tilt variance of the two, at the WMM dip). For the step test (mag_step.py); NaN without the
-        WMM field (no test)."""
-        field = self._field_ned
-        if field is None:
-            return math.nan
-        h2 = float(field[0] ** 2 + field[1] ** 2)
-        if h2 <= 0.0:
-            return math.nan
-        tilt_var = float(max(self._P[core.E_TILT_N, core.E_TILT_N], self._P[core.E_TILT_E, core.E_TILT_E]))
-        return tilt_var * float(field[2]) ** 2 / h2
-
-    def _gnss_yaw(self) -> tuple[float, float, bool]:
-        """The GNSS yaw bank's yaw, its variance (rad²) and whether it is valid: (NaN, inf, False) without the
-        bank (gnss_yaw off) or before it has a finite yaw. While the lever-arm check finds the arm in use wrong,
-        the bank takes the velocities through the arm it found (LeverArmFit.bank_arm, set in `_fuse`), not through
-        the wrong one (docs/gnss.md "The lever-arm check")."""
-        if self.params.gnss_yaw:
-            y, sg, valid, _ = self._gsf_output(self._gsf_arr)
-            if math.isfinite(y) and math.isfinite(sg):
-                return float(y), float(sg) ** 2, bool(valid)
-        return math.nan, math.inf, False
-
-    def _monitor_decision(self, t_s: float, yaw: float, yaw_var: float, mag_yaw: float, mag_var: float,
-                          noise: float, trust_var: float, gsf_yaw: float, gsf_var: float,
-                          gsf_valid: bool) -> MonitorDecision:
-        """The heading monitor's check of the filter's yaw against the magnetometer's and the GNSS yaw's
-        (HeadingMonitor.check), and what follows from it before any yaw reset: the biases a GNSS yaw agreeing
-        with the heading confirms are kept (a reset goes back to them), a magnetometer just rejected makes the
-        heading unconfirmed again, and its yaw variance floor is applied (with the warning)."""
-        p = self.params
-        P = self._P
-        observable = heading_observable(yaw_var, self._confirmation.unconfirmed_sigma_rad,
-                                        p.heading_observable_sigma_rad)
-        d = self._monitor.check(t_s, yaw, yaw_var, mag_yaw, mag_var, gsf_yaw, gsf_var, gsf_valid, observable,
-                                float(self._x["vel_gate"]["nis"]),
-                                mag_var - noise if math.isfinite(mag_var) else math.nan, trust_var,
-                                self._tilt_heading_var(), float(P[core.E_BG + 2, core.E_BG + 2]),
-                                p.gyro_noise_rad_s_sqrt_hz)
-        f = monitor_follow_up(d, yaw_rad=yaw, yaw_var_rad2=yaw_var, gsf_yaw_rad=gsf_yaw, gsf_var_rad2=gsf_var,
-                              gsf_valid=gsf_valid, gate_sigma=self._monitor.gate_sigma,
-                              lowpassed_velocity_nis=self._monitor.lowpassed_velocity_nis,
-                              reset_velocity_nis=self._monitor.reset_velocity_nis,
-                              accel_bias_gsf_sigma_rad=p.accel_bias_gsf_sigma_rad,
-                              filter_yaw_var_rad2=float(P[core.E_YAW, core.E_YAW]))
-        if f.keep_confirmed_biases:
-            self._confirmation.keep_confirmed_biases(self._x["gyro_bias_rad_s"], self._x["accel_bias_m_s2"])
-        if f.bank_takes_filter_bias:
-            self._x["bank_gyro_bias_rad_s"] = self._x["gyro_bias_rad_s"]
-        if f.rejected:
-            self._iron_before_rejection = self._learned_iron.learned
-            self._learned_iron.release_offset()     # the iron may have changed: its offset is learned again
-            self._confirmation.magnetometer_rejected()
-            # what the magnetometer taught the gyro bias since the last confirmation goes with it: a wrong
-            # magnetometer's heading error rate, which the filter would otherwise keep integrating as GNSS-only.
-            # The value only: widening its variance too let the GNSS-only heading wander after an iron change
-            # (docs/estimator.md, "Known limits: ins on level turns")
-            self._x["gyro_bias_rad_s"] = self._confirmation.confirmed_gyro_bias
-        if f.raise_yaw_var_to_rad2 is not None:
-            P[core.E_YAW, core.E_YAW] = f.raise_yaw_var_to_rad2
-            self.heading_interventions += 1
-            if math.isfinite(d.mag_step_rad):
-                log.warning("ins: magnetometer heading stepped by %+.1f° while the gyro saw no turn: iron changed; "
-                            "magnetometer rejected", math.degrees(d.mag_step_rad))
-            else:
-                # the daemon's and replay's wording: a calibration that states its heading error was wrong (or the
-                # iron moved since it); with none, or one of unknown quality, that is the reason itself
-                stated = calibration_states_error(self.params.mag_calibration_sigma_rad)
-                why = ("calibration wrong or iron changed" if stated
-                       else "no magnetometer calibration stating its heading error")
-                log.warning("ins: magnetometer disagrees with the GNSS-held heading by %.1f°: %s; magnetometer "
-                            "rejected", math.degrees(self._monitor.rejection_disagreement_rad), why)
-        return d
-
-    def _reset_or_confirm_yaw(self, t_s: float, d: MonitorDecision, yaw: float, gsf_yaw: float, gsf_var: float,
-                              gsf_valid: bool) -> float | None:
-        """At most one of: the monitor's emergency yaw reset, the alignment to the first valid GNSS yaw
-        (HeadingConfirmation.alignment_due), or, while the heading is held unconfirmed, its confirmation by a GNSS
-        yaw that agrees with it. Returns the yaw a reset turned the attitude (about down) to, None without one."""
-        c = self._confirmation
-        if d.reset_yaw_to_rad is not None:
-            self._reset_yaw(d.reset_yaw_to_rad - yaw, d.reset_yaw_var_rad2)
-            return d.reset_yaw_to_rad
-        if c.alignment_due(yaw, gsf_yaw, gsf_var, gsf_valid):
-            self._align_yaw_to_gnss(t_s, gsf_yaw - yaw, gsf_var)
-            return gsf_yaw
-        if not c.heading_confirmed and gsf_valid and (c.calibration_untrusted or self._monitor.mag_rejected):
-            self._confirm_heading(yaw, gsf_yaw, gsf_var)
-        return None
-
-    def _align_yaw_to_gnss(self, t_s: float, dyaw_rad: float, gsf_var: float) -> None:
-        """The planned first alignment of the yaw to the GNSS yaw (yaw_align_to_gnss_yaw)."""
-        self._confirmation.aligned()         # the biases a reset goes back to: the start-up ones
-        self._monitor.yaw_was_reset(t_s)     # an emergency reset keeps its spacing from this one
-        self._reset_yaw(dyaw_rad, gsf_var, alignment=True)
-        # the specific force the tilt was levelled against, turned by the alignment's yaw step: its horizontal part
-        # across the new heading, |f_h|·|sin Δψ|, was taken as a lean of the tilt (a car accelerating away leans
-        # degrees; a boat at 0.1–0.5 m/s² hardly any)
-        f = self._x["acc_ned_lp_m_s2"]
-        across = math.hypot(float(f[0]), float(f[1])) * abs(math.sin(wrap_pi(dyaw_rad)))
-        self._relevel_after_wrong_yaw(math.atan2(across, abs(float(f[2]))))
-
-    def _relevel_after_wrong_yaw(self, lean_sigma_rad: float) -> None:
-        """The tilt's 1σ, uncorrelated, becomes at least `lean_sigma_rad` (no more than the 1σ a fix assumes when it
-        first sets the velocity, `nav_init_sigma_tilt_rad`), at the first valid GNSS yaw (the alignment, or without a
-        magnetometer the yaw kept there). Until then the yaw was tens of degrees off (the magnetometer's, or pulled
-        in from an unknown start), and the GNSS velocity levelled the tilt against the horizontal acceleration
-        projected through it: a car accelerating away at 3–4 m/s² under a yaw 80–100° off leans its tilt by
-        degrees, while the linearised updates leave its variance at tenths of a degree. With its variance kept
-        small, the fixes after the alignment would put that tilt error into the horizontal accelerometer bias and
-        the z axis's lean just released to learn, which keep it (docs/gnss.md "The horizon while the heading is
-        being found")."""
-        P = self._P
-        var = min(lean_sigma_rad, self.params.nav_init_sigma_tilt_rad) ** 2
-        for i in (core.E_TILT_N, core.E_TILT_E):
-            v = max(P[i, i], var)
-            _restart_uncorrelated(P, i, v)
-
-    def _restart_horizontal_accel_bias(self) -> None:
-        """The horizontal (body x, y) accelerometer bias back to its start-up value and 1σ, uncorrelated: what it
-        learned while the yaw was being pulled in was the GNSS acceleration projected through a yaw tens of degrees
-        off, which a steady turn cannot separate from a tilt (ins_core._gated_update). The vertical one keeps what
-        it learned (the vertical channel sees no yaw)."""
-        x, P = self._x, self._P
-        var = self.params.init_accel_bias_sigma_m_s2 ** 2
-        for k in range(2):
-            x["accel_bias_m_s2"][k] = self._confirmation.startup_accel_bias[k]
-            i = core.E_BA + k
-            v = max(P[i, i], var)
-            _restart_uncorrelated(P, i, v)
-
-    def _confirm_heading(self, yaw: float, gsf_yaw: float, gsf_var: float) -> None:
-        """A GNSS yaw that agrees with the held heading confirms it (HeadingConfirmation.confirm); otherwise the
-        yaw variance is raised to at least the GNSS yaw's."""
-        P = self._P
-        if self._confirmation.confirm(yaw, gsf_yaw, gsf_var, P[core.E_YAW, core.E_YAW]):
-            P[core.E_YAW, core.E_YAW] = gsf_var
-
-    def _set_magnetometer_use(self, d: MonitorDecision, mag_var: float, noise: float, trust_var: float) -> None:
-        """What the kernel does with the magnetometer after the check (magnetometer_use.py decides it from what the
-        check left), written into the kernel's parameters; and the variances the next check's trust and the heading
-        state use."""
-        iron = IronState(learning=self._monitor.learning, updates=self._iron.updates,
-                         restored=self._learned_iron.restored, before_rejection=self._iron_before_rejection)
-        u = magnetometer_use(self.params, monitor_use=d.mag_use, trusted_sigma_rad=self._monitor.trusted_sigma_rad,
-                             slow_var_rad2=self._mag_var, mag_var_rad2=mag_var, noise_rad2=noise,
-                             trust_var_rad2=trust_var, calibration_untrusted=self._calibration_untrusted, iron=iron,
-                             learned_floor_var_rad2=self._learned_floor_var_here,
-                             heading_rate_rad_s=self._heading_rate_rad_s)
-        self._par["mag_use"] = u.mag_use
-        self._par["mag_moves_tilt"] = u.mag_moves_tilt
-        if math.isfinite(mag_var):
-            self._mag_var = mag_var - noise      # the slowly varying part at this attitude: what trust uses
-            self._mag_trust_var = trust_var      # what the heading state uses (_magnetometer_trust_var)
-        if u.mag_bias_var_rad2 is not None:
-            self._par["mag_bias_var_rad2"] = u.mag_bias_var_rad2
-            self._par["mag_bias_tau_s"] = u.mag_bias_tau_s
-
-    def _learned_floor_var_here(self) -> float | None:
-        """`_learned_floor_var` at the WMM horizontal field at the filter's position (inf where it has none, None
-        without the WMM field), rad²."""
-        field = self._field_ned
-        if field is None:
-            return None
-        h2 = float(field[0] ** 2 + field[1] ** 2)
-        return self._learned_floor_var(h2) if h2 > 0.0 else math.inf
-
-    def _heading_rate_rad_s(self) -> float:
-        """|rate about down| of the last gyro sample, bias removed, rad/s."""
-        x = self._x
-        c_bn = np.asarray(quat_to_dcm(x["q"]), dtype=float)
-        return abs(float(c_bn[2] @ (x["gyro_last_rad_s"] - x["gyro_bias_rad_s"])))
-
-    def _learn_iron(self, t_s: float, c_bn: np.ndarray, field: np.ndarray | None) -> None:
-        """One step of the iron learning (IronLearner) against the WMM field at the filter's position, with the
-        attitude c_bn and its covariance; the kernel then removes the learned iron."""
-        p = self.params
-        if field is None:
-            return
-        att = slice(core.E_TH, core.E_TH + 3)
-        self._learned_iron.learn(t_s, self._x["mag_last_ut"], c_bn, field, self._P[att, att],
-                                 self._P[core.E_YAW, core.E_YAW], p.iron_unmodelled_ut, p.iron_tau_s,
-                                 magnetometer_fused=self._par["mag_use"] > 0.5)
-        self._apply_learned_iron()
-
-    def _publish_heading_checks(self, t_s: float, yaw_rad: float, gsf_yaw: float, gsf_var: float,
-                                gsf_valid: bool) -> None:
-        """What the checks publish: the yaw σ's floor while the heading is unconfirmed
-        (HeadingConfirmation.unconfirmed_yaw_sigma at the yaw after any reset), the integrity figures and the
-        heading state."""
-        c = self._confirmation
-        c.update_sigma_confirmation(yaw_rad, gsf_yaw, gsf_var, gsf_valid, self._P[core.E_YAW, core.E_YAW])
-        c.unconfirmed_sigma_rad = c.unconfirmed_yaw_sigma(yaw_rad, gsf_yaw, gsf_var)
-        sig = math.sqrt(max(self._P[core.E_YAW, core.E_YAW], 0.0))
-        if c.unconfirmed_sigma_rad > sig:
-            sig = c.unconfirmed_sigma_rad
-        self._publication.publish(t_s, self._monitor, sig, gsf_yaw, gsf_var, gsf_valid, self._mag_trust_var,
-                                  float(self._mag_state()["since_update_s"]), self._iron.offset_ut,
-                                  self._iron.sigma_ut, self._lever_arm_fit.heading_bent)
-
-    def _floor_yaw_sigma_without_magnetometer(self, t_s: float) -> None:
-        """No magnetometer (mag_enabled off): the yaw comes from the GNSS velocity alone, pulled in from an unknown
-        start (1σ π) through linearised updates, whose variance shrinks faster than the error on a boat's weak
-        accelerations (docs/estimator.md "Known limits: ins on level turns"), and which, tens of degrees off, reject
-        the velocities that would pull it in: if the first valid GNSS yaw disagrees with it, it is set to that yaw
-        (HeadingConfirmation.alignment_due). The heading checks do not run (they weigh a magnetometer), so nothing
-        ever confirms this yaw: its published 1σ is at least the GNSS yaw bank's plus the distance to it, as an
-        unconfirmed heading's (HeadingConfirmation.unconfirmed_yaw_sigma), at every fused fix."""
-        if not (self.params.gnss_yaw and self.params.heading_monitor):
-            return
-        yaw = float(quat_to_euler(self._x["q"])[2])
-        gsf_yaw, gsf_var, gsf_valid = self._gnss_yaw()
-        c = self._confirmation
-        if c.alignment_due(yaw, gsf_yaw, gsf_var, gsf_valid):
-            self._align_yaw_to_gnss(t_s, gsf_yaw - yaw, gsf_var)
-            yaw = gsf_yaw
-        elif c.first_gnss_yaw_keeps_yaw(gsf_valid):
-            # the yaw is kept, but the pull-in that brought it inside the bank's 3σ ran through yaws tens of
-            # degrees off: the horizontal bias and the tilt it taught are restarted as an alignment restarts them
-            self._restart_horizontal_accel_bias()
-            self._relevel_after_wrong_yaw(self.params.nav_init_sigma_tilt_rad)
-        c.gnss_yaw_seen(gsf_valid)
-        c.unconfirmed_sigma_rad = gnss_yaw_floor(yaw, gsf_yaw, gsf_var)
-
-    @property
-    def _calibration_untrusted(self) -> bool:
-        """The magnetometer calibration in force predicts a heading error above what the heading monitor trusts
-        (HeadingConfirmation.calibration_untrusted)."""
-        return self._confirmation.calibration_untrusted
-
-    @property
-    def _heading_checks_run(self) -> bool:
-        """The heading checks (`_check_heading`) run at the fused fixes and can confirm a heading: the GNSS yaw,
-        the monitor and the magnetometer are on."""
-        p = self.params
-        return p.gnss_yaw and p.heading_monitor and p.mag_enabled
-
-    def _set_accel_bias_learning(self) -> None:
-        """With accel_bias_needs_heading, the horizontal accelerometer bias learns from GNSS only while the heading
-        is known: a trusted magnetometer, or a GNSS yaw within `accel_bias_gsf_sigma_rad` has agreed with the
-        heading since the magnetometer was last rejected (ins_core._gated_update says why). Without the heading
-        checks (no GNSS yaw, monitor or magnetometer) there is nothing to confirm with: it always learns."""
-        p = self.params
-        held = self._confirmation.bias_learning_held(p.accel_bias_needs_heading, self._monitor.mag_rejected)
-        self._par["accel_bias_learn"] = 0.0 if held else 1.0
-
-    def _reset_yaw(self, dyaw_rad: float, var_rad2: float, alignment: bool = False) -> None:
-        """Turn the attitude (and its history) about down by dyaw; yaw variance = var with its cross-covariances
-        cleared; the accelerometer bias and the tilt, which a wrong yaw has been pulling through the GNSS
-        acceleration, get their start-up uncertainty back (uncorrelated)."""
-        p = self.params
-        dyaw = wrap_pi(dyaw_rad)
-        x, P = self._x, self._P
-        dx = np.zeros(core.N_ERR)
-        dx[core.E_YAW] = dyaw
-        core._rotate_attitude(x["q"], 0.0, 0.0, dyaw)
-        core._correct_history(self._hist, x, -math.inf, dx, 0.0, 0.0, 0.0)
-        c, s = math.cos(dyaw), math.sin(dyaw)
-        an, ae = x["acc_ned_lp_m_s2"][0], x["acc_ned_lp_m_s2"][1]
-        x["acc_ned_lp_m_s2"][0], x["acc_ned_lp_m_s2"][1] = c * an - s * ae, s * an + c * ae
-        tilt_floor = p.nav_init_sigma_tilt_rad ** 2 * 0.04
-        for i, var in ((core.E_YAW, var_rad2), (core.E_TILT_N, max(P[core.E_TILT_N, core.E_TILT_N], tilt_floor)),
-                       (core.E_TILT_E, max(P[core.E_TILT_E, core.E_TILT_E], tilt_floor))):
-            _restart_uncorrelated(P, i, var)
-        # the gyro and accelerometer biases learned since the heading was last confirmed were learned against a
-        # wrong yaw (the magnetometer pulling one way, the GNSS velocity the other, the biases taking up the
-        # difference): back to the last confirmed ones (the start-up values before any), with their start-up
-        # uncertainty
-        x["gyro_bias_rad_s"] = self._confirmation.confirmed_gyro_bias
-        x["accel_bias_m_s2"] = self._confirmation.confirmed_accel_bias
-        for i in range(core.E_BG, core.E_BG + 3):
-            var = max(P[i, i], p.init_gyro_bias_sigma_rad_s ** 2)
-            _restart_uncorrelated(P, i, var)
-        for i in range(core.E_BA, core.E_BA + 3):
-            var = max(P[i, i], p.init_accel_bias_sigma_m_s2 ** 2)
-            _restart_uncorrelated(P, i, var)
-        self._reset_velocity_to_fix()
-        # the calibration's error estimated against the heading just found wrong starts again from its prior
-        self._restart_calibration_error_states()
-        self._mag_rotation.restart()      # its window started from the old heading
-        self.yaw_resets += 1
-        self._lever_arm_fit.heading_reset()    # another attitude error from here on (lever_arm_fit.py)
-        self.heading_interventions += 1
-        self._pending_flags |= int(EstimateFlags.YAW_RESET)
-        if alignment:     # the planned first alignment (yaw_align_to_gnss_yaw), not a heading found wrong
-            self.gnss_yaw_alignments += 1
-            log.info("ins: heading aligned to the GNSS yaw by %.1f° (reset %d)", math.degrees(dyaw), self.yaw_resets)
-        else:
-            log.warning("ins: heading reset to the GNSS yaw by %.1f° (reset %d)%s", math.degrees(dyaw),
-                        self.yaw_resets, " (the antenna arm found wrong: the heading stays unknown)"
-                        if self._lever_arm_fit.heading_bent else "")
-
-    def _reset_velocity_to_fix(self) -> None:
-        """Set the velocity to the last fix's (at its time of validity, through the lever arm with the reset
-        attitude), its variance to the fix's: while the yaw was wrong the GNSS velocities were rejected and the
-        velocity integrated accelerations rotated by the wrong yaw; fusing that error after the reset would turn
-        the new yaw away again (ArduPilot's emergency yaw reset likewise resets velocity and position to GPS)."""
-        if self._last_fix_velocity is None:
-            return
-        t_fix, v_fix, sig_s = self._last_fix_velocity
-        x, hist = self._x, self._hist
-        # every kept row once: one indexed add, not a Python loop over up to H_LEN rows
-        rows = self._kept_history_rows()
-        step = self._fix_velocity_step
-        if step is not None and step[0] == t_fix:
-            # this fix's own update (fuse_gnss, just before the heading checks that reset the yaw) moved the
-            # velocity of the state and of the rows after the fix's time, not of the rows up to it: without the
-            # same step there, the velocity at the fix's time read below is the one before the update, and the
-            # reset keeps the update's step as a velocity error. Computed with the wrong yaw's covariance, that
-            # step can be large; the next fixes' velocities are then rejected while the tilt the wrong yaw left
-            # drives the velocity off, and what is fused after that turns the new yaw away again (docs/gnss.md,
-            # "The velocity a yaw reset sets")
-            older = rows[hist["t_s"][rows] <= t_fix]
-            hist["vel_ned_m_s"][older] += step[1]
-            self._fix_velocity_step = None     # the rows now carry it: a second reset at this fix adds nothing
-        at = self._history_state_at(t_fix)
-        if at is None:
-            return          # the fix is older than the history (no row up to it took the step above either)
-        c_bn, vel, rate = at
-        v_ant = vel + c_bn @ np.cross(rate, self._arm_in_use())
-        m = 3 if math.isfinite(v_fix[2]) else 2
-        dv = np.zeros(3)
-        dv[:m] = v_fix[:m] - v_ant[:m]
-        x["vel_ned_m_s"] += dv
-        hist["vel_ned_m_s"][rows] += dv
-        P = self._P
-        for i in range(m):
-            e = core.E_V + i
-            P[e, :] = 0.0
-            P[:, e] = 0.0
-            P[e, e] = sig_s ** 2
-        x["vel_gate"]["rejected_since_s"] = math.nan
+        return self._fusion.result()
 
     # ----------------------------------------------------------------------- internals
     def _initialise(self, t_s, g, a, m, sample_flags: int) -> bool:
@@ -1555,11 +850,11 @@ class Ins:
         start_sensor_errors(self._x, kept)
         # the biases are also the last confirmed ones (what a yaw reset goes back to) and the start-up ones
         keep_bg = kept.gyro_bias_rad_s
-        self._confirmation.start_biases(keep_bg, kept.accel_bias_m_s2)
+        self._heading.confirmation.start_biases(keep_bg, kept.accel_bias_m_s2)
         first_history_row(self._x, self._hist, t_s, q0, g, keep_bg)
         start_mag_reference(self._x, kept, p.mag_min_undisturbed_s)
         initial_covariance(self._P, p, use_mag)
-        self._restart_calibration_error_states()
+        self._heading.restart_calibration_error_states()
         self._restart_companions(t_s)
         self._initialised = True
         core.fill_outputs(self._x, self._P, self._par, g[0] - keep_bg[0], g[1] - keep_bg[1], g[2] - keep_bg[2],
@@ -1573,8 +868,7 @@ class Ins:
         self._intake.drop_queued()
         self._published.reset()
         self._published_since_init = False
-        self._last_fix_velocity = None
-        self._fix_velocity_step = None
+        self._fusion.restart()
         if not self._reinit_pending or not self.params.gnss_yaw:
             gsf_reset(self._gsf, self._gsf_par, float(t_s), np.full(4, np.nan))
         else:
@@ -1594,6 +888,7 @@ class Ins:
             self._pending_flags = 0
         if not self._ever_aided and f & _F_GNSS_AIDED:
             self._ever_aided = True
+            self._heading.gnss_aided()
         # nothing published since the filter started (INITIALISING from its start): the published heading follows
         # the filter, as _restart_companions left it reset (it moves only in `update`, not called until then)
         if self._published_since_init or not f & _F_INITIALISING:
@@ -1615,8 +910,9 @@ class Ins:
         pre_aid = not self._ever_aided and self.params.mag_enabled
         off = self._published.offset_rad
         navigating = self._nav_ok[0] > 0.0
+        heading = self._heading
         roll, pitch, yaw, yaw_true, sigma_yaw, lat_deg, lon_deg, h = self._published_terms(
-            o, self._q_true, self._acc_ned_lp, self._confirmation.unconfirmed_sigma_rad, navigating,
+            o, self._q_true, self._acc_ned_lp, heading.confirmation.unconfirmed_sigma_rad, navigating,
             self._lever_arm_fit.heading_bent, not (pre_aid or off), float(self.params.accel_axes_tilt_sigma_rad),
             self._accel_axes_var_rad2 if self._ever_aided else 0.0, off, self._declination)
         if pre_aid or off:
@@ -1628,8 +924,9 @@ class Ins:
         if navigating:
             nav = NavState(o[_OUT_VEL], lat_deg, lon_deg, h, o[_OUT_SIGMA_VEL], o[_OUT_SIGMA_POS], o[_OUT_ACCEL_BIAS])
         return attitude_estimate(t_s, o, _OUT, roll, pitch, yaw, yaw_true, f,
-                                 self._publication.published(f, sigma_yaw, self._t_run_s, self._mag_use, self._monitor),
-                                 nav, self._publication.integrity)
+                                 heading.publication.published(f, sigma_yaw, self._t_run_s, self._mag_use,
+                                                               heading.monitor),
+                                 nav, heading.publication.integrity)
 
     def _pre_aid_heading_var_rad2(self) -> float:
         """What the yaw variance adds before the first fix, rad²: the magnetometer calibration is the only heading
@@ -1644,20 +941,6 @@ class Ins:
         if self._par["mag_harmonics_on"] > 0.0:
             add_var = max(0.0, add_var - cal_var)
         return add_var
-
-
-def _finite3(v: np.ndarray) -> bool:
-    """Every element of the 3-vector v finite: np.all(np.isfinite(v)) for a float64 3-vector, in Python floats
-    (the ufunc and the reduction cost many times the test, per fix)."""
-    a, b, c = v.tolist()
-    return math.isfinite(a) and math.isfinite(b) and math.isfinite(c)
-
-
-def _restart_uncorrelated(P: np.ndarray, i: int, var: float) -> None:
-    """Error state i restarted on its own: its row and column of P cleared, its variance set to var."""
-    P[i, :] = 0.0
-    P[:, i] = 0.0
-    P[i, i] = var
 
 
 def _float_field_view(records: np.ndarray, name: str) -> np.ndarray:

@@ -49,8 +49,8 @@ def test_the_ins_holds_the_bias_back_only_while_the_heading_is_unknown(calibrati
     est = Ins(mag_calibration_sigma_rad=math.radians(calibration_sigma_deg), gnss_yaw=gnss_yaw,
               accel_bias_needs_heading=True)
     assert est._par["accel_bias_learn"] == (0.0 if held else 1.0)
-    est._confirmation.bias_heading_confirmed = True   # what a GNSS yaw within 10° does (HeadingConfirmation.confirm)
-    est._set_accel_bias_learning()
+    est._heading.confirmation.bias_heading_confirmed = True   # what a GNSS yaw within 10° does (HeadingConfirmation.confirm)
+    est._heading.set_accel_bias_learning()
     assert est._par["accel_bias_learn"] == 1.0
     default = Ins(mag_calibration_sigma_rad=math.radians(calibration_sigma_deg), gnss_yaw=gnss_yaw)
     assert default._par["accel_bias_learn"] == (0.0 if held else 1.0)

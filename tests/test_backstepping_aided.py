@@ -51,8 +51,8 @@ def test_a_calibrated_accelerometer_lets_the_levelling_split_bias_from_tilt(capl
     tilt: with the accelerometer exactly calibrated but the filter's default (uncalibrated) bias prior, the
     smoothed horizon is still off; told the bias is known to ACCEL_BIAS_SIGMA_CALIBRATED_M_S2 it is not
     (truth from the simulator, via scipy). Seed 12's default-prior error was mostly the bias the yaw's pull-in
-    taught before the first valid GNSS yaw, restarted there since tilt29 (Ins._restart_horizontal_accel_bias:
-    0.72 → 0.07°); seed 19's default prior is still off (at 100 SPS 0.34 → 0.17°, the calibrated 0.105°; at the 50 SPS
+    taught before the first valid GNSS yaw, restarted there since tilt29
+    (YawReset.restart_horizontal_accel_bias: 0.72 → 0.07°); seed 19's default prior is still off (at 100 SPS 0.34 → 0.17°, the calibrated 0.105°; at the 50 SPS
     here 0.22°, the calibrated 0.09°: the levelling's cost is per sample)."""
     from ahrsd.calibration.accel_trust import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
     from ahrsd.calibration.mag.backstepping_aided import aided_roll_pitch

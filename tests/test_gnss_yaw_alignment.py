@@ -116,8 +116,8 @@ def test_the_horizontal_accel_bias_waits_for_the_gnss_yaw(uncalibrated):
                                  {"yaw_align_to_gnss_yaw": False}])
 def test_without_the_heading_checks_the_published_sigma_is_the_filters(off):
     """Nothing would ever confirm the heading: no floor on the published σ (it would stay at π for good)."""
-    assert math.isnan(Ins(**off)._confirmation.unconfirmed_sigma_rad)
-    assert Ins()._confirmation.unconfirmed_sigma_rad == pytest.approx(math.pi)
+    assert math.isnan(Ins(**off)._heading.confirmation.unconfirmed_sigma_rad)
+    assert Ins()._heading.confirmation.unconfirmed_sigma_rad == pytest.approx(math.pi)
 
 
 def test_a_gnss_held_heading_is_not_reported_unknown_while_its_sigma_is_a_few_degrees(uncalibrated):
@@ -168,7 +168,7 @@ def test_the_tilt_levelled_under_the_wrong_yaw_is_relevelled_not_learned_as_bias
     with its horizontal accelerometer bias held: the GNSS acceleration projected through that yaw leans the pitch
     5° by the alignment (10 s), with a 0.65° σ. The alignment gives the tilt the σ of the lean its yaw step implies
     for the specific force the tilt was levelled against (|f_h|·|sin Δψ| over |f_d|, at most the 5° a fix assumes
-    when it first sets the velocity: Ins._relevel_after_wrong_yaw): the next fixes re-level it. Broken (the tilt
+    when it first sets the velocity: YawReset.relevel): the next fixes re-level it. Broken (the tilt
     keeps its small variance, or the lean taken as 0) they put the 5° into the just-released x bias (154 mm/s² off,
     measured) and the pitch stays 0.6° off (RMS) to 30 s; relevelled, 82 mm/s² and 0.38°."""
     o = _run("uncalibrated", seed=31, seconds=30.0, place=("-1.29,36.82", "unseen"))

@@ -71,7 +71,7 @@ def test_a_car_without_a_magnetometer_takes_the_valid_gnss_yaw(caplog, rate_hz):
     caplog.set_level(logging.ERROR)
     o = _run("car", 0, rate_hz, 40.0)
     after = o["t"] >= 15.0
-    # measured 4.0° / 3.9°: the tilt relevelled at the alignment (Ins._relevel_after_wrong_yaw), the yaw wanders within
+    # measured 4.0° / 3.9°: the tilt relevelled at the alignment (YawReset.relevel), the yaw wanders within
     # its own σ (the bank's, 5–6°) until the car's turn at 24 s brings it within 0.4°
     assert np.max(np.abs(o["own"][after])) < 4.5, np.max(np.abs(o["own"][after]))
     assert o["alignments"] == 1
@@ -107,8 +107,8 @@ def test_a_car_whose_yaw_agrees_with_the_first_valid_gnss_yaw_relearns_its_level
     """Car seed 3 at 400 SPS: standing, then accelerating away at 3.6 m/s² with its yaw 80° off, the linearised
     pull-in puts the mis-projected GNSS acceleration into the x accelerometer bias (−300 mm/s², the truth −87) and
     the tilt; at the first valid bank yaw (10 s) the filter is inside the bank's 3σ and keeps its yaw, but the
-    horizontal bias goes back to its start-up value and the tilt gets its start-up σ (Ins._restart_horizontal_
-    accel_bias, Ins._relevel_after_wrong_yaw), and the car's turns re-learn them with a known yaw. Broken (kept as
+    horizontal bias goes back to its start-up value and the tilt gets its start-up σ (YawReset.restart_horizontal_
+    accel_bias, YawReset.relevel), and the car's turns re-learn them with a known yaw. Broken (kept as
     learned) the pitch is 1.1° RMS off from 30 s with all of it beyond 3σ and the bias 160 mm/s² off at 60 s
     (measured); restarted, 0.37°, none beyond 3σ, 17 mm/s²."""
     o = _run("car", 3, 400.0, 60.0)

@@ -40,7 +40,7 @@ def test_only_the_latest_checks_are_kept_oldest_dropped_first():
 
 def test_the_filter_reads_its_log_and_a_reset_starts_a_new_one():
     est = Ins()
-    est._check_log.add(3.0, _decision(True, 0.0), 0.01, None, False)
+    est._heading.check_log.add(3.0, _decision(True, 0.0), 0.01, None, False)
     assert [r.t_s for r in est.heading_checks] == [3.0]
     est.reset()
     assert len(est.heading_checks) == 0

@@ -164,5 +164,5 @@ def test_the_filter_hands_the_monitor_a_new_calibration_built():
     published reads the monitor in force, not the one the publication was built beside."""
     est = Ins(mag_calibration_sigma_rad=5.0 * DEG)
     est.set_mag_calibration_sigma(2.0 * DEG)
-    est._monitor.rejections, est._monitor.mag_rejected = 4, True
+    est._heading.monitor.rejections, est._heading.monitor.mag_rejected = 4, True
     assert est.heading_report().mag_rejections == 4

@@ -77,7 +77,7 @@ def test_the_oracle_iron_learner_is_fed_the_simulators_attitude():
     for one, c_bn in ((at_truth, truth), (at_called, np.eye(3))):
         mag, fld, p_att, noise, inflate = inputs
         one.update(mag, c_bn, fld, p_att, noise, inflate)
-    est._learn_iron(3.5, np.eye(3), field)
+    est._heading._learn_iron(3.5, np.eye(3), field)
     assert est._iron.updates == learner.updates + 1
     assert np.allclose(est._iron.state, at_truth.state, rtol=0.0, atol=1e-12)
     assert not np.allclose(est._iron.state, at_called.state, rtol=0.0, atol=1e-6)

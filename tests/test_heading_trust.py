@@ -18,14 +18,14 @@ def test_a_new_calibration_sigma_replaces_the_one_ins_started_with():
 
     ins = Ins()
     uncal = DEFAULT_INS_PARAMS.mag_uncalibrated_sigma_rad
-    assert ins._monitor.calibration_sigma_rad == pytest.approx(uncal)
+    assert ins._heading.monitor.calibration_sigma_rad == pytest.approx(uncal)
     ins.set_mag_calibration_sigma(math.radians(0.5))
     assert ins.params.mag_calibration_sigma_rad == pytest.approx(math.radians(0.5))
-    assert ins._monitor.calibration_sigma_rad == pytest.approx(math.radians(0.5))
+    assert ins._heading.monitor.calibration_sigma_rad == pytest.approx(math.radians(0.5))
     assert ins._par["mag_bias_var_rad2"] == pytest.approx(math.radians(0.5) ** 2)
     assert ins._par["mag_bias_tau_s"] == pytest.approx(DEFAULT_INS_PARAMS.mag_bias_tau_s)
     ins.set_mag_calibration_sigma(math.nan)           # a calibration whose quality is unknown
-    assert ins._monitor.calibration_sigma_rad == pytest.approx(uncal)
+    assert ins._heading.monitor.calibration_sigma_rad == pytest.approx(uncal)
     assert ins._par["mag_bias_var_rad2"] == pytest.approx(uncal ** 2)
     assert ins._par["mag_bias_tau_s"] == pytest.approx(DEFAULT_INS_PARAMS.mag_uncalibrated_tau_s)
 

@@ -41,7 +41,7 @@ def boat():
     learning = np.zeros(len(run.t_s), dtype=bool)
     for k, e in estimates_in_arrival_order(est, run, run.fixes):
         flags[k] = int(e.flags)
-        learning[k] = est._monitor.learning
+        learning[k] = est._heading.monitor.learning
     return run, est, flags, learning
 
 

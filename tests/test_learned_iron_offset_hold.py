@@ -19,6 +19,7 @@ import numpy as np
 
 from ahrsd.estimator import ins_core as core
 from ahrsd.estimator.ins import Ins
+from ahrsd.estimator.mag_error_states import learned_floor_var_rad2
 from ahrsd.simulation import Site
 
 # Anchorage (61.22 N, 149.90 W): H about 15 µT, under the ~19 µT where the learned magnetometer's floor keeps it
@@ -54,7 +55,7 @@ def _learn(est: Ins, start_rad: float, turn_rad: float, yaw_error_deg: float, se
     for i in range(n):
         yaw = start_rad + turn_rad * i / n
         est._x["mag_last_ut"] = _measured(yaw) + rng.normal(0.0, 0.1, 3)
-        est._learn_iron(t0_s + i * CHECK_S, _level(yaw + math.radians(yaw_error_deg)), FIELD_NED_UT)
+        est._heading._learn_iron(t0_s + i * CHECK_S, _level(yaw + math.radians(yaw_error_deg)), FIELD_NED_UT)
 
 
 def _errors_deg(est: Ins) -> np.ndarray:
@@ -79,7 +80,7 @@ def _two_windows(fused: bool) -> tuple[Ins, np.ndarray, np.ndarray]:
 def test_the_premise_a_weak_field_never_trusts_the_learned_magnetometer():
     est = Ins()
     h2 = float(FIELD_NED_UT[0] ** 2 + FIELD_NED_UT[1] ** 2)
-    assert est._learned_floor_var(h2) > math.radians(3.0) ** 2     # the monitor's trust limit
+    assert learned_floor_var_rad2(est.params, h2) > math.radians(3.0) ** 2     # the monitor's trust limit
 
 
 def test_fused_while_learned_the_offset_does_not_follow_the_drifted_yaw():

@@ -5,7 +5,7 @@ yaw a couple of degrees off for a minute, as on the uncalibrated boat's seed 31)
 vertical in every measurement, and an iron free to rotate the field (the uncalibrated magnetometer's soft-iron
 prior) learns it: the learned magnetometer then reads every heading off by that yaw error. The learner counted the
 attitude's uncertainty as noise refreshed every `iron_tau_s`, so its covariance averaged that error down; the
-harmonic states' prior (`Ins._iron_harmonics_prior`) must carry it (estimator/learned_iron.py).
+harmonic states' prior (`MagErrorStates.iron_prior`, estimator/mag_error_states.py) must carry it (estimator/learned_iron.py).
 
 Truth is independent of the code under test: the magnetometer is a known iron applied to the simulator's WMM field
 at the true (level) attitude, and the learned magnetometer's heading error is the azimuth of the field it
@@ -53,8 +53,8 @@ def _learn(est: Ins, turn_rad: float, yaw_error_deg: float, seconds: float = 120
     for i in range(n):
         yaw = turn_rad * i / n
         est._x["mag_last_ut"] = _measured(yaw, *iron) + rng.normal(0.0, 0.1, 3)
-        est._learn_iron(i * CHECK_S, _level(yaw + math.radians(yaw_error_deg)), FIELD_NED_UT)
-    est._field_ned = FIELD_NED_UT
+        est._heading._learn_iron(i * CHECK_S, _level(yaw + math.radians(yaw_error_deg)), FIELD_NED_UT)
+    est._heading.field_ned = FIELD_NED_UT
 
 
 def _learned_heading_errors_deg(est: Ins, iron=(SOFT_IRON, HARD_IRON_UT)) -> np.ndarray:
@@ -70,7 +70,7 @@ def _learned_heading_errors_deg(est: Ins, iron=(SOFT_IRON, HARD_IRON_UT)) -> np.
 
 def _offset_sigma_deg(est: Ins) -> float:
     """The harmonic states' prior for the learned iron: its constant term's 1σ (c0, the heading offset)."""
-    return math.degrees(math.sqrt(est._iron_harmonics_prior()[0, 0]))
+    return math.degrees(math.sqrt(est._mag_errors.iron_prior(est.params, est._heading.field_ned, est._declination)[0, 0]))
 
 
 @pytest.mark.parametrize("turn_rad", [2.0 * math.pi, math.pi])
@@ -121,7 +121,7 @@ def test_a_reset_or_restored_iron_forgets_the_window():
     offset_ut, cov = est.learned_iron()
     soft, soft_cov = est.learned_soft_iron()
     est.set_learned_iron(offset_ut, cov, soft, soft_cov)     # the daemon's restored iron (without its cross terms)
-    est._field_ned = FIELD_NED_UT
+    est._heading.field_ned = FIELD_NED_UT
     restored = _offset_sigma_deg(est)
     assert restored < 0.5 * WINDOW_YAW_SIGMA_DEG     # a restored iron's window is not persisted: its own σ only
     est.reset_learned_iron()

@@ -40,8 +40,8 @@ def boat():
     fused = np.zeros(n, dtype=bool)
     for k, e in estimates_in_arrival_order(est, run, run.fixes):
         q_est[k] = e.q_wxyz
-        learning[k] = est._monitor.learning
-        let_back[k] = not est._monitor.mag_rejected
+        learning[k] = est._heading.monitor.learning
+        let_back[k] = not est._heading.monitor.mag_rejected
         fused[k] = est._par["mag_use"] > 0.0
     _, err_deg = tilt_heading_errors_deg(q_est, run.truth_q_wxyz, run.declination_rad)   # one scipy call, not n
     return run, err_deg, learning, let_back, fused

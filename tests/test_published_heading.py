@@ -162,9 +162,9 @@ def _run_with_resets(run, build_every: int = 1, **params):
     for k in range(n):
         fi = _offer_fixes(est, fixes, fi, run.t_s[k])
         if k == k_wrong:
-            est._reset_yaw(math.radians(8.0), math.radians(10.0) ** 2)
+            est._heading.reset_yaw(math.radians(8.0), math.radians(10.0) ** 2)
         if k == k_right:     # the simulator's truth is body → true NED, as the filter's own attitude
-            est._reset_yaw(yaw(run.truth_q_wxyz[k]) - yaw(est.true_attitude_q_wxyz()), math.radians(0.5) ** 2)
+            est._heading.reset_yaw(yaw(run.truth_q_wxyz[k]) - yaw(est.true_attitude_q_wxyz()), math.radians(0.5) ** 2)
         mag = np.full(3, np.nan) if k_wrong <= k < k_right else run.mag_ut[k]
         sample = make_sample(run.t_s[k], run.gyro_rad_s[k], run.accel_m_s2[k], mag, flags=SampleFlags.NEW_DATA)
         if build_every == 1:
@@ -248,7 +248,7 @@ def test_after_a_restart_the_published_heading_is_the_filters_until_it_first_pub
     for k in range(k_gap):
         fi = _offer_fixes(est, fixes, fi, run.t_s[k])
         if k == k_wrong:
-            est._reset_yaw(math.radians(8.0), math.radians(10.0) ** 2)
+            est._heading.reset_yaw(math.radians(8.0), math.radians(10.0) ** 2)
         est.update(make_sample(run.t_s[k], run.gyro_rad_s[k], run.accel_m_s2[k], run.mag_ut[k],
                                flags=SampleFlags.NEW_DATA))
     assert abs(est._published.offset_rad) > math.radians(2.0)      # being slewed out when the samples stop
