@@ -155,63 +155,17 @@ def _fault_plan(schedule: str, cfg):
 
 
 def _open_checked_source(cfg, plan):
-    """The sensor source, after what can fail at once has been checked (a replay's file, the signing key, the
-    MAVLink and NMEA server addresses, the estimator's compile); None (one error line on stderr) when something
+    """The sensor source, after what can fail at once has been checked (`_START_CHECKS`, in order: the estimator's
+    compile last, so a wrong path or address is said before it); None (one error line on stderr) when something
     failed."""
     import sys
 
     from ahrsd.drivers.errors import DriverError
     from ahrsd.drivers.source import open_source
 
-    if cfg.sensor.source == "replay":
-        from ahrsd.drivers.recording import check_recording
-
-        try:   # before the estimator compiles: a wrong path fails at once, in one line
-            check_recording(cfg.sensor.replay_file)
-        except (OSError, ValueError) as exc:
-            print(f"ahrsd run: error: cannot replay {_os_error_text(exc, cfg.sensor.replay_file)}", file=sys.stderr)
-            return None
-    if cfg.gnss.source == "replay":
-        from ahrsd.drivers.gnss.recording import iter_gnss_fixes
-
-        fixes = iter_gnss_fixes(cfg.gnss.file)
-        try:   # the GNSS recording too: its header and first fix, as the daemon's backend reads them at its start
-            next(fixes, None)
-        except (OSError, ValueError) as exc:
-            print(f"ahrsd run: error: cannot replay the GNSS recording {exc}", file=sys.stderr)
-            return None
-        finally:
-            fixes.close()
-    if cfg.signing.key_file:
-        from ahrsd.daemon.signing import SigningKeyError, load_key
-
-        try:   # the daemon loads it at its start: a key it cannot use fails here, before a compile
-            load_key(cfg.signing.key_file)
-        except SigningKeyError as exc:
-            print(f"ahrsd run: error: {exc}", file=sys.stderr)
-            return None
-    from ahrsd.daemon.mavlink_io import EndpointOpenError, check_endpoint_opens
-
-    for endpoint in cfg.endpoints:
-        try:   # a server address it cannot have (not a local address, a port taken) fails here, before a compile
-            check_endpoint_opens(endpoint.url)
-        except EndpointOpenError as exc:
-            print(f"ahrsd run: error: {exc}", file=sys.stderr)
-            return None
-    from ahrsd.daemon.nmea_transport import check_nmea_output_opens
-
-    for output in cfg.nmea:
-        try:   # a TCP server's address too (the NMEA output names itself and the address)
-            check_nmea_output_opens(output.url)
-        except OSError as exc:
-            print(f"ahrsd run: error: {exc}", file=sys.stderr)
-            return None
-    from ahrsd.cli.warm_up import compile_estimator
-
-    try:   # said before a compile (first start only), not after it
-        compile_estimator(cfg.estimator_name)
-    except (ValueError, ModuleNotFoundError) as exc:
-        print(f"ahrsd run: error: estimator {cfg.estimator_name!r}: {exc}", file=sys.stderr)
+    problem = next((p for check in _START_CHECKS if (p := check(cfg)) is not None), None)
+    if problem is not None:
+        print(f"ahrsd run: error: {problem}", file=sys.stderr)
         return None
     # the chip sources retry a failed start and a lost bus with backoff (daemon.sensor_recovery)
     try:
@@ -219,6 +173,87 @@ def _open_checked_source(cfg, plan):
     except DriverError as exc:   # a missing IIO device or data-ready GPIO: one line, not a traceback
         print(f"ahrsd run: error: {exc}", file=sys.stderr)
         return None
+
+
+def _replay_file_problem(cfg) -> str | None:
+    """A replay's recording that cannot be read: said before the estimator compiles, in one line."""
+    if cfg.sensor.source != "replay":
+        return None
+    from ahrsd.drivers.recording import check_recording
+
+    try:
+        check_recording(cfg.sensor.replay_file)
+    except (OSError, ValueError) as exc:
+        return f"cannot replay {_os_error_text(exc, cfg.sensor.replay_file)}"
+    return None
+
+
+def _gnss_replay_problem(cfg) -> str | None:
+    """The GNSS recording too: its header and first fix, as the daemon's backend reads them at its start."""
+    if cfg.gnss.source != "replay":
+        return None
+    from ahrsd.drivers.gnss.recording import iter_gnss_fixes
+
+    fixes = iter_gnss_fixes(cfg.gnss.file)
+    try:
+        next(fixes, None)
+    except (OSError, ValueError) as exc:
+        return f"cannot replay the GNSS recording {exc}"
+    finally:
+        fixes.close()
+    return None
+
+
+def _signing_key_problem(cfg) -> str | None:
+    """The daemon loads the signing key at its start: a key it cannot use fails here, before a compile."""
+    if not cfg.signing.key_file:
+        return None
+    from ahrsd.daemon.signing import SigningKeyError, load_key
+
+    try:
+        load_key(cfg.signing.key_file)
+    except SigningKeyError as exc:
+        return str(exc)
+    return None
+
+
+def _endpoint_problem(cfg) -> str | None:
+    """A server address the daemon cannot have (not a local address, a port taken)."""
+    from ahrsd.daemon.mavlink_io import EndpointOpenError, check_endpoint_opens
+
+    for endpoint in cfg.endpoints:
+        try:
+            check_endpoint_opens(endpoint.url)
+        except EndpointOpenError as exc:
+            return str(exc)
+    return None
+
+
+def _nmea_output_problem(cfg) -> str | None:
+    """An NMEA output's TCP server address too (its message names the output and the address)."""
+    from ahrsd.daemon.nmea_transport import check_nmea_output_opens
+
+    for output in cfg.nmea:
+        try:
+            check_nmea_output_opens(output.url)
+        except OSError as exc:
+            return str(exc)
+    return None
+
+
+def _estimator_problem(cfg) -> str | None:
+    """The estimator's compile (first start only): an unknown estimator is said before it, not after."""
+    from ahrsd.cli.warm_up import compile_estimator
+
+    try:
+        compile_estimator(cfg.estimator_name)
+    except (ValueError, ModuleNotFoundError) as exc:
+        return f"estimator {cfg.estimator_name!r}: {exc}"
+    return None
+
+
+_START_CHECKS = (_replay_file_problem, _gnss_replay_problem, _signing_key_problem, _endpoint_problem,
+                 _nmea_output_problem, _estimator_problem)
 
 
 def _serve(service, source, cfg, stats_file) -> int:
