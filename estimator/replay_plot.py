@@ -368,7 +368,10 @@ def _error_panel(a, t, truth_err, sigmas, true_north: bool, settled: np.ndarray)
     a.axhline(0, color="black", lw=0.5)
     a.set_ylabel("error vs truth (°)")
     a.grid(alpha=0.3)
-    a.legend(loc="upper right", fontsize=8, ncol=3)
+    # one row under the panel, in the gap above the next: inside, it would hide the errors it names (a heading
+    # error of tenths of a degree runs along the top of a scale set by the tilt's)
+    a.legend(loc="upper right", bbox_to_anchor=(1.0, 0.0), fontsize=7, ncol=6, handlelength=1.5,
+             columnspacing=1.0, borderaxespad=0.1, frameon=False)
     notes = []
     if off_scale:
         notes.append(f"{', '.join(off_scale)} error off scale while initialising or unknown (σ ≥ "

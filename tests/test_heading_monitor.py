@@ -147,7 +147,7 @@ def test_ins_learns_no_iron_on_a_check_that_resets_the_yaw():
     fi = 0
     for k, t in enumerate(run.t_s):
         if not turned and t >= 40.0:
-            assert est._monitor.mag_rejected and est._monitor.learning, "the scenario: learning when turned"
+            assert est._heading.monitor.mag_rejected and est._heading.monitor.learning, "the scenario: learning when turned"
             core._rotate_attitude(est._x["q"], 0.0, 0.0, D(30.0))
             turned = True
         while fi < len(run.fixes) and run.fixes[fi].extra["t_rx_s"] <= t:
