@@ -4,7 +4,7 @@ arm) goes through `step` and `update_gnss` in arrival order, as tools/estimate_d
 then `--repeats` timed runs; prints µs per call (the median over the repeats) for each part and for the whole fix.
 
     .venv/bin/python bench/ins_fix_cost.py --vehicles car boat --seconds 60 --repeats 3
-    .venv/bin/python bench/ins_fix_cost.py --parts step _stepped update_gnss _add_to_lever_arm_fit   # other parts
+    .venv/bin/python bench/ins_fix_cost.py --parts step _stepped update_gnss _fusion._add_to_lever_arm_fit   # other parts
     .venv/bin/python bench/ins_fix_cost.py --path update --parts update update_gnss   # an estimate per sample
 
 Compare two checkouts by running the same command in each, alternately, at the same load (the timers' own
@@ -34,7 +34,11 @@ def _timed_run(run, parts, path: str = "step") -> dict[str, tuple[float, int]]:
               mag_calibration_sigma_rad=run.mag_calibration_sigma_rad)
     spent = {p: [0.0, 0] for p in parts}
     for p in parts:
-        inner = getattr(est, p)
+        *path_to, name = p.split(".")      # a part's method: "_fusion._add_to_lever_arm_fit"
+        owner = est
+        for attr in path_to:
+            owner = getattr(owner, attr)
+        inner = getattr(owner, name)
 
         def timed(*args, _inner=inner, _acc=spent[p], **kw):
             t0 = time.process_time()
@@ -43,7 +47,7 @@ def _timed_run(run, parts, path: str = "step") -> dict[str, tuple[float, int]]:
             finally:
                 _acc[0] += time.process_time() - t0
                 _acc[1] += 1
-        setattr(est, p, timed)
+        setattr(owner, name, timed)
     t, g, a, m = run.t_s, run.gyro_rad_s, run.accel_m_s2, run.mag_ut
     samples = (make_sample(t[k], g[k], a[k], m[k], flags=SampleFlags.NEW_DATA) for k in range(len(t)))
     for item in in_arrival_order(samples, run.fixes):
@@ -64,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--path", choices=("step", "update"), default="step",
                     help="the samples through step (the daemon's) or update (an estimate built at each)")
-    ap.add_argument("--parts", nargs="+", default=list(PARTS), help="the Ins methods to time (default: %(default)s)")
+    ap.add_argument("--parts", nargs="+", default=list(PARTS), help="the Ins methods (a part's: `_fusion.name`) to time (default: %(default)s)")
     args = ap.parse_args(argv)
     from vehicle_accuracy import simulate_vehicle
 

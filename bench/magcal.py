@@ -271,9 +271,8 @@ def field_session(data: MagFitInput, roll, pitch, yaw, reference, gyro_truth=Non
     runs), with the true attitude standing in for the estimator (the session uses it for heading coverage;
     the fit levels with the accelerometer, as the offline fit does). Returns (model or None, seconds of data
     the session needed, info)."""
-    from types import SimpleNamespace
 
-    from ahrsd.calibration.field import CalStatus, FieldCalConfig, FieldCalibration
+    from ahrsd.calibration.field import CalStatus, FieldAttitude, FieldCalConfig, FieldCalibration
     from ahrsd.calibration.models import Calibration
     from ahrsd.core.sample import make_sample
 
@@ -282,8 +281,8 @@ def field_session(data: MagFitInput, roll, pitch, yaw, reference, gyro_truth=Non
     zeros = np.zeros(3)
     for i in range(len(data.t_s)):
         gyro = data.gyro_rad_s[i] if data.gyro_rad_s is not None else zeros
-        est = SimpleNamespace(roll_rad=roll[i], pitch_rad=pitch[i], yaw_rad=yaw[i],
-                              rate_body_rad_s=None if gyro_truth is None else gyro_truth[i])
+        est = FieldAttitude(roll_rad=roll[i], pitch_rad=pitch[i], yaw_rad=yaw[i],
+                              rate_rad_s=None if gyro_truth is None else gyro_truth[i])
         session.add_sample(make_sample(data.t_s[i], gyro, data.accel_m_s2[i], data.mag_ut[i]), est)
         if session.status.finished:
             break

@@ -65,7 +65,6 @@ from .mag.swing import DEFAULT_MIN_SPEED_M_S
 if TYPE_CHECKING:  # pragma: no cover
     from ahrsd.core.gnss import GnssFix
     from ahrsd.core.sample import ImuSample
-    from ahrsd.core.estimate import AttitudeEstimate
     from ahrsd.core.wmm import EarthField
 
 log = logging.getLogger(__name__)
@@ -101,6 +100,20 @@ class VehicleType(str, enum.Enum):
     AUTO = "auto"      # decide from the data (tilt seen)
     LEVEL = "level"    # cannot be tumbled: boat, rover, AUV at the surface, large vehicle
     TUMBLE = "tumble"  # can be rotated through the full sphere: small drone, handheld
+
+
+@dataclass(frozen=True)
+class FieldAttitude:
+    """The attitude a session levels a sample with, in the magnetometer's (sensor) axes: ZYX Euler angles; the
+    angular rate in those axes, from which the heading coverage counts how far the vehicle turned (None: the
+    coverage follows `yaw_rad` itself); the body's yaw when the sensor is mounted turned in the body (None: the
+    body's yaw is `yaw_rad`). daemon.magcal builds it from the estimator's attitude and the mounting."""
+
+    roll_rad: float
+    pitch_rad: float
+    yaw_rad: float
+    rate_rad_s: np.ndarray | None = None
+    body_yaw_rad: float | None = None
 
 
 @dataclass(frozen=True)
@@ -214,8 +227,8 @@ class FieldCalibration:
     running the fit (`pending_fit()` job) and any number of readers of `progress()`.
 
     Usage: `s = FieldCalibration(current_cal, config, reference)`, `s.start(now_t_s)`, then for every sample
-    `s.add_sample(sample, estimate)`; if `auto_fit` is False, run `job = s.pending_fit()` off the event loop
-    and hand its return value to `s.fit_done(value)`. `s.status`, `s.completion_pct`, `s.completion_mask`,
+    `s.add_sample(sample, FieldAttitude(...))`; if `auto_fit` is False, run `job = s.pending_fit()` off the event
+    loop and hand its return value to `s.fit_done(value)`. `s.status`, `s.completion_pct`, `s.completion_mask`,
     `s.direction_hint()`, `s.result` and `s.pop_messages()` report.
     """
 
@@ -287,9 +300,10 @@ class FieldCalibration:
         self._last_sample_wall = now_s
 
     # ------------------------------------------------------------------ feeding
-    def add_sample(self, sample: "ImuSample", estimate: "AttitudeEstimate | None" = None, now_s: float | None = None) -> None:
+    def add_sample(self, sample: "ImuSample", attitude: FieldAttitude | None = None,
+                   now_s: float | None = None) -> None:
         """Feed one sample (calibrated with `current` if samples_are_calibrated, else raw) and the estimator's
-        attitude for it. Cheap unless the sample is kept (store_rate_hz)."""
+        attitude for it in the sensor's axes (None: none yet). Cheap unless the sample is kept (store_rate_hz)."""
         if not self.status.running:
             return
         t = float(sample.t_s)
@@ -312,7 +326,7 @@ class FieldCalibration:
             dt_kept = t - self._t_last_kept
             self._t_last_kept = t
             raw, acc, gyro = block[1:4], block[4:7], block[7:10]
-            roll, pitch, yaw, body_yaw_offset = self._kept_attitude(estimate, raw, acc, dt_kept)
+            roll, pitch, yaw, body_yaw_offset = self._kept_attitude(attitude, raw, acc, dt_kept)
             self._store(t, raw, acc, gyro, roll, pitch, yaw, body_yaw_offset)
             self._update_coverage(raw, roll, pitch, yaw)
             self._advance(t)
@@ -353,18 +367,18 @@ class FieldCalibration:
         self._block_bin = bin_index
         return block
 
-    def _kept_attitude(self, estimate: "AttitudeEstimate | None", raw: np.ndarray, acc: np.ndarray,
+    def _kept_attitude(self, attitude: FieldAttitude | None, raw: np.ndarray, acc: np.ndarray,
                        dt_kept: float) -> tuple[float, float, float, float]:
         """(roll, pitch, yaw, body-yaw offset) of a kept sample: the estimator's, with the yaw integrated from its
-        body rate when it gives one; without an estimate, tilt from the accelerometer and heading from the field
+        rate when it gives one; without an attitude, tilt from the accelerometer and heading from the field
         with the calibration in force."""
-        if estimate is None:
+        if attitude is None:
             roll, pitch = (float(x) for x in roll_pitch_from_accel(acc))
             return roll, pitch, float(tilt_compensated_heading_rad(self.current.mag.apply(raw), roll, pitch)[0]), 0.0
         body_yaw_offset = 0.0
-        roll, pitch = float(estimate.roll_rad), float(estimate.pitch_rad)
-        yaw = float(estimate.yaw_rad)
-        rate = getattr(estimate, "rate_body_rad_s", None)
+        roll, pitch = float(attitude.roll_rad), float(attitude.pitch_rad)
+        yaw = float(attitude.yaw_rad)
+        rate = attitude.rate_rad_s
         if rate is not None:
             # Heading coverage counts how far the vehicle has turned, from the gyro: the magnetic heading of an
             # uncalibrated compass need not go round once per turn (hard iron larger than the horizontal field).
@@ -372,9 +386,8 @@ class FieldCalibration:
                 self._turn_yaw = yaw if self._turn_yaw is None else self._turn_yaw
             else:
                 self._turn_yaw += yaw_rate_ned_rad_s(rate, roll, pitch) * dt_kept
-            body_yaw = getattr(estimate, "body_yaw_rad", None)
-            if body_yaw is not None:
-                body_yaw_offset = float(wrap_pi(float(body_yaw) - float(estimate.yaw_rad)))
+            if attitude.body_yaw_rad is not None:
+                body_yaw_offset = float(wrap_pi(float(attitude.body_yaw_rad) - float(attitude.yaw_rad)))
             yaw = self._turn_yaw
         return roll, pitch, yaw, body_yaw_offset
 

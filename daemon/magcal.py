@@ -50,13 +50,12 @@ import logging
 import math
 import time
 from collections import deque
-from types import SimpleNamespace
 from typing import Any, Protocol
 
 import numpy as np
 
 from ahrsd.calibration.ardupilot_compass import UT_TO_MGAUSS
-from ahrsd.calibration.field import CalStatus, FieldCalConfig, FieldCalibration, VehicleType
+from ahrsd.calibration.field import CalStatus, FieldAttitude, FieldCalConfig, FieldCalibration, VehicleType
 from ahrsd.calibration.fixed_yaw import fixed_yaw_calibration
 from ahrsd.core.angles import tilt_compensated_heading_rad, wrap_180_deg
 from ahrsd.core.wmm import earth_field
@@ -107,18 +106,36 @@ class MagCalHost(Protocol):
     def reference_field(self, lat_deg: float | None = None, lon_deg: float | None = None): ...  # EarthField | None
 
 
-def sensor_attitude(estimate, mounting: np.ndarray | None):
-    """The estimator's body attitude re-expressed for the sensor axes (C_sn = C_bn · M, M = body←sensor):
-    roll/pitch/yaw of the sensor frame and the angular rate in sensor axes — what a session fitting
-    sensor-frame data levels its magnetometer with. The estimate itself when the mounting is the identity."""
-    if mounting is None or estimate is None:
-        return estimate
-    c = euler_to_dcm(float(estimate.roll_rad), float(estimate.pitch_rad), float(estimate.yaw_rad)) @ mounting
-    return SimpleNamespace(roll_rad=math.atan2(c[2, 1], c[2, 2]),
-                           pitch_rad=-math.asin(max(-1.0, min(1.0, float(c[2, 0])))),
-                           yaw_rad=math.atan2(c[1, 0], c[0, 0]),
-                           rate_body_rad_s=mounting.T @ np.asarray(estimate.rate_body_rad_s, dtype=float),
-                           body_yaw_rad=float(estimate.yaw_rad))
+class MagCalEstimate(Protocol):
+    """What the field calibration reads of the estimator's attitude each sample (the pipeline's
+    estimator/estimate_view.EstimateView has it; a test's fake declares the same)."""
+
+    roll_rad: float
+    pitch_rad: float
+    yaw_rad: float
+    rate_body_rad_s: np.ndarray       # bias-corrected angular rate, body axes
+    gyro_bias_rad_s: np.ndarray       # the fixed-yaw check counts the turn from the gyro less this
+
+
+def sensor_attitude(estimate: MagCalEstimate | None, mounting: np.ndarray | None) -> FieldAttitude | None:
+    """The estimator's body attitude re-expressed for the sensor axes (`sensor_frame`); None without one."""
+    if estimate is None:
+        return None
+    return sensor_frame(float(estimate.roll_rad), float(estimate.pitch_rad), float(estimate.yaw_rad),
+                        estimate.rate_body_rad_s, mounting)
+
+
+def sensor_frame(roll_rad: float, pitch_rad: float, yaw_rad: float, rate_body_rad_s: np.ndarray,
+                 mounting: np.ndarray | None) -> FieldAttitude:
+    """A body attitude re-expressed for the sensor axes (C_sn = C_bn · M, M = body←sensor, None = identity):
+    roll/pitch/yaw of the sensor frame, the angular rate in sensor axes and the body's yaw — what a session
+    fitting sensor-frame data levels its magnetometer with."""
+    if mounting is None:
+        return FieldAttitude(roll_rad, pitch_rad, yaw_rad, rate_body_rad_s)
+    c = euler_to_dcm(roll_rad, pitch_rad, yaw_rad) @ mounting
+    return FieldAttitude(math.atan2(c[2, 1], c[2, 2]), -math.asin(max(-1.0, min(1.0, float(c[2, 0])))),
+                         math.atan2(c[1, 0], c[0, 0]), mounting.T @ np.asarray(rate_body_rad_s, dtype=float),
+                         body_yaw_rad=yaw_rad)
 
 
 class MagCalProtocol:
@@ -184,7 +201,7 @@ class MagCalProtocol:
             self._executor = None
 
     # ------------------------------------------------------------------ per sample
-    def on_sample(self, sample, estimate, mounting: np.ndarray | None = None) -> None:
+    def on_sample(self, sample, estimate: MagCalEstimate | None, mounting: np.ndarray | None = None) -> None:
         """Every sample, calibrated with the calibration in force but in the SENSOR frame (calibrations are
         sensor-frame models: the pipeline calibrates before the mounting rotation), its estimate (body
         attitude) and the mounting (body←sensor DCM, None = identity). Cheap when no session runs."""
@@ -443,9 +460,8 @@ class MagCalProtocol:
         raw_mean = self._raw_mag_mean_ut()
         est = self._last_estimate
         # the fit is in the sensor frame: the attitude of the sensor axes for the body's given true heading
-        sensor = sensor_attitude(SimpleNamespace(roll_rad=float(est.roll_rad), pitch_rad=float(est.pitch_rad),
-                                                 yaw_rad=math.radians(float(yaw_deg)),
-                                                 rate_body_rad_s=np.zeros(3)), self._mounting)
+        sensor = sensor_frame(float(est.roll_rad), float(est.pitch_rad), math.radians(float(yaw_deg)), np.zeros(3),
+                              self._mounting)
         s = self.session
         if s is not None and s.status == CalStatus.SUCCESS and not self.saved:
             return self._known_heading_offset(s, raw_mean, sensor, reference)
@@ -479,7 +495,7 @@ class MagCalProtocol:
     def _turned_in_window_deg(self) -> float:
         """|heading change| over the fixed-yaw averaging window, from the gyro about the vertical less the
         estimator's gyro bias (an uncalibrated ADIS16405 may read up to 3 °/s still: data sheet)."""
-        bias = np.asarray(getattr(self._last_estimate, "gyro_bias_rad_s", np.zeros(3)), dtype=float)
+        bias = np.asarray(self._last_estimate.gyro_bias_rad_s, dtype=float)
         if not np.all(np.isfinite(bias)):
             bias = np.zeros(3)
         if self._mounting is not None:

@@ -3,7 +3,8 @@ autopilot and checks that the switch changes nothing but the yaw source.
 
 For the 0.5 s on the alternate set EKF3 uses that set's position and velocity sources; if they differ from set
 1's, EKF3 resets its position or velocity to the new source (AP_NavEKF3_Control.cpp, setAidingMode: a change of
-source sets `posxy_source_reset` / `velxy_source_reset`), and a set left at its defaults (all 0) has none.
+source sets `posxy_source_reset` / `velxy_source_reset`), and a set left at its defaults (AP_NavEKF_Source.cpp:
+POSXY, VELXY, VELZ and YAW None, POSZ Baro) has no horizontal source.
 So the sets are read with PARAM_REQUEST_READ and the switch is allowed only when EK3_SRC1_YAW is ExternalNav
 (6), the alternate set's yaw is not, and its POSXY, VELXY, POSZ and VELZ equal set 1's. Until the answers are
 in (requested again at each autopilot HEARTBEAT, a few times), the switch is not allowed: the restart slews.

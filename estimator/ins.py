@@ -35,7 +35,7 @@ from .accel_axes_heading import accel_axes_heading_variance_rad2
 from .accel_axes_tilt import ACCEL_MISALIGNMENT_SIGMA_RAD
 from .base import DEFAULT_UNMODELLED_IRON_UT, LEARNED_WITH_GNSS
 from .calibration_heading import calibration_heading_variance_rad2, calibration_states_error
-from .gsf_yaw import GsfParams, gsf_fuse_velocity_of, gsf_output_of, gsf_reset, new_gsf_state
+from .gsf_yaw import GsfParams, gsf_output_of, gsf_reset, new_gsf_state
 from .gnss_intake import GnssCounters, GnssFixIntake
 from .heading_confirmation import HeadingConfirmation, gnss_yaw_floor
 from .heading_check_log import HeadingCheckLog
@@ -48,12 +48,11 @@ from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate,
                             float_field_slice, uninitialised_estimate)
 from .kernel_entry import argument_types, entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
-from .history_rows import bracket, rows_near
 from .lever_arm_consider import ARM_TERM_CORRELATION_S, arm_covariance_m2
-from .lever_arm_fit import RATE_MEAN_S, LeverArmFit, LeverArmFitResult, mean_rate, rate_cross_ned
+from .ins_gnss_fusion import InsGnssFusion
+from .lever_arm_fit import LeverArmFitResult
 from .mag_heading import RELEARN_GATE_OPEN_S
-from .mag_error_restarts import (IRON_HARMONIC_YAWS_RAD, calibration_harmonics_prior, frame_tilt_heading_sigma_rad,
-                                 iron_harmonics_prior, restart_frame_tilt, restart_harmonics)
+from .mag_error_states import MagErrorStates, harmonics_source, learned_floor_var_rad2
 from .mag_heading_params import MagHeadingParams
 from .monitor_follow_up import heading_observable, monitor_follow_up
 from .magnetometer_use import IronState, magnetometer_use
@@ -67,8 +66,6 @@ from .rotations import quat_to_dcm, quat_to_euler, rotvec_to_dcm
 from .ins_published_terms import published_terms
 
 log = logging.getLogger(__name__)
-_HIST_Q, _HIST_VEL, _HIST_RATE = (float_field_slice(core.INS_HISTORY_DTYPE, name)
-                                  for name in ("q", "vel_ned_m_s", "rate_rad_s"))
 _DEG = math.pi / 180.0
 
 
@@ -269,7 +266,7 @@ class InsParams(MagHeadingParams):
     `iron_learned_tau_s`, a straight leg averaged it away and pulled the heading (and the vertical gyro bias) to
     the learned magnetometer's (docs/gnss.md "A learned iron's error as states"). False: that noise, as before."""
     iron_harmonic_residual_share: float = 1.0
-    """With `iron_harmonic_states`: the share of the learned magnetometer's floor (`_learned_floor_var`, what no
+    """With `iron_harmonic_states`: the share of the learned magnetometer's floor (mag_error_states.learned_floor_var_rad2, what no
     learned iron explains) still fused as noise lasting `iron_learned_tau_s`; the rest is added to the states'
     prior, split as a calibration's (`mag_harmonic_offset_share`)."""
     iron_tau_s: float = 5.0
@@ -467,10 +464,6 @@ class Ins:
         self._mag_use = self._par_arr["mag_use"]
         self._P = np.zeros((core.N_ERR, core.N_ERR))
         self._hist = np.zeros(core.H_LEN, core.INS_HISTORY_DTYPE)
-        # what each fix reads of the history (`_history_state_at`, `_add_to_lever_arm_fit`): its times and body
-        # rates as views, its rows as flat float64 rows (one interpolation for the attitude, velocity and rate)
-        self._hist_t_s, self._hist_rate = self._hist["t_s"], self._hist["rate_rad_s"]
-        self._hist_rows = self._hist.view(np.float64).reshape(core.H_LEN, -1)
         self._out_arr = np.zeros(1, core.INS_OUT_DTYPE)   # the step's outputs (what the compiled step takes)
         self._out = self._out_arr[0]
         # the same outputs as one flat float64 array: copied whole for an estimate (copying a record goes field
@@ -498,29 +491,29 @@ class Ins:
         # what the accelerometer's axes add to an aided heading's published variance (accel_axes_heading.py)
         self._accel_axes_var_rad2 = accel_axes_heading_variance_rad2(self.params.accel_axes_heading_sigma_rad)
         self.gnss_counters: GnssCounters = self._intake.counters
-        # can the told antenna arm explain the velocity innovations? (and adopt the fitted one, if asked)
-        self._lever_arm_fit = LeverArmFit(adopt=self.params.lever_arm_adopt)
         self._gsf_par_arr = _one_record_array(GsfParams(lever_arm_m=tuple(self.params.lever_arm_m)).to_record())
         self._gsf_arr = _one_record_array(new_gsf_state(GsfParams(), 0.0))
         self._gsf_par = self._gsf_par_arr[0]      # record views of the arrays the compiled step takes
         self._gsf = self._gsf_arr[0]
         self._par["gnss_yaw"] = 1.0 if self.params.gnss_yaw else 0.0
         self._step = core.fast_step(self._step_args_example())
-        # the bank's per-fix kernels called with its 1-element arrays through their entry points (kernel_entry.py:
+        # the bank's per-fix kernel called with its 1-element arrays through its entry point (kernel_entry.py:
         # these arrays only): a record argument costs several µs to unbox, an array a fraction of one
         self._gsf_output = entry_point(gsf_output_of, argument_types(gsf_output_of, (self._gsf_arr,)))
-        fuse_args = (self._gsf_arr, self._gsf_par_arr, 0.0, np.zeros(3), 0.0)
-        self._gsf_fuse_velocity = entry_point(gsf_fuse_velocity_of, argument_types(gsf_fuse_velocity_of, fuse_args))
         self._load_python_called_kernels()
+        # a usable fix into the state, the lever-arm check, the velocity a yaw reset sets (ins_gnss_fusion.py)
+        self._fusion = InsGnssFusion(self._x_arr, self._P, self._hist, self._par_arr, self._gsf_arr,
+                                     self._gsf_par_arr, self._intake, told_arm_m=p.lever_arm_m, gnss_yaw=p.gnss_yaw,
+                                     adopt_arm=p.lever_arm_adopt)
+        self._lever_arm_fit = self._fusion.lever_arm_fit     # the same object for the filter's life
         # the iron learned on top of the calibration and its bookkeeping (iron_in_use.py); `_iron` is its learner
         # (the same object for the filter's life), which the heading checks read
         self._learned_iron = IronInUse(self.params.iron_prior_sigma_ut, self.params.iron_soft_prior)
         self._iron = self._learned_iron.learner
-        self._mag_harmonics_source = None  # what the harmonic states carry: "calibration", "iron" or None (off)
+        # the magnetometer's calibration-error states: the heading harmonics and the frame tilt (mag_error_states.py)
+        self._mag_errors = MagErrorStates(self._x, self._P, self._par, self._learned_iron)
         self._published = PublishedHeading(self.params.published_yaw_slew_rad_s)
         self._published_since_init = False
-        self._last_fix_velocity = None
-        self._fix_velocity_step = None    # (t_fix, m/s) what the last fix's own update added to the velocity
         self._view = BuiltEstimateView(self._build_estimate)   # step()'s result: the estimate built on demand
         # before the first fix the calibration is checked by the circle its levelled field sweeps in turns
         self._field_circle = FieldCircleCheck(FieldCircleParams(mag_noise_ut=self.params.mag_noise_ut))
@@ -629,8 +622,7 @@ class Ins:
         self._intake.reset()
         self._ever_aided = False
         self._published.reset()
-        self._lever_arm_fit.reset()
-        self._use_arm(self.params.lever_arm_m)     # an arm adopted in the run before is not kept
+        self._fusion.reset()     # an arm adopted in the run before is not kept
         self._new_heading_checks()
 
     # ----------------------------------------------------------------------- learned iron (persisted by the daemon)
@@ -642,7 +634,7 @@ class Ins:
 
     def _apply_learned_iron(self) -> None:
         """The kernel removes the learned iron before its heading update: (I + D)⁻¹·(m − b); a learned iron's
-        error is the learner's, not the calibration's harmonic states' (`_mag_harmonics_apply`); the kernel's field
+        error is the learner's, not the calibration's harmonic states' (mag_error_states.harmonics_source); the kernel's field
         check takes its reference from the WMM field while an iron is learned (IronInUse.follow_field_reference)."""
         self._par["iron_ut"] = self._iron.offset_ut
         self._par["iron_soft_inv"] = self._iron.soft_iron_inverse
@@ -706,51 +698,15 @@ class Ins:
             c = self._confirmation
             c.unconfirmed_sigma_rad = c.unconfirmed_yaw_sigma(*self._yaw_and_gnss_yaw_now())
 
-    @property
-    def _mag_harmonics_apply(self) -> bool:
-        """The calibration's heading error is carried as the harmonic states (InsParams.mag_harmonic_states): a
-        calibration that states its error, trusted by the monitor, and no iron learned on top of it (a learned
-        iron's error is the learner's covariance, `_magnetometer_heading`)."""
-        p = self.params
-        return (p.mag_harmonic_states and p.mag_enabled and calibration_states_error(p.mag_calibration_sigma_rad)
-                and not self._calibration_untrusted and not self._learned_iron.learned)
-
-    @property
-    def _iron_harmonics_apply(self) -> bool:
-        """The learned iron's heading error is carried as the harmonic states (InsParams.iron_harmonic_states): an
-        iron learned or restored, its learning ended (the monitor neither learns nor rejects the magnetometer), the
-        filter GNSS-aided at a known WMM field (what the prior is projected at)."""
-        p = self.params
-        field = self._field_ned
-        return (p.iron_harmonic_states and p.mag_harmonic_states and p.mag_enabled and self._ever_aided
-                and self._learned_iron.learned and not self._monitor.learning
-                and not self._monitor.mag_rejected and field is not None and field[0] ** 2 + field[1] ** 2 > 0.0)
-
     def _set_mag_harmonics(self) -> None:
-        """Tell the kernel whether the harmonic states carry the heading error (the calibration's or the learned
-        iron's), and what they leave as noise; switched on, or to the other error, they start from its prior."""
+        """Which heading error the harmonic states carry now (mag_error_states.harmonics_source, from what the
+        heading checks and the learned iron say), told to the kernel (MagErrorStates.select)."""
         p = self.params
-        source = "calibration" if self._mag_harmonics_apply else "iron" if self._iron_harmonics_apply else None
-        was = self._mag_harmonics_source
-        self._mag_harmonics_source = source
-        self._par["mag_harmonics_on"] = 0.0 if source is None else 1.0
-        self._par["mag_harmonic_residual_var_rad2"] = p.mag_harmonic_residual_share * p.calibration_sigma_rad ** 2
-        if source == "iron":
-            self._par["mag_harmonic_residual_var_rad2"] = p.iron_harmonic_residual_share * self._iron_floor_var()
-        if source is not None and source != was:
-            self._restart_mag_harmonics()
-        self._set_mag_frame_tilt()
-
-    def _set_mag_frame_tilt(self) -> None:
-        """Tell the kernel whether the frame-tilt states carry the calibration frame's tilt (mag_frame_tilt.py):
-        with the harmonic states, when the calibration states a frame tilt; switched on they start from their
-        prior, switched off they are zero with zero variance."""
-        s = float(self.params.mag_calibration_frame_tilt_sigma_rad)
-        on = self._par["mag_harmonics_on"] > 0.0 and math.isfinite(s) and s > 0.0
-        was_on = self._par["mag_frame_tilt_on"] > 0.0
-        self._par["mag_frame_tilt_on"] = 1.0 if on else 0.0
-        if on != was_on:
-            self._restart_mag_frame_tilt()
+        m = self._monitor
+        source = harmonics_source(p, calibration_untrusted=self._calibration_untrusted,
+                                  iron_learned=self._learned_iron.learned, ever_aided=self._ever_aided,
+                                  iron_learning=m.learning, mag_rejected=m.mag_rejected, field_ned_ut=self._field_ned)
+        self._mag_errors.select(p, source, self._field_ned, self._declination)
 
     def set_mag_calibration_frame_tilt_sigma(self, sigma_rad: float, heading_sigma_rad: float = 0.0) -> None:
         """The magnetometer calibration in force states its frame's tilt against the body, 1σ per axis, rad (0 or
@@ -763,57 +719,16 @@ class Ins:
         self.params = replace(self.params,
                               mag_calibration_frame_tilt_sigma_rad=s if math.isfinite(s) and s > 0.0 else 0.0,
                               mag_calibration_frame_tilt_heading_sigma_rad=h if math.isfinite(h) and h > 0.0 else 0.0)
-        self._set_mag_frame_tilt()
-        if self._mag_harmonics_source == "calibration":
-            self._restart_mag_harmonics()     # their prior leaves out what the frame-tilt states now carry
-        self._restart_mag_frame_tilt()
-
-    def _restart_mag_frame_tilt(self) -> None:
-        """The frame-tilt states back to their prior (mag_error_restarts.restart_frame_tilt): the calibration's
-        stated tilt while they are on, shared with the accelerometer bias with `mag_frame_tilt_shares_accel_bias`."""
-        restart_frame_tilt(self._x, self._P, self._par["mag_frame_tilt_on"] > 0.0,
-                           self.params.mag_calibration_frame_tilt_sigma_rad,
-                           self.params.mag_frame_tilt_shares_accel_bias)
-
-    def _iron_floor_var(self) -> float:
-        """`_learned_floor_var` at the WMM field (rad²)."""
-        field = self._field_ned
-        return self._learned_floor_var(float(field[0] ** 2 + field[1] ** 2))
+        p = self.params
+        self._mag_errors.set_frame_tilt(p)
+        if self._mag_errors.source == "calibration":
+            # their prior leaves out what the frame-tilt states now carry
+            self._mag_errors.restart_harmonics(p, self._field_ned, self._declination)
+        self._mag_errors.restart_frame_tilt(p)
 
     def _restart_calibration_error_states(self) -> None:
-        """The magnetometer's error states — the heading harmonics and the calibration frame's tilt — back to their
-        priors together (start-up, a new calibration, a yaw reset): both are estimated against the heading."""
-        self._restart_mag_harmonics()
-        self._restart_mag_frame_tilt()
-
-    def _restart_mag_harmonics(self) -> None:
-        """The harmonic states back to zero with their prior (at start-up, a new calibration, a yaw reset, the iron
-        learning ended; mag_error_restarts.py): the calibration's, uncorrelated, or the learned iron's
-        (`_iron_harmonics_prior`); without them (`_set_mag_harmonics` off) zero, variance zero: they never move."""
-        p = self.params
-        prior = None
-        if self._par["mag_harmonics_on"] > 0.0 and self._mag_harmonics_source == "iron":
-            prior = self._iron_harmonics_prior()
-        elif self._par["mag_harmonics_on"] > 0.0:
-            prior = calibration_harmonics_prior(p.calibration_sigma_rad, p.mag_harmonic_offset_share,
-                                                self._frame_tilt_heading_sigma_rad())
-        restart_harmonics(self._x, self._P, prior)
-
-    def _frame_tilt_heading_sigma_rad(self) -> float:
-        """The share of the calibration's heading error the frame-tilt states carry (rad), with the condition of
-        `_set_mag_frame_tilt` evaluated here: the harmonics restart before it runs."""
-        p = self.params
-        return frame_tilt_heading_sigma_rad(self._par["mag_harmonics_on"] > 0.0, p.mag_calibration_frame_tilt_sigma_rad,
-                                            p.mag_calibration_frame_tilt_heading_sigma_rad)
-
-    def _iron_harmonics_prior(self) -> np.ndarray:
-        """The harmonic states' prior for a learned iron (5×5, rad², mag_error_restarts.iron_harmonics_prior) at the
-        WMM field: the learned iron's covariance with its window's yaw share, and the floor's unfused part."""
-        p = self.params
-        yaw = IRON_HARMONIC_YAWS_RAD
-        return iron_harmonics_prior(self._iron.level_heading_rows(self._field_ned, yaw), yaw - self._declination,
-                                    self._learned_iron.harmonic_cov(), self._iron_floor_var(),
-                                    p.iron_harmonic_residual_share, p.mag_harmonic_offset_share)
+        """The magnetometer's error states back to their priors (MagErrorStates.restart)."""
+        self._mag_errors.restart(self.params, self._field_ned, self._declination)
 
     def _yaw_and_gnss_yaw_now(self) -> tuple[float, float, float]:
         """What the unconfirmed-yaw floor is computed from (HeadingConfirmation.unconfirmed_yaw_sigma), now: the
@@ -960,107 +875,23 @@ class Ins:
         self._pending_flags |= int(EstimateFlags.GNSS_REJECTED)
 
     def _fuse(self, fix: GnssFix) -> int:
-        """Fuse one fix whose time the IMU samples have reached: its usable parts (position, height, velocity,
-        vertical velocity), each weighted by the fix's own 1σ; then count what the kernel did and run the heading
-        checks that a fused or rejected velocity allows. Returns core.R_* bits (0 when nothing was usable)."""
+        """Fuse one fix whose time the IMU samples have reached (InsGnssFusion.fuse), then run the heading checks
+        that a fused or rejected velocity allows. Returns core.R_* bits (0 when nothing was usable)."""
         p = self.params
-        parts = self._intake.read(fix)
-        if parts is None:
-            return 0
-        _, lat, lon, alt, v, sig_h, sig_v, sig_s, use_pos, use_alt, use_vel, use_vd = parts
-        if use_vel:
-            self._keep_fix_velocity(float(fix.t_s), v, use_vd, sig_s)
-            self._add_to_lever_arm_fit(float(fix.t_s), v, use_vd, sig_s)
-        vel_before = self._x["vel_ned_m_s"].copy()
-        res = core.fuse_gnss(
-            self._x_arr, self._P, self._hist, self._par_arr, float(fix.t_s),
-            math.radians(lat) if use_pos else 0.0, math.radians(lon) if use_pos else 0.0,
-            alt if use_alt else 0.0, v[0] if use_vel else 0.0, v[1] if use_vel else 0.0,
-            v[2] if use_vd else 0.0, sig_h, sig_v, sig_s, use_pos, use_alt, use_vel, use_vd,
-        )
-        velocity_step = self._x["vel_ned_m_s"] - vel_before
-        if use_vel:
-            adoptions = self._lever_arm_fit.adoptions
-            self._lever_arm_fit.fused(velocity_step, bool(res & core.R_VEL_REJECTED))
-            if self._lever_arm_fit.adoptions != adoptions:
-                self._adopt_fitted_arm()
-            else:
-                self._gsf_par["lever_arm_m"] = self._lever_arm_fit.bank_arm(self.params.lever_arm_m)
-        # the update corrected the state and the history rows after the fix's time, not those up to it: kept for
-        # a yaw reset at this fix (`_reset_velocity_to_fix`). The resets from a first fix or after an outage
-        # correct the row at the fix's time as well, so they leave nothing to add
-        step_rows = not res & (core.R_NAV_INIT | core.R_OUTAGE_RESET)
-        self._fix_velocity_step = (float(fix.t_s), velocity_step) if step_rows else None
-        self._intake.count(res, fix, self._x["vel_gate"]["nis"], self._x["pos_gate"]["nis"])
+        res, arm_adopted = self._fusion.fuse(fix)
+        if arm_adopted:
+            # the heading, bent by the wrong arm, is found again as at the start: unconfirmed, aligned to the
+            # bank's yaw once valid
+            self._confirmation.arm_adopted()
         if p.heading_monitor and p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
             self._check_heading(float(fix.t_s))
         elif not p.mag_enabled and res & (core.R_VEL_FUSED | core.R_VEL_REJECTED):
             self._floor_yaw_sigma_without_magnetometer(float(fix.t_s))
         return res
 
-    def _keep_fix_velocity(self, t_s: float, v: np.ndarray, use_vd: bool, sig_s: float) -> None:
-        """Keep the fix's velocity (vertical NaN when not used) for a yaw reset, which sets the velocity to it, and
-        give it to the GNSS yaw bank."""
-        vel = np.array([v[0], v[1], v[2] if use_vd else math.nan], dtype=np.float64)
-        self._last_fix_velocity = (t_s, vel, sig_s)
-        if self.params.gnss_yaw:
-            self._gsf_fuse_velocity(self._gsf_arr, self._gsf_par_arr, float(t_s), vel, float(sig_s))
-
-    def _add_to_lever_arm_fit(self, t_s: float, v: np.ndarray, use_vd: bool, sig_s: float) -> None:
-        """The fix's velocity innovation at the antenna arm the filter fuses with (`_arm_in_use`), before the fix is
-        fused, from the history interpolated at its time of validity as the kernel reads it (`_history_state_at`),
-        for the lever-arm check (lever_arm_fit.py)."""
-        at = self._history_state_at(t_s)
-        if at is None:
-            return
-        c_bn, vel, rate = at
-        near = rows_near(self._hist_t_s, int(self._x["hist_newest"]), int(self._x["hist_count"]), t_s,
-                         0.5 * RATE_MEAN_S)
-        rate_cross = rate_cross_ned(c_bn, mean_rate(self._hist_t_s[near], self._hist_rate[near], t_s, rate))
-        innovation = np.array([v[0], v[1], v[2] if use_vd else math.nan]) - (vel + rate_cross @ self._arm_in_use())
-        self._lever_arm_fit.add(t_s, innovation, rate_cross, sig_s, vel)
-
-    def _kept_history_rows(self) -> np.ndarray:
-        """The indices of the history's kept rows (hist_count ≤ H_LEN), newest first."""
-        return (int(self._x["hist_newest"]) - np.arange(int(self._x["hist_count"]))) % core.H_LEN
-
-    def _history_state_at(self, t_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """The attitude (body → NED DCM), velocity (NED m/s) and body rate (rad/s) the history holds at t_s,
-        interpolated between its two rows as the kernel does for a fix (core._history_at); None before any row.
-        For the lever-arm check's innovation and a yaw reset's velocity at the fix: one reading for both."""
-        i0, i1, w = bracket(self._hist_t_s, int(self._x["hist_newest"]), int(self._x["hist_count"]), t_s)
-        if i0 < 0:
-            return None
-        a, b = self._hist_rows[i0], self._hist_rows[i1]
-        row = a + w * (b - a)
-        q, vel, rate = row[_HIST_Q], row[_HIST_VEL], row[_HIST_RATE]
-        return quat_to_dcm(q / np.linalg.norm(q)), vel, rate
-
-    def _arm_in_use(self) -> np.ndarray:
-        """The antenna arm the filter fuses with: the told one plus what the lever-arm check adopted."""
-        return self._lever_arm_fit.arm_in_use(self.params.lever_arm_m)
-
-    def _use_arm(self, arm_m) -> None:
-        """Fuse the velocities (the filter's and the GNSS yaw bank's) at this antenna arm (body FRD, m)."""
-        self._par["lever_arm_m"] = np.asarray(arm_m, dtype=float)
-        self._gsf_par["lever_arm_m"] = np.asarray(arm_m, dtype=float)
-
-    def _adopt_fitted_arm(self) -> None:
-        """The lever-arm check adopted its fitted error (lever_arm_fit.py `_adopt`): the filter and the GNSS yaw
-        bank fuse at the corrected arm; the bank starts again (its hypotheses took the velocities through the
-        wrong arm) and the heading, bent by the wrong arm, is found again as at the start: unconfirmed, aligned
-        to the bank's yaw once valid. Nothing is persisted: the arm is the operator's configuration."""
-        arm = self._arm_in_use()
-        self._use_arm(arm)
-        gsf_reset(self._gsf, self._gsf_par, float(self._x["t_last_s"]), np.full(4, np.nan))
-        self._confirmation.arm_adopted()
-        log.warning("ins: the GNSS velocities fit an antenna at %s m (body FRD), told %s m: fusing at the fitted arm "
-                    "(adoption %d); set lever_arm_m", ",".join(f"{v:.2f}" for v in arm),
-                    ",".join(f"{v:g}" for v in self.params.lever_arm_m), self._lever_arm_fit.adoptions)
-
     def lever_arm_fit(self) -> LeverArmFitResult | None:
         """The lever-arm check over the latest velocity fixes (lever_arm_fit.py), None before it has enough."""
-        return self._lever_arm_fit.result()
+        return self._fusion.result()
 
     # ----------------------------------------------------------------------- heading checks (heading_monitor.py)
     def _earth_field_ned(self) -> np.ndarray | None:
@@ -1102,7 +933,7 @@ class Ins:
         iron_updates = self._iron.updates
         if self.params.iron_learning and self._monitor.learning and _finite3(m_body) and self._x["nav_ok"] > 0:
             self._learn_iron(t_s, c_bn, field)
-        self._set_mag_harmonics()      # the iron learning may have ended here (`_iron_harmonics_apply`)
+        self._set_mag_harmonics()      # the iron learning may have ended here (harmonics_source)
         yaw_now = yaw if yaw_reset_to is None else wrap_pi(yaw_reset_to)
         self._publication.note_step_rejection(t_s, d.mag_step_rad, self._monitor.mag_rejected)
         self._publish_heading_checks(t_s, yaw_now, gsf_yaw, gsf_var, gsf_valid)
@@ -1193,13 +1024,7 @@ class Ins:
         if not self._learned_iron.learned or field is None or not math.isfinite(mag_var):
             return mag_var - noise if math.isfinite(mag_var) else math.nan
         h2 = float(field[0] ** 2 + field[1] ** 2)
-        return self._learned_floor_var(h2) + self._iron.level_heading_variance(field)
-
-    def _learned_floor_var(self, h2_ut2: float) -> float:
-        """The floor of a learned magnetometer's heading variance at a horizontal field of h2 (µT²), rad²: what no
-        learned iron explains (`iron_unmodelled_ut`) over the field, at most the calibration's own figure."""
-        p = self.params
-        return min(p.calibration_sigma_rad ** 2, p.iron_unmodelled_ut ** 2 / h2_ut2)
+        return learned_floor_var_rad2(self.params, h2) + self._iron.level_heading_variance(field)
 
     def _tilt_heading_var(self) -> float:
         """The variance the filter's tilt uncertainty gives the magnetometer heading, rad²: a tilt about the
@@ -1218,7 +1043,7 @@ class Ins:
     def _gnss_yaw(self) -> tuple[float, float, bool]:
         """The GNSS yaw bank's yaw, its variance (rad²) and whether it is valid: (NaN, inf, False) without the
         bank (gnss_yaw off) or before it has a finite yaw. While the lever-arm check finds the arm in use wrong,
-        the bank takes the velocities through the arm it found (LeverArmFit.bank_arm, set in `_fuse`), not through
+        the bank takes the velocities through the arm it found (LeverArmFit.bank_arm, set in InsGnssFusion.fuse), not through
         the wrong one (docs/gnss.md "The lever-arm check")."""
         if self.params.gnss_yaw:
             y, sg, valid, _ = self._gsf_output(self._gsf_arr)
@@ -1362,13 +1187,13 @@ class Ins:
             self._par["mag_bias_tau_s"] = u.mag_bias_tau_s
 
     def _learned_floor_var_here(self) -> float | None:
-        """`_learned_floor_var` at the WMM horizontal field at the filter's position (inf where it has none, None
+        """mag_error_states.learned_floor_var_rad2 at the WMM horizontal field at the filter's position (inf where it has none, None
         without the WMM field), rad²."""
         field = self._field_ned
         if field is None:
             return None
         h2 = float(field[0] ** 2 + field[1] ** 2)
-        return self._learned_floor_var(h2) if h2 > 0.0 else math.inf
+        return learned_floor_var_rad2(self.params, h2) if h2 > 0.0 else math.inf
 
     def _heading_rate_rad_s(self) -> float:
         """|rate about down| of the last gyro sample, bias removed, rad/s."""
@@ -1479,7 +1304,7 @@ class Ins:
         for i in range(core.E_BA, core.E_BA + 3):
             var = max(P[i, i], p.init_accel_bias_sigma_m_s2 ** 2)
             _restart_uncorrelated(P, i, var)
-        self._reset_velocity_to_fix()
+        self._fusion.reset_velocity_to_fix()
         # the calibration's error estimated against the heading just found wrong starts again from its prior
         self._restart_calibration_error_states()
         self._mag_rotation.restart()      # its window started from the old heading
@@ -1494,47 +1319,6 @@ class Ins:
             log.warning("ins: heading reset to the GNSS yaw by %.1f° (reset %d)%s", math.degrees(dyaw),
                         self.yaw_resets, " (the antenna arm found wrong: the heading stays unknown)"
                         if self._lever_arm_fit.heading_bent else "")
-
-    def _reset_velocity_to_fix(self) -> None:
-        """Set the velocity to the last fix's (at its time of validity, through the lever arm with the reset
-        attitude), its variance to the fix's: while the yaw was wrong the GNSS velocities were rejected and the
-        velocity integrated accelerations rotated by the wrong yaw; fusing that error after the reset would turn
-        the new yaw away again (ArduPilot's emergency yaw reset likewise resets velocity and position to GPS)."""
-        if self._last_fix_velocity is None:
-            return
-        t_fix, v_fix, sig_s = self._last_fix_velocity
-        x, hist = self._x, self._hist
-        # every kept row once: one indexed add, not a Python loop over up to H_LEN rows
-        rows = self._kept_history_rows()
-        step = self._fix_velocity_step
-        if step is not None and step[0] == t_fix:
-            # this fix's own update (fuse_gnss, just before the heading checks that reset the yaw) moved the
-            # velocity of the state and of the rows after the fix's time, not of the rows up to it: without the
-            # same step there, the velocity at the fix's time read below is the one before the update, and the
-            # reset keeps the update's step as a velocity error. Computed with the wrong yaw's covariance, that
-            # step can be large; the next fixes' velocities are then rejected while the tilt the wrong yaw left
-            # drives the velocity off, and what is fused after that turns the new yaw away again (docs/gnss.md,
-            # "The velocity a yaw reset sets")
-            older = rows[hist["t_s"][rows] <= t_fix]
-            hist["vel_ned_m_s"][older] += step[1]
-            self._fix_velocity_step = None     # the rows now carry it: a second reset at this fix adds nothing
-        at = self._history_state_at(t_fix)
-        if at is None:
-            return          # the fix is older than the history (no row up to it took the step above either)
-        c_bn, vel, rate = at
-        v_ant = vel + c_bn @ np.cross(rate, self._arm_in_use())
-        m = 3 if math.isfinite(v_fix[2]) else 2
-        dv = np.zeros(3)
-        dv[:m] = v_fix[:m] - v_ant[:m]
-        x["vel_ned_m_s"] += dv
-        hist["vel_ned_m_s"][rows] += dv
-        P = self._P
-        for i in range(m):
-            e = core.E_V + i
-            P[e, :] = 0.0
-            P[:, e] = 0.0
-            P[e, e] = sig_s ** 2
-        x["vel_gate"]["rejected_since_s"] = math.nan
 
     # ----------------------------------------------------------------------- internals
     def _initialise(self, t_s, g, a, m, sample_flags: int) -> bool:
@@ -1573,8 +1357,7 @@ class Ins:
         self._intake.drop_queued()
         self._published.reset()
         self._published_since_init = False
-        self._last_fix_velocity = None
-        self._fix_velocity_step = None
+        self._fusion.restart()
         if not self._reinit_pending or not self.params.gnss_yaw:
             gsf_reset(self._gsf, self._gsf_par, float(t_s), np.full(4, np.nan))
         else:

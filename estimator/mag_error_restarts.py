@@ -4,8 +4,8 @@ x and y (mag_frame_tilt.py).
 
 The functions keep no state and read nothing of the filter: Ins hands them the kernel's state record and
 covariance, which they write (the states to zero, their rows and columns of P to their prior), and the figures the
-priors are made of. Which error the harmonics carry (the calibration's, the learned iron's or none) stays Ins's
-decision (`Ins._set_mag_harmonics`).
+priors are made of. Which error the harmonics carry (the calibration's, the learned iron's or none) is
+mag_error_states.py's decision.
 """
 
 from __future__ import annotations

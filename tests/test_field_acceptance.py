@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ahrsd.calibration.field import CalStatus, FieldCalConfig, FieldCalibration, VehicleType
+from ahrsd.calibration.field import CalStatus, FieldAttitude, FieldCalConfig, FieldCalibration, VehicleType
 from ahrsd.calibration.models import Calibration, MagModel
 from ahrsd.core.sample import make_sample
 from ahrsd.core.wmm import EarthField
@@ -65,7 +65,7 @@ def run_session(site, traj, *, current=MagModel.identity(), fit_model=None, conf
     session.start()
     for i in range(len(traj.t)):
         s = make_sample(traj.t[i], np.zeros(3), traj.accel[i], traj.raw[i])
-        session.add_sample(s, SimpleNamespace(roll_rad=traj.roll[i], pitch_rad=traj.pitch[i], yaw_rad=traj.yaw[i]))
+        session.add_sample(s, FieldAttitude(roll_rad=traj.roll[i], pitch_rad=traj.pitch[i], yaw_rad=traj.yaw[i]))
         if session.status.finished:
             break
     assert session.status.finished, f"session did not finish: {session.status!r}"

@@ -7,7 +7,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ahrsd.calibration.field import CalStatus, FieldCalConfig, FieldCalibration, VehicleType
+from ahrsd.calibration.field import CalStatus, FieldAttitude, FieldCalConfig, FieldCalibration, VehicleType
 from ahrsd.core.angles import tilt_compensated_heading_rad
 from ahrsd.calibration.models import Calibration, MagModel
 from ahrsd.core.sample import make_sample
@@ -18,7 +18,7 @@ def feed(session, traj, cal: Calibration | None = None, stop_when_done=True):
     for i in range(len(traj.t)):
         mag = traj.raw[i] if cal is None else cal.mag.apply(traj.raw[i])
         s = make_sample(traj.t[i], np.zeros(3), traj.accel[i], mag)
-        est = SimpleNamespace(roll_rad=traj.roll[i], pitch_rad=traj.pitch[i], yaw_rad=traj.yaw[i])
+        est = FieldAttitude(roll_rad=traj.roll[i], pitch_rad=traj.pitch[i], yaw_rad=traj.yaw[i])
         session.add_sample(s, est)
         if stop_when_done and session.status.finished:
             return traj.t[i]
@@ -181,7 +181,7 @@ def test_delay_waits_in_sample_time_and_cancel_resets():
     session.start()
     for i in range(len(traj.t)):
         session.add_sample(make_sample(traj.t[i], np.zeros(3), traj.accel[i], traj.raw[i]),
-                           SimpleNamespace(roll_rad=0.0, pitch_rad=0.0, yaw_rad=traj.yaw[i]))
+                           FieldAttitude(roll_rad=0.0, pitch_rad=0.0, yaw_rad=traj.yaw[i]))
         if traj.t[i] < 4.9:
             assert session.status == CalStatus.WAITING_TO_START
     assert session.status == CalStatus.RUNNING_STEP_ONE and 0 < session.completion_pct < 50

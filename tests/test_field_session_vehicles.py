@@ -6,12 +6,11 @@ on the same samples, and with GNSS course over ground also removes the constant 
 from __future__ import annotations
 
 import math
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from ahrsd.calibration.field import CalStatus, FieldCalConfig, FieldCalibration
+from ahrsd.calibration.field import CalStatus, FieldAttitude, FieldCalConfig, FieldCalibration
 from ahrsd.calibration.mag.offsets import fit_offsets_keep_soft_iron
 from ahrsd.calibration.mag.fit_types import MagFitInput
 from ahrsd.calibration.mag.fit import fit_mag
@@ -36,8 +35,8 @@ def run_session(block, config=None, courses=None, course_latency_s=0.1):
             while k < arrival.size and arrival[k] <= s.t_s:
                 session.add_course(arrival[k] - course_latency_s, course[k], speed[k])
                 k += 1
-        session.add_sample(s, SimpleNamespace(roll_rad=eul[i, 2], pitch_rad=eul[i, 1], yaw_rad=eul[i, 0],
-                                              rate_body_rad_s=block.truth_gyro_rad_s[i]))
+        session.add_sample(s, FieldAttitude(roll_rad=eul[i, 2], pitch_rad=eul[i, 1], yaw_rad=eul[i, 0],
+                                              rate_rad_s=block.truth_gyro_rad_s[i]))
         if session.status.finished:
             return session, i + 1
     return session, len(block.t_s)

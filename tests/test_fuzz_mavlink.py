@@ -228,7 +228,7 @@ def _give_fixed_yaw_samples(service):
     for i in range(50):
         service.magcal.on_sample(make_sample(i * 0.02, np.zeros(3), [0.0, 0.0, -9.81], [20.0, 1.0, 40.0]),
                                  SimpleNamespace(roll_rad=0.0, pitch_rad=0.0, yaw_rad=0.0,
-                                                 rate_body_rad_s=np.zeros(3)))
+                                                 rate_body_rad_s=np.zeros(3), gyro_bias_rad_s=np.zeros(3)))
 
 
 def _close_rig(rig):

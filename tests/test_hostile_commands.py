@@ -128,7 +128,7 @@ def feed_still_samples(rig, t0_s: float, duration_s: float, seed: int = 0) -> fl
         cal = rig.service.pipeline.calibration
         proto.on_sample(make_sample(t[i], np.zeros(3), traj.accel[i], cal.mag.apply(traj.raw[i])),
                         SimpleNamespace(roll_rad=traj.roll[i], pitch_rad=traj.pitch[i], yaw_rad=0.0,
-                                        rate_body_rad_s=np.zeros(3)))
+                                        rate_body_rad_s=np.zeros(3), gyro_bias_rad_s=np.zeros(3)))
     return float(t[-1] + 1.0 / RATE_HZ)
 
 

@@ -19,6 +19,7 @@ import numpy as np
 
 from ahrsd.estimator import ins_core as core
 from ahrsd.estimator.ins import Ins
+from ahrsd.estimator.mag_error_states import learned_floor_var_rad2
 from ahrsd.simulation import Site
 
 # Anchorage (61.22 N, 149.90 W): H about 15 µT, under the ~19 µT where the learned magnetometer's floor keeps it
@@ -79,7 +80,7 @@ def _two_windows(fused: bool) -> tuple[Ins, np.ndarray, np.ndarray]:
 def test_the_premise_a_weak_field_never_trusts_the_learned_magnetometer():
     est = Ins()
     h2 = float(FIELD_NED_UT[0] ** 2 + FIELD_NED_UT[1] ** 2)
-    assert est._learned_floor_var(h2) > math.radians(3.0) ** 2     # the monitor's trust limit
+    assert learned_floor_var_rad2(est.params, h2) > math.radians(3.0) ** 2     # the monitor's trust limit
 
 
 def test_fused_while_learned_the_offset_does_not_follow_the_drifted_yaw():

@@ -5,7 +5,7 @@ yaw a couple of degrees off for a minute, as on the uncalibrated boat's seed 31)
 vertical in every measurement, and an iron free to rotate the field (the uncalibrated magnetometer's soft-iron
 prior) learns it: the learned magnetometer then reads every heading off by that yaw error. The learner counted the
 attitude's uncertainty as noise refreshed every `iron_tau_s`, so its covariance averaged that error down; the
-harmonic states' prior (`Ins._iron_harmonics_prior`) must carry it (estimator/learned_iron.py).
+harmonic states' prior (`MagErrorStates.iron_prior`, estimator/mag_error_states.py) must carry it (estimator/learned_iron.py).
 
 Truth is independent of the code under test: the magnetometer is a known iron applied to the simulator's WMM field
 at the true (level) attitude, and the learned magnetometer's heading error is the azimuth of the field it
@@ -70,7 +70,7 @@ def _learned_heading_errors_deg(est: Ins, iron=(SOFT_IRON, HARD_IRON_UT)) -> np.
 
 def _offset_sigma_deg(est: Ins) -> float:
     """The harmonic states' prior for the learned iron: its constant term's 1σ (c0, the heading offset)."""
-    return math.degrees(math.sqrt(est._iron_harmonics_prior()[0, 0]))
+    return math.degrees(math.sqrt(est._mag_errors.iron_prior(est.params, est._field_ned, est._declination)[0, 0]))
 
 
 @pytest.mark.parametrize("turn_rad", [2.0 * math.pi, math.pi])

@@ -267,7 +267,8 @@ def test_fixed_yaw_keeps_soft_iron_and_finds_the_true_hard_iron(tmp_path):
     for i in range(len(traj.t)):
         proto.on_sample(make_sample(traj.t[i], np.zeros(3), traj.accel[i], host.cal.mag.apply(traj.raw[i])),
                         SimpleNamespace(roll_rad=traj.roll[i], pitch_rad=traj.pitch[i], yaw_rad=0.0,
-                                        rate_body_rad_s=np.zeros(3)))      # the filter's heading is not used
+                                        rate_body_rad_s=np.zeros(3),
+                                        gyro_bias_rad_s=np.zeros(3)))      # the filter's heading is not used
     assert proto.handle_fixed_yaw(cmd(CMD_FIXED_YAW, 30.0, 0, 0, 0)) == mavlink.MAV_RESULT_ACCEPTED
     assert np.array_equal(host.cal.mag.soft_iron, soft)
     n_averaged = min(len(t), int(settings.fixed_yaw_average_s * 50.0) + 1)
@@ -292,7 +293,8 @@ def test_fixed_yaw_is_refused_while_the_vehicle_turns_and_taken_once_it_is_still
     t = np.arange(0.0, 2.0, 1.0 / 50.0)
     level = np.zeros_like(t)
     traj = trajectory(t, level, level, np.radians(30.0) + rate_rad_s * t)
-    estimate = SimpleNamespace(roll_rad=0.0, pitch_rad=0.0, yaw_rad=0.0, rate_body_rad_s=np.zeros(3))
+    estimate = SimpleNamespace(roll_rad=0.0, pitch_rad=0.0, yaw_rad=0.0, rate_body_rad_s=np.zeros(3),
+                               gyro_bias_rad_s=np.zeros(3))
     for i in range(len(t)):      # level, turning right about body z (FRD) at 6°/s
         proto.on_sample(make_sample(t[i], [0.0, 0.0, rate_rad_s], traj.accel[i], host.cal.mag.apply(traj.raw[i])),
                         estimate)
@@ -359,7 +361,8 @@ def test_gnss_messages_reach_the_session_once_and_only_with_a_velocity(tmp_path)
     proto = MagCalProtocol(host, MagCalSettings(gnss_latency_s=0.25), clock=Clock(), fit_in_process=False)
     proto.handle_start(cmd(CMD_START))
     proto.on_sample(make_sample(10.0, np.zeros(3), np.array([0, 0, -9.8]), np.array([20.0, 0, 40.0])),
-                    SimpleNamespace(roll_rad=0.0, pitch_rad=0.0, yaw_rad=0.0, rate_body_rad_s=np.zeros(3)))
+                    SimpleNamespace(roll_rad=0.0, pitch_rad=0.0, yaw_rad=0.0, rate_body_rad_s=np.zeros(3),
+                                    gyro_bias_rad_s=np.zeros(3)))
     proto.on_gnss_message(gps_raw_int(9.9, np.radians(123.45), 2.5))
     proto.on_gnss_message(gps_raw_int(9.9, np.radians(123.45), 2.5))          # the same fix again
     unknown_cog = wire(mavlink.MAVLink_gps_raw_int_message(11_000_000, 3, 1, 1, 0, 0, 0, 200, 0xFFFF, 9))
@@ -428,7 +431,7 @@ def test_without_gnss_the_report_says_the_offset_rests_on_the_tilt_and_a_known_h
             proto.on_sample(make_sample(300.0 + j * 0.01, np.zeros(3), np.array([0.0, 0.0, -9.80665]),
                                         host.cal.mag.apply(raw[0])),
                             SimpleNamespace(roll_rad=0.0, pitch_rad=0.0, yaw_rad=np.radians(70.0),
-                                            rate_body_rad_s=np.zeros(3)))
+                                            rate_body_rad_s=np.zeros(3), gyro_bias_rad_s=np.zeros(3)))
         # an operator who says 72° while the vehicle points at 70° gets a calibration that reads 2° high...
         assert proto.handle_fixed_yaw(cmd(CMD_FIXED_YAW, 72.0, 0, 0, 0)) == mavlink.MAV_RESULT_ACCEPTED
         assert not host.applied                     # the result is changed, saving is still the operator's accept

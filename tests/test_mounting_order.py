@@ -107,11 +107,12 @@ def _run_session(tmp_path, traj, mounting, as_identity=False):
             s = make_sample(t, m.T @ traj.rate_b[i], accel_s, host.cal.mag.apply(raw))
             if as_identity:
                 yaw, pitch, roll = Rotation.from_matrix(traj.c_bn[i] @ m).as_euler("ZYX")
-                est = SimpleNamespace(roll_rad=roll, pitch_rad=pitch, yaw_rad=yaw, rate_body_rad_s=m.T @ traj.rate_b[i])
+                est = SimpleNamespace(roll_rad=roll, pitch_rad=pitch, yaw_rad=yaw, rate_body_rad_s=m.T @ traj.rate_b[i],
+                                      gyro_bias_rad_s=np.zeros(3))
                 proto.on_sample(s, est, None)
             else:
                 est = SimpleNamespace(roll_rad=traj.roll[i], pitch_rad=traj.pitch[i], yaw_rad=traj.yaw[i],
-                                      rate_body_rad_s=traj.rate_b[i])
+                                      rate_body_rad_s=traj.rate_b[i], gyro_bias_rad_s=np.zeros(3))
                 proto.on_sample(s, est, m)
             if t >= next_tick:
                 next_tick = t + 0.1
@@ -128,13 +129,16 @@ def _run_session(tmp_path, traj, mounting, as_identity=False):
 
 
 def test_sensor_attitude_maps_the_body_attitude_through_the_mounting():
-    est = SimpleNamespace(roll_rad=0.1, pitch_rad=-0.05, yaw_rad=1.0, rate_body_rad_s=np.array([0.01, 0.02, 0.3]))
+    est = SimpleNamespace(roll_rad=0.1, pitch_rad=-0.05, yaw_rad=1.0, rate_body_rad_s=np.array([0.01, 0.02, 0.3]),
+                          gyro_bias_rad_s=np.zeros(3))
     s = sensor_attitude(est, M)
     c_bn = Rotation.from_euler("ZYX", [1.0, -0.05, 0.1]).as_matrix()
     c_sn = Rotation.from_euler("ZYX", [s.yaw_rad, s.pitch_rad, s.roll_rad]).as_matrix()
     assert np.allclose(c_sn, c_bn @ M)
-    assert np.allclose(M @ s.rate_body_rad_s, est.rate_body_rad_s)
-    assert sensor_attitude(est, None) is est
+    assert np.allclose(M @ s.rate_rad_s, est.rate_body_rad_s) and s.body_yaw_rad == 1.0
+    same = sensor_attitude(est, None)       # identity mounting: the body's attitude and rate as they are
+    assert (same.roll_rad, same.pitch_rad, same.yaw_rad, same.body_yaw_rad) == (0.1, -0.05, 1.0, None)
+    assert same.rate_rad_s is est.rate_body_rad_s
 
 
 def test_field_session_with_a_rotated_mounting_fits_the_same_sensor_frame_model(tmp_path):

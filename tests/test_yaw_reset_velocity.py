@@ -1,4 +1,5 @@
-"""A yaw reset sets the velocity to the fix's (Ins._reset_velocity_to_fix) at the fix's time of validity. The reset
+"""A yaw reset sets the velocity to the fix's (ins_gnss_fusion.InsGnssFusion.reset_velocity_to_fix) at the fix's
+time of validity. The reset
 runs in the heading checks right after that fix's own update, which moved the velocity of the state and of the
 history rows after the fix's time but not of the rows up to it; the velocity read at the fix's time must carry the
 same step, or the reset keeps the update's step as a velocity error (docs/gnss.md, "The velocity a yaw reset sets").
@@ -52,7 +53,7 @@ def car() -> dict:
             n_rows = int(est._x["hist_count"])
             idx = (int(est._x["hist_newest"]) - np.arange(n_rows)[::-1]) % core.H_LEN
             rows_after_reset = (est._hist["t_s"][idx].copy(), est._hist["vel_ned_m_s"][idx, :2].copy(),
-                                est._x["vel_ned_m_s"][:2].copy(), est._last_fix_velocity[0])
+                                est._x["vel_ned_m_s"][:2].copy(), est._fusion.last_fix_velocity[0])
         vel_err[k] = float(np.hypot(*(est._x["vel_ned_m_s"][:2] - run.truth_vel_ned_m_s[k, :2])))
         bz_err[k] = math.degrees(est._x["gyro_bias_rad_s"][2] - bz_true) * 3600.0
         bz_sig[k] = math.degrees(math.sqrt(est._P[core.E_BG + 2, core.E_BG + 2])) * 3600.0

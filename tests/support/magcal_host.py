@@ -122,7 +122,7 @@ def drive(proto, clock, traj, host, until=None, max_t=None):
         mag = host.cal.mag.apply(traj.raw[i])
         s = make_sample(t, np.zeros(3), traj.accel[i], mag)
         est = SimpleNamespace(roll_rad=traj.roll[i], pitch_rad=traj.pitch[i], yaw_rad=traj.yaw[i],
-                              rate_body_rad_s=body_rate(traj, i))
+                              rate_body_rad_s=body_rate(traj, i), gyro_bias_rad_s=np.zeros(3))
         proto.on_sample(s, est)
         if t >= next_tick:
             next_tick = t + 0.1
@@ -144,7 +144,7 @@ def drive_vehicle(proto, clock, block, host, courses=None, until=None):
         mag = host.cal.mag.apply(block.mag_ut[i])
         proto.on_sample(make_sample(t, block.gyro_rad_s[i], block.accel_m_s2[i], mag),
                         SimpleNamespace(roll_rad=eul[i, 2], pitch_rad=eul[i, 1], yaw_rad=eul[i, 0],
-                                        rate_body_rad_s=block.truth_gyro_rad_s[i]))
+                                        rate_body_rad_s=block.truth_gyro_rad_s[i], gyro_bias_rad_s=np.zeros(3)))
         while courses is not None and k < courses[0].size and courses[0][k] <= t:
             proto.on_gnss_message(gps_raw_int(courses[1][k], courses[2][k], courses[3][k]))
             k += 1
