@@ -836,4 +836,13 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("schedule-rate-halved", "each stream sends at its rate (sent + dropped = the deadlines that passed)",
              "daemon/outputs.py", "period = 1.0 / s.rate_hz", "period = 2.0 / s.rate_hz",
              ("tests/test_daemon_units.py", "tests/test_reliability_soak.py")),
+    # ------------------------------------------------------------------ session 35 (tail)
+    Mutation("mag-rotation-window-tilt-unexplained",
+             "a magnetometer-rotation window's tilt term counts only the tilt error the accelerometer bias leaves",
+             "estimator/mag_rotation.py", "unexplained = np.asarray(p_tilt_rad2, dtype=float) - p_tb @",
+             "unexplained = np.asarray(p_tilt_rad2, dtype=float) - 0.0 * p_tb @", ("tests/test_mag_rotation.py",)),
+    Mutation("ins-window-tilt-given-the-bias", "Ins gives the windows the tilt σ conditional on the accelerometer bias",
+             "estimator/ins.py", "tilt_sigma = window_tilt_sigma_rad(P[tilt, tilt], P[tilt, bias], P[bias, bias])",
+             "tilt_sigma = window_tilt_sigma_rad(P[tilt, tilt], 0.0 * P[tilt, bias], P[bias, bias])",
+             ("tests/test_mag_rotation.py",)),
 )
