@@ -64,8 +64,12 @@ def window_tilt_sigma_rad(p_tilt_rad2: np.ndarray, p_tilt_bias: np.ndarray, p_bi
     tilt error uncorrelated with the bias error (the gyro's walk between GNSS corrections and the corrections' own
     noise) can change across the window: the Gaussian conditional of the one given the other."""
     p_tb = np.asarray(p_tilt_bias, dtype=float)
-    unexplained = np.asarray(p_tilt_rad2, dtype=float) - p_tb @ np.linalg.pinv(np.asarray(p_bias, dtype=float),
-                                                                              hermitian=True) @ p_tb.T
+    p_b = np.asarray(p_bias, dtype=float)
+    try:
+        gain = np.linalg.solve(p_b, p_tb.T)
+    except np.linalg.LinAlgError:        # a bias state held (no variance): what it cannot explain stays
+        gain = np.linalg.pinv(p_b, hermitian=True) @ p_tb.T
+    unexplained = np.asarray(p_tilt_rad2, dtype=float) - p_tb @ gain
     return math.sqrt(max(float(unexplained[0, 0]), float(unexplained[1, 1]), 0.0))
 
 
