@@ -29,7 +29,14 @@ Each seed is run (the place's own iron or `--iron`'s, 600 s, GNSS 5 Hz) once per
                       still counts the filter's attitude σ) — docs/gnss.md "The learning window's yaw error";
   no magnetometer     ins without its magnetometer (`mag_enabled` false): the GNSS–inertial heading alone;
   receiver errors 0   the GNSS fixes without their position and velocity errors, their reported accuracies kept
-                      (the filter weights them as before).
+                      (the filter weights them as before);
+  rotation tilt term 0    the magnetometer's turning (estimator/mag_rotation.py) fitted without the term for the
+                      filter's tilt moving between a window's ends (√2·tan|dip|·σ_tilt / T): an upper bound of
+                      what a tilt-change model smaller than that term could give, not an honest variance —
+                      docs/gnss.md "The uncalibrated boat's tail at Halifax";
+  fused while learning    the rejected magnetometer fused at its learned iron's honest variance while the iron is
+                      learned at every place (magnetometer_use.rejected_magnetometer_fused as where the floor keeps
+                      it from ever being trusted), not only where its floor is above the trust limit.
 Per seed and row: heading and tilt RMS from 180 s, the share of heading errors beyond 3σ (published σ) from 30 s,
 the vertical gyro bias's error RMS from 180 s (°/h, against the turn-on bias) and its scale-factor error at the end.
 """
@@ -54,7 +61,7 @@ from bench.vehicle_accuracy import (GNSS_ERRORS, HONESTY_IRONS, estimates_in_arr
 EVERY = 8
 ROWS = ("defaults", "s_z truth", "b_z truth", "b_z,s_z truth", "turn-on 0", "turn-on 0, no ARW", "turn-on 0, no VRW",
         "turn-on 0, no in-run", "yaw aid 1°", "yaw aid 1° + 1° over 60 s", "iron at true attitude",
-        "no magnetometer", "receiver errors 0")
+        "no magnetometer", "receiver errors 0", "rotation tilt term 0", "fused while learning")
 YAW_AID_SIGMA_DEG = 1.0
 YAW_AID_DRIFT_DEG, YAW_AID_DRIFT_TAU_S = 1.0, 60.0
 FIX_EVERY_S = 0.2
@@ -134,7 +141,34 @@ def learn_iron_at_truth(est, run) -> None:
     est._heading._learn_iron = learn
 
 
+def without_rotation_tilt_term(est) -> None:
+    """`est`'s magnetometer-rotation windows (MagRotationBias.add) given a tilt 1σ of 0: their fit leaves out the
+    filter's tilt moving between the window's ends."""
+    rotation = est._mag_rotation
+    add = rotation.add
+
+    def add_without_tilt(*args):
+        return add(*args[:-1], 0.0)
+
+    rotation.add = add_without_tilt
+
+
 def one_run(job, late_s: float = LATE_S) -> tuple:
+    """One seed and row, `_one_run`'s figures; "fused while learning" with the place's floor taken as above the trust
+    limit for the run (magnetometer_use.never_trusted_here), restored after it."""
+    from ahrsd.estimator import magnetometer_use
+
+    if job[2] != "fused while learning":
+        return _one_run(job, late_s)
+    kept = magnetometer_use.never_trusted_here
+    magnetometer_use.never_trusted_here = lambda floor_var, trusted_sigma: floor_var is not None
+    try:
+        return _one_run(job, late_s)
+    finally:
+        magnetometer_use.never_trusted_here = kept
+
+
+def _one_run(job, late_s: float = LATE_S) -> tuple:
     """One seed and row (job = scenario, seed, row, seconds, site[, iron]); the errors from `late_s` (heading, tilt,
     bias) and from 30 s (the share beyond 3σ)."""
     from ahrsd.estimator import ins_core as core
@@ -149,6 +183,8 @@ def one_run(job, late_s: float = LATE_S) -> tuple:
               mag_calibration_sigma_rad=run.mag_calibration_sigma_rad, mag_enabled=row != "no magnetometer")
     if row == "iron at true attitude":
         learn_iron_at_truth(est, run)
+    if row == "rotation tilt term 0":
+        without_rotation_tilt_term(est)
     holds = {"s_z truth": [(core.E_SG + 2, err.gyro_scale[2])],
              "b_z truth": [(core.E_BG + 2, err.gyro_bias_rad_s[2])],
              "b_z,s_z truth": [(core.E_BG + 2, err.gyro_bias_rad_s[2]), (core.E_SG + 2, err.gyro_scale[2])]}.get(row, [])

@@ -39,7 +39,7 @@ from .ins_gnss_fusion import InsGnssFusion
 from .iron_in_use import IronInUse
 from .kernel_entry import argument_types, entry_point
 from .mag_error_states import MagErrorStates, harmonics_source, learned_floor_var_rad2
-from .mag_rotation import MagRotationBias
+from .mag_rotation import MagRotationBias, window_tilt_sigma_rad
 from .magnetometer_use import IronState, magnetometer_use
 from .monitor_follow_up import heading_observable, monitor_follow_up
 from .rotations import quat_to_dcm, quat_to_euler, rotvec_to_dcm
@@ -257,7 +257,8 @@ class HeadingSupervision:
             return
         i = core.E_TH
         att_sigma = math.sqrt(max(largest((float(P[i, i]), float(P[i + 1, i + 1]), float(P[i + 2, i + 2]))), 0.0))
-        tilt_sigma = math.sqrt(max(float(max(P[core.E_TILT_N, core.E_TILT_N], P[core.E_TILT_E, core.E_TILT_E])), 0.0))
+        tilt, bias = slice(core.E_TILT_N, core.E_TILT_E + 1), slice(core.E_BA, core.E_BA + 3)
+        tilt_sigma = window_tilt_sigma_rad(P[tilt, tilt], P[tilt, bias], P[bias, bias])
         out = self._mag_rotation.add(t_s, m, c_bn, field, step, float(x["gyro_bias_rad_s"][2]), dt,
                                      self._iron.soft_iron, self._iron.largest_soft_iron_sigma, att_sigma,
                                      tilt_sigma)

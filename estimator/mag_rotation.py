@@ -50,6 +50,29 @@ def _turn(rot: np.ndarray) -> float:
     return math.atan2(rot[1, 0], rot[0, 0])
 
 
+def window_tilt_sigma_rad(p_tilt_rad2: np.ndarray, p_tilt_bias: np.ndarray, p_bias: np.ndarray) -> float:
+    """The 1σ of the filter's tilt error that can move between a window's ends (rad), for the fit's tilt term: the
+    largest of the horizontal tilt errors' variances (p_tilt, 2×2: δθ_N, δθ_E) less what the accelerometer bias
+    explains (p_tilt_bias 2×3, p_bias 3×3: its covariance with the body-frame bias and the bias's own), the Schur
+    complement p_tilt − p_tilt_bias · p_bias⁻¹ · p_tilt_biasᵀ.
+
+    Why not the whole tilt σ: while the vehicle holds its heading (a window ends at `max_turn_rad` of turn) a
+    horizontal accelerometer bias and a tilt are one error to the GNSS (the specific force it reads g·δθ + b: the
+    aided filter separates them only by turning; Groves, Principles of GNSS, Inertial, and Multisensor Integrated
+    Navigation Systems, 2nd ed., §14.2.1), and the bias's error lasts far longer than a window (its Gauss–Markov time
+    and its turn-on part), so the tilt error it explains is the same at both ends and leaves no trend. Only the
+    tilt error uncorrelated with the bias error (the gyro's walk between GNSS corrections and the corrections' own
+    noise) can change across the window: the Gaussian conditional of the one given the other."""
+    p_tb = np.asarray(p_tilt_bias, dtype=float)
+    p_b = np.asarray(p_bias, dtype=float)
+    try:
+        gain = np.linalg.solve(p_b, p_tb.T)
+    except np.linalg.LinAlgError:        # a bias state held (no variance): what it cannot explain stays
+        gain = np.linalg.pinv(p_b, hermitian=True) @ p_tb.T
+    unexplained = np.asarray(p_tilt_rad2, dtype=float) - p_tb @ gain
+    return math.sqrt(max(float(unexplained[0, 0]), float(unexplained[1, 1]), 0.0))
+
+
 @njit(cache=True, inline="always")
 def rotation_vector_step(theta, gx, gy, gz, dt_s):
     """Add one gyro sample (rad/s) to the rotation vector θ of an interval (a float64 array of 3, in the compiled
@@ -99,7 +122,8 @@ class MagRotationBias:
         """One heading check: the magnetometer (body, µT, calibration in force), the filter's attitude c_bn and
         the Earth field (NED, µT), the gyro's body rotation since the last check (body now → body then) made with
         the bias estimate b̂_z over dt_s, the learned soft iron A and the 1σ of its elements, the filter's
-        attitude and tilt 1σ. Returns (b_z − b̂_z, its variance, rad/s) when a window completes, else None."""
+        attitude 1σ and the 1σ of its tilt error that can move over a window (window_tilt_sigma_rad). Returns
+        (b_z − b̂_z, its variance, rad/s) when a window completes, else None."""
         m = np.asarray(mag_ut, dtype=float)
         c_bn = np.asarray(c_bn, dtype=float)
         if not math.isfinite(self.t0_s):
@@ -188,8 +212,9 @@ class MagRotationBias:
         # the gyro's white noise makes the heading a random walk, which the scatter does not show: the
         # least-squares slope of a random walk of density q over T has variance 6 q² / (5 T)
         var += 1.2 * self.gyro_noise_rad_s_rthz ** 2 / t[-1]
-        # the filter's tilt, which gives v its dip, may have moved by up to √2 σ between the window's ends: at the
-        # dip's tangent (vertical over horizontal field) it turns the magnetometer's heading
+        # the filter's tilt, which gives v its dip, may have moved by up to √2 σ between the window's ends (σ: the
+        # part of its error that can move, window_tilt_sigma_rad): at the dip's tangent (vertical over horizontal
+        # field) it turns the magnetometer's heading
         b = self.b_ned_ut
         tan_dip = abs(float(b[2])) / max(math.hypot(float(b[0]), float(b[1])), 1e-6)
         var += (math.sqrt(2.0) * tan_dip * self.tilt_sigma_rad / t[-1]) ** 2

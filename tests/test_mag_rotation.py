@@ -5,6 +5,7 @@ iron the estimator is not told about, and its gyro turns the heading by the bias
 import math
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from ahrsd.estimator.mag_rotation import MagRotationBias, rotation_vector_step
@@ -81,9 +82,27 @@ def test_the_rotation_vector_carries_the_coning_term():
     assert (Rotation.from_rotvec(plain) * truth.inv()).magnitude() > 1e-4
 
 
-def _vertical_bias_error_deg_h(on: bool) -> float:
+class _WindowsSeen(MagRotationBias):
+    """The windows as Ins feeds them, with what it knew then: each check's tilt 1σ (the last argument) and the
+    filter's covariance of the tilt and the accelerometer bias (δθ_N, δθ_E, b_x, b_y, b_z) at that check."""
+
+    def __init__(self, est, seen: list, **kw):
+        super().__init__(**kw)
+        self.est, self.seen = est, seen
+
+    def add(self, *args):
+        from ahrsd.estimator import ins_core as core
+
+        rows = [core.E_TILT_N, core.E_TILT_E, core.E_BA, core.E_BA + 1, core.E_BA + 2]
+        self.seen.append((args[-1], self.est._P[np.ix_(rows, rows)].copy()))
+        return super().add(*args)
+
+
+def _vertical_bias_error_deg_h(on: bool, windows: list | None = None) -> float:
     """RMS of the filter's vertical gyro bias less the simulator's turn-on bias from 180 s, °/h: the held-out
-    boat (in-sample seed 12) without a magnetometer calibration, 280 s."""
+    boat (in-sample seed 12) without a magnetometer calibration, 280 s. `windows`: appended with, at each heading
+    check, the tilt 1σ Ins gives the magnetometer-rotation window and the covariance of the tilt and the
+    accelerometer bias (δθ_N, δθ_E, b_x, b_y, b_z) then."""
     from ahrsd.core.sample import SampleFlags, make_sample
     from ahrsd.estimator.ins import Ins
     from ahrsd.simulation import SensorErrors
@@ -93,6 +112,9 @@ def _vertical_bias_error_deg_h(on: bool) -> float:
     run = simulate_vehicle("boat", 280.0, 12, site, mag="uncalibrated", iron=iron)
     truth = SensorErrors.adis16405(12).gyro_bias_rad_s[2]
     est = Ins(declination_rad=run.declination_rad, mag_rotation_gyro_bias=on)
+    if windows is not None:
+        est._heading._mag_rotation = _WindowsSeen(
+            est, windows, gyro_noise_rad_s_rthz=est._heading._mag_rotation.gyro_noise_rad_s_rthz)
     # the fixes received by each sample's time (they arrive in order)
     received = np.searchsorted([f.extra["t_rx_s"] for f in run.fixes], run.t_s, side="right")
     errs = []
@@ -106,14 +128,63 @@ def _vertical_bias_error_deg_h(on: bool) -> float:
     return float(np.sqrt(np.mean(np.square(errs))))
 
 
-def test_ins_learns_the_vertical_gyro_bias_from_the_magnetometer_turning():
+@pytest.fixture(scope="module")
+def held_out_boat():
+    """(bias error on, off, the windows' tilt σ and covariances with it on): one run each."""
+    windows = []
+    on = _vertical_bias_error_deg_h(True, windows)
+    return on, _vertical_bias_error_deg_h(False), windows
+
+
+def test_ins_learns_the_vertical_gyro_bias_from_the_magnetometer_turning(held_out_boat):
     """Without a calibration the magnetometer's heading is not trusted and the GNSS sees the yaw only in turns:
     the vertical gyro bias stays tens of °/h off (39.5 °/h RMS at 180–280 s, measured; 42.9 °/h while the
     magnetometer was still fused during the iron learning, 54 °/h before that). The field's turning nearly halves
     it (22.6 °/h); the simulator's in-run instability (25 °/h) is part of both."""
-    on, off = _vertical_bias_error_deg_h(True), _vertical_bias_error_deg_h(False)
+    on, off, _ = held_out_boat
     assert on < 30.0
     assert off > 1.5 * on
+
+
+def test_ins_gives_the_windows_the_tilt_error_the_accelerometer_bias_leaves(held_out_boat):
+    """The tilt σ of a window's tilt term is the conditional σ of the tilt given the accelerometer bias, here from
+    the precision matrix (the inverse of the inverse's tilt block: another route than the Schur complement), and on
+    this boat well under the whole tilt σ (the bias explains most of the filter's tilt uncertainty)."""
+    _, _, windows = held_out_boat
+    assert len(windows) > 500
+    ratios = []
+    for sigma, p in windows:
+        conditional = np.linalg.inv(np.linalg.inv(p)[:2, :2])
+        assert sigma == pytest.approx(math.sqrt(max(conditional[0, 0], conditional[1, 1])), rel=1e-6)
+        ratios.append(sigma / math.sqrt(max(p[0, 0], p[1, 1])))
+    assert np.median(ratios) < 0.7
+
+
+def test_the_window_tilt_sigma_is_what_the_bias_does_not_explain():
+    """Samples of a tilt error made of a part a body-frame accelerometer bias explains (L·b, common to both ends of a
+    window) and a part it does not (r): the function's σ is the σ of what a least-squares fit of the tilt on the
+    bias leaves, within sampling error, and the change of the tilt between two ends that share b is √2 times it.
+    Uncorrelated with the bias, it is the whole tilt σ."""
+    from ahrsd.estimator.mag_rotation import window_tilt_sigma_rad
+
+    rng = np.random.default_rng(35)
+    n = 60_000
+    p_bias = np.diag([0.02, 0.03, 0.05]) ** 2
+    lever = np.array([[0.0, -0.10, 0.01], [0.10, 0.0, -0.02]])      # rad per m/s²: b/g across the two tilt axes
+    r_sigma = np.radians([0.05, 0.08])
+    bias = rng.multivariate_normal(np.zeros(3), p_bias, n)
+    ends = [bias @ lever.T + rng.normal(0.0, 1.0, (n, 2)) * r_sigma for _ in range(2)]
+    joint = np.cov(np.hstack([ends[0], bias]).T)
+    sigma = window_tilt_sigma_rad(joint[:2, :2], joint[:2, 2:], joint[2:, 2:])
+    fit, *_ = np.linalg.lstsq(np.hstack([bias, np.ones((n, 1))]), ends[0], rcond=None)
+    left = ends[0] - np.hstack([bias, np.ones((n, 1))]) @ fit
+    assert sigma == pytest.approx(np.max(left.std(axis=0)), rel=0.01)
+    assert sigma == pytest.approx(max(r_sigma), rel=0.02)
+    assert np.max((ends[1] - ends[0]).std(axis=0)) == pytest.approx(math.sqrt(2.0) * sigma, rel=0.02)
+    assert sigma < 0.5 * math.sqrt(max(joint[0, 0], joint[1, 1]))
+    apart = np.cov(np.hstack([rng.normal(0.0, 1.0, (n, 2)) * r_sigma, bias]).T)
+    whole = math.sqrt(max(apart[0, 0], apart[1, 1]))
+    assert window_tilt_sigma_rad(apart[:2, :2], apart[:2, 2:], apart[2:, 2:]) == pytest.approx(whole, rel=0.02)
 
 
 def test_the_window_start_cross_product_is_numpys_to_the_bit():
@@ -124,6 +195,6 @@ def test_the_window_start_cross_product_is_numpys_to_the_bit():
     rng = np.random.default_rng(28)
     vectors = [np.eye(3)[i] for i in range(3)] + [np.array([0.0, -0.0, 1.0]), np.array([-0.0, 0.0, -0.0])]
     vectors += [rng.normal(size=3) * 10.0 ** rng.uniform(-6, 6) for _ in range(400)]
-    for a in vectors[:60]:
+    for a in vectors[:40]:
         for b in vectors:
             assert _cross(a, b).tobytes() == np.cross(a, b).tobytes(), (a, b)

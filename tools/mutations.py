@@ -871,4 +871,13 @@ MUTATIONS: tuple[Mutation, ...] = (
              "warning naming GSF (EKF3 resets on the ground, spends an emergency reset in flight)",
              "daemon/source_set_check.py", "if yaw in NO_YAW_SOURCES:", "if False:",
              ("tests/test_source_set_realign.py",)),
+    # ------------------------------------------------------------------ session 35 (tail)
+    Mutation("mag-rotation-window-tilt-unexplained",
+             "a magnetometer-rotation window's tilt term counts only the tilt error the accelerometer bias leaves",
+             "estimator/mag_rotation.py", "unexplained = np.asarray(p_tilt_rad2, dtype=float) - p_tb @ gain",
+             "unexplained = np.asarray(p_tilt_rad2, dtype=float) - 0.0 * p_tb @ gain", ("tests/test_mag_rotation.py",)),
+    Mutation("ins-window-tilt-given-the-bias", "Ins gives the windows the tilt σ conditional on the accelerometer bias",
+             "estimator/heading_supervision.py", "tilt_sigma = window_tilt_sigma_rad(P[tilt, tilt], P[tilt, bias], P[bias, bias])",
+             "tilt_sigma = window_tilt_sigma_rad(P[tilt, tilt], 0.0 * P[tilt, bias], P[bias, bias])",
+             ("tests/test_mag_rotation.py",)),
 )

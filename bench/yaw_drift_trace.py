@@ -1,0 +1,146 @@
+"""The GNSS–inertial yaw between turns against the simulator's truth: how far the heading walks, what the vertical
+gyro bias is off meanwhile, and what the magnetometer's turning (estimator/mag_rotation.py) tells of that bias
+(docs/gnss.md "The uncalibrated boat's tail at Halifax: the bias the GNSS-only phase leaves (tail35)").
+
+Runs `ins` as `bench/heading_timeline.py` does (same vehicle, site, iron and case) and prints, every `--every`
+seconds from `--from` to `--to`: the published heading's true error, the filter's yaw 1σ, the vertical gyro bias's
+error against the simulator's turn-on bias (the in-run Gauss–Markov part, 25 °/h over 100 s, is not in the truth)
+and the filter's 1σ of it, the true heading rate, and whether the magnetometer is fused, its iron learned and the
+monitor rejecting it. Then each magnetometer-rotation window that gave a fit: its span, its b_z − b̂_z with its 1σ,
+the truth's b_z − b̂_z at the window's end, and the share of that 1σ the filter's tilt term makes
+(√2·tan|dip|·σ_tilt / T).
+
+    python bench/yaw_drift_trace.py --site=44.65,-63.57 --iron held-out --seeds 41 --seconds 330
+    python bench/yaw_drift_trace.py --site=44.65,-63.57 --iron held-out --seeds 41 --params '{"iron_unmodelled_ut": 0.8}'
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.vehicle_accuracy import (HONESTY_IRONS, estimates_in_arrival_order, honesty_site,  # noqa: E402
+                                    honesty_site_arg, simulate_vehicle, tilt_heading_errors_deg)
+
+DEG_H = 180.0 / math.pi * 3600.0     # rad/s → °/h
+EVERY = 8                            # the true tilt error is sampled every this many samples (heading_timeline's)
+
+
+def true_heading_rate_deg_s(t_s: np.ndarray, q_wxyz: np.ndarray) -> np.ndarray:
+    """The simulator's heading rate (ZYX yaw, unwrapped), °/s; scipy only."""
+    from scipy.spatial.transform import Rotation
+
+    yaw = np.unwrap(Rotation.from_quat(np.asarray(q_wxyz)[:, [1, 2, 3, 0]]).as_euler("ZYX")[:, 0])
+    return np.degrees(np.gradient(yaw, t_s))
+
+
+def tilt_about_magnetic_north_rad(q_mag_est, q_truth, declination_rad: float) -> float:
+    """The estimate's attitude error about magnetic north (rad): the component of the error rotation (truth ∘
+    estimate⁻¹, both body → magnetic NED; the truth is body → true NED) that turns the vertical field into the east,
+    the heading error a magnetometer's field gets from it at tan|dip| (mag_rotation.py's tilt term)."""
+    from scipy.spatial.transform import Rotation
+
+    est = Rotation.from_quat(np.asarray(q_mag_est)[[1, 2, 3, 0]])
+    tru = Rotation.from_euler("z", -declination_rad) * Rotation.from_quat(np.asarray(q_truth)[[1, 2, 3, 0]])
+    return float((tru * est.inv()).as_rotvec()[0])
+
+
+def _slope(t_s: list, y: list, t0_s: float, t1_s: float) -> float:
+    """The least-squares slope of y over [t0, t1] (per s); 0 with fewer than 3 points."""
+    t = np.asarray(t_s)
+    keep = (t >= t0_s) & (t <= t1_s)
+    if np.count_nonzero(keep) < 3:
+        return 0.0
+    tc = t[keep] - t[keep].mean()
+    return float(tc @ (np.asarray(y)[keep] - np.mean(np.asarray(y)[keep]))) / float(tc @ tc)
+
+
+def trace(scenario: str, case: str, seed: int, site_label: str, iron_label: str | None, seconds: float,
+          every_s: float, from_s: float, to_s: float, params: dict) -> tuple[list, list]:
+    """(rows, windows): the per-`every_s` rows and the fitted magnetometer-rotation windows, as printed."""
+    from ahrsd.estimator import ins_core as core
+    from ahrsd.estimator.ins import Ins
+    from ahrsd.simulation import SensorErrors
+
+    site, iron = honesty_site(site_label, iron_label)
+    run = simulate_vehicle(scenario, seconds, seed, site, mag=case, iron=iron)
+    est = Ins(declination_rad=run.declination_rad, lever_arm_m=run.lever_arm_m,
+              mag_calibration_sigma_rad=run.mag_calibration_sigma_rad, **params)
+    true_bz = float(SensorErrors.adis16405(seed).gyro_bias_rad_s[2])   # simulate_vehicle's sensor
+    rate = true_heading_rate_deg_s(run.t_s, run.truth_q_wxyz)
+    windows = []
+    tilt_t, tilt_n = [], []      # the true tilt error about magnetic north, rad, at the checks (heading_timeline's EVERY)
+    rotation = est._heading._mag_rotation
+    add = rotation.add
+
+    def add_traced(t_s, *args):
+        out = add(t_s, *args)
+        if out is not None:
+            b = rotation.b_ned_ut
+            tan_dip = abs(float(b[2])) / max(math.hypot(float(b[0]), float(b[1])), 1e-6)
+            tilt = math.sqrt(2.0) * tan_dip * rotation.tilt_sigma_rad / max(rotation.span_s, 1e-9)
+            windows.append((rotation.span_s, t_s, out[0] * DEG_H, math.sqrt(out[1]) * DEG_H,
+                            (true_bz - float(est._x["gyro_bias_rad_s"][2])) * DEG_H, tilt * DEG_H,
+                            tan_dip * abs(_slope(tilt_t, tilt_n, t_s - rotation.span_s, t_s)) * DEG_H))
+        return out
+
+    rotation.add = add_traced
+    rows = []
+    next_s = from_s
+    for k, e in estimates_in_arrival_order(est, run, run.fixes):
+        t = float(run.t_s[k])
+        if k % EVERY == 0 and est._initialised:
+            tilt_t.append(t)
+            tilt_n.append(tilt_about_magnetic_north_rad(e.q_wxyz, run.truth_q_wxyz[k], run.declination_rad))
+        if t < next_s or t > to_s or not est._initialised:
+            continue
+        next_s += every_s
+        _, hdg = tilt_heading_errors_deg(e.q_wxyz[None, :], run.truth_q_wxyz[k][None, :], run.declination_rad)
+        i = core.E_BG + 2
+        rows.append((t, float(hdg[0]), math.degrees(math.sqrt(max(est._P[core.E_YAW, core.E_YAW], 0.0))),
+                     (float(est._x["gyro_bias_rad_s"][2]) - true_bz) * DEG_H, math.sqrt(max(est._P[i, i], 0.0)) * DEG_H,
+                     float(rate[k]), est._par["mag_use"] > 0.5, est._heading.monitor.learning,
+                     est._heading.monitor.mag_rejected))
+    return rows, windows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", default="boat")
+    ap.add_argument("--case", default="uncalibrated", choices=("uncalibrated", "calibrated", "iron-step"))
+    ap.add_argument("--site", default="held-out", type=honesty_site_arg)
+    ap.add_argument("--iron", default=None, choices=HONESTY_IRONS)
+    ap.add_argument("--seeds", type=int, nargs="+", default=[41])
+    ap.add_argument("--seconds", type=float, default=330.0)
+    ap.add_argument("--every", type=float, default=5.0, help="print every this many seconds (default 5)")
+    ap.add_argument("--from", dest="from_s", type=float, default=60.0, help="first row, s (default 60)")
+    ap.add_argument("--to", dest="to_s", type=float, default=math.inf, help="last row, s (default: the end)")
+    ap.add_argument("--params", default="{}", help="InsParams overrides as JSON")
+    args = ap.parse_args(argv)
+    params = json.loads(args.params)
+    for seed in args.seeds:
+        rows, windows = trace(args.scenario, args.case, seed, args.site, args.iron, args.seconds, args.every,
+                              args.from_s, args.to_s, params)
+        print(f"{args.scenario} {args.case} seed {seed} at {args.site} ({args.iron or 'own'} iron) {params or ''}: "
+              "t s | heading err ° | yaw σ ° | b_z err °/h (vs turn-on) | b_z σ °/h | true rate °/s | "
+              "mag fused | learning | rejected")
+        for t, h, sy, bz, sbz, r, fused, learning, rejected in rows:
+            print(f"{t:7.1f} | {h:+6.2f} | {sy:5.2f} | {bz:+6.0f} | {sbz:5.0f} | {r:+5.1f} | "
+                  f"{'yes' if fused else 'no '} | {'yes' if learning else 'no '} | {'yes' if rejected else 'no'}")
+        print("magnetometer-rotation windows fitted: span s, ending at s | b_z − b̂_z ± 1σ °/h | truth °/h | "
+              "tilt term of the 1σ °/h | the true tilt error's slope about magnetic north × tan|dip| °/h")
+        for span, end, fit, sig, truth, tilt, true_tilt in windows:
+            print(f"  {span:5.1f} s to {end:6.1f} | {fit:+6.0f} ± {sig:5.0f} | {truth:+6.0f} | {tilt:5.0f} | {true_tilt:5.0f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
