@@ -77,6 +77,7 @@ SECONDS = 180.0
 RATE_HZ = 200.0
 SETTLE_S = 30.0
 TARGET_DEG = 0.3
+CALIBRATIONS = ("plain", "gnss-1pass", "oracle", "frame", "fix", "rts", "acal", "afix")
 FACE_PLACEMENT_DEG = 0.025   # `afix`: a surface levelled to ~0.02° and the unit's seating on it
 
 
@@ -224,9 +225,11 @@ def operational_grid_error_deg(run: BoatRun, model, accel_bias_estimate_m_s2, ti
 
 
 def calibrations(run: BoatRun, settled_tilt_sigma_deg: float | None = None,
-                 acal_sigma_m_s2: float | None = None, levelling_params: dict | None = None) -> dict:
+                 acal_sigma_m_s2: float | None = None, levelling_params: dict | None = None,
+                 names=None) -> dict:
     """name -> MagFitResult. `acal_sigma_m_s2`: the `acal` bias prior (default ACCEL_BIAS_SIGMA_CALIBRATED_M_S2);
-    `levelling_params`: InsParams overrides of the aided levelling filter (`filter_overrides`)."""
+    `levelling_params`: InsParams overrides of the aided levelling filter (`filter_overrides`); `names`: only these
+    calibrations (default all, CALIBRATIONS)."""
     from ahrsd.calibration.accel_trust import ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
     from ahrsd.calibration.mag.backstepping_aided import SETTLED_TILT_SIGMA_DEG, fit_backstepping_aided
     from ahrsd.calibration.mag.levelling import roll_pitch_from_estimator
@@ -234,26 +237,30 @@ def calibrations(run: BoatRun, settled_tilt_sigma_deg: float | None = None,
 
     thr = SETTLED_TILT_SIGMA_DEG if settled_tilt_sigma_deg is None else settled_tilt_sigma_deg
     decl = run.field.declination_rad
-    roll1, pitch1 = roll_pitch_from_estimator(run.data, "ins", fixes=run.fixes, declination_rad=decl,
-                                              mag_enabled=False)
-    return {
-        "plain": fit_mag("backstepping", run.data, run.field),
-        "gnss-1pass": fit_mag("backstepping", run.data, run.field, roll_rad=roll1, pitch_rad=pitch1, speed_m_s=None),
-        "oracle": fit_mag("backstepping", run.data, run.field, roll_rad=run.roll, pitch_rad=run.pitch,
-                          speed_m_s=None),
-        "frame": fit_mag("backstepping", run.data, run.field, roll_rad=run.accel_roll, pitch_rad=run.accel_pitch,
-                         speed_m_s=None),
-        "fix": fit_backstepping_aided(run.data, run.fixes, run.field, decl, settled_tilt_sigma_deg=thr,
-                                      smooth=False, filter_overrides=levelling_params),
-        "rts": fit_backstepping_aided(run.data, run.fixes, run.field, decl, settled_tilt_sigma_deg=thr,
-                                      smooth=True, filter_overrides=levelling_params),
-        "acal": fit_backstepping_aided(run.data_acal, run.fixes, run.field, decl, settled_tilt_sigma_deg=thr,
-                                       accel_bias_sigma_m_s2=acal_sigma_m_s2 or ACCEL_BIAS_SIGMA_CALIBRATED_M_S2,
-                                       filter_overrides=levelling_params),
-        "afix": fit_backstepping_aided(run.data_afix, run.fixes, run.field, decl, settled_tilt_sigma_deg=thr,
-                                       accel_bias_sigma_m_s2=acal_sigma_m_s2 or ACCEL_BIAS_SIGMA_CALIBRATED_M_S2,
-                                       filter_overrides=levelling_params),
+    acal_sigma = acal_sigma_m_s2 or ACCEL_BIAS_SIGMA_CALIBRATED_M_S2
+
+    def one_pass_levelled():
+        roll1, pitch1 = roll_pitch_from_estimator(run.data, "ins", fixes=run.fixes, declination_rad=decl,
+                                                  mag_enabled=False)
+        return fit_mag("backstepping", run.data, run.field, roll_rad=roll1, pitch_rad=pitch1, speed_m_s=None)
+
+    fits = {
+        "plain": lambda: fit_mag("backstepping", run.data, run.field),
+        "gnss-1pass": one_pass_levelled,
+        "oracle": lambda: fit_mag("backstepping", run.data, run.field, roll_rad=run.roll, pitch_rad=run.pitch,
+                                  speed_m_s=None),
+        "frame": lambda: fit_mag("backstepping", run.data, run.field, roll_rad=run.accel_roll,
+                                 pitch_rad=run.accel_pitch, speed_m_s=None),
+        "fix": lambda: fit_backstepping_aided(run.data, run.fixes, run.field, decl, settled_tilt_sigma_deg=thr,
+                                              smooth=False, filter_overrides=levelling_params),
+        "rts": lambda: fit_backstepping_aided(run.data, run.fixes, run.field, decl, settled_tilt_sigma_deg=thr,
+                                              smooth=True, filter_overrides=levelling_params),
+        "acal": lambda: fit_backstepping_aided(run.data_acal, run.fixes, run.field, decl, settled_tilt_sigma_deg=thr,
+                                               accel_bias_sigma_m_s2=acal_sigma, filter_overrides=levelling_params),
+        "afix": lambda: fit_backstepping_aided(run.data_afix, run.fixes, run.field, decl, settled_tilt_sigma_deg=thr,
+                                               accel_bias_sigma_m_s2=acal_sigma, filter_overrides=levelling_params),
     }
+    return {name: fits[name]() for name in (CALIBRATIONS if names is None else names)}
 
 
 def levelling_tilt_error_deg(run: BoatRun) -> tuple[float, float]:
@@ -296,6 +303,11 @@ def main(argv=None) -> int:
     ap.add_argument("--no-ins", action="store_true", help="skip the daemon-estimator column (faster)")
     ap.add_argument("--acal-sigma-mg", type=float, default=None,
                     help="the acal and afix columns' accelerometer-bias prior, mg (default: the CLI's, 2)")
+    ap.add_argument("--calibrations", nargs="+", choices=CALIBRATIONS, default=list(CALIBRATIONS),
+                    help="only these columns (e.g. `--calibrations afix --no-ins`: the README's column alone)")
+    ap.add_argument("--offset-split", action="store_true",
+                    help="per run and aided fit: its grid's constant offset beside the offset its levelling's tilt "
+                         "error implies (all, slower than 20 s, faster)")
     ap.add_argument("--levelling-params", type=json.loads, default=None,
                     help="InsParams overrides of the aided levelling filter (fix, rts, acal, afix) as JSON")
     args = ap.parse_args(argv)
@@ -305,7 +317,7 @@ def main(argv=None) -> int:
         sweep(args.seeds or TUNING_SEEDS, sites)
         return 0
     seeds = args.seeds or HELD_OUT_SEEDS
-    names = ("plain", "gnss-1pass", "oracle", "frame", "fix", "rts", "acal", "afix")
+    names = tuple(args.calibrations)
     hdr = _print_header(seeds, names, args.levelling_params)
     t0 = time.perf_counter()
     acal_sigma = None if args.acal_sigma_mg is None else args.acal_sigma_mg * 1e-3 * STANDARD_GRAVITY_M_S2
@@ -315,14 +327,20 @@ def main(argv=None) -> int:
         for seed in seeds:
             run = BoatRun(seed, text)
             line = f"{label:8s} {seed:4d} "
-            for name, res in calibrations(run, acal_sigma_m_s2=acal_sigma,
-                                          levelling_params=args.levelling_params).items():
+            fits = calibrations(run, acal_sigma_m_s2=acal_sigma, levelling_params=args.levelling_params, names=names)
+            for name, res in fits.items():
                 cells, text_cell = _calibration_cells(run, name, res, args.no_ins)
                 table[name].append(cells)
                 line += text_cell
             tilts.append(levelling_tilt_error_deg(run))
             line += f"{tilts[-1][0]:7.3f}/{tilts[-1][1]:5.3f}"
             print(line, flush=True)
+            for name, res in (fits.items() if args.offset_split else ()):
+                if res.ok and res.levelling is not None:
+                    mean, whole, slow, fast = levelling_offset_deg(run, res)
+                    print(f"    {name}: grid offset {mean:+.3f}°; the levelling's tilt error as a rotation about the "
+                          f"vertical {whole:+.3f}° (slower than {SLOW_S:g} s {slow:+.3f}°, faster {fast:+.3f}°)",
+                          flush=True)
     print("-" * len(hdr))
     _print_aggregates(names, table, tilts)
     print(f"({time.perf_counter() - t0:.0f} s)")
@@ -358,6 +376,39 @@ def _calibration_cells(run: BoatRun, name: str, res, no_ins: bool):
     o = math.nan if est is None else _rms(operational_grid_error_deg(
         run, res.model, est.accel_bias_m_s2, accel_model=accel_model))
     return (g, r, _rms(i), o, h), f"{g:8.2f}/{r:5.2f}/{_rms(i):5.2f}/{o:5.2f}/{h:4.1f}%"
+
+
+SLOW_S = 20.0    # --offset-split: the levelling's tilt error slower than this (a moving mean) against the rest
+
+
+def levelling_offset_deg(run: BoatRun, res) -> tuple[float, float, float, float]:
+    """`--offset-split`: the fit's constant heading offset on the grid (mean of `grid`, deg) beside the offset its
+    levelling's tilt error implies, all of it, its part slower than SLOW_S and the rest (deg). The fit sees a
+    rotation A of the calibrated field c about body z only through the tilt: the levelled vertical c·d moves by
+    A·g with g = c_x d_y − c_y d_x (d the down direction in the body), while a levelling tilt error moves it by
+    e = c·δd. Least squares over the fitted samples reads e as A = Σ g e / Σ g² (centred), with c and d from the
+    simulator's truth (scipy), δd the difference of the levelling's down direction from the true one."""
+    from scipy.ndimage import uniform_filter1d
+
+    roll, pitch, used = res.levelling
+    q = run.block.truth_q_wxyz
+    c = Rotation.from_quat(np.column_stack([q[:, 1:], q[:, :1]])).inv().apply(run.field.ned_ut)
+
+    def down(r, p):
+        return np.column_stack([-np.sin(p), np.sin(r) * np.cos(p), np.cos(r) * np.cos(p)])
+
+    d = down(run.roll, run.pitch)
+    e = np.einsum("ij,ij->i", c, down(roll, pitch) - d)
+    g = c[:, 0] * d[:, 1] - c[:, 1] * d[:, 0]
+    e_slow = uniform_filter1d(e, int(round(SLOW_S * RATE_HZ)))
+    used = np.asarray(used, dtype=bool)
+    gc = g[used] - g[used].mean()
+
+    def offset(x):
+        x = x[used] - x[used].mean()
+        return math.degrees(float(np.sum(gc * x) / np.sum(gc * gc)))
+
+    return (float(np.mean(grid_error_deg(run, res.model))), offset(e), offset(e_slow), offset(e - e_slow))
 
 
 def _print_aggregates(names, table: dict, tilts: list) -> None:
