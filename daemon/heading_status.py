@@ -294,7 +294,7 @@ class HeadingStatus:
     def standby_detail(self) -> str:
         """Why the daemon is not ACTIVE although the estimator runs (the MAV_STATE STATUSTEXT)."""
         if self.initialising and self.converging_on_calibration:
-            # no σ figure: the estimate of that moment may still carry the old calibration's (±164° live, walk28)
+            # no σ figure: the estimate of that moment may still carry the old calibration's σ, not the new one's
             return "heading converging on the new calibration, no heading out"
         if self.initialising or self.state is None:
             return "initialising, no heading out"
