@@ -789,8 +789,8 @@ MUTATIONS: tuple[Mutation, ...] = (
              ("tests/test_backstepping_aided.py",)),
     Mutation("aided-levelling-overrides", "calibrate mag --gnss's heading-only passes are told the filter overrides",
              "calibration/mag/backstepping_aided.py",
-             'heading_only = {**(filter_overrides or {}), "mag_moves_tilt": False}',
-             'heading_only = {"mag_moves_tilt": False}',
+             'overrides = {"mag_calibration_sigma_rad": calibration_sigma_rad, **(filter_overrides or {})}',
+             'overrides = {"mag_calibration_sigma_rad": calibration_sigma_rad}',
              ("tests/test_backstepping_aided.py",)),
     # ------------------------------------------------------------------ session 34 (hdg34)
     Mutation("ins-published-yaw-sigma-half", "ins publishes its whole yaw 1σ, not half of it",
@@ -880,4 +880,15 @@ MUTATIONS: tuple[Mutation, ...] = (
              "estimator/heading_supervision.py", "tilt_sigma = window_tilt_sigma_rad(P[tilt, tilt], P[tilt, bias], P[bias, bias])",
              "tilt_sigma = window_tilt_sigma_rad(P[tilt, tilt], 0.0 * P[tilt, bias], P[bias, bias])",
              ("tests/test_mag_rotation.py",)),
+    # ------------------------------------------------------------------ session 35 (dmnh)
+    Mutation("levelling-calibration-sigma", "a magnetometer pass's levelling filter is told the calibration's σ",
+             "calibration/mag/backstepping_aided.py",
+             'overrides = {"mag_calibration_sigma_rad": calibration_sigma_rad, **(filter_overrides or {})}',
+             'overrides = {"mag_calibration_sigma_rad": math.nan, **(filter_overrides or {})}',
+             ("tests/test_levelling_stated_sigma.py",)),
+    Mutation("levelling-stated-sigma-offset", "the stated σ is √(varying² + offset²), as the daemon reads it",
+             "calibration/mag/backstepping_aided.py",
+             'sigma_deg = math.hypot(pred.get("heading_dependent_std_deg", math.nan), pred.get("offset_std_deg", math.nan))',
+             'sigma_deg = math.hypot(pred.get("heading_dependent_std_deg", math.nan), 0.0)',
+             ("tests/test_levelling_stated_sigma.py",)),
 )

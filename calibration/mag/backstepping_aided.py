@@ -23,10 +23,12 @@ the error is the levelling's (measured in docs/magcal-vehicle.md). What this mod
   settles 10° off and the bias it draws to match tilts the horizon. So the run is levelled with the
   magnetometer in the filter, calibrated by the accelerometer-levelled fit (its heading within a degree or two),
   as a **heading-only** update (`mag_moves_tilt=False`): its calibration error must not move the tilt, which
-  it would by tan(dip) times the heading error. The fit from that levelling calibrates the magnetometer for the
-  next pass (MAG_HEADING_PASSES). Only when the accelerometer-levelled fit is refused does the filter level
-  without a magnetometer. `quality["aided_levelling"]["passes"]` reports each pass and its GNSS counters, and a
-  warning says when a pass rejected the GNSS velocities, with the cause the evidence supports
+  it would by tan(dip) times the heading error. The filter is told that calibration's stated heading 1σ
+  (`heading_only_overrides`), as the daemon is told a saved one's: told nothing, `ins` takes the magnetometer for
+  an uncalibrated one and holds its yaw from the GNSS velocity alone. The fit from that levelling calibrates the
+  magnetometer for the next pass (MAG_HEADING_PASSES). Only when the accelerometer-levelled fit is refused does
+  the filter level without a magnetometer. `quality["aided_levelling"]["passes"]` reports each pass and its GNSS
+  counters, and a warning says when a pass rejected the GNSS velocities, with the cause the evidence supports
   (levelling_rejections.py: the heading not yet found or just reset, or else the antenna's lever arm and the
   fixes' time stamps; the daemon's rule).
 - **The accelerometer-levelled fit on a vehicle whose speed changes.** The accelerometer reads the vehicle's own
@@ -168,6 +170,29 @@ def _accelerometer_levelled_fit(data: MagFitInput, fixes, reference, options: di
     return fits[kept][1], passes
 
 
+def stated_heading_sigma_rad(res: MagFitResult) -> float:
+    """The heading 1σ (rad) a fit states for its calibration, as the daemon reads a saved one
+    (calibration/heading_trust.py: √(heading-dependent² + offset²) of `predicted_heading`); NaN when it states none
+    (the filter then treats the magnetometer as uncalibrated)."""
+    pred = res.quality.get("predicted_heading") if res.ok else None
+    if not isinstance(pred, dict):
+        return math.nan
+    sigma_deg = math.hypot(pred.get("heading_dependent_std_deg", math.nan), pred.get("offset_std_deg", math.nan))
+    return math.radians(sigma_deg) if math.isfinite(sigma_deg) else math.nan
+
+
+def heading_only_overrides(filter_overrides: dict | None, calibration_sigma_rad: float) -> dict:
+    """The levelling filter of a magnetometer pass: the caller's overrides, the magnetometer a heading-only update
+    whatever its trust (`mag_moves_tilt`, `mag_trusted_moves_tilt` off: the calibration being fitted must not move
+    the tilt), and its calibration's stated heading 1σ (`mag_calibration_sigma_rad`, unless the caller sets one),
+    so that the filter fuses it as the daemon fuses a saved calibration instead of taking it for an uncalibrated
+    magnetometer (20°, its iron learned, its heading rejected when the GNSS-held heading disagrees) and holding
+    its yaw from the GNSS velocity alone, which tilts the horizon: the GNSS acceleration is projected through
+    that yaw (docs/magcal-vehicle.md, "What the held-out misses share")."""
+    overrides = {"mag_calibration_sigma_rad": calibration_sigma_rad, **(filter_overrides or {})}
+    return {**overrides, "mag_moves_tilt": False, "mag_trusted_moves_tilt": False}
+
+
 def fit_backstepping_aided(data: MagFitInput, fixes, reference, declination_rad: float,
                            settled_tilt_sigma_deg: float = SETTLED_TILT_SIGMA_DEG, smooth: bool = SMOOTH_LEVELLING,
                            accel_bias_sigma_m_s2: float | None = None, filter_overrides: dict | None = None,
@@ -182,18 +207,21 @@ def fit_backstepping_aided(data: MagFitInput, fixes, reference, declination_rad:
         raise ValueError(f"accel_bias_sigma_m_s2 must be a positive number, got {accel_bias_sigma_m_s2!r}")
     seed, passes = _accelerometer_levelled_fit(data, fixes, reference, options)
     result, model = None, (seed.model if seed.ok else None)
-    heading_only = {**(filter_overrides or {}), "mag_moves_tilt": False}
+    stated_sigma_rad = stated_heading_sigma_rad(seed)
     for _ in range(MAG_HEADING_PASSES if model is not None else 0):
         calibrated = dataclasses.replace(data, mag_ut=np.ascontiguousarray(model.apply(data.mag_ut)))
         roll, pitch, settled, tilt_sigma, health = _level(calibrated, fixes, declination_rad, True,
                                                           settled_tilt_sigma_deg, smooth, accel_bias_sigma_m_s2,
-                                                          heading_only)
+                                                          heading_only_overrides(filter_overrides, stated_sigma_rad))
         res = _fit_settled(data, roll, pitch, settled, tilt_sigma, reference, options)
         passes.append({"magnetometer": "heading only, the previous fit's calibration",
+                       "calibration_sigma_deg": (math.degrees(stated_sigma_rad) if math.isfinite(stated_sigma_rad)
+                                                 else None),
                        **_pass_report(data, settled, res, health)})
         if not res.ok:
             break
         result, model, levelling = res, res.model, (roll, pitch, settled)
+        stated_sigma_rad = stated_heading_sigma_rad(res)
     if result is None:   # no calibration to take the heading from: the GNSS velocity alone
         roll, pitch, settled, tilt_sigma, health = _level(data, fixes, declination_rad, False,
                                                           settled_tilt_sigma_deg, smooth, accel_bias_sigma_m_s2,
