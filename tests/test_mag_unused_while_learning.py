@@ -8,11 +8,11 @@ error, which is the window's yaw error, and kept it after the learning (docs/tou
 the learning": the tour's boat 0.82° → 1.20° RMS).
 
 Truth is the simulator's (its attitude). One in-sample run, the uncalibrated boat at the bench's default site and
-iron, seed 15, 300 s: the learning runs from ~117 s (a GNSS yaw has confirmed the heading) to ~240 s, the magnetometer
-is let back from ~189 s, ~17 % of the run;
-fused meanwhile, the heading is 0.65° off when the learning ends and 0.52° RMS over the next 40 s (0.27° and 0.43°
-not fused). Before the learning waited for a GNSS-confirmed heading (Ins._monitor_decision) the same run learned from
-~100 to ~159 s and the gap was wider (1.24° against 0.54° over those 40 s)."""
+iron, seed 16, 300 s: the learning runs from ~112 s (a GNSS yaw has confirmed the heading) to ~170 s, the magnetometer
+is let back from ~138 s, ~11 % of the run; fused meanwhile, the learning lasts to ~229 s and the heading is 0.52° RMS
+over the 40 s after it (0.44° not fused; 2026-12-07). Seed 15, this test's run until the magnetometer-rotation
+window's tilt term was given the accelerometer bias, now ends its learning 2 s after the magnetometer is let back:
+no stretch left to test."""
 
 from __future__ import annotations
 
@@ -22,9 +22,9 @@ import pytest
 from ahrsd.estimator.ins import Ins
 from bench.vehicle_accuracy import estimates_in_arrival_order, honesty_site, simulate_vehicle, tilt_heading_errors_deg
 
-SEED, SECONDS = 15, 300.0
+SEED, SECONDS = 16, 300.0
 AFTER_S = 40.0              # the window after the learning ends, s
-MAX_RMS_DEG = 0.47          # fused while learning: 0.52°; not: 0.43°
+MAX_RMS_DEG = 0.47          # fused while learning: 0.52°; not: 0.44°
 
 
 @pytest.fixture(scope="module")
