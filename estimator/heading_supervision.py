@@ -47,7 +47,7 @@ from .yaw_reset import YawReset
 
 log = logging.getLogger("ahrsd.estimator.ins")    # the filter's own log: what the daemon's operator reads as ins's
 _MAG_ROTATION_GATE = 9.0    # NIS above which a magnetometer-rotation bias measurement is not fused (3σ)
-_NAV_MASK = sum(1 << j for j in range(core.E_V, core.E_P + 3))   # velocity and position: no gain
+NAV_NO_GAIN_MASK = sum(1 << j for j in range(core.E_V, core.E_P + 3))   # velocity and position: no gain
 
 
 class HeadingSupervision:
@@ -71,7 +71,8 @@ class HeadingSupervision:
         self._fusion = fusion
         self._lever_arm_fit = fusion.lever_arm_fit
         self._on_yaw_reset = on_yaw_reset
-        self._ever_aided = False     # a fix has aided the filter since it started (told: `gnss_aided`)
+        # a fix has aided the filter since it started (told: `gnss_aided`; the filter reads it here too)
+        self.ever_aided = False
 
     def set_params(self, params) -> None:
         """The filter's parameters changed (a new calibration's figures): the checks read these from now on."""
@@ -82,7 +83,7 @@ class HeadingSupervision:
 
     def gnss_aided(self) -> None:
         """A fix has aided the filter since it started (a learned iron's error may be carried as the harmonics)."""
-        self._ever_aided = True
+        self.ever_aided = True
 
     def report(self) -> HeadingReport:
         """What the heading checks did so far (replay's summary, the daemon's warning)."""
@@ -124,7 +125,7 @@ class HeadingSupervision:
         """The heading checks start again (the filter built or reset): a new monitor, confirmation, publication and
         check log, no WMM field yet, the calibration's variances, the magnetometer fused, nothing aided yet."""
         p = self.params
-        self._ever_aided = False
+        self.ever_aided = False
         self.monitor = HeadingMonitor(p.calibration_sigma_rad, reentry_s=p.mag_reentry_s,
                                       max_resets=p.yaw_reset_max, reset_spacing_s=p.yaw_reset_spacing_s)
         # whether a GNSS yaw has confirmed the heading, the alignment to it, the published σ's floor until then
@@ -172,7 +173,7 @@ class HeadingSupervision:
         p = self.params
         m = self.monitor
         source = harmonics_source(p, calibration_untrusted=self._calibration_untrusted,
-                                  iron_learned=self._learned_iron.learned, ever_aided=self._ever_aided,
+                                  iron_learned=self._learned_iron.learned, ever_aided=self.ever_aided,
                                   iron_learning=m.learning, mag_rejected=m.mag_rejected, field_ned_ut=self.field_ned)
         self._mag_errors.select(p, source, self.field_ned, self._declination)
 
@@ -281,7 +282,7 @@ class HeadingSupervision:
         h = np.zeros(core.N_ERR)
         h[i] = 1.0
         dx = np.zeros(core.N_ERR)
-        scalar_update(P, h, innovation, var, _NAV_MASK, dx)
+        scalar_update(P, h, innovation, var, NAV_NO_GAIN_MASK, dx)
         core._apply_correction(x, self._par, dx)
         core._correct_history(self._hist, x, -math.inf, dx, 0.0, 0.0, 0.0)
 

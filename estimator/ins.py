@@ -46,7 +46,7 @@ from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate,
 from .kernel_entry import argument_types, entry_point
 from .kernel_flags import IN_ACC_OK, IN_GYRO_OK, IN_MAG_OK, NEEDS_INIT, input_validity
 from .lever_arm_consider import ARM_TERM_CORRELATION_S, arm_covariance_m2
-from .heading_supervision import HeadingSupervision
+from .heading_supervision import NAV_NO_GAIN_MASK, HeadingSupervision
 from .ins_gnss_fusion import InsGnssFusion
 from .yaw_reset import YawReset
 from .lever_arm_fit import LeverArmFitResult
@@ -418,7 +418,6 @@ DEFAULT_INS_PARAMS = InsParams()
 
 
 _MAX_QUEUED = 16
-_NAV_MASK = sum(1 << j for j in range(core.E_V, core.E_P + 3))   # velocity and position: no gain
 _PYTHON_CALLED_KERNELS_LOADED = False   # Ins._load_python_called_kernels has run in this process
 
 # where each output lies in the flat float64 view of an INS_OUT_DTYPE record
@@ -489,7 +488,6 @@ class Ins:
                                      min_s_acc_m_s=p.min_s_acc_m_s, reject_reset_s=p.reject_reset_s,
                                      on_reject=self._flag_gnss_rejected)
         self._fix_queue = self._intake.queue     # the intake's queue: is a fix waiting? (read on every sample)
-        self._ever_aided = False     # a fix has aided the filter since it started (calibration_heading.py until then)
         # what the accelerometer's axes add to an aided heading's published variance (accel_axes_heading.py)
         self._accel_axes_var_rad2 = accel_axes_heading_variance_rad2(self.params.accel_axes_heading_sigma_rad)
         self.gnss_counters: GnssCounters = self._intake.counters
@@ -549,7 +547,7 @@ class Ins:
         for kernel, args in (
                 (core.fuse_gnss, (self._x_arr, self._P, self._hist, self._par_arr) + (0.0,) * 10 + (True,) * 4),
                 (gsf_reset, (gsf, gsf_par, 0.0, np.zeros(4))),
-                (scalar_update, (self._P, dx, 0.0, 0.0, _NAV_MASK, dx)),
+                (scalar_update, (self._P, dx, 0.0, 0.0, NAV_NO_GAIN_MASK, dx)),
                 (core._apply_correction, (x, par, dx)),
                 (core._correct_history, (self._hist, x, 0.0, dx, 0.0, 0.0, 0.0)),
                 (core._rotate_attitude, (x["q"], 0.0, 0.0, 0.0)),
@@ -579,7 +577,8 @@ class Ins:
         without GNSS less well than mekf (docs/estimator.md "Known limits"), and a wrongly levelled field is no
         circle either, so a flag here widens σ — the heading is off — but does not show that the calibration is what
         is wrong, and the daemon does not say so."""
-        return self._field_circle.result if self._field_circle_on and not self._ever_aided else None
+        checking = self._field_circle_on and not self._heading.ever_aided
+        return self._field_circle.result if checking else None
 
     # ----------------------------------------------------------------------- Estimator protocol
     def reset(self) -> None:
@@ -591,7 +590,6 @@ class Ins:
         self._reinit_pending = False
         self._pending_flags = 0
         self._intake.reset()
-        self._ever_aided = False
         self._published.reset()
         self._fusion.reset()     # an arm adopted in the run before is not kept
         self._heading.restart()
@@ -785,7 +783,7 @@ class Ins:
             if not f & NEEDS_INIT:
                 if self._fix_queue:
                     self._fuse_queued()       # before the estimate of this sample, as every fix before it
-                if self._field_circle_on and not self._ever_aided and sample.t_s >= self._field_circle.due_t_s:
+                if self._field_circle_on and not self._heading.ever_aided and sample.t_s >= self._field_circle.due_t_s:
                     self._check_field_circle(sample.t_s, m, f)
                 return self._stepped(sample.t_s, f)
             self._initialised = False
@@ -893,8 +891,7 @@ class Ins:
         if self._pending_flags:
             f |= self._pending_flags
             self._pending_flags = 0
-        if not self._ever_aided and f & _F_GNSS_AIDED:
-            self._ever_aided = True
+        if not self._heading.ever_aided and f & _F_GNSS_AIDED:
             self._heading.gnss_aided()
         # nothing published since the filter started (INITIALISING from its start): the published heading follows
         # the filter, as _restart_companions left it reset (it moves only in `update`, not called until then)
@@ -914,14 +911,15 @@ class Ins:
         # and y axes' misalignment is in it, at the levelling's partials at the low-passed specific force, a turn's
         # too; a heading the GNSS has observed is theirs as well), the published heading's offset, the wrapped yaw
         # and the position in degrees: ins_published_terms.py, compiled
-        pre_aid = not self._ever_aided and self.params.mag_enabled
+        heading = self._heading
+        # before the first fix aided it, the calibration's heading error (calibration_heading.py)
+        pre_aid = not heading.ever_aided and self.params.mag_enabled
         off = self._published.offset_rad
         navigating = self._nav_ok[0] > 0.0
-        heading = self._heading
         roll, pitch, yaw, yaw_true, sigma_yaw, lat_deg, lon_deg, h = self._published_terms(
             o, self._q_true, self._acc_ned_lp, heading.confirmation.unconfirmed_sigma_rad, navigating,
             self._lever_arm_fit.heading_bent, not (pre_aid or off), float(self.params.accel_axes_tilt_sigma_rad),
-            self._accel_axes_var_rad2 if self._ever_aided else 0.0, off, self._declination)
+            self._accel_axes_var_rad2 if heading.ever_aided else 0.0, off, self._declination)
         if pre_aid or off:
             if pre_aid:
                 sigma_yaw = math.sqrt(sigma_yaw ** 2 + self._pre_aid_heading_var_rad2())

@@ -134,7 +134,7 @@ def test_a_right_calibration_is_not_flagged(estimator):
 def test_the_check_stops_at_the_first_fix_for_ins():
     f = Ins(mag_calibration_sigma_rad=CLAIMED_SIGMA_RAD)
     assert f.field_circle_check() is not None
-    f._ever_aided = True                    # what the first fused fix sets (Ins._stepped)
+    f._heading.gnss_aided()                 # what the first fused fix tells (Ins._stepped)
     assert f.field_circle_check() is None
 
 

@@ -64,7 +64,7 @@ def _told_mid_run(boat, built_rad, told_rad):
     feed = _Feed(ins, boat)
     before = feed.until(TELL_AT_S)
     assert not feed.next_arrives_a_fix()
-    assert before.nav is not None and ins._ever_aided
+    assert before.nav is not None and ins._heading.ever_aided
     assert not ins._heading.confirmation.heading_confirmed         # the case in question: no GNSS yaw has confirmed the heading
     # the filter's true yaw: the estimate's is magnetic, and turned by the published slew's offset (`_published`)
     yaw_rad = before.yaw_rad + DECLINATION - ins._published.offset_rad
