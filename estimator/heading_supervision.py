@@ -98,11 +98,7 @@ class HeadingSupervision:
                                       max_resets=p.yaw_reset_max, reset_spacing_s=p.yaw_reset_spacing_s,
                                       resets=self.monitor.resets, last_reset_t_s=self.monitor.last_reset_t_s)
         self.confirmation.set_calibration(p.calibration_sigma_rad, self.monitor.trusted_sigma_rad)
-        self._mag_var = p.calibration_sigma_rad ** 2
-        self._mag_trust_var = p.calibration_sigma_rad ** 2
-        self._par["mag_use"] = 1.0
-        self._par["mag_moves_tilt"] = 1.0 if p.mag_moves_tilt else 0.0
-        self._par["mag_bias_var_rad2"] = p.calibration_sigma_rad ** 2
+        self._magnetometer_as_calibrated()
         self._par["mag_bias_tau_s"] = p.mag_bias_tau
         self.set_mag_harmonics()
         self.restart_calibration_error_states()    # the new calibration's error, independent of the old one's
@@ -139,8 +135,6 @@ class HeadingSupervision:
         self.check_log = HeadingCheckLog()     # the latest checks' records (`heading_checks`)
         self._field_key = None
         self.field_ned = None
-        self._mag_var = p.calibration_sigma_rad ** 2
-        self._mag_trust_var = p.calibration_sigma_rad ** 2
         # an iron was learned or restored before the magnetometer's latest rejection: the learned iron may be what
         # the rejection found wrong, so a rejected magnetometer is not fused
         # (`magnetometer_use.rejected_magnetometer_fused`)
@@ -151,12 +145,21 @@ class HeadingSupervision:
         self.yaw_resets = 0
         self.gnss_yaw_alignments = 0
         self.heading_interventions = 0    # yaw resets and raised yaw variances (not Kalman updates)
-        self._par["mag_use"] = 1.0
-        self._par["mag_moves_tilt"] = 1.0 if p.mag_moves_tilt else 0.0
-        self._par["mag_bias_var_rad2"] = p.calibration_sigma_rad ** 2
+        self._magnetometer_as_calibrated()
         self.set_accel_bias_learning()
         self.apply_learned_iron()
         self.set_mag_harmonics()
+
+    def _magnetometer_as_calibrated(self) -> None:
+        """The magnetometer as the calibration in force states it, until a check says otherwise: its variances for
+        the next check's trust and the heading state, and in the kernel fused, moving the tilt as the parameters
+        say, its slowly varying error at the calibration's variance."""
+        p = self.params
+        self._mag_var = p.calibration_sigma_rad ** 2
+        self._mag_trust_var = p.calibration_sigma_rad ** 2
+        self._par["mag_use"] = 1.0
+        self._par["mag_moves_tilt"] = 1.0 if p.mag_moves_tilt else 0.0
+        self._par["mag_bias_var_rad2"] = p.calibration_sigma_rad ** 2
 
     def apply_learned_iron(self) -> None:
         """The kernel removes the learned iron before its heading update: (I + D)⁻¹·(m − b); a learned iron's
