@@ -24,7 +24,9 @@ Per seed and row: heading and tilt RMS from 180 s, the mean pitch and roll error
 accelerometer-bias error expressed as a pitch ((b̂_x − b_x)/g, from 180 s: the pair cancels when it is −pitch),
 the median published pitch σ, and the share of heading errors beyond 3σ from 30 s; then the mean pitch error over
 30–90 s, and the pitch and roll the filter's priors alone choose for the common rotation of the sensor's axes that
-a vehicle turning on level ground never observes (`unobserved_rotation_deg`, from the simulator's truth).
+a vehicle turning on level ground never observes (`unobserved_rotation_deg`, from the simulator's truth). With
+`--trace`, per window of the run the mean pitch error and the filter's errors in the three elements of that
+rotation (the forward bias as a pitch, the accelerometer's m_zx, the x gyro's m_xz).
 """
 
 from __future__ import annotations
@@ -124,6 +126,7 @@ def one_run(job) -> tuple:
     q = np.empty((len(keep), 4))
     sig = np.empty((len(keep), 3))
     bx = np.empty(len(keep))
+    lean_gyro = np.empty((len(keep), 2))   # the filter's accelerometer m_zx and x gyro m_xz (rad)
     fi = j = 0
     for k in range(len(t)):
         while fi < len(run.fixes) and run.fixes[fi].extra["t_rx_s"] <= t[k]:
@@ -135,6 +138,7 @@ def one_run(job) -> tuple:
         e = est.update(make_sample(t[k], g[k], a[k], mg[k], flags=SampleFlags.NEW_DATA))
         if k % EVERY == 0:
             q[j], sig[j], bx[j] = e.q_wxyz, e.sigma_rpy_rad, est.accel_bias_m_s2[0]
+            lean_gyro[j] = est._x["accel_z_lean_rad"][0], est.gyro_misalignment_rad[0, 2]
             j += 1
     tk = t[keep]
     tilt, hdg = tilt_heading_errors_deg(q, run.truth_q_wxyz[keep], run.declination_rad)
@@ -149,7 +153,25 @@ def one_run(job) -> tuple:
                  math.degrees(float(np.mean(bx[late]) - level_bias[0]) / G_M_S2),
                  float(np.degrees(np.median(sig[late, 1]))),
                  float(np.mean(np.abs(hdg[honest]) > 3.0 * np.degrees(sig[honest, 2]))),
-                 float(rp[early, 1].mean()), *unobserved_rotation_deg(errors, priors))
+                 float(rp[early, 1].mean()), *unobserved_rotation_deg(errors, priors),
+                 _trace(tk, rp[:, 1], np.degrees((bx - level_bias[0]) / G_M_S2),
+                        np.degrees(lean_gyro - [errors.accel_misalignment_rad[2, 0], m[0, 2]])))
+
+
+TRACE_WINDOWS_S = (0.0, 10.0, 20.0, 40.0, 90.0, 180.0, 300.0, 450.0, 600.0)
+
+
+def _trace(t_s, pitch_deg, bias_deg, lean_gyro_deg) -> list:
+    """Per window of TRACE_WINDOWS_S: (start, end, mean pitch error, forward bias error as a pitch, the filter's
+    accelerometer m_zx error, its x gyro m_xz error), deg; along the unobserved rotation ε the last three are
+    −ε, −ε and +ε (unobserved_rotation_deg)."""
+    rows = []
+    for a, b in zip(TRACE_WINDOWS_S[:-1], TRACE_WINDOWS_S[1:]):
+        w = (t_s >= a) & (t_s < b)
+        if w.any():
+            rows.append((a, b, float(pitch_deg[w].mean()), float(bias_deg[w].mean()),
+                         *(float(v) for v in lean_gyro_deg[w].mean(axis=0))))
+    return rows
 
 
 def main(argv=None) -> int:
@@ -162,6 +184,9 @@ def main(argv=None) -> int:
     ap.add_argument("--rows", nargs="+", default=list(ROWS), choices=ROWS)
     ap.add_argument("--seconds", type=float, default=600.0)
     ap.add_argument("--processes", type=int, default=1)
+    ap.add_argument("--trace", action="store_true",
+                    help="also print, per window of the run, the mean pitch error and the filter's errors in the "
+                         "forward bias (as a pitch), the accelerometer's m_zx and the x gyro's m_xz")
     args = ap.parse_args(argv)
     # the simulated sensors' and estimators' warnings would bury the table; here, in main, not in one_run:
     # the pool's workers inherit it, and a test that calls one_run keeps its logging
@@ -173,11 +198,14 @@ def main(argv=None) -> int:
           "the pitch / roll the priors choose for the unobserved rotation of the sensor's axes", flush=True)
     with Pool(args.processes) as pool:
         for job, out in pool.imap(one_run, jobs):
-            hdg, tilt, pitch, roll, bias_deg, sig_pitch, beyond, pitch_early, prior_pitch, prior_roll = out
+            hdg, tilt, pitch, roll, bias_deg, sig_pitch, beyond, pitch_early, prior_pitch, prior_roll, trace = out
             print(f"seed {job[1]:3d}  {job[2]:17s} heading {hdg:5.2f}°  tilt {tilt:5.3f}°  pitch {pitch:+6.3f}°  "
                   f"roll {roll:+6.3f}°  forward bias {bias_deg:+5.2f}°  pitch σ {sig_pitch:4.2f}°  "
                   f"beyond 3σ {beyond:6.2%}  pitch 30–90 s {pitch_early:+6.3f}°  "
                   f"priors' rotation pitch {prior_pitch:+6.3f}° roll {prior_roll:+6.3f}°", flush=True)
+            for a, b, p, bias, lean, gyro in trace if args.trace else ():
+                print(f"      {a:3.0f}–{b:3.0f} s  pitch {p:+6.3f}°  forward bias {bias:+6.3f}°  "
+                      f"accelerometer m_zx error {lean:+6.3f}°  x gyro m_xz error {gyro:+6.3f}°", flush=True)
     return 0
 
 
