@@ -36,12 +36,6 @@ Each seed is run (the place's own iron or `--iron`'s, 600 s, GNSS 5 Hz) once per
                       filter's tilt moving between a window's ends (√2·tan|dip|·σ_tilt / T): an upper bound of
                       what a tilt-change model smaller than that term could give, not an honest variance —
                       docs/gnss.md "The uncalibrated boat's tail at Halifax";
-  rotation attitude per axis   the magnetometer's turning with its start-attitude term taken per body axis (the
-                      filter's attitude covariance at the window's start turned into the body, C₀ᵀ·P_θ·C₀, through the
-                      fit's three slopes) instead of the largest attitude σ on every axis, and the window used while
-                      the filter's *tilt* σ is within its limit (the fit is invariant to a yaw offset to first order):
-                      a candidate, run here before it is worth a change to estimator/mag_rotation.py — docs/gnss.md
-                      "The uncalibrated boat at Tromsø seed 17";
   fused while learning    the rejected magnetometer fused at its learned iron's honest variance while the iron is
                       learned at every place (magnetometer_use.rejected_magnetometer_fused as where the floor keeps
                       it from ever being trusted), not only where its floor is above the trust limit.
@@ -69,8 +63,7 @@ from bench.vehicle_accuracy import (GNSS_ERRORS, HONESTY_IRONS, estimates_in_arr
 EVERY = 8
 ROWS = ("defaults", "s_z truth", "b_z truth", "b_z truth before 180 s", "b_z truth from 180 s", "b_z,s_z truth", "turn-on 0", "turn-on 0, no ARW", "turn-on 0, no VRW",
         "turn-on 0, no in-run", "yaw aid 1°", "yaw aid 1° + 1° over 60 s", "iron at true attitude",
-        "no magnetometer", "receiver errors 0", "rotation tilt term 0", "rotation attitude per axis",
-        "fused while learning")
+        "no magnetometer", "receiver errors 0", "rotation tilt term 0", "fused while learning")
 YAW_AID_SIGMA_DEG = 1.0
 YAW_AID_DRIFT_DEG, YAW_AID_DRIFT_TAU_S = 1.0, 60.0
 FIX_EVERY_S = 0.2
@@ -162,51 +155,6 @@ def without_rotation_tilt_term(est) -> None:
     rotation.add = add_without_tilt
 
 
-def rotation_attitude_per_axis(est) -> None:
-    """`est`'s magnetometer-rotation windows ("rotation attitude per axis"): each window keeps the filter's attitude
-    covariance at its start in the body frame (P_θ is NED, C_true = (I + [δθ×])·C_est, so ε_body = C₀ᵀ·δθ), its fit
-    adds slopesᵀ·C₀ᵀ·P_θ·C₀·slopes instead of (largest σ)²·|slopes|², and it is gated on the larger tilt σ."""
-    from ahrsd.estimator import ins_core as core
-
-    heading = est._heading
-    rotation = heading._mag_rotation
-    check, start, fit = heading._mag_rotation_check, rotation._start, rotation._fit
-    att = slice(core.E_TH, core.E_TH + 3)
-    seen = {}
-
-    def check_seeing_p(t_s, c_bn, field):
-        seen["p_att"] = est._P[att, att].copy()
-        return check(t_s, c_bn, field)
-
-    def start_keeping_cov(t_s, m, c_bn, b_ned_ut, att_sigma_rad, tilt_sigma_rad):
-        start(t_s, m, c_bn, b_ned_ut, att_sigma_rad, tilt_sigma_rad)
-        c0 = np.asarray(c_bn, dtype=float)
-        p = seen["p_att"]
-        seen["cov_body"] = c0.T @ p @ c0
-        seen["tilt_sigma_rad"] = math.sqrt(max(float(p[0, 0]), float(p[1, 1]), 0.0))
-
-    def fit_per_axis(bias_end_rad_s, soft_sigma):
-        largest = rotation.att_sigma_rad
-        if seen["tilt_sigma_rad"] > rotation.max_att_sigma_rad:
-            return None
-        rotation.att_sigma_rad = 0.0          # the gate passed on the tilt; the attitude term is added below
-        try:
-            out = fit(bias_end_rad_s, soft_sigma)
-        finally:
-            rotation.att_sigma_rad = largest
-        if out is None:
-            return None
-        t = np.array([sample[0] for sample in rotation.samples]) - rotation.t0_s
-        slopes_of = np.array([sample[5] for sample in rotation.samples])
-        tc = t - t.mean()
-        slopes = tc @ (slopes_of - slopes_of.mean(axis=0)) / float(tc @ tc)
-        return out[0], out[1] + float(slopes @ seen["cov_body"] @ slopes)
-
-    heading._mag_rotation_check = check_seeing_p
-    rotation._start = start_keeping_cov
-    rotation._fit = fit_per_axis
-
-
 def one_run(job, late_s: float = LATE_S) -> tuple:
     """One seed and row, `_one_run`'s figures; "fused while learning" with the place's floor taken as above the trust
     limit for the run (magnetometer_use.never_trusted_here), restored after it."""
@@ -239,8 +187,6 @@ def _one_run(job, late_s: float = LATE_S) -> tuple:
         learn_iron_at_truth(est, run)
     if row == "rotation tilt term 0":
         without_rotation_tilt_term(est)
-    if row == "rotation attitude per axis":
-        rotation_attitude_per_axis(est)
     holds = {"s_z truth": [(core.E_SG + 2, err.gyro_scale[2])],
              "b_z truth": [(core.E_BG + 2, err.gyro_bias_rad_s[2])],
              "b_z truth before 180 s": [(core.E_BG + 2, err.gyro_bias_rad_s[2])],

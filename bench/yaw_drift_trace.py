@@ -12,8 +12,8 @@ start-up: docs/gnss.md "The uncalibrated boat at Tromsø seed 17: the start unde
 each magnetometer-rotation window that gave a fit: its span, its b_z − b̂_z with its 1σ,
 the truth's b_z − b̂_z at the window's end, and the share of that 1σ the filter's tilt term makes
 (√2·tan|dip|·σ_tilt / T); with `--terms`, every term of the window's 1σ (MagRotationBias.terms: the scatter and its
-check-to-check correlation r₁, the gyro scale, the soft iron, the start attitude with the attitude 1σ it took, the
-gyro's white noise, the tilt).
+check-to-check correlation r₁, the gyro scale, the soft iron, the start attitude with the filter's tilt 1σ at the
+window's start, the gyro's white noise, the tilt).
 
     python bench/yaw_drift_trace.py --site=44.65,-63.57 --iron held-out --seeds 41 --seconds 330
     python bench/yaw_drift_trace.py --site=44.65,-63.57 --iron held-out --seeds 41 --params '{"iron_unmodelled_ut": 0.8}'
@@ -174,7 +174,7 @@ def main(argv=None) -> int:
                   f"{'yes' if fused else 'no '} | {'yes' if learning else 'no '} | {'yes' if rejected else 'no'}{more}")
         print("magnetometer-rotation windows fitted: span s, ending at s | b_z − b̂_z ± 1σ °/h | truth °/h | "
               "tilt term of the 1σ °/h | the true tilt error's slope about magnetic north × tan|dip| °/h"
-              + (" | terms °/h: scatter (r₁) scale soft-iron attitude (its σ °) gyro-noise tilt" if args.terms else ""))
+              + (" | terms °/h: scatter (r₁) scale soft-iron attitude (start tilt σ °) gyro-noise tilt" if args.terms else ""))
         for span, end, fit, sig, truth, tilt, true_tilt, terms in windows:
             more = ""
             if args.terms:

@@ -33,7 +33,7 @@ from .constrained_update import scalar_update
 from .gsf_yaw import gsf_output_of
 from .heading_check_log import HeadingCheckLog
 from .heading_confirmation import HeadingConfirmation, gnss_yaw_floor
-from .heading_monitor import HeadingMonitor, MonitorDecision, largest, wrap_pi
+from .heading_monitor import HeadingMonitor, MonitorDecision, wrap_pi
 from .heading_publication import HeadingPublication, HeadingReport
 from .ins_gnss_fusion import InsGnssFusion
 from .iron_in_use import IronInUse
@@ -259,12 +259,11 @@ class HeadingSupervision:
                 or x["nav_ok"] <= 0 or dt <= 0.0:
             self._mag_rotation.restart()
             return
-        i = core.E_TH
-        att_sigma = math.sqrt(max(largest((float(P[i, i]), float(P[i + 1, i + 1]), float(P[i + 2, i + 2]))), 0.0))
+        att = slice(core.E_TH, core.E_TH + 3)
         tilt, bias = slice(core.E_TILT_N, core.E_TILT_E + 1), slice(core.E_BA, core.E_BA + 3)
         tilt_sigma = window_tilt_sigma_rad(P[tilt, tilt], P[tilt, bias], P[bias, bias])
         out = self._mag_rotation.add(t_s, m, c_bn, field, step, float(x["gyro_bias_rad_s"][2]), dt,
-                                     self._iron.soft_iron, self._iron.largest_soft_iron_sigma, att_sigma,
+                                     self._iron.soft_iron, self._iron.largest_soft_iron_sigma, P[att, att],
                                      tilt_sigma)
         if out is None:
             return

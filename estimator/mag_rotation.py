@@ -17,8 +17,12 @@ With the bias changes within the window moved to the newest estimate b̂_end, it
 for its correlation from check to check), the gyro's white noise (the heading is a random walk), and what the
 known-to-δ soft iron, gyro scale, attitude of the start and the change of the filter's tilt over the window (at
 the dip's tangent) make of the window's motion. A window ends after `window_s`, or when the vehicle has turned
-by `max_turn_rad` (the soft-iron and scale terms grow with the turn), and is used only while the filter's
-attitude is known to `max_att_sigma_rad` (the direction of B in the body at its start).
+by `max_turn_rad` (the soft-iron and scale terms grow with the turn), and is used only while the filter's tilt
+is known to `max_att_sigma_rad` at its start (the direction of B in the body). The start attitude's error enters
+per body axis, at the filter's covariance then: a heading error at the start turns v₀ and every v_k alike about
+down, so the fit hardly sees it (its slope is small), while a tilt error tips B's large vertical part into the
+horizontal as the vehicle turns; the largest σ on every axis would give a window started while the heading is
+still being found (σ of degrees, the tilt's tenths) a tilt term of the heading's size, and wait for it.
 """
 
 from __future__ import annotations
@@ -95,12 +99,12 @@ class MagRotationBias:
     max_turn_rad: float = math.radians(5.0)
     min_samples: int = 30
     min_span_s: float = 8.0
-    max_att_sigma_rad: float = math.radians(5.0)
+    max_att_sigma_rad: float = math.radians(5.0)   # the largest tilt 1σ at a window's start
     scale_sigma: float = 0.003          # gyro scale-factor uncertainty, dimensionless
     span_s: float = 0.0                 # the last fitted window's length, s
     # the last fitted window's variance, term by term ((rad/s)²): the scatter about the line (inflated for its
     # correlation), the gyro scale, the soft iron, the start attitude, the gyro's white noise and the tilt's change;
-    # then the residuals' check-to-check correlation r₁ and the attitude 1σ taken (rad) (for a reader:
+    # then the residuals' check-to-check correlation r₁ and the tilt 1σ at the start (rad) (for a reader:
     # bench/yaw_drift_trace.py --terms)
     terms: tuple = ()
     t0_s: float = math.nan
@@ -110,7 +114,8 @@ class MagRotationBias:
     b_ned_ut: np.ndarray = field(default_factory=lambda: np.zeros(3))
     rot: np.ndarray = field(default_factory=lambda: np.eye(3))    # ΔC: body now → body at the start
     bias_dt: float = 0.0                # Σ b̂_j Δt_j since the start, rad
-    att_sigma_rad: float = 0.0          # the largest attitude 1σ seen in the window
+    att_cov_body_rad2: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))  # the start's, body axes
+    start_tilt_sigma_rad: float = 0.0   # the filter's larger tilt 1σ at the window's start
     tilt_sigma_rad: float = 0.0         # the filter's tilt 1σ now
     samples: list = field(default_factory=list)   # (t, φ, Σ b̂Δt, turn, soft-iron and attitude sensitivities)
     # what stays the same through a window, made at its start: B × e_z (the direction a turn about down moves the
@@ -122,25 +127,25 @@ class MagRotationBias:
         self.t0_s = math.nan
 
     def add(self, t_s: float, mag_ut, c_bn, b_ned_ut, step_rot, bias_z_rad_s: float, dt_s: float,
-            soft_iron: np.ndarray, soft_sigma: float, att_sigma_rad: float,
+            soft_iron: np.ndarray, soft_sigma: float, att_cov_ned_rad2: np.ndarray,
             tilt_sigma_rad: float) -> tuple[float, float] | None:
         """One heading check: the magnetometer (body, µT, calibration in force), the filter's attitude c_bn and
         the Earth field (NED, µT), the gyro's body rotation since the last check (body now → body then) made with
         the bias estimate b̂_z over dt_s, the learned soft iron A and the 1σ of its elements, the filter's
-        attitude 1σ and the 1σ of its tilt error that can move over a window (window_tilt_sigma_rad). Returns
+        attitude error covariance (3×3, NED: δθ_N, δθ_E, δθ_D with C_true = (I + [δθ×])·C_est; read at a window's
+        start) and the 1σ of its tilt error that can move over a window (window_tilt_sigma_rad). Returns
         (b_z − b̂_z, its variance, rad/s) when a window completes, else None."""
         m = np.asarray(mag_ut, dtype=float)
         c_bn = np.asarray(c_bn, dtype=float)
         if not math.isfinite(self.t0_s):
-            self._start(t_s, m, c_bn, b_ned_ut, att_sigma_rad, tilt_sigma_rad)
+            self._start(t_s, m, c_bn, b_ned_ut, att_cov_ned_rad2, tilt_sigma_rad)
             return None
-        self.att_sigma_rad = max(self.att_sigma_rad, att_sigma_rad)
         self.tilt_sigma_rad = tilt_sigma_rad
         rot = self.rot @ np.asarray(step_rot, dtype=float)
         if abs(_turn(rot)) > self.max_turn_rad:
             # the vehicle turned: fit the window up to the last check, start a new one here
             result = self._fit(bias_z_rad_s, soft_sigma)
-            self._start(t_s, m, c_bn, b_ned_ut, att_sigma_rad, tilt_sigma_rad)
+            self._start(t_s, m, c_bn, b_ned_ut, att_cov_ned_rad2, tilt_sigma_rad)
             return result
         self.rot = rot
         self.bias_dt += bias_z_rad_s * dt_s
@@ -169,7 +174,7 @@ class MagRotationBias:
         self.restart()
         return result
 
-    def _start(self, t_s, m, c_bn, b_ned_ut, att_sigma_rad, tilt_sigma_rad) -> None:
+    def _start(self, t_s, m, c_bn, b_ned_ut, att_cov_ned_rad2, tilt_sigma_rad) -> None:
         self.t0_s = t_s
         self.m0_ut = m.copy()
         self.c0 = c_bn.copy()
@@ -179,14 +184,17 @@ class MagRotationBias:
         self.v0_moves_ut = tuple(_cross(e, self.v0_ut) for e in _EYE3)
         self.rot = np.eye(3)
         self.bias_dt = 0.0
-        self.att_sigma_rad = att_sigma_rad
+        # the attitude error in the body: C_true = C_est·(I + [ε×]), ε = C₀ᵀ·δθ
+        p = np.asarray(att_cov_ned_rad2, dtype=float)
+        self.att_cov_body_rad2 = c_bn.T @ p @ c_bn
+        self.start_tilt_sigma_rad = math.sqrt(max(float(p[0, 0]), float(p[1, 1]), 0.0))
         self.tilt_sigma_rad = tilt_sigma_rad
         self.samples = []
 
     def _fit(self, bias_end_rad_s: float, soft_sigma: float) -> tuple[float, float] | None:
         n = len(self.samples)
         if n < self.min_samples or self.samples[-1][0] - self.t0_s < self.min_span_s \
-                or self.att_sigma_rad > self.max_att_sigma_rad:
+                or self.start_tilt_sigma_rad > self.max_att_sigma_rad:
             return None
         t = np.array([s[0] for s in self.samples]) - self.t0_s
         phi = np.array([s[1] for s in self.samples])
@@ -215,7 +223,7 @@ class MagRotationBias:
         att_slopes = tc @ (att - att.mean(axis=0)) / stt
         scale = (self.scale_sigma * turn_slope) ** 2
         soft_iron = soft_sigma ** 2 * float(soft_slopes @ soft_slopes)
-        attitude = self.att_sigma_rad ** 2 * float(att_slopes @ att_slopes)
+        attitude = float(att_slopes @ self.att_cov_body_rad2 @ att_slopes)
         var += scale + soft_iron + attitude
         # the gyro's white noise makes the heading a random walk, which the scatter does not show: the
         # least-squares slope of a random walk of density q over T has variance 6 q² / (5 T)
@@ -228,5 +236,5 @@ class MagRotationBias:
         tan_dip = abs(float(b[2])) / max(math.hypot(float(b[0]), float(b[1])), 1e-6)
         tilt = (math.sqrt(2.0) * tan_dip * self.tilt_sigma_rad / t[-1]) ** 2
         var += tilt
-        self.terms = (scatter, scale, soft_iron, attitude, walk, tilt, r1, self.att_sigma_rad)
+        self.terms = (scatter, scale, soft_iron, attitude, walk, tilt, r1, self.start_tilt_sigma_rad)
         return slope, var

@@ -25,10 +25,12 @@ def _attitude(t):
     return Rotation.from_euler("ZYX", [yaw, pitch, roll], degrees=True).as_matrix()
 
 
-def _window(bias_rad_s, seed=1, heading_offset_deg=2.0, est=None):
+def _window(bias_rad_s, seed=1, heading_offset_deg=2.0, est=None, att_cov=None):
     """Checks at 5 Hz for 30 s; the gyro's rotation between checks is the true one turned further about body z by
     the bias (estimate 0); the filter's attitude has the true tilt and a heading `heading_offset_deg` off. `est`: the
-    window to feed (a fresh one without gyro noise by default)."""
+    window to feed (a fresh one without gyro noise by default); `att_cov`: the filter's attitude covariance it is
+    told (NED; 1° on each axis by default)."""
+    att_cov = np.eye(3) * math.radians(1.0) ** 2 if att_cov is None else att_cov
     rng = np.random.default_rng(seed)
     est = MagRotationBias(gyro_noise_rad_s_rthz=0.0) if est is None else est
     off = Rotation.from_euler("z", heading_offset_deg, degrees=True).as_matrix()
@@ -44,7 +46,7 @@ def _window(bias_rad_s, seed=1, heading_offset_deg=2.0, est=None):
             step = _attitude(t_prev).T @ c_true @ Rotation.from_euler("z", bias_rad_s * dt).as_matrix()
         else:
             dt = 0.0
-        out = est.add(t, m, off @ c_true, B_NED_UT, step, 0.0, dt, np.eye(3), 0.1, math.radians(1.0),
+        out = est.add(t, m, off @ c_true, B_NED_UT, step, 0.0, dt, np.eye(3), 0.1, att_cov,
                       math.radians(0.2)) or out
         t_prev = t
     return out
@@ -67,7 +69,7 @@ def test_no_bias_is_seen_where_there_is_none():
 def test_a_windows_terms_are_its_variance_term_by_term():
     # MagRotationBias.terms (what bench/yaw_drift_trace.py --terms prints): they add up to the variance the fit
     # returned, the gyro-noise and tilt terms are the random walk's 6 q² / (5 T) and (√2·tan|dip|·σ_tilt / T)² worked
-    # out here from the window's own inputs, and the attitude σ taken is the largest the window was given (1°)
+    # out here from the window's own inputs, and the tilt σ at the start is the 1° it was given
     q = 0.0015      # rad/s/√Hz: the gyro-noise term is then the window's largest but one
     est = MagRotationBias(gyro_noise_rad_s_rthz=q)
     _, var = _window(150.0 * DEG_H, est=est)
@@ -79,6 +81,28 @@ def test_a_windows_terms_are_its_variance_term_by_term():
     assert math.isclose(walk, 6.0 * q * q / (5.0 * span), rel_tol=1e-12)
     assert math.isclose(tilt, (math.sqrt(2.0) * tan_dip * math.radians(0.2) / span) ** 2, rel_tol=1e-12)
     assert att_sigma == math.radians(1.0) and attitude > 0.0 and scatter > 0.0
+
+
+def test_a_window_takes_the_start_attitude_per_body_axis_and_waits_for_the_tilt_only():
+    # a heading known to 10° and a tilt to 0.2° (the filter's covariance in NED): the window is fitted (the tilt is
+    # what it waits for), its attitude term is the covariance turned into the body at the start through the fit's
+    # slopes (worked out here with scipy's attitude of the start, the one the window was given), far below the
+    # term of a 10° σ on every axis, and the bias is still found within its 3σ
+    bias = 150.0 * DEG_H
+    cov = np.diag([math.radians(0.2) ** 2, math.radians(0.2) ** 2, math.radians(10.0) ** 2])
+    est = MagRotationBias(gyro_noise_rad_s_rthz=0.0)
+    got, var = _window(bias, est=est, att_cov=cov)
+    attitude = est.terms[3]
+    c0 = Rotation.from_euler("z", 2.0, degrees=True).as_matrix() @ _attitude(0.0)
+    t = np.array([s[0] for s in est.samples])       # the slope is the same from any origin
+    att = np.array([s[5] for s in est.samples])
+    slopes = (t - t.mean()) @ (att - att.mean(axis=0)) / float((t - t.mean()) @ (t - t.mean()))
+    assert math.isclose(attitude, float(slopes @ (c0.T @ cov @ c0) @ slopes), rel_tol=1e-9)
+    assert attitude < 0.1 * math.radians(10.0) ** 2 * float(slopes @ slopes)
+    assert abs(got - bias) < 3.0 * math.sqrt(var)
+    assert est.terms[7] == math.radians(0.2)
+    # a tilt above the 5° limit: no window
+    assert _window(bias, att_cov=np.diag([math.radians(6.0) ** 2, 1e-6, 1e-6])) is None
 
 
 def test_the_rotation_vector_carries_the_coning_term():
@@ -213,6 +237,6 @@ def test_the_window_start_cross_product_is_numpys_to_the_bit():
     rng = np.random.default_rng(28)
     vectors = [np.eye(3)[i] for i in range(3)] + [np.array([0.0, -0.0, 1.0]), np.array([-0.0, 0.0, -0.0])]
     vectors += [rng.normal(size=3) * 10.0 ** rng.uniform(-6, 6) for _ in range(400)]
-    for a in vectors[:36]:
+    for a in vectors[:32]:
         for b in vectors:
             assert _cross(a, b).tobytes() == np.cross(a, b).tobytes(), (a, b)

@@ -894,8 +894,17 @@ MUTATIONS: tuple[Mutation, ...] = (
     # ------------------------------------------------------------------ session 36 (trom)
     Mutation("mag-rotation-window-terms", "a magnetometer-rotation window's terms are its variance, term by term",
              "estimator/mag_rotation.py",
-             "self.terms = (scatter, scale, soft_iron, attitude, walk, tilt, r1, self.att_sigma_rad)",
-             "self.terms = (scatter, scale, soft_iron, 0.0, walk, tilt, r1, self.att_sigma_rad)",
+             "self.terms = (scatter, scale, soft_iron, attitude, walk, tilt, r1, self.start_tilt_sigma_rad)",
+             "self.terms = (scatter, scale, soft_iron, 0.0, walk, tilt, r1, self.start_tilt_sigma_rad)",
+             ("tests/test_mag_rotation.py",)),
+    Mutation("mag-rotation-attitude-per-axis", "a window's start-attitude term takes the filter's attitude covariance "
+             "per body axis, and the window waits for the tilt only",
+             "estimator/mag_rotation.py", "attitude = float(att_slopes @ self.att_cov_body_rad2 @ att_slopes)",
+             "attitude = float(np.max(np.diag(self.att_cov_body_rad2))) * float(att_slopes @ att_slopes)",
+             ("tests/test_mag_rotation.py",)),
+    Mutation("mag-rotation-tilt-gate", "a magnetometer-rotation window waits for the filter's tilt, not its heading",
+             "estimator/mag_rotation.py", "self.start_tilt_sigma_rad = math.sqrt(max(float(p[0, 0]), float(p[1, 1]), 0.0))",
+             "self.start_tilt_sigma_rad = math.sqrt(max(float(p[0, 0]), float(p[1, 1]), float(p[2, 2]), 0.0))",
              ("tests/test_mag_rotation.py",)),
     # ------------------------------------------------------------------ session 36 (cib)
     Mutation("fit-worker-without-numba", "the mag-cal fit worker's imports load no numba (no estimator's kernels)",
