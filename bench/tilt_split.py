@@ -135,8 +135,11 @@ def one_run(job) -> tuple:
             if est._initialised:
                 for index, value, var in holds:
                     _hold(est, index, value, var)
-        e = est.update(make_sample(t[k], g[k], a[k], mg[k], flags=SampleFlags.NEW_DATA))
+        # step, and the estimate built at the samples read only (estimator/estimate_view.py: building none
+        # changes none)
+        view = est.step(make_sample(t[k], g[k], a[k], mg[k], flags=SampleFlags.NEW_DATA))
         if k % EVERY == 0:
+            e = view.snapshot()
             q[j], sig[j], bx[j] = e.q_wxyz, e.sigma_rpy_rad, est.accel_bias_m_s2[0]
             lean_gyro[j] = est._x["accel_z_lean_rad"][0], est.gyro_misalignment_rad[0, 2]
             j += 1
