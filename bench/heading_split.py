@@ -144,7 +144,7 @@ def learn_iron_at_truth(est, run) -> None:
 def without_rotation_tilt_term(est) -> None:
     """`est`'s magnetometer-rotation windows (MagRotationBias.add) given a tilt 1σ of 0: their fit leaves out the
     filter's tilt moving between the window's ends."""
-    rotation = est._mag_rotation
+    rotation = est._heading._mag_rotation
     add = rotation.add
 
     def add_without_tilt(*args):

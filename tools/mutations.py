@@ -891,4 +891,14 @@ MUTATIONS: tuple[Mutation, ...] = (
              'sigma_deg = math.hypot(pred.get("heading_dependent_std_deg", math.nan), pred.get("offset_std_deg", math.nan))',
              'sigma_deg = math.hypot(pred.get("heading_dependent_std_deg", math.nan), 0.0)',
              ("tests/test_levelling_stated_sigma.py",)),
+    # ------------------------------------------------------------------ session 36 (cib)
+    Mutation("fit-worker-without-numba", "the mag-cal fit worker's imports load no numba (no estimator's kernels)",
+             "calibration/mag/levelling_error.py",
+             "from ahrsd.estimator.accel_bias_prior import ACCEL_BIAS_SIGMA_UNCALIBRATED_M_S2",
+             "from ahrsd.estimator.mekf import ACCEL_BIAS_SIGMA_UNCALIBRATED_M_S2",
+             ("tests/test_daemon_imports.py",)),
+    Mutation("signature-before-timestamp", "a frame's signature is checked before its timestamp moves the stream's",
+             "daemon/signing.py", "if not hmac.compare_digest(digest[:SIGNATURE_LEN], bytes(msgbuf[-SIGNATURE_LEN:])):",
+             "if False and not hmac.compare_digest(digest[:SIGNATURE_LEN], bytes(msgbuf[-SIGNATURE_LEN:])):",
+             ("tests/test_reliability_security.py", "tests/test_fuzz_mavlink.py")),
 )
