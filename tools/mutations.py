@@ -891,6 +891,12 @@ MUTATIONS: tuple[Mutation, ...] = (
              'sigma_deg = math.hypot(pred.get("heading_dependent_std_deg", math.nan), pred.get("offset_std_deg", math.nan))',
              'sigma_deg = math.hypot(pred.get("heading_dependent_std_deg", math.nan), 0.0)',
              ("tests/test_levelling_stated_sigma.py",)),
+    # ------------------------------------------------------------------ session 36 (trom)
+    Mutation("mag-rotation-window-terms", "a magnetometer-rotation window's terms are its variance, term by term",
+             "estimator/mag_rotation.py",
+             "self.terms = (scatter, scale, soft_iron, attitude, walk, tilt, r1, self.att_sigma_rad)",
+             "self.terms = (scatter, scale, soft_iron, 0.0, walk, tilt, r1, self.att_sigma_rad)",
+             ("tests/test_mag_rotation.py",)),
     # ------------------------------------------------------------------ session 36 (cib)
     Mutation("fit-worker-without-numba", "the mag-cal fit worker's imports load no numba (no estimator's kernels)",
              "calibration/mag/levelling_error.py",
