@@ -54,12 +54,14 @@ def aided_replay_heading(rec: Path, out: Path) -> AidedReplayHeading:
     return _heading(data[:, 0], t_rec[0], data[:, 1], truth_yaw, data[:, 2], data[:, 3])
 
 
-def aided_heading_in_process(rec: Path, every: int = 4) -> tuple[AidedReplayHeading, np.ndarray, np.ndarray]:
+def aided_heading_in_process(rec: Path, every: int = 4,
+                             params: dict | None = None) -> tuple[AidedReplayHeading, np.ndarray, np.ndarray]:
     """As `aided_replay_heading`, at every `every`-th sample and the last (the times, yaw, σ and flags as the
     command computes them, before its output's rounding), and every sample's time (from the first) and flags
     (YAW_RESET is set on one sample only): the estimator, its declination (the WMM at the first fix, today) and the validated fixes from
     the replay command's own functions (cli/replay.py), the recording's samples as it reads them, each fix offered
-    before the first sample not earlier than its time of validity (estimator/fix_feed.py)."""
+    before the first sample not earlier than its time of validity (estimator/fix_feed.py). `params`: the estimator's
+    parameters to set beside the command's (as `--set` would)."""
     from ahrsd.cli import replay as command
     from ahrsd.drivers.gnss.validation import GnssFixValidator
     from ahrsd.drivers.recording import iter_samples
@@ -67,7 +69,7 @@ def aided_heading_in_process(rec: Path, every: int = 4) -> tuple[AidedReplayHead
 
     fixes, first_position = command._gnss_fixes(str(rec.with_suffix(".gnss.csv")), GnssFixValidator(name="replay"))
     no_position = argparse.Namespace(lat=None, lon=None, alt_m=0.0, date=None)
-    params = command._told_calibration_sigma("ins", None, {})
+    params = command._told_calibration_sigma("ins", None, dict(params or {}))
     est = command._make_estimator("ins", command._declination_rad(no_position, first_position), params, aided=True)
     feed = GnssFixFeed(est, fixes)
     t, yaw, sigma, flags, all_flags = [], [], [], [], []
