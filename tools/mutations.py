@@ -891,4 +891,10 @@ MUTATIONS: tuple[Mutation, ...] = (
              'sigma_deg = math.hypot(pred.get("heading_dependent_std_deg", math.nan), pred.get("offset_std_deg", math.nan))',
              'sigma_deg = math.hypot(pred.get("heading_dependent_std_deg", math.nan), 0.0)',
              ("tests/test_levelling_stated_sigma.py",)),
+    # ------------------------------------------------------------------ session 36 (bstep)
+    Mutation("levelling-heading-checks-off", "a magnetometer pass's levelling filter runs without the heading checks",
+             "calibration/mag/backstepping_aided.py",
+             'return {"heading_monitor": False, **overrides',
+             'return {"heading_monitor": True, **overrides',
+             ("tests/test_levelling_stated_sigma.py",)),
 )
