@@ -11,6 +11,8 @@ Each seed is run (the place's own iron or `--iron`'s, 600 s, GNSS 5 Hz) once per
                       every sample, its covariance row and column cleared (an oracle: the filter's private state,
                       for diagnosis only);
   b_z truth           the vertical gyro's turn-on bias likewise (the in-run Gauss–Markov part is not in it);
+  b_z truth before 180 s / from 180 s   that hold only before / only from 180 s (where the errors are counted
+                      from): whether the bias error that matters is the one the start leaves or the one after;
   b_z,s_z truth       both;
   turn-on 0           the sensor without its turn-on errors (gyro and accelerometer bias, scale, misalignment,
                       temperature coefficients); white noise and in-run bias processes as simulated, filter unchanged;
@@ -59,7 +61,7 @@ from bench.vehicle_accuracy import (GNSS_ERRORS, HONESTY_IRONS, estimates_in_arr
                                     honesty_site, honesty_site_arg, simulate_vehicle, tilt_heading_errors_deg)
 
 EVERY = 8
-ROWS = ("defaults", "s_z truth", "b_z truth", "b_z,s_z truth", "turn-on 0", "turn-on 0, no ARW", "turn-on 0, no VRW",
+ROWS = ("defaults", "s_z truth", "b_z truth", "b_z truth before 180 s", "b_z truth from 180 s", "b_z,s_z truth", "turn-on 0", "turn-on 0, no ARW", "turn-on 0, no VRW",
         "turn-on 0, no in-run", "yaw aid 1°", "yaw aid 1° + 1° over 60 s", "iron at true attitude",
         "no magnetometer", "receiver errors 0", "rotation tilt term 0", "fused while learning")
 YAW_AID_SIGMA_DEG = 1.0
@@ -144,7 +146,7 @@ def learn_iron_at_truth(est, run) -> None:
 def without_rotation_tilt_term(est) -> None:
     """`est`'s magnetometer-rotation windows (MagRotationBias.add) given a tilt 1σ of 0: their fit leaves out the
     filter's tilt moving between the window's ends."""
-    rotation = est._mag_rotation
+    rotation = est._heading._mag_rotation
     add = rotation.add
 
     def add_without_tilt(*args):
@@ -187,7 +189,11 @@ def _one_run(job, late_s: float = LATE_S) -> tuple:
         without_rotation_tilt_term(est)
     holds = {"s_z truth": [(core.E_SG + 2, err.gyro_scale[2])],
              "b_z truth": [(core.E_BG + 2, err.gyro_bias_rad_s[2])],
+             "b_z truth before 180 s": [(core.E_BG + 2, err.gyro_bias_rad_s[2])],
+             "b_z truth from 180 s": [(core.E_BG + 2, err.gyro_bias_rad_s[2])],
              "b_z,s_z truth": [(core.E_BG + 2, err.gyro_bias_rad_s[2]), (core.E_SG + 2, err.gyro_scale[2])]}.get(row, [])
+    hold_from_s, hold_to_s = {"b_z truth before 180 s": (-math.inf, late_s),
+                              "b_z truth from 180 s": (late_s, math.inf)}.get(row, (-math.inf, math.inf))
     aid = row.startswith("yaw aid")
     drift = row.endswith("over 60 s")
     rng = np.random.default_rng(seed + 2000)
@@ -201,8 +207,9 @@ def _one_run(job, late_s: float = LATE_S) -> tuple:
     j = 0
     for k, e in estimates_in_arrival_order(est, run, run.fixes):
         if est._initialised:
-            for index, value in holds:
-                _hold(est, index, value)
+            if hold_from_s <= t[k] < hold_to_s:
+                for index, value in holds:
+                    _hold(est, index, value)
             if aid and t[k] >= next_aid_s and est._x["nav_ok"] > 0.0:
                 _, hdg = tilt_heading_errors_deg(e.q_wxyz[None, :], run.truth_q_wxyz[k][None, :],
                                                  run.declination_rad)

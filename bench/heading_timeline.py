@@ -160,7 +160,7 @@ def main(argv=None) -> int:
             step_text = f"  largest 0.1 s step {step:4.2f}°" if args.step else ""
             if args.step and args.case == "iron-step":
                 step_text += f"  before the step: heading {hdg_before:5.2f}°  tilt {tilt_before:5.2f}°"
-            print(f"seed {job[2]:3d}: heading {hdg:5.2f}°  tilt {tilt:5.2f}°  σ median {sig:5.2f}°  "
+            print(f"seed {job[2]:3d}: heading {hdg:5.2f}°  tilt {tilt:5.3f}°  σ median {sig:5.2f}°  "
                   f"beyond 3σ {beyond:6.2%}  yaw resets {resets}{after}{step_text}{arm}", flush=True)
             if args.tilt_sigma:
                 ts = tilt_sigma

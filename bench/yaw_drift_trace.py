@@ -6,12 +6,18 @@ Runs `ins` as `bench/heading_timeline.py` does (same vehicle, site, iron and cas
 seconds from `--from` to `--to`: the published heading's true error, the filter's yaw 1σ, the vertical gyro bias's
 error against the simulator's turn-on bias (the in-run Gauss–Markov part, 25 °/h over 100 s, is not in the truth)
 and the filter's 1σ of it, the true heading rate, and whether the magnetometer is fused, its iron learned and the
-monitor rejecting it. Then each magnetometer-rotation window that gave a fit: its span, its b_z − b̂_z with its 1σ,
+monitor rejecting it; with `--start`, also the GNSS yaw bank's error against the truth, its 1σ and whether it is
+valid, the vertical gyro's scale-factor error against the simulator's and its 1σ, and the yaw resets so far (the
+start-up: docs/gnss.md "The uncalibrated boat at Tromsø seed 17: the start under the magnetometer (trom36)"). Then
+each magnetometer-rotation window that gave a fit: its span, its b_z − b̂_z with its 1σ,
 the truth's b_z − b̂_z at the window's end, and the share of that 1σ the filter's tilt term makes
-(√2·tan|dip|·σ_tilt / T).
+(√2·tan|dip|·σ_tilt / T); with `--terms`, every term of the window's 1σ (MagRotationBias.terms: the scatter and its
+check-to-check correlation r₁, the gyro scale, the soft iron, the start attitude with the attitude 1σ it took, the
+gyro's white noise, the tilt).
 
     python bench/yaw_drift_trace.py --site=44.65,-63.57 --iron held-out --seeds 41 --seconds 330
     python bench/yaw_drift_trace.py --site=44.65,-63.57 --iron held-out --seeds 41 --params '{"iron_unmodelled_ut": 0.8}'
+    python bench/yaw_drift_trace.py --site=69.65,18.96 --iron held-out --seeds 17 --seconds 130 --from 10 --every 4 --start
 """
 
 from __future__ import annotations
@@ -63,9 +69,25 @@ def _slope(t_s: list, y: list, t0_s: float, t1_s: float) -> float:
     return float(tc @ (np.asarray(y)[keep] - np.mean(np.asarray(y)[keep]))) / float(tc @ tc)
 
 
+def bank_error_deg(est, q_truth_wxyz) -> tuple[float, float, bool]:
+    """The GNSS yaw bank's yaw error against the simulator's heading, its 1σ (°) and whether it is valid; NaN
+    before it has a yaw. Both are true headings (the bank's is the filter's frame, body → true NED; so is the
+    simulator's quaternion), ZYX yaw; scipy only for the truth."""
+    from scipy.spatial.transform import Rotation
+
+    yaw, var, valid = est._heading.gnss_yaw()
+    if not (math.isfinite(yaw) and math.isfinite(var)):
+        return math.nan, math.nan, False
+    true_yaw = Rotation.from_quat(np.asarray(q_truth_wxyz)[[1, 2, 3, 0]]).as_euler("ZYX")[0]
+    err = math.degrees(yaw - true_yaw)
+    return (err + 180.0) % 360.0 - 180.0, math.degrees(math.sqrt(var)), bool(valid)
+
+
 def trace(scenario: str, case: str, seed: int, site_label: str, iron_label: str | None, seconds: float,
           every_s: float, from_s: float, to_s: float, params: dict) -> tuple[list, list]:
-    """(rows, windows): the per-`every_s` rows and the fitted magnetometer-rotation windows, as printed."""
+    """(rows, windows): the per-`every_s` rows and the fitted magnetometer-rotation windows, as printed; each row
+    ends with the start-up columns (`--start`: the bank's error, σ and validity, the vertical gyro's scale-factor
+    error and σ in %, the yaw resets so far)."""
     from ahrsd.estimator import ins_core as core
     from ahrsd.estimator.ins import Ins
     from ahrsd.simulation import SensorErrors
@@ -74,7 +96,8 @@ def trace(scenario: str, case: str, seed: int, site_label: str, iron_label: str 
     run = simulate_vehicle(scenario, seconds, seed, site, mag=case, iron=iron)
     est = Ins(declination_rad=run.declination_rad, lever_arm_m=run.lever_arm_m,
               mag_calibration_sigma_rad=run.mag_calibration_sigma_rad, **params)
-    true_bz = float(SensorErrors.adis16405(seed).gyro_bias_rad_s[2])   # simulate_vehicle's sensor
+    sensor = SensorErrors.adis16405(seed)                                # simulate_vehicle's sensor
+    true_bz, true_sz = float(sensor.gyro_bias_rad_s[2]), float(sensor.gyro_scale[2])
     rate = true_heading_rate_deg_s(run.t_s, run.truth_q_wxyz)
     windows = []
     tilt_t, tilt_n = [], []      # the true tilt error about magnetic north, rad, at the checks (heading_timeline's EVERY)
@@ -87,9 +110,11 @@ def trace(scenario: str, case: str, seed: int, site_label: str, iron_label: str 
             b = rotation.b_ned_ut
             tan_dip = abs(float(b[2])) / max(math.hypot(float(b[0]), float(b[1])), 1e-6)
             tilt = math.sqrt(2.0) * tan_dip * rotation.tilt_sigma_rad / max(rotation.span_s, 1e-9)
+            terms = tuple(math.sqrt(v) * DEG_H for v in rotation.terms[:6]) + (rotation.terms[6],
+                                                                          math.degrees(rotation.terms[7]))
             windows.append((rotation.span_s, t_s, out[0] * DEG_H, math.sqrt(out[1]) * DEG_H,
                             (true_bz - float(est._x["gyro_bias_rad_s"][2])) * DEG_H, tilt * DEG_H,
-                            tan_dip * abs(_slope(tilt_t, tilt_n, t_s - rotation.span_s, t_s)) * DEG_H))
+                            tan_dip * abs(_slope(tilt_t, tilt_n, t_s - rotation.span_s, t_s)) * DEG_H, terms))
         return out
 
     rotation.add = add_traced
@@ -104,11 +129,14 @@ def trace(scenario: str, case: str, seed: int, site_label: str, iron_label: str 
             continue
         next_s += every_s
         _, hdg = tilt_heading_errors_deg(e.q_wxyz[None, :], run.truth_q_wxyz[k][None, :], run.declination_rad)
-        i = core.E_BG + 2
+        i, j = core.E_BG + 2, core.E_SG + 2
+        start = (*bank_error_deg(est, run.truth_q_wxyz[k]),
+                 100.0 * (float(est._x["gyro_scale"][2]) - true_sz), 100.0 * math.sqrt(max(est._P[j, j], 0.0)),
+                 est._heading.yaw_resets)
         rows.append((t, float(hdg[0]), math.degrees(math.sqrt(max(est._P[core.E_YAW, core.E_YAW], 0.0))),
                      (float(est._x["gyro_bias_rad_s"][2]) - true_bz) * DEG_H, math.sqrt(max(est._P[i, i], 0.0)) * DEG_H,
                      float(rate[k]), est._par["mag_use"] > 0.5, est._heading.monitor.learning,
-                     est._heading.monitor.mag_rejected))
+                     est._heading.monitor.mag_rejected, start))
     return rows, windows
 
 
@@ -124,6 +152,10 @@ def main(argv=None) -> int:
     ap.add_argument("--from", dest="from_s", type=float, default=60.0, help="first row, s (default 60)")
     ap.add_argument("--to", dest="to_s", type=float, default=math.inf, help="last row, s (default: the end)")
     ap.add_argument("--params", default="{}", help="InsParams overrides as JSON")
+    ap.add_argument("--start", action="store_true",
+                    help="also the GNSS yaw bank's error, σ and validity, the vertical gyro scale-factor error and σ, "
+                         "and the yaw resets so far")
+    ap.add_argument("--terms", action="store_true", help="also every term of each fitted window's 1σ")
     args = ap.parse_args(argv)
     params = json.loads(args.params)
     for seed in args.seeds:
@@ -131,14 +163,26 @@ def main(argv=None) -> int:
                               args.from_s, args.to_s, params)
         print(f"{args.scenario} {args.case} seed {seed} at {args.site} ({args.iron or 'own'} iron) {params or ''}: "
               "t s | heading err ° | yaw σ ° | b_z err °/h (vs turn-on) | b_z σ °/h | true rate °/s | "
-              "mag fused | learning | rejected")
-        for t, h, sy, bz, sbz, r, fused, learning, rejected in rows:
+              "mag fused | learning | rejected" + (" | bank err ° | bank σ ° | bank valid | s_z err % | s_z σ % | "
+                                                   "yaw resets" if args.start else ""))
+        for t, h, sy, bz, sbz, r, fused, learning, rejected, start in rows:
+            more = ""
+            if args.start:
+                be, bs, bv, sz, ssz, resets = start
+                more = f" | {be:+7.2f} | {bs:6.2f} | {'yes' if bv else 'no '} | {sz:+6.3f} | {ssz:5.3f} | {resets}"
             print(f"{t:7.1f} | {h:+6.2f} | {sy:5.2f} | {bz:+6.0f} | {sbz:5.0f} | {r:+5.1f} | "
-                  f"{'yes' if fused else 'no '} | {'yes' if learning else 'no '} | {'yes' if rejected else 'no'}")
+                  f"{'yes' if fused else 'no '} | {'yes' if learning else 'no '} | {'yes' if rejected else 'no'}{more}")
         print("magnetometer-rotation windows fitted: span s, ending at s | b_z − b̂_z ± 1σ °/h | truth °/h | "
-              "tilt term of the 1σ °/h | the true tilt error's slope about magnetic north × tan|dip| °/h")
-        for span, end, fit, sig, truth, tilt, true_tilt in windows:
-            print(f"  {span:5.1f} s to {end:6.1f} | {fit:+6.0f} ± {sig:5.0f} | {truth:+6.0f} | {tilt:5.0f} | {true_tilt:5.0f}")
+              "tilt term of the 1σ °/h | the true tilt error's slope about magnetic north × tan|dip| °/h"
+              + (" | terms °/h: scatter (r₁) scale soft-iron attitude (its σ °) gyro-noise tilt" if args.terms else ""))
+        for span, end, fit, sig, truth, tilt, true_tilt, terms in windows:
+            more = ""
+            if args.terms:
+                sc, scale, soft, att, walk, tl, r1, att_deg = terms
+                more = (f" | {sc:4.0f} ({r1:.2f}) {scale:4.0f} {soft:4.0f} {att:4.0f} ({att_deg:4.2f}) {walk:4.0f} "
+                        f"{tl:4.0f}")
+            print(f"  {span:5.1f} s to {end:6.1f} | {fit:+6.0f} ± {sig:5.0f} | {truth:+6.0f} | {tilt:5.0f} | "
+                  f"{true_tilt:5.0f}{more}")
     return 0
 
 

@@ -98,6 +98,11 @@ class MagRotationBias:
     max_att_sigma_rad: float = math.radians(5.0)
     scale_sigma: float = 0.003          # gyro scale-factor uncertainty, dimensionless
     span_s: float = 0.0                 # the last fitted window's length, s
+    # the last fitted window's variance, term by term ((rad/s)²): the scatter about the line (inflated for its
+    # correlation), the gyro scale, the soft iron, the start attitude, the gyro's white noise and the tilt's change;
+    # then the residuals' check-to-check correlation r₁ and the attitude 1σ taken (rad) (for a reader:
+    # bench/yaw_drift_trace.py --terms)
+    terms: tuple = ()
     t0_s: float = math.nan
     m0_ut: np.ndarray = field(default_factory=lambda: np.zeros(3))
     v0_ut: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -203,19 +208,25 @@ class MagRotationBias:
         # (1 + r₁)/(1 − r₁) for residuals correlated r₁ from one check to the next (AR(1))
         r1 = min(max(float(res[1:] @ res[:-1]) / max(float(res @ res), 1e-30), 0.0), 0.95)
         var *= (1.0 + r1) / (1.0 - r1)
+        scatter = var
         # a gyro scale and a soft iron known to δ, and the start attitude, through the window's motion
         turn_slope = float(tc @ (turn - turn.mean())) / stt
         soft_slopes = tc @ (soft - soft.mean(axis=0)) / stt
         att_slopes = tc @ (att - att.mean(axis=0)) / stt
-        var += (self.scale_sigma * turn_slope) ** 2 + soft_sigma ** 2 * float(soft_slopes @ soft_slopes) \
-            + self.att_sigma_rad ** 2 * float(att_slopes @ att_slopes)
+        scale = (self.scale_sigma * turn_slope) ** 2
+        soft_iron = soft_sigma ** 2 * float(soft_slopes @ soft_slopes)
+        attitude = self.att_sigma_rad ** 2 * float(att_slopes @ att_slopes)
+        var += scale + soft_iron + attitude
         # the gyro's white noise makes the heading a random walk, which the scatter does not show: the
         # least-squares slope of a random walk of density q over T has variance 6 q² / (5 T)
-        var += 1.2 * self.gyro_noise_rad_s_rthz ** 2 / t[-1]
+        walk = 1.2 * self.gyro_noise_rad_s_rthz ** 2 / t[-1]
+        var += walk
         # the filter's tilt, which gives v its dip, may have moved by up to √2 σ between the window's ends (σ: the
         # part of its error that can move, window_tilt_sigma_rad): at the dip's tangent (vertical over horizontal
         # field) it turns the magnetometer's heading
         b = self.b_ned_ut
         tan_dip = abs(float(b[2])) / max(math.hypot(float(b[0]), float(b[1])), 1e-6)
-        var += (math.sqrt(2.0) * tan_dip * self.tilt_sigma_rad / t[-1]) ** 2
+        tilt = (math.sqrt(2.0) * tan_dip * self.tilt_sigma_rad / t[-1]) ** 2
+        var += tilt
+        self.terms = (scatter, scale, soft_iron, attitude, walk, tilt, r1, self.att_sigma_rad)
         return slope, var

@@ -29,11 +29,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
 from ahrsd.core.sample import ImuSample
 
 from . import mekf_core as core
 from .accel_axes_tilt import ACCEL_MISALIGNMENT_SIGMA_RAD
+from .accel_bias_prior import ACCEL_BIAS_SIGMA_UNCALIBRATED_M_S2
 from ahrsd.core.estimate import AttitudeEstimate, EstimateFlags, HeadingState
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
                             float_field_slice, uninitialised_estimate)
@@ -178,7 +178,7 @@ class MekfParams(MagHeadingParams):
     (calibration_heading.py): 0 = the input is calibrated (the library default); NaN = no calibration or its
     quality unknown, the heading is then UNKNOWN. The daemon passes its calibration's figure
     (`set_mag_calibration_sigma`)."""
-    accel_bias_sigma_m_s2: float = 5e-3 * STANDARD_GRAVITY_M_S2
+    accel_bias_sigma_m_s2: float = ACCEL_BIAS_SIGMA_UNCALIBRATED_M_S2
     """The accelerometer bias the input still carries, 1σ per axis, m/s²: the published roll/pitch 1σ add
     its tilt b/g and the yaw 1σ tan(dip)·b/g (no state estimates it: at rest the levelling takes f/|f| as the
     vertical). The default is the ADIS16405's residual turn-on bias after its factory calibration, 5 mg (the

@@ -30,12 +30,20 @@ def test_the_daemon_process_imports_no_scipy_spatial_for_the_scenario_names():
 def test_the_ahrsd_script_module_imports_neither_numpy_nor_the_estimator():
     """multiprocessing's spawn imports the parent's main module again in each child it starts (the daemon's
     sensor reader, the field fit's worker): for the `ahrsd` script that is ahrsd.cli.main, which must then not
-    load numpy or digest the kernels' sources (ahrsd.estimator) for the --estimator choices."""
+    load numpy or digest the kernels' sources (ahrsd.estimator) for the --estimator choices.
+
+    In the same process, then, what the fit's worker imports next (daemon/magcal.py's `_warm_up`, the job's
+    modules): no numba, so no estimator's kernels (the levelling error's one estimator default comes from
+    estimator/accel_bias_prior.py, not estimator/mekf.py)."""
     probe = ("import sys\nimport ahrsd.cli.main\n"
-             "print(sorted(m for m in sys.modules if m == 'numpy' or m.startswith('ahrsd.estimator')))")
+             "print(sorted(m for m in sys.modules if m == 'numpy' or m.startswith('ahrsd.estimator')))\n"
+             "import ahrsd.daemon.magcal\nahrsd.daemon.magcal._warm_up()\n"
+             "print(sorted(m for m in sys.modules if m == 'numba' or m.startswith('numba.')))")
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == "[]", out.stdout
+    script, worker = out.stdout.splitlines()
+    assert script == "[]", out.stdout
+    assert worker == "[]", out.stdout
 
 
 def test_a_command_runs_with_numbas_cache_at_the_source_keyed_directory():

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from ahrsd.cli.main import main
-from support.aided_replay_truth import aided_replay_heading
+from support.aided_replay_truth import aided_heading_in_process
 
 pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
 
@@ -24,7 +24,7 @@ def test_a_heading_rejected_after_the_alignment_is_published_with_the_gnss_yaws_
     rec = tmp_path / "boat.csv"
     assert main(["record", "--sim", "boat", "--seconds", str(SECONDS), "--seed", str(SEED), "-o", str(rec),
                  "--quiet"]) == 0, capsys.readouterr().err
-    h = aided_replay_heading(rec, tmp_path / "out.csv")
+    h, _, _ = aided_heading_in_process(rec)     # `ahrsd replay --gnss`'s estimator, read at every 4th sample
     t, yaw_err, sigma = h.t_s, h.yaw_error_deg, h.sigma_yaw_deg
     after = t >= REJECTED_AT_S
     # the case this guards: the yaw variance widened by the rejection (above the 15° UNKNOWN line) at 75 s, after

@@ -25,11 +25,12 @@ def _attitude(t):
     return Rotation.from_euler("ZYX", [yaw, pitch, roll], degrees=True).as_matrix()
 
 
-def _window(bias_rad_s, seed=1, heading_offset_deg=2.0):
+def _window(bias_rad_s, seed=1, heading_offset_deg=2.0, est=None):
     """Checks at 5 Hz for 30 s; the gyro's rotation between checks is the true one turned further about body z by
-    the bias (estimate 0); the filter's attitude has the true tilt and a heading `heading_offset_deg` off."""
+    the bias (estimate 0); the filter's attitude has the true tilt and a heading `heading_offset_deg` off. `est`: the
+    window to feed (a fresh one without gyro noise by default)."""
     rng = np.random.default_rng(seed)
-    est = MagRotationBias(gyro_noise_rad_s_rthz=0.0)
+    est = MagRotationBias(gyro_noise_rad_s_rthz=0.0) if est is None else est
     off = Rotation.from_euler("z", heading_offset_deg, degrees=True).as_matrix()
     out = None
     t_prev = None
@@ -61,6 +62,23 @@ def test_the_window_sees_the_bias_through_an_iron_it_was_not_told_of():
 def test_no_bias_is_seen_where_there_is_none():
     got, var = _window(0.0, seed=2)
     assert abs(got) < 3.0 * math.sqrt(var)
+
+
+def test_a_windows_terms_are_its_variance_term_by_term():
+    # MagRotationBias.terms (what bench/yaw_drift_trace.py --terms prints): they add up to the variance the fit
+    # returned, the gyro-noise and tilt terms are the random walk's 6 q² / (5 T) and (√2·tan|dip|·σ_tilt / T)² worked
+    # out here from the window's own inputs, and the attitude σ taken is the largest the window was given (1°)
+    q = 0.0015      # rad/s/√Hz: the gyro-noise term is then the window's largest but one
+    est = MagRotationBias(gyro_noise_rad_s_rthz=q)
+    _, var = _window(150.0 * DEG_H, est=est)
+    scatter, scale, soft, attitude, walk, tilt, r1, att_sigma = est.terms
+    assert math.isclose(scatter + scale + soft + attitude + walk + tilt, var, rel_tol=1e-12)
+    assert min(scatter, scale, soft, attitude, walk, tilt) >= 0.0 and 0.0 <= r1 <= 0.95
+    span = est.span_s
+    tan_dip = abs(B_NED_UT[2]) / math.hypot(B_NED_UT[0], B_NED_UT[1])
+    assert math.isclose(walk, 6.0 * q * q / (5.0 * span), rel_tol=1e-12)
+    assert math.isclose(tilt, (math.sqrt(2.0) * tan_dip * math.radians(0.2) / span) ** 2, rel_tol=1e-12)
+    assert att_sigma == math.radians(1.0) and attitude > 0.0 and scatter > 0.0
 
 
 def test_the_rotation_vector_carries_the_coning_term():
@@ -195,6 +213,6 @@ def test_the_window_start_cross_product_is_numpys_to_the_bit():
     rng = np.random.default_rng(28)
     vectors = [np.eye(3)[i] for i in range(3)] + [np.array([0.0, -0.0, 1.0]), np.array([-0.0, 0.0, -0.0])]
     vectors += [rng.normal(size=3) * 10.0 ** rng.uniform(-6, 6) for _ in range(400)]
-    for a in vectors[:40]:
+    for a in vectors[:36]:
         for b in vectors:
             assert _cross(a, b).tobytes() == np.cross(a, b).tobytes(), (a, b)
