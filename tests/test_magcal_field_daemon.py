@@ -5,21 +5,17 @@ which the "autopilot" sends GPS_RAW_INT course made from the simulation truth. T
 same path (no branch of the session below its 60° tumble threshold): ±10° is in-process in
 tests/test_field_session_vehicles.py, which runs the same session and offline fit at ±2°, ±10° and ±30°.
 
-The daemon runs on a thread of this process (InProcessDaemon) and reads the recording through its ReplaySource,
+The daemon runs on a thread of this process (tests/support/thread_daemon.py) and reads the recording through its ReplaySource,
 paced by a clock running TIME_SCALE times faster than real time; everything after the source (calibration,
 estimator, MAVLink, the mag-cal protocol, its fit worker process, the store) is the daemon's own code.
 """
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import io
 import json
-import logging
 import math
-import multiprocessing
-import threading
 import time
 from pathlib import Path
 
@@ -41,14 +37,15 @@ from support.field_vehicle import (SITE_FIELD, course_fixes, heading_rms_deg, in
                           vehicle)
 from service_rig import free_udp_port  # noqa: E402
 from support.magcal_client import Client  # noqa: E402
+from support.thread_daemon import ThreadDaemon  # noqa: E402
 
 pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
 
 RECORDING_S = 300.0
 GATE_STALL_S = 10.0        # wall seconds the replay waits for the daemon to take a fix before it moves on
 
-# The daemon's set-up, run on a thread of this process (InProcessDaemon) with `a`, start_daemon's arguments, in its
-# namespace; the thread then runs `service`
+# The daemon's set-up, run on a thread of this process (support/thread_daemon.py) with `a`, start_daemon's
+# arguments, in its namespace; the thread then runs `service`
 LAUNCH = r"""
 import asyncio, dataclasses, json, logging, os, sys, time
 from support.field_vehicle import RATE_HZ, record, vehicle
@@ -130,48 +127,6 @@ service = Service(cfg, source=replay)
 """
 
 
-class InProcessDaemon:
-    """LAUNCH's daemon (`Service.run`, which skips its signal handlers off the main thread) on a thread of this
-    process: no interpreter, imports and kernel loads of a daemon process of its own (what these tests check is
-    the session over MAVLink, not the process; a daemon process: tests/test_magcal_integration.py). Its log (the
-    `ahrsd` loggers at INFO, as the daemon's own) goes to `log_path` while it runs. `stop` stops it as SIGTERM
-    would, waits for it, and reaps the fit worker it spawned (so that its CPU is counted with the test's)."""
-
-    def __init__(self, args: dict, log_path: Path):
-        self.handler = logging.FileHandler(log_path)
-        self.handler.setFormatter(logging.Formatter("%(asctime)s %(name)s: %(message)s"))
-        self.logger = logging.getLogger("ahrsd")
-        self.level = self.logger.level
-        self.logger.setLevel(logging.INFO)
-        self.logger.addHandler(self.handler)
-        self.namespace = {"a": args, "__name__": "field_daemon"}
-        self.failure: BaseException | None = None
-        self.thread = threading.Thread(target=self._run, name="field-daemon", daemon=True)
-        self.thread.start()
-
-    def _run(self) -> None:
-        try:
-            exec(compile(LAUNCH, "field_daemon", "exec"), self.namespace)
-            asyncio.run(self.namespace["service"].run())
-        except BaseException as exc:  # noqa: BLE001 - said by stop, in the test's thread
-            self.failure = exc
-
-    def stop(self, timeout_s: float = 60.0) -> None:
-        try:
-            service = self.namespace.get("service")
-            if service is not None and service.loop is not None and self.thread.is_alive():
-                service.loop.call_soon_threadsafe(service.request_stop, 0)
-            self.thread.join(timeout_s)
-            for child in multiprocessing.active_children():     # the fit worker, shut down by the stop
-                child.join(timeout_s)
-        finally:
-            self.logger.removeHandler(self.handler)
-            self.logger.setLevel(self.level)
-            self.handler.close()
-        assert not self.thread.is_alive(), "the daemon did not stop"
-        assert self.failure is None, repr(self.failure)
-
-
 def start_daemon(tmp_path: Path, port: int, tilt_deg: float, straight_runs: bool, time_scale: float,
                  magcal: dict | None = None, highres_imu_hz: float = 50.0, autopilot: dict | None = None):
     """The daemon replaying the vehicle TIME_SCALE times faster than real time, its MAVLink to `port`; with
@@ -181,7 +136,7 @@ def start_daemon(tmp_path: Path, port: int, tilt_deg: float, straight_runs: bool
             "straight_runs": straight_runs, "seconds": RECORDING_S, "time_scale": time_scale,
             "magcal": magcal or {}, "highres_imu_hz": highres_imu_hz, "tests_dir": str(Path(__file__).parent),
             "autopilot": autopilot, "gate_stall_s": GATE_STALL_S}
-    return InProcessDaemon(args, tmp_path / "daemon.log")
+    return ThreadDaemon(LAUNCH, args, tmp_path / "daemon.log")
 
 
 def run_session(client: Client, on_imu=None, timeout_s: float = 120.0):
