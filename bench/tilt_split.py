@@ -91,6 +91,27 @@ def unobserved_rotation_deg(errors, params) -> tuple[float, float]:
     return out[0], out[1]
 
 
+def _population(n: int) -> int:
+    from ahrsd.estimator.ins import InsParams
+    from ahrsd.simulation import SensorErrors
+
+    p = InsParams()
+    sensors = [SensorErrors.adis16405(seed) for seed in range(1, n + 1)]
+    print(f"simulated ADIS16405 seeds 1–{n}: RMS of the pitch / roll error the priors choose along the unobserved "
+          f"rotation (ins's accelerometer bias prior {p.init_accel_bias_sigma_m_s2} m/s², lean prior "
+          f"{math.degrees(p.accel_axes_tilt_sigma_rad):.2f}°; its gyro prior "
+          f"{math.degrees(p.init_gyro_misalignment_sigma_rad):.2f}°)")
+    for gyro_deg in np.arange(0.04, 0.41, 0.02):
+        cells = []
+        for lean_rad in (p.accel_axes_tilt_sigma_rad, 0.0):
+            priors = {"init_accel_bias_sigma_m_s2": p.init_accel_bias_sigma_m_s2, "accel_axes_tilt_sigma_rad": lean_rad,
+                      "init_gyro_misalignment_sigma_rad": math.radians(gyro_deg)}
+            e = np.array([unobserved_rotation_deg(s, priors) for s in sensors])
+            cells.append("%.4f / %.4f°" % tuple(np.sqrt(np.mean(e ** 2, axis=0))))
+        print(f"  gyro prior {gyro_deg:.2f}°  with the lean {cells[0]}  without {cells[1]}")
+    return 0
+
+
 def one_run(job) -> tuple:
     from scipy.spatial.transform import Rotation
 
@@ -187,10 +208,17 @@ def main(argv=None) -> int:
     ap.add_argument("--rows", nargs="+", default=list(ROWS), choices=ROWS)
     ap.add_argument("--seconds", type=float, default=600.0)
     ap.add_argument("--processes", type=int, default=1)
+    ap.add_argument("--population", type=int, default=0, metavar="N",
+                    help="instead of runs: over the simulated sensors of seeds 1..N, the RMS of the pitch / roll the "
+                         "priors choose for the unobserved rotation, for gyro misalignment priors 0.04–0.40°, with "
+                         "the accelerometer's lean in the set (a car, a plane) and without it (no forward "
+                         "acceleration: a boat)")
     ap.add_argument("--trace", action="store_true",
                     help="also print, per window of the run, the mean pitch error and the filter's errors in the "
                          "forward bias (as a pitch), the accelerometer's m_zx and the x gyro's m_xz")
     args = ap.parse_args(argv)
+    if args.population:
+        return _population(args.population)
     # the simulated sensors' and estimators' warnings would bury the table; here, in main, not in one_run:
     # the pool's workers inherit it, and a test that calls one_run keeps its logging
     logging.disable(logging.WARNING)

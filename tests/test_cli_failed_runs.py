@@ -16,8 +16,39 @@ ROW = "{t:.6f},0.001,-0.002,0.0005,0.05,-0.03,-9.80665,20.0,1.5,45.0\n"
 
 
 def ahrsd(*args, timeout=180):
+    """`python -m ahrsd.cli ARGS` as a process: its exit code and the lines it printed. The process boundary is
+    test_run_replay_of_a_missing_file_fails_at_once_in_one_line's; the others run `ahrsd_inproc`."""
     return subprocess.run([sys.executable, "-m", "ahrsd.cli", *map(str, args)], capture_output=True, text=True,
                           timeout=timeout)
+
+
+@pytest.fixture
+def ahrsd_inproc(capsys):
+    """`ahrsd ARGS` by its main in this process (no interpreter start and imports per call): the exit code, and as
+    its stderr what the process would print there, in order — what main wrote to stderr and every log record that
+    reached the root logger (in the process `logging.basicConfig`'s handler prints them; here a handler on the
+    captured stderr for the call; `ahrsd run` lets the daemon's INFO through, and so here, restored after)."""
+    import logging
+
+    def run(*args):
+        argv = [str(a) for a in args]
+        ours, root = logging.getLogger("ahrsd"), logging.getLogger()
+        level = ours.level
+        capsys.readouterr()
+        printed = logging.StreamHandler(sys.stderr)        # pytest's capture of stderr, as main's prints
+        printed.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+        root.addHandler(printed)
+        try:
+            rc = cli.main(argv)
+        except SystemExit as exc:      # argparse's usage errors
+            rc = exc.code
+        finally:
+            root.removeHandler(printed)
+            ours.setLevel(level)
+        out, err = capsys.readouterr()
+        return subprocess.CompletedProcess(["ahrsd", *argv], rc, out, err)
+
+    return run
 
 
 def write_rows(path, n, rate_hz=819.2, tail=""):
@@ -39,32 +70,32 @@ def test_run_replay_of_a_missing_file_fails_at_once_in_one_line(tmp_path):
                                              "No such file or directory"]
 
 
-def test_run_replay_of_a_bad_header_fails_in_one_line(tmp_path):
+def test_run_replay_of_a_bad_header_fails_in_one_line(tmp_path, ahrsd_inproc):
     bad = tmp_path / "bad.csv"
     bad.write_text("time,gx\n1,2\n")
-    r = ahrsd("run", "--replay", bad, "--no-log", "--status-line", "off", "--state-dir", tmp_path / "s")
+    r = ahrsd_inproc("run", "--replay", bad, "--no-log", "--status-line", "off", "--state-dir", tmp_path / "s")
     assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1
     assert "ahrsd run: error: cannot replay" in r.stderr and "'t_s'" in r.stderr
 
 
-def test_run_replay_of_a_missing_or_bad_gnss_recording_fails_at_once_in_one_line(tmp_path):
+def test_run_replay_of_a_missing_or_bad_gnss_recording_fails_at_once_in_one_line(tmp_path, ahrsd_inproc):
     """The GNSS recording beside the IMU one is checked as the IMU one is: before the state directory is used and
     the ins compiles, one line, exit 1 (walk27: it failed after the compile and the start-up logs, as an ERROR log
     line "ahrsd cannot start: missing.gnss.csv: cannot read: [Errno 2] No such file or directory: …")."""
     rec = write_rows(tmp_path / "rec.csv", 100)
     common = ("--no-log", "--status-line", "off", "--state-dir", tmp_path / "s", "--mavlink", "udpout:127.0.0.1:9")
-    r = ahrsd("run", "--replay", rec, "--gnss-replay", tmp_path / "missing.gnss.csv", *common)
+    r = ahrsd_inproc("run", "--replay", rec, "--gnss-replay", tmp_path / "missing.gnss.csv", *common)
     assert r.returncode == 1
     assert r.stderr.strip().splitlines() == [f"ahrsd run: error: cannot replay the GNSS recording "
                                              f"{tmp_path / 'missing.gnss.csv'}: cannot read: No such file or directory"]
     bad = tmp_path / "bad.gnss.csv"
     bad.write_text("time,lat\n1,2\n")
-    r = ahrsd("run", "--replay", rec, "--gnss-replay", bad, *common)
+    r = ahrsd_inproc("run", "--replay", rec, "--gnss-replay", bad, *common)
     assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert r.stderr.startswith("ahrsd run: error: cannot replay the GNSS recording") and "'time'" in r.stderr
 
 
-def test_run_with_a_signing_key_it_cannot_read_fails_at_once_in_one_line(tmp_path):
+def test_run_with_a_signing_key_it_cannot_read_fails_at_once_in_one_line(tmp_path, ahrsd_inproc):
     """[signing] key_file missing or malformed: one line, exit 1, before the compile (walk27: it failed after the
     compile and the start-up logs, as an ERROR log line "ahrsd cannot start: signing.key_file …"; on a Raspberry
     Pi a first compile takes minutes)."""
@@ -75,14 +106,14 @@ def test_run_with_a_signing_key_it_cannot_read_fails_at_once_in_one_line(tmp_pat
             key.write_text("abcd\n")
         cfg = tmp_path / f"{key.stem}.toml"
         cfg.write_text(f'[signing]\nkey_file = "{key}"\n')
-        r = ahrsd("run", "--config", cfg, "--replay", rec, "--no-log", "--status-line", "off",
+        r = ahrsd_inproc("run", "--config", cfg, "--replay", rec, "--no-log", "--status-line", "off",
                   "--state-dir", tmp_path / "s", "--mavlink", "udpout:127.0.0.1:9")
         assert r.returncode == 1
         lines = r.stderr.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith(f"ahrsd run: error: signing.key_file {key}: {why}"), r.stderr
 
 
-def test_run_with_a_mavlink_server_address_it_cannot_have_fails_at_once_in_one_line(tmp_path):
+def test_run_with_a_mavlink_server_address_it_cannot_have_fails_at_once_in_one_line(tmp_path, ahrsd_inproc):
     """`--mavlink udpin:` on an address that is not this machine's, and `tcpin:` (or `--nmea tcpserver:`) on a
     port another socket listens on: one line naming the endpoint and the reason, exit 1, before the compile
     (walk27: exit 1, but as an ERROR log line after the compile and the start-up lines, "[Errno 99]" first)."""
@@ -96,12 +127,12 @@ def test_run_with_a_mavlink_server_address_it_cannot_have_fails_at_once_in_one_l
     try:
         for url, why in (("udpin:192.0.2.1:14550", "Cannot assign requested address"),   # TEST-NET-1
                          (f"tcpin:127.0.0.1:{port}", "Address already in use")):
-            r = ahrsd("run", "--replay", rec, "--no-log", "--status-line", "off", "--state-dir", tmp_path / "s",
+            r = ahrsd_inproc("run", "--replay", rec, "--no-log", "--status-line", "off", "--state-dir", tmp_path / "s",
                       "--mavlink", "udpout:127.0.0.1:9", "--mavlink", url)
             assert r.returncode == 1
             assert r.stderr.strip().splitlines() == [f"ahrsd run: error: MAVLink endpoint {url}: {why}"], r.stderr
         # an NMEA TCP server output on the taken port: the same, naming the output (was: after the compile)
-        r = ahrsd("run", "--replay", rec, "--no-log", "--status-line", "off", "--state-dir", tmp_path / "s",
+        r = ahrsd_inproc("run", "--replay", rec, "--no-log", "--status-line", "off", "--state-dir", tmp_path / "s",
                   "--mavlink", "udpout:127.0.0.1:9", "--nmea", f"tcpserver:127.0.0.1:{port}")
         assert r.returncode == 1
         assert r.stderr.strip().splitlines() == [f"ahrsd run: error: NMEA output tcpserver:127.0.0.1:{port}: cannot "
@@ -126,15 +157,15 @@ def test_the_daemons_own_endpoint_error_names_the_endpoint_without_the_errno_fir
     assert str(err.value) == "MAVLink endpoint udpin:192.0.2.1:14550: Cannot assign requested address"
 
 
-def test_run_replay_that_meets_a_bad_row_exits_non_zero_and_a_cut_one_replays_to_the_end(tmp_path, cut_file):
+def test_run_replay_that_meets_a_bad_row_exits_non_zero_and_a_cut_one_replays_to_the_end(tmp_path, cut_file, ahrsd_inproc):
     bad = write_rows(tmp_path / "bad_row.csv", 1000, tail="0.3,1,2\n" + ROW.format(t=0.31))
     common = ("--no-log", "--status-line", "off", "--state-dir", tmp_path / "s", "--mavlink", "udpout:127.0.0.1:9",
               "--replay-speed", "50")
-    r = ahrsd("run", "--replay", bad, *common)
+    r = ahrsd_inproc("run", "--replay", bad, *common)
     assert r.returncode == 1, r.stderr
     last = r.stderr.strip().splitlines()[-1]
     assert last.startswith("ahrsd run: error: the replay stopped early:") and "line 1002" in last
-    r = ahrsd("run", "--replay", cut_file, *common)
+    r = ahrsd_inproc("run", "--replay", cut_file, *common)
     assert r.returncode == 0, r.stderr
     assert "line 1002 is incomplete" in r.stderr and "using the 1000 complete rows" in r.stderr
     assert "replay finished" in r.stderr

@@ -1,13 +1,13 @@
-"""`ahrsd run` with GNSS, as a subprocess: the simulated UBX receiver on a pseudo-terminal read through the
-serial source (the hardware path), and a replay of an IMU + GNSS recording whose outgoing time fields are the
-recording's t_s. Also `ahrsd record` writing REC.gnss.csv, and the replay pace."""
+"""`ahrsd run` with GNSS: as a subprocess, the simulated UBX receiver on a pseudo-terminal read through the serial
+source (the hardware path); by its main in this process, replays of an IMU + GNSS recording whose outgoing time
+fields are the recording's t_s, and the aided boat against its truth. Also `ahrsd record` writing REC.gnss.csv, and
+the replay pace."""
 
 from __future__ import annotations
 
 import json
 import os
 import subprocess
-import sys
 import time
 
 import numpy as np
@@ -83,28 +83,55 @@ def save_field_calibration(state_dir) -> None:
     save_mag_calibration(state_dir, sim_chip_mag_model("boat"))
 
 
-def replay_messages(d) -> dict:
-    """Every message of a replaying daemon, which must end by itself with status 0."""
+def replay_inproc(tmp_path, *args: str) -> dict:
+    """`ahrsd run ARGS` of a replay (which ends by itself, status 0) by its main in this process (no interpreter,
+    imports and kernel loads of a daemon process: what these tests check is the daemon's output, not its process),
+    its MAVLink sent to a UDP socket that a thread drains meanwhile; then every message of our component by type,
+    in arrival order."""
+    import logging
+    import socket
+    import threading
+
+    from ahrsd.cli.main import main
+    from support.ahrsd_process import OUR_COMP
+    from support.udp_drops import widen_receive_buffer
+
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    widen_receive_buffer(sock)
+    sock.settimeout(0.1)
+    datagrams: list[bytes] = []
+    replayed = threading.Event()
+
+    def drain():       # only the datagrams here: parsed after the run, so the daemon keeps the interpreter
+        while True:
+            try:
+                datagrams.append(sock.recv(65535))
+            except socket.timeout:
+                if replayed.is_set():
+                    return
+
+    ours = logging.getLogger("ahrsd")
+    level = ours.level                                  # `ahrsd run` lets the daemon's INFO through: restored
+    reader = threading.Thread(target=drain, daemon=True)
+    reader.start()
     try:
-        got = collect_until_exit(d)
+        rc = main(["run", *args, "--mavlink", f"udpout:127.0.0.1:{sock.getsockname()[1]}", "--state-dir",
+                   str(tmp_path / "state"), "--status-line", "off"])
     finally:
-        d.stop()
-    assert d.proc.returncode == 0, d.output()
-    return got
-
-
-def collect_until_exit(d, timeout_s=120.0) -> dict:
-    """Every message of the daemon until it exits (a replay ends by itself), in arrival order per type."""
+        replayed.set()
+        reader.join(30)
+        sock.close()
+        ours.setLevel(level)
+    assert rc == 0
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
     got: dict = {}
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        for k, v in d.collect(1.0).items():
-            got.setdefault(k, []).extend(v)
-        if d.proc.poll() is not None:
-            for k, v in d.collect(0.5).items():
-                got.setdefault(k, []).extend(v)
-            return got
-    raise AssertionError(f"the replay did not end within {timeout_s} s:\n{d.output()}")
+    for data in datagrams:
+        for m in parser.parse_buffer(data) or ():
+            if m.get_type() != "BAD_DATA" and m.get_srcComponent() == OUR_COMP:
+                got.setdefault(m.get_type(), []).append((None, m))
+    return got
 
 
 def test_record_writes_the_gnss_recording_beside_the_imu_recording(boat):
@@ -137,10 +164,8 @@ def test_replay_carries_the_recording_time_and_replays_gnss_in_step(boat, tmp_pa
     stats = tmp_path / "stats.json"
     gnss = shifted.with_name("shifted.gnss.csv")
     save_field_calibration(tmp_path / "state")     # mekf: a heading from the start (ins: unknown for 12 s)
-    d = Daemon(tmp_path, "--gnss-replay", str(gnss), "--replay-speed", "4", "--stats-file", str(stats),
-               "--estimator", "mekf",
-               source=("--replay", str(shifted)))
-    got = replay_messages(d)
+    got = replay_inproc(tmp_path, "--replay", str(shifted), "--gnss-replay", str(gnss), "--replay-speed", "4",
+                        "--stats-file", str(stats), "--estimator", "mekf")
     t_s = read_recording(shifted).t_s
     ms = {int(t * 1000.0) for t in t_s}
     us = {int(t * 1e6) for t in t_s}
@@ -211,9 +236,8 @@ def test_end_to_end_boat_replay_is_aided(tmp_path):
     CalibrationStore(tmp_path / "state").save(dataclasses.replace(
         Calibration.identity(), mag=MagModel(np.array(e.hard_iron_ut), np.linalg.inv(e.soft_iron)),
         metadata={"mag": {"heading_std_deg": 0.3, "offset_std_deg": 0.2}}))
-    d = Daemon(tmp_path, "--gnss-replay", str(rec.with_name("boat.gnss.csv")), "--replay-speed", "5",
-               source=("--replay", str(rec)))
-    got = replay_messages(d)
+    got = replay_inproc(tmp_path, "--replay", str(rec), "--gnss-replay", str(rec.with_name("boat.gnss.csv")),
+                        "--replay-speed", "5")
     r = read_recording(rec)
     truth = Rotation.from_quat(np.column_stack([r.extra[c] for c in ("truth_qx", "truth_qy", "truth_qz",
                                                                       "truth_qw")]))
@@ -261,10 +285,12 @@ def test_replay_source_speed():
         ReplaySource(iter(()), "bad", speed=0.0)
 
 
-def test_run_flags_are_refused_with_their_reason(tmp_path):
-    res = subprocess.run([sys.executable, "-m", "ahrsd.cli", "run", "--sim", "static", "--gnss-replay", "x.csv",
-                          "--check-config"], capture_output=True, text=True, timeout=60)
-    assert res.returncode == 2 and "gnss.source" in res.stderr and "--replay" in res.stderr
+def test_run_flags_are_refused_with_their_reason(tmp_path, capsys):
+    from ahrsd.cli.main import main
+
+    code = main(["run", "--sim", "static", "--gnss-replay", "x.csv", "--check-config"])   # in this process
+    err = capsys.readouterr().err
+    assert code == 2 and "gnss.source" in err and "--replay" in err
 
 
 def test_record_with_a_receiver_on_a_serial_port(tmp_path):

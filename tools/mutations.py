@@ -907,4 +907,10 @@ MUTATIONS: tuple[Mutation, ...] = (
              "daemon/signing.py", "if not hmac.compare_digest(digest[:SIGNATURE_LEN], bytes(msgbuf[-SIGNATURE_LEN:])):",
              "if False and not hmac.compare_digest(digest[:SIGNATURE_LEN], bytes(msgbuf[-SIGNATURE_LEN:])):",
              ("tests/test_reliability_security.py", "tests/test_fuzz_mavlink.py")),
+    Mutation("signing-key-checked-before-compile", "run refuses a signing key it cannot use at once, in one line",
+             "cli/run.py", "        load_key(cfg.signing.key_file)", "        pass",
+             ("tests/test_cli_failed_runs.py",)),
+    Mutation("gnss-replay-checked-before-compile", "run refuses a GNSS recording it cannot replay at once, in one line",
+             "cli/run.py", "    if cfg.gnss.source != \"replay\":", "    if True:",
+             ("tests/test_cli_failed_runs.py",)),
 )
