@@ -36,7 +36,7 @@ from support.field_vehicle import RATE_HZ as FIELD_RATE_HZ  # noqa: E402
 from support.field_vehicle import (SITE_FIELD, course_fixes, heading_rms_deg, injected_iron, record, truth_euler,  # noqa: E402
                           vehicle)
 from service_rig import free_udp_port  # noqa: E402
-from support.magcal_client import Client  # noqa: E402
+from support.magcal_client import REPLY_LIMIT_S, STARTING_LIMIT_S, Client  # noqa: E402
 from support.thread_daemon import ThreadDaemon  # noqa: E402
 
 pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
@@ -142,7 +142,7 @@ def start_daemon(tmp_path: Path, port: int, tilt_deg: float, straight_runs: bool
 def run_session(client: Client, on_imu=None, timeout_s: float = 120.0):
     """Start, wait for the report (calling on_imu(msg) for every HIGHRES_IMU meanwhile), accept; returns the
     report and the STATUSTEXT lines."""
-    assert client.wait(lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 200, 30) is not None
+    assert client.wait(lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 200, STARTING_LIMIT_S) is not None
     n = len(client.msgs)
     assert client.command(42424).result == mavlink.MAV_RESULT_ACCEPTED
     end = time.monotonic() + timeout_s
@@ -160,7 +160,7 @@ def run_session(client: Client, on_imu=None, timeout_s: float = 120.0):
         # the session says its accuracy in the tick that ends it; the text may come after the report (the
         # STATUSTEXT queue is paced), later still on a busy machine: wait for it rather than read too early
         client.wait(lambda m: _said_accuracy([m]), ACCURACY_TEXT_WAIT_S)
-    assert client.command(42425).result == mavlink.MAV_RESULT_ACCEPTED
+    assert client.command(42425, timeout=2 * REPLY_LIMIT_S, resend_every_s=REPLY_LIMIT_S / 3).result == mavlink.MAV_RESULT_ACCEPTED
     return report, [m.text for m in client.of("STATUSTEXT", n)]
 
 

@@ -35,7 +35,7 @@ from ahrsd.calibration.ardupilot_compass import from_ardupilot  # noqa: E402
 from ahrsd.core.angles import tilt_compensated_heading_rad  # noqa: E402
 from ahrsd.calibration.models import Calibration  # noqa: E402
 from service_rig import free_udp_port  # noqa: E402
-from support.magcal_client import REPLY_LIMIT_S, Client  # noqa: E402
+from support.magcal_client import REPLY_LIMIT_S, STARTING_LIMIT_S, Client  # noqa: E402
 from support.thread_daemon import ThreadDaemon  # noqa: E402
 from ahrsd.calibration.store import CalibrationStore  # noqa: E402
 from ahrsd.daemon.commands import DUPLICATE_WINDOW_S  # noqa: E402
@@ -127,7 +127,6 @@ class Daemon:
 
 STARTED_LINE = "ahrsd started"    # daemon.service logs it when the loop is about to run
 HEARTBEAT_AFTER_START_S = 20.0     # the first HEARTBEAT is due 1 s into the loop; 20 s is for a loaded machine
-STARTING_LIMIT_S = 240.0           # before the start line: imports and, on a cold cache, the estimator's compile
 
 
 def first_heartbeat(c: Client, daemon: Daemon):
@@ -258,7 +257,7 @@ def test_full_session_with_pymavlink(daemon_env):
 
     # accept: saved atomically, applied without restart
     n_accept = len(c.msgs)
-    assert c.command(42425).result == mavlink.MAV_RESULT_ACCEPTED
+    assert c.command(42425, timeout=2 * REPLY_LIMIT_S, resend_every_s=REPLY_LIMIT_S / 3).result == mavlink.MAV_RESULT_ACCEPTED
     assert c.seen_or_wait(lambda m: m.get_type() == "STATUSTEXT" and "saved" in m.text, REPLY_LIMIT_S,
                           n_accept) is not None
     saved = CalibrationStore(state).load()
