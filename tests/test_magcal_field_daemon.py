@@ -5,9 +5,9 @@ which the "autopilot" sends GPS_RAW_INT course made from the simulation truth. T
 same path (no branch of the session below its 60° tumble threshold): ±10° is in-process in
 tests/test_field_session_vehicles.py, which runs the same session and offline fit at ±2°, ±10° and ±30°.
 
-The daemon runs in a subprocess and reads the recording through its ReplaySource, paced by a clock running
-TIME_SCALE times faster than real time; everything after the source (calibration, estimator, MAVLink, the
-mag-cal protocol, the store) is the daemon's own code.
+The daemon runs on a thread of this process (tests/support/thread_daemon.py) and reads the recording through its ReplaySource,
+paced by a clock running TIME_SCALE times faster than real time; everything after the source (calibration,
+estimator, MAVLink, the mag-cal protocol, its fit worker process, the store) is the daemon's own code.
 """
 
 from __future__ import annotations
@@ -16,8 +16,6 @@ import contextlib
 import io
 import json
 import math
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -37,19 +35,19 @@ from ahrsd.simulation import DEFAULT_SITE  # noqa: E402
 from support.field_vehicle import RATE_HZ as FIELD_RATE_HZ  # noqa: E402
 from support.field_vehicle import (SITE_FIELD, course_fixes, heading_rms_deg, injected_iron, record, truth_euler,  # noqa: E402
                           vehicle)
-from service_rig import free_udp_port, stop_process  # noqa: E402
-from support.magcal_client import Client  # noqa: E402
+from service_rig import free_udp_port  # noqa: E402
+from support.magcal_client import REPLY_LIMIT_S, STARTING_LIMIT_S, Client  # noqa: E402
+from support.thread_daemon import ThreadDaemon  # noqa: E402
 
 pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
 
 RECORDING_S = 300.0
 GATE_STALL_S = 10.0        # wall seconds the replay waits for the daemon to take a fix before it moves on
 
+# The daemon's set-up, run on a thread of this process (support/thread_daemon.py) with `a`, start_daemon's
+# arguments, in its namespace; the thread then runs `service`
 LAUNCH = r"""
 import asyncio, dataclasses, json, logging, os, sys, time
-logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-a = json.loads(sys.argv[1])
-sys.path.insert(0, a["tests_dir"])
 from support.field_vehicle import RATE_HZ, record, vehicle
 from ahrsd.core.sample import SampleFlags, make_sample
 from ahrsd.daemon.config import Config, OutputsConfig
@@ -126,9 +124,6 @@ if ap is not None:
     link = mavutil.mavlink_connection(f"udpout:127.0.0.1:{ap['port']}", source_system=1, source_component=1)
 replay = ReplaySource(samples(), "field-calibration vehicle", realtime=True, rate_hz=RATE_HZ, clock=clock)
 service = Service(cfg, source=replay)
-# ended as `ahrsd run` ends (cli/main.py): past the interpreter's teardown (docs/daemon.md "Stopping")
-from ahrsd.cli.main import exit_stopped_daemon
-exit_stopped_daemon(asyncio.run(service.run()))
 """
 
 
@@ -141,15 +136,13 @@ def start_daemon(tmp_path: Path, port: int, tilt_deg: float, straight_runs: bool
             "straight_runs": straight_runs, "seconds": RECORDING_S, "time_scale": time_scale,
             "magcal": magcal or {}, "highres_imu_hz": highres_imu_hz, "tests_dir": str(Path(__file__).parent),
             "autopilot": autopilot, "gate_stall_s": GATE_STALL_S}
-    log = open(tmp_path / "daemon.log", "w")
-    proc = subprocess.Popen([sys.executable, "-c", LAUNCH, json.dumps(args)], stderr=log, stdout=subprocess.DEVNULL)
-    return proc, log
+    return ThreadDaemon(LAUNCH, args, tmp_path / "daemon.log")
 
 
 def run_session(client: Client, on_imu=None, timeout_s: float = 120.0):
     """Start, wait for the report (calling on_imu(msg) for every HIGHRES_IMU meanwhile), accept; returns the
     report and the STATUSTEXT lines."""
-    assert client.wait(lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 200, 30) is not None
+    assert client.wait(lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 200, STARTING_LIMIT_S) is not None
     n = len(client.msgs)
     assert client.command(42424).result == mavlink.MAV_RESULT_ACCEPTED
     end = time.monotonic() + timeout_s
@@ -167,7 +160,7 @@ def run_session(client: Client, on_imu=None, timeout_s: float = 120.0):
         # the session says its accuracy in the tick that ends it; the text may come after the report (the
         # STATUSTEXT queue is paced), later still on a busy machine: wait for it rather than read too early
         client.wait(lambda m: _said_accuracy([m]), ACCURACY_TEXT_WAIT_S)
-    assert client.command(42425).result == mavlink.MAV_RESULT_ACCEPTED
+    assert client.command(42425, timeout=2 * REPLY_LIMIT_S, resend_every_s=REPLY_LIMIT_S / 3).result == mavlink.MAV_RESULT_ACCEPTED
     return report, [m.text for m in client.of("STATUSTEXT", n)]
 
 
@@ -201,12 +194,11 @@ def offline_backstepping(tmp_path: Path, block, sel) -> MagModel:
 def test_daemon_session_beats_offsets_only_and_matches_the_offline_fit(tmp_path, tilt_deg):
     port = free_udp_port()
     client = Client(port)   # bound before the daemon starts sending
-    proc, log = start_daemon(tmp_path, port, tilt_deg, straight_runs=False, time_scale=10.0)
+    daemon = start_daemon(tmp_path, port, tilt_deg, straight_runs=False, time_scale=10.0)
     try:
         report, texts = run_session(client)
     finally:
-        stop_process(proc)
-        log.close()
+        daemon.stop()
     assert report.cal_status == 4, texts + [(tmp_path / "daemon.log").read_text()[-2000:]]
     saved = CalibrationStore(tmp_path / "state").load()
     meta = saved.metadata["mag"]
@@ -265,13 +257,12 @@ def test_daemon_session_with_gnss_course_removes_the_offset(tmp_path):
     port = free_udp_port()
     client = Client(port)
     autopilot = autopilot_gps_raw_int(tmp_path, arrival, valid, course, speed)
-    proc, log = start_daemon(tmp_path, port, 2.0, straight_runs=True, time_scale=10.0,
-                             magcal={"gnss_latency_s": 0.1}, autopilot=autopilot)
+    daemon = start_daemon(tmp_path, port, 2.0, straight_runs=True, time_scale=10.0,
+                          magcal={"gnss_latency_s": 0.1}, autopilot=autopilot)
     try:
         report, texts = run_session(client, timeout_s=180.0)
     finally:
-        stop_process(proc)
-        log.close()
+        daemon.stop()
     daemon_log = (tmp_path / "daemon.log").read_text()
     assert report.cal_status == 4, texts + [daemon_log[-2000:]]
     saved = CalibrationStore(tmp_path / "state").load()

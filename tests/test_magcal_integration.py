@@ -1,5 +1,7 @@
 """End to end: the daemon (Service + the mag-cal handler) in a subprocess on the simulated level-turns boat with
-the simulator's default vehicle iron, driven over UDP by pymavlink and by MAVProxy's `magcal` module.
+the simulator's default vehicle iron, driven over UDP by pymavlink and by MAVProxy's `magcal` module (MAVProxy's
+daemon on a thread of this process: what that test checks is MAVProxy's side of the protocol; the daemon as a
+process, its stop and its restart with the saved calibration are the pymavlink session's).
 With signing configured an unsigned mag-cal start is refused: the router's rule for the mag-cal commands in
 tests/test_magcal_protocol.py (test_router_ignores_broadcast_unless_configured_and_refuses_unsigned), the daemon's
 signing of its commands end to end in tests/test_integration_tools.py (test_notify_watchdog_and_signing).
@@ -33,7 +35,8 @@ from ahrsd.calibration.ardupilot_compass import from_ardupilot  # noqa: E402
 from ahrsd.core.angles import tilt_compensated_heading_rad  # noqa: E402
 from ahrsd.calibration.models import Calibration  # noqa: E402
 from service_rig import free_udp_port  # noqa: E402
-from support.magcal_client import REPLY_LIMIT_S, Client  # noqa: E402
+from support.magcal_client import REPLY_LIMIT_S, STARTING_LIMIT_S, Client  # noqa: E402
+from support.thread_daemon import ThreadDaemon  # noqa: E402
 from ahrsd.calibration.store import CalibrationStore  # noqa: E402
 from ahrsd.daemon.commands import DUPLICATE_WINDOW_S  # noqa: E402
 from ahrsd.daemon.mavlink_io import mavlink  # noqa: E402
@@ -46,9 +49,10 @@ SIM_RATE_HZ = 102.4   # the chip's 819.2 SPS decimated by 8 (SMPL_PRD 7): an eig
 MAV_STATE_CALIBRATING = 2
 SESSION_LIMIT_S = 180.0  # start to MAG_CAL_REPORT: ~60 s of turning at TIME_SCALE plus the fit in its worker process
 
-LAUNCH = r"""
+# The daemon's set-up from `a` (Daemon's arguments): run as a process (LAUNCH) or on a thread of this process
+# (support/thread_daemon.py)
+SETUP = r"""
 import asyncio, json, logging, sys, time
-logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
 from ahrsd.daemon.config import Config, OutputsConfig
 from ahrsd.drivers.replay_source import ReplaySource
 from ahrsd.daemon.service import Service
@@ -56,7 +60,6 @@ from ahrsd.daemon.magcal_settings import settings_from_mapping
 from ahrsd.core.sample import make_sample, SampleFlags
 from ahrsd.simulation import open_stream
 import dataclasses
-a = json.loads(sys.argv[1])
 cfg = Config().with_overrides(sim=a["sim"], mavlink=[a["url"]], state_dir=a["state_dir"])
 if a.get("outputs"):
     cfg = dataclasses.replace(cfg, outputs=OutputsConfig.parse(a["outputs"]))
@@ -76,6 +79,12 @@ def samples():
 cfg = dataclasses.replace(cfg, magcal=settings_from_mapping(a.get("magcal")))
 service = Service(cfg, source=ReplaySource(samples(), "simulator " + a["sim"], realtime=True, clock=clock,
                                            rate_hz=a["rate_hz"]))
+"""
+LAUNCH = r"""
+import json, logging, sys
+logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+a = json.loads(sys.argv[1])
+""" + SETUP + r"""
 # ended as `ahrsd run` ends (cli/main.py): past the interpreter's teardown (docs/daemon.md "Stopping")
 from ahrsd.cli.main import exit_stopped_daemon
 exit_stopped_daemon(asyncio.run(service.run()))
@@ -83,16 +92,26 @@ exit_stopped_daemon(asyncio.run(service.run()))
 
 
 class Daemon:
+    """The daemon as a process (LAUNCH); with in_thread, on a thread of this process (ThreadDaemon: the same set-up,
+    no interpreter, imports and kernel loads of its own) for a test whose check is not the process."""
+
     def __init__(self, state_dir: Path, port: int, magcal: dict | None = None,
-                 log_path: Path | None = None, outputs: dict | None = None):
+                 log_path: Path | None = None, outputs: dict | None = None, in_thread: bool = False):
         args = {"sim": "level-turns", "url": f"udpout:127.0.0.1:{port}", "state_dir": str(state_dir),
                 "time_scale": TIME_SCALE, "rate_hz": SIM_RATE_HZ, "magcal": magcal or {}, "outputs": outputs or {}}
         self.log_path = log_path or state_dir.parent / f"daemon-{port}.log"
+        self.thread = ThreadDaemon(SETUP, args, self.log_path) if in_thread else None
+        if self.thread is not None:
+            return
         self.log = open(self.log_path, "a")
         self.proc = subprocess.Popen([sys.executable, "-c", LAUNCH, json.dumps(args)], stderr=self.log,
                                      stdout=subprocess.DEVNULL)
 
     def stop(self) -> None:
+        if self.thread is not None:
+            if self.thread.thread.is_alive() or self.thread.failure is not None:
+                self.thread.stop()
+            return
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
             try:
@@ -108,7 +127,6 @@ class Daemon:
 
 STARTED_LINE = "ahrsd started"    # daemon.service logs it when the loop is about to run
 HEARTBEAT_AFTER_START_S = 20.0     # the first HEARTBEAT is due 1 s into the loop; 20 s is for a loaded machine
-STARTING_LIMIT_S = 240.0           # before the start line: imports and, on a cold cache, the estimator's compile
 
 
 def first_heartbeat(c: Client, daemon: Daemon):
@@ -239,7 +257,7 @@ def test_full_session_with_pymavlink(daemon_env):
 
     # accept: saved atomically, applied without restart
     n_accept = len(c.msgs)
-    assert c.command(42425).result == mavlink.MAV_RESULT_ACCEPTED
+    assert c.command(42425, timeout=2 * REPLY_LIMIT_S, resend_every_s=REPLY_LIMIT_S / 3).result == mavlink.MAV_RESULT_ACCEPTED
     assert c.seen_or_wait(lambda m: m.get_type() == "STATUSTEXT" and "saved" in m.text, REPLY_LIMIT_S,
                           n_accept) is not None
     saved = CalibrationStore(state).load()
@@ -275,7 +293,7 @@ def test_session_driven_by_mavproxy(daemon_env, tmp_path):
     if mavproxy is None:
         pytest.skip("MAVProxy (mavproxy.py) is not installed")
     port, state, start = daemon_env
-    daemon = start(magcal={"accept_broadcast": True}, outputs={"heading_slew_deg_s": 20.0})
+    daemon = start(magcal={"accept_broadcast": True}, outputs={"heading_slew_deg_s": 20.0}, in_thread=True)
     # --target-system: with no autopilot on the link MAVProxy has no target system and would not hand our
     # messages to its modules (with an autopilot it targets the autopilot's system, which ahrsd latches).
     mp = subprocess.Popen([sys.executable, mavproxy, f"--master=udpin:127.0.0.1:{port}", "--nowait",

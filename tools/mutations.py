@@ -922,4 +922,10 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("gnss-replay-checked-before-compile", "run refuses a GNSS recording it cannot replay at once, in one line",
              "cli/run.py", "    if cfg.gnss.source != \"replay\":", "    if True:",
              ("tests/test_cli_failed_runs.py",)),
+    # ------------------------------------------------------------------ session 36 (bstep)
+    Mutation("levelling-heading-checks-off", "a magnetometer pass's levelling filter runs without the heading checks",
+             "calibration/mag/backstepping_aided.py",
+             'return {"heading_monitor": False, **overrides',
+             'return {"heading_monitor": True, **overrides',
+             ("tests/test_levelling_stated_sigma.py",)),
 )

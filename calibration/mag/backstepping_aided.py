@@ -25,7 +25,8 @@ the error is the levelling's (measured in docs/magcal-vehicle.md). What this mod
   as a **heading-only** update (`mag_moves_tilt=False`): its calibration error must not move the tilt, which
   it would by tan(dip) times the heading error. The filter is told that calibration's stated heading 1σ
   (`heading_only_overrides`), as the daemon is told a saved one's: told nothing, `ins` takes the magnetometer for
-  an uncalibrated one and holds its yaw from the GNSS velocity alone. The fit from that levelling calibrates the
+  an uncalibrated one and holds its yaw from the GNSS velocity alone. Its heading checks are off: a rejection
+  would hand the yaw to the GNSS velocity all the same. The fit from that levelling calibrates the
   magnetometer for the next pass (MAG_HEADING_PASSES). Only when the accelerometer-levelled fit is refused does
   the filter level without a magnetometer. `quality["aided_levelling"]["passes"]` reports each pass and its GNSS
   counters, and a warning says when a pass rejected the GNSS velocities, with the cause the evidence supports
@@ -188,9 +189,18 @@ def heading_only_overrides(filter_overrides: dict | None, calibration_sigma_rad:
     so that the filter fuses it as the daemon fuses a saved calibration instead of taking it for an uncalibrated
     magnetometer (20°, its iron learned, its heading rejected when the GNSS-held heading disagrees) and holding
     its yaw from the GNSS velocity alone, which tilts the horizon: the GNSS acceleration is projected through
-    that yaw (docs/magcal-vehicle.md, "What the held-out misses share")."""
+    that yaw (docs/magcal-vehicle.md, "What the held-out misses share").
+
+    The heading checks are off (`heading_monitor`, unless the caller sets it): the magnetometer is always fused
+    with that σ. The checks guard the daemon against a calibration that has gone wrong in operation; here the
+    calibration was fitted to this very recording and states its error, and a rejection can only hand the yaw
+    to the GNSS velocity, what the pass exists to avoid. The checks also reject a good magnetometer while the
+    filter's tilt is unconverged: its gate holds the calibration's σ and the noise but not the magnetometer
+    heading's share of the filter's own tilt error (tan(dip) times it), large in the first seconds at a high
+    dip, and a rejected magnetometer re-enters only after its learned iron has agreed for `mag_reentry_s`
+    (docs/magcal-vehicle.md, "A magnetometer rejected at the start")."""
     overrides = {"mag_calibration_sigma_rad": calibration_sigma_rad, **(filter_overrides or {})}
-    return {**overrides, "mag_moves_tilt": False, "mag_trusted_moves_tilt": False}
+    return {"heading_monitor": False, **overrides, "mag_moves_tilt": False, "mag_trusted_moves_tilt": False}
 
 
 def fit_backstepping_aided(data: MagFitInput, fixes, reference, declination_rad: float,

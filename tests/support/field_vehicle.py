@@ -4,8 +4,8 @@ current, GNSS course made from the simulation truth; and the scoring of a magnet
 session never saw, against the injected iron.
 
 Truth comes from the simulator (scipy rotations), never from the code under test. scipy.spatial is imported by
-the functions that score, not at the top: test_magcal_field_daemon's daemon process imports this module to
-record its vehicle, and would load scipy.spatial for nothing."""
+the functions that score, not at the top: a daemon that imports this module to record its vehicle
+(test_magcal_field_daemon's) would load scipy.spatial for nothing."""
 
 from __future__ import annotations
 

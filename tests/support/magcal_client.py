@@ -12,6 +12,7 @@ import numpy as np
 from ahrsd.daemon.mavlink_io import mavlink, mavutil
 
 REPLY_LIMIT_S = 15.0     # a reply (ACK, STATUSTEXT, the first MAG_CAL_PROGRESS) comes at once; 15 s: a loaded machine
+STARTING_LIMIT_S = 240.0  # a daemon's first HEARTBEAT: imports and, on a cold cache (a run without -n), the estimator's compile
 
 
 class Client:
@@ -47,10 +48,23 @@ class Client:
     def of(self, kind: str, since: int = 0) -> list:
         return [m for m in self.msgs[since:] if m.get_type() == kind]
 
-    def command(self, command: int, *params: float, target=(1, 200), timeout: float = REPLY_LIMIT_S):
+    def command(self, command: int, *params: float, target=(1, 200), timeout: float = REPLY_LIMIT_S,
+                resend_every_s: float | None = None):
+        """Send COMMAND_LONG and wait for its ACK. With `resend_every_s`, send it again (confirmation + 1) each
+        time that long passes without an ACK, as the MAVLink command protocol has a ground station do
+        (https://mavlink.io/en/services/command.html): only for a command the daemon answers the same when it
+        comes twice (DO_ACCEPT_MAG_CAL: "saved already")."""
         p = list(params) + [0.0] * (7 - len(params))
-        self.conn.mav.command_long_send(target[0], target[1], command, 0, *p)
-        return self.wait(lambda m: m.get_type() == "COMMAND_ACK" and m.command == command, timeout)
+        is_ack = lambda m: m.get_type() == "COMMAND_ACK" and m.command == command  # noqa: E731
+        end = time.monotonic() + timeout
+        confirmation = 0
+        while True:
+            self.conn.mav.command_long_send(target[0], target[1], command, confirmation, *p)
+            left_s = end - time.monotonic()
+            ack = self.wait(is_ack, left_s if resend_every_s is None else min(resend_every_s, left_s))
+            if ack is not None or resend_every_s is None or time.monotonic() >= end:
+                return ack
+            confirmation = min(confirmation + 1, 255)
 
     def autopilot_heartbeat(self, armed: bool) -> None:
         mav = self.conn.mav
