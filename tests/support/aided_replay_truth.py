@@ -9,7 +9,6 @@ no output file: tests/test_aided_replay_in_process.py checks it against the comm
 from __future__ import annotations
 
 import argparse
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -65,6 +64,7 @@ def aided_heading_in_process(rec: Path, every: int = 4,
     from ahrsd.cli import replay as command
     from ahrsd.drivers.gnss.validation import GnssFixValidator
     from ahrsd.drivers.recording import iter_samples
+    from ahrsd.estimator import replay as replay_table
     from ahrsd.estimator.fix_feed import GnssFixFeed
 
     fixes, first_position = command._gnss_fixes(str(rec.with_suffix(".gnss.csv")), GnssFixValidator(name="replay"))
@@ -72,29 +72,22 @@ def aided_heading_in_process(rec: Path, every: int = 4,
     params = command._told_calibration_sigma("ins", None, dict(params or {}))
     est = command._make_estimator("ins", command._declination_rad(no_position, first_position), params, aided=True)
     feed = GnssFixFeed(est, fixes)
-    t, yaw, sigma, flags, all_flags = [], [], [], [], []
+    rows, all_flags = [], []
     k = view = None
     for k, sample in enumerate(iter_samples(rec, strict=False)):
         feed.offer_until(sample.t_s)
         view = est.step(sample)
         all_flags.append(int(view.flags))
         if k % every == 0:
-            _read(view.snapshot(), t, yaw, sigma, flags)
+            rows.append(replay_table._attitude_columns(sample.t_s, view.snapshot()))
     if k % every:                                 # the last sample, when not read above
-        _read(view.snapshot(), t, yaw, sigma, flags)
+        rows.append(replay_table._attitude_columns(sample.t_s, view.snapshot()))
+    # the replay table's own rows, turned to true north as the command turns them
+    table = replay_table._finish_table(rows, true_north=True)
+    col = {c: replay_table.ATTITUDE_COLUMNS.index(c) for c in ("t_s", "yaw_deg", "sigma_yaw_deg", "flags")}
     n = len(all_flags)
     index = np.r_[np.arange(0, n, every), [n - 1] if (n - 1) % every else []].astype(int)
     t_rec, truth_yaw = _truth_yaw_deg(rec, index)
-    return (_heading(np.array(t), t_rec[0], np.array(yaw), truth_yaw, np.array(sigma), np.array(flags)),
+    return (_heading(table[:, col["t_s"]], t_rec[0], table[:, col["yaw_deg"]], truth_yaw,
+                     table[:, col["sigma_yaw_deg"]], table[:, col["flags"]]),
             t_rec - t_rec[0], np.array(all_flags, dtype=np.int64))
-
-
-def _read(e, t, yaw, sigma, flags):
-    """Append the estimate's time, true-north yaw (deg, as the replay table turns it: estimator/replay.py), yaw σ
-    (deg) and flags."""
-    t.append(e.t_s)
-    decl = e.heading_true_rad - e.heading_mag_rad
-    decl = decl if math.isfinite(decl) else 0.0
-    yaw.append(math.degrees((e.yaw_rad + decl + math.pi) % (2.0 * math.pi) - math.pi))
-    sigma.append(math.degrees(e.sigma_rpy_rad[2]))
-    flags.append(int(e.flags))
