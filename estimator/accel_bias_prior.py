@@ -1,6 +1,6 @@
 """The accelerometer bias the input still carries where no bench calibration measured it, 1σ per axis: the
 estimators' default (`MekfParams.accel_bias_sigma_m_s2`) and the magnetometer fits' levelling error
-(calibration/mag/levelling_error.py) take it from here. A module of its own so that the mag-cal fit worker
+(calibration/mag/backstepping.py's default) take it from here. A module of its own so that the mag-cal fit worker
 (daemon/magcal.py), which needs this figure and no estimator, does not import the estimators' compiled kernels
 (numba) with it."""
 

@@ -138,7 +138,7 @@ def test_a_back_stepping_session_states_its_levelling_tilt_as_calibrate_mag_does
     assumes (the chip's, without an accelerometer calibration), not read from the fit."""
     from ahrsd.calibration.heading_trust import (calibration_frame_tilt_heading_sigma_rad,
                                                  calibration_frame_tilt_sigma_rad)
-    from ahrsd.calibration.mag.levelling_error import ACCEL_BIAS_SIGMA_UNCALIBRATED_M_S2
+    from ahrsd.estimator.accel_bias_prior import ACCEL_BIAS_SIGMA_UNCALIBRATED_M_S2
     from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
     from ahrsd.daemon.service import Service
     from ahrsd.estimator.ins import Ins

@@ -908,7 +908,7 @@ MUTATIONS: tuple[Mutation, ...] = (
              ("tests/test_mag_rotation.py",)),
     # ------------------------------------------------------------------ session 36 (cib)
     Mutation("fit-worker-without-numba", "the mag-cal fit worker's imports load no numba (no estimator's kernels)",
-             "calibration/mag/levelling_error.py",
+             "calibration/mag/backstepping.py",
              "from ahrsd.estimator.accel_bias_prior import ACCEL_BIAS_SIGMA_UNCALIBRATED_M_S2",
              "from ahrsd.estimator.mekf import ACCEL_BIAS_SIGMA_UNCALIBRATED_M_S2",
              ("tests/test_daemon_imports.py",)),

@@ -28,14 +28,14 @@ from typing import Any
 import numpy as np
 
 from ahrsd.core.angles import STANDARD_GRAVITY_M_S2, down_in_body, roll_pitch_from_accel, wrap_180_deg
+from ahrsd.estimator.accel_bias_prior import ACCEL_BIAS_SIGMA_UNCALIBRATED_M_S2
 
 from . import swing
 from .backstepping_paper import (PAPER_STEP_TOL_UT, BacksteppingError, backstep_correct, inter_leg_step_ut,
                                  leg_statistics, magnetic_heading_deg, segment_legs, sphere_fit_paper)
 from .block_average import block_average
 from .levelling import roll_pitch_from_estimator
-from .levelling_error import (ACCEL_BIAS_SIGMA_UNCALIBRATED_M_S2, accel_bias_heading_std_deg, integrated_autocorrelation_time,
-                              tilt_heading_std_deg)
+from .levelling_error import accel_bias_heading_std_deg, integrated_autocorrelation_time, tilt_heading_std_deg
 from .fit_types import MagFitInput, MagFitResult, finite_rows, refuse
 from ..models import MagModel
 from .observability import assess_support, lowpass, parameter_uncertainty

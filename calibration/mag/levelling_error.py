@@ -27,8 +27,7 @@ import math
 import numpy as np
 
 from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
-# the residual bias of the chip's factory calibration: what the estimators assume without a bench calibration
-from ahrsd.estimator.accel_bias_prior import ACCEL_BIAS_SIGMA_UNCALIBRATED_M_S2  # noqa: F401  (re-exported)
+
 SOKAL_WINDOW = 5.0      # sum the autocorrelation up to the first lag ≥ SOKAL_WINDOW · τ_int (Sokal 1996)
 
 
