@@ -36,7 +36,7 @@ from support.field_vehicle import RATE_HZ as FIELD_RATE_HZ  # noqa: E402
 from support.field_vehicle import (SITE_FIELD, course_fixes, heading_rms_deg, injected_iron, record, truth_euler,  # noqa: E402
                           vehicle)
 from service_rig import free_udp_port  # noqa: E402
-from support.magcal_client import REPLY_LIMIT_S, STARTING_LIMIT_S, Client  # noqa: E402
+from support.magcal_client import STARTING_LIMIT_S, Client  # noqa: E402
 from support.thread_daemon import ThreadDaemon  # noqa: E402
 
 pytestmark = pytest.mark.slow     # a long file: started first under pytest-xdist (tests/conftest.py)
@@ -160,7 +160,7 @@ def run_session(client: Client, on_imu=None, timeout_s: float = 120.0):
         # the session says its accuracy in the tick that ends it; the text may come after the report (the
         # STATUSTEXT queue is paced), later still on a busy machine: wait for it rather than read too early
         client.wait(lambda m: _said_accuracy([m]), ACCURACY_TEXT_WAIT_S)
-    assert client.command(42425, timeout=2 * REPLY_LIMIT_S, resend_every_s=REPLY_LIMIT_S / 3).result == mavlink.MAV_RESULT_ACCEPTED
+    assert client.accept_calibration().result == mavlink.MAV_RESULT_ACCEPTED
     return report, [m.text for m in client.of("STATUSTEXT", n)]
 
 

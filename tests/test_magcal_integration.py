@@ -257,7 +257,7 @@ def test_full_session_with_pymavlink(daemon_env):
 
     # accept: saved atomically, applied without restart
     n_accept = len(c.msgs)
-    assert c.command(42425, timeout=2 * REPLY_LIMIT_S, resend_every_s=REPLY_LIMIT_S / 3).result == mavlink.MAV_RESULT_ACCEPTED
+    assert c.accept_calibration().result == mavlink.MAV_RESULT_ACCEPTED
     assert c.seen_or_wait(lambda m: m.get_type() == "STATUSTEXT" and "saved" in m.text, REPLY_LIMIT_S,
                           n_accept) is not None
     saved = CalibrationStore(state).load()

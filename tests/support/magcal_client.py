@@ -66,6 +66,12 @@ class Client:
                 return ack
             confirmation = min(confirmation + 1, 255)
 
+    def accept_calibration(self):
+        """DO_ACCEPT_MAG_CAL and its ACK, sent again every third of REPLY_LIMIT_S without one (the daemon answers a
+        repeated accept the same: its duplicate window's ACK, then "saved already"), for up to twice that limit: a
+        loaded machine lost the first one's ACK."""
+        return self.command(42425, timeout=2 * REPLY_LIMIT_S, resend_every_s=REPLY_LIMIT_S / 3)
+
     def autopilot_heartbeat(self, armed: bool) -> None:
         mav = self.conn.mav
         mav.srcSystem, mav.srcComponent = 1, 1
