@@ -109,7 +109,7 @@ def trace(scenario: str, case: str, seed: int, site_label: str, iron_label: str 
         if out is not None:
             b = rotation.b_ned_ut
             tan_dip = abs(float(b[2])) / max(math.hypot(float(b[0]), float(b[1])), 1e-6)
-            tilt = math.sqrt(2.0) * tan_dip * rotation.tilt_sigma_rad / max(rotation.span_s, 1e-9)
+            tilt = math.sqrt(rotation.terms[5])     # the window's tilt term, as the fit counted it
             terms = tuple(math.sqrt(v) * DEG_H for v in rotation.terms[:6]) + (rotation.terms[6],
                                                                           math.degrees(rotation.terms[7]))
             windows.append((rotation.span_s, t_s, out[0] * DEG_H, math.sqrt(out[1]) * DEG_H,
