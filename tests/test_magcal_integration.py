@@ -109,8 +109,7 @@ class Daemon:
 
     def stop(self) -> None:
         if self.thread is not None:
-            if self.thread.thread.is_alive() or self.thread.failure is not None:
-                self.thread.stop()
+            self.thread.stop()
             return
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)

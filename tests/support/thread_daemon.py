@@ -17,7 +17,7 @@ from pathlib import Path
 class ThreadDaemon:
     """`script` (which sets up a `Service` named `service`, reading its arguments from `a`) and then
     `service.run()` on a thread of this process. `stop` stops it as SIGTERM would, waits for it, and reaps the
-    processes it spawned (the fit worker), so that their CPU is counted with the test's."""
+    processes it spawned (the fit worker), so that their CPU is counted with the test's; a second call does nothing."""
 
     def __init__(self, script: str, args: dict, log_path: Path):
         self.script = script
@@ -29,6 +29,7 @@ class ThreadDaemon:
         self.logger.addHandler(self.handler)
         self.namespace = {"a": args, "__name__": "thread_daemon"}
         self.failure: BaseException | None = None
+        self.stopped = False                 # stop has run: its log handler is off the `ahrsd` logger
         self.thread = threading.Thread(target=self._run, name="thread-daemon", daemon=True)
         self.thread.start()
 
@@ -40,6 +41,8 @@ class ThreadDaemon:
             self.failure = exc
 
     def stop(self, timeout_s: float = 60.0) -> None:
+        if self.stopped:                     # a test's stop, then its fixture's
+            return
         try:
             end = time.monotonic() + timeout_s
             while self.thread.is_alive() and time.monotonic() < end and getattr(
@@ -52,6 +55,7 @@ class ThreadDaemon:
             for child in multiprocessing.active_children():     # the fit worker, shut down by the stop
                 child.join(timeout_s)
         finally:
+            self.stopped = True
             self.logger.removeHandler(self.handler)
             self.logger.setLevel(self.level)
             self.handler.close()
