@@ -419,11 +419,13 @@ class GnssTask:
         fitted error, estimator/lever_arm_fit.py): logged and sent as a STATUSTEXT warning each time it changes by
         0.1 m. The told arm stays the operator's: nothing is written to the config."""
         est = self._aided_estimator()
-        fit = est.lever_arm_fit() if est is not None else None
-        if fit is None or not fit.arm_adopted:
+        # the adopted correction alone: the fit (lever_arm_fit()) is made only when asked, and asking at every
+        # tick would make it after every fix
+        adopted_m = est.lever_arm_adopted_m() if est is not None else None
+        if adopted_m is None:
             return
         # the arm in use (told + adopted), not the latest fit's: that moves with every fix while it is refitted
-        at = tuple(round(float(t) + float(a), 1) + 0.0 for t, a in zip(self.cfg.lever_arm_m, fit.adopted_m))
+        at = tuple(round(float(t) + float(a), 1) + 0.0 for t, a in zip(self.cfg.lever_arm_m, adopted_m))
         if at == self._fitted_arm_shown:
             return
         self._fitted_arm_shown = at

@@ -572,7 +572,7 @@ MUTATIONS: tuple[Mutation, ...] = (
              "daemon/gnss_task.py", "            explains = fit is not None and fit.heading_bent",
              "            explains = fit is not None and fit.explains", ("tests/test_gnss_daemon.py",)),
     Mutation("daemon-fitted-arm-said", "the daemon says the fitted arm it uses", "daemon/gnss_task.py",
-             "        if fit is None or not fit.arm_adopted:", "        if True:", ("tests/test_gnss_daemon.py",)),
+             "        if adopted_m is None:", "        if True:", ("tests/test_gnss_daemon.py",)),
     # ------------------------------------------------------------------ session 28 (walk28)
     Mutation("mavlink-endpoint-checked-before-compile", "run refuses a MAVLink server address it cannot have at once",
              "cli/run.py", "            check_endpoint_opens(endpoint.url)", "            pass",
@@ -928,4 +928,13 @@ MUTATIONS: tuple[Mutation, ...] = (
              'return {"heading_monitor": False, **overrides',
              'return {"heading_monitor": True, **overrides',
              ("tests/test_levelling_stated_sigma.py",)),
+    # ------------------------------------------------------------------ session 37 (cpu)
+    Mutation("daemon-tick-makes-no-arm-fit", "the daemon's GNSS housekeeping reads the adopted arm without a fit",
+             "daemon/gnss_task.py",
+             "        adopted_m = est.lever_arm_adopted_m() if est is not None else None",
+             "        adopted_m = est.lever_arm_fit() and est.lever_arm_adopted_m() if est is not None else None",
+             ("tests/test_gnss_daemon.py",)),
+    Mutation("ins-adopted-arm-read", "ins says the arm correction it adopted, None before",
+             "estimator/ins.py", "        return fit.correction_m.copy() if fit.adoptions else None",
+             "        return fit.correction_m.copy()", ("tests/test_lever_arm_fit.py",)),
 )
