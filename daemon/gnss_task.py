@@ -27,6 +27,7 @@ from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.drivers.gnss.backend import GnssBackend, GnssHealth
 from ahrsd.drivers.gnss.validation import GnssFixValidator, GnssRejection
 from ahrsd.estimator.base import GnssAidedEstimator
+from ahrsd.estimator.protocol_check import ProtocolCheck
 
 log = logging.getLogger(__name__)
 
@@ -182,6 +183,7 @@ class GnssTask:
         self._last_text_at = -math.inf
         self._gate_window = None        # (start time, offered, rejected velocities) of the estimator's counters
         self._fitted_arm_shown = None   # the fitted antenna arm last announced (_watch_fitted_arm)
+        self._is_aided = ProtocolCheck(GnssAidedEstimator)    # asked at every tick and fix of the same estimator
 
     @property
     def description(self) -> str:
@@ -288,7 +290,7 @@ class GnssTask:
 
     def _aided_estimator(self) -> GnssAidedEstimator | None:
         est = self.estimator.estimator if self.estimator is not None else None
-        return est if isinstance(est, GnssAidedEstimator) else None
+        return est if self._is_aided(est) else None
 
     # ------------------------------------------------------------------------------------------ state
     @property

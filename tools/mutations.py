@@ -937,4 +937,10 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("ins-adopted-arm-read", "ins says the arm correction it adopted, None before",
              "estimator/ins.py", "        return fit.correction_m.copy() if fit.adoptions else None",
              "        return fit.correction_m.copy()", ("tests/test_lever_arm_fit.py",)),
+    Mutation("protocol-check-follows-object", "the estimator-kind answer is isinstance's for each object asked about",
+             "estimator/protocol_check.py", "        if obj is not self._last:",
+             "        if self._last is _NOTHING:", ("tests/test_protocol_check.py",)),
+    Mutation("protocol-check-once-per-object", "isinstance against the protocol runs once per estimator object",
+             "estimator/protocol_check.py", "        if obj is not self._last:", "        if True:",
+             ("tests/test_protocol_check.py",)),
 )
