@@ -928,4 +928,15 @@ MUTATIONS: tuple[Mutation, ...] = (
              'return {"heading_monitor": False, **overrides',
              'return {"heading_monitor": True, **overrides',
              ("tests/test_levelling_stated_sigma.py",)),
+    # ------------------------------------------------------------------ session 37 (iron)
+    Mutation("heading-split-offset-gamma-sign", "bench/heading_split.py's row \"offset as a state, with the yaw\" "
+             "starts c0 correlated with the filter's yaw by the share of a window yaw error the learned offset "
+             "took in, with the kernel's sign",
+             "bench/heading_split.py", "        gamma = -float(row @ per_rad)", "        gamma = float(row @ per_rad)",
+             ("tests/test_heading_split_offset_state.py",)),
+    Mutation("heading-split-offset-only", "bench/heading_split.py's rows \"offset as a state\" carry the learned "
+             "offset alone (the other harmonics off)",
+             "bench/heading_split.py", "        prior[0, 0] = errors.iron_prior(p, field, declination)[0, 0]",
+             "        prior = errors.iron_prior(p, field, declination)",
+             ("tests/test_heading_split_offset_state.py",)),
 )
