@@ -572,7 +572,7 @@ MUTATIONS: tuple[Mutation, ...] = (
              "daemon/gnss_task.py", "            explains = fit is not None and fit.heading_bent",
              "            explains = fit is not None and fit.explains", ("tests/test_gnss_daemon.py",)),
     Mutation("daemon-fitted-arm-said", "the daemon says the fitted arm it uses", "daemon/gnss_task.py",
-             "        if fit is None or not fit.arm_adopted:", "        if True:", ("tests/test_gnss_daemon.py",)),
+             "        if adopted_m is None:", "        if True:", ("tests/test_gnss_daemon.py",)),
     # ------------------------------------------------------------------ session 28 (walk28)
     Mutation("mavlink-endpoint-checked-before-compile", "run refuses a MAVLink server address it cannot have at once",
              "cli/run.py", "            check_endpoint_opens(endpoint.url)", "            pass",
@@ -928,6 +928,21 @@ MUTATIONS: tuple[Mutation, ...] = (
              'return {"heading_monitor": False, **overrides',
              'return {"heading_monitor": True, **overrides',
              ("tests/test_levelling_stated_sigma.py",)),
+    # ------------------------------------------------------------------ session 37 (cpu)
+    Mutation("daemon-tick-makes-no-arm-fit", "the daemon's GNSS housekeeping reads the adopted arm without a fit",
+             "daemon/gnss_task.py",
+             "        adopted_m = est.lever_arm_adopted_m() if est is not None else None",
+             "        adopted_m = est.lever_arm_fit() and est.lever_arm_adopted_m() if est is not None else None",
+             ("tests/test_gnss_daemon.py",)),
+    Mutation("ins-adopted-arm-read", "ins says the arm correction it adopted, None before",
+             "estimator/ins.py", "        return fit.correction_m.copy() if fit.adoptions else None",
+             "        return fit.correction_m.copy()", ("tests/test_lever_arm_fit.py",)),
+    Mutation("protocol-check-follows-object", "the estimator-kind answer is isinstance's for each object asked about",
+             "estimator/protocol_check.py", "        if obj is not self._last:",
+             "        if self._last is _NOTHING:", ("tests/test_protocol_check.py",)),
+    Mutation("protocol-check-once-per-object", "isinstance against the protocol runs once per estimator object",
+             "estimator/protocol_check.py", "        if obj is not self._last:", "        if True:",
+             ("tests/test_protocol_check.py",)),
     # ------------------------------------------------------------------ session 37 (iron)
     Mutation("heading-split-offset-gamma-sign", "bench/heading_split.py's row \"offset as a state, with the yaw\" "
              "starts c0 correlated with the filter's yaw by the share of a window yaw error the learned offset "
