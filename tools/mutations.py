@@ -928,4 +928,12 @@ MUTATIONS: tuple[Mutation, ...] = (
              'return {"heading_monitor": False, **overrides',
              'return {"heading_monitor": True, **overrides',
              ("tests/test_levelling_stated_sigma.py",)),
+    # ------------------------------------------------------------------ session 37 (val)
+    Mutation("late-figures-from-the-second", "heading_timeline --late counts the samples at and after its second",
+             "bench/heading_timeline.py", "    w = t_s >= from_s", "    w = t_s > from_s",
+             ("tests/test_heading_timeline_late.py",)),
+    Mutation("late-outside-run-refused", "heading_timeline --late outside the run is a usage error before any run",
+             "bench/heading_timeline.py", "if args.late is not None and not 0.0 <= args.late < args.seconds:",
+             "if False:",
+             ("tests/test_heading_timeline_late.py",)),
 )
