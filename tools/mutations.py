@@ -980,4 +980,12 @@ MUTATIONS: tuple[Mutation, ...] = (
              "p.gyro_noise_rad_s_sqrt_hz, att_var, tilt_var)",
              "p.gyro_noise_rad_s_sqrt_hz, math.nan, math.nan)",
              ("tests/test_heading_gate_tilt.py",)),
+    # ------------------------------------------------------------------ session 37 (val)
+    Mutation("late-figures-from-the-second", "heading_timeline --late counts the samples at and after its second",
+             "bench/heading_timeline.py", "    w = t_s >= from_s", "    w = t_s > from_s",
+             ("tests/test_heading_timeline_late.py",)),
+    Mutation("late-outside-run-refused", "heading_timeline --late outside the run is a usage error before any run",
+             "bench/heading_timeline.py", "if args.late is not None and not 0.0 <= args.late < args.seconds:",
+             "if False:",
+             ("tests/test_heading_timeline_late.py",)),
 )
