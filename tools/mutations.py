@@ -943,6 +943,17 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("protocol-check-once-per-object", "isinstance against the protocol runs once per estimator object",
              "estimator/protocol_check.py", "        if obj is not self._last:", "        if True:",
              ("tests/test_protocol_check.py",)),
+    # ------------------------------------------------------------------ session 37 (iron)
+    Mutation("heading-split-offset-gamma-sign", "bench/heading_split.py's row \"offset as a state, with the yaw\" "
+             "starts c0 correlated with the filter's yaw by the share of a window yaw error the learned offset "
+             "took in, with the kernel's sign",
+             "bench/heading_split.py", "        gamma = -float(row @ per_rad)", "        gamma = float(row @ per_rad)",
+             ("tests/test_heading_split_offset_state.py",)),
+    Mutation("heading-split-offset-only", "bench/heading_split.py's rows \"offset as a state\" carry the learned "
+             "offset alone (the other harmonics off)",
+             "bench/heading_split.py", "        prior[0, 0] = errors.iron_prior(p, field, declination)[0, 0]",
+             "        prior = errors.iron_prior(p, field, declination)",
+             ("tests/test_heading_split_offset_state.py",)),
     # ------------------------------------------------------------------ session 37 (gate)
     Mutation("gate-attitude-share", "the heading checks' gate holds the filter's attitude error seen through the dip",
              "estimator/heading_monitor.py",
