@@ -38,7 +38,15 @@ Each seed is run (the place's own iron or `--iron`'s, 600 s, GNSS 5 Hz) once per
                       docs/gnss.md "The uncalibrated boat's tail at Halifax";
   fused while learning    the rejected magnetometer fused at its learned iron's honest variance while the iron is
                       learned at every place (magnetometer_use.rejected_magnetometer_fused as where the floor keeps
-                      it from ever being trusted), not only where its floor is above the trust limit.
+                      it from ever being trusted), not only where its floor is above the trust limit;
+  offset as a state   where the magnetometer is fused while its iron is learned and the learned offset is held
+                      (IronLearner.hold_offset), that offset's error carried as the harmonic state c0 (prior: the
+                      learner's offset variance with the window's yaw share, the other four harmonics off), the rest
+                      fused as noise as before less the learner's offset variance (at least the floor) — a
+                      candidate, tried, not kept (docs/gnss.md "(iron37)");
+  offset as a state, with the yaw   that, c0 started correlated with the filter's yaw as own + Γ·δθ_D (Γ: how much
+                      of a yaw error common to the learning window the learned offset took in; own: the learner's
+                      offset variance without the share), not after a yaw reset.
 Per seed and row: heading and tilt RMS from 180 s, the share of heading errors beyond 3σ (published σ) from 30 s,
 the vertical gyro bias's error RMS from 180 s (°/h, against the turn-on bias) and its scale-factor error at the end.
 """
@@ -63,7 +71,8 @@ from bench.vehicle_accuracy import (GNSS_ERRORS, HONESTY_IRONS, estimates_in_arr
 EVERY = 8
 ROWS = ("defaults", "s_z truth", "b_z truth", "b_z truth before 180 s", "b_z truth from 180 s", "b_z,s_z truth", "turn-on 0", "turn-on 0, no ARW", "turn-on 0, no VRW",
         "turn-on 0, no in-run", "yaw aid 1°", "yaw aid 1° + 1° over 60 s", "iron at true attitude",
-        "no magnetometer", "receiver errors 0", "rotation tilt term 0", "fused while learning")
+        "no magnetometer", "receiver errors 0", "rotation tilt term 0", "fused while learning",
+        "offset as a state", "offset as a state, with the yaw")
 YAW_AID_SIGMA_DEG = 1.0
 YAW_AID_DRIFT_DEG, YAW_AID_DRIFT_TAU_S = 1.0, 60.0
 FIX_EVERY_S = 0.2
@@ -155,6 +164,77 @@ def without_rotation_tilt_term(est) -> None:
     rotation.add = add_without_tilt
 
 
+def offset_as_state(est, with_yaw: bool) -> None:
+    """`est`'s learned heading offset carried as the harmonic state c0 while the iron is learned, where the
+    magnetometer is fused meanwhile and the offset is held (the rows "offset as a state" and "…, with the yaw"):
+    MagErrorStates.select and restart_harmonics patched on the instance; with `with_yaw` the window's yaw share is
+    also tracked per radian (WindowYawShare.step's recursion without the σ) for Γ."""
+    from ahrsd.estimator import ins_core as core
+    from ahrsd.estimator import mag_error_states as mes
+    from ahrsd.estimator.mag_error_restarts import IRON_HARMONIC_YAWS_RAD, restart_harmonics
+
+    sup, errors, iron, par = est._heading, est._mag_errors, est._learned_iron, est._par
+    per_rad = np.zeros_like(iron.yaw_share.share)
+    step, reset = iron.yaw_share.step, iron.yaw_share.reset
+
+    def step_per_rad(gain, jacobian, attitude_jacobian, yaw_sigma_rad):
+        step(gain, jacobian, attitude_jacobian, yaw_sigma_rad)
+        k = np.asarray(gain, dtype=float)
+        per_rad[:] = per_rad - k @ (np.asarray(jacobian, dtype=float) @ per_rad) \
+            + k @ np.asarray(attitude_jacobian, dtype=float)[:, 2]
+
+    def reset_per_rad():
+        reset()
+        per_rad[:] = 0.0
+
+    iron.yaw_share.step, iron.yaw_share.reset = step_per_rad, reset_per_rad
+
+    def offset_prior(p, field, declination):
+        prior = np.zeros((5, 5))
+        prior[0, 0] = errors.iron_prior(p, field, declination)[0, 0]
+        return prior
+
+    def correlate(field):
+        # Γ: the learned magnetometer's heading error (read − true) per radian of the window's yaw error is
+        # row·per_rad; c0 is the field azimuth's error, its opposite (the kernel's row is −δθ_D + c0)
+        row = np.mean(iron.learner.level_heading_rows(field, IRON_HARMONIC_YAWS_RAD), axis=0)
+        gamma = -float(row @ per_rad)
+        P = est._P
+        cross = gamma * P[core.E_YAW, :]
+        P[core.E_MH, :] = cross
+        P[:, core.E_MH] = cross
+        P[core.E_MH, core.E_MH] = float(row @ iron.learner.cov @ row) + gamma * gamma * P[core.E_YAW, core.E_YAW]
+
+    select, restart = errors.select, errors.restart_harmonics
+
+    def select_offset(p, source, field, declination):
+        learner = iron.learner
+        if (source is None and field is not None and field[0] ** 2 + field[1] ** 2 > 0.0 and sup.monitor.learning
+                and par["mag_use"] > 0.5 and learner.offset_held and sup.ever_aided and iron.learned
+                and p.mag_harmonic_states and p.mag_enabled):
+            was = errors.source
+            errors.source = "offset"
+            par["mag_harmonics_on"] = 1.0
+            par["mag_harmonic_residual_var_rad2"] = max(float(par["mag_bias_var_rad2"])
+                                                        - learner.offset_heading_variance(field),
+                                                        mes.learned_floor_var_rad2(p, field[0] ** 2 + field[1] ** 2))
+            if was != "offset":
+                restart_harmonics(est._x, est._P, offset_prior(p, field, declination))
+                if with_yaw:
+                    correlate(field)
+            errors.set_frame_tilt(p)
+            return
+        select(p, source, field, declination)
+
+    def restart_offset(p, field, declination):
+        if errors.source == "offset" and par["mag_harmonics_on"] > 0.0:
+            restart_harmonics(est._x, est._P, offset_prior(p, field, declination))
+            return
+        restart(p, field, declination)
+
+    errors.select, errors.restart_harmonics = select_offset, restart_offset
+
+
 def one_run(job, late_s: float = LATE_S) -> tuple:
     """One seed and row, `_one_run`'s figures; "fused while learning" with the place's floor taken as above the trust
     limit for the run (magnetometer_use.never_trusted_here), restored after it."""
@@ -187,6 +267,8 @@ def _one_run(job, late_s: float = LATE_S) -> tuple:
         learn_iron_at_truth(est, run)
     if row == "rotation tilt term 0":
         without_rotation_tilt_term(est)
+    if row.startswith("offset as a state"):
+        offset_as_state(est, with_yaw=row.endswith("with the yaw"))
     holds = {"s_z truth": [(core.E_SG + 2, err.gyro_scale[2])],
              "b_z truth": [(core.E_BG + 2, err.gyro_bias_rad_s[2])],
              "b_z truth before 180 s": [(core.E_BG + 2, err.gyro_bias_rad_s[2])],

@@ -4,7 +4,8 @@ RMS, mean roll and pitch error, heading RMS, median yaw σ, heading state and th
 (estimate − the simulator's turn-on bias, m/s²). With `--case iron-step` also the heading / tilt RMS from 120 s
 after the iron step (the issue's target); with `--step` the largest change of the published heading error within
 0.1 s (vehicle_accuracy.honesty_figures, every sample) and, with `--case iron-step`, the heading / tilt RMS from
-30 s to the step (the issue's other iron-step target). With `--tilt-sigma` the roll and pitch apart: the mean pitch
+30 s to the step (the issue's other iron-step target). With `--late S` also the heading / tilt RMS, σ median and share
+beyond 3σ from S s on (`--seconds 900 --late 600`: whether a long run's error grows in its last 300 s). With `--tilt-sigma` the roll and pitch apart: the mean pitch
 error and the median published roll / pitch σ from 180 s, and the shares of roll / pitch errors beyond 3σ of their
 published σ from 30 s (the columns of docs/figures.md's held-back tilt tables, lean28 and tilt29).
 
@@ -17,6 +18,7 @@ VehicleIron.unseen, drawn, never used for a choice).
         '{"yaw_align_to_gnss_yaw": false, "accel_bias_needs_heading": false}'     # the filter before heading5
     python bench/heading_timeline.py --site 69.65,18.96 --iron unseen --seeds 11 14 17 --step   # Tromsø, dip 78°
     python bench/heading_timeline.py --site=-1.29,36.82 --iron unseen --scenario car --seeds 31 --tilt-sigma
+    python bench/heading_timeline.py --site=64.84,-147.72 --seeds 91 --seconds 900 --late 600   # the last 300 s
 """
 
 from __future__ import annotations
@@ -41,13 +43,23 @@ EVERY = 8          # keep every 8th sample (25 Hz of the 200 SPS runs)
 TURN_DEG_S = 5.0   # --consistency: the vehicle is turning while its true heading rate is above this
 
 
+def figures_from(t_s, heading_err_deg, tilt_err_deg, sigma_yaw_deg, from_s: float) -> tuple:
+    """`--late`: heading RMS, tilt RMS, σ median (°) and the share of heading errors beyond 3σ over the samples at
+    or after `from_s`; NaN where no sample is."""
+    w = t_s >= from_s
+    if not w.any():
+        return (float("nan"),) * 4
+    return (float(np.sqrt(np.mean(heading_err_deg[w] ** 2))), float(np.sqrt(np.mean(tilt_err_deg[w] ** 2))),
+            float(np.median(sigma_yaw_deg[w])), float(np.mean(np.abs(heading_err_deg[w]) > 3.0 * sigma_yaw_deg[w])))
+
+
 def one_run(job) -> tuple:
     from scipy.spatial.transform import Rotation
 
     from ahrsd.estimator.ins import Ins
     from ahrsd.simulation import SensorErrors
 
-    scen, case, seed, site_label, seconds, params, iron_label = job
+    scen, case, seed, site_label, seconds, params, iron_label, *late_s = job     # late_s: `--late`, if given
     site, iron = honesty_site(site_label, iron_label)
     run = simulate_vehicle(scen, seconds, seed, site, mag=case, iron=iron)
     est = Ins(declination_rad=run.declination_rad, lever_arm_m=run.lever_arm_m,
@@ -114,7 +126,8 @@ def one_run(job) -> tuple:
     arm = ("" if arm_wrong_at_s is None else f"  arm found wrong at {arm_wrong_at_s:.1f} s") + (
         f"  arm adopted, in use {','.join(f'{v:+.1f}' for v in np.add(run.lever_arm_m, fit.adopted_m))} m"
         if fit is not None and fit.arm_adopted else "")
-    return job, summary, rows, (consistency, arm), tilt_sigma
+    late = figures_from(tk, hdg, tilt, np.degrees(sig), late_s[0]) if late_s else None
+    return job, summary, rows, (consistency, arm, late), tilt_sigma
 
 
 def main(argv=None) -> int:
@@ -132,6 +145,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seconds", type=float, default=600.0)
     ap.add_argument("--params", default="{}", help="InsParams overrides as JSON")
     ap.add_argument("--timeline", action="store_true", help="also print the per-30 s rows")
+    ap.add_argument("--late", type=float, default=None, metavar="S",
+                    help="also print the heading / tilt RMS, σ median and share beyond 3σ from S s on")
     ap.add_argument("--processes", type=int, default=2)
     ap.add_argument("--consistency", action="store_true",
                     help="also print, pooled over the seeds, the RMS of heading error / σ and the share beyond 3σ "
@@ -140,18 +155,21 @@ def main(argv=None) -> int:
                     help="also print the pitch mean error and roll / pitch σ medians from 180 s and the roll / pitch "
                          "shares beyond 3σ from 30 s")
     args = ap.parse_args(argv)
+    if args.late is not None and not 0.0 <= args.late < args.seconds:
+        ap.error(f"--late {args.late:g} s is not within the run (0 to --seconds {args.seconds:g} s)")
     # the simulated sensors' and estimators' warnings would bury the table; here, in main, not in one_run:
     # the pool's workers inherit it, and a test that calls one_run keeps its logging
     logging.disable(logging.WARNING)
     params = json.loads(args.params)
-    jobs = [(args.scenario, args.case, s, args.site, args.seconds, params, args.iron) for s in args.seeds]
+    jobs = [(args.scenario, args.case, s, args.site, args.seconds, params, args.iron,
+             *(() if args.late is None else (args.late,))) for s in args.seeds]
     iron = f", iron {args.iron}" if args.iron else ""
     print(f"ins {params or 'defaults'}, {args.scenario} {args.case}, site {args.site}{iron}, {args.seconds:.0f} s "
           f"(every {EVERY}th sample): heading / tilt RMS from 180 s, σ median and beyond 3σ from 30 s", flush=True)
     with Pool(args.processes) as pool:
         pooled = {}
         for job, (hdg, tilt, sig, beyond, resets, hdg_after, tilt_after, step, hdg_before, tilt_before), rows, \
-                (consistency, arm), tilt_sigma in pool.imap(one_run, jobs):
+                (consistency, arm, late), tilt_sigma in pool.imap(one_run, jobs):
             for name, (ss, n, out) in consistency.items():
                 p_ss, p_n, p_out = pooled.get(name, (0.0, 0, 0))
                 pooled[name] = (p_ss + ss, p_n + n, p_out + out)
@@ -162,6 +180,9 @@ def main(argv=None) -> int:
                 step_text += f"  before the step: heading {hdg_before:5.2f}°  tilt {tilt_before:5.2f}°"
             print(f"seed {job[2]:3d}: heading {hdg:5.2f}°  tilt {tilt:5.3f}°  σ median {sig:5.2f}°  "
                   f"beyond 3σ {beyond:6.2%}  yaw resets {resets}{after}{step_text}{arm}", flush=True)
+            if late is not None:
+                print(f"          from {args.late:.0f} s: heading {late[0]:5.2f}°  tilt {late[1]:5.3f}°  σ median "
+                      f"{late[2]:5.2f}°  beyond 3σ {late[3]:6.2%}", flush=True)
             if args.tilt_sigma:
                 ts = tilt_sigma
                 print(f"          pitch mean {ts['pitch_mean']:+6.3f}°  beyond 3σ pitch {ts['pitch_beyond']:6.2%} "

@@ -121,6 +121,60 @@ def tree_cpu_seconds(pid: int) -> tuple[float, float, float]:
     return daemon, reader, producer
 
 
+def thread_counts(pid: int) -> dict[tuple[str, int], tuple[float, float, int, int]]:
+    """Per thread of the daemon's processes (the simulated chip's block producer left out): (which process —
+    "daemon" or "reader" —, tid) → (utime s, stime s, voluntary context switches, involuntary ones), from
+    /proc/<pid>/task/<tid>/stat and status. A thread's voluntary switches are its waits: a wake each."""
+    out: dict[tuple[str, int], tuple[float, float, int, int]] = {}
+    tick = os.sysconf("SC_CLK_TCK")
+    todo = [pid]
+    while todo:
+        p = todo.pop()
+        try:
+            cmdline = Path(f"/proc/{p}/cmdline").read_bytes()
+        except OSError:
+            continue
+        who = "reader" if b"multiprocessing" in cmdline else "daemon"
+        for task in Path(f"/proc/{p}/task").glob("*"):
+            try:
+                todo += [int(c) for c in (task / "children").read_text().split()]
+                if b"sim_block_producer" in cmdline:
+                    continue
+                fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
+                status = dict(line.split(":", 1) for line in (task / "status").read_text().splitlines())
+                out[(who, int(task.name))] = (int(fields[11]) / tick, int(fields[12]) / tick,
+                                              int(status["voluntary_ctxt_switches"]),
+                                              int(status["nonvoluntary_ctxt_switches"]))
+            except (OSError, ValueError, KeyError):
+                continue
+    return out
+
+
+def threads_table(pid: int, t0: dict, t1: dict, wall_s: float) -> list[str]:
+    """Lines: each thread's user and system CPU (% of a core) and wakes a second over the window, busiest first;
+    the main thread of the daemon's process is its event loop."""
+    rows = []
+    for key, (u1, s1, v1, n1) in t1.items():
+        u0, s0, v0, n0 = t0.get(key, (0.0, 0.0, 0, 0))
+        who, tid = key
+        name = "event loop" if who == "daemon" and tid == pid else ("main" if tid == pid else "thread")
+        rows.append((u1 - u0 + s1 - s0, f"   {who:6s} {tid:8d} {name:10s} user {100 * (u1 - u0) / wall_s:5.2f} %  "
+                     f"system {100 * (s1 - s0) / wall_s:5.2f} %  wakes {(v1 - v0) / wall_s:7.1f}/s  "
+                     f"preempted {(n1 - n0) / wall_s:6.1f}/s"))
+    return [line for _, line in sorted(rows, key=lambda r: -r[0])]
+
+
+def split_table(line0: dict, line1: dict) -> list[str]:
+    """Lines: bench/loop_split.py's split of the event loop's CPU between two of its snapshots."""
+    from bench.loop_split import split
+
+    wall, loop_pct, rows = split(line0, line1)
+    lines = [f"   event loop, timed in it (bench/loop_split.py, {wall:.1f} s): thread CPU {loop_pct:.2f} % of a core"]
+    lines += [f"     {name[:58]:58s} {rate:7.1f}/s {us:8.1f} µs {pc:6.2f} %" + (f"  ({items:.1f} items/s)" if items else "")
+              for name, rate, us, pc, items in rows]
+    return lines
+
+
 def dir_bytes(path: Path) -> int:
     return sum(p.stat().st_size for p in path.glob("*") if p.is_file()) if path.is_dir() else 0
 
@@ -163,7 +217,8 @@ class Load:
 
 def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = False, gnss: bool = False,
            scenario: str = "static", sensor: str = "sim", load: bool = False, flood_hz: float = 1000.0,
-           floor: bool = False, rate_hz: float | None = None) -> dict:
+           floor: bool = False, rate_hz: float | None = None, threads: bool = False,
+           split: bool = False) -> dict:
     sock = free_udp_socket()
     port = sock.getsockname()[1]
     with tempfile.TemporaryDirectory() as tmp:
@@ -184,8 +239,10 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
         # the scenario's own iron (the boat's is not the static chip's): without a calibration (and GNSS) no
         # heading, no VPE, is sent, and with a wrong one the GNSS path would be measured rejecting it
         save_mag_calibration(tmp, sim_chip_mag_model(scenario))
+        split_path = Path(tmp) / "split.jsonl"
+        launcher = [str(REPO / "bench" / "loop_split.py"), str(split_path), "--"] if split else ["-m", "ahrsd.cli"]
         proc = subprocess.Popen(
-            [sys.executable, "-m", "ahrsd.cli", "run", *source_args, *(("--gnss-sim",) if gnss else ()),
+            [sys.executable, *launcher, "run", *source_args, *(("--gnss-sim",) if gnss else ()),
              "--config", str(config),
              "--state-dir", tmp, "--status-line", "off", "--stats-file", str(stats_path),
              *(("--log-dir", str(Path(tmp) / "logs")) if log else ("--no-log",))],
@@ -235,6 +292,9 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
                                  str(deadline - now), "--json"], stdout=subprocess.PIPE, text=True)
                         (cpu0, reader0, chip0), wall0 = tree_cpu_seconds(proc.pid), time.monotonic()
                         main0 = cpu_seconds(proc.pid, proc.pid)
+                        threads0 = thread_counts(proc.pid) if threads else {}
+                        if split:
+                            proc.send_signal(signal.SIGUSR1)
                         log0 = dir_bytes(Path(tmp) / "logs")
                     counts[mtype] = counts.get(mtype, 0) + 1
                     if mtype != "VISION_POSITION_ESTIMATE":
@@ -246,6 +306,11 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
                         lat[mtype].append(now - m.time_usec * 1e-6)
             (cpu1, reader1, chip1), wall1 = tree_cpu_seconds(proc.pid), time.monotonic()
             main1 = cpu_seconds(proc.pid, proc.pid)
+            threads1 = thread_counts(proc.pid) if threads else {}
+            if split:
+                proc.send_signal(signal.SIGUSR1)
+                time.sleep(0.5)
+                lines = [json.loads(x) for x in split_path.read_text().splitlines()]
             log1 = dir_bytes(Path(tmp) / "logs")
             if floor_proc is not None:
                 floor_out = json.loads(floor_proc.communicate(timeout=60)[0])
@@ -272,7 +337,9 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
             "main_thread_share": (main1 - main0) / (wall1 - wall0),
             "counts": counts, "bytes_per_s": nbytes / (wall1 - wall0),
             "log_mb_per_h": (log1 - log0) / (wall1 - wall0) * 3600 / 1e6, "stats": stats,
-            "lost_truth": truth, "flooded": flooded}
+            "lost_truth": truth, "flooded": flooded,
+            "threads": threads_table(proc.pid, threads0, threads1, wall1 - wall0) if threads else [],
+            "split": split_table(lines[0], lines[1]) if split else []}
 
 
 def part_b(seconds: float) -> np.ndarray:
@@ -376,6 +443,12 @@ def main() -> None:
     ap.add_argument("--floor", action="store_true",
                     help="run bench/wake_floor.py's bare real-time loop beside each window: the periods it "
                     "misses per second are the machine's floor for any user-space reader, in the same run")
+    ap.add_argument("--threads", action="store_true",
+                    help="print each thread of the daemon's processes: user and system CPU, wakes (voluntary "
+                    "context switches) and preemptions a second over the window")
+    ap.add_argument("--split", action="store_true",
+                    help="run the daemon through bench/loop_split.py and print where its event loop's CPU goes "
+                    "(every loop callback and named parts timed with the thread's CPU clock over the window)")
     ap.add_argument("--skip-b", action="store_true", help="skip part B (the in-process time-stamp check)")
     ap.add_argument("--rate-hz", type=float, default=None,
                     help="[sensor] rate_hz for part A (default: the chip's 819.2 SPS; with iio, written to the "
@@ -389,7 +462,7 @@ def main() -> None:
     sensors = ("sim", "sim-process", "iio") if args.sensor == "all" else tuple(args.sensor.split(","))
     loads = {"off": (False,), "on": (True,), "both": (False, True)}[args.load]
     full = {(p, lg, gn, se, ld): part_a(args.seconds, args.warmup, p, lg, gn, scenario, se, ld, args.flood_hz,
-                                        args.floor, args.rate_hz)
+                                        args.floor, args.rate_hz, args.threads, args.split)
             for se in sensors for ld in loads for gn in gnss_runs for p in profiles for lg in logs
             if not (gn and se == "iio")}
     runs = {k[:3]: r for k, r in full.items() if k[3] == sensors[0] and k[4] == loads[0]}
@@ -419,6 +492,8 @@ def main() -> None:
             print(f"   floor beside it (bench/wake_floor.py, real-time {'yes' if fl['realtime'] else 'NO'}): "
                   f"{fl['late']} periods missed of {fl['wakes']} ({100 * fl['late'] / max(1, fl['wakes']):.3f} %), "
                   f"worst wake {fl['worst_s'] * 1e3:.1f} ms")
+        for line in r["threads"] + r["split"]:
+            print(line)
         print(f"   load average at the end: {r['load_avg'][0]:.2f} (1 min), {r['load_avg'][1]:.2f} (5 min)")
         if lg:
             print(f"   log directory growth: {r['log_mb_per_h']:.1f} MB/h")

@@ -100,7 +100,7 @@ def longest_turn_after(t_s, q_wxyz, t_from_s: float, t_last_start_s: float, min_
 
 def simulate_vehicle(name: str, seconds: float, seed: int, site_text: str | None, outage: bool = False,
                      rate_hz: float = RATE_HZ, lever_arm: bool = False, mag: str = "calibrated",
-                     iron: str | None = None, errors=None, gnss_errors=None) -> VehicleRun:
+                     iron: str | None = None, errors=None, gnss_errors=None, start_s: float = 0.0) -> VehicleRun:
     """`seconds` of vehicle `name` at the site ("LAT,LON[,ALT[,DATE]]", None: DEFAULT_SITE) with its GNSS fixes
     (in arrival order), with a 30 s outage from the start of the longest turn after 60 s when `outage`, the
     antenna at LEVER_ARMS_M[name] when `lever_arm`.
@@ -111,7 +111,8 @@ def simulate_vehicle(name: str, seconds: float, seed: int, site_text: str | None
     vehicle iron), "default" (VehicleIron.default), "held-out" (VehicleIron.held_out) or "unseen"
     (VehicleIron.unseen), on every vehicle.
     errors: the sensor's SensorErrors (None: SensorErrors.adis16405(seed)); gnss_errors: the receiver's GnssErrors
-    (None: GNSS_ERRORS)."""
+    (None: GNSS_ERRORS); start_s: where in the scenario the run (and the estimator) starts, s (the daemon
+    started or restarted there: in a turn, heeled)."""
     from ahrsd.simulation import DEFAULT_SITE, GnssErrors, SensorErrors, Site, VehicleIron, open_stream, simulate_gnss
 
     if mag not in MAG_CASES:
@@ -119,8 +120,8 @@ def simulate_vehicle(name: str, seconds: float, seed: int, site_text: str | None
     site = Site.parse(site_text) if site_text else DEFAULT_SITE
     errors = SensorErrors.adis16405(seed) if errors is None else errors
     if mag == "iron-step":
-        errors = errors.replace(hard_iron_step_ut=IRON_STEP_UT, hard_iron_step_t_s=IRON_STEP_AT * seconds)
-    stream = open_stream(name, rate_hz=rate_hz, seed=seed, site=site, errors=errors,
+        errors = errors.replace(hard_iron_step_ut=IRON_STEP_UT, hard_iron_step_t_s=start_s + IRON_STEP_AT * seconds)
+    stream = open_stream(name, rate_hz=rate_hz, seed=seed, site=site, errors=errors, start_s=start_s,
                          vehicle_iron="scenario" if iron is None else honesty_iron(iron))
     block = stream.next_block(int(round(seconds * rate_hz)))
     err = stream.errors

@@ -27,6 +27,7 @@ from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.drivers.gnss.backend import GnssBackend, GnssHealth
 from ahrsd.drivers.gnss.validation import GnssFixValidator, GnssRejection
 from ahrsd.estimator.base import GnssAidedEstimator
+from ahrsd.estimator.protocol_check import ProtocolCheck
 
 log = logging.getLogger(__name__)
 
@@ -182,6 +183,7 @@ class GnssTask:
         self._last_text_at = -math.inf
         self._gate_window = None        # (start time, offered, rejected velocities) of the estimator's counters
         self._fitted_arm_shown = None   # the fitted antenna arm last announced (_watch_fitted_arm)
+        self._is_aided = ProtocolCheck(GnssAidedEstimator)    # asked at every tick and fix of the same estimator
 
     @property
     def description(self) -> str:
@@ -288,7 +290,7 @@ class GnssTask:
 
     def _aided_estimator(self) -> GnssAidedEstimator | None:
         est = self.estimator.estimator if self.estimator is not None else None
-        return est if isinstance(est, GnssAidedEstimator) else None
+        return est if self._is_aided(est) else None
 
     # ------------------------------------------------------------------------------------------ state
     @property
@@ -419,11 +421,13 @@ class GnssTask:
         fitted error, estimator/lever_arm_fit.py): logged and sent as a STATUSTEXT warning each time it changes by
         0.1 m. The told arm stays the operator's: nothing is written to the config."""
         est = self._aided_estimator()
-        fit = est.lever_arm_fit() if est is not None else None
-        if fit is None or not fit.arm_adopted:
+        # the adopted correction alone: the fit (lever_arm_fit()) is made only when asked, and asking at every
+        # tick would make it after every fix
+        adopted_m = est.lever_arm_adopted_m() if est is not None else None
+        if adopted_m is None:
             return
         # the arm in use (told + adopted), not the latest fit's: that moves with every fix while it is refitted
-        at = tuple(round(float(t) + float(a), 1) + 0.0 for t, a in zip(self.cfg.lever_arm_m, fit.adopted_m))
+        at = tuple(round(float(t) + float(a), 1) + 0.0 for t, a in zip(self.cfg.lever_arm_m, adopted_m))
         if at == self._fitted_arm_shown:
             return
         self._fitted_arm_shown = at

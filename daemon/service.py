@@ -80,6 +80,7 @@ from ahrsd.daemon.estimator_news import estimator_news_muted
 from ahrsd.estimator.base import (Estimator, FieldCircleCheckedEstimator, HeadingCheckedEstimator,
                                   MagCalibrationAwareEstimator, AccelCalibrationAwareEstimator,
                                   MagFrameTiltAwareEstimator)
+from ahrsd.estimator.protocol_check import ProtocolCheck
 from ahrsd.estimator.warm_up import warm_up
 
 log = logging.getLogger(__name__)
@@ -112,6 +113,9 @@ class Service:
         self._stdout = stdout if stdout is not None else sys.stdout
         self._stop: asyncio.Event | None = None
         self._tasks: list[asyncio.Task] = []
+        # what the estimator is, asked at every housekeeping tick: worked out again only for another estimator
+        self._heading_checked = ProtocolCheck(HeadingCheckedEstimator)
+        self._circle_checked = ProtocolCheck(FieldCircleCheckedEstimator)
         self._build_mavlink_core(config, environ, clock)
         self._build_heading_and_position(config, environ, clock)
         self._build_output_parts()
@@ -282,7 +286,7 @@ class Service:
     def _yaw_resets(self) -> tuple[int, int]:
         """(yaw resets, of which planned GNSS-yaw alignments): ins counts them; mekf has none."""
         est = self.pipeline.estimator
-        if not isinstance(est, HeadingCheckedEstimator):
+        if not self._heading_checked(est):
             return 0, 0
         return int(est.yaw_resets), int(est.gnss_yaw_alignments)
 
@@ -290,7 +294,7 @@ class Service:
         """The estimator's check of the calibration by the field's circle in turns (mekf, ins before its first fix;
         estimator/field_circle.py), None where there is none."""
         est = self.pipeline.estimator
-        return est.field_circle() if isinstance(est, FieldCircleCheckedEstimator) else None
+        return est.field_circle() if self._circle_checked(est) else None
 
     def local_origin(self):
         return None if self.gnss is None else self.gnss.origin

@@ -47,7 +47,8 @@ class GnssAidedEstimator(Protocol):
     GnssCounters); `lever_arm_m` is where it was told the antenna is (x, y, z from the IMU, body FRD, m), which a
     report of rejected velocities names; `lever_arm_fit()` says whether its velocity innovations put the antenna
     elsewhere (estimator/lever_arm_fit.py LeverArmFitResult, None before it can say; read its latches `arm_wrong` and
-    `heading_bent`, not the momentary `explains`). The daemon's GNSS task offers
+    `heading_bent`, not the momentary `explains`); `lever_arm_adopted_m()` the correction to the told arm it adopted
+    and fuses with (None: none), which costs no fit. The daemon's GNSS task offers
     it every accepted fix and watches its innovation gate; replay merges a GNSS recording's fixes with the samples."""
 
     name: str
@@ -57,6 +58,8 @@ class GnssAidedEstimator(Protocol):
     def update_gnss(self, fix: GnssFix) -> int: ...
 
     def lever_arm_fit(self): ...
+
+    def lever_arm_adopted_m(self): ...
 
 
 @runtime_checkable

@@ -328,6 +328,30 @@ class IronLearner:
         return np.concatenate([w, (w[:, :, None] * field_body[:, None, :]).reshape(len(c_bn), 9)], axis=1)
 
 
+def attitude_heading_variances(p_att_rad2, field_ned_ut) -> tuple[float, float]:
+    """(the variance the filter's attitude error gives the magnetometer's innovation against the filter's yaw,
+    the part of it the tilt error alone gives the magnetometer heading), rad²: NaN, NaN without a field that has
+    a horizontal part. p_att: the filter's 3×3 attitude-error covariance (δθ_N, δθ_E, δθ_D, true − estimate);
+    field: the Earth field (WMM, NED, µT), not the magnetometer's, so that a wrong magnetometer does not set its
+    own gate.
+
+    The magnetometer heading is the azimuth of the field turned into NED with the filter's attitude: with
+    m = H u + Z e_D (u the horizontal field direction), the attitude error moves it by h·δθ,
+    h = (Z u_N / H, Z u_E / H, −1), the row the kernel fuses it with (ins_core._mag_heading_row): a tilt
+    error about the horizontal axis along the field reads as tan(dip) times as much heading error, and the
+    innovation's variance is h P hᵀ (its yaw part P_DD and the tilt–yaw covariance with it). Against the GNSS yaw,
+    which the bank levels on its own, only the tilt part counts: the filter's yaw error is not in that difference."""
+    n, e, d = (float(v) for v in field_ned_ut)
+    h2 = n * n + e * e
+    if not h2 > 0.0:
+        return math.nan, math.nan
+    a_n, a_e = d * n / h2, d * e / h2
+    p = p_att_rad2
+    tilt = a_n * a_n * float(p[0, 0]) + 2.0 * a_n * a_e * float(p[0, 1]) + a_e * a_e * float(p[1, 1])
+    cross = a_n * float(p[0, 2]) + a_e * float(p[1, 2])
+    return max(tilt - 2.0 * cross + float(p[2, 2]), 0.0), max(tilt, 0.0)
+
+
 @dataclass
 class MonitorDecision:
     mag_use: bool
@@ -389,7 +413,9 @@ class HeadingMonitor:
               gsf_yaw_rad: float, gsf_var_rad2: float, gsf_valid: bool, heading_observable: bool,
               velocity_nis: float = math.nan, mag_bias_var_rad2: float = math.nan,
               iron_trust_var_rad2: float = math.nan, tilt_heading_var_rad2: float = math.nan,
-              gyro_bias_var_rad2_s2: float = 0.0, gyro_arw_rad_s_sqrt_hz: float = 0.0) -> MonitorDecision:
+              gyro_bias_var_rad2_s2: float = 0.0, gyro_arw_rad_s_sqrt_hz: float = 0.0,
+              attitude_innovation_var_rad2: float = math.nan, mag_tilt_var_rad2: float = math.nan
+              ) -> MonitorDecision:
         """One check at a fused GNSS fix. yaw: the filter's (true); mag_yaw: the heading the magnetometer (with
         the learned iron removed) gives at the filter's tilt, NaN when it has none; mag_var: its variance
         (calibration + learned iron + noise); gsf_*: the Gaussian-sum yaw; heading_observable: the filter's yaw
@@ -402,12 +428,22 @@ class HeadingMonitor:
         iron_trust_var: the learned iron's heading variance at its worst heading (Ins._magnetometer_trust_var),
         which decides whether the iron is still learned (NaN: mag_bias_var); tilt_heading_var, gyro_bias_var,
         gyro_arw: what the step test (MagStepDetector.add) needs of the filter — NaN tilt_heading_var: no step
-        test."""
+        test; attitude_innovation_var, mag_tilt_var: what the filter's attitude error gives the innovation and
+        the magnetometer heading (`attitude_heading_variances`), which the gate adds — NaN: the yaw variance
+        alone and nothing (no field)."""
         bias_var = mag_var_rad2 if math.isnan(mag_bias_var_rad2) else mag_bias_var_rad2
         have_mag = math.isfinite(mag_yaw_rad)
         dt, k = self._advance(t_s)
         innovation = self._track_innovation(k, yaw_rad, mag_yaw_rad, gsf_yaw_rad, have_mag, gsf_valid)
-        bad = have_mag and self._disagrees(innovation, yaw_var_rad2, mag_var_rad2, gsf_var_rad2, gsf_valid)
+        self._track_velocity_nis(k, velocity_nis)
+        if self.lowpassed_velocity_nis > self.reset_velocity_nis:
+            # the filter's GNSS velocity fusion fails: its attitude covariance does not cover its attitude error
+            # (a start in a hard turn: the accelerometer levelled the turn's lean, far beyond the stated tilt σ),
+            # so the disagreement is judged without the attitude's share, and a rejection can hand the yaw to the
+            # GNSS yaw (docs/gnss.md, gate37)
+            attitude_innovation_var_rad2 = mag_tilt_var_rad2 = math.nan
+        bad = have_mag and self._disagrees(innovation, yaw_var_rad2, mag_var_rad2, gsf_var_rad2, gsf_valid,
+                                           attitude_innovation_var_rad2, mag_tilt_var_rad2)
         self._count_agreement(bad, heading_observable, dt)
         step = None
         if not self.mag_rejected and have_mag and math.isfinite(tilt_heading_var_rad2):
@@ -420,8 +456,8 @@ class HeadingMonitor:
         elif self.mag_rejected and have_mag and heading_observable and self.consistent_s >= self.reentry_s \
                 and bias_var < self.trusted_sigma_rad ** 2:
             self.mag_rejected = False
-        reset_to, reset_var = self._emergency_reset(t_s, k, velocity_nis, yaw_rad, yaw_var_rad2, gsf_yaw_rad,
-                                                    gsf_var_rad2, gsf_valid, have_mag, bias_var)
+        reset_to, reset_var = self._emergency_reset(t_s, yaw_rad, yaw_var_rad2, gsf_yaw_rad, gsf_var_rad2,
+                                                    gsf_valid, have_mag, bias_var)
         # a reset here moves the yaw its σ was judged on: nothing is learned until the next check
         learn_var = bias_var if math.isnan(iron_trust_var_rad2) else iron_trust_var_rad2
         self.learning = heading_observable and reset_to is None and (
@@ -450,18 +486,28 @@ class HeadingMonitor:
         return innovation
 
     def _disagrees(self, innovation: float, yaw_var_rad2: float, mag_var_rad2: float, gsf_var_rad2: float,
-                   gsf_valid: bool) -> bool:
+                   gsf_valid: bool, attitude_innovation_var_rad2: float = math.nan,
+                   mag_tilt_var_rad2: float = math.nan) -> bool:
         """The magnetometer heading fails this check: its innovation (latest or low-passed) beyond the gate, or
-        the GNSS yaw beyond the gate from it while the innovation is beyond 1σ."""
-        s_ins = yaw_var_rad2 + mag_var_rad2
+        the GNSS yaw beyond the gate from it while the innovation is beyond 1σ. The magnetometer heading is
+        computed at the filter's tilt, so the filter's tilt error is in both, seen through the dip
+        (`attitude_heading_variances`): in the innovation with the filter's yaw error (attitude_innovation_var,
+        which holds the yaw variance), in the distance from the GNSS yaw alone (mag_tilt_var)."""
+        att_var = attitude_innovation_var_rad2 if math.isfinite(attitude_innovation_var_rad2) else yaw_var_rad2
+        s_ins = att_var + mag_var_rad2
         bad = innovation ** 2 > self.gate_sigma ** 2 * s_ins or \
             self.lowpassed_innovation_rad ** 2 > self.gate_sigma ** 2 * s_ins
         if gsf_valid:
             # the GNSS yaw alone does not reject the magnetometer (a bank whose tilt is wrong in a coordinated
             # turn is confidently wrong): it must agree with the filter's own innovation being beyond 1σ
-            bad = bad or (self.disagreement_rad ** 2 > self.gate_sigma ** 2 * (gsf_var_rad2 + mag_var_rad2)
-                          and innovation ** 2 > s_ins)
+            s_gsf = gsf_var_rad2 + mag_var_rad2 + (mag_tilt_var_rad2 if math.isfinite(mag_tilt_var_rad2) else 0.0)
+            bad = bad or (self.disagreement_rad ** 2 > self.gate_sigma ** 2 * s_gsf and innovation ** 2 > s_ins)
         return bad
+
+    def _track_velocity_nis(self, k: float, velocity_nis: float) -> None:
+        """The filter's last GNSS velocity NIS, low-passed into `lowpassed_velocity_nis` (each capped at 100)."""
+        if math.isfinite(velocity_nis):
+            self.lowpassed_velocity_nis += k * (min(velocity_nis, 100.0) - self.lowpassed_velocity_nis)
 
     def _count_agreement(self, bad: bool, heading_observable: bool, dt: float) -> None:
         """Failures in a row (rejection needs `reject_checks`), and the time of agreement while the GNSS holds
@@ -495,14 +541,12 @@ class HeadingMonitor:
             floor = max(floor, wrap_pi(yaw_rad - gsf_yaw_rad) ** 2 + gsf_var_rad2)
         return floor
 
-    def _emergency_reset(self, t_s: float, k: float, velocity_nis: float, yaw_rad: float, yaw_var_rad2: float,
-                         gsf_yaw_rad: float, gsf_var_rad2: float, gsf_valid: bool, have_mag: bool,
+    def _emergency_reset(self, t_s: float, yaw_rad: float, yaw_var_rad2: float, gsf_yaw_rad: float,
+                         gsf_var_rad2: float, gsf_valid: bool, have_mag: bool,
                          bias_var: float) -> tuple[float | None, float]:
         """(yaw to reset to or None, its variance): the GNSS yaw, when the magnetometer cannot hold the heading,
         the filter's own velocity fusion fails (low-passed NIS) and the GNSS yaw is beyond the gate from the
         filter's — at most `max_resets`, `reset_spacing_s` apart."""
-        if math.isfinite(velocity_nis):
-            self.lowpassed_velocity_nis += k * (min(velocity_nis, 100.0) - self.lowpassed_velocity_nis)
         if gsf_valid and self.lowpassed_velocity_nis > self.reset_velocity_nis \
                 and (self.mag_rejected or not have_mag or bias_var > self.trusted_sigma_rad ** 2):
             d = wrap_pi(gsf_yaw_rad - yaw_rad)

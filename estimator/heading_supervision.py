@@ -33,7 +33,7 @@ from .constrained_update import scalar_update
 from .gsf_yaw import gsf_output_of
 from .heading_check_log import HeadingCheckLog
 from .heading_confirmation import HeadingConfirmation, gnss_yaw_floor
-from .heading_monitor import HeadingMonitor, MonitorDecision, wrap_pi
+from .heading_monitor import HeadingMonitor, MonitorDecision, attitude_heading_variances, wrap_pi
 from .heading_publication import HeadingPublication, HeadingReport
 from .ins_gnss_fusion import InsGnssFusion
 from .iron_in_use import IronInUse
@@ -365,11 +365,13 @@ class HeadingSupervision:
         P = self._P
         observable = heading_observable(yaw_var, self.confirmation.unconfirmed_sigma_rad,
                                         p.heading_observable_sigma_rad)
+        att_var, tilt_var = (math.nan, math.nan) if self.field_ned is None else \
+            attitude_heading_variances(P[core.E_TH:core.E_TH + 3, core.E_TH:core.E_TH + 3], self.field_ned)
         d = self.monitor.check(t_s, yaw, yaw_var, mag_yaw, mag_var, gsf_yaw, gsf_var, gsf_valid, observable,
                                 float(self._x["vel_gate"]["nis"]),
                                 mag_var - noise if math.isfinite(mag_var) else math.nan, trust_var,
                                 self._tilt_heading_var(), float(P[core.E_BG + 2, core.E_BG + 2]),
-                                p.gyro_noise_rad_s_sqrt_hz)
+                                p.gyro_noise_rad_s_sqrt_hz, att_var, tilt_var)
         f = monitor_follow_up(d, yaw_rad=yaw, yaw_var_rad2=yaw_var, gsf_yaw_rad=gsf_yaw, gsf_var_rad2=gsf_var,
                               gsf_valid=gsf_valid, gate_sigma=self.monitor.gate_sigma,
                               lowpassed_velocity_nis=self.monitor.lowpassed_velocity_nis,

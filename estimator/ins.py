@@ -857,6 +857,13 @@ class Ins:
         """The lever-arm check over the latest velocity fixes (lever_arm_fit.py), None before it has enough."""
         return self._fusion.result()
 
+    def lever_arm_adopted_m(self) -> np.ndarray | None:
+        """The correction to the told arm the lever-arm check adopted (body FRD m: the filter fuses at told + it),
+        None while none is: what `lever_arm_fit()` says as `adopted_m` once `arm_adopted`, without making the fit
+        (a fit over the window's fix pairs, which the daemon's 10 Hz housekeeping would make after every fix)."""
+        fit = self._lever_arm_fit
+        return fit.correction_m.copy() if fit.adoptions else None
+
     # ----------------------------------------------------------------------- internals
     def _initialise(self, t_s, g, a, m, sample_flags: int) -> bool:
         """Start the filter from one sample (levelled on the accelerometer, heading from the magnetometer when it

@@ -143,13 +143,16 @@ def test_the_daemon_asks_mekf_for_the_check():
 
     from ahrsd.daemon.service import Service
     from ahrsd.estimator.base import FieldCircleCheckedEstimator
+    from ahrsd.estimator.protocol_check import ProtocolCheck
 
     est = Mekf(mag_calibration_sigma_rad=CLAIMED_SIGMA_RAD)
     assert isinstance(est, FieldCircleCheckedEstimator)
-    daemon = SimpleNamespace(pipeline=SimpleNamespace(estimator=est))
+    circle_checked = ProtocolCheck(FieldCircleCheckedEstimator)     # the service's own (estimator/protocol_check.py)
+    daemon = SimpleNamespace(pipeline=SimpleNamespace(estimator=est), _circle_checked=circle_checked)
     assert Service._field_circle(daemon) is est.field_circle()
     # ins does not name the calibration (Ins.field_circle_check: its own unaided tilt fails the circle too)
     ins = Ins(mag_calibration_sigma_rad=CLAIMED_SIGMA_RAD)
-    assert Service._field_circle(SimpleNamespace(pipeline=SimpleNamespace(estimator=ins))) is None
+    daemon.pipeline.estimator = ins
+    assert Service._field_circle(daemon) is None
     # no calibration figure: the heading is unknown anyway, nothing to check
     assert Mekf(mag_calibration_sigma_rad=math.nan).field_circle() is None

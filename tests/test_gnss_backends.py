@@ -65,6 +65,11 @@ class AidedEstimator:
         return None    # the lever-arm check has nothing to say
 
 
+    def lever_arm_adopted_m(self):
+
+        return None    # nor adopted an arm
+
+
 @dataclasses.dataclass
 class Hook:
     estimator: object

@@ -52,6 +52,11 @@ class Recorder:
     def lever_arm_fit(self):
         return None    # the lever-arm check has nothing to say
 
+
+    def lever_arm_adopted_m(self):
+
+        return None    # nor adopted an arm
+
     def update(self, sample):
         self.events.append(("sample", sample.t_s))
         return type("E", (), {"roll_rad": 0.1, "pitch_rad": -0.2, "sigma_rpy_rad": np.zeros(3)})()

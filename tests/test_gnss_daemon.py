@@ -192,29 +192,25 @@ def test_a_gate_that_rejects_most_velocities_warns_the_operator(rig):
 def test_the_daemon_says_the_fitted_antenna_arm_it_uses(rig, caplog):
     """Once the aided filter adopts the arm its lever-arm check fitted (estimator/lever_arm_fit.py), the ground
     station is told which arm it uses and that the configuration still holds the told one: once per arm (to 0.1 m),
-    not before an adoption."""
-    from ahrsd.estimator.lever_arm_fit import LeverArmFitResult
-
+    not before an adoption. The adopted correction is read (`lever_arm_adopted_m`), not the fit: the tick makes none."""
     svc = rig.service
     now = time.monotonic()
-    fit = LeverArmFitResult(np.array([-0.1, 0.0, 0.1]), np.full(3, 0.2), 0.3, True, arm_wrong=True,
-                            told_error_m=np.array([-0.93, 0.02, -1.74]), heading_bent=True)
-    rig.fake.lever_arm_fit = lambda: fit
+    adopted: list = [None]
+    rig.fake.lever_arm_adopted_m = lambda: adopted[0]
+    rig.fake.lever_arm_fit = lambda: pytest.fail("the housekeeping tick made a lever-arm fit")
     svc.gnss.tick(now)
     received(rig)
-    svc.gnss.tick(now + 0.1)                                         # found wrong, not adopted: nothing yet
+    svc.gnss.tick(now + 0.1)                                         # not adopted: nothing yet
     assert not [m for m in received(rig) if m.get_type() == "STATUSTEXT" and "fitted" in m.text]
-    rig.fake.lever_arm_fit = lambda: fit._replace(arm_adopted=True, adopted_m=np.array([-0.93, 0.02, -1.74]))
+    adopted[0] = np.array([-0.93, 0.02, -1.74])
     svc.gnss.tick(now + 0.2)
     svc.gnss.tick(now + 0.3)
     texts = [m.text for m in received(rig) if m.get_type() == "STATUSTEXT" and "fitted" in m.text]
     assert texts == ["ahrsd: GNSS arm -0.9,0.0,-1.7 m fitted: set it"] and len(texts[0]) <= 50
-    # the arm in use is said, not the latest fit's (it moves with every fix while the arm in use is refitted)
-    rig.fake.lever_arm_fit = lambda: fit._replace(arm_adopted=True, adopted_m=np.array([-0.93, 0.02, -1.74]),
-                                                  told_error_m=np.array([-1.1, 0.1, -1.9]))
+    adopted[0] = np.array([-0.94, 0.01, -1.71])                      # the same arm to 0.1 m: not said again
     svc.gnss.tick(now + 0.35)
     assert not [m for m in received(rig) if m.get_type() == "STATUSTEXT" and "fitted" in m.text]
-    rig.fake.lever_arm_fit = lambda: fit._replace(arm_adopted=True, adopted_m=np.array([-1.0, 0.0, -2.0]))
+    adopted[0] = np.array([-1.0, 0.0, -2.0])
     svc.gnss.tick(now + 0.4)
     texts = [m.text for m in received(rig) if m.get_type() == "STATUSTEXT" and "fitted" in m.text]
     assert texts == ["ahrsd: GNSS arm -1.0,0.0,-2.0 m fitted: set it"]

@@ -440,6 +440,7 @@ def test_the_fitted_arm_is_adopted_and_the_heading_found_again(boat_120s):
     assert result.arm_wrong and result.arm_adopted                        # the told arm stays found wrong
     assert np.linalg.norm(result.antenna_m((0.0, 0.0, 0.0)) - MAST_M) < 0.4, result
     assert np.linalg.norm(est._fusion.arm_in_use() - MAST_M) < 0.4                # what the filter fuses with
+    assert np.linalg.norm(est.lever_arm_adopted_m() - MAST_M) < 0.4                # what the daemon says, no fit
     err, sigma, bent = (np.array(c) for c in zip(*out))
     known = ~bent & (sigma < est.params.heading_unknown_sigma_rad)
     assert known[-3000:].all(), "the heading was not found again with the fitted arm"
@@ -469,6 +470,7 @@ def test_by_default_the_fitted_arm_is_not_adopted_and_the_heading_stays_unknown(
     result = est.lever_arm_fit()
     assert result.arm_wrong and not result.arm_adopted, result
     assert np.array_equal(est._fusion.arm_in_use(), np.zeros(3))                  # fused at the told arm
+    assert est.lever_arm_adopted_m() is None
     assert np.all(np.array(sigmas[-3000:]) >= est.params.heading_unknown_sigma_rad)   # unknown to the end
 
 

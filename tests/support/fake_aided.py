@@ -38,6 +38,11 @@ class FakeAided:
     def lever_arm_fit(self):
         return None    # the lever-arm check has nothing to say
 
+
+    def lever_arm_adopted_m(self):
+
+        return None    # nor adopted an arm
+
     def update(self, sample):
         nav = None
         if self.fixes:
