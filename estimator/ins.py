@@ -858,7 +858,8 @@ class Ins:
         use_mag = bool(valid & IN_MAG_OK) and p.mag_enabled
         kept = learned_to_keep(self._x, self._reinit_pending)
         # in a steady turn: along its axis
-        a_level = levelling_force(a, g - kept.gyro_bias_rad_s, p.level_noise_m_s2, p.init_gyro_bias_sigma_rad_s)
+        a_level = levelling_force(a, g - kept.gyro_bias_rad_s, 3.0 * p.init_accel_bias_sigma_m_s2,
+                                  p.init_gyro_bias_sigma_rad_s)
         q0 = initial_true_attitude(a_level, m if use_mag else None, self._declination)
         fresh_state(self._x_arr, t_s, q0, g, a, m if valid & IN_MAG_OK else np.nan)
         start_sensor_errors(self._x, kept)
