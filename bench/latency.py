@@ -39,6 +39,13 @@ figure includes the simulated receiver's writer thread (the simulator and the UB
 process, as the simulated chip does), measured apart (below). With
 GNSS the window opens `--warmup` s after the first "aided" STATUSTEXT (ACTIVE alone without): the steady cost.
 
+--threads: each thread of the daemon's processes over the window, user and system CPU and wakes (voluntary context
+switches) a second, from /proc: the event loop, the reader process's reading thread, the simulated receiver's writer.
+--split: the daemon is started through bench/loop_split.py, which times every event-loop callback and named parts
+(taking the blocks, the per-sample path, the outputs, a GNSS fix, each housekeeping job) with the thread's CPU clock;
+the split over the window is printed (calls a second, µs a call, % of a core). Its clock reads cost a little CPU
+of their own: compare --split runs with --split runs.
+
 --log on: the daemon keeps its on-vehicle logs (raw samples .csv.gz + MAVLink .tlog, `--log-dir`); the disk
 rate is the growth of the log directory over the window (the writer flushes every second).
 

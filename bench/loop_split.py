@@ -19,7 +19,10 @@ Timed parts (names in the output):
   pipe and the unpacking), `per-sample path` (SampleReader.process; items = samples), `outputs`
   (Publishers.publish), `endpoint send` (Endpoint.send; items = messages sent), `GNSS fix` (GnssTask.deliver),
   `ins GNSS update` (the aided estimator's update_gnss), `hand-over deadline` (ProcessSource.hand_over_by with
-  the next-due computation).
+  the next-due computation); `per-sample path: late samples counted`
+  (items = samples used LATE_AFTER_S or more after they were ready, daemon.sample_reader; its CPU is not timed);
+  `gc generation N`: the garbage collector's collections (items = objects collected),
+  in whichever thread allocated.
 The clock itself is a system call (about 0.5–3 µs here): two per timed call, in every part's figure.
 """
 
@@ -64,7 +67,27 @@ def _callback_name(cb) -> str:
     return name
 
 
+def _count_collections() -> None:
+    """The garbage collector's collections in this process, per generation (`gc.callbacks`): calls and the
+    collecting thread's CPU, as parts "gc generation N" (a collection runs in the thread that allocates: here
+    mostly the event loop)."""
+    import gc
+
+    started: list[float] = [0.0]
+
+    def callback(phase: str, info: dict) -> None:
+        if phase == "start":
+            started[0] = _clock()
+            return
+        rec = PARTS.setdefault(f"gc generation {info['generation']}", [0, 0.0, 0])
+        rec[0] += 1
+        rec[1] += _clock() - started[0]
+        rec[2] += info.get("collected", 0)
+    gc.callbacks.append(callback)
+
+
 def install() -> None:
+    _count_collections()
     import asyncio.base_events
     import asyncio.events
     import selectors
@@ -116,6 +139,15 @@ def install() -> None:
                                                            for j in jobs])
     ProcessSource.hand_over_by = _timed("hand-over deadline", ProcessSource.hand_over_by)
     SampleReader.process = _timed("per-sample path", SampleReader.process, items=lambda a: len(a[1]))
+    count_late = SampleReader._count_late
+    late = PARTS.setdefault("per-sample path: late samples counted", [0, 0.0, 0])
+
+    def counted_late(self, block, ready_by):
+        before = self.counters.late_samples
+        count_late(self, block, ready_by)
+        late[0] += 1
+        late[2] += self.counters.late_samples - before
+    SampleReader._count_late = counted_late
     Publishers.publish = _timed("outputs", Publishers.publish)
     Publishers.next_due = _timed("next output due", Publishers.next_due)
     Endpoint.send = _timed("endpoint send", Endpoint.send, items=lambda a: 1)

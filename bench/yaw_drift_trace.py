@@ -26,6 +26,7 @@ import argparse
 import json
 import math
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -84,10 +85,12 @@ def bank_error_deg(est, q_truth_wxyz) -> tuple[float, float, bool]:
 
 
 def trace(scenario: str, case: str, seed: int, site_label: str, iron_label: str | None, seconds: float,
-          every_s: float, from_s: float, to_s: float, params: dict) -> tuple[list, list]:
-    """(rows, windows): the per-`every_s` rows and the fitted magnetometer-rotation windows, as printed; each row
-    ends with the start-up columns (`--start`: the bank's error, σ and validity, the vertical gyro's scale-factor
-    error and σ in %, the yaw resets so far)."""
+          every_s: float, from_s: float, to_s: float, params: dict) -> tuple[list, list, tuple]:
+    """(rows, windows, (reruns, CPU per sample)): the per-`every_s` rows and the fitted magnetometer-rotation windows,
+    as printed; each row ends with the start-up columns (`--start`: the bank's error, σ and validity, the vertical
+    gyro's scale-factor error and σ in %, the yaw resets so far); each start run again (InsParams.start_rerun_max_s)
+    with the filter's time, the samples and fixes run again and its CPU seconds, and the run's mean CPU seconds a
+    sample (the trace's own work included)."""
     from ahrsd.estimator import ins_core as core
     from ahrsd.estimator.ins import Ins
     from ahrsd.simulation import SensorErrors
@@ -101,11 +104,22 @@ def trace(scenario: str, case: str, seed: int, site_label: str, iron_label: str 
     rate = true_heading_rate_deg_s(run.t_s, run.truth_q_wxyz)
     windows = []
     tilt_t, tilt_n = [], []      # the true tilt error about magnetic north, rad, at the checks (heading_timeline's EVERY)
-    rotation = est._heading._mag_rotation
-    add = rotation.add
 
-    def add_traced(t_s, *args):
-        out = add(t_s, *args)
+    def trace_windows():
+        """Every window the filter's magnetometer-rotation part fits goes into `windows` (again after a start run
+        again, which builds the part anew)."""
+        rotation = est._heading._mag_rotation
+        add = rotation.add
+
+        def add_traced(t_s, *args):
+            out = add(t_s, *args)
+            if out is not None:
+                record_window(rotation, t_s, out)
+            return out
+
+        rotation.add = add_traced
+
+    def record_window(rotation, t_s, out):
         if out is not None:
             b = rotation.b_ned_ut
             tan_dip = abs(float(b[2])) / max(math.hypot(float(b[0]), float(b[1])), 1e-6)
@@ -115,11 +129,21 @@ def trace(scenario: str, case: str, seed: int, site_label: str, iron_label: str 
             windows.append((rotation.span_s, t_s, out[0] * DEG_H, math.sqrt(out[1]) * DEG_H,
                             (true_bz - float(est._x["gyro_bias_rad_s"][2])) * DEG_H, tilt * DEG_H,
                             tan_dip * abs(_slope(tilt_t, tilt_n, t_s - rotation.span_s, t_s)) * DEG_H, terms))
-        return out
 
-    rotation.add = add_traced
+    trace_windows()
+    run_again = est._run_start_again
+    reruns = []     # (t s of the filter when run again, samples and fixes run again, CPU s)
+
+    def run_again_timed():
+        t0, n = time.process_time(), len(est._start_recording.events)
+        run_again()
+        reruns.append((float(est._x["t_last_s"]), n, time.process_time() - t0))
+        trace_windows()
+
+    est._run_start_again = run_again_timed
     rows = []
     next_s = from_s
+    cpu0 = time.process_time()
     for k, e in estimates_in_arrival_order(est, run, run.fixes):
         t = float(run.t_s[k])
         if k % EVERY == 0 and est._initialised:
@@ -137,7 +161,8 @@ def trace(scenario: str, case: str, seed: int, site_label: str, iron_label: str 
                      (float(est._x["gyro_bias_rad_s"][2]) - true_bz) * DEG_H, math.sqrt(max(est._P[i, i], 0.0)) * DEG_H,
                      float(rate[k]), est._par["mag_use"] > 0.5, est._heading.monitor.learning,
                      est._heading.monitor.mag_rejected, start))
-    return rows, windows
+    cpu_per_sample = (time.process_time() - cpu0) / len(run.t_s)
+    return rows, windows, (reruns, cpu_per_sample)
 
 
 def main(argv=None) -> int:
@@ -159,7 +184,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     params = json.loads(args.params)
     for seed in args.seeds:
-        rows, windows = trace(args.scenario, args.case, seed, args.site, args.iron, args.seconds, args.every,
+        rows, windows, (reruns, cpu_per_sample) = trace(args.scenario, args.case, seed, args.site, args.iron, args.seconds, args.every,
                               args.from_s, args.to_s, params)
         print(f"{args.scenario} {args.case} seed {seed} at {args.site} ({args.iron or 'own'} iron) {params or ''}: "
               "t s | heading err ° | yaw σ ° | b_z err °/h (vs turn-on) | b_z σ °/h | true rate °/s | "
@@ -172,6 +197,10 @@ def main(argv=None) -> int:
                 more = f" | {be:+7.2f} | {bs:6.2f} | {'yes' if bv else 'no '} | {sz:+6.3f} | {ssz:5.3f} | {resets}"
             print(f"{t:7.1f} | {h:+6.2f} | {sy:5.2f} | {bz:+6.0f} | {sbz:5.0f} | {r:+5.1f} | "
                   f"{'yes' if fused else 'no '} | {'yes' if learning else 'no '} | {'yes' if rejected else 'no'}{more}")
+        for t, n, cpu in reruns:
+            print(f"start run again at {t:.2f} s: {n} samples and fixes in {cpu:.3f} CPU-s "
+                  f"({cpu / cpu_per_sample:.0f} samples' worth at this run's mean {cpu_per_sample * 1e6:.0f} µs a "
+                  "sample, the trace's own work included)")
         print("magnetometer-rotation windows fitted: span s, ending at s | b_z − b̂_z ± 1σ °/h | truth °/h | "
               "tilt term of the 1σ °/h | the true tilt error's slope about magnetic north × tan|dip| °/h"
               + (" | terms °/h: scatter (r₁) scale soft-iron attitude (start tilt σ °) gyro-noise tilt" if args.terms else ""))

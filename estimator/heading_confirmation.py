@@ -99,6 +99,12 @@ class HeadingConfirmation:
         self.confirmed_gyro_bias = self.startup_gyro_bias.copy()
         self.confirmed_accel_bias = self.startup_accel_bias.copy()
 
+    def aligned_before_start(self) -> None:
+        """The filter starts again from its first sample with its yaw set from the GNSS yaw (start_rerun.py): it
+        counts as aligned (a GNSS yaw confirms it with the looser figure, and it is not aligned again); the biases
+        a reset goes back to stay the start-up ones."""
+        self.gnss_yaw_aligned = True
+
     def arm_adopted(self) -> None:
         """The filter fuses at another antenna arm (lever_arm_fit.py): the heading the wrong arm bent is found
         again as at the start, unconfirmed, aligned to the GNSS yaw bank's once valid."""

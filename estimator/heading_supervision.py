@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -145,6 +145,10 @@ class HeadingSupervision:
         self.yaw_resets = 0
         self.gnss_yaw_alignments = 0
         self.heading_interventions = 0    # yaw resets and raised yaw variances (not Kalman updates)
+        # set at an alignment with the magnetometer rejected: (the bank's yaw, its variance, the time of the last
+        # sample stepped, the latitude); the filter's to take (start_rerun.py)
+        self.rerun_due: tuple[float, float, float, float] | None = None
+        self._rerun_first_gnss_yaw = False     # a start run again waits for its first valid GNSS yaw
         self._magnetometer_as_calibrated()
         self.set_accel_bias_learning()
         self.apply_learned_iron()
@@ -409,6 +413,17 @@ class HeadingSupervision:
         (HeadingConfirmation.alignment_due), or, while the heading is held unconfirmed, its confirmation by a GNSS
         yaw that agrees with it. Returns the yaw a reset turned the attitude (about down) to, None without one."""
         c = self.confirmation
+        if self._rerun_first_gnss_yaw and gsf_valid:
+            # a start run again under the bank's yaw carried back (`start_rerun`): its first valid GNSS yaw is where
+            # the run before aligned. The yaw it kept through the start was as wide as the bank's at its validity
+            # limit, and the GNSS acceleration projected through it levelled the tilt, whose linearised variance
+            # shrank faster than its error: restarted as a kept yaw's without a magnetometer
+            # (`floor_yaw_sigma_without_magnetometer`). A bias-from-rotation window started before took that tilt's
+            # variance for its start attitude: it starts again, as at the alignment the run before did
+            self._rerun_first_gnss_yaw = False
+            self._resets.restart_horizontal_accel_bias(self.params, self.confirmation.startup_accel_bias)
+            self._resets.relevel(self.params, self.params.nav_init_sigma_tilt_rad)
+            self._mag_rotation.restart()     # its start attitude: the tilt just re-levelled
         if d.reset_yaw_to_rad is not None:
             self.reset_yaw(d.reset_yaw_to_rad - yaw, d.reset_yaw_var_rad2)
             return d.reset_yaw_to_rad
@@ -420,7 +435,12 @@ class HeadingSupervision:
         return None
 
     def _align_yaw_to_gnss(self, t_s: float, dyaw_rad: float, gsf_var: float) -> None:
-        """The planned first alignment of the yaw to the GNSS yaw (yaw_align_to_gnss_yaw)."""
+        """The planned first alignment of the yaw to the GNSS yaw (yaw_align_to_gnss_yaw). With the magnetometer
+        rejected by now, what the start learned was learned against a heading found wrong: the filter may run its
+        start again under this yaw (`rerun_due`, start_rerun.py)."""
+        if self.monitor.mag_rejected:
+            gsf_yaw = wrap_pi(float(quat_to_euler(self._x["q"])[2]) + dyaw_rad)
+            self.rerun_due = (gsf_yaw, gsf_var, float(self._x["t_last_s"]), float(self._x["lat_rad"]))
         self.confirmation.aligned()         # the biases a reset goes back to: the start-up ones
         self.monitor.yaw_was_reset(t_s)     # an emergency reset keeps its spacing from this one
         self.reset_yaw(dyaw_rad, gsf_var, alignment=True)
@@ -430,6 +450,45 @@ class HeadingSupervision:
         f = self._x["acc_ned_lp_m_s2"]
         across = math.hypot(float(f[0]), float(f[1])) * abs(math.sin(wrap_pi(dyaw_rad)))
         self._resets.relevel(self.params, math.atan2(across, abs(float(f[2]))))
+
+    def start_rerun(self, before: "HeadingSupervision.Counts") -> None:
+        """The filter starts again from its first sample with the GNSS yaw bank's yaw carried back to it
+        (start_rerun.py): the magnetometer stands rejected from the start, as the run before rejected it (no yaw
+        floor: the yaw's variance is the carried-back bank's), the yaw counts as aligned to the GNSS yaw (the
+        bank confirms it with the looser figure, and it is not aligned again), and the counts and the monitor's
+        resets and rejection go on from the run before."""
+        m = self.monitor
+        self._iron_before_rejection = self._learned_iron.learned
+        self._learned_iron.release_offset()
+        m.mag_rejected = True
+        m.rejections = before.rejections
+        m.rejection_disagreement_rad = before.rejection_disagreement_rad
+        m.max_disagreement_rad = before.max_disagreement_rad
+        m.resets = before.monitor_resets
+        m.last_reset_t_s = before.last_reset_t_s
+        self.confirmation.aligned_before_start()
+        self._rerun_first_gnss_yaw = True
+        self._par["mag_use"] = 0.0
+        self.yaw_resets = before.yaw_resets
+        self.gnss_yaw_alignments = before.gnss_yaw_alignments
+        self.heading_interventions = before.heading_interventions
+
+    class Counts(NamedTuple):
+        """What a start run again carries over from the run before (`counts`, `start_rerun`)."""
+
+        rejections: int
+        rejection_disagreement_rad: float
+        max_disagreement_rad: float
+        monitor_resets: int
+        last_reset_t_s: float
+        yaw_resets: int
+        gnss_yaw_alignments: int
+        heading_interventions: int
+
+    def counts(self) -> "HeadingSupervision.Counts":
+        m = self.monitor
+        return self.Counts(m.rejections, m.rejection_disagreement_rad, m.max_disagreement_rad, m.resets,
+                           m.last_reset_t_s, self.yaw_resets, self.gnss_yaw_alignments, self.heading_interventions)
 
     def _confirm_heading(self, yaw: float, gsf_yaw: float, gsf_var: float) -> None:
         """A GNSS yaw that agrees with the held heading confirms it (HeadingConfirmation.confirm); otherwise the

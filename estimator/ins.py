@@ -58,6 +58,8 @@ from .params import with_overrides
 from .estimate_view import BuiltEstimateView, EstimateView
 from .field_circle import FieldCircleCheck, FieldCircleParams, FieldCircleResult
 from .published_heading import PublishedHeading
+from .start_rerun import StartRecording, keep_iron, put_back_iron, start_heading
+from .yaw_reset import restart_uncorrelated
 from .rotations import quat_to_dcm
 from .ins_published_terms import published_terms
 
@@ -293,6 +295,13 @@ class InsParams(MagHeadingParams):
     heading (PX4 EKF2 aligns the yaw to its EKF-GSF when it has no magnetometer heading; ArduPilot EKF3 aligns
     to it once 5 valid fixes are seen when the GSF is its yaw source). Not counted against `yaw_reset_max`:
     that cap is for the emergency resets of a heading that was held."""
+    start_rerun_max_s: float = 0.0
+    """Without a trusted magnetometer calibration, the samples and fixes of the filter's first this many seconds are
+    kept, and at the alignment to the first valid GNSS yaw with the magnetometer rejected the filter runs them again
+    from its first sample under that yaw carried back (start_rerun.py), so that the first turn teaches the gyro
+    biases against a heading the GNSS found instead of the magnetometer's. 0 (the default): never — on, the car's
+    vertical gyro bias comes out of its first turn stated too well known (docs/gnss.md "The start run again under
+    the GNSS yaw"); 60 is the figure measured there."""
     yaw_reset_max: int = 3
     """At most this many resets of the yaw to the GNSS yaw per run (ArduPilot EK3_GSF_RST_MAX 2)."""
     yaw_reset_spacing_s: float = 20.0
@@ -522,6 +531,7 @@ class Ins:
                                            self._fusion, on_yaw_reset=self._flag_yaw_reset)
         self._heading.restart()
         self._set_field_circle()
+        self._arm_start_recording()
 
     def _step_args_example(self) -> tuple:
         """Scratch arguments of the step's types (compiling it must not touch the filter's own arrays)."""
@@ -594,6 +604,7 @@ class Ins:
         self._fusion.reset()     # an arm adopted in the run before is not kept
         self._heading.restart()
         self._set_field_circle()
+        self._arm_start_recording()
 
     # ----------------------------------------------------------------------- the heading checks' counts
     @property
@@ -642,12 +653,14 @@ class Ins:
         optionally the soft iron I + D and the 9×9 covariance of D (else D starts at its prior). Raises
         ValueError when not finite or a covariance is not positive definite."""
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
+        self._end_start_recording_begun()
         self._learned_iron.restore(offset_ut, cov_ut2, soft_iron, soft_cov)
         self._heading.apply_learned_iron()
 
     def reset_learned_iron(self) -> None:
         """Forget the learned iron (a new calibration was accepted, or the operator reset it)."""
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
+        self._end_start_recording_begun()
         self._learned_iron.forget()
         self._heading.apply_learned_iron()
 
@@ -657,6 +670,7 @@ class Ins:
         left to them (a changed heading is caught by the monitor and slewed in the published yaw). Told before
         the first sample, the filter is the one built with this calibration."""
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
+        self._end_start_recording_begun()
         s = float(sigma_rad)
         self.params = replace(self.params, mag_calibration_sigma_rad=s if math.isfinite(s) and s >= 0.0 else math.nan)
         self._heading.set_params(self.params)
@@ -669,6 +683,7 @@ class Ins:
         stated): the frame-tilt states start again from it, and the calibration's harmonic states from their prior
         without that share. Told after `set_mag_calibration_sigma` (which restarts them with the previous figures)."""
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
+        self._end_start_recording_begun()
         s = float(sigma_rad)
         h = float(heading_sigma_rad)
         self.params = replace(self.params,
@@ -694,6 +709,7 @@ class Ins:
         """Magnetic declination (rad): the magnetometer heading is compared with true heading − declination,
         and the estimate's yaw/q are reported relative to magnetic north (as every estimator)."""
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
+        self._end_start_recording_begun()
         self._declination = float(declination_rad)
         self._par["declination_rad"] = self._declination
         self._heading.set_declination(self._declination)
@@ -707,6 +723,7 @@ class Ins:
         heading moved at once to the new calibration's was rejected by them against a GNSS yaw that had not
         converged (docs/daemon.md "Calibration changes")."""
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
+        self._end_start_recording_begun()
         mag.relearn_reference(self._mag_state(), RELEARN_GATE_OPEN_S)
         self._field_circle.reset()
         x = self._x
@@ -773,6 +790,8 @@ class Ins:
         m = sample.mag_ut
         sflags = int(sample.flags)
         extra = 0
+        if self._start_recording is not None:
+            self._record_start(sample)
         if self._initialised:
             # each vector read with one call (nine element reads cost more): the same values as floats
             gx, gy, gz = g.tolist()
@@ -800,6 +819,8 @@ class Ins:
         (no fix, NaN fields, time not increasing, older than max_delay_s, χ² outliers) are counted in
         `gnss_counters`, logged, and flag GNSS_REJECTED on the next estimate; never raises."""
         self._view.freeze()    # the estimate of the sample stepped last is the one it had (estimate_view.py)
+        if self._start_recording is not None:
+            self._start_recording.add_fix(fix)
         if not self._intake.offer(fix, self._initialised, self._x["t_last_s"]):
             return 0
         return self._fuse(fix)
@@ -861,6 +882,8 @@ class Ins:
         a_level = levelling_force(a, g - kept.gyro_bias_rad_s, 3.0 * p.init_accel_bias_sigma_m_s2,
                                   p.init_gyro_bias_sigma_rad_s)
         q0 = initial_true_attitude(a_level, m if use_mag else None, self._declination)
+        if self._reinit_pending:
+            self._start_recording = None     # a restart after a gap is no start to run again
         fresh_state(self._x_arr, t_s, q0, g, a, m if valid & IN_MAG_OK else np.nan)
         start_sensor_errors(self._x, kept)
         # the biases are also the last confirmed ones (what a yaw reset goes back to) and the start-up ones
@@ -871,10 +894,85 @@ class Ins:
         initial_covariance(self._P, p, use_mag, levelling_lean(a_level, m if use_mag else None, p.level_noise_m_s2))
         self._heading.restart_calibration_error_states()
         self._restart_companions(t_s)
+        if self._rerun is not None:
+            self._start_under_gnss_yaw()
         self._initialised = True
         core.fill_outputs(self._x, self._P, self._par, g[0] - keep_bg[0], g[1] - keep_bg[1], g[2] - keep_bg[2],
                           self._out)
         return True
+
+    # ----------------------------------------------------------------------- the start run again (start_rerun.py)
+    def _arm_start_recording(self) -> None:
+        """Keep the samples and fixes from the first sample on, when an alignment to the GNSS yaw may follow."""
+        p = self.params
+        on = (p.start_rerun_max_s > 0.0 and p.mag_enabled and p.heading_monitor and p.gnss_yaw
+              and p.yaw_align_to_gnss_yaw)
+        self._start_recording = StartRecording(p.start_rerun_max_s) if on else None
+        self._rerun = None
+        self._iron_at_start = None
+
+    def _end_start_recording_begun(self) -> None:
+        """What is told after the first sample (a calibration, an iron, the declination) would not be told to a
+        start run again: the recording ends."""
+        if self._start_recording is not None and self._start_recording.events:
+            self._start_recording = None
+
+    def _record_start(self, sample: ImuSample) -> None:
+        """Before a sample is stepped: the start is run again if the alignment asked for it since the last one,
+        else the sample is kept (the learned iron as it was at the first)."""
+        rec = self._start_recording
+        if self._heading.rerun_due is not None:
+            self._run_start_again()
+            return
+        if not rec.events:
+            if not self._heading.confirmation.calibration_untrusted:    # no alignment will follow
+                self._start_recording = None
+                return
+            self._iron_at_start = keep_iron(self._learned_iron)
+        rec.add_sample(sample)
+        if not rec.on:
+            self._start_recording = None
+
+    def _run_start_again(self) -> None:
+        """The filter from its first sample again, under the GNSS yaw bank's yaw at the alignment carried back
+        (`_start_under_gnss_yaw`), over the samples and fixes kept; the fixes are counted once. The published
+        heading moves as at a yaw reset (flagged)."""
+        gsf_yaw, gsf_var, t_end, lat = self._heading.rerun_due
+        events = self._start_recording.take()
+        counts = self._heading.counts()
+        counters = GnssCounters(**vars(self.gnss_counters))
+        put_back_iron(self._learned_iron, self._iron_at_start)
+        self.reset()
+        self._gsf_arr[0] = new_gsf_state(GsfParams(), 0.0)   # all of the bank as built (its reset keeps its tilt)
+        self._start_recording = None
+        self._rerun = (gsf_yaw, gsf_var, t_end, lat, [e for is_sample, e in events if is_sample], counts)
+        for is_sample, e in events:
+            if is_sample:
+                self.step(e)
+            else:
+                self.update_gnss(e)
+        self._rerun = None
+        vars(self.gnss_counters).update(vars(counters))
+        self._pending_flags |= int(EstimateFlags.YAW_RESET)
+        log.info("ins: the start run again from its first sample under the GNSS yaw (%d samples and fixes)",
+                 len(events))
+
+    def _start_under_gnss_yaw(self) -> None:
+        """The first sample of a start run again: the yaw turned to the bank's carried back (start_rerun.start_heading)
+        with its covariance with the gyro biases and scale factors; the heading checks start with the magnetometer
+        rejected (HeadingSupervision.start_rerun)."""
+        gsf_yaw, gsf_var, t_end, lat, samples, counts = self._rerun
+        x, P = self._x, self._P
+        bg, sg = slice(core.E_BG, core.E_BG + 3), slice(core.E_SG, core.E_SG + 3)
+        h = start_heading(x["q"], samples, t_end, gsf_yaw, gsf_var, lat, x["gyro_bias_rad_s"],
+                          P.diagonal()[bg], P.diagonal()[sg])
+        core._rotate_attitude(x["q"], 0.0, 0.0, h.dyaw_rad)
+        self._hist[0]["q"] = x["q"]
+        x["acc_ned_lp_m_s2"] = np.asarray(quat_to_dcm(x["q"]), dtype=float) @ x["acc_last_m_s2"]
+        restart_uncorrelated(P, core.E_YAW, h.yaw_var_rad2)
+        P[core.E_YAW, bg] = P[bg, core.E_YAW] = h.yaw_gyro_bias_cov
+        P[core.E_YAW, sg] = P[sg, core.E_YAW] = h.yaw_gyro_scale_cov
+        self._heading.start_rerun(counts)
 
     def _restart_companions(self, t_s) -> None:
         """What runs beside the filter starts again with it: no queued fixes, the published heading follows the

@@ -928,6 +928,17 @@ MUTATIONS: tuple[Mutation, ...] = (
              'return {"heading_monitor": False, **overrides',
              'return {"heading_monitor": True, **overrides',
              ("tests/test_levelling_stated_sigma.py",)),
+    # ------------------------------------------------------------------ session 37 (first)
+    Mutation("start-rerun-at-alignment", "at the alignment with the magnetometer rejected the start is run again "
+             "under the GNSS yaw bank's yaw carried back", "estimator/heading_supervision.py",
+             "        if self.monitor.mag_rejected:", "        if False:", ("tests/test_start_rerun.py",)),
+    Mutation("start-heading-less-bias", "the bank's yaw is carried back through the gyro less its start-up bias",
+             "estimator/start_rerun.py", "wr = [prev[1][i] - b[i] for i in range(3)]",
+             "wr = [prev[1][i] for i in range(3)]", ("tests/test_start_rerun.py",)),
+    Mutation("start-rerun-window-restart", "a start run again restarts the bias-from-rotation window where it "
+             "re-levels the tilt", "estimator/heading_supervision.py",
+             "            self._mag_rotation.restart()     # its start attitude: the tilt just re-levelled",
+             "            pass", ("tests/test_start_rerun.py",)),
     # ------------------------------------------------------------------ session 37 (cpu)
     Mutation("daemon-tick-makes-no-arm-fit", "the daemon's GNSS housekeeping reads the adopted arm without a fit",
              "daemon/gnss_task.py",
