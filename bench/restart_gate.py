@@ -3,8 +3,8 @@
 magnetometer, when, and what does the heading cost? Per run: the first rejection (s after the start, "-" for
 none), the rejections and yaw resets (`Ins.heading_report`), the true-heading RMS over the first 30 s and after,
 the share of heading errors beyond 3σ after 30 s. The gate's share of the filter's own attitude error (docs/gnss.md
-"gate37") is what this was built to weigh: a start in a hard turn levels the turn's lean, far beyond the stated
-tilt σ, and the rejection is what lets the GNSS yaw reset the heading.
+"gate37") is what this was built to weigh; it also measures a start in a hard turn, which levelled the turn's
+lean far beyond the stated tilt σ until the start levelled on the rotation axis (docs/estimator.md "turn37").
 
     python bench/restart_gate.py --scenario boat --starts 20 60 150 --seeds 1 2 3 4
     python bench/restart_gate.py --scenario car --starts 75 97 --seeds 1 2 3 --seconds 60

@@ -40,7 +40,7 @@ from .heading_monitor import HeadingCheckRecord
 from .heading_publication import HeadingReport
 from .iron_in_use import IronInUse
 from .ins_start import (first_history_row, fresh_state, initial_covariance, initial_true_attitude, learned_to_keep,
-                        start_mag_reference, start_sensor_errors)
+                        levelling_force, levelling_lean, start_mag_reference, start_sensor_errors)
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
                             float_field_slice, uninitialised_estimate)
 from .kernel_entry import argument_types, entry_point
@@ -877,8 +877,11 @@ class Ins:
             return False
         p = self.params
         use_mag = bool(valid & IN_MAG_OK) and p.mag_enabled
-        q0 = initial_true_attitude(a, m if use_mag else None, self._declination)
         kept = learned_to_keep(self._x, self._reinit_pending)
+        # in a steady turn: along its axis
+        a_level = levelling_force(a, g - kept.gyro_bias_rad_s, 3.0 * p.init_accel_bias_sigma_m_s2,
+                                  p.init_gyro_bias_sigma_rad_s)
+        q0 = initial_true_attitude(a_level, m if use_mag else None, self._declination)
         if self._reinit_pending:
             self._start_recording = None     # a restart after a gap is no start to run again
         fresh_state(self._x_arr, t_s, q0, g, a, m if valid & IN_MAG_OK else np.nan)
@@ -888,7 +891,7 @@ class Ins:
         self._heading.confirmation.start_biases(keep_bg, kept.accel_bias_m_s2)
         first_history_row(self._x, self._hist, t_s, q0, g, keep_bg)
         start_mag_reference(self._x, kept, p.mag_min_undisturbed_s)
-        initial_covariance(self._P, p, use_mag)
+        initial_covariance(self._P, p, use_mag, levelling_lean(a_level, m if use_mag else None, p.level_noise_m_s2))
         self._heading.restart_calibration_error_states()
         self._restart_companions(t_s)
         if self._rerun is not None:

@@ -15,6 +15,8 @@ from typing import NamedTuple, Protocol
 
 import numpy as np
 
+from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
+
 from . import ins_core as core
 from .initial_attitude import initial_attitude
 from .rotations import quat_to_dcm
@@ -52,6 +54,57 @@ def initial_true_attitude(a, m, declination_rad: float) -> np.ndarray:
     w, x_, y, z = q_mag
     c, s = math.cos(hd), math.sin(hd)
     return np.array([c * w - s * z, c * x_ - s * y, c * y + s * x_, c * z + s * w])
+
+
+class StartLean(NamedTuple):
+    """How far levelling on the start's one sample may be off (`levelling_lean`)."""
+
+    lean_rad: float     # the largest angle between the specific force and the vertical its norm allows
+    dip_rad: float      # the field's dip measured against that specific force (NaN without a field)
+
+
+def levelling_lean(a, m, tolerance_m_s2: float) -> StartLean:
+    """Levelling takes the specific force f for "up"; f = g_up + a with the vehicle's acceleration a, which in a
+    steady turn is the horizontal centripetal ω × v. A horizontal a leans f from the vertical by atan(|a|/g) =
+    acos(g/|f|) (a coordinated turn: |f| = g/cos(bank)); that is the largest lean the norm allows while a has no
+    vertical part, and taken as 0 while |f| is within `tolerance_m_s2` (the levelling's noise on the specific
+    force) of g. g is the standard one (the filter's before it knows where it is).
+    Levelling on the accelerometer assumes the vehicle unaccelerated (Titterton & Weston, Strapdown Inertial
+    Navigation Technology, 2nd ed., the chapter on alignment)."""
+    f = np.asarray(a, dtype=float)
+    fn = float(np.linalg.norm(f))
+    lean = math.acos(STANDARD_GRAVITY_M_S2 / fn) if fn > STANDARD_GRAVITY_M_S2 + tolerance_m_s2 else 0.0
+    dip = math.nan
+    if m is not None and np.all(np.isfinite(m)) and fn > 0.0:
+        mv = np.asarray(m, dtype=float)
+        mn = float(np.linalg.norm(mv))
+        if mn > 0.0:
+            dip = math.asin(min(max(-float(np.dot(f / fn, mv / mn)), -1.0), 1.0))
+    return StartLean(lean, dip)
+
+
+def levelling_force(a, g_rad_s, tolerance_m_s2: float, rate_sigma_rad_s: float) -> np.ndarray:
+    """The specific force to level on: `a` itself, or in a steady turn its part along the rotation axis.
+
+    A vehicle in a steady level turn (a car's circle, an aircraft's coordinated turn) rotates about the local
+    vertical, so the gyro's rate vector is the vertical, and the centripetal ω × v is perpendicular to it: the
+    specific force's component along the axis is g and the rest is the turn's. When that holds within
+    `tolerance_m_s2` (the levelling's noise on the specific force), the specific force leans further from the
+    axis than that noise allows, and further than the axis itself may be off (3 `rate_sigma_rad_s`, the gyro
+    bias's 1σ, across the rate), the axis part is the better vertical; a boat rolling, a vehicle at rest or
+    driving straight has its rate about another axis (or only noise) and fails the test."""
+    f = np.asarray(a, dtype=float)
+    w = np.asarray(g_rad_s, dtype=float)
+    wn = float(np.linalg.norm(w))
+    if not (wn > 0.0 and np.all(np.isfinite(w))):
+        return f
+    along = float(np.dot(f, w / wn))
+    if abs(abs(along) - STANDARD_GRAVITY_M_S2) > tolerance_m_s2:
+        return f
+    across = float(np.linalg.norm(f - along * w / wn))
+    if across <= tolerance_m_s2 or math.atan2(3.0 * rate_sigma_rad_s, wn) >= math.atan2(across, abs(along)):
+        return f
+    return along * w / wn
 
 
 def learned_to_keep(x: np.void, restart: bool) -> LearnedErrors:
@@ -116,14 +169,22 @@ def start_mag_reference(x: np.void, kept: LearnedErrors, min_undisturbed_s: floa
     ms["undisturbed_t_s"] = min_undisturbed_s
 
 
-def initial_covariance(P: np.ndarray, p: StartSigmas, use_mag: bool) -> None:
-    """The start-up uncertainty, uncorrelated: tilt from levelling, yaw from the magnetometer and its
-    calibration (π, unknown, without it), velocity and position unknown until the first fix, the sensor
-    errors their prior σ; the magnetometer's error states zero (the filter restarts them from their priors)."""
+def initial_covariance(P: np.ndarray, p: StartSigmas, use_mag: bool, lean: StartLean | None = None) -> None:
+    """The start-up uncertainty, uncorrelated: tilt from levelling (at least the `lean` its specific force
+    allows), yaw from the magnetometer and its calibration (π, unknown, without it), velocity and position
+    unknown until the first fix, the sensor errors their prior σ; the magnetometer's error states zero (the filter
+    restarts them from their priors). A lean beyond levelling's own σ also tips the plane the field's heading is
+    taken in: the heading is then off by about tan(dip)·lean (the kernel's magnetometer heading row, whose tilt
+    part is tan(dip) along the horizontal field), up to π."""
     P[:] = 0.0
+    lean_rad = 0.0 if lean is None else lean.lean_rad
     for i in (core.E_TILT_N, core.E_TILT_E):
-        P[i, i] = p.init_sigma_tilt_rad ** 2
-    P[core.E_YAW, core.E_YAW] = (max(p.init_sigma_yaw_rad, p.calibration_sigma_rad) if use_mag else math.pi) ** 2
+        P[i, i] = max(p.init_sigma_tilt_rad, lean_rad) ** 2
+    yaw_sigma = max(p.init_sigma_yaw_rad, p.calibration_sigma_rad) if use_mag else math.pi
+    if use_mag and lean is not None and lean_rad > p.init_sigma_tilt_rad:
+        through_dip = abs(math.tan(lean.dip_rad)) * lean_rad if math.isfinite(lean.dip_rad) else math.pi
+        yaw_sigma = max(yaw_sigma, min(math.pi, through_dip))
+    P[core.E_YAW, core.E_YAW] = yaw_sigma ** 2
     for i in range(3):
         P[core.E_V + i, core.E_V + i] = core.NAV_UNKNOWN_VAR_V
         P[core.E_P + i, core.E_P + i] = core.NAV_UNKNOWN_VAR_P
@@ -136,5 +197,5 @@ def initial_covariance(P: np.ndarray, p: StartSigmas, use_mag: bool) -> None:
         P[core.E_AZ_LEAN + i, core.E_AZ_LEAN + i] = p.accel_axes_tilt_sigma_rad ** 2
 
 
-__all__ = ["LearnedErrors", "StartSigmas", "first_history_row", "fresh_state", "initial_covariance",
-           "initial_true_attitude", "learned_to_keep", "start_mag_reference", "start_sensor_errors"]
+__all__ = ["LearnedErrors", "StartLean", "StartSigmas", "first_history_row", "fresh_state", "initial_covariance",
+           "initial_true_attitude", "learned_to_keep", "levelling_force", "levelling_lean", "start_mag_reference", "start_sensor_errors"]
