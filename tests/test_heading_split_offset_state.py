@@ -16,25 +16,14 @@ import numpy as np
 
 from ahrsd.estimator import ins_core as core
 from ahrsd.estimator.ins import Ins
-from ahrsd.simulation import Site
+from support.level_iron_turn import CHECK_S, FIELD_NED_UT, HEADINGS_RAD
+from support.level_iron_turn import level as _level
+from support.level_iron_turn import measured as _measured
 from bench.heading_split import offset_as_state
 
-# Anchorage: H about 15 µT, where the learned magnetometer is never trusted (fused while it is learned)
-FIELD_NED_UT = np.asarray(Site.parse("61.22,-149.90").earth_field().ned_ut, dtype=float)
-HARD_IRON_UT = np.array([6.0, -4.0, 3.0])
-SOFT_IRON = np.array([[1.04, 0.02, 0.0], [-0.01, 0.97, 0.01], [0.0, 0.02, 1.0]])
+# the field and the iron (support/level_iron_turn.py): Anchorage, H about 15 µT, where the learned magnetometer is
+# never trusted (fused while it is learned)
 YAW_ERROR_DEG = 2.0         # the filter's yaw (estimate − truth) over the whole window, at its stated 1σ
-CHECK_S = 0.2
-HEADINGS_RAD = np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False)
-
-
-def _level(yaw_rad: float) -> np.ndarray:
-    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def _measured(yaw_rad: float) -> np.ndarray:
-    return SOFT_IRON @ (_level(yaw_rad).T @ FIELD_NED_UT) + HARD_IRON_UT
 
 
 def _learned(with_yaw: bool) -> Ins:

@@ -20,26 +20,14 @@ import numpy as np
 from ahrsd.estimator import ins_core as core
 from ahrsd.estimator.ins import Ins
 from ahrsd.estimator.mag_error_states import learned_floor_var_rad2
-from ahrsd.simulation import Site
+from support.level_iron_turn import CHECK_S, FIELD_NED_UT, HEADINGS_RAD
+from support.level_iron_turn import level as _level
+from support.level_iron_turn import measured as _measured
 
-# Anchorage (61.22 N, 149.90 W): H about 15 µT, under the ~19 µT where the learned magnetometer's floor keeps it
-# from ever being trusted with the defaults
-FIELD_NED_UT = np.asarray(Site.parse("61.22,-149.90").earth_field().ned_ut, dtype=float)
-HARD_IRON_UT = np.array([6.0, -4.0, 3.0])
-SOFT_IRON = np.array([[1.04, 0.02, 0.0], [-0.01, 0.97, 0.01], [0.0, 0.02, 1.0]])
+# the field and the iron (support/level_iron_turn.py): Anchorage (61.22 N, 149.90 W), H about 15 µT, under the ~19 µT
+# where the learned magnetometer's floor keeps it from ever being trusted with the defaults
 YAW_SIGMA_DEG = 1.0             # the filter's stated yaw σ while learning
 DRIFTED_YAW_DEG = 2.0           # the filter's yaw in the second window: drifted 2σ off (seed 32's +1.3…+1.9°)
-CHECK_S = 0.2
-HEADINGS_RAD = np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False)
-
-
-def _level(yaw_rad: float) -> np.ndarray:
-    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def _measured(yaw_rad: float) -> np.ndarray:
-    return SOFT_IRON @ (_level(yaw_rad).T @ FIELD_NED_UT) + HARD_IRON_UT
 
 
 def _learn(est: Ins, start_rad: float, turn_rad: float, yaw_error_deg: float, seconds: float, t0_s: float,

@@ -17,6 +17,7 @@ from ahrsd.estimator.ins import Ins
 from ahrsd.estimator.start_rerun import start_heading
 from ahrsd.simulation import SensorErrors
 from bench.vehicle_accuracy import honesty_site, simulate_vehicle, tilt_heading_errors_deg
+from support.fed_in_arrival_order import stepped
 
 DEG_H = 180.0 / math.pi * 3600.0
 
@@ -55,12 +56,8 @@ def test_the_first_turn_teaches_the_vertical_gyro_bias():
     run = simulate_vehicle("boat", 34.0, seed, site, mag="uncalibrated", iron=iron, rate_hz=50.0)
     est = Ins(declination_rad=run.declination_rad, lever_arm_m=run.lever_arm_m,
               mag_calibration_sigma_rad=run.mag_calibration_sigma_rad, start_rerun_max_s=60.0)
-    fi = 0
-    for k, t in enumerate(run.t_s):
-        while fi < len(run.fixes) and run.fixes[fi].extra["t_rx_s"] <= t:
-            est.update_gnss(run.fixes[fi])
-            fi += 1
-        est.step(make_sample(t, run.gyro_rad_s[k], run.accel_m_s2[k], run.mag_ut[k], flags=SampleFlags.NEW_DATA))
+    for _ in stepped(est, run):
+        pass
     e = est.step(make_sample(run.t_s[-1] + 0.02, run.gyro_rad_s[-1], run.accel_m_s2[-1], run.mag_ut[-1],
                              flags=SampleFlags.NEW_DATA)).snapshot()
     true_bz = float(SensorErrors.adis16405(seed).gyro_bias_rad_s[2])
@@ -88,12 +85,7 @@ def test_the_car_after_its_first_turn_states_its_vertical_gyro_bias_honestly():
     true_bz = float(SensorErrors.adis16405(seed).gyro_bias_rad_s[2])
     i = core.E_BG + 2
     z = []
-    fi = 0
-    for k, t in enumerate(run.t_s):
-        while fi < len(run.fixes) and run.fixes[fi].extra["t_rx_s"] <= t:
-            est.update_gnss(run.fixes[fi])
-            fi += 1
-        est.step(make_sample(t, run.gyro_rad_s[k], run.accel_m_s2[k], run.mag_ut[k], flags=SampleFlags.NEW_DATA))
+    for t, _ in stepped(est, run):
         if t >= 25.0:
             z.append(abs(float(est.gyro_bias_rad_s[2]) - true_bz) / math.sqrt(est._P[i, i]))
     assert est.gnss_yaw_alignments == 1
