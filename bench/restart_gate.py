@@ -9,6 +9,13 @@ lean far beyond the stated tilt σ until the start levelled on the rotation axis
     python bench/restart_gate.py --scenario boat --starts 20 60 150 --seeds 1 2 3 4
     python bench/restart_gate.py --scenario car --starts 75 97 --seeds 1 2 3 --seconds 60
     python bench/restart_gate.py --scenario plane --starts 16 90 --seeds 1 2 3 --seconds 60
+    python bench/restart_gate.py --scenario car --starts 75 --sites fairbanks --seeds 5 --seconds 60 --trace-every 5
+
+`--trace-every S` also prints, per run, what the start levelled on (`levelling_force`'s figures: the force along
+the rate's axis less g, across it, the axis's allowed error, and the true tilt of the force and of the axis) and,
+at the start, 0.1 s and every S seconds, the tilt and true-heading errors and their 1σ, the GNSS yaw bank's error (valid or not), the heading checks'
+magnetometer–bank disagreement, low-passed velocity NIS, the magnetometer's low-passed innovation and its
+failures in a row (docs/estimator.md "hold37").
 """
 
 from __future__ import annotations
@@ -29,8 +36,26 @@ SITES = {"tromso": "69.65,18.96", "fairbanks": "64.84,-147.72"}
 SETTLE_S = 30.0
 
 
-def one_run(scenario: str, site: str, seed: int, start_s: float, seconds: float) -> dict:
+def start_levelling(run, rate_sigma_rad_s: float) -> str:
+    """The first sample's levelling figures against the truth (scipy): what `levelling_force` tests."""
+    from scipy.spatial.transform import Rotation
+    f, w = np.asarray(run.accel_m_s2[0], dtype=float), np.asarray(run.gyro_rad_s[0], dtype=float)
+    wn = float(np.linalg.norm(w))
+    along = float(np.dot(f, w / wn))
+    across = float(np.linalg.norm(f - along * w / wn))
+    qw, qx, qy, qz = run.truth_q_wxyz[0]
+    up_b = Rotation.from_quat([qx, qy, qz, qw]).inv().apply([0.0, 0.0, -1.0])
+    def tilt(v):
+        return np.degrees(np.arccos(min(1.0, abs(float(np.dot(v, up_b))) / float(np.linalg.norm(v)))))
+    return (f"#   start: |f| {np.linalg.norm(f):.3f} m/s², rate {np.degrees(wn):.2f} °/s, along − g "
+            f"{abs(along) - 9.80665:+.3f} m/s², across {across:.3f} m/s², axis allowed off "
+            f"{np.degrees(np.arctan2(3.0 * rate_sigma_rad_s, wn)):.1f}°; true tilt of f {tilt(f):.1f}°, of the axis "
+            f"{tilt(w):.1f}°")
+
+
+def one_run(scenario: str, site: str, seed: int, start_s: float, seconds: float, trace_every_s: float = 0.0) -> dict:
     from ahrsd.estimator.ins import Ins
+    from scipy.spatial.transform import Rotation
 
     run = simulate_vehicle(scenario, seconds, seed, SITES.get(site, site), mag="calibrated", start_s=start_s)
     est = Ins(declination_rad=run.declination_rad, lever_arm_m=run.lever_arm_m,
@@ -38,8 +63,25 @@ def one_run(scenario: str, site: str, seed: int, start_s: float, seconds: float)
     n = len(run.t_s)
     q, sigma = np.empty((n, 4)), np.empty(n)
     first = None
+    if trace_every_s > 0.0:
+        print(start_levelling(run, est.params.init_gyro_bias_sigma_rad_s))
+    next_trace_s = 0.0
     for k, e in estimates_in_arrival_order(est, run, run.fixes):
         q[k], sigma[k] = e.q_wxyz, e.sigma_rpy_rad[2]
+        if trace_every_s > 0.0 and run.t_s[k] - start_s >= next_trace_s:
+            next_trace_s = 0.1 if next_trace_s == 0.0 else max(trace_every_s, next_trace_s + trace_every_s - 0.1 * (next_trace_s == 0.1))
+            qw, qx, qy, qz = run.truth_q_wxyz[k]
+            true_yaw = Rotation.from_quat([qx, qy, qz, qw]).as_euler("ZYX")[0]
+            tilt_k, hdg_k = tilt_heading_errors_deg(q[k:k + 1], run.truth_q_wxyz[k:k + 1], run.declination_rad)
+            bank_yaw, bank_var, bank_valid = est._heading.gnss_yaw()
+            mon = est._heading.monitor
+            print(f"#   {run.t_s[k] - start_s:5.1f} s: tilt {tilt_k[0]:5.1f}° (roll/pitch 1σ "
+                  f"{np.degrees(e.sigma_rpy_rad[0]):5.2f}/{np.degrees(e.sigma_rpy_rad[1]):5.2f}°), "
+                  f"heading {hdg_k[0]:7.2f}° (1σ {np.degrees(sigma[k]):6.2f}°), bank "
+                  f"{np.degrees((bank_yaw - true_yaw + np.pi) % (2 * np.pi) - np.pi):7.2f}° (1σ "
+                  f"{np.degrees(np.sqrt(bank_var)):6.2f}°, {'valid' if bank_valid else 'not valid'}), "
+                  f"disagreement {np.degrees(mon.disagreement_rad):7.1f}°, NIS {mon.lowpassed_velocity_nis:5.1f}, "
+                  f"innovation {np.degrees(mon.lowpassed_innovation_rad):5.1f}°, failures {mon.failures}", flush=True)
         if first is None and est.heading_report().mag_rejections > 0:
             first = float(run.t_s[k] - start_s)
     _, hdg = tilt_heading_errors_deg(q, run.truth_q_wxyz, run.declination_rad)
@@ -60,6 +102,7 @@ def main(argv=None) -> None:
                     help="where in the scenario each run starts, s")
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4])
     ap.add_argument("--seconds", type=float, default=30.0)
+    ap.add_argument("--trace-every", type=float, default=0.0, help="print a trace every S s of each run (0: none)")
     args = ap.parse_args(argv)
     logging.disable(logging.WARNING)     # ins's own warnings for each rejection and reset
     print(f"# {args.scenario}, calibrated (0.5° stated), {args.seconds:g} s from each start: first rejection (s "
@@ -70,7 +113,7 @@ def main(argv=None) -> None:
     for site in args.sites:
         for start in args.starts:
             for seed in args.seeds:
-                r = one_run(args.scenario, site, seed, start, args.seconds)
+                r = one_run(args.scenario, site, seed, start, args.seconds, args.trace_every)
                 rejected += r["rejections"] > 0
                 first = "-" if r["first"] is None else f"{r['first']:.1f}"
                 print(f"{site:>10} {start:6.0f} {seed:4d} {first:>6} {r['rejections']:3d} {r['resets']:3d} "
