@@ -185,7 +185,7 @@ def trace(scenario: str, case: str, seed: int, site_label: str, iron_label: str 
     return rows, windows, (reruns, cpu_per_sample)
 
 
-TURN_BINS_DEG = (1.0, 3.0)     # --pooled splits the windows by how far the vehicle turned in them
+TURN_BINS_DEG = (3.0, 4.5)     # --pooled splits the windows by how far the vehicle turned in them
 
 
 def pooled_summary(windows: list) -> list[str]:
@@ -210,7 +210,7 @@ def pooled_summary(windows: list) -> list[str]:
             if n == 0:
                 continue
             zk = z[keep]
-            span = "all" if (lo, hi) == (0.0, math.inf) else f"{lo:g}–{hi:g}°"
+            span = "all" if (lo, hi) == (0.0, math.inf) else f"≥{lo:g}°" if hi == math.inf else f"{lo:g}–{hi:g}°"
             lines.append(f"  {label:24s} turn {span:7s}: n {n:3d} | RMS z {math.sqrt(float(zk @ zk) / n):4.2f} | "
                          f"beyond 2σ {100.0 * np.mean(np.abs(zk) > 2.0):4.1f} % | beyond 3σ "
                          f"{100.0 * np.mean(np.abs(zk) > 3.0):4.1f} % | mean z {float(np.mean(zk)):+5.2f}")
@@ -244,8 +244,9 @@ def main(argv=None) -> int:
     ap.add_argument("--pooled", action="store_true",
                     help="also each window's truth as the whole bias in force and the gyro scale's share s_z·mean ω_z "
                          "and its turn, and at the end the normalised errors of all windows of all runs pooled")
-    ap.add_argument("--runs", type=_run_arg, nargs="+", default=None, metavar="SITE:SEEDS",
-                    help="several sites with their seeds (\"44.65,-63.57:41,42\"), instead of --site and --seeds")
+    ap.add_argument("--runs", type=_run_arg, action="append", default=None, metavar="SITE:SEEDS",
+                    help="a site with its seeds (\"--runs=-53.16,-70.91:91,92\"; again for more sites), instead of "
+                         "--site and --seeds")
     args = ap.parse_args(argv)
     params = json.loads(args.params)
     runs = args.runs or [(args.site, args.seeds)]
