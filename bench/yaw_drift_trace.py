@@ -186,6 +186,7 @@ def trace(scenario: str, case: str, seed: int, site_label: str, iron_label: str 
 
 
 TURN_BINS_DEG = (3.0, 4.5)     # --pooled splits the windows by how far the vehicle turned in them
+FULL_WINDOW_S = 29.9           # ... and into the windows that ran their whole 30 s and those a turn ended
 
 
 def pooled_summary(windows: list) -> list[str]:
@@ -200,18 +201,21 @@ def pooled_summary(windows: list) -> list[str]:
     bias = np.array([w[8][0] for w in windows])
     scale = np.array([w[8][1] for w in windows])
     turn = np.abs([w[8][2] for w in windows])
+    full = np.array([w[0] for w in windows]) >= FULL_WINDOW_S
     edges = (0.0, *TURN_BINS_DEG, math.inf)
+    groups = [(f"turn {lo:g}–{hi:g}°" if hi < math.inf else f"turn ≥{lo:g}°", (turn >= lo) & (turn < hi))
+              for lo, hi in zip(edges[:-1], edges[1:])]
+    groups += [(f"span ≥{FULL_WINDOW_S:g} s", full), (f"span <{FULL_WINDOW_S:g} s", ~full),
+               ("all", np.ones(len(windows), dtype=bool))]
     lines = []
     for label, truth in (("turn-on b_z", turn_on), ("b_z in force", bias), ("b_z in force + s_z·ω_z", bias + scale)):
         z = (fit - truth) / sig
-        for lo, hi in [(lo, hi) for lo, hi in zip(edges[:-1], edges[1:])] + [(0.0, math.inf)]:
-            keep = (turn >= lo) & (turn < hi)
+        for span, keep in groups:
             n = int(np.count_nonzero(keep))
             if n == 0:
                 continue
             zk = z[keep]
-            span = "all" if (lo, hi) == (0.0, math.inf) else f"≥{lo:g}°" if hi == math.inf else f"{lo:g}–{hi:g}°"
-            lines.append(f"  {label:24s} turn {span:7s}: n {n:3d} | RMS z {math.sqrt(float(zk @ zk) / n):4.2f} | "
+            lines.append(f"  {label:24s} {span:12s}: n {n:3d} | RMS z {math.sqrt(float(zk @ zk) / n):4.2f} | "
                          f"beyond 2σ {100.0 * np.mean(np.abs(zk) > 2.0):4.1f} % | beyond 3σ "
                          f"{100.0 * np.mean(np.abs(zk) > 3.0):4.1f} % | mean z {float(np.mean(zk)):+5.2f}")
     return lines
