@@ -62,6 +62,8 @@ class VehicleRun:
     lever_arm_m: tuple = (0.0, 0.0, 0.0)     # the receiver's antenna, body FRD from the IMU, m
     mag_calibration_sigma_rad: float = float("nan")   # what the calibration says of its heading error (NaN: none)
     truth_vel_ned_m_s: np.ndarray | None = None        # the vehicle's true NED velocity at the IMU, m/s (n, 3)
+    truth_gyro_bias_rad_s: np.ndarray | None = None    # the gyro bias in force (turn-on, in-run, temperature) (n, 3)
+    truth_gyro_rad_s: np.ndarray | None = None         # the true body rate w.r.t. NED, body axes, rad/s (n, 3)
 
 
 def _rot(q_wxyz) -> Rotation:
@@ -141,7 +143,8 @@ def simulate_vehicle(name: str, seconds: float, seed: int, site_text: str | None
     return VehicleRun(block.t_s, block.gyro_rad_s, block.accel_m_s2, np.ascontiguousarray(mag_ut),
                       block.truth_q_wxyz, stream.earth_field.declination_rad, fixes, window, arm,
                       float("nan") if mag == "uncalibrated" else CALIBRATED_SIGMA_RAD,
-                      truth_vel_ned_m_s=block.truth_vel_ned_m_s)
+                      truth_vel_ned_m_s=block.truth_vel_ned_m_s, truth_gyro_bias_rad_s=block.truth_gyro_bias_rad_s,
+                      truth_gyro_rad_s=block.truth_gyro_rad_s)
 
 
 def run_ins(run: VehicleRun, use_gnss: bool = True, **params) -> np.ndarray:

@@ -102,6 +102,11 @@ def trace(scenario: str, case: str, seed: int, site_label: str, iron_label: str 
     sensor = SensorErrors.adis16405(seed)                                # simulate_vehicle's sensor
     true_bz, true_sz = float(sensor.gyro_bias_rad_s[2]), float(sensor.gyro_scale[2])
     rate = true_heading_rate_deg_s(run.t_s, run.truth_q_wxyz)
+    # what the vertical gyro adds to the body's turn, integrated (rad): its whole bias in force (turn-on, in-run
+    # Gauss–Markov, temperature) and its scale factor's share s_z·ω_z; a window's slope of these is its truth
+    dt_s = np.diff(run.t_s, prepend=run.t_s[0])
+    turned_by_bias = np.cumsum(run.truth_gyro_bias_rad_s[:, 2] * dt_s)
+    turned_by_scale = np.cumsum(true_sz * run.truth_gyro_rad_s[:, 2] * dt_s)
     windows = []
     tilt_t, tilt_n = [], []      # the true tilt error about magnetic north, rad, at the checks (heading_timeline's EVERY)
 
@@ -118,6 +123,16 @@ def trace(scenario: str, case: str, seed: int, site_label: str, iron_label: str 
             return out
 
         rotation.add = add_traced
+        fit = rotation._fit
+
+        def fit_traced(*args):
+            # the fitted window's bounds and turn, before a turn's new window replaces its samples
+            out = fit(*args)
+            if out is not None:
+                rotation.traced = (rotation.t0_s, rotation.samples[-1][0], rotation.samples[-1][3])
+            return out
+
+        rotation._fit = fit_traced
 
     def record_window(rotation, t_s, out):
         if out is not None:
@@ -126,9 +141,14 @@ def trace(scenario: str, case: str, seed: int, site_label: str, iron_label: str 
             tilt = math.sqrt(rotation.terms[5])     # the window's tilt term, as the fit counted it
             terms = tuple(math.sqrt(v) * DEG_H for v in rotation.terms[:6]) + (rotation.terms[6],
                                                                           math.degrees(rotation.terms[7]))
+            bias_end = float(est._x["gyro_bias_rad_s"][2])
+            t0, t1, turn = rotation.traced
+            k0, k1 = np.searchsorted(run.t_s, [t0, t1])
+            pooled = ((_slope(run.t_s[k0:k1 + 1], turned_by_bias[k0:k1 + 1], t0, t1) - bias_end) * DEG_H,
+                      _slope(run.t_s[k0:k1 + 1], turned_by_scale[k0:k1 + 1], t0, t1) * DEG_H, math.degrees(turn))
             windows.append((rotation.span_s, t_s, out[0] * DEG_H, math.sqrt(out[1]) * DEG_H,
-                            (true_bz - float(est._x["gyro_bias_rad_s"][2])) * DEG_H, tilt * DEG_H,
-                            tan_dip * abs(_slope(tilt_t, tilt_n, t_s - rotation.span_s, t_s)) * DEG_H, terms))
+                            (true_bz - bias_end) * DEG_H, tilt * DEG_H,
+                            tan_dip * abs(_slope(tilt_t, tilt_n, t_s - rotation.span_s, t_s)) * DEG_H, terms, pooled))
 
     trace_windows()
     run_again = est._run_start_again
@@ -165,6 +185,50 @@ def trace(scenario: str, case: str, seed: int, site_label: str, iron_label: str 
     return rows, windows, (reruns, cpu_per_sample)
 
 
+TURN_BINS_DEG = (3.0, 4.5)     # --pooled splits the windows by how far the vehicle turned in them
+FULL_WINDOW_S = 29.9           # ... and into the windows that ran their whole 30 s and those a turn ended
+
+
+def pooled_summary(windows: list) -> list[str]:
+    """--pooled: for every truth (the turn-on bias as the rows print it; the whole bias in force; that and the gyro
+    scale's share s_z·mean ω_z), the windows' normalised errors (fit − truth)/1σ pooled: how many, their RMS and the
+    shares beyond 2σ and 3σ (a Gaussian: 1, 4.6 %, 0.27 %), by the window's turn and over all."""
+    if not windows:
+        return ["no windows"]
+    fit = np.array([w[2] for w in windows])
+    sig = np.array([w[3] for w in windows])
+    turn_on = np.array([w[4] for w in windows])
+    bias = np.array([w[8][0] for w in windows])
+    scale = np.array([w[8][1] for w in windows])
+    turn = np.abs([w[8][2] for w in windows])
+    full = np.array([w[0] for w in windows]) >= FULL_WINDOW_S
+    edges = (0.0, *TURN_BINS_DEG, math.inf)
+    groups = [(f"turn {lo:g}–{hi:g}°" if hi < math.inf else f"turn ≥{lo:g}°", (turn >= lo) & (turn < hi))
+              for lo, hi in zip(edges[:-1], edges[1:])]
+    groups += [(f"span ≥{FULL_WINDOW_S:g} s", full), (f"span <{FULL_WINDOW_S:g} s", ~full),
+               ("all", np.ones(len(windows), dtype=bool))]
+    lines = []
+    for label, truth in (("turn-on b_z", turn_on), ("b_z in force", bias), ("b_z in force + s_z·ω_z", bias + scale)):
+        z = (fit - truth) / sig
+        for span, keep in groups:
+            n = int(np.count_nonzero(keep))
+            if n == 0:
+                continue
+            zk = z[keep]
+            lines.append(f"  {label:24s} {span:12s}: n {n:3d} | RMS z {math.sqrt(float(zk @ zk) / n):4.2f} | "
+                         f"beyond 2σ {100.0 * np.mean(np.abs(zk) > 2.0):4.1f} % | beyond 3σ "
+                         f"{100.0 * np.mean(np.abs(zk) > 3.0):4.1f} % | mean z {float(np.mean(zk)):+5.2f}")
+    return lines
+
+
+def _run_arg(text: str) -> tuple[str, list[int]]:
+    """--runs: "LAT,LON[,…]:SEED[,SEED…]" (or a site's name) → (the site, its seeds)."""
+    site, _, seeds = text.rpartition(":")
+    if not site or not seeds:
+        raise argparse.ArgumentTypeError(f"expected SITE:SEED[,SEED…], got {text!r}")
+    return honesty_site_arg(site), [int(x) for x in seeds.split(",")]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", default="boat")
@@ -181,12 +245,21 @@ def main(argv=None) -> int:
                     help="also the GNSS yaw bank's error, σ and validity, the vertical gyro scale-factor error and σ, "
                          "and the yaw resets so far")
     ap.add_argument("--terms", action="store_true", help="also every term of each fitted window's 1σ")
+    ap.add_argument("--pooled", action="store_true",
+                    help="also each window's truth as the whole bias in force and the gyro scale's share s_z·mean ω_z "
+                         "and its turn, and at the end the normalised errors of all windows of all runs pooled")
+    ap.add_argument("--runs", type=_run_arg, action="append", default=None, metavar="SITE:SEEDS",
+                    help="a site with its seeds (\"--runs=-53.16,-70.91:91,92\"; again for more sites), instead of "
+                         "--site and --seeds")
     args = ap.parse_args(argv)
     params = json.loads(args.params)
-    for seed in args.seeds:
-        rows, windows, (reruns, cpu_per_sample) = trace(args.scenario, args.case, seed, args.site, args.iron, args.seconds, args.every,
+    runs = args.runs or [(args.site, args.seeds)]
+    pooled = []
+    for site, seed in [(site, seed) for site, seeds in runs for seed in seeds]:
+        rows, windows, (reruns, cpu_per_sample) = trace(args.scenario, args.case, seed, site, args.iron, args.seconds, args.every,
                               args.from_s, args.to_s, params)
-        print(f"{args.scenario} {args.case} seed {seed} at {args.site} ({args.iron or 'own'} iron) {params or ''}: "
+        pooled += windows
+        print(f"{args.scenario} {args.case} seed {seed} at {site} ({args.iron or 'own'} iron) {params or ''}: "
               "t s | heading err ° | yaw σ ° | b_z err °/h (vs turn-on) | b_z σ °/h | true rate °/s | "
               "mag fused | learning | rejected" + (" | bank err ° | bank σ ° | bank valid | s_z err % | s_z σ % | "
                                                    "yaw resets" if args.start else ""))
@@ -203,15 +276,21 @@ def main(argv=None) -> int:
                   "sample, the trace's own work included)")
         print("magnetometer-rotation windows fitted: span s, ending at s | b_z − b̂_z ± 1σ °/h | truth °/h | "
               "tilt term of the 1σ °/h | the true tilt error's slope about magnetic north × tan|dip| °/h"
-              + (" | terms °/h: scatter (r₁) scale soft-iron attitude (start tilt σ °) gyro-noise tilt" if args.terms else ""))
-        for span, end, fit, sig, truth, tilt, true_tilt, terms in windows:
+              + (" | terms °/h: scatter (r₁) scale soft-iron attitude (start tilt σ °) gyro-noise tilt" if args.terms else "")
+              + (" | b_z in force − b̂_z °/h | s_z·mean ω_z °/h | turn °" if args.pooled else ""))
+        for span, end, fit, sig, truth, tilt, true_tilt, terms, (in_force, scale_share, turn) in windows:
             more = ""
             if args.terms:
                 sc, scale, soft, att, walk, tl, r1, att_deg = terms
                 more = (f" | {sc:4.0f} ({r1:.2f}) {scale:4.0f} {soft:4.0f} {att:4.0f} ({att_deg:4.2f}) {walk:4.0f} "
                         f"{tl:4.0f}")
+            if args.pooled:
+                more += f" | {in_force:+6.0f} | {scale_share:+5.1f} | {turn:+5.1f}"
             print(f"  {span:5.1f} s to {end:6.1f} | {fit:+6.0f} ± {sig:5.0f} | {truth:+6.0f} | {tilt:5.0f} | "
                   f"{true_tilt:5.0f}{more}")
+    if args.pooled:
+        print(f"all windows of {sum(len(seeds) for _, seeds in runs)} runs: (fit − truth)/1σ")
+        print("\n".join(pooled_summary(pooled)))
     return 0
 
 

@@ -1025,4 +1025,11 @@ MUTATIONS: tuple[Mutation, ...] = (
              "    if across <= tolerance_m_s2 or math.atan2(3.0 * rate_sigma_rad_s, wn) >= math.atan2(across, abs(along)):",
              "    if across <= tolerance_m_s2:",
              ("tests/test_turning_start.py",)),
+    # ------------------------------------------------------------------ session 37 (win)
+    Mutation("win-pooled-scale-share", "yaw_drift_trace --pooled's last truth holds the gyro scale's share",
+             "bench/yaw_drift_trace.py", '("b_z in force + s_z·ω_z", bias + scale)', '("b_z in force + s_z·ω_z", bias)',
+             ("tests/test_yaw_drift_pooled.py",)),
+    Mutation("win-pooled-beyond-3-sigma", "yaw_drift_trace --pooled counts |z| beyond 3, both signs",
+             "bench/yaw_drift_trace.py", "f\"{100.0 * np.mean(np.abs(zk) > 3.0):4.1f} %",
+             "f\"{100.0 * np.mean(zk > 3.0):4.1f} %", ("tests/test_yaw_drift_pooled.py",)),
 )
