@@ -438,7 +438,7 @@ class HeadingSupervision:
         """The planned first alignment of the yaw to the GNSS yaw (yaw_align_to_gnss_yaw). With the magnetometer
         rejected by now, what the start learned was learned against a heading found wrong: the filter may run its
         start again under this yaw (`rerun_due`, start_rerun.py)."""
-        if self.monitor.mag_rejected:
+        if self.monitor.mag_rejected and self.params.start_rerun_max_s > 0.0:    # off: nothing is kept to run again
             gsf_yaw = wrap_pi(float(quat_to_euler(self._x["q"])[2]) + dyaw_rad)
             self.rerun_due = (gsf_yaw, gsf_var, float(self._x["t_last_s"]), float(self._x["lat_rad"]))
         self.confirmation.aligned()         # the biases a reset goes back to: the start-up ones

@@ -931,7 +931,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     # ------------------------------------------------------------------ session 37 (first)
     Mutation("start-rerun-at-alignment", "at the alignment with the magnetometer rejected the start is run again "
              "under the GNSS yaw bank's yaw carried back", "estimator/heading_supervision.py",
-             "        if self.monitor.mag_rejected:", "        if False:", ("tests/test_start_rerun.py",)),
+             "        if self.monitor.mag_rejected and self.params.start_rerun_max_s > 0.0:", "        if False:", ("tests/test_start_rerun.py",)),
     Mutation("start-heading-less-bias", "the bank's yaw is carried back through the gyro less its start-up bias",
              "estimator/start_rerun.py", "wr = [prev[1][i] - b[i] for i in range(3)]",
              "wr = [prev[1][i] for i in range(3)]", ("tests/test_start_rerun.py",)),
