@@ -14,6 +14,7 @@ reading at the daemon's first `poll()` (start-up time is not counted as loss) an
 
 from __future__ import annotations
 
+import functools
 import gc
 import logging
 import math
@@ -141,7 +142,9 @@ def _child(sensor_cfg: SensorSettings, faults, conn, handover_at=None) -> None:
         # blocked in recv() without the GIL. A second Python thread here would hold the reader's GIL at
         # times, and when the machine is short of CPU be descheduled while holding it (a priority inversion
         # that the reader's SCHED_FIFO cannot break: docs/drivers.md).
-        handover = _Handover(conn, src, wanted=None if handover_at is None else lambda: handover_at.value)
+        # the shared double read in C (getattr): asked after every read
+        wanted = None if handover_at is None else functools.partial(getattr, handover_at, "value")
+        handover = _Handover(conn, src, wanted=wanted)
         src.after_read = handover.maybe_send
         src.log_realtime = False              # the child's log goes nowhere: the daemon logs what it is told
         src.start()
