@@ -1067,4 +1067,18 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("hold-centripetal-forward", "the centripetal part is ω × v with v along the body's forward axis",
              "estimator/ins_start.py", "    fc = f - np.cross(w, np.array([speed_m_s, 0.0, 0.0]))",
              "    fc = f - np.cross(w, np.array([0.0, speed_m_s, 0.0]))", ("tests/test_turning_start_first_fix.py",)),
+    # ------------------------------------------------------------------ session 38 (vpe)
+    Mutation("held-withheld-uncounted", "a deadline whose output is withheld (VPE: heading not trusted) is counted",
+             "daemon/publishers.py", "ep.schedule.held(mid, now, WITHHELD)", "None",
+             ("tests/test_publishers_once_per_estimate.py",)),
+    Mutation("held-unchanged-uncounted", "a VPE deadline with no new estimate since the last VPE is counted",
+             "daemon/publishers.py", "ep.schedule.held(mid, now, UNCHANGED)", "None",
+             ("tests/test_publishers_once_per_estimate.py",)),
+    Mutation("held-run-continues", "consecutive held deadlines of a stream are one run with its first and last time",
+             "daemon/outputs.py", "run.served_after == s.served - 1", "run.served_after == s.served",
+             ("tests/test_publishers_once_per_estimate.py",)),
+    Mutation("vpe-lost-uncounted", "every VISION_POSITION_ESTIMATE deadline is sent, dropped or held: none lost "
+             "without a count", "daemon/publishers.py", "if ep.send(m):",
+             "if (mid != 102 or self.counters.published % 4) and ep.send(m):",
+             ("tests/test_reliability_soak.py",)),
 )
