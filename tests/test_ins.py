@@ -278,13 +278,16 @@ def test_lever_arm_is_applied_to_position_and_velocity():
     assert _rms(tilt) < 0.3
 
 
-@pytest.mark.parametrize("earth", ["wgs84", "sphere"])
+# the fixes on WGS-84 only: on the R0 sphere as well ("sphere", the same test) it caught no break of the models'
+# radii that these do not (docs/testing.md "Session 38 (cie)")
+@pytest.mark.parametrize("earth", ["wgs84"])
 def test_position_follows_the_earth_model_the_fixes_are_on(earth):
-    """Fixes on the WGS-84 ellipsoid or on the R0 sphere. Between fixes ins moves its position by its velocity over
-    the radii of its earth_model (L̇ = v_N/(R_N + h), λ̇ = v_E/((R_E + h) cos L), Groves eq. 2.111), radii computed
-    here (ins_truth.RADII): the two models differ by 0.3 % north and 0.1 % east at 36°, so an ins on the other
-    model's radii fails. With the matching earth_model the position is unbiased; with the other one the position
-    updates absorb the scale error without changing the attitude."""
+    """Fixes on the WGS-84 ellipsoid (or on the R0 sphere: `earth`). Between fixes ins moves its position by its
+    velocity over the radii of its earth_model (L̇ = v_N/(R_N + h), λ̇ = v_E/((R_E + h) cos L), Groves eq. 2.111),
+    radii computed here (ins_truth.RADII): the two models differ by 0.3 % north and 0.1 % east at 36°, so an ins on
+    the other model's radii fails — each model's propagation is checked, the matching one's and the other's. With
+    the matching earth_model the position is unbiased; with the other one the position updates absorb the scale
+    error without changing the attitude."""
     run, fixes, good = _clean("coordinated-turn", 150.0, earth=earth)     # on WGS-84: the outage test's run
     m = run.truth.t_s > 30.0
     other = "sphere" if earth == "wgs84" else "wgs84"
