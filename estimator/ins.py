@@ -489,7 +489,8 @@ class Ins:
         self._published_terms = entry_point(published_terms, argument_types(published_terms, terms_args))
         self._initialised = False
         self._reinit_pending = False
-        self._levelled_on_force = False    # the start levelled on the specific force: its first fix widens (_fuse)
+        self._levelled_on_force = False    # the start levelled on the specific force: its first fix acts (_fuse)
+        self._start_t_s = math.nan
         self._pending_flags = 0
         # the fixes offered (update_gnss): taken, queued until the samples reach them, or refused, and counted
         p = self.params
@@ -897,6 +898,7 @@ class Ins:
         start_mag_reference(self._x, kept, p.mag_min_undisturbed_s)
         initial_covariance(self._P, p, use_mag, levelling_lean(a_level, m if use_mag else None, p.level_noise_m_s2))
         self._levelled_on_force = a_level is a or np.array_equal(a_level, a)
+        self._start_t_s = float(t_s)
         self._heading.restart_calibration_error_states()
         self._restart_companions(t_s)
         if self._rerun is not None:
@@ -908,11 +910,15 @@ class Ins:
 
     def _widen_for_turn_lean(self) -> None:
         """The first fix of a start levelled on the specific force, once: levelled again on it less the turn's
-        centripetal acceleration, or its 1σ widened (ins_start.first_fix_in_turn); a new attitude starts the
-        published heading again from the filter's, flagged as a yaw reset."""
+        centripetal acceleration while the attitude is still the start's (within the levelling's low-pass time:
+        later the filter has levelled and checked the magnetometer over more than one sample), or its 1σ widened
+        (ins_start.first_fix_in_turn); a new attitude starts the published heading again from the filter's,
+        flagged as a yaw reset."""
         self._levelled_on_force = False
-        yaw_from_mag = self.params.mag_enabled and self._rerun is None
-        if first_fix_in_turn(self._x, self._P, self._hist, self.params, self._declination, yaw_from_mag):
+        p = self.params
+        yaw_from_mag = p.mag_enabled and self._rerun is None
+        soon = float(self._x["t_last_s"]) - self._start_t_s <= p.level_lowpass_tau_s
+        if first_fix_in_turn(self._x, self._P, self._hist, p, self._declination, yaw_from_mag, soon):
             self._published.reset()
             self._pending_flags |= int(EstimateFlags.YAW_RESET)
 

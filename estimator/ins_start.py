@@ -175,7 +175,14 @@ def level_again(x: np.void, P: np.ndarray, hist: np.ndarray, p: StartSigmas, f_l
         i = (int(x["hist_newest"]) - k) % hist.shape[0]
         hist[i]["q"] = quat_normalize(quat_multiply(turn, hist[i]["q"]))
     x["q"] = q_new
-    x["acc_ned_lp_m_s2"] = np.asarray(quat_to_dcm(q_new), dtype=float) @ x["acc_last_m_s2"]
+    c = np.asarray(quat_to_dcm(q_new), dtype=float)
+    x["acc_ned_lp_m_s2"] = c @ x["acc_last_m_s2"]
+    # the fix set the velocity it had at its own time, which is this sample's less the fix's delay: levelled on
+    # the force, the attitude saw no horizontal acceleration over that delay, the turn's is C f + g
+    delay_s = float(x["t_last_s"]) - float(x["gnss_fused_t_s"])
+    if 0.0 < delay_s < math.inf:
+        a_ned = c @ np.asarray(x["acc_last_m_s2"], dtype=float)
+        x["vel_ned_m_s"][:2] = x["vel_ned_m_s"][:2] + delay_s * a_ned[:2]
     residual = abs(float(np.linalg.norm(f_level)) - STANDARD_GRAVITY_M_S2) / STANDARD_GRAVITY_M_S2
     for i in (core.E_TILT_N, core.E_TILT_E):
         _restart_uncorrelated(P, i, max(p.init_sigma_tilt_rad, residual) ** 2)
@@ -183,18 +190,20 @@ def level_again(x: np.void, P: np.ndarray, hist: np.ndarray, p: StartSigmas, f_l
 
 
 def first_fix_in_turn(x: np.void, P: np.ndarray, hist: np.ndarray, p: StartSigmas, declination_rad: float,
-                      yaw_from_mag: bool) -> bool:
+                      yaw_from_mag: bool, may_level_again: bool = True) -> bool:
     """The first fix of a start levelled on the specific force (x the state just after it set the velocity): in a
     turn that force leaned by the centripetal ω × v, which the fix's speed now tells. Levelled again on the force
     less it (`centripetal_levelling_force`, `level_again`) when that explains the force's norm, moves the vertical
-    by more than the tilt 1σ and the magnetometer gives the heading at the new tilt; otherwise the tilt (and the
+    by more than the tilt 1σ, the magnetometer gives the heading at the new tilt and `may_level_again` (the
+    attitude is still the start's); otherwise the tilt (and the
     magnetometer's yaw) 1σ widened to the lean it cannot exclude (`first_fix_lean`, `widen_for_lean`). True when
     the attitude was levelled again."""
     rate = x["gyro_last_rad_s"] - x["gyro_bias_rad_s"]
     f = np.asarray(x["acc_last_m_s2"], dtype=float)
     m = np.asarray(x["mag_last_ut"], dtype=float)
     fc = centripetal_levelling_force(f, rate, float(np.linalg.norm(x["vel_ned_m_s"])))
-    if fc is not None and yaw_from_mag and np.all(np.isfinite(m)) and _angle_rad(f, fc) > p.init_sigma_tilt_rad:
+    if (may_level_again and fc is not None and yaw_from_mag and np.all(np.isfinite(m))
+            and _angle_rad(f, fc) > p.init_sigma_tilt_rad):
         level_again(x, P, hist, p, fc, m, declination_rad)
         return True
     lean = first_fix_lean(x["q"], rate, x["vel_ned_m_s"], f)

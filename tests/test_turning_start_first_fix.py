@@ -9,6 +9,7 @@ along the rate's axis 0.33 m/s² from g) or built here with scipy rotations."""
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -25,24 +26,29 @@ G_M_S2 = 9.80665
 
 @pytest.fixture(scope="module")
 def car_turning():
-    """2 s of the car at Fairbanks from 75 s into its scenario (seed 5), in a 13.5 °/s turn at 15 m/s."""
-    return simulate_vehicle("car", 2.0, 5, "64.84,-147.72", mag="calibrated", start_s=75.0)
+    """3 s of the car at Fairbanks from 75 s into its scenario (seed 5), in a 13.5 °/s turn at 15 m/s."""
+    return simulate_vehicle("car", 3.0, 5, "64.84,-147.72", mag="calibrated", start_s=75.0)
 
 
-def _run(run, **params):
+def _run(run, fixes_from_s=0.0, **params):
     """ins over the run: per sample the tilt and heading errors against the simulator's truth (deg), the tilt 1σ
-    (roll and pitch in quadrature) and yaw 1σ (deg); and whether GNSS aided it (from the first fix)."""
+    (roll and pitch in quadrature) and yaw 1σ (deg), whether GNSS aided it (from the first fix) and the horizontal
+    velocity error (m/s, NaN before)."""
     est = Ins(declination_rad=run.declination_rad, lever_arm_m=run.lever_arm_m,
               mag_calibration_sigma_rad=run.mag_calibration_sigma_rad, **params)
     n = len(run.t_s)
     q, s_tilt, s_yaw, aided = np.empty((n, 4)), np.empty(n), np.empty(n), np.zeros(n, dtype=bool)
-    for k, e in estimates_in_arrival_order(est, run, run.fixes):
+    dv = np.full(n, np.nan)
+    fixes = [f for f in run.fixes if f.t_s - run.t_s[0] >= fixes_from_s]
+    for k, e in estimates_in_arrival_order(est, run, fixes):
         q[k] = e.q_wxyz
         aided[k] = bool(e.flags & EstimateFlags.GNSS_AIDED)
+        if e.nav is not None:
+            dv[k] = float(np.linalg.norm(e.nav.vel_ned_m_s[:2] - run.truth_vel_ned_m_s[k, :2]))
         s_tilt[k] = math.degrees(math.hypot(e.sigma_rpy_rad[0], e.sigma_rpy_rad[1]))
         s_yaw[k] = math.degrees(e.sigma_rpy_rad[2])
     tilt, hdg = tilt_heading_errors_deg(q, run.truth_q_wxyz, run.declination_rad)
-    return tilt, hdg, s_tilt, s_yaw, aided
+    return SimpleNamespace(tilt=tilt, hdg=hdg, s_tilt=s_tilt, s_yaw=s_yaw, aided=aided, dv=dv)
 
 
 def test_the_start_is_refused_the_axis(car_turning):
@@ -54,19 +60,38 @@ def test_the_start_is_refused_the_axis(car_turning):
 
 
 def test_levelled_again_at_the_first_fix_the_tilt_and_heading_are_right_and_covered(car_turning):
-    tilt, hdg, s_tilt, s_yaw, aided = _run(car_turning)
-    before, after = ~aided, aided
+    r = _run(car_turning)
+    tilt, hdg, s_tilt, s_yaw, before, after = r.tilt, r.hdg, r.s_tilt, r.s_yaw, ~r.aided, r.aided
     assert np.min(tilt[before]) > 15.0                      # levelled on the turn's force until the fix
     assert np.all(tilt[after] <= 3.0 * s_tilt[after])
     assert np.all(np.abs(hdg[after]) <= 3.0 * s_yaw[after])
     assert np.max(tilt[after]) < 10.0                       # on gravity from it (the fixes' lag leans it a little)
 
 
+def test_levelled_again_the_velocity_is_carried_over_the_fix_delay(car_turning):
+    """The fix sets the velocity it had at its own time; levelled on the force, the start saw no horizontal
+    acceleration over the fix's delay: levelled again, the turn's acceleration over that delay is added."""
+    r = _run(car_turning)
+    k = int(np.flatnonzero(r.aided)[0])
+    assert r.dv[k] < 0.1
+
+
 def test_without_the_magnetometer_the_first_fix_widens_the_tilt_sigma(car_turning):
     """No heading to read at a new tilt: the start keeps its tilt, and its 1σ covers it."""
-    tilt, _, s_tilt, _, aided = _run(car_turning, mag_enabled=False)
-    k = int(np.flatnonzero(aided)[0])                       # the sample right after the first fix
+    r = _run(car_turning, mag_enabled=False)
+    tilt, s_tilt = r.tilt, r.s_tilt
+    k = int(np.flatnonzero(r.aided)[0])                     # the sample right after the first fix
     assert tilt[k] > 15.0
+    assert tilt[k] <= 3.0 * s_tilt[k]
+
+
+def test_a_first_fix_long_after_the_start_widens_instead(car_turning):
+    """2 s after the start the attitude is the levelling's over many samples, no longer the start's: the first
+    fix then does not level it again (nor read the magnetometer again), and widens its 1σ to the lean."""
+    r = _run(car_turning, fixes_from_s=2.0)
+    tilt, s_tilt = r.tilt, r.s_tilt
+    k = int(np.flatnonzero(r.aided)[0])
+    assert tilt[k] > 10.0
     assert tilt[k] <= 3.0 * s_tilt[k]
 
 
