@@ -120,7 +120,9 @@ class MagRotationBias:
     tilt_sigma_rad: float = 0.0         # the filter's tilt 1σ at the last fitted window's end
     # the filter's tilt 1σ at the latest check, or the function that gives it (`add`)
     _tilt_sigma_now: float | Callable[[], float] = field(default=0.0, init=False, repr=False)
-    samples: list = field(default_factory=list)   # (t, φ, Σ b̂Δt, turn, soft-iron and attitude sensitivities)
+    # (t, φ, Σ b̂Δt, turn, then what the soft-iron and attitude sensitivities are made of at the fit,
+    # `sensitivities`: w, d, |w|², ΔCᵀ − I, A)
+    samples: list = field(default_factory=list)
     # what stays the same through a window, made at its start: B × e_z (the direction a turn about down moves the
     # field, in NED) and e_i × v₀ for the three axes (how v₀ moves with an attitude error about each)
     turn_ned_ut: np.ndarray = field(default_factory=lambda: np.zeros(3), repr=False)
@@ -166,12 +168,10 @@ class MagRotationBias:
             return None
         d = v - self.v0_ut
         rho = (m - self.m0_ut) - soft_iron @ d
-        # how φ moves with an error δA of the soft iron (∂φ/∂δA_ij = w_i d_j / |w|²) and with an error ε of the
-        # attitude v₀ was taken at (v₀ → v₀ + ε × v₀)
-        rt_i = rot.T - _EYE3
-        att = np.array([-(soft_iron @ (rt_i @ e_v0)) @ w / ww for e_v0 in self.v0_moves_ut])
-        self.samples.append((t_s, float(rho @ w) / ww, self.bias_dt, _turn(rot),
-                             (w[:, None] * d[None, :]).reshape(9) / ww, att))
+        # how φ moves with an error of the soft iron and of the start attitude: worked out at the fit, for all the
+        # window's checks at once (`sensitivities`), from what they are made of here
+        self.samples.append((t_s, float(rho @ w) / ww, self.bias_dt, _turn(rot), w, d, ww, rot.T - _EYE3,
+                             soft_iron))
         if t_s - self.t0_s < self.window_s:
             return None
         result = self._fit(bias_z_rad_s, soft_sigma)
@@ -195,6 +195,23 @@ class MagRotationBias:
         self._tilt_sigma_now = tilt_sigma_rad
         self.samples = []
 
+    def sensitivities(self) -> tuple[np.ndarray, np.ndarray]:
+        """How each check's φ moves (n×9, n×3) with an error δA of the soft iron (∂φ/∂δA_ij = w_i d_j / |w|²) and
+        with an error ε of the attitude v₀ was taken at (v₀ → v₀ + ε × v₀: −A·(ΔCᵀ − I)·(e_i × v₀)·w / |w|²).
+        Each check's products are the ones it would make alone (a stack of matrix–vector products, the 3-sums in
+        order), so the figures do not depend on being made together."""
+        n = len(self.samples)
+        w = np.array([s[4] for s in self.samples])
+        d = np.array([s[5] for s in self.samples])
+        ww = np.array([s[6] for s in self.samples])
+        soft = (w[:, :, None] * d[:, None, :]).reshape(n, 9) / ww[:, None]
+        moves = np.array(self.v0_moves_ut)[None, :, :, None]        # 1×3×3×1: e_i × v₀ as columns
+        rt_i = np.array([s[7] for s in self.samples])[:, None]     # n×1×3×3
+        a = np.array([s[8] for s in self.samples])[:, None]        # n×1×3×3
+        turned = np.matmul(a, np.matmul(rt_i, moves))[..., 0]      # n×3×3: A·(ΔCᵀ − I)·(e_i × v₀)
+        att = np.add.reduce(-turned * w[:, None, :], axis=-1) / ww[:, None]
+        return soft, att
+
     def _fit(self, bias_end_rad_s: float, soft_sigma: float) -> tuple[float, float] | None:
         n = len(self.samples)
         if n < self.min_samples or self.samples[-1][0] - self.t0_s < self.min_span_s \
@@ -204,8 +221,7 @@ class MagRotationBias:
         phi = np.array([s[1] for s in self.samples])
         bias_dt = np.array([s[2] for s in self.samples])
         turn = np.array([s[3] for s in self.samples])
-        soft = np.array([s[4] for s in self.samples])
-        att = np.array([s[5] for s in self.samples])
+        soft, att = self.sensitivities()
         self.span_s = float(t[-1])
         # −φ_k + Σ b̂_j Δt_j − b̂_end·t_k = (b_z − b̂_end)·t_k: each interval turned with its own b̂_j
         y = -phi + bias_dt - bias_end_rad_s * t

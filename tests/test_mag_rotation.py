@@ -25,11 +25,11 @@ def _attitude(t):
     return Rotation.from_euler("ZYX", [yaw, pitch, roll], degrees=True).as_matrix()
 
 
-def _window(bias_rad_s, seed=1, heading_offset_deg=2.0, est=None, att_cov=None):
+def _window(bias_rad_s, seed=1, heading_offset_deg=2.0, est=None, att_cov=None, soft_iron=None):
     """Checks at 5 Hz for 30 s; the gyro's rotation between checks is the true one turned further about body z by
     the bias (estimate 0); the filter's attitude has the true tilt and a heading `heading_offset_deg` off. `est`: the
     window to feed (a fresh one without gyro noise by default); `att_cov`: the filter's attitude covariance it is
-    told (NED; 1° on each axis by default)."""
+    told (NED; 1° on each axis by default); `soft_iron`: the learned soft iron it is told (I by default)."""
     att_cov = np.eye(3) * math.radians(1.0) ** 2 if att_cov is None else att_cov
     rng = np.random.default_rng(seed)
     est = MagRotationBias(gyro_noise_rad_s_rthz=0.0) if est is None else est
@@ -46,8 +46,8 @@ def _window(bias_rad_s, seed=1, heading_offset_deg=2.0, est=None, att_cov=None):
             step = _attitude(t_prev).T @ c_true @ Rotation.from_euler("z", bias_rad_s * dt).as_matrix()
         else:
             dt = 0.0
-        out = est.add(t, m, off @ c_true, B_NED_UT, step, 0.0, dt, np.eye(3), 0.1, att_cov,
-                      math.radians(0.2)) or out
+        told_soft = np.eye(3) if soft_iron is None else soft_iron
+        out = est.add(t, m, off @ c_true, B_NED_UT, step, 0.0, dt, told_soft, 0.1, att_cov, math.radians(0.2)) or out
         t_prev = t
     return out
 
@@ -95,7 +95,7 @@ def test_a_window_takes_the_start_attitude_per_body_axis_and_waits_for_the_tilt_
     attitude = est.terms[3]
     c0 = Rotation.from_euler("z", 2.0, degrees=True).as_matrix() @ _attitude(0.0)
     t = np.array([s[0] for s in est.samples])       # the slope is the same from any origin
-    att = np.array([s[5] for s in est.samples])
+    att = est.sensitivities()[1]
     slopes = (t - t.mean()) @ (att - att.mean(axis=0)) / float((t - t.mean()) @ (t - t.mean()))
     assert math.isclose(attitude, float(slopes @ (c0.T @ cov @ c0) @ slopes), rel_tol=1e-9)
     assert attitude < 0.1 * math.radians(10.0) ** 2 * float(slopes @ slopes)
@@ -103,6 +103,21 @@ def test_a_window_takes_the_start_attitude_per_body_axis_and_waits_for_the_tilt_
     assert est.terms[7] == math.radians(0.2)
     # a tilt above the 5° limit: no window
     assert _window(bias, att_cov=np.diag([math.radians(6.0) ** 2, 1e-6, 1e-6])) is None
+
+
+def test_the_sensitivities_made_together_are_each_checks_own_to_the_bit():
+    """`sensitivities` makes every check's soft-iron and attitude rows at once at the fit: each equals what the check
+    makes alone from what it kept (w, d, |w|², ΔCᵀ − I, A), the soft-iron row w_i d_j / |w|² and the attitude
+    row −(A·(ΔCᵀ − I)·(e_i × v₀))·w / |w|², bit for bit (the window's fit, and the filter's output with it, do not
+    change with the batching)."""
+    est = MagRotationBias(gyro_noise_rad_s_rthz=0.0)
+    _window(150.0 * DEG_H, est=est, soft_iron=SOFT)
+    soft, att = est.sensitivities()
+    assert len(est.samples) > 100
+    for k, (_, _, _, _, w, d, ww, rt_i, a) in enumerate(est.samples):
+        assert np.array_equal(soft[k], (w[:, None] * d[None, :]).reshape(9) / ww)
+        assert np.array_equal(att[k], np.array([-(a @ (rt_i @ e)) @ w / ww for e in est.v0_moves_ut]))
+    assert np.all(np.abs(att) > 0.0) and np.all(np.isfinite(att))
 
 
 def test_the_rotation_vector_carries_the_coning_term():

@@ -1098,4 +1098,8 @@ MUTATIONS: tuple[Mutation, ...] = (
              "only for the field it was made at (keyed by its values too)",
              "estimator/heading_monitor.py", "key = (b.tobytes(), yaw.dtype.str, yaw.shape, yaw.tobytes())",
              "key = (yaw.dtype.str, yaw.shape, yaw.tobytes())", ("tests/test_iron_level_rows.py",)),
+    Mutation("mag-rotation-sensitivities-per-check", "a window's attitude rows made together at the fit are each "
+             "check's own products (A·((ΔCᵀ − I)·(e_i × v₀)), in that order)",
+             "estimator/mag_rotation.py", "turned = np.matmul(a, np.matmul(rt_i, moves))[..., 0]",
+             "turned = np.matmul(rt_i, np.matmul(a, moves))[..., 0]", ("tests/test_mag_rotation.py",)),
 )
