@@ -140,16 +140,18 @@ class Result:
     outcomes: list           # update_gnss return values
 
 
-def run_ins(est, run: Run, fixes, cov_every=0, fix_filter=None, sigma_yaw_out=None, estimates_every=1) -> Result:
+def run_ins(est, run: Run, fixes, cov_every=0, fix_filter=None, sigma_yaw_out=None, estimates_every=1,
+            seconds=None) -> Result:
     """Feed the samples one at a time, each fix once the IMU time passes its arrival time; `sigma_yaw_out` (a
     list) gets each sample's published yaw σ (rad). `estimates_every` = n > 1: the estimate (q_mag, nav) is
     read at every n-th sample only (NaN at the others; q_true, the flags and the covariances as always: the flags
     from the step's view, which gives them without building the estimate): the others are stepped without building
     one (Ins.step), which changes no estimate (estimator/estimate_view.py: what a snapshot holds does not depend on
-    how often snapshots are taken)."""
+    how often snapshots are taken). `seconds`: only the run's samples before it are fed (the arrays hold those: the
+    first samples of the run's)."""
     samples = run.samples()
-    n = len(run.truth.t_s)
     t = run.truth.t_s
+    n = len(t) if seconds is None else int(np.searchsorted(t, seconds))
     q_mag = np.zeros((n, 4)) if estimates_every == 1 else np.full((n, 4), np.nan)
     q_true = np.zeros((n, 4))
     flags = np.zeros(n, dtype=np.int64)

@@ -75,14 +75,14 @@ read at every 4th sample (50 Hz; run_ins's estimates_every), the flags at every 
 
 
 def _read(res, mask):
-    """`mask` at the samples whose estimate `res` read."""
-    return mask & np.isfinite(res.q_mag[:, 0])
+    """`mask` at the samples whose estimate `res` read (its first ones: `res` may be of the run's first seconds)."""
+    return mask[:len(res.q_mag)] & np.isfinite(res.q_mag[:, 0])
 
 
 def _errors(res, run, mask):
     """tilt_heading_errors_deg at the samples of `mask` whose estimate was read."""
     r = _read(res, mask)
-    return tilt_heading_errors_deg(res.q_mag[r], run.truth.q_wxyz[r])
+    return tilt_heading_errors_deg(res.q_mag[r], run.truth.q_wxyz[:len(r)][r])
 
 
 def _rms(a):
@@ -90,8 +90,9 @@ def _rms(a):
 
 
 def _step_deg(res_a, res_b):
-    """Largest attitude difference between two runs of the same data, degrees."""
-    return float(np.degrees(np.max(np.linalg.norm(attitude_error_ned(res_a.q_true, res_b.q_true), axis=1))))
+    """Largest attitude difference between two runs of the same data, degrees (over the shorter one's samples)."""
+    n = min(len(res_a.q_true), len(res_b.q_true))
+    return float(np.degrees(np.max(np.linalg.norm(attitude_error_ned(res_a.q_true[:n], res_b.q_true[:n]), axis=1))))
 
 
 # ------------------------------------------------------------------------------ the point of it all
@@ -278,13 +279,16 @@ def test_lever_arm_is_applied_to_position_and_velocity():
     assert _rms(tilt) < 0.3
 
 
-@pytest.mark.parametrize("earth", ["wgs84", "sphere"])
+# the fixes on WGS-84 only: on the R0 sphere as well ("sphere", the same test) it caught no break of the models'
+# radii that these do not (docs/testing.md "Session 38 (cie)")
+@pytest.mark.parametrize("earth", ["wgs84"])
 def test_position_follows_the_earth_model_the_fixes_are_on(earth):
-    """Fixes on the WGS-84 ellipsoid or on the R0 sphere. Between fixes ins moves its position by its velocity over
-    the radii of its earth_model (L̇ = v_N/(R_N + h), λ̇ = v_E/((R_E + h) cos L), Groves eq. 2.111), radii computed
-    here (ins_truth.RADII): the two models differ by 0.3 % north and 0.1 % east at 36°, so an ins on the other
-    model's radii fails. With the matching earth_model the position is unbiased; with the other one the position
-    updates absorb the scale error without changing the attitude."""
+    """Fixes on the WGS-84 ellipsoid (or on the R0 sphere: `earth`). Between fixes ins moves its position by its
+    velocity over the radii of its earth_model (L̇ = v_N/(R_N + h), λ̇ = v_E/((R_E + h) cos L), Groves eq. 2.111),
+    radii computed here (ins_truth.RADII): the two models differ by 0.3 % north and 0.1 % east at 36°, so an ins on
+    the other model's radii fails — each model's propagation is checked, the matching one's and the other's. With
+    the matching earth_model the position is unbiased; with the other one the position updates absorb the scale
+    error without changing the attitude."""
     run, fixes, good = _clean("coordinated-turn", 150.0, earth=earth)     # on WGS-84: the outage test's run
     m = run.truth.t_s > 30.0
     other = "sphere" if earth == "wgs84" else "wgs84"
@@ -334,6 +338,11 @@ def _spike(dv):
     return change
 
 
+BAD_FIXES_RUN_S = 90.0
+"""The bad fixes' runs end 30 s after them: every attitude step they make is within 6 s of the first (on the 120 s
+run the largest is the same as up to 80 s: docs/testing.md "Session 38 (cie)")."""
+
+
 @pytest.mark.parametrize("change, counter", [
     (_jump(50.0), "rejected_position"),
     (_spike([3.0, -2.0, 0.0]), "rejected_velocity"),
@@ -346,13 +355,14 @@ def test_each_bad_fix_is_rejected_and_counted_without_an_attitude_step(change, c
     run, fixes, clean = _clean("coordinated-turn", 120.0, every=EVERY)     # its q_true only: every sample's
     ins = Ins(declination_rad=DECLINATION, **CALIBRATED)
     bad = _with_bad(fixes, 60.0, 61.0, change)                         # 5 bad fixes in a turn
-    res = run_ins(ins, run, bad, estimates_every=EVERY)
+    res = run_ins(ins, run, bad, estimates_every=EVERY, seconds=BAD_FIXES_RUN_S)
     c = ins.gnss_counters
     assert getattr(c, counter) == 5, c
     assert c.reset_position == c.reset_velocity == 0
     assert np.any(res.flags & REJECTED)                               # on one estimate: every sample's flags
-    assert _step_deg(res, clean) < 0.5
     tilt, _ = _errors(res, run, run.truth.t_s > 30.0)
+    print(f"{counter}: attitude step {_step_deg(res, clean):.3f}°, tilt worst {tilt.max():.3f}° from 30 s")
+    assert _step_deg(res, clean) < 0.5
     assert tilt.max() < 1.0
 
 
@@ -376,9 +386,11 @@ def test_velocities_that_contradict_the_positions_stay_rejected():
     run, fixes, clean = _clean("coordinated-turn", 120.0, every=EVERY)     # its q_true only: every sample's
     ins = Ins(declination_rad=DECLINATION, **CALIBRATED)
     # the counters and the filter's own attitude only: no estimate read past the first sample
-    res = run_ins(ins, run, _with_bad(fixes, 60.0, 66.0, _spike([4.0, 0.0, 0.0])), estimates_every=len(run.truth.t_s))
+    res = run_ins(ins, run, _with_bad(fixes, 60.0, 66.0, _spike([4.0, 0.0, 0.0])), estimates_every=len(run.truth.t_s),
+                  seconds=BAD_FIXES_RUN_S)
     c = ins.gnss_counters
     assert c.rejected_velocity == 30 and c.reset_velocity == 0 and c.rejected_position == 0, c
+    print(f"contradicting velocities: attitude step {_step_deg(res, clean):.3f}°")
     assert _step_deg(res, clean) < 0.5
 
 

@@ -197,10 +197,15 @@ def test_the_estimates_integrity_names_the_step_while_the_magnetometer_stays_rej
     assert np.all(np.isnan(said[t > used_again[0] + 0.2]))
 
 
+NO_STEP_SECONDS = 150.0    # the boat turns throughout; the car turns from 20 s to 120 s, then drives straight
+
+
 @pytest.mark.parametrize("scenario", ["boat", "car"])
 def test_no_step_is_declared_over_a_calibrated_run_with_turns_and_waves(scenario):
-    """The boat in waves and the car in its turns, calibrated, 240 s at the default site: no detection."""
-    run = simulate_vehicle(scenario, 240.0, 2, None)
+    """The boat in waves and the car in its turns and on the straight after them, calibrated, 150 s at the default
+    site: no detection. The test's largest statistic stays far below its 5σ gate (docs/testing.md "Session 38 (cie)":
+    0.44σ and 0.69σ here, 0.44σ and 1.24σ over 240 s), with any one of its variance terms left out as well."""
+    run = simulate_vehicle(scenario, NO_STEP_SECONDS, 2, None)
     ins = run_ins_thinned(run, len(run.t_s)).ins         # the filter's checks only: no estimate read
     assert ins.heading_report().mag_steps == 0
 
