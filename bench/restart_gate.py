@@ -11,7 +11,8 @@ lean far beyond the stated tilt σ until the start levelled on the rotation axis
     python bench/restart_gate.py --scenario plane --starts 16 90 --seeds 1 2 3 --seconds 60
     python bench/restart_gate.py --scenario car --starts 75 --sites fairbanks --seeds 5 --seconds 60 --trace-every 5
 
-`--trace-every S` also prints, per run, what the start levelled on (`levelling_force`'s figures: the force along
+`--tilt` adds the tilt RMS before / after 30 s and the share of tilt errors beyond 3σ after (σ: the roll and pitch
+1σ in quadrature). `--trace-every S` also prints, per run, what the start levelled on (`levelling_force`'s figures: the force along
 the rate's axis less g, across it, the axis's allowed error, and the true tilt of the force and of the axis) and,
 at the start, 0.1 s and every S seconds, the tilt and true-heading errors and their 1σ, the GNSS yaw bank's error (valid or not), the heading checks'
 magnetometer–bank disagreement, low-passed velocity NIS, the magnetometer's low-passed innovation and its
@@ -61,13 +62,14 @@ def one_run(scenario: str, site: str, seed: int, start_s: float, seconds: float,
     est = Ins(declination_rad=run.declination_rad, lever_arm_m=run.lever_arm_m,
               mag_calibration_sigma_rad=run.mag_calibration_sigma_rad)
     n = len(run.t_s)
-    q, sigma = np.empty((n, 4)), np.empty(n)
+    q, sigma, sigma_tilt = np.empty((n, 4)), np.empty(n), np.empty(n)
     first = None
     if trace_every_s > 0.0:
         print(start_levelling(run, est.params.init_gyro_bias_sigma_rad_s))
     next_trace_s = 0.0
     for k, e in estimates_in_arrival_order(est, run, run.fixes):
         q[k], sigma[k] = e.q_wxyz, e.sigma_rpy_rad[2]
+        sigma_tilt[k] = np.hypot(e.sigma_rpy_rad[0], e.sigma_rpy_rad[1])
         if trace_every_s > 0.0 and run.t_s[k] - start_s >= next_trace_s:
             next_trace_s = 0.1 if next_trace_s == 0.0 else max(trace_every_s, next_trace_s + trace_every_s - 0.1 * (next_trace_s == 0.1))
             qw, qx, qy, qz = run.truth_q_wxyz[k]
@@ -84,13 +86,15 @@ def one_run(scenario: str, site: str, seed: int, start_s: float, seconds: float,
                   f"innovation {np.degrees(mon.lowpassed_innovation_rad):5.1f}°, failures {mon.failures}", flush=True)
         if first is None and est.heading_report().mag_rejections > 0:
             first = float(run.t_s[k] - start_s)
-    _, hdg = tilt_heading_errors_deg(q, run.truth_q_wxyz, run.declination_rad)
+    tilt, hdg = tilt_heading_errors_deg(q, run.truth_q_wxyz, run.declination_rad)
     t = run.t_s - start_s
     early, late = t < SETTLE_S, t >= SETTLE_S
     rep = est.heading_report()
     return {"first": first, "rejections": rep.mag_rejections, "resets": rep.yaw_resets,
             "early": float(np.sqrt(np.mean(hdg[early] ** 2))), "late": float(np.sqrt(np.mean(hdg[late] ** 2))),
-            "beyond": float(np.mean(np.abs(hdg[late]) > 3.0 * np.degrees(sigma[late])))}
+            "beyond": float(np.mean(np.abs(hdg[late]) > 3.0 * np.degrees(sigma[late]))),
+            "tilt_early": float(np.sqrt(np.mean(tilt[early] ** 2))), "tilt_late": float(np.sqrt(np.mean(tilt[late] ** 2))),
+            "tilt_beyond": float(np.mean(tilt[late] > 3.0 * np.degrees(sigma_tilt[late])))}
 
 
 def main(argv=None) -> None:
@@ -103,12 +107,15 @@ def main(argv=None) -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4])
     ap.add_argument("--seconds", type=float, default=30.0)
     ap.add_argument("--trace-every", type=float, default=0.0, help="print a trace every S s of each run (0: none)")
+    ap.add_argument("--tilt", action="store_true",
+                    help="also the tilt RMS before / after 30 s (deg) and the share of tilt errors beyond 3 hypot(σ_roll, "
+                         "σ_pitch) after")
     args = ap.parse_args(argv)
     logging.disable(logging.WARNING)     # ins's own warnings for each rejection and reset
     print(f"# {args.scenario}, calibrated (0.5° stated), {args.seconds:g} s from each start: first rejection (s "
           f"after the start), rejections, yaw resets, heading RMS before / after {SETTLE_S:g} s (deg), beyond 3σ after")
     print(f"{'site':>10} {'start':>6} {'seed':>4} {'first':>6} {'rej':>3} {'rst':>3} {'early':>7} {'late':>7} "
-          f"{'>3σ':>6}")
+          f"{'>3σ':>6}" + (f" {'tilt e':>7} {'tilt l':>7} {'>3σ':>6}" if args.tilt else ""))
     rejected = 0
     for site in args.sites:
         for start in args.starts:
@@ -117,7 +124,9 @@ def main(argv=None) -> None:
                 rejected += r["rejections"] > 0
                 first = "-" if r["first"] is None else f"{r['first']:.1f}"
                 print(f"{site:>10} {start:6.0f} {seed:4d} {first:>6} {r['rejections']:3d} {r['resets']:3d} "
-                      f"{r['early']:7.2f} {r['late']:7.2f} {100 * r['beyond']:5.1f}%", flush=True)
+                      f"{r['early']:7.2f} {r['late']:7.2f} {100 * r['beyond']:5.1f}%"
+                      + (f" {r['tilt_early']:7.2f} {r['tilt_late']:7.2f} {100 * r['tilt_beyond']:5.1f}%" if args.tilt else ""),
+                      flush=True)
     print(f"# runs with a rejection: {rejected} of {len(args.sites) * len(args.starts) * len(args.seeds)}")
 
 

@@ -387,7 +387,7 @@ def evaluate(r: dict) -> tuple[list[str], list[str]]:
             failed.append(f"only {ratio:.1%} of the {kind} requests answered")
     links = st.get("links", {})
     for url, c in links.items():
-        lines.append(f"link {url}: " + ", ".join(f"{k} {len(v) if k == 'skips' else v}" for k, v in c.items()))
+        lines.append(f"link {url}: " + ", ".join(f"{k} {len(v) if k in ('skips', 'held_runs') else v}" for k, v in c.items()))
     ss = r["last_sys_status"]
     if ss is not None:
         lines.append(f"last SYS_STATUS: errors_comm {ss.errors_comm}, count1 (refused unsigned) {ss.errors_count1}, "

@@ -4,8 +4,12 @@ Intervals follow MAV_CMD_SET_MESSAGE_INTERVAL semantics (common.xml): interval i
 the configured default. Deadlines are absolute (`due += interval`), so rates do not drift with scheduling
 jitter; a wake up to CATCH_UP_LIMIT_S late catches up, after a longer stall the schedule restarts from now
 instead of bursting. The deadlines a restart skips are counted per stream (`dropped_slots`) and the latest
-restarts kept (`skips`): a message not sent because the daemon was not given the CPU is accounted for, so the
-slots sent + dropped are the deadlines that passed whatever the load (the run stats, daemon.run_stats).
+restarts kept (`skips`): a message not sent because the daemon was not given the CPU is accounted for. A deadline
+served with nothing to send is counted too, by the publishers (`held`): `withheld_slots` when there was nothing
+trustworthy to send (VISION_POSITION_ESTIMATE while the heading is not trusted or UNKNOWN; any output of the
+estimate while samples do not flow), `unchanged_slots` when a once-per-estimate output had no new estimate since
+the last one sent; runs of them with their times are kept (`held_runs`). So the slots sent + held + dropped are
+the deadlines that passed whatever the load and the heading (the run stats, daemon.run_stats).
 """
 
 from __future__ import annotations
@@ -17,6 +21,8 @@ from ahrsd.daemon.output_registry import BY_MESSAGE_ID, DEFAULT_MAX_RATE_HZ
 
 CATCH_UP_LIMIT_S = 0.25   # a late wake sends what fell due (rates stay exact); a longer stall does not burst
 SKIPS_KEPT = 1000         # restarts remembered with their times (a bounded record; the counts are never bounded)
+HELD_RUNS_KEPT = 1000     # runs of held deadlines remembered with their times (bounded likewise)
+WITHHELD, UNCHANGED = "withheld", "unchanged"    # why a served deadline sent nothing (OutputSchedule.held)
 
 
 @dataclass
@@ -25,6 +31,10 @@ class _Stream:
     rate_hz: float
     due: float = 0.0
     dropped_slots: int = 0     # deadlines skipped by restarts after a long stall
+    served: int = 0            # deadlines `due` returned (sent or held)
+    withheld_slots: int = 0    # served with nothing trustworthy to send (OutputSchedule.held)
+    unchanged_slots: int = 0   # served when the once-per-estimate output had no new estimate
+    held_run: HeldRun | None = None     # the latest run of held deadlines (extended while they follow each other)
 
 
 @dataclass(frozen=True)
@@ -37,11 +47,24 @@ class Skip:
     count: int
 
 
+@dataclass
+class HeldRun:
+    """Consecutive served deadlines of `message_id` that sent nothing for one `reason` (WITHHELD, UNCHANGED):
+    `count` of them, served from `first_s` to `last_s` (the daemon's clock, at the wakes that served them)."""
+    message_id: int
+    reason: str
+    first_s: float
+    last_s: float
+    count: int
+    served_after: int      # the stream's `served` after the last one: the next held deadline continues the run
+
+
 class OutputSchedule:
     def __init__(self, rates_hz: dict[int, float]):
         self._streams = {mid: _Stream(hz, hz) for mid, hz in rates_hz.items()}
         self._next_due = 0.0   # earliest deadline of all streams: most per-sample calls return at once
         self.skips: deque[Skip] = deque(maxlen=SKIPS_KEPT)
+        self.held_runs: deque[HeldRun] = deque(maxlen=HELD_RUNS_KEPT)
 
     def __contains__(self, message_id: int) -> bool:
         return message_id in self._streams
@@ -55,6 +78,36 @@ class OutputSchedule:
     def dropped_slots(self) -> dict[int, int]:
         """Per stream, the deadlines skipped by restarts since the start (never sent, never due again)."""
         return {mid: s.dropped_slots for mid, s in self._streams.items()}
+
+    def served_slots(self) -> dict[int, int]:
+        """Per stream, the deadlines `due` returned since the start: each was sent or counted `held`."""
+        return {mid: s.served for mid, s in self._streams.items()}
+
+    def withheld_slots(self) -> dict[int, int]:
+        """Per stream, the served deadlines that sent nothing trustworthy (`held` WITHHELD) since the start."""
+        return {mid: s.withheld_slots for mid, s in self._streams.items()}
+
+    def unchanged_slots(self) -> dict[int, int]:
+        """Per stream, the served deadlines of a once-per-estimate output with no new estimate (`held` UNCHANGED)."""
+        return {mid: s.unchanged_slots for mid, s in self._streams.items()}
+
+    def held(self, message_id: int, now: float, reason: str) -> None:
+        """The deadline of `message_id` that `due(now)` just returned sends nothing, for `reason`: counted, and kept
+        in the latest run of held deadlines (a new run when a deadline between was sent or held for another
+        reason)."""
+        s = self._streams[message_id]
+        if reason == WITHHELD:
+            s.withheld_slots += 1
+        else:
+            s.unchanged_slots += 1
+        run = s.held_run
+        if run is not None and run.reason == reason and run.served_after == s.served - 1:
+            run.last_s = now
+            run.count += 1
+            run.served_after = s.served
+        else:
+            s.held_run = HeldRun(message_id, reason, now, now, 1, s.served)
+            self.held_runs.append(s.held_run)
 
     def max_rate_hz(self, message_id: int) -> float:
         spec = BY_MESSAGE_ID.get(message_id)
@@ -105,6 +158,7 @@ class OutputSchedule:
                 s.due = now
             if now >= s.due:
                 out.append(mid)
+                s.served += 1
                 period = 1.0 / s.rate_hz
                 s.due += period
                 if now - s.due > CATCH_UP_LIMIT_S:    # a long stall: restart instead of bursting

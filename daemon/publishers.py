@@ -1,5 +1,7 @@
 """The publishers: each output of daemon.output_registry that falls due is built from the latest estimate and
-sample and sent to the endpoints whose own schedule (daemon.endpoint_outputs) has it due."""
+sample and sent to the endpoints whose own schedule (daemon.endpoint_outputs) has it due. A due deadline that
+sends nothing is told to the schedule with its reason (daemon.outputs: WITHHELD, UNCHANGED), so the deadlines
+add up: sent + held + dropped."""
 
 from __future__ import annotations
 
@@ -9,6 +11,7 @@ from ahrsd.daemon.counters import ServiceCounters
 from ahrsd.daemon.health import Health
 from ahrsd.daemon.output_registry import BY_MESSAGE_ID, OutputContext
 from ahrsd.daemon.outbound import Outbound
+from ahrsd.daemon.outputs import UNCHANGED, WITHHELD
 from ahrsd.daemon.pipeline import Pipeline
 
 
@@ -45,10 +48,12 @@ class Publishers:
                     m = None if spec.needs_estimate and not fresh else spec.build(self.context, est, sample, now)
                     built[mid] = m
                 if m is None:
+                    ep.schedule.held(mid, now, WITHHELD)    # nothing trustworthy to send now
                     continue
                 if BY_MESSAGE_ID[mid].once_per_estimate:
                     key = (id(ep), mid)
                     if self._sent_estimate_t_s.get(key) == est.t_s:
+                        ep.schedule.held(mid, now, UNCHANGED)   # no new estimate since the one sent
                         continue
                     self._sent_estimate_t_s[key] = est.t_s
                 if ep.send(m):

@@ -34,12 +34,18 @@ def sample_accounting(service) -> dict:
 
 def schedule_accounting(schedule) -> dict:
     """Beside what a link sent: per message, the deadlines its schedule skipped after long stalls (daemon.outputs)
-    and the latest restarts as [message, first skipped deadline on CLOCK_MONOTONIC s, period s, count]."""
+    and the latest restarts as [message, first skipped deadline on CLOCK_MONOTONIC s, period s, count]; the
+    deadlines served that sent nothing, withheld (nothing trustworthy: VISION_POSITION_ESTIMATE while the heading
+    is not trusted) or unchanged (no new estimate for a once-per-estimate output), and the latest runs of them as
+    [message, reason, first on CLOCK_MONOTONIC s, last s, count]."""
     if schedule is None:
         return {}
     name = lambda mid: mavlink.mavlink_map[mid].msgname   # noqa: E731
     return {"dropped_slots": {name(mid): n for mid, n in schedule.dropped_slots().items()},
-            "skips": [[name(k.message_id), k.first_due_s, k.period_s, k.count] for k in schedule.skips]}
+            "skips": [[name(k.message_id), k.first_due_s, k.period_s, k.count] for k in schedule.skips],
+            "withheld_slots": {name(mid): n for mid, n in schedule.withheld_slots().items()},
+            "unchanged_slots": {name(mid): n for mid, n in schedule.unchanged_slots().items()},
+            "held_runs": [[name(h.message_id), h.reason, h.first_s, h.last_s, h.count] for h in schedule.held_runs]}
 
 
 def collect_stats(service) -> dict:

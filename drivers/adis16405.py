@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 import math
 import struct
-from operator import mul as _mul
+from operator import ge as _ge, gt as _gt, mul as _mul
 from collections.abc import Callable, Iterable
 
 import numpy as np
@@ -147,7 +147,10 @@ class Adis16405:
         self._runs = [0] * 9
         self._stuck = [False] * 9
         self._any_stuck = False
-        self._nd_taken = False             # a register read after the last burst took a new sample's ND
+        # the register reads after the last burst took the ND of a newer sample (`_check_burst_bug`,
+        # `take_newer_sample`): the sample just returned was not the newest when the read ended, and the next burst
+        # returns the newer one as new (read by drivers.chip_source at every fresh read: a plain attribute)
+        self.newer_sample_taken = False
         self._burst_supply_lsb = -1        # the last burst's SUPPLY_OUT (a stale register read returns the same)
 
     # ---------------------------------------------------------------------------------- bus primitives
@@ -360,22 +363,24 @@ class Adis16405:
         raw9 = [((x & 0x3FFF) ^ 0x2000) - 0x2000 for x in (w1, w2, w3, w4, w5, w6, w7, w8, w9)]
         # ND clear but the previous read's XGYRO_OUT check took the ND of the sample that became ready after
         # its burst: these registers hold that sample, new to us
-        new_data = bool(both & R.ND) or self._nd_taken
-        self._nd_taken = False
+        new_data = bool(both & R.ND) or self.newer_sample_taken
+        self.newer_sample_taken = False
         flags = 0
         # X-gyro burst bug (EZ 81805): a negative X rate comes back with bit 13 cleared, i.e. +8192 LSB
         gx, prev_gx = raw9[0], self._prev_gx
         if (not (w1 & 0x2000)) and (gx > self._gyro_range_lsb or
                                     (gx - prev_gx > self._jump_lsb if prev_gx is not None else gx > self._jump_lsb)):
             raw9[0], flags = self._burst_bug_fixed(w1, gx, new_data)
-        plausible = self._plausible9
-        for i in range(9):
-            if abs(raw9[i]) > plausible[i]:
-                raise self._reject(f"axis {i} value {raw9[i]} LSB beyond any plausible reading", rx)
+        # the nine magnitudes once, compared in C (map): per-axis Python only for a frame that fails a bound
+        abs9 = list(map(abs, raw9))
+        if any(map(_gt, abs9, self._plausible9)):
+            i = next(i for i in range(9) if abs9[i] > self._plausible9[i])
+            raise self._reject(f"axis {i} value {raw9[i]} LSB beyond any plausible reading", rx)
         diag = 0
         if both & R.EA:
             diag, flags = self._alarm_flags(flags)
-        flags |= self._saturation_flags(raw9)
+        if any(map(_ge, abs9, self._full_scale9)):
+            flags |= self._saturation_flags(raw9)
         flags |= self._fresh_flags(raw9, stamp is None) if new_data else self._stale_flags()
         if stamp is None:
             t_s, counter = self._counter * self._period_s, self._counter
@@ -457,8 +462,8 @@ class Adis16405:
 
     def take_newer_sample(self) -> bool:
         """Is a sample newer than the last burst's ready? One output register read (SUPPLY_OUT): its ND says so,
-        and reading it clears ND, so the next burst returns that sample as new (`_nd_taken`). For the host-clock
-        sample timer, when a burst may have straddled a data-ready (drivers.chip_source). Raises FrameError
+        and reading it clears ND, so the next burst returns that sample as new (`newer_sample_taken`). For the
+        host-clock sample timer, when a burst may have straddled a data-ready (drivers.chip_source). Raises FrameError
         (counted, as for a burst) when the answer cannot be trusted: a short frame, ND clear with another supply
         word than the burst's (the same sample's registers), or ND set with a supply step no supply makes."""
         self.counters["index_checks"] += 1
@@ -468,19 +473,13 @@ class Adis16405:
             if abs(supply - self._burst_supply_lsb) > _SUPPLY_STEP_MAX_LSB:
                 raise self._reject("register read after the burst: supply step beyond any supply's",
                                    reg.to_bytes(2, "big"))
-            self._nd_taken = True
+            self.newer_sample_taken = True
             self.counters["nd_taken_by_index_check"] += 1
             return True
         if supply != self._burst_supply_lsb:
             raise self._reject("register read after the burst: another sample's supply without ND",
                                reg.to_bytes(2, "big"))
         return False
-
-    @property
-    def newer_sample_taken(self) -> bool:
-        """The register reads after the last burst took the ND of a newer sample (`_check_burst_bug`): the sample
-        just returned was not the newest when the read ended, and the next burst returns the newer one as new."""
-        return self._nd_taken
 
     def _advance_counter(self) -> int:
         """Index the fresh sample without a host clock: one period after the previous one (no gaps can be seen;
@@ -491,10 +490,10 @@ class Adis16405:
     def _check_burst_bug(self, w1: int, gx: int, flags: int) -> tuple[int, int]:
         """Confirm a suspicious burst X-gyro value with a register read of XGYRO_OUT. Reading an output
         register clears ND: when the word comes back with ND set, a new sample became ready after the burst and
-        this read took its ND, so the next burst is new data although its ND is clear (`_nd_taken`)."""
+        this read took its ND, so the next burst is new data although its ND is clear (`newer_sample_taken`)."""
         reg = self.read_register(R.XGYRO_OUT)
         if reg & R.ND:
-            self._nd_taken = True
+            self.newer_sample_taken = True
             self.counters["nd_taken_by_check"] += 1
         reg_lsb = R.decode_signed14(reg)
         if reg_lsb == gx:

@@ -89,10 +89,12 @@ class ChipSource(LiveSource):
             timer.stale(now)          # not ready at `now` or later: `now` is the safe bound
             return math.nan, timer.k, 0
         newer = self.driver.newer_sample_taken
-        if not newer and end - now < CHECKABLE_READ_PERIODS * timer.period_s and timer.index_uncertain(now, end):
-            t_s, k, lost = self._checked_index(now, end)
-        else:
+        if newer or end - now >= CHECKABLE_READ_PERIODS * timer.period_s:
             t_s, k, lost = timer.fresh(now, end, newer)
+        else:
+            # fresh unless the index is uncertain (the timer works the bracket out once for both)
+            out = timer.fresh_if_certain(now, end)
+            t_s, k, lost = self._checked_index(now, end) if out is None else out
         if _int_and(flags, _MORE_READS):
             timer.may_have_consumed(end)
         if lost:

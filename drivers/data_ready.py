@@ -104,6 +104,10 @@ class DataReadyTimer:
         """Never: the edges' sequence numbers index the samples."""
         return False
 
+    def fresh_if_certain(self, read_time: float, read_end: float) -> tuple[float, int, int]:
+        """Always `fresh`: the index is never uncertain."""
+        return self.fresh(read_time, read_end)
+
     def stale(self, read_time: float) -> None:
         """ND clear although an edge came: its sample was taken by an earlier register read (DIAG_STAT, the
         burst-bug check). The edges stay pending, so the next fresh read counts that sample as lost."""

@@ -14,6 +14,7 @@ reading at the daemon's first `poll()` (start-up time is not counted as loss) an
 
 from __future__ import annotations
 
+import functools
 import gc
 import logging
 import math
@@ -30,6 +31,7 @@ import numpy as np
 from ahrsd.core.sample import ImuSample
 from ahrsd.core.sample_block import SampleBlock
 from ahrsd.drivers import errors as driver_errors
+from ahrsd.drivers.pipe_messages import PipeMessages
 from ahrsd.drivers.sample_record import SampleRecord
 from ahrsd.drivers.source_interface import LiveSource
 from ahrsd.drivers.source_settings import SensorSettings
@@ -79,7 +81,11 @@ def send_samples(conn, samples: list[ImuSample | SampleRecord]) -> None:
 def receive(conn) -> tuple:
     """The next message from the other end: ("samples", the packed records) for a samples message, else the
     unpickled message (a tuple, or the daemon's "go" / "stop")."""
-    data = conn.recv_bytes()
+    return parse_message(conn.recv_bytes())
+
+
+def parse_message(data: bytes | memoryview) -> tuple:
+    """A message's bytes as `receive` gives it."""
     if data[0] == _SAMPLES_TAG_BYTE:
         return "samples", memoryview(data)[1:]
     return ForkingPickler.loads(data)
@@ -136,7 +142,9 @@ def _child(sensor_cfg: SensorSettings, faults, conn, handover_at=None) -> None:
         # blocked in recv() without the GIL. A second Python thread here would hold the reader's GIL at
         # times, and when the machine is short of CPU be descheduled while holding it (a priority inversion
         # that the reader's SCHED_FIFO cannot break: docs/drivers.md).
-        handover = _Handover(conn, src, wanted=None if handover_at is None else lambda: handover_at.value)
+        # the shared double read in C (getattr): asked after every read
+        wanted = None if handover_at is None else functools.partial(getattr, handover_at, "value")
+        handover = _Handover(conn, src, wanted=wanted)
         src.after_read = handover.maybe_send
         src.log_realtime = False              # the child's log goes nowhere: the daemon logs what it is told
         src.start()
@@ -303,6 +311,7 @@ class ProcessSource(LiveSource):
 
         ctx = multiprocessing.get_context("spawn")
         self._conn, child = ctx.Pipe()
+        self._messages: PipeMessages | None = None      # the raw reader, once the child said hello
         # the daemon's next output deadline, read by the child's reader thread between reads (one double in shared
         # memory: no message, no syscall, no lock: a torn read is impossible for an aligned double on the
         # platforms ahrsd runs on, and a stale one only moves a hand-over to the next read or HANDOVER_MAX_S)
@@ -331,6 +340,8 @@ class ProcessSource(LiveSource):
         poller = select.poll()
         poller.register(self._conn.fileno(), select.POLLIN)
         self._ready = poller.poll
+        # from here on the messages are read raw, one read a look (drivers.pipe_messages)
+        self._messages = PipeMessages(self._conn.fileno())
         self.ready_fd = self._conn.fileno()       # readable when the child sent something: poll() then
 
     # the longest the child goes without handing over while the daemon takes its blocks (the reader's stand-in
@@ -352,13 +363,13 @@ class ProcessSource(LiveSource):
             conn.send("go")
         blocks: list[memoryview] = []
         error = None
-        # a poll object made once: Connection.poll(0) builds and registers a selector at every call
-        # (docs/daemon.md "Performance");
-        # HUP and errors are reported as ready too, and recv() then raises EOFError / OSError as before
-        ready = self._ready
+        # one read of what the pipe holds (drivers.pipe_messages), then the messages it completed; a message that
+        # arrives meanwhile makes the descriptor readable again (the next look). A closed pipe raises EOFError.
+        messages = self._messages
         try:
-            while ready(0):
-                msg = receive(conn)
+            data = messages.next()
+            while data is not None:
+                msg = parse_message(data)
                 kind = msg[0]
                 if kind == "samples":
                     blocks.append(msg[1])
@@ -374,6 +385,7 @@ class ProcessSource(LiveSource):
                     from ahrsd.drivers.threaded_source import log_realtime_priority
 
                     log_realtime_priority("sensor reader process", msg[1])
+                data = messages.next(read=False)
         except (EOFError, OSError) as exc:
             raise driver_errors.BusError(f"the sensor reader process ended ({exc})") from exc
         out = unpack_block(b"".join(blocks)) if blocks else []
@@ -399,8 +411,16 @@ class ProcessSource(LiveSource):
             if not self._started:
                 self._conn.send("stop")
             end = time.monotonic() + 3.0
-            while time.monotonic() < end and self._conn.poll(max(0.0, end - time.monotonic())):
-                msg = receive(self._conn)
+            # the raw reader, whose buffer may hold messages already (made here when the start failed before it)
+            messages = self._messages or PipeMessages(self._conn.fileno())
+            while True:
+                data = messages.next()
+                if data is None:
+                    left_s = end - time.monotonic()
+                    if left_s <= 0 or not self._conn.poll(left_s):
+                        break
+                    continue
+                msg = parse_message(data)
                 if msg[0] == "samples":
                     self.undelivered += unpack(msg[1])
                 elif msg[0] == "counters":

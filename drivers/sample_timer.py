@@ -91,6 +91,25 @@ class SampleTimer:
         if k > k_min:
             self.ambiguous_reads += 1
             self.ambiguous_samples += k - k_min
+        return self._take(k, end)
+
+    def fresh_if_certain(self, read_time: float, read_end: float) -> tuple[float, int, int] | None:
+        """`fresh(read_time, read_end)` when `index_uncertain(read_time, read_end)` is False; else None, and nothing
+        changed (the caller asks the chip: drivers.chip_source). The bracket is leaked and the index range worked
+        out once: the reader's every fresh read asks both, one after the other."""
+        if self.hi is None:
+            return self.fresh(read_time, read_end)
+        lo, hi = self._leaked(read_time)
+        k, k_min = self._index_range(read_time, read_end, lo, hi)
+        if k > k_min:
+            return None
+        self.lo, self.hi = lo, hi                    # fresh()'s _leak(read_time)
+        self._t_hi = self._t_lo = read_time
+        return self._take(k, read_end)
+
+    def _take(self, k: int, end: float) -> tuple[float, int, int]:
+        """Sample k, read by a transfer that ended by `end`, taken as the newest: its (t_s, index, lost before)."""
+        P = self.period_s
         lost = k - self.k - 1
         self.k = k
         self._consumed_upto = -1
@@ -158,6 +177,12 @@ class StallAwareSampleTimer(SampleTimer):
               newer_ready: bool = False) -> tuple[float, int, int]:
         out = super().fresh(read_time, read_end, newer_ready)
         self._hi_fresh, self._lo_fresh = self.hi, self.lo
+        return out
+
+    def fresh_if_certain(self, read_time: float, read_end: float) -> tuple[float, int, int] | None:
+        out = super().fresh_if_certain(read_time, read_end)
+        if out is not None:
+            self._hi_fresh, self._lo_fresh = self.hi, self.lo
         return out
 
     def stale(self, read_time: float) -> None:

@@ -22,6 +22,7 @@ sample indices like any other loss.
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import sys
@@ -123,7 +124,7 @@ class ThreadedSource(LiveSource):
         self.description = f"{inner.description}, read in a dedicated thread"
         self.sample_rate_hz = inner.sample_rate_hz
         self._clock = clock
-        self._sleep_until = sleep_until or (lambda t: _sleep_until(clock, t))
+        self._sleep_until = sleep_until or functools.partial(_sleep_until, clock)
         self._capacity = int(capacity_samples)
         self._realtime = realtime
         self._request_priority = request_priority     # asks for SCHED_FIFO: "" granted, else why not

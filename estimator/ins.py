@@ -39,8 +39,8 @@ from .gnss_intake import GnssCounters, GnssFixIntake
 from .heading_monitor import HeadingCheckRecord
 from .heading_publication import HeadingReport
 from .iron_in_use import IronInUse
-from .ins_start import (first_history_row, fresh_state, initial_covariance, initial_true_attitude, learned_to_keep,
-                        levelling_force, levelling_lean, start_mag_reference, start_sensor_errors)
+from .ins_start import (first_fix_in_turn, first_history_row, fresh_state, initial_covariance, initial_true_attitude,
+                        learned_to_keep, levelling_force, levelling_lean, start_mag_reference, start_sensor_errors)
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
                             float_field_slice, uninitialised_estimate)
 from .kernel_entry import argument_types, entry_point
@@ -489,6 +489,8 @@ class Ins:
         self._published_terms = entry_point(published_terms, argument_types(published_terms, terms_args))
         self._initialised = False
         self._reinit_pending = False
+        self._levelled_on_force = False    # the start levelled on the specific force: its first fix acts (_fuse)
+        self._start_t_s = math.nan
         self._pending_flags = 0
         # the fixes offered (update_gnss): taken, queued until the samples reach them, or refused, and counted
         p = self.params
@@ -598,6 +600,7 @@ class Ins:
         self._P[:] = 0.0
         self._initialised = False
         self._reinit_pending = False
+        self._levelled_on_force = False
         self._pending_flags = 0
         self._intake.reset()
         self._published.reset()
@@ -843,6 +846,8 @@ class Ins:
         that a fused or rejected velocity allows. Returns core.R_* bits (0 when nothing was usable)."""
         p = self.params
         res, arm_adopted = self._fusion.fuse(fix)
+        if res & core.R_NAV_INIT and self._levelled_on_force:
+            self._widen_for_turn_lean()
         if arm_adopted:
             # the heading, bent by the wrong arm, is found again as at the start: unconfirmed, aligned to the
             # bank's yaw once valid
@@ -892,6 +897,8 @@ class Ins:
         first_history_row(self._x, self._hist, t_s, q0, g, keep_bg)
         start_mag_reference(self._x, kept, p.mag_min_undisturbed_s)
         initial_covariance(self._P, p, use_mag, levelling_lean(a_level, m if use_mag else None, p.level_noise_m_s2))
+        self._levelled_on_force = a_level is a or np.array_equal(a_level, a)
+        self._start_t_s = float(t_s)
         self._heading.restart_calibration_error_states()
         self._restart_companions(t_s)
         if self._rerun is not None:
@@ -900,6 +907,20 @@ class Ins:
         core.fill_outputs(self._x, self._P, self._par, g[0] - keep_bg[0], g[1] - keep_bg[1], g[2] - keep_bg[2],
                           self._out)
         return True
+
+    def _widen_for_turn_lean(self) -> None:
+        """The first fix of a start levelled on the specific force, once: levelled again on it less the turn's
+        centripetal acceleration while the attitude is still the start's (within the levelling's low-pass time:
+        later the filter has levelled and checked the magnetometer over more than one sample), or its 1σ widened
+        (ins_start.first_fix_in_turn); a new attitude starts the published heading again from the filter's,
+        flagged as a yaw reset."""
+        self._levelled_on_force = False
+        p = self.params
+        yaw_from_mag = p.mag_enabled and self._rerun is None
+        soon = float(self._x["t_last_s"]) - self._start_t_s <= p.level_lowpass_tau_s
+        if first_fix_in_turn(self._x, self._P, self._hist, p, self._declination, yaw_from_mag, soon):
+            self._published.reset()
+            self._pending_flags |= int(EstimateFlags.YAW_RESET)
 
     # ----------------------------------------------------------------------- the start run again (start_rerun.py)
     def _arm_start_recording(self) -> None:

@@ -19,7 +19,7 @@ from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
 
 from . import ins_core as core
 from .initial_attitude import initial_attitude
-from .rotations import quat_to_dcm
+from .rotations import quat_conjugate, quat_multiply, quat_normalize, quat_to_dcm
 
 
 class StartSigmas(Protocol):
@@ -105,6 +105,120 @@ def levelling_force(a, g_rad_s, tolerance_m_s2: float, rate_sigma_rad_s: float) 
     if across <= tolerance_m_s2 or math.atan2(3.0 * rate_sigma_rad_s, wn) >= math.atan2(across, abs(along)):
         return f
     return along * w / wn
+
+
+def first_fix_lean(q, rate_rad_s, vel_ned_m_s, f_m_s2) -> float:
+    """How far a tilt levelled on the specific force may be off, told at the first fix: the vehicle's
+    acceleration leans f from the vertical, and in a turn that acceleration is the centripetal ω × v (ω the rate
+    in the navigation frame, v the fix's velocity), horizontal, which leans f by atan(|ω × v|/g); the part of it
+    that is not horizontal shows as |f| departing from g, which leans it by up to ||f| − g|/g more. A rate along
+    the velocity (a boat rolling) has no centripetal part. g is the standard one."""
+    c = np.asarray(quat_to_dcm(q), dtype=float)
+    w_n = c @ np.asarray(rate_rad_s, dtype=float)
+    centripetal = float(np.linalg.norm(np.cross(w_n, np.asarray(vel_ned_m_s, dtype=float))))
+    fn = float(np.linalg.norm(np.asarray(f_m_s2, dtype=float)))
+    return math.atan2(centripetal, STANDARD_GRAVITY_M_S2) + abs(fn - STANDARD_GRAVITY_M_S2) / STANDARD_GRAVITY_M_S2
+
+
+def centripetal_levelling_force(a, rate_rad_s, speed_m_s: float) -> np.ndarray | None:
+    """The specific force less a turn's centripetal acceleration, told at the first fix: a vehicle that moves
+    along its forward (body x) axis at `speed_m_s` while it rotates at ω (body) feels ω × v with v = speed·x̂,
+    and f − ω × v is gravity's reaction alone, the vertical to level on (what ArduPilot's DCM does with the
+    airspeed or GNSS speed on a vehicle that flies forward). None when taking it away does not bring |f| nearer
+    g: the vehicle does not move forward (reversing, a boat's drift) or the rest of f is not the turn's."""
+    f = np.asarray(a, dtype=float)
+    w = np.asarray(rate_rad_s, dtype=float)
+    if not (np.all(np.isfinite(f)) and np.all(np.isfinite(w)) and speed_m_s > 0.0):
+        return None
+    fc = f - np.cross(w, np.array([speed_m_s, 0.0, 0.0]))
+    g = STANDARD_GRAVITY_M_S2
+    if not abs(float(np.linalg.norm(fc)) - g) < abs(float(np.linalg.norm(f)) - g):
+        return None
+    return fc
+
+
+def field_dip_rad(q, m) -> float:
+    """The field's dip in the filter's frame (NaN without a field)."""
+    mv = np.asarray(m, dtype=float)
+    if not (np.all(np.isfinite(mv)) and float(np.linalg.norm(mv)) > 0.0):
+        return math.nan
+    m_n = np.asarray(quat_to_dcm(q), dtype=float) @ mv
+    return math.atan2(float(m_n[2]), math.hypot(float(m_n[0]), float(m_n[1])))
+
+
+def widen_for_lean(P: np.ndarray, lean_rad: float, dip_rad: float, use_mag: bool) -> bool:
+    """A start levelled on the specific force, at its first fix: the tilt 1σ at least the `lean_rad` the fix
+    tells (`first_fix_lean`), and, when the magnetometer set the yaw at that tilt, the yaw 1σ at least what the
+    lean tips the field's heading by, tan(dip)·lean (up to π), each restarted uncorrelated (as
+    `initial_covariance`). Levelling updates before the fix took the lean for the vertical and the magnetometer
+    read the heading at it, so neither knows it: without this the GNSS velocity, fused through a confident wrong
+    yaw, pulls the tilt further off. True when it widened."""
+    if not lean_rad > math.sqrt(max(P[core.E_TILT_N, core.E_TILT_N], P[core.E_TILT_E, core.E_TILT_E])):
+        return False
+    for i in (core.E_TILT_N, core.E_TILT_E):
+        _restart_uncorrelated(P, i, lean_rad ** 2)
+    if use_mag:
+        through_dip = min(math.pi, abs(math.tan(dip_rad)) * lean_rad) if math.isfinite(dip_rad) else math.pi
+        if through_dip ** 2 > P[core.E_YAW, core.E_YAW]:
+            _restart_uncorrelated(P, core.E_YAW, through_dip ** 2)
+    return True
+
+
+def level_again(x: np.void, P: np.ndarray, hist: np.ndarray, p: StartSigmas, f_level, m, declination_rad: float) -> None:
+    """The attitude levelled on `f_level` with the magnetometer's heading (as at the start), the history rows
+    turned with it (the fixes that follow compare with them), the tilt and yaw restarted uncorrelated at the
+    start's 1σ (the tilt at least what |f_level| still departs from g by, over g)."""
+    q_old = np.asarray(x["q"], dtype=float).copy()
+    q_new = initial_true_attitude(f_level, m, declination_rad)
+    turn = quat_multiply(q_new, quat_conjugate(q_old))
+    for k in range(int(x["hist_count"])):
+        i = (int(x["hist_newest"]) - k) % hist.shape[0]
+        hist[i]["q"] = quat_normalize(quat_multiply(turn, hist[i]["q"]))
+    x["q"] = q_new
+    c = np.asarray(quat_to_dcm(q_new), dtype=float)
+    x["acc_ned_lp_m_s2"] = c @ x["acc_last_m_s2"]
+    # the fix set the velocity it had at its own time, which is this sample's less the fix's delay: levelled on
+    # the force, the attitude saw no horizontal acceleration over that delay, the turn's is C f + g
+    delay_s = float(x["t_last_s"]) - float(x["gnss_fused_t_s"])
+    if 0.0 < delay_s < math.inf:
+        a_ned = c @ np.asarray(x["acc_last_m_s2"], dtype=float)
+        x["vel_ned_m_s"][:2] = x["vel_ned_m_s"][:2] + delay_s * a_ned[:2]
+    residual = abs(float(np.linalg.norm(f_level)) - STANDARD_GRAVITY_M_S2) / STANDARD_GRAVITY_M_S2
+    for i in (core.E_TILT_N, core.E_TILT_E):
+        _restart_uncorrelated(P, i, max(p.init_sigma_tilt_rad, residual) ** 2)
+    _restart_uncorrelated(P, core.E_YAW, max(p.init_sigma_yaw_rad, p.calibration_sigma_rad) ** 2)
+
+
+def first_fix_in_turn(x: np.void, P: np.ndarray, hist: np.ndarray, p: StartSigmas, declination_rad: float,
+                      yaw_from_mag: bool, may_level_again: bool = True) -> bool:
+    """The first fix of a start levelled on the specific force (x the state just after it set the velocity): in a
+    turn that force leaned by the centripetal ω × v, which the fix's speed now tells. Levelled again on the force
+    less it (`centripetal_levelling_force`, `level_again`) when that explains the force's norm, moves the vertical
+    by more than the tilt 1σ, the magnetometer gives the heading at the new tilt and `may_level_again` (the
+    attitude is still the start's); otherwise the tilt (and the
+    magnetometer's yaw) 1σ widened to the lean it cannot exclude (`first_fix_lean`, `widen_for_lean`). True when
+    the attitude was levelled again."""
+    rate = x["gyro_last_rad_s"] - x["gyro_bias_rad_s"]
+    f = np.asarray(x["acc_last_m_s2"], dtype=float)
+    m = np.asarray(x["mag_last_ut"], dtype=float)
+    fc = centripetal_levelling_force(f, rate, float(np.linalg.norm(x["vel_ned_m_s"])))
+    if (may_level_again and fc is not None and yaw_from_mag and np.all(np.isfinite(m))
+            and _angle_rad(f, fc) > p.init_sigma_tilt_rad):
+        level_again(x, P, hist, p, fc, m, declination_rad)
+        return True
+    lean = first_fix_lean(x["q"], rate, x["vel_ned_m_s"], f)
+    widen_for_lean(P, lean, field_dip_rad(x["q"], m), yaw_from_mag)
+    return False
+
+
+def _angle_rad(u, v) -> float:
+    return math.atan2(float(np.linalg.norm(np.cross(u, v))), float(np.dot(u, v)))
+
+
+def _restart_uncorrelated(P: np.ndarray, i: int, var: float) -> None:
+    P[i, :] = 0.0
+    P[:, i] = 0.0
+    P[i, i] = var
 
 
 def learned_to_keep(x: np.void, restart: bool) -> LearnedErrors:
@@ -197,5 +311,6 @@ def initial_covariance(P: np.ndarray, p: StartSigmas, use_mag: bool, lean: Start
         P[core.E_AZ_LEAN + i, core.E_AZ_LEAN + i] = p.accel_axes_tilt_sigma_rad ** 2
 
 
-__all__ = ["LearnedErrors", "StartLean", "StartSigmas", "first_history_row", "fresh_state", "initial_covariance",
-           "initial_true_attitude", "learned_to_keep", "levelling_force", "levelling_lean", "start_mag_reference", "start_sensor_errors"]
+__all__ = ["LearnedErrors", "StartLean", "StartSigmas", "centripetal_levelling_force", "first_history_row", "fresh_state", "initial_covariance",
+           "field_dip_rad", "first_fix_in_turn", "first_fix_lean", "initial_true_attitude", "learned_to_keep", "level_again", "levelling_force", "levelling_lean",
+           "start_mag_reference", "start_sensor_errors", "widen_for_lean"]

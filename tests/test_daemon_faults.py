@@ -7,8 +7,6 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import socket
-import subprocess
-import sys
 import time
 
 import pytest
@@ -131,39 +129,18 @@ def test_corrupt_frames_and_a_vanished_device(tmp_path):
 def test_replay_of_a_recording_runs_and_ends(tmp_path):
     """`ahrsd run --replay` on a recording from `ahrsd record`: estimates flow, time stamps are the recording's
     t_s (what a ground station plots lines up with the recording), and the daemon stops by itself at the end
-    of the file."""
+    of the file (status 0). Both by ahrsd's main in this process (support/replay_inproc.py: what is checked is
+    what the daemon sends, not its process)."""
     from ahrsd.cli.main import main as ahrsd_main
+    from ahrsd.drivers.recording import read_recording
+    from support.replay_inproc import replay_inproc
 
     rec = tmp_path / "rec.csv"
     # recorded in this process: the same bytes as `ahrsd record` in its own (docs/testing.md, rel33)
     assert ahrsd_main(["record", "--sim", "static", "--output", str(rec), "--seconds", "3", "--quiet"]) == 0
-    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    rx.bind(("127.0.0.1", 0))
-    rx.settimeout(0.5)
-    port = rx.getsockname()[1]
-    save_mag_calibration(tmp_path / "s", sim_chip_mag_model())      # no heading is sent on an uncalibrated one
-    proc = subprocess.Popen([sys.executable, "-m", "ahrsd.cli", "run", "--replay", str(rec), "--mavlink",
-                             f"udpout:127.0.0.1:{port}", "--state-dir", str(tmp_path / "s"), "--status-line", "off"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    parser = mavlink.MAVLink(None)
-    usecs = []
-    try:
-        end = time.monotonic() + 60
-        while proc.poll() is None and time.monotonic() < end:
-            try:
-                data = rx.recv(4096)
-            except socket.timeout:
-                continue
-            for m in parser.parse_buffer(data) or ():
-                if m.get_type() == "VISION_POSITION_ESTIMATE":
-                    usecs.append((time.monotonic(), m.usec))
-        assert proc.wait(30) == 0                       # stopped by itself at the end of the recording
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        rx.close()
+    save_mag_calibration(tmp_path / "state", sim_chip_mag_model())  # no heading is sent on an uncalibrated one
+    got = replay_inproc(tmp_path, "--replay", str(rec))              # returns once the run ended by itself, 0
+    usecs = [m.usec for _, m in got.get("VISION_POSITION_ESTIMATE", [])]
     assert len(usecs) > 20
-    from ahrsd.drivers.recording import read_recording
-
     recorded_us = {int(t * 1e6) for t in read_recording(rec).t_s}
-    assert all(u in recorded_us for _, u in usecs)                 # recording time, not CLOCK_MONOTONIC
+    assert all(u in recorded_us for u in usecs)                     # recording time, not CLOCK_MONOTONIC

@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import signal
+import statistics
 import time
 
 import numpy as np
@@ -41,7 +43,8 @@ def assert_sent_at(stamps: list[tuple[float, object]], hz: float) -> None:
 
 @pytest.fixture(scope="module")
 def daemon(tmp_path_factory):
-    d = Daemon(tmp_path_factory.mktemp("ahrsd"), *LOW_RATE, mag_calibrated=True)
+    # the status line on (its log file: one line a second with the measured rate) for the rate test below
+    d = Daemon(tmp_path_factory.mktemp("ahrsd"), *LOW_RATE, "--status-line", "on", mag_calibrated=True)
     try:
         d.wait_active()
         yield d
@@ -253,6 +256,18 @@ def test_parameter_protocol(daemon):
     assert '"SR_HIGHRES_IMU": 25.0' in (daemon.state_dir / "params.json").read_text()
     g.mav.param_set_send(daemon.sysid, OUR_COMP, b"SR_HIGHRES_IMU", 10.0, mavlink.MAV_PARAM_TYPE_REAL32)
     assert daemon.recv("PARAM_VALUE", 2.0, lambda m: m.param_id == "SR_HIGHRES_IMU").param_value == 10.0
+
+
+def test_the_daemon_reads_the_chip_at_the_rate_it_set(daemon):
+    """`ahrsd run --rate-hz 204.8` (LOW_RATE): the status line's measured rate is the chip's 1638.404 / 8 = 204.8
+    SPS, not the 819.2 of a chip left at its default (median of the last five 1 s windows: a window can miss or
+    catch up a block). The datasheet's SMPL_PRD for each rate: tests/test_sensor_rate.py."""
+    end = time.monotonic() + 30.0
+    while len(rates := [float(x) for x in re.findall(r"(\d+\.\d) SPS", daemon.output())]) < 5 \
+            and time.monotonic() < end:
+        daemon.collect(1.0)
+    assert len(rates) >= 5, daemon.output()[-2000:]
+    assert statistics.median(rates[-5:]) == pytest.approx(float(LOW_RATE[1]), rel=0.1), rates[-5:]
 
 
 def test_timesync_is_answered(daemon):

@@ -1,7 +1,8 @@
 """A VISION_POSITION_ESTIMATE is a measurement the autopilot fuses: each endpoint gets it at most once per
 estimate. When no new sample arrives between two due times (a loaded machine, a stalled reader), the second due
 time sends nothing instead of the same measurement again with the same time stamp; ATTITUDE (for displays) is
-sent as before."""
+sent as before. A due time that sends nothing is counted by the endpoint's schedule (daemon.outputs `held`):
+sent + withheld + unchanged = the deadlines served."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import numpy as np
 from ahrsd.core.estimate import AttitudeEstimate
 from ahrsd.daemon.counters import ServiceCounters
 from ahrsd.daemon.mavlink_io import mavlink
+from ahrsd.daemon.outputs import UNCHANGED, WITHHELD, OutputSchedule
 from ahrsd.daemon.publishers import Publishers
 
 VPE = mavlink.MAVLINK_MSG_ID_VISION_POSITION_ESTIMATE
@@ -24,7 +26,7 @@ class _Endpoint:
 
     def __init__(self):
         self.sent = []
-        self.schedule = SimpleNamespace(due=lambda now: [ATT, VPE])
+        self.schedule = SimpleNamespace(due=lambda now: [ATT, VPE], held=lambda mid, now, reason: None)
 
     def send(self, msg) -> bool:
         self.sent.append(msg)
@@ -33,15 +35,16 @@ class _Endpoint:
 
 class _Context:
     declination_rad = 0.0
+    trusted = True
+
+    def heading_trusted(self, now):
+        return self.trusted
 
     def time_boot_ms(self, now=None):
         return int((now or 0.0) * 1000.0)
 
     def sample_time_monotonic(self, t_s):
         return 1000.0 + t_s
-
-    def heading_trusted(self, now):
-        return True
 
     def autopilot_yaw(self, est):
         return est.heading_true_rad, 0, float(est.sigma_rpy_rad[2])
@@ -98,3 +101,25 @@ def test_no_attitude_output_while_the_sensor_is_stalled_or_failed():
     pubs.health.sensor_error = False
     pubs.publish(10.2)                          # resumed: the feed again
     assert len(_of(endpoints[0], ATT)) == 1 and len(_of(endpoints[0], VPE)) == 1
+
+
+def test_every_deadline_is_sent_or_counted_held_with_its_reason():
+    """A 32 Hz VISION_POSITION_ESTIMATE on a real schedule, woken every 1/128 s for 1 s (binary-exact times: the
+    deadlines j/32 s, j = 0 … 32, are served at exactly those wakes). New estimates arrive at 64 Hz but none from
+    0.25 to 0.5 s (a reader handing its samples over late), and the heading is not trusted from 0.625 to 0.875 s.
+    Worked by hand: deadlines 9–15 have no new estimate (unchanged, 7), 20–27 an untrusted heading (withheld, 8),
+    the other 18 are sent; the held ones are kept as two runs with their times."""
+    pubs, pipeline, endpoints = _rig(1)
+    ep = endpoints[0]
+    ep.schedule = OutputSchedule({VPE: 32.0})
+    for k in range(129):
+        now = k / 128
+        pubs.context.trusted = not 80 <= k < 112
+        if k % 2 == 0 and not 32 <= k < 64:
+            pipeline.last_estimate = _estimate(now)
+        pubs.publish(now)
+    s = ep.schedule
+    assert len(_of(ep, VPE)) == 18
+    assert s.withheld_slots()[VPE] == 8 and s.unchanged_slots()[VPE] == 7
+    assert [(h.reason, h.first_s, h.last_s, h.count) for h in s.held_runs] == [
+        (UNCHANGED, 36 / 128, 60 / 128, 7), (WITHHELD, 80 / 128, 108 / 128, 8)]

@@ -3,13 +3,12 @@
 The register values are worked from the ADIS16405 datasheet (SMPL_PRD: t_S = t_B (N_S + 1), t_B = 1/1638.4 s with
 bit 7 clear), not from the code: 204.8 SPS is 1638.4 / 8, N_S = 7; 300 SPS lies between N_S = 4 (327.68 SPS) and
 N_S = 5 (273.07 SPS), and |ln(327.68/300)| = 0.088 < |ln(273.07/300)| = 0.094: the nearest setting is 4; 102.4 is
-1638.4 / 16 and 12.8 is 1638.4 / 128, the largest divisor.
+1638.4 / 16 and 12.8 is 1638.4 / 128, the largest divisor. The daemon reading the chip at the rate it set (the
+status line's measured rate): tests/test_integration_daemon.py, on its module's daemon at 204.8 SPS.
 """
 
 from __future__ import annotations
 
-import re
-import statistics
 import time
 
 import pytest
@@ -77,23 +76,6 @@ def test_the_flag_is_checked_as_the_key_is_and_a_replay_refuses_the_files_rate()
     from_file = Config(sensor=SensorConfig.parse({"rate_hz": 204.8}))
     assert from_file.with_overrides(iio="iio:device0").sensor.rate_hz == 204.8     # the driver's sampling_frequency
     assert SensorConfig.parse({"source": "iio", "rate_hz": 12.81, "stale_timeout_s": 0.5}).rate_hz == 12.81
-
-
-def test_the_daemon_reads_the_chip_at_the_rate_it_set(tmp_path):
-    """`ahrsd run --rate-hz 102.4`: the status line's measured rate is the chip's 1638.404 / 16 = 102.4 SPS, not
-    the 819.2 of a chip left at its default (median of the 1 s windows: a window can miss or catch up a block)."""
-    from support.ahrsd_process import Daemon
-
-    d = Daemon(tmp_path, "--rate-hz", "102.4", "--status-line", "on", mag_calibrated=True)
-    try:
-        d.wait_active()
-        time.sleep(6.0)
-    finally:
-        d.stop()
-    out = d.log_path.read_text()
-    rates = [float(x) for x in re.findall(r"(\d+\.\d) SPS", out)]
-    assert len(rates) >= 4, out[-2000:]
-    assert statistics.median(rates[-5:]) == pytest.approx(102.4, rel=0.1)
 
 
 def test_run_time_faults_start_on_the_grid_of_the_written_rate():

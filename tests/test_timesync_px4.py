@@ -8,7 +8,9 @@ double-exponential filter's gains go from 0.05 to 0.003 over CONVERGENCE_WINDOW 
 sync_stamp returns the arrival time. Its clock runs 987.654321 s ahead of ours and 100 ppm fast (a crystal's
 error). Truth: the peer's clock at the instant `usec` names on ours (`usec` is the daemon's stamp of the
 sample; bench/latency.py part B measures it 0.05 ms from the simulated chip's real ready time).
-The peer asks at 100 Hz (PX4 asks at 10 Hz) so the 500 exchanges take 5 s, not 50. Like PX4's receive
+The peer asks at 100 Hz (PX4 asks at 10 Hz) so the 500 exchanges take 5 s, not 50: the daemon answers each
+sender (system and component id) up to 20 times a second (daemon/timesync_answers.py), so the requests take turns
+among SENDERS component ids of the peer's system, each asking at 20 Hz, within its limit. Like PX4's receive
 thread, it takes a datagram's arrival time when it arrives (the kernel's SO_TIMESTAMPNS), not when this test
 process gets round to reading it.
 """
@@ -41,6 +43,8 @@ MAX_RTT_US = 10_000
 MAX_DEVIATION_US = 100_000
 ALPHA0 = BETA0 = 0.05
 ALPHA1 = BETA1 = 0.003
+REQUEST_HZ = 100.0
+SENDERS = 5            # component ids the requests take turns among: 100 Hz / 5 = each sender's 20 answers a second
 
 
 class Px4Timesync:
@@ -104,6 +108,7 @@ def test_px4_stamps_our_samples_within_2_ms(tmp_path):
     errors_ms, before_ms = [], []
     addr = None
     next_request = time.monotonic()
+    requests = 0
     deadline = time.monotonic() + 300      # a give-up time only: the run ends at 300 VPEs, however slowly a loaded
                                            # machine sends them (the count, not the time, is the evidence)
     try:
@@ -128,7 +133,9 @@ def test_px4_stamps_our_samples_within_2_ms(tmp_path):
                     (errors_ms if sync.converged else before_ms).append(
                         (stamped - peer_us_of_ours(m.usec)) / 1000)
             if addr is not None and time.monotonic() >= next_request:
-                next_request += 0.01
+                next_request += 1.0 / REQUEST_HZ
+                px4.srcComponent = 1 + requests % SENDERS
+                requests += 1
                 sock.sendto(bytes(px4.timesync_encode(0, int(peer_now_us() * 1000)).pack(px4)), addr)
             assert proc.poll() is None, "ahrsd exited"
     finally:

@@ -1,0 +1,230 @@
+"""The reader process's cost per read, counted: drivers.process_source's reader (the simulated ADIS16405 at 819.2
+SPS, the daemon's default path) against this process playing the daemon (it takes each block when the pipe becomes
+readable and asks for the next one `--hz` times a second, as the daemon's output deadlines do: 70 a second with the
+`gcs` outputs, 60 with `autopilot`).
+
+    .venv/bin/python bench/reader_calls.py [--seconds 20] [--hz 70] [--profile]
+    .venv/bin/python bench/reader_calls.py --numpy-block 12    # batching the decode with numpy, in a hot loop
+
+Prints, over the window (after a 4 s warm-up): the reads a second, the reader thread's CPU (user, system, and the
+scheduler's run time from /proc/PID/task/TID/schedstat) as a share of a core and per read, and the simulated chip's
+part of it (its register model and truth bookkeeping, `sensor_simulated_cpu_s`: not there on hardware). With
+`--profile` the reader thread runs under cProfile and the bench prints the Python calls a read (a count: the same
+on any machine) and the profiled time a read by part of the path (driver, timer, reader loop, hand-over, the
+simulated chip); the profiler's own cost inflates that time, so compare parts and counts, not the total.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import select
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:
+    sys.path.insert(0, str(REPO))
+
+PARTS = (      # (part, the files whose Python it is)
+    ("simulated chip", ("simulated.py", "sim_clock.py", "sim_block_stream.py", "faults.py", "ground_truth.py")),
+    ("driver (adis16405)", ("adis16405.py",)),
+    ("timer (sample_timer, chip_source)", ("sample_timer.py", "chip_source.py")),
+    ("reader loop and pacing", ("threaded_source.py", "reconnecting.py", "read_failures.py", "threading.py")),
+    ("hand-over", ("process_source.py", "sample_record.py", "sharedctypes.py")),
+)
+
+
+def child(*args, **kwargs):
+    """The reader process's entry (drivers.process_source._child), its reader thread under cProfile when
+    READER_CALLS_PROFILE names the file to write."""
+    from ahrsd.drivers import process_source, threaded_source
+
+    out = os.environ.get("READER_CALLS_PROFILE")
+    if out:
+        import cProfile
+
+        run = threaded_source.ThreadedSource._run
+
+        def profiled_run(self):
+            profiler = cProfile.Profile()
+            profiler.enable()
+            try:
+                run(self)
+            finally:
+                profiler.disable()
+                profiler.dump_stats(out)
+
+        threaded_source.ThreadedSource._run = profiled_run
+    return process_source._child(*args, **kwargs)
+
+
+def _threads(pid: int) -> dict[str, tuple[float, float, float]]:
+    """Per thread of `pid`: user and system CPU seconds (/proc stat) and run time (schedstat)."""
+    tck = os.sysconf("SC_CLK_TCK")
+    out = {}
+    for tid in os.listdir(f"/proc/{pid}/task"):
+        try:
+            stat = Path(f"/proc/{pid}/task/{tid}/stat").read_text().rsplit(")", 1)[1].split()
+            run_ns = int(Path(f"/proc/{pid}/task/{tid}/schedstat").read_text().split()[0])
+        except OSError:
+            continue
+        out[tid] = (int(stat[11]) / tck, int(stat[12]) / tck, run_ns / 1e9)
+    return out
+
+
+def _part(filename: str, function: str) -> str:
+    for name, files in PARTS:
+        if filename.endswith(files):
+            return name
+    return "sleep" if function == "<built-in method time.sleep>" else "other"
+
+
+def _profile_lines(path: str) -> list[str]:
+    """Calls and profiled µs a read by part; a built-in's calls and time go to the part that called it."""
+    import pstats
+
+    stats = pstats.Stats(path).stats
+    reads = sum(v[1] for k, v in stats.items() if k[2] == "read_sample")
+    time_s: dict[str, float] = {}
+    calls: dict[str, int] = {}
+    for (filename, _line, function), (_cc, ncalls, tottime, _ct, callers) in stats.items():
+        if filename == "~" and function != "<built-in method time.sleep>":
+            for (cf, _cl, cfn), caller in callers.items():
+                part = _part(cf, cfn)
+                calls[part] = calls.get(part, 0) + caller[1]
+                time_s[part] = time_s.get(part, 0.0) + caller[2]
+            continue
+        part = _part(filename, function)
+        calls[part] = calls.get(part, 0) + ncalls
+        time_s[part] = time_s.get(part, 0.0) + tottime
+    busy = [p for p in time_s if p != "sleep"]
+    lines = [f"profiled reads {reads}: {sum(calls[p] for p in busy) / reads:.1f} Python calls a read "
+             f"({sum(calls[p] for p in busy if p != 'simulated chip') / reads:.1f} outside the simulated chip), "
+             f"{1e6 * sum(time_s[p] for p in busy) / reads:.0f} µs a read profiled"]
+    for name in [n for n, _ in PARTS] + ["other"]:
+        if name in calls:
+            lines.append(f"  {name:36s} {calls[name] / reads:5.1f} calls  {1e6 * time_s[name] / reads:6.1f} µs a read")
+    return lines
+
+
+def numpy_block_decode(frames: int, repeats: int = 5000) -> None:
+    """Thread CPU a sample, in a hot loop, of the reader process's per-sample record (the driver's SampleRecord
+    from the frame's integers, then `pack`) against decoding a block of `frames` burst frames with numpy at once
+    (kept raw at each read, decoded into the same hand-over records at the hand-over): what batching the
+    decode would save at the hand-over's block size (70 blocks a second at 819.2 SPS: about 12 frames)."""
+    import struct
+    from operator import mul
+
+    import numpy as np
+
+    from ahrsd.drivers import registers as R
+    from ahrsd.drivers.process_source import _RECORD, pack
+    from ahrsd.drivers.sample_record import SampleRecord
+
+    scale9 = [math.radians(0.05)] * 3 + [R.ACCEL_M_S2_PER_LSB] * 3 + [R.MAG_UT_PER_LSB] * 3
+    scale = np.array(scale9)
+    raw9 = [100, -200, 300, 4000, -10, 20, 1000, -2000, 3000]
+    frame = bytes(2) + struct.pack(">12H", 2000, *[r & 0x3FFF for r in raw9], 1234, 0)
+
+    def per_sample() -> bytes:
+        records = []
+        for i in range(frames):
+            temp_c = R.TEMP_C_AT_ZERO + R.TEMP_C_PER_LSB * (((1234 & 0x0FFF) ^ 0x0800) - 0x0800)
+            records.append(SampleRecord((0.001 * i, *map(mul, raw9, scale9), temp_c, 2000 * R.SUPPLY_V_PER_LSB,
+                                         1, 0, i)))
+        return pack(records)
+
+    def numpy_block() -> bytes:
+        kept = [(0.001 * i, 1, 0, i, raw9[0], frame) for i in range(frames)]
+        n = len(kept)
+        words = np.frombuffer(b"".join([k[5] for k in kept]), ">u2").reshape(n, 13)[:, 1:]
+        raw = ((words[:, 1:10] & 0x3FFF) ^ 0x2000).astype(np.int64) - 0x2000
+        raw[:, 0] = [k[4] for k in kept]
+        out = np.empty(n, _RECORD)
+        out["t_s"] = [k[0] for k in kept]
+        values = raw * scale
+        out["gyro"], out["accel"], out["mag"] = values[:, 0:3], values[:, 3:6], values[:, 6:9]
+        temp = (((words[:, 10] & 0x0FFF) ^ 0x0800).astype(np.int64) - 0x0800)
+        out["temp_c"] = R.TEMP_C_AT_ZERO + R.TEMP_C_PER_LSB * temp
+        out["supply_v"] = (words[:, 0] & 0x3FFF) * R.SUPPLY_V_PER_LSB
+        out["flags"], out["diag"], out["counter"] = [k[1] for k in kept], [k[2] for k in kept], [k[3] for k in kept]
+        return out.tobytes()
+
+    assert per_sample() == numpy_block()          # the same hand-over bytes
+    for f in (per_sample, numpy_block, per_sample, numpy_block):
+        t0 = time.thread_time()
+        for _ in range(repeats):
+            f()
+        print(f"{f.__name__:12s} {1e6 * (time.thread_time() - t0) / repeats / frames:5.2f} µs a sample "
+              f"(blocks of {frames}, hot loop)")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument("--hz", type=float, default=70.0, help="hand-overs a second the daemon asks for")
+    ap.add_argument("--profile", action="store_true", help="the reader thread under cProfile: calls a read by part")
+    ap.add_argument("--numpy-block", type=int, default=0, metavar="N",
+                    help="only time, in a hot loop, the per-sample record against decoding N frames with numpy")
+    args = ap.parse_args()
+    if args.numpy_block:
+        numpy_block_decode(args.numpy_block)
+        return
+
+    from ahrsd.daemon.config import SensorConfig
+    from ahrsd.drivers import process_source
+
+    profile_path = ""
+    if args.profile:
+        import tempfile
+
+        profile_path = os.path.join(tempfile.mkdtemp(prefix="reader_calls_"), "reader.prof")
+        os.environ["READER_CALLS_PROFILE"] = profile_path
+    process_source._child = child
+    load0 = os.getloadavg()[0]
+    src = process_source.ProcessSource(SensorConfig(source="sim", reader="process"))
+    period = 1.0 / args.hz
+
+    def take(until: float) -> int:
+        n = 0
+        src.hand_over_by(math.ceil(time.monotonic() / period) * period)
+        while time.monotonic() < until:
+            if select.select([src.ready_fd], [], [], 0.05)[0]:
+                n += len(src.poll())
+                src.hand_over_by(math.ceil(time.monotonic() / period) * period)
+        return n
+
+    try:
+        src.poll()                                        # "go": the reader starts
+        take(time.monotonic() + 4.0)
+        time.sleep(0.3)                                   # the next counters
+        src.poll()
+        c0, t0, wall0 = dict(src.counters()), _threads(src._proc.pid), time.monotonic()
+        taken = take(wall0 + args.seconds)
+        time.sleep(0.3)
+        taken += len(src.poll())
+        c1, t1, wall1 = src.counters(), _threads(src._proc.pid), time.monotonic()
+    finally:
+        src.close()
+    secs = wall1 - wall0
+    reads = c1["reader_reads"] - c0["reader_reads"]
+    print(f"machine: {os.cpu_count()} CPUs, load average {load0:.2f} → {os.getloadavg()[0]:.2f}; {secs:.1f} s, "
+          f"{reads / secs:.1f} reads a second, {taken / secs:.1f} samples taken a second, {args.hz:g} hand-overs asked")
+    busiest = max((tid for tid in t1 if tid in t0), key=lambda tid: t1[tid][2] - t0[tid][2])
+    user, sys_, run = (t1[busiest][i] - t0[busiest][i] for i in range(3))
+    sim = c1.get("sensor_simulated_cpu_s", 0.0) - c0.get("sensor_simulated_cpu_s", 0.0)
+    print(f"reader thread: {100 * run / secs:.2f} % of a core (user {100 * user / secs:.2f}, system "
+          f"{100 * sys_ / secs:.2f}), {1e6 * run / reads:.1f} µs a read; of it the simulated chip "
+          f"{100 * sim / secs:.2f} % ({1e6 * sim / reads:.1f} µs a read); own {1e6 * (run - sim) / reads:.1f} µs a read")
+    others = sum(t1[tid][2] - t0[tid][2] for tid in t1 if tid in t0 and tid != busiest)
+    print(f"the reader process's other threads: {100 * others / secs:.2f} % of a core")
+    if profile_path:
+        for line in _profile_lines(profile_path):
+            print(line)
+
+
+if __name__ == "__main__":
+    main()
