@@ -878,8 +878,8 @@ MUTATIONS: tuple[Mutation, ...] = (
              "estimator/mag_rotation.py", "unexplained = np.asarray(p_tilt_rad2, dtype=float) - p_tb @ gain",
              "unexplained = np.asarray(p_tilt_rad2, dtype=float) - 0.0 * p_tb @ gain", ("tests/test_mag_rotation.py",)),
     Mutation("ins-window-tilt-given-the-bias", "Ins gives the windows the tilt σ conditional on the accelerometer bias",
-             "estimator/heading_supervision.py", "tilt_sigma = window_tilt_sigma_rad(P[tilt, tilt], P[tilt, bias], P[bias, bias])",
-             "tilt_sigma = window_tilt_sigma_rad(P[tilt, tilt], 0.0 * P[tilt, bias], P[bias, bias])",
+             "estimator/heading_supervision.py", "return window_tilt_sigma_rad(P[tilt, tilt], P[tilt, bias], P[bias, bias])",
+             "return window_tilt_sigma_rad(P[tilt, tilt], 0.0 * P[tilt, bias], P[bias, bias])",
              ("tests/test_mag_rotation.py",)),
     # ------------------------------------------------------------------ session 35 (dmnh)
     Mutation("levelling-calibration-sigma", "a magnetometer pass's levelling filter is told the calibration's σ",
@@ -1089,4 +1089,13 @@ MUTATIONS: tuple[Mutation, ...] = (
              "without a count", "daemon/publishers.py", "if ep.send(m):",
              "if (mid != 102 or self.counters.published % 4) and ep.send(m):",
              ("tests/test_reliability_soak.py",)),
+    # ------------------------------------------------------------------ session 38 (fixh)
+    Mutation("mag-rotation-tilt-sigma-asked", "a magnetometer-rotation window's fit takes the tilt 1σ Ins gives as a "
+             "function (asked at the check that completes the window)",
+             "estimator/mag_rotation.py", "self.tilt_sigma_rad = now() if callable(now) else now",
+             "self.tilt_sigma_rad = 0.0 if callable(now) else now", ("tests/test_mag_rotation.py",)),
+    Mutation("level-field-terms-per-field", "the field's and yaws' part of IronLearner.level_heading_rows is reused "
+             "only for the field it was made at (keyed by its values too)",
+             "estimator/heading_monitor.py", "key = (b.tobytes(), yaw.dtype.str, yaw.shape, yaw.tobytes())",
+             "key = (yaw.dtype.str, yaw.shape, yaw.tobytes())", ("tests/test_iron_level_rows.py",)),
 )
