@@ -1098,4 +1098,16 @@ MUTATIONS: tuple[Mutation, ...] = (
              "only for the field it was made at (keyed by its values too)",
              "estimator/heading_monitor.py", "key = (b.tobytes(), yaw.dtype.str, yaw.shape, yaw.tobytes())",
              "key = (yaw.dtype.str, yaw.shape, yaw.tobytes())", ("tests/test_iron_level_rows.py",)),
+    # ------------------------------------------------------------------ session 38 (fixl)
+    Mutation("mean-rate-row-order", "the arm's mean body rate adds the rows in their order, as numpy's sum does",
+             "estimator/lever_arm_fit.py",
+             "for t, (x, y, z) in zip(np.asarray(t_rows_s).tolist(), np.asarray(rate_rows_rad_s).tolist()):",
+             "for t, (x, y, z) in reversed(list(zip(np.asarray(t_rows_s).tolist(), "
+             "np.asarray(rate_rows_rad_s).tolist()))):", ("tests/test_lever_arm_fit.py",)),
+    Mutation("history-search-wrapped", "the kept rows wrapping the ring's end are searched in both runs",
+             "estimator/history_rows.py", "    if k < len(older):", "    if k <= len(older):",
+             ("tests/test_history_rows.py",)),
+    Mutation("history-search-nan", "a NaN time has no kept row at or before it, as the kernel's walk finds",
+             "estimator/history_rows.py", "    if not t_s == t_s:", "    if False:",
+             ("tests/test_history_rows.py",)),
 )
