@@ -1089,4 +1089,11 @@ MUTATIONS: tuple[Mutation, ...] = (
              "without a count", "daemon/publishers.py", "if ep.send(m):",
              "if (mid != 102 or self.counters.published % 4) and ep.send(m):",
              ("tests/test_reliability_soak.py",)),
+    # ------------------------------------------------------------------ session 38 (allan)
+    Mutation("allan-kernel-chunk-edge", "the compiled Allan sums count the windows that span a chunk's edge once",
+             "calibration/allan/second_differences.py", "first = max(0, old - 2 * m + 1)",
+             "first = max(0, old - 2 * m + 2)", ("tests/test_allan_second_differences.py",)),
+    Mutation("allan-kernel-second-difference", "the compiled Allan sums square θ(s+2m) − 2θ(s+m) + θ(s)",
+             "calibration/allan/second_differences.py", "- 2.0 * theta[s + m, j]", "- 2.0 * theta[s + m - 1, j]",
+             ("tests/test_allan_second_differences.py",)),
 )
