@@ -1110,4 +1110,11 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("history-search-nan", "a NaN time has no kept row at or before it, as the kernel's walk finds",
              "estimator/history_rows.py", "    if not t_s == t_s:", "    if False:",
              ("tests/test_history_rows.py",)),
+    # ------------------------------------------------------------------ session 38 (allan)
+    Mutation("allan-kernel-chunk-edge", "the compiled Allan sums count the windows that span a chunk's edge once",
+             "calibration/allan/second_differences.py", "first = max(0, old - 2 * m + 1)",
+             "first = max(0, old - 2 * m + 2)", ("tests/test_allan_second_differences.py",)),
+    Mutation("allan-kernel-second-difference", "the compiled Allan sums square θ(s+2m) − 2θ(s+m) + θ(s)",
+             "calibration/allan/second_differences.py", "- 2.0 * theta[s + m, j]", "- 2.0 * theta[s + m - 1, j]",
+             ("tests/test_allan_second_differences.py",)),
 )
