@@ -96,11 +96,19 @@ class LeverArmFitResult(NamedTuple):
 def mean_rate(t_rows_s: np.ndarray, rate_rows_rad_s: np.ndarray, t_s: float, rate_at_rad_s: np.ndarray) -> np.ndarray:
     """The body rate for the arm's term at a fix of time t_s: the mean of the rates (rows of body rate, rad/s, at
     times t_rows_s) within RATE_MEAN_S about t_s, or `rate_at_rad_s` when no row is within it."""
-    near = np.abs(np.asarray(t_rows_s) - t_s) <= 0.5 * RATE_MEAN_S
-    rows = np.asarray(rate_rows_rad_s)[near]
-    # the mean as numpy's `mean` computes it (the sum along the rows, then divided by their count), without its
-    # wrapper's checks
-    return rows.sum(axis=0) / len(rows) if len(rows) else np.asarray(rate_at_rad_s, dtype=float)
+    half_s = 0.5 * RATE_MEAN_S
+    n = 0
+    sx = sy = sz = 0.0
+    # in Python floats (a few dozen rows a fix, where numpy's per-call cost is most of it): the mean as numpy's
+    # `sum(axis=0) / len` computes it, from +0.0 adding the rows in their order (along a (k, 3) array's rows numpy
+    # adds row after row, no pairwise summation), then divided by their count: the same value to the bit
+    for t, (x, y, z) in zip(np.asarray(t_rows_s).tolist(), np.asarray(rate_rows_rad_s).tolist()):
+        if abs(t - t_s) <= half_s:
+            sx += x
+            sy += y
+            sz += z
+            n += 1
+    return np.array([sx / n, sy / n, sz / n]) if n else np.asarray(rate_at_rad_s, dtype=float)
 
 
 def rate_cross_ned(c_bn: np.ndarray, rate_b_rad_s: np.ndarray) -> np.ndarray:

@@ -1102,4 +1102,23 @@ MUTATIONS: tuple[Mutation, ...] = (
              "check's own products (A·((ΔCᵀ − I)·(e_i × v₀)), in that order)",
              "estimator/mag_rotation.py", "turned = np.matmul(a, np.matmul(rt_i, moves))[..., 0]",
              "turned = np.matmul(rt_i, np.matmul(a, moves))[..., 0]", ("tests/test_mag_rotation.py",)),
+    # ------------------------------------------------------------------ session 38 (fixl)
+    Mutation("mean-rate-row-order", "the arm's mean body rate adds the rows in their order, as numpy's sum does",
+             "estimator/lever_arm_fit.py",
+             "for t, (x, y, z) in zip(np.asarray(t_rows_s).tolist(), np.asarray(rate_rows_rad_s).tolist()):",
+             "for t, (x, y, z) in reversed(list(zip(np.asarray(t_rows_s).tolist(), "
+             "np.asarray(rate_rows_rad_s).tolist()))):", ("tests/test_lever_arm_fit.py",)),
+    Mutation("history-search-wrapped", "the kept rows wrapping the ring's end are searched in both runs",
+             "estimator/history_rows.py", "    if k < len(older):", "    if k <= len(older):",
+             ("tests/test_history_rows.py",)),
+    Mutation("history-search-nan", "a NaN time has no kept row at or before it, as the kernel's walk finds",
+             "estimator/history_rows.py", "    if not t_s == t_s:", "    if False:",
+             ("tests/test_history_rows.py",)),
+    # ------------------------------------------------------------------ session 38 (allan)
+    Mutation("allan-kernel-chunk-edge", "the compiled Allan sums count the windows that span a chunk's edge once",
+             "calibration/allan/second_differences.py", "first = max(0, old - 2 * m + 1)",
+             "first = max(0, old - 2 * m + 2)", ("tests/test_allan_second_differences.py",)),
+    Mutation("allan-kernel-second-difference", "the compiled Allan sums square θ(s+2m) − 2θ(s+m) + θ(s)",
+             "calibration/allan/second_differences.py", "- 2.0 * theta[s + m, j]", "- 2.0 * theta[s + m - 1, j]",
+             ("tests/test_allan_second_differences.py",)),
 )

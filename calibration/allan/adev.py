@@ -27,6 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .second_differences import add_squared_second_differences
+
 LEVEL0_SIZES = (1, 2, 3, 4, 5, 6, 7)   # below 8: every cluster size of the first octaves, fully overlapping
 LEVEL_SIZES = (8, 10, 11, 13)          # ≈ 8·2^(k/4), k = 0..3: 4 points per octave on every level
 MAX_TAU_FRACTION = 1.0 / 3.0           # longest τ reported: a third of the record (≥ n/3 overlapping terms)
@@ -75,15 +77,20 @@ class _Level:
         theta[0] = 0.0
         np.cumsum(buf, axis=0, out=theta[1:])
         old = len(self.tail)
-        for i, m in enumerate(self.sizes):
-            # windows buf[s : s+2m] that end in the new values: s + 2m − 1 ≥ old
-            first = max(0, old - 2 * m + 1)
-            last = len(buf) - 2 * m           # inclusive
-            if last < first:
-                continue
-            d = theta[first + 2 * m:last + 2 * m + 1] - 2.0 * theta[first + m:last + m + 1] + theta[first:last + 1]
-            self.sum_sq[i] += np.einsum("ij,ij->j", d, d)
-            self.count[i] += last - first + 1
+        if buf.shape[1] > 1:
+            add_squared_second_differences(theta, self.sizes, old, self.sum_sq, self.count)
+        else:
+            # One column: numpy's einsum sums a contiguous column in blocks (SIMD accumulators), not row by row
+            # as the compiled kernel and as it does for several columns: the numpy expressions themselves.
+            for i, m in enumerate(self.sizes):
+                # windows buf[s : s+2m] that end in the new values: s + 2m − 1 ≥ old
+                first = max(0, old - 2 * m + 1)
+                last = len(buf) - 2 * m           # inclusive
+                if last < first:
+                    continue
+                d = theta[first + 2 * m:last + 2 * m + 1] - 2.0 * theta[first + m:last + m + 1] + theta[first:last + 1]
+                self.sum_sq[i] += np.einsum("ij,ij->j", d, d)
+                self.count[i] += last - first + 1
         keep = int(2 * self.sizes.max() - 1)
         self.tail = buf[-keep:].copy()
         self.n += len(values)

@@ -1,0 +1,113 @@
+"""An md5 digest of what the Allan analysis computes: the check that making it cheaper leaves its output
+bit-identical.
+
+    .venv/bin/python tools/allan_digest.py        # one line per part and one over all of them
+
+Run it in two checkouts (the same command in each worktree) and compare the lines. Parts:
+- `curve`: every field of the AllanCurve of records of 8 to 300 000 samples (1 to 4 axes, white, random-walk,
+  flicker and Gauss–Markov noise on a bias), whole and fed to StreamingAllan in chunks of 1, 7, 1000 and 65 536
+  samples, and at given cluster sizes (`allan_deviation(x, rate, m)`);
+- `analysis`: every field of the AllanResult of `analyse_static` on records like the tests' (white with a rate
+  random walk, with flicker, with a Gauss–Markov bias, with quantization; gyro, accelerometer and magnetometer).
+The noise is made here, from fixed seeds, as tests/allan_noise.py makes it (independent of the analysis).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import hashlib
+import math
+
+import numpy as np
+
+
+def _feed(h, value) -> None:
+    """Every bit of `value` into the hash (arrays by dtype, shape and bytes; floats by their IEEE bits)."""
+    if isinstance(value, np.ndarray):
+        h.update(f"{value.dtype}{value.shape}".encode())
+        h.update(np.ascontiguousarray(value).tobytes())
+    elif isinstance(value, (float, np.floating)):
+        h.update(np.float64(value).tobytes())
+    elif isinstance(value, (list, tuple)):
+        h.update(b"[")
+        for v in value:
+            _feed(h, v)
+        h.update(b"]")
+    elif isinstance(value, dict):
+        for k in sorted(value, key=repr):
+            h.update(repr(k).encode())
+            _feed(h, value[k])
+    elif dataclasses.is_dataclass(value):
+        h.update(type(value).__name__.encode())
+        for f in dataclasses.fields(value):
+            _feed(h, getattr(value, f.name))
+    else:
+        h.update(f"{type(value).__name__}:{value!r}".encode())
+
+
+def _noise(n: int, rate_hz: float, seed: int, axes: int) -> np.ndarray:
+    from scipy.signal import lfilter
+
+    rng = np.random.default_rng(seed)
+    white = rng.standard_normal((n, axes)) * 0.005 * math.sqrt(rate_hz)
+    walk = np.cumsum(rng.standard_normal((n, axes)), axis=0) * 2e-4 / math.sqrt(rate_hz)
+    phi = math.exp(-1.0 / (rate_hz * 30.0))
+    gm = lfilter([1.0], [1.0, -phi], rng.standard_normal((n, axes)) * 1e-3 * math.sqrt(1 - phi * phi), axis=0)
+    k = np.arange(1, min(n, 4096))
+    h = np.concatenate([[1.0], np.cumprod((0.5 + k - 1.0) / k)])
+    flicker = np.stack([np.convolve(rng.standard_normal(n), h)[:n] * 1e-4 for _ in range(axes)], axis=1)
+    return 0.3 + white + walk + gm + flicker
+
+
+def curve_part() -> str:
+    from ahrsd.calibration.allan.adev import StreamingAllan, allan_deviation
+
+    h = hashlib.md5()
+    for n, axes, seed in ((8, 1, 1), (29, 3, 2), (1000, 2, 3), (1000, 3, 7), (4099, 4, 8), (65_537, 3, 4),
+                          (300_000, 3, 5), (100_003, 1, 6)):
+        x = _noise(n, 100.0, seed, axes)
+        _feed(h, allan_deviation(x, 100.0))
+        _feed(h, allan_deviation(x, 100.0, m=np.array([1, 2, 3, 7, 20, max(1, n // 3)])))
+        for chunk in (1, 7, 1000, 65_536):
+            if chunk < 1000 and n > 5000:
+                continue
+            acc = StreamingAllan(100.0, axes)
+            for start in range(0, n, chunk):
+                acc.add(x[start:start + chunk])
+            _feed(h, acc.curve())
+    return h.hexdigest()
+
+
+def analysis_part() -> str:
+    from ahrsd.calibration.allan.analysis import analyse_static
+
+    h = hashlib.md5()
+    for hours, rate, seed in ((0.25, 100.0, 11), (0.5, 50.0, 12)):
+        n = int(hours * 3600 * rate)
+        t = np.arange(n) / rate
+        gyro = _noise(n, rate, seed, 3)
+        rng = np.random.default_rng(seed + 100)
+        accel = 9.81 * np.array([0.0, 0.0, 1.0]) + rng.standard_normal((n, 3)) * 0.02
+        mag = np.round((np.array([20.0, 0.0, 45.0]) + rng.standard_normal((n, 3)) * 0.05) / 0.3) * 0.3
+        _feed(h, analyse_static(t, gyro, accel, mag))
+    return h.hexdigest()
+
+
+PARTS = {"curve": curve_part, "analysis": analysis_part}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--parts", nargs="+", choices=tuple(PARTS), default=list(PARTS))
+    args = parser.parse_args()
+    total = hashlib.md5()
+    for name in args.parts:
+        digest = PARTS[name]()
+        total.update(digest.encode())
+        print(f"{name} {digest}")
+    print(f"all {total.hexdigest()}")
+
+
+if __name__ == "__main__":
+    main()
