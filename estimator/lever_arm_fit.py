@@ -179,12 +179,15 @@ class LeverArmFit:
             return
         d_nu = nu - last[1]
         use = np.isfinite(d_nu)
-        if not use.any():
+        every = use.all()
+        if not (every or use.any()):
             return
+        d_rc = rate_cross - last[2]
+        att = _attitude_columns(None if vel is None or last[4] is None else vel - last[4], float(t_s) - last[0])
+        if not every:       # every component used (the vertical fused): the rows as they are, not a masked copy
+            d_nu, d_rc, att = d_nu[use], d_rc[use], att[use]
         # the difference of two fixes' noise: variance the sum of theirs
-        self._pairs.append((d_nu[use], (rate_cross - last[2])[use], math.hypot(sigma_m_s, last[3]),
-                            _attitude_columns(None if vel is None or last[4] is None else vel - last[4],
-                                              float(t_s) - last[0])[use], self._segment))
+        self._pairs.append((d_nu, d_rc, math.hypot(sigma_m_s, last[3]), att, self._segment))
         self._dirty = True
 
     def fused(self, velocity_correction_ned_m_s: np.ndarray, rejected: bool) -> None:

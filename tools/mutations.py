@@ -489,8 +489,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     # ------------------------------------------------------------------ session 30 (arm30)
     Mutation("lever-arm-attitude-part", "the lever-arm fit models what a heading error makes of the velocity change",
              "estimator/lever_arm_fit.py",
-             "                            _attitude_columns(None if vel is None or last[4] is None else vel - last[4],",
-             "                            _attitude_columns(None,",
+             "att = _attitude_columns(None if vel is None or last[4] is None else vel - last[4],",
+             "att = _attitude_columns(None,",
              ("tests/test_lever_arm_fit.py",)),
     Mutation("lever-arm-unobserved-left", "a direction of the arm the rotation does not observe stays at the told arm",
              "estimator/lever_arm_fit.py", "        fitted = eig > prior_info", "        fitted = eig > 0.0",
