@@ -1,6 +1,6 @@
 """CPU of the Allan analysis, this checkout's against another's (e.g. main's), alternated in one process.
 
-    git -C /work/main archive main | tar -x -C OLD_DIR       # another checkout's tree, e.g. main's
+    git archive main | tar -x -C OLD_DIR       # another tree, e.g. main's
     nice -n 5 .venv/bin/python bench/allan_cpu.py --old OLD_DIR --repeats 3
 
 The other tree's package is imported beside this one as `ahrsd_old` (the Allan modules import each other and
