@@ -112,6 +112,32 @@ def _level_attitudes(yaw_rad) -> np.ndarray:
     return c_bn
 
 
+_LEVEL_FIELD_TERMS: dict = {}
+"""`_level_field_terms` of each (field, yaw array) it was asked for, by their bytes."""
+
+
+def _level_field_terms(field_ned_ut, yaw_rad) -> tuple[np.ndarray, np.ndarray]:
+    """(g·C_bn, C_bnᵀ·B) of a level vehicle at each yaw (k×3 each, read only), g = (−B_E, B_N, 0)/H² the heading's
+    gradient: the part of `IronLearner.level_heading_rows` that depends on the field and the yaws alone, made once
+    per field and yaw array (the WMM field at the filter's position changes every ~1 km; the learner's iron, at
+    every learning step)."""
+    b = np.asarray(field_ned_ut, dtype=float)
+    yaw = np.asarray(yaw_rad)
+    key = (b.tobytes(), yaw.dtype.str, yaw.shape, yaw.tobytes())
+    terms = _LEVEL_FIELD_TERMS.get(key)
+    if terms is None:
+        h2 = b[0] * b[0] + b[1] * b[1]
+        g = np.array([-b[1], b[0], 0.0]) / h2
+        c_bn = _level_attitudes(yaw)
+        terms = (np.einsum("j,kji->ki", g, c_bn), np.einsum("kji,j->ki", c_bn, b))
+        for t in terms:
+            t.setflags(write=False)
+        if len(_LEVEL_FIELD_TERMS) >= 16:     # a caller sweeping fields or yaws: keep the cache small
+            _LEVEL_FIELD_TERMS.clear()
+        _LEVEL_FIELD_TERMS[key] = terms
+    return terms
+
+
 @dataclass
 class IronLearner:
     """Learned iron on top of the calibration: the hard iron b (body frame, µT) and the soft iron D
@@ -170,7 +196,7 @@ class IronLearner:
 
     @property
     def sigma_ut(self) -> np.ndarray:
-        return np.sqrt(np.maximum(np.diag(self.cov[0:3, 0:3]), 0.0))
+        return np.sqrt(np.maximum(self.cov.diagonal()[0:3], 0.0))
 
     @property
     def soft_iron(self) -> np.ndarray:
@@ -318,14 +344,10 @@ class IronLearner:
         """∂(magnetometer heading)/∂(b, D) of a level vehicle at each yaw (rad, true), one row of N_IRON a yaw:
         `heading_variance`'s a at those attitudes (a · cov · aᵀ is the heading variance the learned iron leaves
         there). The field must have a horizontal part."""
-        b = np.asarray(field_ned_ut, dtype=float)
-        h2 = b[0] * b[0] + b[1] * b[1]
-        g = np.array([-b[1], b[0], 0.0]) / h2
-        c_bn = _level_attitudes(yaw_rad)
         # heading_variance for each c_bn at once: a = [w, w_i·(C_bnᵀ B)_j] with w = g C_bn (I + D)⁻¹
-        w = np.einsum("j,kji->ki", g, c_bn) @ self._kept_inverse()
-        field_body = np.einsum("kji,j->ki", c_bn, b)
-        return np.concatenate([w, (w[:, :, None] * field_body[:, None, :]).reshape(len(c_bn), 9)], axis=1)
+        g_c, field_body = _level_field_terms(field_ned_ut, yaw_rad)
+        w = g_c @ self._kept_inverse()
+        return np.concatenate([w, (w[:, :, None] * field_body[:, None, :]).reshape(len(field_body), 9)], axis=1)
 
 
 def attitude_heading_variances(p_att_rad2, field_ned_ut) -> tuple[float, float]:

@@ -234,9 +234,11 @@ class HeadingSupervision:
         # the monitor says no learning on a check that reset the yaw (c_bn is the attitude before the reset, P its
         # covariance after it): the next check learns with the new yaw
         iron_updates = self._iron.updates
+        applied = False
         if self.params.iron_learning and self.monitor.learning and _finite3(m_body) and self._x["nav_ok"] > 0:
-            self._learn_iron(t_s, c_bn, field)
-        self.set_mag_harmonics()      # the iron learning may have ended here (harmonics_source)
+            applied = self._learn_iron(t_s, c_bn, field)
+        if not applied:     # a learning step applied the iron and set the harmonics' source with it
+            self.set_mag_harmonics()      # the iron learning may have ended here (harmonics_source)
         yaw_now = yaw if yaw_reset_to is None else wrap_pi(yaw_reset_to)
         self.publication.note_step_rejection(t_s, d.mag_step_rad, self.monitor.mag_rejected)
         self._publish_heading_checks(t_s, yaw_now, gsf_yaw, gsf_var, gsf_valid)
@@ -265,7 +267,9 @@ class HeadingSupervision:
             return
         att = slice(core.E_TH, core.E_TH + 3)
         tilt, bias = slice(core.E_TILT_N, core.E_TILT_E + 1), slice(core.E_BA, core.E_BA + 3)
-        tilt_sigma = window_tilt_sigma_rad(P[tilt, tilt], P[tilt, bias], P[bias, bias])
+        # asked only when this check completes a window (P is not changed before it is): a 3×3 solve
+        def tilt_sigma() -> float:
+            return window_tilt_sigma_rad(P[tilt, tilt], P[tilt, bias], P[bias, bias])
         out = self._mag_rotation.add(t_s, m, c_bn, field, step, float(x["gyro_bias_rad_s"][2]), dt,
                                      self._iron.soft_iron, self._iron.largest_soft_iron_sigma, P[att, att],
                                      tilt_sigma)
@@ -532,17 +536,19 @@ class HeadingSupervision:
         c_bn = np.asarray(quat_to_dcm(x["q"]), dtype=float)
         return abs(float(c_bn[2] @ (x["gyro_last_rad_s"] - x["gyro_bias_rad_s"])))
 
-    def _learn_iron(self, t_s: float, c_bn: np.ndarray, field: np.ndarray | None) -> None:
+    def _learn_iron(self, t_s: float, c_bn: np.ndarray, field: np.ndarray | None) -> bool:
         """One step of the iron learning (IronLearner) against the WMM field at the filter's position, with the
-        attitude c_bn and its covariance; the kernel then removes the learned iron."""
+        attitude c_bn and its covariance; the kernel then removes the learned iron (`apply_learned_iron`, which
+        sets the harmonics' source too). Returns whether it learned (False: no WMM field)."""
         p = self.params
         if field is None:
-            return
+            return False
         att = slice(core.E_TH, core.E_TH + 3)
         self._learned_iron.learn(t_s, self._x["mag_last_ut"], c_bn, field, self._P[att, att],
                                  self._P[core.E_YAW, core.E_YAW], p.iron_unmodelled_ut, p.iron_tau_s,
                                  magnetometer_fused=self._par["mag_use"] > 0.5)
         self.apply_learned_iron()
+        return True
 
     def _publish_heading_checks(self, t_s: float, yaw_rad: float, gsf_yaw: float, gsf_var: float,
                                 gsf_valid: bool) -> None:

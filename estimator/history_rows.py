@@ -16,16 +16,18 @@ import numpy as np
 def rows_at_or_before(t_rows_s: np.ndarray, newest: int, count: int, t_s: float) -> int:
     """How many of the kept rows (the `count` rows up to ring index `newest` of the ring's row times `t_rows_s`) have
     a time at or before t_s (0 for a NaN t_s)."""
-    ring = len(t_rows_s)
+    if not t_s == t_s:
+        return 0
+    # the kept rows are at most two runs of the ring, each in increasing time: one C search in each (a binary
+    # search of its own, as a Python loop over the ring would be, at a fraction of the per-step indexing's cost)
     oldest = newest - count + 1
-    lo, hi = 0, count
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if t_rows_s[(oldest + mid) % ring] <= t_s:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
+    if oldest >= 0:
+        return int(t_rows_s[oldest:newest + 1].searchsorted(t_s, "right"))
+    older = t_rows_s[oldest + len(t_rows_s):]             # the oldest rows, at the ring's end
+    k = int(older.searchsorted(t_s, "right"))
+    if k < len(older):
+        return k
+    return k + int(t_rows_s[:newest + 1].searchsorted(t_s, "right"))
 
 
 def bracket(t_rows_s: np.ndarray, newest: int, count: int, t_s: float) -> tuple[int, int, float]:

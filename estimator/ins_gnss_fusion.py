@@ -45,6 +45,9 @@ class InsGnssFusion:
         self._x, self._par = x_arr[0], par_arr[0]
         self._gsf_arr, self._gsf_par_arr = gsf_arr, gsf_par_arr
         self._gsf, self._gsf_par = gsf_arr[0], gsf_par_arr[0]
+        # the bank's arm, written at every velocity fix: through a view of the field (a record's field assignment
+        # costs several µs)
+        self._gsf_arm_m = gsf_par_arr["lever_arm_m"][0]
         self._intake = intake
         self._told_arm_m = told_arm_m
         self._gnss_yaw = gnss_yaw
@@ -56,6 +59,10 @@ class InsGnssFusion:
         # these arrays only): a record argument costs several µs to unbox, an array a fraction of one
         fuse_args = (gsf_arr, gsf_par_arr, 0.0, np.zeros(3), 0.0)
         self._gsf_fuse_velocity = entry_point(gsf_fuse_velocity_of, argument_types(gsf_fuse_velocity_of, fuse_args))
+        # the kernel's fix update through its entry point for these arrays, float and bool arguments (kernel_entry.py:
+        # the dispatcher resolves 18 argument types at every call); `fuse` passes exactly these types
+        gnss_args = (x_arr, P, hist, par_arr) + (0.0,) * 10 + (False,) * 4
+        self._fuse_gnss = entry_point(core.fuse_gnss, argument_types(core.fuse_gnss, gnss_args))
         # can the told antenna arm explain the velocity innovations? (and adopt the fitted one, if asked)
         self.lever_arm_fit = LeverArmFit(adopt=adopt_arm)
         self.last_fix_velocity = None     # (t_fix, NED m/s with the vertical NaN when not used, speed 1σ)
@@ -84,7 +91,7 @@ class InsGnssFusion:
             self._add_to_lever_arm_fit(float(fix.t_s), v, use_vd, sig_s)
         x = self._x
         vel_before = x["vel_ned_m_s"].copy()
-        res = core.fuse_gnss(
+        res = self._fuse_gnss(
             self._x_arr, self._P, self._hist, self._par_arr, float(fix.t_s),
             math.radians(lat) if use_pos else 0.0, math.radians(lon) if use_pos else 0.0,
             alt if use_alt else 0.0, v[0] if use_vel else 0.0, v[1] if use_vel else 0.0,
@@ -99,13 +106,15 @@ class InsGnssFusion:
                 self._adopt_fitted_arm()
                 adopted = True
             else:
-                self._gsf_par["lever_arm_m"] = self.lever_arm_fit.bank_arm(self._told_arm_m)
+                self._gsf_arm_m[:] = self.lever_arm_fit.bank_arm(self._told_arm_m)
         # the update corrected the state and the history rows after the fix's time, not those up to it: kept for
         # a yaw reset at this fix (`reset_velocity_to_fix`). The resets from a first fix or after an outage
         # correct the row at the fix's time as well, so they leave nothing to add
         step_rows = not res & (core.R_NAV_INIT | core.R_OUTAGE_RESET)
         self._fix_velocity_step = (float(fix.t_s), velocity_step) if step_rows else None
-        self._intake.count(res, fix, x["vel_gate"]["nis"], x["pos_gate"]["nis"])
+        # the gates' NIS only for a rejection's log line (a nested record read costs a few µs)
+        self._intake.count(res, fix, x["vel_gate"]["nis"] if res & core.R_VEL_REJECTED else math.nan,
+                           x["pos_gate"]["nis"] if res & core.R_POS_REJECTED else math.nan)
         return res, adopted
 
     def _keep_fix_velocity(self, t_s: float, v: np.ndarray, use_vd: bool, sig_s: float) -> None:
@@ -144,7 +153,8 @@ class InsGnssFusion:
         a, b = self._hist_rows[i0], self._hist_rows[i1]
         row = a + w * (b - a)
         q, vel, rate = row[_HIST_Q], row[_HIST_VEL], row[_HIST_RATE]
-        return quat_to_dcm(q / np.linalg.norm(q)), vel, rate
+        # |q| as `np.linalg.norm` computes it for a float vector (√ of its dot with itself), without its wrapper
+        return quat_to_dcm(q / math.sqrt(q.dot(q))), vel, rate
 
     def arm_in_use(self) -> np.ndarray:
         """The antenna arm the filter fuses with: the told one plus what the lever-arm check adopted."""

@@ -96,11 +96,19 @@ class LeverArmFitResult(NamedTuple):
 def mean_rate(t_rows_s: np.ndarray, rate_rows_rad_s: np.ndarray, t_s: float, rate_at_rad_s: np.ndarray) -> np.ndarray:
     """The body rate for the arm's term at a fix of time t_s: the mean of the rates (rows of body rate, rad/s, at
     times t_rows_s) within RATE_MEAN_S about t_s, or `rate_at_rad_s` when no row is within it."""
-    near = np.abs(np.asarray(t_rows_s) - t_s) <= 0.5 * RATE_MEAN_S
-    rows = np.asarray(rate_rows_rad_s)[near]
-    # the mean as numpy's `mean` computes it (the sum along the rows, then divided by their count), without its
-    # wrapper's checks
-    return rows.sum(axis=0) / len(rows) if len(rows) else np.asarray(rate_at_rad_s, dtype=float)
+    half_s = 0.5 * RATE_MEAN_S
+    n = 0
+    sx = sy = sz = 0.0
+    # in Python floats (a few dozen rows a fix, where numpy's per-call cost is most of it): the mean as numpy's
+    # `sum(axis=0) / len` computes it, from +0.0 adding the rows in their order (along a (k, 3) array's rows numpy
+    # adds row after row, no pairwise summation), then divided by their count: the same value to the bit
+    for t, (x, y, z) in zip(np.asarray(t_rows_s).tolist(), np.asarray(rate_rows_rad_s).tolist()):
+        if abs(t - t_s) <= half_s:
+            sx += x
+            sy += y
+            sz += z
+            n += 1
+    return np.array([sx / n, sy / n, sz / n]) if n else np.asarray(rate_at_rad_s, dtype=float)
 
 
 def rate_cross_ned(c_bn: np.ndarray, rate_b_rad_s: np.ndarray) -> np.ndarray:
@@ -171,12 +179,15 @@ class LeverArmFit:
             return
         d_nu = nu - last[1]
         use = np.isfinite(d_nu)
-        if not use.any():
+        every = use.all()
+        if not (every or use.any()):
             return
+        d_rc = rate_cross - last[2]
+        att = _attitude_columns(None if vel is None or last[4] is None else vel - last[4], float(t_s) - last[0])
+        if not every:       # every component used (the vertical fused): the rows as they are, not a masked copy
+            d_nu, d_rc, att = d_nu[use], d_rc[use], att[use]
         # the difference of two fixes' noise: variance the sum of theirs
-        self._pairs.append((d_nu[use], (rate_cross - last[2])[use], math.hypot(sigma_m_s, last[3]),
-                            _attitude_columns(None if vel is None or last[4] is None else vel - last[4],
-                                              float(t_s) - last[0])[use], self._segment))
+        self._pairs.append((d_nu, d_rc, math.hypot(sigma_m_s, last[3]), att, self._segment))
         self._dirty = True
 
     def fused(self, velocity_correction_ned_m_s: np.ndarray, rejected: bool) -> None:

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 from numba import njit
@@ -116,7 +117,9 @@ class MagRotationBias:
     bias_dt: float = 0.0                # Σ b̂_j Δt_j since the start, rad
     att_cov_body_rad2: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))  # the start's, body axes
     start_tilt_sigma_rad: float = 0.0   # the filter's larger tilt 1σ at the window's start
-    tilt_sigma_rad: float = 0.0         # the filter's tilt 1σ now
+    tilt_sigma_rad: float = 0.0         # the filter's tilt 1σ at the last fitted window's end
+    # the filter's tilt 1σ at the latest check, or the function that gives it (`add`)
+    _tilt_sigma_now: float | Callable[[], float] = field(default=0.0, init=False, repr=False)
     samples: list = field(default_factory=list)   # (t, φ, Σ b̂Δt, turn, soft-iron and attitude sensitivities)
     # what stays the same through a window, made at its start: B × e_z (the direction a turn about down moves the
     # field, in NED) and e_i × v₀ for the three axes (how v₀ moves with an attitude error about each)
@@ -128,19 +131,20 @@ class MagRotationBias:
 
     def add(self, t_s: float, mag_ut, c_bn, b_ned_ut, step_rot, bias_z_rad_s: float, dt_s: float,
             soft_iron: np.ndarray, soft_sigma: float, att_cov_ned_rad2: np.ndarray,
-            tilt_sigma_rad: float) -> tuple[float, float] | None:
+            tilt_sigma_rad: float | Callable[[], float]) -> tuple[float, float] | None:
         """One heading check: the magnetometer (body, µT, calibration in force), the filter's attitude c_bn and
         the Earth field (NED, µT), the gyro's body rotation since the last check (body now → body then) made with
         the bias estimate b̂_z over dt_s, the learned soft iron A and the 1σ of its elements, the filter's
         attitude error covariance (3×3, NED: δθ_N, δθ_E, δθ_D with C_true = (I + [δθ×])·C_est; read at a window's
-        start) and the 1σ of its tilt error that can move over a window (window_tilt_sigma_rad). Returns
-        (b_z − b̂_z, its variance, rad/s) when a window completes, else None."""
+        start) and the 1σ of its tilt error that can move over a window (window_tilt_sigma_rad), or a function
+        that gives it: it is asked only when this check completes a window (the fit's tilt term), since working it
+        out is a 3×3 solve. Returns (b_z − b̂_z, its variance, rad/s) when a window completes, else None."""
         m = np.asarray(mag_ut, dtype=float)
         c_bn = np.asarray(c_bn, dtype=float)
         if not math.isfinite(self.t0_s):
             self._start(t_s, m, c_bn, b_ned_ut, att_cov_ned_rad2, tilt_sigma_rad)
             return None
-        self.tilt_sigma_rad = tilt_sigma_rad
+        self._tilt_sigma_now = tilt_sigma_rad
         rot = self.rot @ np.asarray(step_rot, dtype=float)
         if abs(_turn(rot)) > self.max_turn_rad:
             # the vehicle turned: fit the window up to the last check, start a new one here
@@ -188,7 +192,7 @@ class MagRotationBias:
         p = np.asarray(att_cov_ned_rad2, dtype=float)
         self.att_cov_body_rad2 = c_bn.T @ p @ c_bn
         self.start_tilt_sigma_rad = math.sqrt(max(float(p[0, 0]), float(p[1, 1]), 0.0))
-        self.tilt_sigma_rad = tilt_sigma_rad
+        self._tilt_sigma_now = tilt_sigma_rad
         self.samples = []
 
     def _fit(self, bias_end_rad_s: float, soft_sigma: float) -> tuple[float, float] | None:
@@ -232,6 +236,8 @@ class MagRotationBias:
         # the filter's tilt, which gives v its dip, may have moved by up to √2 σ between the window's ends (σ: the
         # part of its error that can move, window_tilt_sigma_rad): at the dip's tangent (vertical over horizontal
         # field) it turns the magnetometer's heading
+        now = self._tilt_sigma_now
+        self.tilt_sigma_rad = now() if callable(now) else now
         b = self.b_ned_ut
         tan_dip = abs(float(b[2])) / max(math.hypot(float(b[0]), float(b[1])), 1e-6)
         tilt = (math.sqrt(2.0) * tan_dip * self.tilt_sigma_rad / t[-1]) ** 2

@@ -217,10 +217,12 @@ def tilt_heading_errors_deg(q_mag_est, q_truth, declination_rad=DECLINATION):
 
 
 def position_error_ned(res: Result, truth: Truth, earth="wgs84") -> np.ndarray:
-    r_n, r_e = RADII[earth](truth.lat_rad)
-    return np.column_stack([(truth.lat_rad - res.lat_rad) * (r_n + truth.h_m),
-                            (truth.lon_rad - res.lon_rad) * (r_e + truth.h_m) * np.cos(truth.lat_rad),
-                            -(truth.h_m - res.h_m)])
+    """At `res`'s samples (the run's first ones when it was fed the run's first seconds: run_ins `seconds`), m."""
+    n = len(res.lat_rad)
+    lat, lon, h = truth.lat_rad[:n], truth.lon_rad[:n], truth.h_m[:n]
+    r_n, r_e = RADII[earth](lat)
+    return np.column_stack([(lat - res.lat_rad) * (r_n + h), (lon - res.lon_rad) * (r_e + h) * np.cos(lat),
+                            -(h - res.h_m)])
 
 
 __all__ = ["DECLINATION", "GnssFix", "Run", "Truth", "Result", "simulated_run", "gnss_fixes", "run_ins",

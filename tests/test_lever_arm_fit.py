@@ -12,7 +12,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ahrsd.core.estimate import HeadingState
-from ahrsd.estimator.lever_arm_fit import LeverArmFit, mean_rate, rate_cross_ned
+from ahrsd.estimator.lever_arm_fit import RATE_MEAN_S, LeverArmFit, mean_rate, rate_cross_ned
 from ahrsd.estimator.velocity_rejection_cause import heading_rejection_cause
 
 FIX_HZ = 5.0
@@ -303,6 +303,25 @@ def test_the_arms_rate_is_the_gyros_mean_about_the_fix():
     result = fit.result()
     assert result.explains and result.directions == 3, result
     assert np.all(np.abs(result.offset_m - offset) < 3 * result.sigma_m), result
+
+
+def test_mean_rate_is_numpys_mean_of_the_rows_within_the_span_to_the_bit():
+    """`mean_rate` adds the rows within RATE_MEAN_S in Python floats: the same value to the bit as numpy's mean of
+    those rows (the mask over them, `sum(axis=0) / len`), which is what the filter's output was made with, for row
+    counts up to a few hundred (819.2 SPS over a wide span), a column of −0.0 (numpy's sum starts from +0.0), the rows
+    in either time order (the history is read newest first) and no row within the span (the rate at the fix)."""
+    rng = np.random.default_rng(11)
+    for k in list(range(0, 40)) + [64, 127, 128, 129, 300]:
+        t = np.sort(rng.uniform(0.0, 0.3, k))
+        rows = rng.normal(0.0, 0.3, (k, 3)) * 10.0 ** rng.integers(-4, 2, (k, 1))
+        if k % 3 == 0:
+            rows[:, 1] = -0.0
+        for order in (slice(None), slice(None, None, -1)):
+            t_s = float(rng.uniform(0.0, 0.3))
+            at = rng.normal(0.0, 0.3, 3)
+            near = np.abs(t[order] - t_s) <= 0.5 * RATE_MEAN_S
+            want = rows[order][near].sum(axis=0) / near.sum() if near.any() else at
+            assert mean_rate(t[order], rows[order], t_s, at).tobytes() == want.tobytes(), (k, t_s)
 
 
 def test_directions_the_rotation_does_not_observe_stay_at_the_told_arm():

@@ -125,8 +125,9 @@ def test_the_rotation_vector_carries_the_coning_term():
 
 
 class _WindowsSeen(MagRotationBias):
-    """The windows as Ins feeds them, with what it knew then: each check's tilt 1σ (the last argument) and the
-    filter's covariance of the tilt and the accelerometer bias (δθ_N, δθ_E, b_x, b_y, b_z) at that check."""
+    """The windows as Ins feeds them, with what it knew then: each check's tilt 1σ (the last argument, or what the
+    function there gives), the filter's covariance of the tilt and the accelerometer bias (δθ_N, δθ_E, b_x,
+    b_y, b_z) at that check, and the tilt 1σ the window's fit took if the check completed one (else None)."""
 
     def __init__(self, est, seen: list, **kw):
         super().__init__(**kw)
@@ -136,8 +137,11 @@ class _WindowsSeen(MagRotationBias):
         from ahrsd.estimator import ins_core as core
 
         rows = [core.E_TILT_N, core.E_TILT_E, core.E_BA, core.E_BA + 1, core.E_BA + 2]
-        self.seen.append((args[-1], self.est._P[np.ix_(rows, rows)].copy()))
-        return super().add(*args)
+        sigma = args[-1]() if callable(args[-1]) else args[-1]     # Ins gives a function: asked at a fit only
+        p = self.est._P[np.ix_(rows, rows)].copy()
+        out = super().add(*args)
+        self.seen.append((sigma, p, None if out is None else self.tilt_sigma_rad))
+        return out
 
 
 def _vertical_bias_error_deg_h(on: bool, windows: list | None = None) -> float:
@@ -190,16 +194,23 @@ def test_ins_learns_the_vertical_gyro_bias_from_the_magnetometer_turning(held_ou
 
 def test_ins_gives_the_windows_the_tilt_error_the_accelerometer_bias_leaves(held_out_boat):
     """The tilt σ of a window's tilt term is the conditional σ of the tilt given the accelerometer bias, here from
-    the precision matrix (the inverse of the inverse's tilt block: another route than the Schur complement), and on
-    this boat well under the whole tilt σ (the bias explains most of the filter's tilt uncertainty)."""
+    the precision matrix (the inverse of the inverse's tilt block: another route than the Schur complement), at
+    every check and in the fit of each window a check completes (the σ at that check), and on this boat well under
+    the whole tilt σ (the bias explains most of the filter's tilt uncertainty)."""
     _, _, windows = held_out_boat
     assert len(windows) > 500
     ratios = []
-    for sigma, p in windows:
+    fits = 0
+    for sigma, p, fitted in windows:
         conditional = np.linalg.inv(np.linalg.inv(p)[:2, :2])
-        assert sigma == pytest.approx(math.sqrt(max(conditional[0, 0], conditional[1, 1])), rel=1e-6)
+        expected = math.sqrt(max(conditional[0, 0], conditional[1, 1]))
+        assert sigma == pytest.approx(expected, rel=1e-6)
         ratios.append(sigma / math.sqrt(max(p[0, 0], p[1, 1])))
+        if fitted is not None:      # the window completed here was fitted with the σ at this check
+            assert fitted == pytest.approx(expected, rel=1e-6)
+            fits += 1
     assert np.median(ratios) < 0.7
+    assert fits > 5
 
 
 def test_the_window_tilt_sigma_is_what_the_bias_does_not_explain():

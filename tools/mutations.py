@@ -489,8 +489,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     # ------------------------------------------------------------------ session 30 (arm30)
     Mutation("lever-arm-attitude-part", "the lever-arm fit models what a heading error makes of the velocity change",
              "estimator/lever_arm_fit.py",
-             "                            _attitude_columns(None if vel is None or last[4] is None else vel - last[4],",
-             "                            _attitude_columns(None,",
+             "att = _attitude_columns(None if vel is None or last[4] is None else vel - last[4],",
+             "att = _attitude_columns(None,",
              ("tests/test_lever_arm_fit.py",)),
     Mutation("lever-arm-unobserved-left", "a direction of the arm the rotation does not observe stays at the told arm",
              "estimator/lever_arm_fit.py", "        fitted = eig > prior_info", "        fitted = eig > 0.0",
@@ -878,8 +878,8 @@ MUTATIONS: tuple[Mutation, ...] = (
              "estimator/mag_rotation.py", "unexplained = np.asarray(p_tilt_rad2, dtype=float) - p_tb @ gain",
              "unexplained = np.asarray(p_tilt_rad2, dtype=float) - 0.0 * p_tb @ gain", ("tests/test_mag_rotation.py",)),
     Mutation("ins-window-tilt-given-the-bias", "Ins gives the windows the tilt σ conditional on the accelerometer bias",
-             "estimator/heading_supervision.py", "tilt_sigma = window_tilt_sigma_rad(P[tilt, tilt], P[tilt, bias], P[bias, bias])",
-             "tilt_sigma = window_tilt_sigma_rad(P[tilt, tilt], 0.0 * P[tilt, bias], P[bias, bias])",
+             "estimator/heading_supervision.py", "return window_tilt_sigma_rad(P[tilt, tilt], P[tilt, bias], P[bias, bias])",
+             "return window_tilt_sigma_rad(P[tilt, tilt], 0.0 * P[tilt, bias], P[bias, bias])",
              ("tests/test_mag_rotation.py",)),
     # ------------------------------------------------------------------ session 35 (dmnh)
     Mutation("levelling-calibration-sigma", "a magnetometer pass's levelling filter is told the calibration's σ",
@@ -1089,6 +1089,27 @@ MUTATIONS: tuple[Mutation, ...] = (
              "without a count", "daemon/publishers.py", "if ep.send(m):",
              "if (mid != 102 or self.counters.published % 4) and ep.send(m):",
              ("tests/test_reliability_soak.py",)),
+    # ------------------------------------------------------------------ session 38 (fixh)
+    Mutation("mag-rotation-tilt-sigma-asked", "a magnetometer-rotation window's fit takes the tilt 1σ Ins gives as a "
+             "function (asked at the check that completes the window)",
+             "estimator/mag_rotation.py", "self.tilt_sigma_rad = now() if callable(now) else now",
+             "self.tilt_sigma_rad = 0.0 if callable(now) else now", ("tests/test_mag_rotation.py",)),
+    Mutation("level-field-terms-per-field", "the field's and yaws' part of IronLearner.level_heading_rows is reused "
+             "only for the field it was made at (keyed by its values too)",
+             "estimator/heading_monitor.py", "key = (b.tobytes(), yaw.dtype.str, yaw.shape, yaw.tobytes())",
+             "key = (yaw.dtype.str, yaw.shape, yaw.tobytes())", ("tests/test_iron_level_rows.py",)),
+    # ------------------------------------------------------------------ session 38 (fixl)
+    Mutation("mean-rate-row-order", "the arm's mean body rate adds the rows in their order, as numpy's sum does",
+             "estimator/lever_arm_fit.py",
+             "for t, (x, y, z) in zip(np.asarray(t_rows_s).tolist(), np.asarray(rate_rows_rad_s).tolist()):",
+             "for t, (x, y, z) in reversed(list(zip(np.asarray(t_rows_s).tolist(), "
+             "np.asarray(rate_rows_rad_s).tolist()))):", ("tests/test_lever_arm_fit.py",)),
+    Mutation("history-search-wrapped", "the kept rows wrapping the ring's end are searched in both runs",
+             "estimator/history_rows.py", "    if k < len(older):", "    if k <= len(older):",
+             ("tests/test_history_rows.py",)),
+    Mutation("history-search-nan", "a NaN time has no kept row at or before it, as the kernel's walk finds",
+             "estimator/history_rows.py", "    if not t_s == t_s:", "    if False:",
+             ("tests/test_history_rows.py",)),
     # ------------------------------------------------------------------ session 38 (allan)
     Mutation("allan-kernel-chunk-edge", "the compiled Allan sums count the windows that span a chunk's edge once",
              "calibration/allan/second_differences.py", "first = max(0, old - 2 * m + 1)",
