@@ -11,7 +11,7 @@ from scipy.optimize import nnls
 
 import allan_noise as gen
 from ahrsd.calibration.allan.adev import allan_deviation
-from ahrsd.calibration.allan.irls import weighted_system
+from ahrsd.calibration.allan.irls import weighted_system, weighted_system_at
 from ahrsd.calibration.allan.terms import _fit_fixed, _nnls_solver, _nnls_weighted, octave_points, term_basis
 
 RATE_HZ = 100.0
@@ -43,6 +43,30 @@ def test_the_solver_returns_scipys_nnls_coefficients_bit_for_bit():
             a, yw, scale = weighted_system(basis, y, w)
             expected = nnls(a, yw, maxiter=500)[0] / scale
             assert np.array_equal(_nnls_weighted(basis, y, w), expected), terms
+
+
+def test_the_iterations_weights_are_numpys_bit_for_bit():
+    """weighted_system_at builds the system the fit built with numpy: σ = np.maximum(model, floor)·np.sqrt(2/edf)
+    on the points (the floor where the model is below it, a NaN of either a NaN), the penalty's row as given."""
+    rng = np.random.default_rng(7)
+    basis = rng.uniform(0.1, 2.0, (13, 3))
+    for _ in range(50):
+        model = rng.uniform(0.0, 2.0, 12) * 10.0 ** rng.integers(-12, -6)
+        floor = 1e-3 * model * rng.uniform(0.1, 2000.0, 12)      # about half the points below their floor
+        edf = rng.uniform(0.5, 300.0, 12)
+        y = rng.uniform(0.0, 1.0, 13)
+        sigma = np.empty(13)
+        sigma[12] = rng.uniform(0.1, 3.0)
+        expected = np.append(np.maximum(model, floor) * np.sqrt(2.0 / edf), sigma[12])
+        got = weighted_system_at(basis, y, model, floor, edf, sigma)
+        for g, e in zip(got, weighted_system(basis, y, 1.0 / expected)):
+            assert np.array_equal(g, e)
+        assert np.array_equal(sigma, expected)
+    for bad in ("model", "floor"):
+        args = {"model": np.ones(12), "floor": np.full(12, 0.5)}
+        args[bad][4] = np.nan
+        with pytest.raises(ValueError, match="infs or NaNs"):
+            weighted_system_at(basis, np.ones(13), args["model"], args["floor"], np.ones(12), np.ones(13))
 
 
 def test_the_solver_refuses_what_scipy_refuses():

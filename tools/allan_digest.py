@@ -7,6 +7,9 @@ Run it in two checkouts (the same command in each worktree) and compare the line
 - `curve`: every field of the AllanCurve of records of 8 to 300 000 samples (1 to 4 axes, white, random-walk,
   flicker and Gauss–Markov noise on a bias), whole and fed to StreamingAllan in chunks of 1, 7, 1000 and 65 536
   samples, and at given cluster sizes (`allan_deviation(x, rate, m)`);
+- `fit`: every field of the ModelFit of `terms._fit_fixed` (the IRLS fit) on the octave points of a record's three
+  axes, without and with a sensor filter's white-noise deficit and its 1σ, for sets of terms, with a term held
+  fixed (the deviance profile's fits) and over a grid of Gauss–Markov correlation times;
 - `analysis`: every field of the AllanResult of `analyse_static` on records like the tests' (white with a rate
   random walk, with flicker, with a Gauss–Markov bias, with quantization; gyro, accelerometer and magnetometer).
 The noise is made here, from fixed seeds, as tests/allan_noise.py makes it (independent of the analysis).
@@ -94,7 +97,27 @@ def analysis_part() -> str:
     return h.hexdigest()
 
 
-PARTS = {"curve": curve_part, "analysis": analysis_part}
+def fit_part() -> str:
+    from ahrsd.calibration.allan.adev import allan_deviation
+    from ahrsd.calibration.allan.terms import _fit_fixed, _Points, octave_points
+
+    h = hashlib.md5()
+    x = _noise(60_000, 100.0, 21, 3)
+    for axis in range(3):
+        base = octave_points(allan_deviation(x, 100.0), axis)
+        for deficit_s, deficit_sd_s in ((0.0, 0.0), (0.05, 0.01), (0.02, 0.02)):
+            pts = _Points(base.taus, base.avar, base.level_n, base.level_m, base.record_s, deficit_s, deficit_sd_s)
+            for terms in (("white",), ("white", "rate_random_walk"), ("quantization", "white", "flicker"),
+                          ("white", "rate_random_walk", "rate_ramp")):
+                _feed(h, _fit_fixed(pts, terms, None))
+                _feed(h, _fit_fixed(pts, terms, None, ("flicker" if "flicker" not in terms else "rate_ramp", 1e-9)))
+            for tc in np.geomspace(0.05, 20.0, 25):
+                _feed(h, _fit_fixed(pts, ("white", "gauss_markov"), float(tc)))
+                _feed(h, _fit_fixed(pts, ("white", "flicker", "gauss_markov"), float(tc)))
+    return h.hexdigest()
+
+
+PARTS = {"curve": curve_part, "fit": fit_part, "analysis": analysis_part}
 
 
 def main() -> None:

@@ -1121,4 +1121,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("allan-kernel-second-difference", "the compiled Allan sums square θ(s+2m) − 2θ(s+m) + θ(s)",
              "calibration/allan/second_differences.py", "- 2.0 * theta[s + m, j]", "- 2.0 * theta[s + m - 1, j]",
              ("tests/test_allan_second_differences.py",)),
+    Mutation("allan-irls-weight-floor", "an IRLS point's weight comes from the model floored at 1e-3 of the point",
+             "calibration/allan/irls.py", "ref = model[r] if model[r] >= floor[r] or math.isnan(model[r]) else floor[r]",
+             "ref = model[r]", ("tests/test_allan_irls.py",)),
 )

@@ -1,7 +1,7 @@
 """The per-iteration arithmetic of the Allan-term fit (terms._fit_fixed), compiled (numba): it runs a few
 hundred thousand times on vectors of a few dozen points, where numpy's per-call cost would dominate.
 
-Both kernels do element by element what the numpy expressions in their docstrings do, in the same order, so
+The kernels do element by element what the numpy expressions in their docstrings do, in the same order, so
 the fit's numbers do not depend on which one ran.
 """
 
@@ -41,6 +41,24 @@ def weighted_system(basis: np.ndarray, y: np.ndarray, w: np.ndarray):
     if not finite:
         raise ValueError("array must not contain infs or NaNs")
     return a, yw, scale
+
+
+@njit(cache=True)
+def weighted_system_at(basis: np.ndarray, y: np.ndarray, model: np.ndarray, floor: np.ndarray, edf: np.ndarray,
+                       sigma: np.ndarray):
+    """An IRLS iteration's weights and its system in one call:
+    sigma[:n] = np.maximum(model, floor)·np.sqrt(2.0 / edf) (n = len(model); a NaN of either is NaN, as
+    np.maximum's; the rows beyond, the penalty's, are the caller's), then weighted_system(basis, y, 1.0 / sigma)."""
+    n = model.shape[0]
+    for r in range(n):
+        ref = model[r] if model[r] >= floor[r] or math.isnan(model[r]) else floor[r]
+        if math.isnan(floor[r]):
+            ref = floor[r]
+        sigma[r] = ref * math.sqrt(2.0 / edf[r])
+    w = np.empty(sigma.shape[0])
+    for r in range(sigma.shape[0]):
+        w[r] = 1.0 / sigma[r]
+    return weighted_system(basis, y, w)
 
 
 @njit(cache=True)

@@ -41,7 +41,7 @@ import numpy as np
 
 from .adev import AllanCurve, edf_by_alpha
 from .covariance import avar_covariance
-from .irls import SLOPE_STEP, model_and_edf, weighted_system
+from .irls import SLOPE_STEP, model_and_edf, weighted_system, weighted_system_at
 from ..report import sig_figs
 
 FLICKER_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)  # 0.6643, IEEE Std 952-1997 Table B.1
@@ -201,6 +201,13 @@ def _nnls_weighted(basis: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarra
     return _nnls_solver()(a, yw, 500) / scale
 
 
+def _nnls_at_model(basis: np.ndarray, target: np.ndarray, model: np.ndarray, floor: np.ndarray, edf: np.ndarray,
+                   sigma: np.ndarray) -> np.ndarray:
+    """_nnls_weighted(basis, target, 1.0 / sigma) with sigma[:n] = max(model, floor)·√(2/edf) (irls.weighted_system_at)."""
+    a, yw, scale = weighted_system_at(basis, target, model, floor, edf, sigma)
+    return _nnls_solver()(a, yw, 500) / scale
+
+
 def _stacked_basis(pts: _Points, terms: tuple[str, ...], tc: float | None) -> np.ndarray:
     """term_basis of each term (columns) at _with_slope_taus(pts.taus) (rows), for irls.model_and_edf;
     each column computed once per (term, Tc)."""
@@ -258,15 +265,13 @@ def _fit_fixed(pts: _Points, terms: tuple[str, ...], tc: float | None, fixed: tu
         c_white = fixed[1] if fixed is not None and fixed[0] == "white" else float(pts.avar[0] * pts.taus[0])
     u, s_u = 0.0, 1.0
     for _ in range(IRLS_ITERATIONS):
-        # The model's own value sets the weight (a low measured point must not get a high weight); floored so
-        # a term the model lacks cannot make a point's weight infinite.
-        ref = np.maximum(model, floor)
-        np.multiply(ref, np.sqrt(2.0 / edf), out=sigma[:n])
         if shape:
             s_u = max(c_white, 1e-300) * pts.white_deficit_sd_s
             # the data's rows are counted once per two points (OCTAVE_CORRELATION), the penalty once
             sigma[n] = s_u * math.sqrt(OCTAVE_CORRELATION)
-        solved = _nnls_weighted(basis, target, 1.0 / sigma)
+        # The model's own value sets the weight (a low measured point must not get a high weight); floored so
+        # a term the model lacks cannot make a point's weight infinite: σ = max(model, floor)·√(2/edf).
+        solved = _nnls_at_model(basis, target, model, floor, edf, sigma)
         coef = solved[:k]
         coef_all[:k] = coef
         if shape:
