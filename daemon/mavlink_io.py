@@ -33,6 +33,7 @@ if mavutil.mavlink.WIRE_PROTOCOL_VERSION != "2.0" or mavutil.current_dialect != 
 
 mavlink = mavutil.mavlink   # the ardupilotmega MAVLink 2 module: message classes and enums
 
+from ahrsd.core import udp_drops  # noqa: E402
 from ahrsd.daemon.serial_queue import QUEUE_SECONDS, SerialOutQueue  # noqa: E402
 
 log = logging.getLogger(__name__)
@@ -75,6 +76,9 @@ class LinkCounters:
     tx_dropped: int = 0        # refused by a serial link that could not keep up (daemon.serial_queue)
     tx_dropped_by_priority: dict = field(default_factory=dict)   # priority -> count
     reconnects: int = 0
+    # a UDP link's datagrams the kernel dropped, its receive buffer full while the daemon did not read (a stall
+    # on a loaded machine): only the kernel can count them (core.udp_drops), read when the link closes
+    rx_dropped_by_kernel: int = 0
 
 
 MessageHandler = Callable[["Endpoint", object], None]
@@ -221,6 +225,7 @@ class Endpoint:
     def close(self) -> None:
         if self._connect_task is not None:
             self._connect_task.cancel()
+        self._count_kernel_drops()
         self._drop_out_queue()
         if self._fd is not None and self._loop is not None:
             self._loop.remove_reader(self._fd)
@@ -231,6 +236,16 @@ class Endpoint:
             except OSError:
                 pass
             self.conn = None
+
+    def _count_kernel_drops(self) -> None:
+        """What the kernel dropped on a UDP link's socket since it opened (core.udp_drops), while it is still open."""
+        fd = self.conn.fd if self.conn is not None else None
+        if fd is None or not self.kind.startswith("udp"):
+            return
+        try:
+            self.counters.rx_dropped_by_kernel = udp_drops.socket_drops(fd)
+        except (LookupError, OSError):      # no /proc (another OS): not counted, as before
+            pass
 
     # -- identity and signing ---------------------------------------------------------------------------------
 
