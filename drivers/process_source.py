@@ -337,9 +337,6 @@ class ProcessSource(LiveSource):
             self.chip = _ChipView(truth)
         self.stats = {"blocks": 0, "samples": 0}
         self._last_polled: int | None = None
-        poller = select.poll()
-        poller.register(self._conn.fileno(), select.POLLIN)
-        self._ready = poller.poll
         # from here on the messages are read raw, one read a look (drivers.pipe_messages)
         self._messages = PipeMessages(self._conn.fileno())
         self.ready_fd = self._conn.fileno()       # readable when the child sent something: poll() then

@@ -20,6 +20,7 @@ from ahrsd.core.angles import STANDARD_GRAVITY_M_S2
 from . import ins_core as core
 from .initial_attitude import initial_attitude
 from .rotations import quat_conjugate, quat_multiply, quat_normalize, quat_to_dcm
+from .yaw_reset import restart_uncorrelated
 
 
 class StartSigmas(Protocol):
@@ -156,11 +157,11 @@ def widen_for_lean(P: np.ndarray, lean_rad: float, dip_rad: float, use_mag: bool
     if not lean_rad > math.sqrt(max(P[core.E_TILT_N, core.E_TILT_N], P[core.E_TILT_E, core.E_TILT_E])):
         return False
     for i in (core.E_TILT_N, core.E_TILT_E):
-        _restart_uncorrelated(P, i, lean_rad ** 2)
+        restart_uncorrelated(P, i, lean_rad ** 2)
     if use_mag:
         through_dip = min(math.pi, abs(math.tan(dip_rad)) * lean_rad) if math.isfinite(dip_rad) else math.pi
         if through_dip ** 2 > P[core.E_YAW, core.E_YAW]:
-            _restart_uncorrelated(P, core.E_YAW, through_dip ** 2)
+            restart_uncorrelated(P, core.E_YAW, through_dip ** 2)
     return True
 
 
@@ -185,8 +186,8 @@ def level_again(x: np.void, P: np.ndarray, hist: np.ndarray, p: StartSigmas, f_l
         x["vel_ned_m_s"][:2] = x["vel_ned_m_s"][:2] + delay_s * a_ned[:2]
     residual = abs(float(np.linalg.norm(f_level)) - STANDARD_GRAVITY_M_S2) / STANDARD_GRAVITY_M_S2
     for i in (core.E_TILT_N, core.E_TILT_E):
-        _restart_uncorrelated(P, i, max(p.init_sigma_tilt_rad, residual) ** 2)
-    _restart_uncorrelated(P, core.E_YAW, max(p.init_sigma_yaw_rad, p.calibration_sigma_rad) ** 2)
+        restart_uncorrelated(P, i, max(p.init_sigma_tilt_rad, residual) ** 2)
+    restart_uncorrelated(P, core.E_YAW, max(p.init_sigma_yaw_rad, p.calibration_sigma_rad) ** 2)
 
 
 def first_fix_in_turn(x: np.void, P: np.ndarray, hist: np.ndarray, p: StartSigmas, declination_rad: float,
@@ -213,12 +214,6 @@ def first_fix_in_turn(x: np.void, P: np.ndarray, hist: np.ndarray, p: StartSigma
 
 def _angle_rad(u, v) -> float:
     return math.atan2(float(np.linalg.norm(np.cross(u, v))), float(np.dot(u, v)))
-
-
-def _restart_uncorrelated(P: np.ndarray, i: int, var: float) -> None:
-    P[i, :] = 0.0
-    P[:, i] = 0.0
-    P[i, i] = var
 
 
 def learned_to_keep(x: np.void, restart: bool) -> LearnedErrors:

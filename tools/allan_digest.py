@@ -24,29 +24,7 @@ import math
 
 import numpy as np
 
-
-def _feed(h, value) -> None:
-    """Every bit of `value` into the hash (arrays by dtype, shape and bytes; floats by their IEEE bits)."""
-    if isinstance(value, np.ndarray):
-        h.update(f"{value.dtype}{value.shape}".encode())
-        h.update(np.ascontiguousarray(value).tobytes())
-    elif isinstance(value, (float, np.floating)):
-        h.update(np.float64(value).tobytes())
-    elif isinstance(value, (list, tuple)):
-        h.update(b"[")
-        for v in value:
-            _feed(h, v)
-        h.update(b"]")
-    elif isinstance(value, dict):
-        for k in sorted(value, key=repr):
-            h.update(repr(k).encode())
-            _feed(h, value[k])
-    elif dataclasses.is_dataclass(value):
-        h.update(type(value).__name__.encode())
-        for f in dataclasses.fields(value):
-            _feed(h, getattr(value, f.name))
-    else:
-        h.update(f"{type(value).__name__}:{value!r}".encode())
+from sim_digest import feed   # tools/, beside this script: the same bits of every value as the simulator's digest
 
 
 def _noise(n: int, rate_hz: float, seed: int, axes: int) -> np.ndarray:
@@ -70,15 +48,15 @@ def curve_part() -> str:
     for n, axes, seed in ((8, 1, 1), (29, 3, 2), (1000, 2, 3), (1000, 3, 7), (4099, 4, 8), (65_537, 3, 4),
                           (300_000, 3, 5), (100_003, 1, 6)):
         x = _noise(n, 100.0, seed, axes)
-        _feed(h, allan_deviation(x, 100.0))
-        _feed(h, allan_deviation(x, 100.0, m=np.array([1, 2, 3, 7, 20, max(1, n // 3)])))
+        feed(h, allan_deviation(x, 100.0))
+        feed(h, allan_deviation(x, 100.0, m=np.array([1, 2, 3, 7, 20, max(1, n // 3)])))
         for chunk in (1, 7, 1000, 65_536):
             if chunk < 1000 and n > 5000:
                 continue
             acc = StreamingAllan(100.0, axes)
             for start in range(0, n, chunk):
                 acc.add(x[start:start + chunk])
-            _feed(h, acc.curve())
+            feed(h, acc.curve())
     return h.hexdigest()
 
 
@@ -93,7 +71,7 @@ def analysis_part() -> str:
         rng = np.random.default_rng(seed + 100)
         accel = 9.81 * np.array([0.0, 0.0, 1.0]) + rng.standard_normal((n, 3)) * 0.02
         mag = np.round((np.array([20.0, 0.0, 45.0]) + rng.standard_normal((n, 3)) * 0.05) / 0.3) * 0.3
-        _feed(h, analyse_static(t, gyro, accel, mag))
+        feed(h, analyse_static(t, gyro, accel, mag))
     return h.hexdigest()
 
 
@@ -109,11 +87,11 @@ def fit_part() -> str:
             pts = _Points(base.taus, base.avar, base.level_n, base.level_m, base.record_s, deficit_s, deficit_sd_s)
             for terms in (("white",), ("white", "rate_random_walk"), ("quantization", "white", "flicker"),
                           ("white", "rate_random_walk", "rate_ramp")):
-                _feed(h, _fit_fixed(pts, terms, None))
-                _feed(h, _fit_fixed(pts, terms, None, ("flicker" if "flicker" not in terms else "rate_ramp", 1e-9)))
+                feed(h, _fit_fixed(pts, terms, None))
+                feed(h, _fit_fixed(pts, terms, None, ("flicker" if "flicker" not in terms else "rate_ramp", 1e-9)))
             for tc in np.geomspace(0.05, 20.0, 25):
-                _feed(h, _fit_fixed(pts, ("white", "gauss_markov"), float(tc)))
-                _feed(h, _fit_fixed(pts, ("white", "flicker", "gauss_markov"), float(tc)))
+                feed(h, _fit_fixed(pts, ("white", "gauss_markov"), float(tc)))
+                feed(h, _fit_fixed(pts, ("white", "flicker", "gauss_markov"), float(tc)))
     return h.hexdigest()
 
 

@@ -1067,7 +1067,7 @@ MUTATIONS: tuple[Mutation, ...] = (
              "    if not lean_rad > math.sqrt(max(P[core.E_TILT_N, core.E_TILT_N], P[core.E_TILT_E, core.E_TILT_E])):",
              "    if True:", ("tests/test_turning_start_first_fix.py",)),
     Mutation("hold-first-fix-widens-yaw", "the widening carries the lean through the dip to the magnetometer's yaw",
-             "estimator/ins_start.py", "            _restart_uncorrelated(P, core.E_YAW, through_dip ** 2)",
+             "estimator/ins_start.py", "            restart_uncorrelated(P, core.E_YAW, through_dip ** 2)",
              "            pass", ("tests/test_turning_start_first_fix.py",)),
     Mutation("hold-level-again-velocity-delay", "levelled again, the velocity is carried over the fix's delay",
              "estimator/ins_start.py", "    if 0.0 < delay_s < math.inf:", "    if False:",

@@ -34,7 +34,7 @@ SCENARIOS = ("static", "rate-table", "level-turns", "coordinated-turn", "tumble"
              "mag-disturbance", "boat", "car", "plane")
 
 
-def _feed(h, value) -> None:
+def feed(h, value) -> None:
     """Every bit of `value` into the hash (arrays by dtype, shape and bytes; floats by their IEEE bits)."""
     if isinstance(value, np.ndarray):
         h.update(f"{value.dtype}{value.shape}".encode())
@@ -44,16 +44,16 @@ def _feed(h, value) -> None:
     elif isinstance(value, (list, tuple)):
         h.update(b"[")
         for v in value:
-            _feed(h, v)
+            feed(h, v)
         h.update(b"]")
     elif isinstance(value, dict):
         for k in sorted(value):
             h.update(repr(k).encode())
-            _feed(h, value[k])
+            feed(h, value[k])
     elif dataclasses.is_dataclass(value):
         h.update(type(value).__name__.encode())
         for f in dataclasses.fields(value):
-            _feed(h, getattr(value, f.name))
+            feed(h, getattr(value, f.name))
     else:
         h.update(f"{type(value).__name__}:{value!r}".encode())
 
@@ -70,8 +70,8 @@ def stream_part(seconds: float) -> str:
             while n < n_total:
                 b = s.next_block(min(cut, n_total - n))
                 n += len(b)
-                _feed(h, b)
-            _feed(h, s.truth_at(np.linspace(0.0, n_total / 819.2, 97) + 1e-4))
+                feed(h, b)
+            feed(h, s.truth_at(np.linspace(0.0, n_total / 819.2, 97) + 1e-4))
     return h.hexdigest()
 
 
@@ -81,7 +81,7 @@ def samples_part(seconds: float) -> str:
     h = hashlib.md5()
     for name in ("boat", "tumble"):
         for s in simulate(name, seconds, seed=5).samples(first_counter=7):
-            _feed(h, s)
+            feed(h, s)
     return h.hexdigest()
 
 
@@ -99,11 +99,11 @@ def gnss_part(seconds: float) -> str:
         block = simulate(name, seconds, rate_hz=100.0, seed=2)
         fixes = simulate_gnss(block, seed=4, lever_arm_m=(0.5, -0.2, -1.0), outages=outage, glitches=glitches,
                               jitter_s=0.05)
-        _feed(h, fixes)
-        _feed(h, [x.t_s if hasattr(x, "counter") else -x.t_s for x in in_arrival_order(block, fixes)])
+        feed(h, fixes)
+        feed(h, [x.t_s if hasattr(x, "counter") else -x.t_s for x in in_arrival_order(block, fixes)])
         stream = open_stream(name, rate_hz=100.0, seed=2)
         stream.next_block(int(seconds * 100))
-        _feed(h, simulate_gnss(stream, seed=6, rate_hz=10.0))
+        feed(h, simulate_gnss(stream, seed=6, rate_hz=10.0))
     return h.hexdigest()
 
 
@@ -120,8 +120,8 @@ def record_part(seconds: float, out_dir: Path) -> tuple[str, str]:
         h.update(path.read_bytes())
     r = hashlib.md5()
     for s in iter_samples(rec, chunk_rows=1000):
-        _feed(r, s)
-    _feed(r, read_recording(rec).__dict__ | {"path": None})
+        feed(r, s)
+    feed(r, read_recording(rec).__dict__ | {"path": None})
     return h.hexdigest(), r.hexdigest()
 
 
