@@ -1,7 +1,9 @@
 """The spidev reader process against the machine's floor, in one run: drivers.process_source's reader (the
 simulated ADIS16405 at 819.2 SPS, the daemon's default path, without the daemon) and bench/wake_floor.py's bare
-SCHED_FIFO loop run side by side for `--seconds`; a reader that is at the floor wakes late as often as the bare
-loop. This process plays the daemon: it polls the reader every 5 ms, and with `--stall-s X` stops polling for X s
+SCHED_FIFO loop and bench/wake_cause.py's C loop run side by side for `--seconds`; a reader that is at the floor
+loses about one chip sample for each of the bare loops' wakes later than a period (a loop catches up after a
+blackout with one late wake per period it missed; the reader wakes once, for the next sample, and counts one
+late wake). This process plays the daemon: it polls the reader every 5 ms, and with `--stall-s X` stops polling for X s
 every `--stall-every` s (a stalled daemon: its reader must read on, its hand-over queue).
 
     .venv/bin/python bench/reader_floor.py [--seconds 60] [--stall-s 2 --stall-every 10] [--busy N]
@@ -53,6 +55,8 @@ def main() -> None:
         cpu0, wall0 = _cpu_s(src._proc.pid), time.monotonic()
         floor = subprocess.Popen([sys.executable, str(REPO / "bench" / "wake_floor.py"), "--seconds",
                                   str(args.seconds), "--json"], stdout=subprocess.PIPE, text=True)
+        c_floor = subprocess.Popen([sys.executable, str(REPO / "bench" / "wake_cause.py"), "--seconds",
+                                    str(args.seconds), "--json"], stdout=subprocess.PIPE, text=True)
         end = wall0 + args.seconds
         next_stall = wall0 + args.stall_every if args.stall_s > 0 else float("inf")
         received = 0
@@ -63,6 +67,7 @@ def main() -> None:
                 next_stall += args.stall_every
             time.sleep(0.005)
         floor_out = json.loads(floor.communicate()[0])
+        c_out = json.loads(c_floor.communicate()[0])
         time.sleep(0.5)                                      # the reader's last counters
         received += len(src.poll())
         cpu1, wall1 = _cpu_s(src._proc.pid), time.monotonic()
@@ -85,6 +90,11 @@ def main() -> None:
     fl = floor_out
     print(f"wake_floor    real-time {'yes' if fl['realtime'] else 'NO'}: late > P/4 {fl['late_quarter'] / args.seconds:6.2f}/s,"
           f" > P {fl['late'] / args.seconds:6.2f}/s, worst {fl['worst_s'] * 1e3:6.1f} ms, CPU {100 * fl['cpu_share']:.1f} %")
+    c = c_out
+    print(f"wake_cause C  real-time {'yes' if c['realtime'] else 'NO'}: late > P/4 {c['late_quarter'] / args.seconds:6.2f}/s,"
+          f" > P {c['late'] / args.seconds:6.2f}/s, worst {c['worst_s'] * 1e3:6.1f} ms, in {c['events']} blackouts; "
+          f"{100 * c['slept_late_run_queue_s'] / max(c['slept_late_lag_s'], 1e-12):.1f} % of the lateness runnable "
+          f"in the run queue; steal {c['steal_s'] * 1e3:.0f} ms")
     print(f"reader proc.  real-time {'yes' if c1.get('reader_realtime_priority') else 'NO'}: late > P/4 "
           f"{d('reader_wakes_late_quarter') / secs:6.2f}/s, > P {d('reader_wakes_late') / secs:6.2f}/s, worst "
           f"{c1.get('reader_wake_late_max_us', 0) / 1e3:6.1f} ms (whole run), CPU {100 * (cpu1 - cpu0) / secs:.1f} %")
@@ -93,8 +103,10 @@ def main() -> None:
           f"{c1.get('reader_read_us_max', 0)} µs, hand-over tick {c1.get('handover_work_us_max', 0)} µs; GC "
           f"{d('reader_gc_collections')} collections (longest {c1.get('reader_gc_pause_max_us', 0)} µs); "
           f"producer waits {d('sensor_producer_waits')}")
-    print(f"ratio reader / floor (late > P): "
-          f"{(d('reader_wakes_late') / secs) / max(1e-9, fl['late'] / args.seconds):.2f}")
+    # a floor loop catches up after a blackout with one late wake per sample period it missed (each a sample lost
+    # by a reader of the chip), the reader wakes once for the next sample: compare its losses with their count
+    print(f"chip samples lost by the reader / floor wakes later than a period: python "
+          f"{(lost / secs) / max(1e-9, fl['late'] / args.seconds):.2f}, C {(lost / secs) / max(1e-9, c['late'] / args.seconds):.2f}")
 
 
 if __name__ == "__main__":

@@ -1131,4 +1131,11 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("soak-kernel-drops-excuse-all", "the soak excuses unanswered requests only up to what the kernel "
              "counted dropped", "bench/soak.py", "if ratio < ANSWER_RATIO_MIN and n - got > kernel_drops:",
              "if ratio < ANSWER_RATIO_MIN and False:", ("tests/test_soak_answers.py",)),
+    # ------------------------------------------------------------------ session 39 (reader)
+    Mutation("wake-cause-run-queue-field", "bench/wake_cause.py reads a wake's run-queue wait (schedstat's second "
+             "value), not its time on the CPU", "bench/wake_cause.py", 'sscanf(b, "%lld %lld", &on_cpu, &wait);',
+             'sscanf(b, "%lld %lld", &wait, &on_cpu);', ("tests/test_bench_wake_cause.py",)),
+    Mutation("wake-cause-steal-field", "bench/wake_cause.py's steal time is /proc/stat's steal column",
+             "bench/wake_cause.py", "    return int(fields[8]) / os.sysconf(\"SC_CLK_TCK\")",
+             "    return int(fields[4]) / os.sysconf(\"SC_CLK_TCK\")", ("tests/test_bench_wake_cause.py",)),
 )

@@ -1,0 +1,130 @@
+"""Where a late wake's time goes, without Python: bench/wake_floor.py's loop (sleep to each sample time, 1/819.2 s
+steps, CLOCK_MONOTONIC, SCHED_FIFO 50, memory locked) written in C, compiled here with `cc`, and for every wake
+that slept and comes more than a quarter period late, the part of its lateness the thread spent runnable in the
+kernel's run queue (the thread's run_delay, /proc/thread-self/schedstat, read after every wake; the catch-up wakes
+after a blackout, whose targets were past before they slept, are counted but not split). The rest of the lateness
+passed before the kernel woke the thread at all: the timer's interrupt came late (on a virtual machine the
+virtual CPU was not running: the host ran something else; on hardware, interrupts were off that long). The
+machine's steal time over the run (/proc/stat: time the hypervisor ran something else while a virtual CPU of
+this machine wanted to run) is printed beside.
+
+A wake later than one sample period is a sample an ADIS16405 reader loses (the chip holds a sample for one period
+only); after a blackout of D s the loop's targets are past, so it counts about D/period late wakes, one per
+sample lost. `events` counts the blackouts (late wakes after a sleep that really slept).
+
+    .venv/bin/python bench/wake_cause.py [--seconds 20] [--cpu N] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+SOURCE = r"""
+#define _GNU_SOURCE
+#include <stdio.h>
+#include <stdlib.h>
+#include <time.h>
+#include <sched.h>
+#include <sys/mman.h>
+#include <sys/resource.h>
+#include <fcntl.h>
+#include <unistd.h>
+static double now(void) { struct timespec t; clock_gettime(CLOCK_MONOTONIC, &t); return t.tv_sec + t.tv_nsec * 1e-9; }
+static double run_delay_s(int fd) {          /* schedstat: on-CPU ns, run-queue wait ns, timeslices */
+    char b[128]; long long on_cpu = 0, wait = 0; ssize_t n = pread(fd, b, sizeof b - 1, 0);
+    b[n > 0 ? n : 0] = 0; sscanf(b, "%lld %lld", &on_cpu, &wait); return wait * 1e-9; }
+int main(int argc, char **argv) {
+    double seconds = atof(argv[1]), period = 1.0 / 819.2;
+    mlockall(MCL_CURRENT | MCL_FUTURE);
+    struct sched_param sp = {.sched_priority = 50};
+    int realtime = sched_setscheduler(0, SCHED_FIFO, &sp) == 0;
+    int fd = open("/proc/thread-self/schedstat", O_RDONLY);
+    long n = (long)(seconds / period), late = 0, late_quarter = 0, events = 0;
+    double worst = 0, lag_sum = 0, queued_sum = 0, blackout_sum = 0, blackout_queued = 0, t_next = now() + period, rd_prev = run_delay_s(fd);
+    struct timespec ts;
+    for (long i = 0; i < n; i++) {
+        double slept_from = now();
+        ts.tv_sec = (time_t)t_next; ts.tv_nsec = (long)((t_next - ts.tv_sec) * 1e9);
+        clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL);
+        double lag = now() - t_next, rd = run_delay_s(fd), queued = rd - rd_prev;
+        rd_prev = rd;
+        int slept = slept_from < t_next;     /* a wake after a sleep, not a catch-up past targets already due */
+        if (lag > 0.25 * period) {
+            late_quarter++;
+            if (slept) { lag_sum += lag; queued_sum += queued; }
+            if (lag > period) {
+                late++;
+                if (slept) { events++; blackout_sum += lag; blackout_queued += queued; }
+            }
+        }
+        if (lag > worst) worst = lag;
+        t_next += period;
+    }
+    struct rusage ru;
+    getrusage(RUSAGE_SELF, &ru);
+    double cpu_s = ru.ru_utime.tv_sec + ru.ru_utime.tv_usec * 1e-6 + ru.ru_stime.tv_sec + ru.ru_stime.tv_usec * 1e-6;
+    printf("{\"cpu_s\": %.4f, \"realtime\": %d, \"wakes\": %ld, \"late\": %ld, \"late_quarter\": %ld, \"events\": %ld, "
+           "\"worst_s\": %.6f, \"slept_late_lag_s\": %.6f, \"slept_late_run_queue_s\": %.6f, \"blackouts_s\": %.6f, \"blackouts_run_queue_s\": %.6f}\n",
+           cpu_s, realtime, n, late, late_quarter, events, worst, lag_sum, queued_sum, blackout_sum,
+           blackout_queued);
+    return 0;
+}
+"""
+
+
+def steal_s() -> float:
+    """The machine's steal time so far, all CPUs (/proc/stat "cpu" line, 8th value, in USER_HZ ticks)."""
+    with open("/proc/stat") as f:
+        fields = f.readline().split()
+    return int(fields[8]) / os.sysconf("SC_CLK_TCK")
+
+
+def run_c_loop(seconds: float, cpu: int | None = None) -> dict:
+    """Compile the loop and run it for `seconds` (on CPU `cpu` only, when given): its JSON, with the steal time
+    and load average added."""
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        raise SystemExit("bench/wake_cause.py needs a C compiler (cc)")
+    with tempfile.TemporaryDirectory() as tmp:
+        src, exe = Path(tmp) / "wake_cause.c", Path(tmp) / "wake_cause"
+        src.write_text(SOURCE)
+        subprocess.run([cc, "-O2", "-o", str(exe), str(src)], check=True)
+        load0, steal0 = os.getloadavg()[0], steal_s()
+        pin = None if cpu is None else (lambda: os.sched_setaffinity(0, {cpu}))
+        out = json.loads(subprocess.run([str(exe), str(seconds)], check=True, capture_output=True, text=True,
+                                        preexec_fn=pin).stdout)
+    out.update(seconds=seconds, steal_s=steal_s() - steal0, load1_before=load0, load1_after=os.getloadavg()[0])
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument("--json", action="store_true", help="one JSON line")
+    ap.add_argument("--cpu", type=int, default=None, help="run the loop on this CPU only (each virtual CPU apart)")
+    args = ap.parse_args()
+    r = run_c_loop(args.seconds, args.cpu)
+    if args.json:
+        print(json.dumps(r))
+        return
+    lag, queued = r["slept_late_lag_s"], r["slept_late_run_queue_s"]
+    print(f"C loop, real-time {'yes' if r['realtime'] else 'NO'}: {r['wakes']} wakes in {args.seconds:g} s, "
+          f"{r['late']} later than a period ({r['late'] / args.seconds:.2f}/s, in {r['events']} blackouts), "
+          f"{r['late_quarter']} later than a quarter period, worst {r['worst_s'] * 1e3:.1f} ms; the blackouts' "
+          f"first late wakes {r['blackouts_s'] * 1e3:.1f} ms late in all, of it {r['blackouts_run_queue_s'] * 1e3:.1f} ms "
+          f"in the run queue; CPU {100 * r['cpu_s'] / args.seconds:.2f} % "
+          f"of a core ({1e6 * r['cpu_s'] / r['wakes']:.1f} µs a wake)")
+    print(f"  of the lateness of the wakes that slept and came more than a quarter period late ({lag * 1e3:.1f} ms in all), {queued * 1e3:.1f} ms "
+          f"({100 * queued / max(lag, 1e-12):.1f} %) runnable in the run queue, the rest before the kernel woke "
+          f"the thread; machine's steal time {r['steal_s'] * 1e3:.0f} ms ({100 * r['steal_s'] / args.seconds:.2f} % "
+          f"of one CPU); load average {r['load1_before']:.2f} → {r['load1_after']:.2f}")
+
+
+if __name__ == "__main__":
+    main()
