@@ -10,9 +10,11 @@ this machine wanted to run) is printed beside.
 
 A wake later than one sample period is a sample an ADIS16405 reader loses (the chip holds a sample for one period
 only); after a blackout of D s the loop's targets are past, so it counts about D/period late wakes, one per
-sample lost. `events` counts the blackouts (late wakes after a sleep that really slept).
+sample lost. `events` counts the blackouts (late wakes after a sleep that really slept). `--both-cpus` runs a
+loop on each of CPU 0 and CPU 1 in the same seconds and counts the blackouts that came on both at once (a
+virtual machine's host takes one virtual CPU or the whole machine?).
 
-    .venv/bin/python bench/wake_cause.py [--seconds 20] [--cpu N] [--json]
+    .venv/bin/python bench/wake_cause.py [--seconds 20] [--cpu N | --both-cpus] [--json]
 """
 
 from __future__ import annotations
@@ -35,6 +37,8 @@ SOURCE = r"""
 #include <sys/resource.h>
 #include <fcntl.h>
 #include <unistd.h>
+#define MAX_LISTED 10000
+static double due[MAX_LISTED], woke[MAX_LISTED];     /* each blackout's first late wake: due, woken (s) */
 static double now(void) { struct timespec t; clock_gettime(CLOCK_MONOTONIC, &t); return t.tv_sec + t.tv_nsec * 1e-9; }
 static double run_delay_s(int fd) {          /* schedstat: on-CPU ns, run-queue wait ns, timeslices */
     char b[128]; long long on_cpu = 0, wait = 0; ssize_t n = pread(fd, b, sizeof b - 1, 0);
@@ -60,7 +64,10 @@ int main(int argc, char **argv) {
             if (slept) { lag_sum += lag; queued_sum += queued; }
             if (lag > period) {
                 late++;
-                if (slept) { events++; blackout_sum += lag; blackout_queued += queued; }
+                if (slept) {
+                    events++; blackout_sum += lag; blackout_queued += queued;
+                    if (events <= MAX_LISTED) { due[events - 1] = t_next; woke[events - 1] = t_next + lag; }
+                }
             }
         }
         if (lag > worst) worst = lag;
@@ -73,6 +80,7 @@ int main(int argc, char **argv) {
            "\"worst_s\": %.6f, \"slept_late_lag_s\": %.6f, \"slept_late_run_queue_s\": %.6f, \"blackouts_s\": %.6f, \"blackouts_run_queue_s\": %.6f}\n",
            cpu_s, realtime, n, late, late_quarter, events, worst, lag_sum, queued_sum, blackout_sum,
            blackout_queued);
+    for (long i = 0; i < events && i < MAX_LISTED; i++) fprintf(stderr, "%.6f %.6f\n", due[i], woke[i]);
     return 0;
 }
 """
@@ -85,22 +93,62 @@ def steal_s() -> float:
     return int(fields[8]) / os.sysconf("SC_CLK_TCK")
 
 
-def run_c_loop(seconds: float, cpu: int | None = None) -> dict:
-    """Compile the loop and run it for `seconds` (on CPU `cpu` only, when given): its JSON, with the steal time
-    and load average added."""
+def _compile(tmp: str) -> str:
     cc = shutil.which("cc") or shutil.which("gcc")
     if cc is None:
         raise SystemExit("bench/wake_cause.py needs a C compiler (cc)")
+    src, exe = Path(tmp) / "wake_cause.c", Path(tmp) / "wake_cause"
+    src.write_text(SOURCE)
+    subprocess.run([cc, "-O2", "-o", str(exe), str(src)], check=True)
+    return str(exe)
+
+
+def _start(exe: str, seconds: float, cpu: int | None) -> subprocess.Popen:
+    pin = None if cpu is None else (lambda: os.sched_setaffinity(0, {cpu}))
+    return subprocess.Popen([exe, str(seconds)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=pin)
+
+
+def _result(proc: subprocess.Popen) -> dict:
+    """The loop's JSON, with its blackouts as (due, woken) CLOCK_MONOTONIC s pairs."""
+    out, err = proc.communicate()
+    if proc.returncode:
+        raise RuntimeError(f"the C loop failed: {err}")
+    r = json.loads(out)
+    r["blackouts"] = [tuple(map(float, line.split())) for line in err.splitlines() if line.strip()]
+    return r
+
+
+def run_c_loop(seconds: float, cpu: int | None = None) -> dict:
+    """Compile the loop and run it for `seconds` (on CPU `cpu` only, when given): its JSON, with the steal time
+    and load average added."""
     with tempfile.TemporaryDirectory() as tmp:
-        src, exe = Path(tmp) / "wake_cause.c", Path(tmp) / "wake_cause"
-        src.write_text(SOURCE)
-        subprocess.run([cc, "-O2", "-o", str(exe), str(src)], check=True)
+        exe = _compile(tmp)
         load0, steal0 = os.getloadavg()[0], steal_s()
-        pin = None if cpu is None else (lambda: os.sched_setaffinity(0, {cpu}))
-        out = json.loads(subprocess.run([str(exe), str(seconds)], check=True, capture_output=True, text=True,
-                                        preexec_fn=pin).stdout)
+        out = _result(_start(exe, seconds, cpu))
     out.update(seconds=seconds, steal_s=steal_s() - steal0, load1_before=load0, load1_after=os.getloadavg()[0])
     return out
+
+
+def overlapping(a: list[tuple[float, float]], b: list[tuple[float, float]]) -> int:
+    """How many of the intervals `a` overlap one of `b` (each (start, end), sorted by start)."""
+    n, j = 0, 0
+    for start, end in a:
+        while j < len(b) and b[j][1] <= start:
+            j += 1
+        n += j < len(b) and b[j][0] < end
+    return n
+
+
+def run_on_both_cpus(seconds: float) -> tuple[dict, dict, int]:
+    """The loop on CPU 0 and on CPU 1 in the same seconds: both results and how many of CPU 0's blackouts (from
+    the wake's due time to the time it woke) overlap one of CPU 1's. Few: the host takes one virtual CPU at a
+    time, and a wake on the other would have come on time."""
+    with tempfile.TemporaryDirectory() as tmp:
+        exe = _compile(tmp)
+        procs = [_start(exe, seconds, cpu) for cpu in (0, 1)]
+        r0, r1 = (_result(p) for p in procs)
+    return r0, r1, overlapping(r0["blackouts"], r1["blackouts"])
 
 
 def main() -> None:
@@ -108,10 +156,18 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--json", action="store_true", help="one JSON line")
     ap.add_argument("--cpu", type=int, default=None, help="run the loop on this CPU only (each virtual CPU apart)")
+    ap.add_argument("--both-cpus", action="store_true",
+                    help="a loop on CPU 0 and one on CPU 1 at once: do their blackouts come together?")
     args = ap.parse_args()
+    if args.both_cpus:
+        r0, r1, both = run_on_both_cpus(args.seconds)
+        print(f"CPU 0: {r0['events']} blackouts (worst {r0['worst_s'] * 1e3:.1f} ms), CPU 1: {r1['events']} "
+              f"(worst {r1['worst_s'] * 1e3:.1f} ms); {both} of CPU 0's overlap one of CPU 1's; load average "
+              f"{os.getloadavg()[0]:.2f}")
+        return
     r = run_c_loop(args.seconds, args.cpu)
     if args.json:
-        print(json.dumps(r))
+        print(json.dumps({k: v for k, v in r.items() if k != "blackouts"}))
         return
     lag, queued = r["slept_late_lag_s"], r["slept_late_run_queue_s"]
     print(f"C loop, real-time {'yes' if r['realtime'] else 'NO'}: {r['wakes']} wakes in {args.seconds:g} s, "

@@ -66,3 +66,13 @@ def test_the_steal_counter_is_the_cpu_lines_eighth_value():
     assert fields[0] == "cpu"
     before = int(fields[8]) / os.sysconf("SC_CLK_TCK")
     assert before <= steal_s() <= before + 1.0     # a monotonic counter, read again a moment later
+
+
+def test_blackouts_overlap_only_where_their_intervals_share_time():
+    from bench.wake_cause import overlapping
+
+    cpu1 = [(0.0, 1.0), (2.0, 3.0), (10.0, 10.5)]
+    assert overlapping([(1.0, 2.0)], cpu1) == 0                 # touches both neighbours, shares no time
+    assert overlapping([(0.5, 0.6), (2.9, 4.0), (5.0, 6.0)], cpu1) == 2
+    assert overlapping([(9.0, 12.0)], cpu1) == 1               # holds one of CPU 1's
+    assert overlapping([], cpu1) == 0 and overlapping([(0.0, 1.0)], []) == 0

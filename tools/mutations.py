@@ -1138,4 +1138,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("wake-cause-steal-field", "bench/wake_cause.py's steal time is /proc/stat's steal column",
              "bench/wake_cause.py", "    return int(fields[8]) / os.sysconf(\"SC_CLK_TCK\")",
              "    return int(fields[4]) / os.sysconf(\"SC_CLK_TCK\")", ("tests/test_bench_wake_cause.py",)),
+    Mutation("wake-cause-overlap-touching", "two blackouts that only touch do not overlap", "bench/wake_cause.py",
+             "        while j < len(b) and b[j][1] <= start:", "        while j < len(b) and b[j][1] < start:",
+             ("tests/test_bench_wake_cause.py",)),
 )
