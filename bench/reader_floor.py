@@ -105,8 +105,11 @@ def main() -> None:
           f"producer waits {d('sensor_producer_waits')}")
     # a floor loop catches up after a blackout with one late wake per sample period it missed (each a sample lost
     # by a reader of the chip), the reader wakes once for the next sample: compare its losses with their count
-    print(f"chip samples lost by the reader / floor wakes later than a period: python "
-          f"{(lost / secs) / max(1e-9, fl['late'] / args.seconds):.2f}, C {(lost / secs) / max(1e-9, c['late'] / args.seconds):.2f}")
+    def ratio(floor_late: int) -> str:
+        return f"{(lost / secs) / (floor_late / args.seconds):.2f}" if floor_late else "— (the floor lost none)"
+
+    print(f"chip samples lost by the reader / floor wakes later than a period: python {ratio(fl['late'])}, "
+          f"C {ratio(c['late'])}")
 
 
 if __name__ == "__main__":
