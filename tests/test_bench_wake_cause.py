@@ -6,8 +6,8 @@ real-time priority (SCHED_FIFO 60 against the loop's 50) on the same CPU that sp
 spin holds the loop runnable but not running past about two sample times (1.22 ms each), so over 2 s some 65 spins
 make about 130 wakes later than a quarter period, each waiting in the run queue for up to 3 ms. A virtual machine's
 own blackouts (the host runs something else: docs/daemon.md "Performance", some 1–3 a second, up to ~20 ms) come on
-top and count as lateness before the wake; the test asks that at least half the lateness be the run queue's
-(the spins alone give ~0.2 s of it). Without real-time priority or a C compiler there is nothing to measure: skipped."""
+top and count as lateness before the wake (a single one of 100 ms has been seen), so the test asks for the spins'
+run-queue wait in absolute terms: at least 0.08 s of it (~0.17 s), and no more than the lateness it is part of. Without real-time priority or a C compiler there is nothing to measure: skipped."""
 
 from __future__ import annotations
 
@@ -54,8 +54,8 @@ def test_a_wake_held_by_a_higher_priority_task_is_put_in_the_run_queue():
         spinner.wait()
     assert r["realtime"] == 1
     assert r["late_quarter"] >= 60, r                  # ~130 from the spins
-    assert r["slept_late_run_queue_s"] >= 0.5 * r["slept_late_lag_s"], r
-    assert r["slept_late_run_queue_s"] >= 0.08, r   # ~0.17 s from the spins
+    # the spins' wait, ~0.17 s, is put in the run queue; never more than the lateness it is part of
+    assert 0.08 <= r["slept_late_run_queue_s"] <= r["slept_late_lag_s"] + 0.001, r
 
 
 def test_the_steal_counter_is_the_cpu_lines_eighth_value():
