@@ -131,13 +131,30 @@ def run_c_loop(seconds: float, cpu: int | None = None) -> dict:
 
 
 def overlapping(a: list[tuple[float, float]], b: list[tuple[float, float]]) -> int:
-    """How many of the intervals `a` overlap one of `b` (each (start, end), sorted by start)."""
-    n, j = 0, 0
+    """How many of the intervals `a` share time with one of `b` (each (start, end), sorted by start)."""
+    return sum(shared_s([span], b) > 0.0 for span in a)
+
+
+PERIOD_S = 1.0 / 819.2
+
+
+def lost_s(blackouts: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """The spans of sample times a reader woken by this loop would have lost: a wake due at t and woken after
+    t + one period (a blackout from `due` to `woken` loses the samples due in [due, woken − period))."""
+    return [(due, woken - PERIOD_S) for due, woken in blackouts if woken - PERIOD_S > due]
+
+
+def shared_s(a: list[tuple[float, float]], b: list[tuple[float, float]]) -> float:
+    """The total time the spans `a` and `b` (each sorted by start, none overlapping another of its own) share."""
+    total, j = 0.0, 0
     for start, end in a:
         while j < len(b) and b[j][1] <= start:
             j += 1
-        n += j < len(b) and b[j][0] < end
-    return n
+        k = j
+        while k < len(b) and b[k][0] < end:
+            total += min(end, b[k][1]) - max(start, b[k][0])
+            k += 1
+    return total
 
 
 def run_on_both_cpus(seconds: float) -> tuple[dict, dict, int]:
@@ -161,9 +178,13 @@ def main() -> None:
     args = ap.parse_args()
     if args.both_cpus:
         r0, r1, both = run_on_both_cpus(args.seconds)
+        l0, l1 = lost_s(r0["blackouts"]), lost_s(r1["blackouts"])
         print(f"CPU 0: {r0['events']} blackouts (worst {r0['worst_s'] * 1e3:.1f} ms), CPU 1: {r1['events']} "
               f"(worst {r1['worst_s'] * 1e3:.1f} ms); {both} of CPU 0's overlap one of CPU 1's; load average "
               f"{os.getloadavg()[0]:.2f}")
+        print(f"sample periods lost by a reader woken on CPU 0 {sum(e - s for s, e in l0) / PERIOD_S:.0f}, on CPU 1 "
+              f"{sum(e - s for s, e in l1) / PERIOD_S:.0f}, on both (lost only when both were out) "
+              f"{shared_s(l0, l1) / PERIOD_S:.0f}")
         return
     r = run_c_loop(args.seconds, args.cpu)
     if args.json:

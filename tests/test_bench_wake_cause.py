@@ -76,3 +76,16 @@ def test_blackouts_overlap_only_where_their_intervals_share_time():
     assert overlapping([(0.5, 0.6), (2.9, 4.0), (5.0, 6.0)], cpu1) == 2
     assert overlapping([(9.0, 12.0)], cpu1) == 1               # holds one of CPU 1's
     assert overlapping([], cpu1) == 0 and overlapping([(0.0, 1.0)], []) == 0
+
+
+def test_a_reader_woken_on_both_cpus_loses_only_the_time_both_were_out():
+    from bench.wake_cause import PERIOD_S, lost_s, shared_s
+
+    p = PERIOD_S
+    # a blackout shorter than a period loses nothing; one of 5 periods loses the samples due in its first 4
+    assert lost_s([(1.0, 1.0 + 0.5 * p), (2.0, 2.0 + 5 * p)]) == [(2.0, 2.0 + 4 * p)]
+    cpu0 = [(0.0, 10.0), (20.0, 30.0)]
+    cpu1 = [(5.0, 8.0), (9.0, 25.0), (40.0, 50.0)]
+    assert shared_s(cpu0, cpu1) == 3.0 + 1.0 + 5.0             # worked by hand: [5,8], [9,10], [20,25]
+    assert shared_s(cpu1, cpu0) == 9.0
+    assert shared_s(cpu0, []) == 0.0

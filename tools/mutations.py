@@ -1139,6 +1139,9 @@ MUTATIONS: tuple[Mutation, ...] = (
              "bench/wake_cause.py", "    return int(fields[8]) / os.sysconf(\"SC_CLK_TCK\")",
              "    return int(fields[4]) / os.sysconf(\"SC_CLK_TCK\")", ("tests/test_bench_wake_cause.py",)),
     Mutation("wake-cause-overlap-touching", "two blackouts that only touch do not overlap", "bench/wake_cause.py",
-             "        while j < len(b) and b[j][1] <= start:", "        while j < len(b) and b[j][1] < start:",
+             "    return sum(shared_s([span], b) > 0.0 for span in a)",
+             "    return sum(shared_s([span], b) >= 0.0 for span in a)", ("tests/test_bench_wake_cause.py",)),
+    Mutation("wake-cause-shared-one-each", "the time two vCPUs' lost spans share sums every span of the one that "
+             "meets a span of the other", "bench/wake_cause.py", "            k += 1", "            break",
              ("tests/test_bench_wake_cause.py",)),
 )
