@@ -3,10 +3,10 @@
     python bench/signalk.py [--seconds 30] [--scenario level-turns]
 
 First use installs `signalk-server` (SIGNALK_SERVER_VERSION, from the npm registry) into
-~/.cache/ahrsd/signalk-server with `npm ci` from bench/signalk_server's lockfile; needs Node.js ≥ 20. The server runs
-on loopback ports with its own settings
-directory (a temporary folder: an NMEA 0183 UDP input, mDNS and the NMEA/TCP re-broadcast off, no security) and
-the XDR attitude plugin in bench/signalk_plugin (Signal K's NMEA parser has no XDR hook). Then
+~/.cache/ahrsd/signalk-server with `npm ci` from bench/signalk_server's lockfile; needs Node.js ≥ 20. The server
+runs on loopback ports with its own settings directory (a temporary folder: an NMEA 0183 UDP input, mDNS and the
+NMEA/TCP re-broadcast off, no security) and the XDR attitude plugin in bench/signalk_plugin (Signal K's NMEA parser
+has no XDR hook). Then
 `ahrsd run --sim SCENARIO --nmea udp:<server> --nmea udp:<here>` runs, and this script reads Signal K's TCP delta
 stream (the server's own output, after its parser and unit conversion) beside the same sentences as ahrsd sent
 them. It prints, per Signal K path: the value pairs' largest difference, the update rates, and a few samples.
