@@ -3,9 +3,10 @@
     python bench/signalk.py [--seconds 30] [--scenario level-turns]
 
 First use installs `signalk-server` (SIGNALK_SERVER_VERSION, from the npm registry) into
-~/.cache/ahrsd/signalk-server; needs Node.js ≥ 20. The server runs on loopback ports with its own settings
-directory (a temporary folder: an NMEA 0183 UDP input, mDNS and the NMEA/TCP re-broadcast off, no security) and
-the XDR attitude plugin in bench/signalk_plugin (Signal K's NMEA parser has no XDR hook). Then
+~/.cache/ahrsd/signalk-server with `npm ci` from bench/signalk_server's lockfile; needs Node.js ≥ 20. The server
+runs on loopback ports with its own settings directory (a temporary folder: an NMEA 0183 UDP input, mDNS and the
+NMEA/TCP re-broadcast off, no security) and the XDR attitude plugin in bench/signalk_plugin (Signal K's NMEA parser
+has no XDR hook). Then
 `ahrsd run --sim SCENARIO --nmea udp:<server> --nmea udp:<here>` runs, and this script reads Signal K's TCP delta
 stream (the server's own output, after its parser and unit conversion) beside the same sentences as ahrsd sent
 them. It prints, per Signal K path: the value pairs' largest difference, the update rates, and a few samples.
@@ -32,7 +33,10 @@ from pathlib import Path
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-SIGNALK_SERVER_VERSION = "2.23.0"   # the newest release whose engines field accepts Node.js 20
+# package.json names the server's version (2.23.0: the newest release whose engines field accepts Node.js 20);
+# package-lock.json pins every package under it with its registry URL and hash (docs/marine.md: how to update it)
+SERVER_PACKAGE_DIR = Path(__file__).resolve().parent / "signalk_server"
+SIGNALK_SERVER_VERSION = json.loads((SERVER_PACKAGE_DIR / "package.json").read_text())["dependencies"]["signalk-server"]
 PLUGIN_DIR = Path(__file__).resolve().parent / "signalk_plugin"
 PATHS = ("navigation.headingTrue", "navigation.headingMagnetic", "navigation.rateOfTurn",
          "navigation.attitude")
@@ -58,15 +62,27 @@ def ensure_server(directory: Path | None = None, log=print) -> Path:
     if major < 20:
         raise SignalKUnavailable(f"signalk-server {SIGNALK_SERVER_VERSION} needs Node.js ≥ 20 (found {major})")
     binary = directory / "node_modules" / ".bin" / "signalk-server"
-    if binary.exists():
+    lockfile = (SERVER_PACKAGE_DIR / "package-lock.json").read_bytes()
+    installed_lockfile = directory / "package-lock.json"
+    if binary.exists() and installed_lockfile.exists() and installed_lockfile.read_bytes() == lockfile:
         return binary
     directory.mkdir(parents=True, exist_ok=True)
-    log(f"installing signalk-server {SIGNALK_SERVER_VERSION} into {directory} (first use, about a minute)")
-    done = subprocess.run(["npm", "install", "--prefix", str(directory), "--no-audit", "--no-fund",
-                           "--loglevel=error", f"signalk-server@{SIGNALK_SERVER_VERSION}"],
+    log(f"installing signalk-server {SIGNALK_SERVER_VERSION} into {directory} (first use, about half a minute)")
+    shutil.copyfile(SERVER_PACKAGE_DIR / "package.json", directory / "package.json")
+    installed_lockfile.write_bytes(lockfile)
+    # npm ci from the lockfile: no version resolution, for which `npm install` fetches and parses each package's
+    # list of versions (docs/marine.md has what each option saves). --omit=optional: the server's optional
+    # packages are plugins and web apps it runs without (chart plotter, instrument panel, serial ports, NMEA 2000
+    # output).
+    # --ignore-scripts: the install scripts build @canboat/canboatjs's SocketCAN addon with node-gyp (NMEA 2000
+    # on a CAN bus; it prints "not available" and goes on where it cannot build) and run notices; the server
+    # reads NMEA 0183 over UDP without them (tests/test_signalk.py runs it).
+    done = subprocess.run(["npm", "ci", "--prefix", str(directory), "--omit=optional", "--ignore-scripts",
+                           "--no-audit", "--no-fund", "--loglevel=error"],
                           capture_output=True, text=True, timeout=900)
     if done.returncode != 0 or not binary.exists():
-        raise SignalKUnavailable("npm install signalk-server failed: " + (done.stderr or done.stdout)[-400:])
+        installed_lockfile.unlink(missing_ok=True)       # the next call installs again
+        raise SignalKUnavailable("npm ci signalk-server failed: " + (done.stderr or done.stdout)[-400:])
     return binary
 
 

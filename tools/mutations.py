@@ -1144,4 +1144,20 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("wake-cause-shared-one-each", "the time two vCPUs' lost spans share sums every span of the one that "
              "meets a span of the other", "bench/wake_cause.py", "            k += 1", "            break",
              ("tests/test_bench_wake_cause.py",)),
+    # ------------------------------------------------------------------ session 39 (cia)
+    Mutation("signalk-install-stale-cache", "a Signal K install from another lockfile (an older ahrsd's) is "
+             "installed again", "bench/signalk.py",
+             "if binary.exists() and installed_lockfile.exists() and installed_lockfile.read_bytes() == lockfile:",
+             "if binary.exists():", ("tests/test_signalk_install.py",)),
+    Mutation("signalk-install-failure-retried", "a failed Signal K install is tried again at the next call",
+             "bench/signalk.py", "        installed_lockfile.unlink(missing_ok=True)", "        pass",
+             ("tests/test_signalk_install.py",)),
+    Mutation("signalk-install-from-lockfile", "the Signal K server is installed as the lockfile pins it (npm ci)",
+             "bench/signalk.py", 'done = subprocess.run(["npm", "ci", ', 'done = subprocess.run(["npm", "install", ',
+             ("tests/test_signalk_install.py",)),
+    Mutation("signalk-lockfile-resolved", "every package of the Signal K lockfile has its registry URL",
+             "bench/signalk_server/package-lock.json",
+             '"resolved": "https://registry.npmjs.org/signalk-server/-/signalk-server-2.23.0.tgz",',
+             '"resolved_by": "https://registry.npmjs.org/signalk-server/-/signalk-server-2.23.0.tgz",',
+             ("tests/test_signalk_install.py",)),
 )
