@@ -1131,4 +1131,15 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("soak-kernel-drops-excuse-all", "the soak excuses unanswered requests only up to what the kernel "
              "counted dropped", "bench/soak.py", "if ratio < ANSWER_RATIO_MIN and n - got > kernel_drops:",
              "if ratio < ANSWER_RATIO_MIN and False:", ("tests/test_soak_answers.py",)),
+    # ------------------------------------------------------------------ session 39 (bank)
+    Mutation("bank-level-on-force-less-turn", "the GNSS yaw bank levels on the specific force less the kinematic "
+             "acceleration", "estimator/gsf_yaw.py", "        _align_tilt(state, ux, uy, uz)",
+             "        _align_tilt(state, fx, fy, fz)", ("tests/test_gsf_yaw_turning_restart.py",)),
+    Mutation("bank-lean-checked-at-first-speed", "a levelling made before any GNSS speed is checked at the first fix "
+             "and done again when the turn leaned it", "estimator/gsf_yaw.py",
+             "        if state.tilt_without_speed and _lean_unchecked(state, params):",
+             "        if False:", ("tests/test_gsf_yaw_turning_restart.py",)),
+    Mutation("bank-lean-tolerance", "the lean the first fix tolerates is relevel_min_lean_rad (5°), not 30°",
+             "estimator/gsf_yaw.py", "    if sin_lean <= math.sin(params.relevel_min_lean_rad):",
+             "    if sin_lean <= 0.5:", ("tests/test_gsf_yaw_turning_restart.py",)),
 )
