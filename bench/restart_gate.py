@@ -11,7 +11,8 @@ lean far beyond the stated tilt σ until the start levelled on the rotation axis
     python bench/restart_gate.py --scenario plane --starts 16 90 --seeds 1 2 3 --seconds 60
     python bench/restart_gate.py --scenario car --starts 75 --sites fairbanks --seeds 5 --seconds 60 --trace-every 5
 
-`--tilt` adds the tilt RMS before / after 30 s and the share of tilt errors beyond 3σ after (σ: the roll and pitch
+`--bank` adds the GNSS yaw bank's validity against the truth: when it first said valid, its largest true-yaw error
+while valid and the share of its valid samples beyond its own 3σ (docs/estimator.md "bank39"). `--tilt` adds the tilt RMS before / after 30 s and the share of tilt errors beyond 3σ after (σ: the roll and pitch
 1σ in quadrature). `--trace-every S` also prints, per run, what the start levelled on (`levelling_force`'s figures: the force along
 the rate's axis less g, across it, the axis's allowed error, and the true tilt of the force and of the axis) and,
 at the start, 0.1 s and every S seconds, the tilt and true-heading errors and their 1σ, the GNSS yaw bank's error (valid or not), the heading checks'
@@ -33,7 +34,8 @@ if __package__ in (None, ""):
 
 from bench.vehicle_accuracy import estimates_in_arrival_order, simulate_vehicle, tilt_heading_errors_deg  # noqa: E402
 
-SITES = {"tromso": "69.65,18.96", "fairbanks": "64.84,-147.72"}
+SITES = {"tromso": "69.65,18.96", "fairbanks": "64.84,-147.72", "punta_arenas": "-53.16,-70.91",
+         "hobart": "-42.88,147.33", "reykjavik": "64.15,-21.94"}
 SETTLE_S = 30.0
 
 
@@ -54,7 +56,8 @@ def start_levelling(run, rate_sigma_rad_s: float) -> str:
             f"{tilt(w):.1f}°")
 
 
-def one_run(scenario: str, site: str, seed: int, start_s: float, seconds: float, trace_every_s: float = 0.0) -> dict:
+def one_run(scenario: str, site: str, seed: int, start_s: float, seconds: float, trace_every_s: float = 0.0,
+            bank: bool = False) -> dict:
     from ahrsd.estimator.ins import Ins
     from scipy.spatial.transform import Rotation
 
@@ -67,8 +70,18 @@ def one_run(scenario: str, site: str, seed: int, start_s: float, seconds: float,
     if trace_every_s > 0.0:
         print(start_levelling(run, est.params.init_gyro_bias_sigma_rad_s))
     next_trace_s = 0.0
+    bank_first_valid, bank_worst, bank_beyond, bank_valid_n = None, 0.0, 0, 0
+    true_yaw_all = Rotation.from_quat(np.asarray(run.truth_q_wxyz)[:, [1, 2, 3, 0]]).as_euler("ZYX")[:, 0] if bank else None
     for k, e in estimates_in_arrival_order(est, run, run.fixes):
         q[k], sigma[k] = e.q_wxyz, e.sigma_rpy_rad[2]
+        if bank:
+            b_yaw, b_var, b_valid = est._heading.gnss_yaw()
+            if b_valid:
+                err = abs(float((b_yaw - true_yaw_all[k] + np.pi) % (2 * np.pi) - np.pi))
+                bank_first_valid = float(run.t_s[k] - start_s) if bank_first_valid is None else bank_first_valid
+                bank_worst = max(bank_worst, err)
+                bank_beyond += err > 3.0 * np.sqrt(b_var)
+                bank_valid_n += 1
         sigma_tilt[k] = np.hypot(e.sigma_rpy_rad[0], e.sigma_rpy_rad[1])
         if trace_every_s > 0.0 and run.t_s[k] - start_s >= next_trace_s:
             next_trace_s = 0.1 if next_trace_s == 0.0 else max(trace_every_s, next_trace_s + trace_every_s - 0.1 * (next_trace_s == 0.1))
@@ -94,7 +107,9 @@ def one_run(scenario: str, site: str, seed: int, start_s: float, seconds: float,
             "early": float(np.sqrt(np.mean(hdg[early] ** 2))), "late": float(np.sqrt(np.mean(hdg[late] ** 2))),
             "beyond": float(np.mean(np.abs(hdg[late]) > 3.0 * np.degrees(sigma[late]))),
             "tilt_early": float(np.sqrt(np.mean(tilt[early] ** 2))), "tilt_late": float(np.sqrt(np.mean(tilt[late] ** 2))),
-            "tilt_beyond": float(np.mean(tilt[late] > 3.0 * np.degrees(sigma_tilt[late])))}
+            "tilt_beyond": float(np.mean(tilt[late] > 3.0 * np.degrees(sigma_tilt[late]))),
+            "bank_first_valid": bank_first_valid, "bank_worst_deg": float(np.degrees(bank_worst)),
+            "bank_beyond": bank_beyond / bank_valid_n if bank_valid_n else 0.0}
 
 
 def main(argv=None) -> None:
@@ -107,6 +122,9 @@ def main(argv=None) -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4])
     ap.add_argument("--seconds", type=float, default=30.0)
     ap.add_argument("--trace-every", type=float, default=0.0, help="print a trace every S s of each run (0: none)")
+    ap.add_argument("--bank", action="store_true",
+                    help="also the GNSS yaw bank: when it first said valid (s after the start, '-' never), its largest "
+                         "true-yaw error while valid (deg) and the share of its valid samples beyond its own 3σ")
     ap.add_argument("--tilt", action="store_true",
                     help="also the tilt RMS before / after 30 s (deg) and the share of tilt errors beyond 3 hypot(σ_roll, "
                          "σ_pitch) after")
@@ -115,17 +133,20 @@ def main(argv=None) -> None:
     print(f"# {args.scenario}, calibrated (0.5° stated), {args.seconds:g} s from each start: first rejection (s "
           f"after the start), rejections, yaw resets, heading RMS before / after {SETTLE_S:g} s (deg), beyond 3σ after")
     print(f"{'site':>10} {'start':>6} {'seed':>4} {'first':>6} {'rej':>3} {'rst':>3} {'early':>7} {'late':>7} "
-          f"{'>3σ':>6}" + (f" {'tilt e':>7} {'tilt l':>7} {'>3σ':>6}" if args.tilt else ""))
+          f"{'>3σ':>6}" + (f" {'tilt e':>7} {'tilt l':>7} {'>3σ':>6}" if args.tilt else "")
+          + (f" {'bank v':>6} {'worst':>7} {'>3σ':>6}" if args.bank else ""))
     rejected = 0
     for site in args.sites:
         for start in args.starts:
             for seed in args.seeds:
-                r = one_run(args.scenario, site, seed, start, args.seconds, args.trace_every)
+                r = one_run(args.scenario, site, seed, start, args.seconds, args.trace_every, args.bank)
                 rejected += r["rejections"] > 0
                 first = "-" if r["first"] is None else f"{r['first']:.1f}"
                 print(f"{site:>10} {start:6.0f} {seed:4d} {first:>6} {r['rejections']:3d} {r['resets']:3d} "
                       f"{r['early']:7.2f} {r['late']:7.2f} {100 * r['beyond']:5.1f}%"
-                      + (f" {r['tilt_early']:7.2f} {r['tilt_late']:7.2f} {100 * r['tilt_beyond']:5.1f}%" if args.tilt else ""),
+                      + (f" {r['tilt_early']:7.2f} {r['tilt_late']:7.2f} {100 * r['tilt_beyond']:5.1f}%" if args.tilt else "")
+                      + (f" {'-' if r['bank_first_valid'] is None else format(r['bank_first_valid'], '.1f'):>6} "
+                         f"{r['bank_worst_deg']:7.2f} {100 * r['bank_beyond']:5.1f}%" if args.bank else ""),
                       flush=True)
     print(f"# runs with a rejection: {rejected} of {len(args.sites) * len(args.starts) * len(args.seeds)}")
 

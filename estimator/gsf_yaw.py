@@ -38,6 +38,15 @@ the fix's time of validity (up to `max_fix_delay_s` old); the correction is appl
 shifts the ring's stored velocities by the same amount, so a later fix valid before this one is not fused
 against stale predictions.
 
+Levelling (`_align_tilt`, after a reset without a tilt): on the specific force less the same kinematic
+acceleration, once that is within 10 % of g. Before the first GNSS speed that acceleration is unknown and taken
+as zero; the first fix then measures the lean this levelling took (`_lean_unchecked`: the angle between f and
+f − a) and, beyond `relevel_min_lean_rad` (5°, a one-interval levelling's 1σ), the bank levels again on
+f − a. ArduPilot and PX4 level on the raw force within 0.9–1.1 g: a restart in a coordinated turn
+banked up to 25° levels on the bank angle, a harder one waits and levels on a leaning force in the roll-out,
+and the hypotheses then fit their velocities through a tilt tens of degrees off while it converges at 0.2 /s:
+a plane restarted in a 29° turn was valid and 179° off at σ 5–9° (docs/estimator.md "bank39").
+
 Validity (`state.valid`), re-evaluated at every prediction step: all of
   1. composite σ < `sigma_valid_max_rad` (AP/PX4: 15°);
   2. ≥ `valid_fixes_required` consecutive fused fixes whose σ and weighted velocity innovation
@@ -122,6 +131,12 @@ class GsfParams:
     tilt_align_gain_per_s: float = 1.0
     """... during the first `tilt_align_s` after a reset, 1/s."""
     tilt_align_s: float = 5.0
+    relevel_min_lean_rad: float = math.radians(5.0)
+    """A levelling made before any GNSS speed is done again at the first fix when the kinematic acceleration the
+    fix's speed tells leaned it by more than this (`_lean_unchecked`): the 1σ of a levelling from one interval
+    of the specific force (what the `ins` states at a start and levels again beyond, estimator/ins_start.py
+    `first_fix_in_turn`); a smaller lean is within what the fast tilt gain removes while a wave's or a bump's
+    acceleration in that one interval would make levelling again no better."""
     speed_rate_tau_s: float = 0.2
     """Low-pass time constant of the rate of change of the GNSS speed (the tilt AHRS's longitudinal
     acceleration), s."""
@@ -204,6 +219,7 @@ def gsf_state_dtype(n_models: int = 5) -> np.dtype:
         ("acc_dtheta_rad", np.float64, (3,)),
         ("acc_dvel_m_s", np.float64, (3,)),
         ("rate_rad_s", np.float64, (3,)),              # body rate over the last prediction interval
+        ("force_m_s2", np.float64, (3,)),              # specific force over the last prediction interval
         # GNSS bookkeeping
         ("have_prev_fix", np.bool_),
         ("prev_fix_t_s", np.float64),
@@ -218,6 +234,7 @@ def gsf_state_dtype(n_models: int = 5) -> np.dtype:
         ("last_manoeuvre_t_s", np.float64),            # NaN: none since the reset
         # status
         ("tilt_aligned", np.bool_),
+        ("tilt_without_speed", np.bool_),              # levelled before any GNSS speed: its lean is unchecked
         ("vel_seeded", np.bool_),
         ("reset_t_s", np.float64),
         ("n_passing_fixes", np.int64),                 # consecutive
@@ -346,6 +363,7 @@ def gsf_reset(state, params, t_s, tilt_q_wxyz):
     state.ring_count = 0
     state.t_s = t_s
     state.tilt_aligned = have_tilt
+    state.tilt_without_speed = False
     state.vel_seeded = False
     state.reset_t_s = t_s
     state.last_fused_t_s = np.nan
@@ -408,15 +426,18 @@ def _predict(state, params):
     state.rate_rad_s[1] = th[1] / dt
     state.rate_rad_s[2] = th[2] / dt
     fx, fy, fz = dvb[0] / dt, dvb[1] / dt, dvb[2] / dt
+    state.force_m_s2[0] = fx
+    state.force_m_s2[1] = fy
+    state.force_m_s2[2] = fz
+    acc_x, acc_y, acc_z = _kinematic_acceleration(state)
+    # the measured vertical less the kinematic acceleration, the same for every model
+    ux, uy, uz = fx - acc_x, fy - acc_y, fz - acc_z
     if not state.tilt_aligned:
-        _align_tilt(state, fx, fy, fz)
+        _align_tilt(state, ux, uy, uz)
         _clear_accumulators(state)
         return
     gain = params.tilt_align_gain_per_s if state.t_s - state.reset_t_s < params.tilt_align_s \
         else params.tilt_gain_per_s
-    acc_x, acc_y, acc_z = _kinematic_acceleration(state)
-    # the measured vertical less the kinematic acceleration, the same for every model
-    ux, uy, uz = fx - acc_x, fy - acc_y, fz - acc_z
     lx, ly, lz = params.lever_arm_m[0], params.lever_arm_m[1], params.lever_arm_m[2]
     wx, wy, wz = state.rate_rad_s[0], state.rate_rad_s[1], state.rate_rad_s[2]
     # ω × r: the antenna's velocity relative to the IMU, body frame
@@ -446,15 +467,21 @@ def _predict(state, params):
 
 
 @njit(cache=True)
-def _align_tilt(state, fx, fy, fz):
-    """Level every model's attitude from the specific force (roll, pitch; yaws kept) once it is within 10 % of g."""
-    f_norm = math.sqrt(fx * fx + fy * fy + fz * fz)
+def _align_tilt(state, ux, uy, uz):
+    """Level every model's attitude (roll, pitch; yaws kept) on the specific force less the kinematic acceleration
+    (`_kinematic_acceleration`: what the tilt AHRS takes for the vertical) once that is within 10 % of g. Before any
+    GNSS speed the kinematic acceleration is taken as zero and the levelling is marked unchecked
+    (`_lean_unchecked`): in a turn the specific force g_up + ω × v leans by atan(|ω × v|/g), 20–30° in a hard one,
+    and a raw-force gate (ArduPilot's and PX4's 0.9–1.1 g) lets a lean of up to 25° through, or waits out the turn
+    and levels on it later at the slow gain."""
+    f_norm = math.sqrt(ux * ux + uy * uy + uz * uz)
     if abs(f_norm - STANDARD_GRAVITY_M_S2) < 0.1 * STANDARD_GRAVITY_M_S2:
-        roll = math.atan2(-fy, -fz)
-        pitch = math.atan2(fx, math.sqrt(fy * fy + fz * fz))
+        roll = math.atan2(-uy, -uz)
+        pitch = math.atan2(ux, math.sqrt(uy * uy + uz * uz))
         for i in range(state.weight.shape[0]):
             set_dcm_from_euler(state.dcm[i], state.yaw_rad[i], pitch, roll)
         state.tilt_aligned = True
+        state.tilt_without_speed = not state.have_prev_fix
 
 
 @njit(cache=True, inline="always")
@@ -670,8 +697,10 @@ def gsf_fuse_velocity(state, params, t_s, vel_ne_m_s, vel_sigma_m_s):
     r = max(vel_sigma_m_s, params.vel_sigma_floor_m_s) ** 2
     gap = math.isnan(state.last_fused_t_s) or t_s - state.last_fused_t_s > params.max_fix_gap_s
     if not state.vel_seeded or gap:
-        _seed_velocities(state, t_s, vn, ve, r)
         _gnss_kinematics(state, params, t_s, vn, ve, vd, has_down)
+        if state.tilt_without_speed and _lean_unchecked(state, params):
+            return WAITING_FOR_TILT
+        _seed_velocities(state, t_s, vn, ve, r)
         return SEEDED
     clip2 = params.innov_clip_sigma ** 2
     n_clipped = _innovations(state, t_s, vn, ve, r, clip2)
@@ -695,6 +724,33 @@ def gsf_fuse_velocity(state, params, t_s, vel_ne_m_s, vel_sigma_m_s):
 def gsf_fuse_velocity_of(states, params, t_s, vel_ne_m_s, vel_sigma_m_s):
     """`gsf_fuse_velocity` of the bank and its parameters held as 1-element arrays (as `gsf_output_of`)."""
     return gsf_fuse_velocity(states[0], params[0], t_s, vel_ne_m_s, vel_sigma_m_s)
+
+
+@njit(cache=True)
+def _lean_unchecked(state, params):
+    """The first GNSS speed after a levelling made without one: how far did the kinematic acceleration it took as
+    zero lean the vertical? u = f − a with a = (V̇, ω_z V, −ω_y V) at the newest interval's force and rate; the
+    angle between f and u is the levelling's tilt error. Beyond `relevel_min_lean_rad` the bank levels again at
+    its next prediction, on u, its ring
+    emptied (its predictions were made at the leaned tilt). Returns True when it levels again (the fix is not
+    used: the next one seeds the velocities)."""
+    state.tilt_without_speed = False
+    fx, fy, fz = state.force_m_s2[0], state.force_m_s2[1], state.force_m_s2[2]
+    ax, ay, az = _kinematic_acceleration(state)
+    ux, uy, uz = fx - ax, fy - ay, fz - az
+    # |f × u| / (|f| |u|) = sin of the angle between them
+    cx, cy, cz = fy * uz - fz * uy, fz * ux - fx * uz, fx * uy - fy * ux
+    nf = math.sqrt(fx * fx + fy * fy + fz * fz)
+    nu = math.sqrt(ux * ux + uy * uy + uz * uz)
+    if not (nf > 0.0 and nu > 0.0):
+        return False
+    sin_lean = math.sqrt(cx * cx + cy * cy + cz * cz) / (nf * nu)
+    if sin_lean <= math.sin(params.relevel_min_lean_rad):
+        return False
+    state.tilt_aligned = False
+    state.ring_count = 0
+    state.ring_next = 0
+    return True
 
 
 @njit(cache=True)

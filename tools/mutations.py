@@ -1160,4 +1160,15 @@ MUTATIONS: tuple[Mutation, ...] = (
              '"resolved": "https://registry.npmjs.org/signalk-server/-/signalk-server-2.23.0.tgz",',
              '"resolved_by": "https://registry.npmjs.org/signalk-server/-/signalk-server-2.23.0.tgz",',
              ("tests/test_signalk_install.py",)),
+    # ------------------------------------------------------------------ session 39 (bank)
+    Mutation("bank-level-on-force-less-turn", "the GNSS yaw bank levels on the specific force less the kinematic "
+             "acceleration", "estimator/gsf_yaw.py", "        _align_tilt(state, ux, uy, uz)",
+             "        _align_tilt(state, fx, fy, fz)", ("tests/test_gsf_yaw_turning_restart.py",)),
+    Mutation("bank-lean-checked-at-first-speed", "a levelling made before any GNSS speed is checked at the first fix "
+             "and done again when the turn leaned it", "estimator/gsf_yaw.py",
+             "        if state.tilt_without_speed and _lean_unchecked(state, params):",
+             "        if False:", ("tests/test_gsf_yaw_turning_restart.py",)),
+    Mutation("bank-lean-tolerance", "the lean the first fix tolerates is relevel_min_lean_rad (5°), not 30°",
+             "estimator/gsf_yaw.py", "    if sin_lean <= math.sin(params.relevel_min_lean_rad):",
+             "    if sin_lean <= 0.5:", ("tests/test_gsf_yaw_turning_restart.py",)),
 )
