@@ -5,6 +5,8 @@ readable and asks for the next one `--hz` times a second, as the daemon's output
 
     .venv/bin/python bench/reader_calls.py [--seconds 20] [--hz 70] [--profile]
     .venv/bin/python bench/reader_calls.py --numpy-block 12    # batching the decode with numpy, in a hot loop
+    .venv/bin/python bench/reader_calls.py --compiled-decode   # the burst decode in numba against Python, hot loop
+    .venv/bin/python bench/reader_calls.py --split             # + the reader's CPU from a wake to the next wait
 
 Prints, over the window (after a 4 s warm-up): the reads a second, the reader thread's CPU (user, system, and the
 scheduler's run time from /proc/PID/task/TID/schedstat) as a share of a core and per read, and the simulated chip's
@@ -42,6 +44,8 @@ def child(*args, **kwargs):
     READER_CALLS_PROFILE names the file to write."""
     from ahrsd.drivers import process_source, threaded_source
 
+    if os.environ.get("READER_CALLS_SPLIT"):
+        time_loop_work(threaded_source._Pacing)
     out = os.environ.get("READER_CALLS_PROFILE")
     if out:
         import cProfile
@@ -59,6 +63,27 @@ def child(*args, **kwargs):
 
         threaded_source.ThreadedSource._run = profiled_run
     return process_source._child(*args, **kwargs)
+
+
+def time_loop_work(pacing_class, cpu_ns=time.thread_time_ns) -> None:
+    """Count the reader thread's CPU between two waits (`wait_for_sample` of drivers.threaded_source._Pacing): the
+    per-read work from the wake's return to the next sleep (the read, the simulated chip, the hand-over tick), into
+    the reader's stats (`split_work_ns`, `split_loops`, reported as reader_ counters). The wait itself (the timer's
+    next read time, the sleep's system call and context switches) is left out."""
+    wait = pacing_class.wait_for_sample
+
+    def timed_wait(self):
+        entered = cpu_ns()
+        left = getattr(self, "_split_left_ns", None)
+        if left is not None:
+            self.stats["split_work_ns"] = self.stats.get("split_work_ns", 0) + entered - left
+            self.stats["split_loops"] = self.stats.get("split_loops", 0) + 1
+        try:
+            return wait(self)
+        finally:
+            self._split_left_ns = cpu_ns()
+
+    pacing_class.wait_for_sample = timed_wait
 
 
 def _threads(pid: int) -> dict[str, tuple[float, float, float]]:
@@ -162,14 +187,91 @@ def numpy_block_decode(frames: int, repeats: int = 5000) -> None:
               f"(blocks of {frames}, hot loop)")
 
 
+def compiled_decode(repeats: int = 200_000) -> None:
+    """Thread CPU a frame, in a hot loop, of the driver's burst checks and decode in Python (Adis16405.read_sample's
+    lines from the frame's bytes to the nine signed values: ND/EA agreement, supply bound, sign extension,
+    plausibility and full-scale bounds) against one numba call doing the same and returning a tuple: what a
+    compiled decode would save per read before the cold caches of a real wake (numba's call and the tuple's boxing
+    included). Both give the same answer on a good, a mismatched, an implausible and a saturated frame."""
+    import struct
+    from operator import ge, gt
+
+    import numba
+    import numpy as np
+
+    unpack = struct.Struct(">12H").unpack_from
+    lo_lsb, hi_lsb = 1000, 2000                     # supply bounds (drivers.adis16405: 3.0..6.0 V) as LSB here
+    plausible9, full9 = [10240] * 9, [8191] * 9
+    plausible_a, full_a = np.array(plausible9, np.int64), np.array(full9, np.int64)
+
+    def python(rx):
+        w0, w1, w2, w3, w4, w5, w6, w7, w8, w9, w10, _ = unpack(rx, 2)
+        both = w0 & w1 & w2 & w3 & w4 & w5 & w6 & w7 & w8 & w9 & 0xC000
+        if (w0 | w1 | w2 | w3 | w4 | w5 | w6 | w7 | w8 | w9) & 0xC000 != both:
+            return (1,)
+        if not lo_lsb <= w0 & 0x3FFF <= hi_lsb:
+            return (2,)
+        raw9 = [((x & 0x3FFF) ^ 0x2000) - 0x2000 for x in (w1, w2, w3, w4, w5, w6, w7, w8, w9)]
+        abs9 = list(map(abs, raw9))
+        if any(map(gt, abs9, plausible9)):
+            return (3,)
+        return (0, both, w0 & 0x3FFF, int(any(map(ge, abs9, full9))), w10, *raw9)
+
+    @numba.njit(cache=False)
+    def compiled(rx, plausible, full):
+        w = np.empty(12, np.int64)
+        for i in range(12):
+            w[i] = (rx[2 + 2 * i] << 8) | rx[3 + 2 * i]
+        both, either = 0xC000, 0
+        for i in range(10):
+            both &= w[i]
+            either |= w[i]
+        if either & 0xC000 != both:
+            return (1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+        if not lo_lsb <= w[0] & 0x3FFF <= hi_lsb:
+            return (2, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+        r = np.empty(9, np.int64)
+        sat = 0
+        for i in range(9):
+            r[i] = ((w[i + 1] & 0x3FFF) ^ 0x2000) - 0x2000
+            if abs(r[i]) > plausible[i]:
+                return (3, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+            if abs(r[i]) >= full[i]:
+                sat = 1
+        return (0, both, w[0] & 0x3FFF, sat, w[10], r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8])
+
+    def frame(supply, raw9, nd=0x8000, first_nd=0x8000):
+        words = [supply | first_nd] + [(r & 0x3FFF) | nd for r in raw9]
+        return bytes(2) + struct.pack(">12H", *words, 1234, 0)
+
+    good = frame(1500, [100, -200, 300, 4000, -10, 20, 1000, -2000, 3000])
+    cases = (good, frame(1500, [100] * 9, nd=0), frame(1500, [100] * 8 + [-12000]), frame(1500, [-8191] + [5] * 8),
+             frame(500, [1] * 9))
+    for rx in cases:
+        want, got = python(rx), compiled(rx, plausible_a, full_a)
+        assert tuple(got[:len(want)]) == want, (want, got)
+    for f, args in ((python, (good,)), (compiled, (good, plausible_a, full_a))) * 2:
+        t0 = time.thread_time()
+        for _ in range(repeats):
+            f(*args)
+        print(f"{f.__name__:9s} {1e6 * (time.thread_time() - t0) / repeats:5.2f} µs a frame (hot loop)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--hz", type=float, default=70.0, help="hand-overs a second the daemon asks for")
     ap.add_argument("--profile", action="store_true", help="the reader thread under cProfile: calls a read by part")
+    ap.add_argument("--split", action="store_true",
+                    help="also count the reader thread's CPU from each wake's return to the next wait")
+    ap.add_argument("--compiled-decode", action="store_true",
+                    help="only time, in a hot loop, the driver's burst checks and decode in Python against numba")
     ap.add_argument("--numpy-block", type=int, default=0, metavar="N",
                     help="only time, in a hot loop, the per-sample record against decoding N frames with numpy")
     args = ap.parse_args()
+    if args.compiled_decode:
+        compiled_decode()
+        return
     if args.numpy_block:
         numpy_block_decode(args.numpy_block)
         return
@@ -183,6 +285,8 @@ def main() -> None:
 
         profile_path = os.path.join(tempfile.mkdtemp(prefix="reader_calls_"), "reader.prof")
         os.environ["READER_CALLS_PROFILE"] = profile_path
+    if args.split:
+        os.environ["READER_CALLS_SPLIT"] = "1"
     process_source._child = child
     load0 = os.getloadavg()[0]
     src = process_source.ProcessSource(SensorConfig(source="sim", reader="process"))
@@ -221,6 +325,12 @@ def main() -> None:
           f"{100 * sim / secs:.2f} % ({1e6 * sim / reads:.1f} µs a read); own {1e6 * (run - sim) / reads:.1f} µs a read")
     others = sum(t1[tid][2] - t0[tid][2] for tid in t1 if tid in t0 and tid != busiest)
     print(f"the reader process's other threads: {100 * others / secs:.2f} % of a core")
+    loops = c1.get("reader_split_loops", 0) - c0.get("reader_split_loops", 0)
+    if loops:
+        work_s = (c1["reader_split_work_ns"] - c0["reader_split_work_ns"]) / 1e9
+        print(f"split: {loops / secs:.1f} loops a second, {1e6 * work_s / loops:.1f} µs of thread CPU "
+              f"from a wake to the next wait ({1e6 * (work_s - sim) / loops:.1f} µs without the simulated chip); "
+              f"the wait itself {1e6 * (run - work_s) / loops:.1f} µs")
     if profile_path:
         for line in _profile_lines(profile_path):
             print(line)

@@ -1144,4 +1144,12 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("wake-cause-shared-one-each", "the time two vCPUs' lost spans share sums every span of the one that "
              "meets a span of the other", "bench/wake_cause.py", "            k += 1", "            break",
              ("tests/test_bench_wake_cause.py",)),
+    # ------------------------------------------------------------------ session 39 (rdc)
+    Mutation("reader-split-wait-excluded", "bench/reader_calls.py --split counts the reader's CPU from a wake's "
+             "return to the next wait, not the wait itself", "bench/reader_calls.py",
+             "            self._split_left_ns = cpu_ns()", "            self._split_left_ns = entered",
+             ("tests/test_bench_reader_calls.py",)),
+    Mutation("reader-split-first-wait", "bench/reader_calls.py --split counts no work before the first wait",
+             "bench/reader_calls.py", 'left = getattr(self, "_split_left_ns", None)',
+             'left = getattr(self, "_split_left_ns", 0)', ("tests/test_bench_reader_calls.py",)),
 )
