@@ -7,6 +7,7 @@ readable and asks for the next one `--hz` times a second, as the daemon's output
     .venv/bin/python bench/reader_calls.py --numpy-block 12    # batching the decode with numpy, in a hot loop
     .venv/bin/python bench/reader_calls.py --compiled-decode   # the burst decode in numba against Python, hot loop
     .venv/bin/python bench/reader_calls.py --split             # + the reader's CPU from a wake to the next wait
+    .venv/bin/python bench/reader_calls.py --hot 20000         # the same per-read step with no sleep (caches kept)
 
 Prints, over the window (after a 4 s warm-up): the reads a second, the reader thread's CPU (user, system, and the
 scheduler's run time from /proc/PID/task/TID/schedstat) as a share of a core and per read, and the simulated chip's
@@ -257,6 +258,65 @@ def compiled_decode(repeats: int = 200_000) -> None:
         print(f"{f.__name__:9s} {1e6 * (time.thread_time() - t0) / repeats:5.2f} µs a frame (hot loop)")
 
 
+def hot_reads(reads: int = 20_000) -> dict:
+    """The reader thread's per-read step with its caches kept: drivers.threaded_source's loop (pacing, read, timer,
+    driver, record) over the simulated chip on a stepped clock whose waits only step it, so the thread runs read
+    after read without sleeping. Prints its CPU a read and the simulated chip's part (the transfers, timed in the
+    thread); against `--split`'s CPU from a wake to the next wait, the difference is what a read costs more after a
+    real sleep. No hand-over tick (no pipe) and no truth bookkeeping here."""
+    from ahrsd.drivers.sim_clock import ChipClock
+    from ahrsd.drivers.simulated import SimulatedAdis16405
+    from ahrsd.drivers.source import start_chip_source
+    from ahrsd.drivers.threaded_source import ThreadedSource
+
+    class SteppedClock(ChipClock):
+        t = 100.0
+
+        def __call__(self) -> float:
+            return self.t
+
+        def sleep(self, seconds: float) -> None:
+            self.t += max(0.0, seconds)
+
+        def sleep_until(self, t: float) -> None:
+            self.t = max(self.t, t)
+
+    clock = SteppedClock()
+    chip = SimulatedAdis16405("static", seed=3, clock=clock)
+    inner = start_chip_source(chip, "bench chip", clock=clock, self_test=False)
+    inner.driver.samples_as_records = True
+    chip_ns = [0]
+    transfer = chip.transfer
+
+    def timed_transfer(*args):
+        t0 = time.thread_time_ns()
+        try:
+            return transfer(*args)
+        finally:
+            chip_ns[0] += time.thread_time_ns() - t0
+
+    chip.transfer = timed_transfer
+    # room for every sample: each read hands its sample over as the reader's does (none dropped at a full buffer)
+    src = ThreadedSource(inner, clock=clock, sleep_until=clock.sleep_until, realtime=False, switch_interval_s=None,
+                         capacity_samples=2 * (1000 + reads))
+    marks: list[tuple[int, int, int]] = []      # (loops, thread CPU ns, chip ns) at the warm-up's end and the end
+
+    def count_loops(n=[0]):
+        n[0] += 1
+        if n[0] in (1000, 1000 + reads):
+            marks.append((n[0], time.thread_time_ns(), chip_ns[0]))
+            if len(marks) == 2:
+                src._stop.set()
+
+    src.after_read = count_loops
+    src.start()
+    src._thread.join()
+    src.close()
+    (n0, cpu0, chip0), (n1, cpu1, chip1) = marks
+    return {"loops": n1 - n0, "cpu_s": (cpu1 - cpu0) / 1e9, "chip_s": (chip1 - chip0) / 1e9,
+            "reads": src.stats["reads"], "stale": inner.stale_reads, "handed_over": len(src.poll())}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=20.0)
@@ -266,9 +326,18 @@ def main() -> None:
                     help="also count the reader thread's CPU from each wake's return to the next wait")
     ap.add_argument("--compiled-decode", action="store_true",
                     help="only time, in a hot loop, the driver's burst checks and decode in Python against numba")
+    ap.add_argument("--hot", type=int, default=0, metavar="N",
+                    help="only the reader thread's per-read step, N reads back to back on a stepped clock (caches kept)")
     ap.add_argument("--numpy-block", type=int, default=0, metavar="N",
                     help="only time, in a hot loop, the per-sample record against decoding N frames with numpy")
     args = ap.parse_args()
+    if args.hot:
+        r = hot_reads(args.hot)
+        loops, cpu_s, chip_s = r["loops"], r["cpu_s"], r["chip_s"]
+        print(f"hot: {loops} loops, {1e6 * cpu_s / loops:.1f} µs of thread CPU a loop, of which the simulated chip's "
+              f"transfers {1e6 * chip_s / loops:.1f} µs: {1e6 * (cpu_s - chip_s) / loops:.1f} µs without them "
+              f"({r['reads']} reads, {r['stale']} of them stale, {r['handed_over']} samples handed over)")
+        return
     if args.compiled_decode:
         compiled_decode()
         return

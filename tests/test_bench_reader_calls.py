@@ -60,3 +60,17 @@ def test_a_wait_that_raises_still_ends_the_wait():
             pass
         cpu.ns += 40
     assert pacing.stats == {"split_work_ns": 40, "split_loops": 1}
+
+
+def test_the_hot_loop_reads_each_sample_once_and_hands_every_one_over():
+    """`--hot`: the stepped clock paces the reader at the chip's sample times (a read per sample, few stale), the
+    counted window is the N loops asked after the warm-up, and every fresh sample is handed over (none dropped at a
+    full buffer, which would make the loop cheaper than the reader's)."""
+    from bench.reader_calls import hot_reads
+
+    r = hot_reads(500)
+    assert r["loops"] == 500
+    assert r["handed_over"] == r["reads"] - r["stale"]
+    assert r["reads"] == 1000 + 500 - 1          # warm-up and window; the stopping loop reads no more
+    assert r["stale"] < 0.05 * r["reads"]
+    assert 0.0 < r["chip_s"] < r["cpu_s"]

@@ -1152,4 +1152,10 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("reader-split-first-wait", "bench/reader_calls.py --split counts no work before the first wait",
              "bench/reader_calls.py", 'left = getattr(self, "_split_left_ns", None)',
              'left = getattr(self, "_split_left_ns", 0)', ("tests/test_bench_reader_calls.py",)),
+    Mutation("reader-hot-every-sample-handed", "bench/reader_calls.py --hot hands every fresh sample over (no drop "
+             "at a full buffer)", "bench/reader_calls.py", "capacity_samples=2 * (1000 + reads))",
+             "capacity_samples=100)", ("tests/test_bench_reader_calls.py",)),
+    Mutation("reader-hot-window", "bench/reader_calls.py --hot counts the N loops after the warm-up",
+             "bench/reader_calls.py", "if n[0] in (1000, 1000 + reads):", "if n[0] in (1, 1000 + reads):",
+             ("tests/test_bench_reader_calls.py",)),
 )
