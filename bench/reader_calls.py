@@ -327,7 +327,8 @@ def main() -> None:
     ap.add_argument("--compiled-decode", action="store_true",
                     help="only time, in a hot loop, the driver's burst checks and decode in Python against numba")
     ap.add_argument("--hot", type=int, default=0, metavar="N",
-                    help="only the reader thread's per-read step, N reads back to back on a stepped clock (caches kept)")
+                    help="only the reader thread's per-read step, N reads back to back on a stepped clock "
+                         "(caches kept)")
     ap.add_argument("--numpy-block", type=int, default=0, metavar="N",
                     help="only time, in a hot loop, the per-sample record against decoding N frames with numpy")
     args = ap.parse_args()
@@ -358,7 +359,10 @@ def main() -> None:
         os.environ["READER_CALLS_SPLIT"] = "1"
     process_source._child = child
     load0 = os.getloadavg()[0]
+    spawned = time.monotonic()
     src = process_source.ProcessSource(SensorConfig(source="sim", reader="process"))
+    started = time.monotonic()          # the reader process spawned, its imports done, the chip started
+    first_sample: list[float] = []
     period = 1.0 / args.hz
 
     def take(until: float) -> int:
@@ -367,6 +371,8 @@ def main() -> None:
         while time.monotonic() < until:
             if select.select([src.ready_fd], [], [], 0.05)[0]:
                 n += len(src.poll())
+                if n and not first_sample:
+                    first_sample.append(time.monotonic())
                 src.hand_over_by(math.ceil(time.monotonic() / period) * period)
         return n
 
@@ -386,6 +392,9 @@ def main() -> None:
     reads = c1["reader_reads"] - c0["reader_reads"]
     print(f"machine: {os.cpu_count()} CPUs, load average {load0:.2f} → {os.getloadavg()[0]:.2f}; {secs:.1f} s, "
           f"{reads / secs:.1f} reads a second, {taken / secs:.1f} samples taken a second, {args.hz:g} hand-overs asked")
+    if first_sample:
+        print(f"the reader process: started {started - spawned:.2f} s after its spawn, the first sample taken "
+              f"{first_sample[0] - spawned:.2f} s after the spawn")
     busiest = max((tid for tid in t1 if tid in t0), key=lambda tid: t1[tid][2] - t0[tid][2])
     user, sys_, run = (t1[busiest][i] - t0[busiest][i] for i in range(3))
     sim = c1.get("sensor_simulated_cpu_s", 0.0) - c0.get("sensor_simulated_cpu_s", 0.0)
