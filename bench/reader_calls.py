@@ -5,6 +5,9 @@ readable and asks for the next one `--hz` times a second, as the daemon's output
 
     .venv/bin/python bench/reader_calls.py [--seconds 20] [--hz 70] [--profile]
     .venv/bin/python bench/reader_calls.py --numpy-block 12    # batching the decode with numpy, in a hot loop
+    .venv/bin/python bench/reader_calls.py --compiled-decode   # the burst decode in numba against Python, hot loop
+    .venv/bin/python bench/reader_calls.py --split             # + the reader's CPU from a wake to the next wait
+    .venv/bin/python bench/reader_calls.py --hot 20000         # the same per-read step with no sleep (caches kept)
 
 Prints, over the window (after a 4 s warm-up): the reads a second, the reader thread's CPU (user, system, and the
 scheduler's run time from /proc/PID/task/TID/schedstat) as a share of a core and per read, and the simulated chip's
@@ -42,6 +45,8 @@ def child(*args, **kwargs):
     READER_CALLS_PROFILE names the file to write."""
     from ahrsd.drivers import process_source, threaded_source
 
+    if os.environ.get("READER_CALLS_SPLIT"):
+        time_loop_work(threaded_source._Pacing)
     out = os.environ.get("READER_CALLS_PROFILE")
     if out:
         import cProfile
@@ -59,6 +64,27 @@ def child(*args, **kwargs):
 
         threaded_source.ThreadedSource._run = profiled_run
     return process_source._child(*args, **kwargs)
+
+
+def time_loop_work(pacing_class, cpu_ns=time.thread_time_ns) -> None:
+    """Count the reader thread's CPU between two waits (`wait_for_sample` of drivers.threaded_source._Pacing): the
+    per-read work from the wake's return to the next sleep (the read, the simulated chip, the hand-over tick), into
+    the reader's stats (`split_work_ns`, `split_loops`, reported as reader_ counters). The wait itself (the timer's
+    next read time, the sleep's system call and context switches) is left out."""
+    wait = pacing_class.wait_for_sample
+
+    def timed_wait(self):
+        entered = cpu_ns()
+        left = getattr(self, "_split_left_ns", None)
+        if left is not None:
+            self.stats["split_work_ns"] = self.stats.get("split_work_ns", 0) + entered - left
+            self.stats["split_loops"] = self.stats.get("split_loops", 0) + 1
+        try:
+            return wait(self)
+        finally:
+            self._split_left_ns = cpu_ns()
+
+    pacing_class.wait_for_sample = timed_wait
 
 
 def _threads(pid: int) -> dict[str, tuple[float, float, float]]:
@@ -162,14 +188,160 @@ def numpy_block_decode(frames: int, repeats: int = 5000) -> None:
               f"(blocks of {frames}, hot loop)")
 
 
+def compiled_decode(repeats: int = 200_000) -> None:
+    """Thread CPU a frame, in a hot loop, of the driver's burst checks and decode in Python (Adis16405.read_sample's
+    lines from the frame's bytes to the nine signed values: ND/EA agreement, supply bound, sign extension,
+    plausibility and full-scale bounds) against one numba call doing the same and returning a tuple: what a
+    compiled decode would save per read before the cold caches of a real wake (numba's call and the tuple's boxing
+    included). Both give the same answer on a good, a mismatched, an implausible and a saturated frame."""
+    import struct
+    from operator import ge, gt
+
+    import numba
+    import numpy as np
+
+    unpack = struct.Struct(">12H").unpack_from
+    lo_lsb, hi_lsb = 1000, 2000                     # supply bounds (drivers.adis16405: 3.0..6.0 V) as LSB here
+    plausible9, full9 = [10240] * 9, [8191] * 9
+    plausible_a, full_a = np.array(plausible9, np.int64), np.array(full9, np.int64)
+
+    def python(rx):
+        w0, w1, w2, w3, w4, w5, w6, w7, w8, w9, w10, _ = unpack(rx, 2)
+        both = w0 & w1 & w2 & w3 & w4 & w5 & w6 & w7 & w8 & w9 & 0xC000
+        if (w0 | w1 | w2 | w3 | w4 | w5 | w6 | w7 | w8 | w9) & 0xC000 != both:
+            return (1,)
+        if not lo_lsb <= w0 & 0x3FFF <= hi_lsb:
+            return (2,)
+        raw9 = [((x & 0x3FFF) ^ 0x2000) - 0x2000 for x in (w1, w2, w3, w4, w5, w6, w7, w8, w9)]
+        abs9 = list(map(abs, raw9))
+        if any(map(gt, abs9, plausible9)):
+            return (3,)
+        return (0, both, w0 & 0x3FFF, int(any(map(ge, abs9, full9))), w10, *raw9)
+
+    @numba.njit(cache=False)
+    def compiled(rx, plausible, full):
+        w = np.empty(12, np.int64)
+        for i in range(12):
+            w[i] = (rx[2 + 2 * i] << 8) | rx[3 + 2 * i]
+        both, either = 0xC000, 0
+        for i in range(10):
+            both &= w[i]
+            either |= w[i]
+        if either & 0xC000 != both:
+            return (1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+        if not lo_lsb <= w[0] & 0x3FFF <= hi_lsb:
+            return (2, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+        r = np.empty(9, np.int64)
+        sat = 0
+        for i in range(9):
+            r[i] = ((w[i + 1] & 0x3FFF) ^ 0x2000) - 0x2000
+            if abs(r[i]) > plausible[i]:
+                return (3, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+            if abs(r[i]) >= full[i]:
+                sat = 1
+        return (0, both, w[0] & 0x3FFF, sat, w[10], r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8])
+
+    def frame(supply, raw9, nd=0x8000, first_nd=0x8000):
+        words = [supply | first_nd] + [(r & 0x3FFF) | nd for r in raw9]
+        return bytes(2) + struct.pack(">12H", *words, 1234, 0)
+
+    good = frame(1500, [100, -200, 300, 4000, -10, 20, 1000, -2000, 3000])
+    cases = (good, frame(1500, [100] * 9, nd=0), frame(1500, [100] * 8 + [-12000]), frame(1500, [-8191] + [5] * 8),
+             frame(500, [1] * 9))
+    for rx in cases:
+        want, got = python(rx), compiled(rx, plausible_a, full_a)
+        assert tuple(got[:len(want)]) == want, (want, got)
+    for f, args in ((python, (good,)), (compiled, (good, plausible_a, full_a))) * 2:
+        t0 = time.thread_time()
+        for _ in range(repeats):
+            f(*args)
+        print(f"{f.__name__:9s} {1e6 * (time.thread_time() - t0) / repeats:5.2f} µs a frame (hot loop)")
+
+
+def hot_reads(reads: int = 20_000) -> dict:
+    """The reader thread's per-read step with its caches kept: drivers.threaded_source's loop (pacing, read, timer,
+    driver, record) over the simulated chip on a stepped clock whose waits only step it, so the thread runs read
+    after read without sleeping. Prints its CPU a read and the simulated chip's part (the transfers, timed in the
+    thread); against `--split`'s CPU from a wake to the next wait, the difference is what a read costs more after a
+    real sleep. No hand-over tick (no pipe) and no truth bookkeeping here."""
+    from ahrsd.drivers.sim_clock import ChipClock
+    from ahrsd.drivers.simulated import SimulatedAdis16405
+    from ahrsd.drivers.source import start_chip_source
+    from ahrsd.drivers.threaded_source import ThreadedSource
+
+    class SteppedClock(ChipClock):
+        t = 100.0
+
+        def __call__(self) -> float:
+            return self.t
+
+        def sleep(self, seconds: float) -> None:
+            self.t += max(0.0, seconds)
+
+        def sleep_until(self, t: float) -> None:
+            self.t = max(self.t, t)
+
+    clock = SteppedClock()
+    chip = SimulatedAdis16405("static", seed=3, clock=clock)
+    inner = start_chip_source(chip, "bench chip", clock=clock, self_test=False)
+    inner.driver.samples_as_records = True
+    chip_ns = [0]
+    transfer = chip.transfer
+
+    def timed_transfer(*args):
+        t0 = time.thread_time_ns()
+        try:
+            return transfer(*args)
+        finally:
+            chip_ns[0] += time.thread_time_ns() - t0
+
+    chip.transfer = timed_transfer
+    # room for every sample: each read hands its sample over as the reader's does (none dropped at a full buffer)
+    src = ThreadedSource(inner, clock=clock, sleep_until=clock.sleep_until, realtime=False, switch_interval_s=None,
+                         capacity_samples=2 * (1000 + reads))
+    marks: list[tuple[int, int, int]] = []      # (loops, thread CPU ns, chip ns) at the warm-up's end and the end
+
+    def count_loops(n=[0]):
+        n[0] += 1
+        if n[0] in (1000, 1000 + reads):
+            marks.append((n[0], time.thread_time_ns(), chip_ns[0]))
+            if len(marks) == 2:
+                src._stop.set()
+
+    src.after_read = count_loops
+    src.start()
+    src._thread.join()
+    src.close()
+    (n0, cpu0, chip0), (n1, cpu1, chip1) = marks
+    return {"loops": n1 - n0, "cpu_s": (cpu1 - cpu0) / 1e9, "chip_s": (chip1 - chip0) / 1e9,
+            "reads": src.stats["reads"], "stale": inner.stale_reads, "handed_over": len(src.poll())}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--hz", type=float, default=70.0, help="hand-overs a second the daemon asks for")
     ap.add_argument("--profile", action="store_true", help="the reader thread under cProfile: calls a read by part")
+    ap.add_argument("--split", action="store_true",
+                    help="also count the reader thread's CPU from each wake's return to the next wait")
+    ap.add_argument("--compiled-decode", action="store_true",
+                    help="only time, in a hot loop, the driver's burst checks and decode in Python against numba")
+    ap.add_argument("--hot", type=int, default=0, metavar="N",
+                    help="only the reader thread's per-read step, N reads back to back on a stepped clock "
+                         "(caches kept)")
     ap.add_argument("--numpy-block", type=int, default=0, metavar="N",
                     help="only time, in a hot loop, the per-sample record against decoding N frames with numpy")
     args = ap.parse_args()
+    if args.hot:
+        r = hot_reads(args.hot)
+        loops, cpu_s, chip_s = r["loops"], r["cpu_s"], r["chip_s"]
+        print(f"hot: {loops} loops, {1e6 * cpu_s / loops:.1f} µs of thread CPU a loop, of which the simulated chip's "
+              f"transfers {1e6 * chip_s / loops:.1f} µs: {1e6 * (cpu_s - chip_s) / loops:.1f} µs without them "
+              f"({r['reads']} reads, {r['stale']} of them stale, {r['handed_over']} samples handed over)")
+        return
+    if args.compiled_decode:
+        compiled_decode()
+        return
     if args.numpy_block:
         numpy_block_decode(args.numpy_block)
         return
@@ -183,9 +355,14 @@ def main() -> None:
 
         profile_path = os.path.join(tempfile.mkdtemp(prefix="reader_calls_"), "reader.prof")
         os.environ["READER_CALLS_PROFILE"] = profile_path
+    if args.split:
+        os.environ["READER_CALLS_SPLIT"] = "1"
     process_source._child = child
     load0 = os.getloadavg()[0]
+    spawned = time.monotonic()
     src = process_source.ProcessSource(SensorConfig(source="sim", reader="process"))
+    started = time.monotonic()          # the reader process spawned, its imports done, the chip started
+    first_sample: list[float] = []
     period = 1.0 / args.hz
 
     def take(until: float) -> int:
@@ -194,6 +371,8 @@ def main() -> None:
         while time.monotonic() < until:
             if select.select([src.ready_fd], [], [], 0.05)[0]:
                 n += len(src.poll())
+                if n and not first_sample:
+                    first_sample.append(time.monotonic())
                 src.hand_over_by(math.ceil(time.monotonic() / period) * period)
         return n
 
@@ -213,6 +392,9 @@ def main() -> None:
     reads = c1["reader_reads"] - c0["reader_reads"]
     print(f"machine: {os.cpu_count()} CPUs, load average {load0:.2f} → {os.getloadavg()[0]:.2f}; {secs:.1f} s, "
           f"{reads / secs:.1f} reads a second, {taken / secs:.1f} samples taken a second, {args.hz:g} hand-overs asked")
+    if first_sample:
+        print(f"the reader process: started {started - spawned:.2f} s after its spawn, the first sample taken "
+              f"{first_sample[0] - spawned:.2f} s after the spawn")
     busiest = max((tid for tid in t1 if tid in t0), key=lambda tid: t1[tid][2] - t0[tid][2])
     user, sys_, run = (t1[busiest][i] - t0[busiest][i] for i in range(3))
     sim = c1.get("sensor_simulated_cpu_s", 0.0) - c0.get("sensor_simulated_cpu_s", 0.0)
@@ -221,6 +403,12 @@ def main() -> None:
           f"{100 * sim / secs:.2f} % ({1e6 * sim / reads:.1f} µs a read); own {1e6 * (run - sim) / reads:.1f} µs a read")
     others = sum(t1[tid][2] - t0[tid][2] for tid in t1 if tid in t0 and tid != busiest)
     print(f"the reader process's other threads: {100 * others / secs:.2f} % of a core")
+    loops = c1.get("reader_split_loops", 0) - c0.get("reader_split_loops", 0)
+    if loops:
+        work_s = (c1["reader_split_work_ns"] - c0["reader_split_work_ns"]) / 1e9
+        print(f"split: {loops / secs:.1f} loops a second, {1e6 * work_s / loops:.1f} µs of thread CPU "
+              f"from a wake to the next wait ({1e6 * (work_s - sim) / loops:.1f} µs without the simulated chip); "
+              f"the wait itself {1e6 * (run - work_s) / loops:.1f} µs")
     if profile_path:
         for line in _profile_lines(profile_path):
             print(line)

@@ -1171,4 +1171,18 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("bank-lean-tolerance", "the lean the first fix tolerates is relevel_min_lean_rad (5°), not 30°",
              "estimator/gsf_yaw.py", "    if sin_lean <= math.sin(params.relevel_min_lean_rad):",
              "    if sin_lean <= 0.5:", ("tests/test_gsf_yaw_turning_restart.py",)),
+    # ------------------------------------------------------------------ session 39 (rdc)
+    Mutation("reader-split-wait-excluded", "bench/reader_calls.py --split counts the reader's CPU from a wake's "
+             "return to the next wait, not the wait itself", "bench/reader_calls.py",
+             "            self._split_left_ns = cpu_ns()", "            self._split_left_ns = entered",
+             ("tests/test_bench_reader_calls.py",)),
+    Mutation("reader-split-first-wait", "bench/reader_calls.py --split counts no work before the first wait",
+             "bench/reader_calls.py", 'left = getattr(self, "_split_left_ns", None)',
+             'left = getattr(self, "_split_left_ns", 0)', ("tests/test_bench_reader_calls.py",)),
+    Mutation("reader-hot-every-sample-handed", "bench/reader_calls.py --hot hands every fresh sample over (no drop "
+             "at a full buffer)", "bench/reader_calls.py", "capacity_samples=2 * (1000 + reads))",
+             "capacity_samples=100)", ("tests/test_bench_reader_calls.py",)),
+    Mutation("reader-hot-window", "bench/reader_calls.py --hot counts the N loops after the warm-up",
+             "bench/reader_calls.py", "if n[0] in (1000, 1000 + reads):", "if n[0] in (1, 1000 + reads):",
+             ("tests/test_bench_reader_calls.py",)),
 )
