@@ -133,7 +133,7 @@ def main() -> int:
     total = sum(v[1] for v in stats.stats.values())
     builtin = sum(v[1] for k, v in stats.stats.items() if k[0] == "~")
     blocks = calls_of(stats, "sample_reader.py", "process")
-    samples = calls_of(stats, "pipeline.py", "_estimate")
+    samples = calls_of(stats, "ins.py", "step") + calls_of(stats, "mekf.py", "step")   # the estimator's steps
     sent = calls_of(stats, "mavlink_io.py", "send")
     print(f"profile {args.profile}, {wall:.1f} s: {blocks / wall:.1f} blocks/s, {samples / wall:.1f} samples/s, "
           f"{sent / wall:.1f} messages sent/s")
