@@ -127,7 +127,13 @@ def install() -> None:
     ProcessSource.poll = _timed("take blocks", ProcessSource.poll)
     process_source.unpack_block = _timed("take blocks: unpack", process_source.unpack_block)
     process_source.receive = _timed("take blocks: receive a message", process_source.receive)
-    Pipeline._estimate = _timed("per-sample path: estimator step", Pipeline._estimate)
+    estimator_setter = Pipeline.estimator.fset
+
+    def timed_estimator(self, estimator) -> None:          # the step the pipeline calls, timed (per instance)
+        estimator_setter(self, estimator)
+        if self._step is not None:
+            self._step = _timed("per-sample path: estimator step", self._step)
+    Pipeline.estimator = Pipeline.estimator.setter(timed_estimator)
     add = SampleListeners.add
     SampleListeners.add = lambda self, fn, **kw: add(self, _timed("per-sample path: listener " + _callback_name(fn),
                                                                   fn), **kw)

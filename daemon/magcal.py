@@ -201,10 +201,12 @@ class MagCalProtocol:
             self._executor = None
 
     # ------------------------------------------------------------------ per sample
-    def on_sample(self, sample, estimate: MagCalEstimate | None, mounting: np.ndarray | None = None) -> None:
+    def on_sample(self, sample, estimate: MagCalEstimate | None, mounting: np.ndarray | None = None,
+                  mag_model=None) -> None:
         """Every sample, calibrated with the calibration in force but in the SENSOR frame (calibrations are
         sensor-frame models: the pipeline calibrates before the mounting rotation), its estimate (body
-        attitude) and the mounting (body←sensor DCM, None = identity). Cheap when no session runs."""
+        attitude), the mounting (body←sensor DCM, None = identity) and the magnetometer model that calibrated it
+        (None: the host's calibration in force). Cheap when no session runs."""
         self._last_estimate = estimate
         self._mounting = mounting
         now = sample.t_s
@@ -212,7 +214,8 @@ class MagCalProtocol:
         q = self._recent_raw
         # with the magnetometer model that calibrated it, so the raw field can be recovered later, and the sample
         # (its gyro and specific force tell a still vehicle: worked out only when a fixed yaw asks)
-        q.append((now, sample.mag_ut, self.host.current_calibration().mag, sample))
+        q.append((now, sample.mag_ut, self.host.current_calibration().mag if mag_model is None else mag_model,
+                  sample))
         while q and now - q[0][0] > self.settings.fixed_yaw_average_s:
             q.popleft()
         s = self.session
@@ -695,10 +698,17 @@ class FieldCalibrationPart:
         calibrated sample before the mounting rotation, and the mounting. A running session gets every sample's
         immutable estimate; otherwise the protocol keeps the in-place one (a fixed-yaw calibration reads the
         latest attitude from it) and no estimate is built."""
+        # every sample (819.2 a second): the pipeline's attributes read directly, not through the properties and
+        # the host's calls that say the same (`calibrating`, `last_sensor_sample` — the sample itself without a
+        # mounting —, `current_calibration`), one Python call in all instead of five
         pipeline = self.host.pipeline
-        if self.protocol.calibrating:
+        protocol = self.protocol
+        session = protocol.session
+        if session is not None and session.status.running:
             estimate = pipeline.last_estimate
-        self.protocol.on_sample(pipeline.last_sensor_sample, estimate, pipeline.mounting)
+        mounting = pipeline.mounting
+        protocol.on_sample(sample if mounting is None else pipeline.last_sensor_sample, estimate, mounting,
+                           pipeline.calibration.mag)
         if self._tick_handle is None:
             self._tick_handle = asyncio.get_running_loop().call_soon(self._tick_and_rearm)
 

@@ -34,6 +34,7 @@ if mavutil.mavlink.WIRE_PROTOCOL_VERSION != "2.0" or mavutil.current_dialect != 
 mavlink = mavutil.mavlink   # the ardupilotmega MAVLink 2 module: message classes and enums
 
 from ahrsd.core import udp_drops  # noqa: E402
+from ahrsd.daemon.mavlink_frame import FramePacker  # noqa: E402
 from ahrsd.daemon.serial_queue import QUEUE_SECONDS, SerialOutQueue  # noqa: E402
 
 log = logging.getLogger(__name__)
@@ -56,6 +57,7 @@ def max_frame_bytes(message_id: int, signed: bool = False) -> int:
     return 12 + mavlink.mavlink_map[message_id].unpacker.size + (13 if signed else 0)
 
 
+_FRAMES = FramePacker()         # the unsigned frames every endpoint sends (one payload packer per message class)
 _SIZER = mavlink.MAVLink(None)   # packs a message only to learn its length: no file, no signing, its seq never moves
 
 
@@ -295,8 +297,18 @@ class Endpoint:
         queue = self.out_queue
         if queue is not None:
             queue.priority = self.priority_of(msg.get_msgId())
+        mav = self.conn.mav
         try:
-            self.conn.mav.send(msg)
+            if not mav.signing.sign_outgoing and mav.send_callback is None:
+                # what MAVLink.send does, the frame packed in one call (daemon.mavlink_frame: the same bytes)
+                buf = _FRAMES.frame(msg, mav.seq, mav.srcSystem, mav.srcComponent)
+                mav.file.write(buf)
+                mav.seq = (mav.seq + 1) % 256
+                mav.total_packets_sent += 1
+                mav.total_bytes_sent += len(buf)
+            else:
+                mav.send(msg)
+                buf = None
         except (OSError, ValueError, TypeError, OverflowError) as exc:
             self.counters.tx_errors += 1
             if self.conn is not None and self.conn.fd != self._fd:
@@ -307,8 +319,8 @@ class Endpoint:
         if queue is not None and not queue.accepted_last:
             return False                      # the link is behind: refused by priority, counted
         self.counters.tx_messages += 1
-        if self.traffic_log is not None:
-            self.traffic_log(msg.get_msgbuf())    # the bytes just packed (and signed) for this link
+        if self.traffic_log is not None:          # the bytes just packed (and signed) for this link
+            self.traffic_log(msg.get_msgbuf() if buf is None else buf)
         if self.conn.fd != self._fd:          # pymavlink dropped a TCP client on a write error (tcpin)
             self._register_fd()
         return True

@@ -61,6 +61,13 @@ class YawSlew:
         return sigma_rad + abs(offset_rad) / 3.0
 
 
+def slowest_rate_rad_s(rate_rad_s: float) -> float:
+    """The least rate `slew_rate_rad_s` gives for a configured `rate_rad_s`, whatever the σ and the offset: an offset
+    within this rate's step arrives in one `YawSlew.step` at any σ (what a caller may test before asking for the
+    step, and skip it)."""
+    return min(rate_rad_s, LARGE_OFFSET_MAX_RATE_RAD_S)
+
+
 def slew_rate_rad_s(rate_rad_s: float, sigma_rad: float, offset_rad: float) -> float:
     """The rate to slew at, for a configured `rate_rad_s`, the estimator's 1σ and the offset still to come:
     no more than LARGE_OFFSET_MAX_RATE_RAD_S while the σ sent for that offset (YawSlew.sigma_rad's rule, which

@@ -80,7 +80,8 @@ def test_the_field_calibration_ticker_ticks_at_its_rate_one_loop_wake_a_tick_and
     loop = VirtualTimeLoop()
     part = FieldCalibrationPart.__new__(FieldCalibrationPart)
     part._tick_handle = None
-    pipeline = SimpleNamespace(last_sensor_sample=None, last_estimate=None, mounting=None)
+    pipeline = SimpleNamespace(last_sensor_sample=None, last_estimate=None, mounting=None,
+                               calibration=SimpleNamespace(mag=None))
     part.host = SimpleNamespace(pipeline=pipeline)
     ticks: list[float] = []
 
@@ -89,7 +90,7 @@ def test_the_field_calibration_ticker_ticks_at_its_rate_one_loop_wake_a_tick_and
         if len(ticks) == 3:
             raise RuntimeError("tick bug")
 
-    part.protocol = SimpleNamespace(settings=SimpleNamespace(progress_rate_hz=8.0), calibrating=False,
+    part.protocol = SimpleNamespace(settings=SimpleNamespace(progress_rate_hz=8.0), calibrating=False, session=None,
                                     on_sample=lambda *a: None, close=lambda: None)
     part.tick = tick
 

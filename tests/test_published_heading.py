@@ -87,6 +87,19 @@ def test_a_faster_rate_is_held_to_2_deg_s_while_the_sigma_is_above_ekf3s_floor()
     assert all(abs(rate - 3.0) < 1e-6 for left, rate in rates if -13.4 < left < -0.1)
 
 
+def test_an_offset_within_the_configured_rates_step_is_held_to_2_deg_s_while_the_sigma_is_large():
+    """Configured at 10 °/s, σ 6° (σ sent 6° + |offset|/3 > 5° throughout): a 3° jump at rest, samples 0.5 s apart.
+    A step at the configured rate (5°) would take all of it at once; held to 2 °/s it takes 1° a step: the offset
+    is −2° right after the jump, then −1°, then 0 (worked by hand)."""
+    ph = PublishedHeading(math.radians(10.0))
+    sigma = math.radians(6.0)
+    ph.update(0.0, 0.0, 0.0, 0.0, (0.0, 0.0, 0.0), sigma)
+    offsets = [math.degrees(ph.update(0.5 * k, math.radians(3.0), 0.0, 0.0, (0.0, 0.0, 0.0), sigma))
+               for k in (1, 2, 3, 4)]
+    assert offsets == pytest.approx([-2.0, -1.0, 0.0, 0.0], abs=1e-9)
+    assert ph.absorbed == 1
+
+
 def test_a_jump_during_a_turn_is_absorbed_but_the_turn_is_not():
     """A 20 °/s turn with a 6° correction in it: the published yaw keeps turning at 20 °/s plus at most 2 °/s."""
     ph = PublishedHeading(RATE)

@@ -133,6 +133,76 @@ def test_a_calibration_swapped_by_a_listener_mid_block_applies_from_the_next_sam
         np.testing.assert_allclose(s.mag_ut, want[2], rtol=0, atol=1e-12)
 
 
+def test_the_field_calibration_gets_each_sample_in_the_sensor_frame_with_the_mag_model_that_calibrated_it():
+    """The field calibration's listener (daemon.magcal.FieldCalibrationPart) reads the pipeline's attributes
+    directly: it must still hand its protocol every sample calibrated but unrotated (a mounting rotates only the
+    body-frame sample), the mounting, and the magnetometer model of the calibration in force at that sample (one
+    swapped by a listener mid-block from the next sample), against the models' formulas by hand."""
+    from types import SimpleNamespace
+
+    from ahrsd.daemon.magcal import FieldCalibrationPart
+
+    for rpy in ([0.0, 0.0, 0.0], [0.0, 0.0, 90.0]):
+        old, new = _cal(1), _cal(7)
+        pipeline = Pipeline(_StubEstimator(), old)
+        pipeline.set_mounting(rpy)
+        given = []
+        part = FieldCalibrationPart.__new__(FieldCalibrationPart)
+        part._tick_handle = object()                       # its ticker runs already (tests/test_loop_tickers.py)
+        part.host = SimpleNamespace(pipeline=pipeline)
+        part.protocol = SimpleNamespace(session=None, on_sample=lambda *args: given.append(args))
+        reader = _reader(pipeline)
+        reader.listeners.add(part.on_sample, in_place=True)
+        reader.listeners.add(lambda s, e: setattr(pipeline, "calibration", new) if s.counter == 2 else None,
+                             in_place=True)
+        raw = _raw(range(6))
+        reader.process(unpack_block(pack(raw)), 100.0)
+        assert len(given) == 6
+        for (sample, _est, mounting, model), r in zip(given, raw):
+            cal = old if r.counter <= 2 else new
+            for got, want in zip((sample.gyro_rad_s, sample.accel_m_s2, sample.mag_ut), _by_hand(cal, r)):
+                np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+            assert model is cal.mag and mounting is pipeline.mounting and sample.counter == r.counter
+
+
+def test_a_sample_the_stepping_estimator_rejects_is_counted_and_resets_it_and_the_next_one_goes_on():
+    """An estimator with `step` (the daemon's path) raising ValueError at one sample: that sample gives no estimate,
+    it is counted in estimator_errors and the estimator is reset once; the samples after it are stepped as before."""
+    class Stepping:
+        name = "stepping"
+
+        def __init__(self):
+            self.stepped, self.resets = [], 0
+
+        def step(self, sample):
+            if sample.counter == 3:
+                raise ValueError("not finite")
+            self.stepped.append(sample.counter)
+            return _Est()
+
+        def update(self, sample):
+            raise AssertionError("a stepping estimator is stepped")
+
+        def reset(self):
+            self.resets += 1
+
+        def set_declination(self, declination_rad):
+            pass
+
+        def relearn_field_reference(self, heading_change_rad=float("nan")):
+            pass
+
+    from ahrsd.estimator.base import SteppingEstimator
+
+    est = Stepping()
+    assert isinstance(est, SteppingEstimator)
+    pipeline = Pipeline(est, _cal())
+    given = list(pipeline.process_block(unpack_block(pack(_raw(range(6))))))
+    assert [g is None for g in given] == [False, False, False, True, False, False]
+    assert est.stepped == [0, 1, 2, 4, 5] and est.resets == 1 and pipeline.counters.estimator_errors == 1
+    assert pipeline.counters.samples == 6 and pipeline.last_sample.counter == 5
+
+
 def test_the_vehicle_log_gets_every_raw_sample_of_a_block():
     logged = []
     pipeline = Pipeline(_StubEstimator(), _cal())
