@@ -12,7 +12,8 @@ Output-identical to that Python, to the bit: the element-wise arithmetic is the 
 (numba fuses no multiply-add unless asked, `fastmath` off), and the products numpy hands to BLAS (the quaternion's
 dot, C @ [ω×], C [ω×] @ r) are numba's `np.dot` and `@`, which call the same OpenBLAS kernels (scipy's copy of the
 library numpy bundles), whose fused multiply-adds a sum written out here would not reproduce
-(test_lever_arm_kernel.py checks the whole against the Python on simulated runs and random rows).
+(tools/estimate_digest.py: the same digests; test_lever_arm_kernel.py: the kernel against that Python on random
+history rings).
 """
 
 from __future__ import annotations

@@ -1,6 +1,7 @@
 """estimator/lever_arm_kernel.py: the lever-arm check's innovation at a fix, compiled, gives the floats the Python it
 replaced gave (InsGnssFusion.state_at's interpolation, history_rows.rows_near, lever_arm_fit.mean_rate and
-rate_cross_ned, the innovation v_fix − (v + C [ω×] r)) to the bit, on history rings with every case the fixes meet;
+rate_cross_ned, the innovation v_fix − (v + C [ω×] r)) to rounding (to the bit on this machine: the digests), on
+history rings with every case the fixes meet;
 and that innovation is the antenna's velocity residual, checked against scipy's rotation to rounding."""
 
 from __future__ import annotations
@@ -57,7 +58,7 @@ CASES = [(1, 0), (2, 5), (40, 10), (H, 3), (H, H - 1), (H, 500), (700, 200)]
 
 @pytest.mark.parametrize("count,newest", CASES)
 @pytest.mark.parametrize("rate_hz", [5.0, 100.0, 819.2])
-def test_the_kernels_terms_are_the_pythons_to_the_bit(count, newest, rate_hz):
+def test_the_kernels_terms_are_the_pythons(count, newest, rate_hz):
     """On rows, between rows, at the rate span's edges, after the newest row and before the oldest, a NaN time, a
     ring wrapped over its end, rows too sparse for any within the span (5 Hz: the interpolated rate), a vertical
     not used (NaN)."""
@@ -80,8 +81,12 @@ def test_the_kernels_terms_are_the_pythons_to_the_bit(count, newest, rate_hz):
         if want is None:
             continue
         checked += 1
+        # to rounding, not bit for bit: the products are OpenBLAS's in both, through numpy's copy of the library and
+        # scipy's (numba's); equal to the bit on the machine this was made on (tools/estimate_digest.py is the
+        # bit-for-bit check), but two wheels' copies may differ in a kernel's last bit, as numpy's SIMD loops did
+        # between CPUs (test_mag_rotation, session 39)
         for got, expected in zip((innovation, rate_cross, vel), want):
-            assert got.tobytes() == expected.tobytes(), (t, got, expected)
+            np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12, err_msg=str(t))
     assert checked >= 4        # a one-row ring finds only the times at or after its row
 
 
