@@ -22,9 +22,10 @@ from . import ins_core as core
 from .filter_output import float_field_slice
 from .gnss_intake import GnssFixIntake
 from .gsf_yaw import gsf_fuse_velocity_of, gsf_reset
-from .history_rows import bracket, rows_near
+from .history_rows import bracket
 from .kernel_entry import argument_types, entry_point
-from .lever_arm_fit import RATE_MEAN_S, LeverArmFit, LeverArmFitResult, mean_rate, rate_cross_ned
+from .lever_arm_fit import RATE_MEAN_S, LeverArmFit, LeverArmFitResult
+from .lever_arm_kernel import fix_innovation
 from .rotations import quat_to_dcm
 
 log = logging.getLogger("ahrsd.estimator.ins")    # the filter's own log: what the daemon's operator reads as ins's
@@ -51,9 +52,9 @@ class InsGnssFusion:
         self._intake = intake
         self._told_arm_m = told_arm_m
         self._gnss_yaw = gnss_yaw
-        # what each fix reads of the history (`state_at`, `_add_to_lever_arm_fit`): its times and body rates as
-        # views, its rows as flat float64 rows (one interpolation for the attitude, velocity and rate)
-        self._hist_t_s, self._hist_rate = hist["t_s"], hist["rate_rad_s"]
+        # what each fix reads of the history (`state_at`, `_add_to_lever_arm_fit`): its times as a view, its rows as
+        # flat float64 rows (one interpolation for the attitude, velocity and rate)
+        self._hist_t_s = hist["t_s"]
         self._hist_rows = hist.view(np.float64).reshape(core.H_LEN, -1)
         # the bank's per-fix kernel called with its 1-element arrays through its entry point (kernel_entry.py:
         # these arrays only): a record argument costs several µs to unbox, an array a fraction of one
@@ -63,6 +64,9 @@ class InsGnssFusion:
         # the dispatcher resolves 18 argument types at every call); `fuse` passes exactly these types
         gnss_args = (x_arr, P, hist, par_arr) + (0.0,) * 10 + (False,) * 4
         self._fuse_gnss = entry_point(core.fuse_gnss, argument_types(core.fuse_gnss, gnss_args))
+        # the lever-arm check's innovation at a fix through its entry point for the rows, ints, floats and 3-vectors
+        innovation_args = (self._hist_rows, 0, 0, 0.0, np.zeros(3), np.zeros(3), 0.0)
+        self._fix_innovation = entry_point(fix_innovation, argument_types(fix_innovation, innovation_args))
         # can the told antenna arm explain the velocity innovations? (and adopt the fitted one, if asked)
         self.lever_arm_fit = LeverArmFit(adopt=adopt_arm)
         self.last_fix_velocity = None     # (t_fix, NED m/s with the vertical NaN when not used, speed 1σ)
@@ -128,16 +132,13 @@ class InsGnssFusion:
     def _add_to_lever_arm_fit(self, t_s: float, v: np.ndarray, use_vd: bool, sig_s: float) -> None:
         """The fix's velocity innovation at the antenna arm the filter fuses with (`arm_in_use`), before the fix is
         fused, from the history interpolated at its time of validity as the kernel reads it (`state_at`), for the
-        lever-arm check (lever_arm_fit.py)."""
-        at = self.state_at(t_s)
-        if at is None:
-            return
-        c_bn, vel, rate = at
-        near = rows_near(self._hist_t_s, int(self._x["hist_newest"]), int(self._x["hist_count"]), t_s,
-                         0.5 * RATE_MEAN_S)
-        rate_cross = rate_cross_ned(c_bn, mean_rate(self._hist_t_s[near], self._hist_rate[near], t_s, rate))
-        innovation = np.array([v[0], v[1], v[2] if use_vd else math.nan]) - (vel + rate_cross @ self.arm_in_use())
-        self.lever_arm_fit.add(t_s, innovation, rate_cross, sig_s, vel)
+        lever-arm check (lever_arm_fit.py): lever_arm_kernel.fix_innovation, compiled (the same floats as the
+        Python of `state_at`, history_rows.rows_near, lever_arm_fit.mean_rate and rate_cross_ned)."""
+        found, innovation, rate_cross, vel = self._fix_innovation(
+            self._hist_rows, int(self._x["hist_newest"]), int(self._x["hist_count"]), t_s,
+            np.array([v[0], v[1], v[2] if use_vd else math.nan]), self.arm_in_use(), 0.5 * RATE_MEAN_S)
+        if found:
+            self.lever_arm_fit.add(t_s, innovation, rate_cross, sig_s, vel)
 
     def _kept_history_rows(self) -> np.ndarray:
         """The indices of the history's kept rows (hist_count ≤ H_LEN), newest first."""

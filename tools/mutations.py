@@ -1114,6 +1114,15 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("history-search-nan", "a NaN time has no kept row at or before it, as the kernel's walk finds",
              "estimator/history_rows.py", "    if not t_s == t_s:", "    if False:",
              ("tests/test_history_rows.py",)),
+    # ------------------------------------------------------------------ session 39 (fixc)
+    Mutation("lever-kernel-bracket-weight", "the compiled innovation interpolates the history with the newer row's "
+             "weight", "estimator/lever_arm_kernel.py", "(t_s - tj) / (rows[i, _T] - tj)",
+             "(rows[i, _T] - t_s) / (rows[i, _T] - tj)", ("tests/test_lever_arm_kernel.py",)),
+    Mutation("lever-kernel-span-stop", "the compiled mean rate stops at the first row older than the span, not newer",
+             "estimator/lever_arm_kernel.py", "        elif d < 0.0:", "        elif d > 0.0:",
+             ("tests/test_lever_arm_kernel.py",)),
+    Mutation("lever-kernel-rate-without-rows", "with no row within the span the arm's term takes the interpolated rate",
+             "estimator/lever_arm_kernel.py", "    if n:", "    if n >= 0:", ("tests/test_lever_arm_kernel.py",)),
     # ------------------------------------------------------------------ session 38 (allan)
     Mutation("allan-kernel-chunk-edge", "the compiled Allan sums count the windows that span a chunk's edge once",
              "calibration/allan/second_differences.py", "first = max(0, old - 2 * m + 1)",
