@@ -1131,4 +1131,13 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("soak-kernel-drops-excuse-all", "the soak excuses unanswered requests only up to what the kernel "
              "counted dropped", "bench/soak.py", "if ratio < ANSWER_RATIO_MIN and n - got > kernel_drops:",
              "if ratio < ANSWER_RATIO_MIN and False:", ("tests/test_soak_answers.py",)),
+    # ------------------------------------------------------------------ session 39 (cib)
+    Mutation("ins-aided-flag-without-fix", "ins flags GNSS_AIDED or GNSS_OUTAGE only once a fix has been fused",
+             "estimator/ins_core.py", "    if x.was_aided > 0.0:", "    if x.t_run_s > 40.0:",
+             ("tests/test_ins.py",)),
+    Mutation("ins-too-old-uncounted", "a fix older than the state history is counted too_old",
+             "estimator/gnss_intake.py", "if res & core.R_TOO_OLD:", "if False:", ("tests/test_ins.py",)),
+    Mutation("circle-change-params-ignored", "the circle's change point takes the threshold it is given",
+             "estimator/field_circle_change.py", "self.params = params or CircleChangeParams()",
+             "self.params = CircleChangeParams()", ("tests/test_field_circle_change.py",)),
 )
