@@ -1222,4 +1222,13 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("loop-frame-signed-by-pymavlink", "a signed link's frames are packed and signed by pymavlink",
              "daemon/mavlink_io.py", "if not mav.signing.sign_outgoing and mav.send_callback is None:",
              "if mav.send_callback is None:", ("tests/test_mavlink_frame.py",)),
+    # ------------------------------------------------------------------ session 39 (cib)
+    Mutation("ins-aided-flag-without-fix", "ins flags GNSS_AIDED or GNSS_OUTAGE only once a fix has been fused",
+             "estimator/ins_core.py", "    if x.was_aided > 0.0:", "    if x.t_run_s > 40.0:",
+             ("tests/test_ins.py",)),
+    Mutation("ins-too-old-uncounted", "a fix older than the state history is counted too_old",
+             "estimator/gnss_intake.py", "if res & core.R_TOO_OLD:", "if False:", ("tests/test_ins.py",)),
+    Mutation("circle-change-params-ignored", "the circle's change point takes the threshold it is given",
+             "estimator/field_circle_change.py", "self.params = params or CircleChangeParams()",
+             "self.params = CircleChangeParams()", ("tests/test_field_circle_change.py",)),
 )
