@@ -1131,4 +1131,12 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("soak-kernel-drops-excuse-all", "the soak excuses unanswered requests only up to what the kernel "
              "counted dropped", "bench/soak.py", "if ratio < ANSWER_RATIO_MIN and n - got > kernel_drops:",
              "if ratio < ANSWER_RATIO_MIN and False:", ("tests/test_soak_answers.py",)),
+    # ------------------------------------------------------------------ session 39 (boat)
+    Mutation("boat-trust-counts-yaw", "a learned magnetometer counts as never trusted here where its floor plus the "
+             "filter's yaw variance is above the trust limit, not its floor alone",
+             "estimator/magnetometer_use.py", "return learned_floor_var_rad2 + yaw_var_rad2 > trusted_sigma_rad ** 2",
+             "return learned_floor_var_rad2 > trusted_sigma_rad ** 2", ("tests/test_magnetometer_use.py",)),
+    Mutation("boat-trust-yaw-passed", "the filter hands the rule its own yaw variance at the check",
+             "estimator/heading_supervision.py", "yaw_var_rad2=float(self._P[core.E_YAW, core.E_YAW]))",
+             "yaw_var_rad2=0.0)", ("tests/test_magnetometer_use_yaw.py",)),
 )
