@@ -243,7 +243,7 @@ def one_run(job, late_s: float = LATE_S) -> tuple:
     if job[2] != "fused while learning":
         return _one_run(job, late_s)
     kept = magnetometer_use.never_trusted_here
-    magnetometer_use.never_trusted_here = lambda floor_var, trusted_sigma: floor_var is not None
+    magnetometer_use.never_trusted_here = lambda floor_var, trusted_sigma, yaw_var: floor_var is not None
     try:
         return _one_run(job, late_s)
     finally:

@@ -511,7 +511,8 @@ class HeadingSupervision:
                              slow_var_rad2=self._mag_var, mag_var_rad2=mag_var, noise_rad2=noise,
                              trust_var_rad2=trust_var, calibration_untrusted=self._calibration_untrusted, iron=iron,
                              learned_floor_var_rad2=self._learned_floor_var_here,
-                             heading_rate_rad_s=self._heading_rate_rad_s)
+                             heading_rate_rad_s=self._heading_rate_rad_s,
+                             yaw_var_rad2=float(self._P[core.E_YAW, core.E_YAW]))
         self._par["mag_use"] = u.mag_use
         self._par["mag_moves_tilt"] = u.mag_moves_tilt
         if math.isfinite(mag_var):

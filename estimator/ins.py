@@ -248,8 +248,9 @@ class InsParams(MagHeadingParams):
     iron_heading_corr_rad: float = 0.5
     """While the heading monitor rejects a magnetometer without a trusted calibration, all the iron was learned
     since (against the GNSS heading; nothing learned or restored before the rejection, which that iron may have
-    caused), and its floor alone keeps it above the trust limit for good (`magnetometer_use.never_trusted_here`: H below
-    ~19 µT, it never re-enters), its heading is still fused at the learned iron's honest slowly varying variance
+    caused), and its floor plus the filter's yaw variance keeps it above the trust limit
+    (`magnetometer_use.never_trusted_here`: the floor alone where H is below ~19 µT; with the yaw's just above, as at
+    Punta Arenas, docs/gnss.md "boat39"), its heading is still fused at the learned iron's honest slowly varying variance
     (`_magnetometer_trust_var`: the worst level heading plus the floor), never moving the tilt: too wide to set the
     heading, it still adds to the GNSS. The error a learned iron leaves is a function of the heading (the hard
     iron's once per turn, the soft iron's twice), constant while the heading holds: its correlation is taken as

@@ -55,14 +55,15 @@ def magnetometer_use(params: MagnetometerUseParams, *, monitor_use: bool, truste
                      slow_var_rad2: float, mag_var_rad2: float, noise_rad2: float, trust_var_rad2: float,
                      calibration_untrusted: bool, iron: IronState,
                      learned_floor_var_rad2: Callable[[], float | None],
-                     heading_rate_rad_s: Callable[[], float]) -> MagnetometerKernelUse:
+                     heading_rate_rad_s: Callable[[], float], yaw_var_rad2: float) -> MagnetometerKernelUse:
     """The kernel's settings after the check.
 
     monitor_use: the monitor's decision (MonitorDecision.mag_use); trusted_sigma_rad: its trust limit;
     slow_var_rad2: the magnetometer heading's slowly varying variance judged at the previous check (what trust
     uses); mag_var_rad2, noise_rad2: this check's variance and its white part (NaN: no magnetometer heading);
     trust_var_rad2: the variance the heading state uses; learned_floor_var_rad2: the learned magnetometer's floor at
-    this place (None: no WMM field); heading_rate_rad_s: |rate about down|, bias removed. These two are functions of
+    this place (None: no WMM field); heading_rate_rad_s: |rate about down|, bias removed; yaw_var_rad2: the filter's
+    yaw variance at the check (`never_trusted_here`). The floor and the rate are functions of
     no arguments, called only by the rule that reads them (`rejected_magnetometer_fused`, once its other conditions
     hold): the filter works them out at a check only when one is read.
 
@@ -87,7 +88,7 @@ def magnetometer_use(params: MagnetometerUseParams, *, monitor_use: bool, truste
     if rejected_magnetometer_fused(p, monitor_use=monitor_use, calibration_untrusted=calibration_untrusted,
                                    iron=iron, trust_var_rad2=trust_var_rad2,
                                    never_trusted=lambda: never_trusted_here(learned_floor_var_rad2(),
-                                                                            trusted_sigma_rad)):
+                                                                            trusted_sigma_rad, yaw_var_rad2)):
         return MagnetometerKernelUse(1.0, 0.0, max(trust_var_rad2, bias_var),
                                      max(p.iron_learned_tau_s,
                                          p.iron_heading_corr_rad / max(heading_rate_rad_s(), 1e-6)))
@@ -98,21 +99,29 @@ def rejected_magnetometer_fused(params: MagnetometerUseParams, *, monitor_use: b
                                 iron: IronState, trust_var_rad2: float, never_trusted: Callable[[], bool]) -> bool:
     """`iron_heading_corr_rad`: the monitor rejects a magnetometer without a trusted calibration, but an iron has
     been learned since the rejection and none before it, so the learner's covariance and the floor
-    (`trust_var_rad2`) are all the error there is; and the floor alone keeps it from ever being trusted again here
-    (`never_trusted_here`; `never_trusted` is asked last, once the others hold). Not with a trusted calibration: its own σ stands in for the floor there
+    (`trust_var_rad2`) are all the error there is; and the floor plus the filter's yaw variance keeps it above the
+    trust limit here (`never_trusted_here`; `never_trusted` is asked last, once the others hold). Not with a trusted calibration: its own σ stands in for the floor there
     (Ins._magnetometer_trust_var), and the rejection has just shown the calibration wrong."""
     return (params.iron_heading_corr_rad > 0.0 and not monitor_use and calibration_untrusted
             and iron.updates > 0 and not iron.before_rejection and not iron.restored
             and math.isfinite(trust_var_rad2) and never_trusted())
 
 
-def never_trusted_here(learned_floor_var_rad2: float | None, trusted_sigma_rad: float) -> bool:
-    """The floor of a learned magnetometer's heading σ (what no learned iron explains, `iron_unmodelled_ut`, over
-    the WMM horizontal field at the filter's position) is above the monitor's trust limit: however well the iron is
-    learned, the magnetometer cannot re-enter here (H below ~19 µT with the defaults: high latitudes). Where it can,
-    it is left out until it does: fused weakly meanwhile, the kernel's field check follows the learned iron and takes
-    the magnetometer back at once on re-entry, with an iron not yet learned as well as the check's delay left it
-    (docs/figures.md "At places and irons not tuned on"). Without the WMM field (None): False."""
+def never_trusted_here(learned_floor_var_rad2: float | None, trusted_sigma_rad: float,
+                       yaw_var_rad2: float) -> bool:
+    """The learned magnetometer cannot be trusted on what this learning can give here: the floor of its heading
+    variance (what no learned iron explains, `iron_unmodelled_ut`, over the WMM horizontal field at the filter's
+    position) plus the filter's yaw variance now (rad²) is above the monitor's trust limit. The floor alone puts it
+    there for good where H is below ~19 µT with the defaults (high latitudes). The yaw term: the iron is learned
+    against the filter's yaw, and the yaw error common to the learning window is learned as iron, as a heading
+    offset the same at every heading (learned_iron.py), so the learned magnetometer's heading error is at least that
+    yaw error; where the floor leaves less room than the yaw's variance (Punta Arenas, H 19.6 µT: floor 2.92°,
+    room 0.69°), re-entry waits for the learner's own covariance to claim what the yaw cannot give (seed 96: 650 s
+    of GNSS-only heading) while the learned magnetometer's honest heading goes unused (docs/gnss.md "boat39").
+    Where the sum is below the limit the magnetometer is left out until it re-enters: fused weakly meanwhile, the
+    kernel's field check follows the learned iron and takes it back at once on re-entry, with an iron not yet
+    learned as well as the check's delay left it (docs/figures.md "At places and irons not tuned on"). Without the
+    WMM field (None): False."""
     if learned_floor_var_rad2 is None:
         return False
-    return learned_floor_var_rad2 > trusted_sigma_rad ** 2
+    return learned_floor_var_rad2 + yaw_var_rad2 > trusted_sigma_rad ** 2

@@ -32,7 +32,8 @@ def _params(**kw):
 def _use(params=None, **kw):
     args = dict(monitor_use=True, trusted_sigma_rad=TRUSTED, slow_var_rad2=(1.0 * DEG) ** 2,
                 mag_var_rad2=(2.0 * DEG) ** 2, noise_rad2=(0.5 * DEG) ** 2, trust_var_rad2=(2.5 * DEG) ** 2,
-                calibration_untrusted=True, iron=NOT_LEARNING, learned_floor_var_rad2=None, heading_rate_rad_s=0.1)
+                calibration_untrusted=True, iron=NOT_LEARNING, learned_floor_var_rad2=None, heading_rate_rad_s=0.1,
+                yaw_var_rad2=(0.5 * DEG) ** 2)
     args.update(kw)
     for name in ("learned_floor_var_rad2", "heading_rate_rad_s"):     # the part asks for these when it reads them
         args[name] = (lambda value: lambda: value)(args[name])
@@ -88,7 +89,7 @@ LEARNED_SINCE = IronState(learning=False, updates=5, restored=False, before_reje
 HIGH_FLOOR = (4.0 * DEG) ** 2
 REJECTED = dict(monitor_use=False, iron=LEARNED_SINCE, learned_floor_var_rad2=HIGH_FLOOR, calibration_untrusted=True,
                 trust_var_rad2=(5.0 * DEG) ** 2, mag_var_rad2=(2.0 * DEG) ** 2, noise_rad2=(0.5 * DEG) ** 2,
-                heading_rate_rad_s=0.05)
+                heading_rate_rad_s=0.05, yaw_var_rad2=(0.5 * DEG) ** 2)
 
 
 def test_a_rejected_magnetometer_is_fused_at_its_floor_where_it_can_never_be_trusted():
@@ -121,10 +122,35 @@ def test_a_rejected_magnetometer_stays_out_unless_every_condition_holds(change):
 
 
 def test_never_trusted_here_compares_the_floor_with_the_trust_limit():
-    assert never_trusted_here((3.1 * DEG) ** 2, TRUSTED)
-    assert not never_trusted_here((2.9 * DEG) ** 2, TRUSTED)
-    assert not never_trusted_here(None, TRUSTED)
-    assert never_trusted_here(math.inf, TRUSTED)
+    assert never_trusted_here((3.1 * DEG) ** 2, TRUSTED, 0.0)
+    assert not never_trusted_here((2.9 * DEG) ** 2, TRUSTED, 0.0)
+    assert not never_trusted_here(None, TRUSTED, (5.0 * DEG) ** 2)
+    assert never_trusted_here(math.inf, TRUSTED, 0.0)
+
+
+def test_never_trusted_here_counts_the_yaw_the_iron_is_learned_against():
+    """The learned iron takes in the learning window's yaw error as a heading offset (learned_iron.py), so the
+    learned magnetometer is no better than floor² + yaw variance. Worked numbers (boat39): Punta Arenas, WMM
+    horizontal field 19.61 µT, floor 1 µT / H = 2.92°, leaves room for a yaw 1σ of √(3² − 2.92²) = 0.69°; the
+    held-out site, H 24.6 µT, floor 2.33°, room 1.89°."""
+    floor_pa = (1.0 / 19.61) ** 2                         # rad², iron_unmodelled_ut 1 µT over H
+    assert math.degrees(math.sqrt(floor_pa)) == pytest.approx(2.92, abs=0.005)
+    room_deg = math.sqrt(3.0 ** 2 - math.degrees(math.sqrt(floor_pa)) ** 2)
+    assert room_deg == pytest.approx(0.69, abs=0.01)
+    assert never_trusted_here(floor_pa, TRUSTED, (1.0 * DEG) ** 2)              # the yaw σ after the learning
+    assert never_trusted_here(floor_pa, TRUSTED, ((room_deg + 0.01) * DEG) ** 2)
+    assert not never_trusted_here(floor_pa, TRUSTED, ((room_deg - 0.01) * DEG) ** 2)
+    assert not never_trusted_here(floor_pa, TRUSTED, 0.0)                       # the floor alone: it could re-enter
+    floor_site = (1.0 / 24.6) ** 2
+    assert not never_trusted_here(floor_site, TRUSTED, (1.5 * DEG) ** 2)
+    assert never_trusted_here(floor_site, TRUSTED, (2.0 * DEG) ** 2)
+
+
+def test_a_rejected_magnetometer_is_fused_where_the_yaw_leaves_its_floor_no_room():
+    """The whole rule with the yaw term: the same floor, below the trust limit, fused or not by the yaw variance."""
+    floor = (2.9 * DEG) ** 2
+    assert _use(**{**REJECTED, "learned_floor_var_rad2": floor, "yaw_var_rad2": (1.0 * DEG) ** 2}).mag_use == 1.0
+    assert _use(**{**REJECTED, "learned_floor_var_rad2": floor, "yaw_var_rad2": (0.5 * DEG) ** 2}).mag_use == 0.0
 
 
 def _not_to_be_read():

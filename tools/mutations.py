@@ -1231,4 +1231,12 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("circle-change-params-ignored", "the circle's change point takes the threshold it is given",
              "estimator/field_circle_change.py", "self.params = params or CircleChangeParams()",
              "self.params = CircleChangeParams()", ("tests/test_field_circle_change.py",)),
+    # ------------------------------------------------------------------ session 39 (boat)
+    Mutation("boat-trust-counts-yaw", "a learned magnetometer counts as never trusted here where its floor plus the "
+             "filter's yaw variance is above the trust limit, not its floor alone",
+             "estimator/magnetometer_use.py", "return learned_floor_var_rad2 + yaw_var_rad2 > trusted_sigma_rad ** 2",
+             "return learned_floor_var_rad2 > trusted_sigma_rad ** 2", ("tests/test_magnetometer_use.py",)),
+    Mutation("boat-trust-yaw-passed", "the filter hands the rule its own yaw variance at the check",
+             "estimator/heading_supervision.py", "yaw_var_rad2=float(self._P[core.E_YAW, core.E_YAW]))",
+             "yaw_var_rad2=0.0)", ("tests/test_magnetometer_use_yaw.py",)),
 )
