@@ -41,7 +41,7 @@ import numpy as np
 
 from .adev import AllanCurve, edf_by_alpha
 from .covariance import avar_covariance
-from .irls import SLOPE_STEP, model_and_edf, weighted_system, weighted_system_at
+from .irls import SLOPE_STEP, model_and_edf, weighted_system_at
 from ..report import sig_figs
 
 FLICKER_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)  # 0.6643, IEEE Std 952-1997 Table B.1
@@ -196,14 +196,10 @@ def _nnls_solver():
     return solve if same else public
 
 
-def _nnls_weighted(basis: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
-    a, yw, scale = weighted_system(basis, y, w)
-    return _nnls_solver()(a, yw, 500) / scale
-
-
 def _nnls_at_model(basis: np.ndarray, target: np.ndarray, model: np.ndarray, floor: np.ndarray, edf: np.ndarray,
                    sigma: np.ndarray) -> np.ndarray:
-    """_nnls_weighted(basis, target, 1.0 / sigma) with sigma[:n] = max(model, floor)·√(2/edf) (irls.weighted_system_at)."""
+    """NNLS of (basis, target) with rows weighted 1 / sigma (irls.weighted_system's unit-max columns, then
+    _nnls_solver), sigma[:n] = max(model, floor)·√(2/edf) (irls.weighted_system_at)."""
     a, yw, scale = weighted_system_at(basis, target, model, floor, edf, sigma)
     return _nnls_solver()(a, yw, 500) / scale
 
