@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 
-from .slewed_yaw import YawSlew, slowest_rate_rad_s
+from .slewed_yaw import YawSlew
 
 _TWO_PI = 2.0 * math.pi
 _MIN_COS_PITCH = 1e-3    # at ±90° pitch yaw is undefined: every change there counts as motion
@@ -38,7 +38,6 @@ class PublishedHeading:
             raise ValueError(f"max_rate_rad_s must be > 0, got {max_rate_rad_s!r}")
         self.max_rate_rad_s = float(max_rate_rad_s)
         self._slew = YawSlew(self.max_rate_rad_s)
-        self._arrives_at_rate_rad_s = slowest_rate_rad_s(self.max_rate_rad_s)   # within its step: arrives at any σ
         self.offset_rad = 0.0
         self.absorbed = 0            # samples at which a correction faster than the rate was absorbed
         self._t_s = math.nan
@@ -77,10 +76,7 @@ class PublishedHeading:
             correction = 0.0
         self._t_s, self._yaw, self._yaw_rate = t_s, yaw_rad, rate
         o = (self.offset_rad - correction + math.pi) % _TWO_PI - math.pi
-        if abs(o) <= self._arrives_at_rate_rad_s * dt:
-            move, arrived = -o, True          # the slew's answer at any rate it may take (the routine case: no call)
-        else:
-            move, arrived = self._slew.step(o, sigma_rad, dt)
+        move, arrived = self._slew.step(o, sigma_rad, dt)
         if not arrived and abs(correction) > abs(move):      # more came in than one step takes out
             self.absorbed += 1
         self.offset_rad = o + move

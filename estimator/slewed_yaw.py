@@ -48,8 +48,12 @@ class YawSlew:
         """(move, arrived) over dt_s for a published yaw `offset_rad` off the estimator's (published − estimator's,
         within ±π), the estimator's yaw 1σ being `sigma_rad`: the move to add to the published yaw, −offset_rad
         when it arrives, else the step against the offset."""
-        allowed = slew_rate_rad_s(self.rate_rad_s, sigma_rad, offset_rad) * dt_s
         size = abs(offset_rad)
+        # within the step of the least rate slew_rate_rad_s can give, it arrives at any σ: the rate is not worked
+        # out (the routine case: ins's published heading asks at every sample)
+        if size <= min(self.rate_rad_s, LARGE_OFFSET_MAX_RATE_RAD_S) * dt_s:
+            return -offset_rad, True
+        allowed = slew_rate_rad_s(self.rate_rad_s, sigma_rad, offset_rad) * dt_s
         if size <= allowed or size <= self.arrive_within_rad:
             return -offset_rad, True
         return -math.copysign(allowed, offset_rad), False
@@ -59,13 +63,6 @@ class YawSlew:
         """The 1σ of the published yaw `offset_rad` off the estimator's, whose 1σ is `sigma_rad`: σ + |offset|/3
         (module docstring)."""
         return sigma_rad + abs(offset_rad) / 3.0
-
-
-def slowest_rate_rad_s(rate_rad_s: float) -> float:
-    """The least rate `slew_rate_rad_s` gives for a configured `rate_rad_s`, whatever the σ and the offset: an offset
-    within this rate's step arrives in one `YawSlew.step` at any σ (what a caller may test before asking for the
-    step, and skip it)."""
-    return min(rate_rad_s, LARGE_OFFSET_MAX_RATE_RAD_S)
 
 
 def slew_rate_rad_s(rate_rad_s: float, sigma_rad: float, offset_rad: float) -> float:
