@@ -90,30 +90,17 @@ def _positive_definite(value, n: int, semi: bool = False) -> np.ndarray:
     return a
 
 
-_LEVEL_ATTITUDES: dict = {}
-"""The level attitudes of each yaw array `_level_attitudes` was asked for, by its bytes: the heading checks ask for
-the same few (_LEVEL_HEADINGS, the harmonic fit's yaws) at every learning step."""
-
-
-def _level_attitudes(yaw_rad) -> np.ndarray:
-    """C_bn (k×3×3) of a level vehicle at each yaw (rad), made once per yaw array (read only)."""
-    yaw = np.asarray(yaw_rad)
-    key = (yaw.dtype.str, yaw.shape, yaw.tobytes())
-    c_bn = _LEVEL_ATTITUDES.get(key)
-    if c_bn is None:
-        c, s = np.cos(yaw), np.sin(yaw)
-        zero, one = np.zeros_like(c), np.ones_like(c)
-        c_bn = np.stack([np.stack([c, -s, zero], -1), np.stack([s, c, zero], -1), np.stack([zero, zero, one], -1)],
-                        1)
-        c_bn.setflags(write=False)
-        if len(_LEVEL_ATTITUDES) >= 16:     # a caller sweeping yaws: keep the cache small
-            _LEVEL_ATTITUDES.clear()
-        _LEVEL_ATTITUDES[key] = c_bn
-    return c_bn
+def _level_attitudes(yaw: np.ndarray) -> np.ndarray:
+    """C_bn (k×3×3) of a level vehicle at each yaw (rad)."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    zero, one = np.zeros_like(c), np.ones_like(c)
+    return np.stack([np.stack([c, -s, zero], -1), np.stack([s, c, zero], -1), np.stack([zero, zero, one], -1)], 1)
 
 
 _LEVEL_FIELD_TERMS: dict = {}
-"""`_level_field_terms` of each (field, yaw array) it was asked for, by their bytes."""
+"""`_level_field_terms` of each (field, yaw array) it was asked for, by their bytes: the heading checks ask for the
+same few yaw arrays (_LEVEL_HEADINGS, the harmonic fit's yaws) at every learning step, at a field that changes every
+~1 km."""
 
 
 def _level_field_terms(field_ned_ut, yaw_rad) -> tuple[np.ndarray, np.ndarray]:

@@ -651,8 +651,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("iron-level-attitudes-per-yaw-array",
              "the level attitudes IronLearner.level_heading_rows reuses are those of the yaw array asked for (keyed by "
              "its values, not its shape)",
-             "estimator/heading_monitor.py", "    key = (yaw.dtype.str, yaw.shape, yaw.tobytes())",
-             "    key = (yaw.dtype.str, yaw.shape)",
+             "estimator/heading_monitor.py", "    key = (b.tobytes(), yaw.dtype.str, yaw.shape, yaw.tobytes())",
+             "    key = (b.tobytes(), yaw.dtype.str, yaw.shape)",
              ("tests/test_iron_level_rows.py",)),
     Mutation("bank-bias-only-when-sure", "the GNSS yaw bank takes the filter's gyro bias only when its agreeing yaw "
              "is sure (below accel_bias_gsf_sigma_rad), not at any agreement within the gate",
