@@ -1057,17 +1057,25 @@ def fill_outputs(x, P, par, wx, wy, wz, out):
 def _history_at(x, hist, t):
     """Row index pair (older, newer) and weight w of the newer one bracketing time t; (−1, −1, 0) when t is
     older than the history. A t at or after the newest row returns that row."""
-    n = int(x.hist_count)
-    i = int(x.hist_newest)
-    if n == 0:
+    return history_bracket(hist.t_s, int(x.hist_newest), int(x.hist_count), t)
+
+
+@njit(cache=True)
+def history_bracket(t_rows, newest, count, t):
+    """`_history_at` on the ring's row times t_rows (a view of the history's `t_s`, or of its flat rows' time
+    column: lever_arm_kernel.py) with `count` kept rows up to ring index `newest`, walked back from the newest row
+    (the kept rows' times increase). history_rows.bracket is its Python twin, for Python callers."""
+    if count == 0:
         return -1, -1, 0.0
-    if t >= hist[i].t_s:
-        return i, i, 1.0
-    for _ in range(n - 1):
-        j = (i - 1) % H_LEN
-        tj = hist[j].t_s
+    if t >= t_rows[newest]:
+        return newest, newest, 1.0
+    ring = t_rows.shape[0]
+    i = newest
+    for _ in range(count - 1):
+        j = (i - 1) % ring
+        tj = t_rows[j]
         if tj <= t:
-            return j, i, (t - tj) / (hist[i].t_s - tj)
+            return j, i, (t - tj) / (t_rows[i] - tj)
         i = j
     return -1, -1, 0.0
 

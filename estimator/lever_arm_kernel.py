@@ -2,7 +2,7 @@
 history for each velocity fix, in one call instead of some twenty numpy calls on 3-vectors and 3 × 3 matrices.
 
 From the history rows (ins_core's ring as flat float64 rows) at the fix's time of validity t: the two rows that
-bracket t as the filter's kernel finds them (`ins_core._history_at`, history_rows.bracket), interpolated as
+bracket t as the filter's kernel finds them (`ins_core.history_bracket`, the kernel's own), interpolated as
 `InsGnssFusion.state_at` does (a + w (b − a)); the attitude normalised (√ of the quaternion's dot with itself) and
 made a DCM (kernel_rotations.dcm: quat_to_dcm's products and sums); the body rate as lever_arm_fit.mean_rate takes it
 (the rows within RATE_MEAN_S about t added newest first from +0.0, then divided by their count; the interpolated rate
@@ -41,22 +41,8 @@ def fix_innovation(rows, newest, count, t_s, v_fix_ned_m_s, arm_m, half_span_s):
     body rate the mean of the rows within half_span_s of t_s. found False (and zeros) when t_s is older than every
     kept row or there is none."""
     ring = rows.shape[0]
-    # the bracket as ins_core._history_at walks it back from the newest row (the kept rows' times increase)
-    i0 = i1 = -1
-    w = 0.0
-    if count > 0:
-        if t_s >= rows[newest, _T]:
-            i0 = i1 = newest
-            w = 1.0
-        else:
-            i = newest
-            for _ in range(count - 1):
-                j = (i - 1) % ring
-                tj = rows[j, _T]
-                if tj <= t_s:
-                    i0, i1, w = j, i, (t_s - tj) / (rows[i, _T] - tj)
-                    break
-                i = j
+    # the bracket the filter's kernel finds for a fix (ins_core._history_at), on the rows' time column
+    i0, i1, w = core.history_bracket(rows[:, _T], newest, count, t_s)
     vel = np.zeros(3)
     rate_cross = np.zeros((3, 3))
     if i0 < 0:

@@ -1116,8 +1116,8 @@ MUTATIONS: tuple[Mutation, ...] = (
              ("tests/test_history_rows.py",)),
     # ------------------------------------------------------------------ session 39 (fixc)
     Mutation("lever-kernel-bracket-weight", "the compiled innovation interpolates the history with the newer row's "
-             "weight", "estimator/lever_arm_kernel.py", "(t_s - tj) / (rows[i, _T] - tj)",
-             "(rows[i, _T] - t_s) / (rows[i, _T] - tj)", ("tests/test_lever_arm_kernel.py",)),
+             "weight", "estimator/ins_core.py", "return j, i, (t - tj) / (t_rows[i] - tj)",
+             "return j, i, (t_rows[i] - t) / (t_rows[i] - tj)", ("tests/test_lever_arm_kernel.py",)),
     Mutation("lever-kernel-span-stop", "the compiled mean rate stops at the first row older than the span, not newer",
              "estimator/lever_arm_kernel.py", "        elif d < 0.0:", "        elif d > 0.0:",
              ("tests/test_lever_arm_kernel.py",)),
