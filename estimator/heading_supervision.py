@@ -38,11 +38,12 @@ from .heading_publication import HeadingPublication, HeadingReport
 from .ins_gnss_fusion import InsGnssFusion
 from .iron_in_use import IronInUse
 from .kernel_entry import argument_types, entry_point
-from .mag_error_states import MagErrorStates, harmonics_source, learned_floor_var_rad2
+from .mag_error_states import MagErrorStates, harmonics_source
 from .mag_rotation import MagRotationBias, window_tilt_sigma_rad
 from .magnetometer_use import IronState, magnetometer_use
 from .monitor_follow_up import heading_observable, monitor_follow_up
 from .rotations import quat_to_dcm, quat_to_euler, rotvec_to_dcm
+from .slow_floor import slow_floor_var_rad2
 from .yaw_reset import YawReset
 
 log = logging.getLogger("ahrsd.estimator.ins")    # the filter's own log: what the daemon's operator reads as ins's
@@ -223,14 +224,15 @@ class HeadingSupervision:
         field = self.earth_field_ned()
         if self._mag_rotation_on:
             self._mag_rotation_check(t_s, c_bn, field)
-        mag_yaw, mag_var, noise = self._magnetometer_heading(c_bn, yaw, m_body)
+        mag_yaw, mag_var, noise, averaged = self._magnetometer_heading(c_bn, yaw, m_body)
         trust_var = self._magnetometer_trust_var(mag_var, noise, field)
         gsf_yaw, gsf_var, gsf_valid = self.gnss_yaw()
-        d = self._monitor_decision(t_s, yaw, yaw_var, mag_yaw, mag_var, noise, trust_var, gsf_yaw, gsf_var,
+        slow_var = mag_var - noise - averaged if math.isfinite(mag_var) else math.nan
+        d = self._monitor_decision(t_s, yaw, yaw_var, mag_yaw, mag_var, slow_var, trust_var, gsf_yaw, gsf_var,
                                    gsf_valid)
         yaw_reset_to = self._reset_or_confirm_yaw(t_s, d, yaw, gsf_yaw, gsf_var, gsf_valid)
         self.set_accel_bias_learning()
-        self._set_magnetometer_use(d, mag_var, noise, trust_var)
+        self._set_magnetometer_use(d, mag_var, noise, trust_var, slow_var)
         # the monitor says no learning on a check that reset the yaw (c_bn is the attitude before the reset, P its
         # covariance after it): the next check learns with the new yaw
         iron_updates = self._iron.updates
@@ -296,14 +298,17 @@ class HeadingSupervision:
         core._apply_correction(x, self._par, dx)
         core._correct_history(self._hist, x, -math.inf, dx, 0.0, 0.0, 0.0)
 
-    def _magnetometer_heading(self, c_bn: np.ndarray, yaw: float, m_body: np.ndarray) -> tuple[float, float, float]:
-        """The yaw the magnetometer (iron-corrected, body frame µT) gives with the attitude c_bn, its variance and
-        the white (noise) part of that variance, rad²: (NaN, inf, 0) when the field is not finite or has no
+    def _magnetometer_heading(self, c_bn: np.ndarray, yaw: float,
+                              m_body: np.ndarray) -> tuple[float, float, float, float]:
+        """The yaw the magnetometer (iron-corrected, body frame µT) gives with the attitude c_bn, its variance, the
+        white (noise) part of that variance, and the part of the learned floor that the trust window averages away
+        (slow_floor.py; 0 without a learned iron), rad²: (NaN, inf, 0, 0) when the field is not finite or has no
         horizontal component."""
         p = self.params
         mag_yaw = math.nan
         mag_var = math.inf
         noise = 0.0
+        averaged = 0.0
         if _finite3(m_body):
             m_ned = c_bn @ m_body
             h = math.hypot(m_ned[0], m_ned[1])
@@ -315,23 +320,27 @@ class HeadingSupervision:
                 if self._learned_iron.learned:
                     # learning (or learned): the learned hard iron's uncertainty replaces the calibration's
                     # hard-iron error; what a hard iron cannot explain stays
-                    mag_var = min(p.calibration_sigma_rad ** 2, (p.iron_unmodelled_ut / h) ** 2) + noise \
-                        + self._iron.heading_variance(c_bn, m_ned)
-        return mag_yaw, mag_var, noise
+                    floor = min(p.calibration_sigma_rad ** 2, (p.iron_unmodelled_ut / h) ** 2)
+                    mag_var = floor + noise + self._iron.heading_variance(c_bn, m_ned)
+                    averaged = floor - slow_floor_var_rad2(p, h * h, self.monitor.reentry_s)
+        return mag_yaw, mag_var, noise, averaged
 
     def _magnetometer_trust_var(self, mag_var: float, noise: float, field: np.ndarray | None) -> float:
         """The magnetometer heading's slowly varying error variance that the heading state and the end of the iron
         learning are judged on, rad²: the calibration's; with a learned iron, what the iron leaves at the worst
         heading of a level vehicle (IronLearner.level_heading_variance) plus the floor of what a learned iron
-        cannot explain, at the WMM horizontal field. Not `mag_var` less its noise (what the kernel fuses, and what
-        the magnetometer's re-entry and tilt trust read, at this attitude): that projects the iron's covariance on
+        cannot explain, at the WMM horizontal field, as much of it as is left over the monitor's re-entry window
+        (slow_floor.py: an error correlated over `iron_tau_s`, as the learner and the kernel take it). Not
+        `mag_var` less its noise (what the kernel fuses, and what the magnetometer's re-entry and tilt trust read, at
+        this attitude, their floor over the same window): that projects the iron's covariance on
         the heading the vehicle points at, so a half-learned iron read as learned on one leg and not on the next,
         stopping and restarting the learning and flipping the published state MAGNETOMETER ↔ LEARNING each time
         the boat turned (docs/gnss.md "Heading state"). This one only falls while learning."""
         if not self._learned_iron.learned or field is None or not math.isfinite(mag_var):
             return mag_var - noise if math.isfinite(mag_var) else math.nan
         h2 = float(field[0] ** 2 + field[1] ** 2)
-        return learned_floor_var_rad2(self.params, h2) + self._iron.level_heading_variance(field)
+        return slow_floor_var_rad2(self.params, h2, self.monitor.reentry_s) \
+            + self._iron.level_heading_variance(field)
 
     def _tilt_heading_var(self) -> float:
         """The variance the filter's tilt uncertainty gives the magnetometer heading, rad²: a tilt about the
@@ -359,10 +368,11 @@ class HeadingSupervision:
         return math.nan, math.inf, False
 
     def _monitor_decision(self, t_s: float, yaw: float, yaw_var: float, mag_yaw: float, mag_var: float,
-                          noise: float, trust_var: float, gsf_yaw: float, gsf_var: float,
+                          slow_var: float, trust_var: float, gsf_yaw: float, gsf_var: float,
                           gsf_valid: bool) -> MonitorDecision:
         """The heading monitor's check of the filter's yaw against the magnetometer's and the GNSS yaw's
-        (HeadingMonitor.check), and what follows from it before any yaw reset: the biases a GNSS yaw agreeing
+        (HeadingMonitor.check; slow_var: the magnetometer heading's slowly varying variance at this attitude,
+        its re-entry's), and what follows from it before any yaw reset: the biases a GNSS yaw agreeing
         with the heading confirms are kept (a reset goes back to them), a magnetometer just rejected makes the
         heading unconfirmed again, and its yaw variance floor is applied (with the warning)."""
         p = self.params
@@ -373,7 +383,7 @@ class HeadingSupervision:
             attitude_heading_variances(P[core.E_TH:core.E_TH + 3, core.E_TH:core.E_TH + 3], self.field_ned)
         d = self.monitor.check(t_s, yaw, yaw_var, mag_yaw, mag_var, gsf_yaw, gsf_var, gsf_valid, observable,
                                 float(self._x["vel_gate"]["nis"]),
-                                mag_var - noise if math.isfinite(mag_var) else math.nan, trust_var,
+                                slow_var, trust_var,
                                 self._tilt_heading_var(), float(P[core.E_BG + 2, core.E_BG + 2]),
                                 p.gyro_noise_rad_s_sqrt_hz, att_var, tilt_var)
         f = monitor_follow_up(d, yaw_rad=yaw, yaw_var_rad2=yaw_var, gsf_yaw_rad=gsf_yaw, gsf_var_rad2=gsf_var,
@@ -501,12 +511,15 @@ class HeadingSupervision:
         if self.confirmation.confirm(yaw, gsf_yaw, gsf_var, P[core.E_YAW, core.E_YAW]):
             P[core.E_YAW, core.E_YAW] = gsf_var
 
-    def _set_magnetometer_use(self, d: MonitorDecision, mag_var: float, noise: float, trust_var: float) -> None:
+    def _set_magnetometer_use(self, d: MonitorDecision, mag_var: float, noise: float, trust_var: float,
+                              slow_var: float) -> None:
         """What the kernel does with the magnetometer after the check (magnetometer_use.py decides it from what the
-        check left), written into the kernel's parameters; and the variances the next check's trust and the heading
-        state use."""
+        check left), written into the kernel's parameters; and the variances the next check's trust (slow_var: the
+        slowly varying variance at this attitude, the learned floor over the trust window, slow_floor.py) and the
+        heading state use."""
         iron = IronState(learning=self.monitor.learning, updates=self._iron.updates,
-                         restored=self._learned_iron.restored, before_rejection=self._iron_before_rejection)
+                         restored=self._learned_iron.restored, before_rejection=self._iron_before_rejection,
+                         offset_held=self._iron.offset_held)
         u = magnetometer_use(self.params, monitor_use=d.mag_use, trusted_sigma_rad=self.monitor.trusted_sigma_rad,
                              slow_var_rad2=self._mag_var, mag_var_rad2=mag_var, noise_rad2=noise,
                              trust_var_rad2=trust_var, calibration_untrusted=self._calibration_untrusted, iron=iron,
@@ -516,20 +529,21 @@ class HeadingSupervision:
         self._par["mag_use"] = u.mag_use
         self._par["mag_moves_tilt"] = u.mag_moves_tilt
         if math.isfinite(mag_var):
-            self._mag_var = mag_var - noise      # the slowly varying part at this attitude: what trust uses
+            self._mag_var = slow_var      # the slowly varying part at this attitude: what trust uses
             self._mag_trust_var = trust_var      # what the heading state uses (_magnetometer_trust_var)
         if u.mag_bias_var_rad2 is not None:
             self._par["mag_bias_var_rad2"] = u.mag_bias_var_rad2
             self._par["mag_bias_tau_s"] = u.mag_bias_tau_s
 
     def _learned_floor_var_here(self) -> float | None:
-        """mag_error_states.learned_floor_var_rad2 at the WMM horizontal field at the filter's position (inf where it has none, None
-        without the WMM field), rad²."""
+        """The learned magnetometer's floor over the trust window (slow_floor.slow_floor_var_rad2) at the WMM
+        horizontal field at the filter's position (inf where it has none, None without the WMM field), rad²: what
+        `never_trusted_here` judges, as the trust tests do."""
         field = self.field_ned
         if field is None:
             return None
         h2 = float(field[0] ** 2 + field[1] ** 2)
-        return learned_floor_var_rad2(self.params, h2) if h2 > 0.0 else math.inf
+        return slow_floor_var_rad2(self.params, h2, self.monitor.reentry_s) if h2 > 0.0 else math.inf
 
     def _heading_rate_rad_s(self) -> float:
         """|rate about down| of the last gyro sample, bias removed, rad/s."""

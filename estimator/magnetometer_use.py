@@ -49,6 +49,7 @@ class IronState:
     updates: int                  # the learner's updates in this run
     restored: bool                # a learned iron was restored at start-up
     before_rejection: bool        # an iron had been learned before the magnetometer's current rejection
+    offset_held: bool = False     # the learned iron's heading offset is no longer learned against the yaw
 
 
 def magnetometer_use(params: MagnetometerUseParams, *, monitor_use: bool, trusted_sigma_rad: float,
@@ -74,9 +75,14 @@ def magnetometer_use(params: MagnetometerUseParams, *, monitor_use: bool, truste
     update takes the measurement's error as independent of the state's, Maybeck, Stochastic Models, Estimation and
     Control vol. 1 ch. 5): the filter's yaw follows the half-learned magnetometer and the iron learns that yaw
     (docs/tour.md "The aided boat's heading after the learning"). The GNSS holds the heading until the learning
-    ends; then the learned iron's error is carried as the harmonic states (Ins._set_mag_harmonics)."""
+    ends; then the learned iron's error is carried as the harmonic states (Ins._set_mag_harmonics). Except once the
+    learned iron's offset is held (`IronState.offset_held`, IronLearner.hold_offset): the learner no longer learns
+    the heading offset against the filter's yaw, so the error is no longer counted twice, and a magnetometer the
+    monitor uses is fused while the rest of its iron is learned; without it the monitor's re-entry at one heading
+    (its floor over the trust window, slow_floor.py) left the magnetometer unused, neither fused as rejected nor
+    trusted, for the rest of the learning (Reykjavík, H 13.2 µT: docs/gnss.md "(pa96)")."""
     p = params
-    use = monitor_use and not iron.learning
+    use = monitor_use and (not iron.learning or iron.offset_held)
     mag_use = 1.0 if use else 0.0
     trusted = use and slow_var_rad2 < trusted_sigma_rad ** 2
     moves_tilt = 1.0 if p.mag_moves_tilt or (p.mag_trusted_moves_tilt and trusted) else 0.0

@@ -48,6 +48,15 @@ def test_not_fused_while_the_iron_is_learned_even_where_the_monitor_lets_it_back
     assert _use(monitor_use=False).mag_use == 0.0
 
 
+
+def test_fused_while_the_iron_is_learned_once_its_offset_is_held():
+    # pa96: an offset held (IronLearner.hold_offset) is no longer learned against the filter's yaw, so the learned
+    # magnetometer fused meanwhile is not counted twice; the monitor's word still decides
+    held = replace(NOT_LEARNING, learning=True, updates=10, offset_held=True)
+    assert _use(iron=held).mag_use == 1.0
+    assert _use(iron=held, monitor_use=False, learned_floor_var_rad2=(2.0 * DEG) ** 2).mag_use == 0.0
+    assert _use(iron=replace(held, offset_held=False)).mag_use == 0.0
+
 def test_the_horizon_is_moved_only_by_a_trusted_magnetometer_and_only_where_allowed():
     assert _use(slow_var_rad2=(1.0 * DEG) ** 2).mag_moves_tilt == 1.0
     # the previous check's slowly varying variance judges the trust, not this check's

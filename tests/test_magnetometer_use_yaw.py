@@ -26,5 +26,23 @@ def test_the_filters_yaw_variance_reaches_the_rule(monkeypatch):
     est = Ins()
     yaw_var = (1.3 * DEG) ** 2
     est._P[ins_core.E_YAW, ins_core.E_YAW] = yaw_var
-    est._heading._set_magnetometer_use(MonitorDecision(False, 0.0, 0.0, None, 0.0), math.nan, 0.0, math.nan)
+    est._heading._set_magnetometer_use(MonitorDecision(False, 0.0, 0.0, None, 0.0), math.nan, 0.0, math.nan,
+                                       math.nan)
     assert seen["yaw_var_rad2"] == yaw_var
+
+
+def test_the_learned_irons_held_offset_reaches_the_rule(monkeypatch):
+    # pa96: a learned iron whose offset is held may be fused while it is learned (magnetometer_use)
+    seen = {}
+
+    def record(params, **kw):
+        seen.update(kw)
+        return MagnetometerKernelUse(0.0, 0.0, None, None)
+
+    monkeypatch.setattr(heading_supervision, "magnetometer_use", record)
+    est = Ins()
+    for held in (True, False):
+        est._iron.offset_held = held
+        est._heading._set_magnetometer_use(MonitorDecision(True, 0.0, 0.0, None, 0.0), math.nan, 0.0, math.nan,
+                                           math.nan)
+        assert seen["iron"].offset_held is held

@@ -117,7 +117,8 @@ MUTATIONS: tuple[Mutation, ...] = (
              ("tests/test_iron_in_use.py", "tests/test_learned_iron_field_check.py")),
     Mutation("mag-unused-while-learning", "the magnetometer is not fused while its iron is being learned against "
              "the filter's own attitude, even where the monitor has let it back",
-             "estimator/magnetometer_use.py", "use = monitor_use and not iron.learning", "use = monitor_use",
+             "estimator/magnetometer_use.py", "use = monitor_use and (not iron.learning or iron.offset_held)",
+             "use = monitor_use",
              ("tests/test_magnetometer_use.py", "tests/test_mag_unused_while_learning.py")),
     Mutation("learned-iron-window-yaw", "a learned iron's harmonic prior carries its learning window's yaw "
              "error (the share learned_iron.WindowYawShare propagates), not only the learner's averaged covariance",
@@ -645,8 +646,9 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("mag-use-floor-rate-asked-lazily",
              "the learned floor and the heading rate are worked out at a check only when the rejected-but-fused rule "
              "reads them (asked for, not passed)",
-             "estimator/magnetometer_use.py", "    use = monitor_use and not iron.learning",
-             "    use = learned_floor_var_rad2() is heading_rate_rad_s() or monitor_use and not iron.learning",
+             "estimator/magnetometer_use.py", "    use = monitor_use and (not iron.learning or iron.offset_held)",
+             "    use = learned_floor_var_rad2() is heading_rate_rad_s() or monitor_use and (not iron.learning or "
+             "iron.offset_held)",
              ("tests/test_magnetometer_use.py",)),
     Mutation("iron-level-attitudes-per-yaw-array",
              "the level attitudes IronLearner.level_heading_rows reuses are those of the yaw array asked for (keyed by "
@@ -1239,4 +1241,33 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("boat-trust-yaw-passed", "the filter hands the rule its own yaw variance at the check",
              "estimator/heading_supervision.py", "yaw_var_rad2=float(self._P[core.E_YAW, core.E_YAW]))",
              "yaw_var_rad2=0.0)", ("tests/test_magnetometer_use_yaw.py",)),
+    # ------------------------------------------------------------------ session 40 (pa96)
+    Mutation("pa96-floor-share-averages", "the learned floor's variance left over the trust window is the share a "
+             "Gauss-Markov error keeps in its mean, not all of it",
+             "estimator/slow_floor.py", "return min(1.0, 2.0 * (r - 1.0 + math.exp(-r)) / (r * r))", "return 1.0",
+             ("tests/test_slow_floor.py",)),
+    Mutation("pa96-calibration-not-averaged", "a calibration's own figure, where it is the floor, is not averaged",
+             "estimator/slow_floor.py",
+             "return min(p.calibration_sigma_rad ** 2, share * p.iron_unmodelled_ut ** 2 / h2_ut2)",
+             "return share * min(p.calibration_sigma_rad ** 2, p.iron_unmodelled_ut ** 2 / h2_ut2)",
+             ("tests/test_slow_floor.py",)),
+    Mutation("pa96-trust-slow-floor", "the end of the learning and the heading state count the floor over the window",
+             "estimator/heading_supervision.py",
+             "return slow_floor_var_rad2(self.params, h2, self.monitor.reentry_s) \\",
+             "return self.params.iron_unmodelled_ut ** 2 / h2 \\", ("tests/test_slow_floor_trust.py",)),
+    Mutation("pa96-reentry-slow-floor", "the re-entry and tilt trust at this attitude count the floor over the window",
+             "estimator/heading_supervision.py", "slow_var = mag_var - noise - averaged if",
+             "slow_var = mag_var - noise if", ("tests/test_slow_floor_trust.py",)),
+    Mutation("pa96-never-trusted-slow-floor", "never_trusted_here judges the floor over the window, as the trust "
+             "tests do", "estimator/heading_supervision.py",
+             "return slow_floor_var_rad2(self.params, h2, self.monitor.reentry_s) if h2 > 0.0 else math.inf",
+             "return self.params.iron_unmodelled_ut ** 2 / h2 if h2 > 0.0 else math.inf",
+             ("tests/test_slow_floor_trust.py",)),
+    Mutation("pa96-fused-while-offset-held", "a learned magnetometer the monitor uses is fused while its iron is "
+             "learned once the offset is held", "estimator/magnetometer_use.py",
+             "use = monitor_use and (not iron.learning or iron.offset_held)", "use = monitor_use and not iron.learning",
+             ("tests/test_magnetometer_use.py",)),
+    Mutation("pa96-offset-held-passed", "the filter tells the rule whether the learned iron's offset is held",
+             "estimator/heading_supervision.py", "offset_held=self._iron.offset_held)", "offset_held=False)",
+             ("tests/test_magnetometer_use_yaw.py",)),
 )
