@@ -12,7 +12,12 @@ iron, seed 16, 300 s: the learning runs from ~112 s (a GNSS yaw has confirmed th
 is let back from ~138 s, ~11 % of the run; fused meanwhile, the learning lasts to ~229 s and the heading is 0.52° RMS
 over the 40 s after it (0.44° not fused; 2026-12-07). Seed 15, this test's run until the magnetometer-rotation
 window's tilt term was given the accelerometer bias, now ends its learning 2 s after the magnetometer is let back:
-no stretch left to test."""
+no stretch left to test.
+
+Since pa96 (the trust tests judge the learned floor over the monitor's re-entry window, docs/gnss.md "(pa96)") the
+learning ends at 162.7 s, 6.4 s earlier, with the heading the same in time to 0.01°: the 40 s from its end now
+start where the GNSS has not yet taken out the −0.9° of 140–175 s (0.55° not fused, 0.51° fused while learning).
+The window starts `SETTLE_S` after the end: 0.33° not fused, 0.40° fused while learning (2026-12-07, pa96)."""
 
 from __future__ import annotations
 
@@ -24,7 +29,8 @@ from bench.vehicle_accuracy import estimates_in_arrival_order, honesty_site, sim
 
 SEED, SECONDS = 16, 300.0
 AFTER_S = 40.0              # the window after the learning ends, s
-MAX_RMS_DEG = 0.47          # fused while learning: 0.52°; not: 0.44°
+SETTLE_S = 10.0             # ... starting this long after it, s
+MAX_RMS_DEG = 0.37          # fused while learning: 0.40°; not: 0.33°
 
 
 @pytest.fixture(scope="module")
@@ -64,5 +70,5 @@ def test_the_heading_after_the_learning_is_the_gnss_held_one(boat):
     """Against the truth: the filter's heading did not take in the half-learned iron's error."""
     run, err_deg, learning, _, _ = boat
     end_s = run.t_s[learning][-1]
-    window = (run.t_s >= end_s) & (run.t_s < end_s + AFTER_S)
+    window = (run.t_s >= end_s + SETTLE_S) & (run.t_s < end_s + SETTLE_S + AFTER_S)
     assert np.sqrt(np.mean(err_deg[window] ** 2)) < MAX_RMS_DEG
