@@ -39,7 +39,7 @@ from .gnss_intake import GnssCounters, GnssFixIntake
 from .heading_monitor import HeadingCheckRecord
 from .heading_publication import HeadingReport
 from .iron_in_use import IronInUse
-from .ins_start import (first_fix_in_turn, first_history_row, fresh_state, initial_covariance, initial_true_attitude,
+from .ins_start import (carry_over_fix_delay, first_fix_in_turn, first_history_row, fresh_state, initial_covariance, initial_true_attitude,
                         learned_to_keep, levelling_force, levelling_lean, start_mag_reference, start_sensor_errors)
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
                             float_field_slice, uninitialised_estimate)
@@ -491,6 +491,7 @@ class Ins:
         self._initialised = False
         self._reinit_pending = False
         self._levelled_on_force = False    # the start levelled on the specific force: its first fix acts (_fuse)
+        self._levelled_on_axis = False     # ... on a steady turn's rotation axis: its first fix's velocity is carried
         self._start_t_s = math.nan
         self._pending_flags = 0
         # the fixes offered (update_gnss): taken, queued until the samples reach them, or refused, and counted
@@ -602,6 +603,7 @@ class Ins:
         self._initialised = False
         self._reinit_pending = False
         self._levelled_on_force = False
+        self._levelled_on_axis = False
         self._pending_flags = 0
         self._intake.reset()
         self._published.reset()
@@ -849,6 +851,9 @@ class Ins:
         res, arm_adopted = self._fusion.fuse(fix)
         if res & core.R_NAV_INIT and self._levelled_on_force:
             self._widen_for_turn_lean()
+        elif res & core.R_NAV_INIT and self._levelled_on_axis:
+            self._levelled_on_axis = False
+            carry_over_fix_delay(self._x)      # levelled on a turn's axis the attitude is right: the fix is late
         if arm_adopted:
             # the heading, bent by the wrong arm, is found again as at the start: unconfirmed, aligned to the
             # bank's yaw once valid
@@ -899,6 +904,7 @@ class Ins:
         start_mag_reference(self._x, kept, p.mag_min_undisturbed_s)
         initial_covariance(self._P, p, use_mag, levelling_lean(a_level, m if use_mag else None, p.level_noise_m_s2))
         self._levelled_on_force = a_level is a or np.array_equal(a_level, a)
+        self._levelled_on_axis = not self._levelled_on_force
         self._start_t_s = float(t_s)
         self._heading.restart_calibration_error_states()
         self._restart_companions(t_s)

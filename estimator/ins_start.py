@@ -178,16 +178,23 @@ def level_again(x: np.void, P: np.ndarray, hist: np.ndarray, p: StartSigmas, f_l
     x["q"] = q_new
     c = np.asarray(quat_to_dcm(q_new), dtype=float)
     x["acc_ned_lp_m_s2"] = c @ x["acc_last_m_s2"]
-    # the fix set the velocity it had at its own time, which is this sample's less the fix's delay: levelled on
-    # the force, the attitude saw no horizontal acceleration over that delay, the turn's is C f + g
-    delay_s = float(x["t_last_s"]) - float(x["gnss_fused_t_s"])
-    if 0.0 < delay_s < math.inf:
-        a_ned = c @ np.asarray(x["acc_last_m_s2"], dtype=float)
-        x["vel_ned_m_s"][:2] = x["vel_ned_m_s"][:2] + delay_s * a_ned[:2]
+    # levelled on the force, the attitude saw no horizontal acceleration over the fix's delay
+    carry_over_fix_delay(x)
     residual = abs(float(np.linalg.norm(f_level)) - STANDARD_GRAVITY_M_S2) / STANDARD_GRAVITY_M_S2
     for i in (core.E_TILT_N, core.E_TILT_E):
         restart_uncorrelated(P, i, max(p.init_sigma_tilt_rad, residual) ** 2)
     restart_uncorrelated(P, core.E_YAW, max(p.init_sigma_yaw_rad, p.calibration_sigma_rad) ** 2)
+
+
+def carry_over_fix_delay(x: np.void) -> None:
+    """The first fix set the velocity it had at its own time, which is this sample's less the fix's delay
+    (`t_last_s` − `gnss_fused_t_s`; 0.095 s in the simulator): carried over that delay at the acceleration the
+    attitude now gives, C f + g (its horizontal part), in a turn its centripetal ω × v (0.3–0.6 m/s in 0.095 s in
+    the restarts of docs/estimator.md "bank39")."""
+    delay_s = float(x["t_last_s"]) - float(x["gnss_fused_t_s"])
+    if 0.0 < delay_s < math.inf:
+        a_ned = np.asarray(quat_to_dcm(x["q"]), dtype=float) @ np.asarray(x["acc_last_m_s2"], dtype=float)
+        x["vel_ned_m_s"][:2] = x["vel_ned_m_s"][:2] + delay_s * a_ned[:2]
 
 
 def first_fix_in_turn(x: np.void, P: np.ndarray, hist: np.ndarray, p: StartSigmas, declination_rad: float,
@@ -306,6 +313,6 @@ def initial_covariance(P: np.ndarray, p: StartSigmas, use_mag: bool, lean: Start
         P[core.E_AZ_LEAN + i, core.E_AZ_LEAN + i] = p.accel_axes_tilt_sigma_rad ** 2
 
 
-__all__ = ["LearnedErrors", "StartLean", "StartSigmas", "centripetal_levelling_force", "first_history_row", "fresh_state", "initial_covariance",
+__all__ = ["LearnedErrors", "StartLean", "StartSigmas", "carry_over_fix_delay", "centripetal_levelling_force", "first_history_row", "fresh_state", "initial_covariance",
            "field_dip_rad", "first_fix_in_turn", "first_fix_lean", "initial_true_attitude", "learned_to_keep", "level_again", "levelling_force", "levelling_lean",
            "start_mag_reference", "start_sensor_errors", "widen_for_lean"]

@@ -1180,6 +1180,10 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("bank-lean-tolerance", "the lean the first fix tolerates is relevel_min_lean_rad (5°), not 30°",
              "estimator/gsf_yaw.py", "    if sin_lean <= math.sin(params.relevel_min_lean_rad):",
              "    if sin_lean <= 0.5:", ("tests/test_gsf_yaw_turning_restart.py",)),
+    Mutation("bank-axis-start-velocity-carried", "a start levelled on a turn's axis has its first fix's velocity "
+             "carried over the fix's delay", "estimator/ins.py",
+             "            carry_over_fix_delay(self._x)      # levelled on a turn's axis the attitude is right: the fix is late",
+             "            pass", ("tests/test_turning_start_axis_velocity.py",)),
     # ------------------------------------------------------------------ session 39 (rdc)
     Mutation("reader-split-wait-excluded", "bench/reader_calls.py --split counts the reader's CPU from a wake's "
              "return to the next wait, not the wait itself", "bench/reader_calls.py",
