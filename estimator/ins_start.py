@@ -188,13 +188,22 @@ def level_again(x: np.void, P: np.ndarray, hist: np.ndarray, p: StartSigmas, f_l
 
 def carry_over_fix_delay(x: np.void) -> None:
     """The first fix set the velocity it had at its own time, which is this sample's less the fix's delay
-    (`t_last_s` − `gnss_fused_t_s`; 0.095 s in the simulator): carried over that delay at the acceleration the
-    attitude now gives, C f + g (its horizontal part), in a turn its centripetal ω × v (0.3–0.6 m/s in 0.095 s in
-    the restarts of docs/estimator.md "bank39")."""
+    (`t_last_s` − `gnss_fused_t_s`; 0.095 s in the simulator): carried over that delay as the turn turns it, the
+    horizontal velocity rotated about the vertical by the rate about it (the down row of C times the gyro less its
+    bias) times the delay, the centripetal ω × v (0.3–0.6 m/s in 0.095 s in the restarts of docs/estimator.md
+    "bank39"). Not C f: its horizontal part turns with the start's yaw, which the magnetometer gives through the
+    levelled tilt's error at the dip (20° off at Hobart from a 6.3° tilt error), and a centripetal turned 20° puts
+    1.3 m/s² along the track; the carry then made the next fixes fail the velocity gate (docs/estimator.md
+    "bank2"). The rate about the vertical does not depend on the yaw."""
     delay_s = float(x["t_last_s"]) - float(x["gnss_fused_t_s"])
     if 0.0 < delay_s < math.inf:
-        a_ned = np.asarray(quat_to_dcm(x["q"]), dtype=float) @ np.asarray(x["acc_last_m_s2"], dtype=float)
-        x["vel_ned_m_s"][:2] = x["vel_ned_m_s"][:2] + delay_s * a_ned[:2]
+        c = np.asarray(quat_to_dcm(x["q"]), dtype=float)
+        rate_down_rad_s = float(c[2] @ (np.asarray(x["gyro_last_rad_s"], dtype=float)
+                                        - np.asarray(x["gyro_bias_rad_s"], dtype=float)))
+        turn_rad = rate_down_rad_s * delay_s
+        v_n, v_e = float(x["vel_ned_m_s"][0]), float(x["vel_ned_m_s"][1])
+        x["vel_ned_m_s"][0] = math.cos(turn_rad) * v_n - math.sin(turn_rad) * v_e
+        x["vel_ned_m_s"][1] = math.sin(turn_rad) * v_n + math.cos(turn_rad) * v_e
 
 
 def first_fix_in_turn(x: np.void, P: np.ndarray, hist: np.ndarray, p: StartSigmas, declination_rad: float,

@@ -1243,4 +1243,14 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("boat-trust-yaw-passed", "the filter hands the rule its own yaw variance at the check",
              "estimator/heading_supervision.py", "yaw_var_rad2=float(self._P[core.E_YAW, core.E_YAW]))",
              "yaw_var_rad2=0.0)", ("tests/test_magnetometer_use_yaw.py",)),
+    # ------------------------------------------------------------------ session 40 (bank2)
+    Mutation("bank2-carry-rate-less-bias", "the first fix's velocity turns at the gyro's rate less its learned bias",
+             "estimator/ins_start.py", '- np.asarray(x["gyro_bias_rad_s"], dtype=float)))',
+             '- 0.0 * np.asarray(x["gyro_bias_rad_s"], dtype=float)))', ("tests/test_fix_delay_carry.py",)),
+    Mutation("bank2-carry-about-vertical", "the first fix's velocity turns at the rate about the vertical, not the "
+             "whole rate", "estimator/ins_start.py", "rate_down_rad_s = float(c[2] @ (",
+             "rate_down_rad_s = float(np.linalg.norm(", ("tests/test_fix_delay_carry.py",)),
+    Mutation("bank2-carry-turn-sign", "the first fix's velocity turns the way the vehicle turns",
+             "estimator/ins_start.py", "turn_rad = rate_down_rad_s * delay_s", "turn_rad = -rate_down_rad_s * delay_s",
+             ("tests/test_fix_delay_carry.py",)),
 )
