@@ -76,7 +76,7 @@ class ChipSource(LiveSource):
 
         The common read of the reader process (records, a SampleTimer with its first sample taken) is decoded
         here in one function (`_common_read`): a Python frame less is CPU less after every wake's cold caches
-        (docs/daemon.md "Performance", session 40). Any other read is the driver's and the timer's general path."""
+        (docs/daemon.md "Performance"). Any other read is the driver's and the timer's general path."""
         clock = self.clock
         if clock is not None:
             now = max(now, clock())

@@ -204,7 +204,7 @@ class ThreadedSource(LiveSource):
         """A per-sample source: the hand-over tick, wait for the next sample, read it, hand it over. The read is
         timed (`read_us_max`) and its start is the pacing's last read time. One function for the loop's work
         between two waits (and the pacing's in `wait_for_sample`): every frame less is CPU less after each
-        wake's cold caches (docs/daemon.md "Performance", session 40)."""
+        wake's cold caches (docs/daemon.md "Performance")."""
         failures = ReadFailures()    # when a failed read is a sensor failure (drivers.read_failures)
         pacing = _Pacing(self.inner, self._clock, self._sleep_until_given, 1.0 / self.sample_rate_hz, self.stats,
                          sleep_until_default=self._sleep_until)

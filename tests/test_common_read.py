@@ -45,8 +45,8 @@ class _TamperedChip:
         self.tamper(self.bursts // self.EVERY, words)
         return rx[:2] + struct.pack(">12H", *words)
 
-    def __getattr__(self, name):
-        return getattr(self.chip, name)
+    def close(self) -> None:
+        self.chip.close()
 
 
 def _unusual(n: int, words: list[int]) -> None:
