@@ -13,11 +13,9 @@ import pytest
 from ahrsd.drivers import registers as R
 from ahrsd.drivers.adis16405 import Adis16405
 from ahrsd.drivers.chip_source import ChipSource
-from ahrsd.drivers.errors import DriverError
-from ahrsd.drivers.process_source import pack
 from ahrsd.drivers.sample_timer import StallAwareSampleTimer
 from ahrsd.drivers.simulated import SimulatedAdis16405
-from tools.reader_digest import SEED, _fault_plan, _HostClock, _TimedBus
+from tools.reader_digest import SEED, _fault_plan, _HostClock, _TimedBus, read_once
 
 PERIOD_S = 1.0 / R.sample_rate_hz(R.SMPL_PRD_DEFAULT)
 _DRIVER_STATE = ("counters", "_prev_gx", "_prev_raw9", "_runs", "_stuck", "_any_stuck", "newer_sample_taken",
@@ -83,19 +81,7 @@ class _Reader:
         self.driver.decode_burst = counted
 
     def read(self) -> bytes:
-        rng, src = self.rng, self.src
-        u = rng.random()
-        late = 20e-6 + 60e-6 * rng.random()
-        if u < 0.05:
-            late += 0.25 * PERIOD_S
-        elif u < 0.06:
-            late += (1.0 + 3.0 * rng.random()) * PERIOD_S
-        self.clock.t = max(self.clock.t, src.next_read_time()) + late
-        try:
-            s = src.read_one(self.clock.t)
-        except DriverError as exc:
-            return f"E{type(exc).__name__}:{exc}".encode()
-        return b"-" if s is None else pack([s])
+        return read_once(self.src, self.clock, self.rng, PERIOD_S)
 
     def state(self) -> tuple:
         d = self.driver
