@@ -1036,8 +1036,9 @@ MUTATIONS: tuple[Mutation, ...] = (
     # ------------------------------------------------------------------ session 38 (cpu)
     Mutation("timer-one-question-keeps-state", "the reader's one question to its sample timer leaves the state the "
              "two (index_uncertain, fresh) left", "drivers/sample_timer.py",
-             "        self.lo, self.hi = lo, hi                    # fresh()'s _leak(read_time)",
-             "        self.hi = hi", ("tests/test_timer_fresh_if_certain.py",)),
+             "        self.lo = self._lo_fresh = lo",
+             "        self.lo = self._lo_fresh = self.lo if certain_only else lo",
+             ("tests/test_timer_fresh_if_certain.py",)),
     Mutation("timer-one-question-uncertain", "an uncertain index is not taken by the one question (the chip is asked)",
              "drivers/sample_timer.py", "            return None", "            pass", ("tests/test_timer_fresh_if_certain.py",)),
     Mutation("pipe-one-read-a-look", "a look at the reader process's pipe reads it once",
@@ -1253,4 +1254,30 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("bank2-carry-turn-sign", "the first fix's velocity turns the way the vehicle turns",
              "estimator/ins_start.py", "turn_rad = rate_down_rad_s * delay_s", "turn_rad = -rate_down_rad_s * delay_s",
              ("tests/test_fix_delay_carry.py",)),
+    # ------------------------------------------------------------------ session 40 (rdfast)
+    Mutation("common-read-full-scale", "the reader's common read leaves a frame with an axis at full scale (or beyond "
+             "any plausible reading) to the driver's checks", "drivers/chip_source.py",
+             "or any(map(_ge, map(abs, raw9), driver._full_scale9))):", "or False):", ("tests/test_common_read.py",)),
+    Mutation("common-read-burst-bug", "the reader's common read leaves a frame suspected of the X-gyro burst bug to "
+             "the driver's register check", "drivers/chip_source.py", "if ((not (w1 & 0x2000) and (gx > ",
+             "if ((False and (gx > ", ("tests/test_common_read.py",)),
+    Mutation("common-read-alarm", "the reader's common read leaves a frame with EA set to the driver (DIAG_STAT read)",
+             "drivers/chip_source.py", "or (w0 | w1 | w2 | w3 | w4 | w5 | w6 | w7 | w8 | w9) & _EA",
+             "or (w0 | w1 | w2 | w3 | w4 | w5 | w6 | w7 | w8 | w9) & 0", ("tests/test_common_read.py",)),
+    Mutation("common-read-uncertain-index", "the reader's common read leaves a read whose index the clock leaves open "
+             "to the chip's index check", "drivers/chip_source.py", "timer.fresh_after_first(now, end, True)",
+             "timer.fresh_after_first(now, end, False)", ("tests/test_common_read.py",)),
+    Mutation("common-read-stuck-axis", "the reader's common read flags a stuck axis as the driver does",
+             "drivers/chip_source.py", "flags = _NEW_DATA | driver._check_stuck(raw9)",
+             "flags = _NEW_DATA; driver._check_stuck(raw9)", ("tests/test_common_read.py",)),
+    Mutation("common-read-gap", "the reader's common read flags GAP_BEFORE after lost samples",
+             "drivers/chip_source.py", "            flags |= _GAP_BEFORE", "            flags |= 0",
+             ("tests/test_common_read.py",)),
+    Mutation("pacing-own-sleep-quarter", "the reader's own wait counts a wake a quarter period late",
+             "drivers/threaded_source.py",
+             "if late_s > 0.25 * self.period_s or late_s * 1e6 > self.stats[\"wake_late_max_us\"]:",
+             "if late_s * 1e6 > self.stats[\"wake_late_max_us\"]:", ("tests/test_pacing_own_sleep.py",)),
+    Mutation("pacing-own-sleep-spaced", "the reader's own wait spaces the re-reads of a stalled chip",
+             "drivers/threaded_source.py", "        if self.last_stale:", "        if False:",
+             ("tests/test_pacing_own_sleep.py",)),
 )
