@@ -465,9 +465,8 @@ MUTATIONS: tuple[Mutation, ...] = (
              ("tests/test_heading_status.py", "tests/test_backstepping_aided_car.py")),
     # ------------------------------------------------------------------ session 28 (lead)
     Mutation("lever-arm-rate-cross-sign", "the lever-arm check's antenna velocity is C (ω × r), not C (r × ω)",
-             "estimator/lever_arm_fit.py", "    return c_bn @ skew(rate_b_rad_s)",
-             "    return -(c_bn @ skew(rate_b_rad_s))",
-             ("tests/test_lever_arm_fit.py",)),
+             "estimator/lever_arm_kernel.py", "    rate_cross = c_bn @ skew", "    rate_cross = -(c_bn @ skew)",
+             ("tests/test_lever_arm_kernel.py", "tests/test_lever_arm_fit.py")),
     Mutation("lever-arm-fit-corrections", "the filter's own velocity corrections do not enter the lever-arm fit",
              "estimator/ins_gnss_fusion.py",
              '            self.lever_arm_fit.fused(velocity_step, bool(res & core.R_VEL_REJECTED))',
@@ -1104,11 +1103,6 @@ MUTATIONS: tuple[Mutation, ...] = (
              "estimator/mag_rotation.py", "turned = np.matmul(a, np.matmul(rt_i, moves))[..., 0]",
              "turned = np.matmul(rt_i, np.matmul(a, moves))[..., 0]", ("tests/test_mag_rotation.py",)),
     # ------------------------------------------------------------------ session 38 (fixl)
-    Mutation("mean-rate-row-order", "the arm's mean body rate adds the rows in their order, as numpy's sum does",
-             "estimator/lever_arm_fit.py",
-             "for t, (x, y, z) in zip(np.asarray(t_rows_s).tolist(), np.asarray(rate_rows_rad_s).tolist()):",
-             "for t, (x, y, z) in reversed(list(zip(np.asarray(t_rows_s).tolist(), "
-             "np.asarray(rate_rows_rad_s).tolist()))):", ("tests/test_lever_arm_fit.py",)),
     Mutation("history-search-wrapped", "the kept rows wrapping the ring's end are searched in both runs",
              "estimator/history_rows.py", "    if k < len(older):", "    if k <= len(older):",
              ("tests/test_history_rows.py",)),
@@ -1280,4 +1274,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("pacing-own-sleep-spaced", "the reader's own wait spaces the re-reads of a stalled chip",
              "drivers/threaded_source.py", "        if self.last_stale:", "        if False:",
              ("tests/test_pacing_own_sleep.py",)),
+    # ------------------------------------------------------------------ session 40 (tidy)
+    Mutation("lever-kernel-mean-bits", "the compiled mean body rate is the Python reference's to the bit: the rows' "
+             "sums divided by their count", "estimator/lever_arm_kernel.py", "wx, wy, wz = sx / n, sy / n, sz / n",
+             "wx, wy, wz = sx * (1.0 / n), sy * (1.0 / n), sz * (1.0 / n)", ("tests/test_lever_arm_kernel.py",)),
 )
