@@ -98,7 +98,10 @@ def one_run(job) -> tuple:
     # heading error / published σ from 30 s by turn phase (truth heading rate above TURN_DEG_S, within 30 s after
     # one, later): (sum of squares, samples, samples beyond 3σ) per phase, pooled over seeds by --consistency
     z = hdg / np.degrees(sig)
-    yaw_truth = np.unwrap(eul(run.truth_q_wxyz[keep])[:, 0] * np.pi / 180.0)
+    from scipy.spatial.transform import Rotation
+
+    truth_euler_deg = Rotation.from_quat(run.truth_q_wxyz[keep][:, [1, 2, 3, 0]]).as_euler("ZYX", degrees=True)
+    yaw_truth = np.unwrap(truth_euler_deg[:, 0] * np.pi / 180.0)
     turning = np.abs(np.degrees(np.gradient(yaw_truth, tk))) > TURN_DEG_S
     last_turn = np.maximum.accumulate(np.where(turning, tk, -np.inf))
     phases = {"turning": turning, "0-30 s after a turn": ~turning & (tk - last_turn < 30.0),
