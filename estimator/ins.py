@@ -39,6 +39,7 @@ from .gnss_intake import GnssCounters, GnssFixIntake
 from .heading_monitor import HeadingCheckRecord
 from .heading_publication import HeadingReport
 from .iron_in_use import IronInUse
+from .ins_step_block import fast_step_block
 from .ins_start import (first_fix_in_turn, first_history_row, fresh_state, initial_covariance, initial_true_attitude,
                         learned_to_keep, levelling_force, levelling_lean, start_mag_reference, start_sensor_errors)
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
@@ -440,6 +441,7 @@ _OUT_VEL, _OUT_SIGMA_VEL, _OUT_SIGMA_POS, _OUT_ACCEL_BIAS = (float_field_slice(c
     "vel_ned_m_s", "sigma_vel_m_s", "sigma_pos_m", "accel_bias_m_s2"))
 _OUT_SIGMA_YAW = _OUT_SIGMA.start + 2
 _F_GNSS_AIDED, _F_INITIALISING = core.F_GNSS_AIDED, core.F_INITIALISING   # read per sample: no module lookup
+_BLOCK_MAX = 64      # samples a block step takes at most (a daemon block holds ~12; a longer one takes more calls)
 
 
 class Ins:
@@ -509,6 +511,11 @@ class Ins:
         self._gsf = self._gsf_arr[0]
         self._par["gnss_yaw"] = 1.0 if self.params.gnss_yaw else 0.0
         self._step = core.fast_step(self._step_args_example())
+        # a run of a block's samples through the kernel in one call (step_block), each sample's outputs and flags
+        # kept for the published heading's per-sample slew
+        self._block_outs = np.zeros((_BLOCK_MAX, self._out_flat.shape[0]))
+        self._block_flags = np.zeros(_BLOCK_MAX, np.int64)
+        self._step_block = fast_step_block(self._step_block_args_example())
         self._load_python_called_kernels()
         # a usable fix into the state, the lever-arm check, the velocity a yaw reset sets (ins_gnss_fusion.py)
         self._fusion = InsGnssFusion(self._x_arr, self._P, self._hist, self._par_arr, self._gsf_arr,
@@ -545,6 +552,14 @@ class Ins:
         return (x, np.eye(core.N_ERR), np.zeros(core.H_LEN, core.INS_HISTORY_DTYPE), self._par_arr.copy(),
                 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, -9.8, 20.0, 0.0, 40.0, 0, np.zeros(1, core.INS_OUT_DTYPE), gsf,
                 self._gsf_par_arr)
+
+    def _step_block_args_example(self) -> tuple:
+        """Scratch arguments of the block step's types (the filter's own arrays stay untouched)."""
+        x, P, hist, par = self._step_args_example()[:4]
+        out = np.zeros(1, core.INS_OUT_DTYPE)
+        gsf = _one_record_array(new_gsf_state(GsfParams(), 0.0))
+        return (x, P, hist, par, np.zeros(1), np.zeros((1, 9)), np.zeros(1, np.int64), 0.0, out, out.view(np.float64),
+                gsf, self._gsf_par_arr, np.zeros_like(self._block_outs), np.zeros_like(self._block_flags))
 
     def _load_python_called_kernels(self) -> None:
         """Load the kernels this class calls from Python (numba's on-disk cache) for the types it calls them with,
@@ -817,6 +832,43 @@ class Ins:
             return self._view
         return self._stepped(sample.t_s, self._after_init_flags() | extra)
 
+    def step_block(self, t_s: np.ndarray, rows: np.ndarray,
+                   sample_flags: np.ndarray) -> tuple[list, EstimateView] | None:
+        """The samples t_s (n,) float64, rows (n, 9) float64 (gyro rad/s, accel m/s², mag µT; C-contiguous) and
+        sample_flags (n,) int64 stepped from the first as `step` would step them one by one, in one compiled call
+        as far as nothing between two samples needs Python (ins_step_block.py): up to a queued fix falling due, the
+        field-circle check's next sample (before the first fix), a sample that needs the filter (re)started, at most
+        _BLOCK_MAX. Returns the stepped samples' estimate flags
+        (k of them, maybe none: step the next sample with `step`) and the view, left at the last of them (None:
+        none is stepped in a run while the filter is not started or records its start: step the samples with
+        `step`); a
+        caller that hands on each sample's estimate sets the view to each in turn (`view.set(t_s[j], flags[j],
+        True)`): its flags are that sample's, but a snapshot built from it is the last sample's (the filter has
+        moved on), so a caller that builds one at every sample steps sample by sample. Output-identical to `step`
+        (tests/test_ins_step_block.py)."""
+        if not self._initialised or self._start_recording is not None:     # the start's recording keeps every sample
+            return None
+        queue = self._fix_queue
+        # `step` fuses a queued fix after the first sample that reaches it (the intake queues only fixes ahead of
+        # the samples), and before the first fix checks the field circle at the first sample from its due time on:
+        # that sample is stepped alone
+        stop_t_s = float(queue[0].t_s) if queue else math.inf
+        if self._field_circle_on and not self._heading.ever_aided:
+            stop_t_s = min(stop_t_s, self._field_circle.due_t_s)
+        k = self._step_block(self._x_arr, self._P, self._hist, self._par_arr, t_s, rows, sample_flags, stop_t_s,
+                             self._out_arr, self._out_flat, self._gsf_arr, self._gsf_par_arr, self._block_outs,
+                             self._block_flags)
+        if not k:
+            return [], self._view
+        flags = self._block_flags[:k].tolist()
+        outs = self._block_outs[:k, _OUT_RATE_TO_EULER].tolist()
+        times = t_s[:k].tolist()
+        after = self._after_step
+        for j in range(k):
+            flags[j] = after(times[j], flags[j], outs[j])
+        self._view.set(times[-1], flags[-1], True)
+        return flags, self._view
+
     # ----------------------------------------------------------------------- GNSS
     def update_gnss(self, fix: GnssFix) -> int:
         """Offer one fix. Returns core.R_* bits (0 when it was not fused or was held for later). Bad fixes
@@ -1015,9 +1067,15 @@ class Ins:
         return f
 
     def _stepped(self, t_s: float, f: int) -> EstimateView:
-        """What moves with every sample (the published-heading slew integrates over sample time, so what is
-        published does not depend on how often an estimate is built); the estimate itself is built on demand
-        (`_build_estimate`)."""
+        """What moves with every sample (`_after_step`); the estimate itself is built on demand (`_build_estimate`)."""
+        self._view.set(t_s, self._after_step(t_s, f, None), True)
+        return self._view
+
+    def _after_step(self, t_s: float, f: int, r: list | None) -> int:
+        """What follows every stepped sample in Python, given its flags and its outputs from rate to Euler angles
+        (`r`; None: the kernel's latest, read here only when needed): the flags held for the next estimate merged,
+        the first aided sample told to the heading checks, the published-heading slew (it integrates over sample
+        time, so what is published does not depend on how often an estimate is built). Returns the flags."""
         if self._pending_flags:
             f |= self._pending_flags
             self._pending_flags = 0
@@ -1026,11 +1084,11 @@ class Ins:
         # nothing published since the filter started (INITIALISING from its start): the published heading follows
         # the filter, as _restart_companions left it reset (it moves only in `update`, not called until then)
         if self._published_since_init or not f & _F_INITIALISING:
-            r = self._out_flat[_OUT_RATE_TO_EULER].tolist()     # one call: rate first, then σ, …, Euler angles last
+            if r is None:
+                r = self._out_flat[_OUT_RATE_TO_EULER].tolist()  # one call: rate first, then σ, …, Euler angles last
             self._published.update(t_s, r[-1], r[-3], r[-2], r, r[_STEP_SIGMA_YAW])
             self._published_since_init = True
-        self._view.set(t_s, f, True)
-        return self._view
+        return f
 
     def _build_estimate(self, t_s: float, f: int, initialised: bool) -> AttitudeEstimate:
         """The AttitudeEstimate of the sample stepped last (EstimateView.snapshot)."""

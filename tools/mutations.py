@@ -1114,6 +1114,22 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("history-search-nan", "a NaN time has no kept row at or before it, as the kernel's walk finds",
              "estimator/history_rows.py", "    if not t_s == t_s:", "    if False:",
              ("tests/test_history_rows.py",)),
+    # ------------------------------------------------------------------ session 40 (blk)
+    Mutation("blk-fix-due-sample-alone", "a run of samples stops before the sample a queued fix falls due at (stepped "
+             "alone, the fix fused after it)", "estimator/ins_step_block.py", "        if t >= stop_t_s:",
+             "        if t > stop_t_s:", ("tests/test_ins_step_block.py",)),
+    Mutation("blk-field-circle-sample-alone", "before the first fix a run stops before the field-circle check's "
+             "next sample", "estimator/ins.py", "            stop_t_s = min(stop_t_s, self._field_circle.due_t_s)",
+             "            stop_t_s = stop_t_s", ("tests/test_ins_step_block.py",)),
+    Mutation("blk-run-end", "the pipeline hands on every sample of a run once and steps none of them again",
+             "daemon/pipeline.py", "run_first, ahead = i, i + len(run_flags)",
+             "run_first, ahead = i, i + len(run_flags) - 1", ("tests/test_ins_step_block.py",)),
+    Mutation("blk-published-per-sample-outputs", "the published heading's slew is fed each stepped sample's own "
+             "outputs", "estimator/ins.py", "            flags[j] = after(times[j], flags[j], outs[j])",
+             "            flags[j] = after(times[j], flags[j], outs[-1])", ("tests/test_ins_step_block.py",)),
+    Mutation("blk-listener-unsaid", "a listener that did not say it lets the estimator step ahead keeps the block "
+             "stepped sample by sample", "daemon/sample_reader.py", "            if allowed is None or not allowed():",
+             "            if allowed is not None and not allowed():", ("tests/test_ins_step_block.py",)),
     # ------------------------------------------------------------------ session 39 (fixc)
     Mutation("lever-kernel-bracket-weight", "the compiled innovation interpolates the history with the newer row's "
              "weight", "estimator/ins_core.py", "return j, i, (t - tj) / (t_rows[i] - tj)",
